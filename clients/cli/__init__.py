@@ -1,0 +1,56 @@
+"""The `fpscan` command line: one entry point, one module per subcommand.
+
+Every module in this package that defines ``COMMAND`` (the subcommand's name),
+``HELP`` (one line), ``add_arguments(parser)`` and ``run(args) -> int`` is a
+subcommand. Modules must import heavy dependencies inside ``run`` so that
+``fpscan --help`` stays fast.
+
+Exit codes: 0 success, 1 failure (one-line reason on stderr), 2 usage error.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import pkgutil
+import sys
+
+
+def _subcommand_modules():
+    for info in sorted(pkgutil.iter_modules(__path__), key=lambda m: m.name):
+        if info.name.startswith("_"):
+            continue
+        module = importlib.import_module(f"{__name__}.{info.name}")
+        if hasattr(module, "COMMAND") and hasattr(module, "run"):
+            yield module
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="fpscan",
+        description="Planar Fabry-Perot photoacoustic scanning: plan, acquire, reconstruct, serve.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for module in _subcommand_modules():
+        p = sub.add_parser(module.COMMAND, help=module.HELP, description=module.HELP)
+        module.add_arguments(p)
+        p.set_defaults(_run=module.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        code = args._run(args)
+    except KeyboardInterrupt:
+        print("fpscan: interrupted", file=sys.stderr)
+        return 130
+    except (ValueError, OSError, RuntimeError) as exc:
+        print(f"fpscan {args.command}: error: {exc}", file=sys.stderr)
+        return 1
+    return int(code or 0)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,9 @@
+#!/usr/bin/env bash
+# Set up everything from scratch (a virtual environment with fpscan) and run the
+# end-to-end demo; outputs land in ./demo-output/.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+python3 -m venv .venv
+.venv/bin/python -m pip install -q --upgrade pip
+.venv/bin/python -m pip install -q -e .
+exec .venv/bin/fpscan demo --out demo-output "$@"

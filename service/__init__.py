@@ -1,0 +1,2 @@
+"""fpscan server side: reconstruction (`service.recon`), sensor masks and plans
+(`service.plans`), metrics, storage, the job store and the HTTP API."""
