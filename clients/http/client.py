@@ -1,0 +1,683 @@
+"""Typed Python client for the fpscan HTTP API (``docs/api.md``), sync and async.
+
+Both :class:`Client` and :class:`AsyncClient` offer the same methods; every endpoint is
+written once as a *sans-I/O* generator (it yields request descriptions and receives the
+responses), and each client drives those generators with ``httpx`` (blocking or
+``asyncio``). Waiting on jobs listens to the Server-Sent Events stream
+``/api/jobs/{id}/events`` (reconnecting with ``Last-Event-ID``; falling back to polling
+when the stream is unavailable) and reports progress through a callback.
+
+Responses are parsed into the service's own pydantic models (``service.api.models``)
+when the service package is installed alongside, so client and server share one
+definition; otherwise (a client-only install) they are returned as plain ``dict``.
+
+Errors: :class:`~clients.http.errors.ServerUnavailable` when the server cannot be reached,
+:class:`~clients.http.errors.ApiError` (and its subclasses ``AuthError``, ``NotFound``,
+``Conflict``) carrying the server's ``detail`` for every 4xx/5xx,
+:class:`~clients.http.errors.JobFailed` / ``JobCancelled`` / ``WaitTimeout`` from
+:meth:`Client.wait`.
+
+Example::
+
+    from clients.http import Client
+    with Client("http://127.0.0.1:8000", token="s3cret") as api:
+        plan = api.create_plan({...})
+        job = api.start_scan(plan_id, "sim")
+        api.wait(job_id, on_progress=print)
+        api.download_scan(job_id, "scan.h5")
+"""
+from __future__ import annotations
+
+import asyncio
+import functools
+import json
+import os
+import time
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterator, Mapping
+
+import httpx
+
+from .errors import (
+    ApiError,
+    JobCancelled,
+    JobFailed,
+    ServerUnavailable,
+    WaitTimeout,
+    error_for_status,
+)
+
+TERMINAL_STATES = frozenset({"succeeded", "failed", "cancelled"})
+MIP_PLANES = ("xy", "xz", "yz")
+DATASET_FORMATS = ("fpscan", "ipasc", "kwave-hdf5", "npy")
+
+ProgressCallback = Callable[[dict], Any]
+
+
+# --------------------------------------------------------------------------- helpers
+def _models():
+    try:
+        from service.api import models  # noqa: PLC0415 - optional, shared with the service
+    except Exception:  # pragma: no cover - client-only install or service not built yet
+        return None
+    return models
+
+
+def as_model(name: str, data: Any) -> Any:
+    """``data`` parsed into ``service.api.models.<name>`` when it exists, else as is."""
+    models = _models()
+    cls = getattr(models, name, None) if models is not None else None
+    if cls is None or not isinstance(data, (dict, list)):
+        return data
+    try:
+        return cls.model_validate(data)
+    except Exception:  # the server is newer/older than this client: keep the raw data
+        return data
+
+
+def field_of(obj: Any, name: str, default: Any = None) -> Any:
+    """Read ``name`` from a model or a dict (responses are either)."""
+    if obj is None:
+        return default
+    if isinstance(obj, Mapping):
+        return obj.get(name, default)
+    return getattr(obj, name, default)
+
+
+def to_dict(obj: Any) -> Any:
+    """A JSON-able ``dict`` from a model or a dict."""
+    if hasattr(obj, "model_dump"):
+        return obj.model_dump(mode="json")
+    return obj
+
+
+def _jsonable(body: Any) -> Any:
+    return to_dict(body) if hasattr(body, "model_dump") else body
+
+
+@dataclass
+class _Req:
+    method: str
+    path: str
+    json: Any = None
+    params: dict | None = None
+    headers: dict = field(default_factory=dict)
+    files: Any = None
+    data: Any = None
+
+
+@dataclass
+class _Download:
+    req: _Req
+    dest: Path
+
+
+def _detail(response: httpx.Response) -> Any:
+    try:
+        body = response.json()
+    except ValueError:
+        text = response.text.strip()
+        return text[:500] or response.reason_phrase
+    if isinstance(body, dict) and "detail" in body:
+        return body["detail"]
+    return body
+
+
+def _raise_for(response: httpx.Response) -> None:
+    if response.status_code >= 400:
+        raise error_for_status(
+            response.status_code,
+            _detail(response),
+            method=response.request.method,
+            url=str(response.request.url),
+        )
+
+
+def _job_id_from(response: httpx.Response) -> str | None:
+    try:
+        body = response.json()
+    except ValueError:
+        body = None
+    if isinstance(body, dict):
+        for key in ("id", "job_id"):
+            if body.get(key):
+                return str(body[key])
+    loc = response.headers.get("location", "")
+    if "/api/jobs/" in loc:
+        return loc.rstrip("/").rsplit("/", 1)[-1]
+    return None
+
+
+def _idem(headers: dict, key: str | None) -> dict:
+    headers = dict(headers)
+    headers["Idempotency-Key"] = key or uuid.uuid4().hex
+    return headers
+
+
+def _part_path(dest: Path) -> Path:
+    return dest.with_name(dest.name + ".part")
+
+
+# --------------------------------------------------------------------------- endpoints
+class _Endpoints:
+    """Every endpoint once, as a generator: ``response = yield _Req(...)``."""
+
+    # -- health
+    def health(self):
+        """``GET /api/health`` -> ``{"status": "ok", "version": ...}``."""
+        r = yield _Req("GET", "/api/health")
+        return r.json()
+
+    # -- plans
+    def create_plan(self, body: Mapping | Any):
+        """``POST /api/plans``: create a plan from mask parameters or a point list
+        (the body of ``service.api.models`` ``PlanCreate``) -> the Plan (201)."""
+        r = yield _Req("POST", "/api/plans", json=_jsonable(body))
+        return as_model("Plan", r.json())
+
+    def preview_plan(self, body: Mapping | Any):
+        """``POST /api/plans/preview``: same body, nothing saved -> ``{points,
+        weight_ratio, expected_scan_time_s, preview_png_base64}``."""
+        r = yield _Req("POST", "/api/plans/preview", json=_jsonable(body))
+        return as_model("PlanPreview", r.json())
+
+    def list_plans(self):
+        """``GET /api/plans`` -> list of Plans."""
+        r = yield _Req("GET", "/api/plans")
+        body = r.json()
+        items = body.get("items", body) if isinstance(body, dict) else body
+        return [as_model("Plan", p) for p in items]
+
+    def get_plan(self, plan_id: str):
+        """``GET /api/plans/{plan_id}`` -> the Plan."""
+        r = yield _Req("GET", f"/api/plans/{plan_id}")
+        return as_model("Plan", r.json())
+
+    def download_plan_preview(self, plan_id: str, dest: str | os.PathLike):
+        """``GET /api/plans/{plan_id}/preview.png`` saved to ``dest`` -> Path."""
+        return (yield _Download(_Req("GET", f"/api/plans/{plan_id}/preview.png"), Path(dest)))
+
+    # -- scanners and scans
+    def scanners(self):
+        """``GET /api/scanners`` -> the configured serial devices and their status."""
+        r = yield _Req("GET", "/api/scanners")
+        body = r.json()
+        items = body.get("items", body) if isinstance(body, dict) and "items" in body else body
+        return [as_model("Scanner", s) for s in items] if isinstance(items, list) else items
+
+    def start_scan(self, plan_id: str, scanner_id: str, *, idempotency_key: str | None = None,
+                   **extra: Any):
+        """``POST /api/scans`` ``{plan_id, scanner_id}`` -> the new scan job's id (202).
+
+        ``idempotency_key``: same key -> same job (default: a fresh random key)."""
+        body = {"plan_id": plan_id, "scanner_id": scanner_id, **extra}
+        r = yield _Req("POST", "/api/scans", json=body, headers=_idem({}, idempotency_key))
+        return _job_id_from(r)
+
+    def pause_scan(self, job_id: str):
+        """``POST /api/scans/{job_id}/pause``."""
+        r = yield _Req("POST", f"/api/scans/{job_id}/pause")
+        return r.json() if r.content else None
+
+    def resume_scan(self, job_id: str):
+        """``POST /api/scans/{job_id}/resume``."""
+        r = yield _Req("POST", f"/api/scans/{job_id}/resume")
+        return r.json() if r.content else None
+
+    def abort_scan(self, job_id: str):
+        """``POST /api/scans/{job_id}/abort``."""
+        r = yield _Req("POST", f"/api/scans/{job_id}/abort")
+        return r.json() if r.content else None
+
+    def download_scan(self, job_id: str, dest: str | os.PathLike):
+        """``GET /api/scans/{job_id}/file`` (the scan file, HDF5) saved to ``dest``."""
+        return (yield _Download(_Req("GET", f"/api/scans/{job_id}/file"), Path(dest)))
+
+    def download_ipasc(self, job_id: str, dest: str | os.PathLike):
+        """``GET /api/scans/{job_id}/ipasc`` (IPASC HDF5 export) saved to ``dest``."""
+        return (yield _Download(_Req("GET", f"/api/scans/{job_id}/ipasc"), Path(dest)))
+
+    def scan_preview(self, job_id: str):
+        """``GET /api/scans/{job_id}/preview`` -> ``{version, points_used, updated}``."""
+        r = yield _Req("GET", f"/api/scans/{job_id}/preview")
+        return r.json()
+
+    def download_scan_preview(self, job_id: str, plane: str, dest: str | os.PathLike):
+        """``GET /api/scans/{job_id}/preview/{plane}.png`` (live MIP) saved to ``dest``."""
+        _check_plane(plane)
+        return (yield _Download(_Req("GET", f"/api/scans/{job_id}/preview/{plane}.png"), Path(dest)))
+
+    # -- datasets and reconstructions
+    def upload_dataset(self, path: str | os.PathLike, format: str = "fpscan", **fields: Any):
+        """``POST /api/datasets`` (multipart: ``file``, ``format`` and spacings such as
+        ``dx``, ``dy``, ``dt``, ``c`` in SI units) -> the dataset id (201).
+
+        Raises ``ValueError`` for an unknown format or a missing file."""
+        if format not in DATASET_FORMATS:
+            raise ValueError(f"format must be one of {', '.join(DATASET_FORMATS)}, not {format!r}")
+        p = Path(path)
+        if not p.is_file():
+            raise ValueError(f"no such file: {p}")
+        data = {"format": format, **{k: str(v) for k, v in fields.items() if v is not None}}
+        with open(p, "rb") as fh:
+            content = fh.read()
+        r = yield _Req("POST", "/api/datasets", data=data,
+                       files={"file": (p.name, content, "application/octet-stream")})
+        body = r.json()
+        return str(body.get("dataset_id") or body.get("id"))
+
+    def start_reconstruction(self, *, scan_job_id: str | None = None, dataset_id: str | None = None,
+                             method: str = "nedner", params: Mapping | None = None,
+                             idempotency_key: str | None = None):
+        """``POST /api/reconstructions`` -> the reconstruction job's id (202).
+
+        Exactly one of ``scan_job_id`` / ``dataset_id``; ``method`` one of the
+        ``service.recon`` methods (``ner``, ``nedner``, ``linear``, ...); ``params`` the
+        recon options (``eps``, ``dtype``, ``upsample``, ``positivity``, ...).
+        Raises ``ValueError`` when both or neither input is given."""
+        if (scan_job_id is None) == (dataset_id is None):
+            raise ValueError("give exactly one of scan_job_id or dataset_id")
+        body: dict[str, Any] = {"method": method, "params": dict(params or {})}
+        if scan_job_id is not None:
+            body["scan_job_id"] = scan_job_id
+        else:
+            body["dataset_id"] = dataset_id
+        r = yield _Req("POST", "/api/reconstructions", json=body,
+                       headers=_idem({}, idempotency_key))
+        return _job_id_from(r)
+
+    def download_volume(self, job_id: str, dest: str | os.PathLike):
+        """``GET /api/reconstructions/{job_id}/volume.h5`` saved to ``dest``."""
+        return (yield _Download(_Req("GET", f"/api/reconstructions/{job_id}/volume.h5"), Path(dest)))
+
+    def download_mip(self, job_id: str, plane: str, dest: str | os.PathLike):
+        """``GET /api/reconstructions/{job_id}/mip/{plane}.png`` saved to ``dest``."""
+        _check_plane(plane)
+        return (yield _Download(_Req("GET", f"/api/reconstructions/{job_id}/mip/{plane}.png"), Path(dest)))
+
+    def download_slice(self, job_id: str, index: int, dest: str | os.PathLike):
+        """``GET /api/reconstructions/{job_id}/slice.png?index=k`` saved to ``dest``."""
+        req = _Req("GET", f"/api/reconstructions/{job_id}/slice.png", params={"index": int(index)})
+        return (yield _Download(req, Path(dest)))
+
+    # -- jobs
+    def list_jobs(self, *, state: str | None = None, kind: str | None = None):
+        """``GET /api/jobs?state=&kind=`` -> list of Jobs."""
+        params = {k: v for k, v in (("state", state), ("kind", kind)) if v}
+        r = yield _Req("GET", "/api/jobs", params=params or None)
+        body = r.json()
+        items = body.get("items", body) if isinstance(body, dict) else body
+        return [as_model("Job", j) for j in items]
+
+    def get_job(self, job_id: str):
+        """``GET /api/jobs/{job_id}`` -> the Job (``id, kind, state, progress, timings,
+        params, links, error``)."""
+        r = yield _Req("GET", f"/api/jobs/{job_id}")
+        return as_model("Job", r.json())
+
+    def cancel_job(self, job_id: str):
+        """``POST /api/jobs/{job_id}/cancel`` (cooperative) -> the Job."""
+        r = yield _Req("POST", f"/api/jobs/{job_id}/cancel")
+        return as_model("Job", r.json()) if r.content else None
+
+
+def _check_plane(plane: str) -> None:
+    if plane not in MIP_PLANES:
+        raise ValueError(f"plane must be one of {', '.join(MIP_PLANES)}, not {plane!r}")
+
+
+def _parse_event(sse) -> tuple[str, dict]:
+    try:
+        data = json.loads(sse.data) if sse.data else {}
+    except ValueError:
+        data = {"message": sse.data}
+    if not isinstance(data, dict):
+        data = {"value": data}
+    return sse.event or "message", data
+
+
+def _progress_of(data: dict) -> dict:
+    prog = data.get("progress")
+    return prog if isinstance(prog, dict) else data
+
+
+def _finish(job: Any) -> Any:
+    state = field_of(job, "state")
+    if state == "failed":
+        err = field_of(job, "error") or "no reason given"
+        raise JobFailed(job, f"job {field_of(job, 'id')} failed: {err}")
+    if state == "cancelled":
+        raise JobCancelled(job, f"job {field_of(job, 'id')} was cancelled")
+    return job
+
+
+_ENDPOINTS = [n for n, v in vars(_Endpoints).items() if callable(v) and not n.startswith("_")]
+
+
+# --------------------------------------------------------------------------- sync
+class _BaseClient:
+    def __init__(self, base_url: str | None = None, *, token: str | None = None,
+                 timeout: float = 30.0):
+        base_url = base_url or os.environ.get("FPSCAN_SERVER") or "http://127.0.0.1:8000"
+        if not base_url.startswith(("http://", "https://")):
+            raise ValueError(f"server URL must start with http:// or https://, not {base_url!r}")
+        self.base_url = base_url.rstrip("/")
+        self.token = token if token is not None else os.environ.get("FPSCAN_TOKEN") or None
+        self.timeout = timeout
+
+    def _headers(self) -> dict:
+        h = {"Accept": "application/json"}
+        if self.token:
+            h["Authorization"] = f"Bearer {self.token}"
+        return h
+
+    def _unavailable(self, exc: Exception) -> ServerUnavailable:
+        reason = str(exc) or type(exc).__name__
+        return ServerUnavailable(self.base_url, reason)
+
+
+def _sync_method(gen_fn):
+    @functools.wraps(gen_fn)
+    def method(self, *args, **kwargs):
+        return self._drive(gen_fn(self, *args, **kwargs))
+    return method
+
+
+def _async_method(gen_fn):
+    @functools.wraps(gen_fn)
+    async def method(self, *args, **kwargs):
+        return await self._drive(gen_fn(self, *args, **kwargs))
+    return method
+
+
+class Client(_BaseClient):
+    """Blocking client. ``base_url`` defaults to ``$FPSCAN_SERVER`` or
+    ``http://127.0.0.1:8000``; ``token`` to ``$FPSCAN_TOKEN``; ``timeout`` in seconds
+    per request. Use as a context manager or call :meth:`close`.
+
+    Raises ``ValueError`` for a malformed URL."""
+
+    def __init__(self, base_url: str | None = None, *, token: str | None = None,
+                 timeout: float = 30.0):
+        super().__init__(base_url, token=token, timeout=timeout)
+        self._http = httpx.Client(base_url=self.base_url, timeout=timeout, headers=self._headers())
+
+    def close(self) -> None:
+        self._http.close()
+
+    def __enter__(self) -> "Client":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # -- transport
+    def _send(self, req: _Req) -> httpx.Response:
+        try:
+            r = self._http.request(req.method, req.path, json=req.json, params=req.params,
+                                   headers=req.headers, files=req.files, data=req.data)
+        except httpx.TransportError as exc:
+            raise self._unavailable(exc) from None
+        _raise_for(r)
+        return r
+
+    def _download(self, op: _Download) -> Path:
+        dest = op.dest
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        part = _part_path(dest)
+        try:
+            with self._http.stream(op.req.method, op.req.path, params=op.req.params) as r:
+                if r.status_code >= 400:
+                    r.read()
+                    _raise_for(r)
+                with open(part, "wb") as fh:
+                    for chunk in r.iter_bytes(1 << 20):
+                        fh.write(chunk)
+        except httpx.TransportError as exc:
+            part.unlink(missing_ok=True)
+            raise self._unavailable(exc) from None
+        except BaseException:
+            part.unlink(missing_ok=True)
+            raise
+        os.replace(part, dest)
+        return dest
+
+    def _drive(self, gen):
+        try:
+            op = next(gen)
+            while True:
+                result = self._download(op) if isinstance(op, _Download) else self._send(op)
+                op = gen.send(result)
+        except StopIteration as stop:
+            return stop.value
+
+    # -- events and waiting
+    def events(self, job_id: str, *, last_event_id: str | None = None,
+               read_timeout: float = 30.0) -> Iterator[tuple[str, dict, str | None]]:
+        """Iterate ``(event, data, id)`` from ``GET /api/jobs/{job_id}/events`` until the
+        server closes the stream. ``data`` is the decoded JSON payload. Raises
+        :class:`ApiError` (e.g. 404 unknown job) or :class:`ServerUnavailable`."""
+        from httpx_sse import connect_sse
+
+        headers = {"Last-Event-ID": last_event_id} if last_event_id else {}
+        timeout = httpx.Timeout(self.timeout, read=read_timeout)
+        try:
+            with connect_sse(self._http, "GET", f"/api/jobs/{job_id}/events",
+                             headers=headers, timeout=timeout) as source:
+                if source.response.status_code >= 400:
+                    source.response.read()
+                    _raise_for(source.response)
+                for sse in source.iter_sse():
+                    event, data = _parse_event(sse)
+                    yield event, data, sse.id or None
+        except httpx.TransportError as exc:
+            raise self._unavailable(exc) from None
+
+    def wait(self, job_id: str, *, on_progress: ProgressCallback | None = None,
+             timeout: float | None = None, poll_interval: float = 0.5, raise_on_failure: bool = True):
+        """Block until job ``job_id`` ends; return its final Job.
+
+        Listens to the SSE stream (reconnecting with ``Last-Event-ID`` when it drops),
+        calling ``on_progress(progress: dict)`` for every progress update (keys
+        ``fraction, stage, points_done, points_total, rate_per_s, eta_s``); falls back to
+        polling ``GET /api/jobs/{id}`` every ``poll_interval`` s when the stream is not
+        available. ``timeout`` in seconds (None: no limit).
+
+        Raises :class:`JobFailed` / :class:`JobCancelled` (unless ``raise_on_failure`` is
+        False), :class:`WaitTimeout`, :class:`ApiError`, :class:`ServerUnavailable`."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        last_id: str | None = None
+        use_sse = True
+        job = self.get_job(job_id)
+        while True:
+            if field_of(job, "state") in TERMINAL_STATES:
+                return _finish(job) if raise_on_failure else job
+            if deadline is not None and time.monotonic() > deadline:
+                raise WaitTimeout(f"job {job_id} still {field_of(job, 'state')} after {timeout} s")
+            if on_progress is not None and field_of(job, "progress") is not None:
+                on_progress(to_dict(field_of(job, "progress")))
+            if use_sse:
+                remaining = None if deadline is None else max(0.5, deadline - time.monotonic())
+                read_timeout = min(10.0, remaining) if remaining is not None else 10.0
+                n_events = 0
+                stream = self.events(job_id, last_event_id=last_id, read_timeout=read_timeout)
+                try:
+                    for event, data, eid in stream:
+                        n_events += 1
+                        last_id = eid or last_id
+                        if event == "progress" and on_progress is not None:
+                            on_progress(_progress_of(data))
+                        if data.get("state") in TERMINAL_STATES:
+                            break
+                        if deadline is not None and time.monotonic() > deadline:
+                            break
+                except ServerUnavailable:
+                    pass  # dropped or idle stream: the get_job below tells which
+                except ApiError as exc:
+                    if exc.status_code == 404:
+                        self.get_job(job_id)  # NotFound propagates for an unknown job
+                        use_sse = False
+                    elif exc.status_code in (405, 501):
+                        use_sse = False
+                    else:
+                        raise
+                except Exception:  # a malformed stream: poll instead
+                    use_sse = False
+                finally:
+                    stream.close()
+                if n_events == 0:
+                    time.sleep(poll_interval)
+            else:
+                time.sleep(poll_interval)
+            job = self.get_job(job_id)
+
+
+for _name in _ENDPOINTS:
+    setattr(Client, _name, _sync_method(getattr(_Endpoints, _name)))
+
+
+# --------------------------------------------------------------------------- async
+class AsyncClient(_BaseClient):
+    """``asyncio`` client with the same methods as :class:`Client` (all coroutines;
+    :meth:`events` is an async iterator). Use ``async with`` or ``await aclose()``."""
+
+    def __init__(self, base_url: str | None = None, *, token: str | None = None,
+                 timeout: float = 30.0):
+        super().__init__(base_url, token=token, timeout=timeout)
+        self._http = httpx.AsyncClient(base_url=self.base_url, timeout=timeout,
+                                       headers=self._headers())
+
+    async def aclose(self) -> None:
+        await self._http.aclose()
+
+    async def __aenter__(self) -> "AsyncClient":
+        return self
+
+    async def __aexit__(self, *exc) -> None:
+        await self.aclose()
+
+    async def _send(self, req: _Req) -> httpx.Response:
+        try:
+            r = await self._http.request(req.method, req.path, json=req.json, params=req.params,
+                                         headers=req.headers, files=req.files, data=req.data)
+        except httpx.TransportError as exc:
+            raise self._unavailable(exc) from None
+        _raise_for(r)
+        return r
+
+    async def _download(self, op: _Download) -> Path:
+        dest = op.dest
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        part = _part_path(dest)
+        try:
+            async with self._http.stream(op.req.method, op.req.path, params=op.req.params) as r:
+                if r.status_code >= 400:
+                    await r.aread()
+                    _raise_for(r)
+                with open(part, "wb") as fh:
+                    async for chunk in r.aiter_bytes(1 << 20):
+                        fh.write(chunk)
+        except httpx.TransportError as exc:
+            part.unlink(missing_ok=True)
+            raise self._unavailable(exc) from None
+        except BaseException:
+            part.unlink(missing_ok=True)
+            raise
+        os.replace(part, dest)
+        return dest
+
+    async def _drive(self, gen):
+        try:
+            op = next(gen)
+            while True:
+                if isinstance(op, _Download):
+                    result = await self._download(op)
+                else:
+                    result = await self._send(op)
+                op = gen.send(result)
+        except StopIteration as stop:
+            return stop.value
+
+    async def events(self, job_id: str, *, last_event_id: str | None = None,
+                     read_timeout: float = 30.0):
+        """Async iterator of ``(event, data, id)``; see :meth:`Client.events`."""
+        from httpx_sse import aconnect_sse
+
+        headers = {"Last-Event-ID": last_event_id} if last_event_id else {}
+        timeout = httpx.Timeout(self.timeout, read=read_timeout)
+        try:
+            async with aconnect_sse(self._http, "GET", f"/api/jobs/{job_id}/events",
+                                    headers=headers, timeout=timeout) as source:
+                if source.response.status_code >= 400:
+                    await source.response.aread()
+                    _raise_for(source.response)
+                async for sse in source.aiter_sse():
+                    event, data = _parse_event(sse)
+                    yield event, data, sse.id or None
+        except httpx.TransportError as exc:
+            raise self._unavailable(exc) from None
+
+    async def wait(self, job_id: str, *, on_progress: ProgressCallback | None = None,
+                   timeout: float | None = None, poll_interval: float = 0.5,
+                   raise_on_failure: bool = True):
+        """Await the end of job ``job_id``; see :meth:`Client.wait` (same behaviour and
+        errors; ``on_progress`` may be a plain function or a coroutine function)."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        last_id: str | None = None
+        use_sse = True
+
+        async def report(progress: dict) -> None:
+            if on_progress is not None:
+                res = on_progress(progress)
+                if asyncio.iscoroutine(res):
+                    await res
+
+        job = await self.get_job(job_id)
+        while True:
+            if field_of(job, "state") in TERMINAL_STATES:
+                return _finish(job) if raise_on_failure else job
+            if deadline is not None and time.monotonic() > deadline:
+                raise WaitTimeout(f"job {job_id} still {field_of(job, 'state')} after {timeout} s")
+            if field_of(job, "progress") is not None:
+                await report(to_dict(field_of(job, "progress")))
+            if use_sse:
+                remaining = None if deadline is None else max(0.5, deadline - time.monotonic())
+                read_timeout = min(10.0, remaining) if remaining is not None else 10.0
+                n_events = 0
+                stream = self.events(job_id, last_event_id=last_id, read_timeout=read_timeout)
+                try:
+                    async for event, data, eid in stream:
+                        n_events += 1
+                        last_id = eid or last_id
+                        if event == "progress":
+                            await report(_progress_of(data))
+                        if data.get("state") in TERMINAL_STATES:
+                            break
+                        if deadline is not None and time.monotonic() > deadline:
+                            break
+                except ServerUnavailable:
+                    pass
+                except ApiError as exc:
+                    if exc.status_code in (405, 501):
+                        use_sse = False
+                    elif exc.status_code == 404:
+                        await self.get_job(job_id)  # NotFound propagates for an unknown job
+                        use_sse = False
+                    else:
+                        raise
+                except Exception:
+                    use_sse = False
+                finally:
+                    await stream.aclose()
+                if n_events == 0:
+                    await asyncio.sleep(poll_interval)
+            else:
+                await asyncio.sleep(poll_interval)
+            job = await self.get_job(job_id)
+
+
+for _name in _ENDPOINTS:
+    setattr(AsyncClient, _name, _async_method(getattr(_Endpoints, _name)))
+del _name
