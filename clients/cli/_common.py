@@ -1,0 +1,136 @@
+"""Helpers shared by the CLI subcommands: server URL/token options, the client, progress
+bars for scans (points/s, ETA) and reconstructions (stages), and one-line errors."""
+from __future__ import annotations
+
+import functools
+import os
+import sys
+from typing import Any, Callable
+
+
+def add_server_options(parser, *, required: bool = False) -> None:
+    """``--server URL`` (default ``$FPSCAN_SERVER``) and ``--token`` (default
+    ``$FPSCAN_TOKEN``)."""
+    parser.add_argument(
+        "--server", metavar="URL", default=os.environ.get("FPSCAN_SERVER") or None,
+        required=required and not os.environ.get("FPSCAN_SERVER"),
+        help="fpscan server, e.g. http://127.0.0.1:8000 (default: $FPSCAN_SERVER"
+             + ("" if required else "; without it the command works locally") + ")",
+    )
+    parser.add_argument(
+        "--token", default=None,
+        help="bearer token for the server (default: $FPSCAN_TOKEN)",
+    )
+
+
+def add_progress_option(parser) -> None:
+    parser.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
+
+
+def make_client(args, *, timeout: float = 60.0):
+    """A :class:`clients.http.Client` from ``--server``/``--token``."""
+    from clients.http import Client
+
+    if not getattr(args, "server", None):
+        raise ValueError("no server given: pass --server URL or set FPSCAN_SERVER")
+    return Client(args.server, token=args.token or os.environ.get("FPSCAN_TOKEN") or None,
+                  timeout=timeout)
+
+
+def client_errors(run: Callable[[Any], int]) -> Callable[[Any], int]:
+    """Decorator for ``run(args)``: client exceptions become one line on stderr, exit 1."""
+
+    @functools.wraps(run)
+    def wrapper(args) -> int:
+        from clients.http import FpscanClientError
+
+        try:
+            return run(args)
+        except FpscanClientError as exc:
+            print(f"fpscan {args.command}: error: {exc}", file=sys.stderr)
+            return 1
+
+    return wrapper
+
+
+def _fmt_eta(seconds: float | None) -> str:
+    if seconds is None or seconds != seconds or seconds < 0:
+        return "--:--"
+    seconds = int(round(seconds))
+    h, rem = divmod(seconds, 3600)
+    m, s = divmod(rem, 60)
+    return f"{h}:{m:02d}:{s:02d}" if h else f"{m:02d}:{s:02d}"
+
+
+def describe_progress(progress: dict) -> str:
+    """One line for a job's progress dict: stage, points done/total, points/s, ETA."""
+    parts = []
+    stage = progress.get("stage")
+    if stage:
+        parts.append(str(stage))
+    done, total = progress.get("points_done"), progress.get("points_total")
+    if total:
+        parts.append(f"{done or 0}/{total} points")
+    rate = progress.get("rate_per_s")
+    if rate:
+        parts.append(f"{rate:.0f} points/s")
+    if total or progress.get("eta_s") is not None:
+        parts.append(f"ETA {_fmt_eta(progress.get('eta_s'))}")
+    frac = progress.get("fraction")
+    if frac is not None and not total:
+        parts.append(f"{100 * float(frac):.0f}%")
+    if progress.get("faults_recovered"):
+        parts.append(f"{progress['faults_recovered']} faults recovered")
+    return "  ".join(parts)
+
+
+class ProgressBar:
+    """A progress bar fed with job progress dicts (``fraction, stage, points_done,
+    points_total, rate_per_s, eta_s``): ``with ProgressBar("scan") as bar: bar(p)``.
+
+    Draws with ``rich`` on a terminal (stderr); off a terminal it prints a line when the
+    stage changes; ``quiet`` draws nothing."""
+
+    def __init__(self, label: str, *, quiet: bool = False, stream=None):
+        self.label = label
+        self.quiet = quiet
+        self.stream = stream or sys.stderr
+        self._progress = None
+        self._task = None
+        self._last_stage = None
+
+    def __enter__(self) -> "ProgressBar":
+        if self.quiet or not self.stream.isatty():
+            return self
+        from rich.console import Console
+        from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+        self._progress = Progress(
+            TextColumn("[bold]{task.description}"), BarColumn(),
+            TextColumn("{task.percentage:>5.1f}%"), TextColumn("{task.fields[info]}"),
+            TimeElapsedColumn(), console=Console(file=self.stream), transient=False,
+        )
+        self._progress.__enter__()
+        self._task = self._progress.add_task(self.label, total=1.0, info="")
+        return self
+
+    def __call__(self, progress: dict) -> None:
+        if self.quiet or not isinstance(progress, dict):
+            return
+        frac = progress.get("fraction")
+        if frac is None and progress.get("points_total"):
+            frac = (progress.get("points_done") or 0) / progress["points_total"]
+        if self._progress is not None:
+            kw = {"info": describe_progress(progress)}
+            if frac is not None:
+                kw["completed"] = float(frac)
+            self._progress.update(self._task, **kw)
+        else:
+            stage = progress.get("stage")
+            if stage != self._last_stage:
+                self._last_stage = stage
+                print(f"{self.label}: {describe_progress(progress)}", file=self.stream, flush=True)
+
+    def __exit__(self, *exc) -> None:
+        if self._progress is not None:
+            self._progress.__exit__(*exc)

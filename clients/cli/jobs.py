@@ -1,0 +1,70 @@
+"""`fpscan jobs`: list, inspect, wait on and cancel the server's jobs (scans and
+reconstructions) over HTTP (``GET /api/jobs``, ``GET /api/jobs/{id}``, the SSE stream,
+``POST /api/jobs/{id}/cancel``)."""
+from __future__ import annotations
+
+from clients.cli._common import add_progress_option, add_server_options, client_errors
+
+COMMAND = "jobs"
+HELP = "list, show, wait on or cancel the server's jobs (scans, reconstructions)"
+
+STATES = ("queued", "running", "paused", "succeeded", "failed", "cancelled")
+KINDS = ("scan", "recon")
+
+
+def add_arguments(parser):
+    sub = parser.add_subparsers(dest="action", metavar="ACTION")
+    sub.required = True
+    p = sub.add_parser("list", help="list jobs", description="List jobs, newest first.")
+    p.add_argument("--state", choices=STATES, help="only jobs in this state")
+    p.add_argument("--kind", choices=KINDS, help="only jobs of this kind")
+    p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    add_server_options(p, required=True)
+    p = sub.add_parser("get", help="show one job as JSON", description="Show one job as JSON.")
+    p.add_argument("job_id")
+    add_server_options(p, required=True)
+    p = sub.add_parser("wait", help="wait until a job ends, with a progress bar",
+                       description="Wait until a job ends; exit 0 if it succeeded, 1 otherwise.")
+    p.add_argument("job_id")
+    p.add_argument("--timeout", type=float, default=None, metavar="S", help="give up after S seconds")
+    add_progress_option(p)
+    add_server_options(p, required=True)
+    p = sub.add_parser("cancel", help="cancel a job", description="Cancel a job (cooperative).")
+    p.add_argument("job_id")
+    add_server_options(p, required=True)
+
+
+@client_errors
+def run(args) -> int:
+    import json
+
+    from clients.cli._common import ProgressBar, make_client
+    from clients.http import field_of, to_dict
+
+    with make_client(args) as api:
+        if args.action == "list":
+            jobs = api.list_jobs(state=args.state, kind=args.kind)
+            if args.json:
+                print(json.dumps([to_dict(j) for j in jobs], indent=2))
+                return 0
+            print(f"{'id':<36}  {'kind':<6}  {'state':<10}  progress")
+            for j in jobs:
+                prog = to_dict(field_of(j, "progress")) or {}
+                frac = prog.get("fraction")
+                pct = f"{100 * frac:5.1f}%" if frac is not None else ""
+                print(f"{field_of(j, 'id')!s:<36}  {field_of(j, 'kind')!s:<6}  "
+                      f"{field_of(j, 'state')!s:<10}  {pct} {prog.get('stage') or ''}".rstrip())
+            return 0
+        if args.action == "get":
+            print(json.dumps(to_dict(api.get_job(args.job_id)), indent=2))
+            return 0
+        if args.action == "cancel":
+            api.cancel_job(args.job_id)
+            job = api.get_job(args.job_id)
+            print(f"{args.job_id}: {field_of(job, 'state')}")
+            return 0
+        # wait
+        with ProgressBar(f"job {args.job_id[:8]}", quiet=args.quiet) as bar:
+            job = api.wait(args.job_id, on_progress=bar, timeout=args.timeout)
+        print(f"{args.job_id}: {field_of(job, 'state')}")
+        return 0
