@@ -1,0 +1,50 @@
+"""Image-quality measures of the paper's Appendix "Quality measures" and §4.
+
+- :mod:`.roi` — regions of interest: a disc intersected with the pixels above a
+  threshold of the reference, and the bounding rectangle of a region.
+- :mod:`.correlation` — the correlation coefficient (paper eq. (A1)) within a region.
+- :mod:`.sharpness` — the normalised Tenenbaum sharpness (Sobel, paper Appendix).
+- :mod:`.projections` — maximum-intensity projections (MIPs) along each axis.
+- :mod:`.resolution` — axial FWHM by a Lorentz (Cauchy) fit to a line-spread profile,
+  lateral FWHM by an arctan edge-spread fit (paper §4), peak side-lobe level.
+- :mod:`.curves` — "CC vs number of pixels of interest" and "CC vs ROI diameter"
+  (paper §7, Figs. "Correlation coefficient ...").
+
+Pure numpy/scipy; no I/O.
+"""
+from __future__ import annotations
+
+from .correlation import correlation_coefficient
+from .curves import cc_vs_diameter, cc_vs_pixels, sharpness_vs_diameter
+from .projections import mip, mips
+from .resolution import (
+    EdgeFit,
+    LorentzFit,
+    edge_spread,
+    fit_edge_spread,
+    fit_lorentz,
+    lorentz,
+    side_lobe_level,
+)
+from .roi import bounding_box, disc_mask, roi_mask
+from .sharpness import tenenbaum_sharpness
+
+__all__ = [
+    "EdgeFit",
+    "LorentzFit",
+    "bounding_box",
+    "cc_vs_diameter",
+    "cc_vs_pixels",
+    "correlation_coefficient",
+    "disc_mask",
+    "edge_spread",
+    "fit_edge_spread",
+    "fit_lorentz",
+    "lorentz",
+    "mip",
+    "mips",
+    "roi_mask",
+    "sharpness_vs_diameter",
+    "side_lobe_level",
+    "tenenbaum_sharpness",
+]
