@@ -1,0 +1,951 @@
+/* fpscan web page: plan sensor masks, run scans, inspect results.
+ *
+ * Plain JavaScript, no build step, nothing fetched from elsewhere. Talks to the
+ * service's HTTP API (docs/api.md; the full schema is /openapi.json):
+ *   Plan view   POST /api/plans/preview (debounced, as parameters change), POST /api/plans
+ *   Scan view   GET /api/scanners, GET /api/plans, POST /api/scans, /pause /resume /abort,
+ *               GET /api/jobs/{id}/events (Server-Sent Events, read with fetch so the
+ *               bearer token can be sent and Last-Event-ID honoured on reconnect),
+ *               GET /api/scans/{id}/preview (+ /preview/{plane}.png) for the live MIPs
+ *   Jobs view   GET /api/jobs, GET /api/jobs/{id}, MIPs, depth slices, downloads,
+ *               POST /api/reconstructions
+ * Units: the form shows convenient units (µm, mm, ns, nm); the API receives SI units.
+ * The bearer token is asked once (on the first 401/403) and kept in sessionStorage.
+ */
+"use strict";
+
+const TOKEN_KEY = "fpscan.token";
+const TERMINAL = new Set(["succeeded", "failed", "cancelled"]);
+const $ = (id) => document.getElementById(id);
+
+/* ------------------------------------------------------------------ API access */
+
+class ApiError extends Error {
+  constructor(status, detail) {
+    super(detail);
+    this.status = status;
+    this.detail = detail;
+  }
+}
+
+function getToken() { return sessionStorage.getItem(TOKEN_KEY) || ""; }
+
+/** The server's reason from an error body: FastAPI's `detail` (a string, or a list of
+ *  validation errors {loc, msg}). */
+function detailText(body, status) {
+  if (body && typeof body === "object" && "detail" in body) {
+    const d = body.detail;
+    if (typeof d === "string") return d;
+    if (Array.isArray(d)) {
+      return d.map((e) => {
+        if (e && typeof e === "object") {
+          const loc = Array.isArray(e.loc) ? e.loc.filter((p) => p !== "body").join(".") : "";
+          return (loc ? loc + ": " : "") + (e.msg || JSON.stringify(e));
+        }
+        return String(e);
+      }).join("; ");
+    }
+    return JSON.stringify(d);
+  }
+  if (typeof body === "string" && body.trim()) return body.trim().slice(0, 300);
+  return `HTTP ${status}`;
+}
+
+let tokenPrompt = null; // one dialog at a time, shared by concurrent requests
+
+function askToken(message) {
+  if (tokenPrompt) return tokenPrompt;
+  const dialog = $("token-dialog");
+  const input = $("token-input");
+  input.value = getToken();
+  if (message) dialog.querySelector("p").textContent = message;
+  tokenPrompt = new Promise((resolve) => {
+    dialog.addEventListener("close", function onClose() {
+      dialog.removeEventListener("close", onClose);
+      tokenPrompt = null;
+      if (dialog.returnValue === "ok" && input.value.trim()) {
+        sessionStorage.setItem(TOKEN_KEY, input.value.trim());
+        updateTokenButton();
+        resolve(true);
+      } else {
+        resolve(false);
+      }
+    });
+    dialog.returnValue = "";
+    dialog.showModal();
+    input.focus();
+  });
+  return tokenPrompt;
+}
+
+function authHeaders(extra) {
+  const h = Object.assign({}, extra || {});
+  const t = getToken();
+  if (t) h["Authorization"] = "Bearer " + t;
+  return h;
+}
+
+/** fetch with the token; on 401/403 ask for the token once and retry. Returns the
+ *  Response (ok) or throws ApiError carrying the server's reason. */
+async function apiFetch(path, options = {}, retried = false) {
+  const opts = Object.assign({}, options);
+  opts.headers = authHeaders(options.headers);
+  if (options.json !== undefined) {
+    opts.headers["Content-Type"] = "application/json";
+    opts.body = JSON.stringify(options.json);
+    delete opts.json;
+  }
+  let resp;
+  try {
+    resp = await fetch(path, opts);
+  } catch (err) {
+    if (err.name === "AbortError") throw err;
+    throw new ApiError(0, "cannot reach the server (" + err.message + ")");
+  }
+  if (resp.ok) return resp;
+  let body = null;
+  const text = await resp.text();
+  try { body = JSON.parse(text); } catch (_) { body = text; }
+  const detail = detailText(body, resp.status);
+  if ((resp.status === 401 || resp.status === 403) && !retried) {
+    const msg = getToken()
+      ? `The server refused the token (${detail}). Enter the right token; it is kept for this browser tab only.`
+      : `This server asks for a bearer token (${detail}). It is kept for this browser tab only.`;
+    if (await askToken(msg)) return apiFetch(path, options, true);
+  }
+  throw new ApiError(resp.status, detail);
+}
+
+async function apiJson(path, options) {
+  const resp = await apiFetch(path, options);
+  if (resp.status === 204) return null;
+  return resp.json();
+}
+
+/** A list from a response that is a list or {items|jobs|plans|scanners: [...]}. */
+function asList(data, key) {
+  if (Array.isArray(data)) return data;
+  if (data && typeof data === "object") {
+    for (const k of [key, "items", "results", "data"]) {
+      if (k && Array.isArray(data[k])) return data[k];
+    }
+  }
+  return [];
+}
+
+/** The job id from a 202 response: body `id`/`job_id`, else the Location header. */
+async function jobIdFrom(resp) {
+  let body = null;
+  try { body = await resp.json(); } catch (_) { /* empty body */ }
+  if (body && (body.id || body.job_id)) return String(body.id || body.job_id);
+  const loc = resp.headers.get("Location") || "";
+  const m = loc.match(/\/api\/jobs\/([^/?#]+)/);
+  if (m) return decodeURIComponent(m[1]);
+  throw new ApiError(resp.status, "the server did not say which job it started");
+}
+
+function newIdempotencyKey() {
+  if (window.crypto && crypto.randomUUID) return crypto.randomUUID();
+  return "k-" + Date.now().toString(36) + "-" + Math.random().toString(36).slice(2);
+}
+
+/* ------------------------------------------------------------------ errors */
+
+function showError(err) {
+  if (err && err.name === "AbortError") return;
+  const msg = err instanceof ApiError ? err.detail : (err && err.message) || String(err);
+  $("error-text").textContent = msg;
+  $("error").hidden = false;
+}
+function clearError() { $("error").hidden = true; $("error-text").textContent = ""; }
+
+/* ------------------------------------------------------------------ formatting */
+
+function fmtDuration(s) {
+  if (s === null || s === undefined || !isFinite(s)) return "–";
+  s = Math.max(0, Number(s));
+  if (s < 60) return s.toFixed(s < 10 ? 1 : 0) + " s";
+  const h = Math.floor(s / 3600), m = Math.floor((s % 3600) / 60), sec = Math.round(s % 60);
+  return (h ? h + " h " : "") + m + " min " + (h ? "" : sec + " s");
+}
+function fmtNum(x, digits = 3) {
+  if (x === null || x === undefined || x === "" || !isFinite(x)) return "–";
+  const n = Number(x);
+  return Math.abs(n) >= 1e4 || (Math.abs(n) < 1e-3 && n !== 0) ? n.toExponential(digits - 1) : String(+n.toPrecision(digits));
+}
+function shortId(id) { id = String(id); return id.length > 12 ? id.slice(0, 8) + "…" : id; }
+function setState(el, state) {
+  el.dataset.state = state || "";
+  el.textContent = state || "–";
+}
+
+/** Show a PNG from the API in an <img> (fetched with the token; object URL). */
+async function loadImage(img, path) {
+  const resp = await apiFetch(path);
+  const blob = await resp.blob();
+  const old = img.dataset.objectUrl;
+  const url = URL.createObjectURL(blob);
+  img.src = url;
+  img.dataset.objectUrl = url;
+  img.dataset.src = path;
+  if (old) URL.revokeObjectURL(old);
+}
+
+/* ------------------------------------------------------------------ routing */
+
+const views = ["plan", "scan", "jobs"];
+let currentView = null;
+
+function route() {
+  const hash = location.hash.replace(/^#\/?/, "");
+  const [view, arg] = hash.split("/");
+  const name = views.includes(view) ? view : "plan";
+  for (const v of views) {
+    $("view-" + v).hidden = v !== name;
+    const link = $("nav-" + v);
+    if (v === name) link.setAttribute("aria-current", "page"); else link.removeAttribute("aria-current");
+  }
+  const changed = currentView !== name;
+  currentView = name;
+  document.title = "fpscan — " + $("nav-" + name).textContent;
+  if (name === "plan" && changed) schedulePreview(0);
+  if (name === "scan" && changed) refreshScanLists().catch(showError);
+  if (name === "jobs") {
+    refreshJobs().catch(showError);
+    if (arg) openResult(decodeURIComponent(arg)).catch(showError); else closeResult();
+  }
+  if (changed) $("main").focus({ preventScroll: true });
+}
+
+/* ------------------------------------------------------------------ Plan view */
+
+/* Mask types and their parameters. `scale` converts the shown unit to SI. */
+const MASKS = {
+  equisteradian: {
+    label: "Equi-steradian (3-D, rings around a point of interest)",
+    help: "Points spaced by equal solid angle seen from the point of interest; weights ∝ r³ (paper appendix).",
+    params: [
+      { name: "depth", label: "Depth of the point of interest (mm)", scale: 1e-3, value: 1.2 },
+      { name: "n_points", label: "Number of points", int: true, value: 200 },
+      { name: "poi_x", label: "Point of interest x (mm, empty = centre)", scale: 1e-3, optional: true },
+      { name: "poi_y", label: "Point of interest y (mm, empty = centre)", scale: 1e-3, optional: true },
+    ],
+  },
+  equiangular: {
+    label: "Equiangular (2-D line, around a point of interest)",
+    help: "Points spaced by equal angle seen from the point of interest; weights ∝ r². Use n_y = 1.",
+    params: [
+      { name: "depth", label: "Depth of the point of interest (mm)", scale: 1e-3, value: 1.2 },
+      { name: "n_points", label: "Number of points", int: true, value: 32 },
+      { name: "poi_x", label: "Point of interest x (mm, empty = centre)", scale: 1e-3, optional: true },
+    ],
+  },
+  full: { label: "Full lattice", help: "Every lattice point.", params: [] },
+  grid: {
+    label: "Equispaced sub-grid",
+    help: "Every s-th lattice point, n per side, centred.",
+    params: [
+      { name: "interval", label: "Interval s (lattice points)", int: true, value: 4 },
+      { name: "n", label: "Points per side (empty = as many as fit)", int: true, optional: true },
+    ],
+  },
+  hexagonal: {
+    label: "Hexagonal",
+    help: "A hexagonal arrangement snapped to the lattice.",
+    params: [{ name: "spacing", label: "Spacing (µm)", scale: 1e-6, value: 240 }],
+  },
+  random: {
+    label: "Random (seeded)",
+    help: "Uniformly random lattice points.",
+    params: [
+      { name: "n_points", label: "Number of points", int: true, value: 200 },
+      { name: "seed", label: "Seed", int: true, value: 0 },
+    ],
+  },
+  poisson_disc: {
+    label: "Poisson-disc (seeded)",
+    help: "Random points no closer than the given radius.",
+    params: [
+      { name: "radius", label: "Minimum distance (µm)", scale: 1e-6, value: 240 },
+      { name: "seed", label: "Seed", int: true, value: 0 },
+    ],
+  },
+};
+
+function buildMaskSelect() {
+  const sel = $("mask-kind");
+  for (const [kind, m] of Object.entries(MASKS)) {
+    const o = document.createElement("option");
+    o.value = kind;
+    o.textContent = m.label;
+    sel.appendChild(o);
+  }
+  sel.value = "equisteradian";
+  renderMaskParams();
+}
+
+function renderMaskParams() {
+  const kind = $("mask-kind").value;
+  const m = MASKS[kind];
+  $("mask-help").textContent = m.help;
+  const box = $("mask-params");
+  box.textContent = "";
+  for (const p of m.params) {
+    const label = document.createElement("label");
+    label.textContent = p.label + " ";
+    const input = document.createElement("input");
+    input.type = "number";
+    input.step = p.int ? "1" : "any";
+    input.id = "mask-" + p.name.replace(/_/g, "-");
+    input.name = p.name;
+    if (p.value !== undefined) input.value = p.value;
+    if (!p.optional) input.required = true;
+    label.appendChild(input);
+    box.appendChild(label);
+  }
+}
+
+function numberField(id, what, { int = false, scale = 1, optional = false } = {}) {
+  const el = $(id);
+  const raw = el.value.trim();
+  if (raw === "") {
+    if (optional) return undefined;
+    throw new Error(`${what}: a value is needed`);
+  }
+  const v = Number(raw);
+  if (!isFinite(v)) throw new Error(`${what}: "${raw}" is not a number`);
+  if (int && !Number.isInteger(v)) throw new Error(`${what}: must be a whole number`);
+  return v * scale;
+}
+
+/** The plan request body (PlanRequest in /openapi.json) from the form, in SI units:
+ *  {kind, lattice: {n_x, n_y, pitch}, params: {...}, acquisition: {...}}. Validation of
+ *  values is the server's (its reason is shown); only non-numbers are caught here. */
+function planBody() {
+  const kind = $("mask-kind").value;
+  const params = {};
+  for (const p of MASKS[kind].params) {
+    const v = numberField("mask-" + p.name.replace(/_/g, "-"), p.label, p);
+    if (v !== undefined) params[p.name] = v;
+  }
+  if ("poi_x" in params || "poi_y" in params) {
+    params.poi = [params.poi_x ?? 0, params.poi_y ?? 0];
+  }
+  delete params.poi_x;
+  delete params.poi_y;
+  const wl = $("acq-wl").value.split(",").map((s) => s.trim()).filter(Boolean).map((s) => {
+    const v = Number(s);
+    if (!isFinite(v)) throw new Error(`Excitation wavelength: "${s}" is not a number`);
+    return v * 1e-9;
+  });
+  return {
+    kind,
+    lattice: {
+      n_x: numberField("lat-nx", "n_x", { int: true }),
+      n_y: numberField("lat-ny", "n_y", { int: true }),
+      pitch: numberField("lat-pitch", "Pitch", { scale: 1e-6 }),
+    },
+    params,
+    acquisition: {
+      n_t: numberField("acq-nt", "n_t", { int: true }),
+      dt: numberField("acq-dt", "dt", { scale: 1e-9 }),
+      prf: numberField("acq-prf", "PRF"),
+      averages: numberField("acq-avg", "Averages", { int: true }),
+      wavelengths: wl,
+      sound_speed: numberField("acq-c", "Sound speed"),
+    },
+  };
+}
+
+let previewTimer = null;
+let previewAbort = null;
+let previewSeq = 0;
+
+function schedulePreview(delay = 300) {
+  clearTimeout(previewTimer);
+  previewTimer = setTimeout(() => updatePreview().catch(showError), delay);
+}
+
+function countOf(points) {
+  if (Array.isArray(points)) return points.length;
+  if (points && typeof points === "object") return points.obtained ?? points.count ?? points.n;
+  return points;
+}
+
+function showPlanStats(r) {
+  const n = countOf(r.points ?? r.obtained_points ?? r.n_points ?? (r.mask && r.mask.obtained_points));
+  const req = r.requested_points ?? (r.mask && r.mask.requested_points);
+  $("plan-points").textContent = n === undefined ? "–" : (req && req !== n ? `${n} (asked ${req})` : String(n));
+  $("plan-ratio").textContent = fmtNum(r.weight_ratio ?? (r.mask && r.mask.weight_ratio));
+  $("plan-time").textContent = fmtDuration(r.expected_scan_time_s);
+}
+
+async function updatePreview() {
+  if (previewAbort) previewAbort.abort();
+  const panel = document.querySelector(".preview-panel");
+  let body;
+  try {
+    body = planBody();
+  } catch (err) {
+    $("plan-preview-state").textContent = "Not previewed: " + err.message;
+    return;
+  }
+  const ctl = new AbortController();
+  previewAbort = ctl;
+  panel.setAttribute("aria-busy", "true");
+  $("plan-preview-state").textContent = "Updating preview…";
+  try {
+    const r = await apiJson("/api/plans/preview", { method: "POST", json: body, signal: ctl.signal });
+    if (ctl.signal.aborted) return;
+    const img = $("plan-preview");
+    if (r.preview_png_base64) img.src = "data:image/png;base64," + r.preview_png_base64;
+    img.alt = `Mask preview: ${MASKS[body.kind].label}, ${countOf(r.points)} points`;
+    showPlanStats(r);
+    previewSeq += 1;
+    img.dataset.seq = String(previewSeq);
+    $("plan-preview-state").textContent = `Preview up to date (${countOf(r.points)} points).`;
+    clearError();
+  } catch (err) {
+    if (err.name === "AbortError") return;
+    $("plan-preview-state").textContent = "No preview: " + (err.detail || err.message);
+    throw err;
+  } finally {
+    if (previewAbort === ctl) { previewAbort = null; panel.removeAttribute("aria-busy"); }
+  }
+}
+
+async function savePlan(ev) {
+  ev.preventDefault();
+  $("plan-saved").textContent = "";
+  let body;
+  try { body = planBody(); } catch (err) { showError(err); return; }
+  const btn = $("plan-save");
+  btn.disabled = true;
+  try {
+    const plan = await apiJson("/api/plans", { method: "POST", json: body });
+    clearError();
+    showPlanStats(plan);
+    $("plan-saved").textContent = `Saved plan ${shortId(plan.id)}.`;
+    $("plan-saved").dataset.planId = plan.id;
+    lastSavedPlan = plan.id;
+  } catch (err) {
+    showError(err);
+  } finally {
+    btn.disabled = false;
+  }
+}
+
+/* ------------------------------------------------------------------ Scan view */
+
+let lastSavedPlan = null;
+let scanJob = null;       // id of the job the scan view watches
+let scanWatch = null;     // {stop()} of its watcher
+
+function describePlan(p) {
+  const kind = (p.mask && p.mask.kind) || p.kind || "";
+  const n = countOf(p.obtained_points ?? p.n_points ?? p.points ?? (p.mask && p.mask.obtained_points));
+  return `${shortId(p.id)} ${kind}${n !== undefined ? " · " + n + " points" : ""}`;
+}
+
+async function refreshScanLists() {
+  const [scanners, plans] = await Promise.all([apiJson("/api/scanners"), apiJson("/api/plans")]);
+  const ssel = $("scan-scanner");
+  const keepS = ssel.value;
+  ssel.textContent = "";
+  for (const s of asList(scanners, "scanners")) {
+    const o = document.createElement("option");
+    o.value = s.id ?? s.scanner_id ?? s.name;
+    const status = s.status ?? s.state ?? "";
+    o.textContent = `${o.value}${s.port || s.path ? " (" + (s.port || s.path) + ")" : ""}${status ? " — " + (typeof status === "string" ? status : JSON.stringify(status)) : ""}`;
+    ssel.appendChild(o);
+  }
+  if (keepS) ssel.value = keepS;
+  if (!ssel.value && ssel.options.length) ssel.selectedIndex = 0;
+  const psel = $("scan-plan");
+  const keepP = psel.value;
+  psel.textContent = "";
+  for (const p of asList(plans, "plans")) {
+    const o = document.createElement("option");
+    o.value = p.id;
+    o.textContent = describePlan(p);
+    psel.appendChild(o);
+  }
+  const want = lastSavedPlan || keepP;
+  if (want && [...psel.options].some((o) => o.value === want)) psel.value = want;
+}
+
+function setScanButtons(state) {
+  const active = state === "running" || state === "queued";
+  $("scan-start").disabled = active || state === "paused";
+  $("scan-pause").disabled = state !== "running";
+  $("scan-resume").disabled = state !== "paused";
+  $("scan-abort").disabled = !(active || state === "paused");
+}
+
+function showProgress(job) {
+  const p = job.progress || {};
+  if (job.state) { setState($("scan-state"), job.state); setScanButtons(job.state); }
+  let frac = p.fraction;
+  if ((frac === undefined || frac === null) && p.points_total) frac = p.points_done / p.points_total;
+  if (frac !== undefined && frac !== null && isFinite(frac)) {
+    $("scan-progress").value = frac;
+    $("scan-progress-label").textContent = Math.round(frac * 100) + " %";
+  }
+  if (p.points_total !== undefined) $("scan-points").textContent = `${p.points_done ?? 0} / ${p.points_total}`;
+  if (p.rate_per_s !== undefined) $("scan-rate").textContent = p.rate_per_s === null ? "–" : fmtNum(p.rate_per_s) + " points/s";
+  if (p.eta_s !== undefined) $("scan-eta").textContent = fmtDuration(p.eta_s);
+  if (p.faults_recovered !== undefined) $("scan-faults").textContent = String(p.faults_recovered ?? 0);
+}
+
+/** Watch a job: Server-Sent Events read through fetch (so the token can be sent),
+ *  reconnecting with Last-Event-ID; polls GET /api/jobs/{id} if the stream fails.
+ *  Calls onJob(job-like object) with every update. Returns {stop()}. */
+function watchJob(jobId, onJob) {
+  let stopped = false;
+  let lastId = null;
+  let failures = 0;
+  const ctl = new AbortController();
+  const job = { id: jobId };
+  const emit = (patch) => {
+    if (patch.progress) job.progress = Object.assign({}, job.progress, patch.progress);
+    for (const [k, v] of Object.entries(patch)) if (k !== "progress") job[k] = v;
+    onJob(job);
+    if (TERMINAL.has(job.state)) stop();
+  };
+  function stop() { stopped = true; ctl.abort(); }
+
+  function handleEvent(ev) {
+    let data = ev.data;
+    try { data = JSON.parse(ev.data); } catch (_) { /* plain text */ }
+    if (ev.event === "state") {
+      if (typeof data === "string") emit({ state: data });
+      else emit(data.job ? data.job : data);
+    } else if (ev.event === "progress" || ev.event === "message") {
+      if (data && typeof data === "object") {
+        if (data.progress || data.state) emit(data);
+        else emit({ progress: data });
+      }
+    }
+  }
+
+  async function stream() {
+    const headers = { Accept: "text/event-stream" };
+    if (lastId !== null) headers["Last-Event-ID"] = lastId;
+    const resp = await apiFetch(`/api/jobs/${encodeURIComponent(jobId)}/events`, { headers, signal: ctl.signal });
+    const reader = resp.body.getReader();
+    const decoder = new TextDecoder();
+    let buf = "";
+    for (;;) {
+      const { value, done } = await reader.read();
+      if (done) break;
+      failures = 0;
+      buf += decoder.decode(value, { stream: true }).replace(/\r\n?/g, "\n");
+      let cut;
+      while ((cut = buf.indexOf("\n\n")) >= 0) {
+        const block = buf.slice(0, cut);
+        buf = buf.slice(cut + 2);
+        const ev = { event: "message", data: "", id: null };
+        const data = [];
+        for (const line of block.split("\n")) {
+          if (!line || line.startsWith(":")) continue;
+          const i = line.indexOf(":");
+          const field = i < 0 ? line : line.slice(0, i);
+          const val = i < 0 ? "" : line.slice(i + 1).replace(/^ /, "");
+          if (field === "event") ev.event = val;
+          else if (field === "data") data.push(val);
+          else if (field === "id") ev.id = val;
+        }
+        if (ev.id !== null) lastId = ev.id;
+        ev.data = data.join("\n");
+        if (data.length) handleEvent(ev);
+        if (stopped) return;
+      }
+    }
+  }
+
+  async function poll() {
+    const j = await apiJson(`/api/jobs/${encodeURIComponent(jobId)}`);
+    emit(j);
+  }
+
+  (async () => {
+    try { await poll(); } catch (err) { showError(err); }
+    while (!stopped) {
+      try {
+        if (failures < 3) await stream(); else await poll();
+        if (!stopped) await poll(); // the stream ended: refresh the state
+      } catch (err) {
+        if (stopped || err.name === "AbortError") return;
+        failures += 1;
+        if (err instanceof ApiError && err.status >= 400 && err.status < 500 && err.status !== 408) {
+          showError(err);
+          if (err.status === 404) return;
+        }
+      }
+      if (!stopped) await new Promise((r) => setTimeout(r, failures ? 1000 : 300));
+    }
+  })();
+  return { stop };
+}
+
+let previewPoll = null;
+
+function stopPreviewPoll() { clearInterval(previewPoll); previewPoll = null; }
+
+async function refreshLivePreview(jobId) {
+  let info;
+  try {
+    info = await apiJson(`/api/scans/${encodeURIComponent(jobId)}/preview`);
+  } catch (err) {
+    if (err instanceof ApiError && (err.status === 404 || err.status === 409)) return; // none yet
+    throw err;
+  }
+  if (!info || info.version === undefined || info.version === null) return;
+  const version = String(info.version);
+  const imgs = ["xy", "xz", "yz"].map((pl) => $("scan-mip-" + pl));
+  if (imgs.every((img) => img.dataset.version === version)) return;
+  await Promise.all(["xy", "xz", "yz"].map(async (pl, i) => {
+    await loadImage(imgs[i], `/api/scans/${encodeURIComponent(jobId)}/preview/${pl}.png?v=${encodeURIComponent(version)}`);
+    imgs[i].dataset.version = version;
+    imgs[i].alt = `Live preview ${pl} MIP from ${info.points_used} points (version ${version})`;
+  }));
+  $("scan-preview-info").textContent = `version ${version}, from ${info.points_used ?? "?"} points` +
+    (info.updated ? `, updated ${new Date(typeof info.updated === "number" ? info.updated * 1000 : info.updated).toLocaleTimeString()}` : "");
+}
+
+function watchScan(jobId) {
+  if (scanWatch) scanWatch.stop();
+  stopPreviewPoll();
+  scanJob = jobId;
+  $("scan-job").textContent = shortId(jobId);
+  $("scan-job").title = jobId;
+  $("scan-open-job").href = "#/jobs/" + encodeURIComponent(jobId);
+  $("scan-open-job").hidden = false;
+  for (const pl of ["xy", "xz", "yz"]) $("scan-mip-" + pl).dataset.version = "";
+  const tick = () => refreshLivePreview(jobId).catch(() => {});
+  previewPoll = setInterval(tick, 1000);
+  scanWatch = watchJob(jobId, (job) => {
+    if (scanJob !== jobId) return;
+    showProgress(job);
+    if (TERMINAL.has(job.state)) {
+      stopPreviewPoll();
+      tick();
+      if (job.state === "failed" && job.error) showError(new Error("Scan failed: " + (job.error.detail || job.error.message || job.error)));
+    }
+  });
+}
+
+async function startScan(ev) {
+  ev.preventDefault();
+  const plan_id = $("scan-plan").value, scanner_id = $("scan-scanner").value;
+  if (!plan_id) { showError(new Error("Choose a plan (save one in the Plan view first).")); return; }
+  if (!scanner_id) { showError(new Error("Choose a scanner.")); return; }
+  $("scan-start").disabled = true;
+  try {
+    const resp = await apiFetch("/api/scans", {
+      method: "POST", json: { plan_id, scanner_id }, headers: { "Idempotency-Key": newIdempotencyKey() },
+    });
+    const id = await jobIdFrom(resp);
+    clearError();
+    for (const k of ["scan-points", "scan-rate", "scan-eta", "scan-faults"]) $(k).textContent = "–";
+    $("scan-progress").value = 0;
+    $("scan-progress-label").textContent = "0 %";
+    setState($("scan-state"), "queued");
+    setScanButtons("queued");
+    watchScan(id);
+  } catch (err) {
+    showError(err);
+    $("scan-start").disabled = false;
+  }
+}
+
+async function scanControl(action) {
+  if (!scanJob) return;
+  try {
+    const r = await apiFetch(`/api/scans/${encodeURIComponent(scanJob)}/${action}`, { method: "POST" });
+    clearError();
+    let body = null;
+    try { body = await r.json(); } catch (_) { /* no body */ }
+    if (body && body.state) showProgress(body);
+  } catch (err) {
+    showError(err);
+  }
+}
+
+/* ------------------------------------------------------------------ Jobs view */
+
+let jobsTimer = null;
+const jobRows = new Map();
+
+function jobProgressText(j) {
+  const p = j.progress || {};
+  let frac = p.fraction;
+  if ((frac === undefined || frac === null) && p.points_total) frac = p.points_done / p.points_total;
+  const pct = frac !== undefined && frac !== null && isFinite(frac) ? Math.round(frac * 100) + " %" : "–";
+  return p.stage ? `${pct} (${p.stage})` : pct;
+}
+
+function jobCreated(j) {
+  const t = (j.timings && (j.timings.created ?? j.timings.created_at ?? j.timings.submitted)) ?? j.created_at ?? j.created;
+  if (t === undefined || t === null) return "";
+  const d = new Date(typeof t === "number" ? t * 1000 : t);
+  return isNaN(d) ? String(t) : d.toLocaleString();
+}
+
+async function refreshJobs() {
+  const params = new URLSearchParams();
+  if ($("jobs-state").value) params.set("state", $("jobs-state").value);
+  if ($("jobs-kind").value) params.set("kind", $("jobs-kind").value);
+  const q = params.toString();
+  const jobs = asList(await apiJson("/api/jobs" + (q ? "?" + q : "")), "jobs");
+  const tbody = $("jobs-body");
+  const seen = new Set();
+  let prev = null;
+  for (const j of jobs) {
+    const id = String(j.id);
+    seen.add(id);
+    let tr = jobRows.get(id);
+    if (!tr) {
+      tr = document.createElement("tr");
+      tr.dataset.jobId = id;
+      tr.innerHTML = '<td class="c-id"></td><td class="c-kind"></td><td><span class="state c-state"></span></td>' +
+        '<td class="c-progress"></td><td class="c-created"></td><td><a class="c-open"></a></td>';
+      const a = tr.querySelector(".c-open");
+      a.href = "#/jobs/" + encodeURIComponent(id);
+      a.textContent = "Open";
+      a.setAttribute("aria-label", `Open job ${shortId(id)}`);
+      jobRows.set(id, tr);
+    }
+    tr.querySelector(".c-id").textContent = shortId(id);
+    tr.querySelector(".c-id").title = id;
+    tr.querySelector(".c-kind").textContent = j.kind ?? "";
+    setState(tr.querySelector(".c-state"), j.state);
+    tr.querySelector(".c-progress").textContent = jobProgressText(j);
+    tr.querySelector(".c-created").textContent = jobCreated(j);
+    tr.setAttribute("aria-selected", id === resultJob ? "true" : "false");
+    // keep server order without re-creating rows (focus stays where it is)
+    const want = prev ? prev.nextSibling : tbody.firstChild;
+    if (want !== tr) tbody.insertBefore(tr, want);
+    prev = tr;
+  }
+  for (const [id, tr] of jobRows) {
+    if (!seen.has(id)) { tr.remove(); jobRows.delete(id); }
+  }
+  $("jobs-empty").hidden = jobs.length > 0;
+  clearTimeout(jobsTimer);
+  jobsTimer = setTimeout(() => { if (currentView === "jobs") refreshJobs().catch(() => {}); }, 3000);
+}
+
+let resultJob = null;
+let resultWatch = null;
+
+function closeResult() {
+  resultJob = null;
+  if (resultWatch) { resultWatch.stop(); resultWatch = null; }
+  $("result").hidden = true;
+}
+
+function flatten(obj, prefix = "", out = []) {
+  if (obj && typeof obj === "object" && !Array.isArray(obj)) {
+    for (const [k, v] of Object.entries(obj)) flatten(v, prefix ? prefix + "." + k : k, out);
+  } else {
+    let s = Array.isArray(obj) ? JSON.stringify(obj) : String(obj);
+    if (s.length > 200) s = s.slice(0, 200) + "…";
+    out.push([prefix, s]);
+  }
+  return out;
+}
+
+function downloadsFor(job) {
+  const id = encodeURIComponent(job.id);
+  const list = [];
+  const params = job.params || {};
+  if (job.kind === "scan") {
+    list.push(["Scan file (HDF5)", `/api/scans/${id}/file`, `scan-${job.id}.h5`]);
+    list.push(["IPASC export (HDF5)", `/api/scans/${id}/ipasc`, `scan-${job.id}-ipasc.hdf5`]);
+  } else {
+    list.push(["Volume (HDF5)", `/api/reconstructions/${id}/volume.h5`, `volume-${job.id}.h5`]);
+    const scanId = params.scan_job_id;
+    if (scanId) {
+      const s = encodeURIComponent(scanId);
+      list.push(["Scan file (HDF5)", `/api/scans/${s}/file`, `scan-${scanId}.h5`]);
+      list.push(["IPASC export (HDF5)", `/api/scans/${s}/ipasc`, `scan-${scanId}-ipasc.hdf5`]);
+    }
+  }
+  return list;
+}
+
+/** A download link: plain navigation when no token is set; with a token the file is
+ *  fetched with the Authorization header and handed to the browser as a Blob. */
+function downloadLink(label, path, filename) {
+  const a = document.createElement("a");
+  a.href = path;
+  a.download = filename;
+  a.textContent = label;
+  a.addEventListener("click", async (ev) => {
+    if (!getToken()) return;
+    ev.preventDefault();
+    try {
+      const blob = await (await apiFetch(path)).blob();
+      const url = URL.createObjectURL(blob);
+      const tmp = document.createElement("a");
+      tmp.href = url;
+      tmp.download = filename;
+      document.body.appendChild(tmp);
+      tmp.click();
+      tmp.remove();
+      setTimeout(() => URL.revokeObjectURL(url), 60000);
+    } catch (err) { showError(err); }
+  });
+  return a;
+}
+
+function sliceCount(job) {
+  const r = job.result || {};
+  const cands = [r.n_z, r.shape && r.shape[0], job.params && job.params.n_z, r.z && r.z.length];
+  for (const c of cands) if (Number.isInteger(c) && c > 0) return c;
+  return null;
+}
+
+function renderResult(job) {
+  $("result").hidden = false;
+  $("result-id").textContent = shortId(job.id);
+  $("result-id").title = job.id;
+  $("result-kind").textContent = job.kind;
+  setState($("result-state"), job.state);
+  const err = job.error;
+  $("result-error").textContent = err ? "— " + (typeof err === "string" ? err : err.detail || err.message || JSON.stringify(err)) : "";
+
+  const tbody = $("result-params").tBodies[0];
+  tbody.textContent = "";
+  for (const [k, v] of flatten(job.params || {})) {
+    const tr = document.createElement("tr");
+    const a = document.createElement("td"); a.textContent = k;
+    const b = document.createElement("td"); b.textContent = v;
+    tr.append(a, b);
+    tbody.appendChild(tr);
+  }
+  const ul = $("result-downloads");
+  ul.textContent = "";
+  const done = job.state === "succeeded";
+  for (const [label, path, fn] of downloadsFor(job)) {
+    const li = document.createElement("li");
+    if (done || (job.kind === "scan" && label.startsWith("Scan file"))) li.appendChild(downloadLink(label, path, fn));
+    else li.textContent = label + " (when the job has succeeded)";
+    ul.appendChild(li);
+  }
+
+  $("result-scan").hidden = !(job.kind === "scan" && done);
+  const isRecon = job.kind !== "scan";
+  $("result-recon").hidden = !(isRecon && done);
+  if (isRecon && done) {
+    const id = encodeURIComponent(job.id);
+    for (const pl of ["xy", "xz", "yz"]) loadImage($("result-mip-" + pl), `/api/reconstructions/${id}/mip/${pl}.png`).catch(showError);
+    const n = sliceCount(job);
+    const slider = $("result-slice");
+    slider.max = String(n ? n - 1 : 0);
+    slider.disabled = !n;
+    if (Number(slider.value) > Number(slider.max)) slider.value = slider.max;
+    const r = job.result || {};
+    if (r.p0_min !== undefined || r.min !== undefined) $("scale-min").textContent = fmtNum(r.p0_min ?? r.min) + (r.units ? " " + r.units : "");
+    if (r.p0_max !== undefined || r.max !== undefined) $("scale-max").textContent = fmtNum(r.p0_max ?? r.max) + (r.units ? " " + r.units : "");
+    showSlice();
+  }
+}
+
+let sliceTimer = null;
+function showSlice() {
+  if (!resultJob) return;
+  const k = Number($("result-slice").value);
+  $("result-slice-value").textContent = String(k);
+  clearTimeout(sliceTimer);
+  const id = resultJob;
+  sliceTimer = setTimeout(() => {
+    const img = $("result-slice-img");
+    loadImage(img, `/api/reconstructions/${encodeURIComponent(id)}/slice.png?index=${k}`)
+      .then(() => { img.alt = `Reconstruction, depth slice ${k}`; $("result-slice-caption").textContent = `depth slice ${k}`; })
+      .catch(showError);
+  }, 120);
+}
+
+async function openResult(jobId) {
+  if (resultJob === jobId && !$("result").hidden) return;
+  closeResult();
+  resultJob = jobId;
+  const job = await apiJson(`/api/jobs/${encodeURIComponent(jobId)}`);
+  if (resultJob !== jobId) return;
+  renderResult(job);
+  for (const tr of jobRows.values()) tr.setAttribute("aria-selected", tr.dataset.jobId === jobId ? "true" : "false");
+  if (!TERMINAL.has(job.state)) {
+    let lastState = job.state;
+    resultWatch = watchJob(jobId, async (j) => {
+      if (resultJob !== jobId) return;
+      setState($("result-state"), j.state);
+      if (j.state !== lastState && TERMINAL.has(j.state)) {
+        lastState = j.state;
+        try { renderResult(await apiJson(`/api/jobs/${encodeURIComponent(jobId)}`)); } catch (err) { showError(err); }
+      }
+      lastState = j.state;
+    });
+  }
+}
+
+async function startRecon(ev) {
+  ev.preventDefault();
+  if (!resultJob) return;
+  $("recon-start").disabled = true;
+  try {
+    const resp = await apiFetch("/api/reconstructions", {
+      method: "POST",
+      json: { scan_job_id: resultJob, method: $("recon-method").value, params: {} },
+      headers: { "Idempotency-Key": newIdempotencyKey() },
+    });
+    const id = await jobIdFrom(resp);
+    clearError();
+    location.hash = "#/jobs/" + encodeURIComponent(id);
+  } catch (err) {
+    showError(err);
+  } finally {
+    $("recon-start").disabled = false;
+  }
+}
+
+/* ------------------------------------------------------------------ start-up */
+
+function updateTokenButton() {
+  $("token-button").textContent = getToken() ? "Change token" : "Set token";
+}
+
+async function health() {
+  try {
+    const h = await apiJson("/api/health");
+    $("server-status").textContent = `server: ${h.status}${h.version ? " v" + h.version : ""}`;
+  } catch (err) {
+    $("server-status").textContent = "server: unreachable";
+  }
+}
+
+function init() {
+  buildMaskSelect();
+  updateTokenButton();
+  $("mask-kind").addEventListener("change", () => { renderMaskParams(); schedulePreview(0); });
+  $("plan-form").addEventListener("input", () => schedulePreview());
+  $("plan-form").addEventListener("submit", savePlan);
+  $("scan-form").addEventListener("submit", startScan);
+  $("scan-refresh").addEventListener("click", () => refreshScanLists().catch(showError));
+  $("scan-pause").addEventListener("click", () => scanControl("pause"));
+  $("scan-resume").addEventListener("click", () => scanControl("resume"));
+  $("scan-abort").addEventListener("click", () => scanControl("abort"));
+  $("jobs-filter").addEventListener("submit", (ev) => { ev.preventDefault(); refreshJobs().catch(showError); });
+  $("jobs-state").addEventListener("change", () => refreshJobs().catch(showError));
+  $("jobs-kind").addEventListener("change", () => refreshJobs().catch(showError));
+  $("result-slice").addEventListener("input", showSlice);
+  $("recon-form").addEventListener("submit", startRecon);
+  $("error-close").addEventListener("click", clearError);
+  $("token-button").addEventListener("click", () => askToken("Enter the server's bearer token. It is kept for this browser tab only."));
+  window.addEventListener("hashchange", route);
+  health();
+  route();
+}
+
+document.addEventListener("DOMContentLoaded", init);
