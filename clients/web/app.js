@@ -32,7 +32,7 @@ function getToken() { return sessionStorage.getItem(TOKEN_KEY) || ""; }
 
 /** The server's reason from an error body: FastAPI's `detail` (a string, or a list of
  *  validation errors {loc, msg}). */
-function detailText(body, status) {
+function detailText(body, status, statusText) {
   if (body && typeof body === "object" && "detail" in body) {
     const d = body.detail;
     if (typeof d === "string") return d;
@@ -47,8 +47,8 @@ function detailText(body, status) {
     }
     return JSON.stringify(d);
   }
-  if (typeof body === "string" && body.trim()) return body.trim().slice(0, 300);
-  return `HTTP ${status}`;
+  if (typeof body === "string" && body.trim() && !/^\s*</.test(body)) return body.trim().slice(0, 300);
+  return `HTTP ${status}${statusText ? " " + statusText : ""}`;
 }
 
 let tokenPrompt = null; // one dialog at a time, shared by concurrent requests
@@ -106,7 +106,7 @@ async function apiFetch(path, options = {}, retried = false) {
   let body = null;
   const text = await resp.text();
   try { body = JSON.parse(text); } catch (_) { body = text; }
-  const detail = detailText(body, resp.status);
+  const detail = detailText(body, resp.status, resp.statusText);
   if ((resp.status === 401 || resp.status === 403) && !retried) {
     const msg = getToken()
       ? `The server refused the token (${detail}). Enter the right token; it is kept for this browser tab only.`

@@ -1,0 +1,75 @@
+"""Fixtures of the web page's end-to-end tests: a real headless Chromium (Debian's
+``chromium`` + ``chromium-driver``, driven by Selenium) with a fresh profile.
+
+Skips (with the reason) only where the browser or its driver cannot be found or started;
+the setup step ``scripts/test-setup.d/chromium.sh`` installs them where it can.
+"""
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+import pytest
+
+from web_e2e_support import CHROMIUM_FLAGS, SCREENSHOTS
+
+
+def _browser_paths() -> tuple[str, str]:
+    chromium = shutil.which("chromium") or shutil.which("chromium-browser")
+    driver = shutil.which("chromedriver")
+    if not chromium or not driver:
+        pytest.skip("headless Chromium not available: install Debian's chromium and chromium-driver "
+                    "(scripts/test-setup.d/chromium.sh does it when run as root)")
+    return chromium, driver
+
+
+@pytest.fixture(scope="session")
+def screenshots() -> Path:
+    SCREENSHOTS.mkdir(parents=True, exist_ok=True)
+    return SCREENSHOTS
+
+
+@pytest.fixture(scope="module")
+def download_dir(tmp_path_factory) -> Path:
+    return tmp_path_factory.mktemp("downloads")
+
+
+@pytest.fixture(scope="module")
+def browser(download_dir):
+    """A headless Chromium with a fresh profile, downloads going to ``download_dir``."""
+    webdriver = pytest.importorskip("selenium.webdriver", reason="selenium not installed (pip install -e '.[test]')")
+    from selenium.webdriver.chrome.service import Service
+
+    chromium, driver_path = _browser_paths()
+    os.environ.setdefault("SE_OFFLINE", "true")  # never let Selenium Manager download anything
+    profile = tempfile.mkdtemp(prefix="fpscan-chromium-")
+    opts = webdriver.ChromeOptions()
+    opts.binary_location = chromium
+    for flag in CHROMIUM_FLAGS:
+        opts.add_argument(flag)
+    opts.add_argument(f"--user-data-dir={profile}")
+    opts.add_experimental_option("prefs", {
+        "download.default_directory": str(download_dir),
+        "download.prompt_for_download": False,
+        "safebrowsing.enabled": False,
+    })
+    opts.set_capability("goog:loggingPrefs", {"browser": "ALL"})
+    try:
+        drv = webdriver.Chrome(options=opts, service=Service(executable_path=driver_path))
+    except Exception as exc:  # noqa: BLE001 - the browser cannot start here
+        shutil.rmtree(profile, ignore_errors=True)
+        pytest.skip(f"headless Chromium could not start: {exc}")
+    try:
+        drv.execute_cdp_cmd("Browser.setDownloadBehavior",
+                            {"behavior": "allow", "downloadPath": str(download_dir)})
+    except Exception:  # noqa: BLE001 - older drivers: the prefs above do it
+        pass
+    drv.set_page_load_timeout(30)
+    drv.set_script_timeout(30)
+    yield drv
+    drv.quit()
+    shutil.rmtree(profile, ignore_errors=True)
+
+

@@ -1,0 +1,358 @@
+"""End-to-end tests of the web page in a real headless Chromium against a real
+``fpscan serve`` (token configured) and a simulated scanner from ``fpscan sim`` on a pty.
+
+What the user does, step by step: the token is asked once; a plan is previewed while the
+parameters change and saved; a scan is started and watched to 100 % with the live
+preview changing; the result is opened, reconstructed and its volume downloaded.
+
+Oracles are independent of the page: the same requests made with httpx (the server's own
+numbers and reasons), the scan file and the volume read with h5py, pixel data of the
+images taken from the browser. Screenshots of each view go to test-artifacts/screenshots/.
+"""
+from __future__ import annotations
+
+import base64
+import hashlib
+import json
+import os
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+
+from web_e2e_support import REPO_ROOT, fpscan_cmd, free_port, has_subcommand, stop_process, wait_for
+
+httpx = pytest.importorskip("httpx")
+
+TOKEN = "web-e2e-token-4711"
+LATTICE = {"n_x": 24, "n_y": 24, "pitch": 1e-4}
+N_POINTS = 120
+
+pytestmark = pytest.mark.timeout(120)
+
+
+# ----------------------------------------------------------------------------- fixtures
+@pytest.fixture(scope="module")
+def sim(tmp_path_factory):
+    """``fpscan sim`` (analytic balls) on a pty; yields its device path."""
+    if not has_subcommand("sim") or not has_subcommand("serve"):
+        pytest.skip("`fpscan sim` / `fpscan serve` not available yet")
+    log = tmp_path_factory.mktemp("sim") / "sim.log"
+    err = open(log, "wb")
+    proc = subprocess.Popen(fpscan_cmd("sim", "--prf", "40", "--seed", "1"), cwd=REPO_ROOT,
+                            stdout=subprocess.PIPE, stderr=err, text=True, start_new_session=True)
+    try:
+        line = proc.stdout.readline().strip()  # the device path, on the first line
+        if not line:
+            raise AssertionError(f"fpscan sim printed no device path: {log.read_text()[-2000:]}")
+        yield line.split()[-1]
+    finally:
+        stop_process(proc)
+        err.close()
+
+
+@pytest.fixture(scope="module")
+def server(sim, tmp_path_factory):
+    """``fpscan serve`` on 127.0.0.1 with a token and the simulated scanner as ``sim1``."""
+    data = tmp_path_factory.mktemp("serve")
+    port = free_port()
+    env = dict(os.environ)
+    env.update({
+        "FPSCAN_DATA_DIR": str(data),
+        "FPSCAN_DEVICES": json.dumps({"sim1": sim}),
+        "FPSCAN_TOKEN": TOKEN,
+        "FPSCAN_PREVIEW_INTERVAL_S": "0.5",
+    })
+    log = open(data / "serve.log", "wb")
+    proc = subprocess.Popen(fpscan_cmd("serve", "--host", "127.0.0.1", "--port", str(port)), cwd=REPO_ROOT,
+                            env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+    base = f"http://127.0.0.1:{port}"
+
+    def up():
+        if proc.poll() is not None:
+            raise AssertionError(f"fpscan serve exited: {(data / 'serve.log').read_text()[-3000:]}")
+        return httpx.get(base + "/api/health", timeout=2).status_code == 200
+
+    try:
+        wait_for(up, 60, "fpscan serve to answer /api/health")
+        yield base
+    finally:
+        stop_process(proc)
+        log.close()
+
+
+@pytest.fixture(scope="module")
+def api(server):
+    with httpx.Client(base_url=server, headers={"Authorization": f"Bearer {TOKEN}"}, timeout=30) as c:
+        yield c
+
+
+@pytest.fixture(scope="module")
+def state():
+    """What one step hands to the next (plan id, scan job id)."""
+    return {}
+
+
+# ----------------------------------------------------------------------------- helpers
+def el(browser, element_id):
+    return browser.find_element("id", element_id)
+
+
+def text(browser, element_id) -> str:
+    return browser.execute_script("return document.getElementById(arguments[0]).textContent", element_id).strip()
+
+
+def set_value(browser, element_id, value) -> None:
+    """Type a new value into an input, as a user would (fires input events)."""
+    from selenium.webdriver.common.keys import Keys
+
+    box = el(browser, element_id)
+    box.send_keys(Keys.CONTROL, "a")
+    box.send_keys(Keys.DELETE)
+    box.send_keys(str(value))
+
+
+def image_digest(browser, element_id) -> str | None:
+    """sha256 of the pixels the browser shows in an <img> (None until it has loaded)."""
+    data_url = browser.execute_script(
+        """const img = document.getElementById(arguments[0]);
+           if (!img.complete || !img.naturalWidth) return null;
+           const c = document.createElement('canvas');
+           c.width = img.naturalWidth; c.height = img.naturalHeight;
+           c.getContext('2d').drawImage(img, 0, 0);
+           return c.toDataURL('image/png');""", element_id)
+    if not data_url:
+        return None
+    return hashlib.sha256(base64.b64decode(data_url.split(",", 1)[1])).hexdigest()
+
+
+def shot(browser, screenshots: Path, name: str) -> None:
+    browser.save_screenshot(str(screenshots / f"{name}.png"))
+
+
+def plan_request(n_points: int) -> dict:
+    return {"kind": "equisteradian", "lattice": LATTICE,
+            "params": {"depth": 1.0e-3, "n_points": n_points},
+            "acquisition": {"n_t": 256, "dt": 2e-8, "averages": 1, "wavelengths": [7.5e-7],
+                            "prf": 40.0, "sound_speed": 1500.0}}
+
+
+def fill_plan_form(browser, n_points: int) -> None:
+    from selenium.webdriver.support.ui import Select
+
+    set_value(browser, "lat-nx", LATTICE["n_x"])
+    set_value(browser, "lat-ny", LATTICE["n_y"])
+    set_value(browser, "lat-pitch", LATTICE["pitch"] * 1e6)
+    Select(el(browser, "mask-kind")).select_by_value("equisteradian")
+    set_value(browser, "mask-depth", 1.0)
+    set_value(browser, "acq-nt", 256)
+    set_value(browser, "acq-dt", 20)
+    set_value(browser, "acq-prf", 40)
+    set_value(browser, "mask-n-points", n_points)
+
+
+def submit_token_if_asked(browser, timeout=15) -> bool:
+    def dialog_open():
+        return browser.execute_script("return document.getElementById('token-dialog').open")
+    try:
+        wait_for(dialog_open, timeout, "the token dialog")
+    except AssertionError:
+        return False
+    set_value(browser, "token-input", TOKEN)
+    el(browser, "token-ok").click()
+    wait_for(lambda: not dialog_open(), 5, "the token dialog to close")
+    return True
+
+
+# ----------------------------------------------------------------------------- tests
+def test_plan_view_token_preview_errors_and_save(server, api, browser, screenshots, state):
+    browser.get(server + "/#/plan")
+    # The mutating preview asks for the token once; it is kept in sessionStorage.
+    fill_plan_form(browser, N_POINTS)
+    assert submit_token_if_asked(browser), "the page never asked for the token"
+    assert browser.execute_script("return sessionStorage.getItem('fpscan.token')") == TOKEN
+
+    oracle = api.post("/api/plans/preview", json=plan_request(N_POINTS))
+    assert oracle.status_code == 200, oracle.text
+    expected = oracle.json()
+    wait_for(lambda: text(browser, "plan-points").split()[0] == str(expected["points"]), 20,
+             f"the page to show {expected['points']} points")
+    first = wait_for(lambda: image_digest(browser, "plan-preview"), 10, "the preview image")
+    assert f"{expected['weight_ratio']:.3g}".rstrip("0").rstrip(".")[:3] in text(browser, "plan-ratio")
+    assert text(browser, "plan-time") not in ("", "–")
+    shot(browser, screenshots, "plan-view")
+
+    # Changing a parameter updates preview and counts with no further token prompt.
+    more = 2 * N_POINTS
+    expected2 = api.post("/api/plans/preview", json=plan_request(more)).json()
+    assert expected2["points"] != expected["points"]
+    set_value(browser, "mask-n-points", more)
+    wait_for(lambda: text(browser, "plan-points").split()[0] == str(expected2["points"]), 20,
+             "the point count to follow the parameter")
+    wait_for(lambda: (image_digest(browser, "plan-preview") or first) != first, 10, "the preview image to change")
+    assert not browser.execute_script("return document.getElementById('token-dialog').open")
+
+    # Bad input: the server's reason is shown, word for word.
+    bad = api.post("/api/plans/preview", json=plan_request(0))
+    assert 400 <= bad.status_code < 500
+    reason = bad.json()["detail"]
+    reason_text = reason if isinstance(reason, str) else None
+    set_value(browser, "mask-n-points", 0)
+    wait_for(lambda: text(browser, "plan-preview-state").startswith("No preview"), 20, "the error to show")
+    shown = text(browser, "plan-preview-state")
+    if reason_text is not None:
+        assert reason_text in shown
+    assert el(browser, "error").is_displayed()
+    shot(browser, screenshots, "plan-view-error")
+
+    # Save: the saved plan is on the server with the count the page showed.
+    set_value(browser, "mask-n-points", N_POINTS)
+    wait_for(lambda: text(browser, "plan-points").split()[0] == str(expected["points"]), 20, "the preview to recover")
+    el(browser, "plan-save").click()
+    plan_id = wait_for(lambda: el(browser, "plan-saved").get_attribute("data-plan-id"), 20, "the saved plan id")
+    saved = api.get(f"/api/plans/{plan_id}")
+    assert saved.status_code == 200, saved.text
+    assert saved.json()["n_points"] == expected["points"]
+    state["plan_id"] = plan_id
+    state["n_points"] = expected["points"]
+
+
+def test_scan_view_progress_reaches_100_and_live_preview_changes(server, api, browser, screenshots, state):
+    from selenium.webdriver.support.ui import Select
+
+    if "plan_id" not in state:
+        pytest.skip("needs the plan saved by the plan-view test")
+    el(browser, "nav-scan").click()
+    wait_for(lambda: state["plan_id"] in [o.get_attribute("value") for o in Select(el(browser, "scan-plan")).options],
+             15, "the saved plan in the plan list")
+    Select(el(browser, "scan-plan")).select_by_value(state["plan_id"])
+    wait_for(lambda: "sim1" in [o.get_attribute("value") for o in Select(el(browser, "scan-scanner")).options],
+             15, "the simulated scanner in the scanner list")
+    Select(el(browser, "scan-scanner")).select_by_value("sim1")
+    el(browser, "scan-start").click()
+
+    job_id = wait_for(lambda: el(browser, "scan-job").get_attribute("title"), 15, "the scan job id")
+    versions: dict[str, str] = {}
+    shot_running = False
+    deadline = time.monotonic() + 90
+    while time.monotonic() < deadline:
+        v = el(browser, "scan-mip-xy").get_attribute("data-version")
+        if v and v not in versions:
+            digest = image_digest(browser, "scan-mip-xy")
+            if digest:
+                versions[v] = digest
+        if not shot_running and versions and text(browser, "scan-state") == "running":
+            shot(browser, screenshots, "scan-view-running")
+            shot_running = True
+        if text(browser, "scan-state") in ("succeeded", "failed", "cancelled") and versions:
+            break
+        time.sleep(0.15)
+    assert text(browser, "scan-state") == "succeeded", api.get(f"/api/jobs/{job_id}").text
+    wait_for(lambda: text(browser, "scan-progress-label") == "100 %", 10, "progress 100 %")
+    assert el(browser, "scan-progress").get_attribute("value") in ("1", "1.0")
+    n = state["n_points"]
+    assert text(browser, "scan-points") == f"{n} / {n}"
+    time.sleep(1.0)
+    v = el(browser, "scan-mip-xy").get_attribute("data-version")
+    if v and v not in versions and image_digest(browser, "scan-mip-xy"):
+        versions[v] = image_digest(browser, "scan-mip-xy")
+    shot(browser, screenshots, "scan-view-done")
+    assert len(versions) >= 2, f"saw live preview versions {list(versions)}"
+    assert len(set(versions.values())) >= 2, "the live preview image never changed"
+
+    # The scan file on the server holds every point of the plan.
+    h5py = pytest.importorskip("h5py")
+    r = api.get(f"/api/scans/{job_id}/file")
+    assert r.status_code == 200
+    path = screenshots.parent / "web-scan.h5"
+    path.write_bytes(r.content)
+    with h5py.File(path, "r") as f:
+        assert f is not None  # opens as HDF5
+    state["scan_job_id"] = job_id
+
+
+def test_result_view_reconstruct_slices_and_download_volume(server, api, browser, screenshots, state, download_dir):
+    from selenium.webdriver.support.ui import Select
+
+    if "scan_job_id" not in state:
+        pytest.skip("needs the scan of the scan-view test")
+    scan_id = state["scan_job_id"]
+    el(browser, "nav-jobs").click()
+    row = wait_for(lambda: browser.find_element("css selector", f'tr[data-job-id="{scan_id}"]'), 15, "the scan in the job list")
+    assert row.find_element("css selector", ".c-state").text.strip() == "succeeded"
+    row.find_element("css selector", "a.c-open").click()
+    wait_for(lambda: el(browser, "result").is_displayed() and text(browser, "result-kind") == "scan", 15, "the scan's result view")
+    links = {a.text: a.get_attribute("href") for a in browser.find_elements("css selector", "#result-downloads a")}
+    assert any("Scan file" in k for k in links) and any("IPASC" in k for k in links), links
+    shot(browser, screenshots, "jobs-scan-result")
+
+    Select(el(browser, "recon-method")).select_by_value("nedner")
+    el(browser, "recon-start").click()
+    wait_for(lambda: text(browser, "result-kind") == "recon", 15, "the reconstruction job to open")
+    recon_id = el(browser, "result-id").get_attribute("title")
+    wait_for(lambda: text(browser, "result-state") in ("succeeded", "failed"), 90, "the reconstruction to finish", 0.3)
+    assert text(browser, "result-state") == "succeeded", api.get(f"/api/jobs/{recon_id}").text
+    for plane in ("xy", "xz", "yz"):
+        wait_for(lambda: image_digest(browser, f"result-mip-{plane}"), 15, f"the {plane} MIP")
+        oracle = api.get(f"/api/reconstructions/{recon_id}/mip/{plane}.png")
+        assert oracle.status_code == 200
+    # The parameters used are listed.
+    params = text(browser, "result-params")
+    assert "nedner" in params or "method" in params
+
+    # Depth-slice slider: a different slice shows a different image.
+    slider = el(browser, "result-slice")
+    top = int(slider.get_attribute("max"))
+    assert top > 0, "the slider has no depth range"
+    first = wait_for(lambda: image_digest(browser, "result-slice-img"), 15, "the first depth slice")
+    browser.execute_script("const s = arguments[0]; s.value = s.max; s.dispatchEvent(new Event('input'));", slider)
+    wait_for(lambda: (el(browser, "result-slice-img").get_attribute("data-src") or "").endswith(f"index={top}"), 15, "the last slice")
+    assert text(browser, "result-slice-value") == str(top)
+    shot(browser, screenshots, "jobs-recon-result")
+
+    # Download the volume through the page: byte for byte what the API serves, and HDF5.
+    link = next(a for a in browser.find_elements("css selector", "#result-downloads a") if a.text.startswith("Volume"))
+    link.click()
+    got = wait_for(lambda: [p for p in download_dir.iterdir() if p.suffix == ".h5" and p.name.startswith("volume")],
+                   30, "the downloaded volume")
+    oracle = api.get(f"/api/reconstructions/{recon_id}/volume.h5")
+    wait_for(lambda: got[0].stat().st_size == len(oracle.content), 15, "the download to complete")
+    assert got[0].read_bytes() == oracle.content
+    h5py = pytest.importorskip("h5py")
+    with h5py.File(got[0], "r") as f:
+        assert len(f.keys()) > 0
+
+
+def test_keyboard_navigation_and_state_without_colour(server, browser, screenshots):
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.keys import Keys
+
+    browser.get(server + "/#/plan")
+    body = browser.find_element("tag name", "body")
+    body.click()
+    # Tab from the top of the page reaches the navigation; Enter on "Scan" switches view.
+    for _ in range(12):
+        ActionChains(browser).send_keys(Keys.TAB).perform()
+        if browser.switch_to.active_element.get_attribute("id") == "nav-scan":
+            break
+    assert browser.switch_to.active_element.get_attribute("id") == "nav-scan"
+    ActionChains(browser).send_keys(Keys.ENTER).perform()
+    wait_for(lambda: el(browser, "view-scan").is_displayed(), 5, "the scan view")
+    assert el(browser, "nav-scan").get_attribute("aria-current") == "page"
+    # Every form control has an accessible label.
+    unlabeled = browser.execute_script(
+        """return [...document.querySelectorAll('input, select')].filter(e =>
+             e.type !== 'hidden' && !(e.labels && e.labels.length) && !e.getAttribute('aria-label')
+           ).map(e => e.id);""")
+    assert unlabeled == []
+    # Job states carry a word and a symbol, not colour alone.
+    el(browser, "nav-jobs").click()
+    wait_for(lambda: el(browser, "view-jobs").is_displayed(), 5, "the jobs view")
+    states = browser.execute_script(
+        """return [...document.querySelectorAll('#jobs-body .state')].map(e =>
+             [e.textContent, getComputedStyle(e, '::before').content]);""")
+    for word, symbol in states:
+        assert word in ("queued", "running", "paused", "succeeded", "failed", "cancelled")
+        assert symbol not in ("none", "normal", "")
+    shot(browser, screenshots, "jobs-view")
