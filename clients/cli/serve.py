@@ -1,0 +1,100 @@
+"""`fpscan serve`: run the HTTP service (FastAPI on uvicorn)."""
+from __future__ import annotations
+
+COMMAND = "serve"
+HELP = "run the fpscan HTTP service (job queue, scans, reconstructions, web page)"
+
+
+def add_arguments(parser):
+    parser.add_argument("--host", default=None, help="bind address (default 127.0.0.1; beyond loopback needs --token)")
+    parser.add_argument("--port", type=int, default=None, help="port (default 8000; 0 = any free port)")
+    parser.add_argument("--data-dir", default=None, help="folder for the database, scans and results")
+    parser.add_argument("--device", action="append", default=[], metavar="ID=PATH",
+                        help="a scanner: id and serial device path or pyserial URL (repeatable)")
+    parser.add_argument("--token", default=None, help="bearer token (default: $FPSCAN_TOKEN)")
+    parser.add_argument("--executor", choices=["local", "dask"], default=None, help="where reconstructions run")
+    parser.add_argument("--dask-scheduler", default=None, help="dask.distributed scheduler address")
+    parser.add_argument("--workers", type=int, default=None, help="local process pool size")
+    parser.add_argument("--memory-limit", type=float, default=None, help="reconstruction memory limit, GiB")
+    parser.add_argument("--settings", default=None, help="settings file (JSON or TOML)")
+    parser.add_argument("--no-web", action="store_true", help="do not serve the web page")
+    parser.add_argument("--log-level", default=None, help="uvicorn/app log level (default info)")
+
+
+def parse_devices(items: list[str]) -> dict[str, str]:
+    """``["fp1=/dev/ttyACM0", ...]`` → ``{"fp1": "/dev/ttyACM0"}``; raises ValueError."""
+    out = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key or not value:
+            raise ValueError(f"--device must be ID=PATH, got {item!r}")
+        out[key] = value
+    return out
+
+
+def run(args) -> int:
+    import importlib.resources
+    import json
+    import logging
+    import sys
+
+    import uvicorn
+    from pydantic import ValidationError
+
+    from service.settings import LOOPBACK_HOSTS, Settings
+
+    overrides = {}
+    for name in ("host", "port", "data_dir", "token", "executor", "dask_scheduler", "workers", "log_level"):
+        value = getattr(args, name)
+        if value is not None:
+            overrides[name] = value
+    if args.device:
+        overrides["devices"] = parse_devices(args.device)
+    if args.memory_limit is not None:
+        overrides["memory_limit"] = int(args.memory_limit * 2**30)
+    if not args.no_web:
+        try:
+            overrides["web_root"] = str(importlib.resources.files("clients.web"))
+        except ModuleNotFoundError:
+            pass
+    try:
+        settings = Settings.load(args.settings, **overrides)
+    except ValidationError as exc:
+        raise ValueError("; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())) from None
+    if settings.host not in LOOPBACK_HOSTS and settings.token is None:
+        raise ValueError(f"binding to {settings.host} (beyond loopback) needs a --token")
+
+    level = settings.log_level.upper()
+    logging.basicConfig(level=getattr(logging, level, logging.INFO), stream=sys.stderr,
+                        format='{"time": "%(asctime)s", "level": "%(levelname)s", "logger": "%(name)s", '
+                               '"message": %(message_json)s}')
+    _install_json_messages()
+
+    from service.api.app import create_app
+
+    app = create_app(settings)
+    config = uvicorn.Config(app, host=settings.host, port=settings.port, log_level=settings.log_level.lower(),
+                            access_log=False, lifespan="on")
+    server = uvicorn.Server(config)
+    print(json.dumps({"event": "serving", "host": settings.host, "port": settings.port,
+                      "data_dir": str(settings.data_dir)}), file=sys.stderr, flush=True)
+    server.run()
+    return 0
+
+
+def _install_json_messages() -> None:
+    """Structured logs: every record carries its message as a JSON string."""
+    import json
+    import logging
+
+    old = logging.getLogRecordFactory()
+
+    def factory(*a, **kw):
+        record = old(*a, **kw)
+        try:
+            record.message_json = json.dumps(record.getMessage())
+        except Exception:
+            record.message_json = json.dumps(str(record.msg))
+        return record
+
+    logging.setLogRecordFactory(factory)

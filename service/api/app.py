@@ -1,0 +1,180 @@
+"""The FastAPI application factory: ``create_app(settings) -> FastAPI``.
+
+Wires the job store (SQLite, WAL), restart recovery, the executor (local process pool or
+dask.distributed), the reconstruction queue, the scan manager, the routes (docs/api.md),
+error handling (every error is ``{"detail": "<reason>"}``; internals stay in the log),
+the upload size limit and the static web page (``settings.web_root``).
+"""
+from __future__ import annotations
+
+import contextlib
+import logging
+import time
+import uuid
+from pathlib import Path
+
+from fastapi import Depends, FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.staticfiles import StaticFiles
+
+from service.api.context import Context, ctx, read_access
+from service.api.models import Error, Health
+from service.settings import Settings
+
+log = logging.getLogger("fpscan.api")
+
+VERSION = "0.1.0"
+
+ERROR_RESPONSES = {
+    400: {"model": Error, "description": "bad request"},
+    401: {"model": Error, "description": "missing or invalid bearer token"},
+    404: {"model": Error, "description": "not found"},
+    409: {"model": Error, "description": "conflict with the resource's state"},
+    413: {"model": Error, "description": "upload too large"},
+    422: {"model": Error, "description": "invalid input (the reason is in detail)"},
+}
+
+
+def _validation_reason(exc: RequestValidationError) -> str:
+    parts = []
+    for err in exc.errors()[:5]:
+        loc = ".".join(str(p) for p in err.get("loc", ()) if p != "body") or "body"
+        msg = err.get("msg", "invalid")
+        if err.get("type") == "json_invalid":
+            return f"malformed JSON: {err.get('ctx', {}).get('error', msg)}"
+        parts.append(f"{loc}: {msg}")
+    return "; ".join(parts) or "invalid request"
+
+
+class UploadLimit:
+    """ASGI middleware: refuse request bodies over ``limit`` bytes with 413 (by
+    ``Content-Length`` up front, and by counting for chunked bodies)."""
+
+    def __init__(self, app, limit: int):
+        self.app = app
+        self.limit = limit
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http":
+            return await self.app(scope, receive, send)
+        headers = dict(scope.get("headers") or [])
+        length = headers.get(b"content-length")
+        if length is not None:
+            try:
+                too_big = int(length) > self.limit + 1_000_000  # multipart overhead
+            except ValueError:
+                too_big = False
+            if too_big:
+                resp = JSONResponse({"detail": f"request body larger than the limit of {self.limit} bytes"}, 413)
+                return await resp(scope, receive, send)
+        seen = 0
+
+        async def counting_receive():
+            nonlocal seen
+            message = await receive()
+            if message["type"] == "http.request":
+                seen += len(message.get("body", b""))
+                if seen > self.limit + 1_000_000:
+                    raise _TooLarge()
+            return message
+
+        try:
+            await self.app(scope, counting_receive, send)
+        except _TooLarge:
+            resp = JSONResponse({"detail": f"request body larger than the limit of {self.limit} bytes"}, 413)
+            await resp(scope, receive, send)
+
+
+class _TooLarge(Exception):
+    pass
+
+
+def create_app(settings: Settings | None = None, *, start_workers: bool = True) -> FastAPI:
+    """The service app. ``start_workers=False`` builds the app without the queue and scan
+    threads (for schema inspection)."""
+    settings = settings or Settings.load()
+
+    @contextlib.asynccontextmanager
+    async def lifespan(app: FastAPI):
+        from service.jobs.store import JobStore
+
+        Path(settings.data_dir).mkdir(parents=True, exist_ok=True)
+        store = JobStore(settings.database)
+        context = Context(settings=settings, store=store)
+        app.state.ctx = context
+        executor = None
+        if start_workers:
+            from service.jobs.executors import make_executor
+            from service.jobs.queue import ReconQueue
+
+            executor = make_executor(settings)
+            context.queue = ReconQueue(store, executor, settings)
+            recovered = store.recover(context.queue.owner, settings.max_attempts)
+            log.info("startup recovered=%s executor=%s", recovered, settings.executor)
+            context.queue.start()
+            try:
+                from service.scanning import ScanManager
+
+                context.scans = ScanManager(store, settings)
+                context.scans.start()
+            except ImportError as exc:  # the driver is not installed
+                log.warning("scanning unavailable: %s", exc)
+        try:
+            yield
+        finally:
+            if context.scans is not None:
+                context.scans.stop()
+            if context.queue is not None:
+                context.queue.stop()
+            if executor is not None:
+                executor.close()
+            store.close()
+
+    app = FastAPI(title="fpscan", version=VERSION, lifespan=lifespan, responses=ERROR_RESPONSES,
+                  description="Planar Fabry-Perot photoacoustic scanning: plans, scans, reconstructions as jobs.")
+
+    @app.exception_handler(RequestValidationError)
+    async def _validation(request: Request, exc: RequestValidationError):
+        return JSONResponse({"detail": _validation_reason(exc)}, status_code=422)
+
+    @app.exception_handler(StarletteHTTPException)
+    async def _http(request: Request, exc: StarletteHTTPException):
+        detail = exc.detail if isinstance(exc.detail, str) else str(exc.detail)
+        return JSONResponse({"detail": detail}, status_code=exc.status_code, headers=getattr(exc, "headers", None))
+
+    @app.exception_handler(Exception)
+    async def _internal(request: Request, exc: Exception):
+        ref = uuid.uuid4().hex[:8]
+        log.exception("internal error ref=%s %s %s", ref, request.method, request.url.path)
+        return JSONResponse({"detail": f"internal error (reference {ref})"}, status_code=500)
+
+    @app.middleware("http")
+    async def _access_log(request: Request, call_next):
+        t0 = time.perf_counter()
+        response = await call_next(request)
+        log.debug("request method=%s path=%s status=%s ms=%.1f", request.method, request.url.path,
+                  response.status_code, 1e3 * (time.perf_counter() - t0))
+        return response
+
+    app.add_middleware(UploadLimit, limit=settings.upload_limit)
+
+    from service.api import datasets, jobs, plans, reconstructions, scans
+
+    @app.get("/api/health", response_model=Health, tags=["health"], dependencies=[Depends(read_access)])
+    def health(c: Context = Depends(ctx)) -> Health:
+        """Liveness: ``{"status": "ok", "version", "executor", "jobs_running"}``."""
+        return Health(version=VERSION, executor=settings.executor,
+                      jobs_running=c.queue.running() if c.queue is not None else 0)
+
+    for module in (plans, scans, datasets, reconstructions, jobs):
+        app.include_router(module.router)
+
+    if settings.web_root is not None:
+        root = Path(settings.web_root)
+        if root.is_dir():
+            app.mount("/", StaticFiles(directory=str(root), html=True), name="web")
+        else:
+            log.warning("web_root %s is not a folder; no web page", root)
+    return app

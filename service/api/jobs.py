@@ -1,0 +1,124 @@
+"""Job routes: list, get, Server-Sent Events progress (``Last-Event-ID``), cancel."""
+from __future__ import annotations
+
+import asyncio
+import json
+
+import anyio
+from fastapi import APIRouter, Depends, Header, HTTPException, Path, Query, Request
+from sse_starlette.sse import EventSourceResponse, ServerSentEvent
+
+from service.api.context import Context, ctx, read_access, require_token
+from service.api.models import ID_PATTERN, Job, JobKind, JobState
+from service.jobs.store import TERMINAL
+
+router = APIRouter(prefix="/api/jobs", tags=["jobs"])
+
+JobId = Path(pattern=ID_PATTERN, description="job id")
+
+
+def job_links(job: dict) -> dict[str, str]:
+    jid = job["id"]
+    links = {"self": f"/api/jobs/{jid}", "events": f"/api/jobs/{jid}/events", "cancel": f"/api/jobs/{jid}/cancel"}
+    if job["kind"] == "scan":
+        links.update({"file": f"/api/scans/{jid}/file", "ipasc": f"/api/scans/{jid}/ipasc",
+                      "preview": f"/api/scans/{jid}/preview", "pause": f"/api/scans/{jid}/pause",
+                      "resume": f"/api/scans/{jid}/resume", "abort": f"/api/scans/{jid}/abort"})
+    elif job["state"] == "succeeded":
+        planes = job["params"].get("result", {}).get("planes", ["xy", "xz", "yz"])
+        links["volume"] = f"/api/reconstructions/{jid}/volume.h5"
+        links["slice"] = f"/api/reconstructions/{jid}/slice.png"
+        for plane in planes:
+            links[f"mip_{plane}"] = f"/api/reconstructions/{jid}/mip/{plane}.png"
+    return links
+
+
+def job_view(job: dict) -> Job:
+    """The public view of a stored job (no file system paths)."""
+    params = {k: v for k, v in job["params"].items() if k not in ("input", "scan_path")}
+    created, started, finished = job["created"], job["started"], job["finished"]
+    timings = {"created": created, "started": started, "finished": finished,
+               "queued_s": (started - created) if started else None,
+               "run_s": (finished - started) if (finished and started) else None}
+    return Job(id=job["id"], kind=job["kind"], state=job["state"], progress=job["progress"], timings=timings,
+               params=params, links=job_links(job), attempts=job["attempts"], error=job["error"])
+
+
+def get_job_or_404(c: Context, job_id: str, kind: str | None = None) -> dict:
+    job = c.store.get(job_id)
+    if job is None or (kind is not None and job["kind"] != kind):
+        raise HTTPException(404, f"no {kind or ''} job {job_id}".replace("  ", " "))
+    return job
+
+
+@router.get("", response_model=list[Job], dependencies=[Depends(read_access)])
+def list_jobs(c: Context = Depends(ctx), state: JobState | None = Query(None), kind: JobKind | None = Query(None),
+              limit: int = Query(200, ge=1, le=1000)) -> list[Job]:
+    """Jobs, newest first, optionally filtered by state and kind."""
+    return [job_view(j) for j in c.store.list(state=state, kind=kind, limit=limit)]
+
+
+@router.get("/{job_id}", response_model=Job, dependencies=[Depends(read_access)])
+def get_job(job_id: str = JobId, c: Context = Depends(ctx)) -> Job:
+    """One job: state, progress, timings, parameters, links, error."""
+    return job_view(get_job_or_404(c, job_id))
+
+
+@router.post("/{job_id}/cancel", response_model=Job, dependencies=[Depends(require_token)])
+def cancel_job(job_id: str = JobId, c: Context = Depends(ctx)) -> Job:
+    """Cooperative cancel: a queued or paused job ends at once; a running one at its next
+    check (a scan after the current A-line, a reconstruction when its step returns)."""
+    job = get_job_or_404(c, job_id)
+    if job["state"] in TERMINAL:
+        raise HTTPException(409, f"job {job_id} already {job['state']}")
+    c.store.request_cancel(job_id)
+    if job["kind"] == "scan" and c.scans is not None:
+        c.scans.cancel(job_id)
+    return job_view(c.store.get(job_id))
+
+
+@router.get("/{job_id}/events", dependencies=[Depends(read_access)],
+            responses={200: {"content": {"text/event-stream": {}},
+                             "description": "SSE stream: `event: state|progress`, `id:` sequence, JSON data"}})
+async def job_events(request: Request, job_id: str = JobId, c: Context = Depends(ctx),
+                     last_event_id: str | None = Header(None, alias="Last-Event-ID", max_length=32)):
+    """Server-Sent Events of the job's state changes and progress. Every event has an
+    increasing ``id``; reconnecting with ``Last-Event-ID: n`` replays the events after n.
+    The stream ends after the job reaches a final state."""
+    job = await anyio.to_thread.run_sync(c.store.get, job_id)
+    if job is None:
+        raise HTTPException(404, f"no job {job_id}")
+    try:
+        after = int(last_event_id) if last_event_id not in (None, "") else 0
+    except ValueError:
+        raise HTTPException(400, "Last-Event-ID must be an integer") from None
+    if after < 0:
+        raise HTTPException(400, "Last-Event-ID must be >= 0")
+
+    async def stream():
+        nonlocal after
+        idle = 0.0
+        while True:
+            if await request.is_disconnected():
+                return
+            events = await anyio.to_thread.run_sync(c.store.events_after, job_id, after)
+            for ev in events:
+                after = ev["seq"]
+                yield ServerSentEvent(data=ev["data"], event=ev["event"], id=str(ev["seq"]))
+            if not events:
+                current = await anyio.to_thread.run_sync(c.store.get, job_id)
+                if current is None or current["state"] in TERMINAL:
+                    rest = await anyio.to_thread.run_sync(c.store.events_after, job_id, after)
+                    for ev in rest:
+                        after = ev["seq"]
+                        yield ServerSentEvent(data=ev["data"], event=ev["event"], id=str(ev["seq"]))
+                    if not rest:
+                        return
+                await asyncio.sleep(0.2)
+                idle += 0.2
+
+    return EventSourceResponse(stream(), ping=15)
+
+
+def dumps(obj) -> str:
+    return json.dumps(obj)

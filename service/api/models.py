@@ -1,0 +1,173 @@
+"""Request and response models of the HTTP API (pure pydantic; cheap to import).
+
+The Python client imports these. Units are SI (m, s, m/s, Hz, bytes). Request models
+refuse unknown fields, NaN and infinities (``ValueError`` → HTTP 422 with the reason).
+Contract: docs/api.md.
+"""
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+JobState = Literal["queued", "running", "paused", "succeeded", "failed", "cancelled"]
+JobKind = Literal["scan", "recon"]
+ReconMethod = Literal["ner", "nedner", "linear", "nearest", "cubic", "kwave"]
+Plane = Literal["xy", "xz", "yz"]
+DatasetFormat = Literal["fpscan", "ipasc", "kwave-hdf5", "npy"]
+
+ID_PATTERN = r"^[A-Za-z0-9_-]{1,128}$"
+
+
+class _Request(BaseModel):
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
+class Error(BaseModel):
+    """Every 4xx/5xx body: ``{"detail": "<reason>"}``."""
+
+    detail: str
+
+
+class Health(BaseModel):
+    status: Literal["ok"] = "ok"
+    version: str
+    executor: str
+    jobs_running: int = 0
+
+
+# -- plans ---------------------------------------------------------------------------
+class Lattice(_Request):
+    """The scanner lattice: ``n_x × n_y`` points at ``pitch`` (m), centred on the axis."""
+
+    n_x: int = Field(ge=1, le=4096)
+    n_y: int = Field(1, ge=1, le=4096)
+    pitch: float = Field(gt=0, le=0.01, description="lattice pitch, m")
+
+
+class Acquisition(_Request):
+    """Acquisition settings of a plan."""
+
+    n_t: int = Field(1024, ge=8, le=65536, description="samples per A-line")
+    dt: float = Field(8e-9, gt=0, le=1e-3, description="sample interval, s")
+    averages: int = Field(1, ge=1, le=4096)
+    wavelengths: list[float] = Field(default_factory=lambda: [7.5e-7], min_length=1, max_length=16,
+                                     description="excitation wavelengths, m")
+    prf: float = Field(50.0, ge=0, le=1e5, description="pulse repetition frequency, Hz (0 = as fast as possible)")
+    sound_speed: float = Field(1500.0, gt=100, le=10000, description="m/s")
+
+
+class PlanCreate(_Request):
+    """A plan from mask parameters (``kind`` + ``params``) or from a point list
+    (``points``: lattice indices ``[[i_x, i_y], ...]``)."""
+
+    kind: str | None = Field(None, max_length=64, description="mask kind, e.g. full, grid, equisteradian, equiangular, random")
+    lattice: Lattice
+    params: dict[str, Any] = Field(default_factory=dict, description="mask parameters (see service.plans)")
+    points: list[list[int]] | None = Field(None, max_length=4096 * 4096,
+                                           description="lattice indices [[i_x, i_y], ...] for a user point list")
+    order: str | None = Field(None, max_length=32, description="scan order (serpentine, rings, nearest)")
+    acquisition: Acquisition = Field(default_factory=Acquisition)
+
+
+class Plan(BaseModel):
+    id: str
+    kind: str
+    n_points: int
+    requested_points: int | None = None
+    weight_ratio: float | None = None
+    expected_scan_time_s: float
+    lattice: dict[str, Any]
+    acquisition: dict[str, Any]
+    links: dict[str, str] = Field(default_factory=dict)
+
+
+class PlanPreview(BaseModel):
+    points: int
+    weight_ratio: float | None = None
+    expected_scan_time_s: float
+    preview_png_base64: str
+
+
+# -- jobs ----------------------------------------------------------------------------
+class Progress(BaseModel):
+    fraction: float = 0.0
+    stage: str = "queued"
+    points_done: int | None = None
+    points_total: int | None = None
+    rate_per_s: float | None = None
+    eta_s: float | None = None
+    faults_recovered: int | None = None
+
+    model_config = ConfigDict(extra="allow")
+
+
+class Timings(BaseModel):
+    created: float
+    started: float | None = None
+    finished: float | None = None
+    queued_s: float | None = None
+    run_s: float | None = None
+
+
+class Job(BaseModel):
+    id: str
+    kind: JobKind
+    state: JobState
+    progress: Progress
+    timings: Timings
+    params: dict[str, Any]
+    links: dict[str, str]
+    attempts: int = 0
+    error: str | None = None
+
+
+# -- scans ---------------------------------------------------------------------------
+class ScanRequest(_Request):
+    plan_id: str = Field(pattern=ID_PATTERN)
+    scanner_id: str = Field(pattern=ID_PATTERN)
+
+
+class Scanner(BaseModel):
+    id: str
+    port: str
+    status: Literal["idle", "busy", "unreachable", "unknown"]
+    job_id: str | None = None
+    identity: str | None = None
+
+
+class PreviewInfo(BaseModel):
+    version: int
+    points_used: int
+    updated: float | None = Field(None, description="UNIX time of the last refresh")
+    refresh_s: float | None = Field(None, description="how long the last refresh took, s")
+
+
+# -- datasets and reconstructions ----------------------------------------------------
+class Dataset(BaseModel):
+    dataset_id: str
+    format: DatasetFormat
+    layout: Literal["grid", "points", "scan"]
+    shape: list[int]
+    dt: float | None = None
+
+
+class ReconParams(_Request):
+    """Reconstruction options (``service.recon``)."""
+
+    c: float | None = Field(None, gt=100, le=10000, description="speed of sound, m/s (default: the input's)")
+    eps: float = Field(1e-6, ge=1e-15, le=1e-1, description="NUFFT tolerance")
+    dtype: Literal["float32", "float64"] = "float32"
+    upsample: int = Field(1, ge=1, le=8)
+    positivity: bool = False
+    n_z: int | None = Field(None, ge=1, le=65536, description="output depth samples")
+    dz: float | None = Field(None, gt=0, le=0.1, description="output depth spacing, m")
+
+
+class ReconRequest(_Request):
+    """Reconstruct a scan job's file or an uploaded dataset (exactly one of them)."""
+
+    scan_job_id: str | None = Field(None, pattern=ID_PATTERN)
+    dataset_id: str | None = Field(None, pattern=ID_PATTERN)
+    method: ReconMethod = "nedner"
+    params: ReconParams = Field(default_factory=ReconParams)

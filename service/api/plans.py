@@ -1,0 +1,196 @@
+"""Plan routes: create (mask parameters or a point list), preview, list, get, preview PNG.
+
+A plan is the JSON of docs/architecture.md (``fpscan-plan/1``); its id is the sha256 of
+the canonical JSON of everything but ``id``. Mask kinds come from ``service.plans``;
+a user point list (lattice indices) is turned into a plan here, weighted by clipped
+Voronoi areas (``service.recon.weights.voronoi_weights``).
+"""
+from __future__ import annotations
+
+import base64
+import hashlib
+import io
+import json
+
+import numpy as np
+from fastapi import APIRouter, Depends, HTTPException, Path, Response
+
+from service.api.context import Context, ctx, read_access, require_token
+from service.api.models import ID_PATTERN, Plan, PlanCreate, PlanPreview
+from service.jobs.work import lattice_axes
+
+router = APIRouter(prefix="/api/plans", tags=["plans"])
+
+MAX_POINTS = 1_000_000
+
+
+def canonical_id(plan: dict) -> str:
+    """sha256 hex of ``json.dumps(plan without 'id', sort_keys=True, separators=(',', ':'))``."""
+    body = {k: v for k, v in plan.items() if k != "id"}
+    return hashlib.sha256(json.dumps(body, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
+
+
+def _points_plan(req: PlanCreate) -> dict:
+    lat = req.lattice
+    idx = np.asarray(req.points, dtype=np.int64)
+    if idx.size == 0:
+        raise ValueError("points must hold at least one lattice index")
+    if idx.ndim != 2 or idx.shape[1] != 2:
+        raise ValueError("points must be a list of [i_x, i_y] pairs")
+    if idx.shape[0] > MAX_POINTS:
+        raise ValueError(f"at most {MAX_POINTS} points")
+    if (idx[:, 0] < 0).any() or (idx[:, 0] >= lat.n_x).any() or (idx[:, 1] < 0).any() or (idx[:, 1] >= lat.n_y).any():
+        raise ValueError(f"points must lie on the {lat.n_x}x{lat.n_y} lattice (0 <= i_x < n_x, 0 <= i_y < n_y)")
+    flat = idx[:, 1] * lat.n_x + idx[:, 0]
+    if np.unique(flat).size != flat.size:
+        raise ValueError("points contain duplicates")
+    x, y = lattice_axes(lat.model_dump())
+    positions = np.stack([x[idx[:, 0]], y[idx[:, 1]]], axis=1)
+    two_d = lat.n_y == 1
+    pos_w = positions[:, :1] if two_d else positions
+    if idx.shape[0] == 1:
+        weights = np.array([lat.pitch if two_d else lat.pitch ** 2])
+    else:
+        from service.recon.weights import voronoi_weights
+
+        weights = np.asarray(voronoi_weights(pos_w, pitch=lat.pitch), dtype=np.float64)
+    w_ratio = float(weights.max() / weights.min()) if weights.min() > 0 else None
+    plan = {
+        "format": "fpscan-plan/1",
+        "lattice": {"n_x": lat.n_x, "n_y": lat.n_y, "pitch": lat.pitch},
+        "mask": {"kind": "points", "params": {}, "requested_points": int(idx.shape[0]),
+                 "obtained_points": int(idx.shape[0]), "weight_ratio": w_ratio},
+        "points": {"indices": idx.tolist(), "positions": positions.tolist(), "weights": weights.tolist()},
+        "order": req.order or "given",
+        "acquisition": req.acquisition.model_dump(),
+    }
+    plan["id"] = canonical_id(plan)
+    return plan
+
+
+def _mask_plan(req: PlanCreate) -> dict:
+    try:
+        from service import plans as plans_mod
+    except ImportError:
+        raise ValueError("mask planning is not available in this build; send a point list") from None
+    make_plan = getattr(plans_mod, "make_plan", None)
+    if make_plan is None:
+        raise ValueError("mask planning is not available in this build; send a point list")
+    kwargs = {"kind": req.kind, "lattice": req.lattice.model_dump(), "params": dict(req.params),
+              "acquisition": req.acquisition.model_dump()}
+    if req.order:
+        kwargs["order"] = req.order
+    try:
+        plan = make_plan(**kwargs)
+    except TypeError as exc:
+        raise ValueError(f"bad mask parameters: {exc}") from None
+    plan = plan.to_json() if hasattr(plan, "to_json") else plan
+    if isinstance(plan, str):
+        plan = json.loads(plan)
+    if hasattr(plan, "to_dict"):
+        plan = plan.to_dict()
+    return plan
+
+
+def build_plan(req: PlanCreate) -> dict:
+    """The plan JSON for a request; raises ``ValueError`` with the reason."""
+    if req.points is not None:
+        if req.kind not in (None, "points"):
+            raise ValueError("give either points or a mask kind, not both")
+        return _points_plan(req)
+    if not req.kind:
+        raise ValueError("give a mask kind (with params) or a points list")
+    return _mask_plan(req)
+
+
+def expected_scan_time(plan: dict) -> float:
+    """Seconds: points × averages × wavelengths / PRF (0 when the PRF is 0 = unthrottled)."""
+    acq = plan["acquisition"]
+    n = len(plan["points"]["indices"])
+    prf = float(acq.get("prf", 0) or 0)
+    return n * int(acq.get("averages", 1)) * len(acq.get("wavelengths", [1])) / prf if prf > 0 else 0.0
+
+
+def summary(plan: dict) -> Plan:
+    mask = plan.get("mask", {})
+    pid = plan["id"]
+    return Plan(id=pid, kind=mask.get("kind", "points"), n_points=len(plan["points"]["indices"]),
+                requested_points=mask.get("requested_points"), weight_ratio=mask.get("weight_ratio"),
+                expected_scan_time_s=expected_scan_time(plan), lattice=plan["lattice"],
+                acquisition=plan["acquisition"],
+                links={"self": f"/api/plans/{pid}", "preview": f"/api/plans/{pid}/preview.png"})
+
+
+def preview_png(plan: dict) -> bytes:
+    """The mask on its lattice as a PNG (white = sensor point), one pixel per lattice
+    point, magnified to at least ~256 pixels across."""
+    from PIL import Image as PILImage
+
+    lat = plan["lattice"]
+    n_x, n_y = int(lat["n_x"]), int(lat.get("n_y", 1))
+    img = np.zeros((n_y, n_x), dtype=np.uint8)
+    idx = np.asarray(plan["points"]["indices"], dtype=np.int64).reshape(-1, 2)
+    img[idx[:, 1], idx[:, 0]] = 255
+    scale = max(1, 256 // max(n_x, n_y))
+    pil = PILImage.fromarray(img, mode="L")
+    if scale > 1:
+        pil = pil.resize((n_x * scale, n_y * scale), PILImage.NEAREST)
+    buf = io.BytesIO()
+    pil.save(buf, format="PNG")
+    return buf.getvalue()
+
+
+def _build_or_422(body: PlanCreate) -> dict:
+    try:
+        return build_plan(body)
+    except ValueError as exc:
+        raise HTTPException(422, str(exc)) from None
+
+
+@router.post("", status_code=201, response_model=Plan, dependencies=[Depends(require_token)])
+def create_plan(body: PlanCreate, response: Response, c: Context = Depends(ctx)) -> Plan:
+    """Create (or find, same content → same id) a plan; ``Location`` names it."""
+    plan = _build_or_422(body)
+    s = summary(plan)
+    c.store.put_plan(plan["id"], plan, s.model_dump())
+    response.headers["Location"] = f"/api/plans/{plan['id']}"
+    return s
+
+
+@router.post("/preview", response_model=PlanPreview, dependencies=[Depends(read_access)])
+def preview_plan(body: PlanCreate) -> PlanPreview:
+    """The plan a request would give, without saving it."""
+    plan = _build_or_422(body)
+    s = summary(plan)
+    return PlanPreview(points=s.n_points, weight_ratio=s.weight_ratio, expected_scan_time_s=s.expected_scan_time_s,
+                       preview_png_base64=base64.b64encode(preview_png(plan)).decode())
+
+
+@router.get("", response_model=list[Plan], dependencies=[Depends(read_access)])
+def list_plans(c: Context = Depends(ctx)) -> list[Plan]:
+    return [Plan(**s) for s in c.store.list_plans()]
+
+
+def plan_or_404(c: Context, plan_id: str) -> dict:
+    found = c.store.get_plan(plan_id)
+    if found is None:
+        raise HTTPException(404, f"no plan {plan_id}")
+    return found[0]
+
+
+@router.get("/{plan_id}", response_model=Plan, dependencies=[Depends(read_access)])
+def get_plan(plan_id: str = Path(pattern=ID_PATTERN), c: Context = Depends(ctx)) -> Plan:
+    return summary(plan_or_404(c, plan_id))
+
+
+@router.get("/{plan_id}/plan.json", dependencies=[Depends(read_access)],
+            responses={200: {"content": {"application/json": {}}, "description": "the full plan JSON"}})
+def get_plan_json(plan_id: str = Path(pattern=ID_PATTERN), c: Context = Depends(ctx)) -> Response:
+    """The full plan (docs/architecture.md, ``fpscan-plan/1``)."""
+    return Response(json.dumps(plan_or_404(c, plan_id)), media_type="application/json")
+
+
+@router.get("/{plan_id}/preview.png", dependencies=[Depends(read_access)], response_class=Response,
+            responses={200: {"content": {"image/png": {}}, "description": "mask preview"}})
+def plan_preview_png(plan_id: str = Path(pattern=ID_PATTERN), c: Context = Depends(ctx)) -> Response:
+    return Response(preview_png(plan_or_404(c, plan_id)), media_type="image/png")

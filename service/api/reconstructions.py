@@ -1,0 +1,134 @@
+"""Reconstruction routes: start a job from a scan or a dataset (202 + ``Location``),
+download its volume (HDF5, HTTP Range), MIPs and depth slices (PNG)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from fastapi import APIRouter, Depends, Header, HTTPException, Query, Response
+from fastapi import Path as PathParam
+from fastapi.responses import FileResponse
+
+from service.api.context import Context, ctx, read_access, require_token
+from service.api.jobs import get_job_or_404, job_view
+from service.api.models import ID_PATTERN, Job, Plane, ReconRequest
+from service.jobs.images import png_bytes
+from service.jobs.queue import AdmissionError, admit, estimate_memory
+from service.jobs.store import IdempotencyConflict
+from service.jobs.work import GRID_METHODS
+
+router = APIRouter(prefix="/api/reconstructions", tags=["reconstructions"])
+
+JobId = PathParam(pattern=ID_PATTERN, description="reconstruction job id")
+IdemKey = Header(None, alias="Idempotency-Key", max_length=200, description="same key → same job")
+
+
+def _input_for(c: Context, body: ReconRequest) -> tuple[dict, dict, str]:
+    """``(input spec, shape for the memory estimate, input id)``; raises HTTPException."""
+    if (body.scan_job_id is None) == (body.dataset_id is None):
+        raise HTTPException(422, "give exactly one of scan_job_id or dataset_id")
+    if body.scan_job_id is not None:
+        job = c.store.get(body.scan_job_id)
+        if job is None or job["kind"] != "scan":
+            raise HTTPException(404, f"no scan job {body.scan_job_id}")
+        scan_path = job["params"].get("scan_path")
+        if not scan_path or not Path(scan_path).exists():
+            raise HTTPException(409, f"scan job {body.scan_job_id} has no scan file yet")
+        found = c.store.get_plan(job["params"]["plan_id"])
+        if found is None:
+            raise HTTPException(404, f"the plan of scan job {body.scan_job_id} is gone")
+        plan = found[0]
+        lat, acq = plan["lattice"], plan["acquisition"]
+        shape = {"n_t": acq["n_t"], "n_x": lat["n_x"], "n_y": lat.get("n_y", 1),
+                 "n_points": len(plan["points"]["indices"])}
+        if body.method != "nedner":
+            raise HTTPException(422, f"method {body.method!r} needs a full regular grid; scans use 'nedner'")
+        return {"kind": "scan", "path": scan_path}, shape, f"scan:{body.scan_job_id}"
+    meta = c.store.get_dataset(body.dataset_id)
+    if meta is None:
+        raise HTTPException(404, f"no dataset {body.dataset_id}")
+    path = str(Path(c.settings.data_dir) / "datasets" / body.dataset_id / meta["path"])
+    if meta["layout"] == "grid":
+        s = meta["shape"]
+        shape = {"n_t": s[0], "n_x": s[-1], "n_y": s[1] if len(s) == 3 else 1}
+        if body.method not in GRID_METHODS + ("nedner",):
+            raise HTTPException(422, f"unknown method {body.method!r}")
+        return {"kind": "dataset", "path": path}, shape, f"dataset:{body.dataset_id}"
+    if body.method != "nedner":
+        raise HTTPException(422, f"method {body.method!r} needs a full regular grid; this dataset needs 'nedner'")
+    n, n_t = meta["shape"]
+    side = int(np.ceil(np.sqrt(n)))
+    shape = {"n_t": n_t, "n_x": meta.get("n_x", side), "n_y": meta.get("n_y", side), "n_points": n}
+    kind = "scan" if meta["layout"] == "scan" else "dataset"
+    return {"kind": kind, "path": path}, shape, f"dataset:{body.dataset_id}"
+
+
+@router.post("", status_code=202, response_model=Job, dependencies=[Depends(require_token)],
+             responses={409: {"description": "Idempotency-Key reused with other parameters, or no scan file"},
+                        404: {"description": "unknown scan job or dataset"}})
+def start_reconstruction(body: ReconRequest, response: Response, c: Context = Depends(ctx),
+                         idempotency_key: str | None = IdemKey) -> Job:
+    """Queue a reconstruction → 202, ``Location: /api/jobs/{id}``. Refused with 422 when
+    it can never fit in the memory limit."""
+    spec, shape, input_id = _input_for(c, body)
+    params = body.params.model_dump()
+    mem = estimate_memory(shape, {**params, "method": body.method})
+    try:
+        admit(mem, c.settings.memory_limit)
+    except AdmissionError as exc:
+        raise HTTPException(422, str(exc)) from None
+    job_params = {"method": body.method, "params": params, "input": spec, "input_id": input_id,
+                  "scan_job_id": body.scan_job_id, "dataset_id": body.dataset_id, "memory_estimate": mem}
+    try:
+        job, _created = c.store.create_job("recon", job_params, idempotency_key=idempotency_key, memory_bytes=mem)
+    except IdempotencyConflict as exc:
+        raise HTTPException(409, str(exc)) from None
+    if c.queue is not None:
+        c.queue.wake()
+    response.headers["Location"] = f"/api/jobs/{job['id']}"
+    return job_view(job)
+
+
+def _result_dir(c: Context, job_id: str) -> Path:
+    job = get_job_or_404(c, job_id, "recon")
+    if job["state"] != "succeeded" or not job["result_path"]:
+        raise HTTPException(409, f"reconstruction {job_id} is {job['state']}, no result yet")
+    return Path(job["result_path"])
+
+
+@router.get("/{job_id}/volume.h5", dependencies=[Depends(read_access)], response_class=FileResponse,
+            responses={200: {"content": {"application/x-hdf5": {}}, "description": "p0 volume (HDF5)"},
+                       206: {"description": "partial content (HTTP Range)"}})
+def volume(job_id: str = JobId, c: Context = Depends(ctx)):
+    """The result volume: ``/p0`` ``(n_z, n_y, n_x)``, ``/z``, ``/x``, ``/y`` (m), attributes
+    ``method``, ``params``. Supports ``Range``."""
+    path = _result_dir(c, job_id) / "volume.h5"
+    return FileResponse(path, media_type="application/x-hdf5", filename=f"{job_id}.h5")
+
+
+@router.get("/{job_id}/mip/{plane}.png", dependencies=[Depends(read_access)], response_class=Response,
+            responses={200: {"content": {"image/png": {}}, "description": "MIP"}})
+def mip_png(plane: Plane, job_id: str = JobId, c: Context = Depends(ctx)):
+    """Maximum-intensity projection: ``xy`` (over z), ``xz`` (over y), ``yz`` (over x)."""
+    path = _result_dir(c, job_id) / f"mip_{plane}.png"
+    if not path.exists():
+        raise HTTPException(404, f"a 2-D image has no {plane} MIP")
+    return Response(path.read_bytes(), media_type="image/png")
+
+
+@router.get("/{job_id}/slice.png", dependencies=[Depends(read_access)], response_class=Response,
+            responses={200: {"content": {"image/png": {}}, "description": "depth slice z = index·dz"}})
+def slice_png(job_id: str = JobId, index: int = Query(0, ge=0, le=1_000_000, description="depth index"),
+              c: Context = Depends(ctx)):
+    """The lateral slice at depth index ``index`` of a 3-D result (2-D: the image row)."""
+    import h5py
+
+    path = _result_dir(c, job_id) / "volume.h5"
+    with h5py.File(path, "r") as f:
+        ds = f["p0"]
+        if index >= ds.shape[0]:
+            raise HTTPException(422, f"index must be < {ds.shape[0]} (depth samples)")
+        img = ds[index]
+    if img.ndim == 1:
+        img = img[None, :]
+    return Response(png_bytes(img), media_type="image/png")

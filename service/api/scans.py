@@ -1,0 +1,142 @@
+"""Scanner and scan routes: list scanners, start a scan (202 + ``Location``), pause,
+resume, abort, download the scan file (HTTP Range) and its IPASC export, live preview."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from fastapi import APIRouter, Depends, Header, HTTPException, Response
+from fastapi import Path as PathParam
+from fastapi.responses import FileResponse
+
+from service.api.context import Context, ctx, read_access, require_token
+from service.api.jobs import get_job_or_404, job_view
+from service.api.models import ID_PATTERN, Job, Plane, PreviewInfo, Scanner, ScanRequest
+from service.jobs.store import TERMINAL, IdempotencyConflict
+
+router = APIRouter(tags=["scans"])
+
+JobId = PathParam(pattern=ID_PATTERN, description="scan job id")
+
+
+def _scans(c: Context):
+    if c.scans is None:
+        raise HTTPException(409, "scanning is not available on this server (no driver)")
+    return c.scans
+
+
+@router.get("/api/scanners", response_model=list[Scanner], dependencies=[Depends(read_access)], tags=["scanners"])
+def list_scanners(c: Context = Depends(ctx)) -> list[Scanner]:
+    """The configured serial devices and their status (idle, busy with a job)."""
+    if c.scans is None:
+        return [Scanner(id=k, port=v, status="unknown") for k, v in c.settings.devices.items()]
+    return [Scanner(**s) for s in c.scans.scanners()]
+
+
+@router.post("/api/scans", status_code=202, response_model=Job, dependencies=[Depends(require_token)],
+             responses={404: {"description": "unknown plan or scanner"},
+                        409: {"description": "Idempotency-Key reused with other parameters"}})
+def start_scan(body: ScanRequest, response: Response, c: Context = Depends(ctx),
+               idempotency_key: str | None = Header(None, alias="Idempotency-Key", max_length=200)) -> Job:
+    """Queue a scan of a plan on a scanner → 202, ``Location: /api/jobs/{id}``. The scan
+    starts when the scanner is free; it owns the serial port while it runs."""
+    mgr = _scans(c)
+    if c.store.get_plan(body.plan_id) is None:
+        raise HTTPException(404, f"no plan {body.plan_id}")
+    if body.scanner_id not in c.settings.devices:
+        raise HTTPException(404, f"no scanner {body.scanner_id}")
+    try:
+        job, created = c.store.create_job("scan", {"plan_id": body.plan_id, "scanner_id": body.scanner_id},
+                                          idempotency_key=idempotency_key)
+    except IdempotencyConflict as exc:
+        raise HTTPException(409, str(exc)) from None
+    if created:
+        scan_path = Path(c.settings.data_dir) / "scans" / f"{job['id']}.h5"
+        c.store.update_params(job["id"], {"scan_path": str(scan_path)})
+        mgr.wake()
+    response.headers["Location"] = f"/api/jobs/{job['id']}"
+    return job_view(c.store.get(job["id"]))
+
+
+def _control(c: Context, job_id: str, action: str) -> Job:
+    mgr = _scans(c)
+    job = get_job_or_404(c, job_id, "scan")
+    if job["state"] in TERMINAL:
+        raise HTTPException(409, f"scan {job_id} already {job['state']}")
+    try:
+        getattr(mgr, action)(job_id)
+    except ValueError as exc:
+        raise HTTPException(409, str(exc)) from None
+    return job_view(c.store.get(job_id))
+
+
+@router.post("/api/scans/{job_id}/pause", response_model=Job, dependencies=[Depends(require_token)])
+def pause_scan(job_id: str = JobId, c: Context = Depends(ctx)) -> Job:
+    """Pause a running scan after the current A-line (state ``paused``)."""
+    return _control(c, job_id, "pause")
+
+
+@router.post("/api/scans/{job_id}/resume", response_model=Job, dependencies=[Depends(require_token)])
+def resume_scan(job_id: str = JobId, c: Context = Depends(ctx)) -> Job:
+    """Resume a paused scan, also one interrupted by a server restart: it continues from
+    its scan file's record of completed points."""
+    return _control(c, job_id, "resume")
+
+
+@router.post("/api/scans/{job_id}/abort", response_model=Job, dependencies=[Depends(require_token)])
+def abort_scan(job_id: str = JobId, c: Context = Depends(ctx)) -> Job:
+    """Abort a scan (state ``cancelled``); the scan file keeps the points acquired."""
+    return _control(c, job_id, "abort")
+
+
+def _scan_file(c: Context, job_id: str) -> Path:
+    job = get_job_or_404(c, job_id, "scan")
+    path = job["params"].get("scan_path")
+    if not path or not Path(path).exists():
+        raise HTTPException(409, f"scan {job_id} has no scan file yet")
+    return Path(path)
+
+
+@router.get("/api/scans/{job_id}/file", dependencies=[Depends(read_access)], response_class=FileResponse,
+            responses={200: {"content": {"application/x-hdf5": {}}, "description": "the scan file (HDF5)"},
+                       206: {"description": "partial content (HTTP Range)"}})
+def scan_file(job_id: str = JobId, c: Context = Depends(ctx)):
+    """The scan file (HDF5, ``driver.scanfile`` layout); supports ``Range``."""
+    return FileResponse(_scan_file(c, job_id), media_type="application/x-hdf5", filename=f"{job_id}.h5")
+
+
+@router.get("/api/scans/{job_id}/ipasc", dependencies=[Depends(read_access)], response_class=FileResponse,
+            responses={200: {"content": {"application/x-hdf5": {}}, "description": "IPASC HDF5 export"}})
+def scan_ipasc(job_id: str = JobId, c: Context = Depends(ctx)):
+    """The scan's completed A-lines exported to the IPASC HDF5 format
+    (``service.ipasc.write_ipasc``)."""
+    from service.ipasc import export_scan
+
+    src = _scan_file(c, job_id)
+    out = Path(c.settings.data_dir) / "exports" / f"{job_id}.ipasc.h5"
+    try:
+        export_scan(src, out)
+    except ValueError as exc:
+        raise HTTPException(409, str(exc)) from None
+    return FileResponse(out, media_type="application/x-hdf5", filename=f"{job_id}.ipasc.h5")
+
+
+@router.get("/api/scans/{job_id}/preview", response_model=PreviewInfo, dependencies=[Depends(read_access)])
+def scan_preview(job_id: str = JobId, c: Context = Depends(ctx)) -> PreviewInfo:
+    """The live preview's state: ``version`` grows with every refresh (0 = none yet)."""
+    get_job_or_404(c, job_id, "scan")
+    state = _scans(c).preview(job_id)
+    if state is None:
+        return PreviewInfo(version=0, points_used=0, updated=None)
+    return PreviewInfo(version=state.version, points_used=state.points_used, updated=state.updated,
+                       refresh_s=state.refresh_s)
+
+
+@router.get("/api/scans/{job_id}/preview/{plane}.png", dependencies=[Depends(read_access)], response_class=Response,
+            responses={200: {"content": {"image/png": {}}, "description": "live preview MIP"}})
+def scan_preview_png(plane: Plane, job_id: str = JobId, c: Context = Depends(ctx)):
+    """The live preview's MIP on ``plane`` (``X-Preview-Version`` header)."""
+    get_job_or_404(c, job_id, "scan")
+    state = _scans(c).preview(job_id)
+    if state is None or plane not in state.pngs:
+        raise HTTPException(404, f"no live preview of scan {job_id} yet")
+    return Response(state.pngs[plane], media_type="image/png", headers={"X-Preview-Version": str(state.version)})

@@ -1,0 +1,66 @@
+"""Where reconstructions run: a local process pool (default) or dask.distributed.
+
+Both expose ``run(fn, *args) -> result`` (blocking; called from a job thread, never from
+the event loop) and ``close()``.
+
+- :class:`LocalExecutor`: ``concurrent.futures.ProcessPoolExecutor`` with the ``spawn``
+  start method (no fork of a threaded server), ``workers`` processes.
+- :class:`DaskExecutor`: ``distributed.Client(address)``; works with any scheduler,
+  e.g. a ``LocalCluster`` or a dask-jobqueue cluster. The workers must see the data
+  directory (shared file system), since they read inputs and write results there.
+"""
+from __future__ import annotations
+
+import multiprocessing
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
+
+
+class LocalExecutor:
+    """A pool of ``workers`` spawned processes."""
+
+    name = "local"
+
+    def __init__(self, workers: int = 1):
+        self.workers = int(workers)
+        self._pool = self._new_pool()
+
+    def _new_pool(self) -> ProcessPoolExecutor:
+        return ProcessPoolExecutor(max_workers=self.workers, mp_context=multiprocessing.get_context("spawn"))
+
+    def run(self, fn, *args):
+        try:
+            return self._pool.submit(fn, *args).result()
+        except BrokenProcessPool:
+            # A worker died (e.g. killed by the OS for memory): start a fresh pool, and
+            # report the failure of this job.
+            self._pool = self._new_pool()
+            raise RuntimeError("the reconstruction worker process died") from None
+
+    def close(self) -> None:
+        self._pool.shutdown(wait=False, cancel_futures=True)
+
+
+class DaskExecutor:
+    """A dask.distributed client connected to ``address``."""
+
+    name = "dask"
+
+    def __init__(self, address: str):
+        from distributed import Client
+
+        self.address = address
+        self._client = Client(address, set_as_default=False, timeout="20s")
+
+    def run(self, fn, *args):
+        return self._client.submit(fn, *args, pure=False).result()
+
+    def close(self) -> None:
+        self._client.close()
+
+
+def make_executor(settings):
+    """The executor the settings ask for."""
+    if settings.executor == "dask":
+        return DaskExecutor(settings.dask_scheduler)
+    return LocalExecutor(settings.workers)

@@ -1,0 +1,362 @@
+"""The SQLite job store: the source of truth for jobs, plans and datasets.
+
+One SQLite file in WAL mode (https://sqlite.org/wal.html). Every job row holds its kind
+(``scan``/``recon``), state, progress (JSON), parameters (JSON), the unique
+``Idempotency-Key``, lease owner/expiry and heartbeat, attempts, result path and error.
+A per-job ``events`` table keeps the progress/state events with a sequence number, so the
+Server-Sent Events stream can honour ``Last-Event-ID``.
+
+Thread-safe: one connection guarded by a lock (statements are short).
+All times are UNIX seconds (float).
+"""
+from __future__ import annotations
+
+import json
+import sqlite3
+import threading
+import time
+import uuid
+from pathlib import Path
+from typing import Any, Iterable
+
+STATES = ("queued", "running", "paused", "succeeded", "failed", "cancelled")
+TERMINAL = frozenset({"succeeded", "failed", "cancelled"})
+KINDS = ("scan", "recon")
+
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS jobs (
+    id TEXT PRIMARY KEY,
+    kind TEXT NOT NULL,
+    state TEXT NOT NULL,
+    params TEXT NOT NULL,
+    progress TEXT NOT NULL,
+    idempotency_key TEXT UNIQUE,
+    created REAL NOT NULL,
+    started REAL,
+    finished REAL,
+    lease_owner TEXT,
+    lease_until REAL,
+    heartbeat REAL,
+    attempts INTEGER NOT NULL DEFAULT 0,
+    result_path TEXT,
+    error TEXT,
+    memory_bytes INTEGER NOT NULL DEFAULT 0,
+    cancel_requested INTEGER NOT NULL DEFAULT 0,
+    control TEXT
+);
+CREATE INDEX IF NOT EXISTS jobs_state ON jobs(state, kind, created);
+CREATE TABLE IF NOT EXISTS events (
+    job_id TEXT NOT NULL,
+    seq INTEGER NOT NULL,
+    event TEXT NOT NULL,
+    data TEXT NOT NULL,
+    created REAL NOT NULL,
+    PRIMARY KEY (job_id, seq)
+);
+CREATE TABLE IF NOT EXISTS plans (
+    id TEXT PRIMARY KEY,
+    body TEXT NOT NULL,
+    summary TEXT NOT NULL,
+    created REAL NOT NULL
+);
+CREATE TABLE IF NOT EXISTS datasets (
+    id TEXT PRIMARY KEY,
+    meta TEXT NOT NULL,
+    created REAL NOT NULL
+);
+"""
+
+_JOB_COLUMNS = ("id", "kind", "state", "params", "progress", "idempotency_key", "created", "started",
+                "finished", "lease_owner", "lease_until", "heartbeat", "attempts", "result_path",
+                "error", "memory_bytes", "cancel_requested", "control")
+
+
+class IdempotencyConflict(ValueError):
+    """The Idempotency-Key is already used by a job with different parameters."""
+
+
+class JobStore:
+    """Jobs, their events, plans and datasets in one SQLite file (WAL).
+
+    ``path``: the database file (parent folders are created).
+    """
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._lock = threading.RLock()
+        self._db = sqlite3.connect(str(self.path), check_same_thread=False, timeout=30.0,
+                                   isolation_level=None)
+        self._db.row_factory = sqlite3.Row
+        with self._lock:
+            self._db.execute("PRAGMA journal_mode=WAL")
+            self._db.execute("PRAGMA synchronous=NORMAL")
+            self._db.executescript(_SCHEMA)
+
+    def close(self) -> None:
+        with self._lock:
+            self._db.close()
+
+    # -- helpers -----------------------------------------------------------------
+    def _tx(self, fn):
+        with self._lock:
+            self._db.execute("BEGIN IMMEDIATE")
+            try:
+                out = fn(self._db)
+            except BaseException:
+                self._db.execute("ROLLBACK")
+                raise
+            self._db.execute("COMMIT")
+            return out
+
+    @staticmethod
+    def _row(row: sqlite3.Row | None) -> dict[str, Any] | None:
+        if row is None:
+            return None
+        job = dict(row)
+        job["params"] = json.loads(job["params"])
+        job["progress"] = json.loads(job["progress"])
+        job["control"] = job["control"]
+        job["cancel_requested"] = bool(job["cancel_requested"])
+        return job
+
+    @staticmethod
+    def _event(db: sqlite3.Connection, job_id: str, event: str, data: dict) -> int:
+        seq = db.execute("SELECT COALESCE(MAX(seq), 0) + 1 FROM events WHERE job_id = ?", (job_id,)).fetchone()[0]
+        db.execute("INSERT INTO events (job_id, seq, event, data, created) VALUES (?, ?, ?, ?, ?)",
+                   (job_id, seq, event, json.dumps(data), time.time()))
+        return seq
+
+    # -- jobs ----------------------------------------------------------------------
+    def create_job(self, kind: str, params: dict, *, idempotency_key: str | None = None,
+                   memory_bytes: int = 0, progress: dict | None = None) -> tuple[dict, bool]:
+        """Insert a queued job; returns ``(job, created)``. With an ``idempotency_key``
+        already used by a job of the same kind and parameters, returns that job and
+        ``created=False``; with different ones raises :class:`IdempotencyConflict`."""
+        if kind not in KINDS:
+            raise ValueError(f"unknown job kind {kind!r}")
+        job_id = uuid.uuid4().hex
+        now = time.time()
+        progress = progress or {"fraction": 0.0, "stage": "queued"}
+
+        def work(db):
+            if idempotency_key is not None:
+                row = db.execute("SELECT * FROM jobs WHERE idempotency_key = ?", (idempotency_key,)).fetchone()
+                if row is not None:
+                    old = self._row(row)
+                    if old["kind"] != kind or old["params"] != json.loads(json.dumps(params)):
+                        raise IdempotencyConflict(
+                            "Idempotency-Key already used for a different request")
+                    return old, False
+            db.execute(
+                "INSERT INTO jobs (id, kind, state, params, progress, idempotency_key, created, memory_bytes)"
+                " VALUES (?, ?, 'queued', ?, ?, ?, ?, ?)",
+                (job_id, kind, json.dumps(params), json.dumps(progress), idempotency_key, now, int(memory_bytes)))
+            self._event(db, job_id, "state", {"state": "queued"})
+            return self._row(db.execute("SELECT * FROM jobs WHERE id = ?", (job_id,)).fetchone()), True
+
+        return self._tx(work)
+
+    def get(self, job_id: str) -> dict | None:
+        with self._lock:
+            return self._row(self._db.execute("SELECT * FROM jobs WHERE id = ?", (job_id,)).fetchone())
+
+    def list(self, *, state: str | None = None, kind: str | None = None, limit: int = 1000) -> list[dict]:
+        sql, args = "SELECT * FROM jobs WHERE 1=1", []
+        if state is not None:
+            sql += " AND state = ?"
+            args.append(state)
+        if kind is not None:
+            sql += " AND kind = ?"
+            args.append(kind)
+        sql += " ORDER BY created DESC LIMIT ?"
+        args.append(int(limit))
+        with self._lock:
+            return [self._row(r) for r in self._db.execute(sql, args).fetchall()]
+
+    def set_state(self, job_id: str, state: str, *, error: str | None = None,
+                  result_path: str | None = None, only_from: Iterable[str] | None = None,
+                  progress: dict | None = None) -> bool:
+        """Move a job to ``state`` (optionally only from the states in ``only_from``),
+        record the event; returns False if the job was not in an allowed state."""
+        if state not in STATES:
+            raise ValueError(f"unknown state {state!r}")
+        now = time.time()
+
+        def work(db):
+            row = db.execute("SELECT state, progress FROM jobs WHERE id = ?", (job_id,)).fetchone()
+            if row is None or (only_from is not None and row["state"] not in set(only_from)):
+                return False
+            sets, args = ["state = ?"], [state]
+            if state == "running":
+                sets.append("started = COALESCE(started, ?)")
+                args.append(now)
+            if state in TERMINAL:
+                sets += ["finished = ?", "lease_owner = NULL", "lease_until = NULL"]
+                args.append(now)
+            if error is not None:
+                sets.append("error = ?")
+                args.append(error)
+            if result_path is not None:
+                sets.append("result_path = ?")
+                args.append(result_path)
+            if progress is not None:
+                merged = {**json.loads(row["progress"]), **progress}
+                sets.append("progress = ?")
+                args.append(json.dumps(merged))
+            db.execute(f"UPDATE jobs SET {', '.join(sets)} WHERE id = ?", (*args, job_id))
+            data = {"state": state}
+            if error is not None:
+                data["error"] = error
+            self._event(db, job_id, "state", data)
+            return True
+
+        return self._tx(work)
+
+    def update_progress(self, job_id: str, progress: dict, *, event: bool = True) -> None:
+        """Merge ``progress`` into the job's progress and (optionally) emit an event."""
+        def work(db):
+            row = db.execute("SELECT progress FROM jobs WHERE id = ?", (job_id,)).fetchone()
+            if row is None:
+                return
+            merged = {**json.loads(row["progress"]), **progress}
+            db.execute("UPDATE jobs SET progress = ?, heartbeat = ? WHERE id = ?",
+                       (json.dumps(merged), time.time(), job_id))
+            if event:
+                self._event(db, job_id, "progress", merged)
+
+        self._tx(work)
+
+    def update_params(self, job_id: str, params: dict) -> None:
+        """Merge ``params`` into the job's parameters (e.g. the scan file name)."""
+        def work(db):
+            row = db.execute("SELECT params FROM jobs WHERE id = ?", (job_id,)).fetchone()
+            if row is not None:
+                merged = {**json.loads(row["params"]), **params}
+                db.execute("UPDATE jobs SET params = ? WHERE id = ?", (json.dumps(merged), job_id))
+        self._tx(work)
+
+    def request_cancel(self, job_id: str) -> dict | None:
+        """Flag a job for cooperative cancel; a queued or paused job is cancelled at once."""
+        def work(db):
+            row = db.execute("SELECT state FROM jobs WHERE id = ?", (job_id,)).fetchone()
+            if row is None:
+                return None
+            if row["state"] in TERMINAL:
+                return "terminal"
+            db.execute("UPDATE jobs SET cancel_requested = 1 WHERE id = ?", (job_id,))
+            if row["state"] in ("queued", "paused"):
+                db.execute("UPDATE jobs SET state = 'cancelled', finished = ?, lease_owner = NULL,"
+                           " lease_until = NULL WHERE id = ?", (time.time(), job_id))
+                self._event(db, job_id, "state", {"state": "cancelled"})
+            return "ok"
+
+        if self._tx(work) is None:
+            return None
+        return self.get(job_id)
+
+    def set_control(self, job_id: str, control: str | None) -> None:
+        """Record a pending control request for a running scan (``pause``/``abort``)."""
+        with self._lock:
+            self._db.execute("UPDATE jobs SET control = ? WHERE id = ?", (control, job_id))
+
+    def claim(self, job_id: str, owner: str, lease_s: float) -> dict | None:
+        """Lease a queued job for ``owner``: state running, attempts + 1; None if it was
+        not queued (someone else took it or it was cancelled)."""
+        now = time.time()
+
+        def work(db):
+            cur = db.execute(
+                "UPDATE jobs SET state = 'running', lease_owner = ?, lease_until = ?, heartbeat = ?,"
+                " attempts = attempts + 1, started = COALESCE(started, ?) WHERE id = ? AND state = 'queued'",
+                (owner, now + lease_s, now, now, job_id))
+            if cur.rowcount != 1:
+                return None
+            self._event(db, job_id, "state", {"state": "running"})
+            return self._row(db.execute("SELECT * FROM jobs WHERE id = ?", (job_id,)).fetchone())
+
+        return self._tx(work)
+
+    def heartbeat(self, job_id: str, owner: str, lease_s: float) -> None:
+        now = time.time()
+        with self._lock:
+            self._db.execute("UPDATE jobs SET heartbeat = ?, lease_until = ? WHERE id = ? AND lease_owner = ?",
+                             (now, now + lease_s, job_id, owner))
+
+    def recover(self, owner: str, max_attempts: int) -> dict[str, list[str]]:
+        """Restart recovery for a new server instance ``owner``: running reconstructions
+        not leased by ``owner`` are re-queued (or failed after ``max_attempts``); running
+        scans become ``paused`` (resumable from their scan file). Returns the ids."""
+        out: dict[str, list[str]] = {"requeued": [], "failed": [], "paused": []}
+
+        def work(db):
+            rows = db.execute("SELECT id, kind, attempts FROM jobs WHERE state = 'running'"
+                              " AND (lease_owner IS NULL OR lease_owner != ?)", (owner,)).fetchall()
+            for row in rows:
+                if row["kind"] == "recon":
+                    if row["attempts"] >= max_attempts:
+                        db.execute("UPDATE jobs SET state = 'failed', error = ?, finished = ?,"
+                                   " lease_owner = NULL WHERE id = ?",
+                                   (f"interrupted {row['attempts']} times", time.time(), row["id"]))
+                        self._event(db, row["id"], "state", {"state": "failed"})
+                        out["failed"].append(row["id"])
+                    else:
+                        db.execute("UPDATE jobs SET state = 'queued', lease_owner = NULL, lease_until = NULL"
+                                   " WHERE id = ?", (row["id"],))
+                        self._event(db, row["id"], "state", {"state": "queued", "reason": "server restarted"})
+                        out["requeued"].append(row["id"])
+                else:
+                    prog = json.loads(db.execute("SELECT progress FROM jobs WHERE id = ?",
+                                                 (row["id"],)).fetchone()[0])
+                    prog["stage"] = "interrupted"
+                    db.execute("UPDATE jobs SET state = 'paused', lease_owner = NULL, lease_until = NULL,"
+                               " control = NULL, progress = ? WHERE id = ?", (json.dumps(prog), row["id"]))
+                    self._event(db, row["id"], "state", {"state": "paused", "reason": "server restarted"})
+                    out["paused"].append(row["id"])
+            # A scan queued before the restart never started: leave it queued.
+        self._tx(work)
+        return out
+
+    def events_after(self, job_id: str, after: int, limit: int = 500) -> list[dict]:
+        with self._lock:
+            rows = self._db.execute(
+                "SELECT seq, event, data FROM events WHERE job_id = ? AND seq > ? ORDER BY seq LIMIT ?",
+                (job_id, int(after), int(limit))).fetchall()
+        return [{"seq": r["seq"], "event": r["event"], "data": r["data"]} for r in rows]
+
+    def running_memory(self) -> int:
+        with self._lock:
+            return int(self._db.execute(
+                "SELECT COALESCE(SUM(memory_bytes), 0) FROM jobs WHERE state = 'running' AND kind = 'recon'"
+            ).fetchone()[0])
+
+    def queued(self, kind: str) -> list[dict]:
+        with self._lock:
+            return [self._row(r) for r in self._db.execute(
+                "SELECT * FROM jobs WHERE state = 'queued' AND kind = ? ORDER BY created", (kind,)).fetchall()]
+
+    # -- plans and datasets --------------------------------------------------------
+    def put_plan(self, plan_id: str, body: dict, summary: dict) -> None:
+        with self._lock:
+            self._db.execute("INSERT OR IGNORE INTO plans (id, body, summary, created) VALUES (?, ?, ?, ?)",
+                             (plan_id, json.dumps(body), json.dumps(summary), time.time()))
+
+    def get_plan(self, plan_id: str) -> tuple[dict, dict] | None:
+        with self._lock:
+            row = self._db.execute("SELECT body, summary FROM plans WHERE id = ?", (plan_id,)).fetchone()
+        return None if row is None else (json.loads(row["body"]), json.loads(row["summary"]))
+
+    def list_plans(self, limit: int = 1000) -> list[dict]:
+        with self._lock:
+            rows = self._db.execute("SELECT summary FROM plans ORDER BY created DESC LIMIT ?", (limit,)).fetchall()
+        return [json.loads(r["summary"]) for r in rows]
+
+    def put_dataset(self, dataset_id: str, meta: dict) -> None:
+        with self._lock:
+            self._db.execute("INSERT INTO datasets (id, meta, created) VALUES (?, ?, ?)",
+                             (dataset_id, json.dumps(meta), time.time()))
+
+    def get_dataset(self, dataset_id: str) -> dict | None:
+        with self._lock:
+            row = self._db.execute("SELECT meta FROM datasets WHERE id = ?", (dataset_id,)).fetchone()
+        return None if row is None else json.loads(row["meta"])

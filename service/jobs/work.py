@@ -1,0 +1,204 @@
+"""The reconstruction job body: runs inside an executor worker (process pool or dask).
+
+``run_reconstruction(spec)`` reads the job's input, calls ``service.recon`` and writes the
+result folder atomically (temporary folder, then ``os.replace``):
+
+- ``volume.h5``: ``/p0`` (``(n_z, n_y, n_x)`` or ``(n_z, n_x)``, Pa relative to the
+  input's units), ``/z``, ``/x`` (and ``/y``) coordinate vectors in m; attributes
+  ``method``, ``params`` (JSON of every parameter used), ``input_id``;
+- ``mip_xy.png``, ``mip_xz.png``, ``mip_yz.png`` (3-D) or ``mip_xz.png`` (2-D).
+
+Inputs (``spec["input"]``):
+- ``{"kind": "dataset", "path": <dataset.h5>}``: the canonical dataset file written by
+  :mod:`service.api.datasets` (layout ``grid``: ``/data`` ``(n_t, n_y, n_x)``/``(n_t, n_x)``
+  with ``dt``, ``dx``, ``c`` attributes; layout ``points``: ``/alines`` ``(n, n_t)``,
+  ``/positions`` ``(n, 2)``, ``/weights``, ``/grid_x``, ``/grid_y``);
+- ``{"kind": "scan", "path": <scan.h5>}``: a scan file (``driver.scanfile.read_scan``);
+  only completed points are used, reconstructed on the plan's lattice with NEDNER unless
+  a grid method was asked for and every lattice point is present.
+
+Everything here is a plain function of picklable arguments so dask can ship it.
+"""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import time
+from pathlib import Path
+
+import numpy as np
+
+GRID_METHODS = ("ner", "linear", "nearest", "cubic", "kwave")
+POINT_METHODS = ("nedner",)
+
+
+def lattice_axes(lattice: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Lattice coordinate vectors ``x_i = (i - (n - 1)/2) * pitch`` (docs/architecture.md)."""
+    n_x, n_y, pitch = int(lattice["n_x"]), int(lattice.get("n_y", 1)), float(lattice["pitch"])
+    x = (np.arange(n_x) - (n_x - 1) / 2.0) * pitch
+    y = (np.arange(n_y) - (n_y - 1) / 2.0) * pitch
+    return x, y
+
+
+def load_scan_points(path: str | os.PathLike) -> dict:
+    """Completed A-lines of a scan file as reconstruction input: ``alines`` ``(n, n_t)``
+    (DC-normalised pressure), ``positions`` ``(n, 2)`` m, ``weights`` ``(n,)``, ``dt`` s,
+    ``c`` m/s, ``grid`` (lattice vectors), ``n_points`` of the plan, ``indices``."""
+    from driver.scanfile import read_scan
+
+    scan = read_scan(path)
+    done = np.asarray(scan.completed, dtype=bool)
+    plan = scan.plan if isinstance(scan.plan, dict) else json.loads(scan.plan)
+    acq = plan.get("acquisition", {})
+    acq_file = getattr(scan, "acquisition", None) or {}
+    dt = float(acq_file.get("dt", acq.get("dt")))
+    c = float(acq_file.get("sound_speed", acq.get("sound_speed", 1500.0)))
+    x, y = lattice_axes(plan["lattice"])
+    positions = np.asarray(scan.positions, dtype=np.float64)
+    weights = None if getattr(scan, "weights", None) is None else np.asarray(scan.weights, dtype=np.float64)
+    pressure = np.asarray(scan.pressure)
+    if positions.shape[0] != done.shape[0]:
+        raise ValueError("scan file positions and completion record disagree")
+    grid = (x,) if int(plan["lattice"].get("n_y", 1)) == 1 or positions.shape[1] == 1 else (x, y)
+    if len(grid) == 1:
+        positions = positions[:, :1]
+    return {
+        "alines": pressure[done],
+        "positions": positions[done],
+        "weights": None if weights is None else weights[done],
+        "dt": dt, "c": c, "grid": grid, "n_points": int(done.shape[0]),
+        "indices": np.flatnonzero(done),
+    }
+
+
+def _recon_options(params: dict) -> dict:
+    opts = {}
+    for key in ("eps", "upsample", "positivity", "dz", "n_z", "t0"):
+        if params.get(key) is not None:
+            opts[key] = params[key]
+    if params.get("dtype"):
+        opts["dtype"] = np.float32 if params["dtype"] == "float32" else np.float64
+    return opts
+
+
+def reconstruct_input(inp: dict, params: dict):
+    """Run ``service.recon`` on a loaded input; returns its ``Image``. Raises
+    ``ValueError`` when the method does not fit the input."""
+    from service import recon
+
+    method = params.get("method", "nedner")
+    opts = _recon_options(params)
+    if inp["layout"] == "grid":
+        c = float(params.get("c") or inp["c"])
+        if method in POINT_METHODS:
+            data = inp["data"]
+            if data.ndim == 2:
+                x = (np.arange(data.shape[1]) - (data.shape[1] - 1) / 2.0) * inp["dx"]
+                alines, positions, grid = data.T, x[:, None], (x,)
+            else:
+                n_y, n_x = data.shape[1:]
+                x = (np.arange(n_x) - (n_x - 1) / 2.0) * inp["dx"]
+                y = (np.arange(n_y) - (n_y - 1) / 2.0) * inp.get("dy", inp["dx"])
+                yy, xx = np.meshgrid(y, x, indexing="ij")
+                alines = data.reshape(data.shape[0], -1).T
+                positions = np.stack([xx.ravel(), yy.ravel()], axis=1)
+                grid = (x, y)
+            return recon.reconstruct_points(alines, positions, inp["dt"], c, grid=grid, method=method, **opts)
+        dx = inp["dx"] if inp["data"].ndim == 2 or inp.get("dy", inp["dx"]) == inp["dx"] else (inp["dy"], inp["dx"])
+        return recon.reconstruct_grid(inp["data"], dx, inp["dt"], c, method=method, **opts)
+    # points layout
+    c = float(params.get("c") or inp["c"])
+    if method not in POINT_METHODS:
+        raise ValueError(f"method {method!r} needs a full regular grid; use 'nedner' for a sensor mask")
+    if inp["alines"].shape[0] == 0:
+        raise ValueError("no completed A-lines to reconstruct")
+    return recon.reconstruct_points(inp["alines"], inp["positions"], inp["dt"], c, weights=inp.get("weights"),
+                                    grid=inp["grid"], method=method, **opts)
+
+
+def load_input(spec_input: dict) -> dict:
+    """Load a job input (see module docstring) into arrays."""
+    import h5py
+
+    if spec_input["kind"] == "scan":
+        pts = load_scan_points(spec_input["path"])
+        return {"layout": "points", **pts}
+    with h5py.File(spec_input["path"], "r") as f:
+        layout = f.attrs["layout"]
+        layout = layout.decode() if isinstance(layout, bytes) else str(layout)
+        out = {"layout": layout, "dt": float(f.attrs["dt"]), "c": float(f.attrs["c"])}
+        if layout == "grid":
+            out["data"] = f["data"][...]
+            out["dx"] = float(f.attrs["dx"])
+            if "dy" in f.attrs:
+                out["dy"] = float(f.attrs["dy"])
+        else:
+            out["alines"] = f["alines"][...]
+            out["positions"] = f["positions"][...]
+            out["weights"] = f["weights"][...] if "weights" in f else None
+            gx = f["grid_x"][...]
+            out["grid"] = (gx, f["grid_y"][...]) if "grid_y" in f else (gx,)
+    return out
+
+
+def write_result(out_dir: str | os.PathLike, image, *, input_id: str, extra: dict | None = None) -> dict:
+    """Write ``volume.h5`` and the MIP PNGs into ``out_dir`` atomically (a temporary
+    sibling folder renamed into place). Returns a summary dict."""
+    import h5py
+
+    from service.jobs.images import mip_pngs
+
+    out_dir = Path(out_dir)
+    tmp = out_dir.with_name(out_dir.name + f".tmp-{os.getpid()}-{time.monotonic_ns()}")
+    tmp.mkdir(parents=True)
+    try:
+        p0 = np.asarray(image.p0)
+        params = dict(getattr(image, "params", {}) or {})
+        with h5py.File(tmp / "volume.h5", "w") as f:
+            f.create_dataset("p0", data=p0)
+            f.create_dataset("z", data=np.asarray(image.z))
+            f.create_dataset("x", data=np.asarray(image.x))
+            if getattr(image, "y", None) is not None:
+                f.create_dataset("y", data=np.asarray(image.y))
+            f.attrs["method"] = str(params.get("method", ""))
+            f.attrs["params"] = json.dumps(params, default=str)
+            f.attrs["input_id"] = input_id
+            f.attrs["format"] = "fpscan-result/1"
+            if extra:
+                f.attrs["job"] = json.dumps(extra, default=str)
+        for plane, png in mip_pngs(p0).items():
+            (tmp / f"mip_{plane}.png").write_bytes(png)
+        if out_dir.exists():
+            shutil.rmtree(out_dir)
+        os.replace(tmp, out_dir)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return {"shape": list(p0.shape), "max": float(np.max(p0)) if p0.size else 0.0}
+
+
+def run_reconstruction(spec: dict) -> dict:
+    """Executor entry point. ``spec``: ``input`` (see above), ``params`` (method and
+    options), ``out_dir``, ``input_id``. Returns ``{"shape", "max", "timings"}``.
+    Raises ``ValueError`` for inputs the method cannot use."""
+    t0 = time.perf_counter()
+    inp = load_input(spec["input"])
+    t1 = time.perf_counter()
+    image = reconstruct_input(inp, spec["params"])
+    t2 = time.perf_counter()
+    summary = write_result(spec["out_dir"], image, input_id=spec.get("input_id", ""),
+                           extra={"points_used": int(inp["alines"].shape[0]) if "alines" in inp else None})
+    t3 = time.perf_counter()
+    summary["timings"] = {"load_s": t1 - t0, "reconstruct_s": t2 - t1, "write_s": t3 - t2}
+    if "alines" in inp:
+        summary["points_used"] = int(inp["alines"].shape[0])
+    return summary
+
+
+def warm_up() -> int:
+    """Import the heavy modules in a fresh worker (called once per pool process)."""
+    import h5py  # noqa: F401
+
+    from service import recon  # noqa: F401
+    return os.getpid()

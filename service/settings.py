@@ -1,0 +1,106 @@
+"""Service settings: environment variables (prefix ``FPSCAN_``) and an optional file.
+
+Source: pydantic-settings (``BaseSettings``). Precedence, highest first: keyword
+arguments, environment (``FPSCAN_DATA_DIR``, ``FPSCAN_TOKEN``, ...), the settings file
+(JSON or TOML named by ``FPSCAN_SETTINGS_FILE`` or passed to :meth:`Settings.load`),
+defaults.
+
+Units: bytes for memory and upload limits, seconds for intervals.
+"""
+from __future__ import annotations
+
+import json
+import os
+import tomllib
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import Field, SecretStr, field_validator, model_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+LOOPBACK_HOSTS = {"127.0.0.1", "localhost", "::1"}
+
+
+class Settings(BaseSettings):
+    """Everything the service needs to run.
+
+    ``devices`` maps a scanner id (``[A-Za-z0-9_-]``) to a serial device path or pyserial
+    URL (``/dev/ttyACM0``, ``socket://host:port``...). In the environment give it as JSON
+    (``FPSCAN_DEVICES='{"fp1": "/dev/ttyACM0"}'``).
+
+    Raises ``pydantic.ValidationError`` (a ``ValueError``) for bad values.
+    """
+
+    model_config = SettingsConfigDict(env_prefix="FPSCAN_", extra="forbid")
+
+    data_dir: Path = Field(Path("fpscan-data"), description="folder for the database, plans, scans, results")
+    db_path: Path | None = Field(None, description="SQLite job database (default: <data_dir>/jobs.sqlite)")
+    devices: dict[str, str] = Field(default_factory=dict, description="scanner id -> serial path or pyserial URL")
+    token: SecretStr | None = Field(None, description="bearer token; None = no token")
+    executor: Literal["local", "dask"] = "local"
+    dask_scheduler: str | None = Field(None, description="dask.distributed scheduler address (implies executor dask)")
+    workers: int = Field(1, ge=1, le=64, description="local process pool size")
+    memory_limit: int = Field(8 * 2**30, gt=0, description="bytes available to reconstructions at once")
+    upload_limit: int = Field(2 * 2**30, gt=0, description="largest accepted upload, bytes")
+    host: str = "127.0.0.1"
+    port: int = Field(8000, ge=0, le=65535)
+    web_root: Path | None = Field(None, description="folder of the web page's static files; None = no page")
+    preview_interval_s: float = Field(3.0, gt=0, le=3600, description="live preview refresh period")
+    heartbeat_s: float = Field(2.0, gt=0, le=600, description="lease heartbeat period of running jobs")
+    max_attempts: int = Field(3, ge=1, le=100, description="tries of a reconstruction before it fails")
+    log_level: str = "info"
+
+    @field_validator("devices")
+    @classmethod
+    def _device_ids(cls, value: dict[str, str]) -> dict[str, str]:
+        for key in value:
+            if not key or len(key) > 64 or not all(ch.isalnum() or ch in "_-" for ch in key):
+                raise ValueError(f"scanner id {key!r} must be 1-64 characters of [A-Za-z0-9_-]")
+        return value
+
+    @model_validator(mode="after")
+    def _dask_address(self) -> "Settings":
+        if self.dask_scheduler and self.executor == "local":
+            self.executor = "dask"
+        if self.executor == "dask" and not self.dask_scheduler:
+            raise ValueError("executor 'dask' needs dask_scheduler (a scheduler address)")
+        return self
+
+    @property
+    def database(self) -> Path:
+        """The SQLite file: ``db_path`` or ``<data_dir>/jobs.sqlite``."""
+        return self.db_path if self.db_path is not None else self.data_dir / "jobs.sqlite"
+
+    @property
+    def loopback_only(self) -> bool:
+        """True when the server is bound to loopback only (no token needed on reads)."""
+        return self.host in LOOPBACK_HOSTS
+
+    def token_value(self) -> str | None:
+        return self.token.get_secret_value() if self.token is not None else None
+
+    @classmethod
+    def load(cls, path: str | os.PathLike | None = None, **overrides: Any) -> "Settings":
+        """Settings from a JSON/TOML file (``path`` or ``$FPSCAN_SETTINGS_FILE``), the
+        environment, then ``overrides`` (highest). Raises ``ValueError`` for an unreadable
+        file or bad values."""
+        path = path or os.environ.get("FPSCAN_SETTINGS_FILE")
+        base: dict[str, Any] = {}
+        if path:
+            p = Path(path)
+            try:
+                text = p.read_text()
+            except OSError as exc:
+                raise ValueError(f"cannot read settings file {p}: {exc.strerror}") from None
+            try:
+                base = tomllib.loads(text) if p.suffix == ".toml" else json.loads(text)
+            except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
+                raise ValueError(f"settings file {p} is not valid {p.suffix or 'JSON'}: {exc}") from None
+            if not isinstance(base, dict):
+                raise ValueError(f"settings file {p} must hold a table/object")
+        # Environment beats the file: build from env, then layer file values underneath.
+        env_only = cls(**{k: v for k, v in overrides.items()})
+        explicit = env_only.model_fields_set
+        merged = {k: v for k, v in base.items() if k not in explicit}
+        merged.update({k: getattr(env_only, k) for k in explicit})
+        return cls(**merged) if merged else env_only
