@@ -59,6 +59,7 @@ function askToken(message) {
   const input = $("token-input");
   input.value = getToken();
   if (message) dialog.querySelector("p").textContent = message;
+  document.body.dataset.tokenPrompts = String((Number(document.body.dataset.tokenPrompts) || 0) + 1);
   tokenPrompt = new Promise((resolve) => {
     dialog.addEventListener("close", function onClose() {
       dialog.removeEventListener("close", onClose);
@@ -600,7 +601,7 @@ async function refreshLivePreview(jobId) {
     if (err instanceof ApiError && (err.status === 404 || err.status === 409)) return; // none yet
     throw err;
   }
-  if (!info || info.version === undefined || info.version === null) return;
+  if (!info || !info.version) return; // version 0: no preview yet
   const version = String(info.version);
   const imgs = ["xy", "xz", "yz"].map((pl) => $("scan-mip-" + pl));
   if (imgs.every((img) => img.dataset.version === version)) return;
@@ -760,11 +761,12 @@ function downloadsFor(job) {
   const id = encodeURIComponent(job.id);
   const list = [];
   const params = job.params || {};
+  const links = job.links || {};
   if (job.kind === "scan") {
-    list.push(["Scan file (HDF5)", `/api/scans/${id}/file`, `scan-${job.id}.h5`]);
-    list.push(["IPASC export (HDF5)", `/api/scans/${id}/ipasc`, `scan-${job.id}-ipasc.hdf5`]);
+    list.push(["Scan file (HDF5)", links.file || `/api/scans/${id}/file`, `scan-${job.id}.h5`]);
+    list.push(["IPASC export (HDF5)", links.ipasc || `/api/scans/${id}/ipasc`, `scan-${job.id}-ipasc.hdf5`]);
   } else {
-    list.push(["Volume (HDF5)", `/api/reconstructions/${id}/volume.h5`, `volume-${job.id}.h5`]);
+    list.push(["Volume (HDF5)", links.volume || `/api/reconstructions/${id}/volume.h5`, `volume-${job.id}.h5`]);
     const scanId = params.scan_job_id;
     if (scanId) {
       const s = encodeURIComponent(scanId);
@@ -800,9 +802,14 @@ function downloadLink(label, path, filename) {
   return a;
 }
 
+/** The job's result summary (``params.result``: {shape, max, points_used, timings}). */
+function resultOf(job) {
+  return (job.params && job.params.result) || job.result || {};
+}
+
 function sliceCount(job) {
-  const r = job.result || {};
-  const cands = [r.n_z, r.shape && r.shape[0], job.params && job.params.n_z, r.z && r.z.length];
+  const r = resultOf(job);
+  const cands = [r.shape && r.shape[0], r.n_z];
   for (const c of cands) if (Number.isInteger(c) && c > 0) return c;
   return null;
 }
@@ -818,7 +825,7 @@ function renderResult(job) {
 
   const tbody = $("result-params").tBodies[0];
   tbody.textContent = "";
-  for (const [k, v] of flatten(job.params || {})) {
+  for (const [k, v] of flatten(job.params || {}).filter(([k]) => !k.startsWith("result."))) {
     const tr = document.createElement("tr");
     const a = document.createElement("td"); a.textContent = k;
     const b = document.createElement("td"); b.textContent = v;
@@ -840,15 +847,24 @@ function renderResult(job) {
   $("result-recon").hidden = !(isRecon && done);
   if (isRecon && done) {
     const id = encodeURIComponent(job.id);
-    for (const pl of ["xy", "xz", "yz"]) loadImage($("result-mip-" + pl), `/api/reconstructions/${id}/mip/${pl}.png`).catch(showError);
+    const links = job.links || {};
+    const hasLinks = Object.keys(links).some((k) => k.startsWith("mip_"));
+    for (const pl of ["xy", "xz", "yz"]) {
+      const img = $("result-mip-" + pl);
+      const fig = img.closest("figure");
+      const path = hasLinks ? links["mip_" + pl] : `/api/reconstructions/${id}/mip/${pl}.png`;
+      fig.hidden = !path; // a 2-D image has only the xz plane
+      if (path) loadImage(img, path).catch(showError);
+    }
     const n = sliceCount(job);
     const slider = $("result-slice");
     slider.max = String(n ? n - 1 : 0);
     slider.disabled = !n;
     if (Number(slider.value) > Number(slider.max)) slider.value = slider.max;
-    const r = job.result || {};
-    if (r.p0_min !== undefined || r.min !== undefined) $("scale-min").textContent = fmtNum(r.p0_min ?? r.min) + (r.units ? " " + r.units : "");
-    if (r.p0_max !== undefined || r.max !== undefined) $("scale-max").textContent = fmtNum(r.p0_max ?? r.max) + (r.units ? " " + r.units : "");
+    const r = resultOf(job);
+    $("scale-max").textContent = r.max !== undefined ? `max (volume max ${fmtNum(r.max)})` : "max";
+    $("result-shape").textContent = r.shape ? r.shape.join(" × ") + (r.shape.length === 3 ? " (n_z × n_y × n_x)" : " (n_z × n_x)") : "–";
+    $("result-points").textContent = r.points_used ?? "–";
     showSlice();
   }
 }
