@@ -1,0 +1,178 @@
+"""The paper's masks around a point of interest: equiangular (2-D) and equi-steradian
+(3-D), exactly as DESIGN §4 resolves the paper's §5.1 and appendix.
+
+Schmid et al., "Computational realization of a non-equidistant grid sampling in
+photoacoustics with a non-uniform FFT", §5 and Appendix "Algorithm for equi-steradian
+sensor arrangement". Weights ∝ r² (2-D) / r³ (3-D), r = distance from the point of
+interest (paper §5.2), normalised to the covered area.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .lattice import Lattice
+from .mask import Mask, check_count, check_poi, check_positive, distance_law_weights
+
+__all__ = ["equiangular_mask", "equisteradian_mask", "equisteradian_rings", "Ring"]
+
+#: Doubling threshold of the appendix: j_k doubles while r_s > 1.8 r_k.
+DOUBLING_FACTOR = 1.8
+
+
+@dataclass(frozen=True)
+class Ring:
+    """One ring of the equi-steradian design: polar angle ``theta`` (rad) of its points,
+    its polar band ``[theta_lo, theta_hi]`` (rad), ``count`` points (a power of two) at
+    azimuths ``phi0 + 2π i / count`` (rad)."""
+
+    theta: float
+    theta_lo: float
+    theta_hi: float
+    count: int
+    phi0: float
+
+    def azimuths(self) -> np.ndarray:
+        return self.phi0 + 2 * np.pi * np.arange(self.count) / self.count
+
+
+def _ring_xy(rho: float, phis: np.ndarray) -> np.ndarray:
+    return np.column_stack((rho * np.cos(phis), rho * np.sin(phis)))
+
+
+def equisteradian_rings(depth: float, rho_max: float, n_points: int) -> list[Ring]:
+    """The equi-steradian ring design (DESIGN §4), before projection and snapping.
+
+    depth: r0, the point of interest's distance from the sensor plane (m); rho_max: the
+    disc's radius on the sensor plane (m); n_points: N, the requested count.
+
+    θ_max = atan(ρ_max / r0); Ω = 2π(1 − cos θ_max); ω = Ω/N. Ring 1: one point at θ = 0,
+    band [0, θ_1] with 2π(1 − cos θ_1) = ω. Ring k: j_k points (power of two, starting at
+    j_{k−1}, doubled while r_s > 1.8·r_k, where r_s is the chord between neighbours on
+    ring k and r_k the distance to the closest point of ring k−1, both on the sensor
+    plane; a ring after the single centre point always has ≥ 2 points); band
+    [θ_{k−1}, θ_k] with ω·j_k = 2π(cos θ_{k−1} − cos θ_k); points at the mid polar angle,
+    azimuths φ_{i,k} = φ_{0,k−1} + (2i+1)π/j_k. Rings are added while their band ends
+    below θ_max; the ring whose band would reach θ_max is put on θ_max itself (the
+    aperture's edge), so the count ends near N.
+
+    Raises ValueError: depth or rho_max ≤ 0 or non-finite, n_points < 1.
+    """
+    r0 = check_positive("depth", depth)
+    rho_max = check_positive("rho_max", rho_max)
+    n = check_count("n_points", n_points)
+    t_max = math.atan(rho_max / r0)
+    omega = 2 * math.pi * (1 - math.cos(t_max)) / n
+    if n == 1:
+        return [Ring(0.0, 0.0, t_max, 1, 0.0)]
+    t1 = math.acos(1 - omega / (2 * math.pi))
+    rings = [Ring(0.0, 0.0, t1, 1, 0.0)]
+    prev_xy = np.zeros((1, 2))
+    while True:
+        prev = rings[-1]
+        j = prev.count
+        while True:
+            c = math.cos(prev.theta_hi) - j * omega / (2 * math.pi)
+            hi = math.acos(max(c, -1.0))
+            last = hi >= t_max
+            theta = t_max if last else 0.5 * (prev.theta_hi + hi)
+            rho = r0 * math.tan(theta)
+            phis = prev.phi0 + (2 * np.arange(j) + 1) * np.pi / j
+            xy = _ring_xy(rho, phis)
+            r_k = float(np.min(np.hypot(xy[:, None, 0] - prev_xy[None, :, 0], xy[:, None, 1] - prev_xy[None, :, 1])))
+            r_s = 2 * rho * math.sin(math.pi / j) if j > 1 else math.inf
+            if r_s > DOUBLING_FACTOR * r_k and j < (1 << 20):
+                j *= 2
+                continue
+            break
+        rings.append(Ring(theta, prev.theta_hi, min(hi, t_max), j, float(phis[0])))
+        prev_xy = xy
+        if last:
+            return rings
+
+
+def _finish(kind, params, lattice, pos_design, poi, depth, power, requested, ring_of, design) -> Mask:
+    idx = lattice.snap(pos_design)
+    _, first = np.unique(idx, axis=0, return_index=True)
+    keep = np.sort(first)
+    idx = idx[keep]
+    rings = None if ring_of is None else np.asarray(ring_of)[keep]
+    pos = lattice.positions(idx)
+    w = distance_law_weights(lattice, pos, poi, depth, power)
+    return Mask(kind=kind, params=params, lattice=lattice, indices=idx, weights=w,
+                requested_points=requested, poi=poi, depth=depth, rings=rings, design=design)
+
+
+def equisteradian_mask(lattice: Lattice, depth: float, n_points: int, poi=None) -> Mask:
+    """Equi-steradian mask (3-D) around a point of interest (DESIGN §4, paper appendix).
+
+    lattice: a 2-D scanner lattice (n_y > 1); depth: r0, the point of interest's distance
+    from the sensor plane (m); n_points: N requested; poi: its lateral position (x, y) in m
+    (default the lattice centre). ρ_max is the distance from poi to the nearest lattice
+    edge (outermost lattice points), so the mask is a disc. The rings of
+    ``equisteradian_rings`` are projected (ρ = r0·tan θ), snapped to the lattice and
+    de-duplicated; weights ∝ r³ normalised to the covered area. The paper's setup
+    (226 × 226, 60 µm, r0 = 3.6 mm, N = 1625) gives θ_max = 61.9° (its 62°).
+
+    Returns a Mask with ``rings`` (ring number per point, 0 = centre) and ``design``
+    (theta/count per ring). Raises ValueError: line lattice, depth ≤ 0, n_points < 1 or
+    above the lattice, poi outside or on the edge of the lattice, non-finite values.
+    """
+    if lattice.is_line:
+        raise ValueError("an equi-steradian mask needs a 2-D lattice (n_y > 1); use equiangular on a line")
+    r0 = check_positive("depth", depth)
+    n = check_count("n_points", n_points, lattice.n_points)
+    xc, yc = check_poi(lattice, poi)
+    hx, hy = lattice.half_extent
+    rho_max = min(hx - abs(xc), hy - abs(yc))
+    if rho_max <= 0.5 * lattice.pitch:
+        raise ValueError("the point of interest lies on the lattice edge: no disc of sensors fits around it")
+    rings = equisteradian_rings(r0, rho_max, n)
+    pts, ring_of = [], []
+    for k, ring in enumerate(rings):
+        rho = min(r0 * math.tan(ring.theta), rho_max)
+        pts.append(_ring_xy(rho, ring.azimuths()) + np.array([xc, yc]))
+        ring_of.append(np.full(ring.count, k))
+    pos = np.vstack(pts)
+    params = {"depth": r0, "n_points": n, "poi": [xc, yc]}
+    design = {
+        "theta_max": math.atan(rho_max / r0),
+        "rho_max": rho_max,
+        "ring_theta": [r.theta for r in rings],
+        "ring_count": [r.count for r in rings],
+        "design_points": int(pos.shape[0]),
+    }
+    return _finish("equisteradian", params, lattice, pos, (xc, yc), r0, 3, n, np.concatenate(ring_of), design)
+
+
+def equiangular_mask(lattice: Lattice, depth: float, n_points: int, poi=None) -> Mask:
+    """Equiangular mask (2-D) around a point of interest (DESIGN §4, paper §5.1).
+
+    lattice: a line lattice (n_y = 1); depth: r0 (m); n_points: N requested; poi: the
+    point of interest's lateral x in m (default the line's centre). θ_max = atan(ρ_max/r0),
+    ρ_max = distance from x_c to the nearer end of the line; sensors at
+    θ_i = −θ_max + i·2θ_max/(N−1) (N = 1: θ = 0), x_i = x_c + r0·tan θ_i, snapped,
+    duplicates dropped. Weights ∝ r² normalised to the covered length (m).
+    ``design["theta"]`` holds the N angles before snapping.
+
+    Raises ValueError: a 2-D lattice, depth ≤ 0, n_points < 1 or above the lattice, poi
+    outside the line, non-finite values.
+    """
+    if not lattice.is_line:
+        raise ValueError("an equiangular mask needs a line lattice (n_y = 1); use equisteradian in 3-D")
+    r0 = check_positive("depth", depth)
+    n = check_count("n_points", n_points, lattice.n_points)
+    xc, _ = check_poi(lattice, poi)
+    hx, _ = lattice.half_extent
+    rho_max = hx - abs(xc)
+    if n > 1 and rho_max <= 0:
+        raise ValueError("the point of interest lies on the end of the line: no symmetric fan of sensors fits")
+    t_max = math.atan(rho_max / r0)
+    theta = np.zeros(1) if n == 1 else -t_max + np.arange(n) * (2 * t_max / (n - 1))
+    x = xc + r0 * np.tan(theta)
+    pos = np.column_stack((x, np.zeros(n)))
+    params = {"depth": r0, "n_points": n, "poi": [xc, 0.0]}
+    design = {"theta_max": t_max, "theta": theta.tolist(), "x_design": x.tolist()}
+    return _finish("equiangular", params, lattice, pos, (xc, 0.0), r0, 2, n, None, design)

@@ -1,0 +1,151 @@
+"""The scanner lattice: the points an FP scanner can address (DESIGN §4)."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["Lattice"]
+
+
+def _check_length(name: str, value) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number in m, got {value!r}") from None
+    if not math.isfinite(v):
+        raise ValueError(f"{name} must be finite, got {v}")
+    return v
+
+
+@dataclass(frozen=True)
+class Lattice:
+    """``n_x × n_y`` addressable points at pitch ``pitch`` (m), centred on the optical axis.
+
+    Coordinates follow docs/architecture.md: ``x_i = (i - (n_x - 1)/2) * pitch``,
+    ``i = 0..n_x-1``, and the same for y. A 2-D (line) scanner has ``n_y = 1`` (y = 0).
+    Indices are ``(i_x, i_y)``; positions ``(x, y)`` in m.
+
+    Raises ValueError: n_x or n_y not a positive integer, pitch ≤ 0 or non-finite.
+    """
+
+    n_x: int
+    n_y: int
+    pitch: float
+
+    def __post_init__(self):
+        for name in ("n_x", "n_y"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or int(v) < 1:
+                raise ValueError(f"{name} must be a positive integer, got {v!r}")
+            object.__setattr__(self, name, int(v))
+        p = _check_length("pitch", self.pitch)
+        if p <= 0:
+            raise ValueError(f"pitch must be > 0 m, got {p}")
+        object.__setattr__(self, "pitch", p)
+
+    # -- geometry -----------------------------------------------------------------
+    @property
+    def is_line(self) -> bool:
+        """True for a 2-D imaging lattice (a line of points, n_y = 1)."""
+        return self.n_y == 1
+
+    @property
+    def n_points(self) -> int:
+        return self.n_x * self.n_y
+
+    @property
+    def x(self) -> np.ndarray:
+        """``(n_x,)`` x coordinates in m."""
+        return (np.arange(self.n_x) - (self.n_x - 1) / 2) * self.pitch
+
+    @property
+    def y(self) -> np.ndarray:
+        """``(n_y,)`` y coordinates in m."""
+        return (np.arange(self.n_y) - (self.n_y - 1) / 2) * self.pitch
+
+    @property
+    def half_extent(self) -> tuple[float, float]:
+        """Distance (m) from the centre to the outermost lattice points along x and y."""
+        return ((self.n_x - 1) / 2 * self.pitch, (self.n_y - 1) / 2 * self.pitch)
+
+    @property
+    def bounds(self) -> tuple[tuple[float, float], ...]:
+        """The area the lattice covers, ``((x_lo, x_hi), (y_lo, y_hi))`` in m
+        (outermost points ± pitch/2); a line lattice gives ``((x_lo, x_hi),)``."""
+        hx, hy = self.half_extent
+        h = self.pitch / 2
+        if self.is_line:
+            return ((-hx - h, hx + h),)
+        return ((-hx - h, hx + h), (-hy - h, hy + h))
+
+    @property
+    def area(self) -> float:
+        """Covered area in m² (m for a line lattice)."""
+        if self.is_line:
+            return self.n_x * self.pitch
+        return self.n_x * self.n_y * self.pitch**2
+
+    def positions(self, indices) -> np.ndarray:
+        """``(n, 2)`` positions (x, y) in m of lattice indices ``(n, 2)`` as (i_x, i_y).
+
+        Raises ValueError for indices outside the lattice or of the wrong shape."""
+        idx = np.asarray(indices)
+        if idx.ndim != 2 or idx.shape[1] != 2:
+            raise ValueError(f"indices must have shape (n, 2), got {idx.shape}")
+        if idx.size and not np.issubdtype(idx.dtype, np.integer):
+            if not np.all(np.isfinite(idx)) or np.any(idx != np.round(idx)):
+                raise ValueError("indices must be integers")
+        idx = idx.astype(np.int64)
+        if np.any(idx < 0) or np.any(idx[:, 0] >= self.n_x) or np.any(idx[:, 1] >= self.n_y):
+            raise ValueError(f"indices outside the {self.n_x} x {self.n_y} lattice")
+        out = np.empty(idx.shape, dtype=np.float64)
+        out[:, 0] = (idx[:, 0] - (self.n_x - 1) / 2) * self.pitch
+        out[:, 1] = (idx[:, 1] - (self.n_y - 1) / 2) * self.pitch
+        return out
+
+    def snap(self, positions) -> np.ndarray:
+        """Nearest lattice indices ``(n, 2)`` of positions ``(n, 2)`` (or ``(n, 1)``) in m.
+
+        Ties (a position exactly half-way between two lattice points) are broken away
+        from the lattice centre, so snapping commutes with the lattice's mirror
+        symmetries everywhere except on the centre lines of an even-sized lattice.
+        Raises ValueError for non-finite positions or positions more than half a pitch
+        outside the lattice.
+        """
+        pos = np.asarray(positions, dtype=np.float64)
+        if pos.ndim == 1:
+            pos = pos[:, None]
+        if pos.ndim != 2 or pos.shape[1] not in (1, 2):
+            raise ValueError(f"positions must have shape (n, 2) or (n, 1), got {pos.shape}")
+        if not np.all(np.isfinite(pos)):
+            raise ValueError("positions contain non-finite values")
+        if pos.shape[1] == 1:
+            pos = np.column_stack((pos[:, 0], np.zeros(pos.shape[0])))
+        idx = np.empty(pos.shape, dtype=np.int64)
+        for a, n in enumerate((self.n_x, self.n_y)):
+            c = (n - 1) / 2
+            u = pos[:, a] / self.pitch
+            u = np.round(u, 9)  # kill float noise so ties are ties
+            rel = u + c  # index coordinate
+            # round half away from the centre
+            off = rel - c
+            r = np.where(off >= 0, np.floor(rel + 0.5), np.ceil(rel - 0.5))
+            if np.any(r < 0) or np.any(r > n - 1):
+                bad = pos[(r < 0) | (r > n - 1)][0]
+                raise ValueError(
+                    f"position ({bad[0]:.6g}, {bad[1]:.6g}) m lies outside the "
+                    f"{self.n_x} x {self.n_y} lattice (pitch {self.pitch:g} m)"
+                )
+            idx[:, a] = r.astype(np.int64)
+        return idx
+
+    def contains(self, x: float, y: float = 0.0) -> bool:
+        """Whether the lateral point (x, y) in m lies within the lattice's outermost points."""
+        hx, hy = self.half_extent
+        tol = 1e-9 * self.pitch
+        return abs(x) <= hx + tol and abs(y) <= hy + tol
+
+    def to_dict(self) -> dict:
+        return {"n_x": self.n_x, "n_y": self.n_y, "pitch": self.pitch}
