@@ -1,0 +1,655 @@
+"""The scan file: one HDF5 file per acquisition, written as A-lines arrive (DESIGN §6).
+
+Layout (``format`` attribute ``fpscan-scan/1``; full description in docs/file-formats.md):
+
+=====================  ==========================  =========================================
+path                   shape, dtype                meaning
+=====================  ==========================  =========================================
+``/alines``            (n_points, n_t) int16       samples as received; row k = point k
+``/aline_meta``        (n_points,) compound        per-A-line metadata (``META_DTYPE``)
+``/completed``         (n_points,) uint8           1 once point k is on disk (the record)
+``/positions``         (n_points, d) float64       sensor (x[, y]) in m, d = 2 (1 for 2-D)
+``/indices``           (n_points, 2) int32         lattice (i_x, i_y)
+``/weights``           (n_points,) float64         area weights (m², or m in 2-D)
+``/plan_json``         scalar UTF-8 string         the plan JSON (docs/architecture.md)
+root attributes                                    ``plan_id``, ``n_points``, ``n_t``,
+                                                   ``dt_s``, ``sound_speed_m_per_s``,
+                                                   ``wavelengths_m``, ``acquisition_json``,
+                                                   ``instrument_json``,
+                                                   ``software_version``, ``created_utc``
+=====================  ==========================  =========================================
+
+Crash safety and SWMR. The file is created with ``libver='latest'`` and every dataset is
+chunked with *early allocation*, so all file space and all HDF5 metadata exist before
+the first A-line; the writer then switches to SWMR mode (readers may open the file with
+``swmr=True`` while it is written) and renames the finished skeleton into place. After
+that the writer never changes HDF5 metadata: :meth:`ScanFile.append` writes three whole
+chunks with ``H5Dwrite_chunk`` (h5py ``write_direct_chunk``), in this order — the A-line's
+samples, the metadata chunk holding its record, the ``completed`` chunk holding its flag.
+Each is a ``pwrite`` into the already allocated place, done before ``append`` returns, so a
+point marked complete always has its samples and metadata on disk before its flag.
+
+Durability policy (``durable`` argument):
+
+- ``"process"`` (default): ``append`` returning means the A-line has been handed to the
+  operating system. It survives a crash or ``SIGKILL`` of the writing process (tested),
+  not a power cut or kernel crash.
+- ``"fsync"``: additionally ``fsync`` after every append: survives power loss, at the
+  cost of one disk flush per A-line (use with slow PRFs only).
+
+A killed writer leaves the superblock's "open for SWMR write" flags set; HDF5 then refuses
+a normal open. :meth:`ScanFile.open_append` clears them (what ``h5clear -s`` does) after
+taking the writer lock, and :func:`read_scan` always opens with ``swmr=True``, which
+works on live, killed and cleanly closed files alike. The writer lock is an exclusive
+``flock`` on the sidecar file ``<path>.lock`` (removed on close); it dies with the
+process, so a stale lock file never blocks a resume.
+
+DC-normalised pressure (the ``pressure`` view of :class:`ScanData`): the FP sensor's AC
+output is pressure × sensitivity × DC level, so for A-line k
+
+    pressure[k, n] = (alines[k, n] · scale[k] + offset[k]) / dc_level[k]
+
+(docs/protocol.md A-line frame; units Pa when scale/offset are in V and the sensitivity is
+V/(Pa·V), otherwise relative). Rows of points not yet complete are NaN.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import errno
+import fcntl
+import hashlib
+import json
+import math
+import numbers
+import os
+import threading
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+from h5py import h5d, h5p, h5s, h5t
+
+FORMAT = "fpscan-scan/1"
+PLAN_FORMAT = "fpscan-plan/1"
+
+META_KEYS = ("run_id", "boot_id", "point_index", "pulse_number", "timestamp_s",
+             "bias_wavelength_m", "dc_level", "pulse_energy_j", "dt_s", "scale", "offset")
+_INT_KEYS = ("run_id", "boot_id", "point_index", "pulse_number")
+#: Per-A-line metadata record, little-endian, as stored in ``/aline_meta``.
+META_DTYPE = np.dtype([
+    ("run_id", "<u8"), ("boot_id", "<u8"), ("point_index", "<i8"), ("pulse_number", "<u8"),
+    ("timestamp_s", "<f8"), ("bias_wavelength_m", "<f8"), ("dc_level", "<f8"),
+    ("pulse_energy_j", "<f8"), ("dt_s", "<f8"), ("scale", "<f8"), ("offset", "<f8"),
+])
+META_CHUNK = 64        # records per /aline_meta chunk (5.6 kB)
+COMPLETED_CHUNK = 4096  # flags per /completed chunk (4 kB)
+DURABLE_POLICIES = ("process", "fsync")
+
+
+def canonical_json(obj: Any) -> str:
+    """Canonical JSON of docs/architecture.md: sorted keys, no spaces, floats as repr."""
+    return json.dumps(obj, sort_keys=True, separators=(",", ":"), allow_nan=False)
+
+
+def plan_id_of(plan: dict) -> str:
+    """The plan's id: sha256 hex of the canonical JSON of everything but ``id``."""
+    body = {k: v for k, v in plan.items() if k != "id"}
+    return hashlib.sha256(canonical_json(body).encode()).hexdigest()
+
+
+@dataclass(frozen=True)
+class _PlanArrays:
+    n_points: int
+    n_t: int
+    dt: float
+    sound_speed: float
+    wavelengths: np.ndarray
+    positions: np.ndarray
+    indices: np.ndarray
+    weights: np.ndarray
+
+
+def _check_plan(plan: Any) -> _PlanArrays:
+    """Validate a plan dict (docs/architecture.md "Plan JSON"); ValueError names the fault."""
+    if not isinstance(plan, dict):
+        raise ValueError(f"plan must be a dict (the parsed plan JSON), got {type(plan).__name__}")
+    if plan.get("format") != PLAN_FORMAT:
+        raise ValueError(f"plan format must be {PLAN_FORMAT!r}, got {plan.get('format')!r}")
+    for key in ("id", "points", "acquisition"):
+        if key not in plan:
+            raise ValueError(f"plan has no {key!r}")
+    try:
+        expected = plan_id_of(plan)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"plan is not JSON-serialisable: {exc}") from None
+    if plan["id"] != expected:
+        raise ValueError(f"plan id {plan['id']!r} does not match its content (sha256 {expected})")
+    acq, pts = plan["acquisition"], plan["points"]
+    if not isinstance(acq, dict) or not isinstance(pts, dict):
+        raise ValueError("plan 'acquisition' and 'points' must be objects")
+    try:
+        n_t = acq["n_t"]
+        dt = float(acq["dt"])
+        c = float(acq.get("sound_speed", 1500.0))
+        wl = np.asarray(acq.get("wavelengths", []), dtype=np.float64).reshape(-1)
+        pos = np.asarray(pts["positions"], dtype=np.float64)
+        idx = np.asarray(pts["indices"], dtype=np.int64)
+        w = np.asarray(pts["weights"], dtype=np.float64)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"plan field missing or malformed: {exc!r}") from None
+    if isinstance(n_t, bool) or not isinstance(n_t, numbers.Integral) or n_t < 1:
+        raise ValueError(f"plan acquisition.n_t must be a positive integer, got {n_t!r}")
+    if not (math.isfinite(dt) and dt > 0):
+        raise ValueError(f"plan acquisition.dt must be > 0 s, got {dt!r}")
+    if not (math.isfinite(c) and c > 0):
+        raise ValueError(f"plan acquisition.sound_speed must be > 0 m/s, got {c!r}")
+    if pos.ndim != 2 or pos.shape[0] < 1 or pos.shape[1] not in (1, 2):
+        raise ValueError(f"plan points.positions must be (n_points, 2) or (n_points, 1), "
+                         f"got shape {pos.shape}")
+    n = pos.shape[0]
+    if idx.shape != (n, 2):
+        raise ValueError(f"plan points.indices must be ({n}, 2), got shape {idx.shape}")
+    if w.shape != (n,):
+        raise ValueError(f"plan points.weights must be ({n},), got shape {w.shape}")
+    if not (np.isfinite(pos).all() and np.isfinite(w).all()):
+        raise ValueError("plan positions and weights must be finite")
+    return _PlanArrays(n, int(n_t), dt, c, wl, pos, idx.astype(np.int32), w)
+
+
+# --- superblock status flags (what `h5clear -s` does) ------------------------------------
+
+def _rot(x: int, k: int) -> int:
+    return ((x << k) | (x >> (32 - k))) & 0xFFFFFFFF
+
+
+def _lookup3(data: bytes, initval: int = 0) -> int:
+    """Bob Jenkins' lookup3 ``hashlittle``, as HDF5's ``H5_checksum_lookup3``."""
+    m = 0xFFFFFFFF
+    length = len(data)
+    a = b = c = (0xDEADBEEF + length + initval) & m
+    i = 0
+    while length > 12:
+        a = (a + int.from_bytes(data[i:i + 4], "little")) & m
+        b = (b + int.from_bytes(data[i + 4:i + 8], "little")) & m
+        c = (c + int.from_bytes(data[i + 8:i + 12], "little")) & m
+        a = (a - c) & m; a ^= _rot(c, 4); c = (c + b) & m
+        b = (b - a) & m; b ^= _rot(a, 6); a = (a + c) & m
+        c = (c - b) & m; c ^= _rot(b, 8); b = (b + a) & m
+        a = (a - c) & m; a ^= _rot(c, 16); c = (c + b) & m
+        b = (b - a) & m; b ^= _rot(a, 19); a = (a + c) & m
+        c = (c - b) & m; c ^= _rot(b, 4); b = (b + a) & m
+        i += 12
+        length -= 12
+    if length == 0:
+        return c
+    tail = data[i:] + bytes(12 - length)
+    a = (a + int.from_bytes(tail[0:4], "little")) & m
+    b = (b + int.from_bytes(tail[4:8], "little")) & m
+    c = (c + int.from_bytes(tail[8:12], "little")) & m
+    c ^= b; c = (c - _rot(b, 14)) & m
+    a ^= c; a = (a - _rot(c, 11)) & m
+    b ^= a; b = (b - _rot(a, 25)) & m
+    c ^= b; c = (c - _rot(b, 16)) & m
+    a ^= c; a = (a - _rot(c, 4)) & m
+    b ^= a; b = (b - _rot(a, 14)) & m
+    c ^= b; c = (c - _rot(b, 24)) & m
+    return c
+
+
+_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+
+
+def _clear_status_flags(path: Path) -> bool:
+    """Clear the superblock's file-consistency flags left by a killed writer.
+
+    Only for superblock versions 2/3 (``libver='latest'``) at offset 0; the superblock
+    checksum is verified before and rewritten after. Returns True if flags were cleared.
+    Raises ValueError if the file is not such an HDF5 file.
+    """
+    with open(path, "r+b") as fh:
+        head = fh.read(12)
+        if len(head) < 12 or head[:8] != _SIGNATURE:
+            raise ValueError(f"{path} is not an HDF5 file with a superblock at offset 0")
+        version, size_off = head[8], head[9]
+        if version not in (2, 3):
+            raise ValueError(f"{path}: superblock version {version} is not a scan file's (3)")
+        n = 12 + 4 * size_off
+        fh.seek(0)
+        block = fh.read(n + 4)
+        if len(block) != n + 4:
+            raise ValueError(f"{path}: truncated superblock")
+        stored = int.from_bytes(block[n:n + 4], "little")
+        if _lookup3(block[:n]) != stored:
+            raise ValueError(f"{path}: superblock checksum mismatch (not a valid HDF5 file)")
+        if block[11] == 0:
+            return False
+        new = bytearray(block[:n])
+        new[11] = 0
+        fh.seek(0)
+        fh.write(bytes(new) + _lookup3(bytes(new)).to_bytes(4, "little"))
+        fh.flush()
+        os.fsync(fh.fileno())
+    return True
+
+
+# --- writer lock ------------------------------------------------------------------------
+
+def _lock_path(path: Path) -> Path:
+    return path.with_name(path.name + ".lock")
+
+
+def _acquire_lock(path: Path) -> int:
+    """Exclusive non-blocking flock on ``<path>.lock``; ValueError if another writer has it."""
+    lp = _lock_path(path)
+    while True:
+        fd = os.open(lp, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as exc:
+            os.close(fd)
+            if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                raise ValueError(f"{path} is being written by another process "
+                                 f"(lock {lp} is held)") from None
+            raise
+        try:  # the holder may have unlinked the lock file between our open and flock
+            if os.fstat(fd).st_ino == os.stat(lp).st_ino:
+                return fd
+        except FileNotFoundError:
+            pass
+        os.close(fd)
+
+
+def _release_lock(path: Path, fd: int) -> None:
+    try:
+        os.unlink(_lock_path(path))
+    except FileNotFoundError:
+        pass
+    os.close(fd)
+
+
+def _make_dataset(parent: h5py.Group, name: str, shape: tuple, dtype: np.dtype,
+                  chunks: tuple) -> h5py.Dataset:
+    """Chunked dataset with all chunks allocated at creation and never filled."""
+    dcpl = h5p.create(h5p.DATASET_CREATE)
+    dcpl.set_chunk(chunks)
+    dcpl.set_alloc_time(h5d.ALLOC_TIME_EARLY)
+    dcpl.set_fill_time(h5d.FILL_TIME_NEVER)
+    tid = h5t.py_create(np.dtype(dtype), logical=True)
+    dsid = h5d.create(parent.id, name.encode(), tid, h5s.create_simple(shape), dcpl=dcpl)
+    return h5py.Dataset(dsid)
+
+
+class ScanFile:
+    """Writer of one scan file (see the module docstring for layout and guarantees).
+
+    Create with :meth:`create` or resume with :meth:`open_append`; then :meth:`append`
+    each A-line as it arrives; :meth:`close` (or use as a context manager). One writer per
+    file (enforced by a lock); any number of SWMR readers (:func:`read_scan`).
+    """
+
+    def __init__(self, path: Path, h5: h5py.File, lock_fd: int, durable: str) -> None:
+        self._path = path
+        self._f = h5
+        self._lock_fd = lock_fd
+        self._durable = durable
+        self._mutex = threading.Lock()
+        self._alines = h5["alines"]
+        self._meta_ds = h5["aline_meta"]
+        self._completed_ds = h5["completed"]
+        self.plan_id: str = str(h5.attrs["plan_id"])
+        self.n_points: int = int(h5.attrs["n_points"])
+        self.n_t: int = int(h5.attrs["n_t"])
+        pad_m = -(-self.n_points // META_CHUNK) * META_CHUNK
+        pad_c = -(-self.n_points // COMPLETED_CHUNK) * COMPLETED_CHUNK
+        self._meta = np.zeros(pad_m, META_DTYPE)
+        self._done = np.zeros(pad_c, np.uint8)
+        if self.n_points:
+            self._done[:self.n_points] = self._completed_ds[()]
+            self._meta[:self.n_points] = self._meta_ds[()]
+            # rows never written hold whatever the disk held: zero them in memory
+            self._meta[:self.n_points][self._done[:self.n_points] == 0] = np.zeros((), META_DTYPE)
+        self._sync_fd = os.open(path, os.O_RDONLY) if durable == "fsync" else None
+        self._closed = False
+
+    # -- construction ---------------------------------------------------------------------
+    @classmethod
+    def create(cls, path: str | os.PathLike, plan: dict, *, instrument: dict,
+               software_version: str, durable: str = "process") -> "ScanFile":
+        """Create a new scan file for ``plan`` and open it for appending.
+
+        ``plan``: the plan JSON dict (docs/architecture.md); its ``id`` is checked against
+        its content. ``instrument``: JSON-serialisable identity of the scanner (e.g. the
+        ``*IDN?`` fields). ``durable``: ``"process"`` or ``"fsync"`` (module docstring).
+        Raises ValueError (bad plan/arguments), FileExistsError (path exists: use
+        :meth:`open_append`).
+        """
+        path = Path(path)
+        pa = _check_plan(plan)
+        if durable not in DURABLE_POLICIES:
+            raise ValueError(f"durable must be one of {DURABLE_POLICIES}, got {durable!r}")
+        if not isinstance(instrument, dict):
+            raise ValueError(f"instrument must be a dict, got {type(instrument).__name__}")
+        if not isinstance(software_version, str):
+            raise ValueError("software_version must be a string")
+        try:
+            instrument_json = canonical_json(instrument)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"instrument is not JSON-serialisable: {exc}") from None
+        if path.exists():
+            raise FileExistsError(f"{path} exists; use ScanFile.open_append to resume")
+        lock_fd = _acquire_lock(path)
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        try:
+            if path.exists():
+                raise FileExistsError(f"{path} exists; use ScanFile.open_append to resume")
+            f = h5py.File(tmp, "w", libver="latest")
+            try:
+                n, n_t = pa.n_points, pa.n_t
+                _make_dataset(f, "alines", (n, n_t), np.dtype("<i2"), (1, n_t))
+                _make_dataset(f, "aline_meta", (n,), META_DTYPE, (min(META_CHUNK, n),))
+                _make_dataset(f, "completed", (n,), np.dtype("u1"), (min(COMPLETED_CHUNK, n),))
+                f.create_dataset("positions", data=pa.positions)
+                f.create_dataset("indices", data=pa.indices)
+                f.create_dataset("weights", data=pa.weights)
+                f.create_dataset("plan_json", data=canonical_json(plan),
+                                 dtype=h5py.string_dtype("utf-8"))
+                a = f.attrs
+                a["format"] = FORMAT
+                a["plan_id"] = plan["id"]
+                a["n_points"] = n
+                a["n_t"] = n_t
+                a["dt_s"] = pa.dt
+                a["sound_speed_m_per_s"] = pa.sound_speed
+                a["wavelengths_m"] = pa.wavelengths
+                a["acquisition_json"] = canonical_json(plan["acquisition"])
+                a["instrument_json"] = instrument_json
+                a["software_version"] = software_version
+                a["created_utc"] = _dt.datetime.now(_dt.timezone.utc).isoformat()
+                # zero the flags (early allocation with FILL_TIME_NEVER leaves them undefined)
+                zeros = np.zeros(min(COMPLETED_CHUNK, n), np.uint8)
+                for start in range(0, n, COMPLETED_CHUNK):
+                    f["completed"].id.write_direct_chunk((start,), zeros)
+                f.swmr_mode = True  # flushes all metadata; from here on only raw writes
+            except BaseException:
+                f.close()
+                raise
+            os.replace(tmp, path)
+        except BaseException:
+            tmp.unlink(missing_ok=True)
+            _release_lock(path, lock_fd)
+            raise
+        return cls(path, f, lock_fd, durable)
+
+    @classmethod
+    def open_append(cls, path: str | os.PathLike, plan: dict | None = None, *,
+                    durable: str = "process") -> "ScanFile":
+        """Reopen an existing scan file (interrupted or not) to continue appending.
+
+        If ``plan`` is given, its id must equal the file's plan id (ValueError otherwise).
+        Clears the superblock flags a killed writer left behind. Raises FileNotFoundError,
+        ValueError (not a scan file, plan mismatch, another writer holds the lock).
+        """
+        path = Path(path)
+        if durable not in DURABLE_POLICIES:
+            raise ValueError(f"durable must be one of {DURABLE_POLICIES}, got {durable!r}")
+        if not path.is_file():
+            raise FileNotFoundError(f"no scan file at {path}")
+        lock_fd = _acquire_lock(path)
+        try:
+            _clear_status_flags(path)
+            try:
+                f = h5py.File(path, "r+", libver="latest")
+            except OSError as exc:
+                raise ValueError(f"{path} cannot be opened as HDF5: {exc}") from None
+            try:
+                if f.attrs.get("format") != FORMAT:
+                    raise ValueError(f"{path} is not an {FORMAT} file")
+                if plan is not None:
+                    pid = plan.get("id") if isinstance(plan, dict) else None
+                    if pid != f.attrs["plan_id"]:
+                        raise ValueError(f"plan {pid!r} does not match the scan file's plan "
+                                         f"{f.attrs['plan_id']!r}")
+                f.swmr_mode = True
+            except BaseException:
+                f.close()
+                raise
+        except BaseException:
+            _release_lock(path, lock_fd)
+            raise
+        return cls(path, f, lock_fd, durable)
+
+    # -- properties -----------------------------------------------------------------------
+    @property
+    def path(self) -> Path:
+        return self._path
+
+    @property
+    def plan(self) -> dict:
+        """The plan dict stored in the file."""
+        return json.loads(self._f["plan_json"][()].decode())
+
+    def completed(self) -> np.ndarray:
+        """``(n_points,)`` bool: the record of completed points (a copy)."""
+        return self._done[:self.n_points].astype(bool)
+
+    def n_completed(self) -> int:
+        return int(self._done[:self.n_points].sum())
+
+    # -- writing --------------------------------------------------------------------------
+    def append(self, point_index: int, samples: np.ndarray, meta: dict) -> bool:
+        """Store the A-line of point ``point_index``; False if that point is already complete.
+
+        ``samples``: int16 array ``(n_t,)`` as received. ``meta``: dict with exactly the keys
+        ``META_KEYS`` (``point_index`` may be omitted; if present it must equal the
+        argument); ``dc_level`` must be finite and > 0, ``scale``/``offset`` finite.
+        When it returns True the A-line is durable under the file's policy.
+        Raises ValueError on bad input (nothing is written then), RuntimeError if closed.
+        """
+        if self._closed:
+            raise RuntimeError("scan file is closed")
+        if isinstance(point_index, bool) or not isinstance(point_index, numbers.Integral):
+            raise ValueError(f"point_index must be an integer, got {point_index!r}")
+        k = int(point_index)
+        if not 0 <= k < self.n_points:
+            raise ValueError(f"point_index {k} out of range [0, {self.n_points})")
+        if not isinstance(samples, np.ndarray):
+            raise ValueError(f"samples must be a numpy int16 array, got {type(samples).__name__}")
+        if samples.dtype.kind != "i" or samples.dtype.itemsize != 2:
+            raise ValueError(f"samples must be int16, got {samples.dtype}")
+        if samples.shape != (self.n_t,):
+            raise ValueError(f"samples must have shape ({self.n_t},), got {samples.shape}")
+        rec = self._meta_record(k, meta)
+        with self._mutex:
+            if self._done[k]:
+                return False
+            data = np.ascontiguousarray(samples, dtype="<i2").reshape(1, self.n_t)
+            self._alines.id.write_direct_chunk((k, 0), data)
+            m0 = k - k % META_CHUNK
+            self._meta[k] = rec
+            self._meta_ds.id.write_direct_chunk((m0,), self._meta[m0:m0 + self._meta_ds.chunks[0]])
+            c0 = k - k % COMPLETED_CHUNK
+            self._done[k] = 1
+            try:
+                self._completed_ds.id.write_direct_chunk(
+                    (c0,), self._done[c0:c0 + self._completed_ds.chunks[0]])
+            except BaseException:
+                self._done[k] = 0
+                raise
+            if self._sync_fd is not None:
+                os.fsync(self._sync_fd)
+        return True
+
+    def _meta_record(self, k: int, meta: Any) -> np.void:
+        if not isinstance(meta, dict):
+            raise ValueError(f"meta must be a dict, got {type(meta).__name__}")
+        unknown = set(meta) - set(META_KEYS)
+        if unknown:
+            raise ValueError(f"unknown A-line metadata keys: {sorted(unknown)}")
+        missing = [key for key in META_KEYS if key not in meta and key != "point_index"]
+        if missing:
+            raise ValueError(f"A-line metadata missing keys: {missing}")
+        rec = np.zeros((), META_DTYPE)
+        for key in META_KEYS:
+            v = meta.get(key, k)
+            if key in _INT_KEYS:
+                if isinstance(v, bool) or not isinstance(v, numbers.Integral) or v < 0 \
+                        or v >= 2 ** 64:
+                    raise ValueError(f"meta[{key!r}] must be a non-negative integer, got {v!r}")
+            else:
+                try:
+                    v = float(v)
+                except (TypeError, ValueError):
+                    raise ValueError(f"meta[{key!r}] must be a number, got {v!r}") from None
+            rec[key] = v
+        if int(rec["point_index"]) != k:
+            raise ValueError(f"meta point_index {int(rec['point_index'])} != point_index {k}")
+        if not (math.isfinite(rec["dc_level"]) and rec["dc_level"] > 0):
+            raise ValueError(f"meta dc_level must be finite and > 0, got {float(rec['dc_level'])}")
+        for key in ("scale", "offset"):
+            if not math.isfinite(rec[key]):
+                raise ValueError(f"meta[{key!r}] must be finite, got {float(rec[key])}")
+        return rec
+
+    def flush(self) -> None:
+        """Flush HDF5 buffers (nothing is buffered after append) and fsync the file."""
+        if self._closed:
+            return
+        with self._mutex:
+            self._f.flush()
+            fd = self._f.id.get_vfd_handle()
+            os.fsync(fd)
+
+    def close(self) -> None:
+        """Flush, close the HDF5 file (clearing its open-for-write flags) and the lock."""
+        if self._closed:
+            return
+        try:
+            self.flush()
+        finally:
+            self._closed = True
+            try:
+                self._f.close()
+            finally:
+                if self._sync_fd is not None:
+                    os.close(self._sync_fd)
+                _release_lock(self._path, self._lock_fd)
+
+    def __enter__(self) -> "ScanFile":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        state = "closed" if self._closed else f"{self.n_completed()}/{self.n_points} done"
+        return f"ScanFile({str(self._path)!r}, plan {self.plan_id[:12]}, {state})"
+
+
+@dataclass
+class ScanData:
+    """Everything in a scan file, read at one instant (:func:`read_scan`).
+
+    Arrays are indexed by point index k (scan order). Rows of points whose
+    ``completed[k]`` is False hold no data: ``alines`` 0, metadata 0, ``pressure`` NaN.
+
+    - ``alines``: ``(n_points, n_t)`` int16 as received.
+    - ``scale``, ``offset``, ``dc_level``: ``(n_points,)`` float64 (from the metadata).
+    - ``pressure``: ``(n_points, n_t)`` float, DC-normalised
+      ``(alines·scale + offset) / dc_level`` (module docstring).
+    - ``positions``: ``(n_points, 2)`` (x, y) in m (2-D plans: ``(n_points, 1)``);
+      ``indices`` ``(n_points, 2)`` lattice (i_x, i_y); ``weights`` ``(n_points,)``.
+    - ``meta``: dict key → ``(n_points,)`` array for every key of ``META_KEYS``.
+    - ``dt`` (s), ``sound_speed`` (m/s), ``wavelengths`` (m) from the plan's acquisition.
+    """
+
+    path: Path
+    plan: dict
+    plan_id: str
+    n_points: int
+    n_t: int
+    dt: float
+    sound_speed: float
+    wavelengths: np.ndarray
+    alines: np.ndarray
+    scale: np.ndarray
+    offset: np.ndarray
+    dc_level: np.ndarray
+    pressure: np.ndarray
+    positions: np.ndarray
+    indices: np.ndarray
+    weights: np.ndarray
+    completed: np.ndarray
+    meta: dict
+    acquisition: dict
+    instrument: dict
+    software_version: str
+    created_utc: str
+    attrs: dict = field(default_factory=dict)
+
+    def completed_only(self) -> "ScanData":
+        """A copy restricted to the completed points (rows kept in scan order)."""
+        sel = np.flatnonzero(self.completed)
+        return ScanData(
+            path=self.path, plan=self.plan, plan_id=self.plan_id, n_points=len(sel),
+            n_t=self.n_t, dt=self.dt, sound_speed=self.sound_speed,
+            wavelengths=self.wavelengths, alines=self.alines[sel], scale=self.scale[sel],
+            offset=self.offset[sel], dc_level=self.dc_level[sel],
+            pressure=self.pressure[sel], positions=self.positions[sel],
+            indices=self.indices[sel], weights=self.weights[sel],
+            completed=self.completed[sel], meta={k: v[sel] for k, v in self.meta.items()},
+            acquisition=self.acquisition, instrument=self.instrument,
+            software_version=self.software_version, created_utc=self.created_utc,
+            attrs=dict(self.attrs, subset_of_n_points=self.n_points))
+
+
+def read_scan(path: str | os.PathLike, *, dtype: Any = np.float64) -> ScanData:
+    """Read a scan file, complete or still being written (SWMR reader).
+
+    ``dtype``: float type of the ``pressure`` view (float64 or float32).
+    The completion record is read first, so every point it marks complete has its samples
+    and metadata present. Raises FileNotFoundError, ValueError (not a scan file).
+    """
+    path = Path(path)
+    dtype = np.dtype(dtype)
+    if dtype.kind != "f":
+        raise ValueError(f"dtype must be a float type, got {dtype}")
+    if not path.is_file():
+        raise FileNotFoundError(f"no scan file at {path}")
+    try:
+        f = h5py.File(path, "r", libver="latest", swmr=True)
+    except OSError as exc:
+        raise ValueError(f"{path} cannot be opened as an HDF5 scan file: {exc}") from None
+    with f:
+        if f.attrs.get("format") != FORMAT:
+            raise ValueError(f"{path} is not an {FORMAT} file")
+        done = f["completed"][()].astype(bool)
+        meta_arr = f["aline_meta"][()]
+        alines = f["alines"][()]
+        plan = json.loads(f["plan_json"][()].decode())
+        attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
+        positions = f["positions"][()]
+        indices = f["indices"][()]
+        weights = f["weights"][()]
+    alines[~done] = 0
+    meta_arr[~done] = np.zeros((), META_DTYPE)
+    meta = {k: np.ascontiguousarray(meta_arr[k]) for k in META_KEYS}
+    scale, offset, dc = meta["scale"], meta["offset"], meta["dc_level"]
+    pressure = alines.astype(dtype)
+    pressure *= scale.astype(dtype)[:, None]
+    pressure += offset.astype(dtype)[:, None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        pressure /= dc.astype(dtype)[:, None]
+    pressure[~done] = np.nan
+    return ScanData(
+        path=path, plan=plan, plan_id=str(attrs["plan_id"]), n_points=int(attrs["n_points"]),
+        n_t=int(attrs["n_t"]), dt=float(attrs["dt_s"]),
+        sound_speed=float(attrs["sound_speed_m_per_s"]),
+        wavelengths=np.asarray(attrs["wavelengths_m"], dtype=np.float64).reshape(-1),
+        alines=alines, scale=scale, offset=offset, dc_level=dc, pressure=pressure,
+        positions=positions, indices=indices, weights=weights, completed=done, meta=meta,
+        acquisition=json.loads(attrs["acquisition_json"]),
+        instrument=json.loads(attrs["instrument_json"]),
+        software_version=str(attrs["software_version"]), created_utc=str(attrs["created_utc"]),
+        attrs=attrs)

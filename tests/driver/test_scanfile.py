@@ -1,0 +1,321 @@
+"""Scan file (driver.scanfile): real HDF5 files, a SIGKILLed writer process, a SWMR reader
+in another process, and bad input."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from driver.scanfile import (META_KEYS, ScanFile, _clear_status_flags, _lookup3, plan_id_of,
+                             read_scan)
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def make_plan(n_points: int = 50, n_t: int = 64, two_d: bool = False) -> dict:
+    n_x = 16
+    idx = [[k % n_x, k // n_x] for k in range(n_points)]
+    pitch = 6e-5
+    if two_d:
+        idx = [[k, 0] for k in range(n_points)]
+        pos = [[(i - (n_points - 1) / 2) * pitch] for i, _ in idx]
+    else:
+        pos = [[(i - (n_x - 1) / 2) * pitch, (j - 7.5) * pitch] for i, j in idx]
+    plan = {
+        "format": "fpscan-plan/1",
+        "lattice": {"n_x": n_x if not two_d else n_points, "n_y": 16 if not two_d else 1,
+                    "pitch": pitch},
+        "mask": {"kind": "user", "params": {}},
+        "points": {"indices": idx, "positions": pos,
+                   "weights": [pitch * pitch * (1 + 0.01 * k) for k in range(n_points)]},
+        "order": "serpentine",
+        "acquisition": {"n_t": n_t, "dt": 8e-9, "averages": 1, "wavelengths": [7.5e-7],
+                        "prf": 0.0, "sound_speed": 1480.0},
+    }
+    plan["id"] = plan_id_of(plan)
+    return plan
+
+
+def aline(k: int, n_t: int) -> np.ndarray:
+    """Deterministic int16 samples of point k (the oracle both writers use)."""
+    return np.random.default_rng(1000 + k).integers(-32768, 32767, n_t, dtype=np.int16,
+                                                    endpoint=True)
+
+
+def meta(k: int) -> dict:
+    return dict(run_id=7, boot_id=3 + k % 2, point_index=k, pulse_number=10 * k,
+                timestamp_s=0.02 * k, bias_wavelength_m=1.55e-6 + 1e-12 * k,
+                dc_level=0.5 + 0.001 * k, pulse_energy_j=1e-3, dt_s=8e-9,
+                scale=1e-4 * (1 + k % 3), offset=-2e-3 * (k % 5))
+
+
+INSTRUMENT = {"idn": "fpscan,simFP,0001,1.0"}
+
+
+def test_write_read_roundtrip(tmp_path):
+    plan = make_plan(50, 64)
+    path = tmp_path / "scan.h5"
+    order = np.random.default_rng(0).permutation(50)[:40]
+    with ScanFile.create(path, plan, instrument=INSTRUMENT, software_version="9.9") as sf:
+        assert (sf.plan_id, sf.n_points, sf.n_t) == (plan["id"], 50, 64)
+        assert not sf.completed().any()
+        for k in order:
+            assert sf.append(int(k), aline(int(k), 64), meta(int(k))) is True
+        # duplicates are refused and change nothing
+        assert sf.append(int(order[0]), np.zeros(64, np.int16), meta(int(order[0]))) is False
+        assert sf.completed().sum() == 40
+    d = read_scan(path)
+    assert d.plan == plan and d.plan_id == plan["id"]
+    assert (d.n_points, d.n_t, d.dt, d.sound_speed) == (50, 64, 8e-9, 1480.0)
+    np.testing.assert_array_equal(d.wavelengths, [7.5e-7])
+    assert d.instrument == INSTRUMENT and d.software_version == "9.9"
+    np.testing.assert_array_equal(d.positions, np.array(plan["points"]["positions"]))
+    np.testing.assert_array_equal(d.indices, np.array(plan["points"]["indices"]))
+    np.testing.assert_array_equal(d.weights, np.array(plan["points"]["weights"]))
+    expected_done = np.zeros(50, bool)
+    expected_done[order] = True
+    np.testing.assert_array_equal(d.completed, expected_done)
+    for k in range(50):
+        if expected_done[k]:
+            np.testing.assert_array_equal(d.alines[k], aline(k, 64))
+            m = meta(k)
+            for key in META_KEYS:
+                assert d.meta[key][k] == m[key], key
+            p = (aline(k, 64).astype(np.float64) * m["scale"] + m["offset"]) / m["dc_level"]
+            np.testing.assert_allclose(d.pressure[k], p, rtol=1e-15, atol=0)
+        else:
+            assert np.isnan(d.pressure[k]).all() and not d.alines[k].any()
+    sub = d.completed_only()
+    assert sub.n_points == 40 and sub.completed.all()
+    np.testing.assert_array_equal(sub.positions, d.positions[np.sort(order)])
+    f32 = read_scan(path, dtype=np.float32).pressure
+    assert f32.dtype == np.float32
+    np.testing.assert_allclose(f32[expected_done], d.pressure[expected_done], rtol=1e-6)
+
+
+def test_2d_plan_and_resume_in_process(tmp_path):
+    plan = make_plan(12, 32, two_d=True)
+    path = tmp_path / "line.h5"
+    with ScanFile.create(path, plan, instrument=INSTRUMENT, software_version="1") as sf:
+        for k in range(5):
+            sf.append(k, aline(k, 32), meta(k))
+    assert not (tmp_path / "line.h5.lock").exists()
+    with ScanFile.open_append(path, plan) as sf:
+        np.testing.assert_array_equal(sf.completed(), np.arange(12) < 5)
+        assert sf.append(3, aline(3, 32), meta(3)) is False
+        for k in range(5, 12):
+            assert sf.append(k, aline(k, 32), meta(k))
+    d = read_scan(path)
+    assert d.positions.shape == (12, 1) and d.completed.all()
+    np.testing.assert_array_equal(d.alines, np.stack([aline(k, 32) for k in range(12)]))
+
+
+WRITER = textwrap.dedent("""
+    import sys, time
+    import numpy as np
+    sys.path.insert(0, {tests!r})
+    from test_scanfile import aline, meta, make_plan, INSTRUMENT
+    from driver.scanfile import ScanFile
+    path, n, n_t, delay = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), float(sys.argv[4])
+    sf = ScanFile.create(path, make_plan(n, n_t), instrument=INSTRUMENT, software_version="1")
+    print("ready", flush=True)
+    for k in range(n):
+        sf.append(k, aline(k, n_t), meta(k))
+        print(k, flush=True)          # acknowledged: append() returned
+        if delay:
+            time.sleep(delay)
+    sf.close()
+    print("done", flush=True)
+""")
+
+
+def _writer_script(tmp_path) -> Path:
+    script = tmp_path / "writer.py"
+    script.write_text(WRITER.format(tests=str(Path(__file__).parent)))
+    return script
+
+
+def test_sigkill_then_resume_equals_uninterrupted(tmp_path):
+    n, n_t = 3000, 256
+    path = tmp_path / "killed.h5"
+    proc = subprocess.Popen([sys.executable, str(_writer_script(tmp_path)), str(path), str(n),
+                             str(n_t), "0"], stdout=subprocess.PIPE, text=True, cwd=REPO)
+    acked = -1
+    try:
+        deadline = time.monotonic() + 60
+        for line in proc.stdout:
+            if line.strip().isdigit():
+                acked = int(line)
+                if acked >= 300:
+                    os.kill(proc.pid, signal.SIGKILL)
+                    break
+            assert time.monotonic() < deadline, "writer too slow"
+    finally:
+        proc.kill()
+        proc.wait(timeout=30)
+    assert proc.returncode == -signal.SIGKILL and acked >= 300
+    # a plain (non-SWMR) open is refused until the writer's flags are cleared ...
+    with pytest.raises(OSError):
+        h5py.File(path, "r")
+    # ... but an SWMR reader can read the killed file right away
+    partial = read_scan(path)
+    assert partial.completed[:acked + 1].all(), "an acknowledged A-line was lost"
+    n_done = int(partial.completed.sum())
+    assert n_done < n
+    with ScanFile.open_append(path, make_plan(n, n_t)) as sf:
+        done = sf.completed()
+        assert done.sum() == n_done
+        for k in np.flatnonzero(~done):
+            assert sf.append(int(k), aline(int(k), n_t), meta(int(k)))
+        assert sf.append(0, aline(0, n_t), meta(0)) is False
+    ref = tmp_path / "ref.h5"
+    with ScanFile.create(ref, make_plan(n, n_t), instrument=INSTRUMENT,
+                         software_version="1") as sf:
+        for k in range(n):
+            sf.append(k, aline(k, n_t), meta(k))
+    a, b = read_scan(path), read_scan(ref)
+    assert a.completed.all() and b.completed.all()
+    np.testing.assert_array_equal(a.alines, b.alines)
+    for key in META_KEYS:
+        np.testing.assert_array_equal(a.meta[key], b.meta[key])
+    np.testing.assert_array_equal(a.pressure, b.pressure)
+    assert a.plan == b.plan
+    with h5py.File(path, "r") as f:  # closed cleanly now: ordinary readers work again
+        assert f["completed"][()].all()
+
+
+READER = textwrap.dedent("""
+    import sys, time
+    import numpy as np
+    sys.path.insert(0, {tests!r})
+    from test_scanfile import aline
+    from driver.scanfile import read_scan
+    path, n_t = sys.argv[1], int(sys.argv[2])
+    last, reads, seen = -1, 0, []
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        d = read_scan(path)
+        done = np.flatnonzero(d.completed)
+        assert len(done) >= last, "completed count went backwards"
+        for k in done:
+            assert (d.alines[k] == aline(int(k), n_t)).all(), f"torn A-line {{k}}"
+        last = len(done); reads += 1; seen.append(last)
+        if last == d.n_points:
+            break
+        time.sleep(0.01)
+    print(reads, len(set(seen)), last, flush=True)
+""")
+
+
+def test_swmr_reader_in_other_process_while_writing(tmp_path):
+    n, n_t = 400, 128
+    path = tmp_path / "live.h5"
+    plan = make_plan(n, n_t)
+    reader = tmp_path / "reader.py"
+    reader.write_text(READER.format(tests=str(Path(__file__).parent)))
+    with ScanFile.create(path, plan, instrument=INSTRUMENT, software_version="1") as sf:
+        proc = subprocess.Popen([sys.executable, str(reader), str(path), str(n_t)],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                cwd=REPO)
+        try:
+            for k in range(n):
+                sf.append(k, aline(k, n_t), meta(k))
+                if k % 20 == 0:
+                    time.sleep(0.05)
+            out, err = proc.communicate(timeout=60)
+        finally:
+            proc.kill()
+    assert proc.returncode == 0, err
+    reads, distinct, last = map(int, out.split())
+    assert last == n
+    assert distinct >= 3, f"the reader saw only {distinct} distinct states in {reads} reads"
+
+
+def test_lookup3_known_vectors_and_superblock(tmp_path):
+    # test vectors from Bob Jenkins' lookup3.c (driver5)
+    assert _lookup3(b"") == 0xDEADBEEF
+    assert _lookup3(b"Four score and seven years ago") == 0x17770551
+    assert _lookup3(b"Four score and seven years ago", 1) == 0xCD628161
+    path = tmp_path / "x.h5"
+    with h5py.File(path, "w", libver="latest") as f:
+        f["a"] = np.arange(3)
+    assert _clear_status_flags(path) is False  # checksum of HDF5's own superblock verified
+    (tmp_path / "junk.h5").write_bytes(b"not hdf5 at all" * 10)
+    with pytest.raises(ValueError, match="not an HDF5"):
+        _clear_status_flags(tmp_path / "junk.h5")
+
+
+def test_bad_input(tmp_path):
+    plan = make_plan(10, 16)
+    path = tmp_path / "bad.h5"
+    with pytest.raises(ValueError, match="does not match its content"):
+        ScanFile.create(path, dict(plan, id="0" * 64), instrument={}, software_version="1")
+    bad = json.loads(json.dumps(plan))
+    bad["acquisition"]["n_t"] = 0
+    bad["id"] = plan_id_of(bad)
+    with pytest.raises(ValueError, match="n_t"):
+        ScanFile.create(path, bad, instrument={}, software_version="1")
+    bad = json.loads(json.dumps(plan))
+    bad["points"]["weights"] = bad["points"]["weights"][:-1]
+    bad["id"] = plan_id_of(bad)
+    with pytest.raises(ValueError, match="weights"):
+        ScanFile.create(path, bad, instrument={}, software_version="1")
+    with pytest.raises(ValueError, match="durable"):
+        ScanFile.create(path, plan, instrument={}, software_version="1", durable="maybe")
+    assert not path.exists()
+
+    sf = ScanFile.create(path, plan, instrument={}, software_version="1")
+    try:
+        x = aline(0, 16)
+        for args, what in [
+            ((0, x[:-1], meta(0)), "shape"),
+            ((0, x.astype(np.float64), meta(0)), "int16"),
+            ((0, x.astype(np.int32), meta(0)), "int16"),
+            ((0, list(x), meta(0)), "numpy"),
+            ((10, x, meta(10)), "out of range"),
+            ((-1, x, meta(-1)), "out of range"),
+            ((True, x, meta(1)), "integer"),
+            ((1, x, meta(0)), "point_index"),
+            ((0, x, {k: v for k, v in meta(0).items() if k != "scale"}), "missing"),
+            ((0, x, dict(meta(0), colour="red")), "unknown"),
+            ((0, x, dict(meta(0), dc_level=0.0)), "dc_level"),
+            ((0, x, dict(meta(0), scale=float("nan"))), "scale"),
+            ((0, x, dict(meta(0), run_id=-1)), "run_id"),
+            ((0, x, dict(meta(0), timestamp_s="soon")), "timestamp_s"),
+        ]:
+            with pytest.raises(ValueError, match=what):
+                sf.append(*args)
+        assert not sf.completed().any()  # nothing was written by the refused appends
+        with pytest.raises(ValueError, match="another process"):
+            ScanFile.open_append(path)
+        with pytest.raises(FileExistsError):
+            ScanFile.create(path, plan, instrument={}, software_version="1")
+    finally:
+        sf.close()
+    with pytest.raises(RuntimeError):
+        sf.append(0, aline(0, 16), meta(0))
+    other = make_plan(11, 16)
+    with pytest.raises(ValueError, match="does not match"):
+        ScanFile.open_append(path, other)
+    with ScanFile.open_append(path, plan):  # the refused resume released its lock
+        pass
+    plain = tmp_path / "plain.h5"
+    with h5py.File(plain, "w", libver="latest") as f:
+        f["x"] = 1
+    with pytest.raises(ValueError, match="not an fpscan-scan"):
+        read_scan(plain)
+    with pytest.raises(ValueError, match="not an fpscan-scan"):
+        ScanFile.open_append(plain)
+    with pytest.raises(FileNotFoundError):
+        read_scan(tmp_path / "missing.h5")
+    with pytest.raises(ValueError, match="float"):
+        read_scan(path, dtype=np.int32)
