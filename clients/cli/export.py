@@ -1,0 +1,69 @@
+"""`fpscan export`: IPASC export of a scan file, locally (``service.ipasc``) or from a
+server (``GET /api/scans/{job_id}/ipasc``).
+
+The IPASC file is HDF5 written with plain h5py: ``/binary_time_series_data``
+``[detectors, samples, wavelengths, measurements]``, ``/meta_data/...`` and
+``/meta_data_device/...`` (IPASC data format; SI units).
+"""
+from __future__ import annotations
+
+from clients.cli._common import add_server_options, client_errors
+
+COMMAND = "export"
+HELP = "export a scan file to the IPASC HDF5 format, locally or from a server's scan job"
+
+
+def add_arguments(parser):
+    parser.add_argument("scan", nargs="?", help="scan file (HDF5) to export locally")
+    parser.add_argument("--job", default=None, metavar="JOB_ID", help="with --server: the scan job to export")
+    parser.add_argument("--out", "-o", default=None,
+                        help="output IPASC file (default: <scan>_ipasc.h5 or <job>_ipasc.h5)")
+    add_server_options(parser)
+
+
+def _local_export():
+    """The local exporter of ``service.ipasc`` (its name varies across versions)."""
+    import service.ipasc as ipasc
+
+    for name in ("export_ipasc", "write_ipasc", "export_scan", "scan_to_ipasc"):
+        fn = getattr(ipasc, name, None)
+        if callable(fn):
+            return fn
+    raise RuntimeError("service.ipasc offers no export function")
+
+
+@client_errors
+def run(args) -> int:
+    from pathlib import Path
+
+    if args.server:
+        if not args.job:
+            raise ValueError("with --server give the scan job: --job JOB_ID")
+        if args.scan:
+            raise ValueError("give either a local scan file or --server with --job, not both")
+        from clients.cli._common import make_client
+
+        out = Path(args.out or f"{args.job}_ipasc.h5")
+        with make_client(args, timeout=300) as api:
+            api.download_ipasc(args.job, out)
+        print(out)
+        return 0
+    if args.job:
+        raise ValueError("--job needs --server")
+    if not args.scan:
+        raise ValueError("no scan file given (or use --server URL --job JOB_ID)")
+    scan = Path(args.scan)
+    if not scan.is_file():
+        raise ValueError(f"no such file: {scan}")
+    out = Path(args.out or scan.with_name(f"{scan.stem}_ipasc.h5"))
+    if out.resolve() == scan.resolve():
+        raise ValueError("the output would overwrite the scan file")
+    export = _local_export()
+    tmp = out.with_name(out.name + ".part")
+    try:
+        export(scan, tmp)
+        tmp.replace(out)
+    finally:
+        tmp.unlink(missing_ok=True)
+    print(out)
+    return 0
