@@ -208,6 +208,7 @@ function route() {
   }
   const changed = currentView !== name;
   currentView = name;
+  if (changed) clearError();
   document.title = "fpscan — " + $("nav-" + name).textContent;
   if (name === "plan" && changed) schedulePreview(0);
   if (name === "scan" && changed) refreshScanLists().catch(showError);
@@ -448,6 +449,15 @@ function describePlan(p) {
   return `${shortId(p.id)} ${kind}${n !== undefined ? " · " + n + " points" : ""}`;
 }
 
+function placeholderOption(select, label) {
+  const o = document.createElement("option");
+  o.value = "";
+  o.textContent = label;
+  o.disabled = true;
+  o.selected = true;
+  select.appendChild(o);
+}
+
 async function refreshScanLists() {
   const [scanners, plans] = await Promise.all([apiJson("/api/scanners"), apiJson("/api/plans")]);
   const ssel = $("scan-scanner");
@@ -462,6 +472,7 @@ async function refreshScanLists() {
   }
   if (keepS) ssel.value = keepS;
   if (!ssel.value && ssel.options.length) ssel.selectedIndex = 0;
+  if (!ssel.options.length) placeholderOption(ssel, "no scanner configured (fpscan serve --device ID=PATH)");
   const psel = $("scan-plan");
   const keepP = psel.value;
   psel.textContent = "";
@@ -471,6 +482,7 @@ async function refreshScanLists() {
     o.textContent = describePlan(p);
     psel.appendChild(o);
   }
+  if (!psel.options.length) placeholderOption(psel, "no plan yet: save one in the Plan view");
   const want = lastSavedPlan || keepP;
   if (want && [...psel.options].some((o) => o.value === want)) psel.value = want;
 }
