@@ -13,10 +13,16 @@ from .grids import full_mask, hexagonal_mask, points_mask, poisson_mask, random_
 from .lattice import Lattice
 from .mask import Mask, distance_law_weights, weight_ratio
 from .kinds import MASK_KINDS, make_mask
+from .ordering import nearest_neighbour_order, ring_order, scan_order, serpentine_order
+from .plan import PLAN_FORMAT, Acquisition, Plan, canonical_json, content_id, make_plan, plan_from_spec
+from .preview import preview_png
 
 __all__ = [
     "Lattice", "Mask", "make_mask", "MASK_KINDS",
     "full_mask", "subgrid_mask", "hexagonal_mask", "random_mask", "poisson_mask", "points_mask",
     "equiangular_mask", "equisteradian_mask", "equisteradian_rings",
     "distance_law_weights", "weight_ratio",
+    "scan_order", "serpentine_order", "ring_order", "nearest_neighbour_order",
+    "Plan", "Acquisition", "PLAN_FORMAT", "make_plan", "plan_from_spec", "canonical_json", "content_id",
+    "preview_png",
 ]

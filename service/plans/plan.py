@@ -1,0 +1,344 @@
+"""Scan plans: an ordered mask plus acquisition settings, identified by a content hash.
+
+The JSON form is fixed by docs/architecture.md ("Plan JSON", format ``fpscan-plan/1``);
+the id is the sha256 hex digest of the canonical JSON
+(``json.dumps(obj, sort_keys=True, separators=(",", ":"))``, floats as Python's repr) of
+everything but ``id``. ``driver`` reads the same JSON without importing this module.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+from .kinds import make_mask
+from .lattice import Lattice
+from .mask import Mask, weight_ratio
+from .ordering import scan_order
+
+__all__ = ["PLAN_FORMAT", "Plan", "Acquisition", "make_plan", "plan_from_spec", "canonical_json", "content_id"]
+
+PLAN_FORMAT = "fpscan-plan/1"
+
+
+def canonical_json(obj: Any) -> str:
+    """Canonical JSON text: sorted keys, no spaces, floats as ``repr`` (architecture.md)."""
+    return json.dumps(obj, sort_keys=True, separators=(",", ":"), allow_nan=False)
+
+
+def content_id(plan_dict: dict) -> str:
+    """sha256 hex of the canonical JSON of ``plan_dict`` without its ``id`` key."""
+    body = {k: v for k, v in plan_dict.items() if k != "id"}
+    return hashlib.sha256(canonical_json(body).encode("utf-8")).hexdigest()
+
+
+def _finite(name: str, v: float) -> float:
+    if not math.isfinite(v):
+        raise ValueError(f"{name} must be finite, got {v}")
+    return v
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class LatticeSpec(_Strict):
+    n_x: int = Field(ge=1)
+    n_y: int = Field(ge=1)
+    pitch: float = Field(gt=0, description="m")
+
+    @field_validator("pitch")
+    @classmethod
+    def _pitch(cls, v):
+        return _finite("pitch", v)
+
+
+class MaskSpec(_Strict):
+    kind: str
+    params: dict[str, Any] = Field(default_factory=dict)
+    requested_points: int = Field(ge=1)
+    obtained_points: int = Field(ge=1)
+    weight_ratio: float = Field(gt=0)
+
+
+class Points(_Strict):
+    indices: list[tuple[int, int]]
+    positions: list[tuple[float, float]] = Field(description="(x, y) in m")
+    weights: list[float] = Field(description="m² (m on a line lattice)")
+
+    @model_validator(mode="after")
+    def _shapes(self):
+        n = len(self.indices)
+        if n == 0:
+            raise ValueError("a plan needs at least one point")
+        if len(self.positions) != n or len(self.weights) != n:
+            raise ValueError(
+                f"points: {n} indices, {len(self.positions)} positions and {len(self.weights)} weights differ"
+            )
+        w = np.asarray(self.weights, dtype=np.float64)
+        if not np.all(np.isfinite(w)) or np.any(w <= 0):
+            raise ValueError("points: weights must be finite and > 0")
+        if not np.all(np.isfinite(np.asarray(self.positions, dtype=np.float64))):
+            raise ValueError("points: positions must be finite")
+        return self
+
+
+class Acquisition(_Strict):
+    """Acquisition settings: ``n_t`` samples per A-line at interval ``dt`` (s), ``averages``
+    pulses per point and wavelength, excitation ``wavelengths`` (m), laser ``prf`` (Hz;
+    0 = as fast as the scanner can), ``sound_speed`` (m/s)."""
+
+    n_t: int = Field(default=1024, ge=1)
+    dt: float = Field(default=8e-9, gt=0)
+    averages: int = Field(default=1, ge=1)
+    wavelengths: list[float] = Field(default_factory=lambda: [7.5e-7], min_length=1)
+    prf: float = Field(default=50.0, ge=0)
+    sound_speed: float = Field(default=1500.0, gt=0)
+
+    @field_validator("dt", "prf", "sound_speed")
+    @classmethod
+    def _fin(cls, v, info):
+        return _finite(info.field_name, v)
+
+    @field_validator("wavelengths")
+    @classmethod
+    def _wl(cls, v):
+        for x in v:
+            if not math.isfinite(x) or x <= 0:
+                raise ValueError(f"wavelengths must be finite and > 0 m, got {x}")
+        return v
+
+
+class Plan(_Strict):
+    """A scan plan (architecture.md "Plan JSON"). ``points`` are in scan order: point index
+    k in the scanner protocol and the scan file is the k-th entry.
+
+    Validation (ValueError / pydantic.ValidationError, a ValueError): wrong format, ``id``
+    not the content hash, indices outside the lattice or duplicated, positions not the
+    lattice positions of the indices, count mismatches, non-finite or non-positive values.
+    """
+
+    format: Literal["fpscan-plan/1"] = PLAN_FORMAT
+    id: str
+    lattice: LatticeSpec
+    mask: MaskSpec
+    points: Points
+    order: str
+    acquisition: Acquisition
+
+    @model_validator(mode="after")
+    def _consistent(self):
+        lat = Lattice(self.lattice.n_x, self.lattice.n_y, self.lattice.pitch)
+        idx = np.asarray(self.points.indices, dtype=np.int64).reshape(-1, 2)
+        pos = lat.positions(idx)  # raises for indices outside the lattice
+        if np.unique(idx, axis=0).shape[0] != idx.shape[0]:
+            raise ValueError("points: duplicated lattice indices")
+        given = np.asarray(self.points.positions, dtype=np.float64)
+        if np.max(np.abs(given - pos)) > 1e-9 * lat.pitch:
+            raise ValueError("points: positions are not the lattice positions of the indices")
+        if self.mask.obtained_points != idx.shape[0]:
+            raise ValueError(
+                f"mask.obtained_points = {self.mask.obtained_points} but the plan has {idx.shape[0]} points"
+            )
+        expected = content_id(self.model_dump(mode="json"))
+        if self.id != expected:
+            raise ValueError(f"plan id {self.id[:16]}... does not match its content hash {expected[:16]}...")
+        return self
+
+    # -- arrays ---------------------------------------------------------------------
+    @property
+    def n_points(self) -> int:
+        return len(self.points.indices)
+
+    @property
+    def lattice_obj(self) -> Lattice:
+        return Lattice(self.lattice.n_x, self.lattice.n_y, self.lattice.pitch)
+
+    def indices_array(self) -> np.ndarray:
+        """``(n, 2)`` int64 lattice indices in scan order."""
+        return np.asarray(self.points.indices, dtype=np.int64).reshape(-1, 2)
+
+    def positions_array(self) -> np.ndarray:
+        """``(n, 2)`` positions (x, y) in m in scan order."""
+        return np.asarray(self.points.positions, dtype=np.float64).reshape(-1, 2)
+
+    def weights_array(self) -> np.ndarray:
+        """``(n,)`` weights in m² (m on a line lattice) in scan order."""
+        return np.asarray(self.points.weights, dtype=np.float64)
+
+    def recon_positions(self) -> np.ndarray:
+        """``(n, 1)`` on a line lattice, ``(n, 2)`` otherwise (what ``service.recon`` takes)."""
+        pos = self.positions_array()
+        return pos[:, :1].copy() if self.lattice.n_y == 1 else pos
+
+    @property
+    def expected_scan_time_s(self) -> float:
+        """points × averages × wavelengths / PRF in s (0.0 when prf = 0, i.e. unthrottled)."""
+        a = self.acquisition
+        if a.prf == 0:
+            return 0.0
+        return self.n_points * a.averages * len(a.wavelengths) / a.prf
+
+    # -- JSON -------------------------------------------------------------------------
+    def to_dict(self) -> dict:
+        return self.model_dump(mode="json")
+
+    def to_json(self, path: str | Path | None = None, *, indent: int | None = None) -> str:
+        """The plan as JSON text (canonical when ``indent`` is None); also written to
+        ``path`` if given."""
+        d = self.to_dict()
+        text = canonical_json(d) if indent is None else json.dumps(d, indent=indent, sort_keys=True)
+        if path is not None:
+            Path(path).write_text(text + "\n", encoding="utf-8")
+        return text
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Plan":
+        if not isinstance(d, dict):
+            raise ValueError(f"a plan must be a JSON object, got {type(d).__name__}")
+        return cls.model_validate(d)
+
+    @classmethod
+    def from_json(cls, text_or_path) -> "Plan":
+        """Read a plan from JSON text or a file path; validates it (including the id)."""
+        if isinstance(text_or_path, Path) or (
+            isinstance(text_or_path, str) and not text_or_path.lstrip().startswith("{")
+        ):
+            text = Path(text_or_path).read_text(encoding="utf-8")
+        else:
+            text = text_or_path
+        try:
+            d = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"plan is not valid JSON: {exc}") from None
+        return cls.from_dict(d)
+
+    # -- HDF5 ---------------------------------------------------------------------------
+    def to_hdf5(self, group) -> None:
+        """Write into an h5py group: attrs ``format``, ``id``, ``order``, ``lattice``,
+        ``mask``, ``acquisition`` (the last three as JSON text) and datasets ``indices``
+        (n, 2) int64, ``positions`` (n, 2) float64 m, ``weights`` (n,) float64."""
+        group.attrs["format"] = self.format
+        group.attrs["id"] = self.id
+        group.attrs["order"] = self.order
+        for key in ("lattice", "mask", "acquisition"):
+            group.attrs[key] = canonical_json(getattr(self, key).model_dump(mode="json"))
+        group.create_dataset("indices", data=self.indices_array())
+        group.create_dataset("positions", data=self.positions_array())
+        group.create_dataset("weights", data=self.weights_array())
+
+    @classmethod
+    def from_hdf5(cls, group) -> "Plan":
+        """Read a plan written by ``to_hdf5``; validates it (including the id)."""
+
+        def _s(v):
+            return v.decode("utf-8") if isinstance(v, bytes) else str(v)
+
+        try:
+            d = {
+                "format": _s(group.attrs["format"]),
+                "id": _s(group.attrs["id"]),
+                "order": _s(group.attrs["order"]),
+                "lattice": json.loads(_s(group.attrs["lattice"])),
+                "mask": json.loads(_s(group.attrs["mask"])),
+                "acquisition": json.loads(_s(group.attrs["acquisition"])),
+                "points": {
+                    "indices": np.asarray(group["indices"][()]).astype(np.int64).tolist(),
+                    "positions": np.asarray(group["positions"][()]).astype(np.float64).tolist(),
+                    "weights": np.asarray(group["weights"][()]).astype(np.float64).tolist(),
+                },
+            }
+        except KeyError as exc:
+            raise ValueError(f"HDF5 group holds no complete plan: missing {exc}") from None
+        return cls.from_dict(d)
+
+
+def _json_safe(obj):
+    if isinstance(obj, dict):
+        return {str(k): _json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple, np.ndarray)):
+        return [_json_safe(v) for v in obj]
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, (int, np.integer)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        return float(obj)
+    if obj is None or isinstance(obj, str):
+        return obj
+    raise ValueError(f"parameter value {obj!r} is not JSON-serialisable")
+
+
+def make_plan(mask: Mask, *, order: str = "auto", acquisition: Acquisition | dict | None = None, **settings) -> Plan:
+    """A plan from a mask: its points put in ``order`` (``auto``: rings for equi-steradian,
+    serpentine otherwise; ``serpentine``, ``rings``, ``nearest``) with acquisition settings
+    (an ``Acquisition``, a dict, or keywords n_t, dt, averages, wavelengths, prf,
+    sound_speed; defaults 1024, 8 ns, 1, [750 nm], 50 Hz, 1500 m/s).
+
+    Raises ValueError for an unknown order or bad settings."""
+    if acquisition is None:
+        acquisition = Acquisition(**settings)
+    elif isinstance(acquisition, dict):
+        acquisition = Acquisition(**{**acquisition, **settings})
+    elif settings:
+        raise ValueError("give acquisition settings either as acquisition=... or as keywords, not both")
+    perm = scan_order(mask, order)
+    resolved = order if order != "auto" else ("rings" if mask.rings is not None else "serpentine")
+    idx = mask.indices[perm]
+    pos = mask.positions[perm]
+    w = mask.weights[perm]
+    body = {
+        "format": PLAN_FORMAT,
+        "lattice": mask.lattice.to_dict(),
+        "mask": {
+            "kind": mask.kind,
+            "params": _json_safe(mask.params),
+            "requested_points": int(mask.requested_points),
+            "obtained_points": int(mask.obtained_points),
+            "weight_ratio": float(weight_ratio(pos, w, mask.centre)),
+        },
+        "points": {
+            "indices": idx.tolist(),
+            "positions": pos.tolist(),
+            "weights": w.tolist(),
+        },
+        "order": resolved,
+        "acquisition": acquisition.model_dump(mode="json"),
+    }
+    body["id"] = content_id(body)
+    return Plan.model_validate(body)
+
+
+def plan_from_spec(spec: dict) -> Plan:
+    """A plan from a request body (HTTP layer, CLI)::
+
+        {"lattice": {"n_x": 226, "n_y": 226, "pitch": 6e-05},
+         "mask": {"kind": "equisteradian", "params": {"depth": 0.0036, "n_points": 1625}},
+         "order": "auto",                       # optional
+         "acquisition": {"n_t": 1024, ...}}     # optional
+
+    ``mask`` may also be ``{"kind": "points", "params": {"points": [[x, y], ...]}}``.
+    Raises ValueError with the reason for anything missing or wrong."""
+    if not isinstance(spec, dict):
+        raise ValueError("plan request must be a JSON object")
+    unknown = set(spec) - {"lattice", "mask", "order", "acquisition"}
+    if unknown:
+        raise ValueError(f"unknown plan request field(s): {', '.join(sorted(unknown))}")
+    if "lattice" not in spec or "mask" not in spec:
+        raise ValueError("plan request needs 'lattice' and 'mask'")
+    m = spec["mask"]
+    if not isinstance(m, dict) or "kind" not in m:
+        raise ValueError("'mask' must be an object with 'kind' and optional 'params'")
+    params = m.get("params") or {}
+    if not isinstance(params, dict):
+        raise ValueError("'mask.params' must be an object")
+    mask = make_mask(m["kind"], spec["lattice"], **params)
+    acq = spec.get("acquisition") or {}
+    if not isinstance(acq, dict):
+        raise ValueError("'acquisition' must be an object")
+    return make_plan(mask, order=spec.get("order") or "auto", acquisition=acq)
