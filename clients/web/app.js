@@ -207,6 +207,7 @@ function route() {
     if (v === name) link.setAttribute("aria-current", "page"); else link.removeAttribute("aria-current");
   }
   const changed = currentView !== name;
+  const first = currentView === null;
   currentView = name;
   if (changed) clearError();
   document.title = "fpscan — " + $("nav-" + name).textContent;
@@ -216,7 +217,8 @@ function route() {
     refreshJobs().catch(showError);
     if (arg) openResult(decodeURIComponent(arg)).catch(showError); else closeResult();
   }
-  if (changed) $("main").focus({ preventScroll: true });
+  // after a view change (not on first load), keyboard focus moves to the new view
+  if (changed && !first) $("main").focus({ preventScroll: true });
 }
 
 /* ------------------------------------------------------------------ Plan view */

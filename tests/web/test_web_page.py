@@ -348,13 +348,13 @@ def test_result_view_reconstruct_slices_and_download_volume(server, api, browser
         assert len(f.keys()) > 0
 
 
-def test_keyboard_navigation_and_state_without_colour(server, browser, screenshots):
+def test_keyboard_navigation_and_state_without_colour(server, browser, screenshots, state):
     from selenium.webdriver.common.action_chains import ActionChains
     from selenium.webdriver.common.keys import Keys
 
+    browser.get("about:blank")
     browser.get(server + "/#/plan")
-    body = browser.find_element("tag name", "body")
-    body.click()
+    wait_for(lambda: el(browser, "view-plan").is_displayed(), 10, "the plan view")
     # Tab from the top of the page reaches the navigation; Enter on "Scan" switches view.
     for _ in range(12):
         ActionChains(browser).send_keys(Keys.TAB).perform()
@@ -376,6 +376,12 @@ def test_keyboard_navigation_and_state_without_colour(server, browser, screensho
     states = browser.execute_script(
         """return [...document.querySelectorAll('#jobs-body .state')].map(e =>
              [e.textContent, getComputedStyle(e, '::before').content]);""")
+    if "scan_job_id" in state:
+        wait_for(lambda: len(browser.find_elements("css selector", "#jobs-body .state")) >= 2, 10, "the job list")
+        states = browser.execute_script(
+            """return [...document.querySelectorAll('#jobs-body .state')].map(e =>
+                 [e.textContent, getComputedStyle(e, '::before').content]);""")
+        assert len(states) >= 2
     for word, symbol in states:
         assert word in ("queued", "running", "paused", "succeeded", "failed", "cancelled")
         assert symbol not in ("none", "normal", "")
