@@ -106,12 +106,26 @@ class _Process:
                     break
                 buf += chunk
                 if b"\n" in buf:
+                    self._drain()
                     return buf.split(b"\n", 1)[0].decode().strip()
             elif self.proc.poll() is not None:
                 break
         raise RuntimeError(f"{self.proc.args[3] if len(self.proc.args) > 3 else 'process'} "
                            f"printed no first line within {timeout:.0f} s (exit {self.proc.poll()}); "
                            f"see {self.log.name}")
+
+    def _drain(self) -> None:
+        """Keep reading stdout into the log so the child never blocks on a full pipe."""
+        import threading
+
+        def pump():
+            try:
+                for chunk in iter(lambda: os.read(self.proc.stdout.fileno(), 65536), b""):
+                    self.log.write(chunk)
+            except (OSError, ValueError):
+                pass
+
+        threading.Thread(target=pump, daemon=True).start()
 
     def stop(self) -> None:
         import signal

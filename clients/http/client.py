@@ -195,6 +195,12 @@ class _Endpoints:
         r = yield _Req("GET", f"/api/plans/{plan_id}")
         return as_model("Plan", r.json())
 
+    def get_plan_json(self, plan_id: str):
+        """``GET /api/plans/{plan_id}/plan.json`` -> the full plan (``fpscan-plan/1``
+        dict: lattice, mask, points in scan order, acquisition), as ``fpscan scan`` reads it."""
+        r = yield _Req("GET", f"/api/plans/{plan_id}/plan.json")
+        return r.json()
+
     def download_plan_preview(self, plan_id: str, dest: str | os.PathLike):
         """``GET /api/plans/{plan_id}/preview.png`` saved to ``dest`` -> Path."""
         return (yield _Download(_Req("GET", f"/api/plans/{plan_id}/preview.png"), Path(dest)))

@@ -1,0 +1,209 @@
+"""The Python client (sync and async) against a real `fpscan serve` on 127.0.0.1.
+
+Oracles: the raw HTTP answer of the same request (httpx, no client code) for error
+details; the plan's own lattice arithmetic for positions; Pillow/h5py for downloads."""
+from __future__ import annotations
+
+import asyncio
+import io
+
+import httpx
+import numpy as np
+import pytest
+
+from clients.http import (
+    ApiError,
+    AsyncClient,
+    AuthError,
+    Client,
+    NotFound,
+    ServerUnavailable,
+    field_of,
+)
+from clients_servers import fpscan_server, free_port, has_command
+
+TOKEN = "client-test-token"
+
+pytestmark = pytest.mark.skipif(not has_command("serve"), reason="`fpscan serve` not available yet")
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory):
+    data = tmp_path_factory.mktemp("srv") / "data"
+    data.mkdir()
+    with fpscan_server(data, token=TOKEN) as (url, _proc):
+        yield url
+
+
+@pytest.fixture()
+def api(server):
+    with Client(server, token=TOKEN) as c:
+        yield c
+
+
+def _points_body(n=8, pitch=1e-4, points=((0, 0), (3, 1), (7, 7), (4, 5), (1, 6))):
+    return {"lattice": {"n_x": n, "n_y": n, "pitch": pitch}, "points": [list(p) for p in points],
+            "acquisition": {"n_t": 64, "dt": 2e-8, "prf": 0}}
+
+
+def test_health(api):
+    from importlib.metadata import version
+
+    health = api.health()
+    assert health["status"] == "ok"
+    assert health["version"] == version("fpscan")
+
+
+def test_server_down_raises_server_unavailable():
+    url = f"http://127.0.0.1:{free_port()}"
+    with Client(url, token=TOKEN, timeout=5) as c:
+        with pytest.raises(ServerUnavailable) as err:
+            c.health()
+    assert url in str(err.value)
+
+    async def main():
+        async with AsyncClient(url, timeout=5) as c:
+            await c.list_jobs()
+
+    with pytest.raises(ServerUnavailable):
+        asyncio.run(main())
+
+
+@pytest.mark.parametrize("token", ["wrong-token", None])
+def test_bad_or_missing_token_raises_auth_error_with_server_detail(server, token):
+    raw = httpx.post(server + "/api/plans", json=_points_body(),
+                     headers={"Authorization": f"Bearer {token}"} if token else {})
+    assert raw.status_code in (401, 403)
+    with Client(server, token=token or "") as c:
+        c.token = token  # no env fallback: exactly this token (or none)
+        with pytest.raises(AuthError) as err:
+            c.create_plan(_points_body())
+    assert err.value.status_code == raw.status_code
+    assert err.value.detail == raw.json()["detail"]
+    assert raw.json()["detail"] in str(err.value)
+
+
+def test_unknown_job_raises_not_found_with_detail(api, server):
+    raw = httpx.get(server + "/api/jobs/no-such-job")
+    with pytest.raises(NotFound) as err:
+        api.get_job("no-such-job")
+    assert err.value.status_code == 404
+    assert err.value.detail == raw.json()["detail"]
+    with pytest.raises(NotFound):
+        api.wait("no-such-job", timeout=10)
+
+
+def test_invalid_plan_is_a_422_naming_the_field(api):
+    body = _points_body()
+    body["lattice"]["pitch"] = -1.0
+    with pytest.raises(ApiError) as err:
+        api.create_plan(body)
+    assert err.value.status_code == 422
+    assert "pitch" in str(err.value)
+    body = _points_body(points=((0, 0), (0, 0)))
+    with pytest.raises(ApiError) as err:
+        api.create_plan(body)
+    assert err.value.status_code == 422 and "duplicate" in str(err.value)
+
+
+def test_plan_round_trip_and_preview_png(api, tmp_path):
+    from PIL import Image
+
+    from service.api.models import Plan
+
+    body = _points_body()
+    plan = api.create_plan(body)
+    assert isinstance(plan, Plan)
+    assert plan.n_points == len(body["points"])
+    again = api.get_plan(plan.id)
+    assert again == plan
+    assert plan.id in [p.id for p in api.list_plans()]
+    full = api.get_plan_json(plan.id)
+    assert full["id"] == plan.id
+    # positions follow the lattice convention x_i = (i - (n-1)/2) * pitch
+    n, pitch = body["lattice"]["n_x"], body["lattice"]["pitch"]
+    expect = [[(i - (n - 1) / 2) * pitch, (j - (n - 1) / 2) * pitch] for i, j in body["points"]]
+    np.testing.assert_allclose(full["points"]["positions"], expect, rtol=0, atol=1e-15)
+    png = api.download_plan_preview(plan.id, tmp_path / "sub" / "mask.png")
+    with Image.open(png) as im:
+        assert im.format == "PNG"
+        a = np.asarray(im.convert("L"))
+    assert (a > 0).any() and (a == 0).any()
+    assert not list(tmp_path.glob("sub/*.part"))
+    preview = api.preview_plan(body)
+    assert field_of(preview, "points") == len(body["points"])
+
+
+def test_async_client_matches_sync(api, server):
+    body = _points_body(points=((1, 1), (2, 2), (6, 3)))
+
+    async def main():
+        async with AsyncClient(server, token=TOKEN) as c:
+            plan = await c.create_plan(body)
+            got = await c.get_plan(plan.id)
+            jobs = await c.list_jobs()
+            return plan, got, jobs
+
+    plan, got, jobs = asyncio.run(main())
+    assert plan == got == api.get_plan(plan.id)
+    assert [j.id for j in jobs] == [j.id for j in api.list_jobs()]
+
+
+def test_download_error_leaves_no_file(api, tmp_path):
+    dest = tmp_path / "vol.h5"
+    with pytest.raises(NotFound):
+        api.download_volume("no-such-job", dest)
+    assert not dest.exists() and not list(tmp_path.iterdir())
+
+
+def test_bad_arguments_are_value_errors(api, tmp_path):
+    with pytest.raises(ValueError):
+        api.start_reconstruction(method="ner")
+    with pytest.raises(ValueError):
+        api.start_reconstruction(scan_job_id="a", dataset_id="b")
+    with pytest.raises(ValueError):
+        api.download_mip("x", "zz", tmp_path / "m.png")
+    with pytest.raises(ValueError):
+        api.upload_dataset(tmp_path / "missing.npy", "npy")
+    with pytest.raises(ValueError):
+        Client("ftp://example")
+
+
+def _grid_data():
+    """A small 3-D dataset (n_t, n_y, n_x) from the exact ball model on a 16x16 grid."""
+    phys = pytest.importorskip("driver.physics")
+    n, dx, dt, n_t = 16, 1e-4, 4e-8, 96
+    x = (np.arange(n) - (n - 1) / 2) * dx
+    yy, xx = np.meshgrid(x, x, indexing="ij")
+    pos = np.stack([xx.ravel(), yy.ravel()], axis=1)
+    alines = phys.ball_alines(pos, [phys.Ball(0.0, 0.0, 1.2e-3, 2e-4, 1.0)], dt, n_t, 1500.0)
+    return alines.T.reshape(n_t, n, n).astype(np.float32), dx, dt
+
+
+def test_reconstruction_job_with_progress_and_downloads(api, tmp_path):
+    recon = pytest.importorskip("service.recon")
+    if not hasattr(recon, "reconstruct_grid"):
+        pytest.skip("service.recon.reconstruct_grid not available yet")
+    import h5py
+    from PIL import Image
+
+    data, dx, dt = _grid_data()
+    np.save(tmp_path / "data.npy", data)
+    dataset_id = api.upload_dataset(tmp_path / "data.npy", "npy", dt=dt, dx=dx)
+    key = "recon-key-1"
+    job_id = api.start_reconstruction(dataset_id=dataset_id, method="ner",
+                                      params={"dtype": "float64"}, idempotency_key=key)
+    assert api.start_reconstruction(dataset_id=dataset_id, method="ner", params={"dtype": "float64"},
+                                    idempotency_key=key) == job_id
+    seen = []
+    job = api.wait(job_id, on_progress=seen.append, timeout=120)
+    assert job.state == "succeeded"
+    assert seen and all(isinstance(p, dict) for p in seen)
+    vol = api.download_volume(job_id, tmp_path / "volume.h5")
+    with h5py.File(vol, "r") as f:
+        p0 = f["p0"][...]
+    expect = recon.reconstruct_grid(data.astype(np.float64), dx, dt, 1500.0, method="ner").p0
+    np.testing.assert_allclose(p0, expect, rtol=0, atol=1e-6 * np.abs(expect).max())
+    for plane in ("xy", "xz", "yz"):
+        with Image.open(api.download_mip(job_id, plane, tmp_path / f"{plane}.png")) as im:
+            assert im.format == "PNG"
