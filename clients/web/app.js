@@ -245,12 +245,12 @@ const MASKS = {
     ],
   },
   full: { label: "Full lattice", help: "Every lattice point.", params: [] },
-  grid: {
+  subgrid: {
     label: "Equispaced sub-grid",
     help: "Every s-th lattice point, n per side, centred.",
     params: [
       { name: "interval", label: "Interval s (lattice points)", int: true, value: 4 },
-      { name: "n", label: "Points per side (empty = as many as fit)", int: true, optional: true },
+      { name: "n_per_side", label: "Points per side (empty = as many as fit)", int: true, optional: true },
     ],
   },
   hexagonal: {
@@ -266,12 +266,13 @@ const MASKS = {
       { name: "seed", label: "Seed", int: true, value: 0 },
     ],
   },
-  poisson_disc: {
+  poisson: {
     label: "Poisson-disc (seeded)",
-    help: "Random points no closer than the given radius.",
+    help: "Random points no closer than the given distance.",
     params: [
-      { name: "radius", label: "Minimum distance (µm)", scale: 1e-6, value: 240 },
+      { name: "min_distance", label: "Minimum distance (µm)", scale: 1e-6, value: 240 },
       { name: "seed", label: "Seed", int: true, value: 0 },
+      { name: "n_points", label: "At most this many points (empty = no cap)", int: true, optional: true },
     ],
   },
 };
@@ -332,7 +333,9 @@ function planBody() {
     const v = numberField("mask-" + p.name.replace(/_/g, "-"), p.label, p);
     if (v !== undefined) params[p.name] = v;
   }
-  if ("poi_x" in params || "poi_y" in params) {
+  if (kind === "equiangular" && "poi_x" in params) {
+    params.poi = params.poi_x; // a line: the lateral position only
+  } else if ("poi_x" in params || "poi_y" in params) {
     params.poi = [params.poi_x ?? 0, params.poi_y ?? 0];
   }
   delete params.poi_x;
