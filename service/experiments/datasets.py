@@ -1,0 +1,155 @@
+"""Dense datasets for the experiments: data on a regular sensor grid plus its sampling.
+
+A dense dataset is what the paper's experiments start from (§6: the full 1024-point
+line; §7: the 226 × 226 scan): A-lines on every lattice point, from which sensor masks
+pick their points. Built-in phantoms are simulated with the exact planar forward model
+(:func:`service.recon.forward_grid`); ``load_dense`` reads an HDF5 file such as the
+k-Wave reference data (``sensor_data/clean`` with ``axes`` "t, y" or "t, y, z";
+attributes ``dt_s``, ``dx_m``/``dy_m``/``dz_m``, ``c_m_per_s``, see ``data/README.md``).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+
+@dataclass
+class DenseDataset:
+    """Sensor data on a full regular lattice.
+
+    Attributes
+    ----------
+    data : ndarray ``(n_t, n_x)`` (2-D, line sensor) or ``(n_t, n_y, n_x)`` (3-D), Pa.
+    dx : lateral pitch in m (same in x and y).
+    dt : sample interval in s (t_n = n·dt).
+    c : sound speed in m/s.
+    p0 : optional ground truth ``(n_z, n_x)`` / ``(n_z, n_y, n_x)`` with depth spacing
+        ``dz`` (m), row 0 at the sensor plane.
+    source : where it came from (file path or phantom name).
+    """
+
+    data: np.ndarray
+    dx: float
+    dt: float
+    c: float = 1500.0
+    p0: np.ndarray | None = None
+    dz: float | None = None
+    source: str = ""
+    meta: dict = field(default_factory=dict)
+
+    @property
+    def ndim(self) -> int:
+        """2 for a line sensor, 3 for a planar sensor."""
+        return self.data.ndim
+
+    @property
+    def n_t(self) -> int:
+        return self.data.shape[0]
+
+    @property
+    def lateral_shape(self) -> tuple[int, ...]:
+        """``(n_x,)`` or ``(n_y, n_x)``."""
+        return self.data.shape[1:]
+
+    def crop(self, *, n_t: int | None = None, lateral: int | None = None) -> "DenseDataset":
+        """A copy keeping the first ``n_t`` samples and the central ``lateral`` points
+        per lateral axis (the ground truth is cropped laterally to match)."""
+        data, p0 = self.data, self.p0
+        if n_t is not None:
+            data = data[: max(2, int(n_t))]
+        if lateral is not None:
+            sl = []
+            for n in data.shape[1:]:
+                m = min(n, int(lateral))
+                lo = (n - m) // 2
+                sl.append(slice(lo, lo + m))
+            data = data[(slice(None), *sl)]
+            if p0 is not None:
+                p0 = p0[(slice(None), *sl)]
+        return DenseDataset(np.ascontiguousarray(data), self.dx, self.dt, self.c, p0, self.dz, self.source, dict(self.meta))
+
+
+def _attr(attrs, *names, default=None):
+    for n in names:
+        if n in attrs:
+            return float(np.asarray(attrs[n]).ravel()[0])
+    return default
+
+
+def load_dense(path: str | Path) -> DenseDataset:
+    """Read a dense dataset from HDF5 (the k-Wave reference files' layout).
+
+    The file must hold ``sensor_data/clean`` (or a dataset ``sensor_data``) shaped
+    ``(n_t, n_lateral)`` or ``(n_t, n_y, n_x)`` and the attributes ``dt_s`` and the
+    lateral spacing: k-Wave files (depth is k-Wave's x) use ``dy_m`` (and ``dz_m``, which
+    must equal it); other files ``dx_m``. ``c_m_per_s`` defaults to 1500. A ``p0``
+    dataset, if present, is kept as ground truth (its depth spacing from its
+    ``spacing_m`` attribute).
+
+    Raises
+    ------
+    ValueError
+        Missing file, datasets or attributes, wrong dimensions, unequal lateral spacing.
+    """
+    import h5py
+
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"data file not found: {path}")
+    try:
+        f = h5py.File(path, "r")
+    except OSError as exc:
+        raise ValueError(f"{path} is not a readable HDF5 file: {exc}") from exc
+    with f:
+        if "sensor_data/clean" in f:
+            ds = f["sensor_data/clean"]
+        elif "sensor_data" in f and isinstance(f["sensor_data"], h5py.Dataset):
+            ds = f["sensor_data"]
+        else:
+            raise ValueError(f"{path}: no 'sensor_data/clean' (or 'sensor_data') dataset")
+        data = np.asarray(ds[...], dtype=np.float64)
+        attrs = dict(f.attrs)
+        if data.ndim not in (2, 3):
+            raise ValueError(f"{path}: sensor data must be (n_t, n_x) or (n_t, n_y, n_x), got {data.shape}")
+        dt = _attr(attrs, "dt_s")
+        if dt is None or not dt > 0:
+            raise ValueError(f"{path}: missing or invalid attribute dt_s")
+        kwave = "kwave_commit" in attrs or "kwave_DataOrder" in ds.attrs
+        if kwave:
+            dx = _attr(attrs, "dy_m", "dx_m")
+            if data.ndim == 3:
+                dz_lat = _attr(attrs, "dz_m", default=dx)
+                if not np.isclose(dz_lat, dx, rtol=1e-9):
+                    raise ValueError(f"{path}: lateral spacings differ ({dx} m vs {dz_lat} m); need a square lattice")
+        else:
+            dx = _attr(attrs, "dx_m", "dy_m")
+        if dx is None or not dx > 0:
+            raise ValueError(f"{path}: missing or invalid lateral spacing attribute (dx_m / dy_m)")
+        c = _attr(attrs, "c_m_per_s", default=1500.0)
+        p0 = dz = None
+        if "p0" in f and isinstance(f["p0"], h5py.Dataset):
+            p0 = np.asarray(f["p0"][...], dtype=np.float64)
+            spacing = f["p0"].attrs.get("spacing_m")
+            dz = float(np.asarray(spacing).ravel()[0]) if spacing is not None else dx
+            if p0.ndim != data.ndim or p0.shape[1:] != data.shape[1:]:
+                p0 = dz = None
+    if not np.all(np.isfinite(data)):
+        raise ValueError(f"{path}: sensor data contains NaN or inf")
+    return DenseDataset(data, dx, dt, c, p0, dz, str(path), {"kwave": kwave})
+
+
+def add_noise(data: np.ndarray, snr_db: float | None, seed: int = 0) -> np.ndarray:
+    """White Gaussian noise at ``snr_db`` dB below the data's mean power (paper §6: 30 dB).
+
+    ``sigma = rms(data) / 10^(snr_db/20)``; ``None`` returns the data unchanged.
+    Raises ValueError for a non-finite SNR.
+    """
+    if snr_db is None:
+        return data
+    if not np.isfinite(snr_db):
+        raise ValueError(f"snr_db must be finite, got {snr_db}")
+    rms = float(np.sqrt(np.mean(np.square(data))))
+    rng = np.random.default_rng(seed)
+    return data + rng.standard_normal(data.shape) * rms / 10 ** (snr_db / 20)

@@ -1,0 +1,133 @@
+"""Numerical phantoms of the paper's experiments (initial pressure p0 on a grid).
+
+- :func:`tree_phantom` (§6): a tree — a crown of discs and a vertical trunk — whose
+  vertical edges a line sensor of limited aperture sees poorly (limited view).
+- :func:`yarn_phantom` (§7): curved strands and a central knot (a trefoil) of a thin
+  tube, like the paper's yarn; its knot is the point of interest.
+- :func:`layer_phantom` (§4): a thin absorbing layer of finite width (band-limited
+  delta in depth, sharp lateral edges), for axial line-spread and lateral edge-spread
+  measurements, like the paper's 0.1 µm thin chrome USAF chart.
+
+Grids follow docs/architecture.md: ``z_j = j·dz`` (row 0 at the sensor plane),
+``x_i = (i - (n_x - 1)/2)·dx``.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+
+def lateral_axis(n: int, d: float) -> np.ndarray:
+    """Centred lattice coordinates ``(i - (n - 1)/2)·d``, m."""
+    return (np.arange(n) - (n - 1) / 2) * d
+
+
+def tree_phantom(n_z: int, n_x: int, *, amplitude: float = 1.0) -> np.ndarray:
+    """A tree (crown of 8 discs, trunk) of height ~0.85 n_z centred laterally.
+
+    Returns ndarray ``(n_z, n_x)`` of p0 (``amplitude`` inside, 0 outside, edge pixels
+    anti-aliased by 4 × 4 supersampling). Geometry in units of ``n_z`` pixels, so it
+    scales with the grid. Raises ValueError if ``n_x < n_z // 2`` or ``n_z < 16``.
+    """
+    if n_z < 16 or n_x < n_z // 2:
+        raise ValueError(f"tree phantom needs n_z >= 16 and n_x >= n_z/2, got ({n_z}, {n_x})")
+    h = float(n_z)
+    xc = (n_x - 1) / 2
+    discs = [  # (depth, lateral offset, radius) in units of n_z
+        (0.30, 0.00, 0.14), (0.22, -0.12, 0.10), (0.22, 0.12, 0.10), (0.38, -0.16, 0.10),
+        (0.38, 0.16, 0.10), (0.13, 0.00, 0.09), (0.45, -0.06, 0.08), (0.45, 0.08, 0.08),
+    ]
+    s = 4
+    off = (np.arange(s) + 0.5) / s - 0.5
+    zz = (np.arange(n_z)[:, None] + off[None, :]).ravel()
+    xx = (np.arange(n_x)[:, None] + off[None, :]).ravel()
+    Z, X = np.meshgrid(zz, xx, indexing="ij")
+    inside = np.zeros(Z.shape, dtype=bool)
+    for dz_, dx_, r in discs:
+        inside |= (Z - dz_ * h) ** 2 + (X - xc - dx_ * h) ** 2 <= (r * h) ** 2
+    inside |= (np.abs(X - xc) <= 0.035 * h) & (Z >= 0.40 * h) & (Z <= 0.90 * h)
+    p0 = inside.reshape(n_z, s, n_x, s).mean(axis=(1, 3))
+    return amplitude * p0
+
+
+def tree_roi(n_z: int, dz: float) -> tuple[tuple[float, float], float]:
+    """The §6 region of interest around :func:`tree_phantom`: centre ``(z, x)`` and
+    diameter in m for a grid of depth spacing ``dz`` (a disc enclosing the tree)."""
+    return (0.5 * n_z * dz, 0.0), 0.95 * n_z * dz
+
+
+def _curve_distance(points: np.ndarray, grids: tuple[np.ndarray, ...], reach: float) -> np.ndarray:
+    tree = cKDTree(points)
+    coords = np.stack([g.ravel() for g in np.meshgrid(*grids, indexing="ij")], axis=1)
+    dist, _ = tree.query(coords, distance_upper_bound=reach)
+    return dist.reshape(tuple(len(g) for g in grids))
+
+
+def yarn_geometry(half_width: float) -> tuple[np.ndarray, float]:
+    """Centre-line samples ``(m, 3)`` as (z, y, x) in m of the yarn, and the knot depth.
+
+    ``half_width`` is half the lateral extent of the lattice (m); the knot sits at depth
+    ``0.53 · half_width`` (3.6 mm for the paper's 13.56 mm aperture)."""
+    L = half_width
+    zc = 0.53 * L
+    parts = []
+    s = np.linspace(-0.85 * L, 0.85 * L, 4000)
+    for i, phase in enumerate((0.0, 2.1, 4.2)):
+        y = (i - 1) * 0.35 * L + 0.12 * L * np.sin(2 * np.pi * s / (0.8 * L) + phase)
+        z = zc + 0.10 * L * np.cos(2 * np.pi * s / (0.9 * L) + phase)
+        parts.append(np.column_stack([z, y, s]))
+    t = np.linspace(0, 2 * np.pi, 3000)
+    a = 0.07 * L  # trefoil knot
+    parts.append(np.column_stack([zc - 0.8 * a * np.sin(3 * t), a * (np.cos(t) - 2 * np.cos(2 * t)), a * (np.sin(t) + 2 * np.sin(2 * t))]))
+    return np.concatenate(parts), zc
+
+
+def yarn_phantom(n_z: int, n_xy: int, d: float, *, radius_voxels: float = 1.5) -> tuple[np.ndarray, float]:
+    """Yarn: three wavy strands across the volume and a trefoil knot at the centre.
+
+    Parameters
+    ----------
+    n_z, n_xy : depth rows and lateral points per side; ``d`` voxel size in m (cubic).
+    radius_voxels : tube radius in voxels.
+
+    Returns
+    -------
+    (p0, knot_depth): p0 ``(n_z, n_xy, n_xy)`` (z, y, x) with 1 inside the tube (linear
+    partial-volume ramp over one voxel at the surface), and the knot's depth in m.
+
+    Raises ValueError if the knot does not fit in the depth range.
+    """
+    half = n_xy * d / 2
+    line, zc = yarn_geometry(half)
+    if zc + 0.25 * half > n_z * d:
+        raise ValueError(f"n_z = {n_z} rows of {d} m do not reach below the yarn (needs {zc + 0.25 * half:.3g} m)")
+    r = radius_voxels * d
+    dist = _curve_distance(line, (np.arange(n_z) * d, lateral_axis(n_xy, d), lateral_axis(n_xy, d)), r + d)
+    p0 = np.clip((r + d / 2 - dist) / d, 0.0, 1.0)
+    p0[~np.isfinite(dist)] = 0.0
+    return p0, zc
+
+
+def layer_phantom(n_z: int, n_x: int, dz: float, dx: float, *, depth: float, width: float, taps: int = 8) -> np.ndarray:
+    """A thin absorbing layer: band-limited delta in depth, sharp lateral edges.
+
+    Parameters
+    ----------
+    n_z, n_x : grid size; dz, dx : spacing in m.
+    depth : layer depth in m (need not be on the grid: the depth profile is the
+        Hann-windowed sinc ``sinc((z - depth)/dz)`` over ±``taps`` rows, i.e. a delta
+        band-limited to the grid).
+    width : lateral extent in m, centred on x = 0 (edge pixels anti-aliased).
+
+    Returns ndarray ``(n_z, n_x)``. Raises ValueError if the layer leaves the grid.
+    """
+    z = np.arange(n_z) * dz
+    if not (taps * dz < depth < (n_z - taps - 1) * dz):
+        raise ValueError("layer depth must leave room for the depth profile inside the grid")
+    x = lateral_axis(n_x, dx)
+    if width <= 0 or width / 2 > x[-1]:
+        raise ValueError("layer width must be > 0 and fit inside the grid")
+    u = (z - depth) / dz
+    prof = np.sinc(u) * np.where(np.abs(u) <= taps, 0.5 * (1 + np.cos(np.pi * u / taps)), 0.0)
+    lat = np.clip((width / 2 - np.abs(x)) / dx + 0.5, 0.0, 1.0)
+    return prof[:, None] * lat[None, :]

@@ -1,0 +1,255 @@
+"""Experiment ``sparse-masks-3d`` (paper §7): ~3 % of a dense planar scan.
+
+From a dense dataset on an ``n × n`` lattice (built in: a yarn phantom on 226 × 226
+points of 60 µm through the exact forward model; or any dense file, e.g. the k-Wave
+3-D data), the full NER reconstruction's xy-MIP is the model standard. Sensor masks
+picking ~3 % of the points are compared with it:
+
+- equi-steradian (:func:`service.plans.equisteradian_mask`, ``fraction`` of the lattice,
+  point of interest at the lattice centre at depth 0.53 × half the aperture — 3.6 mm
+  for the paper's 13.56 mm), NEDNER-NUFFT with its r³-weights;
+- equispaced ``m × m`` sub-grids (:func:`service.plans.subgrid_mask`; 41 × 41 on
+  226 × 226, scaled to the lattice) with intervals 2..5, NEDNER-NUFFT with weights
+  interval² · pitch².
+
+Measures on the xy-MIPs: CC vs number of pixels of interest (within a centred disc of
+0.62 × the aperture = 8.4 mm of 13.56 mm), CC and Tenenbaum sharpness vs disc diameter
+at the 4 % threshold. Paper: at 7.2 mm (0.531 × aperture) CC 0.960 (equi-steradian) vs
+0.947 (interval 4) and 0.944 (interval 5).
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from service.metrics import (
+    cc_vs_diameter,
+    cc_vs_pixels,
+    correlation_coefficient,
+    disc_mask,
+    mip,
+    roi_mask,
+    sharpness_vs_diameter,
+)
+
+from .datasets import DenseDataset
+from .phantoms import lateral_axis, yarn_phantom
+from .result import ExperimentResult, setup_matplotlib
+
+NAME = "sparse-masks-3d"
+PAPER = {"diameter_mm": 7.2, "aperture_mm": 13.56, "cc_equisteradian": 0.960, "cc_interval_4": 0.947,
+         "cc_interval_5": 0.944, "n_equisteradian": 1625, "n_equispaced": 1681, "disc_mm": 8.4}
+#: Ratios to the aperture side taken from the paper (13.56 mm).
+POI_DEPTH_RATIO = 3.6 / 13.56
+EVAL_DIAMETER_RATIO = 7.2 / 13.56
+DISC_RATIO = 8.4 / 13.56
+
+
+def simulate_yarn(*, small: bool) -> DenseDataset:
+    """Built-in dense dataset: yarn phantom, 226 × 226 (small: 64 × 64) lattice of
+    60 µm, dt = 8 ns, exact planar forward model."""
+    from service.recon import forward_grid
+
+    n, d, dt, c = (64, 60e-6, 8e-9, 1500.0) if small else (226, 60e-6, 8e-9, 1500.0)
+    half = n * d / 2
+    n_z = int(np.ceil((0.53 * half + 0.3 * half) / d))
+    p0, _ = yarn_phantom(n_z, n, d)
+    n_t = int(round(0.6 * n * d / (c * dt)))
+    data = forward_grid(p0, d, d, dt, n_t, c)
+    return DenseDataset(data, d, dt, c, p0, d, "yarn phantom (built in)")
+
+
+def run(
+    data: DenseDataset | None = None,
+    *,
+    small: bool = False,
+    fraction: float = 1625 / 226**2,
+    intervals=(2, 3, 4, 5),
+    n_side: int | None = None,
+    poi_depth: float | None = None,
+    n_diameters: int = 40,
+) -> ExperimentResult:
+    """Run the §7 comparison.
+
+    Parameters
+    ----------
+    data : 3-D :class:`DenseDataset` (``(n_t, n, n)``, square lattice); default the
+        built-in yarn phantom.
+    small : the 64 × 64 built-in phantom (tests).
+    fraction : requested equi-steradian points / lattice points (paper 1625/51076).
+    intervals : equispaced intervals (paper 2..5).
+    n_side : equispaced points per side; default ``round(41 · n / 226)``, reduced until
+        the largest interval fits.
+    poi_depth : depth of the point of interest in m; default 0.2655 × aperture side.
+    n_diameters : samples of the CC/sharpness vs diameter curves.
+
+    Returns
+    -------
+    ExperimentResult; table rows: ``arrangement``, ``interval``, ``n_points``,
+    ``fraction``, ``cc_eval_diameter`` (CC at 0.531 × aperture, 4 % threshold),
+    ``cc_disc`` (all 4 %-pixels in the 0.62 × aperture disc), ``sharpness_eval_diameter``,
+    ``closer_to_1_pct`` vs each equispaced grid... and ``time_s``.
+
+    Raises
+    ------
+    ValueError for 2-D data or a non-square lattice.
+    """
+    from service.plans import Lattice, equisteradian_mask, subgrid_mask
+    from service.recon import reconstruct_grid, reconstruct_points
+
+    if data is None:
+        data = simulate_yarn(small=small)
+    if data.ndim != 3:
+        raise ValueError(f"{NAME} needs 3-D planar data (n_t, n_y, n_x); got shape {data.data.shape}")
+    g = data.data
+    n_t, n_y, n_x = g.shape
+    if n_y != n_x:
+        raise ValueError(f"{NAME} needs a square lattice, got {n_y} × {n_x}")
+    n = n_x
+    d, dt, c = data.dx, data.dt, data.c
+    side = n * d
+    dz = c * dt
+    if data.p0 is not None and data.dz is not None:
+        n_z = int(round(data.p0.shape[0] * data.dz / dz))
+    else:
+        n_z = n_t // 2
+    n_z = max(4, min(n_z, n_t))
+    x = lateral_axis(n, d)
+    if n_side is None:
+        n_side = max(2, int(round(41 * n / 226)))
+    while n_side > 2 and (n_side - 1) * max(intervals) + 1 > n:
+        n_side -= 1
+    if poi_depth is None:
+        poi_depth = POI_DEPTH_RATIO * side
+
+    t0 = time.perf_counter()
+    full = reconstruct_grid(g, d, dt, c, method="ner", n_z=n_z)
+    t_full = time.perf_counter() - t0
+    ref = mip(full.p0, "xy")
+    axes = (x, x)
+    eval_d = EVAL_DIAMETER_RATIO * side
+    disc_d = DISC_RATIO * side
+    diameters = np.linspace(0.05, 1.0, n_diameters) * side * np.sqrt(2)
+    disc = disc_mask(axes, disc_d)
+    disc_roi = roi_mask(ref, axes=axes, diameter=disc_d, threshold=0.04)
+    n_disc = int(disc.sum())
+    counts = np.unique(np.geomspace(10, n_disc, 40).astype(int))
+
+    arrangements = []
+    lattice = Lattice(n, n, d)
+    es = equisteradian_mask(lattice, poi_depth, int(round(fraction * n * n)))
+    idx = np.asarray(es.indices)
+    arrangements.append(("equi-steradian", np.nan, idx[:, 0], idx[:, 1], np.asarray(es.positions, float),
+                         np.asarray(es.weights, float)))
+    for s in intervals:
+        sub = subgrid_mask(lattice, int(s), n_side)
+        idx = np.asarray(sub.indices)
+        arrangements.append(("equispaced", int(s), idx[:, 0], idx[:, 1], np.asarray(sub.positions, float),
+                             np.asarray(sub.weights, float)))
+
+    rows, mips_, curves = [], {"full": ref}, {"diameter_m": diameters, "pixels": counts}
+    rows.append({"arrangement": "full", "interval": 1, "n_points": n * n, "fraction": 1.0,
+                 "cc_eval_diameter": 1.0, "cc_disc": 1.0,
+                 "sharpness_eval_diameter": float(sharpness_vs_diameter(ref / ref.max(), ref, [eval_d], axes=axes)[0]),
+                 "time_s": t_full})
+    masks = {}
+    for name, s, ix, iy, pos, w in arrangements:
+        t0 = time.perf_counter()
+        img = reconstruct_points(g[:, iy, ix].T, pos, dt, c, weights=w, grid=(x, x), n_z=n_z).p0
+        elapsed = time.perf_counter() - t0
+        m = mip(img, "xy")
+        m = m / m.max()
+        key = name if name != "equispaced" else f"interval {s}"
+        mips_[key] = m
+        masks[key] = pos
+        curves[f"cc_vs_pixels[{key}]"] = cc_vs_pixels(m, ref, counts, region=disc)
+        curves[f"cc_vs_diameter[{key}]"] = cc_vs_diameter(m, ref, diameters, axes=axes, threshold=0.04)
+        curves[f"sharpness_vs_diameter[{key}]"] = sharpness_vs_diameter(m, ref, diameters, axes=axes, threshold=0.04)
+        rows.append({
+            "arrangement": name, "interval": s, "n_points": int(len(ix)), "fraction": len(ix) / (n * n),
+            "cc_eval_diameter": float(cc_vs_diameter(m, ref, [eval_d], axes=axes, threshold=0.04)[0]),
+            "cc_disc": correlation_coefficient(m, ref, disc_roi),
+            "sharpness_eval_diameter": float(sharpness_vs_diameter(m, ref, [eval_d], axes=axes, threshold=0.04)[0]),
+            "time_s": elapsed,
+        })
+    es_row = rows[1]
+    band = (diameters >= 2 / 13.56 * side) & (diameters <= 8 / 13.56 * side)
+    summary = {"cc_equisteradian": es_row["cc_eval_diameter"], "eval_diameter_m": eval_d,
+               "weight_ratio_equisteradian": float(arrangements[0][5].max() / arrangements[0][5].min()),
+               "paper": PAPER}
+    for r in rows[2:]:
+        key = f"interval {r['interval']}"
+        summary[f"cc_{key.replace(' ', '_')}"] = r["cc_eval_diameter"]
+        summary[f"closer_to_1_pct_vs_{key.replace(' ', '_')}"] = 100 * (1 - (1 - es_row["cc_eval_diameter"]) / (1 - r["cc_eval_diameter"]))
+        a = 1 - np.asarray(curves["cc_vs_diameter[equi-steradian]"])[band]
+        b = 1 - np.asarray(curves[f"cc_vs_diameter[{key}]"])[band]
+        ok = np.isfinite(a) & np.isfinite(b) & (b > 0)
+        summary[f"mean_closer_to_1_pct_2_to_8mm_scaled_vs_{key.replace(' ', '_')}"] = (
+            float(100 * np.mean(1 - a[ok] / b[ok])) if ok.any() else np.nan)
+    params = {"source": data.source, "n_lattice": n, "pitch_m": d, "n_t": n_t, "dt_s": dt, "c_m_per_s": c,
+              "n_z": n_z, "poi_depth_m": poi_depth, "fraction_requested": fraction, "n_side": n_side,
+              "intervals": list(intervals), "threshold": 0.04, "disc_diameter_m": disc_d,
+              "eval_diameter_m": eval_d, "small": small, "reference": "xy-MIP of NER from every lattice point"}
+    return ExperimentResult(NAME, params, rows, summary, curves=curves,
+                            images={"mips": mips_, "masks": masks, "x": x, "disc_d": disc_d, "eval_d": eval_d})
+
+
+def plot(result: ExperimentResult, out_dir) -> list[Path]:
+    """``sparse-masks-3d_curves.png`` (CC vs pixels, CC vs diameter, sharpness vs
+    diameter) and ``sparse-masks-3d_mips.png`` (masks and xy-MIPs)."""
+    plt = setup_matplotlib()
+    out = Path(out_dir)
+    cur = result.curves
+    keys = [k for k in result.images["mips"] if k != "full"]
+    side = result.params["n_lattice"] * result.params["pitch_m"]
+    fig, ax = plt.subplots(1, 3, figsize=(15, 4))
+    dmm = np.asarray(cur["diameter_m"]) * 1e3
+    for k in keys:
+        ls = "-" if k == "equi-steradian" else "--"
+        lw = 2 if k == "equi-steradian" else 1
+        ax[0].semilogx(cur["pixels"], cur[f"cc_vs_pixels[{k}]"], ls, lw=lw, label=k)
+        ax[1].plot(dmm, cur[f"cc_vs_diameter[{k}]"], ls, lw=lw, label=k)
+        ax[2].plot(dmm, cur[f"sharpness_vs_diameter[{k}]"], ls, lw=lw, label=k)
+    ax[1].axvline(result.params["eval_diameter_m"] * 1e3, color="k", lw=0.7, ls=":")
+    ax[0].set(xlabel="pixels of interest (brightest first)", ylabel="CC of xy-MIP",
+              title=f"CC vs pixels (disc {result.params['disc_diameter_m'] * 1e3:.1f} mm)")
+    ax[1].set(xlabel="ROI diameter (mm)", ylabel="CC of xy-MIP", title="CC vs ROI diameter (4 % threshold)")
+    ax[2].set(xlabel="ROI diameter (mm)", ylabel="Tenenbaum sharpness (MIP / max)", title="sharpness vs ROI diameter")
+    for a in ax:
+        a.grid(alpha=0.3)
+        a.legend(fontsize=8)
+    ax[1].set_ylim(max(0.0, np.nanmin([np.nanmin(cur[f'cc_vs_diameter[{k}]']) for k in keys]) - 0.02), 1.0)
+    fig.tight_layout()
+    p1 = out / f"{NAME}_curves.png"
+    fig.savefig(p1, dpi=110)
+    plt.close(fig)
+
+    x = result.images["x"] * 1e3
+    ext = [x[0], x[-1], x[-1], x[0]]
+    show = ["full"] + keys
+    fig, axs = plt.subplots(2, len(show), figsize=(3 * len(show), 6), squeeze=False)
+    ref = result.images["mips"]["full"]
+    for j, k in enumerate(show):
+        im = result.images["mips"][k]
+        axs[1, j].imshow(im, extent=ext, cmap="gray", vmin=0, vmax=np.percentile(im, 99.9))
+        axs[1, j].add_patch(plt.Circle((0, 0), result.images["eval_d"] / 2 * 1e3, fill=False, color="r", ls=":"))
+        axs[1, j].set_title(f"xy-MIP: {k}", fontsize=9)
+        if k in result.images["masks"]:
+            pos = result.images["masks"][k] * 1e3
+            axs[0, j].plot(pos[:, 0], pos[:, 1], ".", ms=1.5)
+            axs[0, j].set_title(f"{k}: {len(pos)} points", fontsize=9)
+        else:
+            axs[0, j].imshow(ref > 0.04 * ref.max(), extent=ext, cmap="gray")
+            axs[0, j].set_title("pixels >= 4 % of max", fontsize=9)
+        axs[0, j].set_xlim(x[0], x[-1])
+        axs[0, j].set_ylim(x[-1], x[0])
+        axs[0, j].set_aspect("equal")
+    fig.suptitle(f"lattice {result.params['n_lattice']}² at {result.params['pitch_m'] * 1e6:.0f} µm "
+                 f"({side * 1e3:.2f} mm); red: {result.params['eval_diameter_m'] * 1e3:.2f} mm ROI", fontsize=10)
+    fig.tight_layout()
+    p2 = out / f"{NAME}_mips.png"
+    fig.savefig(p2, dpi=100)
+    plt.close(fig)
+    return [p1, p2]
