@@ -144,8 +144,9 @@ def import_dataset(src: Path, dest_dir: Path, fmt: str, *, dt, dx, dy, c, key) -
             pts = load_scan_points(target)
         except (KeyError, OSError, TypeError, IndexError):
             raise ValueError("file is not a readable fpscan scan file") from None
+        n_y, n_x = pts["lattice_shape"]
         return {"layout": "scan", "shape": [int(pts["alines"].shape[0]), int(pts["alines"].shape[1])],
-                "dt": pts["dt"], "path": "scan.h5"}
+                "dt": pts["dt"], "path": "scan.h5", "n_x": n_x, "n_y": n_y}
     if fmt == "ipasc":
         from service.ipasc import read_ipasc
 

@@ -41,8 +41,9 @@ def _input_for(c: Context, body: ReconRequest) -> tuple[dict, dict, str]:
         lat, acq = plan["lattice"], plan["acquisition"]
         shape = {"n_t": acq["n_t"], "n_x": lat["n_x"], "n_y": lat.get("n_y", 1),
                  "n_points": len(plan["points"]["indices"])}
-        if body.method != "nedner":
-            raise HTTPException(422, f"method {body.method!r} needs a full regular grid; scans use 'nedner'")
+        if body.method != "nedner" and len(plan["points"]["indices"]) != lat["n_x"] * lat.get("n_y", 1):
+            raise HTTPException(422, f"method {body.method!r} needs every lattice point; this scan's plan "
+                                     "is a sensor mask: use 'nedner'")
         return {"kind": "scan", "path": scan_path}, shape, f"scan:{body.scan_job_id}"
     meta = c.store.get_dataset(body.dataset_id)
     if meta is None:
@@ -54,7 +55,7 @@ def _input_for(c: Context, body: ReconRequest) -> tuple[dict, dict, str]:
         if body.method not in GRID_METHODS + ("nedner",):
             raise HTTPException(422, f"unknown method {body.method!r}")
         return {"kind": "dataset", "path": path}, shape, f"dataset:{body.dataset_id}"
-    if body.method != "nedner":
+    if body.method != "nedner" and meta["layout"] != "scan":
         raise HTTPException(422, f"method {body.method!r} needs a full regular grid; this dataset needs 'nedner'")
     n, n_t = meta["shape"]
     side = int(np.ceil(np.sqrt(n)))

@@ -43,33 +43,45 @@ def lattice_axes(lattice: dict) -> tuple[np.ndarray, np.ndarray]:
 
 def load_scan_points(path: str | os.PathLike) -> dict:
     """Completed A-lines of a scan file as reconstruction input: ``alines`` ``(n, n_t)``
-    (DC-normalised pressure), ``positions`` ``(n, 2)`` m, ``weights`` ``(n,)``, ``dt`` s,
-    ``c`` m/s, ``grid`` (lattice vectors), ``n_points`` of the plan, ``indices``."""
+    (DC-normalised pressure), ``positions`` ``(n, d)`` m, ``weights`` ``(n,)``, ``dt`` s,
+    ``c`` m/s, ``grid`` (lattice vectors), ``lattice`` indices ``(n, 2)``, ``lattice_shape``
+    ``(n_y, n_x)``, ``n_points`` of the plan."""
     from driver.scanfile import read_scan
 
     scan = read_scan(path)
     done = np.asarray(scan.completed, dtype=bool)
-    plan = scan.plan if isinstance(scan.plan, dict) else json.loads(scan.plan)
-    acq = plan.get("acquisition", {})
-    acq_file = getattr(scan, "acquisition", None) or {}
-    dt = float(acq_file.get("dt", acq.get("dt")))
-    c = float(acq_file.get("sound_speed", acq.get("sound_speed", 1500.0)))
-    x, y = lattice_axes(plan["lattice"])
+    plan = scan.plan
+    lat = plan["lattice"]
+    x, y = lattice_axes(lat)
     positions = np.asarray(scan.positions, dtype=np.float64)
-    weights = None if getattr(scan, "weights", None) is None else np.asarray(scan.weights, dtype=np.float64)
-    pressure = np.asarray(scan.pressure)
-    if positions.shape[0] != done.shape[0]:
-        raise ValueError("scan file positions and completion record disagree")
-    grid = (x,) if int(plan["lattice"].get("n_y", 1)) == 1 or positions.shape[1] == 1 else (x, y)
-    if len(grid) == 1:
+    two_d = int(lat.get("n_y", 1)) == 1 or positions.shape[1] == 1
+    grid = (x,) if two_d else (x, y)
+    if two_d:
         positions = positions[:, :1]
     return {
-        "alines": pressure[done],
+        "alines": np.asarray(scan.pressure[done]),
         "positions": positions[done],
-        "weights": None if weights is None else weights[done],
-        "dt": dt, "c": c, "grid": grid, "n_points": int(done.shape[0]),
-        "indices": np.flatnonzero(done),
+        "weights": np.asarray(scan.weights, dtype=np.float64)[done],
+        "dt": float(scan.dt), "c": float(scan.sound_speed), "grid": grid, "n_points": int(scan.n_points),
+        "lattice": np.asarray(scan.indices)[done], "lattice_shape": (int(lat.get("n_y", 1)), int(lat["n_x"])),
+        "pitch": float(lat["pitch"]),
     }
+
+
+def points_to_grid(inp: dict) -> np.ndarray:
+    """A-lines at every lattice point → grid data ``(n_t, n_y, n_x)`` (``(n_t, n_x)`` in
+    2-D); raises ``ValueError`` if any lattice point is missing."""
+    n_y, n_x = inp["lattice_shape"]
+    idx = np.asarray(inp["lattice"], dtype=np.int64)
+    filled = np.zeros((n_y, n_x), dtype=bool)
+    filled[idx[:, 1], idx[:, 0]] = True
+    if not filled.all():
+        raise ValueError(f"a grid method needs every lattice point; {int((~filled).sum())} of {n_x * n_y} "
+                         "are missing (use 'nedner')")
+    n_t = inp["alines"].shape[1]
+    data = np.empty((n_t, n_y, n_x), dtype=inp["alines"].dtype)
+    data[:, idx[:, 1], idx[:, 0]] = inp["alines"].T
+    return data[:, 0, :] if n_y == 1 else data
 
 
 def _recon_options(params: dict) -> dict:
@@ -109,6 +121,8 @@ def reconstruct_input(inp: dict, params: dict):
         return recon.reconstruct_grid(inp["data"], dx, inp["dt"], c, method=method, **opts)
     # points layout
     c = float(params.get("c") or inp["c"])
+    if method not in POINT_METHODS and "lattice" in inp:
+        return recon.reconstruct_grid(points_to_grid(inp), inp["pitch"], inp["dt"], c, method=method, **opts)
     if method not in POINT_METHODS:
         raise ValueError(f"method {method!r} needs a full regular grid; use 'nedner' for a sensor mask")
     if inp["alines"].shape[0] == 0:
