@@ -245,6 +245,11 @@ const MASKS = {
     ],
   },
   full: { label: "Full lattice", help: "Every lattice point.", params: [] },
+  points: {
+    label: "User point list (lattice indices)",
+    help: "One point per line as i_x, i_y (0-based lattice indices); weights are clipped Voronoi areas.",
+    params: [{ name: "points", label: "Points (i_x, i_y per line)", list: true, value: "0, 0\n4, 4\n8, 2" }],
+  },
   subgrid: {
     label: "Equispaced sub-grid",
     help: "Every s-th lattice point, n per side, centred.",
@@ -298,9 +303,8 @@ function renderMaskParams() {
   for (const p of m.params) {
     const label = document.createElement("label");
     label.textContent = p.label + " ";
-    const input = document.createElement("input");
-    input.type = "number";
-    input.step = p.int ? "1" : "any";
+    const input = document.createElement(p.list ? "textarea" : "input");
+    if (p.list) { input.rows = 6; input.cols = 24; } else { input.type = "number"; input.step = p.int ? "1" : "any"; }
     input.id = "mask-" + p.name.replace(/_/g, "-");
     input.name = p.name;
     if (p.value !== undefined) input.value = p.value;
@@ -329,6 +333,9 @@ function numberField(id, what, { int = false, scale = 1, optional = false } = {}
 function planBody() {
   const kind = $("mask-kind").value;
   const params = {};
+  if (kind === "points") {
+    return Object.assign(planBodyCommon(), { kind, points: parsePointList($("mask-points").value) });
+  }
   for (const p of MASKS[kind].params) {
     const v = numberField("mask-" + p.name.replace(/_/g, "-"), p.label, p);
     if (v !== undefined) params[p.name] = v;
@@ -340,19 +347,37 @@ function planBody() {
   }
   delete params.poi_x;
   delete params.poi_y;
+  return Object.assign(planBodyCommon(), { kind, params });
+}
+
+/** Lattice indices from text: one "i_x, i_y" (or "i_x i_y") pair per line. */
+function parsePointList(textValue) {
+  const pts = [];
+  textValue.split(/\n/).forEach((line, i) => {
+    line = line.trim();
+    if (!line || line.startsWith("#")) return;
+    const parts = line.split(/[\s,;]+/).filter(Boolean);
+    if (parts.length !== 2 || !parts.every((p) => /^\d+$/.test(p))) {
+      throw new Error(`Points, line ${i + 1}: "${line}" is not two whole numbers i_x, i_y`);
+    }
+    pts.push(parts.map(Number));
+  });
+  if (!pts.length) throw new Error("Points: give at least one i_x, i_y pair");
+  return pts;
+}
+
+function planBodyCommon() {
   const wl = $("acq-wl").value.split(",").map((s) => s.trim()).filter(Boolean).map((s) => {
     const v = Number(s);
     if (!isFinite(v)) throw new Error(`Excitation wavelength: "${s}" is not a number`);
     return v * 1e-9;
   });
   return {
-    kind,
     lattice: {
       n_x: numberField("lat-nx", "n_x", { int: true }),
       n_y: numberField("lat-ny", "n_y", { int: true }),
       pitch: numberField("lat-pitch", "Pitch", { scale: 1e-6 }),
     },
-    params,
     acquisition: {
       n_t: numberField("acq-nt", "n_t", { int: true }),
       dt: numberField("acq-dt", "dt", { scale: 1e-9 }),
@@ -432,7 +457,7 @@ async function savePlan(ev) {
     const plan = await apiJson("/api/plans", { method: "POST", json: body });
     clearError();
     showPlanStats(plan);
-    $("plan-saved").textContent = `Saved plan ${shortId(plan.id)}.`;
+    $("plan-saved").textContent = `Saved plan ${shortId(plan.id)} (${plan.n_points} points); pick it in the Scan view.`;
     $("plan-saved").dataset.planId = plan.id;
     lastSavedPlan = plan.id;
   } catch (err) {
