@@ -1,0 +1,14 @@
+"""Photoacoustic physics shared by the simulator (`driver`) and the reconstruction
+(`service.recon`): pure numpy/scipy/finufft/numba functions, no I/O.
+
+- `balls`: exact pressure of uniform spheres ("balls") at point sensors: the N-shaped
+  wave p = p0 (r - c t) / (2 r), averaged over each sample interval.
+- `forward`: the exact planar forward model p0 on a regular grid -> data on the sensor
+  plane (on the sensor grid or at arbitrary sensor positions).
+- `nufft`: the 1-D temporal non-uniform FFT (exponential-of-semicircle kernel) used by
+  the forward model (spreading) and by the NER reconstruction (interpolation).
+"""
+from driver.physics.balls import Ball, ball_alines, ball_p0
+from driver.physics.forward import forward_grid, forward_points
+
+__all__ = ["Ball", "ball_alines", "ball_p0", "forward_grid", "forward_points"]

@@ -1,0 +1,305 @@
+"""The temporal step of planar PAT: even-extended time series <-> non-uniform frequencies.
+
+For every lateral wavenumber column (one lateral k per column, ``|k_lat|^2`` given) the
+reconstruction needs, at the non-equispaced temporal frequencies
+``omega_l = c * sqrt(|k_lat|^2 + kz_l^2)``, the transform of the data extended evenly in
+time (DESIGN §3.1)::
+
+    E(omega) = sum_n a_n * 2 cos(omega * t_n),   t_n = t0 + n dt
+             = exp(-i omega t0) S(theta) + exp(+i omega t0) S(-theta),
+    S(theta) = sum_{n=0}^{N-1} a_n exp(-i n theta),   theta = omega * dt
+
+(with a_0 halved when t0 = 0, so the t = 0 sample is counted once). The forward model
+needs the adjoint: g_n = sum_l b_l cos(omega_l t_n).
+
+Two ways to evaluate S(theta) are offered (``kind``):
+
+- ``"nufft"`` (NER-NUFFT, paper §3.1, Fourmont 2003; kernel and parameters of FINUFFT,
+  Barnett et al. 2019): S is a 1-D type-2 NUFFT. The centred coefficients are divided by
+  the kernel's Fourier transform, zero-padded to an oversampled grid of L >= 2 M points,
+  FFT'd, and interpolated at theta with the w-tap "exponential of semicircle" kernel
+  phi(u) = exp(beta (sqrt(1 - (2u/w)^2) - 1)), w = ceil(-log10(eps/10)), beta = 2.30 w.
+  Relative error ~ eps.
+- ``"linear"``, ``"nearest"`` (k-Wave style, FFT on the regular frequency grid): S on
+  the DFT grid of the mirrored series (L = 2N - 1, what kspaceLineRecon's mirroring gives)
+  and interpolated linearly / by the nearest node (ties to the upper node).
+
+The interpolation runs in one compiled loop (numba) over groups of columns that share
+``|k_lat|^2`` (the taps depend on nothing else), so kernel values are computed once per
+group.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+import scipy.fft
+
+KINDS = ("nufft", "linear", "nearest")
+_KIND_CODE = {"nufft": 0, "linear": 1, "nearest": 2}
+
+
+@dataclass(frozen=True)
+class TemporalGrid:
+    """Geometry of the oversampled temporal grid for one transform.
+
+    n_t: samples per series; kind: see module doc; L: fine-grid length; shift: the
+    centring offset M/2 (nufft) or 0; w, beta: kernel width and shape; phihat: (n_t,)
+    kernel Fourier weights used to pre-/post-correct the coefficients (nufft) or ones.
+    """
+
+    n_t: int
+    kind: str
+    L: int
+    shift: int
+    w: int
+    beta: float
+    phihat: np.ndarray
+
+
+def kernel_params(eps: float) -> tuple[int, float]:
+    """Width w (taps) and shape beta of the ES kernel for tolerance ``eps`` at
+    oversampling 2 (FINUFFT's rule, Barnett, Magland & af Klinteberg 2019, §4)."""
+    if not (1e-14 <= eps <= 1e-1):
+        raise ValueError(f"eps must be in [1e-14, 1e-1], got {eps}")
+    w = int(math.ceil(-math.log10(eps / 10.0)))
+    w = max(2, min(w, 16))
+    beta_over_w = {2: 2.20, 3: 2.26, 4: 2.38}.get(w, 2.30)
+    return w, beta_over_w * w
+
+
+def _kernel_fourier(w: int, beta: float, k: np.ndarray) -> np.ndarray:
+    """phi_hat(k) = int_{-w/2}^{w/2} phi(u) cos(k u) du by Gauss-Legendre quadrature."""
+    nodes, weights = np.polynomial.legendre.leggauss(4 * w + 40)
+    u = nodes * (w / 2.0)
+    phi = np.exp(beta * (np.sqrt(1.0 - (2.0 * u / w) ** 2) - 1.0))
+    return (np.cos(np.outer(k, u)) @ (phi * weights)) * (w / 2.0)
+
+
+def make_grid(n_t: int, kind: str = "nufft", eps: float = 1e-6) -> TemporalGrid:
+    """Plan the temporal transform for series of ``n_t`` samples (see module doc)."""
+    if kind not in KINDS:
+        raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
+    n_t = int(n_t)
+    if n_t < 1:
+        raise ValueError("n_t must be >= 1")
+    if kind == "nufft":
+        w, beta = kernel_params(eps)
+        M = n_t + (n_t % 2)
+        L = scipy.fft.next_fast_len(max(2 * M, 2 * w + 2))
+        L += L % 2
+        h = 2.0 * np.pi / L
+        m = np.arange(n_t) - M // 2
+        phihat = _kernel_fourier(w, beta, m * h)
+        return TemporalGrid(n_t, kind, L, M // 2, w, beta, phihat)
+    L = 2 * n_t - 1 if n_t > 1 else 2
+    return TemporalGrid(n_t, kind, L, 0, 2 if kind == "linear" else 1, 0.0, np.ones(n_t))
+
+
+def to_fine_grid(a: np.ndarray, grid: TemporalGrid, t0_is_zero: bool) -> np.ndarray:
+    """(n_cols, n_t) coefficients -> (n_cols, L) values of S on the fine theta grid.
+
+    ``a`` is not modified. The t = 0 sample is halved when ``t0_is_zero``.
+    """
+    n_cols, n_t = a.shape
+    ctype = np.complex64 if a.dtype in (np.float32, np.complex64) else np.complex128
+    U = np.zeros((n_cols, grid.L), dtype=ctype)
+    scale = (1.0 / grid.phihat).astype(U.real.dtype)
+    if t0_is_zero:
+        scale = scale.copy()
+        scale[0] *= 0.5
+    if grid.kind == "nufft":
+        # centred mode m = n - shift sits at fine index m mod L
+        s = grid.shift
+        U[:, : n_t - s] = a[:, s:] * scale[s:]
+        U[:, grid.L - s :] = a[:, :s] * scale[:s]
+    else:
+        U[:, :n_t] = a * scale
+    scipy.fft.fft(U, axis=-1, overwrite_x=True, workers=-1)
+    return U
+
+
+def from_fine_grid(R: np.ndarray, grid: TemporalGrid, t0_is_zero: bool) -> np.ndarray:
+    """Adjoint of `to_fine_grid`: (n_cols, L) spread values -> (n_cols, n_t) series."""
+    n_t = grid.n_t
+    V = scipy.fft.ifft(R, axis=-1, workers=-1) * grid.L  # adjoint of the forward FFT
+    scale = (1.0 / grid.phihat).astype(V.real.dtype)
+    if t0_is_zero:
+        scale = scale.copy()
+        scale[0] *= 0.5
+    out = np.empty((R.shape[0], n_t), dtype=V.dtype)
+    if grid.kind == "nufft":
+        s = grid.shift
+        out[:, s:] = V[:, : n_t - s]
+        out[:, :s] = V[:, grid.L - s :]
+    else:
+        out[:] = V[:, :n_t]
+    out *= scale
+    return out
+
+
+def group_columns(klat2: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Group columns with equal |k_lat|^2 (to 1e-12 relative).
+
+    Returns (group_values (n_groups,), group_ptr (n_groups + 1,), order (n_cols,)):
+    the columns of group g are ``order[group_ptr[g]:group_ptr[g + 1]]``.
+    """
+    k = np.asarray(klat2, dtype=np.float64).ravel()
+    scale = max(float(k.max(initial=0.0)), 1e-300)
+    key = np.round(k / scale * 1e12)
+    uniq, first, inverse = np.unique(key, return_index=True, return_inverse=True)
+    order = np.argsort(inverse, kind="stable")
+    counts = np.bincount(inverse, minlength=len(uniq))
+    ptr = np.concatenate([[0], np.cumsum(counts)])
+    return k[first], ptr.astype(np.int64), order.astype(np.int64)
+
+
+@numba.njit(cache=True, inline="always")
+def _taps(theta, h, L, kind, w, beta, shift, ip, im, wts, j):
+    """Fill taps for +theta (indices ip) and -theta (indices im) in row j; return the
+    centring phase angle shift*theta."""
+    s = theta / h
+    if kind == 0:
+        base = int(math.ceil(s - 0.5 * w))
+        for k in range(w):
+            u = (base + k - s) * (2.0 / w)
+            val = 1.0 - u * u
+            wts[j, k] = math.exp(beta * (math.sqrt(val) - 1.0)) if val > 0.0 else 0.0
+    elif kind == 1:
+        base = int(math.floor(s))
+        frac = s - base
+        wts[j, 0] = 1.0 - frac
+        wts[j, 1] = frac
+    else:
+        base = int(math.floor(s + 0.5))
+        wts[j, 0] = 1.0
+    for k in range(w):
+        jj = (base + k) % L
+        ip[j, k] = jj
+        im[j, k] = (L - jj) % L
+    return shift * theta
+
+
+@numba.njit(parallel=True, cache=True)
+def _interp_kernel(U, gvals, gptr, order, kz, qw, c, dt, t0, h, L, kind, w, beta, shift,
+                   inversion, out):
+    n_groups = gvals.shape[0]
+    nkz = kz.shape[0]
+    pi_lim = math.pi * (1.0 + 1e-12)
+    for g in numba.prange(n_groups):
+        k2 = gvals[g]
+        ip = np.empty((nkz, w), np.int64)
+        im = np.empty((nkz, w), np.int64)
+        wts = np.zeros((nkz, w), np.float64)
+        pp = np.empty(nkz, np.complex128)
+        pm = np.empty(nkz, np.complex128)
+        sc = np.zeros(nkz, np.float64)
+        for j in range(nkz):
+            om = c * math.sqrt(k2 + kz[j] * kz[j])
+            th = om * dt
+            if inversion:
+                if th > pi_lim:
+                    continue
+                # k_z / omega, with the limit 1/c at omega = 0
+                sc[j] = qw[j] * (kz[j] / om if om > 0.0 else 1.0 / c)
+            else:
+                sc[j] = qw[j]
+            ph = _taps(th, h, L, kind, w, beta, shift, ip, im, wts, j) + om * t0
+            pp[j] = complex(math.cos(ph), -math.sin(ph))
+            pm[j] = complex(math.cos(ph), math.sin(ph))
+        for ci in range(gptr[g], gptr[g + 1]):
+            col = order[ci]
+            for j in range(nkz):
+                if sc[j] == 0.0:
+                    out[col, j] = 0.0
+                    continue
+                s1 = 0j
+                s2 = 0j
+                for k in range(w):
+                    wk = wts[j, k]
+                    s1 += wk * U[col, ip[j, k]]
+                    s2 += wk * U[col, im[j, k]]
+                out[col, j] = sc[j] * (pp[j] * s1 + pm[j] * s2)
+
+
+@numba.njit(parallel=True, cache=True)
+def _spread_kernel(B, gvals, gptr, order, kz, qw, c, dt, t0, h, L, kind, w, beta, shift, R):
+    n_groups = gvals.shape[0]
+    nkz = kz.shape[0]
+    for g in numba.prange(n_groups):
+        k2 = gvals[g]
+        ip = np.empty((nkz, w), np.int64)
+        im = np.empty((nkz, w), np.int64)
+        wts = np.zeros((nkz, w), np.float64)
+        pp = np.empty(nkz, np.complex128)
+        pm = np.empty(nkz, np.complex128)
+        for j in range(nkz):
+            om = c * math.sqrt(k2 + kz[j] * kz[j])
+            th = om * dt
+            ph = _taps(th, h, L, kind, w, beta, shift, ip, im, wts, j) + om * t0
+            # conjugates of the interpolation phases
+            pp[j] = complex(math.cos(ph), math.sin(ph)) * qw[j]
+            pm[j] = complex(math.cos(ph), -math.sin(ph)) * qw[j]
+        for ci in range(gptr[g], gptr[g + 1]):
+            col = order[ci]
+            for j in range(nkz):
+                v = B[col, j]
+                if v == 0:
+                    continue
+                vp = pp[j] * v
+                vm = pm[j] * v
+                for k in range(w):
+                    wk = wts[j, k]
+                    R[col, ip[j, k]] += wk * vp
+                    R[col, im[j, k]] += wk * vm
+
+
+def evaluate(
+    U: np.ndarray,
+    grid: TemporalGrid,
+    klat2: np.ndarray,
+    kz: np.ndarray,
+    qw: np.ndarray,
+    c: float,
+    dt: float,
+    t0: float,
+    inversion: bool,
+    out_dtype=None,
+) -> np.ndarray:
+    """Evaluate the even-extended transform of every column at omega = c |k|.
+
+    U : (n_cols, L) from `to_fine_grid`. klat2 : (n_cols,) |k_lat|^2 in rad^2/m^2.
+    kz : (n_kz,) depth wavenumbers in rad/m. qw : (n_kz,) weights per kz.
+    inversion=True multiplies by qw * kz/omega (1/c at omega = 0) and zeroes omega above
+    the temporal Nyquist pi/dt (DESIGN §3.1); False multiplies by qw only.
+    Returns (n_cols, n_kz) complex.
+    """
+    gvals, gptr, order = group_columns(klat2)
+    out = np.empty((U.shape[0], len(kz)), dtype=out_dtype or U.dtype)
+    _interp_kernel(U, gvals, gptr, order, np.asarray(kz, np.float64), np.asarray(qw, np.float64),
+                   float(c), float(dt), float(t0), 2.0 * np.pi / grid.L, grid.L,
+                   _KIND_CODE[grid.kind], grid.w, grid.beta, grid.shift, bool(inversion), out)
+    return out
+
+
+def spread(
+    B: np.ndarray,
+    grid: TemporalGrid,
+    klat2: np.ndarray,
+    kz: np.ndarray,
+    qw: np.ndarray,
+    c: float,
+    dt: float,
+    t0: float,
+) -> np.ndarray:
+    """Adjoint of `evaluate` with ``inversion=False``: (n_cols, n_kz) coefficients ->
+    (n_cols, L) spread fine-grid values (input of `from_fine_grid`)."""
+    gvals, gptr, order = group_columns(klat2)
+    ctype = np.complex64 if B.dtype == np.complex64 else np.complex128
+    R = np.zeros((B.shape[0], grid.L), dtype=ctype)
+    _spread_kernel(B, gvals, gptr, order, np.asarray(kz, np.float64), np.asarray(qw, np.float64),
+                   float(c), float(dt), float(t0), 2.0 * np.pi / grid.L, grid.L,
+                   _KIND_CODE[grid.kind], grid.w, grid.beta, grid.shift, R)
+    return R

@@ -1,0 +1,31 @@
+"""Planar photoacoustic reconstruction: pure functions on numpy arrays, no I/O.
+
+- `reconstruct_grid`: data on a regular sensor line/plane -> p0 (NER-NUFFT by default;
+  FFT + linear/nearest/cubic interpolation for comparison).
+- `reconstruct_points`: A-lines at arbitrary sensor positions -> p0 (NEDNER-NUFFT).
+- `kspace_line_recon`, `kspace_plane_recon`: drop-in equivalents of k-Wave's
+  kspaceLineRecon / kspacePlaneRecon.
+- `forward_grid`, `forward_points`: the exact planar forward model (from
+  `driver.physics`, the physics module the simulator shares).
+- `voronoi_weights`: default area weights for non-equispaced sensors.
+- `estimate_peak_memory`: bytes a reconstruction needs at its peak (admission control).
+"""
+from driver.physics.forward import forward_grid, forward_points
+from service.recon.checks import estimate_peak_memory
+from service.recon.image import Image
+from service.recon.kwave import kspace_line_recon, kspace_plane_recon
+from service.recon.planar import METHODS, reconstruct_grid, reconstruct_points
+from service.recon.weights import voronoi_weights
+
+__all__ = [
+    "Image",
+    "METHODS",
+    "reconstruct_grid",
+    "reconstruct_points",
+    "kspace_line_recon",
+    "kspace_plane_recon",
+    "forward_grid",
+    "forward_points",
+    "voronoi_weights",
+    "estimate_peak_memory",
+]

@@ -1,0 +1,108 @@
+"""Input validation and the peak-memory estimate shared by the reconstructions."""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+
+def positive(name: str, value) -> float:
+    """``value`` as float; ValueError unless finite and > 0."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number, got {value!r}") from None
+    if not np.isfinite(v) or v <= 0:
+        raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+    return v
+
+
+def finite_array(name: str, a, ndims: tuple[int, ...]) -> np.ndarray:
+    """``a`` as an ndarray with ndim in ``ndims``; ValueError on NaN/inf, wrong ndim,
+    empty or non-numeric input."""
+    arr = np.asarray(a)
+    if arr.dtype.kind not in "fiu":
+        raise ValueError(f"{name} must be a real numeric array, got dtype {arr.dtype}")
+    if arr.ndim not in ndims:
+        raise ValueError(f"{name} must have {' or '.join(map(str, ndims))} dimensions, got shape {arr.shape}")
+    if arr.size == 0 or 0 in arr.shape:
+        raise ValueError(f"{name} is empty (shape {arr.shape})")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} contains NaN or inf")
+    return arr
+
+
+def check_eps(eps) -> float:
+    """NUFFT tolerance in [1e-14, 1e-1] or ValueError."""
+    e = float(eps)
+    if not (1e-14 <= e <= 1e-1):
+        raise ValueError(f"eps must be in [1e-14, 1e-1], got {eps!r}")
+    return e
+
+
+def check_dtype(dtype) -> np.dtype:
+    """float32 or float64 or ValueError."""
+    dt = np.dtype(dtype)
+    if dt not in (np.dtype(np.float32), np.dtype(np.float64)):
+        raise ValueError(f"dtype must be float32 or float64, got {dt}")
+    return dt
+
+
+def available_memory() -> int:
+    """Bytes of memory available now (Linux MemAvailable; else physical pages free)."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+
+
+def estimate_peak_memory(
+    n_t: int,
+    n_x: int,
+    n_y: int = 1,
+    *,
+    n_z: int | None = None,
+    upsample: int = 1,
+    dtype=np.float64,
+    method: str = "ner",
+    n_points: int | None = None,
+) -> int:
+    """Estimated peak memory in bytes of a planar reconstruction.
+
+    Parameters: ``n_t`` samples; ``n_x``, ``n_y`` lateral grid (``n_y = 1`` in 2-D);
+    ``n_z`` output depth samples (default n_t); ``upsample`` lateral factor; ``dtype``
+    float32/float64; ``method`` "ner"/"linear"/"nearest"/"cubic"/"nedner"/"kwave";
+    ``n_points`` sensors for NEDNER (adds the type-1 NUFFT's full-plane spectrum).
+
+    The estimate adds the arrays alive at the worst moment of the pipeline: the lateral
+    spectrum (n_t x n_y x (n_x/2+1) complex), the oversampled temporal grid (about twice
+    that), the k-space image (n_z columns) and the output volume, plus 10 % slack.
+    """
+    b = np.dtype(dtype).itemsize
+    n_z = n_t if n_z is None else n_z
+    cols = n_y * (n_x // 2 + 1)
+    spectrum = n_t * cols * 2 * b
+    fine = 2 * (n_t + 1) * cols * 2 * b if method in ("ner", "nedner") else (2 * n_t) * cols * 2 * b
+    kimage = n_z * cols * 2 * b
+    out = n_z * n_y * n_x * upsample ** (2 if n_y > 1 else 1) * b
+    peak = max(spectrum + fine, fine + kimage, kimage * (1 + upsample**2) + out)
+    if method == "nedner":
+        peak = max(peak, 2 * n_t * n_y * n_x * 2 * b + (n_points or 0) * n_t * 3 * b)
+    if method == "kwave":
+        peak = 3 * (2 * n_t) * n_y * n_x * 16
+    peak += n_t * n_y * n_x * b  # the input
+    return int(peak * 1.1)
+
+
+def check_memory(needed: int, memory_limit) -> None:
+    """ValueError if ``needed`` bytes exceed ``memory_limit`` (default: available now)."""
+    limit = available_memory() if memory_limit is None else int(memory_limit)
+    if needed > limit:
+        raise ValueError(
+            f"reconstruction needs about {needed / 2**30:.2f} GiB at its peak, more than the "
+            f"limit of {limit / 2**30:.2f} GiB; reduce n_t, n_z, the grid or upsample, or use float32"
+        )

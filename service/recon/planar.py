@@ -1,0 +1,411 @@
+"""Exact planar Fourier inversion: NER-NUFFT, NEDNER-NUFFT and FFT + interpolation.
+
+Implements DESIGN §3.1 (paper eqs. (1)-(3); Xu, Feng & Wang 2002; Haltmeier, Scherzer &
+Zangerl 2009) in this discrete form, for data g on a lateral grid (or at sensors x_m with
+area weights h_m) and samples t_n = t0 + n dt, n = 0..N_t-1::
+
+    A(k_lat, n) = Σ_x g(x, t_n) e^{-i k_lat·x}          (grid: FFT)
+               = Σ_m (h_m / ΔA) g_m(t_n) e^{-i k_lat·x_m} (sensors: type-1 NUFFT, ΔA = dx dy)
+    E(k_lat, ω) = Σ_n A(k_lat, n) 2 cos(ω t_n)           (t_0 = 0 counted once)
+    F(k_lat, k_z,l) = (c² dt Δk / π) (k_z,l / ω) E(k_lat, ω),   ω = c sqrt(|k_lat|² + k_z,l²)
+                      (k_z/ω := 1/c at ω = 0; F := 0 where ω > π/dt)
+    p0(x, z_j) = IDFT_lat [ DCT-I_z F ](x, z_j)
+
+with k_z,l = l Δk, Δk = π / ((n_z - 1) dz), z_j = j dz, and DCT-I unnormalised
+(y_j = x_0 + (-1)^j x_last + 2 Σ_{l=1}^{n_z-2} x_l cos(π l j/(n_z - 1))). The lateral
+DFT/IDFT pair makes every dx, dy factor cancel; the constant makes a laterally uniform
+layer come back exactly (g = p0(c t)/2).
+
+Methods (the temporal step, `driver.physics.nufft`): ``ner`` evaluates E at the
+non-equispaced ω with a type-2 NUFFT (error ~ eps); ``linear``, ``nearest`` interpolate E
+from the regular DFT grid of the mirrored series (k-Wave style); ``cubic`` interpolates it
+with pchip (Octave's interp2 'cubic'). NEDNER (`reconstruct_points`) replaces the lateral
+FFT by a type-1 NUFFT (finufft) from the sensor positions, batched over time samples.
+"""
+from __future__ import annotations
+
+import finufft
+import numpy as np
+import scipy.fft
+import scipy.interpolate
+from scipy.spatial import cKDTree
+
+from driver.physics import nufft
+from service.recon import checks
+from service.recon.image import Image
+from service.recon.weights import infer_pitch, voronoi_weights
+
+METHODS = ("ner", "linear", "nearest", "cubic")
+_KIND = {"ner": "nufft", "linear": "linear", "nearest": "nearest"}
+
+
+def _depth_axis(n_t, dt, c, dz, n_z):
+    dz = c * dt if dz is None else checks.positive("dz", dz)
+    n_z = n_t if n_z is None else n_z
+    if int(n_z) != n_z or n_z < 2:
+        raise ValueError(f"n_z must be an integer >= 2, got {n_z!r}")
+    return dz, int(n_z)
+
+
+def _check_upsample(upsample) -> int:
+    if int(upsample) != upsample or upsample < 1 or upsample > 8:
+        raise ValueError(f"upsample must be an integer in 1..8, got {upsample!r}")
+    return int(upsample)
+
+
+def _pad_spectrum(K: np.ndarray, n_y: int, n_x: int, u: int, ups_y: bool) -> np.ndarray:
+    """Zero-pad an rfft2 spectrum (.., n_y, n_x//2+1) to (.., n_y*u, n_x*u//2+1),
+    splitting Nyquist bins so that the result is the trigonometric interpolant."""
+    ny2 = n_y * u if ups_y else n_y
+    nx2 = n_x * u
+    out = np.zeros(K.shape[:-2] + (ny2, nx2 // 2 + 1), dtype=K.dtype)
+    nxr = n_x // 2 + 1
+    if ups_y:
+        pos = (n_y + 1) // 2  # indices 0..pos-1 are k >= 0 (excluding Nyquist for even n_y)
+        neg = n_y // 2 - (1 if n_y % 2 == 0 else 0)
+        out[..., :pos, :nxr] = K[..., :pos, :]
+        if neg:
+            out[..., ny2 - neg :, :nxr] = K[..., n_y - neg :, :]
+        if n_y % 2 == 0:
+            half = 0.5 * K[..., n_y // 2, :]
+            out[..., n_y // 2, :nxr] = half
+            out[..., ny2 - n_y // 2, :nxr] = half
+    else:
+        out[..., :nxr] = K
+    if n_x % 2 == 0:
+        out[..., n_x // 2] *= 0.5
+    return out
+
+
+def _cubic_columns(A_cols, n_t, klat2, kz, qw, c, dt, t0):
+    """Octave 'cubic' (pchip along ω) evaluation of the inversion, column by column
+    group (columns sharing |k_lat|² share the query points)."""
+    L = 2 * n_t - 1
+    a = A_cols.astype(np.complex128)
+    if t0 == 0:
+        a = a.copy()
+        a[:, 0] *= 0.5
+    S = scipy.fft.fft(a, n=L, axis=-1, workers=-1)
+    # E on the mirrored DFT grid theta_j = 2 pi j / L, j = -(n_t-1)..(n_t-1)
+    j = np.arange(-(n_t - 1), n_t)
+    theta = 2 * np.pi * j / L
+    Ep = S[:, j % L]
+    Em = S[:, (-j) % L]
+    omega_grid = theta / dt
+    ph = np.exp(-1j * omega_grid * t0)
+    E = ph * Ep + np.conj(ph) * Em  # (n_cols, 2 n_t - 1)
+    gvals, gptr, order = nufft.group_columns(klat2)
+    out = np.zeros((a.shape[0], len(kz)), np.complex128)
+    for g, k2 in enumerate(gvals):
+        cols = order[gptr[g] : gptr[g + 1]]
+        om = c * np.sqrt(k2 + kz**2)
+        ok = om * dt <= np.pi * (1 + 1e-12)
+        q = np.minimum(om, omega_grid[-1])
+        Ec = E[cols].T
+        vals = (scipy.interpolate.PchipInterpolator(omega_grid, Ec.real, axis=0, extrapolate=False)(q)
+                + 1j * scipy.interpolate.PchipInterpolator(omega_grid, Ec.imag, axis=0, extrapolate=False)(q))
+        vals = np.nan_to_num(vals.real) + 1j * np.nan_to_num(vals.imag)
+        w = np.where(om > 0, kz / np.where(om > 0, om, 1.0), 1.0 / c) * qw * ok
+        out[cols] = (vals * w[:, None]).T
+    return out
+
+
+def _invert(A: np.ndarray, n_x: int, dx: float, dy: float, dt: float, c: float, n_z: int,
+            dz: float, t0: float, method: str, eps: float, rdtype: np.dtype, upsample: int,
+            adjoint: bool = False) -> np.ndarray:
+    """Lateral spectrum A (n_t, n_y, n_x//2+1) -> p0 (n_z, n_y*u, n_x*u) (see module doc).
+
+    ``adjoint=True`` swaps the inversion weight for the quadrature weight of the forward
+    model (dz Δk τ_l / 4π, no halving of the t = 0 sample, no Nyquist cut): the operator is
+    then the exact adjoint of `driver.physics.forward_grid(periodic=True)` (dot test)."""
+    n_t, n_y, n_xr = A.shape
+    kx = 2 * np.pi * scipy.fft.rfftfreq(n_x, dx)
+    ky = 2 * np.pi * scipy.fft.fftfreq(n_y, dy)
+    klat2 = (ky[:, None] ** 2 + kx[None, :] ** 2).ravel()
+    a = A.reshape(n_t, n_y * n_xr).T
+    dk = np.pi / ((n_z - 1) * dz)
+    kz = dk * np.arange(n_z)
+    if adjoint:
+        qw = np.full(n_z, dz * dk / (4 * np.pi))
+        qw[[0, -1]] *= 0.5
+    else:
+        qw = np.full(n_z, c * c * dt * dk / np.pi)
+    if method == "cubic":
+        F = _cubic_columns(a, n_t, klat2, kz, qw, c, dt, t0)
+    else:
+        grid = nufft.make_grid(n_t, _KIND[method], eps)
+        U = nufft.to_fine_grid(a, grid, t0_is_zero=(t0 == 0 and not adjoint))
+        del a
+        F = nufft.evaluate(U, grid, klat2, kz, qw, c, dt, t0, inversion=not adjoint)
+        del U
+    ctype = np.complex64 if rdtype == np.float32 else np.complex128
+    F = scipy.fft.dct(F.astype(ctype, copy=False), type=1, axis=-1, overwrite_x=True, workers=-1)
+    K = np.ascontiguousarray(F.T).reshape(n_z, n_y, n_xr)
+    del F
+    ups_y = n_y > 1
+    if upsample > 1:
+        K = _pad_spectrum(K, n_y, n_x, upsample, ups_y)
+    shape = ((n_y * upsample) if ups_y else n_y, n_x * upsample)
+    p0 = scipy.fft.irfft2(K, s=shape, axes=(1, 2), workers=-1, overwrite_x=True)
+    if upsample > 1:
+        p0 *= upsample ** (2 if ups_y else 1)
+    return p0.astype(rdtype, copy=False)
+
+
+def _centred(n: int, d: float) -> np.ndarray:
+    return (np.arange(n) - (n - 1) / 2) * d
+
+
+def reconstruct_grid(
+    data: np.ndarray,
+    dx: float,
+    dt: float,
+    c: float = 1500.0,
+    *,
+    method: str = "ner",
+    eps: float = 1e-6,
+    dtype=np.float64,
+    dz: float | None = None,
+    n_z: int | None = None,
+    upsample: int = 1,
+    positivity: bool = False,
+    t0: float = 0.0,
+    dy: float | None = None,
+    memory_limit: int | None = None,
+) -> Image:
+    """Reconstruct p0 from data on a regular sensor line or plane (NER-NUFFT by default).
+
+    Parameters
+    ----------
+    data : (n_t, n_x) line data or (n_t, n_y, n_x) plane data in Pa, time first
+        (k-Wave's 'ty' / 'tyz' order), samples at t_n = t0 + n dt.
+    dx : lateral sensor spacing in m (also y unless ``dy`` is given).
+    dt : sample interval in s.  c : sound speed in m/s.
+    method : "ner" (NUFFT evaluation of the temporal transform at the non-equispaced
+        frequencies, paper §3.1), "linear", "nearest" or "cubic" (FFT on the regular
+        frequency grid of the mirrored data + interpolation, as k-Wave).
+    eps : NUFFT tolerance in [1e-14, 1e-1] (ner).  dtype : float32 or float64 output
+        (and working precision of the FFTs).
+    dz, n_z : output depth spacing in m and count (default c dt and n_t; n_z >= 2).
+    upsample : lateral upsampling factor 1..8 of the output grid (trigonometric
+        interpolation; the paper uses 2).
+    positivity : clip negative values of p0 to 0.
+    t0 : time of sample 0 in s (>= 0).
+    memory_limit : bytes; default the memory available now.
+
+    Returns
+    -------
+    `Image` with p0 (n_z, n_x*u) or (n_z, n_y*u, n_x*u), row 0 at z = 0, lateral
+    coordinates centred on the optical axis.
+
+    Raises
+    ------
+    ValueError naming the problem: NaN/inf, wrong ndim/shape, non-positive dx/dt/c/dz,
+    unknown method, eps outside [1e-14, 1e-1], bad dtype/upsample/n_z, t0 < 0, or an
+    estimated peak memory above the limit.
+    """
+    data = checks.finite_array("data", data, (2, 3))
+    dx = checks.positive("dx", dx)
+    dy = dx if dy is None else checks.positive("dy", dy)
+    dt = checks.positive("dt", dt)
+    c = checks.positive("c", c)
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    eps = checks.check_eps(eps)
+    rdtype = checks.check_dtype(dtype)
+    upsample = _check_upsample(upsample)
+    if not np.isfinite(t0) or t0 < 0:
+        raise ValueError(f"t0 must be finite and >= 0 s, got {t0!r}")
+    n_t = data.shape[0]
+    if n_t < 2:
+        raise ValueError(f"data needs at least 2 time samples, got {n_t}")
+    dz, n_z = _depth_axis(n_t, dt, c, dz, n_z)
+    is2d = data.ndim == 2
+    n_y, n_x = (1, data.shape[1]) if is2d else data.shape[1:]
+    checks.check_memory(
+        checks.estimate_peak_memory(n_t, n_x, n_y, n_z=n_z, upsample=upsample, dtype=rdtype, method=method),
+        memory_limit,
+    )
+    vol = data.astype(rdtype, copy=False).reshape(n_t, n_y, n_x)
+    A = scipy.fft.rfft2(vol, axes=(1, 2), workers=-1)
+    p0 = _invert(A, n_x, dx, dy, dt, c, n_z, dz, float(t0), method, eps, rdtype, upsample)
+    if positivity:
+        np.maximum(p0, 0, out=p0)
+    x = _centred(n_x, dx)[0] + np.arange(n_x * upsample) * (dx / upsample)
+    y = None if is2d else _centred(n_y, dy)[0] + np.arange(n_y * upsample) * (dy / upsample)
+    params = dict(method=method, dx=dx, dy=None if is2d else dy, dt=dt, c=c, eps=eps,
+                  dtype=rdtype.name, dz=dz, n_z=n_z, upsample=upsample, positivity=bool(positivity),
+                  t0=float(t0), n_t=n_t, data_shape=list(data.shape))
+    return Image(p0[:, 0, :] if is2d else p0, np.arange(n_z) * dz, x, y, params)
+
+
+def _check_positions(positions, n_points):
+    pos = checks.finite_array("positions", positions, (1, 2)).astype(np.float64)
+    if pos.ndim == 1:
+        pos = pos[:, None]
+    if pos.shape[1] not in (1, 2):
+        raise ValueError(f"positions must have shape (n_points, 1) or (n_points, 2), got {pos.shape}")
+    if pos.shape[0] != n_points:
+        raise ValueError(f"positions has {pos.shape[0]} rows but alines has {n_points} A-lines")
+    if n_points > 1:
+        dist, _ = cKDTree(pos).query(pos, k=2)
+        scale = max(float(np.abs(pos).max()), 1e-300)
+        dup = dist[:, 1] <= 1e-9 * scale
+        if np.any(dup):
+            i = int(np.flatnonzero(dup)[0])
+            raise ValueError(f"positions contain duplicates (e.g. point {i} at {pos[i].tolist()})")
+    return pos
+
+
+def _default_grid(pos: np.ndarray) -> tuple[np.ndarray, ...]:
+    pitch = infer_pitch(pos) if len(pos) > 1 else None
+    if pitch is None:
+        if len(pos) < 2:
+            raise ValueError("a single sensor position needs an explicit grid")
+        dist, _ = cKDTree(pos).query(pos, k=2)
+        pitch = float(dist[:, 1].min())
+    axes = []
+    for a in range(pos.shape[1]):
+        lo, hi = float(pos[:, a].min()), float(pos[:, a].max())
+        n = int(round((hi - lo) / pitch)) + 1
+        axes.append(lo + pitch * np.arange(n))
+    return tuple(axes)
+
+
+def _check_grid(grid, d: int) -> tuple[np.ndarray, ...]:
+    if isinstance(grid, np.ndarray) and grid.ndim == 1:
+        grid = (grid,)
+    grid = tuple(grid)
+    if len(grid) != d:
+        raise ValueError(f"grid must hold {d} coordinate vector(s) for positions with {d} column(s)")
+    out = []
+    for name, g in zip("xy", grid):
+        g = checks.finite_array(f"grid {name}", g, (1,)).astype(np.float64)
+        if len(g) < 2:
+            raise ValueError(f"grid {name} needs at least 2 points")
+        step = np.diff(g)
+        if step[0] <= 0 or np.max(np.abs(step - step[0])) > 1e-6 * step[0]:
+            raise ValueError(f"grid {name} must be regular and increasing")
+        out.append(g)
+    return tuple(out)
+
+
+def reconstruct_points(
+    alines: np.ndarray,
+    positions: np.ndarray,
+    dt: float,
+    c: float = 1500.0,
+    *,
+    weights: np.ndarray | None = None,
+    grid=None,
+    method: str = "ner",
+    eps: float = 1e-6,
+    dtype=np.float64,
+    dz: float | None = None,
+    n_z: int | None = None,
+    upsample: int = 1,
+    positivity: bool = False,
+    t0: float = 0.0,
+    memory_limit: int | None = None,
+) -> Image:
+    """NEDNER-NUFFT: reconstruct p0 from A-lines at arbitrary lateral positions.
+
+    Parameters
+    ----------
+    alines : (n_points, n_t) pressure in Pa, samples at t_n = t0 + n dt.
+    positions : (n_points, 1) x (line sensor, 2-D image) or (n_points, 2) (x, y) in m.
+    dt, c : sample interval in s, sound speed in m/s.
+    weights : (n_points,) area weights h_m (m in 2-D, m² in 3-D), >= 0; default the
+        clipped Voronoi areas (`voronoi_weights`, DESIGN §3.3). Paper eq. (3).
+    grid : output lateral grid, ``(x,)`` or ``(x, y)`` regular coordinate vectors in m;
+        default the smallest regular grid at the positions' lattice pitch covering them.
+        Positions must lie within the grid (half a pitch of slack).
+    method : temporal step, as `reconstruct_grid` ("ner" default = NEDNER-NUFFT).
+    Other options as `reconstruct_grid`.
+
+    The lateral step is a type-1 NUFFT (finufft) from the positions to the grid's
+    wavenumbers, batched over the time samples; the rest is the grid pipeline.
+
+    Returns
+    -------
+    `Image` with p0 (n_z, n_x*u) or (n_z, n_y*u, n_x*u) on the grid (upsampled by u).
+
+    Raises
+    ------
+    ValueError: NaN/inf, wrong shapes, duplicated positions, positions outside the grid,
+    negative or mis-sized weights, non-positive dt/c, bad eps/method/dtype, memory.
+    """
+    al = checks.finite_array("alines", alines, (2,))
+    n_points, n_t = al.shape
+    if n_t < 2:
+        raise ValueError(f"alines need at least 2 time samples, got {n_t}")
+    pos = _check_positions(positions, n_points)
+    d = pos.shape[1]
+    dt = checks.positive("dt", dt)
+    c = checks.positive("c", c)
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    eps = checks.check_eps(eps)
+    rdtype = checks.check_dtype(dtype)
+    upsample = _check_upsample(upsample)
+    if not np.isfinite(t0) or t0 < 0:
+        raise ValueError(f"t0 must be finite and >= 0 s, got {t0!r}")
+    dz, n_z = _depth_axis(n_t, dt, c, dz, n_z)
+    axes = _default_grid(pos) if grid is None else _check_grid(grid, d)
+    steps = [float(g[1] - g[0]) for g in axes]
+    for a, g in enumerate(axes):
+        lo, hi = g[0] - steps[a] / 2, g[-1] + steps[a] / 2
+        if np.any(pos[:, a] < lo - 1e-9 * abs(lo)) or np.any(pos[:, a] > hi + 1e-9 * abs(hi)):
+            raise ValueError(f"positions lie outside the output grid along {'xy'[a]}")
+    if weights is None:
+        h = voronoi_weights(pos)
+    else:
+        h = checks.finite_array("weights", weights, (1,)).astype(np.float64)
+        if h.shape != (n_points,):
+            raise ValueError(f"weights must have shape ({n_points},), got {h.shape}")
+        if np.any(h < 0):
+            raise ValueError("weights must be >= 0")
+    n_x = len(axes[0])
+    n_y = len(axes[1]) if d == 2 else 1
+    dx = steps[0]
+    dy = steps[1] if d == 2 else 1.0
+    checks.check_memory(
+        checks.estimate_peak_memory(n_t, n_x, n_y, n_z=n_z, upsample=upsample, dtype=rdtype,
+                                    method="nedner", n_points=n_points),
+        memory_limit,
+    )
+    cell = dx * (dy if d == 2 else 1.0)
+    ctype = np.complex64 if rdtype == np.float32 else np.complex128
+    strengths = np.ascontiguousarray((al * (h / cell)[:, None]).T).astype(ctype)  # (n_t, n_points)
+    tx = 2 * np.pi * (pos[:, 0] - axes[0][0]) / (n_x * dx)
+    ftype = np.float32 if rdtype == np.float32 else np.float64
+    opts = dict(eps=max(eps, 1e-7 if rdtype == np.float32 else eps), isign=-1, modeord=1)
+    if d == 1:
+        A = finufft.nufft1d1(tx.astype(ftype), strengths, n_x, **opts)[:, None, :]
+    else:
+        ty = 2 * np.pi * (pos[:, 1] - axes[1][0]) / (n_y * dy)
+        A = finufft.nufft2d1(ty.astype(ftype), tx.astype(ftype), strengths, (n_y, n_x), **opts)
+    if d == 2 and n_y % 2 == 0:
+        # The y-Nyquist row holds the aliased pair ±π/dy; off-grid sensors make the two
+        # differ, so take the band-limited (cosine) split: ½(A(-k_N, k_x) + A(+k_N, k_x)),
+        # with A(+k_N, k_x) = conj(A(-k_N, -k_x)) for real data.
+        r = n_y // 2
+        if n_x % 2 == 0:
+            # the corner also pairs with (-k_Ny, +k_Nx), which the FFT-ordered modes lack
+            ph = np.exp(-1j * np.pi * (-(pos[:, 1] - axes[1][0]) / dy + (pos[:, 0] - axes[0][0]) / dx))
+            corner = 0.5 * (A[:, r, n_x // 2] + strengths @ ph.astype(strengths.dtype))
+        A[:, r, :] = 0.5 * (A[:, r, :] + np.conj(A[:, r, (-np.arange(n_x)) % n_x]))
+        if n_x % 2 == 0:
+            A[:, r, n_x // 2] = corner
+    del strengths
+    A = A[:, :, : n_x // 2 + 1]
+    p0 = _invert(A, n_x, dx, dy, dt, c, n_z, dz, float(t0), method, eps, rdtype, upsample)
+    if positivity:
+        np.maximum(p0, 0, out=p0)
+    x = axes[0][0] + np.arange(n_x * upsample) * (dx / upsample)
+    y = None if d == 1 else axes[1][0] + np.arange(n_y * upsample) * (dy / upsample)
+    params = dict(method="nedner" if method == "ner" else method, temporal=method, dt=dt, c=c, eps=eps,
+                  dtype=rdtype.name, dz=dz, n_z=n_z, upsample=upsample, positivity=bool(positivity),
+                  t0=float(t0), n_t=n_t, n_points=n_points, dx=dx, dy=dy if d == 2 else None,
+                  weights="voronoi" if weights is None else "given")
+    return Image(p0[:, 0, :] if d == 1 else p0, np.arange(n_z) * dz, x, y, params)
