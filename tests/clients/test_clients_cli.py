@@ -1,0 +1,126 @@
+"""The `fpscan` command line driven as a user would: subprocesses, a real server, real
+files. Oracles: k-Wave's own p0 for the reconstruction (shared data), the local
+reconstruction for the remote one, the server's JSON for `jobs`."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from clients_servers import clean_env, fpscan_server, free_port, has_command
+
+TOKEN = "cli-test-token"
+
+
+def fpscan(*args, env=None, timeout=180, cwd=None):
+    return subprocess.run([sys.executable, "-m", "clients", *map(str, args)], capture_output=True, text=True,
+                          timeout=timeout, env=env or clean_env(), cwd=cwd)
+
+
+def _mine():
+    return ["jobs", "recon", "export", "demo"]
+
+
+@pytest.mark.parametrize("command", [None, *_mine()])
+def test_help_everywhere(command):
+    res = fpscan(*([command] if command else []), "--help")
+    assert res.returncode == 0, res.stderr
+    assert "usage: fpscan" in res.stdout
+
+
+@pytest.mark.parametrize("action", ["list", "get", "wait", "cancel"])
+def test_jobs_subcommand_help(action):
+    res = fpscan("jobs", action, "--help")
+    assert res.returncode == 0 and "--server" in res.stdout
+
+
+def _one_line_error(res, *needles):
+    assert res.returncode == 1, (res.returncode, res.stdout, res.stderr)
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1, res.stderr
+    for needle in needles:
+        assert needle in lines[0], lines[0]
+
+
+def test_server_down_is_one_line_exit_1():
+    url = f"http://127.0.0.1:{free_port()}"
+    _one_line_error(fpscan("jobs", "list", "--server", url), "cannot reach", url)
+
+
+def test_bad_local_inputs_are_one_line_errors(tmp_path):
+    _one_line_error(fpscan("recon", tmp_path / "missing.h5"), "no such file")
+    _one_line_error(fpscan("recon", "--scan-job", "x"), "--server")
+    (tmp_path / "junk.h5").write_bytes(b"not hdf5")
+    _one_line_error(fpscan("recon", tmp_path / "junk.h5"), "junk.h5")
+    _one_line_error(fpscan("export", tmp_path / "missing.h5"), "no such file")
+    _one_line_error(fpscan("export", "--job", "abc"), "--server")
+    _one_line_error(fpscan("demo", "--out", tmp_path / "d", "--lattice", "3"), "--lattice")
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory):
+    if not has_command("serve"):
+        pytest.skip("`fpscan serve` not available yet")
+    data = tmp_path_factory.mktemp("cli-srv") / "data"
+    data.mkdir()
+    with fpscan_server(data, token=TOKEN) as (url, _proc):
+        yield url
+
+
+def test_jobs_against_a_server(server):
+    env = clean_env(FPSCAN_SERVER=server, FPSCAN_TOKEN=TOKEN)
+    res = fpscan("jobs", "list", "--json", env=env)
+    assert res.returncode == 0, res.stderr
+    assert isinstance(json.loads(res.stdout), list)
+    _one_line_error(fpscan("jobs", "get", "no-such-job", env=env), "404", "no-such-job")
+    res = fpscan("jobs", "cancel", "no-such-job", "--token", "wrong", env=env)
+    assert res.returncode == 1 and ("401" in res.stderr or "403" in res.stderr)
+
+
+@pytest.fixture(scope="module")
+def kwave3d(shared_data):
+    return shared_data / "kwave3d_balls_yarn.h5"
+
+
+def _p0_and_volume(kwave_file, volume):
+    import h5py
+
+    with h5py.File(kwave_file, "r") as f:
+        truth = f["p0"][...].astype(np.float64)
+    with h5py.File(volume, "r") as f:
+        p0 = f["p0"][...].astype(np.float64)
+    return truth, p0
+
+
+def test_recon_locally_on_kwave_data_matches_kwave_phantom(kwave3d, tmp_path):
+    """`fpscan recon` (no server) of k-Wave's 3-D forward simulation: the NER image on
+    k-Wave's voxel grid correlates with k-Wave's own p0."""
+    from PIL import Image
+
+    out = tmp_path / "ner"
+    res = fpscan("recon", kwave3d, "--method", "ner", "--dz", "60e-6", "--n-z", "64", "--out", out, "--quiet")
+    assert res.returncode == 0, res.stderr
+    truth, p0 = _p0_and_volume(kwave3d, out / "volume.h5")
+    assert p0.shape == truth.shape
+    assert np.corrcoef(p0.ravel(), truth.ravel())[0, 1] > 0.6
+    assert np.corrcoef(p0.max(axis=0).ravel(), truth.max(axis=0).ravel())[0, 1] > 0.85
+    for plane in ("xy", "xz", "yz"):
+        with Image.open(out / f"mip_{plane}.png") as im:
+            assert im.format == "PNG"
+
+
+def test_recon_on_server_equals_local(kwave3d, server, tmp_path):
+    env = clean_env(FPSCAN_TOKEN=TOKEN)
+    common = ["--method", "ner", "--dz", "60e-6", "--n-z", "64", "--dtype", "float32", "--quiet"]
+    local = fpscan("recon", kwave3d, *common, "--out", tmp_path / "local", env=env)
+    assert local.returncode == 0, local.stderr
+    remote = fpscan("recon", kwave3d, *common, "--server", server, "--out", tmp_path / "remote", env=env)
+    assert remote.returncode == 0, remote.stderr
+    _, a = _p0_and_volume(kwave3d, tmp_path / "local" / "volume.h5")
+    _, b = _p0_and_volume(kwave3d, tmp_path / "remote" / "volume.h5")
+    np.testing.assert_allclose(b, a, rtol=0, atol=1e-5 * np.abs(a).max())
+    assert sorted(p.name for p in (tmp_path / "remote").iterdir()) == \
+        ["mip_xy.png", "mip_xz.png", "mip_yz.png", "volume.h5"]
