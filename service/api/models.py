@@ -12,7 +12,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 JobState = Literal["queued", "running", "paused", "succeeded", "failed", "cancelled"]
 JobKind = Literal["scan", "recon"]
-ReconMethod = Literal["ner", "nedner", "linear", "nearest", "cubic", "kwave"]
+ReconMethod = Literal["ner", "nedner", "linear", "nearest", "cubic"]
 Plane = Literal["xy", "xz", "yz"]
 DatasetFormat = Literal["fpscan", "ipasc", "kwave-hdf5", "npy"]
 

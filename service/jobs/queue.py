@@ -45,12 +45,11 @@ def estimate_memory(shape: dict, params: dict) -> int:
     try:
         from service.recon import estimate_peak_memory
 
-        dims = (n_t, n_y, n_x) if n_y > 1 else (n_t, n_x)
-        value = estimate_peak_memory(dims, method=params.get("method", "ner"),
-                                     dtype=params.get("dtype", "float32"), upsample=up,
+        value = estimate_peak_memory(n_t, n_x, n_y, n_z=params.get("n_z"), upsample=up,
+                                     dtype=params.get("dtype", "float32"), method=params.get("method", "ner"),
                                      n_points=shape.get("n_points"))
-        return int(value)
-    except Exception:  # recon not there or another signature: our own estimate
+        return int(value) + n_t * int(shape.get("n_points", n_x * n_y)) * 8  # + the input
+    except ImportError:  # recon not installed: our own estimate
         pass
     lateral = n_x * up * (n_y * up if n_y > 1 else 1)
     volume = 2 * n_t * lateral * item

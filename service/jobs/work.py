@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-GRID_METHODS = ("ner", "linear", "nearest", "cubic", "kwave")
+GRID_METHODS = ("ner", "linear", "nearest", "cubic")
 POINT_METHODS = ("nedner",)
 
 
@@ -116,9 +116,10 @@ def reconstruct_input(inp: dict, params: dict):
                 alines = data.reshape(data.shape[0], -1).T
                 positions = np.stack([xx.ravel(), yy.ravel()], axis=1)
                 grid = (x, y)
-            return recon.reconstruct_points(alines, positions, inp["dt"], c, grid=grid, method=method, **opts)
-        dx = inp["dx"] if inp["data"].ndim == 2 or inp.get("dy", inp["dx"]) == inp["dx"] else (inp["dy"], inp["dx"])
-        return recon.reconstruct_grid(inp["data"], dx, inp["dt"], c, method=method, **opts)
+            return recon.reconstruct_points(alines, positions, inp["dt"], c, grid=grid, method="ner", **opts)
+        if inp["data"].ndim == 3 and inp.get("dy") is not None:
+            opts["dy"] = inp["dy"]
+        return recon.reconstruct_grid(inp["data"], inp["dx"], inp["dt"], c, method=method, **opts)
     # points layout
     c = float(params.get("c") or inp["c"])
     if method not in POINT_METHODS and "lattice" in inp:
@@ -127,8 +128,9 @@ def reconstruct_input(inp: dict, params: dict):
         raise ValueError(f"method {method!r} needs a full regular grid; use 'nedner' for a sensor mask")
     if inp["alines"].shape[0] == 0:
         raise ValueError("no completed A-lines to reconstruct")
+    # NEDNER = NUFFT in time ("ner" temporal step) + type-1 NUFFT over the positions
     return recon.reconstruct_points(inp["alines"], inp["positions"], inp["dt"], c, weights=inp.get("weights"),
-                                    grid=inp["grid"], method=method, **opts)
+                                    grid=inp["grid"], method="ner", **opts)
 
 
 def load_input(spec_input: dict) -> dict:
