@@ -1,0 +1,55 @@
+"""Acquire a plan into a scan file: the one-call form of the host driver.
+
+:func:`acquire` opens the scanner, creates the scan file (or reopens it to resume an
+interrupted scan: only the points not yet complete are acquired) and runs
+:meth:`driver.host.Scanner.scan`. Used by ``fpscan scan`` and the service's scan jobs.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def software_version() -> str:
+    """fpscan's installed version (``0+unknown`` when not installed)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("fpscan")
+    except PackageNotFoundError:
+        return "0+unknown"
+
+
+def acquire(port: str, plan, out, *, progress=None, scanner=None, durable: str = "process",
+            **scanner_options):
+    """Scan ``plan`` (dict or plan JSON path) on ``port`` into the scan file ``out``.
+
+    If ``out`` exists it must be a scan file of the same plan; the scan resumes from its
+    record of completed points. ``scanner``: an already open :class:`~driver.host.Scanner`
+    (e.g. one whose ``pause``/``abort`` another thread holds); otherwise one is opened with
+    ``scanner_options`` and closed at the end. Returns :class:`~driver.host.ScanResult`.
+
+    Raises ``ValueError`` (bad plan, file of another plan), :class:`~driver.host.DriverError`
+    and its subclasses (link failures), ``OSError`` (file system).
+    """
+    from driver.host import Scanner
+    from driver.plan import load_plan
+    from driver.scanfile import ScanFile
+
+    plan = load_plan(plan)
+    out = Path(out)
+    own = scanner is None
+    sc = Scanner(port, **scanner_options) if own else scanner
+    try:
+        instrument = sc.identify()
+        if out.exists():
+            sink = ScanFile.open_append(out, plan, durable=durable)
+        else:
+            sink = ScanFile.create(out, plan, instrument=instrument,
+                                   software_version=software_version(), durable=durable)
+        try:
+            return sc.scan(plan, sink, progress=progress)
+        finally:
+            sink.close()
+    finally:
+        if own:
+            sc.close()

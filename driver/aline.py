@@ -1,0 +1,81 @@
+"""The A-line frame payload (docs/protocol.md §5): a fixed 72-byte header and int16 samples.
+
+Layout, little-endian, ``struct`` format ``<IIIIQdddddff``:
+
+=========  ====================  ====  ==============================================
+offset     field                 type  meaning
+=========  ====================  ====  ==============================================
+0          run_id                u32   run the A-line belongs to (SCAN:STAR reply)
+4          boot_id               u32   device boot id (changes on every reset)
+8          point_index           u32   k: the k-th point of the uploaded plan
+12         n_t                   u32   number of samples that follow
+16         pulse_number          u64   excitation pulses fired since boot (last one used)
+24         timestamp_s           f64   s since boot at the (last) excitation pulse
+32         bias_wavelength_m     f64   interrogation (bias) wavelength, m
+40         dt_s                  f64   sample interval, s
+48         scale                 f64   signal per count: value = sample·scale + offset
+56         offset                f64   signal offset (same unit as scale)
+64         dc_level              f32   photodiode DC level at the bias point, V
+68         pulse_energy_j        f32   excitation pulse energy, J
+72         samples               i16[n_t]
+=========  ====================  ====  ==============================================
+
+"signal" is the FP sensor's AC output, pressure × sensitivity × DC level in Pa·V; the
+DC-normalised pressure is ``(sample·scale + offset) / dc_level`` in Pa.
+"""
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+
+import numpy as np
+
+ALINE_HEADER = struct.Struct("<IIIIQdddddff")
+META_KEYS = ("run_id", "boot_id", "point_index", "pulse_number", "timestamp_s",
+             "bias_wavelength_m", "dc_level", "pulse_energy_j", "dt_s", "scale", "offset")
+
+
+@dataclass(slots=True)
+class ALine:
+    """One received or generated A-line; ``samples`` is int16 of shape ``(n_t,)``."""
+
+    run_id: int
+    boot_id: int
+    point_index: int
+    pulse_number: int
+    timestamp_s: float
+    bias_wavelength_m: float
+    dt_s: float
+    scale: float
+    offset: float
+    dc_level: float
+    pulse_energy_j: float
+    samples: np.ndarray
+
+    def meta(self) -> dict:
+        """The metadata dict of the scan file API (docs/architecture.md)."""
+        return {k: getattr(self, k) for k in META_KEYS}
+
+
+def pack_aline(run_id: int, boot_id: int, point_index: int, pulse_number: int,
+               timestamp_s: float, bias_wavelength_m: float, dt_s: float, scale: float,
+               offset: float, dc_level: float, pulse_energy_j: float,
+               samples: np.ndarray) -> bytes:
+    """Serialise one A-line payload; ``samples`` is converted to little-endian int16."""
+    s = np.ascontiguousarray(samples, dtype="<i2")
+    return ALINE_HEADER.pack(run_id, boot_id, point_index, s.size, pulse_number, timestamp_s,
+                             bias_wavelength_m, dt_s, scale, offset, dc_level,
+                             pulse_energy_j) + s.tobytes()
+
+
+def unpack_aline(payload: bytes) -> ALine:
+    """Parse an A-line payload. Raises ``ValueError`` if its length disagrees with n_t."""
+    if len(payload) < ALINE_HEADER.size:
+        raise ValueError(f"A-line payload of {len(payload)} bytes is shorter than its header")
+    (run_id, boot_id, k, n_t, pulse, ts, bias, dt, scale, offset, dc,
+     energy) = ALINE_HEADER.unpack_from(payload)
+    if len(payload) != ALINE_HEADER.size + 2 * n_t:
+        raise ValueError(f"A-line payload holds {len(payload) - ALINE_HEADER.size} sample "
+                         f"bytes, header says n_t = {n_t}")
+    samples = np.frombuffer(payload, dtype="<i2", offset=ALINE_HEADER.size).astype(np.int16)
+    return ALine(run_id, boot_id, k, pulse, ts, bias, dt, scale, offset, dc, energy, samples)

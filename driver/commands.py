@@ -1,0 +1,120 @@
+"""SCPI-style command syntax of the FP scanner protocol (docs/protocol.md §3).
+
+A command frame's payload is ``HEADER[ ARG[,ARG...]]`` in ASCII, where an argument is a
+decimal number, a token, a quoted string, or an IEEE 488.2 definite-length block
+``#<d><len><bytes>`` (binary-safe, used by ``PLAN:DATA``). Headers follow SCPI
+(IEEE 488.2 / SCPI-1999): each node is accepted in its short form (the capitals of the
+table below) or its long form, in any case, with an optional leading colon; ``*XXX``
+common commands are literal.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+#: largest PLAN:DATA block, bytes
+MAX_CHUNK = 4096
+#: largest command payload, bytes
+MAX_COMMAND = MAX_CHUNK + 256
+
+NODES = ["SYSTem", "ERRor", "NEXT", "PROTocol", "BOOT", "LIMits", "PLAN", "BEGin", "DATA",
+         "END", "ID", "HASH", "POINts", "SCAN", "STARt", "PAUSe", "RESume", "ABORt",
+         "STATus", "LASer", "INTerlock"]
+_CANON: dict[str, str] = {}
+for _node in NODES:
+    _short = "".join(ch for ch in _node if ch.isupper())
+    _CANON[_short] = _node.upper()
+    _CANON[_node.upper()] = _node.upper()
+
+
+class ScpiError(ValueError):
+    """A command failed; ``code`` is the SCPI error number (negative: standard)."""
+
+    def __init__(self, code: int, message: str):
+        super().__init__(message)
+        self.code = code
+        self.message = message
+
+
+@dataclass
+class Command:
+    header: str  #: as received
+    name: str  #: canonical long form, upper case, e.g. ``SCAN:START``
+    args: list[str]
+    block: bytes | None = None
+
+
+def canonical_header(header: str) -> str:
+    """``scan:star`` → ``SCAN:START``. Raises :class:`ScpiError` (-113) if unknown."""
+    h = header.upper()
+    if h.startswith("*"):
+        return h
+    query = h.endswith("?")
+    nodes = h.lstrip(":").rstrip("?").split(":")
+    try:
+        out = ":".join(_CANON[n] for n in nodes)
+    except KeyError:
+        raise ScpiError(-113, f"Undefined header; {header}") from None
+    return out + ("?" if query else "")
+
+
+def parse_command(payload: bytes) -> Command:
+    """Parse one command payload. Raises :class:`ScpiError` with the SCPI code."""
+    if len(payload) > MAX_COMMAND:
+        raise ScpiError(-223, f"Too much data; command of {len(payload)} bytes")
+    payload = payload.rstrip(b"\r\n")
+    head, _, rest = payload.partition(b" ")
+    try:
+        header = head.decode("ascii")
+    except UnicodeDecodeError:
+        raise ScpiError(-102, "Syntax error; non-ASCII header") from None
+    if not header or not all(ch.isalnum() or ch in "*:?" for ch in header):
+        raise ScpiError(-102, f"Syntax error; bad header {header!r}")
+    name = canonical_header(header)
+    args: list[str] = []
+    block = None
+    rest = rest.lstrip(b" ")
+    while rest:
+        if rest[:1] == b"#":
+            try:
+                d = int(rest[1:2])
+                length = int(rest[2:2 + d])
+            except ValueError:
+                raise ScpiError(-161, "Invalid block data; bad length field") from None
+            if d < 1 or len(rest) < 2 + d + length:
+                raise ScpiError(-161, "Invalid block data; block shorter than its length")
+            block = bytes(rest[2 + d:2 + d + length])
+            rest = rest[2 + d + length:].lstrip(b" ")
+            if rest:
+                raise ScpiError(-108, "Parameter not allowed; data after the block")
+            break
+        arg, sep, rest = rest.partition(b",")
+        try:
+            args.append(arg.decode("ascii").strip())
+        except UnicodeDecodeError:
+            raise ScpiError(-104, "Data type error; non-ASCII argument") from None
+        rest = rest.lstrip(b" ")
+        if sep and not rest:
+            raise ScpiError(-109, "Missing parameter; trailing comma")
+    return Command(header, name, args, block)
+
+
+def int_arg(cmd: Command, i: int) -> int:
+    """Argument ``i`` as an integer. Raises :class:`ScpiError` (-109 missing, -104 type)."""
+    if i >= len(cmd.args):
+        raise ScpiError(-109, f"Missing parameter; {cmd.header} needs argument {i + 1}")
+    try:
+        return int(cmd.args[i])
+    except ValueError:
+        raise ScpiError(-104, f"Data type error; {cmd.args[i]!r} is not an integer") from None
+
+
+def block(data: bytes) -> bytes:
+    """Encode ``data`` as an IEEE 488.2 definite-length block ``#<d><len><data>``."""
+    n = str(len(data)).encode()
+    return b"#" + str(len(n)).encode() + n + data
+
+
+def error_of(exc: Exception) -> tuple[int, str]:
+    if isinstance(exc, ScpiError):
+        return exc.code, exc.message
+    return -100, f"Command error; {exc}"

@@ -1,0 +1,95 @@
+"""Seeded fault injection for the simulated scanner (DESIGN §5).
+
+A fault spec is a comma-separated list of ``key=value`` items (keys may repeat):
+
+=================  =====================================================================
+``corrupt=RATE``   probability per byte (both directions) that the byte is replaced
+``drop=RATE``      probability per byte (both directions) that the byte is lost
+``stall=K:SEC``    before acquiring point K (once), the device goes silent for SEC s
+``reset=K``        before acquiring point K (once), the device resets (new boot id)
+``interlock=K``    before acquiring point K (once), the laser interlock opens
+``interlock=K:SEC``  … and closes again after SEC s
+=================  =====================================================================
+
+Example: ``corrupt=1e-4,drop=1e-4,stall=800:2,reset=1200``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class FaultSpec:
+    """Parsed fault spec; point indices are plan point indices k."""
+
+    corrupt: float = 0.0
+    drop: float = 0.0
+    stalls: dict[int, float] = field(default_factory=dict)
+    resets: set[int] = field(default_factory=set)
+    interlocks: dict[int, float] = field(default_factory=dict)
+
+    @classmethod
+    def parse(cls, spec: str | None) -> "FaultSpec":
+        """Parse a spec string (see module doc). Raises ``ValueError`` with the bad item."""
+        out = cls()
+        if not spec:
+            return out
+        for item in spec.split(","):
+            item = item.strip()
+            if not item:
+                continue
+            key, sep, value = item.partition("=")
+            key = key.strip().lower()
+            try:
+                if not sep:
+                    raise ValueError("expected key=value")
+                if key in ("corrupt", "drop"):
+                    rate = float(value)
+                    if not 0.0 <= rate < 1.0:
+                        raise ValueError("rate must be in [0, 1)")
+                    setattr(out, key, rate)
+                elif key == "stall":
+                    k, _, sec = value.partition(":")
+                    seconds = float(sec or 1.0)
+                    if int(k) < 0 or not 0 <= seconds <= 3600:
+                        raise ValueError("stall needs K >= 0 and 0 <= SEC <= 3600")
+                    out.stalls[int(k)] = seconds
+                elif key == "reset":
+                    if int(value) < 0:
+                        raise ValueError("K must be >= 0")
+                    out.resets.add(int(value))
+                elif key == "interlock":
+                    k, _, sec = value.partition(":")
+                    seconds = float(sec) if sec else float("inf")
+                    if int(k) < 0 or not seconds > 0:
+                        raise ValueError("interlock needs K >= 0 and SEC > 0")
+                    out.interlocks[int(k)] = seconds
+                else:
+                    raise ValueError("unknown fault")
+            except ValueError as exc:
+                raise ValueError(f"bad fault spec item {item!r}: {exc}") from None
+        return out
+
+    @property
+    def damages_bytes(self) -> bool:
+        return self.corrupt > 0 or self.drop > 0
+
+
+def damage(data: bytes, corrupt: float, drop: float, rng: np.random.Generator) -> bytes:
+    """Return ``data`` with bytes replaced (rate ``corrupt``) and removed (rate ``drop``)."""
+    n = len(data)
+    if n == 0:
+        return data
+    n_bad = rng.binomial(n, corrupt) if corrupt else 0
+    n_drop = rng.binomial(n, drop) if drop else 0
+    if not n_bad and not n_drop:
+        return data
+    buf = bytearray(data)
+    for pos, x in zip(rng.integers(0, n, n_bad), rng.integers(1, 256, n_bad)):
+        buf[pos] ^= int(x)
+    if n_drop:
+        for pos in sorted(set(rng.integers(0, n, n_drop).tolist()), reverse=True):
+            del buf[pos]
+    return bytes(buf)

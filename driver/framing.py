@@ -1,0 +1,142 @@
+"""Link-layer framing of the FP scanner protocol (docs/protocol.md §2).
+
+A frame on the wire is ``COBS(header ‖ payload ‖ CRC-32) ‖ 0x00``:
+
+* header (12 bytes, little-endian, ``struct`` format ``<BBHII``): protocol version (u8),
+  frame type (u8, :class:`FrameType`), window (u16, credit window in frames, host→device),
+  seq (u32, sequence number), ack (u32, cumulative acknowledgement);
+* payload: 0 … :data:`MAX_PAYLOAD` bytes;
+* CRC-32 (IEEE 802.3 polynomial, as ``zlib.crc32``) of header ‖ payload, u32 little-endian.
+
+COBS (Cheshire & Baker, IEEE/ACM Trans. Networking 7(2), 1999) removes every 0x00 from the
+body so that 0x00 delimits frames; a receiver resynchronises at the next 0x00 after any
+damage. The COBS codec is the ``cobs`` package (C implementation).
+"""
+from __future__ import annotations
+
+import struct
+import zlib
+from dataclasses import dataclass
+from enum import IntEnum
+
+from cobs import cobs as _cobs
+
+PROTOCOL_VERSION = 1
+HEADER = struct.Struct("<BBHII")
+CRC = struct.Struct("<I")
+#: largest payload accepted (an A-line of 32768 int16 samples plus its header fits)
+MAX_PAYLOAD = 65536 + 256
+#: largest encoded frame (COBS adds one byte per 254 plus one, then the delimiter)
+MAX_WIRE = MAX_PAYLOAD + HEADER.size + CRC.size + (MAX_PAYLOAD // 254) + 8
+
+
+class FrameType(IntEnum):
+    """Frame types (docs/protocol.md §2.3)."""
+
+    CMD = 1  #: host → device: one SCPI command (ASCII, may end in a binary block)
+    RSP = 2  #: device → host: success reply to the CMD whose seq is in ``ack``
+    ERR = 3  #: device → host: failure reply ``<code>,"<message>"`` to the CMD in ``ack``
+    ALINE = 4  #: device → host: one A-line, ``seq`` = data sequence number
+    ACK = 5  #: host → device: ``ack`` = next expected data seq, ``window`` = credit
+    NAK = 6  #: host → device: like ACK plus payload = missing data seqs (u32 LE each)
+    EVENT = 7  #: device → host: unsolicited notice (ASCII), e.g. ``BOOT 1234``
+
+
+class FrameError(ValueError):
+    """A received frame is malformed (COBS, length, CRC, version or type)."""
+
+
+@dataclass(frozen=True, slots=True)
+class Frame:
+    """One decoded frame. ``payload`` is ``bytes``; integers are as in the header."""
+
+    type: int
+    seq: int = 0
+    ack: int = 0
+    window: int = 0
+    payload: bytes = b""
+
+
+def encode_frame(ftype: int, payload: bytes = b"", *, seq: int = 0, ack: int = 0,
+                 window: int = 0) -> bytes:
+    """Encode one frame for the wire, delimiter included.
+
+    Raises ``ValueError`` if the payload exceeds :data:`MAX_PAYLOAD` or a header field is
+    out of range.
+    """
+    if len(payload) > MAX_PAYLOAD:
+        raise ValueError(f"payload of {len(payload)} bytes exceeds {MAX_PAYLOAD}")
+    try:
+        head = HEADER.pack(PROTOCOL_VERSION, int(ftype), window, seq & 0xFFFFFFFF,
+                           ack & 0xFFFFFFFF)
+    except struct.error as exc:
+        raise ValueError(f"frame header field out of range: {exc}") from None
+    crc = zlib.crc32(payload, zlib.crc32(head))
+    return _cobs.encode(head + payload + CRC.pack(crc)) + b"\x00"
+
+
+def decode_frame(wire: bytes) -> Frame:
+    """Decode one frame body (the bytes between two 0x00 delimiters).
+
+    Raises :class:`FrameError` with the reason (bad COBS, too short, CRC mismatch, wrong
+    version, unknown type).
+    """
+    try:
+        body = _cobs.decode(wire)
+    except _cobs.DecodeError as exc:
+        raise FrameError(f"bad COBS encoding: {exc}") from None
+    if len(body) < HEADER.size + CRC.size:
+        raise FrameError(f"frame of {len(body)} bytes is shorter than header + CRC")
+    (crc,) = CRC.unpack_from(body, len(body) - 4)
+    if zlib.crc32(memoryview(body)[:-4]) != crc:
+        raise FrameError("CRC-32 mismatch")
+    version, ftype, window, seq, ack = HEADER.unpack_from(body)
+    if version != PROTOCOL_VERSION:
+        raise FrameError(f"protocol version {version} (expected {PROTOCOL_VERSION})")
+    if ftype not in _TYPES:
+        raise FrameError(f"unknown frame type {ftype}")
+    return Frame(ftype, seq, ack, window, body[HEADER.size:-4])
+
+
+_TYPES = frozenset(int(t) for t in FrameType)
+
+
+class Deframer:
+    """Incremental receiver: feed bytes, get the frames that decoded cleanly.
+
+    Damaged frames are counted in :attr:`errors` (and the last reason kept in
+    :attr:`last_error`) and skipped; the stream resynchronises at the next 0x00.
+    A run of more than :data:`MAX_WIRE` bytes without a delimiter is discarded.
+    """
+
+    def __init__(self, max_wire: int = MAX_WIRE):
+        self._buf = b""
+        self._max = max_wire
+        self.errors = 0
+        self.frames = 0
+        self.last_error = ""
+
+    def feed(self, data: bytes) -> list[Frame]:
+        if not data:
+            return []
+        parts = (self._buf + data).split(b"\x00") if self._buf else data.split(b"\x00")
+        self._buf = parts.pop()
+        if len(self._buf) > self._max:
+            self.errors += 1
+            self.last_error = "oversize frame discarded"
+            self._buf = b""
+        out = []
+        for part in parts:
+            if not part:
+                continue
+            try:
+                out.append(decode_frame(part))
+            except FrameError as exc:
+                self.errors += 1
+                self.last_error = str(exc)
+        self.frames += len(out)
+        return out
+
+    def reset(self) -> None:
+        """Forget a partial frame (e.g. after a device reset)."""
+        self._buf = b""

@@ -1,0 +1,702 @@
+"""The simulated Fabry–Pérot scanner: the device side of docs/protocol.md on a pseudo-terminal.
+
+:class:`SimulatedScanner` opens a pty (``pty.openpty``), puts it in raw mode and runs the
+device firmware's loop in a background thread: it deframes host frames, executes SCPI
+commands, and streams A-line frames under the host's credit window, resending on NAK or
+timeout. The host opens :attr:`SimulatedScanner.path` exactly like a real USB-CDC port, so
+tests exercise the same serial code path as hardware.
+
+Signal model, per plan point k at lattice point (i_x, i_y) (all deterministic given the seed):
+
+* pressure p_k(t) in Pa from the source (:mod:`driver.sources`);
+* DC level d_k = ``dc_level``·(1 + ``dc_variation``·m_1(i_x, i_y)) in V and sensitivity
+  s_k = 1 + ``sensitivity_variation``·m_2(i_x, i_y), with smooth maps m_1, m_2 ∈ [−1, 1];
+* FP output v_k = s_k·d_k·p_k (Pa·V), low-passed by a 2nd-order Butterworth filter at
+  ``bandwidth`` Hz (if given; ``scipy.signal``), plus white Gaussian noise of standard
+  deviation d_k·peak/``snr`` (if given; peak = the source's reference amplitude);
+* int16 quantisation: scale = max|v_k|/32767, offset = 0, sample = round(v_k/scale).
+
+Timing: with ``prf`` > 0 the laser fires on a clock of period 1/prf started by SCAN:STAR;
+point k uses the first ``averages`` ticks after the previous point and after its bias
+tuning (``tuning_delay`` s), so N points take N·averages/prf s; ``prf`` = 0 is unthrottled.
+``byte_rate`` limits the device's output bytes/s (a UART-like link).
+
+Faults (:mod:`driver.faults`) are seeded by ``seed``. The ground truth (every A-line as
+sent) can be recorded to HDF5 (:meth:`SimulatedScanner.write_record`).
+"""
+from __future__ import annotations
+
+import collections
+import hashlib
+import math
+import os
+import pty
+import select
+import secrets
+import threading
+import time
+import tty
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from driver import commands as scpi
+from driver.aline import pack_aline
+from driver.faults import FaultSpec, damage
+from driver.framing import Deframer, FrameType, encode_frame
+from driver.plan import DevicePlan, parse_plan_image
+
+FIRMWARE_VERSION = "1.0"
+INITIAL_WINDOW = 8
+BLOCK = 128
+
+
+@dataclass
+class SimConfig:
+    """Settings of the simulated scanner (SI units; see the module docstring)."""
+
+    source: object = None  #: a driver.sources source; None = BallSource(default_phantom())
+    prf: float = 50.0  #: laser pulse repetition frequency, Hz (0 = unthrottled)
+    tuning_delay: float = 0.0  #: bias-wavelength tuning time per point, s
+    dc_level: float = 1.0  #: mean photodiode DC level, V
+    dc_variation: float = 0.0  #: relative amplitude of the DC-level map
+    sensitivity_variation: float = 0.0  #: relative amplitude of the sensitivity map
+    bandwidth: float | None = None  #: sensor −3 dB bandwidth, Hz (None = unlimited)
+    snr: float | None = None  #: peak signal / noise std (None = no noise)
+    byte_rate: float | None = None  #: output byte-rate limit, bytes/s (None = none)
+    faults: FaultSpec = field(default_factory=FaultSpec)
+    seed: int = 0
+    record: Path | None = None  #: ground-truth HDF5 file written by write_record()
+    pulse_energy: float = 20e-3  #: mean excitation pulse energy, J
+    bias_wavelength: float = 1550e-9  #: centre bias wavelength, m
+    max_points: int = 1 << 20
+    max_samples: int = 32768
+    max_window: int = 256
+    rto: float = 0.1  #: retransmission timeout without ack progress, s
+    serial: str = "SIM0001"
+    precompute: bool = False  #: generate all A-lines of a plan at PLAN:END
+
+
+_Error = scpi.ScpiError
+
+
+class SimulatedScanner:
+    """Device side of the FP scanner protocol on a pty, run in a background thread.
+
+    Use as a context manager or call :meth:`start` / :meth:`stop`. :attr:`path` is the
+    device path for the host (``/dev/pts/N``). Thread-safe accessors: :attr:`boot_id`,
+    :attr:`state`. Raises ``OSError`` if no pty can be opened.
+    """
+
+    def __init__(self, config: SimConfig | None = None, **kwargs):
+        self.config = config or SimConfig(**kwargs)
+        if self.config.source is None:
+            from driver.sources import BallSource, default_phantom
+
+            self.config.source = BallSource(default_phantom())
+        self._master, self._slave = pty.openpty()
+        tty.setraw(self._slave)
+        os.set_blocking(self._master, False)
+        self.path = os.ttyname(self._slave)
+        self._stop = threading.Event()
+        self._stall_until = 0.0
+        self._peak = 1.0
+        self._thread: threading.Thread | None = None
+        self._lock = threading.Lock()
+        self._fault_rng = np.random.default_rng([self.config.seed, 1])
+        self._stalls = dict(self.config.faults.stalls)
+        self._resets = set(self.config.faults.resets)
+        self._interlocks = dict(self.config.faults.interlocks)
+        self._records: dict[str, dict] = {}
+        self._record_order: list[str] = []
+        self._pool = ThreadPoolExecutor(1, thread_name_prefix="fpsim-gen")
+        self.stats = collections.Counter()
+        self._boot()
+
+    # ------------------------------------------------------------------ lifecycle
+    def start(self) -> "SimulatedScanner":
+        self._thread = threading.Thread(target=self._run, name="fpsim", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        """Stop the device loop, write the record (if configured) and close the pty."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=10)
+        self._pool.shutdown(wait=True)
+        if self.config.record:
+            self.write_record(self.config.record)
+        for fd in (self._master, self._slave):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+    def __enter__(self):
+        return self.start()
+
+    def __exit__(self, *exc):
+        self.stop()
+
+    @property
+    def boot_id(self) -> int:
+        return self._boot_id
+
+    @property
+    def state(self) -> str:
+        return self._state
+
+    # ------------------------------------------------------------------ device state
+    def _boot(self) -> None:
+        self._boot_id = secrets.randbits(31) + 1
+        self._boot_time = time.monotonic()
+        self._state = "IDLE"
+        self._plan: DevicePlan | None = None
+        self._plan_image = bytearray()
+        self._plan_expected = 0
+        self._plan_hash = ""
+        self._pressure = None
+        self._blocks: dict[int, object] = {}
+        self._errors: collections.deque = collections.deque()
+        self._last_cmd: tuple[int, bytes] | None = None
+        self._last_reply = b""
+        self._run_id = 0
+        self._next_seq = 0
+        self._next_k = 0
+        self._unacked: collections.OrderedDict[int, bytes] = collections.OrderedDict()
+        self._resend: collections.deque = collections.deque()
+        self._resend_set: set[int] = set()
+        self._window = INITIAL_WINDOW
+        self._last_progress = time.monotonic()
+        self._pulses = 0
+        self._last_tick = 0
+        self._clock0 = 0.0
+        self._last_fire = 0.0
+        self._run_from = 0
+        self._ready_k = -1
+        self._ready_t = 0.0
+        self._interlock_until = 0.0
+        self._out = bytearray()
+        self._deframer = Deframer()
+        self._tokens = 0.0
+        self._token_time = time.monotonic()
+        self._wake = math.inf
+
+    def _push_error(self, code: int, message: str) -> None:
+        if len(self._errors) >= 16:
+            self._errors[-1] = (-350, "Queue overflow")
+        else:
+            self._errors.append((code, message))
+
+    # ------------------------------------------------------------------ main loop
+    def _run(self) -> None:
+        self._send(FrameType.EVENT, f"BOOT {self._boot_id}".encode())
+        fd = self._master
+        while not self._stop.is_set():
+            now = time.monotonic()
+            if now < self._stall_until:
+                time.sleep(min(0.02, self._stall_until - now))
+                continue
+            timeout = 0.05
+            if self._wake < math.inf:
+                timeout = max(0.0, min(timeout, self._wake - now))
+            wlist = [fd] if self._out and self._may_write(now) else []
+            try:
+                r, w, _ = select.select([fd], wlist, [], timeout)
+            except (OSError, ValueError):
+                break
+            if r:
+                try:
+                    data = os.read(fd, 1 << 16)
+                except BlockingIOError:
+                    data = b""
+                except OSError:  # EIO: no slave open (cannot happen: we hold one)
+                    data = b""
+                    time.sleep(0.01)
+                if data:
+                    f = self.config.faults
+                    if f.damages_bytes:
+                        data = damage(data, f.corrupt, f.drop, self._fault_rng)
+                    for frame in self._deframer.feed(data):
+                        self._on_frame(frame)
+                    if self._deframer.errors:
+                        self.stats["rx_bad_frames"] += self._deframer.errors
+                        self._push_error(-310, f"System error; frame discarded: "
+                                               f"{self._deframer.last_error}")
+                        self._deframer.errors = 0
+            now = time.monotonic()
+            self._check_interlock(now)
+            self._produce(now)
+            self._retransmit(now)
+            if self._out:
+                self._write(now)
+
+    def _may_write(self, now: float) -> bool:
+        rate = self.config.byte_rate
+        if not rate:
+            return True
+        self._tokens = min(rate * 0.05 + 64, self._tokens + (now - self._token_time) * rate)
+        self._token_time = now
+        if self._tokens < 1:
+            self._wake = min(self._wake, now + (1 - self._tokens) / rate)
+            return False
+        return True
+
+    def _write(self, now: float) -> None:
+        n = len(self._out)
+        if self.config.byte_rate:
+            if not self._may_write(now):
+                return
+            n = min(n, int(self._tokens))
+        try:
+            written = os.write(self._master, memoryview(self._out)[:n])
+        except BlockingIOError:
+            return
+        except OSError:
+            return
+        del self._out[:written]
+        self.stats["tx_bytes"] += written
+        if self.config.byte_rate:
+            self._tokens -= written
+
+    def _send(self, ftype: int, payload: bytes = b"", *, seq: int = 0, ack: int = 0) -> bytes:
+        wire = encode_frame(ftype, payload, seq=seq, ack=ack)
+        self._emit(wire)
+        return wire
+
+    def _emit(self, wire: bytes) -> None:
+        f = self.config.faults
+        if f.damages_bytes:
+            wire = damage(wire, f.corrupt, f.drop, self._fault_rng)
+        self._out += wire
+
+    # ------------------------------------------------------------------ frames
+    def _on_frame(self, frame) -> None:
+        t = frame.type
+        if t == FrameType.CMD:
+            key = (frame.seq, frame.payload)
+            if key == self._last_cmd:  # retransmitted command: repeat the reply
+                self.stats["duplicate_commands"] += 1
+                self._emit(self._last_reply)
+                return
+            try:
+                reply = self._execute(frame.payload)
+                wire = encode_frame(FrameType.RSP, reply, ack=frame.seq)
+            except _Error as err:
+                self._push_error(err.code, err.message)
+                wire = encode_frame(FrameType.ERR, f'{err.code},"{err.message}"'.encode(),
+                                    ack=frame.seq)
+            self._last_cmd, self._last_reply = key, wire
+            self._emit(wire)
+        elif t in (FrameType.ACK, FrameType.NAK):
+            self._on_ack(frame.ack, frame.window)
+            if t == FrameType.NAK:
+                n = len(frame.payload) // 4
+                for seq in np.frombuffer(frame.payload[:4 * n], dtype="<u4").tolist():
+                    if seq in self._unacked and seq not in self._resend_set:
+                        self._resend.append(seq)
+                        self._resend_set.add(seq)
+        else:
+            self._push_error(-310, f"System error; unexpected frame type {t} from host")
+
+    def _on_ack(self, ack: int, window: int) -> None:
+        if window:
+            self._window = max(1, min(window, self.config.max_window))
+        progressed = False
+        while self._unacked:
+            seq = next(iter(self._unacked))
+            if seq >= ack or ack > self._next_seq:
+                break
+            del self._unacked[seq]
+            progressed = True
+        if progressed:
+            self._last_progress = time.monotonic()
+        self._maybe_finish()
+
+    def _maybe_finish(self) -> None:
+        if (self._state == "RUNNING" and self._plan is not None
+                and self._next_k >= self._plan.n_points and not self._unacked):
+            self._state = "IDLE"
+            self._send(FrameType.EVENT, f"DONE {self._run_id}".encode())
+            if self.config.record:
+                self.write_record(self.config.record)
+
+    def _retransmit(self, now: float) -> None:
+        while self._resend and len(self._out) < (1 << 18):
+            seq = self._resend.popleft()
+            self._resend_set.discard(seq)
+            wire = self._unacked.get(seq)
+            if wire is not None:
+                self.stats["resent"] += 1
+                self._emit(wire)
+        if (self._unacked and not self._out and self._state in ("RUNNING", "PAUSED")
+                and now - self._last_progress > self.config.rto):
+            seq = next(iter(self._unacked))
+            self.stats["timeouts"] += 1
+            self._emit(self._unacked[seq])
+            self._last_progress = now
+        if self._unacked:
+            self._wake = min(self._wake, self._last_progress + self.config.rto)
+
+    # ------------------------------------------------------------------ acquisition
+    def _check_interlock(self, now: float) -> None:
+        if self._interlock_until and now >= self._interlock_until:
+            self._interlock_until = 0.0
+            self._send(FrameType.EVENT, b"INTERLOCK 0")
+
+    def _produce(self, now: float) -> None:
+        self._wake = math.inf
+        plan = self._plan
+        if self._state != "RUNNING" or plan is None:
+            return
+        cfg = self.config
+        while (self._next_k < plan.n_points and len(self._unacked) < self._window
+               and len(self._out) < (1 << 18)):
+            k = self._next_k
+            if k in self._stalls:
+                self._stall_until = now + self._stalls.pop(k)
+                self.stats["stalls"] += 1
+                return
+            if k in self._resets:
+                self._resets.discard(k)
+                self.stats["resets"] += 1
+                self._do_reset()
+                return
+            if k in self._interlocks:
+                duration = self._interlocks.pop(k)
+                self._interlock_until = now + duration if math.isfinite(duration) else math.inf
+                self._state = "FAULT"
+                self._push_error(101, "Laser interlock open")
+                self._send(FrameType.EVENT, b"INTERLOCK 1")
+                return
+            if cfg.prf > 0:
+                if self._ready_k != k:  # galvo and bias tuning start once credit allows
+                    prev = self._clock0 if k == self._run_from else self._last_fire
+                    self._ready_k, self._ready_t = k, max(now, prev + cfg.tuning_delay)
+                ready = self._ready_t
+                first = max(self._last_tick + 1,
+                            math.ceil((ready - self._clock0) * cfg.prf - 1e-9))
+                last = first + plan.averages - 1
+                fire_at = self._clock0 + last / cfg.prf
+                if now < fire_at:
+                    self._wake = fire_at
+                    return
+                self._last_tick = last
+                self._last_fire = fire_at
+                timestamp = fire_at - self._boot_time
+            else:
+                timestamp = now - self._boot_time
+            self._pulses += plan.averages
+            self._send_point(k, timestamp)
+            self._next_k += 1
+        self._maybe_finish()
+
+    def _send_point(self, k: int, timestamp: float) -> None:
+        b = self._block(k // BLOCK)
+        j = k % BLOCK
+        payload = pack_aline(self._run_id, self._boot_id, k, self._pulses, timestamp,
+                             b["bias"][j], self._plan.dt, b["scale"][j], 0.0, b["dc"][j],
+                             b["energy"][j], b["samples"][j])
+        seq = self._next_seq
+        self._next_seq += 1
+        wire = encode_frame(FrameType.ALINE, payload, seq=seq, ack=self._last_cmd[0]
+                            if self._last_cmd else 0)
+        self._unacked[seq] = wire
+        if len(self._unacked) == 1:
+            self._last_progress = time.monotonic()
+        self._emit(wire)
+        self.stats["alines"] += 1
+        rec = self._records.get(self._plan.plan_id)
+        if rec is not None:
+            rec["samples"][k] = b["samples"][j]
+            rec["scale"][k] = b["scale"][j]
+            rec["dc"][k] = b["dc"][j]
+            rec["sent"][k] = True
+
+    def _block(self, bi: int) -> dict:
+        got = self._blocks.get(bi)
+        if got is None:
+            got = self._pool.submit(self._generate, self._plan, self._pressure, bi)
+            self._blocks[bi] = got
+        n_blocks = math.ceil(self._plan.n_points / BLOCK)
+        if bi + 1 < n_blocks and bi + 1 not in self._blocks:  # prefetch the next block
+            self._blocks[bi + 1] = self._pool.submit(self._generate, self._plan,
+                                                     self._pressure, bi + 1)
+        if not self.config.precompute:
+            for old in [b for b in self._blocks if b < bi - 1 or b > bi + 2]:
+                del self._blocks[old]
+        return got.result() if hasattr(got, "result") else got
+
+    def _generate(self, plan: DevicePlan, pressure, bi: int) -> dict:
+        """A-lines of plan points [bi·BLOCK, (bi+1)·BLOCK) as int16 with their metadata."""
+        cfg = self.config
+        ks = np.arange(bi * BLOCK, min((bi + 1) * BLOCK, plan.n_points))
+        p = np.asarray(pressure(ks), dtype=np.float64).reshape(len(ks), plan.n_t)
+        ix = plan.indices[ks, 0].astype(np.float64) / max(plan.n_x - 1, 1)
+        iy = plan.indices[ks, 1].astype(np.float64) / max(plan.n_y - 1, 1)
+        m1 = np.cos(2 * np.pi * (ix - 0.3)) * np.cos(np.pi * (iy - 0.5))
+        m2 = np.sin(np.pi * (ix + 0.25)) * np.cos(1.5 * np.pi * (iy - 0.4))
+        dc = cfg.dc_level * (1 + cfg.dc_variation * m1)
+        sens = 1 + cfg.sensitivity_variation * m2
+        v = p * (sens * dc)[:, None]
+        if cfg.bandwidth:
+            from scipy.signal import butter, sosfilt
+
+            fc = min(cfg.bandwidth, 0.45 / plan.dt)
+            v = sosfilt(butter(2, fc, fs=1 / plan.dt, output="sos"), v, axis=1)
+        digest = int.from_bytes(hashlib.sha256(plan.plan_id.encode()).digest()[:4], "little")
+        rng = np.random.default_rng([cfg.seed, digest, bi])
+        if cfg.snr:
+            v = v + rng.standard_normal(v.shape) * (dc * self._peak / cfg.snr)[:, None]
+        peak = np.abs(v).max(axis=1)
+        scale = np.where(peak > 0, peak / 32767.0, 1.0)
+        samples = np.clip(np.rint(v / scale[:, None]), -32767, 32767).astype(np.int16)
+        energy = cfg.pulse_energy * (1 + 0.02 * rng.standard_normal(len(ks)))
+        bias = cfg.bias_wavelength + 0.5e-9 * m1
+        return {"samples": samples, "scale": scale, "dc": dc, "energy": energy, "bias": bias}
+
+    def _do_reset(self) -> None:
+        """Simulated device reset: all volatile state is lost; silent 0.3 s; BOOT event."""
+        self._blocks.clear()
+        self._boot()
+        self._stall_until = time.monotonic() + 0.3
+        self._send(FrameType.EVENT, f"BOOT {self._boot_id}".encode())
+
+    # ------------------------------------------------------------------ commands
+    def _execute(self, payload: bytes) -> bytes:
+        cmd = scpi.parse_command(payload)
+        handler = _HANDLERS.get(cmd.name)
+        if handler is None:
+            raise _Error(-113, f"Undefined header; {cmd.header}")
+        return handler(self, cmd) or b""
+
+    def _cmd_idn(self, cmd):
+        return f"fpscan,FP-SIM,{self.config.serial},{FIRMWARE_VERSION}".encode()
+
+    def _cmd_rst(self, cmd):
+        self._abort()
+        return b""
+
+    def _cmd_cls(self, cmd):
+        self._errors.clear()
+
+    def _cmd_opc(self, cmd):
+        return b"1"
+
+    def _cmd_err(self, cmd):
+        if not self._errors:
+            return b'0,"No error"'
+        code, msg = self._errors.popleft()
+        return f'{code},"{msg}"'.encode()
+
+    def _cmd_prot(self, cmd):
+        from driver.framing import PROTOCOL_VERSION
+
+        return str(PROTOCOL_VERSION).encode()
+
+    def _cmd_boot(self, cmd):
+        return str(self._boot_id).encode()
+
+    def _cmd_lim(self, cmd):
+        c = self.config
+        return f"{c.max_points},{c.max_samples},{c.max_window},{scpi.MAX_CHUNK}".encode()
+
+    def _require_idle(self):
+        if self._state in ("RUNNING", "PAUSED"):
+            raise _Error(-221, "Settings conflict; scan running (SCAN:ABOR first)")
+
+    def _cmd_plan_begin(self, cmd):
+        self._require_idle()
+        n = scpi.int_arg(cmd, 0)
+        limit = 100 + 4 * self.config.max_points
+        if not 100 < n <= limit:
+            raise _Error(-222, f"Data out of range; plan image of {n} bytes (max {limit})")
+        self._plan = None
+        self._pressure = None
+        self._blocks.clear()
+        self._plan_image = bytearray()
+        self._plan_expected = n
+        self._plan_hash = ""
+
+    def _cmd_plan_data(self, cmd):
+        self._require_idle()
+        if self._plan_expected == 0:
+            raise _Error(-200, "Execution error; PLAN:DATA without PLAN:BEG")
+        offset = scpi.int_arg(cmd, 0)
+        block = cmd.block
+        if block is None:
+            raise _Error(-104, "Data type error; PLAN:DATA needs a definite-length block")
+        if len(block) > scpi.MAX_CHUNK:
+            raise _Error(-223, f"Too much data; chunk of {len(block)} bytes "
+                               f"(max {scpi.MAX_CHUNK})")
+        if offset != len(self._plan_image) and offset + len(block) != len(self._plan_image):
+            raise _Error(-222, f"Data out of range; chunk offset {offset}, expected "
+                               f"{len(self._plan_image)}")
+        if offset == len(self._plan_image):
+            if offset + len(block) > self._plan_expected:
+                raise _Error(-223, "Too much data; chunk runs past the announced size")
+            self._plan_image += block
+
+    def _cmd_plan_end(self, cmd):
+        self._require_idle()
+        want = cmd.args[0].strip('"').lower() if cmd.args else ""
+        image = bytes(self._plan_image)
+        if len(image) != self._plan_expected:
+            raise _Error(-200, f"Execution error; plan image has {len(image)} of "
+                               f"{self._plan_expected} bytes")
+        got = hashlib.sha256(image).hexdigest()
+        if got != want:
+            self._plan_expected = 0
+            raise _Error(102, "Plan hash mismatch")
+        try:
+            plan = parse_plan_image(image)
+        except ValueError as exc:
+            raise _Error(-224, f"Illegal parameter value; {exc}") from None
+        c = self.config
+        if plan.n_points > c.max_points or plan.n_t > c.max_samples:
+            raise _Error(-222, f"Data out of range; plan of {plan.n_points} points × "
+                               f"{plan.n_t} samples exceeds the device's {c.max_points} × "
+                               f"{c.max_samples}")
+        try:
+            pressure = c.source.prepare(plan)
+        except ValueError as exc:
+            raise _Error(-221, f"Settings conflict; {exc}") from None
+        self._peak = float(c.source.peak)
+        self._plan, self._pressure, self._plan_hash = plan, pressure, got
+        self._plan_expected = 0
+        self._blocks.clear()
+        if plan.plan_id not in self._records:
+            self._records[plan.plan_id] = {
+                "plan": plan,
+                "samples": np.zeros((plan.n_points, plan.n_t), np.int16),
+                "scale": np.zeros(plan.n_points), "dc": np.zeros(plan.n_points),
+                "sent": np.zeros(plan.n_points, bool)}
+            self._record_order.append(plan.plan_id)
+        if c.precompute:
+            for bi in range(math.ceil(plan.n_points / BLOCK)):
+                self._blocks[bi] = self._generate(plan, pressure, bi)
+        else:
+            self._blocks[0] = self._pool.submit(self._generate, plan, pressure, 0)
+
+    def _cmd_plan_id(self, cmd):
+        return (self._plan.plan_id if self._plan else "NONE").encode()
+
+    def _cmd_plan_hash(self, cmd):
+        return (self._plan_hash or "NONE").encode()
+
+    def _cmd_plan_points(self, cmd):
+        return str(self._plan.n_points if self._plan else 0).encode()
+
+    def _cmd_scan_start(self, cmd):
+        self._require_idle()
+        if self._state == "FAULT" or self._interlock_until:
+            raise _Error(101, "Laser interlock open")
+        if self._plan is None:
+            raise _Error(103, "No plan loaded")
+        k = scpi.int_arg(cmd, 0) if cmd.args else 0
+        if not 0 <= k < self._plan.n_points:
+            raise _Error(-222, f"Data out of range; start index {k} not in "
+                               f"[0, {self._plan.n_points})")
+        self._block(k // BLOCK)  # the first A-lines are ready before the clock starts
+        self._run_id += 1
+        self._state = "RUNNING"
+        self._next_k = self._run_from = k
+        self._unacked.clear()
+        self._resend.clear()
+        self._resend_set.clear()
+        self._window = INITIAL_WINDOW
+        self._clock0 = self._last_fire = time.monotonic()
+        self._last_tick = 0
+        return f"{self._run_id},{self._next_seq}".encode()
+
+    def _cmd_scan_pause(self, cmd):
+        if self._state == "RUNNING":
+            self._state = "PAUSED"
+        elif self._state != "PAUSED":
+            raise _Error(-221, "Settings conflict; no scan running")
+
+    def _cmd_scan_resume(self, cmd):
+        if self._state == "PAUSED":
+            self._state = "RUNNING"
+            self._clock0 = self._last_fire = time.monotonic()
+            self._last_tick = 0
+            self._run_from = self._next_k
+        elif self._state != "RUNNING":
+            raise _Error(-221, "Settings conflict; no paused scan")
+
+    def _abort(self):
+        if self._state != "FAULT" or not self._interlock_until:
+            self._state = "IDLE"
+        self._unacked.clear()
+        self._resend.clear()
+        self._resend_set.clear()
+
+    def _cmd_scan_abort(self, cmd):
+        self._abort()
+
+    def _cmd_scan_status(self, cmd):
+        n = self._plan.n_points if self._plan else 0
+        return (f"{self._state},{self._boot_id},{self._run_id},{self._next_k},{n},"
+                f"{self._next_seq},{len(self._unacked)}").encode()
+
+    def _cmd_interlock(self, cmd):
+        return b"1" if self._interlock_until else b"0"
+
+    # ------------------------------------------------------------------ record
+    def write_record(self, path) -> None:
+        """Write the ground truth — every A-line as last sent, per plan — to HDF5.
+
+        Layout: group ``/plans/<plan_id>`` with ``samples`` int16 ``(n_points, n_t)``,
+        ``scale``, ``offset``, ``dc_level`` ``(n_points,)`` (value = sample·scale + offset,
+        in Pa·V; pressure = value/dc_level in Pa), ``sent`` bool ``(n_points,)``,
+        ``indices`` ``(n_points, 2)``, attributes ``dt_s``, ``n_t``; root attribute
+        ``last_plan_id``. The file is replaced atomically.
+        """
+        import h5py
+
+        path = Path(path)
+        tmp = path.with_name(path.name + ".tmp")
+        with self._lock:
+            with h5py.File(tmp, "w") as f:
+                for pid in self._record_order:
+                    rec = self._records[pid]
+                    g = f.create_group(f"plans/{pid}")
+                    g.create_dataset("samples", data=rec["samples"])
+                    g.create_dataset("scale", data=rec["scale"])
+                    g.create_dataset("offset", data=np.zeros_like(rec["scale"]))
+                    g.create_dataset("dc_level", data=rec["dc"])
+                    g.create_dataset("sent", data=rec["sent"])
+                    g.create_dataset("indices", data=rec["plan"].indices)
+                    g.attrs["dt_s"] = rec["plan"].dt
+                    g.attrs["n_t"] = rec["plan"].n_t
+                f.attrs["last_plan_id"] = self._record_order[-1] if self._record_order else ""
+                f.attrs["source"] = self.config.source.describe()
+            os.replace(tmp, path)
+
+
+_HANDLERS = {
+    "*IDN?": SimulatedScanner._cmd_idn,
+    "*RST": SimulatedScanner._cmd_rst,
+    "*CLS": SimulatedScanner._cmd_cls,
+    "*OPC?": SimulatedScanner._cmd_opc,
+    "SYSTEM:ERROR?": SimulatedScanner._cmd_err,
+    "SYSTEM:ERROR:NEXT?": SimulatedScanner._cmd_err,
+    "SYSTEM:PROTOCOL?": SimulatedScanner._cmd_prot,
+    "SYSTEM:BOOT?": SimulatedScanner._cmd_boot,
+    "SYSTEM:LIMITS?": SimulatedScanner._cmd_lim,
+    "PLAN:BEGIN": SimulatedScanner._cmd_plan_begin,
+    "PLAN:DATA": SimulatedScanner._cmd_plan_data,
+    "PLAN:END": SimulatedScanner._cmd_plan_end,
+    "PLAN:ID?": SimulatedScanner._cmd_plan_id,
+    "PLAN:HASH?": SimulatedScanner._cmd_plan_hash,
+    "PLAN:POINTS?": SimulatedScanner._cmd_plan_points,
+    "SCAN:START": SimulatedScanner._cmd_scan_start,
+    "SCAN:PAUSE": SimulatedScanner._cmd_scan_pause,
+    "SCAN:RESUME": SimulatedScanner._cmd_scan_resume,
+    "SCAN:ABORT": SimulatedScanner._cmd_scan_abort,
+    "SCAN:STATUS?": SimulatedScanner._cmd_scan_status,
+    "LASER:INTERLOCK?": SimulatedScanner._cmd_interlock,
+}

@@ -1,0 +1,193 @@
+"""A-line sources of the simulated FP scanner: what pressure reaches each sensor point.
+
+Every source is prepared for one uploaded plan (:meth:`Source.prepare`), which checks the
+plan against the source and returns a function ``pressure(ks) -> (len(ks), n_t)`` float64
+in Pa for point indices ``ks`` of that plan (deterministic: the same point always gives the
+same A-line). Sources:
+
+* :class:`BallSource` — analytic balls: exact N-shaped waves averaged over each sample
+  interval (``driver.physics.ball_alines``; DESIGN §5).
+* :class:`VolumeSource` — any p0 volume (HDF5 ``p0`` ``(n_z, n_y, n_x)``) through the exact
+  planar forward model ``driver.physics.forward_points``.
+* :class:`ReplaySource` — a recorded dense dataset in k-Wave layout (``sensor_data/clean``
+  ``(t, y, z)`` with ``sensor_yz_index``); plan point (i_x, i_y) replays
+  ``data[:, i_y, i_x]`` — the paper's way of picking a sensor mask out of dense data.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from driver.plan import DevicePlan
+
+PressureFn = Callable[[np.ndarray], np.ndarray]
+
+
+def default_phantom() -> list:
+    """The demo phantom: four balls and a curved "tube" (a chain of small balls).
+
+    Sized for a 226 × 226 lattice at 60 µm (13.5 mm aperture): balls of radius 0.15–0.3 mm
+    at depths 1.5–4.5 mm, and a tube of radius 0.1 mm bending through depth 2.5–3.5 mm.
+    Returns a list of ``driver.physics.Ball`` (m, Pa).
+    """
+    from driver.physics import Ball
+
+    balls = [Ball(0.0, 0.0, 3.6e-3, 0.3e-3, 1.0),
+             Ball(-2.5e-3, 1.5e-3, 1.5e-3, 0.2e-3, 1.0),
+             Ball(2.0e-3, -2.0e-3, 4.5e-3, 0.25e-3, 0.8),
+             Ball(1.5e-3, 2.5e-3, 2.0e-3, 0.15e-3, 1.2)]
+    # curved tube: arc in the x-y plane, sagging in depth, balls overlapping by half
+    r_tube, step = 0.1e-3, 0.1e-3
+    s = np.arange(-3.0e-3, 3.0e-3 + step / 2, step)
+    for si in s:
+        x = si
+        y = -3.0e-3 + 0.12 * (si * 1e3) ** 2 * 1e-3
+        z = 2.5e-3 + 1.0e-3 * np.cos(np.pi * si / 6.0e-3)
+        balls.append(Ball(float(x), float(y), float(z), r_tube, 0.6))
+    return balls
+
+
+@dataclass
+class BallSource:
+    """Analytic balls (``driver.physics.Ball``) in a medium of sound speed ``c`` (m/s)."""
+
+    balls: list
+    c: float = 1500.0
+
+    @property
+    def peak(self) -> float:
+        """Reference amplitude for the SNR, Pa: the largest ball amplitude."""
+        return float(max(abs(b.amplitude) for b in self.balls))
+
+    def prepare(self, plan: DevicePlan) -> PressureFn:
+        from driver.physics import ball_alines
+
+        pos = plan.positions()
+
+        def pressure(ks):
+            return ball_alines(pos[ks], self.balls, plan.dt, plan.n_t, self.c)
+
+        return pressure
+
+    def describe(self) -> str:
+        return f"balls ({len(self.balls)})"
+
+
+@dataclass
+class VolumeSource:
+    """A p0 volume through the exact planar forward model.
+
+    The HDF5 file holds ``p0`` ``(n_z, n_y, n_x)`` in Pa (row 0 at the sensor plane) with
+    attributes ``dx_m`` (lateral voxel, m) and optionally ``dz_m`` (depth voxel, default
+    ``dx_m``); the lateral grid is centred on the optical axis.
+    Raises ``ValueError`` if the file lacks them.
+    """
+
+    path: Path
+    c: float = 1500.0
+
+    def __post_init__(self):
+        import h5py
+
+        self.path = Path(self.path)
+        with h5py.File(self.path, "r") as f:
+            if "p0" not in f:
+                raise ValueError(f"{self.path}: no 'p0' dataset")
+            self.p0 = np.asarray(f["p0"], dtype=np.float64)
+            attrs = dict(f.attrs) | dict(f["p0"].attrs)
+        if self.p0.ndim != 3:
+            raise ValueError(f"{self.path}: p0 must be (n_z, n_y, n_x), got {self.p0.shape}")
+        if "dx_m" not in attrs:
+            raise ValueError(f"{self.path}: attribute dx_m (lateral voxel size, m) missing")
+        self.dx = float(attrs["dx_m"])
+        self.dz = float(attrs.get("dz_m", self.dx))
+
+    @property
+    def peak(self) -> float:
+        return float(np.abs(self.p0).max()) or 1.0
+
+    def prepare(self, plan: DevicePlan) -> PressureFn:
+        from driver.physics import forward_points
+
+        pos = plan.positions()
+
+        def pressure(ks):
+            return forward_points(self.p0, self.dx, self.dz, pos[ks], plan.dt, plan.n_t, self.c)
+
+        return pressure
+
+    def describe(self) -> str:
+        return f"volume {self.path.name} {self.p0.shape}"
+
+
+@dataclass
+class ReplaySource:
+    """Replay of a dense dataset in k-Wave layout.
+
+    ``dataset`` ``(n_t, n_y, n_x)`` (k-Wave ``'tyz'``) with file attribute ``dt_s``; an
+    optional ``sensor_yz_index`` ``(n_y, n_x, 2)`` must map (i_y, i_x) to itself (the
+    dataset is a regular grid). A plan replays if its dt equals ``dt_s`` (relative 1e-6),
+    its n_t ≤ the stored n_t, its pitch equals ``dx_m`` (if given) and its lattice sits
+    centred on the stored grid (both centred on the optical axis, so plan point (i_x, i_y)
+    replays grid point (i_x + (N_x − n_x)/2, i_y + (N_y − n_y)/2)); otherwise ``prepare``
+    raises ``ValueError`` with the reason.
+    """
+
+    path: Path
+    dataset: str = "sensor_data/clean"
+
+    def __post_init__(self):
+        import h5py
+
+        self.path = Path(self.path)
+        with h5py.File(self.path, "r") as f:
+            if self.dataset not in f:
+                raise ValueError(f"{self.path}: no dataset {self.dataset!r}")
+            data = np.asarray(f[self.dataset], dtype=np.float64)
+            if "dt_s" not in f.attrs:
+                raise ValueError(f"{self.path}: file attribute dt_s missing")
+            self.dt = float(f.attrs["dt_s"])
+            self.dx = float(f.attrs["dx_m"]) if "dx_m" in f.attrs else None
+            if "sensor_yz_index" in f:
+                idx = np.asarray(f["sensor_yz_index"])
+                if idx.shape != data.shape[1:] + (2,):
+                    raise ValueError(f"{self.path}: sensor_yz_index shape {idx.shape} does "
+                                     f"not match the data {data.shape}")
+                grid = np.stack(np.meshgrid(np.arange(data.shape[1]), np.arange(data.shape[2]),
+                                            indexing="ij"), axis=-1)
+                if not np.array_equal(idx, grid):
+                    raise ValueError(f"{self.path}: sensor_yz_index is not a regular grid")
+        if data.ndim != 3:
+            raise ValueError(f"{self.path}: {self.dataset} must be (t, y, x), got {data.shape}")
+        # (n_y, n_x, n_t): one contiguous A-line per lattice point
+        self.alines = np.ascontiguousarray(np.moveaxis(data, 0, -1))
+
+    @property
+    def peak(self) -> float:
+        return float(np.abs(self.alines).max()) or 1.0
+
+    def prepare(self, plan: DevicePlan) -> PressureFn:
+        n_y, n_x, n_t = self.alines.shape
+        if abs(plan.dt - self.dt) > 1e-6 * self.dt:
+            raise ValueError(f"plan dt {plan.dt:g} s differs from the replay's {self.dt:g} s")
+        if plan.n_t > n_t:
+            raise ValueError(f"plan n_t {plan.n_t} exceeds the replay's {n_t} samples")
+        if self.dx is not None and abs(plan.pitch - self.dx) > 1e-6 * self.dx:
+            raise ValueError(f"plan pitch {plan.pitch:g} m differs from the replay's "
+                             f"{self.dx:g} m")
+        off_x, off_y = (n_x - plan.n_x) / 2, (n_y - plan.n_y) / 2
+        if off_x < 0 or off_y < 0 or off_x % 1 or off_y % 1:
+            raise ValueError(f"plan lattice {plan.n_x}x{plan.n_y} does not sit centred on the "
+                             f"replay grid {n_x}x{n_y}")
+        idx = plan.indices.astype(np.intp) + np.array([int(off_x), int(off_y)])
+
+        def pressure(ks):
+            return self.alines[idx[ks, 1], idx[ks, 0], :plan.n_t]
+
+        return pressure
+
+    def describe(self) -> str:
+        return f"replay {self.path.name}:{self.dataset}"
