@@ -27,15 +27,17 @@ COMMAND = "demo"
 HELP = "run the end-to-end demo: simulated scanner, equi-steradian plan, scan, NEDNER reconstruction"
 
 # Demo geometry: the phantom (driver.sources.default_phantom) spans about ±3 mm
-# laterally and 1.5–4.8 mm in depth; a 96 × 96 lattice at 100 µm (9.6 mm) covers it.
+# laterally and 1.5–4.8 mm in depth; an 80 × 80 lattice at 100 µm (8 mm) covers it.
+# 512 samples at 12 ns reach 9.2 mm of travel (the farthest ball from a corner sensor);
+# the images keep the first 320 depth rows (c·dt = 18 µm each: 5.8 mm).
 DEFAULTS = {
-    "lattice": 96,
+    "lattice": 80,
     "pitch": 100e-6,
-    "n_t": 768,
-    "dt": 10e-9,
-    "points": 1000,
+    "n_t": 512,
+    "dt": 12e-9,
+    "points": 800,
     "poi_depth": 3.0e-3,
-    "n_z": 640,
+    "n_z": 320,
 }
 
 
@@ -58,7 +60,9 @@ def add_arguments(parser):
 
 
 def run(args) -> int:
-    return Demo(args).run()
+    from clients.cli._common import client_errors
+
+    return client_errors(lambda a: Demo(a).run())(args)
 
 
 # --------------------------------------------------------------------------- processes
@@ -197,6 +201,9 @@ class Demo:
                           f"`fpscan {' / '.join(missing)}` not installed yet")
             else:
                 self._pipeline()
+        except Exception as exc:
+            self.report["error"] = f"{type(exc).__name__}: {exc}"
+            raise
         finally:
             for p in reversed(self.procs):
                 p.stop()
@@ -319,7 +326,7 @@ class Demo:
             # reconstruct in the executor while the next scan runs
             recon_jobs[recon_name] = (method, api.start_reconstruction(
                 scan_job_id=job_id, method=method,
-                params={"n_z": DEFAULTS["n_z"] if a.n_t >= DEFAULTS["n_z"] else a.n_t, "dtype": "float32"}))
+                params={"n_z": min(DEFAULTS["n_z"], a.n_t), "dtype": "float32"}))
         self.report["scans"] = scans
 
         recons: dict = {}
