@@ -1,0 +1,74 @@
+"""`fpscan demo` run as a user runs it (a subprocess, small settings to stay quick): every
+promised file exists and opens (h5py, Pillow), and report.json's figures hold up against
+an independent check (the phantom's p0 from driver.physics on the volume's own grid)."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from clients_servers import clean_env, has_command
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory):
+    if not (has_command("serve") and has_command("sim")):
+        pytest.skip("`fpscan serve`/`fpscan sim` not available yet")
+    out = tmp_path_factory.mktemp("demo") / "demo-output"
+    res = subprocess.run([sys.executable, "-m", "clients", "demo", "--out", str(out), "--quiet",
+                          "--lattice", "48", "--points", "300", "--n-t", "384"],
+                         capture_output=True, text=True, timeout=300, env=clean_env())
+    assert res.returncode == 0, res.stderr[-3000:]
+    report = json.loads((out / "report.json").read_text())
+    return out, report, res
+
+
+def test_demo_report(demo):
+    _out, report, _res = demo
+    assert report["skipped"] == [], report["skipped"]
+    assert "error" not in report
+    plans = report["plans"]
+    assert plans["equisteradian"]["n_points"] < plans["full"]["n_points"] == 48 * 48
+    for name in ("equisteradian", "full"):
+        scan = report["scans"][name]
+        assert scan["points"] == plans[name]["n_points"]
+        assert scan["acquisition_s"] > 0
+    rec = report["reconstructions"]
+    assert set(rec) == {"nedner", "ner_dense"}
+    assert rec["nedner"]["points_used"] == plans["equisteradian"]["n_points"]
+    for r in rec.values():
+        assert r["reconstruction_s"] > 0
+        assert -1.0 <= r["cc_phantom"] <= 1.0
+    # the sparse NEDNER image looks like the phantom and like the dense reference
+    assert rec["nedner"]["cc_phantom_mip_xy"] > 0.5
+    assert rec["nedner"]["cc_dense_reference"] > 0.5
+
+
+def test_demo_files_open(demo):
+    import h5py
+    from PIL import Image
+
+    from driver.physics import ball_p0
+    from driver.sources import default_phantom
+
+    out, report, _res = demo
+    for name in ("scan_equisteradian.h5", "scan_full.h5"):
+        with h5py.File(out / name, "r") as f:
+            assert len(f.keys()) > 0
+    with Image.open(out / "mask_preview.png") as im:
+        assert im.format == "PNG"
+    for name, r in report["reconstructions"].items():
+        with h5py.File(out / r["volume"], "r") as f:
+            p0, z, y, x = (f[k][...] for k in ("p0", "z", "y", "x"))
+        assert p0.shape == (len(z), len(y), len(x)) == tuple(r["shape"])
+        for plane, fname in r["mips"].items():
+            with Image.open(out / fname) as im:
+                assert im.format == "PNG"
+                assert im.size == {"xy": (len(x), len(y)), "xz": (len(x), len(z)), "yz": (len(y), len(z))}[plane]
+        # recompute the reported correlation independently
+        truth = ball_p0(default_phantom(), z, x, y)
+        cc = np.corrcoef(p0.astype(np.float64).ravel(), truth.ravel())[0, 1]
+        assert cc == pytest.approx(r["cc_phantom"], abs=1e-6)
