@@ -285,7 +285,7 @@ class Demo:
         acquisition = dict(settings["acquisition"])
         lattice = settings["lattice"]
 
-        sparse = api.create_plan({
+        sparse = self._create_plan(api, {
             "kind": "equisteradian", "lattice": lattice,
             "params": {"depth": a.poi_depth, "n_points": a.points, "poi": [0.0, 0.0]},
             "order": "rings", "acquisition": acquisition,
@@ -293,8 +293,8 @@ class Demo:
         api.download_plan_preview(field_of(sparse, "id"), self.out / "mask_preview.png")
         plans = {"equisteradian": sparse}
         if not a.no_dense:
-            plans["full"] = api.create_plan({"kind": "full", "lattice": lattice,
-                                             "order": "serpentine", "acquisition": acquisition})
+            plans["full"] = self._create_plan(api, {"kind": "full", "lattice": lattice,
+                                                    "order": "serpentine", "acquisition": acquisition})
         self.report["plans"] = {
             name: {k: field_of(p, k) for k in ("id", "kind", "n_points", "requested_points",
                                                 "weight_ratio", "expected_scan_time_s")}
@@ -342,6 +342,28 @@ class Demo:
                                   "reconstruction_s": timings.get("run_s")}
         self.report["reconstructions"] = recons
         self._figures()
+
+    def _create_plan(self, api, body: dict):
+        """``POST /api/plans`` with mask parameters; if this server cannot plan masks
+        itself, the mask is planned here (``service.plans``) and sent as a point list."""
+        from clients.http import ApiError
+
+        try:
+            return api.create_plan(body)
+        except ApiError as exc:
+            if exc.status_code != 422 or not any(s in str(exc.detail) for s in ("mask", "not available")):
+                raise
+            from service.plans import plan_from_spec
+
+            plan = plan_from_spec({"lattice": body["lattice"],
+                                   "mask": {"kind": body["kind"], "params": body.get("params", {})},
+                                   "order": body.get("order"), "acquisition": body["acquisition"]})
+            plan = plan.model_dump(mode="json") if hasattr(plan, "model_dump") else plan
+            self.report.setdefault("notes", []).append(
+                f"the server refused the {body['kind']} mask ({exc.detail}); planned locally and sent "
+                "as a point list (Voronoi weights)")
+            return api.create_plan({"lattice": body["lattice"], "points": plan["points"]["indices"],
+                                    "order": "given", "acquisition": body["acquisition"]})
 
     # -- figures of merit
     def _figures(self) -> None:
