@@ -89,7 +89,8 @@ def _weights_1d(x: np.ndarray, lo: float, hi: float, radius: np.ndarray) -> np.n
     return w
 
 
-def voronoi_weights(positions, pitch: float | None = None, *, bounds=None) -> np.ndarray:
+def voronoi_weights(positions, pitch: float | None = None, *, bounds=None,
+                    samples_per_cell: int = _SAMPLES_PER_CELL) -> np.ndarray:
     """Clipped Voronoi areas of sensors on the sensor plane (DESIGN §3.3).
 
     positions: ``(n, 2)`` as (x, y) in m, or ``(n, 1)`` / ``(n,)`` as x in m (2-D imaging,
@@ -99,6 +100,8 @@ def voronoi_weights(positions, pitch: float | None = None, *, bounds=None) -> np
         spacing instead.
     bounds: optional clip box, ``((x_lo, x_hi),)`` or ``((x_lo, x_hi), (y_lo, y_hi))`` in m
         (e.g. the scanner lattice's extent, lattice points ± pitch/2).
+    samples_per_cell: raster samples aimed at per median cell for irregular masks
+        (default 1024: cells to ~1 %; lower is faster, the total stays exact).
 
     Returns ``(n,)`` weights in m² (plane) or m (line), in the order of ``positions``.
 
@@ -115,7 +118,8 @@ def voronoi_weights(positions, pitch: float | None = None, *, bounds=None) -> np
 
     In the plane the cells are measured on a raster of sub-cell centres, an even number per
     pitch and aligned to the lattice, so no raster sample lies on the bisector of two
-    axis-aligned lattice neighbours (no ties); irregular masks get ~1024 raster
+    axis-aligned lattice neighbours; a sample on any other bisector is shared equally by
+    the two sensors (mirror-symmetric masks get mirror-symmetric weights); irregular masks get ~1024 raster
     samples per median cell within a budget of 2²⁰ samples.
 
     Raises ValueError: bad shape, non-finite values, duplicated positions, pitch ≤ 0 or
@@ -168,7 +172,7 @@ def voronoi_weights(positions, pitch: float | None = None, *, bounds=None) -> np
     extent = hi - lo
     cell = float(np.prod(extent)) / n
     m = 2
-    while cell / (base / m) ** 2 < _SAMPLES_PER_CELL and m < 64:
+    while cell / (base / m) ** 2 < samples_per_cell and m < 64:
         m += 2
     while float(np.prod(np.ceil(extent / (base / m)))) > _MAX_RASTER and m > 2:
         m -= 2
@@ -196,7 +200,17 @@ def voronoi_weights(positions, pitch: float | None = None, *, bounds=None) -> np
     frac = np.outer(fracs[1], fracs[0]).ravel()
     samples = np.column_stack((gx.ravel(), gy.ravel()))
     tree = cKDTree(pos)
-    dist, label = tree.query(samples, k=1, workers=-1)
-    keep = dist <= radius[label]
-    counts = np.bincount(label[keep], weights=frac[keep], minlength=n)
+    if n == 1:
+        dist, label = tree.query(samples, k=1)
+        keep = dist <= radius[label]
+        counts = np.bincount(label[keep], weights=frac[keep], minlength=n)
+        return counts * h * h
+    dist, label = tree.query(samples, k=2, workers=-1)
+    # A sample on the bisector of two sensors is shared equally (keeps mirror symmetry).
+    tie = dist[:, 1] - dist[:, 0] <= 1e-9 * h
+    share = np.where(tie, 0.5, 1.0) * frac
+    keep0 = dist[:, 0] <= radius[label[:, 0]]
+    counts = np.bincount(label[keep0, 0], weights=share[keep0], minlength=n)
+    keep1 = tie & (dist[:, 1] <= radius[label[:, 1]])
+    counts += np.bincount(label[keep1, 1], weights=share[keep1], minlength=n)
     return counts * h * h
