@@ -61,8 +61,8 @@ def parse_command(payload: bytes) -> Command:
     """Parse one command payload. Raises :class:`ScpiError` with the SCPI code."""
     if len(payload) > MAX_COMMAND:
         raise ScpiError(-223, f"Too much data; command of {len(payload)} bytes")
-    payload = payload.rstrip(b"\r\n")
     head, _, rest = payload.partition(b" ")
+    head = head.rstrip(b"\r\n")
     try:
         header = head.decode("ascii")
     except UnicodeDecodeError:
@@ -88,6 +88,7 @@ def parse_command(payload: bytes) -> Command:
                 raise ScpiError(-108, "Parameter not allowed; data after the block")
             break
         arg, sep, rest = rest.partition(b",")
+        arg = arg.rstrip(b"\r\n")
         try:
             args.append(arg.decode("ascii").strip())
         except UnicodeDecodeError:

@@ -542,6 +542,8 @@ class SimulatedScanner:
 
     def _cmd_plan_end(self, cmd):
         self._require_idle()
+        if self._plan_expected == 0:
+            raise _Error(-200, "Execution error; PLAN:END without PLAN:BEG")
         want = cmd.args[0].strip('"').lower() if cmd.args else ""
         image = bytes(self._plan_image)
         if len(image) != self._plan_expected:

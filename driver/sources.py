@@ -66,9 +66,19 @@ class BallSource:
         from driver.physics import ball_alines
 
         pos = plan.positions()
+        dt, n_t, c = plan.dt, plan.n_t, self.c
 
         def pressure(ks):
-            return ball_alines(pos[ks], self.balls, plan.dt, plan.n_t, self.c)
+            # each ball only where its wave is: samples of (r - R)/c … (r + R)/c
+            p = pos[ks]
+            out = np.zeros((len(p), n_t))
+            for b in self.balls:
+                r = np.sqrt((p[:, 0] - b.x) ** 2 + (p[:, 1] - b.y) ** 2 + b.z ** 2)
+                lo = max(0, int(np.floor((r.min() - b.radius) / c / dt)) - 2)
+                hi = min(n_t, int(np.ceil((r.max() + b.radius) / c / dt)) + 3)
+                if hi > lo:
+                    out[:, lo:hi] += ball_alines(p, [b], dt, hi - lo, c, t0=lo * dt)
+            return out
 
         return pressure
 

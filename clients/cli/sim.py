@@ -1,0 +1,99 @@
+"""`fpscan sim`: run the simulated FP scanner on a pseudo-terminal until killed.
+
+The first line on stdout is the device path (e.g. ``/dev/pts/7``) for ``fpscan scan
+--device`` or the service; then the simulator runs until SIGINT/SIGTERM, when it writes
+the ground-truth record (``--record``) and exits 0.
+"""
+from __future__ import annotations
+
+COMMAND = "sim"
+HELP = "run the simulated FP scanner on a pseudo-terminal (prints its device path first)"
+
+
+def add_arguments(parser):
+    parser.add_argument("--source", nargs="+", default=["balls"], metavar="KIND [FILE]",
+                        help="A-line source: 'balls' (built-in phantom: balls and a curved "
+                             "tube), 'volume FILE' (HDF5 p0 with dx_m) or 'replay FILE' "
+                             "(dense k-Wave-layout HDF5, e.g. kwave3d_balls_yarn.h5)")
+    parser.add_argument("--dataset", default="sensor_data/clean",
+                        help="dataset replayed from the replay FILE (default: sensor_data/clean)")
+    parser.add_argument("--prf", type=float, default=50.0,
+                        help="laser pulse repetition frequency in Hz; 0 = unthrottled (default 50)")
+    parser.add_argument("--faults", default="",
+                        help="fault spec, e.g. 'corrupt=1e-4,drop=1e-4,stall=800:2,reset=1200,"
+                             "interlock=1500'")
+    parser.add_argument("--seed", type=int, default=0, help="seed of noise and faults")
+    parser.add_argument("--record", default=None, metavar="FILE",
+                        help="write the ground truth (every A-line sent) to this HDF5 file")
+    parser.add_argument("--snr", type=float, default=None, help="peak signal / noise std")
+    parser.add_argument("--bandwidth", type=float, default=None,
+                        help="sensor -3 dB bandwidth in Hz (2nd-order Butterworth)")
+    parser.add_argument("--tuning-delay", type=float, default=0.0,
+                        help="bias-wavelength tuning time per point, s")
+    parser.add_argument("--dc-variation", type=float, default=0.0,
+                        help="relative amplitude of the DC-level map (0..1)")
+    parser.add_argument("--sensitivity-variation", type=float, default=0.0,
+                        help="relative amplitude of the sensitivity map (0..1)")
+    parser.add_argument("--byte-rate", type=float, default=None,
+                        help="limit the device's output to this many bytes/s")
+    parser.add_argument("--sound-speed", type=float, default=1500.0, help="m/s (balls, volume)")
+
+
+def make_source(kind_and_file: list[str], *, dataset: str = "sensor_data/clean",
+                sound_speed: float = 1500.0):
+    """The source named on the command line. Raises ValueError for a bad choice."""
+    from driver.sources import BallSource, ReplaySource, VolumeSource, default_phantom
+
+    kind, rest = kind_and_file[0].lower(), kind_and_file[1:]
+    if kind == "balls":
+        if rest:
+            raise ValueError("--source balls takes no file")
+        return BallSource(default_phantom(), c=sound_speed)
+    if kind in ("volume", "replay"):
+        if len(rest) != 1:
+            raise ValueError(f"--source {kind} needs exactly one FILE")
+        from pathlib import Path
+
+        if not Path(rest[0]).is_file():
+            raise ValueError(f"no such file: {rest[0]}")
+        if kind == "volume":
+            return VolumeSource(Path(rest[0]), c=sound_speed)
+        return ReplaySource(Path(rest[0]), dataset=dataset)
+    raise ValueError(f"unknown source {kind!r} (balls, volume FILE, replay FILE)")
+
+
+def run(args) -> int:
+    import signal
+    import sys
+    import threading
+
+    from driver.faults import FaultSpec
+    from driver.simulator import SimConfig, SimulatedScanner
+
+    if args.prf < 0:
+        raise ValueError("--prf must be >= 0")
+    if args.snr is not None and args.snr <= 0:
+        raise ValueError("--snr must be > 0")
+    config = SimConfig(
+        source=make_source(args.source, dataset=args.dataset, sound_speed=args.sound_speed),
+        prf=args.prf, tuning_delay=args.tuning_delay, dc_variation=args.dc_variation,
+        sensitivity_variation=args.sensitivity_variation, bandwidth=args.bandwidth,
+        snr=args.snr, byte_rate=args.byte_rate, faults=FaultSpec.parse(args.faults),
+        seed=args.seed, record=args.record)
+    stop = threading.Event()
+
+    def on_signal(signum, frame):
+        stop.set()
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    sim = SimulatedScanner(config).start()
+    try:
+        print(sim.path, flush=True)
+        print(f"fpscan sim: {config.source.describe()}, PRF {args.prf:g} Hz, boot id "
+              f"{sim.boot_id}; stop with Ctrl-C", file=sys.stderr, flush=True)
+        while not stop.wait(0.5):
+            pass
+    finally:
+        sim.stop()
+    return 0

@@ -1,0 +1,216 @@
+"""The scanner link end to end: host driver ↔ simulated FP scanner on a real pty, real
+scan files (driver.scanfile), ground truth from the simulator's own HDF5 record."""
+from __future__ import annotations
+
+import os
+import threading
+import time
+
+import numpy as np
+import pytest
+from driver_helpers import grid_plan, read_record, small_phantom
+
+from driver.acquire import acquire
+from driver.faults import FaultSpec
+from driver.host import DeviceError, DriverError, InterlockOpen, Scanner
+from driver.scanfile import ScanFile, read_scan
+from driver.simulator import SimConfig, SimulatedScanner
+from driver.sources import BallSource, ReplaySource
+
+pytestmark = pytest.mark.timeout(120)
+
+
+def make_sim(tmp_path, **kw) -> SimulatedScanner:
+    kw.setdefault("source", BallSource(small_phantom()))
+    kw.setdefault("prf", 0.0)
+    kw.setdefault("record", tmp_path / "truth.h5")
+    return SimulatedScanner(SimConfig(**kw))
+
+
+def assert_matches_record(scan_path, record_path, plan):
+    scan = read_scan(scan_path)
+    samples, scale, dc, sent = read_record(record_path, plan["id"])
+    assert scan.completed.all() and sent.all()
+    assert np.array_equal(scan.alines, samples)  # bit-identical int16
+    assert np.array_equal(scan.scale, scale)
+    assert np.array_equal(scan.dc_level, dc)
+    assert np.array_equal(scan.meta["point_index"], np.arange(len(samples)))
+    return scan
+
+
+def test_fault_scan_every_aline_once_and_bit_identical(tmp_path):
+    plan = grid_plan(41, 40, n_t=256)  # 1640 points
+    n = len(plan["points"]["indices"])
+    faults = FaultSpec.parse("corrupt=1e-4,drop=1e-4,stall=500:2.0,reset=1100")
+    appended = []
+
+    class CountingFile(ScanFile):
+        def append(self, k, samples, meta):
+            ok = super().append(k, samples, meta)
+            appended.append((k, ok))
+            return ok
+
+    with make_sim(tmp_path, faults=faults, seed=11) as sim:
+        with Scanner(sim.path, response_timeout=10) as sc:
+            sink = CountingFile.create(tmp_path / "scan.h5", plan, instrument=sc.identify(),
+                                       software_version="test")
+            with sink:
+                res = sc.scan(plan, sink)
+        stats = dict(sim.stats)
+    print("faults seen by the host:", res.faults, "device:", stats)
+    assert res.complete and res.points_done == n
+    # every point appended exactly once, none refused as duplicate
+    ks = [k for k, ok in appended]
+    assert sorted(ks) == list(range(n)) and all(ok for _, ok in appended)
+    # the faults really happened and were recovered
+    assert stats["resets"] == 1 and stats["stalls"] == 1
+    assert res.faults["resets"] == 1 and res.faults["bad_frames"] > 10
+    assert res.faults["naks"] > 0 and res.faults["stall_polls"] >= 1
+    assert_matches_record(tmp_path / "scan.h5", tmp_path / "truth.h5", plan)
+
+
+def test_prf_timing_100_points_at_50_hz(tmp_path):
+    plan = grid_plan(10, 10, n_t=256)
+    with make_sim(tmp_path, prf=50.0) as sim:
+        with Scanner(sim.path) as sc:
+            sc.identify()
+            sc.upload_plan(plan)
+            with ScanFile.create(tmp_path / "scan.h5", plan, instrument={}, software_version="t") as sf:
+                res = sc.scan(plan, sf, upload=False)
+    # timed window: SCAN:STAR reply → last A-line (nothing else runs in between)
+    print(f"100 points at 50 Hz: acquisition took {res.acquisition_s:.4f} s (ideal 2.0 s)")
+    assert res.complete
+    assert 1.9 <= res.acquisition_s <= 2.1
+    ts = read_scan(tmp_path / "scan.h5").meta["timestamp_s"]
+    assert np.allclose(np.diff(ts), 0.02, atol=1e-9)  # one pulse per PRF tick
+
+
+def test_pause_resume_abort_from_another_thread(tmp_path):
+    plan = grid_plan(30, 30, n_t=128)  # 900 points at 200 Hz: 4.5 s if never stopped
+    seen = []
+    with make_sim(tmp_path, prf=200.0) as sim, Scanner(sim.path) as sc:
+        sf = ScanFile.create(tmp_path / "scan.h5", plan, instrument={}, software_version="t")
+        out = {}
+        th = threading.Thread(target=lambda: out.setdefault(
+            "res", sc.scan(plan, sf, progress=seen.append, progress_interval=0.05)))
+        th.start()
+        deadline = time.monotonic() + 10
+        while (not seen or seen[-1].points_done < 50) and time.monotonic() < deadline:
+            time.sleep(0.02)
+        sc.pause()
+        time.sleep(0.4)  # in-flight A-lines land
+        done_paused = seen[-1].points_done
+        time.sleep(0.5)
+        assert seen[-1].points_done == done_paused and seen[-1].state == "paused"
+        sc.resume()
+        while seen[-1].points_done < done_paused + 50 and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert seen[-1].points_done >= done_paused + 50
+        sc.abort()
+        th.join(timeout=10)
+        assert not th.is_alive()
+        res = out["res"]
+        assert res.aborted and not res.complete and 100 <= res.points_done < 900
+        assert sc.status().state == "IDLE"  # the device is left idle
+        sf.close()
+    p = seen[-1]
+    assert p.state == "aborted" and p.n_points == 900 and p.rate > 0
+    assert read_scan(tmp_path / "scan.h5").completed.sum() == res.points_done
+
+
+def test_interlock_stops_scan_with_clear_error(tmp_path):
+    plan = grid_plan(20, 10, n_t=128)
+    with make_sim(tmp_path, faults=FaultSpec.parse("interlock=120")) as sim:
+        with pytest.raises(InterlockOpen, match="interlock"):
+            acquire(sim.path, plan, tmp_path / "scan.h5", response_timeout=5)
+        with Scanner(sim.path) as sc:
+            assert sc.status().state == "FAULT"
+            assert sc.query("LAS:INT?") == "1"
+            assert (101, "Laser interlock open") in sc.errors()
+    done = read_scan(tmp_path / "scan.h5").completed
+    assert done[:120].all() and not done[120:].any()
+
+
+def test_replay_kwave_data_within_quantisation(tmp_path, shared_data):
+    import h5py
+
+    path = shared_data / "kwave3d_balls_yarn.h5"
+    with h5py.File(path) as f:
+        ref = np.asarray(f["sensor_data/clean"])  # (t, y, x)
+        dt = float(f.attrs["dt_s"])
+    # every 4th lattice point in both directions: a sparse mask picked out of dense data
+    plan = grid_plan(96, 96, 6e-5, n_t=ref.shape[0], dt=dt)
+    keep = [i for i, (ix, iy) in enumerate(plan["points"]["indices"]) if ix % 4 == 1 and iy % 4 == 2]
+    for key in ("indices", "positions", "weights"):
+        plan["points"][key] = [plan["points"][key][i] for i in keep]
+    from driver.plan import plan_id_of
+
+    plan["id"] = plan_id_of(plan)
+    with make_sim(tmp_path, source=ReplaySource(path)) as sim:
+        res = acquire(sim.path, plan, tmp_path / "scan.h5")
+    assert res.complete
+    scan = read_scan(tmp_path / "scan.h5")
+    idx = np.asarray(plan["points"]["indices"])
+    want = ref[:, idx[:, 1], idx[:, 0]].T  # (n_points, n_t)
+    err = np.abs(scan.pressure - want)
+    assert (err <= scan.scale[:, None] * 0.5 * (1 + 1e-6) + 1e-7 * np.abs(want)).all()
+    assert np.abs(want).max() > 1000 * scan.scale.max()  # the check is not vacuous
+    print(f"replay: {len(idx)} A-lines, max error {err.max():.3g} vs max half-step "
+          f"{0.5 * scan.scale.max():.3g}")
+
+
+def test_bad_input_gives_clear_errors_never_hangs(tmp_path):
+    with pytest.raises(DriverError, match="cannot open"):
+        Scanner(str(tmp_path / "no-such-port"))
+    plan = grid_plan(20, 20, n_t=64)  # 400 points
+    with make_sim(tmp_path, max_points=300, max_samples=4096) as sim:
+        with Scanner(sim.path, response_timeout=3) as sc:
+            with pytest.raises(DriverError, match="cannot open"):
+                Scanner(sim.path)  # busy: exclusively locked by sc
+            assert sc.query("*IDN?").startswith("fpscan,FP-SIM,")
+            with pytest.raises(DeviceError) as e:
+                sc.query("SCAN:FROB 3")
+            assert e.value.code == -113
+            with pytest.raises(DeviceError) as e:
+                sc.query("SCAN:STAR 0")
+            assert e.value.code == 103  # no plan
+            with pytest.raises(DeviceError) as e:
+                sc.upload_plan(plan)  # 400 points > the device's 300
+            assert e.value.code == -222
+            with pytest.raises(DeviceError) as e:
+                sc.query(b"PLAN:DATA 0,#3999ab")
+            assert e.value.code == -161
+            with pytest.raises(DeviceError) as e:
+                sc.query("PLAN:END " + "0" * 64)
+            assert e.value.code == -200
+            small = grid_plan(10, 10, n_t=64)
+            sc.upload_plan(small)
+            with pytest.raises(DeviceError) as e:
+                sc.query("SCAN:STAR 100")  # out of range: points 0..99
+            assert e.value.code == -222
+            # raw garbage and a frame with a bad CRC on the wire: dropped, queued, survived
+            sc._write(b"\x01\x02garbage\xff\x00" + b"\x55" * 300 + b"\x00")
+            codes = [c for c, _ in sc.errors()]
+            assert -113 in codes and 103 in codes and -222 in codes and -310 in codes
+            assert sc.query("*OPC?") == "1"
+            assert sc.query("PLAN:ID?") == small["id"]
+            with pytest.raises(ValueError, match="outside the lattice"):
+                bad = grid_plan(10, 10)
+                bad["points"]["indices"][0] = [10, 0]
+                sc.upload_plan(bad)
+        # the simulator is still alive and serves a new host
+        with Scanner(sim.path) as sc2:
+            assert sc2.status().state == "IDLE"
+    # a port that exists but never answers: a timeout, not a hang
+    import pty
+
+    master, slave = pty.openpty()
+    try:
+        t0 = time.monotonic()
+        with Scanner(os.ttyname(slave), response_timeout=1.0) as sc3:
+            with pytest.raises(DriverError, match="no reply"):
+                sc3.query("*IDN?")
+        assert time.monotonic() - t0 < 8
+    finally:
+        os.close(master)
+        os.close(slave)
