@@ -1,0 +1,286 @@
+"""IPASC export and import of scan files, with plain h5py.
+
+The IPASC data format (International Photoacoustic Standardisation Consortium; reference
+implementation PACFISH, ``pacfish.iohandler``) is an HDF5 file with
+
+- ``/binary_time_series_data``: ``[detectors, samples, wavelengths, measurements]``;
+- ``/meta_data/<tag>``: acquisition metadata, every value a dataset, ``None`` stored as
+  the string ``"None"``, SI units;
+- ``/meta_data_device/general/<tag>`` and ``/meta_data_device/detectors/<id>/<tag>``
+  (``<id>``: the detector's index, zero-padded to 10 digits as PACFISH's
+  ``DeviceMetaDataCreator`` does; detector i is row i of the binary data).
+
+Mapping of an fpscan scan (docs/file-formats.md has the full table): every *completed*
+scan point is one detection element at ``[x, y, 0]`` m facing +z; one wavelength; one
+measurement (the scan is a ``composite_scan``: its points were acquired one after the
+other). The binary data is the DC-normalised pressure (``driver.scanfile``). Things IPASC
+has no tag for (area weights, lattice indices, the plan, per-A-line metadata) go into
+extra ``/meta_data/fpscan_*`` datasets, which :func:`read_ipasc` uses when present and
+other readers ignore.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import uuid as _uuid
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+
+from driver.scanfile import read_scan
+
+DETECTOR_ID_WIDTH = 10
+
+
+def _instrument_id(instrument: dict) -> str:
+    for key in ("unique_identifier", "serial", "idn", "IDN", "model"):
+        if instrument.get(key):
+            return str(instrument[key])
+    return "fpscan FP scanner (unidentified)"
+
+
+def export_scan(scan_path: str | os.PathLike, out_path: str | os.PathLike, *,
+                dtype: Any = np.float64, data_uuid: str | None = None) -> Path:
+    """Export the completed A-lines of a scan file to an IPASC HDF5 file.
+
+    ``scan_path``: an fpscan scan file (complete or partial; only completed points are
+    exported, in scan order). ``out_path``: written to a temporary sibling, then renamed.
+    ``dtype``: float type of the binary data (float64 keeps the pressure bit-exact).
+    Returns the output path. Raises ValueError (no completed points, a multi-wavelength
+    plan, bad dtype), FileNotFoundError.
+    """
+    dtype = np.dtype(dtype)
+    if dtype not in (np.dtype(np.float32), np.dtype(np.float64)):
+        raise ValueError(f"dtype must be float32 or float64, got {dtype}")
+    scan = read_scan(scan_path).completed_only()
+    if scan.n_points == 0:
+        raise ValueError("the scan has no completed A-lines to export")
+    if len(scan.wavelengths) > 1:
+        raise ValueError("the scan file holds one A-line per point; a plan with "
+                         f"{len(scan.wavelengths)} wavelengths cannot be mapped to IPASC")
+    n, n_t = scan.n_points, scan.n_t
+    pos = np.asarray(scan.positions, dtype=np.float64)
+    xy = np.zeros((n, 2))
+    xy[:, :pos.shape[1]] = pos
+    c, dt = float(scan.sound_speed), float(scan.dt)
+    meta = scan.meta
+    out_path = Path(out_path)
+    tmp = out_path.with_name(f".{out_path.name}.{os.getpid()}.tmp")
+    str_dt = h5py.string_dtype("utf-8")
+    try:
+        with h5py.File(tmp, "w") as f:
+            f.create_dataset("binary_time_series_data",
+                             data=scan.pressure.astype(dtype)[:, :, None, None])
+            m = f.create_group("meta_data")
+
+            def put(group, name, value):
+                if value is None:
+                    value = "None"
+                if isinstance(value, str):
+                    group.create_dataset(name, data=value, dtype=str_dt)
+                else:
+                    group.create_dataset(name, data=value)
+
+            put(m, "uuid", data_uuid or str(_uuid.uuid4()))
+            put(m, "encoding", "raw")
+            put(m, "compression", "None")
+            put(m, "data_type", dtype.name)
+            put(m, "dimensionality", "time")
+            put(m, "sizes", np.array([n, n_t, 1, 1], dtype=np.int64))
+            put(m, "ad_sampling_rate", 1.0 / dt)
+            put(m, "speed_of_sound", c)
+            put(m, "acquisition_wavelengths",
+                np.asarray(scan.wavelengths, dtype=np.float64) if len(scan.wavelengths) else None)
+            put(m, "measurement_spatial_poses", np.zeros((1, 6)))
+            put(m, "measurement_timestamps", np.array([float(meta["timestamp_s"].min())]))
+            put(m, "pulse_energy", np.array([float(meta["pulse_energy_j"].mean())]))
+            put(m, "measurements_per_image", 1)
+            put(m, "scanning_method", "composite_scan")
+            put(m, "photoacoustic_imaging_device_reference", _instrument_id(scan.instrument))
+            # fpscan extras (not IPASC tags)
+            put(m, "fpscan_plan_json", json.dumps(scan.plan, sort_keys=True,
+                                                  separators=(",", ":")))
+            put(m, "fpscan_plan_id", scan.plan_id)
+            put(m, "fpscan_software_version", scan.software_version)
+            put(m, "fpscan_pressure", "(sample*scale + offset)/dc_level per A-line")
+            put(m, "fpscan_dt_s", dt)
+            put(m, "fpscan_weights", np.asarray(scan.weights, dtype=np.float64))
+            put(m, "fpscan_lattice_indices", np.asarray(scan.indices, dtype=np.int64))
+            put(m, "fpscan_spatial_dimensions", int(pos.shape[1]) + 1)
+            for key in ("point_index", "timestamp_s", "bias_wavelength_m", "dc_level",
+                        "pulse_energy_j", "pulse_number", "boot_id", "run_id"):
+                put(m, f"fpscan_{key}", np.asarray(meta[key]))
+
+            dev = f.create_group("meta_data_device")
+            g = dev.create_group("general")
+            put(g, "unique_identifier", _instrument_id(scan.instrument))
+            put(g, "field_of_view", np.array([xy[:, 0].min(), xy[:, 0].max(),
+                                              xy[:, 1].min(), xy[:, 1].max(),
+                                              0.0, c * dt * (n_t - 1)]))
+            put(g, "num_detectors", n)
+            put(g, "num_illuminators", 0)
+            dev.create_group("illuminators")
+            dets = dev.create_group("detectors")
+            spot = scan.instrument.get("spot_radius_m")
+            orientation = np.array([0.0, 0.0, 1.0])
+            for i in range(n):
+                d = dets.create_group(str(i).zfill(DETECTOR_ID_WIDTH))
+                put(d, "detection_element",
+                    f"FP interrogation spot at scan point {int(meta['point_index'][i])}")
+                put(d, "detector_position", np.array([xy[i, 0], xy[i, 1], 0.0]))
+                put(d, "detector_orientation", orientation)
+                put(d, "detector_geometry_type", "CIRCULAR")
+                if spot is not None:  # optional tags we cannot fill are left out
+                    put(d, "detector_geometry", float(spot))
+        os.replace(tmp, out_path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return out_path
+
+
+#: aliases used by callers
+write_ipasc = export_scan
+
+
+def _value(ds: h5py.Dataset) -> Any:
+    v = ds[()]
+    if isinstance(v, bytes):
+        v = v.decode("utf-8")
+    if isinstance(v, str) and v == "None":
+        return None
+    return v
+
+
+def _regular_axis(coords: np.ndarray, name: str) -> np.ndarray:
+    """A regular vector spanning ``coords`` at their smallest spacing (foreign files)."""
+    u = np.unique(np.round(coords, 12))
+    if len(u) == 1:
+        return u
+    step = float(np.min(np.diff(u)))
+    n = int(round((u[-1] - u[0]) / step)) + 1
+    if n > 8192:
+        raise ValueError(f"detector {name} coordinates do not lie on a regular lattice "
+                         f"(would need {n} grid points)")
+    return u[0] + step * np.arange(n)
+
+
+def read_ipasc(path: str | os.PathLike, *, wavelength_index: int = 0,
+               measurement_index: int = 0) -> dict:
+    """Read an IPASC file as point data for reconstruction.
+
+    Returns a dict: ``alines`` ``(n, n_t)`` float64 (detector i = row i), ``positions``
+    ``(n, 2)`` (x, y) m (``(n, 1)`` for an fpscan 2-D export), ``weights`` ``(n,)`` or None
+    (fpscan exports carry the plan's weights), ``dt`` s (1/``ad_sampling_rate``), ``c`` m/s
+    (``speed_of_sound``, 1500 if absent), ``wavelengths`` (m), ``grid`` (regular lateral
+    coordinate vectors: the plan's lattice, else spanned by the detector positions),
+    ``uuid``, ``plan`` (dict or None), ``indices`` (lattice indices or None).
+    Raises ValueError naming the fault (not IPASC, inconsistent sizes, non-planar
+    detectors, non-finite data), FileNotFoundError.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no IPASC file at {path}")
+    try:
+        f = h5py.File(path, "r")
+    except OSError:
+        raise ValueError(f"{path} is not an HDF5 file") from None
+    with f:
+        if "binary_time_series_data" not in f or "meta_data" not in f:
+            raise ValueError("not an IPASC file: /binary_time_series_data or /meta_data missing")
+        raw = f["binary_time_series_data"]
+        if raw.ndim != 4:
+            raise ValueError(f"binary_time_series_data must be 4-D [detectors, samples, "
+                             f"wavelengths, measurements], got shape {raw.shape}")
+        n_det, n_t, n_wl, n_meas = raw.shape
+        if not 0 <= wavelength_index < n_wl:
+            raise ValueError(f"wavelength_index {wavelength_index} out of range [0, {n_wl})")
+        if not 0 <= measurement_index < n_meas:
+            raise ValueError(f"measurement_index {measurement_index} out of range [0, {n_meas})")
+        if raw.dtype.kind not in "iuf":
+            raise ValueError(f"binary data must be real numbers, got {raw.dtype}")
+        m = {k: _value(v) for k, v in f["meta_data"].items() if isinstance(v, h5py.Dataset)}
+        sizes = m.get("sizes")
+        if sizes is not None and list(np.ravel(sizes)) != list(raw.shape):
+            raise ValueError(f"meta_data/sizes {list(np.ravel(sizes))} != binary data shape "
+                             f"{list(raw.shape)}")
+        fs = m.get("ad_sampling_rate")
+        try:
+            fs = float(fs)
+        except (TypeError, ValueError):
+            raise ValueError(f"meta_data/ad_sampling_rate missing or not a number: {fs!r}") from None
+        if not (math.isfinite(fs) and fs > 0):
+            raise ValueError(f"meta_data/ad_sampling_rate must be > 0 Hz, got {fs}")
+        c = m.get("speed_of_sound")
+        if c is None:
+            c = 1500.0
+        c_arr = np.ravel(np.asarray(c, dtype=np.float64))
+        if c_arr.size == 0 or not np.all(c_arr == c_arr[0]):
+            raise ValueError("a spatially varying speed_of_sound is not supported (homogeneous "
+                             "medium only)")
+        c = float(c_arr[0])
+        if not (math.isfinite(c) and c > 0):
+            raise ValueError(f"speed_of_sound must be > 0 m/s, got {c}")
+        wl = m.get("acquisition_wavelengths")
+        wavelengths = np.ravel(np.asarray(wl, dtype=np.float64)) if wl is not None else np.zeros(0)
+        dets = f.get("meta_data_device/detectors")
+        if not isinstance(dets, h5py.Group):
+            raise ValueError("not an IPASC file: /meta_data_device/detectors missing")
+        ids = sorted(dets.keys())
+        if len(ids) != n_det:
+            raise ValueError(f"{len(ids)} detectors described but the binary data has {n_det}")
+        pos3 = np.empty((n_det, 3))
+        for i, key in enumerate(ids):
+            if "detector_position" not in dets[key]:
+                raise ValueError(f"detector {key} has no detector_position")
+            p = np.ravel(np.asarray(dets[key]["detector_position"][()], dtype=np.float64))
+            if p.size != 3:
+                raise ValueError(f"detector {key}: detector_position must have 3 values")
+            pos3[i] = p
+        alines = np.asarray(raw[:, :, wavelength_index, measurement_index], dtype=np.float64)
+    if not np.isfinite(pos3).all():
+        raise ValueError("detector positions must be finite")
+    if np.ptp(pos3[:, 2]) > 1e-9:
+        raise ValueError("detectors are not on one plane z = const (planar sensors only)")
+    if not np.isfinite(alines).all():
+        raise ValueError("binary data contains NaN or infinite values")
+    dt = 1.0 / fs
+    dt_exact = m.get("fpscan_dt_s")
+    if dt_exact is not None and abs(float(dt_exact) * fs - 1.0) < 1e-9:
+        dt = float(dt_exact)  # the exact sample interval 1/ad_sampling_rate was derived from
+    plan = None
+    if isinstance(m.get("fpscan_plan_json"), str):
+        try:
+            plan = json.loads(m["fpscan_plan_json"])
+        except json.JSONDecodeError:
+            plan = None
+    weights = m.get("fpscan_weights")
+    if weights is not None:
+        weights = np.ravel(np.asarray(weights, dtype=np.float64))
+        if weights.shape != (n_det,):
+            raise ValueError(f"fpscan_weights has {weights.size} values for {n_det} detectors")
+    indices = m.get("fpscan_lattice_indices")
+    two_d = int(m.get("fpscan_spatial_dimensions") or 3) == 2
+    if plan is not None and "lattice" in plan:
+        lat = plan["lattice"]
+        n_x, n_y, pitch = int(lat["n_x"]), int(lat.get("n_y", 1)), float(lat["pitch"])
+        gx = (np.arange(n_x) - (n_x - 1) / 2.0) * pitch
+        gy = (np.arange(n_y) - (n_y - 1) / 2.0) * pitch
+    else:
+        gx = _regular_axis(pos3[:, 0], "x")
+        gy = _regular_axis(pos3[:, 1], "y")
+        two_d = two_d or len(gy) == 1
+    positions = pos3[:, :1].copy() if two_d else pos3[:, :2].copy()
+    return {
+        "alines": alines, "positions": positions, "weights": weights, "dt": dt, "c": c,
+        "wavelengths": wavelengths, "grid": (gx,) if two_d else (gx, gy),
+        "uuid": m.get("uuid"), "plan": plan,
+        "indices": np.asarray(indices) if indices is not None else None,
+        "z_plane": float(pos3[0, 2]),
+    }
+
+
+import_ipasc = read_ipasc

@@ -1,0 +1,192 @@
+"""Result files: a reconstructed p0 volume in HDF5 (DESIGN §6), written atomically.
+
+Layout (``format`` attribute ``fpscan-result/1``; docs/file-formats.md):
+
+===========  =============================  =============================================
+path         shape, dtype                   meaning
+===========  =============================  =============================================
+``/p0``      (n_z, n_y, n_x) or (n_z, n_x)  initial pressure (the input's units), row 0
+             float32/float64                at the sensor plane z = 0
+``/z``       (n_z,) float64                 depth of each row, m (HDF5 dimension scale)
+``/y``       (n_y,) float64                 lateral y, m (3-D only; dimension scale)
+``/x``       (n_x,) float64                 lateral x, m (dimension scale)
+``/params``  group, no datasets             one attribute per parameter, its JSON text
+===========  =============================  =============================================
+
+Root attributes: ``format``, ``method``, ``params`` (JSON of every parameter),
+``input_id``, ``created_utc``, ``software_version``, ``units``.
+
+The file is written to a temporary sibling, fsynced, then renamed over ``path``
+(``os.replace``), so a reader sees either the old file or the complete new one.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+
+FORMAT = "fpscan-result/1"
+
+
+def _jsonable(obj: Any) -> Any:
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, (Path, np.dtype, type)):
+        return str(getattr(obj, "__name__", obj))
+    raise TypeError(f"{type(obj).__name__} is not JSON-serialisable")
+
+
+def params_json(params: dict) -> str:
+    """Canonical JSON of a parameter dict (numpy scalars/arrays converted); ValueError on
+    NaN/inf or values JSON cannot express."""
+    try:
+        return json.dumps(params, sort_keys=True, separators=(",", ":"), allow_nan=False,
+                          default=_jsonable)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"parameters are not JSON-serialisable: {exc}") from None
+
+
+@dataclass
+class ResultVolume:
+    """A result file's content. ``p0`` ``(n_z, n_y, n_x)``/``(n_z, n_x)``; ``z``, ``x``
+    (and ``y``, None in 2-D) coordinate vectors in m; ``method``; ``params`` dict;
+    ``input_id``; ``attrs`` (all root attributes)."""
+
+    p0: np.ndarray
+    z: np.ndarray
+    x: np.ndarray
+    y: np.ndarray | None
+    method: str
+    params: dict
+    input_id: str
+    attrs: dict = field(default_factory=dict)
+
+    @property
+    def ndim(self) -> int:
+        return self.p0.ndim
+
+
+def _check_axis(name: str, v: Any, n: int) -> np.ndarray:
+    a = np.asarray(v, dtype=np.float64)
+    if a.shape != (n,):
+        raise ValueError(f"{name} must have shape ({n},) to match p0, got {a.shape}")
+    if not np.isfinite(a).all():
+        raise ValueError(f"{name} must be finite")
+    if n > 1 and not (np.all(np.diff(a) > 0)):
+        raise ValueError(f"{name} must be strictly increasing")
+    return a
+
+
+def write_result(path: str | os.PathLike, p0: np.ndarray, z: np.ndarray, x: np.ndarray,
+                 y: np.ndarray | None = None, *, method: str, params: dict, input_id: str,
+                 software_version: str | None = None) -> Path:
+    """Write a result file atomically (see module docstring); returns ``path``.
+
+    ``p0``: ``(n_z, n_y, n_x)`` with ``y`` given, or ``(n_z, n_x)`` with ``y=None``; float32
+    or float64 (other real types are stored as float64), finite. ``z``, ``y``, ``x``:
+    strictly increasing coordinates in m. ``params``: every parameter of the
+    reconstruction, JSON-serialisable. Raises ValueError naming the fault.
+    """
+    p0 = np.asarray(p0)
+    if p0.dtype.kind not in "iuf":
+        raise ValueError(f"p0 must be real numbers, got {p0.dtype}")
+    if p0.dtype not in (np.float32, np.float64):
+        p0 = p0.astype(np.float64)
+    if p0.ndim not in (2, 3) or min(p0.shape) < 1:
+        raise ValueError(f"p0 must be (n_z, n_x) or (n_z, n_y, n_x), got shape {p0.shape}")
+    if (p0.ndim == 3) != (y is not None):
+        raise ValueError("give y for a 3-D p0 and y=None for a 2-D p0")
+    if not np.isfinite(p0).all():
+        raise ValueError("p0 contains NaN or infinite values")
+    z = _check_axis("z", z, p0.shape[0])
+    x = _check_axis("x", x, p0.shape[-1])
+    y = _check_axis("y", y, p0.shape[1]) if p0.ndim == 3 else None
+    if not isinstance(method, str) or not method:
+        raise ValueError("method must be a non-empty string")
+    if not isinstance(input_id, str):
+        raise ValueError("input_id must be a string")
+    if not isinstance(params, dict):
+        raise ValueError(f"params must be a dict, got {type(params).__name__}")
+    all_json = params_json(params)
+    each = {str(k): params_json({"v": v})[5:-1] for k, v in params.items()}
+    if software_version is None:
+        from importlib.metadata import PackageNotFoundError, version
+        try:
+            software_version = version("fpscan")
+        except PackageNotFoundError:
+            software_version = "unknown"
+
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        with h5py.File(tmp, "w") as f:
+            d = f.create_dataset("p0", data=p0)
+            axes = [("z", z)] + ([("y", y)] if y is not None else []) + [("x", x)]
+            for i, (name, vec) in enumerate(axes):
+                s = f.create_dataset(name, data=vec)
+                s.attrs["units"] = "m"
+                s.make_scale(name)
+                d.dims[i].attach_scale(s)
+                d.dims[i].label = name
+            d.attrs["units"] = "input units (Pa if the input was in Pa)"
+            g = f.create_group("params")
+            for k, v in each.items():
+                g.attrs[k] = v
+            a = f.attrs
+            a["format"] = FORMAT
+            a["method"] = method
+            a["params"] = all_json
+            a["input_id"] = input_id
+            a["software_version"] = software_version
+            a["created_utc"] = _dt.datetime.now(_dt.timezone.utc).isoformat()
+            a["units"] = "m for coordinates; p0 in the input's units"
+        with open(tmp, "rb") as fh:
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return path
+
+
+def write_image(path: str | os.PathLike, image: Any, *, input_id: str,
+                method: str | None = None, software_version: str | None = None) -> Path:
+    """Write a ``service.recon.Image`` (``p0``, ``z``, ``x``, ``y``, ``params``); the
+    method defaults to ``image.params["method"]``. Raises ValueError as
+    :func:`write_result`."""
+    params = dict(getattr(image, "params", None) or {})
+    method = method or params.get("method")
+    if not method:
+        raise ValueError("no method given and image.params has no 'method'")
+    return write_result(path, image.p0, image.z, image.x, getattr(image, "y", None),
+                        method=str(method), params=params, input_id=input_id,
+                        software_version=software_version)
+
+
+def read_result(path: str | os.PathLike) -> ResultVolume:
+    """Read a result file. Raises FileNotFoundError, ValueError (not a result file)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no result file at {path}")
+    try:
+        f = h5py.File(path, "r")
+    except OSError:
+        raise ValueError(f"{path} is not an HDF5 file") from None
+    with f:
+        attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
+        if attrs.get("format") != FORMAT:
+            raise ValueError(f"{path} is not an {FORMAT} file")
+        p0 = f["p0"][()]
+        z, x = f["z"][()], f["x"][()]
+        y = f["y"][()] if "y" in f else None
+    return ResultVolume(p0=p0, z=z, x=x, y=y, method=str(attrs["method"]),
+                        params=json.loads(attrs["params"]), input_id=str(attrs["input_id"]),
+                        attrs=attrs)
