@@ -160,12 +160,14 @@ def voronoi_weights(positions, pitch: float | None = None, *, bounds=None,
     if dim == 1:
         return _weights_1d(pos[:, 0], float(lo[0]), float(hi[0]), radius)
 
-    # Shortcut: a complete regular lattice (every cell a full pitch square).
-    if lattice_pitch is not None:
-        k = np.round((pos - pos.min(axis=0)) / lattice_pitch).astype(np.int64)
+    # Shortcut: a complete regular grid (a full lattice or an equispaced sub-grid) whose
+    # box is not cut by ``bounds``: every cell is a full square of the grid's spacing.
+    grid_pitch = infer_pitch(pos) if pitch is not None else lattice_pitch
+    if grid_pitch is not None and np.all(lo <= box[0]) and np.all(hi >= box[1]):
+        k = np.round((pos - pos.min(axis=0)) / grid_pitch).astype(np.int64)
         nx, ny = k.max(axis=0) + 1
-        if nx * ny == n and np.all(lo <= box[0]) and np.all(hi >= box[1]):
-            return np.full(n, lattice_pitch**2)
+        if nx * ny == n and abs(d_med - grid_pitch) <= 1e-9 * grid_pitch:
+            return np.full(n, grid_pitch**2)
 
     # Raster step: an even number of sub-cells per lattice pitch (or per spacing).
     base = lattice_pitch if lattice_pitch is not None else float(d.min())

@@ -142,3 +142,22 @@ def test_infer_pitch():
 def test_bad_input(pos, pitch, match):
     with pytest.raises(ValueError, match=match):
         voronoi_weights(pos, pitch)
+
+
+@pytest.mark.parametrize("step", [1, 3])
+def test_raster_path_is_exact_away_from_a_hole(step):
+    # a lattice (or sub-grid) with one interior point missing: no shortcut; cells not
+    # touching the hole stay exact squares, the hole's area goes to its neighbours
+    pos = grid(31, 31, step=step)
+    spacing = step * PITCH
+    centre = np.argmin(np.hypot(pos[:, 0], pos[:, 1]))
+    hole = pos[centre]
+    pos = np.delete(pos, centre, axis=0)
+    w = voronoi_weights(pos, PITCH)
+    far = np.max(np.abs(pos - hole), axis=1) > 1.5 * spacing
+    np.testing.assert_allclose(w[far], spacing**2, rtol=1e-12)
+    n_side = len(np.unique(pos[:, 0]))
+    assert w.sum() == pytest.approx(n_side**2 * spacing**2, rel=1e-12)
+    # the hole's square goes to its four axis neighbours, a quarter each
+    gain = np.sort(w[~far] / spacing**2 - 1)
+    np.testing.assert_allclose(gain, [0] * 4 + [0.25] * 4, atol=1e-12)
