@@ -1,0 +1,157 @@
+"""Result files (service.storage.results) and their PNG renderings (service.storage.render)."""
+from __future__ import annotations
+
+import io
+import json
+import os
+
+import h5py
+import numpy as np
+import pytest
+from PIL import Image as PILImage
+
+from service.storage.render import mip, render_mip, render_mips, render_slice, to_uint8
+from service.storage.results import read_result, write_image, write_result
+
+
+def volume(n_z=7, n_y=5, n_x=6, dtype=np.float32):
+    rng = np.random.default_rng(3)
+    p0 = rng.random((n_z, n_y, n_x)).astype(dtype)
+    z = np.arange(n_z) * 1.5e-5
+    y = (np.arange(n_y) - (n_y - 1) / 2) * 6e-5
+    x = (np.arange(n_x) - (n_x - 1) / 2) * 6e-5
+    return p0, z, y, x
+
+
+def test_write_read_3d(tmp_path):
+    p0, z, y, x = volume()
+    params = {"method": "nedner", "eps": 1e-6, "upsample": np.int64(2), "dtype": "float32",
+              "weights": np.array([0.5, 0.25]), "positivity": False, "n_z": None}
+    path = write_result(tmp_path / "r.h5", p0, z, x, y, method="nedner", params=params,
+                        input_id="scan-abc")
+    r = read_result(path)
+    assert r.p0.dtype == np.float32
+    np.testing.assert_array_equal(r.p0, p0)
+    np.testing.assert_array_equal(r.z, z)
+    np.testing.assert_array_equal(r.y, y)
+    np.testing.assert_array_equal(r.x, x)
+    assert r.method == "nedner" and r.input_id == "scan-abc"
+    assert r.params == {"method": "nedner", "eps": 1e-6, "upsample": 2, "dtype": "float32",
+                        "weights": [0.5, 0.25], "positivity": False, "n_z": None}
+    with h5py.File(path, "r") as f:  # dimension scales and one JSON attribute per parameter
+        assert [f["p0"].dims[i][0].name for i in range(3)] == ["/z", "/y", "/x"]
+        assert json.loads(f["params"].attrs["eps"]) == 1e-6
+        assert json.loads(f["params"].attrs["weights"]) == [0.5, 0.25]
+    assert [p.name for p in tmp_path.iterdir()] == ["r.h5"]  # no temporary left behind
+
+
+class _Image:  # the shape of service.recon.Image (duck-typed; not our code under test)
+    def __init__(self, p0, z, x, y, params):
+        self.p0, self.z, self.x, self.y, self.params = p0, z, x, y, params
+
+
+def test_write_image_2d_and_atomic_replace(tmp_path):
+    p0, z, _, x = volume()
+    img2 = _Image(p0[:, 0, :].astype(np.float64), z, x, None, {"method": "ner", "eps": 1e-6})
+    path = write_image(tmp_path / "r.h5", img2, input_id="d1")
+    first = path.read_bytes()
+    r = read_result(path)
+    assert r.y is None and r.p0.shape == (7, 6) and r.method == "ner"
+    # a failed write leaves the previous file untouched and no temporary behind
+    bad = p0[:, 0, :].copy()
+    bad[2, 3] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        write_result(path, bad, z, x, method="ner", params={}, input_id="d2")
+    assert path.read_bytes() == first and len(os.listdir(tmp_path)) == 1
+    # a successful one replaces it
+    write_result(path, p0[:, 1, :], z, x, method="ner", params={}, input_id="d3")
+    assert read_result(path).input_id == "d3"
+
+
+@pytest.mark.parametrize("kwargs, what", [
+    (dict(p0=np.zeros((3, 4, 5)), y=None), "give y"),
+    (dict(p0=np.zeros((3, 5)), y=np.arange(4.0)), "give y"),
+    (dict(p0=np.zeros((3, 4))), r"x must have shape \(4,\)"),
+    (dict(p0=np.zeros((2, 5))), r"z must have shape \(2,\)"),
+    (dict(p0=np.zeros((3, 5), dtype=complex)), "real"),
+    (dict(z=np.array([0.0, 2.0, 1.0])), "increasing"),
+    (dict(params={"eps": float("nan")}), "JSON"),
+    (dict(params={"f": object()}), "JSON"),
+    (dict(method=""), "method"),
+])
+def test_result_bad_input(tmp_path, kwargs, what):
+    args = dict(p0=np.zeros((3, 5)), z=np.arange(3.0), x=np.arange(5.0), y=None, method="ner",
+                params={}, input_id="i")
+    args.update(kwargs)
+    with pytest.raises(ValueError, match=what):
+        write_result(tmp_path / "bad.h5", args.pop("p0"), args.pop("z"), args.pop("x"),
+                     args.pop("y"), **args)
+    assert not (tmp_path / "bad.h5").exists()
+
+
+def test_read_result_rejects_other_files(tmp_path):
+    with h5py.File(tmp_path / "other.h5", "w") as f:
+        f["p0"] = np.zeros((2, 2))
+    with pytest.raises(ValueError, match="fpscan-result"):
+        read_result(tmp_path / "other.h5")
+    with pytest.raises(FileNotFoundError):
+        read_result(tmp_path / "none.h5")
+
+
+def _png(data: bytes) -> np.ndarray:
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    return np.asarray(PILImage.open(io.BytesIO(data)))
+
+
+def test_mip_planes_against_direct_max():
+    p0 = np.zeros((6, 5, 4))
+    p0[4, 1, 2] = 3.0   # (z, y, x)
+    p0[1, 3, 0] = 2.0
+    oracle = {"xy": np.zeros((5, 4)), "xz": np.zeros((6, 4)), "yz": np.zeros((6, 5))}
+    for (iz, iy, ix), v in [((4, 1, 2), 3.0), ((1, 3, 0), 2.0)]:
+        oracle["xy"][iy, ix] = v
+        oracle["xz"][iz, ix] = v
+        oracle["yz"][iz, iy] = v
+    for plane, expected in oracle.items():
+        np.testing.assert_array_equal(mip(p0, plane), expected)
+    np.testing.assert_array_equal(mip(p0[:, 0, :], "xz"), p0[:, 0, :])
+    with pytest.raises(ValueError, match="only the xz"):
+        mip(p0[:, 0, :], "xy")
+    with pytest.raises(ValueError, match="plane"):
+        mip(p0, "zz")
+
+
+def test_raw_png_pixels_are_the_scaled_mip():
+    p0, z, y, x = volume(dtype=np.float64)
+    p0[0, 0, 0] = -1.0
+    for plane in ("xy", "xz", "yz"):
+        px = _png(render_mip(p0, z, x, y, plane, annotate=False))
+        m = mip(p0, plane)
+        expected = np.floor(np.clip(m / m.max(), 0, 1) * 255 + 0.5).astype(np.uint8)
+        np.testing.assert_array_equal(px, expected)
+    px = _png(render_slice(p0, z, x, y, 3, annotate=False, vmin=0.0, vmax=0.5))
+    np.testing.assert_array_equal(px, np.floor(np.clip(p0[3] / 0.5, 0, 1) * 255 + 0.5))
+    rgb = _png(render_mip(p0, z, x, y, "xy", annotate=False, cmap="viridis"))
+    assert rgb.shape == (5, 6, 3)
+    assert to_uint8(np.zeros((2, 2))).max() == 0  # nothing above vmin renders black
+
+
+def test_annotated_pngs(tmp_path):
+    p0, z, y, x = volume(n_z=40, n_y=20, n_x=30)
+    pngs = render_mips(p0, z, x, y)
+    assert set(pngs) == {"xy", "xz", "yz"}
+    for data in pngs.values():
+        img = _png(data)
+        assert img.ndim == 3 and img.shape[0] > 100 and img.shape[1] > 300
+    assert set(render_mips(p0[:, 0, :], z, x)) == {"xz"}
+    _png(render_slice(p0, z, x, y, 0, cmap="magma"))
+    with pytest.raises(ValueError, match="3-D"):
+        render_slice(p0[:, 0, :], z, x, None, 0)
+    with pytest.raises(ValueError, match="out of range"):
+        render_slice(p0, z, x, y, 40)
+    with pytest.raises(ValueError, match="colormap"):
+        render_mip(p0, z, x, y, "xy", cmap="no-such-map")
+    with pytest.raises(ValueError, match="y coordinates"):
+        render_mip(p0, z, x, None, "xy")
+    with pytest.raises(ValueError, match="do not match"):
+        render_mip(p0, z[:-1], x, y, "xy")
