@@ -26,7 +26,9 @@ from web_e2e_support import REPO_ROOT, fpscan_cmd, free_port, has_subcommand, st
 httpx = pytest.importorskip("httpx")
 
 TOKEN = "web-e2e-token-4711"
-LATTICE = {"n_x": 24, "n_y": 24, "pitch": 1e-4}
+# A 6 mm aperture over the simulator's built-in phantom (balls at 1.5-4.5 mm depth).
+LATTICE = {"n_x": 40, "n_y": 40, "pitch": 1.5e-4}
+DEPTH_MM = 3.6
 N_POINTS = 120
 
 pytestmark = pytest.mark.timeout(120)
@@ -151,7 +153,7 @@ def shot(browser, screenshots: Path, name: str) -> None:
 
 def plan_request(n_points: int) -> dict:
     return {"kind": "equisteradian", "lattice": LATTICE,
-            "params": {"depth": 1.0e-3, "n_points": n_points},
+            "params": {"depth": DEPTH_MM * 1e-3, "n_points": n_points},
             "acquisition": {"n_t": 256, "dt": 2e-8, "averages": 1, "wavelengths": [7.5e-7],
                             "prf": 40.0, "sound_speed": 1500.0}}
 
@@ -163,7 +165,7 @@ def fill_plan_form(browser, n_points: int) -> None:
     set_value(browser, "lat-ny", LATTICE["n_y"])
     set_value(browser, "lat-pitch", LATTICE["pitch"] * 1e6)
     Select(el(browser, "mask-kind")).select_by_value("equisteradian")
-    set_value(browser, "mask-depth", 1.0)
+    set_value(browser, "mask-depth", DEPTH_MM)
     set_value(browser, "acq-nt", 256)
     set_value(browser, "acq-dt", 20)
     set_value(browser, "acq-prf", 40)
