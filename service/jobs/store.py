@@ -144,7 +144,8 @@ class JobStore:
                 row = db.execute("SELECT * FROM jobs WHERE idempotency_key = ?", (idempotency_key,)).fetchone()
                 if row is not None:
                     old = self._row(row)
-                    if old["kind"] != kind or old["params"] != json.loads(json.dumps(params)):
+                    asked = json.loads(json.dumps(params))
+                    if old["kind"] != kind or {k: old["params"].get(k) for k in asked} != asked:
                         raise IdempotencyConflict(
                             "Idempotency-Key already used for a different request")
                     return old, False

@@ -1,0 +1,155 @@
+"""Live preview of a running scan: a NEDNER reconstruction of the points acquired so far,
+refreshed every few seconds, rendered as MIP PNGs with a version counter.
+
+The reconstruction (``service.recon.reconstruct_points``, temporal NUFFT + type-1 NUFFT
+over the positions, paper §3.2) works on any subset of the sensor mask, so the user
+watches the image form. Weights are the clipped Voronoi areas of the subset
+(``voronoi_weights``, the default of ``reconstruct_points``), not the plan's weights for
+the whole mask. The lattice grid of the plan is the output grid.
+
+:func:`render_preview` runs in a separate process (a one-worker ``spawn`` pool owned by
+:class:`PreviewManager`): the scan file is read as an SWMR reader there, and the server's
+event loop and serial threads never wait for it.
+"""
+from __future__ import annotations
+
+import logging
+import multiprocessing
+import threading
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+
+log = logging.getLogger("fpscan.preview")
+
+
+@dataclass
+class PreviewState:
+    """One refresh: ``version`` (1, 2, ...), ``points_used``, ``updated`` (UNIX time),
+    ``refresh_s`` (seconds the refresh took), ``pngs`` ``{plane: PNG bytes}``."""
+
+    version: int = 0
+    points_used: int = 0
+    updated: float | None = None
+    refresh_s: float | None = None
+    pngs: dict = field(default_factory=dict)
+
+
+def render_preview(scan_path: str, *, eps: float = 1e-3, max_depth_samples: int | None = None) -> dict:
+    """NEDNER reconstruction of the completed points of a scan file → MIP PNGs.
+
+    Returns ``{"points_used": n, "pngs": {plane: bytes}, "seconds": s}``; ``pngs`` is
+    empty when fewer than 2 points are complete. float32, NUFFT tolerance ``eps``.
+    """
+    import numpy as np
+
+    from service.jobs.images import mip_pngs
+    from service.jobs.work import load_scan_points
+
+    t0 = time.perf_counter()
+    inp = load_scan_points(scan_path)
+    n = int(inp["alines"].shape[0])
+    if n < 2:
+        return {"points_used": n, "pngs": {}, "seconds": time.perf_counter() - t0}
+    from service.recon import reconstruct_points
+
+    n_t = inp["alines"].shape[1]
+    n_z = min(n_t, max_depth_samples) if max_depth_samples else None
+    image = reconstruct_points(inp["alines"].astype(np.float32), inp["positions"], inp["dt"], inp["c"],
+                               grid=inp["grid"], method="ner", eps=eps, dtype=np.float32, n_z=n_z)
+    pngs = mip_pngs(image.p0)
+    return {"points_used": n, "pngs": pngs, "seconds": time.perf_counter() - t0}
+
+
+def warm_up() -> float:
+    """Import and compile (numba) the reconstruction in a fresh worker with a tiny
+    NEDNER run, so the first live preview of a scan is not slowed by start-up."""
+    import numpy as np
+
+    from service.recon import reconstruct_points
+
+    t0 = time.perf_counter()
+    x = (np.arange(4) - 1.5) * 1e-4
+    yy, xx = np.meshgrid(x, x, indexing="ij")
+    pos = np.stack([xx.ravel(), yy.ravel()], axis=1)
+    alines = np.zeros((16, 32), dtype=np.float32)
+    alines[:, 5] = 1.0
+    reconstruct_points(alines, pos, 2e-8, 1500.0, grid=(x, x), method="ner", eps=1e-3, dtype=np.float32)
+    return time.perf_counter() - t0
+
+
+class PreviewManager:
+    """Refreshes the previews of running scans every ``interval`` s (only when new
+    points arrived), in one spawned worker process."""
+
+    def __init__(self, interval: float):
+        self.interval = float(interval)
+        self._pool: ProcessPoolExecutor | None = None
+        self._states: dict[str, PreviewState] = {}
+        self._active: dict[str, dict] = {}  # job_id -> {"path", "last_points"}
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._loop, name="preview", daemon=True)
+
+    def start(self) -> None:
+        self._pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
+        self._pool.submit(warm_up)  # in the background; a refresh queues behind it
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+        if self._pool is not None:
+            self._pool.shutdown(wait=False, cancel_futures=True)
+
+    def track(self, job_id: str, scan_path: str) -> None:
+        with self._lock:
+            self._active[job_id] = {"path": scan_path, "last_points": -1, "points_done": None}
+
+    def note_progress(self, job_id: str, points_done: int) -> None:
+        """The scan thread reports its count, so refreshes happen only on new points."""
+        with self._lock:
+            if job_id in self._active:
+                self._active[job_id]["points_done"] = int(points_done)
+
+    def untrack(self, job_id: str, *, final_refresh: bool = True) -> None:
+        with self._lock:
+            entry = self._active.pop(job_id, None)
+        if entry is not None and final_refresh:
+            self._refresh(job_id, entry)
+
+    def get(self, job_id: str) -> PreviewState | None:
+        with self._lock:
+            return self._states.get(job_id)
+
+    def _loop(self) -> None:
+        while not self._stop.wait(self.interval):
+            with self._lock:
+                items = list(self._active.items())
+            for job_id, entry in items:
+                if entry["points_done"] is not None and entry["points_done"] == entry["last_points"]:
+                    continue
+                try:
+                    self._refresh(job_id, entry)
+                except Exception:
+                    log.exception("preview refresh failed job=%s", job_id)
+
+    def _refresh(self, job_id: str, entry: dict) -> None:
+        if self._pool is None:
+            self._pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
+        try:
+            out = self._pool.submit(render_preview, entry["path"]).result(timeout=300)
+        except FileNotFoundError:
+            return
+        except Exception as exc:
+            log.warning("preview job=%s: %s", job_id, exc)
+            return
+        if not out["pngs"] or out["points_used"] == entry["last_points"]:
+            return
+        entry["last_points"] = out["points_used"]
+        with self._lock:
+            prev = self._states.get(job_id)
+            self._states[job_id] = PreviewState(version=(prev.version if prev else 0) + 1,
+                                                points_used=out["points_used"], updated=time.time(),
+                                                refresh_s=out["seconds"], pngs=out["pngs"])
+        log.info("preview job=%s points=%d seconds=%.2f", job_id, out["points_used"], out["seconds"])

@@ -1,0 +1,280 @@
+"""Scan jobs: drive the configured scanners with the host driver, one thread per port.
+
+A scan job owns its serial port exclusively while it runs (DESIGN §7). The
+:class:`ScanManager` starts queued scan jobs when their scanner is free; each runs
+``driver.acquire.acquire`` in its own thread (serial I/O never touches the event loop),
+writing the job's scan file (``<data_dir>/scans/<job_id>.h5``, a server-chosen name).
+Progress (points done, rate, ETA, faults recovered) goes to the job store (and so to the
+SSE stream) about twice a second; the live preview (:mod:`service.preview`) follows the
+scan file.
+
+Controls: ``pause``/``resume``/``abort`` call the open ``driver.host.Scanner`` from the
+request thread (the driver queues them for its scan loop). A scan interrupted by a server
+restart is ``paused`` (stage ``interrupted``); ``resume`` re-queues it and the driver
+continues from the scan file's record of completed points, so no A-line is lost or
+acquired twice.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+import uuid
+from pathlib import Path
+
+from service.jobs.store import TERMINAL, JobStore
+from service.preview import PreviewManager
+
+log = logging.getLogger("fpscan.scans")
+
+
+class _Run:
+    def __init__(self, job_id: str, scanner_id: str):
+        self.job_id = job_id
+        self.scanner_id = scanner_id
+        self.scanner = None          # driver.host.Scanner once open
+        self.pending: list[str] = []  # controls asked before the scanner was open
+        self.thread: threading.Thread | None = None
+        self.lock = threading.Lock()
+
+
+class ScanManager:
+    """Runs scan jobs on the scanners of ``settings.devices``."""
+
+    def __init__(self, store: JobStore, settings):
+        import driver.acquire  # noqa: F401  (ImportError: no driver → no scanning)
+
+        self.store = store
+        self.settings = settings
+        self.owner = f"scan-{uuid.uuid4().hex[:12]}"
+        self.scans_dir = Path(settings.data_dir) / "scans"
+        self.scans_dir.mkdir(parents=True, exist_ok=True)
+        self.previews = PreviewManager(settings.preview_interval_s)
+        self._runs: dict[str, _Run] = {}     # scanner_id -> active run
+        self._identity: dict[str, str] = {}
+        self._lock = threading.Lock()
+        self._wake = threading.Event()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._loop, name="scan-dispatcher", daemon=True)
+
+    # -- lifecycle -----------------------------------------------------------------
+    def start(self) -> None:
+        self.previews.start()
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._wake.set()
+        with self._lock:
+            runs = list(self._runs.values())
+        for run in runs:  # leave the devices idle; the jobs stay resumable
+            with run.lock:
+                if run.scanner is not None:
+                    try:
+                        run.scanner.pause()
+                    except Exception:
+                        pass
+        self._thread.join(timeout=5)
+        self.previews.stop()
+
+    def wake(self) -> None:
+        self._wake.set()
+
+    # -- queries ---------------------------------------------------------------------
+    def scanners(self) -> list[dict]:
+        out = []
+        with self._lock:
+            for sid, port in self.settings.devices.items():
+                run = self._runs.get(sid)
+                out.append({"id": sid, "port": port, "status": "busy" if run else "idle",
+                            "job_id": run.job_id if run else None, "identity": self._identity.get(sid)})
+        return out
+
+    def preview(self, job_id: str):
+        return self.previews.get(job_id)
+
+    def _run_of(self, job_id: str) -> _Run | None:
+        with self._lock:
+            for run in self._runs.values():
+                if run.job_id == job_id:
+                    return run
+        return None
+
+    # -- controls (called from request threads) -------------------------------------
+    def _send(self, run: _Run, what: str) -> None:
+        from driver.host import DriverError
+
+        with run.lock:
+            if run.scanner is None or run.pending:
+                run.pending.append(what)
+                return
+            try:
+                getattr(run.scanner, what)()
+            except DriverError as exc:
+                raise ValueError(f"scanner refused {what}: {exc}") from None
+
+    def pause(self, job_id: str) -> None:
+        job = self.store.get(job_id)
+        run = self._run_of(job_id)
+        if job["state"] == "paused":
+            return
+        if job["state"] == "queued":
+            raise ValueError("scan has not started; cancel it instead")
+        if run is None:
+            raise ValueError("scan is not running")
+        self._send(run, "pause")
+        self.store.set_state(job_id, "paused", only_from=("running",), progress={"stage": "paused"})
+
+    def resume(self, job_id: str) -> None:
+        job = self.store.get(job_id)
+        if job["state"] in ("running", "queued"):
+            return
+        run = self._run_of(job_id)
+        if run is not None:  # paused in this process: the scanner is waiting
+            self._send(run, "resume")
+            self.store.set_state(job_id, "running", only_from=("paused",), progress={"stage": "acquiring"})
+            return
+        # interrupted (restart or link failure): acquire the missing points in a new run
+        self.store.set_state(job_id, "queued", only_from=("paused",), progress={"stage": "resuming"})
+        self.wake()
+
+    def abort(self, job_id: str) -> None:
+        run = self._run_of(job_id)
+        self.store.request_cancel(job_id)
+        if run is not None:
+            self._send(run, "abort")
+
+    def cancel(self, job_id: str) -> None:
+        """After the store marked a cancel: stop the scanner if the scan is live."""
+        run = self._run_of(job_id)
+        if run is not None:
+            self._send(run, "abort")
+
+    # -- dispatching ---------------------------------------------------------------------
+    def _loop(self) -> None:
+        while not self._stop.is_set():
+            self._wake.wait(0.5)
+            self._wake.clear()
+            try:
+                self._dispatch()
+            except Exception:
+                log.exception("scan dispatcher error")
+
+    def _dispatch(self) -> None:
+        for job in self.store.queued("scan"):
+            sid = job["params"].get("scanner_id")
+            with self._lock:
+                if sid in self._runs or sid not in self.settings.devices:
+                    continue
+            claimed = self.store.claim(job["id"], self.owner, lease_s=60.0)
+            if claimed is None:
+                continue
+            run = _Run(job["id"], sid)
+            run.thread = threading.Thread(target=self._execute, args=(claimed, run),
+                                          name=f"scan-{sid}", daemon=True)
+            with self._lock:
+                self._runs[sid] = run
+            run.thread.start()
+
+    def _execute(self, job: dict, run: _Run) -> None:
+        jid = job["id"]
+        try:
+            self._acquire(job, run)
+        except Exception as exc:  # never let a scan thread die silently
+            log.exception("scan job=%s crashed", jid)
+            self.store.set_state(jid, "failed", error=f"scan failed ({type(exc).__name__})",
+                                 only_from=("running", "paused"))
+        finally:
+            with self._lock:
+                self._runs.pop(run.scanner_id, None)
+            self.previews.untrack(jid)
+            self._wake.set()
+
+    def _acquire(self, job: dict, run: _Run) -> None:
+        from driver.acquire import acquire
+        from driver.host import DriverError, Scanner
+
+        jid = job["id"]
+        port = self.settings.devices[run.scanner_id]
+        found = self.store.get_plan(job["params"]["plan_id"])
+        if found is None:
+            self.store.set_state(jid, "failed", error="the plan of this scan is gone", only_from=("running",))
+            return
+        plan = found[0]
+        scan_path = Path(job["params"].get("scan_path") or self.scans_dir / f"{jid}.h5")
+        resumed = scan_path.exists()
+        self.store.update_progress(jid, {"stage": "connecting", "points_total": len(plan["points"]["indices"])})
+        try:
+            scanner = Scanner(port)
+        except DriverError as exc:
+            self.store.set_state(jid, "failed", error=str(exc), only_from=("running",))
+            return
+        try:
+            try:
+                ident = scanner.identify()
+                self._identity[run.scanner_id] = " ".join(str(v) for v in ident.values()) \
+                    if isinstance(ident, dict) else str(ident)
+            except DriverError:
+                pass
+            with run.lock:
+                pending = list(run.pending)
+            self.previews.track(jid, str(scan_path))
+            last = {"t": 0.0}
+
+            def progress(p) -> None:
+                now = time.monotonic()
+                if run.scanner is None or run.pending:
+                    with run.lock:  # scanning now: controls go straight to the driver
+                        run.scanner = scanner
+                        todo, run.pending = run.pending, []
+                    for what in todo:
+                        getattr(scanner, what)()
+                self.previews.note_progress(jid, p.points_done)
+                if now - last["t"] < 0.5 and p.state not in ("done", "aborted"):
+                    return
+                last["t"] = now
+                eta = p.eta_s if math.isfinite(p.eta_s) else None
+                stage = {"running": "acquiring"}.get(p.state, p.state)
+                self.store.update_progress(jid, {
+                    "fraction": p.points_done / max(p.n_points, 1), "stage": stage,
+                    "points_done": p.points_done, "points_total": p.n_points,
+                    "rate_per_s": p.rate, "eta_s": eta, "faults_recovered": p.faults_recovered})
+                self.store.heartbeat(jid, self.owner, 60.0)
+
+            self.store.update_progress(jid, {"stage": "resuming" if resumed else "acquiring"})
+            for what in pending:  # controls that came before the port was open
+                if what == "abort":
+                    self.store.set_state(jid, "cancelled", only_from=("running", "paused"))
+                    return
+            try:
+                result = acquire(port, plan, scan_path, progress=progress, scanner=scanner)
+            except (DriverError, ValueError, OSError) as exc:
+                log.warning("scan job=%s failed: %s", jid, exc)
+                self.store.set_state(jid, "failed", error=str(exc), only_from=("running", "paused"))
+                return
+        finally:
+            with run.lock:
+                run.scanner = None
+            try:
+                scanner.close()
+            except Exception:
+                pass
+        final = {"fraction": result.points_done / max(result.n_points, 1), "points_done": result.points_done,
+                 "points_total": result.n_points, "faults_recovered": sum(result.faults.values())
+                 if isinstance(result.faults, dict) else None,
+                 "acquisition_s": result.acquisition_s}
+        self.previews.untrack(jid)  # the last refresh shows every point before the job ends
+        current = self.store.get(jid)
+        if result.aborted or (current and current["cancel_requested"]):
+            self.store.set_state(jid, "cancelled", only_from=("running", "paused"), progress={**final, "stage": "aborted"})
+        elif result.complete:
+            self.store.set_state(jid, "succeeded", only_from=("running", "paused"), progress={**final, "stage": "done"})
+        else:
+            self.store.set_state(jid, "failed", error=f"scan ended with {result.points_done} of "
+                                 f"{result.n_points} points", only_from=("running", "paused"), progress=final)
+        log.info("scan done job=%s points=%d/%d seconds=%.2f", jid, result.points_done, result.n_points,
+                 result.elapsed_s)
+
+
+__all__ = ["ScanManager", "TERMINAL"]

@@ -1,0 +1,218 @@
+"""Scan jobs end to end over HTTP only: a real simulated FP scanner on a pty, a real
+uvicorn server in a subprocess, a real SQLite file. Full scan with SSE progress and a
+changing live preview → NEDNER reconstruction correlating with the phantom; pause/resume;
+abort; SIGKILL of the server mid-scan and mid-reconstruction, then restart."""
+from __future__ import annotations
+
+import io
+import json
+import threading
+import time
+
+import h5py
+import numpy as np
+import pytest
+from service_servers import Server, needs_recon, wait_job
+
+driver_sim = pytest.importorskip("driver.simulator")
+
+pytestmark = needs_recon
+
+N, PITCH, N_T, DT = 20, 1e-4, 128, 2e-8
+
+
+def phantom():
+    from driver.physics import Ball
+
+    return [Ball(x=3e-4, y=-2e-4, z=1.0e-3, radius=1.5e-4, amplitude=1.0),
+            Ball(x=-4e-4, y=3e-4, z=1.6e-3, radius=1.5e-4, amplitude=0.8)]
+
+
+@pytest.fixture
+def sim(tmp_path):
+    from driver.sources import BallSource
+
+    s = driver_sim.SimulatedScanner(source=BallSource(phantom()), prf=100.0, seed=3,
+                                    record=tmp_path / "truth.h5").start()
+    yield s
+    s.stop()
+
+
+@pytest.fixture
+def scan_server(tmp_path, sim):
+    srv = Server(tmp_path / "srv", devices={"sim": sim.path}).start()
+    yield srv
+    srv.stop()
+
+
+def make_plan(c, *, n=N, prf=100.0) -> dict:
+    pts = []
+    for iy in range(n):  # serpentine over the lattice
+        row = [[ix, iy] for ix in range(n)]
+        pts += row if iy % 2 == 0 else row[::-1]
+    r = c.post("/api/plans", json={"lattice": {"n_x": n, "n_y": n, "pitch": PITCH}, "points": pts,
+                                   "acquisition": {"n_t": N_T, "dt": DT, "prf": prf}})
+    assert r.status_code == 201, r.text
+    return r.json()
+
+
+def start_scan(c, plan_id) -> str:
+    r = c.post("/api/scans", json={"plan_id": plan_id, "scanner_id": "sim"})
+    assert r.status_code == 202, r.text
+    return r.json()["id"]
+
+
+def wait_points(c, job_id, at_least, timeout=60.0) -> dict:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        job = c.get(f"/api/jobs/{job_id}").json()
+        if (job["progress"].get("points_done") or 0) >= at_least:
+            return job
+        time.sleep(0.05)
+    raise AssertionError(f"scan {job_id} did not reach {at_least} points: {job}")
+
+
+def check_scan_file(c, job_id, sim, tmp_path, n_points):
+    """Every point complete, none lost; each A-line is exactly what the device sent."""
+    from driver.scanfile import read_scan
+
+    r = c.get(f"/api/scans/{job_id}/file")
+    assert r.status_code == 200
+    path = tmp_path / f"{job_id}.h5"
+    path.write_bytes(r.content)
+    scan = read_scan(path)
+    assert scan.completed.all() and scan.n_points == n_points
+    assert np.array_equal(scan.meta["point_index"], np.arange(n_points))
+    sim.write_record(tmp_path / "truth.h5")
+    with h5py.File(tmp_path / "truth.h5", "r") as f:
+        truth = f[f"plans/{scan.plan_id}/samples"][...]
+    assert np.array_equal(scan.alines, truth)
+    return scan
+
+
+def test_scan_preview_sse_then_nedner_matches_phantom(scan_server, sim, tmp_path):
+    from driver.physics.balls import ball_p0
+
+    with scan_server.client() as c:
+        scanners = c.get("/api/scanners").json()
+        assert scanners[0]["id"] == "sim" and scanners[0]["status"] == "idle"
+        plan = make_plan(c)
+        job_id = start_scan(c, plan["id"])
+        events = []
+
+        def read_sse():
+            with scan_server.client(timeout=120) as c2:
+                with c2.stream("GET", f"/api/jobs/{job_id}/events") as r:
+                    for line in r.iter_lines():
+                        if line.startswith("data:"):
+                            events.append(json.loads(line[5:]))
+
+        t = threading.Thread(target=read_sse, daemon=True)
+        t.start()
+        previews = {}
+        deadline = time.monotonic() + 90
+        while time.monotonic() < deadline:
+            info = c.get(f"/api/scans/{job_id}/preview").json()
+            if info["version"] and info["version"] not in previews:
+                png = c.get(f"/api/scans/{job_id}/preview/xy.png")
+                if png.status_code == 200:
+                    previews[info["version"]] = (info["points_used"], png.content)
+            if c.get(f"/api/jobs/{job_id}").json()["state"] in ("succeeded", "failed", "cancelled"):
+                break
+            time.sleep(0.2)
+        job = wait_job(c, job_id)
+        assert job["state"] == "succeeded", job
+        t.join(timeout=30)
+        # SSE carried the progress of the acquisition up to the last point
+        done = [e["points_done"] for e in events if "points_done" in e and e.get("points_done") is not None]
+        assert done and done == sorted(done) and done[-1] == N * N
+        assert any(e.get("state") == "succeeded" for e in events)
+        # the live preview changed while the scan ran: several versions, more points each time
+        assert len(previews) >= 2, previews.keys()
+        versions = sorted(previews)
+        used = [previews[v][0] for v in versions]
+        assert used == sorted(used) and used[0] < used[-1]
+        assert previews[versions[0]][1] != previews[versions[-1]][1]
+
+        check_scan_file(c, job_id, sim, tmp_path, N * N)
+
+        r = c.post("/api/reconstructions", json={"scan_job_id": job_id, "method": "nedner",
+                                                 "params": {"dtype": "float64"}})
+        assert r.status_code == 202, r.text
+        rid = r.json()["id"]
+        assert wait_job(c, rid)["state"] == "succeeded"
+        vol = c.get(f"/api/reconstructions/{rid}/volume.h5").content
+        with h5py.File(io.BytesIO(vol), "r") as f:
+            p0, z, x, y = f["p0"][...], f["z"][...], f["x"][...], f["y"][...]
+        truth = ball_p0(phantom(), z, x, y, supersample=2)
+        cc = np.corrcoef(p0.max(axis=0).ravel(), truth.max(axis=0).ravel())[0, 1]
+        assert cc > 0.6, cc
+        assert c.get(f"/api/reconstructions/{rid}/mip/xy.png").content[:4] == b"\x89PNG"
+
+
+def test_pause_resume_and_abort(scan_server, sim, tmp_path):
+    with scan_server.client() as c:
+        plan = make_plan(c)
+        job_id = start_scan(c, plan["id"])
+        wait_points(c, job_id, 40)
+        r = c.post(f"/api/scans/{job_id}/pause")
+        assert r.status_code == 200 and r.json()["state"] == "paused"
+        time.sleep(1.0)  # in-flight A-lines land
+        before = c.get(f"/api/jobs/{job_id}").json()["progress"]["points_done"]
+        time.sleep(1.0)
+        after = c.get(f"/api/jobs/{job_id}").json()
+        assert after["state"] == "paused" and after["progress"]["points_done"] == before < N * N
+        r = c.post(f"/api/scans/{job_id}/resume")
+        assert r.status_code == 200 and r.json()["state"] == "running"
+        assert wait_job(c, job_id)["state"] == "succeeded"
+        check_scan_file(c, job_id, sim, tmp_path, N * N)
+        assert c.post(f"/api/scans/{job_id}/pause").status_code == 409  # already finished
+
+        # abort keeps what was acquired and frees the scanner; Idempotency-Key: same job
+        job2 = c.post("/api/scans", json={"plan_id": plan["id"], "scanner_id": "sim"},
+                      headers={"Idempotency-Key": "scan-abc"}).json()["id"]
+        same = c.post("/api/scans", json={"plan_id": plan["id"], "scanner_id": "sim"},
+                      headers={"Idempotency-Key": "scan-abc"}).json()["id"]
+        assert same == job2
+        wait_points(c, job2, 20)
+        assert c.post(f"/api/scans/{job2}/abort").status_code == 200
+        final = wait_job(c, job2)
+        assert final["state"] == "cancelled"
+        assert 20 <= final["progress"]["points_done"] < N * N
+        deadline = time.monotonic() + 10
+        while c.get("/api/scanners").json()[0]["status"] != "idle" and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert c.get("/api/scanners").json()[0]["status"] == "idle"
+
+
+def test_sigkill_mid_scan_and_mid_recon_then_restart(tmp_path, sim):
+    srv = Server(tmp_path / "crash", devices={"sim": sim.path}).start()
+    try:
+        with srv.client() as c:
+            plan = make_plan(c)
+            scan_id = start_scan(c, plan["id"])
+            wait_points(c, scan_id, 60)
+        srv.kill()
+        srv.start()
+        with srv.client() as c:
+            job = c.get(f"/api/jobs/{scan_id}").json()
+            assert job["state"] == "paused" and job["progress"]["stage"] == "interrupted"
+            assert c.post(f"/api/scans/{scan_id}/resume").status_code == 200
+            assert wait_job(c, scan_id)["state"] == "succeeded"
+            check_scan_file(c, scan_id, sim, tmp_path, N * N)
+
+            # a reconstruction killed while running is re-queued and finishes
+            r = c.post("/api/reconstructions", json={"scan_job_id": scan_id, "method": "nedner",
+                                                     "params": {"dtype": "float64", "upsample": 2}})
+            rid = r.json()["id"]
+            wait_job(c, rid, states=("running", "succeeded"))
+        srv.kill()
+        srv.start()
+        with srv.client() as c:
+            job = wait_job(c, rid)
+            assert job["state"] == "succeeded", job
+            assert job["attempts"] in (1, 2)
+            assert c.get(f"/api/reconstructions/{rid}/volume.h5").status_code == 200
+            assert len(c.get("/api/jobs").json()) == 2
+    finally:
+        srv.stop()
