@@ -216,7 +216,8 @@ class Demo:
         rec = self.report.get("reconstructions", {})
         lines = [f"outputs in {self.out}/ (report.json) after {self.report['total_s']:.1f} s"]
         for name, r in rec.items():
-            figs = ", ".join(f"{k} {r[k]:.3f}" for k in ("cc_phantom", "cc_phantom_mip_xy", "cc_dense_reference")
+            figs = ", ".join(f"{k} {r[k]:.3f}" for k in ("cc_phantom", "cc_phantom_roi", "cc_phantom_mip_xy",
+                                                          "cc_dense_reference", "cc_dense_reference_mip_xy")
                              if isinstance(r.get(k), float))
             lines.append(f"  {name}: {r.get('points_used', '?')} points, "
                          f"{r.get('reconstruction_s', float('nan')):.2f} s; {figs}")
@@ -383,7 +384,12 @@ class Demo:
             def cc(u, v, mask=None):
                 return float(np.corrcoef(np.ravel(u), np.ravel(v))[0, 1])
 
-        vols = {}
+        # The region of interest: the phantom's bounding box (±3.4 mm, 1.0–5.2 mm deep).
+        def roi_of(z, y, x):
+            zz, yy, xx = np.meshgrid(z, y, x, indexing="ij")
+            return (np.abs(xx) <= 3.4e-3) & (np.abs(yy) <= 3.4e-3) & (zz >= 1.0e-3) & (zz <= 5.2e-3)
+
+        vols, rois = {}, {}
         for name, r in recons.items():
             with h5py.File(self.out / r["volume"], "r") as f:
                 p0 = np.asarray(f["p0"], dtype=np.float64)
@@ -394,14 +400,21 @@ class Demo:
                 if job.get("points_used") is not None:
                     r["points_used"] = int(job["points_used"])
             vols[name] = p0
+            if y is None:
+                continue
+            rois[name] = roi = roi_of(z, y, x)
             if ball_p0 is not None:
                 phantom = ball_p0(default_phantom(), z, x, y)
                 r["cc_phantom"] = float(cc(p0, phantom))
+                r["cc_phantom_roi"] = float(cc(p0, phantom, roi))
                 r["cc_phantom_mip_xy"] = float(cc(p0.max(axis=0), phantom.max(axis=0)))
-        if "nedner" in vols and "ner_dense" in vols and vols["nedner"].shape == vols["ner_dense"].shape:
-            ref = vols["ner_dense"]
-            recons["nedner"]["cc_dense_reference"] = float(cc(vols["nedner"], ref))
-            recons["nedner"]["cc_dense_reference_mip_xy"] = float(cc(vols["nedner"].max(axis=0), ref.max(axis=0)))
+                r["cc_phantom_mip_xz"] = float(cc(p0.max(axis=1), phantom.max(axis=1)))
+        if "nedner" in vols and "ner_dense" in vols and vols["nedner"].shape == vols["ner_dense"].shape \
+                and "nedner" in rois:
+            a, ref = vols["nedner"], vols["ner_dense"]
+            recons["nedner"]["cc_dense_reference"] = float(cc(a, ref))
+            recons["nedner"]["cc_dense_reference_roi"] = float(cc(a, ref, rois["nedner"]))
+            recons["nedner"]["cc_dense_reference_mip_xy"] = float(cc(a.max(axis=0), ref.max(axis=0)))
         scans = self.report.get("scans", {})
         if "equisteradian" in scans and "full" in scans:
             self.report["point_fraction"] = scans["equisteradian"]["points"] / scans["full"]["points"]

@@ -19,7 +19,8 @@ def demo(tmp_path_factory):
         pytest.skip("`fpscan serve`/`fpscan sim` not available yet")
     out = tmp_path_factory.mktemp("demo") / "demo-output"
     res = subprocess.run([sys.executable, "-m", "clients", "demo", "--out", str(out), "--quiet",
-                          "--lattice", "48", "--points", "300", "--n-t", "384"],
+                          "--lattice", "64", "--pitch", "125e-6", "--points", "400", "--n-t", "384",
+                          "--dt", "16e-9"],
                          capture_output=True, text=True, timeout=300, env=clean_env())
     assert res.returncode == 0, res.stderr[-3000:]
     report = json.loads((out / "report.json").read_text())
@@ -31,7 +32,7 @@ def test_demo_report(demo):
     assert report["skipped"] == [], report["skipped"]
     assert "error" not in report
     plans = report["plans"]
-    assert plans["equisteradian"]["n_points"] < plans["full"]["n_points"] == 48 * 48
+    assert plans["equisteradian"]["n_points"] < plans["full"]["n_points"] == 64 * 64
     for name in ("equisteradian", "full"):
         scan = report["scans"][name]
         assert scan["points"] == plans[name]["n_points"]
@@ -43,8 +44,9 @@ def test_demo_report(demo):
         assert r["reconstruction_s"] > 0
         assert -1.0 <= r["cc_phantom"] <= 1.0
     # the sparse NEDNER image looks like the phantom and like the dense reference
-    assert rec["nedner"]["cc_phantom_mip_xy"] > 0.5
-    assert rec["nedner"]["cc_dense_reference"] > 0.5
+    for r in rec.values():
+        assert r["cc_phantom_mip_xy"] > 0.5
+    assert rec["nedner"]["cc_dense_reference_mip_xy"] > 0.7
 
 
 def test_demo_files_open(demo):
