@@ -119,6 +119,20 @@ def test_2d_plan_and_resume_in_process(tmp_path):
     np.testing.assert_array_equal(d.alines, np.stack([aline(k, 32) for k in range(12)]))
 
 
+def test_fsync_policy_and_reader_in_the_writing_process(tmp_path):
+    plan = make_plan(20, 16)
+    path = tmp_path / "fs.h5"
+    with ScanFile.create(path, plan, instrument=INSTRUMENT, software_version="1",
+                         durable="fsync") as sf:
+        for k in range(0, 20, 2):
+            assert sf.append(k, aline(k, 16), meta(k))
+        d = read_scan(path)  # same process, file still open for writing
+        np.testing.assert_array_equal(d.completed, np.arange(20) % 2 == 0)
+        np.testing.assert_array_equal(d.alines[4], aline(4, 16))
+        assert sf.append(1, aline(1, 16), meta(1))  # the writer is unaffected by the reader
+    assert read_scan(path).completed.sum() == 11
+
+
 WRITER = textwrap.dedent("""
     import sys, time
     import numpy as np
