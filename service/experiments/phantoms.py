@@ -4,9 +4,10 @@
   vertical edges a line sensor of limited aperture sees poorly (limited view).
 - :func:`yarn_phantom` (§7): curved strands and a central knot (a trefoil) of a thin
   tube, like the paper's yarn; its knot is the point of interest.
-- :func:`layer_phantom` (§4): a thin absorbing layer of finite width (band-limited
-  delta in depth, sharp lateral edges), for axial line-spread and lateral edge-spread
-  measurements, like the paper's 0.1 µm thin chrome USAF chart.
+- :func:`layer_phantom` (§4): a thin absorbing layer of finite width (Gaussian in
+  depth, blurred steps laterally), for axial line-spread and lateral edge-spread
+  measurements, like the paper's 0.1 µm thin chrome USAF chart seen by a band-limited
+  system.
 
 Grids follow docs/architecture.md: ``z_j = j·dz`` (row 0 at the sensor plane),
 ``x_i = (i - (n_x - 1)/2)·dx``.
@@ -108,26 +109,35 @@ def yarn_phantom(n_z: int, n_xy: int, d: float, *, radius_voxels: float = 1.5) -
     return p0, zc
 
 
-def layer_phantom(n_z: int, n_x: int, dz: float, dx: float, *, depth: float, width: float, taps: int = 8) -> np.ndarray:
-    """A thin absorbing layer: band-limited delta in depth, sharp lateral edges.
+def layer_phantom(n_z: int, n_x: int, dz: float, dx: float, *, depth: float, width: float,
+                  thickness: float, edge: float) -> np.ndarray:
+    """A thin absorbing layer of finite width: Gaussian in depth, smoothed steps laterally.
 
     Parameters
     ----------
     n_z, n_x : grid size; dz, dx : spacing in m.
-    depth : layer depth in m (need not be on the grid: the depth profile is the
-        Hann-windowed sinc ``sinc((z - depth)/dz)`` over ±``taps`` rows, i.e. a delta
-        band-limited to the grid).
-    width : lateral extent in m, centred on x = 0 (edge pixels anti-aliased).
+    depth : layer centre depth in m (need not be on the grid).
+    width : lateral extent in m, centred on x = 0 (between the half-maximum points).
+    thickness : FWHM of the Gaussian depth profile in m (a thin, nearly delta-like layer
+        when close to dz, as the paper's 0.1 µm chrome seen by a band-limited system).
+    edge : FWHM in m of the Gaussian that blurs each lateral edge (its error-function
+        edge-spread profile).
 
-    Returns ndarray ``(n_z, n_x)``. Raises ValueError if the layer leaves the grid.
+    Returns ndarray ``(n_z, n_x)``, maximum 1 at the layer centre.
+    Raises ValueError if the layer leaves the grid or a size is not positive.
     """
+    from scipy.special import erf
+
+    if min(thickness, edge, width) <= 0:
+        raise ValueError("thickness, edge and width must be > 0 m")
     z = np.arange(n_z) * dz
-    if not (taps * dz < depth < (n_z - taps - 1) * dz):
-        raise ValueError("layer depth must leave room for the depth profile inside the grid")
+    if not (4 * thickness < depth < z[-1] - 4 * thickness):
+        raise ValueError("the layer must lie inside the depth range")
     x = lateral_axis(n_x, dx)
-    if width <= 0 or width / 2 > x[-1]:
-        raise ValueError("layer width must be > 0 and fit inside the grid")
-    u = (z - depth) / dz
-    prof = np.sinc(u) * np.where(np.abs(u) <= taps, 0.5 * (1 + np.cos(np.pi * u / taps)), 0.0)
-    lat = np.clip((width / 2 - np.abs(x)) / dx + 0.5, 0.0, 1.0)
+    if width / 2 + 4 * edge > x[-1]:
+        raise ValueError("the layer must fit laterally inside the grid")
+    sz = thickness / (2 * np.sqrt(2 * np.log(2)))
+    se = edge / (2 * np.sqrt(2 * np.log(2)))
+    prof = np.exp(-0.5 * ((z - depth) / sz) ** 2)
+    lat = 0.5 * (erf((x + width / 2) / (np.sqrt(2) * se)) - erf((x - width / 2) / (np.sqrt(2) * se)))
     return prof[:, None] * lat[None, :]

@@ -17,6 +17,11 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from scipy.optimize import curve_fit
 
+#: Fits whose FWHM comes out below this many sample spacings are rejected as
+#: under-sampled (least squares then degenerates to a 1/(z - z0)² tail; the paper also
+#: omitted edges where a single sample marked the transition).
+MIN_FWHM_SAMPLES = 0.5
+
 
 def lorentz(z: np.ndarray, a0: float, z0: float, w: float, baseline: float = 0.0) -> np.ndarray:
     """Cauchy-Lorentz line-spread model ``2 a0 w / (pi (w² + 4 (z - z0)²)) + baseline``.
@@ -93,6 +98,32 @@ def _window(n: int, centre: int, window: int | None, min_points: int) -> slice:
     return slice(lo, min(n, lo + window))
 
 
+def _lorentz_start(u: np.ndarray, q: np.ndarray, baseline: bool) -> np.ndarray:
+    """Global grid search over (centre, width) with the linear parameters (area,
+    baseline) solved exactly by least squares: a robust start for few-sample profiles."""
+    k = int(np.argmax(q))
+    span = max(u[-1] - u[0], 1.0)
+    centres = u[k] + np.linspace(-1.0, 1.0, 81)
+    widths = np.geomspace(0.05, 10 * span, 160)
+    best, best_err = None, np.inf
+    for w in widths:
+        f = 2.0 * w / (np.pi * (w * w + 4.0 * (u[None, :] - centres[:, None]) ** 2))  # (n_c, n)
+        if baseline:
+            for i, zc in enumerate(centres):
+                A = np.column_stack([f[i], np.ones_like(u)])
+                coef, *_ = np.linalg.lstsq(A, q, rcond=None)
+                err = float(np.sum((A @ coef - q) ** 2))
+                if err < best_err:
+                    best, best_err = np.array([coef[0], zc, w, coef[1]]), err
+        else:
+            a = (f @ q) / np.einsum("ij,ij->i", f, f)
+            err = np.sum((a[:, None] * f - q[None, :]) ** 2, axis=1)
+            i = int(np.argmin(err))
+            if err[i] < best_err:
+                best, best_err = np.array([a[i], centres[i], w]), float(err[i])
+    return best
+
+
 def fit_lorentz(
     z: np.ndarray, profile: np.ndarray, *, window: int | None = None, baseline: bool = False
 ) -> LorentzFit:
@@ -115,7 +146,7 @@ def fit_lorentz(
     ------
     ValueError
         Bad shapes, fewer than 4 samples (5 with baseline), a profile without a positive
-        peak, or a fit that does not converge.
+        peak, or an under-sampled peak (fitted FWHM < ``MIN_FWHM_SAMPLES`` spacings).
     """
     min_points = 5 if baseline else 4
     z, p = _check_profile(z, profile, min_points)
@@ -123,26 +154,34 @@ def fit_lorentz(
     sl = _window(z.size, k, window, min_points)
     z, p = z[sl], p[sl]
     k = int(np.argmax(p))
-    peak = p[k]
     base0 = float(np.min(p)) if baseline else 0.0
-    if peak - base0 <= 0:
+    height = p[k] - base0
+    if height <= 0:
         raise ValueError("the profile has no positive peak to fit")
-    above = np.flatnonzero(p - base0 >= (peak - base0) / 2)
+    # Fit in normalised units (samples, peak = 1) so that every parameter is O(1).
     step = float(np.median(np.diff(z)))
-    w0 = max(float(z[above[-1]] - z[above[0]]) + step, step) if above.size else step
-    a0 = (peak - base0) * np.pi * w0 / 2
-    p0 = [a0, float(z[k]), w0] + ([base0] if baseline else [])
-    lower = [-np.inf, z[0] - (z[-1] - z[0]), 1e-6 * step] + ([-np.inf] if baseline else [])
-    upper = [np.inf, z[-1] + (z[-1] - z[0]), np.inf] + ([np.inf] if baseline else [])
+    u = (z - z[k]) / step
+    q = p / height
+    popt = _lorentz_start(u, q, baseline)
+    span = u[-1] - u[0]
+    lower = [-np.inf, u[0] - span, 1e-3] + ([-np.inf] if baseline else [])
+    upper = [np.inf, u[-1] + span, 1e3 * max(span, 1.0)] + ([np.inf] if baseline else [])
     try:
-        popt, _ = curve_fit(lorentz, z, p, p0=p0, bounds=(lower, upper), maxfev=20000)
-    except (RuntimeError, ValueError) as exc:
-        raise ValueError(f"Lorentz fit did not converge: {exc}") from exc
-    a, zc, w = (float(v) for v in popt[:3])
-    b = float(popt[3]) if baseline else 0.0
-    resid = p - lorentz(z, *popt)
+        polished, _ = curve_fit(lorentz, u, q, p0=popt, bounds=(lower, upper), maxfev=20000)
+        if np.sum((q - lorentz(u, *polished)) ** 2) <= np.sum((q - lorentz(u, *popt)) ** 2):
+            popt = polished
+    except (RuntimeError, ValueError):
+        pass  # keep the grid-search optimum
+    resid = (q - lorentz(u, *popt)) * height
+    a, uc, w = (float(v) for v in popt[:3])
+    b = float(popt[3]) * height if baseline else 0.0
+    w = abs(w)
+    if w < MIN_FWHM_SAMPLES:
+        raise ValueError(f"the line-spread profile is under-sampled: fitted FWHM {w:.3g} samples "
+                         f"< {MIN_FWHM_SAMPLES} (a sharper peak than the sampling can measure)")
     return LorentzFit(
-        fwhm=abs(w), center=zc, area=a, peak=2 * a / (np.pi * abs(w)) + b, baseline=b,
+        fwhm=w * step, center=float(z[k]) + uc * step, area=a * height * step,
+        peak=2 * a * height / (np.pi * w) + b, baseline=b,
         rms_residual=float(np.sqrt(np.mean(resid**2))),
     )
 
@@ -164,7 +203,8 @@ def fit_edge_spread(x: np.ndarray, profile: np.ndarray, *, window: int | None = 
     Raises
     ------
     ValueError
-        Bad shapes, fewer than 5 samples, a flat profile, or a fit that does not converge.
+        Bad shapes, fewer than 5 samples, a flat profile, a fit that does not converge, or
+        an under-sampled edge (fitted width < ``MIN_FWHM_SAMPLES`` spacings).
     """
     x, p = _check_profile(x, profile, 5)
     grad = np.gradient(p, x)
@@ -175,26 +215,34 @@ def fit_edge_spread(x: np.ndarray, profile: np.ndarray, *, window: int | None = 
     lo, hi = float(np.mean(p[:n_end])), float(np.mean(p[-n_end:]))
     if hi == lo:
         raise ValueError("the profile has no edge (same level on both sides)")
-    mid = (lo + hi) / 2
-    crossing = np.flatnonzero(np.diff(np.sign(p - mid)) != 0)
-    x0 = float(x[crossing[0]]) if crossing.size else float(x[x.size // 2])
+    # Fit in normalised units (samples from the first point, unit step height).
     step = float(np.median(np.diff(x)))
+    scale = abs(hi - lo)
+    u = (x - x[0]) / step
+    q = (p - lo) / scale
+    sgn = 1.0 if hi > lo else -1.0
+    frac = q * sgn
+    crossing = np.flatnonzero(np.diff(np.sign(frac - 0.5)) != 0)
+    u0 = float(u[crossing[0]]) + 0.5 if crossing.size else float(u[u.size // 2])
     # 25 %-75 % rise distance equals w for the arctan model.
-    frac = (p - lo) / (hi - lo)
     inside = np.flatnonzero((frac > 0.25) & (frac < 0.75))
-    w0 = max(float(x[inside[-1]] - x[inside[0]]) + step, step) if inside.size else step
-    span = x[-1] - x[0]
+    w0 = max(float(u[inside[-1]] - u[inside[0]]) + 1.0, 1.0) if inside.size else 1.0
+    span = u[-1] - u[0]
     try:
         popt, _ = curve_fit(
-            edge_spread, x, p, p0=[lo, hi - lo, x0, w0],
-            bounds=([-np.inf, -np.inf, x[0] - span, 1e-6 * step], [np.inf, np.inf, x[-1] + span, np.inf]),
+            edge_spread, u, q, p0=[0.0, sgn, u0, w0],
+            bounds=([-np.inf, -np.inf, -span, 1e-3], [np.inf, np.inf, 2 * span, 1e3 * span]),
             maxfev=20000,
         )
     except (RuntimeError, ValueError) as exc:
         raise ValueError(f"edge-spread fit did not converge: {exc}") from exc
-    i0, a0, xe, w = (float(v) for v in popt)
-    resid = p - edge_spread(x, *popt)
-    return EdgeFit(fwhm=abs(w), edge=xe, low=i0, step=a0, rms_residual=float(np.sqrt(np.mean(resid**2))))
+    i0, a0, ue, w = (float(v) for v in popt)
+    if abs(w) < MIN_FWHM_SAMPLES:
+        raise ValueError(f"the edge is under-sampled: fitted width {abs(w):.3g} samples "
+                         f"< {MIN_FWHM_SAMPLES} (a sharper edge than the sampling can measure)")
+    resid = (q - edge_spread(u, *popt)) * scale
+    return EdgeFit(fwhm=abs(w) * step, edge=float(x[0]) + ue * step, low=lo + i0 * scale, step=a0 * scale,
+                   rms_residual=float(np.sqrt(np.mean(resid**2))))
 
 
 def side_lobe_level(profile: np.ndarray) -> float:

@@ -76,6 +76,21 @@ def test_edge_fit_window_on_wide_edge():
     assert fit_edge_spread(x, profile, window=60).fwhm == pytest.approx(0.15, rel=0.01)
 
 
+def test_undersampled_peak_and_edge_are_rejected():
+    # a Gaussian of FWHM 1.5 samples, centred between samples: least squares would
+    # collapse the Lorentz width to zero (a pure 1/z² tail) — it must say so instead
+    z = np.arange(60.0)
+    peak = np.exp(-0.5 * ((z - 30.37) / (1.5 / 2.3548)) ** 2)
+    with pytest.raises(ValueError, match="under-sampled"):
+        fit_lorentz(z, peak, window=8)
+    step = (z > 30.5).astype(float)
+    with pytest.raises(ValueError, match="under-sampled"):
+        fit_edge_spread(z, step)
+    # two samples per FWHM is measurable
+    wide = np.exp(-0.5 * ((z - 30.37) / (2.5 / 2.3548)) ** 2)
+    assert 1.0 < fit_lorentz(z, wide, window=8).fwhm < 2.5
+
+
 def test_side_lobe_level_of_sinc():
     # first side lobe of sinc: |sinc| max beyond the first zero = 0.2172336
     x = np.linspace(-6, 6, 12001)
