@@ -339,8 +339,10 @@ class Demo:
             for plane in ("xy", "xz", "yz"):
                 mips[plane] = api.download_mip(job_id, plane, self.out / f"{recon_name}_mip_{plane}.png").name
             timings = to_dict(field_of(job, "timings")) or {}
+            progress = to_dict(field_of(job, "progress")) or {}
             recons[recon_name] = {"job_id": job_id, "method": method, "volume": volume.name, "mips": mips,
-                                  "reconstruction_s": timings.get("run_s")}
+                                  "reconstruction_s": timings.get("run_s"),
+                                  "points_used": progress.get("points_done")}
         self.report["reconstructions"] = recons
         self._figures()
 
@@ -396,9 +398,13 @@ class Demo:
                 z, x = np.asarray(f["z"]), np.asarray(f["x"])
                 y = np.asarray(f["y"]) if "y" in f else None
                 r["shape"] = list(p0.shape)
-                job = json.loads(f.attrs["job"]) if "job" in f.attrs else {}
-                if job.get("points_used") is not None:
-                    r["points_used"] = int(job["points_used"])
+                meta = {}
+                for key in ("job", "params"):
+                    if key in f.attrs:
+                        meta.update(json.loads(f.attrs[key]))
+                used = meta.get("points_used", meta.get("n_points", r.get("points_used")))
+                if used is not None:
+                    r["points_used"] = int(used)
             vols[name] = p0
             if y is None:
                 continue
