@@ -144,7 +144,9 @@ WRITER = textwrap.dedent("""
     print("ready", flush=True)
     for k in range(n):
         sf.append(k, aline(k, n_t), meta(k))
-        print(k, flush=True)          # acknowledged: append() returned
+        # acknowledged: append() returned. Lines are padded so that the 64 kB pipe fills
+        # after a few hundred unread acks: the writer cannot finish before it is killed.
+        print(str(k).ljust(120), flush=True)
         if delay:
             time.sleep(delay)
     sf.close()
@@ -215,6 +217,8 @@ READER = textwrap.dedent("""
     from driver.scanfile import read_scan
     path, n_t = sys.argv[1], int(sys.argv[2])
     last, reads, seen = -1, 0, []
+    read_scan(path)
+    print("ready", flush=True)
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline:
         d = read_scan(path)
@@ -241,6 +245,7 @@ def test_swmr_reader_in_other_process_while_writing(tmp_path):
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                 cwd=REPO)
         try:
+            assert proc.stdout.readline().strip() == "ready"  # reader up before we write
             for k in range(n):
                 sf.append(k, aline(k, n_t), meta(k))
                 if k % 20 == 0:
