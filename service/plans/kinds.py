@@ -21,7 +21,7 @@ MASK_KINDS = {
     "equiangular": equiangular_mask,
     "equisteradian": equisteradian_mask,
 }
-_ALIASES = {"equispaced": "subgrid", "hex": "hexagonal", "poisson-disc": "poisson", "user": "points"}
+_ALIASES = {"equispaced": "subgrid", "grid": "subgrid", "hex": "hexagonal", "poisson-disc": "poisson", "user": "points"}
 
 
 def make_mask(kind: str, lattice, **params) -> Mask:
@@ -29,7 +29,7 @@ def make_mask(kind: str, lattice, **params) -> Mask:
     n_x, n_y, pitch). Kinds and their parameters (SI units; m for lengths):
 
     - ``full``: no parameters.
-    - ``subgrid`` (alias ``equispaced``): ``interval`` (int ≥ 1, lattice points between
+    - ``subgrid`` (aliases ``equispaced``, ``grid``): ``interval`` (int ≥ 1, lattice points between
       sensors), ``n_per_side`` (int or [n_x, n_y]; default as many as fit), centred.
     - ``hexagonal`` (``hex``): ``spacing`` (m, ≥ pitch).
     - ``random``: ``n_points``, ``seed`` (default 0).

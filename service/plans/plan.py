@@ -274,19 +274,42 @@ def _json_safe(obj):
     raise ValueError(f"parameter value {obj!r} is not JSON-serialisable")
 
 
-def make_plan(mask: Mask, *, order: str = "auto", acquisition: Acquisition | dict | None = None, **settings) -> Plan:
-    """A plan from a mask: its points put in ``order`` (``auto``: rings for equi-steradian,
-    serpentine otherwise; ``serpentine``, ``rings``, ``nearest``) with acquisition settings
-    (an ``Acquisition``, a dict, or keywords n_t, dt, averages, wavelengths, prf,
-    sound_speed; defaults 1024, 8 ns, 1, [750 nm], 50 Hz, 1500 m/s).
+def make_plan(mask: Mask | str | None = None, *, kind: str | None = None, lattice=None,
+              params: dict | None = None, order: str = "auto",
+              acquisition: Acquisition | dict | None = None, **settings) -> Plan:
+    """A plan: a mask's points put in ``order`` with acquisition settings.
 
-    Raises ValueError for an unknown order or bad settings."""
+    The mask is either given (``make_plan(mask)``) or made here from a kind name
+    (``make_plan("equisteradian", lattice=..., params={...})`` or
+    ``make_plan(kind=..., lattice=..., params=...)``, see ``make_mask``; ``lattice`` a
+    ``Lattice`` or a dict n_x, n_y, pitch).
+    order: ``auto`` (rings for equi-steradian, serpentine otherwise), ``serpentine``,
+    ``rings`` or ``nearest``. Acquisition settings: an ``Acquisition``, a dict, or keywords
+    n_t, dt (s), averages, wavelengths (m), prf (Hz), sound_speed (m/s); defaults 1024,
+    8 ns, 1, [750 nm], 50 Hz, 1500 m/s.
+
+    Raises ValueError for an unknown order, bad settings or bad mask parameters."""
+    if isinstance(mask, str):
+        if kind is not None and kind != mask:
+            raise ValueError("mask kind given twice")
+        kind, mask = mask, None
+    if mask is None:
+        if kind is None or lattice is None:
+            raise ValueError("give a Mask, or a mask kind with a lattice (and params)")
+        if params is not None and not isinstance(params, dict):
+            raise ValueError("mask params must be an object")
+        mask = make_mask(kind, lattice, **(params or {}))
+    elif not isinstance(mask, Mask):
+        raise ValueError(f"make_plan needs a Mask or a mask kind, got {type(mask).__name__}")
+    elif kind is not None or params is not None:
+        raise ValueError("give either a Mask or a kind with params, not both")
     if acquisition is None:
         acquisition = Acquisition(**settings)
     elif isinstance(acquisition, dict):
         acquisition = Acquisition(**{**acquisition, **settings})
     elif settings:
         raise ValueError("give acquisition settings either as acquisition=... or as keywords, not both")
+    order = order or "auto"
     perm = scan_order(mask, order)
     resolved = order if order != "auto" else ("rings" if mask.rings is not None else "serpentine")
     idx = mask.indices[perm]
@@ -337,8 +360,8 @@ def plan_from_spec(spec: dict) -> Plan:
     params = m.get("params") or {}
     if not isinstance(params, dict):
         raise ValueError("'mask.params' must be an object")
-    mask = make_mask(m["kind"], spec["lattice"], **params)
     acq = spec.get("acquisition") or {}
     if not isinstance(acq, dict):
         raise ValueError("'acquisition' must be an object")
-    return make_plan(mask, order=spec.get("order") or "auto", acquisition=acq)
+    return make_plan(kind=m["kind"], lattice=spec["lattice"], params=params,
+                     order=spec.get("order") or "auto", acquisition=acq)

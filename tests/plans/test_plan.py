@@ -251,3 +251,20 @@ def test_preview_png(es_plan, tmp_path):
     assert preview_png(line)[:4] == b"\x89PNG"
     with pytest.raises(ValueError):
         preview_png("not a mask")
+
+
+def test_make_plan_from_kind_as_the_http_layer_calls_it():
+    lattice = {"n_x": 50, "n_y": 50, "pitch": PITCH}
+    acq = {"n_t": 256, "dt": 1e-8, "averages": 1, "wavelengths": [7.5e-7], "prf": 0.0, "sound_speed": 1500.0}
+    a = make_plan(kind="equisteradian", lattice=lattice, params={"depth": 1e-3, "n_points": 120}, acquisition=acq)
+    b = make_plan(make_mask("equisteradian", Lattice(50, 50, PITCH), depth=1e-3, n_points=120), acquisition=acq)
+    c = make_plan("equisteradian", lattice=Lattice(50, 50, PITCH), params={"depth": 1e-3, "n_points": 120},
+                  acquisition=acq)
+    assert a.id == b.id == c.id
+    assert a.expected_scan_time_s == 0.0  # prf 0: unthrottled
+    g = make_plan(kind="grid", lattice=lattice, params={"interval": 7}, order="nearest")
+    assert g.mask.kind == "subgrid" and g.order == "nearest"
+    with pytest.raises(ValueError, match="unknown parameter"):
+        make_plan(kind="full", lattice=lattice, params={"depth": 1.0})
+    with pytest.raises(ValueError):
+        make_plan(kind="full", lattice=lattice, acquisition={"colour": "red"})
