@@ -63,6 +63,7 @@ import math
 import numbers
 import os
 import threading
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -269,6 +270,23 @@ def _release_lock(path: Path, fd: int) -> None:
     os.close(fd)
 
 
+_TRANSIENT = ("unable to lock file", "not already open for SWMR writing")
+
+
+def _open_h5(path: Path, timeout: float, **kwargs: Any) -> h5py.File:
+    """``h5py.File(path, **kwargs)``, retried for up to ``timeout`` s while another process
+    briefly holds HDF5's file lock (an SWMR reader, or a writer reopening the file)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            return h5py.File(path, **kwargs)
+        except OSError as exc:
+            transient = any(t in str(exc) for t in _TRANSIENT)
+            if not transient or time.monotonic() >= deadline:
+                raise
+        time.sleep(0.02)
+
+
 def _make_dataset(parent: h5py.Group, name: str, shape: tuple, dtype: np.dtype,
                   chunks: tuple) -> h5py.Dataset:
     """Chunked dataset with all chunks allocated at creation and never filled."""
@@ -384,12 +402,13 @@ class ScanFile:
 
     @classmethod
     def open_append(cls, path: str | os.PathLike, plan: dict | None = None, *,
-                    durable: str = "process") -> "ScanFile":
+                    durable: str = "process", timeout: float = 10.0) -> "ScanFile":
         """Reopen an existing scan file (interrupted or not) to continue appending.
 
         If ``plan`` is given, its id must equal the file's plan id (ValueError otherwise).
-        Clears the superblock flags a killed writer left behind. Raises FileNotFoundError,
-        ValueError (not a scan file, plan mismatch, another writer holds the lock).
+        Clears the superblock flags a killed writer left behind. Waits up to ``timeout`` s
+        while readers hold HDF5's file lock. Raises FileNotFoundError, ValueError (not a
+        scan file, plan mismatch, another writer holds the lock, file still locked).
         """
         path = Path(path)
         if durable not in DURABLE_POLICIES:
@@ -400,7 +419,7 @@ class ScanFile:
         try:
             _clear_status_flags(path)
             try:
-                f = h5py.File(path, "r+", libver="latest")
+                f = _open_h5(path, timeout, mode="r+", libver="latest")
             except OSError as exc:
                 raise ValueError(f"{path} cannot be opened as HDF5: {exc}") from None
             try:
@@ -604,10 +623,12 @@ class ScanData:
             attrs=dict(self.attrs, subset_of_n_points=self.n_points))
 
 
-def read_scan(path: str | os.PathLike, *, dtype: Any = np.float64) -> ScanData:
+def read_scan(path: str | os.PathLike, *, dtype: Any = np.float64,
+              timeout: float = 5.0) -> ScanData:
     """Read a scan file, complete or still being written (SWMR reader).
 
-    ``dtype``: float type of the ``pressure`` view (float64 or float32).
+    ``dtype``: float type of the ``pressure`` view (float64 or float32). ``timeout``: how
+    long to retry while a writer is (re)opening the file and holds its lock.
     The completion record is read first, so every point it marks complete has its samples
     and metadata present. Raises FileNotFoundError, ValueError (not a scan file).
     """
@@ -618,7 +639,7 @@ def read_scan(path: str | os.PathLike, *, dtype: Any = np.float64) -> ScanData:
     if not path.is_file():
         raise FileNotFoundError(f"no scan file at {path}")
     try:
-        f = h5py.File(path, "r", libver="latest", swmr=True)
+        f = _open_h5(path, timeout, mode="r", libver="latest", swmr=True)
     except OSError as exc:
         raise ValueError(f"{path} cannot be opened as an HDF5 scan file: {exc}") from None
     with f:

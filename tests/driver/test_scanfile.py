@@ -133,6 +133,28 @@ def test_fsync_policy_and_reader_in_the_writing_process(tmp_path):
     assert read_scan(path).completed.sum() == 11
 
 
+def test_resume_waits_for_a_reader_holding_the_file(tmp_path):
+    plan = make_plan(8, 16)
+    path = tmp_path / "held.h5"
+    with ScanFile.create(path, plan, instrument=INSTRUMENT, software_version="1") as sf:
+        sf.append(0, aline(0, 16), meta(0))
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import sys, time, h5py\n"
+         "f = h5py.File(sys.argv[1], 'r', libver='latest', swmr=True)\n"
+         "print('open', flush=True); time.sleep(1.5); f.close()", str(path)],
+        stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "open"
+        with pytest.raises(ValueError, match="lock"):
+            ScanFile.open_append(path, plan, timeout=0.1)
+        with ScanFile.open_append(path, plan, timeout=30) as sf:  # waits for the reader
+            assert sf.append(1, aline(1, 16), meta(1))
+    finally:
+        holder.kill()
+        holder.wait(timeout=30)
+    np.testing.assert_array_equal(read_scan(path).completed, np.arange(8) < 2)
+
+
 WRITER = textwrap.dedent("""
     import sys, time
     import numpy as np
