@@ -17,7 +17,9 @@ from __future__ import annotations
 
 import collections
 import hashlib
+import os
 import queue
+import select
 import secrets
 import threading
 import time
@@ -131,6 +133,17 @@ class Scanner:
                                               write_timeout=5.0, exclusive=True)
         except (serial.SerialException, OSError, ValueError) as exc:
             raise DriverError(f"cannot open scanner port {port}: {exc}") from None
+        # pyserial's POSIX ports expose their descriptor; URL transports (socket://, loop://)
+        # do not and are read through pyserial
+        fd = getattr(self._ser, "fd", None)
+        self._rx: queue.SimpleQueue | None = None
+        self._rx_stop = threading.Event()
+        self._rx_thread = None
+        if isinstance(fd, int):
+            self._rx = queue.SimpleQueue()
+            self._rx_thread = threading.Thread(target=self._reader, args=(fd,),
+                                               name=f"fpscan-rx {port}", daemon=True)
+            self._rx_thread.start()
         self._deframer = Deframer()
         self._seq = secrets.randbits(30) + 1
         self._pending_seq: int | None = None
@@ -156,6 +169,9 @@ class Scanner:
                 self.query("SCAN:ABOR", timeout=2.0)
             except DriverError:
                 pass
+        self._rx_stop.set()
+        if self._rx_thread is not None:
+            self._rx_thread.join(timeout=2)
         self._ser.close()
         self._ser = None
 
@@ -174,8 +190,23 @@ class Scanner:
             raise DriverError(f"write to {self.port} failed: {exc}") from None
 
     def _read_some(self) -> bytes:
+        """Bytes received since the last call, waiting at most ~20 ms for the first."""
         import serial
 
+        if self._rx is not None:  # a local tty drained by the reader thread
+            try:
+                chunks = [self._rx.get(timeout=0.02)]
+            except queue.Empty:
+                chunks = []
+            while True:
+                try:
+                    chunks.append(self._rx.get_nowait())
+                except queue.Empty:
+                    break
+            for c in chunks:
+                if isinstance(c, Exception):
+                    raise DriverError(f"read from {self.port} failed: {c}")
+            return b"".join(chunks)
         ser = self._ser
         try:
             n = ser.in_waiting
@@ -187,6 +218,22 @@ class Scanner:
         except (serial.SerialException, OSError) as exc:
             raise DriverError(f"read from {self.port} failed: {exc}") from None
         return data
+
+    def _reader(self, fd: int) -> None:
+        """Reader thread for local ttys: keeps the (4 KiB deep) tty buffer drained while
+        the scan thread decodes and writes, so the link never waits for the host."""
+        while not self._rx_stop.is_set():
+            try:
+                if select.select([fd], [], [], 0.1)[0]:
+                    data = os.read(fd, 1 << 18)
+                    if data:
+                        self._rx.put(data)
+            except BlockingIOError:
+                continue
+            except (OSError, ValueError) as exc:
+                if not self._rx_stop.is_set():
+                    self._rx.put(exc)
+                return
 
     def _pump(self) -> None:
         """Read what arrived (waiting at most ~20 ms) and dispatch every good frame."""
@@ -513,7 +560,7 @@ class Scanner:
         """Receive one run until the record is complete; returns 'done', 'reset', 'abort'."""
         run = self._run
         paused = False
-        ack_every = max(1, self.window // 4)
+        ack_every = max(1, self.window // 2)
         while True:
             # requests from other threads
             while not self._requests.empty():

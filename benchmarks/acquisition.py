@@ -1,0 +1,154 @@
+"""Acquisition throughput over a real pty (DESIGN §8, issue 4).
+
+Measures, in one run:
+1. the raw pty byte rate: a thread writes 1 MiB blocks into the master side as fast as it
+   can, the host reads the slave side through pyserial (same read path as the driver);
+2. the unthrottled simulated scanner (PRF 0, A-lines precomputed at plan upload so the
+   timed window holds only the link) streaming a plan of >= 20 000 points with 2048
+   int16 samples into a scan file via the host driver: A-lines/s landed in the file.
+Prints both and their ratio: A-lines/s × wire bytes per A-line ÷ raw pty bytes/s.
+Targets: >= 5000 A-lines/s and >= 40 %.
+
+    .venv/bin/python benchmarks/acquisition.py [--side 142] [--n-t 2048]
+"""
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import multiprocessing
+import os
+import pty
+import select
+import sys
+import tempfile
+import signal
+import time
+import tty
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from driver.aline import ALINE_HEADER  # noqa: E402
+from driver.framing import HEADER, encode_frame, FrameType  # noqa: E402
+
+
+def raw_pty_rate(seconds: float = 2.0) -> float:
+    """Bytes/s through a raw pty: a writer process on the master side, the host reading
+    the slave side (opened with pyserial, read as the driver reads it: select + os.read)."""
+    import serial
+
+    master, slave = pty.openpty()
+    tty.setraw(slave)
+    ser = serial.Serial(os.ttyname(slave), timeout=0.02)
+    block = os.urandom(1 << 20)
+
+    def writer():
+        view = memoryview(block)
+        while True:
+            off = 0
+            while off < len(view):
+                off += os.write(master, view[off:])
+
+    pid = os.fork()
+    if pid == 0:  # the writer runs in its own process, like the simulated scanner
+        try:
+            writer()
+        finally:
+            os._exit(0)
+    got = 0
+    t0 = time.perf_counter()
+    while (t := time.perf_counter()) - t0 < seconds:
+        if select.select([ser.fd], [], [], 0.02)[0]:
+            got += len(os.read(ser.fd, 1 << 18))
+    rate = got / (t - t0)
+    os.kill(pid, signal.SIGKILL)
+    os.waitpid(pid, 0)
+    ser.close()
+    os.close(master)
+    os.close(slave)
+    return rate
+
+
+def _run_sim(cfg, conn) -> None:
+    from driver.simulator import SimulatedScanner
+
+    with SimulatedScanner(cfg) as sim:
+        conn.send(sim.path)
+        conn.recv()
+
+
+def grid_plan(side: int, n_t: int, dt: float = 8e-9, pitch: float = 6e-5) -> dict:
+    idx = [[ix if iy % 2 == 0 else side - 1 - ix, iy] for iy in range(side) for ix in range(side)]
+    pos = [[(ix - (side - 1) / 2) * pitch, (iy - (side - 1) / 2) * pitch] for ix, iy in idx]
+    plan = {"format": "fpscan-plan/1", "lattice": {"n_x": side, "n_y": side, "pitch": pitch},
+            "mask": {"kind": "grid", "params": {}, "requested_points": len(idx),
+                     "obtained_points": len(idx), "weight_ratio": 1.0},
+            "points": {"indices": idx, "positions": pos, "weights": [pitch * pitch] * len(idx)},
+            "order": "serpentine",
+            "acquisition": {"n_t": n_t, "dt": dt, "averages": 1, "wavelengths": [7.5e-7],
+                            "prf": 0.0, "sound_speed": 1500.0}}
+    plan["id"] = hashlib.sha256(json.dumps(plan, sort_keys=True, separators=(",", ":"))
+                                .encode()).hexdigest()
+    return plan
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--side", type=int, default=142, help="lattice side (142 -> 20164 points)")
+    ap.add_argument("--n-t", type=int, default=2048)
+    ap.add_argument("--window", type=int, default=64)
+    args = ap.parse_args()
+
+    from driver.host import Scanner
+    from driver.physics import Ball
+    from driver.scanfile import ScanFile, read_scan
+    from driver.simulator import SimConfig, SimulatedScanner
+    from driver.sources import BallSource
+
+    plan = grid_plan(args.side, args.n_t)
+    n = len(plan["points"]["indices"])
+    wire = len(encode_frame(FrameType.ALINE, bytes(ALINE_HEADER.size + 2 * args.n_t)))
+    print(f"plan: {n} points x {args.n_t} int16 samples; ~{wire} wire bytes per A-line "
+          f"(frame header {HEADER.size} + A-line header {ALINE_HEADER.size} + samples + CRC "
+          f"+ COBS)")
+
+    raw = raw_pty_rate()
+    print(f"raw pty byte rate (pyserial reader): {raw / 1e6:.1f} MB/s "
+          f"= {raw / wire:.0f} A-line frames/s")
+
+    balls = [Ball(0.0, 0.0, 3.0e-3, 0.2e-3, 1.0), Ball(1e-3, -1e-3, 5.0e-3, 0.3e-3, 0.8)]
+    cfg = SimConfig(source=BallSource(balls), prf=0.0, precompute=True)
+    # the simulated scanner runs in its own process, as a real scanner is its own device
+    ctx = multiprocessing.get_context("fork")
+    parent, child = ctx.Pipe()
+    proc = ctx.Process(target=_run_sim, args=(cfg, child), daemon=True)
+    proc.start()
+    path = parent.recv()
+    with tempfile.TemporaryDirectory() as d:
+        out = Path(d) / "scan.h5"
+        with Scanner(path, window=args.window, response_timeout=300) as sc:
+            sc.identify()
+            t = time.perf_counter()
+            sc.upload_plan(plan)  # the simulator precomputes every A-line here
+            print(f"plan upload + A-line precomputation: {time.perf_counter() - t:.1f} s")
+            with ScanFile.create(out, plan, instrument={}, software_version="bench") as sf:
+                res = sc.scan(plan, sf, upload=False)
+        scan = read_scan(out)
+        assert scan.completed.all() and res.complete
+    parent.send("stop")
+    proc.join(timeout=30)
+    rate = n / res.acquisition_s
+    frac = rate * wire / raw
+    print(f"acquisition: {n} A-lines in {res.acquisition_s:.2f} s = {rate:.0f} A-lines/s "
+          f"({rate * wire / 1e6:.1f} MB/s) into the scan file; faults {res.faults}")
+    print(f"fraction of the raw pty byte rate: {100 * frac:.0f} %")
+    print(f"targets: >= 5000 A-lines/s: {'met' if rate >= 5000 else 'NOT met'}; "
+          f">= 40 %: {'met' if frac >= 0.4 else 'NOT met'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
