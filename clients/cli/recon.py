@@ -1,8 +1,8 @@
 """`fpscan recon`: reconstruct p0 from a scan file or dataset, locally or on a server.
 
-Locally (no ``--server``) the input is imported exactly as the service imports an
-upload (``service.api.datasets.import_dataset``), reconstructed with ``service.recon``
-and written like a server result (``service.jobs.work.write_result``): ``volume.h5``
+Locally (no ``--server``) the input is imported with ``service.storage.datasets``
+(as the service imports uploads), reconstructed with ``service.recon`` and written like a
+server result (``service.storage.results`` / ``service.storage.render``): ``volume.h5``
 (``/p0`` ``(n_z, n_y, n_x)``, ``/z``, ``/y``, ``/x`` in m) and ``mip_{xy,xz,yz}.png``.
 With ``--server`` the file is uploaded (``POST /api/datasets``), reconstructed as a job
 (``POST /api/reconstructions``; or ``--scan-job`` reuses a scan job's file) and the
@@ -47,22 +47,13 @@ def add_arguments(parser):
 
 
 def _sniff_format(path) -> str:
-    from pathlib import Path
+    """The input's format from its content (``service.storage.datasets.detect_format``)."""
+    from service.storage.datasets import detect_format
 
-    p = Path(path)
-    if p.suffix.lower() == ".npy":
-        return "npy"
     try:
-        import h5py
-
-        with h5py.File(p, "r") as f:
-            if "binary_time_series_data" in f:
-                return "ipasc"
-            if "sensor_data" in f:
-                return "kwave-hdf5"
-    except OSError:
-        raise ValueError(f"{p} is neither a .npy array nor a readable HDF5 file") from None
-    return "fpscan"
+        return detect_format(path)
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from None
 
 
 def _params(args) -> dict:
@@ -107,39 +98,94 @@ def _default_out(args, method: str):
     return p.with_name(f"{p.stem}-{method}")
 
 
-def _local(args, fmt: str, method: str) -> int:
+def reconstruct_dataset(ds, method: str, params: dict):
+    """Run ``service.recon`` on a ``service.storage.datasets`` dataset.
+
+    ``method``: ``nedner`` (NEDNER-NUFFT, ``reconstruct_points``; any input) or a grid
+    method (``ner``, ``linear``, ``nearest``, ``cubic``; regular grids only). ``params``:
+    ``eps``, ``dtype`` ("float32"/"float64"), ``upsample``, ``positivity``, ``n_z``,
+    ``dz`` (m), ``c`` (m/s, overrides the input's). Returns the ``Image``. Raises
+    ``ValueError`` when the method does not fit the input."""
+    import numpy as np
+
+    from service import recon
+
+    opts = {k: params[k] for k in ("eps", "upsample", "positivity", "n_z", "dz") if params.get(k) is not None}
+    if params.get("dtype"):
+        opts["dtype"] = np.float32 if params["dtype"] == "float32" else np.float64
+    if getattr(ds, "t0", 0.0):
+        opts["t0"] = float(ds.t0)
+    c = float(params.get("c") or ds.c)
+    if ds.kind == "grid":
+        if method == "nedner":
+            axes = ds.axes()
+            data = ds.data
+            if data.ndim == 2:
+                alines, positions = data.T, axes[0][:, None]
+            else:
+                yy, xx = np.meshgrid(axes[1], axes[0], indexing="ij")
+                alines = data.reshape(data.shape[0], -1).T
+                positions = np.stack([xx.ravel(), yy.ravel()], axis=1)
+            return recon.reconstruct_points(alines, positions, ds.dt, c, grid=axes, method="ner", **opts)
+        if ds.data.ndim == 3 and ds.dy is not None:
+            opts["dy"] = ds.dy
+        return recon.reconstruct_grid(ds.data, ds.dx, ds.dt, c, method=method, **opts)
+    if method != "nedner":
+        raise ValueError(f"method {method!r} needs data on a full regular grid; use nedner for a sensor mask")
+    if ds.alines.shape[0] == 0:
+        raise ValueError("the input has no completed A-lines")
+    return recon.reconstruct_points(ds.alines, ds.positions, ds.dt, c, weights=ds.weights, grid=ds.grid,
+                                    method="ner", **opts)
+
+
+def write_local_result(out, image, *, input_id: str) -> None:
+    """``out/volume.h5`` (``service.storage.results``) and ``out/mip_{plane}.png``
+    (``service.storage.render``), written to a temporary folder renamed into place."""
+    import os
     import shutil
+    from pathlib import Path
+
+    from service.storage.render import render_mips
+    from service.storage.results import write_image
+
+    out = Path(out)
+    tmp = out.with_name(out.name + f".tmp-{os.getpid()}")
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    try:
+        write_image(tmp / "volume.h5", image, input_id=input_id)
+        for plane, png in render_mips(image.p0, image.z, image.x, getattr(image, "y", None)).items():
+            (tmp / f"mip_{plane}.png").write_bytes(png)
+        if out.exists():
+            shutil.rmtree(out)
+        os.replace(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
+
+def _local(args, fmt: str, method: str) -> int:
     import sys
-    import tempfile
     import time
     from pathlib import Path
 
-    from service.api.datasets import import_dataset
-    from service.jobs.work import load_input, reconstruct_input, write_result
+    from service.storage.datasets import load_dataset
 
     out = _default_out(args, method)
     say = (lambda msg: None) if args.quiet else (lambda msg: print(f"recon: {msg}", file=sys.stderr, flush=True))
     t0 = time.perf_counter()
-    work = Path(tempfile.mkdtemp(prefix="fpscan-recon-"))
-    try:
-        say(f"importing {args.input} ({fmt})")
-        meta = import_dataset(Path(args.input), work, fmt, dt=args.dt, dx=args.dx, dy=args.dy, c=args.c,
-                              key=args.key)
-        kind = "scan" if meta["layout"] == "scan" else "dataset"
-        inp = load_input({"kind": kind, "path": str(work / meta["path"])})
-        t1 = time.perf_counter()
-        say(f"reconstructing with {method} (input {meta['shape']})")
-        image = reconstruct_input(inp, {"method": method, **_params(args)})
-        t2 = time.perf_counter()
-        say(f"writing {out}/")
-        extra = {"points_used": int(inp["alines"].shape[0])} if "alines" in inp else None
-        write_result(out, image, input_id=Path(args.input).name, extra=extra)
-    finally:
-        shutil.rmtree(work, ignore_errors=True)
+    say(f"importing {args.input} ({fmt})")
+    ds = load_dataset(args.input, fmt, dt=args.dt, dx=args.dx, dy=args.dy, c=args.c, key=args.key)
+    t1 = time.perf_counter()
+    shape = ds.data.shape if ds.kind == "grid" else ds.alines.shape
+    say(f"reconstructing with {method} (input {list(shape)})")
+    image = reconstruct_dataset(ds, method, {"method": method, **_params(args)})
+    t2 = time.perf_counter()
+    say(f"writing {out}/")
+    write_local_result(out, image, input_id=Path(args.input).name)
     t3 = time.perf_counter()
-    shape = "x".join(str(n) for n in image.p0.shape)
-    print(f"{out}/volume.h5  p0 {shape}  load {t1 - t0:.2f} s  reconstruct {t2 - t1:.2f} s  "
-          f"write {t3 - t2:.2f} s")
+    dims = "x".join(str(n) for n in image.p0.shape)
+    print(f"{out}/volume.h5  p0 {dims}  load {t1 - t0:.2f} s  reconstruct {t2 - t1:.2f} s  write {t3 - t2:.2f} s")
     return 0
 
 
