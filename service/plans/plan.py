@@ -63,7 +63,7 @@ class MaskSpec(_Strict):
     params: dict[str, Any] = Field(default_factory=dict)
     requested_points: int = Field(ge=1)
     obtained_points: int = Field(ge=1)
-    weight_ratio: float = Field(gt=0)
+    weight_ratio: float | None = Field(default=None, gt=0)
 
 
 class Points(_Strict):

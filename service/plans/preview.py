@@ -20,7 +20,7 @@ def preview_png(mask_or_plan, path: str | Path | None = None, *, dpi: int = 100,
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    from .mask import Mask
+    from .mask import Mask, weight_ratio
     from .plan import Plan
 
     if isinstance(mask_or_plan, Mask):
@@ -38,6 +38,8 @@ def preview_png(mask_or_plan, path: str | Path | None = None, *, dpi: int = 100,
         kind = mask_or_plan.mask.kind
         requested, obtained = mask_or_plan.mask.requested_points, mask_or_plan.mask.obtained_points
         ratio = mask_or_plan.mask.weight_ratio
+        if ratio is None:
+            ratio = weight_ratio(pos, w, (0.0, 0.0))
         p = mask_or_plan.mask.params.get("poi")
         poi = None if p is None else (float(np.ravel(p)[0]), float(np.ravel(p)[1]) if np.size(p) > 1 else 0.0)
     else:

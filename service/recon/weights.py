@@ -123,7 +123,7 @@ def voronoi_weights(positions, pitch: float | None = None, *, bounds=None,
     samples per median cell within a budget of 2²⁰ samples.
 
     Raises ValueError: bad shape, non-finite values, duplicated positions, pitch ≤ 0 or
-    non-finite, bounds that exclude every sensor.
+    non-finite, bounds that are malformed or leave a sensor outside.
     """
     pos = _as_positions(positions)
     n, dim = pos.shape
