@@ -5,7 +5,7 @@ from __future__ import annotations
 import h5py
 import numpy as np
 import pytest
-from conftest import build_plan
+from storage_helpers import build_plan
 
 from driver.scanfile import read_scan
 from service.storage.ipasc import export_scan, read_ipasc
