@@ -197,7 +197,10 @@ def forward_points(
         raise ValueError("positions must be finite")
     vol, is2d = _as3d(p0)
     if not periodic:
-        extra = float(np.max(np.abs(pos))) + 0.5 * max(vol.shape[1], vol.shape[2]) * dx
+        # sensors beyond the grid's extent widen the padding (same padding as
+        # forward_grid for sensors within it, so both see the same band-limited p0)
+        half = 0.5 * (max(vol.shape[1], vol.shape[2]) - 1) * dx
+        extra = 2.0 * max(0.0, float(np.max(np.abs(pos))) - half)
         nz2, ny2, nx2 = _pad_sizes(vol.shape, dx, dz, dt, n_t, c, t0, extra_lateral=extra)
         vol = _embed(vol, (nz2, ny2, nx2))
     n_z, n_y, n_x = vol.shape

@@ -15,6 +15,7 @@ plane), columns at the sensor positions.
 from __future__ import annotations
 
 import numpy as np
+import scipy.fft
 import scipy.interpolate
 
 from driver.physics.nufft import group_columns
@@ -35,29 +36,30 @@ def _kvec(n: int, d: float) -> np.ndarray:
 
 
 def _interp_columns(P, w, w_new_cols, method):
-    """1-D interpolation along axis 0 of P (n_w, n_cols) from nodes w to per-column
-    query vectors; out-of-range -> 0. Columns sharing a query vector are done together."""
-    out = np.zeros((w_new_cols.shape[0], P.shape[1]), dtype=np.complex128)
-    key = w_new_cols[0, :]  # c sqrt(kx_min² + k_lat²): equal for columns sharing k_lat²
-    gvals, gptr, order = group_columns(key)
+    """1-D interpolation along axis 0 of P (n_w, n_cols) from the uniform nodes w to a
+    query vector per column (w_new_cols, (n_q, n_cols)); queries above max(w) -> 0
+    (MATLAB's NaN / Octave's NA, zeroed by k-Wave)."""
     wmax = w[-1]
+    if method in ("linear", "nearest"):
+        i = np.clip(np.searchsorted(w, w_new_cols, side="right") - 1, 0, len(w) - 2)
+        cols = np.arange(P.shape[1])[None, :]
+        if method == "linear":
+            frac = (w_new_cols - w[i]) / (w[i + 1] - w[i])
+            res = P[i, cols] * (1 - frac) + P[i + 1, cols] * frac
+        else:
+            upper = (w_new_cols - w[i]) >= (w[i + 1] - w_new_cols)  # ties -> upper node
+            res = P[np.where(upper, i + 1, i), cols]
+        return np.where(w_new_cols > wmax, 0.0, res)
+    # pchip (Octave 'cubic'): columns sharing k_lat² share their query vector
+    out = np.zeros((w_new_cols.shape[0], P.shape[1]), dtype=np.complex128)
+    gvals, gptr, order = group_columns(w_new_cols[0, :])
     for g in range(len(gvals)):
         cols = order[gptr[g] : gptr[g + 1]]
         q = w_new_cols[:, cols[0]]
         vals = P[:, cols]
-        if method == "linear":
-            i = np.clip(np.searchsorted(w, q, side="right") - 1, 0, len(w) - 2)
-            frac = ((q - w[i]) / (w[i + 1] - w[i]))[:, None]
-            res = vals[i] * (1 - frac) + vals[i + 1] * frac
-        elif method == "nearest":
-            i = np.clip(np.searchsorted(w, q, side="right") - 1, 0, len(w) - 2)
-            upper = (q - w[i]) >= (w[i + 1] - q)
-            res = vals[np.where(upper, i + 1, i)]
-        else:
-            re = scipy.interpolate.PchipInterpolator(w, vals.real, axis=0, extrapolate=False)(q)
-            im = scipy.interpolate.PchipInterpolator(w, vals.imag, axis=0, extrapolate=False)(q)
-            res = re + 1j * im
-        res = np.where((q > wmax)[:, None], 0.0, res)
+        re = scipy.interpolate.PchipInterpolator(w, vals.real, axis=0, extrapolate=False)(q)
+        im = scipy.interpolate.PchipInterpolator(w, vals.imag, axis=0, extrapolate=False)(q)
+        res = np.where((q > wmax)[:, None], 0.0, re + 1j * im)
         out[:, cols] = np.nan_to_num(res)
     return out
 
@@ -89,13 +91,13 @@ def _recon(p, dt, c, lateral_d, interp, pos_cond):
     dc = (wg == 0) & (lat2 == 0)
     sf[dc] = c / 2
     axes = tuple(range(p.ndim))
-    P = sf * np.fft.fftshift(np.fft.fftn(np.fft.ifftshift(p, axes=axes), axes=axes), axes=axes)
+    P = sf * scipy.fft.fftshift(scipy.fft.fftn(scipy.fft.ifftshift(p, axes=axes), axes=axes, workers=-1), axes=axes)
     P[np.abs(wg) < c * np.sqrt(lat2)] = 0
     P[~np.isfinite(P)] = 0
     shape = P.shape
     cols = P.reshape(ntm, -1)
     Q = _interp_columns(cols, w, w_new.reshape(ntm, -1), method).reshape(shape)
-    out = np.real(np.fft.fftshift(np.fft.ifftn(np.fft.ifftshift(Q, axes=axes), axes=axes), axes=axes))
+    out = np.real(scipy.fft.fftshift(scipy.fft.ifftn(scipy.fft.ifftshift(Q, axes=axes), axes=axes, workers=-1), axes=axes))
     out = out[(ntm + 1) // 2 - 1 :]
     out = 2 * 2 * out / c
     if pos_cond:

@@ -115,9 +115,10 @@ def _invert(A: np.ndarray, n_x: int, dx: float, dy: float, dt: float, c: float, 
             adjoint: bool = False) -> np.ndarray:
     """Lateral spectrum A (n_t, n_y, n_x//2+1) -> p0 (n_z, n_y*u, n_x*u) (see module doc).
 
-    ``adjoint=True`` swaps the inversion weight for the quadrature weight of the forward
-    model (dz Δk τ_l / 4π, no halving of the t = 0 sample, no Nyquist cut): the operator is
-    then the exact adjoint of `driver.physics.forward_grid(periodic=True)` (dot test)."""
+    ``adjoint=True`` swaps the inversion weight for the forward model's quadrature weight
+    (dz Δk / 4π, the end rows of the DCT-I halved, no halving of the t = 0 sample, no
+    Nyquist cut): the operator is then the exact adjoint of
+    `driver.physics.forward_grid(periodic=True)` (dot test)."""
     n_t, n_y, n_xr = A.shape
     kx = 2 * np.pi * scipy.fft.rfftfreq(n_x, dx)
     ky = 2 * np.pi * scipy.fft.fftfreq(n_y, dy)
@@ -127,7 +128,6 @@ def _invert(A: np.ndarray, n_x: int, dx: float, dy: float, dt: float, c: float, 
     kz = dk * np.arange(n_z)
     if adjoint:
         qw = np.full(n_z, dz * dk / (4 * np.pi))
-        qw[[0, -1]] *= 0.5
     else:
         qw = np.full(n_z, c * c * dt * dk / np.pi)
     if method == "cubic":
@@ -142,6 +142,8 @@ def _invert(A: np.ndarray, n_x: int, dx: float, dy: float, dt: float, c: float, 
     F = scipy.fft.dct(F.astype(ctype, copy=False), type=1, axis=-1, overwrite_x=True, workers=-1)
     K = np.ascontiguousarray(F.T).reshape(n_z, n_y, n_xr)
     del F
+    if adjoint:  # DCT-I^T = diag(τ) DCT-I diag(1/τ), τ = ½ at both ends
+        K[[0, -1]] *= 0.5
     ups_y = n_y > 1
     if upsample > 1:
         K = _pad_spectrum(K, n_y, n_x, upsample, ups_y)
@@ -257,7 +259,7 @@ def _check_positions(positions, n_points):
     return pos
 
 
-def _default_grid(pos: np.ndarray) -> tuple[np.ndarray, ...]:
+def _default_grid(pos: np.ndarray) -> tuple[tuple[np.ndarray, ...], float]:
     pitch = infer_pitch(pos) if len(pos) > 1 else None
     if pitch is None:
         if len(pos) < 2:
@@ -269,7 +271,7 @@ def _default_grid(pos: np.ndarray) -> tuple[np.ndarray, ...]:
         lo, hi = float(pos[:, a].min()), float(pos[:, a].max())
         n = int(round((hi - lo) / pitch)) + 1
         axes.append(lo + pitch * np.arange(n))
-    return tuple(axes)
+    return tuple(axes), pitch
 
 
 def _check_grid(grid, d: int) -> tuple[np.ndarray, ...]:
@@ -351,8 +353,12 @@ def reconstruct_points(
     if not np.isfinite(t0) or t0 < 0:
         raise ValueError(f"t0 must be finite and >= 0 s, got {t0!r}")
     dz, n_z = _depth_axis(n_t, dt, c, dz, n_z)
-    axes = _default_grid(pos) if grid is None else _check_grid(grid, d)
-    steps = [float(g[1] - g[0]) for g in axes]
+    if grid is None:
+        axes, pitch = _default_grid(pos)
+        steps = [float(g[1] - g[0]) if len(g) > 1 else pitch for g in axes]
+    else:
+        axes = _check_grid(grid, d)
+        steps = [float(g[1] - g[0]) for g in axes]
     for a, g in enumerate(axes):
         lo, hi = g[0] - steps[a] / 2, g[-1] + steps[a] / 2
         if np.any(pos[:, a] < lo - 1e-9 * abs(lo)) or np.any(pos[:, a] > hi + 1e-9 * abs(hi)):
