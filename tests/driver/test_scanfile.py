@@ -162,10 +162,16 @@ WRITER = textwrap.dedent("""
     from test_scanfile import aline, meta, make_plan, INSTRUMENT
     from driver.scanfile import ScanFile
     path, n, n_t, delay = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), float(sys.argv[4])
-    sf = ScanFile.create(path, make_plan(n, n_t), instrument=INSTRUMENT, software_version="1")
+    import os
+    plan = make_plan(n, n_t)
+    if os.path.exists(path):  # a killed run before: resume from its record
+        sf = ScanFile.open_append(path, plan)
+    else:
+        sf = ScanFile.create(path, plan, instrument=INSTRUMENT, software_version="1")
     print("ready", flush=True)
-    for k in range(n):
-        sf.append(k, aline(k, n_t), meta(k))
+    for k in np.flatnonzero(~sf.completed()):
+        k = int(k)
+        assert sf.append(k, aline(k, n_t), meta(k))
         # acknowledged: append() returned. Lines are padded so that the 64 kB pipe fills
         # after a few hundred unread acks: the writer cannot finish before it is killed.
         print(str(k).ljust(120), flush=True)
@@ -185,22 +191,25 @@ def _writer_script(tmp_path) -> Path:
 def test_sigkill_then_resume_equals_uninterrupted(tmp_path):
     n, n_t = 3000, 256
     path = tmp_path / "killed.h5"
-    proc = subprocess.Popen([sys.executable, str(_writer_script(tmp_path)), str(path), str(n),
-                             str(n_t), "0"], stdout=subprocess.PIPE, text=True, cwd=REPO)
+    script = _writer_script(tmp_path)
     acked = -1
-    try:
-        deadline = time.monotonic() + 60
-        for line in proc.stdout:
-            if line.strip().isdigit():
-                acked = int(line)
-                if acked >= 300:
-                    os.kill(proc.pid, signal.SIGKILL)
-                    break
-            assert time.monotonic() < deadline, "writer too slow"
-    finally:
-        proc.kill()
-        proc.wait(timeout=30)
-    assert proc.returncode == -signal.SIGKILL and acked >= 300
+    for _ in range(2):  # kill a fresh writer, then kill the writer that resumed its file
+        start = acked
+        proc = subprocess.Popen([sys.executable, str(script), str(path), str(n), str(n_t), "0"],
+                                stdout=subprocess.PIPE, text=True, cwd=REPO)
+        try:
+            deadline = time.monotonic() + 60
+            for line in proc.stdout:
+                if line.strip().isdigit():
+                    acked = int(line)
+                    if acked >= start + 300:
+                        os.kill(proc.pid, signal.SIGKILL)
+                        break
+                assert time.monotonic() < deadline, "writer too slow"
+        finally:
+            proc.kill()
+            proc.wait(timeout=30)
+        assert proc.returncode == -signal.SIGKILL and acked >= start + 300
     # a plain (non-SWMR) open is refused until the writer's flags are cleared ...
     with pytest.raises(OSError):
         h5py.File(path, "r")
