@@ -1,4 +1,4 @@
-"""`fpscan export`: IPASC export of a scan file, locally (``service.ipasc``) or from a
+"""`fpscan export`: IPASC export of a scan file, locally (``service.storage.ipasc``) or from a
 server (``GET /api/scans/{job_id}/ipasc``).
 
 The IPASC file is HDF5 written with plain h5py: ``/binary_time_series_data``
@@ -22,14 +22,10 @@ def add_arguments(parser):
 
 
 def _local_export():
-    """The local exporter of ``service.ipasc`` (its name varies across versions)."""
-    import service.ipasc as ipasc
+    """The service's own IPASC exporter (``service.storage.ipasc.export_scan``)."""
+    from service.storage.ipasc import export_scan
 
-    for name in ("export_ipasc", "write_ipasc", "export_scan", "scan_to_ipasc"):
-        fn = getattr(ipasc, name, None)
-        if callable(fn):
-            return fn
-    raise RuntimeError("service.ipasc offers no export function")
+    return export_scan
 
 
 @client_errors
@@ -58,12 +54,6 @@ def run(args) -> int:
     out = Path(args.out or scan.with_name(f"{scan.stem}_ipasc.h5"))
     if out.resolve() == scan.resolve():
         raise ValueError("the output would overwrite the scan file")
-    export = _local_export()
-    tmp = out.with_name(out.name + ".part")
-    try:
-        export(scan, tmp)
-        tmp.replace(out)
-    finally:
-        tmp.unlink(missing_ok=True)
+    _local_export()(scan, out)  # written to a temporary sibling, then renamed
     print(out)
     return 0

@@ -1,0 +1,103 @@
+"""A real scan through a real server and simulator, then the CLI on its results:
+`jobs wait`, `export` (local and from the server), `recon` (local and on the server),
+and the failure path of a job (a scanner whose port does not exist)."""
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from clients.http import Client, JobFailed
+from clients_servers import clean_env, fpscan_server, fpscan_sim, has_command
+
+TOKEN = "scan-test-token"
+N, PITCH = 16, 4e-4
+
+pytestmark = pytest.mark.skipif(not (has_command("serve") and has_command("sim")),
+                                reason="`fpscan serve`/`fpscan sim` not available yet")
+
+
+def fpscan(*args, timeout=180):
+    return subprocess.run([sys.executable, "-m", "clients", *map(str, args)], capture_output=True, text=True,
+                          timeout=timeout, env=clean_env(FPSCAN_TOKEN=TOKEN))
+
+
+@pytest.fixture(scope="module")
+def scanned(tmp_path_factory):
+    """(server url, scan job id, downloaded scan file) of a full 16x16 lattice scan."""
+    tmp = tmp_path_factory.mktemp("scan")
+    data = tmp / "data"
+    data.mkdir()
+    with fpscan_sim("--source", "balls", "--prf", "0") as (device, _sim):
+        devices = {"sim": device, "ghost": str(tmp / "no-such-tty")}
+        with fpscan_server(data, token=TOKEN, devices=devices) as (url, _srv):
+            with Client(url, token=TOKEN) as api:
+                plan = api.create_plan({"lattice": {"n_x": N, "n_y": N, "pitch": PITCH},
+                                        "points": [[i, j] for j in range(N) for i in range(N)],
+                                        "acquisition": {"n_t": 384, "dt": 2e-8, "prf": 0}})
+                job_id = api.start_scan(plan.id, "sim")
+                seen = []
+                job = api.wait(job_id, on_progress=seen.append, timeout=120)
+                assert job.state == "succeeded"
+                assert any(p.get("points_total") == N * N for p in seen)
+                scan = api.download_scan(job_id, tmp / "scan.h5")
+                yield {"url": url, "job": job_id, "scan": scan, "tmp": tmp, "api": api, "plan": plan}
+
+
+def test_jobs_wait_on_finished_scan(scanned):
+    res = fpscan("jobs", "wait", scanned["job"], "--server", scanned["url"], "--quiet")
+    assert res.returncode == 0, res.stderr
+    assert "succeeded" in res.stdout
+
+
+def test_scan_file_holds_every_point(scanned):
+    from driver.scanfile import read_scan
+
+    scan = read_scan(scanned["scan"])
+    assert scan.completed.all() and len(scan.completed) == N * N
+
+
+def test_export_local_equals_server(scanned):
+    import h5py
+
+    tmp = scanned["tmp"]
+    local = fpscan("export", scanned["scan"], "--out", tmp / "local_ipasc.h5")
+    assert local.returncode == 0, local.stderr
+    remote = fpscan("export", "--server", scanned["url"], "--job", scanned["job"], "--out", tmp / "remote_ipasc.h5")
+    if "HTTP 500" in remote.stderr:  # known service bug, reported: <data_dir>/exports/ is never created
+        pytest.xfail("GET /api/scans/{id}/ipasc answers 500 (service: exports/ folder missing)")
+    assert remote.returncode == 0, remote.stderr
+    with h5py.File(tmp / "local_ipasc.h5", "r") as a, h5py.File(tmp / "remote_ipasc.h5", "r") as b:
+        da, db = a["binary_time_series_data"][...], b["binary_time_series_data"][...]
+        assert da.shape[0] == N * N
+        np.testing.assert_array_equal(da, db)
+
+
+def test_recon_of_scan_local_equals_server(scanned):
+    import h5py
+
+    tmp = scanned["tmp"]
+    opts = ["--method", "nedner", "--dtype", "float32", "--n-z", "128", "--quiet"]
+    local = fpscan("recon", scanned["scan"], *opts, "--out", tmp / "r_local")
+    assert local.returncode == 0, local.stderr
+    remote = fpscan("recon", "--server", scanned["url"], "--scan-job", scanned["job"], *opts, "--out", tmp / "r_remote")
+    assert remote.returncode == 0, remote.stderr
+    with h5py.File(tmp / "r_local" / "volume.h5", "r") as a, h5py.File(tmp / "r_remote" / "volume.h5", "r") as b:
+        pa, pb = a["p0"][...], b["p0"][...]
+    assert pa.shape == (128, N, N)
+    np.testing.assert_allclose(pb, pa, rtol=0, atol=1e-4 * np.abs(pa).max())
+
+
+def test_scan_on_a_missing_port_fails_with_reason(scanned):
+    api = scanned["api"]
+    job_id = api.start_scan(scanned["plan"].id, "ghost")
+    with pytest.raises(JobFailed) as err:
+        api.wait(job_id, timeout=120)
+    job = err.value.job
+    assert job.state == "failed" and job.error
+    assert job.error in str(err.value)
+    res = fpscan("jobs", "wait", job_id, "--server", scanned["url"], "--quiet")
+    assert res.returncode == 1
+    assert len(res.stderr.strip().splitlines()) == 1 and "failed" in res.stderr
