@@ -34,8 +34,8 @@ def run_experiment(name: str, out_dir: str | Path | None = None, *, data: str | 
     out_dir : output folder (created); None: write nothing.
     data : an HDF5 file (see :func:`load_dense`) or a :class:`DenseDataset`; default the
         experiment's built-in simulation.
-    small : the small, fast version (tests; with ``data``: the first 512 samples of the
-        central 128 (2-D: 256) lattice points per lateral axis).
+    small : the small, fast version (tests; with ``data``: the first 512 (3-D: 384)
+        samples of the central 256 (3-D: 64) lattice points per lateral axis).
     options : passed to the experiment's ``run``.
 
     Returns
@@ -52,7 +52,7 @@ def run_experiment(name: str, out_dir: str | Path | None = None, *, data: str | 
     if data is not None and not isinstance(data, DenseDataset):
         data = load_dense(data)
     if data is not None and small:
-        data = data.crop(n_t=512, lateral=256 if data.ndim == 2 else 128)
+        data = data.crop(n_t=512 if data.ndim == 2 else 384, lateral=256 if data.ndim == 2 else 64)
     result = module.run(data, small=small, **options)
     paths = write_result(result, out_dir, module.plot) if out_dir is not None else []
     return result, paths

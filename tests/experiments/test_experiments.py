@@ -1,0 +1,161 @@
+"""Small versions of the paper's experiments: structure, physics-fixed ordering, the
+k-Wave reference files, and the `fpscan evaluate` command."""
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from clients.cli import main as fpscan
+from service.experiments import load_dense, run_experiment
+from service.experiments import limited_view, nufft_vs_interp, sparse_masks
+from service.experiments.datasets import add_noise
+
+
+@pytest.fixture(scope="module")
+def tree_clean():
+    return limited_view.simulate_tree(small=True, snr_db=None)
+
+
+# ------------------------------------------------------------------ limited-view-2d
+def test_limited_view_small_writes_table_and_plots(tmp_path):
+    result, paths = run_experiment("limited-view-2d", tmp_path, small=True, intervals=(1, 4, 8))
+    names = sorted(p.name for p in paths)
+    assert names == ["limited-view-2d.csv", "limited-view-2d.json", "limited-view-2d_cc.png", "limited-view-2d_images.png"]
+    for p in paths:
+        assert p.stat().st_size > 0
+    assert all(p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" for p in paths if p.suffix == ".png")
+    table = json.loads((tmp_path / "limited-view-2d.json").read_text())
+    rows = {(r["arrangement"], r["interval"]): r for r in table["table"]}
+    assert set(rows) == {("full", 1), ("equispaced", 1), ("equispaced", 4), ("equispaced", 8),
+                         ("equiangular", None), ("equiangular-interpolated", None)}
+    # the full-data reconstruction is the reference: CC 1 with itself
+    assert rows[("full", 1)]["cc"] == 1.0 and rows[("full", 1)]["sharpness_rel"] == 1.0
+    for r in table["table"]:
+        assert -1.0 <= r["cc"] <= 1.0 and r["sharpness"] > 0
+        assert r["n_sensors"] == (256 if r["arrangement"] == "full" else 32)
+    with open(tmp_path / "limited-view-2d.csv") as fh:
+        assert len(list(csv.DictReader(fh))) == len(table["table"])
+    s = table["summary"]
+    assert s["best_interval"] in (1, 4, 8)
+    assert s["cc_best_equispaced"] == max(rows[("equispaced", k)]["cc"] for k in (1, 4, 8))
+    # the paper's equiangular mask: outermost weight about 17x the central one (§6)
+    assert 10 < s["equiangular_weight_ratio"] < 25
+
+
+def test_nedner_on_every_point_reproduces_the_full_reconstruction(tree_clean):
+    # NEDNER-NUFFT from all line points at their pitch is the NER reconstruction
+    n_x = tree_clean.data.shape[1]
+    res = limited_view.run(tree_clean, n_sensors=n_x, intervals=(1,), include_equiangular=False)
+    row = next(r for r in res.table if r["arrangement"] == "equispaced")
+    assert row["cc"] > 1 - 1e-9
+
+
+def test_more_sensors_at_the_same_spacing_never_lower_cc(tree_clean):
+    ccs = []
+    for n in (8, 16, 32, 64, 128):
+        res = limited_view.run(tree_clean, n_sensors=n, intervals=(2,), include_equiangular=False)
+        ccs.append(next(r["cc"] for r in res.table if r["arrangement"] == "equispaced"))
+    assert all(b >= a for a, b in zip(ccs, ccs[1:])), ccs
+    assert ccs[-1] > ccs[0] + 0.1
+
+
+def test_noise_is_30_db_below_the_signal():
+    rng = np.random.default_rng(1)
+    clean = rng.standard_normal((400, 300))
+    noisy = add_noise(clean, 30.0, seed=3)
+    ratio = np.mean(clean**2) / np.mean((noisy - clean) ** 2)
+    assert 10 * np.log10(ratio) == pytest.approx(30.0, abs=0.1)
+    assert add_noise(clean, None) is clean
+
+
+# ------------------------------------------------------------------ sparse-masks-3d
+def test_sparse_masks_small_structure(tmp_path):
+    result, paths = run_experiment("sparse-masks-3d", tmp_path, small=True, n_diameters=12)
+    assert {p.name for p in paths} == {"sparse-masks-3d.json", "sparse-masks-3d.csv", "sparse-masks-3d_curves.png",
+                                       "sparse-masks-3d_mips.png"}
+    rows = result.table
+    assert [r["arrangement"] for r in rows] == ["full", "equi-steradian"] + ["equispaced"] * 4
+    assert [r["interval"] for r in rows[2:]] == [2, 3, 4, 5]
+    n = result.params["n_lattice"]
+    # ~3 % of the lattice for every mask (paper: 3.18 % and 3.29 %)
+    for r in rows[1:]:
+        assert 0.02 < r["n_points"] / n**2 < 0.05
+        assert -1 <= r["cc_eval_diameter"] <= 1 and -1 <= r["cc_disc"] <= 1
+    assert rows[0]["cc_eval_diameter"] == 1.0
+    for key, curve in result.curves.items():
+        if key.startswith("cc_vs_diameter"):
+            assert len(curve) == 12
+        if key.startswith("cc_vs_pixels"):
+            assert len(curve) == len(result.curves["pixels"])
+            # every pixel of the disc: equals the CC computed directly
+    js = json.loads((tmp_path / "sparse-masks-3d.json").read_text())
+    assert js["summary"]["cc_equisteradian"] == pytest.approx(rows[1]["cc_eval_diameter"])
+
+
+# ------------------------------------------------------------------ nufft-vs-interpolation
+def test_nufft_vs_interpolation_small_against_the_true_layer(tmp_path):
+    result, paths = run_experiment("nufft-vs-interpolation", tmp_path, small=True)
+    rows = {r["method"]: r for r in result.table}
+    assert set(rows) == {"truth", "ner", "linear", "nearest", "kwave-linear"}
+    truth, ner = rows["truth"], rows["ner"]
+    # NER is exact up to the NUFFT tolerance and the aperture: its line spread and edge
+    # spread follow the true layer's, and the layer's amplitude comes back
+    assert ner["axial_fwhm_um"] == pytest.approx(truth["axial_fwhm_um"], rel=0.05)
+    assert ner["lateral_fwhm_um"] == pytest.approx(truth["lateral_fwhm_um"], rel=0.06)
+    assert ner["peak"] == pytest.approx(1.0, abs=0.02)
+    # linear interpolation in ω loses gain with depth (DESIGN §3.2); NER does not
+    assert rows["linear"]["peak"] < ner["peak"]
+    for r in rows.values():
+        assert r["side_lobe"] >= 0
+    assert all(rows[m]["time_s"] > 0 for m in ("ner", "linear", "nearest", "kwave-linear"))
+
+
+# ------------------------------------------------------------------ k-Wave reference data
+def test_limited_view_on_kwave2d(shared_data):
+    data = load_dense(shared_data / "kwave2d_points.h5")
+    assert data.ndim == 2 and data.dx == pytest.approx(50e-6) and data.dt == pytest.approx(10e-9)
+    res = limited_view.run(data.crop(n_t=400, lateral=256), intervals=(2, 6))
+    rows = {r["arrangement"]: r for r in res.table}
+    assert rows["full"]["cc"] == 1.0
+    assert {"equispaced", "equiangular", "equiangular-interpolated"} <= set(rows)
+    assert all(np.isfinite(r["cc"]) for r in res.table)
+
+
+def test_nufft_vs_interpolation_on_kwave2d(shared_data):
+    data = load_dense(shared_data / "kwave2d_points.h5").crop(n_t=400, lateral=256)
+    res = nufft_vs_interp.run(data, methods=("ner", "linear"), repeats=1)
+    rows = {r["method"]: r for r in res.table}
+    assert set(rows) == {"ner", "linear"}
+    # the brightest target is a small disc (radius 1-2 pixels of 50 µm): its axial
+    # line spread is a few tens to a few hundred µm wide
+    assert 15 < rows["ner"]["axial_fwhm_um"] < 400
+    assert rows["ner"]["peak"] > 0
+
+
+def test_sparse_masks_on_kwave3d(shared_data):
+    data = load_dense(shared_data / "kwave3d_balls_yarn.h5")
+    assert data.ndim == 3 and data.data.shape == (751, 96, 96) and data.dx == pytest.approx(60e-6)
+    res = sparse_masks.run(data.crop(n_t=300, lateral=48), intervals=(2, 3), n_diameters=6)
+    assert [r["arrangement"] for r in res.table] == ["full", "equi-steradian", "equispaced", "equispaced"]
+    assert all(-1 <= r["cc_eval_diameter"] <= 1 for r in res.table)
+    with pytest.raises(ValueError, match="3-D"):
+        sparse_masks.run(load_dense(shared_data / "kwave2d_points.h5"))
+
+
+# ------------------------------------------------------------------ CLI
+def test_fpscan_evaluate_cli(tmp_path, capsys, shared_data):
+    out = tmp_path / "ev"
+    assert fpscan(["evaluate", "nufft-vs-interpolation", "--small", "--out", str(out)]) == 0
+    assert (out / "nufft-vs-interpolation.csv").is_file()
+    assert "axial FWHM" in capsys.readouterr().out
+    assert fpscan(["evaluate", "limited-view-2d", "--data", str(tmp_path / "missing.h5")]) == 1
+    assert "not found" in capsys.readouterr().err
+    # 3-D data for a 2-D experiment: a clear error, not a crash
+    assert fpscan(["evaluate", "limited-view-2d", "--small", "--data", str(shared_data / "kwave3d_balls_yarn.h5"),
+                   "--out", str(out)]) == 1
+    assert "2-D" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        fpscan(["evaluate", "no-such-experiment"])
