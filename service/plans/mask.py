@@ -73,11 +73,12 @@ def check_poi(lattice: Lattice, poi) -> tuple[float, float]:
 
 
 def default_weights(lattice: Lattice, positions: np.ndarray, **options) -> np.ndarray:
-    """Clipped Voronoi areas (DESIGN §3.3) of mask positions ``(n, 2)`` in m, clipped to
-    the lattice's area: ``(n,)`` in m² (m on a line lattice). ``options`` go to
-    ``voronoi_weights``."""
+    """Clipped Voronoi areas (DESIGN §3.3) of mask positions ``(n, 2)`` in m: ``(n,)`` in
+    m² (m on a line lattice), exactly ``voronoi_weights(positions, pitch)`` — the weights
+    ``service.recon.reconstruct_points`` uses by default, so an equispaced sub-grid gets
+    (interval·pitch)² everywhere, edges included. ``options`` go to ``voronoi_weights``."""
     pos = positions[:, :1] if lattice.is_line else positions
-    return voronoi_weights(pos, lattice.pitch, bounds=lattice.bounds, **options)
+    return voronoi_weights(pos, lattice.pitch, **options)
 
 
 def distance_law_weights(lattice: Lattice, positions: np.ndarray, poi, depth: float,

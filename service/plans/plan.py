@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
 from .kinds import make_mask
 from .lattice import Lattice
@@ -132,7 +132,7 @@ class Plan(_Strict):
     acquisition: Acquisition
 
     @model_validator(mode="after")
-    def _consistent(self):
+    def _consistent(self, info: ValidationInfo):
         lat = Lattice(self.lattice.n_x, self.lattice.n_y, self.lattice.pitch)
         idx = np.asarray(self.points.indices, dtype=np.int64).reshape(-1, 2)
         pos = lat.positions(idx)  # raises for indices outside the lattice
@@ -146,6 +146,8 @@ class Plan(_Strict):
                 f"mask.obtained_points = {self.mask.obtained_points} but the plan has {idx.shape[0]} points"
             )
         expected = content_id(self.model_dump(mode="json"))
+        if info.context and info.context.get("assign_id") and self.id == "":
+            object.__setattr__(self, "id", expected)  # make_plan: the id is computed here once
         if self.id != expected:
             raise ValueError(f"plan id {self.id[:16]}... does not match its content hash {expected[:16]}...")
         return self
@@ -333,8 +335,8 @@ def make_plan(mask: Mask | str | None = None, *, kind: str | None = None, lattic
         "order": resolved,
         "acquisition": acquisition.model_dump(mode="json"),
     }
-    body["id"] = content_id(body)
-    return Plan.model_validate(body)
+    body["id"] = ""
+    return Plan.model_validate(body, context={"assign_id": True})
 
 
 def plan_from_spec(spec: dict) -> Plan:

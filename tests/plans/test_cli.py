@@ -3,8 +3,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import subprocess
-import sys
 
 import pytest
 
@@ -31,17 +29,14 @@ def test_plan_equisteradian_in_process(tmp_path, capsys):
     assert plan.expected_scan_time_s == pytest.approx(plan.n_points / 25)
 
 
-def test_plan_subprocess_line_and_points(tmp_path):
+def test_plan_line_and_points(tmp_path, capsys):
     out = tmp_path / "line.json"
-    r = subprocess.run(
-        [sys.executable, "-m", "clients", "plan", "equiangular", "--n-x", "1024", "--depth", "7.68e-3",
-         "--n-points", "32", "--out", str(out)],
-        capture_output=True, text=True, timeout=120,
-    )
-    assert r.returncode == 0, r.stderr
+    rc = main(["plan", "equiangular", "--n-x", "1024", "--depth", "7.68e-3", "--n-points", "32", "--out", str(out)])
+    assert rc == 0
+    stdout = capsys.readouterr().out
     plan = Plan.from_json(out)
     assert plan.lattice.n_y == 1 and plan.n_points == 32
-    assert "weight ratio" in r.stdout and "points: 32 (requested 32)" in r.stdout
+    assert "weight ratio" in stdout and "points: 32 (requested 32)" in stdout
 
     pts = tmp_path / "pts.json"
     pts.write_text(json.dumps([[0.0, 0.0], [1e-4, 2e-4], [1.01e-4, 1.98e-4]]))

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from scipy.spatial import cKDTree
 
 from service.plans import (
     Lattice,
@@ -53,13 +54,25 @@ def test_mask_properties(kind, lattice, params):
     assert np.all(m.weights > 0) and np.all(np.isfinite(m.weights))
     rp = m.recon_positions()
     assert rp.shape == (n, 1 if lattice.is_line else 2)
-    covered = voronoi_weights(rp, PITCH, bounds=lattice.bounds).sum()
+    covered = voronoi_weights(rp, PITCH).sum()
     # (the r^2 / r^3 laws are normalised on a coarser raster: the disc-clipped total
     # agrees to raster accuracy)
     rel = 1e-3 if kind in ("equisteradian", "equiangular") else 1e-12
     assert m.weights.sum() == pytest.approx(covered, rel=rel)
-    assert covered <= lattice.area * (1 + 1e-12)
+    # the covered box: the sensors' bounding box widened by half the median NN distance
+    if n > 1:
+        half = 0.5 * np.median(cKDTree(rp).query(rp, k=2)[0][:, 1])
+        box = np.prod(np.ptp(rp, axis=0) + 2 * half)
+        assert covered <= box * (1 + 1e-9)
     assert m.weight_ratio > 0
+
+
+def test_subgrid_reaching_the_lattice_edge_keeps_uniform_weights():
+    # 57 x 57 at interval 4 spans the whole 226 lattice: still (4 pitch)^2 each, as
+    # reconstruct_points' default weights and a uniform grid of spacing 4 pitch
+    sub = make_mask("subgrid", Lattice(226, 226, PITCH), interval=4)
+    assert sub.obtained_points == 57 * 57
+    np.testing.assert_allclose(sub.weights, (4 * PITCH) ** 2, rtol=1e-12)
 
 
 def test_full_and_subgrid_weights_are_exact():
@@ -216,7 +229,13 @@ def test_equiangular_paper_configuration():
     assert m.obtained_points == 32
     # paper: the outermost weight is 17 times the centremost
     assert m.weight_ratio == pytest.approx(17.0, rel=0.01)
-    assert m.covered_area == pytest.approx(1024 * PITCH, rel=1e-12)
+    # covered length: the outermost sensors (the line's ends) widened by half the
+    # median gap on each side
+    x = np.sort(m.positions[:, 0])
+    assert x[0] == pytest.approx(-511.5 * PITCH) and x[-1] == pytest.approx(511.5 * PITCH)
+    gaps = np.diff(x)
+    nn = np.minimum(np.r_[np.inf, gaps], np.r_[gaps, np.inf])
+    assert m.covered_area == pytest.approx(1023 * PITCH + np.median(nn), rel=1e-12)
 
 
 def test_snapping_drops_duplicates_and_reports_it():
