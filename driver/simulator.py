@@ -36,7 +36,7 @@ import secrets
 import threading
 import time
 import tty
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -174,6 +174,7 @@ class SimulatedScanner:
         self._pulses = 0
         self._last_tick = 0
         self._clock0 = 0.0
+        self._clock_pending = False
         self._last_fire = 0.0
         self._run_from = 0
         self._ready_k = -1
@@ -289,6 +290,10 @@ class SimulatedScanner:
                 self._push_error(err.code, err.message)
                 wire = encode_frame(FrameType.ERR, f'{err.code},"{err.message}"'.encode(),
                                     ack=frame.seq)
+            except Exception as exc:  # a firmware bug must not kill the device
+                msg = f"System error; {type(exc).__name__}: {exc}"[:200].replace('"', "'")
+                self._push_error(-310, msg)
+                wire = encode_frame(FrameType.ERR, f'-310,"{msg}"'.encode(), ack=frame.seq)
             self._last_cmd, self._last_reply = key, wire
             self._emit(wire)
         elif t in (FrameType.ACK, FrameType.NAK):
@@ -372,6 +377,19 @@ class SimulatedScanner:
                 self._push_error(101, "Laser interlock open")
                 self._send(FrameType.EVENT, b"INTERLOCK 1")
                 return
+            fut = self._block(k // BLOCK)
+            if not fut.done():  # the source is still computing: look again in 5 ms
+                self._wake = now + 0.005
+                return
+            if fut.exception() is not None:
+                self._push_error(-200, f"Execution error; A-line source failed: "
+                                       f"{fut.exception()}")
+                self._abort()
+                self._blocks.clear()
+                return
+            if self._clock_pending:  # the PRF clock starts when the first A-line is ready
+                self._clock_pending = False
+                self._clock0 = self._last_fire = now
             if cfg.prf > 0:
                 if self._ready_k != k:  # galvo and bias tuning start once credit allows
                     prev = self._clock0 if k == self._run_from else self._last_fire
@@ -395,7 +413,7 @@ class SimulatedScanner:
         self._maybe_finish()
 
     def _send_point(self, k: int, timestamp: float) -> None:
-        b = self._block(k // BLOCK)
+        b = self._block(k // BLOCK).result()
         j = k % BLOCK
         payload = pack_aline(self._run_id, self._boot_id, k, self._pulses, timestamp,
                              b["bias"][j], self._plan.dt, b["scale"][j], 0.0, b["dc"][j],
@@ -416,19 +434,21 @@ class SimulatedScanner:
             rec["dc"][k] = b["dc"][j]
             rec["sent"][k] = True
 
-    def _block(self, bi: int) -> dict:
+    def _block(self, bi: int) -> Future:
+        """Future of block ``bi``'s A-lines (generated in the helper thread), prefetching
+        the next block and forgetting old ones."""
         got = self._blocks.get(bi)
         if got is None:
-            got = self._pool.submit(self._generate, self._plan, self._pressure, bi)
-            self._blocks[bi] = got
+            got = self._blocks[bi] = self._pool.submit(self._generate, self._plan,
+                                                       self._pressure, bi)
         n_blocks = math.ceil(self._plan.n_points / BLOCK)
-        if bi + 1 < n_blocks and bi + 1 not in self._blocks:  # prefetch the next block
+        if bi + 1 < n_blocks and bi + 1 not in self._blocks:
             self._blocks[bi + 1] = self._pool.submit(self._generate, self._plan,
                                                      self._pressure, bi + 1)
         if not self.config.precompute:
             for old in [b for b in self._blocks if b < bi - 1 or b > bi + 2]:
                 del self._blocks[old]
-        return got.result() if hasattr(got, "result") else got
+        return got
 
     def _generate(self, plan: DevicePlan, pressure, bi: int) -> dict:
         """A-lines of plan points [bi·BLOCK, (bi+1)·BLOCK) as int16 with their metadata."""
@@ -439,7 +459,8 @@ class SimulatedScanner:
         iy = plan.indices[ks, 1].astype(np.float64) / max(plan.n_y - 1, 1)
         m1 = np.cos(2 * np.pi * (ix - 0.3)) * np.cos(np.pi * (iy - 0.5))
         m2 = np.sin(np.pi * (ix + 0.25)) * np.cos(1.5 * np.pi * (iy - 0.4))
-        dc = cfg.dc_level * (1 + cfg.dc_variation * m1)
+        # the A-line frame carries dc_level as f32: model with exactly that value
+        dc = (cfg.dc_level * (1 + cfg.dc_variation * m1)).astype(np.float32).astype(np.float64)
         sens = 1 + cfg.sensitivity_variation * m2
         v = p * (sens * dc)[:, None]
         if cfg.bandwidth:
@@ -579,7 +600,8 @@ class SimulatedScanner:
             self._record_order.append(plan.plan_id)
         if c.precompute:
             for bi in range(math.ceil(plan.n_points / BLOCK)):
-                self._blocks[bi] = self._generate(plan, pressure, bi)
+                self._blocks[bi] = done = Future()
+                done.set_result(self._generate(plan, pressure, bi))
         else:
             self._blocks[0] = self._pool.submit(self._generate, plan, pressure, 0)
 
@@ -602,7 +624,8 @@ class SimulatedScanner:
         if not 0 <= k < self._plan.n_points:
             raise _Error(-222, f"Data out of range; start index {k} not in "
                                f"[0, {self._plan.n_points})")
-        self._block(k // BLOCK)  # the first A-lines are ready before the clock starts
+        self._block(k // BLOCK)
+        self._clock_pending = True
         self._run_id += 1
         self._state = "RUNNING"
         self._next_k = self._run_from = k

@@ -123,9 +123,22 @@ class VolumeSource:
         from driver.physics import forward_points
 
         pos = plan.positions()
+        chunk = 4096
+        cache: dict[int, np.ndarray] = {}
 
         def pressure(ks):
-            return forward_points(self.p0, self.dx, self.dz, pos[ks], plan.dt, plan.n_t, self.c)
+            # one forward model evaluation per 4096 plan points (it costs a k-space
+            # transform of the volume each time), cached
+            out = np.empty((len(ks), plan.n_t))
+            for c in np.unique(ks // chunk):
+                if c not in cache:
+                    cache.clear()
+                    sel = slice(c * chunk, min((c + 1) * chunk, plan.n_points))
+                    cache[c] = forward_points(self.p0, self.dx, self.dz, pos[sel], plan.dt,
+                                              plan.n_t, self.c)
+                m = ks // chunk == c
+                out[m] = cache[c][ks[m] - c * chunk]
+            return out
 
         return pressure
 
