@@ -29,10 +29,46 @@ from typing import Any
 
 import h5py
 import numpy as np
+from h5py import h5d, h5g, h5s, h5t
 
 from driver.scanfile import read_scan
 
 DETECTOR_ID_WIDTH = 10
+
+
+class _SmallDatasets:
+    """Creates the many tiny per-detector datasets with h5py's low-level API (about 4×
+    faster than ``Group.create_dataset``); same on-disk result: float64 arrays/scalars and
+    fixed-length, null-padded UTF-8 strings (what h5py writes for ``np.bytes_``)."""
+
+    def __init__(self) -> None:
+        self._f64 = h5t.IEEE_F64LE
+        self._scalar = h5s.create(h5s.SCALAR)
+        self._spaces: dict[int, Any] = {}
+        self._strtypes: dict[int, Any] = {}
+
+    def vector(self, gid: Any, name: str, v: np.ndarray) -> None:
+        v = np.ascontiguousarray(v, dtype="<f8")
+        space = self._spaces.get(v.size)
+        if space is None:
+            space = self._spaces[v.size] = h5s.create_simple((v.size,))
+        h5d.create(gid, name.encode(), self._f64, space).write(h5s.ALL, h5s.ALL, v)
+
+    def scalar(self, gid: Any, name: str, x: float) -> None:
+        h5d.create(gid, name.encode(), self._f64, self._scalar).write(
+            h5s.ALL, h5s.ALL, np.array(x, dtype="<f8"))
+
+    def string(self, gid: Any, name: str, text: str) -> None:
+        b = text.encode("utf-8")
+        t = self._strtypes.get(len(b))
+        if t is None:
+            t = h5t.C_S1.copy()
+            t.set_size(max(len(b), 1))
+            t.set_strpad(h5t.STR_NULLPAD)
+            t.set_cset(h5t.CSET_UTF8)
+            self._strtypes[len(b)] = t
+        h5d.create(gid, name.encode(), t, self._scalar).write(
+            h5s.ALL, h5s.ALL, np.array(b, dtype=f"S{max(len(b), 1)}"), mtype=t)
 
 
 def _instrument_id(instrument: dict) -> str:
@@ -125,16 +161,17 @@ def export_scan(scan_path: str | os.PathLike, out_path: str | os.PathLike, *,
             dev.create_group("illuminators")
             dets = dev.create_group("detectors")
             spot = scan.instrument.get("spot_radius_m")
+            w = _SmallDatasets()
             orientation = np.array([0.0, 0.0, 1.0])
             for i in range(n):
-                d = dets.create_group(str(i).zfill(DETECTOR_ID_WIDTH))
-                put(d, "detection_element",
-                    f"FP interrogation spot at scan point {int(meta['point_index'][i])}")
-                put(d, "detector_position", np.array([xy[i, 0], xy[i, 1], 0.0]))
-                put(d, "detector_orientation", orientation)
-                put(d, "detector_geometry_type", "CIRCULAR")
+                gid = h5g.create(dets.id, str(i).zfill(DETECTOR_ID_WIDTH).encode())
+                w.string(gid, "detection_element",
+                         f"FP interrogation spot at scan point {int(meta['point_index'][i])}")
+                w.vector(gid, "detector_position", np.array([xy[i, 0], xy[i, 1], 0.0]))
+                w.vector(gid, "detector_orientation", orientation)
+                w.string(gid, "detector_geometry_type", "CIRCULAR")
                 if spot is not None:  # optional tags we cannot fill are left out
-                    put(d, "detector_geometry", float(spot))
+                    w.scalar(gid, "detector_geometry", float(spot))
         os.replace(tmp, out_path)
     except BaseException:
         tmp.unlink(missing_ok=True)
@@ -233,13 +270,17 @@ def read_ipasc(path: str | os.PathLike, *, wavelength_index: int = 0,
         if len(ids) != n_det:
             raise ValueError(f"{len(ids)} detectors described but the binary data has {n_det}")
         pos3 = np.empty((n_det, 3))
+        buf = np.empty(3, dtype="<f8")
         for i, key in enumerate(ids):
-            if "detector_position" not in dets[key]:
-                raise ValueError(f"detector {key} has no detector_position")
-            p = np.ravel(np.asarray(dets[key]["detector_position"][()], dtype=np.float64))
-            if p.size != 3:
-                raise ValueError(f"detector {key}: detector_position must have 3 values")
-            pos3[i] = p
+            try:  # low-level open/read: ~5x faster than dets[key]["detector_position"][()]
+                dsid = h5d.open(dets.id, f"{key}/detector_position".encode())
+            except KeyError:
+                raise ValueError(f"detector {key} has no detector_position") from None
+            if dsid.get_space().get_simple_extent_npoints() != 3 or \
+                    dsid.get_type().get_class() not in (h5t.FLOAT, h5t.INTEGER):
+                raise ValueError(f"detector {key}: detector_position must be 3 numbers")
+            dsid.read(h5s.ALL, h5s.ALL, buf)
+            pos3[i] = buf
         alines = np.asarray(raw[:, :, wavelength_index, measurement_index], dtype=np.float64)
     if not np.isfinite(pos3).all():
         raise ValueError("detector positions must be finite")

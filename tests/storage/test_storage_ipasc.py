@@ -161,7 +161,16 @@ def test_bad_input(tmp_path, make_scan):
     def nodet(f):
         del f["meta_data_device/detectors/0000000008"]
 
+    def nopos(f):
+        del f["meta_data_device/detectors/0000000002/detector_position"]
+
+    def pos2(f):
+        del f["meta_data_device/detectors/0000000002/detector_position"]
+        f["meta_data_device/detectors/0000000002/detector_position"] = [1.0, 2.0]
+
     for name, edit, what in [("tilt.h5", tilt, "plane"), ("sizes.h5", sizes, "sizes"),
+                             ("nopos.h5", nopos, "no detector_position"),
+                             ("pos2.h5", pos2, "3 numbers"),
                              ("fs.h5", fs, "ad_sampling_rate"), ("nan.h5", nan, "NaN"),
                              ("nodet.h5", nodet, "detectors")]:
         with pytest.raises(ValueError, match=what):
