@@ -420,6 +420,8 @@ async function updatePreview() {
     body = planBody();
   } catch (err) {
     $("plan-preview-state").textContent = "Not previewed: " + err.message;
+    panel.classList.add("stale");
+    for (const k of ["plan-points", "plan-ratio", "plan-time"]) $(k).textContent = "–";
     return;
   }
   const ctl = new AbortController();
@@ -436,10 +438,13 @@ async function updatePreview() {
     previewSeq += 1;
     img.dataset.seq = String(previewSeq);
     $("plan-preview-state").textContent = `Preview up to date (${countOf(r.points)} points).`;
+    panel.classList.remove("stale");
     clearError();
   } catch (err) {
     if (err.name === "AbortError") return;
     $("plan-preview-state").textContent = "No preview: " + (err.detail || err.message);
+    panel.classList.add("stale");
+    for (const k of ["plan-points", "plan-ratio", "plan-time"]) $(k).textContent = "–";
     throw err;
   } finally {
     if (previewAbort === ctl) { previewAbort = null; panel.removeAttribute("aria-busy"); }
@@ -904,7 +909,7 @@ function renderResult(job) {
     slider.disabled = !n;
     if (Number(slider.value) > Number(slider.max)) slider.value = slider.max;
     const r = resultOf(job);
-    $("scale-max").textContent = r.max !== undefined ? `max (volume max ${fmtNum(r.max)})` : "max";
+    $("scale-max").textContent = r.max !== undefined ? `slice maximum (volume maximum ${fmtNum(r.max)})` : "slice maximum";
     $("result-shape").textContent = r.shape ? r.shape.join(" × ") + (r.shape.length === 3 ? " (n_z × n_y × n_x)" : " (n_z × n_x)") : "–";
     $("result-points").textContent = r.points_used ?? "–";
     showSlice();
@@ -915,7 +920,7 @@ let sliceTimer = null;
 function showSlice() {
   if (!resultJob) return;
   const k = Number($("result-slice").value);
-  $("result-slice-value").textContent = String(k);
+  $("result-slice-value").textContent = `${k} of 0–${$("result-slice").max}`;
   clearTimeout(sliceTimer);
   const id = resultJob;
   sliceTimer = setTimeout(() => {
@@ -941,6 +946,7 @@ async function openResult(jobId) {
       setState($("result-state"), j.state);
       if (j.state !== lastState && TERMINAL.has(j.state)) {
         lastState = j.state;
+        if (currentView === "jobs") refreshJobs().catch(() => {});
         try { renderResult(await apiJson(`/api/jobs/${encodeURIComponent(jobId)}`)); } catch (err) { showError(err); }
       }
       lastState = j.state;

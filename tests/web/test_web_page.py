@@ -148,7 +148,17 @@ def png_pixels_as_browser_png(browser, png_base64: str) -> bytes:
 
 
 def shot(browser, screenshots: Path, name: str) -> None:
-    browser.save_screenshot(str(screenshots / f"{name}.png"))
+    """A full-page screenshot (Chrome DevTools ``Page.captureScreenshot`` beyond the
+    viewport), or the viewport where that is not available."""
+    try:
+        size = browser.execute_script(
+            "return [document.documentElement.scrollWidth, document.documentElement.scrollHeight]")
+        shot_ = browser.execute_cdp_cmd("Page.captureScreenshot", {
+            "format": "png", "captureBeyondViewport": True,
+            "clip": {"x": 0, "y": 0, "width": size[0], "height": size[1], "scale": 1}})
+        (screenshots / f"{name}.png").write_bytes(base64.b64decode(shot_["data"]))
+    except Exception:  # noqa: BLE001 - fall back to the viewport
+        browser.save_screenshot(str(screenshots / f"{name}.png"))
 
 
 def plan_request(n_points: int) -> dict:
@@ -241,7 +251,8 @@ def test_plan_view_preview_errors_token_and_save(server, api, browser, screensho
     state["n_points"] = expected["points"]
 
 
-def test_scan_view_progress_reaches_100_and_live_preview_changes(sim, server, api, browser, screenshots, state):
+def test_scan_view_progress_reaches_100_and_live_preview_changes(sim, server, api, browser, screenshots, state,
+                                                                tmp_path):
     from selenium.webdriver.support.ui import Select
 
     if "plan_id" not in state:
@@ -291,7 +302,7 @@ def test_scan_view_progress_reaches_100_and_live_preview_changes(sim, server, ap
     h5py = pytest.importorskip("h5py")
     r = api.get(f"/api/scans/{job_id}/file")
     assert r.status_code == 200
-    path = screenshots.parent / "web-scan.h5"
+    path = tmp_path / "scan.h5"
     path.write_bytes(r.content)
     with h5py.File(path, "r") as f:
         assert f is not None  # opens as HDF5
@@ -320,9 +331,10 @@ def test_result_view_reconstruct_slices_and_download_volume(server, api, browser
     wait_for(lambda: text(browser, "result-state") in ("succeeded", "failed"), 90, "the reconstruction to finish", 0.3)
     assert text(browser, "result-state") == "succeeded", api.get(f"/api/jobs/{recon_id}").text
     for plane in ("xy", "xz", "yz"):
-        wait_for(lambda: image_digest(browser, f"result-mip-{plane}"), 15, f"the {plane} MIP")
         oracle = api.get(f"/api/reconstructions/{recon_id}/mip/{plane}.png")
         assert oracle.status_code == 200
+        want = hashlib.sha256(png_pixels_as_browser_png(browser, base64.b64encode(oracle.content).decode())).hexdigest()
+        wait_for(lambda: image_digest(browser, f"result-mip-{plane}") == want, 15, f"the {plane} MIP's pixels")
     # The parameters used are listed.
     params = text(browser, "result-params")
     assert "nedner" in params or "method" in params
@@ -334,7 +346,12 @@ def test_result_view_reconstruct_slices_and_download_volume(server, api, browser
     first = wait_for(lambda: image_digest(browser, "result-slice-img"), 15, "the first depth slice")
     browser.execute_script("const s = arguments[0]; s.value = s.max; s.dispatchEvent(new Event('input'));", slider)
     wait_for(lambda: (el(browser, "result-slice-img").get_attribute("data-src") or "").endswith(f"index={top}"), 15, "the last slice")
-    assert text(browser, "result-slice-value") == str(top)
+    assert text(browser, "result-slice-value").startswith(f"{top} of")
+    last = api.get(f"/api/reconstructions/{recon_id}/slice.png", params={"index": top})
+    assert last.status_code == 200
+    want = hashlib.sha256(png_pixels_as_browser_png(browser, base64.b64encode(last.content).decode())).hexdigest()
+    wait_for(lambda: image_digest(browser, "result-slice-img") == want, 15, "the last slice's pixels")
+    assert want != first
     shot(browser, screenshots, "jobs-recon-result")
 
     # Download the volume through the page: byte for byte what the API serves, and HDF5.
