@@ -359,6 +359,7 @@ class ScanFile:
             raise FileExistsError(f"{path} exists; use ScanFile.open_append to resume")
         lock_fd = _acquire_lock(path)
         tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        renamed = False
         try:
             if path.exists():
                 raise FileExistsError(f"{path} exists; use ScanFile.open_append to resume")
@@ -394,11 +395,24 @@ class ScanFile:
                 f.close()
                 raise
             os.replace(tmp, path)
+            renamed = True
+            if durable == "fsync":  # the new directory entry must survive a power cut too
+                os.fsync(f.id.get_vfd_handle())
+                dir_fd = os.open(path.parent, os.O_RDONLY)
+                try:
+                    os.fsync(dir_fd)
+                finally:
+                    os.close(dir_fd)
+            return cls(path, f, lock_fd, durable)
         except BaseException:
+            if renamed:  # the file is in place and valid (resumable); just close it
+                try:
+                    f.close()
+                except Exception:  # noqa: BLE001 - already failing; keep the first error
+                    pass
             tmp.unlink(missing_ok=True)
             _release_lock(path, lock_fd)
             raise
-        return cls(path, f, lock_fd, durable)
 
     @classmethod
     def open_append(cls, path: str | os.PathLike, plan: dict | None = None, *,
