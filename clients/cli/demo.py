@@ -321,7 +321,6 @@ class Demo:
                 "job_id": job_id, "points": n, "file": scan_file.name,
                 "acquisition_s": run_s,
                 "points_per_s": (n / run_s) if run_s else progress.get("rate_per_s"),
-                "faults_recovered": progress.get("faults_recovered"),
             }
             self.say(f"scanned {plan_name}: {n} points in {run_s or float('nan'):.2f} s")
             # reconstruct in the executor while the next scan runs

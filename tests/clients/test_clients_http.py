@@ -5,7 +5,6 @@ details; the plan's own lattice arithmetic for positions; Pillow/h5py for downlo
 from __future__ import annotations
 
 import asyncio
-import io
 
 import httpx
 import numpy as np
@@ -207,3 +206,33 @@ def test_reconstruction_job_with_progress_and_downloads(api, tmp_path):
     for plane in ("xy", "xz", "yz"):
         with Image.open(api.download_mip(job_id, plane, tmp_path / f"{plane}.png")) as im:
             assert im.format == "PNG"
+
+
+def test_async_wait_with_coroutine_callback(api, server, tmp_path):
+    recon = pytest.importorskip("service.recon")
+    if not hasattr(recon, "reconstruct_grid"):
+        pytest.skip("service.recon.reconstruct_grid not available yet")
+    import h5py
+
+    data, dx, dt = _grid_data()
+    np.save(tmp_path / "a.npy", data)
+
+    async def main():
+        seen = []
+
+        async def on_progress(p):
+            seen.append(p)
+
+        async with AsyncClient(server, token=TOKEN) as c:
+            ds = await c.upload_dataset(tmp_path / "a.npy", "npy", dt=dt, dx=dx)
+            job_id = await c.start_reconstruction(dataset_id=ds, method="nedner", params={"n_z": 32})
+            job = await c.wait(job_id, on_progress=on_progress, timeout=120)
+            path = await c.download_volume(job_id, tmp_path / "a.h5")
+            return job, path, seen
+
+    job, path, seen = asyncio.run(main())
+    assert job.state == "succeeded" and seen
+    with h5py.File(path, "r") as f:
+        assert f["p0"].shape == (32, 16, 16)
+    # the same job seen through the blocking client
+    assert api.get_job(job.id).state == "succeeded"
