@@ -890,6 +890,7 @@ function renderResult(job) {
   }
 
   $("result-scan").hidden = !(job.kind === "scan" && done);
+  if (job.kind === "scan" && done) listScanRecons(job.id).catch(showError);
   const isRecon = job.kind !== "scan";
   $("result-recon").hidden = !(isRecon && done);
   if (isRecon && done) {
@@ -907,12 +908,33 @@ function renderResult(job) {
     const slider = $("result-slice");
     slider.max = String(n ? n - 1 : 0);
     slider.disabled = !n;
+    if (slider.dataset.job !== String(job.id)) { slider.value = String(n ? Math.floor((n - 1) / 2) : 0); slider.dataset.job = String(job.id); }
     if (Number(slider.value) > Number(slider.max)) slider.value = slider.max;
     const r = resultOf(job);
     $("scale-max").textContent = r.max !== undefined ? `slice maximum (volume maximum ${fmtNum(r.max)})` : "slice maximum";
     $("result-shape").textContent = r.shape ? r.shape.join(" × ") + (r.shape.length === 3 ? " (n_z × n_y × n_x)" : " (n_z × n_x)") : "–";
     $("result-points").textContent = r.points_used ?? "–";
     showSlice();
+  }
+}
+
+/** The reconstruction jobs made from scan ``scanId`` (from the job list). */
+async function listScanRecons(scanId) {
+  const jobs = asList(await apiJson("/api/jobs?kind=recon"), "jobs")
+    .filter((j) => j.params && j.params.scan_job_id === scanId);
+  const ul = $("scan-recons");
+  ul.textContent = "";
+  if (!jobs.length) { const li = document.createElement("li"); li.textContent = "none yet"; ul.appendChild(li); }
+  for (const j of jobs) {
+    const li = document.createElement("li");
+    const a = document.createElement("a");
+    a.href = "#/jobs/" + encodeURIComponent(j.id);
+    a.textContent = `${shortId(j.id)} · ${j.params.method}`;
+    const st = document.createElement("span");
+    st.className = "state";
+    setState(st, j.state);
+    li.append(a, " ", st);
+    ul.appendChild(li);
   }
 }
 
@@ -961,7 +983,10 @@ async function startRecon(ev) {
   try {
     const resp = await apiFetch("/api/reconstructions", {
       method: "POST",
-      json: { scan_job_id: resultJob, method: $("recon-method").value, params: {} },
+      json: {
+        scan_job_id: resultJob, method: $("recon-method").value,
+        params: { dtype: $("recon-dtype").value, positivity: $("recon-positivity").checked },
+      },
       headers: { "Idempotency-Key": newIdempotencyKey() },
     });
     const id = await jobIdFrom(resp);

@@ -367,6 +367,47 @@ def test_result_view_reconstruct_slices_and_download_volume(server, api, browser
         assert len(f.keys()) > 0
 
 
+def test_scan_controls_pause_resume_abort(sim, server, api, browser, screenshots, state):
+    from selenium.webdriver.support.ui import Select
+
+    if sim is None:
+        pytest.skip("this build has no `fpscan sim` (simulated scanner)")
+    plan = api.post("/api/plans", json=plan_request(900))
+    assert plan.status_code in (200, 201), plan.text
+    plan_id = plan.json()["id"]
+    el(browser, "nav-scan").click()
+    el(browser, "scan-refresh").click()
+    wait_for(lambda: plan_id in [o.get_attribute("value") for o in Select(el(browser, "scan-plan")).options],
+             15, "the new plan in the list")
+    Select(el(browser, "scan-plan")).select_by_value(plan_id)
+    Select(el(browser, "scan-scanner")).select_by_value("sim1")
+    wait_for(lambda: el(browser, "scan-start").is_enabled(), 10, "Start to be enabled")
+    el(browser, "scan-start").click()
+    job_id = wait_for(lambda: (lambda t: t if t and t != state.get("scan_job_id") else None)(
+        el(browser, "scan-job").get_attribute("title")), 15, "the new scan job")
+
+    def api_state():
+        return api.get(f"/api/jobs/{job_id}").json()
+
+    wait_for(lambda: text(browser, "scan-state") == "running" and (api_state()["progress"].get("points_done") or 0) > 0,
+             30, "the scan to run")
+    el(browser, "scan-pause").click()
+    wait_for(lambda: text(browser, "scan-state") == "paused", 20, "the page to show paused")
+    assert api_state()["state"] == "paused"
+    assert el(browser, "scan-resume").is_enabled() and not el(browser, "scan-pause").is_enabled()
+    shot(browser, screenshots, "scan-view-paused")
+    held = api_state()["progress"]["points_done"]
+    el(browser, "scan-resume").click()
+    wait_for(lambda: text(browser, "scan-state") == "running", 20, "the page to show running again")
+    wait_for(lambda: api_state()["progress"]["points_done"] > held, 20, "the scan to move on after resume")
+    el(browser, "scan-abort").click()
+    final = wait_for(lambda: (lambda s: s if s in ("cancelled", "failed", "succeeded") else None)(text(browser, "scan-state")),
+                     20, "the abort to end the scan")
+    assert final == api_state()["state"] == "cancelled"
+    assert el(browser, "scan-start").is_enabled() and not el(browser, "scan-abort").is_enabled()
+    assert token_prompts(browser) == 1, "the token was asked again"
+
+
 def test_keyboard_navigation_and_state_without_colour(server, browser, screenshots, state):
     from selenium.webdriver.common.action_chains import ActionChains
     from selenium.webdriver.common.keys import Keys
