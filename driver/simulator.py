@@ -175,6 +175,7 @@ class SimulatedScanner:
         self._last_tick = 0
         self._clock0 = 0.0
         self._clock_pending = False
+        self._held = False
         self._last_fire = 0.0
         self._run_from = 0
         self._ready_k = -1
@@ -380,6 +381,7 @@ class SimulatedScanner:
             fut = self._block(k // BLOCK)
             if not fut.done():  # the source is still computing: look again in 5 ms
                 self._wake = now + 0.005
+                self._held = True
                 return
             if fut.exception() is not None:
                 self._push_error(-200, f"Execution error; A-line source failed: "
@@ -391,9 +393,14 @@ class SimulatedScanner:
                 self._clock_pending = False
                 self._clock0 = self._last_fire = now
             if cfg.prf > 0:
-                if self._ready_k != k:  # galvo and bias tuning start once credit allows
+                if self._ready_k != k:
+                    # galvo move and bias tuning start right after the previous pulse, or
+                    # when the point could not start earlier (no credit, data not ready)
                     prev = self._clock0 if k == self._run_from else self._last_fire
-                    self._ready_k, self._ready_t = k, max(now, prev + cfg.tuning_delay)
+                    ready = prev + cfg.tuning_delay
+                    if self._held:
+                        ready = max(ready, now)
+                    self._ready_k, self._ready_t = k, ready
                 ready = self._ready_t
                 first = max(self._last_tick + 1,
                             math.ceil((ready - self._clock0) * cfg.prf - 1e-9))
@@ -410,6 +417,9 @@ class SimulatedScanner:
             self._pulses += plan.averages
             self._send_point(k, timestamp)
             self._next_k += 1
+            self._held = False
+        if self._next_k < plan.n_points and self._state == "RUNNING":
+            self._held = True  # out of credit or output space: the next point waits
         self._maybe_finish()
 
     def _send_point(self, k: int, timestamp: float) -> None:
