@@ -39,19 +39,23 @@ PAPER = {"axial_fwhm_um": {"ner": 23.23, "linear": 62.34}, "axial_fwhm_std_um": 
          "lateral_fwhm_um": {"ner": 33.44, "linear": 40.82}, "lateral_fwhm_std_um": {"ner": 7.95, "linear": 7.34}}
 
 
-def simulate_layer(*, small: bool) -> DenseDataset:
-    """Built-in dataset: 256 (small: 128) line points of 70 µm, dt = 8 ns, c = 1500 m/s;
-    a layer of FWHM thickness 2.5·c·dt centred 0.37 samples off the grid at 2 mm (small:
-    1 mm) depth, half the aperture wide, lateral edges blurred by 2.5 pitches."""
+def simulate_layer(*, small: bool, depth: float | None = None) -> DenseDataset:
+    """Built-in dataset: 256 (small: 128) line points of 70 µm, dt = 8 ns, c = 1500 m/s,
+    512 (small: 256) samples; a layer of FWHM thickness 2.5·c·dt centred 0.37 samples off
+    the grid at ``depth`` (default 2 mm; small: 1 mm), half the aperture wide, lateral
+    edges blurred by 2.5 pitches. Raises ValueError if the layer is outside the window."""
     from service.recon import forward_grid
 
-    n_x, dx, dt, c = (128 if small else 256), 70e-6, 8e-9, 1500.0
+    n_x, n_t, dx, dt, c = (128, 256, 70e-6, 8e-9, 1500.0) if small else (256, 512, 70e-6, 8e-9, 1500.0)
     dz = c * dt
-    depth = ((1e-3 if small else 2e-3) // dz + 0.37) * dz
-    n_z = int(depth / dz) + 48
+    if depth is None:
+        depth = 1e-3 if small else 2e-3
+    depth = (depth // dz + 0.37) * dz
+    n_z = int(depth / dz) + 24
+    if n_z > n_t:
+        raise ValueError(f"layer depth {depth:g} m is beyond the recorded window ({n_t} samples)")
     width = 0.5 * n_x * dx
     p0 = layer_phantom(n_z, n_x, dz, dx, depth=depth, width=width, thickness=2.5 * dz, edge=2.5 * dx)
-    n_t = 2 * n_z
     data = forward_grid(p0, dx, dz, dt, n_t, c)
     return DenseDataset(data, dx, dt, c, p0, dz, "thin layer (built in)", {"layer_depth_m": depth, "layer_width_m": width})
 
@@ -96,8 +100,26 @@ def _axial_lateral(p, z, x, cols, zs, kz, width, dx):
     return fw, sl, pk, edges, lat
 
 
+def depth_sweep(*, small: bool, methods=METHODS, fractions=(0.15, 0.35, 0.55, 0.75, 0.9)) -> dict:
+    """Peak amplitude (relative to the true layer) and axial FWHM (µm) of the built-in
+    layer placed at ``fractions`` of the recorded depth window n_t·c·dt, per method:
+    ``{"depth_m": [...], "peak[<m>]": [...], "axial_fwhm_um[<m>]": [...]}`` (the
+    interpolation methods' gain error grows with depth; DESIGN §3.2)."""
+    n_t = 256 if small else 512
+    dz = 1500.0 * 8e-9
+    out: dict = {"depth_m": []}
+    for f in fractions:
+        ds = simulate_layer(small=small, depth=f * n_t * dz)
+        res = run(ds, small=small, methods=methods, repeats=1, n_columns=9, _layer=True)
+        out["depth_m"].append(ds.meta["layer_depth_m"])
+        for r in res.table:
+            out.setdefault(f"peak[{r['method']}]", []).append(r["peak"])
+            out.setdefault(f"axial_fwhm_um[{r['method']}]", []).append(r["axial_fwhm_um"])
+    return out
+
+
 def run(data: DenseDataset | None = None, *, small: bool = False, methods=METHODS, repeats: int | None = None,
-        n_columns: int = 49) -> ExperimentResult:
+        n_columns: int = 49, sweep: bool = True, _layer: bool = False) -> ExperimentResult:
     """Run the §4 comparison.
 
     Parameters
@@ -108,6 +130,7 @@ def run(data: DenseDataset | None = None, *, small: bool = False, methods=METHOD
         (k-Wave's own FFT reconstruction, the paper's comparison).
     repeats : timing repetitions (best of); default 1 (small) or 3.
     n_columns : central columns used for the axial fits (paper: 49).
+    sweep : also run :func:`depth_sweep` (built-in layer only) into ``curves``.
 
     Returns
     -------
@@ -123,8 +146,8 @@ def run(data: DenseDataset | None = None, *, small: bool = False, methods=METHOD
     """
     if repeats is None:
         repeats = 1 if small else 3
-    built_in = data is None
-    if built_in:
+    built_in = data is None or _layer
+    if data is None:
         data = simulate_layer(small=small)
     g = data.data
     dx, dt, c = data.dx, data.dt, data.c
@@ -197,7 +220,9 @@ def run(data: DenseDataset | None = None, *, small: bool = False, methods=METHOD
     params = {"source": data.source, "shape": list(g.shape), "dx_m": dx, "dt_s": dt, "c_m_per_s": c,
               "n_z": n_z, "dz_m": dz, "methods": list(methods), "repeats": repeats, "n_columns": n_columns,
               "lorentz_window": 8, "small": small}
-    return ExperimentResult(NAME, params, rows, summary, images={"profiles": profiles, "built_in": built_in})
+    curves = depth_sweep(small=small, methods=methods) if (sweep and built_in and not _layer) else {}
+    return ExperimentResult(NAME, params, rows, summary, curves=curves,
+                            images={"profiles": profiles, "built_in": built_in})
 
 
 def plot(result: ExperimentResult, out_dir) -> list[Path]:
@@ -206,7 +231,8 @@ def plot(result: ExperimentResult, out_dir) -> list[Path]:
     plt = setup_matplotlib()
     prof = result.images["profiles"]
     methods = result.params["methods"]
-    fig, ax = plt.subplots(1, 3, figsize=(15, 4))
+    sweep = result.curves.get("depth_m")
+    fig, ax = plt.subplots(1, 4 if sweep else 3, figsize=(20 if sweep else 15, 4))
     z = prof["z"] * 1e6
     for m in methods:
         r = next(r for r in result.table if r["method"] == m)
@@ -222,7 +248,12 @@ def plot(result: ExperimentResult, out_dir) -> list[Path]:
     times = [next(r for r in result.table if r["method"] == m)["time_s"] for m in methods]
     ax[2].bar(methods, times)
     ax[2].set(ylabel="run time (s)", title="reconstruction time (best of %d)" % result.params["repeats"])
-    for a in ax[:2]:
+    if sweep:
+        dmm = np.asarray(sweep) * 1e3
+        for m in methods:
+            ax[3].plot(dmm, result.curves[f"peak[{m}]"], "o-", label=m)
+        ax[3].set(xlabel="layer depth (mm)", ylabel="peak / true peak", title="amplitude vs depth")
+    for a in list(ax[:2]) + ([ax[3]] if sweep else []):
         a.grid(alpha=0.3)
         a.legend(fontsize=8)
     fig.tight_layout()
