@@ -132,6 +132,9 @@ class Lattice:
             # round half away from the centre
             off = rel - c
             r = np.where(off >= 0, np.floor(rel + 0.5), np.ceil(rel - 0.5))
+            # exactly half a pitch beyond the outermost point still snaps onto it
+            edge = (np.abs(rel - np.clip(rel, 0, n - 1)) <= 0.5 + 1e-9)
+            r = np.where(edge, np.clip(r, 0, n - 1), r)
             if np.any(r < 0) or np.any(r > n - 1):
                 bad = pos[(r < 0) | (r > n - 1)][0]
                 raise ValueError(

@@ -185,7 +185,7 @@ def test_equisteradian_off_centre_poi():
     assert m.rings is not None and m.rings.shape == (m.obtained_points,)
 
 
-@settings(max_examples=25, deadline=None)
+@settings(max_examples=20, deadline=None, derandomize=True)
 @given(
     n=st.integers(15, 90),
     depth_pitches=st.floats(3, 150),
@@ -289,3 +289,37 @@ BIG = Lattice(50, 50, PITCH)
 def test_bad_input_raises_value_error_with_reason(call, match):
     with pytest.raises(ValueError, match=match):
         call()
+
+
+@settings(max_examples=12, deadline=None, derandomize=True)
+@given(
+    data=st.data(),
+    n_x=st.integers(5, 40),
+    square=st.booleans(),
+    kind=st.sampled_from(["subgrid", "hexagonal", "random", "poisson", "points"]),
+)
+def test_every_kind_valid_on_random_lattices(data, n_x, square, kind):
+    lat = Lattice(n_x, n_x if square else 1, PITCH)
+    if kind == "hexagonal" and lat.is_line:
+        kind = "subgrid"
+    if kind == "subgrid":
+        params = {"interval": data.draw(st.integers(1, max(1, (n_x - 1) // 2)))}
+    elif kind == "hexagonal":
+        params = {"spacing": data.draw(st.floats(1.0, n_x / 3)) * PITCH}
+    elif kind == "random":
+        params = {"n_points": data.draw(st.integers(1, lat.n_points)), "seed": data.draw(st.integers(0, 99))}
+    elif kind == "poisson":
+        params = {"min_distance": data.draw(st.floats(0.5, n_x / 2)) * PITCH, "seed": data.draw(st.integers(0, 99))}
+    else:
+        h = np.array(lat.half_extent) + PITCH / 2 * (1 - 1e-9)
+        k = data.draw(st.integers(1, 30))
+        pts = np.column_stack((data.draw(st.lists(st.floats(-1, 1), min_size=k, max_size=k)),
+                               data.draw(st.lists(st.floats(-1, 1), min_size=k, max_size=k)))) * h
+        params = {"points": pts}
+    m = make_mask(kind, lat, **params)
+    n = m.obtained_points
+    assert 1 <= n <= m.requested_points
+    assert np.unique(m.indices, axis=0).shape[0] == n
+    assert m.indices[:, 0].max() < lat.n_x and m.indices[:, 1].max() < lat.n_y and m.indices.min() >= 0
+    assert np.all(m.weights > 0) and np.all(np.isfinite(m.weights))
+    assert m.weights.sum() == pytest.approx(voronoi_weights(m.recon_positions(), PITCH).sum(), rel=1e-12)
