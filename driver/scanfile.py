@@ -77,7 +77,9 @@ PLAN_FORMAT = "fpscan-plan/1"
 
 META_KEYS = ("run_id", "boot_id", "point_index", "pulse_number", "timestamp_s",
              "bias_wavelength_m", "dc_level", "pulse_energy_j", "dt_s", "scale", "offset")
-_INT_KEYS = ("run_id", "boot_id", "point_index", "pulse_number")
+_META_KEY_SET = frozenset(META_KEYS)
+_FLOAT_KEYS = ("timestamp_s", "bias_wavelength_m", "dc_level", "pulse_energy_j", "dt_s",
+               "scale", "offset")  # META_DTYPE order after the four integers
 #: Per-A-line metadata record, little-endian, as stored in ``/aline_meta``.
 META_DTYPE = np.dtype([
     ("run_id", "<u8"), ("boot_id", "<u8"), ("point_index", "<i8"), ("pulse_number", "<u8"),
@@ -316,6 +318,11 @@ class ScanFile:
         self._alines = h5["alines"]
         self._meta_ds = h5["aline_meta"]
         self._completed_ds = h5["completed"]
+        self._alines_id = self._alines.id
+        self._meta_id = self._meta_ds.id
+        self._done_id = self._completed_ds.id
+        self._meta_chunk = self._meta_ds.chunks[0]
+        self._done_chunk = self._completed_ds.chunks[0]
         self.plan_id: str = str(h5.attrs["plan_id"])
         self.n_points: int = int(h5.attrs["n_points"])
         self.n_t: int = int(h5.attrs["n_t"])
@@ -497,16 +504,15 @@ class ScanFile:
         with self._mutex:
             if self._done[k]:
                 return False
-            data = np.ascontiguousarray(samples, dtype="<i2").reshape(1, self.n_t)
-            self._alines.id.write_direct_chunk((k, 0), data)
+            data = np.ascontiguousarray(samples, dtype="<i2")
+            self._alines_id.write_direct_chunk((k, 0), data)
             m0 = k - k % META_CHUNK
             self._meta[k] = rec
-            self._meta_ds.id.write_direct_chunk((m0,), self._meta[m0:m0 + self._meta_ds.chunks[0]])
+            self._meta_id.write_direct_chunk((m0,), self._meta[m0:m0 + self._meta_chunk])
             c0 = k - k % COMPLETED_CHUNK
             self._done[k] = 1
             try:
-                self._completed_ds.id.write_direct_chunk(
-                    (c0,), self._done[c0:c0 + self._completed_ds.chunks[0]])
+                self._done_id.write_direct_chunk((c0,), self._done[c0:c0 + self._done_chunk])
             except BaseException:
                 self._done[k] = 0
                 raise
@@ -514,36 +520,51 @@ class ScanFile:
                 os.fsync(self._sync_fd)
         return True
 
-    def _meta_record(self, k: int, meta: Any) -> np.void:
+    @staticmethod
+    def _uint(key: str, v: Any) -> int:
+        if type(v) is not int:  # fast path for plain ints; numpy integers are fine too
+            if isinstance(v, bool) or not isinstance(v, numbers.Integral):
+                raise ValueError(f"meta[{key!r}] must be a non-negative integer, got {v!r}")
+            v = int(v)
+        if not 0 <= v < 18446744073709551616:
+            raise ValueError(f"meta[{key!r}] must be a non-negative integer < 2**64, got {v!r}")
+        return v
+
+    def _meta_record(self, k: int, meta: Any) -> tuple:
+        """Validated metadata as a tuple in ``META_DTYPE`` field order."""
         if not isinstance(meta, dict):
             raise ValueError(f"meta must be a dict, got {type(meta).__name__}")
-        unknown = set(meta) - set(META_KEYS)
-        if unknown:
-            raise ValueError(f"unknown A-line metadata keys: {sorted(unknown)}")
-        missing = [key for key in META_KEYS if key not in meta and key != "point_index"]
-        if missing:
+        n_keys = len(meta)
+        if not (n_keys == 11 or (n_keys == 10 and "point_index" not in meta)) or \
+                not _META_KEY_SET.issuperset(meta):
+            unknown = set(meta) - _META_KEY_SET
+            if unknown:
+                raise ValueError(f"unknown A-line metadata keys: {sorted(unknown)}")
+            missing = [key for key in META_KEYS if key not in meta and key != "point_index"]
             raise ValueError(f"A-line metadata missing keys: {missing}")
-        rec = np.zeros((), META_DTYPE)
-        for key in META_KEYS:
-            v = meta.get(key, k)
-            if key in _INT_KEYS:
-                if isinstance(v, bool) or not isinstance(v, numbers.Integral) or v < 0 \
-                        or v >= 2 ** 64:
-                    raise ValueError(f"meta[{key!r}] must be a non-negative integer, got {v!r}")
-            else:
+        try:
+            floats = [float(meta[key]) for key in _FLOAT_KEYS]
+        except (TypeError, ValueError):
+            for key in _FLOAT_KEYS:
                 try:
-                    v = float(v)
+                    float(meta[key])
                 except (TypeError, ValueError):
-                    raise ValueError(f"meta[{key!r}] must be a number, got {v!r}") from None
-            rec[key] = v
-        if int(rec["point_index"]) != k:
-            raise ValueError(f"meta point_index {int(rec['point_index'])} != point_index {k}")
-        if not (math.isfinite(rec["dc_level"]) and rec["dc_level"] > 0):
-            raise ValueError(f"meta dc_level must be finite and > 0, got {float(rec['dc_level'])}")
-        for key in ("scale", "offset"):
-            if not math.isfinite(rec[key]):
-                raise ValueError(f"meta[{key!r}] must be finite, got {float(rec[key])}")
-        return rec
+                    raise ValueError(f"meta[{key!r}] must be a number, got {meta[key]!r}") \
+                        from None
+            raise
+        timestamp, bias, dc, energy, dt, scale, offset = floats
+        pi = self._uint("point_index", meta.get("point_index", k))
+        if pi != k:
+            raise ValueError(f"meta point_index {pi} != point_index {k}")
+        if not (dc > 0 and math.isfinite(dc)):
+            raise ValueError(f"meta dc_level must be finite and > 0, got {dc}")
+        if not math.isfinite(scale):
+            raise ValueError(f"meta['scale'] must be finite, got {scale}")
+        if not math.isfinite(offset):
+            raise ValueError(f"meta['offset'] must be finite, got {offset}")
+        return (self._uint("run_id", meta["run_id"]), self._uint("boot_id", meta["boot_id"]),
+                pi, self._uint("pulse_number", meta["pulse_number"]),
+                timestamp, bias, dc, energy, dt, scale, offset)
 
     def flush(self) -> None:
         """Flush HDF5 buffers (nothing is buffered after append) and fsync the file."""
