@@ -151,6 +151,11 @@ def test_start_command_serves_and_healthcheck_passes(image_install):
                 break
             time.sleep(0.5)
         assert ok, f"healthcheck never passed; server exit={proc.poll()}"
+        # the installed wheel carries the web page (package data)
+        import httpx
+
+        page = httpx.get(f"http://127.0.0.1:{port}/", headers={"Authorization": "Bearer docker-test-token"})
+        assert page.status_code == 200 and "text/html" in page.headers["content-type"]
         # the database lives in the data volume
         assert any(image_install["cwd"].iterdir())
         # and the health check fails once the server is gone

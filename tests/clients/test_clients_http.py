@@ -198,6 +198,12 @@ def test_reconstruction_job_with_progress_and_downloads(api, tmp_path):
     job = api.wait(job_id, on_progress=seen.append, timeout=120)
     assert job.state == "succeeded"
     assert seen and all(isinstance(p, dict) for p in seen)
+    # the finished job's event stream replays everything, and resumes after Last-Event-ID
+    events = list(api.events(job_id))
+    ids = [int(e[2]) for e in events]
+    assert ids == sorted(ids) and len(ids) >= 2
+    assert events[-1][1].get("state") == "succeeded"
+    assert list(api.events(job_id, last_event_id=events[0][2])) == events[1:]
     vol = api.download_volume(job_id, tmp_path / "volume.h5")
     with h5py.File(vol, "r") as f:
         p0 = f["p0"][...]
