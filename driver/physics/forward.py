@@ -209,10 +209,10 @@ def forward_points(
     tx = 2 * np.pi * (pos[:, 0] / dx + (n_x - 1) / 2) / n_x
     tol = max(eps, 1e-14)
     if is2d:
-        vals = finufft.nufft1d2(tx, np.ascontiguousarray(G[:, 0, :]), isign=1, eps=tol, modeord=1)
+        vals = finufft.nufft1d2(tx, np.ascontiguousarray(G[:, 0, :]), isign=1, eps=tol, modeord=1, nthreads=1)
         scale = n_x
     else:
         ty = 2 * np.pi * (pos[:, 1] / dx + (n_y - 1) / 2) / n_y
-        vals = finufft.nufft2d2(ty, tx, np.ascontiguousarray(G), isign=1, eps=tol, modeord=1)
+        vals = finufft.nufft2d2(ty, tx, np.ascontiguousarray(G), isign=1, eps=tol, modeord=1, nthreads=1)
         scale = n_x * n_y
     return np.ascontiguousarray((vals.real / scale).T)

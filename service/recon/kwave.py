@@ -64,7 +64,7 @@ def _interp_columns(P, w, w_new_cols, method):
     return out
 
 
-def _recon(p, dt, c, lateral_d, interp, pos_cond):
+def _recon(p, dt, c, lateral_d, interp, pos_cond, chunk=4096):
     method = _INTERPS.get(interp)
     if method is None:
         raise ValueError(f"Interp must be one of {sorted(_INTERPS)}, got {interp!r}")
@@ -75,29 +75,29 @@ def _recon(p, dt, c, lateral_d, interp, pos_cond):
     ntm = p.shape[0]
     kx = _kvec(ntm, dt * c)
     klat = [_kvec(n, d) for n, d in zip(p.shape[1:], lateral_d)]
-    mesh = np.meshgrid(kx, *klat, indexing="ij")
-    kxg, latg = mesh[0], mesh[1:]
-    ksum = 0 + kxg**2
-    for kk in latg:
-        ksum = ksum + kk**2
-    k = np.sqrt(ksum)
+    lat2 = klat[0][:, None] ** 2 + klat[1][None, :] ** 2 if len(klat) == 2 else klat[0] ** 2
+    lat2 = np.ravel(lat2)
     w = c * kx
-    w_new = c * k
-    lat2 = sum(kk**2 for kk in latg)
-    wg = c * kxg
-    with np.errstate(divide="ignore", invalid="ignore"):
-        arg = (wg / c) ** 2 - lat2
-        sf = np.where(arg >= 0, c**2 * np.sqrt(np.maximum(arg, 0)) / (2 * wg), 0.0)
-    dc = (wg == 0) & (lat2 == 0)
-    sf[dc] = c / 2
     axes = tuple(range(p.ndim))
-    P = sf * scipy.fft.fftshift(scipy.fft.fftn(scipy.fft.ifftshift(p, axes=axes), axes=axes, workers=-1), axes=axes)
-    P[np.abs(wg) < c * np.sqrt(lat2)] = 0
-    P[~np.isfinite(P)] = 0
-    shape = P.shape
-    cols = P.reshape(ntm, -1)
-    Q = _interp_columns(cols, w, w_new.reshape(ntm, -1), method).reshape(shape)
-    out = np.real(scipy.fft.fftshift(scipy.fft.ifftn(scipy.fft.ifftshift(Q, axes=axes), axes=axes, workers=-1), axes=axes))
+    shape = p.shape
+    P = scipy.fft.fftshift(scipy.fft.fftn(scipy.fft.ifftshift(p, axes=axes), axes=axes, workers=-1), axes=axes)
+    del p
+    P = P.reshape(ntm, -1)
+    wc = w[:, None]
+    # column chunks bound the memory of the per-column grids (w, k_lat) -> sf, w_new
+    for a in range(0, P.shape[1], chunk):
+        l2 = lat2[None, a : a + chunk]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            arg = (wc / c) ** 2 - l2
+            sf = np.where(arg >= 0, c**2 * np.sqrt(np.maximum(arg, 0)) / (2 * wc), 0.0)
+        sf[(wc == 0) & (l2 == 0)] = c / 2
+        block = sf * P[:, a : a + chunk]
+        block[np.abs(wc) < c * np.sqrt(l2)] = 0
+        block[~np.isfinite(block)] = 0
+        w_new = c * np.sqrt((0 + (kx**2)[:, None]) + l2)
+        P[:, a : a + chunk] = _interp_columns(block, w, w_new, method)
+    P = P.reshape(shape)
+    out = np.real(scipy.fft.fftshift(scipy.fft.ifftn(scipy.fft.ifftshift(P, axes=axes), axes=axes, workers=-1), axes=axes))
     out = out[(ntm + 1) // 2 - 1 :]
     out = 2 * 2 * out / c
     if pos_cond:
