@@ -14,6 +14,8 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from driver.scanfile import (META_KEYS, ScanFile, _clear_status_flags, _lookup3, plan_id_of,
                              read_scan)
@@ -100,6 +102,35 @@ def test_write_read_roundtrip(tmp_path):
     f32 = read_scan(path, dtype=np.float32).pressure
     assert f32.dtype == np.float32
     np.testing.assert_allclose(f32[expected_done], d.pressure[expected_done], rtol=1e-6)
+
+
+@settings(max_examples=15, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(ops=st.lists(st.tuples(st.integers(0, 9), st.integers(0, 3)), max_size=40),
+       reopen_at=st.integers(0, 40))
+def test_any_append_sequence_matches_a_dict_model(tmp_path_factory, ops, reopen_at):
+    """Random appends (with duplicates and a close/reopen in between) against a plain dict:
+    the first A-line appended for a point is the one kept; later ones are refused."""
+    path = tmp_path_factory.mktemp("h") / "m.h5"
+    plan = make_plan(10, 8)
+    model: dict[int, np.ndarray] = {}
+    sf = ScanFile.create(path, plan, instrument=INSTRUMENT, software_version="1")
+    try:
+        for i, (k, variant) in enumerate(ops):
+            if i == reopen_at:
+                sf.close()
+                sf = ScanFile.open_append(path, plan)
+            x = aline(k + 100 * variant, 8)
+            assert sf.append(k, x, meta(k)) is (k not in model)
+            model.setdefault(k, x)
+            np.testing.assert_array_equal(sf.completed(), [j in model for j in range(10)])
+    finally:
+        sf.close()
+    d = read_scan(path)
+    np.testing.assert_array_equal(d.completed, [j in model for j in range(10)])
+    for k, x in model.items():
+        np.testing.assert_array_equal(d.alines[k], x)
+        assert d.meta["pulse_number"][k] == meta(k)["pulse_number"]
 
 
 def test_2d_plan_and_resume_in_process(tmp_path):
@@ -189,7 +220,7 @@ def _writer_script(tmp_path) -> Path:
 
 
 def test_sigkill_then_resume_equals_uninterrupted(tmp_path):
-    n, n_t = 3000, 256
+    n, n_t = 3000, 64
     path = tmp_path / "killed.h5"
     script = _writer_script(tmp_path)
     acked = -1
