@@ -272,7 +272,9 @@ class Scanner:
         Retransmits every ``retry`` s (the device answers a repeated command once);
         raises :class:`DeviceTimeout` after ``timeout`` (default ``response_timeout``) s,
         :class:`DeviceError` (:class:`InterlockOpen` for code 101) if the device rejects it.
-        Callable from any thread; it waits while another thread is mid-command.
+        Callable from any thread; it waits while another thread is mid-command, and
+        while :meth:`scan` runs (use :meth:`pause`/:meth:`resume`/:meth:`abort` and the
+        progress callback then).
         """
         payload = command.encode("ascii") if isinstance(command, str) else bytes(command)
         timeout = self.response_timeout if timeout is None else float(timeout)
@@ -325,14 +327,17 @@ class Scanner:
         if version.strip() != str(PROTOCOL_VERSION):
             raise DriverError(f"device speaks protocol {version!r}, host {PROTOCOL_VERSION}")
         parts = [p.strip() for p in idn.split(",")] + [""] * 4
-        limits = self.query("SYST:LIM?").split(",")
+        try:
+            limits = [int(x) for x in self.query("SYST:LIM?").split(",")]
+        except ValueError:
+            raise DriverError("malformed SYST:LIM? reply") from None
         status = self.status()
         self._boot_id = status.boot_id
         return {"idn": idn, "manufacturer": parts[0], "model": parts[1], "serial": parts[2],
                 "firmware": parts[3], "protocol": PROTOCOL_VERSION, "port": self.port,
                 "boot_id": status.boot_id,
                 "limits": dict(zip(["max_points", "max_samples", "max_window", "max_chunk"],
-                                   (int(x) for x in limits)))}
+                                   limits))}
 
     def status(self, timeout: float | None = None) -> DeviceStatus:
         """``SCAN:STAT?`` parsed."""
@@ -343,9 +348,13 @@ class Scanner:
         out = []
         for _ in range(64):
             code_s, _, msg = self.query("SYST:ERR?").partition(",")
-            if int(code_s) == 0:
+            try:
+                code = int(code_s)
+            except ValueError:
+                raise DriverError(f"malformed SYST:ERR? reply {code_s!r}") from None
+            if code == 0:
                 break
-            out.append((int(code_s), msg.strip('"')))
+            out.append((code, msg.strip('"')))
         return out
 
     def upload_plan(self, plan) -> str:
@@ -477,6 +486,13 @@ class Scanner:
 
         early: list = []
         self._on_aline = on_aline
+        # silence that means a stall: at least stall_timeout, and 3 point periods at the
+        # plan's PRF (a slow laser or many averages is not a stall)
+        acq = plan["acquisition"]
+        prf = float(acq.get("prf") or 0.0)
+        silence = self.stall_timeout
+        if prf > 0:
+            silence = max(silence, 3.0 * int(acq.get("averages", 1)) / prf)
         aborted = False
         self._scanning.set()
         try:
@@ -484,6 +500,12 @@ class Scanner:
                 if upload:
                     self.identify()
                     self.upload_plan(plan)
+                else:  # the caller uploaded it: check that the device holds this plan
+                    self._boot_id = self.status().boot_id
+                    held = self.query("PLAN:ID?").strip()
+                    if held != plan["id"]:
+                        raise DriverError(f"device holds plan {held}, not {plan['id']}; "
+                                          "scan with upload=True")
                 self._device_busy = True
                 report("running", force=True)
                 while not completed.all():
@@ -497,7 +519,7 @@ class Scanner:
                         on_aline(fr)
                     early.clear()
                     self._send_ack()
-                    outcome = self._stream(completed, report)
+                    outcome = self._stream(completed, report, silence)
                     self._run = None
                     early.clear()
                     if outcome == "abort":
@@ -556,7 +578,7 @@ class Scanner:
         run.need_ack = False
         run.last_ack = time.monotonic()
 
-    def _stream(self, completed: np.ndarray, report) -> str:
+    def _stream(self, completed: np.ndarray, report, silence: float) -> str:
         """Receive one run until the record is complete; returns 'done', 'reset', 'abort'."""
         run = self._run
         paused = False
@@ -599,9 +621,10 @@ class Scanner:
                 self._send_ack()
                 return "done"
             report("paused" if paused else "running")
-            if now - run.last_rx > self.stall_timeout:
+            if now - run.last_rx > (2 * silence if paused else silence):
                 # silence: poll the device (this waits out a stall up to response_timeout)
-                self.faults["stall_polls"] += 1
+                if not paused:
+                    self.faults["stall_polls"] += 1
                 st = self.status()
                 run.last_rx = time.monotonic()
                 if st.boot_id != run.boot_id:
