@@ -277,4 +277,4 @@ class ScanManager:
                  result.elapsed_s)
 
 
-__all__ = ["ScanManager", "TERMINAL"]
+__all__ = ["TERMINAL", "ScanManager"]

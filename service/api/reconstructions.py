@@ -55,13 +55,12 @@ def _input_for(c: Context, body: ReconRequest) -> tuple[dict, dict, str]:
         if body.method not in GRID_METHODS + ("nedner",):
             raise HTTPException(422, f"unknown method {body.method!r}")
         return {"kind": "dataset", "path": path}, shape, f"dataset:{body.dataset_id}"
-    if body.method != "nedner" and meta["layout"] != "scan":
+    if body.method != "nedner" and not meta.get("full_lattice"):
         raise HTTPException(422, f"method {body.method!r} needs a full regular grid; this dataset needs 'nedner'")
     n, n_t = meta["shape"]
     side = int(np.ceil(np.sqrt(n)))
     shape = {"n_t": n_t, "n_x": meta.get("n_x", side), "n_y": meta.get("n_y", side), "n_points": n}
-    kind = "scan" if meta["layout"] == "scan" else "dataset"
-    return {"kind": kind, "path": path}, shape, f"dataset:{body.dataset_id}"
+    return {"kind": "dataset", "path": path}, shape, f"dataset:{body.dataset_id}"
 
 
 @router.post("", status_code=202, response_model=Job, dependencies=[Depends(require_token)],

@@ -21,7 +21,6 @@ Everything here is a plain function of picklable arguments so dask can ship it.
 """
 from __future__ import annotations
 
-import json
 import os
 import shutil
 import time
@@ -84,8 +83,10 @@ def points_to_grid(inp: dict) -> np.ndarray:
     return data[:, 0, :] if n_y == 1 else data
 
 
-def _recon_options(params: dict) -> dict:
+def _recon_options(params: dict, inp: dict | None = None) -> dict:
     opts = {}
+    if inp is not None and inp.get("t0"):
+        opts["t0"] = float(inp["t0"])
     for key in ("eps", "upsample", "positivity", "dz", "n_z", "t0"):
         if params.get(key) is not None:
             opts[key] = params[key]
@@ -100,7 +101,7 @@ def reconstruct_input(inp: dict, params: dict):
     from service import recon
 
     method = params.get("method", "nedner")
-    opts = _recon_options(params)
+    opts = _recon_options(params, inp)
     if inp["layout"] == "grid":
         c = float(params.get("c") or inp["c"])
         if method in POINT_METHODS:
@@ -143,7 +144,8 @@ def load_input(spec_input: dict) -> dict:
     with h5py.File(spec_input["path"], "r") as f:
         layout = f.attrs["layout"]
         layout = layout.decode() if isinstance(layout, bytes) else str(layout)
-        out = {"layout": layout, "dt": float(f.attrs["dt"]), "c": float(f.attrs["c"])}
+        out = {"layout": layout, "dt": float(f.attrs["dt"]), "c": float(f.attrs["c"]),
+               "t0": float(f.attrs.get("t0", 0.0))}
         if layout == "grid":
             out["data"] = f["data"][...]
             out["dx"] = float(f.attrs["dx"])
@@ -155,35 +157,29 @@ def load_input(spec_input: dict) -> dict:
             out["weights"] = f["weights"][...] if "weights" in f else None
             gx = f["grid_x"][...]
             out["grid"] = (gx, f["grid_y"][...]) if "grid_y" in f else (gx,)
+            if "lattice" in f:  # lattice indices: a full lattice can use the grid methods
+                out["lattice"] = f["lattice"][...]
+                out["lattice_shape"] = tuple(int(v) for v in f.attrs["lattice_shape"])
+                out["pitch"] = float(f.attrs["pitch"])
     return out
 
 
 def write_result(out_dir: str | os.PathLike, image, *, input_id: str, extra: dict | None = None) -> dict:
-    """Write ``volume.h5`` and the MIP PNGs into ``out_dir`` atomically (a temporary
-    sibling folder renamed into place). Returns a summary dict."""
-    import h5py
-
-    from service.jobs.images import mip_pngs
+    """Write ``volume.h5`` (``service.storage.results.write_image``, format
+    ``fpscan-result/1``) and the MIP PNGs (``service.storage.render.render_mips``) into
+    ``out_dir`` atomically: a temporary sibling folder renamed into place. Returns a
+    summary dict."""
+    from service.storage.render import render_mips
+    from service.storage.results import write_image
 
     out_dir = Path(out_dir)
     tmp = out_dir.with_name(out_dir.name + f".tmp-{os.getpid()}-{time.monotonic_ns()}")
     tmp.mkdir(parents=True)
     try:
         p0 = np.asarray(image.p0)
-        params = dict(getattr(image, "params", {}) or {})
-        with h5py.File(tmp / "volume.h5", "w") as f:
-            f.create_dataset("p0", data=p0)
-            f.create_dataset("z", data=np.asarray(image.z))
-            f.create_dataset("x", data=np.asarray(image.x))
-            if getattr(image, "y", None) is not None:
-                f.create_dataset("y", data=np.asarray(image.y))
-            f.attrs["method"] = str(params.get("method", ""))
-            f.attrs["params"] = json.dumps(params, default=str)
-            f.attrs["input_id"] = input_id
-            f.attrs["format"] = "fpscan-result/1"
-            if extra:
-                f.attrs["job"] = json.dumps(extra, default=str)
-        for plane, png in mip_pngs(p0).items():
+        write_image(tmp / "volume.h5", image, input_id=input_id)
+        pngs = render_mips(p0, image.z, image.x, getattr(image, "y", None))
+        for plane, png in pngs.items():
             (tmp / f"mip_{plane}.png").write_bytes(png)
         if out_dir.exists():
             shutil.rmtree(out_dir)
@@ -191,7 +187,7 @@ def write_result(out_dir: str | os.PathLike, image, *, input_id: str, extra: dic
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    return {"shape": list(p0.shape), "max": float(np.max(p0)) if p0.size else 0.0}
+    return {"shape": list(p0.shape), "max": float(np.max(p0)) if p0.size else 0.0, "planes": sorted(pngs)}
 
 
 def run_reconstruction(spec: dict) -> dict:

@@ -48,7 +48,7 @@ class Server:
     def client(self, timeout: float = 30.0) -> httpx.Client:
         return httpx.Client(base_url=self.url, headers=self.headers(), timeout=timeout)
 
-    def start(self, timeout: float = 60.0) -> "Server":
+    def start(self, timeout: float = 60.0) -> Server:
         self.port = free_port()
         env = {k: v for k, v in os.environ.items() if not k.startswith("FPSCAN_")}
         env.update({"FPSCAN_DATA_DIR": str(self.data_dir), "FPSCAN_DEVICES": json.dumps(self.devices),

@@ -9,7 +9,6 @@ import json
 import h5py
 import httpx
 import numpy as np
-import pytest
 from service_servers import Server, needs_recon, wait_job
 
 pytestmark = needs_recon
@@ -67,10 +66,11 @@ def download_volume(c, job_id):
     r = c.get(f"/api/reconstructions/{job_id}/volume.h5")
     assert r.status_code == 200
     with h5py.File(io.BytesIO(r.content), "r") as f:
-        return {k: f[k][...] for k in f}, dict(f.attrs)
+        return {k: f[k][...] for k in f if isinstance(f[k], h5py.Dataset)}, dict(f.attrs)
 
 
-def test_ner_and_nedner_jobs_match_direct_call_and_phantom(server, api):
+def test_ner_and_nedner_jobs_match_direct_call_and_phantom(shared_server, shared_api):
+    api = shared_api
     from driver.physics.balls import ball_p0
     from service.recon import reconstruct_grid
 
@@ -126,7 +126,8 @@ def test_ner_and_nedner_jobs_match_direct_call_and_phantom(server, api):
     assert err < 0.05, err
 
 
-def test_cancel_queued_and_running(server, api):
+def test_cancel_queued_and_running(shared_api):
+    api = shared_api
     data, _, _ = ball_dataset()
     ds = upload(api, data)
     first = api.post("/api/reconstructions", json={"dataset_id": ds, "method": "ner"}).json()["id"]
@@ -143,22 +144,24 @@ def test_cancel_queued_and_running(server, api):
     assert api.post(f"/api/jobs/{second}/cancel").status_code == 409
 
 
-def test_dask_localcluster_gives_the_local_pool_result(tmp_path):
+def test_dask_localcluster_gives_the_local_pool_result(tmp_path, shared_api):
     from distributed import LocalCluster
 
     data, _, _ = ball_dataset()
-    results = {}
-    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
-        for name, env in (("local", {}), ("dask", {"FPSCAN_DASK_SCHEDULER": cluster.scheduler_address})):
-            srv = Server(tmp_path / name, env=env).start()
-            try:
-                with srv.client() as c:
-                    assert c.get("/api/health").json()["executor"] == name
-                    ds = upload(c, data)
-                    jid = c.post("/api/reconstructions", json={"dataset_id": ds, "method": "ner",
-                                                               "params": {"dtype": "float64"}}).json()["id"]
-                    assert wait_job(c, jid, timeout=180)["state"] == "succeeded"
-                    results[name] = download_volume(c, jid)[0]["p0"]
-            finally:
-                srv.stop()
-    np.testing.assert_array_equal(results["dask"], results["local"])
+    body = {"method": "ner", "params": {"dtype": "float64"}}
+    jid = shared_api.post("/api/reconstructions", json={**body, "dataset_id": upload(shared_api, data)}).json()["id"]
+    assert wait_job(shared_api, jid)["state"] == "succeeded"
+    local = download_volume(shared_api, jid)[0]["p0"]
+    # a scheduler with one in-process (thread) worker; the server connects to its address
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, protocol="tcp", host="127.0.0.1",
+                      dashboard_address=None) as cluster:
+        srv = Server(tmp_path / "dask", env={"FPSCAN_DASK_SCHEDULER": cluster.scheduler_address}).start()
+        try:
+            with srv.client() as c:
+                assert c.get("/api/health").json()["executor"] == "dask"
+                jid = c.post("/api/reconstructions", json={**body, "dataset_id": upload(c, data)}).json()["id"]
+                assert wait_job(c, jid, timeout=180)["state"] == "succeeded"
+                remote = download_volume(c, jid)[0]["p0"]
+        finally:
+            srv.stop()
+    np.testing.assert_array_equal(remote, local)
