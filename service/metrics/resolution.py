@@ -103,25 +103,26 @@ def _lorentz_start(u: np.ndarray, q: np.ndarray, baseline: bool) -> np.ndarray:
     baseline) solved exactly by least squares: a robust start for few-sample profiles."""
     k = int(np.argmax(q))
     span = max(u[-1] - u[0], 1.0)
-    centres = u[k] + np.linspace(-1.0, 1.0, 81)
-    widths = np.geomspace(0.05, 10 * span, 160)
-    best, best_err = None, np.inf
-    for w in widths:
-        f = 2.0 * w / (np.pi * (w * w + 4.0 * (u[None, :] - centres[:, None]) ** 2))  # (n_c, n)
-        if baseline:
-            for i, zc in enumerate(centres):
-                A = np.column_stack([f[i], np.ones_like(u)])
-                coef, *_ = np.linalg.lstsq(A, q, rcond=None)
-                err = float(np.sum((A @ coef - q) ** 2))
-                if err < best_err:
-                    best, best_err = np.array([coef[0], zc, w, coef[1]]), err
-        else:
-            a = (f @ q) / np.einsum("ij,ij->i", f, f)
-            err = np.sum((a[:, None] * f - q[None, :]) ** 2, axis=1)
-            i = int(np.argmin(err))
-            if err[i] < best_err:
-                best, best_err = np.array([a[i], centres[i], w]), float(err[i])
-    return best
+    centres = u[k] + np.linspace(-1.0, 1.0, 41)
+    widths = np.geomspace(0.05, 10 * span, 80)
+    w = widths[:, None, None]
+    f = 2.0 * w / (np.pi * (w * w + 4.0 * (u[None, None, :] - centres[None, :, None]) ** 2))  # (n_w, n_c, n)
+    if baseline:
+        fm = f.mean(axis=2, keepdims=True)
+        fc = f - fm
+        qc = q - q.mean()
+        a = np.einsum("wcn,n->wc", fc, qc) / np.maximum(np.einsum("wcn,wcn->wc", fc, fc), 1e-300)
+        b = q.mean() - a * fm[..., 0]
+        model = a[..., None] * f + b[..., None]
+    else:
+        a = np.einsum("wcn,n->wc", f, q) / np.einsum("wcn,wcn->wc", f, f)
+        model = a[..., None] * f
+    err = np.sum((model - q) ** 2, axis=2)
+    i, j = np.unravel_index(int(np.argmin(err)), err.shape)
+    start = [a[i, j], centres[j], widths[i]]
+    if baseline:
+        start.append(b[i, j])
+    return np.array(start)
 
 
 def fit_lorentz(
@@ -163,12 +164,20 @@ def fit_lorentz(
     u = (z - z[k]) / step
     q = p / height
     popt = _lorentz_start(u, q, baseline)
-    span = u[-1] - u[0]
-    lower = [-np.inf, u[0] - span, 1e-3] + ([-np.inf] if baseline else [])
-    upper = [np.inf, u[-1] + span, 1e3 * max(span, 1.0)] + ([np.inf] if baseline else [])
+
+    def jac(uu, *params):
+        a0, z0, w = params[:3]
+        d = w * w + 4.0 * (uu - z0) ** 2
+        cols = [2.0 * w / (np.pi * d), 16.0 * a0 * w * (uu - z0) / (np.pi * d * d),
+                2.0 * a0 * (d - 2.0 * w * w) / (np.pi * d * d)]
+        if baseline:
+            cols.append(np.ones_like(uu))
+        return np.column_stack(cols)
+
     try:
-        polished, _ = curve_fit(lorentz, u, q, p0=popt, bounds=(lower, upper), maxfev=20000)
-        if np.sum((q - lorentz(u, *polished)) ** 2) <= np.sum((q - lorentz(u, *popt)) ** 2):
+        polished, _ = curve_fit(lorentz, u, q, p0=popt, jac=jac, method="lm", maxfev=2000)
+        if (np.all(np.isfinite(polished)) and abs(polished[1] - u[k]) <= u[-1] - u[0]
+                and np.sum((q - lorentz(u, *polished)) ** 2) <= np.sum((q - lorentz(u, *popt)) ** 2)):
             popt = polished
     except (RuntimeError, ValueError):
         pass  # keep the grid-search optimum

@@ -110,6 +110,11 @@ def test_nufft_vs_interpolation_small_against_the_true_layer(tmp_path):
     assert rows["linear"]["peak"] < ner["peak"]
     for r in rows.values():
         assert r["side_lobe"] >= 0
+    # depth sweep: NER keeps the amplitude at every depth of the window
+    sweep = result.curves
+    assert len(sweep["depth_m"]) == 5 and np.all(np.diff(sweep["depth_m"]) > 0)
+    assert np.allclose(sweep["peak[ner]"], 1.0, atol=0.03)
+    assert sweep["peak[linear]"][-1] < sweep["peak[ner]"][-1]
     assert all(rows[m]["time_s"] > 0 for m in ("ner", "linear", "nearest", "kwave-linear"))
 
 
