@@ -83,7 +83,8 @@ def export_scan(scan_path: str | os.PathLike, out_path: str | os.PathLike, *,
     """Export the completed A-lines of a scan file to an IPASC HDF5 file.
 
     ``scan_path``: an fpscan scan file (complete or partial; only completed points are
-    exported, in scan order). ``out_path``: written to a temporary sibling, then renamed.
+    exported, in scan order). ``out_path``: written to a temporary sibling, then renamed
+    (its folder is created if missing).
     ``dtype``: float type of the binary data (float64 keeps the pressure bit-exact).
     Returns the output path. Raises ValueError (no completed points, a multi-wavelength
     plan, bad dtype), FileNotFoundError.
@@ -104,7 +105,9 @@ def export_scan(scan_path: str | os.PathLike, out_path: str | os.PathLike, *,
     c, dt = float(scan.sound_speed), float(scan.dt)
     meta = scan.meta
     out_path = Path(out_path)
-    tmp = out_path.with_name(f".{out_path.name}.{os.getpid()}.tmp")
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    # unique per call: concurrent exports to the same target never share a temporary
+    tmp = out_path.with_name(f".{out_path.name}.{os.getpid()}.{_uuid.uuid4().hex[:12]}.tmp")
     str_dt = h5py.string_dtype("utf-8")
     try:
         with h5py.File(tmp, "w") as f:

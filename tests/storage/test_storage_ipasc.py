@@ -124,6 +124,18 @@ def test_we_read_a_pacfish_written_file(tmp_path):
         read_ipasc(path, wavelength_index=2)
 
 
+def test_concurrent_exports_to_one_target(tmp_path, make_scan):
+    """Two HTTP requests may export the same scan at once (threads of one server)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    scan = make_scan("scan.h5", build_plan(4, 4, 32))
+    out = tmp_path / "exports" / "job.ipasc.h5"  # folder created on demand
+    with ThreadPoolExecutor(4) as pool:
+        list(pool.map(lambda _: export_scan(scan, out), range(4)))
+    np.testing.assert_array_equal(read_ipasc(out)["alines"], read_scan(scan).pressure)
+    assert [p.name for p in out.parent.iterdir()] == ["job.ipasc.h5"]
+
+
 def test_bad_input(tmp_path, make_scan):
     plan = build_plan(3, 3, 16)
     empty = make_scan("empty.h5", plan, [])
