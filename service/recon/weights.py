@@ -40,10 +40,12 @@ def _as_positions(positions) -> np.ndarray:
 def infer_pitch(positions) -> float | None:
     """The pitch of the regular lattice the positions lie on, or None if there is none.
 
-    positions: ``(n, d)`` in m, d = 1 or 2. The candidate pitch is the smallest positive
-    gap between distinct coordinates along any axis; it is returned if every coordinate is
-    an integer multiple of it from the axis minimum (relative tolerance 1e-6).
-    Returns None for a single sensor or positions not on a common lattice.
+    positions: ``(n, d)`` in m, d = 1 or 2. With g the smallest positive gap between
+    distinct coordinates along any axis, the pitch is the largest g/k (k = 1..16) of
+    which every coordinate is an integer multiple from the axis minimum (relative
+    tolerance 1e-6), refined over the longest span. So a random subset of a lattice
+    whose closest coordinates are 2 and 3 pitches apart still gives the pitch.
+    Returns None for a single sensor or positions on no common lattice.
     Raises ValueError for bad shapes or non-finite values.
     """
     pos = _as_positions(positions)
@@ -57,14 +59,16 @@ def infer_pitch(positions) -> float | None:
             gaps.append(float(g.min()))
     if not gaps:
         return None
-    p = min(gaps)
-    k = (pos - pos.min(axis=0)) / p
-    if np.max(np.abs(k - np.round(k))) > _REL_TOL:
-        return None
-    # Refine on the longest span: p = span / (number of pitches in it).
-    kmax = np.round(k).max(axis=0)
-    a = int(np.argmax(kmax))
-    return float(np.ptp(pos[:, a]) / kmax[a])
+    rel = pos - pos.min(axis=0)
+    for k in range(1, 17):
+        p = min(gaps) / k
+        kk = rel / p
+        if np.max(np.abs(kk - np.round(kk))) <= _REL_TOL * max(1.0, float(kk.max()) * 1e-3):
+            # Refine on the longest span: p = span / (number of pitches in it).
+            kmax = np.round(kk).max(axis=0)
+            a = int(np.argmax(kmax))
+            return float(np.ptp(pos[:, a]) / kmax[a])
+    return None
 
 
 def _nn_distance(pos: np.ndarray) -> np.ndarray:

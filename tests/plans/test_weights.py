@@ -124,7 +124,8 @@ def test_sparse_disc_does_not_claim_far_corners():
 def test_infer_pitch():
     assert infer_pitch(grid(10, 10)) == pytest.approx(PITCH, rel=1e-12)
     assert infer_pitch(grid(20, 20, step=4)) == pytest.approx(4 * PITCH, rel=1e-12)
-    assert infer_pitch(np.array([[0.0, 0.0], [1.0, 0.3], [0.25, 0.7]])) is None
+    assert infer_pitch(np.array([[0.0, 0.0], [1.0, 0.3], [0.25, 0.7]])) == pytest.approx(0.05)  # 20 x 14 grid
+    assert infer_pitch(np.array([[0.0, 0.0], [1.0, np.sqrt(0.1)], [0.25, 0.7]])) is None
 
 
 @pytest.mark.parametrize(
@@ -161,3 +162,15 @@ def test_raster_path_is_exact_away_from_a_hole(step):
     # the hole's square goes to its four axis neighbours, a quarter each
     gain = np.sort(w[~far] / spacing**2 - 1)
     np.testing.assert_allclose(gain, [0] * 4 + [0.25] * 4, atol=1e-12)
+
+
+def test_infer_pitch_of_a_sparse_lattice_subset():
+    rng = np.random.default_rng(3)
+    full = grid(60, 60)
+    # keep points whose x index is even and y index a multiple of 3: closest coordinates
+    # are 2 and 3 pitches apart; the common lattice is 1 pitch
+    ix = np.round(full[:, 0] / PITCH + 29.5).astype(int)
+    iy = np.round(full[:, 1] / PITCH + 29.5).astype(int)
+    sub = full[(ix % 2 == 0) & (iy % 3 == 0)]
+    sub = sub[rng.permutation(len(sub))[:200]]
+    assert infer_pitch(sub) == pytest.approx(PITCH, rel=1e-9)
