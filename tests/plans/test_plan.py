@@ -268,3 +268,16 @@ def test_make_plan_from_kind_as_the_http_layer_calls_it():
         make_plan(kind="full", lattice=lattice, params={"depth": 1.0})
     with pytest.raises(ValueError):
         make_plan(kind="full", lattice=lattice, acquisition={"colour": "red"})
+
+
+def test_driver_reads_the_plan_json_without_service(es_plan, tmp_path):
+    """The contract with the scanner side: driver.plan parses our JSON and gets our id."""
+    driver_plan = pytest.importorskip("driver.plan")
+    load_plan = getattr(driver_plan, "load_plan", None)
+    plan_id_of = getattr(driver_plan, "plan_id_of", None)
+    if load_plan is None or plan_id_of is None:
+        pytest.skip("driver.plan has no load_plan/plan_id_of")
+    path = tmp_path / "plan.json"
+    es_plan.to_json(path)
+    d = load_plan(str(path))
+    assert plan_id_of(d) == es_plan.id == d["id"]
