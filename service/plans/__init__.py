@@ -1,10 +1,27 @@
 """Sensor masks, weights and scan plans (DESIGN §3.3, §4; issue 3).
 
 Where the scanner measures and with what weight each A-line enters the reconstruction:
-``Lattice`` (the addressable points), masks (``make_mask`` and the per-kind functions),
-``Plan`` (an ordered mask plus acquisition settings, content-hashed; JSON and HDF5),
-orderings and a preview PNG. Depends on numpy/scipy (+ pydantic for ``Plan``;
-matplotlib is imported only inside ``preview_png``).
+
+- ``Lattice(n_x, n_y, pitch)``: the addressable points, centred on the optical axis
+  (``x_i = (i - (n_x - 1)/2) * pitch``; a line scanner has ``n_y = 1``).
+- Masks (``Mask``: ``indices`` (n, 2), ``positions`` (n, 2) in m, ``weights`` (n,) in m²
+  (m on a line), requested/obtained points, ``weight_ratio``): ``make_mask(kind, lattice,
+  **params)`` or the per-kind functions — full, subgrid, hexagonal, random, poisson,
+  points, and the paper's ``equiangular_mask`` (2-D) / ``equisteradian_mask`` (3-D).
+  Default weights: clipped Voronoi areas (``service.recon.weights.voronoi_weights``);
+  equiangular / equi-steradian: r² / r³ about the point of interest (paper §5.2).
+- ``Plan``: an ordered mask plus acquisition settings with its content hash as id, in the
+  JSON of docs/architecture.md ("Plan JSON") and in HDF5; ``make_plan`` /
+  ``plan_from_spec``; orders serpentine, rings (alternating), nearest-neighbour.
+- ``preview_png``: the mask on its lattice, weight as colour (matplotlib, Agg).
+
+Example (the paper's 3-D mask)::
+
+    lattice = Lattice(226, 226, 60e-6)
+    plan = make_plan("equisteradian", lattice=lattice, params={"depth": 3.6e-3, "n_points": 1625})
+    plan.to_json("plan.json")     # 1653 points, outer/inner weight ratio 9.69
+
+Depends on numpy/scipy (+ pydantic for ``Plan``; matplotlib only inside ``preview_png``).
 """
 from __future__ import annotations
 
