@@ -223,19 +223,19 @@ class _Endpoints:
         return _job_id_from(r)
 
     def pause_scan(self, job_id: str):
-        """``POST /api/scans/{job_id}/pause``."""
+        """``POST /api/scans/{job_id}/pause`` -> the Job (409 ``Conflict`` if not running)."""
         r = yield _Req("POST", f"/api/scans/{job_id}/pause")
-        return r.json() if r.content else None
+        return as_model("Job", r.json()) if r.content else None
 
     def resume_scan(self, job_id: str):
-        """``POST /api/scans/{job_id}/resume``."""
+        """``POST /api/scans/{job_id}/resume`` -> the Job (409 ``Conflict`` if not paused)."""
         r = yield _Req("POST", f"/api/scans/{job_id}/resume")
-        return r.json() if r.content else None
+        return as_model("Job", r.json()) if r.content else None
 
     def abort_scan(self, job_id: str):
-        """``POST /api/scans/{job_id}/abort``."""
+        """``POST /api/scans/{job_id}/abort`` -> the Job; the scan ends ``cancelled``."""
         r = yield _Req("POST", f"/api/scans/{job_id}/abort")
-        return r.json() if r.content else None
+        return as_model("Job", r.json()) if r.content else None
 
     def download_scan(self, job_id: str, dest: str | os.PathLike):
         """``GET /api/scans/{job_id}/file`` (the scan file, HDF5) saved to ``dest``."""
@@ -248,7 +248,7 @@ class _Endpoints:
     def scan_preview(self, job_id: str):
         """``GET /api/scans/{job_id}/preview`` -> ``{version, points_used, updated}``."""
         r = yield _Req("GET", f"/api/scans/{job_id}/preview")
-        return r.json()
+        return as_model("PreviewInfo", r.json())
 
     def download_scan_preview(self, job_id: str, plane: str, dest: str | os.PathLike):
         """``GET /api/scans/{job_id}/preview/{plane}.png`` (live MIP) saved to ``dest``."""

@@ -101,3 +101,68 @@ def test_scan_on_a_missing_port_fails_with_reason(scanned):
     res = fpscan("jobs", "wait", job_id, "--server", scanned["url"], "--quiet")
     assert res.returncode == 1
     assert len(res.stderr.strip().splitlines()) == 1 and "failed" in res.stderr
+
+
+def _poll(fn, until, timeout=30.0, interval=0.05):
+    import time
+
+    deadline = time.monotonic() + timeout
+    while True:
+        value = fn()
+        if until(value):
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f"condition not reached within {timeout} s: last {value!r}")
+        time.sleep(interval)
+
+
+@pytest.fixture(scope="module")
+def slow_scanner(tmp_path_factory):
+    """A server with a simulator firing at 200 Hz (256 points take 1.3 s)."""
+    tmp = tmp_path_factory.mktemp("slow")
+    data = tmp / "data"
+    data.mkdir()
+    with fpscan_sim("--source", "balls", "--prf", "200") as (device, _sim):
+        with fpscan_server(data, token=TOKEN, devices={"slow": device}) as (url, _srv):
+            with Client(url, token=TOKEN) as api:
+                plan = api.create_plan({"lattice": {"n_x": N, "n_y": N, "pitch": PITCH},
+                                        "points": [[i, j] for j in range(N) for i in range(N)],
+                                        "acquisition": {"n_t": 256, "dt": 2e-8, "prf": 200}})
+                yield api, plan, tmp
+
+
+def test_pause_resume_and_live_preview(slow_scanner):
+    from PIL import Image
+
+    from driver.scanfile import read_scan
+
+    api, plan, tmp = slow_scanner
+    job_id = api.start_scan(plan.id, "slow")
+    _poll(lambda: api.get_job(job_id), lambda j: (j.progress.points_done or 0) >= 20)
+    paused = api.pause_scan(job_id)
+    assert paused.id == job_id
+    job = _poll(lambda: api.get_job(job_id), lambda j: j.state == "paused")
+    assert job.progress.points_done < N * N
+    api.resume_scan(job_id)
+    job = api.wait(job_id, timeout=60)
+    assert job.state == "succeeded"
+    scan = read_scan(api.download_scan(job_id, tmp / "paused.h5"))
+    assert scan.completed.all() and len(scan.completed) == N * N
+    info = api.scan_preview(job_id)
+    if info.version > 0:  # a preview was rendered while the scan ran
+        assert 0 < info.points_used <= N * N
+        with Image.open(api.download_scan_preview(job_id, "xy", tmp / "live_xy.png")) as im:
+            assert im.format == "PNG"
+
+
+def test_abort_ends_cancelled(slow_scanner):
+    from clients.http import JobCancelled
+
+    api, plan, _tmp = slow_scanner
+    job_id = api.start_scan(plan.id, "slow")
+    _poll(lambda: api.get_job(job_id), lambda j: (j.progress.points_done or 0) >= 10)
+    api.abort_scan(job_id)
+    with pytest.raises(JobCancelled) as err:
+        api.wait(job_id, timeout=60)
+    assert err.value.job.state == "cancelled"
+    assert err.value.job.progress.points_done < N * N
