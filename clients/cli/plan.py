@@ -110,7 +110,7 @@ def run(args) -> int:
     plan.to_json(args.out)
     if args.preview:
         preview_png(plan, args.preview)
-    print(f"plan {plan.id[:12]}: {plan.mask.kind} on {lattice.n_x}x{lattice.n_y} at {lattice.pitch:g} m")
+    print(f"plan {plan.id}: {plan.mask.kind} on {lattice.n_x}x{lattice.n_y} at {lattice.pitch:g} m")
     print(f"points: {plan.mask.obtained_points} (requested {plan.mask.requested_points})")
     print(f"weight ratio (outer/inner): {plan.mask.weight_ratio:.4g}")
     print(f"order: {plan.order}; expected scan time: {plan.expected_scan_time_s:.1f} s")
