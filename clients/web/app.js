@@ -493,8 +493,12 @@ function placeholderOption(select, label) {
   select.appendChild(o);
 }
 
+let scanListsSeq = 0;
+
 async function refreshScanLists() {
+  const seq = ++scanListsSeq;
   const [scanners, plans] = await Promise.all([apiJson("/api/scanners"), apiJson("/api/plans")]);
+  if (seq !== scanListsSeq) return; // a newer refresh is on its way
   const ssel = $("scan-scanner");
   const keepS = ssel.value;
   ssel.textContent = "";
@@ -518,8 +522,9 @@ async function refreshScanLists() {
     psel.appendChild(o);
   }
   if (!psel.options.length) placeholderOption(psel, "no plan yet: save one in the Plan view");
-  const want = lastSavedPlan || keepP;
+  const want = lastSavedPlan || keepP; // a just-saved plan is preselected once
   if (want && [...psel.options].some((o) => o.value === want)) psel.value = want;
+  if (lastSavedPlan && psel.value === lastSavedPlan) lastSavedPlan = null;
 }
 
 function setScanButtons(state) {

@@ -30,6 +30,7 @@ TOKEN = "web-e2e-token-4711"
 LATTICE = {"n_x": 40, "n_y": 40, "pitch": 1.5e-4}
 DEPTH_MM = 3.6
 N_POINTS = 120
+PRF_HZ = 25.0  # simulator and plan: ~5 s for the ~130-point scan, time for several live previews
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -44,7 +45,7 @@ def sim(tmp_path_factory):
         return
     log = tmp_path_factory.mktemp("sim") / "sim.log"
     err = open(log, "wb")
-    proc = subprocess.Popen(fpscan_cmd("sim", "--prf", "40", "--seed", "1"), cwd=REPO_ROOT,
+    proc = subprocess.Popen(fpscan_cmd("sim", "--prf", str(PRF_HZ), "--seed", "1"), cwd=REPO_ROOT,
                             stdout=subprocess.PIPE, stderr=err, text=True, start_new_session=True)
     try:
         line = proc.stdout.readline().strip()  # the device path, on the first line
@@ -133,6 +134,21 @@ def image_digest(browser, element_id) -> str | None:
     return hashlib.sha256(base64.b64decode(data_url.split(",", 1)[1])).hexdigest()
 
 
+def choose(browser, select_id: str, value: str, timeout: float = 15) -> None:
+    """Pick ``value`` in a <select> once it is offered (the page may be rebuilding the
+    list: retried until the choice sticks)."""
+    from selenium.webdriver.support.ui import Select
+
+    def pick():
+        sel = Select(el(browser, select_id))
+        if value not in [o.get_attribute("value") for o in sel.options]:
+            return False
+        sel.select_by_value(value)
+        return el(browser, select_id).get_attribute("value") == value
+
+    wait_for(pick, timeout, f"{value!r} to be chosen in #{select_id}")
+
+
 def png_pixels_as_browser_png(browser, png_base64: str) -> bytes:
     """The PNG the browser's canvas makes of a given PNG (for pixel-exact comparison)."""
     data_url = browser.execute_async_script(
@@ -165,7 +181,7 @@ def plan_request(n_points: int) -> dict:
     return {"kind": "equisteradian", "lattice": LATTICE,
             "params": {"depth": DEPTH_MM * 1e-3, "n_points": n_points},
             "acquisition": {"n_t": 256, "dt": 2e-8, "averages": 1, "wavelengths": [7.5e-7],
-                            "prf": 40.0, "sound_speed": 1500.0}}
+                            "prf": PRF_HZ, "sound_speed": 1500.0}}
 
 
 def fill_plan_form(browser, n_points: int) -> None:
@@ -178,7 +194,7 @@ def fill_plan_form(browser, n_points: int) -> None:
     set_value(browser, "mask-depth", DEPTH_MM)
     set_value(browser, "acq-nt", 256)
     set_value(browser, "acq-dt", 20)
-    set_value(browser, "acq-prf", 40)
+    set_value(browser, "acq-prf", int(PRF_HZ))
     set_value(browser, "mask-n-points", n_points)
 
 
@@ -253,19 +269,15 @@ def test_plan_view_preview_errors_token_and_save(server, api, browser, screensho
 
 def test_scan_view_progress_reaches_100_and_live_preview_changes(sim, server, api, browser, screenshots, state,
                                                                 tmp_path):
-    from selenium.webdriver.support.ui import Select
-
     if "plan_id" not in state:
         pytest.skip("needs the plan saved by the plan-view test")
     if sim is None:
         pytest.skip("this build has no `fpscan sim` (simulated scanner)")
     el(browser, "nav-scan").click()
-    wait_for(lambda: state["plan_id"] in [o.get_attribute("value") for o in Select(el(browser, "scan-plan")).options],
-             15, "the saved plan in the plan list")
-    Select(el(browser, "scan-plan")).select_by_value(state["plan_id"])
-    wait_for(lambda: "sim1" in [o.get_attribute("value") for o in Select(el(browser, "scan-scanner")).options],
-             15, "the simulated scanner in the scanner list")
-    Select(el(browser, "scan-scanner")).select_by_value("sim1")
+    choose(browser, "scan-plan", state["plan_id"])
+    choose(browser, "scan-scanner", "sim1")
+    time.sleep(0.3)  # let a list refresh in flight land, then check the choice held
+    choose(browser, "scan-plan", state["plan_id"])
     el(browser, "scan-start").click()
 
     job_id = wait_for(lambda: el(browser, "scan-job").get_attribute("title"), 15, "the scan job id")
@@ -368,8 +380,6 @@ def test_result_view_reconstruct_slices_and_download_volume(server, api, browser
 
 
 def test_scan_controls_pause_resume_abort(sim, server, api, browser, screenshots, state):
-    from selenium.webdriver.support.ui import Select
-
     if sim is None:
         pytest.skip("this build has no `fpscan sim` (simulated scanner)")
     plan = api.post("/api/plans", json=plan_request(900))
@@ -377,10 +387,10 @@ def test_scan_controls_pause_resume_abort(sim, server, api, browser, screenshots
     plan_id = plan.json()["id"]
     el(browser, "nav-scan").click()
     el(browser, "scan-refresh").click()
-    wait_for(lambda: plan_id in [o.get_attribute("value") for o in Select(el(browser, "scan-plan")).options],
-             15, "the new plan in the list")
-    Select(el(browser, "scan-plan")).select_by_value(plan_id)
-    Select(el(browser, "scan-scanner")).select_by_value("sim1")
+    choose(browser, "scan-plan", plan_id)
+    choose(browser, "scan-scanner", "sim1")
+    time.sleep(0.3)
+    choose(browser, "scan-plan", plan_id)
     wait_for(lambda: el(browser, "scan-start").is_enabled(), 10, "Start to be enabled")
     el(browser, "scan-start").click()
     job_id = wait_for(lambda: (lambda t: t if t and t != state.get("scan_job_id") else None)(
