@@ -164,3 +164,34 @@ def test_fpscan_evaluate_cli(tmp_path, capsys, shared_data):
     assert "2-D" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         fpscan(["evaluate", "no-such-experiment"])
+
+
+# ------------------------------------------------------------------ dense datasets
+def test_load_dense_reads_attributes_and_rejects_bad_files(tmp_path):
+    import h5py
+
+    good = tmp_path / "dense.h5"
+    with h5py.File(good, "w") as f:
+        f.create_dataset("sensor_data", data=np.ones((20, 6, 6)))
+        f.attrs["dt_s"] = 8e-9
+        f.attrs["dx_m"] = 60e-6
+    d = load_dense(good)
+    assert d.ndim == 3 and d.dt == 8e-9 and d.dx == 60e-6 and d.c == 1500.0 and d.p0 is None
+    c = d.crop(n_t=10, lateral=4)
+    assert c.data.shape == (10, 4, 4)
+    no_dt = tmp_path / "nodt.h5"
+    with h5py.File(no_dt, "w") as f:
+        f.create_dataset("sensor_data", data=np.ones((20, 6)))
+        f.attrs["dx_m"] = 60e-6
+    with pytest.raises(ValueError, match="dt_s"):
+        load_dense(no_dt)
+    empty = tmp_path / "empty.h5"
+    with h5py.File(empty, "w") as f:
+        f.attrs["dt_s"] = 1e-8
+    with pytest.raises(ValueError, match="sensor_data"):
+        load_dense(empty)
+    (tmp_path / "text.h5").write_text("not hdf5")
+    with pytest.raises(ValueError, match="HDF5"):
+        load_dense(tmp_path / "text.h5")
+    with pytest.raises(ValueError, match="unknown experiment"):
+        run_experiment("nope")
