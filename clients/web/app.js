@@ -877,12 +877,32 @@ function renderResult(job) {
 
   const tbody = $("result-params").tBodies[0];
   tbody.textContent = "";
-  for (const [k, v] of flatten(job.params || {}).filter(([k]) => !k.startsWith("result."))) {
-    const tr = document.createElement("tr");
-    const a = document.createElement("td"); a.textContent = k;
-    const b = document.createElement("td"); b.textContent = v;
-    tr.append(a, b);
-    tbody.appendChild(tr);
+  const addRows = (rows) => {
+    for (const [k, v] of rows) {
+      const tr = document.createElement("tr");
+      const a = document.createElement("td"); a.textContent = k;
+      const b = document.createElement("td"); b.textContent = v;
+      tr.append(a, b);
+      tbody.appendChild(tr);
+    }
+  };
+  addRows(flatten(job.params || {}).filter(([k]) => !k.startsWith("result.")));
+  const t = job.timings || {};
+  addRows([["time queued", fmtDuration(t.queued_s)], ["time running", fmtDuration(t.run_s)]]);
+  const rt = resultOf(job).timings;
+  if (rt) addRows(flatten(rt, "result timings").map(([k, v]) => [k, isFinite(v) ? fmtDuration(Number(v)) : v]));
+  const planId = job.params && job.params.plan_id;
+  const planImg = $("result-plan-preview");
+  planImg.closest("figure").hidden = !(job.kind === "scan" && planId);
+  if (job.kind === "scan" && planId) {
+    const pid = encodeURIComponent(planId);
+    loadImage(planImg, `/api/plans/${pid}/preview.png`).catch(() => {});
+    apiJson(`/api/plans/${pid}`).then((plan) => {
+      if (resultJob !== job.id) return;
+      addRows(flatten({ kind: plan.kind, n_points: plan.n_points, requested_points: plan.requested_points,
+        weight_ratio: plan.weight_ratio, expected_scan_time_s: plan.expected_scan_time_s,
+        lattice: plan.lattice, acquisition: plan.acquisition }, "plan"));
+    }).catch(() => {});
   }
   const ul = $("result-downloads");
   ul.textContent = "";
