@@ -113,33 +113,52 @@ class Scanner:
     ``window``: credit window in A-line frames. ``retry``: command retransmission interval,
     s. ``response_timeout``: longest wait for a command reply or for a stalled device, s.
     ``stall_timeout``: silence during a scan after which the host polls the device, s.
+    ``reader``: how a local tty is drained: ``"process"`` (default: the relay process
+    :mod:`driver.relay`, immune to the interpreter lock), ``"thread"`` or ``"direct"``
+    (read in the calling thread). URL transports are always read directly.
+    ``lock_timeout``: how long to retry a port locked by another process, s.
 
     Raises :class:`DriverError` if the port cannot be opened or is locked by another
     process (exclusive ``flock``).
     """
 
-    def __init__(self, port: str, *, window: int = 64, retry: float = 0.3,
+    def __init__(self, port: str, *, window: int = 128, retry: float = 0.3,
                  response_timeout: float = 10.0, stall_timeout: float = 1.0,
-                 baudrate: int = 115200):
+                 baudrate: int = 115200, reader: str = "process", lock_timeout: float = 2.0):
         import serial
 
+        if reader not in ("process", "thread", "direct"):
+            raise ValueError(f"reader must be 'process', 'thread' or 'direct', not {reader!r}")
+        if not 1 <= int(window) <= 65535:
+            raise ValueError(f"window must be in 1..65535 A-lines, got {window}")
         self.port = port
         self.window = int(window)
         self.retry = float(retry)
         self.response_timeout = float(response_timeout)
         self.stall_timeout = float(stall_timeout)
-        try:
-            self._ser = serial.serial_for_url(port, baudrate=baudrate, timeout=0.02,
-                                              write_timeout=5.0, exclusive=True)
-        except (serial.SerialException, OSError, ValueError) as exc:
-            raise DriverError(f"cannot open scanner port {port}: {exc}") from None
+        deadline = time.monotonic() + lock_timeout
+        while True:
+            try:
+                self._ser = serial.serial_for_url(port, baudrate=baudrate, timeout=0.02,
+                                                  write_timeout=5.0, exclusive=True)
+                break
+            except (serial.SerialException, OSError, ValueError) as exc:
+                # a host that just died may hold the lock for a moment (its reader process)
+                if "lock" in str(exc).lower() and time.monotonic() < deadline:
+                    time.sleep(0.05)
+                    continue
+                raise DriverError(f"cannot open scanner port {port}: {exc}") from None
         # pyserial's POSIX ports expose their descriptor; URL transports (socket://, loop://)
         # do not and are read through pyserial
         fd = getattr(self._ser, "fd", None)
         self._rx: queue.SimpleQueue | None = None
         self._rx_stop = threading.Event()
         self._rx_thread = None
-        if isinstance(fd, int):
+        self._relay = None
+        self._relay_fd: int | None = None
+        if isinstance(fd, int) and reader == "process":
+            self._start_relay(fd)
+        elif isinstance(fd, int) and reader == "thread":
             self._rx = queue.SimpleQueue()
             self._rx_thread = threading.Thread(target=self._reader, args=(fd,),
                                                name=f"fpscan-rx {port}", daemon=True)
@@ -172,6 +191,11 @@ class Scanner:
         self._rx_stop.set()
         if self._rx_thread is not None:
             self._rx_thread.join(timeout=2)
+        if self._relay is not None:
+            self._relay.kill()
+            self._relay.wait(timeout=5)
+            self._relay.stdout.close()
+            self._relay = None
         self._ser.close()
         self._ser = None
 
@@ -193,6 +217,17 @@ class Scanner:
         """Bytes received since the last call, waiting at most ~20 ms for the first."""
         import serial
 
+        if self._relay_fd is not None:  # a local tty drained by the relay process
+            try:
+                if not select.select([self._relay_fd], [], [], 0.02)[0]:
+                    return b""
+                data = os.read(self._relay_fd, 1 << 20)
+            except OSError as exc:
+                raise DriverError(f"read from {self.port} failed: {exc}") from None
+            if not data:
+                raise DriverError(f"read from {self.port} failed: the reader process ended "
+                                  f"(exit code {self._relay.poll()})")
+            return data
         if self._rx is not None:  # a local tty drained by the reader thread
             try:
                 chunks = [self._rx.get(timeout=0.02)]
@@ -218,6 +253,27 @@ class Scanner:
         except (serial.SerialException, OSError) as exc:
             raise DriverError(f"read from {self.port} failed: {exc}") from None
         return data
+
+    def _start_relay(self, fd: int) -> None:
+        """Start the relay process (driver.relay) that drains the tty into a 1 MiB pipe."""
+        import fcntl
+        import subprocess
+        import sys
+
+        try:
+            self._relay = subprocess.Popen(
+                [sys.executable, "-m", "driver.relay", str(fd), str(os.getpid())],
+                pass_fds=(fd,), stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                bufsize=0, cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+        except OSError as exc:
+            self._ser.close()
+            raise DriverError(f"cannot start the reader process for {self.port}: {exc}") \
+                from None
+        self._relay_fd = self._relay.stdout.fileno()
+        try:
+            fcntl.fcntl(self._relay_fd, 1031, 1 << 20)  # F_SETPIPE_SZ: 1 MiB
+        except OSError:
+            pass
 
     def _reader(self, fd: int) -> None:
         """Reader thread for local ttys: keeps the (4 KiB deep) tty buffer drained while

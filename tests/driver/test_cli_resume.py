@@ -49,6 +49,21 @@ def test_sigkill_host_mid_scan_then_resume(tmp_path):
             time.sleep(0.05)
         host.send_signal(signal.SIGKILL)
         host.wait(timeout=10)
+        # its reader process (driver.relay) follows it within a moment, freeing the port
+        import psutil
+
+        def relays():
+            out = []
+            for p in psutil.process_iter(["cmdline"]):
+                cmd = p.info["cmdline"] or []
+                if "driver.relay" in cmd and str(host.pid) in cmd:
+                    out.append(p)
+            return out
+
+        deadline = time.monotonic() + 5
+        while relays() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not relays()
         partial = completed_count(killed)
         assert 150 <= partial < 600, partial
         # run it again on the same output: it resumes and completes

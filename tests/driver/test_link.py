@@ -166,7 +166,7 @@ def test_bad_input_gives_clear_errors_never_hangs(tmp_path):
     with make_sim(tmp_path, max_points=300, max_samples=4096) as sim:
         with Scanner(sim.path, response_timeout=3) as sc:
             with pytest.raises(DriverError, match="cannot open"):
-                Scanner(sim.path)  # busy: exclusively locked by sc
+                Scanner(sim.path, lock_timeout=0.3)  # busy: exclusively locked by sc
             assert sc.query("*IDN?").startswith("fpscan,FP-SIM,")
             with pytest.raises(DeviceError) as e:
                 sc.query("SCAN:FROB 3")
@@ -214,3 +214,16 @@ def test_bad_input_gives_clear_errors_never_hangs(tmp_path):
     finally:
         os.close(master)
         os.close(slave)
+
+
+@pytest.mark.parametrize("reader", ["thread", "direct"])
+def test_other_reader_modes(tmp_path, reader):
+    plan = grid_plan(15, 10, n_t=128)
+    with make_sim(tmp_path, faults=FaultSpec.parse("corrupt=2e-4"), seed=2) as sim:
+        with Scanner(sim.path, reader=reader) as sc:
+            with ScanFile.create(tmp_path / "scan.h5", plan, instrument=sc.identify(),
+                                 software_version="t") as sf:
+                assert sc.scan(plan, sf).complete
+    assert_matches_record(tmp_path / "scan.h5", tmp_path / "truth.h5", plan)
+    with pytest.raises(ValueError, match="reader"):
+        Scanner(sim.path, reader="telepathy")

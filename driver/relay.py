@@ -1,0 +1,49 @@
+"""Relay process of the host driver: drains a local serial tty into a pipe.
+
+A tty hands its reader at most ~4 KiB per wake-up, so at full A-line rates it must be
+read every few hundred microseconds; a Python thread competing for the interpreter lock
+with the thread that decodes A-lines and writes the scan file cannot promise that. The
+host therefore starts ``python -m driver.relay FD`` with the open tty descriptor: it does
+nothing but copy bytes from the tty to its stdout, a pipe the host enlarges to 1 MiB and
+reads in large blocks. The relay exits when its stdout is closed, on a tty error (the
+message goes to stderr), or within 0.1 s of its parent's death.
+"""
+from __future__ import annotations
+
+import os
+import select
+import sys
+
+
+def relay(fd: int, out: int = 1, parent: int | None = None) -> int:
+    """Copy ``fd`` to ``out`` until ``out`` closes, ``fd`` fails or ``parent`` dies."""
+    parent = os.getppid() if parent is None else parent
+    while True:
+        try:
+            ready = select.select([fd], [], [], 0.1)[0]
+        except (OSError, ValueError) as exc:
+            print(f"relay: {exc}", file=sys.stderr)
+            return 1
+        if not ready:
+            if os.getppid() != parent:
+                return 0
+            continue
+        try:
+            data = os.read(fd, 1 << 16)
+        except BlockingIOError:
+            continue
+        except OSError as exc:
+            print(f"relay: read failed: {exc}", file=sys.stderr)
+            return 1
+        if not data:
+            return 0
+        view = memoryview(data)
+        try:
+            while view:
+                view = view[os.write(out, view):]
+        except (BrokenPipeError, OSError):
+            return 0
+
+
+if __name__ == "__main__":
+    sys.exit(relay(int(sys.argv[1]), parent=int(sys.argv[2]) if len(sys.argv) > 2 else None))
