@@ -179,8 +179,8 @@ class Demo:
         import json
         import time
 
-        self.out.mkdir(parents=True, exist_ok=True)
-        (self.out / "logs").mkdir(exist_ok=True)
+        import shutil
+
         a = self.args
         if a.lattice < 8 or a.lattice > 512:
             raise ValueError(f"--lattice must be within 8..512, not {a.lattice}")
@@ -188,6 +188,14 @@ class Demo:
             raise ValueError(f"--pitch must be within (0, 1e-3] m, not {a.pitch}")
         if a.points < 10:
             raise ValueError(f"--points must be at least 10, not {a.points}")
+        if not (8 <= a.n_t <= 65536) or not (0 < a.dt <= 1e-6):
+            raise ValueError("--n-t must be within 8..65536 and --dt within (0, 1e-6] s")
+        if not (0 < a.poi_depth <= 0.05):
+            raise ValueError(f"--poi-depth must be within (0, 0.05] m, not {a.poi_depth}")
+        self.out.mkdir(parents=True, exist_ok=True)
+        (self.out / "logs").mkdir(exist_ok=True)
+        # the service's state is the demo's scratch: start from an empty job store
+        shutil.rmtree(self.out / "server-data", ignore_errors=True)
         self.report["settings"] = {
             "lattice": {"n_x": a.lattice, "n_y": a.lattice, "pitch": a.pitch},
             "acquisition": {"n_t": a.n_t, "dt": a.dt, "prf": 0.0, "sound_speed": 1500.0},
@@ -205,6 +213,8 @@ class Demo:
             self.report["error"] = f"{type(exc).__name__}: {exc}"
             raise
         finally:
+            if getattr(self, "api", None) is not None:
+                self.api.close()
             for p in reversed(self.procs):
                 p.stop()
             self.report["total_s"] = round(time.perf_counter() - self.t_start, 2)
@@ -269,6 +279,7 @@ class Demo:
                     raise RuntimeError(f"the service did not start (exit {proc.proc.poll()}); "
                                        f"see {self.out / 'logs' / 'server.log'}") from None
                 time.sleep(0.3)
+        self.api = api
         self.say(f"service on {api.base_url} (version {health.get('version')})")
         self.report["service"] = {"url": api.base_url, "version": health.get("version"),
                                   "executor": health.get("executor")}
