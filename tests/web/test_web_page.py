@@ -418,6 +418,28 @@ def test_scan_controls_pause_resume_abort(sim, server, api, browser, screenshots
     assert token_prompts(browser) == 1, "the token was asked again"
 
 
+def test_wrong_token_is_refused_with_the_servers_reason(server, api, browser, screenshots):
+    oracle = httpx.post(server + "/api/plans", json=plan_request(N_POINTS),
+                        headers={"Authorization": "Bearer not-the-token"}, timeout=30)
+    assert oracle.status_code == 401
+    reason = oracle.json()["detail"]
+    browser.get(server + "/#/plan")
+    browser.execute_script("sessionStorage.setItem('fpscan.token', 'not-the-token')")
+    fill_plan_form(browser, N_POINTS)
+    before = token_prompts(browser)
+    el(browser, "plan-save").click()
+    wait_for(lambda: browser.execute_script("return document.getElementById('token-dialog').open"), 15,
+             "the token dialog after a refused token")
+    assert token_prompts(browser) == before + 1
+    assert reason in browser.execute_script("return document.querySelector('#token-dialog p').textContent")
+    shot(browser, screenshots, "token-dialog")
+    # Cancelling leaves the server's reason on the page.
+    browser.execute_script("document.getElementById('token-dialog').close('cancel')")
+    wait_for(lambda: reason in text(browser, "error-text") and el(browser, "error").is_displayed(), 10,
+             "the refusal's reason on the page")
+    browser.execute_script("sessionStorage.setItem('fpscan.token', arguments[0])", TOKEN)
+
+
 def test_keyboard_navigation_and_state_without_colour(server, browser, screenshots, state):
     from selenium.webdriver.common.action_chains import ActionChains
     from selenium.webdriver.common.keys import Keys
