@@ -13,7 +13,8 @@ Signal model, per plan point k at lattice point (i_x, i_y) (all deterministic gi
   s_k = 1 + ``sensitivity_variation``·m_2(i_x, i_y), with smooth maps m_1, m_2 ∈ [−1, 1];
 * FP output v_k = s_k·d_k·p_k (Pa·V), low-passed by a 2nd-order Butterworth filter at
   ``bandwidth`` Hz (if given; ``scipy.signal``), plus white Gaussian noise of standard
-  deviation d_k·peak/``snr`` (if given; peak = the source's reference amplitude);
+  deviation d_k·peak/``snr``/sqrt(averages) (if given; peak = the source's reference
+  amplitude; the plan's ``averages`` pulses are averaged);
 * int16 quantisation: scale = max|v_k|/32767, offset = 0, sample = round(v_k/scale).
 
 Timing: with ``prf`` > 0 the laser fires on a clock of period 1/prf started by SCAN:STAR;
@@ -480,8 +481,9 @@ class SimulatedScanner:
             v = sosfilt(butter(2, fc, fs=1 / plan.dt, output="sos"), v, axis=1)
         digest = int.from_bytes(hashlib.sha256(plan.plan_id.encode()).digest()[:4], "little")
         rng = np.random.default_rng([cfg.seed, digest, bi])
-        if cfg.snr:
-            v = v + rng.standard_normal(v.shape) * (dc * self._peak / cfg.snr)[:, None]
+        if cfg.snr:  # white noise per pulse; averaging N pulses divides its std by sqrt(N)
+            sigma = dc * self._peak / cfg.snr / np.sqrt(plan.averages)
+            v = v + rng.standard_normal(v.shape) * sigma[:, None]
         peak = np.abs(v).max(axis=1)
         scale = np.where(peak > 0, peak / 32767.0, 1.0)
         samples = np.clip(np.rint(v / scale[:, None]), -32767, 32767).astype(np.int16)

@@ -227,3 +227,51 @@ def test_other_reader_modes(tmp_path, reader):
     assert_matches_record(tmp_path / "scan.h5", tmp_path / "truth.h5", plan)
     with pytest.raises(ValueError, match="reader"):
         Scanner(sim.path, reader="telepathy")
+
+
+def test_tuning_delay_and_averages_follow_the_pulse_clock(tmp_path):
+    # 100 Hz laser, 15 ms bias tuning per point, 2 pulses averaged per point: each point
+    # waits for the 2nd tick after the previous one and then uses 2 ticks -> 30 ms apart
+    plan = grid_plan(5, 4, n_t=64, averages=2)
+    with make_sim(tmp_path, prf=100.0, tuning_delay=0.015) as sim:
+        res = acquire(sim.path, plan, tmp_path / "scan.h5")
+    assert res.complete
+    meta = read_scan(tmp_path / "scan.h5").meta
+    assert np.allclose(np.diff(meta["timestamp_s"]), 0.030, atol=1e-9)
+    assert np.array_equal(np.diff(meta["pulse_number"]), np.full(19, 2))
+
+
+def test_device_survives_random_commands_and_frames(tmp_path):
+    from driver.framing import HEADER, encode_frame, FrameType
+    import zlib
+    from cobs import cobs
+
+    rng = np.random.default_rng(4)
+    words = ["*IDN?", "*RST", "SCAN:STAR", "SCAN:STAT?", "PLAN:DATA", "PLAN:BEG", "PLAN:END",
+             "SYST:ERR?", "SCAN:PAUS", "SCAN:RES", "PLAN:ID?", "LAS:INT?", ":syst:lim?"]
+    with make_sim(tmp_path) as sim, Scanner(sim.path, response_timeout=3) as sc:
+        sc.upload_plan(grid_plan(6, 6, n_t=32))
+        replies = errors = 0
+        for i in range(150):
+            if i % 3 == 0:
+                cmd = bytes(rng.integers(0, 256, rng.integers(0, 40)).astype(np.uint8))
+            else:
+                args = ",".join(str(int(x)) for x in rng.integers(-5, 10**6, rng.integers(0, 3)))
+                cmd = f"{words[rng.integers(len(words))]} {args}".encode()
+            try:
+                sc.query(cmd)
+                replies += 1
+            except DeviceError:
+                errors += 1
+        assert replies + errors == 150 and errors > 20 and replies > 10
+        # well-formed frames the device must refuse: wrong version, unknown type, and a
+        # frame type only the device sends
+        for version, ftype in [(2, 1), (1, 99), (1, int(FrameType.ALINE))]:
+            body = HEADER.pack(version, ftype, 0, 1, 0) + b"*IDN?"
+            sc._write(cobs.encode(body + zlib.crc32(body).to_bytes(4, "little")) + b"\x00")
+        sc._write(encode_frame(FrameType.NAK, b"\x01\x02\x03"))  # ragged NAK list
+        sc.query("SCAN:ABOR")
+        sc.query("*CLS")
+        sc._write(encode_frame(FrameType.ALINE, b"\x00" * 80, seq=5))
+        assert sc.query("*IDN?").startswith("fpscan,")
+        assert any(c == -310 for c, _ in sc.errors())

@@ -89,3 +89,12 @@ def test_default_phantom_has_balls_and_a_curved_tube():
     assert np.ptp(xyz[:, 1]) > 0.5e-3 and np.ptp(xyz[:, 2]) > 0.5e-3  # curved, not straight
     half = 226 * 6e-5 / 2
     assert all(abs(b.x) < half and abs(b.y) < half and b.z > b.radius for b in balls)
+
+
+def test_averaging_pulses_reduces_noise_by_sqrt_n(tmp_path):
+    plan = grid_plan(8, 8, n_t=1024, averages=4)
+    snr = 20.0
+    scan = scan_with(tmp_path, plan, source=BallSource(small_phantom()), snr=snr, seed=3)
+    clean = ball_alines(np.asarray(plan["points"]["positions"]), small_phantom(), 8e-9, 1024)
+    sigma = max(b.amplitude for b in small_phantom()) / snr / np.sqrt(4)
+    assert (scan.pressure - clean).std() == pytest.approx(sigma, rel=0.05)
