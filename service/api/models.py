@@ -40,8 +40,8 @@ class Health(BaseModel):
 class Lattice(_Request):
     """The scanner lattice: ``n_x × n_y`` points at ``pitch`` (m), centred on the axis."""
 
-    n_x: int = Field(ge=1, le=4096)
-    n_y: int = Field(1, ge=1, le=4096)
+    n_x: int = Field(ge=1, le=1024)
+    n_y: int = Field(1, ge=1, le=1024)
     pitch: float = Field(gt=0, le=0.01, description="lattice pitch, m")
 
 
@@ -64,7 +64,7 @@ class PlanCreate(_Request):
     kind: str | None = Field(None, max_length=64, description="mask kind, e.g. full, grid, equisteradian, equiangular, random")
     lattice: Lattice
     params: dict[str, Any] = Field(default_factory=dict, description="mask parameters (see service.plans)")
-    points: list[list[int]] | None = Field(None, max_length=4096 * 4096,
+    points: list[list[int]] | None = Field(None, max_length=1024 * 1024,
                                            description="lattice indices [[i_x, i_y], ...] for a user point list")
     order: str | None = Field(None, max_length=32, description="scan order (serpentine, rings, nearest)")
     acquisition: Acquisition = Field(default_factory=Acquisition)

@@ -69,27 +69,20 @@ def _points_plan(req: PlanCreate) -> dict:
 
 
 def _mask_plan(req: PlanCreate) -> dict:
+    """A plan from a mask kind and its parameters (``service.plans.make_plan``)."""
+    from service.plans import MASK_KINDS, make_plan
+
+    if req.kind not in MASK_KINDS:
+        raise ValueError(f"unknown mask kind {req.kind!r}; one of {', '.join(sorted(MASK_KINDS))}")
     try:
-        from service import plans as plans_mod
-    except ImportError:
-        raise ValueError("mask planning is not available in this build; send a point list") from None
-    make_plan = getattr(plans_mod, "make_plan", None)
-    if make_plan is None:
-        raise ValueError("mask planning is not available in this build; send a point list")
-    kwargs = {"kind": req.kind, "lattice": req.lattice.model_dump(), "params": dict(req.params),
-              "acquisition": req.acquisition.model_dump()}
-    if req.order:
-        kwargs["order"] = req.order
-    try:
-        plan = make_plan(**kwargs)
+        plan = make_plan(kind=req.kind, lattice=req.lattice.model_dump(), params=dict(req.params),
+                         order=req.order or "auto", acquisition=req.acquisition.model_dump())
     except TypeError as exc:
         raise ValueError(f"bad mask parameters: {exc}") from None
-    plan = plan.to_json() if hasattr(plan, "to_json") else plan
-    if isinstance(plan, str):
-        plan = json.loads(plan)
-    if hasattr(plan, "to_dict"):
-        plan = plan.to_dict()
-    return plan
+    out = plan.model_dump(mode="json")
+    if len(out["points"]["indices"]) > MAX_POINTS:
+        raise ValueError(f"at most {MAX_POINTS} points")
+    return out
 
 
 def build_plan(req: PlanCreate) -> dict:
@@ -122,9 +115,18 @@ def summary(plan: dict) -> Plan:
 
 
 def preview_png(plan: dict) -> bytes:
-    """The mask on its lattice as a PNG (white = sensor point), one pixel per lattice
-    point, magnified to at least ~256 pixels across."""
+    """The mask preview PNG (``service.plans.preview_png``: axes in mm, points coloured
+    by weight); for a plan it cannot read, the mask on its lattice (white = sensor point),
+    one pixel per lattice point, magnified to at least ~256 pixels across."""
     from PIL import Image as PILImage
+
+    try:
+        from service.plans import Plan as PlanModel
+        from service.plans import preview_png as plans_preview
+
+        return plans_preview(PlanModel.model_validate(plan))
+    except (ImportError, ValueError):
+        pass
 
     lat = plan["lattice"]
     n_x, n_y = int(lat["n_x"]), int(lat.get("n_y", 1))
