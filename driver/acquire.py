@@ -41,13 +41,15 @@ def acquire(port: str, plan, out, *, progress=None, scanner=None, durable: str =
     sc = Scanner(port, **scanner_options) if own else scanner
     try:
         instrument = sc.identify()
-        if out.exists():
+        resume = out.exists()
+        if resume:
             sink = ScanFile.open_append(out, plan, durable=durable)
         else:
+            sc.upload_plan(plan)  # a plan the device refuses leaves no empty file behind
             sink = ScanFile.create(out, plan, instrument=instrument,
                                    software_version=software_version(), durable=durable)
         try:
-            return sc.scan(plan, sink, progress=progress)
+            return sc.scan(plan, sink, progress=progress, upload=resume)
         finally:
             sink.close()
     finally:

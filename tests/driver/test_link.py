@@ -275,3 +275,11 @@ def test_device_survives_random_commands_and_frames(tmp_path):
         sc._write(encode_frame(FrameType.ALINE, b"\x00" * 80, seq=5))
         assert sc.query("*IDN?").startswith("fpscan,")
         assert any(c == -310 for c, _ in sc.errors())
+
+
+def test_refused_plan_leaves_no_scan_file(tmp_path):
+    plan = grid_plan(20, 20, n_t=64)
+    with make_sim(tmp_path, max_points=100) as sim:
+        with pytest.raises(DeviceError, match="-222"):
+            acquire(sim.path, plan, tmp_path / "scan.h5")
+    assert not (tmp_path / "scan.h5").exists()
