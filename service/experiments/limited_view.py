@@ -23,7 +23,7 @@ import time
 
 import numpy as np
 
-from service.metrics import correlation_coefficient, disc_mask, tenenbaum_sharpness
+from service.metrics import bounding_box, correlation_coefficient, disc_mask, tenenbaum_sharpness
 
 from .datasets import DenseDataset, add_noise
 from .phantoms import lateral_axis, tree_phantom, tree_roi
@@ -121,8 +121,6 @@ def run(
         roi = tree_roi(data.p0.shape[0], data.dz) if built_in else ((0.5 * n_z * dz, 0.0), 0.95 * n_z * dz)
     (zc, xc), diameter = roi
     mask = disc_mask((z, x), diameter, (zc, xc))
-    from service.metrics import bounding_box
-
     rect = bounding_box(mask)
     ref_sharp = tenenbaum_sharpness(_normalised(ref, rect), mask)
     truth = None
