@@ -156,7 +156,8 @@ def main() -> int:
             results[reader] = rate
             print(f"[{reader} reader] {n} A-lines in {res.acquisition_s:.2f} s = {rate:.0f} "
                   f"A-lines/s ({rate * wire / 1e6:.1f} MB/s) into the scan file; "
-                  f"{100 * rate * wire / raw:.0f} % of the raw pty byte rate; link {res.faults}")
+                  f"{100 * rate * wire / raw:.0f} % of the raw pty byte rate; faults {res.faults}, "
+                  f"link {res.link}")
     parent.send("stop")
     proc.join(timeout=30)
     rate = results[args.readers[0]]

@@ -102,8 +102,17 @@ class ScanResult:
     aborted: bool
     elapsed_s: float  #: whole call
     acquisition_s: float  #: from the first SCAN:STAR reply to the last new A-line
-    alines_received: int  #: A-line frames accepted (duplicates included)
+    alines_received: int  #: new A-line frames received (first copies; points may repeat)
+    #: link faults detected and recovered: ``bad_frames`` (CRC/COBS/length), ``bad_alines``,
+    #: ``naks`` (sequence numbers NAKed), ``command_retries``, ``stall_polls``, ``resets``
     faults: dict = field(default_factory=dict)
+    #: link statistics (not faults): ``duplicates`` (frames received twice),
+    #: ``duplicate_points`` (points already in the file), ``stale`` (other run or boot)
+    link: dict = field(default_factory=dict)
+
+    @property
+    def faults_recovered(self) -> int:
+        return int(sum(self.faults.values()))
 
 
 class Scanner:
@@ -608,11 +617,11 @@ class Scanner:
                 sink.flush()
         report("aborted" if aborted else "done", force=True)
         t_end = time.monotonic()
-        faults = dict(self.faults)
-        faults.update({f"link_{k}": v for k, v in counters.items()})
+        faults = {k: v for k, v in self.faults.items() if v}
+        link = {k: v for k, v in counters.items() if k != "alines"}
         acq = ((state["t_last"] or t_end) - state["t_first"]) if state["t_first"] else 0.0
         return ScanResult(n, int(completed.sum()), bool(completed.all()), aborted,
-                          t_end - t_start, acq, counters["alines"], faults)
+                          t_end - t_start, acq, counters["alines"], faults, link)
 
     def faults_recovered(self) -> int:
         f = self.faults

@@ -42,7 +42,7 @@ def run(args) -> int:
                          durable="fsync" if args.fsync else "process", window=args.window,
                          response_timeout=args.timeout)
     rate = (result.points_done / result.elapsed_s) if result.elapsed_s > 0 else 0.0
-    n_faults = sum(v for k, v in result.faults.items() if not k.startswith("link_"))
+    n_faults = result.faults_recovered
     print(f"{args.out}: {result.points_done}/{result.n_points} points complete in "
           f"{result.elapsed_s:.1f} s ({rate:.0f} points/s), {n_faults} link faults recovered")
     if not result.complete:

@@ -57,7 +57,8 @@ def test_fault_scan_every_aline_once_and_bit_identical(tmp_path):
             with sink:
                 res = sc.scan(plan, sink)
         stats = dict(sim.stats)
-    print("faults seen by the host:", res.faults, "device:", stats)
+    print("faults seen by the host:", res.faults, res.link, "device:", stats)
+    assert res.faults_recovered == sum(res.faults.values()) > 0 and res.alines_received >= n
     assert res.complete and res.points_done == n
     # every point appended exactly once, none refused as duplicate
     ks = [k for k, ok in appended]
