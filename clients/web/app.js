@@ -213,6 +213,7 @@ function route() {
   document.title = "fpscan — " + $("nav-" + name).textContent;
   if (name === "plan" && changed) schedulePreview(0);
   if (name === "scan" && changed) refreshScanLists().catch(showError);
+  if (name === "scan" && arg && decodeURIComponent(arg) !== scanJob) watchScan(decodeURIComponent(arg));
   if (name === "jobs") {
     refreshJobs().catch(showError);
     if (arg) openResult(decodeURIComponent(arg)).catch(showError); else closeResult();
@@ -706,6 +707,7 @@ async function startScan(ev) {
     setState($("scan-state"), "queued");
     setScanButtons("queued");
     watchScan(id);
+    history.replaceState(null, "", "#/scan/" + encodeURIComponent(id)); // a reload re-attaches
   } catch (err) {
     showError(err);
     $("scan-start").disabled = false;
@@ -874,6 +876,10 @@ function renderResult(job) {
   setState($("result-state"), job.state);
   const err = job.error;
   $("result-error").textContent = err ? "— " + (typeof err === "string" ? err : err.detail || err.message || JSON.stringify(err)) : "";
+  const active = !TERMINAL.has(job.state);
+  $("result-cancel").hidden = !active;
+  $("result-watch").hidden = !(active && job.kind === "scan");
+  $("result-watch").href = "#/scan/" + encodeURIComponent(job.id);
 
   const tbody = $("result-params").tBodies[0];
   tbody.textContent = "";
@@ -985,6 +991,7 @@ async function openResult(jobId) {
   const job = await apiJson(`/api/jobs/${encodeURIComponent(jobId)}`);
   if (resultJob !== jobId) return;
   renderResult(job);
+  $("result-heading").focus({ preventScroll: false });
   for (const tr of jobRows.values()) tr.setAttribute("aria-selected", tr.dataset.jobId === jobId ? "true" : "false");
   if (!TERMINAL.has(job.state)) {
     let lastState = job.state;
@@ -998,6 +1005,18 @@ async function openResult(jobId) {
       }
       lastState = j.state;
     });
+  }
+}
+
+async function cancelResultJob() {
+  if (!resultJob) return;
+  try {
+    const j = await apiJson(`/api/jobs/${encodeURIComponent(resultJob)}/cancel`, { method: "POST" });
+    clearError();
+    if (j && j.state) setState($("result-state"), j.state);
+    refreshJobs().catch(() => {});
+  } catch (err) {
+    showError(err);
   }
 }
 
@@ -1055,6 +1074,7 @@ function init() {
   $("jobs-kind").addEventListener("change", () => refreshJobs().catch(showError));
   $("result-slice").addEventListener("input", showSlice);
   $("recon-form").addEventListener("submit", startRecon);
+  $("result-cancel").addEventListener("click", cancelResultJob);
   $("error-close").addEventListener("click", clearError);
   $("token-button").addEventListener("click", () => askToken("Enter the server's bearer token. It is kept for this browser tab only."));
   window.addEventListener("hashchange", route);
