@@ -203,14 +203,15 @@ class SimulatedScanner:
             if now < self._stall_until:
                 time.sleep(min(0.02, self._stall_until - now))
                 continue
+            wlist = [fd] if self._out and self._may_write(now) else []
             timeout = 0.05
             if self._wake < math.inf:
                 timeout = max(0.0, min(timeout, self._wake - now))
-            wlist = [fd] if self._out and self._may_write(now) else []
             try:
                 r, w, _ = select.select([fd], wlist, [], timeout)
             except (OSError, ValueError):
                 break
+            data = b""
             if r:
                 try:
                     data = os.read(fd, 1 << 16)
@@ -219,23 +220,32 @@ class SimulatedScanner:
                 except OSError:  # EIO: no slave open (cannot happen: we hold one)
                     data = b""
                     time.sleep(0.01)
-                if data:
-                    f = self.config.faults
-                    if f.damages_bytes:
-                        data = damage(data, f.corrupt, f.drop, self._fault_rng)
-                    for frame in self._deframer.feed(data):
-                        self._on_frame(frame)
-                    if self._deframer.errors:
-                        self.stats["rx_bad_frames"] += self._deframer.errors
-                        self._push_error(-310, f"System error; frame discarded: "
-                                               f"{self._deframer.last_error}")
-                        self._deframer.errors = 0
-            now = time.monotonic()
-            self._check_interlock(now)
-            self._produce(now)
-            self._retransmit(now)
-            if self._out:
-                self._write(now)
+            try:
+                if r and data:
+                    self._receive(data)
+                now = time.monotonic()
+                self._check_interlock(now)
+                self._produce(now)
+                self._retransmit(now)
+                if self._out:
+                    self._write(now)
+            except Exception as exc:  # a firmware bug must not kill the device
+                self.stats["internal_errors"] += 1
+                self._push_error(-310, f"System error; {type(exc).__name__}: {exc}"[:200])
+                self._abort()
+                self._wake = math.inf
+
+    def _receive(self, data: bytes) -> None:
+        f = self.config.faults
+        if f.damages_bytes:
+            data = damage(data, f.corrupt, f.drop, self._fault_rng)
+        for frame in self._deframer.feed(data):
+            self._on_frame(frame)
+        if self._deframer.errors:
+            self.stats["rx_bad_frames"] += self._deframer.errors
+            self._push_error(-310, f"System error; frame discarded: "
+                                   f"{self._deframer.last_error}")
+            self._deframer.errors = 0
 
     def _may_write(self, now: float) -> bool:
         rate = self.config.byte_rate
