@@ -487,7 +487,8 @@ class Client(_BaseClient):
 
         Listens to the SSE stream (reconnecting with ``Last-Event-ID`` when it drops),
         calling ``on_progress(progress: dict)`` for every progress update (keys
-        ``fraction, stage, points_done, points_total, rate_per_s, eta_s``); falls back to
+        ``fraction, stage, points_done, points_total, rate_per_s, eta_s``), the last one
+        with the job's final progress; falls back to
         polling ``GET /api/jobs/{id}`` every ``poll_interval`` s when the stream is not
         available. ``timeout`` in seconds (None: no limit).
 
@@ -498,12 +499,12 @@ class Client(_BaseClient):
         use_sse = True
         job = self.get_job(job_id)
         while True:
+            if on_progress is not None and field_of(job, "progress") is not None:
+                on_progress(to_dict(field_of(job, "progress")))
             if field_of(job, "state") in TERMINAL_STATES:
                 return _finish(job) if raise_on_failure else job
             if deadline is not None and time.monotonic() > deadline:
                 raise WaitTimeout(f"job {job_id} still {field_of(job, 'state')} after {timeout} s")
-            if on_progress is not None and field_of(job, "progress") is not None:
-                on_progress(to_dict(field_of(job, "progress")))
             if use_sse:
                 remaining = None if deadline is None else max(0.5, deadline - time.monotonic())
                 read_timeout = min(10.0, remaining) if remaining is not None else 10.0
@@ -642,12 +643,12 @@ class AsyncClient(_BaseClient):
 
         job = await self.get_job(job_id)
         while True:
+            if field_of(job, "progress") is not None:
+                await report(to_dict(field_of(job, "progress")))
             if field_of(job, "state") in TERMINAL_STATES:
                 return _finish(job) if raise_on_failure else job
             if deadline is not None and time.monotonic() > deadline:
                 raise WaitTimeout(f"job {job_id} still {field_of(job, 'state')} after {timeout} s")
-            if field_of(job, "progress") is not None:
-                await report(to_dict(field_of(job, "progress")))
             if use_sse:
                 remaining = None if deadline is None else max(0.5, deadline - time.monotonic())
                 read_timeout = min(10.0, remaining) if remaining is not None else 10.0

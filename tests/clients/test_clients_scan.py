@@ -166,3 +166,43 @@ def test_abort_ends_cancelled(slow_scanner):
         api.wait(job_id, timeout=60)
     assert err.value.job.state == "cancelled"
     assert err.value.job.progress.points_done < N * N
+
+
+def test_progress_bar_on_a_terminal(scanned):
+    """`fpscan jobs wait` on a real terminal (a pty) draws the rich progress bar with the
+    scan's points, rate and ETA."""
+    import os
+    import pty
+    import select
+    import time
+
+    master, slave = pty.openpty()
+    env = clean_env(FPSCAN_TOKEN=TOKEN, COLUMNS="160", TERM="xterm")
+    proc = subprocess.Popen([sys.executable, "-m", "clients", "jobs", "wait", scanned["job"],
+                             "--server", scanned["url"]], stdin=slave, stdout=slave, stderr=slave, env=env)
+    os.close(slave)
+    out = b""
+    deadline = time.monotonic() + 60
+    try:
+        while time.monotonic() < deadline:
+            ready, _, _ = select.select([master], [], [], 0.2)
+            if ready:
+                try:
+                    chunk = os.read(master, 65536)
+                except OSError:  # the child closed the terminal
+                    break
+                if not chunk:
+                    break
+                out += chunk
+            elif proc.poll() is not None:
+                break
+        assert proc.wait(timeout=30) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(timeout=30)
+        os.close(master)
+    text = out.decode(errors="replace")
+    assert f"{N * N}/{N * N} points" in text
+    assert "points/s" in text and "ETA" in text
+    assert "succeeded" in text
