@@ -53,7 +53,7 @@ class DenseDataset:
         """``(n_x,)`` or ``(n_y, n_x)``."""
         return self.data.shape[1:]
 
-    def crop(self, *, n_t: int | None = None, lateral: int | None = None) -> "DenseDataset":
+    def crop(self, *, n_t: int | None = None, lateral: int | None = None) -> DenseDataset:
         """A copy keeping the first ``n_t`` samples and the central ``lateral`` points
         per lateral axis (the ground truth is cropped laterally to match)."""
         data, p0 = self.data, self.p0

@@ -23,7 +23,12 @@ import time
 
 import numpy as np
 
-from service.metrics import bounding_box, correlation_coefficient, disc_mask, tenenbaum_sharpness
+from service.metrics import (
+    bounding_box,
+    correlation_coefficient,
+    disc_mask,
+    tenenbaum_sharpness,
+)
 
 from .datasets import DenseDataset, add_noise
 from .phantoms import lateral_axis, tree_phantom, tree_roi
@@ -106,7 +111,7 @@ def run(
     dx, dt, c = data.dx, data.dt, data.c
     dz = c * dt
     if data.p0 is not None and data.dz is not None:
-        n_z = int(round(data.p0.shape[0] * data.dz / dz))
+        n_z = round(data.p0.shape[0] * data.dz / dz)
     else:
         n_z = n_t // 2
     n_z = max(4, min(n_z, n_t))

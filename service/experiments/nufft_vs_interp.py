@@ -153,11 +153,11 @@ def run(data: DenseDataset | None = None, *, small: bool = False, methods=METHOD
     dx, dt, c = data.dx, data.dt, data.c
     dz = c * dt
     n_t = g.shape[0]
-    n_z = int(round(data.p0.shape[0] * data.dz / dz)) if data.p0 is not None and data.dz else n_t // 2
+    n_z = round(data.p0.shape[0] * data.dz / dz) if data.p0 is not None and data.dz else n_t // 2
     n_z = max(8, min(n_z, n_t))
     recons, times = {}, {}
     for m in methods:
-        recons[m], times[m] = _timed(lambda: _reconstruct(m, g, dx, dt, c, n_z), repeats)
+        recons[m], times[m] = _timed(lambda m=m: _reconstruct(m, g, dx, dt, c, n_z), repeats)
     z = np.arange(n_z) * dz
     x = lateral_axis(g.shape[-1], dx)
     rows, profiles = [], {}
@@ -165,7 +165,7 @@ def run(data: DenseDataset | None = None, *, small: bool = False, methods=METHOD
         truth = data.p0[:n_z]
         depth = data.meta["layer_depth_m"]
         width = data.meta["layer_width_m"]
-        kz = int(round(depth / dz))
+        kz = round(depth / dz)
         j0 = g.shape[1] // 2 - n_columns // 2
         cols = np.arange(j0, j0 + n_columns)
         zs = slice(max(0, kz - 20), kz + 21)
@@ -247,7 +247,7 @@ def plot(result: ExperimentResult, out_dir) -> list[Path]:
     ax[1].set(xlabel="x (mm)", ylabel="max over layer rows", title="lateral profile / edges")
     times = [next(r for r in result.table if r["method"] == m)["time_s"] for m in methods]
     ax[2].bar(methods, times)
-    ax[2].set(ylabel="run time (s)", title="reconstruction time (best of %d)" % result.params["repeats"])
+    ax[2].set(ylabel="run time (s)", title=f"reconstruction time (best of {result.params['repeats']})")
     if sweep:
         dmm = np.asarray(sweep) * 1e3
         for m in methods:

@@ -56,7 +56,7 @@ def simulate_yarn(*, small: bool) -> DenseDataset:
     half = n * d / 2
     n_z = int(np.ceil((0.53 * half + 0.3 * half) / d))
     p0, _ = yarn_phantom(n_z, n, d)
-    n_t = int(round(0.6 * n * d / (c * dt)))
+    n_t = round(0.6 * n * d / (c * dt))
     data = forward_grid(p0, d, d, dt, n_t, c)
     return DenseDataset(data, d, dt, c, p0, d, "yarn phantom (built in)")
 
@@ -112,13 +112,13 @@ def run(
     side = n * d
     dz = c * dt
     if data.p0 is not None and data.dz is not None:
-        n_z = int(round(data.p0.shape[0] * data.dz / dz))
+        n_z = round(data.p0.shape[0] * data.dz / dz)
     else:
         n_z = n_t // 2
     n_z = max(4, min(n_z, n_t))
     x = lateral_axis(n, d)
     if n_side is None:
-        n_side = max(2, int(round(41 * n / 226)))
+        n_side = max(2, round(41 * n / 226))
     while n_side > 2 and (n_side - 1) * max(intervals) + 1 > n:
         n_side -= 1
     if poi_depth is None:
@@ -139,7 +139,7 @@ def run(
 
     arrangements = []
     lattice = Lattice(n, n, d)
-    es = equisteradian_mask(lattice, poi_depth, int(round(fraction * n * n)))
+    es = equisteradian_mask(lattice, poi_depth, round(fraction * n * n))
     idx = np.asarray(es.indices)
     arrangements.append(("equi-steradian", np.nan, idx[:, 0], idx[:, 1], np.asarray(es.positions, float),
                          np.asarray(es.weights, float)))
@@ -168,7 +168,7 @@ def run(
         curves[f"cc_vs_diameter[{key}]"] = cc_vs_diameter(m, ref, diameters, axes=axes, threshold=0.04)
         curves[f"sharpness_vs_diameter[{key}]"] = sharpness_vs_diameter(m, ref, diameters, axes=axes, threshold=0.04)
         rows.append({
-            "arrangement": name, "interval": s, "n_points": int(len(ix)), "fraction": len(ix) / (n * n),
+            "arrangement": name, "interval": s, "n_points": len(ix), "fraction": len(ix) / (n * n),
             "cc_eval_diameter": float(cc_vs_diameter(m, ref, [eval_d], axes=axes, threshold=0.04)[0]),
             "cc_disc": correlation_coefficient(m, ref, disc_roi),
             "sharpness_eval_diameter": float(sharpness_vs_diameter(m, ref, [eval_d], axes=axes, threshold=0.04)[0]),

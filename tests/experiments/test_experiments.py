@@ -3,14 +3,20 @@ k-Wave reference files, and the `fpscan evaluate` command."""
 from __future__ import annotations
 
 import csv
+import itertools
 import json
 
 import numpy as np
 import pytest
 
 from clients.cli import main as fpscan
-from service.experiments import load_dense, run_experiment
-from service.experiments import limited_view, nufft_vs_interp, sparse_masks
+from service.experiments import (
+    limited_view,
+    load_dense,
+    nufft_vs_interp,
+    run_experiment,
+    sparse_masks,
+)
 from service.experiments.datasets import add_noise
 
 
@@ -21,7 +27,7 @@ def tree_clean():
 
 # ------------------------------------------------------------------ limited-view-2d
 def test_limited_view_small_writes_table_and_plots(tmp_path):
-    result, paths = run_experiment("limited-view-2d", tmp_path, small=True, intervals=(1, 4, 8))
+    _result, paths = run_experiment("limited-view-2d", tmp_path, small=True, intervals=(1, 4, 8))
     names = sorted(p.name for p in paths)
     assert names == ["limited-view-2d.csv", "limited-view-2d.json", "limited-view-2d_cc.png", "limited-view-2d_images.png"]
     for p in paths:
@@ -58,7 +64,7 @@ def test_more_sensors_at_the_same_spacing_never_lower_cc(tree_clean):
     for n in (8, 16, 32, 64, 128):
         res = limited_view.run(tree_clean, n_sensors=n, intervals=(2,), include_equiangular=False)
         ccs.append(next(r["cc"] for r in res.table if r["arrangement"] == "equispaced"))
-    assert all(b >= a for a, b in zip(ccs, ccs[1:])), ccs
+    assert all(b >= a for a, b in itertools.pairwise(ccs)), ccs
     assert ccs[-1] > ccs[0] + 0.1
 
 
@@ -97,7 +103,7 @@ def test_sparse_masks_small_structure(tmp_path):
 
 # ------------------------------------------------------------------ nufft-vs-interpolation
 def test_nufft_vs_interpolation_small_against_the_true_layer(tmp_path):
-    result, paths = run_experiment("nufft-vs-interpolation", tmp_path, small=True)
+    result, _paths = run_experiment("nufft-vs-interpolation", tmp_path, small=True)
     rows = {r["method"]: r for r in result.table}
     assert set(rows) == {"truth", "ner", "linear", "nearest", "kwave-linear"}
     truth, ner = rows["truth"], rows["ner"]
