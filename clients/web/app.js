@@ -569,6 +569,7 @@ function watchJob(jobId, onJob) {
   function stop() { stopped = true; ctl.abort(); }
 
   function handleEvent(ev) {
+    document.body.dataset.sseEvents = String((Number(document.body.dataset.sseEvents) || 0) + 1);
     let data = ev.data;
     try { data = JSON.parse(ev.data); } catch (_) { /* plain text */ }
     if (ev.event === "state") {

@@ -297,6 +297,8 @@ def test_scan_view_progress_reaches_100_and_live_preview_changes(sim, server, ap
             break
         time.sleep(0.15)
     assert text(browser, "scan-state") == "succeeded", api.get(f"/api/jobs/{job_id}").text
+    # progress came over Server-Sent Events (not only from polling)
+    assert int(browser.execute_script("return document.body.dataset.sseEvents || '0'")) >= 3
     wait_for(lambda: text(browser, "scan-progress-label") == "100 %", 10, "progress 100 %")
     assert el(browser, "scan-progress").get_attribute("value") in ("1", "1.0")
     n = state["n_points"]
