@@ -99,11 +99,13 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--side", type=int, default=142, help="lattice side (142 -> 20164 points)")
     ap.add_argument("--n-t", type=int, default=2048)
-    ap.add_argument("--window", type=int, default=128)
+    ap.add_argument("--window", type=int, default=256)
     ap.add_argument("--readers", nargs="+", default=["process", "thread"],
                     choices=["process", "thread", "direct"],
                     help="host reader modes to measure (the first is the headline figure)")
     args = ap.parse_args()
+
+    import psutil
 
     from driver.host import Scanner
     from driver.physics import Ball
@@ -148,8 +150,13 @@ def main() -> int:
                 sc.upload_plan(plan)  # the simulator precomputes every A-line here
                 print(f"[{reader} reader] plan upload + A-line precomputation: "
                       f"{time.perf_counter() - t:.1f} s")
+                procs = {"simulator": psutil.Process(proc.pid), "host": psutil.Process()}
+                if sc._relay is not None:
+                    procs["relay"] = psutil.Process(sc._relay.pid)
+                cpu0 = {k: sum(p.cpu_times()[:2]) for k, p in procs.items()}
                 with ScanFile.create(out, plan, instrument={}, software_version="bench") as sf:
                     res = sc.scan(plan, sf, upload=False)
+                cpu = {k: sum(p.cpu_times()[:2]) - cpu0[k] for k, p in procs.items()}
             scan = read_scan(out)
             assert scan.completed.all() and res.complete
             rate = n / res.acquisition_s
@@ -158,6 +165,8 @@ def main() -> int:
                   f"A-lines/s ({rate * wire / 1e6:.1f} MB/s) into the scan file; "
                   f"{100 * rate * wire / raw:.0f} % of the raw pty byte rate; faults {res.faults}, "
                   f"link {res.link}")
+            print(f"[{reader} reader] CPU use during the scan (1.0 = one core): " + ", ".join(
+                f"{k} {v / res.elapsed_s:.2f}" for k, v in cpu.items()))
     parent.send("stop")
     proc.join(timeout=30)
     rate = results[args.readers[0]]

@@ -131,7 +131,7 @@ class Scanner:
     process (exclusive ``flock``).
     """
 
-    def __init__(self, port: str, *, window: int = 128, retry: float = 0.3,
+    def __init__(self, port: str, *, window: int = 256, retry: float = 0.3,
                  response_timeout: float = 10.0, stall_timeout: float = 1.0,
                  baudrate: int = 115200, reader: str = "process", lock_timeout: float = 2.0):
         import serial

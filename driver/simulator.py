@@ -431,6 +431,8 @@ class SimulatedScanner:
             self._held = False
         if self._next_k < plan.n_points and self._state == "RUNNING":
             self._held = True  # out of credit or output space: the next point waits
+            self.stats["waits_credit" if len(self._unacked) >= self._window
+                       else "waits_output"] += 1
         self._maybe_finish()
 
     def _send_point(self, k: int, timestamp: float) -> None:

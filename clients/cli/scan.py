@@ -15,7 +15,7 @@ def add_arguments(parser):
                         help="serial device path (/dev/ttyACM0, /dev/pts/N) or pyserial URL")
     parser.add_argument("--plan", required=True, help="plan JSON written by `fpscan plan`")
     parser.add_argument("--out", required=True, help="scan file (HDF5); resumed if it exists")
-    parser.add_argument("--window", type=int, default=128, help="credit window in A-lines")
+    parser.add_argument("--window", type=int, default=256, help="credit window in A-lines (the device caps it at its limit)")
     parser.add_argument("--timeout", type=float, default=10.0,
                         help="longest wait for a silent device, s (default 10)")
     parser.add_argument("--fsync", action="store_true",
