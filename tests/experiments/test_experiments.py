@@ -101,6 +101,19 @@ def test_sparse_masks_small_structure(tmp_path):
     assert js["summary"]["cc_equisteradian"] == pytest.approx(rows[1]["cc_eval_diameter"])
 
 
+def test_3d_more_sensors_at_the_same_spacing_never_lower_cc():
+    # clean built-in yarn data; equispaced grids at interval 2 growing from 6x6 to 30x30
+    data = sparse_masks.simulate_yarn(small=True)
+    ccs = []
+    for n_side in (6, 14, 22, 30):
+        res = sparse_masks.run(data, intervals=(2,), n_side=n_side, n_diameters=4)
+        row = res.table[-1]
+        assert row["n_points"] == n_side**2
+        ccs.append(row["cc_eval_diameter"])
+    assert all(b >= a for a, b in itertools.pairwise(ccs)), ccs
+    assert ccs[-1] > 0.95
+
+
 # ------------------------------------------------------------------ nufft-vs-interpolation
 def test_nufft_vs_interpolation_small_against_the_true_layer(tmp_path):
     result, _paths = run_experiment("nufft-vs-interpolation", tmp_path, small=True)
