@@ -18,6 +18,7 @@ import multiprocessing
 import threading
 import time
 from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 
 log = logging.getLogger("fpscan.preview")
@@ -91,8 +92,15 @@ class PreviewManager:
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, name="preview", daemon=True)
 
+    @staticmethod
+    def _new_pool() -> ProcessPoolExecutor:
+        from service.jobs.executors import lower_priority
+
+        return ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"), initializer=lower_priority,
+                                   initargs=(5,))
+
     def start(self) -> None:
-        self._pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
+        self._pool = self._new_pool()
         self._pool.submit(warm_up)  # in the background; a refresh queues behind it
         self._thread.start()
 
@@ -136,10 +144,14 @@ class PreviewManager:
 
     def _refresh(self, job_id: str, entry: dict) -> None:
         if self._pool is None:
-            self._pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
+            self._pool = self._new_pool()
         try:
             out = self._pool.submit(render_preview, entry["path"]).result(timeout=300)
         except FileNotFoundError:
+            return
+        except BrokenProcessPool:
+            self._pool = self._new_pool()
+            log.warning("preview worker died; restarted it")
             return
         except Exception as exc:
             log.warning("preview job=%s: %s", job_id, exc)

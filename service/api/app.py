@@ -70,6 +70,13 @@ class UploadLimit:
                 resp = JSONResponse({"detail": f"request body larger than the limit of {self.limit} bytes"}, 413)
                 return await resp(scope, receive, send)
         seen = 0
+        t0 = time.perf_counter()
+        status = {"code": 0}
+
+        async def logging_send(message):
+            if message["type"] == "http.response.start":
+                status["code"] = message["status"]
+            await send(message)
 
         async def counting_receive():
             nonlocal seen
@@ -81,7 +88,10 @@ class UploadLimit:
             return message
 
         try:
-            await self.app(scope, counting_receive, send)
+            await self.app(scope, counting_receive, logging_send)
+            if log.isEnabledFor(logging.DEBUG):
+                log.debug("request method=%s path=%s status=%s ms=%.1f", scope["method"], scope["path"],
+                          status["code"], 1e3 * (time.perf_counter() - t0))
         except _TooLarge:
             resp = JSONResponse({"detail": f"request body larger than the limit of {self.limit} bytes"}, 413)
             await resp(scope, receive, send)
@@ -149,14 +159,6 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True) 
         ref = uuid.uuid4().hex[:8]
         log.exception("internal error ref=%s %s %s", ref, request.method, request.url.path)
         return JSONResponse({"detail": f"internal error (reference {ref})"}, status_code=500)
-
-    @app.middleware("http")
-    async def _access_log(request: Request, call_next):
-        t0 = time.perf_counter()
-        response = await call_next(request)
-        log.debug("request method=%s path=%s status=%s ms=%.1f", request.method, request.url.path,
-                  response.status_code, 1e3 * (time.perf_counter() - t0))
-        return response
 
     app.add_middleware(UploadLimit, limit=settings.upload_limit)
 

@@ -27,7 +27,7 @@ class Context:
     extras: dict = field(default_factory=dict)
 
 
-def ctx(request: Request) -> Context:
+async def ctx(request: Request) -> Context:
     return request.app.state.ctx
 
 
@@ -41,13 +41,13 @@ def _check(settings: Settings, creds: HTTPAuthorizationCredentials | None) -> No
         raise HTTPException(401, "invalid bearer token", headers={"WWW-Authenticate": "Bearer"})
 
 
-def require_token(request: Request, creds: HTTPAuthorizationCredentials | None = Depends(bearer)) -> None:
+async def require_token(request: Request, creds: HTTPAuthorizationCredentials | None = Depends(bearer)) -> None:
     """Mutating routes: the bearer token when one is configured (401 otherwise)."""
-    _check(ctx(request).settings, creds)
+    _check(request.app.state.ctx.settings, creds)
 
 
-def read_access(request: Request, creds: HTTPAuthorizationCredentials | None = Depends(bearer)) -> None:
+async def read_access(request: Request, creds: HTTPAuthorizationCredentials | None = Depends(bearer)) -> None:
     """Reading routes: the bearer token only when the server is bound beyond loopback."""
-    settings = ctx(request).settings
+    settings = request.app.state.ctx.settings
     if not settings.loopback_only:
         _check(settings, creds)

@@ -5,7 +5,7 @@ import asyncio
 import json
 
 import anyio
-from fastapi import APIRouter, Depends, Header, HTTPException, Path, Query, Request
+from fastapi import APIRouter, Depends, Header, HTTPException, Path, Query, Request, Response
 from sse_starlette.sse import EventSourceResponse, ServerSentEvent
 
 from service.api.context import Context, ctx, read_access, require_token
@@ -59,9 +59,15 @@ def list_jobs(c: Context = Depends(ctx), state: JobState | None = Query(None), k
 
 
 @router.get("/{job_id}", response_model=Job, dependencies=[Depends(read_access)])
-def get_job(job_id: str = JobId, c: Context = Depends(ctx)) -> Job:
+async def get_job(job_id: str = JobId, c: Context = Depends(ctx)):
     """One job: state, progress, timings, parameters, links, error."""
-    return job_view(get_job_or_404(c, job_id))
+    job = c.store.peek(job_id)  # in-memory fast path; the database in a worker thread
+    if job is None:
+        job = await anyio.to_thread.run_sync(c.store.get, job_id)
+    if job is None:
+        raise HTTPException(404, f"no job {job_id}")
+    # serialised once here (the model already validates it): the hot polling path
+    return Response(job_view(job).model_dump_json(), media_type="application/json")
 
 
 @router.post("/{job_id}/cancel", response_model=Job, dependencies=[Depends(require_token)])

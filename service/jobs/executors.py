@@ -4,7 +4,8 @@ Both expose ``run(fn, *args) -> result`` (blocking; called from a job thread, ne
 the event loop) and ``close()``.
 
 - :class:`LocalExecutor`: ``concurrent.futures.ProcessPoolExecutor`` with the ``spawn``
-  start method (no fork of a threaded server), ``workers`` processes.
+  start method (no fork of a threaded server), ``workers`` processes at a lower CPU
+  priority (``nice`` +10).
 - :class:`DaskExecutor`: ``distributed.Client(address)``; works with any scheduler,
   e.g. a ``LocalCluster`` or a dask-jobqueue cluster. The workers must see the data
   directory (shared file system), since they read inputs and write results there.
@@ -12,8 +13,18 @@ the event loop) and ``close()``.
 from __future__ import annotations
 
 import multiprocessing
+import os
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
+
+
+def lower_priority(increment: int = 10) -> None:
+    """Worker initializer: run reconstructions at a lower CPU priority (``os.nice``), so
+    the server's event loop and serial threads stay responsive on a small machine."""
+    try:
+        os.nice(increment)
+    except (AttributeError, OSError):  # not on this platform / not permitted
+        pass
 
 
 class LocalExecutor:
@@ -26,7 +37,8 @@ class LocalExecutor:
         self._pool = self._new_pool()
 
     def _new_pool(self) -> ProcessPoolExecutor:
-        return ProcessPoolExecutor(max_workers=self.workers, mp_context=multiprocessing.get_context("spawn"))
+        return ProcessPoolExecutor(max_workers=self.workers, mp_context=multiprocessing.get_context("spawn"),
+                                   initializer=lower_priority)
 
     def run(self, fn, *args):
         try:

@@ -11,6 +11,7 @@ All times are UNIX seconds (float).
 """
 from __future__ import annotations
 
+import copy
 import json
 import sqlite3
 import threading
@@ -89,6 +90,7 @@ class JobStore:
         self._db = sqlite3.connect(str(self.path), check_same_thread=False, timeout=30.0,
                                    isolation_level=None)
         self._db.row_factory = sqlite3.Row
+        self._cache: dict[str, dict] = {}  # job id -> row; every write to a job drops its entry
         with self._lock:
             self._db.execute("PRAGMA journal_mode=WAL")
             self._db.execute("PRAGMA synchronous=NORMAL")
@@ -101,6 +103,7 @@ class JobStore:
     # -- helpers -----------------------------------------------------------------
     def _tx(self, fn):
         with self._lock:
+            self._cache.clear()
             self._db.execute("BEGIN IMMEDIATE")
             try:
                 out = fn(self._db)
@@ -161,7 +164,19 @@ class JobStore:
 
     def get(self, job_id: str) -> dict | None:
         with self._lock:
-            return self._row(self._db.execute("SELECT * FROM jobs WHERE id = ?", (job_id,)).fetchone())
+            hit = self._cache.get(job_id)
+            if hit is not None:
+                return copy.deepcopy(hit)
+            job = self._row(self._db.execute("SELECT * FROM jobs WHERE id = ?", (job_id,)).fetchone())
+            if job is not None:
+                self._cache[job_id] = copy.deepcopy(job)
+            return job
+
+    def peek(self, job_id: str) -> dict | None:
+        """The job from the in-memory cache (no database access, no lock: cached rows are
+        never mutated, only replaced), or None when it is not cached; for the event loop's
+        fast path. The caller must not modify the returned dict."""
+        return self._cache.get(job_id)
 
     def list(self, *, state: str | None = None, kind: str | None = None, limit: int = 1000) -> list[dict]:
         sql, args = "SELECT * FROM jobs WHERE 1=1", []
@@ -260,6 +275,7 @@ class JobStore:
     def set_control(self, job_id: str, control: str | None) -> None:
         """Record a pending control request for a running scan (``pause``/``abort``)."""
         with self._lock:
+            self._cache.pop(job_id, None)
             self._db.execute("UPDATE jobs SET control = ? WHERE id = ?", (control, job_id))
 
     def claim(self, job_id: str, owner: str, lease_s: float) -> dict | None:
@@ -282,6 +298,7 @@ class JobStore:
     def heartbeat(self, job_id: str, owner: str, lease_s: float) -> None:
         now = time.time()
         with self._lock:
+            self._cache.pop(job_id, None)
             self._db.execute("UPDATE jobs SET heartbeat = ?, lease_until = ? WHERE id = ? AND lease_owner = ?",
                              (now, now + lease_s, job_id, owner))
 

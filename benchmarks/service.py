@@ -1,0 +1,203 @@
+"""Service benchmark (issue 5): status-endpoint latency under load, live-preview refresh.
+
+1. 50 concurrent clients poll ``GET /api/jobs/{id}``, each every ``--interval`` s, for
+   ``--seconds``, first with the server idle, then while a ``--size``² × ``--n-t`` NER
+   reconstruction runs in the local process pool (same run, same server): requests/s and
+   p50/p99 latency of both, and their ratio; then the same back to back (no pause: the
+   saturation throughput). Target: p99 < 50 ms while a 226×226 reconstruction runs.
+2. A ~``--points``-point equi-steradian scan of the simulated scanner (unthrottled, on a
+   pty) through the server; the live preview's refresh time (NEDNER of the points so far
+   + MIP PNGs, reported by ``GET /api/scans/{id}/preview``). Target < 2 s for ~1600 points.
+
+Run: ``.venv/bin/python benchmarks/service.py`` (``--quick`` for a small smoke run).
+Prints one JSON object. Starts its own server (127.0.0.1, free port) and simulator, and
+stops them.
+"""
+from __future__ import annotations
+
+import argparse
+import asyncio
+import io
+import json
+import os
+import socket
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import httpx
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+TOKEN = "bench-token"
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def start_server(data_dir: Path, devices: dict) -> tuple[subprocess.Popen, str]:
+    port = free_port()
+    env = {k: v for k, v in os.environ.items() if not k.startswith("FPSCAN_")}
+    env.update({"FPSCAN_DATA_DIR": str(data_dir), "FPSCAN_TOKEN": TOKEN, "FPSCAN_DEVICES": json.dumps(devices),
+                "FPSCAN_PREVIEW_INTERVAL_S": "1.0", "FPSCAN_LOG_LEVEL": "warning"})
+    log = open(data_dir.parent / "server.log", "ab")  # noqa: SIM115 (closed by the child's exit)
+    proc = subprocess.Popen([sys.executable, "-m", "clients", "serve", "--port", str(port), "--no-web"],
+                            cwd=REPO, env=env, stdout=log, stderr=subprocess.STDOUT)
+    url = f"http://127.0.0.1:{port}"
+    deadline = time.monotonic() + 90
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            raise RuntimeError(f"server exited {proc.returncode}; see {data_dir.parent / 'server.log'}")
+        try:
+            if httpx.get(url + "/api/health", timeout=2).status_code == 200:
+                return proc, url
+        except httpx.HTTPError:
+            pass
+        time.sleep(0.2)
+    proc.kill()
+    raise RuntimeError("server did not start in 90 s")
+
+
+async def poll(url: str, job_id: str, clients: int, seconds: float, interval: float) -> dict:
+    """``clients`` concurrent pollers of the job status for ``seconds``, each asking once
+    every ``interval`` s (0 = back to back: the saturation throughput)."""
+    latencies: list[float] = []
+    errors = 0
+    stop = time.monotonic() + seconds
+
+    async def one(client: httpx.AsyncClient, k: int):
+        nonlocal errors
+        await asyncio.sleep(interval * k / clients)  # spread the clients over the interval
+        while time.monotonic() < stop:
+            t0 = time.perf_counter()
+            r = await client.get(f"/api/jobs/{job_id}")
+            dt = time.perf_counter() - t0
+            latencies.append(dt)
+            if r.status_code != 200:
+                errors += 1
+            if interval > dt:
+                await asyncio.sleep(interval - dt)
+
+    limits = httpx.Limits(max_connections=clients, max_keepalive_connections=clients)
+    async with httpx.AsyncClient(base_url=url, limits=limits, timeout=30) as client:
+        t0 = time.perf_counter()
+        await asyncio.gather(*(one(client, k) for k in range(clients)))
+        wall = time.perf_counter() - t0
+    lat = np.array(latencies)
+    return {"requests": len(lat), "errors": errors, "requests_per_s": len(lat) / wall,
+            "p50_ms": float(np.percentile(lat, 50) * 1e3), "p99_ms": float(np.percentile(lat, 99) * 1e3)}
+
+
+def npy_bytes(a: np.ndarray) -> bytes:
+    buf = io.BytesIO()
+    np.save(buf, a)
+    return buf.getvalue()
+
+
+def status_benchmark(url: str, size: int, n_t: int, clients: int, seconds: float, interval: float) -> dict:
+    headers = {"Authorization": f"Bearer {TOKEN}"}
+    with httpx.Client(base_url=url, headers=headers, timeout=600) as c:
+        t = np.arange(n_t, dtype=np.float32)[:, None, None]
+        data = np.sin(0.05 * t) * np.ones((1, size, size), dtype=np.float32)  # content is irrelevant to timing
+        ds = c.post("/api/datasets", data={"format": "npy", "dt": "8e-9", "dx": "6e-5"},
+                    files={"file": ("d.npy", npy_bytes(data), "application/octet-stream")}).json()["dataset_id"]
+        # a warm-up job, so both measurements see a started worker process
+        warm = c.post("/api/reconstructions", json={"dataset_id": ds, "method": "ner",
+                                                   "params": {"dtype": "float32", "n_z": 8}}).json()["id"]
+        while c.get(f"/api/jobs/{warm}").json()["state"] not in ("succeeded", "failed"):
+            time.sleep(0.2)
+        idle = asyncio.run(poll(url, warm, clients, seconds, interval))
+        idle_saturated = asyncio.run(poll(url, warm, clients, seconds / 2, 0.0))
+        job = c.post("/api/reconstructions", json={"dataset_id": ds, "method": "ner",
+                                                  "params": {"dtype": "float32"}}).json()["id"]
+        while c.get(f"/api/jobs/{job}").json()["state"] == "queued":
+            time.sleep(0.05)
+        busy = asyncio.run(poll(url, job, clients, seconds, interval))
+        busy_saturated = asyncio.run(poll(url, job, clients, seconds / 2, 0.0))
+        state = c.get(f"/api/jobs/{job}").json()["state"]
+        while state not in ("succeeded", "failed"):
+            time.sleep(0.2)
+            state = c.get(f"/api/jobs/{job}").json()["state"]
+        final = c.get(f"/api/jobs/{job}").json()
+    return {"size": [n_t, size, size], "clients": clients, "seconds": seconds, "poll_interval_s": interval,
+            "idle": idle, "during_recon": busy,
+            "saturated_idle": idle_saturated, "saturated_during_recon": busy_saturated,
+            "recon_still_running_at_end_of_poll": final["timings"]["run_s"] > 1.5 * seconds,
+            "recon_run_s": final["timings"]["run_s"], "recon_state": final["state"],
+            "p99_ratio_busy_over_idle": busy["p99_ms"] / idle["p99_ms"]}
+
+
+def preview_benchmark(url: str, n_points: int, lattice: int, n_t: int) -> dict:
+    headers = {"Authorization": f"Bearer {TOKEN}"}
+    with httpx.Client(base_url=url, headers=headers, timeout=600) as c:
+        r = c.post("/api/plans", json={"kind": "equisteradian",
+                                       "lattice": {"n_x": lattice, "n_y": lattice, "pitch": 6e-5},
+                                       "params": {"depth": 3.6e-3 * lattice / 226, "n_points": n_points},
+                                       "acquisition": {"n_t": n_t, "dt": 8e-9, "prf": 0}})
+        r.raise_for_status()
+        plan = r.json()
+        job = c.post("/api/scans", json={"plan_id": plan["id"], "scanner_id": "sim"}).json()["id"]
+        refreshes = []
+        deadline = time.monotonic() + 600
+        while time.monotonic() < deadline:
+            info = c.get(f"/api/scans/{job}/preview").json()
+            if info["version"] and (not refreshes or refreshes[-1]["version"] != info["version"]):
+                refreshes.append(info)
+            state = c.get(f"/api/jobs/{job}").json()["state"]
+            if state in ("succeeded", "failed", "cancelled") and refreshes and \
+                    refreshes[-1]["points_used"] == plan["n_points"]:
+                break
+            time.sleep(0.1)
+        final = c.get(f"/api/jobs/{job}").json()
+    times = [r["refresh_s"] for r in refreshes]
+    return {"points": plan["n_points"], "lattice": lattice, "n_t": n_t, "scan_state": final["state"],
+            "refreshes": len(refreshes), "refresh_s_last": times[-1] if times else None,
+            "refresh_s_median": statistics.median(times) if times else None,
+            "points_used": [r["points_used"] for r in refreshes]}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--size", type=int, default=226)
+    ap.add_argument("--n-t", type=int, default=1024)
+    ap.add_argument("--clients", type=int, default=50)
+    ap.add_argument("--seconds", type=float, default=5.0)
+    ap.add_argument("--interval", type=float, default=0.5, help="each client's polling period, s")
+    ap.add_argument("--points", type=int, default=1600)
+    ap.add_argument("--quick", action="store_true", help="small sizes (a smoke run)")
+    args = ap.parse_args()
+    if args.quick:
+        args.size, args.n_t, args.seconds, args.points = 64, 256, 2.0, 200
+
+    from driver.simulator import SimulatedScanner
+
+    out = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        sim = SimulatedScanner(prf=0.0).start()
+        proc, url = start_server(Path(tmp) / "data", {"sim": sim.path})
+        try:
+            out["status_endpoint"] = status_benchmark(url, args.size, args.n_t, args.clients, args.seconds,
+                                                      args.interval)
+            out["live_preview"] = preview_benchmark(url, args.points, args.size, args.n_t)
+        finally:
+            proc.terminate()
+            try:
+                proc.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+            sim.stop()
+    s = out["status_endpoint"]
+    out["targets"] = {"status_p99_ms_during_recon": s["during_recon"]["p99_ms"], "status_p99_target_ms": 50,
+                      "preview_refresh_s": out["live_preview"]["refresh_s_last"], "preview_target_s": 2.0}
+    print(json.dumps(out, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
