@@ -183,13 +183,23 @@ function setState(el, state) {
 /** Show a PNG from the API in an <img> (fetched with the token; object URL). */
 async function loadImage(img, path) {
   const resp = await apiFetch(path);
-  const blob = await resp.blob();
+  setImageBlob(img, await resp.blob());
+  img.dataset.src = path;
+}
+
+function setImageBlob(img, blob) {
   const old = img.dataset.objectUrl;
   const url = URL.createObjectURL(blob);
   img.src = url;
   img.dataset.objectUrl = url;
-  img.dataset.src = path;
   if (old) URL.revokeObjectURL(old);
+}
+
+function clearImage(img) {
+  if (img.dataset.objectUrl) URL.revokeObjectURL(img.dataset.objectUrl);
+  delete img.dataset.objectUrl;
+  delete img.dataset.src;
+  img.removeAttribute("src");
 }
 
 /* ------------------------------------------------------------------ routing */
@@ -655,12 +665,15 @@ async function refreshLivePreview(jobId) {
     if (err instanceof ApiError && (err.status === 404 || err.status === 409)) return; // none yet
     throw err;
   }
-  if (!info || !info.version) return; // version 0: no preview yet
+  if (!info || !info.version || scanJob !== jobId) return; // version 0: no preview yet
   const version = String(info.version);
   const imgs = ["xy", "xz", "yz"].map((pl) => $("scan-mip-" + pl));
   if (imgs.every((img) => img.dataset.version === version)) return;
   await Promise.all(["xy", "xz", "yz"].map(async (pl, i) => {
-    await loadImage(imgs[i], `/api/scans/${encodeURIComponent(jobId)}/preview/${pl}.png?v=${encodeURIComponent(version)}`);
+    const resp = await apiFetch(`/api/scans/${encodeURIComponent(jobId)}/preview/${pl}.png?v=${encodeURIComponent(version)}`);
+    const blob = await resp.blob();
+    if (scanJob !== jobId) return; // another scan is watched now
+    setImageBlob(imgs[i], blob);
     imgs[i].dataset.version = version;
     imgs[i].alt = `Live preview ${pl} MIP from ${info.points_used} points (version ${version})`;
   }));
@@ -676,14 +689,21 @@ function watchScan(jobId) {
   $("scan-job").title = jobId;
   $("scan-open-job").href = "#/jobs/" + encodeURIComponent(jobId);
   $("scan-open-job").hidden = false;
-  for (const pl of ["xy", "xz", "yz"]) $("scan-mip-" + pl).dataset.version = "";
+  for (const pl of ["xy", "xz", "yz"]) {
+    $("scan-mip-" + pl).dataset.version = "";
+    clearImage($("scan-mip-" + pl));
+  }
+  $("scan-preview-info").textContent = "(none yet)";
   const tick = () => refreshLivePreview(jobId).catch(() => {});
   previewPoll = setInterval(tick, 1000);
   scanWatch = watchJob(jobId, (job) => {
     if (scanJob !== jobId) return;
     showProgress(job);
     if (TERMINAL.has(job.state)) {
+      // the last refresh may land shortly after the scan ends: keep looking a little while
       stopPreviewPoll();
+      let left = 8;
+      previewPoll = setInterval(() => { if (--left <= 0) stopPreviewPoll(); tick(); }, 1250);
       tick();
       if (job.state === "failed" && job.error) showError(new Error("Scan failed: " + (job.error.detail || job.error.message || job.error)));
     }
