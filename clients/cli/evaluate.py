@@ -3,8 +3,9 @@
 
 Experiments (``service.experiments``): ``limited-view-2d`` (paper §6),
 ``sparse-masks-3d`` (§7), ``nufft-vs-interpolation`` (§4), or ``all``. ``--data`` gives
-a dense dataset (HDF5 with ``sensor_data/clean``, e.g. the k-Wave reference files)
-instead of the built-in simulation; ``--small`` runs the fast, reduced version.
+a dense dataset (HDF5 with ``sensor_data/clean``, e.g. the k-Wave reference files, or an
+fpscan scan file covering its whole lattice) instead of the built-in simulation;
+``--small`` runs the fast, reduced version.
 
     fpscan evaluate all --out docs/results        # what docs/results.md shows
     fpscan evaluate limited-view-2d --data ../shared/data/kwave2d_points.h5 --small
@@ -20,7 +21,8 @@ NAMES = ("limited-view-2d", "sparse-masks-3d", "nufft-vs-interpolation")
 def add_arguments(parser):
     parser.add_argument("experiment", choices=NAMES + ("all",), help="which experiment (or all three)")
     parser.add_argument("--data", default=None, metavar="FILE",
-                        help="dense dataset (HDF5, sensor_data/clean with dt_s/dx_m attributes) instead of the built-in phantom")
+                        help="dense dataset instead of the built-in phantom: HDF5 with sensor_data/clean and dt_s/dx_m "
+                             "attributes (e.g. the k-Wave files), or an fpscan scan file covering its whole lattice")
     parser.add_argument("--out", default="evaluate-output", metavar="DIR",
                         help="output folder (default: evaluate-output)")
     parser.add_argument("--small", action="store_true", help="small, fast version (a few seconds each)")

@@ -79,7 +79,8 @@ def _attr(attrs, *names, default=None):
 
 
 def load_dense(path: str | Path) -> DenseDataset:
-    """Read a dense dataset from HDF5 (the k-Wave reference files' layout).
+    """Read a dense dataset from HDF5: the k-Wave reference files' layout, or an fpscan
+    scan file covering its whole lattice (see :func:`load_dense_scan`).
 
     The file must hold ``sensor_data/clean`` (or a dataset ``sensor_data``) shaped
     ``(n_t, n_lateral)`` or ``(n_t, n_y, n_x)`` and the attributes ``dt_s`` and the
@@ -103,6 +104,12 @@ def load_dense(path: str | Path) -> DenseDataset:
     except OSError as exc:
         raise ValueError(f"{path} is not a readable HDF5 file: {exc}") from exc
     with f:
+        fmt = f.attrs.get("format")
+        if isinstance(fmt, bytes):
+            fmt = fmt.decode()
+        if isinstance(fmt, str) and fmt.startswith("fpscan-scan/"):
+            f.close()
+            return load_dense_scan(path)
         if "sensor_data/clean" in f:
             ds = f["sensor_data/clean"]
         elif "sensor_data" in f and isinstance(f["sensor_data"], h5py.Dataset):
@@ -138,6 +145,41 @@ def load_dense(path: str | Path) -> DenseDataset:
     if not np.all(np.isfinite(data)):
         raise ValueError(f"{path}: sensor data contains NaN or inf")
     return DenseDataset(data, dx, dt, c, p0, dz, str(path), {"kwave": kwave})
+
+
+def load_dense_scan(path: str | Path) -> DenseDataset:
+    """A dense dataset from an fpscan scan file (``driver.scanfile``) whose plan covers
+    every point of its lattice (e.g. a full-lattice scan, or a replayed dense dataset).
+
+    The DC-normalised pressure of point k goes to its lattice index (i_x, i_y); the data
+    are ``(n_t, n_y, n_x)`` (``(n_t, n_x)`` for a line lattice), ``dx`` the lattice pitch,
+    ``dt`` and ``c`` from the plan's acquisition settings.
+
+    Raises ValueError if the plan does not cover the whole lattice or a point is not
+    complete (a sparse scan is reconstructed with ``fpscan recon``, not evaluated here).
+    """
+    from driver.scanfile import read_scan
+
+    sd = read_scan(path)
+    lat = sd.plan.get("lattice", {})
+    try:
+        n_x, n_y, pitch = int(lat["n_x"]), int(lat["n_y"]), float(lat["pitch"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: the plan has no valid lattice") from exc
+    idx = np.asarray(sd.indices, dtype=np.int64).reshape(-1, 2)
+    covered = np.zeros((n_y, n_x), dtype=bool)
+    covered[idx[:, 1], idx[:, 0]] = True
+    if not covered.all():
+        raise ValueError(f"{path}: not a dense scan — its plan covers {int(covered.sum())} of the "
+                         f"{n_x * n_y} lattice points")
+    if not np.all(sd.completed):
+        raise ValueError(f"{path}: {int((~sd.completed).sum())} of {sd.n_points} points are not complete")
+    data = np.empty((sd.n_t, n_y, n_x))
+    data[:, idx[:, 1], idx[:, 0]] = np.asarray(sd.pressure, dtype=np.float64).T
+    if n_y == 1:
+        data = data[:, 0, :]
+    return DenseDataset(data, pitch, float(sd.dt), float(sd.sound_speed), None, None, str(path),
+                        {"scan_plan_id": sd.plan_id})
 
 
 def add_noise(data: np.ndarray, snr_db: float | None, seed: int = 0) -> np.ndarray:

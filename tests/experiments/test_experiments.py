@@ -214,3 +214,29 @@ def test_load_dense_reads_attributes_and_rejects_bad_files(tmp_path):
         load_dense(tmp_path / "text.h5")
     with pytest.raises(ValueError, match="unknown experiment"):
         run_experiment("nope")
+
+
+def test_load_dense_from_a_full_lattice_scan_file(tmp_path):
+    from driver.physics import Ball, ball_alines
+    from driver.scanfile import META_KEYS, ScanFile
+    from service.plans import Lattice, full_mask, make_plan
+
+    lattice = Lattice(6, 5, 60e-6)
+    plan = make_plan(full_mask(lattice), n_t=64, dt=8e-9).to_dict()
+    pos = np.asarray(plan["points"]["positions"], float)
+    truth = ball_alines(pos, [Ball(0.0, 0.0, 0.3e-3, 60e-6)], 8e-9, 64)
+    scale = np.abs(truth).max() / 30000
+    with ScanFile.create(tmp_path / "scan.h5", plan, instrument={}, software_version="t") as sf:
+        for k in range(len(pos)):
+            meta = dict.fromkeys(META_KEYS, 0)
+            meta.update(point_index=k, dc_level=1.0, scale=scale, offset=0.0, dt_s=8e-9)
+            sf.append(k, np.round(truth[k] / scale).astype(np.int16), meta)
+    d = load_dense(tmp_path / "scan.h5")
+    assert d.data.shape == (64, 5, 6) and d.dx == 60e-6 and d.dt == 8e-9
+    idx = np.asarray(plan["points"]["indices"])
+    assert np.allclose(d.data[:, idx[:, 1], idx[:, 0]].T, truth, atol=scale)
+    # a sparse plan is not a dense dataset
+    sparse = make_plan("subgrid", lattice=lattice, params={"interval": 2}, n_t=64, dt=8e-9).to_dict()
+    ScanFile.create(tmp_path / "sparse.h5", sparse, instrument={}, software_version="t").close()
+    with pytest.raises(ValueError, match="not a dense scan"):
+        load_dense(tmp_path / "sparse.h5")
