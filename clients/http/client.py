@@ -3,7 +3,9 @@
 Both :class:`Client` and :class:`AsyncClient` offer the same methods; every endpoint is
 written once as a *sans-I/O* generator (it yields request descriptions and receives the
 responses), and each client drives those generators with ``httpx`` (blocking or
-``asyncio``). Waiting on jobs listens to the Server-Sent Events stream
+``asyncio``). Downloads go to ``<dest>.part`` and are renamed into place when complete;
+one cut off by a network failure resumes where it stopped on the next call (HTTP
+``Range`` with ``If-Range``, so a changed file is fetched whole). Waiting on jobs listens to the Server-Sent Events stream
 ``/api/jobs/{id}/events`` (reconnecting with ``Last-Event-ID``; falling back to polling
 when the stream is unavailable) and reports progress through a callback.
 
@@ -158,6 +160,42 @@ def _idem(headers: dict, key: str | None) -> dict:
 
 def _part_path(dest: Path) -> Path:
     return dest.with_name(dest.name + ".part")
+
+
+class _Resume:
+    """Resumable download state of ``dest``: ``dest.part`` (bytes so far) and
+    ``dest.part.etag`` (the validator they came with). A later download of the same
+    file asks for the rest only (``Range`` + ``If-Range``, RFC 9110 §14.2/§13.1.5); the
+    server answers 206 with the remainder if the file is unchanged, else 200 with all of
+    it."""
+
+    def __init__(self, dest: Path):
+        self.dest = dest
+        self.part = _part_path(dest)
+        self.meta = self.part.with_name(self.part.name + ".etag")
+
+    def headers(self) -> dict:
+        if self.part.exists() and self.meta.exists() and self.part.stat().st_size > 0:
+            return {"Range": f"bytes={self.part.stat().st_size}-", "If-Range": self.meta.read_text()}
+        return {}
+
+    def open(self, response: httpx.Response):
+        """The file to write the body into: appended on 206, rewritten otherwise."""
+        validator = response.headers.get("etag") or response.headers.get("last-modified")
+        if validator:
+            self.meta.write_text(validator)
+        else:
+            self.meta.unlink(missing_ok=True)
+        return open(self.part, "ab" if response.status_code == 206 else "wb")
+
+    def done(self) -> Path:
+        os.replace(self.part, self.dest)
+        self.meta.unlink(missing_ok=True)
+        return self.dest
+
+    def discard(self) -> None:
+        self.part.unlink(missing_ok=True)
+        self.meta.unlink(missing_ok=True)
 
 
 # --------------------------------------------------------------------------- endpoints
@@ -430,25 +468,28 @@ class Client(_BaseClient):
         return r
 
     def _download(self, op: _Download) -> Path:
-        dest = op.dest
-        dest.parent.mkdir(parents=True, exist_ok=True)
-        part = _part_path(dest)
-        try:
-            with self._http.stream(op.req.method, op.req.path, params=op.req.params) as r:
-                if r.status_code >= 400:
-                    r.read()
-                    _raise_for(r)
-                with open(part, "wb") as fh:
-                    for chunk in r.iter_bytes(1 << 20):
-                        fh.write(chunk)
-        except httpx.TransportError as exc:
-            part.unlink(missing_ok=True)
-            raise self._unavailable(exc) from None
-        except BaseException:
-            part.unlink(missing_ok=True)
-            raise
-        os.replace(part, dest)
-        return dest
+        op.dest.parent.mkdir(parents=True, exist_ok=True)
+        state = _Resume(op.dest)
+        for _attempt in range(2):
+            try:
+                with self._http.stream(op.req.method, op.req.path, params=op.req.params,
+                                       headers=state.headers()) as r:
+                    if r.status_code == 416:  # what we hold no longer fits: start over
+                        state.discard()
+                        continue
+                    if r.status_code >= 400:
+                        r.read()
+                        _raise_for(r)
+                    with state.open(r) as fh:
+                        for chunk in r.iter_bytes(1 << 20):
+                            fh.write(chunk)
+                return state.done()
+            except httpx.TransportError as exc:  # keep the part: the next call resumes it
+                raise self._unavailable(exc) from None
+            except BaseException:
+                state.discard()
+                raise
+        raise ApiError(416, "the server refused every byte range of the download")
 
     def _drive(self, gen):
         try:
@@ -575,25 +616,28 @@ class AsyncClient(_BaseClient):
         return r
 
     async def _download(self, op: _Download) -> Path:
-        dest = op.dest
-        dest.parent.mkdir(parents=True, exist_ok=True)
-        part = _part_path(dest)
-        try:
-            async with self._http.stream(op.req.method, op.req.path, params=op.req.params) as r:
-                if r.status_code >= 400:
-                    await r.aread()
-                    _raise_for(r)
-                with open(part, "wb") as fh:
-                    async for chunk in r.aiter_bytes(1 << 20):
-                        fh.write(chunk)
-        except httpx.TransportError as exc:
-            part.unlink(missing_ok=True)
-            raise self._unavailable(exc) from None
-        except BaseException:
-            part.unlink(missing_ok=True)
-            raise
-        os.replace(part, dest)
-        return dest
+        op.dest.parent.mkdir(parents=True, exist_ok=True)
+        state = _Resume(op.dest)
+        for _attempt in range(2):
+            try:
+                async with self._http.stream(op.req.method, op.req.path, params=op.req.params,
+                                             headers=state.headers()) as r:
+                    if r.status_code == 416:
+                        state.discard()
+                        continue
+                    if r.status_code >= 400:
+                        await r.aread()
+                        _raise_for(r)
+                    with state.open(r) as fh:
+                        async for chunk in r.aiter_bytes(1 << 20):
+                            fh.write(chunk)
+                return state.done()
+            except httpx.TransportError as exc:
+                raise self._unavailable(exc) from None
+            except BaseException:
+                state.discard()
+                raise
+        raise ApiError(416, "the server refused every byte range of the download")
 
     async def _drive(self, gen):
         try:
