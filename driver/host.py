@@ -233,9 +233,10 @@ class Scanner:
                 data = os.read(self._relay_fd, 1 << 20)
             except OSError as exc:
                 raise DriverError(f"read from {self.port} failed: {exc}") from None
-            if not data:
-                raise DriverError(f"read from {self.port} failed: the reader process ended "
-                                  f"(exit code {self._relay.poll()})")
+            if not data:  # the relay ended (killed?): read the tty here from now on
+                self._relay.wait(timeout=5)
+                self._relay.stdout.close()
+                self._relay = self._relay_fd = None
             return data
         if self._rx is not None:  # a local tty drained by the reader thread
             try:

@@ -6,7 +6,8 @@ with the thread that decodes A-lines and writes the scan file cannot promise tha
 host therefore starts ``python -m driver.relay FD`` with the open tty descriptor: it does
 nothing but copy bytes from the tty to its stdout, a pipe the host enlarges to 1 MiB and
 reads in large blocks. The relay exits when its stdout is closed, on a tty error (the
-message goes to stderr), or within 0.1 s of its parent's death.
+message goes to stderr), or within 0.1 s of its parent's death; it ignores SIGINT (a
+Ctrl-C is the host's to handle). Should it end anyway, the host reads the tty itself.
 """
 from __future__ import annotations
 
@@ -46,4 +47,9 @@ def relay(fd: int, out: int = 1, parent: int | None = None) -> int:
 
 
 if __name__ == "__main__":
+    import signal
+
+    # Ctrl-C in a terminal reaches the whole process group: the host handles it (and
+    # needs the relay to leave the scanner idle); the relay ends with its parent
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     sys.exit(relay(int(sys.argv[1]), parent=int(sys.argv[2]) if len(sys.argv) > 2 else None))

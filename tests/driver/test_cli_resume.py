@@ -100,3 +100,31 @@ def test_sim_cli_rejects_bad_options(tmp_path):
                                  str(tmp_path / "p.json"), "--out", str(tmp_path / "o.h5")],
                        capture_output=True, text=True, timeout=60)
     assert r.returncode == 1 and "error" in r.stderr
+
+
+def test_ctrl_c_leaves_the_device_idle(tmp_path):
+    from driver.host import Scanner
+
+    plan = grid_plan(20, 20, n_t=128)  # 400 points at 100 Hz: 4 s if never stopped
+    plan_path = tmp_path / "plan.json"
+    plan_path.write_text(json.dumps(plan))
+    sim = subprocess.Popen(FPSCAN + ["sim", "--prf", "100"], stdout=subprocess.PIPE,
+                           stderr=subprocess.DEVNULL, text=True)
+    try:
+        dev = sim.stdout.readline().strip()
+        out = tmp_path / "scan.h5"
+        host = subprocess.Popen(scan_cmd(dev, plan_path, out), stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True, start_new_session=True)
+        deadline = time.monotonic() + 30
+        while completed_count(out) < 30 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        os.killpg(host.pid, signal.SIGINT)  # as a terminal's Ctrl-C: host and its relay
+        _, err = host.communicate(timeout=30)
+        assert host.returncode == 130, err
+        with Scanner(dev) as sc:
+            st = sc.status()
+        assert st.state == "IDLE" and st.next_index < 400
+        assert 30 <= completed_count(out) < 400
+    finally:
+        sim.send_signal(signal.SIGTERM)
+        sim.wait(timeout=20)

@@ -303,3 +303,24 @@ def test_byte_rate_limit_throttles_the_link(tmp_path):
     print(f"byte-rate limit 20000 B/s: {sent} bytes in {res.acquisition_s:.3f} s "
           f"= {sent / res.acquisition_s:.0f} B/s")
     assert res.acquisition_s >= 0.9 * (sent - 2000) / 20_000.0
+
+
+def test_scan_survives_the_relay_process_dying(tmp_path):
+    plan = grid_plan(20, 10, n_t=128)  # 200 points at 200 Hz
+    seen = []
+    with make_sim(tmp_path, prf=200.0) as sim, Scanner(sim.path) as sc:
+        relay = sc._relay
+        assert relay is not None and relay.poll() is None
+        sf = ScanFile.create(tmp_path / "scan.h5", plan, instrument={}, software_version="t")
+        out = {}
+        th = threading.Thread(target=lambda: out.setdefault(
+            "res", sc.scan(plan, sf, progress=seen.append, progress_interval=0.05)))
+        th.start()
+        deadline = time.monotonic() + 10
+        while (not seen or seen[-1].points_done < 40) and time.monotonic() < deadline:
+            time.sleep(0.02)
+        relay.kill()
+        th.join(timeout=30)
+        sf.close()
+        assert out["res"].complete and sc._relay is None  # fell back to reading the tty
+    assert_matches_record(tmp_path / "scan.h5", tmp_path / "truth.h5", plan)
