@@ -9,6 +9,7 @@ Units: bytes for memory and upload limits, seconds for intervals.
 """
 from __future__ import annotations
 
+import ipaddress
 import json
 import os
 import tomllib
@@ -19,6 +20,16 @@ from pydantic import Field, SecretStr, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 LOOPBACK_HOSTS = {"127.0.0.1", "localhost", "::1"}
+
+
+def is_loopback(host: str) -> bool:
+    """True for ``localhost`` and loopback addresses (127.0.0.0/8, ::1)."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
 
 
 class Settings(BaseSettings):
@@ -59,7 +70,7 @@ class Settings(BaseSettings):
         return value
 
     @model_validator(mode="after")
-    def _dask_address(self) -> "Settings":
+    def _dask_address(self) -> Settings:
         if self.dask_scheduler and self.executor == "local":
             self.executor = "dask"
         if self.executor == "dask" and not self.dask_scheduler:
@@ -74,13 +85,13 @@ class Settings(BaseSettings):
     @property
     def loopback_only(self) -> bool:
         """True when the server is bound to loopback only (no token needed on reads)."""
-        return self.host in LOOPBACK_HOSTS
+        return is_loopback(self.host)
 
     def token_value(self) -> str | None:
         return self.token.get_secret_value() if self.token is not None else None
 
     @classmethod
-    def load(cls, path: str | os.PathLike | None = None, **overrides: Any) -> "Settings":
+    def load(cls, path: str | os.PathLike | None = None, **overrides: Any) -> Settings:
         """Settings from a JSON/TOML file (``path`` or ``$FPSCAN_SETTINGS_FILE``), the
         environment, then ``overrides`` (highest). Raises ``ValueError`` for an unreadable
         file or bad values."""

@@ -41,7 +41,7 @@ def run(args) -> int:
     import uvicorn
     from pydantic import ValidationError
 
-    from service.settings import LOOPBACK_HOSTS, Settings
+    from service.settings import Settings, is_loopback
 
     overrides = {}
     for name in ("host", "port", "data_dir", "token", "executor", "dask_scheduler", "workers", "log_level"):
@@ -61,7 +61,7 @@ def run(args) -> int:
         settings = Settings.load(args.settings, **overrides)
     except ValidationError as exc:
         raise ValueError("; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())) from None
-    if settings.host not in LOOPBACK_HOSTS and settings.token is None:
+    if not is_loopback(settings.host) and settings.token is None:
         raise ValueError(f"binding to {settings.host} (beyond loopback) needs a --token")
 
     level = settings.log_level.upper()

@@ -1,0 +1,134 @@
+"""Settings (environment + file), the token rule beyond loopback, the web page, memory
+admission queueing and restart recovery of the job store (real SQLite file)."""
+from __future__ import annotations
+
+import io
+import json
+import sqlite3
+import threading
+import time
+
+import httpx
+import numpy as np
+import pytest
+from service_servers import Server, free_port, needs_recon, wait_job
+
+from service.jobs.store import JobStore
+from service.settings import Settings
+
+
+def test_settings_file_environment_and_overrides(tmp_path, monkeypatch):
+    f = tmp_path / "fpscan.toml"
+    f.write_text('data_dir = "/srv/fp"\ntoken = "from-file"\nworkers = 3\n[devices]\nfp1 = "/dev/ttyACM0"\n')
+    monkeypatch.setenv("FPSCAN_WORKERS", "2")
+    s = Settings.load(f)
+    assert str(s.data_dir) == "/srv/fp" and s.token_value() == "from-file"
+    assert s.devices == {"fp1": "/dev/ttyACM0"}
+    assert s.workers == 2  # the environment beats the file
+    assert Settings.load(f, workers=5).workers == 5  # explicit beats both
+    assert s.database == s.data_dir / "jobs.sqlite"
+    j = tmp_path / "s.json"
+    j.write_text(json.dumps({"memory_limit": 1234, "dask_scheduler": "tcp://10.0.0.1:8786"}))
+    s = Settings.load(j)
+    assert s.memory_limit == 1234 and s.executor == "dask"
+    for bad in ({"workers": 0}, {"devices": {"../x": "/dev/null"}}, {"executor": "dask"}, {"port": 70000}):
+        with pytest.raises(ValueError):
+            Settings(**bad)
+    (tmp_path / "bad.json").write_text("{nope")
+    with pytest.raises(ValueError, match="not valid"):
+        Settings.load(tmp_path / "bad.json")
+    assert Settings(host="127.0.0.1").loopback_only and Settings(host="::1").loopback_only
+    assert not Settings(host="0.0.0.0").loopback_only and not Settings(host="192.168.1.5").loopback_only
+
+
+def test_beyond_loopback_everything_needs_the_token_and_web_page_is_served(tmp_path):
+    import uvicorn
+
+    from service.api.app import create_app
+
+    web = tmp_path / "web"
+    web.mkdir()
+    (web / "index.html").write_text("<html><body>fpscan page</body></html>")
+    # the settings say 0.0.0.0 (a public bind); the test itself listens on 127.0.0.1 only
+    settings = Settings(data_dir=tmp_path / "d", host="0.0.0.0", token="s3cret", web_root=web)
+    port = free_port()
+    server = uvicorn.Server(uvicorn.Config(create_app(settings, start_workers=False), host="127.0.0.1",
+                                           port=port, log_level="warning"))
+    t = threading.Thread(target=server.run, daemon=True)
+    t.start()
+    try:
+        url = f"http://127.0.0.1:{port}"
+        deadline = time.monotonic() + 30
+        while not server.started and time.monotonic() < deadline:
+            time.sleep(0.05)
+        r = httpx.get(url + "/api/health")
+        assert r.status_code == 401 and r.json()["detail"] == "missing bearer token"
+        assert httpx.get(url + "/api/jobs").status_code == 401
+        assert httpx.get(url + "/api/jobs", headers={"Authorization": "Bearer nope"}).status_code == 401
+        assert httpx.get(url + "/api/health", headers={"Authorization": "Bearer s3cret"}).status_code == 200
+        page = httpx.get(url + "/")
+        assert page.status_code == 200 and "fpscan page" in page.text
+        assert httpx.get(url + "/../../etc/passwd").status_code == 404
+    finally:
+        server.should_exit = True
+        t.join(timeout=15)
+
+
+def test_restart_recovery_in_the_store(tmp_path):
+    db = tmp_path / "jobs.sqlite"
+    store = JobStore(db)
+    recon, _ = store.create_job("recon", {"x": 1})
+    scan, _ = store.create_job("scan", {"plan_id": "p"})
+    tired, _ = store.create_job("recon", {"x": 2})
+    waiting, _ = store.create_job("recon", {"x": 3})
+    for _ in range(2):  # interrupted twice already
+        assert store.claim(tired["id"], "old-server", 10) is not None
+        store.recover("another", max_attempts=99)
+    for job in (recon, scan, tired):
+        assert store.claim(job["id"], "old-server", 10) is not None
+    store.close()
+    # a new server instance opens the same file
+    store = JobStore(db)
+    out = store.recover("new-server", max_attempts=3)
+    assert out == {"requeued": [recon["id"]], "failed": [tired["id"]], "paused": [scan["id"]]}
+    assert store.get(recon["id"])["state"] == "queued" and store.get(recon["id"])["attempts"] == 1
+    assert store.get(scan["id"])["state"] == "paused"
+    assert store.get(scan["id"])["progress"]["stage"] == "interrupted"
+    assert store.get(tired["id"])["state"] == "failed"
+    assert store.get(waiting["id"])["state"] == "queued"
+    events = [e["event"] for e in store.events_after(recon["id"], 0)]
+    assert events == ["state", "state", "state"]  # queued, running, queued again
+    store.close()
+    raw = sqlite3.connect(db)
+    assert raw.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+    raw.close()
+
+
+def _npy(a) -> bytes:
+    buf = io.BytesIO()
+    np.save(buf, a)
+    return buf.getvalue()
+
+
+@needs_recon
+def test_memory_admission_queues_what_does_not_fit_now(tmp_path):
+    from service.jobs.queue import estimate_memory
+
+    shape = (256, 48, 48)
+    est = estimate_memory({"n_t": shape[0], "n_x": shape[2], "n_y": shape[1]},
+                          {"method": "ner", "dtype": "float64"})
+    # room for one such job at a time, and two workers that could run both
+    srv = Server(tmp_path / "adm", env={"FPSCAN_MEMORY_LIMIT": str(int(est * 1.5)), "FPSCAN_WORKERS": "2"}).start()
+    try:
+        with srv.client() as c:
+            ds = c.post("/api/datasets", data={"format": "npy", "dt": "2e-8", "dx": "1e-4"},
+                        files={"file": ("a.npy", _npy(np.ones(shape, np.float32)), "x")}).json()["dataset_id"]
+            body = {"dataset_id": ds, "method": "ner", "params": {"dtype": "float64"}}
+            ids = [c.post("/api/reconstructions", json=body).json()["id"] for _ in range(2)]
+            jobs = [wait_job(c, j, timeout=180) for j in ids]
+            assert [j["state"] for j in jobs] == ["succeeded", "succeeded"]
+            first, second = sorted(jobs, key=lambda j: j["timings"]["started"])
+            assert second["timings"]["started"] >= first["timings"]["finished"]
+            assert second["params"]["memory_estimate"] <= int(est * 1.5) < 2 * second["params"]["memory_estimate"]
+    finally:
+        srv.stop()
