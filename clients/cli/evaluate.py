@@ -51,18 +51,19 @@ def run(args) -> int:
     from service.experiments import run_experiment
 
     names = NAMES if args.experiment == "all" else (args.experiment,)
-    if args.data is not None and not Path(args.data).is_file():
-        raise ValueError(f"data file not found: {args.data}")
+    data = None
+    if args.data is not None:
+        from service.experiments import load_dense
+
+        data = load_dense(args.data)  # ValueError with the reason for a missing or unusable file
     out = Path(args.out)
     for name in names:
-        if args.data is not None and args.experiment == "all":
-            from service.experiments import load_dense
-
-            ndim = load_dense(args.data).ndim
-            if (name == "limited-view-2d" and ndim != 2) or (name == "sparse-masks-3d" and ndim != 3):
-                print(f"{name}: skipped ({ndim}-D data)")
-                continue
-        result, paths = run_experiment(name, out, data=args.data, small=args.small)
+        wrong_dim = data is not None and (
+            (name == "limited-view-2d" and data.ndim != 2) or (name == "sparse-masks-3d" and data.ndim != 3))
+        if wrong_dim and args.experiment == "all":
+            print(f"{name}: skipped ({data.ndim}-D data)")
+            continue
+        result, paths = run_experiment(name, out, data=data, small=args.small)
         print(f"{name}: {_headline(result)}")
         for p in paths:
             print(f"  wrote {p}")
