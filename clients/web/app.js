@@ -696,9 +696,19 @@ function watchScan(jobId) {
   $("scan-preview-info").textContent = "(none yet)";
   const tick = () => refreshLivePreview(jobId).catch(() => {});
   previewPoll = setInterval(tick, 1000);
+  let planShown = false;
   scanWatch = watchJob(jobId, (job) => {
     if (scanJob !== jobId) return;
     showProgress(job);
+    const p = job.params || {};
+    if (!planShown && p.plan_id) { // show the job's own plan and scanner (after a reload too)
+      for (const [id, v] of [["scan-plan", p.plan_id], ["scan-scanner", p.scanner_id]]) {
+        if (v && [...$(id).options].some((o) => o.value === v)) {
+          $(id).value = v;
+          if (id === "scan-plan") planShown = true;
+        }
+      }
+    }
     if (TERMINAL.has(job.state)) {
       // the last refresh may land shortly after the scan ends: keep looking a little while
       stopPreviewPoll();
