@@ -574,10 +574,22 @@ class Scanner:
                                           "scan with upload=True")
                 self._device_busy = True
                 report("running", force=True)
+                lost_plan = 0
                 while not completed.all():
                     k0 = int(np.argmin(completed))
-                    reply = self.query(f"SCAN:STAR {k0}")
-                    run_id, first_seq = (int(x) for x in reply.split(","))
+                    try:
+                        reply = self.query(f"SCAN:STAR {k0}")
+                    except DeviceError as exc:
+                        if exc.code != 103 or lost_plan >= 3:
+                            raise
+                        lost_plan += 1  # "no plan": the device reset since the upload
+                        self.faults["resets"] += 1
+                        self._recover_reset(plan)
+                        continue
+                    try:
+                        run_id, first_seq = (int(x) for x in reply.split(","))
+                    except ValueError:
+                        raise DriverError(f"malformed SCAN:STAR reply {reply!r}") from None
                     if state["t_first"] is None:
                         state["t_first"] = time.monotonic()
                     self._run = _Run(run_id, self._boot_id, first_seq)
