@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from service.metrics import (
     bounding_box,
@@ -257,3 +259,17 @@ def test_cc_and_sharpness_vs_diameter():
     sh = sharpness_vs_diameter(img, ref, [5.0, 20.0], axes=(x, x), threshold=0.04)
     m = roi_mask(ref, axes=(x, x), diameter=20.0, threshold=0.04)
     assert sh[1] == pytest.approx(tenenbaum_sharpness(img[bounding_box(m)]))
+
+
+# ---------------------------------------------------------------- properties
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), a=st.floats(1e-3, 1e3), b=st.floats(-1e3, 1e3))
+def test_cc_affine_invariance_and_tenenbaum_scaling(seed, a, b):
+    rng = np.random.default_rng(seed)
+    u = rng.standard_normal((9, 11))
+    v = u + 0.5 * rng.standard_normal((9, 11))
+    mask = rng.random((9, 11)) < 0.7
+    mask[0, 0] = mask[1, 1] = True
+    assert correlation_coefficient(a * v + b, u, mask) == pytest.approx(correlation_coefficient(v, u, mask), abs=1e-9)
+    # Sobel is linear and kills constants: F(a U + b) = a² F(U)
+    assert tenenbaum_sharpness(a * u + b) == pytest.approx(a * a * tenenbaum_sharpness(u), rel=1e-6)
