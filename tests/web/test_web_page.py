@@ -43,17 +43,23 @@ def sim(tmp_path_factory):
     if not has_subcommand("sim"):
         yield None
         return
-    log = tmp_path_factory.mktemp("sim") / "sim.log"
-    err = open(log, "wb")
+    folder = tmp_path_factory.mktemp("sim")
+    out_path, err_path = folder / "sim.out", folder / "sim.err"
+    out, err = open(out_path, "wb"), open(err_path, "wb")  # files: the simulator never blocks on a pipe
     proc = subprocess.Popen(fpscan_cmd("sim", "--prf", str(PRF_HZ), "--seed", "1"), cwd=REPO_ROOT,
-                            stdout=subprocess.PIPE, stderr=err, text=True, start_new_session=True)
+                            stdout=out, stderr=err, start_new_session=True)
+
+    def device_path():
+        if proc.poll() is not None:
+            raise AssertionError(f"fpscan sim exited: {err_path.read_text()[-2000:]}")
+        first = out_path.read_text().split("\n", 1)
+        return first[0].strip().split()[-1] if len(first) == 2 and first[0].strip() else None
+
     try:
-        line = proc.stdout.readline().strip()  # the device path, on the first line
-        if not line:
-            raise AssertionError(f"fpscan sim printed no device path: {log.read_text()[-2000:]}")
-        yield line.split()[-1]
+        yield wait_for(device_path, 60, "fpscan sim to print its device path")
     finally:
         stop_process(proc)
+        out.close()
         err.close()
 
 
