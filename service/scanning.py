@@ -29,6 +29,11 @@ from service.preview import PreviewManager
 log = logging.getLogger("fpscan.scans")
 
 
+def _missing_device(port: str) -> bool:
+    """True for a device path (not a pyserial URL) that does not exist."""
+    return "://" not in port and not Path(port).exists()
+
+
 class _Run:
     def __init__(self, job_id: str, scanner_id: str):
         self.job_id = job_id
@@ -87,7 +92,8 @@ class ScanManager:
         with self._lock:
             for sid, port in self.settings.devices.items():
                 run = self._runs.get(sid)
-                out.append({"id": sid, "port": port, "status": "busy" if run else "idle",
+                status = "busy" if run else ("unreachable" if _missing_device(port) else "idle")
+                out.append({"id": sid, "port": port, "status": status,
                             "job_id": run.job_id if run else None, "identity": self._identity.get(sid)})
         return out
 
@@ -251,7 +257,8 @@ class ScanManager:
                 result = acquire(port, plan, scan_path, progress=progress, scanner=scanner)
             except (DriverError, ValueError, OSError) as exc:
                 log.warning("scan job=%s failed: %s", jid, exc)
-                self.store.set_state(jid, "failed", error=str(exc), only_from=("running", "paused"))
+                self.store.set_state(jid, "failed", error=self.settings.redact(str(exc)),
+                                     only_from=("running", "paused"))
                 return
         finally:
             with run.lock:

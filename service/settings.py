@@ -87,6 +87,14 @@ class Settings(BaseSettings):
         """True when the server is bound to loopback only (no token needed on reads)."""
         return is_loopback(self.host)
 
+    def redact(self, text: str) -> str:
+        """``text`` with the data directory's path replaced by ``<data>``, so error
+        messages that reach clients never show the server's file system layout."""
+        for root in sorted({str(Path(self.data_dir).resolve()), str(self.data_dir)}, key=len, reverse=True):
+            if root and root != ".":
+                text = text.replace(root, "<data>")
+        return text
+
     def token_value(self) -> str | None:
         return self.token.get_secret_value() if self.token is not None else None
 

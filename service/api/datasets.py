@@ -125,7 +125,8 @@ def upload_dataset(file: UploadFile = File(..., description="the data file"),
         try:
             meta = import_dataset(src, dest, format, dt=dt, dx=dx, dy=dy, c=c, key=key)
         except ValueError as exc:
-            raise HTTPException(422, str(exc)) from None
+            msg = str(exc).replace(str(src.resolve()), "the upload").replace(str(src), "the upload")
+            raise HTTPException(422, cx.settings.redact(msg)) from None
     except BaseException:
         shutil.rmtree(dest, ignore_errors=True)
         raise

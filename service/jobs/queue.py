@@ -142,7 +142,7 @@ class ReconQueue:
         try:
             summary = self.executor.run(run_reconstruction, spec)
         except ValueError as exc:
-            self._finish(jid, "failed", error=str(exc))
+            self._finish(jid, "failed", error=self.settings.redact(str(exc)))
             log.info("recon failed job=%s reason=%s", jid, exc)
             return
         except Exception as exc:  # worker crash or bug: keep internals in the log only

@@ -140,6 +140,7 @@ def test_dataset_upload_validation(shared_api, shared_server):
         r = api.post("/api/datasets", data=data, files={"file": ("x", content, "application/octet-stream")})
         assert r.status_code == 422, (data, r.text)
         assert reason in r.json()["detail"], (reason, r.json())
+        assert str(server.data_dir) not in r.text and "upload.bin" not in r.text  # no internals
 
 
 def test_upload_limit_gives_413(tmp_path):
