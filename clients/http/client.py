@@ -438,8 +438,8 @@ def _async_method(gen_fn):
 
 class Client(_BaseClient):
     """Blocking client. ``base_url`` defaults to ``$FPSCAN_SERVER`` or
-    ``http://127.0.0.1:8000``; ``token`` to ``$FPSCAN_TOKEN``; ``timeout`` in seconds
-    per request. Use as a context manager or call :meth:`close`.
+    ``http://127.0.0.1:8000``; ``token`` to ``$FPSCAN_TOKEN`` (``""``: send none);
+    ``timeout`` in seconds per request. Use as a context manager or call :meth:`close`.
 
     Raises ``ValueError`` for a malformed URL."""
 
@@ -548,7 +548,7 @@ class Client(_BaseClient):
                 raise WaitTimeout(f"job {job_id} still {field_of(job, 'state')} after {timeout} s")
             if use_sse:
                 remaining = None if deadline is None else max(0.5, deadline - time.monotonic())
-                read_timeout = min(10.0, remaining) if remaining is not None else 10.0
+                read_timeout = min(20.0, remaining) if remaining is not None else 20.0  # > the 15 s pings
                 n_events = 0
                 stream = self.events(job_id, last_event_id=last_id, read_timeout=read_timeout)
                 try:
@@ -695,7 +695,7 @@ class AsyncClient(_BaseClient):
                 raise WaitTimeout(f"job {job_id} still {field_of(job, 'state')} after {timeout} s")
             if use_sse:
                 remaining = None if deadline is None else max(0.5, deadline - time.monotonic())
-                read_timeout = min(10.0, remaining) if remaining is not None else 10.0
+                read_timeout = min(20.0, remaining) if remaining is not None else 20.0  # > the 15 s pings
                 n_events = 0
                 stream = self.events(job_id, last_event_id=last_id, read_timeout=read_timeout)
                 try:

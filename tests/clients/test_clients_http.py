@@ -73,8 +73,7 @@ def test_bad_or_missing_token_raises_auth_error_with_server_detail(server, token
     raw = httpx.post(server + "/api/plans", json=_points_body(),
                      headers={"Authorization": f"Bearer {token}"} if token else {})
     assert raw.status_code in (401, 403)
-    with Client(server, token=token or "") as c:
-        c.token = token  # no env fallback: exactly this token (or none)
+    with Client(server, token=token or "") as c:  # "": no token, whatever the environment says
         with pytest.raises(AuthError) as err:
             c.create_plan(_points_body())
     assert err.value.status_code == raw.status_code
