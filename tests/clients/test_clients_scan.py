@@ -206,3 +206,43 @@ def test_progress_bar_on_a_terminal(scanned):
     assert f"{N * N}/{N * N} points" in text
     assert "points/s" in text and "ETA" in text
     assert "succeeded" in text
+
+
+def test_server_dying_mid_wait_raises_server_unavailable(tmp_path):
+    """SIGKILL the server while the client waits on a running scan: wait() ends with
+    ServerUnavailable (no hang), and the job survives in the SQLite file for the next
+    server (which reports it as paused, resumable)."""
+    import os
+    import signal
+    import threading
+
+    from clients.http import ServerUnavailable
+
+    data = tmp_path / "data"
+    data.mkdir()
+    with fpscan_sim("--source", "balls", "--prf", "100") as (device, _sim):
+        with fpscan_server(data, token=TOKEN, devices={"slow": device}) as (url, srv):
+            with Client(url, token=TOKEN) as api:
+                plan = api.create_plan({"lattice": {"n_x": N, "n_y": N, "pitch": PITCH},
+                                        "points": [[i, j] for j in range(N) for i in range(N)],
+                                        "acquisition": {"n_t": 128, "dt": 2e-8, "prf": 100}})
+                job_id = api.start_scan(plan.id, "slow")
+                outcome = {}
+
+                def waiter():
+                    try:
+                        outcome["job"] = api.wait(job_id, timeout=60)
+                    except Exception as exc:  # noqa: BLE001 - the outcome is the test
+                        outcome["error"] = exc
+
+                t = threading.Thread(target=waiter)
+                t.start()
+                _poll(lambda: api.get_job(job_id), lambda j: (j.progress.points_done or 0) >= 5)
+                os.killpg(srv.pid, signal.SIGKILL)
+                t.join(timeout=60)
+                assert not t.is_alive()
+                assert isinstance(outcome.get("error"), ServerUnavailable), outcome
+        with fpscan_server(data, token=TOKEN, devices={"slow": device}) as (url, _srv):
+            with Client(url, token=TOKEN) as api:
+                job = api.get_job(job_id)
+                assert job.state == "paused"
