@@ -70,7 +70,8 @@ def _timed(fn, repeats):
 
 
 def _reconstruct(method: str, g: np.ndarray, dx: float, dt: float, c: float, n_z: int) -> np.ndarray:
-    """p0 ``(n_z, ...)`` on depth spacing c·dt: ``reconstruct_grid(method=...)`` or, for
+    """p0 rows ``0..n_z-1`` (spacing c·dt) of a reconstruction on the default n_t-row grid:
+    ``reconstruct_grid(method=...)`` or, for
     ``"kwave-<interp>"``, k-Wave's kspaceLineRecon / kspacePlaneRecon algorithm with
     that interpolation (``'*linear'`` for ``kwave-linear``)."""
     from service.recon import kspace_line_recon, kspace_plane_recon, reconstruct_grid
@@ -82,7 +83,10 @@ def _reconstruct(method: str, g: np.ndarray, dx: float, dt: float, c: float, n_z
         else:
             out = kspace_plane_recon(g, dx, dx, dt, c, interp=interp)
         return np.asarray(out)[:n_z]
-    return reconstruct_grid(g, dx, dt, c, method=method, n_z=n_z).p0
+    # every method on its default output grid, n_t rows of c·dt (k-Wave's too), then the
+    # rows analysed: asking the FFT + interpolation methods for fewer rows (n_z < n_t)
+    # puts their k_z grid off the ω grid and worsens their gain error.
+    return reconstruct_grid(g, dx, dt, c, method=method).p0[:n_z]
 
 
 def _axial_lateral(p, z, x, cols, zs, kz, width, dx):
@@ -227,12 +231,13 @@ def run(data: DenseDataset | None = None, *, small: bool = False, methods=METHOD
 
 def plot(result: ExperimentResult, out_dir) -> list[Path]:
     """``nufft-vs-interpolation_profiles.png``: axial and lateral profiles per method
-    (with the true p0 for the built-in layer) and run times."""
+    (with the true p0 for the built-in layer), run times, and (built-in layer) peak and
+    axial FWHM vs depth."""
     plt = setup_matplotlib()
     prof = result.images["profiles"]
     methods = result.params["methods"]
     sweep = result.curves.get("depth_m")
-    fig, ax = plt.subplots(1, 4 if sweep else 3, figsize=(20 if sweep else 15, 4))
+    fig, ax = plt.subplots(1, 5 if sweep else 3, figsize=(25 if sweep else 15, 4))
     z = prof["z"] * 1e6
     for m in methods:
         r = next(r for r in result.table if r["method"] == m)
@@ -253,7 +258,12 @@ def plot(result: ExperimentResult, out_dir) -> list[Path]:
         for m in methods:
             ax[3].plot(dmm, result.curves[f"peak[{m}]"], "o-", label=m)
         ax[3].set(xlabel="layer depth (mm)", ylabel="peak / true peak", title="amplitude vs depth")
-    for a in list(ax[:2]) + ([ax[3]] if sweep else []):
+        for m in ["truth", *methods]:
+            key = f"axial_fwhm_um[{m}]"
+            if key in result.curves:
+                ax[4].plot(dmm, result.curves[key], "k:" if m == "truth" else "o-", label=m)
+        ax[4].set(xlabel="layer depth (mm)", ylabel="axial FWHM (µm)", title="axial line spread vs depth")
+    for a in list(ax[:2]) + (list(ax[3:]) if sweep else []):
         a.grid(alpha=0.3)
         a.legend(fontsize=8)
     fig.tight_layout()
