@@ -256,7 +256,6 @@ class Demo:
 
         from clients.http import Client, ServerUnavailable
 
-        port = _free_port()
         token = secrets.token_urlsafe(16)
         env = {k: v for k, v in os.environ.items() if not k.startswith("FPSCAN_")}
         env.update({
@@ -265,20 +264,32 @@ class Demo:
             "FPSCAN_TOKEN": token,
             "FPSCAN_EXECUTOR": "local",
         })
-        argv = [sys.executable, "-m", "clients", "serve", "--host", "127.0.0.1", "--port", str(port)]
-        proc = _Process(argv, log_path=self.out / "logs" / "server.log", env=env)
-        self.procs.append(proc)
-        api = Client(f"http://127.0.0.1:{port}", token=token, timeout=120)
-        deadline = time.monotonic() + 90
-        while True:
-            try:
-                health = api.health()
+        log = self.out / "logs" / "server.log"
+        for attempt in range(3):  # another program may take the free port first
+            port = _free_port()
+            argv = [sys.executable, "-m", "clients", "serve", "--host", "127.0.0.1", "--port", str(port)]
+            proc = _Process(argv, log_path=log.with_name(f"server{'-%d' % attempt if attempt else ''}.log"),
+                            env=env)
+            self.procs.append(proc)
+            api = Client(f"http://127.0.0.1:{port}", token=token, timeout=120)
+            deadline = time.monotonic() + 90
+            health = None
+            while health is None:
+                try:
+                    health = api.health()
+                except ServerUnavailable:
+                    if proc.proc.poll() is not None or time.monotonic() > deadline:
+                        break
+                    time.sleep(0.3)
+            if health is not None:
                 break
-            except ServerUnavailable:
-                if proc.proc.poll() is not None or time.monotonic() > deadline:
-                    raise RuntimeError(f"the service did not start (exit {proc.proc.poll()}); "
-                                       f"see {self.out / 'logs' / 'server.log'}") from None
-                time.sleep(0.3)
+            api.close()
+            if proc.proc.poll() is None:  # alive but silent for 90 s: give up
+                break
+        else:
+            health = None
+        if health is None:
+            raise RuntimeError(f"the service did not start (exit {proc.proc.poll()}); see {proc.log.name}")
         self.api = api
         self.say(f"service on {api.base_url} (version {health.get('version')})")
         self.report["service"] = {"url": api.base_url, "version": health.get("version"),
