@@ -5,7 +5,8 @@ The reconstruction (``service.recon.reconstruct_points``, temporal NUFFT + type-
 over the positions, paper §3.2) works on any subset of the sensor mask, so the user
 watches the image form. Weights are the clipped Voronoi areas of the subset
 (``voronoi_weights``, the default of ``reconstruct_points``), not the plan's weights for
-the whole mask. The lattice grid of the plan is the output grid.
+the whole mask. The output grid is the plan's lattice, thinned for speed
+(:func:`render_preview`).
 
 :func:`render_preview` runs in a separate process (a one-worker ``spawn`` pool owned by
 :class:`PreviewManager`): the scan file is read as an SWMR reader there, and the server's
@@ -20,6 +21,8 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
+
+import numpy as np
 
 log = logging.getLogger("fpscan.preview")
 
@@ -36,14 +39,28 @@ class PreviewState:
     pngs: dict = field(default_factory=dict)
 
 
-def render_preview(scan_path: str, *, eps: float = 1e-3, max_depth_samples: int | None = None) -> dict:
+def preview_grid(axis: np.ndarray, max_points: int) -> np.ndarray:
+    """A coarser regular grid over the same span as the centred lattice axis ``axis``:
+    stride ``ceil(n / max_points)``, centred (docs/architecture.md convention)."""
+    n = len(axis)
+    step = max(1, -(-n // max_points))
+    if step == 1 or n < 2:
+        return axis
+    pitch = float(axis[1] - axis[0]) * step
+    m = -(-n // step)
+    return (np.arange(m) - (m - 1) / 2.0) * pitch
+
+
+def render_preview(scan_path: str, *, eps: float = 1e-3, max_lateral: int = 128, max_samples: int = 512) -> dict:
     """NEDNER reconstruction of the completed points of a scan file → MIP PNGs.
 
+    A preview trades resolution for speed: the output grid is the plan's lattice thinned
+    to at most ``max_lateral`` points per axis, and the A-lines are low-passed and
+    decimated in time (means of ``k`` consecutive samples, ``dt·k``) to at most
+    ``max_samples`` samples; float32, NUFFT tolerance ``eps``.
     Returns ``{"points_used": n, "pngs": {plane: bytes}, "seconds": s}``; ``pngs`` is
-    empty when fewer than 2 points are complete. float32, NUFFT tolerance ``eps``.
+    empty when fewer than 2 points are complete.
     """
-    import numpy as np
-
     from service.jobs.images import mip_pngs
     from service.jobs.work import load_scan_points
 
@@ -54,10 +71,14 @@ def render_preview(scan_path: str, *, eps: float = 1e-3, max_depth_samples: int 
         return {"points_used": n, "pngs": {}, "seconds": time.perf_counter() - t0}
     from service.recon import reconstruct_points
 
-    n_t = inp["alines"].shape[1]
-    n_z = min(n_t, max_depth_samples) if max_depth_samples else None
-    image = reconstruct_points(inp["alines"].astype(np.float32), inp["positions"], inp["dt"], inp["c"],
-                               grid=inp["grid"], method="ner", eps=eps, dtype=np.float32, n_z=n_z)
+    alines = inp["alines"].astype(np.float32)
+    k = max(1, -(-alines.shape[1] // max_samples))
+    if k > 1:
+        n_keep = (alines.shape[1] // k) * k
+        alines = alines[:, :n_keep].reshape(n, n_keep // k, k).mean(axis=2)
+    grid = tuple(preview_grid(np.asarray(g), max_lateral) for g in inp["grid"])
+    image = reconstruct_points(alines, inp["positions"], inp["dt"] * k, inp["c"], grid=grid, method="ner",
+                               eps=eps, dtype=np.float32)
     pngs = mip_pngs(image.p0)
     return {"points_used": n, "pngs": pngs, "seconds": time.perf_counter() - t0}
 
@@ -65,8 +86,6 @@ def render_preview(scan_path: str, *, eps: float = 1e-3, max_depth_samples: int 
 def warm_up() -> float:
     """Import and compile (numba) the reconstruction in a fresh worker with a tiny
     NEDNER run, so the first live preview of a scan is not slowed by start-up."""
-    import numpy as np
-
     from service.recon import reconstruct_points
 
     t0 = time.perf_counter()
