@@ -11,8 +11,10 @@ area weights h_m) and samples t_n = t0 + n dt, n = 0..N_t-1::
                       (k_z/ω := 1/c at ω = 0; F := 0 where ω > π/dt)
     p0(x, z_j) = IDFT_lat [ DCT-I_z F ](x, z_j)
 
-with k_z,l = l Δk, Δk = π / ((n_z - 1) dz), z_j = j dz, and DCT-I unnormalised
-(y_j = x_0 + (-1)^j x_last + 2 Σ_{l=1}^{n_z-2} x_l cos(π l j/(n_z - 1))). The lateral
+with k_z,l = l Δk, Δk = π / ((K - 1) dz), z_j = j dz, and DCT-I unnormalised
+(y_j = x_0 + (-1)^j x_last + 2 Σ_{l=1}^{K-2} x_l cos(π l j/(K - 1))), computed on
+K = max(n_z, ceil(c t_last / dz) + 1) depths (so that no recorded signal folds back
+through the depth period 2 (K - 1) dz) and cropped to the n_z requested. The lateral
 DFT/IDFT pair makes every dx, dy factor cancel; the constant makes a laterally uniform
 layer come back exactly (g = p0(c t)/2).
 
@@ -39,12 +41,16 @@ METHODS = ("ner", "linear", "nearest", "cubic")
 _KIND = {"ner": "nufft", "linear": "linear", "nearest": "nearest"}
 
 
-def _depth_axis(n_t, dt, c, dz, n_z):
+def _depth_axis(n_t, dt, c, dz, n_z, t0):
+    """(dz, n_z, n_work): the output depth grid and the working depth count, which also
+    reaches the depth c t of the last sample, so that no recorded signal folds back into
+    the image through the periodicity of the depth transform (period 2 (n_work - 1) dz)."""
     dz = c * dt if dz is None else checks.positive("dz", dz)
     n_z = n_t if n_z is None else n_z
     if int(n_z) != n_z or n_z < 2:
         raise ValueError(f"n_z must be an integer >= 2, got {n_z!r}")
-    return dz, int(n_z)
+    reach = int(np.ceil(c * (t0 + (n_t - 1) * dt) / dz * (1 - 1e-12))) + 1
+    return dz, int(n_z), max(int(n_z), reach)
 
 
 def _check_upsample(upsample) -> int:
@@ -221,16 +227,16 @@ def reconstruct_grid(
     n_t = data.shape[0]
     if n_t < 2:
         raise ValueError(f"data needs at least 2 time samples, got {n_t}")
-    dz, n_z = _depth_axis(n_t, dt, c, dz, n_z)
+    dz, n_z, n_work = _depth_axis(n_t, dt, c, dz, n_z, t0)
     is2d = data.ndim == 2
     n_y, n_x = (1, data.shape[1]) if is2d else data.shape[1:]
     checks.check_memory(
-        checks.estimate_peak_memory(n_t, n_x, n_y, n_z=n_z, upsample=upsample, dtype=rdtype, method=method),
+        checks.estimate_peak_memory(n_t, n_x, n_y, n_z=n_work, upsample=upsample, dtype=rdtype, method=method),
         memory_limit,
     )
     vol = data.astype(rdtype, copy=False).reshape(n_t, n_y, n_x)
     A = scipy.fft.rfft2(vol, axes=(1, 2), workers=-1)
-    p0 = _invert(A, n_x, dx, dy, dt, c, n_z, dz, float(t0), method, eps, rdtype, upsample)
+    p0 = _invert(A, n_x, dx, dy, dt, c, n_work, dz, float(t0), method, eps, rdtype, upsample)[:n_z]
     if positivity:
         np.maximum(p0, 0, out=p0)
     x = _centred(n_x, dx)[0] + np.arange(n_x * upsample) * (dx / upsample)
@@ -352,7 +358,7 @@ def reconstruct_points(
     upsample = _check_upsample(upsample)
     if not np.isfinite(t0) or t0 < 0:
         raise ValueError(f"t0 must be finite and >= 0 s, got {t0!r}")
-    dz, n_z = _depth_axis(n_t, dt, c, dz, n_z)
+    dz, n_z, n_work = _depth_axis(n_t, dt, c, dz, n_z, t0)
     if grid is None:
         axes, pitch = _default_grid(pos)
         steps = [float(g[1] - g[0]) if len(g) > 1 else pitch for g in axes]
@@ -376,7 +382,7 @@ def reconstruct_points(
     dx = steps[0]
     dy = steps[1] if d == 2 else 1.0
     checks.check_memory(
-        checks.estimate_peak_memory(n_t, n_x, n_y, n_z=n_z, upsample=upsample, dtype=rdtype,
+        checks.estimate_peak_memory(n_t, n_x, n_y, n_z=n_work, upsample=upsample, dtype=rdtype,
                                     method="nedner", n_points=n_points),
         memory_limit,
     )
@@ -408,7 +414,7 @@ def reconstruct_points(
             A[:, r, n_x // 2] = corner
     del strengths
     A = A[:, :, : n_x // 2 + 1]
-    p0 = _invert(A, n_x, dx, dy, dt, c, n_z, dz, float(t0), method, eps, rdtype, upsample)
+    p0 = _invert(A, n_x, dx, dy, dt, c, n_work, dz, float(t0), method, eps, rdtype, upsample)[:n_z]
     if positivity:
         np.maximum(p0, 0, out=p0)
     x = axes[0][0] + np.arange(n_x * upsample) * (dx / upsample)
