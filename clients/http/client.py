@@ -305,10 +305,9 @@ class _Endpoints:
         if not p.is_file():
             raise ValueError(f"no such file: {p}")
         data = {"format": format, **{k: str(v) for k, v in fields.items() if v is not None}}
-        with open(p, "rb") as fh:
-            content = fh.read()
-        r = yield _Req("POST", "/api/datasets", data=data,
-                       files={"file": (p.name, content, "application/octet-stream")})
+        with open(p, "rb") as fh:  # streamed from the file, not read into memory
+            r = yield _Req("POST", "/api/datasets", data=data,
+                           files={"file": (p.name, fh, "application/octet-stream")})
         body = r.json()
         return str(body.get("dataset_id") or body.get("id"))
 
