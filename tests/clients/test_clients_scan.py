@@ -66,8 +66,6 @@ def test_export_local_equals_server(scanned):
     local = fpscan("export", scanned["scan"], "--out", tmp / "local_ipasc.h5")
     assert local.returncode == 0, local.stderr
     remote = fpscan("export", "--server", scanned["url"], "--job", scanned["job"], "--out", tmp / "remote_ipasc.h5")
-    if "HTTP 500" in remote.stderr:  # known service bug, reported: <data_dir>/exports/ is never created
-        pytest.xfail("GET /api/scans/{id}/ipasc answers 500 (service: exports/ folder missing)")
     assert remote.returncode == 0, remote.stderr
     with h5py.File(tmp / "local_ipasc.h5", "r") as a, h5py.File(tmp / "remote_ipasc.h5", "r") as b:
         da, db = a["binary_time_series_data"][...], b["binary_time_series_data"][...]
