@@ -132,3 +132,24 @@ def test_memory_admission_queues_what_does_not_fit_now(tmp_path):
             assert second["params"]["memory_estimate"] <= int(est * 1.5) < 2 * second["params"]["memory_estimate"]
     finally:
         srv.stop()
+
+
+@pytest.mark.parametrize("argv, env, reason", [
+    (["--device", "foo"], {}, "ID=PATH"),
+    (["--host", "0.0.0.0"], {}, "needs a --token"),
+    ([], {"FPSCAN_WORKERS": "0"}, "workers"),
+    (["--settings", "/nonexistent/fpscan.toml"], {}, "cannot read settings file"),
+])
+def test_fpscan_serve_refuses_bad_settings_with_one_line(argv, env, reason, tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    from service_servers import REPO
+
+    full_env = {k: v for k, v in os.environ.items() if not k.startswith("FPSCAN_")}
+    full_env.update({"FPSCAN_DATA_DIR": str(tmp_path), **env})
+    p = subprocess.run([sys.executable, "-m", "clients", "serve", "--port", "0", *argv], cwd=REPO, env=full_env,
+                       capture_output=True, text=True, timeout=60)
+    assert p.returncode == 1
+    assert reason in p.stderr and len(p.stderr.strip().splitlines()) == 1, p.stderr
