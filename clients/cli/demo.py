@@ -9,8 +9,9 @@ What it runs, all on this machine and all through the real code paths:
 3. over HTTP (:class:`clients.http.Client`): an equi-steradian plan around the phantom's
    centre and a dense full-lattice plan; both scanned over the serial protocol through the
    service; the sparse scan reconstructed with ``nedner``, the dense one with ``ner``;
-4. into ``--out`` (default ``./demo-output/``): the scan files, the volumes (HDF5), the
-   xy/xz/yz MIPs (PNG), the mask preview (PNG) and ``report.json`` with point counts,
+4. into ``--out`` (default ``./demo-output/``): the scan files (and the sparse one in
+   IPASC format), the volumes (HDF5), the xy/xz/yz MIPs (PNG), the mask preview (PNG),
+   the service's live preview of the sparse scan (PNG) and ``report.json`` with point counts,
    acquisition and reconstruction times, and the Pearson correlation of each
    reconstruction with the phantom (sampled on the reconstruction grid) and of the NEDNER
    image with the dense NER reference (paper, eq. (A1)).
@@ -335,6 +336,14 @@ class Demo:
             with ProgressBar(f"scan {plan_name}", quiet=a.quiet) as bar:
                 job = api.wait(job_id, on_progress=bar, timeout=600)
             scan_file = api.download_scan(job_id, self.out / f"scan_{plan_name}.h5")
+            if plan_name == "equisteradian":
+                # the scan in the community's format, and the service's live preview of it
+                api.download_ipasc(job_id, self.out / f"scan_{plan_name}_ipasc.h5")
+                preview = to_dict(api.scan_preview(job_id)) or {}
+                if preview.get("version"):
+                    api.download_scan_preview(job_id, "xy", self.out / "live_preview_xy.png")
+                    self.report["live_preview"] = {"points_used": preview.get("points_used"),
+                                                   "file": "live_preview_xy.png"}
             timings = to_dict(field_of(job, "timings")) or {}
             progress = to_dict(field_of(job, "progress")) or {}
             n = field_of(plans[plan_name], "n_points")

@@ -57,9 +57,16 @@ def test_demo_files_open(demo):
     from driver.sources import default_phantom
 
     out, report, _res = demo
-    for name in ("scan_equisteradian.h5", "scan_full.h5"):
-        with h5py.File(out / name, "r") as f:
-            assert len(f.keys()) > 0
+    from driver.scanfile import read_scan
+
+    for name in ("equisteradian", "full"):
+        scan = read_scan(out / f"scan_{name}.h5")
+        assert scan.completed.all() and len(scan.completed) == report["plans"][name]["n_points"]
+    with h5py.File(out / "scan_equisteradian_ipasc.h5", "r") as f:
+        assert f["binary_time_series_data"].shape[0] == report["plans"]["equisteradian"]["n_points"]
+    if "live_preview" in report:
+        with Image.open(out / report["live_preview"]["file"]) as im:
+            assert im.format == "PNG"
     with Image.open(out / "mask_preview.png") as im:
         assert im.format == "PNG"
     for name, r in report["reconstructions"].items():

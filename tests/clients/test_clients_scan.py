@@ -244,3 +244,16 @@ def test_server_dying_mid_wait_raises_server_unavailable(tmp_path):
             with Client(url, token=TOKEN) as api:
                 job = api.get_job(job_id)
                 assert job.state == "paused"
+
+
+def test_cli_cancel_of_a_running_scan(slow_scanner):
+    api, plan, _tmp = slow_scanner
+    job_id = api.start_scan(plan.id, "slow")
+    _poll(lambda: api.get_job(job_id), lambda j: (j.progress.points_done or 0) >= 5)
+    res = fpscan("jobs", "cancel", job_id, "--server", api.base_url)
+    assert res.returncode == 0, res.stderr
+    job = api.wait(job_id, timeout=60, raise_on_failure=False)
+    assert job.state == "cancelled"
+    assert job.progress.points_done < N * N
+    res = fpscan("jobs", "list", "--state", "cancelled", "--server", api.base_url)
+    assert res.returncode == 0 and job_id in res.stdout
