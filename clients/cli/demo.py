@@ -28,15 +28,15 @@ COMMAND = "demo"
 HELP = "run the end-to-end demo: simulated scanner, equi-steradian plan, scan, NEDNER reconstruction"
 
 # Demo geometry: the phantom (driver.sources.default_phantom) spans about ±3 mm
-# laterally and 1.5–4.8 mm in depth; an 80 × 80 lattice at 100 µm (8 mm) covers it.
+# laterally and 1.5–4.8 mm in depth; a 96 × 96 lattice at 100 µm (9.6 mm) covers it.
 # 512 samples at 12 ns reach 9.2 mm of travel (the farthest ball from a corner sensor);
 # the images keep the first 320 depth rows (c·dt = 18 µm each: 5.8 mm).
 DEFAULTS = {
-    "lattice": 80,
+    "lattice": 96,
     "pitch": 100e-6,
     "n_t": 512,
     "dt": 12e-9,
-    "points": 800,
+    "points": 1000,
     "poi_depth": 3.0e-3,
     "n_z": 320,
 }
