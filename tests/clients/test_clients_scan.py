@@ -116,16 +116,16 @@ def _poll(fn, until, timeout=30.0, interval=0.05):
 
 @pytest.fixture(scope="module")
 def slow_scanner(tmp_path_factory):
-    """A server with a simulator firing at 200 Hz (256 points take 1.3 s)."""
+    """A server with a simulator firing at 50 Hz (256 points take 5.1 s: time to act mid-scan)."""
     tmp = tmp_path_factory.mktemp("slow")
     data = tmp / "data"
     data.mkdir()
-    with fpscan_sim("--source", "balls", "--prf", "200") as (device, _sim):
+    with fpscan_sim("--source", "balls", "--prf", "50") as (device, _sim):
         with fpscan_server(data, token=TOKEN, devices={"slow": device}) as (url, _srv):
             with Client(url, token=TOKEN) as api:
                 plan = api.create_plan({"lattice": {"n_x": N, "n_y": N, "pitch": PITCH},
                                         "points": [[i, j] for j in range(N) for i in range(N)],
-                                        "acquisition": {"n_t": 256, "dt": 2e-8, "prf": 200}})
+                                        "acquisition": {"n_t": 256, "dt": 2e-8, "prf": 50}})
                 yield api, plan, tmp
 
 
