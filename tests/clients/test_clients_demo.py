@@ -44,9 +44,10 @@ def test_demo_report(demo):
         assert r["reconstruction_s"] > 0
         assert -1.0 <= r["cc_phantom"] <= 1.0
     # the sparse NEDNER image looks like the phantom and like the dense reference
+    # (seen: 0.81 and 0.83 in the xy MIP, 0.95 between the two; noise-free simulator)
     for r in rec.values():
-        assert r["cc_phantom_mip_xy"] > 0.5
-    assert rec["nedner"]["cc_dense_reference_mip_xy"] > 0.7
+        assert r["cc_phantom_mip_xy"] > 0.7
+    assert rec["nedner"]["cc_dense_reference_mip_xy"] > 0.85
 
 
 def test_demo_files_open(demo):
