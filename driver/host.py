@@ -131,7 +131,7 @@ class Scanner:
     process (exclusive ``flock``).
     """
 
-    def __init__(self, port: str, *, window: int = 256, retry: float = 0.3,
+    def __init__(self, port: str, *, window: int = 256, retry: float = 0.15,
                  response_timeout: float = 10.0, stall_timeout: float = 1.0,
                  baudrate: int = 115200, reader: str = "process", lock_timeout: float = 2.0):
         import serial
@@ -185,6 +185,7 @@ class Scanner:
         self.faults = collections.Counter()
         self._device_busy = False
         self._old_boots: set[int] = set()
+        self._max_chunk = MAX_CHUNK
         self._write(b"\x00")  # terminate any partial frame a previous host left behind
 
     # ------------------------------------------------------------------ basics
@@ -399,6 +400,8 @@ class Scanner:
             raise DriverError("malformed SYST:LIM? reply") from None
         status = self.status()
         self._boot_id = status.boot_id
+        if len(limits) == 4 and limits[3] > 0:
+            self._max_chunk = min(MAX_CHUNK, limits[3])
         return {"idn": idn, "manufacturer": parts[0], "model": parts[1], "serial": parts[2],
                 "firmware": parts[3], "protocol": PROTOCOL_VERSION, "port": self.port,
                 "boot_id": status.boot_id,
@@ -437,8 +440,24 @@ class Scanner:
         if st.state in ("RUNNING", "PAUSED"):
             self.query("SCAN:ABOR")
         self.query(f"PLAN:BEG {len(image)}")
-        for off in range(0, len(image), MAX_CHUNK):
-            self.query(f"PLAN:DATA {off},".encode() + block(image[off:off + MAX_CHUNK]))
+        # chunks of up to max_chunk bytes; on a noisy link a long command rarely arrives
+        # intact, so a chunk that gets no reply is retried four times smaller (>= 64 B)
+        chunk = self._max_chunk
+        off = 0
+        last = time.monotonic()
+        per_try = min(self.response_timeout, max(0.5, 3 * self.retry))
+        while off < len(image):
+            piece = image[off:off + chunk]
+            try:
+                self.query(f"PLAN:DATA {off},".encode() + block(piece), timeout=per_try)
+            except DeviceTimeout:
+                if time.monotonic() - last > self.response_timeout:
+                    raise
+                chunk = max(64, chunk // 4)
+                self.faults["upload_retries"] += 1
+                continue
+            off += len(piece)
+            last = time.monotonic()
         self.query(f"PLAN:END {hashlib.sha256(image).hexdigest()}")
         got = self.query("PLAN:ID?").strip()
         if got != plan["id"]:
@@ -639,7 +658,7 @@ class Scanner:
     def faults_recovered(self) -> int:
         f = self.faults
         return (f["bad_frames"] + f["bad_alines"] + f["naks"] + f["command_retries"]
-                + f["stall_polls"] + f["resets"])
+                + f["stall_polls"] + f["resets"] + f["upload_retries"])
 
     def _on_aline(self, fr) -> None:  # replaced during scan()
         pass
@@ -687,7 +706,7 @@ class Scanner:
                 self._send_ack()
             if run.ooo:  # gap: NAK the missing sequence numbers not NAKed recently
                 missing = [s for s in range(run.expected, run.max_seen)
-                           if s not in run.ooo and now - run.nak_time.get(s, 0.0) > 0.25]
+                           if s not in run.ooo and now - run.nak_time.get(s, 0.0) > 0.1]
                 if len(run.nak_time) > 4096:
                     run.nak_time = {s: t for s, t in run.nak_time.items() if s >= run.expected}
                 if missing:

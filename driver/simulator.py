@@ -577,13 +577,16 @@ class SimulatedScanner:
         if len(block) > scpi.MAX_CHUNK:
             raise _Error(-223, f"Too much data; chunk of {len(block)} bytes "
                                f"(max {scpi.MAX_CHUNK})")
-        if offset != len(self._plan_image) and offset + len(block) != len(self._plan_image):
-            raise _Error(-222, f"Data out of range; chunk offset {offset}, expected "
-                               f"{len(self._plan_image)}")
-        if offset == len(self._plan_image):
-            if offset + len(block) > self._plan_expected:
-                raise _Error(-223, "Too much data; chunk runs past the announced size")
-            self._plan_image += block
+        have = len(self._plan_image)
+        if not 0 <= offset <= have:
+            raise _Error(-222, f"Data out of range; chunk offset {offset}, expected <= {have}")
+        if offset + len(block) > self._plan_expected:
+            raise _Error(-223, "Too much data; chunk runs past the announced size")
+        overlap = min(have - offset, len(block))  # a repeated chunk: must match what we have
+        if self._plan_image[offset:offset + overlap] != block[:overlap]:
+            raise _Error(-222, f"Data out of range; chunk at {offset} differs from the data "
+                               "already received")
+        self._plan_image += block[overlap:]
 
     def _cmd_plan_end(self, cmd):
         self._require_idle()
