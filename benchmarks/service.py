@@ -64,9 +64,8 @@ def start_server(data_dir: Path, devices: dict) -> tuple[subprocess.Popen, str]:
     raise RuntimeError("server did not start in 90 s")
 
 
-async def poll(url: str, job_id: str, clients: int, seconds: float, interval: float) -> dict:
-    """``clients`` concurrent pollers of the job status for ``seconds``, each asking once
-    every ``interval`` s (0 = back to back: the saturation throughput)."""
+async def _poll_async(url: str, job_id: str, clients: int, seconds: float, interval: float,
+                      offset: int, total: int) -> tuple[list[float], int]:
     latencies: list[float] = []
     errors = 0
     stop = time.monotonic() + seconds
@@ -74,7 +73,7 @@ async def poll(url: str, job_id: str, clients: int, seconds: float, interval: fl
     async def one(client: httpx.AsyncClient, k: int):
         nonlocal errors
         await client.get(f"/api/jobs/{job_id}")  # untimed: opens this client's connection
-        await asyncio.sleep(interval * k / clients)  # spread the clients over the interval
+        await asyncio.sleep(interval * (offset + k) / total)  # spread the clients over the interval
         while time.monotonic() < stop:
             t0 = time.perf_counter()
             r = await client.get(f"/api/jobs/{job_id}")
@@ -87,11 +86,28 @@ async def poll(url: str, job_id: str, clients: int, seconds: float, interval: fl
 
     limits = httpx.Limits(max_connections=clients, max_keepalive_connections=clients)
     async with httpx.AsyncClient(base_url=url, limits=limits, timeout=30) as client:
-        t0 = time.perf_counter()
         await asyncio.gather(*(one(client, k) for k in range(clients)))
-        wall = time.perf_counter() - t0 - interval  # minus the staggered start
-    lat = np.array(latencies)
-    return {"requests": len(lat), "errors": errors, "requests_per_s": len(lat) / max(wall, 1e-9),
+    return latencies, errors
+
+
+def _poll_process(args) -> tuple[list[float], int]:
+    return asyncio.run(_poll_async(*args))
+
+
+def poll(url: str, job_id: str, clients: int, seconds: float, interval: float, processes: int = 4) -> dict:
+    """``clients`` concurrent pollers of the job status for ``seconds``, each asking once
+    every ``interval`` s (0 = back to back: the saturation throughput), spread over
+    ``processes`` client processes so that the client side is not the bottleneck."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    per = [clients // processes + (1 if i < clients % processes else 0) for i in range(processes)]
+    offsets = [sum(per[:i]) for i in range(processes)]
+    with ProcessPoolExecutor(processes) as pool:
+        parts = list(pool.map(_poll_process, [(url, job_id, n, seconds, interval, o, clients)
+                                               for n, o in zip(per, offsets) if n]))
+    lat = np.array([x for p in parts for x in p[0]])
+    errors = sum(p[1] for p in parts)
+    return {"requests": len(lat), "errors": errors, "requests_per_s": len(lat) / seconds,
             "p50_ms": float(np.percentile(lat, 50) * 1e3), "p99_ms": float(np.percentile(lat, 99) * 1e3)}
 
 
@@ -113,14 +129,14 @@ def status_benchmark(url: str, size: int, n_t: int, clients: int, seconds: float
                                                    "params": {"dtype": "float32", "n_z": 8}}).json()["id"]
         while c.get(f"/api/jobs/{warm}").json()["state"] not in ("succeeded", "failed"):
             time.sleep(0.2)
-        idle = asyncio.run(poll(url, warm, clients, seconds, interval))
-        idle_saturated = asyncio.run(poll(url, warm, clients, seconds / 2, 0.0))
+        idle = poll(url, warm, clients, seconds, interval)
+        idle_saturated = poll(url, warm, clients, seconds / 2, 0.0)
         job = c.post("/api/reconstructions", json={"dataset_id": ds, "method": "ner",
                                                   "params": {"dtype": "float32"}}).json()["id"]
         while c.get(f"/api/jobs/{job}").json()["state"] == "queued":
             time.sleep(0.05)
-        busy = asyncio.run(poll(url, job, clients, seconds, interval))
-        busy_saturated = asyncio.run(poll(url, job, clients, seconds / 2, 0.0))
+        busy = poll(url, job, clients, seconds, interval)
+        busy_saturated = poll(url, job, clients, seconds / 2, 0.0)
         state = c.get(f"/api/jobs/{job}").json()["state"]
         while state not in ("succeeded", "failed"):
             time.sleep(0.2)
