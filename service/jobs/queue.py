@@ -126,7 +126,9 @@ class ReconQueue:
 
     def _run(self, job: dict) -> None:
         jid = job["id"]
-        out_dir = self.results_dir / jid
+        # one folder per attempt: a worker orphaned by a server crash may still finish the
+        # previous attempt, and must not race with this one
+        out_dir = self.results_dir / f"{jid}.{job['attempts']}"
         spec = {"input": job["params"]["input"], "params": {**job["params"]["params"], "method": job["params"]["method"]},
                 "out_dir": str(out_dir), "input_id": job["params"].get("input_id", "")}
         stop_beat = threading.Event()
