@@ -103,8 +103,9 @@ class ScanResult:
     elapsed_s: float  #: whole call
     acquisition_s: float  #: from the first SCAN:STAR reply to the last new A-line
     alines_received: int  #: new A-line frames received (first copies; points may repeat)
-    #: link faults detected and recovered: ``bad_frames`` (CRC/COBS/length), ``bad_alines``,
-    #: ``naks`` (sequence numbers NAKed), ``command_retries``, ``stall_polls``, ``resets``
+    #: link faults detected and recovered since the port was opened: ``bad_frames``
+    #: (CRC/COBS/length), ``bad_alines``, ``naks`` (sequence numbers NAKed),
+    #: ``command_retries``, ``upload_retries``, ``stall_polls``, ``resets``
     faults: dict = field(default_factory=dict)
     #: link statistics (not faults): ``duplicates`` (frames received twice),
     #: ``duplicate_points`` (points already in the file), ``stale`` (other run or boot)
@@ -510,7 +511,6 @@ class Scanner:
         t_start = time.monotonic()
         done0 = int(completed.sum())
         counters = collections.Counter()
-        self.faults = collections.Counter()
         state = {"done": done0, "t_first": None, "t_last": None, "last_prog": 0.0,
                  "label": "running"}
 

@@ -324,3 +324,30 @@ def test_scan_survives_the_relay_process_dying(tmp_path):
         sf.close()
         assert out["res"].complete and sc._relay is None  # fell back to reading the tty
     assert_matches_record(tmp_path / "scan.h5", tmp_path / "truth.h5", plan)
+
+
+def test_plan_upload_over_a_noisy_link_and_chunk_rules(tmp_path):
+    from driver.commands import block
+    from driver.plan import plan_image
+
+    plan = grid_plan(40, 28, n_t=16)  # 1120 points: a 4.6 kB plan image
+    with make_sim(tmp_path, faults=FaultSpec.parse("corrupt=2e-3"), seed=9) as sim:
+        res = acquire(sim.path, plan, tmp_path / "scan.h5")
+    assert res.complete and res.faults["upload_retries"] > 0  # 4 kB chunks rarely pass
+    assert_matches_record(tmp_path / "scan.h5", tmp_path / "truth.h5", plan)
+    image = plan_image(grid_plan(4, 4, n_t=32))
+    with make_sim(tmp_path) as sim, Scanner(sim.path) as sc:
+        sc.query(f"PLAN:BEG {len(image)}")
+        sc.query(b"PLAN:DATA 0," + block(image[:60]))
+        sc.query(b"PLAN:DATA 20," + block(image[20:100]))  # overlaps consistently: appended
+        with pytest.raises(DeviceError) as e:
+            sc.query(b"PLAN:DATA 50," + block(b"\x00" * 60))  # contradicts bytes 50..99
+        assert e.value.code == -222
+        with pytest.raises(DeviceError) as e:
+            sc.query(b"PLAN:DATA 120," + block(image[120:]))  # a hole at 100..119
+        assert e.value.code == -222
+        sc.query(b"PLAN:DATA 100," + block(image[100:]))
+        import hashlib
+
+        sc.query(f"PLAN:END {hashlib.sha256(image).hexdigest()}")
+        assert sc.query("PLAN:POIN?") == "16"
