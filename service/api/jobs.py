@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import asyncio
-import json
 
 import anyio
 from fastapi import APIRouter, Depends, Header, HTTPException, Path, Query, Request, Response
@@ -103,7 +102,6 @@ async def job_events(request: Request, job_id: str = JobId, c: Context = Depends
 
     async def stream():
         nonlocal after
-        idle = 0.0
         while True:
             if await request.is_disconnected():
                 return
@@ -121,10 +119,5 @@ async def job_events(request: Request, job_id: str = JobId, c: Context = Depends
                     if not rest:
                         return
                 await asyncio.sleep(0.2)
-                idle += 0.2
 
     return EventSourceResponse(stream(), ping=15)
-
-
-def dumps(obj) -> str:
-    return json.dumps(obj)

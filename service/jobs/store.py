@@ -272,12 +272,6 @@ class JobStore:
             return None
         return self.get(job_id)
 
-    def set_control(self, job_id: str, control: str | None) -> None:
-        """Record a pending control request for a running scan (``pause``/``abort``)."""
-        with self._lock:
-            self._cache.pop(job_id, None)
-            self._db.execute("UPDATE jobs SET control = ? WHERE id = ?", (control, job_id))
-
     def claim(self, job_id: str, owner: str, lease_s: float) -> dict | None:
         """Lease a queued job for ``owner``: state running, attempts + 1; None if it was
         not queued (someone else took it or it was cancelled)."""
