@@ -79,6 +79,27 @@ class SimConfig:
     serial: str = "SIM0001"
     precompute: bool = False  #: generate all A-lines of a plan at PLAN:END
 
+    def __post_init__(self):
+        """Raises ``ValueError`` naming the first setting out of range."""
+        checks = [
+            ("prf", self.prf >= 0, ">= 0 Hz"),
+            ("tuning_delay", self.tuning_delay >= 0, ">= 0 s"),
+            ("dc_level", self.dc_level > 0, "> 0 V"),
+            ("dc_variation", 0 <= self.dc_variation < 1, "in [0, 1)"),
+            ("sensitivity_variation", 0 <= self.sensitivity_variation < 1, "in [0, 1)"),
+            ("bandwidth", self.bandwidth is None or self.bandwidth > 0, "> 0 Hz"),
+            ("snr", self.snr is None or self.snr > 0, "> 0"),
+            ("byte_rate", self.byte_rate is None or self.byte_rate >= 100, ">= 100 bytes/s"),
+            ("max_points", 1 <= self.max_points <= 1 << 24, "in 1..2^24"),
+            ("max_samples", 1 <= self.max_samples <= 32768, "in 1..32768"),
+            ("max_window", 1 <= self.max_window <= 65535, "in 1..65535"),
+            ("rto", self.rto > 0, "> 0 s"),
+        ]
+        for name, ok, what in checks:
+            if not ok:
+                raise ValueError(f"simulator setting {name} = {getattr(self, name)!r} must be "
+                                 f"{what}")
+
 
 _Error = scpi.ScpiError
 

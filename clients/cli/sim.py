@@ -11,10 +11,11 @@ HELP = "run the simulated FP scanner on a pseudo-terminal (prints its device pat
 
 
 def add_arguments(parser):
-    parser.add_argument("--source", nargs="+", default=["balls"], metavar="KIND [FILE]",
-                        help="A-line source: 'balls' (built-in phantom: balls and a curved "
-                             "tube), 'volume FILE' (HDF5 p0 with dx_m) or 'replay FILE' "
-                             "(dense k-Wave-layout HDF5, e.g. kwave3d_balls_yarn.h5)")
+    parser.add_argument("--source", nargs="+", default=["balls"], metavar="ARG",
+                        help="A-line source: 'balls' (default: built-in phantom of balls and "
+                             "a curved tube), 'volume FILE' (HDF5 p0 with dx_m) or "
+                             "'replay FILE' (dense k-Wave-layout HDF5, e.g. "
+                             "kwave3d_balls_yarn.h5)")
     parser.add_argument("--dataset", default="sensor_data/clean",
                         help="dataset replayed from the replay FILE (default: sensor_data/clean)")
     parser.add_argument("--prf", type=float, default=50.0,
@@ -70,10 +71,6 @@ def run(args) -> int:
     from driver.faults import FaultSpec
     from driver.simulator import SimConfig, SimulatedScanner
 
-    if args.prf < 0:
-        raise ValueError("--prf must be >= 0")
-    if args.snr is not None and args.snr <= 0:
-        raise ValueError("--snr must be > 0")
     config = SimConfig(
         source=make_source(args.source, dataset=args.dataset, sound_speed=args.sound_speed),
         prf=args.prf, tuning_delay=args.tuning_delay, dc_variation=args.dc_variation,

@@ -96,6 +96,9 @@ def test_sim_cli_rejects_bad_options(tmp_path):
     r = subprocess.run(FPSCAN + ["sim", "--faults", "explode=3"], capture_output=True,
                        text=True, timeout=60)
     assert r.returncode == 1 and "bad fault spec" in r.stderr
+    r = subprocess.run(FPSCAN + ["sim", "--dc-variation", "1.5"], capture_output=True,
+                       text=True, timeout=60)
+    assert r.returncode == 1 and "dc_variation" in r.stderr
     r = subprocess.run(FPSCAN + ["scan", "--device", str(tmp_path / "nope"), "--plan",
                                  str(tmp_path / "p.json"), "--out", str(tmp_path / "o.h5")],
                        capture_output=True, text=True, timeout=60)
