@@ -205,7 +205,13 @@ def test_pause_resume_and_abort(scan_server, sim, tmp_path):
         assert c.get("/api/scanners").json()[0]["status"] == "idle"
 
 
-def test_sigkill_mid_scan_and_mid_recon_then_restart(tmp_path, sim):
+def test_sigkill_mid_scan_and_mid_recon_then_restart(tmp_path):
+    """With link faults injected too (corrupted and dropped bytes, a device reset)."""
+    from driver.faults import FaultSpec
+    from driver.sources import BallSource
+
+    sim = driver_sim.SimulatedScanner(source=BallSource(phantom()), prf=100.0, seed=5,
+                                      faults=FaultSpec.parse("corrupt=0.0005,drop=0.0005,reset=300")).start()
     srv = Server(tmp_path / "crash", devices={"sim": sim.path}).start()
     try:
         with srv.client() as c:
@@ -218,7 +224,9 @@ def test_sigkill_mid_scan_and_mid_recon_then_restart(tmp_path, sim):
             job = c.get(f"/api/jobs/{scan_id}").json()
             assert job["state"] == "paused" and job["progress"]["stage"] == "interrupted"
             assert c.post(f"/api/scans/{scan_id}/resume").status_code == 200
-            assert wait_job(c, scan_id)["state"] == "succeeded"
+            done = wait_job(c, scan_id)
+            assert done["state"] == "succeeded", done
+            assert done["progress"]["faults_recovered"] > 0  # the link faults were met and recovered
             check_scan_file(c, scan_id, sim, tmp_path, N * N)
 
             # a reconstruction killed while running is re-queued and finishes
@@ -237,3 +245,4 @@ def test_sigkill_mid_scan_and_mid_recon_then_restart(tmp_path, sim):
             assert len(c.get("/api/jobs").json()) == 2
     finally:
         srv.stop()
+        sim.stop()
