@@ -1039,6 +1039,46 @@ async function openResult(jobId) {
   }
 }
 
+/** Upload a data file (``POST /api/datasets``, multipart) and queue its reconstruction
+ *  (``POST /api/reconstructions`` with the ``dataset_id``); spacings go out in SI units. */
+async function uploadAndReconstruct(ev) {
+  ev.preventDefault();
+  const file = $("upload-file").files[0];
+  if (!file) { showError(new Error("Choose a file to upload.")); return; }
+  const form = new FormData();
+  form.append("file", file, file.name);
+  form.append("format", $("upload-format").value);
+  try {
+    const fields = [["dt", "upload-dt", 1e-9, "dt"], ["dx", "upload-dx", 1e-6, "dx"],
+                    ["dy", "upload-dy", 1e-6, "dy"], ["c", "upload-c", 1, "Sound speed"]];
+    for (const [name, id, scale, what] of fields) {
+      const v = numberField(id, what, { scale, optional: true });
+      if (v !== undefined) form.append(name, String(v));
+    }
+  } catch (err) { showError(err); return; }
+  const key = $("upload-key").value.trim();
+  if (key) form.append("key", key);
+  $("upload-start").disabled = true;
+  $("upload-state").textContent = `Uploading ${file.name}…`;
+  try {
+    const ds = await apiJson("/api/datasets", { method: "POST", body: form });
+    $("upload-state").textContent = `Uploaded as dataset ${shortId(ds.dataset_id)}${ds.shape ? " (" + ds.shape.join(" × ") + ")" : ""}; queueing…`;
+    const resp = await apiFetch("/api/reconstructions", {
+      method: "POST", json: { dataset_id: ds.dataset_id, method: $("upload-method").value, params: {} },
+      headers: { "Idempotency-Key": newIdempotencyKey() },
+    });
+    const id = await jobIdFrom(resp);
+    clearError();
+    $("upload-state").textContent = `Reconstruction ${shortId(id)} queued.`;
+    location.hash = "#/jobs/" + encodeURIComponent(id);
+  } catch (err) {
+    $("upload-state").textContent = "Not uploaded: " + (err.detail || err.message);
+    showError(err);
+  } finally {
+    $("upload-start").disabled = false;
+  }
+}
+
 async function cancelResultJob() {
   if (!resultJob) return;
   try {
@@ -1106,6 +1146,7 @@ function init() {
   $("result-slice").addEventListener("input", showSlice);
   $("recon-form").addEventListener("submit", startRecon);
   $("result-cancel").addEventListener("click", cancelResultJob);
+  $("upload-form").addEventListener("submit", uploadAndReconstruct);
   $("error-close").addEventListener("click", clearError);
   $("token-button").addEventListener("click", () => askToken("Enter the server's bearer token. It is kept for this browser tab only."));
   window.addEventListener("hashchange", route);

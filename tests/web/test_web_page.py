@@ -387,6 +387,46 @@ def test_result_view_reconstruct_slices_and_download_volume(server, api, browser
         assert len(f.keys()) > 0
 
 
+def test_upload_a_data_file_and_reconstruct_it(server, api, browser, screenshots, tmp_path):
+    """A k-Wave-layout NumPy file uploaded from the page with spacings typed in µm/ns:
+    the reconstruction's volume has the grid those spacings give (SI on the wire)."""
+    np = pytest.importorskip("numpy")
+    h5py = pytest.importorskip("h5py")
+    from selenium.webdriver.support.ui import Select
+
+    n_t, n_y, n_x = 96, 12, 16
+    data = np.random.default_rng(7).standard_normal((n_t, n_y, n_x)).astype(np.float32)
+    path = tmp_path / "sensor_data.npy"
+    np.save(path, data)
+
+    el(browser, "nav-jobs").click()
+    wait_for(lambda: el(browser, "view-jobs").is_displayed(), 5, "the jobs view")
+    browser.find_element("css selector", "#upload-panel summary").click()
+    el(browser, "upload-file").send_keys(str(path))
+    Select(el(browser, "upload-format")).select_by_value("npy")
+    set_value(browser, "upload-dt", 20)      # ns
+    set_value(browser, "upload-dx", 100)     # µm; dy left empty = dx
+    set_value(browser, "upload-c", 1500)
+    Select(el(browser, "upload-method")).select_by_value("ner")
+    before = el(browser, "result-id").get_attribute("title")
+    el(browser, "upload-start").click()
+    wait_for(lambda: text(browser, "result-kind") == "recon" and el(browser, "result-id").get_attribute("title") != before,
+             20, "the upload's reconstruction job to open")
+    recon_id = el(browser, "result-id").get_attribute("title")
+    wait_for(lambda: text(browser, "result-state") in ("succeeded", "failed"), 60, "the reconstruction to finish", 0.3)
+    job = api.get(f"/api/jobs/{recon_id}").json()
+    assert text(browser, "result-state") == "succeeded", job
+    assert job["params"]["dataset_id"] and job["params"]["method"] == "ner"
+    shot(browser, screenshots, "jobs-upload-result")
+    vol = tmp_path / "volume.h5"
+    vol.write_bytes(api.get(f"/api/reconstructions/{recon_id}/volume.h5").content)
+    with h5py.File(vol, "r") as f:
+        x, y = f["x"][...], f["y"][...]
+        assert f["p0"].shape[1:] == (n_y, n_x)
+    assert np.diff(x) == pytest.approx(np.full(n_x - 1, 100e-6), rel=1e-9)
+    assert np.diff(y) == pytest.approx(np.full(n_y - 1, 100e-6), rel=1e-9)
+
+
 def test_scan_controls_pause_resume_abort(sim, server, api, browser, screenshots, state):
     if sim is None:
         pytest.skip("this build has no `fpscan sim` (simulated scanner)")
