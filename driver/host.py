@@ -277,10 +277,13 @@ class Scanner:
                 [sys.executable, "-m", "driver.relay", str(fd), str(os.getpid())],
                 pass_fds=(fd,), stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
                 bufsize=0, cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-        except OSError as exc:
-            self._ser.close()
-            raise DriverError(f"cannot start the reader process for {self.port}: {exc}") \
-                from None
+        except OSError:  # no interpreter to start: read with a thread instead
+            self._relay = None
+            self._rx = queue.SimpleQueue()
+            self._rx_thread = threading.Thread(target=self._reader, args=(fd,),
+                                               name=f"fpscan-rx {self.port}", daemon=True)
+            self._rx_thread.start()
+            return
         self._relay_fd = self._relay.stdout.fileno()
         try:
             fcntl.fcntl(self._relay_fd, 1031, 1 << 20)  # F_SETPIPE_SZ: 1 MiB
