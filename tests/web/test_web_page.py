@@ -222,7 +222,7 @@ def token_prompts(browser) -> int:
     return int(browser.execute_script("return document.body.dataset.tokenPrompts || '0'"))
 
 
-def test_plan_view_preview_errors_token_and_save(server, api, browser, screenshots, state):
+def test_plan_view_preview_errors_token_and_save(browser, server, api, screenshots, state):
     browser.get(server + "/#/plan")
     fill_plan_form(browser, N_POINTS)
 
@@ -273,7 +273,7 @@ def test_plan_view_preview_errors_token_and_save(server, api, browser, screensho
     state["n_points"] = expected["points"]
 
 
-def test_scan_view_progress_reaches_100_and_live_preview_changes(sim, server, api, browser, screenshots, state,
+def test_scan_view_progress_reaches_100_and_live_preview_changes(browser, sim, server, api, screenshots, state,
                                                                 tmp_path):
     if "plan_id" not in state:
         pytest.skip("needs the plan saved by the plan-view test")
@@ -329,7 +329,7 @@ def test_scan_view_progress_reaches_100_and_live_preview_changes(sim, server, ap
     state["scan_job_id"] = job_id
 
 
-def test_result_view_reconstruct_slices_and_download_volume(server, api, browser, screenshots, state, download_dir):
+def test_result_view_reconstruct_slices_and_download_volume(browser, server, api, screenshots, state, download_dir):
     from selenium.webdriver.support.ui import Select
 
     if "scan_job_id" not in state:
@@ -387,7 +387,7 @@ def test_result_view_reconstruct_slices_and_download_volume(server, api, browser
         assert len(f.keys()) > 0
 
 
-def test_upload_a_data_file_and_reconstruct_it(server, api, browser, screenshots, tmp_path):
+def test_upload_a_data_file_and_reconstruct_it(browser, server, api, screenshots, tmp_path):
     """A k-Wave-layout NumPy file uploaded from the page with spacings typed in µm/ns:
     the reconstruction's volume has the grid those spacings give (SI on the wire)."""
     np = pytest.importorskip("numpy")
@@ -427,7 +427,7 @@ def test_upload_a_data_file_and_reconstruct_it(server, api, browser, screenshots
     assert np.diff(y) == pytest.approx(np.full(n_y - 1, 100e-6), rel=1e-9)
 
 
-def test_scan_controls_pause_resume_abort(sim, server, api, browser, screenshots, state):
+def test_scan_controls_pause_resume_abort(browser, sim, server, api, screenshots, state):
     if sim is None:
         pytest.skip("this build has no `fpscan sim` (simulated scanner)")
     plan = api.post("/api/plans", json=plan_request(900))
@@ -473,7 +473,7 @@ def test_scan_controls_pause_resume_abort(sim, server, api, browser, screenshots
     assert token_prompts(browser) == 0, "the token was asked again after the reload"
 
 
-def test_wrong_token_is_refused_with_the_servers_reason(server, api, browser, screenshots):
+def test_wrong_token_is_refused_with_the_servers_reason(browser, server, api, screenshots):
     oracle = httpx.post(server + "/api/plans", json=plan_request(N_POINTS),
                         headers={"Authorization": "Bearer not-the-token"}, timeout=30)
     assert oracle.status_code == 401
@@ -495,7 +495,7 @@ def test_wrong_token_is_refused_with_the_servers_reason(server, api, browser, sc
     browser.execute_script("sessionStorage.setItem('fpscan.token', arguments[0])", TOKEN)
 
 
-def test_keyboard_navigation_and_state_without_colour(server, browser, screenshots, state):
+def test_keyboard_navigation_and_state_without_colour(browser, server, screenshots, state):
     from selenium.webdriver.common.action_chains import ActionChains
     from selenium.webdriver.common.keys import Keys
 
