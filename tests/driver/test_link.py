@@ -99,7 +99,10 @@ def test_pause_resume_abort_from_another_thread(tmp_path):
         while (not seen or seen[-1].points_done < 50) and time.monotonic() < deadline:
             time.sleep(0.02)
         sc.pause()
-        time.sleep(0.4)  # in-flight A-lines land
+        # the device stops before it answers SCAN:PAUS, and the link is FIFO: once the
+        # host reports "paused" no further A-line can arrive
+        while seen[-1].state != "paused" and time.monotonic() < deadline:
+            time.sleep(0.02)
         done_paused = seen[-1].points_done
         time.sleep(0.5)
         assert seen[-1].points_done == done_paused and seen[-1].state == "paused"
