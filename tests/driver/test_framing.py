@@ -123,3 +123,16 @@ def test_plan_json_checks_and_image_roundtrip():
         load_plan("{not json")
     with pytest.raises(ValueError):
         parse_plan_image(plan_image(plan)[:-1])
+
+
+@settings(max_examples=200, deadline=None)
+@given(data=st.binary(max_size=3000), cut=st.integers(1, 500))
+def test_deframer_and_parser_never_raise_on_garbage(data, cut):
+    d = Deframer()
+    for i in range(0, len(data), cut):
+        for fr in d.feed(data[i:i + cut]):  # whatever decodes is a checked frame
+            assert fr.type in set(FrameType)
+    try:
+        parse_command(data)
+    except ScpiError as exc:
+        assert exc.code < 0
