@@ -354,3 +354,46 @@ def test_plan_upload_over_a_noisy_link_and_chunk_rules(tmp_path):
 
         sc.query(f"PLAN:END {hashlib.sha256(image).hexdigest()}")
         assert sc.query("PLAN:POIN?") == "16"
+
+
+def test_pyserial_url_transport(tmp_path):
+    """The host reaches the scanner through a pyserial URL (socket://): a TCP bridge to the
+    simulator's pty stands in for a networked serial server."""
+    import select
+    import socket
+    import tty
+
+    plan = grid_plan(12, 10, n_t=128)
+    with make_sim(tmp_path) as sim:
+        server = socket.create_server(("127.0.0.1", 0))
+        port = server.getsockname()[1]
+        stop = threading.Event()
+
+        def bridge():
+            conn, _ = server.accept()
+            fd = os.open(sim.path, os.O_RDWR | os.O_NOCTTY)
+            tty.setraw(fd)
+            try:
+                while not stop.is_set():
+                    r, _, _ = select.select([conn, fd], [], [], 0.1)
+                    if conn in r:
+                        data = conn.recv(1 << 16)
+                        if not data:
+                            break
+                        os.write(fd, data)
+                    if fd in r:
+                        conn.sendall(os.read(fd, 1 << 16))
+            finally:
+                os.close(fd)
+                conn.close()
+
+        th = threading.Thread(target=bridge, daemon=True)
+        th.start()
+        try:
+            res = acquire(f"socket://127.0.0.1:{port}", plan, tmp_path / "scan.h5")
+        finally:
+            stop.set()
+            th.join(timeout=5)
+            server.close()
+    assert res.complete
+    assert_matches_record(tmp_path / "scan.h5", tmp_path / "truth.h5", plan)
