@@ -169,7 +169,9 @@ class ReplaySource:
         with h5py.File(self.path, "r") as f:
             if self.dataset not in f:
                 raise ValueError(f"{self.path}: no dataset {self.dataset!r}")
-            data = np.asarray(f[self.dataset], dtype=np.float64)
+            data = np.asarray(f[self.dataset])
+            if data.dtype.kind != "f":
+                data = data.astype(np.float64)
             if "dt_s" not in f.attrs:
                 raise ValueError(f"{self.path}: file attribute dt_s missing")
             self.dt = float(f.attrs["dt_s"])
@@ -185,7 +187,8 @@ class ReplaySource:
                     raise ValueError(f"{self.path}: sensor_yz_index is not a regular grid")
         if data.ndim != 3:
             raise ValueError(f"{self.path}: {self.dataset} must be (t, y, x), got {data.shape}")
-        # (n_y, n_x, n_t): one contiguous A-line per lattice point
+        # (n_y, n_x, n_t): one contiguous A-line per lattice point, stored in the file's
+        # own float precision
         self.alines = np.ascontiguousarray(np.moveaxis(data, 0, -1))
 
     @property
@@ -208,7 +211,7 @@ class ReplaySource:
         idx = plan.indices.astype(np.intp) + np.array([int(off_x), int(off_y)])
 
         def pressure(ks):
-            return self.alines[idx[ks, 1], idx[ks, 0], :plan.n_t]
+            return self.alines[idx[ks, 1], idx[ks, 0], :plan.n_t].astype(np.float64)
 
         return pressure
 
