@@ -20,19 +20,17 @@ import multiprocessing
 import os
 import pty
 import select
+import signal
 import sys
 import tempfile
-import signal
 import time
 import tty
 from pathlib import Path
 
-import numpy as np
-
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from driver.aline import ALINE_HEADER  # noqa: E402
-from driver.framing import HEADER, encode_frame, FrameType  # noqa: E402
+from driver.aline import ALINE_HEADER
+from driver.framing import HEADER, FrameType, encode_frame
 
 
 def raw_pty_rate(seconds: float = 2.0) -> float:
@@ -110,7 +108,7 @@ def main() -> int:
     from driver.host import Scanner
     from driver.physics import Ball
     from driver.scanfile import ScanFile, read_scan
-    from driver.simulator import SimConfig, SimulatedScanner
+    from driver.simulator import SimConfig
     from driver.sources import BallSource
 
     plan = grid_plan(args.side, args.n_t)

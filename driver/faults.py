@@ -31,7 +31,7 @@ class FaultSpec:
     interlocks: dict[int, float] = field(default_factory=dict)
 
     @classmethod
-    def parse(cls, spec: str | None) -> "FaultSpec":
+    def parse(cls, spec: str | None) -> FaultSpec:
         """Parse a spec string (see module doc). Raises ``ValueError`` with the bad item."""
         out = cls()
         if not spec:

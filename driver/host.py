@@ -19,12 +19,12 @@ import collections
 import hashlib
 import os
 import queue
-import select
 import secrets
+import select
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
@@ -69,7 +69,7 @@ class DeviceStatus:
     unacked: int
 
     @classmethod
-    def parse(cls, text: str) -> "DeviceStatus":
+    def parse(cls, text: str) -> DeviceStatus:
         parts = text.split(",")
         if len(parts) != 7:
             raise DriverError(f"malformed SCAN:STAT? reply {text!r}")
@@ -210,7 +210,7 @@ class Scanner:
         self._ser.close()
         self._ser = None
 
-    def __enter__(self) -> "Scanner":
+    def __enter__(self) -> Scanner:
         return self
 
     def __exit__(self, *exc) -> None:

@@ -32,8 +32,8 @@ import hashlib
 import math
 import os
 import pty
-import select
 import secrets
+import select
 import threading
 import time
 import tty
@@ -138,7 +138,7 @@ class SimulatedScanner:
         self._boot()
 
     # ------------------------------------------------------------------ lifecycle
-    def start(self) -> "SimulatedScanner":
+    def start(self) -> SimulatedScanner:
         self._thread = threading.Thread(target=self._run, name="fpsim", daemon=True)
         self._thread.start()
         return self
@@ -229,7 +229,7 @@ class SimulatedScanner:
             if self._wake < math.inf:
                 timeout = max(0.0, min(timeout, self._wake - now))
             try:
-                r, w, _ = select.select([fd], wlist, [], timeout)
+                r, _, _ = select.select([fd], wlist, [], timeout)
             except (OSError, ValueError):
                 break
             data = b""
@@ -250,7 +250,7 @@ class SimulatedScanner:
                 self._retransmit(now)
                 if self._out:
                     self._write(now)
-            except Exception as exc:  # a firmware bug must not kill the device
+            except Exception as exc:  # noqa: BLE001  (a firmware bug must not kill the device)
                 self.stats["internal_errors"] += 1
                 self._push_error(-310, f"System error; {type(exc).__name__}: {exc}"[:200])
                 self._abort()
@@ -323,7 +323,7 @@ class SimulatedScanner:
                 self._push_error(err.code, err.message)
                 wire = encode_frame(FrameType.ERR, f'{err.code},"{err.message}"'.encode(),
                                     ack=frame.seq)
-            except Exception as exc:  # a firmware bug must not kill the device
+            except Exception as exc:  # noqa: BLE001  (a firmware bug must not kill the device)
                 msg = f"System error; {type(exc).__name__}: {exc}"[:200].replace('"', "'")
                 self._push_error(-310, msg)
                 wire = encode_frame(FrameType.ERR, f'-310,"{msg}"'.encode(), ack=frame.seq)

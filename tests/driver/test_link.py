@@ -246,9 +246,11 @@ def test_tuning_delay_and_averages_follow_the_pulse_clock(tmp_path):
 
 
 def test_device_survives_random_commands_and_frames(tmp_path):
-    from driver.framing import HEADER, encode_frame, FrameType
     import zlib
+
     from cobs import cobs
+
+    from driver.framing import HEADER, FrameType, encode_frame
 
     rng = np.random.default_rng(4)
     words = ["*IDN?", "*RST", "SCAN:STAR", "SCAN:STAT?", "PLAN:DATA", "PLAN:BEG", "PLAN:END",
@@ -293,15 +295,14 @@ def test_byte_rate_limit_throttles_the_link(tmp_path):
     # a UART-like link: 20 kB/s. Only a lower bound on the time is asserted (a loaded
     # machine can only make it slower); the rate is printed.
     plan = grid_plan(8, 5, n_t=128)
-    with make_sim(tmp_path, byte_rate=20_000.0) as sim:
-        with Scanner(sim.path) as sc:
-            sc.identify()
-            sc.upload_plan(plan)
-            tx0 = sim.stats["tx_bytes"]
-            with ScanFile.create(tmp_path / "scan.h5", plan, instrument={},
-                                 software_version="t") as sf:
-                res = sc.scan(plan, sf, upload=False)
-            sent = sim.stats["tx_bytes"] - tx0
+    with make_sim(tmp_path, byte_rate=20_000.0) as sim, Scanner(sim.path) as sc:
+        sc.identify()
+        sc.upload_plan(plan)
+        tx0 = sim.stats["tx_bytes"]
+        with ScanFile.create(tmp_path / "scan.h5", plan, instrument={},
+                             software_version="t") as sf:
+            res = sc.scan(plan, sf, upload=False)
+        sent = sim.stats["tx_bytes"] - tx0
     assert res.complete and sent > 40 * 2 * 128
     print(f"byte-rate limit 20000 B/s: {sent} bytes in {res.acquisition_s:.3f} s "
           f"= {sent / res.acquisition_s:.0f} B/s")
