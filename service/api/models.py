@@ -6,7 +6,7 @@ Contract: docs/api.md.
 """
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -17,6 +17,8 @@ Plane = Literal["xy", "xz", "yz"]
 DatasetFormat = Literal["fpscan", "ipasc", "kwave-hdf5", "npy"]
 
 ID_PATTERN = r"^[A-Za-z0-9_-]{1,128}$"
+
+LatticeIndex = Annotated[int, Field(ge=0, le=1023)]
 
 
 class _Request(BaseModel):
@@ -64,8 +66,8 @@ class PlanCreate(_Request):
     kind: str | None = Field(None, max_length=64, description="mask kind, e.g. full, grid, equisteradian, equiangular, random")
     lattice: Lattice
     params: dict[str, Any] = Field(default_factory=dict, description="mask parameters (see service.plans)")
-    points: list[list[int]] | None = Field(None, max_length=1024 * 1024,
-                                           description="lattice indices [[i_x, i_y], ...] for a user point list")
+    points: list[tuple[LatticeIndex, LatticeIndex]] | None = Field(
+        None, max_length=1024 * 1024, description="lattice indices [[i_x, i_y], ...] for a user point list")
     order: str | None = Field(None, max_length=32, description="scan order (serpentine, rings, nearest)")
     acquisition: Acquisition = Field(default_factory=Acquisition)
 

@@ -77,8 +77,8 @@ def _mask_plan(req: PlanCreate) -> dict:
     try:
         plan = make_plan(kind=req.kind, lattice=req.lattice.model_dump(), params=dict(req.params),
                          order=req.order or "auto", acquisition=req.acquisition.model_dump())
-    except TypeError as exc:
-        raise ValueError(f"bad mask parameters: {exc}") from None
+    except (TypeError, OverflowError, IndexError, KeyError, ZeroDivisionError) as exc:
+        raise ValueError(f"bad mask parameters ({type(exc).__name__}: {exc})") from None
     out = plan.model_dump(mode="json")
     if len(out["points"]["indices"]) > MAX_POINTS:
         raise ValueError(f"at most {MAX_POINTS} points")
@@ -145,7 +145,7 @@ def preview_png(plan: dict) -> bytes:
 def _build_or_422(body: PlanCreate) -> dict:
     try:
         return build_plan(body)
-    except ValueError as exc:
+    except (ValueError, OverflowError) as exc:
         raise HTTPException(422, str(exc)) from None
 
 
