@@ -433,7 +433,8 @@ class Scanner:
     def upload_plan(self, plan) -> str:
         """Upload a plan (dict or path) in chunks; verify its SHA-256 and ``PLAN:ID?``.
 
-        Leaves a running scan aborted first. Returns the plan id. Raises ``ValueError``
+        Aborts a run the device still has (and clears a FAULT whose interlock closed)
+        first. Returns the plan id. Raises ``ValueError``
         for a bad plan, :class:`DeviceError` if the device refuses it (over its limits,
         hash mismatch) or :class:`DriverError` if the plan id read back differs.
         """
@@ -441,7 +442,9 @@ class Scanner:
         image = plan_image(plan)
         st = self.status()
         self._boot_id = st.boot_id
-        if st.state in ("RUNNING", "PAUSED"):
+        if st.state in ("RUNNING", "PAUSED", "FAULT"):
+            # ends a run a previous host left, and clears a fault whose cause is gone (a
+            # closed interlock); an open interlock stays FAULT and SCAN:STAR will say so
             self.query("SCAN:ABOR")
         self.query(f"PLAN:BEG {len(image)}")
         # chunks of up to max_chunk bytes; on a noisy link a long command rarely arrives

@@ -398,3 +398,18 @@ def test_pyserial_url_transport(tmp_path):
             server.close()
     assert res.complete
     assert_matches_record(tmp_path / "scan.h5", tmp_path / "truth.h5", plan)
+
+
+def test_interlock_that_closes_again_lets_a_rerun_finish(tmp_path):
+    plan = grid_plan(10, 10, n_t=64)
+    with make_sim(tmp_path, faults=FaultSpec.parse("interlock=40:0.3")) as sim:
+        with pytest.raises(InterlockOpen):
+            acquire(sim.path, plan, tmp_path / "scan.h5")
+        with Scanner(sim.path) as sc:
+            deadline = time.monotonic() + 10
+            while sc.query("LAS:INT?") == "1" and time.monotonic() < deadline:
+                time.sleep(0.05)
+            assert sc.status().state == "FAULT"  # until the host clears it
+        res = acquire(sim.path, plan, tmp_path / "scan.h5")
+        assert res.complete and res.points_done == 100
+    assert_matches_record(tmp_path / "scan.h5", tmp_path / "truth.h5", plan)
