@@ -62,8 +62,9 @@ def _fmt_eta(seconds: float | None) -> str:
     return f"{h}:{m:02d}:{s:02d}" if h else f"{m:02d}:{s:02d}"
 
 
-def describe_progress(progress: dict) -> str:
-    """One line for a job's progress dict: stage, points done/total, points/s, ETA."""
+def describe_progress(progress: dict, *, with_fraction: bool = True) -> str:
+    """One line for a job's progress dict: stage, points done/total, points/s, ETA
+    (when the server estimates one) and, without a point count, the percentage."""
     parts = []
     stage = progress.get("stage")
     if stage:
@@ -74,10 +75,10 @@ def describe_progress(progress: dict) -> str:
     rate = progress.get("rate_per_s")
     if rate:
         parts.append(f"{rate:.0f} points/s")
-    if total or progress.get("eta_s") is not None:
+    if progress.get("eta_s") is not None and progress.get("stage") not in ("done", "aborted"):
         parts.append(f"ETA {_fmt_eta(progress.get('eta_s'))}")
     frac = progress.get("fraction")
-    if frac is not None and not total:
+    if with_fraction and frac is not None and not total:
         parts.append(f"{100 * float(frac):.0f}%")
     if progress.get("faults_recovered"):
         parts.append(f"{progress['faults_recovered']} faults recovered")
@@ -121,7 +122,7 @@ class ProgressBar:
         if frac is None and progress.get("points_total"):
             frac = (progress.get("points_done") or 0) / progress["points_total"]
         if self._progress is not None:
-            kw = {"info": describe_progress(progress)}
+            kw = {"info": describe_progress(progress, with_fraction=False)}
             if frac is not None:
                 kw["completed"] = float(frac)
             self._progress.update(self._task, **kw)

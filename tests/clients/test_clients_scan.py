@@ -166,18 +166,20 @@ def test_abort_ends_cancelled(slow_scanner):
     assert err.value.job.progress.points_done < N * N
 
 
-def test_progress_bar_on_a_terminal(scanned):
-    """`fpscan jobs wait` on a real terminal (a pty) draws the rich progress bar with the
-    scan's points, rate and ETA."""
+def test_progress_bar_on_a_terminal(slow_scanner):
+    """`fpscan jobs wait` on a real terminal (a pty) while a 50 Hz scan runs draws the rich
+    progress bar with the points done, points/s and the ETA, and ends at all points."""
     import os
     import pty
     import select
     import time
 
+    api, plan, _tmp = slow_scanner
+    job_id = api.start_scan(plan.id, "slow")
     master, slave = pty.openpty()
     env = clean_env(FPSCAN_TOKEN=TOKEN, COLUMNS="160", TERM="xterm")
-    proc = subprocess.Popen([sys.executable, "-m", "clients", "jobs", "wait", scanned["job"],
-                             "--server", scanned["url"]], stdin=slave, stdout=slave, stderr=slave, env=env)
+    proc = subprocess.Popen([sys.executable, "-m", "clients", "jobs", "wait", job_id,
+                             "--server", api.base_url], stdin=slave, stdout=slave, stderr=slave, env=env)
     os.close(slave)
     out = b""
     deadline = time.monotonic() + 60
