@@ -191,7 +191,10 @@ class Scanner:
 
     # ------------------------------------------------------------------ basics
     def close(self) -> None:
-        """Leave the device idle (abort a scan this host started) and close the port."""
+        """Leave the device idle (abort a scan this host started) and close the port.
+
+        From another thread while :meth:`scan` runs, call :meth:`abort` first: ``close``
+        waits for the scan to return."""
         if self._ser is None:
             return
         if self._device_busy:
