@@ -565,6 +565,7 @@ class Scanner:
                 run.ooo.add(seq)
                 run.max_seen = max(run.max_seen, seq)
             run.since_ack += 1
+            run.last_new = run.last_rx  # the device makes progress
             counters["alines"] += 1
             k = a.point_index
             if not 0 <= k < n or a.samples.size != n_t:
@@ -703,7 +704,7 @@ class Scanner:
                 elif what == "resume" and paused:
                     self.query("SCAN:RES")
                     paused = False
-                    run.last_rx = time.monotonic()
+                    run.last_rx = run.last_new = time.monotonic()
             self._pump()
             now = time.monotonic()
             if run.reset_seen:
@@ -739,6 +740,10 @@ class Scanner:
                     self._raise_interlock(completed)
                 if st.state == "IDLE" and not completed.all():
                     return "restart"  # the run ended with points missing: start again
+                if not paused and time.monotonic() - run.last_new > max(
+                        3 * self.response_timeout, 10 * silence):
+                    raise DeviceTimeout(f"{self.port} reports {st.state} but delivered no new "
+                                        f"A-line for {time.monotonic() - run.last_new:.0f} s")
                 self._send_ack(self._missing_tail(run))
 
     @staticmethod
@@ -783,6 +788,6 @@ class _Run:
         self.since_ack = 0
         self.need_ack = False
         self.last_ack = 0.0
-        self.last_rx = time.monotonic()
+        self.last_rx = self.last_new = time.monotonic()
         self.reset_seen = False
         self.interlock = False

@@ -413,3 +413,18 @@ def test_interlock_that_closes_again_lets_a_rerun_finish(tmp_path):
         res = acquire(sim.path, plan, tmp_path / "scan.h5")
         assert res.complete and res.points_done == 100
     assert_matches_record(tmp_path / "scan.h5", tmp_path / "truth.h5", plan)
+
+
+def test_device_running_without_progress_times_out(tmp_path):
+    # the laser fires every 20 s: the device answers but delivers nothing; the host gives
+    # up after max(3 response timeouts, 10 silences) instead of waiting forever
+    from driver.host import DeviceTimeout
+
+    plan = grid_plan(4, 4, n_t=64)
+    with make_sim(tmp_path, prf=0.05) as sim:
+        with Scanner(sim.path, response_timeout=0.5, stall_timeout=0.2) as sc:
+            sf = ScanFile.create(tmp_path / "scan.h5", plan, instrument={}, software_version="t")
+            with pytest.raises(DeviceTimeout, match="no new A-line"):
+                sc.scan(plan, sf)
+            sf.close()
+            assert sc.status().state == "IDLE"  # left idle
