@@ -123,7 +123,7 @@ def main() -> int:
           f"= {raw / wire:.0f} A-line frames/s")
 
     balls = [Ball(0.0, 0.0, 3.0e-3, 0.2e-3, 1.0), Ball(1e-3, -1e-3, 5.0e-3, 0.3e-3, 0.8)]
-    cfg = SimConfig(source=BallSource(balls), prf=0.0, precompute=True)
+    cfg = SimConfig(source=BallSource(balls), prf=0.0, precompute=True, max_window=args.window)
     # the simulated scanner runs in its own process, as a real scanner is its own device
     ctx = multiprocessing.get_context("fork")
     parent, child = ctx.Pipe()
