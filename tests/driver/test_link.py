@@ -138,29 +138,31 @@ def test_interlock_stops_scan_with_clear_error(tmp_path):
 def test_replay_kwave_data_within_quantisation(tmp_path, shared_data):
     import h5py
 
-    path = shared_data / "kwave3d_balls_yarn.h5"
-    with h5py.File(path) as f:
-        ref = np.asarray(f["sensor_data/clean"])  # (t, y, x)
-        dt = float(f.attrs["dt_s"])
-    # every 4th lattice point in both directions: a sparse mask picked out of dense data
-    plan = grid_plan(96, 96, 6e-5, n_t=ref.shape[0], dt=dt)
-    keep = [i for i, (ix, iy) in enumerate(plan["points"]["indices"]) if ix % 4 == 1 and iy % 4 == 2]
-    for key in ("indices", "positions", "weights"):
-        plan["points"][key] = [plan["points"][key][i] for i in keep]
     from driver.plan import plan_id_of
 
-    plan["id"] = plan_id_of(plan)
+    path = shared_data / "kwave3d_balls_yarn.h5"
+    with h5py.File(path) as f:
+        ref = np.asarray(f["sensor_data/clean"], dtype=np.float64)  # (t, y, x)
+        dt = float(f.attrs["dt_s"])
+    full = grid_plan(96, 96, 6e-5, n_t=ref.shape[0], dt=dt)  # every stored A-line
+    # a 48 x 48 lattice centred on the same axis: point (i, j) is stored (i + 24, j + 24)
+    inner = grid_plan(48, 48, 6e-5, n_t=500, dt=dt)
+    keep = list(range(0, 48 * 48, 37))
+    for key in ("indices", "positions", "weights"):
+        inner["points"][key] = [inner["points"][key][i] for i in keep]
+    inner["id"] = plan_id_of(inner)
     with make_sim(tmp_path, source=ReplaySource(path)) as sim:
-        res = acquire(sim.path, plan, tmp_path / "scan.h5")
-    assert res.complete
-    scan = read_scan(tmp_path / "scan.h5")
-    idx = np.asarray(plan["points"]["indices"])
-    want = ref[:, idx[:, 1], idx[:, 0]].T  # (n_points, n_t)
-    err = np.abs(scan.pressure - want)
-    assert (err <= scan.scale[:, None] * 0.5 * (1 + 1e-6) + 1e-7 * np.abs(want)).all()
-    assert np.abs(want).max() > 1000 * scan.scale.max()  # the check is not vacuous
-    print(f"replay: {len(idx)} A-lines, max error {err.max():.3g} vs max half-step "
-          f"{0.5 * scan.scale.max():.3g}")
+        assert acquire(sim.path, full, tmp_path / "full.h5").complete
+        assert acquire(sim.path, inner, tmp_path / "inner.h5").complete
+    for name, plan, off in [("full", full, 0), ("inner", inner, 24)]:
+        scan = read_scan(tmp_path / f"{name}.h5")
+        idx = np.asarray(plan["points"]["indices"]) + off
+        want = ref[:scan.n_t, idx[:, 1], idx[:, 0]].T  # (n_points, n_t)
+        err = np.abs(scan.pressure - want)
+        assert (err <= scan.scale[:, None] * 0.5 * (1 + 1e-6) + 1e-7 * np.abs(want)).all()
+        assert np.abs(want).max() > 1000 * scan.scale.max()  # the check is not vacuous
+        print(f"replay {name}: {len(idx)} A-lines, max error {err.max():.3g} vs max "
+              f"half-step {0.5 * scan.scale.max():.3g}")
 
 
 def test_bad_input_gives_clear_errors_never_hangs(tmp_path):
