@@ -1,7 +1,8 @@
 """Where reconstructions run: a local process pool (default) or dask.distributed.
 
-Both expose ``run(fn, *args) -> result`` (blocking; called from a job thread, never from
-the event loop) and ``close()``.
+Both expose ``submit(fn, *args) -> future`` (the future has ``result(timeout)``; called
+from a job thread, never from the event loop), ``run(fn, *args) -> result`` (blocking)
+and ``close()``.
 
 - :class:`LocalExecutor`: ``concurrent.futures.ProcessPoolExecutor`` with the ``spawn``
   start method (no fork of a threaded server), ``workers`` processes at a lower CPU
@@ -40,17 +41,36 @@ class LocalExecutor:
         return ProcessPoolExecutor(max_workers=self.workers, mp_context=multiprocessing.get_context("spawn"),
                                    initializer=lower_priority)
 
-    def run(self, fn, *args):
+    def submit(self, fn, *args):
         try:
-            return self._pool.submit(fn, *args).result()
+            return _LocalFuture(self, self._pool.submit(fn, *args))
         except BrokenProcessPool:
-            # A worker died (e.g. killed by the OS for memory): start a fresh pool, and
-            # report the failure of this job.
             self._pool = self._new_pool()
-            raise RuntimeError("the reconstruction worker process died") from None
+            return _LocalFuture(self, self._pool.submit(fn, *args))
+
+    def run(self, fn, *args):
+        return self.submit(fn, *args).result()
 
     def close(self) -> None:
         self._pool.shutdown(wait=False, cancel_futures=True)
+
+
+class _LocalFuture:
+    """A pool future whose ``result`` turns a dead worker into ``RuntimeError`` (and
+    gives the executor a fresh pool for the next job)."""
+
+    def __init__(self, executor: LocalExecutor, future):
+        self._executor = executor
+        self._future = future
+
+    def result(self, timeout: float | None = None):
+        try:
+            return self._future.result(timeout)
+        except BrokenProcessPool:
+            # A worker died (e.g. killed by the OS for memory): start a fresh pool, and
+            # report the failure of this job.
+            self._executor._pool = self._executor._new_pool()
+            raise RuntimeError("the reconstruction worker process died") from None
 
 
 class DaskExecutor:
@@ -64,11 +84,24 @@ class DaskExecutor:
         self.address = address
         self._client = Client(address, set_as_default=False, timeout="20s")
 
+    def submit(self, fn, *args):
+        return _DaskFuture(self._client.submit(fn, *args, pure=False))
+
     def run(self, fn, *args):
-        return self._client.submit(fn, *args, pure=False).result()
+        return self.submit(fn, *args).result()
 
     def close(self) -> None:
         self._client.close()
+
+
+class _DaskFuture:
+    """A dask future behind the same ``result(timeout)`` as the local one."""
+
+    def __init__(self, future):
+        self._future = future
+
+    def result(self, timeout: float | None = None):
+        return self._future.result(timeout=timeout)  # raises the builtin TimeoutError
 
 
 def make_executor(settings):

@@ -14,6 +14,7 @@ owner is gone.
 """
 from __future__ import annotations
 
+import json
 import logging
 import shutil
 import threading
@@ -129,20 +130,15 @@ class ReconQueue:
         # one folder per attempt: a worker orphaned by a server crash may still finish the
         # previous attempt, and must not race with this one
         out_dir = self.results_dir / f"{jid}.{job['attempts']}"
+        progress_path = self.results_dir / f".{jid}.{job['attempts']}.progress"
         spec = {"input": job["params"]["input"], "params": {**job["params"]["params"], "method": job["params"]["method"]},
-                "out_dir": str(out_dir), "input_id": job["params"].get("input_id", "")}
-        stop_beat = threading.Event()
-
-        def beat():
-            while not stop_beat.wait(self.settings.heartbeat_s):
-                self.store.heartbeat(jid, self.owner, self.settings.heartbeat_s * 5)
-
-        threading.Thread(target=beat, daemon=True).start()
-        self.store.update_progress(jid, {"fraction": 0.05, "stage": "reconstructing"})
+                "out_dir": str(out_dir), "input_id": job["params"].get("input_id", ""),
+                "progress_path": str(progress_path)}
+        self.store.update_progress(jid, {"fraction": 0.0, "stage": "starting"})
         log.info("recon start job=%s attempt=%s method=%s", jid, job["attempts"], spec["params"]["method"])
         t0 = time.perf_counter()
         try:
-            summary = self.executor.run(run_reconstruction, spec)
+            summary = self._wait(jid, self.executor.submit(run_reconstruction, spec), progress_path)
         except ValueError as exc:
             self._finish(jid, "failed", error=self.settings.redact(str(exc)))
             log.info("recon failed job=%s reason=%s", jid, exc)
@@ -152,7 +148,7 @@ class ReconQueue:
             self._finish(jid, "failed", error=f"reconstruction failed ({type(exc).__name__})")
             return
         finally:
-            stop_beat.set()
+            progress_path.unlink(missing_ok=True)
             self._wake.set()
         if self.store.get(jid)["cancel_requested"]:
             shutil.rmtree(out_dir, ignore_errors=True)
@@ -164,6 +160,26 @@ class ReconQueue:
                                        "points_done": summary.get("points_used"),
                                        "points_total": summary.get("points_used")})
         log.info("recon done job=%s seconds=%.3f shape=%s", jid, time.perf_counter() - t0, summary.get("shape"))
+
+    def _wait(self, jid: str, future, progress_path: Path):
+        """The job's result; meanwhile renew its lease and turn the worker's stage
+        reports (:func:`service.jobs.work.report_stage`) into progress events."""
+        last, beat = None, time.monotonic()
+        while True:
+            try:
+                return future.result(timeout=0.25)
+            except TimeoutError:
+                pass
+            try:
+                stage = json.loads(progress_path.read_text())
+            except (OSError, ValueError):
+                stage = None
+            if stage and stage != last:
+                last = stage
+                self.store.update_progress(jid, stage)
+            if time.monotonic() - beat > self.settings.heartbeat_s:
+                beat = time.monotonic()
+                self.store.heartbeat(jid, self.owner, self.settings.heartbeat_s * 5)
 
     def _finish(self, jid: str, state: str, error: str | None = None) -> None:
         self.store.set_state(jid, state, error=error, only_from=("running",),

@@ -190,15 +190,33 @@ def write_result(out_dir: str | os.PathLike, image, *, input_id: str, extra: dic
     return {"shape": list(p0.shape), "max": float(np.max(p0)) if p0.size else 0.0, "planes": sorted(pngs)}
 
 
+def report_stage(path: str | None, stage: str, fraction: float) -> None:
+    """Write the job's current stage to its progress file (``{"stage", "fraction"}``,
+    replaced atomically); the server's job thread turns changes into progress events."""
+    if not path:
+        return
+    import json
+
+    tmp = f"{path}.tmp-{os.getpid()}"
+    with open(tmp, "w") as f:
+        json.dump({"stage": stage, "fraction": fraction}, f)
+    os.replace(tmp, path)
+
+
 def run_reconstruction(spec: dict) -> dict:
     """Executor entry point. ``spec``: ``input`` (see above), ``params`` (method and
-    options), ``out_dir``, ``input_id``. Returns ``{"shape", "max", "timings"}``.
-    Raises ``ValueError`` for inputs the method cannot use."""
+    options), ``out_dir``, ``input_id``, optional ``progress_path`` (stages ``loading``,
+    ``reconstructing``, ``writing`` are reported there). Returns ``{"shape", "max",
+    "timings"}``. Raises ``ValueError`` for inputs the method cannot use."""
+    progress = spec.get("progress_path")
     t0 = time.perf_counter()
+    report_stage(progress, "loading", 0.1)
     inp = load_input(spec["input"])
     t1 = time.perf_counter()
+    report_stage(progress, "reconstructing", 0.2)
     image = reconstruct_input(inp, spec["params"])
     t2 = time.perf_counter()
+    report_stage(progress, "writing", 0.9)
     summary = write_result(spec["out_dir"], image, input_id=spec.get("input_id", ""),
                            extra={"points_used": int(inp["alines"].shape[0]) if "alines" in inp else None})
     t3 = time.perf_counter()

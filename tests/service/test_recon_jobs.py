@@ -86,7 +86,9 @@ def test_ner_and_nedner_jobs_match_direct_call_and_phantom(shared_server, shared
     assert states[0] == "queued" and states[-1] == "succeeded" and "running" in states
     ids = [int(e["id"]) for e in events]
     assert ids == sorted(ids) and len(set(ids)) == len(ids)
-    assert any(e["event"] == "progress" for e in events)
+    stages = [e["data"]["stage"] for e in events if e["event"] == "progress"]
+    assert stages[:1] == ["starting"]
+    assert set(stages) & {"loading", "reconstructing", "writing"}  # the worker's own stage reports
     # reconnecting with Last-Event-ID replays only what came after
     replay = sse_events(api, job_id, last_event_id=str(ids[1]))
     assert [int(e["id"]) for e in replay] == ids[2:]
