@@ -198,9 +198,12 @@ def report_stage(path: str | None, stage: str, fraction: float) -> None:
     import json
 
     tmp = f"{path}.tmp-{os.getpid()}"
-    with open(tmp, "w") as f:
-        json.dump({"stage": stage, "fraction": fraction}, f)
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "w") as f:
+            json.dump({"stage": stage, "fraction": fraction}, f)
+        os.replace(tmp, path)
+    except OSError:  # progress is best effort (e.g. a remote worker without the folder)
+        pass
 
 
 def run_reconstruction(spec: dict) -> dict:
