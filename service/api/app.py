@@ -25,7 +25,16 @@ from service.settings import Settings
 
 log = logging.getLogger("fpscan.api")
 
-VERSION = "0.1.0"
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("fpscan")
+    except PackageNotFoundError:
+        return "0+unknown"
+
+
+VERSION = _version()
 
 ERROR_RESPONSES = {
     400: {"model": Error, "description": "bad request"},
