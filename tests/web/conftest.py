@@ -73,3 +73,29 @@ def browser(download_dir):
     shutil.rmtree(profile, ignore_errors=True)
 
 
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item, call):
+    outcome = yield
+    report = outcome.get_result()
+    if report.when == "call":
+        item.web_call_failed = report.failed
+
+
+@pytest.fixture(autouse=True)
+def _evidence_on_failure(request):
+    """After a failed web test: a screenshot and the browser's console log in
+    test-artifacts/screenshots/FAILED-<test>.* for the reviewer."""
+    yield
+    if not getattr(request.node, "web_call_failed", False) or "browser" not in request.fixturenames:
+        return
+    drv = request.getfixturevalue("browser")
+    SCREENSHOTS.mkdir(parents=True, exist_ok=True)
+    stem = SCREENSHOTS / f"FAILED-{request.node.name}"
+    try:
+        drv.save_screenshot(str(stem.with_suffix(".png")))
+        lines = [f"{e.get('level')} {e.get('message')}" for e in drv.get_log("browser")]
+        stem.with_suffix(".log").write_text("\n".join(lines) + "\n")
+    except Exception:  # noqa: BLE001 - evidence is best effort
+        pass
