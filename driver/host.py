@@ -451,11 +451,12 @@ class Scanner:
             self.query("SCAN:ABOR")
         self.query(f"PLAN:BEG {len(image)}")
         # chunks of up to max_chunk bytes; on a noisy link a long command rarely arrives
-        # intact, so a chunk that gets no reply is retried four times smaller (>= 64 B)
+        # intact, so a chunk that gets no reply is retried 8 times smaller (>= 64 B), and
+        # the size doubles again after 4 chunks in a row got through
         chunk = self._max_chunk
-        off = 0
+        off = streak = 0
         last = time.monotonic()
-        per_try = min(self.response_timeout, max(0.5, 3 * self.retry))
+        per_try = min(self.response_timeout, max(0.3, 2 * self.retry))
         while off < len(image):
             piece = image[off:off + chunk]
             try:
@@ -463,11 +464,14 @@ class Scanner:
             except DeviceTimeout:
                 if time.monotonic() - last > self.response_timeout:
                     raise
-                chunk = max(64, chunk // 4)
+                chunk, streak = max(64, chunk // 8), 0
                 self.faults["upload_retries"] += 1
                 continue
             off += len(piece)
             last = time.monotonic()
+            streak += 1
+            if streak >= 4 and chunk < self._max_chunk:
+                chunk, streak = min(self._max_chunk, 2 * chunk), 0
         self.query(f"PLAN:END {hashlib.sha256(image).hexdigest()}")
         got = self.query("PLAN:ID?").strip()
         if got != plan["id"]:

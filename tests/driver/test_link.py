@@ -334,7 +334,7 @@ def test_plan_upload_over_a_noisy_link_and_chunk_rules(tmp_path):
     from driver.commands import block
     from driver.plan import plan_image
 
-    plan = grid_plan(40, 28, n_t=16)  # 1120 points: a 4.6 kB plan image
+    plan = grid_plan(40, 27, n_t=8)  # 1080 points: a 4.4 kB plan image
     with make_sim(tmp_path, faults=FaultSpec.parse("corrupt=2e-3"), seed=9) as sim:
         res = acquire(sim.path, plan, tmp_path / "scan.h5")
     assert res.complete and res.faults["upload_retries"] > 0  # 4 kB chunks rarely pass
