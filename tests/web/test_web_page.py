@@ -93,6 +93,9 @@ def server(sim, tmp_path_factory):
     finally:
         stop_process(proc)
         log.close()
+        # the server's log beside the screenshots, for a reviewer of a failed run
+        (REPO_ROOT / "test-artifacts").mkdir(exist_ok=True)
+        (REPO_ROOT / "test-artifacts" / "web-serve.log").write_bytes((data / "serve.log").read_bytes())
 
 
 @pytest.fixture(scope="module")
