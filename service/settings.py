@@ -59,6 +59,8 @@ class Settings(BaseSettings):
     preview_interval_s: float = Field(3.0, gt=0, le=3600, description="live preview refresh period")
     heartbeat_s: float = Field(2.0, gt=0, le=600, description="lease heartbeat period of running jobs")
     max_attempts: int = Field(3, ge=1, le=100, description="tries of a reconstruction before it fails")
+    resume_scans: bool = Field(False, description="resume scans interrupted by a restart at start-up "
+                                                  "(default: they wait, paused, for POST /resume)")
     log_level: str = "info"
 
     @field_validator("devices")

@@ -131,7 +131,11 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True) 
             executor = make_executor(settings)
             context.queue = ReconQueue(store, executor, settings)
             recovered = store.recover(context.queue.owner, settings.max_attempts)
-            log.info("startup recovered=%s executor=%s", recovered, settings.executor)
+            if settings.resume_scans:
+                for jid in recovered["paused"]:
+                    store.set_state(jid, "queued", only_from=("paused",), progress={"stage": "resuming"})
+            log.info("startup recovered=%s executor=%s resume_scans=%s", recovered, settings.executor,
+                     settings.resume_scans)
             context.queue.start()
             try:
                 from service.scanning import ScanManager

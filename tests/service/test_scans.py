@@ -224,6 +224,12 @@ def test_sigkill_mid_scan_and_mid_recon_then_restart(tmp_path):
             job = c.get(f"/api/jobs/{scan_id}").json()
             assert job["state"] == "paused" and job["progress"]["stage"] == "interrupted"
             assert c.post(f"/api/scans/{scan_id}/resume").status_code == 200
+            wait_points(c, scan_id, job["progress"]["points_done"] + 60)
+        # killed again; this time the server resumes interrupted scans by itself
+        srv.kill()
+        srv.extra_env["FPSCAN_RESUME_SCANS"] = "true"
+        srv.start()
+        with srv.client() as c:
             done = wait_job(c, scan_id)
             assert done["state"] == "succeeded", done
             assert done["progress"]["faults_recovered"] > 0  # the link faults were met and recovered
