@@ -98,25 +98,56 @@ def make_grid(n_t: int, kind: str = "nufft", eps: float = 1e-6) -> TemporalGrid:
     return TemporalGrid(n_t, kind, L, 0, 2 if kind == "linear" else 1, 0.0, np.ones(n_t))
 
 
-def to_fine_grid(a: np.ndarray, grid: TemporalGrid, t0_is_zero: bool) -> np.ndarray:
-    """(n_cols, n_t) coefficients -> (n_cols, L) values of S on the fine theta grid.
+@numba.njit(parallel=True, cache=True)
+def _place_columns(A, scale, shift, L, U):
+    """U[c, (n - shift) mod L] = A[n, c] * scale[n], in cache-friendly tiles."""
+    n_t, n_cols = A.shape
+    tile = 64
+    n_blocks = (n_cols + tile - 1) // tile
+    for b in numba.prange(n_blocks):
+        c0 = b * tile
+        c1 = min(c0 + tile, n_cols)
+        for n0 in range(0, n_t, tile):
+            n1 = min(n0 + tile, n_t)
+            for c in range(c0, c1):
+                for n in range(n0, n1):
+                    j = n - shift
+                    if j < 0:
+                        j += L
+                    U[c, j] = A[n, c] * scale[n]
 
-    ``a`` is not modified. The t = 0 sample is halved when ``t0_is_zero``.
+
+@numba.njit(parallel=True, cache=True)
+def transpose(F, out):
+    """out[j, c] = F[c, j] for 2-D arrays, in cache-friendly tiles (parallel)."""
+    n_c, n_j = F.shape
+    tile = 64
+    n_blocks = (n_j + tile - 1) // tile
+    for b in numba.prange(n_blocks):
+        j0 = b * tile
+        j1 = min(j0 + tile, n_j)
+        for c0 in range(0, n_c, tile):
+            c1 = min(c0 + tile, n_c)
+            for j in range(j0, j1):
+                for c in range(c0, c1):
+                    out[j, c] = F[c, j]
+
+
+def to_fine_grid(A: np.ndarray, grid: TemporalGrid, t0_is_zero: bool) -> np.ndarray:
+    """(n_t, n_cols) coefficients (time first, as a lateral FFT of the data leaves them)
+    -> (n_cols, L) values of S on the fine theta grid, one column per row.
+
+    ``A`` is not modified. The t = 0 sample is halved when ``t0_is_zero``.
     """
-    n_cols, n_t = a.shape
-    ctype = np.complex64 if a.dtype in (np.float32, np.complex64) else np.complex128
+    n_t, n_cols = A.shape
+    ctype = np.complex64 if A.dtype in (np.float32, np.complex64) else np.complex128
     U = np.zeros((n_cols, grid.L), dtype=ctype)
     scale = (1.0 / grid.phihat).astype(U.real.dtype)
     if t0_is_zero:
         scale = scale.copy()
         scale[0] *= 0.5
-    if grid.kind == "nufft":
-        # centred mode m = n - shift sits at fine index m mod L
-        s = grid.shift
-        U[:, : n_t - s] = a[:, s:] * scale[s:]
-        U[:, grid.L - s :] = a[:, :s] * scale[:s]
-    else:
-        U[:, :n_t] = a * scale
+    # nufft: centred mode m = n - shift sits at fine index m mod L; FFT-grid kinds: shift 0
+    _place_columns(np.ascontiguousarray(A, dtype=ctype), scale, grid.shift, grid.L, U)
     scipy.fft.fft(U, axis=-1, overwrite_x=True, workers=-1)
     return U
 

@@ -129,7 +129,7 @@ def _invert(A: np.ndarray, n_x: int, dx: float, dy: float, dt: float, c: float, 
     kx = 2 * np.pi * scipy.fft.rfftfreq(n_x, dx)
     ky = 2 * np.pi * scipy.fft.fftfreq(n_y, dy)
     klat2 = (ky[:, None] ** 2 + kx[None, :] ** 2).ravel()
-    a = A.reshape(n_t, n_y * n_xr).T
+    a = A.reshape(n_t, n_y * n_xr)  # time first: column c is a[:, c]
     dk = np.pi / ((n_z - 1) * dz)
     kz = dk * np.arange(n_z)
     if adjoint:
@@ -137,7 +137,7 @@ def _invert(A: np.ndarray, n_x: int, dx: float, dy: float, dt: float, c: float, 
     else:
         qw = np.full(n_z, c * c * dt * dk / np.pi)
     if method == "cubic":
-        F = _cubic_columns(a, n_t, klat2, kz, qw, c, dt, t0)
+        F = _cubic_columns(a.T, n_t, klat2, kz, qw, c, dt, t0)
     else:
         grid = nufft.make_grid(n_t, _KIND[method], eps)
         U = nufft.to_fine_grid(a, grid, t0_is_zero=(t0 == 0 and not adjoint))
@@ -145,8 +145,13 @@ def _invert(A: np.ndarray, n_x: int, dx: float, dy: float, dt: float, c: float, 
         F = nufft.evaluate(U, grid, klat2, kz, qw, c, dt, t0, inversion=not adjoint)
         del U
     ctype = np.complex64 if rdtype == np.float32 else np.complex128
-    F = scipy.fft.dct(F.astype(ctype, copy=False), type=1, axis=-1, overwrite_x=True, workers=-1)
-    K = np.ascontiguousarray(F.T).reshape(n_z, n_y, n_xr)
+    F = np.ascontiguousarray(F, dtype=ctype)
+    # DCT-I along depth of the real and imaginary parts (interleaved view: no split copies)
+    re = F.view(rdtype).reshape(F.shape[0], n_z, 2)
+    F = scipy.fft.dct(re, type=1, axis=1, overwrite_x=True, workers=-1).reshape(F.shape[0], 2 * n_z).view(ctype)
+    K = np.empty((n_z, n_y * n_xr), dtype=ctype)
+    nufft.transpose(F, K)
+    K = K.reshape(n_z, n_y, n_xr)
     del F
     if adjoint:  # DCT-I^T = diag(τ) DCT-I diag(1/τ), τ = ½ at both ends
         K[[0, -1]] *= 0.5

@@ -48,7 +48,7 @@ def test_temporal_step_matches_direct_cosine_sums():
     errs = []
     for eps in (1e-3, 1e-6, 1e-10):
         grid = nufft.make_grid(n_t, "nufft", eps)
-        U = nufft.to_fine_grid(a, grid, t0_is_zero=False)
+        U = nufft.to_fine_grid(a.T, grid, t0_is_zero=False)
         E = nufft.evaluate(U, grid, klat2, kz, np.ones(len(kz)), C, DT, t0, inversion=False)
         errs.append(rel(E, direct))
     assert errs[1] <= 1e-5
