@@ -8,7 +8,7 @@
  *               bearer token can be sent and Last-Event-ID honoured on reconnect),
  *               GET /api/scans/{id}/preview (+ /preview/{plane}.png) for the live MIPs
  *   Jobs view   GET /api/jobs, GET /api/jobs/{id}, MIPs, depth slices, downloads,
- *               POST /api/reconstructions
+ *               POST /api/reconstructions, POST /api/datasets (upload), POST .../cancel
  * Units: the form shows convenient units (µm, mm, ns, nm); the API receives SI units.
  * The bearer token is asked once (on the first 401/403) and kept in sessionStorage.
  */
