@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 import multiprocessing
+import os
 import threading
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -116,7 +117,7 @@ class PreviewManager:
         from service.jobs.executors import lower_priority
 
         return ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"), initializer=lower_priority,
-                                   initargs=(5,))
+                                   initargs=(5, os.getpid()))
 
     def start(self) -> None:
         self._pool = self._new_pool()
@@ -127,7 +128,9 @@ class PreviewManager:
         self._stop.set()
         self._thread.join(timeout=5)
         if self._pool is not None:
-            self._pool.shutdown(wait=False, cancel_futures=True)
+            from service.jobs.executors import stop_pool
+
+            stop_pool(self._pool)
 
     def track(self, job_id: str, scan_path: str) -> None:
         with self._lock:

@@ -15,17 +15,45 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import threading
+import time
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 
 
-def lower_priority(increment: int = 10) -> None:
-    """Worker initializer: run reconstructions at a lower CPU priority (``os.nice``), so
-    the server's event loop and serial threads stay responsive on a small machine."""
+def _exit_with_parent(parent: int, period: float = 1.0) -> None:
+    while True:
+        time.sleep(period)
+        if os.getppid() != parent:  # the server died (e.g. SIGKILL): do not linger
+            os._exit(0)
+
+
+def lower_priority(increment: int = 10, parent: int | None = None) -> None:
+    """Worker initializer: run at a lower CPU priority (``os.nice``), so the server's
+    event loop and serial threads stay responsive on a small machine, and exit when the
+    server process is gone (a pool worker would otherwise wait forever on its queue after
+    a crash of the server). ``parent``: the server's pid, taken when the pool was made
+    (the server may already be dead when a worker that was still starting gets here)."""
     try:
         os.nice(increment)
     except (AttributeError, OSError):  # not on this platform / not permitted
         pass
+    parent = os.getppid() if parent is None else parent
+    if os.getppid() != parent:
+        os._exit(0)
+    threading.Thread(target=_exit_with_parent, args=(parent,), name="parent-watch", daemon=True).start()
+
+
+def stop_pool(pool: ProcessPoolExecutor) -> None:
+    """Shut a pool down now: pending work is cancelled and running workers terminated
+    (a reconstruction in flight is lost; its job is re-queued at the next start)."""
+    processes = list(getattr(pool, "_processes", {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for proc in processes:
+        if proc.is_alive():
+            proc.terminate()
+    for proc in processes:
+        proc.join(timeout=5)
 
 
 class LocalExecutor:
@@ -39,7 +67,7 @@ class LocalExecutor:
 
     def _new_pool(self) -> ProcessPoolExecutor:
         return ProcessPoolExecutor(max_workers=self.workers, mp_context=multiprocessing.get_context("spawn"),
-                                   initializer=lower_priority)
+                                   initializer=lower_priority, initargs=(10, os.getpid()))
 
     def submit(self, fn, *args):
         try:
@@ -52,7 +80,7 @@ class LocalExecutor:
         return self.submit(fn, *args).result()
 
     def close(self) -> None:
-        self._pool.shutdown(wait=False, cancel_futures=True)
+        stop_pool(self._pool)
 
 
 class _LocalFuture:

@@ -75,6 +75,15 @@ class Server:
         self.stop()
         raise RuntimeError(f"server did not start in {timeout} s:\n{self.log.read_text()[-3000:]}")
 
+    def workers(self) -> list:
+        """The server's child processes (executor and preview workers), as psutil objects."""
+        import psutil
+
+        try:
+            return psutil.Process(self.proc.pid).children(recursive=True)
+        except psutil.NoSuchProcess:
+            return []
+
     def kill(self) -> None:
         """SIGKILL the server (a crash)."""
         if self.proc and self.proc.poll() is None:
@@ -113,3 +122,11 @@ def has_recon() -> bool:
 needs_recon = pytest.mark.skipif(not has_recon(), reason="service.recon not available")
 
 
+
+
+def wait_gone(procs, timeout: float = 15.0) -> list:
+    """Wait until the psutil processes ``procs`` have exited; returns those still alive."""
+    import psutil
+
+    _, alive = psutil.wait_procs(procs, timeout=timeout)
+    return alive

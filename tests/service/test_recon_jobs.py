@@ -10,7 +10,7 @@ import h5py
 import httpx
 import numpy as np
 import pytest
-from service_servers import Server, needs_recon, wait_job
+from service_servers import Server, needs_recon, wait_gone, wait_job
 
 pytestmark = needs_recon
 
@@ -165,8 +165,10 @@ def test_dask_localcluster_gives_the_local_pool_result(tmp_path, shared_api):
                 jid = c.post("/api/reconstructions", json={**body, "dataset_id": upload(c, data)}).json()["id"]
                 assert wait_job(c, jid, timeout=180)["state"] == "succeeded"
                 remote = download_volume(c, jid)[0]["p0"]
+                workers = srv.workers()
         finally:
             srv.stop()
+        assert wait_gone(workers) == []  # a stopped server leaves no worker behind
     np.testing.assert_array_equal(remote, local)
 
 

@@ -12,7 +12,7 @@ import time
 import h5py
 import numpy as np
 import pytest
-from service_servers import Server, needs_recon, wait_job
+from service_servers import Server, needs_recon, wait_gone, wait_job
 
 driver_sim = pytest.importorskip("driver.simulator")
 
@@ -241,7 +241,10 @@ def test_sigkill_mid_scan_and_mid_recon_then_restart(tmp_path):
             rid = r.json()["id"]
             # a fresh server spawns its worker first (seconds): the job is caught running
             assert wait_job(c, rid, states=("running", "succeeded"))["state"] == "running"
+        workers = srv.workers()
+        assert workers  # the reconstruction and preview worker processes
         srv.kill()
+        assert wait_gone(workers) == []  # no worker outlives a crashed server
         srv.start()
         with srv.client() as c:
             job = wait_job(c, rid)
