@@ -53,10 +53,17 @@ def _depth_axis(n_t, dt, c, dz, n_z, t0):
     return dz, int(n_z), max(int(n_z), reach)
 
 
-def _check_upsample(upsample) -> int:
+def _check_options(dt, c, method, eps, dtype, upsample, t0):
+    """Validate the options both reconstructions share; ValueError naming the problem."""
+    dt = checks.positive("dt", dt)
+    c = checks.positive("c", c)
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     if int(upsample) != upsample or upsample < 1 or upsample > 8:
         raise ValueError(f"upsample must be an integer in 1..8, got {upsample!r}")
-    return int(upsample)
+    if not np.isfinite(t0) or t0 < 0:
+        raise ValueError(f"t0 must be finite and >= 0 s, got {t0!r}")
+    return dt, c, checks.check_eps(eps), checks.check_dtype(dtype), int(upsample), float(t0)
 
 
 def _pad_spectrum(K: np.ndarray, n_y: int, n_x: int, u: int, ups_y: bool) -> np.ndarray:
@@ -220,15 +227,7 @@ def reconstruct_grid(
     data = checks.finite_array("data", data, (2, 3))
     dx = checks.positive("dx", dx)
     dy = dx if dy is None else checks.positive("dy", dy)
-    dt = checks.positive("dt", dt)
-    c = checks.positive("c", c)
-    if method not in METHODS:
-        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
-    eps = checks.check_eps(eps)
-    rdtype = checks.check_dtype(dtype)
-    upsample = _check_upsample(upsample)
-    if not np.isfinite(t0) or t0 < 0:
-        raise ValueError(f"t0 must be finite and >= 0 s, got {t0!r}")
+    dt, c, eps, rdtype, upsample, t0 = _check_options(dt, c, method, eps, dtype, upsample, t0)
     n_t = data.shape[0]
     if n_t < 2:
         raise ValueError(f"data needs at least 2 time samples, got {n_t}")
@@ -354,15 +353,7 @@ def reconstruct_points(
         raise ValueError(f"alines need at least 2 time samples, got {n_t}")
     pos = _check_positions(positions, n_points)
     d = pos.shape[1]
-    dt = checks.positive("dt", dt)
-    c = checks.positive("c", c)
-    if method not in METHODS:
-        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
-    eps = checks.check_eps(eps)
-    rdtype = checks.check_dtype(dtype)
-    upsample = _check_upsample(upsample)
-    if not np.isfinite(t0) or t0 < 0:
-        raise ValueError(f"t0 must be finite and >= 0 s, got {t0!r}")
+    dt, c, eps, rdtype, upsample, t0 = _check_options(dt, c, method, eps, dtype, upsample, t0)
     dz, n_z, n_work = _depth_axis(n_t, dt, c, dz, n_z, t0)
     if grid is None:
         axes, pitch = _default_grid(pos)
