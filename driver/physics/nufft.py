@@ -242,16 +242,25 @@ def _interp_kernel(U, gvals, gptr, order, kz, qw, c, dt, t0, h, L, kind, w, beta
             pm[j] = complex(math.cos(ph), math.sin(ph))
         for ci in range(gptr[g], gptr[g + 1]):
             col = order[ci]
+            u = U[col]
             for j in range(nkz):
                 if sc[j] == 0.0:
                     out[col, j] = 0.0
                     continue
                 s1 = 0j
                 s2 = 0j
-                for k in range(w):
-                    wk = wts[j, k]
-                    s1 += wk * U[col, ip[j, k]]
-                    s2 += wk * U[col, im[j, k]]
+                b = ip[j, 0]
+                if b >= 1 and b + w <= L:
+                    # no wrap-around: consecutive taps at b.. and mirrored at L-b..
+                    for k in range(w):
+                        wk = wts[j, k]
+                        s1 += wk * u[b + k]
+                        s2 += wk * u[L - b - k]
+                else:
+                    for k in range(w):
+                        wk = wts[j, k]
+                        s1 += wk * u[ip[j, k]]
+                        s2 += wk * u[im[j, k]]
                 out[col, j] = sc[j] * (pp[j] * s1 + pm[j] * s2)
 
 
