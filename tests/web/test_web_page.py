@@ -63,20 +63,17 @@ def sim(tmp_path_factory):
         err.close()
 
 
-@pytest.fixture(scope="module")
-def server(sim, tmp_path_factory):
-    """``fpscan serve`` on 127.0.0.1 with a token and the simulated scanner as ``sim1``."""
+def start_server(data: Path, devices: dict, token: str | None):
+    """``fpscan serve`` on a free 127.0.0.1 port; returns (process, base URL, log file)."""
     if not has_subcommand("serve"):
         pytest.skip("this build has no `fpscan serve`")
-    data = tmp_path_factory.mktemp("serve")
     port = free_port()
     env = dict(os.environ)
-    env.update({
-        "FPSCAN_DATA_DIR": str(data),
-        "FPSCAN_DEVICES": json.dumps({"sim1": sim} if sim else {}),
-        "FPSCAN_TOKEN": TOKEN,
-        "FPSCAN_PREVIEW_INTERVAL_S": "0.5",
-    })
+    env.pop("FPSCAN_TOKEN", None)
+    env.update({"FPSCAN_DATA_DIR": str(data), "FPSCAN_DEVICES": json.dumps(devices),
+                "FPSCAN_PREVIEW_INTERVAL_S": "0.5"})
+    if token:
+        env["FPSCAN_TOKEN"] = token
     log = open(data / "serve.log", "wb")
     proc = subprocess.Popen(fpscan_cmd("serve", "--host", "127.0.0.1", "--port", str(port)), cwd=REPO_ROOT,
                             env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
@@ -89,6 +86,19 @@ def server(sim, tmp_path_factory):
 
     try:
         wait_for(up, 60, "fpscan serve to answer /api/health")
+    except BaseException:
+        stop_process(proc)
+        log.close()
+        raise
+    return proc, base, log
+
+
+@pytest.fixture(scope="module")
+def server(sim, tmp_path_factory):
+    """``fpscan serve`` on 127.0.0.1 with a token and the simulated scanner as ``sim1``."""
+    data = tmp_path_factory.mktemp("serve")
+    proc, base, log = start_server(data, {"sim1": sim} if sim else {}, TOKEN)
+    try:
         yield base
     finally:
         stop_process(proc)
@@ -498,6 +508,47 @@ def test_wrong_token_is_refused_with_the_servers_reason(browser, server, api, sc
     wait_for(lambda: reason in text(browser, "error-text") and el(browser, "error").is_displayed(), 10,
              "the refusal's reason on the page")
     browser.execute_script("sessionStorage.setItem('fpscan.token', arguments[0])", TOKEN)
+
+
+def test_without_a_token_nothing_is_asked_and_plain_links_download(browser, tmp_path, download_dir):
+    """A server with no token configured: the page never asks for one; saving, uploading
+    and the plain download link work as they are."""
+    np = pytest.importorskip("numpy")
+    data = tmp_path / "serve"
+    data.mkdir()
+    proc, base, log = start_server(data, {}, None)
+    try:
+        browser.get(base + "/#/plan")
+        fill_plan_form(browser, N_POINTS)
+        wait_for(lambda: text(browser, "plan-preview-state").startswith("Preview up to date"), 20, "the preview")
+        el(browser, "plan-save").click()
+        plan_id = wait_for(lambda: el(browser, "plan-saved").get_attribute("data-plan-id"), 20, "the saved plan")
+        assert httpx.get(f"{base}/api/plans/{plan_id}", timeout=10).status_code == 200
+
+        path = tmp_path / "tiny.npy"
+        np.save(path, np.random.default_rng(3).standard_normal((64, 8, 8)).astype(np.float32))
+        el(browser, "nav-jobs").click()
+        browser.find_element("css selector", "#upload-panel summary").click()
+        el(browser, "upload-file").send_keys(str(path))
+        set_value(browser, "upload-dt", 20)
+        set_value(browser, "upload-dx", 100)
+        el(browser, "upload-start").click()
+        wait_for(lambda: text(browser, "result-kind") == "recon" and text(browser, "result-state") == "succeeded",
+                 60, "the upload's reconstruction", 0.3)
+        recon_id = el(browser, "result-id").get_attribute("title")
+        assert browser.execute_script("return sessionStorage.getItem('fpscan.token')") is None
+        assert token_prompts(browser) == 0
+        link = wait_for(lambda: next((a for a in browser.find_elements("css selector", "#result-downloads a")
+                                      if a.text.startswith("Volume")), None), 10, "the volume link")
+        link.click()
+        oracle = httpx.get(f"{base}/api/reconstructions/{recon_id}/volume.h5", timeout=30).content
+        # the file name is the server's (Content-Disposition wins over the link's download name)
+        names = [f"volume-{recon_id}.h5", f"{recon_id}.h5"]
+        wait_for(lambda: any((download_dir / n).exists() and (download_dir / n).read_bytes() == oracle for n in names),
+                 30, "the plain link's download, byte for byte")
+    finally:
+        stop_process(proc)
+        log.close()
 
 
 def test_keyboard_navigation_and_state_without_colour(browser, server, screenshots, state):
