@@ -144,7 +144,7 @@ def load_dense(path: str | Path) -> DenseDataset:
                 p0 = dz = None
     if not np.all(np.isfinite(data)):
         raise ValueError(f"{path}: sensor data contains NaN or inf")
-    return DenseDataset(data, dx, dt, c, p0, dz, str(path), {"kwave": kwave})
+    return DenseDataset(data, dx, dt, c, p0, dz, Path(path).name, {"kwave": kwave})
 
 
 def load_dense_scan(path: str | Path) -> DenseDataset:
@@ -178,7 +178,7 @@ def load_dense_scan(path: str | Path) -> DenseDataset:
     data[:, idx[:, 1], idx[:, 0]] = np.asarray(sd.pressure, dtype=np.float64).T
     if n_y == 1:
         data = data[:, 0, :]
-    return DenseDataset(data, pitch, float(sd.dt), float(sd.sound_speed), None, None, str(path),
+    return DenseDataset(data, pitch, float(sd.dt), float(sd.sound_speed), None, None, Path(path).name,
                         {"scan_plan_id": sd.plan_id})
 
 
