@@ -11,23 +11,9 @@ import io
 
 import numpy as np
 
-PLANES = ("xy", "xz", "yz")
+from service.storage.render import PLANES, mip, to_uint8
 
-
-def mip(p0: np.ndarray, plane: str) -> np.ndarray:
-    """The maximum-intensity projection of ``p0`` on ``plane``; raises ``ValueError`` for
-    an unknown plane or one a 2-D image does not have."""
-    p0 = np.asarray(p0)
-    if plane not in PLANES:
-        raise ValueError(f"plane must be one of {', '.join(PLANES)}, not {plane!r}")
-    if p0.ndim == 2:
-        if plane != "xz":
-            raise ValueError("a 2-D image has only the xz plane")
-        return p0
-    if p0.ndim != 3:
-        raise ValueError(f"p0 must be 2-D or 3-D, got {p0.ndim}-D")
-    axis = {"xy": 0, "xz": 1, "yz": 2}[plane]
-    return p0.max(axis=axis)
+__all__ = ["PLANES", "mip", "png_bytes", "mip_pngs"]
 
 
 def png_bytes(image: np.ndarray) -> bytes:
@@ -35,13 +21,12 @@ def png_bytes(image: np.ndarray) -> bytes:
     values clip to black; an all-zero or non-finite image renders black)."""
     from PIL import Image as PILImage
 
-    a = np.nan_to_num(np.asarray(image, dtype=np.float64), nan=0.0, posinf=0.0, neginf=0.0)
+    a = np.asarray(image, dtype=np.float64)
     if a.ndim != 2:
         raise ValueError(f"a PNG needs a 2-D array, got shape {a.shape}")
-    top = a.max() if a.size else 0.0
-    scaled = np.clip(a / top, 0.0, 1.0) if top > 0 else np.zeros_like(a)
+    a = np.where(np.isfinite(a), a, 0.0)
     buf = io.BytesIO()
-    PILImage.fromarray((scaled * 255.0 + 0.5).astype(np.uint8), mode="L").save(buf, format="PNG")
+    PILImage.fromarray(to_uint8(a, vmin=0.0), mode="L").save(buf, format="PNG")
     return buf.getvalue()
 
 
