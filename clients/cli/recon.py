@@ -140,28 +140,11 @@ def reconstruct_dataset(ds, method: str, params: dict):
 
 def write_local_result(out, image, *, input_id: str) -> None:
     """``out/volume.h5`` (``service.storage.results``) and ``out/mip_{plane}.png``
-    (``service.storage.render``), written to a temporary folder renamed into place."""
-    import os
-    import shutil
-    from pathlib import Path
+    (``service.storage.render``), written to a temporary folder renamed into place: the
+    same files a server-side reconstruction job writes (``service.jobs.work.write_result``)."""
+    from service.jobs.work import write_result
 
-    from service.storage.render import render_mips
-    from service.storage.results import write_image
-
-    out = Path(out)
-    tmp = out.with_name(out.name + f".tmp-{os.getpid()}")
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir(parents=True)
-    try:
-        write_image(tmp / "volume.h5", image, input_id=input_id)
-        for plane, png in render_mips(image.p0, image.z, image.x, getattr(image, "y", None)).items():
-            (tmp / f"mip_{plane}.png").write_bytes(png)
-        if out.exists():
-            shutil.rmtree(out)
-        os.replace(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+    write_result(out, image, input_id=input_id)
 
 
 def _local(args, fmt: str, method: str) -> int:
