@@ -64,7 +64,7 @@ def _interp_columns(P, w, w_new_cols, method):
     return out
 
 
-def _recon(p, dt, c, lateral_d, interp, pos_cond, chunk=4096):
+def _recon(p, dt, c, lateral_d, interp, pos_cond, chunk=4096, progress=None):
     method = _INTERPS.get(interp)
     if method is None:
         raise ValueError(f"Interp must be one of {sorted(_INTERPS)}, got {interp!r}")
@@ -83,6 +83,8 @@ def _recon(p, dt, c, lateral_d, interp, pos_cond, chunk=4096):
     P = scipy.fft.fftshift(scipy.fft.fftn(scipy.fft.ifftshift(p, axes=axes), axes=axes, workers=-1), axes=axes)
     del p
     P = P.reshape(ntm, -1)
+    if progress is not None:
+        progress(0.25)
     wc = w[:, None]
     # column chunks bound the memory of the per-column grids (w, k_lat) -> sf, w_new
     for a in range(0, P.shape[1], chunk):
@@ -96,16 +98,21 @@ def _recon(p, dt, c, lateral_d, interp, pos_cond, chunk=4096):
         block[~np.isfinite(block)] = 0
         w_new = c * np.sqrt((0 + (kx**2)[:, None]) + l2)
         P[:, a : a + chunk] = _interp_columns(block, w, w_new, method)
+        if progress is not None:
+            progress(0.25 + 0.6 * min(a + chunk, P.shape[1]) / P.shape[1])
     P = P.reshape(shape)
     out = np.real(scipy.fft.fftshift(scipy.fft.ifftn(scipy.fft.ifftshift(P, axes=axes), axes=axes, workers=-1), axes=axes))
     out = out[(ntm + 1) // 2 - 1 :]
     out = 2 * 2 * out / c
     if pos_cond:
         out[out < 0] = 0
+    if progress is not None:
+        progress(1.0)
     return out
 
 
-def kspace_line_recon(p, dy, dt, c, data_order="ty", interp="*nearest", pos_cond=False) -> np.ndarray:
+def kspace_line_recon(p, dy, dt, c, data_order="ty", interp="*nearest", pos_cond=False,
+                      progress=None) -> np.ndarray:
     """2-D planar reconstruction exactly as k-Wave's ``kspaceLineRecon``.
 
     Parameters
@@ -116,6 +123,8 @@ def kspace_line_recon(p, dy, dt, c, data_order="ty", interp="*nearest", pos_cond
     interp : '*nearest' (k-Wave's default), 'nearest', '*linear', 'linear', 'cubic'
         (Octave: pchip along ω).
     pos_cond : clip negative values to 0 (k-Wave's PosCond).
+    progress : optional callable(fraction) called with increasing fractions in (0, 1]
+        (after the FFT, per chunk of columns, at the end). Not a k-Wave option.
 
     Returns
     -------
@@ -131,16 +140,18 @@ def kspace_line_recon(p, dy, dt, c, data_order="ty", interp="*nearest", pos_cond
     if data_order == "yt":
         p = p.T
     dy, dt, c = (checks.positive(n, v) for n, v in (("dy", dy), ("dt", dt), ("c", c)))
-    return _recon(p, dt, c, (dy,), interp, pos_cond)
+    return _recon(p, dt, c, (dy,), interp, pos_cond, progress=progress)
 
 
-def kspace_plane_recon(p, dy, dz, dt, c, data_order="tyz", interp="*nearest", pos_cond=False) -> np.ndarray:
+def kspace_plane_recon(p, dy, dz, dt, c, data_order="tyz", interp="*nearest", pos_cond=False,
+                       progress=None) -> np.ndarray:
     """3-D planar reconstruction exactly as k-Wave's ``kspacePlaneRecon``.
 
     Parameters
     ----------
     p : (N_t, N_y, N_z) data for ``data_order='tyz'`` or (N_y, N_z, N_t) for ``'yzt'``.
-    dy, dz : sensor spacings in m.  dt, c, interp, pos_cond : as `kspace_line_recon`.
+    dy, dz : sensor spacings in m.  dt, c, interp, pos_cond, progress : as
+        `kspace_line_recon`.
 
     Returns
     -------
@@ -156,4 +167,4 @@ def kspace_plane_recon(p, dy, dz, dt, c, data_order="tyz", interp="*nearest", po
     if data_order == "yzt":
         p = np.transpose(p, (2, 0, 1))
     dy, dz, dt, c = (checks.positive(n, v) for n, v in (("dy", dy), ("dz", dz), ("dt", dt), ("c", c)))
-    return _recon(p, dt, c, (dy, dz), interp, pos_cond)
+    return _recon(p, dt, c, (dy, dz), interp, pos_cond, progress=progress)

@@ -125,13 +125,25 @@ def _cubic_columns(A_cols, n_t, klat2, kz, qw, c, dt, t0):
 
 def _invert(A: np.ndarray, n_x: int, dx: float, dy: float, dt: float, c: float, n_z: int,
             dz: float, t0: float, method: str, eps: float, rdtype: np.dtype, upsample: int,
-            adjoint: bool = False) -> np.ndarray:
+            adjoint: bool = False, progress=None, span: tuple[float, float] = (0.0, 1.0)) -> np.ndarray:
     """Lateral spectrum A (n_t, n_y, n_x//2+1) -> p0 (n_z, n_y*u, n_x*u) (see module doc).
 
     ``adjoint=True`` swaps the inversion weight for the forward model's quadrature weight
     (dz Δk / 4π, the end rows of the DCT-I halved, no halving of the t = 0 sample, no
     Nyquist cut): the operator is then the exact adjoint of
-    `driver.physics.forward_grid(periodic=True)` (dot test)."""
+    `driver.physics.forward_grid(periodic=True)` (dot test).
+
+    ``progress(fraction)`` (optional) is called as the steps finish, the fractions spread
+    over ``span`` in proportion to each step's typical share of the run time."""
+    lo, width = span[0], span[1] - span[0]
+    last = [lo]
+
+    def report(f: float) -> None:  # strictly increasing fractions only
+        value = lo + width * f
+        if progress is not None and value > last[0]:
+            last[0] = value
+            progress(value)
+
     n_t, n_y, n_xr = A.shape
     kx = 2 * np.pi * scipy.fft.rfftfreq(n_x, dx)
     ky = 2 * np.pi * scipy.fft.fftfreq(n_y, dy)
@@ -149,8 +161,11 @@ def _invert(A: np.ndarray, n_x: int, dx: float, dy: float, dt: float, c: float, 
         grid = nufft.make_grid(n_t, _KIND[method], eps)
         U = nufft.to_fine_grid(a, grid, t0_is_zero=(t0 == 0 and not adjoint))
         del a
-        F = nufft.evaluate(U, grid, klat2, kz, qw, c, dt, t0, inversion=not adjoint)
+        report(0.3)
+        F = nufft.evaluate(U, grid, klat2, kz, qw, c, dt, t0, inversion=not adjoint,
+                           progress=lambda f: report(0.3 + 0.45 * f))
         del U
+    report(0.75)
     ctype = np.complex64 if rdtype == np.float32 else np.complex128
     F = np.ascontiguousarray(F, dtype=ctype)
     # DCT-I along depth of the real and imaginary parts (interleaved view: no split copies)
@@ -160,6 +175,7 @@ def _invert(A: np.ndarray, n_x: int, dx: float, dy: float, dt: float, c: float, 
     nufft.transpose(F, K)
     K = K.reshape(n_z, n_y, n_xr)
     del F
+    report(0.85)
     if adjoint:  # DCT-I^T = diag(τ) DCT-I diag(1/τ), τ = ½ at both ends
         K[[0, -1]] *= 0.5
     ups_y = n_y > 1
@@ -169,6 +185,7 @@ def _invert(A: np.ndarray, n_x: int, dx: float, dy: float, dt: float, c: float, 
     p0 = scipy.fft.irfft2(K, s=shape, axes=(1, 2), workers=-1, overwrite_x=True)
     if upsample > 1:
         p0 *= upsample ** (2 if ups_y else 1)
+    report(1.0)
     return p0.astype(rdtype, copy=False)
 
 
@@ -192,6 +209,7 @@ def reconstruct_grid(
     t0: float = 0.0,
     dy: float | None = None,
     memory_limit: int | None = None,
+    progress=None,
 ) -> Image:
     """Reconstruct p0 from data on a regular sensor line or plane (NER-NUFFT by default).
 
@@ -212,6 +230,9 @@ def reconstruct_grid(
     positivity : clip negative values of p0 to 0.
     t0 : time of sample 0 in s (>= 0).
     memory_limit : bytes; default the memory available now.
+    progress : optional callable(fraction) called with increasing fractions in (0, 1]
+        as the steps (lateral FFT, temporal step in chunks, depth transform, inverse
+        lateral FFT) finish.
 
     Returns
     -------
@@ -240,7 +261,10 @@ def reconstruct_grid(
     )
     vol = data.astype(rdtype, copy=False).reshape(n_t, n_y, n_x)
     A = scipy.fft.rfft2(vol, axes=(1, 2), workers=-1)
-    p0 = _invert(A, n_x, dx, dy, dt, c, n_work, dz, float(t0), method, eps, rdtype, upsample)[:n_z]
+    if progress is not None:
+        progress(0.1)
+    p0 = _invert(A, n_x, dx, dy, dt, c, n_work, dz, float(t0), method, eps, rdtype, upsample,
+                 progress=progress, span=(0.1, 1.0))[:n_z]
     if positivity:
         np.maximum(p0, 0, out=p0)
     x = _centred(n_x, dx)[0] + np.arange(n_x * upsample) * (dx / upsample)
@@ -319,6 +343,7 @@ def reconstruct_points(
     positivity: bool = False,
     t0: float = 0.0,
     memory_limit: int | None = None,
+    progress=None,
 ) -> Image:
     """NEDNER-NUFFT: reconstruct p0 from A-lines at arbitrary lateral positions.
 
@@ -333,6 +358,8 @@ def reconstruct_points(
         default the smallest regular grid at the positions' lattice pitch covering them.
         Positions must lie within the grid (half a pitch of slack).
     method : temporal step, as `reconstruct_grid` ("ner" default = NEDNER-NUFFT).
+    progress : optional callable(fraction), as `reconstruct_grid` (the type-1 NUFFT
+        reports in chunks of time samples).
     Other options as `reconstruct_grid`.
 
     The lateral step is a type-1 NUFFT (finufft) from the positions to the grid's
@@ -391,11 +418,19 @@ def reconstruct_points(
     # one thread: batched type-1 transforms with 2 threads were ~40x slower on 2 busy cores;
     # oversampling 1.25 keeps the batched FFTs small (FINUFFT supports it down to ~1e-9)
     opts = dict(eps=eps_nu, isign=-1, modeord=1, nthreads=1, upsampfac=1.25 if eps_nu >= 1e-9 else 2.0)
-    if d == 1:
-        A = finufft.nufft1d1(tx.astype(ftype), strengths, n_x, **opts)[:, None, :]
-    else:
-        ty = 2 * np.pi * (pos[:, 1] - axes[1][0]) / (n_y * dy)
-        A = finufft.nufft2d1(ty.astype(ftype), tx.astype(ftype), strengths, (n_y, n_x), **opts)
+    # the batched type-1 transforms in a few chunks of time samples (each transform is
+    # independent of the others), so that progress is reported through this step too
+    A = np.empty((n_t, n_y, n_x), dtype=ctype)
+    bounds = np.linspace(0, n_t, min(4, n_t) + 1).astype(np.int64)
+    ty = 2 * np.pi * (pos[:, 1] - axes[1][0]) / (n_y * dy) if d == 2 else None
+    for i in range(len(bounds) - 1):
+        a, b = int(bounds[i]), int(bounds[i + 1])
+        if d == 1:
+            A[a:b, 0, :] = finufft.nufft1d1(tx.astype(ftype), strengths[a:b], n_x, **opts)
+        else:
+            A[a:b] = finufft.nufft2d1(ty.astype(ftype), tx.astype(ftype), strengths[a:b], (n_y, n_x), **opts)
+        if progress is not None:
+            progress(0.3 * (i + 1) / (len(bounds) - 1))
     if d == 2 and n_y % 2 == 0:
         # The y-Nyquist row holds the aliased pair ±π/dy; off-grid sensors make the two
         # differ, so take the band-limited (cosine) split: ½(A(-k_N, k_x) + A(+k_N, k_x)),
@@ -410,7 +445,8 @@ def reconstruct_points(
             A[:, r, n_x // 2] = corner
     del strengths
     A = A[:, :, : n_x // 2 + 1]
-    p0 = _invert(A, n_x, dx, dy, dt, c, n_work, dz, float(t0), method, eps, rdtype, upsample)[:n_z]
+    p0 = _invert(A, n_x, dx, dy, dt, c, n_work, dz, float(t0), method, eps, rdtype, upsample,
+                 progress=progress, span=(0.3, 1.0))[:n_z]
     if positivity:
         np.maximum(p0, 0, out=p0)
     x = axes[0][0] + np.arange(n_x * upsample) * (dx / upsample)
