@@ -49,3 +49,21 @@ def test_kwave_progress():
     seen.clear()
     kspace_plane_recon(_data((12, 6, 5)), 1e-4, 1e-4, 2e-8, 1500.0, progress=seen.append)
     assert seen and seen[-1] == 1.0
+
+
+def test_float32_nedner_without_finufft_warnings(capfd):
+    """FINUFFT prints "ns reducing ... catastrophic cancellation" to stderr (and warns)
+    when asked for a tolerance single precision cannot honour; none may appear."""
+    import warnings
+
+    rng = np.random.default_rng(2)
+    pos = rng.uniform(-1e-3, 1e-3, (150, 2))
+    alines = rng.standard_normal((150, 48))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        f32 = reconstruct_points(alines, pos, 2e-8, dtype=np.float32, eps=1e-6)
+    err = capfd.readouterr().err
+    assert "ns reducing" not in err and "catastrophic" not in err, err
+    f64 = reconstruct_points(alines, pos, 2e-8, eps=1e-6)
+    rel = np.linalg.norm(f32.p0 - f64.p0) / np.linalg.norm(f64.p0)
+    assert rel < 1e-4, rel
