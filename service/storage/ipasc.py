@@ -4,8 +4,9 @@ The IPASC data format (International Photoacoustic Standardisation Consortium; r
 implementation PACFISH, ``pacfish.iohandler``) is an HDF5 file with
 
 - ``/binary_time_series_data``: ``[detectors, samples, wavelengths, measurements]``;
-- ``/meta_data/<tag>``: acquisition metadata, every value a dataset, ``None`` stored as
-  the string ``"None"``, SI units;
+- ``/meta_data/<tag>``: acquisition metadata, every value a dataset, SI units (``None``
+  would be the string ``"None"``; we write every tag with a value, so PACFISH's
+  ``quality_check_pa_data`` -- completeness and consistency -- passes on our exports);
 - ``/meta_data_device/general/<tag>`` and ``/meta_data_device/detectors/<id>/<tag>``
   (``<id>``: the detector's index, zero-padded to 10 digits as PACFISH's
   ``DeviceMetaDataCreator`` does; detector i is row i of the binary data).
@@ -44,7 +45,7 @@ class _SmallDatasets:
     def __init__(self) -> None:
         self._f64 = h5t.IEEE_F64LE
         self._scalar = h5s.create(h5s.SCALAR)
-        self._spaces: dict[int, Any] = {}
+        self._spaces: dict[Any, Any] = {}
         self._strtypes: dict[int, Any] = {}
 
     def vector(self, gid: Any, name: str, v: np.ndarray) -> None:
@@ -52,6 +53,13 @@ class _SmallDatasets:
         space = self._spaces.get(v.size)
         if space is None:
             space = self._spaces[v.size] = h5s.create_simple((v.size,))
+        h5d.create(gid, name.encode(), self._f64, space).write(h5s.ALL, h5s.ALL, v)
+
+    def matrix(self, gid: Any, name: str, v: np.ndarray) -> None:
+        v = np.ascontiguousarray(v, dtype="<f8")
+        space = self._spaces.get(v.shape)
+        if space is None:
+            space = self._spaces[v.shape] = h5s.create_simple(v.shape)
         h5d.create(gid, name.encode(), self._f64, space).write(h5s.ALL, h5s.ALL, v)
 
     def scalar(self, gid: Any, name: str, x: float) -> None:
@@ -69,6 +77,13 @@ class _SmallDatasets:
             self._strtypes[len(b)] = t
         h5d.create(gid, name.encode(), t, self._scalar).write(
             h5s.ALL, h5s.ALL, np.array(b, dtype=f"S{max(len(b), 1)}"), mtype=t)
+
+
+def _field_of_view(xy: np.ndarray, c: float, dt: float, n_t: int) -> np.ndarray:
+    """``[x_min, x_max, y_min, y_max, z_min, z_max]`` m: the scanned area down to the depth
+    the recording reaches (c·dt·(n_t − 1))."""
+    return np.array([xy[:, 0].min(), xy[:, 0].max(), xy[:, 1].min(), xy[:, 1].max(),
+                     0.0, c * dt * (n_t - 1)])
 
 
 def _instrument_id(instrument: dict) -> str:
@@ -123,22 +138,42 @@ def export_scan(scan_path: str | os.PathLike, out_path: str | os.PathLike, *,
                 else:
                     group.create_dataset(name, data=value)
 
+            n_wl, n_meas = 1, 1  # binary data [detectors, samples, wavelengths, measurements]
+            fs = 1.0 / dt
             put(m, "uuid", data_uuid or str(_uuid.uuid4()))
             put(m, "encoding", "raw")
-            put(m, "compression", "None")
+            # "none", not "None": PACFISH reads the string "None" back as a missing value
+            put(m, "compression", "none")
             put(m, "data_type", dtype.name)
             put(m, "dimensionality", "time")
-            put(m, "sizes", np.array([n, n_t, 1, 1], dtype=np.int64))
-            put(m, "ad_sampling_rate", 1.0 / dt)
+            put(m, "sizes", np.array([n, n_t, n_wl, n_meas], dtype=np.int64))
+            put(m, "ad_sampling_rate", fs)
             put(m, "speed_of_sound", c)
             put(m, "acquisition_wavelengths",
                 np.asarray(scan.wavelengths, dtype=np.float64) if len(scan.wavelengths) else None)
-            put(m, "measurement_spatial_poses", np.zeros((1, 6)))
-            put(m, "measurement_timestamps", np.array([float(meta["timestamp_s"].min())]))
-            put(m, "pulse_energy", np.array([float(meta["pulse_energy_j"].mean())]))
-            put(m, "measurements_per_image", 1)
+            # one pose per measurement as a (2, 3) block [[x, y, z] m, [rx, ry, rz] rad]
+            # (the reference pose: detector positions are absolute). A (1, 6) array would
+            # be squeezed to (6,) by PACFISH's reader and then fail its own 2-D check.
+            put(m, "measurement_spatial_poses", np.zeros((2 * n_meas, 3)))
+            put(m, "measurement_timestamps",
+                np.full(n_meas, float(meta["timestamp_s"].min())))
+            put(m, "pulse_energy", np.full(n_wl, float(meta["pulse_energy_j"].mean())))
+            put(m, "measurements_per_image", n_meas)
             put(m, "scanning_method", "composite_scan")
             put(m, "photoacoustic_imaging_device_reference", _instrument_id(scan.instrument))
+            # acquisition chain as recorded: the pressure is DC-normalised, no further gain,
+            # no time-gain compensation, no frequency filter (pass band [0, Nyquist] Hz)
+            put(m, "time_gain_compensation", np.ones(n_t))
+            put(m, "overall_gain", 1.0)
+            put(m, "element_dependent_gain", np.ones(n))
+            put(m, "frequency_domain_filter", np.array([0.0, fs / 2.0]))
+            # not measured by the scanner: NaN K unless the instrument reports it
+            put(m, "temperature_control", np.full(
+                n_meas, float(scan.instrument.get("temperature_k", float("nan")))))
+            put(m, "acoustic_coupling_agent",
+                str(scan.instrument.get("acoustic_coupling_agent", "water")))
+            roi = m.create_group("regions_of_interest")
+            put(roi, "scanned_volume", _field_of_view(xy, c, dt, n_t))
             # fpscan extras (not IPASC tags)
             put(m, "fpscan_plan_json", json.dumps(scan.plan, sort_keys=True,
                                                   separators=(",", ":")))
@@ -156,14 +191,18 @@ def export_scan(scan_path: str | os.PathLike, out_path: str | os.PathLike, *,
             dev = f.create_group("meta_data_device")
             g = dev.create_group("general")
             put(g, "unique_identifier", _instrument_id(scan.instrument))
-            put(g, "field_of_view", np.array([xy[:, 0].min(), xy[:, 0].max(),
-                                              xy[:, 1].min(), xy[:, 1].max(),
-                                              0.0, c * dt * (n_t - 1)]))
+            put(g, "field_of_view", _field_of_view(xy, c, dt, n_t))
             put(g, "num_detectors", n)
             put(g, "num_illuminators", 0)
             dev.create_group("illuminators")
             dets = dev.create_group("detectors")
-            spot = scan.instrument.get("spot_radius_m")
+            # the FP interrogation spot: a point-like element (radius 0 m unless the
+            # instrument reports its spot radius), modelled flat in frequency up to Nyquist
+            # and omnidirectional over the half space it faces -- documented assumptions,
+            # the same model the reconstruction uses
+            spot = float(scan.instrument.get("spot_radius_m") or 0.0)
+            frequency_response = np.array([[0.0, fs / 2.0], [1.0, 1.0]])
+            angular_response = np.array([[0.0, math.pi / 2.0], [1.0, 1.0]])
             w = _SmallDatasets()
             orientation = np.array([0.0, 0.0, 1.0])
             for i in range(n):
@@ -173,8 +212,9 @@ def export_scan(scan_path: str | os.PathLike, out_path: str | os.PathLike, *,
                 w.vector(gid, "detector_position", np.array([xy[i, 0], xy[i, 1], 0.0]))
                 w.vector(gid, "detector_orientation", orientation)
                 w.string(gid, "detector_geometry_type", "CIRCULAR")
-                if spot is not None:  # optional tags we cannot fill are left out
-                    w.scalar(gid, "detector_geometry", float(spot))
+                w.scalar(gid, "detector_geometry", spot)
+                w.matrix(gid, "frequency_response", frequency_response)
+                w.matrix(gid, "angular_response", angular_response)
         os.replace(tmp, out_path)
     except BaseException:
         tmp.unlink(missing_ok=True)
