@@ -92,8 +92,8 @@ def estimate_peak_memory(
     peak = max(spectrum + fine, fine + kimage, kimage * (1 + upsample**2) + out)
     if method == "nedner":
         peak = max(peak, 2 * n_t * n_y * n_x * 2 * b + (n_points or 0) * n_t * 3 * b)
-    if method == "kwave":
-        peak = 3 * (2 * n_t) * n_y * n_x * 16
+    if method == "kwave":  # two half-lateral spectra (transposed copy) + per-chunk buffers
+        peak = int(2.4 * spectrum) + n_t * n_y * n_x * b
     peak += n_t * n_y * n_x * b  # the input
     return int(peak * 1.1)
 
