@@ -30,69 +30,201 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
+import numbers
 import struct
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 IMAGE_HEADER = struct.Struct("<4sHH32sIIdIIddddI")
 MAGIC = b"FPPL"
 
+#: The plan JSON format this module reads and checks.
+PLAN_FORMAT = "fpscan-plan/1"
+#: Excitation wavelengths a plan may ask for, m (inclusive): 400 nm to 2000 nm.
+WAVELENGTH_RANGE = (400e-9, 2000e-9)
 
-def canonical_json(obj) -> bytes:
-    """Canonical JSON of docs/architecture.md (sorted keys, no spaces, floats as repr)."""
-    return json.dumps(obj, sort_keys=True, separators=(",", ":")).encode()
+
+def canonical_json(obj: Any) -> str:
+    """Canonical JSON text of docs/architecture.md: ``json.dumps(obj, sort_keys=True,
+    separators=(",", ":"), allow_nan=False)``; floats as Python's ``repr``.
+
+    The one implementation of the plan contract's canonical form (the service, the scan
+    file and the HTTP layer all call this). Raises ``ValueError`` for NaN or infinities
+    (not JSON) and for values JSON cannot hold (``TypeError`` turned into ``ValueError``).
+    """
+    try:
+        return json.dumps(obj, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    except TypeError as exc:
+        raise ValueError(f"not JSON-serialisable: {exc}") from None
+    except ValueError as exc:
+        raise ValueError(f"not JSON-serialisable (NaN or infinity?): {exc}") from None
 
 
-def load_plan(source) -> dict:
+def plan_id_of(plan: dict) -> str:
+    """The plan's id: SHA-256 hex digest (FIPS 180-4) of the UTF-8 canonical JSON
+    (``canonical_json``) of everything but ``id``. Raises ``ValueError`` if the plan
+    holds values JSON cannot represent (NaN, infinity, objects)."""
+    if not isinstance(plan, dict):
+        raise ValueError(f"a plan must be a JSON object, got {type(plan).__name__}")
+    body = {k: v for k, v in plan.items() if k != "id"}
+    return hashlib.sha256(canonical_json(body).encode("utf-8")).hexdigest()
+
+
+def _integer(name: str, value: Any, minimum: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise ValueError(f"plan {name} must be an integer, got {value!r}")
+    if value < minimum:
+        raise ValueError(f"plan {name} must be >= {minimum}, got {value!r}")
+    return int(value)
+
+
+def _number(name: str, value: Any, *, positive: bool = True, unit: str = "") -> float:
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise ValueError(f"plan {name} must be a number{(' in ' + unit) if unit else ''}, got {value!r}")
+    v = float(value)
+    if not math.isfinite(v) or (v <= 0 if positive else v < 0):
+        raise ValueError(f"plan {name} must be finite and {'>' if positive else '>='} 0"
+                         f"{(' ' + unit) if unit else ''}, got {value!r}")
+    return v
+
+
+def check_wavelengths(wavelengths: Any) -> list[float]:
+    """Excitation wavelengths (m) as a list of floats: non-empty, each within
+    ``WAVELENGTH_RANGE`` (400 nm to 2000 nm, the tunable OPO range a FP scanner's
+    excitation laser covers), no duplicates. Raises ``ValueError`` naming the fault."""
+    if isinstance(wavelengths, (str, bytes)) or not isinstance(wavelengths, (list, tuple)):
+        raise ValueError(f"wavelengths must be a list of wavelengths in m, got {wavelengths!r}")
+    if len(wavelengths) == 0:
+        raise ValueError("wavelengths must hold at least one wavelength")
+    lo, hi = WAVELENGTH_RANGE
+    out = []
+    for w in wavelengths:
+        v = _number("wavelength", w, unit="m")
+        if not lo <= v <= hi:
+            raise ValueError(f"wavelengths must lie within {lo * 1e9:g} nm to {hi * 1e9:g} nm, "
+                             f"got {v!r} m ({v * 1e9:g} nm)")
+        out.append(v)
+    if len(set(out)) != len(out):
+        raise ValueError(f"wavelengths must not repeat, got {out!r}")
+    return out
+
+
+def check_acquisition(acq: Any) -> dict:
+    """Check a plan's ``acquisition`` object (docs/architecture.md "Plan JSON"): ``n_t``
+    (int >= 1), ``dt`` (s, > 0), optional ``averages`` (int >= 1), ``wavelengths`` (m, see
+    ``check_wavelengths``), ``prf`` (Hz, >= 0; 0 = as fast as possible), ``sound_speed``
+    (m/s, > 0). Returns it; raises ``ValueError`` naming the first fault."""
+    if not isinstance(acq, dict):
+        raise ValueError("plan 'acquisition' must be an object")
+    if "n_t" not in acq or "dt" not in acq:
+        raise ValueError("plan acquisition needs 'n_t' and 'dt'")
+    _integer("acquisition.n_t", acq["n_t"], 1)
+    _number("acquisition.dt", acq["dt"], unit="s")
+    if "averages" in acq:
+        _integer("acquisition.averages", acq["averages"], 1)
+    if "prf" in acq and acq["prf"] is not None:
+        _number("acquisition.prf", acq["prf"], positive=False, unit="Hz")
+    if "sound_speed" in acq:
+        _number("acquisition.sound_speed", acq["sound_speed"], unit="m/s")
+    check_wavelengths(acq.get("wavelengths"))
+    return acq
+
+
+def check_plan(plan: Any) -> dict:
+    """Check a parsed plan (docs/architecture.md "Plan JSON", ``fpscan-plan/1``): the one
+    validation of the plan contract, used by the host driver, the scan file and the service.
+
+    Checks: the format; ``id`` is the content hash (``plan_id_of``); the lattice
+    (``n_x``, ``n_y`` >= 1, ``pitch`` > 0 m); the acquisition (``check_acquisition``);
+    ``points.indices`` ``(n_points, 2)`` integers inside the lattice without duplicates;
+    ``points.positions`` ``(n_points, 2)`` (or ``(n_points, 1)`` on a line lattice) equal
+    to the lattice positions of the indices (x = (i_x - (n_x - 1)/2)·pitch, y likewise);
+    ``points.weights`` ``(n_points,)`` finite and > 0. ``mask`` and ``order`` are the
+    planner's record and not checked here.
+
+    Returns the plan (unchanged). Raises ``ValueError`` naming the first problem.
+    """
+    if not isinstance(plan, dict):
+        raise ValueError(f"a plan must be a JSON object, got {type(plan).__name__}")
+    if plan.get("format") != PLAN_FORMAT:
+        raise ValueError(f"not an {PLAN_FORMAT} plan (missing or wrong 'format': {plan.get('format')!r})")
+    for key in ("id", "lattice", "points", "acquisition"):
+        if key not in plan:
+            raise ValueError(f"plan has no '{key}'")
+    pid = plan["id"]
+    if not isinstance(pid, str) or len(pid) != 64 or any(ch not in "0123456789abcdef" for ch in pid):
+        raise ValueError("plan id must be a lowercase sha256 hex digest")
+    lat, pts = plan["lattice"], plan["points"]
+    if not isinstance(lat, dict) or not isinstance(pts, dict):
+        raise ValueError("plan 'lattice' and 'points' must be objects")
+    try:
+        n_x = _integer("lattice.n_x", lat["n_x"], 1)
+        n_y = _integer("lattice.n_y", lat["n_y"], 1)
+        pitch = _number("lattice.pitch", lat["pitch"], unit="m")
+    except KeyError as exc:
+        raise ValueError(f"plan lattice has no {exc}") from None
+    check_acquisition(plan["acquisition"])
+    try:
+        raw = np.asarray(pts["indices"])
+        pos = np.asarray(pts["positions"], dtype=np.float64)
+        w = np.asarray(pts["weights"], dtype=np.float64)
+    except KeyError as exc:
+        raise ValueError(f"plan points has no {exc}") from None
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"plan points are malformed: {exc}") from None
+    if raw.ndim != 2 or raw.shape[1:] != (2,) or raw.shape[0] < 1:
+        raise ValueError(f"plan points.indices must be (n_points, 2) with n_points >= 1, got shape {raw.shape}")
+    if raw.dtype.kind not in "iu":
+        raise ValueError("plan points.indices must be integers")
+    idx = raw.astype(np.int64)
+    n = idx.shape[0]
+    if (idx < 0).any() or (idx[:, 0] >= n_x).any() or (idx[:, 1] >= n_y).any():
+        raise ValueError(f"plan points.indices has points outside the lattice {n_x}x{n_y}")
+    if len(np.unique(idx[:, 0] * n_y + idx[:, 1])) != n:
+        raise ValueError("plan points.indices has duplicate points")
+    if pos.ndim != 2 or pos.shape[0] != n or pos.shape[1] not in (1, 2) or (pos.shape[1] == 1 and n_y != 1):
+        raise ValueError(f"plan points.positions must be ({n}, 2) (or ({n}, 1) on a line lattice), "
+                         f"got shape {pos.shape}")
+    if w.shape != (n,):
+        raise ValueError(f"plan points.weights must be ({n},), got shape {w.shape}")
+    if not (np.isfinite(pos).all() and np.isfinite(w).all()) or (w <= 0).any():
+        raise ValueError("plan positions must be finite and weights finite and > 0")
+    want = lattice_positions(idx, n_x, n_y, pitch)[:, :pos.shape[1]]
+    if np.max(np.abs(pos - want)) > 1e-9 * pitch:
+        raise ValueError("plan points.positions are not the lattice positions of points.indices")
+    expected = plan_id_of(plan)
+    if pid != expected:
+        raise ValueError(f"plan id {pid[:16]}... does not match its content hash (sha256 {expected})")
+    return plan
+
+
+def lattice_positions(indices: np.ndarray, n_x: int, n_y: int, pitch: float) -> np.ndarray:
+    """Positions ``(n, 2)`` as (x, y) in m of lattice indices ``(n, 2)`` (i_x, i_y) on an
+    ``n_x × n_y`` lattice at ``pitch`` (m) centred on the optical axis:
+    ``x = (i_x - (n_x - 1)/2)·pitch``, ``y = (i_y - (n_y - 1)/2)·pitch``."""
+    i = np.asarray(indices, dtype=np.float64).reshape(-1, 2)
+    return np.stack([(i[:, 0] - (n_x - 1) / 2) * pitch, (i[:, 1] - (n_y - 1) / 2) * pitch], axis=1)
+
+
+def load_plan(source: Any) -> dict:
     """Read and check a plan: a path to plan JSON, a JSON string, or an already-parsed dict.
 
-    Returns the plan dict. Raises ``ValueError`` naming the first problem (wrong format,
-    missing keys, inconsistent point arrays, indices outside the lattice, bad settings).
+    Returns the plan dict. Raises ``ValueError`` naming the first problem (not JSON, and
+    everything ``check_plan`` rejects); ``OSError`` if the file cannot be read.
     """
     if isinstance(source, dict):
         plan = source
     else:
-        text = Path(source).read_text() if not str(source).lstrip().startswith("{") else source
+        text = Path(source).read_text(encoding="utf-8") if not str(source).lstrip().startswith("{") else str(source)
         try:
             plan = json.loads(text)
         except json.JSONDecodeError as exc:
             raise ValueError(f"plan is not valid JSON: {exc}") from None
-    if not isinstance(plan, dict) or plan.get("format") != "fpscan-plan/1":
-        raise ValueError("not an fpscan-plan/1 plan (missing or wrong 'format')")
-    for key in ("id", "lattice", "points", "acquisition"):
-        if key not in plan:
-            raise ValueError(f"plan has no '{key}'")
-    lat, acq, pts = plan["lattice"], plan["acquisition"], plan["points"]
-    try:
-        n_x, n_y, pitch = int(lat["n_x"]), int(lat["n_y"]), float(lat["pitch"])
-        n_t, dt = int(acq["n_t"]), float(acq["dt"])
-        idx = np.asarray(pts["indices"], dtype=np.int64)
-    except (KeyError, TypeError, ValueError) as exc:
-        raise ValueError(f"plan field missing or malformed: {exc}") from None
-    if n_x < 1 or n_y < 1 or not pitch > 0:
-        raise ValueError(f"bad lattice {n_x}×{n_y} at pitch {pitch}")
-    if n_t < 1 or not dt > 0:
-        raise ValueError(f"bad acquisition settings n_t={n_t}, dt={dt}")
-    if idx.ndim != 2 or idx.shape[1] != 2 or idx.shape[0] < 1:
-        raise ValueError(f"points.indices must be (n_points, 2), got shape {idx.shape}")
-    if (idx < 0).any() or (idx[:, 0] >= n_x).any() or (idx[:, 1] >= n_y).any():
-        raise ValueError("points.indices has points outside the lattice")
-    if len(np.unique(idx[:, 0] * n_y + idx[:, 1])) != len(idx):
-        raise ValueError("points.indices has duplicate points")
-    for key in ("positions", "weights"):
-        if key in pts and len(pts[key]) != len(idx):
-            raise ValueError(f"points.{key} has {len(pts[key])} entries, indices {len(idx)}")
-    pid = str(plan["id"])
-    if len(pid) != 64 or any(ch not in "0123456789abcdef" for ch in pid):
-        raise ValueError("plan id must be a lowercase sha256 hex digest")
-    return plan
-
-
-def plan_id_of(plan: dict) -> str:
-    """SHA-256 hex of the canonical JSON of everything but ``id`` (the plan's content hash)."""
-    return hashlib.sha256(canonical_json({k: v for k, v in plan.items() if k != "id"})).hexdigest()
+    return check_plan(plan)
 
 
 @dataclass(frozen=True)
@@ -117,9 +249,7 @@ class DevicePlan:
 
     def positions(self) -> np.ndarray:
         """Sensor positions ``(n_points, 2)`` as (x, y) in m, lattice centred on the axis."""
-        i = self.indices.astype(np.float64)
-        return np.stack([(i[:, 0] - (self.n_x - 1) / 2) * self.pitch,
-                         (i[:, 1] - (self.n_y - 1) / 2) * self.pitch], axis=1)
+        return lattice_positions(self.indices, self.n_x, self.n_y, self.pitch)
 
 
 def plan_image(plan: dict) -> bytes:

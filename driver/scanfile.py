@@ -57,7 +57,6 @@ from __future__ import annotations
 import datetime as _dt
 import errno
 import fcntl
-import hashlib
 import json
 import math
 import numbers
@@ -72,8 +71,9 @@ import h5py
 import numpy as np
 from h5py import h5d, h5p, h5s, h5t
 
+from driver.plan import canonical_json, check_plan
+
 FORMAT = "fpscan-scan/1"
-PLAN_FORMAT = "fpscan-plan/1"
 
 META_KEYS = ("run_id", "boot_id", "point_index", "pulse_number", "timestamp_s",
              "bias_wavelength_m", "dc_level", "pulse_energy_j", "dt_s", "scale", "offset")
@@ -91,17 +91,6 @@ COMPLETED_CHUNK = 4096  # flags per /completed chunk (4 kB)
 DURABLE_POLICIES = ("process", "fsync")
 
 
-def canonical_json(obj: Any) -> str:
-    """Canonical JSON of docs/architecture.md: sorted keys, no spaces, floats as repr."""
-    return json.dumps(obj, sort_keys=True, separators=(",", ":"), allow_nan=False)
-
-
-def plan_id_of(plan: dict) -> str:
-    """The plan's id: sha256 hex of the canonical JSON of everything but ``id``."""
-    body = {k: v for k, v in plan.items() if k != "id"}
-    return hashlib.sha256(canonical_json(body).encode()).hexdigest()
-
-
 @dataclass(frozen=True)
 class _PlanArrays:
     n_points: int
@@ -115,50 +104,16 @@ class _PlanArrays:
 
 
 def _check_plan(plan: Any) -> _PlanArrays:
-    """Validate a plan dict (docs/architecture.md "Plan JSON"); ValueError names the fault."""
-    if not isinstance(plan, dict):
-        raise ValueError(f"plan must be a dict (the parsed plan JSON), got {type(plan).__name__}")
-    if plan.get("format") != PLAN_FORMAT:
-        raise ValueError(f"plan format must be {PLAN_FORMAT!r}, got {plan.get('format')!r}")
-    for key in ("id", "points", "acquisition"):
-        if key not in plan:
-            raise ValueError(f"plan has no {key!r}")
-    try:
-        expected = plan_id_of(plan)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"plan is not JSON-serialisable: {exc}") from None
-    if plan["id"] != expected:
-        raise ValueError(f"plan id {plan['id']!r} does not match its content (sha256 {expected})")
+    """Validate a plan dict with ``driver.plan.check_plan`` (docs/architecture.md "Plan
+    JSON"; ValueError names the fault) and return its arrays."""
+    check_plan(plan)
     acq, pts = plan["acquisition"], plan["points"]
-    if not isinstance(acq, dict) or not isinstance(pts, dict):
-        raise ValueError("plan 'acquisition' and 'points' must be objects")
-    try:
-        n_t = acq["n_t"]
-        dt = float(acq["dt"])
-        c = float(acq.get("sound_speed", 1500.0))
-        wl = np.asarray(acq.get("wavelengths", []), dtype=np.float64).reshape(-1)
-        pos = np.asarray(pts["positions"], dtype=np.float64)
-        idx = np.asarray(pts["indices"], dtype=np.int64)
-        w = np.asarray(pts["weights"], dtype=np.float64)
-    except (KeyError, TypeError, ValueError) as exc:
-        raise ValueError(f"plan field missing or malformed: {exc!r}") from None
-    if isinstance(n_t, bool) or not isinstance(n_t, numbers.Integral) or n_t < 1:
-        raise ValueError(f"plan acquisition.n_t must be a positive integer, got {n_t!r}")
-    if not (math.isfinite(dt) and dt > 0):
-        raise ValueError(f"plan acquisition.dt must be > 0 s, got {dt!r}")
-    if not (math.isfinite(c) and c > 0):
-        raise ValueError(f"plan acquisition.sound_speed must be > 0 m/s, got {c!r}")
-    if pos.ndim != 2 or pos.shape[0] < 1 or pos.shape[1] not in (1, 2):
-        raise ValueError(f"plan points.positions must be (n_points, 2) or (n_points, 1), "
-                         f"got shape {pos.shape}")
-    n = pos.shape[0]
-    if idx.shape != (n, 2):
-        raise ValueError(f"plan points.indices must be ({n}, 2), got shape {idx.shape}")
-    if w.shape != (n,):
-        raise ValueError(f"plan points.weights must be ({n},), got shape {w.shape}")
-    if not (np.isfinite(pos).all() and np.isfinite(w).all()):
-        raise ValueError("plan positions and weights must be finite")
-    return _PlanArrays(n, int(n_t), dt, c, wl, pos, idx.astype(np.int32), w)
+    pos = np.asarray(pts["positions"], dtype=np.float64)
+    return _PlanArrays(pos.shape[0], int(acq["n_t"]), float(acq["dt"]),
+                       float(acq.get("sound_speed", 1500.0)),
+                       np.asarray(acq["wavelengths"], dtype=np.float64).reshape(-1), pos,
+                       np.asarray(pts["indices"], dtype=np.int64).astype(np.int32),
+                       np.asarray(pts["weights"], dtype=np.float64))
 
 
 # --- superblock status flags (what `h5clear -s` does) ------------------------------------

@@ -1,14 +1,12 @@
 """Plan routes: create (mask parameters or a point list), preview, list, get, preview PNG.
 
-A plan is the JSON of docs/architecture.md (``fpscan-plan/1``); its id is the sha256 of
-the canonical JSON of everything but ``id``. Mask kinds come from ``service.plans``;
-a user point list (lattice indices) is turned into a plan here, weighted by clipped
-Voronoi areas (``service.recon.weights.voronoi_weights``).
+A plan is the JSON of docs/architecture.md (``fpscan-plan/1``); its id is the content hash
+of ``driver.plan``. Every plan, a user point list (lattice indices) included, is built by
+``service.plans.make_plan``.
 """
 from __future__ import annotations
 
 import base64
-import hashlib
 import io
 import json
 
@@ -17,55 +15,10 @@ from fastapi import APIRouter, Depends, HTTPException, Path, Response
 
 from service.api.context import Context, ctx, read_access, require_token
 from service.api.models import ID_PATTERN, Plan, PlanCreate, PlanPreview
-from service.jobs.work import lattice_axes
 
 router = APIRouter(prefix="/api/plans", tags=["plans"])
 
 MAX_POINTS = 1_000_000
-
-
-def canonical_id(plan: dict) -> str:
-    """sha256 hex of ``json.dumps(plan without 'id', sort_keys=True, separators=(',', ':'))``."""
-    body = {k: v for k, v in plan.items() if k != "id"}
-    return hashlib.sha256(json.dumps(body, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
-
-
-def _points_plan(req: PlanCreate) -> dict:
-    lat = req.lattice
-    idx = np.asarray(req.points, dtype=np.int64)
-    if idx.size == 0:
-        raise ValueError("points must hold at least one lattice index")
-    if idx.ndim != 2 or idx.shape[1] != 2:
-        raise ValueError("points must be a list of [i_x, i_y] pairs")
-    if idx.shape[0] > MAX_POINTS:
-        raise ValueError(f"at most {MAX_POINTS} points")
-    if (idx[:, 0] < 0).any() or (idx[:, 0] >= lat.n_x).any() or (idx[:, 1] < 0).any() or (idx[:, 1] >= lat.n_y).any():
-        raise ValueError(f"points must lie on the {lat.n_x}x{lat.n_y} lattice (0 <= i_x < n_x, 0 <= i_y < n_y)")
-    flat = idx[:, 1] * lat.n_x + idx[:, 0]
-    if np.unique(flat).size != flat.size:
-        raise ValueError("points contain duplicates")
-    x, y = lattice_axes(lat.model_dump())
-    positions = np.stack([x[idx[:, 0]], y[idx[:, 1]]], axis=1)
-    two_d = lat.n_y == 1
-    pos_w = positions[:, :1] if two_d else positions
-    if idx.shape[0] == 1:
-        weights = np.array([lat.pitch if two_d else lat.pitch ** 2])
-    else:
-        from service.recon.weights import voronoi_weights
-
-        weights = np.asarray(voronoi_weights(pos_w, pitch=lat.pitch), dtype=np.float64)
-    w_ratio = float(weights.max() / weights.min()) if weights.min() > 0 else None
-    plan = {
-        "format": "fpscan-plan/1",
-        "lattice": {"n_x": lat.n_x, "n_y": lat.n_y, "pitch": lat.pitch},
-        "mask": {"kind": "points", "params": {}, "requested_points": int(idx.shape[0]),
-                 "obtained_points": int(idx.shape[0]), "weight_ratio": w_ratio},
-        "points": {"indices": idx.tolist(), "positions": positions.tolist(), "weights": weights.tolist()},
-        "order": req.order or "given",
-        "acquisition": req.acquisition.model_dump(),
-    }
-    plan["id"] = canonical_id(plan)
-    return plan
 
 
 def _mask_plan(req: PlanCreate) -> dict:
@@ -86,11 +39,14 @@ def _mask_plan(req: PlanCreate) -> dict:
 
 
 def build_plan(req: PlanCreate) -> dict:
-    """The plan JSON for a request; raises ``ValueError`` with the reason."""
+    """The plan JSON for a request (``service.plans.make_plan``, the one plan builder:
+    a user point list is the mask kind ``points``); raises ``ValueError`` with the reason."""
     if req.points is not None:
         if req.kind not in (None, "points"):
             raise ValueError("give either points or a mask kind, not both")
-        return _points_plan(req)
+        if req.params:
+            raise ValueError("a points list takes no params")
+        req = req.model_copy(update={"kind": "points", "params": {"indices": [list(p) for p in req.points]}})
     if not req.kind:
         raise ValueError("give a mask kind (with params) or a points list")
     return _mask_plan(req)

@@ -166,11 +166,12 @@ def poisson_mask(lattice: Lattice, min_distance: float, seed: int = 0, n_points=
 
 def points_mask(lattice: Lattice, points=None, indices=None) -> Mask:
     """A user's points: ``points`` as (x, y) in m (or x on a line lattice), snapped to the
-    nearest lattice point, or ``indices`` (i_x, i_y) directly. Exact duplicates after
-    snapping are dropped (obtained < requested says so); order is kept.
+    nearest lattice point, or ``indices`` (i_x, i_y) directly. Points that snap to the
+    same lattice point are merged (obtained < requested says so); order is kept (the
+    ``auto`` scan order of a point list is ``given``).
 
     Raises ValueError: neither or both given, empty, non-finite, a point more than half a
-    pitch outside the lattice, an index outside it, bad shapes."""
+    pitch outside the lattice, an index outside it, duplicated indices, bad shapes."""
     if (points is None) == (indices is None):
         raise ValueError("give exactly one of points (m) or indices")
     if points is not None:
@@ -194,6 +195,8 @@ def points_mask(lattice: Lattice, points=None, indices=None) -> Mask:
             raise ValueError(f"indices must be a non-empty (n, 2) list, got shape {raw.shape}")
         lattice.positions(raw)  # validates integrality and range
         idx = raw.astype(np.int64)
+        if np.unique(idx, axis=0).shape[0] != idx.shape[0]:
+            raise ValueError("indices contain duplicates (each lattice point once)")
         requested = idx.shape[0]
         params = {"indices": [[int(v) for v in row] for row in idx]}
     idx = _unique_rows(idx)

@@ -1,13 +1,14 @@
 """Scan orderings of a mask's points (DESIGN §4): serpentine, ring by ring alternating,
-nearest-neighbour (greedy, to shorten galvo travel)."""
+nearest-neighbour (greedy, to shorten galvo travel), or as given (the mask's own order,
+e.g. a user's point list)."""
 from __future__ import annotations
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-__all__ = ["ORDERS", "serpentine_order", "ring_order", "nearest_neighbour_order", "scan_order"]
+__all__ = ["ORDERS", "auto_order", "serpentine_order", "ring_order", "nearest_neighbour_order", "scan_order"]
 
-ORDERS = ("serpentine", "rings", "nearest")
+ORDERS = ("serpentine", "rings", "nearest", "given")
 
 
 def serpentine_order(indices) -> np.ndarray:
@@ -88,19 +89,32 @@ def nearest_neighbour_order(positions, start: int = 0) -> np.ndarray:
     return order
 
 
+def auto_order(mask) -> str:
+    """What ``order="auto"`` means for ``mask``: ``rings`` for ring-structured masks
+    (equi-steradian), ``given`` for a user's point list (kept as listed), else ``serpentine``."""
+    if mask.rings is not None:
+        return "rings"
+    return "given" if mask.kind == "points" else "serpentine"
+
+
 def scan_order(mask, order: str = "auto") -> np.ndarray:
     """The permutation ``(n,)`` putting ``mask``'s points in scan order.
 
-    order: ``"auto"`` (rings for ring-structured masks such as equi-steradian, serpentine
-    otherwise), ``"serpentine"``, ``"rings"`` or ``"nearest"`` (greedy nearest-neighbour
-    tour starting from the first point of the auto order).
-    Raises ValueError for an unknown order name."""
+    order: ``"auto"`` (``auto_order``: rings for ring-structured masks such as
+    equi-steradian, given for point lists, serpentine otherwise), ``"serpentine"``, ``"rings"``, ``"nearest"`` (greedy nearest-neighbour
+    tour starting from the first point of the auto order) or ``"given"`` (the mask's own
+    order, e.g. a user's point list as listed).
+    Raises ValueError naming the order for an unknown order name."""
+    if order not in ("auto", *ORDERS):
+        raise ValueError(f"unknown order {order!r}; known: auto, {', '.join(ORDERS)}")
     if order == "auto":
-        order = "rings" if mask.rings is not None else "serpentine"
+        order = auto_order(mask)
     if order == "serpentine":
         return serpentine_order(mask.indices)
     if order == "rings":
         return ring_order(mask.positions, mask.rings, mask.centre)
+    if order == "given":
+        return np.arange(mask.indices.shape[0])
     if order == "nearest":
         first = scan_order(mask, "auto")
         tour = nearest_neighbour_order(mask.positions, start=int(first[0]))

@@ -1,13 +1,13 @@
 """Scan plans: an ordered mask plus acquisition settings, identified by a content hash.
 
-The JSON form is fixed by docs/architecture.md ("Plan JSON", format ``fpscan-plan/1``);
-the id is the sha256 hex digest of the canonical JSON
-(``json.dumps(obj, sort_keys=True, separators=(",", ":"))``, floats as Python's repr) of
-everything but ``id``. ``driver`` reads the same JSON without importing this module.
+The JSON form is fixed by docs/architecture.md ("Plan JSON", format ``fpscan-plan/1``).
+The plan contract itself — canonical JSON, the content hash (the id) and the checks every
+plan must pass — is owned by ``driver.plan`` (the lowest layer: the scanner side reads the
+same JSON without importing ``service``); this module builds plans (``make_plan``: the one
+plan builder for every mask kind, user point lists included) and gives them a typed model.
 """
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 from pathlib import Path
@@ -16,25 +16,24 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
+from driver.plan import PLAN_FORMAT, canonical_json, check_plan, check_wavelengths, plan_id_of
+
 from .kinds import make_mask
 from .lattice import Lattice
 from .mask import Mask, weight_ratio
-from .ordering import scan_order
+from .ordering import ORDERS, auto_order, scan_order
 
-__all__ = ["PLAN_FORMAT", "Plan", "Acquisition", "make_plan", "plan_from_spec", "canonical_json", "content_id"]
+__all__ = ["PLAN_FORMAT", "Plan", "Acquisition", "make_plan", "plan_from_spec", "canonical_json", "content_id",
+           "ORDER_NAMES"]
 
-PLAN_FORMAT = "fpscan-plan/1"
-
-
-def canonical_json(obj: Any) -> str:
-    """Canonical JSON text: sorted keys, no spaces, floats as ``repr`` (architecture.md)."""
-    return json.dumps(obj, sort_keys=True, separators=(",", ":"), allow_nan=False)
+#: Scan order names ``make_plan`` takes (``auto``: rings for ring-structured masks,
+#: serpentine otherwise); a plan records the resolved one.
+ORDER_NAMES = ("auto", *ORDERS)
 
 
 def content_id(plan_dict: dict) -> str:
-    """sha256 hex of the canonical JSON of ``plan_dict`` without its ``id`` key."""
-    body = {k: v for k, v in plan_dict.items() if k != "id"}
-    return hashlib.sha256(canonical_json(body).encode("utf-8")).hexdigest()
+    """The plan's content hash (its id): ``driver.plan.plan_id_of``."""
+    return plan_id_of(plan_dict)
 
 
 def _finite(name: str, v: float) -> float:
@@ -96,7 +95,7 @@ class Acquisition(_Strict):
     n_t: int = Field(default=1024, ge=1)
     dt: float = Field(default=8e-9, gt=0)
     averages: int = Field(default=1, ge=1)
-    wavelengths: list[float] = Field(default_factory=lambda: [7.5e-7], min_length=1)
+    wavelengths: list[float] = Field(default_factory=lambda: [7.5e-7], description="m, 400 nm to 2000 nm, no repeats")
     prf: float = Field(default=50.0, ge=0)
     sound_speed: float = Field(default=1500.0, gt=0)
 
@@ -108,10 +107,7 @@ class Acquisition(_Strict):
     @field_validator("wavelengths")
     @classmethod
     def _wl(cls, v):
-        for x in v:
-            if not math.isfinite(x) or x <= 0:
-                raise ValueError(f"wavelengths must be finite and > 0 m, got {x}")
-        return v
+        return check_wavelengths(v)
 
 
 class Plan(_Strict):
@@ -128,28 +124,19 @@ class Plan(_Strict):
     lattice: LatticeSpec
     mask: MaskSpec
     points: Points
-    order: str
+    order: str = Field(description="the scan order the points are in (serpentine, rings, nearest, given)")
     acquisition: Acquisition
 
     @model_validator(mode="after")
     def _consistent(self, info: ValidationInfo):
-        lat = Lattice(self.lattice.n_x, self.lattice.n_y, self.lattice.pitch)
-        idx = np.asarray(self.points.indices, dtype=np.int64).reshape(-1, 2)
-        pos = lat.positions(idx)  # raises for indices outside the lattice
-        if np.unique(idx, axis=0).shape[0] != idx.shape[0]:
-            raise ValueError("points: duplicated lattice indices")
-        given = np.asarray(self.points.positions, dtype=np.float64)
-        if np.max(np.abs(given - pos)) > 1e-9 * lat.pitch:
-            raise ValueError("points: positions are not the lattice positions of the indices")
-        if self.mask.obtained_points != idx.shape[0]:
-            raise ValueError(
-                f"mask.obtained_points = {self.mask.obtained_points} but the plan has {idx.shape[0]} points"
-            )
-        expected = content_id(self.model_dump(mode="json"))
+        n = len(self.points.indices)
+        if self.mask.obtained_points != n:
+            raise ValueError(f"mask.obtained_points = {self.mask.obtained_points} but the plan has {n} points")
+        d = self.model_dump(mode="json")
         if info.context and info.context.get("assign_id") and self.id == "":
-            object.__setattr__(self, "id", expected)  # make_plan: the id is computed here once
-        if self.id != expected:
-            raise ValueError(f"plan id {self.id[:16]}... does not match its content hash {expected[:16]}...")
+            object.__setattr__(self, "id", plan_id_of(d))  # make_plan: the id is computed here once
+            d["id"] = self.id
+        check_plan(d)  # the plan contract: lattice membership, duplicates, positions, the id
         return self
 
     # -- arrays ---------------------------------------------------------------------
@@ -285,12 +272,18 @@ def make_plan(mask: Mask | str | None = None, *, kind: str | None = None, lattic
     (``make_plan("equisteradian", lattice=..., params={...})`` or
     ``make_plan(kind=..., lattice=..., params=...)``, see ``make_mask``; ``lattice`` a
     ``Lattice`` or a dict n_x, n_y, pitch).
-    order: ``auto`` (rings for equi-steradian, serpentine otherwise), ``serpentine``,
-    ``rings`` or ``nearest``. Acquisition settings: an ``Acquisition``, a dict, or keywords
+    order: ``auto`` (rings for equi-steradian, given for point lists, serpentine otherwise), ``serpentine``,
+    ``rings``, ``nearest`` or ``given`` (the mask's own order: a point list as listed). Acquisition settings: an ``Acquisition``, a dict, or keywords
     n_t, dt (s), averages, wavelengths (m), prf (Hz), sound_speed (m/s); defaults 1024,
     8 ns, 1, [750 nm], 50 Hz, 1500 m/s.
 
-    Raises ValueError for an unknown order, bad settings or bad mask parameters."""
+    ``mask.weight_ratio`` is ``service.plans.weight_ratio`` (outer/inner, paper §6) for every
+    kind, point lists included.
+
+    Raises ValueError for an unknown order (naming it), bad settings or bad mask parameters."""
+    order = order or "auto"
+    if not isinstance(order, str) or order not in ORDER_NAMES:
+        raise ValueError(f"unknown order {order!r}; known: {', '.join(ORDER_NAMES)}")
     if isinstance(mask, str):
         if kind is not None and kind != mask:
             raise ValueError("mask kind given twice")
@@ -311,9 +304,8 @@ def make_plan(mask: Mask | str | None = None, *, kind: str | None = None, lattic
         acquisition = Acquisition(**{**acquisition, **settings})
     elif settings:
         raise ValueError("give acquisition settings either as acquisition=... or as keywords, not both")
-    order = order or "auto"
     perm = scan_order(mask, order)
-    resolved = order if order != "auto" else ("rings" if mask.rings is not None else "serpentine")
+    resolved = order if order != "auto" else auto_order(mask)
     idx = mask.indices[perm]
     pos = mask.positions[perm]
     w = mask.weights[perm]

@@ -17,24 +17,25 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from driver.scanfile import (META_KEYS, ScanFile, _clear_status_flags, _lookup3, plan_id_of,
-                             read_scan)
+from driver.plan import plan_id_of
+from driver.scanfile import META_KEYS, ScanFile, _clear_status_flags, _lookup3, read_scan
 
 REPO = Path(__file__).resolve().parents[2]
 
 
 def make_plan(n_points: int = 50, n_t: int = 64, two_d: bool = False) -> dict:
     n_x = 16
+    n_y = max(16, -(-n_points // n_x))  # enough rows for every point
     idx = [[k % n_x, k // n_x] for k in range(n_points)]
     pitch = 6e-5
     if two_d:
         idx = [[k, 0] for k in range(n_points)]
         pos = [[(i - (n_points - 1) / 2) * pitch] for i, _ in idx]
     else:
-        pos = [[(i - (n_x - 1) / 2) * pitch, (j - 7.5) * pitch] for i, j in idx]
+        pos = [[(i - (n_x - 1) / 2) * pitch, (j - (n_y - 1) / 2) * pitch] for i, j in idx]
     plan = {
         "format": "fpscan-plan/1",
-        "lattice": {"n_x": n_x if not two_d else n_points, "n_y": 16 if not two_d else 1,
+        "lattice": {"n_x": n_x if not two_d else n_points, "n_y": n_y if not two_d else 1,
                     "pitch": pitch},
         "mask": {"kind": "user", "params": {}},
         "points": {"indices": idx, "positions": pos,

@@ -62,6 +62,7 @@ def test_plan_from_points_has_content_hash_id(api, server):
     (b'{"lattice": {"n_x": 8, "n_y": 8, "pitch": 1e-4}, "points": [[1, 1], [1, 1]]}', "duplicates"),
     (b'{"lattice": {"n_x": 8, "pitch": 1e-4}}', "mask kind"),
     (b'{"lattice": {"n_x": 8, "pitch": 1e-4}, "points": [[0, 0]], "surprise": 1}', "surprise"),
+    (b'{"lattice": {"n_x": 8, "pitch": 1e-4}, "points": [[0, 0], [2, 0]], "order": "banana"}', "banana"),
     (b'[1, 2, 3]', "body"),
 ])
 def test_bad_plan_input_gets_422_with_reason(shared_api, body, reason):
