@@ -10,7 +10,7 @@ from pathlib import Path
 
 
 def software_version() -> str:
-    """fpscan's installed version (``0+unknown`` when not installed)."""
+    """The installed fpscan version (``0+unknown`` when not installed)."""
     from importlib.metadata import PackageNotFoundError, version
 
     try:

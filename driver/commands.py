@@ -116,6 +116,7 @@ def block(data: bytes) -> bytes:
 
 
 def error_of(exc: Exception) -> tuple[int, str]:
+    """The SCPI error queue entry ``(code, message)`` that reports ``exc``."""
     if isinstance(exc, ScpiError):
         return exc.code, exc.message
     return -100, f"Command error; {exc}"

@@ -499,7 +499,7 @@ class Scanner:
                         "abort": "SCAN:ABOR"}[what])
 
     # ------------------------------------------------------------------ scanning
-    def scan(self, plan, sink, *, progress: Callable[[Progress], None] | None = None,
+    def scan(self, plan, sink, *, progress: Callable[[Progress], None] | None = None,  # noqa: C901 -- split into a scan session by helper "driver"
              progress_interval: float = 0.25, upload: bool = True) -> ScanResult:
         """Acquire every point of ``plan`` not yet complete in ``sink``.
 
@@ -689,7 +689,7 @@ class Scanner:
         run.need_ack = False
         run.last_ack = time.monotonic()
 
-    def _stream(self, completed: np.ndarray, report, silence: float) -> str:
+    def _stream(self, completed: np.ndarray, report, silence: float) -> str:  # noqa: C901 -- split into transport readers by helper "driver"
         """Receive one run until the record is complete; returns 'done', 'reset', 'abort'."""
         run = self._run
         paused = False

@@ -296,7 +296,7 @@ class ScanFile:
     # -- construction ---------------------------------------------------------------------
     @classmethod
     def create(cls, path: str | os.PathLike, plan: dict, *, instrument: dict,
-               software_version: str, durable: str = "process") -> "ScanFile":
+               software_version: str, durable: str = "process") -> ScanFile:
         """Create a new scan file for ``plan`` and open it for appending.
 
         ``plan``: the plan JSON dict (docs/architecture.md); its ``id`` is checked against
@@ -347,7 +347,7 @@ class ScanFile:
                 a["acquisition_json"] = canonical_json(plan["acquisition"])
                 a["instrument_json"] = instrument_json
                 a["software_version"] = software_version
-                a["created_utc"] = _dt.datetime.now(_dt.timezone.utc).isoformat()
+                a["created_utc"] = _dt.datetime.now(_dt.UTC).isoformat()
                 # zero the flags (early allocation with FILL_TIME_NEVER leaves them undefined)
                 zeros = np.zeros(min(COMPLETED_CHUNK, n), np.uint8)
                 for start in range(0, n, COMPLETED_CHUNK):
@@ -378,7 +378,7 @@ class ScanFile:
 
     @classmethod
     def open_append(cls, path: str | os.PathLike, plan: dict | None = None, *,
-                    durable: str = "process", timeout: float = 10.0) -> "ScanFile":
+                    durable: str = "process", timeout: float = 10.0) -> ScanFile:
         """Reopen an existing scan file (interrupted or not) to continue appending.
 
         If ``plan`` is given, its id must equal the file's plan id (ValueError otherwise).
@@ -545,7 +545,7 @@ class ScanFile:
                     os.close(self._sync_fd)
                 _release_lock(self._path, self._lock_fd)
 
-    def __enter__(self) -> "ScanFile":
+    def __enter__(self) -> ScanFile:
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -597,7 +597,7 @@ class ScanData:
     created_utc: str
     attrs: dict = field(default_factory=dict)
 
-    def completed_only(self) -> "ScanData":
+    def completed_only(self) -> ScanData:
         """A copy restricted to the completed points (rows kept in scan order)."""
         sel = np.flatnonzero(self.completed)
         return ScanData(

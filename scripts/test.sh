@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Set up everything from scratch (a virtual environment with fpscan and its test
-# dependencies) and run the whole test suite.
+# dependencies), run the guard rails (ruff, import-linter contracts, mypy; configured in
+# pyproject.toml) and then the whole test suite. Any guard-rail error fails the run.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 python3 -m venv .venv
@@ -9,4 +10,5 @@ python3 -m venv .venv
 if [ -x scripts/test-setup.d ] || [ -d scripts/test-setup.d ]; then
   for step in scripts/test-setup.d/*.sh; do [ -e "$step" ] && bash "$step"; done
 fi
+bash scripts/lint.sh
 exec .venv/bin/python -m pytest "$@"

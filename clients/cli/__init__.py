@@ -25,6 +25,7 @@ def _subcommand_modules():
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The ``fpscan`` argument parser with one sub-command per module of this package."""
     parser = argparse.ArgumentParser(
         prog="fpscan",
         description="Planar Fabry-Perot photoacoustic scanning: plan, acquire, reconstruct, serve.",
@@ -39,6 +40,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run ``fpscan`` with ``argv`` (default: ``sys.argv[1:]``); return the exit status."""
     parser = build_parser()
     args = parser.parse_args(argv)
     try:

@@ -5,7 +5,8 @@ from __future__ import annotations
 import functools
 import os
 import sys
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 
 def add_server_options(parser, *, required: bool = False) -> None:
@@ -100,7 +101,7 @@ class ProgressBar:
         self._task = None
         self._last_stage = None
 
-    def __enter__(self) -> "ProgressBar":
+    def __enter__(self) -> ProgressBar:
         if self.quiet or not self.stream.isatty():
             return self
         from rich.console import Console

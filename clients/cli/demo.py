@@ -43,6 +43,7 @@ DEFAULTS = {
 
 
 def add_arguments(parser):
+    """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser)."""
     parser.add_argument("--out", default="demo-output", help="output folder (default: demo-output)")
     parser.add_argument("--lattice", type=int, default=DEFAULTS["lattice"], metavar="N",
                         help="scanner lattice N × N (default %(default)s)")
@@ -61,6 +62,7 @@ def add_arguments(parser):
 
 
 def run(args) -> int:
+    """Run this sub-command with the parsed ``args``; return the exit status."""
     from clients.cli._common import client_errors
 
     return client_errors(lambda a: Demo(a).run())(args)
@@ -97,7 +99,6 @@ class _Process:
     def first_line(self, timeout: float) -> str:
         """The first line the process prints on stdout (its device path for `sim`)."""
         import select
-
         import time
 
         deadline = time.monotonic() + timeout
@@ -178,9 +179,8 @@ class Demo:
     # -- entry
     def run(self) -> int:
         import json
-        import time
-
         import shutil
+        import time
 
         a = self.args
         if a.lattice < 8 or a.lattice > 512:
@@ -269,7 +269,7 @@ class Demo:
         for attempt in range(3):  # another program may take the free port first
             port = _free_port()
             argv = [sys.executable, "-m", "clients", "serve", "--host", "127.0.0.1", "--port", str(port)]
-            proc = _Process(argv, log_path=log.with_name(f"server{'-%d' % attempt if attempt else ''}.log"),
+            proc = _Process(argv, log_path=log.with_name(f"server{f'-{attempt}' if attempt else ''}.log"),
                             env=env)
             self.procs.append(proc)
             api = Client(f"http://127.0.0.1:{port}", token=token, timeout=120)

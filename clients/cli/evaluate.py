@@ -19,6 +19,7 @@ NAMES = ("limited-view-2d", "sparse-masks-3d", "nufft-vs-interpolation")
 
 
 def add_arguments(parser):
+    """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser)."""
     parser.add_argument("experiment", choices=NAMES + ("all",), help="which experiment (or all three)")
     parser.add_argument("--data", default=None, metavar="FILE",
                         help="dense dataset instead of the built-in phantom: HDF5 with sensor_data/clean and dt_s/dx_m "
@@ -46,6 +47,7 @@ def _headline(result) -> str:
 
 
 def run(args) -> int:
+    """Run this sub-command with the parsed ``args``; return the exit status."""
     from pathlib import Path
 
     from service.experiments import run_experiment

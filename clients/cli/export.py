@@ -14,6 +14,7 @@ HELP = "export a scan file to the IPASC HDF5 format, locally or from a server's 
 
 
 def add_arguments(parser):
+    """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser)."""
     parser.add_argument("scan", nargs="?", help="scan file (HDF5) to export locally")
     parser.add_argument("--job", default=None, metavar="JOB_ID", help="with --server: the scan job to export")
     parser.add_argument("--out", "-o", default=None,
@@ -30,6 +31,7 @@ def _local_export():
 
 @client_errors
 def run(args) -> int:
+    """Run this sub-command with the parsed ``args``; return the exit status."""
     from pathlib import Path
 
     if args.server:

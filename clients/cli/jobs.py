@@ -13,6 +13,7 @@ KINDS = ("scan", "recon")
 
 
 def add_arguments(parser):
+    """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser)."""
     sub = parser.add_subparsers(dest="action", metavar="ACTION")
     sub.required = True
     p = sub.add_parser("list", help="list jobs", description="List jobs, newest first.")
@@ -36,6 +37,7 @@ def add_arguments(parser):
 
 @client_errors
 def run(args) -> int:
+    """Run this sub-command with the parsed ``args``; return the exit status."""
     import json
 
     from clients.cli._common import ProgressBar, make_client

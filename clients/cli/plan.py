@@ -13,6 +13,7 @@ _KINDS = ("full", "subgrid", "equispaced", "hexagonal", "random", "poisson", "po
 
 
 def add_arguments(parser):
+    """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser)."""
     parser.add_argument("mask", choices=_KINDS, help="mask kind")
     g = parser.add_argument_group("lattice")
     g.add_argument("--n-x", type=int, default=226, help="lattice points along x (default 226)")
@@ -45,7 +46,7 @@ def add_arguments(parser):
     parser.add_argument("--preview", metavar="PNG", help="also write a preview PNG of the mask")
 
 
-def _mask_params(args) -> dict:
+def _mask_params(args) -> dict:  # noqa: C901 -- flags derived from the kind models by helper "plans"
     import json
     from pathlib import Path
 
@@ -98,6 +99,7 @@ def _mask_params(args) -> dict:
 
 
 def run(args) -> int:
+    """Run this sub-command with the parsed ``args``; return the exit status."""
     from service.plans import Lattice, make_mask, make_plan, preview_png
 
     n_y = args.n_y if args.n_y is not None else (1 if args.mask == "equiangular" else args.n_x)

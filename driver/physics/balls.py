@@ -13,8 +13,8 @@ the aliasing that point samples of the discontinuous N-wave would carry.
 """
 from __future__ import annotations
 
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from typing import Iterable, Sequence
 
 import numpy as np
 

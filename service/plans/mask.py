@@ -113,7 +113,8 @@ def weight_ratio(positions: np.ndarray, weights: np.ndarray, centre=(0.0, 0.0)) 
 class Mask:
     """A sensor mask on a scanner lattice.
 
-    Attributes:
+    Attributes
+    ----------
         kind: mask kind name (see ``make_mask``).
         params: the parameters it was made from (JSON-safe, SI units).
         lattice: the scanner lattice.

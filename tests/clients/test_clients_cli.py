@@ -10,7 +10,7 @@ import sys
 import numpy as np
 import pytest
 
-from clients_servers import clean_env, fpscan_server, free_port, has_command
+from tests.clients.clients_servers import clean_env, fpscan_server, free_port, has_command
 
 TOKEN = "cli-test-token"
 

@@ -10,7 +10,7 @@ import sys
 import numpy as np
 import pytest
 
-from clients_servers import clean_env, has_command
+from tests.clients.clients_servers import clean_env, has_command
 
 
 @pytest.fixture(scope="module")
@@ -70,7 +70,7 @@ def test_demo_files_open(demo):
             assert im.format == "PNG"
     with Image.open(out / "mask_preview.png") as im:
         assert im.format == "PNG"
-    for name, r in report["reconstructions"].items():
+    for r in report["reconstructions"].values():
         with h5py.File(out / r["volume"], "r") as f:
             p0, z, y, x = (f[k][...] for k in ("p0", "z", "y", "x"))
         assert p0.shape == (len(z), len(y), len(x)) == tuple(r["shape"])

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from dockerfile_reader import env_of, parse
+from tests.clients.dockerfile_reader import env_of, parse
 
 ROOT = Path(__file__).resolve().parents[2]
 DOCKERFILE = ROOT / "Dockerfile"

@@ -19,7 +19,7 @@ from clients.http import (
     ServerUnavailable,
     field_of,
 )
-from clients_servers import fpscan_server, free_port, has_command
+from tests.clients.clients_servers import fpscan_server, free_port, has_command
 
 TOKEN = "client-test-token"
 
@@ -107,7 +107,7 @@ def test_invalid_plan_is_a_422_naming_the_field(api):
 def test_plan_round_trip_and_preview_png(api, tmp_path):
     from PIL import Image
 
-    from service.api.models import Plan
+    from clients.http.models import Plan
 
     body = _points_body()
     plan = api.create_plan(body)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from clients.http import Client, JobFailed
-from clients_servers import clean_env, fpscan_server, fpscan_sim, has_command
+from tests.clients.clients_servers import clean_env, fpscan_server, fpscan_sim, has_command
 
 TOKEN = "scan-test-token"
 N, PITCH = 16, 4e-4

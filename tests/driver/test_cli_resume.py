@@ -11,9 +11,9 @@ import time
 
 import numpy as np
 import pytest
-from driver_helpers import grid_plan, read_record
 
 from driver.scanfile import read_scan
+from tests.driver.driver_helpers import grid_plan, read_record
 
 pytestmark = pytest.mark.timeout(120)
 FPSCAN = [sys.executable, "-m", "clients"]

@@ -4,7 +4,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from cobs import cobs
-from driver_helpers import grid_plan
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -12,6 +11,7 @@ from driver.aline import ALINE_HEADER, pack_aline, unpack_aline
 from driver.commands import ScpiError, block, canonical_header, parse_command
 from driver.framing import Deframer, FrameError, FrameType, decode_frame, encode_frame
 from driver.plan import load_plan, parse_plan_image, plan_id_of, plan_image
+from tests.driver.driver_helpers import grid_plan
 
 
 def crc32_bitwise(data: bytes) -> int:

@@ -8,7 +8,6 @@ import time
 
 import numpy as np
 import pytest
-from driver_helpers import grid_plan, read_record, small_phantom
 
 from driver.acquire import acquire
 from driver.faults import FaultSpec
@@ -16,6 +15,7 @@ from driver.host import DeviceError, DriverError, InterlockOpen, Scanner
 from driver.scanfile import ScanFile, read_scan
 from driver.simulator import SimConfig, SimulatedScanner
 from driver.sources import BallSource, ReplaySource
+from tests.driver.driver_helpers import grid_plan, read_record, small_phantom
 
 pytestmark = pytest.mark.timeout(120)
 

@@ -6,13 +6,13 @@ from __future__ import annotations
 import h5py
 import numpy as np
 import pytest
-from driver_helpers import grid_plan, small_phantom
 
 from driver.acquire import acquire
 from driver.physics import ball_alines, forward_points
 from driver.scanfile import read_scan
 from driver.simulator import SimConfig, SimulatedScanner
 from driver.sources import BallSource, VolumeSource, default_phantom
+from tests.driver.driver_helpers import grid_plan, small_phantom
 
 pytestmark = pytest.mark.timeout(120)
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import recon_oracle as oracle
 from driver.physics import Ball, ball_alines, ball_p0
 from service.recon import reconstruct_grid
+from tests.recon import recon_oracle as oracle
 
 C, DT, DX = 1500.0, 20e-9, 100e-6
 N_T, N_LAT = 128, 24

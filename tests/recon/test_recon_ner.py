@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import recon_oracle as oracle
 from driver.physics import nufft
 from service.recon import reconstruct_grid
+from tests.recon import recon_oracle as oracle
 
 C, DT, DX = 1500.0, 25e-9, 60e-6
 rng = np.random.default_rng(1234)

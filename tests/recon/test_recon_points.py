@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import recon_oracle as oracle
 from service.recon import reconstruct_grid, reconstruct_points, voronoi_weights
+from tests.recon import recon_oracle as oracle
 
 C, DT, DX = 1500.0, 25e-9, 60e-6
 rng = np.random.default_rng(99)

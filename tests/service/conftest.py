@@ -2,7 +2,8 @@
 from __future__ import annotations
 
 import pytest
-from service_servers import Server
+
+from tests.service.service_servers import Server
 
 
 @pytest.fixture

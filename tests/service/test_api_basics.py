@@ -9,7 +9,8 @@ import sqlite3
 
 import numpy as np
 import pytest
-from service_servers import TOKEN, Server
+
+from tests.service.service_servers import TOKEN, Server
 
 LATTICE = {"n_x": 8, "n_y": 8, "pitch": 1e-4}
 POINTS = [[0, 0], [3, 4], [7, 7], [5, 1]]

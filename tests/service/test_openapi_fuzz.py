@@ -10,7 +10,8 @@ schemathesis = pytest.importorskip("schemathesis")
 from hypothesis import HealthCheck, Phase, given, settings  # noqa: E402
 from schemathesis import checks  # noqa: E402
 from schemathesis.generation.modes import GenerationMode  # noqa: E402
-from service_servers import TOKEN  # noqa: E402
+
+from tests.service.service_servers import TOKEN  # noqa: E402
 
 CHECKS = [checks.not_a_server_error, checks.status_code_conformance, checks.content_type_conformance,
           checks.response_schema_conformance]

@@ -10,7 +10,8 @@ import h5py
 import httpx
 import numpy as np
 import pytest
-from service_servers import Server, needs_recon, wait_gone, wait_job
+
+from tests.service.service_servers import Server, needs_recon, wait_gone, wait_job
 
 pytestmark = needs_recon
 

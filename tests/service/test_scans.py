@@ -12,7 +12,8 @@ import time
 import h5py
 import numpy as np
 import pytest
-from service_servers import Server, needs_recon, wait_gone, wait_job
+
+from tests.service.service_servers import Server, needs_recon, wait_gone, wait_job
 
 driver_sim = pytest.importorskip("driver.simulator")
 

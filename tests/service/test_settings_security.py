@@ -11,10 +11,10 @@ import time
 import httpx
 import numpy as np
 import pytest
-from service_servers import Server, free_port, needs_recon, wait_job
 
 from service.jobs.store import JobStore
 from service.settings import Settings
+from tests.service.service_servers import Server, free_port, needs_recon, wait_job
 
 
 def test_settings_file_environment_and_overrides(tmp_path, monkeypatch):
@@ -145,7 +145,7 @@ def test_fpscan_serve_refuses_bad_settings_with_one_line(argv, env, reason, tmp_
     import subprocess
     import sys
 
-    from service_servers import REPO
+    from tests.service.service_servers import REPO
 
     full_env = {k: v for k, v in os.environ.items() if not k.startswith("FPSCAN_")}
     full_env.update({"FPSCAN_DATA_DIR": str(tmp_path), **env})

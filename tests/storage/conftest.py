@@ -2,9 +2,9 @@
 from __future__ import annotations
 
 import pytest
-from storage_helpers import meta, samples
 
 from driver.scanfile import ScanFile
+from tests.storage.storage_helpers import meta, samples
 
 
 @pytest.fixture

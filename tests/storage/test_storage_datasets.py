@@ -5,12 +5,11 @@ from __future__ import annotations
 import h5py
 import numpy as np
 import pytest
-from storage_helpers import build_plan
 
 from driver.scanfile import read_scan
-from service.storage.datasets import (GridDataset, PointDataset, detect_format,
-                                      load_dataset)
+from service.storage.datasets import GridDataset, PointDataset, detect_format, load_dataset
 from service.storage.ipasc import export_scan
+from tests.storage.storage_helpers import build_plan
 
 
 def test_kwave_reference_files(shared_data):

@@ -5,10 +5,10 @@ from __future__ import annotations
 import h5py
 import numpy as np
 import pytest
-from storage_helpers import build_plan
 
 from driver.scanfile import read_scan
 from service.storage.ipasc import export_scan, read_ipasc
+from tests.storage.storage_helpers import build_plan
 
 
 def test_round_trip_equals_scan(tmp_path, make_scan):

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from web_e2e_support import CHROMIUM_FLAGS, SCREENSHOTS
+from tests.web.web_e2e_support import CHROMIUM_FLAGS, SCREENSHOTS
 
 
 def _browser_paths() -> tuple[str, str]:

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import pytest
 
-from web_e2e_support import REPO_ROOT, fpscan_cmd, free_port, has_subcommand, stop_process, wait_for
+from tests.web.web_e2e_support import REPO_ROOT, fpscan_cmd, free_port, has_subcommand, stop_process, wait_for
 
 httpx = pytest.importorskip("httpx")
 
@@ -369,7 +369,8 @@ def test_result_view_reconstruct_slices_and_download_volume(browser, server, api
         oracle = api.get(f"/api/reconstructions/{recon_id}/mip/{plane}.png")
         assert oracle.status_code == 200
         want = hashlib.sha256(png_pixels_as_browser_png(browser, base64.b64encode(oracle.content).decode())).hexdigest()
-        wait_for(lambda: image_digest(browser, f"result-mip-{plane}") == want, 15, f"the {plane} MIP's pixels")
+        wait_for(lambda plane=plane, want=want: image_digest(browser, f"result-mip-{plane}") == want,
+                 15, f"the {plane} MIP's pixels")
     # The parameters used are listed.
     params = text(browser, "result-params")
     assert "nedner" in params or "method" in params

@@ -4,7 +4,6 @@ unique name."""
 from __future__ import annotations
 
 import os
-import shutil
 import signal
 import socket
 import subprocess

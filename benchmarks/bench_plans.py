@@ -5,7 +5,7 @@ point of interest 3.6 mm above the centre, 1625 points requested) with its weigh
 ratio to the 1 s target, and, measured in the same run, the clipped-Voronoi weights of
 the same positions at full accuracy and a complete plan (ordering + content id).
 
-Run: .venv/bin/python benchmarks/plans.py [--repeat 5]
+Run: .venv/bin/python benchmarks/bench_plans.py [--repeat 5]
 """
 from __future__ import annotations
 

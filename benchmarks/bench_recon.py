@@ -7,7 +7,7 @@ of the mirrored volume (2 n_t, n_y, n_x) measured in the same process, and each
 process's peak resident memory. Every method runs in a fresh process (so the peak
 memory is its own) after a small warm-up run (numba compilation).
 
-    .venv/bin/python benchmarks/recon.py [--sizes 512x128x128 1024x226x226] [--repeat 2]
+    .venv/bin/python benchmarks/bench_recon.py [--sizes 512x128x128 1024x226x226] [--repeat 2]
 
 Targets (DESIGN §8): NER <= 1.5x (float64), <= 1.0x (float32); NEDNER <= 1.5x; NER no
 slower than linear. The paper: 154 s (226x226 NER), 134 s (1625-sensor NEDNER).
@@ -18,15 +18,9 @@ import argparse
 import multiprocessing as mp
 import queue as queue_mod
 import resource
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
-
-# benchmarks/service.py would shadow the `service` package for this script's processes
-_HERE = Path(__file__).resolve().parent
-sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != _HERE]
 
 C, DT, PITCH = 1500.0, 8e-9, 60e-6
 

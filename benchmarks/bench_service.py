@@ -9,7 +9,7 @@
    pty) through the server; the live preview's refresh time (NEDNER of the points so far
    + MIP PNGs, reported by ``GET /api/scans/{id}/preview``). Target < 2 s for ~1600 points.
 
-Run: ``.venv/bin/python benchmarks/service.py`` (``--quick`` for a small smoke run).
+Run: ``.venv/bin/python benchmarks/bench_service.py`` (``--quick`` for a small smoke run).
 Prints one JSON object. Starts its own server (127.0.0.1, free port) and simulator, and
 stops them.
 """

@@ -9,7 +9,7 @@ Measures, in one run:
 Prints both and their ratio: A-lines/s × wire bytes per A-line ÷ raw pty bytes/s.
 Targets: >= 5000 A-lines/s and >= 40 %.
 
-    .venv/bin/python benchmarks/acquisition.py [--side 142] [--n-t 2048]
+    .venv/bin/python benchmarks/bench_acquisition.py [--side 142] [--n-t 2048]
 """
 from __future__ import annotations
 
@@ -26,8 +26,6 @@ import tempfile
 import time
 import tty
 from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from driver.aline import ALINE_HEADER
 from driver.framing import HEADER, FrameType, encode_frame
