@@ -136,7 +136,7 @@ def _map_columns(P, lat2, w, kz, c, nearest, out):
 
 
 def _cubic_block(P_half, w_full, lat2, phase, kx, c):
-    """pchip (Octave 'cubic') mapping of a chunk of columns (rows of ``P_half``, (cols, N)
+    """The pchip (Octave 'cubic') mapping of a chunk of columns (rows of ``P_half``, (cols, N)
     -> (cols, N)) on the full mirrored ω grid (pchip slopes at ω = 0 see the negative
     side), as k-Wave evaluates it.
 

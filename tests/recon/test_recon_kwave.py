@@ -5,9 +5,8 @@ import h5py
 import numpy as np
 import pytest
 
-import kwave_transcription as literal
-
 from service.recon import kspace_line_recon, kspace_plane_recon, reconstruct_grid
+from tests.recon import kwave_transcription as literal
 
 INTERP = {"starlinear": "*linear", "nearest": "nearest", "cubic": "cubic"}
 
