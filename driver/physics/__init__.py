@@ -7,6 +7,8 @@
   plane (on the sensor grid or at arbitrary sensor positions).
 - `nufft`: the 1-D temporal non-uniform FFT (exponential-of-semicircle kernel) used by
   the forward model (spreading) and by the NER reconstruction (interpolation).
+- `spectra`: molar extinction spectra of HbO2 and Hb (Prahl's table, shipped as data)
+  and the absorption μa of haemoglobin at a given sO2 and concentration.
 """
 from driver.physics.balls import Ball, ball_alines, ball_p0
 from driver.physics.forward import forward_grid, forward_points
