@@ -16,22 +16,20 @@ Units of this API (SI):
 - absorption coefficients μa in m⁻¹, natural-log (Napierian) as used in p0 = Γ μa Φ:
   μa = ln(10) · (ε_HbO2 · C_HbO2 + ε_Hb · C_Hb)  (Prahl's page, "absorption coefficient").
 
-Between table rows ε is linearly interpolated. Wavelengths are checked against the
-range fpscan accepts for an excitation laser (400-2000 nm, ``WAVELENGTH_RANGE``) and,
-for anything that needs ε, against the table's own range (250-1000 nm): a wavelength
-outside either raises ``ValueError`` (never extrapolated).
+Between table rows ε is linearly interpolated; a wavelength outside the table's range
+(250-1000 nm) raises ``ValueError`` (never extrapolated). Which excitation wavelengths a
+plan may ask for (400-2000 nm, no repeats) is the plan's rule,
+``driver.plan.check_wavelengths``.
 """
 from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Sequence
 from importlib import resources
-from typing import Sequence
 
 import numpy as np
 
-#: excitation wavelengths fpscan accepts, m (inclusive)
-WAVELENGTH_RANGE: tuple[float, float] = (400e-9, 2000e-9)
 #: chromophore order of every ``(..., 2)`` array in this module and in the unmixing
 CHROMOPHORES: tuple[str, str] = ("HbO2", "Hb")
 #: molar mass of haemoglobin used by Prahl's page to convert g/L to mol/L, g/mol
@@ -79,13 +77,10 @@ def table_range() -> tuple[float, float]:
     return float(wl[0]), float(wl[-1])
 
 
-def check_wavelengths(wavelengths: float | Sequence[float] | np.ndarray) -> np.ndarray:
-    """Validate a list of excitation wavelengths (m) and return it as ``(n,)`` float64.
-
-    Raises ``ValueError`` for an empty list, a non-numeric / non-finite value, a
-    wavelength outside ``WAVELENGTH_RANGE`` (400-2000 nm; a value that looks like nm, e.g.
-    750, is named as such) or a duplicate (within 1 pm). Order is kept.
-    """
+def _wavelengths(wavelengths: float | Sequence[float] | np.ndarray) -> np.ndarray:
+    """A scalar, sequence or array of wavelengths (m) -> finite ``(n,)`` float64, n >= 1."""
+    if isinstance(wavelengths, (str, bytes)):
+        raise ValueError(f"wavelengths must be numbers in m, got {wavelengths!r}")
     try:
         w = np.asarray(wavelengths, dtype=np.float64).reshape(-1)
     except (TypeError, ValueError) as exc:
@@ -94,16 +89,6 @@ def check_wavelengths(wavelengths: float | Sequence[float] | np.ndarray) -> np.n
         raise ValueError("wavelengths: at least one wavelength is required")
     if not np.all(np.isfinite(w)):
         raise ValueError(f"wavelengths must be finite, got {w.tolist()}")
-    lo, hi = WAVELENGTH_RANGE
-    bad = w[(w < lo) | (w > hi)]
-    if bad.size:
-        hint = " (they look like nm; give metres, e.g. 7.5e-07)" if np.all(bad >= 1.0) else ""
-        raise ValueError(f"wavelengths must lie in {lo * 1e9:.0f}-{hi * 1e9:.0f} nm, "
-                         f"got {[float(b) for b in bad]} m{hint}")
-    order = np.sort(w)
-    dup = order[1:][np.diff(order) < 1e-12]
-    if dup.size:
-        raise ValueError(f"duplicate wavelengths: {[float(d) for d in dup]} m")
     return w
 
 
@@ -112,10 +97,11 @@ def molar_extinction(wavelengths: float | Sequence[float] | np.ndarray) -> np.nd
 
     ``wavelengths``: scalar or ``(n_wavelengths,)`` in m. Returns ``(n_wavelengths, 2)``
     in m²/mol, columns (HbO2, Hb), linearly interpolated in Prahl's table (omlc.org).
-    Raises ``ValueError`` (via ``check_wavelengths``) for empty / non-finite / duplicate
-    input or a wavelength outside 400-2000 nm, and for one outside the table (250-1000 nm).
+    Raises ``ValueError`` for an empty list, a non-numeric or non-finite value and a
+    wavelength outside the table (250-1000 nm; never extrapolated). Which wavelengths a
+    plan may ask for (400-2000 nm, no repeats) is ``driver.plan.check_wavelengths``.
     """
-    w = check_wavelengths(wavelengths)
+    w = _wavelengths(wavelengths)
     wl, eps = _table()
     outside = w[(w < wl[0] - 1e-15) | (w > wl[-1] + 1e-15)]
     if outside.size:
