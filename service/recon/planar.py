@@ -41,16 +41,27 @@ METHODS = ("ner", "linear", "nearest", "cubic")
 _KIND = {"ner": "nufft", "linear": "linear", "nearest": "nearest"}
 
 
+def _fast_dct1_rows(n: int) -> int:
+    """Smallest K >= n whose DCT-I runs on a fast FFT length (2 (K - 1) with only the
+    factors 2, 3, 5, 7, 11: `scipy.fft.next_fast_len`)."""
+    m = scipy.fft.next_fast_len(2 * (n - 1), real=True)
+    while m % 2:
+        m = scipy.fft.next_fast_len(m + 1, real=True)
+    return m // 2 + 1
+
+
 def _depth_axis(n_t, dt, c, dz, n_z, t0):
     """(dz, n_z, n_work): the output depth grid and the working depth count, which also
     reaches the depth c t of the last sample, so that no recorded signal folds back into
-    the image through the periodicity of the depth transform (period 2 (n_work - 1) dz)."""
+    the image through the periodicity of the depth transform (period 2 (n_work - 1) dz),
+    rounded up so that the depth transform runs at a fast FFT length (more rows than
+    needed only lengthen the period; the rows asked for are cropped)."""
     dz = c * dt if dz is None else checks.positive("dz", dz)
     n_z = n_t if n_z is None else n_z
     if int(n_z) != n_z or n_z < 2:
         raise ValueError(f"n_z must be an integer >= 2, got {n_z!r}")
     reach = int(np.ceil(c * (t0 + (n_t - 1) * dt) / dz * (1 - 1e-12))) + 1
-    return dz, int(n_z), max(int(n_z), reach)
+    return dz, int(n_z), _fast_dct1_rows(max(int(n_z), reach))
 
 
 def _check_options(dt, c, method, eps, dtype, upsample, t0):
@@ -237,7 +248,8 @@ def reconstruct_grid(
     Returns
     -------
     `Image` with p0 (n_z, n_x*u) or (n_z, n_y*u, n_x*u), row 0 at z = 0, lateral
-    coordinates centred on the optical axis.
+    coordinates centred on the optical axis. ``params["depth_rows"]`` is K of the module
+    doc: at least the depth the last sample reaches, rounded up to a fast FFT length.
 
     Raises
     ------
@@ -271,7 +283,7 @@ def reconstruct_grid(
     y = None if is2d else _centred(n_y, dy)[0] + np.arange(n_y * upsample) * (dy / upsample)
     params = dict(method=method, dx=dx, dy=None if is2d else dy, dt=dt, c=c, eps=eps,
                   dtype=rdtype.name, dz=dz, n_z=n_z, upsample=upsample, positivity=bool(positivity),
-                  t0=float(t0), n_t=n_t, data_shape=list(data.shape))
+                  t0=float(t0), n_t=n_t, data_shape=list(data.shape), depth_rows=n_work)
     return Image(p0[:, 0, :] if is2d else p0, np.arange(n_z) * dz, x, y, params)
 
 
@@ -458,6 +470,6 @@ def reconstruct_points(
     y = None if d == 1 else axes[1][0] + np.arange(n_y * upsample) * (dy / upsample)
     params = dict(method="nedner" if method == "ner" else method, temporal=method, dt=dt, c=c, eps=eps,
                   dtype=rdtype.name, dz=dz, n_z=n_z, upsample=upsample, positivity=bool(positivity),
-                  t0=float(t0), n_t=n_t, n_points=n_points, dx=dx, dy=dy if d == 2 else None,
+                  t0=float(t0), n_t=n_t, n_points=n_points, depth_rows=n_work, dx=dx, dy=dy if d == 2 else None,
                   weights="voronoi" if weights is None else "given")
     return Image(p0[:, 0, :] if d == 1 else p0, np.arange(n_z) * dz, x, y, params)

@@ -41,9 +41,11 @@ def even_transform(A, omega, dt, t0):
     return np.einsum("yxzn,nyx->yxz", w, A)
 
 
-def invert(A, kx, kxw, ky, kyw, dt, c, n_z, dz, t0, x_out, y_out=None, n_lat=None):
+def invert(A, kx, kxw, ky, kyw, dt, c, n_z, dz, t0, x_out, y_out=None, n_lat=None, rows=None):
     """The discrete formula from the lateral spectrum A (n_t, n_ky, n_kx) to p0
-    (n_z, n_y, n_x) at the output coordinates; n_lat = (n_y, n_x) grid sizes."""
+    (rows, n_y, n_x) at the output coordinates, with n_z = K depth-transform rows (the
+    implementation records its K as ``params["depth_rows"]``) and the first ``rows``
+    (default all K) returned; n_lat = (n_y, n_x) grid sizes."""
     dk = np.pi / ((n_z - 1) * dz)
     kz = dk * np.arange(n_z)
     omega = c * np.sqrt(ky[:, None, None] ** 2 + kx[None, :, None] ** 2 + kz[None, None, :] ** 2)
@@ -60,4 +62,4 @@ def invert(A, kx, kxw, ky, kyw, dt, c, n_z, dz, t0, x_out, y_out=None, n_lat=Non
     yv = np.zeros(1) if y_out is None else y_out
     ph = np.exp(1j * (ky[None, :, None, None] * yv[:, None, None, None] + kx[None, None, :, None] * x_out[None, None, None, :]))
     out = np.einsum("jyx,Yyxi->jYi", Fz, ph) / np.prod(n_lat)
-    return out.real
+    return out.real[:rows]

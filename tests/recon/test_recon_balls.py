@@ -24,7 +24,8 @@ def setup():
     data = al.T.reshape(N_T, N_LAT, N_LAT)
     kx, kxw = oracle.kgrid(N_LAT, DX)
     A = oracle.lateral_dft(al, pos, np.ones(len(pos)), kx, kx)
-    exact = oracle.invert(A, kx, kxw, kx, kxw, DT, C, N_T, DZ, 0.0, x, x, n_lat=(N_LAT, N_LAT))
+    rows = reconstruct_grid(data[:, :2, :2], DX, DT, C).params["depth_rows"]  # K depends on n_t, dt, c, dz only
+    exact = oracle.invert(A, kx, kxw, kx, kxw, DT, C, rows, DZ, 0.0, x, x, n_lat=(N_LAT, N_LAT), rows=N_T)
     z = np.arange(N_T) * DZ
     analytic = ball_p0(balls, z, x, x, supersample=3)
     region = np.zeros(exact.shape, bool)

@@ -32,8 +32,10 @@ def test_nedner_matches_direct_sum_3d(n_x, n_y):
     A = oracle.lateral_dft(al, pos, h / DX**2, kx, ky)
     # each step: the lateral type-1 NUFFT against the direct sum (via the whole pipeline
     # at two tolerances) and the whole pipeline
-    ref = oracle.invert(A, kx, kxw, ky, kyw, DT, C, n_t, C * DT, 0.0, x, y, n_lat=(n_y, n_x))
-    errs = [rel(reconstruct_points(al, pos, DT, C, weights=h, grid=(x, y), eps=e).p0, ref) for e in (1e-3, 1e-6)]
+    ims = [reconstruct_points(al, pos, DT, C, weights=h, grid=(x, y), eps=e) for e in (1e-3, 1e-6)]
+    K = ims[0].params["depth_rows"]
+    ref = oracle.invert(A, kx, kxw, ky, kyw, DT, C, K, C * DT, 0.0, x, y, n_lat=(n_y, n_x), rows=n_t)
+    errs = [rel(im.p0, ref) for im in ims]
     assert errs[1] <= 1e-5 and errs[0] > errs[1], errs
 
 
@@ -45,8 +47,9 @@ def test_nedner_matches_direct_sum_2d():
     al = rng.standard_normal((11, n_t))
     kx, kxw = oracle.kgrid(n_x, DX)
     A = oracle.lateral_dft(al, pos, h / DX, kx)
-    ref = oracle.invert(A, kx, kxw, np.zeros(1), np.ones(1), DT, C, n_t, C * DT, 0.0, x, n_lat=(1, n_x))[:, 0, :]
     im = reconstruct_points(al, pos, DT, C, weights=h, grid=(x,))
+    ref = oracle.invert(A, kx, kxw, np.zeros(1), np.ones(1), DT, C, im.params["depth_rows"], C * DT, 0.0, x,
+                        n_lat=(1, n_x), rows=n_t)[:, 0, :]
     assert im.p0.shape == (n_t, n_x)
     assert rel(im.p0, ref) <= 1e-5
 
@@ -61,7 +64,8 @@ def test_lateral_step_is_the_type1_sum():
     im = reconstruct_points(al, pos, DT, C, weights=np.array([DX]), grid=(x,), eps=1e-9)
     kx, kxw = oracle.kgrid(n_x, DX)
     A = oracle.lateral_dft(al, pos, np.ones(1), kx)
-    ref = oracle.invert(A, kx, kxw, np.zeros(1), np.ones(1), DT, C, n_t, C * DT, 0.0, x, n_lat=(1, n_x))[:, 0, :]
+    ref = oracle.invert(A, kx, kxw, np.zeros(1), np.ones(1), DT, C, im.params["depth_rows"], C * DT, 0.0, x,
+                        n_lat=(1, n_x), rows=n_t)[:, 0, :]
     assert rel(im.p0, ref) <= 1e-7
 
 
