@@ -62,6 +62,13 @@ class Settings(BaseSettings):
     resume_scans: bool = Field(False, description="resume scans interrupted by a restart at start-up "
                                                   "(default: they wait, paused, for POST /resume)")
     log_level: str = "info"
+    token_file: Path | None = Field(None, description="file holding the bearer token (Docker secrets: "
+                                                      "/run/secrets/<name>); used when token is not set")
+    retention_keep_results: int | None = Field(None, ge=0, description="keep the newest N finished "
+                                               "reconstruction results (None = all); PUT /api/retention overrides")
+    retention_keep_bytes: int | None = Field(None, ge=0, description="keep at most this many bytes of result "
+                                             "files, oldest finished deleted first (None = no limit)")
+    retention_include_scans: bool = Field(False, description="let retention delete finished scan files too")
 
     @field_validator("devices")
     @classmethod
@@ -98,7 +105,20 @@ class Settings(BaseSettings):
         return text
 
     def token_value(self) -> str | None:
-        return self.token.get_secret_value() if self.token is not None else None
+        """The bearer token: ``token``, else the first line of ``token_file`` (surrounding
+        whitespace stripped). Raises ValueError when the file cannot be read or is empty."""
+        if self.token is not None:
+            return self.token.get_secret_value()
+        if self.token_file is None:
+            return None
+        try:  # read on use: a rotated secret takes effect without a restart
+            text = Path(self.token_file).read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as exc:
+            raise ValueError(f"cannot read token_file {self.token_file}: {exc}") from None
+        token = text.strip().splitlines()[0].strip() if text.strip() else ""
+        if not token:
+            raise ValueError(f"token_file {self.token_file} is empty")
+        return token
 
     @classmethod
     def load(cls, path: str | os.PathLike | None = None, **overrides: Any) -> Settings:

@@ -1,12 +1,12 @@
 """`fpscan jobs`: list, inspect, wait on and cancel the server's jobs (scans and
 reconstructions) over HTTP (``GET /api/jobs``, ``GET /api/jobs/{id}``, the SSE stream,
-``POST /api/jobs/{id}/cancel``)."""
+``POST /api/jobs/{id}/cancel``, ``DELETE /api/jobs/{id}``)."""
 from __future__ import annotations
 
 from clients.cli._common import add_progress_option, add_server_options, client_errors
 
 COMMAND = "jobs"
-HELP = "list, show, wait on or cancel the server's jobs (scans, reconstructions)"
+HELP = "list, show, wait on, cancel or delete the server's jobs (scans, reconstructions)"
 
 STATES = ("queued", "running", "paused", "succeeded", "failed", "cancelled")
 KINDS = ("scan", "recon")
@@ -32,6 +32,13 @@ def add_arguments(parser):
     add_server_options(p, required=True)
     p = sub.add_parser("cancel", help="cancel a job", description="Cancel a job (cooperative).")
     p.add_argument("job_id")
+    add_server_options(p, required=True)
+    p = sub.add_parser("delete", help="delete finished jobs and their files",
+                       description="Delete finished jobs with their files (a scan's scan file, a "
+                                   "reconstruction's volume and pictures). Refused (exit 1) for a job "
+                                   "that is queued, running or paused, or whose scan an active "
+                                   "reconstruction reads: cancel it first.")
+    p.add_argument("job_ids", nargs="+", metavar="job_id")
     add_server_options(p, required=True)
 
 
@@ -59,6 +66,15 @@ def run(args) -> int:
             return 0
         if args.action == "get":
             print(json.dumps(to_dict(api.get_job(args.job_id)), indent=2))
+            return 0
+        if args.action == "delete":
+            freed = 0
+            for jid in args.job_ids:
+                gone = api.delete_job(jid)
+                freed += int(gone.get("bytes_freed") or 0)
+                print(f"{jid}: deleted ({gone.get('kind')}, {gone.get('bytes_freed', 0) / 1e6:.1f} MB freed)")
+            if len(args.job_ids) > 1:
+                print(f"{freed / 1e6:.1f} MB freed in all")
             return 0
         if args.action == "cancel":
             api.cancel_job(args.job_id)

@@ -12,7 +12,8 @@ def add_arguments(parser):
     parser.add_argument("--data-dir", default=None, help="folder for the database, scans and results")
     parser.add_argument("--device", action="append", default=[], metavar="ID=PATH",
                         help="a scanner: id and serial device path or pyserial URL (repeatable)")
-    parser.add_argument("--token", default=None, help="bearer token (default: $FPSCAN_TOKEN)")
+    parser.add_argument("--token", default=None, help="bearer token (default: $FPSCAN_TOKEN, else the file "
+                        "$FPSCAN_TOKEN_FILE names, e.g. a Docker secret)")
     parser.add_argument("--executor", choices=["local", "dask"], default=None, help="where reconstructions run")
     parser.add_argument("--dask-scheduler", default=None, help="dask.distributed scheduler address")
     parser.add_argument("--workers", type=int, default=None, help="local process pool size")
@@ -63,8 +64,9 @@ def run(args) -> int:
         settings = Settings.load(args.settings, **overrides)
     except ValidationError as exc:
         raise ValueError("; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())) from None
-    if not is_loopback(settings.host) and settings.token is None:
-        raise ValueError(f"binding to {settings.host} (beyond loopback) needs a --token")
+    if not is_loopback(settings.host) and settings.token_value() is None:  # reads token_file
+        raise ValueError(f"binding to {settings.host} (beyond loopback) needs a --token "
+                         "(or $FPSCAN_TOKEN_FILE)")
 
     level = settings.log_level.upper()
     logging.basicConfig(level=getattr(logging, level, logging.INFO), stream=sys.stderr,

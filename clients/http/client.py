@@ -358,6 +358,34 @@ class _Endpoints:
         r = yield _Req("POST", f"/api/jobs/{job_id}/cancel")
         return as_model("Job", r.json()) if r.content else None
 
+    def delete_job(self, job_id: str):
+        """``DELETE /api/jobs/{job_id}``: a finished job and its files -> ``{"id", "kind",
+        "bytes_freed"}``. Raises ``Conflict`` (409) while the job or a job reading it is
+        active."""
+        r = yield _Req("DELETE", f"/api/jobs/{job_id}")
+        return r.json()
+
+    def delete_plan(self, plan_id: str):
+        """``DELETE /api/plans/{plan_id}`` -> ``{"id", "kind", "bytes_freed"}`` (409 while
+        an active scan uses it)."""
+        r = yield _Req("DELETE", f"/api/plans/{plan_id}")
+        return r.json()
+
+    def delete_dataset(self, dataset_id: str):
+        """``DELETE /api/datasets/{dataset_id}`` -> ``{"id", "kind", "bytes_freed"}`` (409
+        while an active reconstruction reads it)."""
+        r = yield _Req("DELETE", f"/api/datasets/{dataset_id}")
+        return r.json()
+
+    def retention(self, **policy: Any):
+        """``GET /api/retention``, or with ``keep_results=``/``keep_bytes=``/
+        ``include_scans=`` ``PUT`` it -> the policy dict."""
+        if policy:
+            r = yield _Req("PUT", "/api/retention", json=policy)
+        else:
+            r = yield _Req("GET", "/api/retention")
+        return r.json()
+
 
 def _check_plane(plane: str) -> None:
     if plane not in MIP_PLANES:

@@ -795,11 +795,15 @@ async function refreshJobs() {
       tr = document.createElement("tr");
       tr.dataset.jobId = id;
       tr.innerHTML = '<td class="c-id"></td><td class="c-kind"></td><td><span class="state c-state"></span></td>' +
-        '<td class="c-progress"></td><td class="c-created"></td><td><a class="c-open"></a></td>';
+        '<td class="c-progress"></td><td class="c-created"></td><td><a class="c-open"></a> ' +
+        '<button type="button" class="c-delete danger">Delete</button></td>';
       const a = tr.querySelector(".c-open");
       a.href = "#/jobs/" + encodeURIComponent(id);
       a.textContent = "Open";
       a.setAttribute("aria-label", `Open job ${shortId(id)}`);
+      const del = tr.querySelector(".c-delete");
+      del.setAttribute("aria-label", `Delete job ${shortId(id)} and its files`);
+      del.addEventListener("click", () => deleteJob(id).catch(showError));
       jobRows.set(id, tr);
     }
     tr.querySelector(".c-id").textContent = shortId(id);
@@ -808,6 +812,7 @@ async function refreshJobs() {
     setState(tr.querySelector(".c-state"), j.state);
     tr.querySelector(".c-progress").textContent = jobProgressText(j);
     tr.querySelector(".c-created").textContent = jobCreated(j);
+    tr.querySelector(".c-delete").hidden = !TERMINAL.has(j.state);  // the server refuses active jobs
     tr.setAttribute("aria-selected", id === resultJob ? "true" : "false");
     // keep server order without re-creating rows (focus stays where it is)
     const want = prev ? prev.nextSibling : tbody.firstChild;
@@ -824,6 +829,17 @@ async function refreshJobs() {
 
 let resultJob = null;
 let resultWatch = null;
+
+/** DELETE /api/jobs/{id}: the finished job and its files (after the user confirms). */
+async function deleteJob(id) {
+  if (!window.confirm(`Delete job ${shortId(id)} and its files (scan file or volume and pictures)?`)) return;
+  clearError();
+  await apiJson(`/api/jobs/${encodeURIComponent(id)}`, { method: "DELETE" });
+  const tr = jobRows.get(id);
+  if (tr) { tr.remove(); jobRows.delete(id); }
+  if (resultJob === id) closeResult();
+  $("jobs-empty").hidden = jobRows.size > 0;
+}
 
 function closeResult() {
   resultJob = null;

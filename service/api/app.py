@@ -120,6 +120,7 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True) 
         from service.jobs.store import JobStore
 
         Path(settings.data_dir).mkdir(parents=True, exist_ok=True)
+        settings.token_value()  # an unreadable or empty token_file stops the start here
         store = JobStore(settings.database)
         context = Context(settings=settings, store=store)
         app.state.ctx = context
@@ -136,6 +137,9 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True) 
                     store.set_state(jid, "queued", only_from=("paused",), progress={"stage": "resuming"})
             log.info("startup recovered=%s executor=%s resume_scans=%s", recovered, settings.executor,
                      settings.resume_scans)
+            from service.jobs.lifecycle import apply_retention
+
+            apply_retention(store, settings)  # a policy tightened while the server was down
             context.queue.start()
             try:
                 from service.scanning import ScanManager
@@ -175,15 +179,19 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True) 
 
     app.add_middleware(UploadLimit, limit=settings.upload_limit)
 
-    from service.api import datasets, jobs, plans, reconstructions, scans
+    from service.api import datasets, jobs, plans, reconstructions, retention, scans
+    from service.jobs.lifecycle import disk_usage
 
     @app.get("/api/health", response_model=Health, tags=["health"], dependencies=[Depends(read_access)])
     def health(c: Context = Depends(ctx)) -> Health:
-        """Liveness: ``{"status": "ok", "version", "executor", "jobs_running"}``."""
+        """Liveness: ``{"status": "ok", "version", "executor", "jobs_running", "disk"}``;
+        ``disk``: bytes the data folder uses by part (scans, results, datasets, exports,
+        other) and the free bytes of its file system."""
         return Health(version=VERSION, executor=settings.executor,
-                      jobs_running=c.queue.running() if c.queue is not None else 0)
+                      jobs_running=c.queue.running() if c.queue is not None else 0,
+                      disk=disk_usage(settings.data_dir))
 
-    for module in (plans, scans, datasets, reconstructions, jobs):
+    for module in (plans, scans, datasets, reconstructions, jobs, retention):
         app.include_router(module.router)
 
     if settings.web_root is not None:

@@ -24,9 +24,11 @@ from pathlib import Path
 
 import numpy as np
 from fastapi import APIRouter, Depends, File, Form, HTTPException, UploadFile
+from fastapi import Path as PathParam
 
 from service.api.context import Context, ctx, require_token
-from service.api.models import Dataset, DatasetFormat
+from service.api.models import ID_PATTERN, Dataset, DatasetFormat, Deleted
+from service.jobs import lifecycle
 
 router = APIRouter(prefix="/api/datasets", tags=["datasets"])
 
@@ -134,3 +136,16 @@ def upload_dataset(file: UploadFile = File(..., description="the data file"),
     meta["format"] = format
     cx.store.put_dataset(dataset_id, meta)
     return Dataset(dataset_id=dataset_id, format=format, layout=meta["layout"], shape=meta["shape"], dt=meta["dt"])
+
+
+@router.delete("/{dataset_id}", response_model=Deleted, dependencies=[Depends(require_token)],
+               responses={409: {"description": "an active reconstruction reads the dataset"}})
+def delete_dataset(dataset_id: str = PathParam(pattern=ID_PATTERN), cx: Context = Depends(ctx)) -> Deleted:
+    """Delete an uploaded dataset and its files; 409 while a queued or running
+    reconstruction reads it."""
+    try:
+        return Deleted(kind="dataset", **lifecycle.delete_dataset(cx.store, cx.settings.data_dir, dataset_id))
+    except lifecycle.NotFound as exc:
+        raise HTTPException(404, str(exc)) from None
+    except lifecycle.InUse as exc:
+        raise HTTPException(409, str(exc)) from None

@@ -8,7 +8,8 @@ from fastapi import APIRouter, Depends, Header, HTTPException, Path, Query, Requ
 from sse_starlette.sse import EventSourceResponse, ServerSentEvent
 
 from service.api.context import Context, ctx, read_access, require_token
-from service.api.models import ID_PATTERN, Job, JobKind, JobState
+from service.api.models import ID_PATTERN, Deleted, Job, JobKind, JobState
+from service.jobs import lifecycle
 from service.jobs.store import TERMINAL
 
 router = APIRouter(prefix="/api/jobs", tags=["jobs"])
@@ -19,7 +20,8 @@ JobId = Path(pattern=ID_PATTERN, description="job id")
 def job_links(job: dict) -> dict[str, str]:
     """Links of a job's resources (self, events, cancel, and its kind's results)."""
     jid = job["id"]
-    links = {"self": f"/api/jobs/{jid}", "events": f"/api/jobs/{jid}/events", "cancel": f"/api/jobs/{jid}/cancel"}
+    links = {"self": f"/api/jobs/{jid}", "events": f"/api/jobs/{jid}/events", "cancel": f"/api/jobs/{jid}/cancel",
+             "delete": f"/api/jobs/{jid}"}
     if job["kind"] == "scan":
         links.update({"file": f"/api/scans/{jid}/file", "ipasc": f"/api/scans/{jid}/ipasc",
                       "preview": f"/api/scans/{jid}/preview", "pause": f"/api/scans/{jid}/pause",
@@ -82,6 +84,21 @@ def cancel_job(job_id: str = JobId, c: Context = Depends(ctx)) -> Job:
     if job["kind"] == "scan" and c.scans is not None:
         c.scans.cancel(job_id)
     return job_view(c.store.get(job_id))
+
+
+@router.delete("/{job_id}", response_model=Deleted, dependencies=[Depends(require_token)],
+               responses={409: {"description": "the job is active, or an active job reads its scan"}})
+def delete_job(job_id: str = JobId, c: Context = Depends(ctx)) -> Deleted:
+    """Delete a finished job with its files (a scan's scan file and IPASC export, a
+    reconstruction's volume and pictures) and its events. 409 while the job is queued,
+    running or paused (cancel it first) or while an active reconstruction reads this
+    scan."""
+    try:
+        return Deleted(**lifecycle.delete_job(c.store, c.settings.data_dir, job_id))
+    except lifecycle.NotFound as exc:
+        raise HTTPException(404, str(exc)) from None
+    except lifecycle.InUse as exc:
+        raise HTTPException(409, str(exc)) from None
 
 
 @router.get("/{job_id}/events", dependencies=[Depends(read_access)],

@@ -31,11 +31,42 @@ class Error(BaseModel):
     detail: str
 
 
+class DiskUse(BaseModel):
+    """Bytes the data folder uses, by part, and the free space of its file system."""
+
+    total_bytes: int
+    scans_bytes: int
+    results_bytes: int
+    datasets_bytes: int
+    exports_bytes: int
+    other_bytes: int = Field(description="the job database, plans and anything else")
+    free_bytes: int | None = None
+
+
 class Health(BaseModel):
     status: Literal["ok"] = "ok"
     version: str
     executor: str
     jobs_running: int = 0
+    disk: DiskUse | None = None
+
+
+class Deleted(BaseModel):
+    """What a DELETE removed."""
+
+    id: str
+    kind: str
+    bytes_freed: int = 0
+
+
+class Retention(_Request):
+    """Retention policy: keep the newest ``keep_results`` finished reconstruction results
+    and at most ``keep_bytes`` bytes of result files (null = no limit); the oldest finished
+    are deleted first. Scan files only with ``include_scans``."""
+
+    keep_results: int | None = Field(None, ge=0, le=10**9)
+    keep_bytes: int | None = Field(None, ge=0, le=2**62)
+    include_scans: bool = False
 
 
 # -- plans ---------------------------------------------------------------------------

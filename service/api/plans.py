@@ -14,7 +14,8 @@ import numpy as np
 from fastapi import APIRouter, Depends, HTTPException, Path, Response
 
 from service.api.context import Context, ctx, read_access, require_token
-from service.api.models import ID_PATTERN, Plan, PlanCreate, PlanPreview
+from service.api.models import ID_PATTERN, Deleted, Plan, PlanCreate, PlanPreview
+from service.jobs import lifecycle
 
 router = APIRouter(prefix="/api/plans", tags=["plans"])
 
@@ -143,6 +144,18 @@ def plan_or_404(c: Context, plan_id: str) -> dict:
 def get_plan(plan_id: str = Path(pattern=ID_PATTERN), c: Context = Depends(ctx)) -> Plan:
     """One plan's summary."""
     return summary(plan_or_404(c, plan_id))
+
+
+@router.delete("/{plan_id}", response_model=Deleted, dependencies=[Depends(require_token)],
+               responses={409: {"description": "an active scan job uses the plan"}})
+def delete_plan(plan_id: str = Path(pattern=ID_PATTERN), c: Context = Depends(ctx)) -> Deleted:
+    """Delete a stored plan; 409 while a queued, running or paused scan uses it."""
+    try:
+        return Deleted(kind="plan", **lifecycle.delete_plan(c.store, plan_id))
+    except lifecycle.NotFound as exc:
+        raise HTTPException(404, str(exc)) from None
+    except lifecycle.InUse as exc:
+        raise HTTPException(409, str(exc)) from None
 
 
 @router.get("/{plan_id}/plan.json", dependencies=[Depends(read_access)],

@@ -22,6 +22,7 @@ import time
 import uuid
 from pathlib import Path
 
+from service.jobs.lifecycle import apply_retention
 from service.jobs.store import JobStore
 from service.jobs.work import run_reconstruction
 
@@ -160,6 +161,10 @@ class ReconQueue:
                                        "points_done": summary.get("points_used"),
                                        "points_total": summary.get("points_used")})
         log.info("recon done job=%s seconds=%.3f shape=%s", jid, time.perf_counter() - t0, summary.get("shape"))
+        try:  # a new result: older ones beyond the retention policy go
+            apply_retention(self.store, self.settings)
+        except Exception:
+            log.exception("retention failed after job=%s", jid)
 
     def _wait(self, jid: str, future, progress_path: Path):
         """The job's result; meanwhile renew its lease and turn the worker's stage

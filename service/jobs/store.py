@@ -23,6 +23,7 @@ from typing import Any
 
 STATES = ("queued", "running", "paused", "succeeded", "failed", "cancelled")
 TERMINAL = frozenset({"succeeded", "failed", "cancelled"})
+ACTIVE = frozenset(STATES) - TERMINAL
 KINDS = ("scan", "recon")
 
 _SCHEMA = """
@@ -65,6 +66,10 @@ CREATE TABLE IF NOT EXISTS datasets (
     id TEXT PRIMARY KEY,
     meta TEXT NOT NULL,
     created REAL NOT NULL
+);
+CREATE TABLE IF NOT EXISTS config (
+    key TEXT PRIMARY KEY,
+    value TEXT NOT NULL
 );
 """
 
@@ -373,3 +378,54 @@ class JobStore:
         with self._lock:
             row = self._db.execute("SELECT meta FROM datasets WHERE id = ?", (dataset_id,)).fetchone()
         return None if row is None else json.loads(row["meta"])
+
+    # -- deletion and configuration (service.jobs.lifecycle owns the rules) ----------
+    def active_jobs(self) -> list[dict]:
+        """Jobs that are queued, running or paused (they may still read their inputs)."""
+        marks = ",".join("?" * len(ACTIVE))
+        with self._lock:
+            return [self._row(r) for r in self._db.execute(
+                f"SELECT * FROM jobs WHERE state IN ({marks})", tuple(sorted(ACTIVE))).fetchall()]
+
+    def finished_jobs(self, kind: str) -> list[dict]:
+        """Terminal jobs of ``kind``, oldest finished first."""
+        marks = ",".join("?" * len(TERMINAL))
+        with self._lock:
+            return [self._row(r) for r in self._db.execute(
+                f"SELECT * FROM jobs WHERE kind = ? AND state IN ({marks}) ORDER BY finished, created",
+                (kind, *sorted(TERMINAL))).fetchall()]
+
+    def delete_job(self, job_id: str, *, only_terminal: bool = True) -> bool:
+        """Remove a job's row and its events; with ``only_terminal`` only when it is in a
+        final state. Returns whether a row was removed."""
+        def work(db):
+            sql = "DELETE FROM jobs WHERE id = ?"
+            args: tuple = (job_id,)
+            if only_terminal:
+                marks = ",".join("?" * len(TERMINAL))
+                sql += f" AND state IN ({marks})"
+                args = (job_id, *sorted(TERMINAL))
+            if db.execute(sql, args).rowcount != 1:
+                return False
+            db.execute("DELETE FROM events WHERE job_id = ?", (job_id,))
+            return True
+        return self._tx(work)
+
+    def delete_plan(self, plan_id: str) -> bool:
+        with self._lock:
+            return self._db.execute("DELETE FROM plans WHERE id = ?", (plan_id,)).rowcount == 1
+
+    def delete_dataset(self, dataset_id: str) -> bool:
+        with self._lock:
+            return self._db.execute("DELETE FROM datasets WHERE id = ?", (dataset_id,)).rowcount == 1
+
+    def get_config(self, key: str) -> Any:
+        """A stored configuration value (JSON), or None."""
+        with self._lock:
+            row = self._db.execute("SELECT value FROM config WHERE key = ?", (key,)).fetchone()
+        return None if row is None else json.loads(row["value"])
+
+    def set_config(self, key: str, value: Any) -> None:
+        with self._lock:
+            self._db.execute("INSERT INTO config (key, value) VALUES (?, ?) ON CONFLICT(key) DO UPDATE"
+                             " SET value = excluded.value", (key, json.dumps(value)))

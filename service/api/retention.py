@@ -1,0 +1,29 @@
+"""Retention routes: ``GET``/``PUT /api/retention`` (the policy of
+``service.jobs.lifecycle``, stored in the job database so a restart keeps it)."""
+from __future__ import annotations
+
+from fastapi import APIRouter, Depends, HTTPException
+
+from service.api.context import Context, ctx, read_access, require_token
+from service.api.models import Retention
+from service.jobs import lifecycle
+
+router = APIRouter(prefix="/api/retention", tags=["storage"])
+
+
+@router.get("", response_model=Retention, dependencies=[Depends(read_access)])
+def get_retention(c: Context = Depends(ctx)) -> Retention:
+    """The retention policy in force (the stored one, else the service settings')."""
+    return Retention(**lifecycle.get_retention(c.store, c.settings))
+
+
+@router.put("", response_model=Retention, dependencies=[Depends(require_token)])
+def put_retention(body: Retention, c: Context = Depends(ctx)) -> Retention:
+    """Set the retention policy and apply it at once; it stays in force across
+    restarts."""
+    try:
+        policy = lifecycle.set_retention(c.store, body.model_dump())
+    except ValueError as exc:
+        raise HTTPException(422, str(exc)) from None
+    lifecycle.apply_retention(c.store, c.settings)
+    return Retention(**policy)

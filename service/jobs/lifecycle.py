@@ -1,0 +1,252 @@
+"""Data lifecycle of the store: deleting plans, jobs (with their files) and datasets,
+the retention policy, and the disk use of the data folder.
+
+The rules, one place for the API, the queue and the tests:
+
+- Nothing a queued, running or paused job may still read is deleted: a job itself while
+  it is active, the scan file of a scan job that an active reconstruction reads, the plan
+  of an active scan, a dataset an active reconstruction reads. Such a request raises
+  :class:`InUse` (HTTP 409) naming the job that holds it.
+- Deleting a job removes its database row and events and its files: a scan job's scan
+  file and IPASC export, a reconstruction's result folder(s) (every attempt).
+- Retention (:func:`apply_retention`): keep the newest ``keep_results`` finished
+  reconstructions and/or at most ``keep_bytes`` bytes of result files; the oldest
+  finished go first, whole (row and files). Scan files are never removed by retention
+  unless ``include_scans`` is set (then finished scans count towards ``keep_bytes`` and
+  are removed oldest first too, never one an active job reads). The policy is stored in
+  the job database (``config`` table), so a restart keeps it; the service settings
+  (``retention_keep_results``, ``retention_keep_bytes``, ``retention_include_scans``)
+  give the policy until one is set through ``PUT /api/retention``.
+
+Layout of the data folder (``settings.data_dir``): ``scans/<job>.h5``,
+``exports/<job>.ipasc.h5``, ``results/<job>.<attempt>/``, ``datasets/<id>/``,
+``jobs.sqlite``.
+"""
+from __future__ import annotations
+
+import logging
+import os
+import shutil
+from pathlib import Path
+from typing import Any
+
+from service.jobs.store import ACTIVE, JobStore
+
+log = logging.getLogger("fpscan.lifecycle")
+
+RETENTION_KEY = "retention"
+
+
+class InUse(ValueError):
+    """The thing to delete is used by an active job (HTTP 409)."""
+
+
+class NotFound(KeyError):
+    """No such plan, job or dataset (HTTP 404)."""
+
+    def __str__(self) -> str:  # KeyError would quote the message
+        return str(self.args[0]) if self.args else "not found"
+
+
+def _tree_bytes(path: Path) -> int:
+    """Bytes of the files under ``path`` (a file or a folder; 0 if missing)."""
+    try:
+        if path.is_file():
+            return path.stat().st_size
+    except OSError:
+        return 0
+    total = 0
+    for root, _dirs, files in os.walk(path):
+        for name in files:
+            try:
+                total += os.lstat(os.path.join(root, name)).st_size
+            except OSError:
+                pass
+    return total
+
+
+def _remove(path: Path) -> None:
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path, ignore_errors=True)
+    else:
+        path.unlink(missing_ok=True)
+
+
+def job_files(job: dict, data_dir: str | os.PathLike) -> list[Path]:
+    """The files and folders that belong to ``job`` (existing ones only)."""
+    data = Path(data_dir)
+    jid = job["id"]
+    out: list[Path] = []
+    if job["kind"] == "scan":
+        scan_path = job["params"].get("scan_path")
+        if scan_path:
+            out.append(Path(scan_path))
+        out.append(data / "scans" / f"{jid}.h5")
+        out.append(data / "exports" / f"{jid}.ipasc.h5")
+    else:
+        if job.get("result_path"):
+            out.append(Path(job["result_path"]))
+        results = data / "results"
+        if results.is_dir():  # every attempt's folder and progress file
+            out += [p for p in results.iterdir()
+                    if p.name.startswith(f"{jid}.") or p.name.startswith(f".{jid}.")]
+    seen: set[Path] = set()
+    unique = []
+    for p in out:
+        if p not in seen and (p.exists() or p.is_symlink()):
+            seen.add(p)
+            unique.append(p)
+    return unique
+
+
+def _users(store: JobStore, *, scan_job: str | None = None, plan: str | None = None,
+           dataset: str | None = None) -> list[dict]:
+    """Active jobs that read the given scan job's file, plan or dataset."""
+    found = []
+    for job in store.active_jobs():
+        p = job["params"]
+        if scan_job is not None and job["kind"] == "recon" and p.get("scan_job_id") == scan_job:
+            found.append(job)
+        elif plan is not None and job["kind"] == "scan" and p.get("plan_id") == plan:
+            found.append(job)
+        elif dataset is not None and job["kind"] == "recon" and p.get("dataset_id") == dataset:
+            found.append(job)
+    return found
+
+
+def delete_job(store: JobStore, data_dir: str | os.PathLike, job_id: str) -> dict:
+    """Delete a finished job, its events and its files. Returns ``{"id", "kind",
+    "bytes_freed"}``. Raises :class:`NotFound`, :class:`InUse` (the job is active, or an
+    active reconstruction reads this scan)."""
+    job = store.get(job_id)
+    if job is None:
+        raise NotFound(f"no job {job_id}")
+    if job["state"] in ACTIVE:
+        raise InUse(f"job {job_id} is {job['state']}: cancel it first")
+    users = _users(store, scan_job=job_id) if job["kind"] == "scan" else []
+    if users:
+        raise InUse(f"scan job {job_id} is read by {users[0]['state']} reconstruction {users[0]['id']}")
+    files = job_files(job, data_dir)
+    freed = sum(_tree_bytes(p) for p in files)
+    if not store.delete_job(job_id):  # it became active again (resumed) in the meantime
+        raise InUse(f"job {job_id} is active: cancel it first")
+    for p in files:
+        _remove(p)
+    log.info("deleted job=%s kind=%s bytes=%d", job_id, job["kind"], freed)
+    return {"id": job_id, "kind": job["kind"], "bytes_freed": freed}
+
+
+def delete_plan(store: JobStore, plan_id: str) -> dict:
+    """Delete a stored plan. Raises :class:`NotFound`, :class:`InUse` (an active scan
+    uses it)."""
+    if store.get_plan(plan_id) is None:
+        raise NotFound(f"no plan {plan_id}")
+    users = _users(store, plan=plan_id)
+    if users:
+        raise InUse(f"plan {plan_id} is used by {users[0]['state']} scan job {users[0]['id']}")
+    store.delete_plan(plan_id)
+    return {"id": plan_id, "bytes_freed": 0}
+
+
+def delete_dataset(store: JobStore, data_dir: str | os.PathLike, dataset_id: str) -> dict:
+    """Delete an uploaded dataset and its folder. Raises :class:`NotFound`,
+    :class:`InUse` (an active reconstruction reads it)."""
+    if store.get_dataset(dataset_id) is None:
+        raise NotFound(f"no dataset {dataset_id}")
+    users = _users(store, dataset=dataset_id)
+    if users:
+        raise InUse(f"dataset {dataset_id} is read by {users[0]['state']} reconstruction {users[0]['id']}")
+    folder = Path(data_dir) / "datasets" / dataset_id
+    freed = _tree_bytes(folder)
+    store.delete_dataset(dataset_id)
+    _remove(folder)
+    return {"id": dataset_id, "bytes_freed": freed}
+
+
+# -- retention --------------------------------------------------------------------------
+def default_retention(settings: Any) -> dict:
+    return {"keep_results": getattr(settings, "retention_keep_results", None),
+            "keep_bytes": getattr(settings, "retention_keep_bytes", None),
+            "include_scans": bool(getattr(settings, "retention_include_scans", False))}
+
+
+def get_retention(store: JobStore, settings: Any) -> dict:
+    """The retention policy in force: the stored one, else the settings'."""
+    stored = store.get_config(RETENTION_KEY)
+    return {**default_retention(settings), **stored} if isinstance(stored, dict) else \
+        default_retention(settings)
+
+
+def set_retention(store: JobStore, policy: dict) -> dict:
+    """Store a policy ``{"keep_results": int|None, "keep_bytes": int|None,
+    "include_scans": bool}`` (it survives restarts). Raises ValueError for negative
+    numbers."""
+    out = {"keep_results": policy.get("keep_results"), "keep_bytes": policy.get("keep_bytes"),
+           "include_scans": bool(policy.get("include_scans", False))}
+    for key in ("keep_results", "keep_bytes"):
+        v = out[key]
+        if v is not None and (not isinstance(v, int) or isinstance(v, bool) or v < 0):
+            raise ValueError(f"{key} must be a whole number >= 0 or null, got {v!r}")
+    store.set_config(RETENTION_KEY, out)
+    return out
+
+
+def apply_retention(store: JobStore, settings: Any) -> list[str]:
+    """Delete the oldest finished jobs beyond the retention policy; returns their ids.
+
+    Candidates: finished reconstructions that have result files (and, with
+    ``include_scans``, finished scans with a scan file that no active job reads), oldest
+    finished first. ``keep_results`` keeps the newest N reconstruction results;
+    ``keep_bytes`` then removes the oldest candidates until their files fit.
+    """
+    policy = get_retention(store, settings)
+    keep_n, keep_bytes = policy["keep_results"], policy["keep_bytes"]
+    if keep_n is None and keep_bytes is None:
+        return []
+    data_dir = settings.data_dir
+    recon = [j for j in store.finished_jobs("recon") if job_files(j, data_dir)]
+    victims: list[dict] = []
+    if keep_n is not None and len(recon) > keep_n:
+        victims += recon[:len(recon) - keep_n]
+    if keep_bytes is not None:
+        pool = [j for j in recon if j not in victims]
+        if policy["include_scans"]:
+            busy = {j["params"].get("scan_job_id") for j in store.active_jobs()}
+            pool += [j for j in store.finished_jobs("scan")
+                     if j["id"] not in busy and job_files(j, data_dir)]
+            pool.sort(key=lambda j: (j["finished"] or 0.0, j["created"]))
+        sizes = {j["id"]: sum(_tree_bytes(p) for p in job_files(j, data_dir)) for j in pool}
+        total = sum(sizes.values())
+        for j in pool:
+            if total <= keep_bytes:
+                break
+            victims.append(j)
+            total -= sizes[j["id"]]
+    deleted = []
+    for j in victims:
+        try:
+            delete_job(store, data_dir, j["id"])
+            deleted.append(j["id"])
+        except (InUse, NotFound) as exc:
+            log.info("retention kept job=%s: %s", j["id"], exc)
+    if deleted:
+        log.info("retention deleted jobs=%s policy=%s", deleted, policy)
+    return deleted
+
+
+# -- disk use ---------------------------------------------------------------------------
+def disk_usage(data_dir: str | os.PathLike) -> dict:
+    """Bytes the store uses, by part, and the free space of its file system:
+    ``{"total_bytes", "scans_bytes", "results_bytes", "datasets_bytes", "exports_bytes",
+    "other_bytes", "free_bytes"}``."""
+    data = Path(data_dir)
+    parts = {name: _tree_bytes(data / name) for name in ("scans", "results", "datasets", "exports")}
+    total = _tree_bytes(data) if data.exists() else 0
+    out = {f"{k}_bytes": v for k, v in parts.items()}
+    out["other_bytes"] = max(total - sum(parts.values()), 0)  # the database, plans, logs
+    out["total_bytes"] = total
+    try:
+        out["free_bytes"] = shutil.disk_usage(data if data.exists() else data.parent).free
+    except OSError:
+        out["free_bytes"] = None
+    return out

@@ -1,0 +1,184 @@
+"""Data lifecycle on a real server with a real SQLite file: DELETE of jobs (with their
+files), plans and datasets; 409 for what an active job uses; the retention policy (oldest
+finished first, survives a restart); disk use in /api/health; float32 compressed volumes."""
+from __future__ import annotations
+
+import io
+import sqlite3
+import subprocess
+import sys
+import time
+
+import h5py
+import httpx
+import numpy as np
+from service_servers import Server, needs_recon, wait_job
+
+from service.jobs import lifecycle
+from service.jobs.store import JobStore
+
+pytestmark = needs_recon
+
+N, N_T, DT, PITCH = 8, 32, 2e-8, 1e-4
+
+
+def _upload(api) -> str:
+    data = np.random.default_rng(3).standard_normal((N_T, N, N))
+    buf = io.BytesIO()
+    np.save(buf, data)
+    r = api.post("/api/datasets", data={"format": "npy", "dt": repr(DT), "dx": repr(PITCH)},
+                 files={"file": ("d.npy", buf.getvalue(), "application/octet-stream")})
+    assert r.status_code == 201, r.text
+    return r.json()["dataset_id"]
+
+
+def _recon(api, ds: str) -> str:
+    r = api.post("/api/reconstructions", json={"dataset_id": ds, "method": "ner"})
+    assert r.status_code == 202, r.text
+    job = wait_job(api, r.json()["id"])
+    assert job["state"] == "succeeded", job
+    return job["id"]
+
+
+def _cli(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "clients", *args], capture_output=True, text=True,
+                          timeout=60)
+
+
+def _rows(db, table: str, col: str, value: str) -> int:
+    with sqlite3.connect(db) as con:
+        return con.execute(f"SELECT COUNT(*) FROM {table} WHERE {col} = ?", (value,)).fetchone()[0]
+
+
+def test_delete_retention_and_restart(tmp_path):
+    data = tmp_path / "data"
+    db = data / "jobs.sqlite"
+    srv = Server(data).start()
+    try:
+        with srv.client() as api:
+            ds = _upload(api)
+            jobs = [_recon(api, ds) for _ in range(2)]
+            folders = [data / "results" / f"{j}.1" for j in jobs]
+            assert all(f.is_dir() for f in folders)
+            with h5py.File(folders[0] / "volume.h5", "r") as f:  # float32, compressed
+                assert f["p0"].dtype == np.float32 and f["p0"].compression == "gzip"
+            disk = api.get("/api/health").json()["disk"]
+            assert disk["results_bytes"] > 0 and disk["datasets_bytes"] > 0
+            assert disk["free_bytes"] > 0 and disk["total_bytes"] >= disk["results_bytes"]
+
+            # DELETE a job: files, row and events gone; needs the token
+            anon = httpx.delete(f"{srv.url}/api/jobs/{jobs[0]}")
+            assert anon.status_code == 401
+            out = _cli("jobs", "delete", jobs[0], "--server", srv.url, "--token", srv.token)
+            assert out.returncode == 0, out.stderr
+            assert f"{jobs[0]}: deleted (recon" in out.stdout
+            assert not folders[0].exists()
+            assert api.get(f"/api/jobs/{jobs[0]}").status_code == 404
+            assert _rows(db, "jobs", "id", jobs[0]) == 0 and _rows(db, "events", "job_id", jobs[0]) == 0
+            assert api.delete(f"/api/jobs/{jobs[0]}").status_code == 404
+            after = api.get("/api/health").json()["disk"]["results_bytes"]
+            assert after < disk["results_bytes"]
+
+            # retention: keep the newest result (the one left: nothing to delete yet)
+            r = api.put("/api/retention", json={"keep_results": 1})
+            assert r.status_code == 200 and r.json()["keep_results"] == 1
+            assert folders[1].is_dir()
+            assert api.put("/api/retention", json={"keep_results": -1}).status_code == 422
+
+            # a plan for the paused scan below
+            r = api.post("/api/plans", json={"lattice": {"n_x": 4, "n_y": 4, "pitch": 1e-4},
+                                             "points": [[0, 0], [1, 1]],
+                                             "acquisition": {"n_t": 16, "dt": 1e-8, "prf": 100.0}})
+            plan_id = r.json()["id"]
+    finally:
+        srv.stop()
+
+    # while the server is down: a paused scan (resumable, so active) using the plan, with
+    # its scan file, and a queued reconstruction reading that scan
+    store = JobStore(db)
+    scan, _ = store.create_job("scan", {"plan_id": plan_id, "scanner_id": "fp1",
+                                        "scan_path": str(data / "scans" / "held.h5")})
+    (data / "scans").mkdir(exist_ok=True)
+    (data / "scans" / "held.h5").write_bytes(b"scan bytes")
+    store.set_state(scan["id"], "paused")
+    store.close()
+
+    srv = Server(data).start()
+    try:
+        with srv.client() as api:
+            assert api.get("/api/retention").json()["keep_results"] == 1  # kept by the restart
+            newest = _recon(api, ds)  # the older result goes, whole (files and rows)
+            deadline = time.monotonic() + 30  # retention runs right after the job's success
+            while folders[1].exists() and time.monotonic() < deadline:
+                time.sleep(0.05)
+            assert not folders[1].exists() and (data / "results" / f"{newest}.1").is_dir()
+            assert _rows(db, "jobs", "id", jobs[1]) == 0 and _rows(db, "events", "job_id", jobs[1]) == 0
+            assert [j["id"] for j in api.get("/api/jobs", params={"kind": "recon"}).json()] == [newest]
+
+            r = api.delete(f"/api/plans/{plan_id}")
+            assert r.status_code == 409 and scan["id"] in r.json()["detail"]
+            r = api.delete(f"/api/jobs/{scan['id']}")
+            assert r.status_code == 409 and "paused" in r.json()["detail"]
+            out = _cli("jobs", "delete", scan["id"], "--server", srv.url, "--token", srv.token)
+            assert out.returncode == 1 and "cancel it first" in out.stderr
+            assert (data / "scans" / "held.h5").exists() and api.get(f"/api/plans/{plan_id}").status_code == 200
+
+            assert api.post(f"/api/jobs/{scan['id']}/cancel").status_code == 200
+            assert api.delete(f"/api/jobs/{scan['id']}").status_code == 200
+            assert not (data / "scans" / "held.h5").exists()
+            assert api.delete(f"/api/plans/{plan_id}").status_code == 200
+            assert api.get(f"/api/plans/{plan_id}").status_code == 404 and _rows(db, "plans", "id", plan_id) == 0
+
+            r = api.delete(f"/api/datasets/{ds}")
+            assert r.status_code == 200 and not (data / "datasets" / ds).exists()
+            assert _rows(db, "datasets", "id", ds) == 0
+    finally:
+        srv.stop()
+
+
+def test_running_jobs_inputs_are_protected(tmp_path):
+    """The library rules on a real SQLite store: a running reconstruction's dataset and
+    scan, and the plan of a running scan, cannot be deleted; retention never takes a scan
+    file unless asked, and never one an active job reads."""
+    data = tmp_path / "data"
+    (data / "datasets" / "d1").mkdir(parents=True)
+    (data / "datasets" / "d1" / "dataset.h5").write_bytes(b"x" * 100)
+    (data / "scans").mkdir()
+    store = JobStore(data / "jobs.sqlite")
+    store.put_plan("p1", {"id": "p1"}, {"id": "p1"})
+    store.put_dataset("d1", {"layout": "grid", "path": "dataset.h5"})
+    scan, _ = store.create_job("scan", {"plan_id": "p1", "scan_path": str(data / "scans" / "s.h5")})
+    (data / "scans" / "s.h5").write_bytes(b"y" * 1000)
+    store.set_state(scan["id"], "running")
+    recon, _ = store.create_job("recon", {"dataset_id": "d1", "scan_job_id": scan["id"]})
+    assert store.claim(recon["id"], "me", 60) is not None
+
+    class S:  # the settings the rules read
+        data_dir = data
+        retention_keep_results = 0
+        retention_keep_bytes = 0
+        retention_include_scans = True
+
+    for call in (lambda: lifecycle.delete_dataset(store, data, "d1"),
+                 lambda: lifecycle.delete_plan(store, "p1"),
+                 lambda: lifecycle.delete_job(store, data, scan["id"]),
+                 lambda: lifecycle.delete_job(store, data, recon["id"])):
+        try:
+            call()
+        except lifecycle.InUse as exc:
+            assert "running" in str(exc)
+        else:
+            raise AssertionError("deleted something a running job uses")
+    assert lifecycle.apply_retention(store, S) == []
+    store.set_state(scan["id"], "succeeded")
+    assert lifecycle.apply_retention(store, S) == []  # the running reconstruction reads it
+    assert (data / "scans" / "s.h5").exists() and (data / "datasets" / "d1").is_dir()
+    store.set_state(recon["id"], "failed")
+    S.retention_include_scans = False
+    assert lifecycle.apply_retention(store, S) == []  # scan files only when asked
+    S.retention_include_scans = True
+    assert lifecycle.apply_retention(store, S) == [scan["id"]]
+    assert not (data / "scans" / "s.h5").exists() and store.get(scan["id"]) is None
+    assert lifecycle.delete_dataset(store, data, "d1")["bytes_freed"] == 100
+    assert not (data / "datasets" / "d1").exists() and store.get_dataset("d1") is None
+    store.close()
