@@ -165,6 +165,7 @@ def delete_dataset(store: JobStore, data_dir: str | os.PathLike, dataset_id: str
 
 # -- retention --------------------------------------------------------------------------
 def default_retention(settings: Any) -> dict:
+    """The policy the service settings give (``retention_*``; None = no limit)."""
     return {"keep_results": getattr(settings, "retention_keep_results", None),
             "keep_bytes": getattr(settings, "retention_keep_bytes", None),
             "include_scans": bool(getattr(settings, "retention_include_scans", False))}
