@@ -12,10 +12,10 @@ import time
 import h5py
 import httpx
 import numpy as np
-from service_servers import Server, needs_recon, wait_job
 
 from service.jobs import lifecycle
 from service.jobs.store import JobStore
+from tests.service.service_servers import Server, needs_recon, wait_job
 
 pytestmark = needs_recon
 
