@@ -30,6 +30,7 @@ group.
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -78,8 +79,11 @@ def _kernel_fourier(w: int, beta: float, k: np.ndarray) -> np.ndarray:
     return (np.cos(np.outer(k, u)) @ (phi * weights)) * (w / 2.0)
 
 
+@functools.lru_cache(maxsize=32)
 def make_grid(n_t: int, kind: str = "nufft", eps: float = 1e-6) -> TemporalGrid:
-    """Plan the temporal transform for series of ``n_t`` samples (see module doc)."""
+    """Plan the temporal transform for series of ``n_t`` samples (see module doc).
+    Cached (iterative solvers apply the same transform many times); the returned
+    grid and its ``phihat`` are read-only."""
     if kind not in KINDS:
         raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
     n_t = int(n_t)
@@ -93,9 +97,12 @@ def make_grid(n_t: int, kind: str = "nufft", eps: float = 1e-6) -> TemporalGrid:
         h = 2.0 * np.pi / L
         m = np.arange(n_t) - M // 2
         phihat = _kernel_fourier(w, beta, m * h)
+        phihat.setflags(write=False)
         return TemporalGrid(n_t, kind, L, M // 2, w, beta, phihat)
     L = 2 * n_t - 1 if n_t > 1 else 2
-    return TemporalGrid(n_t, kind, L, 0, 2 if kind == "linear" else 1, 0.0, np.ones(n_t))
+    ones = np.ones(n_t)
+    ones.setflags(write=False)
+    return TemporalGrid(n_t, kind, L, 0, 2 if kind == "linear" else 1, 0.0, ones)
 
 
 @numba.njit(parallel=True, cache=True)

@@ -136,13 +136,9 @@ def _cubic_columns(A_cols, n_t, klat2, kz, qw, c, dt, t0):
 
 def _invert(A: np.ndarray, n_x: int, dx: float, dy: float, dt: float, c: float, n_z: int,
             dz: float, t0: float, method: str, eps: float, rdtype: np.dtype, upsample: int,
-            adjoint: bool = False, progress=None, span: tuple[float, float] = (0.0, 1.0)) -> np.ndarray:
+            progress=None, span: tuple[float, float] = (0.0, 1.0)) -> np.ndarray:
     """Lateral spectrum A (n_t, n_y, n_x//2+1) -> p0 (n_z, n_y*u, n_x*u) (see module doc).
-
-    ``adjoint=True`` swaps the inversion weight for the forward model's quadrature weight
-    (dz Δk / 4π, the end rows of the DCT-I halved, no halving of the t = 0 sample, no
-    Nyquist cut): the operator is then the exact adjoint of
-    `driver.physics.forward_grid(periodic=True)` (dot test).
+    (The forward model's true adjoint is `service.recon.operator.PlanarOperator.adjoint`.)
 
     ``progress(fraction)`` (optional) is called as the steps finish, the fractions spread
     over ``span`` in proportion to each step's typical share of the run time."""
@@ -162,18 +158,15 @@ def _invert(A: np.ndarray, n_x: int, dx: float, dy: float, dt: float, c: float, 
     a = A.reshape(n_t, n_y * n_xr)  # time first: column c is a[:, c]
     dk = np.pi / ((n_z - 1) * dz)
     kz = dk * np.arange(n_z)
-    if adjoint:
-        qw = np.full(n_z, dz * dk / (4 * np.pi))
-    else:
-        qw = np.full(n_z, c * c * dt * dk / np.pi)
+    qw = np.full(n_z, c * c * dt * dk / np.pi)
     if method == "cubic":
         F = _cubic_columns(a.T, n_t, klat2, kz, qw, c, dt, t0)
     else:
         grid = nufft.make_grid(n_t, _KIND[method], eps)
-        U = nufft.to_fine_grid(a, grid, t0_is_zero=(t0 == 0 and not adjoint))
+        U = nufft.to_fine_grid(a, grid, t0_is_zero=(t0 == 0))
         del a
         report(0.3)
-        F = nufft.evaluate(U, grid, klat2, kz, qw, c, dt, t0, inversion=not adjoint,
+        F = nufft.evaluate(U, grid, klat2, kz, qw, c, dt, t0, inversion=True,
                            progress=lambda f: report(0.3 + 0.45 * f))
         del U
     report(0.75)
@@ -187,8 +180,6 @@ def _invert(A: np.ndarray, n_x: int, dx: float, dy: float, dt: float, c: float, 
     K = K.reshape(n_z, n_y, n_xr)
     del F
     report(0.85)
-    if adjoint:  # DCT-I^T = diag(τ) DCT-I diag(1/τ), τ = ½ at both ends
-        K[[0, -1]] *= 0.5
     ups_y = n_y > 1
     if upsample > 1:
         K = _pad_spectrum(K, n_y, n_x, upsample, ups_y)
