@@ -3,7 +3,6 @@ test_recon_operator.py)."""
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from driver.physics import Ball, ball_alines, ball_p0, forward_grid, forward_points
 from service.recon import reconstruct_grid
