@@ -50,6 +50,14 @@ def _fast_dct1_rows(n: int) -> int:
     return m // 2 + 1
 
 
+def _fast_lateral(n_y: int, n_x: int) -> tuple[int, int]:
+    """Lateral transform sizes (n_y', n_x') >= (n_y, n_x) at fast FFT lengths: the aperture
+    is zero-padded to them (no data outside the aperture, as the continuous formula has it,
+    and less wrap-around than the period of the aperture itself); the image is cropped back.
+    x is the rfft axis (factors 2, 3, 5), y a complex one (2, 3, 5, 7, 11)."""
+    return (1 if n_y == 1 else scipy.fft.next_fast_len(n_y)), scipy.fft.next_fast_len(n_x, real=True)
+
+
 def _depth_axis(n_t, dt, c, dz, n_z, t0):
     """(dz, n_z, n_work): the output depth grid and the working depth count, which also
     reaches the depth c t of the last sample, so that no recorded signal folds back into
@@ -191,6 +199,13 @@ def _invert(A: np.ndarray, n_x: int, dx: float, dy: float, dt: float, c: float, 
     return p0.astype(rdtype, copy=False)
 
 
+def _crop(p0: np.ndarray, n_z: int, n_y: int, n_x: int) -> np.ndarray:
+    """The image rows and columns asked for, contiguous (a copy only if columns are cut)."""
+    if p0.shape[1:] == (n_y, n_x):
+        return p0[:n_z]
+    return np.ascontiguousarray(p0[:n_z, :n_y, :n_x])
+
+
 def _centred(n: int, d: float) -> np.ndarray:
     return (np.arange(n) - (n - 1) / 2) * d
 
@@ -258,23 +273,25 @@ def reconstruct_grid(
     dz, n_z, n_work = _depth_axis(n_t, dt, c, dz, n_z, t0)
     is2d = data.ndim == 2
     n_y, n_x = (1, data.shape[1]) if is2d else data.shape[1:]
+    n_yp, n_xp = _fast_lateral(n_y, n_x)
     checks.check_memory(
-        checks.estimate_peak_memory(n_t, n_x, n_y, n_z=n_work, upsample=upsample, dtype=rdtype, method=method),
+        checks.estimate_peak_memory(n_t, n_xp, n_yp, n_z=n_work, upsample=upsample, dtype=rdtype, method=method),
         memory_limit,
     )
     vol = data.astype(rdtype, copy=False).reshape(n_t, n_y, n_x)
-    A = scipy.fft.rfft2(vol, axes=(1, 2), workers=-1)
+    A = scipy.fft.rfft2(vol, s=(n_yp, n_xp), axes=(1, 2), workers=-1)
     if progress is not None:
         progress(0.1)
-    p0 = _invert(A, n_x, dx, dy, dt, c, n_work, dz, float(t0), method, eps, rdtype, upsample,
-                 progress=progress, span=(0.1, 1.0))[:n_z]
+    p0 = _crop(_invert(A, n_xp, dx, dy, dt, c, n_work, dz, float(t0), method, eps, rdtype, upsample,
+                       progress=progress, span=(0.1, 1.0)), n_z, n_y * upsample if n_y > 1 else 1, n_x * upsample)
     if positivity:
         np.maximum(p0, 0, out=p0)
     x = _centred(n_x, dx)[0] + np.arange(n_x * upsample) * (dx / upsample)
     y = None if is2d else _centred(n_y, dy)[0] + np.arange(n_y * upsample) * (dy / upsample)
     params = dict(method=method, dx=dx, dy=None if is2d else dy, dt=dt, c=c, eps=eps,
                   dtype=rdtype.name, dz=dz, n_z=n_z, upsample=upsample, positivity=bool(positivity),
-                  t0=float(t0), n_t=n_t, data_shape=list(data.shape), depth_rows=n_work)
+                  t0=float(t0), n_t=n_t, data_shape=list(data.shape), depth_rows=n_work,
+                  lateral_transform=[n_yp, n_xp])
     return Image(p0[:, 0, :] if is2d else p0, np.arange(n_z) * dz, x, y, params)
 
 
@@ -329,6 +346,64 @@ def _check_grid(grid, d: int) -> tuple[np.ndarray, ...]:
     return tuple(out)
 
 
+def _grid_indices(pos: np.ndarray, axes, steps) -> tuple[np.ndarray, np.ndarray] | None:
+    """(i_x, i_y) node indices of the positions if every one lies on a node of the output
+    grid (to 1e-6 of a pitch), else None."""
+    idx = []
+    for a in range(pos.shape[1]):
+        f = (pos[:, a] - axes[a][0]) / steps[a]
+        i = np.rint(f)
+        if np.any(np.abs(f - i) > 1e-6) or i.min() < 0 or i.max() > len(axes[a]) - 1:
+            return None
+        idx.append(i.astype(np.int64))
+    if len(idx) == 1:
+        idx.append(np.zeros_like(idx[0]))
+    return idx[0], idx[1]
+
+
+def _type1(strengths, pos, axes, dx, dy, n_y, n_x, eps, rdtype, progress):
+    """Lateral type-1 NUFFT (finufft) of the weighted A-lines ``strengths`` (n_t, n_points)
+    onto the (n_y, n_x) transform grid's wavenumbers: (n_t, n_y, n_x) complex, with the
+    y-Nyquist row split band-limited (see below). Paper eq. (3)."""
+    n_t = strengths.shape[0]
+    d = pos.shape[1]
+    ctype = strengths.dtype
+    ftype = np.float32 if rdtype == np.float32 else np.float64
+    tx = 2 * np.pi * (pos[:, 0] - axes[0][0]) / (n_x * dx)
+    # single precision honours a type-1 tolerance of about 2e-5 at oversampling 1.25 (a
+    # tighter one makes FINUFFT shrink its kernel and warn of catastrophic cancellation)
+    eps_nu = max(eps, 2e-5) if rdtype == np.float32 else eps
+    # one thread: batched type-1 transforms with 2 threads were ~40x slower on 2 busy cores;
+    # oversampling 1.25 keeps the batched FFTs small (FINUFFT supports it down to ~1e-9)
+    opts = dict(eps=eps_nu, isign=-1, modeord=1, nthreads=1, upsampfac=1.25 if eps_nu >= 1e-9 else 2.0)
+    # the batched type-1 transforms in a few chunks of time samples (each transform is
+    # independent of the others), so that progress is reported through this step too
+    A = np.empty((n_t, n_y, n_x), dtype=ctype)
+    bounds = np.linspace(0, n_t, min(4, n_t) + 1).astype(np.int64)
+    ty = 2 * np.pi * (pos[:, 1] - axes[1][0]) / (n_y * dy) if d == 2 else None
+    for i in range(len(bounds) - 1):
+        a, b = int(bounds[i]), int(bounds[i + 1])
+        if d == 1:
+            A[a:b, 0, :] = finufft.nufft1d1(tx.astype(ftype), strengths[a:b], n_x, **opts)
+        else:
+            A[a:b] = finufft.nufft2d1(ty.astype(ftype), tx.astype(ftype), strengths[a:b], (n_y, n_x), **opts)
+        if progress is not None:
+            progress(0.3 * (i + 1) / (len(bounds) - 1))
+    if d == 2 and n_y % 2 == 0:
+        # The y-Nyquist row holds the aliased pair ±π/dy; off-grid sensors make the two
+        # differ, so take the band-limited (cosine) split: ½(A(-k_N, k_x) + A(+k_N, k_x)),
+        # with A(+k_N, k_x) = conj(A(-k_N, -k_x)) for real data.
+        r = n_y // 2
+        if n_x % 2 == 0:
+            # the corner also pairs with (-k_Ny, +k_Nx), which the FFT-ordered modes lack
+            ph = np.exp(-1j * np.pi * (-(pos[:, 1] - axes[1][0]) / dy + (pos[:, 0] - axes[0][0]) / dx))
+            corner = 0.5 * (A[:, r, n_x // 2] + strengths @ ph.astype(strengths.dtype))
+        A[:, r, :] = 0.5 * (A[:, r, :] + np.conj(A[:, r, (-np.arange(n_x)) % n_x]))
+        if n_x % 2 == 0:
+            A[:, r, n_x // 2] = corner
+    return A
+
+
 def reconstruct_points(
     alines: np.ndarray,
     positions: np.ndarray,
@@ -369,7 +444,9 @@ def reconstruct_points(
     Other options as `reconstruct_grid`.
 
     The lateral step is a type-1 NUFFT (finufft) from the positions to the grid's
-    wavenumbers, batched over the time samples; the rest is the grid pipeline.
+    wavenumbers, batched over the time samples — or, when every position is a node of
+    the grid (lattice masks), the FFT of the zero-filled grid, which is the same sum
+    exactly; the rest is the grid pipeline.
 
     Returns
     -------
@@ -406,8 +483,9 @@ def reconstruct_points(
             raise ValueError(f"weights must have shape ({n_points},), got {h.shape}")
         if np.any(h < 0):
             raise ValueError("weights must be >= 0")
-    n_x = len(axes[0])
-    n_y = len(axes[1]) if d == 2 else 1
+    n_x_out = len(axes[0])
+    n_y_out = len(axes[1]) if d == 2 else 1
+    n_y, n_x = _fast_lateral(n_y_out, n_x_out)  # transform sizes; the image is cropped back
     dx = steps[0]
     dy = steps[1] if d == 2 else 1.0
     checks.check_memory(
@@ -416,51 +494,32 @@ def reconstruct_points(
         memory_limit,
     )
     cell = dx * (dy if d == 2 else 1.0)
-    ctype = np.complex64 if rdtype == np.float32 else np.complex128
-    strengths = np.ascontiguousarray((al * (h / cell)[:, None]).T).astype(ctype)  # (n_t, n_points)
-    tx = 2 * np.pi * (pos[:, 0] - axes[0][0]) / (n_x * dx)
-    ftype = np.float32 if rdtype == np.float32 else np.float64
-    # single precision honours a type-1 tolerance of about 2e-5 at oversampling 1.25 (a
-    # tighter one makes FINUFFT shrink its kernel and warn of catastrophic cancellation)
-    eps_nu = max(eps, 2e-5) if rdtype == np.float32 else eps
-    # one thread: batched type-1 transforms with 2 threads were ~40x slower on 2 busy cores;
-    # oversampling 1.25 keeps the batched FFTs small (FINUFFT supports it down to ~1e-9)
-    opts = dict(eps=eps_nu, isign=-1, modeord=1, nthreads=1, upsampfac=1.25 if eps_nu >= 1e-9 else 2.0)
-    # the batched type-1 transforms in a few chunks of time samples (each transform is
-    # independent of the others), so that progress is reported through this step too
-    A = np.empty((n_t, n_y, n_x), dtype=ctype)
-    bounds = np.linspace(0, n_t, min(4, n_t) + 1).astype(np.int64)
-    ty = 2 * np.pi * (pos[:, 1] - axes[1][0]) / (n_y * dy) if d == 2 else None
-    for i in range(len(bounds) - 1):
-        a, b = int(bounds[i]), int(bounds[i + 1])
-        if d == 1:
-            A[a:b, 0, :] = finufft.nufft1d1(tx.astype(ftype), strengths[a:b], n_x, **opts)
-        else:
-            A[a:b] = finufft.nufft2d1(ty.astype(ftype), tx.astype(ftype), strengths[a:b], (n_y, n_x), **opts)
+    weighted = (al * (h / cell)[:, None]).T  # (n_t, n_points)
+    on_grid = _grid_indices(pos, axes, steps)
+    if on_grid is not None:
+        # every sensor on a node of the output grid (lattice masks): the type-1 sum is the
+        # FFT of the zero-filled grid, exactly and at FFT speed
+        filled = np.zeros((n_t, n_y, n_x), dtype=rdtype)
+        filled[:, on_grid[1], on_grid[0]] = weighted
+        del weighted
+        A = scipy.fft.rfft2(filled, axes=(1, 2), workers=-1)
+        del filled
         if progress is not None:
-            progress(0.3 * (i + 1) / (len(bounds) - 1))
-    if d == 2 and n_y % 2 == 0:
-        # The y-Nyquist row holds the aliased pair ±π/dy; off-grid sensors make the two
-        # differ, so take the band-limited (cosine) split: ½(A(-k_N, k_x) + A(+k_N, k_x)),
-        # with A(+k_N, k_x) = conj(A(-k_N, -k_x)) for real data.
-        r = n_y // 2
-        if n_x % 2 == 0:
-            # the corner also pairs with (-k_Ny, +k_Nx), which the FFT-ordered modes lack
-            ph = np.exp(-1j * np.pi * (-(pos[:, 1] - axes[1][0]) / dy + (pos[:, 0] - axes[0][0]) / dx))
-            corner = 0.5 * (A[:, r, n_x // 2] + strengths @ ph.astype(strengths.dtype))
-        A[:, r, :] = 0.5 * (A[:, r, :] + np.conj(A[:, r, (-np.arange(n_x)) % n_x]))
-        if n_x % 2 == 0:
-            A[:, r, n_x // 2] = corner
-    del strengths
-    A = A[:, :, : n_x // 2 + 1]
-    p0 = _invert(A, n_x, dx, dy, dt, c, n_work, dz, float(t0), method, eps, rdtype, upsample,
-                 progress=progress, span=(0.3, 1.0))[:n_z]
+            progress(0.3)
+    else:
+        ctype = np.complex64 if rdtype == np.float32 else np.complex128
+        A = _type1(np.ascontiguousarray(weighted, dtype=ctype), pos, axes, dx, dy, n_y, n_x, eps, rdtype, progress)
+        del weighted
+        A = A[:, :, : n_x // 2 + 1]
+    p0 = _crop(_invert(A, n_x, dx, dy, dt, c, n_work, dz, float(t0), method, eps, rdtype, upsample,
+                       progress=progress, span=(0.3, 1.0)), n_z, n_y_out * upsample if d == 2 else 1, n_x_out * upsample)
     if positivity:
         np.maximum(p0, 0, out=p0)
-    x = axes[0][0] + np.arange(n_x * upsample) * (dx / upsample)
-    y = None if d == 1 else axes[1][0] + np.arange(n_y * upsample) * (dy / upsample)
+    x = axes[0][0] + np.arange(n_x_out * upsample) * (dx / upsample)
+    y = None if d == 1 else axes[1][0] + np.arange(n_y_out * upsample) * (dy / upsample)
     params = dict(method="nedner" if method == "ner" else method, temporal=method, dt=dt, c=c, eps=eps,
                   dtype=rdtype.name, dz=dz, n_z=n_z, upsample=upsample, positivity=bool(positivity),
-                  t0=float(t0), n_t=n_t, n_points=n_points, depth_rows=n_work, dx=dx, dy=dy if d == 2 else None,
+                  t0=float(t0), n_t=n_t, n_points=n_points, depth_rows=n_work, lateral_transform=[n_y, n_x],
+                  dx=dx, dy=dy if d == 2 else None,
                   weights="voronoi" if weights is None else "given")
     return Image(p0[:, 0, :] if d == 1 else p0, np.arange(n_z) * dz, x, y, params)

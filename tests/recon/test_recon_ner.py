@@ -21,20 +21,22 @@ def centred(n, d=DX):
     return (np.arange(n) - (n - 1) / 2) * d
 
 
-def oracle_grid(g, dz=None, n_z=None, t0=0.0, rows=None):
+def oracle_grid(g, dz=None, n_z=None, t0=0.0, rows=None, lateral=None):
     """Direct-sum reconstruction of grid data g (n_t, n_x) or (n_t, n_y, n_x) with a depth
     transform of ``rows`` rows (the implementation's ``params["depth_rows"]``), cropped to
-    n_z (default n_t)."""
+    n_z (default n_t), on a lateral period of ``lateral`` = (n_y', n_x') samples (the
+    implementation's ``params["lateral_transform"]``: zero data beyond the aperture)."""
     n_t = g.shape[0]
     vol = g if g.ndim == 3 else g[:, None, :]
     n_y, n_x = vol.shape[1:]
+    n_yp, n_xp = lateral or (n_y, n_x)
     x, y = centred(n_x), centred(n_y)
     X, Y = np.meshgrid(x, y)
     pos = np.column_stack([X.ravel(), Y.ravel()])
-    kx, kxw = oracle.kgrid(n_x, DX)
-    ky, kyw = oracle.kgrid(n_y, DX)
+    kx, kxw = oracle.kgrid(n_xp, DX)
+    ky, kyw = oracle.kgrid(n_yp, DX)
     A = oracle.lateral_dft(vol.reshape(n_t, -1).T, pos, np.ones(len(pos)), kx, ky)
-    out = oracle.invert(A, kx, kxw, ky, kyw, DT, C, rows or n_z or n_t, dz or C * DT, t0, x, y, n_lat=(n_y, n_x),
+    out = oracle.invert(A, kx, kxw, ky, kyw, DT, C, rows or n_z or n_t, dz or C * DT, t0, x, y, n_lat=(n_yp, n_xp),
                         rows=n_z or n_t)
     return out if g.ndim == 3 else out[:, 0, :]
 
@@ -63,7 +65,7 @@ def test_temporal_step_matches_direct_cosine_sums():
 def test_ner_matches_direct_sum(shape):
     g = rng.standard_normal(shape)
     ims = [reconstruct_grid(g, DX, DT, C, eps=eps) for eps in (1e-3, 1e-6, 1e-9)]
-    ref = oracle_grid(g, rows=ims[0].params["depth_rows"])
+    ref = oracle_grid(g, rows=ims[0].params["depth_rows"], lateral=ims[0].params["lateral_transform"])
     errs = [rel(im.p0, ref) for im in ims]
     assert errs[1] <= 1e-5, errs
     assert errs[0] > errs[1] > errs[2], errs
@@ -75,7 +77,7 @@ def test_ner_depth_grid_and_time_offset_match_direct_sum():
     # the working depth grid reaches c t_last = 45.4 dz: K >= 47 depths (49: 2 (K - 1) = 96
     # is a fast FFT length), cropped to 30
     assert im.params["depth_rows"] == 49
-    ref = oracle_grid(g, dz=20e-6, n_z=30, t0=3e-8, rows=49)
+    ref = oracle_grid(g, dz=20e-6, n_z=30, t0=3e-8, rows=49, lateral=im.params["lateral_transform"])
     assert rel(im.p0, ref) <= 1e-5
     assert im.p0.shape == (30, 6, 8)
     np.testing.assert_allclose(im.z, 20e-6 * np.arange(30))
