@@ -8,7 +8,7 @@ same A-line). Sources:
 * :class:`BallSource` — analytic balls: exact N-shaped waves averaged over each sample
   interval (``driver.physics.ball_alines``; DESIGN §5).
 * :class:`VolumeSource` — any p0 volume (HDF5 ``p0`` ``(n_z, n_y, n_x)``) through the exact
-  planar forward model ``driver.physics.forward_points``.
+  planar forward model ``driver.physics.forward.forward_points``.
 * :class:`ReplaySource` — a recorded dense dataset in k-Wave layout (``sensor_data/clean``
   ``(t, y, z)`` with ``sensor_yz_index``); plan point (i_x, i_y) replays
   ``data[:, i_y, i_x]`` — the paper's way of picking a sensor mask out of dense data.
@@ -120,7 +120,7 @@ class VolumeSource:
         return float(np.abs(self.p0).max()) or 1.0
 
     def prepare(self, plan: DevicePlan) -> PressureFn:
-        from driver.physics import forward_points
+        from driver.physics.forward import forward_points
 
         pos = plan.positions()
         chunk = 4096

@@ -9,8 +9,11 @@
   the forward model (spreading) and by the NER reconstruction (interpolation).
 - `spectra`: molar extinction spectra of HbO2 and Hb (Prahl's table, shipped as data)
   and the absorption μa of haemoglobin at a given sO2 and concentration.
+
+Importing the package loads only `balls` (numpy): import the forward model
+(`driver.physics.forward`, finufft and numba) and `nufft` (numba) from their modules, so
+that each user pays for what it uses.
 """
 from driver.physics.balls import Ball, ball_alines, ball_p0
-from driver.physics.forward import forward_grid, forward_points
 
-__all__ = ["Ball", "ball_alines", "ball_p0", "forward_grid", "forward_points"]
+__all__ = ["Ball", "ball_alines", "ball_p0"]

@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from service.recon.weights import voronoi_weights
+from service.plans.weights import voronoi_weights
 
 from .lattice import Lattice
 

@@ -7,40 +7,22 @@
   kspaceLineRecon / kspacePlaneRecon.
 - `forward_grid`, `forward_points`: the exact planar forward model (from
   `driver.physics`, the physics module the simulator shares).
-- `voronoi_weights`: default area weights for non-equispaced sensors.
+- `voronoi_weights`: default area weights for non-equispaced sensors (from
+  `service.plans.weights`, which owns them).
 - `estimate_peak_memory`: bytes a reconstruction needs at its peak (admission control).
 
-The names are imported on first use, so that `service.recon.weights` (used by
-`service.plans`) does not pull in numba and finufft.
+Importing the package loads the reconstruction (numba, finufft); the plans' weights
+live in `service.plans.weights`, so planning never pays for that.
 """
 from __future__ import annotations
 
-import importlib
+from driver.physics.forward import forward_grid, forward_points
+from service.plans.weights import voronoi_weights
+from service.recon.checks import estimate_peak_memory
+from service.recon.image import Image
+from service.recon.kwave import kspace_line_recon, kspace_plane_recon
+from service.recon.planar import METHODS, reconstruct_grid, reconstruct_points
 
-_EXPORTS = {
-    "Image": "service.recon.image",
-    "METHODS": "service.recon.planar",
-    "reconstruct_grid": "service.recon.planar",
-    "reconstruct_points": "service.recon.planar",
-    "kspace_line_recon": "service.recon.kwave",
-    "kspace_plane_recon": "service.recon.kwave",
-    "forward_grid": "driver.physics.forward",
-    "forward_points": "driver.physics.forward",
-    "voronoi_weights": "service.recon.weights",
-    "estimate_peak_memory": "service.recon.checks",
-}
-
-__all__ = list(_EXPORTS)
-
-
-def __getattr__(name: str):
-    module = _EXPORTS.get(name)
-    if module is None:
-        raise AttributeError(f"module 'service.recon' has no attribute {name!r}")
-    value = getattr(importlib.import_module(module), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__():
-    return sorted(list(globals()) + __all__)
+__all__ = ["Image", "METHODS", "reconstruct_grid", "reconstruct_points", "kspace_line_recon",
+           "kspace_plane_recon", "forward_grid", "forward_points", "voronoi_weights",
+           "estimate_peak_memory"]

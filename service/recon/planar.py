@@ -35,7 +35,7 @@ from scipy.spatial import cKDTree
 from driver.physics import nufft
 from service.recon import checks
 from service.recon.image import Image
-from service.recon.weights import infer_pitch, voronoi_weights
+from service.plans.weights import infer_pitch, voronoi_weights
 
 METHODS = ("ner", "linear", "nearest", "cubic")
 _KIND = {"ner": "nufft", "linear": "linear", "nearest": "nearest"}

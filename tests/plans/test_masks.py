@@ -16,7 +16,7 @@ from service.plans import (
     equisteradian_rings,
     make_mask,
 )
-from service.recon.weights import voronoi_weights
+from service.plans.weights import voronoi_weights
 
 PITCH = 60e-6
 SQ = Lattice(61, 61, PITCH)  # odd: the centre is a lattice point

@@ -1,10 +1,10 @@
-"""Clipped Voronoi weights (service.recon.weights) against exact oracles."""
+"""Clipped Voronoi weights (service.plans.weights) against exact oracles."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from service.recon.weights import infer_pitch, voronoi_weights
+from service.plans.weights import infer_pitch, voronoi_weights
 
 PITCH = 60e-6
 

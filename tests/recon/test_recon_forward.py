@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from driver.physics import Ball, ball_alines, ball_p0, forward_grid, forward_points
+from driver.physics import Ball, ball_alines, ball_p0
+from driver.physics.forward import forward_grid, forward_points
 from service.recon import reconstruct_grid
 
 C, DT = 1500.0, 20e-9
