@@ -16,6 +16,31 @@ MAX_CHUNK = 4096
 #: largest command payload, bytes
 MAX_COMMAND = MAX_CHUNK + 256
 
+# The commands the host sends, in their short forms (docs/protocol.md §3.3). The device
+# side dispatches on their canonical long forms: ``canonical_header(SCAN_ABORT)`` is
+# ``"SCAN:ABORT"``. Commands with arguments are built by the functions below.
+IDN = "*IDN?"
+RESET = "*RST"
+CLEAR = "*CLS"
+OPC = "*OPC?"
+SYST_ERROR = "SYST:ERR?"
+SYST_ERROR_NEXT = "SYST:ERR:NEXT?"
+SYST_PROTOCOL = "SYST:PROT?"
+SYST_BOOT = "SYST:BOOT?"
+SYST_LIMITS = "SYST:LIM?"
+PLAN_BEGIN = "PLAN:BEG"
+PLAN_DATA = "PLAN:DATA"
+PLAN_END = "PLAN:END"
+PLAN_ID = "PLAN:ID?"
+PLAN_HASH = "PLAN:HASH?"
+PLAN_POINTS = "PLAN:POIN?"
+SCAN_START = "SCAN:STAR"
+SCAN_PAUSE = "SCAN:PAUS"
+SCAN_RESUME = "SCAN:RES"
+SCAN_ABORT = "SCAN:ABOR"
+SCAN_STATUS = "SCAN:STAT?"
+LASER_INTERLOCK = "LAS:INT?"
+
 NODES = ["SYSTem", "ERRor", "NEXT", "PROTocol", "BOOT", "LIMits", "PLAN", "BEGin", "DATA",
          "END", "ID", "HASH", "POINts", "SCAN", "STARt", "PAUSe", "RESume", "ABORt",
          "STATus", "LASer", "INTerlock"]
@@ -107,6 +132,26 @@ def int_arg(cmd: Command, i: int) -> int:
         return int(cmd.args[i])
     except ValueError:
         raise ScpiError(-104, f"Data type error; {cmd.args[i]!r} is not an integer") from None
+
+
+def plan_begin(n_bytes: int) -> str:
+    """``PLAN:BEG <n_bytes>``: start a plan upload of ``n_bytes``."""
+    return f"{PLAN_BEGIN} {int(n_bytes)}"
+
+
+def plan_data(offset: int, chunk: bytes) -> bytes:
+    """``PLAN:DATA <offset>,#<block>``: one chunk of the plan image (binary-safe)."""
+    return f"{PLAN_DATA} {int(offset)},".encode() + block(chunk)
+
+
+def plan_end(sha256_hex: str) -> str:
+    """``PLAN:END <sha256 hex>``: finish the upload; the device checks the image's hash."""
+    return f"{PLAN_END} {sha256_hex}"
+
+
+def scan_start(index: int) -> str:
+    """``SCAN:STAR <index>``: start a run at acquisition index ``index``."""
+    return f"{SCAN_START} {int(index)}"
 
 
 def block(data: bytes) -> bytes:

@@ -8,6 +8,12 @@ verification, and :meth:`Scanner.scan`, which streams A-lines into a sink (a
 under a credit window, NAKs gaps, and recovers from CRC errors, lost bytes, stalls and
 device resets, resuming from the sink's record of completed points, which is the truth.
 
+Layers (the pyserial ``serial.threaded`` split): a transport reader
+(:mod:`driver.transport`) moves bytes off the port; :class:`Scanner` deframes them and
+dispatches frames (replies to its commands, events, A-lines); a :class:`ScanSession`
+holds one scan's receive state and record. Command strings come from
+:mod:`driver.commands`.
+
 Threading: one thread runs :meth:`Scanner.scan`; :meth:`pause`, :meth:`resume` and
 :meth:`abort` may be called from any other thread (they queue a request the scan loop
 carries out within ~20 ms). Every wait has a timeout; failures raise :class:`DriverError`
@@ -17,10 +23,8 @@ from __future__ import annotations
 
 import collections
 import hashlib
-import os
 import queue
 import secrets
-import select
 import threading
 import time
 from collections.abc import Callable
@@ -28,10 +32,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from driver import commands as cmd
 from driver.aline import unpack_aline
-from driver.commands import MAX_CHUNK, block
+from driver.commands import MAX_CHUNK
 from driver.framing import PROTOCOL_VERSION, Deframer, FrameType, encode_frame
 from driver.plan import load_plan, plan_image
+from driver.transport import READER_MODES, TransportError, open_reader
 
 
 class DriverError(RuntimeError):
@@ -123,21 +129,20 @@ class Scanner:
     ``window``: credit window in A-line frames. ``retry``: command retransmission interval,
     s. ``response_timeout``: longest wait for a command reply or for a stalled device, s.
     ``stall_timeout``: silence during a scan after which the host polls the device, s.
-    ``reader``: how a local tty is drained: ``"process"`` (default: the relay process
-    :mod:`driver.relay`, immune to the interpreter lock), ``"thread"`` or ``"direct"``
-    (read in the calling thread). URL transports are always read directly.
+    ``reader``: how a local tty is drained (:mod:`driver.transport`): ``"process"``
+    (default: the relay process :mod:`driver.relay`, immune to the interpreter lock),
+    ``"thread"`` (pyserial's ``ReaderThread``) or ``"direct"`` (read in the calling
+    thread). URL transports are always read directly.
     ``lock_timeout``: how long to retry a port locked by another process, s.
 
     Raises :class:`DriverError` if the port cannot be opened or is locked by another
-    process (exclusive ``flock``).
+    process (exclusive ``flock``), ``ValueError`` for a bad setting.
     """
 
     def __init__(self, port: str, *, window: int = 256, retry: float = 0.15,
                  response_timeout: float = 10.0, stall_timeout: float = 1.0,
                  baudrate: int = 115200, reader: str = "process", lock_timeout: float = 2.0):
-        import serial
-
-        if reader not in ("process", "thread", "direct"):
+        if reader not in READER_MODES:
             raise ValueError(f"reader must be 'process', 'thread' or 'direct', not {reader!r}")
         if not 1 <= int(window) <= 65535:
             raise ValueError(f"window must be in 1..65535 A-lines, got {window}")
@@ -146,33 +151,8 @@ class Scanner:
         self.retry = float(retry)
         self.response_timeout = float(response_timeout)
         self.stall_timeout = float(stall_timeout)
-        deadline = time.monotonic() + lock_timeout
-        while True:
-            try:
-                self._ser = serial.serial_for_url(port, baudrate=baudrate, timeout=0.02,
-                                                  write_timeout=5.0, exclusive=True)
-                break
-            except (serial.SerialException, OSError, ValueError) as exc:
-                # a host that just died may hold the lock for a moment (its reader process)
-                if "lock" in str(exc).lower() and time.monotonic() < deadline:
-                    time.sleep(0.05)
-                    continue
-                raise DriverError(f"cannot open scanner port {port}: {exc}") from None
-        # pyserial's POSIX ports expose their descriptor; URL transports (socket://, loop://)
-        # do not and are read through pyserial
-        fd = getattr(self._ser, "fd", None)
-        self._rx: queue.SimpleQueue | None = None
-        self._rx_stop = threading.Event()
-        self._rx_thread = None
-        self._relay = None
-        self._relay_fd: int | None = None
-        if isinstance(fd, int) and reader == "process":
-            self._start_relay(fd)
-        elif isinstance(fd, int) and reader == "thread":
-            self._rx = queue.SimpleQueue()
-            self._rx_thread = threading.Thread(target=self._reader, args=(fd,),
-                                               name=f"fpscan-rx {port}", daemon=True)
-            self._rx_thread.start()
+        self._ser = _open_port(port, baudrate, lock_timeout)
+        self._reader = open_reader(self._ser, reader, port)
         self._deframer = Deframer()
         self._seq = secrets.randbits(30) + 1
         self._pending_seq: int | None = None
@@ -181,9 +161,9 @@ class Scanner:
         self._requests: queue.Queue = queue.Queue()
         self._scanning = threading.Event()
         self._io = threading.RLock()
-        self._run = None
+        self._session: ScanSession | None = None
         self._events: collections.deque = collections.deque(maxlen=64)
-        self.faults = collections.Counter()
+        self.faults: collections.Counter = collections.Counter()
         self._device_busy = False
         self._old_boots: set[int] = set()
         self._max_chunk = MAX_CHUNK
@@ -199,17 +179,10 @@ class Scanner:
             return
         if self._device_busy:
             try:
-                self.query("SCAN:ABOR", timeout=2.0)
+                self.query(cmd.SCAN_ABORT, timeout=2.0)
             except DriverError:
                 pass
-        self._rx_stop.set()
-        if self._rx_thread is not None:
-            self._rx_thread.join(timeout=2)
-        if self._relay is not None:
-            self._relay.kill()
-            self._relay.wait(timeout=5)
-            self._relay.stdout.close()
-            self._relay = None
+        self._reader.close()
         self._ser.close()
         self._ser = None
 
@@ -227,91 +200,12 @@ class Scanner:
         except (serial.SerialException, OSError) as exc:
             raise DriverError(f"write to {self.port} failed: {exc}") from None
 
-    def _read_some(self) -> bytes:
-        """Bytes received since the last call, waiting at most ~20 ms for the first."""
-        import serial
-
-        if self._relay_fd is not None:  # a local tty drained by the relay process
-            try:
-                if not select.select([self._relay_fd], [], [], 0.02)[0]:
-                    return b""
-                data = os.read(self._relay_fd, 1 << 20)
-            except OSError as exc:
-                raise DriverError(f"read from {self.port} failed: {exc}") from None
-            if not data:  # the relay ended (killed?): read the tty here from now on
-                self._relay.wait(timeout=5)
-                self._relay.stdout.close()
-                self._relay = self._relay_fd = None
-            return data
-        if self._rx is not None:  # a local tty drained by the reader thread
-            try:
-                chunks = [self._rx.get(timeout=0.02)]
-            except queue.Empty:
-                chunks = []
-            while True:
-                try:
-                    chunks.append(self._rx.get_nowait())
-                except queue.Empty:
-                    break
-            for c in chunks:
-                if isinstance(c, Exception):
-                    raise DriverError(f"read from {self.port} failed: {c}")
-            return b"".join(chunks)
-        ser = self._ser
-        try:
-            n = ser.in_waiting
-            data = ser.read(n if n else 1)
-            if len(data) == 1:
-                n = ser.in_waiting
-                if n:
-                    data += ser.read(n)
-        except (serial.SerialException, OSError) as exc:
-            raise DriverError(f"read from {self.port} failed: {exc}") from None
-        return data
-
-    def _start_relay(self, fd: int) -> None:
-        """Start the relay process (driver.relay) that drains the tty into a 1 MiB pipe."""
-        import fcntl
-        import subprocess
-        import sys
-
-        try:
-            self._relay = subprocess.Popen(
-                [sys.executable, "-m", "driver.relay", str(fd), str(os.getpid())],
-                pass_fds=(fd,), stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                bufsize=0, cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-        except OSError:  # no interpreter to start: read with a thread instead
-            self._relay = None
-            self._rx = queue.SimpleQueue()
-            self._rx_thread = threading.Thread(target=self._reader, args=(fd,),
-                                               name=f"fpscan-rx {self.port}", daemon=True)
-            self._rx_thread.start()
-            return
-        self._relay_fd = self._relay.stdout.fileno()
-        try:
-            fcntl.fcntl(self._relay_fd, 1031, 1 << 20)  # F_SETPIPE_SZ: 1 MiB
-        except OSError:
-            pass
-
-    def _reader(self, fd: int) -> None:
-        """Reader thread for local ttys: keeps the (4 KiB deep) tty buffer drained while
-        the scan thread decodes and writes, so the link never waits for the host."""
-        while not self._rx_stop.is_set():
-            try:
-                if select.select([fd], [], [], 0.1)[0]:
-                    data = os.read(fd, 1 << 18)
-                    if data:
-                        self._rx.put(data)
-            except BlockingIOError:
-                continue
-            except (OSError, ValueError) as exc:
-                if not self._rx_stop.is_set():
-                    self._rx.put(exc)
-                return
-
     def _pump(self) -> None:
         """Read what arrived (waiting at most ~20 ms) and dispatch every good frame."""
-        data = self._read_some()
+        try:
+            data = self._reader.read()
+        except TransportError as exc:
+            raise DriverError(str(exc)) from None
         if not data:
             return
         frames = self._deframer.feed(data)
@@ -321,7 +215,8 @@ class Scanner:
         for fr in frames:
             t = fr.type
             if t == FrameType.ALINE:
-                self._on_aline(fr)
+                if self._session is not None:
+                    self._session.on_aline(fr)
             elif t in (FrameType.RSP, FrameType.ERR):
                 if fr.ack == self._pending_seq:
                     self._reply = fr
@@ -330,15 +225,16 @@ class Scanner:
 
     def _on_event(self, text: str) -> None:
         self._events.append(text)
+        run = self._session.current if self._session is not None else None
         word, _, arg = text.partition(" ")
-        if word == "BOOT" and self._run is not None:
+        if word == "BOOT" and run is not None:
             try:
-                if int(arg) != self._run.boot_id and int(arg) not in self._old_boots:
-                    self._run.reset_seen = True
+                if int(arg) != run.boot_id and int(arg) not in self._old_boots:
+                    run.reset_seen = True
             except ValueError:
                 pass
-        elif word == "INTERLOCK" and arg.strip() == "1" and self._run is not None:
-            self._run.interlock = True
+        elif word == "INTERLOCK" and arg.strip() == "1" and run is not None:
+            run.interlock = True
 
     def query(self, command: str | bytes, timeout: float | None = None) -> str:
         """Send one command and return its reply text ('' for set commands).
@@ -396,13 +292,13 @@ class Scanner:
 
         Raises :class:`DriverError` if the device speaks another protocol version.
         """
-        idn = self.query("*IDN?")
-        version = self.query("SYST:PROT?")
+        idn = self.query(cmd.IDN)
+        version = self.query(cmd.SYST_PROTOCOL)
         if version.strip() != str(PROTOCOL_VERSION):
             raise DriverError(f"device speaks protocol {version!r}, host {PROTOCOL_VERSION}")
         parts = [p.strip() for p in idn.split(",")] + [""] * 4
         try:
-            limits = [int(x) for x in self.query("SYST:LIM?").split(",")]
+            limits = [int(x) for x in self.query(cmd.SYST_LIMITS).split(",")]
         except ValueError:
             raise DriverError("malformed SYST:LIM? reply") from None
         status = self.status()
@@ -417,13 +313,13 @@ class Scanner:
 
     def status(self, timeout: float | None = None) -> DeviceStatus:
         """``SCAN:STAT?`` parsed."""
-        return DeviceStatus.parse(self.query("SCAN:STAT?", timeout=timeout))
+        return DeviceStatus.parse(self.query(cmd.SCAN_STATUS, timeout=timeout))
 
     def errors(self) -> list[tuple[int, str]]:
         """Drain the device's error queue (``SYST:ERR?`` until ``0``)."""
         out = []
         for _ in range(64):
-            code_s, _, msg = self.query("SYST:ERR?").partition(",")
+            code_s, _, msg = self.query(cmd.SYST_ERROR).partition(",")
             try:
                 code = int(code_s)
             except ValueError:
@@ -448,11 +344,19 @@ class Scanner:
         if st.state in ("RUNNING", "PAUSED", "FAULT"):
             # ends a run a previous host left, and clears a fault whose cause is gone (a
             # closed interlock); an open interlock stays FAULT and SCAN:STAR will say so
-            self.query("SCAN:ABOR")
-        self.query(f"PLAN:BEG {len(image)}")
-        # chunks of up to max_chunk bytes; on a noisy link a long command rarely arrives
-        # intact, so a chunk that gets no reply is retried 8 times smaller (>= 64 B), and
-        # the size doubles again after 4 chunks in a row got through
+            self.query(cmd.SCAN_ABORT)
+        self.query(cmd.plan_begin(len(image)))
+        self._send_image(image)
+        self.query(cmd.plan_end(hashlib.sha256(image).hexdigest()))
+        got = self.query(cmd.PLAN_ID).strip()
+        if got != plan["id"]:
+            raise DriverError(f"device holds plan {got}, uploaded {plan['id']}")
+        return got
+
+    def _send_image(self, image: bytes) -> None:
+        """``PLAN:DATA`` chunks of up to max_chunk bytes. On a noisy link a long command
+        rarely arrives intact, so a chunk that gets no reply is retried 8 times smaller
+        (>= 64 B), and the size doubles again after 4 chunks in a row got through."""
         chunk = self._max_chunk
         off = streak = 0
         last = time.monotonic()
@@ -460,7 +364,7 @@ class Scanner:
         while off < len(image):
             piece = image[off:off + chunk]
             try:
-                self.query(f"PLAN:DATA {off},".encode() + block(piece), timeout=per_try)
+                self.query(cmd.plan_data(off, piece), timeout=per_try)
             except DeviceTimeout:
                 if time.monotonic() - last > self.response_timeout:
                     raise
@@ -472,11 +376,6 @@ class Scanner:
             streak += 1
             if streak >= 4 and chunk < self._max_chunk:
                 chunk, streak = min(self._max_chunk, 2 * chunk), 0
-        self.query(f"PLAN:END {hashlib.sha256(image).hexdigest()}")
-        got = self.query("PLAN:ID?").strip()
-        if got != plan["id"]:
-            raise DriverError(f"device holds plan {got}, uploaded {plan['id']}")
-        return got
 
     # ------------------------------------------------------------------ thread controls
     def pause(self) -> None:
@@ -495,11 +394,10 @@ class Scanner:
         if self._scanning.is_set():
             self._requests.put(what)
         else:
-            self.query({"pause": "SCAN:PAUS", "resume": "SCAN:RES",
-                        "abort": "SCAN:ABOR"}[what])
+            self.query(_CONTROL_COMMANDS[what])
 
     # ------------------------------------------------------------------ scanning
-    def scan(self, plan, sink, *, progress: Callable[[Progress], None] | None = None,  # noqa: C901 -- split into a scan session by helper "driver"
+    def scan(self, plan, sink, *, progress: Callable[[Progress], None] | None = None,
              progress_interval: float = 0.25, upload: bool = True) -> ScanResult:
         """Acquire every point of ``plan`` not yet complete in ``sink``.
 
@@ -512,253 +410,16 @@ class Scanner:
         Raises ``ValueError`` (plan and sink disagree), :class:`InterlockOpen`,
         :class:`DeviceTimeout` (device silent for ``response_timeout``),
         :class:`DeviceError`. On any exit the device is left idle (best effort).
+        The work is done by a :class:`ScanSession`.
         """
-        plan = load_plan(plan)
-        n = len(plan["points"]["indices"])
-        n_t = int(plan["acquisition"]["n_t"])
-        completed = np.array(sink.completed(), dtype=bool)
-        if completed.shape != (n,):
-            raise ValueError(f"sink holds {completed.shape} points, plan {n}")
-        if getattr(sink, "plan_id", plan["id"]) != plan["id"]:
-            raise ValueError(f"sink is for plan {sink.plan_id}, not {plan['id']}")
-        t_start = time.monotonic()
-        done0 = int(completed.sum())
-        counters = collections.Counter()
-        state = {"done": done0, "t_first": None, "t_last": None, "last_prog": 0.0,
-                 "label": "running"}
-
-        def report(label: str, force: bool = False) -> None:
-            now = time.monotonic()
-            if progress is None or (not force and now - state["last_prog"] < progress_interval):
-                return
-            state["last_prog"] = now
-            t_first = state["t_first"] or now
-            rate = (state["done"] - done0) / max(now - t_first, 1e-9)
-            eta = (n - state["done"]) / rate if rate > 0 else float("inf")
-            progress(Progress(state["done"], n, rate, eta, self.faults_recovered(), label,
-                              now - t_start))
-
-        def on_aline(fr) -> None:
-            run = self._run
-            if run is None:  # A-lines that overtook the SCAN:STAR reply: keep for the run
-                if len(early) < 4096:
-                    early.append(fr)
-                return
-            try:
-                a = unpack_aline(fr.payload)
-            except ValueError:
-                self.faults["bad_alines"] += 1
-                return
-            if a.run_id != run.run_id or a.boot_id != run.boot_id:
-                counters["stale"] += 1
-                if a.boot_id != run.boot_id and a.boot_id not in self._old_boots:
-                    run.reset_seen = True
-                return
-            seq = fr.seq
-            run.last_rx = time.monotonic()
-            if seq < run.expected or seq in run.ooo:
-                counters["duplicates"] += 1
-                run.need_ack = True
-                return
-            if seq == run.expected:
-                run.expected += 1
-                while run.expected in run.ooo:
-                    run.ooo.discard(run.expected)
-                    run.expected += 1
-            else:
-                run.ooo.add(seq)
-                run.max_seen = max(run.max_seen, seq)
-            run.since_ack += 1
-            run.last_new = run.last_rx  # the device makes progress
-            counters["alines"] += 1
-            k = a.point_index
-            if not 0 <= k < n or a.samples.size != n_t:
-                self.faults["bad_alines"] += 1
-                return
-            if not completed[k]:
-                sink.append(k, a.samples, a.meta())
-                completed[k] = True
-                state["done"] += 1
-                state["t_last"] = run.last_rx
-            else:
-                counters["duplicate_points"] += 1
-
-        early: list = []
-        self._on_aline = on_aline
-        # silence that means a stall: at least stall_timeout, and 3 point periods at the
-        # plan's PRF (a slow laser or many averages is not a stall)
-        acq = plan["acquisition"]
-        prf = float(acq.get("prf") or 0.0)
-        silence = self.stall_timeout
-        if prf > 0:
-            silence = max(silence, 3.0 * int(acq.get("averages", 1)) / prf)
-        aborted = False
-        self._scanning.set()
-        try:
-            with self._io:
-                if upload:
-                    self.identify()
-                    self.upload_plan(plan)
-                else:  # the caller uploaded it: check that the device holds this plan
-                    self._boot_id = self.status().boot_id
-                    held = self.query("PLAN:ID?").strip()
-                    if held != plan["id"]:
-                        raise DriverError(f"device holds plan {held}, not {plan['id']}; "
-                                          "scan with upload=True")
-                self._device_busy = True
-                report("running", force=True)
-                lost_plan = 0
-                while not completed.all():
-                    k0 = int(np.argmin(completed))
-                    try:
-                        reply = self.query(f"SCAN:STAR {k0}")
-                    except DeviceError as exc:
-                        if exc.code != 103 or lost_plan >= 3:
-                            raise
-                        lost_plan += 1  # "no plan": the device reset since the upload
-                        self.faults["resets"] += 1
-                        self._recover_reset(plan)
-                        continue
-                    try:
-                        run_id, first_seq = (int(x) for x in reply.split(","))
-                    except ValueError:
-                        raise DriverError(f"malformed SCAN:STAR reply {reply!r}") from None
-                    if state["t_first"] is None:
-                        state["t_first"] = time.monotonic()
-                    self._run = _Run(run_id, self._boot_id, first_seq)
-                    for fr in early:
-                        on_aline(fr)
-                    early.clear()
-                    self._send_ack()
-                    outcome = self._stream(completed, report, silence)
-                    self._run = None
-                    early.clear()
-                    if outcome == "abort":
-                        aborted = True
-                        break
-                    if outcome == "reset":
-                        self.faults["resets"] += 1
-                        report("recovering", force=True)
-                        self._recover_reset(plan)
-                # the host's record is complete: leave the device idle
-                st = self.status()
-                if st.state in ("RUNNING", "PAUSED"):
-                    self.query("SCAN:ABOR")
-                self._device_busy = False
-        except BaseException:
-            self._run = None
-            if self._device_busy and self._ser is not None:
-                try:
-                    self.query("SCAN:ABOR", timeout=2.0)
-                    self._device_busy = False
-                except DriverError:
-                    pass
-            raise
-        finally:
-            self._scanning.clear()
-            self._on_aline = _ignore
-            while not self._requests.empty():
-                self._requests.get_nowait()
-            if hasattr(sink, "flush"):
-                sink.flush()
-        report("aborted" if aborted else "done", force=True)
-        t_end = time.monotonic()
-        faults = {k: v for k, v in self.faults.items() if v}
-        link = {k: v for k, v in counters.items() if k != "alines"}
-        acq = ((state["t_last"] or t_end) - state["t_first"]) if state["t_first"] else 0.0
-        return ScanResult(n, int(completed.sum()), bool(completed.all()), aborted,
-                          t_end - t_start, acq, counters["alines"], faults, link)
+        session = ScanSession(self, load_plan(plan), sink, progress=progress,
+                              progress_interval=progress_interval)
+        return session.run(upload=upload)
 
     def faults_recovered(self) -> int:
         f = self.faults
         return (f["bad_frames"] + f["bad_alines"] + f["naks"] + f["command_retries"]
                 + f["stall_polls"] + f["resets"] + f["upload_retries"])
-
-    def _on_aline(self, fr) -> None:  # replaced during scan()
-        pass
-
-    def _send_ack(self, nak: list[int] | None = None) -> None:
-        run = self._run
-        if nak:
-            payload = np.asarray(nak, dtype="<u4").tobytes()
-            self._write(encode_frame(FrameType.NAK, payload, ack=run.expected,
-                                     window=self.window))
-        else:
-            self._write(encode_frame(FrameType.ACK, ack=run.expected, window=self.window))
-        run.since_ack = 0
-        run.need_ack = False
-        run.last_ack = time.monotonic()
-
-    def _stream(self, completed: np.ndarray, report, silence: float) -> str:  # noqa: C901 -- split into transport readers by helper "driver"
-        """Receive one run until the record is complete; returns 'done', 'reset', 'abort'."""
-        run = self._run
-        paused = False
-        ack_every = max(1, self.window // 2)
-        while True:
-            # requests from other threads
-            while not self._requests.empty():
-                what = self._requests.get_nowait()
-                if what == "abort":
-                    self.query("SCAN:ABOR")
-                    self._device_busy = False
-                    return "abort"
-                if what == "pause" and not paused:
-                    self.query("SCAN:PAUS")
-                    paused = True
-                elif what == "resume" and paused:
-                    self.query("SCAN:RES")
-                    paused = False
-                    run.last_rx = run.last_new = time.monotonic()
-            self._pump()
-            now = time.monotonic()
-            if run.reset_seen:
-                return "reset"
-            if run.interlock:
-                self._raise_interlock(completed)
-            if run.since_ack >= ack_every or (run.since_ack or run.need_ack) and \
-                    now - run.last_ack > 0.02:
-                self._send_ack()
-            if run.ooo:  # gap: NAK the missing sequence numbers not NAKed recently
-                missing = [s for s in range(run.expected, run.max_seen)
-                           if s not in run.ooo and now - run.nak_time.get(s, 0.0) > 0.1]
-                if len(run.nak_time) > 4096:
-                    run.nak_time = {s: t for s, t in run.nak_time.items() if s >= run.expected}
-                if missing:
-                    for s in missing:
-                        run.nak_time[s] = now
-                    self.faults["naks"] += len(missing)
-                    self._send_ack(missing[:256])
-            if completed.all():
-                self._send_ack()
-                return "done"
-            report("paused" if paused else "running")
-            if now - run.last_rx > (2 * silence if paused else silence):
-                # silence: poll the device (this waits out a stall up to response_timeout)
-                if not paused:
-                    self.faults["stall_polls"] += 1
-                st = self.status()
-                run.last_rx = time.monotonic()
-                if st.boot_id != run.boot_id:
-                    return "reset"
-                if st.state == "FAULT":
-                    self._raise_interlock(completed)
-                if st.state == "IDLE" and not completed.all():
-                    return "restart"  # the run ended with points missing: start again
-                if not paused and time.monotonic() - run.last_new > max(
-                        3 * self.response_timeout, 10 * silence):
-                    raise DeviceTimeout(f"{self.port} reports {st.state} but delivered no new "
-                                        f"A-line for {time.monotonic() - run.last_new:.0f} s")
-                self._send_ack(self._missing_tail(run))
-
-    @staticmethod
-    def _missing_tail(run) -> list[int] | None:
-        if run.ooo:
-            return [s for s in range(run.expected, run.max_seen) if s not in run.ooo][:256]
-        return None
-
-    def _raise_interlock(self, completed) -> None:
-        raise InterlockOpen(101, f"Laser interlock open; {int(completed.sum())} of "
-                                 f"{completed.size} points are on disk, re-run to resume")
 
     def _recover_reset(self, plan: dict) -> None:
         """The device rebooted: wait for it, re-identify and re-upload the plan."""
@@ -774,9 +435,316 @@ class Scanner:
                     raise
         self.upload_plan(plan)
 
+    def _leave_idle(self) -> None:
+        """Best effort after a failure: abort the run this host started."""
+        if self._device_busy and self._ser is not None:
+            try:
+                self.query(cmd.SCAN_ABORT, timeout=2.0)
+                self._device_busy = False
+            except DriverError:
+                pass
 
-def _ignore(fr) -> None:
-    pass
+
+_CONTROL_COMMANDS = {"pause": cmd.SCAN_PAUSE, "resume": cmd.SCAN_RESUME,
+                     "abort": cmd.SCAN_ABORT}
+
+
+def _open_port(port: str, baudrate: int, lock_timeout: float):
+    """``serial.serial_for_url`` with an exclusive lock, retrying a held lock (a host that
+    just died may hold it for a moment through its reader process)."""
+    import serial
+
+    deadline = time.monotonic() + lock_timeout
+    while True:
+        try:
+            return serial.serial_for_url(port, baudrate=baudrate, timeout=0.02,
+                                         write_timeout=5.0, exclusive=True)
+        except (serial.SerialException, OSError, ValueError) as exc:
+            if "lock" in str(exc).lower() and time.monotonic() < deadline:
+                time.sleep(0.05)
+                continue
+            raise DriverError(f"cannot open scanner port {port}: {exc}") from None
+
+
+class ScanSession:
+    """One call of :meth:`Scanner.scan`: the host's receive side of a plan's acquisition.
+
+    It owns the record of what is complete (read from the sink at the start, updated as
+    A-lines land), starts runs at the first missing A-line, accepts A-line frames from the
+    scanner's dispatch (:meth:`on_aline`: sequence bookkeeping, duplicates, stale runs),
+    acknowledges and NAKs them under the credit window, polls a silent device, recovers
+    from resets, and reports progress. The :class:`Scanner` it runs on provides the link
+    (commands, frame dispatch); the transport reader below that moves the bytes.
+
+    Raises ``ValueError`` if the plan and the sink disagree.
+    """
+
+    def __init__(self, scanner: Scanner, plan: dict, sink, *,
+                 progress: Callable[[Progress], None] | None = None,
+                 progress_interval: float = 0.25):
+        self.sc = scanner
+        self.plan = plan
+        self.sink = sink
+        self.n = len(plan["points"]["indices"])
+        self.n_t = int(plan["acquisition"]["n_t"])
+        self.completed = np.array(sink.completed(), dtype=bool)
+        if self.completed.shape != (self.n,):
+            raise ValueError(f"sink holds {self.completed.shape} points, plan {self.n}")
+        if getattr(sink, "plan_id", plan["id"]) != plan["id"]:
+            raise ValueError(f"sink is for plan {sink.plan_id}, not {plan['id']}")
+        self.progress = progress
+        self.progress_interval = progress_interval
+        self.current: _Run | None = None
+        self.counters: collections.Counter = collections.Counter()
+        self.early: list = []  # A-lines that overtook the SCAN:STAR reply
+        self.t_start = time.monotonic()
+        self.done0 = self.done = int(self.completed.sum())
+        self.t_first: float | None = None
+        self.t_last: float | None = None
+        self.last_prog = 0.0
+        self.aborted = False
+        # silence that means a stall: at least stall_timeout, and 3 point periods at the
+        # plan's PRF (a slow laser or many averages is not a stall)
+        acq = plan["acquisition"]
+        prf = float(acq.get("prf") or 0.0)
+        self.silence = scanner.stall_timeout
+        if prf > 0:
+            self.silence = max(self.silence, 3.0 * int(acq.get("averages", 1)) / prf)
+
+    # ------------------------------------------------------------------ the call
+    def run(self, upload: bool = True) -> ScanResult:
+        """Acquire what is missing; returns the :class:`ScanResult` (see Scanner.scan)."""
+        sc = self.sc
+        sc._scanning.set()
+        sc._session = self
+        try:
+            with sc._io:
+                self._prepare_device(upload)
+                sc._device_busy = True
+                self.report("running", force=True)
+                self._acquire()
+                # the host's record is complete (or aborted): leave the device idle
+                if sc.status().state in ("RUNNING", "PAUSED"):
+                    sc.query(cmd.SCAN_ABORT)
+                sc._device_busy = False
+        except BaseException:
+            self.current = None
+            sc._leave_idle()
+            raise
+        finally:
+            sc._scanning.clear()
+            sc._session = None
+            while not sc._requests.empty():
+                sc._requests.get_nowait()
+            if hasattr(self.sink, "flush"):
+                self.sink.flush()
+        self.report("aborted" if self.aborted else "done", force=True)
+        return self.result()
+
+    def _prepare_device(self, upload: bool) -> None:
+        sc, plan = self.sc, self.plan
+        if upload:
+            sc.identify()
+            sc.upload_plan(plan)
+            return
+        # the caller uploaded it: check that the device holds this plan
+        sc._boot_id = sc.status().boot_id
+        held = sc.query(cmd.PLAN_ID).strip()
+        if held != plan["id"]:
+            raise DriverError(f"device holds plan {held}, not {plan['id']}; "
+                              "scan with upload=True")
+
+    def _acquire(self) -> None:
+        """Runs from the first missing A-line until the record is complete or aborted."""
+        sc = self.sc
+        lost_plan = 0
+        while not self.completed.all():
+            try:
+                reply = sc.query(cmd.scan_start(int(np.argmin(self.completed))))
+            except DeviceError as exc:
+                if exc.code != 103 or lost_plan >= 3:
+                    raise
+                lost_plan += 1  # "no plan": the device reset since the upload
+                sc.faults["resets"] += 1
+                sc._recover_reset(self.plan)
+                continue
+            try:
+                run_id, first_seq = (int(x) for x in reply.split(","))
+            except ValueError:
+                raise DriverError(f"malformed SCAN:STAR reply {reply!r}") from None
+            if self.t_first is None:
+                self.t_first = time.monotonic()
+            self.current = _Run(run_id, sc._boot_id, first_seq)
+            early, self.early = self.early, []
+            for fr in early:
+                self.on_aline(fr)
+            self.send_ack()
+            outcome = self._stream()
+            self.current = None
+            self.early.clear()
+            if outcome == "abort":
+                self.aborted = True
+                return
+            if outcome == "reset":
+                sc.faults["resets"] += 1
+                self.report("recovering", force=True)
+                sc._recover_reset(self.plan)
+
+    def result(self) -> ScanResult:
+        t_end = time.monotonic()
+        faults = {k: v for k, v in self.sc.faults.items() if v}
+        link = {k: v for k, v in self.counters.items() if k != "alines"}
+        acq = ((self.t_last or t_end) - self.t_first) if self.t_first else 0.0
+        return ScanResult(self.n, int(self.completed.sum()), bool(self.completed.all()),
+                          self.aborted, t_end - self.t_start, acq, self.counters["alines"],
+                          faults, link)
+
+    def report(self, label: str, force: bool = False) -> None:
+        """Call the progress callback (at most every ``progress_interval`` s unless forced)."""
+        now = time.monotonic()
+        if self.progress is None or (not force and now - self.last_prog < self.progress_interval):
+            return
+        self.last_prog = now
+        t_first = self.t_first or now
+        rate = (self.done - self.done0) / max(now - t_first, 1e-9)
+        eta = (self.n - self.done) / rate if rate > 0 else float("inf")
+        self.progress(Progress(self.done, self.n, rate, eta, self.sc.faults_recovered(), label,
+                               now - self.t_start))
+
+    # ------------------------------------------------------------------ receiving
+    def on_aline(self, fr) -> None:
+        """One ALINE frame from the dispatch: sequence bookkeeping, then the sink."""
+        run = self.current
+        if run is None:  # overtook the SCAN:STAR reply: keep it for the run
+            if len(self.early) < 4096:
+                self.early.append(fr)
+            return
+        try:
+            a = unpack_aline(fr.payload)
+        except ValueError:
+            self.sc.faults["bad_alines"] += 1
+            return
+        if a.run_id != run.run_id or a.boot_id != run.boot_id:
+            self.counters["stale"] += 1
+            if a.boot_id != run.boot_id and a.boot_id not in self.sc._old_boots:
+                run.reset_seen = True
+            return
+        if not run.accept(fr.seq):
+            self.counters["duplicates"] += 1
+            return
+        self.counters["alines"] += 1
+        self._store(a, run.last_rx)
+
+    def _store(self, a, t_rx: float) -> None:
+        k = a.point_index
+        if not 0 <= k < self.n or a.samples.size != self.n_t:
+            self.sc.faults["bad_alines"] += 1
+            return
+        if self.completed[k]:
+            self.counters["duplicate_points"] += 1
+            return
+        self.sink.append(k, a.samples, a.meta())
+        self.completed[k] = True
+        self.done += 1
+        self.t_last = t_rx
+
+    def send_ack(self, nak: list[int] | None = None) -> None:
+        """ACK (or NAK the seqs in ``nak``) with the current run's next expected seq."""
+        run, sc = self.current, self.sc
+        if nak:
+            payload = np.asarray(nak, dtype="<u4").tobytes()
+            sc._write(encode_frame(FrameType.NAK, payload, ack=run.expected,
+                                   window=sc.window))
+        else:
+            sc._write(encode_frame(FrameType.ACK, ack=run.expected, window=sc.window))
+        run.since_ack = 0
+        run.need_ack = False
+        run.last_ack = time.monotonic()
+
+    def _stream(self) -> str:
+        """Receive one run until the record is complete; returns 'done', 'reset', 'abort'
+        or 'restart' (the device ended the run with A-lines missing)."""
+        run, sc = self.current, self.sc
+        paused = False
+        while True:
+            paused, outcome = self._handle_requests(paused)
+            if outcome:
+                return outcome
+            sc._pump()
+            if run.reset_seen:
+                return "reset"
+            if run.interlock:
+                self._raise_interlock()
+            self._acknowledge()
+            if self.completed.all():
+                self.send_ack()
+                return "done"
+            self.report("paused" if paused else "running")
+            if time.monotonic() - run.last_rx > (2 * self.silence if paused else self.silence):
+                outcome = self._on_silence(paused)
+                if outcome:
+                    return outcome
+
+    def _handle_requests(self, paused: bool) -> tuple[bool, str | None]:
+        """Carry out pause/resume/abort requests from other threads."""
+        sc = self.sc
+        while not sc._requests.empty():
+            what = sc._requests.get_nowait()
+            if what == "abort":
+                sc.query(cmd.SCAN_ABORT)
+                sc._device_busy = False
+                return paused, "abort"
+            if what == "pause" and not paused:
+                sc.query(cmd.SCAN_PAUSE)
+                paused = True
+            elif what == "resume" and paused:
+                sc.query(cmd.SCAN_RESUME)
+                paused = False
+                self.current.last_rx = self.current.last_new = time.monotonic()
+        return paused, None
+
+    def _acknowledge(self) -> None:
+        """ACK every window/2 new A-lines or after 20 ms; NAK gaps (each seq ≤ every 0.1 s)."""
+        run, sc = self.current, self.sc
+        now = time.monotonic()
+        if run.since_ack >= max(1, sc.window // 2) or (run.since_ack or run.need_ack) and \
+                now - run.last_ack > 0.02:
+            self.send_ack()
+        if not run.ooo:
+            return
+        missing = [s for s in range(run.expected, run.max_seen)
+                   if s not in run.ooo and now - run.nak_time.get(s, 0.0) > 0.1]
+        if len(run.nak_time) > 4096:
+            run.nak_time = {s: t for s, t in run.nak_time.items() if s >= run.expected}
+        if missing:
+            for s in missing:
+                run.nak_time[s] = now
+            sc.faults["naks"] += len(missing)
+            self.send_ack(missing[:256])
+
+    def _on_silence(self, paused: bool) -> str | None:
+        """Poll a silent device (this waits out a stall up to response_timeout)."""
+        run, sc = self.current, self.sc
+        if not paused:
+            sc.faults["stall_polls"] += 1
+        st = sc.status()
+        run.last_rx = time.monotonic()
+        if st.boot_id != run.boot_id:
+            return "reset"
+        if st.state == "FAULT":
+            self._raise_interlock()
+        if st.state == "IDLE" and not self.completed.all():
+            return "restart"  # the run ended with A-lines missing: start again
+        if not paused and time.monotonic() - run.last_new > max(
+                3 * sc.response_timeout, 10 * self.silence):
+            raise DeviceTimeout(f"{sc.port} reports {st.state} but delivered no new "
+                                f"A-line for {time.monotonic() - run.last_new:.0f} s")
+        self.send_ack(run.missing_tail())
+        return None
+
+    def _raise_interlock(self) -> None:
+        raise InterlockOpen(101, f"Laser interlock open; {int(self.completed.sum())} of "
+                                 f"{self.completed.size} points are on disk, re-run to resume")
 
 
 class _Run:
@@ -795,3 +763,26 @@ class _Run:
         self.last_rx = self.last_new = time.monotonic()
         self.reset_seen = False
         self.interlock = False
+
+    def accept(self, seq: int) -> bool:
+        """Book data seq ``seq`` as received; False for a duplicate (which asks for an ACK)."""
+        self.last_rx = time.monotonic()
+        if seq < self.expected or seq in self.ooo:
+            self.need_ack = True
+            return False
+        if seq == self.expected:
+            self.expected += 1
+            while self.expected in self.ooo:
+                self.ooo.discard(self.expected)
+                self.expected += 1
+        else:
+            self.ooo.add(seq)
+            self.max_seen = max(self.max_seen, seq)
+        self.since_ack += 1
+        self.last_new = self.last_rx  # the device makes progress
+        return True
+
+    def missing_tail(self) -> list[int] | None:
+        if self.ooo:
+            return [s for s in range(self.expected, self.max_seen) if s not in self.ooo][:256]
+        return None

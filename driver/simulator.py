@@ -750,26 +750,21 @@ class SimulatedScanner:
             os.replace(tmp, path)
 
 
-_HANDLERS = {
-    "*IDN?": SimulatedScanner._cmd_idn,
-    "*RST": SimulatedScanner._cmd_rst,
-    "*CLS": SimulatedScanner._cmd_cls,
-    "*OPC?": SimulatedScanner._cmd_opc,
-    "SYSTEM:ERROR?": SimulatedScanner._cmd_err,
-    "SYSTEM:ERROR:NEXT?": SimulatedScanner._cmd_err,
-    "SYSTEM:PROTOCOL?": SimulatedScanner._cmd_prot,
-    "SYSTEM:BOOT?": SimulatedScanner._cmd_boot,
-    "SYSTEM:LIMITS?": SimulatedScanner._cmd_lim,
-    "PLAN:BEGIN": SimulatedScanner._cmd_plan_begin,
-    "PLAN:DATA": SimulatedScanner._cmd_plan_data,
-    "PLAN:END": SimulatedScanner._cmd_plan_end,
-    "PLAN:ID?": SimulatedScanner._cmd_plan_id,
-    "PLAN:HASH?": SimulatedScanner._cmd_plan_hash,
-    "PLAN:POINTS?": SimulatedScanner._cmd_plan_points,
-    "SCAN:START": SimulatedScanner._cmd_scan_start,
-    "SCAN:PAUSE": SimulatedScanner._cmd_scan_pause,
-    "SCAN:RESUME": SimulatedScanner._cmd_scan_resume,
-    "SCAN:ABORT": SimulatedScanner._cmd_scan_abort,
-    "SCAN:STATUS?": SimulatedScanner._cmd_scan_status,
-    "LASER:INTERLOCK?": SimulatedScanner._cmd_interlock,
-}
+def _handlers() -> dict:
+    """Command dispatch on the canonical long header of each command of driver.commands."""
+    c, s = scpi, SimulatedScanner
+    table = {
+        c.IDN: s._cmd_idn, c.RESET: s._cmd_rst, c.CLEAR: s._cmd_cls, c.OPC: s._cmd_opc,
+        c.SYST_ERROR: s._cmd_err, c.SYST_ERROR_NEXT: s._cmd_err,
+        c.SYST_PROTOCOL: s._cmd_prot, c.SYST_BOOT: s._cmd_boot, c.SYST_LIMITS: s._cmd_lim,
+        c.PLAN_BEGIN: s._cmd_plan_begin, c.PLAN_DATA: s._cmd_plan_data,
+        c.PLAN_END: s._cmd_plan_end, c.PLAN_ID: s._cmd_plan_id, c.PLAN_HASH: s._cmd_plan_hash,
+        c.PLAN_POINTS: s._cmd_plan_points, c.SCAN_START: s._cmd_scan_start,
+        c.SCAN_PAUSE: s._cmd_scan_pause, c.SCAN_RESUME: s._cmd_scan_resume,
+        c.SCAN_ABORT: s._cmd_scan_abort, c.SCAN_STATUS: s._cmd_scan_status,
+        c.LASER_INTERLOCK: s._cmd_interlock,
+    }
+    return {c.canonical_header(k): v for k, v in table.items()}
+
+
+_HANDLERS = _handlers()

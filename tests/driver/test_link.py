@@ -313,7 +313,7 @@ def test_scan_survives_the_relay_process_dying(tmp_path):
     plan = grid_plan(20, 10, n_t=128)  # 200 points at 200 Hz
     seen = []
     with make_sim(tmp_path, prf=200.0) as sim, Scanner(sim.path) as sc:
-        relay = sc._relay
+        relay = sc._reader.process
         assert relay is not None and relay.poll() is None
         sf = ScanFile.create(tmp_path / "scan.h5", plan, instrument={}, software_version="t")
         out = {}
@@ -326,7 +326,7 @@ def test_scan_survives_the_relay_process_dying(tmp_path):
         relay.kill()
         th.join(timeout=30)
         sf.close()
-        assert out["res"].complete and sc._relay is None  # fell back to reading the tty
+        assert out["res"].complete and sc._reader.process is None  # fell back to reading the tty
     assert_matches_record(tmp_path / "scan.h5", tmp_path / "truth.h5", plan)
 
 

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from driver.acquire import acquire
-from driver.physics import ball_alines, forward_points
+from driver.physics import ball_alines
+from driver.physics.forward import forward_points
 from driver.scanfile import read_scan
 from driver.simulator import SimConfig, SimulatedScanner
 from driver.sources import BallSource, VolumeSource, default_phantom

@@ -1,0 +1,180 @@
+"""Transport readers of the host driver: how received bytes get off the serial port.
+
+The split follows pyserial's ``serial.threaded`` model: a *reader* only moves bytes off
+the port, and the protocol (:class:`driver.host.Scanner`, which deframes and dispatches
+them) consumes what it delivered. Every reader offers the same two calls:
+
+- ``read() -> bytes``: the bytes received since the last call, waiting at most ~20 ms
+  for the first one; raises :class:`TransportError` with the reason if the port failed.
+- ``close()``: stop reading (the serial port itself is closed by its owner).
+
+Readers (``open_reader(ser, mode)``):
+
+- :class:`RelayReader` (``"process"``, the default for local ttys): the relay process
+  :mod:`driver.relay` drains the tty into a 1 MiB pipe, immune to this interpreter's lock;
+  if the relay ends, the port is read directly from then on.
+- :class:`ThreadReader` (``"thread"``): pyserial's :class:`serial.threaded.ReaderThread`
+  with a protocol that queues what it receives.
+- :class:`DirectReader` (``"direct"``, and always for URL transports such as
+  ``socket://`` or ``loop://``, which have no descriptor): pyserial reads in the calling
+  thread.
+"""
+from __future__ import annotations
+
+import os
+import queue
+import select
+import subprocess
+import sys
+
+import serial
+from serial.threaded import Protocol, ReaderThread
+
+READER_MODES = ("process", "thread", "direct")
+_WAIT = 0.02  #: longest wait for the first byte of a read(), s
+
+
+class TransportError(OSError):
+    """Reading from the serial port failed (the message names the port and the cause)."""
+
+
+class DirectReader:
+    """Read the port through pyserial in the calling thread."""
+
+    def __init__(self, ser, port: str = "") -> None:
+        self._ser = ser
+        self._port = port or getattr(ser, "port", "")
+
+    def read(self) -> bytes:
+        ser = self._ser
+        try:
+            n = ser.in_waiting
+            data = ser.read(n if n else 1)  # the port's timeout (20 ms) bounds the wait
+            if len(data) == 1:
+                n = ser.in_waiting
+                if n:
+                    data += ser.read(n)
+        except (serial.SerialException, OSError) as exc:
+            raise TransportError(f"read from {self._port} failed: {exc}") from None
+        return data
+
+    def close(self) -> None:
+        pass
+
+
+class _QueueProtocol(Protocol):
+    """A ``serial.threaded`` protocol that hands received chunks to a queue."""
+
+    def __init__(self, q: queue.SimpleQueue) -> None:
+        self._q = q
+
+    def connection_made(self, transport) -> None:
+        pass
+
+    def data_received(self, data: bytes) -> None:
+        self._q.put(bytes(data))
+
+    def connection_lost(self, exc) -> None:
+        if exc is not None:
+            self._q.put(exc)
+
+
+class ThreadReader:
+    """pyserial's ``ReaderThread`` drains the port; :meth:`read` collects its chunks."""
+
+    def __init__(self, ser, port: str = "") -> None:
+        self._port = port or getattr(ser, "port", "")
+        self._q: queue.SimpleQueue = queue.SimpleQueue()
+        self._thread = ReaderThread(ser, lambda: _QueueProtocol(self._q))
+        self._thread.name = f"fpscan-rx {self._port}"
+        self._thread.start()
+
+    def read(self) -> bytes:
+        try:
+            chunks = [self._q.get(timeout=_WAIT)]
+        except queue.Empty:
+            return b""
+        while True:
+            try:
+                chunks.append(self._q.get_nowait())
+            except queue.Empty:
+                break
+        for c in chunks:
+            if isinstance(c, BaseException):
+                raise TransportError(f"read from {self._port} failed: {c}")
+        return b"".join(chunks)
+
+    def close(self) -> None:
+        if self._thread.alive:
+            self._thread.stop()
+
+
+class RelayReader:
+    """The relay process (:mod:`driver.relay`) drains the tty descriptor ``fd`` into a
+    pipe; :meth:`read` reads that pipe. Raises ``OSError`` if the relay cannot start."""
+
+    def __init__(self, ser, fd: int, port: str = "") -> None:
+        import fcntl
+
+        self._ser = ser
+        self._port = port or getattr(ser, "port", "")
+        root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+        self._proc: subprocess.Popen | None = subprocess.Popen(
+            [sys.executable, "-m", "driver.relay", str(fd), str(os.getpid())],
+            pass_fds=(fd,), stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, bufsize=0,
+            cwd=root)
+        self._fd: int | None = self._proc.stdout.fileno()
+        self._direct: DirectReader | None = None
+        try:
+            fcntl.fcntl(self._fd, 1031, 1 << 20)  # F_SETPIPE_SZ: 1 MiB
+        except OSError:
+            pass
+
+    def read(self) -> bytes:
+        if self._direct is not None:
+            return self._direct.read()
+        try:
+            if not select.select([self._fd], [], [], _WAIT)[0]:
+                return b""
+            data = os.read(self._fd, 1 << 20)
+        except OSError as exc:
+            raise TransportError(f"read from {self._port} failed: {exc}") from None
+        if not data:  # the relay ended (killed?): read the tty here from now on
+            self._stop()
+            self._direct = DirectReader(self._ser, self._port)
+        return data
+
+    @property
+    def process(self) -> subprocess.Popen | None:
+        """The relay process; None once it ended and the port is read directly."""
+        return self._proc
+
+    def _stop(self) -> None:
+        if self._proc is not None:
+            self._proc.kill()
+            self._proc.wait(timeout=5)
+            self._proc.stdout.close()
+            self._proc = self._fd = None
+
+    def close(self) -> None:
+        self._stop()
+
+
+def open_reader(ser, mode: str = "process", port: str = ""):
+    """The reader for an open pyserial port ``ser`` (module docstring).
+
+    ``mode``: ``"process"``, ``"thread"`` or ``"direct"``; ports without a descriptor
+    (URL transports) are always read directly; if no relay process can be started, a
+    reader thread is used. Raises ``ValueError`` for an unknown mode.
+    """
+    if mode not in READER_MODES:
+        raise ValueError(f"reader must be 'process', 'thread' or 'direct', not {mode!r}")
+    fd = getattr(ser, "fd", None)  # POSIX ports have one; URL transports do not
+    if not isinstance(fd, int) or mode == "direct":
+        return DirectReader(ser, port)
+    if mode == "process":
+        try:
+            return RelayReader(ser, fd, port)
+        except OSError:  # no interpreter to start
+            pass
+    return ThreadReader(ser, port)
