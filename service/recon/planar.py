@@ -33,9 +33,9 @@ import scipy.interpolate
 from scipy.spatial import cKDTree
 
 from driver.physics import nufft
+from service.plans.weights import infer_pitch, voronoi_weights
 from service.recon import checks
 from service.recon.image import Image
-from service.plans.weights import infer_pitch, voronoi_weights
 
 METHODS = ("ner", "linear", "nearest", "cubic")
 _KIND = {"ner": "nufft", "linear": "linear", "nearest": "nearest"}
