@@ -6,7 +6,7 @@ import numpy as np
 import pylops
 import pytest
 
-from driver.physics import forward_grid, forward_points
+from driver.physics.forward import forward_grid, forward_points
 from service.recon.operator import PlanarOperator
 
 C, DT = 1500.0, 20e-9
