@@ -46,6 +46,10 @@ MAGIC = b"FPPL"
 PLAN_FORMAT = "fpscan-plan/1"
 #: Excitation wavelengths a plan may ask for, m (inclusive): 400 nm to 2000 nm.
 WAVELENGTH_RANGE = (400e-9, 2000e-9)
+#: Largest lattice (points) and record length a plan may declare: bounds what a plan (or a
+#: scan file's copy of one) can make a reader allocate (a 4096² lattice; 2^20 samples).
+MAX_LATTICE_POINTS = 1 << 24
+MAX_N_T = 1 << 20
 
 
 def canonical_json(obj: Any) -> str:
@@ -74,11 +78,13 @@ def plan_id_of(plan: dict) -> str:
     return hashlib.sha256(canonical_json(body).encode("utf-8")).hexdigest()
 
 
-def _integer(name: str, value: Any, minimum: int) -> int:
+def _integer(name: str, value: Any, minimum: int, maximum: int | None = None) -> int:
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):
         raise ValueError(f"plan {name} must be an integer, got {value!r}")
     if value < minimum:
         raise ValueError(f"plan {name} must be >= {minimum}, got {value!r}")
+    if maximum is not None and value > maximum:
+        raise ValueError(f"plan {name} must be <= {maximum}, got {value!r}")
     return int(value)
 
 
@@ -122,7 +128,7 @@ def check_acquisition(acq: Any) -> dict:
         raise ValueError("plan 'acquisition' must be an object")
     if "n_t" not in acq or "dt" not in acq:
         raise ValueError("plan acquisition needs 'n_t' and 'dt'")
-    _integer("acquisition.n_t", acq["n_t"], 1)
+    _integer("acquisition.n_t", acq["n_t"], 1, MAX_N_T)
     _number("acquisition.dt", acq["dt"], unit="s")
     if "averages" in acq:
         _integer("acquisition.averages", acq["averages"], 1)
@@ -167,6 +173,8 @@ def check_plan(plan: Any) -> dict:  # noqa: C901 -- one flat list of the contrac
         pitch = _number("lattice.pitch", lat["pitch"], unit="m")
     except KeyError as exc:
         raise ValueError(f"plan lattice has no {exc}") from None
+    if n_x * n_y > MAX_LATTICE_POINTS:
+        raise ValueError(f"plan lattice {n_x}x{n_y} has more than {MAX_LATTICE_POINTS} points")
     check_acquisition(plan["acquisition"])
     try:
         raw = np.asarray(pts["indices"])

@@ -39,8 +39,10 @@ Durability policy (``durable`` argument):
 
 A killed writer leaves the superblock's "open for SWMR write" flags set; HDF5 then refuses
 a normal open. :meth:`ScanFile.open_append` clears them (what ``h5clear -s`` does) after
-taking the writer lock, and :func:`read_scan` always opens with ``swmr=True``, which
-works on live, killed and cleanly closed files alike. The writer lock is an exclusive
+taking the writer lock. :func:`read_scan` opens a file whose flags say it is (or was)
+open for writing as an SWMR reader, any other file normally (HDF5's SWMR reader would
+retry a truncated file's missing metadata forever), after checking the superblock's
+checksum and stored end of file against the file's size. The writer lock is an exclusive
 ``flock`` on the sidecar file ``<path>.lock`` (removed on close); it dies with the
 process, so a stale lock file never blocks a resume.
 
@@ -242,6 +244,46 @@ def _open_h5(path: Path, timeout: float, **kwargs: Any) -> h5py.File:
             if not transient or time.monotonic() >= deadline:
                 raise
         time.sleep(0.02)
+
+
+def _superblock_open_for_write(path: Path) -> bool:
+    """Check the superblock before HDF5 sees the file: a version 2/3 superblock (what
+    ``libver='latest'`` writes) must have a valid checksum and a stored end-of-file
+    address within the file's size. Returns whether its file-consistency flags say a
+    writer has (or had, if killed) it open for SWMR writing. Raises ValueError for a
+    truncated or corrupt superblock. Other versions return False (HDF5 checks them)."""
+    with open(path, "rb") as fh:
+        head = fh.read(12)
+        if len(head) < 12 or head[:8] != _SIGNATURE:
+            raise ValueError(f"{path} is not an HDF5 file")
+        version, size_off = head[8], head[9]
+        if version not in (2, 3):
+            return False
+        if size_off not in (2, 4, 8):
+            raise ValueError(f"{path}: corrupt HDF5 superblock")
+        n = 12 + 4 * size_off
+        fh.seek(0)
+        block = fh.read(n + 4)
+        size = os.fstat(fh.fileno()).st_size
+    if len(block) != n + 4 or _lookup3(block[:n]) != int.from_bytes(block[n:n + 4], "little"):
+        raise ValueError(f"{path}: corrupt or truncated HDF5 superblock")
+    eof = int.from_bytes(block[12 + 2 * size_off:12 + 3 * size_off], "little")
+    if eof > size:
+        raise ValueError(f"{path} is truncated ({size} of {eof} bytes)")
+    return block[11] != 0
+
+
+def _open_for_reading(path: Path, timeout: float) -> h5py.File:
+    """Open a scan file read-only. A file a writer has open (or left open when killed)
+    is opened as an SWMR reader; any other without SWMR: HDF5's SWMR reader retries
+    unreadable metadata (of a truncated or corrupt file) without end, holding the GIL,
+    where a normal open reports the damage. Raises ValueError."""
+    live = _superblock_open_for_write(path)
+    kwargs: dict[str, Any] = {"libver": "latest", "swmr": True} if live else {}
+    try:
+        return _open_h5(path, timeout, mode="r", **kwargs)
+    except OSError as exc:
+        raise ValueError(f"{path} cannot be opened as an HDF5 scan file: {exc}") from None
 
 
 def _make_dataset(parent: h5py.Group, name: str, shape: tuple, dtype: np.dtype,
@@ -628,10 +670,7 @@ def read_scan(path: str | os.PathLike, *, dtype: Any = np.float64,
         raise ValueError(f"dtype must be a float type, got {dtype}")
     if not path.is_file():
         raise FileNotFoundError(f"no scan file at {path}")
-    try:
-        f = _open_h5(path, timeout, mode="r", libver="latest", swmr=True)
-    except OSError as exc:
-        raise ValueError(f"{path} cannot be opened as an HDF5 scan file: {exc}") from None
+    f = _open_for_reading(path, timeout)
     with f:
         if f.attrs.get("format") != FORMAT:
             raise ValueError(f"{path} is not an {FORMAT} file")

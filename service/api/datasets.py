@@ -29,6 +29,7 @@ from fastapi import Path as PathParam
 from service.api.context import Context, ctx, require_token
 from service.api.models import ID_PATTERN, Dataset, DatasetFormat, Deleted
 from service.jobs import lifecycle
+from service.storage.untrusted import hdf5_limit, run_bounded
 
 router = APIRouter(prefix="/api/datasets", tags=["datasets"])
 
@@ -72,11 +73,20 @@ def write_points_dataset(path: Path, ds) -> None:
             f.attrs["pitch"] = float(lat["pitch"])
 
 
-def import_dataset(src: Path, dest_dir: Path, fmt: str, *, dt, dx, dy, c, key) -> dict:
+def import_dataset(src: Path, dest_dir: Path, fmt: str, *, dt, dx, dy, c, key,
+                   max_bytes: int | None = None) -> dict:
     """Validate and convert an uploaded file with ``service.storage.datasets.load_dataset``
     (all four formats); returns the dataset's metadata (stored in the job store).
+    ``max_bytes``: largest declared dataset of an HDF5 file
+    (:func:`service.storage.untrusted.check_hdf5`, run before anything is read).
     Raises ``ValueError`` with the reason."""
     from service.storage.datasets import load_dataset
+    from service.storage.untrusted import check_hdf5, is_hdf5
+
+    if fmt != "npy" and max_bytes is not None:
+        if not is_hdf5(src):
+            raise ValueError(f"a {fmt} file must be HDF5 (no HDF5 signature at the start)")
+        check_hdf5(src, max_bytes=max_bytes)
 
     if key is not None and (not key or len(key) > 200 or not set(key) <= HDF5_KEY_CHARS):
         raise ValueError("key must be an HDF5 dataset path of [A-Za-z0-9_-/.]")
@@ -125,7 +135,12 @@ def upload_dataset(file: UploadFile = File(..., description="the data file"),
                     raise HTTPException(413, f"upload larger than the limit of {limit} bytes")
                 out.write(chunk)
         try:
-            meta = import_dataset(src, dest, format, dt=dt, dx=dx, dy=dy, c=c, key=key)
+            # in a child process with a time and memory bound: the HDF5 library can block
+            # (holding the GIL) or expand a small file into gigabytes
+            meta = run_bounded(import_dataset, src, dest, format, dt=dt, dx=dx, dy=dy, c=c, key=key,
+                               max_bytes=hdf5_limit(limit, cx.settings.memory_limit),
+                               timeout=cx.settings.import_timeout_s, what="the upload",
+                               memory_bytes=cx.settings.memory_limit + 2 * 2**30)
         except ValueError as exc:
             msg = str(exc).replace(str(src.resolve()), "the upload").replace(str(src), "the upload")
             raise HTTPException(422, cx.settings.redact(msg)) from None

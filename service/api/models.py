@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 JobState = Literal["queued", "running", "paused", "succeeded", "failed", "cancelled"]
 JobKind = Literal["scan", "recon"]
@@ -70,12 +70,25 @@ class Retention(_Request):
 
 
 # -- plans ---------------------------------------------------------------------------
+#: Most lattice points a plan request may span: a mask's weights and the plan's JSON cost
+#: time linear in the points, so a request beyond this is refused (422) before any work.
+MAX_LATTICE_POINTS = 1 << 18
+
+
 class Lattice(_Request):
-    """The scanner lattice: ``n_x × n_y`` points at ``pitch`` (m), centred on the axis."""
+    """The scanner lattice: ``n_x × n_y`` points at ``pitch`` (m), centred on the axis;
+    at most ``MAX_LATTICE_POINTS`` (262144, e.g. 512 × 512) points in all."""
 
     n_x: int = Field(ge=1, le=1024)
     n_y: int = Field(1, ge=1, le=1024)
     pitch: float = Field(gt=0, le=0.01, description="lattice pitch, m")
+
+    @model_validator(mode="after")
+    def _bounded(self) -> "Lattice":
+        if self.n_x * self.n_y > MAX_LATTICE_POINTS:
+            raise ValueError(f"a lattice of {self.n_x} x {self.n_y} points is more than the "
+                             f"{MAX_LATTICE_POINTS} lattice points a plan request may span")
+        return self
 
 
 class Acquisition(_Request):

@@ -19,24 +19,28 @@ from service.jobs import lifecycle
 
 router = APIRouter(prefix="/api/plans", tags=["plans"])
 
-MAX_POINTS = 1_000_000
+#: Most points a plan made over HTTP may have: building, hashing and drawing a plan costs
+#: time linear in its points; beyond this a request is refused (422) before that work.
+MAX_POINTS = 1 << 18
+#: Plans with more points are previewed as a plain lattice image (one pixel per point).
+PREVIEW_DETAIL_POINTS = 1 << 14
 
 
 def _mask_plan(req: PlanCreate) -> dict:
     """A plan from a mask kind and its parameters (``service.plans.make_plan``)."""
-    from service.plans import MASK_KINDS, make_plan
+    from service.plans import MASK_KINDS, make_mask, make_plan
 
     if req.kind not in MASK_KINDS:
         raise ValueError(f"unknown mask kind {req.kind!r}; one of {', '.join(sorted(MASK_KINDS))}")
     try:
-        plan = make_plan(kind=req.kind, lattice=req.lattice.model_dump(), params=dict(req.params),
-                         order=req.order or "auto", acquisition=req.acquisition.model_dump())
+        mask = make_mask(req.kind, req.lattice.model_dump(), **dict(req.params))
+        if mask.obtained_points > MAX_POINTS:
+            raise ValueError(f"the mask has {mask.obtained_points} points; a plan made here may have at most "
+                             f"{MAX_POINTS} points")
+        plan = make_plan(mask, order=req.order or "auto", acquisition=req.acquisition.model_dump())
     except (TypeError, OverflowError, IndexError, KeyError, ZeroDivisionError) as exc:
         raise ValueError(f"bad mask parameters ({type(exc).__name__}: {exc})") from None
-    out = plan.model_dump(mode="json")
-    if len(out["points"]["indices"]) > MAX_POINTS:
-        raise ValueError(f"at most {MAX_POINTS} points")
-    return out
+    return plan.model_dump(mode="json")
 
 
 def build_plan(req: PlanCreate) -> dict:
@@ -75,16 +79,19 @@ def summary(plan: dict) -> Plan:
 def preview_png(plan: dict) -> bytes:
     """The mask preview PNG (``service.plans.preview_png``: axes in mm, points coloured
     by weight); for a plan it cannot read, the mask on its lattice (white = sensor point),
-    one pixel per lattice point, magnified to at least ~256 pixels across."""
+    one pixel per lattice point, magnified to at least ~256 pixels across; so too for
+    plans of more than ``PREVIEW_DETAIL_POINTS`` points (the detailed drawing takes time
+    linear in the points)."""
     from PIL import Image as PILImage
 
-    try:
-        from service.plans import Plan as PlanModel
-        from service.plans import preview_png as plans_preview
+    if len(plan["points"]["indices"]) <= PREVIEW_DETAIL_POINTS:
+        try:
+            from service.plans import Plan as PlanModel
+            from service.plans import preview_png as plans_preview
 
-        return plans_preview(PlanModel.model_validate(plan))
-    except (ImportError, ValueError):
-        pass
+            return plans_preview(PlanModel.model_validate(plan))
+        except (ImportError, ValueError):
+            pass
 
     lat = plan["lattice"]
     n_x, n_y = int(lat["n_x"]), int(lat.get("n_y", 1))
@@ -117,9 +124,10 @@ def create_plan(body: PlanCreate, response: Response, c: Context = Depends(ctx))
     return s
 
 
-@router.post("/preview", response_model=PlanPreview, dependencies=[Depends(read_access)])
+@router.post("/preview", response_model=PlanPreview, dependencies=[Depends(require_token)])
 def preview_plan(body: PlanCreate) -> PlanPreview:
-    """The plan a request would give, without saving it."""
+    """The plan a request would give, without saving it. Does the work of a plan, so it
+    needs the token like the mutating routes."""
     plan = _build_or_422(body)
     s = summary(plan)
     return PlanPreview(points=s.n_points, weight_ratio=s.weight_ratio, expected_scan_time_s=s.expected_scan_time_s,

@@ -20,6 +20,20 @@ __all__ = ["equiangular_mask", "equisteradian_mask", "equisteradian_rings", "Rin
 
 #: Doubling threshold of the appendix: j_k doubles while r_s > 1.8 r_k.
 DOUBLING_FACTOR = 1.8
+#: Smallest half-angle (rad) of the aperture seen from the point of interest: below it
+#: the design's angles are lost to rounding (1 − cos θ_max underflows) and the point of
+#: interest is, for the scanner, at infinity. About ρ_max / depth < 1/1000.
+MIN_THETA_MAX = 1e-3
+
+
+def _aperture(r0: float, rho_max: float) -> float:
+    """θ_max = atan(ρ_max/r0), refused (ValueError naming depth) below MIN_THETA_MAX."""
+    t_max = math.atan(rho_max / r0)
+    if not t_max >= MIN_THETA_MAX:
+        raise ValueError(f"depth {r0:g} m is too large for the lattice: the aperture (radius "
+                         f"{rho_max:g} m) subtends less than {MIN_THETA_MAX:g} rad from the point of "
+                         f"interest; use a depth below {rho_max / math.tan(MIN_THETA_MAX):.3g} m")
+    return t_max
 
 
 @dataclass(frozen=True)
@@ -58,19 +72,23 @@ def equisteradian_rings(depth: float, rho_max: float, n_points: int) -> list[Rin
     below θ_max; the ring whose band would reach θ_max is put on θ_max itself (the
     aperture's edge), so the count ends near N.
 
-    Raises ValueError: depth or rho_max ≤ 0 or non-finite, n_points < 1.
+    Raises ValueError: depth or rho_max ≤ 0 or non-finite, n_points < 1, an aperture
+    under ``MIN_THETA_MAX`` (depth too large for ρ_max), a design that does not close
+    within n_points + 2 rings (the iteration bound).
     """
     r0 = check_positive("depth", depth)
     rho_max = check_positive("rho_max", rho_max)
     n = check_count("n_points", n_points)
-    t_max = math.atan(rho_max / r0)
+    t_max = _aperture(r0, rho_max)
     omega = 2 * math.pi * (1 - math.cos(t_max)) / n
     if n == 1:
         return [Ring(0.0, 0.0, t_max, 1, 0.0)]
     t1 = math.acos(1 - omega / (2 * math.pi))
     rings = [Ring(0.0, 0.0, t1, 1, 0.0)]
     prev_xy = np.zeros((1, 2))
-    while True:
+    # every ring holds >= 2 points of solid angle ω, so the design ends within n rings
+    # of exact arithmetic; the bound stops a pathological rounding case with the reason
+    for _ in range(n + 2):
         prev = rings[-1]
         j = prev.count
         while True:
@@ -91,6 +109,8 @@ def equisteradian_rings(depth: float, rho_max: float, n_points: int) -> list[Rin
         prev_xy = xy
         if last:
             return rings
+    raise ValueError(f"the equi-steradian design did not close within {n + 2} rings "
+                     f"(depth {r0:g} m, rho_max {rho_max:g} m, n_points {n})")
 
 
 def _finish(kind, params, lattice, pos_design, poi, depth, power, requested, ring_of, design) -> Mask:
@@ -169,7 +189,7 @@ def equiangular_mask(lattice: Lattice, depth: float, n_points: int, poi=None) ->
     rho_max = hx - abs(xc)
     if n > 1 and rho_max <= 0:
         raise ValueError("the point of interest lies on the end of the line: no symmetric fan of sensors fits")
-    t_max = math.atan(rho_max / r0)
+    t_max = _aperture(r0, rho_max) if n > 1 else 0.0
     theta = np.zeros(1) if n == 1 else -t_max + np.arange(n) * (2 * t_max / (n - 1))
     x = xc + r0 * np.tan(theta)
     pos = np.column_stack((x, np.zeros(n)))

@@ -7,7 +7,7 @@ import math
 import numpy as np
 
 from .lattice import Lattice
-from .mask import Mask, check_count, check_positive, default_weights
+from .mask import Mask, check_count, check_positive, check_seed, default_weights
 
 __all__ = ["full_mask", "subgrid_mask", "hexagonal_mask", "random_mask", "poisson_mask", "points_mask"]
 
@@ -86,13 +86,15 @@ def hexagonal_mask(lattice: Lattice, spacing: float) -> Mask:
     dropped). Mirror-symmetric about both lattice axes up to snapping ties.
 
     Raises ValueError: spacing ≤ 0 or non-finite, a line lattice (n_y = 1; use subgrid),
-    spacing below one pitch."""
+    spacing below one pitch or above the lattice's extent."""
     spacing = check_positive("spacing", spacing)
     if lattice.is_line:
         raise ValueError("a hexagonal mask needs a 2-D lattice (n_y > 1); use subgrid on a line")
     if spacing < lattice.pitch:
         raise ValueError(f"spacing {spacing:g} m is below the lattice pitch {lattice.pitch:g} m")
     hx, hy = lattice.half_extent
+    if spacing > 2 * max(hx, hy):
+        raise ValueError(f"spacing {spacing:g} m is larger than the lattice ({2 * max(hx, hy):g} m across)")
     dy = spacing * math.sqrt(3) / 2
     rows = np.arange(-math.floor(hy / dy + 1e-9), math.floor(hy / dy + 1e-9) + 1)
     pts = []
@@ -112,7 +114,7 @@ def random_mask(lattice: Lattice, n_points: int, seed: int = 0) -> Mask:
     """``n_points`` distinct lattice points drawn uniformly (numpy PCG64, ``seed``),
     in lattice order. Raises ValueError: n_points < 1 or more than the lattice holds."""
     n = check_count("n_points", n_points, lattice.n_points)
-    seed = check_count("seed", seed, minimum=0)
+    seed = check_seed(seed)
     rng = np.random.default_rng(seed)
     flat = np.sort(rng.choice(lattice.n_points, size=n, replace=False))
     idx = np.column_stack((flat % lattice.n_x, flat // lattice.n_x))
@@ -125,12 +127,25 @@ def poisson_mask(lattice: Lattice, min_distance: float, seed: int = 0, n_points=
     lattice, so the result is maximal: every lattice point is within ``min_distance`` of
     a kept one); stops after ``n_points`` if given.
 
-    Raises ValueError: min_distance ≤ 0 or non-finite, n_points < 1 or above the lattice."""
+    Raises ValueError: min_distance ≤ 0, non-finite or larger than the lattice's diagonal,
+    n_points < 1 or above the lattice."""
     r = check_positive("min_distance", min_distance)
-    seed = check_count("seed", seed, minimum=0)
+    hx, hy = lattice.half_extent
+    if r > 2 * math.hypot(hx, hy):
+        raise ValueError(f"min_distance {r:g} m is larger than the lattice ({2 * math.hypot(hx, hy):g} m across)")
+    seed = check_seed(seed)
     limit = lattice.n_points if n_points is None else check_count("n_points", n_points, lattice.n_points)
     rng = np.random.default_rng(seed)
     order = rng.permutation(lattice.n_points)
+    params = {"min_distance": r, "seed": seed}
+    if n_points is not None:
+        params["n_points"] = limit
+    if r <= lattice.pitch:
+        # distinct lattice points are >= one pitch apart: every visited point is kept
+        kept_flat = order[:limit]
+        idx = np.column_stack((kept_flat % lattice.n_x, kept_flat // lattice.n_x)).astype(np.int64)
+        idx = idx[np.lexsort((idx[:, 0], idx[:, 1]))]
+        return _build("poisson", params, lattice, idx, limit if n_points is not None else idx.shape[0])
     # Spatial hash on lattice indices: cell side c lattice pitches, c >= r / pitch.
     rp = r / lattice.pitch
     c = max(1, math.ceil(rp))
@@ -158,9 +173,6 @@ def poisson_mask(lattice: Lattice, min_distance: float, seed: int = 0, n_points=
             if len(kept) >= limit:
                 break
     idx = np.array(sorted(kept, key=lambda t: (t[1], t[0])), dtype=np.int64)
-    params = {"min_distance": r, "seed": seed}
-    if n_points is not None:
-        params["n_points"] = limit
     return _build("poisson", params, lattice, idx, limit if n_points is not None else idx.shape[0])
 
 

@@ -11,7 +11,7 @@ from service.plans.weights import voronoi_weights
 from .lattice import Lattice
 
 __all__ = ["Mask", "weight_ratio", "distance_law_weights", "default_weights", "check_poi",
-           "check_positive", "check_count"]
+           "check_positive", "check_count", "check_seed"]
 
 
 def check_positive(name: str, value, unit: str = "m") -> float:
@@ -43,6 +43,14 @@ def check_count(name: str, value, maximum: int | None = None, minimum: int = 1) 
     if maximum is not None and v > maximum:
         raise ValueError(f"{name} = {v} is more than the lattice holds ({maximum})")
     return v
+
+
+def check_seed(value) -> int:
+    """A random seed: an integer in [0, 2**64), else ValueError."""
+    seed = check_count("seed", value, minimum=0)
+    if seed >= 2**64:
+        raise ValueError(f"seed must be < 2**64, got {value!r}")
+    return seed
 
 
 def check_poi(lattice: Lattice, poi) -> tuple[float, float]:

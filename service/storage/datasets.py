@@ -256,7 +256,10 @@ def load_scan(path: str | os.PathLike) -> PointDataset:
     """The completed points of a scan file as point data (DC-normalised pressure)."""
     from driver.scanfile import read_scan
 
+    from driver.plan import check_plan
+
     scan = read_scan(path).completed_only()
+    check_plan(scan.plan)  # its lattice becomes the reconstruction grid: bounded there
     if scan.n_points == 0:
         raise ValueError("the scan file has no completed A-lines")
     lat = scan.plan.get("lattice", {})

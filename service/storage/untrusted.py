@@ -1,0 +1,170 @@
+"""Files from users (uploads, CLI arguments): checked before anything is read, and read
+in bounded time.
+
+HDF5 is a container that can point elsewhere and promise more than it holds. Before an
+HDF5 file is imported, :func:`check_hdf5` walks every link and dataset *without reading
+data* and refuses:
+
+- external links (``h5py.ExternalLink``: would open another file of the server),
+- datasets with HDF5 external storage (raw data in other files, e.g. ``/etc/passwd``),
+- virtual datasets (their sources are other files),
+- datasets whose declared size (shape × dtype) exceeds ``max_bytes`` (the caller derives
+  it from the upload and memory limits), and datasets without filters whose allocated
+  storage is smaller than declared (unwritten chunks read as the fill value: a 1.5 kB
+  file can declare gigabytes).
+
+The HDF5 library can block while holding the GIL (a damaged file opened as an SWMR reader
+retries forever), so the service runs the whole import in a child process with a time
+limit: :func:`run_bounded`.
+"""
+from __future__ import annotations
+
+import multiprocessing
+import os
+import queue as _queue
+import time
+from typing import Any, Callable
+
+HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+#: Datasets up to this many declared bytes are not checked for unwritten storage.
+SMALL_BYTES = 1 << 20
+#: Longest wait for a child process of :func:`run_bounded` to start (s).
+STARTUP_S = 120.0
+
+
+def is_hdf5(path: str | os.PathLike) -> bool:
+    """True if the file starts with the HDF5 signature (superblock at offset 0)."""
+    with open(path, "rb") as fh:
+        return fh.read(8) == HDF5_SIGNATURE
+
+
+def check_hdf5(path: str | os.PathLike, *, max_bytes: int) -> None:
+    """Refuse an HDF5 file that points outside itself or declares more than it may hold
+    (module docstring). Opens the file read-only without SWMR and reads no data.
+    Raises ValueError with the reason (the file's own object names only)."""
+    import h5py
+
+    try:
+        f = h5py.File(path, "r")
+    except Exception as exc:  # h5py raises OSError, but damaged files reach other paths
+        if isinstance(exc, ValueError):
+            raise ValueError(f"not a readable HDF5 file ({exc})") from None
+        raise ValueError("not a readable HDF5 file (truncated or corrupt)") from None
+    problems: list[str] = []
+    with f:
+        def visit(name: str, link: Any) -> None:
+            if problems:
+                return
+            if isinstance(link, h5py.ExternalLink):
+                problems.append(f"{name!r} is an external link to another file (refused)")
+                return
+            if not isinstance(link, h5py.HardLink):
+                return
+            obj = f.get(name)
+            if isinstance(obj, h5py.Dataset):
+                problems.extend(_dataset_problems(name, obj, max_bytes)[:1])
+
+        try:
+            f.visititems_links(visit)
+            if not problems:  # root attributes are read by every format; reading them is bounded
+                dict(f.attrs)
+        except (OSError, RuntimeError, KeyError) as exc:
+            raise ValueError(f"HDF5 file is corrupt ({type(exc).__name__})") from None
+    if problems:
+        raise ValueError(problems[0])
+
+
+def _dataset_problems(name: str, ds: Any, max_bytes: int) -> list[str]:
+    import numpy as np
+
+    if ds.is_virtual:
+        return [f"dataset {name!r} is a virtual dataset (refused)"]
+    dcpl = ds.id.get_create_plist()
+    if dcpl.get_external_count() > 0:
+        return [f"dataset {name!r} uses HDF5 external storage in other files (refused)"]
+    shape = ds.shape or ()
+    declared = int(np.prod(shape, dtype=object)) * ds.dtype.itemsize if shape is not None else 0
+    if declared > max_bytes:
+        return [f"dataset {name!r} declares {declared} bytes {tuple(shape)}, more than the limit of "
+                f"{max_bytes} bytes"]
+    if declared > SMALL_BYTES and dcpl.get_nfilters() == 0 and ds.id.get_storage_size() < declared:
+        return [f"dataset {name!r} declares {declared} bytes but stores {ds.id.get_storage_size()} "
+                "(unwritten data; refused)"]
+    return []
+
+
+def _child(conn: Any, fn: Callable, args: tuple, kwargs: dict) -> None:
+    try:
+        conn.put(("ok", fn(*args, **kwargs)))
+    except ValueError as exc:
+        conn.put(("value", str(exc)))
+    except FileNotFoundError as exc:
+        conn.put(("value", f"file not found: {exc.filename or exc}"))
+    except MemoryError:
+        conn.put(("value", "the file needs more memory than the limit allows"))
+    except Exception as exc:  # a damaged file can raise anything from the HDF5 layer
+        conn.put(("value", f"file is not a readable dataset ({type(exc).__name__})"))
+
+
+def run_bounded(fn: Callable, *args: Any, timeout: float, memory_bytes: int | None = None,
+                what: str = "the file", **kwargs: Any) -> Any:
+    """``fn(*args, **kwargs)`` in a spawned child process, killed when it has not returned
+    ``timeout`` s after it started (imports done).
+    ``memory_bytes``: address-space limit of the child (``RLIMIT_AS``), so a file that
+    expands past it fails there with MemoryError, not in the caller. ``fn`` and its
+    arguments and result must be picklable. Raises ValueError with the reason for any
+    failure of ``fn``, and for a child that times out or dies."""
+    ctx = multiprocessing.get_context("spawn")
+    q = ctx.Queue()
+    proc = ctx.Process(target=_bounded_entry, args=(q, fn, args, kwargs, memory_bytes), daemon=True)
+    proc.start()
+    # the time limit starts when the child has imported what it runs (interpreter start-up
+    # on a busy machine is not the file's fault), bounded separately by STARTUP_S
+    deadline = time.monotonic() + STARTUP_S
+    try:
+        while True:
+            try:
+                kind, value = q.get(timeout=0.05)
+                if kind == "ready":
+                    deadline = time.monotonic() + timeout
+                    continue
+                break
+            except _queue.Empty:
+                pass
+            if not proc.is_alive():
+                try:
+                    kind, value = q.get(timeout=0.5)  # the result may still be in the pipe
+                except _queue.Empty:
+                    kind, value = "value", f"reading {what} failed (the reader process died)"
+                break
+            if time.monotonic() > deadline:
+                kind, value = "value", f"{what} could not be read within {timeout:g} s (truncated or corrupt?)"
+                break
+    finally:
+        if proc.is_alive():
+            proc.kill()
+        proc.join(5)
+        q.close()
+    if kind == "ok":
+        return value
+    raise ValueError(value)
+
+
+def _bounded_entry(q: Any, fn: Callable, args: tuple, kwargs: dict, memory_bytes: int | None) -> None:
+    q.put(("ready", None))
+    if memory_bytes:
+        try:
+            import resource
+
+            resource.setrlimit(resource.RLIMIT_AS, (memory_bytes, memory_bytes))
+        except (ImportError, ValueError, OSError):  # not on this platform
+            pass
+    _child(q, fn, args, kwargs)
+
+
+def hdf5_limit(upload_limit: int, memory_limit: int) -> int:
+    """Largest declared dataset (bytes) an upload may hold: it must fit the upload limit
+    uncompressed ×4 (compressed files) and half the reconstruction memory limit (the
+    import converts samples to float)."""
+    return int(min(4 * upload_limit, memory_limit // 2))
+
