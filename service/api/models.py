@@ -84,7 +84,7 @@ class Lattice(_Request):
     pitch: float = Field(gt=0, le=0.01, description="lattice pitch, m")
 
     @model_validator(mode="after")
-    def _bounded(self) -> "Lattice":
+    def _bounded(self) -> Lattice:
         if self.n_x * self.n_y > MAX_LATTICE_POINTS:
             raise ValueError(f"a lattice of {self.n_x} x {self.n_y} points is more than the "
                              f"{MAX_LATTICE_POINTS} lattice points a plan request may span")

@@ -254,9 +254,8 @@ def _lattice_axes(lattice: dict) -> tuple[np.ndarray, np.ndarray]:
 
 def load_scan(path: str | os.PathLike) -> PointDataset:
     """The completed points of a scan file as point data (DC-normalised pressure)."""
-    from driver.scanfile import read_scan
-
     from driver.plan import check_plan
+    from driver.scanfile import read_scan
 
     scan = read_scan(path).completed_only()
     check_plan(scan.plan)  # its lattice becomes the reconstruction grid: bounded there

@@ -23,7 +23,8 @@ import multiprocessing
 import os
 import queue as _queue
 import time
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
 #: Datasets up to this many declared bytes are not checked for unwritten storage.
