@@ -7,8 +7,9 @@ import threading
 
 import httpx
 import pytest
-from hostile_cases import UPLOADS, plan_cases
-from service_servers import Server
+
+from tests.service.hostile_cases import UPLOADS, plan_cases
+from tests.service.service_servers import Server
 
 #: Client-side bounds: a request not answered by then counts as hung.
 ANSWER_S = 15.0
@@ -75,7 +76,7 @@ def test_hostile_uploads_are_refused_in_bounded_time(hostile_server, files):
                     continue
             results.append((case.name, r.status_code, r.json().get("detail", "")))
         # a valid scan file is still accepted by the same server afterwards
-        from hostile_cases import scan_file
+        from tests.service.hostile_cases import scan_file
 
         with open(scan_file(files), "rb") as fh:
             ok = api.post("/api/datasets", files={"file": ("scan.h5", fh)}, data={"format": "fpscan"})
