@@ -1,0 +1,234 @@
+"""Sound-speed autofocus: the c that maximises the Tenenbaum sharpness of the image.
+
+A wrong speed of sound defocuses a planar reconstruction: every point source turns into
+an arc. fpscan picks c within a search interval (default :data:`C_RANGE`, 1450-1600 m/s)
+as the maximiser of a focus function, as the paper (Appendix "Quality measures") uses
+the Tenenbaum sharpness to judge images:
+
+- **Focus function** (:func:`focus_sharpness`): the Tenenbaum sharpness
+  (:func:`service.metrics.sharpness.tenenbaum_sharpness`, Sobel gradient energy) of the
+  maximum-intensity projection of p0 along depth (the xy-MIP of a volume; of a 2-D
+  image, its lateral profile), divided by the projection's mean square. Projecting
+  along depth leaves out the depth axis, whose scale itself changes with c (z = c·t:
+  a lower c compresses every structure in depth and would look "sharper"); dividing by
+  the energy makes it independent of the image's scale.
+- **Speed**: the search runs on a copy of the data decimated in time by q (an
+  anti-aliased polyphase resampler, ``scipy.signal.resample_poly``, which keeps sample
+  times exact), with q chosen from the data's spectrum (:func:`choose_decimation`: the
+  band holding all but 1e-4 of the signal power above the noise floor stays below 0.8 of
+  the new Nyquist frequency; q ≤ 8), reconstructed in float32 on one fixed depth grid
+  for every c. Lateral sampling is never decimated (it moves the focus).
+- **Search**: ``n_coarse`` speeds evenly over the interval, then a bounded Brent search
+  (``scipy.optimize.minimize_scalar(method="bounded")``) between the neighbours of the
+  best one, to ``xtol`` m/s. Every evaluation is kept as the sharpness curve.
+
+The chosen c, the curve, the decimation and the time go into the result's ``params``
+(``params["autofocus"]``, :meth:`Autofocus.as_params`).
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+#: default search interval for c, m/s (water 10-60 °C and soft tissue)
+C_RANGE: tuple[float, float] = (1450.0, 1600.0)
+#: widest interval accepted, m/s
+C_LIMITS: tuple[float, float] = (300.0, 6000.0)
+MAX_DECIMATION = 8
+
+
+@dataclass
+class Autofocus:
+    """Outcome of an autofocus search.
+
+    ``c``: the chosen speed of sound, m/s; ``c_values``/``sharpness``: the sharpness
+    curve (every evaluated c in ascending order, m/s, and its focus value, dimensionless);
+    ``c_range``: the search interval (m/s); ``decimation``: the time decimation factor q;
+    ``evaluations``: reconstructions run; ``time_s``: wall time of the search, s;
+    ``at_edge``: True when the maximum lies at an end of the interval (widen it)."""
+
+    c: float
+    c_values: list[float]
+    sharpness: list[float]
+    c_range: tuple[float, float]
+    decimation: int
+    evaluations: int
+    time_s: float
+    at_edge: bool = False
+    extra: dict = field(default_factory=dict)
+
+    def as_params(self) -> dict:
+        """JSON-serialisable summary for a result's ``params["autofocus"]``."""
+        return {"c": self.c, "c_range": list(self.c_range), "c_values": self.c_values,
+                "sharpness": self.sharpness, "decimation": self.decimation,
+                "evaluations": self.evaluations, "time_s": self.time_s, "at_edge": self.at_edge,
+                "focus_function": "Tenenbaum sharpness of the depth MIP / its mean square", **self.extra}
+
+
+def check_c_range(c_range: Any) -> tuple[float, float]:
+    """``(c_min, c_max)`` in m/s as floats; ``ValueError`` unless finite, c_min < c_max
+    and both within :data:`C_LIMITS`."""
+    try:
+        lo, hi = (float(v) for v in c_range)
+    except (TypeError, ValueError):
+        raise ValueError(f"c_range must be two speeds (c_min, c_max) in m/s, got {c_range!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and C_LIMITS[0] <= lo < hi <= C_LIMITS[1]):
+        raise ValueError(f"c_range must satisfy {C_LIMITS[0]:g} <= c_min < c_max <= {C_LIMITS[1]:g} m/s, "
+                         f"got ({lo}, {hi})")
+    return lo, hi
+
+
+def focus_sharpness(p0: np.ndarray) -> float:
+    """Focus value of an image: Tenenbaum sharpness of its depth MIP / the MIP's mean square.
+
+    ``p0``: ``(n_z, n_y, n_x)`` or ``(n_z, n_x)`` (depth first). Returns a float ≥ 0
+    (0 for an all-zero image). Raises ``ValueError`` for another shape or NaN/inf."""
+    from service.metrics.sharpness import tenenbaum_sharpness
+
+    p = np.asarray(p0)
+    if p.ndim not in (2, 3) or p.size == 0:
+        raise ValueError(f"p0 must be (n_z, n_y, n_x) or (n_z, n_x), got shape {p.shape}")
+    mip = np.asarray(p.max(axis=0), dtype=np.float64)
+    if mip.ndim == 1:
+        mip = mip[None, :]
+    energy = float(np.mean(mip * mip))
+    if not math.isfinite(energy):
+        raise ValueError("p0 contains NaN or inf")
+    return tenenbaum_sharpness(mip) / energy if energy > 0 else 0.0
+
+
+def choose_decimation(alines: np.ndarray, *, max_q: int = MAX_DECIMATION) -> int:
+    """Time decimation factor q (1..max_q) that keeps the signal band of ``alines``
+    (``(n_t, ...)`` time first) below 0.8 of the decimated Nyquist frequency.
+
+    The band edge is the frequency below which 90 % of the signal power lies: the mean
+    power spectrum over (up to 512) A-lines less its noise floor (the median power of the
+    upper half of the spectrum). Keeps ≥ 32 samples."""
+    a = np.asarray(alines)
+    n_t = a.shape[0]
+    flat = a.reshape(n_t, -1)
+    step = max(1, flat.shape[1] // 512)
+    power = np.mean(np.abs(np.fft.rfft(np.asarray(flat[:, ::step], dtype=np.float64), axis=0)) ** 2, axis=1)
+    if power.size < 4 or not np.any(power > 0):
+        return 1
+    floor = float(np.median(power[power.size // 2:]))
+    signal = np.maximum(power - floor, 0.0)
+    total = float(signal.sum())
+    if total <= 0:
+        return 1
+    k = int(np.searchsorted(np.cumsum(signal), 0.9 * total))
+    edge = (k + 1) / power.size  # fraction of the Nyquist frequency
+    q = int(max(1, min(max_q, math.floor(0.8 / edge), n_t // 32)))
+    return q
+
+
+def search(sharpness_at: Callable[[float], float], c_range: tuple[float, float] = C_RANGE, *,
+           n_coarse: int = 7, xtol: float = 2.0) -> tuple[float, dict[float, float], bool]:
+    """Maximise ``sharpness_at(c)`` over ``c_range`` (m/s): ``n_coarse`` even samples,
+    then a bounded Brent search (scipy) between the best sample's neighbours to ``xtol``.
+
+    Returns ``(c_best, {c: value}, at_edge)``."""
+    from scipy.optimize import minimize_scalar
+
+    lo, hi = check_c_range(c_range)
+    if n_coarse < 3:
+        raise ValueError(f"n_coarse must be >= 3, got {n_coarse}")
+    if not (math.isfinite(xtol) and xtol > 0):
+        raise ValueError(f"xtol must be > 0 m/s, got {xtol}")
+    curve: dict[float, float] = {}
+
+    def f(c: float) -> float:
+        c = float(c)
+        if c not in curve:
+            curve[c] = float(sharpness_at(c))
+        return curve[c]
+
+    grid = np.linspace(lo, hi, n_coarse)
+    values = [f(c) for c in grid]
+    k = int(np.argmax(values))
+    a, b = float(grid[max(k - 1, 0)]), float(grid[min(k + 1, n_coarse - 1)])
+    res = minimize_scalar(lambda c: -f(c), bounds=(a, b), method="bounded", options={"xatol": xtol})
+    best = max(curve, key=lambda c: curve[c])  # Brent's answer, or a better sample seen on the way
+    c_best = float(res.x) if curve.get(float(res.x), -np.inf) >= curve[best] else best
+    at_edge = k in (0, n_coarse - 1) and min(abs(c_best - lo), abs(c_best - hi)) <= 2 * xtol
+    return c_best, curve, at_edge
+
+
+def _decimated(dataset: Any, q: int) -> Any:
+    """A copy of a grid/point dataset decimated in time by q (sample times kept)."""
+    from scipy.signal import resample_poly
+
+    if q == 1:
+        return dataset
+    if getattr(dataset, "kind", None) == "grid":
+        data = resample_poly(np.asarray(dataset.data, dtype=np.float32), 1, q, axis=0).astype(np.float32)
+        return dataclasses.replace(dataset, data=data, dt=dataset.dt * q)
+    alines = resample_poly(np.asarray(dataset.alines, dtype=np.float32), 1, q, axis=1).astype(np.float32)
+    return dataclasses.replace(dataset, alines=alines, dt=dataset.dt * q)
+
+
+def _time_first(dataset: Any) -> np.ndarray:
+    if getattr(dataset, "kind", None) == "grid":
+        return np.asarray(dataset.data)
+    return np.asarray(dataset.alines).T
+
+
+def autofocus(dataset: Any, reconstruct: Callable[..., Any], *, c_range: Any = C_RANGE,
+              n_coarse: int = 7, xtol: float = 2.0, decimation: int | None = None,
+              options: dict | None = None, progress: Callable[[float], None] | None = None) -> Autofocus:
+    """Find the speed of sound (m/s) that focuses ``dataset`` best (module docstring).
+
+    Parameters
+    ----------
+    dataset : a grid or point dataset (:mod:`service.storage.datasets`: ``data``
+        ``(n_t, ...)`` / ``alines`` ``(n, n_t)``, ``dt`` s, ``t0`` s).
+    reconstruct : ``reconstruct(dataset, c=..., dz=..., n_z=..., dtype="float32",
+        **options)`` → an object with ``p0`` (the pipeline's dispatch bound to a method,
+        its ``should_stop`` included: a cancelled reconstruction ends the search).
+    c_range : (c_min, c_max) in m/s.  n_coarse, xtol : see :func:`search`.
+    decimation : time decimation factor q (1..8); None = :func:`choose_decimation`.
+    options : further reconstruction options (e.g. ``eps``, ``upsample``).
+    progress : optional ``progress(fraction)`` per evaluation (fraction of ~n_coarse + 8).
+
+    Raises
+    ------
+    ValueError for a bad interval, decimation or dataset.
+    """
+    lo, hi = check_c_range(c_range)
+    t_start = time.perf_counter()
+    if decimation is None:
+        q = choose_decimation(_time_first(dataset))
+    else:
+        q = int(decimation)
+        if not 1 <= q <= MAX_DECIMATION:
+            raise ValueError(f"decimation must be an integer in 1..{MAX_DECIMATION}, got {decimation!r}")
+    dec = _decimated(dataset, q)
+    n_t = _time_first(dataset).shape[0]
+    # one depth grid for every c, twice as fine as the decimated samples at c_min (a finer
+    # grid makes the depth MIP less sensitive to where a structure falls between rows),
+    # as deep as c_max reaches
+    dz = lo * dataset.dt * q / 2.0
+    n_z = max(2, int(math.ceil(hi * (dataset.t0 + n_t * dataset.dt) / dz)))
+    opts = dict(options or {})
+    opts.update(dz=dz, n_z=n_z, dtype="float32")
+    expected = n_coarse + 8
+    done = [0]
+
+    def sharpness_at(c: float) -> float:
+        value = focus_sharpness(reconstruct(dec, c=c, **opts).p0)
+        done[0] += 1
+        if progress is not None:
+            progress(min(1.0, done[0] / expected))
+        return value
+
+    c_best, curve, at_edge = search(sharpness_at, (lo, hi), n_coarse=n_coarse, xtol=xtol)
+    cs = sorted(curve)
+    return Autofocus(c=c_best, c_values=cs, sharpness=[curve[c] for c in cs], c_range=(lo, hi),
+                     decimation=q, evaluations=len(curve), time_s=time.perf_counter() - t_start,
+                     at_edge=at_edge, extra={"dz": dz, "n_z": n_z})
