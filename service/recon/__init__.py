@@ -7,6 +7,8 @@
   kspaceLineRecon / kspacePlaneRecon.
 - `forward_grid`, `forward_points`: the exact planar forward model (from
   `driver.physics`, the physics module the simulator shares).
+- `PlanarOperator`: the forward model and its true adjoint as a pylops LinearOperator.
+- `reconstruct_tv`: model-based reconstruction (TV + positivity, pyproximal primal-dual).
 - `voronoi_weights`: default area weights for non-equispaced sensors (from
   `service.plans.weights`, which owns them).
 - `estimate_peak_memory`: bytes a reconstruction needs at its peak (admission control).
@@ -21,8 +23,10 @@ from service.plans.weights import voronoi_weights
 from service.recon.checks import estimate_peak_memory
 from service.recon.image import Image
 from service.recon.kwave import kspace_line_recon, kspace_plane_recon
+from service.recon.operator import PlanarOperator
 from service.recon.planar import METHODS, reconstruct_grid, reconstruct_points
+from service.recon.tv import reconstruct_tv
 
 __all__ = ["Image", "METHODS", "reconstruct_grid", "reconstruct_points", "kspace_line_recon",
            "kspace_plane_recon", "forward_grid", "forward_points", "voronoi_weights",
-           "estimate_peak_memory"]
+           "estimate_peak_memory", "PlanarOperator", "reconstruct_tv"]

@@ -1,0 +1,152 @@
+"""Model-based reconstruction (`method="tv"`): least squares at λ = 0, the sparse-scan
+promise on noisy data (2-D equiangular, 3-D equi-steradian), the automatic λ against a
+sweep, float32, progress/cancel and bad input. Data are exact forward-model data
+(`forward_grid`) with seeded white noise 30 dB below the signal."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from driver.physics import Ball, ball_p0, forward_grid
+from service.metrics import correlation_coefficient, disc_mask
+from service.plans import Lattice, equiangular_mask, equisteradian_mask, subgrid_mask
+from service.recon import reconstruct_grid, reconstruct_points
+from service.recon.tv import noise_sigma, reconstruct_tv
+
+C, DT = 1500.0, 20e-9
+DZ = C * DT
+
+
+def _noisy(clean: np.ndarray, snr_db: float = 30.0, seed: int = 0) -> np.ndarray:
+    rms = float(np.sqrt(np.mean(clean**2)))
+    return clean + np.random.default_rng(seed).standard_normal(clean.shape) * rms / 10 ** (snr_db / 20)
+
+
+def test_lambda_zero_without_positivity_is_the_least_squares_solution():
+    shape, n_t, dx = (6, 5), 12, 2 * DZ
+    # the dense matrix of the forward model, column by column, and its least-squares solution
+    cols = [forward_grid(e.reshape(shape), dx, DZ, DT, n_t, C).ravel() for e in np.eye(30)]
+    M = np.stack(cols, axis=1)
+    g = np.random.default_rng(3).standard_normal((n_t, shape[1]))
+    ls = np.linalg.lstsq(M, g.ravel(), rcond=None)[0].reshape(shape)
+    img = reconstruct_tv(g, DT, C, dx=dx, n_z=6, lam=0.0, positivity=False, max_iter=400, tol=1e-9)
+    assert img.params["lam"] == 0.0 and img.params["method"] == "tv"
+    np.testing.assert_allclose(img.p0, ls, atol=1e-5 * np.abs(ls).max())
+
+
+@pytest.fixture(scope="module")
+def tree_2d():
+    """The §6 tree phantom (piecewise constant) on 64 x 256 pixels of 50 µm, noisy data
+    on the whole line, its ROI disc, and the full-data NER's CC with the true p0."""
+    from service.experiments.phantoms import lateral_axis, tree_phantom, tree_roi
+
+    n_z, n_x, dx = 64, 256, 50e-6
+    dt = dx / C
+    p0 = tree_phantom(n_z, n_x)
+    g = _noisy(forward_grid(p0, dx, dx, dt, n_x + n_z, C))
+    x, z = lateral_axis(n_x, dx), np.arange(n_z) * dx
+    (zc, xc), diameter = tree_roi(n_z, dx)
+    roi = disc_mask((z, x), diameter, (zc, xc))
+    full = correlation_coefficient(reconstruct_grid(g, dx, dt, C, n_z=n_z).p0, p0, roi)
+    mask = equiangular_mask(Lattice(n_x, 1, dx), zc, 32, poi=(xc, 0.0))
+    idx = np.asarray(mask.indices)[:, 0]
+    pos = np.asarray(mask.positions, float)[:, :1]
+    return dict(p0=p0, g=g, dx=dx, dt=dt, x=x, n_z=n_z, roi=roi, full=full, idx=idx, pos=pos,
+                w=np.asarray(mask.weights, float))
+
+
+def _tv_2d(t, **kw):
+    return reconstruct_tv(t["g"][:, t["idx"]].T, t["dt"], C, positions=t["pos"], weights=t["w"], grid=(t["x"],),
+                          n_z=t["n_z"], max_iter=25, **kw)
+
+
+def test_tv_on_32_equiangular_sensors_beats_nedner_and_full_data(tree_2d):
+    t = tree_2d
+    cc = lambda img: correlation_coefficient(img, t["p0"], t["roi"])  # noqa: E731
+    tv = _tv_2d(t)
+    cc_tv = cc(tv.p0)
+    nedner = reconstruct_points(t["g"][:, t["idx"]].T, t["pos"], t["dt"], C, weights=t["w"], grid=(t["x"],),
+                                n_z=t["n_z"]).p0
+    assert cc_tv > cc(nedner)
+    lattice = Lattice(len(t["x"]), 1, t["dx"])
+    intervals = [s for s in range(1, 33) if 31 * s + 1 <= len(t["x"])]
+    assert intervals == list(range(1, 9))
+    for s in intervals:
+        sub = subgrid_mask(lattice, s, 32)
+        idx = np.asarray(sub.indices)[:, 0]
+        img = reconstruct_points(t["g"][:, idx].T, np.asarray(sub.positions, float)[:, :1], t["dt"], C,
+                                 weights=np.asarray(sub.weights, float), grid=(t["x"],), n_z=t["n_z"]).p0
+        assert cc_tv > cc(img), s
+    assert cc_tv >= t["full"]
+    assert tv.params["lam_auto"] and tv.params["lam"] > 0 and tv.params["iterations"] <= 25
+
+
+def test_tv_3d_sparse_equisteradian_mask_reaches_full_data():
+    n, dx = 40, 2 * DZ
+    n_z, n_t = 24, 56
+    x = (np.arange(n) - (n - 1) / 2) * dx
+    z = np.arange(n_z) * DZ
+    balls = [Ball(0.0, 0.0, 12 * DZ, 3 * DZ), Ball(4 * dx, -3 * dx, 16 * DZ, 2.5 * DZ, 0.7),
+             Ball(-5 * dx, 2 * dx, 9 * DZ, 2 * DZ, 0.5)]
+    p0 = ball_p0(balls, z, x, x, supersample=2)
+    g = _noisy(forward_grid(p0, dx, DZ, DT, n_t, C))
+    roi = np.ones(p0.shape, bool)
+    full = correlation_coefficient(reconstruct_grid(g, dx, DT, C, n_z=n_z).p0, p0, roi)
+    mask = equisteradian_mask(Lattice(n, n, dx), 12 * DZ, 48)
+    frac = mask.indices.shape[0] / n**2
+    assert 0.02 <= frac <= 0.04
+    ix, iy = np.asarray(mask.indices).T
+    pos = np.asarray(mask.positions, float)[:, :2]
+    tv = reconstruct_tv(g[:, iy, ix].T, DT, C, positions=pos, weights=np.asarray(mask.weights, float),
+                        grid=(x, x), n_z=n_z, max_iter=25, dtype=np.float32)
+    assert tv.p0.dtype == np.float32
+    assert correlation_coefficient(tv.p0, p0, roi) >= full
+
+
+@pytest.mark.slow
+def test_automatic_lambda_is_within_a_factor_3_of_the_best_of_a_sweep(tree_2d):
+    t = tree_2d
+    auto = _tv_2d(t)
+    lam = auto.params["lam"]
+    factors = [1 / 9, 1 / 3, 1.0, 3.0, 9.0]
+    ccs = [correlation_coefficient(_tv_2d(t, lam=f * lam).p0, t["p0"], t["roi"]) for f in factors]
+    best = factors[int(np.argmax(ccs))]
+    assert 1 / 3 <= best <= 3, dict(zip(factors, ccs))
+
+
+def test_noise_level_estimate_is_the_noise():
+    t = np.arange(4000) * DT
+    clean = np.exp(-(((t - 40e-6) / 2e-6) ** 2))[None, :].repeat(6, axis=0)
+    noisy = clean + 0.01 * np.random.default_rng(1).standard_normal(clean.shape)
+    assert noise_sigma(noisy, 1) == pytest.approx(0.01, rel=0.05)
+
+
+def test_progress_every_iteration_and_cancel():
+    g = np.random.default_rng(4).standard_normal((12, 5))
+    seen = []
+    img = reconstruct_tv(g, DT, C, dx=2 * DZ, n_z=6, max_iter=4, tol=0, progress=seen.append)
+    assert img.params["iterations"] == 4 and seen == sorted(seen) and seen[-1] == 1.0
+    assert len([f for f in seen if f > 0.1]) >= 4
+
+    class Stop(Exception):
+        pass
+
+    def stop(f):
+        if f > 0.2:
+            raise Stop
+
+    with pytest.raises(Stop):
+        reconstruct_tv(g, DT, C, dx=2 * DZ, n_z=6, max_iter=50, progress=stop)
+
+
+@pytest.mark.parametrize(("kw", "match"), [
+    (dict(lam=-1.0), "lam"), (dict(lam=float("nan")), "lam"), (dict(max_iter=0), "max_iter"),
+    (dict(weights=np.ones(3)), "weights must have shape"), (dict(nan=True), "alines contains NaN"),
+])
+def test_bad_input(kw, match):
+    al = np.random.default_rng(5).standard_normal((4, 10))
+    if kw.pop("nan", False):
+        al[1, 2] = np.nan
+    pos = (np.arange(4)[:, None] - 1.5) * 2 * DZ
+    with pytest.raises(ValueError, match=match):
+        reconstruct_tv(al, DT, C, positions=pos, n_z=5, **kw)
