@@ -7,7 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from driver.physics import Ball, ball_p0, forward_grid
+from driver.physics import Ball, ball_p0
+from driver.physics.forward import forward_grid
 from service.metrics import correlation_coefficient, disc_mask
 from service.plans import Lattice, equiangular_mask, equisteradian_mask, subgrid_mask
 from service.recon import reconstruct_grid, reconstruct_points
