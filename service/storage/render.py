@@ -76,15 +76,16 @@ def _edges(v: np.ndarray) -> tuple[float, float]:
 def render_png(img: np.ndarray, h: np.ndarray, v: np.ndarray, *, hlabel: str, vlabel: str,
                depth_down: bool, title: str | None = None, cmap: str = "gray",
                vmin: float | None = None, vmax: float | None = None, annotate: bool = True,
-               colorbar_label: str = "p0 (input units)") -> bytes:
+               colorbar_label: str = "p0 (input units)", bad_colour: Any = None) -> bytes:
     """PNG of a 2-D array ``img`` ``(len(v), len(h))``: row i at vertical coordinate
     ``v[i]`` (m), column j at ``h[j]`` (m).
 
     ``annotate=True``: matplotlib figure with axes in mm, labels, title and a colour bar;
     ``depth_down`` puts ``v[0]`` at the top (depth axes), else at the bottom.
     ``annotate=False``: exactly one pixel per sample, row 0 at the top, grey levels of
-    :func:`to_uint8` (``cmap`` applied if not ``"gray"``). Raises ValueError on shape
-    mismatch or an unknown colormap.
+    :func:`to_uint8` (``cmap`` applied if not ``"gray"``). ``bad_colour`` (a matplotlib
+    colour, annotated figures only): NaN pixels (e.g. masked) drawn in it instead of at
+    ``vmin``. Raises ValueError on shape mismatch or an unknown colormap.
     """
     img = np.asarray(img)
     if img.ndim != 2 or img.shape != (len(v), len(h)):
@@ -120,7 +121,13 @@ def render_png(img: np.ndarray, h: np.ndarray, v: np.ndarray, *, hlabel: str, vl
     FigureCanvasAgg(fig)
     ax = fig.add_subplot(1, 1, 1)
     extent = (h0, h1, v1, v0) if depth_down else (h0, h1, v0, v1)
-    im = ax.imshow(np.nan_to_num(np.asarray(img, dtype=np.float64), nan=lo), cmap=colormap,
+    shown = np.asarray(img, dtype=np.float64)
+    if bad_colour is not None:
+        colormap = colormap.with_extremes(bad=bad_colour)
+        shown = np.ma.masked_invalid(shown)
+    else:
+        shown = np.nan_to_num(shown, nan=lo)
+    im = ax.imshow(shown, cmap=colormap,
                    vmin=lo, vmax=hi, extent=extent, origin="upper" if depth_down else "lower",
                    interpolation="nearest", aspect="equal")
     ax.set_xlabel(f"{hlabel} (mm)")

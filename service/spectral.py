@@ -1,0 +1,167 @@
+"""Multi-wavelength reconstruction and spectral unmixing (issue 16), on top of the one
+reconstruction dispatch and the pure unmixing (:mod:`service.recon.unmix`).
+
+- :func:`reconstruct_wavelengths`: one volume per excitation wavelength, the same method
+  and options for all (``c="auto"``: the sound speed is found once, on the first
+  wavelength, and used for every wavelength: it does not depend on the light).
+- :func:`unmix_reconstructions`: HbO2/Hb/THb/sO2 from those volumes (same grid).
+- :func:`so2_map`: the picture of a volume's sO2: at every lateral position (x, y) the
+  sO2 of the voxel of largest THb along depth (masked where that voxel is masked); a
+  2-D image ``(n_z, n_x)`` is shown as it is.
+- :func:`write_unmix`: ``unmix.h5`` and ``so2.png`` (colour map 0..1 with a colour bar,
+  masked pixels grey) into a result folder.
+
+``unmix.h5`` layout: ``/hbo2``, ``/hb``, ``/thb`` (float32, units in the attribute
+``concentration_units``), ``/so2`` (float32, NaN where masked), ``/mask`` (uint8, 1 =
+signal strong enough), all ``(n_z, n_y, n_x)`` / ``(n_z, n_x)``; ``/z``, ``/x`` (``/y``)
+in m; ``/wavelengths_m``; attributes ``format`` = ``fpscan-unmix/1``, ``params`` (JSON),
+``input_id``.
+"""
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from service.recon.unmix import Unmixed, unmix
+
+UNMIX_FORMAT = "fpscan-unmix/1"
+#: masked pixels of the sO2 picture
+MASK_COLOUR = (0.55, 0.55, 0.55, 1.0)
+
+
+def dataset_wavelengths(dataset: Any) -> np.ndarray:
+    """The excitation wavelengths (m, ``(n_w,)``) a dataset records in ``meta``
+    (``wavelengths``); empty when it records none."""
+    w = (getattr(dataset, "meta", None) or {}).get("wavelengths")
+    return np.asarray([] if w is None else w, dtype=np.float64).reshape(-1)
+
+
+def reconstruct_wavelengths(datasets: Sequence[Any], method: str, *, reconstruct: Callable[..., Any],
+                            progress: Callable[[float, str], None] | None = None,
+                            **options: Any) -> list[Any]:
+    """Reconstruct every wavelength's dataset with the same method and options.
+
+    ``datasets``: one dataset per wavelength (same sensors and grid); ``reconstruct``:
+    the dispatch ``reconstruct(dataset, method, progress=..., **options)`` →
+    ``Reconstruction``. With ``c="auto"`` the first wavelength's reconstruction chooses
+    c and the others reuse it (recorded in their ``params["autofocus_from"]``).
+    ``progress(fraction, stage)`` spans all wavelengths. Returns the reconstructions in
+    the order of ``datasets``. Raises ``ValueError`` for an empty list and whatever the
+    dispatch raises."""
+    if len(datasets) == 0:
+        raise ValueError("no wavelengths to reconstruct")
+    n = len(datasets)
+    out = []
+    opts = dict(options)
+    for k, ds in enumerate(datasets):
+        def part(fraction: float, stage: str = "reconstructing", k: int = k) -> None:
+            if progress is not None:
+                progress((k + float(fraction)) / n, f"{stage} (wavelength {k + 1}/{n})")
+
+        rec = reconstruct(ds, method, progress=part, **opts)
+        if k == 0 and opts.get("c") == "auto":
+            opts["c"] = float(rec.params["c"])
+        elif k > 0 and options.get("c") == "auto":
+            rec.params["autofocus_from"] = "wavelength 1"
+        out.append(rec)
+    return out
+
+
+def unmix_reconstructions(recons: Sequence[Any], wavelengths: Any, **kwargs: Any) -> Unmixed:
+    """Unmix per-wavelength reconstructions (``p0`` on one grid) into HbO2/Hb, THb and sO2
+    (:func:`service.recon.unmix.unmix`; ``kwargs``: ``fluence``, ``gruneisen``,
+    ``threshold``). Raises ``ValueError`` for a single wavelength, mismatched grids or
+    a count of wavelengths that differs from the volumes."""
+    w = np.asarray(wavelengths, dtype=np.float64).reshape(-1)
+    if len(recons) != w.size:
+        raise ValueError(f"{len(recons)} volumes for {w.size} wavelengths")
+    if w.size < 2:
+        nm = ", ".join(f"{v * 1e9:g} nm" for v in w) or "none"
+        raise ValueError("unmixing into HbO2 and Hb needs at least two wavelengths; this dataset has "
+                         f"{w.size} ({nm})")
+    first = recons[0]
+    for r in recons[1:]:
+        same = r.p0.shape == first.p0.shape and np.allclose(r.z, first.z) and np.allclose(r.x, first.x) and \
+            ((r.y is None and first.y is None) or (r.y is not None and first.y is not None
+                                                   and np.allclose(r.y, first.y)))
+        if not same:
+            raise ValueError("the wavelengths' volumes are not on one grid; reconstruct them with the same options")
+    return unmix(np.stack([np.asarray(r.p0) for r in recons]), w, **kwargs)
+
+
+def so2_map(u: Unmixed) -> np.ndarray:
+    """2-D sO2 picture: 3-D → ``(n_y, n_x)``, the sO2 at each column's largest-THb voxel
+    (NaN where that voxel is masked); 2-D → the ``(n_z, n_x)`` sO2 image itself."""
+    if u.so2.ndim == 2:
+        return u.so2
+    k = np.argmax(u.thb, axis=0)[None]
+    return np.take_along_axis(u.so2, k, axis=0)[0]
+
+
+def render_so2_png(u: Unmixed, z: Any, x: Any, y: Any = None) -> bytes:
+    """PNG of :func:`so2_map` through the one rendering path
+    (:func:`service.storage.render.render_png`: mm axes, colour bar), colour map
+    ``RdYlBu_r`` over sO2 0 (blue) .. 1 (red), masked pixels grey (:data:`MASK_COLOUR`)."""
+    from service.storage.render import render_png
+
+    img = so2_map(u)
+    if u.so2.ndim == 2:
+        return render_png(img, np.asarray(x), np.asarray(z), hlabel="x", vlabel="z", depth_down=True,
+                          cmap="RdYlBu_r", vmin=0.0, vmax=1.0, title="sO2 (masked: grey)",
+                          colorbar_label="sO2", bad_colour=MASK_COLOUR)
+    return render_png(img, np.asarray(x), np.asarray(y), hlabel="x", vlabel="y", depth_down=False,
+                      cmap="RdYlBu_r", vmin=0.0, vmax=1.0, title="sO2 at the THb maximum along z (masked: grey)",
+                      colorbar_label="sO2", bad_colour=MASK_COLOUR)
+
+
+def write_unmix(out_dir: str | os.PathLike, u: Unmixed, z: Any, x: Any, y: Any = None, *,
+                input_id: str = "", extra: dict | None = None) -> dict:
+    """Write ``unmix.h5`` and ``so2.png`` into ``out_dir`` (an existing folder; the caller
+    writes the folder atomically). Returns a summary (``so2_median``, ``masked_fraction``,
+    ``thb_max``)."""
+    import h5py
+
+    out = Path(out_dir)
+    params = {**u.params, **(extra or {})}
+    tmp = out / f".unmix.h5.tmp-{os.getpid()}"
+    with h5py.File(tmp, "w") as f:
+        f.attrs["format"] = UNMIX_FORMAT
+        f.attrs["params"] = json.dumps(params, sort_keys=True)
+        f.attrs["input_id"] = input_id
+        f.attrs["concentration_units"] = str(u.params.get("concentration_units", ""))
+        for name in ("hbo2", "hb", "thb", "so2"):
+            f.create_dataset(name, data=getattr(u, name), compression="gzip", compression_opts=4)
+        f.create_dataset("mask", data=u.mask.astype(np.uint8), compression="gzip", compression_opts=4)
+        f.create_dataset("z", data=np.asarray(z, dtype=np.float64))
+        f.create_dataset("x", data=np.asarray(x, dtype=np.float64))
+        if y is not None:
+            f.create_dataset("y", data=np.asarray(y, dtype=np.float64))
+        f.create_dataset("wavelengths_m", data=u.wavelengths)
+    os.replace(tmp, out / "unmix.h5")
+    (out / "so2.png").write_bytes(render_so2_png(u, z, x, y))
+    inside = u.so2[u.mask]
+    return {"so2_median": float(np.median(inside)) if inside.size else None,
+            "masked_fraction": float(u.params.get("masked_fraction", 1.0)),
+            "thb_max": float(u.thb.max()) if u.thb.size else 0.0,
+            "wavelengths_m": [float(v) for v in u.wavelengths]}
+
+
+def read_unmix(path: str | os.PathLike) -> dict:
+    """The arrays and attributes of an ``unmix.h5`` (module docstring) as a dict; raises
+    ``ValueError`` for another file."""
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        if f.attrs.get("format") != UNMIX_FORMAT:
+            raise ValueError(f"{path} is not an {UNMIX_FORMAT} file")
+        out = {k: f[k][...] for k in ("hbo2", "hb", "thb", "so2", "mask", "z", "x", "wavelengths_m")}
+        out["y"] = f["y"][...] if "y" in f else None
+        out["mask"] = out["mask"].astype(bool)
+        out["params"] = json.loads(f.attrs["params"])
+        out["input_id"] = str(f.attrs["input_id"])
+    return out
