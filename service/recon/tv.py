@@ -110,6 +110,7 @@ def reconstruct_tv(
     dz: float | None = None,
     n_z: int | None = None,
     t0: float = 0.0,
+    periodic: bool = False,
     memory_limit: int | None = None,
     progress=None,
 ) -> Image:
@@ -128,7 +129,10 @@ def reconstruct_tv(
     max_iter : iterations at most (>= 1). tol : stop when the relative change of p0 per
         iteration falls below it.
     dtype : float32 or float64 (solver vectors and output). eps : NUFFT tolerance.
-    dz, n_z, t0 : as `reconstruct_grid`. memory_limit : bytes (default: available now).
+    dz, n_z, t0 : as `reconstruct_grid`. periodic : model the grid as laterally periodic
+        (no zero padding; `PlanarOperator`), as NER itself does: several times cheaper
+        for large volumes, but sources near an edge wrap around to the far sensors.
+    memory_limit : bytes (default: available now).
     progress : optional callable(fraction) called with increasing fractions after the
         warm start, the norm estimate and every iteration (the iteration count is
         ``round(fraction·...)``; ``params['iterations']`` has the final count); it may
@@ -187,7 +191,8 @@ def reconstruct_tv(
     report(0.05)
     dz_used, n_t = warm.params["dz"], g.shape[0] if pos is None else g.shape[1]
     shape = warm.p0.shape
-    op = PlanarOperator(shape, dx, dz_used, dt, n_t, c, positions=pos, t0=t0, eps=eps, dtype=rdtype)
+    op = PlanarOperator(shape, dx, dz_used, dt, n_t, c, positions=pos, t0=t0, eps=eps, dtype=rdtype,
+                         periodic=periodic)
     checks.check_memory(estimate_memory(shape, op.padded_shape, g.size, n_t, rdtype), memory_limit)
     sw = np.ones(op.oshape) if w is None else np.repeat(np.sqrt(w)[:, None], n_t, axis=1)
     Aw = pylops.Diagonal(sw.ravel().astype(rdtype), dtype=rdtype) @ op
@@ -229,7 +234,7 @@ def reconstruct_tv(
     params.update(method="tv", warm_start=warm.params["method"], lam=float(lam), lam_auto=bool(auto),
                   noise_sigma=sigma, iterations=it, max_iter=max_iter, tol=tol, dtype=rdtype.name,
                   residual=float(np.linalg.norm(res) / max(np.linalg.norm(gw), 1e-300)), norm_A=L / 1.05,
-                  positivity=bool(positivity), weights_mean_one=w is not None, solver="pyproximal PrimalDual")
+                  positivity=bool(positivity), weights_mean_one=w is not None, periodic=bool(periodic), solver="pyproximal PrimalDual")
     report(1.0)
     return Image(p0, warm.z, warm.x, warm.y, params)
 
