@@ -2,15 +2,24 @@
 
 For each size (n_t, n_y, n_x) this prints the time of NER (float64, float32),
 NEDNER (`reconstruct_points`, ~1600 sensors of an equi-steradian mask), the linear
-interpolation mode and `kspace_plane_recon`, each divided by the time of one complex FFT
-of the mirrored volume (2 n_t, n_y, n_x) measured in the same process, and each
-process's peak resident memory. Every method runs in a fresh process (so the peak
-memory is its own) after a small warm-up run (numba compilation).
+interpolation mode and the k-Wave-compatible `kspace_plane_recon` ('*nearest', k-Wave's
+default, and '*linear'), each divided by the time of one complex FFT of the mirrored
+volume (2 n_t, n_y, n_x) and by one of the mirrored volume at fast FFT lengths
+(2 n_t, next_fast_len(n_y), next_fast_len(n_x)), both measured in the same process, and
+each process's peak memory above its baseline as a multiple of the input (float64 data).
+Every method runs in a fresh process after a small warm-up run (numba compilation).
 
     .venv/bin/python benchmarks/bench_recon.py [--sizes 512x128x128 1024x226x226] [--repeat 2]
+    .venv/bin/python benchmarks/bench_recon.py --sweep          # n = 64..320, n_t = 2 n
+    .venv/bin/python benchmarks/bench_recon.py --kwave-2d ../shared/data/kwave2d_points.h5
+    .venv/bin/python benchmarks/bench_recon.py --cold-start --writer
+    .venv/bin/python benchmarks/bench_recon.py --vs-kwave-python   # if k-wave-python is installed
 
-Targets (DESIGN §8): NER <= 1.5x (float64), <= 1.0x (float32); NEDNER <= 1.5x; NER no
-slower than linear. The paper: 154 s (226x226 NER), 134 s (1625-sensor NEDNER).
+Targets (DESIGN §8, issue 15): NER <= 1.0x the fast-length FFT at every sweep size from
+n = 128 (float32 <= 0.7x); NEDNER <= 1.5x at 512x128x128, <= 0.9x at 1024x226x226;
+k-Wave modes <= 3x and <= 6x the input in peak memory; 2-D NER on the k-Wave tree <= 1.2x;
+cold start (imports + compiled code) <= 0.5 s; result writer >= 200 MB/s. The paper:
+154 s (226x226 NER), 134 s (1625-sensor NEDNER).
 
 The model-based part (issue 11, ``--methods pair pair-periodic tv``) prints ratios to one
 NER (float64) of the same size in the same process instead: ``pair`` is one
@@ -23,6 +32,7 @@ target <= 4x). ``--tv-iterations N`` caps the iterations (for a quick estimate).
 from __future__ import annotations
 
 import argparse
+import functools
 import multiprocessing as mp
 import queue as queue_mod
 import resource
@@ -42,12 +52,21 @@ def _best(fn, repeat):
     return best
 
 
-def _fft_time(n_t, n_y, n_x, repeat):
+def _fft_time(n_t, n_y, n_x, repeat, fast=False):
     import scipy.fft
 
+    if fast:
+        n_y = 1 if n_y == 1 else scipy.fft.next_fast_len(n_y)
+        n_x = scipy.fft.next_fast_len(n_x)
     vol = np.zeros((2 * n_t, n_y, n_x), np.complex128)
     vol[:] = 1.0
     return _best(lambda: scipy.fft.fftn(vol, workers=-1, overwrite_x=True), repeat)
+
+
+def _rss() -> int:
+    """Resident memory now, bytes (Linux)."""
+    with open("/proc/self/statm") as fh:
+        return int(fh.read().split()[1]) * resource.getpagesize()
 
 
 def _run_model(method, n_t, n_y, n_x, repeat, queue, max_iter=None):
@@ -109,6 +128,7 @@ def _mask_positions(n_y, n_x):
 def _run(method, n_t, n_y, n_x, repeat, queue):
     from service.recon import kspace_plane_recon, reconstruct_grid, reconstruct_points
 
+    base = _rss()
     rng = np.random.default_rng(1)
     data = rng.standard_normal((n_t, n_y, n_x))
     x = (np.arange(n_x) - (n_x - 1) / 2) * PITCH
@@ -132,49 +152,173 @@ def _run(method, n_t, n_y, n_x, repeat, queue):
         fn = lambda: reconstruct_points(al, pos, DT, C, weights=w, grid=grid)  # noqa: E731
         warm = lambda: reconstruct_points(al[:50, :32], pos[:50], DT, C, grid=grid)  # noqa: E731
     else:
-        fn = lambda: kspace_plane_recon(data, PITCH, PITCH, DT, C, interp="*linear")  # noqa: E731
-        warm = lambda: None  # noqa: E731
+        interp = "*nearest" if method == "kwave_nearest" else "*linear"
+        fn = lambda: kspace_plane_recon(data, PITCH, PITCH, DT, C, interp=interp)  # noqa: E731
+        warm = lambda: kspace_plane_recon(data[:16, :8, :8], PITCH, PITCH, DT, C, interp=interp)  # noqa: E731
     warm()
+    t = _best(fn, repeat)
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024 - base
     t_fft = _fft_time(n_t, n_y, n_x, repeat)
-    t = _best(fn, repeat if method != "kwave" else 1)
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
-    queue.put((t, t_fft, peak, note))
+    t_fast = _fft_time(n_t, n_y, n_x, repeat, fast=True)
+    queue.put((t, t_fft, t_fast, peak / data.nbytes, note))
+
+
+LABELS = {"ner64": "ner float64", "ner32": "ner float32", "nedner": "reconstruct_points (NEDNER)",
+          "linear": "linear (FFT + interp.)", "kwave_nearest": "kspace_plane_recon ('*nearest')",
+          "kwave": "kspace_plane_recon ('*linear')", "pair": "forward + adjoint / NER",
+          "pair-periodic": "forward + adjoint (periodic) / NER", "tv": "tv (equi-steradian) / NER"}
+MODEL = ("pair", "pair-periodic", "tv")
+
+
+def _in_process(target, *args, timeout=1800):
+    """Run ``target(*args, queue)`` in a fresh spawned process; its result or None."""
+    ctx = mp.get_context("spawn")
+    q = ctx.Queue()
+    p = ctx.Process(target=target, args=(*args, q))
+    p.start()
+    try:
+        return q.get(timeout=timeout)
+    except queue_mod.Empty:
+        p.kill()
+        return None
+    finally:
+        p.join(timeout=60)
+
+
+def _table(sizes, methods, repeat, tv_iterations=None):
+    for n_t, n_y, n_x in sizes:
+        print(f"\n(n_t, n_y, n_x) = ({n_t}, {n_y}, {n_x}); reference: complex FFT of ({2 * n_t}, {n_y}, {n_x}) "
+              "and of the same at fast lateral lengths")
+        print(f"{'method':34s} {'time s':>8s} {'FFT s':>7s} {'ratio':>6s} {'fast s':>7s} {'ratio':>6s} "
+              f"{'peak/in':>8s}  note")
+        for m in methods:
+            if m in MODEL:
+                r = _in_process(functools.partial(_run_model, max_iter=tv_iterations), m, n_t, n_y, n_x, repeat)
+                if r is not None:
+                    t, t_ner, peak, note = r
+                    print(f"{LABELS[m]:34s} {t:8.2f} {t_ner:7.2f} {t / t_ner:6.2f} {'(NER)':>7s} {'':6s} "
+                          f"{'':8s}  {note}; peak RSS {peak / 2**30:.2f} GiB", flush=True)
+                    continue
+            else:
+                r = _in_process(_run, m, n_t, n_y, n_x, repeat)
+            if r is None:
+                print(f"{LABELS[m]:34s} failed", flush=True)
+                continue
+            t, t_fft, t_fast, peak, note = r
+            print(f"{LABELS[m]:34s} {t:8.2f} {t_fft:7.2f} {t / t_fft:6.2f} {t_fast:7.2f} {t / t_fast:6.2f} "
+                  f"{peak:8.1f}  {note}", flush=True)
+
+
+def _kwave2d(path, repeat, queue):
+    import h5py
+    import scipy.fft
+
+    from service.recon import reconstruct_grid
+
+    with h5py.File(path, "r") as f:
+        data = f["sensor_data/clean"][:].astype(np.float64)
+        dx, dt, c = float(f.attrs["dx_m"]), float(f.attrs["dt_s"]), float(f.attrs["c_m_per_s"])
+    reconstruct_grid(data[:64, :64], dx, dt, c)
+    t = _best(lambda: reconstruct_grid(data, dx, dt, c), repeat)
+    vol = np.ones((2 * data.shape[0], data.shape[1]), np.complex128)
+    t_fft = _best(lambda: scipy.fft.fft2(vol, workers=-1, overwrite_x=True), repeat)
+    queue.put((data.shape, t, t_fft))
+
+
+def _cold_start() -> None:
+    """Imports + compiled-code loading + a tiny reconstruction in a fresh interpreter."""
+    import subprocess
+    import sys
+
+    code = ("import time; t0 = time.perf_counter()\n"
+            "import numpy as np\nfrom service.recon import reconstruct_grid, reconstruct_points\n"
+            "t1 = time.perf_counter()\nreconstruct_grid(np.ones((16, 4, 4)), 1e-4, 1e-8)\n"
+            "reconstruct_points(np.ones((5, 16)), np.random.default_rng(0).uniform(-1e-3, 1e-3, (5, 2)), 1e-8)\n"
+            "t2 = time.perf_counter()\nprint(t1 - t0, t2 - t1)")
+    runs = []
+    for _ in range(3):
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+        runs.append(tuple(float(v) for v in out.stdout.split()))
+    imp, first = min(runs, key=sum)
+    print(f"\ncold start (best of 3 fresh interpreters): imports {imp:.2f} s, first tiny reconstructions "
+          f"(compiled-code loading) {first:.2f} s, total {imp + first:.2f} s (target <= 0.5 s)")
+
+
+def _writer(repeat) -> None:
+    import tempfile
+    from pathlib import Path
+
+    from service.storage.results import write_result
+
+    rng = np.random.default_rng(0)
+    n_z, n_y, n_x = 512, 128, 144
+    p0 = (0.01 * rng.standard_normal((n_z, n_y, n_x))).astype(np.float32)
+    p0[100:140, 40:80, 50:90] += 1.0
+    z, y, x = (np.arange(n) * 1e-5 for n in (n_z, n_y, n_x))
+    with tempfile.TemporaryDirectory() as d:
+        path = Path(d) / "volume.h5"
+        t = _best(lambda: write_result(path, p0, z, x, y, method="ner", params={"dtype": "float32"},
+                                       input_id="bench"), repeat)
+        size = path.stat().st_size
+    print(f"\nresult writer: {p0.nbytes / 1e6:.0f} MB float32 volume in {t:.2f} s = {p0.nbytes / 1e6 / t:.0f} MB/s, "
+          f"file {size / 1e6:.0f} MB (target >= 200 MB/s)")
+
+
+def _vs_kwave_python(repeat) -> None:
+    """k-wave-python's kspacePlaneRecon beside ours on the same data (benchmark-only extra)."""
+    import importlib
+
+    fn = None
+    for mod in ("kwave.reconstruction.kspace_plane_recon", "kwave.kspacePlaneRecon", "kwave.reconstruction"):
+        try:
+            fn = getattr(importlib.import_module(mod), "kspacePlaneRecon", None)
+        except ImportError:
+            continue
+        if fn is not None:
+            break
+    if fn is None:
+        print("\nk-wave-python is not installed (pip install k-wave-python): comparison skipped")
+        return
+    from service.recon import kspace_plane_recon
+
+    data = np.random.default_rng(1).standard_normal((512, 113, 113))
+    ours = _best(lambda: kspace_plane_recon(data, PITCH, PITCH, DT, C), repeat)
+    theirs = _best(lambda: fn(data, PITCH, PITCH, DT, C), 1)
+    print(f"\nk-wave-python kspacePlaneRecon (512x113x113): {theirs:.2f} s; ours {ours:.2f} s "
+          f"({theirs / ours:.1f}x faster)")
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", nargs="+", default=["512x128x128", "1024x226x226"])
     ap.add_argument("--repeat", type=int, default=2)
-    ap.add_argument("--methods", nargs="+", default=["ner64", "ner32", "nedner", "linear", "kwave"],
+    ap.add_argument("--methods", nargs="+", default=["ner64", "ner32", "nedner", "linear", "kwave_nearest", "kwave"],
                     help="also: pair, pair-periodic, tv (ratios to one NER)")
     ap.add_argument("--tv-iterations", type=int, default=None, help="cap tv's iterations (default: its rule)")
+    ap.add_argument("--sweep", action="store_true", help="NER/NEDNER at n = 64, 128, 226, 256, 320 (n_t = 2 n)")
+    ap.add_argument("--kwave-2d", metavar="H5", help="2-D NER on the k-Wave tree (kwave2d_points.h5)")
+    ap.add_argument("--cold-start", action="store_true", help="imports + compiled-code loading")
+    ap.add_argument("--writer", action="store_true", help="result-file writing speed")
+    ap.add_argument("--vs-kwave-python", action="store_true", help="time k-wave-python's kspacePlaneRecon too")
     args = ap.parse_args()
-    ctx = mp.get_context("spawn")
-    labels = {"ner64": "ner float64", "ner32": "ner float32", "nedner": "reconstruct_points (NEDNER)",
-              "linear": "linear (FFT + interp.)", "kwave": "kspace_plane_recon ('*linear')",
-              "pair": "forward + adjoint / NER", "pair-periodic": "forward + adjoint (periodic) / NER",
-              "tv": "tv (equi-steradian) / NER"}
-    for size in args.sizes:
-        n_t, n_y, n_x = (int(v) for v in size.split("x"))
-        print(f"\n(n_t, n_y, n_x) = ({n_t}, {n_y}, {n_x}); reference: complex FFT of ({2 * n_t}, {n_y}, {n_x})")
-        print(f"{'method':34s} {'time s':>8s} {'ref s':>7s} {'ratio':>6s} {'peak GiB':>9s}  "
-              "note (ref: the FFT; one NER for the '/ NER' rows)")
-        for m in args.methods:
-            q = ctx.Queue()
-            if m in ("pair", "pair-periodic", "tv"):
-                p = ctx.Process(target=_run_model, args=(m, n_t, n_y, n_x, args.repeat, q, args.tv_iterations))
-            else:
-                p = ctx.Process(target=_run, args=(m, n_t, n_y, n_x, args.repeat, q))
-            p.start()
-            try:
-                t, t_fft, peak, note = q.get(timeout=1800)
-            except queue_mod.Empty:
-                p.kill()
-                print(f"{labels[m]:34s} failed (exit code {p.exitcode})", flush=True)
-                continue
-            finally:
-                p.join(timeout=60)
-            print(f"{labels[m]:34s} {t:8.2f} {t_fft:7.2f} {t / t_fft:6.2f} {peak / 2**30:9.2f}  {note}", flush=True)
+    extras = args.sweep or args.kwave_2d or args.cold_start or args.writer or args.vs_kwave_python
+    if not extras or "--sizes" in " ".join(__import__("sys").argv):
+        _table([tuple(int(v) for v in size.split("x")) for size in args.sizes], args.methods, args.repeat,
+               args.tv_iterations)
+    if args.sweep:
+        _table([(2 * n, n, n) for n in (64, 128, 226, 256, 320)], ["ner64", "ner32", "nedner"], args.repeat)
+    if args.kwave_2d:
+        r = _in_process(_kwave2d, args.kwave_2d, args.repeat)
+        if r is not None:
+            shape, t, t_fft = r
+            print(f"\n2-D NER on the k-Wave tree {shape}: {t:.2f} s, mirrored 2-D FFT {t_fft:.3f} s, "
+                  f"ratio {t / t_fft:.2f} (target <= 1.2)")
+    if args.cold_start:
+        _cold_start()
+    if args.writer:
+        _writer(args.repeat)
+    if args.vs_kwave_python:
+        _vs_kwave_python(args.repeat)
 
 
 if __name__ == "__main__":

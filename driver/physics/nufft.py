@@ -323,8 +323,8 @@ def evaluate(
     kz : (n_kz,) depth wavenumbers in rad/m. qw : (n_kz,) weights per kz.
     inversion=True multiplies by qw * kz/omega (1/c at omega = 0) and zeroes omega above
     the temporal Nyquist pi/dt (DESIGN §3.1); False multiplies by qw only.
-    progress: optional callable(fraction in (0, 1]) called after each of ``n_chunks``
-    chunks of column groups.
+    progress: optional callable(fraction in (0, 1]) called after each of up to ``n_chunks``
+    chunks of column groups (fewer for small transforms).
     Returns (n_cols, n_kz) complex.
     """
     gvals, gptr, order = group_columns(klat2)
@@ -334,7 +334,9 @@ def evaluate(
     # groups in a few chunks (each column's sum is the same whichever chunk holds it), so
     # that a caller sees real progress through the longest step
     n_groups = len(gvals)
-    bounds = np.linspace(0, n_groups, min(n_chunks, max(n_groups, 1)) + 1).astype(np.int64)
+    # chunks of at least ~4M evaluations each: small transforms run in one parallel region
+    n_chunks = max(1, min(n_chunks, U.shape[0] * len(kz) // (1 << 22), n_groups))
+    bounds = np.linspace(0, n_groups, n_chunks + 1).astype(np.int64)
     for i in range(len(bounds) - 1):
         a, b = int(bounds[i]), int(bounds[i + 1])
         if b > a:
