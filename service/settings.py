@@ -12,6 +12,7 @@ from __future__ import annotations
 import ipaddress
 import json
 import os
+import re
 import tomllib
 from pathlib import Path
 from typing import Any, Literal
@@ -100,10 +101,15 @@ class Settings(BaseSettings):
 
     def redact(self, text: str) -> str:
         """``text`` with the data directory's path replaced by ``<data>``, so error
-        messages that reach clients never show the server's file system layout."""
+        messages that reach clients never show the server's file system layout. Only whole
+        path prefixes are replaced (``--data-dir data`` leaves the word "dataset" alone)."""
         for root in sorted({str(Path(self.data_dir).resolve()), str(self.data_dir)}, key=len, reverse=True):
             if root and root != ".":
-                text = text.replace(root, "<data>")
+                # only a whole path prefix: not inside a word or another path ("dataset",
+                # "/x/data" for data_dir "data"), and followed by "/" or the path's end
+                # (a relative one only when a path follows: "data" alone is a word)
+                end = r"(?=/|$|[^\w.~-])" if root.startswith("/") else r"(?=/)"
+                text = re.sub(r"(?<![\w./~-])" + re.escape(root.rstrip("/")) + end, "<data>", text)
         return text
 
     def token_value(self) -> str | None:

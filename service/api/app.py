@@ -35,6 +35,8 @@ def _version() -> str:
 
 
 VERSION = _version()
+#: When this server process started (UNIX time): files older than it are a previous run's.
+PROCESS_START = time.time()
 
 ERROR_RESPONSES = {
     400: {"model": Error, "description": "bad request"},
@@ -50,7 +52,7 @@ def _validation_reason(exc: RequestValidationError) -> str:
     parts = []
     for err in exc.errors()[:5]:
         loc = ".".join(str(p) for p in err.get("loc", ()) if p != "body") or "body"
-        msg = err.get("msg", "invalid")
+        msg = err.get("msg", "invalid").removeprefix("Value error, ")
         if err.get("type") == "json_invalid":
             return f"malformed JSON: {err.get('ctx', {}).get('error', msg)}"
         parts.append(f"{loc}: {msg}")
@@ -81,8 +83,17 @@ class UploadLimit:
         seen = 0
         t0 = time.perf_counter()
         status = {"code": 0}
+        over = {"flag": False, "sent": False}
+        too_large = JSONResponse({"detail": f"request body larger than the limit of {self.limit} bytes"}, 413)
 
         async def logging_send(message):
+            if over["flag"]:
+                # the body went over the limit: whatever the route made of the cut-off
+                # body (a form parser answers 400), the client gets the 413
+                if not over["sent"]:
+                    over["sent"] = True
+                    await too_large(scope, receive, send)
+                return
             if message["type"] == "http.response.start":
                 status["code"] = message["status"]
             await send(message)
@@ -93,6 +104,7 @@ class UploadLimit:
             if message["type"] == "http.request":
                 seen += len(message.get("body", b""))
                 if seen > self.limit + 1_000_000:
+                    over["flag"] = True
                     raise _TooLarge()
             return message
 
@@ -102,8 +114,9 @@ class UploadLimit:
                 log.debug("request method=%s path=%s status=%s ms=%.1f", scope["method"], scope["path"],
                           status["code"], 1e3 * (time.perf_counter() - t0))
         except _TooLarge:
-            resp = JSONResponse({"detail": f"request body larger than the limit of {self.limit} bytes"}, 413)
-            await resp(scope, receive, send)
+            if not over["sent"]:
+                over["sent"] = True
+                await too_large(scope, receive, send)
 
 
 class _TooLarge(Exception):
@@ -132,6 +145,11 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True) 
             executor = make_executor(settings)
             context.queue = ReconQueue(store, executor, settings)
             recovered = store.recover(context.queue.owner, settings.max_attempts)
+            from service.jobs.queue import remove_debris
+
+            debris = remove_debris(settings.data_dir, PROCESS_START)
+            if debris:
+                log.info("startup removed crash debris: %s", ", ".join(debris[:20]))
             if settings.resume_scans:
                 for jid in recovered["paused"]:
                     store.set_state(jid, "queued", only_from=("paused",), progress={"stage": "resuming"})
@@ -157,6 +175,8 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True) 
                 context.queue.stop()
             if executor is not None:
                 executor.close()
+            if context.queue is not None:
+                context.queue.join()  # running jobs re-queue themselves (SIGTERM re-queues)
             store.close()
 
     app = FastAPI(title="fpscan", version=VERSION, lifespan=lifespan, responses=ERROR_RESPONSES,
@@ -193,6 +213,24 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True) 
 
     for module in (plans, scans, datasets, reconstructions, jobs, retention):
         app.include_router(module.router)
+
+    base_openapi = app.openapi
+
+    def openapi() -> dict:
+        """The schema states what the server enforces: on a loopback-only server, reading
+        routes need no token (``security`` lists the empty requirement first)."""
+        done = app.openapi_schema is not None
+        schema = base_openapi()
+        if not done and settings.loopback_only:
+            for item in schema.get("paths", {}).values():
+                op = item.get("get")
+                if op and op.get("security") and {} not in op["security"]:
+                    op["security"] = [{}, *op["security"]]
+                    op["description"] = (op.get("description", "") + "\n\nNo token needed: this server is "
+                                         "bound to loopback only (the token is asked when bound beyond it).").strip()
+        return schema
+
+    app.openapi = openapi  # type: ignore[method-assign]
 
     if settings.web_root is not None:
         root = Path(settings.web_root)

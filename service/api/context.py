@@ -52,3 +52,18 @@ async def read_access(request: Request, creds: HTTPAuthorizationCredentials | No
     settings = request.app.state.ctx.settings
     if not settings.loopback_only:
         _check(settings, creds)
+
+
+def reason(exc: BaseException) -> str:
+    """The one-line reason for a refused input: a pydantic ``ValidationError`` as
+    ``field: message; ...`` (no documentation URLs, no input echo), anything else as its
+    text with line breaks folded."""
+    from pydantic import ValidationError
+
+    if isinstance(exc, ValidationError):
+        parts = [f"{'.'.join(str(p) for p in e.get('loc', ())) or 'value'}: "
+                 f"{e.get('msg', 'invalid').removeprefix('Value error, ')}" for e in exc.errors()[:5]]
+        return "; ".join(parts) or "invalid value"
+    lines = [ln.strip() for ln in str(exc).splitlines()
+             if ln.strip() and not ln.strip().startswith("For further information visit")]
+    return "; ".join(lines) or type(exc).__name__

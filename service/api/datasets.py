@@ -26,7 +26,7 @@ import numpy as np
 from fastapi import APIRouter, Depends, File, Form, HTTPException, UploadFile
 from fastapi import Path as PathParam
 
-from service.api.context import Context, ctx, require_token
+from service.api.context import Context, ctx, reason, require_token
 from service.api.models import ID_PATTERN, Dataset, DatasetFormat, Deleted
 from service.jobs import lifecycle
 from service.storage.untrusted import hdf5_limit, run_bounded
@@ -99,14 +99,14 @@ def import_dataset(src: Path, dest_dir: Path, fmt: str, *, dt, dx, dy, c, key,
         raise ValueError(f"file is not a readable {fmt} dataset ({type(exc).__name__})") from None
     if ds.kind == "grid":
         write_grid_dataset(dest_dir / "dataset.h5", ds)
-        return {"layout": "grid", "shape": list(ds.data.shape), "dt": ds.dt, "path": "dataset.h5"}
+        return {"layout": "grid", "shape": list(ds.data.shape), "dt": ds.dt, "c": ds.c, "path": "dataset.h5"}
     if ds.alines.shape[0] == 0:
         raise ValueError("the dataset holds no A-lines")
     write_points_dataset(dest_dir / "dataset.h5", ds)
     n_x, n_y = len(ds.grid[0]), len(ds.grid[1]) if len(ds.grid) > 1 else 1
     indices = ds.meta.get("indices")
     full = indices is not None and len(np.unique(np.asarray(indices).reshape(len(indices), -1), axis=0)) == n_x * n_y
-    return {"layout": "points", "shape": list(ds.alines.shape), "dt": ds.dt, "path": "dataset.h5",
+    return {"layout": "points", "shape": list(ds.alines.shape), "dt": ds.dt, "c": ds.c, "path": "dataset.h5",
             "n_x": n_x, "n_y": n_y, "full_lattice": bool(full)}
 
 
@@ -142,7 +142,7 @@ def upload_dataset(file: UploadFile = File(..., description="the data file"),
                                timeout=cx.settings.import_timeout_s, what="the upload",
                                memory_bytes=cx.settings.memory_limit + 2 * 2**30)
         except ValueError as exc:
-            msg = str(exc).replace(str(src.resolve()), "the upload").replace(str(src), "the upload")
+            msg = reason(exc).replace(str(src.resolve()), "the upload").replace(str(src), "the upload")
             raise HTTPException(422, cx.settings.redact(msg)) from None
     except BaseException:
         shutil.rmtree(dest, ignore_errors=True)

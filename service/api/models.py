@@ -206,14 +206,27 @@ class ReconParams(_Request):
     dtype: Literal["float32", "float64"] = "float32"
     upsample: int = Field(1, ge=1, le=8)
     positivity: bool = False
-    n_z: int | None = Field(None, ge=1, le=65536, description="output depth samples")
-    dz: float | None = Field(None, gt=0, le=0.1, description="output depth spacing, m")
+    n_z: int | None = Field(None, ge=2, le=65536, description="output depth samples (>= 2)")
+    dz: float | None = Field(None, ge=1e-9, le=0.1, description="output depth spacing, m (>= 1 nm; with the "
+                             "input's c·t_last it sets the working depth rows, counted in the memory admission)")
 
 
 class ReconRequest(_Request):
     """Reconstruct a scan job's file or an uploaded dataset (exactly one of them)."""
 
-    scan_job_id: str | None = Field(None, pattern=ID_PATTERN)
-    dataset_id: str | None = Field(None, pattern=ID_PATTERN)
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, json_schema_extra={
+        "oneOf": [{"required": ["scan_job_id"], "not": {"required": ["dataset_id"]}},
+                  {"required": ["dataset_id"], "not": {"required": ["scan_job_id"]}}],
+        "description": "Reconstruct a scan job's file or an uploaded dataset: exactly one of "
+                       "scan_job_id and dataset_id."})
+
+    scan_job_id: str | None = Field(None, pattern=ID_PATTERN, description="exclusive with dataset_id")
+    dataset_id: str | None = Field(None, pattern=ID_PATTERN, description="exclusive with scan_job_id")
     method: ReconMethod = "nedner"
     params: ReconParams = Field(default_factory=ReconParams)
+
+    @model_validator(mode="after")
+    def _exactly_one_input(self) -> ReconRequest:
+        if (self.scan_job_id is None) == (self.dataset_id is None):
+            raise ValueError("give exactly one of scan_job_id or dataset_id")
+        return self

@@ -13,7 +13,7 @@ import json
 import numpy as np
 from fastapi import APIRouter, Depends, HTTPException, Path, Response
 
-from service.api.context import Context, ctx, read_access, require_token
+from service.api.context import Context, ctx, read_access, reason, require_token
 from service.api.models import ID_PATTERN, Deleted, Plan, PlanCreate, PlanPreview
 from service.jobs import lifecycle
 
@@ -111,7 +111,7 @@ def _build_or_422(body: PlanCreate) -> dict:
     try:
         return build_plan(body)
     except (ValueError, OverflowError) as exc:
-        raise HTTPException(422, str(exc)) from None
+        raise HTTPException(422, reason(exc)) from None
 
 
 @router.post("", status_code=201, response_model=Plan, dependencies=[Depends(require_token)])

@@ -9,7 +9,7 @@ from fastapi import APIRouter, Depends, Header, HTTPException, Query, Response
 from fastapi import Path as PathParam
 from fastapi.responses import FileResponse
 
-from service.api.context import Context, ctx, read_access, require_token
+from service.api.context import Context, ctx, read_access, reason, require_token
 from service.api.jobs import get_job_or_404, job_view
 from service.api.models import ID_PATTERN, Job, Plane, ReconRequest
 from service.jobs.images import png_bytes
@@ -20,7 +20,8 @@ from service.jobs.work import GRID_METHODS
 router = APIRouter(prefix="/api/reconstructions", tags=["reconstructions"])
 
 JobId = PathParam(pattern=ID_PATTERN, description="reconstruction job id")
-IdemKey = Header(None, alias="Idempotency-Key", max_length=200, description="same key → same job")
+IdemKey = Header(None, alias="Idempotency-Key", min_length=1, max_length=200,
+                 description="same key → same job (1-200 characters; an empty key is refused)")
 
 
 def _input_for(c: Context, body: ReconRequest) -> tuple[dict, dict, str]:
@@ -40,7 +41,7 @@ def _input_for(c: Context, body: ReconRequest) -> tuple[dict, dict, str]:
         plan = found[0]
         lat, acq = plan["lattice"], plan["acquisition"]
         shape = {"n_t": acq["n_t"], "n_x": lat["n_x"], "n_y": lat.get("n_y", 1),
-                 "n_points": len(plan["points"]["indices"])}
+                 "n_points": len(plan["points"]["indices"]), "dt": acq["dt"], "c": acq.get("sound_speed")}
         if body.method != "nedner" and len(plan["points"]["indices"]) != lat["n_x"] * lat.get("n_y", 1):
             raise HTTPException(422, f"method {body.method!r} needs every lattice point; this scan's plan "
                                      "is a sensor mask: use 'nedner'")
@@ -51,7 +52,8 @@ def _input_for(c: Context, body: ReconRequest) -> tuple[dict, dict, str]:
     path = str(Path(c.settings.data_dir) / "datasets" / body.dataset_id / meta["path"])
     if meta["layout"] == "grid":
         s = meta["shape"]
-        shape = {"n_t": s[0], "n_x": s[-1], "n_y": s[1] if len(s) == 3 else 1}
+        shape = {"n_t": s[0], "n_x": s[-1], "n_y": s[1] if len(s) == 3 else 1, "dt": meta.get("dt"),
+                 "c": meta.get("c")}
         if body.method not in GRID_METHODS + ("nedner",):
             raise HTTPException(422, f"unknown method {body.method!r}")
         return {"kind": "dataset", "path": path}, shape, f"dataset:{body.dataset_id}"
@@ -59,7 +61,8 @@ def _input_for(c: Context, body: ReconRequest) -> tuple[dict, dict, str]:
         raise HTTPException(422, f"method {body.method!r} needs a full regular grid; this dataset needs 'nedner'")
     n, n_t = meta["shape"]
     side = int(np.ceil(np.sqrt(n)))
-    shape = {"n_t": n_t, "n_x": meta.get("n_x", side), "n_y": meta.get("n_y", side), "n_points": n}
+    shape = {"n_t": n_t, "n_x": meta.get("n_x", side), "n_y": meta.get("n_y", side), "n_points": n,
+             "dt": meta.get("dt"), "c": meta.get("c")}
     return {"kind": "dataset", "path": path}, shape, f"dataset:{body.dataset_id}"
 
 
@@ -72,12 +75,12 @@ def start_reconstruction(body: ReconRequest, response: Response, c: Context = De
     it can never fit in the memory limit."""
     spec, shape, input_id = _input_for(c, body)
     params = body.params.model_dump()
-    mem = estimate_memory(shape, {**params, "method": body.method})
     try:
+        mem = estimate_memory(shape, {**params, "method": body.method})
         admit(mem, c.settings.memory_limit)
     except AdmissionError as exc:
-        raise HTTPException(422, str(exc)) from None
-    job_params = {"method": body.method, "params": params, "input": spec, "input_id": input_id,
+        raise HTTPException(422, reason(exc)) from None
+    job_params = {"method": body.method, "params": params, "input": spec, "input_id": input_id, "shape": shape,
                   "scan_job_id": body.scan_job_id, "dataset_id": body.dataset_id, "memory_estimate": mem}
     try:
         job, _created = c.store.create_job("recon", job_params, idempotency_key=idempotency_key, memory_bytes=mem)

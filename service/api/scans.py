@@ -36,7 +36,8 @@ def list_scanners(c: Context = Depends(ctx)) -> list[Scanner]:
              responses={404: {"description": "unknown plan or scanner"},
                         409: {"description": "Idempotency-Key reused with other parameters"}})
 def start_scan(body: ScanRequest, response: Response, c: Context = Depends(ctx),
-               idempotency_key: str | None = Header(None, alias="Idempotency-Key", max_length=200)) -> Job:
+               idempotency_key: str | None = Header(None, alias="Idempotency-Key", min_length=1,
+                                                    max_length=200)) -> Job:
     """Queue a scan of a plan on a scanner → 202, ``Location: /api/jobs/{id}``. The scan
     starts when the scanner is free; it owns the serial port while it runs."""
     mgr = _scans(c)

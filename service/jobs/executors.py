@@ -63,6 +63,7 @@ class LocalExecutor:
 
     def __init__(self, workers: int = 1):
         self.workers = int(workers)
+        self.closed = False
         self._pool = self._new_pool()
 
     def _new_pool(self) -> ProcessPoolExecutor:
@@ -80,7 +81,13 @@ class LocalExecutor:
         return self.submit(fn, *args).result()
 
     def close(self) -> None:
+        self.closed = True
         stop_pool(self._pool)
+
+
+class WorkerDied(RuntimeError):
+    """The process running a job died (killed by the OS, or by a shutdown): the job may be
+    run again."""
 
 
 class _LocalFuture:
@@ -97,8 +104,9 @@ class _LocalFuture:
         except BrokenProcessPool:
             # A worker died (e.g. killed by the OS for memory): start a fresh pool, and
             # report the failure of this job.
-            self._executor._pool = self._executor._new_pool()
-            raise RuntimeError("the reconstruction worker process died") from None
+            if not self._executor.closed:
+                self._executor._pool = self._executor._new_pool()
+            raise WorkerDied("the reconstruction worker process died") from None
 
 
 class DaskExecutor:

@@ -22,6 +22,7 @@ import time
 import uuid
 from pathlib import Path
 
+from service.jobs.executors import WorkerDied
 from service.jobs.lifecycle import apply_retention
 from service.jobs.store import JobStore
 from service.jobs.work import run_reconstruction
@@ -33,37 +34,91 @@ class AdmissionError(ValueError):
     """A job that can never fit in the memory limit."""
 
 
+#: Measured peak / ``service.recon.estimate_peak_memory`` was 1.33-1.41 for NER at every
+#: size from 64² to 384² (issue 14); admission multiplies the estimate by this.
+CALIBRATION = 1.45
+#: Most depth rows the depth transform may work on (``dz`` far below ``c·dt`` multiplies
+#: them); beyond this a request is refused whatever the memory limit.
+MAX_DEPTH_ROWS = 1 << 20
+
+
+def working_depth_rows(shape: dict, params: dict) -> int:
+    """The depth rows the reconstruction works on: ``max(n_z, ceil(c·t_last/dz) + 1)``
+    (``service.recon.planar``: no recorded signal may fold back through the depth
+    period), with ``n_z`` default ``n_t``, ``dz`` default ``c·dt``. ``shape`` needs
+    ``n_t`` and, when ``dz`` is given, ``dt`` (s) and ``c`` (m/s; ``params["c"]`` wins).
+    Raises :class:`AdmissionError` when that is more than ``MAX_DEPTH_ROWS``."""
+    n_t = int(shape["n_t"])
+    n_z = int(params.get("n_z") or n_t)
+    dz = params.get("dz")
+    if dz is None or shape.get("dt") is None:
+        return n_z
+    c = float(params.get("c") or shape.get("c") or 1500.0)
+    reach = c * (float(params.get("t0") or 0.0) + (n_t - 1) * float(shape["dt"])) / float(dz)
+    if not reach < MAX_DEPTH_ROWS:
+        raise AdmissionError(f"dz = {dz:g} m is too fine for this input: the depth transform would need "
+                             f"{reach:.3g} rows (at most {MAX_DEPTH_ROWS}); use a larger dz (c·dt is "
+                             f"{c * float(shape['dt']):.3g} m)")
+    return max(n_z, int(reach) + 2)
+
+
 def estimate_memory(shape: dict, params: dict) -> int:
-    """Peak memory (bytes) of a reconstruction. ``shape``: ``n_t`` and either ``n_x``
-    (``n_y``) of the output grid, plus ``n_points`` for point inputs. Uses
-    ``service.recon.estimate_peak_memory`` when it accepts these, else a conservative
-    count: the mirrored, oversampled complex volume ``2 n_t × n_y × n_x`` (×upsample per
-    lateral axis) held three times, plus the input."""
+    """Peak memory (bytes) of a reconstruction with the options actually used — the one
+    admission rule, applied before a job is queued and again by the worker.
+
+    ``shape``: ``n_t`` and ``n_x`` (``n_y``) of the output grid, ``n_points`` for point
+    inputs, ``dt`` (s) and ``c`` (m/s) of the input; ``params``: ``method``, ``dtype``,
+    ``upsample``, ``n_z``, ``dz``, ``c``. ``service.recon.estimate_peak_memory`` of the
+    working depth rows (:func:`working_depth_rows`) times ``CALIBRATION``, plus the input
+    as float64. Raises :class:`AdmissionError` for a depth grid that can never be made."""
     n_t = int(shape["n_t"])
     n_x = int(shape["n_x"])
     n_y = int(shape.get("n_y", 1))
     up = int(params.get("upsample", 1) or 1)
-    item = 8 if params.get("dtype", "float32") == "float32" else 16  # complex
-    try:
-        from service.recon import estimate_peak_memory
+    rows = working_depth_rows(shape, params)
+    from service.recon import estimate_peak_memory
 
-        value = estimate_peak_memory(n_t, n_x, n_y, n_z=params.get("n_z"), upsample=up,
-                                     dtype=params.get("dtype", "float32"), method=params.get("method", "ner"),
-                                     n_points=shape.get("n_points"))
-        return int(value) + n_t * int(shape.get("n_points", n_x * n_y)) * 8  # + the input
-    except ImportError:  # recon not installed: our own estimate
-        pass
-    lateral = n_x * up * (n_y * up if n_y > 1 else 1)
-    volume = 2 * n_t * lateral * item
-    inp = n_t * int(shape.get("n_points", n_x * n_y)) * 8
-    return int(3 * volume + inp)
+    value = estimate_peak_memory(n_t, n_x, n_y, n_z=rows, upsample=up,
+                                 dtype=params.get("dtype") or "float32", method=params.get("method", "ner"),
+                                 n_points=shape.get("n_points"))
+    return int(CALIBRATION * value) + n_t * int(shape.get("n_points", n_x * n_y)) * 8  # + the input
 
 
 def admit(estimate: int, limit: int) -> None:
     """Raise :class:`AdmissionError` with the reason if ``estimate`` > ``limit`` bytes."""
     if estimate > limit:
         raise AdmissionError(f"reconstruction needs about {estimate / 2**30:.2f} GiB, more than the "
-                             f"memory limit of {limit / 2**30:.2f} GiB; reduce the size or the upsampling")
+                             f"memory limit of {limit / 2**30:.2f} GiB; reduce the size, upsample or n_z, or use a "
+                             "larger dz or float32")
+
+
+def remove_debris(data_dir: str | Path, older_than: float) -> list[str]:
+    """Remove what a crash leaves behind and nothing else can: temporary result folders
+    (``results/*.tmp-*``), progress files (``results/.*.progress*``) and partial uploads
+    (``datasets/<id>/`` still holding ``upload.bin``), if last modified before
+    ``older_than`` (UNIX time: the start of this process). Returns the names removed."""
+    data_dir = Path(data_dir)
+    candidates = []
+    results = data_dir / "results"
+    if results.is_dir():
+        candidates += [p for p in results.iterdir() if ".tmp-" in p.name
+                       or (p.name.startswith(".") and ".progress" in p.name)]
+    datasets = data_dir / "datasets"
+    if datasets.is_dir():
+        candidates += [p for p in datasets.iterdir() if (p / "upload.bin").exists()]
+    removed = []
+    for p in candidates:
+        try:
+            if p.stat().st_mtime >= older_than:
+                continue
+            if p.is_dir():
+                shutil.rmtree(p)
+            else:
+                p.unlink()
+            removed.append(p.name)
+        except OSError:  # gone meanwhile, or not ours to remove
+            pass
+    return removed
 
 
 class ReconQueue:
@@ -89,6 +144,15 @@ class ReconQueue:
         self._stop.set()
         self._wake.set()
         self._dispatcher.join(timeout=5)
+
+    def join(self, timeout: float = 10.0) -> None:
+        """Wait (up to ``timeout`` s in all) for the job threads to finish: after the
+        executor is closed, they re-queue their jobs (shutdown)."""
+        deadline = time.monotonic() + timeout
+        with self._lock:
+            threads = list(self._threads.values())
+        for t in threads:
+            t.join(max(0.0, deadline - time.monotonic()))
 
     def wake(self) -> None:
         self._wake.set()
@@ -134,7 +198,7 @@ class ReconQueue:
         progress_path = self.results_dir / f".{jid}.{job['attempts']}.progress"
         spec = {"input": job["params"]["input"], "params": {**job["params"]["params"], "method": job["params"]["method"]},
                 "out_dir": str(out_dir), "input_id": job["params"].get("input_id", ""),
-                "progress_path": str(progress_path)}
+                "progress_path": str(progress_path), "memory_limit": int(self.settings.memory_limit)}
         self.store.update_progress(jid, {"fraction": 0.0, "stage": "starting"})
         log.info("recon start job=%s attempt=%s method=%s", jid, job["attempts"], spec["params"]["method"])
         t0 = time.perf_counter()
@@ -143,6 +207,16 @@ class ReconQueue:
         except ValueError as exc:
             self._finish(jid, "failed", error=self.settings.redact(str(exc)))
             log.info("recon failed job=%s reason=%s", jid, exc)
+            return
+        except WorkerDied as exc:
+            if self._stop.is_set():  # shutdown (SIGTERM) killed the worker: not the job's fault
+                self.store.requeue(jid, "server shutting down", count_attempt=False)
+                log.info("recon requeued job=%s (shutdown)", jid)
+            elif job["attempts"] < self.settings.max_attempts:
+                self.store.requeue(jid, "the worker process died")
+                log.warning("recon requeued job=%s (worker died, attempt %s)", jid, job["attempts"])
+            else:
+                self._finish(jid, "failed", error=f"{exc} ({job['attempts']} attempts)")
             return
         except Exception as exc:  # worker crash or bug: keep internals in the log only
             log.exception("recon error job=%s", jid)

@@ -294,6 +294,22 @@ class JobStore:
 
         return self._tx(work)
 
+    def requeue(self, job_id: str, reason: str, *, count_attempt: bool = True) -> bool:
+        """A running job back to ``queued`` (its worker died or the server is shutting
+        down); ``count_attempt=False`` gives the attempt back (a shutdown is not the job's
+        fault). Returns False if the job was not running."""
+        def work(db):
+            cur = db.execute(
+                "UPDATE jobs SET state = 'queued', lease_owner = NULL, lease_until = NULL,"
+                " attempts = MAX(attempts - ?, 0) WHERE id = ? AND state = 'running'",
+                (0 if count_attempt else 1, job_id))
+            if cur.rowcount != 1:
+                return False
+            self._event(db, job_id, "state", {"state": "queued", "reason": reason})
+            return True
+
+        return bool(self._tx(work))
+
     def heartbeat(self, job_id: str, owner: str, lease_s: float) -> None:
         now = time.time()
         with self._lock:

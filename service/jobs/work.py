@@ -21,6 +21,7 @@ Everything here is a plain function of picklable arguments so dask can ship it.
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import time
@@ -206,6 +207,56 @@ def report_stage(path: str | None, stage: str, fraction: float) -> None:
         pass
 
 
+def check_memory_limit(inp: dict, params: dict, limit: int) -> None:
+    """The admission rule (``service.jobs.queue.estimate_memory``) again, on the input as
+    loaded: ValueError with the reason if it needs more than ``limit`` bytes (the
+    configured limit, not the memory free now)."""
+    from service.jobs.queue import admit, estimate_memory
+
+    if inp["layout"] == "grid":
+        d = inp["data"]
+        shape = {"n_t": d.shape[0], "n_x": d.shape[-1], "n_y": d.shape[1] if d.ndim == 3 else 1}
+    else:
+        grid = inp["grid"]
+        shape = {"n_t": inp["alines"].shape[1], "n_x": len(grid[0]), "n_y": len(grid[1]) if len(grid) > 1 else 1,
+                 "n_points": inp["alines"].shape[0]}
+    shape.update(dt=inp["dt"], c=inp["c"])
+    admit(estimate_memory(shape, params), limit)
+
+
+#: Address space a worker may use beyond the memory limit (interpreter, libraries, thread
+#: stacks and allocator arenas are reserved, mostly never touched).
+ADDRESS_SPACE_BASE = 6 * 2**30
+
+
+@contextlib.contextmanager
+def address_space_limit(limit: int | None):
+    """While inside: the process's soft ``RLIMIT_AS`` at ``limit + ADDRESS_SPACE_BASE``, so
+    a reconstruction past the limit fails with MemoryError instead of swapping the
+    machine; restored after. No-op without ``limit`` or where not supported."""
+    try:
+        import resource
+
+        soft, hard = resource.getrlimit(resource.RLIMIT_AS)
+    except (ImportError, OSError, ValueError):
+        soft = hard = None
+    if not limit or soft is None:
+        yield
+        return
+    want = int(limit) + ADDRESS_SPACE_BASE
+    if hard != resource.RLIM_INFINITY:
+        want = min(want, hard)
+    try:
+        resource.setrlimit(resource.RLIMIT_AS, (want, hard))
+    except (OSError, ValueError):
+        yield
+        return
+    try:
+        yield
+    finally:
+        resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
+
+
 def run_reconstruction(spec: dict) -> dict:
     """Executor entry point. ``spec``: ``input`` (see above), ``params`` (method and
     options), ``out_dir``, ``input_id``, optional ``progress_path`` (stages ``loading``,
@@ -214,10 +265,18 @@ def run_reconstruction(spec: dict) -> dict:
     progress = spec.get("progress_path")
     t0 = time.perf_counter()
     report_stage(progress, "loading", 0.1)
+    limit = spec.get("memory_limit")
     inp = load_input(spec["input"])
+    if limit:
+        check_memory_limit(inp, spec["params"], int(limit))
     t1 = time.perf_counter()
     report_stage(progress, "reconstructing", 0.2)
-    image = reconstruct_input(inp, spec["params"])
+    try:
+        with address_space_limit(limit):
+            image = reconstruct_input(inp, spec["params"])
+    except MemoryError:
+        raise ValueError(f"the reconstruction ran out of the memory limit of {int(limit) / 2**30:.2f} GiB; "
+                         "reduce the size, upsample or n_z, or use float32") from None
     t2 = time.perf_counter()
     report_stage(progress, "writing", 0.9)
     summary = write_result(spec["out_dir"], image, input_id=spec.get("input_id", ""),
