@@ -35,7 +35,7 @@ import numbers
 import struct
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Final
 
 import numpy as np
 
@@ -43,7 +43,7 @@ IMAGE_HEADER = struct.Struct("<4sHH32sIIdIIddddI")
 MAGIC = b"FPPL"
 
 #: The plan JSON format this module reads and checks.
-PLAN_FORMAT = "fpscan-plan/1"
+PLAN_FORMAT: Final = "fpscan-plan/1"
 #: Excitation wavelengths a plan may ask for, m (inclusive): 400 nm to 2000 nm.
 WAVELENGTH_RANGE = (400e-9, 2000e-9)
 #: Largest lattice (points) and record length a plan may declare: bounds what a plan (or a

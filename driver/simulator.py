@@ -40,6 +40,7 @@ import tty
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -48,6 +49,9 @@ from driver.aline import pack_aline
 from driver.faults import FaultSpec, damage
 from driver.framing import Deframer, FrameType, encode_frame
 from driver.plan import DevicePlan, parse_plan_image
+
+if TYPE_CHECKING:
+    from driver.sources import Source
 
 FIRMWARE_VERSION = "1.0"
 INITIAL_WINDOW = 8
@@ -58,7 +62,7 @@ BLOCK = 128
 class SimConfig:
     """Settings of the simulated scanner (SI units; see the module docstring)."""
 
-    source: object = None  #: a driver.sources source; None = BallSource(default_phantom())
+    source: Source | None = None  #: a driver.sources source; None = BallSource(default_phantom())
     prf: float = 50.0  #: laser pulse repetition frequency, Hz (0 = unthrottled)
     tuning_delay: float = 0.0  #: bias-wavelength tuning time per point, s
     dc_level: float = 1.0  #: mean photodiode DC level, V
@@ -134,7 +138,7 @@ class SimulatedScanner:
         self._records: dict[str, dict] = {}
         self._record_order: list[str] = []
         self._pool = ThreadPoolExecutor(1, thread_name_prefix="fpsim-gen")
-        self.stats = collections.Counter()
+        self.stats: collections.Counter[str] = collections.Counter()
         self._boot()
 
     # ------------------------------------------------------------------ lifecycle
@@ -181,7 +185,7 @@ class SimulatedScanner:
         self._plan_expected = 0
         self._plan_hash = ""
         self._pressure = None
-        self._blocks: dict[int, object] = {}
+        self._blocks: dict[int, Future] = {}
         self._errors: collections.deque = collections.deque()
         self._last_cmd: tuple[int, bytes] | None = None
         self._last_reply = b""
@@ -457,10 +461,11 @@ class SimulatedScanner:
         self._maybe_finish()
 
     def _send_point(self, k: int, timestamp: float) -> None:
+        plan = self._loaded_plan()
         b = self._block(k // BLOCK).result()
         j = k % BLOCK
         payload = pack_aline(self._run_id, self._boot_id, k, self._pulses, timestamp,
-                             b["bias"][j], self._plan.dt, b["scale"][j], 0.0, b["dc"][j],
+                             b["bias"][j], plan.dt, b["scale"][j], 0.0, b["dc"][j],
                              b["energy"][j], b["samples"][j])
         seq = self._next_seq
         self._next_seq += 1
@@ -471,23 +476,29 @@ class SimulatedScanner:
             self._last_progress = time.monotonic()
         self._emit(wire)
         self.stats["alines"] += 1
-        rec = self._records.get(self._plan.plan_id)
+        rec = self._records.get(plan.plan_id)
         if rec is not None:
             rec["samples"][k] = b["samples"][j]
             rec["scale"][k] = b["scale"][j]
             rec["dc"][k] = b["dc"][j]
             rec["sent"][k] = True
 
+    def _loaded_plan(self) -> DevicePlan:
+        if self._plan is None:  # only called while a plan runs
+            raise RuntimeError("no plan loaded")
+        return self._plan
+
     def _block(self, bi: int) -> Future:
         """Future of block ``bi``'s A-lines (generated in the helper thread), prefetching
         the next block and forgetting old ones."""
+        plan = self._loaded_plan()
         got = self._blocks.get(bi)
         if got is None:
-            got = self._blocks[bi] = self._pool.submit(self._generate, self._plan,
+            got = self._blocks[bi] = self._pool.submit(self._generate, plan,
                                                        self._pressure, bi)
-        n_blocks = math.ceil(self._plan.n_points / BLOCK)
+        n_blocks = math.ceil(plan.n_points / BLOCK)
         if bi + 1 < n_blocks and bi + 1 not in self._blocks:
-            self._blocks[bi + 1] = self._pool.submit(self._generate, self._plan,
+            self._blocks[bi + 1] = self._pool.submit(self._generate, plan,
                                                      self._pressure, bi + 1)
         if not self.config.precompute:
             for old in [b for b in self._blocks if b < bi - 1 or b > bi + 2]:
@@ -746,7 +757,8 @@ class SimulatedScanner:
                     g.attrs["dt_s"] = rec["plan"].dt
                     g.attrs["n_t"] = rec["plan"].n_t
                 f.attrs["last_plan_id"] = self._record_order[-1] if self._record_order else ""
-                f.attrs["source"] = self.config.source.describe()
+                src = self.config.source  # set in __init__
+                f.attrs["source"] = src.describe() if src is not None else ""
             os.replace(tmp, path)
 
 

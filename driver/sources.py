@@ -18,12 +18,31 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 
 from driver.plan import DevicePlan
 
 PressureFn = Callable[[np.ndarray], np.ndarray]
+
+
+class Source(Protocol):
+    """What the simulator needs of a source (:class:`BallSource`, :class:`VolumeSource`,
+    :class:`ReplaySource`)."""
+
+    @property
+    def peak(self) -> float:
+        """Reference amplitude for the SNR, Pa."""
+        ...
+
+    def prepare(self, plan: DevicePlan) -> PressureFn:
+        """The pressure function of ``plan``'s points: point indices -> A-lines."""
+        ...
+
+    def describe(self) -> str:
+        """A one-line description (stored in the simulator's record)."""
+        ...
 
 
 def default_phantom() -> list:

@@ -22,9 +22,13 @@ import threading
 import time
 import uuid
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from service.jobs.store import TERMINAL, JobStore
 from service.preview import PreviewManager
+
+if TYPE_CHECKING:
+    from driver.host import Scanner
 
 log = logging.getLogger("fpscan.scans")
 
@@ -38,7 +42,7 @@ class _Run:
     def __init__(self, job_id: str, scanner_id: str):
         self.job_id = job_id
         self.scanner_id = scanner_id
-        self.scanner = None          # driver.host.Scanner once open
+        self.scanner: Scanner | None = None  # once open
         self.pending: list[str] = []  # controls asked before the scanner was open
         self.thread: threading.Thread | None = None
         self.lock = threading.Lock()
@@ -122,6 +126,8 @@ class ScanManager:
 
     def pause(self, job_id: str) -> None:
         job = self.store.get(job_id)
+        if job is None:
+            raise ValueError(f"no scan job {job_id}")
         run = self._run_of(job_id)
         if job["state"] == "paused":
             return
@@ -134,6 +140,8 @@ class ScanManager:
 
     def resume(self, job_id: str) -> None:
         job = self.store.get(job_id)
+        if job is None:
+            raise ValueError(f"no scan job {job_id}")
         if job["state"] in ("running", "queued"):
             return
         run = self._run_of(job_id)

@@ -12,6 +12,7 @@ import logging
 import time
 import uuid
 from pathlib import Path
+from typing import Any
 
 from fastapi import Depends, FastAPI, Request
 from fastapi.exceptions import RequestValidationError
@@ -38,7 +39,7 @@ VERSION = _version()
 #: When this server process started (UNIX time): files older than it are a previous run's.
 PROCESS_START = time.time()
 
-ERROR_RESPONSES = {
+ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
     400: {"model": Error, "description": "bad request"},
     401: {"model": Error, "description": "missing or invalid bearer token"},
     404: {"model": Error, "description": "not found"},

@@ -80,7 +80,7 @@ def import_dataset(src: Path, dest_dir: Path, fmt: str, *, dt, dx, dy, c, key,
     ``max_bytes``: largest declared dataset of an HDF5 file
     (:func:`service.storage.untrusted.check_hdf5`, run before anything is read).
     Raises ``ValueError`` with the reason."""
-    from service.storage.datasets import load_dataset
+    from service.storage.datasets import GridDataset, load_dataset
     from service.storage.untrusted import check_hdf5, is_hdf5
 
     if fmt != "npy" and max_bytes is not None:
@@ -97,7 +97,7 @@ def import_dataset(src: Path, dest_dir: Path, fmt: str, *, dt, dx, dy, c, key,
         ds = load_dataset(src, fmt, dt=dt, dx=dx, dy=dy, c=c, key=key)
     except (KeyError, TypeError, IndexError, OSError) as exc:
         raise ValueError(f"file is not a readable {fmt} dataset ({type(exc).__name__})") from None
-    if ds.kind == "grid":
+    if isinstance(ds, GridDataset):
         write_grid_dataset(dest_dir / "dataset.h5", ds)
         return {"layout": "grid", "shape": list(ds.data.shape), "dt": ds.dt, "c": ds.c, "path": "dataset.h5"}
     if ds.alines.shape[0] == 0:

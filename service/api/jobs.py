@@ -83,7 +83,7 @@ def cancel_job(job_id: str = JobId, c: Context = Depends(ctx)) -> Job:
     c.store.request_cancel(job_id)
     if job["kind"] == "scan" and c.scans is not None:
         c.scans.cancel(job_id)
-    return job_view(c.store.get(job_id))
+    return job_view(get_job_or_404(c, job_id))
 
 
 @router.delete("/{job_id}", response_model=Deleted, dependencies=[Depends(require_token)],

@@ -101,7 +101,7 @@ def preview_png(plan: dict) -> bytes:
     scale = max(1, 256 // max(n_x, n_y))
     pil = PILImage.fromarray(img, mode="L")
     if scale > 1:
-        pil = pil.resize((n_x * scale, n_y * scale), PILImage.NEAREST)
+        pil = pil.resize((n_x * scale, n_y * scale), PILImage.Resampling.NEAREST)
     buf = io.BytesIO()
     pil.save(buf, format="PNG")
     return buf.getvalue()

@@ -46,10 +46,12 @@ def _input_for(c: Context, body: ReconRequest) -> tuple[dict, dict, str]:
             raise HTTPException(422, f"method {body.method!r} needs every lattice point; this scan's plan "
                                      "is a sensor mask: use 'nedner'")
         return {"kind": "scan", "path": scan_path}, shape, f"scan:{body.scan_job_id}"
-    meta = c.store.get_dataset(body.dataset_id)
+    dataset_id = body.dataset_id
+    assert dataset_id is not None  # exactly one of the two, checked above
+    meta = c.store.get_dataset(dataset_id)
     if meta is None:
-        raise HTTPException(404, f"no dataset {body.dataset_id}")
-    path = str(Path(c.settings.data_dir) / "datasets" / body.dataset_id / meta["path"])
+        raise HTTPException(404, f"no dataset {dataset_id}")
+    path = str(Path(c.settings.data_dir) / "datasets" / dataset_id / meta["path"])
     if meta["layout"] == "grid":
         s = meta["shape"]
         shape = {"n_t": s[0], "n_x": s[-1], "n_y": s[1] if len(s) == 3 else 1, "dt": meta.get("dt"),

@@ -55,7 +55,7 @@ def start_scan(body: ScanRequest, response: Response, c: Context = Depends(ctx),
         c.store.update_params(job["id"], {"scan_path": str(scan_path)})
         mgr.wake()
     response.headers["Location"] = f"/api/jobs/{job['id']}"
-    return job_view(c.store.get(job["id"]))
+    return job_view(get_job_or_404(c, job["id"]))
 
 
 def _control(c: Context, job_id: str, action: str) -> Job:
@@ -67,7 +67,7 @@ def _control(c: Context, job_id: str, action: str) -> Job:
         getattr(mgr, action)(job_id)
     except ValueError as exc:
         raise HTTPException(409, str(exc)) from None
-    return job_view(c.store.get(job_id))
+    return job_view(get_job_or_404(c, job_id))
 
 
 @router.post("/api/scans/{job_id}/pause", response_model=Job, dependencies=[Depends(require_token)])

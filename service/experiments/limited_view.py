@@ -100,7 +100,7 @@ def run(
     from service.recon import reconstruct_grid, reconstruct_points
 
     built_in = data is None
-    if built_in:
+    if data is None:
         data = simulate_tree(small=small, snr_db=snr_db, seed=seed)
     if data.ndim != 2:
         raise ValueError(f"{NAME} needs 2-D line data (n_t, n_x); got shape {data.data.shape}")
@@ -123,7 +123,10 @@ def run(
     ref = ref_img.p0
     z = np.asarray(ref_img.z)
     if roi is None:
-        roi = tree_roi(data.p0.shape[0], data.dz) if built_in else ((0.5 * n_z * dz, 0.0), 0.95 * n_z * dz)
+        if built_in and data.p0 is not None and data.dz is not None:  # the built-in tree has both
+            roi = tree_roi(data.p0.shape[0], data.dz)
+        else:
+            roi = ((0.5 * n_z * dz, 0.0), 0.95 * n_z * dz)
     (zc, xc), diameter = roi
     mask = disc_mask((z, x), diameter, (zc, xc))
     rect = bounding_box(mask)

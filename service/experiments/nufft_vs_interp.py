@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -164,8 +165,9 @@ def run(data: DenseDataset | None = None, *, small: bool = False, methods=METHOD
         recons[m], times[m] = _timed(lambda m=m: _reconstruct(m, g, dx, dt, c, n_z), repeats)
     z = np.arange(n_z) * dz
     x = lateral_axis(g.shape[-1], dx)
-    rows, profiles = [], {}
-    if built_in:
+    rows: list[dict[str, Any]] = []
+    profiles: dict[str, Any] = {}
+    if built_in and data.p0 is not None:  # the built-in phantom has its ground truth
         truth = data.p0[:n_z]
         depth = data.meta["layer_depth_m"]
         width = data.meta["layer_width_m"]

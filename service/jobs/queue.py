@@ -225,7 +225,8 @@ class ReconQueue:
         finally:
             progress_path.unlink(missing_ok=True)
             self._wake.set()
-        if self.store.get(jid)["cancel_requested"]:
+        now = self.store.get(jid)
+        if now is None or now["cancel_requested"]:  # cancelled (or deleted) meanwhile
             shutil.rmtree(out_dir, ignore_errors=True)
             self._finish(jid, "cancelled")
             return

@@ -11,6 +11,7 @@ All times are UNIX seconds (float).
 """
 from __future__ import annotations
 
+import builtins
 import copy
 import json
 import sqlite3
@@ -19,7 +20,7 @@ import time
 import uuid
 from collections.abc import Iterable
 from pathlib import Path
-from typing import Any
+from typing import Any, overload
 
 STATES = ("queued", "running", "paused", "succeeded", "failed", "cancelled")
 TERMINAL = frozenset({"succeeded", "failed", "cancelled"})
@@ -82,6 +83,9 @@ class IdempotencyConflict(ValueError):
     """The Idempotency-Key is already used by a job with different parameters."""
 
 
+Jobs = list[dict[str, Any]]  # (``list`` is a method name inside JobStore)
+
+
 class JobStore:
     """Jobs, their events, plans and datasets in one SQLite file (WAL).
 
@@ -118,6 +122,12 @@ class JobStore:
             self._db.execute("COMMIT")
             return out
 
+    @staticmethod
+    @overload
+    def _row(row: sqlite3.Row) -> dict[str, Any]: ...
+    @staticmethod
+    @overload
+    def _row(row: None) -> None: ...
     @staticmethod
     def _row(row: sqlite3.Row | None) -> dict[str, Any] | None:
         if row is None:
@@ -183,8 +193,9 @@ class JobStore:
         fast path. The caller must not modify the returned dict."""
         return self._cache.get(job_id)
 
-    def list(self, *, state: str | None = None, kind: str | None = None, limit: int = 1000) -> list[dict]:
-        sql, args = "SELECT * FROM jobs WHERE 1=1", []
+    def list(self, *, state: str | None = None, kind: str | None = None, limit: int = 1000) -> Jobs:
+        sql = "SELECT * FROM jobs WHERE 1=1"
+        args: list[Any] = []
         if state is not None:
             sql += " AND state = ?"
             args.append(state)
@@ -317,7 +328,7 @@ class JobStore:
             self._db.execute("UPDATE jobs SET heartbeat = ?, lease_until = ? WHERE id = ? AND lease_owner = ?",
                              (now, now + lease_s, job_id, owner))
 
-    def recover(self, owner: str, max_attempts: int) -> dict[str, list[str]]:
+    def recover(self, owner: str, max_attempts: int) -> dict[str, builtins.list[str]]:
         """Restart recovery for a new server instance ``owner``: running reconstructions
         not leased by ``owner`` are re-queued (or failed after ``max_attempts``); running
         scans become ``paused`` (resumable from their scan file). Returns the ids."""
@@ -351,7 +362,7 @@ class JobStore:
         self._tx(work)
         return out
 
-    def events_after(self, job_id: str, after: int, limit: int = 500) -> list[dict]:
+    def events_after(self, job_id: str, after: int, limit: int = 500) -> Jobs:
         with self._lock:
             rows = self._db.execute(
                 "SELECT seq, event, data FROM events WHERE job_id = ? AND seq > ? ORDER BY seq LIMIT ?",
@@ -364,7 +375,7 @@ class JobStore:
                 "SELECT COALESCE(SUM(memory_bytes), 0) FROM jobs WHERE state = 'running' AND kind = 'recon'"
             ).fetchone()[0])
 
-    def queued(self, kind: str) -> list[dict]:
+    def queued(self, kind: str) -> Jobs:
         with self._lock:
             return [self._row(r) for r in self._db.execute(
                 "SELECT * FROM jobs WHERE state = 'queued' AND kind = ? ORDER BY created", (kind,)).fetchall()]
@@ -380,7 +391,7 @@ class JobStore:
             row = self._db.execute("SELECT body, summary FROM plans WHERE id = ?", (plan_id,)).fetchone()
         return None if row is None else (json.loads(row["body"]), json.loads(row["summary"]))
 
-    def list_plans(self, limit: int = 1000) -> list[dict]:
+    def list_plans(self, limit: int = 1000) -> Jobs:
         with self._lock:
             rows = self._db.execute("SELECT summary FROM plans ORDER BY created DESC LIMIT ?", (limit,)).fetchall()
         return [json.loads(r["summary"]) for r in rows]

@@ -26,6 +26,7 @@ import os
 import shutil
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -85,7 +86,7 @@ def points_to_grid(inp: dict) -> np.ndarray:
 
 
 def _recon_options(params: dict, inp: dict | None = None) -> dict:
-    opts = {}
+    opts: dict[str, Any] = {}
     if inp is not None and inp.get("t0"):
         opts["t0"] = float(inp["t0"])
     for key in ("eps", "upsample", "positivity", "dz", "n_z", "t0"):
@@ -109,7 +110,8 @@ def reconstruct_input(inp: dict, params: dict):
             data = inp["data"]
             if data.ndim == 2:
                 x = (np.arange(data.shape[1]) - (data.shape[1] - 1) / 2.0) * inp["dx"]
-                alines, positions, grid = data.T, x[:, None], (x,)
+                grid: tuple[np.ndarray, ...] = (x,)
+                alines, positions = data.T, x[:, None]
             else:
                 n_y, n_x = data.shape[1:]
                 x = (np.arange(n_x) - (n_x - 1) / 2.0) * inp["dx"]

@@ -29,7 +29,7 @@ def _same_shape(image: np.ndarray, reference: np.ndarray) -> tuple[np.ndarray, n
 
 
 def cc_vs_pixels(
-    image: np.ndarray, reference: np.ndarray, counts: Sequence[int], *, region: np.ndarray | None = None
+    image: np.ndarray, reference: np.ndarray, counts: Sequence[int] | np.ndarray, *, region: np.ndarray | None = None
 ) -> np.ndarray:
     """Correlation coefficient on the n brightest reference pixels, for each n in ``counts``.
 
@@ -64,13 +64,13 @@ def cc_vs_pixels(
         raise ValueError("image or reference contains NaN or inf within the region")
     order = np.argsort(-ref, kind="stable")
     ref, img = ref[order], img[order]
-    counts = np.asarray(counts, dtype=int)
-    if counts.ndim != 1 or counts.size == 0:
+    n_pixels = np.asarray(counts, dtype=int)
+    if n_pixels.ndim != 1 or n_pixels.size == 0:
         raise ValueError("counts must be a non-empty 1-D sequence of integers")
-    if counts.min() < 2 or counts.max() > idx.size:
-        raise ValueError(f"pixel counts must lie in [2, {idx.size}] (pixels in the region), got {counts.min()}..{counts.max()}")
-    out = np.empty(counts.size)
-    for k, n in enumerate(counts):
+    if n_pixels.min() < 2 or n_pixels.max() > idx.size:
+        raise ValueError(f"pixel counts must lie in [2, {idx.size}] (pixels in the region), got {n_pixels.min()}..{n_pixels.max()}")
+    out = np.empty(n_pixels.size)
+    for k, n in enumerate(n_pixels):
         try:
             out[k] = correlation_coefficient(img[:n], ref[:n])
         except ValueError:

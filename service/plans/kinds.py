@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import inspect
+from collections.abc import Callable
 
 from .angular import equiangular_mask, equisteradian_mask
 from .grids import full_mask, hexagonal_mask, points_mask, poisson_mask, random_mask, subgrid_mask
@@ -11,7 +12,7 @@ from .mask import Mask
 __all__ = ["MASK_KINDS", "make_mask"]
 
 #: kind name -> mask function (first argument: the lattice).
-MASK_KINDS = {
+MASK_KINDS: dict[str, Callable[..., Mask]] = {
     "full": full_mask,
     "subgrid": subgrid_mask,
     "hexagonal": hexagonal_mask,

@@ -29,7 +29,7 @@ def preview_png(mask_or_plan, path: str | Path | None = None, *, dpi: int = 100,
         w = mask_or_plan.weights
         kind = mask_or_plan.kind
         requested, obtained = mask_or_plan.requested_points, mask_or_plan.obtained_points
-        ratio = mask_or_plan.weight_ratio
+        ratio: float | None = mask_or_plan.weight_ratio
         poi = mask_or_plan.poi
     elif isinstance(mask_or_plan, Plan):
         lat = mask_or_plan.lattice_obj

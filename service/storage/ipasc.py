@@ -287,11 +287,13 @@ def read_ipasc(path: str | os.PathLike, *, wavelength_index: int = 0,  # noqa: C
         if sizes is not None and list(np.ravel(sizes)) != list(raw.shape):
             raise ValueError(f"meta_data/sizes {list(np.ravel(sizes))} != binary data shape "
                              f"{list(raw.shape)}")
-        fs = m.get("ad_sampling_rate")
+        fs_value = m.get("ad_sampling_rate")
         try:
-            fs = float(fs)
+            if fs_value is None:
+                raise TypeError
+            fs = float(fs_value)
         except (TypeError, ValueError):
-            raise ValueError(f"meta_data/ad_sampling_rate missing or not a number: {fs!r}") from None
+            raise ValueError(f"meta_data/ad_sampling_rate missing or not a number: {fs_value!r}") from None
         if not (math.isfinite(fs) and fs > 0):
             raise ValueError(f"meta_data/ad_sampling_rate must be > 0 Hz, got {fs}")
         c = m.get("speed_of_sound")
