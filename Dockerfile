@@ -18,7 +18,7 @@ COPY pyproject.toml README.md ./
 COPY service ./service
 COPY driver ./driver
 COPY clients ./clients
-RUN /opt/fpscan/bin/python -m pip install --no-cache-dir .
+RUN /opt/fpscan/bin/python -m pip install --no-cache-dir ".[server]"
 
 # ---- runtime stage: slim, no compiler, non-root ------------------------------------
 FROM python:3.11-slim

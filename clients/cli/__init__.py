@@ -26,10 +26,13 @@ def _subcommand_modules():
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``fpscan`` argument parser with one sub-command per module of this package."""
+    from driver.acquire import software_version
+
     parser = argparse.ArgumentParser(
         prog="fpscan",
         description="Planar Fabry-Perot photoacoustic scanning: plan, acquire, reconstruct, serve.",
     )
+    parser.add_argument("--version", action="version", version=f"fpscan {software_version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for module in _subcommand_modules():

@@ -20,22 +20,14 @@ from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.staticfiles import StaticFiles
 
+from driver.acquire import software_version
 from service.api.context import Context, ctx, read_access
 from service.api.models import Error, Health
 from service.settings import Settings
 
 log = logging.getLogger("fpscan.api")
 
-def _version() -> str:
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        return version("fpscan")
-    except PackageNotFoundError:
-        return "0+unknown"
-
-
-VERSION = _version()
+VERSION = software_version()
 #: When this server process started (UNIX time): files older than it are a previous run's.
 PROCESS_START = time.time()
 

@@ -127,11 +127,9 @@ def write_result(path: str | os.PathLike, p0: np.ndarray, z: np.ndarray, x: np.n
     all_json = params_json(params)
     each = {str(k): params_json({"v": v})[5:-1] for k, v in params.items()}
     if software_version is None:
-        from importlib.metadata import PackageNotFoundError, version
-        try:
-            software_version = version("fpscan")
-        except PackageNotFoundError:
-            software_version = "unknown"
+        from driver.acquire import software_version as installed_version
+
+        software_version = installed_version()
 
     path = Path(path)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:12]}.tmp")

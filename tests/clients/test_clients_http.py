@@ -334,3 +334,55 @@ def test_slice_png(api, tmp_path):
     with pytest.raises(ApiError) as err:
         api.download_slice(job_id, 32, tmp_path / "bad.png")
     assert err.value.status_code == 422 and "index" in str(err.value)
+
+
+# Blocks every import of the server stack and of the numeric/driver dependencies: what a
+# client machine with only httpx (+ httpx-sse) and pydantic installed would see.
+CLIENT_ONLY = r'''
+import importlib.abc, json, sys
+BLOCKED = {"service", "fastapi", "starlette", "uvicorn", "sse_starlette", "multipart",
+           "distributed", "dask", "pydantic_settings", "numpy", "scipy", "h5py", "finufft",
+           "numba", "matplotlib", "PIL", "serial", "cobs", "psutil"}
+class Block(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path=None, target=None):
+        if name.split(".")[0] in BLOCKED:
+            raise ImportError(f"blocked: {name}")
+        return None
+sys.meta_path.insert(0, Block())
+from clients.http import Client
+from clients.http import models
+url, token, body = sys.argv[1], sys.argv[2], json.loads(sys.argv[3])
+with Client(url, token=token) as api:
+    plan = api.create_plan(body)
+    again = api.get_plan(plan.id)
+    jobs = api.list_jobs()
+assert isinstance(plan, models.Plan) and again == plan, (type(plan), plan)
+from clients.cli import main
+try:
+    main(["--version"])
+except SystemExit as exc:
+    assert exc.code == 0, exc.code
+loaded = sorted({m.split(".")[0] for m in sys.modules} & BLOCKED)
+print(json.dumps({"id": plan.id, "n_points": plan.n_points, "jobs": len(jobs), "loaded": loaded}))
+'''
+
+
+def test_client_runs_without_the_server_stack(server):
+    """``clients.http`` (and ``fpscan --version``) work in a process where importing the
+    service package, FastAPI, dask, numpy, h5py, ... fails; the responses parse into the
+    client's own models (``clients.http.models``)."""
+    import json
+    import subprocess
+    import sys
+
+    body = _points_body()
+    out = subprocess.run([sys.executable, "-c", CLIENT_ONLY, server, TOKEN, json.dumps(body)],
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-3000:]
+    lines = out.stdout.strip().splitlines()
+    assert lines[0].startswith("fpscan ")  # --version
+    got = json.loads(lines[-1])
+    assert got["loaded"] == []
+    assert got["n_points"] == len(body["points"])
+    with Client(server, token=TOKEN) as api:  # the same plan, seen by the full client
+        assert api.get_plan(got["id"]).n_points == len(body["points"])
