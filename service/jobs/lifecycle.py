@@ -243,7 +243,7 @@ def disk_usage(data_dir: str | os.PathLike) -> dict:
     data = Path(data_dir)
     parts = {name: _tree_bytes(data / name) for name in ("scans", "results", "datasets", "exports")}
     total = _tree_bytes(data) if data.exists() else 0
-    out = {f"{k}_bytes": v for k, v in parts.items()}
+    out: dict[str, int | None] = {f"{k}_bytes": v for k, v in parts.items()}
     out["other_bytes"] = max(total - sum(parts.values()), 0)  # the database, plans, logs
     out["total_bytes"] = total
     try:

@@ -407,14 +407,14 @@ class JobStore:
         return None if row is None else json.loads(row["meta"])
 
     # -- deletion and configuration (service.jobs.lifecycle owns the rules) ----------
-    def active_jobs(self) -> list[dict]:
+    def active_jobs(self) -> Jobs:
         """Jobs that are queued, running or paused (they may still read their inputs)."""
         marks = ",".join("?" * len(ACTIVE))
         with self._lock:
             return [self._row(r) for r in self._db.execute(
                 f"SELECT * FROM jobs WHERE state IN ({marks})", tuple(sorted(ACTIVE))).fetchall()]
 
-    def finished_jobs(self, kind: str) -> list[dict]:
+    def finished_jobs(self, kind: str) -> Jobs:
         """Terminal jobs of ``kind``, oldest finished first."""
         marks = ",".join("?" * len(TERMINAL))
         with self._lock:

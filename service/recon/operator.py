@@ -31,6 +31,8 @@ The adjoint is not the inverse: the inverse is the NER/NEDNER reconstruction
 """
 from __future__ import annotations
 
+from typing import Any
+
 import finufft
 import numpy as np
 import pylops
@@ -133,7 +135,7 @@ class PlanarOperator(pylops.LinearOperator):
         """A p0: the data (`oshape`) of p0 (`ishape`), Pa -> Pa; equals `forward_grid` /
         `forward_points` with the same parameters."""
         p0 = self._check("p0", p0, self.ishape)
-        kw = dict(t0=self.t0, eps=self.eps, periodic=self.periodic)
+        kw: dict[str, Any] = dict(t0=self.t0, eps=self.eps, periodic=self.periodic)
         if self.positions is None:
             g = forward_grid(p0, self.dx, self.dz, self.dt, self.n_t, self.c, **kw)
         else:
@@ -161,6 +163,7 @@ class PlanarOperator(pylops.LinearOperator):
         """Adjoint of the type-2 point evaluation: Hermitian part of the type-1 NUFFT
         Σ_m g_m(t) e^{-i k·x_m}, as an rfft2-shaped half spectrum (n_t, n_y, n_x//2+1)."""
         pos = self.positions
+        assert pos is not None  # point data only
         strengths = np.ascontiguousarray(data.T).astype(np.complex128)  # (n_t, n_points)
         tx = 2 * np.pi * (pos[:, 0] / self.dx + (n_x - 1) / 2) / n_x
         opts = dict(eps=max(self.eps, 1e-14), isign=-1, modeord=1, nthreads=1)
@@ -193,7 +196,7 @@ class PlanarOperator(pylops.LinearOperator):
         re = F.view(np.float64).reshape(F.shape[0], n_z, 2)  # DCT-I of real and imaginary parts
         F = scipy.fft.dct(re, type=1, axis=1, overwrite_x=True, workers=-1).reshape(F.shape[0], 2 * n_z)
         F = F.view(np.complex128)
-        K = np.empty((n_z, n_y * n_xr), dtype=np.complex128)
+        K: np.ndarray = np.empty((n_z, n_y * n_xr), dtype=np.complex128)
         nufft.transpose(F, K)
         del F
         K = K.reshape(n_z, n_y, n_xr)
