@@ -20,9 +20,7 @@ import asyncio
 import io
 import json
 import os
-import socket
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
@@ -31,37 +29,9 @@ from pathlib import Path
 import httpx
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
+from clients.processes import start_service
+
 TOKEN = "bench-token"
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def start_server(data_dir: Path, devices: dict) -> tuple[subprocess.Popen, str]:
-    port = free_port()
-    env = {k: v for k, v in os.environ.items() if not k.startswith("FPSCAN_")}
-    env.update({"FPSCAN_DATA_DIR": str(data_dir), "FPSCAN_TOKEN": TOKEN, "FPSCAN_DEVICES": json.dumps(devices),
-                "FPSCAN_PREVIEW_INTERVAL_S": "1.0", "FPSCAN_LOG_LEVEL": "warning"})
-    log = open(data_dir.parent / "server.log", "ab")  # noqa: SIM115 (closed by the child's exit)
-    proc = subprocess.Popen([sys.executable, "-m", "clients", "serve", "--port", str(port), "--no-web"],
-                            cwd=REPO, env=env, stdout=log, stderr=subprocess.STDOUT)
-    url = f"http://127.0.0.1:{port}"
-    deadline = time.monotonic() + 90
-    while time.monotonic() < deadline:
-        if proc.poll() is not None:
-            raise RuntimeError(f"server exited {proc.returncode}; see {data_dir.parent / 'server.log'}")
-        try:
-            if httpx.get(url + "/api/health", timeout=2).status_code == 200:
-                return proc, url
-        except httpx.HTTPError:
-            pass
-        time.sleep(0.2)
-    proc.kill()
-    raise RuntimeError("server did not start in 90 s")
 
 
 async def _poll_async(url: str, job_id: str, clients: int, seconds: float, interval: float,
@@ -203,17 +173,16 @@ def main() -> int:
     out = {}
     with tempfile.TemporaryDirectory() as tmp:
         sim = SimulatedScanner(prf=0.0).start()
-        proc, url = start_server(Path(tmp) / "data", {"sim": sim.path})
+        srv = start_service(Path(tmp) / "data", token=TOKEN, devices={"sim": sim.path}, web=False,
+                            env={"FPSCAN_PREVIEW_INTERVAL_S": "1.0", "FPSCAN_LOG_LEVEL": "warning"},
+                            log_path=Path(tmp) / "server.log")
+        url = srv.url
         try:
             out["status_endpoint"] = status_benchmark(url, args.size, args.n_t, args.clients, args.seconds,
                                                       args.interval)
             out["live_preview"] = preview_benchmark(url, args.points, args.size, args.n_t)
         finally:
-            proc.terminate()
-            try:
-                proc.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                proc.kill()
+            srv.stop(timeout=20)
             sim.stop()
     s = out["status_endpoint"]
     out["targets"] = {"status_p99_ms_during_recon": s["during_recon"]["p99_ms"], "status_p99_target_ms": 50,

@@ -22,7 +22,10 @@ named in ``report.json``), 1 with a one-line reason when a step failed.
 from __future__ import annotations
 
 import json
-import os
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from clients.processes import Process
 
 COMMAND = "demo"
 HELP = "run the end-to-end demo: simulated scanner, equi-steradian plan, scan, NEDNER reconstruction"
@@ -69,88 +72,10 @@ def run(args) -> int:
 
 
 # --------------------------------------------------------------------------- processes
-def _free_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def _has_subcommand(name: str) -> bool:
     from clients.cli import _subcommand_modules
 
     return any(m.COMMAND == name for m in _subcommand_modules())
-
-
-class _Process:
-    """A child process in its own session, logged to a file, stopped on exit."""
-
-    def __init__(self, argv, *, log_path, env=None, stdout_pipe=False):
-        import subprocess
-
-        self.log = open(log_path, "wb")
-        self.proc = subprocess.Popen(
-            argv, env=env, stdin=subprocess.DEVNULL,
-            stdout=subprocess.PIPE if stdout_pipe else self.log,
-            stderr=self.log, start_new_session=True,
-        )
-
-    def first_line(self, timeout: float) -> str:
-        """The first line the process prints on stdout (its device path for `sim`)."""
-        import select
-        import time
-
-        deadline = time.monotonic() + timeout
-        buf = b""
-        fd = self.proc.stdout.fileno()
-        while time.monotonic() < deadline:
-            ready, _, _ = select.select([fd], [], [], 0.2)
-            if ready:
-                chunk = os.read(fd, 4096)
-                if not chunk:
-                    break
-                buf += chunk
-                if b"\n" in buf:
-                    self._drain()
-                    return buf.split(b"\n", 1)[0].decode().strip()
-            elif self.proc.poll() is not None:
-                break
-        raise RuntimeError(f"{self.proc.args[3] if len(self.proc.args) > 3 else 'process'} "
-                           f"printed no first line within {timeout:.0f} s (exit {self.proc.poll()}); "
-                           f"see {self.log.name}")
-
-    def _drain(self) -> None:
-        """Keep reading stdout into the log so the child never blocks on a full pipe."""
-        import threading
-
-        def pump():
-            try:
-                for chunk in iter(lambda: os.read(self.proc.stdout.fileno(), 65536), b""):
-                    self.log.write(chunk)
-            except (OSError, ValueError):
-                pass
-
-        threading.Thread(target=pump, daemon=True).start()
-
-    def stop(self) -> None:
-        import signal
-        import subprocess
-
-        if self.proc.poll() is None:
-            try:
-                os.killpg(self.proc.pid, signal.SIGTERM)
-                self.proc.wait(timeout=15)
-            except (subprocess.TimeoutExpired, ProcessLookupError):
-                try:
-                    os.killpg(self.proc.pid, signal.SIGKILL)
-                except ProcessLookupError:
-                    pass
-                self.proc.wait(timeout=15)
-        if self.proc.stdout is not None:
-            self.proc.stdout.close()
-        self.log.close()
-
 
 
 # --------------------------------------------------------------------------- the demo
@@ -165,7 +90,7 @@ class Demo:
         self.out = Path(args.out)
         self.t_start = time.perf_counter()
         self.report: dict = {"format": "fpscan-demo-report/1", "skipped": []}
-        self.procs: list[_Process] = []
+        self.procs: list[Process] = []
 
     def say(self, msg: str) -> None:
         import sys
@@ -237,60 +162,27 @@ class Demo:
 
     # -- processes
     def _start_simulator(self) -> str:
-        import sys
+        from clients.processes import start_simulator
 
-        argv = [sys.executable, "-m", "clients", "sim", "--source", "balls", "--prf", "0",
-                "--seed", str(self.args.seed)]
-        proc = _Process(argv, log_path=self.out / "logs" / "simulator.log", stdout_pipe=True)
+        device, proc = start_simulator("--source", "balls", "--prf", "0", "--seed", str(self.args.seed),
+                                       log_path=self.out / "logs" / "simulator.log", timeout=60)
         self.procs.append(proc)
-        device = proc.first_line(timeout=60)
-        if not device:
-            raise RuntimeError("the simulator printed an empty device path")
         self.say(f"simulated scanner on {device}")
         return device
 
     def _start_server(self, device: str):
-        import json
         import secrets
-        import sys
-        import time
 
-        from clients.http import Client, ServerUnavailable
+        from clients.http import Client
+        from clients.processes import start_service
 
         token = secrets.token_urlsafe(16)
-        env = {k: v for k, v in os.environ.items() if not k.startswith("FPSCAN_")}
-        env.update({
-            "FPSCAN_DATA_DIR": str((self.out / "server-data").resolve()),
-            "FPSCAN_DEVICES": json.dumps({"sim": device}),
-            "FPSCAN_TOKEN": token,
-            "FPSCAN_EXECUTOR": "local",
-        })
-        log = self.out / "logs" / "server.log"
-        for attempt in range(3):  # another program may take the free port first
-            port = _free_port()
-            argv = [sys.executable, "-m", "clients", "serve", "--host", "127.0.0.1", "--port", str(port)]
-            proc = _Process(argv, log_path=log.with_name(f"server{f'-{attempt}' if attempt else ''}.log"),
-                            env=env)
-            self.procs.append(proc)
-            api = Client(f"http://127.0.0.1:{port}", token=token, timeout=120)
-            deadline = time.monotonic() + 90
-            health = None
-            while health is None:
-                try:
-                    health = api.health()
-                except ServerUnavailable:
-                    if proc.proc.poll() is not None or time.monotonic() > deadline:
-                        break
-                    time.sleep(0.3)
-            if health is not None:
-                break
-            api.close()
-            if proc.proc.poll() is None:  # alive but silent for 90 s: give up
-                break
-        else:
-            health = None
-        if health is None:
-            raise RuntimeError(f"the service did not start (exit {proc.proc.poll()}); see {proc.log.name}")
+        srv = start_service((self.out / "server-data").resolve(), token=token, devices={"sim": device},
+                            env={"FPSCAN_EXECUTOR": "local"}, log_path=self.out / "logs" / "server.log",
+                            timeout=90)
+        self.procs.append(srv)
+        api = Client(srv.url, token=token, timeout=120)
+        health = api.health()
         self.api = api
         self.say(f"service on {api.base_url} (version {health.get('version')})")
         self.report["service"] = {"url": api.base_url, "version": health.get("version"),

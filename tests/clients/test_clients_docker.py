@@ -6,7 +6,6 @@ from __future__ import annotations
 import os
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -14,6 +13,7 @@ from pathlib import Path
 
 import pytest
 
+from clients.processes import free_port
 from tests.clients.dockerfile_reader import env_of, parse
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -53,12 +53,6 @@ def test_dockerfile_structure():
     assert "FPSCAN_TOKEN" in " ".join(cmd), "the start command must require the token"
     # the runtime stage carries no compiler
     assert not any(i.keyword == "RUN" and "gcc" in i.args for i in ins if i.stage == final)
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _has_serve() -> bool:
@@ -134,7 +128,7 @@ def test_start_command_serves_and_healthcheck_passes(image_install):
     if not _has_serve():
         pytest.skip("`fpscan serve` is not available yet")
     env = dict(image_install["env"])
-    port = _free_port()
+    port = free_port()
     env["FPSCAN_PORT"] = str(port)
     env["FPSCAN_TOKEN"] = "docker-test-token"
     ins = image_install["ins"]

@@ -12,9 +12,10 @@ import httpx
 import numpy as np
 import pytest
 
+from clients.processes import free_port
 from service.jobs.store import JobStore
 from service.settings import Settings
-from tests.service.service_servers import Server, free_port, needs_recon, wait_job
+from tests.service.service_servers import Server, needs_recon, wait_job
 
 
 def test_settings_file_environment_and_overrides(tmp_path, monkeypatch):

@@ -13,15 +13,13 @@ from __future__ import annotations
 
 import base64
 import hashlib
-import json
-import os
-import subprocess
 import time
 from pathlib import Path
 
 import pytest
 
-from tests.web.web_e2e_support import REPO_ROOT, fpscan_cmd, free_port, has_subcommand, stop_process, wait_for
+from clients.processes import Service, simulator, start_service
+from tests.web.web_e2e_support import REPO_ROOT, has_subcommand, wait_for
 
 httpx = pytest.importorskip("httpx")
 
@@ -44,65 +42,28 @@ def sim(tmp_path_factory):
         yield None
         return
     folder = tmp_path_factory.mktemp("sim")
-    out_path, err_path = folder / "sim.out", folder / "sim.err"
-    out, err = open(out_path, "wb"), open(err_path, "wb")  # files: the simulator never blocks on a pipe
-    proc = subprocess.Popen(fpscan_cmd("sim", "--prf", str(PRF_HZ), "--seed", "1"), cwd=REPO_ROOT,
-                            stdout=out, stderr=err, start_new_session=True)
-
-    def device_path():
-        if proc.poll() is not None:
-            raise AssertionError(f"fpscan sim exited: {err_path.read_text()[-2000:]}")
-        first = out_path.read_text().split("\n", 1)
-        return first[0].strip().split()[-1] if len(first) == 2 and first[0].strip() else None
-
-    try:
-        yield wait_for(device_path, 60, "fpscan sim to print its device path")
-    finally:
-        stop_process(proc)
-        out.close()
-        err.close()
+    with simulator("--prf", str(PRF_HZ), "--seed", "1", log_path=folder / "sim.log") as (device, _proc):
+        yield device
 
 
-def start_server(data: Path, devices: dict, token: str | None):
-    """``fpscan serve`` on a free 127.0.0.1 port; returns (process, base URL, log file)."""
+def start_server(data: Path, devices: dict, token: str | None) -> Service:
+    """``fpscan serve`` (with the web page) on a free 127.0.0.1 port, its log in
+    ``data/serve.log``."""
     if not has_subcommand("serve"):
         pytest.skip("this build has no `fpscan serve`")
-    port = free_port()
-    env = dict(os.environ)
-    env.pop("FPSCAN_TOKEN", None)
-    env.update({"FPSCAN_DATA_DIR": str(data), "FPSCAN_DEVICES": json.dumps(devices),
-                "FPSCAN_PREVIEW_INTERVAL_S": "0.5"})
-    if token:
-        env["FPSCAN_TOKEN"] = token
-    log = open(data / "serve.log", "wb")
-    proc = subprocess.Popen(fpscan_cmd("serve", "--host", "127.0.0.1", "--port", str(port)), cwd=REPO_ROOT,
-                            env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
-    base = f"http://127.0.0.1:{port}"
-
-    def up():
-        if proc.poll() is not None:
-            raise AssertionError(f"fpscan serve exited: {(data / 'serve.log').read_text()[-3000:]}")
-        return httpx.get(base + "/api/health", timeout=2).status_code == 200
-
-    try:
-        wait_for(up, 60, "fpscan serve to answer /api/health")
-    except BaseException:
-        stop_process(proc)
-        log.close()
-        raise
-    return proc, base, log
+    return start_service(data, token=token, devices=devices, env={"FPSCAN_PREVIEW_INTERVAL_S": "0.5"},
+                         log_path=data / "serve.log", timeout=60)
 
 
 @pytest.fixture(scope="module")
 def server(sim, tmp_path_factory):
     """``fpscan serve`` on 127.0.0.1 with a token and the simulated scanner as ``sim1``."""
     data = tmp_path_factory.mktemp("serve")
-    proc, base, log = start_server(data, {"sim1": sim} if sim else {}, TOKEN)
+    srv = start_server(data, {"sim1": sim} if sim else {}, TOKEN)
     try:
-        yield base
+        yield srv.url
     finally:
-        stop_process(proc)
-        log.close()
+        srv.stop()
         # the server's log beside the screenshots, for a reviewer of a failed run
         (REPO_ROOT / "test-artifacts").mkdir(exist_ok=True)
         (REPO_ROOT / "test-artifacts" / "web-serve.log").write_bytes((data / "serve.log").read_bytes())
@@ -517,7 +478,8 @@ def test_without_a_token_nothing_is_asked_and_plain_links_download(browser, tmp_
     np = pytest.importorskip("numpy")
     data = tmp_path / "serve"
     data.mkdir()
-    proc, base, log = start_server(data, {}, None)
+    srv = start_server(data, {}, None)
+    base = srv.url
     try:
         browser.get(base + "/#/plan")
         fill_plan_form(browser, N_POINTS)
@@ -548,8 +510,7 @@ def test_without_a_token_nothing_is_asked_and_plain_links_download(browser, tmp_
         wait_for(lambda: any((download_dir / n).exists() and (download_dir / n).read_bytes() == oracle for n in names),
                  30, "the plain link's download, byte for byte")
     finally:
-        stop_process(proc)
-        log.close()
+        srv.stop()
 
 
 def test_keyboard_navigation_and_state_without_colour(browser, server, screenshots, state):
