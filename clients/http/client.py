@@ -542,7 +542,7 @@ class Client(_BaseClient):
         except httpx.TransportError as exc:
             raise self._unavailable(exc) from None
 
-    def wait(self, job_id: str, *, on_progress: ProgressCallback | None = None,  # noqa: C901 -- TODO guard: split
+    def wait(self, job_id: str, *, on_progress: ProgressCallback | None = None,  # noqa: C901 -- SSE, reconnect, polling fallback and deadline in one loop
              timeout: float | None = None, poll_interval: float = 0.5, raise_on_failure: bool = True):
         """Block until job ``job_id`` ends; return its final Job.
 
@@ -690,7 +690,7 @@ class AsyncClient(_BaseClient):
         except httpx.TransportError as exc:
             raise self._unavailable(exc) from None
 
-    async def wait(self, job_id: str, *, on_progress: ProgressCallback | None = None,  # noqa: C901 -- TODO guard: split
+    async def wait(self, job_id: str, *, on_progress: ProgressCallback | None = None,  # noqa: C901 -- SSE, reconnect, polling fallback and deadline in one loop
                    timeout: float | None = None, poll_interval: float = 0.5,
                    raise_on_failure: bool = True):
         """Await the end of job ``job_id``; see :meth:`Client.wait` (same behaviour and

@@ -116,7 +116,7 @@ class _TooLarge(Exception):
     pass
 
 
-def create_app(settings: Settings | None = None, *, start_workers: bool = True) -> FastAPI:  # noqa: C901 -- TODO guard: split
+def create_app(settings: Settings | None = None, *, start_workers: bool = True) -> FastAPI:  # noqa: C901 -- lifespan hooks of helpers "hostile" and "lab"
     """The service app. ``start_workers=False`` builds the app without the queue and scan
     threads (for schema inspection)."""
     settings = settings or Settings.load()

@@ -79,7 +79,8 @@ def image_install(tmp_path_factory):
                 else:
                     shutil.copy2(p, src / p.name)
     pip_runs = [i.args for i in ins if i.keyword == "RUN" and i.stage == build_stage and "pip install" in i.args]
-    assert pip_runs and pip_runs[-1].rstrip().endswith(" ."), "the build stage installs the copied project"
+    assert pip_runs and pip_runs[-1].rstrip().endswith(' ".[server]"'), \
+        "the build stage installs the copied project with the server extra"
     dist = tmp / "dist"
     res = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation",
                           "--no-index", "-q", "-w", str(dist), str(src)],

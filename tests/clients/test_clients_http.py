@@ -303,6 +303,11 @@ CLIENT_METHODS = {
     ("get", "/api/jobs/{job_id}"): "get_job",
     ("post", "/api/jobs/{job_id}/cancel"): "cancel_job",
     ("get", "/api/jobs/{job_id}/events"): "events",
+    ("delete", "/api/jobs/{job_id}"): "delete_job",
+    ("delete", "/api/plans/{plan_id}"): "delete_plan",
+    ("delete", "/api/datasets/{dataset_id}"): "delete_dataset",
+    ("get", "/api/retention"): "retention",
+    ("put", "/api/retention"): "retention",
 }
 
 
