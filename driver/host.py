@@ -35,7 +35,7 @@ import numpy as np
 from driver import commands as cmd
 from driver.aline import unpack_aline
 from driver.commands import MAX_CHUNK
-from driver.framing import PROTOCOL_VERSION, Deframer, FrameType, encode_frame
+from driver.framing import PROTOCOL_VERSION, Deframer, Frame, FrameType, encode_frame
 from driver.plan import load_plan, plan_image
 from driver.transport import READER_MODES, TransportError, open_reader
 
@@ -156,7 +156,7 @@ class Scanner:
         self._deframer = Deframer()
         self._seq = secrets.randbits(30) + 1
         self._pending_seq: int | None = None
-        self._reply = None
+        self._reply: Frame | None = None
         self._boot_id: int | None = None
         self._requests: queue.Queue = queue.Queue()
         self._scanning = threading.Event()
@@ -648,9 +648,15 @@ class ScanSession:
         self.done += 1
         self.t_last = t_rx
 
+    def _run(self) -> _Run:
+        """The run being received (the receive methods are only called during one)."""
+        if self.current is None:
+            raise DriverError("no scan run in progress")
+        return self.current
+
     def send_ack(self, nak: list[int] | None = None) -> None:
         """ACK (or NAK the seqs in ``nak``) with the current run's next expected seq."""
-        run, sc = self.current, self.sc
+        run, sc = self._run(), self.sc
         if nak:
             payload = np.asarray(nak, dtype="<u4").tobytes()
             sc._write(encode_frame(FrameType.NAK, payload, ack=run.expected,
@@ -664,7 +670,7 @@ class ScanSession:
     def _stream(self) -> str:
         """Receive one run until the record is complete; returns 'done', 'reset', 'abort'
         or 'restart' (the device ended the run with A-lines missing)."""
-        run, sc = self.current, self.sc
+        run, sc = self._run(), self.sc
         paused = False
         while True:
             paused, outcome = self._handle_requests(paused)
@@ -700,12 +706,13 @@ class ScanSession:
             elif what == "resume" and paused:
                 sc.query(cmd.SCAN_RESUME)
                 paused = False
-                self.current.last_rx = self.current.last_new = time.monotonic()
+                run = self._run()
+                run.last_rx = run.last_new = time.monotonic()
         return paused, None
 
     def _acknowledge(self) -> None:
         """ACK every window/2 new A-lines or after 20 ms; NAK gaps (each seq ≤ every 0.1 s)."""
-        run, sc = self.current, self.sc
+        run, sc = self._run(), self.sc
         now = time.monotonic()
         if run.since_ack >= max(1, sc.window // 2) or (run.since_ack or run.need_ack) and \
                 now - run.last_ack > 0.02:
@@ -724,7 +731,7 @@ class ScanSession:
 
     def _on_silence(self, paused: bool) -> str | None:
         """Poll a silent device (this waits out a stall up to response_timeout)."""
-        run, sc = self.current, self.sc
+        run, sc = self._run(), self.sc
         if not paused:
             sc.faults["stall_polls"] += 1
         st = sc.status()

@@ -81,6 +81,7 @@ def plan_id_of(plan: dict) -> str:
 def _integer(name: str, value: Any, minimum: int, maximum: int | None = None) -> int:
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):
         raise ValueError(f"plan {name} must be an integer, got {value!r}")
+    value = int(value)
     if value < minimum:
         raise ValueError(f"plan {name} must be >= {minimum}, got {value!r}")
     if maximum is not None and value > maximum:

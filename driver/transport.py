@@ -119,11 +119,14 @@ class RelayReader:
         self._ser = ser
         self._port = port or getattr(ser, "port", "")
         root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-        self._proc: subprocess.Popen | None = subprocess.Popen(
+        proc = subprocess.Popen(
             [sys.executable, "-m", "driver.relay", str(fd), str(os.getpid())],
             pass_fds=(fd,), stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, bufsize=0,
             cwd=root)
-        self._fd: int | None = self._proc.stdout.fileno()
+        assert proc.stdout is not None  # stdout=PIPE
+        self._proc: subprocess.Popen | None = proc
+        self._stdout = proc.stdout
+        self._fd = proc.stdout.fileno()
         self._direct: DirectReader | None = None
         try:
             fcntl.fcntl(self._fd, 1031, 1 << 20)  # F_SETPIPE_SZ: 1 MiB
@@ -153,8 +156,8 @@ class RelayReader:
         if self._proc is not None:
             self._proc.kill()
             self._proc.wait(timeout=5)
-            self._proc.stdout.close()
-            self._proc = self._fd = None
+            self._stdout.close()
+            self._proc = None
 
     def close(self) -> None:
         self._stop()

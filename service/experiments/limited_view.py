@@ -147,7 +147,7 @@ def run(
         return row
 
     rows = [score(ref, arrangement="full", interval=1, n_sensors=n_x, time_s=t_ref)]
-    images = {"reference": ref}
+    images: dict[str, np.ndarray | None] = {"reference": ref}
     sensors = {}
     if intervals is None:
         intervals = range(1, 33)

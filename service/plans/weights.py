@@ -93,7 +93,7 @@ def _weights_1d(x: np.ndarray, lo: float, hi: float, radius: np.ndarray) -> np.n
     return w
 
 
-def voronoi_weights(positions, pitch: float | None = None, *, bounds=None,  # noqa: C901 -- moves to service/plans with helper "driver"'s change
+def voronoi_weights(positions, pitch: float | None = None, *, bounds=None,  # noqa: C901 -- Voronoi cells clipped to the aperture (helper "plans")
                     samples_per_cell: int = _SAMPLES_PER_CELL) -> np.ndarray:
     """Clipped Voronoi areas of sensors on the sensor plane (DESIGN §3.3).
 

@@ -38,6 +38,7 @@ principle) are returned in ``params``.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -160,7 +161,7 @@ def reconstruct_tv(
     lam, max_iter, tol = _check_tv_options(lam, max_iter, tol)
     rdtype = checks.check_dtype(dtype)
     report = _reporter(progress)
-    common = dict(dtype=np.float64, dz=dz, n_z=n_z, t0=t0, eps=eps, positivity=positivity,
+    common: dict[str, Any] = dict(dtype=np.float64, dz=dz, n_z=n_z, t0=t0, eps=eps, positivity=positivity,
                   memory_limit=memory_limit)
     if positions is None:
         if dx is None:
@@ -177,7 +178,7 @@ def reconstruct_tv(
             raise ValueError(f"tv needs equal x and y pitch, got {dx} and {warm.params['dy']} m")
         pos = np.asarray(positions, dtype=np.float64).reshape(len(g), -1).copy()
         pos[:, 0] -= 0.5 * (warm.x[0] + warm.x[-1])
-        if pos.shape[1] == 2:
+        if pos.shape[1] == 2 and warm.y is not None:  # 2-D lattice: y is set
             pos[:, 1] -= 0.5 * (warm.y[0] + warm.y[-1])
         if weights is None:
             from service.plans.weights import voronoi_weights
@@ -224,7 +225,7 @@ def reconstruct_tv(
     for it in range(1, max_iter + 1):
         xold = x
         x, xhat, y = solver.step(x, xhat, y)
-        change = float(np.linalg.norm(x - xold) / max(np.linalg.norm(x), 1e-300))
+        change = float(np.linalg.norm(x - xold) / max(float(np.linalg.norm(x)), 1e-300))
         report(0.1 + 0.9 * it / max_iter)
         if change < tol:
             break
@@ -233,7 +234,7 @@ def reconstruct_tv(
     params = dict(warm.params)
     params.update(method="tv", warm_start=warm.params["method"], lam=float(lam), lam_auto=bool(auto),
                   noise_sigma=sigma, iterations=it, max_iter=max_iter, tol=tol, dtype=rdtype.name,
-                  residual=float(np.linalg.norm(res) / max(np.linalg.norm(gw), 1e-300)), norm_A=L / 1.05,
+                  residual=float(np.linalg.norm(res) / max(float(np.linalg.norm(gw)), 1e-300)), norm_A=L / 1.05,
                   positivity=bool(positivity), weights_mean_one=w is not None, periodic=bool(periodic), solver="pyproximal PrimalDual")
     report(1.0)
     return Image(p0, warm.z, warm.x, warm.y, params)
