@@ -240,9 +240,10 @@ def address_space_limit(limit: int | None):
         import resource
 
         soft, hard = resource.getrlimit(resource.RLIMIT_AS)
+        supported = True
     except (ImportError, OSError, ValueError):
-        soft = hard = None
-    if not limit or soft is None:
+        supported = False
+    if not limit or not supported:
         yield
         return
     want = int(limit) + ADDRESS_SPACE_BASE
@@ -277,6 +278,8 @@ def run_reconstruction(spec: dict) -> dict:
         with address_space_limit(limit):
             image = reconstruct_input(inp, spec["params"])
     except MemoryError:
+        if not limit:  # no limit set: a real out-of-memory
+            raise
         raise ValueError(f"the reconstruction ran out of the memory limit of {int(limit) / 2**30:.2f} GiB; "
                          "reduce the size, upsample or n_z, or use float32") from None
     t2 = time.perf_counter()
