@@ -16,6 +16,7 @@ acquired twice.
 """
 from __future__ import annotations
 
+import errno
 import logging
 import math
 import threading
@@ -61,6 +62,7 @@ class ScanManager:
         self.scans_dir.mkdir(parents=True, exist_ok=True)
         self.previews = PreviewManager(settings.preview_interval_s)
         self._runs: dict[str, _Run] = {}     # scanner_id -> active run
+        self._problems: dict[str, str] = {}  # job id -> why it is interrupted (full disk, ...)
         self._identity: dict[str, str] = {}
         self._lock = threading.Lock()
         self._wake = threading.Event()
@@ -100,6 +102,12 @@ class ScanManager:
                 out.append({"id": sid, "port": port, "status": status,
                             "job_id": run.job_id if run else None, "identity": self._identity.get(sid)})
         return out
+
+    def problems(self) -> list[str]:
+        """What keeps scans from running now (a full disk, a lost device): one line each,
+        for ``/api/health``."""
+        with self._lock:
+            return [f"scan {jid}: {why}" for jid, why in self._problems.items()]
 
     def preview(self, job_id: str):
         return self.previews.get(job_id)
@@ -149,8 +157,12 @@ class ScanManager:
             self._send(run, "resume")
             self.store.set_state(job_id, "running", only_from=("paused",), progress={"stage": "acquiring"})
             return
-        # interrupted (restart or link failure): acquire the missing points in a new run
-        self.store.set_state(job_id, "queued", only_from=("paused",), progress={"stage": "resuming"})
+        # interrupted (restart, lost device, full disk): acquire the missing points in a
+        # new run; a cancel asked while it was stuck no longer applies
+        if self.store.set_state(job_id, "queued", only_from=("paused",), progress={"stage": "resuming"}):
+            self.store.clear_cancel(job_id)
+            with self._lock:
+                self._problems.pop(job_id, None)
         self.wake()
 
     def abort(self, job_id: str) -> None:
@@ -195,15 +207,54 @@ class ScanManager:
         jid = job["id"]
         try:
             self._acquire(job, run)
-        except Exception as exc:  # never let a scan thread die silently
+        except Exception as exc:  # never let a scan thread die silently, nor a job stay running
             log.exception("scan job=%s crashed", jid)
-            self.store.set_state(jid, "failed", error=f"scan failed ({type(exc).__name__})",
-                                 only_from=("running", "paused"))
+            self._interrupt(jid, f"scan stopped ({type(exc).__name__}: {self.settings.redact(str(exc))})")
         finally:
             with self._lock:
                 self._runs.pop(run.scanner_id, None)
             self.previews.untrack(jid)
             self._wake.set()
+
+    def _interrupt(self, jid: str, why: str) -> None:
+        """The job to ``paused`` with stage ``interrupted`` and ``why`` (resumable from its
+        scan file with ``/resume``: the points on disk are kept). While the job store
+        itself cannot write (its disk is full too), retried every second, the reason shown
+        by ``/api/health`` meanwhile, so the job never stays ``running``."""
+        import sqlite3
+
+        with self._lock:
+            self._problems[jid] = why
+        while True:
+            try:
+                self.store.set_state(jid, "paused", only_from=("running", "queued"),
+                                     progress={"stage": "interrupted", "reason": why})
+                log.warning("scan job=%s interrupted: %s", jid, why)
+                return
+            except sqlite3.Error as exc:
+                with self._lock:
+                    self._problems[jid] = f"{why}; job store: {exc}"
+                if self._stop.wait(1.0):
+                    return
+
+    def _disk_shortfall(self, plan: dict, scan_path: Path) -> str | None:
+        """The reason a scan file cannot be completed on its disk (free space below what
+        its remaining A-lines need: ``n_points × (2 n_t × n_wavelengths + 128)`` bytes
+        less what the file has allocated), or None."""
+        import shutil
+
+        acq = plan["acquisition"]
+        n = len(plan["points"]["indices"])
+        need = n * (2 * int(acq["n_t"]) * max(1, len(acq.get("wavelengths") or [1])) + 128) + (1 << 20)
+        try:
+            have = scan_path.stat().st_blocks * 512 if scan_path.exists() else 0
+            free = shutil.disk_usage(scan_path.parent).free
+        except OSError:
+            return None
+        if need - have > free:
+            return (f"disk full: the scan file needs {need - have} more bytes, {free} are free on the data "
+                    "folder's disk; free space, then resume")
+        return None
 
     def _acquire(self, job: dict, run: _Run) -> None:
         from driver.acquire import acquire
@@ -218,11 +269,18 @@ class ScanManager:
         plan = found[0]
         scan_path = Path(job["params"].get("scan_path") or self.scans_dir / f"{jid}.h5")
         resumed = scan_path.exists()
+        short = self._disk_shortfall(plan, scan_path)
+        if short:
+            self._interrupt(jid, short)
+            return
         self.store.update_progress(jid, {"stage": "connecting", "points_total": len(plan["points"]["indices"])})
         try:
             scanner = Scanner(port)
         except DriverError as exc:
-            self.store.set_state(jid, "failed", error=str(exc), only_from=("running",))
+            if resumed:  # points are on disk: wait for the device to come back
+                self._interrupt(jid, f"device lost: {self.settings.redact(str(exc))}")
+            else:
+                self.store.set_state(jid, "failed", error=str(exc), only_from=("running",))
             return
         try:
             try:
@@ -263,10 +321,18 @@ class ScanManager:
                     return
             try:
                 result = acquire(port, plan, scan_path, progress=progress, scanner=scanner)
-            except (DriverError, ValueError, OSError) as exc:
+            except ValueError as exc:  # the plan or the scan file does not fit: not resumable
                 log.warning("scan job=%s failed: %s", jid, exc)
                 self.store.set_state(jid, "failed", error=self.settings.redact(str(exc)),
                                      only_from=("running", "paused"))
+                return
+            except OSError as exc:  # the disk (ENOSPC, EIO): the points on disk stay resumable
+                full = exc.errno == errno.ENOSPC or "No space left" in str(exc)
+                why = "disk full" if full else "scan file write failed"
+                self._interrupt(jid, f"{why}: {self.settings.redact(str(exc))}; free space, then resume")
+                return
+            except DriverError as exc:  # the device went away or stopped answering
+                self._interrupt(jid, f"device lost: {self.settings.redact(str(exc))}; resume when it is back")
                 return
         finally:
             with run.lock:

@@ -202,7 +202,8 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True) 
         other) and the free bytes of its file system."""
         return Health(version=VERSION, executor=settings.executor,
                       jobs_running=c.queue.running() if c.queue is not None else 0,
-                      disk=disk_usage(settings.data_dir))
+                      disk=disk_usage(settings.data_dir),
+                      problems=c.scans.problems() if c.scans is not None else [])
 
     for module in (plans, scans, datasets, reconstructions, jobs, retention):
         app.include_router(module.router)

@@ -49,6 +49,8 @@ class Health(BaseModel):
     executor: str
     jobs_running: int = 0
     disk: DiskUse | None = None
+    problems: list[str] = Field(default_factory=list, description="what keeps jobs from running now "
+                                "(e.g. a scan paused by a full disk or a lost device), one line each")
 
 
 class Deleted(BaseModel):

@@ -305,6 +305,11 @@ class JobStore:
 
         return self._tx(work)
 
+    def clear_cancel(self, job_id: str) -> None:
+        """Forget a cancel request (a job that resumes: the request was for the run that
+        was stuck, not for the new one)."""
+        self._tx(lambda db: db.execute("UPDATE jobs SET cancel_requested = 0 WHERE id = ?", (job_id,)))
+
     def requeue(self, job_id: str, reason: str, *, count_attempt: bool = True) -> bool:
         """A running job back to ``queued`` (its worker died or the server is shutting
         down); ``count_attempt=False`` gives the attempt back (a shutdown is not the job's
