@@ -256,9 +256,42 @@ class ScanManager:
                     "folder's disk; free space, then resume")
         return None
 
+    def _acquire_or_interrupt(self, jid: str, run_acquire):
+        """``run_acquire()``'s result; None when the scan stopped: a bad plan or file fails
+        the job, a lost device or a disk error pauses it (``_interrupt``: resumable)."""
+        from driver.host import DriverError
+
+        try:
+            return run_acquire()
+        except ValueError as exc:  # the plan or the scan file does not fit: not resumable
+            log.warning("scan job=%s failed: %s", jid, exc)
+            self.store.set_state(jid, "failed", error=self.settings.redact(str(exc)),
+                                 only_from=("running", "paused"))
+        except OSError as exc:  # the disk (ENOSPC, EIO): the points on disk stay resumable
+            full = exc.errno == errno.ENOSPC or "No space left" in str(exc)
+            why = "disk full" if full else "scan file write failed"
+            self._interrupt(jid, f"{why}: {self.settings.redact(str(exc))}; free space, then resume")
+        except DriverError as exc:  # the device went away or stopped answering
+            self._interrupt(jid, f"device lost: {self.settings.redact(str(exc))}; resume when it is back")
+        return None
+
+    def _connect(self, jid: str, port: str, resumed: bool):
+        """An open ``driver.host.Scanner`` on ``port``, or None: the job failed (nothing
+        acquired yet) or, with points on disk, paused until the device is back."""
+        from driver.host import DriverError, Scanner
+
+        try:
+            return Scanner(port)
+        except DriverError as exc:
+            if resumed:
+                self._interrupt(jid, f"device lost: {self.settings.redact(str(exc))}; resume when it is back")
+            else:
+                self.store.set_state(jid, "failed", error=str(exc), only_from=("running",))
+            return None
+
     def _acquire(self, job: dict, run: _Run) -> None:
         from driver.acquire import acquire
-        from driver.host import DriverError, Scanner
+        from driver.host import DriverError
 
         jid = job["id"]
         port = self.settings.devices[run.scanner_id]
@@ -274,13 +307,8 @@ class ScanManager:
             self._interrupt(jid, short)
             return
         self.store.update_progress(jid, {"stage": "connecting", "points_total": len(plan["points"]["indices"])})
-        try:
-            scanner = Scanner(port)
-        except DriverError as exc:
-            if resumed:  # points are on disk: wait for the device to come back
-                self._interrupt(jid, f"device lost: {self.settings.redact(str(exc))}")
-            else:
-                self.store.set_state(jid, "failed", error=str(exc), only_from=("running",))
+        scanner = self._connect(jid, port, resumed)
+        if scanner is None:
             return
         try:
             try:
@@ -319,20 +347,9 @@ class ScanManager:
                 if what == "abort":
                     self.store.set_state(jid, "cancelled", only_from=("running", "paused"))
                     return
-            try:
-                result = acquire(port, plan, scan_path, progress=progress, scanner=scanner)
-            except ValueError as exc:  # the plan or the scan file does not fit: not resumable
-                log.warning("scan job=%s failed: %s", jid, exc)
-                self.store.set_state(jid, "failed", error=self.settings.redact(str(exc)),
-                                     only_from=("running", "paused"))
-                return
-            except OSError as exc:  # the disk (ENOSPC, EIO): the points on disk stay resumable
-                full = exc.errno == errno.ENOSPC or "No space left" in str(exc)
-                why = "disk full" if full else "scan file write failed"
-                self._interrupt(jid, f"{why}: {self.settings.redact(str(exc))}; free space, then resume")
-                return
-            except DriverError as exc:  # the device went away or stopped answering
-                self._interrupt(jid, f"device lost: {self.settings.redact(str(exc))}; resume when it is back")
+            result = self._acquire_or_interrupt(jid, lambda: acquire(port, plan, scan_path, progress=progress,
+                                                                      scanner=scanner))
+            if result is None:
                 return
         finally:
             with run.lock:

@@ -38,7 +38,6 @@ def _npy(n: int = 12, n_t: int = 64) -> bytes:
 @pytest.mark.timeout(600)
 def test_soak_mixed_requests_during_a_scan_and_a_reconstruction(tmp_path):
     from driver.sources import BallSource
-
     from tests.service.test_scans import phantom
 
     files = tmp_path / "files"
