@@ -14,19 +14,36 @@
 - `estimate_peak_memory`: bytes a reconstruction needs at its peak (admission control).
 
 Importing the package loads the reconstruction (numba, finufft); the plans' weights
-live in `service.plans.weights`, so planning never pays for that.
+live in `service.plans.weights`, so planning never pays for that. The model-based part
+(`PlanarOperator`, `reconstruct_tv`) loads pylops/pyproximal, which take longer to
+import than everything else together, and `voronoi_weights` the plans package, so those
+names are imported on first use (PEP 562): a direct reconstruction starts without them.
 """
 from __future__ import annotations
 
+from typing import Any
+
 from driver.physics.forward import forward_grid, forward_points
-from service.plans.weights import voronoi_weights
 from service.recon.checks import estimate_peak_memory
 from service.recon.image import Image
 from service.recon.kwave import kspace_line_recon, kspace_plane_recon
-from service.recon.operator import PlanarOperator
 from service.recon.planar import METHODS, reconstruct_grid, reconstruct_points
-from service.recon.tv import reconstruct_tv
 
 __all__ = ["Image", "METHODS", "reconstruct_grid", "reconstruct_points", "kspace_line_recon",
            "kspace_plane_recon", "forward_grid", "forward_points", "voronoi_weights",
            "estimate_peak_memory", "PlanarOperator", "reconstruct_tv"]
+
+_LAZY = {"PlanarOperator": "service.recon.operator", "reconstruct_tv": "service.recon.tv",
+         "voronoi_weights": "service.plans.weights"}
+
+
+def __getattr__(name: str) -> Any:
+    """`PlanarOperator`, `reconstruct_tv` (they load pylops) and `voronoi_weights` (the
+    plans package) on first use."""
+    if name in _LAZY:
+        import importlib
+
+        value = getattr(importlib.import_module(_LAZY[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'service.recon' has no attribute {name!r}")

@@ -33,7 +33,6 @@ import scipy.interpolate
 from scipy.spatial import cKDTree
 
 from driver.physics import nufft
-from service.plans.weights import infer_pitch, voronoi_weights
 from service.recon import checks
 from service.recon.image import Image
 
@@ -314,6 +313,8 @@ def _check_positions(positions, n_points):
 
 
 def _default_grid(pos: np.ndarray) -> tuple[tuple[np.ndarray, ...], float]:
+    from service.plans.weights import infer_pitch  # on use: importing the plans package costs start-up time
+
     pitch = infer_pitch(pos) if len(pos) > 1 else None
     if pitch is None:
         if len(pos) < 2:
@@ -476,6 +477,8 @@ def reconstruct_points(
         if np.any(pos[:, a] < lo - 1e-9 * abs(lo)) or np.any(pos[:, a] > hi + 1e-9 * abs(hi)):
             raise ValueError(f"positions lie outside the output grid along {'xy'[a]}")
     if weights is None:
+        from service.plans.weights import voronoi_weights  # on use (start-up time)
+
         h = voronoi_weights(pos)
     else:
         h = checks.finite_array("weights", weights, (1,)).astype(np.float64)
