@@ -273,11 +273,13 @@ def _superblock_open_for_write(path: Path) -> bool:
     return block[11] != 0
 
 
-def _open_for_reading(path: Path, timeout: float) -> h5py.File:
-    """Open a scan file read-only. A file a writer has open (or left open when killed)
-    is opened as an SWMR reader; any other without SWMR: HDF5's SWMR reader retries
-    unreadable metadata (of a truncated or corrupt file) without end, holding the GIL,
-    where a normal open reports the damage. Raises ValueError."""
+def open_readonly(path: str | os.PathLike, timeout: float = 5.0) -> h5py.File:
+    """Open an HDF5 file (a scan file or any other) read-only. A file a writer has open
+    (or left open when killed) is opened as an SWMR reader; any other without SWMR:
+    HDF5's SWMR reader retries unreadable metadata (of a truncated or corrupt file)
+    without end, holding the GIL, where a normal open reports the damage. ``timeout``:
+    retries while a writer holds the file lock (s). Raises ValueError."""
+    path = Path(path)
     live = _superblock_open_for_write(path)
     kwargs: dict[str, Any] = {"libver": "latest", "swmr": True} if live else {}
     try:
@@ -670,7 +672,7 @@ def read_scan(path: str | os.PathLike, *, dtype: Any = np.float64,
         raise ValueError(f"dtype must be a float type, got {dtype}")
     if not path.is_file():
         raise FileNotFoundError(f"no scan file at {path}")
-    f = _open_for_reading(path, timeout)
+    f = open_readonly(path, timeout)
     with f:
         if f.attrs.get("format") != FORMAT:
             raise ValueError(f"{path} is not an {FORMAT} file")

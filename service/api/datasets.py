@@ -80,13 +80,7 @@ def import_dataset(src: Path, dest_dir: Path, fmt: str, *, dt, dx, dy, c, key,
     ``max_bytes``: largest declared dataset of an HDF5 file
     (:func:`service.storage.untrusted.check_hdf5`, run before anything is read).
     Raises ``ValueError`` with the reason."""
-    from service.storage.datasets import GridDataset, load_dataset
-    from service.storage.untrusted import check_hdf5, is_hdf5
-
-    if fmt != "npy" and max_bytes is not None:
-        if not is_hdf5(src):
-            raise ValueError(f"a {fmt} file must be HDF5 (no HDF5 signature at the start)")
-        check_hdf5(src, max_bytes=max_bytes)
+    from service.storage.datasets import MAX_ELEMENTS, GridDataset, load_dataset
 
     if key is not None and (not key or len(key) > 200 or not set(key) <= HDF5_KEY_CHARS):
         raise ValueError("key must be an HDF5 dataset path of [A-Za-z0-9_-/.]")
@@ -94,7 +88,8 @@ def import_dataset(src: Path, dest_dir: Path, fmt: str, *, dt, dx, dy, c, key,
         if value is not None and not (math.isfinite(value) and value > 0):
             raise ValueError(f"{name} must be a positive finite number")
     try:
-        ds = load_dataset(src, fmt, dt=dt, dx=dx, dy=dy, c=c, key=key)
+        ds = load_dataset(src, fmt, dt=dt, dx=dx, dy=dy, c=c, key=key,
+                          max_bytes=MAX_ELEMENTS * 8 if max_bytes is None else max_bytes)
     except (KeyError, TypeError, IndexError, OSError) as exc:
         raise ValueError(f"file is not a readable {fmt} dataset ({type(exc).__name__})") from None
     if isinstance(ds, GridDataset):

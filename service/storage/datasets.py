@@ -135,25 +135,37 @@ def detect_format(path: str | os.PathLike) -> str:
 
 
 def _open_h5(path: Path) -> h5py.File:
-    """Open read-only; files held (or left) open by an SWMR writer need ``swmr=True``."""
+    """Open read-only (``driver.scanfile.open_readonly``: SWMR only for a file a writer
+    has, or had, open); ValueError if it is not a readable HDF5 file."""
+    from driver.scanfile import open_readonly
+
     try:
-        return h5py.File(path, "r")
-    except OSError:
-        try:
-            return h5py.File(path, "r", libver="latest", swmr=True)
-        except OSError:
-            raise ValueError("file is not a readable HDF5 file") from None
+        return open_readonly(path)
+    except ValueError:
+        raise ValueError("file is not a readable HDF5 file (truncated or corrupt?)") from None
 
 
 def load_dataset(path: str | os.PathLike, format: str | None = None, *, dt: float | None = None,
                  dx: float | None = None, dy: float | None = None, c: float | None = None,
-                 key: str | None = None) -> GridDataset | PointDataset:
+                 key: str | None = None, max_bytes: int = MAX_ELEMENTS * 8) -> GridDataset | PointDataset:
     """Import a file for reconstruction (module docstring). Explicit ``dt`` (s), ``dx``,
-    ``dy`` (m) and ``c`` (m/s) override what the file says. Raises ValueError naming the
-    fault, FileNotFoundError."""
+    ``dy`` (m) and ``c`` (m/s) override what the file says. An HDF5 file is checked
+    first (``service.storage.untrusted.check_hdf5``: no external storage, external links
+    or virtual datasets, no dataset declaring more than ``max_bytes`` or more than it
+    stores). Raises ValueError naming the fault, FileNotFoundError."""
+    from service.storage.untrusted import check_hdf5, is_hdf5
+
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no such file: {path}")
+    if format is not None and format not in FORMATS:
+        raise ValueError(f"format must be one of {', '.join(FORMATS)}, got {format!r}")
+    if format not in (None, "npy"):
+        if not is_hdf5(path):
+            raise ValueError(f"a {format} file must be HDF5 (no HDF5 signature at the start)")
+        check_hdf5(path, max_bytes=max_bytes)
+    elif format is None and is_hdf5(path):
+        check_hdf5(path, max_bytes=max_bytes)
     fmt = format or detect_format(path)
     if fmt not in FORMATS:
         raise ValueError(f"format must be one of {', '.join(FORMATS)}, got {fmt!r}")
@@ -195,10 +207,7 @@ def load_kwave_hdf5(path: str | os.PathLike, *, key: str | None = None, dt: floa
                     dx: float | None = None, dy: float | None = None,
                     c: float | None = None) -> GridDataset:
     """An HDF5 array in k-Wave layout (module docstring)."""
-    try:
-        f = h5py.File(path, "r")
-    except OSError:
-        raise ValueError("file is not a readable HDF5 file") from None
+    f = _open_h5(Path(path))
     with f:
         if key is not None:
             if key not in f or not isinstance(f[key], h5py.Dataset):

@@ -41,15 +41,16 @@ def is_hdf5(path: str | os.PathLike) -> bool:
 
 def check_hdf5(path: str | os.PathLike, *, max_bytes: int) -> None:
     """Refuse an HDF5 file that points outside itself or declares more than it may hold
-    (module docstring). Opens the file read-only without SWMR and reads no data.
+    (module docstring). Opens the file read-only (``driver.scanfile.open_readonly``:
+    without SWMR unless a writer has it) and reads no data.
     Raises ValueError with the reason (the file's own object names only)."""
     import h5py
 
+    from driver.scanfile import open_readonly
+
     try:
-        f = h5py.File(path, "r")
-    except Exception as exc:  # h5py raises OSError, but damaged files reach other paths
-        if isinstance(exc, ValueError):
-            raise ValueError(f"not a readable HDF5 file ({exc})") from None
+        f = open_readonly(path)
+    except Exception:  # ValueError from the checks; damaged files can reach other paths
         raise ValueError("not a readable HDF5 file (truncated or corrupt)") from None
     problems: list[str] = []
     with f:

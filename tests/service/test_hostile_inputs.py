@@ -11,6 +11,7 @@ import pytest
 from tests.service.hostile_cases import UPLOADS, plan_cases
 from tests.service.service_servers import Server
 
+BY_NAME = {case.name: case for case in UPLOADS}
 #: Client-side bounds: a request not answered by then counts as hung.
 ANSWER_S = 15.0
 HEALTH_S = 5.0
@@ -138,3 +139,24 @@ def test_unbounded_plan_requests_are_refused_with_the_reason(hostile_server, bod
         # the preview does work: it needs the token like every other such route
         anon = httpx.post(hostile_server.url + "/api/plans/preview", json=body, timeout=ANSWER_S)
         assert anon.status_code == 401
+
+
+@pytest.mark.timeout(300)
+@pytest.mark.parametrize("make, fragment", [
+    (BY_NAME["truncated 50 %"].make, "truncated"),  # half a scan file (used to hang, ignoring Ctrl-C)
+    (BY_NAME["external storage"].make, "external storage"),  # would read another file here
+], ids=["truncated", "external-storage"])
+def test_cli_refuses_hostile_files_with_the_reason(files, make, fragment):
+    """``fpscan recon`` and ``fpscan export`` on a hostile file: exit 1 with the reason,
+    answered (the client-side time-out counts a hang)."""
+    import subprocess
+    import sys
+
+    path = make(files)
+    for cmd in (["recon", str(path), "--out", str(files / "out"), "--quiet"],
+                ["export", str(path), "--out", str(files / "x.h5")]):
+        r = subprocess.run([sys.executable, "-m", "clients", *cmd], capture_output=True, text=True,
+                           timeout=120)
+        assert r.returncode != 0, (cmd, r.stdout, r.stderr)
+        if cmd[0] == "recon":  # export reads scan files only: its reason may be the format's
+            assert fragment in r.stderr, r.stderr
