@@ -33,7 +33,7 @@ print(json.dumps({"base": base, "peak": peak}))
 
 @needs_recon
 @pytest.mark.timeout(300)
-@pytest.mark.parametrize("n, n_t, up, dz", [(96, 512, 1, 0.0), (64, 256, 2, 0.0), (64, 256, 1, 1e-5)])
+@pytest.mark.parametrize("n, n_t, up, dz", [(96, 512, 1, 0.0), (64, 256, 2, 1e-5)])
 def test_admission_estimate_covers_the_measured_peak(n, n_t, up, dz):
     """Peak resident memory of a real NER reconstruction in a fresh process (above its
     warmed-up baseline, which holds the input) stays below the admission estimate."""
