@@ -134,9 +134,9 @@ def reconstruct_tv(
         (no zero padding; `PlanarOperator`), as NER itself does: several times cheaper
         for large volumes, but sources near an edge wrap around to the far sensors.
     memory_limit : bytes (default: available now).
-    progress : optional callable(fraction) called with increasing fractions after the
-        warm start, the norm estimate and every iteration (the iteration count is
-        ``round(fraction·...)``; ``params['iterations']`` has the final count); it may
+    progress : optional ``progress(fraction, stage)`` (the pipeline's contract), called
+        with increasing fractions after the warm start (stage "warm start"), the norm
+        estimate ("norm estimate") and every iteration ("iteration k/max_iter"); it may
         raise to cancel (the pipeline's ``should_stop`` does).
 
     Returns
@@ -189,7 +189,7 @@ def reconstruct_tv(
         if not np.all(w > 0):
             raise ValueError("weights must be > 0 for tv (a sensor of weight 0 carries no data)")
         w = w / w.mean()
-    report(0.05)
+    report(0.05, "warm start")
     dz_used, n_t = warm.params["dz"], g.shape[0] if pos is None else g.shape[1]
     shape = warm.p0.shape
     op = PlanarOperator(shape, dx, dz_used, dt, n_t, c, positions=pos, t0=t0, eps=eps, dtype=rdtype,
@@ -202,7 +202,7 @@ def reconstruct_tv(
 
     eig = power_iteration(Aw.H @ Aw, niter=10, tol=1e-3, dtype=rdtype.name)[0]
     L = 1.05 * math.sqrt(abs(float(eig)))
-    report(0.1)
+    report(0.1, "norm estimate")
     d = len(shape)
     s = 1.0 / (2.0 * math.sqrt(d))
     grad = pylops.Gradient(shape, sampling=1.0, edge=False, kind="forward", dtype=rdtype)
@@ -226,7 +226,7 @@ def reconstruct_tv(
         xold = x
         x, xhat, y = solver.step(x, xhat, y)
         change = float(np.linalg.norm(x - xold) / max(float(np.linalg.norm(x)), 1e-300))
-        report(0.1 + 0.9 * it / max_iter)
+        report(0.1 + 0.9 * it / max_iter, f"iteration {it}/{max_iter}")
         if change < tol:
             break
     p0 = x.reshape(shape).astype(rdtype, copy=False)
@@ -235,17 +235,18 @@ def reconstruct_tv(
     params.update(method="tv", warm_start=warm.params["method"], lam=float(lam), lam_auto=bool(auto),
                   noise_sigma=sigma, iterations=it, max_iter=max_iter, tol=tol, dtype=rdtype.name,
                   residual=float(np.linalg.norm(res) / max(float(np.linalg.norm(gw)), 1e-300)), norm_A=L / 1.05,
-                  positivity=bool(positivity), weights_mean_one=w is not None, periodic=bool(periodic), solver="pyproximal PrimalDual")
-    report(1.0)
+                  positivity=bool(positivity), weights_mean_one=w is not None, periodic=bool(periodic),
+                  solver="pyproximal PrimalDual")
+    report(1.0, f"done after {it} iterations")
     return Image(p0, warm.z, warm.x, warm.y, params)
 
 
 def _reporter(progress):
     last = [0.0]
 
-    def report(f: float) -> None:
+    def report(f: float, stage: str) -> None:
         if progress is not None and f > last[0]:
             last[0] = f
-            progress(f)
+            progress(f, stage)
 
     return report

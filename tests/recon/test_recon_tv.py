@@ -125,15 +125,16 @@ def test_noise_level_estimate_is_the_noise():
 def test_progress_every_iteration_and_cancel():
     g = np.random.default_rng(4).standard_normal((12, 5))
     seen = []
-    img = reconstruct_tv(g, DT, C, dx=2 * DZ, n_z=6, max_iter=4, tol=0, progress=seen.append)
-    assert img.params["iterations"] == 4 and seen == sorted(seen) and seen[-1] == 1.0
-    assert len([f for f in seen if f > 0.1]) >= 4
+    img = reconstruct_tv(g, DT, C, dx=2 * DZ, n_z=6, max_iter=4, tol=0, progress=lambda f, s: seen.append((f, s)))
+    fractions = [f for f, _ in seen]
+    assert img.params["iterations"] == 4 and fractions == sorted(fractions) and fractions[-1] == 1.0
+    assert [s for _, s in seen if s.startswith("iteration")] == [f"iteration {k}/4" for k in range(1, 5)]
 
     class Stop(Exception):
         pass
 
-    def stop(f):
-        if f > 0.2:
+    def stop(f, stage):
+        if stage == "iteration 2/50":
             raise Stop
 
     with pytest.raises(Stop):
