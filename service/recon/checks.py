@@ -77,6 +77,7 @@ def estimate_peak_memory(
     ``n_z`` output depth samples (default n_t); ``upsample`` lateral factor; ``dtype``
     float32/float64; ``method`` "ner"/"linear"/"nearest"/"cubic"/"nedner"/"kwave";
     ``n_points`` sensors for NEDNER (adds the type-1 NUFFT's full-plane spectrum).
+    ``method="tv"`` gives `tv_memory` on a conservatively padded grid.
 
     The estimate adds the arrays alive at the worst moment of the pipeline: the lateral
     spectrum (n_t x n_y x (n_x/2+1) complex), the oversampled temporal grid (about twice
@@ -95,7 +96,29 @@ def estimate_peak_memory(
     if method == "kwave":  # two half-lateral spectra (transposed copy) + per-chunk buffers
         peak = int(2.4 * spectrum) + n_t * n_y * n_x * b
     peak += n_t * n_y * n_x * b  # the input
+    if method == "tv":  # model-based: its own count (the warm start needs less)
+        n_data = n_t * (n_points or n_x * n_y)
+        # the free-space operator's padded grid, assuming the worst usual case dx = c dt
+        # (lateral reach of the record = n_t pitches; depth reach n_t rows)
+        pad = (max(n_z, n_t), n_y + n_t if n_y > 1 else 1, n_x + n_t)
+        return max(int(peak * 1.1), tv_memory((n_z, n_y, n_x), pad, n_data, n_t, dtype))
     return int(peak * 1.1)
+
+
+def tv_memory(image_shape, padded_shape, n_data: int, n_t: int, dtype=np.float64) -> int:
+    """Estimated peak bytes of the model-based reconstruction (`service.recon.tv`): the
+    solver's image-sized vectors (p, its previous and extrapolated values, Kᵀy, and the
+    stacked K p with its d gradient components, twice) in ``dtype``, three data-sized
+    vectors, and the operator's float64/complex128 working arrays on the padded grid
+    (lateral spectrum, temporal fine grid, k-space image: about 10 complex values per
+    padded half-spectrum column and depth row), plus 10 %."""
+    b = np.dtype(dtype).itemsize
+    n_img = int(np.prod(image_shape))
+    d = sum(1 for n in image_shape if n > 1)
+    solver = (4 + 2 * d) * n_img * b + 3 * n_data * b
+    nz2, ny2, nx2 = padded_shape
+    operator = 10 * 16 * max(nz2, n_t) * ny2 * (nx2 // 2 + 1)
+    return int(1.1 * (solver + operator))
 
 
 def check_memory(needed: int, memory_limit) -> None:

@@ -78,21 +78,6 @@ def _check_tv_options(lam, max_iter, tol):
     return lam, int(max_iter), tol
 
 
-def estimate_memory(image_shape, padded_shape, n_data: int, n_t: int, dtype=np.float64) -> int:
-    """Estimated peak bytes of `reconstruct_tv`: the solver's image-sized vectors (p, its
-    previous value, the extrapolated p, Kᵀy, and the d gradient components of the dual,
-    twice for the stacked K p) in ``dtype``, three data-sized vectors, and the
-    operator's float64/complex128 working arrays on the padded grid (spectrum, temporal
-    fine grid, k-space image: about 10 real values per padded voxel)."""
-    b = np.dtype(dtype).itemsize
-    n_img = int(np.prod(image_shape))
-    d = len(image_shape)
-    solver = (4 + 2 * d) * n_img * b + 3 * n_data * b
-    nz2, ny2, nx2 = padded_shape
-    op = 8 * 10 * max(nz2, n_t) * ny2 * (nx2 // 2 + 1) * 2 // 2
-    return int(1.1 * (solver + op))
-
-
 def reconstruct_tv(
     data: np.ndarray,
     dt: float,
@@ -194,7 +179,7 @@ def reconstruct_tv(
     shape = warm.p0.shape
     op = PlanarOperator(shape, dx, dz_used, dt, n_t, c, positions=pos, t0=t0, eps=eps, dtype=rdtype,
                          periodic=periodic)
-    checks.check_memory(estimate_memory(shape, op.padded_shape, g.size, n_t, rdtype), memory_limit)
+    checks.check_memory(checks.tv_memory(shape, op.padded_shape, g.size, n_t, rdtype), memory_limit)
     sw = np.ones(op.oshape) if w is None else np.repeat(np.sqrt(w)[:, None], n_t, axis=1)
     Aw = pylops.Diagonal(sw.ravel().astype(rdtype), dtype=rdtype) @ op
     gw = (g * sw).ravel().astype(rdtype)

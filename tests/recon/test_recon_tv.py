@@ -115,6 +115,14 @@ def test_automatic_lambda_is_within_a_factor_3_of_the_best_of_a_sweep(tree_2d):
     assert 1 / 3 <= best <= 3, dict(zip(factors, ccs))
 
 
+def test_memory_estimate_admits_by_method():
+    from service.recon import estimate_peak_memory
+
+    tv = estimate_peak_memory(1024, 226, 226, method="tv", n_points=1653, dtype=np.float32)
+    ner = estimate_peak_memory(1024, 226, 226, method="nedner", n_points=1653, dtype=np.float32)
+    assert tv > ner > 0
+
+
 def test_noise_level_estimate_is_the_noise():
     t = np.arange(4000) * DT
     clean = np.exp(-(((t - 40e-6) / 2e-6) ** 2))[None, :].repeat(6, axis=0)
@@ -144,6 +152,7 @@ def test_progress_every_iteration_and_cancel():
 @pytest.mark.parametrize(("kw", "match"), [
     (dict(lam=-1.0), "lam"), (dict(lam=float("nan")), "lam"), (dict(max_iter=0), "max_iter"),
     (dict(weights=np.ones(3)), "weights must have shape"), (dict(nan=True), "alines contains NaN"),
+    (dict(memory_limit=20_000), "needs about"),
 ])
 def test_bad_input(kw, match):
     al = np.random.default_rng(5).standard_normal((4, 10))
