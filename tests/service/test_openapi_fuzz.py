@@ -8,6 +8,7 @@ import pytest
 
 schemathesis = pytest.importorskip("schemathesis")
 from hypothesis import HealthCheck, Phase, given, settings  # noqa: E402
+from hypothesis.errors import Unsatisfiable  # noqa: E402
 from schemathesis import checks  # noqa: E402
 from schemathesis.generation.modes import GenerationMode  # noqa: E402
 
@@ -34,7 +35,13 @@ def test_no_5xx_and_every_response_documented(shared_server, mode):
             response = case.call_and_validate(headers=headers, checks=CHECKS, timeout=30)
             codes.append(response.status_code)
 
-        run()
+        try:
+            run()
+        except Unsatisfiable:
+            # nothing to make invalid: no parameters and, on a loopback-only server, no
+            # required token (the schema lists the empty security requirement)
+            assert mode == GenerationMode.NEGATIVE and op.method.upper() == "GET", op.path
+            continue
         seen.append(f"{op.method.upper()} {op.path}")
     print(mode, sorted(set(codes)), len(codes))
     assert len(codes) >= 2 * len(seen)  # the examples ran
