@@ -1,6 +1,6 @@
-"""The A-line frame payload (docs/protocol.md §5): a fixed 72-byte header and int16 samples.
+"""The A-line frame payload (docs/protocol.md §5): a fixed 88-byte header and int16 samples.
 
-Layout, little-endian, ``struct`` format ``<IIIIQdddddff``:
+Layout (protocol version 2), little-endian, ``struct`` format ``<IIIIQdddddffIId``:
 
 =========  ====================  ====  ==============================================
 offset     field                 type  meaning
@@ -17,7 +17,10 @@ offset     field                 type  meaning
 56         offset                f64   signal offset (same unit as scale)
 64         dc_level              f32   photodiode DC level at the bias point, V
 68         pulse_energy_j        f32   excitation pulse energy, J
-72         samples               i16[n_t]
+72         wavelength_index      u32   w: index into the plan's excitation wavelengths
+76         reserved              u32   0
+80         excitation_wavelength f64   excitation wavelength of this A-line, m
+88         samples               i16[n_t]
 =========  ====================  ====  ==============================================
 
 "signal" is the FP sensor's AC output, pressure × sensitivity × DC level in Pa·V; the
@@ -30,9 +33,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-ALINE_HEADER = struct.Struct("<IIIIQdddddff")
+ALINE_HEADER = struct.Struct("<IIIIQdddddffIId")
 META_KEYS = ("run_id", "boot_id", "point_index", "pulse_number", "timestamp_s",
-             "bias_wavelength_m", "dc_level", "pulse_energy_j", "dt_s", "scale", "offset")
+             "bias_wavelength_m", "dc_level", "pulse_energy_j", "dt_s", "scale", "offset",
+             "wavelength_index", "excitation_wavelength_m")
 
 
 @dataclass(slots=True)
@@ -51,6 +55,8 @@ class ALine:
     dc_level: float
     pulse_energy_j: float
     samples: np.ndarray
+    wavelength_index: int = 0
+    excitation_wavelength_m: float = 0.0
 
     def meta(self) -> dict:
         """The metadata dict of the scan file API (docs/architecture.md)."""
@@ -60,12 +66,14 @@ class ALine:
 def pack_aline(run_id: int, boot_id: int, point_index: int, pulse_number: int,
                timestamp_s: float, bias_wavelength_m: float, dt_s: float, scale: float,
                offset: float, dc_level: float, pulse_energy_j: float,
-               samples: np.ndarray) -> bytes:
+               samples: np.ndarray, wavelength_index: int = 0,
+               excitation_wavelength_m: float = 0.0) -> bytes:
     """Serialise one A-line payload; ``samples`` is converted to little-endian int16."""
     s = np.ascontiguousarray(samples, dtype="<i2")
     return ALINE_HEADER.pack(run_id, boot_id, point_index, s.size, pulse_number, timestamp_s,
                              bias_wavelength_m, dt_s, scale, offset, dc_level,
-                             pulse_energy_j) + s.tobytes()
+                             pulse_energy_j, wavelength_index, 0,
+                             excitation_wavelength_m) + s.tobytes()
 
 
 def unpack_aline(payload: bytes) -> ALine:
@@ -73,9 +81,10 @@ def unpack_aline(payload: bytes) -> ALine:
     if len(payload) < ALINE_HEADER.size:
         raise ValueError(f"A-line payload of {len(payload)} bytes is shorter than its header")
     (run_id, boot_id, k, n_t, pulse, ts, bias, dt, scale, offset, dc,
-     energy) = ALINE_HEADER.unpack_from(payload)
+     energy, w, _, wavelength) = ALINE_HEADER.unpack_from(payload)
     if len(payload) != ALINE_HEADER.size + 2 * n_t:
         raise ValueError(f"A-line payload holds {len(payload) - ALINE_HEADER.size} sample "
                          f"bytes, header says n_t = {n_t}")
     samples = np.frombuffer(payload, dtype="<i2", offset=ALINE_HEADER.size).astype(np.int16)
-    return ALine(run_id, boot_id, k, pulse, ts, bias, dt, scale, offset, dc, energy, samples)
+    return ALine(run_id, boot_id, k, pulse, ts, bias, dt, scale, offset, dc, energy, samples,
+                 w, wavelength)

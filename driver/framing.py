@@ -21,7 +21,8 @@ from enum import IntEnum
 
 from cobs import cobs as _cobs
 
-PROTOCOL_VERSION = 1
+#: protocol version (docs/protocol.md §12): 2 adds the wavelength to A-lines and plan images
+PROTOCOL_VERSION = 2
 HEADER = struct.Struct("<BBHII")
 CRC = struct.Struct("<I")
 #: largest payload accepted (an A-line of 32768 int16 samples plus its header fits)

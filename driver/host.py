@@ -36,7 +36,7 @@ from driver import commands as cmd
 from driver.aline import unpack_aline
 from driver.commands import MAX_CHUNK
 from driver.framing import PROTOCOL_VERSION, Deframer, Frame, FrameType, encode_frame
-from driver.plan import load_plan, plan_image
+from driver.plan import aline_index, aline_order, load_plan, plan_image, wavelength_order
 from driver.transport import READER_MODES, TransportError, open_reader
 
 
@@ -89,13 +89,15 @@ class DeviceStatus:
 class Progress:
     """What a progress callback receives (about every ``progress_interval`` s)."""
 
-    points_done: int  #: points complete in the sink
+    points_done: int  #: points complete in the sink (at every wavelength)
     n_points: int
-    rate: float  #: points/s landed in this call of scan()
-    eta_s: float  #: remaining points / rate (inf if unknown)
+    rate: float  #: A-lines/s landed in this call of scan()
+    eta_s: float  #: remaining A-lines / rate (inf if unknown)
     faults_recovered: int  #: link faults recovered so far (bad frames, NAKs, timeouts, resets)
     state: str  #: "running", "paused", "recovering", "done", "aborted"
     elapsed_s: float
+    alines_done: int = 0  #: A-lines complete in the sink (points × wavelengths)
+    n_alines: int = 0
 
 
 @dataclass
@@ -103,7 +105,7 @@ class ScanResult:
     """Outcome of :meth:`Scanner.scan`."""
 
     n_points: int
-    points_done: int
+    points_done: int  #: points complete at every wavelength
     complete: bool
     aborted: bool
     elapsed_s: float  #: whole call
@@ -116,6 +118,8 @@ class ScanResult:
     #: link statistics (not faults): ``duplicates`` (frames received twice),
     #: ``duplicate_points`` (points already in the file), ``stale`` (other run or boot)
     link: dict = field(default_factory=dict)
+    n_alines: int = 0  #: A-lines of the plan: points × wavelengths
+    alines_done: int = 0
 
     @property
     def faults_recovered(self) -> int:
@@ -399,12 +403,14 @@ class Scanner:
     # ------------------------------------------------------------------ scanning
     def scan(self, plan, sink, *, progress: Callable[[Progress], None] | None = None,
              progress_interval: float = 0.25, upload: bool = True) -> ScanResult:
-        """Acquire every point of ``plan`` not yet complete in ``sink``.
+        """Acquire every A-line (point × wavelength) of ``plan`` not yet complete in ``sink``.
 
         ``plan``: plan dict or path (docs/architecture.md). ``sink``: object with
-        ``completed() -> bool (n_points,)`` and ``append(k, samples int16 (n_t,), meta) ->
-        bool`` (the scan file API), written before the A-line is acknowledged, so the sink's
-        record is the truth a later call resumes from. ``progress``: called with
+        ``completed_by_wavelength() -> bool (n_wavelengths, n_points)`` (or, for a
+        one-wavelength plan, ``completed() -> bool (n_points,)``) and ``append(k, samples
+        int16 (n_t,), meta) -> bool`` (the scan file API; ``meta["wavelength_index"]`` says
+        which wavelength), written before the A-line is acknowledged, so the sink's record
+        is the truth a later call resumes from. ``progress``: called with
         :class:`Progress` from this thread. Returns a :class:`ScanResult`.
 
         Raises ``ValueError`` (plan and sink disagree), :class:`InterlockOpen`,
@@ -469,8 +475,9 @@ def _open_port(port: str, baudrate: int, lock_timeout: float):
 class ScanSession:
     """One call of :meth:`Scanner.scan`: the host's receive side of a plan's acquisition.
 
-    It owns the record of what is complete (read from the sink at the start, updated as
-    A-lines land), starts runs at the first missing A-line, accepts A-line frames from the
+    It owns the record of what is complete per (wavelength, point) (read from the sink at
+    the start, updated as A-lines land), starts runs at the first missing A-line in
+    acquisition order (``driver.plan.aline_order``), accepts A-line frames from the
     scanner's dispatch (:meth:`on_aline`: sequence bookkeeping, duplicates, stale runs),
     acknowledges and NAKs them under the credit window, polls a silent device, recovers
     from resets, and reports progress. The :class:`Scanner` it runs on provides the link
@@ -485,11 +492,21 @@ class ScanSession:
         self.sc = scanner
         self.plan = plan
         self.sink = sink
+        acq = plan["acquisition"]
         self.n = len(plan["points"]["indices"])
-        self.n_t = int(plan["acquisition"]["n_t"])
-        self.completed = np.array(sink.completed(), dtype=bool)
-        if self.completed.shape != (self.n,):
-            raise ValueError(f"sink holds {self.completed.shape} points, plan {self.n}")
+        self.n_t = int(acq["n_t"])
+        self.n_w = len(acq["wavelengths"])
+        self.order = wavelength_order(acq)
+        if hasattr(sink, "completed_by_wavelength"):
+            record = np.array(sink.completed_by_wavelength(), dtype=bool)
+        else:
+            record = np.array(sink.completed(), dtype=bool)[None]
+        if record.shape != (self.n_w, self.n):
+            raise ValueError(f"sink records {record.shape} (wavelengths, points), plan "
+                             f"{(self.n_w, self.n)}")
+        self.record = record  # (n_wavelengths, n_points)
+        k_of, w_of = aline_order(self.n, self.n_w, self.order)
+        self.done_s = record[w_of, k_of]  # the record in acquisition order
         if getattr(sink, "plan_id", plan["id"]) != plan["id"]:
             raise ValueError(f"sink is for plan {sink.plan_id}, not {plan['id']}")
         self.progress = progress
@@ -498,14 +515,13 @@ class ScanSession:
         self.counters: collections.Counter = collections.Counter()
         self.early: list = []  # A-lines that overtook the SCAN:STAR reply
         self.t_start = time.monotonic()
-        self.done0 = self.done = int(self.completed.sum())
+        self.done0 = self.done = int(self.done_s.sum())
         self.t_first: float | None = None
         self.t_last: float | None = None
         self.last_prog = 0.0
         self.aborted = False
         # silence that means a stall: at least stall_timeout, and 3 point periods at the
         # plan's PRF (a slow laser or many averages is not a stall)
-        acq = plan["acquisition"]
         prf = float(acq.get("prf") or 0.0)
         self.silence = scanner.stall_timeout
         if prf > 0:
@@ -558,9 +574,9 @@ class ScanSession:
         """Runs from the first missing A-line until the record is complete or aborted."""
         sc = self.sc
         lost_plan = 0
-        while not self.completed.all():
+        while not self.done_s.all():
             try:
-                reply = sc.query(cmd.scan_start(int(np.argmin(self.completed))))
+                reply = sc.query(cmd.scan_start(int(np.argmin(self.done_s))))
             except DeviceError as exc:
                 if exc.code != 103 or lost_plan >= 3:
                     raise
@@ -595,9 +611,9 @@ class ScanSession:
         faults = {k: v for k, v in self.sc.faults.items() if v}
         link = {k: v for k, v in self.counters.items() if k != "alines"}
         acq = ((self.t_last or t_end) - self.t_first) if self.t_first else 0.0
-        return ScanResult(self.n, int(self.completed.sum()), bool(self.completed.all()),
+        return ScanResult(self.n, int(self.record.all(axis=0).sum()), bool(self.done_s.all()),
                           self.aborted, t_end - self.t_start, acq, self.counters["alines"],
-                          faults, link)
+                          faults, link, self.done_s.size, int(self.done_s.sum()))
 
     def report(self, label: str, force: bool = False) -> None:
         """Call the progress callback (at most every ``progress_interval`` s unless forced)."""
@@ -607,9 +623,10 @@ class ScanSession:
         self.last_prog = now
         t_first = self.t_first or now
         rate = (self.done - self.done0) / max(now - t_first, 1e-9)
-        eta = (self.n - self.done) / rate if rate > 0 else float("inf")
-        self.progress(Progress(self.done, self.n, rate, eta, self.sc.faults_recovered(), label,
-                               now - self.t_start))
+        eta = (self.done_s.size - self.done) / rate if rate > 0 else float("inf")
+        points = int(self.record.all(axis=0).sum()) if self.n_w > 1 else self.done
+        self.progress(Progress(points, self.n, rate, eta, self.sc.faults_recovered(), label,
+                               now - self.t_start, self.done, self.done_s.size))
 
     # ------------------------------------------------------------------ receiving
     def on_aline(self, fr) -> None:
@@ -636,15 +653,16 @@ class ScanSession:
         self._store(a, run.last_rx)
 
     def _store(self, a, t_rx: float) -> None:
-        k = a.point_index
-        if not 0 <= k < self.n or a.samples.size != self.n_t:
+        k, w = a.point_index, a.wavelength_index
+        if not (0 <= k < self.n and 0 <= w < self.n_w) or a.samples.size != self.n_t:
             self.sc.faults["bad_alines"] += 1
             return
-        if self.completed[k]:
+        s = aline_index(k, w, self.n, self.n_w, self.order)
+        if self.done_s[s]:
             self.counters["duplicate_points"] += 1
             return
         self.sink.append(k, a.samples, a.meta())
-        self.completed[k] = True
+        self.done_s[s] = self.record[w, k] = True
         self.done += 1
         self.t_last = t_rx
 
@@ -682,7 +700,7 @@ class ScanSession:
             if run.interlock:
                 self._raise_interlock()
             self._acknowledge()
-            if self.completed.all():
+            if self.done_s.all():
                 self.send_ack()
                 return "done"
             self.report("paused" if paused else "running")
@@ -740,7 +758,7 @@ class ScanSession:
             return "reset"
         if st.state == "FAULT":
             self._raise_interlock()
-        if st.state == "IDLE" and not self.completed.all():
+        if st.state == "IDLE" and not self.done_s.all():
             return "restart"  # the run ended with A-lines missing: start again
         if not paused and time.monotonic() - run.last_new > max(
                 3 * sc.response_timeout, 10 * self.silence):
@@ -750,8 +768,8 @@ class ScanSession:
         return None
 
     def _raise_interlock(self) -> None:
-        raise InterlockOpen(101, f"Laser interlock open; {int(self.completed.sum())} of "
-                                 f"{self.completed.size} points are on disk, re-run to resume")
+        raise InterlockOpen(101, f"Laser interlock open; {int(self.done_s.sum())} of "
+                                 f"{self.done_s.size} A-lines are on disk, re-run to resume")
 
 
 class _Run:

@@ -9,7 +9,7 @@ The *plan image* is what the host uploads to the device (docs/protocol.md §4), 
 offset field            type   meaning
 ====== ================ ====== =================================================
 0      magic            4 B    ``b"FPPL"``
-4      image_version    u16    1
+4      image_version    u16    2 (1: the single-wavelength image, which ends at 100)
 6      reserved         u16    0
 8      plan_id          32 B   SHA-256 digest of the plan (its JSON ``id``), raw
 40     n_x, n_y         2×u32  lattice size
@@ -18,11 +18,20 @@ offset field            type   meaning
 60     averages         u32    pulses averaged per point
 64     dt_s             f64    sample interval, s
 72     prf_hz           f64    requested pulse repetition frequency, Hz (0 = device's)
-80     wavelength_m     f64    excitation wavelength, m
+80     wavelength_m     f64    first excitation wavelength, m
 88     sound_speed      f64    m/s (for the record)
 96     n_points         u32    number of points
-100    indices          n_points × (u16 i_x, u16 i_y), in scan order
+100    n_wavelengths    u16    excitation wavelengths, 1 … ``MAX_WAVELENGTHS``
+102    order            u8     0 = per point, 1 = per pass (``WAVELENGTH_ORDERS``)
+103    reserved         u8     0
+104    wavelengths_m    n_wavelengths × f64, in acquisition order
+…      indices          n_points × (u16 i_x, u16 i_y), in scan order
 ====== ================ ====== =================================================
+
+Acquisition order (docs/protocol.md §4.1): the device acquires ``n_points·n_wavelengths``
+A-lines; A-line index s is point k at wavelength w with ``s = k·n_wavelengths + w``
+(``per_point``: the laser is tuned through all wavelengths at each point) or
+``s = w·n_points + k`` (``per_pass``: a full pass over the points at each wavelength).
 
 Lattice point (i_x, i_y) lies at ``x = (i_x - (n_x - 1)/2)·pitch``, ``y`` likewise.
 """
@@ -40,7 +49,14 @@ from typing import Any, Final
 import numpy as np
 
 IMAGE_HEADER = struct.Struct("<4sHH32sIIdIIddddI")
+#: what image version 2 adds after IMAGE_HEADER: n_wavelengths, order, reserved
+IMAGE_SPECTRAL = struct.Struct("<HBB")
 MAGIC = b"FPPL"
+IMAGE_VERSION = 2
+#: most excitation wavelengths one plan may hold
+MAX_WAVELENGTHS = 64
+#: values of ``acquisition.wavelength_order`` (index = the plan image's ``order`` byte)
+WAVELENGTH_ORDERS = ("per_point", "per_pass")
 
 #: The plan JSON format this module reads and checks.
 PLAN_FORMAT: Final = "fpscan-plan/1"
@@ -137,8 +153,52 @@ def check_acquisition(acq: Any) -> dict:
         _number("acquisition.prf", acq["prf"], positive=False, unit="Hz")
     if "sound_speed" in acq:
         _number("acquisition.sound_speed", acq["sound_speed"], unit="m/s")
-    check_wavelengths(acq.get("wavelengths"))
+    if len(check_wavelengths(acq.get("wavelengths"))) > MAX_WAVELENGTHS:
+        raise ValueError(f"a plan holds at most {MAX_WAVELENGTHS} wavelengths")
+    wavelength_order(acq)
     return acq
+
+
+def wavelength_order(acq: dict) -> str:
+    """The acquisition's ``wavelength_order``: ``"per_point"`` (default: at every point the
+    laser is tuned through all wavelengths before the galvos move on) or ``"per_pass"``
+    (one full pass over the points per wavelength). Trade-off: docs/protocol.md §4.1.
+    Raises ``ValueError`` for another value."""
+    order = acq.get("wavelength_order")
+    if order is None:
+        return WAVELENGTH_ORDERS[0]
+    if order not in WAVELENGTH_ORDERS:
+        raise ValueError(f"acquisition.wavelength_order must be one of {WAVELENGTH_ORDERS}, "
+                         f"got {order!r}")
+    return order
+
+
+def aline_order(n_points: int, n_wavelengths: int, order: str,
+                s: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Point and wavelength index of A-lines in acquisition order.
+
+    ``s``: A-line indices (int array; default all, ``0 … n_points·n_wavelengths - 1``).
+    Returns ``(k, w)``, int64 arrays shaped like ``s``: A-line index s is point ``k`` at
+    wavelength ``w`` (module docstring). Raises ``ValueError`` for an unknown ``order``.
+    """
+    if s is None:
+        s = np.arange(n_points * n_wavelengths, dtype=np.int64)
+    s = np.asarray(s, dtype=np.int64)
+    if order == "per_point":
+        return s // n_wavelengths, s % n_wavelengths
+    if order == "per_pass":
+        return s % n_points, s // n_points
+    raise ValueError(f"wavelength order must be one of {WAVELENGTH_ORDERS}, got {order!r}")
+
+
+def aline_index(k, w, n_points: int, n_wavelengths: int, order: str):
+    """Inverse of :func:`aline_order`: the acquisition index of point ``k`` at wavelength
+    ``w`` (ints or int arrays). Raises ``ValueError`` for an unknown ``order``."""
+    if order == "per_point":
+        return k * n_wavelengths + w
+    if order == "per_pass":
+        return w * n_points + k
+    raise ValueError(f"wavelength order must be one of {WAVELENGTH_ORDERS}, got {order!r}")
 
 
 def check_plan(plan: Any) -> dict:  # noqa: C901 -- one flat list of the contract's checks (helper "plans")
@@ -238,7 +298,8 @@ def load_plan(source: Any) -> dict:
 
 @dataclass(frozen=True)
 class DevicePlan:
-    """A parsed plan image. ``indices`` is uint16 ``(n_points, 2)`` as (i_x, i_y)."""
+    """A parsed plan image. ``indices`` is uint16 ``(n_points, 2)`` as (i_x, i_y);
+    ``wavelengths`` (m) in plan order; ``order`` one of ``WAVELENGTH_ORDERS``."""
 
     plan_id: str
     n_x: int
@@ -251,10 +312,25 @@ class DevicePlan:
     wavelength: float
     sound_speed: float
     indices: np.ndarray
+    wavelengths: tuple[float, ...] = ()
+    order: str = "per_point"
 
     @property
     def n_points(self) -> int:
         return len(self.indices)
+
+    @property
+    def n_wavelengths(self) -> int:
+        return max(1, len(self.wavelengths))
+
+    @property
+    def n_alines(self) -> int:
+        """A-lines of one complete acquisition: points × wavelengths."""
+        return self.n_points * self.n_wavelengths
+
+    def aline_order(self, s: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """``(k, w)`` of A-line indices ``s`` (default all; see :func:`aline_order`)."""
+        return aline_order(self.n_points, self.n_wavelengths, self.order, s)
 
     def positions(self) -> np.ndarray:
         """Sensor positions ``(n_points, 2)`` as (x, y) in m, lattice centred on the axis."""
@@ -262,38 +338,63 @@ class DevicePlan:
 
 
 def plan_image(plan: dict) -> bytes:
-    """Build the binary plan image the host uploads (layout in the module docstring).
+    """Build the binary plan image (version 2) the host uploads (layout in the module
+    docstring).
 
-    Raises ``ValueError`` if the plan does not fit the image (indices ≥ 65536, …).
+    Raises ``ValueError`` if the plan is invalid or does not fit the image (indices ≥ 65536).
     """
     plan = load_plan(plan)
     lat, acq = plan["lattice"], plan["acquisition"]
     idx = np.asarray(plan["points"]["indices"], dtype=np.int64)
     if idx.max() > 0xFFFF:
         raise ValueError("lattice indices above 65535 do not fit the plan image")
-    waves = acq.get("wavelengths") or [0.0]
-    head = IMAGE_HEADER.pack(MAGIC, 1, 0, bytes.fromhex(plan["id"]), int(lat["n_x"]),
-                             int(lat["n_y"]), float(lat["pitch"]), int(acq["n_t"]),
-                             int(acq.get("averages", 1)), float(acq["dt"]),
-                             float(acq.get("prf", 0.0) or 0.0), float(waves[0]),
+    waves = [float(w) for w in acq["wavelengths"]]
+    head = IMAGE_HEADER.pack(MAGIC, IMAGE_VERSION, 0, bytes.fromhex(plan["id"]),
+                             int(lat["n_x"]), int(lat["n_y"]), float(lat["pitch"]),
+                             int(acq["n_t"]), int(acq.get("averages", 1)), float(acq["dt"]),
+                             float(acq.get("prf", 0.0) or 0.0), waves[0],
                              float(acq.get("sound_speed", 1500.0)), len(idx))
-    return head + idx.astype("<u2").tobytes()
+    spectral = IMAGE_SPECTRAL.pack(len(waves), WAVELENGTH_ORDERS.index(wavelength_order(acq)), 0)
+    return (head + spectral + np.asarray(waves, dtype="<f8").tobytes()
+            + idx.astype("<u2").tobytes())
+
+
+def image_size_limit(max_points: int) -> int:
+    """Largest plan image a device with ``max_points`` accepts, bytes."""
+    return IMAGE_HEADER.size + IMAGE_SPECTRAL.size + 8 * MAX_WAVELENGTHS + 4 * max_points
 
 
 def parse_plan_image(image: bytes) -> DevicePlan:
-    """Parse a plan image (device side). Raises ``ValueError`` with the reason."""
+    """Parse a plan image, version 2 or 1 (device side). Raises ``ValueError`` with the
+    reason."""
     if len(image) < IMAGE_HEADER.size:
         raise ValueError(f"plan image of {len(image)} bytes is shorter than its header")
     (magic, version, _, pid, n_x, n_y, pitch, n_t, averages, dt, prf, wavelength, c,
      n_points) = IMAGE_HEADER.unpack_from(image)
-    if magic != MAGIC or version != 1:
-        raise ValueError("not a version-1 plan image")
-    if len(image) != IMAGE_HEADER.size + 4 * n_points:
+    if magic != MAGIC or version not in (1, 2):
+        raise ValueError("not a version-1 or version-2 plan image")
+    start, waves, order = IMAGE_HEADER.size, (wavelength,), WAVELENGTH_ORDERS[0]
+    if version == 2:
+        if len(image) < start + IMAGE_SPECTRAL.size:
+            raise ValueError("plan image ends inside its wavelength table")
+        n_w, order_byte, _ = IMAGE_SPECTRAL.unpack_from(image, start)
+        start += IMAGE_SPECTRAL.size
+        if not 1 <= n_w <= MAX_WAVELENGTHS or order_byte >= len(WAVELENGTH_ORDERS):
+            raise ValueError(f"plan image has {n_w} wavelengths (1..{MAX_WAVELENGTHS}) or "
+                             f"an unknown order {order_byte}")
+        if len(image) < start + 8 * n_w:
+            raise ValueError("plan image ends inside its wavelength table")
+        waves = tuple(float(w) for w in np.frombuffer(image, "<f8", n_w, start))
+        order = WAVELENGTH_ORDERS[order_byte]
+        start += 8 * n_w
+        if not all(np.isfinite(waves)) or min(waves) <= 0 or len(set(waves)) != n_w:
+            raise ValueError("plan image wavelengths must be finite, > 0 and distinct")
+    if len(image) != start + 4 * n_points:
         raise ValueError(f"plan image length {len(image)} disagrees with {n_points} points")
-    idx = np.frombuffer(image, dtype="<u2", offset=IMAGE_HEADER.size).reshape(n_points, 2)
+    idx = np.frombuffer(image, dtype="<u2", offset=start).reshape(n_points, 2)
     if n_points < 1 or n_t < 1 or not dt > 0 or not pitch > 0 or averages < 1:
         raise ValueError("plan image has empty or non-positive settings")
     if n_points and ((idx[:, 0] >= n_x).any() or (idx[:, 1] >= n_y).any()):
         raise ValueError("plan image has points outside its lattice")
     return DevicePlan(pid.hex(), n_x, n_y, pitch, n_t, averages, dt, prf, wavelength, c,
-                      idx.astype(np.uint16))
+                      idx.astype(np.uint16), waves, order)

@@ -1,20 +1,24 @@
 """The scan file: one HDF5 file per acquisition, written as A-lines arrive (DESIGN §6).
 
-Layout (``format`` attribute ``fpscan-scan/1``; full description in docs/file-formats.md):
+Layout (``format`` attribute ``fpscan-scan/2``; full description in docs/file-formats.md;
+``fpscan-scan/1`` files, one wavelength without the first axis, are still read):
 
 =====================  ==========================  =========================================
 path                   shape, dtype                meaning
 =====================  ==========================  =========================================
-``/alines``            (n_points, n_t) int16       samples as received; row k = point k
-``/aline_meta``        (n_points,) compound        per-A-line metadata (``META_DTYPE``)
-``/completed``         (n_points,) uint8           1 once point k is on disk (the record)
+``/alines``            (n_w, n_points, n_t) int16  samples as received; [w, k] = point k at
+                                                   excitation wavelength w
+``/aline_meta``        (n_w, n_points) compound    per-A-line metadata (``META_DTYPE``)
+``/completed``         (n_w, n_points) uint8       1 once A-line [w, k] is on disk (the record)
 ``/positions``         (n_points, d) float64       sensor (x[, y]) in m, d = 2 (1 for 2-D)
 ``/indices``           (n_points, 2) int32         lattice (i_x, i_y)
 ``/weights``           (n_points,) float64         area weights (m², or m in 2-D)
 ``/plan_json``         scalar UTF-8 string         the plan JSON (docs/architecture.md)
 root attributes                                    ``plan_id``, ``n_points``, ``n_t``,
                                                    ``dt_s``, ``sound_speed_m_per_s``,
-                                                   ``wavelengths_m``, ``acquisition_json``,
+                                                   ``wavelengths_m`` (n_w,),
+                                                   ``n_wavelengths``, ``wavelength_order``,
+                                                   ``acquisition_json``,
                                                    ``instrument_json``,
                                                    ``software_version``, ``created_utc``
 =====================  ==========================  =========================================
@@ -49,13 +53,14 @@ process, so a stale lock file never blocks a resume.
 DC-normalised pressure (the ``pressure`` view of :class:`ScanData`): the FP sensor's AC
 output is pressure × sensitivity × DC level, so for A-line k
 
-    pressure[k, n] = (alines[k, n] · scale[k] + offset[k]) / dc_level[k]
+    pressure[w, k, n] = (alines[w, k, n] · scale[w, k] + offset[w, k]) / dc_level[w, k]
 
 (docs/protocol.md A-line frame; units Pa when scale/offset are in V and the sensitivity is
-V/(Pa·V), otherwise relative). Rows of points not yet complete are NaN.
+V/(Pa·V), otherwise relative). Rows of A-lines not yet complete are NaN.
 """
 from __future__ import annotations
 
+import dataclasses
 import datetime as _dt
 import errno
 import fcntl
@@ -73,12 +78,19 @@ import h5py
 import numpy as np
 from h5py import h5d, h5p, h5s, h5t
 
-from driver.plan import canonical_json, check_plan
+from driver.plan import canonical_json, check_plan, wavelength_order
 
-FORMAT = "fpscan-scan/1"
+FORMAT = "fpscan-scan/2"
+#: the single-wavelength layout of fpscan ≤ 0.x, still read by read_scan
+FORMAT_1 = "fpscan-scan/1"
 
 META_KEYS = ("run_id", "boot_id", "point_index", "pulse_number", "timestamp_s",
-             "bias_wavelength_m", "dc_level", "pulse_energy_j", "dt_s", "scale", "offset")
+             "bias_wavelength_m", "dc_level", "pulse_energy_j", "dt_s", "scale", "offset",
+             "wavelength_index", "excitation_wavelength_m")
+#: keys append() requires; ``point_index``, ``wavelength_index`` (default 0) and
+#: ``excitation_wavelength_m`` (default: the plan's wavelength) may be omitted
+_META_REQUIRED = frozenset(META_KEYS) - {"point_index", "wavelength_index",
+                                          "excitation_wavelength_m"}
 _META_KEY_SET = frozenset(META_KEYS)
 _FLOAT_KEYS = ("timestamp_s", "bias_wavelength_m", "dc_level", "pulse_energy_j", "dt_s",
                "scale", "offset")  # META_DTYPE order after the four integers
@@ -87,8 +99,9 @@ META_DTYPE = np.dtype([
     ("run_id", "<u8"), ("boot_id", "<u8"), ("point_index", "<i8"), ("pulse_number", "<u8"),
     ("timestamp_s", "<f8"), ("bias_wavelength_m", "<f8"), ("dc_level", "<f8"),
     ("pulse_energy_j", "<f8"), ("dt_s", "<f8"), ("scale", "<f8"), ("offset", "<f8"),
+    ("wavelength_index", "<i8"), ("excitation_wavelength_m", "<f8"),
 ])
-META_CHUNK = 64        # records per /aline_meta chunk (5.6 kB)
+META_CHUNK = 64        # records per /aline_meta chunk (6.7 kB)
 COMPLETED_CHUNK = 4096  # flags per /completed chunk (4 kB)
 DURABLE_POLICIES = ("process", "fsync")
 
@@ -100,6 +113,7 @@ class _PlanArrays:
     dt: float
     sound_speed: float
     wavelengths: np.ndarray
+    order: str
     positions: np.ndarray
     indices: np.ndarray
     weights: np.ndarray
@@ -113,7 +127,8 @@ def _check_plan(plan: Any) -> _PlanArrays:
     pos = np.asarray(pts["positions"], dtype=np.float64)
     return _PlanArrays(pos.shape[0], int(acq["n_t"]), float(acq["dt"]),
                        float(acq.get("sound_speed", 1500.0)),
-                       np.asarray(acq["wavelengths"], dtype=np.float64).reshape(-1), pos,
+                       np.asarray(acq["wavelengths"], dtype=np.float64).reshape(-1),
+                       wavelength_order(acq), pos,
                        np.asarray(pts["indices"], dtype=np.int64).astype(np.int32),
                        np.asarray(pts["weights"], dtype=np.float64))
 
@@ -320,20 +335,24 @@ class ScanFile:
         self._alines_id = self._alines.id
         self._meta_id = self._meta_ds.id
         self._done_id = self._completed_ds.id
-        self._meta_chunk = self._meta_ds.chunks[0]
-        self._done_chunk = self._completed_ds.chunks[0]
+        self._meta_chunk = self._meta_ds.chunks[1]
+        self._done_chunk = self._completed_ds.chunks[1]
         self.plan_id: str = str(h5.attrs["plan_id"])
         self.n_points: int = int(h5.attrs["n_points"])
         self.n_t: int = int(h5.attrs["n_t"])
-        pad_m = -(-self.n_points // META_CHUNK) * META_CHUNK
-        pad_c = -(-self.n_points // COMPLETED_CHUNK) * COMPLETED_CHUNK
-        self._meta = np.zeros(pad_m, META_DTYPE)
-        self._done = np.zeros(pad_c, np.uint8)
-        if self.n_points:
-            self._done[:self.n_points] = self._completed_ds[()]
-            self._meta[:self.n_points] = self._meta_ds[()]
+        self.wavelengths = np.asarray(h5.attrs["wavelengths_m"], dtype=np.float64).reshape(-1)
+        self.n_wavelengths: int = int(h5.attrs["n_wavelengths"])
+        self.wavelength_order: str = str(h5.attrs["wavelength_order"])
+        n_w, n = self.n_wavelengths, self.n_points
+        pad_m = -(-n // META_CHUNK) * META_CHUNK
+        pad_c = -(-n // COMPLETED_CHUNK) * COMPLETED_CHUNK
+        self._meta = np.zeros((n_w, pad_m), META_DTYPE)
+        self._done = np.zeros((n_w, pad_c), np.uint8)
+        if n:
+            self._done[:, :n] = self._completed_ds[()]
+            self._meta[:, :n] = self._meta_ds[()]
             # rows never written hold whatever the disk held: zero them in memory
-            self._meta[:self.n_points][self._done[:self.n_points] == 0] = np.zeros((), META_DTYPE)
+            self._meta[:, :n][self._done[:, :n] == 0] = np.zeros((), META_DTYPE)
         self._sync_fd = os.open(path, os.O_RDONLY) if durable == "fsync" else None
         self._closed = False
 
@@ -372,9 +391,11 @@ class ScanFile:
             f = h5py.File(tmp, "w", libver="latest")
             try:
                 n, n_t = pa.n_points, pa.n_t
-                _make_dataset(f, "alines", (n, n_t), np.dtype("<i2"), (1, n_t))
-                _make_dataset(f, "aline_meta", (n,), META_DTYPE, (min(META_CHUNK, n),))
-                _make_dataset(f, "completed", (n,), np.dtype("u1"), (min(COMPLETED_CHUNK, n),))
+                n_w = len(pa.wavelengths)
+                _make_dataset(f, "alines", (n_w, n, n_t), np.dtype("<i2"), (1, 1, n_t))
+                _make_dataset(f, "aline_meta", (n_w, n), META_DTYPE, (1, min(META_CHUNK, n)))
+                _make_dataset(f, "completed", (n_w, n), np.dtype("u1"),
+                              (1, min(COMPLETED_CHUNK, n)))
                 f.create_dataset("positions", data=pa.positions)
                 f.create_dataset("indices", data=pa.indices)
                 f.create_dataset("weights", data=pa.weights)
@@ -388,14 +409,17 @@ class ScanFile:
                 a["dt_s"] = pa.dt
                 a["sound_speed_m_per_s"] = pa.sound_speed
                 a["wavelengths_m"] = pa.wavelengths
+                a["n_wavelengths"] = n_w
+                a["wavelength_order"] = pa.order
                 a["acquisition_json"] = canonical_json(plan["acquisition"])
                 a["instrument_json"] = instrument_json
                 a["software_version"] = software_version
                 a["created_utc"] = _dt.datetime.now(_dt.UTC).isoformat()
                 # zero the flags (early allocation with FILL_TIME_NEVER leaves them undefined)
                 zeros = np.zeros(min(COMPLETED_CHUNK, n), np.uint8)
-                for start in range(0, n, COMPLETED_CHUNK):
-                    f["completed"].id.write_direct_chunk((start,), zeros)
+                for w in range(n_w):
+                    for start in range(0, n, COMPLETED_CHUNK):
+                        f["completed"].id.write_direct_chunk((w, start), zeros)
                 f.swmr_mode = True  # flushes all metadata; from here on only raw writes
             except BaseException:
                 f.close()
@@ -443,6 +467,9 @@ class ScanFile:
             except OSError as exc:
                 raise ValueError(f"{path} cannot be opened as HDF5: {exc}") from None
             try:
+                if f.attrs.get("format") == FORMAT_1:
+                    raise ValueError(f"{path} is an {FORMAT_1} file (an older fpscan's single-"
+                                     f"wavelength layout): it can be read, not resumed")
                 if f.attrs.get("format") != FORMAT:
                     raise ValueError(f"{path} is not an {FORMAT} file")
                 if plan is not None:
@@ -470,19 +497,31 @@ class ScanFile:
         return json.loads(self._f["plan_json"][()].decode())
 
     def completed(self) -> np.ndarray:
-        """``(n_points,)`` bool: the record of completed points (a copy)."""
-        return self._done[:self.n_points].astype(bool)
+        """``(n_points,)`` bool: points complete at every wavelength (a copy)."""
+        return self._done[:, :self.n_points].all(axis=0)
+
+    def completed_by_wavelength(self) -> np.ndarray:
+        """``(n_wavelengths, n_points)`` bool: the record of completed A-lines (a copy)."""
+        return self._done[:, :self.n_points].astype(bool)
 
     def n_completed(self) -> int:
-        return int(self._done[:self.n_points].sum())
+        """Points complete at every wavelength."""
+        return int(self.completed().sum())
+
+    def n_completed_alines(self) -> int:
+        """A-lines complete (at most n_points · n_wavelengths)."""
+        return int(self._done[:, :self.n_points].sum())
 
     # -- writing --------------------------------------------------------------------------
     def append(self, point_index: int, samples: np.ndarray, meta: dict) -> bool:
-        """Store the A-line of point ``point_index``; False if that point is already complete.
+        """Store the A-line of point ``point_index`` at wavelength ``meta["wavelength_index"]``
+        (default 0); False if that A-line is already complete.
 
-        ``samples``: int16 array ``(n_t,)`` as received. ``meta``: dict with exactly the keys
-        ``META_KEYS`` (``point_index`` may be omitted; if present it must equal the
-        argument); ``dc_level`` must be finite and > 0, ``scale``/``offset`` finite.
+        ``samples``: int16 array ``(n_t,)`` as received. ``meta``: dict with the keys
+        ``META_KEYS``, of which ``point_index`` (if present it must equal the argument),
+        ``wavelength_index`` (0 ≤ w < n_wavelengths; default 0) and
+        ``excitation_wavelength_m`` (default: the plan's wavelength w) may be omitted;
+        ``dc_level`` must be finite and > 0, ``scale``/``offset`` finite.
         When it returns True the A-line is durable under the file's policy.
         Raises ValueError on bad input (nothing is written then), RuntimeError if closed.
         """
@@ -500,20 +539,22 @@ class ScanFile:
         if samples.shape != (self.n_t,):
             raise ValueError(f"samples must have shape ({self.n_t},), got {samples.shape}")
         rec = self._meta_record(k, meta)
+        w = rec[11]
         with self._mutex:
-            if self._done[k]:
+            if self._done[w, k]:
                 return False
             data = np.ascontiguousarray(samples, dtype="<i2")
-            self._alines_id.write_direct_chunk((k, 0), data)
+            self._alines_id.write_direct_chunk((w, k, 0), data)
             m0 = k - k % META_CHUNK
-            self._meta[k] = rec
-            self._meta_id.write_direct_chunk((m0,), self._meta[m0:m0 + self._meta_chunk])
+            self._meta[w, k] = rec
+            self._meta_id.write_direct_chunk((w, m0), self._meta[w, m0:m0 + self._meta_chunk])
             c0 = k - k % COMPLETED_CHUNK
-            self._done[k] = 1
+            self._done[w, k] = 1
             try:
-                self._done_id.write_direct_chunk((c0,), self._done[c0:c0 + self._done_chunk])
+                self._done_id.write_direct_chunk((w, c0),
+                                                 self._done[w, c0:c0 + self._done_chunk])
             except BaseException:
-                self._done[k] = 0
+                self._done[w, k] = 0
                 raise
             if self._sync_fd is not None:
                 os.fsync(self._sync_fd)
@@ -533,13 +574,11 @@ class ScanFile:
         """Validated metadata as a tuple in ``META_DTYPE`` field order."""
         if not isinstance(meta, dict):
             raise ValueError(f"meta must be a dict, got {type(meta).__name__}")
-        n_keys = len(meta)
-        if not (n_keys == 11 or (n_keys == 10 and "point_index" not in meta)) or \
-                not _META_KEY_SET.issuperset(meta):
+        if not (_META_KEY_SET.issuperset(meta) and _META_REQUIRED.issubset(meta)):
             unknown = set(meta) - _META_KEY_SET
             if unknown:
                 raise ValueError(f"unknown A-line metadata keys: {sorted(unknown)}")
-            missing = [key for key in META_KEYS if key not in meta and key != "point_index"]
+            missing = [key for key in META_KEYS if key not in meta and key in _META_REQUIRED]
             raise ValueError(f"A-line metadata missing keys: {missing}")
         try:
             floats = [float(meta[key]) for key in _FLOAT_KEYS]
@@ -561,9 +600,27 @@ class ScanFile:
             raise ValueError(f"meta['scale'] must be finite, got {scale}")
         if not math.isfinite(offset):
             raise ValueError(f"meta['offset'] must be finite, got {offset}")
+        w, wavelength = self._wavelength_of(meta)
         return (self._uint("run_id", meta["run_id"]), self._uint("boot_id", meta["boot_id"]),
                 pi, self._uint("pulse_number", meta["pulse_number"]),
-                timestamp, bias, dc, energy, dt, scale, offset)
+                timestamp, bias, dc, energy, dt, scale, offset, w, wavelength)
+
+    def _wavelength_of(self, meta: dict) -> tuple[int, float]:
+        w = self._uint("wavelength_index", meta.get("wavelength_index", 0))
+        if w >= self.n_wavelengths:
+            raise ValueError(f"meta wavelength_index {w} out of range "
+                             f"[0, {self.n_wavelengths})")
+        if "excitation_wavelength_m" not in meta:
+            return w, float(self.wavelengths[w])
+        try:
+            wavelength = float(meta["excitation_wavelength_m"])
+        except (TypeError, ValueError):
+            raise ValueError(f"meta['excitation_wavelength_m'] must be a number, got "
+                             f"{meta['excitation_wavelength_m']!r}") from None
+        if not (math.isfinite(wavelength) and wavelength > 0):
+            raise ValueError(f"meta excitation_wavelength_m must be finite and > 0 m, got "
+                             f"{wavelength}")
+        return w, wavelength
 
     def flush(self) -> None:
         """Flush HDF5 buffers (nothing is buffered after append) and fsync the file."""
@@ -604,17 +661,26 @@ class ScanFile:
 class ScanData:
     """Everything in a scan file, read at one instant (:func:`read_scan`).
 
-    Arrays are indexed by point index k (scan order). Rows of points whose
-    ``completed[k]`` is False hold no data: ``alines`` 0, metadata 0, ``pressure`` NaN.
+    Arrays are indexed by point index k (scan order). The per-A-line arrays are views at
+    one excitation wavelength, ``wavelength_index`` (default 0), so a single-wavelength
+    user reads exactly what a one-wavelength file holds; the ``*_all`` arrays hold every
+    wavelength (first axis w, the index into ``wavelengths``). Rows of A-lines whose
+    completion flag is False hold no data: ``alines`` 0, metadata 0, ``pressure`` NaN.
 
-    - ``alines``: ``(n_points, n_t)`` int16 as received.
+    - ``alines``: ``(n_points, n_t)`` int16 as received; ``alines_all``
+      ``(n_wavelengths, n_points, n_t)``.
     - ``scale``, ``offset``, ``dc_level``: ``(n_points,)`` float64 (from the metadata).
     - ``pressure``: ``(n_points, n_t)`` float, DC-normalised
-      ``(alines·scale + offset) / dc_level`` (module docstring).
+      ``(alines·scale + offset) / dc_level`` (module docstring); ``pressure_all``
+      ``(n_wavelengths, n_points, n_t)``.
+    - ``completed``: ``(n_points,)`` bool at ``wavelength_index``; ``completed_all``
+      ``(n_wavelengths, n_points)``.
     - ``positions``: ``(n_points, 2)`` (x, y) in m (2-D plans: ``(n_points, 1)``);
       ``indices`` ``(n_points, 2)`` lattice (i_x, i_y); ``weights`` ``(n_points,)``.
-    - ``meta``: dict key → ``(n_points,)`` array for every key of ``META_KEYS``.
-    - ``dt`` (s), ``sound_speed`` (m/s), ``wavelengths`` (m) from the plan's acquisition.
+    - ``meta``: dict key → ``(n_points,)`` array for every key of ``META_KEYS``;
+      ``meta_all``: key → ``(n_wavelengths, n_points)``.
+    - ``dt`` (s), ``sound_speed`` (m/s), ``wavelengths`` (m, ``(n_wavelengths,)``) and
+      ``wavelength_order`` from the plan's acquisition.
     """
 
     path: Path
@@ -640,31 +706,67 @@ class ScanData:
     software_version: str
     created_utc: str
     attrs: dict = field(default_factory=dict)
+    n_wavelengths: int = 1
+    wavelength_index: int = 0
+    wavelength_order: str = "per_point"
+    alines_all: np.ndarray | None = None
+    pressure_all: np.ndarray | None = None
+    completed_all: np.ndarray | None = None
+    meta_all: dict = field(default_factory=dict)
+
+    def at_wavelength(self, index: int) -> ScanData:
+        """The same data with the per-A-line views at wavelength ``index`` (views, no copy).
+        Raises ``ValueError`` if ``index`` is not in ``[0, n_wavelengths)``."""
+        if isinstance(index, bool) or not isinstance(index, numbers.Integral) or \
+                not 0 <= index < self.n_wavelengths:
+            raise ValueError(f"wavelength index must be an integer in [0, {self.n_wavelengths})"
+                             f" (the scan's {self.n_wavelengths} wavelengths), got {index!r}")
+        w = int(index)
+        meta = {k: v[w] for k, v in self.meta_all.items()}
+        return dataclasses.replace(
+            self, wavelength_index=w, alines=self.alines_all[w], pressure=self.pressure_all[w],
+            completed=self.completed_all[w], meta=meta, scale=meta["scale"],
+            offset=meta["offset"], dc_level=meta["dc_level"])
 
     def completed_only(self) -> ScanData:
-        """A copy restricted to the completed points (rows kept in scan order)."""
+        """A copy restricted to the points complete at ``wavelength_index`` (rows kept in
+        scan order; the ``*_all`` arrays are restricted to the same points)."""
         sel = np.flatnonzero(self.completed)
-        return ScanData(
-            path=self.path, plan=self.plan, plan_id=self.plan_id, n_points=len(sel),
-            n_t=self.n_t, dt=self.dt, sound_speed=self.sound_speed,
-            wavelengths=self.wavelengths, alines=self.alines[sel], scale=self.scale[sel],
+        return dataclasses.replace(
+            self, n_points=len(sel), alines=self.alines[sel], scale=self.scale[sel],
             offset=self.offset[sel], dc_level=self.dc_level[sel],
             pressure=self.pressure[sel], positions=self.positions[sel],
             indices=self.indices[sel], weights=self.weights[sel],
             completed=self.completed[sel], meta={k: v[sel] for k, v in self.meta.items()},
-            acquisition=self.acquisition, instrument=self.instrument,
-            software_version=self.software_version, created_utc=self.created_utc,
+            alines_all=self.alines_all[:, sel], pressure_all=self.pressure_all[:, sel],
+            completed_all=self.completed_all[:, sel],
+            meta_all={k: v[:, sel] for k, v in self.meta_all.items()},
             attrs=dict(self.attrs, subset_of_n_points=self.n_points))
 
 
+def _read_v1(f: h5py.File, wavelengths: np.ndarray) -> tuple:
+    """An ``fpscan-scan/1`` file's record, samples and metadata in the version-2 shapes."""
+    done = f["completed"][()].astype(bool)[None]
+    old = f["aline_meta"][()]
+    alines = f["alines"][()][None]
+    meta_arr = np.zeros((1, old.shape[0]), META_DTYPE)
+    for name in old.dtype.names:
+        meta_arr[0][name] = old[name]
+    meta_arr["excitation_wavelength_m"] = wavelengths[0] if wavelengths.size else np.nan
+    return done, meta_arr, alines
+
+
 def read_scan(path: str | os.PathLike, *, dtype: Any = np.float64,
-              timeout: float = 5.0) -> ScanData:
+              timeout: float = 5.0, wavelength_index: int = 0) -> ScanData:
     """Read a scan file, complete or still being written (SWMR reader).
 
+    Reads ``fpscan-scan/2`` files and the single-wavelength ``fpscan-scan/1`` layout.
     ``dtype``: float type of the ``pressure`` view (float64 or float32). ``timeout``: how
     long to retry while a writer is (re)opening the file and holds its lock.
-    The completion record is read first, so every point it marks complete has its samples
-    and metadata present. Raises FileNotFoundError, ValueError (not a scan file).
+    ``wavelength_index``: the wavelength the per-A-line views show (``ScanData``).
+    The completion record is read first, so every A-line it marks complete has its
+    samples and metadata present. Raises FileNotFoundError, ValueError (not a scan file,
+    wavelength index out of range).
     """
     path = Path(path)
     dtype = np.dtype(dtype)
@@ -674,34 +776,42 @@ def read_scan(path: str | os.PathLike, *, dtype: Any = np.float64,
         raise FileNotFoundError(f"no scan file at {path}")
     f = open_readonly(path, timeout)
     with f:
-        if f.attrs.get("format") != FORMAT:
-            raise ValueError(f"{path} is not an {FORMAT} file")
-        done = f["completed"][()].astype(bool)
-        meta_arr = f["aline_meta"][()]
-        alines = f["alines"][()]
-        plan = json.loads(f["plan_json"][()].decode())
+        fmt = f.attrs.get("format")
+        if fmt not in (FORMAT, FORMAT_1):
+            raise ValueError(f"{path} is not an {FORMAT} (or {FORMAT_1}) file")
         attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
+        wavelengths = np.asarray(attrs["wavelengths_m"], dtype=np.float64).reshape(-1)
+        if fmt == FORMAT_1:
+            done, meta_arr, alines = _read_v1(f, wavelengths)
+        else:
+            done = f["completed"][()].astype(bool)
+            meta_arr = f["aline_meta"][()]
+            alines = f["alines"][()]
+        plan = json.loads(f["plan_json"][()].decode())
         positions = f["positions"][()]
         indices = f["indices"][()]
         weights = f["weights"][()]
     alines[~done] = 0
     meta_arr[~done] = np.zeros((), META_DTYPE)
-    meta = {k: np.ascontiguousarray(meta_arr[k]) for k in META_KEYS}
-    scale, offset, dc = meta["scale"], meta["offset"], meta["dc_level"]
+    meta_all = {k: np.ascontiguousarray(meta_arr[k]) for k in META_KEYS}
+    scale, offset, dc = meta_all["scale"], meta_all["offset"], meta_all["dc_level"]
     pressure = alines.astype(dtype)
-    pressure *= scale.astype(dtype)[:, None]
-    pressure += offset.astype(dtype)[:, None]
+    pressure *= scale.astype(dtype)[..., None]
+    pressure += offset.astype(dtype)[..., None]
     with np.errstate(divide="ignore", invalid="ignore"):
-        pressure /= dc.astype(dtype)[:, None]
+        pressure /= dc.astype(dtype)[..., None]
     pressure[~done] = np.nan
-    return ScanData(
+    acquisition = json.loads(attrs["acquisition_json"])
+    data = ScanData(
         path=path, plan=plan, plan_id=str(attrs["plan_id"]), n_points=int(attrs["n_points"]),
         n_t=int(attrs["n_t"]), dt=float(attrs["dt_s"]),
-        sound_speed=float(attrs["sound_speed_m_per_s"]),
-        wavelengths=np.asarray(attrs["wavelengths_m"], dtype=np.float64).reshape(-1),
-        alines=alines, scale=scale, offset=offset, dc_level=dc, pressure=pressure,
-        positions=positions, indices=indices, weights=weights, completed=done, meta=meta,
-        acquisition=json.loads(attrs["acquisition_json"]),
-        instrument=json.loads(attrs["instrument_json"]),
+        sound_speed=float(attrs["sound_speed_m_per_s"]), wavelengths=wavelengths,
+        alines=alines[0], scale=scale[0], offset=offset[0], dc_level=dc[0],
+        pressure=pressure[0], positions=positions, indices=indices, weights=weights,
+        completed=done[0], meta={k: v[0] for k, v in meta_all.items()},
+        acquisition=acquisition, instrument=json.loads(attrs["instrument_json"]),
         software_version=str(attrs["software_version"]), created_utc=str(attrs["created_utc"]),
-        attrs=attrs)
+        attrs=attrs, n_wavelengths=done.shape[0],
+        wavelength_order=str(attrs.get("wavelength_order", "per_point")),
+        alines_all=alines, pressure_all=pressure, completed_all=done, meta_all=meta_all)
+    return data.at_wavelength(wavelength_index) if wavelength_index != 0 else data

@@ -17,9 +17,18 @@ Signal model, per plan point k at lattice point (i_x, i_y) (all deterministic gi
   amplitude; the plan's ``averages`` pulses are averaged);
 * int16 quantisation: scale = max|v_k|/32767, offset = 0, sample = round(v_k/scale).
 
+Wavelengths: a plan with N excitation wavelengths is acquired as N·n_points A-lines in
+the plan's order (``per_point`` or ``per_pass``, :func:`driver.plan.aline_order`); the
+source renders each A-line at its wavelength (wavelength-dependent phantoms:
+:class:`driver.sources.BallSource` with ``so2``). Fault positions (stall, reset, interlock
+at K) count A-lines in acquisition order (= points for one wavelength).
+
 Timing: with ``prf`` > 0 the laser fires on a clock of period 1/prf started by SCAN:STAR;
-point k uses the first ``averages`` ticks after the previous point and after its bias
-tuning (``tuning_delay`` s), so N points take N·averages/prf s; ``prf`` = 0 is unthrottled.
+A-line s uses the first ``averages`` ticks after the previous A-line and after its
+preparation: galvo move and bias tuning (``tuning_delay`` s) when the point changes,
+excitation laser tuning (``laser_tuning_delay`` s) when the wavelength changes, the
+longer of the two when both do (they run in parallel). So N points at one wavelength
+take N·averages/prf s; ``prf`` = 0 is unthrottled.
 ``byte_rate`` limits the device's output bytes/s (a UART-like link).
 
 Faults (:mod:`driver.faults`) are seeded by ``seed``. The ground truth (every A-line as
@@ -48,7 +57,7 @@ from driver import commands as scpi
 from driver.aline import pack_aline
 from driver.faults import FaultSpec, damage
 from driver.framing import Deframer, FrameType, encode_frame
-from driver.plan import DevicePlan, parse_plan_image
+from driver.plan import DevicePlan, image_size_limit, parse_plan_image
 
 if TYPE_CHECKING:
     from driver.sources import Source
@@ -65,6 +74,7 @@ class SimConfig:
     source: Source | None = None  #: a driver.sources source; None = BallSource(default_phantom())
     prf: float = 50.0  #: laser pulse repetition frequency, Hz (0 = unthrottled)
     tuning_delay: float = 0.0  #: bias-wavelength tuning time per point, s
+    laser_tuning_delay: float = 0.0  #: excitation-wavelength tuning time, s
     dc_level: float = 1.0  #: mean photodiode DC level, V
     dc_variation: float = 0.0  #: relative amplitude of the DC-level map
     sensitivity_variation: float = 0.0  #: relative amplitude of the sensitivity map
@@ -88,6 +98,7 @@ class SimConfig:
         checks = [
             ("prf", self.prf >= 0, ">= 0 Hz"),
             ("tuning_delay", self.tuning_delay >= 0, ">= 0 s"),
+            ("laser_tuning_delay", self.laser_tuning_delay >= 0, ">= 0 s"),
             ("dc_level", self.dc_level > 0, "> 0 V"),
             ("dc_variation", 0 <= self.dc_variation < 1, "in [0, 1)"),
             ("sensitivity_variation", 0 <= self.sensitivity_variation < 1, "in [0, 1)"),
@@ -181,6 +192,7 @@ class SimulatedScanner:
         self._boot_time = time.monotonic()
         self._state = "IDLE"
         self._plan: DevicePlan | None = None
+        self._order: tuple[np.ndarray, np.ndarray] = (np.zeros(0, np.int64),) * 2
         self._plan_image = bytearray()
         self._plan_expected = 0
         self._plan_hash = ""
@@ -360,7 +372,7 @@ class SimulatedScanner:
 
     def _maybe_finish(self) -> None:
         if (self._state == "RUNNING" and self._plan is not None
-                and self._next_k >= self._plan.n_points and not self._unacked):
+                and self._next_k >= self._plan.n_alines and not self._unacked):
             self._state = "IDLE"
             self._send(FrameType.EVENT, f"DONE {self._run_id}".encode())
             if self.config.record:
@@ -395,7 +407,7 @@ class SimulatedScanner:
         if self._state != "RUNNING" or plan is None:
             return
         cfg = self.config
-        while (self._next_k < plan.n_points and len(self._unacked) < self._window
+        while (self._next_k < plan.n_alines and len(self._unacked) < self._window
                and len(self._out) < (1 << 18)):
             k = self._next_k
             if k in self._stalls:
@@ -430,10 +442,11 @@ class SimulatedScanner:
                 self._clock0 = self._last_fire = now
             if cfg.prf > 0:
                 if self._ready_k != k:
-                    # galvo move and bias tuning start right after the previous pulse, or
-                    # when the point could not start earlier (no credit, data not ready)
+                    # galvo move, bias and laser tuning start right after the previous
+                    # pulse, or when the A-line could not start earlier (no credit, data
+                    # not ready)
                     prev = self._clock0 if k == self._run_from else self._last_fire
-                    ready = prev + cfg.tuning_delay
+                    ready = prev + self._preparation(k)
                     if self._held:
                         ready = max(ready, now)
                     self._ready_k, self._ready_t = k, ready
@@ -454,19 +467,32 @@ class SimulatedScanner:
             self._send_point(k, timestamp)
             self._next_k += 1
             self._held = False
-        if self._next_k < plan.n_points and self._state == "RUNNING":
+        if self._next_k < plan.n_alines and self._state == "RUNNING":
             self._held = True  # out of credit or output space: the next point waits
             self.stats["waits_credit" if len(self._unacked) >= self._window
                        else "waits_output"] += 1
         self._maybe_finish()
 
-    def _send_point(self, k: int, timestamp: float) -> None:
+    def _preparation(self, s: int) -> float:
+        """Seconds before A-line ``s`` can fire after the previous one (module docstring)."""
+        cfg = self.config
+        kk, ww = self._order
+        if s == self._run_from:
+            multi = len(self._loaded_plan().wavelengths) > 1
+            return max(cfg.tuning_delay, cfg.laser_tuning_delay if multi else 0.0)
+        delay = cfg.tuning_delay if kk[s] != kk[s - 1] else 0.0
+        if ww[s] != ww[s - 1]:
+            delay = max(delay, cfg.laser_tuning_delay)
+        return delay
+
+    def _send_point(self, s: int, timestamp: float) -> None:
         plan = self._loaded_plan()
-        b = self._block(k // BLOCK).result()
-        j = k % BLOCK
+        b = self._block(s // BLOCK).result()
+        j = s % BLOCK
+        k, w = int(self._order[0][s]), int(self._order[1][s])
         payload = pack_aline(self._run_id, self._boot_id, k, self._pulses, timestamp,
                              b["bias"][j], plan.dt, b["scale"][j], 0.0, b["dc"][j],
-                             b["energy"][j], b["samples"][j])
+                             b["energy"][j], b["samples"][j], w, plan.wavelengths[w])
         seq = self._next_seq
         self._next_seq += 1
         wire = encode_frame(FrameType.ALINE, payload, seq=seq, ack=self._last_cmd[0]
@@ -478,10 +504,10 @@ class SimulatedScanner:
         self.stats["alines"] += 1
         rec = self._records.get(plan.plan_id)
         if rec is not None:
-            rec["samples"][k] = b["samples"][j]
-            rec["scale"][k] = b["scale"][j]
-            rec["dc"][k] = b["dc"][j]
-            rec["sent"][k] = True
+            rec["samples"][w, k] = b["samples"][j]
+            rec["scale"][w, k] = b["scale"][j]
+            rec["dc"][w, k] = b["dc"][j]
+            rec["sent"][w, k] = True
 
     def _loaded_plan(self) -> DevicePlan:
         if self._plan is None:  # only called while a plan runs
@@ -496,7 +522,7 @@ class SimulatedScanner:
         if got is None:
             got = self._blocks[bi] = self._pool.submit(self._generate, plan,
                                                        self._pressure, bi)
-        n_blocks = math.ceil(plan.n_points / BLOCK)
+        n_blocks = math.ceil(plan.n_alines / BLOCK)
         if bi + 1 < n_blocks and bi + 1 not in self._blocks:
             self._blocks[bi + 1] = self._pool.submit(self._generate, plan,
                                                      self._pressure, bi + 1)
@@ -506,10 +532,11 @@ class SimulatedScanner:
         return got
 
     def _generate(self, plan: DevicePlan, pressure, bi: int) -> dict:
-        """A-lines of plan points [bi·BLOCK, (bi+1)·BLOCK) as int16 with their metadata."""
+        """A-lines [bi·BLOCK, (bi+1)·BLOCK) in acquisition order as int16 with their
+        metadata."""
         cfg = self.config
-        ks = np.arange(bi * BLOCK, min((bi + 1) * BLOCK, plan.n_points))
-        p = np.asarray(pressure(ks), dtype=np.float64).reshape(len(ks), plan.n_t)
+        ks, ws = plan.aline_order(np.arange(bi * BLOCK, min((bi + 1) * BLOCK, plan.n_alines)))
+        p = np.asarray(pressure(ks, ws), dtype=np.float64).reshape(len(ks), plan.n_t)
         ix = plan.indices[ks, 0].astype(np.float64) / max(plan.n_x - 1, 1)
         iy = plan.indices[ks, 1].astype(np.float64) / max(plan.n_y - 1, 1)
         m1 = np.cos(2 * np.pi * (ix - 0.3)) * np.cos(np.pi * (iy - 0.5))
@@ -588,7 +615,7 @@ class SimulatedScanner:
     def _cmd_plan_begin(self, cmd):
         self._require_idle()
         n = scpi.int_arg(cmd, 0)
-        limit = 100 + 4 * self.config.max_points
+        limit = image_size_limit(self.config.max_points)
         if not 100 < n <= limit:
             raise _Error(-222, f"Data out of range; plan image of {n} bytes (max {limit})")
         self._plan = None
@@ -630,15 +657,15 @@ class SimulatedScanner:
             raise _Error(-200, f"Execution error; plan image has {len(image)} of "
                                f"{self._plan_expected} bytes")
         got = hashlib.sha256(image).hexdigest()
+        self._plan_expected = 0  # the upload ends here, whether the plan is loaded or not
         if got != want:
-            self._plan_expected = 0
             raise _Error(102, "Plan hash mismatch")
         try:
             plan = parse_plan_image(image)
         except ValueError as exc:
             raise _Error(-224, f"Illegal parameter value; {exc}") from None
         c = self.config
-        if plan.n_points > c.max_points or plan.n_t > c.max_samples:
+        if plan.n_alines > c.max_points or plan.n_t > c.max_samples:
             raise _Error(-222, f"Data out of range; plan of {plan.n_points} points × "
                                f"{plan.n_t} samples exceeds the device's {c.max_points} × "
                                f"{c.max_samples}")
@@ -648,17 +675,19 @@ class SimulatedScanner:
             raise _Error(-221, f"Settings conflict; {exc}") from None
         self._peak = float(c.source.peak)
         self._plan, self._pressure, self._plan_hash = plan, pressure, got
+        self._order = plan.aline_order()
         self._plan_expected = 0
         self._blocks.clear()
         if plan.plan_id not in self._records:
             self._records[plan.plan_id] = {
                 "plan": plan,
-                "samples": np.zeros((plan.n_points, plan.n_t), np.int16),
-                "scale": np.zeros(plan.n_points), "dc": np.zeros(plan.n_points),
-                "sent": np.zeros(plan.n_points, bool)}
+                "samples": np.zeros((plan.n_wavelengths, plan.n_points, plan.n_t), np.int16),
+                "scale": np.zeros((plan.n_wavelengths, plan.n_points)),
+                "dc": np.zeros((plan.n_wavelengths, plan.n_points)),
+                "sent": np.zeros((plan.n_wavelengths, plan.n_points), bool)}
             self._record_order.append(plan.plan_id)
         if c.precompute:
-            for bi in range(math.ceil(plan.n_points / BLOCK)):
+            for bi in range(math.ceil(plan.n_alines / BLOCK)):
                 self._blocks[bi] = done = Future()
                 done.set_result(self._generate(plan, pressure, bi))
         else:
@@ -680,9 +709,9 @@ class SimulatedScanner:
         if self._plan is None:
             raise _Error(103, "No plan loaded")
         k = scpi.int_arg(cmd, 0) if cmd.args else 0
-        if not 0 <= k < self._plan.n_points:
+        if not 0 <= k < self._plan.n_alines:
             raise _Error(-222, f"Data out of range; start index {k} not in "
-                               f"[0, {self._plan.n_points})")
+                               f"[0, {self._plan.n_alines})")
         self._block(k // BLOCK)
         self._clock_pending = True
         self._run_id += 1
@@ -722,7 +751,7 @@ class SimulatedScanner:
         self._abort()
 
     def _cmd_scan_status(self, cmd):
-        n = self._plan.n_points if self._plan else 0
+        n = self._plan.n_alines if self._plan else 0
         return (f"{self._state},{self._boot_id},{self._run_id},{self._next_k},{n},"
                 f"{self._next_seq},{len(self._unacked)}").encode()
 
@@ -733,10 +762,12 @@ class SimulatedScanner:
     def write_record(self, path) -> None:
         """Write the ground truth — every A-line as last sent, per plan — to HDF5.
 
-        Layout: group ``/plans/<plan_id>`` with ``samples`` int16 ``(n_points, n_t)``,
-        ``scale``, ``offset``, ``dc_level`` ``(n_points,)`` (value = sample·scale + offset,
-        in Pa·V; pressure = value/dc_level in Pa), ``sent`` bool ``(n_points,)``,
-        ``indices`` ``(n_points, 2)``, attributes ``dt_s``, ``n_t``; root attribute
+        Layout: group ``/plans/<plan_id>`` with ``samples`` int16
+        ``(n_wavelengths, n_points, n_t)``, ``scale``, ``offset``, ``dc_level``
+        ``(n_wavelengths, n_points)`` (value = sample·scale + offset, in Pa·V; pressure =
+        value/dc_level in Pa), ``sent`` bool ``(n_wavelengths, n_points)``, ``indices``
+        ``(n_points, 2)``, ``wavelengths_m`` ``(n_wavelengths,)``, attributes ``dt_s``,
+        ``n_t``; root attribute
         ``last_plan_id``. The file is replaced atomically.
         """
         import h5py
@@ -754,6 +785,7 @@ class SimulatedScanner:
                     g.create_dataset("dc_level", data=rec["dc"])
                     g.create_dataset("sent", data=rec["sent"])
                     g.create_dataset("indices", data=rec["plan"].indices)
+                    g.create_dataset("wavelengths_m", data=np.asarray(rec["plan"].wavelengths))
                     g.attrs["dt_s"] = rec["plan"].dt
                     g.attrs["n_t"] = rec["plan"].n_t
                 f.attrs["last_plan_id"] = self._record_order[-1] if self._record_order else ""

@@ -1,12 +1,17 @@
 """A-line sources of the simulated FP scanner: what pressure reaches each sensor point.
 
 Every source is prepared for one uploaded plan (:meth:`Source.prepare`), which checks the
-plan against the source and returns a function ``pressure(ks) -> (len(ks), n_t)`` float64
-in Pa for point indices ``ks`` of that plan (deterministic: the same point always gives the
-same A-line). Sources:
+plan against the source and returns a function ``pressure(ks, ws=None) -> (len(ks), n_t)``
+float64 in Pa for point indices ``ks`` of that plan at excitation wavelength indices ``ws``
+(``None``: the first; deterministic: the same point and wavelength always give the same
+A-line). Sources:
 
 * :class:`BallSource` — analytic balls: exact N-shaped waves averaged over each sample
-  interval (``driver.physics.ball_alines``; DESIGN §5).
+  interval (``driver.physics.ball_alines``; DESIGN §5). With ``so2`` given, each ball is
+  blood-like tissue, a mixture of HbO2 and Hb at that oxygen saturation, and its
+  amplitude follows its absorption at each wavelength: p0 = Γ·Φ·μa(λ) with μa from
+  Prahl's molar extinction table (``driver.physics.spectra``). Without, balls have the
+  same amplitude at every wavelength, as do the other sources.
 * :class:`VolumeSource` — any p0 volume (HDF5 ``p0`` ``(n_z, n_y, n_x)``) through the exact
   planar forward model ``driver.physics.forward.forward_points``.
 * :class:`ReplaySource` — a recorded dense dataset in k-Wave layout (``sensor_data/clean``
@@ -15,7 +20,7 @@ same A-line). Sources:
 """
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
@@ -24,7 +29,7 @@ import numpy as np
 
 from driver.plan import DevicePlan
 
-PressureFn = Callable[[np.ndarray], np.ndarray]
+PressureFn = Callable[..., np.ndarray]  # pressure(ks, ws=None) -> (len(ks), n_t)
 
 
 class Source(Protocol):
@@ -71,38 +76,104 @@ def default_phantom() -> list:
 
 @dataclass
 class BallSource:
-    """Analytic balls (``driver.physics.Ball``) in a medium of sound speed ``c`` (m/s)."""
+    """Analytic balls (``driver.physics.Ball``) in a medium of sound speed ``c`` (m/s).
+
+    Spectral phantom (optional): ``so2`` — one oxygen saturation (0..1) per ball;
+    ``thb`` — total haemoglobin per ball (or one for all), mol/m³ (default whole blood,
+    ``driver.physics.spectra.BLOOD_THB`` ≈ 2.33 mol/m³); ``gruneisen`` Γ (dimensionless)
+    and ``fluence`` Φ (J/m², the same everywhere). Ball i then has the initial pressure
+    p0_i(λ) = Γ·Φ·μa_i(λ), μa_i(λ) = ln 10 · thb_i · (so2_i·ε_HbO2(λ) + (1 − so2_i)·ε_Hb(λ))
+    (Prahl's table, ``driver.physics.spectra.absorption``), and its ``amplitude`` is not
+    used. Raises ``ValueError`` (at construction) for so2/thb of the wrong length or out of
+    range, and (in :meth:`prepare`) for wavelengths outside the table.
+    """
 
     balls: list
     c: float = 1500.0
+    so2: Sequence[float] | None = None
+    thb: float | Sequence[float] | None = None
+    gruneisen: float = 0.2
+    fluence: float = 100.0
+
+    def __post_init__(self):
+        if self.so2 is None:
+            self._amplitudes = np.array([[b.amplitude for b in self.balls]], dtype=np.float64)
+            return
+        from driver.physics import spectra
+
+        so2 = np.asarray(self.so2, dtype=np.float64)
+        thb = np.asarray(spectra.BLOOD_THB if self.thb is None else self.thb, dtype=np.float64)
+        if so2.shape != (len(self.balls),) or thb.shape not in ((), so2.shape):
+            raise ValueError(f"so2 (and thb, if not one value) need one value per ball "
+                             f"({len(self.balls)}), got shapes {so2.shape}, {thb.shape}")
+        thb = np.broadcast_to(thb, so2.shape)
+        if not (self.gruneisen > 0 and self.fluence > 0):
+            raise ValueError("gruneisen and fluence must be > 0")
+        spectra.absorption(7.5e-7, so2, thb)  # checks so2 in [0, 1], thb >= 0
+        self._so2, self._thb = so2, np.array(thb)
+        self._amplitudes = np.zeros((1, len(self.balls)))
+
+    def amplitudes(self, wavelengths: Sequence[float]) -> np.ndarray:
+        """Ball amplitudes ``(n_wavelengths, n_balls)`` in Pa at ``wavelengths`` (m)."""
+        if self.so2 is None:
+            return np.repeat(self._amplitudes, max(1, len(wavelengths)), axis=0)
+        from driver.physics import spectra
+
+        mu_a = spectra.absorption(np.asarray(wavelengths, dtype=np.float64), self._so2,
+                                  self._thb)
+        return self.gruneisen * self.fluence * mu_a
 
     @property
     def peak(self) -> float:
-        """Reference amplitude for the SNR, Pa: the largest ball amplitude."""
-        return float(max(abs(b.amplitude) for b in self.balls))
+        """Reference amplitude for the SNR, Pa: the largest ball amplitude (of the plan
+        last prepared, at any of its wavelengths)."""
+        return float(np.abs(self._amplitudes).max())
 
     def prepare(self, plan: DevicePlan) -> PressureFn:
+        import dataclasses
+
         from driver.physics import ball_alines
 
         pos = plan.positions()
         dt, n_t, c = plan.dt, plan.n_t, self.c
+        try:
+            self._amplitudes = self.amplitudes(plan.wavelengths)
+        except ValueError as exc:
+            raise ValueError(f"spectral phantom: {exc}") from None
+        balls_at = [[dataclasses.replace(b, amplitude=float(a)) for b, a in zip(self.balls, row)]
+                    for row in self._amplitudes]
 
-        def pressure(ks):
-            # each ball only where its wave is: samples of (r - R)/c … (r + R)/c
-            p = pos[ks]
-            out = np.zeros((len(p), n_t))
-            for b in self.balls:
-                r = np.sqrt((p[:, 0] - b.x) ** 2 + (p[:, 1] - b.y) ** 2 + b.z ** 2)
-                lo = max(0, int(np.floor((r.min() - b.radius) / c / dt)) - 2)
-                hi = min(n_t, int(np.ceil((r.max() + b.radius) / c / dt)) + 3)
-                if hi > lo:
-                    out[:, lo:hi] += ball_alines(p, [b], dt, hi - lo, c, t0=lo * dt)
+        def pressure(ks, ws=None):
+            ks = np.asarray(ks)
+            ws = np.zeros(len(ks), np.int64) if ws is None else np.asarray(ws)
+            out = np.zeros((len(ks), n_t))
+            for w in np.unique(ws):
+                m = ws == w
+                out[m] = _ball_pressure(pos[ks[m]], balls_at[int(w)], dt, n_t, c, ball_alines)
             return out
 
         return pressure
 
     def describe(self) -> str:
-        return f"balls ({len(self.balls)})"
+        kind = "" if self.so2 is None else ", HbO2/Hb at sO2 " + ", ".join(
+            f"{x:g}" for x in self._so2)
+        return f"balls ({len(self.balls)}{kind})"
+
+
+def _ball_pressure(p: np.ndarray, balls: list, dt: float, n_t: int, c: float,
+                   ball_alines) -> np.ndarray:
+    """Sum of the balls' waves at positions ``p`` ``(n, 2)``: ``(n, n_t)`` Pa; each ball
+    only where its wave is (samples of (r - R)/c … (r + R)/c)."""
+    out = np.zeros((len(p), n_t))
+    if not len(p):
+        return out
+    for b in balls:
+        r = np.sqrt((p[:, 0] - b.x) ** 2 + (p[:, 1] - b.y) ** 2 + b.z ** 2)
+        lo = max(0, int(np.floor((r.min() - b.radius) / c / dt)) - 2)
+        hi = min(n_t, int(np.ceil((r.max() + b.radius) / c / dt)) + 3)
+        if hi > lo:
+            out[:, lo:hi] += ball_alines(p, [b], dt, hi - lo, c, t0=lo * dt)
+    return out
 
 
 @dataclass
@@ -145,8 +216,8 @@ class VolumeSource:
         chunk = 4096
         cache: dict[int, np.ndarray] = {}
 
-        def pressure(ks):
-            # one forward model evaluation per 4096 plan points (it costs a k-space
+        def pressure(ks, ws=None):
+            # the same A-line at every wavelength; one forward model evaluation per 4096 plan points (it costs a k-space
             # transform of the volume each time), cached
             out = np.empty((len(ks), plan.n_t))
             for c in np.unique(ks // chunk):
@@ -229,7 +300,7 @@ class ReplaySource:
                              f"replay grid {n_x}x{n_y}")
         idx = plan.indices.astype(np.intp) + np.array([int(off_x), int(off_y)])
 
-        def pressure(ks):
+        def pressure(ks, ws=None):  # the same A-line at every wavelength
             return self.alines[idx[ks, 1], idx[ks, 0], :plan.n_t].astype(np.float64)
 
         return pressure

@@ -43,7 +43,8 @@ def small_phantom():
 
 
 def read_record(path, plan_id: str):
-    """The simulator's ground truth for a plan: (samples, scale, dc_level, sent)."""
+    """The simulator's ground truth for a plan: (samples ``(n_wavelengths, n_points, n_t)``,
+    scale, dc_level, sent ``(n_wavelengths, n_points)``)."""
     import h5py
 
     with h5py.File(path, "r") as f:

@@ -85,7 +85,7 @@ def test_sigkill_host_mid_scan_then_resume(tmp_path):
     assert np.array_equal(a.alines, b.alines) and np.array_equal(a.scale, b.scale)
     assert np.array_equal(a.meta["point_index"], np.arange(600))
     samples, _, _, sent = read_record(record, plan["id"])
-    assert sent.all() and np.array_equal(a.alines, samples)
+    assert sent.all() and np.array_equal(a.alines_all, samples)
     assert np.abs(a.alines).max() > 10000  # real signals (noise at SNR 50 included)
 
 

@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 from driver.aline import ALINE_HEADER, pack_aline, unpack_aline
 from driver.commands import ScpiError, block, canonical_header, parse_command
-from driver.framing import Deframer, FrameError, FrameType, decode_frame, encode_frame
+from driver.framing import PROTOCOL_VERSION, Deframer, FrameError, FrameType, decode_frame, encode_frame
 from driver.plan import load_plan, parse_plan_image, plan_id_of, plan_image
 from tests.driver.driver_helpers import grid_plan
 
@@ -39,7 +39,7 @@ def test_frame_roundtrip_and_wire_format(payload, ftype, seq, ack, window):
     wire = encode_frame(ftype, payload, seq=seq, ack=ack, window=window)
     assert wire.endswith(b"\x00") and b"\x00" not in wire[:-1]
     body = cobs.decode(wire[:-1])
-    assert body[0] == 1 and body[1] == ftype
+    assert body[0] == PROTOCOL_VERSION == 2 and body[1] == ftype
     assert int.from_bytes(body[2:4], "little") == window
     assert int.from_bytes(body[4:8], "little") == seq
     assert int.from_bytes(body[8:12], "little") == ack
@@ -81,10 +81,13 @@ def test_deframer_resynchronises_after_garbage_and_drops():
 
 def test_aline_payload_roundtrip():
     s = np.array([-32767, -1, 0, 1, 32767], np.int16)
-    payload = pack_aline(7, 99, 1234, 10**10, 12.5, 1.55e-6, 8e-9, 1e-3, 0.5, 0.9, 0.02, s)
-    assert len(payload) == ALINE_HEADER.size + 10 == 82
+    payload = pack_aline(7, 99, 1234, 10**10, 12.5, 1.55e-6, 8e-9, 1e-3, 0.5, 0.9, 0.02, s,
+                         3, 8.5e-7)
+    assert len(payload) == ALINE_HEADER.size + 10 == 98
     a = unpack_aline(payload)
     assert (a.run_id, a.boot_id, a.point_index, a.pulse_number) == (7, 99, 1234, 10**10)
+    assert (a.wavelength_index, a.excitation_wavelength_m) == (3, 8.5e-7)
+    assert a.meta()["wavelength_index"] == 3 and a.meta()["excitation_wavelength_m"] == 8.5e-7
     assert a.samples.tolist() == s.tolist()
     assert abs(a.dc_level - 0.9) < 1e-7 and a.meta()["scale"] == 1e-3
     with pytest.raises(ValueError, match="n_t"):

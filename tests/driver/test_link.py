@@ -30,11 +30,13 @@ def make_sim(tmp_path, **kw) -> SimulatedScanner:
 def assert_matches_record(scan_path, record_path, plan):
     scan = read_scan(scan_path)
     samples, scale, dc, sent = read_record(record_path, plan["id"])
-    assert scan.completed.all() and sent.all()
-    assert np.array_equal(scan.alines, samples)  # bit-identical int16
-    assert np.array_equal(scan.scale, scale)
-    assert np.array_equal(scan.dc_level, dc)
-    assert np.array_equal(scan.meta["point_index"], np.arange(len(samples)))
+    assert scan.completed_all.all() and sent.all()
+    assert np.array_equal(scan.alines_all, samples)  # bit-identical int16, every wavelength
+    assert np.array_equal(scan.meta_all["scale"], scale)
+    assert np.array_equal(scan.meta_all["dc_level"], dc)
+    n_w, n = sent.shape
+    assert np.array_equal(scan.meta_all["point_index"], np.tile(np.arange(n), (n_w, 1)))
+    assert np.array_equal(scan.meta_all["wavelength_index"], np.repeat(np.arange(n_w)[:, None], n, 1))
     return scan
 
 

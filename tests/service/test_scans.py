@@ -87,7 +87,7 @@ def check_scan_file(c, job_id, sim, tmp_path, n_points):
     sim.write_record(tmp_path / "truth.h5")
     with h5py.File(tmp_path / "truth.h5", "r") as f:
         truth = f[f"plans/{scan.plan_id}/samples"][...]
-    assert np.array_equal(scan.alines, truth)
+    assert np.array_equal(scan.alines_all, truth)
     return scan
 
 
