@@ -127,7 +127,7 @@ def detect_format(path: str | os.PathLike) -> str:
     if head != b"\x89HDF\r\n\x1a\n":
         raise ValueError("file is neither HDF5 nor a NumPy .npy array")
     with _open_h5(path) as f:
-        if f.attrs.get("format") == "fpscan-scan/1":
+        if str(f.attrs.get("format", "")).startswith("fpscan-scan/"):  # /1 and /2
             return "fpscan"
         if "binary_time_series_data" in f:
             return "ipasc"
