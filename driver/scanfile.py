@@ -617,8 +617,8 @@ class ScanFile:
         except (TypeError, ValueError):
             raise ValueError(f"meta['excitation_wavelength_m'] must be a number, got "
                              f"{meta['excitation_wavelength_m']!r}") from None
-        if not (math.isfinite(wavelength) and wavelength > 0):
-            raise ValueError(f"meta excitation_wavelength_m must be finite and > 0 m, got "
+        if not (math.isfinite(wavelength) and wavelength >= 0):  # 0: not reported
+            raise ValueError(f"meta excitation_wavelength_m must be finite and >= 0 m, got "
                              f"{wavelength}")
         return w, wavelength
 
