@@ -728,10 +728,12 @@ class ScanData:
             completed=self.completed_all[w], meta=meta, scale=meta["scale"],
             offset=meta["offset"], dc_level=meta["dc_level"])
 
-    def completed_only(self) -> ScanData:
-        """A copy restricted to the points complete at ``wavelength_index`` (rows kept in
-        scan order; the ``*_all`` arrays are restricted to the same points)."""
-        sel = np.flatnonzero(self.completed)
+    def completed_only(self, *, every_wavelength: bool = False) -> ScanData:
+        """A copy restricted to the points complete at ``wavelength_index`` (or, with
+        ``every_wavelength``, at every wavelength); rows kept in scan order, the ``*_all``
+        arrays restricted to the same points."""
+        sel = np.flatnonzero(self.completed_all.all(axis=0) if every_wavelength
+                             else self.completed)
         return dataclasses.replace(
             self, n_points=len(sel), alines=self.alines[sel], scale=self.scale[sel],
             offset=self.offset[sel], dc_level=self.dc_level[sel],

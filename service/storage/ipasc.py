@@ -101,18 +101,18 @@ def export_scan(scan_path: str | os.PathLike, out_path: str | os.PathLike, *,
     exported, in scan order). ``out_path``: written to a temporary sibling, then renamed
     (its folder is created if missing).
     ``dtype``: float type of the binary data (float64 keeps the pressure bit-exact).
-    Returns the output path. Raises ValueError (no completed points, a multi-wavelength
-    plan, bad dtype), FileNotFoundError.
+    Several excitation wavelengths make the binary data's wavelength axis (in the plan's
+    order, ``acquisition_wavelengths``); only points complete at every wavelength are
+    exported.
+    Returns the output path. Raises ValueError (no completed points, bad dtype),
+    FileNotFoundError.
     """
     dtype = np.dtype(dtype)
     if dtype not in (np.dtype(np.float32), np.dtype(np.float64)):
         raise ValueError(f"dtype must be float32 or float64, got {dtype}")
-    scan = read_scan(scan_path).completed_only()
+    scan = read_scan(scan_path).completed_only(every_wavelength=True)
     if scan.n_points == 0:
-        raise ValueError("the scan has no completed A-lines to export")
-    if len(scan.wavelengths) > 1:
-        raise ValueError("the scan file holds one A-line per point; a plan with "
-                         f"{len(scan.wavelengths)} wavelengths cannot be mapped to IPASC")
+        raise ValueError("the scan has no completed points (at every wavelength) to export")
     n, n_t = scan.n_points, scan.n_t
     pos = np.asarray(scan.positions, dtype=np.float64)
     xy = np.zeros((n, 2))
@@ -127,7 +127,7 @@ def export_scan(scan_path: str | os.PathLike, out_path: str | os.PathLike, *,
     try:
         with h5py.File(tmp, "w") as f:
             f.create_dataset("binary_time_series_data",
-                             data=scan.pressure.astype(dtype)[:, :, None, None])
+                             data=np.moveaxis(scan.pressure_all.astype(dtype), 0, -1)[..., None])
             m = f.create_group("meta_data")
 
             def put(group, name, value):
@@ -138,7 +138,8 @@ def export_scan(scan_path: str | os.PathLike, out_path: str | os.PathLike, *,
                 else:
                     group.create_dataset(name, data=value)
 
-            n_wl, n_meas = 1, 1  # binary data [detectors, samples, wavelengths, measurements]
+            # binary data [detectors, samples, wavelengths, measurements]
+            n_wl, n_meas = scan.n_wavelengths, 1
             fs = 1.0 / dt
             put(m, "uuid", data_uuid or str(_uuid.uuid4()))
             put(m, "encoding", "raw")
@@ -157,7 +158,7 @@ def export_scan(scan_path: str | os.PathLike, out_path: str | os.PathLike, *,
             put(m, "measurement_spatial_poses", np.zeros((2 * n_meas, 3)))
             put(m, "measurement_timestamps",
                 np.full(n_meas, float(meta["timestamp_s"].min())))
-            put(m, "pulse_energy", np.full(n_wl, float(meta["pulse_energy_j"].mean())))
+            put(m, "pulse_energy", scan.meta_all["pulse_energy_j"].mean(axis=1))
             put(m, "measurements_per_image", n_meas)
             put(m, "scanning_method", "composite_scan")
             put(m, "photoacoustic_imaging_device_reference", _instrument_id(scan.instrument))
@@ -184,9 +185,12 @@ def export_scan(scan_path: str | os.PathLike, out_path: str | os.PathLike, *,
             put(m, "fpscan_weights", np.asarray(scan.weights, dtype=np.float64))
             put(m, "fpscan_lattice_indices", np.asarray(scan.indices, dtype=np.int64))
             put(m, "fpscan_spatial_dimensions", int(pos.shape[1]) + 1)
+            # per A-line: (n,) for one wavelength, (n_wavelengths, n) for several
             for key in ("point_index", "timestamp_s", "bias_wavelength_m", "dc_level",
-                        "pulse_energy_j", "pulse_number", "boot_id", "run_id"):
-                put(m, f"fpscan_{key}", np.asarray(meta[key]))
+                        "pulse_energy_j", "pulse_number", "boot_id", "run_id",
+                        "excitation_wavelength_m"):
+                put(m, f"fpscan_{key}", np.asarray(meta[key] if n_wl == 1
+                                                   else scan.meta_all[key]))
 
             dev = f.create_group("meta_data_device")
             g = dev.create_group("general")
