@@ -38,6 +38,7 @@ class PreviewState:
     updated: float | None = None
     refresh_s: float | None = None
     pngs: dict = field(default_factory=dict)
+    wavelength_index: int = 0
 
 
 def preview_grid(axis: np.ndarray, max_points: int) -> np.ndarray:
@@ -52,8 +53,10 @@ def preview_grid(axis: np.ndarray, max_points: int) -> np.ndarray:
     return (np.arange(m) - (m - 1) / 2.0) * pitch
 
 
-def render_preview(scan_path: str, *, eps: float = 1e-3, max_lateral: int = 128, max_samples: int = 512) -> dict:
-    """NEDNER reconstruction of the completed points of a scan file → MIP PNGs.
+def render_preview(scan_path: str, *, wavelength_index: int = 0, eps: float = 1e-3, max_lateral: int = 128,
+                   max_samples: int = 512) -> dict:
+    """NEDNER reconstruction of the completed points of a scan file at one excitation
+    wavelength (``wavelength_index`` into the plan's wavelengths, default the first) → MIP PNGs.
 
     A preview trades resolution for speed: the output grid is the plan's lattice thinned
     to at most ``max_lateral`` points per axis, and the A-lines are low-passed and
@@ -66,7 +69,7 @@ def render_preview(scan_path: str, *, eps: float = 1e-3, max_lateral: int = 128,
     from service.jobs.work import load_scan_points
 
     t0 = time.perf_counter()
-    inp = load_scan_points(scan_path)
+    inp = load_scan_points(scan_path, wavelength_index=wavelength_index)
     n = int(inp["alines"].shape[0])
     if n < 2:
         return {"points_used": n, "pngs": {}, "seconds": time.perf_counter() - t0}
@@ -132,12 +135,15 @@ class PreviewManager:
 
             stop_pool(self._pool)
 
-    def track(self, job_id: str, scan_path: str) -> None:
+    def track(self, job_id: str, scan_path: str, *, wavelength_index: int = 0) -> None:
+        """Follow a scan file; the preview shows excitation wavelength ``wavelength_index``."""
         with self._lock:
-            self._active[job_id] = {"path": scan_path, "last_points": -1, "points_done": None}
+            self._active[job_id] = {"path": scan_path, "last_points": -1, "points_done": None,
+                                    "rendered_at": None, "wavelength_index": int(wavelength_index)}
 
     def note_progress(self, job_id: str, points_done: int) -> None:
-        """The scan thread reports its count, so refreshes happen only on new points."""
+        """The scan thread reports its count (A-lines landed), so refreshes happen only on
+        new data."""
         with self._lock:
             if job_id in self._active:
                 self._active[job_id]["points_done"] = int(points_done)
@@ -157,7 +163,7 @@ class PreviewManager:
             with self._lock:
                 items = list(self._active.items())
             for job_id, entry in items:
-                if entry["points_done"] is not None and entry["points_done"] == entry["last_points"]:
+                if entry["points_done"] is not None and entry["points_done"] == entry["rendered_at"]:
                     continue
                 try:
                     self._refresh(job_id, entry)
@@ -167,8 +173,10 @@ class PreviewManager:
     def _refresh(self, job_id: str, entry: dict) -> None:
         if self._pool is None:
             self._pool = self._new_pool()
+        progress = entry["points_done"]
         try:
-            out = self._pool.submit(render_preview, entry["path"]).result(timeout=300)
+            out = self._pool.submit(render_preview, entry["path"],
+                                    wavelength_index=entry["wavelength_index"]).result(timeout=300)
         except FileNotFoundError:
             return
         except BrokenProcessPool:
@@ -178,6 +186,7 @@ class PreviewManager:
         except Exception as exc:
             log.warning("preview job=%s: %s", job_id, exc)
             return
+        entry["rendered_at"] = progress
         if not out["pngs"] or out["points_used"] == entry["last_points"]:
             return
         entry["last_points"] = out["points_used"]
@@ -185,5 +194,6 @@ class PreviewManager:
             prev = self._states.get(job_id)
             self._states[job_id] = PreviewState(version=(prev.version if prev else 0) + 1,
                                                 points_used=out["points_used"], updated=time.time(),
-                                                refresh_s=out["seconds"], pngs=out["pngs"])
+                                                refresh_s=out["seconds"], pngs=out["pngs"],
+                                                wavelength_index=entry["wavelength_index"])
         log.info("preview job=%s points=%d seconds=%.2f", job_id, out["points_used"], out["seconds"])

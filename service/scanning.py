@@ -319,7 +319,8 @@ class ScanManager:
                 pass
             with run.lock:
                 pending = list(run.pending)
-            self.previews.track(jid, str(scan_path))
+            self.previews.track(jid, str(scan_path),
+                                wavelength_index=int(job["params"].get("preview_wavelength", 0)))
             last = {"t": 0.0}
 
             def progress(p) -> None:
@@ -330,7 +331,7 @@ class ScanManager:
                         todo, run.pending = run.pending, []
                     for what in todo:
                         getattr(scanner, what)()
-                self.previews.note_progress(jid, p.points_done)
+                self.previews.note_progress(jid, p.alines_done)
                 if now - last["t"] < 0.5 and p.state not in ("done", "aborted"):
                     return
                 last["t"] = now

@@ -174,6 +174,8 @@ class Job(BaseModel):
 class ScanRequest(_Request):
     plan_id: str = Field(pattern=ID_PATTERN)
     scanner_id: str = Field(pattern=ID_PATTERN)
+    preview_wavelength: int = Field(0, ge=0, description="index into the plan's excitation wavelengths: "
+                                    "the wavelength the live preview shows (default the first)")
 
 
 class Scanner(BaseModel):
@@ -187,6 +189,7 @@ class Scanner(BaseModel):
 class PreviewInfo(BaseModel):
     version: int
     points_used: int
+    wavelength_index: int = Field(0, description="the excitation wavelength shown (index into the plan's)")
     updated: float | None = Field(None, description="UNIX time of the last refresh")
     refresh_s: float | None = Field(None, description="how long the last refresh took, s")
 

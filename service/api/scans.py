@@ -41,13 +41,20 @@ def start_scan(body: ScanRequest, response: Response, c: Context = Depends(ctx),
     """Queue a scan of a plan on a scanner → 202, ``Location: /api/jobs/{id}``. The scan
     starts when the scanner is free; it owns the serial port while it runs."""
     mgr = _scans(c)
-    if c.store.get_plan(body.plan_id) is None:
+    found = c.store.get_plan(body.plan_id)
+    if found is None:
         raise HTTPException(404, f"no plan {body.plan_id}")
     if body.scanner_id not in c.settings.devices:
         raise HTTPException(404, f"no scanner {body.scanner_id}")
+    n_w = len(found[0]["acquisition"]["wavelengths"])
+    if body.preview_wavelength >= n_w:
+        raise HTTPException(422, f"preview_wavelength {body.preview_wavelength} is not one of the plan's "
+                                 f"{n_w} wavelengths (0..{n_w - 1})")
+    params = {"plan_id": body.plan_id, "scanner_id": body.scanner_id}
+    if body.preview_wavelength:
+        params["preview_wavelength"] = body.preview_wavelength
     try:
-        job, created = c.store.create_job("scan", {"plan_id": body.plan_id, "scanner_id": body.scanner_id},
-                                          idempotency_key=idempotency_key)
+        job, created = c.store.create_job("scan", params, idempotency_key=idempotency_key)
     except IdempotencyConflict as exc:
         raise HTTPException(409, str(exc)) from None
     if created:
@@ -129,7 +136,7 @@ def scan_preview(job_id: str = JobId, c: Context = Depends(ctx)) -> PreviewInfo:
     if state is None:
         return PreviewInfo(version=0, points_used=0, updated=None)
     return PreviewInfo(version=state.version, points_used=state.points_used, updated=state.updated,
-                       refresh_s=state.refresh_s)
+                       refresh_s=state.refresh_s, wavelength_index=state.wavelength_index)
 
 
 @router.get("/api/scans/{job_id}/preview/{plane}.png", dependencies=[Depends(read_access)], response_class=Response,

@@ -42,14 +42,15 @@ def lattice_axes(lattice: dict) -> tuple[np.ndarray, np.ndarray]:
     return x, y
 
 
-def load_scan_points(path: str | os.PathLike) -> dict:
-    """Completed A-lines of a scan file as reconstruction input: ``alines`` ``(n, n_t)``
+def load_scan_points(path: str | os.PathLike, *, wavelength_index: int = 0) -> dict:
+    """Completed A-lines of a scan file at excitation wavelength ``wavelength_index``
+    (default the first) as reconstruction input: ``alines`` ``(n, n_t)``
     (DC-normalised pressure), ``positions`` ``(n, d)`` m, ``weights`` ``(n,)``, ``dt`` s,
     ``c`` m/s, ``grid`` (lattice vectors), ``lattice`` indices ``(n, 2)``, ``lattice_shape``
     ``(n_y, n_x)``, ``n_points`` of the plan."""
     from driver.scanfile import read_scan
 
-    scan = read_scan(path)
+    scan = read_scan(path, wavelength_index=wavelength_index)
     done = np.asarray(scan.completed, dtype=bool)
     plan = scan.plan
     lat = plan["lattice"]
