@@ -40,6 +40,10 @@ def add_arguments(parser):
     g.add_argument("--averages", type=int, default=1, help="pulses averaged per point (default 1)")
     g.add_argument("--wavelength", type=float, action="append", metavar="M",
                    help="excitation wavelength in m; repeat for several (default 7.5e-07)")
+    g.add_argument("--wavelength-order", choices=["per_point", "per_pass"], default=None,
+                   help="with several wavelengths: tune the laser at every point (per_point, the "
+                        "default: wavelengths register) or once per full pass (per_pass: fewer "
+                        "tunings, motion between passes); docs/protocol.md §4.1")
     g.add_argument("--prf", type=float, default=50.0, help="laser pulse repetition frequency in Hz (default 50)")
     g.add_argument("--sound-speed", type=float, default=1500.0, help="speed of sound in m/s (default 1500)")
     parser.add_argument("--out", required=True, help="where to write the plan JSON")
@@ -108,6 +112,7 @@ def run(args) -> int:
     plan = make_plan(
         mask, order=args.order, n_t=args.n_t, dt=args.dt, averages=args.averages,
         wavelengths=args.wavelength or [7.5e-7], prf=args.prf, sound_speed=args.sound_speed,
+        wavelength_order=args.wavelength_order,
     )
     plan.to_json(args.out)
     if args.preview:

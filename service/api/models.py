@@ -103,6 +103,9 @@ class Acquisition(_Request):
                                      description="excitation wavelengths, m")
     prf: float = Field(50.0, ge=0, le=1e5, description="pulse repetition frequency, Hz (0 = as fast as possible)")
     sound_speed: float = Field(1500.0, gt=100, le=10000, description="m/s")
+    wavelength_order: Literal["per_point", "per_pass"] | None = Field(
+        None, description="several wavelengths: tune the laser at every point (per_point, the default) or once "
+                          "per full pass (per_pass); trade-off in docs/protocol.md §4.1")
 
 
 class PlanCreate(_Request):

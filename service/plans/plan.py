@@ -98,6 +98,12 @@ class Acquisition(_Strict):
     wavelengths: list[float] = Field(default_factory=lambda: [7.5e-7], description="m, 400 nm to 2000 nm, no repeats")
     prf: float = Field(default=50.0, ge=0)
     sound_speed: float = Field(default=1500.0, gt=0)
+    #: several wavelengths: tune the laser at every point ("per_point", the default when
+    #: absent) or once per full pass ("per_pass"); docs/protocol.md §4.1. Left out of the
+    #: JSON when not set, so plans without it keep their ids.
+    wavelength_order: Literal["per_point", "per_pass"] | None = Field(
+        default=None, exclude_if=lambda v: v is None,
+        description="per_point (default) or per_pass: when the laser is tuned between wavelengths")
 
     @field_validator("dt", "prf", "sound_speed")
     @classmethod

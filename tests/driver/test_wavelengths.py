@@ -216,3 +216,22 @@ def test_bad_wavelength_order_is_refused():
     plan = spectral_plan(3, 3, order="sideways")
     with pytest.raises(ValueError, match="wavelength_order"):
         load_plan(plan)
+
+
+def test_plan_builder_and_cli_carry_the_wavelength_order(tmp_path):
+    from service.plans import Lattice, make_plan
+
+    plain = make_plan("full", lattice=Lattice(3, 3, 1e-4), wavelengths=WAVELENGTHS).to_dict()
+    assert "wavelength_order" not in plain["acquisition"]  # absent = per point; ids unchanged
+    out = tmp_path / "plan.json"
+    r = subprocess.run([sys.executable, "-m", "clients", "plan", "full", "--n-x", "3",
+                        "--pitch", "1e-4", "--wavelength", "7.6e-7", "--wavelength", "8.5e-7",
+                        "--wavelength-order", "per_pass", "--out", str(out)],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    plan = load_plan(out)
+    assert plan["acquisition"]["wavelength_order"] == "per_pass"
+    assert plan["acquisition"]["wavelengths"] == WAVELENGTHS
+    with pytest.raises(ValueError, match="per_point"):
+        make_plan("full", lattice=Lattice(3, 3, 1e-4), wavelengths=WAVELENGTHS,
+                  wavelength_order="sideways")
