@@ -156,7 +156,7 @@ class BallSource:
 
     def describe(self) -> str:
         kind = "" if self.so2 is None else ", HbO2/Hb at sO2 " + ", ".join(
-            f"{x:g}" for x in self._so2)
+            f"{x:g}" for x in np.unique(self._so2))
         return f"balls ({len(self.balls)}{kind})"
 
 

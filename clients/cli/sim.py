@@ -32,6 +32,13 @@ def add_arguments(parser):
                         help="sensor -3 dB bandwidth in Hz (2nd-order Butterworth)")
     parser.add_argument("--tuning-delay", type=float, default=0.0,
                         help="bias-wavelength tuning time per point, s")
+    parser.add_argument("--laser-tuning-delay", type=float, default=0.0,
+                        help="excitation-laser tuning time when the wavelength changes, s")
+    parser.add_argument("--so2", type=float, nargs="+", default=None, metavar="S",
+                        help="balls: make the phantom blood-like, HbO2/Hb at this oxygen "
+                             "saturation (one value for all balls, or one per ball), so that "
+                             "its amplitude follows the excitation wavelength (Prahl's "
+                             "extinction table)")
     parser.add_argument("--dc-variation", type=float, default=0.0,
                         help="relative amplitude of the DC-level map (0..1)")
     parser.add_argument("--sensitivity-variation", type=float, default=0.0,
@@ -42,15 +49,20 @@ def add_arguments(parser):
 
 
 def make_source(kind_and_file: list[str], *, dataset: str = "sensor_data/clean",
-                sound_speed: float = 1500.0):
+                sound_speed: float = 1500.0, so2: list[float] | None = None):
     """The source named on the command line. Raises ValueError for a bad choice."""
     from driver.sources import BallSource, ReplaySource, VolumeSource, default_phantom
 
     kind, rest = kind_and_file[0].lower(), kind_and_file[1:]
+    if so2 is not None and kind != "balls":
+        raise ValueError("--so2 needs --source balls")
     if kind == "balls":
         if rest:
             raise ValueError("--source balls takes no file")
-        return BallSource(default_phantom(), c=sound_speed)
+        balls = default_phantom()
+        if so2 is not None and len(so2) == 1:
+            so2 = so2 * len(balls)
+        return BallSource(balls, c=sound_speed, so2=so2)
     if kind in ("volume", "replay"):
         if len(rest) != 1:
             raise ValueError(f"--source {kind} needs exactly one FILE")
@@ -74,8 +86,10 @@ def run(args) -> int:
     from driver.simulator import SimConfig, SimulatedScanner
 
     config = SimConfig(
-        source=make_source(args.source, dataset=args.dataset, sound_speed=args.sound_speed),
-        prf=args.prf, tuning_delay=args.tuning_delay, dc_variation=args.dc_variation,
+        source=make_source(args.source, dataset=args.dataset, sound_speed=args.sound_speed,
+                           so2=args.so2),
+        prf=args.prf, tuning_delay=args.tuning_delay, laser_tuning_delay=args.laser_tuning_delay,
+        dc_variation=args.dc_variation,
         sensitivity_variation=args.sensitivity_variation, bandwidth=args.bandwidth,
         snr=args.snr, byte_rate=args.byte_rate, faults=FaultSpec.parse(args.faults),
         seed=args.seed, record=args.record)
