@@ -373,7 +373,8 @@ def parse_plan_image(image: bytes) -> DevicePlan:
      n_points) = IMAGE_HEADER.unpack_from(image)
     if magic != MAGIC or version not in (1, 2):
         raise ValueError("not a version-1 or version-2 plan image")
-    start, waves, order = IMAGE_HEADER.size, (wavelength,), WAVELENGTH_ORDERS[0]
+    start, order = IMAGE_HEADER.size, WAVELENGTH_ORDERS[0]
+    waves: tuple[float, ...] = (wavelength,)
     if version == 2:
         if len(image) < start + IMAGE_SPECTRAL.size:
             raise ValueError("plan image ends inside its wavelength table")

@@ -498,7 +498,7 @@ class ScanFile:
 
     def completed(self) -> np.ndarray:
         """``(n_points,)`` bool: points complete at every wavelength (a copy)."""
-        return self._done[:, :self.n_points].all(axis=0)
+        return np.asarray(self._done[:, :self.n_points].all(axis=0))
 
     def completed_by_wavelength(self) -> np.ndarray:
         """``(n_wavelengths, n_points)`` bool: the record of completed A-lines (a copy)."""
@@ -709,9 +709,9 @@ class ScanData:
     n_wavelengths: int = 1
     wavelength_index: int = 0
     wavelength_order: str = "per_point"
-    alines_all: np.ndarray | None = None
-    pressure_all: np.ndarray | None = None
-    completed_all: np.ndarray | None = None
+    alines_all: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 0), np.int16))
+    pressure_all: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 0)))
+    completed_all: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), bool))
     meta_all: dict = field(default_factory=dict)
 
     def at_wavelength(self, index: int) -> ScanData:

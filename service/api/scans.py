@@ -3,6 +3,7 @@ resume, abort, download the scan file (HTTP Range) and its IPASC export, live pr
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 from fastapi import APIRouter, Depends, Header, HTTPException, Response
 from fastapi import Path as PathParam
@@ -50,7 +51,7 @@ def start_scan(body: ScanRequest, response: Response, c: Context = Depends(ctx),
     if body.preview_wavelength >= n_w:
         raise HTTPException(422, f"preview_wavelength {body.preview_wavelength} is not one of the plan's "
                                  f"{n_w} wavelengths (0..{n_w - 1})")
-    params = {"plan_id": body.plan_id, "scanner_id": body.scanner_id}
+    params: dict[str, Any] = {"plan_id": body.plan_id, "scanner_id": body.scanner_id}
     if body.preview_wavelength:
         params["preview_wavelength"] = body.preview_wavelength
     try:
