@@ -28,7 +28,8 @@ def new_sim(seed: int = 3):
 
 
 def truth(sims, folder, plan_id: str) -> np.ndarray:
-    """What the devices sent, per point: each simulator's record where it sent the point."""
+    """What the devices sent, per (wavelength, point): each simulator's record where it
+    sent the A-line."""
     out = None
     for i, sim in enumerate(sims):
         path = folder / f"truth{i}.h5"
@@ -49,7 +50,7 @@ def check_file(c, job_id, expected: np.ndarray, folder) -> None:
     scan = read_scan(path)
     assert scan.completed.all()
     assert np.array_equal(scan.meta["point_index"], np.arange(scan.n_points))
-    assert np.array_equal(scan.alines, expected)
+    assert np.array_equal(scan.alines_all, expected)  # (n_wavelengths, n_points, n_t)
 
 
 def wait_state(c, job_id, state: str, timeout: float = 60.0) -> dict:
