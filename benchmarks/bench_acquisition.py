@@ -147,8 +147,9 @@ def main() -> int:
                 print(f"[{reader} reader] plan upload + A-line precomputation: "
                       f"{time.perf_counter() - t:.1f} s")
                 procs = {"simulator": psutil.Process(proc.pid), "host": psutil.Process()}
-                if sc._relay is not None:
-                    procs["relay"] = psutil.Process(sc._relay.pid)
+                relay = getattr(sc._reader, "process", None)  # driver.transport.RelayReader
+                if relay is not None:
+                    procs["relay"] = psutil.Process(relay.pid)
                 cpu0 = {k: sum(p.cpu_times()[:2]) for k, p in procs.items()}
                 with ScanFile.create(out, plan, instrument={}, software_version="bench") as sf:
                     res = sc.scan(plan, sf, upload=False)
