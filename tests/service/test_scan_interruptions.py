@@ -152,3 +152,26 @@ def test_full_disk_mid_scan_pauses_with_the_reason_then_resumes(tmp_path, small_
     finally:
         srv.stop()
         sim.stop()
+
+
+def test_a_resume_clears_a_cancel_asked_while_the_scan_was_stuck(tmp_path):
+    """A cancel asked while a scan was stuck ``running`` (it could not stop then) must not
+    end the resumed run ``cancelled`` after it acquired every point (real SQLite store,
+    real ScanManager controls; nothing is started)."""
+    from service.jobs.store import JobStore
+    from service.scanning import ScanManager
+    from service.settings import Settings
+
+    settings = Settings(data_dir=tmp_path / "data")
+    store = JobStore(tmp_path / "jobs.sqlite")
+    try:
+        job, _ = store.create_job("scan", {"plan_id": "p" * 64, "scanner_id": "sim"})
+        store.claim(job["id"], "old-server", lease_s=60)
+        store.request_cancel(job["id"])  # running: only flagged
+        assert store.get(job["id"])["cancel_requested"]
+        assert store.recover("new-server", max_attempts=3)["paused"] == [job["id"]]
+        ScanManager(store, settings).resume(job["id"])
+        after = store.get(job["id"])
+        assert after["state"] == "queued" and not after["cancel_requested"]
+    finally:
+        store.close()
