@@ -1,125 +1,197 @@
-"""`fpscan plan <mask> [options] --out plan.json [--preview mask.png]`: make a scan plan.
+"""`fpscan plan <kind> [kind options] [--out plan.json] [--server URL] [--preview mask.png]`.
 
-Prints the point count (obtained of requested), the outer/inner weight ratio and the
-expected scan time. The plan JSON is the fixed "Plan JSON" of docs/architecture.md.
+One subcommand per mask kind, with one flag per parameter, all generated from the
+kind's parameter model in ``service.plans.kinds`` (defaults, units and help included):
+adding a kind there adds it here. Prints the point count (obtained of requested), the
+outer/inner weight ratio and the expected scan time. Locally the plan JSON ("Plan JSON"
+of docs/architecture.md) goes to ``--out``; with ``--server`` the plan is created on
+the server (``POST /api/plans``, same request the web page sends) and ``--out`` gets the
+server's plan JSON.
 """
 from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+from clients.cli._common import add_server_options, client_errors
 
 COMMAND = "plan"
 HELP = "make a scan plan (sensor mask + weights + order + acquisition settings) as plan JSON"
 
-_KINDS = ("full", "subgrid", "equispaced", "hexagonal", "random", "poisson", "points",
-          "equiangular", "equisteradian")
+
+def flag(name: str) -> str:
+    """The command-line flag of a parameter: ``n_points`` -> ``--n-points``."""
+    return "--" + name.replace("_", "-")
 
 
-def add_arguments(parser):
-    """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser)."""
-    parser.add_argument("mask", choices=_KINDS, help="mask kind")
-    g = parser.add_argument_group("lattice")
+def parse_value(text: str, unit: str | None) -> float:
+    """One number from the command line in the parameter's SI ``unit`` (the hook for unit
+    parsing: today a plain number in SI units)."""
+    return float(text)
+
+
+def _json_value(text: str) -> Any:
+    """A JSON value given inline or as a file name holding it."""
+    if text.lstrip()[:1] in ("[", "{"):
+        source = text
+    else:
+        try:
+            source = Path(text).read_text(encoding="utf-8")
+        except OSError as exc:
+            raise argparse.ArgumentTypeError(f"cannot read {text}: {exc}") from None
+    try:
+        return json.loads(source)
+    except json.JSONDecodeError as exc:
+        raise argparse.ArgumentTypeError(f"{text} is not valid JSON: {exc}") from None
+
+
+def _add_field(group, f: dict) -> None:
+    """One argparse option from a parameter descriptor (``service.plans.kinds.kind_fields``)."""
+    unit = f["unit"]
+    number = int if f["integer"] else (lambda s, u=unit: parse_value(s, u))
+    desc = f["description"] or f["title"]
+    if f["required"]:
+        desc += " (required)"
+    elif f["default"] is not None:
+        desc += f" (default {f['default']})"
+    kw: dict[str, Any] = {"dest": "p_" + f["name"], "default": None, "help": desc}
+    if f["widget"] == "pairs":
+        kw.update(type=_json_value, metavar="JSON|FILE")
+        kw["help"] += ": a JSON list of pairs, inline or in a file"
+    elif f["widget"] == "numbers":
+        kw.update(type=number, nargs="+", metavar="N" if f["integer"] else "VALUE")
+    else:
+        kw.update(type=number, metavar="N" if f["integer"] else "VALUE")
+    group.add_argument(flag(f["name"]), **kw)
+
+
+def _common_options() -> argparse.ArgumentParser:
+    from service.plans.plan import ORDER_NAMES, Acquisition
+
+    acq = Acquisition()
+    common = argparse.ArgumentParser(add_help=False)
+    g = common.add_argument_group("lattice")
     g.add_argument("--n-x", type=int, default=226, help="lattice points along x (default 226)")
     g.add_argument("--n-y", type=int, default=None,
                    help="lattice points along y (default: n_x; 1 for equiangular)")
-    g.add_argument("--pitch", type=float, default=60e-6, help="lattice pitch in m (default 6e-05)")
-    g = parser.add_argument_group("mask parameters (SI units)")
-    g.add_argument("--depth", type=float, help="equiangular/equisteradian: point of interest depth in m")
-    g.add_argument("--n-points", type=int, help="requested number of points (equi*, random, poisson cap)")
-    g.add_argument("--poi", type=float, nargs="+", metavar="M",
-                   help="point of interest x [y] in m (default: lattice centre)")
-    g.add_argument("--interval", type=int, help="subgrid: interval in lattice points")
-    g.add_argument("--per-side", type=int, nargs="+", metavar="N", help="subgrid: points per side (n or n_x n_y)")
-    g.add_argument("--spacing", type=float, help="hexagonal: neighbour distance in m")
-    g.add_argument("--min-distance", type=float, help="poisson: minimum distance in m")
-    g.add_argument("--seed", type=int, help="random/poisson: seed (default 0)")
-    g.add_argument("--points", metavar="FILE",
-                   help="points: JSON file with [[x, y], ...] in m (or {\"indices\": [[ix, iy], ...]})")
-    g = parser.add_argument_group("plan")
-    g.add_argument("--order", default="auto", choices=("auto", "serpentine", "rings", "nearest"),
-                   help="scan order (default auto: rings for equisteradian, serpentine otherwise)")
-    g.add_argument("--n-t", type=int, default=1024, help="samples per A-line (default 1024)")
-    g.add_argument("--dt", type=float, default=8e-9, help="sample interval in s (default 8e-09)")
-    g.add_argument("--averages", type=int, default=1, help="pulses averaged per point (default 1)")
-    g.add_argument("--wavelength", type=float, action="append", metavar="M",
-                   help="excitation wavelength in m; repeat for several (default 7.5e-07)")
+    g.add_argument("--pitch", type=lambda s: parse_value(s, "m"), default=60e-6,
+                   help="lattice pitch in m (default 6e-05)")
+    g = common.add_argument_group("plan")
+    g.add_argument("--order", default="auto", choices=ORDER_NAMES,
+                   help="scan order (default auto: rings for equisteradian, given for points, serpentine otherwise)")
+    g.add_argument("--n-t", type=int, default=acq.n_t, help=f"samples per A-line (default {acq.n_t})")
+    g.add_argument("--dt", type=lambda s: parse_value(s, "s"), default=acq.dt,
+                   help=f"sample interval in s (default {acq.dt:g})")
+    g.add_argument("--averages", type=int, default=acq.averages,
+                   help=f"pulses averaged per point (default {acq.averages})")
+    g.add_argument("--wavelength", type=lambda s: parse_value(s, "m"), action="append", metavar="M",
+                   help=f"excitation wavelength in m; repeat for several (default {acq.wavelengths[0]:g})")
     g.add_argument("--wavelength-order", choices=["per_point", "per_pass"], default=None,
                    help="with several wavelengths: tune the laser at every point (per_point, the "
                         "default: wavelengths register) or once per full pass (per_pass: fewer "
                         "tunings, motion between passes); docs/protocol.md §4.1")
-    g.add_argument("--prf", type=float, default=50.0, help="laser pulse repetition frequency in Hz (default 50)")
-    g.add_argument("--sound-speed", type=float, default=1500.0, help="speed of sound in m/s (default 1500)")
-    parser.add_argument("--out", required=True, help="where to write the plan JSON")
-    parser.add_argument("--preview", metavar="PNG", help="also write a preview PNG of the mask")
+    g.add_argument("--prf", type=lambda s: parse_value(s, "Hz"), default=acq.prf,
+                   help=f"laser pulse repetition frequency in Hz (default {acq.prf:g})")
+    g.add_argument("--sound-speed", type=float, default=acq.sound_speed,
+                   help=f"speed of sound in m/s (default {acq.sound_speed:g})")
+    g = common.add_argument_group("output")
+    g.add_argument("--out", help="where to write the plan JSON (required without --server)")
+    g.add_argument("--preview", metavar="PNG", help="also write a preview PNG of the mask")
+    add_server_options(g)
+    return common
 
 
-def _mask_params(args) -> dict:  # noqa: C901 -- flags derived from the kind models by helper "plans"
-    import json
-    from pathlib import Path
+def add_arguments(parser):
+    from service.plans.kinds import KINDS, kind_fields
 
-    kind = args.mask
-    p: dict = {}
-    if kind in ("equiangular", "equisteradian"):
-        if args.depth is None or args.n_points is None:
-            raise ValueError(f"{kind} needs --depth and --n-points")
-        p.update(depth=args.depth, n_points=args.n_points)
-        if args.poi is not None:
-            p["poi"] = args.poi
-    elif kind in ("subgrid", "equispaced"):
-        if args.interval is None:
-            raise ValueError(f"{kind} needs --interval")
-        p["interval"] = args.interval
-        if args.per_side is not None:
-            p["n_per_side"] = args.per_side[0] if len(args.per_side) == 1 else args.per_side
-    elif kind == "hexagonal":
-        if args.spacing is None:
-            raise ValueError("hexagonal needs --spacing")
-        p["spacing"] = args.spacing
-    elif kind == "random":
-        if args.n_points is None:
-            raise ValueError("random needs --n-points")
-        p["n_points"] = args.n_points
-        if args.seed is not None:
-            p["seed"] = args.seed
-    elif kind == "poisson":
-        if args.min_distance is None:
-            raise ValueError("poisson needs --min-distance")
-        p["min_distance"] = args.min_distance
-        if args.seed is not None:
-            p["seed"] = args.seed
-        if args.n_points is not None:
-            p["n_points"] = args.n_points
-    elif kind == "points":
-        if args.points is None:
-            raise ValueError("points needs --points FILE")
-        try:
-            data = json.loads(Path(args.points).read_text(encoding="utf-8"))
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"{args.points} is not valid JSON: {exc}") from None
-        if isinstance(data, dict) and "indices" in data:
-            p["indices"] = data["indices"]
-        elif isinstance(data, dict) and "points" in data:
-            p["points"] = data["points"]
-        else:
-            p["points"] = data
-    return p
+    common = _common_options()
+    sub = parser.add_subparsers(dest="mask", metavar="KIND", title="mask kinds")
+    sub.required = True
+    for k in KINDS.values():
+        p = sub.add_parser(k.name, aliases=list(k.aliases), parents=[common], help=k.label,
+                           description=f"{k.label}: {k.description}")
+        p.set_defaults(mask=k.name)
+        g = p.add_argument_group(f"{k.name} parameters (SI units)")
+        for f in kind_fields(k.name):
+            _add_field(g, f)
 
 
-def run(args) -> int:
-    """Run this sub-command with the parsed ``args``; return the exit status."""
-    from service.plans import Lattice, make_mask, make_plan, preview_png
+def mask_params(args) -> dict:
+    """The kind's parameters from the parsed flags (unset optional ones left out).
+    Raises ValueError naming a missing required flag."""
+    from service.plans.kinds import kind_fields
 
+    params: dict = {}
+    for f in kind_fields(args.mask):
+        v = getattr(args, "p_" + f["name"], None)
+        if v is None:
+            if f["required"]:
+                raise ValueError(f"{args.mask} needs {flag(f['name'])}")
+            continue
+        if f["widget"] == "pairs" and isinstance(v, dict):
+            params.update(v)  # a JSON object names its parameters, e.g. {"indices": [...]}
+            continue
+        if f["widget"] == "numbers" and len(v) == 1 and f["scalar"]:
+            v = v[0]  # n_per_side 13 -> 13; n_per_side 13 9 -> [13, 9]
+        params[f["name"]] = v
+    return params
+
+
+def request_body(args) -> dict:
+    """The plan request (``POST /api/plans`` body) the flags describe."""
     n_y = args.n_y if args.n_y is not None else (1 if args.mask == "equiangular" else args.n_x)
-    lattice = Lattice(args.n_x, n_y, args.pitch)
-    mask = make_mask(args.mask, lattice, **_mask_params(args))
-    plan = make_plan(
-        mask, order=args.order, n_t=args.n_t, dt=args.dt, averages=args.averages,
-        wavelengths=args.wavelength or [7.5e-7], prf=args.prf, sound_speed=args.sound_speed,
-        wavelength_order=args.wavelength_order,
-    )
+    return {
+        "kind": args.mask,
+        "lattice": {"n_x": args.n_x, "n_y": n_y, "pitch": args.pitch},
+        "params": mask_params(args),
+        "order": args.order,
+        "acquisition": {"n_t": args.n_t, "dt": args.dt, "averages": args.averages,
+                        "wavelengths": args.wavelength or [7.5e-7], "prf": args.prf,
+                        "sound_speed": args.sound_speed,
+                        **({"wavelength_order": args.wavelength_order} if args.wavelength_order else {})},
+    }
+
+
+@client_errors
+def run(args) -> int:
+    if not args.out and not args.server:
+        raise ValueError("give --out FILE (a local plan) or --server URL (a plan on the server)")
+    body = request_body(args)
+    if args.server:
+        return _remote(args, body)
+    from service.plans import make_plan, preview_png
+
+    plan = make_plan(kind=body["kind"], lattice=body["lattice"], params=body["params"],
+                     order=body["order"], acquisition=body["acquisition"])
     plan.to_json(args.out)
     if args.preview:
         preview_png(plan, args.preview)
-    print(f"plan {plan.id}: {plan.mask.kind} on {lattice.n_x}x{lattice.n_y} at {lattice.pitch:g} m")
+    lat = plan.lattice
+    print(f"plan {plan.id}: {plan.mask.kind} on {lat.n_x}x{lat.n_y} at {lat.pitch:g} m")
     print(f"points: {plan.mask.obtained_points} (requested {plan.mask.requested_points})")
     print(f"weight ratio (outer/inner): {plan.mask.weight_ratio:.4g}")
     print(f"order: {plan.order}; expected scan time: {plan.expected_scan_time_s:.1f} s")
     print(f"wrote {args.out}" + (f" and {args.preview}" if args.preview else ""))
+    return 0
+
+
+def _remote(args, body: dict) -> int:
+    from clients.cli._common import make_client
+    from clients.http import field_of
+
+    with make_client(args) as api:
+        plan = api.create_plan(body)
+        pid = field_of(plan, "id")
+        if args.out:
+            Path(args.out).write_text(json.dumps(api.get_plan_json(pid)) + "\n", encoding="utf-8")
+        if args.preview:
+            api.download_plan_preview(pid, args.preview)
+    print(f"plan {pid} on {args.server}: {field_of(plan, 'kind')}, {field_of(plan, 'n_points')} points "
+          f"(requested {field_of(plan, 'requested_points')})")
+    print(f"weight ratio (outer/inner): {field_of(plan, 'weight_ratio'):.4g}")
+    print(f"expected scan time: {field_of(plan, 'expected_scan_time_s'):.1f} s")
+    if args.out:
+        print(f"wrote {args.out}" + (f" and {args.preview}" if args.preview else ""))
     return 0

@@ -1,21 +1,32 @@
-"""`fpscan scan`: acquire a plan from a scanner straight into a scan file.
+"""`fpscan scan`: acquire a plan from a scanner straight into a scan file, or run the
+scan as a job on a server.
 
-Resumes when ``--out`` already holds a partial scan of the same plan (only the missing
-points are acquired). Exit codes: 0 complete, 1 error or incomplete, 130 interrupted (the
-scanner is left idle and the file keeps every point acquired so far).
+Locally (``--device``): resumes when ``--out`` already holds a partial scan of the same
+plan (only the missing points are acquired). With ``--server URL --scanner ID``: the plan
+(a plan JSON file, uploaded under its own id, or the id of a plan on the server) is
+scanned as a server job (``POST /api/scans``) with a progress bar; ``--out`` then gets the
+scan file when it is done. Exit codes: 0 complete, 1 error or incomplete, 130 interrupted
+(the scanner is left idle and the file keeps every point acquired so far).
 """
 from __future__ import annotations
+
+from clients.cli._common import add_server_options, client_errors
 
 COMMAND = "scan"
 HELP = "acquire a plan from the scanner (or simulator) into a scan file, resuming a partial one"
 
 
 def add_arguments(parser):
-    """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser)."""
-    parser.add_argument("--device", required=True,
-                        help="serial device path (/dev/ttyACM0, /dev/pts/N) or pyserial URL")
-    parser.add_argument("--plan", required=True, help="plan JSON written by `fpscan plan`")
-    parser.add_argument("--out", required=True, help="scan file (HDF5); resumed if it exists")
+    parser.add_argument("--device",
+                        help="serial device path (/dev/ttyACM0, /dev/pts/N) or pyserial URL (local scan)")
+    parser.add_argument("--plan", required=True,
+                        help="plan JSON written by `fpscan plan` (with --server: or a plan id on the server)")
+    parser.add_argument("--out", help="scan file (HDF5); resumed if it exists (local: required; "
+                                      "with --server: where to download the finished scan)")
+    g = parser.add_argument_group("server (instead of --device)")
+    add_server_options(g)
+    g.add_argument("--scanner", metavar="ID", help="with --server: the server's scanner id "
+                   "(default: its only scanner)")
     parser.add_argument("--window", type=int, default=256, help="credit window in A-lines (the device caps it at its limit)")
     parser.add_argument("--timeout", type=float, default=10.0,
                         help="longest wait for a silent device, s (default 10)")
@@ -24,11 +35,16 @@ def add_arguments(parser):
     parser.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
 
 
+@client_errors
 def run(args) -> int:
-    """Run this sub-command with the parsed ``args``; return the exit status."""
     import sys
 
     from clients.cli._common import ProgressBar
+
+    if args.server and not args.device:  # --device wins over $FPSCAN_SERVER
+        return _remote(args)
+    if not args.device or not args.out:
+        raise ValueError("a local scan needs --device and --out (or use --server URL)")
     from driver.acquire import acquire
 
     if args.window < 1 or args.timeout <= 0:
@@ -51,4 +67,45 @@ def run(args) -> int:
         print(f"fpscan scan: error: scan incomplete ({'aborted' if result.aborted else 'stopped'})"
               "; run the same command again to resume", file=sys.stderr)
         return 1
+    return 0
+
+
+def _remote(args) -> int:
+    """The scan as a server job: upload the plan JSON (or take a plan id), start the scan,
+    follow it with a progress bar, download the scan file to ``--out``."""
+    import json
+    from pathlib import Path
+
+    from clients.cli._common import ProgressBar, make_client
+    from clients.http import field_of
+
+    source = Path(args.plan)
+    with make_client(args) as api:
+        if source.is_file():
+            try:
+                plan = json.loads(source.read_text(encoding="utf-8"))
+            except json.JSONDecodeError as exc:
+                raise ValueError(f"{source} is not valid JSON: {exc}") from None
+            created = api.create_plan(plan)
+            plan_id = field_of(created, "id")
+            if isinstance(plan, dict) and plan.get("id") not in (None, plan_id):
+                raise RuntimeError(f"the server stored {source} as {plan_id}, not {plan.get('id')}")
+        else:
+            plan_id = field_of(api.get_plan(args.plan), "id")
+        scanner = args.scanner
+        if scanner is None:
+            ids = [field_of(s, "id") for s in api.scanners()]
+            if len(ids) != 1:
+                raise ValueError(f"the server has scanners {', '.join(ids) or '(none)'}: choose one with --scanner")
+            scanner = ids[0]
+        job_id = api.start_scan(plan_id, scanner)
+        with ProgressBar(f"scan {job_id[:8]}", quiet=args.quiet) as bar:
+            job = api.wait(job_id, on_progress=bar)
+        progress = field_of(job, "progress")
+        if args.out:
+            api.download_scan(job_id, args.out)
+    done = field_of(progress, "points_done") if progress is not None else None
+    total = field_of(progress, "points_total") if progress is not None else None
+    print(f"scan job {job_id} on {args.server}: plan {plan_id[:12]}, scanner {scanner}, "
+          f"{done}/{total} points" + (f"; wrote {args.out}" if args.out else ""))
     return 0

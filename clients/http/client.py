@@ -214,6 +214,12 @@ class _Endpoints:
         r = yield _Req("POST", "/api/plans/preview", json=_jsonable(body))
         return as_model("PlanPreview", r.json())
 
+    def mask_kinds(self):
+        """``GET /api/plans/kinds`` -> list of ``{kind, label, description, aliases, fields,
+        params_schema}``: the mask kinds and their parameters (SI units)."""
+        r = yield _Req("GET", "/api/plans/kinds")
+        return r.json()
+
     def list_plans(self):
         """``GET /api/plans`` -> list of Plans."""
         r = yield _Req("GET", "/api/plans")

@@ -2,7 +2,8 @@
  *
  * Plain JavaScript, no build step, nothing fetched from elsewhere. Talks to the
  * service's HTTP API (docs/api.md; the full schema is /openapi.json):
- *   Plan view   POST /api/plans/preview (debounced, as parameters change), POST /api/plans
+ *   Plan view   GET /api/plans/kinds (the form's mask kinds and parameters),
+ *               POST /api/plans/preview (debounced, as parameters change), POST /api/plans
  *   Scan view   GET /api/scanners, GET /api/plans, POST /api/scans, /pause /resume /abort,
  *               GET /api/jobs/{id}/events (Server-Sent Events, read with fetch so the
  *               bearer token can be sent and Last-Event-ID honoured on reconnect),
@@ -234,95 +235,100 @@ function route() {
 
 /* ------------------------------------------------------------------ Plan view */
 
-/* Mask types and their parameters. `scale` converts the shown unit to SI. */
-const MASKS = {
-  equisteradian: {
-    label: "Equi-steradian (3-D, rings around a point of interest)",
-    help: "Points spaced by equal solid angle seen from the point of interest; weights ∝ r³ (paper appendix).",
-    params: [
-      { name: "depth", label: "Depth of the point of interest (mm)", scale: 1e-3, value: 1.2 },
-      { name: "n_points", label: "Number of points", int: true, value: 200 },
-      { name: "poi_x", label: "Point of interest x (mm, empty = centre)", scale: 1e-3, optional: true },
-      { name: "poi_y", label: "Point of interest y (mm, empty = centre)", scale: 1e-3, optional: true },
-    ],
-  },
-  equiangular: {
-    label: "Equiangular (2-D line, around a point of interest)",
-    help: "Points spaced by equal angle seen from the point of interest; weights ∝ r². Use n_y = 1.",
-    params: [
-      { name: "depth", label: "Depth of the point of interest (mm)", scale: 1e-3, value: 1.2 },
-      { name: "n_points", label: "Number of points", int: true, value: 32 },
-      { name: "poi_x", label: "Point of interest x (mm, empty = centre)", scale: 1e-3, optional: true },
-    ],
-  },
-  full: { label: "Full lattice", help: "Every lattice point.", params: [] },
-  points: {
-    label: "User point list (lattice indices)",
-    help: "One point per line as i_x, i_y (0-based lattice indices); weights are clipped Voronoi areas.",
-    params: [{ name: "points", label: "Points (i_x, i_y per line)", list: true, value: "0, 0\n4, 4\n8, 2" }],
-  },
-  subgrid: {
-    label: "Equispaced sub-grid",
-    help: "Every s-th lattice point, n per side, centred.",
-    params: [
-      { name: "interval", label: "Interval s (lattice points)", int: true, value: 4 },
-      { name: "n_per_side", label: "Points per side (empty = as many as fit)", int: true, optional: true },
-    ],
-  },
-  hexagonal: {
-    label: "Hexagonal",
-    help: "A hexagonal arrangement snapped to the lattice.",
-    params: [{ name: "spacing", label: "Spacing (µm)", scale: 1e-6, value: 240 }],
-  },
-  random: {
-    label: "Random (seeded)",
-    help: "Uniformly random lattice points.",
-    params: [
-      { name: "n_points", label: "Number of points", int: true, value: 200 },
-      { name: "seed", label: "Seed", int: true, value: 0 },
-    ],
-  },
-  poisson: {
-    label: "Poisson-disc (seeded)",
-    help: "Random points no closer than the given distance.",
-    params: [
-      { name: "min_distance", label: "Minimum distance (µm)", scale: 1e-6, value: 240 },
-      { name: "seed", label: "Seed", int: true, value: 0 },
-      { name: "n_points", label: "At most this many points (empty = no cap)", int: true, optional: true },
-    ],
-  },
-};
+/* Mask kinds and their parameters come from the server (GET /api/plans/kinds, derived
+ * from the parameter models in service.plans.kinds): one entry per kind with a label, a
+ * description and one descriptor per parameter {name, title, description, widget
+ * (number | integer | numbers | pairs), integer, required, scalar, default, example, unit,
+ * display_unit}. The form shows each length in its display unit; the API gets SI units. */
+let KINDS = null; // kind name -> {kind, label, description, aliases, fields}
+const UNIT_SCALE = { m: 1, mm: 1e-3, "µm": 1e-6, nm: 1e-9, s: 1, ns: 1e-9, Hz: 1, "m/s": 1 };
 
-function buildMaskSelect() {
+function fieldId(name) { return "mask-" + name.replace(/_/g, "-"); }
+function shownUnit(f) { return f.display_unit || f.unit || ""; }
+function unitScale(f) { return UNIT_SCALE[shownUnit(f)] ?? 1; }
+/** A number in SI units shown in the field's display unit, without binary noise. */
+function shown(v, f) { return typeof v === "number" ? Number((v / unitScale(f)).toPrecision(12)) : v; }
+
+async function buildMaskSelect() {
+  const list = await apiJson("/api/plans/kinds");
+  KINDS = {};
   const sel = $("mask-kind");
-  for (const [kind, m] of Object.entries(MASKS)) {
+  sel.textContent = "";
+  for (const k of list) {
+    KINDS[k.kind] = k;
     const o = document.createElement("option");
-    o.value = kind;
-    o.textContent = m.label;
+    o.value = k.kind;
+    o.textContent = k.label;
     sel.appendChild(o);
   }
-  sel.value = "equisteradian";
+  sel.value = "equisteradian" in KINDS ? "equisteradian" : list[0].kind;
   renderMaskParams();
+  schedulePreview(0);
 }
 
 function renderMaskParams() {
-  const kind = $("mask-kind").value;
-  const m = MASKS[kind];
-  $("mask-help").textContent = m.help;
+  const k = KINDS && KINDS[$("mask-kind").value];
   const box = $("mask-params");
   box.textContent = "";
-  for (const p of m.params) {
+  if (!k) return;
+  $("mask-help").textContent = k.description;
+  for (const f of k.fields) {
     const label = document.createElement("label");
-    label.textContent = p.label + " ";
-    const input = document.createElement(p.list ? "textarea" : "input");
-    if (p.list) { input.rows = 6; input.cols = 24; } else { input.type = "number"; input.step = p.int ? "1" : "any"; }
-    input.id = "mask-" + p.name.replace(/_/g, "-");
-    input.name = p.name;
-    if (p.value !== undefined) input.value = p.value;
-    if (!p.optional) input.required = true;
+    const unit = shownUnit(f);
+    const hint = f.required ? "" : (f.default !== null && f.default !== undefined ? `, default ${shown(f.default, f)}` : ", optional");
+    label.textContent = `${f.title}${unit ? " (" + unit + ")" : ""}${f.widget === "pairs" ? " — one pair per line" : ""}${hint} `;
+    label.title = f.description;
+    const input = document.createElement(f.widget === "pairs" ? "textarea" : "input");
+    if (f.widget === "pairs") { input.rows = 6; input.cols = 24; }
+    else if (f.widget === "numbers") { input.type = "text"; }
+    else { input.type = "number"; input.step = f.integer ? "1" : "any"; }
+    input.id = fieldId(f.name);
+    input.name = f.name;
+    input.dataset.widget = f.widget;
+    const initial = f.example ?? f.default;
+    if (initial !== null && initial !== undefined) {
+      if (f.widget === "pairs") input.value = initial.map((p) => p.map((v) => shown(v, f)).join(", ")).join("\n");
+      else if (Array.isArray(initial)) input.value = initial.map((v) => shown(v, f)).join(", ");
+      else input.value = shown(initial, f);
+    }
+    if (f.required) input.required = true;
     label.appendChild(input);
     box.appendChild(label);
   }
+}
+
+/** One parameter's value in SI units from its input (undefined when empty). */
+function maskValue(f) {
+  const el = $(fieldId(f.name));
+  const raw = el.value.trim();
+  const what = f.title;
+  if (raw === "") {
+    if (f.required) throw new Error(`${what}: a value is needed`);
+    return undefined;
+  }
+  const num = (s, where) => {
+    const v = Number(s);
+    if (s === "" || !isFinite(v)) throw new Error(`${what}${where}: "${s}" is not a number`);
+    if (f.integer && !Number.isInteger(v)) throw new Error(`${what}${where}: must be a whole number`);
+    return f.integer ? v : v * unitScale(f);
+  };
+  if (f.widget === "pairs") {
+    const pairs = [];
+    raw.split(/\n/).forEach((line, i) => {
+      line = line.trim();
+      if (!line || line.startsWith("#")) return;
+      const parts = line.split(/[\s,;]+/).filter(Boolean);
+      if (parts.length !== 2) throw new Error(`${what}, line ${i + 1}: "${line}" is not two numbers`);
+      pairs.push(parts.map((p) => num(p, `, line ${i + 1}`)));
+    });
+    if (!pairs.length) throw new Error(`${what}: give at least one pair`);
+    return pairs;
+  }
+  if (f.widget === "numbers") {
+    const vals = raw.split(/[\s,;]+/).filter(Boolean).map((p) => num(p, ""));
+    return vals.length === 1 && f.scalar ? vals[0] : vals;
+  }
+  return num(raw, "");
 }
 
 function numberField(id, what, { int = false, scale = 1, optional = false } = {}) {
@@ -338,43 +344,19 @@ function numberField(id, what, { int = false, scale = 1, optional = false } = {}
   return v * scale;
 }
 
-/** The plan request body (PlanRequest in /openapi.json) from the form, in SI units:
+/** The plan request body (PlanCreate in /openapi.json) from the form, in SI units:
  *  {kind, lattice: {n_x, n_y, pitch}, params: {...}, acquisition: {...}}. Validation of
  *  values is the server's (its reason is shown); only non-numbers are caught here. */
 function planBody() {
   const kind = $("mask-kind").value;
+  const k = KINDS && KINDS[kind];
+  if (!k) throw new Error("the mask kinds are not loaded yet");
   const params = {};
-  if (kind === "points") {
-    return Object.assign(planBodyCommon(), { kind, points: parsePointList($("mask-points").value) });
+  for (const f of k.fields) {
+    const v = maskValue(f);
+    if (v !== undefined) params[f.name] = v;
   }
-  for (const p of MASKS[kind].params) {
-    const v = numberField("mask-" + p.name.replace(/_/g, "-"), p.label, p);
-    if (v !== undefined) params[p.name] = v;
-  }
-  if (kind === "equiangular" && "poi_x" in params) {
-    params.poi = params.poi_x; // a line: the lateral position only
-  } else if ("poi_x" in params || "poi_y" in params) {
-    params.poi = [params.poi_x ?? 0, params.poi_y ?? 0];
-  }
-  delete params.poi_x;
-  delete params.poi_y;
   return Object.assign(planBodyCommon(), { kind, params });
-}
-
-/** Lattice indices from text: one "i_x, i_y" (or "i_x i_y") pair per line. */
-function parsePointList(textValue) {
-  const pts = [];
-  textValue.split(/\n/).forEach((line, i) => {
-    line = line.trim();
-    if (!line || line.startsWith("#")) return;
-    const parts = line.split(/[\s,;]+/).filter(Boolean);
-    if (parts.length !== 2 || !parts.every((p) => /^\d+$/.test(p))) {
-      throw new Error(`Points, line ${i + 1}: "${line}" is not two whole numbers i_x, i_y`);
-    }
-    pts.push(parts.map(Number));
-  });
-  if (!pts.length) throw new Error("Points: give at least one i_x, i_y pair");
-  return pts;
 }
 
 function planBodyCommon() {
@@ -444,7 +426,7 @@ async function updatePreview() {
     if (ctl.signal.aborted) return;
     const img = $("plan-preview");
     if (r.preview_png_base64) img.src = "data:image/png;base64," + r.preview_png_base64;
-    img.alt = `Mask preview: ${MASKS[body.kind].label}, ${countOf(r.points)} points`;
+    img.alt = `Mask preview: ${KINDS[body.kind].label}, ${countOf(r.points)} points`;
     showPlanStats(r);
     previewSeq += 1;
     img.dataset.seq = String(previewSeq);
@@ -1146,7 +1128,7 @@ async function health() {
 }
 
 function init() {
-  buildMaskSelect();
+  buildMaskSelect().catch(showError);
   updateTokenButton();
   $("mask-kind").addEventListener("change", () => { renderMaskParams(); schedulePreview(0); });
   $("plan-form").addEventListener("input", () => schedulePreview());

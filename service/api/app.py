@@ -48,6 +48,8 @@ def _validation_reason(exc: RequestValidationError) -> str:
         msg = err.get("msg", "invalid").removeprefix("Value error, ")
         if err.get("type") == "json_invalid":
             return f"malformed JSON: {err.get('ctx', {}).get('error', msg)}"
+        if err.get("type") in ("literal_error", "enum") and isinstance(err.get("input"), (str, int, float)):
+            msg = f"{msg}, got {str(err['input'])[:64]!r}"  # name the refused value
         parts.append(f"{loc}: {msg}")
     return "; ".join(parts) or "invalid request"
 

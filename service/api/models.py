@@ -1,4 +1,5 @@
-"""Request and response models of the HTTP API (pure pydantic; cheap to import).
+"""Request and response models of the HTTP API (pydantic; the plan request is derived from
+the mask kinds declared in ``service.plans.kinds``).
 
 The Python client imports these. Units are SI (m, s, m/s, Hz, bytes). Request models
 refuse unknown fields, NaN and infinities (``ValueError`` → HTTP 422 with the reason).
@@ -6,9 +7,13 @@ Contract: docs/api.md.
 """
 from __future__ import annotations
 
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, Union
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag, create_model, model_validator
+
+from service.plans.kinds import KINDS, MaskKind, resolve_kind
+from service.plans.plan import ORDER_NAMES, Acquisition
+from service.plans.plan import Plan as PlanJson
 
 JobState = Literal["queued", "running", "paused", "succeeded", "failed", "cancelled"]
 JobKind = Literal["scan", "recon"]
@@ -93,32 +98,76 @@ class Lattice(_Request):
         return self
 
 
-class Acquisition(_Request):
-    """Acquisition settings of a plan."""
+def _plan_body_tag(v: Any) -> str | None:
+    """Which variant of a plan request ``v`` is: ``"plan"`` for a plan JSON
+    (``format``), else the canonical mask kind (``points`` when only a point list is given)."""
+    if isinstance(v, BaseModel):
+        v = v.model_dump()
+    if not isinstance(v, dict):
+        return None
+    if "format" in v:
+        return "plan"
+    kind = v.get("kind")
+    if kind is None and "points" in v:
+        return "points"
+    try:
+        return resolve_kind(kind).name
+    except ValueError:
+        return None
 
-    n_t: int = Field(1024, ge=8, le=65536, description="samples per A-line")
-    dt: float = Field(8e-9, gt=0, le=1e-3, description="sample interval, s")
-    averages: int = Field(1, ge=1, le=4096)
-    wavelengths: list[float] = Field(default_factory=lambda: [7.5e-7], min_length=1, max_length=16,
-                                     description="excitation wavelengths, m")
-    prf: float = Field(50.0, ge=0, le=1e5, description="pulse repetition frequency, Hz (0 = as fast as possible)")
-    sound_speed: float = Field(1500.0, gt=100, le=10000, description="m/s")
-    wavelength_order: Literal["per_point", "per_pass"] | None = Field(
-        None, description="several wavelengths: tune the laser at every point (per_point, the default) or once "
-                          "per full pass (per_pass); trade-off in docs/protocol.md §4.1")
 
-
-class PlanCreate(_Request):
-    """A plan from mask parameters (``kind`` + ``params``) or from a point list
-    (``points``: lattice indices ``[[i_x, i_y], ...]``)."""
-
-    kind: str | None = Field(None, max_length=64, description="mask kind, e.g. full, grid, equisteradian, equiangular, random")
+class _PlanCreate(_Request):
     lattice: Lattice
-    params: dict[str, Any] = Field(default_factory=dict, description="mask parameters (see service.plans)")
-    points: list[tuple[LatticeIndex, LatticeIndex]] | None = Field(
-        None, max_length=1024 * 1024, description="lattice indices [[i_x, i_y], ...] for a user point list")
-    order: str | None = Field(None, max_length=32, description="scan order (serpentine, rings, nearest)")
+    order: Literal[ORDER_NAMES] | None = Field(  # type: ignore[valid-type]
+        None, description="scan order (default auto: rings for equisteradian, given for a point list, "
+                          "serpentine otherwise)")
     acquisition: Acquisition = Field(default_factory=Acquisition)
+
+
+def _plan_create(k: MaskKind) -> type[_PlanCreate]:
+    names = (k.name, *k.aliases)
+    needs = any(f.is_required() for f in k.params.model_fields.values())
+    fields: dict[str, Any] = {
+        "kind": (Literal[names], Field(k.name if k.name == "points" else ...,  # type: ignore[valid-type]
+                                       description=f"mask kind {k.name!r}" + (f" (aliases: {', '.join(k.aliases)})"
+                                                                             if k.aliases else ""))),
+        "params": (k.params | None if k.name == "points" else k.params,
+                   Field(None) if k.name == "points" else (Field(...) if needs else Field(default_factory=k.params))),
+    }
+    if k.name == "points":
+        fields["points"] = (list[tuple[LatticeIndex, LatticeIndex]] | None, Field(
+            None, max_length=1024 * 1024, description="lattice indices [[i_x, i_y], ...]: short for params.indices"))
+    model = create_model(f"PlanCreate_{k.name}", __base__=_PlanCreate, **fields)
+    model.__doc__ = f"A plan from a {k.label.lower()} mask: {k.description}"
+    return model
+
+
+class PlanDocument(PlanJson):
+    """A plan JSON as ``fpscan plan --out plan.json`` writes it (``fpscan-plan/1``,
+    docs/architecture.md); stored under its own id after the plan contract's checks."""
+
+
+#: The body of ``POST /api/plans`` and ``/api/plans/preview``: one variant per mask kind
+#: (keyed on ``kind``; ``params`` is that kind's parameter model from
+#: ``service.plans.kinds``), or a whole plan JSON (keyed on ``format``).
+PlanCreate = Annotated[
+    Union[tuple(Annotated[_plan_create(k), Tag(k.name)] for k in KINDS.values())  # type: ignore[misc]
+          + (Annotated[PlanDocument, Tag("plan")],)],
+    Discriminator(_plan_body_tag, custom_error_type="plan_body", custom_error_message=(
+        "give a mask kind (" + ", ".join(KINDS) + ") with its params, a point list ('points'), "
+        "or a plan JSON ('format': 'fpscan-plan/1')")),
+]
+
+
+class MaskKindInfo(BaseModel):
+    """One mask kind as ``GET /api/plans/kinds`` lists it (forms are built from these)."""
+
+    kind: str
+    label: str
+    description: str
+    aliases: list[str]
+    fields: list[dict[str, Any]]
+    params_schema: dict[str, Any]
 
 
 class Plan(BaseModel):

@@ -14,7 +14,7 @@ import numpy as np
 from fastapi import APIRouter, Depends, HTTPException, Path, Response
 
 from service.api.context import Context, ctx, read_access, reason, require_token
-from service.api.models import ID_PATTERN, Deleted, Plan, PlanCreate, PlanPreview
+from service.api.models import ID_PATTERN, Deleted, MaskKindInfo, Plan, PlanCreate, PlanDocument, PlanPreview
 from service.jobs import lifecycle
 
 router = APIRouter(prefix="/api/plans", tags=["plans"])
@@ -26,35 +26,35 @@ MAX_POINTS = 1 << 18
 PREVIEW_DETAIL_POINTS = 1 << 14
 
 
-def _mask_plan(req: PlanCreate) -> dict:
-    """A plan from a mask kind and its parameters (``service.plans.make_plan``)."""
-    from service.plans import MASK_KINDS, make_mask, make_plan
+def build_plan(req) -> dict:
+    """The plan JSON for a request (a ``PlanCreate`` variant): a plan JSON is checked
+    (``driver.plan`` via ``service.plans.Plan``) and kept as it is, so it keeps its id;
+    anything else is built by ``service.plans.make_plan``, the one plan builder (a user
+    point list is the mask kind ``points``). Raises ``ValueError`` with the reason."""
+    from service.plans import make_mask, make_plan
 
-    if req.kind not in MASK_KINDS:
-        raise ValueError(f"unknown mask kind {req.kind!r}; one of {', '.join(sorted(MASK_KINDS))}")
-    try:
-        mask = make_mask(req.kind, req.lattice.model_dump(), **dict(req.params))
-        if mask.obtained_points > MAX_POINTS:
-            raise ValueError(f"the mask has {mask.obtained_points} points; a plan made here may have at most "
-                             f"{MAX_POINTS} points")
-        plan = make_plan(mask, order=req.order or "auto", acquisition=req.acquisition.model_dump())
-    except (TypeError, OverflowError, IndexError, KeyError, ZeroDivisionError) as exc:
-        raise ValueError(f"bad mask parameters ({type(exc).__name__}: {exc})") from None
-    return plan.model_dump(mode="json")
-
-
-def build_plan(req: PlanCreate) -> dict:
-    """The plan JSON for a request (``service.plans.make_plan``, the one plan builder:
-    a user point list is the mask kind ``points``); raises ``ValueError`` with the reason."""
-    if req.points is not None:
-        if req.kind not in (None, "points"):
-            raise ValueError("give either points or a mask kind, not both")
-        if req.params:
-            raise ValueError("a points list takes no params")
-        req = req.model_copy(update={"kind": "points", "params": {"indices": [list(p) for p in req.points]}})
-    if not req.kind:
-        raise ValueError("give a mask kind (with params) or a points list")
-    return _mask_plan(req)
+    if isinstance(req, PlanDocument):
+        out = req.to_dict()
+    else:
+        params = req.params.mask_kwargs() if req.params is not None else {}
+        if getattr(req, "points", None) is not None:
+            if params:
+                raise ValueError("give the point list either as points or as params, not both")
+            params = {"indices": [list(p) for p in req.points]}
+        elif req.params is None:
+            raise ValueError("a point list needs points (lattice indices) or params (points in m or indices)")
+        try:
+            mask = make_mask(req.kind, req.lattice.model_dump(), **params)
+            if mask.obtained_points > MAX_POINTS:  # refused before the plan's linear-time work
+                raise ValueError(f"the mask has {mask.obtained_points} points; a plan made here may have at most "
+                                 f"{MAX_POINTS} points")
+            plan = make_plan(mask, order=req.order or "auto", acquisition=req.acquisition.model_dump())
+        except (TypeError, OverflowError, IndexError, KeyError, ZeroDivisionError) as exc:
+            raise ValueError(f"bad mask parameters ({type(exc).__name__}: {exc})") from None
+        out = plan.model_dump(mode="json")
+    if len(out["points"]["indices"]) > MAX_POINTS:
+        raise ValueError(f"a plan made here may have at most {MAX_POINTS} points")
+    return out
 
 
 def expected_scan_time(plan: dict) -> float:
@@ -107,7 +107,7 @@ def preview_png(plan: dict) -> bytes:
     return buf.getvalue()
 
 
-def _build_or_422(body: PlanCreate) -> dict:
+def _build_or_422(body) -> dict:
     try:
         return build_plan(body)
     except (ValueError, OverflowError) as exc:
@@ -116,7 +116,9 @@ def _build_or_422(body: PlanCreate) -> dict:
 
 @router.post("", status_code=201, response_model=Plan, dependencies=[Depends(require_token)])
 def create_plan(body: PlanCreate, response: Response, c: Context = Depends(ctx)) -> Plan:
-    """Create (or find, same content → same id) a plan; ``Location`` names it."""
+    """Create (or find, same content → same id) a plan from a mask kind and its params, a
+    point list, or a plan JSON made by ``fpscan plan`` (kept with its id); ``Location``
+    names it."""
     plan = _build_or_422(body)
     s = summary(plan)
     c.store.put_plan(plan["id"], plan, s.model_dump())
@@ -132,6 +134,18 @@ def preview_plan(body: PlanCreate) -> PlanPreview:
     s = summary(plan)
     return PlanPreview(points=s.n_points, weight_ratio=s.weight_ratio, expected_scan_time_s=s.expected_scan_time_s,
                        preview_png_base64=base64.b64encode(preview_png(plan)).decode())
+
+
+@router.get("/kinds", response_model=list[MaskKindInfo], dependencies=[Depends(read_access)])
+def list_mask_kinds() -> list[MaskKindInfo]:
+    """The mask kinds and their parameters (``service.plans.kinds``): name, label, aliases,
+    one descriptor per parameter (SI unit, default, bounds) and the parameter model's JSON
+    schema. The web page builds its plan form from this."""
+    from service.plans.kinds import KINDS, kind_fields
+
+    return [MaskKindInfo(kind=k.name, label=k.label, description=k.description, aliases=list(k.aliases),
+                         fields=kind_fields(k.name), params_schema=k.params.model_json_schema())
+            for k in KINDS.values()]
 
 
 @router.get("", response_model=list[Plan], dependencies=[Depends(read_access)])

@@ -76,7 +76,7 @@ def subgrid_mask(lattice: Lattice, interval: int, n_per_side=None) -> Mask:
     gy, gx = np.meshgrid(iy, ix, indexing="ij")
     idx = np.column_stack((gx.ravel(), gy.ravel()))
     params = {"interval": interval, "n_per_side": [int(ix.size), int(iy.size)]}
-    return _build("subgrid", params, lattice, idx, idx.shape[0])
+    return _build("equispaced", params, lattice, idx, idx.shape[0])
 
 
 def hexagonal_mask(lattice: Lattice, spacing: float) -> Mask:

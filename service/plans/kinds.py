@@ -1,50 +1,256 @@
-"""``make_mask``: one entry point from a mask kind name + parameters (HTTP layer, CLI)."""
+"""Mask kinds, declared once: one pydantic parameter model per kind.
+
+``KINDS`` maps each kind's name to its ``MaskKind``: the parameter model, the mask function
+(first argument: the lattice), a label, and accepted aliases. Everything else derives from
+it: ``make_mask`` (validation of parameters), the HTTP API's request schema
+(``service.api.models``: a union keyed on ``kind``, so OpenAPI lists each kind's
+parameters), the ``/api/plans/kinds`` endpoint the web page builds its form from, and the
+``fpscan plan <kind>`` subcommands and flags (``clients/cli/plan.py``). Adding a kind means
+adding its model and its entry here (plus its mask function).
+
+Units: parameters are SI. Each physical field declares its unit in its JSON schema
+(``json_schema_extra={"unit": "m"}`` via ``length()``; ``display_unit`` is what a form
+shows by default), so unit parsing can hook in at one place: ``field_units(model)``.
+Range checks that guarantee bounded work belong to the mask functions.
+"""
 from __future__ import annotations
 
-import inspect
 from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from .angular import equiangular_mask, equisteradian_mask
 from .grids import full_mask, hexagonal_mask, points_mask, poisson_mask, random_mask, subgrid_mask
 from .lattice import Lattice
 from .mask import Mask
 
-__all__ = ["MASK_KINDS", "make_mask"]
+__all__ = ["KINDS", "MASK_KINDS", "MaskKind", "MaskParams", "make_mask", "resolve_kind", "kind_fields",
+           "field_units", "length"]
+
+
+def length(description: str, *, display_unit: str = "mm", **constraints: Any) -> Any:
+    """A length field in m (``Field`` with ``unit: "m"`` and a ``display_unit`` for forms)."""
+    return Field(description=description, json_schema_extra={"unit": "m", "display_unit": display_unit},
+                 **constraints)
+
+
+
+class MaskParams(BaseModel):
+    """Base of every kind's parameter model: unknown parameters and NaN/inf are refused."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    def mask_kwargs(self) -> dict:
+        """The keyword arguments of the kind's mask function (unset optional ones left out)."""
+        return {k: v for k, v in self.model_dump().items() if v is not None}
+
+
+class FullParams(MaskParams):
+    """Every lattice point; weight pitch² each."""
+
+
+class EquispacedParams(MaskParams):
+    """Equispaced sub-grid: every ``interval``-th lattice point, ``n_per_side`` per side,
+    centred on the lattice (paper §6: 41 × 41 at interval 5)."""
+
+    interval: int = Field(ge=1, description="lattice points from one sensor to the next", examples=[4])
+    n_per_side: int | tuple[int, int] | None = Field(
+        None, title="Points per side", description="points per side (n, or n_x n_y); default as many as fit")
+
+    @model_validator(mode="after")
+    def _counts(self):
+        n = self.n_per_side
+        for v in (n if isinstance(n, tuple) else (n,)):
+            if v is not None and v < 1:
+                raise ValueError(f"n_per_side must be >= 1, got {v}")
+        return self
+
+
+class HexagonalParams(MaskParams):
+    """Hexagonal arrangement snapped to the lattice (2-D lattices)."""
+
+    spacing: float = length("neighbour distance, m (at least one pitch)", display_unit="µm", gt=0,
+                            examples=[240e-6])
+
+
+class RandomParams(MaskParams):
+    """Distinct lattice points drawn uniformly (numpy PCG64, seeded)."""
+
+    n_points: int = Field(ge=1, title="Number of points", description="number of points", examples=[200])
+    seed: int = Field(0, ge=0, description="random seed")
+
+
+class PoissonParams(MaskParams):
+    """Poisson-disc: seeded random points no closer than ``min_distance``."""
+
+    min_distance: float = length("minimum distance between points, m", title="Minimum distance",
+                                 display_unit="µm", gt=0, examples=[240e-6])
+    seed: int = Field(0, ge=0, description="random seed")
+    n_points: int | None = Field(None, ge=1, title="Number of points", description="stop after this many points (default: no cap)")
+
+
+class PointsParams(MaskParams):
+    """A user's point list: ``points`` (x, y) in m snapped to the lattice, or lattice
+    ``indices`` (i_x, i_y); exactly one of them. Kept in the given order by default."""
+
+    points: list[tuple[float, float]] | None = length(
+        "points (x, y) in m, snapped to the nearest lattice point", default=None, display_unit="mm")
+    indices: list[tuple[int, int]] | None = Field(None, title="Lattice indices", description="lattice indices (i_x, i_y), 0-based",
+                                                  examples=[[[0, 0], [4, 4], [8, 2]]])
+
+    @model_validator(mode="after")
+    def _one(self):
+        if (self.points is None) == (self.indices is None):
+            raise ValueError("give exactly one of points (m) or indices")
+        return self
+
+
+class EquiangularParams(MaskParams):
+    """Equiangular (2-D line lattice): equal angles seen from a point of interest;
+    weights ∝ r² (paper §5.1)."""
+
+    depth: float = length("depth of the point of interest below the sensor line, m", gt=0, examples=[1.2e-3])
+    n_points: int = Field(ge=1, title="Number of points", description="requested number of points", examples=[32])
+    poi: float | None = length("lateral position x of the point of interest, m (default: the centre)",
+                               title="Point of interest", default=None)
+
+
+class EquisteradianParams(MaskParams):
+    """Equi-steradian (3-D): rings of equal solid angle seen from a point of interest;
+    weights ∝ r³ (paper appendix)."""
+
+    depth: float = length("depth of the point of interest below the sensor plane, m", gt=0, examples=[1.2e-3])
+    n_points: int = Field(ge=1, title="Number of points", description="requested number of points", examples=[200])
+    poi: tuple[float, float] | None = length(
+        "lateral position (x, y) of the point of interest, m (default: the centre)", title="Point of interest",
+        default=None)
+
+
+@dataclass(frozen=True)
+class MaskKind:
+    """One mask kind: ``params`` model, mask ``function(lattice, **params)``, a label,
+    and the other names it is accepted under."""
+
+    name: str
+    params: type[MaskParams]
+    function: Callable[..., Mask]
+    label: str
+    aliases: tuple[str, ...] = ()
+
+    @property
+    def description(self) -> str:
+        return " ".join((self.params.__doc__ or "").split())
+
+
+#: The mask kinds, in the order forms offer them.
+KINDS: dict[str, MaskKind] = {k.name: k for k in (
+    MaskKind("equisteradian", EquisteradianParams, equisteradian_mask,
+             "Equi-steradian (3-D, rings around a point of interest)"),
+    MaskKind("equiangular", EquiangularParams, equiangular_mask,
+             "Equiangular (2-D line, around a point of interest)"),
+    MaskKind("full", FullParams, full_mask, "Full lattice"),
+    MaskKind("equispaced", EquispacedParams, subgrid_mask, "Equispaced sub-grid", ("subgrid", "grid")),
+    MaskKind("hexagonal", HexagonalParams, hexagonal_mask, "Hexagonal", ("hex",)),
+    MaskKind("random", RandomParams, random_mask, "Random (seeded)"),
+    MaskKind("poisson", PoissonParams, poisson_mask, "Poisson-disc (seeded)", ("poisson-disc",)),
+    MaskKind("points", PointsParams, points_mask, "User point list", ("user",)),
+)}
 
 #: kind name -> mask function (first argument: the lattice).
-MASK_KINDS: dict[str, Callable[..., Mask]] = {
-    "full": full_mask,
-    "subgrid": subgrid_mask,
-    "hexagonal": hexagonal_mask,
-    "random": random_mask,
-    "poisson": poisson_mask,
-    "points": points_mask,
-    "equiangular": equiangular_mask,
-    "equisteradian": equisteradian_mask,
-}
-_ALIASES = {"equispaced": "subgrid", "grid": "subgrid", "hex": "hexagonal", "poisson-disc": "poisson", "user": "points"}
+MASK_KINDS: dict[str, Callable[..., Mask]] = {name: k.function for name, k in KINDS.items()}
+_ALIASES = {alias: k.name for k in KINDS.values() for alias in k.aliases}
+
+
+def resolve_kind(kind: Any) -> MaskKind:
+    """The ``MaskKind`` of a kind name or alias (case-insensitive); ValueError naming the
+    known kinds otherwise."""
+    if not isinstance(kind, str):
+        raise ValueError(f"mask kind must be a string, got {kind!r}")
+    name = _ALIASES.get(kind.lower(), kind.lower())
+    if name not in KINDS:
+        raise ValueError(f"unknown mask kind {kind!r}; known: {', '.join(KINDS)}")
+    return KINDS[name]
+
+
+def field_units(model: type[BaseModel]) -> dict[str, str]:
+    """Field name -> SI unit (``"m"``, ``"s"``, ``"Hz"``) for the fields that declare one."""
+    out = {}
+    for name, f in model.model_fields.items():
+        extra = f.json_schema_extra if isinstance(f.json_schema_extra, dict) else {}
+        if "unit" in extra:
+            out[name] = str(extra["unit"])
+    return out
+
+
+def _widget(prop: dict) -> str:
+    """How a form/CLI takes a JSON-schema property: number, integer, numbers (1-2 numbers
+    on one line) or pairs (a list of (a, b) pairs)."""
+    options = prop.get("anyOf", [prop])
+    types = {o.get("type") for o in options if o.get("type") != "null"}
+    arrays = [o for o in options if o.get("type") == "array"]
+    if any(a.get("items", {}).get("type") == "array" or "items" in a and "prefixItems" in a["items"]
+           for a in arrays):
+        return "pairs"
+    if arrays:
+        return "numbers"
+    return "integer" if types == {"integer"} else "number"
+
+
+def _leaf_types(prop: Any) -> set:
+    """The scalar JSON types (number, integer, ...) anywhere inside a property schema."""
+    if isinstance(prop, list):
+        return set().union(*(_leaf_types(p) for p in prop)) if prop else set()
+    if not isinstance(prop, dict):
+        return set()
+    found = set()
+    if prop.get("type") not in (None, "array", "object", "null"):
+        found.add(prop["type"])
+    for key in ("anyOf", "items", "prefixItems"):
+        if key in prop:
+            found |= _leaf_types(prop[key])
+    return found
+
+
+def kind_fields(kind: str) -> list[dict]:
+    """The parameters of ``kind`` as plain descriptors (derived from its model's JSON
+    schema; the CLI and the web form are built from these)::
+
+        {"name", "title", "description", "widget", "integer", "required", "scalar",
+         "default", "example", "unit", "display_unit", "minimum", "exclusive_minimum"}
+
+    widget: ``number``/``integer`` (one value), ``numbers`` (one or more values on one line;
+    ``scalar``: a single value is taken as a number), ``pairs`` (a list of (a, b) pairs).
+    """
+    model = resolve_kind(kind).params
+    schema = model.model_json_schema()
+    required = set(schema.get("required", ()))
+    out = []
+    for name, prop in schema.get("properties", {}).items():
+        widget = _widget(prop)
+        options = prop.get("anyOf", [prop])
+        integer = _leaf_types(prop) == {"integer"}
+        bounds = [o for o in options if "minimum" in o or "exclusiveMinimum" in o]
+        out.append({
+            "name": name, "title": prop.get("title", name), "description": prop.get("description", ""),
+            "widget": widget, "integer": bool(integer), "required": name in required,
+            "scalar": any(o.get("type") in ("number", "integer") for o in options),
+            "default": prop.get("default"), "example": (prop.get("examples") or [None])[0],
+            "unit": prop.get("unit"), "display_unit": prop.get("display_unit"),
+            "minimum": bounds[0].get("minimum") if bounds else None,
+            "exclusive_minimum": bounds[0].get("exclusiveMinimum") if bounds else None,
+        })
+    return out
 
 
 def make_mask(kind: str, lattice, **params) -> Mask:
-    """Make a sensor mask of kind ``kind`` on ``lattice`` (a ``Lattice`` or a dict with
-    n_x, n_y, pitch). Kinds and their parameters (SI units; m for lengths):
+    """Make a sensor mask of kind ``kind`` (a name in ``KINDS`` or an alias) on ``lattice``
+    (a ``Lattice`` or a dict with n_x, n_y, pitch) with ``params`` checked by the kind's
+    parameter model (SI units; see the models above for each kind's parameters).
 
-    - ``full``: no parameters.
-    - ``subgrid`` (aliases ``equispaced``, ``grid``): ``interval`` (int ≥ 1, lattice points between
-      sensors), ``n_per_side`` (int or [n_x, n_y]; default as many as fit), centred.
-    - ``hexagonal`` (``hex``): ``spacing`` (m, ≥ pitch).
-    - ``random``: ``n_points``, ``seed`` (default 0).
-    - ``poisson`` (``poisson-disc``): ``min_distance`` (m), ``seed`` (default 0),
-      ``n_points`` (optional cap).
-    - ``points`` (``user``): ``points`` [[x, y], ...] in m (snapped) or ``indices``
-      [[i_x, i_y], ...].
-    - ``equiangular`` (line lattice, n_y = 1): ``depth`` (m), ``n_points``, ``poi`` (x in m
-      or [x, y]; default the centre).
-    - ``equisteradian`` (2-D lattice): ``depth`` (m), ``n_points``, ``poi`` ([x, y] in m;
-      default the centre).
-
-    Raises ValueError: unknown kind, unknown or missing parameters, and every bad value
-    the kind's function rejects (see each function).
+    Raises ValueError: unknown kind, unknown, missing or ill-typed parameters (pydantic's
+    ValidationError is a ValueError), and every bad value the kind's function rejects.
     """
     if not isinstance(lattice, Lattice):
         if isinstance(lattice, dict):
@@ -54,18 +260,28 @@ def make_mask(kind: str, lattice, **params) -> Mask:
                 raise ValueError(f"lattice must have n_x, n_y and pitch: {exc}") from None
         else:
             raise ValueError(f"lattice must be a Lattice or a dict, got {type(lattice).__name__}")
-    if not isinstance(kind, str):
-        raise ValueError(f"mask kind must be a string, got {kind!r}")
-    name = _ALIASES.get(kind.lower(), kind.lower())
-    if name not in MASK_KINDS:
-        raise ValueError(f"unknown mask kind {kind!r}; known: {', '.join(sorted(MASK_KINDS))}")
-    fn = MASK_KINDS[name]
-    sig = inspect.signature(fn)
-    allowed = list(sig.parameters)[1:]
-    unknown = sorted(set(params) - set(allowed))
-    if unknown:
-        raise ValueError(f"unknown parameter(s) for mask {name!r}: {', '.join(unknown)}; allowed: {', '.join(allowed) or 'none'}")
-    missing = [p for p in allowed if sig.parameters[p].default is inspect.Parameter.empty and p not in params]
+    k = resolve_kind(kind)
+    plain = {key: (v.tolist() if hasattr(v, "tolist") else v) for key, v in params.items()}  # numpy -> lists
+    try:
+        checked = k.params.model_validate(plain)
+    except ValidationError as exc:
+        raise ValueError(_reason(exc, k)) from None
+    return k.function(lattice, **checked.mask_kwargs())
+
+
+def _reason(exc: ValidationError, k: MaskKind) -> str:
+    """One line naming what is wrong with a kind's parameters."""
+    errors = exc.errors()
+    missing = [str(e["loc"][0]) for e in errors if e["type"] == "missing" and e["loc"]]
     if missing:
-        raise ValueError(f"mask {name!r} needs parameter(s): {', '.join(missing)}")
-    return fn(lattice, **params)
+        return f"mask {k.name!r} needs parameter(s): {', '.join(missing)}"
+    unknown = [str(e["loc"][0]) for e in errors if e["type"] == "extra_forbidden" and e["loc"]]
+    if unknown:
+        allowed = ", ".join(k.params.model_fields) or "none"
+        return f"unknown parameter(s) for mask {k.name!r}: {', '.join(unknown)}; allowed: {allowed}"
+    parts = []
+    for e in errors:
+        loc = ".".join(str(p) for p in e["loc"]) or "params"
+        msg = "non-finite value (NaN or infinity)" if e["type"] == "finite_number" else e["msg"]
+        parts.append(f"{loc}: {msg}")
+    return f"mask {k.name!r}: " + "; ".join(parts)

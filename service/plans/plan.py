@@ -89,15 +89,21 @@ class Points(_Strict):
 
 class Acquisition(_Strict):
     """Acquisition settings: ``n_t`` samples per A-line at interval ``dt`` (s), ``averages``
-    pulses per point and wavelength, excitation ``wavelengths`` (m), laser ``prf`` (Hz;
-    0 = as fast as the scanner can), ``sound_speed`` (m/s)."""
+    pulses per point and wavelength, excitation ``wavelengths`` (m, 400 nm to 2000 nm, no
+    repeats: ``driver.plan.check_wavelengths``), laser ``prf`` (Hz; 0 = as fast as the
+    scanner can), ``sound_speed`` (m/s). The bounds are the API's (one model for both)."""
 
-    n_t: int = Field(default=1024, ge=1)
-    dt: float = Field(default=8e-9, gt=0)
-    averages: int = Field(default=1, ge=1)
-    wavelengths: list[float] = Field(default_factory=lambda: [7.5e-7], description="m, 400 nm to 2000 nm, no repeats")
-    prf: float = Field(default=50.0, ge=0)
-    sound_speed: float = Field(default=1500.0, gt=0)
+    n_t: int = Field(default=1024, ge=8, le=65536, description="samples per A-line")
+    dt: float = Field(default=8e-9, gt=0, le=1e-3, description="sample interval, s",
+                      json_schema_extra={"unit": "s", "display_unit": "ns"})
+    averages: int = Field(default=1, ge=1, le=4096, description="pulses averaged per point")
+    wavelengths: list[float] = Field(default_factory=lambda: [7.5e-7], max_length=16,
+                                     description="excitation wavelengths, m (400 nm to 2000 nm, no repeats)",
+                                     json_schema_extra={"unit": "m", "display_unit": "nm"})
+    prf: float = Field(default=50.0, ge=0, le=1e5, description="pulse repetition frequency, Hz (0 = as fast as possible)",
+                       json_schema_extra={"unit": "Hz", "display_unit": "Hz"})
+    sound_speed: float = Field(default=1500.0, gt=100, le=10000, description="speed of sound, m/s",
+                               json_schema_extra={"unit": "m/s", "display_unit": "m/s"})
     #: several wavelengths: tune the laser at every point ("per_point", the default when
     #: absent) or once per full pass ("per_pass"); docs/protocol.md §4.1. Left out of the
     #: JSON when not set, so plans without it keep their ids.

@@ -281,6 +281,7 @@ CLIENT_METHODS = {
     ("get", "/api/health"): "health",
     ("post", "/api/plans"): "create_plan",
     ("get", "/api/plans"): "list_plans",
+    ("get", "/api/plans/kinds"): "mask_kinds",
     ("post", "/api/plans/preview"): "preview_plan",
     ("get", "/api/plans/{plan_id}"): "get_plan",
     ("get", "/api/plans/{plan_id}/plan.json"): "get_plan_json",

@@ -3,6 +3,7 @@
 and the failure path of a job (a scanner whose port does not exist)."""
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 
@@ -86,6 +87,29 @@ def test_recon_of_scan_local_equals_server(scanned):
         pa, pb = a["p0"][...], b["p0"][...]
     assert pa.shape == (128, N, N)
     np.testing.assert_allclose(pb, pa, rtol=0, atol=1e-4 * np.abs(pa).max())
+
+
+def test_plan_and_scan_with_server_options(scanned):
+    """`fpscan plan --out` then `fpscan scan --server --plan FILE`: the server stores the
+    file under its own id and scans it as a job; `fpscan plan --server` creates a plan there."""
+    from driver.scanfile import read_scan
+
+    tmp, url = scanned["tmp"], scanned["url"]
+    local = fpscan("plan", "equispaced", "--interval", "3", "--n-x", N, "--pitch", PITCH, "--n-t", 128,
+                   "--dt", 2e-8, "--prf", 0, "--out", tmp / "sub.json")
+    assert local.returncode == 0, local.stderr
+    doc = json.loads((tmp / "sub.json").read_text())
+    res = fpscan("scan", "--server", url, "--scanner", "sim", "--plan", tmp / "sub.json",
+                 "--out", tmp / "sub_scan.h5", "--quiet")
+    assert res.returncode == 0, res.stderr
+    n = len(doc["points"]["indices"])
+    assert f"{n}/{n} points" in res.stdout
+    scan = read_scan(tmp / "sub_scan.h5")
+    assert scan.plan["id"] == doc["id"] and scan.completed.all() and len(scan.completed) == n
+    remote = fpscan("plan", "equispaced", "--interval", "3", "--n-x", N, "--pitch", PITCH, "--n-t", 128,
+                    "--dt", 2e-8, "--prf", 0, "--server", url, "--out", tmp / "sub_remote.json")
+    assert remote.returncode == 0, remote.stderr
+    assert json.loads((tmp / "sub_remote.json").read_text()) == doc  # same builder, same id
 
 
 def test_scan_on_a_missing_port_fails_with_reason(scanned):

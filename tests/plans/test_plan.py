@@ -263,7 +263,7 @@ def test_make_plan_from_kind_as_the_http_layer_calls_it():
     assert a.id == b.id == c.id
     assert a.expected_scan_time_s == 0.0  # prf 0: unthrottled
     g = make_plan(kind="grid", lattice=lattice, params={"interval": 7}, order="nearest")
-    assert g.mask.kind == "subgrid" and g.order == "nearest"
+    assert g.mask.kind == "equispaced" and g.order == "nearest"  # "grid", "subgrid": aliases
     with pytest.raises(ValueError, match="unknown parameter"):
         make_plan(kind="full", lattice=lattice, params={"depth": 1.0})
     with pytest.raises(ValueError):

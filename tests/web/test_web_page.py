@@ -165,12 +165,10 @@ def plan_request(n_points: int) -> dict:
 
 
 def fill_plan_form(browser, n_points: int) -> None:
-    from selenium.webdriver.support.ui import Select
-
     set_value(browser, "lat-nx", LATTICE["n_x"])
     set_value(browser, "lat-ny", LATTICE["n_y"])
     set_value(browser, "lat-pitch", LATTICE["pitch"] * 1e6)
-    Select(el(browser, "mask-kind")).select_by_value("equisteradian")
+    choose(browser, "mask-kind", "equisteradian")  # offered once /api/plans/kinds is loaded
     set_value(browser, "mask-depth", DEPTH_MM)
     set_value(browser, "acq-nt", 256)
     set_value(browser, "acq-dt", 20)
@@ -553,3 +551,35 @@ def test_keyboard_navigation_and_state_without_colour(browser, server, screensho
         assert word in ("queued", "running", "paused", "succeeded", "failed", "cancelled")
         assert symbol not in ("none", "normal", "")
     shot(browser, screenshots, "jobs-view")
+
+
+def test_plan_form_offers_exactly_the_servers_kinds_and_parameters(browser, server, api, screenshots):
+    """The form is built from GET /api/plans/kinds (which the API tests hold equal to the
+    OpenAPI request schema and to `fpscan plan`'s flags): every kind, every parameter."""
+    listed = api.get("/api/plans/kinds").json()
+    want = {k["kind"]: [f["name"] for f in k["fields"]] for k in listed}
+    assert "equispaced" in want
+    browser.get(server + "/#/plan")
+    wait_for(lambda: len(browser.execute_script(
+        "return document.getElementById('mask-kind').options")) == len(want), 15, "the mask kinds")
+    offered = browser.execute_script(
+        "return [...document.getElementById('mask-kind').options].map(o => o.value)")
+    assert offered == list(want)
+    for kind in want:
+        choose(browser, "mask-kind", kind)
+        wait_for(lambda: browser.execute_script(
+            "return [...document.querySelectorAll('#mask-params [name]')].map(e => e.name)") == want[kind],
+            10, f"the {kind} parameters")
+    choose(browser, "mask-kind", "equispaced")
+    set_value(browser, "mask-interval", 3)
+    expected = api.post("/api/plans/preview", json={
+        "kind": "equispaced", "lattice": {"n_x": 64, "n_y": 64, "pitch": 60e-6}, "params": {"interval": 3},
+        "acquisition": {"n_t": 256, "dt": 8e-9, "prf": 50}}).json()
+    set_value(browser, "lat-nx", 64)
+    set_value(browser, "lat-ny", 64)
+    set_value(browser, "lat-pitch", 60)
+    set_value(browser, "acq-nt", 256)
+    set_value(browser, "acq-dt", 8)
+    wait_for(lambda: text(browser, "plan-points").split()[0] == str(expected["points"]), 20,
+             "the equispaced preview's point count")
+    shot(browser, screenshots, "plan-view-equispaced")
