@@ -104,6 +104,8 @@ def _common_options() -> argparse.ArgumentParser:
 
 
 def add_arguments(parser):
+    """Declare ``fpscan plan``'s options on ``parser``: one sub-parser per mask kind
+    (aliases included) with one flag per parameter of its model, plus the common options."""
     from service.plans.kinds import KINDS, kind_fields
 
     common = _common_options()
@@ -156,6 +158,7 @@ def request_body(args) -> dict:
 
 @client_errors
 def run(args) -> int:
+    """Make the plan locally (``--out``) or on the server (``--server``); exit status."""
     if not args.out and not args.server:
         raise ValueError("give --out FILE (a local plan) or --server URL (a plan on the server)")
     body = request_body(args)

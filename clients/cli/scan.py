@@ -17,6 +17,7 @@ HELP = "acquire a plan from the scanner (or simulator) into a scan file, resumin
 
 
 def add_arguments(parser):
+    """Declare ``fpscan scan``'s options on ``parser`` (local device or server job)."""
     parser.add_argument("--device",
                         help="serial device path (/dev/ttyACM0, /dev/pts/N) or pyserial URL (local scan)")
     parser.add_argument("--plan", required=True,
@@ -37,6 +38,7 @@ def add_arguments(parser):
 
 @client_errors
 def run(args) -> int:
+    """Acquire locally (``--device``) or as a server job (``--server``); exit status."""
     import sys
 
     from clients.cli._common import ProgressBar

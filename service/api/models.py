@@ -128,7 +128,7 @@ def _plan_create(k: MaskKind) -> type[_PlanCreate]:
     names = (k.name, *k.aliases)
     needs = any(f.is_required() for f in k.params.model_fields.values())
     fields: dict[str, Any] = {
-        "kind": (Literal[names], Field(k.name if k.name == "points" else ...,  # type: ignore[valid-type]
+        "kind": (Literal[names], Field(k.name if k.name == "points" else ...,
                                        description=f"mask kind {k.name!r}" + (f" (aliases: {', '.join(k.aliases)})"
                                                                              if k.aliases else ""))),
         "params": (k.params | None if k.name == "points" else k.params,
@@ -150,8 +150,8 @@ class PlanDocument(PlanJson):
 #: The body of ``POST /api/plans`` and ``/api/plans/preview``: one variant per mask kind
 #: (keyed on ``kind``; ``params`` is that kind's parameter model from
 #: ``service.plans.kinds``), or a whole plan JSON (keyed on ``format``).
-PlanCreate = Annotated[
-    Union[tuple(Annotated[_plan_create(k), Tag(k.name)] for k in KINDS.values())  # type: ignore[misc]
+PlanCreate: Any = Annotated[
+    Union[tuple(Annotated[_plan_create(k), Tag(k.name)] for k in KINDS.values())  # noqa: UP007
           + (Annotated[PlanDocument, Tag("plan")],)],
     Discriminator(_plan_body_tag, custom_error_type="plan_body", custom_error_message=(
         "give a mask kind (" + ", ".join(KINDS) + ") with its params, a point list ('points'), "

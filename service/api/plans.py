@@ -115,7 +115,10 @@ def _build_or_422(body) -> dict:
 
 
 @router.post("", status_code=201, response_model=Plan, dependencies=[Depends(require_token)])
-def create_plan(body: PlanCreate, response: Response, c: Context = Depends(ctx)) -> Plan:
+def create_plan(
+    body: PlanCreate,  # a union built from service.plans.kinds.KINDS
+    response: Response, c: Context = Depends(ctx),
+) -> Plan:
     """Create (or find, same content → same id) a plan from a mask kind and its params, a
     point list, or a plan JSON made by ``fpscan plan`` (kept with its id); ``Location``
     names it."""
@@ -127,7 +130,9 @@ def create_plan(body: PlanCreate, response: Response, c: Context = Depends(ctx))
 
 
 @router.post("/preview", response_model=PlanPreview, dependencies=[Depends(require_token)])
-def preview_plan(body: PlanCreate) -> PlanPreview:
+def preview_plan(
+    body: PlanCreate,  # a union built from service.plans.kinds.KINDS
+) -> PlanPreview:
     """The plan a request would give, without saving it. Does the work of a plan, so it
     needs the token like the mutating routes."""
     plan = _build_or_422(body)

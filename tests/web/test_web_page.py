@@ -567,8 +567,8 @@ def test_plan_form_offers_exactly_the_servers_kinds_and_parameters(browser, serv
     assert offered == list(want)
     for kind in want:
         choose(browser, "mask-kind", kind)
-        wait_for(lambda: browser.execute_script(
-            "return [...document.querySelectorAll('#mask-params [name]')].map(e => e.name)") == want[kind],
+        wait_for(lambda k=kind: browser.execute_script(
+            "return [...document.querySelectorAll('#mask-params [name]')].map(e => e.name)") == want[k],
             10, f"the {kind} parameters")
     choose(browser, "mask-kind", "equispaced")
     set_value(browser, "mask-interval", 3)
