@@ -6,7 +6,8 @@ Where the scanner measures and with what weight each A-line enters the reconstru
   (``x_i = (i - (n_x - 1)/2) * pitch``; a line scanner has ``n_y = 1``).
 - Masks (``Mask``: ``indices`` (n, 2), ``positions`` (n, 2) in m, ``weights`` (n,) in m²
   (m on a line), requested/obtained points, ``weight_ratio``): ``make_mask(kind, lattice,
-  **params)`` or the per-kind functions — full, subgrid, hexagonal, random, poisson,
+  **params)`` (kinds and their parameter models declared once in ``KINDS``,
+  ``service.plans.kinds``) or the per-kind functions — full, subgrid (kind ``equispaced``), hexagonal, random, poisson,
   points, and the paper's ``equiangular_mask`` (2-D) / ``equisteradian_mask`` (3-D).
   Default weights: clipped Voronoi areas (``service.plans.weights.voronoi_weights``);
   equiangular / equi-steradian: r² / r³ about the point of interest (paper §5.2).
@@ -27,7 +28,7 @@ from __future__ import annotations
 
 from .angular import equiangular_mask, equisteradian_mask, equisteradian_rings
 from .grids import full_mask, hexagonal_mask, points_mask, poisson_mask, random_mask, subgrid_mask
-from .kinds import MASK_KINDS, make_mask
+from .kinds import KINDS, MASK_KINDS, kind_fields, make_mask, resolve_kind
 from .lattice import Lattice
 from .mask import Mask, distance_law_weights, weight_ratio
 from .ordering import nearest_neighbour_order, ring_order, scan_order, serpentine_order
@@ -35,7 +36,7 @@ from .plan import PLAN_FORMAT, Acquisition, Plan, canonical_json, content_id, ma
 from .preview import preview_png
 
 __all__ = [
-    "Lattice", "Mask", "make_mask", "MASK_KINDS",
+    "Lattice", "Mask", "make_mask", "MASK_KINDS", "KINDS", "resolve_kind", "kind_fields",
     "full_mask", "subgrid_mask", "hexagonal_mask", "random_mask", "poisson_mask", "points_mask",
     "equiangular_mask", "equisteradian_mask", "equisteradian_rings",
     "distance_law_weights", "weight_ratio",
