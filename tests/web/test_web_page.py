@@ -456,8 +456,11 @@ def test_wrong_token_is_refused_with_the_servers_reason(browser, server, api, sc
     assert oracle.status_code == 401
     reason = oracle.json()["detail"]
     browser.get(server + "/#/plan")
+    # the form as loaded (the server's example values) is previewed with the good token;
+    # then a wrong one is stored and the save is refused (no typing: every change would
+    # preview, and a preview needs the token too)
+    wait_for(lambda: text(browser, "plan-preview-state").startswith("Preview up to date"), 20, "the preview")
     browser.execute_script("sessionStorage.setItem('fpscan.token', 'not-the-token')")
-    fill_plan_form(browser, N_POINTS)
     before = token_prompts(browser)
     el(browser, "plan-save").click()
     wait_for(lambda: browser.execute_script("return document.getElementById('token-dialog').open"), 15,
