@@ -105,9 +105,15 @@ def _common_options() -> argparse.ArgumentParser:
 
 def add_arguments(parser):
     """Declare ``fpscan plan``'s options on ``parser``: one sub-parser per mask kind
-    (aliases included) with one flag per parameter of its model, plus the common options."""
-    from service.plans.kinds import KINDS, kind_fields
-
+    (aliases included) with one flag per parameter of its model, plus the common options.
+    Where the planner (``service.plans``: numpy, scipy, pydantic) is not installed, e.g. a
+    client-only install, the command is declared but says so when run."""
+    try:
+        from service.plans.kinds import KINDS, kind_fields
+    except ImportError as exc:
+        parser.add_argument("rest", nargs=argparse.REMAINDER, help=argparse.SUPPRESS)
+        parser.set_defaults(_planner_missing=str(exc))
+        return
     common = _common_options()
     sub = parser.add_subparsers(dest="mask", metavar="KIND", title="mask kinds")
     sub.required = True
@@ -159,6 +165,9 @@ def request_body(args) -> dict:
 @client_errors
 def run(args) -> int:
     """Make the plan locally (``--out``) or on the server (``--server``); exit status."""
+    if getattr(args, "_planner_missing", None):
+        raise RuntimeError(f"fpscan plan needs the planner (service.plans), not installed here: "
+                           f"{args._planner_missing}")
     if not args.out and not args.server:
         raise ValueError("give --out FILE (a local plan) or --server URL (a plan on the server)")
     body = request_body(args)
