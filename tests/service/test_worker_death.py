@@ -73,3 +73,26 @@ def test_a_killed_server_finishes_every_reconstruction_after_restart(tmp_path, s
         assert not debris, debris
     finally:
         srv.stop()
+
+
+def test_start_up_removes_only_the_crash_debris_older_than_the_process(tmp_path):
+    from service.jobs.queue import remove_debris
+
+    data = tmp_path / "data"
+    results, datasets = data / "results", data / "datasets"
+    (results / "job1.1.tmp-123-456").mkdir(parents=True)
+    (results / "job1.1.tmp-123-456" / "volume.h5").write_bytes(b"x" * 100)
+    (results / ".job1.1.progress").write_text("{}")
+    (results / "job2.1").mkdir()                     # a finished result: kept
+    (datasets / "partial").mkdir(parents=True)
+    (datasets / "partial" / "upload.bin").write_bytes(b"y")
+    (datasets / "done").mkdir()
+    (datasets / "done" / "dataset.h5").write_bytes(b"z")  # a stored dataset: kept
+    old = time.time() - 3600
+    for p in [results / "job1.1.tmp-123-456", results / ".job1.1.progress", datasets / "partial"]:
+        os.utime(p, (old, old))
+    (results / "job3.1.tmp-9-9").mkdir()             # being written by this process: kept
+    removed = remove_debris(data, time.time() - 60)
+    assert sorted(removed) == [".job1.1.progress", "job1.1.tmp-123-456", "partial"]
+    assert sorted(p.name for p in results.iterdir()) == ["job2.1", "job3.1.tmp-9-9"]
+    assert sorted(p.name for p in datasets.iterdir()) == ["done"]
