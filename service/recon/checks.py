@@ -27,7 +27,11 @@ def finite_array(name: str, a, ndims: tuple[int, ...]) -> np.ndarray:
         raise ValueError(f"{name} must have {' or '.join(map(str, ndims))} dimensions, got shape {arr.shape}")
     if arr.size == 0 or 0 in arr.shape:
         raise ValueError(f"{name} is empty (shape {arr.shape})")
-    if not np.all(np.isfinite(arr)):
+    # one summing pass without a temporary (NaN/inf propagate into the sum); only a sum
+    # that overflowed from finite values needs the element-wise check
+    with np.errstate(all="ignore"):
+        total = arr.sum(dtype=np.float64)
+    if not np.isfinite(total) and not np.all(np.isfinite(arr)):
         raise ValueError(f"{name} contains NaN or inf")
     return arr
 
