@@ -271,26 +271,9 @@ class Demo:
         self._figures()
 
     def _create_plan(self, api, body: dict):
-        """``POST /api/plans`` with mask parameters; if this server cannot plan masks
-        itself, the mask is planned here (``service.plans``) and sent as a point list."""
-        from clients.http import ApiError
-
-        try:
-            return api.create_plan(body)
-        except ApiError as exc:
-            if exc.status_code != 422 or not any(s in str(exc.detail) for s in ("mask", "not available")):
-                raise
-            from service.plans import plan_from_spec
-
-            plan = plan_from_spec({"lattice": body["lattice"],
-                                   "mask": {"kind": body["kind"], "params": body.get("params", {})},
-                                   "order": body.get("order"), "acquisition": body["acquisition"]})
-            plan = plan.model_dump(mode="json") if hasattr(plan, "model_dump") else plan
-            self.report.setdefault("notes", []).append(
-                f"the server refused the {body['kind']} mask ({exc.detail}); planned locally and sent "
-                "as a point list (Voronoi weights)")
-            return api.create_plan({"lattice": body["lattice"], "points": plan["points"]["indices"],
-                                    "order": "given", "acquisition": body["acquisition"]})
+        """``POST /api/plans`` with a mask kind and its parameters (every kind is planned
+        by the server's ``service.plans``, the same builder as ``fpscan plan``)."""
+        return api.create_plan(body)
 
     # -- figures of merit
     def _figures(self) -> None:
