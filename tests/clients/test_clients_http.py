@@ -392,3 +392,14 @@ def test_client_runs_without_the_server_stack(server):
     assert got["n_points"] == len(body["points"])
     with Client(server, token=TOKEN) as api:  # the same plan, seen by the full client
         assert api.get_plan(got["id"]).n_points == len(body["points"])
+
+
+def test_client_models_mirror_the_servers_schema(server):
+    """The client's own response models (``clients.http.models``) have exactly the fields
+    of the server's response schemas of the same name in the live OpenAPI document."""
+    from clients.http.models import MODELS
+
+    schemas = httpx.get(server + "/openapi.json").json()["components"]["schemas"]
+    for name, model in MODELS.items():
+        assert name in schemas, f"the server has no {name} schema"
+        assert set(model.model_fields) == set(schemas[name]["properties"]), name
