@@ -87,12 +87,14 @@ class Scanner(_Response):
 
 
 class PreviewInfo(_Response):
-    """The live preview's state: version, points used, last refresh (UNIX time, s)."""
+    """The live preview's state: version, points used, last refresh (UNIX time, s), the
+    index of the wavelength it shows."""
 
     version: int
     points_used: int
     updated: float | None = None
     refresh_s: float | None = None
+    wavelength_index: int | None = None
 
 
 MODELS: dict[str, type[BaseModel]] = {
