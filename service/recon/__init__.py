@@ -25,11 +25,11 @@ from typing import Any
 
 from driver.physics.forward import forward_grid, forward_points
 from service.recon.checks import estimate_peak_memory
-from service.recon.image import Image
 from service.recon.kwave import kspace_line_recon, kspace_plane_recon
 from service.recon.planar import METHODS, reconstruct_grid, reconstruct_points
+from service.recon.reconstruction import Reconstruction
 
-__all__ = ["Image", "METHODS", "reconstruct_grid", "reconstruct_points", "kspace_line_recon",
+__all__ = ["Reconstruction", "METHODS", "reconstruct_grid", "reconstruct_points", "kspace_line_recon",
            "kspace_plane_recon", "forward_grid", "forward_points", "voronoi_weights",
            "estimate_peak_memory", "PlanarOperator", "reconstruct_tv"]
 

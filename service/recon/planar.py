@@ -34,7 +34,7 @@ from scipy.spatial import cKDTree
 
 from driver.physics import nufft
 from service.recon import checks
-from service.recon.image import Image
+from service.recon.reconstruction import Reconstruction
 
 METHODS = ("ner", "linear", "nearest", "cubic")
 _KIND = {"ner": "nufft", "linear": "linear", "nearest": "nearest"}
@@ -226,7 +226,7 @@ def reconstruct_grid(
     dy: float | None = None,
     memory_limit: int | None = None,
     progress=None,
-) -> Image:
+) -> Reconstruction:
     """Reconstruct p0 from data on a regular sensor line or plane (NER-NUFFT by default).
 
     Parameters
@@ -252,7 +252,7 @@ def reconstruct_grid(
 
     Returns
     -------
-    `Image` with p0 (n_z, n_x*u) or (n_z, n_y*u, n_x*u), row 0 at z = 0, lateral
+    `Reconstruction` with p0 (n_z, n_x*u) or (n_z, n_y*u, n_x*u), row 0 at z = 0, lateral
     coordinates centred on the optical axis. ``params["depth_rows"]`` is K of the module
     doc: at least the depth the last sample reaches, rounded up to a fast FFT length.
 
@@ -291,7 +291,7 @@ def reconstruct_grid(
                   dtype=rdtype.name, dz=dz, n_z=n_z, upsample=upsample, positivity=bool(positivity),
                   t0=float(t0), n_t=n_t, data_shape=list(data.shape), depth_rows=n_work,
                   lateral_transform=[n_yp, n_xp])
-    return Image(p0[:, 0, :] if is2d else p0, np.arange(n_z) * dz, x, y, params)
+    return Reconstruction(p0[:, 0, :] if is2d else p0, np.arange(n_z) * dz, x, y, params)
 
 
 def _check_positions(positions, n_points):
@@ -423,7 +423,7 @@ def reconstruct_points(
     t0: float = 0.0,
     memory_limit: int | None = None,
     progress=None,
-) -> Image:
+) -> Reconstruction:
     """NEDNER-NUFFT: reconstruct p0 from A-lines at arbitrary lateral positions.
 
     Parameters
@@ -451,7 +451,7 @@ def reconstruct_points(
 
     Returns
     -------
-    `Image` with p0 (n_z, n_x*u) or (n_z, n_y*u, n_x*u) on the grid (upsampled by u).
+    `Reconstruction` with p0 (n_z, n_x*u) or (n_z, n_y*u, n_x*u) on the grid (upsampled by u).
 
     Raises
     ------
@@ -525,4 +525,4 @@ def reconstruct_points(
                   t0=float(t0), n_t=n_t, n_points=n_points, depth_rows=n_work, lateral_transform=[n_y, n_x],
                   dx=dx, dy=dy if d == 2 else None,
                   weights="voronoi" if weights is None else "given")
-    return Image(p0[:, 0, :] if d == 1 else p0, np.arange(n_z) * dz, x, y, params)
+    return Reconstruction(p0[:, 0, :] if d == 1 else p0, np.arange(n_z) * dz, x, y, params)

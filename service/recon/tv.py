@@ -43,7 +43,7 @@ from typing import Any
 import numpy as np
 
 from service.recon import checks
-from service.recon.image import Image
+from service.recon.reconstruction import Reconstruction
 
 DEFAULT_MAX_ITER = 60
 DEFAULT_TOL = 2e-3
@@ -99,7 +99,7 @@ def reconstruct_tv(
     periodic: bool = False,
     memory_limit: int | None = None,
     progress=None,
-) -> Image:
+) -> Reconstruction:
     """Model-based reconstruction: ½‖A p0 − g‖²_W + λ TV(p0), p0 ≥ 0 (module doc).
 
     Parameters
@@ -126,7 +126,7 @@ def reconstruct_tv(
 
     Returns
     -------
-    `Image` (p0, z, x, y) on the warm start's grid; ``params`` add ``lam``, ``lam_auto``,
+    `Reconstruction` (p0, z, x, y) on the warm start's grid; ``params`` add ``lam``, ``lam_auto``,
     ``noise_sigma``, ``iterations``, ``residual`` (‖A p0 − g‖_W / ‖g‖_W), ``norm_A``.
 
     Raises
@@ -223,7 +223,7 @@ def reconstruct_tv(
                   positivity=bool(positivity), weights_mean_one=w is not None, periodic=bool(periodic),
                   solver="pyproximal PrimalDual")
     report(1.0, f"done after {it} iterations")
-    return Image(p0, warm.z, warm.x, warm.y, params)
+    return Reconstruction(p0, warm.z, warm.x, warm.y, params)
 
 
 def _reporter(progress):

@@ -1,4 +1,4 @@
-"""The reconstructed image: p0 with its coordinate vectors and the parameters used."""
+"""The reconstruction result: p0 with its coordinate vectors and the parameters used."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -7,7 +7,7 @@ import numpy as np
 
 
 @dataclass
-class Image:
+class Reconstruction:
     """A reconstructed initial-pressure image.
 
     Attributes
