@@ -1,9 +1,9 @@
 """Live preview of a running scan: a NEDNER reconstruction of the points acquired so far,
 refreshed every few seconds, rendered as MIP PNGs with a version counter.
 
-The reconstruction (``service.recon.reconstruct_points``, temporal NUFFT + type-1 NUFFT
-over the positions, paper §3.2) works on any subset of the sensor mask, so the user
-watches the image form. Weights are the clipped Voronoi areas of the subset
+The reconstruction (``service.pipeline.reconstruct`` with ``nedner``: temporal NUFFT +
+type-1 NUFFT over the positions, paper §3.2) works on any subset of the sensor mask, so
+the user watches the image form. Weights are the clipped Voronoi areas of the subset
 (``voronoi_weights``, the default of ``reconstruct_points``), not the plan's weights for
 the whole mask. The output grid is the plan's lattice, thinned for speed
 (:func:`render_preview`).
@@ -48,9 +48,9 @@ def preview_grid(axis: np.ndarray, max_points: int) -> np.ndarray:
     step = max(1, -(-n // max_points))
     if step == 1 or n < 2:
         return axis
-    pitch = float(axis[1] - axis[0]) * step
-    m = -(-n // step)
-    return (np.arange(m) - (m - 1) / 2.0) * pitch
+    from service.storage.datasets import centred_axis
+
+    return centred_axis(-(-n // step), float(axis[1] - axis[0]) * step)
 
 
 def render_preview(scan_path: str, *, wavelength_index: int = 0, eps: float = 1e-3, max_lateral: int = 128,
@@ -65,40 +65,39 @@ def render_preview(scan_path: str, *, wavelength_index: int = 0, eps: float = 1e
     Returns ``{"points_used": n, "pngs": {plane: bytes}, "seconds": s}``; ``pngs`` is
     empty when fewer than 2 points are complete.
     """
+    from dataclasses import replace
+
     from service.jobs.images import mip_pngs
-    from service.jobs.work import load_scan_points
+    from service.pipeline import reconstruct
+    from service.storage.datasets import load_scan
 
     t0 = time.perf_counter()
-    inp = load_scan_points(scan_path, wavelength_index=wavelength_index)
-    n = int(inp["alines"].shape[0])
+    ds = load_scan(scan_path, allow_empty=True, wavelength_index=wavelength_index)
+    n = int(ds.alines.shape[0])
     if n < 2:
         return {"points_used": n, "pngs": {}, "seconds": time.perf_counter() - t0}
-    from service.recon import reconstruct_points
-
-    alines = inp["alines"].astype(np.float32)
+    alines = ds.alines.astype(np.float32)
     k = max(1, -(-alines.shape[1] // max_samples))
     if k > 1:
         n_keep = (alines.shape[1] // k) * k
         alines = alines[:, :n_keep].reshape(n, n_keep // k, k).mean(axis=2)
-    grid = tuple(preview_grid(np.asarray(g), max_lateral) for g in inp["grid"])
-    image = reconstruct_points(alines, inp["positions"], inp["dt"] * k, inp["c"], grid=grid, method="ner",
-                               eps=eps, dtype=np.float32)
-    pngs = mip_pngs(image.p0)
+    grid = tuple(preview_grid(np.asarray(g), max_lateral) for g in ds.grid)
+    preview = replace(ds, alines=alines, dt=ds.dt * k, grid=grid, weights=None, indices=None, lattice=None)
+    rec = reconstruct(preview, "nedner", eps=eps, dtype="float32")
+    pngs = mip_pngs(rec.p0)
     return {"points_used": n, "pngs": pngs, "seconds": time.perf_counter() - t0}
 
 
 def warm_up() -> float:
     """Import and compile (numba) the reconstruction in a fresh worker with a tiny
     NEDNER run, so the first live preview of a scan is not slowed by start-up."""
-    from service.recon import reconstruct_points
+    from service.pipeline import reconstruct
+    from service.storage.datasets import GridDataset
 
     t0 = time.perf_counter()
-    x = (np.arange(4) - 1.5) * 1e-4
-    yy, xx = np.meshgrid(x, x, indexing="ij")
-    pos = np.stack([xx.ravel(), yy.ravel()], axis=1)
-    alines = np.zeros((16, 32), dtype=np.float32)
-    alines[:, 5] = 1.0
-    reconstruct_points(alines, pos, 2e-8, 1500.0, grid=(x, x), method="ner", eps=1e-3, dtype=np.float32)
+    data = np.zeros((32, 4, 4), dtype=np.float32)
+    data[5] = 1.0
+    reconstruct(GridDataset(data=data, dx=1e-4, dt=2e-8, c=1500.0, dy=1e-4), "nedner", eps=1e-3, dtype="float32")
     return time.perf_counter() - t0
 
 

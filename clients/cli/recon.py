@@ -1,9 +1,11 @@
 """`fpscan recon`: reconstruct p0 from a scan file or dataset, locally or on a server.
 
-Locally (no ``--server``) the input is imported with ``service.storage.datasets``
-(as the service imports uploads), reconstructed with ``service.recon`` and written like a
-server result (``service.storage.results`` / ``service.storage.render``): ``volume.h5``
-(``/p0`` ``(n_z, n_y, n_x)``, ``/z``, ``/y``, ``/x`` in m) and ``mip_{xy,xz,yz}.png``.
+Locally (no ``--server``) the input is read with ``service.storage.datasets.load_dataset``
+(as the service reads uploads), reconstructed with ``service.pipeline.reconstruct`` (the
+job worker's call) and written with ``service.storage.results.write_result`` (the job
+worker's result folder): ``volume.h5`` (``/p0`` ``(n_z, n_y, n_x)``, ``/z``, ``/y``,
+``/x`` in m) and ``mip_{xy,xz,yz}.png``. The same input and options give the same volume
+locally and on the server (default precision float32 on both).
 With ``--server`` the file is uploaded (``POST /api/datasets``), reconstructed as a job
 (``POST /api/reconstructions``; or ``--scan-job`` reuses a scan job's file) and the
 volume and MIPs are downloaded into ``--out``.
@@ -15,17 +17,21 @@ from clients.cli._common import add_progress_option, add_server_options, client_
 COMMAND = "recon"
 HELP = "reconstruct p0 (NEDNER/NER/...) from a scan file or dataset, locally or on a server"
 
-FORMATS = ("fpscan", "ipasc", "kwave-hdf5", "npy")
-METHODS = ("nedner", "ner", "linear", "nearest", "cubic", "kwave")
 
 
 def add_arguments(parser):
     """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser)."""
+    from service.pipeline import DEFAULT_DTYPE, DTYPES, KWAVE_INTERPS, METHODS
+    from service.storage.datasets import FORMATS
+
     parser.add_argument("input", nargs="?", help="scan file (HDF5), IPASC file, k-Wave HDF5 or .npy array")
     parser.add_argument("--format", choices=FORMATS, default=None,
-                        help="input format (default: from the file: .npy, IPASC, k-Wave HDF5 or fpscan scan)")
-    parser.add_argument("--method", choices=METHODS, default=None,
-                        help="reconstruction method (default: nedner for scans/IPASC, ner for grids)")
+                        help="input format (default: from the file: .npy, IPASC, k-Wave HDF5, fpscan scan "
+                             "or fpscan dataset)")
+    methods = "; ".join(f"{m.name}: {m.title}" for m in METHODS.values())
+    parser.add_argument("--method", choices=list(METHODS), default=None,
+                        help=f"reconstruction method (default: nedner for scans/IPASC, ner for grids). {methods}. "
+                             "Grid methods need every lattice point.")
     parser.add_argument("--out", default=None, metavar="DIR",
                         help="output folder (default: <input>-<method>/ or recon-<job>/)")
     g = parser.add_argument_group("data spacings (npy and k-Wave inputs; SI units)")
@@ -36,11 +42,14 @@ def add_arguments(parser):
     g.add_argument("--key", default=None, help="HDF5 dataset path in a k-Wave file (default sensor_data/clean)")
     g = parser.add_argument_group("reconstruction options")
     g.add_argument("--eps", type=float, default=None, help="NUFFT tolerance (default 1e-6)")
-    g.add_argument("--dtype", choices=("float32", "float64"), default=None, help="working precision")
+    g.add_argument("--dtype", choices=DTYPES, default=None,
+                   help=f"working and output precision (default {DEFAULT_DTYPE}, locally and on the server)")
     g.add_argument("--upsample", type=int, default=None, help="lateral upsampling factor")
     g.add_argument("--positivity", action="store_true", help="clip negative p0 to 0")
     g.add_argument("--n-z", type=int, default=None, help="output depth samples (default n_t)")
     g.add_argument("--dz", type=float, default=None, help="output depth spacing, m (default c*dt)")
+    g.add_argument("--interp", choices=KWAVE_INTERPS, default=None,
+                   help="k-Wave interpolation for --method kwave (default *nearest, as k-Wave)")
     parser.add_argument("--scan-job", default=None, metavar="JOB_ID",
                         help="with --server: reconstruct this scan job's file (no INPUT)")
     add_server_options(parser)
@@ -59,7 +68,7 @@ def _sniff_format(path) -> str:
 
 def _params(args) -> dict:
     params = {}
-    for name in ("eps", "dtype", "upsample", "n_z", "dz", "c"):
+    for name in ("eps", "dtype", "upsample", "n_z", "dz", "c", "interp"):
         value = getattr(args, name)
         if value is not None:
             params[name] = value
@@ -83,7 +92,7 @@ def run(args) -> int:
         if not Path(args.input).is_file():
             raise ValueError(f"no such file: {args.input}")
     fmt = None if args.scan_job else (args.format or _sniff_format(args.input))
-    method = args.method or ("nedner" if fmt in (None, "fpscan", "ipasc") else "ner")
+    method = args.method or ("nedner" if fmt in (None, "fpscan", "ipasc", "dataset") else "ner")
     if args.server:
         return _remote(args, fmt, method)
     return _local(args, fmt, method)
@@ -100,61 +109,14 @@ def _default_out(args, method: str):
     return p.with_name(f"{p.stem}-{method}")
 
 
-def reconstruct_dataset(ds, method: str, params: dict):
-    """Run ``service.recon`` on a ``service.storage.datasets`` dataset.
-
-    ``method``: ``nedner`` (NEDNER-NUFFT, ``reconstruct_points``; any input) or a grid
-    method (``ner``, ``linear``, ``nearest``, ``cubic``; regular grids only). ``params``:
-    ``eps``, ``dtype`` ("float32"/"float64"), ``upsample``, ``positivity``, ``n_z``,
-    ``dz`` (m), ``c`` (m/s, overrides the input's). Returns the ``Image``. Raises
-    ``ValueError`` when the method does not fit the input."""
-    import numpy as np
-
-    from service import recon
-
-    opts = {k: params[k] for k in ("eps", "upsample", "positivity", "n_z", "dz") if params.get(k) is not None}
-    if params.get("dtype"):
-        opts["dtype"] = np.float32 if params["dtype"] == "float32" else np.float64
-    if getattr(ds, "t0", 0.0):
-        opts["t0"] = float(ds.t0)
-    c = float(params.get("c") or ds.c)
-    if ds.kind == "grid":
-        if method == "nedner":
-            axes = ds.axes()
-            data = ds.data
-            if data.ndim == 2:
-                alines, positions = data.T, axes[0][:, None]
-            else:
-                yy, xx = np.meshgrid(axes[1], axes[0], indexing="ij")
-                alines = data.reshape(data.shape[0], -1).T
-                positions = np.stack([xx.ravel(), yy.ravel()], axis=1)
-            return recon.reconstruct_points(alines, positions, ds.dt, c, grid=axes, method="ner", **opts)
-        if ds.data.ndim == 3 and ds.dy is not None:
-            opts["dy"] = ds.dy
-        return recon.reconstruct_grid(ds.data, ds.dx, ds.dt, c, method=method, **opts)
-    if method != "nedner":
-        raise ValueError(f"method {method!r} needs data on a full regular grid; use nedner for a sensor mask")
-    if ds.alines.shape[0] == 0:
-        raise ValueError("the input has no completed A-lines")
-    return recon.reconstruct_points(ds.alines, ds.positions, ds.dt, c, weights=ds.weights, grid=ds.grid,
-                                    method="ner", **opts)
-
-
-def write_local_result(out, image, *, input_id: str) -> None:
-    """``out/volume.h5`` (``service.storage.results``) and ``out/mip_{plane}.png``
-    (``service.storage.render``), written to a temporary folder renamed into place: the
-    same files a server-side reconstruction job writes (``service.jobs.work.write_result``)."""
-    from service.jobs.work import write_result
-
-    write_result(out, image, input_id=input_id)
-
-
 def _local(args, fmt: str, method: str) -> int:
     import sys
     import time
     from pathlib import Path
 
+    from service.pipeline import reconstruct
     from service.storage.datasets import load_dataset
+    from service.storage.results import write_result
 
     out = _default_out(args, method)
     say = (lambda msg: None) if args.quiet else (lambda msg: print(f"recon: {msg}", file=sys.stderr, flush=True))
@@ -164,12 +126,12 @@ def _local(args, fmt: str, method: str) -> int:
     t1 = time.perf_counter()
     shape = ds.data.shape if ds.kind == "grid" else ds.alines.shape
     say(f"reconstructing with {method} (input {list(shape)})")
-    image = reconstruct_dataset(ds, method, {"method": method, **_params(args)})
+    rec = reconstruct(ds, method, **_params(args))
     t2 = time.perf_counter()
     say(f"writing {out}/")
-    write_local_result(out, image, input_id=Path(args.input).name)
+    write_result(out, rec, input_id=Path(args.input).name)
     t3 = time.perf_counter()
-    dims = "x".join(str(n) for n in image.p0.shape)
+    dims = "x".join(str(n) for n in rec.p0.shape)
     print(f"{out}/volume.h5  p0 {dims}  load {t1 - t0:.2f} s  reconstruct {t2 - t1:.2f} s  write {t3 - t2:.2f} s")
     return 0
 

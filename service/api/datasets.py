@@ -12,8 +12,9 @@ Formats:
 - ``ipasc``: an IPASC HDF5 file (``service.ipasc.read_ipasc``).
 
 The upload is stored under a server-chosen id (``<data_dir>/datasets/<id>/``); the client's
-file name is never used as a path. Grid and point data are converted to the canonical
-dataset file read by :mod:`service.jobs.work`.
+file name is never used as a path. Every upload is read with
+``service.storage.datasets.load_dataset`` and kept as the canonical dataset file
+(``service.storage.datasets.write_dataset``), which the job worker reads.
 """
 from __future__ import annotations
 
@@ -22,7 +23,6 @@ import shutil
 import uuid
 from pathlib import Path
 
-import numpy as np
 from fastapi import APIRouter, Depends, File, Form, HTTPException, UploadFile
 from fastapi import Path as PathParam
 
@@ -36,43 +36,6 @@ router = APIRouter(prefix="/api/datasets", tags=["datasets"])
 HDF5_KEY_CHARS = set("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_-/.")
 
 
-def write_grid_dataset(path: Path, ds) -> None:
-    """The canonical grid dataset file (see :mod:`service.jobs.work`) of a
-    ``service.storage.datasets.GridDataset``."""
-    import h5py
-
-    with h5py.File(path, "w") as f:
-        f.attrs["layout"] = "grid"
-        f.create_dataset("data", data=ds.data)
-        f.attrs.update({"dt": ds.dt, "dx": ds.dx, "c": ds.c, "t0": ds.t0})
-        if ds.dy is not None and ds.data.ndim == 3:
-            f.attrs["dy"] = ds.dy
-
-
-def write_points_dataset(path: Path, ds) -> None:
-    """The canonical point dataset file (see :mod:`service.jobs.work`) of a
-    ``service.storage.datasets.PointDataset``; keeps the lattice indices when the data
-    came from a plan, so a full lattice can use the grid methods."""
-    import h5py
-
-    with h5py.File(path, "w") as f:
-        f.attrs["layout"] = "points"
-        f.create_dataset("alines", data=np.asarray(ds.alines))
-        f.create_dataset("positions", data=np.asarray(ds.positions, dtype=np.float64))
-        if ds.weights is not None:
-            f.create_dataset("weights", data=np.asarray(ds.weights, dtype=np.float64))
-        f.create_dataset("grid_x", data=np.asarray(ds.grid[0], dtype=np.float64))
-        if len(ds.grid) > 1:
-            f.create_dataset("grid_y", data=np.asarray(ds.grid[1], dtype=np.float64))
-        f.attrs.update({"dt": ds.dt, "c": ds.c, "t0": ds.t0})
-        plan, indices = ds.meta.get("plan"), ds.meta.get("indices")
-        if isinstance(plan, dict) and "lattice" in plan and indices is not None:
-            lat = plan["lattice"]
-            f.create_dataset("lattice", data=np.asarray(indices, dtype=np.int64))
-            f.attrs["lattice_shape"] = (int(lat.get("n_y", 1)), int(lat["n_x"]))
-            f.attrs["pitch"] = float(lat["pitch"])
-
-
 def import_dataset(src: Path, dest_dir: Path, fmt: str, *, dt, dx, dy, c, key,
                    max_bytes: int | None = None) -> dict:
     """Validate and convert an uploaded file with ``service.storage.datasets.load_dataset``
@@ -80,7 +43,7 @@ def import_dataset(src: Path, dest_dir: Path, fmt: str, *, dt, dx, dy, c, key,
     ``max_bytes``: largest declared dataset of an HDF5 file
     (:func:`service.storage.untrusted.check_hdf5`, run before anything is read).
     Raises ``ValueError`` with the reason."""
-    from service.storage.datasets import MAX_ELEMENTS, GridDataset, load_dataset
+    from service.storage.datasets import MAX_ELEMENTS, GridDataset, load_dataset, write_dataset
 
     if key is not None and (not key or len(key) > 200 or not set(key) <= HDF5_KEY_CHARS):
         raise ValueError("key must be an HDF5 dataset path of [A-Za-z0-9_-/.]")
@@ -93,16 +56,14 @@ def import_dataset(src: Path, dest_dir: Path, fmt: str, *, dt, dx, dy, c, key,
     except (KeyError, TypeError, IndexError, OSError) as exc:
         raise ValueError(f"file is not a readable {fmt} dataset ({type(exc).__name__})") from None
     if isinstance(ds, GridDataset):
-        write_grid_dataset(dest_dir / "dataset.h5", ds)
+        write_dataset(dest_dir / "dataset.h5", ds)
         return {"layout": "grid", "shape": list(ds.data.shape), "dt": ds.dt, "c": ds.c, "path": "dataset.h5"}
     if ds.alines.shape[0] == 0:
         raise ValueError("the dataset holds no A-lines")
-    write_points_dataset(dest_dir / "dataset.h5", ds)
+    write_dataset(dest_dir / "dataset.h5", ds)
     n_x, n_y = len(ds.grid[0]), len(ds.grid[1]) if len(ds.grid) > 1 else 1
-    indices = ds.meta.get("indices")
-    full = indices is not None and len(np.unique(np.asarray(indices).reshape(len(indices), -1), axis=0)) == n_x * n_y
     return {"layout": "points", "shape": list(ds.alines.shape), "dt": ds.dt, "c": ds.c, "path": "dataset.h5",
-            "n_x": n_x, "n_y": n_y, "full_lattice": bool(full)}
+            "n_x": n_x, "n_y": n_y, "full_lattice": ds.full_lattice}
 
 
 @router.post("", status_code=201, response_model=Dataset, dependencies=[Depends(require_token)],

@@ -9,15 +9,39 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal, Union
 
-from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag, create_model, model_validator
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Discriminator,
+    Field,
+    Tag,
+    create_model,
+    model_validator,
+)
 
+from service.pipeline import DEFAULT_DTYPE, DTYPES, KWAVE_INTERPS, METHODS
 from service.plans.kinds import KINDS, MaskKind, resolve_kind
 from service.plans.plan import ORDER_NAMES, Acquisition
 from service.plans.plan import Plan as PlanJson
 
+
+def _one_of(values) -> Any:
+    """A string type accepting only ``values`` (listed as the schema's ``enum``), so
+    that the vocabularies stay those of their owner (``service.pipeline``)."""
+    allowed = tuple(values)
+
+    def check(v: str) -> str:
+        if v not in allowed:
+            raise ValueError(f"must be one of {', '.join(allowed)}, got {v!r}")
+        return v
+
+    return Annotated[str, AfterValidator(check), Field(json_schema_extra={"enum": list(allowed)})]
+
+
 JobState = Literal["queued", "running", "paused", "succeeded", "failed", "cancelled"]
 JobKind = Literal["scan", "recon"]
-ReconMethod = Literal["ner", "nedner", "linear", "nearest", "cubic"]
+ReconMethod = _one_of(METHODS)
 Plane = Literal["xy", "xz", "yz"]
 DatasetFormat = Literal["fpscan", "ipasc", "kwave-hdf5", "npy"]
 
@@ -256,16 +280,20 @@ class Dataset(BaseModel):
 
 
 class ReconParams(_Request):
-    """Reconstruction options (``service.recon``)."""
+    """Reconstruction options (``service.pipeline.OPTIONS``; ``null`` = the method's
+    default). Which method takes which option: ``service.pipeline.METHODS``
+    (docs/api.md); options of other methods are ignored."""
 
     c: float | None = Field(None, gt=100, le=10000, description="speed of sound, m/s (default: the input's)")
-    eps: float = Field(1e-6, ge=1e-15, le=1e-1, description="NUFFT tolerance")
-    dtype: Literal["float32", "float64"] = "float32"
-    upsample: int = Field(1, ge=1, le=8)
+    eps: float | None = Field(None, ge=1e-15, le=1e-1, description="NUFFT tolerance (ner, nedner; default 1e-6)")
+    dtype: _one_of(DTYPES) = Field(DEFAULT_DTYPE, description="working and output precision")  # type: ignore[valid-type]
+    upsample: int | None = Field(None, ge=1, le=8, description="lateral upsampling factor (default 1)")
     positivity: bool = False
     n_z: int | None = Field(None, ge=2, le=65536, description="output depth samples (>= 2)")
     dz: float | None = Field(None, ge=1e-9, le=0.1, description="output depth spacing, m (>= 1 nm; with the "
                              "input's c·t_last it sets the working depth rows, counted in the memory admission)")
+    interp: _one_of(KWAVE_INTERPS) | None = Field(  # type: ignore[valid-type]
+        None, description="k-Wave interpolation (kwave; default *nearest)")
 
 
 class ReconRequest(_Request):
@@ -279,7 +307,7 @@ class ReconRequest(_Request):
 
     scan_job_id: str | None = Field(None, pattern=ID_PATTERN, description="exclusive with dataset_id")
     dataset_id: str | None = Field(None, pattern=ID_PATTERN, description="exclusive with scan_job_id")
-    method: ReconMethod = "nedner"
+    method: ReconMethod = "nedner"  # type: ignore[valid-type]
     params: ReconParams = Field(default_factory=ReconParams)
 
     @model_validator(mode="after")

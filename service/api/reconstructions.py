@@ -15,7 +15,7 @@ from service.api.models import ID_PATTERN, Job, Plane, ReconRequest
 from service.jobs.images import png_bytes
 from service.jobs.queue import AdmissionError, admit, estimate_memory
 from service.jobs.store import IdempotencyConflict
-from service.jobs.work import GRID_METHODS
+from service.pipeline import METHODS, method_options
 
 router = APIRouter(prefix="/api/reconstructions", tags=["reconstructions"])
 
@@ -28,6 +28,11 @@ def _input_for(c: Context, body: ReconRequest) -> tuple[dict, dict, str]:
     """``(input spec, shape for the memory estimate, input id)``; raises HTTPException."""
     if (body.scan_job_id is None) == (body.dataset_id is None):
         raise HTTPException(422, "give exactly one of scan_job_id or dataset_id")
+    try:
+        method_options(body.method, body.params.model_dump())
+    except ValueError as exc:
+        raise HTTPException(422, str(exc)) from None
+    needs_grid = METHODS[body.method].needs_grid
     if body.scan_job_id is not None:
         job = c.store.get(body.scan_job_id)
         if job is None or job["kind"] != "scan":
@@ -42,7 +47,7 @@ def _input_for(c: Context, body: ReconRequest) -> tuple[dict, dict, str]:
         lat, acq = plan["lattice"], plan["acquisition"]
         shape = {"n_t": acq["n_t"], "n_x": lat["n_x"], "n_y": lat.get("n_y", 1),
                  "n_points": len(plan["points"]["indices"]), "dt": acq["dt"], "c": acq.get("sound_speed")}
-        if body.method != "nedner" and len(plan["points"]["indices"]) != lat["n_x"] * lat.get("n_y", 1):
+        if needs_grid and len(plan["points"]["indices"]) != lat["n_x"] * lat.get("n_y", 1):
             raise HTTPException(422, f"method {body.method!r} needs every lattice point; this scan's plan "
                                      "is a sensor mask: use 'nedner'")
         return {"kind": "scan", "path": scan_path}, shape, f"scan:{body.scan_job_id}"
@@ -56,10 +61,8 @@ def _input_for(c: Context, body: ReconRequest) -> tuple[dict, dict, str]:
         s = meta["shape"]
         shape = {"n_t": s[0], "n_x": s[-1], "n_y": s[1] if len(s) == 3 else 1, "dt": meta.get("dt"),
                  "c": meta.get("c")}
-        if body.method not in GRID_METHODS + ("nedner",):
-            raise HTTPException(422, f"unknown method {body.method!r}")
         return {"kind": "dataset", "path": path}, shape, f"dataset:{body.dataset_id}"
-    if body.method != "nedner" and not meta.get("full_lattice"):
+    if needs_grid and not meta.get("full_lattice"):
         raise HTTPException(422, f"method {body.method!r} needs a full regular grid; this dataset needs 'nedner'")
     n, n_t = meta["shape"]
     side = int(np.ceil(np.sqrt(n)))

@@ -29,9 +29,11 @@ from service.metrics import (
     disc_mask,
     tenenbaum_sharpness,
 )
+from service.pipeline import reconstruct
+from service.storage.datasets import GridDataset, PointDataset, centred_axis
 
 from .datasets import DenseDataset, add_noise
-from .phantoms import lateral_axis, tree_phantom, tree_roi
+from .phantoms import tree_phantom, tree_roi
 from .result import ExperimentResult, setup_matplotlib
 
 NAME = "limited-view-2d"
@@ -57,8 +59,8 @@ def simulate_tree(*, small: bool, snr_db: float | None, seed: int = 0) -> DenseD
     n_t = n_x + n_z
     clean = forward_grid(p0, dx, dx, dt, n_t, c)
     noisy = add_noise(clean, snr_db, seed)
-    return DenseDataset(noisy, dx, dt, c, p0, dx, "tree phantom (built in)",
-                        {"clean": clean, "snr_db": snr_db, "seed": seed})
+    return DenseDataset(data=noisy, dx=dx, dt=dt, c=c, p0=p0, dz=dx, source="tree phantom (built in)",
+                        meta={"clean": clean, "snr_db": snr_db, "seed": seed})
 
 
 def run(
@@ -97,8 +99,6 @@ def run(
     ------
     ValueError for 3-D data or too few lattice points for ``n_sensors``.
     """
-    from service.recon import reconstruct_grid, reconstruct_points
-
     built_in = data is None
     if data is None:
         data = simulate_tree(small=small, snr_db=snr_db, seed=seed)
@@ -115,10 +115,10 @@ def run(
     else:
         n_z = n_t // 2
     n_z = max(4, min(n_z, n_t))
-    x = lateral_axis(n_x, dx)
+    x = centred_axis(n_x, dx)
 
     t_start = time.perf_counter()
-    ref_img = reconstruct_grid(g, dx, dt, c, method="ner", n_z=n_z)
+    ref_img = reconstruct(data, "ner", n_z=n_z, dtype="float64")
     t_ref = time.perf_counter() - t_start
     ref = ref_img.p0
     z = np.asarray(ref_img.z)
@@ -161,8 +161,9 @@ def run(
         sub = subgrid_mask(lattice, s, n_sensors)
         idx = np.asarray(sub.indices)[:, 0]
         t0 = time.perf_counter()
-        img = reconstruct_points(g[:, idx].T, np.asarray(sub.positions, float)[:, :1], dt, c,
-                                 weights=np.asarray(sub.weights, float), grid=(x,), n_z=n_z).p0
+        img = reconstruct(PointDataset(alines=g[:, idx].T, positions=np.asarray(sub.positions, float)[:, :1],
+                                       weights=np.asarray(sub.weights, float), dt=dt, c=c, grid=(x,)),
+                          "nedner", n_z=n_z, dtype="float64").p0
         rows.append(score(img, arrangement="equispaced", interval=s, n_sensors=len(idx),
                           time_s=time.perf_counter() - t0))
         images[f"equispaced_{s}"] = img
@@ -174,7 +175,8 @@ def run(
         w = np.asarray(mask_eq.weights, dtype=float)
         idx = np.asarray(mask_eq.indices)[:, 0]
         t0 = time.perf_counter()
-        img = reconstruct_points(g[:, idx].T, pos, dt, c, weights=w, grid=(x,), n_z=n_z).p0
+        img = reconstruct(PointDataset(alines=g[:, idx].T, positions=pos, weights=w, dt=dt, c=c, grid=(x,)),
+                          "nedner", n_z=n_z, dtype="float64").p0
         rows.append(score(img, arrangement="equiangular", interval=np.nan, n_sensors=len(idx),
                           time_s=time.perf_counter() - t0))
         images["equiangular"] = img
@@ -186,7 +188,7 @@ def run(
         j = np.clip(np.searchsorted(xs, x) - 1, 0, len(xs) - 2)
         f = np.clip((x - xs[j]) / (xs[j + 1] - xs[j]), 0.0, 1.0)
         filled = a[:, j] * (1 - f) + a[:, j + 1] * f
-        img = reconstruct_grid(filled, dx, dt, c, method="ner", n_z=n_z).p0
+        img = reconstruct(GridDataset(data=filled, dx=dx, dt=dt, c=c), "ner", n_z=n_z, dtype="float64").p0
         rows.append(score(img, arrangement="equiangular-interpolated", interval=np.nan, n_sensors=len(idx),
                           time_s=time.perf_counter() - t0))
         images["equiangular-interpolated"] = img

@@ -29,9 +29,11 @@ from typing import Any
 import numpy as np
 
 from service.metrics import fit_edge_spread, fit_lorentz, side_lobe_level
+from service.pipeline import reconstruct
+from service.storage.datasets import centred_axis
 
 from .datasets import DenseDataset
-from .phantoms import lateral_axis, layer_phantom
+from .phantoms import layer_phantom
 from .result import ExperimentResult, setup_matplotlib
 
 NAME = "nufft-vs-interpolation"
@@ -58,7 +60,8 @@ def simulate_layer(*, small: bool, depth: float | None = None) -> DenseDataset:
     width = 0.5 * n_x * dx
     p0 = layer_phantom(n_z, n_x, dz, dx, depth=depth, width=width, thickness=2.5 * dz, edge=2.5 * dx)
     data = forward_grid(p0, dx, dz, dt, n_t, c)
-    return DenseDataset(data, dx, dt, c, p0, dz, "thin layer (built in)", {"layer_depth_m": depth, "layer_width_m": width})
+    return DenseDataset(data=data, dx=dx, dt=dt, c=c, p0=p0, dz=dz, source="thin layer (built in)",
+                        meta={"layer_depth_m": depth, "layer_width_m": width})
 
 
 def _timed(fn, repeats):
@@ -70,24 +73,18 @@ def _timed(fn, repeats):
     return out, best
 
 
-def _reconstruct(method: str, g: np.ndarray, dx: float, dt: float, c: float, n_z: int) -> np.ndarray:
-    """p0 rows ``0..n_z-1`` (spacing c·dt) of a reconstruction on the default n_t-row grid:
-    ``reconstruct_grid(method=...)`` or, for
-    ``"kwave-<interp>"``, k-Wave's kspaceLineRecon / kspacePlaneRecon algorithm with
-    that interpolation (``'*linear'`` for ``kwave-linear``)."""
-    from service.recon import kspace_line_recon, kspace_plane_recon, reconstruct_grid
-
+def _reconstruct(method: str, data: DenseDataset, n_z: int) -> np.ndarray:
+    """p0 rows ``0..n_z-1`` (spacing c·dt) of a float64 reconstruction on the default
+    n_t-row grid (:func:`service.pipeline.reconstruct`): the pipeline's ``method`` or, for
+    ``"kwave-<interp>"``, its ``kwave`` method (k-Wave's kspaceLineRecon /
+    kspacePlaneRecon) with that interpolation (``'*linear'`` for ``kwave-linear``)."""
     if method.startswith("kwave-"):
         interp = {"linear": "*linear", "nearest": "*nearest"}.get(method[6:], method[6:])
-        if g.ndim == 2:
-            out = kspace_line_recon(g, dx, dt, c, interp=interp)
-        else:
-            out = kspace_plane_recon(g, dx, dx, dt, c, interp=interp)
-        return np.asarray(out)[:n_z]
+        return reconstruct(data, "kwave", interp=interp, dtype="float64").p0[:n_z]
     # every method on its default output grid, n_t rows of c·dt (k-Wave's too), then the
     # rows analysed: asking the FFT + interpolation methods for fewer rows (n_z < n_t)
     # puts their k_z grid off the ω grid and worsens their gain error.
-    return reconstruct_grid(g, dx, dt, c, method=method).p0[:n_z]
+    return reconstruct(data, method, dtype="float64").p0[:n_z]
 
 
 def _axial_lateral(p, z, x, cols, zs, kz, width, dx):
@@ -162,9 +159,9 @@ def run(data: DenseDataset | None = None, *, small: bool = False, methods=METHOD
     n_z = max(8, min(n_z, n_t))
     recons, times = {}, {}
     for m in methods:
-        recons[m], times[m] = _timed(lambda m=m: _reconstruct(m, g, dx, dt, c, n_z), repeats)
+        recons[m], times[m] = _timed(lambda m=m: _reconstruct(m, data, n_z), repeats)
     z = np.arange(n_z) * dz
-    x = lateral_axis(g.shape[-1], dx)
+    x = centred_axis(g.shape[-1], dx)
     rows: list[dict[str, Any]] = []
     profiles: dict[str, Any] = {}
     if built_in and data.p0 is not None:  # the built-in phantom has its ground truth

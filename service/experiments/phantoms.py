@@ -17,10 +17,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-
-def lateral_axis(n: int, d: float) -> np.ndarray:
-    """Centred lattice coordinates ``(i - (n - 1)/2)·d``, m."""
-    return (np.arange(n) - (n - 1) / 2) * d
+from service.storage.datasets import centred_axis
 
 
 def tree_phantom(n_z: int, n_x: int, *, amplitude: float = 1.0) -> np.ndarray:
@@ -103,7 +100,7 @@ def yarn_phantom(n_z: int, n_xy: int, d: float, *, radius_voxels: float = 1.5) -
     if zc + 0.25 * half > n_z * d:
         raise ValueError(f"n_z = {n_z} rows of {d} m do not reach below the yarn (needs {zc + 0.25 * half:.3g} m)")
     r = radius_voxels * d
-    dist = _curve_distance(line, (np.arange(n_z) * d, lateral_axis(n_xy, d), lateral_axis(n_xy, d)), r + d)
+    dist = _curve_distance(line, (np.arange(n_z) * d, centred_axis(n_xy, d), centred_axis(n_xy, d)), r + d)
     p0 = np.clip((r + d / 2 - dist) / d, 0.0, 1.0)
     p0[~np.isfinite(dist)] = 0.0
     return p0, zc
@@ -133,7 +130,7 @@ def layer_phantom(n_z: int, n_x: int, dz: float, dx: float, *, depth: float, wid
     z = np.arange(n_z) * dz
     if not (4 * thickness < depth < z[-1] - 4 * thickness):
         raise ValueError("the layer must lie inside the depth range")
-    x = lateral_axis(n_x, dx)
+    x = centred_axis(n_x, dx)
     if width / 2 + 4 * edge > x[-1]:
         raise ValueError("the layer must fit laterally inside the grid")
     sz = thickness / (2 * np.sqrt(2 * np.log(2)))

@@ -33,9 +33,11 @@ from service.metrics import (
     roi_mask,
     sharpness_vs_diameter,
 )
+from service.pipeline import reconstruct
+from service.storage.datasets import PointDataset, centred_axis
 
 from .datasets import DenseDataset
-from .phantoms import lateral_axis, yarn_phantom
+from .phantoms import yarn_phantom
 from .result import ExperimentResult, setup_matplotlib
 
 NAME = "sparse-masks-3d"
@@ -58,7 +60,7 @@ def simulate_yarn(*, small: bool) -> DenseDataset:
     p0, _ = yarn_phantom(n_z, n, d)
     n_t = round(0.6 * n * d / (c * dt))
     data = forward_grid(p0, d, d, dt, n_t, c)
-    return DenseDataset(data, d, dt, c, p0, d, "yarn phantom (built in)")
+    return DenseDataset(data=data, dx=d, dt=dt, c=c, dy=d, p0=p0, dz=d, source="yarn phantom (built in)")
 
 
 def run(
@@ -97,7 +99,6 @@ def run(
     ValueError for 2-D data or a non-square lattice.
     """
     from service.plans import Lattice, equisteradian_mask, subgrid_mask
-    from service.recon import reconstruct_grid, reconstruct_points
 
     if data is None:
         data = simulate_yarn(small=small)
@@ -116,7 +117,7 @@ def run(
     else:
         n_z = n_t // 2
     n_z = max(4, min(n_z, n_t))
-    x = lateral_axis(n, d)
+    x = centred_axis(n, d)
     if n_side is None:
         n_side = max(2, round(41 * n / 226))
     while n_side > 2 and (n_side - 1) * max(intervals) + 1 > n:
@@ -125,7 +126,7 @@ def run(
         poi_depth = POI_DEPTH_RATIO * side
 
     t0 = time.perf_counter()
-    full = reconstruct_grid(g, d, dt, c, method="ner", n_z=n_z)
+    full = reconstruct(data, "ner", n_z=n_z, dtype="float64")
     t_full = time.perf_counter() - t0
     ref = mip(full.p0, "xy")
     axes = (x, x)
@@ -157,7 +158,8 @@ def run(
     masks = {}
     for name, s, ix, iy, pos, w in arrangements:
         t0 = time.perf_counter()
-        img = reconstruct_points(g[:, iy, ix].T, pos, dt, c, weights=w, grid=(x, x), n_z=n_z).p0
+        img = reconstruct(PointDataset(alines=g[:, iy, ix].T, positions=pos, weights=w, dt=dt, c=c, grid=(x, x)),
+                          "nedner", n_z=n_z, dtype="float64").p0
         elapsed = time.perf_counter() - t0
         m = mip(img, "xy")
         m = m / m.max()

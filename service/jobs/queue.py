@@ -7,8 +7,10 @@ started only while the sum of the running jobs' estimates plus its own stays wit
 ``settings.memory_limit`` (the first job in line always may start when nothing runs).
 Jobs that can never fit are refused before they are queued (:func:`admit`).
 
-Cancel is cooperative: a running job's result is discarded and the job ends
-``cancelled``. Lease and heartbeat: the running thread renews the job's lease every
+Cancel is cooperative: the job thread creates the job's cancel file, the worker's
+``should_stop`` sees it between steps of the reconstruction and stops
+(``service.pipeline.Cancelled``); a result that was finished anyway is discarded. The job
+ends ``cancelled``. Lease and heartbeat: the running thread renews the job's lease every
 ``settings.heartbeat_s``; after a restart, :meth:`JobStore.recover` re-queues jobs whose
 owner is gone.
 """
@@ -26,6 +28,7 @@ from service.jobs.executors import WorkerDied
 from service.jobs.lifecycle import apply_retention
 from service.jobs.store import JobStore
 from service.jobs.work import run_reconstruction
+from service.pipeline import Cancelled
 
 log = logging.getLogger("fpscan.jobs")
 
@@ -94,7 +97,8 @@ def admit(estimate: int, limit: int) -> None:
 
 def remove_debris(data_dir: str | Path, older_than: float) -> list[str]:
     """Remove what a crash leaves behind and nothing else can: temporary result folders
-    (``results/*.tmp-*``), progress files (``results/.*.progress*``) and partial uploads
+    (``results/*.tmp-*``), progress and cancel files (``results/.*.progress*``,
+    ``results/.*.cancel``) and partial uploads
     (``datasets/<id>/`` still holding ``upload.bin``), if last modified before
     ``older_than`` (UNIX time: the start of this process). Returns the names removed."""
     data_dir = Path(data_dir)
@@ -102,7 +106,7 @@ def remove_debris(data_dir: str | Path, older_than: float) -> list[str]:
     results = data_dir / "results"
     if results.is_dir():
         candidates += [p for p in results.iterdir() if ".tmp-" in p.name
-                       or (p.name.startswith(".") and ".progress" in p.name)]
+                       or (p.name.startswith(".") and (".progress" in p.name or p.name.endswith(".cancel")))]
     datasets = data_dir / "datasets"
     if datasets.is_dir():
         candidates += [p for p in datasets.iterdir() if (p / "upload.bin").exists()]
@@ -196,14 +200,21 @@ class ReconQueue:
         # previous attempt, and must not race with this one
         out_dir = self.results_dir / f"{jid}.{job['attempts']}"
         progress_path = self.results_dir / f".{jid}.{job['attempts']}.progress"
+        cancel_path = self.results_dir / f".{jid}.{job['attempts']}.cancel"
         spec = {"input": job["params"]["input"], "params": {**job["params"]["params"], "method": job["params"]["method"]},
                 "out_dir": str(out_dir), "input_id": job["params"].get("input_id", ""),
-                "progress_path": str(progress_path), "memory_limit": int(self.settings.memory_limit)}
+                "progress_path": str(progress_path), "memory_limit": int(self.settings.memory_limit),
+                "cancel_path": str(cancel_path)}
         self.store.update_progress(jid, {"fraction": 0.0, "stage": "starting"})
         log.info("recon start job=%s attempt=%s method=%s", jid, job["attempts"], spec["params"]["method"])
         t0 = time.perf_counter()
         try:
-            summary = self._wait(jid, self.executor.submit(run_reconstruction, spec), progress_path)
+            summary = self._wait(jid, self.executor.submit(run_reconstruction, spec), progress_path, cancel_path)
+        except Cancelled:
+            shutil.rmtree(out_dir, ignore_errors=True)
+            self._finish(jid, "cancelled")
+            log.info("recon cancelled job=%s", jid)
+            return
         except ValueError as exc:
             self._finish(jid, "failed", error=self.settings.redact(str(exc)))
             log.info("recon failed job=%s reason=%s", jid, exc)
@@ -224,6 +235,7 @@ class ReconQueue:
             return
         finally:
             progress_path.unlink(missing_ok=True)
+            cancel_path.unlink(missing_ok=True)
             self._wake.set()
         now = self.store.get(jid)
         if now is None or now["cancel_requested"]:  # cancelled (or deleted) meanwhile
@@ -241,9 +253,10 @@ class ReconQueue:
         except Exception:
             log.exception("retention failed after job=%s", jid)
 
-    def _wait(self, jid: str, future, progress_path: Path):
-        """The job's result; meanwhile renew its lease and turn the worker's stage
-        reports (:func:`service.jobs.work.report_stage`) into progress events."""
+    def _wait(self, jid: str, future, progress_path: Path, cancel_path: Path):
+        """The job's result; meanwhile renew its lease, turn the worker's stage reports
+        (:func:`service.jobs.work.report_stage`) into progress events and, once the job's
+        cancellation is requested, create ``cancel_path`` (the worker's ``should_stop``)."""
         last, beat = None, time.monotonic()
         while True:
             try:
@@ -257,6 +270,11 @@ class ReconQueue:
             if stage and stage != last:
                 last = stage
                 self.store.update_progress(jid, stage)
+            if not cancel_path.exists() and (self.store.get(jid) or {}).get("cancel_requested"):
+                try:
+                    cancel_path.touch()
+                except OSError:  # best effort: the job then ends when its step returns
+                    pass
             if time.monotonic() - beat > self.settings.heartbeat_s:
                 beat = time.monotonic()
                 self.store.heartbeat(jid, self.owner, self.settings.heartbeat_s * 5)

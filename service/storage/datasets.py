@@ -15,6 +15,16 @@ Inputs (``format``; ``None`` = detect from the content):
   ``dt_s`` and ``c_m_per_s`` give dt and c.
 - ``"npy"``: a NumPy ``.npy`` array in the same layout (loaded with
   ``allow_pickle=False``); ``dt`` and ``dx`` are required arguments.
+- ``"dataset"``: the canonical dataset file (:func:`write_dataset`, format
+  ``fpscan-dataset/1``), in which the server keeps every upload; it stores either kind
+  exactly (dtype included), so a reconstruction of it equals one of the original file.
+
+Every reader of a file for reconstruction calls :func:`load_dataset` (the job worker, the
+local ``fpscan recon``, the live preview, the experiments) and hands the result to
+:func:`service.pipeline.reconstruct`. A point dataset that covers its whole lattice turns
+into grid data with :meth:`PointDataset.to_grid` (so grid methods work on a full-lattice
+scan everywhere); grid data into point data with :meth:`GridDataset.to_points`.
+A dataset may carry the excitation ``wavelengths`` (m) it was acquired at.
 
 Lateral grids are centred on the optical axis (docs/architecture.md):
 ``x_i = (i - (n_x - 1)/2)·dx``.
@@ -30,8 +40,15 @@ from typing import Any
 import h5py
 import numpy as np
 
-FORMATS = ("fpscan", "ipasc", "kwave-hdf5", "npy")
+FORMATS = ("fpscan", "ipasc", "kwave-hdf5", "npy", "dataset")
+DATASET_FORMAT = "fpscan-dataset/1"
 MAX_ELEMENTS = 2 ** 31
+
+
+def centred_axis(n: int, d: float) -> np.ndarray:
+    """Coordinates ``x_i = (i - (n - 1)/2)·d``, ``i = 0..n-1`` (m): a regular lateral axis
+    centred on the optical axis (docs/architecture.md)."""
+    return (np.arange(int(n)) - (int(n) - 1) / 2.0) * float(d)
 
 
 @dataclass
@@ -48,6 +65,7 @@ class GridDataset:
     t0: float = 0.0
     source: str = ""
     meta: dict = field(default_factory=dict)
+    wavelengths: tuple[float, ...] | None = None
 
     kind = "grid"
 
@@ -58,12 +76,26 @@ class GridDataset:
 
     def axes(self) -> tuple[np.ndarray, ...]:
         """Lateral coordinate vectors: ``(x,)`` in 2-D, ``(x, y)`` in 3-D, m, centred."""
-        n_x = self.data.shape[-1]
-        x = (np.arange(n_x) - (n_x - 1) / 2.0) * self.dx
+        x = centred_axis(self.data.shape[-1], self.dx)
         if self.data.ndim == 2:
             return (x,)
-        n_y = self.data.shape[1]
-        return x, (np.arange(n_y) - (n_y - 1) / 2.0) * (self.dy or self.dx)
+        return x, centred_axis(self.data.shape[1], self.dy or self.dx)
+
+    def to_points(self) -> PointDataset:
+        """Every grid point as a sensor: ``alines`` ``(n_y·n_x, n_t)`` in C order of
+        ``(n_y, n_x)``, positions ``(n, 2)`` (x, y) (``(n, 1)`` in 2-D), no weights (the
+        reconstruction then uses clipped Voronoi areas, here the grid cells), ``grid`` =
+        :meth:`axes`."""
+        axes = self.axes()
+        if self.data.ndim == 2:
+            alines, positions = self.data.T, axes[0][:, None]
+        else:
+            yy, xx = np.meshgrid(axes[1], axes[0], indexing="ij")
+            alines = self.data.reshape(self.data.shape[0], -1).T
+            positions = np.stack([xx.ravel(), yy.ravel()], axis=1)
+        return PointDataset(alines=alines, positions=positions, weights=None, dt=self.dt, c=self.c,
+                            grid=axes, t0=self.t0, source=self.source, meta=dict(self.meta),
+                            wavelengths=self.wavelengths)
 
 
 @dataclass
@@ -72,7 +104,9 @@ class PointDataset:
     ``(n, 2)`` (x, y) m or ``(n, 1)`` in 2-D; ``weights`` ``(n,)`` area weights or None
     (then the reconstruction computes Voronoi weights); ``dt`` s; ``c`` m/s; ``grid``: the
     regular lateral vectors ``(x,)``/``(x, y)`` to reconstruct on; ``t0`` s; ``source``;
-    ``meta`` (plan, lattice indices, wavelengths, ...)."""
+    ``meta`` (plan, ...); ``indices`` ``(n, 2)`` lattice (i_x, i_y) and ``lattice``
+    ``{"n_x", "n_y", "pitch"}`` when the points come from a scanner lattice (then a full
+    lattice can use the grid methods, :meth:`to_grid`); ``wavelengths`` (m) or None."""
 
     alines: np.ndarray
     positions: np.ndarray
@@ -83,12 +117,59 @@ class PointDataset:
     t0: float = 0.0
     source: str = ""
     meta: dict = field(default_factory=dict)
+    indices: np.ndarray | None = None
+    lattice: dict | None = None
+    wavelengths: tuple[float, ...] | None = None
 
     kind = "points"
 
     @property
     def ndim(self) -> int:
+        """2 (line sensor, positions ``(n, 1)``) or 3 (planar sensor)."""
         return 3 if self.positions.shape[1] == 2 else 2
+
+    def _filled(self) -> np.ndarray | None:
+        """``(n_y, n_x)`` bool: which lattice points the data hold (None: no lattice)."""
+        if self.indices is None or self.lattice is None:
+            return None
+        n_x, n_y = int(self.lattice["n_x"]), int(self.lattice.get("n_y", 1))
+        idx = np.asarray(self.indices, dtype=np.int64).reshape(-1, 2)
+        filled = np.zeros((n_y, n_x), dtype=bool)
+        if len(idx):
+            filled[idx[:, 1], idx[:, 0]] = True
+        return filled
+
+    @property
+    def full_lattice(self) -> bool:
+        """True when the points are every point of their lattice (exactly once)."""
+        filled = self._filled()
+        return filled is not None and bool(filled.all()) and len(np.asarray(self.indices)) == filled.size
+
+    def to_grid(self) -> GridDataset:
+        """The A-lines of a full-lattice dataset as grid data ``(n_t, n_y, n_x)``
+        (``(n_t, n_x)`` for a line lattice), ``dx = dy`` = the lattice pitch, same dtype.
+        Raises ValueError when the data are not on a lattice or lattice points are
+        missing."""
+        filled = self._filled()
+        if filled is None or self.lattice is None:
+            raise ValueError("this method needs data on a full regular grid; the input is a set of "
+                             "sensor points (use 'nedner')")
+        if not filled.all() or len(np.asarray(self.indices)) != filled.size:
+            missing = int((~filled).sum())
+            raise ValueError(f"this method needs every lattice point; {missing} of {filled.size} are "
+                             "missing (use 'nedner' for a sensor mask)")
+        n_y, n_x = filled.shape
+        idx = np.asarray(self.indices, dtype=np.int64).reshape(-1, 2)
+        n_t = self.alines.shape[1]
+        data = np.empty((n_t, n_y, n_x), dtype=self.alines.dtype)
+        data[:, idx[:, 1], idx[:, 0]] = self.alines.T
+        pitch = float(self.lattice["pitch"])
+        return GridDataset(data=data[:, 0, :] if n_y == 1 else data, dx=pitch, dt=self.dt, c=self.c,
+                           dy=None if n_y == 1 else pitch, t0=self.t0, source=self.source,
+                           meta=dict(self.meta), wavelengths=self.wavelengths)
+
+
+Dataset = GridDataset | PointDataset
 
 
 def _positive(name: str, v: Any) -> float:
@@ -129,6 +210,8 @@ def detect_format(path: str | os.PathLike) -> str:
     with _open_h5(path) as f:
         if str(f.attrs.get("format", "")).startswith("fpscan-scan/"):  # /1 and /2
             return "fpscan"
+        if f.attrs.get("format") == DATASET_FORMAT or f.attrs.get("layout") in ("grid", "points"):
+            return "dataset"
         if "binary_time_series_data" in f:
             return "ipasc"
     return "kwave-hdf5"
@@ -173,8 +256,11 @@ def load_dataset(path: str | os.PathLike, format: str | None = None, *, dt: floa
         return load_npy(path, dt=dt, dx=dx, dy=dy, c=c)
     if fmt == "kwave-hdf5":
         return load_kwave_hdf5(path, key=key, dt=dt, dx=dx, dy=dy, c=c)
+    ds: GridDataset | PointDataset
     if fmt == "fpscan":
         ds = load_scan(path)
+    elif fmt == "dataset":
+        ds = read_dataset(path)
     else:
         ds = load_ipasc(path)
     if c is not None:
@@ -224,8 +310,8 @@ def load_kwave_hdf5(path: str | os.PathLike, *, key: str | None = None, dt: floa
                 f.visititems(lambda n, o: found.append(o) if isinstance(o, h5py.Dataset)
                              and o.ndim in (2, 3) else None)
                 if len(found) != 1:
-                    raise ValueError(f"cannot tell which dataset holds the data ({len(found)} "
-                                     "2-/3-D datasets); give key")
+                    raise ValueError(f"no 'sensor_data/clean' or 'sensor_data' dataset, and cannot tell "
+                                     f"which dataset holds the data ({len(found)} 2-/3-D datasets); give key")
                 ds = found[0]
         if ds.size > MAX_ELEMENTS:
             raise ValueError(f"array too large ({ds.size} elements)")
@@ -255,35 +341,47 @@ def load_kwave_hdf5(path: str | os.PathLike, *, key: str | None = None, dt: floa
                        meta={"key": name, "kwave_naming": kwave})
 
 
-def _lattice_axes(lattice: dict) -> tuple[np.ndarray, np.ndarray]:
-    n_x, n_y, pitch = int(lattice["n_x"]), int(lattice.get("n_y", 1)), float(lattice["pitch"])
-    return ((np.arange(n_x) - (n_x - 1) / 2.0) * pitch,
-            (np.arange(n_y) - (n_y - 1) / 2.0) * pitch)
+def lattice_axes(lattice: dict) -> tuple[np.ndarray, np.ndarray]:
+    """The lattice's coordinate vectors ``(x, y)`` (m, centred; :func:`centred_axis`) of
+    ``{"n_x", "n_y", "pitch"}``."""
+    pitch = float(lattice["pitch"])
+    return centred_axis(int(lattice["n_x"]), pitch), centred_axis(int(lattice.get("n_y", 1)), pitch)
 
 
-def load_scan(path: str | os.PathLike) -> PointDataset:
-    """The completed points of a scan file as point data (DC-normalised pressure)."""
+def load_scan(path: str | os.PathLike, *, allow_empty: bool = False, wavelength_index: int = 0) -> PointDataset:
+    """The completed points of a scan file at excitation wavelength ``wavelength_index``
+    (default the first) as point data (DC-normalised pressure ``(n, n_t)`` float64, the
+    plan's positions and weights, its lattice and indices; ``wavelengths``: all the
+    scan's wavelengths, ``meta["wavelength_index"]`` the one read). Raises ValueError
+    when no point is complete (unless ``allow_empty``), the plan is invalid or the
+    wavelength index is out of range."""
     from driver.plan import check_plan
     from driver.scanfile import read_scan
 
-    scan = read_scan(path).completed_only()
+    scan = read_scan(path, wavelength_index=wavelength_index).completed_only()
     check_plan(scan.plan)  # its lattice becomes the reconstruction grid: bounded there
-    if scan.n_points == 0:
+    if scan.n_points == 0 and not allow_empty:
         raise ValueError("the scan file has no completed A-lines")
     lat = scan.plan.get("lattice", {})
     positions = np.asarray(scan.positions, dtype=np.float64)
     two_d = positions.shape[1] == 1 or int(lat.get("n_y", 2)) == 1
     if lat:
-        gx, gy = _lattice_axes(lat)
+        gx, gy = lattice_axes(lat)
+        lattice = {"n_x": int(lat["n_x"]), "n_y": int(lat.get("n_y", 1)), "pitch": float(lat["pitch"])}
     else:
         gx = np.unique(positions[:, 0])
         gy = np.unique(positions[:, 1]) if positions.shape[1] > 1 else np.zeros(1)
+        lattice = None
+    wavelengths = tuple(float(w) for w in np.ravel(scan.wavelengths)) or None
     return PointDataset(
         alines=scan.pressure, positions=positions[:, :1] if two_d else positions,
         weights=np.asarray(scan.weights, dtype=np.float64), dt=scan.dt, c=scan.sound_speed,
         grid=(gx,) if two_d else (gx, gy), source="fpscan",
         meta={"plan_id": scan.plan_id, "plan": scan.plan, "indices": scan.indices,
-              "wavelengths": scan.wavelengths, "n_points_planned": int(scan.attrs["n_points"])})
+              "wavelengths": scan.wavelengths, "n_points_planned": int(scan.attrs["n_points"]),
+              "wavelength_index": int(wavelength_index)},
+        indices=np.asarray(scan.indices, dtype=np.int64).reshape(-1, 2), lattice=lattice,
+        wavelengths=wavelengths)
 
 
 def load_ipasc(path: str | os.PathLike) -> PointDataset:
@@ -291,7 +389,85 @@ def load_ipasc(path: str | os.PathLike) -> PointDataset:
     from service.storage.ipasc import read_ipasc
 
     r = read_ipasc(path)
+    plan, indices = r["plan"], r["indices"]
+    lattice = None
+    if isinstance(plan, dict) and isinstance(plan.get("lattice"), dict) and indices is not None:
+        lat = plan["lattice"]
+        lattice = {"n_x": int(lat["n_x"]), "n_y": int(lat.get("n_y", 1)), "pitch": float(lat["pitch"])}
+        indices = np.asarray(indices, dtype=np.int64).reshape(-1, 2)
+    wl = r["wavelengths"]
     return PointDataset(alines=r["alines"], positions=r["positions"], weights=r["weights"],
                         dt=r["dt"], c=r["c"], grid=r["grid"], source="ipasc",
-                        meta={"uuid": r["uuid"], "plan": r["plan"], "indices": r["indices"],
-                              "wavelengths": r["wavelengths"]})
+                        meta={"uuid": r["uuid"], "plan": plan, "indices": r["indices"],
+                              "wavelengths": wl},
+                        indices=indices if lattice is not None else None, lattice=lattice,
+                        wavelengths=tuple(float(w) for w in np.ravel(wl)) if wl is not None and np.size(wl) else None)
+
+
+def write_dataset(path: str | os.PathLike, ds: GridDataset | PointDataset) -> None:
+    """Write the canonical dataset file (format ``fpscan-dataset/1``), exactly (dtype kept).
+
+    Layout ``grid``: ``/data`` ``(n_t, n_y, n_x)``/``(n_t, n_x)``; attributes ``dt`` (s),
+    ``dx``, ``dy`` (3-D; m), ``c`` (m/s), ``t0`` (s). Layout ``points``: ``/alines``
+    ``(n, n_t)``, ``/positions`` ``(n, d)`` m, ``/weights`` ``(n,)`` (if any), ``/grid_x``,
+    ``/grid_y`` (3-D) m; attributes ``dt``, ``c``, ``t0``; a lattice adds ``/lattice``
+    ``(n, 2)`` indices (i_x, i_y) and attributes ``lattice_shape`` ``(n_y, n_x)``, ``pitch``.
+    Both: attribute ``format``, ``layout``, ``source``; ``wavelengths_m`` when known."""
+    with h5py.File(path, "w") as f:
+        f.attrs.update({"format": DATASET_FORMAT, "layout": ds.kind, "dt": float(ds.dt), "c": float(ds.c),
+                        "t0": float(ds.t0), "source": ds.source})
+        if ds.wavelengths is not None:
+            f.attrs["wavelengths_m"] = np.asarray(ds.wavelengths, dtype=np.float64)
+        if isinstance(ds, GridDataset):
+            f.create_dataset("data", data=ds.data)
+            f.attrs["dx"] = float(ds.dx)
+            if ds.dy is not None and ds.data.ndim == 3:
+                f.attrs["dy"] = float(ds.dy)
+            return
+        f.create_dataset("alines", data=np.asarray(ds.alines))
+        f.create_dataset("positions", data=np.asarray(ds.positions, dtype=np.float64))
+        if ds.weights is not None:
+            f.create_dataset("weights", data=np.asarray(ds.weights, dtype=np.float64))
+        f.create_dataset("grid_x", data=np.asarray(ds.grid[0], dtype=np.float64))
+        if len(ds.grid) > 1:
+            f.create_dataset("grid_y", data=np.asarray(ds.grid[1], dtype=np.float64))
+        if ds.lattice is not None and ds.indices is not None:
+            f.create_dataset("lattice", data=np.asarray(ds.indices, dtype=np.int64))
+            f.attrs["lattice_shape"] = (int(ds.lattice.get("n_y", 1)), int(ds.lattice["n_x"]))
+            f.attrs["pitch"] = float(ds.lattice["pitch"])
+
+
+def read_dataset(path: str | os.PathLike) -> GridDataset | PointDataset:
+    """Read a canonical dataset file (:func:`write_dataset`; also the layout without the
+    ``format`` attribute that earlier versions wrote). Raises ValueError for a file that
+    is not one."""
+    def text(v: Any) -> str:
+        return v.decode() if isinstance(v, bytes) else str(v)
+
+    with _open_h5(Path(path)) as f:
+        try:
+            layout = text(f.attrs["layout"])
+            dt, c, t0 = float(f.attrs["dt"]), float(f.attrs["c"]), float(f.attrs.get("t0", 0.0))
+            wl = f.attrs.get("wavelengths_m")
+            wavelengths = tuple(float(w) for w in np.ravel(wl)) if wl is not None and np.size(wl) else None
+            source = text(f.attrs.get("source", "dataset"))
+            if layout == "grid":
+                data = f["data"][()]
+                dy = float(f.attrs["dy"]) if "dy" in f.attrs and data.ndim == 3 else None
+                return GridDataset(data=data, dx=float(f.attrs["dx"]), dt=dt, c=c, dy=dy, t0=t0,
+                                   source=source, wavelengths=wavelengths)
+            if layout != "points":
+                raise ValueError(f"unknown dataset layout {layout!r}")
+            gx = f["grid_x"][()]
+            grid = (gx, f["grid_y"][()]) if "grid_y" in f else (gx,)
+            indices = lattice = None
+            if "lattice" in f:
+                n_y, n_x = (int(v) for v in f.attrs["lattice_shape"])
+                lattice = {"n_x": n_x, "n_y": n_y, "pitch": float(f.attrs["pitch"])}
+                indices = f["lattice"][()].astype(np.int64).reshape(-1, 2)
+            return PointDataset(alines=f["alines"][()], positions=f["positions"][()],
+                                weights=f["weights"][()] if "weights" in f else None, dt=dt, c=c,
+                                grid=grid, t0=t0, source=source, indices=indices, lattice=lattice,
+                                wavelengths=wavelengths)
+        except (KeyError, TypeError) as exc:
+            raise ValueError(f"not a canonical dataset file ({exc})") from None

@@ -87,7 +87,7 @@ def _check_axis(name: str, v: Any, n: int) -> np.ndarray:
     return a
 
 
-def write_result(path: str | os.PathLike, p0: np.ndarray, z: np.ndarray, x: np.ndarray,
+def write_volume(path: str | os.PathLike, p0: np.ndarray, z: np.ndarray, x: np.ndarray,
                  y: np.ndarray | None = None, *, method: str, params: dict, input_id: str,
                  software_version: str | None = None, dtype: Any = None) -> Path:
     """Write a result file atomically (see module docstring); returns ``path``.
@@ -165,18 +165,48 @@ def write_result(path: str | os.PathLike, p0: np.ndarray, z: np.ndarray, x: np.n
     return path
 
 
-def write_image(path: str | os.PathLike, image: Any, *, input_id: str,
-                method: str | None = None, software_version: str | None = None) -> Path:
-    """Write a ``service.recon.Image`` (``p0``, ``z``, ``x``, ``y``, ``params``); the
-    method defaults to ``image.params["method"]``. Raises ValueError as
-    :func:`write_result`."""
-    params = dict(getattr(image, "params", None) or {})
+def write_reconstruction(path: str | os.PathLike, rec: Any, *, input_id: str,
+                         method: str | None = None, software_version: str | None = None) -> Path:
+    """Write a ``service.recon.Reconstruction`` (``p0``, ``z``, ``x``, ``y``, ``params``)
+    as a result file; the method defaults to ``rec.params["method"]``. Raises ValueError
+    as :func:`write_volume`."""
+    params = dict(getattr(rec, "params", None) or {})
     method = method or params.get("method")
     if not method:
-        raise ValueError("no method given and image.params has no 'method'")
-    return write_result(path, image.p0, image.z, image.x, getattr(image, "y", None),
+        raise ValueError("no method given and the reconstruction's params have no 'method'")
+    return write_volume(path, rec.p0, rec.z, rec.x, getattr(rec, "y", None),
                         method=str(method), params=params, input_id=input_id,
                         software_version=software_version)
+
+
+def write_result(out_dir: str | os.PathLike, rec: Any, *, input_id: str) -> dict:
+    """The result folder of a reconstruction, as every caller writes it (the job worker
+    and ``fpscan recon``): ``volume.h5`` (:func:`write_reconstruction`) and
+    ``mip_{xy,xz,yz}.png`` (``mip_xz.png`` only in 2-D;
+    :func:`service.storage.render.render_mips`), written into a temporary sibling folder
+    renamed into place (an existing ``out_dir`` is replaced). Returns ``{"shape", "max",
+    "planes"}``. Raises ValueError as :func:`write_volume`."""
+    import shutil
+    import time
+
+    from service.storage.render import render_mips
+
+    out_dir = Path(out_dir)
+    tmp = out_dir.with_name(out_dir.name + f".tmp-{os.getpid()}-{time.monotonic_ns()}")
+    tmp.mkdir(parents=True)
+    try:
+        p0 = np.asarray(rec.p0)
+        write_reconstruction(tmp / "volume.h5", rec, input_id=input_id)
+        pngs = render_mips(p0, rec.z, rec.x, getattr(rec, "y", None))
+        for plane, png in pngs.items():
+            (tmp / f"mip_{plane}.png").write_bytes(png)
+        if out_dir.exists():
+            shutil.rmtree(out_dir)
+        os.replace(tmp, out_dir)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return {"shape": list(p0.shape), "max": float(np.max(p0)) if p0.size else 0.0, "planes": sorted(pngs)}
 
 
 def read_result(path: str | os.PathLike) -> ResultVolume:

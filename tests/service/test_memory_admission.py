@@ -16,16 +16,17 @@ from tests.service.service_servers import needs_recon
 PEAK_SCRIPT = r"""
 import json, resource, sys
 import numpy as np
-from service.jobs.work import reconstruct_input
+from service.pipeline import reconstruct
+from service.storage.datasets import GridDataset
 n, n_t, up, dz = int(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3]), float(sys.argv[4])
-params = {"method": "ner", "upsample": up, "dtype": "float32"}
+params = {"upsample": up, "dtype": "float32"}
 if dz > 0:
     params["dz"] = dz
 data = np.random.default_rng(0).standard_normal((n_t, n, n)).astype(np.float32)
-inp = {"layout": "grid", "data": data, "dx": 1e-4, "dt": 2e-8, "c": 1500.0}
-reconstruct_input(inp, {**params, "n_z": 8})  # warm-up: imports, compiled kernels, FFT plans
+inp = GridDataset(data=data, dx=1e-4, dt=2e-8, c=1500.0, dy=1e-4)
+reconstruct(inp, "ner", **{**params, "n_z": 8})  # warm-up: imports, compiled kernels, FFT plans
 base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
-img = reconstruct_input(inp, params)
+img = reconstruct(inp, "ner", **params)
 peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
 print(json.dumps({"base": base, "peak": peak}))
 """

@@ -11,7 +11,7 @@ import pytest
 from PIL import Image as PILImage
 
 from service.storage.render import mip, render_mip, render_mips, render_slice, to_uint8
-from service.storage.results import read_result, write_image, write_result
+from service.storage.results import read_result, write_reconstruction, write_volume
 
 
 def volume(n_z=7, n_y=5, n_x=6, dtype=np.float32):
@@ -27,7 +27,7 @@ def test_write_read_3d(tmp_path):
     p0, z, y, x = volume()
     params = {"method": "nedner", "eps": 1e-6, "upsample": np.int64(2), "dtype": "float32",
               "weights": np.array([0.5, 0.25]), "positivity": False, "n_z": None}
-    path = write_result(tmp_path / "r.h5", p0, z, x, y, method="nedner", params=params,
+    path = write_volume(tmp_path / "r.h5", p0, z, x, y, method="nedner", params=params,
                         input_id="scan-abc")
     r = read_result(path)
     assert r.p0.dtype == np.float32
@@ -45,15 +45,15 @@ def test_write_read_3d(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["r.h5"]  # no temporary left behind
 
 
-class _Image:  # the shape of service.recon.Image (duck-typed; not our code under test)
+class _Rec:  # the shape of service.recon.Reconstruction (duck-typed; not our code under test)
     def __init__(self, p0, z, x, y, params):
         self.p0, self.z, self.x, self.y, self.params = p0, z, x, y, params
 
 
 def test_write_image_2d_and_atomic_replace(tmp_path):
     p0, z, _, x = volume()
-    img2 = _Image(p0[:, 0, :].astype(np.float64), z, x, None, {"method": "ner", "eps": 1e-6})
-    path = write_image(tmp_path / "r.h5", img2, input_id="d1")
+    img2 = _Rec(p0[:, 0, :].astype(np.float64), z, x, None, {"method": "ner", "eps": 1e-6})
+    path = write_reconstruction(tmp_path / "r.h5", img2, input_id="d1")
     first = path.read_bytes()
     r = read_result(path)
     assert r.y is None and r.p0.shape == (7, 6) and r.method == "ner"
@@ -61,10 +61,10 @@ def test_write_image_2d_and_atomic_replace(tmp_path):
     bad = p0[:, 0, :].copy()
     bad[2, 3] = np.nan
     with pytest.raises(ValueError, match="NaN"):
-        write_result(path, bad, z, x, method="ner", params={}, input_id="d2")
+        write_volume(path, bad, z, x, method="ner", params={}, input_id="d2")
     assert path.read_bytes() == first and len(os.listdir(tmp_path)) == 1
     # a successful one replaces it
-    write_result(path, p0[:, 1, :], z, x, method="ner", params={}, input_id="d3")
+    write_volume(path, p0[:, 1, :], z, x, method="ner", params={}, input_id="d3")
     assert read_result(path).input_id == "d3"
 
 
@@ -84,7 +84,7 @@ def test_result_bad_input(tmp_path, kwargs, what):
                 params={}, input_id="i")
     args.update(kwargs)
     with pytest.raises(ValueError, match=what):
-        write_result(tmp_path / "bad.h5", args.pop("p0"), args.pop("z"), args.pop("x"),
+        write_volume(tmp_path / "bad.h5", args.pop("p0"), args.pop("z"), args.pop("x"),
                      args.pop("y"), **args)
     assert not (tmp_path / "bad.h5").exists()
 

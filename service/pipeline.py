@@ -1,0 +1,246 @@
+"""The one reconstruction dispatch: a dataset + a method name + options → a `Reconstruction`.
+
+Everything that reconstructs calls :func:`reconstruct` — the job worker
+(:mod:`service.jobs.work`), ``fpscan recon`` without ``--server``, the live preview
+(:mod:`service.preview`) and the experiments (:mod:`service.experiments`) — so the same
+input and options give the same volume locally and on the server. Inputs are the
+datasets of :mod:`service.storage.datasets` (read any file with its ``load_dataset``).
+
+The method vocabulary is :data:`METHODS` (name → :class:`Method`): what each method is,
+whether it needs data on a full regular grid, and which options it takes. A point dataset
+covering its whole lattice (a full-lattice scan) is turned into grid data for the grid
+methods; grid data are turned into sensor points for ``nedner``. Adding a method is one
+:func:`register` call with its runner.
+
+Options (SI units; ``None`` means "the default"):
+
+- ``c``: speed of sound in m/s (default: the dataset's);
+- ``dtype``: ``"float32"`` or ``"float64"``, the working and output precision, default
+  :data:`DEFAULT_DTYPE` = ``"float32"`` for every method and every caller;
+- ``eps``: NUFFT tolerance (``ner``, ``nedner``; default 1e-6);
+- ``upsample``: lateral upsampling factor 1..8; ``positivity``: clip p0 < 0 to 0;
+- ``n_z``, ``dz``: output depth count and spacing in m (default ``n_t`` and ``c·dt``);
+- ``interp``: k-Wave's interpolation (``kwave``): ``"*nearest"`` (k-Wave's default),
+  ``"nearest"``, ``"*linear"``, ``"linear"``, ``"*cubic"``, ``"cubic"``.
+
+Contracts shared with the callers (docs/architecture.md): ``progress(fraction, stage)``
+is called with increasing fractions in [0, 1] (stage ``"reconstructing"``);
+``should_stop()`` is polled between the steps of the reconstruction, and when it returns
+True :func:`reconstruct` raises :class:`Cancelled`.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from service.recon.reconstruction import Reconstruction
+    from service.storage.datasets import GridDataset, PointDataset
+
+    Dataset = GridDataset | PointDataset
+
+Progress = Callable[[float, str], None]
+ShouldStop = Callable[[], bool]
+Runner = Callable[..., "Reconstruction"]
+
+DEFAULT_DTYPE = "float32"
+DTYPES = ("float32", "float64")
+KWAVE_INTERPS = ("*nearest", "nearest", "*linear", "linear", "*cubic", "cubic")
+
+#: every option a method may take, with its meaning (units SI)
+OPTIONS: dict[str, str] = {
+    "c": "speed of sound, m/s (default: the dataset's)",
+    "dtype": f"working and output precision, one of {', '.join(DTYPES)} (default {DEFAULT_DTYPE})",
+    "eps": "NUFFT tolerance in [1e-14, 1e-1] (default 1e-6)",
+    "upsample": "lateral upsampling factor 1..8 (default 1)",
+    "positivity": "clip negative p0 to 0 (default false)",
+    "n_z": "output depth samples (default n_t)",
+    "dz": "output depth spacing, m (default c·dt)",
+    "interp": f"k-Wave interpolation, one of {', '.join(KWAVE_INTERPS)} (default *nearest)",
+}
+
+_COMMON = ("c", "dtype", "upsample", "positivity", "n_z", "dz")
+
+
+class Cancelled(Exception):
+    """The reconstruction stopped because ``should_stop()`` returned True."""
+
+
+@dataclass(frozen=True)
+class Method:
+    """One reconstruction method.
+
+    ``name``: the word users type; ``title``: one line for lists (web page, ``--help``);
+    ``needs_grid``: True when it needs data on a full regular grid (a full lattice);
+    ``options``: the option names it takes (:data:`OPTIONS`); ``run(dataset, c, options,
+    progress)`` → `Reconstruction`, given a grid dataset when ``needs_grid`` else a point
+    dataset, ``c`` in m/s, the options (``dtype`` as a NumPy dtype, no ``c``) and a
+    ``progress(fraction)`` callable; ``source``: where the algorithm comes from."""
+
+    name: str
+    title: str
+    needs_grid: bool
+    options: tuple[str, ...]
+    run: Runner
+    source: str = ""
+
+
+#: the method vocabulary, in the order lists show it
+METHODS: dict[str, Method] = {}
+
+
+def register(method: Method) -> Method:
+    """Add ``method`` to :data:`METHODS` (its options must be known in :data:`OPTIONS`)."""
+    unknown = set(method.options) - set(OPTIONS)
+    if unknown:
+        raise ValueError(f"unknown options {sorted(unknown)} for method {method.name!r}")
+    METHODS[method.name] = method
+    return method
+
+
+def default_method(dataset: Any) -> str:
+    """``"ner"`` for grid data, ``"nedner"`` for sensor points (any mask)."""
+    return "ner" if getattr(dataset, "kind", None) == "grid" else "nedner"
+
+
+def _dtype(value: Any) -> np.dtype:
+    dt = np.dtype(DEFAULT_DTYPE if value is None else value)
+    if dt.name not in DTYPES:
+        raise ValueError(f"dtype must be one of {', '.join(DTYPES)}, got {value!r}")
+    return dt
+
+
+def method_options(method: str, options: dict) -> dict:
+    """The options ``method`` takes, from ``options``: ``None`` values and the options of
+    other methods are left out (so one set of options can serve every method, as with
+    k-Wave's and our methods side by side); a name that is no option at all
+    (:data:`OPTIONS`) raises ValueError naming it, as does an unknown method. Returns a
+    new dict."""
+    spec = METHODS.get(method)
+    if spec is None:
+        raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
+    unknown = sorted(set(options) - set(OPTIONS))
+    if unknown:
+        raise ValueError(f"unknown option {', '.join(unknown)} (options: {', '.join(OPTIONS)})")
+    return {k: v for k, v in options.items() if v is not None and k in spec.options}
+
+
+def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = None,
+                should_stop: ShouldStop | None = None, **options: Any) -> Reconstruction:
+    """Reconstruct p0 from ``dataset`` with ``method`` (a key of :data:`METHODS`).
+
+    Parameters
+    ----------
+    dataset : `service.storage.datasets.GridDataset` (``data`` ``(n_t, n_y, n_x)`` /
+        ``(n_t, n_x)``) or `PointDataset` (``alines`` ``(n, n_t)`` at ``positions``).
+    method : ``nedner``, ``ner``, ``linear``, ``nearest``, ``cubic``, ``kwave``, ...
+    progress : optional ``progress(fraction, stage)``.
+    should_stop : optional ``should_stop() -> bool``, polled between steps.
+    **options : the method's options (module docstring); ``None`` = default; options
+        only other methods take are ignored.
+
+    Returns
+    -------
+    `Reconstruction`: ``p0`` ``(n_z, n_y, n_x)`` / ``(n_z, n_x)`` with ``z``, ``x``, ``y``
+    (m) and ``params`` (everything used).
+
+    Raises
+    ------
+    ValueError naming the problem (unknown method or option name, a grid method on a
+    sensor mask, no A-lines, bad values);
+    Cancelled when ``should_stop()`` returned True.
+    """
+    spec = METHODS.get(method)
+    if spec is None:
+        raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
+    opts = method_options(method, options)
+    opts["dtype"] = _dtype(opts.get("dtype"))
+    c = opts.pop("c", None)
+    c = float(dataset.c if c is None else c)
+    from service.storage.datasets import GridDataset, PointDataset
+
+    if spec.needs_grid and isinstance(dataset, PointDataset):
+        dataset = dataset.to_grid()
+    elif not spec.needs_grid and isinstance(dataset, GridDataset):
+        dataset = dataset.to_points()
+
+    def step(fraction: float) -> None:
+        if should_stop is not None and should_stop():
+            raise Cancelled("reconstruction cancelled")
+        if progress is not None:
+            progress(float(fraction), "reconstructing")
+
+    step(0.0)
+    result = spec.run(dataset, c, opts, step)
+    step(1.0)
+    return result
+
+
+# -- the methods ------------------------------------------------------------------------
+def _run_points(ds: PointDataset, c: float, opts: dict, step: Callable[[float], None]) -> Reconstruction:
+    from service.recon import reconstruct_points
+
+    if ds.alines.shape[0] == 0:
+        raise ValueError("the input has no A-lines to reconstruct")
+    # NEDNER = NUFFT in time (the "ner" temporal step) + type-1 NUFFT over the positions
+    return reconstruct_points(ds.alines, ds.positions, ds.dt, c, weights=ds.weights, grid=ds.grid,
+                              method="ner", t0=ds.t0, progress=step, **opts)
+
+
+def _grid_runner(name: str) -> Runner:
+    def run(ds: GridDataset, c: float, opts: dict, step: Callable[[float], None]) -> Reconstruction:
+        from service.recon import reconstruct_grid
+
+        dy = ds.dy if ds.data.ndim == 3 else None
+        return reconstruct_grid(ds.data, ds.dx, ds.dt, c, method=name, dy=dy, t0=ds.t0, progress=step, **opts)
+
+    return run
+
+
+def _run_kwave(ds: GridDataset, c: float, opts: dict, step: Callable[[float], None]) -> Reconstruction:
+    from service.recon import kspace_line_recon, kspace_plane_recon
+    from service.recon.reconstruction import Reconstruction
+    from service.storage.datasets import centred_axis
+
+    interp = opts.get("interp", "*nearest")
+    if interp not in KWAVE_INTERPS:
+        raise ValueError(f"interp must be one of {', '.join(KWAVE_INTERPS)}, got {interp!r}")
+    if ds.t0:
+        raise ValueError("method 'kwave' needs sample 0 at t = 0 (k-Wave's convention); this input has "
+                         f"t0 = {ds.t0} s: use 'ner'")
+    dtype, positivity = opts["dtype"], bool(opts.get("positivity", False))
+    data = ds.data
+    if data.ndim == 2:  # k-Wave 'ty': y is our x
+        p0 = kspace_line_recon(data, ds.dx, ds.dt, c, interp=interp, pos_cond=positivity, progress=step,
+                               dtype=dtype)
+        y = None
+    else:  # k-Wave 'tyz': (N_t, N_y, N_z) with k-Wave's y = our y and z = our x
+        dy = ds.dy or ds.dx
+        p0 = kspace_plane_recon(data, dy, ds.dx, ds.dt, c, interp=interp, pos_cond=positivity, progress=step,
+                                dtype=dtype)
+        y = centred_axis(data.shape[1], dy)
+    n_t = data.shape[0]
+    params = dict(method="kwave", interp=interp, dt=ds.dt, c=c, dx=ds.dx, dy=None if y is None else ds.dy or ds.dx,
+                  dtype=dtype.name, dz=c * ds.dt, n_z=n_t, positivity=positivity, t0=0.0, n_t=n_t,
+                  data_shape=list(data.shape),
+                  source="kspaceLineRecon" if y is None else "kspacePlaneRecon")
+    return Reconstruction(p0.astype(dtype, copy=False), np.arange(n_t) * (c * ds.dt),
+                          centred_axis(data.shape[-1], ds.dx), y, params)
+
+
+register(Method("nedner", "NEDNER-NUFFT (any sensor mask)", False, ("eps", *_COMMON), _run_points,
+                "paper §3.2: temporal NUFFT + type-1 NUFFT over the sensor positions"))
+register(Method("ner", "NER-NUFFT (full regular grid)", True, ("eps", *_COMMON), _grid_runner("ner"),
+                "paper §3.1: temporal NUFFT, lateral FFT"))
+register(Method("linear", "FFT + linear interpolation (k-Wave style)", True, _COMMON, _grid_runner("linear"),
+                "FFT on the regular frequency grid + linear interpolation"))
+register(Method("nearest", "FFT + nearest-neighbour interpolation", True, _COMMON, _grid_runner("nearest"),
+                "FFT on the regular frequency grid + nearest-neighbour interpolation"))
+register(Method("cubic", "FFT + cubic (pchip) interpolation", True, _COMMON, _grid_runner("cubic"),
+                "FFT on the regular frequency grid + pchip interpolation"))
+register(Method("kwave", "k-Wave compatible (kspaceLineRecon / kspacePlaneRecon)", True,
+                ("c", "dtype", "positivity", "interp"), _run_kwave,
+                "k-Wave kspaceLineRecon / kspacePlaneRecon (reference/KWAVE_RECON_NOTES.md)"))

@@ -1,0 +1,136 @@
+"""The one dispatch (`service.pipeline`): its method vocabulary is the one every surface
+offers (API schema, CLI, web page, docs), its contracts (progress, should_stop →
+Cancelled, one default dtype, options) hold, and the k-Wave mode equals k-Wave's
+functions called directly (the independent transcriptions in `service.recon.kwave`,
+themselves checked against k-Wave's data in tests/recon)."""
+from __future__ import annotations
+
+import argparse
+import re
+from html.parser import HTMLParser
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from service.pipeline import DEFAULT_DTYPE, METHODS, OPTIONS, Cancelled, reconstruct
+from service.storage.datasets import GridDataset, PointDataset
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+class _Options(HTMLParser):
+    def __init__(self, select_id):
+        super().__init__()
+        self.select_id, self.inside, self.values = select_id, False, []
+
+    def handle_starttag(self, tag, attrs):
+        a = dict(attrs)
+        if tag == "select":
+            self.inside = a.get("id") == self.select_id
+        elif tag == "option" and self.inside:
+            self.values.append(a["value"])
+
+    def handle_endtag(self, tag):
+        if tag == "select":
+            self.inside = False
+
+
+def _web_methods(select_id):
+    p = _Options(select_id)
+    p.feed((REPO / "clients" / "web" / "index.html").read_text())
+    return p.values
+
+
+def test_every_surface_offers_the_one_vocabulary():
+    from clients.cli import recon as cli_recon
+    from service.api.models import ReconRequest
+
+    schema = ReconRequest.model_json_schema()  # what /openapi.json publishes
+    assert schema["properties"]["method"]["enum"] == list(METHODS)
+    parser = argparse.ArgumentParser()
+    cli_recon.add_arguments(parser)
+    method_action = next(a for a in parser._actions if a.dest == "method")
+    assert list(method_action.choices) == list(METHODS)
+    for select in ("upload-method", "recon-method"):
+        assert sorted(_web_methods(select)) == sorted(METHODS), select
+    api_doc = (REPO / "docs" / "api.md").read_text()
+    rows = re.findall(r"^\s*\| ((?:`[a-z]+`(?:, )?)+) \|", api_doc, re.M)  # the method table's first column
+    assert {n for row in rows for n in re.findall(r"`([a-z]+)`", row)} == set(METHODS)
+    help_text = parser.format_help()
+    assert f"default {DEFAULT_DTYPE}" in help_text
+    for m in METHODS.values():
+        assert set(m.options) <= set(OPTIONS)
+
+
+def _grid(ndim=3, seed=0):
+    rng = np.random.default_rng(seed)
+    shape = (24, 5, 6) if ndim == 3 else (24, 7)
+    return GridDataset(data=rng.standard_normal(shape), dx=1e-4, dt=2e-8, c=1500.0,
+                       dy=1e-4 if ndim == 3 else None)
+
+
+@pytest.mark.parametrize("method", list(METHODS))
+def test_progress_cancel_and_default_dtype(method):
+    ds = _grid()
+    seen = []
+    rec = reconstruct(ds, method, progress=lambda f, stage: seen.append((f, stage)))
+    assert rec.p0.dtype == np.dtype(DEFAULT_DTYPE) and rec.params["method"] == method
+    fractions = [f for f, _ in seen]
+    assert fractions[0] == 0.0 and fractions[-1] == 1.0 and fractions == sorted(fractions)
+    assert {s for _, s in seen} == {"reconstructing"}
+    calls = []
+
+    def stop_after_two():
+        calls.append(1)
+        return len(calls) > 2
+
+    with pytest.raises(Cancelled):
+        reconstruct(ds, method, should_stop=stop_after_two)
+
+
+def test_kwave_mode_is_kwaves_functions():
+    from service.recon import kspace_line_recon, kspace_plane_recon
+
+    d3, d2 = _grid(3), _grid(2)
+    a = reconstruct(d3, "kwave", interp="*linear", dtype="float64", positivity=True)
+    b = kspace_plane_recon(d3.data, d3.dy, d3.dx, d3.dt, d3.c, interp="*linear", pos_cond=True)
+    np.testing.assert_array_equal(a.p0, b)
+    assert a.p0.shape == (24, 5, 6) and a.y is not None and len(a.x) == 6
+    np.testing.assert_allclose(a.z, np.arange(24) * 1500.0 * 2e-8)
+    a2 = reconstruct(d2, "kwave", dtype="float64")
+    np.testing.assert_array_equal(a2.p0, kspace_line_recon(d2.data, d2.dx, d2.dt, d2.c))
+    with pytest.raises(ValueError, match="interp"):
+        reconstruct(d3, "kwave", interp="spline")
+
+
+def test_options_and_inputs_are_checked():
+    ds = _grid()
+    with pytest.raises(ValueError, match="method must be one of"):
+        reconstruct(ds, "banana")
+    with pytest.raises(ValueError, match="unknown option"):
+        reconstruct(ds, "ner", epsilon=1e-3)
+    with pytest.raises(ValueError, match="dtype"):
+        reconstruct(ds, "ner", dtype="int16")
+    # options of other methods are ignored: one set of options serves every method
+    np.testing.assert_array_equal(reconstruct(ds, "linear", eps=1e-3, interp="linear").p0,
+                                  reconstruct(ds, "linear").p0)
+    sparse = PointDataset(alines=ds.data.reshape(24, -1).T[::2], positions=ds.to_points().positions[::2],
+                          weights=None, dt=ds.dt, c=ds.c, grid=ds.axes(),
+                          indices=np.stack(np.meshgrid(np.arange(6), np.arange(5)), -1).reshape(-1, 2)[::2],
+                          lattice={"n_x": 6, "n_y": 5, "pitch": 1e-4})
+    with pytest.raises(ValueError, match="lattice point"):
+        reconstruct(sparse, "ner")
+    assert reconstruct(sparse, "nedner").p0.shape == (24, 5, 6)
+
+
+def test_full_lattice_points_reconstruct_as_the_grid():
+    ds = _grid()
+    idx = np.stack(np.meshgrid(np.arange(6), np.arange(5)), -1).reshape(-1, 2)
+    order = np.random.default_rng(3).permutation(len(idx))  # any scan order
+    pts = ds.to_points()
+    full = PointDataset(alines=pts.alines[order], positions=pts.positions[order], weights=None, dt=ds.dt,
+                        c=ds.c, grid=ds.axes(), indices=idx[order], lattice={"n_x": 6, "n_y": 5, "pitch": 1e-4})
+    assert full.full_lattice
+    for method in ("ner", "cubic", "kwave"):
+        np.testing.assert_array_equal(reconstruct(full, method).p0, reconstruct(ds, method).p0)
