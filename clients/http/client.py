@@ -254,7 +254,9 @@ class _Endpoints:
                    **extra: Any):
         """``POST /api/scans`` ``{plan_id, scanner_id}`` -> the new scan job's id (202).
 
-        ``idempotency_key``: same key -> same job (default: a fresh random key)."""
+        ``idempotency_key``: same key -> same job (default: a fresh random key); ``extra``
+        fields go into the body, e.g. ``preview_wavelength=1`` (the wavelength the live
+        preview shows)."""
         body = {"plan_id": plan_id, "scanner_id": scanner_id, **extra}
         r = yield _Req("POST", "/api/scans", json=body, headers=_idem({}, idempotency_key))
         return _job_id_from(r)
