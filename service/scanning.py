@@ -338,8 +338,9 @@ class ScanManager:
                 eta = p.eta_s if math.isfinite(p.eta_s) else None
                 stage = {"running": "acquiring"}.get(p.state, p.state)
                 self.store.update_progress(jid, {
-                    "fraction": p.points_done / max(p.n_points, 1), "stage": stage,
+                    "fraction": p.alines_done / max(p.n_alines, 1), "stage": stage,
                     "points_done": p.points_done, "points_total": p.n_points,
+                    "alines_done": p.alines_done, "alines_total": p.n_alines,
                     "rate_per_s": p.rate, "eta_s": eta, "faults_recovered": p.faults_recovered})
                 self.store.heartbeat(jid, self.owner, 60.0)
 

@@ -219,6 +219,8 @@ class Progress(BaseModel):
     stage: str = "queued"
     points_done: int | None = None
     points_total: int | None = None
+    alines_done: int | None = Field(None, description="scan: A-lines on disk (points x wavelengths)")
+    alines_total: int | None = None
     rate_per_s: float | None = None
     eta_s: float | None = None
     faults_recovered: int | None = None
