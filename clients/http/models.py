@@ -47,6 +47,8 @@ class Progress(_Response):
     stage: str = "queued"
     points_done: int | None = None
     points_total: int | None = None
+    alines_done: int | None = None
+    alines_total: int | None = None
     rate_per_s: float | None = None
     eta_s: float | None = None
     faults_recovered: int | None = None
