@@ -63,7 +63,10 @@ def run(args) -> int:
                          response_timeout=args.timeout)
     rate = (result.points_done / result.elapsed_s) if result.elapsed_s > 0 else 0.0
     n_faults = result.faults_recovered
-    print(f"{args.out}: {result.points_done}/{result.n_points} points complete in "
+    spectral = (f" ({result.alines_done}/{result.n_alines} A-lines at "
+                f"{result.n_alines // max(result.n_points, 1)} wavelengths)"
+                if result.n_alines > result.n_points else "")
+    print(f"{args.out}: {result.points_done}/{result.n_points} points complete{spectral} in "
           f"{result.elapsed_s:.1f} s ({rate:.0f} points/s), {n_faults} link faults recovered")
     if not result.complete:
         print(f"fpscan scan: error: scan incomplete ({'aborted' if result.aborted else 'stopped'})"
