@@ -40,6 +40,8 @@ import time
 
 import numpy as np
 
+from driver.physics.axes import centred_axis
+
 C, DT, PITCH = 1500.0, 8e-9, 60e-6
 
 
@@ -89,8 +91,8 @@ def _run_model(method, n_t, n_y, n_x, repeat, queue, max_iter=None):
         from driver.physics import Ball, ball_alines
 
         pos, w, kind = _mask_positions(n_y, n_x)
-        x = (np.arange(n_x) - (n_x - 1) / 2) * PITCH
-        y = (np.arange(n_y) - (n_y - 1) / 2) * PITCH
+        x = centred_axis(n_x, PITCH)
+        y = centred_axis(n_y, PITCH)
         depth = 3.6e-3 * n_x / 226
         al = ball_alines(pos, [Ball(0.0, 0.0, depth, 0.3e-3), Ball(0.8e-3, -0.5e-3, depth * 1.2, 0.2e-3)], DT, n_t, C)
         al = al + rng.standard_normal(al.shape) * float(np.sqrt(np.mean(al**2))) / 10 ** 1.5
@@ -120,8 +122,8 @@ def _mask_positions(n_y, n_x):
     except Exception:  # the plans package is optional for this benchmark
         rng = np.random.default_rng(0)
         k = rng.choice(n_x * n_y, 1600, replace=False)
-        x = (np.arange(n_x) - (n_x - 1) / 2) * PITCH
-        y = (np.arange(n_y) - (n_y - 1) / 2) * PITCH
+        x = centred_axis(n_x, PITCH)
+        y = centred_axis(n_y, PITCH)
         return np.column_stack([x[k % n_x], y[k // n_x]]), None, "random"
 
 
@@ -131,8 +133,8 @@ def _run(method, n_t, n_y, n_x, repeat, queue):
     base = _rss()
     rng = np.random.default_rng(1)
     data = rng.standard_normal((n_t, n_y, n_x))
-    x = (np.arange(n_x) - (n_x - 1) / 2) * PITCH
-    y = (np.arange(n_y) - (n_y - 1) / 2) * PITCH
+    x = centred_axis(n_x, PITCH)
+    y = centred_axis(n_y, PITCH)
     note = ""
     if method == "ner64":
         fn = lambda: reconstruct_grid(data, PITCH, DT, C)  # noqa: E731

@@ -48,6 +48,8 @@ from typing import Any, Final
 
 import numpy as np
 
+from driver.physics.axes import centred_positions
+
 IMAGE_HEADER = struct.Struct("<4sHH32sIIdIIddddI")
 #: what image version 2 adds after IMAGE_HEADER: n_wavelengths, order, reserved
 IMAGE_SPECTRAL = struct.Struct("<HBB")
@@ -276,7 +278,7 @@ def lattice_positions(indices: np.ndarray, n_x: int, n_y: int, pitch: float) -> 
     ``n_x × n_y`` lattice at ``pitch`` (m) centred on the optical axis:
     ``x = (i_x - (n_x - 1)/2)·pitch``, ``y = (i_y - (n_y - 1)/2)·pitch``."""
     i = np.asarray(indices, dtype=np.float64).reshape(-1, 2)
-    return np.stack([(i[:, 0] - (n_x - 1) / 2) * pitch, (i[:, 1] - (n_y - 1) / 2) * pitch], axis=1)
+    return np.stack([centred_positions(i[:, 0], n_x, pitch), centred_positions(i[:, 1], n_y, pitch)], axis=1)
 
 
 def load_plan(source: Any) -> dict:

@@ -201,9 +201,9 @@ def _grid_runner(name: str) -> Runner:
 
 
 def _run_kwave(ds: GridDataset, c: float, opts: dict, step: Callable[[float], None]) -> Reconstruction:
+    from driver.physics.axes import centred_axis
     from service.recon import kspace_line_recon, kspace_plane_recon
     from service.recon.reconstruction import Reconstruction
-    from service.storage.datasets import centred_axis
 
     interp = opts.get("interp", "*nearest")
     if interp not in KWAVE_INTERPS:

@@ -48,7 +48,7 @@ def preview_grid(axis: np.ndarray, max_points: int) -> np.ndarray:
     step = max(1, -(-n // max_points))
     if step == 1 or n < 2:
         return axis
-    from service.storage.datasets import centred_axis
+    from driver.physics.axes import centred_axis
 
     return centred_axis(-(-n // step), float(axis[1] - axis[0]) * step)
 

@@ -23,6 +23,7 @@ import time
 
 import numpy as np
 
+from driver.physics.axes import centred_axis
 from service.metrics import (
     bounding_box,
     correlation_coefficient,
@@ -30,7 +31,7 @@ from service.metrics import (
     tenenbaum_sharpness,
 )
 from service.pipeline import reconstruct
-from service.storage.datasets import GridDataset, PointDataset, centred_axis
+from service.storage.datasets import GridDataset, PointDataset
 
 from .datasets import DenseDataset, add_noise
 from .phantoms import tree_phantom, tree_roi

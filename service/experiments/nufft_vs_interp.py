@@ -28,9 +28,9 @@ from typing import Any
 
 import numpy as np
 
+from driver.physics.axes import centred_axis
 from service.metrics import fit_edge_spread, fit_lorentz, side_lobe_level
 from service.pipeline import reconstruct
-from service.storage.datasets import centred_axis
 
 from .datasets import DenseDataset
 from .phantoms import layer_phantom

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from service.storage.datasets import centred_axis
+from driver.physics.axes import centred_axis
 
 
 def tree_phantom(n_z: int, n_x: int, *, amplitude: float = 1.0) -> np.ndarray:

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from driver.physics.axes import centred_axis
 from service.metrics import (
     cc_vs_diameter,
     cc_vs_pixels,
@@ -34,7 +35,7 @@ from service.metrics import (
     sharpness_vs_diameter,
 )
 from service.pipeline import reconstruct
-from service.storage.datasets import PointDataset, centred_axis
+from service.storage.datasets import PointDataset
 
 from .datasets import DenseDataset
 from .phantoms import yarn_phantom

@@ -6,6 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from driver.physics.axes import centred_axis, centred_positions
+
 __all__ = ["Lattice"]
 
 
@@ -58,12 +60,12 @@ class Lattice:
     @property
     def x(self) -> np.ndarray:
         """``(n_x,)`` x coordinates in m."""
-        return (np.arange(self.n_x) - (self.n_x - 1) / 2) * self.pitch
+        return centred_axis(self.n_x, self.pitch)
 
     @property
     def y(self) -> np.ndarray:
         """``(n_y,)`` y coordinates in m."""
-        return (np.arange(self.n_y) - (self.n_y - 1) / 2) * self.pitch
+        return centred_axis(self.n_y, self.pitch)
 
     @property
     def half_extent(self) -> tuple[float, float]:
@@ -101,8 +103,8 @@ class Lattice:
         if np.any(idx < 0) or np.any(idx[:, 0] >= self.n_x) or np.any(idx[:, 1] >= self.n_y):
             raise ValueError(f"indices outside the {self.n_x} x {self.n_y} lattice")
         out = np.empty(idx.shape, dtype=np.float64)
-        out[:, 0] = (idx[:, 0] - (self.n_x - 1) / 2) * self.pitch
-        out[:, 1] = (idx[:, 1] - (self.n_y - 1) / 2) * self.pitch
+        out[:, 0] = centred_positions(idx[:, 0], self.n_x, self.pitch)
+        out[:, 1] = centred_positions(idx[:, 1], self.n_y, self.pitch)
         return out
 
     def snap(self, positions) -> np.ndarray:

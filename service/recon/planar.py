@@ -33,6 +33,7 @@ import scipy.interpolate
 from scipy.spatial import cKDTree
 
 from driver.physics import nufft
+from driver.physics.axes import centred_axis
 from service.recon import checks
 from service.recon.reconstruction import Reconstruction
 
@@ -205,10 +206,6 @@ def _crop(p0: np.ndarray, n_z: int, n_y: int, n_x: int) -> np.ndarray:
     return np.ascontiguousarray(p0[:n_z, :n_y, :n_x])
 
 
-def _centred(n: int, d: float) -> np.ndarray:
-    return (np.arange(n) - (n - 1) / 2) * d
-
-
 def reconstruct_grid(
     data: np.ndarray,
     dx: float,
@@ -285,8 +282,8 @@ def reconstruct_grid(
                        progress=progress, span=(0.1, 1.0)), n_z, n_y * upsample if n_y > 1 else 1, n_x * upsample)
     if positivity:
         np.maximum(p0, 0, out=p0)
-    x = _centred(n_x, dx)[0] + np.arange(n_x * upsample) * (dx / upsample)
-    y = None if is2d else _centred(n_y, dy)[0] + np.arange(n_y * upsample) * (dy / upsample)
+    x = centred_axis(n_x, dx)[0] + np.arange(n_x * upsample) * (dx / upsample)
+    y = None if is2d else centred_axis(n_y, dy)[0] + np.arange(n_y * upsample) * (dy / upsample)
     params = dict(method=method, dx=dx, dy=None if is2d else dy, dt=dt, c=c, eps=eps,
                   dtype=rdtype.name, dz=dz, n_z=n_z, upsample=upsample, positivity=bool(positivity),
                   t0=float(t0), n_t=n_t, data_shape=list(data.shape), depth_rows=n_work,

@@ -40,15 +40,13 @@ from typing import Any
 import h5py
 import numpy as np
 
+from driver.physics.axes import centred_axis
+
 FORMATS = ("fpscan", "ipasc", "kwave-hdf5", "npy", "dataset")
 DATASET_FORMAT = "fpscan-dataset/1"
 MAX_ELEMENTS = 2 ** 31
 
 
-def centred_axis(n: int, d: float) -> np.ndarray:
-    """Coordinates ``x_i = (i - (n - 1)/2)·d``, ``i = 0..n-1`` (m): a regular lateral axis
-    centred on the optical axis (docs/architecture.md)."""
-    return (np.arange(int(n)) - (int(n) - 1) / 2.0) * float(d)
 
 
 @dataclass

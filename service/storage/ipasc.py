@@ -32,6 +32,7 @@ import h5py
 import numpy as np
 from h5py import h5d, h5g, h5s, h5t
 
+from driver.physics.axes import centred_axis
 from driver.scanfile import read_scan
 
 DETECTOR_ID_WIDTH = 10
@@ -357,8 +358,7 @@ def read_ipasc(path: str | os.PathLike, *, wavelength_index: int = 0,  # noqa: C
     if plan is not None and "lattice" in plan:
         lat = plan["lattice"]
         n_x, n_y, pitch = int(lat["n_x"]), int(lat.get("n_y", 1)), float(lat["pitch"])
-        gx = (np.arange(n_x) - (n_x - 1) / 2.0) * pitch
-        gy = (np.arange(n_y) - (n_y - 1) / 2.0) * pitch
+        gx, gy = centred_axis(n_x, pitch), centred_axis(n_y, pitch)
     else:
         gx = _regular_axis(pos3[:, 0], "x")
         gy = _regular_axis(pos3[:, 1], "y")

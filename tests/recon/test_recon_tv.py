@@ -39,8 +39,8 @@ def test_lambda_zero_without_positivity_is_the_least_squares_solution():
 def tree_2d():
     """The §6 tree phantom (piecewise constant) on 64 x 256 pixels of 50 µm, noisy data
     on the whole line, its ROI disc, and the full-data NER's CC with the true p0."""
+    from driver.physics.axes import centred_axis as lateral_axis
     from service.experiments.phantoms import tree_phantom, tree_roi
-    from service.storage.datasets import centred_axis as lateral_axis
 
     n_z, n_x, dx = 64, 256, 50e-6
     dt = dx / C
