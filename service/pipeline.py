@@ -60,6 +60,8 @@ OPTIONS: dict[str, str] = {
     "n_z": "output depth samples (default n_t)",
     "dz": "output depth spacing, m (default c·dt)",
     "interp": f"k-Wave interpolation, one of {', '.join(KWAVE_INTERPS)} (default *nearest)",
+    "lam": "TV weight λ in the data's units, >= 0 (tv; default: from the estimated noise level)",
+    "iterations": "maximum iterations, >= 1 (tv; default 60)",
 }
 
 _COMMON = ("c", "dtype", "upsample", "positivity", "n_z", "dz")
@@ -167,11 +169,11 @@ def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = No
     elif not spec.needs_grid and isinstance(dataset, GridDataset):
         dataset = dataset.to_points()
 
-    def step(fraction: float) -> None:
+    def step(fraction: float, stage: str = "reconstructing") -> None:
         if should_stop is not None and should_stop():
             raise Cancelled("reconstruction cancelled")
         if progress is not None:
-            progress(float(fraction), "reconstructing")
+            progress(float(fraction), stage)
 
     step(0.0)
     result = spec.run(dataset, c, opts, step)
@@ -231,6 +233,20 @@ def _run_kwave(ds: GridDataset, c: float, opts: dict, step: Callable[[float], No
                           centred_axis(data.shape[-1], ds.dx), y, params)
 
 
+def _run_tv(ds: PointDataset, c: float, opts: dict, step: Callable[..., None]) -> Reconstruction:
+    from service.recon import reconstruct_tv
+    from service.recon.tv import DEFAULT_MAX_ITER
+
+    if ds.alines.shape[0] == 0:
+        raise ValueError("the input has no A-lines to reconstruct")
+    opts = dict(opts)
+    iterations = opts.pop("iterations", DEFAULT_MAX_ITER)
+    positivity = bool(opts.pop("positivity", True))  # tv: positivity on unless switched off
+    # the progress stage names the iteration ("iteration k/N"), shown by job progress
+    return reconstruct_tv(ds.alines, ds.dt, c, positions=ds.positions, weights=ds.weights, grid=ds.grid,
+                          t0=ds.t0, max_iter=iterations, positivity=positivity, progress=step, **opts)
+
+
 register(Method("nedner", "NEDNER-NUFFT (any sensor mask)", False, ("eps", *_COMMON), _run_points,
                 "paper §3.2: temporal NUFFT + type-1 NUFFT over the sensor positions"))
 register(Method("ner", "NER-NUFFT (full regular grid)", True, ("eps", *_COMMON), _grid_runner("ner"),
@@ -244,3 +260,6 @@ register(Method("cubic", "FFT + cubic (pchip) interpolation", True, _COMMON, _gr
 register(Method("kwave", "k-Wave compatible (kspaceLineRecon / kspacePlaneRecon)", True,
                 ("c", "dtype", "positivity", "interp"), _run_kwave,
                 "k-Wave kspaceLineRecon / kspacePlaneRecon (reference/KWAVE_RECON_NOTES.md)"))
+register(Method("tv", "model-based: TV + positivity on the exact model (iterative; sparse, noisy scans)", False,
+                ("eps", "lam", "iterations", "c", "dtype", "positivity", "n_z", "dz"), _run_tv,
+                "½‖A p0 − g‖²_W + λ TV(p0), p0 ≥ 0, pyproximal primal-dual (Arridge et al., PMB 61 (2016) 8908)"))
