@@ -12,6 +12,8 @@ volume and MIPs are downloaded into ``--out``.
 """
 from __future__ import annotations
 
+import argparse
+
 from clients.cli._common import add_progress_option, add_server_options, client_errors
 
 COMMAND = "recon"
@@ -45,7 +47,11 @@ def add_arguments(parser):
     g.add_argument("--dtype", choices=DTYPES, default=None,
                    help=f"working and output precision (default {DEFAULT_DTYPE}, locally and on the server)")
     g.add_argument("--upsample", type=int, default=None, help="lateral upsampling factor")
-    g.add_argument("--positivity", action="store_true", help="clip negative p0 to 0")
+    g.add_argument("--positivity", action=argparse.BooleanOptionalAction, default=None,
+                   help="clip negative p0 to 0 (tv: constrain p0 >= 0, on by default)")
+    g.add_argument("--lambda", dest="lam", type=float, default=None, metavar="LAMBDA",
+                   help="tv: TV weight λ in the data's units, >= 0 (default: from the estimated noise level)")
+    g.add_argument("--iterations", type=int, default=None, help="tv: maximum iterations (default 60)")
     g.add_argument("--n-z", type=int, default=None, help="output depth samples (default n_t)")
     g.add_argument("--dz", type=float, default=None, help="output depth spacing, m (default c*dt)")
     g.add_argument("--interp", choices=KWAVE_INTERPS, default=None,
@@ -68,12 +74,12 @@ def _sniff_format(path) -> str:
 
 def _params(args) -> dict:
     params = {}
-    for name in ("eps", "dtype", "upsample", "n_z", "dz", "c", "interp"):
+    for name in ("eps", "dtype", "upsample", "n_z", "dz", "c", "interp", "lam", "iterations"):
         value = getattr(args, name)
         if value is not None:
             params[name] = value
-    if args.positivity:
-        params["positivity"] = True
+    if args.positivity is not None:
+        params["positivity"] = bool(args.positivity)
     return params
 
 

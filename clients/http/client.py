@@ -319,7 +319,9 @@ class _Endpoints:
 
         Exactly one of ``scan_job_id`` / ``dataset_id``; ``method`` one of the
         ``service.recon`` methods (``ner``, ``nedner``, ``linear``, ...); ``params`` the
-        recon options (``eps``, ``dtype``, ``upsample``, ``positivity``, ...).
+        recon options (``eps``, ``dtype``, ``upsample``, ``positivity``, ...; ``tv``:
+        ``lam`` (λ, default automatic) and ``iterations``; the job's progress stage
+        names the iteration).
         Raises ``ValueError`` when both or neither input is given."""
         if (scan_job_id is None) == (dataset_id is None):
             raise ValueError("give exactly one of scan_job_id or dataset_id")

@@ -290,7 +290,10 @@ class ReconParams(_Request):
     eps: float | None = Field(None, ge=1e-15, le=1e-1, description="NUFFT tolerance (ner, nedner; default 1e-6)")
     dtype: _one_of(DTYPES) = Field(DEFAULT_DTYPE, description="working and output precision")  # type: ignore[valid-type]
     upsample: int | None = Field(None, ge=1, le=8, description="lateral upsampling factor (default 1)")
-    positivity: bool = False
+    positivity: bool | None = Field(None, description="clip negative p0 to 0 (default off; tv: p0 >= 0, on)")
+    lam: float | None = Field(None, ge=0, le=1e30, description="TV weight λ in the data's units "
+                              "(tv; default from the estimated noise level)")
+    iterations: int | None = Field(None, ge=1, le=10000, description="maximum iterations (tv; default 60)")
     n_z: int | None = Field(None, ge=2, le=65536, description="output depth samples (>= 2)")
     dz: float | None = Field(None, ge=1e-9, le=0.1, description="output depth spacing, m (>= 1 nm; with the "
                              "input's c·t_last it sets the working depth rows, counted in the memory admission)")
