@@ -1089,6 +1089,15 @@ async function cancelResultJob() {
   }
 }
 
+function reconParams() {
+  const params = { dtype: $("recon-dtype").value, positivity: $("recon-positivity").checked };
+  if ($("recon-method").value === "tv") {  // model-based: λ and iterations (empty = defaults)
+    if ($("recon-lambda").value !== "") params.lam = Number($("recon-lambda").value);
+    if ($("recon-iterations").value !== "") params.iterations = Number($("recon-iterations").value);
+  }
+  return params;
+}
+
 async function startRecon(ev) {
   ev.preventDefault();
   if (!resultJob) return;
@@ -1098,7 +1107,7 @@ async function startRecon(ev) {
       method: "POST",
       json: {
         scan_job_id: resultJob, method: $("recon-method").value,
-        params: { dtype: $("recon-dtype").value, positivity: $("recon-positivity").checked },
+        params: reconParams(),
       },
       headers: { "Idempotency-Key": newIdempotencyKey() },
     });
