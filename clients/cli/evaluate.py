@@ -24,6 +24,9 @@ def add_arguments(parser):
     parser.add_argument("--data", default=None, metavar="FILE",
                         help="dense dataset instead of the built-in phantom: HDF5 with sensor_data/clean and dt_s/dx_m "
                              "attributes (e.g. the k-Wave files), or an fpscan scan file covering its whole lattice")
+    parser.add_argument("--dataset", default=None, metavar="KEY",
+                        help="HDF5 dataset inside --data holding the sensor data (e.g. sensor_data/noisy30dB; "
+                             "default sensor_data/clean)")
     parser.add_argument("--out", default="evaluate-output", metavar="DIR",
                         help="output folder (default: evaluate-output)")
     parser.add_argument("--small", action="store_true", help="small, fast version (a few seconds each)")
@@ -52,12 +55,14 @@ def run(args) -> int:
 
     from service.experiments import run_experiment
 
+    if args.dataset is not None and args.data is None:
+        raise SystemExit("fpscan evaluate: --dataset names a dataset inside --data FILE; give --data")
     names = NAMES if args.experiment == "all" else (args.experiment,)
     data = None
     if args.data is not None:
         from service.experiments import load_dense
 
-        data = load_dense(args.data)  # ValueError with the reason for a missing or unusable file
+        data = load_dense(args.data, key=args.dataset)  # ValueError with the reason for a missing or unusable file
     out = Path(args.out)
     for name in names:
         wrong_dim = data is not None and (

@@ -60,7 +60,7 @@ class DenseDataset(GridDataset):
                             source=self.source, meta=dict(self.meta), p0=p0, dz=self.dz)
 
 
-def load_dense(path: str | Path) -> DenseDataset:
+def load_dense(path: str | Path, key: str | None = None) -> DenseDataset:
     """Read a dense dataset with :func:`service.storage.datasets.load_dataset`: the
     k-Wave reference files' layout (or any HDF5 array in k-Wave layout), or an fpscan scan
     file covering its whole lattice.
@@ -68,7 +68,9 @@ def load_dense(path: str | Path) -> DenseDataset:
     The data must be ``(n_t, n_lateral)`` or ``(n_t, n_y, n_x)`` with ``dt_s`` and the
     lateral spacing in the file; the two lateral spacings must be equal (square lattice).
     ``c_m_per_s`` defaults to 1500. A ``p0`` dataset, if present, is kept as ground truth
-    (its depth spacing from its ``spacing_m`` attribute). Data are float64.
+    (its depth spacing from its ``spacing_m`` attribute). Data are float64. ``key``: the
+    HDF5 dataset holding the sensor data (e.g. ``sensor_data/noisy30dB``; default
+    ``sensor_data/clean`` or the file's only 2-/3-D dataset).
 
     Raises
     ------
@@ -83,7 +85,7 @@ def load_dense(path: str | Path) -> DenseDataset:
         raise ValueError(f"data file not found: {path}")
     try:
         # a scan with no completed point is still judged by its plan's coverage below
-        loaded = load_scan(path, allow_empty=True) if detect_format(path) == "fpscan" else load_dataset(path)
+        loaded = load_scan(path, allow_empty=True) if detect_format(path) == "fpscan" else load_dataset(path, key=key)
     except ValueError as exc:
         raise ValueError(f"{path}: {exc}") from None
     if isinstance(loaded, PointDataset):
