@@ -10,12 +10,15 @@ needs a full grid is refused on a sparse mask by all three paths alike.
 """
 from __future__ import annotations
 
+import argparse
 import io
+import json
 
 import h5py
 import numpy as np
 import pytest
 
+from clients.cli import build_parser
 from clients.cli import main as fpscan_main
 from driver.plan import plan_id_of
 from driver.scanfile import META_KEYS, ScanFile
@@ -28,6 +31,26 @@ pytestmark = needs_recon
 PITCH, N_X, N_Y, N_T, DT, C = 1e-4, 6, 5, 40, 2e-8, 1490.0
 INPUTS = ("scan-full", "scan-sparse", "kwave")
 CASES = [(i, m) for i in INPUTS for m in METHODS]
+#: options other than the defaults, the same on all three paths (so that they are shown to
+#: travel through each); an iterative method gets few iterations to keep the test short
+OPTIONS = {"ner": {"upsample": 2}, "linear": {"positivity": True}, "cubic": {"dtype": "float64"},
+           "kwave": {"interp": "*linear"}, "tv": {"iterations": 4}}
+
+
+def _cli_flags(options: dict) -> list[str]:
+    """``fpscan recon``'s flags for ``options`` (found by the parser's option names)."""
+    recon = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction)).choices["recon"]
+    by_dest = {a.dest: a for a in recon._actions}
+    flags = []
+    for name, value in options.items():
+        action = by_dest[name]
+        flag = action.option_strings[-1] if action.option_strings[-1].startswith("--") else action.option_strings[0]
+        if action.nargs == 0:  # a switch
+            assert value is True
+            flags.append(flag)
+        else:
+            flags += [flag, str(value)]
+    return flags
 
 
 def _plan(indices) -> dict:
@@ -93,7 +116,8 @@ def remote(inputs, tmp_path_factory):
                 assert r.status_code == 201, r.text
                 ds = r.json()["dataset_id"]
                 for m in METHODS:
-                    r = c.post("/api/reconstructions", json={"dataset_id": ds, "method": m})
+                    r = c.post("/api/reconstructions",
+                               json={"dataset_id": ds, "method": m, "params": OPTIONS.get(m, {})})
                     jobs[name, m] = r
         yield srv, jobs
     finally:
@@ -111,7 +135,9 @@ def test_local_worker_and_http_give_one_volume(name, method, inputs, remote, tmp
     srv, jobs = remote
     refused = name == "scan-sparse" and METHODS[method].needs_grid
     # local: the CLI in this process
-    rc = fpscan_main(["recon", str(path), "--method", method, "--out", str(tmp_path / "local"), "--quiet"])
+    options = OPTIONS.get(method, {})
+    rc = fpscan_main(["recon", str(path), "--method", method, *_cli_flags(options), "--out", str(tmp_path / "local"),
+                      "--quiet"])
     err = capsys.readouterr().err
     # the job worker, on the scan file itself (a scan job's input)
     spec_input = {"kind": "scan", "path": str(path)} if name.startswith("scan") else None
@@ -122,7 +148,7 @@ def test_local_worker_and_http_give_one_volume(name, method, inputs, remote, tmp
         folder.mkdir()
         meta = import_dataset(path, folder, "kwave-hdf5", dt=None, dx=None, dy=None, c=None, key=None)
         spec_input = {"kind": "dataset", "path": str(folder / meta["path"])}
-    spec = {"input": spec_input, "params": {"method": method}, "out_dir": str(tmp_path / "worker")}
+    spec = {"input": spec_input, "params": {"method": method, **options}, "out_dir": str(tmp_path / "worker")}
     http = jobs[name, method]
     if refused:
         assert rc != 0 and "lattice point" in err, err
@@ -142,7 +168,12 @@ def test_local_worker_and_http_give_one_volume(name, method, inputs, remote, tmp
     local_p0, local_attrs = _volume(tmp_path / "local" / "volume.h5")
     worker_p0, worker_attrs = _volume(tmp_path / "worker" / "volume.h5")
     assert local_attrs["method"] == worker_attrs["method"] == remote_attrs["method"] == method
-    assert local_p0.dtype == worker_p0.dtype == remote_p0.dtype == np.float32  # one default
+    # one default precision (float32) everywhere, unless asked for
+    assert local_p0.dtype == worker_p0.dtype == remote_p0.dtype == np.dtype(options.get("dtype", "float32"))
+    for attrs in (local_attrs, worker_attrs, remote_attrs):  # the options were used on every path
+        used = json.loads(attrs["params"])
+        for name, value in options.items():
+            assert used.get(name) == value, (name, used)
     n_t = N_T
     assert local_p0.shape[0] == n_t and local_p0.ndim == 3
     assert np.abs(local_p0).max() > 0
