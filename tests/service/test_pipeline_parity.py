@@ -44,10 +44,9 @@ def _cli_flags(options: dict) -> list[str]:
     flags = []
     for name, value in options.items():
         action = by_dest[name]
-        flag = action.option_strings[-1] if action.option_strings[-1].startswith("--") else action.option_strings[0]
-        if action.nargs == 0:  # a switch
-            assert value is True
-            flags.append(flag)
+        flag = next(o for o in action.option_strings if o.startswith("--"))
+        if action.nargs == 0:  # a switch (--positivity, or --no-positivity for False)
+            flags.append(flag if value else f"--no-{flag[2:]}")
         else:
             flags += [flag, str(value)]
     return flags
