@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import io
 import json
+import re
 
 import h5py
 import httpx
@@ -200,3 +201,37 @@ def test_kwave_hdf5_upload_2d_ner_matches_kwave_and_direct_call(shared_api, shar
     assert shared_api.get(f"/api/reconstructions/{jid}/mip/xz.png").status_code == 200
     r = shared_api.get(f"/api/reconstructions/{jid}/mip/xy.png")
     assert r.status_code == 404 and "2-D" in r.json()["detail"]
+
+
+def test_tv_job_progress_names_the_iteration_and_bad_options_are_422(shared_api):
+    """Model-based ``tv`` over HTTP: the job's SSE progress shows the solver's iterations
+    ("iteration k/N"), and bad options are 422 naming them. (Its volume equals the local
+    and worker ones: tests/service/test_pipeline_parity.py.)"""
+    from driver.physics.balls import Ball, ball_alines
+
+    n, n_t = 12, 48
+    x = (np.arange(n) - (n - 1) / 2) * PITCH
+    yy, xx = np.meshgrid(x, x, indexing="ij")
+    pos = np.stack([xx.ravel(), yy.ravel()], axis=1)
+    alines = ball_alines(pos, [Ball(x=1e-4, y=0.0, z=0.5e-3, radius=1.5e-4, amplitude=1.0)], DT, n_t, C)
+    data = alines.T.reshape(n_t, n, n).astype(np.float32)
+    api = shared_api
+    ds = upload(api, data)
+    for bad, name in (({"lam": -1.0}, "lam"), ({"iterations": 0}, "iterations"), ({"lam": "a lot"}, "lam")):
+        r = api.post("/api/reconstructions", json={"dataset_id": ds, "method": "tv", "params": bad})
+        assert r.status_code == 422 and name in r.text, r.text
+    params = {"dtype": "float64", "lam": 0.0, "iterations": 20, "n_z": 16}
+    r = api.post("/api/reconstructions", json={"dataset_id": ds, "method": "tv", "params": params})
+    assert r.status_code == 202, r.text
+    job_id = r.json()["id"]
+    events = sse_events(api, job_id)
+    assert [e["data"]["state"] for e in events if e["event"] == "state"][-1] == "succeeded", events[-1]
+    stages = [e["data"]["stage"] for e in events if e["event"] == "progress"]
+    its = [s for s in stages if s.startswith("iteration ")]
+    assert its and all(re.fullmatch(r"iteration \d+/20", s) for s in its), stages
+    vol, attrs = download_volume(api, job_id)
+    assert attrs["method"] == "tv"
+    assert vol["p0"].shape == (16, n, n) and vol["p0"].min() >= 0  # positivity: on by default for tv
+    # the solver's answer, not the warm start: closer to the data than NEDNER's image
+    used = json.loads(attrs["params"])
+    assert used["warm_start"] == "nedner" and used["iterations"] <= 20 and 0 < used["residual"] < 1
