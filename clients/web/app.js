@@ -1089,6 +1089,14 @@ async function cancelResultJob() {
   }
 }
 
+// The model-based method's own parameters are shown only when it is chosen; its
+// positivity constraint is on by default (the other methods' clipping is off by default).
+function syncReconMethod() {
+  const tv = $("recon-method").value === "tv";
+  if (tv !== !$("recon-tv-params").hidden) $("recon-positivity").checked = tv;
+  $("recon-tv-params").hidden = !tv;
+}
+
 function reconParams() {
   const params = { dtype: $("recon-dtype").value, positivity: $("recon-positivity").checked };
   if ($("recon-method").value === "tv") {  // model-based: λ and iterations (empty = defaults)
@@ -1152,6 +1160,7 @@ function init() {
   $("jobs-kind").addEventListener("change", () => refreshJobs().catch(showError));
   $("result-slice").addEventListener("input", showSlice);
   $("recon-form").addEventListener("submit", startRecon);
+  $("recon-method").addEventListener("change", syncReconMethod);
   $("result-cancel").addEventListener("click", cancelResultJob);
   $("upload-form").addEventListener("submit", uploadAndReconstruct);
   $("error-close").addEventListener("click", clearError);

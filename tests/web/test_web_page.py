@@ -364,6 +364,41 @@ def test_result_view_reconstruct_slices_and_download_volume(browser, server, api
         assert len(f.keys()) > 0
 
 
+def test_result_view_offers_the_model_based_method_and_its_parameters(browser, server, api, screenshots, state):
+    """Choosing ``tv`` shows its λ and iteration fields (hidden for the other methods)
+    with positivity on; the job the page starts carries them; the page cancels it."""
+    from selenium.webdriver.support.ui import Select
+
+    if "scan_job_id" not in state:
+        pytest.skip("needs the scan of the scan-view test")
+    el(browser, "nav-jobs").click()
+    row = wait_for(lambda: browser.find_element("css selector", f'tr[data-job-id="{state["scan_job_id"]}"]'), 15,
+                   "the scan in the job list")
+    row.find_element("css selector", "a.c-open").click()
+    wait_for(lambda: el(browser, "result").is_displayed() and text(browser, "result-kind") == "scan", 15,
+             "the scan's result view")
+    Select(el(browser, "recon-method")).select_by_value("nedner")
+    assert not el(browser, "recon-lambda").is_displayed() and not el(browser, "recon-iterations").is_displayed()
+    Select(el(browser, "recon-method")).select_by_value("tv")
+    wait_for(lambda: el(browser, "recon-lambda").is_displayed(), 5, "the λ field")
+    assert el(browser, "recon-iterations").is_displayed() and el(browser, "recon-positivity").is_selected()
+    set_value(browser, "recon-lambda", 0.002)
+    set_value(browser, "recon-iterations", 7)
+    shot(browser, screenshots, "jobs-recon-tv-form")
+    before = el(browser, "result-id").get_attribute("title")
+    el(browser, "recon-start").click()
+    wait_for(lambda: text(browser, "result-kind") == "recon" and el(browser, "result-id").get_attribute("title") != before,
+             15, "the tv job to open")
+    job_id = el(browser, "result-id").get_attribute("title")
+    job = api.get(f"/api/jobs/{job_id}").json()
+    assert job["params"]["method"] == "tv", job
+    sent = job["params"]["params"]
+    assert sent["lam"] == 0.002 and sent["iterations"] == 7 and sent["positivity"] is True, sent
+    if el(browser, "result-cancel").is_displayed():  # a 7-iteration solve is not needed here
+        el(browser, "result-cancel").click()
+    wait_for(lambda: text(browser, "result-state") in ("cancelled", "succeeded"), 60, "the tv job to end", 0.3)
+
+
 def test_upload_a_data_file_and_reconstruct_it(browser, server, api, screenshots, tmp_path):
     """A k-Wave-layout NumPy file uploaded from the page with spacings typed in µm/ns:
     the reconstruction's volume has the grid those spacings give (SI on the wire)."""
