@@ -31,7 +31,7 @@ True :func:`reconstruct` raises :class:`Cancelled`.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -56,7 +56,7 @@ OPTIONS: dict[str, str] = {
     "dtype": f"working and output precision, one of {', '.join(DTYPES)} (default {DEFAULT_DTYPE})",
     "eps": "NUFFT tolerance in [1e-14, 1e-1] (default 1e-6)",
     "upsample": "lateral upsampling factor 1..8 (default 1)",
-    "positivity": "clip negative p0 to 0 (default false)",
+    "positivity": "clip negative p0 to 0 (default false; tv: true)",
     "n_z": "output depth samples (default n_t)",
     "dz": "output depth spacing, m (default c·dt)",
     "interp": f"k-Wave interpolation, one of {', '.join(KWAVE_INTERPS)} (default *nearest)",
@@ -80,7 +80,10 @@ class Method:
     ``options``: the option names it takes (:data:`OPTIONS`); ``run(dataset, c, options,
     progress)`` → `Reconstruction`, given a grid dataset when ``needs_grid`` else a point
     dataset, ``c`` in m/s, the options (``dtype`` as a NumPy dtype, no ``c``) and a
-    ``progress(fraction)`` callable; ``source``: where the algorithm comes from."""
+    ``progress(fraction)`` callable; ``source``: where the algorithm comes from;
+    ``defaults``: this method's own defaults of options (e.g. ``tv``: positivity on), used
+    when the caller leaves them unset and listed with the method (``GET
+    /api/reconstructions/methods``, so the web form starts from them)."""
 
     name: str
     title: str
@@ -88,6 +91,7 @@ class Method:
     options: tuple[str, ...]
     run: Runner
     source: str = ""
+    defaults: dict[str, Any] = field(default_factory=dict)
 
 
 #: the method vocabulary, in the order lists show it
@@ -99,6 +103,9 @@ def register(method: Method) -> Method:
     unknown = set(method.options) - set(OPTIONS)
     if unknown:
         raise ValueError(f"unknown options {sorted(unknown)} for method {method.name!r}")
+    if set(method.defaults) - set(method.options):
+        raise ValueError(f"defaults {sorted(set(method.defaults) - set(method.options))} are no options of "
+                         f"method {method.name!r}")
     METHODS[method.name] = method
     return method
 
@@ -158,7 +165,7 @@ def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = No
     spec = METHODS.get(method)
     if spec is None:
         raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
-    opts = method_options(method, options)
+    opts = {**spec.defaults, **method_options(method, options)}
     opts["dtype"] = _dtype(opts.get("dtype"))
     c = opts.pop("c", None)
     c = float(dataset.c if c is None else c)
@@ -241,7 +248,7 @@ def _run_tv(ds: PointDataset, c: float, opts: dict, step: Callable[..., None]) -
         raise ValueError("the input has no A-lines to reconstruct")
     opts = dict(opts)
     iterations = opts.pop("iterations", DEFAULT_MAX_ITER)
-    positivity = bool(opts.pop("positivity", True))  # tv: positivity on unless switched off
+    positivity = bool(opts.pop("positivity"))  # tv's default: on (its Method.defaults)
     # the progress stage names the iteration ("iteration k/N"), shown by job progress
     return reconstruct_tv(ds.alines, ds.dt, c, positions=ds.positions, weights=ds.weights, grid=ds.grid,
                           t0=ds.t0, max_iter=iterations, positivity=positivity, progress=step, **opts)
@@ -262,4 +269,5 @@ register(Method("kwave", "k-Wave compatible (kspaceLineRecon / kspacePlaneRecon)
                 "k-Wave kspaceLineRecon / kspacePlaneRecon (reference/KWAVE_RECON_NOTES.md)"))
 register(Method("tv", "model-based: TV + positivity on the exact model (iterative; sparse, noisy scans)", False,
                 ("eps", "lam", "iterations", "c", "dtype", "positivity", "n_z", "dz"), _run_tv,
-                "½‖A p0 − g‖²_W + λ TV(p0), p0 ≥ 0, pyproximal primal-dual (Arridge et al., PMB 61 (2016) 8908)"))
+                "½‖A p0 − g‖²_W + λ TV(p0), p0 ≥ 0, pyproximal primal-dual (Arridge et al., PMB 61 (2016) 8908)",
+                defaults={"positivity": True}))

@@ -334,6 +334,12 @@ class _Endpoints:
                        headers=_idem({}, idempotency_key))
         return _job_id_from(r)
 
+    def methods(self):
+        """``GET /api/reconstructions/methods`` -> list of ``{name, title, needs_grid,
+        options: [{name, description, default}], source}``: the reconstruction methods."""
+        r = yield _Req("GET", "/api/reconstructions/methods")
+        return r.json()
+
     def download_volume(self, job_id: str, dest: str | os.PathLike):
         """``GET /api/reconstructions/{job_id}/volume.h5`` saved to ``dest``."""
         return (yield _Download(_Req("GET", f"/api/reconstructions/{job_id}/volume.h5"), Path(dest)))

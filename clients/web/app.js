@@ -10,6 +10,7 @@
  *               GET /api/scans/{id}/preview (+ /preview/{plane}.png) for the live MIPs
  *   Jobs view   GET /api/jobs, GET /api/jobs/{id}, MIPs, depth slices, downloads,
  *               POST /api/reconstructions, POST /api/datasets (upload), POST .../cancel
+ *               GET /api/reconstructions/methods (the method choices and their options)
  * Units: the form shows convenient units (µm, mm, ns, nm); the API receives SI units.
  * The bearer token is asked once (on the first 401/403) and kept in sessionStorage.
  */
@@ -1089,19 +1090,53 @@ async function cancelResultJob() {
   }
 }
 
-// The model-based method's own parameters are shown only when it is chosen; its
-// positivity constraint is on by default (the other methods' clipping is off by default).
-function syncReconMethod() {
-  const tv = $("recon-method").value === "tv";
-  if (tv !== !$("recon-tv-params").hidden) $("recon-positivity").checked = tv;
-  $("recon-tv-params").hidden = !tv;
+/* Reconstruction methods come from the server (GET /api/reconstructions/methods, i.e.
+ * service.pipeline.METHODS): both method choices list them, and the reconstruct form
+ * starts from the chosen method's own defaults and shows only the options it takes. */
+let METHODS = null; // name -> {name, title, needs_grid, options: [{name, description, default}], source}
+const RECON_OPTION_LABELS = { positivity: "recon-positivity-label", lam: "recon-lambda-label", iterations: "recon-iterations-label" };
+
+function methodOption(method, option) {
+  const m = METHODS && METHODS[method];
+  return m ? m.options.find((o) => o.name === option) : undefined;
+}
+
+async function buildMethodSelects() {
+  const list = await apiJson("/api/reconstructions/methods");
+  METHODS = {};
+  for (const m of list) METHODS[m.name] = m;
+  for (const [id, preferred] of [["recon-method", "nedner"], ["upload-method", "ner"]]) {
+    const sel = $(id);
+    sel.textContent = "";
+    for (const m of list) {
+      const o = document.createElement("option");
+      o.value = m.name;
+      o.textContent = m.title;
+      o.title = m.source;
+      sel.appendChild(o);
+    }
+    sel.value = preferred in METHODS ? preferred : list[0].name;
+  }
+  renderReconOptions();
+}
+
+/** The reconstruct form for the chosen method: its own defaults, only the options it takes. */
+function renderReconOptions() {
+  const method = $("recon-method").value;
+  if (!METHODS || !METHODS[method]) return;
+  for (const [name, label] of Object.entries(RECON_OPTION_LABELS)) $(label).hidden = !methodOption(method, name);
+  const positivity = methodOption(method, "positivity");
+  $("recon-positivity").checked = !!(positivity && positivity.default);
 }
 
 function reconParams() {
-  const params = { dtype: $("recon-dtype").value, positivity: $("recon-positivity").checked };
-  if ($("recon-method").value === "tv") {  // model-based: λ and iterations (empty = defaults)
-    if ($("recon-lambda").value !== "") params.lam = Number($("recon-lambda").value);
-    if ($("recon-iterations").value !== "") params.iterations = Number($("recon-iterations").value);
+  const method = $("recon-method").value;
+  const params = { dtype: $("recon-dtype").value };
+  if (methodOption(method, "positivity")) params.positivity = $("recon-positivity").checked;
+  // λ and iterations where the method takes them (empty = its defaults)
+  if (methodOption(method, "lam") && $("recon-lambda").value !== "") params.lam = Number($("recon-lambda").value);
+  if (methodOption(method, "iterations") && $("recon-iterations").value !== "") {
+    params.iterations = Number($("recon-iterations").value);
   }
   return params;
 }
@@ -1146,6 +1181,7 @@ async function health() {
 
 function init() {
   buildMaskSelect().catch(showError);
+  buildMethodSelects().catch(showError);
   updateTokenButton();
   $("mask-kind").addEventListener("change", () => { renderMaskParams(); schedulePreview(0); });
   $("plan-form").addEventListener("input", () => schedulePreview());
@@ -1160,7 +1196,7 @@ function init() {
   $("jobs-kind").addEventListener("change", () => refreshJobs().catch(showError));
   $("result-slice").addEventListener("input", showSlice);
   $("recon-form").addEventListener("submit", startRecon);
-  $("recon-method").addEventListener("change", syncReconMethod);
+  $("recon-method").addEventListener("change", renderReconOptions);
   $("result-cancel").addEventListener("click", cancelResultJob);
   $("upload-form").addEventListener("submit", uploadAndReconstruct);
   $("error-close").addEventListener("click", clearError);

@@ -183,6 +183,25 @@ PlanCreate: Any = Annotated[
 ]
 
 
+class MethodOption(BaseModel):
+    """One option of a reconstruction method (``service.pipeline.OPTIONS``)."""
+
+    name: str
+    description: str
+    default: Any = Field(None, description="this method's own default (null: the general one in the description)")
+
+
+class MethodInfo(BaseModel):
+    """One reconstruction method as ``GET /api/reconstructions/methods`` lists it
+    (``service.pipeline.METHODS``; the web page's method choices are built from these)."""
+
+    name: str
+    title: str
+    needs_grid: bool = Field(description="needs data on a full regular grid (every lattice point)")
+    options: list[MethodOption]
+    source: str
+
+
 class MaskKindInfo(BaseModel):
     """One mask kind as ``GET /api/plans/kinds`` lists it (forms are built from these)."""
 

@@ -11,11 +11,11 @@ from fastapi.responses import FileResponse
 
 from service.api.context import Context, ctx, read_access, reason, require_token
 from service.api.jobs import get_job_or_404, job_view
-from service.api.models import ID_PATTERN, Job, Plane, ReconRequest
+from service.api.models import ID_PATTERN, Job, MethodInfo, MethodOption, Plane, ReconRequest
 from service.jobs.images import png_bytes
 from service.jobs.queue import AdmissionError, admit, estimate_memory
 from service.jobs.store import IdempotencyConflict
-from service.pipeline import METHODS, method_options
+from service.pipeline import METHODS, OPTIONS, method_options
 
 router = APIRouter(prefix="/api/reconstructions", tags=["reconstructions"])
 
@@ -69,6 +69,18 @@ def _input_for(c: Context, body: ReconRequest) -> tuple[dict, dict, str]:
     shape = {"n_t": n_t, "n_x": meta.get("n_x", side), "n_y": meta.get("n_y", side), "n_points": n,
              "dt": meta.get("dt"), "c": meta.get("c")}
     return {"kind": "dataset", "path": path}, shape, f"dataset:{body.dataset_id}"
+
+
+@router.get("/methods", response_model=list[MethodInfo], dependencies=[Depends(read_access)])
+def list_methods() -> list[MethodInfo]:
+    """The reconstruction methods (``service.pipeline.METHODS``, in their order): name,
+    title, whether they need a full regular grid, the options each takes (with the
+    method's own defaults) and the algorithm's source. The web page builds its method
+    choices from this."""
+    return [MethodInfo(name=m.name, title=m.title, needs_grid=m.needs_grid, source=m.source,
+                       options=[MethodOption(name=o, description=OPTIONS[o], default=m.defaults.get(o))
+                                for o in m.options])
+            for m in METHODS.values()]
 
 
 @router.post("", status_code=202, response_model=Job, dependencies=[Depends(require_token)],

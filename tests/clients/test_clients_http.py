@@ -297,6 +297,7 @@ CLIENT_METHODS = {
     ("get", "/api/scans/{job_id}/preview/{plane}.png"): "download_scan_preview",
     ("post", "/api/datasets"): "upload_dataset",
     ("post", "/api/reconstructions"): "start_reconstruction",
+    ("get", "/api/reconstructions/methods"): "methods",
     ("get", "/api/reconstructions/{job_id}/volume.h5"): "download_volume",
     ("get", "/api/reconstructions/{job_id}/mip/{plane}.png"): "download_mip",
     ("get", "/api/reconstructions/{job_id}/slice.png"): "download_slice",

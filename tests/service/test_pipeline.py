@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import argparse
 import re
-from html.parser import HTMLParser
 from pathlib import Path
 
 import numpy as np
@@ -19,41 +18,24 @@ from service.storage.datasets import GridDataset, PointDataset
 REPO = Path(__file__).resolve().parents[2]
 
 
-class _Options(HTMLParser):
-    def __init__(self, select_id):
-        super().__init__()
-        self.select_id, self.inside, self.values = select_id, False, []
-
-    def handle_starttag(self, tag, attrs):
-        a = dict(attrs)
-        if tag == "select":
-            self.inside = a.get("id") == self.select_id
-        elif tag == "option" and self.inside:
-            self.values.append(a["value"])
-
-    def handle_endtag(self, tag):
-        if tag == "select":
-            self.inside = False
-
-
-def _web_methods(select_id):
-    p = _Options(select_id)
-    p.feed((REPO / "clients" / "web" / "index.html").read_text())
-    return p.values
-
-
-def test_every_surface_offers_the_one_vocabulary():
+def test_every_surface_offers_the_one_vocabulary(shared_api):
     from clients.cli import recon as cli_recon
-    from service.api.models import ReconRequest
 
-    schema = ReconRequest.model_json_schema()  # what /openapi.json publishes
+    openapi = shared_api.get("/openapi.json").json()
+    schema = openapi["components"]["schemas"]["ReconRequest"]
     assert schema["properties"]["method"]["enum"] == list(METHODS)
+    # the listing the web page builds its method choices from (tests/web check the page)
+    listed = shared_api.get("/api/reconstructions/methods").json()
+    assert [m["name"] for m in listed] == list(METHODS)
+    for m in listed:
+        spec = METHODS[m["name"]]
+        assert (m["title"], m["needs_grid"], m["source"]) == (spec.title, spec.needs_grid, spec.source)
+        assert [o["name"] for o in m["options"]] == list(spec.options)
+        assert {o["name"]: o["default"] for o in m["options"] if o["default"] is not None} == spec.defaults
     parser = argparse.ArgumentParser()
     cli_recon.add_arguments(parser)
     method_action = next(a for a in parser._actions if a.dest == "method")
     assert list(method_action.choices) == list(METHODS)
-    for select in ("upload-method", "recon-method"):
-        assert sorted(_web_methods(select)) == sorted(METHODS), select
     api_doc = (REPO / "docs" / "api.md").read_text()
     rows = re.findall(r"^\s*\| ((?:`[a-z]+`(?:, )?)+) \|", api_doc, re.M)  # the method table's first column
     assert {n for row in rows for n in re.findall(r"`([a-z]+)`", row)} == set(METHODS)
@@ -138,3 +120,22 @@ def test_full_lattice_points_reconstruct_as_the_grid():
     assert full.full_lattice
     for method in ("ner", "cubic", "kwave"):
         np.testing.assert_array_equal(reconstruct(full, method).p0, reconstruct(ds, method).p0)
+
+
+def test_a_methods_own_defaults_apply_unless_given():
+    """``Method.defaults`` (tv: positivity on) fill only the options the caller left unset;
+    a default for an option the method does not take is refused at registration."""
+    from service.pipeline import Method, register
+
+    tv = next((m for m in METHODS.values() if m.defaults.get("positivity")), None)
+    if tv is None:
+        pytest.skip("no method with its own positivity default")
+    ds = _grid(seed=4)
+    on = reconstruct(ds, tv.name, iterations=2)
+    off = reconstruct(ds, tv.name, iterations=2, positivity=False)
+    assert on.params["positivity"] is True and off.params["positivity"] is False
+    assert on.p0.min() >= 0 and off.p0.min() < 0
+    np.testing.assert_array_equal(on.p0, reconstruct(ds, tv.name, iterations=2, positivity=True).p0)
+    with pytest.raises(ValueError, match="no options"):
+        register(Method("x", "x", False, ("c",), METHODS["ner"].run, defaults={"interp": "linear"}))
+    assert "x" not in METHODS

@@ -413,6 +413,23 @@ def test_upload_a_data_file_and_reconstruct_it(browser, server, api, screenshots
 
     el(browser, "nav-jobs").click()
     wait_for(lambda: el(browser, "view-jobs").is_displayed(), 5, "the jobs view")
+    # both method choices are the server's methods (GET /api/reconstructions/methods), and
+    # the reconstruct form starts from each method's own defaults, showing its options only
+    listed = api.get("/api/reconstructions/methods").json()
+    names = [m["name"] for m in listed]
+    for select in ("upload-method", "recon-method"):
+        wait_for(lambda s=select: browser.execute_script(
+            "return [...document.getElementById(arguments[0]).options].map(o => o.value)", s) == names,
+            15, f"the {select} choices")
+    for m in listed:
+        opts = {o["name"]: o["default"] for o in m["options"]}
+        form = browser.execute_script(
+            "const s = document.getElementById('recon-method'); s.value = arguments[0];"
+            "s.dispatchEvent(new Event('change'));"
+            "return [document.getElementById('recon-positivity').checked].concat("
+            "['recon-positivity-label', 'recon-lambda-label', 'recon-iterations-label']"
+            ".map(i => !document.getElementById(i).hidden))", m["name"])
+        assert form == [bool(opts.get("positivity")), "positivity" in opts, "lam" in opts, "iterations" in opts], m
     browser.find_element("css selector", "#upload-panel summary").click()
     el(browser, "upload-file").send_keys(str(path))
     Select(el(browser, "upload-format")).select_by_value("npy")
