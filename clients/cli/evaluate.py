@@ -56,7 +56,7 @@ def run(args) -> int:
     from service.experiments import run_experiment
 
     if args.dataset is not None and args.data is None:
-        raise SystemExit("fpscan evaluate: --dataset names a dataset inside --data FILE; give --data")
+        raise ValueError("--dataset names a dataset inside --data FILE; give --data")
     names = NAMES if args.experiment == "all" else (args.experiment,)
     data = None
     if args.data is not None:

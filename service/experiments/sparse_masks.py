@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -37,7 +38,7 @@ from service.metrics import (
 from service.pipeline import reconstruct
 from service.storage.datasets import PointDataset
 
-from .datasets import DenseDataset
+from .datasets import DenseDataset, add_noise
 from .phantoms import yarn_phantom
 from .result import ExperimentResult, setup_matplotlib
 
@@ -50,7 +51,7 @@ EVAL_DIAMETER_RATIO = 7.2 / 13.56
 DISC_RATIO = 8.4 / 13.56
 
 
-def simulate_yarn(*, small: bool) -> DenseDataset:
+def simulate_yarn(*, small: bool, snr_db: float | None = None, seed: int = 0) -> DenseDataset:
     """Built-in dense dataset: yarn phantom, 226 × 226 (small: 64 × 64) lattice of
     60 µm, dt = 8 ns, exact planar forward model."""
     from service.recon import forward_grid
@@ -60,8 +61,9 @@ def simulate_yarn(*, small: bool) -> DenseDataset:
     n_z = int(np.ceil((0.53 * half + 0.3 * half) / d))
     p0, _ = yarn_phantom(n_z, n, d)
     n_t = round(0.6 * n * d / (c * dt))
-    data = forward_grid(p0, d, d, dt, n_t, c)
-    return DenseDataset(data=data, dx=d, dt=dt, c=c, dy=d, p0=p0, dz=d, source="yarn phantom (built in)")
+    data = add_noise(forward_grid(p0, d, d, dt, n_t, c), snr_db, seed)
+    return DenseDataset(data=data, dx=d, dt=dt, c=c, dy=d, p0=p0, dz=d, source="yarn phantom (built in)",
+                        meta={"snr_db": snr_db, "seed": seed})
 
 
 def run(
@@ -73,6 +75,9 @@ def run(
     n_side: int | None = None,
     poi_depth: float | None = None,
     n_diameters: int = 40,
+    snr_db: float | None = None,
+    model_based: bool = True,
+    tv_iterations: int | None = None,
 ) -> ExperimentResult:
     """Run the §7 comparison.
 
@@ -87,13 +92,20 @@ def run(
         the largest interval fits.
     poi_depth : depth of the point of interest in m; default 0.2655 × aperture side.
     n_diameters : samples of the CC/sharpness vs diameter curves.
+    snr_db : white noise that many dB below the built-in phantom's signal power (seeded;
+        None: clean, the paper's setting). Ignored for ``data``.
+    model_based : also reconstruct the equi-steradian points with ``tv`` (model-based:
+        TV + positivity, automatic λ; ``tv_iterations`` caps its iterations): row
+        ``equi-steradian-tv``.
 
     Returns
     -------
     ExperimentResult; table rows: ``arrangement``, ``interval``, ``n_points``,
     ``fraction``, ``cc_eval_diameter`` (CC at 0.531 × aperture, 4 % threshold),
     ``cc_disc`` (all 4 %-pixels in the 0.62 × aperture disc), ``sharpness_eval_diameter``,
-    ``closer_to_1_pct`` vs each equispaced grid... and ``time_s``.
+    ``closer_to_1_pct`` vs each equispaced grid..., ``cc_vs_phantom`` (the xy-MIP's CC
+    with the true p0's xy-MIP in the 4 % disc ROI; NaN without a p0 on the lattice) and
+    ``time_s``.
 
     Raises
     ------
@@ -102,7 +114,7 @@ def run(
     from service.plans import Lattice, equisteradian_mask, subgrid_mask
 
     if data is None:
-        data = simulate_yarn(small=small)
+        data = simulate_yarn(small=small, snr_db=snr_db)
     if data.ndim != 3:
         raise ValueError(f"{NAME} needs 3-D planar data (n_t, n_y, n_x); got shape {data.data.shape}")
     g = data.data
@@ -143,24 +155,33 @@ def run(
     lattice = Lattice(n, n, d)
     es = equisteradian_mask(lattice, poi_depth, round(fraction * n * n))
     idx = np.asarray(es.indices)
-    arrangements.append(("equi-steradian", np.nan, idx[:, 0], idx[:, 1], np.asarray(es.positions, float),
-                         np.asarray(es.weights, float)))
+    es_run = (idx[:, 0], idx[:, 1], np.asarray(es.positions, float), np.asarray(es.weights, float))
+    arrangements.append(("equi-steradian", np.nan, *es_run, "nedner"))
     for s in intervals:
         sub = subgrid_mask(lattice, int(s), n_side)
         idx = np.asarray(sub.indices)
         arrangements.append(("equispaced", int(s), idx[:, 0], idx[:, 1], np.asarray(sub.positions, float),
-                             np.asarray(sub.weights, float)))
+                             np.asarray(sub.weights, float), "nedner"))
+    if model_based:  # the same equi-steradian A-lines, model-based (TV + positivity, automatic λ)
+        arrangements.append(("equi-steradian-tv", np.nan, *es_run, "tv"))
+    truth = None
+    if data.p0 is not None and data.p0.ndim == 3 and data.p0.shape[1:] == (n, n):
+        truth = mip(data.p0, "xy")  # the xy-MIP does not depend on the depth sampling
+
+    def vs_truth(m):
+        return correlation_coefficient(m, truth, disc_roi) if truth is not None else np.nan
 
     rows, mips_, curves = [], {"full": ref}, {"diameter_m": diameters, "pixels": counts}
     rows.append({"arrangement": "full", "interval": 1, "n_points": n * n, "fraction": 1.0,
                  "cc_eval_diameter": 1.0, "cc_disc": 1.0,
                  "sharpness_eval_diameter": float(sharpness_vs_diameter(ref / ref.max(), ref, [eval_d], axes=axes)[0]),
-                 "time_s": t_full})
+                 "cc_vs_phantom": vs_truth(ref), "time_s": t_full})
     masks = {}
-    for name, s, ix, iy, pos, w in arrangements:
+    for name, s, ix, iy, pos, w, method in arrangements:
         t0 = time.perf_counter()
+        opts: dict[str, Any] = {"iterations": tv_iterations} if method == "tv" else {}
         img = reconstruct(PointDataset(alines=g[:, iy, ix].T, positions=pos, weights=w, dt=dt, c=c, grid=(x, x)),
-                          "nedner", n_z=n_z, dtype="float64").p0
+                          method, n_z=n_z, dtype="float64", **opts).p0
         elapsed = time.perf_counter() - t0
         m = mip(img, "xy")
         m = m / m.max()
@@ -175,28 +196,45 @@ def run(
             "cc_eval_diameter": float(cc_vs_diameter(m, ref, [eval_d], axes=axes, threshold=0.04)[0]),
             "cc_disc": correlation_coefficient(m, ref, disc_roi),
             "sharpness_eval_diameter": float(sharpness_vs_diameter(m, ref, [eval_d], axes=axes, threshold=0.04)[0]),
-            "time_s": elapsed,
+            "cc_vs_phantom": vs_truth(m), "time_s": elapsed,
         })
     es_row = rows[1]
     band = (diameters >= 2 / 13.56 * side) & (diameters <= 8 / 13.56 * side)
     summary = {"cc_equisteradian": es_row["cc_eval_diameter"], "eval_diameter_m": eval_d,
                "weight_ratio_equisteradian": float(arrangements[0][5].max() / arrangements[0][5].min()),
                "paper": PAPER}
-    for r in rows[2:]:
-        key = f"interval {r['interval']}"
-        summary[f"cc_{key.replace(' ', '_')}"] = r["cc_eval_diameter"]
-        summary[f"closer_to_1_pct_vs_{key.replace(' ', '_')}"] = 100 * (1 - (1 - es_row["cc_eval_diameter"]) / (1 - r["cc_eval_diameter"]))
-        a = 1 - np.asarray(curves["cc_vs_diameter[equi-steradian]"])[band]
-        b = 1 - np.asarray(curves[f"cc_vs_diameter[{key}]"])[band]
-        ok = np.isfinite(a) & np.isfinite(b) & (b > 0)
-        summary[f"mean_closer_to_1_pct_2_to_8mm_scaled_vs_{key.replace(' ', '_')}"] = (
-            float(100 * np.mean(1 - a[ok] / b[ok])) if ok.any() else np.nan)
+    if model_based:
+        summary["cc_equisteradian_tv"] = rows[-1]["cc_eval_diameter"]
+    summary["cc_vs_phantom"] = {r["arrangement"] if r["arrangement"] != "equispaced" else f"interval_{r['interval']}":
+                                r["cc_vs_phantom"] for r in rows}
+    summary.update(_versus_grids(es_row, rows, curves, band))
     params = {"source": data.source, "n_lattice": n, "pitch_m": d, "n_t": n_t, "dt_s": dt, "c_m_per_s": c,
               "n_z": n_z, "poi_depth_m": poi_depth, "fraction_requested": fraction, "n_side": n_side,
               "intervals": list(intervals), "threshold": 0.04, "disc_diameter_m": disc_d,
-              "eval_diameter_m": eval_d, "small": small, "reference": "xy-MIP of NER from every lattice point"}
+              "eval_diameter_m": eval_d, "small": small, "reference": "xy-MIP of NER from every lattice point",
+              "snr_db": data.meta.get("snr_db") if data.source == "yarn phantom (built in)" else None,
+              "tv_iterations": tv_iterations if model_based else None}
     return ExperimentResult(NAME, params, rows, summary, curves=curves,
                             images={"mips": mips_, "masks": masks, "x": x, "disc_d": disc_d, "eval_d": eval_d})
+
+
+def _versus_grids(es_row: dict, rows: list[dict], curves: dict, band: np.ndarray) -> dict:
+    """The equi-steradian mask against each equispaced grid: its CC, how much closer to 1
+    the equi-steradian CC is at the evaluation diameter and on average within ``band``
+    (the paper's 2..8 mm, scaled) of the CC-vs-diameter curves."""
+    out: dict = {}
+    for r in rows:
+        if r["arrangement"] != "equispaced":
+            continue
+        key = f"interval {r['interval']}"
+        out[f"cc_{key.replace(' ', '_')}"] = r["cc_eval_diameter"]
+        out[f"closer_to_1_pct_vs_{key.replace(' ', '_')}"] = 100 * (1 - (1 - es_row["cc_eval_diameter"]) / (1 - r["cc_eval_diameter"]))
+        a = 1 - np.asarray(curves["cc_vs_diameter[equi-steradian]"])[band]
+        b = 1 - np.asarray(curves[f"cc_vs_diameter[{key}]"])[band]
+        ok = np.isfinite(a) & np.isfinite(b) & (b > 0)
+        out[f"mean_closer_to_1_pct_2_to_8mm_scaled_vs_{key.replace(' ', '_')}"] = (
+            float(100 * np.mean(1 - a[ok] / b[ok])) if ok.any() else np.nan)
+    return out
 
 
 def plot(result: ExperimentResult, out_dir) -> list[Path]:
@@ -210,8 +248,8 @@ def plot(result: ExperimentResult, out_dir) -> list[Path]:
     fig, ax = plt.subplots(1, 3, figsize=(15, 4))
     dmm = np.asarray(cur["diameter_m"]) * 1e3
     for k in keys:
-        ls = "-" if k == "equi-steradian" else "--"
-        lw = 2 if k == "equi-steradian" else 1
+        ls = {"equi-steradian": "-", "equi-steradian-tv": "-."}.get(k, "--")
+        lw = 2 if k.startswith("equi-steradian") else 1
         ax[0].semilogx(cur["pixels"], cur[f"cc_vs_pixels[{k}]"], ls, lw=lw, label=k)
         ax[1].plot(dmm, cur[f"cc_vs_diameter[{k}]"], ls, lw=lw, label=k)
         ax[2].plot(dmm, cur[f"sharpness_vs_diameter[{k}]"], ls, lw=lw, label=k)

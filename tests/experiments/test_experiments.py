@@ -79,12 +79,15 @@ def test_noise_is_30_db_below_the_signal():
 
 # ------------------------------------------------------------------ sparse-masks-3d
 def test_sparse_masks_small_structure(tmp_path):
-    result, paths = run_experiment("sparse-masks-3d", tmp_path, small=True, n_diameters=12)
+    result, paths = run_experiment("sparse-masks-3d", tmp_path, small=True, n_diameters=12, tv_iterations=3)
     assert {p.name for p in paths} == {"sparse-masks-3d.json", "sparse-masks-3d.csv", "sparse-masks-3d_curves.png",
                                        "sparse-masks-3d_mips.png"}
     rows = result.table
-    assert [r["arrangement"] for r in rows] == ["full", "equi-steradian"] + ["equispaced"] * 4
-    assert [r["interval"] for r in rows[2:]] == [2, 3, 4, 5]
+    assert [r["arrangement"] for r in rows] == ["full", "equi-steradian"] + ["equispaced"] * 4 + ["equi-steradian-tv"]
+    assert [r["interval"] for r in rows[2:6]] == [2, 3, 4, 5]
+    assert rows[-1]["n_points"] == rows[1]["n_points"]  # the same A-lines, model-based
+    # the built-in phantom's true p0 is known: every row has its CC with it
+    assert all(np.isfinite(r["cc_vs_phantom"]) and r["cc_vs_phantom"] > 0.3 for r in rows), rows
     n = result.params["n_lattice"]
     # ~3 % of the lattice for every mask (paper: 3.18 % and 3.29 %)
     for r in rows[1:]:
@@ -106,7 +109,7 @@ def test_3d_more_sensors_at_the_same_spacing_never_lower_cc():
     data = sparse_masks.simulate_yarn(small=True)
     ccs = []
     for n_side in (6, 14, 22, 30):
-        res = sparse_masks.run(data, intervals=(2,), n_side=n_side, n_diameters=4)
+        res = sparse_masks.run(data, intervals=(2,), n_side=n_side, n_diameters=4, model_based=False)
         row = res.table[-1]
         assert row["n_points"] == n_side**2
         ccs.append(row["cc_eval_diameter"])
@@ -165,7 +168,7 @@ def test_nufft_vs_interpolation_on_kwave2d(shared_data):
 def test_sparse_masks_on_kwave3d(shared_data):
     data = load_dense(shared_data / "kwave3d_balls_yarn.h5")
     assert data.ndim == 3 and data.data.shape == (751, 96, 96) and data.dx == pytest.approx(60e-6)
-    res = sparse_masks.run(data.crop(n_t=300, lateral=48), intervals=(2, 3), n_diameters=6)
+    res = sparse_masks.run(data.crop(n_t=300, lateral=48), intervals=(2, 3), n_diameters=6, model_based=False)
     assert [r["arrangement"] for r in res.table] == ["full", "equi-steradian", "equispaced", "equispaced"]
     assert all(-1 <= r["cc_eval_diameter"] <= 1 for r in res.table)
     with pytest.raises(ValueError, match="3-D"):
@@ -186,6 +189,12 @@ def test_fpscan_evaluate_cli(tmp_path, capsys, shared_data):
     assert "2-D" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         fpscan(["evaluate", "no-such-experiment"])
+    # --dataset chooses the sensor data inside --data; a missing one is named
+    assert fpscan(["evaluate", "limited-view-2d", "--dataset", "sensor_data/noisy30dB"]) == 1
+    assert "--data" in capsys.readouterr().err
+    assert fpscan(["evaluate", "limited-view-2d", "--data", str(shared_data / "kwave2d_points.h5"),
+                   "--dataset", "sensor_data/noisy30dB", "--out", str(out)]) == 1
+    assert "noisy30dB" in capsys.readouterr().err
 
 
 # ------------------------------------------------------------------ dense datasets
