@@ -23,15 +23,18 @@ HELP = "reconstruct p0 (NEDNER/NER/...) from a scan file or dataset, locally or 
 
 def add_arguments(parser):
     """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser)."""
-    from service.pipeline import DEFAULT_DTYPE, DTYPES, KWAVE_INTERPS, METHODS
-    from service.storage.datasets import FORMATS
+    try:
+        from service.pipeline import DEFAULT_DTYPE, DTYPES, KWAVE_INTERPS, METHODS
+        from service.storage.datasets import FORMATS
+    except ImportError:  # client-only install: choices are checked by the server
+        DEFAULT_DTYPE, DTYPES, KWAVE_INTERPS, METHODS, FORMATS = "float32", None, None, {}, None
 
     parser.add_argument("input", nargs="?", help="scan file (HDF5), IPASC file, k-Wave HDF5 or .npy array")
     parser.add_argument("--format", choices=FORMATS, default=None,
                         help="input format (default: from the file: .npy, IPASC, k-Wave HDF5, fpscan scan "
                              "or fpscan dataset)")
     methods = "; ".join(f"{m.name}: {m.title}" for m in METHODS.values())
-    parser.add_argument("--method", choices=list(METHODS), default=None,
+    parser.add_argument("--method", choices=list(METHODS) or None, default=None,
                         help=f"reconstruction method (default: nedner for scans/IPASC, ner for grids). {methods}. "
                              "Grid methods need every lattice point.")
     parser.add_argument("--out", default=None, metavar="DIR",
