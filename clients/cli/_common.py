@@ -24,6 +24,18 @@ def add_server_options(parser, *, required: bool = False) -> None:
     )
 
 
+def default_dtype() -> str:
+    """The reconstruction precision used when none is asked for:
+    ``service.pipeline.DEFAULT_DTYPE`` (the same for ``fpscan recon``, the server and the
+    web page); on a client-only install (no ``service`` package) ``"float32"``, the value
+    the server states in its ``ReconParams`` schema."""
+    try:
+        from service.pipeline import DEFAULT_DTYPE
+    except ImportError:
+        return "float32"
+    return DEFAULT_DTYPE
+
+
 def add_progress_option(parser) -> None:
     parser.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
 

@@ -62,6 +62,10 @@ def add_arguments(parser):
                         help="skip the dense full-lattice reference scan")
     parser.add_argument("--seed", type=int, default=1, help="simulator noise seed (default %(default)s)")
     parser.add_argument("--quiet", "-q", action="store_true", help="no progress bars")
+    from clients.cli._common import default_dtype
+
+    parser.epilog = (f"Precision: reconstructions are {default_dtype()}, the default of the server and of "
+                     "fpscan recon (which takes --dtype float64).")
 
 
 def run(args) -> int:
@@ -251,7 +255,7 @@ class Demo:
             # reconstruct in the executor while the next scan runs
             recon_jobs[recon_name] = (method, api.start_reconstruction(
                 scan_job_id=job_id, method=method,
-                params={"n_z": min(DEFAULTS["n_z"], a.n_t), "dtype": "float32"}))
+                params={"n_z": min(DEFAULTS["n_z"], a.n_t)}))  # the default precision (float32)
         self.report["scans"] = scans
 
         recons: dict = {}

@@ -27,7 +27,9 @@ def add_arguments(parser):
         from service.pipeline import DEFAULT_DTYPE, DTYPES, KWAVE_INTERPS, METHODS
         from service.storage.datasets import FORMATS
     except ImportError:  # client-only install: choices are checked by the server
-        DEFAULT_DTYPE, DTYPES, KWAVE_INTERPS, METHODS, FORMATS = "float32", None, None, {}, None
+        from clients.cli._common import default_dtype
+
+        DEFAULT_DTYPE, DTYPES, KWAVE_INTERPS, METHODS, FORMATS = default_dtype(), None, None, {}, None
 
     parser.add_argument("input", nargs="?", help="scan file (HDF5), IPASC file, k-Wave HDF5 or .npy array")
     parser.add_argument("--format", choices=FORMATS, default=None,

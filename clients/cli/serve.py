@@ -21,6 +21,10 @@ def add_arguments(parser):
     parser.add_argument("--settings", default=None, help="settings file (JSON or TOML)")
     parser.add_argument("--no-web", action="store_true", help="do not serve the web page")
     parser.add_argument("--log-level", default=None, help="uvicorn/app log level (default info)")
+    from clients.cli._common import default_dtype
+
+    parser.epilog = (f"Precision: reconstructions are {default_dtype()} unless a request's params.dtype asks for "
+                     "float64, the same default as fpscan recon locally and the web page.")
 
 
 def parse_devices(items: list[str]) -> dict[str, str]:
