@@ -83,7 +83,10 @@ def test_tv_on_32_equiangular_sensors_beats_nedner_and_full_data(tree_2d):
     assert tv.params["lam_auto"] and tv.params["lam"] > 0 and tv.params["iterations"] <= 25
 
 
-def test_tv_3d_sparse_equisteradian_mask_reaches_full_data():
+@pytest.fixture(scope="module")
+def balls_3d():
+    """Three balls on a 40 x 40 lattice (24 rows), noisy data on the whole lattice, the
+    ~3 % equi-steradian mask's A-lines, and the full-data NER's CC with the true p0."""
     n, dx = 40, 2 * DZ
     n_z, n_t = 24, 56
     x = (np.arange(n) - (n - 1) / 2) * dx
@@ -95,14 +98,23 @@ def test_tv_3d_sparse_equisteradian_mask_reaches_full_data():
     roi = np.ones(p0.shape, bool)
     full = correlation_coefficient(reconstruct_grid(g, dx, DT, C, n_z=n_z).p0, p0, roi)
     mask = equisteradian_mask(Lattice(n, n, dx), 12 * DZ, 48)
-    frac = mask.indices.shape[0] / n**2
-    assert 0.02 <= frac <= 0.04
     ix, iy = np.asarray(mask.indices).T
-    pos = np.asarray(mask.positions, float)[:, :2]
-    tv = reconstruct_tv(g[:, iy, ix].T, DT, C, positions=pos, weights=np.asarray(mask.weights, float),
-                        grid=(x, x), n_z=n_z, max_iter=25, dtype=np.float32)
+    return dict(p0=p0, roi=roi, full=full, x=x, n_z=n_z, alines=g[:, iy, ix].T, frac=len(ix) / n**2,
+                pos=np.asarray(mask.positions, float)[:, :2], w=np.asarray(mask.weights, float))
+
+
+def _tv_3d(b, **kw):
+    return reconstruct_tv(b["alines"], DT, C, positions=b["pos"], weights=b["w"], grid=(b["x"], b["x"]),
+                          n_z=b["n_z"], max_iter=25, dtype=np.float32, **kw)
+
+
+def test_tv_3d_sparse_equisteradian_mask_reaches_full_data(balls_3d):
+    b = balls_3d
+    assert 0.02 <= b["frac"] <= 0.04
+    tv = _tv_3d(b)
     assert tv.p0.dtype == np.float32
-    assert correlation_coefficient(tv.p0, p0, roi) >= full
+    assert correlation_coefficient(tv.p0, b["p0"], b["roi"]) >= b["full"]
+    b["auto"] = tv  # reused by the λ sweep
 
 
 @pytest.mark.slow
@@ -112,6 +124,19 @@ def test_automatic_lambda_is_within_a_factor_3_of_the_best_of_a_sweep(tree_2d):
     lam = auto.params["lam"]
     factors = [1 / 9, 1 / 3, 1.0, 3.0, 9.0]
     ccs = [correlation_coefficient(_tv_2d(t, lam=f * lam).p0, t["p0"], t["roi"]) for f in factors]
+    best = factors[int(np.argmax(ccs))]
+    assert 1 / 3 <= best <= 3, dict(zip(factors, ccs))
+
+
+@pytest.mark.slow
+def test_automatic_lambda_is_within_a_factor_3_of_the_best_of_a_sweep_3d(balls_3d):
+    b = balls_3d
+    auto = b.get("auto") or _tv_3d(b)
+    lam = auto.params["lam"]
+    assert auto.params["lam_auto"] and lam > 0
+    factors = [1 / 9, 1 / 3, 1.0, 3.0, 9.0]
+    ccs = [correlation_coefficient((auto if f == 1.0 else _tv_3d(b, lam=f * lam)).p0, b["p0"], b["roi"])
+           for f in factors]
     best = factors[int(np.argmax(ccs))]
     assert 1 / 3 <= best <= 3, dict(zip(factors, ccs))
 
