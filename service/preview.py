@@ -67,9 +67,9 @@ def render_preview(scan_path: str, *, wavelength_index: int = 0, eps: float = 1e
     """
     from dataclasses import replace
 
-    from service.jobs.images import mip_pngs
     from service.pipeline import reconstruct
     from service.storage.datasets import load_scan
+    from service.storage.render import render_mips
 
     t0 = time.perf_counter()
     ds = load_scan(scan_path, allow_empty=True, wavelength_index=wavelength_index)
@@ -84,7 +84,9 @@ def render_preview(scan_path: str, *, wavelength_index: int = 0, eps: float = 1e
     grid = tuple(preview_grid(np.asarray(g), max_lateral) for g in ds.grid)
     preview = replace(ds, alines=alines, dt=ds.dt * k, grid=grid, weights=None, indices=None, lattice=None)
     rec = reconstruct(preview, "nedner", eps=eps, dtype="float32")
-    pngs = mip_pngs(rec.p0)
+    # the same pictures as a result's MIPs (orientation, mm axes, aspect, colour bar)
+    pngs = render_mips(rec.p0, rec.z, rec.x, getattr(rec, "y", None),
+                       title_prefix=f"live preview, {n} points: ")
     return {"points_used": n, "pngs": pngs, "seconds": time.perf_counter() - t0}
 
 

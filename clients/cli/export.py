@@ -1,5 +1,7 @@
 """`fpscan export`: IPASC export of a scan file, locally (``service.storage.ipasc``) or from a
-server (``GET /api/scans/{job_id}/ipasc``).
+server (``GET /api/scans/{job_id}/ipasc``); OME-TIFF export of a reconstruction result
+(``service.storage.results.export_ome_tiff``, or ``GET
+/api/reconstructions/{job_id}/volume.ome.tif``) for ImageJ/Fiji and napari.
 
 The IPASC file is HDF5 written with plain h5py: ``/binary_time_series_data``
 ``[detectors, samples, wavelengths, measurements]``, ``/meta_data/...`` and
@@ -10,15 +12,18 @@ from __future__ import annotations
 from clients.cli._common import add_server_options, client_errors
 
 COMMAND = "export"
-HELP = "export a scan file to the IPASC HDF5 format, locally or from a server's scan job"
+HELP = ("export a scan file to IPASC HDF5, or a reconstruction result to OME-TIFF (physical voxel "
+        "sizes), locally or from a server's job")
 
 
 def add_arguments(parser):
     """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser)."""
-    parser.add_argument("scan", nargs="?", help="scan file (HDF5) to export locally")
-    parser.add_argument("--job", default=None, metavar="JOB_ID", help="with --server: the scan job to export")
+    parser.add_argument("scan", nargs="?", help="scan file (→ IPASC) or result volume.h5 (→ OME-TIFF) "
+                                                "to export locally")
+    parser.add_argument("--job", default=None, metavar="JOB_ID",
+                        help="with --server: the scan job (→ IPASC) or reconstruction job (→ OME-TIFF)")
     parser.add_argument("--out", "-o", default=None,
-                        help="output IPASC file (default: <scan>_ipasc.h5 or <job>_ipasc.h5)")
+                        help="output file (default: <scan>_ipasc.h5 / <job>_ipasc.h5, or <name>.ome.tif)")
     add_server_options(parser)
 
 
@@ -27,6 +32,20 @@ def _local_export():
     from service.storage.ipasc import export_scan
 
     return export_scan
+
+
+def _is_result(path) -> bool:
+    """True for a reconstruction result file (``fpscan-result/1``)."""
+    import h5py
+
+    from service.storage.results import FORMAT
+
+    try:
+        with h5py.File(path, "r") as f:
+            fmt = f.attrs.get("format")
+    except OSError:
+        return False
+    return (fmt.decode() if isinstance(fmt, bytes) else fmt) == FORMAT
 
 
 @client_errors
@@ -40,10 +59,15 @@ def run(args) -> int:
         if args.scan:
             raise ValueError("give either a local scan file or --server with --job, not both")
         from clients.cli._common import make_client
+        from clients.http import field_of
 
-        out = Path(args.out or f"{args.job}_ipasc.h5")
         with make_client(args, timeout=300) as api:
-            api.download_ipasc(args.job, out)
+            if field_of(api.get_job(args.job), "kind") == "recon":
+                out = Path(args.out or f"{args.job}.ome.tif")
+                api.download_ome_tiff(args.job, out)
+            else:
+                out = Path(args.out or f"{args.job}_ipasc.h5")
+                api.download_ipasc(args.job, out)
         print(out)
         return 0
     if args.job:
@@ -53,6 +77,15 @@ def run(args) -> int:
     scan = Path(args.scan)
     if not scan.is_file():
         raise ValueError(f"no such file: {scan}")
+    if _is_result(scan):
+        from service.storage.results import export_ome_tiff
+
+        out = Path(args.out or scan.with_name(f"{scan.stem}.ome.tif"))
+        if out.resolve() == scan.resolve():
+            raise ValueError("the output would overwrite the result file")
+        export_ome_tiff(scan, out)
+        print(out)
+        return 0
     out = Path(args.out or scan.with_name(f"{scan.stem}_ipasc.h5"))
     if out.resolve() == scan.resolve():
         raise ValueError("the output would overwrite the scan file")

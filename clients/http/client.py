@@ -344,6 +344,11 @@ class _Endpoints:
         """``GET /api/reconstructions/{job_id}/volume.h5`` saved to ``dest``."""
         return (yield _Download(_Req("GET", f"/api/reconstructions/{job_id}/volume.h5"), Path(dest)))
 
+    def download_ome_tiff(self, job_id: str, dest: str | os.PathLike):
+        """``GET /api/reconstructions/{job_id}/volume.ome.tif`` (OME-TIFF, voxel sizes in
+        µm) saved to ``dest``."""
+        return (yield _Download(_Req("GET", f"/api/reconstructions/{job_id}/volume.ome.tif"), Path(dest)))
+
     def download_mip(self, job_id: str, plane: str, dest: str | os.PathLike):
         """``GET /api/reconstructions/{job_id}/mip/{plane}.png`` saved to ``dest``."""
         _check_plane(plane)

@@ -12,7 +12,6 @@ from fastapi.responses import FileResponse
 from service.api.context import Context, ctx, read_access, reason, require_token
 from service.api.jobs import get_job_or_404, job_view
 from service.api.models import ID_PATTERN, Job, MethodInfo, MethodOption, Plane, ReconRequest
-from service.jobs.images import png_bytes
 from service.jobs.queue import AdmissionError, admit, estimate_memory
 from service.jobs.store import IdempotencyConflict
 from service.pipeline import METHODS, OPTIONS, method_options
@@ -126,6 +125,25 @@ def volume(job_id: str = JobId, c: Context = Depends(ctx)):
     return FileResponse(path, media_type="application/x-hdf5", filename=f"{job_id}.h5")
 
 
+@router.get("/{job_id}/volume.ome.tif", dependencies=[Depends(read_access)], response_class=FileResponse,
+            responses={200: {"content": {"image/tiff": {}}, "description": "p0 volume (OME-TIFF)"},
+                       206: {"description": "partial content (HTTP Range)"}})
+def volume_ome_tiff(job_id: str = JobId, c: Context = Depends(ctx)):
+    """The result volume as OME-TIFF (float32, axes ``ZYX`` -- 2-D: ``YX`` with depth
+    as Y -- physical voxel sizes in µm; ``service.storage.results.export_ome_tiff``), for
+    ImageJ/Fiji and napari. Made on first request, then served from the result folder."""
+    from service.storage.results import export_ome_tiff
+
+    folder = _result_dir(c, job_id)
+    path = folder / "volume.ome.tif"
+    if not path.exists():
+        try:
+            export_ome_tiff(folder / "volume.h5", path)
+        except ValueError as exc:
+            raise HTTPException(409, str(exc)) from None
+    return FileResponse(path, media_type="image/tiff", filename=f"{job_id}.ome.tif")
+
+
 @router.get("/{job_id}/mip/{plane}.png", dependencies=[Depends(read_access)], response_class=Response,
             responses={200: {"content": {"image/png": {}}, "description": "MIP"}})
 def mip_png(plane: Plane, job_id: str = JobId, c: Context = Depends(ctx)):
@@ -140,15 +158,13 @@ def mip_png(plane: Plane, job_id: str = JobId, c: Context = Depends(ctx)):
             responses={200: {"content": {"image/png": {}}, "description": "depth slice z = index·dz"}})
 def slice_png(job_id: str = JobId, index: int = Query(0, ge=0, le=1_000_000, description="depth index"),
               c: Context = Depends(ctx)):
-    """The lateral slice at depth index ``index`` of a 3-D result (2-D: the image row)."""
-    import h5py
+    """The lateral slice at depth index ``index`` of a 3-D result (2-D: the image row),
+    drawn like every picture (``service.storage.render``): axes in mm, y up, the depth
+    in mm in the title, a colour bar in p0 units."""
+    from service.storage.render import render_result_slice
 
-    path = _result_dir(c, job_id) / "volume.h5"
-    with h5py.File(path, "r") as f:
-        ds = f["p0"]
-        if index >= ds.shape[0]:
-            raise HTTPException(422, f"index must be < {ds.shape[0]} (depth samples)")
-        img = ds[index]
-    if img.ndim == 1:
-        img = img[None, :]
-    return Response(png_bytes(img), media_type="image/png")
+    try:
+        png = render_result_slice(_result_dir(c, job_id) / "volume.h5", index)
+    except ValueError as exc:
+        raise HTTPException(422, str(exc)) from None
+    return Response(png, media_type="image/png")

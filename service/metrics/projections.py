@@ -1,7 +1,9 @@
-"""Maximum-intensity projections (MIPs) of a reconstructed volume.
+"""Maximum-intensity projections (MIPs) of a reconstructed volume: the one ``mip`` of
+fpscan (the pictures of ``service.storage.render`` draw it too).
 
 Volumes are ``(n_z, n_y, n_x)`` (DESIGN §3): the xy-MIP projects along z (axis 0),
-the xz-MIP along y (axis 1), the yz-MIP along x (axis 2).
+the xz-MIP along y (axis 1), the yz-MIP along x (axis 2). A 2-D image ``(n_z, n_x)`` has
+only the xz plane: the image itself.
 """
 from __future__ import annotations
 
@@ -16,7 +18,8 @@ def mip(volume: np.ndarray, plane: str = "xy", *, absolute: bool = False) -> np.
 
     Parameters
     ----------
-    volume : ndarray, shape ``(n_z, n_y, n_x)``.
+    volume : ndarray, shape ``(n_z, n_y, n_x)``, or a 2-D image ``(n_z, n_x)`` (plane
+        ``"xz"`` only: returned as it is).
     plane : {"xy", "xz", "yz"}
         ``"xy"`` -> shape ``(n_y, n_x)`` (max over z); ``"xz"`` -> ``(n_z, n_x)`` (max over
         y); ``"yz"`` -> ``(n_z, n_y)`` (max over x).
@@ -26,17 +29,20 @@ def mip(volume: np.ndarray, plane: str = "xy", *, absolute: bool = False) -> np.
     Raises
     ------
     ValueError
-        Not 3-D, empty, an unknown plane, or NaN in the volume.
+        Not 2-D/3-D, empty, an unknown plane (or not ``"xz"`` for a 2-D image), or NaN in
+        the volume.
     """
     volume = np.asarray(volume)
-    if volume.ndim != 3 or volume.size == 0:
-        raise ValueError(f"a MIP needs a non-empty (n_z, n_y, n_x) volume, got shape {volume.shape}")
     if plane not in MIP_AXES:
         raise ValueError(f"unknown MIP plane {plane!r}; choose one of {sorted(MIP_AXES)}")
+    if volume.ndim not in (2, 3) or volume.size == 0:
+        raise ValueError(f"a MIP needs a non-empty (n_z, n_y, n_x) volume, got shape {volume.shape}")
+    if volume.ndim == 2 and plane != "xz":
+        raise ValueError(f"a 2-D volume (n_z, n_x) has only the xz plane, not {plane!r}")
     if np.isnan(volume).any():
         raise ValueError("volume contains NaN")
     v = np.abs(volume) if absolute else volume
-    return v.max(axis=MIP_AXES[plane])
+    return v if v.ndim == 2 else v.max(axis=MIP_AXES[plane])
 
 
 def mips(volume: np.ndarray, *, absolute: bool = False) -> dict[str, np.ndarray]:

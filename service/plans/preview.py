@@ -1,5 +1,6 @@
 """Preview PNG of a mask or plan: points on the lattice, weight as colour, the point of
-interest marked, counts and weight ratio in the caption (matplotlib, Agg backend)."""
+interest marked, counts and weight ratio in the caption; drawn by the one picture path of
+fpscan (``service.storage.render.render_points``: mm axes, equal aspect, y up)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -9,16 +10,14 @@ import numpy as np
 __all__ = ["preview_png"]
 
 
-def preview_png(mask_or_plan, path: str | Path | None = None, *, dpi: int = 100,
-                size_in: float = 6.0) -> bytes:
+def preview_png(mask_or_plan, path: str | Path | None = None) -> bytes:
     """Render a ``Mask`` or ``Plan`` as PNG bytes (also written to ``path`` if given).
 
     Axes in mm (x right, y up; a line lattice shows x only); the lattice outline is drawn,
     each point coloured by its weight (µm², or µm on a line); a ``+`` marks the point of
     interest (a plan's mask params ``poi``). The title states kind, obtained/requested
     points and the outer/inner weight ratio. Raises ValueError for other objects."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
+    from service.storage.render import render_points
 
     from .mask import Mask, weight_ratio
     from .plan import Plan
@@ -45,52 +44,12 @@ def preview_png(mask_or_plan, path: str | Path | None = None, *, dpi: int = 100,
     else:
         raise ValueError(f"preview_png needs a Mask or a Plan, got {type(mask_or_plan).__name__}")
 
-    fig = Figure(figsize=(size_in, size_in if not lat.is_line else size_in * 0.45), dpi=dpi)
-    FigureCanvasAgg(fig)
-    ax = fig.add_subplot(1, 1, 1)
-    (x_lo, x_hi), *rest = lat.bounds
-    mm = 1e3
-    if lat.is_line:
-        scale, unit = 1e6, "µm"
-        ax.plot([x_lo * mm, x_hi * mm], [0, 0], color="0.8", lw=4, zorder=0)
-        sc = ax.scatter(pos[:, 0] * mm, np.zeros(len(pos)), c=w * scale, s=18, cmap="viridis", zorder=2)
-        if poi is not None:
-            ax.plot([poi[0] * mm], [0], marker="+", color="red", ms=14, mew=2, zorder=3)
-        ax.set_yticks([])
-        ax.set_xlabel("x (mm)")
-    else:
-        scale, unit = 1e12, "µm²"
-        (y_lo, y_hi) = rest[0]
-        ax.add_patch(_rect(fig, x_lo * mm, y_lo * mm, (x_hi - x_lo) * mm, (y_hi - y_lo) * mm))
-        ms = max(0.5, min(30.0, 6e3 / max(len(pos), 1)))
-        sc = ax.scatter(pos[:, 0] * mm, pos[:, 1] * mm, c=w * scale, s=ms, marker="s", lw=0,
-                        cmap="viridis", zorder=2)
-        if poi is not None:
-            ax.plot([poi[0] * mm], [poi[1] * mm], marker="+", color="red", ms=14, mew=2, zorder=3)
-        ax.set_aspect("equal")
-        ax.set_xlim(x_lo * mm, x_hi * mm)
-        ax.set_ylim(y_lo * mm, y_hi * mm)
-        ax.set_xlabel("x (mm)")
-        ax.set_ylabel("y (mm)")
-    cb = fig.colorbar(sc, ax=ax, shrink=0.8)
-    cb.set_label(f"weight ({unit})")
-    ax.set_title(
-        f"{kind}: {obtained} of {requested} requested points on {lat.n_x}×{lat.n_y}\n"
-        f"outer/inner weight ratio {ratio:.3g}",
-        fontsize=10,
-    )
-    fig.tight_layout()
-    import io
-
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=dpi)
-    data = buf.getvalue()
+    line = lat.is_line
+    scale, unit = (1e6, "µm") if line else (1e12, "µm²")
+    title = (f"{kind}: {obtained} of {requested} requested points on {lat.n_x}×{lat.n_y}\n"
+             f"outer/inner weight ratio {ratio:.3g}")
+    data = render_points(pos[:, :1] if line else pos[:, :2], np.asarray(w) * scale, tuple(lat.bounds),
+                         title=title, colorbar_label=f"weight ({unit})", poi=poi)
     if path is not None:
         Path(path).write_bytes(data)
     return data
-
-
-def _rect(fig, x, y, w, h):
-    from matplotlib.patches import Rectangle
-
-    return Rectangle((x, y), w, h, fill=False, edgecolor="0.6", lw=1, zorder=1)

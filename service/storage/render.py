@@ -1,6 +1,18 @@
-"""PNG renderings of a reconstructed p0: maximum-intensity projections (MIPs) and depth
-slices, with axes in mm (matplotlib, Agg canvas, no pyplot state: thread-safe) or as raw
-pixels (one pixel per sample, Pillow).
+"""The ONE rendering path for every picture fpscan draws: result MIPs, the live preview
+of a running scan, depth slices and the mask preview of a plan. Axes in mm with equal
+aspect (a millimetre is as long across as down), a colour bar in p0 units (or the mask's
+weight), matplotlib on an Agg canvas (no pyplot state: thread-safe); or raw pixels (one
+pixel per sample, Pillow) in the same orientation.
+
+Orientation, the same in every picture: x to the right; in lateral pictures (xy MIP,
+depth slice, mask preview) y points **up**; in depth pictures (xz, yz) depth z points
+**down** from the sensor plane at the top. Raw-pixel PNGs follow the same rule (an xy
+picture's first PNG row is the largest y).
+
+Annotated PNGs carry their geometry as a PNG text chunk ``fpscan:axes`` (JSON:
+``left``, ``top``, ``right``, ``bottom`` pixel edges of the plotting area and
+``extent_mm`` ``[left, right, bottom, top]``: the mm at those edges as the axes are
+drawn), so a client can map a pixel to mm.
 
 Images follow DESIGN §3: ``p0`` is ``(n_z, n_y, n_x)`` (3-D) or ``(n_z, n_x)`` (2-D), row 0
 at the sensor plane z = 0, with coordinate vectors ``z``, ``y``, ``x`` in m.
@@ -24,30 +36,18 @@ projection; an image whose maximum is not above ``vmin`` renders black.
 from __future__ import annotations
 
 import io
+import json
 from typing import Any
 
 import numpy as np
 
+from service.metrics.projections import mip
+
 PLANES = ("xy", "xz", "yz")
-_AXIS = {"xy": 0, "xz": 1, "yz": 2}
+AXES_KEY = "fpscan:axes"
 
-
-def mip(p0: np.ndarray, plane: str) -> np.ndarray:
-    """The maximum-intensity projection of ``p0`` on ``plane`` (table above).
-
-    Raises ValueError for an unknown plane, a plane a 2-D image does not have, or a
-    ``p0`` that is not 2-D/3-D.
-    """
-    p0 = np.asarray(p0)
-    if plane not in PLANES:
-        raise ValueError(f"plane must be one of {', '.join(PLANES)}, not {plane!r}")
-    if p0.ndim == 2:
-        if plane != "xz":
-            raise ValueError("a 2-D image (n_z, n_x) has only the xz plane")
-        return p0
-    if p0.ndim != 3:
-        raise ValueError(f"p0 must be (n_z, n_x) or (n_z, n_y, n_x), got shape {p0.shape}")
-    return p0.max(axis=_AXIS[plane])
+__all__ = ["PLANES", "AXES_KEY", "mip", "to_uint8", "render_png", "render_mip", "render_mips",
+           "render_slice", "render_result_slice", "render_lateral", "render_points", "png_axes"]
 
 
 def _levels(img: np.ndarray, vmin: float | None, vmax: float | None) -> tuple[float, float]:
@@ -80,9 +80,11 @@ def render_png(img: np.ndarray, h: np.ndarray, v: np.ndarray, *, hlabel: str, vl
     """PNG of a 2-D array ``img`` ``(len(v), len(h))``: row i at vertical coordinate
     ``v[i]`` (m), column j at ``h[j]`` (m).
 
-    ``annotate=True``: matplotlib figure with axes in mm, labels, title and a colour bar;
-    ``depth_down`` puts ``v[0]`` at the top (depth axes), else at the bottom.
-    ``annotate=False``: exactly one pixel per sample, row 0 at the top, grey levels of
+    ``annotate=True``: matplotlib figure with axes in mm (equal aspect), labels, title
+    and a colour bar labelled ``colorbar_label``; ``depth_down`` puts ``v[0]`` at the top
+    (depth axes), else at the bottom (y up).
+    ``annotate=False``: exactly one pixel per sample in the same orientation (the first
+    PNG row is ``v[0]`` when ``depth_down``, else ``v[-1]``), grey levels of
     :func:`to_uint8` (``cmap`` applied if not ``"gray"``). ``bad_colour`` (a matplotlib
     colour, annotated figures only): NaN pixels (e.g. masked) drawn in it instead of at
     ``vmin``. Raises ValueError on shape mismatch or an unknown colormap.
@@ -98,6 +100,8 @@ def render_png(img: np.ndarray, h: np.ndarray, v: np.ndarray, *, hlabel: str, vl
     if not annotate:
         from PIL import Image as PILImage
         grey = to_uint8(img, vmin, vmax)
+        if not depth_down:  # y up: the largest v in the first row
+            grey = np.ascontiguousarray(grey[::-1])
         if cmap == "gray":
             pil = PILImage.fromarray(grey, mode="L")
         else:
@@ -106,20 +110,12 @@ def render_png(img: np.ndarray, h: np.ndarray, v: np.ndarray, *, hlabel: str, vl
         pil.save(buf, format="PNG")
         return buf.getvalue()
 
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
     lo, hi = _levels(np.asarray(img, dtype=np.float64), vmin, vmax)
     if not hi > lo:
         hi = lo + 1.0
     h0, h1 = (e * 1e3 for e in _edges(h))
     v0, v1 = (e * 1e3 for e in _edges(v))
-    aspect = abs(v1 - v0) / max(abs(h1 - h0), 1e-12)
-    width = 6.0
-    height = float(np.clip(width * 0.8 * aspect + 1.2, 2.4, 9.0))
-    fig = Figure(figsize=(width, height), dpi=100)
-    FigureCanvasAgg(fig)
-    ax = fig.add_subplot(1, 1, 1)
+    fig, ax = _figure(h1 - h0, v1 - v0)
     extent = (h0, h1, v1, v0) if depth_down else (h0, h1, v0, v1)
     shown = np.asarray(img, dtype=np.float64)
     if bad_colour is not None:
@@ -130,16 +126,101 @@ def render_png(img: np.ndarray, h: np.ndarray, v: np.ndarray, *, hlabel: str, vl
     im = ax.imshow(shown, cmap=colormap,
                    vmin=lo, vmax=hi, extent=extent, origin="upper" if depth_down else "lower",
                    interpolation="nearest", aspect="equal")
+    return _finish(fig, ax, im, hlabel=hlabel, vlabel=vlabel, title=title,
+                   colorbar_label=colorbar_label)
+
+
+def _figure(width_mm: float, height_mm: float, *, dpi: int = 100):
+    """A figure sized for a plot ``width_mm`` × ``height_mm`` at equal aspect."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    aspect = abs(height_mm) / max(abs(width_mm), 1e-12)
+    width = 6.0
+    height = float(np.clip(width * 0.8 * aspect + 1.2, 2.4, 9.0))
+    fig = Figure(figsize=(width, height), dpi=dpi)
+    FigureCanvasAgg(fig)
+    return fig, fig.add_subplot(1, 1, 1)
+
+
+def _finish(fig, ax, mappable, *, hlabel: str, vlabel: str | None, title: str | None,
+            colorbar_label: str) -> bytes:
+    """Labels, title and colour bar of every picture; the PNG with its ``fpscan:axes``
+    geometry chunk (module docstring)."""
     ax.set_xlabel(f"{hlabel} (mm)")
-    ax.set_ylabel(f"{vlabel} (mm)")
+    if vlabel:
+        ax.set_ylabel(f"{vlabel} (mm)")
     if title:
-        ax.set_title(title)
-    cb = fig.colorbar(im, ax=ax, fraction=0.046, pad=0.04)
+        ax.set_title(title, fontsize=10)
+    cb = fig.colorbar(mappable, ax=ax, fraction=0.046, pad=0.04)
     cb.set_label(colorbar_label)
     fig.tight_layout()
+    fig.canvas.draw()
+    height_px = fig.bbox.height
+    box = ax.get_window_extent()
+    (x0, x1), (y_bottom, y_top) = ax.get_xlim(), ax.get_ylim()
+    geometry = {"left": float(box.x0), "right": float(box.x1),
+                "top": float(height_px - box.y1), "bottom": float(height_px - box.y0),
+                # mm at the plotting area's edges, as the axes are drawn
+                "extent_mm": [float(x0), float(x1), float(y_bottom), float(y_top)]}
     buf = io.BytesIO()
-    fig.savefig(buf, format="png")
+    fig.savefig(buf, format="png", metadata={AXES_KEY: json.dumps(geometry)})
     return buf.getvalue()
+
+
+def png_axes(png: bytes) -> dict:
+    """The ``fpscan:axes`` geometry of an annotated PNG (module docstring). Raises
+    ValueError when the PNG has none."""
+    from PIL import Image as PILImage
+
+    with PILImage.open(io.BytesIO(png)) as im:
+        text = getattr(im, "text", {}) or im.info
+        raw = text.get(AXES_KEY)
+    if raw is None:
+        raise ValueError("the PNG carries no fpscan:axes geometry (not an annotated fpscan picture)")
+    return json.loads(raw)
+
+
+def render_points(positions: np.ndarray, values: np.ndarray, bounds: tuple, *,
+                  title: str | None = None, colorbar_label: str = "weight",
+                  marker_size: float | None = None, poi: tuple | None = None,
+                  cmap: str = "viridis") -> bytes:
+    """PNG of scattered lateral points ``positions`` ``(n, 2)`` (x, y) m — or ``(n, 1)``
+    for a line — coloured by ``values`` ``(n,)``, inside the lattice outline ``bounds``
+    (``((x_lo, x_hi), (y_lo, y_hi))`` m, or ``((x_lo, x_hi),)``), with an optional point
+    of interest ``poi`` (x, y) m marked ``+``. Same frame as every other picture: axes in
+    mm, equal aspect, y up, colour bar. Raises ValueError on shape mismatch."""
+    from matplotlib.patches import Rectangle
+
+    pos = np.asarray(positions, dtype=np.float64)
+    val = np.asarray(values, dtype=np.float64)
+    if pos.ndim != 2 or pos.shape[1] not in (1, 2) or val.shape != (len(pos),):
+        raise ValueError(f"positions {pos.shape} / values {val.shape} must be (n, 2) or (n, 1) / (n,)")
+    mm = 1e3
+    line = len(bounds) == 1 or pos.shape[1] == 1
+    (x_lo, x_hi) = bounds[0]
+    (y_lo, y_hi) = (0.0, 0.0) if line else bounds[1]
+    fig, ax = _figure((x_hi - x_lo) * mm, max((y_hi - y_lo) * mm, 0.45 * (x_hi - x_lo) * mm))
+    ys = np.zeros(len(pos)) if line else pos[:, 1]
+    if line:
+        ax.plot([x_lo * mm, x_hi * mm], [0, 0], color="0.8", lw=4, zorder=0)
+        ax.set_yticks([])
+    else:
+        ax.add_patch(Rectangle((x_lo * mm, y_lo * mm), (x_hi - x_lo) * mm, (y_hi - y_lo) * mm,
+                               fill=False, edgecolor="0.6", lw=1, zorder=1))
+    size = marker_size if marker_size is not None else max(0.5, min(30.0, 6e3 / max(len(pos), 1)))
+    sc = ax.scatter(pos[:, 0] * mm, ys * mm, c=val, s=size, marker="o" if line else "s", lw=0,
+                    cmap=cmap, zorder=2)
+    if poi is not None:
+        ax.plot([poi[0] * mm], [0.0 if line else poi[1] * mm], marker="+", color="red", ms=14,
+                mew=2, zorder=3)
+    pad = 0.02 * max(x_hi - x_lo, 1e-9) * mm
+    ax.set_xlim(x_lo * mm - pad, x_hi * mm + pad)
+    if not line:
+        ax.set_ylim(y_lo * mm - pad, y_hi * mm + pad)
+        ax.set_aspect("equal")
+    return _finish(fig, ax, sc, hlabel="x", vlabel=None if line else "y", title=title,
+                   colorbar_label=colorbar_label)
 
 
 def _coords(p0: np.ndarray, z: Any, x: Any, y: Any) -> tuple[np.ndarray, np.ndarray, Any]:
@@ -172,10 +253,18 @@ def render_mip(p0: np.ndarray, z: Any, x: Any, y: Any = None, plane: str = "xy",
     return render_png(img, h, v, hlabel=hl, vlabel=vl, depth_down=down, **options)
 
 
-def render_mips(p0: np.ndarray, z: Any, x: Any, y: Any = None, **options: Any) -> dict[str, bytes]:
-    """``{plane: PNG}`` for every plane the image has (xy, xz, yz in 3-D; xz in 2-D)."""
+def render_mips(p0: np.ndarray, z: Any, x: Any, y: Any = None, *, title_prefix: str = "",
+                **options: Any) -> dict[str, bytes]:
+    """``{plane: PNG}`` for every plane the image has (xy, xz, yz in 3-D; xz in 2-D);
+    ``title_prefix`` goes before each default title."""
     planes = PLANES if np.ndim(p0) == 3 else ("xz",)
-    return {plane: render_mip(p0, z, x, y, plane, **dict(options)) for plane in planes}
+    out = {}
+    for plane in planes:
+        opts = dict(options)
+        if title_prefix and "title" not in opts:
+            opts["title"] = title_prefix + (f"MIP {plane}" if np.ndim(p0) == 3 else "p0 (x, z)")
+        out[plane] = render_mip(p0, z, x, y, plane, **opts)
+    return out
 
 
 def render_slice(p0: np.ndarray, z: Any, x: Any, y: Any, index: int, **options: Any) -> bytes:
@@ -190,6 +279,33 @@ def render_slice(p0: np.ndarray, z: Any, x: Any, y: Any, index: int, **options: 
         raise ValueError(f"index must be an integer, got {index!r}")
     if not 0 <= index < len(z):
         raise ValueError(f"index {index} out of range [0, {len(z)})")
-    options.setdefault("title", f"depth slice z = {z[index] * 1e3:.3f} mm")
-    return render_png(np.asarray(p0)[index], x, y, hlabel="x", vlabel="y", depth_down=False,
-                      **options)
+    return render_lateral(np.asarray(p0)[index], x, y, float(z[index]), **options)
+
+
+def render_result_slice(path: Any, index: int, **options: Any) -> bytes:
+    """PNG of the depth slice ``index`` of a result file (``service.storage.results``),
+    read without loading the whole volume; a 2-D result gives its image row at that
+    depth. Raises ValueError (index out of range), OSError/FileNotFoundError."""
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        ds = f["p0"]
+        if isinstance(index, bool) or not isinstance(index, (int, np.integer)) \
+                or not 0 <= index < ds.shape[0]:
+            raise ValueError(f"index must be an integer in [0, {ds.shape[0]}) (depth samples)")
+        img = ds[index]
+        z, x = f["z"][()], f["x"][()]
+        y = f["y"][()] if "y" in f else None
+    if img.ndim == 1:  # a 2-D result: the row at this depth
+        options.setdefault("title", f"p0 at depth z = {z[index] * 1e3:.3f} mm")
+        return render_png(img[None, :], x, z[index:index + 1], hlabel="x", vlabel="z",
+                          depth_down=True, **options)
+    return render_lateral(img, x, y, float(z[index]), **options)
+
+
+def render_lateral(img: np.ndarray, x: Any, y: Any, depth: float, **options: Any) -> bytes:
+    """PNG of one lateral plane ``img`` ``(n_y, n_x)`` at depth ``depth`` m (x to the
+    right, y up, the depth in mm in the title); ``options`` as :func:`render_png`."""
+    options.setdefault("title", f"depth slice z = {depth * 1e3:.3f} mm")
+    return render_png(np.asarray(img), np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64),
+                      hlabel="x", vlabel="y", depth_down=False, **options)

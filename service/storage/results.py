@@ -228,3 +228,49 @@ def read_result(path: str | os.PathLike) -> ResultVolume:
     return ResultVolume(p0=p0, z=z, x=x, y=y, method=str(attrs["method"]),
                         params=json.loads(attrs["params"]), input_id=str(attrs["input_id"]),
                         attrs=attrs)
+
+
+def export_ome_tiff(result_path: str | os.PathLike, out_path: str | os.PathLike) -> Path:
+    """Write the p0 of a result file as an OME-TIFF (``tifffile``) for ImageJ/Fiji, napari
+    and other OME readers, with the physical voxel sizes.
+
+    3-D ``(n_z, n_y, n_x)`` → OME axes ``ZYX``; 2-D ``(n_z, n_x)`` → ``YX`` (the image's
+    depth z is the TIFF's Y). ``PhysicalSizeX``/``Y``/``Z`` in µm from the coordinate
+    spacings (a single sample counts as 1 µm); float32 data, the array order of the result
+    file (TIFF row 0 = the first y, drawn at the top by ImageJ). Written to a temporary
+    sibling, then renamed. Returns ``out_path``. Raises FileNotFoundError, ValueError (not
+    a result file, or coordinates that are not evenly spaced).
+    """
+    import tifffile
+
+    r = read_result(result_path)
+
+    def step_um(v: np.ndarray, name: str) -> float:
+        if len(v) < 2:
+            return 1.0
+        d = np.diff(v)
+        if not np.allclose(d, d[0], rtol=1e-6, atol=0):
+            raise ValueError(f"{name} is not evenly spaced: OME-TIFF needs one voxel size per axis")
+        return float(d[0] * 1e6)
+
+    if r.p0.ndim == 3:
+        axes = "ZYX"
+        sizes = {"PhysicalSizeZ": step_um(r.z, "z"), "PhysicalSizeY": step_um(r.y, "y"),
+                 "PhysicalSizeX": step_um(r.x, "x")}
+    else:
+        axes = "YX"
+        sizes = {"PhysicalSizeY": step_um(r.z, "z"), "PhysicalSizeX": step_um(r.x, "x")}
+    meta: dict[str, Any] = {"axes": axes, "Name": f"p0 ({r.method}, {r.input_id})"}
+    for key, value in sizes.items():
+        meta[key] = value
+        meta[f"{key}Unit"] = "µm"
+    out_path = Path(out_path)
+    tmp = out_path.with_name(f".{out_path.name}.{os.getpid()}.{uuid.uuid4().hex[:12]}.tmp")
+    try:
+        tifffile.imwrite(tmp, np.ascontiguousarray(r.p0, dtype=np.float32), ome=True,
+                         photometric="minisblack", metadata=meta)
+        os.replace(tmp, out_path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return out_path

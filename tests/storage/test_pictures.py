@@ -1,0 +1,143 @@
+"""Every picture fpscan draws agrees: one off-centre ball (asymmetric in x, y and z) must
+appear at its true position in mm -- read off each PNG's own axes -- in the live preview
+of a scan, the result MIPs and depth slice of the reconstruction job, and the plan's mask
+preview. A flipped axis, a stretched aspect or an axis in the wrong unit moves the spot
+by far more than the tolerance (the ball sits 0.35-0.55 mm off the centre)."""
+from __future__ import annotations
+
+import io
+
+import numpy as np
+import pytest
+from PIL import Image as PILImage
+
+from driver.scanfile import ScanFile
+from service.storage.render import png_axes
+from tests.storage.storage_helpers import PITCH, build_plan
+
+N, N_T, DT = 24, 128, 2e-8
+C = 1490.0  # the helper plan's sound speed
+BALL = {"x": 0.55e-3, "y": 0.35e-3, "z": 1.0e-3}  # m; lattice points at (i - 11.5)·0.1 mm
+
+
+def _spot_mm(png: bytes) -> tuple[float, float]:
+    """(horizontal, vertical) mm of the brightest pixel inside the picture's plotting area,
+    mapped with the geometry the PNG carries (independent of the renderer's code)."""
+    g = png_axes(png)
+    grey = np.asarray(PILImage.open(io.BytesIO(png)).convert("L"), dtype=np.float64)
+    top, bottom = int(np.ceil(g["top"])) + 2, int(np.floor(g["bottom"])) - 2
+    left, right = int(np.ceil(g["left"])) + 2, int(np.floor(g["right"])) - 2
+    area = grey[top:bottom, left:right]
+    rows, cols = np.nonzero(area >= area.max() - 1)
+    row, col = rows.mean() + top + 0.5, cols.mean() + left + 0.5
+    h_left, h_right, v_bottom, v_top = g["extent_mm"]
+    h = h_left + (col - g["left"]) / (g["right"] - g["left"]) * (h_right - h_left)
+    v = v_top + (row - g["top"]) / (g["bottom"] - g["top"]) * (v_bottom - v_top)
+    return h, v
+
+
+def _ball_scan(path) -> str:
+    from driver.physics.balls import Ball, ball_alines
+
+    plan = build_plan(N, N, N_T)  # dt = DT, c = C
+    assert plan["acquisition"]["dt"] == DT and plan["acquisition"]["sound_speed"] == C
+    pos = np.asarray(plan["points"]["positions"], dtype=np.float64)
+    alines = ball_alines(pos, [Ball(x=BALL["x"], y=BALL["y"], z=BALL["z"], radius=1.5e-4, amplitude=1.0)],
+                         DT, N_T, C)
+    scale = float(np.abs(alines).max()) / 30000.0
+    with ScanFile.create(path, plan, instrument={"idn": "test"}, software_version="test") as sf:
+        for k in range(len(pos)):
+            sf.append(k, np.round(alines[k] / scale).astype(np.int16),
+                      dict(run_id=1, boot_id=1, point_index=k, pulse_number=k, timestamp_s=0.01 * k,
+                           bias_wavelength_m=1.55e-6, dc_level=1.0, pulse_energy_j=1e-3, dt_s=DT,
+                           scale=scale, offset=0.0))
+    return str(path)
+
+
+def _assert_at(png: bytes, expected: tuple[float, float], what: str, tol_mm: float = 0.2) -> None:
+    h_left, h_right, v_bottom, v_top = png_axes(png)["extent_mm"]
+    assert h_left < h_right, f"{what}: x/y must grow to the right"
+    lateral = what.endswith("xy") or "slice" in what
+    assert (v_top > v_bottom) if lateral else (v_top < v_bottom), \
+        f"{what}: y must point up in lateral pictures, depth down in depth pictures"
+    h, v = _spot_mm(png)
+    assert abs(h - expected[0]) < tol_mm and abs(v - expected[1]) < tol_mm, \
+        f"{what}: spot at ({h:.3f}, {v:.3f}) mm, the ball is at {expected} mm"
+
+
+def test_one_orientation_and_mm_axes_in_every_picture(tmp_path):
+    pytest.importorskip("service.recon")
+    from service.jobs.work import run_reconstruction
+    from service.preview import render_preview
+    from service.storage.render import render_result_slice
+
+    scan = _ball_scan(tmp_path / "ball.h5")
+    bx, by, bz = (BALL[k] * 1e3 for k in ("x", "y", "z"))
+    want = {"xy": (bx, by), "xz": (bx, bz), "yz": (by, bz)}
+
+    live = render_preview(scan)["pngs"]
+    out = tmp_path / "result"
+    run_reconstruction({"input": {"kind": "scan", "path": scan}, "params": {"method": "ner"},
+                        "out_dir": str(out), "input_id": "scan:test"})
+    for plane, spot in want.items():
+        _assert_at(live[plane], spot, f"live preview {plane}")
+        _assert_at((out / f"mip_{plane}.png").read_bytes(), spot, f"result MIP {plane}")
+    k = int(round(BALL["z"] / (C * DT)))
+    _assert_at(render_result_slice(out / "volume.h5", k), want["xy"], f"depth slice {k}")
+
+    # aspect in mm: the xy pictures are square (a square lattice), the xz ones are as
+    # tall as the recorded depth is deep relative to the lattice width
+    for png in (live["xy"], (out / "mip_xy.png").read_bytes()):
+        g = png_axes(png)
+        assert (g["bottom"] - g["top"]) == pytest.approx(g["right"] - g["left"], rel=0.02)
+    g = png_axes((out / "mip_xz.png").read_bytes())
+    h_left, h_right, v_bottom, v_top = g["extent_mm"]
+    assert (g["bottom"] - g["top"]) / (g["right"] - g["left"]) == \
+        pytest.approx(abs(v_bottom - v_top) / (h_right - h_left), rel=0.03)
+
+
+    # the same volume as OME-TIFF for ImageJ/napari, through the CLI: right shape, axes
+    # and physical voxel sizes (µm), the same numbers (float32)
+    import subprocess
+    import sys
+
+    import h5py
+    import tifffile
+
+    done = subprocess.run([sys.executable, "-m", "clients", "export", str(out / "volume.h5"),
+                           "-o", str(tmp_path / "p0.ome.tif")], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    with h5py.File(out / "volume.h5", "r") as f:
+        p0, z, y, x = f["p0"][()], f["z"][()], f["y"][()], f["x"][()]
+    with tifffile.TiffFile(tmp_path / "p0.ome.tif") as tif:
+        assert tif.is_ome and tif.series[0].axes == "ZYX" and tif.series[0].shape == p0.shape
+        np.testing.assert_array_equal(tif.asarray(), p0.astype(np.float32))
+        pixels = tif.ome_metadata.split("<Pixels ", 1)[1].split(">", 1)[0]
+    attrs = dict(a.split("=", 1) for a in pixels.split())
+    for key, v in (("PhysicalSizeX", x), ("PhysicalSizeY", y), ("PhysicalSizeZ", z)):
+        assert float(attrs[key].strip('"')) == pytest.approx((v[1] - v[0]) * 1e6, rel=1e-9), key
+        assert attrs[f"{key}Unit"].strip('"') == "µm"
+    assert float(attrs["PhysicalSizeX"].strip('"')) == pytest.approx(PITCH * 1e6)
+    assert float(attrs["PhysicalSizeZ"].strip('"')) == pytest.approx(C * DT * 1e6)
+
+
+def test_mask_preview_has_the_same_orientation(tmp_path):
+    """The plan preview draws points the same way: a mask of points in the +x, +y corner
+    appears in that corner (y up)."""
+    from service.plans import make_plan, preview_png
+
+    idx = [[20, 18], [21, 18], [20, 19], [21, 19]]  # x = 0.85-0.95 mm, y = 0.65-0.75 mm
+    plan = make_plan(kind="points", lattice={"n_x": N, "n_y": N, "pitch": PITCH},
+                     params={"indices": idx}, acquisition={"n_t": N_T, "dt": DT})
+    png = preview_png(plan)
+    g = png_axes(png)
+    rgb = np.asarray(PILImage.open(io.BytesIO(png)).convert("RGB"), dtype=np.int32)
+    sat = np.abs(rgb[..., 0] - rgb[..., 1]) + np.abs(rgb[..., 1] - rgb[..., 2])
+    top, bottom, left, right = (int(g["top"]) + 2, int(g["bottom"]) - 2, int(g["left"]) + 2,
+                                int(g["right"]) - 2)
+    rows, cols = np.nonzero(sat[top:bottom, left:right] > 60)  # the coloured markers
+    h_left, h_right, v_bottom, v_top = g["extent_mm"]
+    assert v_top > v_bottom  # y up, as in every lateral picture
+    h = h_left + (cols.mean() + left + 0.5 - g["left"]) / (g["right"] - g["left"]) * (h_right - h_left)
+    v = v_top + (rows.mean() + top + 0.5 - g["top"]) / (g["bottom"] - g["top"]) * (v_bottom - v_top)
+    assert abs(h - 0.9) < 0.15 and abs(v - 0.7) < 0.15, (h, v)
