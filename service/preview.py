@@ -31,14 +31,43 @@ log = logging.getLogger("fpscan.preview")
 @dataclass
 class PreviewState:
     """One refresh: ``version`` (1, 2, ...), ``points_used``, ``updated`` (UNIX time),
-    ``refresh_s`` (seconds the refresh took), ``pngs`` ``{plane: PNG bytes}``."""
+    ``refresh_s`` (seconds the refresh took), ``mips`` ``{plane: 2-D array}`` and their
+    coordinates ``axes`` ``(z, x, y)`` (m). :meth:`png` draws a plane on first request
+    (``service.storage.render``, the pictures a result has) and keeps it."""
 
     version: int = 0
     points_used: int = 0
     updated: float | None = None
     refresh_s: float | None = None
-    pngs: dict = field(default_factory=dict)
+    mips: dict = field(default_factory=dict)
+    axes: tuple = ()
     wavelength_index: int = 0
+    _pngs: dict = field(default_factory=dict)
+    _lock: threading.Lock = field(default_factory=threading.Lock)
+
+    @property
+    def planes(self) -> tuple:
+        return tuple(self.mips)
+
+    def png(self, plane: str) -> bytes:
+        """The PNG of ``plane``; KeyError when this preview has no such plane."""
+        with self._lock:
+            if plane not in self._pngs:
+                self._pngs[plane] = render_preview_png(self.mips[plane], plane, self.axes, self.points_used)
+            return self._pngs[plane]
+
+
+def render_preview_png(img: np.ndarray, plane: str, axes: tuple, points: int) -> bytes:
+    """A live-preview MIP drawn like a result's MIP (``service.storage.render``: mm
+    axes, equal aspect, y up / depth down, colour bar)."""
+    from service.storage.render import render_png
+
+    z, x, y = axes
+    h, hlabel = (y, "y") if plane == "yz" else (x, "x")
+    v, vlabel, down = (y, "y", False) if plane == "xy" else (z, "z", True)
+    name = f"MIP {plane}" if y is not None else "p0 (x, z)"
+    return render_png(img, h, v, hlabel=hlabel, vlabel=vlabel, depth_down=down,
+                      title=f"live preview, {points} points: {name}")
 
 
 def preview_grid(axis: np.ndarray, max_points: int) -> np.ndarray:
@@ -56,26 +85,27 @@ def preview_grid(axis: np.ndarray, max_points: int) -> np.ndarray:
 def render_preview(scan_path: str, *, wavelength_index: int = 0, eps: float = 1e-3, max_lateral: int = 128,
                    max_samples: int = 512) -> dict:
     """NEDNER reconstruction of the completed points of a scan file at one excitation
-    wavelength (``wavelength_index`` into the plan's wavelengths, default the first) → MIP PNGs.
+    wavelength (``wavelength_index`` into the plan's wavelengths, default the first) → its MIPs.
 
     A preview trades resolution for speed: the output grid is the plan's lattice thinned
     to at most ``max_lateral`` points per axis, and the A-lines are low-passed and
     decimated in time (means of ``k`` consecutive samples, ``dt·k``) to at most
     ``max_samples`` samples; float32, NUFFT tolerance ``eps``.
-    Returns ``{"points_used": n, "pngs": {plane: bytes}, "seconds": s}``; ``pngs`` is
-    empty when fewer than 2 points are complete.
+    Returns ``{"points_used": n, "mips": {plane: 2-D array}, "axes": (z, x, y),
+    "seconds": s}`` (``service.metrics.mip``; drawn by :func:`render_preview_png` when
+    asked for); ``mips`` is empty when fewer than 2 points are complete.
     """
     from dataclasses import replace
 
+    from service.metrics.projections import mip
     from service.pipeline import reconstruct
     from service.storage.datasets import load_scan
-    from service.storage.render import render_mips
 
     t0 = time.perf_counter()
     ds = load_scan(scan_path, allow_empty=True, wavelength_index=wavelength_index)
     n = int(ds.alines.shape[0])
     if n < 2:
-        return {"points_used": n, "pngs": {}, "seconds": time.perf_counter() - t0}
+        return {"points_used": n, "mips": {}, "axes": (), "seconds": time.perf_counter() - t0}
     alines = ds.alines.astype(np.float32)
     k = max(1, -(-alines.shape[1] // max_samples))
     if k > 1:
@@ -84,10 +114,11 @@ def render_preview(scan_path: str, *, wavelength_index: int = 0, eps: float = 1e
     grid = tuple(preview_grid(np.asarray(g), max_lateral) for g in ds.grid)
     preview = replace(ds, alines=alines, dt=ds.dt * k, grid=grid, weights=None, indices=None, lattice=None)
     rec = reconstruct(preview, "nedner", eps=eps, dtype="float32")
-    # the same pictures as a result's MIPs (orientation, mm axes, aspect, colour bar)
-    pngs = render_mips(rec.p0, rec.z, rec.x, getattr(rec, "y", None),
-                       title_prefix=f"live preview, {n} points: ")
-    return {"points_used": n, "pngs": pngs, "seconds": time.perf_counter() - t0}
+    y = getattr(rec, "y", None)
+    planes = ("xy", "xz", "yz") if y is not None else ("xz",)
+    mips = {plane: mip(rec.p0, plane) for plane in planes}
+    axes = (np.asarray(rec.z), np.asarray(rec.x), None if y is None else np.asarray(y))
+    return {"points_used": n, "mips": mips, "axes": axes, "seconds": time.perf_counter() - t0}
 
 
 def warm_up() -> float:
@@ -188,13 +219,13 @@ class PreviewManager:
             log.warning("preview job=%s: %s", job_id, exc)
             return
         entry["rendered_at"] = progress
-        if not out["pngs"] or out["points_used"] == entry["last_points"]:
+        if not out["mips"] or out["points_used"] == entry["last_points"]:
             return
         entry["last_points"] = out["points_used"]
         with self._lock:
             prev = self._states.get(job_id)
             self._states[job_id] = PreviewState(version=(prev.version if prev else 0) + 1,
                                                 points_used=out["points_used"], updated=time.time(),
-                                                refresh_s=out["seconds"], pngs=out["pngs"],
+                                                refresh_s=out["seconds"], mips=out["mips"], axes=out["axes"],
                                                 wavelength_index=entry["wavelength_index"])
         log.info("preview job=%s points=%d seconds=%.2f", job_id, out["points_used"], out["seconds"])

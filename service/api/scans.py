@@ -146,6 +146,6 @@ def scan_preview_png(plane: Plane, job_id: str = JobId, c: Context = Depends(ctx
     """The live preview's MIP on ``plane`` (``X-Preview-Version`` header)."""
     get_job_or_404(c, job_id, "scan")
     state = _scans(c).preview(job_id)
-    if state is None or plane not in state.pngs:
+    if state is None or plane not in state.planes:
         raise HTTPException(404, f"no live preview of scan {job_id} yet")
-    return Response(state.pngs[plane], media_type="image/png", headers={"X-Preview-Version": str(state.version)})
+    return Response(state.png(plane), media_type="image/png", headers={"X-Preview-Version": str(state.version)})

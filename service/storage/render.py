@@ -154,8 +154,12 @@ def _finish(fig, ax, mappable, *, hlabel: str, vlabel: str | None, title: str | 
         ax.set_title(title, fontsize=10)
     cb = fig.colorbar(mappable, ax=ax, fraction=0.046, pad=0.04)
     cb.set_label(colorbar_label)
-    fig.tight_layout()
-    fig.canvas.draw()
+    # fixed margins in inches (a layout engine costs a second full draw)
+    w_in, h_in = fig.get_size_inches()
+    fig.subplots_adjust(left=0.75 / w_in, right=1 - 0.85 / w_in, bottom=0.55 / h_in,
+                        top=1 - (0.7 if title and "\n" in title else 0.4) / h_in)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png")  # draws the figure: the axes' pixel box is final now
     height_px = fig.bbox.height
     box = ax.get_window_extent()
     (x0, x1), (y_bottom, y_top) = ax.get_xlim(), ax.get_ylim()
@@ -163,9 +167,19 @@ def _finish(fig, ax, mappable, *, hlabel: str, vlabel: str | None, title: str | 
                 "top": float(height_px - box.y1), "bottom": float(height_px - box.y0),
                 # mm at the plotting area's edges, as the axes are drawn
                 "extent_mm": [float(x0), float(x1), float(y_bottom), float(y_top)]}
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", metadata={AXES_KEY: json.dumps(geometry)})
-    return buf.getvalue()
+    return _with_text_chunk(buf.getvalue(), AXES_KEY, json.dumps(geometry))
+
+
+def _with_text_chunk(png: bytes, key: str, text: str) -> bytes:
+    """``png`` with a ``tEXt`` chunk ``key``/``text`` inserted before ``IEND`` (PNG spec
+    §11.3.4.3; Latin-1 text)."""
+    import struct
+    import zlib
+
+    body = key.encode("latin-1") + b"\0" + text.encode("latin-1")
+    chunk = struct.pack(">I", len(body)) + b"tEXt" + body + struct.pack(">I", zlib.crc32(b"tEXt" + body))
+    end = png.rindex(b"IEND") - 4  # the IEND chunk starts with its 4-byte length
+    return png[:end] + chunk + png[end:]
 
 
 def png_axes(png: bytes) -> dict:

@@ -68,14 +68,17 @@ def _assert_at(png: bytes, expected: tuple[float, float], what: str, tol_mm: flo
 def test_one_orientation_and_mm_axes_in_every_picture(tmp_path):
     pytest.importorskip("service.recon")
     from service.jobs.work import run_reconstruction
-    from service.preview import render_preview
+    from service.preview import PreviewState, render_preview
     from service.storage.render import render_result_slice
 
     scan = _ball_scan(tmp_path / "ball.h5")
     bx, by, bz = (BALL[k] * 1e3 for k in ("x", "y", "z"))
     want = {"xy": (bx, by), "xz": (bx, bz), "yz": (by, bz)}
 
-    live = render_preview(scan)["pngs"]
+    refresh = render_preview(scan)  # what the server's preview worker computes ...
+    state = PreviewState(version=1, points_used=refresh["points_used"], mips=refresh["mips"],
+                         axes=refresh["axes"])
+    live = {plane: state.png(plane) for plane in state.planes}  # ... and serves
     out = tmp_path / "result"
     run_reconstruction({"input": {"kind": "scan", "path": scan}, "params": {"method": "ner"},
                         "out_dir": str(out), "input_id": "scan:test"})
