@@ -137,7 +137,11 @@ def _local(args, fmt: str, method: str) -> int:
     t1 = time.perf_counter()
     shape = ds.data.shape if ds.kind == "grid" else ds.alines.shape
     say(f"reconstructing with {method} (input {list(shape)})")
-    rec = reconstruct(ds, method, **_params(args))
+    from clients.cli._common import ProgressBar
+
+    with ProgressBar(f"recon {method}", quiet=args.quiet) as bar:  # the reconstruction's own fractions
+        rec = reconstruct(ds, method, progress=lambda f, stage: bar({"fraction": f, "stage": stage}),
+                          **_params(args))
     t2 = time.perf_counter()
     say(f"writing {out}/")
     write_result(out, rec, input_id=Path(args.input).name)
