@@ -758,6 +758,21 @@ def _read_v1(f: h5py.File, wavelengths: np.ndarray) -> tuple:
     return done, meta_arr, alines
 
 
+def completed_count(path: str | os.PathLike, *, timeout: float = 5.0) -> int:
+    """The number of points complete at every wavelength in a scan file (complete,
+    partial or left open by a killed writer), reading only its completion record.
+    Raises FileNotFoundError, ValueError (not a scan file)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no scan file at {path}")
+    with open_readonly(path, timeout) as f:
+        fmt = f.attrs.get("format")
+        if fmt not in (FORMAT, FORMAT_1):
+            raise ValueError(f"{path} is not an {FORMAT} (or {FORMAT_1}) file")
+        done = np.asarray(f["completed"][()], dtype=bool)
+    return int(np.count_nonzero(done if done.ndim == 1 else done.all(axis=0)))
+
+
 def read_scan(path: str | os.PathLike, *, dtype: Any = np.float64,
               timeout: float = 5.0, wavelength_index: int = 0) -> ScanData:
     """Read a scan file, complete or still being written (SWMR reader).

@@ -184,7 +184,9 @@ def run(args) -> int:
     print(f"plan {plan.id}: {plan.mask.kind} on {lat.n_x}x{lat.n_y} at {lat.pitch:g} m")
     print(f"points: {plan.mask.obtained_points} (requested {plan.mask.requested_points})")
     print(f"weight ratio (outer/inner): {plan.mask.weight_ratio:.4g}")
-    print(f"order: {plan.order}; expected scan time: {plan.expected_scan_time_s:.1f} s")
+    t = plan.expected_scan_time_s
+    print(f"order: {plan.order}; expected scan time: "
+          + (f"{t:.1f} s" if t is not None else "set by the scanner (no PRF in the plan)"))
     print(f"wrote {args.out}" + (f" and {args.preview}" if args.preview else ""))
     return 0
 

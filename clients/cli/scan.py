@@ -6,7 +6,9 @@ plan (only the missing points are acquired). With ``--server URL --scanner ID``:
 (a plan JSON file, uploaded under its own id, or the id of a plan on the server) is
 scanned as a server job (``POST /api/scans``) with a progress bar; ``--out`` then gets the
 scan file when it is done. Exit codes: 0 complete, 1 error or incomplete, 130 interrupted
-(the scanner is left idle and the file keeps every point acquired so far).
+(Ctrl-C: the scanner is left idle, the file keeps every point acquired so far, and the
+message says to run the same command again to resume). Rates count only the points this
+run acquired.
 """
 from __future__ import annotations
 
@@ -36,10 +38,28 @@ def add_arguments(parser):
     parser.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
 
 
+def _points_on_disk(path) -> int:
+    """Completed points already in the scan file ``path`` (0 if there is none yet)."""
+    from driver.scanfile import completed_count
+
+    try:
+        return completed_count(path)
+    except (OSError, ValueError):
+        return 0  # none yet, or not a scan file: acquire() says so
+
+
+def _same_command() -> str:
+    import shlex
+    import sys
+
+    return "fpscan " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+
+
 @client_errors
 def run(args) -> int:
     """Acquire locally (``--device``) or as a server job (``--server``); exit status."""
     import sys
+    import time
 
     from clients.cli._common import ProgressBar
 
@@ -51,23 +71,39 @@ def run(args) -> int:
 
     if args.window < 1 or args.timeout <= 0:
         raise ValueError("--window must be >= 1 and --timeout > 0")
-    with ProgressBar("scan", quiet=args.quiet) as bar:
-        def progress(p):
-            bar({"stage": p.state, "points_done": p.points_done, "points_total": p.n_points,
-                 "rate_per_s": p.rate,
-                 "eta_s": p.eta_s if p.eta_s < float("inf") else None,
-                 "faults_recovered": p.faults_recovered})
+    before = _points_on_disk(args.out)
+    last: dict = {}
+    t0 = time.monotonic()
+    try:
+        with ProgressBar("scan", quiet=args.quiet) as bar:
+            def progress(p):
+                last.update(done=p.points_done, total=p.n_points)
+                bar({"stage": p.state, "points_done": p.points_done, "points_total": p.n_points,
+                     "rate_per_s": p.rate,
+                     "eta_s": p.eta_s if p.eta_s < float("inf") else None,
+                     "faults_recovered": p.faults_recovered})
 
-        result = acquire(args.device, args.plan, args.out, progress=progress,
-                         durable="fsync" if args.fsync else "process", window=args.window,
-                         response_timeout=args.timeout)
-    rate = (result.points_done / result.elapsed_s) if result.elapsed_s > 0 else 0.0
+            result = acquire(args.device, args.plan, args.out, progress=progress,
+                             durable="fsync" if args.fsync else "process", window=args.window,
+                             response_timeout=args.timeout)
+    except KeyboardInterrupt:
+        done = max(_points_on_disk(args.out), last.get("done", 0))
+        this_run, seconds = max(done - before, 0), time.monotonic() - t0
+        total = f"/{last['total']}" if "total" in last else ""
+        print(f"fpscan scan: interrupted: {done}{total} points are in {args.out} ({this_run} this run in "
+              f"{seconds:.1f} s). The scanner is idle; to resume, run the same command again:\n"
+              f"  {_same_command()}", file=sys.stderr)
+        return 130
+    this_run = max(result.points_done - before, 0)
+    rate = this_run / result.acquisition_s if result.acquisition_s > 0 else 0.0
     n_faults = result.faults_recovered
     spectral = (f" ({result.alines_done}/{result.n_alines} A-lines at "
                 f"{result.n_alines // max(result.n_points, 1)} wavelengths)"
                 if result.n_alines > result.n_points else "")
-    print(f"{args.out}: {result.points_done}/{result.n_points} points complete{spectral} in "
-          f"{result.elapsed_s:.1f} s ({rate:.0f} points/s), {n_faults} link faults recovered")
+    resumed = f" ({before} from before, resumed)" if before else ""
+    print(f"{args.out}: {result.points_done}/{result.n_points} points complete{spectral}{resumed}; this run "
+          f"{this_run} points in {result.acquisition_s:.1f} s of acquisition ({rate:.0f} points/s), "
+          f"{n_faults} link faults recovered")
     if not result.complete:
         print(f"fpscan scan: error: scan incomplete ({'aborted' if result.aborted else 'stopped'})"
               "; run the same command again to resume", file=sys.stderr)

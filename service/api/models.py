@@ -219,7 +219,8 @@ class Plan(BaseModel):
     n_points: int
     requested_points: int | None = None
     weight_ratio: float | None = None
-    expected_scan_time_s: float
+    expected_scan_time_s: float | None = Field(None, description="points × averages × wavelengths / PRF, s; "
+                                               "null when the plan sets no PRF (unthrottled)")
     lattice: dict[str, Any]
     acquisition: dict[str, Any]
     links: dict[str, str] = Field(default_factory=dict)
@@ -228,7 +229,8 @@ class Plan(BaseModel):
 class PlanPreview(BaseModel):
     points: int
     weight_ratio: float | None = None
-    expected_scan_time_s: float
+    expected_scan_time_s: float | None = Field(None, description="points × averages × wavelengths / PRF, s; "
+                                               "null when the plan sets no PRF (unthrottled)")
     preview_png_base64: str
 
 

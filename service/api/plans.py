@@ -57,12 +57,13 @@ def build_plan(req) -> dict:
     return out
 
 
-def expected_scan_time(plan: dict) -> float:
-    """Seconds: points × averages × wavelengths / PRF (0 when the PRF is 0 = unthrottled)."""
+def expected_scan_time(plan: dict) -> float | None:
+    """Seconds: points × averages × wavelengths / PRF (None when the PRF is 0 =
+    unthrottled: the scanner's own rate decides)."""
     acq = plan["acquisition"]
     n = len(plan["points"]["indices"])
     prf = float(acq.get("prf", 0) or 0)
-    return n * int(acq.get("averages", 1)) * len(acq.get("wavelengths", [1])) / prf if prf > 0 else 0.0
+    return n * int(acq.get("averages", 1)) * len(acq.get("wavelengths", [1])) / prf if prf > 0 else None
 
 
 def summary(plan: dict) -> Plan:

@@ -178,11 +178,12 @@ class Plan(_Strict):
         return pos[:, :1].copy() if self.lattice.n_y == 1 else pos
 
     @property
-    def expected_scan_time_s(self) -> float:
-        """Points × averages × wavelengths / PRF in s (0.0 when prf = 0, i.e. unthrottled)."""
+    def expected_scan_time_s(self) -> float | None:
+        """Points × averages × wavelengths / PRF in s; None when prf = 0 (unthrottled: the
+        scanner's own pulse rate decides, the plan cannot say)."""
         a = self.acquisition
         if a.prf == 0:
-            return 0.0
+            return None
         return self.n_points * a.averages * len(a.wavelengths) / a.prf
 
     # -- JSON -------------------------------------------------------------------------

@@ -37,6 +37,11 @@ def test_demo_report(demo):
         scan = report["scans"][name]
         assert scan["points"] == plans[name]["n_points"]
         assert scan["acquisition_s"] > 0
+        # what was measured is what the user waited for, and says so: the scan job's own
+        # acquisition (first to last A-line) lies within the job, the job within the wait
+        assert scan["acquisition_s"] <= scan["job_run_s"] <= scan["waited_s"]
+        assert scan["points_per_s"] == pytest.approx(scan["points"] / scan["acquisition_s"])
+        assert plans[name]["expected_scan_time_s"] is None  # the demo's simulator is unthrottled
     rec = report["reconstructions"]
     assert set(rec) == {"nedner", "ner_dense"}
     assert rec["nedner"]["points_used"] == plans["equisteradian"]["n_points"]

@@ -70,6 +70,8 @@ def test_sigkill_host_mid_scan_then_resume(tmp_path):
         r = subprocess.run(scan_cmd(dev, plan_path, killed), capture_output=True, text=True, check=False,
                            timeout=60)
         assert r.returncode == 0, r.stderr
+        # its rate counts only what this run acquired
+        assert f"({partial} from before, resumed); this run {600 - partial} points" in r.stdout, r.stdout
         assert "600/600 points complete" in r.stdout
         # an uninterrupted scan of the same plan
         clean = tmp_path / "clean.h5"
@@ -124,6 +126,8 @@ def test_ctrl_c_leaves_the_device_idle(tmp_path):
         os.killpg(host.pid, signal.SIGINT)  # as a terminal's Ctrl-C: host and its relay
         _, err = host.communicate(timeout=30)
         assert host.returncode == 130, err
+        # it says how to resume: the same command again
+        assert "to resume, run the same command again" in err and f"--out {out}" in err, err
         with Scanner(dev) as sc:
             st = sc.status()
         assert st.state == "IDLE" and st.next_index < 400

@@ -261,7 +261,7 @@ def test_make_plan_from_kind_as_the_http_layer_calls_it():
     c = make_plan("equisteradian", lattice=Lattice(50, 50, PITCH), params={"depth": 1e-3, "n_points": 120},
                   acquisition=acq)
     assert a.id == b.id == c.id
-    assert a.expected_scan_time_s == 0.0  # prf 0: unthrottled
+    assert a.expected_scan_time_s is None  # prf 0: unthrottled, the plan cannot say
     g = make_plan(kind="grid", lattice=lattice, params={"interval": 7}, order="nearest")
     assert g.mask.kind == "equispaced" and g.order == "nearest"  # "grid", "subgrid": aliases
     with pytest.raises(ValueError, match="unknown parameter"):
