@@ -46,8 +46,13 @@ def main(argv: list[str] | None = None) -> int:
     """Run ``fpscan`` with ``argv`` (default: ``sys.argv[1:]``); return the exit status."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    from driver.units import ImplausibleValue
+
     try:
         code = args._run(args)
+    except ImplausibleValue as exc:  # a unit mistake is a usage error, like a bad flag
+        print(f"fpscan {args.command}: error: {exc}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print("fpscan: interrupted", file=sys.stderr)
         return 130

@@ -148,3 +148,21 @@ class ProgressBar:
     def __exit__(self, *exc) -> None:
         if self._progress is not None:
             self._progress.__exit__(*exc)
+
+
+def quantity(kind: str, name: str) -> Callable[[str], float]:
+    """An ``argparse`` ``type=`` for a length/time/frequency/speed: a bare number is SI,
+    text may carry a unit (``60um``, ``3.6 mm``, ``8ns``, ``500 Hz``;
+    ``driver.units.parse_quantity``). A bad value is a usage error (exit 2) naming it."""
+    import argparse
+
+    from driver.units import parse_quantity
+
+    def parse(text: str) -> float:
+        try:
+            return parse_quantity(text, kind, name=name)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+
+    parse.__name__ = kind  # argparse names the type in its messages
+    return parse

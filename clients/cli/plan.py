@@ -26,10 +26,22 @@ def flag(name: str) -> str:
     return "--" + name.replace("_", "-")
 
 
+_UNIT_KINDS = {"m": "length", "s": "time", "Hz": "frequency", "m/s": "speed"}
+
+
 def parse_value(text: str, unit: str | None) -> float:
-    """One number from the command line in the parameter's SI ``unit`` (the hook for unit
-    parsing: today a plain number in SI units)."""
-    return float(text)
+    """One number from the command line in the parameter's SI ``unit``: a bare number is
+    SI, text may carry a unit (``60um``, ``3.6mm``, ``8ns``, ``500Hz``;
+    ``driver.units.parse_quantity``). A bad value is a usage error (exit 2) naming it."""
+    kind = _UNIT_KINDS.get(unit or "")
+    if kind is None:
+        return float(text)
+    from driver.units import parse_quantity
+
+    try:
+        return parse_quantity(text, kind, name=kind)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def _json_value(text: str) -> Any:
@@ -94,8 +106,10 @@ def _common_options() -> argparse.ArgumentParser:
                         "tunings, motion between passes); docs/protocol.md §4.1")
     g.add_argument("--prf", type=lambda s: parse_value(s, "Hz"), default=acq.prf,
                    help=f"laser pulse repetition frequency in Hz (default {acq.prf:g})")
-    g.add_argument("--sound-speed", type=float, default=acq.sound_speed,
-                   help=f"speed of sound in m/s (default {acq.sound_speed:g})")
+    g.add_argument("--sound-speed", type=lambda s: parse_value(s, "m/s"), default=acq.sound_speed,
+                   help=f"speed of sound, e.g. 1500m/s (default {acq.sound_speed:g})")
+    g.add_argument("--force", action="store_true",
+                   help="accept a sound speed outside 1000-2000 m/s (a medium other than tissue/water)")
     g = common.add_argument_group("output")
     g.add_argument("--out", help="where to write the plan JSON (required without --server)")
     g.add_argument("--preview", metavar="PNG", help="also write a preview PNG of the mask")
@@ -176,7 +190,7 @@ def run(args) -> int:
     from service.plans import make_plan, preview_png
 
     plan = make_plan(kind=body["kind"], lattice=body["lattice"], params=body["params"],
-                     order=body["order"], acquisition=body["acquisition"])
+                     order=body["order"], acquisition=body["acquisition"], force=args.force)
     plan.to_json(args.out)
     if args.preview:
         preview_png(plan, args.preview)

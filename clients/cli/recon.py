@@ -42,10 +42,16 @@ def add_arguments(parser):
     parser.add_argument("--out", default=None, metavar="DIR",
                         help="output folder (default: <input>-<method>/ or recon-<job>/)")
     g = parser.add_argument_group("data spacings (npy and k-Wave inputs; SI units)")
-    g.add_argument("--dt", type=float, default=None, help="sample interval, s")
-    g.add_argument("--dx", type=float, default=None, help="lateral spacing along x, m")
-    g.add_argument("--dy", type=float, default=None, help="lateral spacing along y, m (default dx)")
-    g.add_argument("--c", type=float, default=None, help="speed of sound, m/s (default: the input's or 1500)")
+    from clients.cli._common import quantity
+
+    g.add_argument("--dt", type=quantity("time", "dt"), default=None,
+                   help="sample interval, e.g. 20ns (bare numbers are SI)")
+    g.add_argument("--dx", type=quantity("length", "dx"), default=None, help="lateral spacing along x, e.g. 100um")
+    g.add_argument("--dy", type=quantity("length", "dy"), default=None,
+                   help="lateral spacing along y, e.g. 100um (default dx)")
+    g.add_argument("--c", type=quantity("speed", "c"), default=None,
+                   help="speed of sound, e.g. 1500m/s (default: the input's or 1500)")
+    g.add_argument("--force", action="store_true", help="accept a speed of sound outside 1000-2000 m/s")
     g.add_argument("--key", default=None, help="HDF5 dataset path in a k-Wave file (default sensor_data/clean)")
     g = parser.add_argument_group("reconstruction options")
     g.add_argument("--eps", type=float, default=None, help="NUFFT tolerance (default 1e-6)")
@@ -58,7 +64,8 @@ def add_arguments(parser):
                    help="tv: TV weight λ in the data's units, >= 0 (default: from the estimated noise level)")
     g.add_argument("--iterations", type=int, default=None, help="tv: maximum iterations (default 60)")
     g.add_argument("--n-z", type=int, default=None, help="output depth samples (default n_t)")
-    g.add_argument("--dz", type=float, default=None, help="output depth spacing, m (default c*dt)")
+    g.add_argument("--dz", type=quantity("length", "dz"), default=None,
+                   help="output depth spacing, e.g. 20um (default c*dt)")
     g.add_argument("--interp", choices=KWAVE_INTERPS, default=None,
                    help="k-Wave interpolation for --method kwave (default *nearest, as k-Wave)")
     parser.add_argument("--scan-job", default=None, metavar="JOB_ID",
@@ -133,7 +140,8 @@ def _local(args, fmt: str, method: str) -> int:
     say = (lambda msg: None) if args.quiet else (lambda msg: print(f"recon: {msg}", file=sys.stderr, flush=True))
     t0 = time.perf_counter()
     say(f"importing {args.input} ({fmt})")
-    ds = load_dataset(args.input, fmt, dt=args.dt, dx=args.dx, dy=args.dy, c=args.c, key=args.key)
+    ds = load_dataset(args.input, fmt, dt=args.dt, dx=args.dx, dy=args.dy, c=args.c, key=args.key,
+                      force=args.force)
     t1 = time.perf_counter()
     shape = ds.data.shape if ds.kind == "grid" else ds.alines.shape
     say(f"reconstructing with {method} (input {list(shape)})")
@@ -158,6 +166,9 @@ def _remote(args, fmt: str | None, method: str) -> int:
         if args.scan_job:
             job_id = api.start_reconstruction(scan_job_id=args.scan_job, method=method, params=_params(args))
         else:
+            from driver.units import check_plausible
+
+            check_plausible(dt=args.dt, dx=args.dx, dy=args.dy, sound_speed=args.c, force=args.force)
             fields = {k: getattr(args, k) for k in ("dt", "dx", "dy", "c", "key")}
             dataset_id = api.upload_dataset(args.input, fmt, **fields)
             job_id = api.start_reconstruction(dataset_id=dataset_id, method=method, params=_params(args))

@@ -32,7 +32,16 @@ from .kinds import KINDS, MASK_KINDS, kind_fields, make_mask, resolve_kind
 from .lattice import Lattice
 from .mask import Mask, distance_law_weights, weight_ratio
 from .ordering import nearest_neighbour_order, ring_order, scan_order, serpentine_order
-from .plan import PLAN_FORMAT, Acquisition, Plan, canonical_json, content_id, make_plan, plan_from_spec
+from .plan import (
+    PLAN_FORMAT,
+    Acquisition,
+    Plan,
+    canonical_json,
+    check_plausible_request,
+    content_id,
+    make_plan,
+    plan_from_spec,
+)
 from .preview import preview_png
 
 __all__ = [
@@ -43,4 +52,5 @@ __all__ = [
     "scan_order", "serpentine_order", "ring_order", "nearest_neighbour_order",
     "Plan", "Acquisition", "PLAN_FORMAT", "make_plan", "plan_from_spec", "canonical_json", "content_id",
     "preview_png",
+    "check_plausible_request",
 ]

@@ -276,9 +276,33 @@ def _json_safe(obj):
     raise ValueError(f"parameter value {obj!r} is not JSON-serialisable")
 
 
+def check_plausible_request(mask, kind, lattice, params, acquisition, *, force: bool = False) -> None:
+    """The plausibility rules of ``driver.units.check_plausible`` on a plan request: the
+    lattice pitch, dt, the PRF against the recording, the sound speed (unless ``force``)
+    and the depth of the point of interest of the equiangular/equi-steradian kinds.
+    ``mask``: a ``Mask`` (its lattice, kind and params are used) or None with ``kind``,
+    ``lattice`` (dict or ``Lattice``), ``params``; ``acquisition``: an ``Acquisition`` or
+    dict. Raises ``driver.units.ImplausibleValue`` (a ValueError)."""
+    if isinstance(acquisition, dict):
+        acquisition = Acquisition(**acquisition)
+    from driver.units import check_plausible
+
+    if mask is not None and isinstance(mask, Mask):
+        pitch, kind, params = mask.lattice.pitch, mask.kind, mask.params or {}
+    else:
+        pitch = lattice.get("pitch") if isinstance(lattice, dict) else getattr(lattice, "pitch", None)
+    depth = params.get("depth") if isinstance(params, dict) and kind in ("equiangular", "equisteradian") \
+        else None
+    num = (int, float)
+    check_plausible(pitch=pitch if isinstance(pitch, num) else None,
+                    dt=acquisition.dt, n_t=acquisition.n_t, prf=acquisition.prf,
+                    sound_speed=acquisition.sound_speed, depth=depth if isinstance(depth, num) else None,
+                    force=force)
+
+
 def make_plan(mask: Mask | str | None = None, *, kind: str | None = None, lattice=None,
               params: dict | None = None, order: str = "auto",
-              acquisition: Acquisition | dict | None = None, **settings) -> Plan:
+              acquisition: Acquisition | dict | None = None, force: bool = False, **settings) -> Plan:
     """A plan: a mask's points put in ``order`` with acquisition settings.
 
     The mask is either given (``make_plan(mask)``) or made here from a kind name
@@ -293,6 +317,10 @@ def make_plan(mask: Mask | str | None = None, *, kind: str | None = None, lattic
     ``mask.weight_ratio`` is ``service.plans.weight_ratio`` (outer/inner, paper §6) for every
     kind, point lists included.
 
+    Values a person types are checked for plausibility first (``driver.units.check_plausible``:
+    pitch, dt, the point of interest's depth, the PRF against the recording, the sound
+    speed unless ``force``): ``driver.units.ImplausibleValue`` names the likely unit mistake.
+
     Raises ValueError for an unknown order (naming it), bad settings or bad mask parameters."""
     order = order or "auto"
     if not isinstance(order, str) or order not in ORDER_NAMES:
@@ -301,6 +329,11 @@ def make_plan(mask: Mask | str | None = None, *, kind: str | None = None, lattic
         if kind is not None and kind != mask:
             raise ValueError("mask kind given twice")
         kind, mask = mask, None
+    if isinstance(acquisition, dict):
+        acquisition = Acquisition(**{**acquisition, **settings})
+        settings = {}
+    check_plausible_request(mask, kind, lattice, params, acquisition if acquisition is not None else Acquisition(**settings),
+                     force=force)
     if mask is None:
         if kind is None or lattice is None:
             raise ValueError("give a Mask, or a mask kind with a lattice (and params)")

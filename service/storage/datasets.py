@@ -228,14 +228,22 @@ def _open_h5(path: Path) -> h5py.File:
 
 def load_dataset(path: str | os.PathLike, format: str | None = None, *, dt: float | None = None,
                  dx: float | None = None, dy: float | None = None, c: float | None = None,
-                 key: str | None = None, max_bytes: int = MAX_ELEMENTS * 8) -> GridDataset | PointDataset:
+                 key: str | None = None, max_bytes: int = MAX_ELEMENTS * 8,
+                 force: bool = False) -> GridDataset | PointDataset:
     """Import a file for reconstruction (module docstring). Explicit ``dt`` (s), ``dx``,
-    ``dy`` (m) and ``c`` (m/s) override what the file says. An HDF5 file is checked
-    first (``service.storage.untrusted.check_hdf5``: no external storage, external links
-    or virtual datasets, no dataset declaring more than ``max_bytes`` or more than it
-    stores). Raises ValueError naming the fault, FileNotFoundError."""
+    ``dy`` (m) and ``c`` (m/s) override what the file says; they are what a person typed,
+    so they must be plausible (``driver.units.check_plausible``: a unit mistake such as
+    ``dt=20`` for 20 ns is named; ``force`` accepts an unusual ``c``). An HDF5 file is
+    checked first (``service.storage.untrusted.check_hdf5``: no external storage,
+    external links or virtual datasets, no dataset declaring more than ``max_bytes`` or
+    more than it stores). Raises ValueError naming the fault, FileNotFoundError."""
+    from driver.units import check_plausible
     from service.storage.untrusted import check_hdf5, is_hdf5
 
+    num = (int, float)
+    check_plausible(dt=dt if isinstance(dt, num) else None, dx=dx if isinstance(dx, num) else None,
+                    dy=dy if isinstance(dy, num) else None,
+                    sound_speed=c if isinstance(c, num) else None, force=force)
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no such file: {path}")

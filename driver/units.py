@@ -1,0 +1,194 @@
+"""Numbers a person types: explicit units, and the plausibility rules that catch a unit
+mistake (a pitch of 60 m where 60 µm was meant).
+
+:func:`parse_quantity` reads ``"60um"``, ``"60 µm"``, ``"3.6 mm"``, ``"8ns"``, ``"500 Hz"``,
+``"1.5 km/s"`` with ``pint`` (its registry with decimal arithmetic, so ``"60um"`` gives
+exactly the float ``6e-05`` that ``"6e-5"`` gives: the same plan id); a bare number is SI
+(m, s, Hz, m/s). Only ``<number> <unit>`` is accepted -- no expressions -- so hostile text
+ends at once.
+
+:func:`check_plausible` holds the ranges a planar FP scanner works in, one place for the
+library (``ValueError``), the API (422) and the CLI (exit 2):
+
+=============================  ==============================  ============================
+quantity                       plausible                       likely mistake named
+=============================  ==============================  ============================
+lattice pitch, spacing dx/dy   1 µm – 10 mm                    µm or mm typed as m
+sample interval dt             0.1 ns – 1 µs                   ns or µs typed as s
+point-of-interest depth        > 0, within the recording's     mm or µm typed as m
+                               reach c·(n_t − 1)·dt
+PRF                            period 1/PRF ≥ the recording    Hz vs kHz
+                               n_t·dt (0 = unthrottled)
+speed of sound c               1000 – 2000 m/s unless forced   km/s or mm/µs typed as m/s
+=============================  ==============================  ============================
+"""
+from __future__ import annotations
+
+import functools
+import math
+import re
+from decimal import Decimal, InvalidOperation
+from typing import Any
+
+#: what each kind of quantity is measured in: (pint dimensionality, SI unit name)
+KINDS = {
+    "length": ("[length]", "m"),
+    "time": ("[time]", "s"),
+    "frequency": ("1 / [time]", "Hz"),
+    "speed": ("[length] / [time]", "m/s"),
+}
+
+PITCH_RANGE = (1e-6, 10e-3)       # m
+DT_RANGE = (0.1e-9, 1e-6)         # s
+SOUND_SPEED_RANGE = (1000.0, 2000.0)  # m/s
+
+_QUANTITY = re.compile(r"^\s*([+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?)\s*([A-Za-zµμ/ ]*?)\s*$")
+
+
+class ImplausibleValue(ValueError):
+    """A value outside what a planar FP scanner works with, most likely a unit mistake;
+    the message names the quantity, its plausible range and the likely intended unit."""
+
+
+@functools.cache
+def _registry():
+    import pint
+
+    return pint.UnitRegistry(non_int_type=Decimal)
+
+
+def parse_quantity(value: Any, kind: str, *, name: str = "value") -> float:
+    """``value`` in SI units as a float.
+
+    ``value``: a number (SI already) or text ``"<number>"`` (SI) or ``"<number> <unit>"``
+    (``"60um"``, ``"3.6 mm"``, ``"8ns"``, ``"500 Hz"``, ``"1.5 km/s"``). ``kind``: one of
+    :data:`KINDS`. Raises ValueError naming ``name`` for text that is not a number with a
+    unit of that kind (or not finite).
+    """
+    if kind not in KINDS:
+        raise ValueError(f"unknown kind of quantity {kind!r}; one of {', '.join(KINDS)}")
+    dim, si = KINDS[kind]
+    if isinstance(value, bool):
+        raise ValueError(f"{name} must be a {kind}, got {value!r}")
+    if isinstance(value, (int, float)):
+        out = float(value)
+    else:
+        text = str(value)
+        m = _QUANTITY.match(text) if len(text) <= 40 else None
+        if m is None:
+            raise ValueError(f"{name} must be a number with an optional {kind} unit "
+                             f"(e.g. 60um, 3.6 mm, 8ns, 500 Hz; bare numbers are {si}), got {text!r}")
+        number, unit = m.group(1), m.group(2).strip().replace("μ", "µ")
+        try:
+            magnitude = Decimal(number)
+        except InvalidOperation:
+            raise ValueError(f"{name}: {number!r} is not a number") from None
+        if not unit:
+            out = float(magnitude)
+        else:
+            import pint
+
+            ureg = _registry()
+            try:
+                q = magnitude * ureg.Unit(unit)
+            except (pint.errors.PintError, AttributeError, ValueError, TypeError):
+                raise ValueError(f"{name}: unknown unit {unit!r} (a {kind}: e.g. "
+                                 f"{', '.join(_EXAMPLES[kind])})") from None
+            if not q.check(dim):
+                raise ValueError(f"{name}: {text.strip()!r} is not a {kind} (expected {si} or e.g. "
+                                 f"{', '.join(_EXAMPLES[kind])})")
+            out = float(q.to(si).magnitude)
+    if not math.isfinite(out):
+        raise ValueError(f"{name} must be finite, got {value!r}")
+    return out
+
+
+_EXAMPLES = {"length": ("60um", "3.6 mm"), "time": ("8ns", "2 us"), "frequency": ("500 Hz", "2 kHz"),
+             "speed": ("1500 m/s", "1.54 km/s")}
+
+
+def _fmt(x: float, unit: str) -> str:
+    """``x`` SI in a readable unit (µm/mm, ns/µs, Hz/kHz)."""
+    if unit == "m":
+        for scale, u in ((1.0, "m"), (1e-3, "mm"), (1e-6, "µm"), (1e-9, "nm")):
+            if abs(x) >= scale or scale == 1e-9:
+                return f"{x / scale:g} {u}"
+    if unit == "s":
+        for scale, u in ((1.0, "s"), (1e-3, "ms"), (1e-6, "µs"), (1e-9, "ns"), (1e-12, "ps")):
+            if abs(x) >= scale or scale == 1e-12:
+                return f"{x / scale:g} {u}"
+    if unit == "Hz":
+        for scale, u in ((1e6, "MHz"), (1e3, "kHz"), (1.0, "Hz")):
+            if abs(x) >= scale or scale == 1.0:
+                return f"{x / scale:g} {u}"
+    return f"{x:g} {unit}"
+
+
+def _guess(value: float, lo: float, hi: float, units: tuple) -> str:
+    """``" -- did you mean 60 µm (60um)?"`` for the first ``(factor, name, suffix)`` that
+    brings ``value`` into ``[lo, hi]``, else ""."""
+    for factor, unit_name, suffix in units:
+        if lo <= value * factor <= hi:
+            return f" -- did you mean {value:g} {unit_name} ({value:g}{suffix})?"
+    return ""
+
+
+def _in_range(name: str, value: float, lo: float, hi: float, unit: str, units: tuple) -> None:
+    if not lo <= value <= hi:
+        raise ImplausibleValue(
+            f"{name} {value:g} {unit} is implausible for a planar FP scanner (expected "
+            f"{_fmt(lo, unit)} to {_fmt(hi, unit)}){_guess(value, lo, hi, units)} "
+            f"Numbers without a unit are SI ({unit}); write the unit, e.g. {_EXAMPLES[_KIND_OF[unit]][0]}.")
+
+
+_KIND_OF = {"m": "length", "s": "time", "Hz": "frequency", "m/s": "speed"}
+_LENGTH_UNITS = ((1e-6, "µm", "um"), (1e-3, "mm", "mm"), (1e-9, "nm", "nm"))
+_TIME_UNITS = ((1e-9, "ns", "ns"), (1e-6, "µs", "us"), (1e-12, "ps", "ps"))
+
+
+def check_plausible(*, pitch: float | None = None, dx: float | None = None, dy: float | None = None,
+                    dt: float | None = None, n_t: int | None = None, prf: float | None = None,
+                    sound_speed: float | None = None, depth: float | None = None,
+                    force: bool = False) -> None:
+    """Raise :class:`ImplausibleValue` (a ``ValueError``) for the first value outside the
+    table of the module docstring, naming the likely unit mistake. All values SI; None =
+    not given. ``force`` accepts a sound speed outside 1000–2000 m/s (other media)."""
+    for name, v in (("pitch", pitch), ("dx", dx), ("dy", dy)):
+        if v is not None:
+            _in_range(name, float(v), *PITCH_RANGE, "m", _LENGTH_UNITS)
+    if dt is not None:
+        _in_range("dt", float(dt), *DT_RANGE, "s", _TIME_UNITS)
+    if sound_speed is not None and not force:
+        c = float(sound_speed)
+        if not SOUND_SPEED_RANGE[0] <= c <= SOUND_SPEED_RANGE[1]:
+            hint = ""
+            if SOUND_SPEED_RANGE[0] <= c * 1e3 <= SOUND_SPEED_RANGE[1]:
+                hint = f" -- did you mean {c:g} km/s (= {c * 1e3:g} m/s; mm/µs is the same)?"
+            raise ImplausibleValue(
+                f"sound speed {c:g} m/s is implausible for tissue or water (expected 1000 to 2000 "
+                f"m/s){hint} Numbers without a unit are m/s; force a value outside the range if the "
+                "medium really is that fast or slow.")
+    recording = n_t * dt if (n_t is not None and dt is not None) else None
+    if depth is not None:
+        d = float(depth)
+        c = float(sound_speed) if sound_speed is not None else 1500.0
+        reach = c * (n_t - 1) * dt if (n_t is not None and dt is not None) else None
+        if d <= 0 or (reach is not None and d > reach):
+            mm = d * 1e-3 if reach is not None and 0 < d * 1e-3 <= reach else None
+            hint = (f" -- did you mean {d:g} mm ({d:g}mm)?" if mm is not None else
+                    (f" -- did you mean {d:g} µm ({d:g}um)?" if reach is not None and 0 < d * 1e-6 <= reach
+                     else ""))
+            where = f"the recording reaches c·(n_t − 1)·dt = {_fmt(reach, 'm')}" if reach is not None \
+                else "it must be > 0"
+            raise ImplausibleValue(
+                f"depth {d:g} m is beyond the lattice's reach ({where}){hint} Numbers without a unit "
+                "are metres; write the unit, e.g. 3.6mm.")
+    if prf is not None and float(prf) > 0 and recording is not None:
+        period = 1.0 / float(prf)
+        if period < recording:
+            f = float(prf)
+            hint = f" -- did you mean {f / 1e3:g} Hz?" if 1e3 / f >= recording else ""
+            raise ImplausibleValue(
+                f"PRF {_fmt(f, 'Hz')} fires every {_fmt(period, 's')}, shorter than one recording "
+                f"(n_t·dt = {n_t} × {_fmt(dt, 's')} = {_fmt(recording, 's')}){hint} Numbers without a "
+                "unit are Hz; write it, e.g. 500Hz or 2kHz.")

@@ -1,0 +1,48 @@
+"""The unit rules of driver.units through the HTTP API: the same implausible values as the
+CLI tests (tests/plans/test_units.py) are a 422 whose reason names the likely unit; text
+with a unit is accepted and gives the plan the SI numbers give."""
+from __future__ import annotations
+
+import io
+
+import numpy as np
+import pytest
+
+LATTICE = {"n_x": 40, "n_y": 40, "pitch": 6e-5}
+EQ = {"kind": "equisteradian", "params": {"depth": 2e-3, "n_points": 60}}
+
+
+@pytest.mark.parametrize("change, names", [
+    ({"lattice": {**LATTICE, "pitch": 60}}, ["pitch 60 m", "60 µm"]),
+    ({"params": {"depth": 3.6, "n_points": 60}}, ["depth 3.6 m", "3.6 mm"]),
+    ({"acquisition": {"dt": 8}}, ["dt 8 s", "8 ns"]),
+    ({"acquisition": {"n_t": 4096, "dt": 8e-9, "prf": 1e5}}, ["PRF 100 kHz", "n_t·dt"]),
+    ({"acquisition": {"sound_speed": 1.5}}, ["1.5 m/s", "km/s"]),
+])
+def test_api_unit_mistakes_are_422_naming_the_unit(shared_api, change, names):
+    body = {"lattice": LATTICE, **EQ, **change}
+    for path in ("/api/plans", "/api/plans/preview"):  # the web form previews through the API
+        r = shared_api.post(path, json=body)
+        assert r.status_code == 422, r.text
+        assert all(n in r.json()["detail"] for n in names), r.json()
+
+
+def test_api_units_in_text_and_force(shared_api):
+    si = shared_api.post("/api/plans", json={"lattice": LATTICE, **EQ,
+                                             "acquisition": {"dt": 8e-9, "prf": 500}})
+    text = shared_api.post("/api/plans", json={"lattice": {**LATTICE, "pitch": "60um"}, **EQ,
+                                               "acquisition": {"dt": "8 ns", "prf": "500Hz"}})
+    assert si.status_code == text.status_code == 201, text.text
+    assert si.json()["id"] == text.json()["id"]
+    r = shared_api.post("/api/plans", json={"lattice": LATTICE, **EQ, "force": True,
+                                            "acquisition": {"sound_speed": 2500}})
+    assert r.status_code == 201, r.text
+
+
+def test_upload_dt_dx_mistakes_are_422(shared_api):
+    buf = io.BytesIO()
+    np.save(buf, np.zeros((16, 4, 4), dtype=np.float32))
+    for form, name in (({"dt": "20", "dx": "1e-4"}, "20 ns"), ({"dt": "2e-8", "dx": "100"}, "100 µm")):
+        r = shared_api.post("/api/datasets", data={"format": "npy", **form},
+                            files={"file": ("d.npy", buf.getvalue(), "application/octet-stream")})
+        assert r.status_code == 422 and name in r.json()["detail"], r.text
