@@ -1,12 +1,22 @@
 # syntax=docker/dockerfile:1
-# fpscan service image: `fpscan serve` on 0.0.0.0:8000, token required, state in /data.
+# fpscan service image: `fpscan serve` on 0.0.0.0:8000, token required, state in /data,
+# tini as PID 1 (signals reach the server, zombies are reaped).
 #   docker build -t fpscan .
 #   docker run -d -p 8000:8000 -e FPSCAN_TOKEN=... -v fpscan-data:/data \
 #     --device /dev/ttyACM0 --group-add dialout \
 #     -e FPSCAN_DEVICES='{"fp1": "/dev/ttyACM0"}' fpscan
+# The token from a file instead (Docker/Compose/Swarm secrets): mount it and name it,
+#   docker run ... -v "$PWD/token.txt:/run/secrets/fpscan_token:ro" \
+#     -e FPSCAN_TOKEN_FILE=/run/secrets/fpscan_token fpscan
+#
+# Base image pinned by digest: python:3.11-slim at the index digest below, as recorded in
+# two independent public Dockerfiles (docker.io/library and its public.ecr.aws mirror);
+# it was not pulled from the machine this file was written on. To move to a newer patch
+# release, take the digest from `docker buildx imagetools inspect python:3.11-slim` and
+# replace it in both FROM lines.
 
 # ---- build stage: compile wheels (cobs has a C extension) into a venv --------------
-FROM python:3.11-slim AS build
+FROM python:3.11-slim@sha256:9c900dea9e8fb7e16277c179b555cc72d29a352dbc33cff48ad5a0412fd5bfc7 AS build
 # hadolint ignore=DL3008
 RUN apt-get update \
  && apt-get install -y --no-install-recommends gcc libc6-dev \
@@ -14,15 +24,23 @@ RUN apt-get update \
 ENV PIP_NO_CACHE_DIR=1 PIP_DISABLE_PIP_VERSION_CHECK=1
 RUN python -m venv /opt/fpscan
 WORKDIR /src
+# dependencies first, in their own layer: a change of the source reuses it
 COPY pyproject.toml README.md ./
+# (the base, driver and server requirements of pyproject.toml, without fpscan itself)
+RUN /opt/fpscan/bin/python -c "import tomllib; p = tomllib.load(open('pyproject.toml', 'rb'))['project']; o = p['optional-dependencies']; print('\n'.join(r for r in p['dependencies'] + o['driver'] + o['server'] if not r.startswith('fpscan')))" > requirements.txt \
+ && /opt/fpscan/bin/python -m pip install --no-cache-dir -r requirements.txt
 COPY service ./service
 COPY driver ./driver
 COPY clients ./clients
-RUN /opt/fpscan/bin/python -m pip install --no-cache-dir ".[server]"
+RUN /opt/fpscan/bin/python -m pip install --no-cache-dir --no-deps ".[server]"
 
-# ---- runtime stage: slim, no compiler, non-root ------------------------------------
-FROM python:3.11-slim
-RUN useradd --create-home --uid 10001 --user-group fpscan \
+# ---- runtime stage: slim, no compiler, non-root, tini as init ----------------------
+FROM python:3.11-slim@sha256:9c900dea9e8fb7e16277c179b555cc72d29a352dbc33cff48ad5a0412fd5bfc7
+# hadolint ignore=DL3008
+RUN apt-get update \
+ && apt-get install -y --no-install-recommends tini \
+ && rm -rf /var/lib/apt/lists/* \
+ && useradd --create-home --uid 10001 --user-group fpscan \
  && usermod --append --groups dialout fpscan \
  && mkdir -p /data \
  && chown fpscan:fpscan /data
@@ -36,6 +54,8 @@ WORKDIR /data
 USER 10001:10001
 EXPOSE 8000
 HEALTHCHECK --interval=30s --timeout=5s --start-period=30s --retries=3 \
-  CMD ["python", "-c", "import os, urllib.request as u; r = u.Request('http://127.0.0.1:%s/api/health' % os.environ.get('FPSCAN_PORT', '8000'), headers={'Authorization': 'Bearer ' + os.environ.get('FPSCAN_TOKEN', '')}); u.urlopen(r, timeout=4)"]
-# The token is required: refuse to start without FPSCAN_TOKEN.
-CMD ["sh", "-c", "if [ -z \"$FPSCAN_TOKEN\" ]; then echo 'fpscan: set FPSCAN_TOKEN (the bearer token is required in the container)' >&2; exit 64; fi; exec fpscan serve --host 0.0.0.0 --port \"$FPSCAN_PORT\""]
+  CMD ["python", "-c", "import os, urllib.request as u; f = os.environ.get('FPSCAN_TOKEN_FILE'); t = os.environ.get('FPSCAN_TOKEN') or (open(f).read().strip() if f else ''); r = u.Request('http://127.0.0.1:%s/api/health' % os.environ.get('FPSCAN_PORT', '8000'), headers={'Authorization': 'Bearer ' + t}); u.urlopen(r, timeout=4)"]
+# tini (PID 1) forwards SIGTERM to the server and reaps the worker processes it starts
+ENTRYPOINT ["/usr/bin/tini", "--"]
+# The token is required: refuse to start without FPSCAN_TOKEN or FPSCAN_TOKEN_FILE.
+CMD ["sh", "-c", "if [ -z \"$FPSCAN_TOKEN\" ] && [ -z \"$FPSCAN_TOKEN_FILE\" ]; then echo 'fpscan: set FPSCAN_TOKEN or FPSCAN_TOKEN_FILE (the bearer token is required in the container)' >&2; exit 64; fi; exec fpscan serve --host 0.0.0.0 --port \"$FPSCAN_PORT\""]

@@ -53,6 +53,18 @@ def test_dockerfile_structure():
     assert "FPSCAN_TOKEN" in " ".join(cmd), "the start command must require the token"
     # the runtime stage carries no compiler
     assert not any(i.keyword == "RUN" and "gcc" in i.args for i in ins if i.stage == final)
+    # both stages from the same base image, pinned by digest
+    assert all("@sha256:" in f.args and len(f.args.split("@sha256:")[1].split()[0]) == 64 for f in froms)
+    assert len({f.args.split()[0] for f in froms}) == 1
+    # an init process as PID 1 (tini), the server as its child
+    entry = [i for i in ins if i.keyword == "ENTRYPOINT" and i.stage == final][-1].exec_form()
+    assert entry[0].endswith("tini") and entry[-1] == "--"
+    # the dependencies are installed in a layer before the source is copied
+    build = [i for i in ins if i.stage == froms[0].stage]
+    first_src = min(k for k, i in enumerate(build) if i.keyword == "COPY" and "service" in i.args)
+    deps = [k for k, i in enumerate(build) if i.keyword == "RUN" and "requirements.txt" in i.args]
+    assert deps and deps[0] < first_src
+    assert "FPSCAN_TOKEN_FILE" in " ".join(cmd)
 
 
 def _has_serve() -> bool:
@@ -131,7 +143,11 @@ def test_start_command_serves_and_healthcheck_passes(image_install):
     env = dict(image_install["env"])
     port = free_port()
     env["FPSCAN_PORT"] = str(port)
-    env["FPSCAN_TOKEN"] = "docker-test-token"
+    # the token from a file, as a Docker secret is mounted (FPSCAN_TOKEN_FILE)
+    secret = image_install["cwd"].parent / "fpscan_token"
+    secret.write_text("docker-test-token\n")
+    env.pop("FPSCAN_TOKEN", None)
+    env["FPSCAN_TOKEN_FILE"] = str(secret)
     ins = image_install["ins"]
     health = [i for i in ins if i.keyword == "HEALTHCHECK"][0].exec_form()
     health = [sys.executable if part == "python" else part for part in health]
@@ -151,6 +167,10 @@ def test_start_command_serves_and_healthcheck_passes(image_install):
 
         page = httpx.get(f"http://127.0.0.1:{port}/", headers={"Authorization": "Bearer docker-test-token"})
         assert page.status_code == 200 and "text/html" in page.headers["content-type"]
+        # the token from the file is in force (a mutating request without it: 401)
+        assert httpx.put(f"http://127.0.0.1:{port}/api/retention", json={}).status_code == 401
+        assert httpx.put(f"http://127.0.0.1:{port}/api/retention", json={},
+                         headers={"Authorization": "Bearer docker-test-token"}).status_code == 200
         # the database lives in the data volume
         assert any(image_install["cwd"].iterdir())
         # and the health check fails once the server is gone
