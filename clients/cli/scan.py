@@ -68,9 +68,11 @@ def run(args) -> int:
     if not args.device or not args.out:
         raise ValueError("a local scan needs --device and --out (or use --server URL)")
     from driver.acquire import acquire
+    from driver.plan import load_plan
 
     if args.window < 1 or args.timeout <= 0:
         raise ValueError("--window must be >= 1 and --timeout > 0")
+    plan = load_plan(args.plan)  # a wrong file is named before the device is opened
     before = _points_on_disk(args.out)
     last: dict = {}
     t0 = time.monotonic()
@@ -83,7 +85,7 @@ def run(args) -> int:
                      "eta_s": p.eta_s if p.eta_s < float("inf") else None,
                      "faults_recovered": p.faults_recovered})
 
-            result = acquire(args.device, args.plan, args.out, progress=progress,
+            result = acquire(args.device, plan, args.out, progress=progress,
                              durable="fsync" if args.fsync else "process", window=args.window,
                              response_timeout=args.timeout)
     except KeyboardInterrupt:

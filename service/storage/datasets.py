@@ -204,12 +204,22 @@ def detect_format(path: str | os.PathLike) -> str:
     if head.startswith(b"\x93NUMPY"):
         return "npy"
     if head != b"\x89HDF\r\n\x1a\n":
+        if head.lstrip().startswith(b"{"):
+            raise ValueError("this is a plan (JSON), not data to reconstruct: scan it first "
+                             "(`fpscan scan --plan ...`) and reconstruct the scan file")
+        if head.startswith(b"\x89PNG"):
+            raise ValueError("this is a PNG picture, not data to reconstruct")
         raise ValueError("file is neither HDF5 nor a NumPy .npy array")
     with _open_h5(path) as f:
-        if str(f.attrs.get("format", "")).startswith("fpscan-scan/"):  # /1 and /2
+        fmt = f.attrs.get("format")
+        fmt = fmt.decode() if isinstance(fmt, bytes) else str(fmt or "")
+        if fmt.startswith("fpscan-scan/"):  # /1 and /2
             return "fpscan"
         if f.attrs.get("format") == DATASET_FORMAT or f.attrs.get("layout") in ("grid", "points"):
             return "dataset"
+        if fmt.startswith("fpscan-result/"):
+            raise ValueError("this is a reconstruction result (a p0 volume), not data to reconstruct: "
+                             "open it with h5py, or `fpscan export` it to OME-TIFF for ImageJ/napari")
         if "binary_time_series_data" in f:
             return "ipasc"
     return "kwave-hdf5"
