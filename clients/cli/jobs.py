@@ -42,6 +42,19 @@ def add_arguments(parser):
     add_server_options(p, required=True)
 
 
+def _what(job) -> str:
+    """What a job works on: ``plan 1a2b3c4d on fp1`` for a scan, ``nedner of scan 5e6f7a8b``
+    (or ``of dataset ...``) for a reconstruction."""
+    from clients.http import field_of, to_dict
+
+    p = to_dict(field_of(job, "params")) or {}
+    if field_of(job, "kind") == "scan":
+        return f"plan {str(p.get('plan_id') or '?')[:8]} on {p.get('scanner_id') or '?'}"
+    source = (f"scan {str(p['scan_job_id'])[:8]}" if p.get("scan_job_id")
+              else f"dataset {str(p.get('dataset_id') or '?')[:8]}")
+    return f"{p.get('method') or '?'} of {source}"
+
+
 @client_errors
 def run(args) -> int:
     """Run this sub-command with the parsed ``args``; return the exit status."""
@@ -56,13 +69,14 @@ def run(args) -> int:
             if args.json:
                 print(json.dumps([to_dict(j) for j in jobs], indent=2))
                 return 0
-            print(f"{'id':<36}  {'kind':<6}  {'state':<10}  progress")
+            # short ids (a unique prefix is accepted wherever a job id is)
+            print(f"{'id':<12}  {'kind':<5}  {'state':<10}  {'what':<34}  progress")
             for j in jobs:
                 prog = to_dict(field_of(j, "progress")) or {}
                 frac = prog.get("fraction")
                 pct = f"{100 * frac:5.1f}%" if frac is not None else ""
-                print(f"{field_of(j, 'id')!s:<36}  {field_of(j, 'kind')!s:<6}  "
-                      f"{field_of(j, 'state')!s:<10}  {pct} {prog.get('stage') or ''}".rstrip())
+                print(f"{field_of(j, 'id')!s:<12.12}  {field_of(j, 'kind')!s:<5}  "
+                      f"{field_of(j, 'state')!s:<10}  {_what(j):<34}  {pct} {prog.get('stage') or ''}".rstrip())
             return 0
         if args.action == "get":
             print(json.dumps(to_dict(api.get_job(args.job_id)), indent=2))

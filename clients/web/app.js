@@ -761,6 +761,15 @@ function jobCreated(j) {
   return isNaN(d) ? String(t) : d.toLocaleString();
 }
 
+/** What a job works on: "plan 1a2b3c4d on fp1" (scan), "nedner of scan 5e6f7a8b" (recon). */
+function jobWhat(j) {
+  const p = j.params || {};
+  const short = (s) => String(s ?? "?").slice(0, 8);
+  if (j.kind === "scan") return `plan ${short(p.plan_id)} on ${p.scanner_id ?? "?"}`;
+  const source = p.scan_job_id ? `scan ${short(p.scan_job_id)}` : `dataset ${short(p.dataset_id)}`;
+  return `${p.method ?? "?"} of ${source}`;
+}
+
 async function refreshJobs() {
   const params = new URLSearchParams();
   if ($("jobs-state").value) params.set("state", $("jobs-state").value);
@@ -777,7 +786,8 @@ async function refreshJobs() {
     if (!tr) {
       tr = document.createElement("tr");
       tr.dataset.jobId = id;
-      tr.innerHTML = '<td class="c-id"></td><td class="c-kind"></td><td><span class="state c-state"></span></td>' +
+      tr.innerHTML = '<td class="c-id"></td><td class="c-kind"></td><td class="c-what"></td>' +
+        '<td><span class="state c-state"></span></td>' +
         '<td class="c-progress"></td><td class="c-created"></td><td><a class="c-open"></a> ' +
         '<button type="button" class="c-delete danger">Delete</button></td>';
       const a = tr.querySelector(".c-open");
@@ -792,6 +802,7 @@ async function refreshJobs() {
     tr.querySelector(".c-id").textContent = shortId(id);
     tr.querySelector(".c-id").title = id;
     tr.querySelector(".c-kind").textContent = j.kind ?? "";
+    tr.querySelector(".c-what").textContent = jobWhat(j);
     setState(tr.querySelector(".c-state"), j.state);
     tr.querySelector(".c-progress").textContent = jobProgressText(j);
     tr.querySelector(".c-created").textContent = jobCreated(j);
@@ -922,7 +933,10 @@ function renderResult(job) {
       tbody.appendChild(tr);
     }
   };
-  addRows(flatten(job.params || {}).filter(([k]) => !k.startsWith("result.")));
+  // what was asked (unset options left out) and, once done, the values the reconstruction used
+  addRows(flatten(job.params || {}).filter(([k, v]) => !k.startsWith("result.") && v !== "null" && v !== "undefined"));
+  const used = resultOf(job).params_used;
+  if (used) addRows(flatten(used, "used").filter(([, v]) => v !== "null"));
   const t = job.timings || {};
   addRows([["time queued", fmtDuration(t.queued_s)], ["time running", fmtDuration(t.run_s)]]);
   const rt = resultOf(job).timings;

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import re
 import time
 import uuid
 from pathlib import Path
@@ -118,6 +119,35 @@ class _TooLarge(Exception):
     pass
 
 
+class ShortIds:
+    """ASGI middleware: a unique prefix of a job id (4 to 31 hex characters, as the CLI and
+    the web page show ids) works wherever a job id is in the path
+    (``/api/jobs/…``, ``/api/scans/…``, ``/api/reconstructions/…``): the path is rewritten
+    to the full id; an ambiguous prefix is a 409 naming the matches."""
+
+    PATH = re.compile(r"^/api/(jobs|scans|reconstructions)/([0-9a-fA-F]{4,31})(/.*)?$")
+
+    def __init__(self, app):
+        self.app = app
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] == "http":
+            m = self.PATH.match(scope.get("path", ""))
+            ctx_ = getattr(getattr(scope.get("app"), "state", None), "ctx", None)
+            if m and ctx_ is not None:
+                import anyio
+
+                found = await anyio.to_thread.run_sync(ctx_.store.resolve, m.group(2))
+                if len(found) > 1:
+                    resp = JSONResponse({"detail": f"job id prefix {m.group(2)!r} matches several jobs "
+                                                   f"({', '.join(found)}, ...): give more characters"}, 409)
+                    return await resp(scope, receive, send)
+                if len(found) == 1:
+                    path = f"/api/{m.group(1)}/{found[0]}{m.group(3) or ''}"
+                    scope = dict(scope, path=path, raw_path=path.encode())
+        return await self.app(scope, receive, send)
+
+
 def create_app(settings: Settings | None = None, *, start_workers: bool = True) -> FastAPI:  # noqa: C901 -- lifespan hooks of helpers "hostile" and "lab"
     """The service app. ``start_workers=False`` builds the app without the queue and scan
     threads (for schema inspection)."""
@@ -193,6 +223,7 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True) 
         return JSONResponse({"detail": f"internal error (reference {ref})"}, status_code=500)
 
     app.add_middleware(UploadLimit, limit=settings.upload_limit)
+    app.add_middleware(ShortIds)
 
     from service.api import datasets, jobs, plans, reconstructions, retention, scans
     from service.jobs.lifecycle import disk_usage

@@ -23,6 +23,18 @@ IdemKey = Header(None, alias="Idempotency-Key", min_length=1, max_length=200,
                  description="same key → same job (1-200 characters; an empty key is refused)")
 
 
+def _full_scan_job_id(c: Context, body: ReconRequest) -> ReconRequest:
+    """``body`` with a short ``scan_job_id`` (a unique prefix) replaced by the full id;
+    409 when the prefix is ambiguous."""
+    sid = body.scan_job_id
+    if sid is None or len(sid) >= 32:
+        return body
+    found = c.store.resolve(sid)
+    if len(found) > 1:
+        raise HTTPException(409, f"scan_job_id {sid!r} matches several jobs: give more characters")
+    return body.model_copy(update={"scan_job_id": found[0]}) if found else body
+
+
 def _input_for(c: Context, body: ReconRequest) -> tuple[dict, dict, str]:
     """``(input spec, shape for the memory estimate, input id)``; raises HTTPException."""
     if (body.scan_job_id is None) == (body.dataset_id is None):
@@ -89,6 +101,7 @@ def start_reconstruction(body: ReconRequest, response: Response, c: Context = De
                          idempotency_key: str | None = IdemKey) -> Job:
     """Queue a reconstruction → 202, ``Location: /api/jobs/{id}``. Refused with 422 when
     it can never fit in the memory limit."""
+    body = _full_scan_job_id(c, body)
     spec, shape, input_id = _input_for(c, body)
     params = body.params.model_dump()
     try:

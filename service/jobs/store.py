@@ -187,6 +187,17 @@ class JobStore:
                 self._cache[job_id] = copy.deepcopy(job)
             return job
 
+    def resolve(self, prefix: str) -> list[str]:
+        """The ids of the jobs whose id starts with ``prefix`` (a short id as the CLI and the
+        web page show it; lowercase hex), at most 2 (enough to tell unique from ambiguous)."""
+        p = prefix.lower()
+        if not p or any(ch not in "0123456789abcdef" for ch in p):
+            return []
+        with self._lock:
+            rows = self._db.execute("SELECT id FROM jobs WHERE id >= ? AND id < ? ORDER BY id LIMIT 2",
+                                    (p, p + "g")).fetchall()
+        return [r["id"] for r in rows]
+
     def peek(self, job_id: str) -> dict | None:
         """The job from the in-memory cache (no database access, no lock: cached rows are
         never mutated, only replaced), or None when it is not cached; for the event loop's

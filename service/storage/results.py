@@ -206,7 +206,11 @@ def write_result(out_dir: str | os.PathLike, rec: Any, *, input_id: str) -> dict
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    return {"shape": list(p0.shape), "max": float(np.max(p0)) if p0.size else 0.0, "planes": sorted(pngs)}
+    # the values the reconstruction used (defaults and the input's c, dt, dx filled in)
+    used = {k: v for k, v in json.loads(params_json(dict(getattr(rec, "params", None) or {}))).items()
+            if v is None or isinstance(v, (bool, int, float, str))}
+    return {"shape": list(p0.shape), "max": float(np.max(p0)) if p0.size else 0.0, "planes": sorted(pngs),
+            "params_used": used}
 
 
 def read_result(path: str | os.PathLike) -> ResultVolume:

@@ -85,6 +85,18 @@ def test_delete_retention_and_restart(tmp_path):
             assert folders[1].is_dir()
             assert api.put("/api/retention", json={"keep_results": -1}).status_code == 422
 
+            # short ids (a unique prefix) work wherever a job id does; lists say what a job
+            # works on; the job shows the values the reconstruction used
+            short = jobs[1][:8]
+            job = api.get(f"/api/jobs/{short}").json()
+            assert job["id"] == jobs[1]
+            assert api.get(f"/api/reconstructions/{short}/volume.h5").status_code == 200
+            used = job["params"]["result"]["params_used"]
+            assert used["c"] == 1500.0 and used["dt"] == DT and used["method"] == "ner"
+            out = _cli("jobs", "list", "--server", srv.url, "--token", srv.token)
+            assert out.returncode == 0 and f"{jobs[1][:12]}  recon  succeeded" in out.stdout
+            assert f"ner of dataset {ds[:8]}" in out.stdout, out.stdout
+
             # a plan for the paused scan below
             r = api.post("/api/plans", json={"lattice": {"n_x": 4, "n_y": 4, "pitch": 1e-4},
                                              "points": [[0, 0], [1, 1]],
