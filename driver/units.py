@@ -169,6 +169,8 @@ def check_plausible(*, pitch: float | None = None, dx: float | None = None, dy: 
                 f"m/s){hint} Numbers without a unit are m/s; force a value outside the range if the "
                 "medium really is that fast or slow.")
     recording = n_t * dt if (n_t is not None and dt is not None) else None
+    if depth is not None and float(depth) <= 0:
+        raise ImplausibleValue(f"depth must be > 0 m (below the sensor plane), got {float(depth):g} m")
     if depth is not None:
         d = float(depth)
         c = float(sound_speed) if sound_speed is not None else 1500.0

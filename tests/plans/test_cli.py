@@ -47,18 +47,18 @@ def test_plan_line_and_points(tmp_path, capsys):
 
 
 @pytest.mark.parametrize(
-    "args, match",
-    [
-        (["equisteradian", "--depth=-1e-3", "--n-points", "10"], "depth"),
-        (["equisteradian", "--depth", "1e-3"], "--n-points"),
-        (["equisteradian", "--depth", "1e-3", "--n-points", "10", "--poi", "1", "0"], "outside the lattice"),
-        (["subgrid", "--interval", "4", "--pitch", "0"], "pitch"),
-        (["random", "--n-x", "10", "--n-points", "101"], "more than the lattice holds"),
+    "args, match, code",
+    [  # implausible values (driver.units) are usage errors: exit 2, as argparse's own
+        (["equisteradian", "--depth=-1e-3", "--n-points", "10"], "depth", 2),
+        (["equisteradian", "--depth", "1e-3"], "--n-points", 1),
+        (["equisteradian", "--depth", "1e-3", "--n-points", "10", "--poi", "1", "0"], "outside the lattice", 1),
+        (["subgrid", "--interval", "4", "--pitch", "0"], "pitch", 2),
+        (["random", "--n-x", "10", "--n-points", "101"], "more than the lattice holds", 1),
     ],
 )
-def test_plan_bad_input_exit_1_with_reason(tmp_path, capsys, args, match):
+def test_plan_bad_input_exit_1_with_reason(tmp_path, capsys, args, match, code):
     out = tmp_path / "p.json"
     rc = main(["plan", *args, "--out", str(out)])
-    assert rc == 1
+    assert rc == code
     assert match in capsys.readouterr().err
     assert not out.exists()
