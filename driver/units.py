@@ -185,7 +185,7 @@ def check_plausible(*, pitch: float | None = None, dx: float | None = None, dy: 
             raise ImplausibleValue(
                 f"depth {d:g} m is beyond the lattice's reach ({where}){hint} Numbers without a unit "
                 "are metres; write the unit, e.g. 3.6mm.")
-    if prf is not None and float(prf) > 0 and recording is not None:
+    if prf is not None and float(prf) > 0 and recording is not None and dt is not None:
         period = 1.0 / float(prf)
         if period < recording:
             f = float(prf)

@@ -287,6 +287,7 @@ def check_plausible_request(mask, kind, lattice, params, acquisition, *, force: 
         acquisition = Acquisition(**acquisition)
     from driver.units import check_plausible
 
+    pitch: Any
     if mask is not None and isinstance(mask, Mask):
         pitch, kind, params = mask.lattice.pitch, mask.kind, mask.params or {}
     else:

@@ -257,7 +257,7 @@ def export_ome_tiff(result_path: str | os.PathLike, out_path: str | os.PathLike)
             raise ValueError(f"{name} is not evenly spaced: OME-TIFF needs one voxel size per axis")
         return float(d[0] * 1e6)
 
-    if r.p0.ndim == 3:
+    if r.p0.ndim == 3 and r.y is not None:
         axes = "ZYX"
         sizes = {"PhysicalSizeZ": step_um(r.z, "z"), "PhysicalSizeY": step_um(r.y, "y"),
                  "PhysicalSizeX": step_um(r.x, "x")}
