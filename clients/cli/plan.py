@@ -169,6 +169,7 @@ def request_body(args) -> dict:
         "lattice": {"n_x": args.n_x, "n_y": n_y, "pitch": args.pitch},
         "params": mask_params(args),
         "order": args.order,
+        "force": args.force,
         "acquisition": {"n_t": args.n_t, "dt": args.dt, "averages": args.averages,
                         "wavelengths": args.wavelength or [7.5e-7], "prf": args.prf,
                         "sound_speed": args.sound_speed,
@@ -219,7 +220,8 @@ def _remote(args, body: dict) -> int:
     print(f"plan {pid} on {args.server}: {field_of(plan, 'kind')}, {field_of(plan, 'n_points')} points "
           f"(requested {field_of(plan, 'requested_points')})")
     print(f"weight ratio (outer/inner): {field_of(plan, 'weight_ratio'):.4g}")
-    print(f"expected scan time: {field_of(plan, 'expected_scan_time_s'):.1f} s")
+    t = field_of(plan, "expected_scan_time_s")
+    print("expected scan time: " + (f"{t:.1f} s" if t is not None else "set by the scanner (no PRF in the plan)"))
     if args.out:
         print(f"wrote {args.out}" + (f" and {args.preview}" if args.preview else ""))
     return 0

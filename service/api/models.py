@@ -12,6 +12,7 @@ from typing import Annotated, Any, Literal, Union
 from pydantic import (
     AfterValidator,
     BaseModel,
+    BeforeValidator,
     ConfigDict,
     Discriminator,
     Field,
@@ -106,13 +107,29 @@ class Retention(_Request):
 MAX_LATTICE_POINTS = 1 << 18
 
 
+def _pitch(v: Any) -> Any:
+    """Before-validator of a pitch: text with a unit ("60um") → m; then the plausible
+    range of ``driver.units`` (a pitch of 60 means 60 m: 422 naming µm)."""
+    from driver.units import check_plausible, parse_quantity
+
+    if isinstance(v, str):
+        v = parse_quantity(v, "length", name="pitch")
+    if isinstance(v, (int, float)) and not isinstance(v, bool):
+        check_plausible(pitch=float(v))
+    return v
+
+
+Pitch = Annotated[float, BeforeValidator(_pitch)]
+
+
 class Lattice(_Request):
     """The scanner lattice: ``n_x × n_y`` points at ``pitch`` (m), centred on the axis;
     at most ``MAX_LATTICE_POINTS`` (262144, e.g. 512 × 512) points in all."""
 
     n_x: int = Field(ge=1, le=1024)
     n_y: int = Field(1, ge=1, le=1024)
-    pitch: float = Field(gt=0, le=0.01, description="lattice pitch, m")
+    pitch: Pitch = Field(description="lattice pitch, m (1 µm to 10 mm; text with a unit such as "
+                                     "\"60um\" is accepted)")
 
     @model_validator(mode="after")
     def _bounded(self) -> Lattice:
@@ -146,6 +163,7 @@ class _PlanCreate(_Request):
         None, description="scan order (default auto: rings for equisteradian, given for a point list, "
                           "serpentine otherwise)")
     acquisition: Acquisition = Field(default_factory=Acquisition)
+    force: bool = Field(False, description="accept a sound speed outside 1000-2000 m/s")
 
 
 def _plan_create(k: MaskKind) -> type[_PlanCreate]:

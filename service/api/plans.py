@@ -31,7 +31,7 @@ def build_plan(req) -> dict:
     (``driver.plan`` via ``service.plans.Plan``) and kept as it is, so it keeps its id;
     anything else is built by ``service.plans.make_plan``, the one plan builder (a user
     point list is the mask kind ``points``). Raises ``ValueError`` with the reason."""
-    from service.plans import make_mask, make_plan
+    from service.plans import check_plausible_request, make_mask, make_plan
 
     if isinstance(req, PlanDocument):
         out = req.to_dict()
@@ -43,12 +43,16 @@ def build_plan(req) -> dict:
             params = {"indices": [list(p) for p in req.points]}
         elif req.params is None:
             raise ValueError("a point list needs points (lattice indices) or params (points in m or indices)")
+        # a unit mistake (a pitch of 60 m, a depth of 3.6 m) is named before any mask is made
+        check_plausible_request(None, req.kind, req.lattice.model_dump(), params, req.acquisition.model_dump(),
+                                force=req.force)
         try:
             mask = make_mask(req.kind, req.lattice.model_dump(), **params)
             if mask.obtained_points > MAX_POINTS:  # refused before the plan's linear-time work
                 raise ValueError(f"the mask has {mask.obtained_points} points; a plan made here may have at most "
                                  f"{MAX_POINTS} points")
-            plan = make_plan(mask, order=req.order or "auto", acquisition=req.acquisition.model_dump())
+            plan = make_plan(mask, order=req.order or "auto", acquisition=req.acquisition.model_dump(),
+                             force=req.force)
         except (TypeError, OverflowError, IndexError, KeyError, ZeroDivisionError) as exc:
             raise ValueError(f"bad mask parameters ({type(exc).__name__}: {exc})") from None
         out = plan.model_dump(mode="json")
