@@ -283,9 +283,14 @@ def check_plausible_request(mask, kind, lattice, params, acquisition, *, force: 
     ``mask``: a ``Mask`` (its lattice, kind and params are used) or None with ``kind``,
     ``lattice`` (dict or ``Lattice``), ``params``; ``acquisition``: an ``Acquisition`` or
     dict. Raises ``driver.units.ImplausibleValue`` (a ValueError)."""
-    if isinstance(acquisition, dict):
-        acquisition = Acquisition(**acquisition)
     from driver.units import check_plausible
+
+    if acquisition is None:
+        acquisition = {}
+    if not isinstance(acquisition, dict):
+        acquisition = acquisition.model_dump()
+    defaults = {k: f.default for k, f in Acquisition.model_fields.items()}
+    acq = {**defaults, **acquisition}  # the raw values: a unit mistake is named before any range check
 
     pitch: Any
     if mask is not None and isinstance(mask, Mask):
@@ -295,10 +300,15 @@ def check_plausible_request(mask, kind, lattice, params, acquisition, *, force: 
     depth = params.get("depth") if isinstance(params, dict) and kind in ("equiangular", "equisteradian") \
         else None
     num = (int, float)
-    check_plausible(pitch=pitch if isinstance(pitch, num) else None,
-                    dt=acquisition.dt, n_t=acquisition.n_t, prf=acquisition.prf,
-                    sound_speed=acquisition.sound_speed, depth=depth if isinstance(depth, num) else None,
-                    force=force)
+
+    def value(v):
+        return float(v) if isinstance(v, num) and not isinstance(v, bool) else None
+
+    n_t = acq.get("n_t")
+    check_plausible(pitch=value(pitch), dt=value(acq.get("dt")),
+                    n_t=int(n_t) if isinstance(n_t, int) and not isinstance(n_t, bool) else None,
+                    prf=value(acq.get("prf")), sound_speed=value(acq.get("sound_speed")),
+                    depth=value(depth), force=force)
 
 
 def make_plan(mask: Mask | str | None = None, *, kind: str | None = None, lattice=None,
@@ -330,11 +340,12 @@ def make_plan(mask: Mask | str | None = None, *, kind: str | None = None, lattic
         if kind is not None and kind != mask:
             raise ValueError("mask kind given twice")
         kind, mask = mask, None
+    raw = {**acquisition, **settings} if isinstance(acquisition, dict) else \
+        (acquisition if acquisition is not None else dict(settings))
+    check_plausible_request(mask, kind, lattice, params, raw, force=force)  # before any range check
     if isinstance(acquisition, dict):
         acquisition = Acquisition(**{**acquisition, **settings})
         settings = {}
-    check_plausible_request(mask, kind, lattice, params, acquisition if acquisition is not None else Acquisition(**settings),
-                     force=force)
     if mask is None:
         if kind is None or lattice is None:
             raise ValueError("give a Mask, or a mask kind with a lattice (and params)")

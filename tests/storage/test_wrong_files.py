@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 
 from clients.cli import main
-from service.storage.results import write_result
+from service.storage.results import write_volume
 from tests.storage.storage_helpers import build_plan
 
 
 def _result(tmp_path):
     z, x, y = np.arange(4) * 1e-5, np.arange(3) * 1e-4, np.arange(2) * 1e-4
-    return write_result(tmp_path / "volume.h5", np.ones((4, 2, 3), np.float32), z, x, y,
+    return write_volume(tmp_path / "volume.h5", np.ones((4, 2, 3), np.float32), z, x, y,
                         method="ner", params={}, input_id="t")
 
 
