@@ -165,6 +165,24 @@ class _PlanCreate(_Request):
     acquisition: Acquisition = Field(default_factory=Acquisition)
     force: bool = Field(False, description="accept a sound speed outside 1000-2000 m/s")
 
+    @model_validator(mode="before")
+    @classmethod
+    def _units_first(cls, data: Any) -> Any:
+        """Acquisition text with a unit ("8 ns", "500Hz", "1.5 km/s") → SI numbers, then the
+        plausibility rules of ``driver.units`` on the raw values, so that a unit mistake
+        (dt 8 s, sound speed 1.5 m/s) is named before the range checks of ``Acquisition``."""
+        if not isinstance(data, dict) or not isinstance(data.get("acquisition"), dict):
+            return data
+        from driver.units import parse_quantity
+        from service.plans import check_plausible_request
+
+        acq = dict(data["acquisition"])
+        for name, kind in (("dt", "time"), ("prf", "frequency"), ("sound_speed", "speed")):
+            if isinstance(acq.get(name), str):
+                acq[name] = parse_quantity(acq[name], kind, name=name)
+        check_plausible_request(None, None, None, None, acq, force=data.get("force") is True)
+        return {**data, "acquisition": acq}
+
 
 def _plan_create(k: MaskKind) -> type[_PlanCreate]:
     names = (k.name, *k.aliases)
