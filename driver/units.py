@@ -176,14 +176,16 @@ def check_plausible(*, pitch: float | None = None, dx: float | None = None, dy: 
         c = float(sound_speed) if sound_speed is not None else 1500.0
         reach = c * (n_t - 1) * dt if (n_t is not None and dt is not None) else None
         if d <= 0 or (reach is not None and d > reach):
-            mm = d * 1e-3 if reach is not None and 0 < d * 1e-3 <= reach else None
-            hint = (f" -- did you mean {d:g} mm ({d:g}mm)?" if mm is not None else
-                    (f" -- did you mean {d:g} µm ({d:g}um)?" if reach is not None and 0 < d * 1e-6 <= reach
-                     else ""))
+            def fits(x: float) -> bool:  # a unit guess must land within the recording and >= 10 µm
+                return reach is not None and 1e-5 <= x <= reach
+
+            hint = (f" -- did you mean {d:g} mm ({d:g}mm)?" if fits(d * 1e-3) else
+                    f" -- did you mean {d:g} µm ({d:g}um)?" if fits(d * 1e-6) else
+                    " -- record longer (more samples n_t or a larger dt) or choose a shallower depth.")
             where = f"the recording reaches c·(n_t − 1)·dt = {_fmt(reach, 'm')}" if reach is not None \
                 else "it must be > 0"
             raise ImplausibleValue(
-                f"depth {d:g} m is beyond the lattice's reach ({where}){hint} Numbers without a unit "
+                f"depth {d:g} m is beyond the recording's reach ({where}){hint} Numbers without a unit "
                 "are metres; write the unit, e.g. 3.6mm.")
     if prf is not None and float(prf) > 0 and recording is not None and dt is not None:
         period = 1.0 / float(prf)

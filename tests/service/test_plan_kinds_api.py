@@ -62,7 +62,7 @@ def test_cli_kinds_endpoint_and_api_schema_agree(shared_api):
 def test_plan_json_from_the_cli_is_accepted_with_its_id(shared_api, tmp_path, capsys):
     out = tmp_path / "plan.json"
     assert main(["plan", "equisteradian", "--n-x", "24", "--pitch", "1e-4", "--depth", "1e-3",
-                 "--n-points", "60", "--n-t", "64", "--out", str(out)]) == 0
+                 "--n-points", "60", "--n-t", "128", "--out", str(out)]) == 0
     capsys.readouterr()
     doc = json.loads(out.read_text())
     r = shared_api.post("/api/plans", json=doc)
@@ -72,7 +72,7 @@ def test_plan_json_from_the_cli_is_accepted_with_its_id(shared_api, tmp_path, ca
     # the same plan asked for by kind and params on the server has the same id
     same = shared_api.post("/api/plans/preview", json={
         "kind": "equisteradian", "lattice": {"n_x": 24, "n_y": 24, "pitch": 1e-4},
-        "params": {"depth": 1e-3, "n_points": 60}, "acquisition": {"n_t": 64}})
+        "params": {"depth": 1e-3, "n_points": 60}, "acquisition": {"n_t": 128}})
     assert same.status_code == 200 and same.json()["points"] == len(doc["points"]["indices"])
     # a tampered plan JSON is refused with the reason
     bad = json.loads(out.read_text())
