@@ -26,3 +26,11 @@ def centred_positions(indices, n: int, d: float) -> np.ndarray:
     axis of ``n`` points at spacing ``d``: ``(i - (n - 1)/2)·d``, the same numbers as
     ``centred_axis(n, d)[indices]``."""
     return (np.asarray(indices) - (int(n) - 1) / 2.0) * float(d)
+
+
+def centred_index(x, n: int, d: float) -> np.ndarray:
+    """The fractional index ``x/d + (n - 1)/2`` of coordinates ``x`` (m, any shape) on a
+    centred axis of ``n`` points at spacing ``d`` (m): the inverse of
+    :func:`centred_positions`, used where sensor positions meet a grid (NUFFT angles
+    ``2π·index/n``)."""
+    return np.asarray(x) / float(d) + (int(n) - 1) / 2.0

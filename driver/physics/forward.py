@@ -30,6 +30,7 @@ import numpy as np
 import scipy.fft
 
 from driver.physics import nufft
+from driver.physics.axes import centred_index
 
 
 def _check_common(p0, dx, dz, dt, n_t, c, t0, eps):
@@ -206,13 +207,13 @@ def forward_points(
     n_z, n_y, n_x = vol.shape
     G = _kspace_data(vol, dx, dz, dt, int(n_t), c, t0, eps, full=True)  # (n_t, n_y, n_x)
     # grid index of a coordinate: i = x/dx + (n-1)/2; mode k_j = 2π j/(n dx) (FFT order)
-    tx = 2 * np.pi * (pos[:, 0] / dx + (n_x - 1) / 2) / n_x
+    tx = 2 * np.pi * centred_index(pos[:, 0], n_x, dx) / n_x
     tol = max(eps, 1e-14)
     if is2d:
         vals = finufft.nufft1d2(tx, np.ascontiguousarray(G[:, 0, :]), isign=1, eps=tol, modeord=1, nthreads=1)
         scale = n_x
     else:
-        ty = 2 * np.pi * (pos[:, 1] / dx + (n_y - 1) / 2) / n_y
+        ty = 2 * np.pi * centred_index(pos[:, 1], n_y, dx) / n_y
         vals = finufft.nufft2d2(ty, tx, np.ascontiguousarray(G), isign=1, eps=tol, modeord=1, nthreads=1)
         scale = n_x * n_y
     return np.ascontiguousarray((vals.real / scale).T)

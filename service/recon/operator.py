@@ -39,6 +39,7 @@ import pylops
 import scipy.fft
 
 from driver.physics import nufft
+from driver.physics.axes import centred_index
 from driver.physics.forward import _pad_sizes, forward_grid, forward_points
 from service.recon import checks
 
@@ -165,12 +166,12 @@ class PlanarOperator(pylops.LinearOperator):
         pos = self.positions
         assert pos is not None  # point data only
         strengths = np.ascontiguousarray(data.T).astype(np.complex128)  # (n_t, n_points)
-        tx = 2 * np.pi * (pos[:, 0] / self.dx + (n_x - 1) / 2) / n_x
+        tx = 2 * np.pi * centred_index(pos[:, 0], n_x, self.dx) / n_x
         opts = dict(eps=max(self.eps, 1e-14), isign=-1, modeord=1, nthreads=1)
         if self.is2d:
             Y = finufft.nufft1d1(tx, strengths, n_x, **opts)[:, None, :]
         else:
-            ty = 2 * np.pi * (pos[:, 1] / self.dx + (n_y - 1) / 2) / n_y
+            ty = 2 * np.pi * centred_index(pos[:, 1], n_y, self.dx) / n_y
             Y = finufft.nufft2d1(ty, tx, strengths, (n_y, n_x), **opts)
         del strengths
         # Re(·) in the forward -> Hermitian part here: ½ (Y(k) + conj Y(-k)), FFT index order
