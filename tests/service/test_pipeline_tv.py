@@ -38,10 +38,18 @@ def test_dispatch_runs_tv_with_iteration_progress_and_cancel():
         reconstruct(_points(), "tv", iterations=50, n_z=6, should_stop=stop)
 
 
-@pytest.mark.parametrize(("opts", "match"), [(dict(lam=-1.0), "lam"), (dict(iterations=0), "max_iter")])
-def test_dispatch_rejects_bad_tv_options(opts, match):
+@pytest.mark.parametrize(("opts", "match"), [
+    (dict(lam=-1.0), "lam"), (dict(lam=float("inf")), "lam"), (dict(iterations=0), "max_iter"),
+    (dict(nan=True), "NaN"), (dict(weights=np.ones(5)), "weights must have shape"),
+])
+def test_dispatch_rejects_bad_tv_input(opts, match):
+    ds = _points()
+    if opts.pop("nan", False):
+        ds.alines[2, 3] = np.nan
+    if "weights" in opts:
+        ds.weights = opts.pop("weights")
     with pytest.raises(ValueError, match=match):
-        reconstruct(_points(), "tv", n_z=6, **opts)
+        reconstruct(ds, "tv", n_z=6, **opts)
 
 
 def test_api_model_and_cli_take_lambda_and_iterations():
