@@ -79,7 +79,7 @@ class RandomParams(MaskParams):
     """Distinct lattice points drawn uniformly (numpy PCG64, seeded)."""
 
     n_points: int = Field(ge=1, title="Number of points", description="number of points", examples=[200])
-    seed: int = Field(0, ge=0, description="random seed")
+    seed: int = Field(0, ge=0, le=2**64 - 1, description="random seed (0 to 2^64 - 1)")
 
 
 class PoissonParams(MaskParams):
@@ -87,7 +87,7 @@ class PoissonParams(MaskParams):
 
     min_distance: float = length("minimum distance between points, m", title="Minimum distance",
                                  display_unit="µm", gt=0, examples=[240e-6])
-    seed: int = Field(0, ge=0, description="random seed")
+    seed: int = Field(0, ge=0, le=2**64 - 1, description="random seed (0 to 2^64 - 1)")
     n_points: int | None = Field(None, ge=1, title="Number of points", description="stop after this many points (default: no cap)")
 
 
@@ -111,7 +111,8 @@ class EquiangularParams(MaskParams):
     """Equiangular (2-D line lattice): equal angles seen from a point of interest;
     weights ∝ r² (paper §5.1)."""
 
-    depth: float = length("depth of the point of interest below the sensor line, m", gt=0, examples=[1.2e-3])
+    depth: float = length("depth of the point of interest below the sensor line, m (at most 1 m; the mask also refuses a depth at which the aperture subtends under 1 mrad)",
+                          gt=0, le=1.0, examples=[1.2e-3])
     n_points: int = Field(ge=1, title="Number of points", description="requested number of points", examples=[32])
     poi: float | None = length("lateral position x of the point of interest, m (default: the centre)",
                                title="Point of interest", default=None)
@@ -121,7 +122,8 @@ class EquisteradianParams(MaskParams):
     """Equi-steradian (3-D): rings of equal solid angle seen from a point of interest;
     weights ∝ r³ (paper appendix)."""
 
-    depth: float = length("depth of the point of interest below the sensor plane, m", gt=0, examples=[1.2e-3])
+    depth: float = length("depth of the point of interest below the sensor plane, m (at most 1 m; the mask also refuses a depth at which the aperture subtends under 1 mrad)",
+                          gt=0, le=1.0, examples=[1.2e-3])
     n_points: int = Field(ge=1, title="Number of points", description="requested number of points", examples=[200])
     poi: tuple[float, float] | None = length(
         "lateral position (x, y) of the point of interest, m (default: the centre)", title="Point of interest",
