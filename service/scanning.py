@@ -34,6 +34,16 @@ if TYPE_CHECKING:
 log = logging.getLogger("fpscan.scans")
 
 
+#: Longest reason kept for an interrupted scan (HDF5's write errors run to many lines).
+REASON_CHARS = 300
+
+
+def _one_line(text: str) -> str:
+    """``text`` on one line (whitespace folded), cut to ``REASON_CHARS``."""
+    text = " ".join(text.split())
+    return text if len(text) <= REASON_CHARS else text[:REASON_CHARS - 1] + "…"
+
+
 def _missing_device(port: str) -> bool:
     """True for a device path (not a pyserial URL) that does not exist."""
     return "://" not in port and not Path(port).exists()
@@ -159,7 +169,8 @@ class ScanManager:
             return
         # interrupted (restart, lost device, full disk): acquire the missing points in a
         # new run; a cancel asked while it was stuck no longer applies
-        if self.store.set_state(job_id, "queued", only_from=("paused",), progress={"stage": "resuming"}):
+        if self.store.set_state(job_id, "queued", only_from=("paused",),
+                                progress={"stage": "resuming", "reason": None}):
             self.store.clear_cancel(job_id)
             with self._lock:
                 self._problems.pop(job_id, None)
@@ -223,6 +234,7 @@ class ScanManager:
         by ``/api/health`` meanwhile, so the job never stays ``running``."""
         import sqlite3
 
+        why = _one_line(why)
         with self._lock:
             self._problems[jid] = why
         while True:
@@ -233,7 +245,7 @@ class ScanManager:
                 return
             except sqlite3.Error as exc:
                 with self._lock:
-                    self._problems[jid] = f"{why}; job store: {exc}"
+                    self._problems[jid] = f"{why}; job store: {_one_line(str(exc))}"
                 if self._stop.wait(1.0):
                     return
 

@@ -56,6 +56,8 @@ class Settings(BaseSettings):
     upload_limit: int = Field(2 * 2**30, gt=0, description="largest accepted upload, bytes")
     import_timeout_s: float = Field(60.0, gt=0, le=3600, description="longest time an upload's import may "
                                     "take before it is refused (damaged files can block the HDF5 library)")
+    import_workers: int = Field(2, ge=1, le=64, description="uploads imported at once (each in a child process "
+                                "of up to memory_limit + 2 GiB); up to 4x as many more wait, further ones get 429")
     host: str = "127.0.0.1"
     port: int = Field(8000, ge=0, le=65535)
     web_root: Path | None = Field(None, description="folder of the web page's static files; None = no page")

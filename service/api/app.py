@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import re
+import sqlite3
 import time
 import uuid
 from pathlib import Path
@@ -22,7 +23,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.staticfiles import StaticFiles
 
 from driver.acquire import software_version
-from service.api.context import Context, ctx, read_access
+from service.api.context import Context, Slots, ctx, default_slots, read_access
 from service.api.models import Error, Health
 from service.settings import Settings
 
@@ -39,6 +40,9 @@ ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
     409: {"model": Error, "description": "conflict with the resource's state"},
     413: {"model": Error, "description": "upload too large"},
     422: {"model": Error, "description": "invalid input (the reason is in detail)"},
+    429: {"model": Error, "description": "too many expensive requests (uploads, plans) in progress; "
+                                         "retry after Retry-After seconds"},
+    503: {"model": Error, "description": "the data folder's disk is full; free space, then retry"},
 }
 
 
@@ -57,15 +61,32 @@ def _validation_reason(exc: RequestValidationError) -> str:
 
 class UploadLimit:
     """ASGI middleware: refuse request bodies over ``limit`` bytes with 413 (by
-    ``Content-Length`` up front, and by counting for chunked bodies)."""
+    ``Content-Length`` up front, and by counting for chunked bodies). With ``uploads``
+    (a :class:`~service.api.context.Slots`), an upload (``POST /api/datasets``) is counted
+    in before its body is read, and refused with 429 when too many are in progress (the
+    form parser spools every upload's body to a temporary file before the route runs)."""
 
-    def __init__(self, app, limit: int):
+    def __init__(self, app, limit: int, uploads: Slots | None = None):
         self.app = app
         self.limit = limit
+        self.uploads = uploads
 
     async def __call__(self, scope, receive, send):
         if scope["type"] != "http":
             return await self.app(scope, receive, send)
+        if (self.uploads is not None and scope.get("method") == "POST"
+                and scope.get("path", "").rstrip("/") == "/api/datasets"):
+            if not self.uploads.enter():
+                resp = JSONResponse({"detail": self.uploads.busy_reason()}, 429,
+                                    headers={"Retry-After": str(self.uploads.retry_after_s)})
+                return await resp(scope, receive, send)
+            try:
+                return await self._limited(scope, receive, send)
+            finally:
+                self.uploads.leave()
+        return await self._limited(scope, receive, send)
+
+    async def _limited(self, scope, receive, send):
         headers = dict(scope.get("headers") or [])
         length = headers.get(b"content-length")
         if length is not None:
@@ -148,10 +169,27 @@ class ShortIds:
         return await self.app(scope, receive, send)
 
 
+def _disk_full(exc: BaseException | None) -> bool:
+    """True when ``exc`` (or what caused it) is a full disk: ``OSError`` ENOSPC, or SQLite's
+    "database or disk is full" (SQLITE_FULL)."""
+    import errno
+
+    seen = 0
+    while exc is not None and seen < 8:
+        if isinstance(exc, OSError) and (exc.errno == errno.ENOSPC or "No space left on device" in str(exc)):
+            return True
+        if isinstance(exc, sqlite3.OperationalError) and "disk is full" in str(exc):
+            return True
+        exc = exc.__cause__ or exc.__context__
+        seen += 1
+    return False
+
+
 def create_app(settings: Settings | None = None, *, start_workers: bool = True) -> FastAPI:  # noqa: C901 -- lifespan hooks of helpers "hostile" and "lab"
     """The service app. ``start_workers=False`` builds the app without the queue and scan
     threads (for schema inspection)."""
     settings = settings or Settings.load()
+    slots = default_slots(settings)
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI):
@@ -160,7 +198,7 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True) 
         Path(settings.data_dir).mkdir(parents=True, exist_ok=True)
         settings.token_value()  # an unreadable or empty token_file stops the start here
         store = JobStore(settings.database)
-        context = Context(settings=settings, store=store)
+        context = Context(settings=settings, store=store, slots=slots)
         app.state.ctx = context
         executor = None
         if start_workers:
@@ -177,7 +215,7 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True) 
                 log.info("startup removed crash debris: %s", ", ".join(debris[:20]))
             if settings.resume_scans:
                 for jid in recovered["paused"]:
-                    store.set_state(jid, "queued", only_from=("paused",), progress={"stage": "resuming"})
+                    store.set_state(jid, "queued", only_from=("paused",), progress={"stage": "resuming", "reason": None})
             log.info("startup recovered=%s executor=%s resume_scans=%s", recovered, settings.executor,
                      settings.resume_scans)
             from service.jobs.lifecycle import apply_retention
@@ -216,13 +254,25 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True) 
         detail = exc.detail if isinstance(exc.detail, str) else str(exc.detail)
         return JSONResponse({"detail": detail}, status_code=exc.status_code, headers=getattr(exc, "headers", None))
 
+    @app.exception_handler(OSError)
+    @app.exception_handler(sqlite3.Error)
+    async def _storage(request: Request, exc: Exception):
+        # handled here, not by the catch-all below (Starlette re-raises from that one and
+        # the server then drops the client's kept-alive connection)
+        if _disk_full(exc):  # the server's condition, not a bug: say so, and how to fix it
+            log.warning("disk full %s %s: %s", request.method, request.url.path, exc)
+            return JSONResponse({"detail": "the data folder's disk is full; free space, then retry "
+                                           "(/api/health shows the free bytes)"},
+                                status_code=503, headers={"Retry-After": "10"})
+        return await _internal(request, exc)
+
     @app.exception_handler(Exception)
     async def _internal(request: Request, exc: Exception):
         ref = uuid.uuid4().hex[:8]
         log.exception("internal error ref=%s %s %s", ref, request.method, request.url.path)
         return JSONResponse({"detail": f"internal error (reference {ref})"}, status_code=500)
 
-    app.add_middleware(UploadLimit, limit=settings.upload_limit)
+    app.add_middleware(UploadLimit, limit=settings.upload_limit, uploads=slots["uploads"])
     app.add_middleware(ShortIds)
 
     from service.api import datasets, jobs, plans, reconstructions, retention, scans

@@ -2,8 +2,11 @@
 reach it: settings, job store, reconstruction queue, scan manager, live previews."""
 from __future__ import annotations
 
+import contextlib
 import hmac
 import logging
+import threading
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -18,6 +21,68 @@ log = logging.getLogger("fpscan.api")
 bearer = HTTPBearer(auto_error=False, description="Bearer token (settings.token)")
 
 
+class Slots:
+    """Bounded admission for requests that do expensive work (an upload's import, building
+    a plan): at most ``running`` of them work at once, at most ``waiting`` more wait for a
+    turn, and any further one is refused at once with 429 and ``Retry-After`` — so a flood
+    neither queues without bound (each waiting request holds a server thread; an import
+    also a child process) nor starves the cheap routes (``/api/health``, status reads).
+
+    ``enter``/``leave`` count a request in (the upload limit middleware does it before the
+    body is read); ``admitted()`` does both around a block; ``turn()`` waits for one of the
+    ``running`` turns. Thread-safe."""
+
+    def __init__(self, what: str, running: int, waiting: int, retry_after_s: int = 5):
+        self.what = what
+        self.limit = running + waiting
+        self.retry_after_s = retry_after_s
+        self._turns = threading.BoundedSemaphore(running)
+        self._lock = threading.Lock()
+        self._inside = 0
+
+    def enter(self) -> bool:
+        """Count one more request in; False (not counted) when ``running + waiting`` are in."""
+        with self._lock:
+            if self._inside >= self.limit:
+                return False
+            self._inside += 1
+            return True
+
+    def leave(self) -> None:
+        with self._lock:
+            self._inside = max(0, self._inside - 1)
+
+    def busy_reason(self) -> str:
+        return f"too many {self.what} at once ({self.limit} in progress or waiting); retry in {self.retry_after_s} s"
+
+    def busy(self) -> HTTPException:
+        """The 429 for a request that finds every slot taken."""
+        return HTTPException(429, self.busy_reason(), headers={"Retry-After": str(self.retry_after_s)})
+
+    @contextlib.contextmanager
+    def admitted(self) -> Iterator[None]:
+        """Count the request in for the block (429 ``busy()`` when full)."""
+        if not self.enter():
+            raise self.busy()
+        try:
+            yield
+        finally:
+            self.leave()
+
+    @contextlib.contextmanager
+    def turn(self) -> Iterator[None]:
+        """Hold one of the ``running`` turns for the block (waits for it)."""
+        with self._turns:
+            yield
+
+
+def default_slots(settings: Settings) -> dict[str, Slots]:
+    """The admission bounds of a service: ``uploads`` (``settings.import_workers`` imports at
+    once, 4x as many waiting) and ``plans`` (2 plans built at once, 8 waiting)."""
+    n = settings.import_workers
+    return {"uploads": Slots("uploads", n, 4 * n), "plans": Slots("plan requests", 2, 8)}
+
+
 @dataclass
 class Context:
     settings: Settings
@@ -25,6 +90,7 @@ class Context:
     queue: Any = None          # service.jobs.queue.ReconQueue
     scans: Any = None          # service.scanning.ScanManager
     extras: dict = field(default_factory=dict)
+    slots: dict[str, Slots] = field(default_factory=dict)  # default_slots(settings)
 
 
 async def ctx(request: Request) -> Context:

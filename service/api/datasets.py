@@ -76,7 +76,13 @@ def upload_dataset(file: UploadFile = File(..., description="the data file"),
                    c: float | None = Form(None, description="speed of sound, m/s"),
                    key: str | None = Form(None, max_length=200, description="HDF5 dataset path (kwave-hdf5)"),
                    cx: Context = Depends(ctx)) -> Dataset:
-    """Upload a dataset for reconstruction → 201 ``{dataset_id, ...}``."""
+    """Upload a dataset for reconstruction → 201 ``{dataset_id, ...}``. At most
+    ``FPSCAN_IMPORT_WORKERS`` uploads are imported at once (4x as many wait; beyond, 429)."""
+    with cx.slots["uploads"].turn():
+        return _store_upload(file, format, dt=dt, dx=dx, dy=dy, c=c, key=key, cx=cx)
+
+
+def _store_upload(file: UploadFile, format: str, *, dt, dx, dy, c, key, cx: Context) -> Dataset:
     dataset_id = uuid.uuid4().hex
     dest = Path(cx.settings.data_dir) / "datasets" / dataset_id
     dest.mkdir(parents=True)

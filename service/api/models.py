@@ -281,6 +281,8 @@ class Progress(BaseModel):
     rate_per_s: float | None = None
     eta_s: float | None = None
     faults_recovered: int | None = None
+    reason: str | None = Field(None, description="why a job is paused with stage interrupted (lost device, "
+                               "full disk), one line; cleared when it resumes")
 
     model_config = ConfigDict(extra="allow")
 

@@ -7,8 +7,10 @@ of ``driver.plan``. Every plan, a user point list (lattice indices) included, is
 from __future__ import annotations
 
 import base64
+import contextlib
 import io
 import json
+from collections.abc import Iterator
 
 import numpy as np
 from fastapi import APIRouter, Depends, HTTPException, Path, Response
@@ -119,6 +121,15 @@ def _build_or_422(body) -> dict:
         raise HTTPException(422, reason(exc)) from None
 
 
+@contextlib.contextmanager
+def _plan_turn(c: Context) -> Iterator[None]:
+    """Plan work within the service's bounds (``c.slots["plans"]``: 429 when too many plan
+    requests are in progress)."""
+    slots = c.slots["plans"]
+    with slots.admitted(), slots.turn():
+        yield
+
+
 @router.post("", status_code=201, response_model=Plan, dependencies=[Depends(require_token)])
 def create_plan(
     body: PlanCreate,  # a union built from service.plans.kinds.KINDS
@@ -127,7 +138,8 @@ def create_plan(
     """Create (or find, same content → same id) a plan from a mask kind and its params, a
     point list, or a plan JSON made by ``fpscan plan`` (kept with its id); ``Location``
     names it."""
-    plan = _build_or_422(body)
+    with _plan_turn(c):
+        plan = _build_or_422(body)
     s = summary(plan)
     c.store.put_plan(plan["id"], plan, s.model_dump())
     response.headers["Location"] = f"/api/plans/{plan['id']}"
@@ -137,13 +149,17 @@ def create_plan(
 @router.post("/preview", response_model=PlanPreview, dependencies=[Depends(require_token)])
 def preview_plan(
     body: PlanCreate,  # a union built from service.plans.kinds.KINDS
+    c: Context = Depends(ctx),
 ) -> PlanPreview:
     """The plan a request would give, without saving it. Does the work of a plan, so it
-    needs the token like the mutating routes."""
-    plan = _build_or_422(body)
-    s = summary(plan)
+    needs the token like the mutating routes (and, like them, 429 when too many plan
+    requests are in progress)."""
+    with _plan_turn(c):
+        plan = _build_or_422(body)
+        s = summary(plan)
+        png = preview_png(plan)
     return PlanPreview(points=s.n_points, weight_ratio=s.weight_ratio, expected_scan_time_s=s.expected_scan_time_s,
-                       preview_png_base64=base64.b64encode(preview_png(plan)).decode())
+                       preview_png_base64=base64.b64encode(png).decode())
 
 
 @router.get("/kinds", response_model=list[MaskKindInfo], dependencies=[Depends(read_access)])

@@ -19,6 +19,7 @@ limit: :func:`run_bounded`.
 """
 from __future__ import annotations
 
+import errno
 import multiprocessing
 import os
 import queue as _queue
@@ -104,6 +105,11 @@ def _child(conn: Any, fn: Callable, args: tuple, kwargs: dict) -> None:
         conn.put(("value", f"file not found: {exc.filename or exc}"))
     except MemoryError:
         conn.put(("value", "the file needs more memory than the limit allows"))
+    except OSError as exc:
+        if exc.errno == errno.ENOSPC or "No space left on device" in str(exc):  # not the file's fault
+            conn.put(("nospace", str(exc)))
+        else:
+            conn.put(("value", f"file is not a readable dataset ({type(exc).__name__})"))
     except Exception as exc:  # a damaged file can raise anything from the HDF5 layer
         conn.put(("value", f"file is not a readable dataset ({type(exc).__name__})"))
 
@@ -115,7 +121,8 @@ def run_bounded(fn: Callable, *args: Any, timeout: float, memory_bytes: int | No
     ``memory_bytes``: address-space limit of the child (``RLIMIT_AS``), so a file that
     expands past it fails there with MemoryError, not in the caller. ``fn`` and its
     arguments and result must be picklable. Raises ValueError with the reason for any
-    failure of ``fn``, and for a child that times out or dies."""
+    failure of ``fn``, and for a child that times out or dies; OSError (ENOSPC) when the
+    disk it writes to is full (the server's condition, not the file's)."""
     ctx = multiprocessing.get_context("spawn")
     q = ctx.Queue()
     proc = ctx.Process(target=_bounded_entry, args=(q, fn, args, kwargs, memory_bytes), daemon=True)
@@ -149,6 +156,8 @@ def run_bounded(fn: Callable, *args: Any, timeout: float, memory_bytes: int | No
         q.close()
     if kind == "ok":
         return value
+    if kind == "nospace":
+        raise OSError(errno.ENOSPC, "No space left on device (writing the imported dataset)")
     raise ValueError(value)
 
 

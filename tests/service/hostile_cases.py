@@ -148,6 +148,14 @@ def npy_absurd_header(folder: Path) -> Path:
     return out
 
 
+def npy_file(name: str, array: np.ndarray, *, allow_pickle: bool = False):
+    def make(folder: Path) -> Path:
+        out = folder / name
+        np.save(out, array, allow_pickle=allow_pickle)
+        return out
+    return make
+
+
 def scan_with_plan(n_x: int):
     """A valid scan file whose stored plan JSON claims an ``n_x``-wide lattice."""
     def make(folder: Path) -> Path:
@@ -180,6 +188,16 @@ UPLOADS = [
            {"dt": "1e-8", "dx": "1e-4"}),
     Upload("scan plan with n_x = 1e8", "fpscan", scan_with_plan(10**8), 422, "lattice"),
     Upload("scan plan with n_x = 1e12", "fpscan", scan_with_plan(10**12), 422, "lattice"),
+    # the structural checks do not depend on the format the upload claims
+    Upload("external storage (ipasc)", "ipasc", external_storage, 422, "external storage"),
+    Upload("external link (fpscan)", "fpscan", external_link, 422, "external link"),
+    Upload("truncated 50 % (ipasc)", "ipasc", truncated(0.50), 422, "truncated"),
+    Upload("npy of NaN", "npy", npy_file("nan.npy", np.full((64, 4, 4), np.nan, np.float32)), 422, "NaN",
+           {"dt": "1e-8", "dx": "1e-4"}),
+    Upload("npy holding a pickle", "npy", npy_file("pickle.npy", np.array([{"a": 1}] * 3, dtype=object),
+                                                   allow_pickle=True), 422, "pickle", {"dt": "1e-8", "dx": "1e-4"}),
+    Upload("npy with one time sample", "npy", npy_file("one.npy", np.zeros((1, 4, 4), np.float32)), 422,
+           "2 samples", {"dt": "1e-8", "dx": "1e-4"}),
 ]
 
 #: Plan parameter values every mask parameter is tried with.
@@ -200,9 +218,19 @@ MASK_PARAMS = {
 LEGAL = {("seed", 0), ("n_per_side", None), ("n_points", None)}
 
 
+#: The rest of a plan request: lattice, acquisition and order, tried on a small full mask.
+PLAN_BASE = {"kind": "full", "lattice": {"n_x": 8, "n_y": 8, "pitch": 1e-4}, "params": {},
+             "acquisition": {"n_t": 256, "dt": 2e-8, "averages": 1, "wavelengths": [7.5e-7], "prf": 100.0,
+                             "sound_speed": 1500.0, "wavelength_order": "per_point"},
+             "order": "serpentine"}
+#: (section, field, value) of ``PLAN_BASE`` that are legal: prf 0 (as fast as possible), unset options.
+PLAN_LEGAL = {("acquisition", "prf", 0), ("acquisition", "wavelength_order", None), (None, "order", None)}
+
+
 def plan_cases() -> list[tuple[str, dict, int]]:
     """Every plan parameter at every bad value: ``(case id, request body, expected
-    status)``: 422, or 200 for the few legal values (``LEGAL``)."""
+    status)``: 422, or 200 for the few legal values (``LEGAL``, ``PLAN_LEGAL``). Mask
+    parameters per kind, then the lattice, acquisition and order of ``PLAN_BASE``."""
     out = []
     for kind, (lattice, good) in MASK_PARAMS.items():
         for param in good:
@@ -211,4 +239,40 @@ def plan_cases() -> list[tuple[str, dict, int]]:
                 legal = (param, value) in LEGAL and not (kind != "poisson" and param == "n_points")
                 out.append((f"{kind}-{param}={value}", {"kind": kind, "lattice": lattice, "params": params},
                             200 if legal else 422))
+    for section in ("lattice", "acquisition", None):
+        names = list(PLAN_BASE[section]) if section else ["order"]
+        for name in names:
+            for value in BAD_VALUES:
+                body = json.loads(json.dumps(PLAN_BASE))
+                (body[section] if section else body)[name] = value
+                out.append((f"{section or 'plan'}.{name}={value}", body,
+                            200 if (section, name, value) in PLAN_LEGAL else 422))
+    return out
+
+
+#: A reconstruction request's options (``ReconParams``) and the valid value each replaces.
+RECON_PARAMS = {"c": 1500.0, "eps": 1e-6, "dtype": "float32", "upsample": 1, "positivity": False, "n_z": 64,
+                "dz": 1e-5, "interp": "*nearest"}
+#: Options whose value among ``BAD_VALUES`` is legal: unset (None: the method's default;
+#: dtype and positivity have no unset) and positivity 0 (false).
+RECON_LEGAL = {(name, None) for name in RECON_PARAMS if name not in ("dtype", "positivity")} | {("positivity", 0)}
+#: A dataset id no server has: a request that passes validation is answered 404.
+NO_DATASET = "0" * 32
+
+
+def recon_cases() -> list[tuple[str, dict, int]]:
+    """Every reconstruction option, the method and the input ids at every bad value (and a
+    path trick for the ids): ``(case id, request body, expected status)``: 422, or 404
+    (valid, but no such dataset or scan job) for the legal values (an id "x")."""
+    out = []
+    for name in RECON_PARAMS:
+        for value in BAD_VALUES:
+            body = {"dataset_id": NO_DATASET, "method": "ner", "params": {name: value}}
+            out.append((f"params.{name}={value}", body, 404 if (name, value) in RECON_LEGAL else 422))
+    for name in ("method", "dataset_id", "scan_job_id"):
+        for value in [*BAD_VALUES, "../../etc/passwd"]:
+            body = {"dataset_id": NO_DATASET, "method": "ner", name: value}
+            if name == "scan_job_id":
+                del body["dataset_id"]
+            out.append((f"{name}={value}", body, 404 if name != "method" and value == "x" else 422))
     return out

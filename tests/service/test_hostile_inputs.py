@@ -1,14 +1,16 @@
 """Hostile inputs against a real server (issue 14): every row of ``hostile_cases`` is
 answered with its status and reason, without a hang (client-side time-outs), while
-``/api/health`` keeps answering, and a refused upload leaves nothing on disk."""
+``/api/health`` keeps answering, and a refused upload leaves nothing on disk; a flood of
+uploads is bounded (429 beyond the import slots), not queued without end."""
 from __future__ import annotations
 
 import threading
+import time
 
 import httpx
 import pytest
 
-from tests.service.hostile_cases import UPLOADS, plan_cases
+from tests.service.hostile_cases import UPLOADS, plan_cases, recon_cases, truncated
 from tests.service.service_servers import Server
 
 BY_NAME = {case.name: case for case in UPLOADS}
@@ -24,6 +26,7 @@ class HealthWatch:
         self.url = url
         self.misses: list[str] = []
         self.polls = 0
+        self.slowest = 0.0
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
 
@@ -31,7 +34,9 @@ class HealthWatch:
         with httpx.Client(timeout=HEALTH_S) as c:
             while not self._stop.is_set():
                 try:
+                    t0 = time.perf_counter()
                     r = c.get(self.url + "/api/health")
+                    self.slowest = max(self.slowest, time.perf_counter() - t0)
                     if r.status_code != 200:
                         self.misses.append(f"status {r.status_code}")
                 except httpx.HTTPError as exc:
@@ -52,7 +57,7 @@ class HealthWatch:
 def hostile_server(tmp_path_factory):
     srv = Server(tmp_path_factory.mktemp("hostile") / "data",
                  env={"FPSCAN_IMPORT_TIMEOUT_S": "4", "FPSCAN_UPLOAD_LIMIT": str(64 * 2**20),
-                      "FPSCAN_MEMORY_LIMIT": str(2 * 2**30)}).start()
+                      "FPSCAN_MEMORY_LIMIT": str(2 * 2**30), "FPSCAN_IMPORT_WORKERS": "1"}).start()
     yield srv
     srv.stop()
 
@@ -65,16 +70,19 @@ def files(tmp_path_factory):
 @pytest.mark.timeout(300)
 def test_hostile_uploads_are_refused_in_bounded_time(hostile_server, files):
     results = []
+    slowest = 0.0
     with hostile_server.client(timeout=ANSWER_S) as api, HealthWatch(hostile_server.url) as health:
         for case in UPLOADS:
             path = case.make(files)
             with open(path, "rb") as fh:
+                t0 = time.perf_counter()
                 try:
                     r = api.post("/api/datasets", files={"file": (path.name, fh)},
                                  data={"format": case.fmt, **case.form})
                 except httpx.TimeoutException:
                     results.append((case.name, "no answer", ""))
                     continue
+                slowest = max(slowest, time.perf_counter() - t0)
             results.append((case.name, r.status_code, r.json().get("detail", "")))
         # a valid scan file is still accepted by the same server afterwards
         from tests.service.hostile_cases import scan_file
@@ -86,6 +94,8 @@ def test_hostile_uploads_are_refused_in_bounded_time(hostile_server, files):
     assert not wrong, wrong
     assert ok.status_code == 201, ok.text
     assert health.polls > 0 and not health.misses, health.misses
+    print(f"hostile uploads: {len(UPLOADS)} refused, slowest answer {slowest:.2f} s; "
+          f"/api/health slowest {health.slowest:.2f} s over {health.polls} polls")
     # nothing of the refused uploads is left: only the accepted one
     left = sorted(p.name for p in (hostile_server.data_dir / "datasets").iterdir())
     assert left == [ok.json()["dataset_id"]], left
@@ -112,6 +122,70 @@ def test_every_plan_parameter_at_hostile_values(hostile_server):
                 wrong.append((name, "reason", r.text[:200]))
     assert not wrong, wrong
     assert not health.misses, health.misses
+
+
+@pytest.mark.timeout(300)
+def test_every_reconstruction_option_at_hostile_values(hostile_server):
+    """Each option, the method and the input ids at 0, -1, 1e300, NaN, inf, a string and
+    null: 422 with a reason (legal values pass validation and meet the missing dataset)."""
+    wrong = []
+    with hostile_server.client(timeout=ANSWER_S) as api:
+        for name, body, status in recon_cases():
+            r = api.post("/api/reconstructions", content=_json(body), headers={"Content-Type": "application/json"})
+            detail = r.json().get("detail", "")
+            if r.status_code != status or not detail or "http" in detail or "\n" in detail:
+                wrong.append((name, r.status_code, detail[:200]))
+        assert not [j for j in api.get("/api/jobs").json() if j["kind"] == "recon"]
+    assert not wrong, wrong
+
+
+@pytest.mark.timeout(300)
+def test_a_flood_of_uploads_is_bounded(hostile_server, files):
+    """More uploads at once than the import slots (FPSCAN_IMPORT_WORKERS=1: one importing,
+    four waiting) are refused at once with 429 and Retry-After, the others answered with
+    their reason; /api/health keeps answering; nothing is left on disk."""
+    body = truncated(0.5)(files).read_bytes()
+    statuses: list[tuple[int, str, str | None]] = []
+    lock = threading.Lock()
+
+    def one() -> None:
+        with hostile_server.client(timeout=120.0) as api:
+            try:
+                r = api.post("/api/datasets", files={"file": ("x.h5", body)}, data={"format": "fpscan"})
+                item = (r.status_code, r.json().get("detail", ""), r.headers.get("Retry-After"))
+            except httpx.TimeoutException:
+                item = (-1, "no answer", None)
+        with lock:
+            statuses.append(item)
+
+    before = sorted(p.name for p in (hostile_server.data_dir / "datasets").iterdir())
+    with HealthWatch(hostile_server.url) as health:
+        threads = [threading.Thread(target=one) for _ in range(12)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+    assert len(statuses) == 12
+    assert {s for s, _, _ in statuses} <= {422, 429}, statuses
+    busy = [(d, ra) for s, d, ra in statuses if s == 429]
+    assert busy and all("too many uploads" in d and ra for d, ra in busy), statuses
+    assert all("truncated" in d for s, d, _ in statuses if s == 422), statuses
+    assert not health.misses, health.misses
+    assert sorted(p.name for p in (hostile_server.data_dir / "datasets").iterdir()) == before
+
+
+def test_slots_admit_running_plus_waiting_then_refuse():
+    from fastapi import HTTPException
+
+    from service.api.context import Slots
+
+    slots = Slots("things", running=1, waiting=1, retry_after_s=3)
+    with slots.admitted(), slots.admitted():
+        with pytest.raises(HTTPException) as refused, slots.admitted():
+            pass
+        assert refused.value.status_code == 429 and refused.value.headers == {"Retry-After": "3"}
+    with slots.admitted():  # both left: admitted again
+        pass
 
 
 def _json(body: dict) -> str:

@@ -154,6 +154,48 @@ def test_full_disk_mid_scan_pauses_with_the_reason_then_resumes(tmp_path, small_
         sim.stop()
 
 
+@pytest.mark.timeout(300)
+def test_full_disk_under_the_job_store_too(tmp_path, small_disk):
+    """The job database on the full disk as well (the default layout): requests that must
+    write answer 503 with the reason (not 500), an upload leaves nothing behind,
+    /api/health names the problem on one line; once space is freed the job is paused with
+    the reason, /resume completes it bit-identically and clears the reason."""
+    import io
+
+    sim = new_sim()
+    srv = Server(small_disk / "data", devices={"sim": sim.path})
+    srv.log = tmp_path / "server.log"  # not on the disk that fills
+    srv.start()
+    try:
+        with srv.client() as c:
+            plan = make_plan(c)
+            jid = start_scan(c, plan["id"])
+            wait_points(c, jid, 40)
+            fill(small_disk)
+            deadline = time.monotonic() + 60
+            while not (problems := c.get("/api/health").json()["problems"]) and time.monotonic() < deadline:
+                time.sleep(0.2)
+            assert problems and all("disk full" in p and "\n" not in p for p in problems), problems
+            r = c.post("/api/plans", json={"kind": "full", "lattice": {"n_x": 3, "n_y": 3, "pitch": 1e-4}})
+            assert r.status_code == 503 and "disk is full" in r.json()["detail"], r.text
+            buf = io.BytesIO()
+            np.save(buf, np.zeros((64, 4, 4), np.float32))
+            r = c.post("/api/datasets", data={"format": "npy", "dt": "2e-8", "dx": "1e-4"},
+                       files={"file": ("d.npy", buf.getvalue())})
+            assert r.status_code == 503 and "disk is full" in r.json()["detail"], r.text
+            assert not list((small_disk / "data" / "datasets").glob("*"))
+            os.unlink(small_disk / "filler.bin")
+            job = wait_state(c, jid, "paused")
+            assert job["progress"]["stage"] == "interrupted" and "disk full" in job["progress"]["reason"]
+            assert c.post(f"/api/scans/{jid}/resume").status_code == 200
+            final = wait_job(c, jid)
+            assert final["state"] == "succeeded" and final["progress"]["reason"] is None, final
+            check_file(c, jid, truth([sim], tmp_path, plan["id"]), tmp_path)
+    finally:
+        srv.stop()
+        sim.stop()
+
+
 def test_a_resume_clears_a_cancel_asked_while_the_scan_was_stuck(tmp_path):
     """A cancel asked while a scan was stuck ``running`` (it could not stop then) must not
     end the resumed run ``cancelled`` after it acquired every point (real SQLite store,

@@ -101,13 +101,16 @@ def test_soak_mixed_requests_during_a_scan_and_a_reconstruction(tmp_path):
         unanswered = [r for r in results if r[1] == -1]
         server_errors = [r for r in results if r[1] >= 500]
         assert not unanswered and not server_errors, (unanswered, server_errors)
-        wrong = [r for r in results if r[0] in ("bad-upload", "bad-recon", "preview") and r[1] != 422]
+        # a bad request gets its 422, or 429 when too many uploads/plans are in progress at once
+        wrong = [r for r in results if r[0] in ("bad-upload", "bad-recon", "preview")
+                 and r[1] not in ((422, 429) if r[0] != "bad-recon" else (422,))]
         assert not wrong, wrong
         status_lat = sorted(r[2] for r in results if r[0] == "status")
         if status_lat:
             p99 = status_lat[min(len(status_lat) - 1, int(0.99 * len(status_lat)))]
             print(f"soak: {len(results)} requests from {CLIENTS} clients, status p99 {1e3 * p99:.1f} ms, "
-                  f"median {1e3 * status_lat[len(status_lat) // 2]:.1f} ms")
+                  f"median {1e3 * status_lat[len(status_lat) // 2]:.1f} ms, "
+                  f"{sum(1 for r in results if r[1] == 429)} answered 429 (busy)")
         with srv.client() as c:
             assert wait_job(c, recon, timeout=300)["state"] == "succeeded"
             assert wait_job(c, scan_id, timeout=120)["state"] == "succeeded"
