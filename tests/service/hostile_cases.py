@@ -250,12 +250,13 @@ def plan_cases() -> list[tuple[str, dict, int]]:
     return out
 
 
-#: A reconstruction request's options (``ReconParams``) and the valid value each replaces.
-RECON_PARAMS = {"c": 1500.0, "eps": 1e-6, "dtype": "float32", "upsample": 1, "positivity": False, "n_z": 64,
-                "dz": 1e-5, "interp": "*nearest"}
+#: A reconstruction request's options (``ReconParams``) and the valid value each replaces
+#: (``recon_cases`` checks that this names every option the API has).
+RECON_PARAMS = {"c": 1500.0, "eps": 1e-6, "dtype": "float32", "upsample": 1, "positivity": False, "lam": 1.0,
+                "iterations": 10, "n_z": 64, "dz": 1e-5, "interp": "*nearest"}
 #: Options whose value among ``BAD_VALUES`` is legal: unset (None: the method's default;
-#: dtype and positivity have no unset) and positivity 0 (false).
-RECON_LEGAL = {(name, None) for name in RECON_PARAMS if name not in ("dtype", "positivity")} | {("positivity", 0)}
+#: dtype has no unset), positivity 0 (false) and λ = 0 (no regularisation).
+RECON_LEGAL = {(name, None) for name in RECON_PARAMS if name != "dtype"} | {("positivity", 0), ("lam", 0)}
 #: A dataset id no server has: a request that passes validation is answered 404.
 NO_DATASET = "0" * 32
 
@@ -264,6 +265,9 @@ def recon_cases() -> list[tuple[str, dict, int]]:
     """Every reconstruction option, the method and the input ids at every bad value (and a
     path trick for the ids): ``(case id, request body, expected status)``: 422, or 404
     (valid, but no such dataset or scan job) for the legal values (an id "x")."""
+    from service.api.models import ReconParams
+
+    assert set(RECON_PARAMS) == set(ReconParams.model_fields), "a reconstruction option is missing here"
     out = []
     for name in RECON_PARAMS:
         for value in BAD_VALUES:
