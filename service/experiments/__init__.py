@@ -14,7 +14,7 @@ import importlib
 from pathlib import Path
 
 from .datasets import DenseDataset, add_noise, load_dense
-from .result import ExperimentResult, write_result
+from .result import ExperimentResult, write_experiment
 
 #: experiment name -> module implementing ``run(data=None, *, small=False, ...)`` and ``plot``.
 EXPERIMENTS = {
@@ -54,9 +54,9 @@ def run_experiment(name: str, out_dir: str | Path | None = None, *, data: str | 
     if data is not None and small:
         data = data.crop(n_t=512 if data.ndim == 2 else 384, lateral=256 if data.ndim == 2 else 64)
     result = module.run(data, small=small, **options)
-    paths = write_result(result, out_dir, module.plot) if out_dir is not None else []
+    paths = write_experiment(result, out_dir, module.plot) if out_dir is not None else []
     return result, paths
 
 
 __all__ = ["EXPERIMENTS", "DenseDataset", "ExperimentResult", "add_noise", "load_dense", "run_experiment",
-           "write_result"]
+           "write_experiment"]

@@ -65,7 +65,7 @@ def setup_matplotlib():
     return plt
 
 
-def write_result(result: ExperimentResult, out_dir: str | Path, plot=None) -> list[Path]:
+def write_experiment(result: ExperimentResult, out_dir: str | Path, plot=None) -> list[Path]:
     """Write ``<name>.json``, ``<name>.csv`` and the plots (``plot(result, out_dir)``
     returns the PNG paths) into ``out_dir`` (created). Returns every path written.
 
