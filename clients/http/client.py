@@ -72,6 +72,26 @@ def as_model(name: str, data: Any) -> Any:
         return data
 
 
+def _read_timeout(deadline: float | None) -> float:
+    """Read timeout of one event stream: 20 s (longer than the server's 15 s pings), less
+    when the deadline is nearer (at least 0.5 s)."""
+    if deadline is None:
+        return 20.0
+    return min(20.0, max(0.5, deadline - time.monotonic()))
+
+
+def _past(deadline: float | None) -> bool:
+    return deadline is not None and time.monotonic() > deadline
+
+
+def _keep_sse(exc: ApiError) -> bool:
+    """Whether to keep reading events after ``exc``: no for a missing (404) or unsupported
+    (405, 501) stream, where the caller polls instead; any other error is raised."""
+    if exc.status_code in (404, 405, 501):
+        return False
+    raise exc
+
+
 def field_of(obj: Any, name: str, default: Any = None) -> Any:
     """Read ``name`` from a model or a dict (responses are either)."""
     if obj is None:
@@ -563,7 +583,33 @@ class Client(_BaseClient):
         except httpx.TransportError as exc:
             raise self._unavailable(exc) from None
 
-    def wait(self, job_id: str, *, on_progress: ProgressCallback | None = None,  # noqa: C901 -- SSE, reconnect, polling fallback and deadline in one loop
+    def _follow_events(self, job_id: str, last_id: str | None, deadline: float | None,
+                       on_progress: ProgressCallback | None) -> tuple[int, str | None, bool]:
+        """Read the job's event stream until it ends, drops, the job ends or the deadline
+        passes; returns ``(events read, last event id, whether to keep using SSE)``."""
+        n_events = 0
+        stream = self.events(job_id, last_event_id=last_id, read_timeout=_read_timeout(deadline))
+        try:
+            for event, data, eid in stream:
+                n_events += 1
+                last_id = eid or last_id
+                if event == "progress" and on_progress is not None:
+                    on_progress(_progress_of(data))
+                if data.get("state") in TERMINAL_STATES or _past(deadline):
+                    break
+        except ServerUnavailable:
+            pass  # dropped or idle stream: the caller's get_job tells which
+        except ApiError as exc:
+            if exc.status_code == 404:
+                self.get_job(job_id)  # NotFound propagates for an unknown job
+            return n_events, last_id, _keep_sse(exc)
+        except Exception:  # a malformed stream: poll instead
+            return n_events, last_id, False
+        finally:
+            stream.close()
+        return n_events, last_id, True
+
+    def wait(self, job_id: str, *, on_progress: ProgressCallback | None = None,
              timeout: float | None = None, poll_interval: float = 0.5, raise_on_failure: bool = True):
         """Block until job ``job_id`` ends; return its final Job.
 
@@ -588,34 +634,7 @@ class Client(_BaseClient):
             if deadline is not None and time.monotonic() > deadline:
                 raise WaitTimeout(f"job {job_id} still {field_of(job, 'state')} after {timeout} s")
             if use_sse:
-                remaining = None if deadline is None else max(0.5, deadline - time.monotonic())
-                read_timeout = min(20.0, remaining) if remaining is not None else 20.0  # > the 15 s pings
-                n_events = 0
-                stream = self.events(job_id, last_event_id=last_id, read_timeout=read_timeout)
-                try:
-                    for event, data, eid in stream:
-                        n_events += 1
-                        last_id = eid or last_id
-                        if event == "progress" and on_progress is not None:
-                            on_progress(_progress_of(data))
-                        if data.get("state") in TERMINAL_STATES:
-                            break
-                        if deadline is not None and time.monotonic() > deadline:
-                            break
-                except ServerUnavailable:
-                    pass  # dropped or idle stream: the get_job below tells which
-                except ApiError as exc:
-                    if exc.status_code == 404:
-                        self.get_job(job_id)  # NotFound propagates for an unknown job
-                        use_sse = False
-                    elif exc.status_code in (405, 501):
-                        use_sse = False
-                    else:
-                        raise
-                except Exception:  # a malformed stream: poll instead
-                    use_sse = False
-                finally:
-                    stream.close()
+                n_events, last_id, use_sse = self._follow_events(job_id, last_id, deadline, on_progress)
                 if n_events == 0:
                     time.sleep(poll_interval)
             else:
@@ -711,7 +730,32 @@ class AsyncClient(_BaseClient):
         except httpx.TransportError as exc:
             raise self._unavailable(exc) from None
 
-    async def wait(self, job_id: str, *, on_progress: ProgressCallback | None = None,  # noqa: C901 -- SSE, reconnect, polling fallback and deadline in one loop
+    async def _follow_events(self, job_id: str, last_id: str | None, deadline: float | None,
+                             report: Callable[[dict], Any]) -> tuple[int, str | None, bool]:
+        """See :meth:`Client._follow_events` (``report`` is awaited)."""
+        n_events = 0
+        stream = self.events(job_id, last_event_id=last_id, read_timeout=_read_timeout(deadline))
+        try:
+            async for event, data, eid in stream:
+                n_events += 1
+                last_id = eid or last_id
+                if event == "progress":
+                    await report(_progress_of(data))
+                if data.get("state") in TERMINAL_STATES or _past(deadline):
+                    break
+        except ServerUnavailable:
+            pass
+        except ApiError as exc:
+            if exc.status_code == 404:
+                await self.get_job(job_id)  # NotFound propagates for an unknown job
+            return n_events, last_id, _keep_sse(exc)
+        except Exception:
+            return n_events, last_id, False
+        finally:
+            await stream.aclose()
+        return n_events, last_id, True
+
+    async def wait(self, job_id: str, *, on_progress: ProgressCallback | None = None,
                    timeout: float | None = None, poll_interval: float = 0.5,
                    raise_on_failure: bool = True):
         """Await the end of job ``job_id``; see :meth:`Client.wait` (same behaviour and
@@ -735,34 +779,7 @@ class AsyncClient(_BaseClient):
             if deadline is not None and time.monotonic() > deadline:
                 raise WaitTimeout(f"job {job_id} still {field_of(job, 'state')} after {timeout} s")
             if use_sse:
-                remaining = None if deadline is None else max(0.5, deadline - time.monotonic())
-                read_timeout = min(20.0, remaining) if remaining is not None else 20.0  # > the 15 s pings
-                n_events = 0
-                stream = self.events(job_id, last_event_id=last_id, read_timeout=read_timeout)
-                try:
-                    async for event, data, eid in stream:
-                        n_events += 1
-                        last_id = eid or last_id
-                        if event == "progress":
-                            await report(_progress_of(data))
-                        if data.get("state") in TERMINAL_STATES:
-                            break
-                        if deadline is not None and time.monotonic() > deadline:
-                            break
-                except ServerUnavailable:
-                    pass
-                except ApiError as exc:
-                    if exc.status_code in (405, 501):
-                        use_sse = False
-                    elif exc.status_code == 404:
-                        await self.get_job(job_id)  # NotFound propagates for an unknown job
-                        use_sse = False
-                    else:
-                        raise
-                except Exception:
-                    use_sse = False
-                finally:
-                    await stream.aclose()
+                n_events, last_id, use_sse = await self._follow_events(job_id, last_id, deadline, report)
                 if n_events == 0:
                     await asyncio.sleep(poll_interval)
             else:
