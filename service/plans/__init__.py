@@ -26,23 +26,53 @@ Depends on numpy/scipy (+ pydantic for ``Plan``; matplotlib only inside ``previe
 """
 from __future__ import annotations
 
-from .angular import equiangular_mask, equisteradian_mask, equisteradian_rings
-from .grids import full_mask, hexagonal_mask, points_mask, poisson_mask, random_mask, subgrid_mask
-from .kinds import KINDS, MASK_KINDS, kind_fields, make_mask, resolve_kind
-from .lattice import Lattice
-from .mask import Mask, distance_law_weights, weight_ratio
-from .ordering import nearest_neighbour_order, ring_order, scan_order, serpentine_order
-from .plan import (
-    PLAN_FORMAT,
-    Acquisition,
-    Plan,
-    canonical_json,
-    check_plausible_request,
-    content_id,
-    make_plan,
-    plan_from_spec,
-)
-from .preview import preview_png
+import importlib
+from typing import TYPE_CHECKING, Any
+
+#: public name -> submodule. Loaded on first use (PEP 562), so that the cheap parts (the
+#: kinds' parameter models that `fpscan`'s argument parser is built from) do not pay for
+#: numpy/scipy at start-up.
+_EXPORTS = {
+    **dict.fromkeys(["equiangular_mask", "equisteradian_mask", "equisteradian_rings"], "angular"),
+    **dict.fromkeys(["full_mask", "subgrid_mask", "hexagonal_mask", "random_mask", "poisson_mask",
+                     "points_mask"], "grids"),
+    **dict.fromkeys(["KINDS", "MASK_KINDS", "kind_fields", "make_mask", "resolve_kind"], "kinds"),
+    "Lattice": "lattice",
+    **dict.fromkeys(["Mask", "distance_law_weights", "weight_ratio"], "mask"),
+    **dict.fromkeys(["nearest_neighbour_order", "ring_order", "scan_order", "serpentine_order"], "ordering"),
+    **dict.fromkeys(["PLAN_FORMAT", "Acquisition", "Plan", "canonical_json", "content_id", "make_plan",
+                     "plan_from_spec", "check_plausible_request"], "plan"),
+    "preview_png": "preview",
+}
+
+if TYPE_CHECKING:
+    from .angular import equiangular_mask, equisteradian_mask, equisteradian_rings
+    from .grids import full_mask, hexagonal_mask, points_mask, poisson_mask, random_mask, subgrid_mask
+    from .kinds import KINDS, MASK_KINDS, kind_fields, make_mask, resolve_kind
+    from .lattice import Lattice
+    from .mask import Mask, distance_law_weights, weight_ratio
+    from .ordering import nearest_neighbour_order, ring_order, scan_order, serpentine_order
+    from .plan import (
+        PLAN_FORMAT,
+        Acquisition,
+        Plan,
+        canonical_json,
+        check_plausible_request,
+        content_id,
+        make_plan,
+        plan_from_spec,
+    )
+    from .preview import preview_png
+
+
+def __getattr__(name: str) -> Any:
+    """Load a public name's submodule on first use (PEP 562)."""
+    if name not in _EXPORTS:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{_EXPORTS[name]}", __name__), name)
+    globals()[name] = value
+    return value
+
 
 __all__ = [
     "Lattice", "Mask", "make_mask", "MASK_KINDS", "KINDS", "resolve_kind", "kind_fields",

@@ -15,18 +15,17 @@ Range checks that guarantee bounded work belong to the mask functions.
 """
 from __future__ import annotations
 
+import importlib
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from .angular import equiangular_mask, equisteradian_mask
-from .grids import full_mask, hexagonal_mask, points_mask, poisson_mask, random_mask, subgrid_mask
-from .lattice import Lattice
-from .mask import Mask
+if TYPE_CHECKING:
+    from .mask import Mask
 
-__all__ = ["KINDS", "MASK_KINDS", "MaskKind", "MaskParams", "make_mask", "resolve_kind", "kind_fields",
+__all__ = ["KINDS", "MaskKind", "MaskParams", "make_mask", "resolve_kind", "kind_fields",
            "field_units", "length"]
 
 
@@ -132,36 +131,50 @@ class EquisteradianParams(MaskParams):
 
 @dataclass(frozen=True)
 class MaskKind:
-    """One mask kind: ``params`` model, mask ``function(lattice, **params)``, a label,
-    and the other names it is accepted under."""
+    """One mask kind: ``params`` model, mask function ``impl`` (``"module:function"`` in
+    this package, first argument the lattice; loaded on first use so that the models are
+    cheap to import), a label, and the other names it is accepted under."""
 
     name: str
     params: type[MaskParams]
-    function: Callable[..., Mask]
+    impl: str
     label: str
     aliases: tuple[str, ...] = ()
 
     @property
+    def function(self) -> Callable[..., Mask]:
+        """The mask function ``function(lattice, **params) -> Mask``."""
+        module, fn = self.impl.split(":")
+        return getattr(importlib.import_module(f".{module}", __package__), fn)
+
+    @property
     def description(self) -> str:
+        """The parameter model's docstring on one line."""
         return " ".join((self.params.__doc__ or "").split())
 
 
 #: The mask kinds, in the order forms offer them.
 KINDS: dict[str, MaskKind] = {k.name: k for k in (
-    MaskKind("equisteradian", EquisteradianParams, equisteradian_mask,
+    MaskKind("equisteradian", EquisteradianParams, "angular:equisteradian_mask",
              "Equi-steradian (3-D, rings around a point of interest)"),
-    MaskKind("equiangular", EquiangularParams, equiangular_mask,
+    MaskKind("equiangular", EquiangularParams, "angular:equiangular_mask",
              "Equiangular (2-D line, around a point of interest)"),
-    MaskKind("full", FullParams, full_mask, "Full lattice"),
-    MaskKind("equispaced", EquispacedParams, subgrid_mask, "Equispaced sub-grid", ("subgrid", "grid")),
-    MaskKind("hexagonal", HexagonalParams, hexagonal_mask, "Hexagonal", ("hex",)),
-    MaskKind("random", RandomParams, random_mask, "Random (seeded)"),
-    MaskKind("poisson", PoissonParams, poisson_mask, "Poisson-disc (seeded)", ("poisson-disc",)),
-    MaskKind("points", PointsParams, points_mask, "User point list", ("user",)),
+    MaskKind("full", FullParams, "grids:full_mask", "Full lattice"),
+    MaskKind("equispaced", EquispacedParams, "grids:subgrid_mask", "Equispaced sub-grid", ("subgrid", "grid")),
+    MaskKind("hexagonal", HexagonalParams, "grids:hexagonal_mask", "Hexagonal", ("hex",)),
+    MaskKind("random", RandomParams, "grids:random_mask", "Random (seeded)"),
+    MaskKind("poisson", PoissonParams, "grids:poisson_mask", "Poisson-disc (seeded)", ("poisson-disc",)),
+    MaskKind("points", PointsParams, "grids:points_mask", "User point list", ("user",)),
 )}
 
-#: kind name -> mask function (first argument: the lattice).
-MASK_KINDS: dict[str, Callable[..., Mask]] = {name: k.function for name, k in KINDS.items()}
+
+def __getattr__(name: str) -> Any:
+    """``MASK_KINDS``: kind name -> mask function, built on first use (PEP 562)."""
+    if name == "MASK_KINDS":
+        return {n: k.function for n, k in KINDS.items()}
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 _ALIASES = {alias: k.name for k in KINDS.values() for alias in k.aliases}
 
 
@@ -254,6 +267,8 @@ def make_mask(kind: str, lattice, **params) -> Mask:
     Raises ValueError: unknown kind, unknown, missing or ill-typed parameters (pydantic's
     ValidationError is a ValueError), and every bad value the kind's function rejects.
     """
+    from .lattice import Lattice
+
     if not isinstance(lattice, Lattice):
         if isinstance(lattice, dict):
             try:

@@ -6,8 +6,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from service.plans.weights import voronoi_weights
-
 from .lattice import Lattice
 
 __all__ = ["Mask", "weight_ratio", "distance_law_weights", "default_weights", "check_poi",
@@ -85,6 +83,8 @@ def default_weights(lattice: Lattice, positions: np.ndarray, **options) -> np.nd
     m² (m on a line lattice), exactly ``voronoi_weights(positions, pitch)`` — the weights
     ``service.recon.reconstruct_points`` uses by default, so an equispaced sub-grid gets
     (interval·pitch)² everywhere, edges included. ``options`` go to ``voronoi_weights``."""
+    from .weights import voronoi_weights  # scipy on use: the plan models import this module
+
     pos = positions[:, :1] if lattice.is_line else positions
     return voronoi_weights(pos, lattice.pitch, **options)
 

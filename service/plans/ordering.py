@@ -4,7 +4,6 @@ e.g. a user's point list)."""
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 __all__ = ["ORDERS", "auto_order", "serpentine_order", "ring_order", "nearest_neighbour_order", "scan_order"]
 
@@ -38,6 +37,8 @@ def ring_order(positions, rings=None, centre=(0.0, 0.0), ring_width: float | Non
     dx, dy = pos[:, 0] - centre[0], pos[:, 1] - centre[1]
     if rings is None:
         if ring_width is None:
+            from scipy.spatial import cKDTree  # on use (start-up time of the plan models)
+
             d, _ = cKDTree(pos).query(pos, k=2)
             ring_width = float(np.median(d[:, 1]))
         rings = np.floor(np.hypot(dx, dy) / ring_width + 0.5).astype(np.int64)
@@ -61,6 +62,8 @@ def nearest_neighbour_order(positions, start: int = 0) -> np.ndarray:
     order = np.empty(n, dtype=np.int64)
     cur = start
     remaining = np.arange(n)
+    from scipy.spatial import cKDTree  # on use (start-up time of the plan models)
+
     tree = cKDTree(pos)
     for step in range(n):
         order[step] = cur
