@@ -232,3 +232,45 @@ def autofocus(dataset: Any, reconstruct: Callable[..., Any], *, c_range: Any = C
     return Autofocus(c=c_best, c_values=cs, sharpness=[curve[c] for c in cs], c_range=(lo, hi),
                      decimation=q, evaluations=len(curve), time_s=time.perf_counter() - t_start,
                      at_edge=at_edge, extra={"dz": dz, "n_z": n_z})
+
+
+#: methods too slow to search with; their autofocus searches with the dataset's direct method
+ITERATIVE_METHODS = ("tv",)
+
+
+def focus_then_reconstruct(dataset: Any, method: str, reconstruct: Callable[..., Any], *,
+                           c_range: Any = None, progress: Callable[[float, str], None] | None = None,
+                           should_stop: Callable[[], bool] | None = None, **options: Any) -> Any:
+    """``c="auto"`` for the dispatch: :func:`autofocus`, then one reconstruction of the
+    full data at the chosen c.
+
+    ``reconstruct`` is the dispatch (``service.pipeline.reconstruct``); ``options`` are
+    the method's other options (``c`` excluded). The search reconstructs with ``method``
+    (a direct method of the dispatch; an iterative one, :data:`ITERATIVE_METHODS`,
+    searches with ``service.pipeline.default_method``'s NER/NEDNER instead), lateral
+    upsampling 1, float32. Progress: the search reports stage ``"autofocus"`` over
+    [0, 0.5], the final reconstruction the rest. The result's ``params["c"]`` is the
+    chosen c and ``params["autofocus"]`` the search (:meth:`Autofocus.as_params`).
+    Raises ``ValueError`` for a bad ``c_range`` and what the dispatch raises."""
+    rng = check_c_range(C_RANGE if c_range is None else c_range)
+    search_method = method
+    if method in ITERATIVE_METHODS:
+        search_method = "ner" if getattr(dataset, "kind", None) == "grid" else "nedner"
+    search_opts = {k: v for k, v in options.items() if k not in ("dz", "n_z", "dtype", "upsample")}
+
+    def at(ds: Any, c: float, **o: Any) -> Any:
+        return reconstruct(ds, search_method, should_stop=should_stop, c=c, **{**search_opts, **o})
+
+    def search_progress(f: float) -> None:
+        if progress is not None:
+            progress(0.5 * f, "autofocus")
+
+    def final_progress(f: float, stage: str) -> None:
+        if progress is not None:
+            progress(0.5 + 0.5 * f, stage)
+
+    found = autofocus(dataset, at, c_range=rng, progress=search_progress)
+    rec = reconstruct(dataset, method, progress=final_progress, should_stop=should_stop, c=found.c, **options)
+    rec.params["c"] = found.c
+    rec.params["autofocus"] = {**found.as_params(), "search_method": search_method}
+    return rec

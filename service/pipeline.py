@@ -14,7 +14,10 @@ methods; grid data are turned into sensor points for ``nedner``. Adding a method
 
 Options (SI units; ``None`` means "the default"):
 
-- ``c``: speed of sound in m/s (default: the dataset's);
+- ``c``: speed of sound in m/s (default: the dataset's), or ``"auto"``: the speed that
+  focuses best (:mod:`service.autofocus`, Tenenbaum sharpness; ``c_range`` the search
+  interval in m/s, default 1450-1600); the chosen c, the sharpness curve and the search
+  time land in ``params["autofocus"]``;
 - ``dtype``: ``"float32"`` or ``"float64"``, the working and output precision, default
   :data:`DEFAULT_DTYPE` = ``"float32"`` for every method and every caller;
 - ``eps``: NUFFT tolerance (``ner``, ``nedner``; default 1e-6);
@@ -52,7 +55,8 @@ KWAVE_INTERPS = ("*nearest", "nearest", "*linear", "linear", "*cubic", "cubic")
 
 #: every option a method may take, with its meaning (units SI)
 OPTIONS: dict[str, str] = {
-    "c": "speed of sound, m/s (default: the dataset's)",
+    "c": "speed of sound, m/s, or 'auto': the c of sharpest focus (service.autofocus; default: the dataset's)",
+    "c_range": "autofocus search interval (c_min, c_max), m/s (default 1450-1600)",
     "dtype": f"working and output precision, one of {', '.join(DTYPES)} (default {DEFAULT_DTYPE})",
     "eps": "NUFFT tolerance in [1e-14, 1e-1] (default 1e-6)",
     "upsample": "lateral upsampling factor 1..8 (default 1)",
@@ -166,6 +170,14 @@ def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = No
     if spec is None:
         raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
     opts = {**spec.defaults, **method_options(method, options)}
+    if isinstance(opts.get("c"), str):
+        if opts["c"] != "auto":
+            raise ValueError(f"c must be a speed of sound in m/s or 'auto', got {opts['c']!r}")
+        from service.autofocus import focus_then_reconstruct
+
+        rest = {k: v for k, v in options.items() if k not in ("c", "c_range")}
+        return focus_then_reconstruct(dataset, method, reconstruct, c_range=options.get("c_range"),
+                                      progress=progress, should_stop=should_stop, **rest)
     opts["dtype"] = _dtype(opts.get("dtype"))
     c = opts.pop("c", None)
     c = float(dataset.c if c is None else c)

@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from service.recon.unmix import Unmixed, unmix
+from service.recon.unmix import Unmixed, too_few_wavelengths, unmix
 
 UNMIX_FORMAT = "fpscan-unmix/1"
 #: masked pixels of the sO2 picture
@@ -35,15 +35,17 @@ MASK_COLOUR = (0.55, 0.55, 0.55, 1.0)
 
 
 def dataset_wavelengths(dataset: Any) -> np.ndarray:
-    """The excitation wavelengths (m, ``(n_w,)``) a dataset records in ``meta``
-    (``wavelengths``); empty when it records none."""
-    w = (getattr(dataset, "meta", None) or {}).get("wavelengths")
+    """The excitation wavelengths (m, ``(n_w,)``) a dataset records (its ``wavelengths``,
+    else ``meta["wavelengths"]``); empty when it records none."""
+    w = getattr(dataset, "wavelengths", None)
+    if w is None:
+        w = (getattr(dataset, "meta", None) or {}).get("wavelengths")
     return np.asarray([] if w is None else w, dtype=np.float64).reshape(-1)
 
 
 def reconstruct_wavelengths(datasets: Sequence[Any], method: str, *, reconstruct: Callable[..., Any],
                             progress: Callable[[float, str], None] | None = None,
-                            **options: Any) -> list[Any]:
+                            should_stop: Callable[[], bool] | None = None, **options: Any) -> list[Any]:
     """Reconstruct every wavelength's dataset with the same method and options.
 
     ``datasets``: one dataset per wavelength (same sensors and grid); ``reconstruct``:
@@ -63,7 +65,7 @@ def reconstruct_wavelengths(datasets: Sequence[Any], method: str, *, reconstruct
             if progress is not None:
                 progress((k + float(fraction)) / n, f"{stage} (wavelength {k + 1}/{n})")
 
-        rec = reconstruct(ds, method, progress=part, **opts)
+        rec = reconstruct(ds, method, progress=part, should_stop=should_stop, **opts)
         if k == 0 and opts.get("c") == "auto":
             opts["c"] = float(rec.params["c"])
         elif k > 0 and options.get("c") == "auto":
@@ -81,9 +83,7 @@ def unmix_reconstructions(recons: Sequence[Any], wavelengths: Any, **kwargs: Any
     if len(recons) != w.size:
         raise ValueError(f"{len(recons)} volumes for {w.size} wavelengths")
     if w.size < 2:
-        nm = ", ".join(f"{v * 1e9:g} nm" for v in w) or "none"
-        raise ValueError("unmixing into HbO2 and Hb needs at least two wavelengths; this dataset has "
-                         f"{w.size} ({nm})")
+        raise too_few_wavelengths(w)
     first = recons[0]
     for r in recons[1:]:
         same = r.p0.shape == first.p0.shape and np.allclose(r.z, first.z) and np.allclose(r.x, first.x) and \
@@ -165,3 +165,98 @@ def read_unmix(path: str | os.PathLike) -> dict:
         out["params"] = json.loads(f.attrs["params"])
         out["input_id"] = str(f.attrs["input_id"])
     return out
+
+
+def load_wavelength_datasets(paths: Sequence[str | os.PathLike], format: str | None = None, *,
+                             wavelengths: Sequence[float] | None = None,
+                             **load: Any) -> tuple[np.ndarray, list[Any]]:
+    """The datasets of a multi-wavelength acquisition, one per wavelength.
+
+    ``paths``: one multi-wavelength scan file (each wavelength's completed A-lines), or
+    one file per wavelength (any format of :func:`service.storage.datasets.load_dataset`)
+    with ``wavelengths`` (m, one per file; default: the single wavelength each file
+    records). ``load``: ``dt``, ``dx``, ``dy``, ``key``, ``c`` for ``load_dataset``.
+    Returns ``(wavelengths (n_w,) m, [dataset, ...])``. Raises ``ValueError`` (a
+    single-wavelength input, counts that differ, unknown wavelengths) and
+    ``FileNotFoundError``."""
+    from service.storage import datasets as dsm
+
+    load = {k: v for k, v in load.items() if v is not None}
+    paths = list(paths)
+    if not paths:
+        raise ValueError("no input files")
+    if len(paths) == 1:
+        ds = dsm.load_dataset(paths[0], format, **load)
+        recorded = dataset_wavelengths(ds)
+        if wavelengths is not None and len(wavelengths) != 1 and len(wavelengths) != recorded.size:
+            raise ValueError(f"{len(wavelengths)} wavelengths given for a file with {recorded.size}")
+        if recorded.size < 2:
+            raise too_few_wavelengths(wavelengths if wavelengths is not None else recorded)
+        fmt = format or dsm.detect_format(paths[0])
+        if fmt != "fpscan":
+            raise ValueError(f"a {fmt} file holds one wavelength's data; give one file per wavelength")
+        per = [dsm.load_scan(paths[0], wavelength_index=k) for k in range(recorded.size)]
+        for d in per:
+            for k, v in load.items():
+                if k in ("c", "dt"):
+                    setattr(d, k, float(v))
+        return recorded, per
+    dsets = [dsm.load_dataset(p, format, **load) for p in paths]
+    if wavelengths is None:
+        rec = [dataset_wavelengths(d) for d in dsets]
+        if any(r.size != 1 for r in rec):
+            raise ValueError("give --wavelengths: the files do not each record one excitation wavelength")
+        wavelengths = [float(r[0]) for r in rec]
+    if len(wavelengths) != len(dsets):
+        raise ValueError(f"{len(dsets)} files need {len(dsets)} wavelengths, got {len(wavelengths)}")
+    return np.asarray(wavelengths, dtype=np.float64), dsets
+
+
+def reconstruct_and_unmix(out_dir: str | os.PathLike, datasets: Sequence[Any], wavelengths: Any, method: str, *,
+                          input_id: str = "", threshold: float = 0.1, fluence: Any = None,
+                          gruneisen: float = 1.0, progress: Callable[[float, str], None] | None = None,
+                          should_stop: Callable[[], bool] | None = None,
+                          reconstruct: Callable[..., Any] | None = None, **options: Any) -> dict:
+    """Reconstruct every wavelength (the dispatch, same method and options), unmix, and
+    write the result folder ``out_dir``: ``volume.h5`` + MIPs of the first wavelength (as
+    any reconstruction result), ``wavelength_<k>/`` the same per wavelength,
+    ``unmix.h5`` and ``so2.png`` (:func:`write_unmix`). Returns a summary (``unmix``,
+    ``c``, ``wavelengths_m``, ``timings``, the reconstruction ``params`` of wavelength 1).
+    Raises ``ValueError`` before any reconstruction for fewer than two wavelengths."""
+    import time
+
+    from service.storage.results import write_result
+
+    w = np.asarray(wavelengths, dtype=np.float64).reshape(-1)
+    if w.size < 2 or len(datasets) < 2:
+        raise too_few_wavelengths(w)
+    if reconstruct is None:
+        from service.pipeline import reconstruct as dispatch
+        reconstruct = dispatch
+    t0 = time.perf_counter()
+
+    def rec_progress(f: float, stage: str) -> None:
+        if progress is not None:
+            progress(0.9 * f, stage)
+
+    recons = reconstruct_wavelengths(datasets, method, reconstruct=reconstruct, progress=rec_progress,
+                                     should_stop=should_stop, **options)
+    t1 = time.perf_counter()
+    u = unmix_reconstructions(recons, w, threshold=threshold, fluence=fluence, gruneisen=gruneisen)
+    t2 = time.perf_counter()
+    if progress is not None:
+        progress(0.95, "writing")
+    out = Path(out_dir)
+    first = recons[0]
+    written = write_result(out, first, input_id=input_id)
+    for k, rec in enumerate(recons):
+        write_result(out / f"wavelength_{k}", rec, input_id=input_id)
+    extra = {"method": method, "c": float(first.params.get("c", 0.0)) or None}
+    if "autofocus" in first.params:
+        extra["autofocus"] = first.params["autofocus"]
+    summary = write_unmix(out, u, first.z, first.x, getattr(first, "y", None), input_id=input_id, extra=extra)
+    t3 = time.perf_counter()
+    return {**written, "unmix": summary, "so2_median": summary["so2_median"],
+            "masked_fraction": summary["masked_fraction"],
+            "c": extra["c"], "wavelengths_m": [float(v) for v in w], "params": dict(first.params),
+            "timings": {"reconstruct_s": t1 - t0, "unmix_s": t2 - t1, "write_s": t3 - t2}}

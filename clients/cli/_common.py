@@ -36,6 +36,15 @@ def default_dtype() -> str:
     return DEFAULT_DTYPE
 
 
+def speed(value: str) -> float | str:
+    """Type of a ``--c`` option: ``"auto"`` (autofocus) or a speed of sound, a bare number
+    in m/s or text with a unit (``1.5 mm/us``; :func:`quantity`). A bad value is a usage
+    error (exit 2) naming it."""
+    if value.strip().lower() == "auto":
+        return "auto"
+    return quantity("speed", "c")(value)
+
+
 def add_progress_option(parser) -> None:
     parser.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
 

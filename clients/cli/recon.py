@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import argparse
 
-from clients.cli._common import add_progress_option, add_server_options, client_errors
+from clients.cli._common import add_progress_option, add_server_options, client_errors, speed
 
 COMMAND = "recon"
 HELP = "reconstruct p0 (NEDNER/NER/...) from a scan file or dataset, locally or on a server"
@@ -49,8 +49,11 @@ def add_arguments(parser):
     g.add_argument("--dx", type=quantity("length", "dx"), default=None, help="lateral spacing along x, e.g. 100um")
     g.add_argument("--dy", type=quantity("length", "dy"), default=None,
                    help="lateral spacing along y, e.g. 100um (default dx)")
-    g.add_argument("--c", type=quantity("speed", "c"), default=None,
-                   help="speed of sound, e.g. 1500m/s (default: the input's or 1500)")
+    g.add_argument("--c", type=speed, default=None,
+                   help="speed of sound, e.g. 1500m/s, or 'auto' (autofocus: sharpest focus; default: the input's "
+                        "or 1500)")
+    g.add_argument("--c-range", type=float, nargs=2, default=None, metavar=("MIN", "MAX"),
+                   help="autofocus search interval, m/s (default 1450 1600)")
     g.add_argument("--force", action="store_true", help="accept a speed of sound outside 1000-2000 m/s")
     g.add_argument("--key", default=None, help="HDF5 dataset path in a k-Wave file (default sensor_data/clean)")
     g = parser.add_argument_group("reconstruction options")
@@ -92,6 +95,8 @@ def _params(args) -> dict:
             params[name] = value
     if args.positivity is not None:
         params["positivity"] = bool(args.positivity)
+    if args.c_range is not None:
+        params["c_range"] = list(args.c_range)
     return params
 
 
@@ -140,8 +145,8 @@ def _local(args, fmt: str, method: str) -> int:
     say = (lambda msg: None) if args.quiet else (lambda msg: print(f"recon: {msg}", file=sys.stderr, flush=True))
     t0 = time.perf_counter()
     say(f"importing {args.input} ({fmt})")
-    ds = load_dataset(args.input, fmt, dt=args.dt, dx=args.dx, dy=args.dy, c=args.c, key=args.key,
-                      force=args.force)
+    ds = load_dataset(args.input, fmt, dt=args.dt, dx=args.dx, dy=args.dy,
+                      c=None if args.c == "auto" else args.c, key=args.key, force=args.force)
     t1 = time.perf_counter()
     shape = ds.data.shape if ds.kind == "grid" else ds.alines.shape
     say(f"reconstructing with {method} (input {list(shape)})")
@@ -155,7 +160,10 @@ def _local(args, fmt: str, method: str) -> int:
     write_result(out, rec, input_id=Path(args.input).name)
     t3 = time.perf_counter()
     dims = "x".join(str(n) for n in rec.p0.shape)
-    print(f"{out}/volume.h5  p0 {dims}  load {t1 - t0:.2f} s  reconstruct {t2 - t1:.2f} s  write {t3 - t2:.2f} s")
+    af = rec.params.get("autofocus")
+    focus = f"  c {af['c']:.1f} m/s (autofocus, search {af['time_s']:.2f} s)" if af else ""
+    print(f"{out}/volume.h5  p0 {dims}  load {t1 - t0:.2f} s  reconstruct {t2 - t1:.2f} s  write {t3 - t2:.2f} s"
+          + focus)
     return 0
 
 
@@ -168,8 +176,11 @@ def _remote(args, fmt: str | None, method: str) -> int:
         else:
             from driver.units import check_plausible
 
-            check_plausible(dt=args.dt, dx=args.dx, dy=args.dy, sound_speed=args.c, force=args.force)
+            check_plausible(dt=args.dt, dx=args.dx, dy=args.dy, sound_speed=None if args.c == "auto" else args.c,
+                            force=args.force)
             fields = {k: getattr(args, k) for k in ("dt", "dx", "dy", "c", "key")}
+            if fields["c"] == "auto":  # a search, not the data's speed: it goes with the reconstruction
+                fields["c"] = None
             dataset_id = api.upload_dataset(args.input, fmt, **fields)
             job_id = api.start_reconstruction(dataset_id=dataset_id, method=method, params=_params(args))
         with ProgressBar(f"recon {job_id[:8]}", quiet=args.quiet) as bar:

@@ -36,7 +36,7 @@ import json
 import os
 import time
 import uuid
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -359,6 +359,45 @@ class _Endpoints:
         options: [{name, description, default}], source}``: the reconstruction methods."""
         r = yield _Req("GET", "/api/reconstructions/methods")
         return r.json()
+
+    def start_unmix(self, *, scan_job_id: str | None = None, dataset_ids: Sequence[str] | None = None,
+                    wavelengths: Sequence[float] | None = None, method: str | None = None,
+                    params: Mapping | None = None, threshold: float | None = None,
+                    fluence: Sequence[float] | None = None, idempotency_key: str | None = None):
+        """``POST /api/reconstructions`` with ``unmix`` -> the job's id (202): every
+        wavelength reconstructed (same ``method`` and ``params``; ``params["c"]`` may be
+        ``"auto"``) and unmixed into HbO2/Hb, THb and sO2.
+
+        Input: a multi-wavelength scan job (``scan_job_id``) or one uploaded dataset per
+        wavelength (``dataset_ids`` with ``wavelengths`` in m). ``threshold``: THb
+        fraction below which voxels are masked; ``fluence``: J/m² per wavelength (default:
+        assumed equal). Raises ``ValueError`` when both or neither input is given."""
+        if (scan_job_id is None) == (not dataset_ids):
+            raise ValueError("give exactly one of scan_job_id or dataset_ids")
+        unmix: dict[str, Any] = {}
+        if threshold is not None:
+            unmix["threshold"] = float(threshold)
+        if fluence is not None:
+            unmix["fluence"] = [float(f) for f in fluence]
+        body: dict[str, Any] = {"params": dict(params or {}), "unmix": unmix}
+        if method is not None:
+            body["method"] = method
+        if scan_job_id is not None:
+            body["scan_job_id"] = scan_job_id
+        else:
+            body["dataset_ids"] = list(dataset_ids or [])
+            if wavelengths is not None:
+                body["wavelengths"] = [float(w) for w in wavelengths]
+        r = yield _Req("POST", "/api/reconstructions", json=body, headers=_idem({}, idempotency_key))
+        return _job_id_from(r)
+
+    def download_unmix(self, job_id: str, dest: str | os.PathLike):
+        """``GET /api/reconstructions/{job_id}/unmix.h5`` (HbO2, Hb, THb, sO2, mask) saved to ``dest``."""
+        return (yield _Download(_Req("GET", f"/api/reconstructions/{job_id}/unmix.h5"), Path(dest)))
+
+    def download_so2(self, job_id: str, dest: str | os.PathLike):
+        """``GET /api/reconstructions/{job_id}/so2.png`` (masked sO2 map, colour bar) saved to ``dest``."""
+        return (yield _Download(_Req("GET", f"/api/reconstructions/{job_id}/so2.png"), Path(dest)))
 
     def download_volume(self, job_id: str, dest: str | os.PathLike):
         """``GET /api/reconstructions/{job_id}/volume.h5`` saved to ``dest``."""

@@ -862,6 +862,10 @@ function downloadsFor(job) {
     list.push(["IPASC export (HDF5)", links.ipasc || `/api/scans/${id}/ipasc`, `scan-${job.id}-ipasc.hdf5`]);
   } else {
     list.push(["Volume (HDF5)", links.volume || `/api/reconstructions/${id}/volume.h5`, `volume-${job.id}.h5`]);
+    if (params.unmix) {
+      list.push(["Unmixing: HbO2, Hb, THb, sO2, mask (HDF5)", `/api/reconstructions/${id}/unmix.h5`, `unmix-${job.id}.h5`]);
+      list.push(["sO2 map (PNG)", `/api/reconstructions/${id}/so2.png`, `so2-${job.id}.png`]);
+    }
     const scanId = params.scan_job_id;
     if (scanId) {
       const s = encodeURIComponent(scanId);
@@ -989,8 +993,62 @@ function renderResult(job) {
     $("scale-max").textContent = r.max !== undefined ? `slice maximum (volume maximum ${fmtNum(r.max)})` : "slice maximum";
     $("result-shape").textContent = r.shape ? r.shape.join(" × ") + (r.shape.length === 3 ? " (n_z × n_y × n_x)" : " (n_z × n_x)") : "–";
     $("result-points").textContent = r.points_used ?? "–";
+    renderAutofocus(r.autofocus);
+    renderUnmix(job, r.unmix);
     showSlice();
   }
+}
+
+/** The autofocus summary (``result.autofocus``: c, c_range, c_values, sharpness, time_s,
+ *  evaluations, decimation) as text and an SVG curve with the chosen c marked. */
+function renderAutofocus(af) {
+  const box = $("result-autofocus");
+  box.hidden = !af;
+  if (!af) return;
+  $("result-af-c").textContent = fmtNum(af.c, 5);
+  $("result-af-range").textContent = (af.c_range || []).map((v) => fmtNum(v, 5)).join("–");
+  $("result-af-time").textContent = fmtDuration(af.time_s);
+  $("result-af-evals").textContent = String(af.evaluations ?? "–");
+  $("result-af-q").textContent = String(af.decimation ?? "–");
+  const svg = $("result-af-curve");
+  svg.textContent = "";
+  const cs = af.c_values || [], ss = af.sharpness || [];
+  if (cs.length < 2) return;
+  const W = 420, H = 180, L = 48, R = 10, T = 10, B = 30;
+  const [c0, c1] = af.c_range && af.c_range.length === 2 ? af.c_range : [Math.min(...cs), Math.max(...cs)];
+  const s1 = Math.max(...ss), s0 = Math.min(0, Math.min(...ss));
+  const X = (c) => L + (W - L - R) * (c - c0) / ((c1 - c0) || 1);
+  const Y = (v) => H - B - (H - T - B) * (v - s0) / ((s1 - s0) || 1);
+  const NS = "http://www.w3.org/2000/svg";
+  const el = (name, attrs, text) => {
+    const e = document.createElementNS(NS, name);
+    for (const [k, v] of Object.entries(attrs)) e.setAttribute(k, String(v));
+    if (text !== undefined) e.textContent = text;
+    svg.appendChild(e);
+    return e;
+  };
+  el("line", { x1: L, y1: H - B, x2: W - R, y2: H - B, stroke: "currentColor" });
+  el("line", { x1: L, y1: T, x2: L, y2: H - B, stroke: "currentColor" });
+  el("text", { x: L, y: H - 8, "font-size": 11 }, `${fmtNum(c0, 5)} m/s`);
+  el("text", { x: W - R - 70, y: H - 8, "font-size": 11 }, `${fmtNum(c1, 5)} m/s`);
+  el("text", { x: 2, y: T + 10, "font-size": 11 }, "sharp.");
+  el("polyline", { fill: "none", stroke: "#1f77b4", "stroke-width": 2,
+    points: cs.map((c, i) => `${X(c).toFixed(1)},${Y(ss[i]).toFixed(1)}`).join(" ") });
+  for (let i = 0; i < cs.length; i++) el("circle", { cx: X(cs[i]).toFixed(1), cy: Y(ss[i]).toFixed(1), r: 2.5, fill: "#1f77b4" });
+  el("line", { x1: X(af.c), y1: T, x2: X(af.c), y2: H - B, stroke: "#d62728", "stroke-dasharray": "4 3" });
+  el("text", { x: Math.min(X(af.c) + 4, W - 90), y: T + 12, "font-size": 11, fill: "#d62728" }, `c = ${fmtNum(af.c, 5)}`);
+}
+
+/** The unmixing summary (``result.unmix``) and the masked sO2 picture. */
+function renderUnmix(job, u) {
+  $("result-unmix").hidden = !u;
+  if (!u) return;
+  const id = encodeURIComponent(job.id);
+  loadImage($("result-so2"), `/api/reconstructions/${id}/so2.png`).catch(showError);
+  $("result-unmix-wavelengths").textContent = (u.wavelengths_m || []).map((w) => `${fmtNum(w * 1e9)} nm`).join(", ") || "–";
+  $("result-unmix-median").textContent = u.so2_median === null || u.so2_median === undefined ? "– (all masked)" : fmtNum(u.so2_median);
+  $("result-unmix-masked").textContent = u.masked_fraction !== undefined ? `${(100 * u.masked_fraction).toFixed(1)} %` : "–";
+  $("result-unmix-threshold").textContent = u.threshold !== undefined ? `${(100 * u.threshold).toFixed(0)} %` : "the threshold";
 }
 
 /** The reconstruction jobs made from scan ``scanId`` (from the job list). */
@@ -1054,8 +1112,19 @@ async function openResult(jobId) {
 
 /** Upload a data file (``POST /api/datasets``, multipart) and queue its reconstruction
  *  (``POST /api/reconstructions`` with the ``dataset_id``); spacings go out in SI units. */
+/** A sound-speed field: empty → undefined, "auto" → "auto", else a positive number in m/s. */
+function speedField(id) {
+  const raw = $(id).value.trim().toLowerCase();
+  if (!raw) return undefined;
+  if (raw === "auto") return "auto";
+  const v = Number(raw);
+  if (!isFinite(v) || v <= 0) throw new Error(`Sound speed must be a positive number in m/s or "auto", got "${raw}".`);
+  return v;
+}
+
 async function uploadAndReconstruct(ev) {
   ev.preventDefault();
+  let uploadC;
   const file = $("upload-file").files[0];
   if (!file) { showError(new Error("Choose a file to upload.")); return; }
   const form = new FormData();
@@ -1063,11 +1132,13 @@ async function uploadAndReconstruct(ev) {
   form.append("format", $("upload-format").value);
   try {
     const fields = [["dt", "upload-dt", 1e-9, "dt"], ["dx", "upload-dx", 1e-6, "dx"],
-                    ["dy", "upload-dy", 1e-6, "dy"], ["c", "upload-c", 1, "Sound speed"]];
+                    ["dy", "upload-dy", 1e-6, "dy"]];
     for (const [name, id, scale, what] of fields) {
       const v = numberField(id, what, { scale, optional: true });
       if (v !== undefined) form.append(name, String(v));
     }
+    uploadC = speedField("upload-c");
+    if (typeof uploadC === "number") form.append("c", String(uploadC));
   } catch (err) { showError(err); return; }
   const key = $("upload-key").value.trim();
   if (key) form.append("key", key);
@@ -1077,7 +1148,8 @@ async function uploadAndReconstruct(ev) {
     const ds = await apiJson("/api/datasets", { method: "POST", body: form });
     $("upload-state").textContent = `Uploaded as dataset ${shortId(ds.dataset_id)}${ds.shape ? " (" + ds.shape.join(" × ") + ")" : ""}; queueing…`;
     const resp = await apiFetch("/api/reconstructions", {
-      method: "POST", json: { dataset_id: ds.dataset_id, method: $("upload-method").value, params: {} },
+      method: "POST", json: { dataset_id: ds.dataset_id, method: $("upload-method").value,
+                              params: uploadC === "auto" ? { c: "auto" } : {} },
       headers: { "Idempotency-Key": newIdempotencyKey() },
     });
     const id = await jobIdFrom(resp);
@@ -1158,14 +1230,18 @@ function reconParams() {
 async function startRecon(ev) {
   ev.preventDefault();
   if (!resultJob) return;
+  const params = reconParams();
+  try {
+    const c = speedField("recon-c");
+    if (c !== undefined) params.c = c;
+  } catch (err) { showError(err); return; }
+  const body = { scan_job_id: resultJob, method: $("recon-method").value, params };
+  if ($("recon-unmix").checked) body.unmix = {};
   $("recon-start").disabled = true;
   try {
     const resp = await apiFetch("/api/reconstructions", {
       method: "POST",
-      json: {
-        scan_job_id: resultJob, method: $("recon-method").value,
-        params: reconParams(),
-      },
+      json: body,
       headers: { "Idempotency-Key": newIdempotencyKey() },
     });
     const id = await jobIdFrom(resp);

@@ -345,7 +345,11 @@ class ReconParams(_Request):
     default). Which method takes which option: ``service.pipeline.METHODS``
     (docs/api.md); options of other methods are ignored."""
 
-    c: float | None = Field(None, gt=100, le=10000, description="speed of sound, m/s (default: the input's)")
+    c: Annotated[float, Field(gt=100, le=10000)] | Literal["auto"] | None = Field(
+        None, description="speed of sound, m/s, or 'auto': the speed of sharpest focus (Tenenbaum sharpness, "
+                          "searched within c_range; default: the input's)")
+    c_range: tuple[Annotated[float, Field(ge=300, le=6000)], Annotated[float, Field(ge=300, le=6000)]] | None = Field(
+        None, description="autofocus search interval (c_min, c_max), m/s (default 1450-1600)")
     eps: float | None = Field(None, ge=1e-15, le=1e-1, description="NUFFT tolerance (ner, nedner; default 1e-6)")
     dtype: _one_of(DTYPES) = Field(DEFAULT_DTYPE, description="working and output precision")  # type: ignore[valid-type]
     upsample: int | None = Field(None, ge=1, le=8, description="lateral upsampling factor (default 1)")
@@ -360,22 +364,44 @@ class ReconParams(_Request):
         None, description="k-Wave interpolation (kwave; default *nearest)")
 
 
+class UnmixOptions(_Request):
+    """Spectral unmixing into HbO2 and Hb (``service.recon.unmix``: NNLS per voxel)."""
+
+    threshold: float = Field(0.1, ge=0, lt=1, description="mask voxels whose THb is below this fraction of the maximum")
+    fluence: list[Annotated[float, Field(gt=0, allow_inf_nan=False)]] | None = Field(
+        None, max_length=16, description="fluence at each wavelength, J/m² (default: assumed equal everywhere)")
+
+
 class ReconRequest(_Request):
-    """Reconstruct a scan job's file or an uploaded dataset (exactly one of them)."""
+    """Reconstruct a scan job's file or an uploaded dataset (exactly one of them); with
+    ``unmix``: every wavelength of a multi-wavelength scan job, or one uploaded dataset
+    per wavelength (``dataset_ids`` with ``wavelengths``), then HbO2/Hb unmixing."""
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False, json_schema_extra={
-        "oneOf": [{"required": ["scan_job_id"], "not": {"required": ["dataset_id"]}},
-                  {"required": ["dataset_id"], "not": {"required": ["scan_job_id"]}}],
+        "oneOf": [{"required": ["scan_job_id"], "not": {"anyOf": [{"required": ["dataset_id"]},
+                                                                  {"required": ["dataset_ids"]}]}},
+                  {"required": ["dataset_id"], "not": {"anyOf": [{"required": ["scan_job_id"]},
+                                                                 {"required": ["dataset_ids"]}]}},
+                  {"required": ["dataset_ids", "wavelengths", "unmix"],
+                   "not": {"anyOf": [{"required": ["scan_job_id"]}, {"required": ["dataset_id"]}]}}],
         "description": "Reconstruct a scan job's file or an uploaded dataset: exactly one of "
-                       "scan_job_id and dataset_id."})
+                       "scan_job_id and dataset_id; with unmix also dataset_ids (one per wavelength)."})
 
-    scan_job_id: str | None = Field(None, pattern=ID_PATTERN, description="exclusive with dataset_id")
+    scan_job_id: str | None = Field(None, pattern=ID_PATTERN, description="exclusive with dataset_id(s)")
     dataset_id: str | None = Field(None, pattern=ID_PATTERN, description="exclusive with scan_job_id")
+    dataset_ids: list[Annotated[str, Field(pattern=ID_PATTERN)]] | None = Field(
+        None, min_length=1, max_length=16, description="one dataset per wavelength (with unmix)")
+    wavelengths: list[Annotated[float, Field(gt=0, allow_inf_nan=False)]] | None = Field(
+        None, max_length=16, description="excitation wavelength of each of dataset_ids, m")
     method: ReconMethod = "nedner"  # type: ignore[valid-type]
     params: ReconParams = Field(default_factory=ReconParams)
+    unmix: UnmixOptions | None = Field(None, description="unmix HbO2/Hb after reconstructing every wavelength")
 
     @model_validator(mode="after")
     def _exactly_one_input(self) -> ReconRequest:
-        if (self.scan_job_id is None) == (self.dataset_id is None):
-            raise ValueError("give exactly one of scan_job_id or dataset_id")
+        given = [self.scan_job_id is not None, self.dataset_id is not None, self.dataset_ids is not None]
+        if sum(given) != 1:
+            raise ValueError("give exactly one of scan_job_id or dataset_id (or dataset_ids with unmix)")
+        if self.dataset_ids is not None and self.unmix is None:
+            raise ValueError("dataset_ids (one dataset per wavelength) need unmix")
         return self

@@ -35,8 +35,54 @@ def _full_scan_job_id(c: Context, body: ReconRequest) -> ReconRequest:
     return body.model_copy(update={"scan_job_id": found[0]}) if found else body
 
 
+def _check_unmix_wavelengths(wavelengths: list) -> None:
+    """422 unless HbO2 and Hb can be unmixed at ``wavelengths`` (m)."""
+    from driver.plan import check_wavelengths
+    from service.recon.unmix import endmember_matrix
+
+    try:
+        if len(wavelengths) >= 1:
+            check_wavelengths(list(wavelengths))
+        endmember_matrix(wavelengths)
+    except ValueError as exc:
+        raise HTTPException(422, str(exc)) from None
+
+
+def _unmix_inputs(c: Context, body: ReconRequest) -> tuple[dict, dict, str]:
+    """Job parameters (``inputs``/``wavelengths``), memory-estimate shape and input id of
+    an unmixing request; raises HTTPException."""
+    if body.dataset_ids is not None:
+        if body.scan_job_id is not None or body.dataset_id is not None:
+            raise HTTPException(422, "give either scan_job_id or dataset_ids, not both")
+        if body.wavelengths is None or len(body.wavelengths) != len(body.dataset_ids):
+            raise HTTPException(422, f"{len(body.dataset_ids)} datasets need as many wavelengths (m), got "
+                                     f"{0 if body.wavelengths is None else len(body.wavelengths)}")
+        _check_unmix_wavelengths(body.wavelengths)
+        inputs: list[dict] = []
+        shape: dict = {}
+        for ds_id in body.dataset_ids:
+            one = body.model_copy(update={"dataset_id": ds_id, "dataset_ids": None, "unmix": None})
+            spec, shape, _ = _input_for(c, one)
+            inputs.append(spec)
+        return {"inputs": inputs, "wavelengths": list(body.wavelengths)}, shape, \
+            "datasets:" + ",".join(body.dataset_ids)
+    if body.scan_job_id is None:
+        raise HTTPException(422, "unmixing needs scan_job_id (a multi-wavelength scan) or dataset_ids")
+    spec, shape, input_id = _input_for(c, body.model_copy(update={"unmix": None}))
+    job = c.store.get(body.scan_job_id)
+    found = c.store.get_plan(job["params"]["plan_id"]) if job is not None else None
+    if found is None:  # _input_for has checked both; the store may have changed since
+        raise HTTPException(404, f"the plan of scan job {body.scan_job_id} is gone")
+    plan = found[0]
+    _check_unmix_wavelengths(list(plan["acquisition"].get("wavelengths") or []))
+    return {"input": spec, "wavelengths": None}, {**shape, "n_wavelengths": len(plan["acquisition"]["wavelengths"])}, \
+        input_id
+
+
 def _input_for(c: Context, body: ReconRequest) -> tuple[dict, dict, str]:
     """``(input spec, shape for the memory estimate, input id)``; raises HTTPException."""
+    if body.dataset_ids is not None and body.unmix is None:
+        raise HTTPException(422, "dataset_ids (one dataset per wavelength) need unmix")
     if (body.scan_job_id is None) == (body.dataset_id is None):
         raise HTTPException(422, "give exactly one of scan_job_id or dataset_id")
     try:
@@ -102,15 +148,24 @@ def start_reconstruction(body: ReconRequest, response: Response, c: Context = De
     """Queue a reconstruction → 202, ``Location: /api/jobs/{id}``. Refused with 422 when
     it can never fit in the memory limit."""
     body = _full_scan_job_id(c, body)
-    spec, shape, input_id = _input_for(c, body)
+    extra: dict = {}
+    if body.unmix is not None:
+        extra, shape, input_id = _unmix_inputs(c, body)
+        spec = extra.pop("input", None) or extra["inputs"][0]
+        extra["unmix"] = body.unmix.model_dump()
+    else:
+        spec, shape, input_id = _input_for(c, body)
     params = body.params.model_dump()
     try:
         mem = estimate_memory(shape, {**params, "method": body.method})
+        if body.unmix is not None:  # every wavelength's volume is held for the unmixing (float32, x3 temporaries)
+            n_w = len(extra.get("inputs") or []) or int(shape.get("n_wavelengths", 2))
+            mem += 3 * n_w * 4 * int(shape["n_t"]) * int(shape["n_x"]) * int(shape.get("n_y", 1))
         admit(mem, c.settings.memory_limit)
     except AdmissionError as exc:
         raise HTTPException(422, reason(exc)) from None
     job_params = {"method": body.method, "params": params, "input": spec, "input_id": input_id, "shape": shape,
-                  "scan_job_id": body.scan_job_id, "dataset_id": body.dataset_id, "memory_estimate": mem}
+                  "scan_job_id": body.scan_job_id, "dataset_id": body.dataset_id, "memory_estimate": mem, **extra}
     try:
         job, _created = c.store.create_job("recon", job_params, idempotency_key=idempotency_key, memory_bytes=mem)
     except IdempotencyConflict as exc:
@@ -155,6 +210,32 @@ def volume_ome_tiff(job_id: str = JobId, c: Context = Depends(ctx)):
         except ValueError as exc:
             raise HTTPException(409, str(exc)) from None
     return FileResponse(path, media_type="image/tiff", filename=f"{job_id}.ome.tif")
+
+
+@router.get("/{job_id}/unmix.h5", dependencies=[Depends(read_access)], response_class=FileResponse,
+            responses={200: {"content": {"application/x-hdf5": {}},
+                             "description": "HbO2, Hb, THb, sO2 and mask volumes (HDF5, fpscan-unmix/1)"},
+                       404: {"description": "the job did not unmix"}})
+def unmix_h5(job_id: str = JobId, c: Context = Depends(ctx)):
+    """The unmixing of a multi-wavelength job: ``/hbo2``, ``/hb``, ``/thb``, ``/so2`` (NaN
+    where masked), ``/mask``, ``/z``, ``/x``, ``/y`` (m), ``/wavelengths_m``
+    (``service.spectral``). Supports ``Range``."""
+    path = _result_dir(c, job_id) / "unmix.h5"
+    if not path.exists():
+        raise HTTPException(404, f"reconstruction {job_id} was not unmixed (ask with 'unmix')")
+    return FileResponse(path, media_type="application/x-hdf5", filename=f"{job_id}-unmix.h5")
+
+
+@router.get("/{job_id}/so2.png", dependencies=[Depends(read_access)], response_class=Response,
+            responses={200: {"content": {"image/png": {}}, "description": "sO2 map, colour bar, masked grey"},
+                       404: {"description": "the job did not unmix"}})
+def so2_png(job_id: str = JobId, c: Context = Depends(ctx)):
+    """The sO2 picture: at each (x, y) the sO2 of the voxel of largest THb along depth,
+    colour bar 0..1, masked pixels grey (``service.spectral.render_so2_png``)."""
+    path = _result_dir(c, job_id) / "so2.png"
+    if not path.exists():
+        raise HTTPException(404, f"reconstruction {job_id} was not unmixed (ask with 'unmix')")
+    return Response(path.read_bytes(), media_type="image/png")
 
 
 @router.get("/{job_id}/mip/{plane}.png", dependencies=[Depends(read_access)], response_class=Response,

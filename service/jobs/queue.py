@@ -56,7 +56,10 @@ def working_depth_rows(shape: dict, params: dict) -> int:
     dz = params.get("dz")
     if dz is None or shape.get("dt") is None:
         return n_z
-    c = float(params.get("c") or shape.get("c") or 1500.0)
+    c_param = params.get("c")
+    if c_param == "auto":  # autofocus: the fastest speed it may choose reaches deepest
+        c_param = max(params.get("c_range") or (1450.0, 1600.0))
+    c = float(c_param or shape.get("c") or 1500.0)
     reach = c * (float(params.get("t0") or 0.0) + (n_t - 1) * float(shape["dt"])) / float(dz)
     if not reach < MAX_DEPTH_ROWS:
         raise AdmissionError(f"dz = {dz:g} m is too fine for this input: the depth transform would need "
@@ -205,6 +208,9 @@ class ReconQueue:
                 "out_dir": str(out_dir), "input_id": job["params"].get("input_id", ""),
                 "progress_path": str(progress_path), "memory_limit": int(self.settings.memory_limit),
                 "cancel_path": str(cancel_path)}
+        for key in ("unmix", "inputs", "wavelengths"):  # a multi-wavelength unmixing job (service.spectral)
+            if job["params"].get(key) is not None:
+                spec[key] = job["params"][key]
         self.store.update_progress(jid, {"fraction": 0.0, "stage": "starting"})
         log.info("recon start job=%s attempt=%s method=%s", jid, job["attempts"], spec["params"]["method"])
         t0 = time.perf_counter()

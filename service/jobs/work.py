@@ -119,6 +119,8 @@ def run_reconstruction(spec: dict) -> dict:
     from service.pipeline import reconstruct
     from service.storage.results import write_result
 
+    if spec.get("unmix") is not None:
+        return run_unmix(spec)
     progress = spec.get("progress_path")
     cancel = spec.get("cancel_path")
     t0 = time.perf_counter()
@@ -144,8 +146,47 @@ def run_reconstruction(spec: dict) -> dict:
     summary = write_result(spec["out_dir"], rec, input_id=spec.get("input_id", ""))
     t3 = time.perf_counter()
     summary["timings"] = {"load_s": t1 - t0, "reconstruct_s": t2 - t1, "write_s": t3 - t2}
+    summary["c"] = rec.params.get("c")
+    if "autofocus" in rec.params:
+        summary["autofocus"] = rec.params["autofocus"]
     if ds.kind == "points":
         summary["points_used"] = int(ds.alines.shape[0])
+    return summary
+
+
+def run_unmix(spec: dict) -> dict:
+    """Executor entry point of a multi-wavelength job (``spec["unmix"]`` set: ``threshold``,
+    ``fluence``): ``inputs`` (one input per wavelength, with ``wavelengths`` in m) or
+    ``input`` (a multi-wavelength scan file); every wavelength reconstructed with the same
+    method and options, then unmixed (:func:`service.spectral.reconstruct_and_unmix`:
+    the result folder gets ``unmix.h5``, ``so2.png`` and one result per wavelength). Returns
+    the reconstruction summary of wavelength 1 plus ``unmix``, ``c``, ``autofocus``."""
+    from service.pipeline import default_method
+    from service.spectral import load_wavelength_datasets, reconstruct_and_unmix
+
+    progress = spec.get("progress_path")
+    cancel = spec.get("cancel_path")
+    t0 = time.perf_counter()
+    report_stage(progress, "loading", 0.05)
+    inputs = spec.get("inputs") or [spec["input"]]
+    kinds = {i.get("kind") for i in inputs}
+    if len(kinds) != 1 or not kinds <= set(INPUT_FORMATS):
+        raise ValueError(f"unknown job input kinds {sorted(map(str, kinds))}")
+    wavelengths, datasets = load_wavelength_datasets([i["path"] for i in inputs], INPUT_FORMATS[kinds.pop()],
+                                                     wavelengths=spec.get("wavelengths"))
+    t_load = time.perf_counter() - t0
+    params = dict(spec["params"])
+    method = params.pop("method", None) or default_method(datasets[0])
+    unmix = dict(spec["unmix"] or {})
+    summary = reconstruct_and_unmix(
+        spec["out_dir"], datasets, wavelengths, method, input_id=spec.get("input_id", ""),
+        threshold=float(unmix.get("threshold", 0.1)), fluence=unmix.get("fluence"),
+        progress=lambda f, stage: report_stage(progress, stage, 0.1 + 0.85 * f),
+        should_stop=(lambda: os.path.exists(cancel)) if cancel else None, **params)
+    summary["timings"]["load_s"] = t_load
+    summary["unmix"]["threshold"] = float(unmix.get("threshold", 0.1))
+    if "autofocus" in summary["params"]:
+        summary["autofocus"] = summary["params"]["autofocus"]
     return summary
 
 

@@ -65,6 +65,14 @@ class Unmixed:
     params: dict = field(default_factory=dict)
 
 
+def too_few_wavelengths(wavelengths) -> ValueError:
+    """The error for an input with fewer than two wavelengths (m), naming them."""
+    w = np.asarray([] if wavelengths is None else wavelengths, dtype=np.float64).reshape(-1)
+    nm = ", ".join(f"{v * 1e9:g} nm" for v in w) or "none recorded"
+    return ValueError("unmixing into HbO2 and Hb needs at least two wavelengths; this dataset has "
+                      f"{w.size} ({nm})")
+
+
 def endmember_matrix(wavelengths) -> np.ndarray:
     """``(n_wavelengths, 2)`` decadic molar extinction [ε_HbO2, ε_Hb] in m²/mol at the
     wavelengths (m); raises ``ValueError`` for fewer than two wavelengths, repeats, a
@@ -72,9 +80,7 @@ def endmember_matrix(wavelengths) -> np.ndarray:
     at these wavelengths (condition number > 1e6)."""
     w = np.asarray(wavelengths, dtype=np.float64).reshape(-1)
     if w.size < 2:
-        nm = ", ".join(f"{v * 1e9:g} nm" for v in w) or "none"
-        raise ValueError("unmixing into HbO2 and Hb needs at least two wavelengths; this dataset has "
-                         f"{w.size} ({nm})")
+        raise too_few_wavelengths(w)
     if np.unique(w).size != w.size:
         raise ValueError(f"unmixing needs distinct wavelengths, got {[float(v) for v in w]} m")
     A = spectra.molar_extinction(w)

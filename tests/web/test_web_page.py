@@ -456,6 +456,55 @@ def test_upload_a_data_file_and_reconstruct_it(browser, server, api, screenshots
     assert np.diff(y) == pytest.approx(np.full(n_y - 1, 100e-6), rel=1e-9)
 
 
+def test_unmix_result_shows_so2_map_and_autofocus_curve(browser, server, api, screenshots, tmp_path):
+    """An unmixing job with c = 'auto' (two uploaded per-wavelength ball datasets): its
+    result view shows the masked sO2 picture the server rendered (same pixels) and the
+    autofocus curve (one SVG point per evaluated c, the chosen c as in the job)."""
+    np = pytest.importorskip("numpy")
+    from driver.physics import Ball, ball_alines, spectra
+
+    n, dx, dt, n_t, wls = 24, 100e-6, 20e-9, 120, [750e-9, 850e-9]
+    x = (np.arange(n) - (n - 1) / 2) * dx
+    yy, xx = np.meshgrid(x, x, indexing="ij")
+    pos = np.stack([xx.ravel(), yy.ravel()], axis=1)
+    ids = []
+    for k, w in enumerate(wls):
+        amp = float(spectra.absorption(w, 0.8, spectra.BLOOD_THB)[0])
+        data = ball_alines(pos, [Ball(0.0, 0.0, 1.0e-3, 200e-6, amp)], dt, n_t, 1500.0).T.reshape(n_t, n, n)
+        path = tmp_path / f"w{k}.npy"
+        np.save(path, data.astype(np.float32))
+        with open(path, "rb") as fh:
+            r = api.post("/api/datasets", data={"format": "npy", "dt": str(dt), "dx": str(dx)},
+                         files={"file": (path.name, fh, "application/octet-stream")})
+        assert r.status_code in (200, 201), r.text
+        ids.append(r.json()["dataset_id"])
+    r = api.post("/api/reconstructions", json={"dataset_ids": ids, "wavelengths": wls, "method": "ner",
+                                               "params": {"c": "auto", "c_range": [1450, 1550]}, "unmix": {}})
+    assert r.status_code == 202, r.text
+    job_id = r.json()["id"]
+    browser.get(f"{server}/#/jobs/{job_id}")
+    submit_token_if_asked(browser, timeout=5)
+    wait_for(lambda: text(browser, "result-state") in ("succeeded", "failed"), 120, "the unmixing job to finish", 0.3)
+    job = api.get(f"/api/jobs/{job_id}").json()
+    assert text(browser, "result-state") == "succeeded", job
+    result = job.get("result") or job["params"]["result"]
+    wait_for(lambda: el(browser, "result-unmix").is_displayed() and el(browser, "result-autofocus").is_displayed(),
+             15, "the unmixing and autofocus panels")
+    oracle = api.get(f"/api/reconstructions/{job_id}/so2.png")
+    assert oracle.status_code == 200
+    want = hashlib.sha256(png_pixels_as_browser_png(browser, base64.b64encode(oracle.content).decode())).hexdigest()
+    wait_for(lambda: image_digest(browser, "result-so2") == want, 15, "the sO2 picture")
+    af = result["autofocus"]
+    points = browser.execute_script(
+        "return document.querySelectorAll('#result-af-curve circle').length")
+    assert points == len(af["c_values"]) == af["evaluations"]
+    assert text(browser, "result-af-c") == str(float(f"{af['c']:.5g}")).removesuffix(".0")
+    assert "750 nm" in text(browser, "result-unmix-wavelengths")
+    links = {a.text for a in browser.find_elements("css selector", "#result-downloads a")}
+    assert any("Unmixing" in t for t in links) and any("sO2 map" in t for t in links), links
+    shot(browser, screenshots, "jobs-unmix-result")
+
+
 def test_scan_controls_pause_resume_abort(browser, sim, server, api, screenshots, state):
     if sim is None:
         pytest.skip("this build has no `fpscan sim` (simulated scanner)")

@@ -1,0 +1,139 @@
+"""`fpscan unmix`: reconstruct every excitation wavelength and unmix HbO2/Hb (THb, sO2).
+
+Input: one multi-wavelength scan file (every A-line at every wavelength), or one file
+per wavelength (any format ``fpscan recon`` reads) with ``--wavelengths`` in m.
+Locally (no ``--server``) each wavelength is reconstructed with the one dispatch
+(``service.pipeline.reconstruct``, the same method and options for all; ``--c auto``
+finds the sound speed once) and unmixed (``service.recon.unmix``: NNLS per voxel, same
+fluence at every wavelength unless ``--fluence`` is given). ``--out`` receives
+``unmix.h5`` (``/hbo2``, ``/hb``, ``/thb``, ``/so2``, ``/mask``), ``so2.png`` and one
+result folder per wavelength (``wavelength_<k>/volume.h5`` + MIPs). With ``--server``
+the job runs on the server (``POST /api/reconstructions`` with ``unmix``) and the same
+files are downloaded.
+"""
+from __future__ import annotations
+
+from clients.cli._common import add_progress_option, add_server_options, client_errors, speed
+
+COMMAND = "unmix"
+HELP = "reconstruct every wavelength and unmix HbO2/Hb into THb and sO2 (masked)"
+
+FORMATS = ("fpscan", "ipasc", "kwave-hdf5", "npy", "dataset")
+
+
+def add_arguments(parser):
+    """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser)."""
+    parser.add_argument("inputs", nargs="*", metavar="INPUT",
+                        help="a multi-wavelength scan file, or one file per wavelength (with --wavelengths)")
+    parser.add_argument("--wavelengths", type=float, nargs="+", default=None, metavar="M",
+                        help="excitation wavelength of each INPUT, m (e.g. 7.5e-07 8.5e-07)")
+    parser.add_argument("--format", choices=FORMATS, default=None, help="input format (default: from the file)")
+    parser.add_argument("--method", default=None,
+                        help="reconstruction method (default: nedner for scans, ner for grids)")
+    parser.add_argument("--out", default=None, metavar="DIR", help="output folder (default: <input>-unmix/)")
+    parser.add_argument("--c", type=speed, default=None,
+                        help="speed of sound, m/s, or 'auto' (autofocus; default: the input's)")
+    parser.add_argument("--c-range", type=float, nargs=2, default=None, metavar=("MIN", "MAX"),
+                        help="autofocus search interval, m/s (default 1450 1600)")
+    parser.add_argument("--threshold", type=float, default=0.1,
+                        help="mask voxels whose THb is below this fraction of the maximum (default 0.1)")
+    parser.add_argument("--fluence", type=float, nargs="+", default=None, metavar="J_PER_M2",
+                        help="fluence at each wavelength, J/m² (default: assumed equal at every wavelength)")
+    g = parser.add_argument_group("data spacings (npy and k-Wave inputs; SI units)")
+    g.add_argument("--dt", type=float, default=None, help="sample interval, s")
+    g.add_argument("--dx", type=float, default=None, help="lateral spacing along x, m")
+    g.add_argument("--dy", type=float, default=None, help="lateral spacing along y, m (default dx)")
+    g.add_argument("--key", default=None, help="HDF5 dataset path in a k-Wave file")
+    g = parser.add_argument_group("reconstruction options")
+    g.add_argument("--eps", type=float, default=None, help="NUFFT tolerance (default 1e-6)")
+    g.add_argument("--dtype", choices=("float32", "float64"), default=None, help="working precision")
+    parser.add_argument("--scan-job", default=None, metavar="JOB_ID",
+                        help="with --server: unmix this (multi-wavelength) scan job's file (no INPUT)")
+    add_server_options(parser)
+    add_progress_option(parser)
+
+
+def _params(args) -> dict:
+    params = {k: getattr(args, k) for k in ("c", "eps", "dtype") if getattr(args, k) is not None}
+    if args.c_range is not None:
+        params["c_range"] = list(args.c_range)
+    return params
+
+
+def _default_out(args):
+    from pathlib import Path
+
+    if args.out:
+        return Path(args.out)
+    if args.scan_job:
+        return Path(f"unmix-{args.scan_job}")
+    p = Path(args.inputs[0])
+    return p.with_name(f"{p.stem}-unmix")
+
+
+@client_errors
+def run(args) -> int:
+    """Run this sub-command with the parsed ``args``; return the exit status."""
+    from pathlib import Path
+
+    if args.scan_job and not args.server:
+        raise ValueError("--scan-job needs --server")
+    if args.scan_job and args.inputs:
+        raise ValueError("give either INPUT or --scan-job, not both")
+    if not args.scan_job:
+        if not args.inputs:
+            raise ValueError("no input: give a multi-wavelength scan file or one file per wavelength")
+        for p in args.inputs:
+            if not Path(p).is_file():
+                raise ValueError(f"no such file: {p}")
+        if len(args.inputs) > 1 and (args.wavelengths is None or len(args.wavelengths) != len(args.inputs)):
+            raise ValueError(f"{len(args.inputs)} inputs need --wavelengths with {len(args.inputs)} values (m)")
+    if args.server:
+        return _remote(args)
+    return _local(args)
+
+
+def _local(args) -> int:
+    import sys
+    import time
+
+    from service import pipeline
+    from service.spectral import load_wavelength_datasets, reconstruct_and_unmix
+
+    out = _default_out(args)
+    say = (lambda msg: None) if args.quiet else (lambda msg: print(f"unmix: {msg}", file=sys.stderr, flush=True))
+    t0 = time.perf_counter()
+    load = {k: getattr(args, k) for k in ("dt", "dx", "dy", "key")}
+    wavelengths, datasets = load_wavelength_datasets(args.inputs, args.format, wavelengths=args.wavelengths, **load)
+    method = args.method or pipeline.default_method(datasets[0])
+    say(f"{len(datasets)} wavelengths ({', '.join(f'{w * 1e9:g} nm' for w in wavelengths)}), method {method}")
+    summary = reconstruct_and_unmix(out, datasets, wavelengths, method, input_id=",".join(args.inputs),
+                                    threshold=args.threshold, fluence=args.fluence,
+                                    progress=None if args.quiet else (lambda f, s: say(f"{s} {100 * f:.0f} %")),
+                                    **_params(args))
+    c = summary.get("c")
+    print(f"{out}/unmix.h5  so2.png  sO2 median {summary['so2_median']}  masked {summary['masked_fraction']:.1%}"
+          + (f"  c {c:.1f} m/s" if c is not None else "") + f"  {time.perf_counter() - t0:.2f} s")
+    return 0
+
+
+def _remote(args) -> int:
+    from clients.cli._common import ProgressBar, make_client
+
+    with make_client(args, timeout=300) as api:
+        unmix = {"threshold": args.threshold, "fluence": args.fluence}
+        if args.scan_job:
+            job_id = api.start_unmix(scan_job_id=args.scan_job, method=args.method, params=_params(args), **unmix)
+        else:
+            fields = {k: getattr(args, k) for k in ("dt", "dx", "dy", "key")}
+            ids = [api.upload_dataset(p, args.format, **fields) for p in args.inputs]
+            job_id = api.start_unmix(dataset_ids=ids, wavelengths=args.wavelengths, method=args.method,
+                                     params=_params(args), **unmix)
+        with ProgressBar(f"unmix {job_id[:8]}", quiet=args.quiet) as bar:
+            api.wait(job_id, on_progress=bar)
+        out = _default_out(args)
+        api.download_unmix(job_id, out / "unmix.h5")
+        api.download_so2(job_id, out / "so2.png")
+        job = api.job(job_id)
+        print(f"{out}/unmix.h5  so2.png  job {job_id}  {job.get('result', {}).get('unmix', '')}")
+    return 0
