@@ -311,6 +311,8 @@ CLIENT_METHODS = {
     ("delete", "/api/datasets/{dataset_id}"): "delete_dataset",
     ("get", "/api/retention"): "retention",
     ("put", "/api/retention"): "retention",
+    ("get", "/api/reconstructions/{job_id}/unmix.h5"): "download_unmix",
+    ("get", "/api/reconstructions/{job_id}/so2.png"): "download_so2",
 }
 
 

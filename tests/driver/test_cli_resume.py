@@ -110,7 +110,7 @@ def test_sim_cli_rejects_bad_options(tmp_path):
 def test_ctrl_c_leaves_the_device_idle(tmp_path):
     from driver.host import Scanner
 
-    plan = grid_plan(20, 20, n_t=128)  # 400 points at 100 Hz: 4 s if never stopped
+    plan = grid_plan(30, 30, n_t=128)  # 900 points at 100 Hz: 9 s if never stopped (room for a loaded machine)
     plan_path = tmp_path / "plan.json"
     plan_path.write_text(json.dumps(plan))
     sim = subprocess.Popen(FPSCAN + ["sim", "--prf", "100"], stdout=subprocess.PIPE,
@@ -130,8 +130,8 @@ def test_ctrl_c_leaves_the_device_idle(tmp_path):
         assert "to resume, run the same command again" in err and f"--out {out}" in err, err
         with Scanner(dev) as sc:
             st = sc.status()
-        assert st.state == "IDLE" and st.next_index < 400
-        assert 30 <= completed_count(out) < 400
+        assert st.state == "IDLE" and st.next_index < 900
+        assert 30 <= completed_count(out) < 900
     finally:
         sim.send_signal(signal.SIGTERM)
         sim.wait(timeout=20)

@@ -66,7 +66,10 @@ def test_contract_errors(small_server):
         schema = api.get("/openapi.json").json()
         assert {} in schema["paths"]["/api/health"]["get"]["security"]  # loopback: reads need no token
         assert {} not in schema["paths"]["/api/plans/preview"]["post"]["security"]
-        assert len(schema["components"]["schemas"]["ReconRequest"]["oneOf"]) == 2
+        # exactly one input: a scan job, a dataset, or one dataset per wavelength (unmixing)
+        branches = schema["components"]["schemas"]["ReconRequest"]["oneOf"]
+        assert sorted(b["required"][0] for b in branches) == ["dataset_id", "dataset_ids", "scan_job_id"]
+        assert all("not" in b for b in branches)
 
 
 def test_redact_replaces_whole_path_prefixes_only(tmp_path):
