@@ -12,6 +12,7 @@ import time
 import numpy as np
 import pytest
 
+from clients.processes import start_simulator
 from driver.scanfile import read_scan
 from tests.driver.driver_helpers import grid_plan, read_record
 
@@ -35,11 +36,10 @@ def test_sigkill_host_mid_scan_then_resume(tmp_path):
     plan_path = tmp_path / "plan.json"
     plan_path.write_text(json.dumps(plan))
     record = tmp_path / "truth.h5"
-    sim = subprocess.Popen(FPSCAN + ["sim", "--prf", "400", "--seed", "5", "--snr", "50",
-                                     "--record", str(record)],
-                           stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    # the simulator started as the demo and the service tests start it (clients.processes)
+    dev, sim = start_simulator("--prf", "400", "--seed", "5", "--snr", "50", "--record", str(record),
+                               log_path=tmp_path / "sim.log", timeout=30)
     try:
-        dev = sim.stdout.readline().strip()
         assert dev.startswith("/dev/"), dev
         killed = tmp_path / "killed.h5"
         host = subprocess.Popen(scan_cmd(dev, plan_path, killed), stdout=subprocess.DEVNULL,
@@ -79,9 +79,8 @@ def test_sigkill_host_mid_scan_then_resume(tmp_path):
                            timeout=60)
         assert r.returncode == 0, r.stderr
     finally:
-        sim.send_signal(signal.SIGTERM)
-        sim.wait(timeout=20)
-    assert sim.returncode == 0
+        sim.stop(timeout=20)  # SIGTERM, then SIGKILL after 20 s
+    assert sim.poll() == 0, (tmp_path / "sim.log").read_text()  # it ended cleanly on SIGTERM
     a, b = read_scan(killed), read_scan(clean)
     assert a.completed.all() and b.completed.all()
     assert np.array_equal(a.alines, b.alines) and np.array_equal(a.scale, b.scale)
@@ -113,10 +112,8 @@ def test_ctrl_c_leaves_the_device_idle(tmp_path):
     plan = grid_plan(30, 30, n_t=128)  # 900 points at 100 Hz: 9 s if never stopped (room for a loaded machine)
     plan_path = tmp_path / "plan.json"
     plan_path.write_text(json.dumps(plan))
-    sim = subprocess.Popen(FPSCAN + ["sim", "--prf", "100"], stdout=subprocess.PIPE,
-                           stderr=subprocess.DEVNULL, text=True)
+    dev, sim = start_simulator("--prf", "100", log_path=tmp_path / "sim.log", timeout=30)
     try:
-        dev = sim.stdout.readline().strip()
         out = tmp_path / "scan.h5"
         host = subprocess.Popen(scan_cmd(dev, plan_path, out), stdout=subprocess.PIPE,
                                 stderr=subprocess.PIPE, text=True, start_new_session=True)
@@ -133,5 +130,4 @@ def test_ctrl_c_leaves_the_device_idle(tmp_path):
         assert st.state == "IDLE" and st.next_index < 900
         assert 30 <= completed_count(out) < 900
     finally:
-        sim.send_signal(signal.SIGTERM)
-        sim.wait(timeout=20)
+        sim.stop(timeout=20)
