@@ -16,7 +16,6 @@ acquired twice.
 """
 from __future__ import annotations
 
-import errno
 import logging
 import math
 import threading
@@ -25,6 +24,7 @@ import uuid
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from service.jobs.lifecycle import is_disk_full
 from service.jobs.store import TERMINAL, JobStore
 from service.preview import PreviewManager
 
@@ -280,8 +280,7 @@ class ScanManager:
             self.store.set_state(jid, "failed", error=self.settings.redact(str(exc)),
                                  only_from=("running", "paused"))
         except OSError as exc:  # the disk (ENOSPC, EIO): the points on disk stay resumable
-            full = exc.errno == errno.ENOSPC or "No space left" in str(exc)
-            why = "disk full" if full else "scan file write failed"
+            why = "disk full" if is_disk_full(exc) else "scan file write failed"
             self._interrupt(jid, f"{why}: {self.settings.redact(str(exc))}; free space, then resume")
         except DriverError as exc:  # the device went away or stopped answering
             self._interrupt(jid, f"device lost: {self.settings.redact(str(exc))}; resume when it is back")

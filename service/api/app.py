@@ -25,6 +25,7 @@ from starlette.staticfiles import StaticFiles
 from driver.acquire import software_version
 from service.api.context import Context, Slots, ctx, default_slots, read_access
 from service.api.models import Error, Health
+from service.jobs.lifecycle import is_disk_full
 from service.settings import Settings
 
 log = logging.getLogger("fpscan.api")
@@ -169,22 +170,6 @@ class ShortIds:
         return await self.app(scope, receive, send)
 
 
-def _disk_full(exc: BaseException | None) -> bool:
-    """True when ``exc`` (or what caused it) is a full disk: ``OSError`` ENOSPC, or SQLite's
-    "database or disk is full" (SQLITE_FULL)."""
-    import errno
-
-    seen = 0
-    while exc is not None and seen < 8:
-        if isinstance(exc, OSError) and (exc.errno == errno.ENOSPC or "No space left on device" in str(exc)):
-            return True
-        if isinstance(exc, sqlite3.OperationalError) and "disk is full" in str(exc):
-            return True
-        exc = exc.__cause__ or exc.__context__
-        seen += 1
-    return False
-
-
 def create_app(settings: Settings | None = None, *, start_workers: bool = True) -> FastAPI:  # noqa: C901 -- lifespan hooks of helpers "hostile" and "lab"
     """The service app. ``start_workers=False`` builds the app without the queue and scan
     threads (for schema inspection)."""
@@ -259,7 +244,7 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True) 
     async def _storage(request: Request, exc: Exception):
         # handled here, not by the catch-all below (Starlette re-raises from that one and
         # the server then drops the client's kept-alive connection)
-        if _disk_full(exc):  # the server's condition, not a bug: say so, and how to fix it
+        if is_disk_full(exc):  # the server's condition, not a bug: say so, and how to fix it
             log.warning("disk full %s %s: %s", request.method, request.url.path, exc)
             return JSONResponse({"detail": "the data folder's disk is full; free space, then retry "
                                            "(/api/health shows the free bytes)"},

@@ -25,7 +25,7 @@ import uuid
 from pathlib import Path
 
 from service.jobs.executors import WorkerDied
-from service.jobs.lifecycle import apply_retention
+from service.jobs.lifecycle import apply_retention, is_disk_full
 from service.jobs.store import JobStore
 from service.jobs.work import run_reconstruction
 from service.pipeline import Cancelled
@@ -236,6 +236,11 @@ class ReconQueue:
                 self._finish(jid, "failed", error=f"{exc} ({job['attempts']} attempts)")
             return
         except Exception as exc:  # worker crash or bug: keep internals in the log only
+            if is_disk_full(exc):  # the server's condition: say so (the input is intact)
+                log.warning("recon failed job=%s: disk full: %s", jid, exc)
+                self._finish(jid, "failed", error="the data folder's disk is full (no room for the result); "
+                                                  "free space, then submit the reconstruction again")
+                return
             log.exception("recon error job=%s", jid)
             self._finish(jid, "failed", error=f"reconstruction failed ({type(exc).__name__})")
             return

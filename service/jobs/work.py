@@ -50,8 +50,9 @@ def report_stage(path: str | None, stage: str, fraction: float) -> None:
         with open(tmp, "w") as f:
             json.dump({"stage": stage, "fraction": fraction}, f)
         os.replace(tmp, path)
-    except OSError:  # progress is best effort (e.g. a remote worker without the folder)
-        pass
+    except OSError:  # progress is best effort (e.g. a remote worker without the folder, a full disk)
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
 
 
 def check_memory_limit(ds: Any, params: dict, limit: int) -> None:

@@ -106,7 +106,9 @@ def _child(conn: Any, fn: Callable, args: tuple, kwargs: dict) -> None:
     except MemoryError:
         conn.put(("value", "the file needs more memory than the limit allows"))
     except OSError as exc:
-        if exc.errno == errno.ENOSPC or "No space left on device" in str(exc):  # not the file's fault
+        from service.jobs.lifecycle import is_disk_full
+
+        if is_disk_full(exc):  # not the file's fault
             conn.put(("nospace", str(exc)))
         else:
             conn.put(("value", f"file is not a readable dataset ({type(exc).__name__})"))

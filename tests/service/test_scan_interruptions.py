@@ -95,6 +95,17 @@ def test_device_lost_mid_scan_then_resume_on_a_new_simulator(tmp_path):
             s.stop()
 
 
+def _upload_npy(c) -> str:
+    import io
+
+    buf = io.BytesIO()
+    np.save(buf, np.random.default_rng(0).standard_normal((64, 8, 8)).astype(np.float32))
+    r = c.post("/api/datasets", data={"format": "npy", "dt": "2e-8", "dx": "1e-4"},
+               files={"file": ("d.npy", buf.getvalue())})
+    assert r.status_code == 201, r.text
+    return r.json()["dataset_id"]
+
+
 @pytest.fixture
 def small_disk(tmp_path):
     folder = tmp_path / "tmpfs"
@@ -129,6 +140,7 @@ def test_full_disk_mid_scan_pauses_with_the_reason_then_resumes(tmp_path, small_
     try:
         with srv.client() as c:
             plan = make_plan(c)
+            ds = _upload_npy(c)
             jid = start_scan(c, plan["id"])
             wait_points(c, jid, 40)
             fill(small_disk)
@@ -138,6 +150,13 @@ def test_full_disk_mid_scan_pauses_with_the_reason_then_resumes(tmp_path, small_
             assert job["progress"]["points_done"] < N * N
             health = c.get("/api/health").json()
             assert any("disk full" in p for p in health["problems"]), health
+            # a reconstruction queued meanwhile ends (not running forever) with the reason,
+            # and leaves no temporary files behind
+            rid = c.post("/api/reconstructions", json={"dataset_id": ds, "method": "ner"}).json()["id"]
+            rec = wait_job(c, rid)
+            assert rec["state"] == "failed" and "disk is full" in rec["error"], rec
+            results = small_disk / "data" / "results"
+            assert not [p.name for p in results.iterdir()] if results.exists() else True
             # resumed while still full: refused up front by the space check, still paused
             assert c.post(f"/api/scans/{jid}/resume").status_code == 200
             time.sleep(1.0)
