@@ -454,6 +454,16 @@ def test_upload_a_data_file_and_reconstruct_it(browser, server, api, screenshots
         assert f["p0"].shape[1:] == (n_y, n_x)
     assert np.diff(x) == pytest.approx(np.full(n_x - 1, 100e-6), rel=1e-9)
     assert np.diff(y) == pytest.approx(np.full(n_y - 1, 100e-6), rel=1e-9)
+    # the job list deletes the finished job (after the confirm dialog): row, record and files gone
+    row = f'#view-jobs tr[data-job-id="{recon_id}"]'
+    delete = wait_for(lambda: next((b for b in browser.find_elements("css selector", row + " .c-delete")
+                                    if b.is_displayed()), None), 15, "the job's Delete button")
+    browser.execute_script("window.confirm = () => true;")
+    delete.click()
+    wait_for(lambda: not browser.find_elements("css selector", row), 15, "the deleted job's row to go")
+    assert api.get(f"/api/jobs/{recon_id}").status_code == 404
+    assert api.get(f"/api/reconstructions/{recon_id}/volume.h5").status_code == 404
+    assert el(browser, "result").is_displayed() is False
 
 
 def test_unmix_result_shows_so2_map_and_autofocus_curve(browser, server, api, screenshots, tmp_path):
