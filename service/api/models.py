@@ -169,19 +169,28 @@ class _PlanCreate(_Request):
     @classmethod
     def _units_first(cls, data: Any) -> Any:
         """Acquisition text with a unit ("8 ns", "500Hz", "1.5 km/s") → SI numbers, then the
-        plausibility rules of ``driver.units`` on the raw values, so that a unit mistake
-        (dt 8 s, sound speed 1.5 m/s) is named before the range checks of ``Acquisition``."""
-        if not isinstance(data, dict) or not isinstance(data.get("acquisition"), dict):
+        plausibility rules of ``driver.units`` on the raw values (dt, PRF, sound speed, the
+        depth of the point of interest), so that a unit mistake (dt 8 s, depth 3.6 m) is
+        named before the range checks of ``Acquisition`` and the kind's parameter model."""
+        if not isinstance(data, dict):
             return data
         from driver.units import parse_quantity
         from service.plans import check_plausible_request
 
-        acq = dict(data["acquisition"])
-        for name, kind in (("dt", "time"), ("prf", "frequency"), ("sound_speed", "speed")):
-            if isinstance(acq.get(name), str):
-                acq[name] = parse_quantity(acq[name], kind, name=name)
-        check_plausible_request(None, None, None, None, acq, force=data.get("force") is True)
-        return {**data, "acquisition": acq}
+        acq = data.get("acquisition")
+        if isinstance(acq, dict):
+            acq = dict(acq)
+            for name, unit_kind in (("dt", "time"), ("prf", "frequency"), ("sound_speed", "speed")):
+                if isinstance(acq.get(name), str):
+                    acq[name] = parse_quantity(acq[name], unit_kind, name=name)
+            data = {**data, "acquisition": acq}
+        try:
+            kind = resolve_kind(data.get("kind")).name if isinstance(data.get("kind"), str) else None
+        except ValueError:
+            kind = None  # the discriminator names an unknown kind
+        check_plausible_request(None, kind, None, data.get("params"), acq if isinstance(acq, dict) else None,
+                                force=data.get("force") is True)
+        return data
 
 
 def _plan_create(k: MaskKind) -> type[_PlanCreate]:
