@@ -190,8 +190,7 @@ def test_resume_waits_for_a_reader_holding_the_file(tmp_path):
 WRITER = textwrap.dedent("""
     import sys, time
     import numpy as np
-    sys.path.insert(0, {tests!r})
-    from test_scanfile import aline, meta, make_plan, INSTRUMENT
+    from tests.driver.test_scanfile import aline, meta, make_plan, INSTRUMENT
     from driver.scanfile import ScanFile
     path, n, n_t, delay = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), float(sys.argv[4])
     import os
@@ -214,20 +213,13 @@ WRITER = textwrap.dedent("""
 """)
 
 
-def _writer_script(tmp_path) -> Path:
-    script = tmp_path / "writer.py"
-    script.write_text(WRITER.format(tests=str(Path(__file__).parent)))
-    return script
-
-
 def test_sigkill_then_resume_equals_uninterrupted(tmp_path):
     n, n_t = 3000, 64
     path = tmp_path / "killed.h5"
-    script = _writer_script(tmp_path)
     acked = -1
     for _ in range(2):  # kill a fresh writer, then kill the writer that resumed its file
         start = acked
-        proc = subprocess.Popen([sys.executable, str(script), str(path), str(n), str(n_t), "0"],
+        proc = subprocess.Popen([sys.executable, "-c", WRITER, str(path), str(n), str(n_t), "0"],
                                 stdout=subprocess.PIPE, text=True, cwd=REPO)
         try:
             deadline = time.monotonic() + 60
@@ -275,8 +267,7 @@ def test_sigkill_then_resume_equals_uninterrupted(tmp_path):
 READER = textwrap.dedent("""
     import sys, time
     import numpy as np
-    sys.path.insert(0, {tests!r})
-    from test_scanfile import aline
+    from tests.driver.test_scanfile import aline
     from driver.scanfile import read_scan
     path, n_t = sys.argv[1], int(sys.argv[2])
     last, reads, seen = -1, 0, []
@@ -301,10 +292,8 @@ def test_swmr_reader_in_other_process_while_writing(tmp_path):
     n, n_t = 400, 128
     path = tmp_path / "live.h5"
     plan = make_plan(n, n_t)
-    reader = tmp_path / "reader.py"
-    reader.write_text(READER.format(tests=str(Path(__file__).parent)))
     with ScanFile.create(path, plan, instrument=INSTRUMENT, software_version="1") as sf:
-        proc = subprocess.Popen([sys.executable, str(reader), str(path), str(n_t)],
+        proc = subprocess.Popen([sys.executable, "-c", READER, str(path), str(n_t)],
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                 cwd=REPO)
         try:
