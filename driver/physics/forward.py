@@ -25,12 +25,12 @@ from __future__ import annotations
 
 import math
 
-import finufft
 import numpy as np
 import scipy.fft
 
 from driver.physics import nufft
 from driver.physics.axes import centred_index
+from driver.physics.nufft_plans import lateral_plan
 
 
 def _check_common(p0, dx, dz, dt, n_t, c, t0, eps):
@@ -209,11 +209,14 @@ def forward_points(
     # grid index of a coordinate: i = x/dx + (n-1)/2; mode k_j = 2π j/(n dx) (FFT order)
     tx = 2 * np.pi * centred_index(pos[:, 0], n_x, dx) / n_x
     tol = max(eps, 1e-14)
+    # planned once per mask and size (nufft_plans): repeated forward models only execute
     if is2d:
-        vals = finufft.nufft1d2(tx, np.ascontiguousarray(G[:, 0, :]), isign=1, eps=tol, modeord=1, nthreads=1)
+        plan = lateral_plan(2, (tx,), (n_x,), int(n_t), eps=tol, isign=1, dtype=np.complex128)
+        vals = plan.execute(np.ascontiguousarray(G[:, 0, :]))
         scale = n_x
     else:
         ty = 2 * np.pi * centred_index(pos[:, 1], n_y, dx) / n_y
-        vals = finufft.nufft2d2(ty, tx, np.ascontiguousarray(G), isign=1, eps=tol, modeord=1, nthreads=1)
+        plan = lateral_plan(2, (ty, tx), (n_y, n_x), int(n_t), eps=tol, isign=1, dtype=np.complex128)
+        vals = plan.execute(np.ascontiguousarray(G))
         scale = n_x * n_y
     return np.ascontiguousarray((vals.real / scale).T)

@@ -33,7 +33,6 @@ from __future__ import annotations
 
 from typing import Any
 
-import finufft
 import numpy as np
 import pylops
 import scipy.fft
@@ -41,6 +40,7 @@ import scipy.fft
 from driver.physics import nufft
 from driver.physics.axes import centred_index
 from driver.physics.forward import _pad_sizes, forward_grid, forward_points
+from driver.physics.nufft_plans import lateral_plan
 from service.recon import checks
 
 
@@ -167,12 +167,15 @@ class PlanarOperator(pylops.LinearOperator):
         assert pos is not None  # point data only
         strengths = np.ascontiguousarray(data.T).astype(np.complex128)  # (n_t, n_points)
         tx = 2 * np.pi * centred_index(pos[:, 0], n_x, self.dx) / n_x
-        opts = dict(eps=max(self.eps, 1e-14), isign=-1, modeord=1, nthreads=1)
+        # planned once per mask (driver.physics.nufft_plans): every iteration only executes
+        eps = max(self.eps, 1e-14)
         if self.is2d:
-            Y = finufft.nufft1d1(tx, strengths, n_x, **opts)[:, None, :]
+            plan = lateral_plan(1, (tx,), (n_x,), self.n_t, eps=eps, isign=-1, dtype=np.complex128)
+            Y = plan.execute(strengths)[:, None, :]
         else:
             ty = 2 * np.pi * centred_index(pos[:, 1], n_y, self.dx) / n_y
-            Y = finufft.nufft2d1(ty, tx, strengths, (n_y, n_x), **opts)
+            plan = lateral_plan(1, (ty, tx), (n_y, n_x), self.n_t, eps=eps, isign=-1, dtype=np.complex128)
+            Y = plan.execute(strengths)
         del strengths
         # Re(·) in the forward -> Hermitian part here: ½ (Y(k) + conj Y(-k)), FFT index order
         iy = (-np.arange(n_y)) % n_y

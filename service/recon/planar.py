@@ -26,7 +26,6 @@ FFT by a type-1 NUFFT (finufft) from the sensor positions, batched over time sam
 """
 from __future__ import annotations
 
-import finufft
 import numpy as np
 import scipy.fft
 import scipy.interpolate
@@ -34,6 +33,7 @@ from scipy.spatial import cKDTree
 
 from driver.physics import nufft
 from driver.physics.axes import centred_axis
+from driver.physics.nufft_plans import lateral_plan
 from service.recon import checks
 from service.recon.reconstruction import Reconstruction
 
@@ -373,20 +373,23 @@ def _type1(strengths, pos, axes, dx, dy, n_y, n_x, eps, rdtype, progress):
     eps_nu = max(eps, 2e-5) if rdtype == np.float32 else eps
     # one thread: batched type-1 transforms with 2 threads were ~40x slower on 2 busy cores;
     # oversampling 1.25 keeps the batched FFTs small (FINUFFT supports it down to ~1e-9)
-    opts = dict(eps=eps_nu, isign=-1, modeord=1, nthreads=1, upsampfac=1.25 if eps_nu >= 1e-9 else 2.0)
+    opts = dict(eps=eps_nu, isign=-1, upsampfac=1.25 if eps_nu >= 1e-9 else 2.0)
     # the batched type-1 transforms in a few chunks of time samples (each transform is
     # independent of the others), so that progress is reported through this step too
+    # planned once per mask and chunk size (driver.physics.nufft_plans): the live preview,
+    # repeated jobs on one plan and the model-based iterations only execute
     A = np.empty((n_t, n_y, n_x), dtype=ctype)
-    bounds = np.linspace(0, n_t, min(4, n_t) + 1).astype(np.int64)
-    ty = 2 * np.pi * (pos[:, 1] - axes[1][0]) / (n_y * dy) if d == 2 else None
-    for i in range(len(bounds) - 1):
-        a, b = int(bounds[i]), int(bounds[i + 1])
-        if d == 1:
-            A[a:b, 0, :] = finufft.nufft1d1(tx.astype(ftype), strengths[a:b], n_x, **opts)
-        else:
-            A[a:b] = finufft.nufft2d1(ty.astype(ftype), tx.astype(ftype), strengths[a:b], (n_y, n_x), **opts)
+    n_chunks = min(4, n_t)
+    size = -(-n_t // n_chunks)
+    coords = (tx.astype(ftype),) if d == 1 else \
+        ((2 * np.pi * (pos[:, 1] - axes[1][0]) / (n_y * dy)).astype(ftype), tx.astype(ftype))
+    modes = (n_x,) if d == 1 else (n_y, n_x)
+    for i, a in enumerate(range(0, n_t, size)):
+        b = min(a + size, n_t)
+        plan = lateral_plan(1, coords, modes, b - a, dtype=ctype, **opts)
+        plan.execute(np.ascontiguousarray(strengths[a:b]), out=A[a:b].reshape((b - a, *modes)))
         if progress is not None:
-            progress(0.3 * (i + 1) / (len(bounds) - 1))
+            progress(0.3 * (i + 1) / n_chunks)
     if d == 2 and n_y % 2 == 0:
         # The y-Nyquist row holds the aliased pair ±π/dy; off-grid sensors make the two
         # differ, so take the band-limited (cosine) split: ½(A(-k_N, k_x) + A(+k_N, k_x)),
