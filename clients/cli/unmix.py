@@ -13,7 +13,7 @@ files are downloaded.
 """
 from __future__ import annotations
 
-from clients.cli._common import add_progress_option, add_server_options, client_errors, speed
+from clients.cli._common import add_progress_option, add_server_options, client_errors, default_dtype, speed
 
 COMMAND = "unmix"
 HELP = "reconstruct every wavelength and unmix HbO2/Hb into THb and sO2 (masked)"
@@ -46,7 +46,8 @@ def add_arguments(parser):
     g.add_argument("--key", default=None, help="HDF5 dataset path in a k-Wave file")
     g = parser.add_argument_group("reconstruction options")
     g.add_argument("--eps", type=float, default=None, help="NUFFT tolerance (default 1e-6)")
-    g.add_argument("--dtype", choices=("float32", "float64"), default=None, help="working precision")
+    g.add_argument("--dtype", choices=("float32", "float64"), default=None,
+                   help=f"working precision (default {default_dtype()}, locally and on the server)")
     parser.add_argument("--scan-job", default=None, metavar="JOB_ID",
                         help="with --server: unmix this (multi-wavelength) scan job's file (no INPUT)")
     add_server_options(parser)

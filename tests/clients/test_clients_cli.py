@@ -33,15 +33,17 @@ def test_help_everywhere(command):
 
 def test_every_reconstructing_command_states_its_precision():
     """``--help`` of each command that reconstructs says in which precision: the one default
-    (``service.pipeline.DEFAULT_DTYPE``) for recon, demo and serve; float64 for evaluate."""
+    (``service.pipeline.DEFAULT_DTYPE``) for recon, unmix, demo and serve; float64 for evaluate."""
     import argparse
 
     from clients.cli import build_parser
     from service.pipeline import DEFAULT_DTYPE
 
     sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction)).choices
-    text = {name: " ".join(sub[name].format_help().split()) for name in ("recon", "demo", "serve", "evaluate")}
-    assert f"(default {DEFAULT_DTYPE}, locally and on the server)" in text["recon"]
+    text = {name: " ".join(sub[name].format_help().split())
+            for name in ("recon", "unmix", "demo", "serve", "evaluate")}
+    for name in ("recon", "unmix"):
+        assert f"(default {DEFAULT_DTYPE}, locally and on the server)" in text[name], name
     for name in ("demo", "serve"):
         assert f"Precision: reconstructions are {DEFAULT_DTYPE}" in text[name]
     assert "every reconstruction of the experiments is float64" in text["evaluate"]
