@@ -5,8 +5,9 @@ Locally (``--device``): resumes when ``--out`` already holds a partial scan of t
 plan (only the missing points are acquired). With ``--server URL --scanner ID``: the plan
 (a plan JSON file, uploaded under its own id, or the id of a plan on the server) is
 scanned as a server job (``POST /api/scans``) with a progress bar; ``--out`` then gets the
-scan file when it is done. Exit codes: 0 complete, 1 error or incomplete, 130 interrupted
-(Ctrl-C: the scanner is left idle, the file keeps every point acquired so far, and the
+scan file when it is done; ``--preview-wavelength M`` picks which of a multi-wavelength
+plan's excitation wavelengths the server's live preview shows. Exit codes: 0 complete,
+1 error or incomplete, 130 interrupted (Ctrl-C: the scanner is left idle, the file keeps every point acquired so far, and the
 message says to run the same command again to resume). Rates count only the points this
 run acquired.
 """
@@ -30,6 +31,9 @@ def add_arguments(parser):
     add_server_options(g)
     g.add_argument("--scanner", metavar="ID", help="with --server: the server's scanner id "
                    "(default: its only scanner)")
+    g.add_argument("--preview-wavelength", metavar="M", type=_wavelength_arg,
+                   help="with --server: the excitation wavelength in m (one of the plan's) that the "
+                        "live preview shows (default: the plan's first)")
     parser.add_argument("--window", type=int, default=256, help="credit window in A-lines (the device caps it at its limit)")
     parser.add_argument("--timeout", type=float, default=10.0,
                         help="longest wait for a silent device, s (default 10)")
@@ -55,6 +59,22 @@ def _same_command() -> str:
     return "fpscan " + " ".join(shlex.quote(a) for a in sys.argv[1:])
 
 
+def _wavelength_arg(text: str) -> float:
+    from clients.cli.plan import parse_value
+
+    return parse_value(text, "m")
+
+
+def preview_index(wavelengths: list, wanted: float) -> int:
+    """Index of ``wanted`` (m) among a plan's excitation ``wavelengths`` (m; equal to
+    1e-6 relative); ``ValueError`` naming the plan's wavelengths when it is not one."""
+    for k, w in enumerate(wavelengths):
+        if abs(float(w) - wanted) <= 1e-6 * abs(float(w)):
+            return k
+    have = ", ".join(f"{float(w):g}" for w in wavelengths)
+    raise ValueError(f"--preview-wavelength {wanted:g} m is not one of the plan's wavelengths ({have} m)")
+
+
 @client_errors
 def run(args) -> int:
     """Acquire locally (``--device``) or as a server job (``--server``); exit status."""
@@ -67,6 +87,8 @@ def run(args) -> int:
         return _remote(args)
     if not args.device or not args.out:
         raise ValueError("a local scan needs --device and --out (or use --server URL)")
+    if args.preview_wavelength is not None:
+        raise ValueError("--preview-wavelength is for a scan on a server (--server): a local scan has no live preview")
     from driver.acquire import acquire
     from driver.plan import load_plan
 
@@ -134,14 +156,19 @@ def _remote(args) -> int:
             if isinstance(plan, dict) and plan.get("id") not in (None, plan_id):
                 raise RuntimeError(f"the server stored {source} as {plan_id}, not {plan.get('id')}")
         else:
-            plan_id = field_of(api.get_plan(args.plan), "id")
+            created = api.get_plan(args.plan)
+            plan_id = field_of(created, "id")
+        extra = {}
+        if args.preview_wavelength is not None:
+            wavelengths = (field_of(created, "acquisition") or {}).get("wavelengths") or []
+            extra["preview_wavelength"] = preview_index(wavelengths, args.preview_wavelength)
         scanner = args.scanner
         if scanner is None:
             ids = [field_of(s, "id") for s in api.scanners()]
             if len(ids) != 1:
                 raise ValueError(f"the server has scanners {', '.join(ids) or '(none)'}: choose one with --scanner")
             scanner = ids[0]
-        job_id = api.start_scan(plan_id, scanner)
+        job_id = api.start_scan(plan_id, scanner, **extra)
         with ProgressBar(f"scan {job_id[:8]}", quiet=args.quiet) as bar:
             job = api.wait(job_id, on_progress=bar)
         progress = field_of(job, "progress")

@@ -488,6 +488,7 @@ function placeholderOption(select, label) {
 }
 
 let scanListsSeq = 0;
+let scanPlans = new Map(); // id -> plan summary of the scan view's plan list
 
 async function refreshScanLists() {
   const seq = ++scanListsSeq;
@@ -519,6 +520,35 @@ async function refreshScanLists() {
   const want = lastSavedPlan || keepP; // a just-saved plan is preselected once
   if (want && [...psel.options].some((o) => o.value === want)) psel.value = want;
   if (lastSavedPlan && psel.value === lastSavedPlan) lastSavedPlan = null;
+  scanPlans = new Map(asList(plans, "plans").map((p) => [p.id, p]));
+  fillPreviewWavelengths();
+}
+
+/** The chosen plan's excitation wavelengths (m), [] when unknown. */
+function planWavelengths(planId) {
+  const p = scanPlans.get(planId);
+  const w = p && p.acquisition && p.acquisition.wavelengths;
+  return Array.isArray(w) ? w : [];
+}
+
+const nmText = (w) => `${fmtNum(w * 1e9)} nm`;
+
+/** Offer the chosen plan's wavelengths for the live preview (index = POST /api/scans
+ *  preview_wavelength); one wavelength: nothing to choose. */
+function fillPreviewWavelengths() {
+  const sel = $("scan-preview-wavelength");
+  const keep = sel.value;
+  const ws = planWavelengths($("scan-plan").value);
+  sel.textContent = "";
+  ws.forEach((w, k) => {
+    const o = document.createElement("option");
+    o.value = String(k);
+    o.textContent = nmText(w);
+    sel.appendChild(o);
+  });
+  if (!ws.length) placeholderOption(sel, "the plan's wavelength");
+  if (keep && Number(keep) < ws.length) sel.value = keep;
+  sel.disabled = ws.length < 2;
 }
 
 function setScanButtons(state) {
@@ -660,7 +690,9 @@ async function refreshLivePreview(jobId) {
     imgs[i].dataset.version = version;
     imgs[i].alt = `Live preview ${pl} MIP from ${info.points_used} points (version ${version})`;
   }));
+  const shownAt = planWavelengths($("scan-plan").value)[info.wavelength_index ?? 0];
   $("scan-preview-info").textContent = `version ${version}, from ${info.points_used ?? "?"} points` +
+    (shownAt !== undefined ? ` at ${nmText(shownAt)}` : "") +
     (info.updated ? `, updated ${new Date(typeof info.updated === "number" ? info.updated * 1000 : info.updated).toLocaleTimeString()}` : "");
 }
 
@@ -708,10 +740,11 @@ async function startScan(ev) {
   const plan_id = $("scan-plan").value, scanner_id = $("scan-scanner").value;
   if (!plan_id) { showError(new Error("Choose a plan (save one in the Plan view first).")); return; }
   if (!scanner_id) { showError(new Error("Choose a scanner.")); return; }
+  const preview_wavelength = Number($("scan-preview-wavelength").value || 0);
   $("scan-start").disabled = true;
   try {
     const resp = await apiFetch("/api/scans", {
-      method: "POST", json: { plan_id, scanner_id }, headers: { "Idempotency-Key": newIdempotencyKey() },
+      method: "POST", json: { plan_id, scanner_id, ...(preview_wavelength ? { preview_wavelength } : {}) }, headers: { "Idempotency-Key": newIdempotencyKey() },
     });
     const id = await jobIdFrom(resp);
     clearError();
@@ -1278,6 +1311,7 @@ function init() {
   $("plan-form").addEventListener("submit", savePlan);
   $("scan-form").addEventListener("submit", startScan);
   $("scan-refresh").addEventListener("click", () => refreshScanLists().catch(showError));
+  $("scan-plan").addEventListener("change", fillPreviewWavelengths);
   $("scan-pause").addEventListener("click", () => scanControl("pause"));
   $("scan-resume").addEventListener("click", () => scanControl("resume"));
   $("scan-abort").addEventListener("click", () => scanControl("abort"));

@@ -283,3 +283,26 @@ def test_cli_cancel_of_a_running_scan(slow_scanner):
     assert job.progress.points_done < N * N
     res = fpscan("jobs", "list", "--state", "cancelled", "--server", api.base_url)
     assert res.returncode == 0 and job_id[:12] in res.stdout  # the list shows short ids (a unique prefix)
+
+
+def test_scan_server_preview_wavelength(scanned):
+    """`fpscan scan --server --preview-wavelength M` on a two-wavelength plan: the job's
+    live preview shows that wavelength (index 1 of the plan's); a wavelength the plan
+    lacks, and the flag on a local scan, are refused with the reason."""
+    tmp, url, api = scanned["tmp"], scanned["url"], scanned["api"]
+    made = fpscan("plan", "equispaced", "--interval", "4", "--n-x", N, "--pitch", PITCH, "--n-t", 96,
+                  "--dt", 2e-8, "--prf", 0, "--wavelength", 7.6e-7, "--wavelength", 8.5e-7,
+                  "--out", tmp / "two.json")
+    assert made.returncode == 0, made.stderr
+    wrong = fpscan("scan", "--server", url, "--scanner", "sim", "--plan", tmp / "two.json",
+                   "--preview-wavelength", 9e-7, "--quiet")
+    assert wrong.returncode == 1 and "not one of the plan's wavelengths (7.6e-07, 8.5e-07 m)" in wrong.stderr
+    local = fpscan("scan", "--device", tmp / "no-such-tty", "--plan", tmp / "two.json", "--out", tmp / "x.h5",
+                   "--preview-wavelength", 8.5e-7)
+    assert local.returncode == 1 and "--preview-wavelength is for a scan on a server" in local.stderr
+    res = fpscan("scan", "--server", url, "--scanner", "sim", "--plan", tmp / "two.json",
+                 "--preview-wavelength", 8.5e-7, "--quiet")
+    assert res.returncode == 0, res.stderr
+    job_id = res.stdout.split("scan job ", 1)[1].split()[0]
+    assert api.get_job(job_id).params["preview_wavelength"] == 1
+    assert api.scan_preview(job_id).wavelength_index == 1

@@ -518,7 +518,9 @@ def test_unmix_result_shows_so2_map_and_autofocus_curve(browser, server, api, sc
 def test_scan_controls_pause_resume_abort(browser, sim, server, api, screenshots, state):
     if sim is None:
         pytest.skip("this build has no `fpscan sim` (simulated scanner)")
-    plan = api.post("/api/plans", json=plan_request(900))
+    request = plan_request(900)
+    request["acquisition"]["wavelengths"] = [7.5e-7, 8.5e-7]  # the live preview shows the chosen one
+    plan = api.post("/api/plans", json=request)
     assert plan.status_code in (200, 201), plan.text
     plan_id = plan.json()["id"]
     el(browser, "nav-scan").click()
@@ -527,6 +529,10 @@ def test_scan_controls_pause_resume_abort(browser, sim, server, api, screenshots
     choose(browser, "scan-scanner", "sim1")
     time.sleep(0.3)
     choose(browser, "scan-plan", plan_id)
+    choose(browser, "scan-preview-wavelength", "1")
+    offered = browser.execute_script(
+        "return [...document.getElementById('scan-preview-wavelength').options].map((o) => o.textContent)")
+    assert offered == ["750 nm", "850 nm"]
     wait_for(lambda: el(browser, "scan-start").is_enabled(), 10, "Start to be enabled")
     el(browser, "scan-start").click()
     job_id = wait_for(lambda: (lambda t: t if t and t != state.get("scan_job_id") else None)(
@@ -534,6 +540,8 @@ def test_scan_controls_pause_resume_abort(browser, sim, server, api, screenshots
 
     def api_state():
         return api.get(f"/api/jobs/{job_id}").json()
+
+    assert api_state()["params"].get("preview_wavelength") == 1
 
     wait_for(lambda: text(browser, "scan-state") == "running" and (api_state()["progress"].get("points_done") or 0) > 0,
              30, "the scan to run")
