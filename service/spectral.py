@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from service.recon.unmix import Unmixed, too_few_wavelengths, unmix
+from service.recon.unmix import Unmixed, endmember_matrix, too_few_wavelengths, unmix
 
 UNMIX_FORMAT = "fpscan-unmix/1"
 #: masked pixels of the sO2 picture
@@ -209,6 +209,7 @@ def load_wavelength_datasets(paths: Sequence[str | os.PathLike], format: str | N
         wavelengths = [float(r[0]) for r in rec]
     if len(wavelengths) != len(dsets):
         raise ValueError(f"{len(dsets)} files need {len(dsets)} wavelengths, got {len(wavelengths)}")
+    endmember_matrix(wavelengths)  # bad wavelengths end here, before any reconstruction
     return np.asarray(wavelengths, dtype=np.float64), dsets
 
 
@@ -222,7 +223,9 @@ def reconstruct_and_unmix(out_dir: str | os.PathLike, datasets: Sequence[Any], w
     any reconstruction result), ``wavelength_<k>/`` the same per wavelength,
     ``unmix.h5`` and ``so2.png`` (:func:`write_unmix`). Returns a summary (``unmix``,
     ``c``, ``wavelengths_m``, ``timings``, the reconstruction ``params`` of wavelength 1).
-    Raises ``ValueError`` before any reconstruction for fewer than two wavelengths."""
+    Raises ``ValueError`` before any reconstruction for fewer than two wavelengths,
+    repeats, wavelengths outside 400-1000 nm
+    (:func:`service.recon.unmix.endmember_matrix`) and counts that differ."""
     import time
 
     from service.storage.results import write_result
@@ -230,6 +233,9 @@ def reconstruct_and_unmix(out_dir: str | os.PathLike, datasets: Sequence[Any], w
     w = np.asarray(wavelengths, dtype=np.float64).reshape(-1)
     if w.size < 2 or len(datasets) < 2:
         raise too_few_wavelengths(w)
+    if len(datasets) != w.size:
+        raise ValueError(f"{len(datasets)} datasets for {w.size} wavelengths")
+    endmember_matrix(w)  # wavelengths that cannot be unmixed end here, before any reconstruction
     if reconstruct is None:
         from service.pipeline import reconstruct as dispatch
         reconstruct = dispatch

@@ -57,9 +57,29 @@ def main(argv: list[str] | None = None) -> int:
         print("fpscan: interrupted", file=sys.stderr)
         return 130
     except (ValueError, OSError, RuntimeError) as exc:
-        print(f"fpscan {args.command}: error: {exc}", file=sys.stderr)
+        print(f"fpscan {args.command}: error: {reason(exc)}", file=sys.stderr)
         return 1
     return int(code or 0)
+
+
+def reason(exc: BaseException) -> str:
+    """The message of an error for one line on stderr: a pydantic ``ValidationError``
+    (a ``ValueError`` with ``errors()``) as ``field: reason; ...`` without pydantic's
+    boilerplate, anything else as ``str(exc)``."""
+    errors = getattr(exc, "errors", None)
+    if callable(errors):
+        try:
+            items = errors(include_url=False)
+        except TypeError:
+            items = None
+        if isinstance(items, list) and items and all(isinstance(e, dict) for e in items):
+            parts = []
+            for e in items:
+                msg = str(e.get("msg", "")).removeprefix("Value error, ")
+                loc = ".".join(str(p) for p in e.get("loc", ()))
+                parts.append(f"{loc}: {msg}" if loc else msg)
+            return "; ".join(parts)
+    return str(exc)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -36,13 +36,12 @@ def _full_scan_job_id(c: Context, body: ReconRequest) -> ReconRequest:
 
 
 def _check_unmix_wavelengths(wavelengths: list) -> None:
-    """422 unless HbO2 and Hb can be unmixed at ``wavelengths`` (m)."""
-    from driver.plan import check_wavelengths
+    """422 unless HbO2 and Hb can be unmixed at ``wavelengths`` (m): at least two,
+    distinct, excitation wavelengths (400-2000 nm) within the extinction table
+    (:func:`service.recon.unmix.endmember_matrix`)."""
     from service.recon.unmix import endmember_matrix
 
     try:
-        if len(wavelengths) >= 1:
-            check_wavelengths(list(wavelengths))
         endmember_matrix(wavelengths)
     except ValueError as exc:
         raise HTTPException(422, str(exc)) from None

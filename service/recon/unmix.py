@@ -75,14 +75,22 @@ def too_few_wavelengths(wavelengths) -> ValueError:
 
 def endmember_matrix(wavelengths) -> np.ndarray:
     """``(n_wavelengths, 2)`` decadic molar extinction [ε_HbO2, ε_Hb] in m²/mol at the
-    wavelengths (m); raises ``ValueError`` for fewer than two wavelengths, repeats, a
-    wavelength outside Prahl's table (250-1000 nm) or spectra that cannot be told apart
-    at these wavelengths (condition number > 1e6)."""
-    w = np.asarray(wavelengths, dtype=np.float64).reshape(-1)
+    wavelengths (m); raises ``ValueError`` for fewer than two wavelengths (an empty list
+    included), repeats, a wavelength that is no excitation wavelength
+    (``driver.plan.check_wavelengths``: 400-2000 nm), one outside Prahl's table
+    (250-1000 nm) or spectra that cannot be told apart at these wavelengths (condition
+    number > 1e6)."""
+    from driver.plan import check_wavelengths
+
+    try:
+        w = np.asarray(wavelengths, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise ValueError(f"wavelengths must be numbers in m, got {wavelengths!r}") from None
     if w.size < 2:
         raise too_few_wavelengths(w)
     if np.unique(w).size != w.size:
         raise ValueError(f"unmixing needs distinct wavelengths, got {[float(v) for v in w]} m")
+    check_wavelengths([float(v) for v in w])
     A = spectra.molar_extinction(w)
     cond = np.linalg.cond(A)
     if not np.isfinite(cond) or cond > 1e6:
@@ -138,7 +146,8 @@ def unmix(volumes: np.ndarray, wavelengths, *, fluence: np.ndarray | float | Non
     volumes : ``(n_wavelengths, *S)`` p0 (Pa), one volume per wavelength on one grid
         (``S`` = ``(n_z, n_y, n_x)`` or ``(n_z, n_x)``).
     wavelengths : ``(n_wavelengths,)`` excitation wavelengths in m (≥ 2, distinct, in
-        250-1000 nm, Prahl's table).
+        400-1000 nm: an excitation wavelength, ``driver.plan.check_wavelengths``, within
+        Prahl's table).
     fluence : optional fluence Φ in J/m², ``(n_wavelengths,)`` or broadcastable to
         ``volumes``; None = the same unknown fluence everywhere (module docstring).
     gruneisen : Grüneisen parameter Γ (> 0), used with ``fluence``.
