@@ -130,14 +130,21 @@ def method_options(method: str, options: dict) -> dict:
     """The options ``method`` takes, from ``options``: ``None`` values and the options of
     other methods are left out (so one set of options can serve every method, as with
     k-Wave's and our methods side by side); a name that is no option at all
-    (:data:`OPTIONS`) raises ValueError naming it, as does an unknown method. Returns a
-    new dict."""
+    (:data:`OPTIONS`) raises ValueError naming it, as does an unknown method, and a
+    ``c_range`` without ``c="auto"`` or outside :func:`service.autofocus.check_c_range`.
+    Returns a new dict."""
     spec = METHODS.get(method)
     if spec is None:
         raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
     unknown = sorted(set(options) - set(OPTIONS))
     if unknown:
         raise ValueError(f"unknown option {', '.join(unknown)} (options: {', '.join(OPTIONS)})")
+    if options.get("c_range") is not None:  # never silently unused
+        if options.get("c") != "auto":
+            raise ValueError(f"c_range is the autofocus search interval: it needs c='auto', got c={options.get('c')!r}")
+        from service.autofocus import check_c_range
+
+        check_c_range(options["c_range"])
     return {k: v for k, v in options.items() if v is not None and k in spec.options}
 
 

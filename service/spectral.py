@@ -68,6 +68,7 @@ def reconstruct_wavelengths(datasets: Sequence[Any], method: str, *, reconstruct
         rec = reconstruct(ds, method, progress=part, should_stop=should_stop, **opts)
         if k == 0 and opts.get("c") == "auto":
             opts["c"] = float(rec.params["c"])
+            opts.pop("c_range", None)
         elif k > 0 and options.get("c") == "auto":
             rec.params["autofocus_from"] = "wavelength 1"
         out.append(rec)

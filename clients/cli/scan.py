@@ -7,9 +7,9 @@ plan (only the missing points are acquired). With ``--server URL --scanner ID``:
 scanned as a server job (``POST /api/scans``) with a progress bar; ``--out`` then gets the
 scan file when it is done; ``--preview-wavelength M`` picks which of a multi-wavelength
 plan's excitation wavelengths the server's live preview shows. Exit codes: 0 complete,
-1 error or incomplete, 130 interrupted (Ctrl-C: the scanner is left idle, the file keeps every point acquired so far, and the
-message says to run the same command again to resume). Rates count only the points this
-run acquired.
+1 error or incomplete, 130 interrupted (Ctrl-C: the scanner is left idle, the file keeps
+every point acquired so far, and the message says to run the same command again to
+resume). Rates count only the points this run acquired.
 """
 from __future__ import annotations
 

@@ -1,0 +1,63 @@
+"""`fpscan recon --c auto` (local, the one dispatch): the chosen c, the sharpness curve
+and the search time land in the result file's params; a bad or unused ``--c-range`` is
+refused with the reason before anything is reconstructed."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from clients.cli import main as fpscan_main
+from driver.physics import Ball, ball_alines
+from service.storage.results import read_result
+
+N, DX, DT, NT, C_TRUE = 32, 80e-6, 16e-9, 192, 1480.0
+
+
+@pytest.fixture(scope="module")
+def npy(tmp_path_factory):
+    x = (np.arange(N) - (N - 1) / 2) * DX
+    yy, xx = np.meshgrid(x, x, indexing="ij")
+    pos = np.stack([xx.ravel(), yy.ravel()], axis=1)
+    balls = [Ball(0.0, 0.0, 1.2e-3, 120e-6), Ball(0.5e-3, -0.4e-3, 1.7e-3, 150e-6, 0.7),
+             Ball(-0.6e-3, 0.5e-3, 1.5e-3, 100e-6)]
+    data = ball_alines(pos, balls, DT, NT, C_TRUE).T.reshape(NT, N, N).astype(np.float32)
+    path = tmp_path_factory.mktemp("af") / "balls.npy"
+    np.save(path, data)
+    return path
+
+
+def test_recon_c_auto_records_the_search(npy, tmp_path, capsys):
+    out = tmp_path / "r"
+    rc = fpscan_main(["recon", str(npy), "--dt", str(DT), "--dx", str(DX), "--method", "ner", "--c", "auto",
+                      "--out", str(out), "-q"])
+    printed = capsys.readouterr()
+    assert rc == 0, printed.err
+    res = read_result(out / "volume.h5")
+    af = res.params["autofocus"]
+    assert res.params["c"] == af["c"] and af["c_range"] == [1450.0, 1600.0]
+    assert len(af["c_values"]) == len(af["sharpness"]) == af["evaluations"] >= 7
+    assert af["c_values"] == sorted(af["c_values"]) and af["c"] in af["c_values"]
+    assert af["sharpness"][af["c_values"].index(af["c"])] == max(af["sharpness"])
+    assert af["time_s"] > 0 and af["decimation"] >= 1
+    assert abs(af["c"] - C_TRUE) / C_TRUE < 0.01, af  # plumbing; accuracy: test_autofocus.py
+    assert f"c {af['c']:.1f} m/s (autofocus" in printed.out
+    # the final volume is on the chosen c's depth axis: z = c·t
+    assert res.z[1] - res.z[0] == pytest.approx(af["c"] * DT, rel=1e-6)
+
+
+@pytest.mark.parametrize("extra, reason", [
+    (["--c", "auto", "--c-range", "1600", "1450"], "c_range must satisfy"),
+    (["--c-range", "1450", "1600"], "needs c='auto'"),
+    (["--c", "1500", "--c-range", "1450", "1600"], "needs c='auto'"),
+    (["--c", "fast"], "expected a speed of sound in m/s or 'auto'"),
+])
+def test_bad_c_options_are_refused(npy, tmp_path, capsys, extra, reason):
+    out = tmp_path / "r"
+    argv = ["recon", str(npy), "--dt", str(DT), "--dx", str(DX), "--method", "ner", *extra, "--out", str(out), "-q"]
+    try:
+        rc = fpscan_main(argv)
+    except SystemExit as exc:  # argparse: usage error
+        rc = exc.code
+    err = capsys.readouterr().err
+    assert rc in (1, 2) and reason in err, err
+    assert not out.exists()
