@@ -247,23 +247,41 @@ def _cold_start() -> None:
 
 
 def _writer(repeat) -> None:
+    """The result writer (service.storage.results) on a noisy and a mostly-zero volume,
+    beside fixed HDF5 layouts of the same data (the measurements behind storage_layout)."""
     import tempfile
     from pathlib import Path
 
-    from service.storage.results import write_result
+    import h5py
+
+    from service.storage.results import storage_layout, write_volume
 
     rng = np.random.default_rng(0)
     n_z, n_y, n_x = 512, 128, 144
-    p0 = (0.01 * rng.standard_normal((n_z, n_y, n_x))).astype(np.float32)
-    p0[100:140, 40:80, 50:90] += 1.0
+    sparse = np.zeros((n_z, n_y, n_x), np.float32)
+    sparse[100:140, 40:80, 50:90] = rng.random((40, 40, 40))
+    noisy = (sparse + 0.01 * rng.standard_normal(sparse.shape)).astype(np.float32)
     z, y, x = (np.arange(n) * 1e-5 for n in (n_z, n_y, n_x))
+    layouts = {"contiguous": {}, "gzip-1+shuffle": dict(chunks=(14, n_y, n_x), compression="gzip",
+                                                         compression_opts=1, shuffle=True),
+               "gzip-4+shuffle": dict(chunks=True, compression="gzip", compression_opts=4, shuffle=True),
+               "lzf+shuffle": dict(chunks=(14, n_y, n_x), compression="lzf", shuffle=True)}
+    print(f"\nresult writer ({noisy.nbytes / 1e6:.0f} MB float32 volumes; MB/s and file size / volume)")
     with tempfile.TemporaryDirectory() as d:
         path = Path(d) / "volume.h5"
-        t = _best(lambda: write_result(path, p0, z, x, y, method="ner", params={"dtype": "float32"},
-                                       input_id="bench"), repeat)
-        size = path.stat().st_size
-    print(f"\nresult writer: {p0.nbytes / 1e6:.0f} MB float32 volume in {t:.2f} s = {p0.nbytes / 1e6 / t:.0f} MB/s, "
-          f"file {size / 1e6:.0f} MB (target >= 200 MB/s)")
+        for name, p0 in (("noisy", noisy), ("mostly zero", sparse)):
+            t = _best(lambda p0=p0: write_volume(path, p0, z, x, y, method="ner", params={"dtype": "float32"},
+                                                 input_id="bench"), repeat)
+            chosen = storage_layout(p0).get("compression") or "contiguous"
+            row = [f"writer ({chosen}) {p0.nbytes / 1e6 / t:6.0f} MB/s {path.stat().st_size / p0.nbytes:5.2f}"]
+            for lname, kw in layouts.items():
+                def plain(kw=kw, p0=p0):
+                    with h5py.File(path, "w") as f:
+                        f.create_dataset("p0", data=p0, **kw)
+                t = _best(plain, repeat)
+                row.append(f"{lname} {p0.nbytes / 1e6 / t:5.0f} MB/s {path.stat().st_size / p0.nbytes:5.2f}")
+            print(f"  {name:12s} " + " | ".join(row))
+    print("  (target: the writer >= 200 MB/s)")
 
 
 def _vs_kwave_python(repeat) -> None:

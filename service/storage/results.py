@@ -7,7 +7,7 @@ path         shape, dtype                   meaning
 ===========  =============================  =============================================
 ``/p0``      (n_z, n_y, n_x) or (n_z, n_x)  initial pressure (the input's units), row 0
              float32 (float64 if asked),    at the sensor plane z = 0
-             gzip-compressed
+             gzip-1 where that pays
 ``/z``       (n_z,) float64                 depth of each row, m (HDF5 dimension scale)
 ``/y``       (n_y,) float64                 lateral y, m (3-D only; dimension scale)
 ``/x``       (n_x,) float64                 lateral x, m (dimension scale)
@@ -87,6 +87,47 @@ def _check_axis(name: str, v: Any, n: int) -> np.ndarray:
     return a
 
 
+#: compress a volume when a sample of it shrinks to this fraction or less
+COMPRESS_BELOW = 0.5
+#: bytes of a volume sampled to decide (evenly spaced depth rows)
+_PROBE_BYTES = 512 << 10
+
+
+def storage_layout(p0: np.ndarray) -> dict[str, Any]:
+    """HDF5 storage options for a result volume ``p0`` (``(n_z, n_y, n_x)`` or
+    ``(n_z, n_x)``), measured for speed (``benchmarks/bench_recon.py --writer``).
+
+    A reconstruction with noise everywhere compresses poorly: gzip with byte shuffle saves
+    ~14 % of a float32 volume and writes at ~10-25 MB/s, where contiguous storage writes at
+    ~300-500 MB/s. A volume that is mostly exact zeros (positivity, model-based ``tv``) or
+    otherwise redundant shrinks to a few per cent at ~200 MB/s with gzip level 1. So a
+    sample of 16 evenly spaced depth rows (at most 512 kB) is compressed with zlib level 1 after
+    byte shuffling; when it shrinks to ``COMPRESS_BELOW`` or less the volume is stored
+    chunked (whole depth rows, ~1 MB chunks), gzip level 1 with shuffle, else contiguous
+    and uncompressed. Either way any HDF5 reader reads it (gzip is HDF5's built-in
+    filter); ``docs/file-formats.md`` states the rule.
+
+    Returns keyword arguments for ``h5py.Group.create_dataset``.
+    """
+    import zlib
+
+    rows = p0.shape[0]
+    row_bytes = max(1, p0[0].nbytes)
+    n_probe = min(rows, 16)
+    sample = p0[np.linspace(0, rows - 1, n_probe).astype(np.intp)]
+    if p0.ndim == 3 and sample.nbytes > _PROBE_BYTES:  # evenly spaced y lines of those rows
+        n_lines = max(1, _PROBE_BYTES // (n_probe * p0.shape[2] * p0.itemsize))
+        sample = sample[:, np.linspace(0, p0.shape[1] - 1, min(n_lines, p0.shape[1])).astype(np.intp)]
+    sample = np.ascontiguousarray(sample)
+    raw = sample.view(np.uint8).reshape(-1, sample.itemsize)
+    shuffled = np.ascontiguousarray(raw.T).tobytes()  # HDF5's shuffle: byte planes
+    if len(zlib.compress(shuffled, 1)) > COMPRESS_BELOW * len(shuffled):
+        return {}  # contiguous, uncompressed
+    per_chunk = max(1, min(rows, (1 << 20) // row_bytes))
+    return {"chunks": (per_chunk, *p0.shape[1:]), "compression": "gzip", "compression_opts": 1,
+            "shuffle": True}
+
+
 def write_volume(path: str | os.PathLike, p0: np.ndarray, z: np.ndarray, x: np.ndarray,
                  y: np.ndarray | None = None, *, method: str, params: dict, input_id: str,
                  software_version: str | None = None, dtype: Any = None) -> Path:
@@ -94,9 +135,8 @@ def write_volume(path: str | os.PathLike, p0: np.ndarray, z: np.ndarray, x: np.n
 
     ``p0``: ``(n_z, n_y, n_x)`` with ``y`` given, or ``(n_z, n_x)`` with ``y=None``; real,
     finite. It is stored as ``dtype`` (float32 or float64); by default float32, unless the
-    reconstruction asked for float64 (``params["dtype"] == "float64"``), gzip-compressed
-    (level 4, byte shuffle, HDF5 chunks): a volume takes about a quarter of its float64
-    size. ``z``, ``y``, ``x``: strictly increasing coordinates in m. ``params``: every
+    reconstruction asked for float64 (``params["dtype"] == "float64"``): half of its
+    float64 size; compressed where that pays (see :func:`storage_layout`). ``z``, ``y``, ``x``: strictly increasing coordinates in m. ``params``: every
     parameter of the reconstruction, JSON-serialisable. Raises ValueError naming the fault.
     """
     p0 = np.asarray(p0)
@@ -135,8 +175,7 @@ def write_volume(path: str | os.PathLike, p0: np.ndarray, z: np.ndarray, x: np.n
     tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:12]}.tmp")
     try:
         with h5py.File(tmp, "w") as f:
-            d = f.create_dataset("p0", data=p0, chunks=True, compression="gzip",
-                                 compression_opts=4, shuffle=True)
+            d = f.create_dataset("p0", data=p0, **storage_layout(p0))
             axes = [("z", z)] + ([("y", y)] if y is not None else []) + [("x", x)]
             for i, (name, vec) in enumerate(axes):
                 s = f.create_dataset(name, data=vec)
