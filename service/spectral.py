@@ -127,12 +127,15 @@ def write_unmix(out_dir: str | os.PathLike, u: Unmixed, z: Any, x: Any, y: Any =
     ``thb_max``)."""
     import h5py
 
+    from service.storage.results import params_json
+
     out = Path(out_dir)
-    params = {**u.params, **(extra or {})}
+    # the result files' one canonical parameter JSON (ValueError before anything is written)
+    params = params_json({**u.params, **(extra or {})})
     tmp = out / f".unmix.h5.tmp-{os.getpid()}"
     with h5py.File(tmp, "w") as f:
         f.attrs["format"] = UNMIX_FORMAT
-        f.attrs["params"] = json.dumps(params, sort_keys=True)
+        f.attrs["params"] = params
         f.attrs["input_id"] = input_id
         f.attrs["concentration_units"] = str(u.params.get("concentration_units", ""))
         for name in ("hbo2", "hb", "thb", "so2"):

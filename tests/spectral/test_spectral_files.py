@@ -42,6 +42,22 @@ def test_unmix_file_round_trip_and_picture(tmp_path):
     assert ((pix[:, 0] > 150) & (pix[:, 2] < 80)).sum() > 500  # sO2 0.95: red
 
 
+def test_unmix_parameters_are_the_result_files_canonical_json(tmp_path):
+    """unmix.h5's parameters are written as reconstruction results write theirs: numpy
+    values (as a job's options carry them) become JSON, NaN is refused with a ValueError."""
+    w, _, p0 = _phantom()
+    u = unmix(p0, w)
+    z, y, x = np.arange(10) * 1e-4, np.arange(12) * 1e-4, np.arange(14) * 1e-4
+    write_unmix(tmp_path, u, z, x, y, extra={"c": np.float64(1490.0), "n_z": np.int64(10),
+                                             "c_range": np.array([1450.0, 1600.0])})
+    params = read_unmix(tmp_path / "unmix.h5")["params"]
+    assert params["c"] == 1490.0 and params["n_z"] == 10 and params["c_range"] == [1450.0, 1600.0]
+    (tmp_path / "nan").mkdir()
+    with pytest.raises(ValueError, match="JSON"):
+        write_unmix(tmp_path / "nan", u, z, x, y, extra={"c": float("nan")})
+    assert not any((tmp_path / "nan").iterdir())  # nothing left behind
+
+
 def test_unmix_reconstructions_checks():
     class R:
         def __init__(self, p0, z):
