@@ -40,6 +40,10 @@ def test_unmix_file_round_trip_and_picture(tmp_path):
     grey = np.round(np.array(MASK_COLOUR[:3]) * 255).astype(int)
     assert (np.abs(pix - grey).max(axis=1) <= 1).sum() > 1000  # the masked background
     assert ((pix[:, 0] > 150) & (pix[:, 2] < 80)).sum() > 500  # sO2 0.95: red
+    # the colour bar: the map's low end (sO2 0, dark blue) that no voxel has, in a strip at the right
+    img = np.asarray(png).astype(int)
+    blue = (img[..., 2] > 120) & (img[..., 0] < 80)
+    assert blue.sum() > 200 and np.nonzero(blue)[1].min() > 0.75 * img.shape[1]
 
 
 def test_unmix_parameters_are_the_result_files_canonical_json(tmp_path):

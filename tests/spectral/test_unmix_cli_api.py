@@ -38,6 +38,9 @@ def npy_files(tmp_path_factory):
 
 
 def _check_so2(u):
+    # THb and the mask are in the output: THb = HbO2 + Hb, mask = THb >= 0.1 x its maximum
+    np.testing.assert_allclose(u["thb"], u["hbo2"] + u["hb"], rtol=1e-6, atol=1e-6 * u["thb"].max())
+    assert u["thb"].max() > 0 and np.array_equal(u["mask"], (u["thb"] >= 0.1 * u["thb"].max()) & (u["thb"] > 0))
     Z, Y, X = np.meshgrid(u["z"], u["y"], u["x"], indexing="ij")
     for b, so2 in TRUTH:
         inner = (X - b.x) ** 2 + (Y - b.y) ** 2 + (Z - b.z) ** 2 <= (0.5 * b.radius) ** 2

@@ -509,6 +509,8 @@ def test_unmix_result_shows_so2_map_and_autofocus_curve(browser, server, api, sc
         "return document.querySelectorAll('#result-af-curve circle').length")
     assert points == len(af["c_values"]) == af["evaluations"]
     assert text(browser, "result-af-c") == str(float(f"{af['c']:.5g}")).removesuffix(".0")
+    assert any(ch.isdigit() for ch in text(browser, "result-af-time")), text(browser, "result-af-time")  # search time
+    assert text(browser, "result-af-evals") == str(af["evaluations"])
     assert "750 nm" in text(browser, "result-unmix-wavelengths")
     links = {a.text for a in browser.find_elements("css selector", "#result-downloads a")}
     assert any("Unmixing" in t for t in links) and any("sO2 map" in t for t in links), links
