@@ -36,6 +36,16 @@ class DenseDataset(GridDataset):
         """Samples per A-line."""
         return self.data.shape[0]
 
+    def depth_rows(self, minimum: int) -> int:
+        """Output depth rows at spacing ``c·dt`` (the reconstructions' default grid) that
+        cover the ground truth's depth (``p0`` rows × ``dz``), or half the samples without
+        a ground truth; at least ``minimum`` and at most ``n_t``."""
+        if self.p0 is not None and self.dz:
+            n_z = round(self.p0.shape[0] * self.dz / (self.c * self.dt))
+        else:
+            n_z = self.n_t // 2
+        return max(int(minimum), min(n_z, self.n_t))
+
     @property
     def lateral_shape(self) -> tuple[int, ...]:
         """``(n_x,)`` or ``(n_y, n_x)``."""

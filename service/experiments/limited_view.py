@@ -123,11 +123,7 @@ def run(  # noqa: C901 -- one experiment: its arrangements in sequence, one tabl
         raise ValueError(f"{n_sensors} sensors do not fit on a line of {n_x} points")
     dx, dt, c = data.dx, data.dt, data.c
     dz = c * dt
-    if data.p0 is not None and data.dz is not None:
-        n_z = round(data.p0.shape[0] * data.dz / dz)
-    else:
-        n_z = n_t // 2
-    n_z = max(4, min(n_z, n_t))
+    n_z = data.depth_rows(4)
     x = centred_axis(n_x, dx)
 
     t_start = time.perf_counter()

@@ -154,9 +154,7 @@ def run(data: DenseDataset | None = None, *, small: bool = False, methods=METHOD
     g = data.data
     dx, dt, c = data.dx, data.dt, data.c
     dz = c * dt
-    n_t = g.shape[0]
-    n_z = round(data.p0.shape[0] * data.dz / dz) if data.p0 is not None and data.dz else n_t // 2
-    n_z = max(8, min(n_z, n_t))
+    n_z = data.depth_rows(8)
     recons, times = {}, {}
     for m in methods:
         recons[m], times[m] = _timed(lambda m=m: _reconstruct(m, data, n_z), repeats)

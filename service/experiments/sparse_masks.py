@@ -124,12 +124,7 @@ def run(
     n = n_x
     d, dt, c = data.dx, data.dt, data.c
     side = n * d
-    dz = c * dt
-    if data.p0 is not None and data.dz is not None:
-        n_z = round(data.p0.shape[0] * data.dz / dz)
-    else:
-        n_z = n_t // 2
-    n_z = max(4, min(n_z, n_t))
+    n_z = data.depth_rows(4)
     x = centred_axis(n, d)
     if n_side is None:
         n_side = max(2, round(41 * n / 226))
