@@ -16,16 +16,15 @@
 Importing the package loads the reconstruction (numba, finufft); the plans' weights
 live in `service.plans.weights`, so planning never pays for that. The model-based part
 (`PlanarOperator`, `reconstruct_tv`) loads pylops/pyproximal, which take longer to
-import than everything else together, and `voronoi_weights` the plans package, so those
-names are imported on first use (PEP 562): a direct reconstruction starts without them.
+import than everything else together, `voronoi_weights` the plans package, the k-Wave
+modes scipy.interpolate, so those names (and the forward model) are imported on first use
+(PEP 562): a direct reconstruction starts without them.
 """
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from driver.physics.forward import forward_grid, forward_points
 from service.recon.checks import estimate_peak_memory
-from service.recon.kwave import kspace_line_recon, kspace_plane_recon
 from service.recon.planar import METHODS, reconstruct_grid, reconstruct_points
 from service.recon.reconstruction import Reconstruction
 
@@ -34,12 +33,22 @@ __all__ = ["Reconstruction", "METHODS", "reconstruct_grid", "reconstruct_points"
            "estimate_peak_memory", "PlanarOperator", "reconstruct_tv"]
 
 _LAZY = {"PlanarOperator": "service.recon.operator", "reconstruct_tv": "service.recon.tv",
-         "voronoi_weights": "service.plans.weights"}
+         "voronoi_weights": "service.plans.weights", "kspace_line_recon": "service.recon.kwave",
+         "kspace_plane_recon": "service.recon.kwave", "forward_grid": "driver.physics.forward",
+         "forward_points": "driver.physics.forward"}
+
+if TYPE_CHECKING:
+    from driver.physics.forward import forward_grid, forward_points
+    from service.plans.weights import voronoi_weights
+    from service.recon.kwave import kspace_line_recon, kspace_plane_recon
+    from service.recon.operator import PlanarOperator
+    from service.recon.tv import reconstruct_tv
 
 
 def __getattr__(name: str) -> Any:
-    """`PlanarOperator`, `reconstruct_tv` (they load pylops) and `voronoi_weights` (the
-    plans package) on first use."""
+    """`PlanarOperator`, `reconstruct_tv` (they load pylops), `voronoi_weights` (the
+    plans package), the k-Wave modes (scipy.interpolate) and the forward model on first
+    use."""
     if name in _LAZY:
         import importlib
 

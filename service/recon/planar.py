@@ -28,8 +28,6 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.fft
-import scipy.interpolate
-from scipy.spatial import cKDTree
 
 from driver.physics import nufft
 from driver.physics.axes import centred_axis
@@ -127,6 +125,8 @@ def _cubic_columns(A_cols, n_t, klat2, kz, qw, c, dt, t0):
     ph = np.exp(-1j * omega_grid * t0)
     E = ph * Ep + np.conj(ph) * Em  # (n_cols, 2 n_t - 1)
     gvals, gptr, order = nufft.group_columns(klat2)
+    from scipy.interpolate import PchipInterpolator  # on use: a slow import for one mode
+
     out = np.zeros((a.shape[0], len(kz)), np.complex128)
     for g, k2 in enumerate(gvals):
         cols = order[gptr[g] : gptr[g + 1]]
@@ -134,8 +134,8 @@ def _cubic_columns(A_cols, n_t, klat2, kz, qw, c, dt, t0):
         ok = om * dt <= np.pi * (1 + 1e-12)
         q = np.minimum(om, omega_grid[-1])
         Ec = E[cols].T
-        vals = (scipy.interpolate.PchipInterpolator(omega_grid, Ec.real, axis=0, extrapolate=False)(q)
-                + 1j * scipy.interpolate.PchipInterpolator(omega_grid, Ec.imag, axis=0, extrapolate=False)(q))
+        vals = (PchipInterpolator(omega_grid, Ec.real, axis=0, extrapolate=False)(q)
+                + 1j * PchipInterpolator(omega_grid, Ec.imag, axis=0, extrapolate=False)(q))
         vals = np.nan_to_num(vals.real) + 1j * np.nan_to_num(vals.imag)
         w = np.where(om > 0, kz / np.where(om > 0, om, 1.0), 1.0 / c) * qw * ok
         out[cols] = (vals * w[:, None]).T
@@ -300,6 +300,8 @@ def _check_positions(positions, n_points):
     if pos.shape[0] != n_points:
         raise ValueError(f"positions has {pos.shape[0]} rows but alines has {n_points} A-lines")
     if n_points > 1:
+        from scipy.spatial import cKDTree  # on use: a slow import
+
         dist, _ = cKDTree(pos).query(pos, k=2)
         scale = max(float(np.abs(pos).max()), 1e-300)
         dup = dist[:, 1] <= 1e-9 * scale
@@ -316,6 +318,8 @@ def _default_grid(pos: np.ndarray) -> tuple[tuple[np.ndarray, ...], float]:
     if pitch is None:
         if len(pos) < 2:
             raise ValueError("a single sensor position needs an explicit grid")
+        from scipy.spatial import cKDTree  # on use: a slow import
+
         dist, _ = cKDTree(pos).query(pos, k=2)
         pitch = float(dist[:, 1].min())
     axes = []
