@@ -16,7 +16,7 @@ def test_preview_shows_the_chosen_wavelength(tmp_path):
     from driver.scanfile import read_scan
     from driver.simulator import SimulatedScanner
     from driver.sources import BallSource
-    from service.preview import render_preview
+    from service.preview import render_preview, render_preview_png
 
     # sO2 0.3 vs 1.0: at 760 nm the first ball is the brighter, at 850 nm the second
     balls = [Ball(3e-4, -2e-4, 1.0e-3, 1.5e-4, 1.0), Ball(-4e-4, 3e-4, 1.4e-3, 1.5e-4, 1.0)]
@@ -49,5 +49,8 @@ def test_preview_shows_the_chosen_wavelength(tmp_path):
         sim.stop()
     scan = read_scan(path)
     assert scan.completed_all.all() and scan.n_wavelengths == 2
-    at = {w: render_preview(str(path), wavelength_index=w)["pngs"]["xy"] for w in (0, 1)}
+    at = {}
+    for w in (0, 1):
+        r = render_preview(str(path), wavelength_index=w)
+        at[w] = render_preview_png(r["mips"]["xy"], "xy", r["axes"], r["points_used"])
     assert png == at[1] and at[0] != at[1]
