@@ -61,48 +61,57 @@ def _validation_reason(exc: RequestValidationError) -> str:
 
 
 class UploadLimit:
-    """ASGI middleware: refuse request bodies over ``limit`` bytes with 413 (by
-    ``Content-Length`` up front, and by counting for chunked bodies). With ``uploads``
-    (a :class:`~service.api.context.Slots`), an upload (``POST /api/datasets``) is counted
-    in before its body is read, and refused with 429 when too many are in progress (the
-    form parser spools every upload's body to a temporary file before the route runs)."""
+    """ASGI middleware: refuse request bodies over their limit with 413 (by
+    ``Content-Length`` up front, and by counting for chunked bodies): ``limit`` bytes for
+    an upload (``POST /api/datasets``, plus multipart overhead), ``json_limit`` for any
+    other body (JSON is parsed whole into memory before a route sees it).
 
-    def __init__(self, app, limit: int, uploads: Slots | None = None):
+    ``slots`` (:func:`~service.api.context.default_slots`): uploads and plan requests
+    (``ADMITTED``) are counted in before their body is read, and refused with 429 when too
+    many are in progress (the form parser spools every upload to a temporary file, and a
+    JSON body is parsed, before the route runs); the route then waits for its turn."""
+
+    #: (method, path) -> the slots that admit it
+    ADMITTED = {("POST", "/api/datasets"): "uploads", ("POST", "/api/plans"): "plans",
+                ("POST", "/api/plans/preview"): "plans"}
+
+    def __init__(self, app, limit: int, json_limit: int | None = None, slots: dict[str, Slots] | None = None):
         self.app = app
-        self.limit = limit
-        self.uploads = uploads
+        self.upload_limit = limit
+        self.json_limit = min(limit, json_limit) if json_limit else limit
+        self.slots = slots or {}
 
     async def __call__(self, scope, receive, send):
         if scope["type"] != "http":
             return await self.app(scope, receive, send)
-        if (self.uploads is not None and scope.get("method") == "POST"
-                and scope.get("path", "").rstrip("/") == "/api/datasets"):
-            if not self.uploads.enter():
-                resp = JSONResponse({"detail": self.uploads.busy_reason()}, 429,
-                                    headers={"Retry-After": str(self.uploads.retry_after_s)})
-                return await resp(scope, receive, send)
-            try:
-                return await self._limited(scope, receive, send)
-            finally:
-                self.uploads.leave()
-        return await self._limited(scope, receive, send)
+        key = (scope.get("method", ""), scope.get("path", "").rstrip("/"))
+        limit = self.upload_limit + 1_000_000 if key == ("POST", "/api/datasets") else self.json_limit
+        slots = self.slots.get(self.ADMITTED.get(key, ""))
+        if slots is None:
+            return await self._limited(scope, receive, send, limit)
+        if not slots.enter():
+            resp = JSONResponse({"detail": slots.busy_reason()}, 429, headers={"Retry-After": str(slots.retry_after_s)})
+            return await resp(scope, receive, send)
+        try:
+            return await self._limited(scope, receive, send, limit)
+        finally:
+            slots.leave()
 
-    async def _limited(self, scope, receive, send):
+    async def _limited(self, scope, receive, send, limit: int):
         headers = dict(scope.get("headers") or [])
         length = headers.get(b"content-length")
+        too_large = JSONResponse({"detail": f"request body larger than the limit of {limit} bytes"}, 413)
         if length is not None:
             try:
-                too_big = int(length) > self.limit + 1_000_000  # multipart overhead
+                too_big = int(length) > limit
             except ValueError:
                 too_big = False
             if too_big:
-                resp = JSONResponse({"detail": f"request body larger than the limit of {self.limit} bytes"}, 413)
-                return await resp(scope, receive, send)
+                return await too_large(scope, receive, send)
         seen = 0
         t0 = time.perf_counter()
         status = {"code": 0}
         over = {"flag": False, "sent": False}
-        too_large = JSONResponse({"detail": f"request body larger than the limit of {self.limit} bytes"}, 413)
 
         async def logging_send(message):
             if over["flag"]:
@@ -121,7 +130,7 @@ class UploadLimit:
             message = await receive()
             if message["type"] == "http.request":
                 seen += len(message.get("body", b""))
-                if seen > self.limit + 1_000_000:
+                if seen > limit:
                     over["flag"] = True
                     raise _TooLarge()
             return message
@@ -257,7 +266,7 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True) 
         log.exception("internal error ref=%s %s %s", ref, request.method, request.url.path)
         return JSONResponse({"detail": f"internal error (reference {ref})"}, status_code=500)
 
-    app.add_middleware(UploadLimit, limit=settings.upload_limit, uploads=slots["uploads"])
+    app.add_middleware(UploadLimit, limit=settings.upload_limit, json_limit=settings.json_limit, slots=slots)
     app.add_middleware(ShortIds)
 
     from service.api import datasets, jobs, plans, reconstructions, retention, scans

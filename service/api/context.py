@@ -28,9 +28,9 @@ class Slots:
     neither queues without bound (each waiting request holds a server thread; an import
     also a child process) nor starves the cheap routes (``/api/health``, status reads).
 
-    ``enter``/``leave`` count a request in (the upload limit middleware does it before the
-    body is read); ``admitted()`` does both around a block; ``turn()`` waits for one of the
-    ``running`` turns. Thread-safe."""
+    ``enter``/``leave`` count a request in and out (the ``UploadLimit`` middleware does it
+    before the body is read); the route's ``turn()`` waits for one of the ``running``
+    turns. Thread-safe."""
 
     def __init__(self, what: str, running: int, waiting: int, retry_after_s: int = 5):
         self.what = what
@@ -54,20 +54,6 @@ class Slots:
 
     def busy_reason(self) -> str:
         return f"too many {self.what} at once ({self.limit} in progress or waiting); retry in {self.retry_after_s} s"
-
-    def busy(self) -> HTTPException:
-        """The 429 for a request that finds every slot taken."""
-        return HTTPException(429, self.busy_reason(), headers={"Retry-After": str(self.retry_after_s)})
-
-    @contextlib.contextmanager
-    def admitted(self) -> Iterator[None]:
-        """Count the request in for the block (429 ``busy()`` when full)."""
-        if not self.enter():
-            raise self.busy()
-        try:
-            yield
-        finally:
-            self.leave()
 
     @contextlib.contextmanager
     def turn(self) -> Iterator[None]:

@@ -123,10 +123,9 @@ def _build_or_422(body) -> dict:
 
 @contextlib.contextmanager
 def _plan_turn(c: Context) -> Iterator[None]:
-    """Plan work within the service's bounds (``c.slots["plans"]``: 429 when too many plan
-    requests are in progress)."""
-    slots = c.slots["plans"]
-    with slots.admitted(), slots.turn():
+    """Plan work within the service's bounds: a turn of ``c.slots["plans"]`` (the request
+    was counted in, or refused with 429, before its body was read: ``UploadLimit``)."""
+    with c.slots["plans"].turn():
         yield
 
 
