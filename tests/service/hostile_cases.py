@@ -252,7 +252,7 @@ def plan_cases() -> list[tuple[str, dict, int]]:
 
 #: A reconstruction request's options (``ReconParams``) and the valid value each replaces
 #: (``recon_cases`` checks that this names every option the API has).
-RECON_PARAMS = {"c": 1500.0, "eps": 1e-6, "dtype": "float32", "upsample": 1, "positivity": False, "lam": 1.0,
+RECON_PARAMS = {"c": 1500.0, "c_range": [1400.0, 1600.0], "eps": 1e-6, "dtype": "float32", "upsample": 1, "positivity": False, "lam": 1.0,
                 "iterations": 10, "n_z": 64, "dz": 1e-5, "interp": "*nearest"}
 #: Options whose value among ``BAD_VALUES`` is legal: unset (None: the method's default;
 #: dtype has no unset), positivity 0 (false) and λ = 0 (no regularisation).
@@ -273,6 +273,8 @@ def recon_cases() -> list[tuple[str, dict, int]]:
         for value in BAD_VALUES:
             body = {"dataset_id": NO_DATASET, "method": "ner", "params": {name: value}}
             out.append((f"params.{name}={value}", body, 404 if (name, value) in RECON_LEGAL else 422))
+    for pair in ([0, 0], [1600.0, 1400.0], [1500.0, 1500.0], [1e300, 1e300], [math.nan, 1500.0], [1500.0]):
+        out.append((f"params.c_range={pair}", {"dataset_id": NO_DATASET, "params": {"c_range": pair}}, 422))
     for name in ("method", "dataset_id", "scan_job_id"):
         for value in [*BAD_VALUES, "../../etc/passwd"]:
             body = {"dataset_id": NO_DATASET, "method": "ner", name: value}
