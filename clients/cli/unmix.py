@@ -120,21 +120,33 @@ def _local(args) -> int:
 
 def _remote(args) -> int:
     from clients.cli._common import ProgressBar, make_client
+    from clients.http import field_of
 
+    from clients.cli.recon import _sniff_format
+
+    formats = [args.format or _sniff_format(p) for p in args.inputs]
+    # the local default (service.pipeline.default_method): nedner for scans, ner for grids
+    method = args.method or ("nedner" if args.scan_job or formats[0] in ("fpscan", "ipasc", "dataset") else "ner")
     with make_client(args, timeout=300) as api:
         unmix = {"threshold": args.threshold, "fluence": args.fluence}
         if args.scan_job:
-            job_id = api.start_unmix(scan_job_id=args.scan_job, method=args.method, params=_params(args), **unmix)
+            job_id = api.start_unmix(scan_job_id=args.scan_job, method=method, params=_params(args), **unmix)
         else:
             fields = {k: getattr(args, k) for k in ("dt", "dx", "dy", "key")}
-            ids = [api.upload_dataset(p, args.format, **fields) for p in args.inputs]
-            job_id = api.start_unmix(dataset_ids=ids, wavelengths=args.wavelengths, method=args.method,
+            ids = [api.upload_dataset(p, fmt, **fields) for p, fmt in zip(args.inputs, formats, strict=True)]
+            job_id = api.start_unmix(dataset_ids=ids, wavelengths=args.wavelengths, method=method,
                                      params=_params(args), **unmix)
         with ProgressBar(f"unmix {job_id[:8]}", quiet=args.quiet) as bar:
-            api.wait(job_id, on_progress=bar)
+            job = api.wait(job_id, on_progress=bar)
         out = _default_out(args)
+        out.mkdir(parents=True, exist_ok=True)
         api.download_unmix(job_id, out / "unmix.h5")
         api.download_so2(job_id, out / "so2.png")
-        job = api.job(job_id)
-        print(f"{out}/unmix.h5  so2.png  job {job_id}  {job.get('result', {}).get('unmix', '')}")
+    result = (field_of(job, "params") or {}).get("result") or {}
+    summary = result.get("unmix") or {}
+    masked = summary.get("masked_fraction")
+    c = result.get("c")
+    print(f"{out}/unmix.h5  so2.png  sO2 median {summary.get('so2_median')}"
+          + (f"  masked {masked:.1%}" if masked is not None else "")
+          + (f"  c {c:.1f} m/s" if c is not None else "") + f"  job {job_id}")
     return 0

@@ -86,6 +86,18 @@ def test_http_unmix_and_autofocus(npy_files, tmp_path):
             _check_so2(read_unmix(tmp_path / "unmix.h5"))
             png = Image.open(io.BytesIO((tmp_path / "so2.png").read_bytes()))
             assert png.format == "PNG"
+            # `fpscan unmix --server` runs the same job there and downloads the same files; the
+            # local run of the same command gives the same unmixing
+            common = [*map(str, npy_files), "--wavelengths", *map(str, W), "--dt", str(DT), "--dx", str(DX),
+                      "--method", "ner", "-q"]
+            assert fpscan_main(["unmix", *common, "--server", srv.url, "--token", srv.token,
+                                "--out", str(tmp_path / "remote")]) == 0
+            assert fpscan_main(["unmix", *common, "--out", str(tmp_path / "local")]) == 0
+            remote, local = read_unmix(tmp_path / "remote" / "unmix.h5"), read_unmix(tmp_path / "local" / "unmix.h5")
+            _check_so2(remote)
+            np.testing.assert_array_equal(remote["mask"], local["mask"])
+            np.testing.assert_allclose(remote["so2"], local["so2"], atol=1e-4)
+            assert Image.open(tmp_path / "remote" / "so2.png").format == "PNG"
             with srv.client() as http:
                 r = http.post("/api/reconstructions", json={"dataset_ids": ids[:1], "wavelengths": W[:1],
                                                             "method": "ner", "unmix": {}})
