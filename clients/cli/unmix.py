@@ -120,9 +120,8 @@ def _local(args) -> int:
 
 def _remote(args) -> int:
     from clients.cli._common import ProgressBar, make_client
-    from clients.http import field_of
-
     from clients.cli.recon import _sniff_format
+    from clients.http import field_of
 
     formats = [args.format or _sniff_format(p) for p in args.inputs]
     # the local default (service.pipeline.default_method): nedner for scans, ner for grids
