@@ -1,8 +1,10 @@
 """A two-wavelength scan job over HTTP (real uvicorn, real pty simulator with an HbO2/Hb
 phantom): the live preview shows the chosen wavelength, exactly what the preview
-renderer makes of that wavelength's A-lines; a wavelength the plan lacks is a 422."""
+renderer makes of that wavelength's A-lines; a wavelength the plan lacks is a 422; an
+unmixing job on the scan job recovers each ball's sO2 at its centre."""
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from tests.service.service_servers import Server, needs_recon, wait_job
@@ -17,6 +19,7 @@ def test_preview_shows_the_chosen_wavelength(tmp_path):
     from driver.simulator import SimulatedScanner
     from driver.sources import BallSource
     from service.preview import render_preview, render_preview_png
+    from service.spectral import read_unmix
 
     # sO2 0.3 vs 1.0: at 760 nm the first ball is the brighter, at 850 nm the second
     balls = [Ball(3e-4, -2e-4, 1.0e-3, 1.5e-4, 1.0), Ball(-4e-4, 3e-4, 1.4e-3, 1.5e-4, 1.0)]
@@ -44,11 +47,23 @@ def test_preview_shows_the_chosen_wavelength(tmp_path):
             f = c.get(f"/api/scans/{job_id}/file")
             path = tmp_path / "scan.h5"
             path.write_bytes(f.content)
+            # unmixing straight from the two-wavelength scan job: every wavelength
+            # reconstructed, then HbO2/Hb per voxel; at each ball's centre its own sO2
+            r = c.post("/api/reconstructions", json={"scan_job_id": job_id, "method": "nedner", "unmix": {}})
+            assert r.status_code == 202, r.text
+            unmix_job = wait_job(c, r.json()["id"])
+            assert unmix_job["state"] == "succeeded", unmix_job
+            (tmp_path / "unmix.h5").write_bytes(c.get(f"/api/reconstructions/{unmix_job['id']}/unmix.h5").content)
     finally:
         srv.stop()
         sim.stop()
     scan = read_scan(path)
     assert scan.completed_all.all() and scan.n_wavelengths == 2
+    u = read_unmix(tmp_path / "unmix.h5")
+    assert u["wavelengths_m"].tolist() == WAVELENGTHS
+    for ball, so2 in zip(balls, (0.3, 1.0), strict=True):
+        at = tuple(int(np.argmin(np.abs(u[a] - v))) for a, v in (("z", ball.z), ("y", ball.y), ("x", ball.x)))
+        assert u["mask"][at] and abs(float(u["so2"][at]) - so2) < 0.05, (so2, u["so2"][at])
     at = {}
     for w in (0, 1):
         r = render_preview(str(path), wavelength_index=w)
