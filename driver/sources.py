@@ -27,6 +27,7 @@ from typing import Protocol
 
 import numpy as np
 
+from driver.kwave_layout import lateral_spacings
 from driver.plan import DevicePlan
 
 PressureFn = Callable[..., np.ndarray]  # pressure(ks, ws=None) -> (len(ks), n_t)
@@ -243,7 +244,8 @@ class ReplaySource:
     ``dataset`` ``(n_t, n_y, n_x)`` (k-Wave ``'tyz'``) with file attribute ``dt_s``; an
     optional ``sensor_yz_index`` ``(n_y, n_x, 2)`` must map (i_y, i_x) to itself (the
     dataset is a regular grid). A plan replays if its dt equals ``dt_s`` (relative 1e-6),
-    its n_t ≤ the stored n_t, its pitch equals ``dx_m`` (if given) and its lattice sits
+    its n_t ≤ the stored n_t, its pitch equals the stored lateral x spacing (if given:
+    ``dz_m`` in a k-Wave-named file, else ``dx_m``; :mod:`driver.kwave_layout`) and its lattice sits
     centred on the stored grid (both centred on the optical axis, so plan point (i_x, i_y)
     replays grid point (i_x + (N_x − n_x)/2, i_y + (N_y − n_y)/2)); otherwise ``prepare``
     raises ``ValueError`` with the reason.
@@ -265,7 +267,9 @@ class ReplaySource:
             if "dt_s" not in f.attrs:
                 raise ValueError(f"{self.path}: file attribute dt_s missing")
             self.dt = float(f.attrs["dt_s"])
-            self.dx = float(f.attrs["dx_m"]) if "dx_m" in f.attrs else None
+            # the lattice pitch is the lateral x spacing (k-Wave files call it dz_m)
+            dx = lateral_spacings(dict(f[self.dataset].attrs), dict(f.attrs), 3)[0] if data.ndim == 3 else None
+            self.dx = None if dx is None else float(dx)
             if "sensor_yz_index" in f:
                 idx = np.asarray(f["sensor_yz_index"])
                 if idx.shape != data.shape[1:] + (2,):

@@ -11,7 +11,8 @@ Inputs (``format``; ``None`` = detect from the content):
   :class:`GridDataset`. Spacings: arguments first, then file attributes. k-Wave files
   (a ``kwave_DataOrder`` attribute on the array or ``kwave_commit`` on the file, as in
   ``shared/data``) name the depth axis x, so their lateral spacings are ``dy_m`` (our y,
-  or our x in 2-D) and ``dz_m`` (our x); other files use ``dx_m``/``dy_m`` for our x/y.
+  or our x in 2-D) and ``dz_m`` (our x); other files use ``dx_m``/``dy_m`` for our x/y
+  (the rule's one owner: :mod:`driver.kwave_layout`, shared with the simulator's replay).
   ``dt_s`` and ``c_m_per_s`` give dt and c.
 - ``"npy"``: a NumPy ``.npy`` array in the same layout (loaded with
   ``allow_pickle=False``); ``dt`` and ``dx`` are required arguments.
@@ -40,6 +41,7 @@ from typing import Any
 import h5py
 import numpy as np
 
+from driver import kwave_layout
 from driver.physics.axes import centred_axis
 
 FORMATS = ("fpscan", "ipasc", "kwave-hdf5", "npy", "dataset")
@@ -333,13 +335,11 @@ def load_kwave_hdf5(path: str | os.PathLike, *, key: str | None = None, dt: floa
             raise ValueError(f"array too large ({ds.size} elements)")
         data = _grid_array(ds[()])
         fa, da, name = dict(f.attrs), dict(ds.attrs), ds.name
-    get = lambda name: da.get(name, fa.get(name))  # noqa: E731
-    kwave = "kwave_DataOrder" in da or "kwave_commit" in fa
-    if kwave:
-        lat_x = get("dz_m") if data.ndim == 3 else get("dy_m")
-        lat_y = get("dy_m") if data.ndim == 3 else None
-    else:
-        lat_x, lat_y = get("dx_m"), get("dy_m")
+    def get(name: str) -> Any:
+        return kwave_layout.attribute(da, fa, name)
+
+    kwave = kwave_layout.is_kwave_named(da, fa)
+    lat_x, lat_y = kwave_layout.lateral_spacings(da, fa, data.ndim)
     dt = dt if dt is not None else get("dt_s")
     dx = dx if dx is not None else lat_x
     if dt is None:

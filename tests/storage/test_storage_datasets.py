@@ -31,6 +31,31 @@ def test_kwave_reference_files(shared_data):
     assert p0.data.shape == (256, 1024)
 
 
+def test_kwave_naming_read_alike_by_the_upload_reader_and_the_replay_source(tmp_path):
+    """k-Wave names depth x: in a k-Wave-named file our lateral x spacing is dz_m, here
+    unlike the depth spacing dx_m. The upload reader and the simulator's replay source
+    (driver.sources) take the same pitch from it: a plan at that pitch replays, one at
+    the depth spacing does not."""
+    import dataclasses
+
+    from driver.plan import DevicePlan
+    from driver.sources import ReplaySource
+
+    path = tmp_path / "kwave_named.h5"
+    data = np.random.default_rng(2).standard_normal((16, 6, 8))
+    with h5py.File(path, "w") as f:
+        f.create_dataset("sensor_data/clean", data=data).attrs["kwave_DataOrder"] = "tyz"
+        f.attrs.update({"dt_s": 1e-8, "dx_m": 1e-5, "dy_m": 6e-5, "dz_m": 6e-5, "c_m_per_s": 1500.0})
+    ds = load_dataset(path)
+    assert (ds.dx, ds.dy) == (6e-5, 6e-5)
+    replay = ReplaySource(path)
+    plan = DevicePlan(plan_id="p", n_x=8, n_y=6, pitch=6e-5, n_t=16, averages=1, dt=1e-8, prf=0.0,
+                      wavelength=7.5e-7, sound_speed=1500.0, indices=np.zeros((1, 2), np.uint16))
+    replay.prepare(plan)
+    with pytest.raises(ValueError, match="pitch"):
+        replay.prepare(dataclasses.replace(plan, pitch=1e-5))
+
+
 def test_generic_hdf5_and_npy(tmp_path):
     a = np.random.default_rng(1).standard_normal((50, 4, 6))
     h5 = tmp_path / "mine.h5"

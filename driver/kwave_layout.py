@@ -1,0 +1,44 @@
+"""k-Wave's HDF5 layout as fpscan reads it: which attributes give the lateral spacings.
+
+Sensor data in k-Wave layout are time first, ``(n_t, n_x)`` (k-Wave ``'ty'``) or
+``(n_t, n_y, n_x)`` (``'tyz'``), with spacings as attributes of the array or of the file
+(the array's first). k-Wave names the depth axis x, so in a k-Wave-named file — a
+``kwave_DataOrder`` attribute on the array or ``kwave_commit`` on the file, as the
+reference files in ``shared/data`` carry — our lateral x is k-Wave's z (``dz_m``) in 3-D
+and k-Wave's y (``dy_m``) in 2-D, and our y is k-Wave's y (``dy_m``); in other files
+``dx_m`` and ``dy_m`` are our x and y. The one owner of that rule, for the upload reader
+(``service.storage.datasets``) and the simulator's replay source (``driver.sources``).
+Pure Python.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+
+def attribute(data_attrs: Mapping[str, Any], file_attrs: Mapping[str, Any], name: str) -> Any:
+    """The attribute ``name`` of the array, else of the file, else None."""
+    return data_attrs.get(name, file_attrs.get(name))
+
+
+def is_kwave_named(data_attrs: Mapping[str, Any], file_attrs: Mapping[str, Any]) -> bool:
+    """True for k-Wave's own naming (depth = x): ``kwave_DataOrder`` on the array or
+    ``kwave_commit`` on the file."""
+    return "kwave_DataOrder" in data_attrs or "kwave_commit" in file_attrs
+
+
+def lateral_spacings(data_attrs: Mapping[str, Any], file_attrs: Mapping[str, Any],
+                     ndim: int) -> tuple[Any, Any]:
+    """``(dx, dy)``, the attribute values (m, as stored: the caller checks them) of our
+    lateral x and y spacings of a time-first array of ``ndim`` (2 or 3) dimensions, from
+    its attributes and its file's (module docstring); ``dy`` is None for 2-D data, either
+    is None where the file does not say. Raises ValueError for another ``ndim``."""
+    if ndim not in (2, 3):
+        raise ValueError(f"k-Wave layout data are (t, x) or (t, y, x), got {ndim} dimensions")
+
+    def get(name: str) -> Any:
+        return attribute(data_attrs, file_attrs, name)
+
+    if is_kwave_named(data_attrs, file_attrs):
+        return (get("dz_m"), get("dy_m")) if ndim == 3 else (get("dy_m"), None)
+    return get("dx_m"), get("dy_m") if ndim == 3 else None
