@@ -320,6 +320,16 @@ def test_result_view_reconstruct_slices_and_download_volume(browser, server, api
     assert any("Scan file" in k for k in links) and any("IPASC" in k for k in links), links
     shot(browser, screenshots, "jobs-scan-result")
 
+    # "unmix" on a one-wavelength scan: the server's reason is shown, no job is started
+    Select(el(browser, "recon-method")).select_by_value("nedner")
+    el(browser, "recon-unmix").click()
+    el(browser, "recon-start").click()
+    wait_for(lambda: el(browser, "error").is_displayed() and "at least two wavelengths" in text(browser, "error-text"),
+             15, "the unmixing refusal")
+    assert text(browser, "result-kind") == "scan"
+    el(browser, "recon-unmix").click()  # off again
+    el(browser, "error-close").click()
+
     Select(el(browser, "recon-method")).select_by_value("nedner")
     el(browser, "recon-start").click()
     wait_for(lambda: text(browser, "result-kind") == "recon", 15, "the reconstruction job to open")
