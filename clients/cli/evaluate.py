@@ -12,6 +12,8 @@ fpscan scan file covering its whole lattice) instead of the built-in simulation;
 """
 from __future__ import annotations
 
+import math
+
 COMMAND = "evaluate"
 HELP = "run the paper's experiments (limited-view-2d, sparse-masks-3d, nufft-vs-interpolation) -> PNG plots, JSON/CSV tables"
 
@@ -30,6 +32,9 @@ def add_arguments(parser):
     parser.add_argument("--out", default="evaluate-output", metavar="DIR",
                         help="output folder (default: evaluate-output)")
     parser.add_argument("--small", action="store_true", help="small, fast version (a few seconds each)")
+    parser.add_argument("--no-model-based", dest="model_based", action="store_false",
+                        help="leave out the model-based (tv) rows of limited-view-2d and sparse-masks-3d "
+                             "(iterative: minutes in 2-D, far longer for the full-size 3-D case on a small machine)")
     from clients.cli._common import default_dtype
 
     parser.epilog = ("Precision: every reconstruction of the experiments is float64 (they measure resolution "
@@ -42,7 +47,9 @@ def _headline(result) -> str:
     if name == "limited-view-2d":
         return (f"CC in ROI: equiangular {s['cc_equiangular']:.3f}, best equispaced {s['cc_best_equispaced']:.3f} "
                 f"(interval {s['best_interval']}), interpolated {s['cc_interpolated']:.3f} "
-                f"[paper 0.913 / 0.849 / 0.7348]")
+                f"[paper 0.913 / 0.849 / 0.7348]"
+                + (f"; equiangular tv {s['cc_equiangular_tv']:.3f}" if math.isfinite(s.get("cc_equiangular_tv", math.nan))
+                   else ""))
     if name == "sparse-masks-3d":
         parts = [f"equi-steradian {s['cc_equisteradian']:.3f}"]
         parts += [f"{k[3:].replace('_', ' ')} {v:.3f}" for k, v in s.items() if k.startswith("cc_interval_")]
@@ -74,7 +81,8 @@ def run(args) -> int:
         if wrong_dim and args.experiment == "all":
             print(f"{name}: skipped ({data.ndim}-D data)")
             continue
-        result, paths = run_experiment(name, out, data=data, small=args.small)
+        opts = {"model_based": args.model_based} if name in ("limited-view-2d", "sparse-masks-3d") else {}
+        result, paths = run_experiment(name, out, data=data, small=args.small, **opts)
         print(f"{name}: {_headline(result)}")
         for p in paths:
             print(f"  wrote {p}")

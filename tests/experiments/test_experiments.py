@@ -189,6 +189,10 @@ def test_fpscan_evaluate_cli(tmp_path, capsys, shared_data):
     assert "2-D" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         fpscan(["evaluate", "no-such-experiment"])
+    # --no-model-based leaves out the (iterative) tv rows
+    assert fpscan(["evaluate", "limited-view-2d", "--small", "--no-model-based", "--out", str(out)]) == 0
+    rows = json.loads((out / "limited-view-2d.json").read_text())["table"]
+    assert "equiangular" in {r["arrangement"] for r in rows} and "equiangular-tv" not in {r["arrangement"] for r in rows}
     # --dataset chooses the sensor data inside --data; a missing one is named
     assert fpscan(["evaluate", "limited-view-2d", "--dataset", "sensor_data/noisy30dB"]) == 1
     assert "--data" in capsys.readouterr().err
