@@ -207,6 +207,9 @@ def _plan_create(k: MaskKind) -> type[_PlanCreate]:
         fields["points"] = (list[tuple[LatticeIndex, LatticeIndex]] | None, Field(
             None, max_length=1024 * 1024, description="lattice indices [[i_x, i_y], ...]: short for params.indices"))
     model = create_model(f"PlanCreate_{k.name}", __base__=_PlanCreate, **fields)
+    if k.name == "points":  # the schema states what build_plan enforces: one of points, params
+        model.model_config["json_schema_extra"] = {"oneOf": [
+            {"required": [a], "properties": {b: {"type": "null"}}} for a, b in (("points", "params"), ("params", "points"))]}
     model.__doc__ = f"A plan from a {k.label.lower()} mask: {k.description}"
     return model
 

@@ -94,6 +94,11 @@ class PointsParams(MaskParams):
     """A user's point list: ``points`` (x, y) in m snapped to the lattice, or lattice
     ``indices`` (i_x, i_y); exactly one of them. Kept in the given order by default."""
 
+    # the schema states the rule below: exactly one of them given (not null)
+    model_config = ConfigDict(json_schema_extra={"oneOf": [
+        {"required": [a], "properties": {a: {"type": "array"}, b: {"type": "null"}}}
+        for a, b in (("points", "indices"), ("indices", "points"))]})
+
     points: list[tuple[float, float]] | None = length(
         "points (x, y) in m, snapped to the nearest lattice point", default=None, display_unit="mm")
     indices: list[tuple[int, int]] | None = Field(None, title="Lattice indices", description="lattice indices (i_x, i_y), 0-based",
