@@ -70,6 +70,14 @@ def test_contract_errors(small_server):
         branches = schema["components"]["schemas"]["ReconRequest"]["oneOf"]
         assert sorted(b["required"][0] for b in branches) == ["dataset_id", "dataset_ids", "scan_job_id"]
         assert all("not" in b for b in branches)
+        # the point list's exclusive fields, as the server enforces them
+        for name, pair in (("PointsParams", {"points", "indices"}), ("PlanCreate_points", {"points", "params"})):
+            assert {tuple(b["required"]) for b in schema["components"]["schemas"][name]["oneOf"]} == \
+                {(f,) for f in pair}, name
+        both = {"kind": "points", "lattice": {"n_x": 4, "n_y": 4, "pitch": 1e-4}, "points": [[0, 0]],
+                "params": {"indices": [[1, 1]]}}
+        r = api.post("/api/plans/preview", json=both)
+        assert r.status_code == 422 and "either as points or as params" in r.json()["detail"], r.text
 
 
 def test_redact_replaces_whole_path_prefixes_only(tmp_path):
