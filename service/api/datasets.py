@@ -18,7 +18,6 @@ file name is never used as a path. Every upload is read with
 """
 from __future__ import annotations
 
-import math
 import shutil
 import uuid
 from pathlib import Path
@@ -29,42 +28,10 @@ from fastapi import Path as PathParam
 from service.api.context import Context, ctx, reason, require_token
 from service.api.models import ID_PATTERN, Dataset, DatasetFormat, Deleted
 from service.jobs import lifecycle
+from service.storage.datasets import import_dataset
 from service.storage.untrusted import hdf5_limit, run_bounded
 
 router = APIRouter(prefix="/api/datasets", tags=["datasets"])
-
-HDF5_KEY_CHARS = set("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_-/.")
-
-
-def import_dataset(src: Path, dest_dir: Path, fmt: str, *, dt, dx, dy, c, key,
-                   max_bytes: int | None = None) -> dict:
-    """Validate and convert an uploaded file with ``service.storage.datasets.load_dataset``
-    (all four formats); returns the dataset's metadata (stored in the job store).
-    ``max_bytes``: largest declared dataset of an HDF5 file
-    (:func:`service.storage.untrusted.check_hdf5`, run before anything is read).
-    Raises ``ValueError`` with the reason."""
-    from service.storage.datasets import MAX_ELEMENTS, GridDataset, load_dataset, write_dataset
-
-    if key is not None and (not key or len(key) > 200 or not set(key) <= HDF5_KEY_CHARS):
-        raise ValueError("key must be an HDF5 dataset path of [A-Za-z0-9_-/.]")
-    for name, value in (("dt", dt), ("dx", dx), ("dy", dy), ("c", c)):
-        if value is not None and not (math.isfinite(value) and value > 0):
-            raise ValueError(f"{name} must be a positive finite number")
-    try:
-        ds = load_dataset(src, fmt, dt=dt, dx=dx, dy=dy, c=c, key=key,
-                          max_bytes=MAX_ELEMENTS * 8 if max_bytes is None else max_bytes)
-    except (KeyError, TypeError, IndexError, OSError) as exc:
-        raise ValueError(f"file is not a readable {fmt} dataset ({type(exc).__name__})") from None
-    if isinstance(ds, GridDataset):
-        write_dataset(dest_dir / "dataset.h5", ds)
-        return {"layout": "grid", "shape": list(ds.data.shape), "dt": ds.dt, "c": ds.c, "path": "dataset.h5"}
-    if ds.alines.shape[0] == 0:
-        raise ValueError("the dataset holds no A-lines")
-    write_dataset(dest_dir / "dataset.h5", ds)
-    n_x, n_y = len(ds.grid[0]), len(ds.grid[1]) if len(ds.grid) > 1 else 1
-    return {"layout": "points", "shape": list(ds.alines.shape), "dt": ds.dt, "c": ds.c, "path": "dataset.h5",
-            "n_x": n_x, "n_y": n_y, "full_lattice": ds.full_lattice}
-
 
 @router.post("", status_code=201, response_model=Dataset, dependencies=[Depends(require_token)],
              responses={413: {"description": "upload larger than the configured limit"}})
@@ -98,7 +65,8 @@ def _store_upload(file: UploadFile, format: str, *, dt, dx, dy, c, key, cx: Cont
                 out.write(chunk)
         try:
             # in a child process with a time and memory bound: the HDF5 library can block
-            # (holding the GIL) or expand a small file into gigabytes
+            # (holding the GIL) or expand a small file into gigabytes (import_dataset lives
+            # in service.storage, so the child does not import the web stack)
             meta = run_bounded(import_dataset, src, dest, format, dt=dt, dx=dx, dy=dy, c=c, key=key,
                                max_bytes=hdf5_limit(limit, cx.settings.memory_limit),
                                timeout=cx.settings.import_timeout_s, what="the upload",

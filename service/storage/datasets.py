@@ -487,3 +487,37 @@ def read_dataset(path: str | os.PathLike) -> GridDataset | PointDataset:
                                 wavelengths=wavelengths)
         except (KeyError, TypeError) as exc:
             raise ValueError(f"not a canonical dataset file ({exc})") from None
+
+
+HDF5_KEY_CHARS = set("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_-/.")
+
+
+def import_dataset(src: str | os.PathLike, dest_dir: str | os.PathLike, fmt: str, *, dt, dx, dy, c, key,
+                   max_bytes: int | None = None) -> dict:
+    """Validate and convert an uploaded file with :func:`load_dataset` (all four formats)
+    into ``dest_dir/dataset.h5`` (:func:`write_dataset`); returns the dataset's metadata
+    (the API stores it in the job store). Run by ``POST /api/datasets`` in a bounded child
+    process (``service.storage.untrusted.run_bounded``).
+    ``max_bytes``: largest declared dataset of an HDF5 file
+    (:func:`service.storage.untrusted.check_hdf5`, run before anything is read).
+    Raises ``ValueError`` with the reason."""
+    if key is not None and (not key or len(key) > 200 or not set(key) <= HDF5_KEY_CHARS):
+        raise ValueError("key must be an HDF5 dataset path of [A-Za-z0-9_-/.]")
+    for name, value in (("dt", dt), ("dx", dx), ("dy", dy), ("c", c)):
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise ValueError(f"{name} must be a positive finite number")
+    try:
+        ds = load_dataset(src, fmt, dt=dt, dx=dx, dy=dy, c=c, key=key,
+                          max_bytes=MAX_ELEMENTS * 8 if max_bytes is None else max_bytes)
+    except (KeyError, TypeError, IndexError, OSError) as exc:
+        raise ValueError(f"file is not a readable {fmt} dataset ({type(exc).__name__})") from None
+    dest_dir = Path(dest_dir)
+    if isinstance(ds, GridDataset):
+        write_dataset(dest_dir / "dataset.h5", ds)
+        return {"layout": "grid", "shape": list(ds.data.shape), "dt": ds.dt, "c": ds.c, "path": "dataset.h5"}
+    if ds.alines.shape[0] == 0:
+        raise ValueError("the dataset holds no A-lines")
+    write_dataset(dest_dir / "dataset.h5", ds)
+    n_x, n_y = len(ds.grid[0]), len(ds.grid[1]) if len(ds.grid) > 1 else 1
+    return {"layout": "points", "shape": list(ds.alines.shape), "dt": ds.dt, "c": ds.c, "path": "dataset.h5",
+            "n_x": n_x, "n_y": n_y, "full_lattice": ds.full_lattice}
