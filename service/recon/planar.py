@@ -66,7 +66,11 @@ def _depth_axis(n_t, dt, c, dz, n_z, t0):
     n_z = n_t if n_z is None else n_z
     if int(n_z) != n_z or n_z < 2:
         raise ValueError(f"n_z must be an integer >= 2, got {n_z!r}")
-    reach = int(np.ceil(c * (t0 + (n_t - 1) * dt) / dz * (1 - 1e-12))) + 1
+    rows = c * (t0 + (n_t - 1) * dt) / dz * (1 - 1e-12)
+    if not rows < 2**31:  # also inf (dz = 5e-324): refused before int() overflows
+        raise ValueError(f"dz = {dz:g} m is too fine for this recording: the depth transform would need "
+                         f"{rows:.3g} rows to reach c·t of the last sample; use a larger dz (c·dt is {c * dt:.3g} m)")
+    reach = int(np.ceil(rows)) + 1
     return dz, int(n_z), _fast_dct1_rows(max(int(n_z), reach))
 
 
