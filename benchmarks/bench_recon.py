@@ -289,15 +289,19 @@ def _vs_kwave_python(repeat) -> None:
     import importlib
 
     fn = None
+    why = "not installed (pip install k-wave-python)"
     for mod in ("kwave.reconstruction.kspace_plane_recon", "kwave.kspacePlaneRecon", "kwave.reconstruction"):
         try:
             fn = getattr(importlib.import_module(mod), "kspacePlaneRecon", None)
         except ImportError:
             continue
+        except Exception as exc:  # noqa: BLE001 - k-wave-python downloads its simulation binaries on import
+            why = f"not importable here ({type(exc).__name__}: {exc}; it fetches its binaries on first import)"
+            break
         if fn is not None:
             break
     if fn is None:
-        print("\nk-wave-python is not installed (pip install k-wave-python): comparison skipped")
+        print(f"\nk-wave-python is {why}: comparison skipped")
         return
     from service.recon import kspace_plane_recon
 
