@@ -64,9 +64,11 @@ class Slots:
 
 def default_slots(settings: Settings) -> dict[str, Slots]:
     """The admission bounds of a service: ``uploads`` (``settings.import_workers`` imports at
-    once, 4x as many waiting) and ``plans`` (2 plans built at once, 8 waiting)."""
+    once, 4x as many waiting) and ``plans`` (one plan built at a time, 8 waiting: plan work
+    is mostly JSON and validation holding the GIL, so a second thread would only slow the
+    other routes down)."""
     n = settings.import_workers
-    return {"uploads": Slots("uploads", n, 4 * n), "plans": Slots("plan requests", 2, 8)}
+    return {"uploads": Slots("uploads", n, 4 * n), "plans": Slots("plan requests", 1, 8)}
 
 
 @dataclass
