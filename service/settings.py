@@ -54,6 +54,8 @@ class Settings(BaseSettings):
     workers: int = Field(1, ge=1, le=64, description="local process pool size")
     memory_limit: int = Field(8 * 2**30, gt=0, description="bytes available to reconstructions at once")
     upload_limit: int = Field(2 * 2**30, gt=0, description="largest accepted upload, bytes")
+    body_timeout_s: float = Field(30.0, gt=0, le=3600, description="an upload or plan request whose body "
+                                  "stalls this long (or then trickles under 16 KiB/s) is refused with 408")
     json_limit: int = Field(64 * 2**20, gt=0, description="largest JSON request body, bytes (parsed whole in "
                             "memory; the plan JSON of the largest lattice is 15-32 MiB)")
     import_timeout_s: float = Field(60.0, gt=0, le=3600, description="longest time an upload's import may "

@@ -7,6 +7,7 @@ the upload size limit and the static web page (``settings.web_root``).
 """
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import logging
 import re
@@ -69,14 +70,18 @@ class UploadLimit:
     ``slots`` (:func:`~service.api.context.default_slots`): uploads and plan requests
     (``ADMITTED``) are counted in before their body is read, and refused with 429 when too
     many are in progress (the form parser spools every upload to a temporary file, and a
-    JSON body is parsed, before the route runs); the route then waits for its turn."""
+    JSON body is parsed, before the route runs); the route then waits for its turn. Such a
+    request whose body stalls ``body_timeout_s`` (or trickles in slower than
+    ``MIN_BODY_RATE``) is refused with 408, so a slow client cannot hold a slot for long."""
 
     #: (method, path) -> the slots that admit it
     ADMITTED = {("POST", "/api/datasets"): "uploads", ("POST", "/api/plans"): "plans",
                 ("POST", "/api/plans/preview"): "plans"}
 
-    def __init__(self, app, limit: int, json_limit: int | None = None, slots: dict[str, Slots] | None = None):
+    def __init__(self, app, limit: int, json_limit: int | None = None, slots: dict[str, Slots] | None = None,
+                 body_timeout_s: float = 30.0):
         self.app = app
+        self.body_timeout_s = body_timeout_s
         self.upload_limit = limit
         self.json_limit = min(limit, json_limit) if json_limit else limit
         self.slots = slots or {}
@@ -93,46 +98,57 @@ class UploadLimit:
             resp = JSONResponse({"detail": slots.busy_reason()}, 429, headers={"Retry-After": str(slots.retry_after_s)})
             return await resp(scope, receive, send)
         try:
-            return await self._limited(scope, receive, send, limit)
+            return await self._limited(scope, receive, send, limit, self.body_timeout_s)
         finally:
             slots.leave()
 
-    async def _limited(self, scope, receive, send, limit: int):
-        headers = dict(scope.get("headers") or [])
-        length = headers.get(b"content-length")
+    async def _limited(self, scope, receive, send, limit: int, idle_s: float | None = None):
+        """Pass the request on, refusing a body over ``limit`` bytes (413) and, with
+        ``idle_s``, a body that stalls ``idle_s`` s or arrives slower than
+        ``MIN_BODY_RATE`` after that (408): an admitted request holds a slot meanwhile."""
         too_large = JSONResponse({"detail": f"request body larger than the limit of {limit} bytes"}, 413)
-        if length is not None:
-            try:
-                too_big = int(length) > limit
-            except ValueError:
-                too_big = False
-            if too_big:
-                return await too_large(scope, receive, send)
+        if _declared_length(scope) > limit:
+            return await too_large(scope, receive, send)
         seen = 0
         t0 = time.perf_counter()
         status = {"code": 0}
-        over = {"flag": False, "sent": False}
+        refusal: dict[str, Any] = {"resp": None, "sent": False}
+        body_done = False
+
+        async def refuse() -> None:
+            if not refusal["sent"]:
+                refusal["sent"] = True
+                await refusal["resp"](scope, receive, send)
 
         async def logging_send(message):
-            if over["flag"]:
-                # the body went over the limit: whatever the route made of the cut-off
-                # body (a form parser answers 400), the client gets the 413
-                if not over["sent"]:
-                    over["sent"] = True
-                    await too_large(scope, receive, send)
-                return
+            if refusal["resp"] is not None:
+                # the body was refused: whatever the route made of the cut-off body (a
+                # form parser answers 400), the client gets the refusal
+                return await refuse()
             if message["type"] == "http.response.start":
                 status["code"] = message["status"]
             await send(message)
 
         async def counting_receive():
-            nonlocal seen
-            message = await receive()
+            nonlocal seen, body_done
+            if idle_s is None or body_done:
+                message = await receive()
+            else:
+                try:
+                    message = await asyncio.wait_for(receive(), idle_s)
+                except TimeoutError:
+                    refusal["resp"] = _too_slow(f"no request body data for {idle_s:g} s")
+                    raise _Refused() from None
             if message["type"] == "http.request":
                 seen += len(message.get("body", b""))
+                body_done = not message.get("more_body", False)
                 if seen > limit:
-                    over["flag"] = True
-                    raise _TooLarge()
+                    refusal["resp"] = too_large
+                    raise _Refused()
+                elapsed = time.perf_counter() - t0
+                if idle_s is not None and not body_done and elapsed > idle_s and seen < MIN_BODY_RATE * elapsed:
+                    refusal["resp"] = _too_slow(f"request body arriving slower than {MIN_BODY_RATE} bytes/s")
+                    raise _Refused()
             return message
 
         try:
@@ -140,13 +156,28 @@ class UploadLimit:
             if log.isEnabledFor(logging.DEBUG):
                 log.debug("request method=%s path=%s status=%s ms=%.1f", scope["method"], scope["path"],
                           status["code"], 1e3 * (time.perf_counter() - t0))
-        except _TooLarge:
-            if not over["sent"]:
-                over["sent"] = True
-                await too_large(scope, receive, send)
+        except _Refused:
+            await refuse()
 
 
-class _TooLarge(Exception):
+#: Slowest body (bytes/s, on average) an admitted request may send after its first
+#: ``body_timeout_s``: a trickle would hold an upload or plan slot for hours.
+MIN_BODY_RATE = 16 * 1024
+
+
+def _declared_length(scope) -> int:
+    """The request's ``Content-Length`` (0 when absent or not a number)."""
+    try:
+        return int(dict(scope.get("headers") or []).get(b"content-length", b"0"))
+    except ValueError:
+        return 0
+
+
+def _too_slow(why: str) -> JSONResponse:
+    return JSONResponse({"detail": f"{why}; send the body at once"}, 408, headers={"Connection": "close"})
+
+
+class _Refused(Exception):
     pass
 
 
@@ -266,7 +297,8 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True) 
         log.exception("internal error ref=%s %s %s", ref, request.method, request.url.path)
         return JSONResponse({"detail": f"internal error (reference {ref})"}, status_code=500)
 
-    app.add_middleware(UploadLimit, limit=settings.upload_limit, json_limit=settings.json_limit, slots=slots)
+    app.add_middleware(UploadLimit, limit=settings.upload_limit, json_limit=settings.json_limit, slots=slots,
+                       body_timeout_s=settings.body_timeout_s)
     app.add_middleware(ShortIds)
 
     from service.api import datasets, jobs, plans, reconstructions, retention, scans

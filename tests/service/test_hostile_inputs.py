@@ -58,7 +58,7 @@ def hostile_server(tmp_path_factory):
     srv = Server(tmp_path_factory.mktemp("hostile") / "data",
                  env={"FPSCAN_IMPORT_TIMEOUT_S": "4", "FPSCAN_UPLOAD_LIMIT": str(64 * 2**20),
                       "FPSCAN_MEMORY_LIMIT": str(2 * 2**30), "FPSCAN_IMPORT_WORKERS": "1",
-                      "FPSCAN_JSON_LIMIT": str(2 * 2**20)}).start()
+                      "FPSCAN_JSON_LIMIT": str(2 * 2**20), "FPSCAN_BODY_TIMEOUT_S": "2"}).start()
     yield srv
     srv.stop()
 
@@ -174,6 +174,35 @@ def test_a_flood_of_uploads_is_bounded(hostile_server, files):
     assert all("truncated" in d for s, d, _ in statuses if s == 422), statuses
     assert not health.misses, health.misses
     assert (sorted(p.name for p in datasets.iterdir()) if datasets.exists() else []) == before
+
+
+@pytest.mark.timeout(120)
+def test_stalled_upload_bodies_do_not_hold_the_slots(hostile_server, files):
+    """Five uploads that send their headers and then stall take every upload slot (a sixth
+    is answered 429); after FPSCAN_BODY_TIMEOUT_S (2 s here) each stalled one is answered
+    408 and the slots are free again."""
+    import socket
+
+    head = (f"POST /api/datasets HTTP/1.1\r\nHost: 127.0.0.1\r\nAuthorization: Bearer {hostile_server.token}\r\n"
+            "Content-Type: multipart/form-data; boundary=zzz\r\nContent-Length: 100000\r\n\r\n--zzz\r\n").encode()
+    stalled = []
+    for _ in range(5):
+        sock = socket.create_connection(("127.0.0.1", hostile_server.port), timeout=30)
+        sock.sendall(head)
+        stalled.append(sock)
+    try:
+        time.sleep(0.5)  # the server has counted them in
+        body = truncated(0.5)(files).read_bytes()
+        with hostile_server.client(timeout=ANSWER_S) as api:
+            r = api.post("/api/datasets", files={"file": ("x.h5", body)}, data={"format": "fpscan"})
+            assert r.status_code == 429, r.text
+            answers = [sock.recv(4096).decode(errors="replace") for sock in stalled]
+            assert all(a.startswith("HTTP/1.1 408") and "request body" in a for a in answers), answers
+            r = api.post("/api/datasets", files={"file": ("x.h5", body)}, data={"format": "fpscan"})
+            assert r.status_code == 422 and "truncated" in r.json()["detail"], r.text
+    finally:
+        for sock in stalled:
+            sock.close()
 
 
 def test_slots_count_running_plus_waiting_then_refuse():
