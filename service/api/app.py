@@ -40,6 +40,7 @@ ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
     401: {"model": Error, "description": "missing or invalid bearer token"},
     404: {"model": Error, "description": "not found"},
     409: {"model": Error, "description": "conflict with the resource's state"},
+    408: {"model": Error, "description": "an upload or plan request body stalled (FPSCAN_BODY_TIMEOUT_S)"},
     413: {"model": Error, "description": "upload too large"},
     422: {"model": Error, "description": "invalid input (the reason is in detail)"},
     429: {"model": Error, "description": "too many expensive requests (uploads, plans) in progress; "
