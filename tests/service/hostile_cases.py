@@ -192,7 +192,8 @@ UPLOADS = [
     Upload("external storage (ipasc)", "ipasc", external_storage, 422, "external storage"),
     Upload("external link (fpscan)", "fpscan", external_link, 422, "external link"),
     Upload("truncated 50 % (ipasc)", "ipasc", truncated(0.50), 422, "truncated"),
-    Upload("npy of NaN", "npy", npy_file("nan.npy", np.full((64, 4, 4), np.nan, np.float32)), 422, "NaN",
+    # 2 MiB: over the form parser's in-memory size, so the body is spooled to a temporary file
+    Upload("npy of NaN", "npy", npy_file("nan.npy", np.full((128, 64, 64), np.nan, np.float32)), 422, "NaN",
            {"dt": "1e-8", "dx": "1e-4"}),
     Upload("npy holding a pickle", "npy", npy_file("pickle.npy", np.array([{"a": 1}] * 3, dtype=object),
                                                    allow_pickle=True), 422, "pickle", {"dt": "1e-8", "dx": "1e-4"}),

@@ -55,12 +55,18 @@ class HealthWatch:
 
 @pytest.fixture(scope="module")
 def hostile_server(tmp_path_factory):
+    spool = tmp_path_factory.mktemp("hostile-tmp")  # the server's TMPDIR: upload bodies spool here
     srv = Server(tmp_path_factory.mktemp("hostile") / "data",
-                 env={"FPSCAN_IMPORT_TIMEOUT_S": "4", "FPSCAN_UPLOAD_LIMIT": str(64 * 2**20),
+                 env={"TMPDIR": str(spool), "FPSCAN_IMPORT_TIMEOUT_S": "4", "FPSCAN_UPLOAD_LIMIT": str(64 * 2**20),
                       "FPSCAN_MEMORY_LIMIT": str(2 * 2**30), "FPSCAN_IMPORT_WORKERS": "1",
                       "FPSCAN_JSON_LIMIT": str(2 * 2**20), "FPSCAN_BODY_TIMEOUT_S": "2"}).start()
+    srv.spool = spool
     yield srv
     srv.stop()
+
+
+def _left_files(folder) -> list[str]:
+    return sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file())
 
 
 @pytest.fixture(scope="module")
@@ -97,9 +103,11 @@ def test_hostile_uploads_are_refused_in_bounded_time(hostile_server, files):
     assert health.polls > 0 and not health.misses, health.misses
     print(f"hostile uploads: {len(UPLOADS)} refused, slowest answer {slowest:.2f} s; "
           f"/api/health slowest {health.slowest:.2f} s over {health.polls} polls")
-    # nothing of the refused uploads is left: only the accepted one
+    # nothing of the refused uploads is left: only the accepted one, and no spooled body
     left = sorted(p.name for p in (hostile_server.data_dir / "datasets").iterdir())
     assert left == [ok.json()["dataset_id"]], left
+    assert not [p for p in _left_files(hostile_server.data_dir) if not p.startswith(("datasets/", "jobs.sqlite"))]
+    assert not _left_files(hostile_server.spool), _left_files(hostile_server.spool)
     secret = (files / "server-secret.bin").read_bytes()[:20]
     for p in (hostile_server.data_dir / "datasets").rglob("*"):
         assert not p.is_file() or secret not in p.read_bytes()
