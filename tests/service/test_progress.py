@@ -14,7 +14,7 @@ pytestmark = needs_recon
 
 
 def test_progress_events_strictly_increase_through_reconstruction(tmp_path):
-    n, n_t = 40, 1024  # NEDNER over 1600 points: a few seconds of chunks
+    n, n_t = 96, 2048  # NEDNER over 9216 points: seconds of chunks even on an idle machine (the server polls 4x per second)
     data = np.random.default_rng(1).standard_normal((n_t, n, n)).astype(np.float32)
     buf = io.BytesIO()
     np.save(buf, data)
