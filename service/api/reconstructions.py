@@ -102,7 +102,8 @@ def _input_for(c: Context, body: ReconRequest) -> tuple[dict, dict, str]:
         plan = found[0]
         lat, acq = plan["lattice"], plan["acquisition"]
         shape = {"n_t": acq["n_t"], "n_x": lat["n_x"], "n_y": lat.get("n_y", 1),
-                 "n_points": len(plan["points"]["indices"]), "dt": acq["dt"], "c": acq.get("sound_speed")}
+                 "n_points": len(plan["points"]["indices"]), "dt": acq["dt"], "c": acq.get("sound_speed"),
+                 "dx": lat.get("pitch")}
         if needs_grid and len(plan["points"]["indices"]) != lat["n_x"] * lat.get("n_y", 1):
             raise HTTPException(422, f"method {body.method!r} needs every lattice point; this scan's plan "
                                      "is a sensor mask: use 'nedner'")
@@ -116,14 +117,14 @@ def _input_for(c: Context, body: ReconRequest) -> tuple[dict, dict, str]:
     if meta["layout"] == "grid":
         s = meta["shape"]
         shape = {"n_t": s[0], "n_x": s[-1], "n_y": s[1] if len(s) == 3 else 1, "dt": meta.get("dt"),
-                 "c": meta.get("c")}
+                 "c": meta.get("c"), "dx": meta.get("dx")}
         return {"kind": "dataset", "path": path}, shape, f"dataset:{body.dataset_id}"
     if needs_grid and not meta.get("full_lattice"):
         raise HTTPException(422, f"method {body.method!r} needs a full regular grid; this dataset needs 'nedner'")
     n, n_t = meta["shape"]
     side = int(np.ceil(np.sqrt(n)))
     shape = {"n_t": n_t, "n_x": meta.get("n_x", side), "n_y": meta.get("n_y", side), "n_points": n,
-             "dt": meta.get("dt"), "c": meta.get("c")}
+             "dt": meta.get("dt"), "c": meta.get("c"), "dx": meta.get("dx")}
     return {"kind": "dataset", "path": path}, shape, f"dataset:{body.dataset_id}"
 
 

@@ -73,7 +73,8 @@ def estimate_memory(shape: dict, params: dict) -> int:
     admission rule, applied before a job is queued and again by the worker.
 
     ``shape``: ``n_t`` and ``n_x`` (``n_y``) of the output grid, ``n_points`` for point
-    inputs, ``dt`` (s) and ``c`` (m/s) of the input; ``params``: ``method``, ``dtype``,
+    inputs, ``dt`` (s), ``c`` (m/s) and the lateral pitch ``dx`` (m) of the input (optional;
+    the model-based ``tv`` pads its grid by the record's reach in pitches); ``params``: ``method``, ``dtype``,
     ``upsample``, ``n_z``, ``dz``, ``c``. ``service.recon.estimate_peak_memory`` of the
     working depth rows (:func:`working_depth_rows`) times ``CALIBRATION``, plus the input
     as float64. Raises :class:`AdmissionError` for a depth grid that can never be made."""
@@ -84,9 +85,15 @@ def estimate_memory(shape: dict, params: dict) -> int:
     rows = working_depth_rows(shape, params)
     from service.recon import estimate_peak_memory
 
+    geometry = {}
+    if shape.get("dx") and shape.get("dt"):  # the model-based operator's padding depends on them
+        c = params.get("c")
+        c = max(params.get("c_range") or (1450.0, 1600.0)) if c == "auto" else c
+        geometry = {"dx": float(shape["dx"]), "dt": float(shape["dt"]), "c": float(c or shape.get("c") or 1500.0),
+                    "dz": float(params["dz"]) if params.get("dz") else None}
     value = estimate_peak_memory(n_t, n_x, n_y, n_z=rows, upsample=up,
                                  dtype=params.get("dtype") or "float32", method=params.get("method", "ner"),
-                                 n_points=shape.get("n_points"))
+                                 n_points=shape.get("n_points"), **geometry)
     return int(CALIBRATION * value) + n_t * int(shape.get("n_points", n_x * n_y)) * 8  # + the input
 
 

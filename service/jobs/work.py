@@ -65,11 +65,12 @@ def check_memory_limit(ds: Any, params: dict, limit: int) -> None:
     shape: dict[str, Any]
     if isinstance(ds, GridDataset):
         d = ds.data
-        shape = {"n_t": d.shape[0], "n_x": d.shape[-1], "n_y": d.shape[1] if d.ndim == 3 else 1}
+        shape = {"n_t": d.shape[0], "n_x": d.shape[-1], "n_y": d.shape[1] if d.ndim == 3 else 1, "dx": ds.dx}
     else:
         grid = ds.grid
         shape = {"n_t": ds.alines.shape[1], "n_x": len(grid[0]), "n_y": len(grid[1]) if len(grid) > 1 else 1,
-                 "n_points": ds.alines.shape[0]}
+                 "n_points": ds.alines.shape[0],
+                 "dx": float(grid[0][1] - grid[0][0]) if len(grid[0]) > 1 else None}
     shape.update(dt=ds.dt, c=ds.c)
     admit(estimate_memory(shape, params), limit)
 

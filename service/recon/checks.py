@@ -74,6 +74,10 @@ def estimate_peak_memory(
     dtype=np.float64,
     method: str = "ner",
     n_points: int | None = None,
+    dx: float | None = None,
+    dt: float | None = None,
+    c: float | None = None,
+    dz: float | None = None,
 ) -> int:
     """Estimated peak memory in bytes of a planar reconstruction.
 
@@ -81,7 +85,9 @@ def estimate_peak_memory(
     ``n_z`` output depth samples (default n_t); ``upsample`` lateral factor; ``dtype``
     float32/float64; ``method`` "ner"/"linear"/"nearest"/"cubic"/"nedner"/"kwave";
     ``n_points`` sensors for NEDNER (adds the type-1 NUFFT's full-plane spectrum).
-    ``method="tv"`` gives `tv_memory` on a conservatively padded grid.
+    ``method="tv"`` gives `tv_memory` on the free-space operator's padded grid
+    (`driver.physics.forward`'s padding rule) when the pitch ``dx`` (m), ``dt`` (s) and
+    ``c`` (m/s) are given (``dz`` default c·dt), else on a conservative one (dx = c·dt).
 
     The estimate adds the arrays alive at the worst moment of the pipeline: the lateral
     spectrum (n_t x n_y x (n_x/2+1) complex), the oversampled temporal grid (about twice
@@ -102,9 +108,12 @@ def estimate_peak_memory(
     peak += n_t * n_y * n_x * b  # the input
     if method == "tv":  # model-based: its own count (the warm start needs less)
         n_data = n_t * (n_points or n_x * n_y)
-        # the free-space operator's padded grid, assuming the worst usual case dx = c dt
-        # (lateral reach of the record = n_t pitches; depth reach n_t rows)
-        pad = (max(n_z, n_t), n_y + n_t if n_y > 1 else 1, n_x + n_t)
+        if dx and dt and c:  # the operator's own padding rule
+            from driver.physics.forward import _pad_sizes
+
+            pad = _pad_sizes((n_z, n_y, n_x), dx, dz or c * dt, dt, n_t, c, 0.0)
+        else:  # the worst usual case dx = c dt (lateral reach of the record = n_t pitches)
+            pad = (max(n_z, n_t), n_y + n_t if n_y > 1 else 1, n_x + n_t)
         return max(int(peak * 1.1), tv_memory((n_z, n_y, n_x), pad, n_data, n_t, dtype))
     return int(peak * 1.1)
 
@@ -115,14 +124,15 @@ def tv_memory(image_shape, padded_shape, n_data: int, n_t: int, dtype=np.float64
     stacked K p with its d gradient components, twice) in ``dtype``, three data-sized
     vectors, and the operator's float64/complex128 working arrays on the padded grid
     (lateral spectrum, temporal fine grid, k-space image: about 10 complex values per
-    padded half-spectrum column and depth row), plus 10 %."""
+    padded half-spectrum column and depth row), plus 30 % (a 64 x 64 x 256 run peaked at
+    0.72 GiB above the interpreter against 0.72 GiB estimated with 10 %)."""
     b = np.dtype(dtype).itemsize
     n_img = int(np.prod(image_shape))
     d = sum(1 for n in image_shape if n > 1)
     solver = (4 + 2 * d) * n_img * b + 3 * n_data * b
     nz2, ny2, nx2 = padded_shape
     operator = 10 * 16 * max(nz2, n_t) * ny2 * (nx2 // 2 + 1)
-    return int(1.1 * (solver + operator))
+    return int(1.3 * (solver + operator))
 
 
 def check_memory(needed: int, memory_limit) -> None:

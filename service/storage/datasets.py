@@ -514,10 +514,12 @@ def import_dataset(src: str | os.PathLike, dest_dir: str | os.PathLike, fmt: str
     dest_dir = Path(dest_dir)
     if isinstance(ds, GridDataset):
         write_dataset(dest_dir / "dataset.h5", ds)
-        return {"layout": "grid", "shape": list(ds.data.shape), "dt": ds.dt, "c": ds.c, "path": "dataset.h5"}
+        return {"layout": "grid", "shape": list(ds.data.shape), "dt": ds.dt, "c": ds.c, "path": "dataset.h5",
+                "dx": ds.dx}
     if ds.alines.shape[0] == 0:
         raise ValueError("the dataset holds no A-lines")
     write_dataset(dest_dir / "dataset.h5", ds)
     n_x, n_y = len(ds.grid[0]), len(ds.grid[1]) if len(ds.grid) > 1 else 1
     return {"layout": "points", "shape": list(ds.alines.shape), "dt": ds.dt, "c": ds.c, "path": "dataset.h5",
-            "n_x": n_x, "n_y": n_y, "full_lattice": ds.full_lattice}
+            "n_x": n_x, "n_y": n_y, "full_lattice": ds.full_lattice,
+            "dx": float(ds.grid[0][1] - ds.grid[0][0]) if len(ds.grid[0]) > 1 else None}
