@@ -693,7 +693,15 @@ def test_plan_form_offers_exactly_the_servers_kinds_and_parameters(browser, serv
     listed = api.get("/api/plans/kinds").json()
     want = {k["kind"]: [f["name"] for f in k["fields"]] for k in listed}
     assert "equispaced" in want
+    # the oracle first, while the page sends no previews of its own (plan requests queue)
+    expected = api.post("/api/plans/preview", json={
+        "kind": "equispaced", "lattice": {"n_x": 64, "n_y": 64, "pitch": 60e-6}, "params": {"interval": 3},
+        "acquisition": {"n_t": 256, "dt": 8e-9, "prf": 50}}).json()
+    assert "points" in expected, expected
     browser.get(server + "/#/plan")
+    # previews need the token: keep it for the session, as the tests before this one left it
+    browser.execute_script("sessionStorage.setItem('fpscan.token', arguments[0])", TOKEN)
+    browser.refresh()
     wait_for(lambda: len(browser.execute_script(
         "return document.getElementById('mask-kind').options")) == len(want), 15, "the mask kinds")
     offered = browser.execute_script(
@@ -706,9 +714,6 @@ def test_plan_form_offers_exactly_the_servers_kinds_and_parameters(browser, serv
             10, f"the {kind} parameters")
     choose(browser, "mask-kind", "equispaced")
     set_value(browser, "mask-interval", 3)
-    expected = api.post("/api/plans/preview", json={
-        "kind": "equispaced", "lattice": {"n_x": 64, "n_y": 64, "pitch": 60e-6}, "params": {"interval": 3},
-        "acquisition": {"n_t": 256, "dt": 8e-9, "prf": 50}}).json()
     set_value(browser, "lat-nx", 64)
     set_value(browser, "lat-ny", 64)
     set_value(browser, "lat-pitch", 60)
