@@ -48,12 +48,23 @@ def _fast_dct1_rows(n: int) -> int:
     return m // 2 + 1
 
 
-def _fast_lateral(n_y: int, n_x: int) -> tuple[int, int]:
+def _fast_lateral(n_y: int, n_x: int, square: bool = False) -> tuple[int, int]:
     """Lateral transform sizes (n_y', n_x') >= (n_y, n_x) at fast FFT lengths: the aperture
     is zero-padded to them (no data outside the aperture, as the continuous formula has it,
     and less wrap-around than the period of the aperture itself); the image is cropped back.
-    x is the rfft axis (factors 2, 3, 5), y a complex one (2, 3, 5, 7, 11)."""
-    return (1 if n_y == 1 else scipy.fft.next_fast_len(n_y)), scipy.fft.next_fast_len(n_x, real=True)
+    x is the rfft axis (factors 2, 3, 5), y a complex one (2, 3, 5, 7, 11).
+
+    ``square`` (dy = dx): one length for both axes when it pads neither by more than 15 %,
+    so that k_x and k_y take the same values and columns of equal |k_lat| pair up four-
+    to eightfold: the temporal interpolation computes its taps once per |k_lat| (226 x 226:
+    7 300 instead of 14 000 distinct values, ~30 % less time)."""
+    n_yp = 1 if n_y == 1 else scipy.fft.next_fast_len(n_y)
+    n_xp = scipy.fft.next_fast_len(n_x, real=True)
+    if square and n_y > 1:
+        common = scipy.fft.next_fast_len(max(n_y, n_x), real=True)
+        if common <= 1.15 * min(n_y, n_x):
+            return common, common
+    return n_yp, n_xp
 
 
 def _depth_axis(n_t, dt, c, dz, n_z, t0):
@@ -273,7 +284,7 @@ def reconstruct_grid(
     dz, n_z, n_work = _depth_axis(n_t, dt, c, dz, n_z, t0)
     is2d = data.ndim == 2
     n_y, n_x = (1, data.shape[1]) if is2d else data.shape[1:]
-    n_yp, n_xp = _fast_lateral(n_y, n_x)
+    n_yp, n_xp = _fast_lateral(n_y, n_x, square=abs(dy - dx) <= 1e-9 * dx)
     checks.check_memory(
         checks.estimate_peak_memory(n_t, n_xp, n_yp, n_z=n_work, upsample=upsample, dtype=rdtype, method=method),
         memory_limit,
@@ -496,7 +507,8 @@ def reconstruct_points(
             raise ValueError("weights must be >= 0")
     n_x_out = len(axes[0])
     n_y_out = len(axes[1]) if d == 2 else 1
-    n_y, n_x = _fast_lateral(n_y_out, n_x_out)  # transform sizes; the image is cropped back
+    square = d == 2 and abs(steps[1] - steps[0]) <= 1e-9 * steps[0]
+    n_y, n_x = _fast_lateral(n_y_out, n_x_out, square)  # transform sizes; the image is cropped back
     dx = steps[0]
     dy = steps[1] if d == 2 else 1.0
     checks.check_memory(
