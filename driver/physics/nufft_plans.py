@@ -42,7 +42,7 @@ class _Entry:
 
     def execute(self, data: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         with self.lock:
-            return self.plan.execute(data, out=out) if out is not None else self.plan.execute(data)
+            return self.plan.execute(data, out=out)
 
 
 def lateral_plan(nufft_type: int, coords: tuple[np.ndarray, ...], n_modes: tuple[int, ...], n_trans: int, *,

@@ -43,22 +43,13 @@ def _kvec(n: int, d: float) -> np.ndarray:
     return (2 * np.pi / d) * v
 
 
-def _interp_columns(P, w, w_new_cols, method):
-    """1-D interpolation along axis 0 of P (n_w, n_cols) from the uniform nodes w to a
-    query vector per column (w_new_cols, (n_q, n_cols)); queries above max(w) -> 0
-    (MATLAB's NaN / Octave's NA, zeroed by k-Wave)."""
+def _pchip_columns(P, w, w_new_cols):
+    """Piecewise-cubic Hermite (pchip, Octave's 'cubic') interpolation along axis 0 of P
+    (n_w, n_cols) from the uniform nodes w to a query vector per column (w_new_cols,
+    (n_q, n_cols)); queries above max(w) -> 0 (MATLAB's NaN / Octave's NA, zeroed by
+    k-Wave). Columns sharing k_lat² share their query vector and are interpolated together.
+    (Nearest and linear run in the compiled `_map_columns`.)"""
     wmax = w[-1]
-    if method in ("linear", "nearest"):
-        i = np.clip(np.searchsorted(w, w_new_cols, side="right") - 1, 0, len(w) - 2)
-        cols = np.arange(P.shape[1])[None, :]
-        if method == "linear":
-            frac = (w_new_cols - w[i]) / (w[i + 1] - w[i])
-            res = P[i, cols] * (1 - frac) + P[i + 1, cols] * frac
-        else:
-            upper = (w_new_cols - w[i]) >= (w[i + 1] - w_new_cols)  # ties -> upper node
-            res = P[np.where(upper, i + 1, i), cols]
-        return np.where(w_new_cols > wmax, 0.0, res)
-    # pchip (Octave 'cubic'): columns sharing k_lat² share their query vector
     out = np.zeros((w_new_cols.shape[0], P.shape[1]), dtype=np.complex128)
     gvals, gptr, order = group_columns(w_new_cols[0, :])
     for g in range(len(gvals)):
@@ -155,7 +146,7 @@ def _cubic_block(P_half, w_full, lat2, phase, kx, c):
     block[np.abs(wc) < c * np.sqrt(l2)] = 0
     block[~np.isfinite(block)] = 0
     w_new = c * np.sqrt((kx[n - 1 :] ** 2)[:, None] + l2)
-    return (_interp_columns(block, w_full, w_new, "cubic") * np.conj(phase)[None, :]).T
+    return (_pchip_columns(block, w_full, w_new) * np.conj(phase)[None, :]).T
 
 
 def _recon(p, dt, c, lateral_d, interp, pos_cond, dtype=np.float64, progress=None):

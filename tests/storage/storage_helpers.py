@@ -40,3 +40,16 @@ def meta(k: int) -> dict:
     return dict(run_id=1, boot_id=9, point_index=k, pulse_number=k, timestamp_s=0.01 * k,
                 bias_wavelength_m=1.55e-6, dc_level=0.8 + 0.01 * k, pulse_energy_j=2e-3,
                 dt_s=2e-8, scale=1e-3, offset=1e-4 * (k % 3))
+
+
+def assert_pacfish_checks_pass(pf, data) -> None:
+    """IPASC's own verdict on ``data`` (a ``pacfish.PAData``), each part asserted on its
+    own so that a failure names the part: completeness and consistency of the acquisition
+    and device metadata, consistency of the binary data. ``pf``: the pacfish module."""
+    acq, dev = data.meta_data_acquisition, data.meta_data_device
+    completeness, consistency = pf.CompletenessChecker(), pf.ConsistencyChecker()
+    assert completeness.check_acquisition_meta_data(acq)
+    assert consistency.check_acquisition_meta_data(acq)
+    assert completeness.check_device_meta_data(dev)
+    assert consistency.check_device_meta_data(dev)
+    assert consistency.check_binary_data(data.binary_time_series_data)

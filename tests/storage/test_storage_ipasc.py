@@ -8,7 +8,7 @@ import pytest
 
 from driver.scanfile import read_scan
 from service.storage.ipasc import export_scan, read_ipasc
-from tests.storage.storage_helpers import build_plan
+from tests.storage.storage_helpers import assert_pacfish_checks_pass, build_plan
 
 
 def test_round_trip_equals_scan(tmp_path, make_scan):
@@ -82,12 +82,7 @@ def test_pacfish_reads_our_export(tmp_path, make_scan, points):
     acq, dev = data.meta_data_acquisition, data.meta_data_device
     assert dev["general"]["unique_identifier"] == "fpscan,simFP,42,1.0"
     # IPASC's own verdict, each part on its own so a failure names the part
-    completeness, consistency = pf.CompletenessChecker(), pf.ConsistencyChecker()
-    assert completeness.check_acquisition_meta_data(acq)
-    assert consistency.check_acquisition_meta_data(acq)
-    assert completeness.check_device_meta_data(dev)
-    assert consistency.check_device_meta_data(dev)
-    assert consistency.check_binary_data(data.binary_time_series_data)
+    assert_pacfish_checks_pass(pf, data)
     assert pf.quality_check_pa_data(data)
     # and, independently of the checkers' loops, every tag IPASC defines is there
     for tag in A.TAGS:

@@ -6,7 +6,7 @@ import pytest
 
 from driver.scanfile import ScanFile, read_scan
 from service.storage.ipasc import export_scan, read_ipasc
-from tests.storage.storage_helpers import build_plan, meta, samples
+from tests.storage.storage_helpers import assert_pacfish_checks_pass, build_plan, meta, samples
 
 WAVELENGTHS = (7.6e-7, 8.5e-7)
 
@@ -39,13 +39,7 @@ def test_two_wavelengths_pacfish_checks_and_round_trip(tmp_path):
                                       ref.pressure_all[w])
     np.testing.assert_array_equal(data.get_acquisition_wavelengths(), WAVELENGTHS)
     np.testing.assert_allclose(data.meta_data_acquisition["pulse_energy"], [2e-3, 4e-3])
-    acq, dev = data.meta_data_acquisition, data.meta_data_device
-    completeness, consistency = pf.CompletenessChecker(), pf.ConsistencyChecker()
-    assert completeness.check_acquisition_meta_data(acq)
-    assert consistency.check_acquisition_meta_data(acq)
-    assert completeness.check_device_meta_data(dev)
-    assert consistency.check_device_meta_data(dev)
-    assert consistency.check_binary_data(data.binary_time_series_data)
+    assert_pacfish_checks_pass(pf, data)
     # our reader gives each wavelength back
     r1 = read_ipasc(out, wavelength_index=1)
     np.testing.assert_array_equal(r1["alines"], ref.pressure_all[1])
