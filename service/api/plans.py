@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import base64
 import contextlib
-import io
 import json
 from collections.abc import Iterator
 
@@ -84,13 +83,12 @@ def summary(plan: dict) -> Plan:
 
 
 def preview_png(plan: dict) -> bytes:
-    """The mask preview PNG (``service.plans.preview_png``: axes in mm, points coloured
-    by weight); for a plan it cannot read, the mask on its lattice (white = sensor point),
-    one pixel per lattice point, magnified to at least ~256 pixels across; so too for
-    plans of more than ``PREVIEW_DETAIL_POINTS`` points (the detailed drawing takes time
-    linear in the points)."""
-    from PIL import Image as PILImage
-
+    """The mask preview PNG, drawn by the one renderer (``service.storage.render``: x
+    right, y up, axes in mm at equal aspect, colour bar, ``fpscan:axes`` chunk): points
+    as coloured markers (``service.plans.preview_png``) up to ``PREVIEW_DETAIL_POINTS``
+    points; beyond that (markers cost time linear in the points) and for a plan the plan
+    model cannot read, the mask as an image on its lattice (``render_lattice``: one cell
+    per lattice point, coloured by weight)."""
     if len(plan["points"]["indices"]) <= PREVIEW_DETAIL_POINTS:
         try:
             from service.plans import Plan as PlanModel
@@ -99,19 +97,23 @@ def preview_png(plan: dict) -> bytes:
             return plans_preview(PlanModel.model_validate(plan))
         except (ImportError, ValueError):
             pass
+    from service.storage.render import render_lattice
 
-    lat = plan["lattice"]
-    n_x, n_y = int(lat["n_x"]), int(lat.get("n_y", 1))
-    img = np.zeros((n_y, n_x), dtype=np.uint8)
+    lat, mask = plan["lattice"], plan.get("mask", {})
+    n_x, n_y, pitch = int(lat["n_x"]), int(lat.get("n_y", 1)), float(lat["pitch"])
     idx = np.asarray(plan["points"]["indices"], dtype=np.int64).reshape(-1, 2)
-    img[idx[:, 1], idx[:, 0]] = 255
-    scale = max(1, 256 // max(n_x, n_y))
-    pil = PILImage.fromarray(img, mode="L")
-    if scale > 1:
-        pil = pil.resize((n_x * scale, n_y * scale), PILImage.Resampling.NEAREST)
-    buf = io.BytesIO()
-    pil.save(buf, format="PNG")
-    return buf.getvalue()
+    weights = np.asarray(plan["points"].get("weights") or [], dtype=np.float64)
+    line = n_y == 1
+    if weights.shape == (len(idx),):
+        values, label = weights * (1e6 if line else 1e12), "weight (µm)" if line else "weight (µm²)"
+    else:
+        values, label = np.ones(len(idx)), "sensor point"
+    ratio = mask.get("weight_ratio")
+    title = (f"{mask.get('kind', 'points')}: {len(idx)} of {mask.get('requested_points') or len(idx)} "
+             f"requested points on {n_x}×{n_y}" + (f"\nouter/inner weight ratio {ratio:.3g}" if ratio else ""))
+    p = (mask.get("params") or {}).get("poi")
+    poi = None if p is None else (float(np.ravel(p)[0]), float(np.ravel(p)[1]) if np.size(p) > 1 else 0.0)
+    return render_lattice(idx, values, n_x, n_y, pitch, title=title, colorbar_label=label, poi=poi)
 
 
 def _build_or_422(body) -> dict:

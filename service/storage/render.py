@@ -47,7 +47,8 @@ PLANES = ("xy", "xz", "yz")
 AXES_KEY = "fpscan:axes"
 
 __all__ = ["PLANES", "AXES_KEY", "mip", "to_uint8", "render_png", "render_mip", "render_mips",
-           "render_slice", "render_result_slice", "render_lateral", "render_points", "png_axes"]
+           "render_slice", "render_result_slice", "render_lateral", "render_points", "render_lattice",
+           "png_axes"]
 
 
 def _levels(img: np.ndarray, vmin: float | None, vmax: float | None) -> tuple[float, float]:
@@ -92,11 +93,7 @@ def render_png(img: np.ndarray, h: np.ndarray, v: np.ndarray, *, hlabel: str, vl
     img = np.asarray(img)
     if img.ndim != 2 or img.shape != (len(v), len(h)):
         raise ValueError(f"image shape {img.shape} does not match axes ({len(v)}, {len(h)})")
-    import matplotlib
-    try:
-        colormap = matplotlib.colormaps[cmap]
-    except KeyError:
-        raise ValueError(f"unknown colormap {cmap!r}") from None
+    colormap = _colormap(cmap)
     if not annotate:
         from PIL import Image as PILImage
         grey = to_uint8(img, vmin, vmax)
@@ -235,6 +232,57 @@ def render_points(positions: np.ndarray, values: np.ndarray, bounds: tuple, *,
         ax.set_aspect("equal")
     return _finish(fig, ax, sc, hlabel="x", vlabel=None if line else "y", title=title,
                    colorbar_label=colorbar_label)
+
+
+def render_lattice(indices: np.ndarray, values: np.ndarray, n_x: int, n_y: int, pitch: float, *,
+                   title: str | None = None, colorbar_label: str = "weight", poi: tuple | None = None,
+                   cmap: str = "viridis", empty_colour: Any = "0.9") -> bytes:
+    """PNG of a mask as an image on its lattice: one cell per lattice point, the points
+    ``indices`` ``(n, 2)`` (i_x, i_y) coloured by ``values`` ``(n,)``, the others in
+    ``empty_colour``; for masks of many points, where :func:`render_points`' markers cost
+    time linear in the points (≈ 1.7 s for 51 076) and merge into one another. Lattice
+    ``n_x × n_y`` at ``pitch`` m, centred (``x_i = (i - (n_x - 1)/2)·pitch``); a line
+    lattice (``n_y == 1``) is drawn as a band. The same frame as every picture: axes in mm,
+    equal aspect, y up, colour bar, ``fpscan:axes`` chunk; ``poi`` (x, y) m marked ``+``.
+    Raises ValueError (shapes, indices outside the lattice, pitch not > 0)."""
+    idx = np.asarray(indices, dtype=np.int64).reshape(-1, 2)
+    val = np.asarray(values, dtype=np.float64)
+    n_x, n_y = int(n_x), int(n_y)
+    if val.shape != (len(idx),):
+        raise ValueError(f"indices {idx.shape} / values {val.shape} must be (n, 2) / (n,)")
+    if n_x < 1 or n_y < 1 or not float(pitch) > 0:
+        raise ValueError(f"lattice {n_x} x {n_y} at pitch {pitch} m: need n >= 1 and pitch > 0")
+    if len(idx) and (idx.min() < 0 or idx[:, 0].max() >= n_x or idx[:, 1].max() >= n_y):
+        raise ValueError(f"indices outside the {n_x} x {n_y} lattice")
+    img = np.full((n_y, n_x), np.nan)
+    img[idx[:, 1], idx[:, 0]] = val
+    mm = float(pitch) * 1e3
+    x0, x1 = -n_x / 2 * mm, n_x / 2 * mm  # outermost points ± pitch/2
+    line = n_y == 1
+    band = 0.45 * (x1 - x0) if line else n_y * mm  # a line lattice: a band as render_points draws it
+    fig, ax = _figure(x1 - x0, band)
+    colormap = _colormap(cmap).with_extremes(bad=empty_colour)
+    finite = val[np.isfinite(val)]
+    lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
+    if not hi - lo > 1e-9 * max(abs(lo), abs(hi)):  # equal weights (up to rounding): one colour
+        lo, hi = lo - 0.5 * abs(lo or 1.0), hi + 0.5 * abs(hi or 1.0)
+    im = ax.imshow(np.ma.masked_invalid(img), cmap=colormap, vmin=lo, vmax=hi, origin="lower",
+                   extent=(x0, x1, -band / 2, band / 2), interpolation="nearest",
+                   aspect="auto" if line else "equal")
+    if line:
+        ax.set_yticks([])
+    if poi is not None:
+        ax.plot([poi[0] * 1e3], [0.0 if line else poi[1] * 1e3], marker="+", color="red", ms=14, mew=2)
+    return _finish(fig, ax, im, hlabel="x", vlabel=None if line else "y", title=title,
+                   colorbar_label=colorbar_label)
+
+
+def _colormap(name: str):
+    import matplotlib
+    try:
+        return matplotlib.colormaps[name]
+    except KeyError:
+        raise ValueError(f"unknown colormap {name!r}") from None
 
 
 def _coords(p0: np.ndarray, z: Any, x: Any, y: Any) -> tuple[np.ndarray, np.ndarray, Any]:

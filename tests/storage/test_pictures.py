@@ -144,3 +144,41 @@ def test_mask_preview_has_the_same_orientation(tmp_path):
     h = h_left + (cols.mean() + left + 0.5 - g["left"]) / (g["right"] - g["left"]) * (h_right - h_left)
     v = v_top + (rows.mean() + top + 0.5 - g["top"]) / (g["bottom"] - g["top"]) * (v_bottom - v_top)
     assert abs(h - 0.9) < 0.15 and abs(v - 0.7) < 0.15, (h, v)
+
+
+def test_large_plan_preview_has_the_same_orientation():
+    """A plan above ``PREVIEW_DETAIL_POINTS`` (what the API and the web result page show
+    for the README's 226 x 226 plan) is drawn as an image on its lattice by the same
+    renderer: mm axes at equal aspect, y up, the axes chunk. A 140 x 140 lattice missing
+    its +x, +y corner (40 x 40 points): the unscanned pixels sit in that corner."""
+    from driver.plan import plan_id_of
+    from service.api.plans import PREVIEW_DETAIL_POINTS, preview_png
+
+    n, hole = 140, 100
+    idx = [[i, j] for j in range(n) for i in range(n) if not (i >= hole and j >= hole)]
+    assert len(idx) > PREVIEW_DETAIL_POINTS
+    c = lambda i: (i - (n - 1) / 2) * PITCH  # noqa: E731
+    plan = {"format": "fpscan-plan/1", "lattice": {"n_x": n, "n_y": n, "pitch": PITCH},
+            "mask": {"kind": "points", "params": {}},
+            "points": {"indices": idx, "positions": [[c(i), c(j)] for i, j in idx],
+                       "weights": [PITCH ** 2] * len(idx)},
+            "order": "rows", "acquisition": {"n_t": N_T, "dt": DT, "averages": 1, "wavelengths": [7.5e-7],
+                                             "prf": 0.0, "sound_speed": C}}
+    plan["id"] = plan_id_of(plan)
+    png = preview_png(plan)
+    g = png_axes(png)
+    h_left, h_right, v_bottom, v_top = g["extent_mm"]
+    half = n / 2 * PITCH * 1e3
+    assert (h_left, h_right) == pytest.approx((-half, half), abs=0.1) and h_left < h_right
+    assert (v_bottom, v_top) == pytest.approx((-half, half), abs=0.1)  # y up
+    assert (g["bottom"] - g["top"]) == pytest.approx(g["right"] - g["left"], rel=0.02)  # square in mm
+    rgb = np.asarray(PILImage.open(io.BytesIO(png)).convert("RGB"), dtype=np.int32)
+    sat = np.abs(rgb[..., 0] - rgb[..., 1]) + np.abs(rgb[..., 1] - rgb[..., 2])
+    top, bottom, left, right = (int(g["top"]) + 2, int(g["bottom"]) - 2, int(g["left"]) + 2,
+                                int(g["right"]) - 2)
+    rows, cols = np.nonzero(sat[top:bottom, left:right] < 20)  # the grey, unscanned cells
+    h = h_left + (cols.mean() + left + 0.5 - g["left"]) / (g["right"] - g["left"]) * (h_right - h_left)
+    v = v_top + (rows.mean() + top + 0.5 - g["top"]) / (g["bottom"] - g["top"]) * (v_bottom - v_top)
+    corner = ((hole + n) / 2 - (n - 1) / 2) * PITCH * 1e3  # the hole's centre, mm
+    assert abs(h - corner) < 0.3 and abs(v - corner) < 0.3, (h, v, corner)
+    assert rows.size == pytest.approx((bottom - top) * (right - left) * (n - hole) ** 2 / n ** 2, rel=0.15)
