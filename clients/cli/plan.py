@@ -15,7 +15,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from clients.cli._common import add_server_options, client_errors
+from clients.cli._common import add_server_options, client_errors, needs_extra
 
 COMMAND = "plan"
 HELP = "make a scan plan (sensor mask + weights + order + acquisition settings) as plan JSON"
@@ -50,9 +50,17 @@ def _json_value(text: str) -> Any:
         source = text
     else:
         try:
-            source = Path(text).read_text(encoding="utf-8")
+            raw = Path(text).read_bytes()
         except OSError as exc:
             raise argparse.ArgumentTypeError(f"cannot read {text}: {exc}") from None
+        try:
+            source = raw.decode("utf-8")
+        except UnicodeDecodeError:
+            from driver.plan import file_kind  # names a scan file, a result, a NumPy array ...
+
+            what = file_kind(raw, Path(text))
+            raise argparse.ArgumentTypeError(f"{text}: this is {what or 'not UTF-8 text'}, "
+                                             "not a JSON list of pairs") from None
     try:
         return json.loads(source)
     except json.JSONDecodeError as exc:
@@ -120,15 +128,16 @@ def _common_options() -> argparse.ArgumentParser:
 def add_arguments(parser):
     """Declare ``fpscan plan``'s options on ``parser``: one sub-parser per mask kind
     (aliases included) with one flag per parameter of its model, plus the common options.
-    Where the planner (``service.plans``: numpy, scipy, pydantic) is not installed, e.g. a
-    client-only install, the command is declared but says so when run."""
+    Where the planner (``service.plans``: numpy, scipy; the ``fpscan[driver]`` extra) is not
+    installed, e.g. a client-only install, the command is declared but says so when run."""
     try:
         from service.plans.kinds import KINDS, kind_fields
+
+        common = _common_options()
     except ImportError as exc:
         parser.add_argument("rest", nargs=argparse.REMAINDER, help=argparse.SUPPRESS)
         parser.set_defaults(_planner_missing=str(exc))
         return
-    common = _common_options()
     sub = parser.add_subparsers(dest="mask", metavar="KIND", title="mask kinds")
     sub.required = True
     for k in KINDS.values():
@@ -181,8 +190,7 @@ def request_body(args) -> dict:
 def run(args) -> int:
     """Make the plan locally (``--out``) or on the server (``--server``); exit status."""
     if getattr(args, "_planner_missing", None):
-        raise RuntimeError(f"fpscan plan needs the planner (service.plans), not installed here: "
-                           f"{args._planner_missing}")
+        return needs_extra(args, "driver", args._planner_missing)
     if not args.out and not args.server:
         raise ValueError("give --out FILE (a local plan) or --server URL (a plan on the server)")
     body = request_body(args)

@@ -94,7 +94,10 @@ def run(args) -> int:
 
     if args.window < 1 or args.timeout <= 0:
         raise ValueError("--window must be >= 1 and --timeout > 0")
-    plan = load_plan(args.plan)  # a wrong file is named before the device is opened
+    try:
+        plan = load_plan(args.plan)  # a wrong file is named before the device is opened
+    except ValueError as exc:
+        return _bad_plan(exc)
     before = _points_on_disk(args.out)
     last: dict = {}
     t0 = time.monotonic()
@@ -135,22 +138,49 @@ def run(args) -> int:
     return 0
 
 
+def _bad_plan(exc: ValueError) -> int:
+    """A ``--plan`` that is no plan (another kind of file, not JSON, a plan that fails its
+    check) is a usage error: its reason on one line, exit 2."""
+    import sys
+
+    print(f"fpscan scan: error: {exc}", file=sys.stderr)
+    return 2
+
+
+def _plan_json(source) -> dict:
+    """The JSON of the plan file ``source`` (a plan, or a plan request the server builds),
+    as the server is sent it. Raises ValueError: a file that is not JSON text is named by
+    the one plan loader (``driver.plan.load_plan``: "this is a scan file, not a plan"),
+    bad JSON with its position."""
+    import json
+
+    raw = source.read_bytes()
+    try:
+        return json.loads(raw.decode("utf-8"))
+    except UnicodeDecodeError:
+        from driver.plan import load_plan
+
+        load_plan(source)  # raises, naming the kind of file (scan, result, IPASC, NumPy, PNG)
+        raise ValueError(f"{source}: not a plan: the file is not UTF-8 JSON text") from None
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{source} is not valid JSON: {exc}") from None
+
+
 def _remote(args) -> int:
     """The scan as a server job: upload the plan JSON (or take a plan id), start the scan,
     follow it with a progress bar, download the scan file to ``--out``."""
-    import json
     from pathlib import Path
 
     from clients.cli._common import ProgressBar, make_client
     from clients.http import field_of
 
     source = Path(args.plan)
+    try:
+        plan = _plan_json(source) if source.is_file() else None  # a wrong file is named before any request
+    except ValueError as exc:
+        return _bad_plan(exc)
     with make_client(args) as api:
-        if source.is_file():
-            try:
-                plan = json.loads(source.read_text(encoding="utf-8"))
-            except json.JSONDecodeError as exc:
-                raise ValueError(f"{source} is not valid JSON: {exc}") from None
+        if plan is not None:
             created = api.create_plan(plan)
             plan_id = field_of(created, "id")
             if isinstance(plan, dict) and plan.get("id") not in (None, plan_id):

@@ -25,9 +25,24 @@ def test_scan_with_a_scan_file_or_result_as_plan(tmp_path, make_scan, capsys):
                         (_result(tmp_path), "this is a reconstruction result, not a plan")):
         rc = main(["scan", "--device", str(tmp_path / "no-such-device"), "--plan", str(wrong),
                    "--out", str(tmp_path / "out.h5")])
-        assert rc == 1
+        assert rc == 2
         assert kind in capsys.readouterr().err
     assert not (tmp_path / "out.h5").exists()
+
+
+def test_server_scan_and_plan_with_a_scan_file(tmp_path, make_scan, capsys):
+    """With --server the plan file is read by the same loader: the scan file is named
+    before any request (nothing listens at the address), exit 2; so too a scan file
+    given to ``fpscan plan points --indices`` (an argparse usage error)."""
+    scan = make_scan("scan.h5", build_plan(3, 3, 16))
+    nowhere = "http://127.0.0.1:9"
+    rc = main(["scan", "--server", nowhere, "--scanner", "sim", "--plan", str(scan), "-q"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "this is a scan file, not a plan" in err and "codec" not in err
+    with pytest.raises(SystemExit) as stop:
+        main(["plan", "points", "--indices", str(scan), "--server", nowhere])
+    assert stop.value.code == 2
+    assert "this is a scan file, not a JSON list" in capsys.readouterr().err
 
 
 def test_recon_with_a_result_or_a_plan_as_input(tmp_path, capsys):
