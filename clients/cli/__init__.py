@@ -3,7 +3,8 @@
 Every module in this package that defines ``COMMAND`` (the subcommand's name),
 ``HELP`` (one line), ``add_arguments(parser)`` and ``run(args) -> int`` is a
 subcommand. Modules must import heavy dependencies inside ``run`` so that
-``fpscan --help`` stays fast.
+``fpscan --help`` stays fast and works on the base install (httpx + pydantic): a command
+run where its extra is missing says so in one line (exit 2).
 
 Exit codes: 0 success, 1 failure (one-line reason on stderr), 2 usage error.
 """
@@ -46,6 +47,7 @@ def main(argv: list[str] | None = None) -> int:
     """Run ``fpscan`` with ``argv`` (default: ``sys.argv[1:]``); return the exit status."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    from clients.cli._common import missing_extra, needs_extra
     from driver.units import ImplausibleValue
 
     try:
@@ -53,6 +55,11 @@ def main(argv: list[str] | None = None) -> int:
     except ImplausibleValue as exc:  # a unit mistake is a usage error, like a bad flag
         print(f"fpscan {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except ImportError as exc:  # a command run on an install without its extra
+        extra = missing_extra(exc)
+        if extra is None:
+            raise
+        return needs_extra(args, extra, str(exc))
     except KeyboardInterrupt:
         print("fpscan: interrupted", file=sys.stderr)
         return 130

@@ -36,6 +36,35 @@ def default_dtype() -> str:
     return DEFAULT_DTYPE
 
 
+#: top-level modules of the optional extras (pyproject.toml) -> the extra that installs them
+EXTRA_OF_MODULE = {
+    **dict.fromkeys(["numpy", "scipy", "finufft", "numba", "h5py", "serial", "cobs", "pint",
+                     "matplotlib", "PIL", "tifffile", "pylops", "pyproximal"], "driver"),
+    **dict.fromkeys(["fastapi", "starlette", "uvicorn", "multipart", "python_multipart", "sse_starlette",
+                     "distributed", "dask", "pydantic_settings", "psutil"], "server"),
+}
+
+
+def missing_extra(exc: BaseException) -> str | None:
+    """The extra (``"driver"`` or ``"server"``) whose absence ``exc`` shows: a
+    ``ModuleNotFoundError`` (or ``ImportError`` naming its module) for one of the
+    optional dependencies in ``EXTRA_OF_MODULE``; None for any other error."""
+    name = getattr(exc, "name", None)
+    if not isinstance(exc, ImportError) or not name:
+        return None
+    return EXTRA_OF_MODULE.get(name.split(".")[0])
+
+
+def needs_extra(args, extra: str, detail: str = "") -> int:
+    """Say in one line on stderr that ``fpscan <command>`` (as asked) needs the ``extra``
+    install (``pip install 'fpscan[<extra>]'``); return 2 (a usage error: the command
+    cannot run on this install)."""
+    what = f" ({detail})" if detail else ""
+    print(f"fpscan {getattr(args, 'command', '')}: error: this needs the fpscan[{extra}] extra, "
+          f"not installed here{what}: pip install 'fpscan[{extra}]'", file=sys.stderr)
+    return 2
+
+
 def speed(value: str) -> float | str:
     """Type of a ``--c`` option: ``"auto"`` (autofocus) or a speed of sound, a bare number
     in m/s or text with a unit (``1.5 mm/us``; :func:`quantity`). A bad value is a usage
@@ -172,6 +201,12 @@ def quantity(kind: str, name: str) -> Callable[[str], float]:
             return parse_quantity(text, kind, name=name)
         except ValueError as exc:
             raise argparse.ArgumentTypeError(str(exc)) from None
+        except ImportError as exc:  # a unit needs pint: the driver extra
+            if missing_extra(exc) is None:
+                raise
+            raise argparse.ArgumentTypeError(
+                f"{name}: reading units needs the fpscan[{missing_extra(exc)}] extra, not installed here; "
+                f"give a bare SI number instead") from None
 
     parse.__name__ = kind  # argparse names the type in its messages
     return parse

@@ -346,19 +346,24 @@ def test_slice_png(api, tmp_path):
     assert err.value.status_code == 422 and "index" in str(err.value)
 
 
-# Blocks every import of the server stack and of the numeric/driver dependencies: what a
-# client machine with only httpx (+ httpx-sse) and pydantic installed would see.
-CLIENT_ONLY = r'''
-import importlib.abc, json, sys
-BLOCKED = {"service", "fastapi", "starlette", "uvicorn", "sse_starlette", "multipart",
-           "distributed", "dask", "pydantic_settings", "numpy", "scipy", "h5py", "finufft",
-           "numba", "matplotlib", "PIL", "serial", "cobs", "psutil"}
+# What a client machine with only the base install (httpx, httpx-sse, pydantic, rich) sees:
+# every package of the optional extras fails to import (ModuleNotFoundError, as when absent).
+# The fpscan packages themselves (clients, service, driver) are installed with the base.
+BLOCKER = r'''
+import importlib.abc, sys
+BLOCKED = {"numpy", "scipy", "h5py", "pint", "fastapi", "starlette", "uvicorn", "sse_starlette",
+           "multipart", "pydantic_settings", "dask", "distributed", "finufft", "numba", "matplotlib",
+           "PIL", "tifffile", "pylops", "pyproximal", "serial", "cobs", "psutil"}
 class Block(importlib.abc.MetaPathFinder):
     def find_spec(self, name, path=None, target=None):
         if name.split(".")[0] in BLOCKED:
-            raise ImportError(f"blocked: {name}")
+            raise ModuleNotFoundError(f"No module named {name!r}", name=name)
         return None
 sys.meta_path.insert(0, Block())
+'''
+
+CLIENT_ONLY = BLOCKER + r'''
+import json
 from clients.http import Client
 from clients.http import models
 url, token, body = sys.argv[1], sys.argv[2], json.loads(sys.argv[3])
@@ -367,35 +372,64 @@ with Client(url, token=token) as api:
     again = api.get_plan(plan.id)
     jobs = api.list_jobs()
 assert isinstance(plan, models.Plan) and again == plan, (type(plan), plan)
+print(json.dumps({"id": plan.id, "n_points": plan.n_points, "jobs": len(jobs)}))
+'''
+
+CLI = BLOCKER + r'''
 from clients.cli import main
-try:
-    main(["--version"])
-except SystemExit as exc:
-    assert exc.code == 0, exc.code
-loaded = sorted({m.split(".")[0] for m in sys.modules} & BLOCKED)
-print(json.dumps({"id": plan.id, "n_points": plan.n_points, "jobs": len(jobs), "loaded": loaded}))
+sys.exit(main(sys.argv[1:]))
 '''
 
 
-def test_client_runs_without_the_server_stack(server):
-    """``clients.http`` (and ``fpscan --version``) work in a process where importing the
-    service package, FastAPI, dask, numpy, h5py, ... fails; the responses parse into the
-    client's own models (``clients.http.models``)."""
-    import json
+def _client_only(*args, script=CLI, env=None):
     import subprocess
     import sys
 
+    return subprocess.run([sys.executable, "-c", script, *map(str, args)], capture_output=True, text=True,
+                          timeout=120, env=env)
+
+
+def test_client_runs_without_the_server_stack(server, tmp_path):
+    """On the base install (every package of the extras refuses to import): the HTTP client
+    creates and reads a plan (its own models, ``clients.http.models``); ``fpscan --version``,
+    ``--help`` (every command's too) and ``fpscan jobs list --server`` work; an unreachable
+    server and a command that needs the driver extra are one-line reasons (exit 1, exit 2),
+    never an ImportError."""
+    import json
+    import os
+
     body = _points_body()
-    out = subprocess.run([sys.executable, "-c", CLIENT_ONLY, server, TOKEN, json.dumps(body)],
-                         capture_output=True, text=True, timeout=120)
+    out = _client_only(server, TOKEN, json.dumps(body), script=CLIENT_ONLY)
     assert out.returncode == 0, out.stderr[-3000:]
-    lines = out.stdout.strip().splitlines()
-    assert lines[0].startswith("fpscan ")  # --version
-    got = json.loads(lines[-1])
-    assert got["loaded"] == []
+    got = json.loads(out.stdout.strip().splitlines()[-1])
     assert got["n_points"] == len(body["points"])
     with Client(server, token=TOKEN) as api:  # the same plan, seen by the full client
         assert api.get_plan(got["id"]).n_points == len(body["points"])
+        n_jobs = len(api.list_jobs())
+
+    version = _client_only("--version")
+    assert version.returncode == 0 and version.stdout.startswith("fpscan "), version.stderr[-3000:]
+    helps = _client_only("--help")
+    assert helps.returncode == 0 and "recon" in helps.stdout and "plan" in helps.stdout, helps.stderr[-3000:]
+    for command in ("plan", "recon", "unmix", "scan", "export", "jobs", "serve", "sim", "demo", "evaluate"):
+        res = _client_only(command, "--help")
+        assert res.returncode == 0 and res.stdout.startswith("usage: fpscan " + command), (command, res.stderr)
+
+    env = {**os.environ, "FPSCAN_TOKEN": TOKEN}
+    listed = _client_only("jobs", "list", "--server", server, "--json", env=env)
+    assert listed.returncode == 0, listed.stderr[-3000:]
+    assert len(json.loads(listed.stdout)) == n_jobs
+
+    down = _client_only("jobs", "list", "--server", f"http://127.0.0.1:{free_port()}", env=env)
+    assert down.returncode == 1 and down.stderr.count("\n") == 1, down.stderr
+    assert down.stderr.startswith("fpscan jobs: error: cannot reach"), down.stderr
+
+    for argv in (["plan", "full", "--out", tmp_path / "p.json"], ["serve"],
+                 ["recon", __file__]):
+        res = _client_only(*argv)
+        extra = "server" if argv[0] == "serve" else "driver"
+        assert res.returncode == 2 and res.stderr.count("\n") == 1, (argv, res.stderr)
+        assert f"fpscan[{extra}]" in res.stderr and "Traceback" not in res.stderr, (argv, res.stderr)
 
 
 def test_client_models_mirror_the_servers_schema(server):
