@@ -115,8 +115,14 @@ def register(method: Method) -> Method:
 
 
 def default_method(dataset: Any) -> str:
-    """``"ner"`` for grid data, ``"nedner"`` for sensor points (any mask)."""
-    return "ner" if getattr(dataset, "kind", None) == "grid" else "nedner"
+    """The method used when none is asked for -- the one rule for ``fpscan recon``/``unmix``
+    (locally and with ``--server``), the API (a request without ``method``) and the job
+    worker: ``"ner"`` for grid data, ``"nedner"`` for sensor points (any mask).
+
+    ``dataset``: a dataset (its ``kind``) or the kind itself, ``"grid"`` or ``"points"``
+    (a stored dataset's ``layout``; a scan file loads as points)."""
+    kind = dataset if isinstance(dataset, str) else getattr(dataset, "kind", None)
+    return "ner" if kind == "grid" else "nedner"
 
 
 def _dtype(value: Any) -> np.dtype:

@@ -37,7 +37,8 @@ def add_arguments(parser):
                              "or fpscan dataset)")
     methods = "; ".join(f"{m.name}: {m.title}" for m in METHODS.values())
     parser.add_argument("--method", choices=list(METHODS) or None, default=None,
-                        help=f"reconstruction method (default: nedner for scans/IPASC, ner for grids). {methods}. "
+                        help="reconstruction method (default: the pipeline's, service.pipeline.default_method: "
+                             f"ner for grid data, nedner for sensor points; locally and on the server). {methods}. "
                              "Grid methods need every lattice point.")
     parser.add_argument("--out", default=None, metavar="DIR",
                         help="output folder (default: <input>-<method>/ or recon-<job>/)")
@@ -78,8 +79,14 @@ def add_arguments(parser):
 
 
 def _sniff_format(path) -> str:
-    """The input's format from its content (``service.storage.datasets.detect_format``)."""
-    from service.storage.datasets import detect_format
+    """The input's format from its content (``service.storage.datasets.detect_format``).
+    Where that reader's dependencies (h5py: the driver extra) are missing, a
+    ``ModuleNotFoundError`` that says to give ``--format``."""
+    try:
+        from service.storage.datasets import detect_format
+    except ModuleNotFoundError as exc:
+        raise ModuleNotFoundError(f"no module {exc.name} to tell the file's format: give --format",
+                                  name=exc.name) from None
 
     try:
         return detect_format(path)
@@ -97,6 +104,8 @@ def _params(args) -> dict:
         params["positivity"] = bool(args.positivity)
     if args.c_range is not None:
         params["c_range"] = list(args.c_range)
+    if args.force:  # the speed-of-sound rule, as the library and the API apply it
+        params["force"] = True
     return params
 
 
@@ -115,10 +124,11 @@ def run(args) -> int:
         if not Path(args.input).is_file():
             raise ValueError(f"no such file: {args.input}")
     fmt = None if args.scan_job else (args.format or _sniff_format(args.input))
-    method = args.method or ("nedner" if fmt in (None, "fpscan", "ipasc", "dataset") else "ner")
+    # no --method: the pipeline's default for the loaded data (service.pipeline.default_method),
+    # resolved where the data is read: here locally, by the server with --server
     if args.server:
-        return _remote(args, fmt, method)
-    return _local(args, fmt, method)
+        return _remote(args, fmt)
+    return _local(args, fmt)
 
 
 def _default_out(args, method: str):
@@ -132,22 +142,23 @@ def _default_out(args, method: str):
     return p.with_name(f"{p.stem}-{method}")
 
 
-def _local(args, fmt: str, method: str) -> int:
+def _local(args, fmt: str) -> int:
     import sys
     import time
     from pathlib import Path
 
-    from service.pipeline import reconstruct
+    from service.pipeline import default_method, reconstruct
     from service.storage.datasets import load_dataset
     from service.storage.results import write_result
 
-    out = _default_out(args, method)
     say = (lambda msg: None) if args.quiet else (lambda msg: print(f"recon: {msg}", file=sys.stderr, flush=True))
     t0 = time.perf_counter()
     say(f"importing {args.input} ({fmt})")
     ds = load_dataset(args.input, fmt, dt=args.dt, dx=args.dx, dy=args.dy,
                       c=None if args.c == "auto" else args.c, key=args.key, force=args.force)
     t1 = time.perf_counter()
+    method = args.method or default_method(ds)
+    out = _default_out(args, method)
     shape = ds.data.shape if ds.kind == "grid" else ds.alines.shape
     say(f"reconstructing with {method} (input {list(shape)})")
     from clients.cli._common import ProgressBar
@@ -162,29 +173,35 @@ def _local(args, fmt: str, method: str) -> int:
     dims = "x".join(str(n) for n in rec.p0.shape)
     af = rec.params.get("autofocus")
     focus = f"  c {af['c']:.1f} m/s (autofocus, search {af['time_s']:.2f} s)" if af else ""
-    print(f"{out}/volume.h5  p0 {dims}  load {t1 - t0:.2f} s  reconstruct {t2 - t1:.2f} s  write {t3 - t2:.2f} s"
+    print(f"{out}/volume.h5  p0 {dims}  method {method}  load {t1 - t0:.2f} s  reconstruct {t2 - t1:.2f} s  "
+          f"write {t3 - t2:.2f} s"
           + focus)
     return 0
 
 
-def _remote(args, fmt: str | None, method: str) -> int:
+def _remote(args, fmt: str | None) -> int:
     from clients.cli._common import ProgressBar, make_client
 
     with make_client(args, timeout=300) as api:
         if args.scan_job:
-            job_id = api.start_reconstruction(scan_job_id=args.scan_job, method=method, params=_params(args))
+            job_id = api.start_reconstruction(scan_job_id=args.scan_job, method=args.method, params=_params(args))
         else:
             from driver.units import check_plausible
 
             check_plausible(dt=args.dt, dx=args.dx, dy=args.dy, sound_speed=None if args.c == "auto" else args.c,
                             force=args.force)
             fields = {k: getattr(args, k) for k in ("dt", "dx", "dy", "c", "key")}
+            if args.force:
+                fields["force"] = True
             if fields["c"] == "auto":  # a search, not the data's speed: it goes with the reconstruction
                 fields["c"] = None
             dataset_id = api.upload_dataset(args.input, fmt, **fields)
-            job_id = api.start_reconstruction(dataset_id=dataset_id, method=method, params=_params(args))
+            job_id = api.start_reconstruction(dataset_id=dataset_id, method=args.method, params=_params(args))
         with ProgressBar(f"recon {job_id[:8]}", quiet=args.quiet) as bar:
-            api.wait(job_id, on_progress=bar)
+            job = api.wait(job_id, on_progress=bar)
+        from clients.http import field_of
+
+        method = (field_of(job, "params") or {}).get("method") or args.method  # as the server resolved it
         out = _default_out(args, method)
         api.download_volume(job_id, out / "volume.h5")
         planes = []
@@ -197,5 +214,5 @@ def _remote(args, fmt: str | None, method: str) -> int:
 
                 if not isinstance(exc, (NotFound, ApiError)) or plane == "xz":
                     raise
-        print(f"{out}/volume.h5  job {job_id}  MIPs {', '.join(planes)}")
+        print(f"{out}/volume.h5  job {job_id}  method {method}  MIPs {', '.join(planes)}")
     return 0

@@ -124,8 +124,7 @@ def _remote(args) -> int:
     from clients.http import field_of
 
     formats = [args.format or _sniff_format(p) for p in args.inputs]
-    # the local default (service.pipeline.default_method): nedner for scans, ner for grids
-    method = args.method or ("nedner" if args.scan_job or formats[0] in ("fpscan", "ipasc", "dataset") else "ner")
+    method = args.method  # None: the server applies service.pipeline.default_method, as _local does
     with make_client(args, timeout=300) as api:
         unmix = {"threshold": args.threshold, "fluence": args.fluence}
         if args.scan_job:

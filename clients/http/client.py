@@ -333,19 +333,22 @@ class _Endpoints:
         return str(body.get("dataset_id") or body.get("id"))
 
     def start_reconstruction(self, *, scan_job_id: str | None = None, dataset_id: str | None = None,
-                             method: str = "nedner", params: Mapping | None = None,
+                             method: str | None = None, params: Mapping | None = None,
                              idempotency_key: str | None = None):
         """``POST /api/reconstructions`` -> the reconstruction job's id (202).
 
         Exactly one of ``scan_job_id`` / ``dataset_id``; ``method`` one of the
-        ``service.recon`` methods (``ner``, ``nedner``, ``linear``, ...); ``params`` the
+        ``service.recon`` methods (``ner``, ``nedner``, ``linear``, ...; None: the server's
+        default for the data, ner for grid data, nedner for sensor points); ``params`` the
         recon options (``eps``, ``dtype``, ``upsample``, ``positivity``, ...; ``tv``:
         ``lam`` (λ, default automatic) and ``iterations``; the job's progress stage
         names the iteration).
         Raises ``ValueError`` when both or neither input is given."""
         if (scan_job_id is None) == (dataset_id is None):
             raise ValueError("give exactly one of scan_job_id or dataset_id")
-        body: dict[str, Any] = {"method": method, "params": dict(params or {})}
+        body: dict[str, Any] = {"params": dict(params or {})}
+        if method is not None:
+            body["method"] = method
         if scan_job_id is not None:
             body["scan_job_id"] = scan_job_id
         else:

@@ -405,7 +405,9 @@ class ReconRequest(_Request):
         None, min_length=1, max_length=16, description="one dataset per wavelength (with unmix)")
     wavelengths: list[Annotated[float, Field(gt=0, allow_inf_nan=False)]] | None = Field(
         None, max_length=16, description="excitation wavelength of each of dataset_ids, m")
-    method: ReconMethod = "nedner"  # type: ignore[valid-type]
+    method: ReconMethod | None = Field(  # type: ignore[valid-type]
+        None, description="reconstruction method; absent or null: the default for the input "
+                          "(service.pipeline.default_method: ner for grid data, nedner for sensor points)")
     params: ReconParams = Field(default_factory=ReconParams)
     unmix: UnmixOptions | None = Field(None, description="unmix HbO2/Hb after reconstructing every wavelength")
 

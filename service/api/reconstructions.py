@@ -14,7 +14,7 @@ from service.api.jobs import get_job_or_404, job_view
 from service.api.models import ID_PATTERN, Job, MethodInfo, MethodOption, Plane, ReconRequest
 from service.jobs.queue import AdmissionError, admit, estimate_memory
 from service.jobs.store import IdempotencyConflict
-from service.pipeline import METHODS, OPTIONS, method_options
+from service.pipeline import METHODS, OPTIONS, default_method, method_options
 
 router = APIRouter(prefix="/api/reconstructions", tags=["reconstructions"])
 
@@ -33,6 +33,20 @@ def _full_scan_job_id(c: Context, body: ReconRequest) -> ReconRequest:
     if len(found) > 1:
         raise HTTPException(409, f"scan_job_id {sid!r} matches several jobs: give more characters")
     return body.model_copy(update={"scan_job_id": found[0]}) if found else body
+
+
+def _with_method(c: Context, body: ReconRequest) -> ReconRequest:
+    """``body`` with its ``method`` resolved: as given, or the default for the input
+    (``service.pipeline.default_method`` of a stored dataset's layout; a scan file loads as
+    sensor points). An unknown dataset is left to the input checks (404)."""
+    if body.method is not None:
+        return body
+    kind = "points"
+    ds_id = body.dataset_id if body.dataset_id is not None else next(iter(body.dataset_ids or ()), None)
+    if ds_id is not None:
+        meta = c.store.get_dataset(ds_id)
+        kind = meta["layout"] if meta is not None else "points"
+    return body.model_copy(update={"method": default_method(kind)})
 
 
 def _check_unmix_wavelengths(wavelengths: list) -> None:
@@ -84,11 +98,13 @@ def _input_for(c: Context, body: ReconRequest) -> tuple[dict, dict, str]:
         raise HTTPException(422, "dataset_ids (one dataset per wavelength) need unmix")
     if (body.scan_job_id is None) == (body.dataset_id is None):
         raise HTTPException(422, "give exactly one of scan_job_id or dataset_id")
+    method = body.method
+    assert method is not None  # resolved by _with_method
     try:
-        method_options(body.method, body.params.model_dump())
+        method_options(method, body.params.model_dump())
     except ValueError as exc:
         raise HTTPException(422, str(exc)) from None
-    needs_grid = METHODS[body.method].needs_grid
+    needs_grid = METHODS[method].needs_grid
     if body.scan_job_id is not None:
         job = c.store.get(body.scan_job_id)
         if job is None or job["kind"] != "scan":
@@ -147,7 +163,7 @@ def start_reconstruction(body: ReconRequest, response: Response, c: Context = De
                          idempotency_key: str | None = IdemKey) -> Job:
     """Queue a reconstruction → 202, ``Location: /api/jobs/{id}``. Refused with 422 when
     it can never fit in the memory limit."""
-    body = _full_scan_job_id(c, body)
+    body = _with_method(c, _full_scan_job_id(c, body))
     extra: dict = {}
     if body.unmix is not None:
         extra, shape, input_id = _unmix_inputs(c, body)

@@ -118,7 +118,7 @@ def run_reconstruction(spec: dict) -> dict:
     admission checked again on the loaded input, address space bounded while it runs).
     Returns ``{"shape", "max", "planes", "timings", "points_used"}``. Raises
     ``ValueError`` for inputs the method cannot use or that exceed the memory limit."""
-    from service.pipeline import reconstruct
+    from service.pipeline import default_method, reconstruct
     from service.storage.results import write_result
 
     if spec.get("unmix") is not None:
@@ -133,7 +133,7 @@ def run_reconstruction(spec: dict) -> dict:
     if limit:
         check_memory_limit(ds, params, int(limit))
     t1 = time.perf_counter()
-    method = params.pop("method", "nedner")
+    method = params.pop("method", None) or default_method(ds)
     try:
         with address_space_limit(limit):
             rec = reconstruct(ds, method, progress=lambda f, stage: report_stage(progress, stage, 0.2 + 0.7 * f),
