@@ -146,6 +146,31 @@ _LENGTH_UNITS = ((1e-6, "µm", "um"), (1e-3, "mm", "mm"), (1e-9, "nm", "nm"))
 _TIME_UNITS = ((1e-9, "ns", "ns"), (1e-6, "µs", "us"), (1e-12, "ps", "ps"))
 
 
+def check_speeds(*, c: Any = None, c_range: Any = None, force: bool = False) -> None:
+    """The speed-of-sound rule for reconstruction options (``service.pipeline.reconstruct``,
+    the API's ``ReconParams``): a numeric ``c`` (m/s) and each end of the autofocus search
+    interval ``c_range`` within 1000–2000 m/s unless ``force``. ``"auto"``, None and
+    non-numbers pass (their own checks name them). Raises :class:`ImplausibleValue`
+    naming ``c`` or ``c_range`` and the likely unit mistake."""
+    def number(v: Any) -> bool:
+        return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+    if force:
+        return
+    if number(c):
+        try:
+            check_plausible(sound_speed=float(c))
+        except ImplausibleValue as exc:
+            raise ImplausibleValue(f"c: {exc}") from None
+    if isinstance(c_range, (list, tuple)):
+        for end in c_range:
+            if number(end):
+                try:
+                    check_plausible(sound_speed=float(end))
+                except ImplausibleValue as exc:
+                    raise ImplausibleValue(f"c_range: {exc}") from None
+
+
 def check_plausible(*, pitch: float | None = None, dx: float | None = None, dy: float | None = None,
                     dt: float | None = None, n_t: int | None = None, prf: float | None = None,
                     sound_speed: float | None = None, depth: float | None = None,

@@ -26,6 +26,10 @@ Options (SI units; ``None`` means "the default"):
 - ``interp``: k-Wave's interpolation (``kwave``): ``"*nearest"`` (k-Wave's default),
   ``"nearest"``, ``"*linear"``, ``"linear"``, ``"*cubic"``, ``"cubic"``.
 
+A ``c`` (and each end of ``c_range``) outside 1000-2000 m/s is refused as a likely unit
+mistake (``driver.units.check_speeds``, the rule of the CLI, the API and the web form)
+unless :func:`reconstruct` is called with ``force=True`` (another medium).
+
 Contracts shared with the callers (docs/architecture.md): ``progress(fraction, stage)``
 is called with increasing fractions in [0, 1] (stage ``"reconstructing"``);
 ``should_stop()`` is polled between the steps of the reconstruction, and when it returns
@@ -35,6 +39,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -138,11 +143,12 @@ def method_options(method: str, options: dict) -> dict:
     k-Wave's and our methods side by side); a name that is no option at all
     (:data:`OPTIONS`) raises ValueError naming it, as does an unknown method, and a
     ``c_range`` without ``c="auto"`` or outside :func:`service.autofocus.check_c_range`.
+    ``force`` (:func:`reconstruct`'s flag, not a method's option) passes and is left out.
     Returns a new dict."""
     spec = METHODS.get(method)
     if spec is None:
         raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
-    unknown = sorted(set(options) - set(OPTIONS))
+    unknown = sorted(set(options) - set(OPTIONS) - {"force"})  # force: reconstruct's own flag
     if unknown:
         raise ValueError(f"unknown option {', '.join(unknown)} (options: {', '.join(OPTIONS)})")
     if options.get("c_range") is not None:  # never silently unused
@@ -155,7 +161,7 @@ def method_options(method: str, options: dict) -> dict:
 
 
 def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = None,
-                should_stop: ShouldStop | None = None, **options: Any) -> Reconstruction:
+                should_stop: ShouldStop | None = None, force: bool = False, **options: Any) -> Reconstruction:
     """Reconstruct p0 from ``dataset`` with ``method`` (a key of :data:`METHODS`).
 
     Parameters
@@ -165,6 +171,9 @@ def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = No
     method : ``nedner``, ``ner``, ``linear``, ``nearest``, ``cubic``, ``kwave``, ...
     progress : optional ``progress(fraction, stage)``.
     should_stop : optional ``should_stop() -> bool``, polled between steps.
+    force : accept a ``c`` (or ``c_range``) outside 1000-2000 m/s (a medium other than
+        tissue or water); without it such a value is a ValueError naming the likely unit
+        mistake (``driver.units.ImplausibleValue``).
     **options : the method's options (module docstring); ``None`` = default; options
         only other methods take are ignored.
 
@@ -176,20 +185,25 @@ def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = No
     Raises
     ------
     ValueError naming the problem (unknown method or option name, a grid method on a
-    sensor mask, no A-lines, bad values);
+    sensor mask, no A-lines, bad values, an implausible ``c`` without ``force``);
     Cancelled when ``should_stop()`` returned True.
     """
     spec = METHODS.get(method)
     if spec is None:
         raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
     opts = {**spec.defaults, **method_options(method, options)}
+    from driver.units import check_speeds
+
+    check_speeds(c=opts.get("c"), c_range=options.get("c_range"), force=force)
     if isinstance(opts.get("c"), str):
         if opts["c"] != "auto":
             raise ValueError(f"c must be a speed of sound in m/s or 'auto', got {opts['c']!r}")
         from service.autofocus import focus_then_reconstruct
 
         rest = {k: v for k, v in options.items() if k not in ("c", "c_range")}
-        return focus_then_reconstruct(dataset, method, reconstruct, c_range=options.get("c_range"),
+        # the speeds tried lie within c_range, checked above
+        return focus_then_reconstruct(dataset, method, partial(reconstruct, force=True),
+                                      c_range=options.get("c_range"),
                                       progress=progress, should_stop=should_stop, **rest)
     opts["dtype"] = _dtype(opts.get("dtype"))
     c = opts.pop("c", None)

@@ -380,6 +380,7 @@ function planBodyCommon() {
       wavelengths: wl,
       sound_speed: numberField("acq-c", "Sound speed"),
     },
+    force: $("acq-force").checked, // a sound speed outside 1000-2000 m/s (driver.units' rule)
   };
 }
 
@@ -1172,6 +1173,7 @@ async function uploadAndReconstruct(ev) {
     }
     uploadC = speedField("upload-c");
     if (typeof uploadC === "number") form.append("c", String(uploadC));
+    if ($("upload-force").checked) form.append("force", "true"); // c outside 1000-2000 m/s
   } catch (err) { showError(err); return; }
   const key = $("upload-key").value.trim();
   if (key) form.append("key", key);
@@ -1182,7 +1184,8 @@ async function uploadAndReconstruct(ev) {
     $("upload-state").textContent = `Uploaded as dataset ${shortId(ds.dataset_id)}${ds.shape ? " (" + ds.shape.join(" × ") + ")" : ""}; queueing…`;
     const resp = await apiFetch("/api/reconstructions", {
       method: "POST", json: { dataset_id: ds.dataset_id, method: $("upload-method").value,
-                              params: uploadC === "auto" ? { c: "auto" } : {} },
+                              params: Object.assign(uploadC === "auto" ? { c: "auto" } : {},
+                                                    $("upload-force").checked ? { force: true } : {}) },
       headers: { "Idempotency-Key": newIdempotencyKey() },
     });
     const id = await jobIdFrom(resp);
@@ -1267,6 +1270,7 @@ async function startRecon(ev) {
   try {
     const c = speedField("recon-c");
     if (c !== undefined) params.c = c;
+    if ($("recon-force").checked) params.force = true; // c outside 1000-2000 m/s (driver.units' rule)
   } catch (err) { showError(err); return; }
   const body = { scan_job_id: resultJob, method: $("recon-method").value, params };
   if ($("recon-unmix").checked) body.unmix = {};

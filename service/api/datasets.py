@@ -3,7 +3,8 @@
 Formats:
 - ``npy``: a NumPy array in k-Wave layout, ``(n_t, n_x)`` or ``(n_t, n_y, n_x)`` (time
   first, as k-Wave's ``'ty'``/``'tyz'``), with form fields ``dt`` (s), ``dx`` (m),
-  optional ``dy`` (m, default dx) and ``c`` (m/s, default 1500). Loaded with
+  optional ``dy`` (m, default dx) and ``c`` (m/s, default 1500; outside 1000-2000 m/s
+  only with ``force``: ``driver.units.check_plausible``, as everywhere). Loaded with
   ``allow_pickle=False``.
 - ``kwave-hdf5``: an HDF5 file holding such an array at ``key`` (default
   ``sensor_data/clean``, then ``sensor_data``); spacings from the form or from the file's
@@ -40,16 +41,18 @@ def upload_dataset(file: UploadFile = File(..., description="the data file"),
                    dt: float | None = Form(None, description="sample interval, s"),
                    dx: float | None = Form(None, description="lateral spacing along x, m"),
                    dy: float | None = Form(None, description="lateral spacing along y, m"),
-                   c: float | None = Form(None, description="speed of sound, m/s"),
+                   c: float | None = Form(None, description="speed of sound, m/s (1000-2000 unless force)"),
+                   force: bool = Form(False, description="accept a c outside 1000-2000 m/s (a medium other "
+                                                         "than tissue or water)"),
                    key: str | None = Form(None, max_length=200, description="HDF5 dataset path (kwave-hdf5)"),
                    cx: Context = Depends(ctx)) -> Dataset:
     """Upload a dataset for reconstruction → 201 ``{dataset_id, ...}``. At most
     ``FPSCAN_IMPORT_WORKERS`` uploads are imported at once (4x as many wait; beyond, 429)."""
     with cx.slots["uploads"].turn():
-        return _store_upload(file, format, dt=dt, dx=dx, dy=dy, c=c, key=key, cx=cx)
+        return _store_upload(file, format, dt=dt, dx=dx, dy=dy, c=c, key=key, force=force, cx=cx)
 
 
-def _store_upload(file: UploadFile, format: str, *, dt, dx, dy, c, key, cx: Context) -> Dataset:
+def _store_upload(file: UploadFile, format: str, *, dt, dx, dy, c, key, force: bool, cx: Context) -> Dataset:
     dataset_id = uuid.uuid4().hex
     dest = Path(cx.settings.data_dir) / "datasets" / dataset_id
     dest.mkdir(parents=True)
@@ -67,7 +70,7 @@ def _store_upload(file: UploadFile, format: str, *, dt, dx, dy, c, key, cx: Cont
             # in a child process with a time and memory bound: the HDF5 library can block
             # (holding the GIL) or expand a small file into gigabytes (import_dataset lives
             # in service.storage, so the child does not import the web stack)
-            meta = run_bounded(import_dataset, src, dest, format, dt=dt, dx=dx, dy=dy, c=c, key=key,
+            meta = run_bounded(import_dataset, src, dest, format, dt=dt, dx=dx, dy=dy, c=c, key=key, force=force,
                                max_bytes=hdf5_limit(limit, cx.settings.memory_limit),
                                timeout=cx.settings.import_timeout_s, what="the upload",
                                memory_bytes=cx.settings.memory_limit + 2 * 2**30)

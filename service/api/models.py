@@ -357,9 +357,10 @@ class ReconParams(_Request):
     default). Which method takes which option: ``service.pipeline.METHODS``
     (docs/api.md); options of other methods are ignored."""
 
-    c: Annotated[float, Field(gt=100, le=10000)] | Literal["auto"] | None = Field(
-        None, description="speed of sound, m/s, or 'auto': the speed of sharpest focus (Tenenbaum sharpness, "
-                          "searched within c_range; default: the input's)")
+    c: Annotated[float, Field(gt=0)] | Literal["auto"] | None = Field(
+        None, description="speed of sound, m/s (1000-2000 unless force, 100-10000 with it), or 'auto': the "
+                          "speed of sharpest focus (Tenenbaum sharpness, searched within c_range; default: "
+                          "the input's)")
     c_range: tuple[Annotated[float, Field(ge=300, le=6000)], Annotated[float, Field(ge=300, le=6000)]] | None = Field(
         None, description="autofocus search interval (c_min, c_max), m/s (default 1450-1600)")
     eps: float | None = Field(None, ge=1e-15, le=1e-1, description="NUFFT tolerance (ner, nedner; default 1e-6)")
@@ -374,6 +375,20 @@ class ReconParams(_Request):
                              "input's c·t_last it sets the working depth rows, counted in the memory admission)")
     interp: _one_of(KWAVE_INTERPS) | None = Field(  # type: ignore[valid-type]
         None, description="k-Wave interpolation (kwave; default *nearest)")
+    force: bool = Field(False, description="accept a c (or c_range) outside 1000-2000 m/s (a medium other than "
+                                           "tissue or water); without it such a value is refused as a likely "
+                                           "unit mistake (driver.units.check_speeds)")
+
+    @model_validator(mode="after")
+    def _plausible_speed(self) -> ReconParams:
+        """The speed-of-sound rule of the library and the CLI (``driver.units.check_speeds``):
+        422 naming the likely unit mistake unless ``force``; forced, c stays in 100-10000 m/s."""
+        from driver.units import check_speeds
+
+        check_speeds(c=self.c, c_range=self.c_range, force=self.force)
+        if isinstance(self.c, float) and not 100 < self.c <= 10000:
+            raise ValueError(f"c must be within 100-10000 m/s even with force, got {self.c:g} m/s")
+        return self
 
 
 class UnmixOptions(_Request):

@@ -493,13 +493,14 @@ HDF5_KEY_CHARS = set("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ012345
 
 
 def import_dataset(src: str | os.PathLike, dest_dir: str | os.PathLike, fmt: str, *, dt, dx, dy, c, key,
-                   max_bytes: int | None = None) -> dict:
+                   max_bytes: int | None = None, force: bool = False) -> dict:
     """Validate and convert an uploaded file with :func:`load_dataset` (all four formats)
     into ``dest_dir/dataset.h5`` (:func:`write_dataset`); returns the dataset's metadata
     (the API stores it in the job store). Run by ``POST /api/datasets`` in a bounded child
     process (``service.storage.untrusted.run_bounded``).
     ``max_bytes``: largest declared dataset of an HDF5 file
     (:func:`service.storage.untrusted.check_hdf5`, run before anything is read).
+    ``force``: accept a ``c`` outside 1000-2000 m/s (as :func:`load_dataset`).
     Raises ``ValueError`` with the reason."""
     if key is not None and (not key or len(key) > 200 or not set(key) <= HDF5_KEY_CHARS):
         raise ValueError("key must be an HDF5 dataset path of [A-Za-z0-9_-/.]")
@@ -507,7 +508,7 @@ def import_dataset(src: str | os.PathLike, dest_dir: str | os.PathLike, fmt: str
         if value is not None and not (math.isfinite(value) and value > 0):
             raise ValueError(f"{name} must be a positive finite number")
     try:
-        ds = load_dataset(src, fmt, dt=dt, dx=dx, dy=dy, c=c, key=key,
+        ds = load_dataset(src, fmt, dt=dt, dx=dx, dy=dy, c=c, key=key, force=force,
                           max_bytes=MAX_ELEMENTS * 8 if max_bytes is None else max_bytes)
     except (KeyError, TypeError, IndexError, OSError) as exc:
         raise ValueError(f"file is not a readable {fmt} dataset ({type(exc).__name__})") from None

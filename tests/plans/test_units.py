@@ -76,3 +76,34 @@ def test_library_rules():
     for bad in ("9**9**9", "1e999 m", "60 Hz", "", "m"):
         with pytest.raises(ValueError):
             parse_quantity(bad, "length")
+
+
+def test_recon_sound_speed_rule_cli_and_library(tmp_path, capsys):
+    """One speed-of-sound rule (driver.units.check_speeds): ``fpscan recon --c`` outside
+    1000-2000 m/s exits 2 naming the likely unit unless ``--force``; the library's
+    ``reconstruct(c=...)`` raises ValueError the same way unless ``force=True``."""
+    from service.pipeline import reconstruct
+    from service.storage.datasets import GridDataset
+
+    x = tmp_path / "x.npy"
+    np.save(x, np.zeros((16, 4, 4), dtype=np.float32))
+    base = ["recon", str(x), "--dt", "20ns", "--dx", "100um", "--method", "ner", "-q"]
+    for c, names in (("2500", ["sound speed 2500 m/s", "1000 to 2000", "force"]),
+                     ("1.5", ["1.5 m/s", "1.5 km/s"])):
+        with pytest.raises(SystemExit) as stop:
+            raise SystemExit(main(base + ["--c", c, "--out", str(tmp_path / "r")]))
+        assert stop.value.code == 2
+        err = capsys.readouterr().err
+        assert all(n in err for n in names), err
+    assert not (tmp_path / "r").exists()
+    assert main(base + ["--c", "2.5 km/s", "--force", "--out", str(tmp_path / "r")]) == 0
+    assert (tmp_path / "r" / "volume.h5").is_file()
+
+    ds = GridDataset(data=np.zeros((16, 4, 4), np.float32), dx=1e-4, dt=2e-8, c=1500.0, dy=1e-4)
+    with pytest.raises(ValueError, match="c: sound speed 2500 m/s is implausible"):
+        reconstruct(ds, "ner", c=2500.0)
+    with pytest.raises(ImplausibleValue, match="did you mean 1.5 km/s"):
+        reconstruct(ds, "ner", c=1.5)
+    with pytest.raises(ImplausibleValue, match="c_range: sound speed 900 m/s"):
+        reconstruct(ds, "ner", c="auto", c_range=[900.0, 1600.0])
+    assert reconstruct(ds, "ner", c=2500.0, force=True).params["c"] == 2500.0

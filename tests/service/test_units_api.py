@@ -46,3 +46,37 @@ def test_upload_dt_dx_mistakes_are_422(shared_api):
         r = shared_api.post("/api/datasets", data={"format": "npy", **form},
                             files={"file": ("d.npy", buf.getvalue(), "application/octet-stream")})
         assert r.status_code == 422 and name in r.json()["detail"], r.text
+
+
+def test_recon_sound_speed_rule_422_and_force(shared_server, shared_api, tmp_path):
+    """The speed-of-sound rule of the CLI and the library over HTTP: a reconstruction's c
+    (or an upload's c) outside 1000-2000 m/s is a 422 naming the likely unit; with
+    ``force`` it is accepted (the upload form and ReconParams), and so is
+    ``fpscan recon --server --c 2500 --force``."""
+    import subprocess
+    import sys
+
+    x = tmp_path / "x.npy"
+    np.save(x, np.zeros((16, 4, 4), dtype=np.float32))
+    upload = {"format": "npy", "dt": "2e-8", "dx": "1e-4"}
+    files = {"file": ("d.npy", x.read_bytes(), "application/octet-stream")}
+    r = shared_api.post("/api/datasets", data={**upload, "c": "2500"}, files=files)
+    assert r.status_code == 422 and "sound speed 2500 m/s" in r.json()["detail"], r.text
+    r = shared_api.post("/api/datasets", data={**upload, "c": "2500", "force": "true"}, files=files)
+    assert r.status_code == 201, r.text
+    dataset_id = r.json()["dataset_id"]
+    for params, name in (({"c": 2500}, "c: sound speed 2500 m/s"), ({"c": 1.5}, "1.5 km/s"),
+                         ({"c": "auto", "c_range": [900, 1600]}, "c_range: sound speed 900 m/s")):
+        r = shared_api.post("/api/reconstructions", json={"dataset_id": dataset_id, "method": "ner",
+                                                          "params": params})
+        assert r.status_code == 422 and name in r.json()["detail"], r.text
+    r = shared_api.post("/api/reconstructions", json={"dataset_id": dataset_id, "method": "ner",
+                                                      "params": {"c": 2500, "force": True}})
+    assert r.status_code == 202, r.text
+
+    cli = subprocess.run([sys.executable, "-m", "clients", "recon", str(x), "--server", shared_server.url,
+                          "--token", shared_server.token, "--dt", "20ns", "--dx", "100um", "--c", "2500",
+                          "--force", "--method", "ner", "-q", "--out", str(tmp_path / "r")],
+                         capture_output=True, text=True, timeout=120)
+    assert cli.returncode == 0, cli.stderr
+    assert (tmp_path / "r" / "volume.h5").is_file()

@@ -396,6 +396,15 @@ def test_result_view_offers_the_model_based_method_and_its_parameters(browser, s
     set_value(browser, "recon-iterations", 7)
     shot(browser, screenshots, "jobs-recon-tv-form")
     before = el(browser, "result-id").get_attribute("title")
+    # c = 2500 m/s: the server's reason (the rule of the CLI and the library), no job;
+    # accepted once "another medium" is ticked
+    set_value(browser, "recon-c", 2500)
+    el(browser, "recon-start").click()
+    wait_for(lambda: el(browser, "error").is_displayed() and "sound speed 2500 m/s" in text(browser, "error-text"),
+             15, "the refusal of c = 2500 m/s")
+    assert el(browser, "result-id").get_attribute("title") == before
+    el(browser, "error-close").click()
+    el(browser, "recon-force").click()
     el(browser, "recon-start").click()
     wait_for(lambda: text(browser, "result-kind") == "recon" and el(browser, "result-id").get_attribute("title") != before,
              15, "the tv job to open")
@@ -404,6 +413,9 @@ def test_result_view_offers_the_model_based_method_and_its_parameters(browser, s
     assert job["params"]["method"] == "tv", job
     sent = job["params"]["params"]
     assert sent["lam"] == 0.002 and sent["iterations"] == 7 and sent["positivity"] is True, sent
+    assert sent["c"] == 2500 and sent["force"] is True, sent
+    browser.execute_script("document.getElementById('recon-c').value = '';"
+                           "document.getElementById('recon-force').checked = false;")  # as later tests expect
     if el(browser, "result-cancel").is_displayed():  # a 7-iteration solve is not needed here
         el(browser, "result-cancel").click()
     wait_for(lambda: text(browser, "result-state") in ("cancelled", "succeeded"), 60, "the tv job to end", 0.3)
@@ -445,17 +457,25 @@ def test_upload_a_data_file_and_reconstruct_it(browser, server, api, screenshots
     Select(el(browser, "upload-format")).select_by_value("npy")
     set_value(browser, "upload-dt", 20)      # ns
     set_value(browser, "upload-dx", 100)     # µm; dy left empty = dx
-    set_value(browser, "upload-c", 1500)
+    # c = 2500 m/s is refused with the server's reason (the rule of the CLI and the library)
+    # until "another medium" is ticked
+    set_value(browser, "upload-c", 2500)
     Select(el(browser, "upload-method")).select_by_value("ner")
     before = el(browser, "result-id").get_attribute("title")
     el(browser, "upload-start").click()
+    wait_for(lambda: "sound speed 2500 m/s" in text(browser, "upload-state"), 20, "the server's reason for c")
+    assert "1000 to 2000" in text(browser, "upload-state")
+    el(browser, "upload-force").click()
+    el(browser, "upload-start").click()
     wait_for(lambda: text(browser, "result-kind") == "recon" and el(browser, "result-id").get_attribute("title") != before,
              20, "the upload's reconstruction job to open")
+    browser.execute_script("document.getElementById('upload-force').checked = false;")  # as later tests expect
     recon_id = el(browser, "result-id").get_attribute("title")
     wait_for(lambda: text(browser, "result-state") in ("succeeded", "failed"), 60, "the reconstruction to finish", 0.3)
     job = api.get(f"/api/jobs/{recon_id}").json()
     assert text(browser, "result-state") == "succeeded", job
     assert job["params"]["dataset_id"] and job["params"]["method"] == "ner"
+    assert job["params"]["params"]["force"] is True, job
     shot(browser, screenshots, "jobs-upload-result")
     vol = tmp_path / "volume.h5"
     vol.write_bytes(api.get(f"/api/reconstructions/{recon_id}/volume.h5").content)
