@@ -203,6 +203,10 @@ def aline_index(k, w, n_points: int, n_wavelengths: int, order: str):
     raise ValueError(f"wavelength order must be one of {WAVELENGTH_ORDERS}, got {order!r}")
 
 
+#: Largest weight a plan point may have, in lattice areas (``check_plan``).
+MAX_WEIGHT_AREAS = 4
+
+
 def check_plan(plan: Any) -> dict:  # noqa: C901 -- one flat list of the contract's checks (helper "plans")
     """Check a parsed plan (docs/architecture.md "Plan JSON", ``fpscan-plan/1``): the one
     validation of the plan contract, used by the host driver, the scan file and the service.
@@ -212,7 +216,8 @@ def check_plan(plan: Any) -> dict:  # noqa: C901 -- one flat list of the contrac
     ``points.indices`` ``(n_points, 2)`` integers inside the lattice without duplicates;
     ``points.positions`` ``(n_points, 2)`` (or ``(n_points, 1)`` on a line lattice) equal
     to the lattice positions of the indices (x = (i_x - (n_x - 1)/2)·pitch, y likewise);
-    ``points.weights`` ``(n_points,)`` finite and > 0. ``mask`` and ``order`` are the
+    ``points.weights`` ``(n_points,)`` finite, > 0 and at most ``MAX_WEIGHT_AREAS`` times
+    the lattice's area (m², m on a line lattice). ``mask`` and ``order`` are the
     planner's record and not checked here.
 
     Returns the plan (unchanged). Raises ``ValueError`` naming the first problem.
@@ -264,6 +269,13 @@ def check_plan(plan: Any) -> dict:  # noqa: C901 -- one flat list of the contrac
         raise ValueError(f"plan points.weights must be ({n},), got shape {w.shape}")
     if not (np.isfinite(pos).all() and np.isfinite(w).all()) or (w <= 0).any():
         raise ValueError("plan positions must be finite and weights finite and > 0")
+    # a weight is the area (m² or m) one sensor stands for: never more than a few times the
+    # lattice's own (the masks give at most ~1x; 1e300 would overflow a reconstruction)
+    area = n_x * pitch * (n_y * pitch if n_y > 1 else 1.0)
+    if w.max() > MAX_WEIGHT_AREAS * area:
+        raise ValueError(f"plan points.weights has a weight of {w.max():g}, more than {MAX_WEIGHT_AREAS} times "
+                         f"the lattice's area ({n_x} x {n_y} points at pitch {pitch:g} m: {area:g} "
+                         f"m{'²' if n_y > 1 else ''})")
     want = lattice_positions(idx, n_x, n_y, pitch)[:, :pos.shape[1]]
     if np.max(np.abs(pos - want)) > 1e-9 * pitch:
         raise ValueError("plan points.positions are not the lattice positions of points.indices")

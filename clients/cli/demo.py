@@ -47,18 +47,24 @@ DEFAULTS = {
 
 
 def add_arguments(parser):
-    """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser)."""
+    """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser).
+    Lengths and times take units (``100um``, ``12ns``, ``3mm``; bare numbers are SI:
+    ``clients.cli._common.quantity``); a unit mistake is refused by ``fpscan plan``'s
+    rules (``driver.units.check_plausible``, exit 2) before anything starts."""
+    from clients.cli._common import quantity
+
     parser.add_argument("--out", default="demo-output", help="output folder (default: demo-output)")
     parser.add_argument("--lattice", type=int, default=DEFAULTS["lattice"], metavar="N",
                         help="scanner lattice N × N (default %(default)s)")
-    parser.add_argument("--pitch", type=float, default=DEFAULTS["pitch"], metavar="M",
-                        help="lattice pitch, m (default %(default)s)")
+    parser.add_argument("--pitch", type=quantity("length", "pitch"), default=DEFAULTS["pitch"], metavar="M",
+                        help="lattice pitch, e.g. 100um (default %(default)s m)")
     parser.add_argument("--points", type=int, default=DEFAULTS["points"], metavar="N",
                         help="requested points of the equi-steradian mask (default %(default)s)")
     parser.add_argument("--n-t", type=int, default=DEFAULTS["n_t"], help="samples per A-line (default %(default)s)")
-    parser.add_argument("--dt", type=float, default=DEFAULTS["dt"], help="sample interval, s (default %(default)s)")
-    parser.add_argument("--poi-depth", type=float, default=DEFAULTS["poi_depth"], metavar="M",
-                        help="depth of the point of interest, m (default %(default)s)")
+    parser.add_argument("--dt", type=quantity("time", "dt"), default=DEFAULTS["dt"],
+                        help="sample interval, e.g. 12ns (default %(default)s s)")
+    parser.add_argument("--poi-depth", type=quantity("length", "poi-depth"), default=DEFAULTS["poi_depth"],
+                        metavar="M", help="depth of the point of interest, e.g. 3mm (default %(default)s m)")
     parser.add_argument("--no-dense", action="store_true",
                         help="skip the dense full-lattice reference scan")
     parser.add_argument("--seed", type=int, default=1, help="simulator noise seed (default %(default)s)")
@@ -113,6 +119,10 @@ class Demo:
         import time
 
         a = self.args
+        from driver.units import check_plausible
+
+        # fpscan plan's unit rules (a pitch of 100 m, dt 12 s, a depth of 3 m): exit 2
+        check_plausible(pitch=a.pitch, dt=a.dt, n_t=a.n_t, sound_speed=1500.0, depth=a.poi_depth)
         if a.lattice < 8 or a.lattice > 512:
             raise ValueError(f"--lattice must be within 8..512, not {a.lattice}")
         if not (0 < a.pitch <= 1e-3):

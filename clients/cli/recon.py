@@ -53,8 +53,8 @@ def add_arguments(parser):
     g.add_argument("--c", type=speed, default=None,
                    help="speed of sound, e.g. 1500m/s, or 'auto' (autofocus: sharpest focus; default: the input's "
                         "or 1500)")
-    g.add_argument("--c-range", type=float, nargs=2, default=None, metavar=("MIN", "MAX"),
-                   help="autofocus search interval, m/s (default 1450 1600)")
+    g.add_argument("--c-range", type=quantity("speed", "c-range"), nargs=2, default=None, metavar=("MIN", "MAX"),
+                   help="autofocus search interval, e.g. 1450 1600 (m/s) or 1.45km/s 1.6km/s (default 1450 1600)")
     g.add_argument("--force", action="store_true", help="accept a speed of sound outside 1000-2000 m/s")
     g.add_argument("--key", default=None, help="HDF5 dataset path in a k-Wave file (default sensor_data/clean)")
     g = parser.add_argument_group("reconstruction options")

@@ -11,7 +11,11 @@ HELP = "run the simulated FP scanner on a pseudo-terminal (prints its device pat
 
 
 def add_arguments(parser):
-    """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser)."""
+    """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser).
+    Frequencies, times and the sound speed take units (``500Hz``, ``2 MHz``, ``5ms``,
+    ``1.54 km/s``; bare numbers are SI: ``clients.cli._common.quantity``)."""
+    from clients.cli._common import quantity
+
     parser.add_argument("--source", nargs="+", default=["balls"], metavar="ARG",
                         help="A-line source: 'balls' (default: built-in phantom of balls and "
                              "a curved tube), 'volume FILE' (HDF5 p0 with dx_m) or "
@@ -19,8 +23,8 @@ def add_arguments(parser):
                              "kwave3d_balls_yarn.h5)")
     parser.add_argument("--dataset", default="sensor_data/clean",
                         help="dataset replayed from the replay FILE (default: sensor_data/clean)")
-    parser.add_argument("--prf", type=float, default=50.0,
-                        help="laser pulse repetition frequency in Hz; 0 = unthrottled (default 50)")
+    parser.add_argument("--prf", type=quantity("frequency", "prf"), default=50.0,
+                        help="laser pulse repetition frequency, e.g. 500Hz; 0 = unthrottled (default 50 Hz)")
     parser.add_argument("--faults", default="",
                         help="fault spec, e.g. 'corrupt=1e-4,drop=1e-4,stall=800:2,reset=1200,"
                              "interlock=1500'")
@@ -28,12 +32,12 @@ def add_arguments(parser):
     parser.add_argument("--record", default=None, metavar="FILE",
                         help="write the ground truth (every A-line sent) to this HDF5 file")
     parser.add_argument("--snr", type=float, default=None, help="peak signal / noise std")
-    parser.add_argument("--bandwidth", type=float, default=None,
-                        help="sensor -3 dB bandwidth in Hz (2nd-order Butterworth)")
-    parser.add_argument("--tuning-delay", type=float, default=0.0,
-                        help="bias-wavelength tuning time per point, s")
-    parser.add_argument("--laser-tuning-delay", type=float, default=0.0,
-                        help="excitation-laser tuning time when the wavelength changes, s")
+    parser.add_argument("--bandwidth", type=quantity("frequency", "bandwidth"), default=None,
+                        help="sensor -3 dB bandwidth, e.g. 20MHz (2nd-order Butterworth)")
+    parser.add_argument("--tuning-delay", type=quantity("time", "tuning-delay"), default=0.0,
+                        help="bias-wavelength tuning time per point, e.g. 2ms (default 0)")
+    parser.add_argument("--laser-tuning-delay", type=quantity("time", "laser-tuning-delay"), default=0.0,
+                        help="excitation-laser tuning time when the wavelength changes, e.g. 50ms (default 0)")
     parser.add_argument("--so2", type=float, nargs="+", default=None, metavar="S",
                         help="balls: make the phantom blood-like, HbO2/Hb at this oxygen "
                              "saturation (one value for all balls, or one per ball), so that "
@@ -45,7 +49,10 @@ def add_arguments(parser):
                         help="relative amplitude of the sensitivity map (0..1)")
     parser.add_argument("--byte-rate", type=float, default=None,
                         help="limit the device's output to this many bytes/s")
-    parser.add_argument("--sound-speed", type=float, default=1500.0, help="m/s (balls, volume)")
+    parser.add_argument("--sound-speed", type=quantity("speed", "sound speed"), default=1500.0,
+                        help="speed of sound of the phantom, e.g. 1.54km/s (balls, volume; default 1500 m/s)")
+    parser.add_argument("--force", action="store_true",
+                        help="accept a sound speed outside 1000-2000 m/s (a medium other than tissue/water)")
 
 
 def make_source(kind_and_file: list[str], *, dataset: str = "sensor_data/clean",
@@ -84,6 +91,10 @@ def run(args) -> int:
 
     from driver.faults import FaultSpec
     from driver.simulator import SimConfig, SimulatedScanner
+    from driver.units import check_plausible
+
+    # the unit rules of fpscan plan (a sound speed of 1.5 is km/s typed as m/s): exit 2
+    check_plausible(sound_speed=args.sound_speed, force=args.force)
 
     config = SimConfig(
         source=make_source(args.source, dataset=args.dataset, sound_speed=args.sound_speed,

@@ -13,7 +13,14 @@ files are downloaded.
 """
 from __future__ import annotations
 
-from clients.cli._common import add_progress_option, add_server_options, client_errors, default_dtype, speed
+from clients.cli._common import (
+    add_progress_option,
+    add_server_options,
+    client_errors,
+    default_dtype,
+    quantity,
+    speed,
+)
 
 COMMAND = "unmix"
 HELP = "reconstruct every wavelength and unmix HbO2/Hb into THb and sO2 (masked)"
@@ -25,24 +32,27 @@ def add_arguments(parser):
     """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser)."""
     parser.add_argument("inputs", nargs="*", metavar="INPUT",
                         help="a multi-wavelength scan file, or one file per wavelength (with --wavelengths)")
-    parser.add_argument("--wavelengths", type=float, nargs="+", default=None, metavar="M",
-                        help="excitation wavelength of each INPUT, m (e.g. 7.5e-07 8.5e-07)")
+    parser.add_argument("--wavelengths", type=quantity("length", "wavelength"), nargs="+", default=None,
+                        metavar="M", help="excitation wavelength of each INPUT, e.g. 750nm 850nm (bare numbers: m)")
     parser.add_argument("--format", choices=FORMATS, default=None, help="input format (default: from the file)")
     parser.add_argument("--method", default=None,
                         help="reconstruction method (default: nedner for scans, ner for grids)")
     parser.add_argument("--out", default=None, metavar="DIR", help="output folder (default: <input>-unmix/)")
     parser.add_argument("--c", type=speed, default=None,
                         help="speed of sound, m/s, or 'auto' (autofocus; default: the input's)")
-    parser.add_argument("--c-range", type=float, nargs=2, default=None, metavar=("MIN", "MAX"),
-                        help="autofocus search interval, m/s (default 1450 1600)")
+    parser.add_argument("--c-range", type=quantity("speed", "c-range"), nargs=2, default=None, metavar=("MIN", "MAX"),
+                        help="autofocus search interval, e.g. 1450 1600 (m/s) or 1.45km/s 1.6km/s (default 1450 1600)")
+    parser.add_argument("--force", action="store_true",
+                        help="accept a speed of sound (--c, --c-range) outside 1000-2000 m/s")
     parser.add_argument("--threshold", type=float, default=0.1,
                         help="mask voxels whose THb is below this fraction of the maximum (default 0.1)")
     parser.add_argument("--fluence", type=float, nargs="+", default=None, metavar="J_PER_M2",
                         help="fluence at each wavelength, J/m² (default: assumed equal at every wavelength)")
     g = parser.add_argument_group("data spacings (npy and k-Wave inputs; SI units)")
-    g.add_argument("--dt", type=float, default=None, help="sample interval, s")
-    g.add_argument("--dx", type=float, default=None, help="lateral spacing along x, m")
-    g.add_argument("--dy", type=float, default=None, help="lateral spacing along y, m (default dx)")
+    g.add_argument("--dt", type=quantity("time", "dt"), default=None, help="sample interval, e.g. 20ns")
+    g.add_argument("--dx", type=quantity("length", "dx"), default=None, help="lateral spacing along x, e.g. 100um")
+    g.add_argument("--dy", type=quantity("length", "dy"), default=None,
+                   help="lateral spacing along y, e.g. 100um (default dx)")
     g.add_argument("--key", default=None, help="HDF5 dataset path in a k-Wave file")
     g = parser.add_argument_group("reconstruction options")
     g.add_argument("--eps", type=float, default=None, help="NUFFT tolerance (default 1e-6)")
@@ -58,6 +68,8 @@ def _params(args) -> dict:
     params = {k: getattr(args, k) for k in ("c", "eps", "dtype") if getattr(args, k) is not None}
     if args.c_range is not None:
         params["c_range"] = list(args.c_range)
+    if args.force:  # the speed-of-sound rule (driver.units.check_speeds)
+        params["force"] = True
     return params
 
 

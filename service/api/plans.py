@@ -35,6 +35,11 @@ def build_plan(req) -> dict:
     from service.plans import check_plausible_request, make_mask, make_plan
 
     if isinstance(req, PlanDocument):
+        from driver.units import check_plausible
+
+        # the unit rules of a plan request (a pitch of 60 m, dt 8 s); a document states no
+        # force, so its sound speed (which make_plan may have forced) is not judged here
+        check_plausible(pitch=req.lattice.pitch, dt=req.acquisition.dt)
         out = req.to_dict()
     else:
         params = req.params.mask_kwargs() if req.params is not None else {}

@@ -62,7 +62,7 @@ class MaskSpec(_Strict):
     params: dict[str, Any] = Field(default_factory=dict)
     requested_points: int = Field(ge=1)
     obtained_points: int = Field(ge=1)
-    weight_ratio: float | None = Field(default=None, gt=0)
+    weight_ratio: float | None = Field(default=None, gt=0, allow_inf_nan=False)
 
 
 class Points(_Strict):
@@ -149,6 +149,12 @@ class Plan(_Strict):
             object.__setattr__(self, "id", plan_id_of(d))  # make_plan: the id is computed here once
             d["id"] = self.id
         check_plan(d)  # the plan contract: lattice membership, duplicates, positions, the id
+        ratio, w = self.mask.weight_ratio, self.points.weights
+        if ratio is not None:  # a ratio of means of weights (> 0): within their spread
+            spread = max(w) / min(w)
+            if not (1 - 1e-9) / spread <= ratio <= spread * (1 + 1e-9):
+                raise ValueError(f"mask.weight_ratio {ratio:g} is outside the range of the plan's weights "
+                                 f"({1 / spread:g} to {spread:g})")
         return self
 
     # -- arrays ---------------------------------------------------------------------

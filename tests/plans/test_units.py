@@ -107,3 +107,53 @@ def test_recon_sound_speed_rule_cli_and_library(tmp_path, capsys):
     with pytest.raises(ImplausibleValue, match="c_range: sound speed 900 m/s"):
         reconstruct(ds, "ner", c="auto", c_range=[900.0, 1600.0])
     assert reconstruct(ds, "ner", c=2500.0, force=True).params["c"] == 2500.0
+
+
+def test_sim_demo_unmix_take_units_and_name_unit_mistakes(tmp_path, capsys):
+    """``fpscan sim``, ``demo`` and ``unmix`` read lengths, times, frequencies and speeds as
+    ``plan``/``recon`` do (the suffix form is the SI number) and refuse a unit mistake
+    with exit 2 naming the unit, before anything starts (a bad --source / --lattice after
+    the check would exit 1, a missed check would start the simulator or the demo)."""
+    from clients.cli import build_parser
+
+    parse = build_parser().parse_args
+    sim = parse(["sim", "--prf", "500Hz", "--bandwidth", "20 MHz", "--tuning-delay", "2ms",
+                 "--laser-tuning-delay", "50 ms", "--sound-speed", "1.54km/s"])
+    assert (sim.prf, sim.bandwidth, sim.tuning_delay, sim.laser_tuning_delay, sim.sound_speed) == \
+        (500.0, 2e7, 2e-3, 5e-2, 1540.0)
+    assert parse(["sim", "--prf", "500"]).prf == 500.0
+    demo = parse(["demo", "--pitch", "100um", "--dt", "12ns", "--poi-depth", "3mm"])
+    assert (demo.pitch, demo.dt, demo.poi_depth) == (1e-4, 1.2e-8, 3e-3)
+    unmix = parse(["unmix", "--wavelengths", "750nm", "850 nm", "--dt", "20ns", "--dx", "100um",
+                   "--c-range", "1.45km/s", "1600"])
+    assert unmix.wavelengths == [7.5e-7, 8.5e-7] and (unmix.dt, unmix.dx) == (2e-8, 1e-4)
+    assert unmix.c_range == [1450.0, 1600.0]
+    assert parse(["recon", "--c-range", "1.45 km/s", "1.6km/s"]).c_range == [1450.0, 1600.0]
+
+    def exit_code(argv):
+        with pytest.raises(SystemExit) as stop:
+            raise SystemExit(main(argv))
+        return stop.value.code, capsys.readouterr().err
+
+    for argv, names in (
+        (["sim", "--source", "nope", "--sound-speed", "1.5"], ["1.5 m/s", "km/s"]),
+        (["sim", "--prf", "500 furlongs"], ["not a frequency"]),
+        (["demo", "--lattice", "4", "--pitch", "100", "--out", str(tmp_path / "d")], ["pitch 100 m", "100 µm"]),
+        (["demo", "--lattice", "4", "--dt", "12", "--out", str(tmp_path / "d")], ["dt 12 s", "12 ns"]),
+        (["demo", "--lattice", "4", "--poi-depth", "3", "--out", str(tmp_path / "d")], ["depth 3 m", "3 mm"]),
+    ):
+        code, err = exit_code(argv)
+        assert code == 2 and all(n in err for n in names), (argv, err)
+    assert not (tmp_path / "d").exists()
+    assert main(["sim", "--source", "nope", "--sound-speed", "2500", "--force"]) == 1  # forced: on to the source
+
+    a, b = tmp_path / "a.npy", tmp_path / "b.npy"
+    for p in (a, b):
+        np.save(p, np.zeros((16, 4, 4), dtype=np.float32))
+    base = ["unmix", str(a), str(b), "--wavelengths", "750nm", "850nm", "-q", "--out", str(tmp_path / "u")]
+    for flags, names in ((["--dt", "20", "--dx", "100um"], ["dt 20 s", "20 ns"]),
+                         (["--dt", "20ns", "--dx", "100"], ["dx 100 m", "100 µm"]),
+                         (["--dt", "20ns", "--dx", "100um", "--c", "2500"], ["sound speed 2500 m/s", "force"])):
+        code, err = exit_code(base + flags)
+        assert code == 2 and all(n in err for n in names), (flags, err)
+    assert not (tmp_path / "u").exists()

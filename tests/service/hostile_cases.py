@@ -77,7 +77,7 @@ def corrupted(offset_fraction: float, n: int = 512):
         src = bytearray(scan_file(folder).read_bytes())
         at = int(len(src) * offset_fraction)
         src[at:at + n] = np.random.default_rng(at).integers(0, 256, min(n, len(src) - at), dtype=np.uint8).tobytes()
-        out = folder / f"corrupt-{offset_fraction}.h5"
+        out = folder / f"corrupt-{offset_fraction}-{n}.h5"
         out.write_bytes(bytes(src))
         return out
     return make
@@ -175,8 +175,14 @@ UPLOADS = [
     Upload("truncated 10 %", "fpscan", truncated(0.10), 422, "truncated"),
     Upload("truncated 50 %", "fpscan", truncated(0.50), 422, "truncated"),
     Upload("truncated 99 %", "fpscan", truncated(0.99), 422, "truncated"),
-    Upload("noise at 2 %", "fpscan", corrupted(0.02), 422, ""),
-    Upload("noise in the superblock", "fpscan", corrupted(0.0, 40), 422, ""),
+    Upload("noise in the superblock", "fpscan", corrupted(0.0, 40), 422, "HDF5"),
+    # 256 (512) bytes of noise over the metadata of the 18 kB scan file, at offsets that hit
+    # object headers, B-trees and heaps (0.5 % to 10 %: root group and links; 2048 to
+    # 10014 B, 11 % to 55 %, is raw data, where noise is just other data; 60 % to 95 %:
+    # the datasets' headers and attributes). Offsets that land in unused space (55 %, 70 %,
+    # 90 % with this layout) leave a readable file and are not rows.
+    *(Upload(f"noise at {100 * f:g} %", "fpscan", corrupted(f, n), 422, "corrupt")
+      for f, n in ((0.005, 256), (0.02, 512), (0.04, 256), (0.1, 256), (0.6, 256), (0.8, 256), (0.95, 256))),
     Upload("HDF5 signature then noise", "kwave-hdf5", signature_then_noise, 422, "HDF5"),
     Upload("HDF5 signature then noise (fpscan)", "fpscan", signature_then_noise, 422, "HDF5"),
     Upload("external storage", "kwave-hdf5", external_storage, 422, "external storage"),
@@ -201,71 +207,193 @@ UPLOADS = [
            "2 samples", {"dt": "1e-8", "dx": "1e-4"}),
 ]
 
-#: Plan parameter values every mask parameter is tried with.
-BAD_VALUES = [0, -1, 1e300, math.nan, math.inf, "x", None]
+#: Values every plan parameter and reconstruction option is tried with: zero, negative,
+#: huge, non-finite, tiny positives (the smallest normal-ish and the smallest subnormal
+#: double), a string and null.
+BAD_VALUES = [0, -1, 1e300, math.nan, math.inf, 1e-12, 5e-324, "x", None]
 
 #: mask kind -> (lattice, the valid parameters the bad values replace one at a time).
+#: ``test_rows_cover_every_mask_parameter`` checks this names every parameter of every kind.
 MASK_PARAMS = {
-    "subgrid": ({"n_x": 32, "n_y": 32, "pitch": 1e-4}, {"interval": 2, "n_per_side": 8}),
+    "full": ({"n_x": 8, "n_y": 8, "pitch": 1e-4}, {}),
+    "equispaced": ({"n_x": 32, "n_y": 32, "pitch": 1e-4}, {"interval": 2, "n_per_side": 8}),
     "hexagonal": ({"n_x": 32, "n_y": 32, "pitch": 1e-4}, {"spacing": 3e-4}),
     "random": ({"n_x": 32, "n_y": 32, "pitch": 1e-4}, {"n_points": 50, "seed": 1}),
     "poisson": ({"n_x": 32, "n_y": 32, "pitch": 1e-4}, {"min_distance": 3e-4, "seed": 1, "n_points": 40}),
-    "equiangular": ({"n_x": 64, "n_y": 1, "pitch": 1e-4}, {"depth": 2e-3, "n_points": 20}),
-    "equisteradian": ({"n_x": 64, "n_y": 64, "pitch": 1e-4}, {"depth": 2e-3, "n_points": 200}),
+    "equiangular": ({"n_x": 64, "n_y": 1, "pitch": 1e-4}, {"depth": 2e-3, "n_points": 20, "poi": 1e-4}),
+    "equisteradian": ({"n_x": 64, "n_y": 64, "pitch": 1e-4},
+                      {"depth": 2e-3, "n_points": 200, "poi": [1e-4, -1e-4]}),
+    "points": ({"n_x": 16, "n_y": 16, "pitch": 1e-4}, {"points": [[0.0, 0.0], [2e-4, 3e-4]]}),
 }
+#: The other variant of the points kind (exactly one of points/indices is given).
+POINTS_BY_INDEX = {"indices": [[0, 0], [4, 5]]}
+
+#: (kind, case, value) that are legal (200; case: a parameter, or ``param[0]`` for its
+#: first element): a parameter's default (null) or a valid seed; a zero or tiny Poisson
+#: distance on 32 x 32 (every lattice point: bounded by the lattice); a tiny positive depth
+#: (the point of interest on the sensor plane: the ring design still closes); a point of
+#: interest, a point or an index at (or a tiny offset from) the centre or the corner.
+LEGAL = {("random", "seed", 0), ("poisson", "seed", 0), ("poisson", "n_points", None),
+         ("equispaced", "n_per_side", None), ("equiangular", "poi", None), ("equisteradian", "poi", None),
+         *(("poisson", "min_distance", v) for v in (1e-12, 5e-324)),
+         *((k, "depth", v) for k in ("equiangular", "equisteradian") for v in (1e-12, 5e-324)),
+         *((k, c, v) for k, c in (("equiangular", "poi"), ("equisteradian", "poi[0]"), ("points", "points[0]"))
+           for v in (0, 1e-12, 5e-324)),
+         ("points", "indices[0]", 0)}
+def _param_rows(kind: str, lattice: dict, good: dict) -> list[tuple[str, str, dict, int, str]]:
+    """The rows of one kind: each parameter at each bad value (and, for list parameters,
+    one element at each bad value), the reason naming the parameter."""
+    out = []
+    for param in good:
+        for value in BAD_VALUES:
+            variants = [(f"{param}={value}", value)]
+            if isinstance(good[param], list):  # a pair or a point list: one element bad
+                first = good[param][0]
+                variants.append((f"{param}[0]={value}", [[value, value], *good[param][1:]]
+                                 if isinstance(first, list) else [value, *good[param][1:]]))
+            for label, v in variants:
+                params = dict(good, **{param: v})
+                legal = (kind, label.split("=")[0], value) in LEGAL
+                reason = "position" if label.startswith("points[0]") and value in (-1, 1e300) else param
+                out.append((f"{kind}-{label}", "/api/plans/preview",
+                            {"kind": kind, "lattice": lattice, "params": params},
+                            200 if legal else 422, "" if legal else reason))
+    return out
 
 
-#: (parameter, value) pairs that are legal: the parameter's default or a valid seed.
-LEGAL = {("seed", 0), ("n_per_side", None), ("n_points", None)}
-
-
-#: The rest of a plan request: lattice, acquisition and order, tried on a small full mask.
+#: The rest of a plan request: lattice, acquisition, order and force, tried on a small
+#: full mask.
 PLAN_BASE = {"kind": "full", "lattice": {"n_x": 8, "n_y": 8, "pitch": 1e-4}, "params": {},
              "acquisition": {"n_t": 256, "dt": 2e-8, "averages": 1, "wavelengths": [7.5e-7], "prf": 100.0,
                              "sound_speed": 1500.0, "wavelength_order": "per_point"},
-             "order": "serpentine"}
-#: (section, field, value) of ``PLAN_BASE`` that are legal: prf 0 (as fast as possible), unset options.
-PLAN_LEGAL = {("acquisition", "prf", 0), ("acquisition", "wavelength_order", None), (None, "order", None)}
+             "order": "serpentine", "force": False}
+#: (section, field, value) of ``PLAN_BASE`` that are legal: prf 0 (as fast as possible) or
+#: tiny (a long scan, stated as such), unset options, force false (0 is not a bool:
+#: pydantic's lax mode takes 0 as false).
+PLAN_LEGAL = {("acquisition", "prf", 0), ("acquisition", "prf", 1e-12), ("acquisition", "prf", 5e-324),
+              ("acquisition", "wavelength_order", None), (None, "order", None), (None, "force", 0)}
 
 
-def plan_cases() -> list[tuple[str, dict, int]]:
-    """Every plan parameter at every bad value: ``(case id, request body, expected
-    status)``: 422, or 200 for the few legal values (``LEGAL``, ``PLAN_LEGAL``). Mask
-    parameters per kind, then the lattice, acquisition and order of ``PLAN_BASE``."""
+def plan_document() -> dict:
+    """A valid plan JSON (what ``fpscan plan --out`` writes) for ``POST /api/plans``."""
+    plan = small_plan(4, 3, 64)
+    plan["mask"] = {"kind": "full", "params": {}, "requested_points": 12, "obtained_points": 12,
+                    "weight_ratio": None}
+    plan["id"] = plan_id_of(plan)
+    return plan
+
+
+#: (case, value) of a plan document that are legal (201): the optional weight ratio
+#: unset, prf 0 or tiny (as for requests), the planner's record (mask.kind, order: labels
+#: the contract does not check, ``driver.plan.check_plan``), a first index (0, 0) (the
+#: document's own first point), tiny positive weights (a point that counts for little).
+DOC_LEGAL = {("mask.weight_ratio", None), ("mask.kind", "x"), ("order", "x"), ("points.indices[0]", 0),
+             *(("acquisition.prf", v) for v in (0, 1e-12, 5e-324)),
+             *(("points.weights[0]", v) for v in (1e-12, 5e-324))}
+
+
+def _doc_paths(doc: dict, prefix: str = "") -> list[str]:
+    """Every field of a plan document, dotted (``points.indices``), down to the sections'
+    fields (lists and ``mask.params`` are fields, not descended into)."""
+    out = []
+    for key, v in doc.items():
+        path = prefix + key
+        out += _doc_paths(v, path + ".") if isinstance(v, dict) and key != "params" else [path]
+    return out
+
+
+def _doc_rows() -> list[tuple[str, str, dict, int, str]]:
+    """A plan document with each field at each bad value (lists also with one bad
+    element): ``POST /api/plans``, the id recomputed so that the field's own check answers."""
+    out = []
+    for path in _doc_paths(plan_document()):
+        *parents, name = path.split(".")
+        for value in BAD_VALUES:
+            doc = plan_document()
+            good = doc
+            for p in parents:
+                good = good[p]
+            variants = [(f"{path}={value}", value)]
+            if isinstance(good[name], list):
+                first = good[name][0]
+                variants.append((f"{path}[0]={value}", [[value, value], *good[name][1:]]
+                                 if isinstance(first, list) else [value, *good[name][1:]]))
+            for label, v in variants:
+                doc = plan_document()
+                section = doc
+                for p in parents:
+                    section = section[p]
+                # a whole number where the contract has a float: sent as the float (0 -> 0.0),
+                # so that the id computed here is the one the server computes
+                section[name] = float(v) if isinstance(good[name], float) and type(v) is int else v
+                if path == "lattice.pitch" and isinstance(v, float) and math.isfinite(v):
+                    n_x, n_y = doc["lattice"]["n_x"], doc["lattice"]["n_y"]  # positions on that pitch
+                    doc["points"]["positions"] = [[(i - (n_x - 1) / 2) * v, (j - (n_y - 1) / 2) * v]
+                                                  for i, j in doc["points"]["indices"]]
+                if name != "id":
+                    try:
+                        doc["id"] = plan_id_of(doc)
+                    except (TypeError, ValueError):
+                        pass  # not hashable as JSON: the id stays; the field's check answers first
+                legal = (label.split("=")[0], value) in DOC_LEGAL
+                out.append((f"document {label}", "/api/plans", doc, 201 if legal else 422,
+                            "" if legal else ("id" if name == "id" else name)))
+    return out
+
+
+def plan_cases() -> list[tuple[str, str, dict, int, str]]:
+    """Every plan parameter at every bad value: ``(case id, route, request body, expected
+    status, reason fragment)``: 422 with a reason naming the parameter, or 200/201 for the
+    few legal values (``LEGAL``, ``PLAN_LEGAL``, ``DOC_LEGAL``). Mask parameters per kind
+    (previews), the lattice, acquisition, order and force of ``PLAN_BASE``, the points
+    shortcut of a point list, and every field of a plan document (``POST /api/plans``)."""
     out = []
     for kind, (lattice, good) in MASK_PARAMS.items():
-        for param in good:
-            for value in BAD_VALUES:
-                params = dict(good, **{param: value})
-                legal = (param, value) in LEGAL and not (kind != "poisson" and param == "n_points")
-                out.append((f"{kind}-{param}={value}", {"kind": kind, "lattice": lattice, "params": params},
-                            200 if legal else 422))
+        out += _param_rows(kind, lattice, good)
+    out += _param_rows("points", MASK_PARAMS["points"][0], POINTS_BY_INDEX)
     for section in ("lattice", "acquisition", None):
-        names = list(PLAN_BASE[section]) if section else ["order"]
+        names = list(PLAN_BASE[section]) if section else ["order", "force"]
         for name in names:
             for value in BAD_VALUES:
                 body = json.loads(json.dumps(PLAN_BASE))
                 (body[section] if section else body)[name] = value
-                out.append((f"{section or 'plan'}.{name}={value}", body,
-                            200 if (section, name, value) in PLAN_LEGAL else 422))
-    return out
+                legal = (section, name, value) in PLAN_LEGAL
+                out.append((f"{section or 'plan'}.{name}={value}", "/api/plans/preview", body,
+                            200 if legal else 422, "" if legal else name))
+    for value in BAD_VALUES:  # the request-level point list: {"points": [[i_x, i_y], ...]}
+        for label, pts in ((f"{value}", value), (f"[0]={value}", [[value, value], [1, 1]])):
+            legal = label == "[0]=0"  # [[0, 0], [1, 1]]: two valid indices
+            out.append((f"points-shortcut{label}", "/api/plans/preview",
+                        {"points": pts, "lattice": MASK_PARAMS["points"][0]}, 200 if legal else 422,
+                        "" if legal else "points"))
+    return out + _doc_rows()
+
+
+def mask_parameters_covered() -> set[tuple[str, str]]:
+    """(kind, parameter) pairs the plan rows try."""
+    covered = {(kind, p) for kind, (_, good) in MASK_PARAMS.items() for p in good}
+    return covered | {("points", p) for p in POINTS_BY_INDEX}
 
 
 #: A reconstruction request's options (``ReconParams``) and the valid value each replaces
 #: (``recon_cases`` checks that this names every option the API has).
 RECON_PARAMS = {"c": 1500.0, "c_range": [1400.0, 1600.0], "eps": 1e-6, "dtype": "float32", "upsample": 1, "positivity": False, "lam": 1.0,
-                "iterations": 10, "n_z": 64, "dz": 1e-5, "interp": "*nearest"}
+                "iterations": 10, "n_z": 64, "dz": 1e-5, "interp": "*nearest",
+                "force": False}
 #: Options whose value among ``BAD_VALUES`` is legal: unset (None: the method's default;
-#: dtype has no unset), positivity 0 (false) and λ = 0 (no regularisation).
-RECON_LEGAL = {(name, None) for name in RECON_PARAMS if name != "dtype"} | {("positivity", 0), ("lam", 0)}
+#: dtype and force have no unset), positivity and force 0 (false), λ = 0 (no
+#: regularisation) or tiny, the tolerance 1e-12.
+RECON_LEGAL = {(name, None) for name in RECON_PARAMS if name not in ("dtype", "force")} | {
+    ("positivity", 0), ("force", 0), ("lam", 0), ("lam", 1e-12), ("lam", 5e-324), ("eps", 1e-12)}
 #: A dataset id no server has: a request that passes validation is answered 404.
 NO_DATASET = "0" * 32
 
 
-def recon_cases() -> list[tuple[str, dict, int]]:
+def recon_cases() -> list[tuple[str, dict, int, str]]:
     """Every reconstruction option, the method and the input ids at every bad value (and a
-    path trick for the ids): ``(case id, request body, expected status)``: 422, or 404
-    (valid, but no such dataset or scan job) for the legal values (an id "x")."""
+    path trick for the ids): ``(case id, request body, expected status, reason fragment)``:
+    422 with a reason naming the option, or 404 (valid, but no such dataset or scan job)
+    for the legal values (an id "x")."""
     from service.api.models import ReconParams
 
     assert set(RECON_PARAMS) == set(ReconParams.model_fields), "a reconstruction option is missing here"
@@ -273,13 +401,16 @@ def recon_cases() -> list[tuple[str, dict, int]]:
     for name in RECON_PARAMS:
         for value in BAD_VALUES:
             body = {"dataset_id": NO_DATASET, "method": "ner", "params": {name: value}}
-            out.append((f"params.{name}={value}", body, 404 if (name, value) in RECON_LEGAL else 422))
+            legal = (name, value) in RECON_LEGAL
+            out.append((f"params.{name}={value}", body, 404 if legal else 422, "" if legal else name))
     for pair in ([0, 0], [1600.0, 1400.0], [1500.0, 1500.0], [1e300, 1e300], [math.nan, 1500.0], [1500.0]):
-        out.append((f"params.c_range={pair}", {"dataset_id": NO_DATASET, "params": {"c_range": pair}}, 422))
+        out.append((f"params.c_range={pair}", {"dataset_id": NO_DATASET, "params": {"c_range": pair}}, 422,
+                    "c_range"))
     for name in ("method", "dataset_id", "scan_job_id"):
         for value in [*BAD_VALUES, "../../etc/passwd"]:
             body = {"dataset_id": NO_DATASET, "method": "ner", name: value}
             if name == "scan_job_id":
                 del body["dataset_id"]
-            out.append((f"{name}={value}", body, 404 if name != "method" and value == "x" else 422))
+            legal = (name != "method" and value == "x") or (name == "method" and value is None)  # the default
+            out.append((f"{name}={value}", body, 404 if legal else 422, "" if legal else name))
     return out
