@@ -55,8 +55,8 @@ IMAGE_HEADER = struct.Struct("<4sHH32sIIdIIddddI")
 IMAGE_SPECTRAL = struct.Struct("<HBB")
 MAGIC = b"FPPL"
 IMAGE_VERSION = 2
-#: most excitation wavelengths one plan may hold
-MAX_WAVELENGTHS = 64
+#: most excitation wavelengths one plan may hold (the plan image's table holds as many)
+MAX_WAVELENGTHS = 16
 #: values of ``acquisition.wavelength_order`` (index = the plan image's ``order`` byte)
 WAVELENGTH_ORDERS = ("per_point", "per_pass")
 
@@ -64,10 +64,22 @@ WAVELENGTH_ORDERS = ("per_point", "per_pass")
 PLAN_FORMAT: Final = "fpscan-plan/1"
 #: Excitation wavelengths a plan may ask for, m (inclusive): 400 nm to 2000 nm.
 WAVELENGTH_RANGE = (400e-9, 2000e-9)
-#: Largest lattice (points) and record length a plan may declare: bounds what a plan (or a
-#: scan file's copy of one) can make a reader allocate (a 4096² lattice; 2^20 samples).
+#: Largest lattice (points) a plan may declare: bounds what a plan (or a scan file's copy
+#: of one) can make a reader allocate (a 4096² lattice).
 MAX_LATTICE_POINTS = 1 << 24
-MAX_N_T = 1 << 20
+#: The acquisition limits of the plan contract (``check_acquisition``), the one set: the
+#: scanner side, the scan file, ``service.plans.Acquisition`` and ``POST /api/plans`` (its
+#: OpenAPI schema states these numbers) all apply them. Samples per A-line (inclusive):
+N_T_RANGE = (8, 65536)
+MIN_N_T, MAX_N_T = N_T_RANGE
+#: longest sample interval, s (inclusive; > 0)
+MAX_DT = 1e-3
+#: most pulses averaged per point and wavelength (>= 1)
+MAX_AVERAGES = 4096
+#: highest pulse repetition frequency, Hz (inclusive; 0 = as fast as the scanner can)
+MAX_PRF = 1e5
+#: speed of sound, m/s: above the first, at most the second
+SOUND_SPEED_RANGE = (100.0, 10000.0)
 
 
 def canonical_json(obj: Any) -> str:
@@ -107,13 +119,16 @@ def _integer(name: str, value: Any, minimum: int, maximum: int | None = None) ->
     return int(value)
 
 
-def _number(name: str, value: Any, *, positive: bool = True, unit: str = "") -> float:
+def _number(name: str, value: Any, *, positive: bool = True, unit: str = "",
+            maximum: float | None = None) -> float:
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise ValueError(f"plan {name} must be a number{(' in ' + unit) if unit else ''}, got {value!r}")
     v = float(value)
     if not math.isfinite(v) or (v <= 0 if positive else v < 0):
         raise ValueError(f"plan {name} must be finite and {'>' if positive else '>='} 0"
                          f"{(' ' + unit) if unit else ''}, got {value!r}")
+    if maximum is not None and v > maximum:
+        raise ValueError(f"plan {name} must be <= {maximum:g}{(' ' + unit) if unit else ''}, got {value!r}")
     return v
 
 
@@ -139,22 +154,31 @@ def check_wavelengths(wavelengths: Any) -> list[float]:
 
 
 def check_acquisition(acq: Any) -> dict:
-    """Check a plan's ``acquisition`` object (docs/architecture.md "Plan JSON"): ``n_t``
-    (int >= 1), ``dt`` (s, > 0), optional ``averages`` (int >= 1), ``wavelengths`` (m, see
-    ``check_wavelengths``), ``prf`` (Hz, >= 0; 0 = as fast as possible), ``sound_speed``
-    (m/s, > 0). Returns it; raises ``ValueError`` naming the first fault."""
+    """Check a plan's ``acquisition`` object (docs/architecture.md "Plan JSON") against the
+    contract's limits (the module constants): ``n_t`` (int, ``N_T_RANGE``: 8 to 65536),
+    ``dt`` (s, > 0, at most ``MAX_DT`` = 1 ms), optional ``averages`` (int, 1 to
+    ``MAX_AVERAGES`` = 4096), ``wavelengths`` (m, see ``check_wavelengths``; at most
+    ``MAX_WAVELENGTHS`` = 16), ``prf`` (Hz, 0 to ``MAX_PRF`` = 100 kHz; 0 = as fast as
+    possible), ``sound_speed`` (m/s, ``SOUND_SPEED_RANGE``: above 100, at most 10 000),
+    ``wavelength_order`` (``wavelength_order``). The service's ``Acquisition`` model calls
+    this, so the library, the API and the scanner side accept the same plans.
+
+    Returns it; raises ``ValueError`` naming the first fault."""
     if not isinstance(acq, dict):
         raise ValueError("plan 'acquisition' must be an object")
     if "n_t" not in acq or "dt" not in acq:
         raise ValueError("plan acquisition needs 'n_t' and 'dt'")
-    _integer("acquisition.n_t", acq["n_t"], 1, MAX_N_T)
-    _number("acquisition.dt", acq["dt"], unit="s")
+    _integer("acquisition.n_t", acq["n_t"], MIN_N_T, MAX_N_T)
+    _number("acquisition.dt", acq["dt"], unit="s", maximum=MAX_DT)
     if "averages" in acq:
-        _integer("acquisition.averages", acq["averages"], 1)
+        _integer("acquisition.averages", acq["averages"], 1, MAX_AVERAGES)
     if "prf" in acq and acq["prf"] is not None:
-        _number("acquisition.prf", acq["prf"], positive=False, unit="Hz")
+        _number("acquisition.prf", acq["prf"], positive=False, unit="Hz", maximum=MAX_PRF)
     if "sound_speed" in acq:
-        _number("acquisition.sound_speed", acq["sound_speed"], unit="m/s")
+        lo, hi = SOUND_SPEED_RANGE
+        c = _number("acquisition.sound_speed", acq["sound_speed"], unit="m/s", maximum=hi)
+        if c <= lo:
+            raise ValueError(f"plan acquisition.sound_speed must be > {lo:g} m/s, got {acq['sound_speed']!r}")
     if len(check_wavelengths(acq.get("wavelengths"))) > MAX_WAVELENGTHS:
         raise ValueError(f"a plan holds at most {MAX_WAVELENGTHS} wavelengths")
     wavelength_order(acq)

@@ -16,7 +16,21 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
-from driver.plan import PLAN_FORMAT, canonical_json, check_plan, check_wavelengths, plan_id_of
+from driver.plan import (
+    MAX_AVERAGES,
+    MAX_DT,
+    MAX_N_T,
+    MAX_PRF,
+    MAX_WAVELENGTHS,
+    MIN_N_T,
+    PLAN_FORMAT,
+    SOUND_SPEED_RANGE,
+    canonical_json,
+    check_acquisition,
+    check_plan,
+    check_wavelengths,
+    plan_id_of,
+)
 
 from .kinds import make_mask
 from .lattice import Lattice
@@ -66,44 +80,42 @@ class MaskSpec(_Strict):
 
 
 class Points(_Strict):
+    """The plan's points in scan order; their checks (shapes, lattice membership, finite
+    positions, weights) are the plan contract's, ``driver.plan.check_plan``, run by
+    :class:`Plan`."""
+
     indices: list[tuple[int, int]]
     positions: list[tuple[float, float]] = Field(description="(x, y) in m")
     weights: list[float] = Field(description="m² (m on a line lattice)")
-
-    @model_validator(mode="after")
-    def _shapes(self):
-        n = len(self.indices)
-        if n == 0:
-            raise ValueError("a plan needs at least one point")
-        if len(self.positions) != n or len(self.weights) != n:
-            raise ValueError(
-                f"points: {n} indices, {len(self.positions)} positions and {len(self.weights)} weights differ"
-            )
-        w = np.asarray(self.weights, dtype=np.float64)
-        if not np.all(np.isfinite(w)) or np.any(w <= 0):
-            raise ValueError("points: weights must be finite and > 0")
-        if not np.all(np.isfinite(np.asarray(self.positions, dtype=np.float64))):
-            raise ValueError("points: positions must be finite")
-        return self
 
 
 class Acquisition(_Strict):
     """Acquisition settings: ``n_t`` samples per A-line at interval ``dt`` (s), ``averages``
     pulses per point and wavelength, excitation ``wavelengths`` (m, 400 nm to 2000 nm, no
-    repeats: ``driver.plan.check_wavelengths``), laser ``prf`` (Hz; 0 = as fast as the
-    scanner can), ``sound_speed`` (m/s). The bounds are the API's (one model for both)."""
+    repeats), laser ``prf`` (Hz; 0 = as fast as the scanner can), ``sound_speed`` (m/s).
 
-    n_t: int = Field(default=1024, ge=8, le=65536, description="samples per A-line")
-    dt: float = Field(default=8e-9, gt=0, le=1e-3, description="sample interval, s",
-                      json_schema_extra={"unit": "s", "display_unit": "ns"})
-    averages: int = Field(default=1, ge=1, le=4096, description="pulses averaged per point")
-    wavelengths: list[float] = Field(default_factory=lambda: [7.5e-7], max_length=16,
+    The limits are the plan contract's, checked by ``driver.plan.check_acquisition`` (the
+    scanner side's check: one set of limits for the library, the API and the scanner);
+    the JSON schema states the same numbers (``driver.plan``'s constants). Raises
+    ``pydantic.ValidationError`` (a ValueError) with the driver's reason."""
+
+    n_t: int = Field(default=1024, description="samples per A-line",
+                     json_schema_extra={"minimum": MIN_N_T, "maximum": MAX_N_T})
+    dt: float = Field(default=8e-9, description="sample interval, s",
+                      json_schema_extra={"unit": "s", "display_unit": "ns", "exclusiveMinimum": 0,
+                                         "maximum": MAX_DT})
+    averages: int = Field(default=1, description="pulses averaged per point",
+                          json_schema_extra={"minimum": 1, "maximum": MAX_AVERAGES})
+    wavelengths: list[float] = Field(default_factory=lambda: [7.5e-7],
                                      description="excitation wavelengths, m (400 nm to 2000 nm, no repeats)",
-                                     json_schema_extra={"unit": "m", "display_unit": "nm"})
-    prf: float = Field(default=50.0, ge=0, le=1e5, description="pulse repetition frequency, Hz (0 = as fast as possible)",
-                       json_schema_extra={"unit": "Hz", "display_unit": "Hz"})
-    sound_speed: float = Field(default=1500.0, gt=100, le=10000, description="speed of sound, m/s",
-                               json_schema_extra={"unit": "m/s", "display_unit": "m/s"})
+                                     json_schema_extra={"unit": "m", "display_unit": "nm", "minItems": 1,
+                                                        "maxItems": MAX_WAVELENGTHS})
+    prf: float = Field(default=50.0, description="pulse repetition frequency, Hz (0 = as fast as possible)",
+                       json_schema_extra={"unit": "Hz", "display_unit": "Hz", "minimum": 0, "maximum": MAX_PRF})
+    sound_speed: float = Field(default=1500.0, description="speed of sound, m/s",
+                               json_schema_extra={"unit": "m/s", "display_unit": "m/s",
+                                                  "exclusiveMinimum": SOUND_SPEED_RANGE[0],
+                                                  "maximum": SOUND_SPEED_RANGE[1]})
     #: several wavelengths: tune the laser at every point ("per_point", the default when
     #: absent) or once per full pass ("per_pass"); docs/protocol.md §4.1. Left out of the
     #: JSON when not set, so plans without it keep their ids.
@@ -111,15 +123,15 @@ class Acquisition(_Strict):
         default=None, exclude_if=lambda v: v is None,
         description="per_point (default) or per_pass: when the laser is tuned between wavelengths")
 
-    @field_validator("dt", "prf", "sound_speed")
-    @classmethod
-    def _fin(cls, v, info):
-        return _finite(info.field_name, v)
-
     @field_validator("wavelengths")
     @classmethod
     def _wl(cls, v):
         return check_wavelengths(v)
+
+    @model_validator(mode="after")
+    def _contract(self):
+        check_acquisition(self.model_dump())  # the plan contract's limits (NaN kept: not mode="json")
+        return self
 
 
 class Plan(_Strict):
