@@ -4,6 +4,7 @@ finished first, survives a restart); disk use in /api/health; float32 compressed
 from __future__ import annotations
 
 import io
+import json
 import sqlite3
 import subprocess
 import sys
@@ -12,6 +13,7 @@ import time
 import h5py
 import httpx
 import numpy as np
+import pytest
 
 from service.jobs import lifecycle
 from service.jobs.store import JobStore
@@ -96,6 +98,42 @@ def test_delete_retention_and_restart(tmp_path):
             out = _cli("jobs", "list", "--server", srv.url, "--token", srv.token)
             assert out.returncode == 0 and f"{jobs[1][:12]}  recon  succeeded" in out.stdout
             assert f"ner of dataset {ds[:8]}" in out.stdout, out.stdout
+            out = _cli("jobs", "get", short, "--server", srv.url, "--token", srv.token)
+            assert out.returncode == 0 and json.loads(out.stdout)["id"] == jobs[1], out.stderr
+
+            # the volume as OME-TIFF over HTTP (short id): shape and voxel sizes in µm
+            import tifffile
+
+            r = api.get(f"/api/reconstructions/{short}/volume.ome.tif")
+            assert r.status_code == 200, r.text
+            with tifffile.TiffFile(io.BytesIO(r.content)) as tif:
+                assert tif.is_ome and tif.series[0].axes == "ZYX" and tif.series[0].shape == (N_T, N, N)
+                pixels = tif.ome_metadata.split("<Pixels ", 1)[1].split(">", 1)[0]
+            sizes = {k: float(v.strip('"')) for k, v in (a.split("=", 1) for a in pixels.split())
+                     if k in ("PhysicalSizeX", "PhysicalSizeY", "PhysicalSizeZ")}
+            assert sizes == pytest.approx({"PhysicalSizeX": PITCH * 1e6, "PhysicalSizeY": PITCH * 1e6,
+                                           "PhysicalSizeZ": 1500.0 * DT * 1e6})
+
+            # an ambiguous prefix: a second job whose id starts with the same 8 characters
+            # (a finished scan with no file, written to the database as another process would)
+            sibling = jobs[1][:8] + ("1" if jobs[1][8] == "0" else "0") + "f" * 23
+            with sqlite3.connect(db) as con:
+                con.execute("INSERT INTO jobs (id, kind, state, params, progress, created, finished) "
+                            "VALUES (?, 'scan', 'failed', ?, '{}', ?, ?)",
+                            (sibling, json.dumps({"plan_id": "p" * 64}), time.time(), time.time()))
+            r = api.get(f"/api/jobs/{short}")
+            assert r.status_code == 409 and "matches several jobs" in r.json()["detail"], r.text
+            assert jobs[1] in r.json()["detail"] and sibling in r.json()["detail"]
+            r = api.post("/api/reconstructions", json={"scan_job_id": short, "method": "nedner"})
+            assert r.status_code == 409 and "matches several jobs" in r.json()["detail"], r.text
+            out = _cli("jobs", "get", short, "--server", srv.url, "--token", srv.token)
+            assert out.returncode == 1 and "matches several jobs" in out.stderr, out.stderr
+            # a short scan_job_id is resolved: the refusal names the full id
+            r = api.post("/api/reconstructions", json={"scan_job_id": sibling[:9], "method": "nedner"})
+            assert r.status_code == 409 and f"scan job {sibling} has no scan file yet" in r.json()["detail"], r.text
+            out = _cli("jobs", "delete", sibling[:9], "--server", srv.url, "--token", srv.token)
+            assert out.returncode == 0 and _rows(db, "jobs", "id", sibling) == 0, out.stderr
+            assert api.get(f"/api/jobs/{short}").json()["id"] == jobs[1]
 
             # a plan for the paused scan below
             r = api.post("/api/plans", json={"lattice": {"n_x": 4, "n_y": 4, "pitch": 1e-4},
@@ -193,4 +231,42 @@ def test_running_jobs_inputs_are_protected(tmp_path):
     assert not (data / "scans" / "s.h5").exists() and store.get(scan["id"]) is None
     assert lifecycle.delete_dataset(store, data, "d1")["bytes_freed"] == 100
     assert not (data / "datasets" / "d1").exists() and store.get_dataset("d1") is None
+    store.close()
+
+
+def test_retention_by_bytes_alone(tmp_path):
+    """``keep_bytes`` without ``keep_results``: the oldest finished results go until the
+    rest fit; a finished scan's file stays unless scans are included."""
+    data = tmp_path / "data"
+    (data / "results").mkdir(parents=True)
+    (data / "scans").mkdir()
+    store = JobStore(data / "jobs.sqlite")
+    jobs = []
+    for _ in range(3):  # finished in this order, 1000 bytes of results each
+        job, _ = store.create_job("recon", {"dataset_id": "d"})
+        (data / "results" / f"{job['id']}.1").mkdir()
+        (data / "results" / f"{job['id']}.1" / "volume.h5").write_bytes(b"v" * 1000)
+        store.set_state(job["id"], "succeeded")
+        jobs.append(job["id"])
+        time.sleep(0.01)
+    scan, _ = store.create_job("scan", {"plan_id": "p", "scan_path": str(data / "scans" / "s.h5")})
+    (data / "scans" / "s.h5").write_bytes(b"s" * 5000)
+    store.set_state(scan["id"], "succeeded")
+
+    class S:  # the settings the rules read
+        data_dir = data
+        retention_keep_results = None
+        retention_keep_bytes = None
+        retention_include_scans = False
+
+    assert lifecycle.apply_retention(store, S) == []  # no policy: nothing goes
+    lifecycle.set_retention(store, {"keep_bytes": 2500})
+    assert lifecycle.apply_retention(store, S) == [jobs[0]]  # 3000 -> 2000 bytes
+    assert not (data / "results" / f"{jobs[0]}.1").exists() and store.get(jobs[0]) is None
+    assert all((data / "results" / f"{j}.1").is_dir() for j in jobs[1:])
+    lifecycle.set_retention(store, {"keep_bytes": 0})
+    assert lifecycle.apply_retention(store, S) == jobs[1:]
+    assert (data / "scans" / "s.h5").exists() and store.get(scan["id"]) is not None
+    lifecycle.set_retention(store, {"keep_bytes": 0, "include_scans": True})
+    assert lifecycle.apply_retention(store, S) == [scan["id"]] and not (data / "scans" / "s.h5").exists()
     store.close()

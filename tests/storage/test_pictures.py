@@ -93,10 +93,14 @@ def test_one_orientation_and_mm_axes_in_every_picture(tmp_path):
     for png in (live["xy"], (out / "mip_xy.png").read_bytes()):
         g = png_axes(png)
         assert (g["bottom"] - g["top"]) == pytest.approx(g["right"] - g["left"], rel=0.02)
-    g = png_axes((out / "mip_xz.png").read_bytes())
-    h_left, h_right, v_bottom, v_top = g["extent_mm"]
-    assert (g["bottom"] - g["top"]) / (g["right"] - g["left"]) == \
-        pytest.approx(abs(v_bottom - v_top) / (h_right - h_left), rel=0.03)
+    # (the live previews' xz/yz too: not stretched to squares)
+    for what, png in (("result MIP xz", (out / "mip_xz.png").read_bytes()), ("live preview xz", live["xz"]),
+                      ("live preview yz", live["yz"])):
+        g = png_axes(png)
+        h_left, h_right, v_bottom, v_top = g["extent_mm"]
+        assert (g["bottom"] - g["top"]) / (g["right"] - g["left"]) == \
+            pytest.approx(abs(v_bottom - v_top) / (h_right - h_left), rel=0.03), what
+        assert abs(abs(v_bottom - v_top) - (h_right - h_left)) > 0.1, f"{what}: depth and width differ in mm"
 
 
     # the same volume as OME-TIFF for ImageJ/napari, through the CLI: right shape, axes
