@@ -940,6 +940,13 @@ function resultOf(job) {
   return (job.params && job.params.result) || job.result || {};
 }
 
+/** Depth spacing dz (m) of a result: the value the reconstruction used (depth row k lies
+ *  at z = k·dz below the sensor plane, DESIGN §3); null when the job does not say. */
+function sliceSpacing(job) {
+  const used = resultOf(job).params_used || {};
+  return typeof used.dz === "number" && used.dz > 0 ? used.dz : null;
+}
+
 function sliceCount(job) {
   const r = resultOf(job);
   const cands = [r.shape && r.shape[0], r.n_z];
@@ -1019,6 +1026,8 @@ function renderResult(job) {
     }
     const n = sliceCount(job);
     const slider = $("result-slice");
+    const dz = sliceSpacing(job);
+    slider.dataset.dz = dz === null ? "" : String(dz);
     slider.max = String(n ? n - 1 : 0);
     slider.disabled = !n;
     if (slider.dataset.job !== String(job.id)) { slider.value = String(n ? Math.floor((n - 1) / 2) : 0); slider.dataset.job = String(job.id); }
@@ -1109,13 +1118,19 @@ let sliceTimer = null;
 function showSlice() {
   if (!resultJob) return;
   const k = Number($("result-slice").value);
+  const dz = Number($("result-slice").dataset.dz);
+  const depth = dz > 0 ? `z = ${(k * dz * 1e3).toFixed(3)} mm` : "";
   $("result-slice-value").textContent = `${k} of 0–${$("result-slice").max}`;
+  $("result-slice-depth").textContent = depth ? `(${depth})` : "";
   clearTimeout(sliceTimer);
   const id = resultJob;
   sliceTimer = setTimeout(() => {
     const img = $("result-slice-img");
     loadImage(img, `/api/reconstructions/${encodeURIComponent(id)}/slice.png?index=${k}`)
-      .then(() => { img.alt = `Reconstruction, depth slice ${k}`; $("result-slice-caption").textContent = `depth slice ${k}`; })
+      .then(() => {
+        img.alt = `Reconstruction, depth slice ${k}` + (depth ? ` at ${depth}` : "");
+        $("result-slice-caption").textContent = `depth slice ${k}` + (depth ? ` (${depth})` : "");
+      })
       .catch(showError);
   }, 120);
 }

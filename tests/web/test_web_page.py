@@ -354,6 +354,8 @@ def test_result_view_reconstruct_slices_and_download_volume(browser, server, api
     browser.execute_script("const s = arguments[0]; s.value = s.max; s.dispatchEvent(new Event('input'));", slider)
     wait_for(lambda: (el(browser, "result-slice-img").get_attribute("data-src") or "").endswith(f"index={top}"), 15, "the last slice")
     assert text(browser, "result-slice-value").startswith(f"{top} of")
+    dz = api.get(f"/api/jobs/{recon_id}").json()["params"]["result"]["params_used"]["dz"]
+    assert text(browser, "result-slice-depth") == f"(z = {top * dz * 1e3:.3f} mm)"  # the depth, not only the index
     last = api.get(f"/api/reconstructions/{recon_id}/slice.png", params={"index": top})
     assert last.status_code == 200
     want = hashlib.sha256(png_pixels_as_browser_png(browser, base64.b64encode(last.content).decode())).hexdigest()
