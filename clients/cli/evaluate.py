@@ -52,6 +52,8 @@ def _headline(result) -> str:
                    else ""))
     if name == "sparse-masks-3d":
         parts = [f"equi-steradian {s['cc_equisteradian']:.3f}"]
+        if math.isfinite(s.get("cc_equisteradian_tv", math.nan)):  # the tv row was run
+            parts.append(f"equi-steradian tv {s['cc_equisteradian_tv']:.3f}")
         parts += [f"{k[3:].replace('_', ' ')} {v:.3f}" for k, v in s.items() if k.startswith("cc_interval_")]
         return (f"CC of xy-MIP at {s['eval_diameter_m'] * 1e3:.2f} mm: " + ", ".join(parts)
                 + " [paper at 7.2 mm: 0.960 vs 0.947 (interval 4) / 0.944 (interval 5)]")
