@@ -14,8 +14,6 @@ Targets: >= 5000 A-lines/s and >= 40 %.
 from __future__ import annotations
 
 import argparse
-import hashlib
-import json
 import multiprocessing
 import os
 import pty
@@ -29,6 +27,8 @@ from pathlib import Path
 
 from driver.aline import ALINE_HEADER
 from driver.framing import HEADER, FrameType, encode_frame
+from driver.physics.axes import centred_positions
+from driver.plan import plan_id_of
 
 
 def raw_pty_rate(seconds: float = 2.0) -> float:
@@ -78,7 +78,7 @@ def _run_sim(cfg, conn) -> None:
 
 def grid_plan(side: int, n_t: int, dt: float = 8e-9, pitch: float = 6e-5) -> dict:
     idx = [[ix if iy % 2 == 0 else side - 1 - ix, iy] for iy in range(side) for ix in range(side)]
-    pos = [[(ix - (side - 1) / 2) * pitch, (iy - (side - 1) / 2) * pitch] for ix, iy in idx]
+    pos = [[float(centred_positions(ix, side, pitch)), float(centred_positions(iy, side, pitch))] for ix, iy in idx]
     plan = {"format": "fpscan-plan/1", "lattice": {"n_x": side, "n_y": side, "pitch": pitch},
             "mask": {"kind": "grid", "params": {}, "requested_points": len(idx),
                      "obtained_points": len(idx), "weight_ratio": 1.0},
@@ -86,8 +86,7 @@ def grid_plan(side: int, n_t: int, dt: float = 8e-9, pitch: float = 6e-5) -> dic
             "order": "serpentine",
             "acquisition": {"n_t": n_t, "dt": dt, "averages": 1, "wavelengths": [7.5e-7],
                             "prf": 0.0, "sound_speed": 1500.0}}
-    plan["id"] = hashlib.sha256(json.dumps(plan, sort_keys=True, separators=(",", ":"))
-                                .encode()).hexdigest()
+    plan["id"] = plan_id_of(plan)
     return plan
 
 

@@ -21,6 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from driver.physics.axes import centred_axis
+
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
 
@@ -82,7 +84,7 @@ def main() -> None:
     if not args.skip_kwave and path.is_file():
         bench_autofocus("k-Wave 3-D 96x96x751", load_dataset(path), 1500.0)
     n, dx, dt, n_t = args.side, 60e-6, 10e-9, 1024
-    x = (np.arange(n) - (n - 1) / 2) * dx
+    x = centred_axis(n, dx)
     yy, xx = np.meshgrid(x, x, indexing="ij")
     pos = np.stack([xx.ravel(), yy.ravel()], axis=1)
     rng = np.random.default_rng(1)

@@ -89,18 +89,21 @@ def focus_sharpness(p0: np.ndarray) -> float:
 
     ``p0``: ``(n_z, n_y, n_x)`` or ``(n_z, n_x)`` (depth first). Returns a float ≥ 0
     (0 for an all-zero image). Raises ``ValueError`` for another shape or NaN/inf."""
+    from service.metrics.projections import mip
     from service.metrics.sharpness import tenenbaum_sharpness
 
     p = np.asarray(p0)
     if p.ndim not in (2, 3) or p.size == 0:
         raise ValueError(f"p0 must be (n_z, n_y, n_x) or (n_z, n_x), got shape {p.shape}")
-    mip = np.asarray(p.max(axis=0), dtype=np.float64)
-    if mip.ndim == 1:
-        mip = mip[None, :]
-    energy = float(np.mean(mip * mip))
+    # the depth MIP: xy of the volume; of a 2-D image (n_z, n_x), its one row (1, n_x)
+    try:
+        projection = np.asarray(mip(p if p.ndim == 3 else p[:, None, :], "xy"), dtype=np.float64)
+    except ValueError:  # the shape is checked above: NaN
+        raise ValueError("p0 contains NaN or inf") from None
+    energy = float(np.mean(projection * projection))
     if not math.isfinite(energy):
         raise ValueError("p0 contains NaN or inf")
-    return tenenbaum_sharpness(mip) / energy if energy > 0 else 0.0
+    return tenenbaum_sharpness(projection) / energy if energy > 0 else 0.0
 
 
 def choose_decimation(alines: np.ndarray, *, max_q: int = MAX_DECIMATION) -> int:

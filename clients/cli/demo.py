@@ -304,6 +304,8 @@ class Demo:
         import h5py
         import numpy as np
 
+        from service.metrics.projections import mip
+
         recons = self.report["reconstructions"]
         try:
             from driver.physics import ball_p0
@@ -344,8 +346,8 @@ class Demo:
                 phantom = ball_p0(default_phantom(), z, x, y)
                 r["cc_phantom"] = float(cc(p0, phantom))
                 r["cc_phantom_roi"] = float(cc(p0, phantom, roi))
-                r["cc_phantom_mip_xy"] = float(cc(p0.max(axis=0), phantom.max(axis=0)))
-                r["cc_phantom_mip_xz"] = float(cc(p0.max(axis=1), phantom.max(axis=1)))
+                r["cc_phantom_mip_xy"] = float(cc(mip(p0, "xy"), mip(phantom, "xy")))
+                r["cc_phantom_mip_xz"] = float(cc(mip(p0, "xz"), mip(phantom, "xz")))
         if "nedner" in vols and "ner_dense" in vols and vols["nedner"].shape == vols["ner_dense"].shape \
                 and "nedner" in rois:
             a, ref = vols["nedner"], vols["ner_dense"]

@@ -74,6 +74,17 @@ def kernel_params(eps: float) -> tuple[int, float]:
     return w, beta_over_w * w
 
 
+def es_kernel(u: np.ndarray, beta: float) -> np.ndarray:
+    """The "exponential of semicircle" kernel (FINUFFT; Barnett, Magland & af Klinteberg,
+    SIAM J. Sci. Comput. 41 (2019)) at normalised offsets ``u`` (any shape; the support is
+    ``|u| <= 1``, zero outside): ``phi(u) = exp(beta (sqrt(1 - u²) - 1))``. The one place
+    the temporal kernel's formula is written (its polynomial taps and its Fourier transform
+    both evaluate it)."""
+    u = np.asarray(u, dtype=np.float64)
+    inside = np.abs(u) <= 1.0
+    return np.where(inside, np.exp(beta * (np.sqrt(np.clip(1.0 - u * u, 0.0, None)) - 1.0)), 0.0)
+
+
 def kernel_polynomials(w: int, beta: float) -> np.ndarray:
     """The ES kernel's w taps as polynomials of the grid offset, for evaluation by Horner's
     rule instead of one square root and one exponential per tap (FINUFFT's approach,
@@ -94,7 +105,7 @@ def kernel_polynomials(w: int, beta: float) -> np.ndarray:
     rows = []
     for k in range(w):
         u = (x + k - 0.5 * w) * (2.0 / w)
-        phi = np.exp(beta * (np.sqrt(np.clip(1.0 - u * u, 0.0, None)) - 1.0))
+        phi = es_kernel(u, beta)
         rows.append(chebyshev.cheb2poly(chebyshev.chebfit(t, phi, w + 4))[::-1])
     return np.ascontiguousarray(rows, dtype=np.float64)
 
@@ -103,7 +114,7 @@ def _kernel_fourier(w: int, beta: float, k: np.ndarray) -> np.ndarray:
     """phi_hat(k) = int_{-w/2}^{w/2} phi(u) cos(k u) du by Gauss-Legendre quadrature."""
     nodes, weights = np.polynomial.legendre.leggauss(4 * w + 40)
     u = nodes * (w / 2.0)
-    phi = np.exp(beta * (np.sqrt(1.0 - (2.0 * u / w) ** 2) - 1.0))
+    phi = es_kernel(2.0 * u / w, beta)
     return (np.cos(np.outer(k, u)) @ (phi * weights)) * (w / 2.0)
 
 

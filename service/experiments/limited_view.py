@@ -221,7 +221,7 @@ def run(  # noqa: C901 -- one experiment: its arrangements in sequence, one tabl
                           time_s=time.perf_counter() - t0))
         images["equiangular-interpolated"] = img
         sensors["equiangular-interpolated"] = pos[:, 0]
-        weight_ratio = float(w.max() / w.min())
+        weight_ratio = mask_eq.weight_ratio  # outer/inner (service.plans.weight_ratio), as every plan states it
     else:
         weight_ratio = np.nan
 

@@ -30,7 +30,6 @@ def tree_phantom(n_z: int, n_x: int, *, amplitude: float = 1.0) -> np.ndarray:
     if n_z < 16 or n_x < n_z // 2:
         raise ValueError(f"tree phantom needs n_z >= 16 and n_x >= n_z/2, got ({n_z}, {n_x})")
     h = float(n_z)
-    xc = (n_x - 1) / 2
     discs = [  # (depth, lateral offset, radius) in units of n_z
         (0.30, 0.00, 0.14), (0.22, -0.12, 0.10), (0.22, 0.12, 0.10), (0.38, -0.16, 0.10),
         (0.38, 0.16, 0.10), (0.13, 0.00, 0.09), (0.45, -0.06, 0.08), (0.45, 0.08, 0.08),
@@ -38,12 +37,12 @@ def tree_phantom(n_z: int, n_x: int, *, amplitude: float = 1.0) -> np.ndarray:
     s = 4
     off = (np.arange(s) + 0.5) / s - 0.5
     zz = (np.arange(n_z)[:, None] + off[None, :]).ravel()
-    xx = (np.arange(n_x)[:, None] + off[None, :]).ravel()
+    xx = (centred_axis(n_x, 1.0)[:, None] + off[None, :]).ravel()  # lateral, in pixels from the centre
     Z, X = np.meshgrid(zz, xx, indexing="ij")
     inside = np.zeros(Z.shape, dtype=bool)
     for dz_, dx_, r in discs:
-        inside |= (Z - dz_ * h) ** 2 + (X - xc - dx_ * h) ** 2 <= (r * h) ** 2
-    inside |= (np.abs(X - xc) <= 0.035 * h) & (Z >= 0.40 * h) & (Z <= 0.90 * h)
+        inside |= (Z - dz_ * h) ** 2 + (X - dx_ * h) ** 2 <= (r * h) ** 2
+    inside |= (np.abs(X) <= 0.035 * h) & (Z >= 0.40 * h) & (Z <= 0.90 * h)
     p0 = inside.reshape(n_z, s, n_x, s).mean(axis=(1, 3))
     return amplitude * p0
 

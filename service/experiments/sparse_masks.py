@@ -196,7 +196,7 @@ def run(
     es_row = rows[1]
     band = (diameters >= 2 / 13.56 * side) & (diameters <= 8 / 13.56 * side)
     summary = {"cc_equisteradian": es_row["cc_eval_diameter"], "eval_diameter_m": eval_d,
-               "weight_ratio_equisteradian": float(arrangements[0][5].max() / arrangements[0][5].min()),
+               "weight_ratio_equisteradian": es.weight_ratio,  # outer/inner, service.plans.weight_ratio
                "paper": PAPER}
     if model_based:
         summary["cc_equisteradian_tv"] = rows[-1]["cc_eval_diameter"]

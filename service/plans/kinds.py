@@ -138,13 +138,16 @@ class EquisteradianParams(MaskParams):
 class MaskKind:
     """One mask kind: ``params`` model, mask function ``impl`` (``"module:function"`` in
     this package, first argument the lattice; loaded on first use so that the models are
-    cheap to import), a label, and the other names it is accepted under."""
+    cheap to import), a label, and the other names it is accepted under. ``poi_depth``:
+    the kind's ``depth`` parameter is the depth of a point of interest (m), judged by the
+    plausibility rules (``service.plans.plan.check_plausible_request``)."""
 
     name: str
     params: type[MaskParams]
     impl: str
     label: str
     aliases: tuple[str, ...] = ()
+    poi_depth: bool = False
 
     @property
     def function(self) -> Callable[..., Mask]:
@@ -161,9 +164,9 @@ class MaskKind:
 #: The mask kinds, in the order forms offer them.
 KINDS: dict[str, MaskKind] = {k.name: k for k in (
     MaskKind("equisteradian", EquisteradianParams, "angular:equisteradian_mask",
-             "Equi-steradian (3-D, rings around a point of interest)"),
+             "Equi-steradian (3-D, rings around a point of interest)", poi_depth=True),
     MaskKind("equiangular", EquiangularParams, "angular:equiangular_mask",
-             "Equiangular (2-D line, around a point of interest)"),
+             "Equiangular (2-D line, around a point of interest)", poi_depth=True),
     MaskKind("full", FullParams, "grids:full_mask", "Full lattice"),
     MaskKind("equispaced", EquispacedParams, "grids:subgrid_mask", "Equispaced sub-grid", ("subgrid", "grid")),
     MaskKind("hexagonal", HexagonalParams, "grids:hexagonal_mask", "Hexagonal", ("hex",)),

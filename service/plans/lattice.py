@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from driver.physics.axes import centred_axis, centred_positions
+from driver.physics.axes import centred_axis, centred_index, centred_positions
 
 __all__ = ["Lattice"]
 
@@ -127,13 +127,10 @@ class Lattice:
             pos = np.column_stack((pos[:, 0], np.zeros(pos.shape[0])))
         idx = np.empty(pos.shape, dtype=np.int64)
         for a, n in enumerate((self.n_x, self.n_y)):
-            c = (n - 1) / 2
-            u = pos[:, a] / self.pitch
-            u = np.round(u, 9)  # kill float noise so ties are ties
-            rel = u + c  # index coordinate
+            u = np.round(pos[:, a] / self.pitch, 9)  # pitches from the centre; float noise killed so ties are ties
+            rel = centred_index(u, n, 1.0)  # index coordinate
             # round half away from the centre
-            off = rel - c
-            r = np.where(off >= 0, np.floor(rel + 0.5), np.ceil(rel - 0.5))
+            r = np.where(u >= 0, np.floor(rel + 0.5), np.ceil(rel - 0.5))
             # exactly half a pitch beyond the outermost point still snaps onto it
             edge = (np.abs(rel - np.clip(rel, 0, n - 1)) <= 0.5 + 1e-9)
             r = np.where(edge, np.clip(r, 0, n - 1), r)

@@ -32,7 +32,7 @@ from driver.plan import (
     plan_id_of,
 )
 
-from .kinds import make_mask
+from .kinds import make_mask, resolve_kind
 from .lattice import Lattice
 from .mask import Mask, weight_ratio
 from .ordering import ORDERS, auto_order, scan_order
@@ -315,8 +315,11 @@ def check_plausible_request(mask, kind, lattice, params, acquisition, *, force: 
         pitch, kind, params = mask.lattice.pitch, mask.kind, mask.params or {}
     else:
         pitch = lattice.get("pitch") if isinstance(lattice, dict) else getattr(lattice, "pitch", None)
-    depth = params.get("depth") if isinstance(params, dict) and kind in ("equiangular", "equisteradian") \
-        else None
+    try:
+        poi = resolve_kind(kind).poi_depth
+    except ValueError:  # an unknown kind is named by make_mask
+        poi = False
+    depth = params.get("depth") if isinstance(params, dict) and poi else None
     num = (int, float)
 
     def value(v):
