@@ -85,7 +85,7 @@ def estimate_memory(shape: dict, params: dict) -> int:
     rows = working_depth_rows(shape, params)
     from service.recon import estimate_peak_memory
 
-    geometry = {}
+    geometry: dict[str, float | None] = {}
     if shape.get("dx") and shape.get("dt"):  # the model-based operator's padding depends on them
         c = params.get("c")
         c = max(params.get("c_range") or (1450.0, 1600.0)) if c == "auto" else c
@@ -93,7 +93,8 @@ def estimate_memory(shape: dict, params: dict) -> int:
                     "dz": float(params["dz"]) if params.get("dz") else None}
     value = estimate_peak_memory(n_t, n_x, n_y, n_z=rows, upsample=up,
                                  dtype=params.get("dtype") or "float32", method=params.get("method", "ner"),
-                                 n_points=shape.get("n_points"), **geometry)
+                                 n_points=shape.get("n_points"), dx=geometry.get("dx"), dt=geometry.get("dt"),
+                                 c=geometry.get("c"), dz=geometry.get("dz"))
     return int(CALIBRATION * value) + n_t * int(shape.get("n_points", n_x * n_y)) * 8  # + the input
 
 

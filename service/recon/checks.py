@@ -78,10 +78,15 @@ def estimate_peak_memory(
     dt: float | None = None,
     c: float | None = None,
     dz: float | None = None,
+    square: bool | None = None,
 ) -> int:
     """Estimated peak memory in bytes of a planar reconstruction.
 
-    Parameters: ``n_t`` samples; ``n_x``, ``n_y`` lateral grid (``n_y = 1`` in 2-D);
+    Parameters: ``n_t`` samples; ``n_x``, ``n_y`` lateral grid (``n_y = 1`` in 2-D; the
+    planar methods zero-pad it to the fast transform lengths of
+    ``service.recon.planar._fast_lateral``, e.g. 226 -> 240, and the estimate counts
+    those; ``square``: dy = dx, which may give both axes one length; None: unknown, the
+    larger of the two);
     ``n_z`` output depth samples (default n_t); ``upsample`` lateral factor; ``dtype``
     float32/float64; ``method`` "ner"/"linear"/"nearest"/"cubic"/"nedner"/"kwave";
     ``n_points`` sensors for NEDNER (adds the type-1 NUFFT's full-plane spectrum).
@@ -95,6 +100,9 @@ def estimate_peak_memory(
     """
     b = np.dtype(dtype).itemsize
     n_z = n_t if n_z is None else n_z
+    n_in = n_t * n_y * n_x  # the input, as given
+    if method not in ("tv", "kwave"):  # the transform sizes the planar methods use
+        n_y, n_x = padded_lateral(n_y, n_x, square)
     cols = n_y * (n_x // 2 + 1)
     spectrum = n_t * cols * 2 * b
     fine = 2 * (n_t + 1) * cols * 2 * b if method in ("ner", "nedner") else (2 * n_t) * cols * 2 * b
@@ -105,7 +113,7 @@ def estimate_peak_memory(
         peak = max(peak, 2 * n_t * n_y * n_x * 2 * b + (n_points or 0) * n_t * 3 * b)
     if method == "kwave":  # two half-lateral spectra (transposed copy) + per-chunk buffers
         peak = int(2.4 * spectrum) + n_t * n_y * n_x * b
-    peak += n_t * n_y * n_x * b  # the input
+    peak += n_in * b  # the input
     if method == "tv":  # model-based: its own count (the warm start needs less)
         n_data = n_t * (n_points or n_x * n_y)
         if dx and dt and c:  # the operator's own padding rule
@@ -116,6 +124,18 @@ def estimate_peak_memory(
             pad = (max(n_z, n_t), n_y + n_t if n_y > 1 else 1, n_x + n_t)
         return max(int(peak * 1.1), tv_memory((n_z, n_y, n_x), pad, n_data, n_t, dtype))
     return int(peak * 1.1)
+
+
+def padded_lateral(n_y: int, n_x: int, square: bool | None = None) -> tuple[int, int]:
+    """The lateral transform sizes (n_y', n_x') of the planar methods for an n_y x n_x
+    grid (``service.recon.planar._fast_lateral``); ``square`` None (pitches unknown): the
+    larger of the square and non-square choices, axis by axis."""
+    from service.recon.planar import _fast_lateral
+
+    if square is not None:
+        return _fast_lateral(n_y, n_x, square)
+    (ay, ax), (by, bx) = _fast_lateral(n_y, n_x, False), _fast_lateral(n_y, n_x, True)
+    return max(ay, by), max(ax, bx)
 
 
 def tv_memory(image_shape, padded_shape, n_data: int, n_t: int, dtype=np.float64) -> int:
