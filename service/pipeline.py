@@ -208,7 +208,7 @@ def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = No
     opts["dtype"] = _dtype(opts.get("dtype"))
     c = opts.pop("c", None)
     c = float(dataset.c if c is None else c)
-    from service.storage.datasets import GridDataset, PointDataset
+    from service.storage.datasets import GridDataset, PointDataset, wavelength_params
 
     if spec.needs_grid and isinstance(dataset, PointDataset):
         dataset = dataset.to_grid()
@@ -223,6 +223,7 @@ def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = No
 
     step(0.0)
     result = spec.run(dataset, c, opts, step)
+    result.params.update(wavelength_params(dataset))  # which excitation wavelength (storage.datasets)
     step(1.0)
     return result
 

@@ -75,6 +75,38 @@ def reconstruct_wavelengths(datasets: Sequence[Any], method: str, *, reconstruct
     return out
 
 
+def write_wavelength_results(out_dir: str | os.PathLike, recons: Sequence[Any], wavelengths: Any = None, *,
+                             input_id: str = "") -> dict:
+    """Write the result folder of a multi-wavelength reconstruction: ``volume.h5`` + MIPs
+    of the first wavelength at the top (as any reconstruction result, so a viewer of one
+    volume shows it) and ``wavelength_<k>/`` (``volume.h5`` + MIPs) for each
+    reconstruction ``k`` (:func:`service.storage.results.write_result`; the unmixing job
+    and ``wavelength="all"`` share this layout). ``wavelengths`` (m, one per
+    reconstruction, or None) are recorded as ``wavelength_nm`` in each volume's params
+    where the reconstruction does not record its own. Returns the first's summary
+    (``shape``, ``max``, ``planes``, ``params_used``) plus ``wavelengths``: one
+    ``{"index", "wavelength_nm", "shape", "max"}`` per reconstruction. Raises
+    ``ValueError`` for a count of wavelengths that differs from the reconstructions."""
+    from service.storage.results import write_result
+
+    if len(recons) == 0:
+        raise ValueError("no wavelengths to write")
+    w = None if wavelengths is None else np.asarray(wavelengths, dtype=np.float64).reshape(-1)
+    if w is not None and w.size != len(recons):
+        raise ValueError(f"{len(recons)} volumes for {w.size} wavelengths")
+    out = Path(out_dir)
+    for k, rec in enumerate(recons):
+        if w is not None:
+            rec.params.setdefault("wavelength_nm", round(float(w[k]) * 1e9, 6))
+    written = write_result(out, recons[0], input_id=input_id)
+    rows = []
+    for k, rec in enumerate(recons):
+        one = write_result(out / f"wavelength_{k}", rec, input_id=input_id)
+        rows.append({"index": k, "wavelength_nm": rec.params.get("wavelength_nm"), "shape": one["shape"],
+                     "max": one["max"]})
+    return {**written, "wavelengths": rows}
+
+
 def unmix_reconstructions(recons: Sequence[Any], wavelengths: Any, **kwargs: Any) -> Unmixed:
     """Unmix per-wavelength reconstructions (``p0`` on one grid) into HbO2/Hb, THb and sO2
     (:func:`service.recon.unmix.unmix`; ``kwargs``: ``fluence``, ``gruneisen``,
@@ -191,7 +223,7 @@ def load_wavelength_datasets(paths: Sequence[str | os.PathLike], format: str | N
         raise ValueError("no input files")
     if len(paths) == 1:
         ds = dsm.load_dataset(paths[0], format, **load)
-        recorded = dataset_wavelengths(ds)
+        recorded = dsm.file_wavelengths(ds)
         if wavelengths is not None and len(wavelengths) != 1 and len(wavelengths) != recorded.size:
             raise ValueError(f"{len(wavelengths)} wavelengths given for a file with {recorded.size}")
         if recorded.size < 2:
@@ -199,12 +231,8 @@ def load_wavelength_datasets(paths: Sequence[str | os.PathLike], format: str | N
         fmt = format or dsm.detect_format(paths[0])
         if fmt != "fpscan":
             raise ValueError(f"a {fmt} file holds one wavelength's data; give one file per wavelength")
-        per = [dsm.load_scan(paths[0], wavelength_index=k) for k in range(recorded.size)]
-        for d in per:
-            for k, v in load.items():
-                if k in ("c", "dt"):
-                    setattr(d, k, float(v))
-        return recorded, per
+        return recorded, [ds] + [dsm.load_dataset(paths[0], format, wavelength=k, **load)
+                                 for k in range(1, recorded.size)]
     dsets = [dsm.load_dataset(p, format, **load) for p in paths]
     if wavelengths is None:
         rec = [dataset_wavelengths(d) for d in dsets]
@@ -232,8 +260,6 @@ def reconstruct_and_unmix(out_dir: str | os.PathLike, datasets: Sequence[Any], w
     (:func:`service.recon.unmix.endmember_matrix`) and counts that differ."""
     import time
 
-    from service.storage.results import write_result
-
     w = np.asarray(wavelengths, dtype=np.float64).reshape(-1)
     if w.size < 2 or len(datasets) < 2:
         raise too_few_wavelengths(w)
@@ -258,9 +284,7 @@ def reconstruct_and_unmix(out_dir: str | os.PathLike, datasets: Sequence[Any], w
         progress(0.95, "writing")
     out = Path(out_dir)
     first = recons[0]
-    written = write_result(out, first, input_id=input_id)
-    for k, rec in enumerate(recons):
-        write_result(out / f"wavelength_{k}", rec, input_id=input_id)
+    written = write_wavelength_results(out, recons, w, input_id=input_id)
     extra = {"method": method, "c": float(first.params.get("c", 0.0)) or None}
     if "autofocus" in first.params:
         extra["autofocus"] = first.params["autofocus"]

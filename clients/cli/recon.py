@@ -9,6 +9,15 @@ locally and on the server (default precision float32 on both).
 With ``--server`` the file is uploaded (``POST /api/datasets``), reconstructed as a job
 (``POST /api/reconstructions``; or ``--scan-job`` reuses a scan job's file) and the
 volume and MIPs are downloaded into ``--out``.
+
+A multi-wavelength scan (or IPASC file) is reconstructed at ``--wavelength K`` (an index
+into its excitation wavelengths; default the first, index 0: said on stderr and recorded
+in the volume's params as ``wavelength_index`` and ``wavelength_nm``) or at every
+wavelength with ``--wavelength all``: the same method and options for each, ``--out``
+then holds the first wavelength's ``volume.h5`` + MIPs and ``wavelength_<k>/`` for each
+(the layout of ``fpscan unmix``; ``service.spectral.write_wavelength_results``). With
+``--server`` a wavelength choice other than 0 needs ``--scan-job`` (an uploaded file is
+stored at one wavelength, its first).
 """
 from __future__ import annotations
 
@@ -72,10 +81,24 @@ def add_arguments(parser):
                    help="output depth spacing, e.g. 20um (default c*dt)")
     g.add_argument("--interp", choices=KWAVE_INTERPS, default=None,
                    help="k-Wave interpolation for --method kwave (default *nearest, as k-Wave)")
+    parser.add_argument("--wavelength", type=_wavelength, default=None, metavar="K|all",
+                        help="excitation wavelength of a multi-wavelength scan: an index into its wavelengths, or "
+                             "'all' (one volume per wavelength, same method and options, in <out>/wavelength_<k>/; "
+                             "default: the first, index 0, recorded in the volume's params)")
     parser.add_argument("--scan-job", default=None, metavar="JOB_ID",
                         help="with --server: reconstruct this scan job's file (no INPUT)")
     add_server_options(parser)
     add_progress_option(parser)
+
+
+def _wavelength(text: str) -> int | str:
+    """``--wavelength``: an index >= 0 or ``all`` (argparse: anything else exits 2)."""
+    t = text.strip().lower()
+    if t == "all":
+        return "all"
+    if t.isdigit():
+        return int(t)
+    raise argparse.ArgumentTypeError(f"must be an index >= 0 into the scan's wavelengths or 'all', got {text!r}")
 
 
 def _sniff_format(path) -> str:
@@ -148,14 +171,21 @@ def _local(args, fmt: str) -> int:
     from pathlib import Path
 
     from service.pipeline import default_method, reconstruct
-    from service.storage.datasets import load_dataset
+    from service.storage.datasets import file_wavelengths, load_wavelengths
     from service.storage.results import write_result
 
     say = (lambda msg: None) if args.quiet else (lambda msg: print(f"recon: {msg}", file=sys.stderr, flush=True))
     t0 = time.perf_counter()
     say(f"importing {args.input} ({fmt})")
-    ds = load_dataset(args.input, fmt, dt=args.dt, dx=args.dx, dy=args.dy,
-                      c=None if args.c == "auto" else args.c, key=args.key, force=args.force)
+    datasets = load_wavelengths(args.input, fmt, wavelength=args.wavelength, dt=args.dt, dx=args.dx, dy=args.dy,
+                                c=None if args.c == "auto" else args.c, key=args.key, force=args.force)
+    ds = datasets[0]
+    every = file_wavelengths(ds)
+    if every.size > 1 and args.wavelength is None:  # the documented default, said
+        say(f"the input has {every.size} wavelengths ({', '.join(f'{w * 1e9:g} nm' for w in every)}): "
+            f"reconstructing the first (index 0); choose with --wavelength K or all")
+    if args.wavelength == "all":
+        return _local_all(args, datasets, say, t0)
     t1 = time.perf_counter()
     method = args.method or default_method(ds)
     out = _default_out(args, method)
@@ -173,9 +203,46 @@ def _local(args, fmt: str) -> int:
     dims = "x".join(str(n) for n in rec.p0.shape)
     af = rec.params.get("autofocus")
     focus = f"  c {af['c']:.1f} m/s (autofocus, search {af['time_s']:.2f} s)" if af else ""
-    print(f"{out}/volume.h5  p0 {dims}  method {method}  load {t1 - t0:.2f} s  reconstruct {t2 - t1:.2f} s  "
-          f"write {t3 - t2:.2f} s"
+    print(f"{out}/volume.h5  p0 {dims}  method {method}{_nm(rec.params)}  load {t1 - t0:.2f} s  "
+          f"reconstruct {t2 - t1:.2f} s  write {t3 - t2:.2f} s"
           + focus)
+    return 0
+
+
+def _nm(params: dict) -> str:
+    w = params.get("wavelength_nm")
+    return f"  wavelength {w:g} nm" if w is not None else ""
+
+
+def _local_all(args, datasets: list, say, t0: float) -> int:
+    """``--wavelength all`` locally: every wavelength with the same method and options
+    (``service.spectral.reconstruct_wavelengths``, as the server's job), written with
+    ``service.spectral.write_wavelength_results``."""
+    import time
+    from pathlib import Path
+
+    from service.pipeline import default_method, reconstruct
+    from service.spectral import reconstruct_wavelengths, write_wavelength_results
+
+    t1 = time.perf_counter()
+    method = args.method or default_method(datasets[0])
+    out = _default_out(args, method)
+    say(f"reconstructing {len(datasets)} wavelengths with {method}")
+    from clients.cli._common import ProgressBar
+
+    with ProgressBar(f"recon {method}", quiet=args.quiet) as bar:
+        recons = reconstruct_wavelengths(datasets, method, reconstruct=reconstruct,
+                                         progress=lambda f, stage: bar({"fraction": f, "stage": stage}),
+                                         **_params(args))
+    t2 = time.perf_counter()
+    say(f"writing {out}/")
+    written = write_wavelength_results(out, recons, input_id=Path(args.input).name)
+    for row in written["wavelengths"]:
+        nm = f"  wavelength {row['wavelength_nm']:g} nm" if row["wavelength_nm"] is not None else ""
+        print(f"{out}/wavelength_{row['index']}/volume.h5  p0 {'x'.join(map(str, row['shape']))}  "
+              f"method {method}{nm}")
+    print(f"{len(recons)} wavelengths  load {t1 - t0:.2f} s  reconstruct {t2 - t1:.2f} s  "
+          f"write {time.perf_counter() - t2:.2f} s")
     return 0
 
 
@@ -184,8 +251,12 @@ def _remote(args, fmt: str | None) -> int:
 
     with make_client(args, timeout=300) as api:
         if args.scan_job:
-            job_id = api.start_reconstruction(scan_job_id=args.scan_job, method=args.method, params=_params(args))
+            job_id = api.start_reconstruction(scan_job_id=args.scan_job, method=args.method, params=_params(args),
+                                              wavelength=args.wavelength)
         else:
+            if args.wavelength not in (None, 0):
+                raise ValueError("--wavelength with --server needs --scan-job: an uploaded file is stored at one "
+                                 "wavelength (its first); reconstruct locally or upload one file per wavelength")
             from driver.units import check_plausible
 
             check_plausible(dt=args.dt, dx=args.dx, dy=args.dy, sound_speed=None if args.c == "auto" else args.c,
@@ -203,16 +274,30 @@ def _remote(args, fmt: str | None) -> int:
 
         method = (field_of(job, "params") or {}).get("method") or args.method  # as the server resolved it
         out = _default_out(args, method)
-        api.download_volume(job_id, out / "volume.h5")
-        planes = []
-        for plane in ("xy", "xz", "yz"):
-            try:
-                api.download_mip(job_id, plane, out / f"mip_{plane}.png")
-                planes.append(plane)
-            except Exception as exc:  # a 2-D result has only the xz MIP
-                from clients.http import ApiError, NotFound
-
-                if not isinstance(exc, (NotFound, ApiError)) or plane == "xz":
-                    raise
+        planes = _download(api, job_id, out, None)
         print(f"{out}/volume.h5  job {job_id}  method {method}  MIPs {', '.join(planes)}")
+        if args.wavelength == "all":  # every wavelength's folder, as the job wrote it
+            rows = ((field_of(job, "params") or {}).get("result") or {}).get("wavelengths") or []
+            for row in rows:
+                k = int(row["index"])
+                _download(api, job_id, out / f"wavelength_{k}", k)
+                nm = f"  wavelength {row['wavelength_nm']:g} nm" if row.get("wavelength_nm") is not None else ""
+                print(f"{out}/wavelength_{k}/volume.h5  job {job_id}  method {method}{nm}")
     return 0
+
+
+def _download(api, job_id: str, folder, wavelength: int | None) -> list[str]:
+    """Download a result volume and its MIPs (at ``wavelength`` of an all-wavelength job)
+    into ``folder``; returns the MIP planes (a 2-D result has only xz)."""
+    api.download_volume(job_id, folder / "volume.h5", wavelength=wavelength)
+    planes = []
+    for plane in ("xy", "xz", "yz"):
+        try:
+            api.download_mip(job_id, plane, folder / f"mip_{plane}.png", wavelength=wavelength)
+            planes.append(plane)
+        except Exception as exc:  # a 2-D result has only the xz MIP
+            from clients.http import ApiError, NotFound
+
+            if not isinstance(exc, (NotFound, ApiError)) or plane == "xz":
+                raise
+    return planes

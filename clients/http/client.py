@@ -334,7 +334,7 @@ class _Endpoints:
 
     def start_reconstruction(self, *, scan_job_id: str | None = None, dataset_id: str | None = None,
                              method: str | None = None, params: Mapping | None = None,
-                             idempotency_key: str | None = None):
+                             wavelength: int | str | None = None, idempotency_key: str | None = None):
         """``POST /api/reconstructions`` -> the reconstruction job's id (202).
 
         Exactly one of ``scan_job_id`` / ``dataset_id``; ``method`` one of the
@@ -342,13 +342,17 @@ class _Endpoints:
         default for the data, ner for grid data, nedner for sensor points); ``params`` the
         recon options (``eps``, ``dtype``, ``upsample``, ``positivity``, ...; ``tv``:
         ``lam`` (λ, default automatic) and ``iterations``; the job's progress stage
-        names the iteration).
+        names the iteration); ``wavelength``: of a multi-wavelength scan, an index into
+        its wavelengths or ``"all"`` (one volume each: ``download_volume(...,
+        wavelength=k)``); None: the first, recorded in the volume's params.
         Raises ``ValueError`` when both or neither input is given."""
         if (scan_job_id is None) == (dataset_id is None):
             raise ValueError("give exactly one of scan_job_id or dataset_id")
         body: dict[str, Any] = {"params": dict(params or {})}
         if method is not None:
             body["method"] = method
+        if wavelength is not None:
+            body["wavelength"] = wavelength
         if scan_job_id is not None:
             body["scan_job_id"] = scan_job_id
         else:
@@ -402,19 +406,24 @@ class _Endpoints:
         """``GET /api/reconstructions/{job_id}/so2.png`` (masked sO2 map, colour bar) saved to ``dest``."""
         return (yield _Download(_Req("GET", f"/api/reconstructions/{job_id}/so2.png"), Path(dest)))
 
-    def download_volume(self, job_id: str, dest: str | os.PathLike):
-        """``GET /api/reconstructions/{job_id}/volume.h5`` saved to ``dest``."""
-        return (yield _Download(_Req("GET", f"/api/reconstructions/{job_id}/volume.h5"), Path(dest)))
+    def download_volume(self, job_id: str, dest: str | os.PathLike, *, wavelength: int | None = None):
+        """``GET /api/reconstructions/{job_id}/volume.h5`` saved to ``dest``;
+        ``wavelength``: wavelength k's volume of a job over every wavelength."""
+        params = None if wavelength is None else {"wavelength": int(wavelength)}
+        return (yield _Download(_Req("GET", f"/api/reconstructions/{job_id}/volume.h5", params=params), Path(dest)))
 
     def download_ome_tiff(self, job_id: str, dest: str | os.PathLike):
         """``GET /api/reconstructions/{job_id}/volume.ome.tif`` (OME-TIFF, voxel sizes in
         µm) saved to ``dest``."""
         return (yield _Download(_Req("GET", f"/api/reconstructions/{job_id}/volume.ome.tif"), Path(dest)))
 
-    def download_mip(self, job_id: str, plane: str, dest: str | os.PathLike):
-        """``GET /api/reconstructions/{job_id}/mip/{plane}.png`` saved to ``dest``."""
+    def download_mip(self, job_id: str, plane: str, dest: str | os.PathLike, *, wavelength: int | None = None):
+        """``GET /api/reconstructions/{job_id}/mip/{plane}.png`` saved to ``dest``;
+        ``wavelength`` as :meth:`download_volume`."""
         _check_plane(plane)
-        return (yield _Download(_Req("GET", f"/api/reconstructions/{job_id}/mip/{plane}.png"), Path(dest)))
+        params = None if wavelength is None else {"wavelength": int(wavelength)}
+        return (yield _Download(_Req("GET", f"/api/reconstructions/{job_id}/mip/{plane}.png", params=params),
+                                Path(dest)))
 
     def download_slice(self, job_id: str, index: int, dest: str | os.PathLike):
         """``GET /api/reconstructions/{job_id}/slice.png?index=k`` saved to ``dest``."""

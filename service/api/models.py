@@ -424,6 +424,11 @@ class ReconRequest(_Request):
         None, description="reconstruction method; absent or null: the default for the input "
                           "(service.pipeline.default_method: ner for grid data, nedner for sensor points)")
     params: ReconParams = Field(default_factory=ReconParams)
+    wavelength: Annotated[int, Field(ge=0, le=15)] | Literal["all"] | None = Field(
+        None, description="excitation wavelength of a multi-wavelength input: an index into its wavelengths, or "
+                          "'all' (one volume per wavelength, same method and options; download each with "
+                          "volume.h5?wavelength=k). Absent: the first (index 0), recorded in the result's params "
+                          "(wavelength_index, wavelength_nm). Not with unmix (it uses every wavelength)")
     unmix: UnmixOptions | None = Field(None, description="unmix HbO2/Hb after reconstructing every wavelength")
 
     @model_validator(mode="after")

@@ -123,25 +123,45 @@ def _input_for(c: Context, body: ReconRequest) -> tuple[dict, dict, str]:
         if needs_grid and len(plan["points"]["indices"]) != lat["n_x"] * lat.get("n_y", 1):
             raise HTTPException(422, f"method {body.method!r} needs every lattice point; this scan's plan "
                                      "is a sensor mask: use 'nedner'")
-        return {"kind": "scan", "path": scan_path}, shape, f"scan:{body.scan_job_id}"
+        wavelengths = list(acq.get("wavelengths") or [])
+        spec = _with_wavelength({"kind": "scan", "path": scan_path}, body.wavelength, wavelengths,
+                                f"scan job {body.scan_job_id}")
+        return spec, {**shape, "n_wavelengths": max(len(wavelengths), 1)}, f"scan:{body.scan_job_id}"
     dataset_id = body.dataset_id
     assert dataset_id is not None  # exactly one of the two, checked above
     meta = c.store.get_dataset(dataset_id)
     if meta is None:
         raise HTTPException(404, f"no dataset {dataset_id}")
     path = str(Path(c.settings.data_dir) / "datasets" / dataset_id / meta["path"])
+    # a stored dataset holds one wavelength's data (an upload of a multi-wavelength file: its first)
+    ds_spec = _with_wavelength({"kind": "dataset", "path": path}, body.wavelength, [None], f"dataset {dataset_id}")
     if meta["layout"] == "grid":
         s = meta["shape"]
         shape = {"n_t": s[0], "n_x": s[-1], "n_y": s[1] if len(s) == 3 else 1, "dt": meta.get("dt"),
                  "c": meta.get("c"), "dx": meta.get("dx")}
-        return {"kind": "dataset", "path": path}, shape, f"dataset:{body.dataset_id}"
+        return ds_spec, shape, f"dataset:{body.dataset_id}"
     if needs_grid and not meta.get("full_lattice"):
         raise HTTPException(422, f"method {body.method!r} needs a full regular grid; this dataset needs 'nedner'")
     n, n_t = meta["shape"]
     side = int(np.ceil(np.sqrt(n)))
     shape = {"n_t": n_t, "n_x": meta.get("n_x", side), "n_y": meta.get("n_y", side), "n_points": n,
              "dt": meta.get("dt"), "c": meta.get("c"), "dx": meta.get("dx")}
-    return {"kind": "dataset", "path": path}, shape, f"dataset:{body.dataset_id}"
+    return ds_spec, shape, f"dataset:{body.dataset_id}"
+
+
+def _with_wavelength(spec: dict, wavelength: int | str | None, wavelengths: list, what: str) -> dict:
+    """The job input ``spec`` with the request's ``wavelength`` (``service.jobs.work``:
+    an index, or ``"all"``); 422 for an index outside the input's ``wavelengths`` (m;
+    ``[None]``: one wavelength, unknown), naming them."""
+    if wavelength is None:
+        return spec
+    n = max(len(wavelengths), 1)
+    if wavelength != "all" and not 0 <= int(wavelength) < n:
+        known = [w for w in wavelengths if w is not None]
+        listed = f" ({', '.join(f'{float(w) * 1e9:g} nm' for w in known)})" if known else ""
+        raise HTTPException(422, f"wavelength index {wavelength} is out of range: {what} has {n} wavelength"
+                                 f"{'s' if n != 1 else ''}{listed}, indices 0..{n - 1}")
+    return {**spec, "wavelength": wavelength}
 
 
 @router.get("/methods", response_model=list[MethodInfo], dependencies=[Depends(read_access)])
@@ -165,6 +185,8 @@ def start_reconstruction(body: ReconRequest, response: Response, c: Context = De
     it can never fit in the memory limit."""
     body = _with_method(c, _full_scan_job_id(c, body))
     extra: dict = {}
+    if body.unmix is not None and body.wavelength is not None:
+        raise HTTPException(422, "unmix reconstructs every wavelength: leave wavelength out")
     if body.unmix is not None:
         extra, shape, input_id = _unmix_inputs(c, body)
         spec = extra.pop("input", None) or extra["inputs"][0]
@@ -177,11 +199,15 @@ def start_reconstruction(body: ReconRequest, response: Response, c: Context = De
         if body.unmix is not None:  # every wavelength's volume is held for the unmixing (float32, x3 temporaries)
             n_w = len(extra.get("inputs") or []) or int(shape.get("n_wavelengths", 2))
             mem += 3 * n_w * 4 * int(shape["n_t"]) * int(shape["n_x"]) * int(shape.get("n_y", 1))
+        elif body.wavelength == "all":  # every wavelength's volume is held until written (up to float64)
+            mem += int(shape.get("n_wavelengths", 1)) * 8 * int(shape["n_t"]) * int(shape["n_x"]) * \
+                int(shape.get("n_y", 1))
         admit(mem, c.settings.memory_limit)
     except AdmissionError as exc:
         raise HTTPException(422, reason(exc)) from None
     job_params = {"method": body.method, "params": params, "input": spec, "input_id": input_id, "shape": shape,
-                  "scan_job_id": body.scan_job_id, "dataset_id": body.dataset_id, "memory_estimate": mem, **extra}
+                  "scan_job_id": body.scan_job_id, "dataset_id": body.dataset_id, "memory_estimate": mem,
+                  "wavelength": body.wavelength, **extra}
     try:
         job, _created = c.store.create_job("recon", job_params, idempotency_key=idempotency_key, memory_bytes=mem)
     except IdempotencyConflict as exc:
@@ -199,14 +225,39 @@ def _result_dir(c: Context, job_id: str) -> Path:
     return Path(job["result_path"])
 
 
+WavelengthQuery = Query(None, ge=0, le=15, description="the volume of wavelength k of a job with wavelength "
+                                                       "'all' or unmix (default: the first)")
+
+
+def _volume_dir(c: Context, job_id: str, wavelength: int | None) -> Path:
+    """The folder of the job's volume at ``wavelength`` (``wavelength_<k>/`` of a job over
+    every wavelength; the job's own folder when absent, or when it is the one wavelength
+    the job reconstructed); 404 naming what the job has otherwise."""
+    folder = _result_dir(c, job_id)
+    if wavelength is None:
+        return folder
+    if (folder / f"wavelength_{wavelength}").is_dir():
+        return folder / f"wavelength_{wavelength}"
+    job = get_job_or_404(c, job_id, "recon")
+    have = sorted(int(p.name.split("_", 1)[1]) for p in folder.glob("wavelength_*") if p.name[11:].isdigit())
+    if not have and wavelength == int(job["params"].get("wavelength") or 0):  # a job of one wavelength
+        return folder
+    raise HTTPException(404, f"reconstruction {job_id} has no volume at wavelength index {wavelength} "
+                             f"(it has: {', '.join(map(str, have)) if have else job['params'].get('wavelength') or 0})")
+
+
 @router.get("/{job_id}/volume.h5", dependencies=[Depends(read_access)], response_class=FileResponse,
             responses={200: {"content": {"application/x-hdf5": {}}, "description": "p0 volume (HDF5)"},
-                       206: {"description": "partial content (HTTP Range)"}})
-def volume(job_id: str = JobId, c: Context = Depends(ctx)):
+                       206: {"description": "partial content (HTTP Range)"},
+                       404: {"description": "no volume at that wavelength"}})
+def volume(job_id: str = JobId, wavelength: int | None = WavelengthQuery, c: Context = Depends(ctx)):
     """The result volume: ``/p0`` ``(n_z, n_y, n_x)``, ``/z``, ``/x``, ``/y`` (m), attributes
-    ``method``, ``params``. Supports ``Range``."""
-    path = _result_dir(c, job_id) / "volume.h5"
-    return FileResponse(path, media_type="application/x-hdf5", filename=f"{job_id}.h5")
+    ``method``, ``params`` (with ``wavelength_index``/``wavelength_nm`` for a
+    multi-wavelength input). ``?wavelength=k``: wavelength ``k``'s volume of a job over
+    every wavelength (``wavelength='all'`` or unmix). Supports ``Range``."""
+    path = _volume_dir(c, job_id, wavelength) / "volume.h5"
+    return FileResponse(path, media_type="application/x-hdf5",
+                        filename=f"{job_id}.h5" if wavelength is None else f"{job_id}-wavelength_{wavelength}.h5")
 
 
 @router.get("/{job_id}/volume.ome.tif", dependencies=[Depends(read_access)], response_class=FileResponse,
@@ -256,9 +307,11 @@ def so2_png(job_id: str = JobId, c: Context = Depends(ctx)):
 
 @router.get("/{job_id}/mip/{plane}.png", dependencies=[Depends(read_access)], response_class=Response,
             responses={200: {"content": {"image/png": {}}, "description": "MIP"}})
-def mip_png(plane: Plane, job_id: str = JobId, c: Context = Depends(ctx)):
-    """Maximum-intensity projection: ``xy`` (over z), ``xz`` (over y), ``yz`` (over x)."""
-    path = _result_dir(c, job_id) / f"mip_{plane}.png"
+def mip_png(plane: Plane, job_id: str = JobId, wavelength: int | None = WavelengthQuery,
+            c: Context = Depends(ctx)):
+    """Maximum-intensity projection: ``xy`` (over z), ``xz`` (over y), ``yz`` (over x);
+    ``?wavelength=k`` as for the volume."""
+    path = _volume_dir(c, job_id, wavelength) / f"mip_{plane}.png"
     if not path.exists():
         raise HTTPException(404, f"a 2-D image has no {plane} MIP")
     return Response(path.read_bytes(), media_type="image/png")

@@ -16,6 +16,12 @@ Inputs (``spec["input"]``):
 - ``{"kind": "scan", "path": <scan.h5>}``: a scan file; its completed points are used
   (a full lattice also with the grid methods).
 
+Either may add ``"wavelength"``: an index into a multi-wavelength file's excitation
+wavelengths (default: the first, recorded in the result's params as ``wavelength_index``
+and ``wavelength_nm``), or ``"all"``: every wavelength reconstructed with the same method
+and options, written as the unmixing job writes them (``volume.h5`` + MIPs of the first
+at the top, ``wavelength_<k>/`` for each; :func:`service.spectral.write_wavelength_results`).
+
 Everything here is a plain function of picklable arguments so dask can ship it.
 """
 from __future__ import annotations
@@ -28,14 +34,16 @@ from typing import Any
 INPUT_FORMATS = {"scan": "fpscan", "dataset": "dataset"}
 
 
-def load_input(spec_input: dict):
-    """The dataset of a job input (see module docstring). Raises ValueError."""
-    from service.storage.datasets import load_dataset
+def load_inputs(spec_input: dict) -> list:
+    """The datasets of a job input (see module docstring): one, or one per wavelength
+    with ``"wavelength": "all"`` (:func:`service.storage.datasets.load_wavelengths`).
+    Raises ValueError (also for a wavelength index out of range)."""
+    from service.storage.datasets import load_wavelengths
 
     kind = spec_input.get("kind")
     if kind not in INPUT_FORMATS:
         raise ValueError(f"unknown job input kind {kind!r}")
-    return load_dataset(spec_input["path"], INPUT_FORMATS[kind])
+    return load_wavelengths(spec_input["path"], INPUT_FORMATS[kind], wavelength=spec_input.get("wavelength"))
 
 
 def report_stage(path: str | None, stage: str, fraction: float) -> None:
@@ -109,6 +117,20 @@ def address_space_limit(limit: int | None):
         resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
 
 
+@contextlib.contextmanager
+def memory_bounded(limit: int | None):
+    """:func:`address_space_limit`, with a MemoryError under a set ``limit`` turned into
+    the ValueError a job fails with (no limit: a real out-of-memory, raised as it is)."""
+    try:
+        with address_space_limit(limit):
+            yield
+    except MemoryError:
+        if not limit:
+            raise
+        raise ValueError(f"the reconstruction ran out of the memory limit of {int(limit) / 2**30:.2f} GiB; "
+                         "reduce the size, upsample or n_z, or use float32") from None
+
+
 def run_reconstruction(spec: dict) -> dict:
     """Executor entry point. ``spec``: ``input`` (see above), ``params`` (``method`` and
     the options of :func:`service.pipeline.reconstruct`), ``out_dir``, ``input_id``,
@@ -128,21 +150,18 @@ def run_reconstruction(spec: dict) -> dict:
     t0 = time.perf_counter()
     report_stage(progress, "loading", 0.1)
     limit = spec.get("memory_limit")
-    ds = load_input(spec["input"])
+    datasets = load_inputs(spec["input"])
+    ds = datasets[0]
     params = dict(spec["params"])
     if limit:
         check_memory_limit(ds, params, int(limit))
+    if spec["input"].get("wavelength") == "all":
+        return _run_all_wavelengths(spec, datasets, params, t0)
     t1 = time.perf_counter()
     method = params.pop("method", None) or default_method(ds)
-    try:
-        with address_space_limit(limit):
-            rec = reconstruct(ds, method, progress=lambda f, stage: report_stage(progress, stage, 0.2 + 0.7 * f),
-                              should_stop=(lambda: os.path.exists(cancel)) if cancel else None, **params)
-    except MemoryError:
-        if not limit:  # no limit set: a real out-of-memory
-            raise
-        raise ValueError(f"the reconstruction ran out of the memory limit of {int(limit) / 2**30:.2f} GiB; "
-                         "reduce the size, upsample or n_z, or use float32") from None
+    with memory_bounded(limit):
+        rec = reconstruct(ds, method, progress=lambda f, stage: report_stage(progress, stage, 0.2 + 0.7 * f),
+                          should_stop=(lambda: os.path.exists(cancel)) if cancel else None, **params)
     t2 = time.perf_counter()
     report_stage(progress, "writing", 0.9)
     summary = write_result(spec["out_dir"], rec, input_id=spec.get("input_id", ""))
@@ -153,6 +172,36 @@ def run_reconstruction(spec: dict) -> dict:
         summary["autofocus"] = rec.params["autofocus"]
     if ds.kind == "points":
         summary["points_used"] = int(ds.alines.shape[0])
+    return summary
+
+
+def _run_all_wavelengths(spec: dict, datasets: list, params: dict, t0: float) -> dict:
+    """``wavelength="all"``: every wavelength with the same method and options
+    (:func:`service.spectral.reconstruct_wavelengths`, the unmixing job's loop) written
+    with :func:`service.spectral.write_wavelength_results`. Returns the first wavelength's
+    summary plus ``wavelengths`` (one row per wavelength: index, nm, shape, max)."""
+    from service.pipeline import default_method, reconstruct
+    from service.spectral import reconstruct_wavelengths, write_wavelength_results
+
+    progress = spec.get("progress_path")
+    cancel = spec.get("cancel_path")
+    limit = spec.get("memory_limit")
+    method = params.pop("method", None) or default_method(datasets[0])
+    t1 = time.perf_counter()
+    with memory_bounded(limit):
+        recons = reconstruct_wavelengths(
+            datasets, method, reconstruct=reconstruct,
+            progress=lambda f, stage: report_stage(progress, stage, 0.2 + 0.7 * f),
+            should_stop=(lambda: os.path.exists(cancel)) if cancel else None, **params)
+    t2 = time.perf_counter()
+    report_stage(progress, "writing", 0.9)
+    summary = write_wavelength_results(spec["out_dir"], recons, input_id=spec.get("input_id", ""))
+    summary["timings"] = {"load_s": t1 - t0, "reconstruct_s": t2 - t1, "write_s": time.perf_counter() - t2}
+    summary["c"] = recons[0].params.get("c")
+    if "autofocus" in recons[0].params:
+        summary["autofocus"] = recons[0].params["autofocus"]
+    if datasets[0].kind == "points":
+        summary["points_used"] = int(datasets[0].alines.shape[0])
     return summary
 
 

@@ -27,6 +27,15 @@ into grid data with :meth:`PointDataset.to_grid` (so grid methods work on a full
 scan everywhere); grid data into point data with :meth:`GridDataset.to_points`.
 A dataset may carry the excitation ``wavelengths`` (m) it was acquired at.
 
+Multi-wavelength files (an fpscan scan or an IPASC file with several excitation
+wavelengths) hold one data set per wavelength; a dataset is one of them, chosen with
+``wavelength`` (an index into the file's wavelengths) in :func:`load_dataset`, or all of
+them, one dataset each, with :func:`load_wavelengths` (``wavelength="all"``). Without a
+choice the first wavelength (index 0) is read: documented, never silent: the dataset's
+``wavelengths`` is that one wavelength, ``meta`` records ``wavelength_index`` and the
+file's ``wavelengths``, and every reconstruction of it records ``wavelength_index`` and
+``wavelength_nm`` in its params (:func:`wavelength_params`).
+
 Lateral grids are centred on the optical axis (docs/architecture.md):
 ``x_i = (i - (n_x - 1)/2)·dx``.
 """
@@ -47,6 +56,54 @@ from driver.physics.axes import centred_axis
 FORMATS = ("fpscan", "ipasc", "kwave-hdf5", "npy", "dataset")
 DATASET_FORMAT = "fpscan-dataset/1"
 MAX_ELEMENTS = 2 ** 31
+#: ``wavelength="all"``: every wavelength of a multi-wavelength file, one dataset (one volume) each
+ALL_WAVELENGTHS = "all"
+#: the formats that may hold several excitation wavelengths
+MULTI_WAVELENGTH_FORMATS = ("fpscan", "ipasc")
+
+
+def check_wavelength(wavelength: Any, *, allow_all: bool = True) -> int | str | None:
+    """A wavelength choice as given: ``None`` (the default: the first), an index >= 0
+    (an int, or its decimal text as a command line gives it) or ``"all"`` (when
+    ``allow_all``). Returns the int index, ``"all"`` or None; raises ValueError naming
+    the choice otherwise."""
+    if wavelength is None:
+        return None
+    if isinstance(wavelength, str):
+        if wavelength.strip().lower() == ALL_WAVELENGTHS and allow_all:
+            return ALL_WAVELENGTHS
+        if wavelength.strip().isdigit():
+            return int(wavelength.strip())
+    elif not isinstance(wavelength, bool) and isinstance(wavelength, (int, np.integer)) and wavelength >= 0:
+        return int(wavelength)
+    what = "an index >= 0 into the file's wavelengths" + (" or 'all'" if allow_all else "")
+    raise ValueError(f"wavelength must be {what}, got {wavelength!r}")
+
+
+def _nm(wavelengths: Any) -> str:
+    return ", ".join(f"{float(w) * 1e9:g} nm" for w in np.ravel(np.asarray(wavelengths, dtype=np.float64)))
+
+
+def file_wavelengths(ds: GridDataset | PointDataset) -> np.ndarray:
+    """The excitation wavelengths (m, ``(n_w,)``) of the file ``ds`` was read from (all of
+    them, not only the one ``ds`` holds); empty when the file records none."""
+    w = (ds.meta or {}).get("wavelengths")
+    if w is None:
+        w = ds.wavelengths
+    return np.asarray([] if w is None else w, dtype=np.float64).reshape(-1)
+
+
+def wavelength_params(ds: GridDataset | PointDataset) -> dict:
+    """What a reconstruction of ``ds`` records about its wavelength: ``wavelength_index``
+    (into the file's wavelengths, when read from a multi-wavelength file) and
+    ``wavelength_nm`` (when ``ds`` holds one known wavelength's data); ``{}`` otherwise."""
+    out: dict = {}
+    if (ds.meta or {}).get("wavelength_index") is not None:
+        out["wavelength_index"] = int(ds.meta["wavelength_index"])
+    w = np.asarray([] if ds.wavelengths is None else ds.wavelengths, dtype=np.float64).reshape(-1)
+    if w.size == 1:
+        out["wavelength_nm"] = round(float(w[0]) * 1e9, 6)
+    return out
 
 
 
@@ -241,8 +298,12 @@ def _open_h5(path: Path) -> h5py.File:
 def load_dataset(path: str | os.PathLike, format: str | None = None, *, dt: float | None = None,
                  dx: float | None = None, dy: float | None = None, c: float | None = None,
                  key: str | None = None, max_bytes: int = MAX_ELEMENTS * 8,
-                 force: bool = False) -> GridDataset | PointDataset:
-    """Import a file for reconstruction (module docstring). Explicit ``dt`` (s), ``dx``,
+                 force: bool = False, wavelength: int | None = None) -> GridDataset | PointDataset:
+    """Import a file for reconstruction (module docstring). ``wavelength``: which
+    excitation wavelength of a multi-wavelength file (an index into its wavelengths;
+    default None: the first, recorded in the dataset's ``meta["wavelength_index"]``); a
+    file of one wavelength takes only None or 0 (``"all"``: :func:`load_wavelengths`).
+    An index out of range is a ValueError naming the file's wavelengths. Explicit ``dt`` (s), ``dx``,
     ``dy`` (m) and ``c`` (m/s) override what the file says; they are what a person typed,
     so they must be plausible (``driver.units.check_plausible``: a unit mistake such as
     ``dt=20`` for 20 ns is named; ``force`` accepts an unusual ``c``). An HDF5 file is
@@ -270,17 +331,21 @@ def load_dataset(path: str | os.PathLike, format: str | None = None, *, dt: floa
     fmt = format or detect_format(path)
     if fmt not in FORMATS:
         raise ValueError(f"format must be one of {', '.join(FORMATS)}, got {fmt!r}")
+    choice = check_wavelength(wavelength, allow_all=False)  # 'all': load_wavelengths
+    index = 0 if choice is None else int(choice)
+    if fmt not in MULTI_WAVELENGTH_FORMATS and index != 0:
+        raise ValueError(f"wavelength index {index} is out of range: a {fmt} file holds one wavelength's data")
     if fmt == "npy":
         return load_npy(path, dt=dt, dx=dx, dy=dy, c=c)
     if fmt == "kwave-hdf5":
         return load_kwave_hdf5(path, key=key, dt=dt, dx=dx, dy=dy, c=c)
     ds: GridDataset | PointDataset
     if fmt == "fpscan":
-        ds = load_scan(path)
+        ds = load_scan(path, wavelength_index=index)
     elif fmt == "dataset":
         ds = read_dataset(path)
     else:
-        ds = load_ipasc(path)
+        ds = load_ipasc(path, wavelength_index=index)
     if c is not None:
         ds.c = _positive("c", c)
     if dt is not None:
@@ -364,17 +429,27 @@ def lattice_axes(lattice: dict) -> tuple[np.ndarray, np.ndarray]:
     return centred_axis(int(lattice["n_x"]), pitch), centred_axis(int(lattice.get("n_y", 1)), pitch)
 
 
+def _check_index(index: int, wavelengths: Any, what: str) -> None:
+    n = int(np.size(wavelengths))
+    if not 0 <= index < max(n, 1):
+        raise ValueError(f"wavelength index {index} is out of range: the {what} has {n} wavelength"
+                         f"{'s' if n != 1 else ''} ({_nm(wavelengths)}), indices 0..{max(n, 1) - 1}")
+
+
 def load_scan(path: str | os.PathLike, *, allow_empty: bool = False, wavelength_index: int = 0) -> PointDataset:
     """The completed points of a scan file at excitation wavelength ``wavelength_index``
     (default the first) as point data (DC-normalised pressure ``(n, n_t)`` float64, the
-    plan's positions and weights, its lattice and indices; ``wavelengths``: all the
-    scan's wavelengths, ``meta["wavelength_index"]`` the one read). Raises ValueError
-    when no point is complete (unless ``allow_empty``), the plan is invalid or the
-    wavelength index is out of range."""
+    plan's positions and weights, its lattice and indices; ``wavelengths``: the one
+    wavelength read (m); ``meta["wavelengths"]`` all the scan's, ``meta["wavelength_index"]``
+    the one read). Raises ValueError when no point is complete (unless ``allow_empty``),
+    the plan is invalid or the wavelength index is out of range (naming the scan's
+    wavelengths)."""
     from driver.plan import check_plan
     from driver.scanfile import read_scan
 
-    scan = read_scan(path, wavelength_index=wavelength_index).completed_only()
+    scan = read_scan(path)
+    _check_index(wavelength_index, scan.wavelengths, "scan")
+    scan = scan.at_wavelength(wavelength_index).completed_only() if wavelength_index else scan.completed_only()
     check_plan(scan.plan)  # its lattice becomes the reconstruction grid: bounded there
     if scan.n_points == 0 and not allow_empty:
         raise ValueError("the scan file has no completed A-lines")
@@ -388,7 +463,8 @@ def load_scan(path: str | os.PathLike, *, allow_empty: bool = False, wavelength_
         gx = np.unique(positions[:, 0])
         gy = np.unique(positions[:, 1]) if positions.shape[1] > 1 else np.zeros(1)
         lattice = None
-    wavelengths = tuple(float(w) for w in np.ravel(scan.wavelengths)) or None
+    all_w = np.ravel(np.asarray(scan.wavelengths, dtype=np.float64))
+    wavelengths = (float(all_w[wavelength_index]),) if all_w.size else None
     return PointDataset(
         alines=scan.pressure, positions=positions[:, :1] if two_d else positions,
         weights=np.asarray(scan.weights, dtype=np.float64), dt=scan.dt, c=scan.sound_speed,
@@ -400,11 +476,17 @@ def load_scan(path: str | os.PathLike, *, allow_empty: bool = False, wavelength_
         wavelengths=wavelengths)
 
 
-def load_ipasc(path: str | os.PathLike) -> PointDataset:
-    """An IPASC file as point data (:func:`service.storage.ipasc.read_ipasc`)."""
+def load_ipasc(path: str | os.PathLike, *, wavelength_index: int = 0) -> PointDataset:
+    """An IPASC file as point data (:func:`service.storage.ipasc.read_ipasc`) at excitation
+    wavelength ``wavelength_index`` (default the first; ``wavelengths``: that one,
+    ``meta["wavelengths"]`` all the file's). Raises ValueError, also for an index out of
+    range (naming the file's wavelengths)."""
     from service.storage.ipasc import read_ipasc
 
     r = read_ipasc(path)
+    if wavelength_index:
+        _check_index(wavelength_index, [] if r["wavelengths"] is None else r["wavelengths"], "file")
+        r = read_ipasc(path, wavelength_index=wavelength_index)
     plan, indices = r["plan"], r["indices"]
     lattice = None
     if isinstance(plan, dict) and isinstance(plan.get("lattice"), dict) and indices is not None:
@@ -415,9 +497,26 @@ def load_ipasc(path: str | os.PathLike) -> PointDataset:
     return PointDataset(alines=r["alines"], positions=r["positions"], weights=r["weights"],
                         dt=r["dt"], c=r["c"], grid=r["grid"], source="ipasc",
                         meta={"uuid": r["uuid"], "plan": plan, "indices": r["indices"],
-                              "wavelengths": wl},
+                              "wavelengths": wl, "wavelength_index": int(wavelength_index)},
                         indices=indices if lattice is not None else None, lattice=lattice,
-                        wavelengths=tuple(float(w) for w in np.ravel(wl)) if wl is not None and np.size(wl) else None)
+                        wavelengths=(float(np.ravel(wl)[wavelength_index]),)
+                        if wl is not None and np.size(wl) > wavelength_index else None)
+
+
+def load_wavelengths(path: str | os.PathLike, format: str | None = None, *, wavelength: Any = None,
+                     **load: Any) -> list[GridDataset | PointDataset]:
+    """The datasets of ``path`` at the chosen excitation wavelength(s): ``wavelength`` an
+    index or None (one dataset, :func:`load_dataset`) or ``"all"`` (one per wavelength of
+    the file, in its order; a file of one wavelength gives one). ``load``: the other
+    arguments of :func:`load_dataset`. Raises ValueError (a bad choice, an index out of
+    range naming the file's wavelengths, what :func:`load_dataset` raises),
+    FileNotFoundError."""
+    choice = check_wavelength(wavelength)
+    if not isinstance(choice, str):  # an index or None
+        return [load_dataset(path, format, wavelength=choice, **load)]
+    first = load_dataset(path, format, wavelength=0, **load)
+    n = file_wavelengths(first).size
+    return [first] + [load_dataset(path, format, wavelength=k, **load) for k in range(1, n)]
 
 
 def write_dataset(path: str | os.PathLike, ds: GridDataset | PointDataset) -> None:
