@@ -16,8 +16,8 @@ in the volume's params as ``wavelength_index`` and ``wavelength_nm``) or at ever
 wavelength with ``--wavelength all``: the same method and options for each, ``--out``
 then holds the first wavelength's ``volume.h5`` + MIPs and ``wavelength_<k>/`` for each
 (the layout of ``fpscan unmix``; ``service.spectral.write_wavelength_results``). With
-``--server`` a wavelength choice other than 0 needs ``--scan-job`` (an uploaded file is
-stored at one wavelength, its first).
+``--server`` an uploaded file is stored at the one wavelength chosen (``--wavelength K``);
+``all`` needs ``--scan-job``.
 """
 from __future__ import annotations
 
@@ -254,14 +254,14 @@ def _remote(args, fmt: str | None) -> int:
             job_id = api.start_reconstruction(scan_job_id=args.scan_job, method=args.method, params=_params(args),
                                               wavelength=args.wavelength)
         else:
-            if args.wavelength not in (None, 0):
-                raise ValueError("--wavelength with --server needs --scan-job: an uploaded file is stored at one "
-                                 "wavelength (its first); reconstruct locally or upload one file per wavelength")
+            if args.wavelength == "all":
+                raise ValueError("--wavelength all with --server needs --scan-job: an uploaded file is stored at "
+                                 "one wavelength (--wavelength K); reconstruct locally or upload once per wavelength")
             from driver.units import check_plausible
 
             check_plausible(dt=args.dt, dx=args.dx, dy=args.dy, sound_speed=None if args.c == "auto" else args.c,
                             force=args.force)
-            fields = {k: getattr(args, k) for k in ("dt", "dx", "dy", "c", "key")}
+            fields = {k: getattr(args, k) for k in ("dt", "dx", "dy", "c", "key", "wavelength")}
             if args.force:
                 fields["force"] = True
             if fields["c"] == "auto":  # a search, not the data's speed: it goes with the reconstruction

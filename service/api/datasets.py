@@ -45,14 +45,22 @@ def upload_dataset(file: UploadFile = File(..., description="the data file"),
                    force: bool = Form(False, description="accept a c outside 1000-2000 m/s (a medium other "
                                                          "than tissue or water)"),
                    key: str | None = Form(None, max_length=200, description="HDF5 dataset path (kwave-hdf5)"),
+                   wavelength: int | None = Form(None, ge=0, le=1023,
+                                                 description="of a multi-wavelength scan or IPASC file: the index of "
+                                                             "the excitation wavelength to store (default: the "
+                                                             "first); out of range: 422 naming the file's"),
                    cx: Context = Depends(ctx)) -> Dataset:
     """Upload a dataset for reconstruction → 201 ``{dataset_id, ...}``. At most
-    ``FPSCAN_IMPORT_WORKERS`` uploads are imported at once (4x as many wait; beyond, 429)."""
+    ``FPSCAN_IMPORT_WORKERS`` uploads are imported at once (4x as many wait; beyond, 429).
+    A dataset holds one wavelength's data (``wavelength``; the response's
+    ``wavelength_nm`` says which)."""
     with cx.slots["uploads"].turn():
-        return _store_upload(file, format, dt=dt, dx=dx, dy=dy, c=c, key=key, force=force, cx=cx)
+        return _store_upload(file, format, dt=dt, dx=dx, dy=dy, c=c, key=key, force=force, wavelength=wavelength,
+                             cx=cx)
 
 
-def _store_upload(file: UploadFile, format: str, *, dt, dx, dy, c, key, force: bool, cx: Context) -> Dataset:
+def _store_upload(file: UploadFile, format: str, *, dt, dx, dy, c, key, force: bool, wavelength: int | None,
+                  cx: Context) -> Dataset:
     dataset_id = uuid.uuid4().hex
     dest = Path(cx.settings.data_dir) / "datasets" / dataset_id
     dest.mkdir(parents=True)
@@ -71,6 +79,7 @@ def _store_upload(file: UploadFile, format: str, *, dt, dx, dy, c, key, force: b
             # (holding the GIL) or expand a small file into gigabytes (import_dataset lives
             # in service.storage, so the child does not import the web stack)
             meta = run_bounded(import_dataset, src, dest, format, dt=dt, dx=dx, dy=dy, c=c, key=key, force=force,
+                               wavelength=wavelength,
                                max_bytes=hdf5_limit(limit, cx.settings.memory_limit),
                                timeout=cx.settings.import_timeout_s, what="the upload",
                                memory_bytes=cx.settings.memory_limit + 2 * 2**30)
@@ -83,7 +92,8 @@ def _store_upload(file: UploadFile, format: str, *, dt, dx, dy, c, key, force: b
     src.unlink(missing_ok=True)
     meta["format"] = format
     cx.store.put_dataset(dataset_id, meta)
-    return Dataset(dataset_id=dataset_id, format=format, layout=meta["layout"], shape=meta["shape"], dt=meta["dt"])
+    return Dataset(dataset_id=dataset_id, format=format, layout=meta["layout"], shape=meta["shape"], dt=meta["dt"],
+                   wavelength_nm=meta.get("wavelength_nm"))
 
 
 @router.delete("/{dataset_id}", response_model=Deleted, dependencies=[Depends(require_token)],

@@ -350,6 +350,8 @@ class Dataset(BaseModel):
     layout: Literal["grid", "points", "scan"]
     shape: list[int]
     dt: float | None = None
+    wavelength_nm: float | None = Field(None, description="the excitation wavelength whose data the dataset holds "
+                                                          "(a scan or IPASC file that records it)")
 
 
 class ReconParams(_Request):

@@ -527,12 +527,16 @@ def write_dataset(path: str | os.PathLike, ds: GridDataset | PointDataset) -> No
     ``(n, n_t)``, ``/positions`` ``(n, d)`` m, ``/weights`` ``(n,)`` (if any), ``/grid_x``,
     ``/grid_y`` (3-D) m; attributes ``dt``, ``c``, ``t0``; a lattice adds ``/lattice``
     ``(n, 2)`` indices (i_x, i_y) and attributes ``lattice_shape`` ``(n_y, n_x)``, ``pitch``.
-    Both: attribute ``format``, ``layout``, ``source``; ``wavelengths_m`` when known."""
+    Both: attribute ``format``, ``layout``, ``source``; ``wavelengths_m`` when known, and
+    ``wavelength_index`` (into the source file's wavelengths) when it was chosen from a
+    multi-wavelength file."""
     with h5py.File(path, "w") as f:
         f.attrs.update({"format": DATASET_FORMAT, "layout": ds.kind, "dt": float(ds.dt), "c": float(ds.c),
                         "t0": float(ds.t0), "source": ds.source})
         if ds.wavelengths is not None:
             f.attrs["wavelengths_m"] = np.asarray(ds.wavelengths, dtype=np.float64)
+        if (ds.meta or {}).get("wavelength_index") is not None:
+            f.attrs["wavelength_index"] = int(ds.meta["wavelength_index"])
         if isinstance(ds, GridDataset):
             f.create_dataset("data", data=ds.data)
             f.attrs["dx"] = float(ds.dx)
@@ -566,11 +570,12 @@ def read_dataset(path: str | os.PathLike) -> GridDataset | PointDataset:
             wl = f.attrs.get("wavelengths_m")
             wavelengths = tuple(float(w) for w in np.ravel(wl)) if wl is not None and np.size(wl) else None
             source = text(f.attrs.get("source", "dataset"))
+            meta = {"wavelength_index": int(f.attrs["wavelength_index"])} if "wavelength_index" in f.attrs else {}
             if layout == "grid":
                 data = f["data"][()]
                 dy = float(f.attrs["dy"]) if "dy" in f.attrs and data.ndim == 3 else None
                 return GridDataset(data=data, dx=float(f.attrs["dx"]), dt=dt, c=c, dy=dy, t0=t0,
-                                   source=source, wavelengths=wavelengths)
+                                   source=source, wavelengths=wavelengths, meta=meta)
             if layout != "points":
                 raise ValueError(f"unknown dataset layout {layout!r}")
             gx = f["grid_x"][()]
@@ -583,7 +588,7 @@ def read_dataset(path: str | os.PathLike) -> GridDataset | PointDataset:
             return PointDataset(alines=f["alines"][()], positions=f["positions"][()],
                                 weights=f["weights"][()] if "weights" in f else None, dt=dt, c=c,
                                 grid=grid, t0=t0, source=source, indices=indices, lattice=lattice,
-                                wavelengths=wavelengths)
+                                wavelengths=wavelengths, meta=meta)
         except (KeyError, TypeError) as exc:
             raise ValueError(f"not a canonical dataset file ({exc})") from None
 
@@ -592,7 +597,7 @@ HDF5_KEY_CHARS = set("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ012345
 
 
 def import_dataset(src: str | os.PathLike, dest_dir: str | os.PathLike, fmt: str, *, dt, dx, dy, c, key,
-                   max_bytes: int | None = None, force: bool = False) -> dict:
+                   max_bytes: int | None = None, force: bool = False, wavelength: int | None = None) -> dict:
     """Validate and convert an uploaded file with :func:`load_dataset` (all four formats)
     into ``dest_dir/dataset.h5`` (:func:`write_dataset`); returns the dataset's metadata
     (the API stores it in the job store). Run by ``POST /api/datasets`` in a bounded child
@@ -600,6 +605,8 @@ def import_dataset(src: str | os.PathLike, dest_dir: str | os.PathLike, fmt: str
     ``max_bytes``: largest declared dataset of an HDF5 file
     (:func:`service.storage.untrusted.check_hdf5`, run before anything is read).
     ``force``: accept a ``c`` outside 1000-2000 m/s (as :func:`load_dataset`).
+    ``wavelength``: which excitation wavelength of a multi-wavelength file to store (an
+    index; None: the first; as :func:`load_dataset`, recorded in the metadata).
     Raises ``ValueError`` with the reason."""
     if key is not None and (not key or len(key) > 200 or not set(key) <= HDF5_KEY_CHARS):
         raise ValueError("key must be an HDF5 dataset path of [A-Za-z0-9_-/.]")
@@ -607,19 +614,18 @@ def import_dataset(src: str | os.PathLike, dest_dir: str | os.PathLike, fmt: str
         if value is not None and not (math.isfinite(value) and value > 0):
             raise ValueError(f"{name} must be a positive finite number")
     try:
-        ds = load_dataset(src, fmt, dt=dt, dx=dx, dy=dy, c=c, key=key, force=force,
+        ds = load_dataset(src, fmt, dt=dt, dx=dx, dy=dy, c=c, key=key, force=force, wavelength=wavelength,
                           max_bytes=MAX_ELEMENTS * 8 if max_bytes is None else max_bytes)
     except (KeyError, TypeError, IndexError, OSError) as exc:
         raise ValueError(f"file is not a readable {fmt} dataset ({type(exc).__name__})") from None
     dest_dir = Path(dest_dir)
-    if isinstance(ds, GridDataset):
-        write_dataset(dest_dir / "dataset.h5", ds)
-        return {"layout": "grid", "shape": list(ds.data.shape), "dt": ds.dt, "c": ds.c, "path": "dataset.h5",
-                "dx": ds.dx}
-    if ds.alines.shape[0] == 0:
+    if isinstance(ds, PointDataset) and ds.alines.shape[0] == 0:
         raise ValueError("the dataset holds no A-lines")
     write_dataset(dest_dir / "dataset.h5", ds)
+    common = {"dt": ds.dt, "c": ds.c, "path": "dataset.h5", **wavelength_params(ds)}
+    if isinstance(ds, GridDataset):
+        return {"layout": "grid", "shape": list(ds.data.shape), "dx": ds.dx, **common}
     n_x, n_y = len(ds.grid[0]), len(ds.grid[1]) if len(ds.grid) > 1 else 1
-    return {"layout": "points", "shape": list(ds.alines.shape), "dt": ds.dt, "c": ds.c, "path": "dataset.h5",
-            "n_x": n_x, "n_y": n_y, "full_lattice": ds.full_lattice,
-            "dx": float(ds.grid[0][1] - ds.grid[0][0]) if len(ds.grid[0]) > 1 else None}
+    return {"layout": "points", "shape": list(ds.alines.shape), "n_x": n_x, "n_y": n_y,
+            "full_lattice": ds.full_lattice,
+            "dx": float(ds.grid[0][1] - ds.grid[0][0]) if len(ds.grid[0]) > 1 else None, **common}

@@ -137,10 +137,18 @@ def test_http_wavelength_one_all_and_bad(tmp_path, capsys):
             assert one["state"] == "succeeded", one
             (tmp_path / "one.h5").write_bytes(c.get(f"/api/reconstructions/{one['id']}/volume.h5").content)
             assert c.get(f"/api/reconstructions/{one['id']}/volume.h5?wavelength=0").status_code == 404
+            with open(path, "rb") as fh:  # an uploaded scan file stores the wavelength asked for
+                r = c.post("/api/datasets", data={"format": "fpscan", "wavelength": "2"},
+                           files={"file": ("scan.h5", fh)})
+            assert r.status_code == 422 and "wavelength index 2 is out of range" in r.text, r.text
         out = tmp_path / "all"
         assert fpscan_main(["recon", "--server", srv.url, "--token", TOKEN, "--scan-job", scan_id,
                             "--method", "nedner", "--dtype", "float64", "--wavelength", "all", "--out", str(out),
                             "-q"]) == 0, capsys.readouterr().err
+        up = tmp_path / "uploaded"
+        assert fpscan_main(["recon", str(path), "--server", srv.url, "--token", TOKEN, "--method", "nedner",
+                            "--dtype", "float64", "--wavelength", "1", "--out", str(up), "-q"]) == 0, \
+            capsys.readouterr().err
     finally:
         srv.stop()
         sim.stop()
@@ -149,9 +157,10 @@ def test_http_wavelength_one_all_and_bad(tmp_path, capsys):
     grid = (centred_axis(8, 1e-4), centred_axis(8, 1e-4))
     direct = [reconstruct_points(s.pressure_all[k], s.positions, s.dt, s.sound_speed, weights=s.weights,
                                  grid=grid, dtype=np.float64).p0 for k in (0, 1)]
-    p0, params = _volume(tmp_path / "one.h5")
-    _close(p0, direct[1])
-    assert params["wavelength_index"] == 1 and params["wavelength_nm"] == pytest.approx(850)
+    for one in (tmp_path / "one.h5", up / "volume.h5"):  # the scan job's wavelength 1, and the upload's
+        p0, params = _volume(one)
+        _close(p0, direct[1])
+        assert params["wavelength_index"] == 1 and params["wavelength_nm"] == pytest.approx(850)
     for k in (0, 1):
         p0, params = _volume(out / f"wavelength_{k}" / "volume.h5")
         _close(p0, direct[k])
