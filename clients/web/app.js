@@ -534,6 +534,25 @@ function planWavelengths(planId) {
 
 const nmText = (w) => `${fmtNum(w * 1e9)} nm`;
 
+/** Offer a multi-wavelength scan's wavelengths to the reconstruct form (the request's
+ *  ``wavelength``: an index, or "all" for one volume per wavelength); one wavelength:
+ *  the choice stays hidden. */
+function fillReconWavelengths(ws) {
+  const sel = $("recon-wavelength");
+  sel.textContent = "";
+  ws.forEach((w, k) => {
+    const o = document.createElement("option");
+    o.value = String(k);
+    o.textContent = nmText(w);
+    sel.appendChild(o);
+  });
+  const all = document.createElement("option");
+  all.value = "all";
+  all.textContent = "all (one volume each)";
+  sel.appendChild(all);
+  $("recon-wavelength-label").hidden = ws.length < 2;
+}
+
 /** Offer the chosen plan's wavelengths for the live preview (index = POST /api/scans
  *  preview_wavelength); one wavelength: nothing to choose. */
 function fillPreviewWavelengths() {
@@ -871,6 +890,7 @@ async function deleteJob(id) {
 
 function closeResult() {
   resultJob = null;
+  $("recon-wavelength-label").hidden = true; // until the next scan's plan says it has several
   if (resultWatch) { resultWatch.stop(); resultWatch = null; }
   $("result").hidden = true;
 }
@@ -896,6 +916,12 @@ function downloadsFor(job) {
     list.push(["IPASC export (HDF5)", links.ipasc || `/api/scans/${id}/ipasc`, `scan-${job.id}-ipasc.hdf5`]);
   } else {
     list.push(["Volume (HDF5)", links.volume || `/api/reconstructions/${id}/volume.h5`, `volume-${job.id}.h5`]);
+    // a job over every wavelength (wavelength "all" or unmix): one volume each
+    for (const row of resultOf(job).wavelengths || []) {
+      const nm = row.wavelength_nm !== null && row.wavelength_nm !== undefined ? ` at ${fmtNum(row.wavelength_nm)} nm` : "";
+      list.push([`Volume${nm}, wavelength ${row.index} (HDF5)`,
+        `/api/reconstructions/${id}/volume.h5?wavelength=${row.index}`, `volume-${job.id}-wavelength${row.index}.h5`]);
+    }
     if (params.unmix) {
       list.push(["Unmixing: HbO2, Hb, THb, sO2, mask (HDF5)", `/api/reconstructions/${id}/unmix.h5`, `unmix-${job.id}.h5`]);
       list.push(["sO2 map (PNG)", `/api/reconstructions/${id}/so2.png`, `so2-${job.id}.png`]);
@@ -994,6 +1020,7 @@ function renderResult(job) {
     loadImage(planImg, `/api/plans/${pid}/preview.png`).catch(() => {});
     apiJson(`/api/plans/${pid}`).then((plan) => {
       if (resultJob !== job.id) return;
+      fillReconWavelengths((plan.acquisition && plan.acquisition.wavelengths) || []);
       addRows(flatten({ kind: plan.kind, n_points: plan.n_points, requested_points: plan.requested_points,
         weight_ratio: plan.weight_ratio, expected_scan_time_s: plan.expected_scan_time_s,
         lattice: plan.lattice, acquisition: plan.acquisition }, "plan"));
@@ -1288,7 +1315,11 @@ async function startRecon(ev) {
     if ($("recon-force").checked) params.force = true; // c outside 1000-2000 m/s (driver.units' rule)
   } catch (err) { showError(err); return; }
   const body = { scan_job_id: resultJob, method: $("recon-method").value, params };
-  if ($("recon-unmix").checked) body.unmix = {};
+  if ($("recon-unmix").checked) body.unmix = {}; // every wavelength: no wavelength choice
+  else if (!$("recon-wavelength-label").hidden) {
+    const w = $("recon-wavelength").value;
+    body.wavelength = w === "all" ? "all" : Number(w);
+  }
   $("recon-start").disabled = true;
   try {
     const resp = await apiFetch("/api/reconstructions", {

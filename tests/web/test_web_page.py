@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import base64
 import hashlib
+import io
+import json
 import time
 from pathlib import Path
 
@@ -547,6 +549,55 @@ def test_unmix_result_shows_so2_map_and_autofocus_curve(browser, server, api, sc
     links = {a.text for a in browser.find_elements("css selector", "#result-downloads a")}
     assert any("Unmixing" in t for t in links) and any("sO2 map" in t for t in links), links
     shot(browser, screenshots, "jobs-unmix-result")
+
+
+def test_two_wavelength_scan_reconstructs_the_chosen_wavelength(browser, sim, server, api, screenshots):
+    """A finished two-wavelength scan offers its wavelengths (and "all") in the reconstruct
+    form; the chosen one reaches the job (``wavelength``) and the volume records it, and
+    "all" lists one volume per wavelength among the downloads."""
+    if sim is None:
+        pytest.skip("this build has no `fpscan sim` (simulated scanner)")
+    h5py = pytest.importorskip("h5py")
+    request = {"lattice": LATTICE, "points": [[i, j] for j in range(18, 22) for i in range(18, 22)],
+               "acquisition": {"n_t": 256, "dt": 2e-8, "wavelengths": [7.5e-7, 8.5e-7], "prf": PRF_HZ}}
+    plan = api.post("/api/plans", json=request)
+    assert plan.status_code in (200, 201), plan.text
+    r = api.post("/api/scans", json={"plan_id": plan.json()["id"], "scanner_id": "sim1"})
+    assert r.status_code == 202, r.text
+    scan_id = r.json()["id"]
+    wait_for(lambda: api.get(f"/api/jobs/{scan_id}").json()["state"] in ("succeeded", "failed", "cancelled"), 60,
+             "the two-wavelength scan", 0.3)
+    assert api.get(f"/api/jobs/{scan_id}").json()["state"] == "succeeded"
+    browser.get(f"{server}/#/jobs/{scan_id}")
+    submit_token_if_asked(browser, timeout=5)
+    wait_for(lambda: el(browser, "result").is_displayed() and el(browser, "recon-wavelength").is_displayed(), 15,
+             "the scan's wavelengths in the reconstruct form")
+    offered = browser.execute_script(
+        "return [...document.getElementById('recon-wavelength').options].map((o) => o.textContent)")
+    assert offered == ["750 nm", "850 nm", "all (one volume each)"]
+    shot(browser, screenshots, "jobs-scan-two-wavelengths")
+    made = []
+    for choice in ("1", "all"):
+        browser.get(f"{server}/#/jobs/{scan_id}")
+        wait_for(lambda: el(browser, "recon-wavelength").is_displayed() and text(browser, "result-kind") == "scan",
+                 15, "the scan's result view")
+        choose(browser, "recon-method", "nedner")
+        choose(browser, "recon-wavelength", choice)
+        el(browser, "recon-start").click()
+        wait_for(lambda: text(browser, "result-kind") == "recon", 15, "the reconstruction job to open")
+        recon_id = el(browser, "result-id").get_attribute("title")
+        wait_for(lambda: text(browser, "result-state") in ("succeeded", "failed"), 60, "the reconstruction", 0.3)
+        job = api.get(f"/api/jobs/{recon_id}").json()
+        assert job["state"] == "succeeded", job
+        assert job["params"]["wavelength"] == (1 if choice == "1" else "all")
+        made.append(recon_id)
+    vol = api.get(f"/api/reconstructions/{made[0]}/volume.h5")
+    with h5py.File(io.BytesIO(vol.content), "r") as f:
+        used = json.loads(f.attrs["params"])
+    assert used["wavelength_index"] == 1 and used["wavelength_nm"] == pytest.approx(850)
+    wait_for(lambda: sum("wavelength" in a.text for a in browser.find_elements("css selector", "#result-downloads a"))
+             == 2, 15, "one volume per wavelength among the downloads")
+    shot(browser, screenshots, "jobs-recon-all-wavelengths")
 
 
 def test_scan_controls_pause_resume_abort(browser, sim, server, api, screenshots, state):
