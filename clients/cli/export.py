@@ -89,6 +89,10 @@ def run(args) -> int:
     out = Path(args.out or scan.with_name(f"{scan.stem}_ipasc.h5"))
     if out.resolve() == scan.resolve():
         raise ValueError("the output would overwrite the scan file")
-    _local_export()(scan, out)  # written to a temporary sibling, then renamed
+    from service.storage.untrusted import read_bounded
+
+    # written to a temporary sibling, then renamed; a file a writer has open is read in a
+    # bounded child (HDF5 can block on its damaged metadata for ever)
+    read_bounded(_local_export(), scan, out)
     print(out)
     return 0

@@ -255,8 +255,13 @@ def _grid_array(a: np.ndarray) -> np.ndarray:
     return a
 
 
-def detect_format(path: str | os.PathLike) -> str:
-    """Guess the format of a file from its content; ValueError if none fits."""
+def detect_format(path: str | os.PathLike, _here: bool = False) -> str:
+    """Guess the format of a file from its content; ValueError if none fits. A file a
+    writer has open is opened in a bounded child (as in :func:`load_dataset`)."""
+    if not _here:
+        from service.storage.untrusted import read_bounded
+
+        return read_bounded(detect_format, path, _here=True)
     path = Path(path)
     with open(path, "rb") as fh:
         head = fh.read(8)
@@ -298,7 +303,8 @@ def _open_h5(path: Path) -> h5py.File:
 def load_dataset(path: str | os.PathLike, format: str | None = None, *, dt: float | None = None,
                  dx: float | None = None, dy: float | None = None, c: float | None = None,
                  key: str | None = None, max_bytes: int = MAX_ELEMENTS * 8,
-                 force: bool = False, wavelength: int | None = None) -> GridDataset | PointDataset:
+                 force: bool = False, wavelength: int | None = None,
+                 _here: bool = False) -> GridDataset | PointDataset:
     """Import a file for reconstruction (module docstring). ``wavelength``: which
     excitation wavelength of a multi-wavelength file (an index into its wavelengths;
     default None: the first, recorded in the dataset's ``meta["wavelength_index"]``); a
@@ -309,9 +315,16 @@ def load_dataset(path: str | os.PathLike, format: str | None = None, *, dt: floa
     ``dt=20`` for 20 ns is named; ``force`` accepts an unusual ``c``). An HDF5 file is
     checked first (``service.storage.untrusted.check_hdf5``: no external storage,
     external links or virtual datasets, no dataset declaring more than ``max_bytes`` or
-    more than it stores). Raises ValueError naming the fault, FileNotFoundError."""
+    more than it stores). A file HDF5 would open as an SWMR reader (a writer has it open)
+    is read in a child process with a time limit
+    (``service.storage.untrusted.read_bounded``: HDF5 can block on its damaged metadata for
+    ever). Raises ValueError naming the fault, FileNotFoundError."""
     from driver.units import check_plausible
-    from service.storage.untrusted import check_hdf5, is_hdf5
+    from service.storage.untrusted import check_hdf5, is_hdf5, read_bounded
+
+    if not _here:  # run here, or in the bounded child for a file a writer has open
+        return read_bounded(load_dataset, path, format, dt=dt, dx=dx, dy=dy, c=c, key=key, max_bytes=max_bytes,
+                            force=force, wavelength=wavelength, _here=True)
 
     num = (int, float)
     check_plausible(dt=dt if isinstance(dt, num) else None, dx=dx if isinstance(dx, num) else None,

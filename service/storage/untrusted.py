@@ -15,7 +15,10 @@ data* and refuses:
 
 The HDF5 library can block while holding the GIL (a damaged file opened as an SWMR reader
 retries forever), so the service runs the whole import in a child process with a time
-limit: :func:`run_bounded`.
+limit: :func:`run_bounded`. The library and the CLI read a user's file in their own
+process, except a file HDF5 would open as an SWMR reader (its superblock says a writer has,
+or had, it open: :func:`writer_flagged`): :func:`read_bounded` reads that one in the same
+bounded child.
 """
 from __future__ import annotations
 
@@ -25,6 +28,7 @@ import os
 import queue as _queue
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
@@ -127,18 +131,21 @@ def run_bounded(fn: Callable, *args: Any, timeout: float, memory_bytes: int | No
     disk it writes to is full (the server's condition, not the file's)."""
     ctx = multiprocessing.get_context("spawn")
     q = ctx.Queue()
-    proc = ctx.Process(target=_bounded_entry, args=(q, fn, args, kwargs, memory_bytes), daemon=True)
+    # an Event, not a queue message: a queue's message is written by a feeder thread, which
+    # never runs while the child's main thread blocks in HDF5 holding the GIL
+    ready = ctx.Event()
+    proc = ctx.Process(target=_bounded_entry, args=(q, ready, fn, args, kwargs, memory_bytes), daemon=True)
     proc.start()
     # the time limit starts when the child has imported what it runs (interpreter start-up
     # on a busy machine is not the file's fault), bounded separately by STARTUP_S
     deadline = time.monotonic() + STARTUP_S
+    started = False
     try:
         while True:
+            if not started and ready.is_set():
+                started, deadline = True, time.monotonic() + timeout
             try:
                 kind, value = q.get(timeout=0.05)
-                if kind == "ready":
-                    deadline = time.monotonic() + timeout
-                    continue
                 break
             except _queue.Empty:
                 pass
@@ -163,8 +170,8 @@ def run_bounded(fn: Callable, *args: Any, timeout: float, memory_bytes: int | No
     raise ValueError(value)
 
 
-def _bounded_entry(q: Any, fn: Callable, args: tuple, kwargs: dict, memory_bytes: int | None) -> None:
-    q.put(("ready", None))
+def _bounded_entry(q: Any, ready: Any, fn: Callable, args: tuple, kwargs: dict, memory_bytes: int | None) -> None:
+    ready.set()
     if memory_bytes:
         try:
             import resource
@@ -173,6 +180,39 @@ def _bounded_entry(q: Any, fn: Callable, args: tuple, kwargs: dict, memory_bytes
         except (ImportError, ValueError, OSError):  # not on this platform
             pass
     _child(q, fn, args, kwargs)
+
+
+#: Time limit (s) of :func:`read_bounded` (the service's upload limit is its own setting).
+READ_TIMEOUT_S = 60.0
+
+
+def writer_flagged(path: str | os.PathLike) -> bool:
+    """True for an HDF5 file whose superblock says a writer has (or had, if killed) it open
+    for SWMR writing: ``driver.scanfile.open_readonly`` opens it as an SWMR reader, which
+    HDF5 can block in for ever on damaged metadata. False for anything else, a file that
+    is not HDF5 or a damaged superblock included (those are refused by the readers)."""
+    from driver.scanfile import _superblock_open_for_write
+
+    try:
+        return is_hdf5(path) and _superblock_open_for_write(Path(path))
+    except (OSError, ValueError):
+        return False
+
+
+def read_bounded(fn: Callable, path: str | os.PathLike, *args: Any, timeout: float | None = None,
+                 **kwargs: Any) -> Any:
+    """``fn(path, *args, **kwargs)``: in this process, or, for a file HDF5 would open as an
+    SWMR reader (:func:`writer_flagged`), in a child process killed after ``timeout`` s
+    (default ``FPSCAN_IMPORT_TIMEOUT_S`` or ``READ_TIMEOUT_S``, 60 s;
+    :func:`run_bounded`: the result must be picklable). Raises what ``fn`` raises; in the
+    child, ValueError with the reason (also for a read that did not end in time). The
+    child is spawned: a script calling this at import time needs the
+    ``if __name__ == "__main__":`` guard of ``multiprocessing``."""
+    if not writer_flagged(path) or multiprocessing.current_process().daemon:  # a bounded child already
+        return fn(path, *args, **kwargs)
+    if timeout is None:
+        timeout = float(os.environ.get("FPSCAN_IMPORT_TIMEOUT_S") or READ_TIMEOUT_S)
+    return run_bounded(fn, path, *args, timeout=timeout, what=f"{Path(path).name} (open by a writer)", **kwargs)
 
 
 def hdf5_limit(upload_limit: int, memory_limit: int) -> int:

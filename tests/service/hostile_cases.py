@@ -83,6 +83,25 @@ def corrupted(offset_fraction: float, n: int = 512):
     return make
 
 
+def writer_flagged_corrupt(folder: Path) -> Path:
+    """A scan file whose superblock says a writer has it open (file-consistency flags set,
+    superblock checksum valid: what a killed SWMR writer leaves), with 256 bytes of noise
+    over its root group's metadata at 10 %: opened as an SWMR reader, HDF5 retries that
+    metadata for ever while holding the GIL (read_scan did not return in 20 s)."""
+    from driver.scanfile import _lookup3  # HDF5's superblock checksum
+
+    src = bytearray(scan_file(folder).read_bytes())
+    assert src[8] in (2, 3), "a version 2/3 superblock (libver latest)"
+    n = 12 + 4 * src[9]
+    src[11] = 0x05  # H5F_SUPER_WRITE_ACCESS | H5F_SUPER_SWMR_WRITE_ACCESS
+    src[n:n + 4] = _lookup3(bytes(src[:n])).to_bytes(4, "little")
+    at = int(len(src) * 0.1)
+    src[at:at + 256] = np.random.default_rng(at).integers(0, 256, 256, dtype=np.uint8).tobytes()
+    out = folder / "writer-flagged-corrupt.h5"
+    out.write_bytes(bytes(src))
+    return out
+
+
 def signature_then_noise(folder: Path) -> Path:
     out = folder / "noise.h5"
     out.write_bytes(b"\x89HDF\r\n\x1a\n" + np.random.default_rng(3).integers(0, 256, 4096, dtype=np.uint8).tobytes())
@@ -183,6 +202,8 @@ UPLOADS = [
     # 90 % with this layout) leave a readable file and are not rows.
     *(Upload(f"noise at {100 * f:g} %", "fpscan", corrupted(f, n), 422, "corrupt")
       for f, n in ((0.005, 256), (0.02, 512), (0.04, 256), (0.1, 256), (0.6, 256), (0.8, 256), (0.95, 256))),
+    # a writer has it open (SWMR) and its metadata is damaged: HDF5 blocks; the import's time limit answers
+    Upload("writer-flagged, corrupt metadata", "fpscan", writer_flagged_corrupt, 422, "within"),
     Upload("HDF5 signature then noise", "kwave-hdf5", signature_then_noise, 422, "HDF5"),
     Upload("HDF5 signature then noise (fpscan)", "fpscan", signature_then_noise, 422, "HDF5"),
     Upload("external storage", "kwave-hdf5", external_storage, 422, "external storage"),
