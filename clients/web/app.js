@@ -534,22 +534,24 @@ function planWavelengths(planId) {
 
 const nmText = (w) => `${fmtNum(w * 1e9)} nm`;
 
+/** Replace a select's options by wavelengths ``ws`` (m; value = the index, text in nm)
+ *  and ``extra`` [value, text] pairs after them. */
+function setWavelengthOptions(sel, ws, extra = []) {
+  sel.textContent = "";
+  const pairs = ws.map((w, k) => [String(k), nmText(w)]).concat(extra);
+  for (const [value, label] of pairs) {
+    const o = document.createElement("option");
+    o.value = value;
+    o.textContent = label;
+    sel.appendChild(o);
+  }
+}
+
 /** Offer a multi-wavelength scan's wavelengths to the reconstruct form (the request's
  *  ``wavelength``: an index, or "all" for one volume per wavelength); one wavelength:
  *  the choice stays hidden. */
 function fillReconWavelengths(ws) {
-  const sel = $("recon-wavelength");
-  sel.textContent = "";
-  ws.forEach((w, k) => {
-    const o = document.createElement("option");
-    o.value = String(k);
-    o.textContent = nmText(w);
-    sel.appendChild(o);
-  });
-  const all = document.createElement("option");
-  all.value = "all";
-  all.textContent = "all (one volume each)";
-  sel.appendChild(all);
+  setWavelengthOptions($("recon-wavelength"), ws, [["all", "all (one volume each)"]]);
   $("recon-wavelength-label").hidden = ws.length < 2;
 }
 
@@ -559,13 +561,7 @@ function fillPreviewWavelengths() {
   const sel = $("scan-preview-wavelength");
   const keep = sel.value;
   const ws = planWavelengths($("scan-plan").value);
-  sel.textContent = "";
-  ws.forEach((w, k) => {
-    const o = document.createElement("option");
-    o.value = String(k);
-    o.textContent = nmText(w);
-    sel.appendChild(o);
-  });
+  setWavelengthOptions(sel, ws);
   if (!ws.length) placeholderOption(sel, "the plan's wavelength");
   if (keep && Number(keep) < ws.length) sel.value = keep;
   sel.disabled = ws.length < 2;

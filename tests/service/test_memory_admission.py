@@ -13,6 +13,23 @@ import pytest
 from service.jobs.queue import AdmissionError, estimate_memory, working_depth_rows
 from tests.service.service_servers import needs_recon
 
+# the probes' common part: reset the peak RSS (VmHWM) to the RSS after the warm-up, then
+# RUN (the measured call) and print the RSS before it and the peak during it
+MEASURE = r"""
+
+def status(key):
+    for line in open("/proc/self/status"):
+        if line.startswith(key + ":"):
+            return int(line.split()[1]) * 1024
+
+
+with open("/proc/self/clear_refs", "w") as f:  # reset the peak RSS (VmHWM) to the RSS now
+    f.write("5")
+base = status("VmRSS")
+RUN
+print(json.dumps({"base": base, "peak": status("VmHWM")}))
+"""
+
 PEAK_SCRIPT = r"""
 import json, sys
 import numpy as np
@@ -26,19 +43,7 @@ data = np.random.default_rng(0).standard_normal((n_t, n, n)).astype(np.float32)
 inp = GridDataset(data=data, dx=1e-4, dt=2e-8, c=1500.0, dy=1e-4)
 reconstruct(inp, "ner", **{**params, "n_z": 8})  # warm-up: imports, compiled kernels, FFT plans
 
-
-def status(key):
-    for line in open("/proc/self/status"):
-        if line.startswith(key + ":"):
-            return int(line.split()[1]) * 1024
-
-
-with open("/proc/self/clear_refs", "w") as f:  # reset the peak RSS (VmHWM) to the RSS now
-    f.write("5")
-base = status("VmRSS")
-img = reconstruct(inp, "ner", **params)
-print(json.dumps({"base": base, "peak": status("VmHWM")}))
-"""
+""" + MEASURE.replace("RUN", 'img = reconstruct(inp, "ner", **params)')
 
 
 @needs_recon
@@ -101,19 +106,7 @@ ds = PointDataset(alines=rng.standard_normal((n_pts, n_t)), positions=pos, dt=2e
                   weights=None)
 reconstruct(ds, "tv", iterations=1)  # warm-up: imports, compiled kernels (compiling may peak high)
 
-
-def status(key):
-    for line in open("/proc/self/status"):
-        if line.startswith(key + ":"):
-            return int(line.split()[1]) * 1024
-
-
-with open("/proc/self/clear_refs", "w") as f:  # reset the peak RSS (VmHWM) to the RSS now
-    f.write("5")
-base = status("VmRSS")
-reconstruct(ds, "tv", iterations=2)
-print(json.dumps({"base": base, "peak": status("VmHWM")}))
-"""
+""" + MEASURE.replace("RUN", 'reconstruct(ds, "tv", iterations=2)')
 
 
 @needs_recon
