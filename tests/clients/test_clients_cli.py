@@ -10,7 +10,7 @@ import sys
 import numpy as np
 import pytest
 
-from tests.clients.clients_servers import clean_env, fpscan_server, free_port, has_command
+from tests.clients.clients_servers import clean_env, free_port
 
 TOKEN = "cli-test-token"
 
@@ -77,16 +77,6 @@ def test_bad_local_inputs_are_one_line_errors(tmp_path):
     _one_line_error(fpscan("export", tmp_path / "missing.h5"), "no such file")
     _one_line_error(fpscan("export", "--job", "abc"), "--server")
     _one_line_error(fpscan("demo", "--out", tmp_path / "d", "--lattice", "3"), "--lattice")
-
-
-@pytest.fixture(scope="module")
-def server(tmp_path_factory):
-    if not has_command("serve"):
-        pytest.skip("`fpscan serve` not available yet")
-    data = tmp_path_factory.mktemp("cli-srv") / "data"
-    data.mkdir()
-    with fpscan_server(data, token=TOKEN) as (url, _proc):
-        yield url
 
 
 def test_jobs_against_a_server(server):

@@ -19,19 +19,11 @@ from clients.http import (
     ServerUnavailable,
     field_of,
 )
-from tests.clients.clients_servers import fpscan_server, free_port, has_command
+from tests.clients.clients_servers import free_port, has_command
 
 TOKEN = "client-test-token"
 
 pytestmark = pytest.mark.skipif(not has_command("serve"), reason="`fpscan serve` not available yet")
-
-
-@pytest.fixture(scope="module")
-def server(tmp_path_factory):
-    data = tmp_path_factory.mktemp("srv") / "data"
-    data.mkdir()
-    with fpscan_server(data, token=TOKEN) as (url, _proc):
-        yield url
 
 
 @pytest.fixture()

@@ -13,21 +13,13 @@ import numpy as np
 import pytest
 
 from clients.http import Client
-from tests.clients.clients_servers import clean_env, fpscan_server, has_command
+from tests.clients.clients_servers import clean_env, has_command
 from tests.clients.test_clients_cli import fpscan
 
 TOKEN = "default-method-token"
 DT, DX = 2e-8, 1e-4
 
 pytestmark = pytest.mark.skipif(not has_command("serve"), reason="`fpscan serve` not available")
-
-
-@pytest.fixture(scope="module")
-def server(tmp_path_factory):
-    data = tmp_path_factory.mktemp("srv") / "data"
-    data.mkdir()
-    with fpscan_server(data, token=TOKEN) as (url, _proc):
-        yield url
 
 
 def _p0(path):
