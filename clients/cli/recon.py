@@ -210,6 +210,7 @@ def _local(args, fmt: str) -> int:
 
 
 def _nm(params: dict) -> str:
+    """``"  wavelength 850 nm"`` from a result's params (or a wavelength row); "" when unknown."""
     w = params.get("wavelength_nm")
     return f"  wavelength {w:g} nm" if w is not None else ""
 
@@ -238,9 +239,8 @@ def _local_all(args, datasets: list, say, t0: float) -> int:
     say(f"writing {out}/")
     written = write_wavelength_results(out, recons, input_id=Path(args.input).name)
     for row in written["wavelengths"]:
-        nm = f"  wavelength {row['wavelength_nm']:g} nm" if row["wavelength_nm"] is not None else ""
         print(f"{out}/wavelength_{row['index']}/volume.h5  p0 {'x'.join(map(str, row['shape']))}  "
-              f"method {method}{nm}")
+              f"method {method}{_nm(row)}")
     print(f"{len(recons)} wavelengths  load {t1 - t0:.2f} s  reconstruct {t2 - t1:.2f} s  "
           f"write {time.perf_counter() - t2:.2f} s")
     return 0
@@ -281,8 +281,7 @@ def _remote(args, fmt: str | None) -> int:
             for row in rows:
                 k = int(row["index"])
                 _download(api, job_id, out / f"wavelength_{k}", k)
-                nm = f"  wavelength {row['wavelength_nm']:g} nm" if row.get("wavelength_nm") is not None else ""
-                print(f"{out}/wavelength_{k}/volume.h5  job {job_id}  method {method}{nm}")
+                print(f"{out}/wavelength_{k}/volume.h5  job {job_id}  method {method}{_nm(row)}")
     return 0
 
 

@@ -133,7 +133,7 @@ def _input_for(c: Context, body: ReconRequest) -> tuple[dict, dict, str]:
     if meta is None:
         raise HTTPException(404, f"no dataset {dataset_id}")
     path = str(Path(c.settings.data_dir) / "datasets" / dataset_id / meta["path"])
-    # a stored dataset holds one wavelength's data (an upload of a multi-wavelength file: its first)
+    # a stored dataset holds one wavelength's data (of a multi-wavelength file: the one chosen at upload)
     ds_spec = _with_wavelength({"kind": "dataset", "path": path}, body.wavelength, [None], f"dataset {dataset_id}")
     if meta["layout"] == "grid":
         s = meta["shape"]
