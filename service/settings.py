@@ -78,6 +78,13 @@ class Settings(BaseSettings):
     retention_keep_bytes: int | None = Field(None, ge=0, description="keep at most this many bytes of result "
                                              "files, oldest finished deleted first (None = no limit)")
     retention_include_scans: bool = Field(False, description="let retention delete finished scan files too")
+    retention_datasets_keep_bytes: int | None = Field(None, ge=0, description="keep at most this many bytes of "
+                                                      "uploaded datasets no active job reads, oldest deleted first "
+                                                      "(None = no limit)")
+    retention_datasets_max_age_s: float | None = Field(None, ge=0, description="delete uploaded datasets no active "
+                                                       "job reads once older than this, s (None = never)")
+    disk_reserve_bytes: int = Field(256 * 2**20, ge=0, description="free disk an upload's import must leave: a "
+                                    "dataset that would leave less (counting imports in flight) is refused with 507")
 
     @field_validator("devices")
     @classmethod

@@ -13,29 +13,62 @@ Formats:
 - ``ipasc``: an IPASC HDF5 file (``service.ipasc.read_ipasc``).
 
 The upload is stored under a server-chosen id (``<data_dir>/datasets/<id>/``); the client's
-file name is never used as a path. Every upload is read with
-``service.storage.datasets.load_dataset`` and kept as the canonical dataset file
-(``service.storage.datasets.write_dataset``), which the job worker reads.
+file name is never used as a path (it is kept, cleaned, as the dataset's display name). Every
+upload is read with ``service.storage.datasets.load_dataset`` and kept as the canonical
+dataset file (``service.storage.datasets.write_dataset``), which the job worker reads.
+
+Datasets never pile up:
+
+- Deduplicated: the upload's SHA-256 together with the options that change the stored
+  dataset (format, ``dt``, ``dx``, ``dy``, ``c``, ``key``, the wavelength index) is its
+  key; the same file with the same options uploaded again answers 200 with the stored
+  dataset's id and ``deduplicated: true``, storing nothing.
+- Listed (``GET /api/datasets``: size on disk, content hash, the jobs that read it) and
+  deletable (``DELETE /api/datasets/{id}``, 409 while a queued/running/paused job reads it).
+- Covered by retention (``service.jobs.lifecycle.apply_dataset_retention``, applied after
+  each new upload too).
+- Admitted against the disk: the decoded dataset's bytes must fit the free space less
+  ``disk_reserve_bytes`` less what imports in flight reserved
+  (``service.storage.untrusted.DiskAdmission``), else 507 before it is written.
 """
 from __future__ import annotations
 
+import hashlib
+import json
+import logging
 import shutil
+import threading
 import uuid
 from pathlib import Path
 
-from fastapi import APIRouter, Depends, File, Form, HTTPException, UploadFile
+from fastapi import APIRouter, Depends, File, Form, HTTPException, Response, UploadFile
 from fastapi import Path as PathParam
 
-from service.api.context import Context, ctx, reason, require_token
-from service.api.models import ID_PATTERN, Dataset, DatasetFormat, Deleted
+from service.api.context import Context, ctx, read_access, reason, require_token
+from service.api.models import ID_PATTERN, Dataset, DatasetFormat, DatasetInfo, Deleted
 from service.jobs import lifecycle
 from service.storage.datasets import import_dataset
-from service.storage.untrusted import hdf5_limit, run_bounded
+from service.storage.untrusted import DiskAdmission, NotAdmitted, hdf5_limit, run_bounded
+
+log = logging.getLogger("fpscan.api")
+#: serialises "is this content stored already?" with storing it (two identical uploads at once)
+_DEDUP_LOCK = threading.Lock()
 
 router = APIRouter(prefix="/api/datasets", tags=["datasets"])
 
+@router.get("", response_model=list[DatasetInfo], dependencies=[Depends(read_access)])
+def list_datasets(cx: Context = Depends(ctx)) -> list[DatasetInfo]:
+    """The stored datasets, oldest first: name, format, size on disk, upload time,
+    content hash and the jobs that read them (``in_use``: an active one does)."""
+    return [DatasetInfo(**d) for d in lifecycle.list_datasets(cx.store, cx.settings.data_dir)]
+
+
 @router.post("", status_code=201, response_model=Dataset, dependencies=[Depends(require_token)],
-             responses={413: {"description": "upload larger than the configured limit"}})
+             responses={200: {"description": "the same file with the same options is stored already: its "
+                                             "dataset, deduplicated: true", "model": Dataset},
+                        413: {"description": "upload larger than the configured limit"},
+                        507: {"description": "the decoded dataset does not fit the free disk (counting the "
+                                             "imports in progress)"}})
 def upload_dataset(file: UploadFile = File(..., description="the data file"),
                    format: DatasetFormat = Form(...),
                    dt: float | None = Form(None, description="sample interval, s"),
@@ -49,14 +82,53 @@ def upload_dataset(file: UploadFile = File(..., description="the data file"),
                                                  description="of a multi-wavelength scan or IPASC file: the index of "
                                                              "the excitation wavelength to store (default: the "
                                                              "first); out of range: 422 naming the file's"),
+                   response: Response = None,  # type: ignore[assignment]
                    cx: Context = Depends(ctx)) -> Dataset:
-    """Upload a dataset for reconstruction → 201 ``{dataset_id, ...}``. At most
+    """Upload a dataset for reconstruction → 201 ``{dataset_id, ...}``; the same file with
+    the same options again → 200 with the stored one (``deduplicated: true``). At most
     ``FPSCAN_IMPORT_WORKERS`` uploads are imported at once (4x as many wait; beyond, 429).
     A dataset holds one wavelength's data (``wavelength``; the response's
-    ``wavelength_nm`` says which)."""
+    ``wavelength_nm`` says which). 507 when the decoded dataset does not fit the disk."""
     with cx.slots["uploads"].turn():
-        return _store_upload(file, format, dt=dt, dx=dx, dy=dy, c=c, key=key, force=force, wavelength=wavelength,
-                             cx=cx)
+        out = _store_upload(file, format, dt=dt, dx=dx, dy=dy, c=c, key=key, force=force, wavelength=wavelength,
+                            cx=cx)
+    if out.deduplicated:
+        response.status_code = 200
+    return out
+
+
+def _display_name(name: str | None) -> str | None:
+    """The client's file name for display: its last path part, printable, at most 200 characters."""
+    if not name:
+        return None
+    base = name.replace("\\", "/").rsplit("/", 1)[-1]
+    clean = "".join(ch for ch in base if ch.isprintable())[:200].strip()
+    return clean or None
+
+
+def _dedup_key(sha256: str, format: str, **options: object) -> str:
+    """The key of a stored dataset: the upload's bytes and the options that change what is stored."""
+    options["wavelength"] = options.get("wavelength") or 0  # None reads the first wavelength
+    return hashlib.sha256(json.dumps({"sha256": sha256, "format": format, **options}, sort_keys=True)
+                          .encode()).hexdigest()
+
+
+def _found(cx: Context, dataset_id: str, sha256: str) -> Dataset | None:
+    """The stored dataset ``dataset_id`` as a deduplicated answer (None if its file is gone)."""
+    meta = cx.store.get_dataset(dataset_id)
+    if meta is None or not (Path(cx.settings.data_dir) / "datasets" / dataset_id / meta["path"]).is_file():
+        return None
+    return Dataset(dataset_id=dataset_id, format=meta["format"], layout=meta["layout"], shape=meta["shape"],
+                   dt=meta["dt"], wavelength_nm=meta.get("wavelength_nm"), deduplicated=True,
+                   content_sha256=sha256)
+
+
+def _admission(cx: Context) -> DiskAdmission:
+    adm = cx.extras.get("disk_admission")
+    if adm is None:
+        adm = cx.extras.setdefault("disk_admission", DiskAdmission(cx.settings.data_dir,
+                                                                   cx.settings.disk_reserve_bytes))
+    return adm
 
 
 def _store_upload(file: UploadFile, format: str, *, dt, dx, dy, c, key, force: bool, wavelength: int | None,
@@ -67,13 +139,25 @@ def _store_upload(file: UploadFile, format: str, *, dt, dx, dy, c, key, force: b
     src = dest / "upload.bin"
     limit = cx.settings.upload_limit
     size = 0
+    digest = hashlib.sha256()
+    admission = _admission(cx)
     try:
         with open(src, "wb") as out:
             while chunk := file.file.read(1 << 20):
                 size += len(chunk)
                 if size > limit:
                     raise HTTPException(413, f"upload larger than the limit of {limit} bytes")
+                digest.update(chunk)
                 out.write(chunk)
+        sha256 = digest.hexdigest()
+        dedup_key = _dedup_key(sha256, format, dt=dt, dx=dx, dy=dy, c=c, key=key, wavelength=wavelength)
+        with _DEDUP_LOCK:
+            existing = cx.store.find_dataset(dedup_key)
+            found = _found(cx, existing, sha256) if existing else None
+        if found is not None:
+            shutil.rmtree(dest, ignore_errors=True)
+            log.info("upload deduplicated: dataset=%s bytes=%d", found.dataset_id, size)
+            return found
         try:
             # in a child process with a time and memory bound: the HDF5 library can block
             # (holding the GIL) or expand a small file into gigabytes (import_dataset lives
@@ -82,18 +166,35 @@ def _store_upload(file: UploadFile, format: str, *, dt, dx, dy, c, key, force: b
                                wavelength=wavelength,
                                max_bytes=hdf5_limit(limit, cx.settings.memory_limit),
                                timeout=cx.settings.import_timeout_s, what="the upload",
-                               memory_bytes=cx.settings.memory_limit + 2 * 2**30)
+                               memory_bytes=cx.settings.memory_limit + 2 * 2**30,
+                               admit=lambda nbytes: admission.reserve(dataset_id, nbytes))
         except ValueError as exc:
             msg = reason(exc).replace(str(src.resolve()), "the upload").replace(str(src), "the upload")
             raise HTTPException(422, cx.settings.redact(msg)) from None
+        except NotAdmitted as exc:
+            raise HTTPException(507, str(exc)) from None
+        src.unlink(missing_ok=True)
+        meta.update({"format": format, "name": _display_name(file.filename), "content_sha256": sha256,
+                     "dedup_key": dedup_key})
+        with _DEDUP_LOCK:  # an identical upload may have been stored meanwhile: keep that one
+            existing = cx.store.find_dataset(dedup_key)
+            found = _found(cx, existing, sha256) if existing else None
+            if found is None:
+                cx.store.put_dataset(dataset_id, meta)
     except BaseException:
         shutil.rmtree(dest, ignore_errors=True)
         raise
-    src.unlink(missing_ok=True)
-    meta["format"] = format
-    cx.store.put_dataset(dataset_id, meta)
+    finally:
+        admission.release(dataset_id)
+    if found is not None:
+        shutil.rmtree(dest, ignore_errors=True)
+        return found
+    try:
+        lifecycle.apply_dataset_retention(cx.store, cx.settings)
+    except Exception:  # retention must not fail the upload that was stored
+        log.exception("dataset retention failed after upload=%s", dataset_id)
     return Dataset(dataset_id=dataset_id, format=format, layout=meta["layout"], shape=meta["shape"], dt=meta["dt"],
-                   wavelength_nm=meta.get("wavelength_nm"))
+                   wavelength_nm=meta.get("wavelength_nm"), content_sha256=sha256)
 
 
 @router.delete("/{dataset_id}", response_model=Deleted, dependencies=[Depends(require_token)],

@@ -99,6 +99,10 @@ class Retention(_Request):
     keep_results: int | None = Field(None, ge=0, le=10**9)
     keep_bytes: int | None = Field(None, ge=0, le=2**62)
     include_scans: bool = False
+    datasets_keep_bytes: int | None = Field(None, ge=0, le=2**62, description="keep at most this many bytes of "
+                                            "uploaded datasets no active job reads; the oldest go first")
+    datasets_max_age_s: float | None = Field(None, ge=0, le=1e10, description="delete uploaded datasets no active "
+                                             "job reads once older than this, s")
 
 
 # -- plans ---------------------------------------------------------------------------
@@ -352,6 +356,27 @@ class Dataset(BaseModel):
     dt: float | None = None
     wavelength_nm: float | None = Field(None, description="the excitation wavelength whose data the dataset holds "
                                                           "(a scan or IPASC file that records it)")
+    deduplicated: bool = Field(False, description="the same file with the same import options was stored before: "
+                                                  "this is that dataset (200), nothing new was stored")
+    content_sha256: str | None = Field(None, description="SHA-256 of the uploaded file's bytes")
+
+
+class DatasetInfo(BaseModel):
+    """A stored dataset in ``GET /api/datasets``."""
+
+    dataset_id: str
+    name: str | None = Field(None, description="the uploaded file's name (display only)")
+    format: str | None = None
+    layout: str | None = None
+    shape: list[int] | None = None
+    dt: float | None = None
+    wavelength_nm: float | None = None
+    wavelength_index: int | None = None
+    content_sha256: str | None = None
+    size_bytes: int = Field(description="bytes of its files on disk")
+    created: float = Field(description="UNIX time of the upload")
+    jobs: list[str] = Field(default_factory=list, description="ids of the reconstruction jobs that read it")
+    in_use: bool = Field(False, description="a queued, running or paused job reads it (it cannot be deleted)")
 
 
 class ReconParams(_Request):

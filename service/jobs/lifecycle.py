@@ -17,6 +17,11 @@ The rules, one place for the API, the queue and the tests:
   the job database (``config`` table), so a restart keeps it; the service settings
   (``retention_keep_results``, ``retention_keep_bytes``, ``retention_include_scans``)
   give the policy until one is set through ``PUT /api/retention``.
+- Dataset retention (same policy): uploaded datasets no active job reads are removed
+  oldest first when older than ``datasets_max_age_s`` or beyond ``datasets_keep_bytes``
+  bytes of dataset files (settings ``retention_datasets_keep_bytes``,
+  ``retention_datasets_max_age_s``); a dataset a queued, running or paused job reads is
+  never removed.
 
 Layout of the data folder (``settings.data_dir``): ``scans/<job>.h5``,
 ``exports/<job>.ipasc.h5``, ``results/<job>.<attempt>/``, ``datasets/<id>/``,
@@ -99,6 +104,19 @@ def job_files(job: dict, data_dir: str | os.PathLike) -> list[Path]:
     return unique
 
 
+def job_dataset_ids(job: dict) -> set[str]:
+    """The uploaded datasets a reconstruction job reads: its ``dataset_id``, or the
+    datasets of an unmixing job (``input_id`` ``datasets:<id>,<id>...``)."""
+    if job.get("kind") != "recon":
+        return set()
+    p = job["params"]
+    out = {p["dataset_id"]} if p.get("dataset_id") else set()
+    input_id = str(p.get("input_id") or "")
+    if input_id.startswith("datasets:"):
+        out |= {d for d in input_id.removeprefix("datasets:").split(",") if d}
+    return out
+
+
 def _users(store: JobStore, *, scan_job: str | None = None, plan: str | None = None,
            dataset: str | None = None) -> list[dict]:
     """Active jobs that read the given scan job's file, plan or dataset."""
@@ -109,7 +127,7 @@ def _users(store: JobStore, *, scan_job: str | None = None, plan: str | None = N
             found.append(job)
         elif plan is not None and job["kind"] == "scan" and p.get("plan_id") == plan:
             found.append(job)
-        elif dataset is not None and job["kind"] == "recon" and p.get("dataset_id") == dataset:
+        elif dataset is not None and dataset in job_dataset_ids(job):
             found.append(job)
     return found
 
@@ -160,7 +178,69 @@ def delete_dataset(store: JobStore, data_dir: str | os.PathLike, dataset_id: str
     freed = _tree_bytes(folder)
     store.delete_dataset(dataset_id)
     _remove(folder)
+    log.info("deleted dataset=%s bytes=%d", dataset_id, freed)
     return {"id": dataset_id, "bytes_freed": freed}
+
+
+def list_datasets(store: JobStore, data_dir: str | os.PathLike) -> list[dict]:
+    """Every uploaded dataset, oldest first: ``{"dataset_id", "name", "format", "layout",
+    "shape", "dt", "wavelength_nm", "wavelength_index", "content_sha256", "size_bytes"
+    (its files on disk), "created" (UNIX s), "jobs" (ids of the jobs that read it, any
+    state), "in_use" (a queued, running or paused one does)}``."""
+    users: dict[str, list[str]] = {}
+    active: set[str] = set()
+    for job in store.list(kind="recon", limit=1_000_000):
+        for ds in job_dataset_ids(job):
+            users.setdefault(ds, []).append(job["id"])
+            if job["state"] in ACTIVE:
+                active.add(ds)
+    out = []
+    for row in store.list_datasets():
+        meta, did = row["meta"], row["id"]
+        out.append({"dataset_id": did, "name": meta.get("name"), "format": meta.get("format"),
+                    "layout": meta.get("layout"), "shape": meta.get("shape"), "dt": meta.get("dt"),
+                    "wavelength_nm": meta.get("wavelength_nm"), "wavelength_index": meta.get("wavelength_index"),
+                    "content_sha256": meta.get("content_sha256"),
+                    "size_bytes": _tree_bytes(Path(data_dir) / "datasets" / did), "created": row["created"],
+                    "jobs": users.get(did, []), "in_use": did in active})
+    return out
+
+
+def apply_dataset_retention(store: JobStore, settings: Any, policy: dict | None = None,
+                            now: float | None = None) -> list[str]:
+    """Delete uploaded datasets beyond the policy's ``datasets_max_age_s`` (older ones)
+    and ``datasets_keep_bytes`` (oldest first until the rest fit; the newest is never removed
+    for its bytes); a dataset an active job reads is kept (and still counts towards the
+    bytes). Returns the deleted ids."""
+    import time
+
+    policy = policy or get_retention(store, settings)
+    max_age, keep_bytes = policy.get("datasets_max_age_s"), policy.get("datasets_keep_bytes")
+    if max_age is None and keep_bytes is None:
+        return []
+    now = time.time() if now is None else now
+    rows = list_datasets(store, settings.data_dir)
+    victims: list[str] = []
+    total = sum(r["size_bytes"] for r in rows)
+    for i, r in enumerate(rows):  # oldest first
+        if r["in_use"]:
+            continue
+        too_old = max_age is not None and now - r["created"] > max_age
+        # the newest is kept for the bytes: it was just uploaded, to be reconstructed
+        too_much = keep_bytes is not None and total > keep_bytes and i < len(rows) - 1
+        if too_old or too_much:
+            victims.append(r["dataset_id"])
+            total -= r["size_bytes"]
+    deleted = []
+    for did in victims:
+        try:
+            delete_dataset(store, settings.data_dir, did)
+            deleted.append(did)
+        except (InUse, NotFound) as exc:
+            log.info("retention kept dataset=%s: %s", did, exc)
+    if deleted:
+        log.info("retention deleted datasets=%s policy=%s", deleted, policy)
+    return deleted
 
 
 # -- retention --------------------------------------------------------------------------
@@ -168,7 +248,9 @@ def default_retention(settings: Any) -> dict:
     """The policy the service settings give (``retention_*``; None = no limit)."""
     return {"keep_results": getattr(settings, "retention_keep_results", None),
             "keep_bytes": getattr(settings, "retention_keep_bytes", None),
-            "include_scans": bool(getattr(settings, "retention_include_scans", False))}
+            "include_scans": bool(getattr(settings, "retention_include_scans", False)),
+            "datasets_keep_bytes": getattr(settings, "retention_datasets_keep_bytes", None),
+            "datasets_max_age_s": getattr(settings, "retention_datasets_max_age_s", None)}
 
 
 def get_retention(store: JobStore, settings: Any) -> dict:
@@ -180,20 +262,27 @@ def get_retention(store: JobStore, settings: Any) -> dict:
 
 def set_retention(store: JobStore, policy: dict) -> dict:
     """Store a policy ``{"keep_results": int|None, "keep_bytes": int|None,
-    "include_scans": bool}`` (it survives restarts). Raises ValueError for negative
-    numbers."""
+    "include_scans": bool, "datasets_keep_bytes": int|None, "datasets_max_age_s":
+    float|None}`` (it survives restarts). Raises ValueError for negative numbers."""
     out = {"keep_results": policy.get("keep_results"), "keep_bytes": policy.get("keep_bytes"),
-           "include_scans": bool(policy.get("include_scans", False))}
-    for key in ("keep_results", "keep_bytes"):
+           "include_scans": bool(policy.get("include_scans", False)),
+           "datasets_keep_bytes": policy.get("datasets_keep_bytes"),
+           "datasets_max_age_s": policy.get("datasets_max_age_s")}
+    for key in ("keep_results", "keep_bytes", "datasets_keep_bytes"):
         v = out[key]
         if v is not None and (not isinstance(v, int) or isinstance(v, bool) or v < 0):
             raise ValueError(f"{key} must be a whole number >= 0 or null, got {v!r}")
+    age = out["datasets_max_age_s"]
+    if age is not None and (isinstance(age, bool) or not isinstance(age, (int, float)) or not age >= 0
+                            or age == float("inf")):
+        raise ValueError(f"datasets_max_age_s must be a number of seconds >= 0 or null, got {age!r}")
     store.set_config(RETENTION_KEY, out)
     return out
 
 
 def apply_retention(store: JobStore, settings: Any) -> list[str]:
-    """Delete the oldest finished jobs beyond the retention policy; returns their ids.
+    """Delete the oldest finished jobs beyond the retention policy, and the datasets
+    beyond its dataset part (:func:`apply_dataset_retention`); returns their ids.
 
     Candidates: finished reconstructions that have result files (and, with
     ``include_scans``, finished scans with a scan file that no active job reads), oldest
@@ -201,9 +290,10 @@ def apply_retention(store: JobStore, settings: Any) -> list[str]:
     ``keep_bytes`` then removes the oldest candidates until their files fit.
     """
     policy = get_retention(store, settings)
+    datasets = apply_dataset_retention(store, settings, policy)
     keep_n, keep_bytes = policy["keep_results"], policy["keep_bytes"]
     if keep_n is None and keep_bytes is None:
-        return []
+        return datasets
     data_dir = settings.data_dir
     recon = [j for j in store.finished_jobs("recon") if job_files(j, data_dir)]
     victims: list[dict] = []
@@ -232,7 +322,7 @@ def apply_retention(store: JobStore, settings: Any) -> list[str]:
             log.info("retention kept job=%s: %s", j["id"], exc)
     if deleted:
         log.info("retention deleted jobs=%s policy=%s", deleted, policy)
-    return deleted
+    return datasets + deleted
 
 
 # -- disk use ---------------------------------------------------------------------------

@@ -422,6 +422,19 @@ class JobStore:
             row = self._db.execute("SELECT meta FROM datasets WHERE id = ?", (dataset_id,)).fetchone()
         return None if row is None else json.loads(row["meta"])
 
+    def list_datasets(self) -> Jobs:
+        """Every stored dataset as ``{"id", "meta", "created"}``, oldest first."""
+        with self._lock:
+            rows = self._db.execute("SELECT id, meta, created FROM datasets ORDER BY created, id").fetchall()
+        return [{"id": r["id"], "meta": json.loads(r["meta"]), "created": r["created"]} for r in rows]
+
+    def find_dataset(self, dedup_key: str) -> str | None:
+        """The id of the oldest dataset stored under ``dedup_key`` (its meta's), or None."""
+        with self._lock:
+            row = self._db.execute("SELECT id FROM datasets WHERE json_extract(meta, '$.dedup_key') = ? "
+                                   "ORDER BY created LIMIT 1", (dedup_key,)).fetchone()
+        return None if row is None else str(row["id"])
+
     # -- deletion and configuration (service.jobs.lifecycle owns the rules) ----------
     def active_jobs(self) -> Jobs:
         """Jobs that are queued, running or paused (they may still read their inputs)."""

@@ -606,6 +606,15 @@ def read_dataset(path: str | os.PathLike) -> GridDataset | PointDataset:
             raise ValueError(f"not a canonical dataset file ({exc})") from None
 
 
+def dataset_nbytes(ds: GridDataset | PointDataset) -> int:
+    """Bytes of the arrays :func:`write_dataset` writes for ``ds`` (the canonical file's
+    size less its metadata)."""
+    if isinstance(ds, GridDataset):
+        return int(ds.data.nbytes)
+    arrays = [ds.alines, ds.positions, ds.weights, ds.indices, *ds.grid]
+    return int(sum(np.asarray(a).nbytes for a in arrays if a is not None))
+
+
 HDF5_KEY_CHARS = set("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_-/.")
 
 
@@ -620,7 +629,10 @@ def import_dataset(src: str | os.PathLike, dest_dir: str | os.PathLike, fmt: str
     ``force``: accept a ``c`` outside 1000-2000 m/s (as :func:`load_dataset`).
     ``wavelength``: which excitation wavelength of a multi-wavelength file to store (an
     index; None: the first; as :func:`load_dataset`, recorded in the metadata).
-    Raises ``ValueError`` with the reason."""
+    Before the dataset file is written its bytes (:func:`dataset_nbytes`) are admitted
+    (``service.storage.untrusted.request_admission``: the service's free-disk admission).
+    Raises ``ValueError`` with the reason; ``service.storage.untrusted.NotAdmitted`` when
+    the disk cannot take it."""
     if key is not None and (not key or len(key) > 200 or not set(key) <= HDF5_KEY_CHARS):
         raise ValueError("key must be an HDF5 dataset path of [A-Za-z0-9_-/.]")
     for name, value in (("dt", dt), ("dx", dx), ("dy", dy), ("c", c)):
@@ -634,6 +646,9 @@ def import_dataset(src: str | os.PathLike, dest_dir: str | os.PathLike, fmt: str
     dest_dir = Path(dest_dir)
     if isinstance(ds, PointDataset) and ds.alines.shape[0] == 0:
         raise ValueError("the dataset holds no A-lines")
+    from service.storage.untrusted import request_admission
+
+    request_admission(dataset_nbytes(ds))  # the service's disk admission, before a byte is written
     write_dataset(dest_dir / "dataset.h5", ds)
     common = {"dt": ds.dt, "c": ds.c, "path": "dataset.h5", **wavelength_params(ds)}
     if isinstance(ds, GridDataset):

@@ -11,7 +11,25 @@ data* and refuses:
 - datasets whose declared size (shape × dtype) exceeds ``max_bytes`` (the caller derives
   it from the upload and memory limits), and datasets without filters whose allocated
   storage is smaller than declared (unwritten chunks read as the fill value: a 1.5 kB
-  file can declare gigabytes).
+  file can declare gigabytes),
+- chunked datasets, filtered (gzip, ...) or not, with chunks that were never written (they
+  read as the fill value: a 1.5 kB gzip-filtered file declared 2 GiB), and a file whose
+  datasets declare more than :data:`MAX_RATIO` times the bytes they store (every stored
+  byte is earned: a decoded size is bounded by a ratio to the bytes actually stored,
+  filters included).
+
+The ratio bound: deflate (gzip) cannot exceed about 1032:1 even on constant data; real
+float data reaches far less — the k-Wave reference files (gzip 6 + shuffle) store their
+sensor data at 1.2-1.5:1 and p0 at 1.1:1, measured A-lines are noisy, and a float array
+that is 99 % exact zeros compresses to about 100:1. So a file that declares more than
+100× what it stores is padding or unwritten space, refused with the reason (a file that
+really is mostly zeros can be uploaded without compression, paying its bytes). Datasets
+of at most :data:`SMALL_BYTES` are not checked for unwritten chunks (index arrays compress
+far beyond 100:1 and are small); they count towards the ratio with that slack.
+
+How much an import may *write* is admitted separately (:func:`request_admission`: the
+service checks the decoded bytes against the free disk less what imports in flight have
+reserved, before the dataset file is written).
 
 The HDF5 library can block while holding the GIL (a damaged file opened as an SWMR reader
 retries forever), so the service runs the whole import in a child process with a time
@@ -34,6 +52,8 @@ from typing import Any
 HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
 #: Datasets up to this many declared bytes are not checked for unwritten storage.
 SMALL_BYTES = 1 << 20
+#: Most decoded bytes a file's datasets may declare per byte they store (module docstring).
+MAX_RATIO = 100
 #: Longest wait for a child process of :func:`run_bounded` to start (s).
 STARTUP_S = 120.0
 
@@ -58,6 +78,7 @@ def check_hdf5(path: str | os.PathLike, *, max_bytes: int) -> None:
     except Exception:  # ValueError from the checks; damaged files can reach other paths
         raise ValueError("not a readable HDF5 file (truncated or corrupt)") from None
     problems: list[str] = []
+    sizes = [0, 0]  # declared, stored: bytes of every dataset
     with f:
         def visit(name: str, link: Any) -> None:
             if problems:
@@ -69,7 +90,7 @@ def check_hdf5(path: str | os.PathLike, *, max_bytes: int) -> None:
                 return
             obj = f.get(name)
             if isinstance(obj, h5py.Dataset):
-                problems.extend(_dataset_problems(name, obj, max_bytes)[:1])
+                problems.extend(_dataset_problems(name, obj, max_bytes, sizes)[:1])
 
         try:
             f.visititems_links(visit)
@@ -79,9 +100,13 @@ def check_hdf5(path: str | os.PathLike, *, max_bytes: int) -> None:
             raise ValueError(f"HDF5 file is corrupt ({type(exc).__name__})") from None
     if problems:
         raise ValueError(problems[0])
+    declared, stored = sizes
+    if declared > MAX_RATIO * stored + SMALL_BYTES:
+        raise ValueError(f"the file's datasets declare {declared} bytes but store {stored} (more than "
+                         f"{MAX_RATIO}:1, beyond what real data compresses to; refused)")
 
 
-def _dataset_problems(name: str, ds: Any, max_bytes: int) -> list[str]:
+def _dataset_problems(name: str, ds: Any, max_bytes: int, sizes: list[int]) -> list[str]:
     import numpy as np
 
     if ds.is_virtual:
@@ -94,15 +119,91 @@ def _dataset_problems(name: str, ds: Any, max_bytes: int) -> list[str]:
     if declared > max_bytes:
         return [f"dataset {name!r} declares {declared} bytes {tuple(shape)}, more than the limit of "
                 f"{max_bytes} bytes"]
-    if declared > SMALL_BYTES and dcpl.get_nfilters() == 0 and ds.id.get_storage_size() < declared:
-        return [f"dataset {name!r} declares {declared} bytes but stores {ds.id.get_storage_size()} "
+    stored = int(ds.id.get_storage_size())
+    sizes[0] += declared
+    sizes[1] += stored
+    if declared <= SMALL_BYTES:
+        return []
+    if dcpl.get_nfilters() == 0 and stored < declared:
+        return [f"dataset {name!r} declares {declared} bytes but stores {stored} "
                 "(unwritten data; refused)"]
+    if ds.chunks is not None:
+        expected = int(np.prod([-(-int(n) // int(c)) for n, c in zip(shape, ds.chunks)], dtype=object))
+        written = int(ds.id.get_num_chunks())
+        if written < expected:
+            return [f"dataset {name!r} declares {declared} bytes but {expected - written} of its {expected} "
+                    "chunks were never written (they would read as the fill value; refused)"]
     return []
+
+
+class NotAdmitted(Exception):
+    """The service cannot take what an import would write (not enough free disk, counting
+    the imports in flight): the server's condition, not the file's fault (HTTP 507)."""
+
+
+#: In a child of :func:`run_bounded` given ``admit``: (request queue, answer queue).
+_ADMISSION: tuple[Any, Any] | None = None
+
+
+def request_admission(nbytes: int) -> None:
+    """Ask to write ``nbytes`` (the decoded dataset) before writing it. In a child of
+    :func:`run_bounded` called with ``admit``, the parent answers (``DiskAdmission``:
+    free space less what imports in flight reserved); elsewhere (a local read) nothing
+    is asked. Raises :class:`NotAdmitted` with the reason when refused."""
+    if _ADMISSION is None:
+        return
+    requests, answers = _ADMISSION
+    requests.put(("admit", int(nbytes)))
+    refused = answers.get()
+    if refused:
+        raise NotAdmitted(refused)
+
+
+class DiskAdmission:
+    """Free-space admission of imports that run at once: an import asks before it writes
+    (:func:`request_admission`) and is admitted when its bytes fit the free space of
+    ``folder``'s file system less ``reserve_bytes`` (left for the job database, scans and
+    results) less what the imports in flight were admitted for; its reservation lasts until
+    :meth:`release`. So two uploads at once cannot together fill the disk. Thread-safe."""
+
+    def __init__(self, folder: str | os.PathLike, reserve_bytes: int):
+        import threading
+
+        self.folder = Path(folder)
+        self.reserve_bytes = int(reserve_bytes)
+        self._lock = threading.Lock()
+        self._reserved: dict[str, int] = {}
+
+    def reserved(self) -> int:
+        """Bytes admitted to imports still in flight."""
+        with self._lock:
+            return sum(self._reserved.values())
+
+    def reserve(self, key: str, nbytes: int) -> str | None:
+        """Admit ``nbytes`` for ``key`` (None) or say why not (the reason)."""
+        import shutil
+
+        with self._lock:
+            free = shutil.disk_usage(self.folder).free
+            others = sum(v for k, v in self._reserved.items() if k != key)
+            room = free - others - self.reserve_bytes
+            if nbytes > room:
+                return (f"the dataset decodes to {nbytes} bytes but the data folder's disk can take "
+                        f"{max(room, 0)} more ({free} free, {others} reserved by imports in progress, "
+                        f"{self.reserve_bytes} kept free); free space or retry later")
+            self._reserved[key] = int(nbytes)
+            return None
+
+    def release(self, key: str) -> None:
+        with self._lock:
+            self._reserved.pop(key, None)
 
 
 def _child(conn: Any, fn: Callable, args: tuple, kwargs: dict) -> None:
     try:
         conn.put(("ok", fn(*args, **kwargs)))
+    except NotAdmitted as exc:
+        conn.put(("notadmitted", str(exc)))
     except ValueError as exc:
         conn.put(("value", str(exc)))
     except FileNotFoundError as exc:
@@ -121,20 +222,25 @@ def _child(conn: Any, fn: Callable, args: tuple, kwargs: dict) -> None:
 
 
 def run_bounded(fn: Callable, *args: Any, timeout: float, memory_bytes: int | None = None,
-                what: str = "the file", **kwargs: Any) -> Any:
+                what: str = "the file", admit: Callable[[int], str | None] | None = None, **kwargs: Any) -> Any:
     """``fn(*args, **kwargs)`` in a spawned child process, killed when it has not returned
     ``timeout`` s after it started (imports done).
     ``memory_bytes``: address-space limit of the child (``RLIMIT_AS``), so a file that
-    expands past it fails there with MemoryError, not in the caller. ``fn`` and its
+    expands past it fails there with MemoryError, not in the caller. ``admit``: answers the
+    child's :func:`request_admission` (bytes -> None to admit, else the reason); without
+    it the child's requests are admitted unasked. ``fn`` and its
     arguments and result must be picklable. Raises ValueError with the reason for any
-    failure of ``fn``, and for a child that times out or dies; OSError (ENOSPC) when the
+    failure of ``fn``, and for a child that times out or dies; :class:`NotAdmitted` when
+    ``admit`` refused; OSError (ENOSPC) when the
     disk it writes to is full (the server's condition, not the file's)."""
     ctx = multiprocessing.get_context("spawn")
     q = ctx.Queue()
+    answers = ctx.Queue() if admit is not None else None
     # an Event, not a queue message: a queue's message is written by a feeder thread, which
     # never runs while the child's main thread blocks in HDF5 holding the GIL
     ready = ctx.Event()
-    proc = ctx.Process(target=_bounded_entry, args=(q, ready, fn, args, kwargs, memory_bytes), daemon=True)
+    proc = ctx.Process(target=_bounded_entry, args=(q, ready, fn, args, kwargs, memory_bytes, answers),
+                       daemon=True)
     proc.start()
     # the time limit starts when the child has imported what it runs (interpreter start-up
     # on a busy machine is not the file's fault), bounded separately by STARTUP_S
@@ -146,6 +252,9 @@ def run_bounded(fn: Callable, *args: Any, timeout: float, memory_bytes: int | No
                 started, deadline = True, time.monotonic() + timeout
             try:
                 kind, value = q.get(timeout=0.05)
+                if kind == "admit" and answers is not None and admit is not None:
+                    answers.put(admit(int(value)))
+                    continue
                 break
             except _queue.Empty:
                 pass
@@ -163,14 +272,22 @@ def run_bounded(fn: Callable, *args: Any, timeout: float, memory_bytes: int | No
             proc.kill()
         proc.join(5)
         q.close()
+        if answers is not None:
+            answers.close()
     if kind == "ok":
         return value
+    if kind == "notadmitted":
+        raise NotAdmitted(value)
     if kind == "nospace":
         raise OSError(errno.ENOSPC, "No space left on device (writing the imported dataset)")
     raise ValueError(value)
 
 
-def _bounded_entry(q: Any, ready: Any, fn: Callable, args: tuple, kwargs: dict, memory_bytes: int | None) -> None:
+def _bounded_entry(q: Any, ready: Any, fn: Callable, args: tuple, kwargs: dict, memory_bytes: int | None,
+                   answers: Any = None) -> None:
+    global _ADMISSION
+    if answers is not None:
+        _ADMISSION = (q, answers)
     ready.set()
     if memory_bytes:
         try:

@@ -151,6 +151,32 @@ def fill_value_bomb(folder: Path) -> Path:
     return out
 
 
+def gzip_fill_bomb(shape: tuple[int, int] = (2**13, 2**13 - 1)):
+    """A gzip-filtered chunked float32 dataset of ``shape`` that is never written (fill
+    value 0.5): a few kB that declare ``shape`` x 4 bytes (issue 22: 2**15 x (2**14 - 1),
+    2 GiB; the default here fits the hostile server's 256 MiB declared limit, so the
+    unwritten-chunk check is what refuses it)."""
+    def make(folder: Path) -> Path:
+        out = folder / f"gzip-bomb-{shape[0]}x{shape[1]}.h5"
+        with h5py.File(out, "w") as f:
+            f.create_dataset("sensor_data", shape=shape, dtype="f4", compression="gzip", fillvalue=0.5)
+            f.attrs.update({"dt_s": 1e-8, "dx_m": 1e-4})
+        return out
+    return make
+
+
+def gzip_zeros(folder: Path) -> Path:
+    """64 MiB of written zeros, gzip 9: every chunk stored, about 1000:1 (deflate's limit)."""
+    out = folder / "gzip-zeros.h5"
+    with h5py.File(out, "w") as f:
+        d = f.create_dataset("sensor_data", shape=(2048, 8192), dtype="f4", chunks=(256, 1024),
+                             compression="gzip", compression_opts=9)
+        for i in range(0, 2048, 256):
+            d[i:i + 256] = 0.0
+        f.attrs.update({"dt_s": 1e-8, "dx_m": 1e-4})
+    return out
+
+
 def absurd_shape(folder: Path) -> Path:
     out = folder / "absurd.h5"
     with h5py.File(out, "w") as f:
@@ -210,6 +236,10 @@ UPLOADS = [
     Upload("external link", "kwave-hdf5", external_link, 422, "external link"),
     Upload("virtual dataset", "kwave-hdf5", virtual_dataset, 422, "virtual dataset"),
     Upload("fill-value bomb", "kwave-hdf5", fill_value_bomb, 422, "declares"),
+    Upload("gzip fill-value bomb", "kwave-hdf5", gzip_fill_bomb(), 422, "never written"),
+    Upload("gzip fill-value bomb (ipasc)", "ipasc", gzip_fill_bomb(), 422, "never written"),
+    Upload("gzip fill-value bomb (fpscan)", "fpscan", gzip_fill_bomb(), 422, "never written"),
+    Upload("gzip of zeros, 1000:1", "kwave-hdf5", gzip_zeros, 422, "more than 100:1"),
     Upload("absurd declared shape", "kwave-hdf5", absurd_shape, 422, "declares"),
     Upload("npy with an absurd header", "npy", npy_absurd_header, 422, "",
            {"dt": "1e-8", "dx": "1e-4"}),

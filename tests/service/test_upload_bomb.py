@@ -1,0 +1,134 @@
+"""Every stored byte is earned (issue 22.1): the compressed fill-value bomb of the issue
+(a gzip-filtered, never-written 2**15 x (2**14 - 1) float32 dataset, fill value 0.5, a few
+kB declaring 2 GiB) is refused by the one check of untrusted files, over HTTP and in the
+library, before anything large is written; an upload whose decoded dataset does not fit
+the free disk (counting imports in flight) is refused with 507 before it is written; a real
+gzip-compressed k-Wave file still loads."""
+from __future__ import annotations
+
+import os
+import shutil
+import time
+
+import h5py
+import numpy as np
+import pytest
+
+from service.storage.untrusted import MAX_RATIO, DiskAdmission
+from tests.service.hostile_cases import gzip_fill_bomb
+from tests.service.service_servers import Server
+
+#: the issue's bomb: 2**15 x (2**14 - 1) float32 = 2 GiB - 128 KiB declared
+BOMB_SHAPE = (2**15, 2**14 - 1)
+#: the hostile suite's bound on answering a hostile upload (tests/service/test_hostile_inputs.py)
+ANSWER_BOUND_S = 5.0
+
+
+def _tree_bytes(folder) -> int:
+    return sum(p.stat().st_size for p in folder.rglob("*") if p.is_file()) if folder.exists() else 0
+
+
+@pytest.fixture(scope="module")
+def bomb_server(tmp_path_factory):
+    # the default limits (2 GiB uploads, 8 GiB memory): the bomb's 2 GiB is within the
+    # declared-size limit (4 GiB), so only the stored-bytes check can refuse it; a disk
+    # reserve beyond any free space: every import that gets as far as writing gets 507
+    srv = Server(tmp_path_factory.mktemp("bomb") / "data",
+                 env={"FPSCAN_UPLOAD_LIMIT": str(2 * 2**30), "FPSCAN_MEMORY_LIMIT": str(8 * 2**30),
+                      "FPSCAN_DISK_RESERVE_BYTES": str(2**60)}).start()
+    yield srv
+    srv.stop()
+
+
+def test_the_issue_bomb_is_refused_over_http_and_nothing_large_is_written(bomb_server, tmp_path):
+    bomb = gzip_fill_bomb(BOMB_SHAPE)(tmp_path)
+    declared = BOMB_SHAPE[0] * BOMB_SHAPE[1] * 4
+    assert os.path.getsize(bomb) < 8192
+    datasets = bomb_server.data_dir / "datasets"
+    with bomb_server.client(timeout=60) as api, open(bomb, "rb") as fh:
+        t0 = time.perf_counter()
+        r = api.post("/api/datasets", files={"file": ("bomb.h5", fh)}, data={"format": "kwave-hdf5"})
+        took = time.perf_counter() - t0
+    assert r.status_code == 422, r.text
+    detail = r.json()["detail"]
+    assert f"declares {declared} bytes" in detail and "never written" in detail, detail
+    assert took < ANSWER_BOUND_S, took
+    assert _tree_bytes(datasets) == 0, list(datasets.rglob("*"))
+    print(f"bomb: {os.path.getsize(bomb)} B file declaring {declared} B refused (422) in {took:.2f} s: {detail}")
+
+
+@pytest.mark.parametrize("fmt", ["kwave-hdf5", "fpscan", "ipasc", "dataset", None])
+def test_the_issue_bomb_is_refused_by_load_dataset_for_every_format(tmp_path, fmt):
+    from service.storage.datasets import load_dataset
+
+    bomb = gzip_fill_bomb(BOMB_SHAPE)(tmp_path)
+    with pytest.raises(ValueError, match="never written"):
+        load_dataset(bomb, fmt)
+
+
+def test_a_file_of_unwritten_chunks_beside_real_data_is_refused(tmp_path):
+    """One written chunk does not earn the rest: the unwritten ones are named."""
+    from service.storage.datasets import load_dataset
+
+    path = tmp_path / "partly.h5"
+    with h5py.File(path, "w") as f:
+        d = f.create_dataset("sensor_data", shape=(1024, 1024), dtype="f4", chunks=(128, 128), compression="gzip")
+        d[:128, :128] = np.random.default_rng(0).standard_normal((128, 128))
+        f.attrs.update({"dt_s": 1e-8, "dx_m": 1e-4})
+    with pytest.raises(ValueError, match="63 of its 64 chunks were never written"):
+        load_dataset(path, "kwave-hdf5")
+
+
+def test_over_compressed_written_data_is_refused_by_its_ratio(tmp_path):
+    from service.storage.datasets import load_dataset
+    from tests.service.hostile_cases import gzip_zeros
+
+    path = gzip_zeros(tmp_path)
+    with pytest.raises(ValueError, match=f"more than {MAX_RATIO}:1"):
+        load_dataset(path, "kwave-hdf5")
+
+
+def test_real_gzip_kwave_files_still_load(shared_data, tmp_path):
+    """The k-Wave reference files (gzip 6 + shuffle, 1.1-1.8:1) load as before, and a
+    k-Wave-like file that is mostly (90 %) exact zeros, gzip-compressed, loads too."""
+    from service.storage.datasets import load_dataset
+
+    d3 = load_dataset(shared_data / "kwave3d_balls_yarn.h5", "kwave-hdf5")
+    with h5py.File(shared_data / "kwave3d_balls_yarn.h5", "r") as f:
+        np.testing.assert_array_equal(d3.data, f["sensor_data/clean"][()])
+    d2 = load_dataset(shared_data / "kwave2d_points.h5", "kwave-hdf5")
+    assert d2.data.shape == (3519, 1024)
+    sparse = np.zeros((2000, 64, 64), np.float32)
+    sparse[1800:] = np.random.default_rng(1).standard_normal((200, 64, 64))
+    path = tmp_path / "sparse.h5"
+    with h5py.File(path, "w") as f:
+        f.create_dataset("sensor_data", data=sparse, compression="gzip", shuffle=True)
+        f.attrs.update({"dt_s": 1e-8, "dx_m": 1e-4})
+    np.testing.assert_array_equal(load_dataset(path, "kwave-hdf5").data, sparse)
+
+
+def test_an_upload_that_does_not_fit_the_disk_gets_507_before_it_is_written(bomb_server, tmp_path):
+    path = tmp_path / "ok.npy"
+    np.save(path, np.random.default_rng(2).standard_normal((64, 16, 16)).astype(np.float32))
+    with bomb_server.client() as api, open(path, "rb") as fh:
+        r = api.post("/api/datasets", files={"file": ("ok.npy", fh)},
+                     data={"format": "npy", "dt": "1e-8", "dx": "1e-4"})
+    assert r.status_code == 507, r.text
+    assert f"decodes to {64 * 16 * 16 * 4} bytes" in r.json()["detail"], r.text
+    assert _tree_bytes(bomb_server.data_dir / "datasets") == 0
+    with bomb_server.client() as api:
+        assert api.get("/api/datasets").json() == []
+
+
+def test_two_imports_at_once_cannot_fill_the_disk(tmp_path):
+    """The admission counts what imports in flight were admitted for: two that each fit
+    the free space alone do not both get in; the second does once the first is done."""
+    free = shutil.disk_usage(tmp_path).free
+    adm = DiskAdmission(tmp_path, reserve_bytes=0)
+    half = free // 2 + free // 8  # each fits alone, both do not
+    assert adm.reserve("a", half) is None
+    refused = adm.reserve("b", half)
+    assert refused is not None and "reserved by imports in progress" in refused, refused
+    assert adm.reserved() == half
+    adm.release("a")
+    assert adm.reserve("b", half) is None
