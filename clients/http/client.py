@@ -463,9 +463,18 @@ class _Endpoints:
         r = yield _Req("DELETE", f"/api/plans/{plan_id}")
         return r.json()
 
+    def list_datasets(self):
+        """``GET /api/datasets`` -> the stored datasets, oldest first, as dicts: ``dataset_id``,
+        ``name``, ``format``, ``layout``, ``shape``, ``size_bytes`` (on disk), ``created``
+        (UNIX s), ``content_sha256``, ``jobs`` (ids of the jobs that read it), ``in_use``
+        (an active job does: it cannot be deleted)."""
+        r = yield _Req("GET", "/api/datasets")
+        return r.json()
+
     def delete_dataset(self, dataset_id: str):
-        """``DELETE /api/datasets/{dataset_id}`` -> ``{"id", "kind", "bytes_freed"}`` (409
-        while an active reconstruction reads it)."""
+        """``DELETE /api/datasets/{dataset_id}`` -> ``{"id", "kind", "bytes_freed"}``.
+        Raises ``Conflict`` (409) while an active reconstruction reads it, ``NotFound``
+        (404) for an unknown id."""
         r = yield _Req("DELETE", f"/api/datasets/{dataset_id}")
         return r.json()
 

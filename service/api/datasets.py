@@ -21,8 +21,8 @@ Datasets never pile up:
 
 - Deduplicated: the upload's SHA-256 together with the options that change the stored
   dataset (format, ``dt``, ``dx``, ``dy``, ``c``, ``key``, the wavelength index) is its
-  key; the same file with the same options uploaded again answers 200 with the stored
-  dataset's id and ``deduplicated: true``, storing nothing.
+  key; the same file with the same options uploaded again answers (201, as any upload)
+  with the stored dataset's id and ``deduplicated: true``, storing nothing.
 - Listed (``GET /api/datasets``: size on disk, content hash, the jobs that read it) and
   deletable (``DELETE /api/datasets/{id}``, 409 while a queued/running/paused job reads it).
 - Covered by retention (``service.jobs.lifecycle.apply_dataset_retention``, applied after
@@ -41,7 +41,7 @@ import threading
 import uuid
 from pathlib import Path
 
-from fastapi import APIRouter, Depends, File, Form, HTTPException, Response, UploadFile
+from fastapi import APIRouter, Depends, File, Form, HTTPException, UploadFile
 from fastapi import Path as PathParam
 
 from service.api.context import Context, ctx, read_access, reason, require_token
@@ -64,9 +64,7 @@ def list_datasets(cx: Context = Depends(ctx)) -> list[DatasetInfo]:
 
 
 @router.post("", status_code=201, response_model=Dataset, dependencies=[Depends(require_token)],
-             responses={200: {"description": "the same file with the same options is stored already: its "
-                                             "dataset, deduplicated: true", "model": Dataset},
-                        413: {"description": "upload larger than the configured limit"},
+             responses={413: {"description": "upload larger than the configured limit"},
                         507: {"description": "the decoded dataset does not fit the free disk (counting the "
                                              "imports in progress)"}})
 def upload_dataset(file: UploadFile = File(..., description="the data file"),
@@ -82,19 +80,16 @@ def upload_dataset(file: UploadFile = File(..., description="the data file"),
                                                  description="of a multi-wavelength scan or IPASC file: the index of "
                                                              "the excitation wavelength to store (default: the "
                                                              "first); out of range: 422 naming the file's"),
-                   response: Response = None,  # type: ignore[assignment]
                    cx: Context = Depends(ctx)) -> Dataset:
     """Upload a dataset for reconstruction → 201 ``{dataset_id, ...}``; the same file with
-    the same options again → 200 with the stored one (``deduplicated: true``). At most
+    the same options again → 201 with the stored one (``deduplicated: true``, nothing new
+    stored: 201 as for any upload, so clients need not tell the cases apart). At most
     ``FPSCAN_IMPORT_WORKERS`` uploads are imported at once (4x as many wait; beyond, 429).
     A dataset holds one wavelength's data (``wavelength``; the response's
     ``wavelength_nm`` says which). 507 when the decoded dataset does not fit the disk."""
     with cx.slots["uploads"].turn():
-        out = _store_upload(file, format, dt=dt, dx=dx, dy=dy, c=c, key=key, force=force, wavelength=wavelength,
-                            cx=cx)
-    if out.deduplicated:
-        response.status_code = 200
-    return out
+        return _store_upload(file, format, dt=dt, dx=dx, dy=dy, c=c, key=key, force=force, wavelength=wavelength,
+                             cx=cx)
 
 
 def _display_name(name: str | None) -> str | None:

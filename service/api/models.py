@@ -357,7 +357,7 @@ class Dataset(BaseModel):
     wavelength_nm: float | None = Field(None, description="the excitation wavelength whose data the dataset holds "
                                                           "(a scan or IPASC file that records it)")
     deduplicated: bool = Field(False, description="the same file with the same import options was stored before: "
-                                                  "this is that dataset (200), nothing new was stored")
+                                                  "this is that dataset, nothing new was stored")
     content_sha256: str | None = Field(None, description="SHA-256 of the uploaded file's bytes")
 
 
