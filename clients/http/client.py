@@ -480,7 +480,8 @@ class _Endpoints:
 
     def retention(self, **policy: Any):
         """``GET /api/retention``, or with ``keep_results=``/``keep_bytes=``/
-        ``include_scans=`` ``PUT`` it -> the policy dict."""
+        ``include_scans=``/``datasets_keep_bytes=``/``datasets_max_age_s=`` (s) ``PUT`` it
+        -> the policy dict."""
         if policy:
             r = yield _Req("PUT", "/api/retention", json=policy)
         else:

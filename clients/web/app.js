@@ -11,6 +11,8 @@
  *   Jobs view   GET /api/jobs, GET /api/jobs/{id}, MIPs, depth slices, downloads,
  *               POST /api/reconstructions, POST /api/datasets (upload), POST .../cancel
  *               GET /api/reconstructions/methods (the method choices and their options)
+ *               Disk use: GET /api/health (bytes by part), GET /api/datasets,
+ *               DELETE /api/datasets/{id} (the storage section, its own functions below)
  * Units: the form shows convenient units (µm, mm, ns, nm); the API receives SI units.
  * The bearer token is asked once (on the first 401/403) and kept in sessionStorage.
  */
@@ -1377,3 +1379,97 @@ function init() {
 }
 
 document.addEventListener("DOMContentLoaded", init);
+
+/* ------------------------------------------------------------------ disk use and datasets */
+
+/** Bytes with a binary prefix: 1536 -> "1.5 KiB". */
+function fmtBytes(n) {
+  if (n === null || n === undefined || !isFinite(n)) return "–";
+  const units = ["B", "KiB", "MiB", "GiB", "TiB"];
+  let v = Number(n), i = 0;
+  while (Math.abs(v) >= 1024 && i < units.length - 1) { v /= 1024; i += 1; }
+  return i === 0 ? `${v} B` : `${v.toFixed(v < 10 ? 2 : 1)} ${units[i]}`;
+}
+
+const STORAGE_PARTS = [["datasets_bytes", "Uploaded datasets"], ["results_bytes", "Reconstruction results"],
+  ["scans_bytes", "Scan files"], ["exports_bytes", "Exports (IPASC)"], ["other_bytes", "Database and other"],
+  ["total_bytes", "Total"], ["free_bytes", "Free on the disk"]];
+
+/** Fill the disk-use table (GET /api/health: bytes by part) and the datasets table
+ *  (GET /api/datasets), each dataset with a delete button (disabled while an active job
+ *  reads it). */
+async function refreshStorage() {
+  const [h, datasets] = await Promise.all([apiJson("/api/health"), apiJson("/api/datasets")]);
+  const disk = (h && h.disk) || {};
+  const parts = $("storage-parts").querySelector("tbody");
+  parts.replaceChildren();
+  for (const [key, label] of STORAGE_PARTS) {
+    if (!(key in disk)) continue;
+    const tr = document.createElement("tr");
+    tr.dataset.part = key.replace(/_bytes$/, "");
+    tr.dataset.bytes = String(disk[key] ?? "");
+    const th = document.createElement("th");
+    th.scope = "row";
+    th.textContent = label;
+    const td = document.createElement("td");
+    td.textContent = fmtBytes(disk[key]);
+    tr.append(th, td);
+    parts.append(tr);
+  }
+  const list = asList(datasets, "datasets");
+  const body = $("storage-datasets").querySelector("tbody");
+  body.replaceChildren();
+  let total = 0;
+  for (const d of list) {
+    total += Number(d.size_bytes) || 0;
+    const tr = document.createElement("tr");
+    tr.dataset.datasetId = d.dataset_id;
+    const jobs = (d.jobs || []).length;
+    const cells = [shortId(d.dataset_id), d.name || "", d.format || "", fmtBytes(d.size_bytes),
+      d.created ? new Date(d.created * 1000).toLocaleString() : "–", String(jobs) + (d.in_use ? " (active)" : "")];
+    for (const c of cells) {
+      const td = document.createElement("td");
+      td.textContent = c;
+      tr.append(td);
+    }
+    tr.firstChild.title = d.dataset_id;
+    const td = document.createElement("td");
+    const btn = document.createElement("button");
+    btn.type = "button";
+    btn.className = "danger storage-delete";
+    btn.textContent = "Delete";
+    btn.setAttribute("aria-label", `Delete dataset ${d.name || d.dataset_id}`);
+    if (d.in_use) {
+      btn.disabled = true;
+      btn.title = "a queued, running or paused job reads this dataset";
+    }
+    btn.addEventListener("click", () => deleteDataset(d.dataset_id, d.name));
+    td.append(btn);
+    tr.append(td);
+    body.append(tr);
+  }
+  $("storage-datasets-empty").hidden = list.length > 0;
+  $("storage-datasets-total").textContent = list.length ? `(${list.length}, ${fmtBytes(total)})` : "";
+}
+
+/** DELETE /api/datasets/{id}, then refresh the storage section (the server's reason on refusal). */
+async function deleteDataset(id, name) {
+  if (!window.confirm(`Delete dataset ${name || shortId(id)} and its files?`)) return;
+  try {
+    const gone = await apiJson("/api/datasets/" + encodeURIComponent(id), { method: "DELETE" });
+    $("storage-state").textContent = `Deleted dataset ${shortId(id)} (${fmtBytes(gone && gone.bytes_freed)} freed)`;
+    clearError();
+  } catch (err) {
+    showError(err);
+  }
+  await refreshStorage().catch(showError);
+}
+
+function initStorage() {
+  $("storage-refresh").addEventListener("click", () => refreshStorage().catch(showError));
+  const onJobs = () => { if ((location.hash || "").startsWith("#/jobs")) refreshStorage().catch(showError); };
+  window.addEventListener("hashchange", onJobs);  // an upload ends by opening its job: refreshed then
+  onJobs();
+}
+
+document.addEventListener("DOMContentLoaded", initStorage);

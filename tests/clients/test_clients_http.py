@@ -288,6 +288,7 @@ CLIENT_METHODS = {
     ("get", "/api/scans/{job_id}/preview"): "scan_preview",
     ("get", "/api/scans/{job_id}/preview/{plane}.png"): "download_scan_preview",
     ("post", "/api/datasets"): "upload_dataset",
+    ("get", "/api/datasets"): "list_datasets",
     ("post", "/api/reconstructions"): "start_reconstruction",
     ("get", "/api/reconstructions/methods"): "methods",
     ("get", "/api/reconstructions/{job_id}/volume.h5"): "download_volume",
