@@ -108,14 +108,16 @@ def _dedup_key(sha256: str, format: str, **options: object) -> str:
                           .encode()).hexdigest()
 
 
-def _found(cx: Context, dataset_id: str, sha256: str) -> Dataset | None:
-    """The stored dataset ``dataset_id`` as a deduplicated answer (None if its file is gone)."""
-    meta = cx.store.get_dataset(dataset_id)
-    if meta is None or not (Path(cx.settings.data_dir) / "datasets" / dataset_id / meta["path"]).is_file():
-        return None
-    return Dataset(dataset_id=dataset_id, format=meta["format"], layout=meta["layout"], shape=meta["shape"],
-                   dt=meta["dt"], wavelength_nm=meta.get("wavelength_nm"), deduplicated=True,
-                   content_sha256=sha256)
+def _stored(cx: Context, dedup_key: str, sha256: str) -> Dataset | None:
+    """The oldest stored dataset of ``dedup_key`` whose file is there, as a deduplicated
+    answer; None when there is none."""
+    for dataset_id in cx.store.find_datasets(dedup_key):
+        meta = cx.store.get_dataset(dataset_id)
+        if meta is not None and (Path(cx.settings.data_dir) / "datasets" / dataset_id / meta["path"]).is_file():
+            return Dataset(dataset_id=dataset_id, format=meta["format"], layout=meta["layout"], shape=meta["shape"],
+                           dt=meta["dt"], wavelength_nm=meta.get("wavelength_nm"), deduplicated=True,
+                           content_sha256=sha256)
+    return None
 
 
 def _admission(cx: Context) -> DiskAdmission:
@@ -137,6 +139,10 @@ def _store_upload(file: UploadFile, format: str, *, dt, dx, dy, c, key, force: b
     digest = hashlib.sha256()
     admission = _admission(cx)
     try:
+        # the body's copy is admitted too (its size is known: the form parser has spooled it)
+        refused = admission.reserve(dataset_id, int(file.size or 0))
+        if refused:
+            raise HTTPException(507, refused.replace("the dataset decodes to", "the upload holds"))
         with open(src, "wb") as out:
             while chunk := file.file.read(1 << 20):
                 size += len(chunk)
@@ -147,10 +153,10 @@ def _store_upload(file: UploadFile, format: str, *, dt, dx, dy, c, key, force: b
         sha256 = digest.hexdigest()
         dedup_key = _dedup_key(sha256, format, dt=dt, dx=dx, dy=dy, c=c, key=key, wavelength=wavelength)
         with _DEDUP_LOCK:
-            existing = cx.store.find_dataset(dedup_key)
-            found = _found(cx, existing, sha256) if existing else None
+            found = _stored(cx, dedup_key, sha256)
         if found is not None:
             shutil.rmtree(dest, ignore_errors=True)
+            cx.store.touch_dataset(found.dataset_id)  # asked for again: retention by age counts from now
             log.info("upload deduplicated: dataset=%s bytes=%d", found.dataset_id, size)
             return found
         try:
@@ -172,8 +178,7 @@ def _store_upload(file: UploadFile, format: str, *, dt, dx, dy, c, key, force: b
         meta.update({"format": format, "name": _display_name(file.filename), "content_sha256": sha256,
                      "dedup_key": dedup_key})
         with _DEDUP_LOCK:  # an identical upload may have been stored meanwhile: keep that one
-            existing = cx.store.find_dataset(dedup_key)
-            found = _found(cx, existing, sha256) if existing else None
+            found = _stored(cx, dedup_key, sha256)
             if found is None:
                 cx.store.put_dataset(dataset_id, meta)
     except BaseException:

@@ -375,6 +375,8 @@ class DatasetInfo(BaseModel):
     content_sha256: str | None = None
     size_bytes: int = Field(description="bytes of its files on disk")
     created: float = Field(description="UNIX time of the upload")
+    last_used: float | None = Field(None, description="UNIX time of the upload or of the latest identical upload "
+                                                      "answered with it (retention by age counts from it)")
     jobs: list[str] = Field(default_factory=list, description="ids of the reconstruction jobs that read it")
     in_use: bool = Field(False, description="a queued, running or paused job reads it (it cannot be deleted)")
 

@@ -18,7 +18,7 @@ The rules, one place for the API, the queue and the tests:
   (``retention_keep_results``, ``retention_keep_bytes``, ``retention_include_scans``)
   give the policy until one is set through ``PUT /api/retention``.
 - Dataset retention (same policy): uploaded datasets no active job reads are removed
-  oldest first when older than ``datasets_max_age_s`` or beyond ``datasets_keep_bytes``
+  oldest first when not used (uploaded, or uploaded again) for ``datasets_max_age_s`` or beyond ``datasets_keep_bytes``
   bytes of dataset files (settings ``retention_datasets_keep_bytes``,
   ``retention_datasets_max_age_s``); a dataset a queued, running or paused job reads is
   never removed.
@@ -185,7 +185,8 @@ def delete_dataset(store: JobStore, data_dir: str | os.PathLike, dataset_id: str
 def list_datasets(store: JobStore, data_dir: str | os.PathLike) -> list[dict]:
     """Every uploaded dataset, oldest first: ``{"dataset_id", "name", "format", "layout",
     "shape", "dt", "wavelength_nm", "wavelength_index", "content_sha256", "size_bytes"
-    (its files on disk), "created" (UNIX s), "jobs" (ids of the jobs that read it, any
+    (its files on disk), "created" (UNIX s), "last_used" (UNIX s: the upload, or the
+    latest identical upload answered with it), "jobs" (ids of the jobs that read it, any
     state), "in_use" (a queued, running or paused one does)}``."""
     users: dict[str, list[str]] = {}
     active: set[str] = set()
@@ -202,13 +203,15 @@ def list_datasets(store: JobStore, data_dir: str | os.PathLike) -> list[dict]:
                     "wavelength_nm": meta.get("wavelength_nm"), "wavelength_index": meta.get("wavelength_index"),
                     "content_sha256": meta.get("content_sha256"),
                     "size_bytes": _tree_bytes(Path(data_dir) / "datasets" / did), "created": row["created"],
+                    "last_used": max(float(meta.get("last_used") or 0.0), row["created"]),
                     "jobs": users.get(did, []), "in_use": did in active})
     return out
 
 
 def apply_dataset_retention(store: JobStore, settings: Any, policy: dict | None = None,
                             now: float | None = None) -> list[str]:
-    """Delete uploaded datasets beyond the policy's ``datasets_max_age_s`` (older ones)
+    """Delete uploaded datasets beyond the policy's ``datasets_max_age_s`` (not used, i.e.
+    uploaded or uploaded again, for longer)
     and ``datasets_keep_bytes`` (oldest first until the rest fit; the newest is never removed
     for its bytes); a dataset an active job reads is kept (and still counts towards the
     bytes). Returns the deleted ids."""
@@ -225,7 +228,7 @@ def apply_dataset_retention(store: JobStore, settings: Any, policy: dict | None 
     for i, r in enumerate(rows):  # oldest first
         if r["in_use"]:
             continue
-        too_old = max_age is not None and now - r["created"] > max_age
+        too_old = max_age is not None and now - r["last_used"] > max_age
         # the newest is kept for the bytes: it was just uploaded, to be reconstructed
         too_much = keep_bytes is not None and total > keep_bytes and i < len(rows) - 1
         if too_old or too_much:

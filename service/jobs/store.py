@@ -428,12 +428,19 @@ class JobStore:
             rows = self._db.execute("SELECT id, meta, created FROM datasets ORDER BY created, id").fetchall()
         return [{"id": r["id"], "meta": json.loads(r["meta"]), "created": r["created"]} for r in rows]
 
-    def find_dataset(self, dedup_key: str) -> str | None:
-        """The id of the oldest dataset stored under ``dedup_key`` (its meta's), or None."""
+    def touch_dataset(self, dataset_id: str) -> None:
+        """Record that ``dataset_id`` was asked for again (its meta's ``last_used``, UNIX s):
+        retention by age counts from then."""
         with self._lock:
-            row = self._db.execute("SELECT id FROM datasets WHERE json_extract(meta, '$.dedup_key') = ? "
-                                   "ORDER BY created LIMIT 1", (dedup_key,)).fetchone()
-        return None if row is None else str(row["id"])
+            self._db.execute("UPDATE datasets SET meta = json_set(meta, '$.last_used', ?) WHERE id = ?",
+                             (time.time(), dataset_id))
+
+    def find_datasets(self, dedup_key: str) -> builtins.list[str]:
+        """The ids of the datasets stored under ``dedup_key`` (their meta's), oldest first."""
+        with self._lock:
+            rows = self._db.execute("SELECT id FROM datasets WHERE json_extract(meta, '$.dedup_key') = ? "
+                                    "ORDER BY created, id", (dedup_key,)).fetchall()
+        return [str(r["id"]) for r in rows]
 
     # -- deletion and configuration (service.jobs.lifecycle owns the rules) ----------
     def active_jobs(self) -> Jobs:

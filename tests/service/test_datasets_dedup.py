@@ -74,6 +74,7 @@ def test_the_same_file_twice_is_stored_once(dserver):
     assert d["name"] == "first.npy" and d["format"] == "npy" and d["shape"] == [N_T, N, N]
     assert d["size_bytes"] == before[1] and d["content_sha256"] == hashlib.sha256(body).hexdigest()
     assert d["jobs"] == [] and not d["in_use"] and d["created"] <= time.time()
+    assert d["last_used"] > d["created"]  # the second upload used it again: retention by age counts from then
 
 
 def test_list_and_delete_over_http_client_and_cli(dserver):

@@ -31,11 +31,17 @@ def _tree_bytes(folder) -> int:
 @pytest.fixture(scope="module")
 def bomb_server(tmp_path_factory):
     # the default limits (2 GiB uploads, 8 GiB memory): the bomb's 2 GiB is within the
-    # declared-size limit (4 GiB), so only the stored-bytes check can refuse it; a disk
-    # reserve beyond any free space: every import that gets as far as writing gets 507
+    # declared-size limit (4 GiB), so only the stored-bytes check can refuse it
     srv = Server(tmp_path_factory.mktemp("bomb") / "data",
-                 env={"FPSCAN_UPLOAD_LIMIT": str(2 * 2**30), "FPSCAN_MEMORY_LIMIT": str(8 * 2**30),
-                      "FPSCAN_DISK_RESERVE_BYTES": str(2**60)}).start()
+                 env={"FPSCAN_UPLOAD_LIMIT": str(2 * 2**30), "FPSCAN_MEMORY_LIMIT": str(8 * 2**30)}).start()
+    yield srv
+    srv.stop()
+
+
+@pytest.fixture
+def full_server(tmp_path):
+    # a disk reserve beyond any free space: the disk is "full" for every upload
+    srv = Server(tmp_path / "data", env={"FPSCAN_DISK_RESERVE_BYTES": str(2**60)}).start()
     yield srv
     srv.stop()
 
@@ -107,17 +113,44 @@ def test_real_gzip_kwave_files_still_load(shared_data, tmp_path):
     np.testing.assert_array_equal(load_dataset(path, "kwave-hdf5").data, sparse)
 
 
-def test_an_upload_that_does_not_fit_the_disk_gets_507_before_it_is_written(bomb_server, tmp_path):
+def test_an_upload_that_does_not_fit_the_disk_gets_507_before_it_is_written(full_server, tmp_path):
+    """The server keeps more free than the disk has (FPSCAN_DISK_RESERVE_BYTES): refused
+    with 507 and the reason before its body is copied."""
     path = tmp_path / "ok.npy"
     np.save(path, np.random.default_rng(2).standard_normal((64, 16, 16)).astype(np.float32))
-    with bomb_server.client() as api, open(path, "rb") as fh:
+    with full_server.client() as api, open(path, "rb") as fh:
         r = api.post("/api/datasets", files={"file": ("ok.npy", fh)},
                      data={"format": "npy", "dt": "1e-8", "dx": "1e-4"})
     assert r.status_code == 507, r.text
-    assert f"decodes to {64 * 16 * 16 * 4} bytes" in r.json()["detail"], r.text
-    assert _tree_bytes(bomb_server.data_dir / "datasets") == 0
-    with bomb_server.client() as api:
+    assert f"the upload holds {os.path.getsize(path)} bytes" in r.json()["detail"], r.text
+    assert _tree_bytes(full_server.data_dir / "datasets") == 0
+    with full_server.client() as api:
         assert api.get("/api/datasets").json() == []
+
+
+def test_the_import_asks_before_writing_the_decoded_dataset(tmp_path):
+    """The import child asks the parent (``run_bounded(admit=...)``) with the decoded bytes
+    before it writes the dataset file; refused, nothing is written and the reason comes back."""
+    from service.storage.datasets import import_dataset
+    from service.storage.untrusted import NotAdmitted, run_bounded
+
+    src = tmp_path / "int8.npy"  # 16 kB of int8 on the wire, 64 kB of float32 decoded
+    np.save(src, np.random.default_rng(3).integers(-100, 100, (64, 16, 16), dtype=np.int8))
+    asked: list[int] = []
+
+    def admit(nbytes: int) -> str | None:
+        asked.append(nbytes)
+        return "no room on this disk"
+
+    dest = tmp_path / "dest"
+    dest.mkdir()
+    with pytest.raises(NotAdmitted, match="no room on this disk"):
+        run_bounded(import_dataset, src, dest, "npy", dt=1e-8, dx=1e-4, dy=None, c=None, key=None,
+                    timeout=60, admit=admit)
+    assert asked == [64 * 16 * 16 * 4] and list(dest.iterdir()) == []
+    meta = run_bounded(import_dataset, src, dest, "npy", dt=1e-8, dx=1e-4, dy=None, c=None, key=None,
+                       timeout=60, admit=lambda n: None)
+    assert meta["shape"] == [64, 16, 16] and (dest / "dataset.h5").is_file()
 
 
 def test_two_imports_at_once_cannot_fill_the_disk(tmp_path):
