@@ -41,7 +41,7 @@ def base(tmp_path_factory):
         srv.stop()
 
 
-def test_disk_use_panel_shows_dataset_sizes_and_delete_removes_one(browser, base):
+def test_disk_use_panel_shows_dataset_sizes_and_delete_removes_one(browser, base, screenshots):
     url, data = base
     ids = []
     for seed, n_t in ((1, 64), (2, 256)):
@@ -69,6 +69,9 @@ def test_disk_use_panel_shows_dataset_sizes_and_delete_removes_one(browser, base
         assert abs(float(size.split()[0]) * 1024 - d["size_bytes"]) / d["size_bytes"] < 0.01, size
     assert {"results", "scans", "free"} <= set(browser.execute_script(
         "return [...document.querySelectorAll('#storage-parts tr[data-part]')].map(r => r.dataset.part)"))
+
+    browser.execute_script("document.getElementById('storage').scrollIntoView()")
+    browser.save_screenshot(str(screenshots / "jobs-disk-use.png"))
 
     # delete the larger one with its button (the page asks first)
     victim = ids[1]
