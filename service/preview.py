@@ -59,14 +59,14 @@ class PreviewState:
 
 def render_preview_png(img: np.ndarray, plane: str, axes: tuple, points: int) -> bytes:
     """A live-preview MIP drawn like a result's MIP (``service.storage.render``: mm
-    axes, equal aspect, y up / depth down, colour bar)."""
+    axes, equal aspect, row 0 at the top: y down / depth down, colour bar)."""
     from service.storage.render import render_png
 
     z, x, y = axes
     h, hlabel = (y, "y") if plane == "yz" else (x, "x")
-    v, vlabel, down = (y, "y", False) if plane == "xy" else (z, "z", True)
+    v, vlabel = (y, "y") if plane == "xy" else (z, "z")
     name = f"MIP {plane}" if y is not None else "p0 (x, z)"
-    return render_png(img, h, v, hlabel=hlabel, vlabel=vlabel, depth_down=down,
+    return render_png(img, h, v, hlabel=hlabel, vlabel=vlabel,
                       title=f"live preview, {points} points: {name}")
 
 

@@ -294,11 +294,11 @@ def unmix_h5(job_id: str = JobId, c: Context = Depends(ctx)):
 
 
 @router.get("/{job_id}/so2.png", dependencies=[Depends(read_access)], response_class=Response,
-            responses={200: {"content": {"image/png": {}}, "description": "sO2 map, colour bar, masked grey"},
+            responses={200: {"content": {"image/png": {}}, "description": "sO2 map (colour), THb (brightness), background black"},
                        404: {"description": "the job did not unmix"}})
 def so2_png(job_id: str = JobId, c: Context = Depends(ctx)):
     """The sO2 picture: at each (x, y) the sO2 of the voxel of largest THb along depth,
-    colour bar 0..1, masked pixels grey (``service.spectral.render_so2_png``)."""
+    colour bar 0..100 %, brightness from THb, background black (``service.spectral.render_so2_png``)."""
     path = _result_dir(c, job_id) / "so2.png"
     if not path.exists():
         raise HTTPException(404, f"reconstruction {job_id} was not unmixed (ask with 'unmix')")
@@ -322,7 +322,7 @@ def mip_png(plane: Plane, job_id: str = JobId, wavelength: int | None = Waveleng
 def slice_png(job_id: str = JobId, index: int = Query(0, ge=0, le=1_000_000, description="depth index"),
               c: Context = Depends(ctx)):
     """The lateral slice at depth index ``index`` of a 3-D result (2-D: the image row),
-    drawn like every picture (``service.storage.render``): axes in mm, y up, the depth
+    drawn like every picture (``service.storage.render``): axes in mm, y down, the depth
     in mm in the title, a colour bar in p0 units."""
     from service.storage.render import render_result_slice
 
