@@ -2,6 +2,7 @@
 download its volume (HDF5, HTTP Range), MIPs and depth slices (PNG)."""
 from __future__ import annotations
 
+import uuid
 from pathlib import Path
 
 import numpy as np
@@ -277,6 +278,33 @@ def volume_ome_tiff(job_id: str = JobId, c: Context = Depends(ctx)):
         except ValueError as exc:
             raise HTTPException(409, str(exc)) from None
     return FileResponse(path, media_type="image/tiff", filename=f"{job_id}.ome.tif")
+
+
+@router.get("/{job_id}/volume.ome.zarr.zip", dependencies=[Depends(read_access)], response_class=FileResponse,
+            responses={200: {"content": {"application/zip": {}},
+                             "description": "p0 volume (OME-Zarr folder <job>.ome.zarr, zipped)"},
+                       206: {"description": "partial content (HTTP Range)"}})
+def volume_ome_zarr(job_id: str = JobId, c: Context = Depends(ctx)):
+    """The result volume as OME-Zarr (NGFF 0.4; float32, axes ``z``, ``y``, ``x`` in
+    micrometer with the voxel size as scale; ``service.storage.results.export_ome_zarr``),
+    zipped: one folder ``<job_id>.ome.zarr`` to unzip and open in napari. Made on first
+    request, then served from the result folder."""
+    import shutil
+
+    from service.storage.results import export_volume, zip_folder
+
+    folder = _result_dir(c, job_id)
+    path = folder / "volume.ome.zarr.zip"
+    if not path.exists():
+        tmp = folder / f".volume.ome.zarr.{uuid.uuid4().hex[:12]}"
+        try:
+            export_volume(folder / "volume.h5", tmp, "ome-zarr")
+            zip_folder(tmp, path, arcname=f"{job_id}.ome.zarr")
+        except ValueError as exc:
+            raise HTTPException(409, str(exc)) from None
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+    return FileResponse(path, media_type="application/zip", filename=f"{job_id}.ome.zarr.zip")
 
 
 @router.get("/{job_id}/unmix.h5", dependencies=[Depends(read_access)], response_class=FileResponse,
