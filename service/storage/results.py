@@ -307,7 +307,7 @@ def _voxel_sizes_um(r: ResultVolume, what: str) -> tuple[str, list[float]]:
         d = np.diff(v)
         if not np.allclose(d, d[0], rtol=1e-6, atol=0):
             raise ValueError(f"{name} is not evenly spaced: {what} needs one voxel size per axis")
-        return float(d[0] * 1e6)
+        return float(f"{d[0] * 1e6:.12g}")  # µm, without the last bits of rounding noise
 
     if r.p0.ndim == 3 and r.y is not None:
         return "ZYX", [step_um(r.z, "z"), step_um(r.y, "y"), step_um(r.x, "x")]
@@ -383,7 +383,7 @@ def export_ome_zarr(result_path: str | os.PathLike, out_path: str | os.PathLike)
     axes, steps = _voxel_sizes_um(r, "OME-Zarr")
     names = [a.lower() for a in axes]
     coords = [r.z, r.y, r.x] if len(axes) == 3 else [r.z, r.x]
-    origin = [float(np.asarray(v)[0] * 1e6) for v in coords]
+    origin = [float(f"{np.asarray(v)[0] * 1e6:.12g}") for v in coords]
     out_path = Path(out_path)
     if out_path.exists() and not out_path.is_dir():
         raise ValueError(f"{out_path} is a file; an OME-Zarr export is a folder (name it *.ome.zarr)")
