@@ -183,7 +183,7 @@ def render_so2(so2: np.ndarray, thb: np.ndarray, h: np.ndarray, v: np.ndarray, *
     ax.imshow(rgb, extent=(h0, h1, v1, v0), origin="upper", interpolation="nearest", aspect="equal")
     bar = ScalarMappable(norm=Normalize(0.0, 100.0), cmap=_colormap(cmap))
     return _finish(fig, ax, bar, hlabel=hlabel, vlabel=vlabel, title=title,
-                   colorbar_label=f"sO2 (%); brightness: THb; black: THb < {threshold:.0%} of max")
+                   colorbar_label=f"sO2 (%) · brightness: THb · black: THb < {threshold:.0%} of max")
 
 
 def _figure(width_mm: float, height_mm: float, *, dpi: int = 100):
