@@ -246,6 +246,13 @@ def test_ome_zarr_zip_holds_one_folder(server, tmp_path):
     assert f"{job}.ome.zarr/.zattrs" in names and any("/s0/" in n for n in names)
     again = httpx.get(url, headers={"Authorization": f"Bearer {TOKEN}"}, timeout=60)
     assert again.content == r.content
+    # fpscan export from the server's job: the unpacked folder, opened by ome-zarr's Reader
+    out = tmp_path / "cli.ome.zarr"
+    done = subprocess.run([sys.executable, "-m", "clients", "export", "--server", server, "--token", TOKEN,
+                           "--job", job, "--format", "ome-zarr", "-o", str(out)],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and done.stdout.strip() == str(out), done.stderr
+    assert _zarr_read(out)[0].shape == (N_T, N, N)
     # the same read access as the OME-TIFF beside it
     tif = url.replace("volume.ome.zarr.zip", "volume.ome.tif")
     assert httpx.get(url, timeout=10).status_code == httpx.get(tif, timeout=10).status_code
