@@ -40,13 +40,16 @@ from typing import Any
 import h5py
 import numpy as np
 
+from driver.scanfile import PRESSURE_UNITS
+
 FORMAT = "fpscan-result/1"
 #: the one orientation of every array fpscan stores and every picture it draws
 #: (docs/file-formats.md "Orientation"), written into result files and exports
 ORIENTATION = ("array axes (z, y, x) (2-D: (z, x)), each coordinate increasing with the index; "
                "displayed row 0 at the top as napari, ImageJ and matplotlib imshow do: "
                "x to the right, y downwards, depth z downwards from the sensor plane")
-P0_UNITS = ("Pa", "a.u.")
+#: the units of p0: calibrated (Pa) or arbitrary (a.u.), as the scan file's pressure
+P0_UNITS = PRESSURE_UNITS
 
 
 def _jsonable(obj: Any) -> Any:
