@@ -56,7 +56,10 @@ output is pressure × sensitivity × DC level, so for A-line k
     pressure[w, k, n] = (alines[w, k, n] · scale[w, k] + offset[w, k]) / dc_level[w, k]
 
 (docs/protocol.md A-line frame; units Pa when scale/offset are in V and the sensitivity is
-V/(Pa·V), otherwise relative). Rows of A-lines not yet complete are NaN.
+V/(Pa·V), otherwise relative). Rows of A-lines not yet complete are NaN. Whether that
+calibration holds is the instrument's statement: ``instrument_json`` with
+``"pressure_unit": "Pa"`` (:func:`pressure_unit`); without it the pressure, and every p0
+reconstructed from it, is in arbitrary units ("a.u.").
 """
 from __future__ import annotations
 
@@ -756,6 +759,22 @@ def _read_v1(f: h5py.File, wavelengths: np.ndarray) -> tuple:
         meta_arr[0][name] = old[name]
     meta_arr["excitation_wavelength_m"] = wavelengths[0] if wavelengths.size else np.nan
     return done, meta_arr, alines
+
+
+#: the units of the DC-normalised pressure: calibrated (volts → Pa) or arbitrary
+PRESSURE_UNITS = ("Pa", "a.u.")
+
+
+def pressure_unit(instrument: dict | None) -> str:
+    """The unit of a scan's DC-normalised pressure: ``"Pa"`` when the instrument dict (the
+    scan file's ``instrument_json``) states the volts-to-pascal calibration with
+    ``"pressure_unit": "Pa"`` (``scale``/``offset`` give volts and the sensitivity is
+    1 V/(Pa·V): module docstring), else ``"a.u."`` (arbitrary units, proportional to
+    pressure). Raises ValueError for a ``pressure_unit`` other than those two."""
+    unit = (instrument or {}).get("pressure_unit", "a.u.")
+    if unit not in PRESSURE_UNITS:
+        raise ValueError(f"instrument pressure_unit must be one of {', '.join(PRESSURE_UNITS)}, got {unit!r}")
+    return str(unit)
 
 
 def completed_count(path: str | os.PathLike, *, timeout: float = 5.0) -> int:

@@ -180,7 +180,8 @@ def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = No
     Returns
     -------
     `Reconstruction`: ``p0`` ``(n_z, n_y, n_x)`` / ``(n_z, n_x)`` with ``z``, ``x``, ``y``
-    (m) and ``params`` (everything used).
+    (m), ``params`` (everything used) and ``p0_unit`` (``"Pa"`` for a calibrated scan,
+    else ``"a.u."``: ``service.storage.datasets.p0_unit``).
 
     Raises
     ------
@@ -208,7 +209,7 @@ def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = No
     opts["dtype"] = _dtype(opts.get("dtype"))
     c = opts.pop("c", None)
     c = float(dataset.c if c is None else c)
-    from service.storage.datasets import GridDataset, PointDataset, wavelength_params
+    from service.storage.datasets import GridDataset, PointDataset, p0_unit, wavelength_params
 
     if spec.needs_grid and isinstance(dataset, PointDataset):
         dataset = dataset.to_grid()
@@ -224,6 +225,7 @@ def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = No
     step(0.0)
     result = spec.run(dataset, c, opts, step)
     result.params.update(wavelength_params(dataset))  # which excitation wavelength (storage.datasets)
+    result.p0_unit = p0_unit(dataset)  # Pa for a calibrated scan, else a.u.
     step(1.0)
     return result
 

@@ -32,7 +32,7 @@ log = logging.getLogger("fpscan.preview")
 class PreviewState:
     """One refresh: ``version`` (1, 2, ...), ``points_used``, ``updated`` (UNIX time),
     ``refresh_s`` (seconds the refresh took), ``mips`` ``{plane: 2-D array}`` and their
-    coordinates ``axes`` ``(z, x, y)`` (m). :meth:`png` draws a plane on first request
+    coordinates ``axes`` ``(z, x, y)`` (m), ``p0_unit`` (the colour bar's). :meth:`png` draws a plane on first request
     (``service.storage.render``, the pictures a result has) and keeps it."""
 
     version: int = 0
@@ -42,6 +42,7 @@ class PreviewState:
     mips: dict = field(default_factory=dict)
     axes: tuple = ()
     wavelength_index: int = 0
+    p0_unit: str = "a.u."
     _pngs: dict = field(default_factory=dict)
     _lock: threading.Lock = field(default_factory=threading.Lock)
 
@@ -53,21 +54,22 @@ class PreviewState:
         """The PNG of ``plane``; KeyError when this preview has no such plane."""
         with self._lock:
             if plane not in self._pngs:
-                self._pngs[plane] = render_preview_png(self.mips[plane], plane, self.axes, self.points_used)
+                self._pngs[plane] = render_preview_png(self.mips[plane], plane, self.axes, self.points_used,
+                                                       p0_unit=self.p0_unit)
             return self._pngs[plane]
 
 
-def render_preview_png(img: np.ndarray, plane: str, axes: tuple, points: int) -> bytes:
+def render_preview_png(img: np.ndarray, plane: str, axes: tuple, points: int, *, p0_unit: str = "a.u.") -> bytes:
     """A live-preview MIP drawn like a result's MIP (``service.storage.render``: mm
-    axes, equal aspect, y up / depth down, colour bar)."""
+    axes, equal aspect, row 0 at the top: y down / depth down, colour bar)."""
     from service.storage.render import render_png
 
     z, x, y = axes
     h, hlabel = (y, "y") if plane == "yz" else (x, "x")
-    v, vlabel, down = (y, "y", False) if plane == "xy" else (z, "z", True)
+    v, vlabel = (y, "y") if plane == "xy" else (z, "z")
     name = f"MIP {plane}" if y is not None else "p0 (x, z)"
-    return render_png(img, h, v, hlabel=hlabel, vlabel=vlabel, depth_down=down,
-                      title=f"live preview, {points} points: {name}")
+    return render_png(img, h, v, hlabel=hlabel, vlabel=vlabel,
+                      title=f"live preview, {points} points: {name}", colorbar_label=f"p0 ({p0_unit})")
 
 
 def preview_grid(axis: np.ndarray, max_points: int) -> np.ndarray:
@@ -92,7 +94,7 @@ def render_preview(scan_path: str, *, wavelength_index: int = 0, eps: float = 1e
     decimated in time (means of ``k`` consecutive samples, ``dt·k``) to at most
     ``max_samples`` samples; float32, NUFFT tolerance ``eps``.
     Returns ``{"points_used": n, "mips": {plane: 2-D array}, "axes": (z, x, y),
-    "seconds": s}`` (``service.metrics.mip``; drawn by :func:`render_preview_png` when
+    "seconds": s, "p0_unit": "Pa" | "a.u."}`` (``service.metrics.mip``; drawn by :func:`render_preview_png` when
     asked for); ``mips`` is empty when fewer than 2 points are complete.
     """
     from dataclasses import replace
@@ -118,7 +120,8 @@ def render_preview(scan_path: str, *, wavelength_index: int = 0, eps: float = 1e
     planes = ("xy", "xz", "yz") if y is not None else ("xz",)
     mips = {plane: mip(rec.p0, plane) for plane in planes}
     axes = (np.asarray(rec.z), np.asarray(rec.x), None if y is None else np.asarray(y))
-    return {"points_used": n, "mips": mips, "axes": axes, "seconds": time.perf_counter() - t0}
+    return {"points_used": n, "mips": mips, "axes": axes, "seconds": time.perf_counter() - t0,
+            "p0_unit": rec.p0_unit}
 
 
 def warm_up() -> float:
@@ -227,5 +230,6 @@ class PreviewManager:
             self._states[job_id] = PreviewState(version=(prev.version if prev else 0) + 1,
                                                 points_used=out["points_used"], updated=time.time(),
                                                 refresh_s=out["seconds"], mips=out["mips"], axes=out["axes"],
-                                                wavelength_index=entry["wavelength_index"])
+                                                wavelength_index=entry["wavelength_index"],
+                                                p0_unit=out.get("p0_unit", "a.u."))
         log.info("preview job=%s points=%d seconds=%.2f", job_id, out["points_used"], out["seconds"])

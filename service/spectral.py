@@ -8,8 +8,10 @@ reconstruction dispatch and the pure unmixing (:mod:`service.recon.unmix`).
 - :func:`so2_map`: the picture of a volume's sO2: at every lateral position (x, y) the
   sO2 of the voxel of largest THb along depth (masked where that voxel is masked); a
   2-D image ``(n_z, n_x)`` is shown as it is.
-- :func:`write_unmix`: ``unmix.h5`` and ``so2.png`` (colour map 0..1 with a colour bar,
-  masked pixels grey) into a result folder.
+- :func:`thb_map`: the THb of the same voxels (the picture's brightness).
+- :func:`write_unmix`: ``unmix.h5`` and ``so2.png`` (sO2 as colour 0..100 % with a colour
+  bar, brightness from THb, the background below the THb threshold black:
+  ``service.storage.render.render_so2``) into a result folder.
 
 ``unmix.h5`` layout: ``/hbo2``, ``/hb``, ``/thb`` (float32, units in the attribute
 ``concentration_units``), ``/so2`` (float32, NaN where masked), ``/mask`` (uint8, 1 =
@@ -30,8 +32,8 @@ import numpy as np
 from service.recon.unmix import Unmixed, endmember_matrix, too_few_wavelengths, unmix
 
 UNMIX_FORMAT = "fpscan-unmix/1"
-#: masked pixels of the sO2 picture
-MASK_COLOUR = (0.55, 0.55, 0.55, 1.0)
+#: masked pixels of the sO2 picture (THb below the threshold, sO2 unknown): black
+MASK_COLOUR = (0.0, 0.0, 0.0, 1.0)
 
 
 def dataset_wavelengths(dataset: Any) -> np.ndarray:
@@ -136,20 +138,26 @@ def so2_map(u: Unmixed) -> np.ndarray:
     return np.take_along_axis(u.so2, k, axis=0)[0]
 
 
+def thb_map(u: Unmixed) -> np.ndarray:
+    """2-D THb picture matching :func:`so2_map`: 3-D → ``(n_y, n_x)``, the largest THb along
+    depth (the voxel whose sO2 :func:`so2_map` shows); 2-D → the ``(n_z, n_x)`` THb image."""
+    return u.thb if u.thb.ndim == 2 else np.max(u.thb, axis=0)
+
+
 def render_so2_png(u: Unmixed, z: Any, x: Any, y: Any = None) -> bytes:
     """PNG of :func:`so2_map` through the one rendering path
-    (:func:`service.storage.render.render_png`: mm axes, colour bar), colour map
-    ``RdYlBu_r`` over sO2 0 (blue) .. 1 (red), masked pixels grey (:data:`MASK_COLOUR`)."""
-    from service.storage.render import render_png
+    (:func:`service.storage.render.render_so2`: mm axes, row 0 at the top, colour bar):
+    sO2 as colour (``RdYlBu_r`` over 0 % blue .. 100 % red), brightness from THb
+    (:func:`thb_map`), black (:data:`MASK_COLOUR`) where THb is below the unmixing's
+    ``threshold`` (default 0.1) of its maximum or sO2 is unknown."""
+    from service.storage.render import render_so2
 
-    img = so2_map(u)
+    threshold = float((u.params or {}).get("threshold", 0.1))
     if u.so2.ndim == 2:
-        return render_png(img, np.asarray(x), np.asarray(z), hlabel="x", vlabel="z", depth_down=True,
-                          cmap="RdYlBu_r", vmin=0.0, vmax=1.0, title="sO2 (masked: grey)",
-                          colorbar_label="sO2", bad_colour=MASK_COLOUR)
-    return render_png(img, np.asarray(x), np.asarray(y), hlabel="x", vlabel="y", depth_down=False,
-                      cmap="RdYlBu_r", vmin=0.0, vmax=1.0, title="sO2 at the THb maximum along z (masked: grey)",
-                      colorbar_label="sO2", bad_colour=MASK_COLOUR)
+        return render_so2(so2_map(u), thb_map(u), np.asarray(x), np.asarray(z), hlabel="x", vlabel="z",
+                          threshold=threshold, title="sO2 (colour), THb (brightness)")
+    return render_so2(so2_map(u), thb_map(u), np.asarray(x), np.asarray(y), hlabel="x", vlabel="y",
+                      threshold=threshold, title="sO2 at the THb maximum along z (colour), THb MIP (brightness)")
 
 
 def write_unmix(out_dir: str | os.PathLike, u: Unmixed, z: Any, x: Any, y: Any = None, *,

@@ -39,7 +39,7 @@ def default_dtype() -> str:
 #: top-level modules of the optional extras (pyproject.toml) -> the extra that installs them
 EXTRA_OF_MODULE = {
     **dict.fromkeys(["numpy", "scipy", "finufft", "numba", "h5py", "serial", "cobs", "pint",
-                     "matplotlib", "PIL", "tifffile", "pylops", "pyproximal"], "driver"),
+                     "matplotlib", "PIL", "tifffile", "ome_zarr", "zarr", "pylops", "pyproximal"], "driver"),
     **dict.fromkeys(["fastapi", "starlette", "uvicorn", "multipart", "python_multipart", "sse_starlette",
                      "distributed", "dask", "pydantic_settings", "psutil"], "server"),
 }

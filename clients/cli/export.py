@@ -1,7 +1,8 @@
 """`fpscan export`: IPASC export of a scan file, locally (``service.storage.ipasc``) or from a
-server (``GET /api/scans/{job_id}/ipasc``); OME-TIFF export of a reconstruction result
-(``service.storage.results.export_ome_tiff``, or ``GET
-/api/reconstructions/{job_id}/volume.ome.tif``) for ImageJ/Fiji and napari.
+server (``GET /api/scans/{job_id}/ipasc``); OME-TIFF or OME-Zarr export (``--format``) of a
+reconstruction result (``service.storage.results.export_volume``, or ``GET
+/api/reconstructions/{job_id}/volume.ome.tif`` / ``volume.ome.zarr.zip``) for ImageJ/Fiji
+and napari.
 
 The IPASC file is HDF5 written with plain h5py: ``/binary_time_series_data``
 ``[detectors, samples, wavelengths, measurements]``, ``/meta_data/...`` and
@@ -12,18 +13,24 @@ from __future__ import annotations
 from clients.cli._common import add_server_options, client_errors
 
 COMMAND = "export"
-HELP = ("export a scan file to IPASC HDF5, or a reconstruction result to OME-TIFF (physical voxel "
-        "sizes), locally or from a server's job")
+HELP = ("export a scan file to IPASC HDF5, or a reconstruction result to OME-TIFF or OME-Zarr "
+        "(physical voxel sizes), locally or from a server's job")
+#: --format → the suffix of the default output name (service.storage.results.EXPORT_FORMATS)
+VOLUME_SUFFIXES = {"ome-tiff": ".ome.tif", "ome-zarr": ".ome.zarr"}
 
 
 def add_arguments(parser):
     """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser)."""
-    parser.add_argument("scan", nargs="?", help="scan file (→ IPASC) or result volume.h5 (→ OME-TIFF) "
-                                                "to export locally")
+    parser.add_argument("scan", nargs="?", help="scan file (→ IPASC) or result volume.h5 (→ OME-TIFF / "
+                                                "OME-Zarr) to export locally")
     parser.add_argument("--job", default=None, metavar="JOB_ID",
                         help="with --server: the scan job (→ IPASC) or reconstruction job (→ OME-TIFF)")
     parser.add_argument("--out", "-o", default=None,
-                        help="output file (default: <scan>_ipasc.h5 / <job>_ipasc.h5, or <name>.ome.tif)")
+                        help="output file (default: <scan>_ipasc.h5 / <job>_ipasc.h5, or <name>.ome.tif / "
+                             "<name>.ome.zarr, a folder)")
+    parser.add_argument("--format", default="ome-tiff", choices=sorted(VOLUME_SUFFIXES),
+                        help="format of a reconstruction result's export (default ome-tiff); a scan "
+                             "file always exports to IPASC")
     add_server_options(parser)
 
 
@@ -63,8 +70,11 @@ def run(args) -> int:
 
         with make_client(args, timeout=300) as api:
             if field_of(api.get_job(args.job), "kind") == "recon":
-                out = Path(args.out or f"{args.job}.ome.tif")
-                api.download_ome_tiff(args.job, out)
+                out = Path(args.out or f"{args.job}{VOLUME_SUFFIXES[args.format]}")
+                if args.format == "ome-zarr":
+                    api.download_ome_zarr(args.job, out)
+                else:
+                    api.download_ome_tiff(args.job, out)
             else:
                 out = Path(args.out or f"{args.job}_ipasc.h5")
                 api.download_ipasc(args.job, out)
@@ -78,12 +88,12 @@ def run(args) -> int:
     if not scan.is_file():
         raise ValueError(f"no such file: {scan}")
     if _is_result(scan):
-        from service.storage.results import export_ome_tiff
+        from service.storage.results import export_volume
 
-        out = Path(args.out or scan.with_name(f"{scan.stem}.ome.tif"))
+        out = Path(args.out or scan.with_name(f"{scan.stem}{VOLUME_SUFFIXES[args.format]}"))
         if out.resolve() == scan.resolve():
             raise ValueError("the output would overwrite the result file")
-        export_ome_tiff(scan, out)
+        export_volume(scan, out, args.format)
         print(out)
         return 0
     out = Path(args.out or scan.with_name(f"{scan.stem}_ipasc.h5"))

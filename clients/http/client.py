@@ -129,6 +129,38 @@ class _Download:
     dest: Path
 
 
+def _unzip_folder(zipped: Path, dest: Path) -> Path:
+    """Unpack a zip holding one top folder (an OME-Zarr export) into the folder ``dest``
+    (the top folder's name dropped), via a temporary sibling renamed into place. Raises
+    ValueError for a zip that is not one folder or names a path outside it."""
+    import shutil
+    import uuid
+    import zipfile
+
+    tmp = dest.with_name(f".{dest.name}.{uuid.uuid4().hex[:12]}.tmp")
+    try:
+        with zipfile.ZipFile(zipped) as z:
+            names = [n for n in z.namelist() if not n.endswith("/")]
+            tops = {n.split("/", 1)[0] for n in names}
+            if len(tops) != 1 or any("/" not in n for n in names):
+                raise ValueError(f"{zipped.name}: expected one folder in the zip, found {sorted(tops)[:5]}")
+            for n in names:
+                rel = Path(n.split("/", 1)[1])
+                if rel.is_absolute() or ".." in rel.parts:
+                    raise ValueError(f"{zipped.name}: unsafe path {n!r} in the zip")
+                target = tmp / rel
+                target.parent.mkdir(parents=True, exist_ok=True)
+                with z.open(n) as src, open(target, "wb") as out:
+                    shutil.copyfileobj(src, out)
+        if dest.exists():
+            shutil.rmtree(dest) if dest.is_dir() else dest.unlink()
+        tmp.rename(dest)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return dest
+
+
 def _detail(response: httpx.Response) -> Any:
     try:
         body = response.json()
@@ -416,6 +448,18 @@ class _Endpoints:
         """``GET /api/reconstructions/{job_id}/volume.ome.tif`` (OME-TIFF, voxel sizes in
         µm) saved to ``dest``."""
         return (yield _Download(_Req("GET", f"/api/reconstructions/{job_id}/volume.ome.tif"), Path(dest)))
+
+    def download_ome_zarr(self, job_id: str, dest: str | os.PathLike):
+        """``GET /api/reconstructions/{job_id}/volume.ome.zarr.zip`` (OME-Zarr, voxel sizes in
+        µm) unpacked into the folder ``dest`` (conventionally ``*.ome.zarr``; an existing
+        folder there is replaced). Returns ``dest``."""
+        dest = Path(dest)
+        zipped = dest.with_name(f".{dest.name}.zip")
+        got = yield _Download(_Req("GET", f"/api/reconstructions/{job_id}/volume.ome.zarr.zip"), zipped)
+        try:
+            return _unzip_folder(Path(got), dest)
+        finally:
+            Path(got).unlink(missing_ok=True)
 
     def download_mip(self, job_id: str, plane: str, dest: str | os.PathLike, *, wavelength: int | None = None):
         """``GET /api/reconstructions/{job_id}/mip/{plane}.png`` saved to ``dest``;

@@ -914,6 +914,11 @@ function downloadsFor(job) {
     list.push(["IPASC export (HDF5)", links.ipasc || `/api/scans/${id}/ipasc`, `scan-${job.id}-ipasc.hdf5`]);
   } else {
     list.push(["Volume (HDF5)", links.volume || `/api/reconstructions/${id}/volume.h5`, `volume-${job.id}.h5`]);
+    // the same volume for napari / ImageJ (row 0 at the top, as the pictures here)
+    list.push(["Volume as OME-TIFF (ImageJ, napari)", links.volume_ome_tiff || `/api/reconstructions/${id}/volume.ome.tif`,
+      `volume-${job.id}.ome.tif`]);
+    list.push(["Volume as OME-Zarr, zipped (napari)", links.volume_ome_zarr || `/api/reconstructions/${id}/volume.ome.zarr.zip`,
+      `volume-${job.id}.ome.zarr.zip`]);
     // a job over every wavelength (wavelength "all" or unmix): one volume each
     for (const row of resultOf(job).wavelengths || []) {
       const nm = row.wavelength_nm !== null && row.wavelength_nm !== undefined ? ` at ${fmtNum(row.wavelength_nm)} nm` : "";

@@ -30,6 +30,7 @@ def job_links(job: dict) -> dict[str, str]:
         planes = job["params"].get("result", {}).get("planes", ["xy", "xz", "yz"])
         links["volume"] = f"/api/reconstructions/{jid}/volume.h5"
         links["volume_ome_tiff"] = f"/api/reconstructions/{jid}/volume.ome.tif"
+        links["volume_ome_zarr"] = f"/api/reconstructions/{jid}/volume.ome.zarr.zip"
         links["slice"] = f"/api/reconstructions/{jid}/slice.png"
         for plane in planes:
             links[f"mip_{plane}"] = f"/api/reconstructions/{jid}/mip/{plane}.png"

@@ -89,7 +89,7 @@ def summary(plan: dict) -> Plan:
 
 def preview_png(plan: dict) -> bytes:
     """The mask preview PNG, drawn by the one renderer (``service.storage.render``: x
-    right, y up, axes in mm at equal aspect, colour bar, ``fpscan:axes`` chunk): points
+    right, y down, axes in mm at equal aspect, colour bar, ``fpscan:axes`` chunk): points
     as coloured markers (``service.plans.preview_png``) up to ``PREVIEW_DETAIL_POINTS``
     points; beyond that (markers cost time linear in the points) and for a plan the plan
     model cannot read, the mask as an image on its lattice (``render_lattice``: one cell

@@ -2,6 +2,7 @@
 download its volume (HDF5, HTTP Range), MIPs and depth slices (PNG)."""
 from __future__ import annotations
 
+import uuid
 from pathlib import Path
 
 import numpy as np
@@ -279,6 +280,33 @@ def volume_ome_tiff(job_id: str = JobId, c: Context = Depends(ctx)):
     return FileResponse(path, media_type="image/tiff", filename=f"{job_id}.ome.tif")
 
 
+@router.get("/{job_id}/volume.ome.zarr.zip", dependencies=[Depends(read_access)], response_class=FileResponse,
+            responses={200: {"content": {"application/zip": {}},
+                             "description": "p0 volume (OME-Zarr folder <job>.ome.zarr, zipped)"},
+                       206: {"description": "partial content (HTTP Range)"}})
+def volume_ome_zarr(job_id: str = JobId, c: Context = Depends(ctx)):
+    """The result volume as OME-Zarr (NGFF 0.4; float32, axes ``z``, ``y``, ``x`` in
+    micrometer with the voxel size as scale; ``service.storage.results.export_ome_zarr``),
+    zipped: one folder ``<job_id>.ome.zarr`` to unzip and open in napari. Made on first
+    request, then served from the result folder."""
+    import shutil
+
+    from service.storage.results import export_volume, zip_folder
+
+    folder = _result_dir(c, job_id)
+    path = folder / "volume.ome.zarr.zip"
+    if not path.exists():
+        tmp = folder / f".volume.ome.zarr.{uuid.uuid4().hex[:12]}"
+        try:
+            export_volume(folder / "volume.h5", tmp, "ome-zarr")
+            zip_folder(tmp, path, arcname=f"{job_id}.ome.zarr")
+        except ValueError as exc:
+            raise HTTPException(409, str(exc)) from None
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+    return FileResponse(path, media_type="application/zip", filename=f"{job_id}.ome.zarr.zip")
+
+
 @router.get("/{job_id}/unmix.h5", dependencies=[Depends(read_access)], response_class=FileResponse,
             responses={200: {"content": {"application/x-hdf5": {}},
                              "description": "HbO2, Hb, THb, sO2 and mask volumes (HDF5, fpscan-unmix/1)"},
@@ -294,11 +322,11 @@ def unmix_h5(job_id: str = JobId, c: Context = Depends(ctx)):
 
 
 @router.get("/{job_id}/so2.png", dependencies=[Depends(read_access)], response_class=Response,
-            responses={200: {"content": {"image/png": {}}, "description": "sO2 map, colour bar, masked grey"},
+            responses={200: {"content": {"image/png": {}}, "description": "sO2 map (colour), THb (brightness), background black"},
                        404: {"description": "the job did not unmix"}})
 def so2_png(job_id: str = JobId, c: Context = Depends(ctx)):
     """The sO2 picture: at each (x, y) the sO2 of the voxel of largest THb along depth,
-    colour bar 0..1, masked pixels grey (``service.spectral.render_so2_png``)."""
+    colour bar 0..100 %, brightness from THb, background black (``service.spectral.render_so2_png``)."""
     path = _result_dir(c, job_id) / "so2.png"
     if not path.exists():
         raise HTTPException(404, f"reconstruction {job_id} was not unmixed (ask with 'unmix')")
@@ -322,7 +350,7 @@ def mip_png(plane: Plane, job_id: str = JobId, wavelength: int | None = Waveleng
 def slice_png(job_id: str = JobId, index: int = Query(0, ge=0, le=1_000_000, description="depth index"),
               c: Context = Depends(ctx)):
     """The lateral slice at depth index ``index`` of a 3-D result (2-D: the image row),
-    drawn like every picture (``service.storage.render``): axes in mm, y up, the depth
+    drawn like every picture (``service.storage.render``): axes in mm, y down, the depth
     in mm in the title, a colour bar in p0 units."""
     from service.storage.render import render_result_slice
 

@@ -1,6 +1,6 @@
 """Preview PNG of a mask or plan: points on the lattice, weight as colour, the point of
 interest marked, counts and weight ratio in the caption; drawn by the one picture path of
-fpscan (``service.storage.render.render_points``: mm axes, equal aspect, y up)."""
+fpscan (``service.storage.render.render_points``: mm axes, equal aspect, y down as in every picture)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -13,7 +13,7 @@ __all__ = ["preview_png"]
 def preview_png(mask_or_plan, path: str | Path | None = None) -> bytes:
     """Render a ``Mask`` or ``Plan`` as PNG bytes (also written to ``path`` if given).
 
-    Axes in mm (x right, y up; a line lattice shows x only); the lattice outline is drawn,
+    Axes in mm (x right, y down; a line lattice shows x only); the lattice outline is drawn,
     each point coloured by its weight (µm², or µm on a line); a ``+`` marks the point of
     interest (a plan's mask params ``poi``). The title states kind, obtained/requested
     points and the outer/inner weight ratio. Raises ValueError for other objects."""

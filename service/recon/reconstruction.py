@@ -18,6 +18,9 @@ class Reconstruction:
     x : (n_x,) lateral coordinates in m.
     y : (n_y,) lateral coordinates in m, or None in 2-D.
     params : every parameter the reconstruction used (JSON-serialisable dict).
+    p0_unit : the unit of ``p0``: ``"Pa"`` when the input was calibrated pressure (a scan
+        whose instrument records its volts-to-pascal calibration), else ``"a.u."``
+        (``service.storage.datasets.p0_unit``; set by ``service.pipeline.reconstruct``).
     """
 
     p0: np.ndarray
@@ -25,6 +28,7 @@ class Reconstruction:
     x: np.ndarray
     y: np.ndarray | None = None
     params: dict = field(default_factory=dict)
+    p0_unit: str = "a.u."
 
     @property
     def ndim(self) -> int:

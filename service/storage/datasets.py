@@ -229,6 +229,13 @@ class PointDataset:
 Dataset = GridDataset | PointDataset
 
 
+def p0_unit(ds: GridDataset | PointDataset) -> str:
+    """The unit of a p0 reconstructed from ``ds``: ``"Pa"`` when the dataset is calibrated
+    pressure (``meta["p0_unit"]``, from a scan whose instrument states its volts-to-pascal
+    calibration: ``driver.scanfile.pressure_unit``), else ``"a.u."``."""
+    return "Pa" if (ds.meta or {}).get("p0_unit") == "Pa" else "a.u."
+
+
 def _positive(name: str, v: Any) -> float:
     try:
         f = float(v)
@@ -458,7 +465,7 @@ def load_scan(path: str | os.PathLike, *, allow_empty: bool = False, wavelength_
     the plan is invalid or the wavelength index is out of range (naming the scan's
     wavelengths)."""
     from driver.plan import check_plan
-    from driver.scanfile import read_scan
+    from driver.scanfile import pressure_unit, read_scan
 
     scan = read_scan(path)
     _check_index(wavelength_index, scan.wavelengths, "scan")
@@ -484,7 +491,7 @@ def load_scan(path: str | os.PathLike, *, allow_empty: bool = False, wavelength_
         grid=(gx,) if two_d else (gx, gy), source="fpscan",
         meta={"plan_id": scan.plan_id, "plan": scan.plan, "indices": scan.indices,
               "wavelengths": scan.wavelengths, "n_points_planned": int(scan.attrs["n_points"]),
-              "wavelength_index": int(wavelength_index)},
+              "wavelength_index": int(wavelength_index), "p0_unit": pressure_unit(scan.instrument)},
         indices=np.asarray(scan.indices, dtype=np.int64).reshape(-1, 2), lattice=lattice,
         wavelengths=wavelengths)
 
@@ -542,7 +549,8 @@ def write_dataset(path: str | os.PathLike, ds: GridDataset | PointDataset) -> No
     ``(n, 2)`` indices (i_x, i_y) and attributes ``lattice_shape`` ``(n_y, n_x)``, ``pitch``.
     Both: attribute ``format``, ``layout``, ``source``; ``wavelengths_m`` when known, and
     ``wavelength_index`` (into the source file's wavelengths) when it was chosen from a
-    multi-wavelength file."""
+    multi-wavelength file; ``p0_unit`` (``"Pa"`` for calibrated pressure, else ``"a.u."``:
+    :func:`p0_unit`)."""
     with h5py.File(path, "w") as f:
         f.attrs.update({"format": DATASET_FORMAT, "layout": ds.kind, "dt": float(ds.dt), "c": float(ds.c),
                         "t0": float(ds.t0), "source": ds.source})
@@ -550,6 +558,7 @@ def write_dataset(path: str | os.PathLike, ds: GridDataset | PointDataset) -> No
             f.attrs["wavelengths_m"] = np.asarray(ds.wavelengths, dtype=np.float64)
         if (ds.meta or {}).get("wavelength_index") is not None:
             f.attrs["wavelength_index"] = int(ds.meta["wavelength_index"])
+        f.attrs["p0_unit"] = p0_unit(ds)
         if isinstance(ds, GridDataset):
             f.create_dataset("data", data=ds.data)
             f.attrs["dx"] = float(ds.dx)
@@ -583,7 +592,10 @@ def read_dataset(path: str | os.PathLike) -> GridDataset | PointDataset:
             wl = f.attrs.get("wavelengths_m")
             wavelengths = tuple(float(w) for w in np.ravel(wl)) if wl is not None and np.size(wl) else None
             source = text(f.attrs.get("source", "dataset"))
-            meta = {"wavelength_index": int(f.attrs["wavelength_index"])} if "wavelength_index" in f.attrs else {}
+            meta: dict[str, Any] = ({"wavelength_index": int(f.attrs["wavelength_index"])}
+                                    if "wavelength_index" in f.attrs else {})
+            if text(f.attrs.get("p0_unit", "a.u.")) == "Pa":
+                meta["p0_unit"] = "Pa"
             if layout == "grid":
                 data = f["data"][()]
                 dy = float(f.attrs["dy"]) if "dy" in f.attrs and data.ndim == 3 else None

@@ -4,10 +4,13 @@ aspect (a millimetre is as long across as down), a colour bar in p0 units (or th
 weight), matplotlib on an Agg canvas (no pyplot state: thread-safe); or raw pixels (one
 pixel per sample, Pillow) in the same orientation.
 
-Orientation, the same in every picture: x to the right; in lateral pictures (xy MIP,
-depth slice, mask preview) y points **up**; in depth pictures (xz, yz) depth z points
-**down** from the sensor plane at the top. Raw-pixel PNGs follow the same rule (an xy
-picture's first PNG row is the largest y).
+Orientation, the same in every picture and every file (docs/file-formats.md,
+"Orientation"): **row 0 of the array at the top, column 0 at the left** -- the way napari,
+ImageJ/Fiji and matplotlib's ``imshow`` show an array, so a PNG, the web page, the OME-TIFF
+and OME-Zarr exports and the HDF5 volume read with h5py show the same picture. x points to
+the right; in lateral pictures (xy MIP, depth slice, mask preview) y points **down** (the
+smallest y at the top); in depth pictures (xz, yz) depth z points **down** from the sensor
+plane at the top. Raw-pixel PNGs follow the same rule (a PNG row is an array row).
 
 Annotated PNGs carry their geometry as a PNG text chunk ``fpscan:axes`` (JSON:
 ``left``, ``top``, ``right``, ``bottom`` pixel edges of the plotting area and
@@ -22,7 +25,7 @@ MIP planes (max over the named axis):
 =======  ===========  ==================  =====================================
 plane    max over     array shape         drawn as
 =======  ===========  ==================  =====================================
-``xy``   z (axis 0)   (n_y, n_x)          x to the right, y upwards
+``xy``   z (axis 0)   (n_y, n_x)          x to the right, y downwards
 ``xz``   y (axis 1)   (n_z, n_x)          x to the right, depth z downwards
 ``yz``   x (axis 2)   (n_z, n_y)          y to the right, depth z downwards
 =======  ===========  ==================  =====================================
@@ -48,7 +51,7 @@ AXES_KEY = "fpscan:axes"
 
 __all__ = ["PLANES", "AXES_KEY", "mip", "to_uint8", "render_png", "render_mip", "render_mips",
            "render_slice", "render_result_slice", "render_lateral", "render_points", "render_lattice",
-           "png_axes"]
+           "png_axes", "render_so2", "so2_rgb"]
 
 
 def _levels(img: np.ndarray, vmin: float | None, vmax: float | None) -> tuple[float, float]:
@@ -75,15 +78,17 @@ def _edges(v: np.ndarray) -> tuple[float, float]:
 
 
 def render_png(img: np.ndarray, h: np.ndarray, v: np.ndarray, *, hlabel: str, vlabel: str,
-               depth_down: bool, title: str | None = None, cmap: str = "gray",
+               depth_down: bool = True, title: str | None = None, cmap: str = "gray",
                vmin: float | None = None, vmax: float | None = None, annotate: bool = True,
-               colorbar_label: str = "p0 (input units)", bad_colour: Any = None) -> bytes:
+               colorbar_label: str = "p0 (a.u.)", bad_colour: Any = None) -> bytes:
     """PNG of a 2-D array ``img`` ``(len(v), len(h))``: row i at vertical coordinate
     ``v[i]`` (m), column j at ``h[j]`` (m).
 
     ``annotate=True``: matplotlib figure with axes in mm (equal aspect), labels, title
-    and a colour bar labelled ``colorbar_label``; ``depth_down`` puts ``v[0]`` at the top
-    (depth axes), else at the bottom (y up).
+    and a colour bar labelled ``colorbar_label``; ``depth_down`` (the default, and what every
+    fpscan picture uses: module docstring) puts ``v[0]`` at the top, as napari and
+    ``imshow`` show row 0; ``depth_down=False`` puts it at the bottom (a y-up plot, for a
+    caller that wants one).
     ``annotate=False``: exactly one pixel per sample in the same orientation (the first
     PNG row is ``v[0]`` when ``depth_down``, else ``v[-1]``), grey levels of
     :func:`to_uint8` (``cmap`` applied if not ``"gray"``). ``bad_colour`` (a matplotlib
@@ -97,7 +102,7 @@ def render_png(img: np.ndarray, h: np.ndarray, v: np.ndarray, *, hlabel: str, vl
     if not annotate:
         from PIL import Image as PILImage
         grey = to_uint8(img, vmin, vmax)
-        if not depth_down:  # y up: the largest v in the first row
+        if not depth_down:  # v[0] at the bottom: the largest v in the first row
             grey = np.ascontiguousarray(grey[::-1])
         if cmap == "gray":
             pil = PILImage.fromarray(grey, mode="L")
@@ -125,6 +130,60 @@ def render_png(img: np.ndarray, h: np.ndarray, v: np.ndarray, *, hlabel: str, vl
                    interpolation="nearest", aspect="equal")
     return _finish(fig, ax, im, hlabel=hlabel, vlabel=vlabel, title=title,
                    colorbar_label=colorbar_label)
+
+
+def so2_rgb(so2: np.ndarray, thb: np.ndarray, *, threshold: float = 0.1, cmap: str = "RdYlBu_r",
+            gamma: float = 0.5) -> np.ndarray:
+    """The colours of an sO2 picture as the PATATO / iThera maps draw them: RGB ``(*S, 3)``
+    float in [0, 1] for sO2 ``so2`` (fraction 0..1, NaN where unknown) and total
+    haemoglobin ``thb`` (same shape ``S``, any unit, >= 0).
+
+    Colour (hue) from sO2 through ``cmap`` over 0 (blue) .. 1 (red); brightness from THb:
+    ``(thb / max(thb)) ** gamma`` (``gamma`` < 1 lifts weak vessels); black where sO2 is
+    unknown (NaN) or THb is below ``threshold`` · max(THb) -- the background, which would
+    otherwise show noise at full saturation. An image with no THb above 0 is all black.
+    Raises ValueError (shapes differ, threshold outside [0, 1), gamma not > 0)."""
+    so2 = np.asarray(so2, dtype=np.float64)
+    thb = np.asarray(thb, dtype=np.float64)
+    if so2.shape != thb.shape:
+        raise ValueError(f"sO2 {so2.shape} and THb {thb.shape} must have one shape")
+    if not 0.0 <= float(threshold) < 1.0:
+        raise ValueError(f"threshold must lie in [0, 1), got {threshold}")
+    if not float(gamma) > 0:
+        raise ValueError(f"gamma must be > 0, got {gamma}")
+    finite = np.isfinite(thb)
+    top = float(thb[finite].max()) if finite.any() else 0.0
+    if not top > 0:
+        return np.zeros((*so2.shape, 3))
+    level = np.clip(np.where(finite, thb, 0.0) / top, 0.0, 1.0)
+    shown = np.isfinite(so2) & (level >= float(threshold)) & (level > 0)
+    rgb = _colormap(cmap)(np.clip(np.nan_to_num(so2, nan=0.0), 0.0, 1.0))[..., :3]
+    return np.where(shown[..., None], rgb * (level ** float(gamma))[..., None], 0.0)
+
+
+def render_so2(so2: np.ndarray, thb: np.ndarray, h: np.ndarray, v: np.ndarray, *, hlabel: str,
+               vlabel: str, title: str | None = None, threshold: float = 0.1,
+               cmap: str = "RdYlBu_r") -> bytes:
+    """PNG of an sO2 map ``so2`` ``(len(v), len(h))`` (fraction, NaN where unknown) with
+    brightness from total haemoglobin ``thb`` (same shape) and the background masked
+    black (:func:`so2_rgb`), in the frame of every picture (module docstring: axes in mm,
+    equal aspect, row 0 = ``v[0]`` at the top, ``fpscan:axes`` chunk); the colour bar is
+    sO2 in % (0..100). Raises ValueError as :func:`so2_rgb` and on shape mismatch."""
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import Normalize
+
+    so2 = np.asarray(so2)
+    if so2.ndim != 2 or so2.shape != (len(v), len(h)):
+        raise ValueError(f"sO2 shape {so2.shape} does not match axes ({len(v)}, {len(h)})")
+    rgb = so2_rgb(so2, thb, threshold=threshold, cmap=cmap)
+    h0, h1 = (e * 1e3 for e in _edges(h))
+    v0, v1 = (e * 1e3 for e in _edges(v))
+    fig, ax = _figure(h1 - h0, v1 - v0)
+    ax.set_facecolor("black")
+    ax.imshow(rgb, extent=(h0, h1, v1, v0), origin="upper", interpolation="nearest", aspect="equal")
+    bar = ScalarMappable(norm=Normalize(0.0, 100.0), cmap=_colormap(cmap))
+    return _finish(fig, ax, bar, hlabel=hlabel, vlabel=vlabel, title=title,
+                   colorbar_label=f"sO2 (%) · brightness: THb · black: THb < {threshold:.0%} of max")
 
 
 def _figure(width_mm: float, height_mm: float, *, dpi: int = 100):
@@ -200,7 +259,7 @@ def render_points(positions: np.ndarray, values: np.ndarray, bounds: tuple, *,
     for a line — coloured by ``values`` ``(n,)``, inside the lattice outline ``bounds``
     (``((x_lo, x_hi), (y_lo, y_hi))`` m, or ``((x_lo, x_hi),)``), with an optional point
     of interest ``poi`` (x, y) m marked ``+``. Same frame as every other picture: axes in
-    mm, equal aspect, y up, colour bar. Raises ValueError on shape mismatch."""
+    mm, equal aspect, y down (the smallest y at the top, as every picture), colour bar. Raises ValueError on shape mismatch."""
     from matplotlib.patches import Rectangle
 
     pos = np.asarray(positions, dtype=np.float64)
@@ -228,7 +287,7 @@ def render_points(positions: np.ndarray, values: np.ndarray, bounds: tuple, *,
     pad = 0.02 * max(x_hi - x_lo, 1e-9) * mm
     ax.set_xlim(x_lo * mm - pad, x_hi * mm + pad)
     if not line:
-        ax.set_ylim(y_lo * mm - pad, y_hi * mm + pad)
+        ax.set_ylim(y_hi * mm + pad, y_lo * mm - pad)  # y down: the smallest y at the top
         ax.set_aspect("equal")
     return _finish(fig, ax, sc, hlabel="x", vlabel=None if line else "y", title=title,
                    colorbar_label=colorbar_label)
@@ -243,7 +302,7 @@ def render_lattice(indices: np.ndarray, values: np.ndarray, n_x: int, n_y: int, 
     time linear in the points (≈ 1.7 s for 51 076) and merge into one another. Lattice
     ``n_x × n_y`` at ``pitch`` m, centred (``x_i = (i - (n_x - 1)/2)·pitch``); a line
     lattice (``n_y == 1``) is drawn as a band. The same frame as every picture: axes in mm,
-    equal aspect, y up, colour bar, ``fpscan:axes`` chunk; ``poi`` (x, y) m marked ``+``.
+    equal aspect, y down (row 0 = the smallest y at the top), colour bar, ``fpscan:axes`` chunk; ``poi`` (x, y) m marked ``+``.
     Raises ValueError (shapes, indices outside the lattice, pitch not > 0)."""
     idx = np.asarray(indices, dtype=np.int64).reshape(-1, 2)
     val = np.asarray(values, dtype=np.float64)
@@ -266,8 +325,8 @@ def render_lattice(indices: np.ndarray, values: np.ndarray, n_x: int, n_y: int, 
     lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
     if not hi - lo > 1e-9 * max(abs(lo), abs(hi)):  # equal weights (up to rounding): one colour
         lo, hi = lo - 0.5 * abs(lo or 1.0), hi + 0.5 * abs(hi or 1.0)
-    im = ax.imshow(np.ma.masked_invalid(img), cmap=colormap, vmin=lo, vmax=hi, origin="lower",
-                   extent=(x0, x1, -band / 2, band / 2), interpolation="nearest",
+    im = ax.imshow(np.ma.masked_invalid(img), cmap=colormap, vmin=lo, vmax=hi, origin="upper",
+                   extent=(x0, x1, band / 2, -band / 2), interpolation="nearest",
                    aspect="auto" if line else "equal")
     if line:
         ax.set_yticks([])
@@ -310,9 +369,9 @@ def render_mip(p0: np.ndarray, z: Any, x: Any, y: Any = None, plane: str = "xy",
     z, x, y = _coords(p0, z, x, y)
     img = mip(p0, plane)
     h, hl = (y, "y") if plane == "yz" else (x, "x")
-    v, vl, down = (y, "y", False) if plane == "xy" else (z, "z", True)
+    v, vl = (y, "y") if plane == "xy" else (z, "z")
     options.setdefault("title", f"MIP {plane}" if np.ndim(p0) == 3 else "p0 (x, z)")
-    return render_png(img, h, v, hlabel=hl, vlabel=vl, depth_down=down, **options)
+    return render_png(img, h, v, hlabel=hl, vlabel=vl, **options)
 
 
 def render_mips(p0: np.ndarray, z: Any, x: Any, y: Any = None, *, title_prefix: str = "",
@@ -330,7 +389,7 @@ def render_mips(p0: np.ndarray, z: Any, x: Any, y: Any = None, *, title_prefix: 
 
 
 def render_slice(p0: np.ndarray, z: Any, x: Any, y: Any, index: int, **options: Any) -> bytes:
-    """PNG of the depth slice ``p0[index]`` (x to the right, y upwards) of a 3-D volume.
+    """PNG of the depth slice ``p0[index]`` (x to the right, y downwards) of a 3-D volume.
 
     Grey levels default to the slice's own maximum. Raises ValueError (2-D image, index
     out of range, shapes)."""
@@ -367,7 +426,8 @@ def render_result_slice(path: Any, index: int, **options: Any) -> bytes:
 
 def render_lateral(img: np.ndarray, x: Any, y: Any, depth: float, **options: Any) -> bytes:
     """PNG of one lateral plane ``img`` ``(n_y, n_x)`` at depth ``depth`` m (x to the
-    right, y up, the depth in mm in the title); ``options`` as :func:`render_png`."""
+    right, y down: row 0 at the top; the depth in mm in the title); ``options`` as
+    :func:`render_png`."""
     options.setdefault("title", f"depth slice z = {depth * 1e3:.3f} mm")
     return render_png(np.asarray(img), np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64),
-                      hlabel="x", vlabel="y", depth_down=False, **options)
+                      hlabel="x", vlabel="y", **options)

@@ -15,7 +15,14 @@ path         shape, dtype                   meaning
 ===========  =============================  =============================================
 
 Root attributes: ``format``, ``method``, ``params`` (JSON of every parameter),
-``input_id``, ``created_utc``, ``software_version``, ``units``.
+``input_id``, ``created_utc``, ``software_version``, ``units``, ``p0_unit`` (``"Pa"``
+for a calibrated scan, else ``"a.u."``; also ``/p0``'s ``units`` attribute) and
+``orientation`` (:data:`ORIENTATION`: row 0 of ``/p0``'s y axis is the smallest y, shown
+at the top by napari, ImageJ and ``imshow``, as in fpscan's own pictures).
+
+Exports (:func:`export_volume`, the one dispatch, :data:`EXPORT_FORMATS`): OME-TIFF
+(:func:`export_ome_tiff`) and OME-Zarr (:func:`export_ome_zarr`), both in the result
+file's array order with physical voxel sizes in µm and the p0 unit.
 
 The file is written to a temporary sibling, fsynced, then renamed over ``path``
 (``os.replace``), so a reader sees either the old file or the complete new one.
@@ -33,7 +40,16 @@ from typing import Any
 import h5py
 import numpy as np
 
+from driver.scanfile import PRESSURE_UNITS
+
 FORMAT = "fpscan-result/1"
+#: the one orientation of every array fpscan stores and every picture it draws
+#: (docs/file-formats.md "Orientation"), written into result files and exports
+ORIENTATION = ("array axes (z, y, x) (2-D: (z, x)), each coordinate increasing with the index; "
+               "displayed row 0 at the top as napari, ImageJ and matplotlib imshow do: "
+               "x to the right, y downwards, depth z downwards from the sensor plane")
+#: the units of p0: calibrated (Pa) or arbitrary (a.u.), as the scan file's pressure
+P0_UNITS = PRESSURE_UNITS
 
 
 def _jsonable(obj: Any) -> Any:
@@ -74,6 +90,11 @@ class ResultVolume:
     @property
     def ndim(self) -> int:
         return self.p0.ndim
+
+    @property
+    def p0_unit(self) -> str:
+        """``"Pa"`` (calibrated scan) or ``"a.u."`` (files before the attribute: a.u.)."""
+        return "Pa" if self.attrs.get("p0_unit") == "Pa" else "a.u."
 
 
 def _check_axis(name: str, v: Any, n: int) -> np.ndarray:
@@ -130,15 +151,18 @@ def storage_layout(p0: np.ndarray) -> dict[str, Any]:
 
 def write_volume(path: str | os.PathLike, p0: np.ndarray, z: np.ndarray, x: np.ndarray,
                  y: np.ndarray | None = None, *, method: str, params: dict, input_id: str,
-                 software_version: str | None = None, dtype: Any = None) -> Path:
+                 software_version: str | None = None, dtype: Any = None, p0_unit: str = "a.u.") -> Path:
     """Write a result file atomically (see module docstring); returns ``path``.
 
     ``p0``: ``(n_z, n_y, n_x)`` with ``y`` given, or ``(n_z, n_x)`` with ``y=None``; real,
     finite. It is stored as ``dtype`` (float32 or float64); by default float32, unless the
     reconstruction asked for float64 (``params["dtype"] == "float64"``): half of its
     float64 size; compressed where that pays (see :func:`storage_layout`). ``z``, ``y``, ``x``: strictly increasing coordinates in m. ``params``: every
-    parameter of the reconstruction, JSON-serialisable. Raises ValueError naming the fault.
+    parameter of the reconstruction, JSON-serialisable. ``p0_unit``: ``"Pa"`` or ``"a.u."``
+    (:data:`P0_UNITS`). Raises ValueError naming the fault.
     """
+    if p0_unit not in P0_UNITS:
+        raise ValueError(f"p0_unit must be one of {', '.join(P0_UNITS)}, got {p0_unit!r}")
     p0 = np.asarray(p0)
     if p0.dtype.kind not in "iuf":
         raise ValueError(f"p0 must be real numbers, got {p0.dtype}")
@@ -183,7 +207,8 @@ def write_volume(path: str | os.PathLike, p0: np.ndarray, z: np.ndarray, x: np.n
                 s.make_scale(name)
                 d.dims[i].attach_scale(s)
                 d.dims[i].label = name
-            d.attrs["units"] = "input units (Pa if the input was in Pa)"
+            d.attrs["units"] = p0_unit
+            d.attrs["orientation"] = ORIENTATION
             g = f.create_group("params")
             for k, v in each.items():
                 g.attrs[k] = v
@@ -194,7 +219,9 @@ def write_volume(path: str | os.PathLike, p0: np.ndarray, z: np.ndarray, x: np.n
             a["input_id"] = input_id
             a["software_version"] = software_version
             a["created_utc"] = _dt.datetime.now(_dt.UTC).isoformat()
-            a["units"] = "m for coordinates; p0 in the input's units"
+            a["units"] = f"m for coordinates; p0 in {p0_unit}"
+            a["p0_unit"] = p0_unit
+            a["orientation"] = ORIENTATION
         with open(tmp, "rb") as fh:
             os.fsync(fh.fileno())
         os.replace(tmp, path)
@@ -215,7 +242,7 @@ def write_reconstruction(path: str | os.PathLike, rec: Any, *, input_id: str,
         raise ValueError("no method given and the reconstruction's params have no 'method'")
     return write_volume(path, rec.p0, rec.z, rec.x, getattr(rec, "y", None),
                         method=str(method), params=params, input_id=input_id,
-                        software_version=software_version)
+                        software_version=software_version, p0_unit=getattr(rec, "p0_unit", "a.u."))
 
 
 def write_result(out_dir: str | os.PathLike, rec: Any, *, input_id: str) -> dict:
@@ -236,7 +263,8 @@ def write_result(out_dir: str | os.PathLike, rec: Any, *, input_id: str) -> dict
     try:
         p0 = np.asarray(rec.p0)
         write_reconstruction(tmp / "volume.h5", rec, input_id=input_id)
-        pngs = render_mips(p0, rec.z, rec.x, getattr(rec, "y", None))
+        pngs = render_mips(p0, rec.z, rec.x, getattr(rec, "y", None),
+                           colorbar_label=f"p0 ({getattr(rec, 'p0_unit', 'a.u.')})")
         for plane, png in pngs.items():
             (tmp / f"mip_{plane}.png").write_bytes(png)
         if out_dir.exists():
@@ -273,6 +301,28 @@ def read_result(path: str | os.PathLike) -> ResultVolume:
                         attrs=attrs)
 
 
+def _voxel_sizes_um(r: ResultVolume, what: str) -> tuple[str, list[float]]:
+    """The export axes (``"ZYX"``, 2-D ``"YX"`` with depth as Y) and the voxel size of each
+    in µm (a single sample counts as 1 µm). Raises ValueError for an uneven axis."""
+    def step_um(v: np.ndarray, name: str) -> float:
+        if len(v) < 2:
+            return 1.0
+        d = np.diff(v)
+        if not np.allclose(d, d[0], rtol=1e-6, atol=0):
+            raise ValueError(f"{name} is not evenly spaced: {what} needs one voxel size per axis")
+        return float(f"{d[0] * 1e6:.12g}")  # µm, without the last bits of rounding noise
+
+    if r.p0.ndim == 3 and r.y is not None:
+        return "ZYX", [step_um(r.z, "z"), step_um(r.y, "y"), step_um(r.x, "x")]
+    return "YX", [step_um(r.z, "z"), step_um(r.x, "x")]
+
+
+def _description(r: ResultVolume) -> str:
+    return (f"fpscan p0 ({r.method}); p0 unit: {r.p0_unit}; "
+            f"{'axes (z, y, x)' if r.p0.ndim == 3 else 'axes (z, x): depth z as the image Y'}; "
+            f"orientation: {ORIENTATION}")
+
+
 def export_ome_tiff(result_path: str | os.PathLike, out_path: str | os.PathLike) -> Path:
     """Write the p0 of a result file as an OME-TIFF (``tifffile``) for ImageJ/Fiji, napari
     and other OME readers, with the physical voxel sizes.
@@ -280,30 +330,19 @@ def export_ome_tiff(result_path: str | os.PathLike, out_path: str | os.PathLike)
     3-D ``(n_z, n_y, n_x)`` → OME axes ``ZYX``; 2-D ``(n_z, n_x)`` → ``YX`` (the image's
     depth z is the TIFF's Y). ``PhysicalSizeX``/``Y``/``Z`` in µm from the coordinate
     spacings (a single sample counts as 1 µm); float32 data, the array order of the result
-    file (TIFF row 0 = the first y, drawn at the top by ImageJ). Written to a temporary
-    sibling, then renamed. Returns ``out_path``. Raises FileNotFoundError, ValueError (not
-    a result file, or coordinates that are not evenly spaced).
+    file (TIFF row 0 = the first, smallest y, drawn at the top by ImageJ and napari as in
+    fpscan's pictures: :data:`ORIENTATION`). The p0 unit and the orientation are in the
+    image's OME ``Description`` (``p0 unit: Pa`` or ``p0 unit: a.u.``). Written to a
+    temporary sibling, then renamed. Returns ``out_path``. Raises FileNotFoundError,
+    ValueError (not a result file, or coordinates that are not evenly spaced).
     """
     import tifffile
 
     r = read_result(result_path)
-
-    def step_um(v: np.ndarray, name: str) -> float:
-        if len(v) < 2:
-            return 1.0
-        d = np.diff(v)
-        if not np.allclose(d, d[0], rtol=1e-6, atol=0):
-            raise ValueError(f"{name} is not evenly spaced: OME-TIFF needs one voxel size per axis")
-        return float(d[0] * 1e6)
-
-    if r.p0.ndim == 3 and r.y is not None:
-        axes = "ZYX"
-        sizes = {"PhysicalSizeZ": step_um(r.z, "z"), "PhysicalSizeY": step_um(r.y, "y"),
-                 "PhysicalSizeX": step_um(r.x, "x")}
-    else:
-        axes = "YX"
-        sizes = {"PhysicalSizeY": step_um(r.z, "z"), "PhysicalSizeX": step_um(r.x, "x")}
-    meta: dict[str, Any] = {"axes": axes, "Name": f"p0 ({r.method}, {r.input_id})"}
+    axes, steps = _voxel_sizes_um(r, "OME-TIFF")
+    sizes = {f"PhysicalSize{a}": step for a, step in zip(axes, steps)}
+    meta: dict[str, Any] = {"axes": axes, "Name": f"p0 ({r.method}, {r.input_id})",
+                            "Description": _description(r)}
     for key, value in sizes.items():
         meta[key] = value
         meta[f"{key}Unit"] = "µm"
@@ -312,6 +351,99 @@ def export_ome_tiff(result_path: str | os.PathLike, out_path: str | os.PathLike)
     try:
         tifffile.imwrite(tmp, np.ascontiguousarray(r.p0, dtype=np.float32), ome=True,
                          photometric="minisblack", metadata=meta)
+        os.replace(tmp, out_path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return out_path
+
+
+def export_ome_zarr(result_path: str | os.PathLike, out_path: str | os.PathLike) -> Path:
+    """Write the p0 of a result file as an OME-Zarr image (``ome-zarr``'s writer; NGFF
+    0.4, Zarr v2: what napari-ome-zarr, Fiji and the OME readers open) at ``out_path``
+    (a folder, conventionally ``*.ome.zarr``).
+
+    One resolution level (path ``s0``): float32 ``(n_z, n_y, n_x)`` with axes ``z``, ``y``, ``x``
+    (2-D ``(n_z, n_x)``: ``y``, ``x`` with depth as y, as the OME-TIFF) of type
+    ``space`` and unit ``micrometer``; the ``coordinateTransformations`` scale is the
+    voxel size in µm and the translation the first sample's position in µm (the centred
+    lateral axes, depth from the sensor plane). The array order of the result file:
+    row 0 = the smallest y, displayed at the top by napari as in fpscan's pictures
+    (:data:`ORIENTATION`). The group's ``fpscan`` attribute holds ``p0_unit`` (``"Pa"``
+    or ``"a.u."``), ``orientation``, ``method``, ``input_id`` and ``axes_m`` (each axis's
+    name). Written to a temporary sibling folder, then renamed over ``out_path`` (an
+    existing export there is replaced). Returns ``out_path``. Raises FileNotFoundError,
+    ValueError (not a result file, uneven coordinates, ``out_path`` an existing file).
+    """
+    import shutil
+
+    import zarr
+    from ome_zarr.format import FormatV04
+    from ome_zarr.io import parse_url
+    from ome_zarr.writer import write_image
+
+    r = read_result(result_path)
+    axes, steps = _voxel_sizes_um(r, "OME-Zarr")
+    names = [a.lower() for a in axes]
+    coords = [r.z, r.y, r.x] if len(axes) == 3 else [r.z, r.x]
+    origin = [float(f"{np.asarray(v)[0] * 1e6:.12g}") for v in coords]
+    out_path = Path(out_path)
+    if out_path.exists() and not out_path.is_dir():
+        raise ValueError(f"{out_path} is a file; an OME-Zarr export is a folder (name it *.ome.zarr)")
+    tmp = out_path.with_name(f".{out_path.name}.{os.getpid()}.{uuid.uuid4().hex[:12]}.tmp")
+    fmt = FormatV04()
+    try:
+        root = zarr.group(store=parse_url(str(tmp), mode="w", fmt=fmt).store, zarr_format=2)
+        write_image(np.ascontiguousarray(r.p0, dtype=np.float32), root, scale_factors=[], fmt=fmt,
+                    axes=names, scale=dict(zip(names, steps)),
+                    axes_units=dict.fromkeys(names, "micrometer"), name=f"p0 ({r.method}, {r.input_id})")
+        # the writer places level 0 at the origin: move it to the first sample's position
+        multiscales: Any = root.attrs["multiscales"]
+        for t in multiscales[0]["datasets"][0]["coordinateTransformations"]:
+            if t["type"] == "translation":
+                t["translation"] = origin
+        root.attrs["multiscales"] = multiscales
+        root.attrs["fpscan"] = {"p0_unit": r.p0_unit, "orientation": ORIENTATION, "method": r.method,
+                                "input_id": r.input_id, "description": _description(r),
+                                "axes": ["z", "y", "x"] if len(axes) == 3 else ["z", "x"]}
+        if out_path.exists():
+            shutil.rmtree(out_path)
+        os.replace(tmp, out_path)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return out_path
+
+
+#: the export formats of a result volume: name → (file suffix, exporter)
+EXPORT_FORMATS = {"ome-tiff": (".ome.tif", export_ome_tiff), "ome-zarr": (".ome.zarr", export_ome_zarr)}
+
+
+def export_volume(result_path: str | os.PathLike, out_path: str | os.PathLike, format: str = "ome-tiff") -> Path:
+    """Export the p0 of a result file as ``format`` (a key of :data:`EXPORT_FORMATS`:
+    ``"ome-tiff"`` → :func:`export_ome_tiff`, ``"ome-zarr"`` → :func:`export_ome_zarr`),
+    the one export dispatch of ``fpscan export``, the HTTP download routes and the
+    ``fpscan`` package. Returns ``out_path``. Raises ValueError (unknown format, and as
+    the exporter), FileNotFoundError."""
+    if format not in EXPORT_FORMATS:
+        raise ValueError(f"format must be one of {', '.join(EXPORT_FORMATS)}, got {format!r}")
+    return EXPORT_FORMATS[format][1](result_path, out_path)
+
+
+def zip_folder(folder: str | os.PathLike, out_path: str | os.PathLike, *, arcname: str | None = None) -> Path:
+    """Zip ``folder`` (e.g. an OME-Zarr export) into ``out_path``, its files under
+    ``arcname`` (default the folder's name) — stored uncompressed (float data barely
+    compresses), written to a temporary sibling, then renamed. Returns ``out_path``."""
+    import zipfile
+
+    folder, out_path = Path(folder), Path(out_path)
+    arcname = arcname or folder.name
+    tmp = out_path.with_name(f".{out_path.name}.{os.getpid()}.{uuid.uuid4().hex[:12]}.tmp")
+    try:
+        with zipfile.ZipFile(tmp, "w", zipfile.ZIP_STORED) as z:
+            for p in sorted(folder.rglob("*")):
+                if p.is_file():
+                    z.write(p, f"{arcname}/{p.relative_to(folder).as_posix()}")
         os.replace(tmp, out_path)
     except BaseException:
         tmp.unlink(missing_ok=True)

@@ -116,10 +116,12 @@ def image_install(tmp_path_factory):
 
 
 def test_installed_wheel_is_used(image_install):
-    res = subprocess.run([sys.executable, "-c", "import service, clients, driver; print(service.__file__, clients.__file__)"],
+    res = subprocess.run([sys.executable, "-c", "import service, clients, driver, fpscan; "
+                          "print(service.__file__, clients.__file__, fpscan.__file__, fpscan.reconstruct.__module__)"],
                          env=image_install["env"], cwd=image_install["cwd"], capture_output=True, text=True, timeout=60)
     assert res.returncode == 0, res.stderr
-    assert all(p.startswith(str(image_install["site"])) for p in res.stdout.split())
+    *files, dispatch = res.stdout.split()
+    assert all(p.startswith(str(image_install["site"])) for p in files) and dispatch == "service.pipeline"
 
 
 def _start_command(ins) -> list[str]:

@@ -293,6 +293,7 @@ CLIENT_METHODS = {
     ("get", "/api/reconstructions/methods"): "methods",
     ("get", "/api/reconstructions/{job_id}/volume.h5"): "download_volume",
     ("get", "/api/reconstructions/{job_id}/volume.ome.tif"): "download_ome_tiff",
+    ("get", "/api/reconstructions/{job_id}/volume.ome.zarr.zip"): "download_ome_zarr",
     ("get", "/api/reconstructions/{job_id}/mip/{plane}.png"): "download_mip",
     ("get", "/api/reconstructions/{job_id}/slice.png"): "download_slice",
     ("get", "/api/jobs"): "list_jobs",

@@ -37,8 +37,9 @@ def test_unmix_file_round_trip_and_picture(tmp_path):
     assert np.isnan(m[0, 0])
     png = Image.open(io.BytesIO((tmp_path / "so2.png").read_bytes())).convert("RGB")
     pix = np.asarray(png).reshape(-1, 3).astype(int)
-    grey = np.round(np.array(MASK_COLOUR[:3]) * 255).astype(int)
-    assert (np.abs(pix - grey).max(axis=1) <= 1).sum() > 1000  # the masked background
+    black = np.round(np.array(MASK_COLOUR[:3]) * 255).astype(int)
+    assert black.max() == 0
+    assert (np.abs(pix - black).max(axis=1) <= 1).sum() > 1000  # the masked background
     assert ((pix[:, 0] > 150) & (pix[:, 2] < 80)).sum() > 500  # sO2 0.95: red
     # the colour bar: the map's low end (sO2 0, dark blue) that no voxel has, in a strip at the right
     img = np.asarray(png).astype(int)
@@ -74,3 +75,42 @@ def test_unmix_reconstructions_checks():
         unmix_reconstructions([a, a], [750e-9, 800e-9, 850e-9])
     with pytest.raises(ValueError, match="one grid"):
         unmix_reconstructions([a, R(np.ones((4, 3, 3)), np.arange(4) * 2.0)], [750e-9, 850e-9])
+
+
+def test_so2_picture_masks_the_noisy_background_and_colours_the_vessels():
+    """sO2 as colour with THb as brightness: a noisy background (weak THb, random sO2 that
+    the old map painted at full saturation) renders black; the vessels render in colour,
+    the oxygenated one red, the deoxygenated one blue, in their own quadrants (row 0 at the
+    top, as every picture)."""
+    from service.storage.render import png_axes, render_so2, so2_rgb
+
+    rng = np.random.default_rng(3)
+    n_y, n_x = 40, 50
+    so2 = rng.uniform(0, 1, (n_y, n_x))  # noise: any sO2
+    thb = rng.uniform(0, 0.05, (n_y, n_x))  # ... at weak THb
+    so2[5:12, 30:45], thb[5:12, 30:45] = 0.97, 1.0  # arterial vessel: small y (top), large x (right)
+    so2[28:35, 5:20], thb[28:35, 5:20] = 0.05, 0.8  # venous vessel: large y (bottom), small x (left)
+    rgb = so2_rgb(so2, thb, threshold=0.1)
+    background = np.ones((n_y, n_x), bool)
+    background[5:12, 30:45] = background[28:35, 5:20] = False
+    assert rgb[background].max() == 0.0  # masked: black, not noise
+    art, ven = rgb[5:12, 30:45].reshape(-1, 3), rgb[28:35, 5:20].reshape(-1, 3)
+    assert (art[:, 0] > 0.5).all() and (art[:, 0] > 3 * art[:, 2]).all()  # red
+    assert (ven[:, 2] > 0.3).all() and (ven[:, 2] > 2 * ven[:, 0]).all()  # blue, dimmer (THb 0.8)
+    with pytest.raises(ValueError, match="one shape"):
+        so2_rgb(so2, thb[:-1])
+
+    x, y = (np.arange(n_x) - n_x / 2) * 1e-4, (np.arange(n_y) - n_y / 2) * 1e-4
+    png = render_so2(so2, thb, x, y, hlabel="x", vlabel="y", title="sO2")
+    g = png_axes(png)
+    img = np.asarray(Image.open(io.BytesIO(png)).convert("RGB")).astype(int)
+    area = img[int(g["top"]) + 2:int(g["bottom"]) - 2, int(g["left"]) + 2:int(g["right"]) - 2]
+    h, w = area.shape[:2]
+    red = (area[..., 0] > 150) & (area[..., 2] < 100)
+    blue = (area[..., 2] > 80) & (area[..., 0] < 60)
+    rows, cols = np.nonzero(red)
+    assert red.sum() > 100 and rows.mean() < h / 2 and cols.mean() > w / 2  # top right
+    rows, cols = np.nonzero(blue)
+    assert blue.sum() > 100 and rows.mean() > h / 2 and cols.mean() < w / 2  # bottom left
+    dark = area.max(axis=2) <= 10
+    assert dark.mean() > 0.7  # the background: black

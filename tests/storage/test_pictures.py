@@ -57,9 +57,7 @@ def _ball_scan(path) -> str:
 def _assert_at(png: bytes, expected: tuple[float, float], what: str, tol_mm: float = 0.2) -> None:
     h_left, h_right, v_bottom, v_top = png_axes(png)["extent_mm"]
     assert h_left < h_right, f"{what}: x/y must grow to the right"
-    lateral = what.endswith("xy") or "slice" in what
-    assert (v_top > v_bottom) if lateral else (v_top < v_bottom), \
-        f"{what}: y must point up in lateral pictures, depth down in depth pictures"
+    assert v_top < v_bottom, f"{what}: row 0 at the top: y and depth must point down"
     h, v = _spot_mm(png)
     assert abs(h - expected[0]) < tol_mm and abs(v - expected[1]) < tol_mm, \
         f"{what}: spot at ({h:.3f}, {v:.3f}) mm, the ball is at {expected} mm"
@@ -130,7 +128,7 @@ def test_one_orientation_and_mm_axes_in_every_picture(tmp_path):
 
 def test_mask_preview_has_the_same_orientation(tmp_path):
     """The plan preview draws points the same way: a mask of points in the +x, +y corner
-    appears in that corner (y up)."""
+    appears in that corner (y down, as every picture)."""
     from service.plans import make_plan, preview_png
 
     idx = [[20, 18], [21, 18], [20, 19], [21, 19]]  # x = 0.85-0.95 mm, y = 0.65-0.75 mm
@@ -144,7 +142,7 @@ def test_mask_preview_has_the_same_orientation(tmp_path):
                                 int(g["right"]) - 2)
     rows, cols = np.nonzero(sat[top:bottom, left:right] > 60)  # the coloured markers
     h_left, h_right, v_bottom, v_top = g["extent_mm"]
-    assert v_top > v_bottom  # y up, as in every lateral picture
+    assert v_top < v_bottom  # y down (row 0 at the top), as in every picture
     h = h_left + (cols.mean() + left + 0.5 - g["left"]) / (g["right"] - g["left"]) * (h_right - h_left)
     v = v_top + (rows.mean() + top + 0.5 - g["top"]) / (g["bottom"] - g["top"]) * (v_bottom - v_top)
     assert abs(h - 0.9) < 0.15 and abs(v - 0.7) < 0.15, (h, v)
@@ -153,7 +151,7 @@ def test_mask_preview_has_the_same_orientation(tmp_path):
 def test_large_plan_preview_has_the_same_orientation():
     """A plan above ``PREVIEW_DETAIL_POINTS`` (what the API and the web result page show
     for the README's 226 x 226 plan) is drawn as an image on its lattice by the same
-    renderer: mm axes at equal aspect, y up, the axes chunk. A 140 x 140 lattice missing
+    renderer: mm axes at equal aspect, y down, the axes chunk. A 140 x 140 lattice missing
     its +x, +y corner (40 x 40 points): the unscanned pixels sit in that corner."""
     from driver.plan import plan_id_of
     from service.api.plans import PREVIEW_DETAIL_POINTS, preview_png
@@ -174,7 +172,7 @@ def test_large_plan_preview_has_the_same_orientation():
     h_left, h_right, v_bottom, v_top = g["extent_mm"]
     half = n / 2 * PITCH * 1e3
     assert (h_left, h_right) == pytest.approx((-half, half), abs=0.1) and h_left < h_right
-    assert (v_bottom, v_top) == pytest.approx((-half, half), abs=0.1)  # y up
+    assert (v_bottom, v_top) == pytest.approx((half, -half), abs=0.1)  # y down
     assert (g["bottom"] - g["top"]) == pytest.approx(g["right"] - g["left"], rel=0.02)  # square in mm
     rgb = np.asarray(PILImage.open(io.BytesIO(png)).convert("RGB"), dtype=np.int32)
     sat = np.abs(rgb[..., 0] - rgb[..., 1]) + np.abs(rgb[..., 1] - rgb[..., 2])

@@ -148,11 +148,10 @@ def test_raw_png_pixels_are_the_scaled_mip():
         px = _png(render_mip(p0, z, x, y, plane, annotate=False))
         m = mip(p0, plane)
         expected = np.floor(np.clip(m / m.max(), 0, 1) * 255 + 0.5).astype(np.uint8)
-        if plane == "xy":  # y up: the largest y in the first PNG row
-            expected = expected[::-1]
+        # every plane: row 0 of the array is the first PNG row (y and depth down)
         np.testing.assert_array_equal(px, expected)
     px = _png(render_slice(p0, z, x, y, 3, annotate=False, vmin=0.0, vmax=0.5))
-    np.testing.assert_array_equal(px, np.floor(np.clip(p0[3][::-1] / 0.5, 0, 1) * 255 + 0.5))
+    np.testing.assert_array_equal(px, np.floor(np.clip(p0[3] / 0.5, 0, 1) * 255 + 0.5))
     rgb = _png(render_mip(p0, z, x, y, "xy", annotate=False, cmap="viridis"))
     assert rgb.shape == (5, 6, 3)
     assert to_uint8(np.zeros((2, 2))).max() == 0  # nothing above vmin renders black

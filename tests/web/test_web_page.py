@@ -488,6 +488,13 @@ def test_upload_a_data_file_and_reconstruct_it(browser, server, api, screenshots
         assert f["p0"].shape[1:] == (n_y, n_x)
     assert np.diff(x) == pytest.approx(np.full(n_x - 1, 100e-6), rel=1e-9)
     assert np.diff(y) == pytest.approx(np.full(n_y - 1, 100e-6), rel=1e-9)
+    # the same volume for napari / ImageJ: OME-TIFF and zipped OME-Zarr links the server answers
+    links = wait_for(lambda: {a.text: a.get_attribute("href") for a in
+                              browser.find_elements("css selector", "#result-downloads a")
+                              if "OME" in a.text} or None, 15, "the OME download links")
+    assert sorted(links) == ["Volume as OME-TIFF (ImageJ, napari)", "Volume as OME-Zarr, zipped (napari)"], links
+    for href in links.values():
+        assert api.get(href.split(server, 1)[-1]).status_code == 200, href
     # the job list deletes the finished job (after the confirm dialog): row, record and files gone
     row = f'#view-jobs tr[data-job-id="{recon_id}"]'
     delete = wait_for(lambda: next((b for b in browser.find_elements("css selector", row + " .c-delete")
