@@ -48,4 +48,28 @@ def test_injected_resets_are_counted_once_each(tmp_path, n_resets):
     with SimulatedScanner(SimConfig(source=BallSource(small_phantom()), prf=0.0, seed=5, faults=spec)) as sim:
         res = _scan(tmp_path, sim, plan, "resets")
     assert res.complete and res.points_done == 120
-    assert res.faults.get("resets") == n_resets, res.faults
+    print(res.faults, res.link)
+    # each reset is one fault; the reply the rebooting device was slow to give is not
+    assert res.faults == {"resets": n_resets} and res.faults_recovered == n_resets, res.faults
+
+
+@pytest.mark.parametrize("faults", ["", "reset=30,reset=70"])
+def test_cli_scan_reports_the_faults_it_met(tmp_path, faults):
+    """`fpscan scan` against `fpscan sim` (real processes): "0 link faults recovered" on a
+    clean link, "2 link faults recovered" with two device resets injected."""
+    import json
+    import re
+    import subprocess
+    import sys
+
+    from clients.processes import simulator
+
+    plan_path = tmp_path / "plan.json"
+    plan_path.write_text(json.dumps(grid_plan(12, 10, n_t=128)))
+    extra = ["--faults", faults] if faults else []
+    with simulator("--prf", "0", "--seed", "6", *extra, log_path=tmp_path / "sim.log", timeout=30) as (dev, _):
+        res = subprocess.run([sys.executable, "-m", "clients", "scan", "--device", dev, "--plan", str(plan_path),
+                              "--out", str(tmp_path / "scan.h5"), "-q"], capture_output=True, text=True, timeout=90)
+    assert res.returncode == 0, res.stderr
+    found = re.search(r"(\d+) link faults recovered", res.stdout)
+    assert found and int(found[1]) == (2 if faults else 0), res.stdout
