@@ -86,13 +86,16 @@ def _past(deadline: float | None) -> bool:
 
 def _report_snapshot(job: Any, use_sse: bool) -> bool:
     """Whether ``wait`` reports the progress of a ``GET /api/jobs/{id}`` snapshot: when the
-    job has ended (its final progress) or progress is polled. While the event stream is
-    followed it alone reports progress, in order: the stream replays the job's events from
-    its start, so a snapshot reported first would show a later stage before the earlier
-    ones (``writing 90%`` before ``starting 0%``)."""
-    if field_of(job, "progress") is None:
+    job has ended (its final progress), still waits in the queue (nothing came before it)
+    or progress is polled. While the event stream is followed it alone reports a running
+    job's progress, in order: the stream replays the job's events from its start, so a
+    snapshot reported first would show a later stage before the earlier ones
+    (``writing 90%`` before ``starting 0%``)."""
+    progress = field_of(job, "progress")
+    if progress is None:
         return False
-    return not use_sse or field_of(job, "state") in TERMINAL_STATES
+    waiting = field_of(job, "state") == "queued" and field_of(progress, "stage") in (None, "queued")
+    return not use_sse or waiting or field_of(job, "state") in TERMINAL_STATES
 
 
 def _keep_sse(exc: ApiError) -> bool:
