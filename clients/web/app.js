@@ -236,12 +236,12 @@ function paramUnit(key) {
 }
 
 /** A number to 4 significant digits without binary noise (0.30000000000000004 → "0.3"),
- *  a tiny one in exponent form (1e-6). */
+ *  a tiny or huge one in exponent form (1e-6, 1.235e+6). */
 function fmtPlain(x) {
   const n = Number(x);
   if (Number.isInteger(n)) return String(n);
   const r = Number(n.toPrecision(4));
-  return Math.abs(r) < 1e-3 ? r.toExponential() : String(r);
+  return Math.abs(r) < 1e-3 || Math.abs(r) >= 1e6 ? r.toExponential() : String(r);
 }
 
 /** ``value`` in SI ``unit`` with the prefix that puts it in 1–1000 (100 µm, 12 ns, 1.5 kHz,
