@@ -116,7 +116,8 @@ class ScanResult:
     #: ``command_retries``, ``upload_retries``, ``stall_polls``, ``resets``
     faults: dict = field(default_factory=dict)
     #: link statistics (not faults): ``duplicates`` (frames received twice),
-    #: ``duplicate_points`` (points already in the file), ``stale`` (other run or boot)
+    #: ``duplicate_points`` (points already in the file), ``stale`` (other run or boot),
+    #: ``slow_replies`` (commands retransmitted while their reply was on its way)
     link: dict = field(default_factory=dict)
     n_alines: int = 0  #: A-lines of the plan: points × wavelengths
     alines_done: int = 0
@@ -168,6 +169,11 @@ class Scanner:
         self._session: ScanSession | None = None
         self._events: collections.deque = collections.deque(maxlen=64)
         self.faults: collections.Counter = collections.Counter()
+        #: link statistics that are not faults: ``slow_replies`` (a command retransmitted
+        #: while its reply was on its way: the device answered every copy)
+        self.link_stats: collections.Counter = collections.Counter()
+        #: seq -> retransmissions of a recent command still counted as faults
+        self._retransmitted: dict[int, int] = {}
         self._device_busy = False
         self._old_boots: set[int] = set()
         self._max_chunk = MAX_CHUNK
@@ -222,8 +228,10 @@ class Scanner:
                 if self._session is not None:
                     self._session.on_aline(fr)
             elif t in (FrameType.RSP, FrameType.ERR):
-                if fr.ack == self._pending_seq:
+                if fr.ack == self._pending_seq and self._reply is None:
                     self._reply = fr
+                else:
+                    self._on_repeated_reply(fr.ack)
             elif t == FrameType.EVENT:
                 self._on_event(fr.payload.decode("ascii", "replace"))
 
@@ -239,6 +247,23 @@ class Scanner:
                 pass
         elif word == "INTERLOCK" and arg.strip() == "1" and run is not None:
             run.interlock = True
+
+    def _on_repeated_reply(self, ack: int) -> None:
+        """A further reply to a command already answered: the device got one more copy of
+        it (it repeats its reply to each retransmission, docs/protocol.md §3.2), so one
+        retransmission was not needed (the reply was slow, not lost) and is no link fault."""
+        if self._retransmitted.get(ack, 0) > 0:
+            self._retransmitted[ack] -= 1
+            self.faults["command_retries"] -= 1
+            self.link_stats["slow_replies"] += 1
+
+    def _settle_replies(self) -> None:
+        """Read the repeated replies still on their way to recently retransmitted commands
+        (for up to two retry intervals), so the fault count is final when a scan returns."""
+        deadline = time.monotonic() + 2 * self.retry + 0.05
+        while any(n > 0 for n in self._retransmitted.values()) and time.monotonic() < deadline:
+            self._pump()
+        self._retransmitted.clear()  # what is left was lost: faults indeed
 
     def query(self, command: str | bytes, timeout: float | None = None) -> str:
         """Send one command and return its reply text ('' for set commands).
@@ -270,13 +295,18 @@ class Scanner:
                         raise DeviceTimeout(f"no reply to {shown!r} from {self.port} within "
                                             f"{timeout:g} s")
                     if now >= next_send:
-                        if next_send > t0:
+                        if next_send > t0:  # until a repeated reply shows it was not lost
                             self.faults["command_retries"] += 1
+                            self._retransmitted[seq] = self._retransmitted.get(seq, 0) + 1
                         self._write(wire)
                         next_send = now + self.retry
                     self._pump()
             finally:
                 self._pending_seq = None
+                for answered in [k for k, n in self._retransmitted.items() if n <= 0]:
+                    del self._retransmitted[answered]
+                while len(self._retransmitted) > 16:  # repeated replies come soon after or never
+                    del self._retransmitted[next(iter(self._retransmitted))]
             reply = self._reply
         text = reply.payload.decode("ascii", "replace")
         if reply.type == FrameType.ERR:
@@ -543,6 +573,7 @@ class ScanSession:
                 if sc.status().state in ("RUNNING", "PAUSED"):
                     sc.query(cmd.SCAN_ABORT)
                 sc._device_busy = False
+                sc._settle_replies()
         except BaseException:
             self.current = None
             sc._leave_idle()
@@ -610,6 +641,7 @@ class ScanSession:
         t_end = time.monotonic()
         faults = {k: v for k, v in self.sc.faults.items() if v}
         link = {k: v for k, v in self.counters.items() if k != "alines"}
+        link.update((k, v) for k, v in self.sc.link_stats.items() if v)
         acq = ((self.t_last or t_end) - self.t_first) if self.t_first else 0.0
         return ScanResult(self.n, int(self.record.all(axis=0).sum()), bool(self.done_s.all()),
                           self.aborted, t_end - self.t_start, acq, self.counters["alines"],

@@ -5,7 +5,9 @@ read every few hundred microseconds; a Python thread competing for the interpret
 with the thread that decodes A-lines and writes the scan file cannot promise that. The
 host therefore starts ``python -m driver.relay FD`` with the open tty descriptor: it does
 nothing but copy bytes from the tty to its stdout, a pipe the host enlarges to 1 MiB and
-reads in large blocks. The relay exits when its stdout is closed, on a tty error (the
+reads in large blocks. Its first byte out is a frame delimiter (0x00, which the deframer
+skips) that says it is reading: the host waits for it before it sends a command, so the
+relay's start-up is never taken for a lost command. The relay exits when its stdout is closed, on a tty error (the
 message goes to stderr), or within 0.1 s of its parent's death; it ignores SIGINT (a
 Ctrl-C is the host's to handle). Should it end anyway, the host reads the tty itself.
 """
@@ -15,10 +17,17 @@ import os
 import select
 import sys
 
+#: the relay's first byte: it is reading the tty (a frame delimiter, harmless to a deframer)
+READY = b"\x00"
+
 
 def relay(fd: int, out: int = 1, parent: int | None = None) -> int:
     """Copy ``fd`` to ``out`` until ``out`` closes, ``fd`` fails or ``parent`` dies."""
     parent = os.getppid() if parent is None else parent
+    try:
+        os.write(out, READY)
+    except OSError:
+        return 0
     while True:
         try:
             ready = select.select([fd], [], [], 0.1)[0]

@@ -32,6 +32,7 @@ from serial.threaded import Protocol, ReaderThread
 
 READER_MODES = ("process", "thread", "direct")
 _WAIT = 0.02  #: longest wait for the first byte of a read(), s
+RELAY_START_TIMEOUT = 10.0  #: longest wait for the relay process to start reading, s
 
 
 class TransportError(OSError):
@@ -132,6 +133,24 @@ class RelayReader:
             fcntl.fcntl(self._fd, 1031, 1 << 20)  # F_SETPIPE_SZ: 1 MiB
         except OSError:
             pass
+        self._wait_ready(RELAY_START_TIMEOUT)
+
+    def _wait_ready(self, timeout: float) -> None:
+        """Wait for the relay's first byte (``driver.relay.READY``): until then nobody reads
+        the tty, and a reply that waited for the relay to start would look like a lost
+        command (a retransmission counted as a link fault). Raises ``OSError`` (after
+        ending the relay) if it does not come within ``timeout`` s."""
+        from driver.relay import READY
+
+        first = b""
+        try:
+            if select.select([self._fd], [], [], timeout)[0]:
+                first = os.read(self._fd, len(READY))
+        except OSError:
+            first = b""
+        if first != READY:
+            self._stop()
+            raise OSError(f"the relay process for {self._port} did not start within {timeout:g} s")
 
     def read(self) -> bytes:
         if self._direct is not None:

@@ -5,6 +5,8 @@ from __future__ import annotations
 import functools
 import os
 import sys
+import threading
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -136,23 +138,90 @@ def describe_progress(progress: dict, *, with_fraction: bool = True) -> str:
     return "  ".join(parts)
 
 
+#: seconds between progress lines when stderr is not a terminal (logs, CI, a scheduler);
+#: ``$FPSCAN_PROGRESS_PERIOD`` overrides it (0: a line for every progress report)
+PROGRESS_PERIOD_S = 5.0
+
+
+def progress_period() -> float:
+    """The period of progress lines off a terminal, s: ``$FPSCAN_PROGRESS_PERIOD`` (a number
+    >= 0) or :data:`PROGRESS_PERIOD_S`. Raises ValueError naming a bad value."""
+    text = os.environ.get("FPSCAN_PROGRESS_PERIOD", "").strip()
+    if not text:
+        return PROGRESS_PERIOD_S
+    try:
+        period = float(text)
+    except ValueError:
+        period = -1.0
+    if not period >= 0:
+        raise ValueError(f"FPSCAN_PROGRESS_PERIOD must be a number of seconds >= 0, got {text!r}")
+    return period
+
+
+def _stage_kind(stage) -> str:
+    """A stage without its counter (``"iteration 3/50"`` -> ``"iteration"``): the step that
+    starts a new progress line and a new rate estimate."""
+    words = str(stage or "").split()
+    while words and any(ch.isdigit() for ch in words[-1]):
+        words.pop()
+    return " ".join(words)
+
+
+class _EtaEstimate:
+    """Remaining time from the fraction's rate within the current stage (the server's
+    ``eta_s`` wins when it gives one): ``(elapsed in stage) * (1 - f) / (f - f at stage start)``."""
+
+    def __init__(self) -> None:
+        self._kind: str | None = None
+        self._t0 = 0.0
+        self._f0 = 0.0
+
+    def __call__(self, progress: dict, now: float) -> float | None:
+        frac, kind = progress.get("fraction"), _stage_kind(progress.get("stage"))
+        if frac is None:
+            return None
+        frac = float(frac)
+        if kind != self._kind:
+            self._kind, self._t0, self._f0 = kind, now, frac
+            return None
+        if frac <= self._f0 or frac >= 1.0:
+            return None
+        return (now - self._t0) * (1.0 - frac) / (frac - self._f0)
+
+
 class ProgressBar:
     """A progress bar fed with job progress dicts (``fraction, stage, points_done,
     points_total, rate_per_s, eta_s``): ``with ProgressBar("scan") as bar: bar(p)``.
 
-    Draws with ``rich`` on a terminal (stderr); off a terminal it prints a line when the
-    stage changes; ``quiet`` draws nothing."""
+    Draws with ``rich`` on a terminal (stderr): bar, percentage, stage, points, ETA. Off a
+    terminal it prints a line (stage, %, points, ETA) when the stage changes and at least
+    every ``period`` s (default :func:`progress_period`) while the job runs, even between
+    reports; ``quiet`` draws nothing. The ETA is the server's (``eta_s``) or estimated from
+    the fraction's rate in the current stage."""
 
-    def __init__(self, label: str, *, quiet: bool = False, stream=None):
+    def __init__(self, label: str, *, quiet: bool = False, stream=None, period: float | None = None):
         self.label = label
         self.quiet = quiet
         self.stream = stream or sys.stderr
+        self.period = progress_period() if period is None else float(period)
         self._progress = None
         self._task = None
         self._last_stage = None
+        self._eta = _EtaEstimate()
+        self._latest: dict | None = None
+        self._latest_at = 0.0
+        self._printed_at = 0.0
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._ticker: threading.Thread | None = None
 
     def __enter__(self) -> ProgressBar:
-        if self.quiet or not self.stream.isatty():
+        if self.quiet:
+            return self
+        if not self.stream.isatty():
+            if self.period > 0:  # period 0: a line for every report, none in between
+                self._ticker = threading.Thread(target=self._tick, name="progress-lines", daemon=True)
+                self._ticker.start()
             return self
         from rich.console import Console
         from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
@@ -169,21 +238,56 @@ class ProgressBar:
     def __call__(self, progress: dict) -> None:
         if self.quiet or not isinstance(progress, dict):
             return
+        progress = dict(progress)
         frac = progress.get("fraction")
         if frac is None and progress.get("points_total"):
             frac = (progress.get("points_done") or 0) / progress["points_total"]
+            progress["fraction"] = frac
+        now = time.monotonic()
+        if progress.get("eta_s") is None:
+            progress["eta_s"] = self._eta(progress, now)
         if self._progress is not None:
             kw = {"info": describe_progress(progress, with_fraction=False)}
             if frac is not None:
                 kw["completed"] = float(frac)
             self._progress.update(self._task, **kw)
-        else:
-            stage = progress.get("stage")
-            if stage != self._last_stage:
-                self._last_stage = stage
-                print(f"{self.label}: {describe_progress(progress)}", file=self.stream, flush=True)
+            return
+        with self._lock:
+            self._latest, self._latest_at = progress, now
+            kind = _stage_kind(progress.get("stage"))
+            if kind != self._last_stage or now - self._printed_at >= self.period:
+                self._last_stage = kind
+                self._print(progress, now)
+
+    def _print(self, progress: dict, now: float) -> None:
+        """One progress line (the caller holds the lock)."""
+        self._printed_at = now
+        frac = progress.get("fraction")
+        text = describe_progress(progress, with_fraction=False)
+        if frac is not None:  # stage, %, then points, rate, ETA
+            stage = str(progress["stage"]) if progress.get("stage") else ""
+            rest = text[len(stage):].lstrip() if stage and text.startswith(stage) else text
+            text = "  ".join(p for p in (stage, f"{100 * float(frac):.0f}%", rest) if p)
+        try:
+            print(f"{self.label}: {text}", file=self.stream, flush=True)
+        except (OSError, ValueError):  # a closed pipe or stream: progress is best effort
+            pass
+
+    def _tick(self) -> None:
+        """Off a terminal: repeat the latest progress every ``period`` s when no report came."""
+        while not self._stop.wait(self.period):
+            with self._lock:
+                now = time.monotonic()
+                if self._latest is not None and now - self._printed_at >= self.period:
+                    latest = dict(self._latest)
+                    if latest.get("eta_s") is not None:  # the time since the last report has passed
+                        latest["eta_s"] = max(float(latest["eta_s"]) - (now - self._latest_at), 0.0)
+                    self._print(latest, now)
 
     def __exit__(self, *exc) -> None:
+        self._stop.set()
+        if self._ticker is not None:
+            self._ticker.join(timeout=5)
         if self._progress is not None:
             self._progress.__exit__(*exc)
 

@@ -84,6 +84,20 @@ def _past(deadline: float | None) -> bool:
     return deadline is not None and time.monotonic() > deadline
 
 
+def _report_snapshot(job: Any, use_sse: bool) -> bool:
+    """Whether ``wait`` reports the progress of a ``GET /api/jobs/{id}`` snapshot: when the
+    job has ended (its final progress), still waits in the queue (nothing came before it)
+    or progress is polled. While the event stream is followed it alone reports a running
+    job's progress, in order: the stream replays the job's events from its start, so a
+    snapshot reported first would show a later stage before the earlier ones
+    (``writing 90%`` before ``starting 0%``)."""
+    progress = field_of(job, "progress")
+    if progress is None:
+        return False
+    waiting = field_of(job, "state") == "queued" and field_of(progress, "stage") in (None, "queued")
+    return not use_sse or waiting or field_of(job, "state") in TERMINAL_STATES
+
+
 def _keep_sse(exc: ApiError) -> bool:
     """Whether to keep reading events after ``exc``: no for a missing (404) or unsupported
     (405, 501) stream, where the caller polls instead; any other error is raised."""
@@ -719,9 +733,9 @@ class Client(_BaseClient):
         """Block until job ``job_id`` ends; return its final Job.
 
         Listens to the SSE stream (reconnecting with ``Last-Event-ID`` when it drops),
-        calling ``on_progress(progress: dict)`` for every progress update (keys
-        ``fraction, stage, points_done, points_total, rate_per_s, eta_s``), the last one
-        with the job's final progress; falls back to
+        calling ``on_progress(progress: dict)`` for every progress update in the order the
+        job made them (keys ``fraction, stage, points_done, points_total, rate_per_s,
+        eta_s``), the last one with the job's final progress; falls back to
         polling ``GET /api/jobs/{id}`` every ``poll_interval`` s when the stream is not
         available. ``timeout`` in seconds (None: no limit).
 
@@ -732,7 +746,7 @@ class Client(_BaseClient):
         use_sse = True
         job = self.get_job(job_id)
         while True:
-            if on_progress is not None and field_of(job, "progress") is not None:
+            if on_progress is not None and _report_snapshot(job, use_sse):
                 on_progress(to_dict(field_of(job, "progress")))
             if field_of(job, "state") in TERMINAL_STATES:
                 return _finish(job) if raise_on_failure else job
@@ -877,7 +891,7 @@ class AsyncClient(_BaseClient):
 
         job = await self.get_job(job_id)
         while True:
-            if field_of(job, "progress") is not None:
+            if _report_snapshot(job, use_sse):
                 await report(to_dict(field_of(job, "progress")))
             if field_of(job, "state") in TERMINAL_STATES:
                 return _finish(job) if raise_on_failure else job

@@ -206,6 +206,142 @@ function clearImage(img) {
   img.removeAttribute("src");
 }
 
+/* ------------------------------------------------------------------ readable values */
+
+/* The unit of each parameter the server's jobs, plans and results carry (SI on the wire:
+ * docs/api.md), keyed by the parameter's own name (the last part of "params.dx",
+ * "plan.acquisition.prf"): one map for every table of the page. "m→nm" are optical
+ * wavelengths, shown in nm; "B" byte counts, shown with binary prefixes; names ending in
+ * _s are durations, _m lengths, _nm nanometres, _hz frequencies, _bytes byte counts. */
+const PARAM_UNITS = {
+  dx: "m", dy: "m", dz: "m", pitch: "m", spacing: "m", depth: "m", poi_depth: "m", radius: "m",
+  min_spacing: "m", aperture: "m", z_max: "m", z_min: "m",
+  dt: "s", t0: "s",
+  prf: "Hz", bandwidth: "Hz",
+  c: "m/s", c_range: "m/s", sound_speed: "m/s", c_values: "m/s",
+  wavelength_m: "m→nm", wavelengths: "m→nm", wavelengths_m: "m→nm", excitation_wavelengths: "m→nm",
+  memory_estimate: "B", memory_bytes: "B", memory_limit: "B", size: "B",
+};
+const UNIT_SUFFIXES = [["_s", "duration"], ["_m", "m"], ["_nm", "nm"], ["_hz", "Hz"], ["_bytes", "B"]];
+/* SI prefixes each unit is shown with (a sound speed stays in m/s, a length never in km) */
+const UNIT_PREFIXES = {
+  m: ["", "m", "µ", "n"], s: ["", "m", "µ", "n", "p"], Hz: ["G", "M", "k", ""], "m/s": [""], nm: [""],
+};
+const PREFIX_FACTOR = { G: 1e9, M: 1e6, k: 1e3, "": 1, m: 1e-3, "µ": 1e-6, n: 1e-9, p: 1e-12 };
+
+/** The unit of parameter ``key`` ("params.dx" → "m"), or "" when it has none. */
+function paramUnit(key) {
+  const name = String(key).split(".").pop().toLowerCase();
+  if (PARAM_UNITS[name]) return PARAM_UNITS[name];
+  for (const [suffix, unit] of UNIT_SUFFIXES) if (name.endsWith(suffix)) return unit;
+  return "";
+}
+
+/** A number to 4 significant digits without binary noise (0.30000000000000004 → "0.3"),
+ *  a tiny or huge one in exponent form (1e-6, 1.235e+6). */
+function fmtPlain(x) {
+  const n = Number(x);
+  if (Number.isInteger(n)) return String(n);
+  const r = Number(n.toPrecision(4));
+  return Math.abs(r) < 1e-3 || Math.abs(r) >= 1e6 ? r.toExponential() : String(r);
+}
+
+/** ``value`` in SI ``unit`` with the prefix that puts it in 1–1000 (100 µm, 12 ns, 1.5 kHz,
+ *  1500 m/s); byte counts with binary prefixes (154 MiB); "m→nm" as nanometres. */
+function fmtQuantity(value, unit) {
+  const v = Number(value);
+  if (!isFinite(v)) return String(value);
+  if (unit === "duration") return fmtDuration(v);
+  if (unit === "m→nm") return `${fmtPlain(v * 1e9)} nm`;
+  if (unit === "B") {
+    const names = ["B", "KiB", "MiB", "GiB", "TiB"];
+    let k = 0, x = Math.abs(v);
+    while (x >= 1024 && k < names.length - 1) { x /= 1024; k++; }
+    return `${k ? String(Number((Math.sign(v) * x).toPrecision(3))) : String(v)} ${names[k]}`;
+  }
+  const prefixes = UNIT_PREFIXES[unit] || [""];
+  if (v === 0) return `0 ${unit}`;
+  let best = prefixes[prefixes.length - 1];
+  for (const p of prefixes) { if (Math.abs(v) / PREFIX_FACTOR[p] >= 1 - 1e-9) { best = p; break; } }
+  return `${fmtPlain(v / PREFIX_FACTOR[best])} ${best}${unit}`;
+}
+
+/** A parameter's value as shown: with its unit (:func:`paramUnit`), numbers without
+ *  binary noise, lists item by item; null when there is nothing to show. */
+function fmtParam(key, value) {
+  if (value === null || value === undefined || value === "") return null;
+  const unit = paramUnit(key);
+  const one = (v) => (typeof v === "number" ? (unit ? fmtQuantity(v, unit) : fmtPlain(v)) : String(v));
+  if (Array.isArray(value)) {
+    if (value.every((v) => typeof v === "number" || typeof v === "string")) return value.map(one).join(", ");
+    const s = JSON.stringify(value);
+    return s.length > 200 ? s.slice(0, 200) + "…" : s;
+  }
+  const s = one(value);
+  return s.length > 200 ? s.slice(0, 200) + "…" : s;
+}
+
+/** Table rows ``[name, shown value]`` of a nested object (names joined with "."), values
+ *  formatted by :func:`fmtParam`; parameters without a value (null, unset) left out. */
+function paramRows(obj, prefix = "", out = []) {
+  if (obj && typeof obj === "object" && !Array.isArray(obj)) {
+    for (const [k, v] of Object.entries(obj)) paramRows(v, prefix ? prefix + "." + k : k, out);
+  } else {
+    const shownValue = fmtParam(prefix, obj);
+    if (shownValue !== null) out.push([prefix, shownValue]);
+  }
+  return out;
+}
+
+/** Fill a statistic's <dd> (and show it with its <dt>) or hide both when it does not
+ *  apply to this job (``value`` null/undefined/""): no "–" placeholders. */
+function setStat(id, value) {
+  const dd = $(id);
+  const none = value === null || value === undefined || value === "";
+  dd.textContent = none ? "" : String(value);
+  dd.hidden = none;
+  const dt = dd.previousElementSibling;
+  if (dt && dt.tagName === "DT") dt.hidden = none;
+}
+
+/** Clicking (or Enter/Space on) a picture in ``container`` shows it at full size in the
+ *  picture dialog; Escape, the close button or a click outside closes it. */
+function enlargeOnClick(container) {
+  container.addEventListener("click", (ev) => {
+    const img = ev.target.closest("img");
+    if (img && img.getAttribute("src")) openPicture(img);
+  });
+  container.addEventListener("keydown", (ev) => {
+    const img = ev.target.closest("img");
+    if (img && img.getAttribute("src") && (ev.key === "Enter" || ev.key === " ")) { ev.preventDefault(); openPicture(img); }
+  });
+  for (const img of container.querySelectorAll("img")) {
+    img.tabIndex = 0;
+    img.classList.add("enlargeable");
+    if (!img.title) img.title = "click to enlarge";
+  }
+}
+
+function openPicture(img) {
+  const dialog = $("picture-dialog");
+  const big = $("picture-dialog-img");
+  big.src = img.currentSrc || img.src;
+  big.alt = img.alt;
+  const cap = img.closest("figure") && img.closest("figure").querySelector("figcaption");
+  $("picture-dialog-caption").textContent = cap ? cap.textContent : img.alt;
+  if (!dialog.open) dialog.showModal();
+}
+
+function initPictureDialog() {
+  const dialog = $("picture-dialog");
+  $("picture-dialog-close").addEventListener("click", () => dialog.close());
+  dialog.addEventListener("click", (ev) => { if (ev.target === dialog) dialog.close(); });
+  dialog.addEventListener("close", () => $("picture-dialog-img").removeAttribute("src"));
+  for (const box of document.querySelectorAll(".mips, #result-unmix figure, #result-slice-img")) {
+    enlargeOnClick(box.tagName === "IMG" ? box.parentElement : box);
+  }
+}
+
 /* ------------------------------------------------------------------ routing */
 
 const views = ["plan", "scan", "jobs"];
@@ -893,17 +1029,6 @@ function closeResult() {
   $("result").hidden = true;
 }
 
-function flatten(obj, prefix = "", out = []) {
-  if (obj && typeof obj === "object" && !Array.isArray(obj)) {
-    for (const [k, v] of Object.entries(obj)) flatten(v, prefix ? prefix + "." + k : k, out);
-  } else {
-    let s = Array.isArray(obj) ? JSON.stringify(obj) : String(obj);
-    if (s.length > 200) s = s.slice(0, 200) + "…";
-    out.push([prefix, s]);
-  }
-  return out;
-}
-
 function downloadsFor(job) {
   const id = encodeURIComponent(job.id);
   const list = [];
@@ -1008,13 +1133,14 @@ function renderResult(job) {
     }
   };
   // what was asked (unset options left out) and, once done, the values the reconstruction used
-  addRows(flatten(job.params || {}).filter(([k, v]) => !k.startsWith("result.") && v !== "null" && v !== "undefined"));
+  addRows(paramRows(job.params || {}).filter(([k]) => !k.startsWith("result.")));
   const used = resultOf(job).params_used;
-  if (used) addRows(flatten(used, "used").filter(([, v]) => v !== "null"));
+  if (used) addRows(paramRows(used, "used"));
   const t = job.timings || {};
-  addRows([["time queued", fmtDuration(t.queued_s)], ["time running", fmtDuration(t.run_s)]]);
+  addRows([["time queued", t.queued_s], ["time running", t.run_s]]
+    .filter(([, v]) => v !== null && v !== undefined).map(([k, v]) => [k, fmtDuration(v)]));
   const rt = resultOf(job).timings;
-  if (rt) addRows(flatten(rt, "result timings").map(([k, v]) => [k, isFinite(v) ? fmtDuration(Number(v)) : v]));
+  if (rt) addRows(paramRows(rt, "result timings"));
   const planId = job.params && job.params.plan_id;
   const planImg = $("result-plan-preview");
   planImg.closest("figure").hidden = !(job.kind === "scan" && planId);
@@ -1024,7 +1150,7 @@ function renderResult(job) {
     apiJson(`/api/plans/${pid}`).then((plan) => {
       if (resultJob !== job.id) return;
       fillReconWavelengths((plan.acquisition && plan.acquisition.wavelengths) || []);
-      addRows(flatten({ kind: plan.kind, n_points: plan.n_points, requested_points: plan.requested_points,
+      addRows(paramRows({ kind: plan.kind, n_points: plan.n_points, requested_points: plan.requested_points,
         weight_ratio: plan.weight_ratio, expected_scan_time_s: plan.expected_scan_time_s,
         lattice: plan.lattice, acquisition: plan.acquisition }, "plan"));
     }).catch(() => {});
@@ -1064,8 +1190,8 @@ function renderResult(job) {
     if (Number(slider.value) > Number(slider.max)) slider.value = slider.max;
     const r = resultOf(job);
     $("scale-max").textContent = r.max !== undefined ? `slice maximum (volume maximum ${fmtNum(r.max)})` : "slice maximum";
-    $("result-shape").textContent = r.shape ? r.shape.join(" × ") + (r.shape.length === 3 ? " (n_z × n_y × n_x)" : " (n_z × n_x)") : "–";
-    $("result-points").textContent = r.points_used ?? "–";
+    setStat("result-shape", r.shape ? r.shape.join(" × ") + (r.shape.length === 3 ? " (n_z × n_y × n_x)" : " (n_z × n_x)") : null);
+    setStat("result-points", r.points_used ?? (r.params_used || {}).n_points);
     renderAutofocus(r.autofocus);
     renderUnmix(job, r.unmix);
     showSlice();
@@ -1118,9 +1244,9 @@ function renderUnmix(job, u) {
   if (!u) return;
   const id = encodeURIComponent(job.id);
   loadImage($("result-so2"), `/api/reconstructions/${id}/so2.png`).catch(showError);
-  $("result-unmix-wavelengths").textContent = (u.wavelengths_m || []).map((w) => `${fmtNum(w * 1e9)} nm`).join(", ") || "–";
-  $("result-unmix-median").textContent = u.so2_median === null || u.so2_median === undefined ? "– (all masked)" : fmtNum(u.so2_median);
-  $("result-unmix-masked").textContent = u.masked_fraction !== undefined ? `${(100 * u.masked_fraction).toFixed(1)} %` : "–";
+  setStat("result-unmix-wavelengths", fmtParam("wavelengths_m", u.wavelengths_m || []));
+  $("result-unmix-median").textContent = u.so2_median === null || u.so2_median === undefined ? "none (all masked)" : fmtNum(u.so2_median);
+  setStat("result-unmix-masked", u.masked_fraction !== undefined && u.masked_fraction !== null ? `${(100 * u.masked_fraction).toFixed(1)} %` : null);
   $("result-unmix-threshold").textContent = u.threshold !== undefined ? `${(100 * u.threshold).toFixed(0)} %` : "the threshold";
 }
 
@@ -1377,6 +1503,7 @@ function init() {
   $("result-cancel").addEventListener("click", cancelResultJob);
   $("upload-form").addEventListener("submit", uploadAndReconstruct);
   $("error-close").addEventListener("click", clearError);
+  initPictureDialog();
   $("token-button").addEventListener("click", () => askToken("Enter the server's bearer token. It is kept for this browser tab only."));
   window.addEventListener("hashchange", route);
   health();

@@ -186,14 +186,21 @@ def render_so2(so2: np.ndarray, thb: np.ndarray, h: np.ndarray, v: np.ndarray, *
                    colorbar_label=f"sO2 (%) · brightness: THb · black: THb < {threshold:.0%} of max")
 
 
-def _figure(width_mm: float, height_mm: float, *, dpi: int = 100):
+#: figure width, inches, and resolution: 600 px wide, sized for display (a thumbnail of about
+#: 300 px, full size when enlarged), with text of FONT_PT (tick labels TICK_PT) that stays
+#: readable at half size (about 12 px at 300 px)
+FIGURE_WIDTH_IN, FIGURE_DPI = 4.0, 150
+FONT_PT, TICK_PT = 12.0, 11.0
+
+
+def _figure(width_mm: float, height_mm: float, *, dpi: int = FIGURE_DPI):
     """A figure sized for a plot ``width_mm`` × ``height_mm`` at equal aspect."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
     aspect = abs(height_mm) / max(abs(width_mm), 1e-12)
-    width = 6.0
-    height = float(np.clip(width * 0.8 * aspect + 1.2, 2.4, 9.0))
+    width = FIGURE_WIDTH_IN
+    height = float(np.clip((width - 2.0) * aspect + 1.05, 1.6, 6.0))
     fig = Figure(figsize=(width, height), dpi=dpi)
     FigureCanvasAgg(fig)
     return fig, fig.add_subplot(1, 1, 1)
@@ -210,10 +217,11 @@ def _finish(fig, ax, mappable, *, hlabel: str, vlabel: str | None, title: str | 
         ax.set_title(title, fontsize=10)
     cb = fig.colorbar(mappable, ax=ax, fraction=0.046, pad=0.04)
     cb.set_label(colorbar_label)
+    _readable_text(ax, cb)
     # fixed margins in inches (a layout engine costs a second full draw)
     w_in, h_in = fig.get_size_inches()
-    fig.subplots_adjust(left=0.75 / w_in, right=1 - 0.85 / w_in, bottom=0.55 / h_in,
-                        top=1 - (0.7 if title and "\n" in title else 0.4) / h_in)
+    fig.subplots_adjust(left=0.75 / w_in, right=1 - 0.85 / w_in, bottom=0.6 / h_in,
+                        top=1 - (0.8 if title and "\n" in title else 0.45) / h_in)
     buf = io.BytesIO()
     fig.savefig(buf, format="png")  # draws the figure: the axes' pixel box is final now
     height_px = fig.bbox.height
@@ -224,6 +232,16 @@ def _finish(fig, ax, mappable, *, hlabel: str, vlabel: str | None, title: str | 
                 # mm at the plotting area's edges, as the axes are drawn
                 "extent_mm": [float(x0), float(x1), float(y_bottom), float(y_top)]}
     return _with_text_chunk(buf.getvalue(), AXES_KEY, json.dumps(geometry))
+
+
+def _readable_text(ax, cb) -> None:
+    """Text sizes of a picture shown at about half its pixel width (FONT_PT, TICK_PT)."""
+    ax.xaxis.label.set_size(FONT_PT)
+    ax.yaxis.label.set_size(FONT_PT)
+    ax.title.set_size(FONT_PT)
+    ax.tick_params(labelsize=TICK_PT)
+    cb.ax.tick_params(labelsize=TICK_PT)
+    cb.ax.yaxis.label.set_size(FONT_PT)
 
 
 def _with_text_chunk(png: bytes, key: str, text: str) -> bytes:

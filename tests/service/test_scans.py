@@ -123,6 +123,7 @@ def test_scan_preview_sse_then_nedner_matches_phantom(scan_server, sim, tmp_path
             time.sleep(0.2)
         job = wait_job(c, job_id)
         assert job["state"] == "succeeded", job
+        assert job["progress"]["faults_recovered"] == 0, job  # none injected: none counted
         t.join(timeout=30)
         # SSE carried the progress of the acquisition up to the last point
         done = [e["points_done"] for e in events if "points_done" in e and e.get("points_done") is not None]
