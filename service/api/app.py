@@ -250,6 +250,9 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True) 
 
             apply_retention(store, settings)  # a policy tightened while the server was down
             context.queue.start()
+            from service.api.plans import plan_executor
+
+            plan_executor(context)  # the plan worker starts loading now, not at the first plan request
             try:
                 from service.scanning import ScanManager
 

@@ -210,6 +210,12 @@ class _ServedPlans:
 SERVED = _ServedPlans()
 
 
+def warm_up() -> None:
+    """Load what plan work needs (the plan models, the mask builders, matplotlib) in the
+    plan worker, by previewing a 4-point plan: the first request then waits for none of it."""
+    plan_work(b'{"lattice": {"n_x": 2, "n_y": 2, "pitch": 1e-4}, "points": [[0, 0], [1, 1]]}', None, True)
+
+
 def preview_png_of_text(text: str) -> bytes:
     """:func:`preview_png` of a stored plan's JSON text (run in the plan worker process)."""
     return preview_png(json.loads(text))
@@ -218,15 +224,31 @@ def preview_png_of_text(text: str) -> bytes:
 _EXECUTOR_LOCK = threading.Lock()
 
 
+#: CPU priority (``nice`` increment) of the plan worker: below the server's threads, above
+#: the reconstruction workers (+10), beside the live-preview worker (+5).
+PLAN_WORKER_NICE = 8
+
+
 def plan_executor(c: Context):
     """The service's plan worker: one spawned process at a lower CPU priority
-    (``service.jobs.executors.LocalExecutor``), made on first use; closed with the app."""
+    (``PLAN_WORKER_NICE``; a ``service.jobs.executors.LocalExecutor``, which replaces a
+    worker that died), made at start-up; closed with the app."""
+    import multiprocessing
+    import os
+    from concurrent.futures import ProcessPoolExecutor
+
+    from service.jobs.executors import LocalExecutor, lower_priority
+
+    class PlanWorker(LocalExecutor):
+        def _new_pool(self) -> ProcessPoolExecutor:
+            return ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"), initializer=lower_priority,
+                                       initargs=(PLAN_WORKER_NICE, os.getpid()))
+
     with _EXECUTOR_LOCK:
         ex = c.extras.get("plan_executor")
         if ex is None:
-            from service.jobs.executors import LocalExecutor
-
-            ex = c.extras["plan_executor"] = LocalExecutor(1)
+            ex = c.extras["plan_executor"] = PlanWorker(1)
+            ex.submit(warm_up)  # in the background; the first request queues behind it
         return ex
 
 
