@@ -271,6 +271,7 @@ def test_interrupted_download_resumes_with_range(api, server, tmp_path):
 
 CLIENT_METHODS = {
     ("get", "/api/health"): "health",
+    ("get", "/api/auth"): "auth",
     ("post", "/api/plans"): "create_plan",
     ("get", "/api/plans"): "list_plans",
     ("get", "/api/plans/kinds"): "mask_kinds",
