@@ -19,7 +19,6 @@ from typing import Any
 import anyio
 import numpy as np
 from fastapi import APIRouter, Depends, HTTPException, Path, Request, Response
-from fastapi.responses import JSONResponse
 from pydantic import TypeAdapter, ValidationError
 
 from service.api.context import Context, ctx, read_access, reason, require_token
@@ -288,23 +287,26 @@ async def _plan_request(request: Request, c: Context, preview: bool) -> dict:
 # (left out of the schema) answer; the typed routes after them document the body
 # (PlanCreate) in the OpenAPI schema and, if ever reached, answer the same way.
 @router.post("", status_code=201, include_in_schema=False, dependencies=[Depends(require_token)])
-async def create_plan_raw(request: Request, c: Context = Depends(ctx)) -> JSONResponse:
+async def create_plan_raw(request: Request, c: Context = Depends(ctx)) -> Response:
     """``POST /api/plans`` (documented by :func:`create_plan`): build in the plan worker, store, 201."""
     out = await _plan_request(request, c, preview=False)
     s = out["summary"]
     await anyio.to_thread.run_sync(c.store.put_plan_text, s["id"], out["text"], s)
     SERVED.put(s["id"], out["gzip"])
-    return JSONResponse(s, 201, headers={"Location": f"/api/plans/{s['id']}"})
+    # pydantic's JSON: a non-finite number (an unbounded scan time) is null, as in every answer
+    return Response(Plan(**s).model_dump_json(), 201, media_type="application/json",
+                    headers={"Location": f"/api/plans/{s['id']}"})
 
 
 @router.post("/preview", include_in_schema=False, dependencies=[Depends(require_token)])
-async def preview_plan_raw(request: Request, c: Context = Depends(ctx)) -> JSONResponse:
+async def preview_plan_raw(request: Request, c: Context = Depends(ctx)) -> Response:
     """``POST /api/plans/preview`` (documented by :func:`preview_plan`): build and draw in the plan worker."""
     out = await _plan_request(request, c, preview=True)
     s = out["summary"]
-    return JSONResponse(PlanPreview(points=s["n_points"], weight_ratio=s["weight_ratio"],
-                                    expected_scan_time_s=s["expected_scan_time_s"],
-                                    preview_png_base64=base64.b64encode(out["png"]).decode()).model_dump(mode="json"))
+    return Response(PlanPreview(points=s["n_points"], weight_ratio=s["weight_ratio"],
+                                expected_scan_time_s=s["expected_scan_time_s"],
+                                preview_png_base64=base64.b64encode(out["png"]).decode()).model_dump_json(),
+                    media_type="application/json")
 
 
 @router.post("", status_code=201, response_model=Plan, dependencies=[Depends(require_token)])
@@ -312,7 +314,7 @@ async def create_plan(
     request: Request,
     body: PlanCreate,  # a union built from service.plans.kinds.KINDS
     c: Context = Depends(ctx),
-) -> JSONResponse:
+) -> Response:
     """Create (or find, same content → same id) a plan from a mask kind and its params, a
     point list, or a plan JSON made by ``fpscan plan`` (kept with its id); ``Location``
     names it. The work runs in the plan worker process."""
@@ -324,7 +326,7 @@ async def preview_plan(
     request: Request,
     body: PlanCreate,  # a union built from service.plans.kinds.KINDS
     c: Context = Depends(ctx),
-) -> JSONResponse:
+) -> Response:
     """The plan a request would give, without saving it. Does the work of a plan, so it
     needs the token like the mutating routes (and, like them, 429 when too many plan
     requests are in progress)."""
