@@ -77,6 +77,7 @@ async function authState() {
 /** Show the login view instead of the page's views, with `message` (the server's reason)
  *  when there is one. Resolves true once the user has signed in. */
 function showLogin(message) {
+  if (loginWait) return loginWait;  // already shown: requests refused meanwhile wait for the same sign-in
   document.body.dataset.tokenPrompts = String((Number(document.body.dataset.tokenPrompts) || 0) + 1);
   document.body.dataset.login = "1";
   for (const v of views) $("view-" + v).hidden = true;
@@ -86,7 +87,7 @@ function showLogin(message) {
   $("login-token").value = "";
   $("login-token").focus();
   document.title = "fpscan — sign in";
-  if (!loginWait) loginWait = new Promise((resolve) => { loginResolve = resolve; });
+  loginWait = new Promise((resolve) => { loginResolve = resolve; });
   return loginWait;
 }
 
@@ -162,7 +163,6 @@ async function apiFetch(path, options = {}, retried = false) {
     const msg = getToken()
       ? `The server refused the token this tab holds (${detail}). Sign in with the right token.`
       : `This server needs its access token (${detail}).`;
-    sessionStorage.removeItem(TOKEN_KEY);
     if (await showLogin(msg)) {
       route();
       return apiFetch(path, options, true);
