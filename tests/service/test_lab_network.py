@@ -245,3 +245,22 @@ def test_the_plan_body_is_refused_with_the_reason_as_before(lab_server):
         again = c.post("/api/plans", json=doc)
         assert again.status_code == 201 and again.json()["id"] == doc["id"]
 
+
+
+def test_fpscan_serve_allowed_host_flag(tmp_path):
+    """``fpscan serve --allowed-host NAME`` (repeatable): those names are answered, others not."""
+    from clients.processes import Service, clean_env, fpscan_argv, free_port
+
+    port = free_port()
+    argv = fpscan_argv("serve", "--host", "127.0.0.1", "--port", str(port), "--no-web", "--token", TOKEN,
+                       "--allowed-host", "scanner-pc.lab", "--allowed-host", "192.168.7.20")
+    srv = Service(argv, port=port, token=TOKEN, data_dir=tmp_path / "data", log_path=tmp_path / "serve.log",
+                  env=clean_env(FPSCAN_DATA_DIR=str(tmp_path / "data")))
+    try:
+        srv.wait_healthy(60)
+        with httpx.Client(base_url=srv.url, headers=srv.headers(), timeout=30) as c:
+            for host, status in (("scanner-pc.lab:8000", 200), ("192.168.7.20", 200), ("scanner-pc.lab.evil", 403),
+                                 ("192.168.7.21:8000", 403)):
+                assert c.get("/api/jobs", headers={"Host": host}).status_code == status, host
+    finally:
+        srv.stop()
