@@ -35,6 +35,18 @@ def _npy(n: int = 12, n_t: int = 64) -> bytes:
     return buf.getvalue()
 
 
+def _check_health_latency(latencies: list[float]) -> None:
+    """Print /api/health's p50/p99 under the soak; with ``FPSCAN_SOAK=full`` (50 clients)
+    hold its p99 to issue 22.3's bound (250 ms)."""
+    if not latencies:
+        return
+    h50, h99 = np.percentile(latencies, 50), np.percentile(latencies, 99)
+    print(f"soak: /api/health over {len(latencies)} requests from {CLIENTS} clients: "
+          f"p50 {1e3 * h50:.1f} ms, p99 {1e3 * h99:.1f} ms")
+    if FULL:
+        assert h99 <= HEALTH_P99_FULL_S, f"/api/health p99 {1e3 * h99:.0f} ms under {CLIENTS} clients"
+
+
 @needs_recon
 @pytest.mark.slow
 @pytest.mark.timeout(600)
@@ -121,13 +133,7 @@ def test_soak_mixed_requests_during_a_scan_and_a_reconstruction(tmp_path):
                   f"status p99 {1e3 * p99:.1f} ms, "
                   f"median {1e3 * status_lat[len(status_lat) // 2]:.1f} ms, "
                   f"{sum(1 for r in results if r[1] == 429)} answered 429 (busy)")
-        health_lat = np.sort([r[2] for r in results if r[0] == "health"])
-        if len(health_lat):
-            h50, h99 = np.percentile(health_lat, 50), np.percentile(health_lat, 99)
-            print(f"soak: /api/health over {len(health_lat)} requests from {CLIENTS} clients: "
-                  f"p50 {1e3 * h50:.1f} ms, p99 {1e3 * h99:.1f} ms")
-            if FULL:  # issue 22.3's bound: under 50 clients of mixed requests, health p99 <= 250 ms
-                assert h99 <= HEALTH_P99_FULL_S, f"/api/health p99 {1e3 * h99:.0f} ms under {CLIENTS} clients"
+        _check_health_latency([r[2] for r in results if r[0] == "health"])
         with srv.client() as c:
             assert wait_job(c, recon, timeout=300)["state"] == "succeeded"
             assert wait_job(c, scan_id, timeout=120)["state"] == "succeeded"
