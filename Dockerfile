@@ -5,6 +5,9 @@
 #   docker run -d -p 8000:8000 -e FPSCAN_TOKEN=... -v fpscan-data:/data \
 #     --device /dev/ttyACM0 --group-add dialout \
 #     -e FPSCAN_DEVICES='{"fp1": "/dev/ttyACM0"}' fpscan
+# Clients on the lab network reach it by a name or address the server must be told (a
+# request naming any other Host is refused, against DNS rebinding; localhost works as is):
+#   docker run ... -e FPSCAN_ALLOWED_HOSTS='["scanner-pc.lab", "192.168.1.20"]' fpscan
 # The token from a file instead (Docker/Compose/Swarm secrets): mount it and name it,
 #   docker run ... -v "$PWD/token.txt:/run/secrets/fpscan_token:ro" \
 #     -e FPSCAN_TOKEN_FILE=/run/secrets/fpscan_token fpscan

@@ -55,7 +55,9 @@ async def _poll_async(url: str, job_id: str, clients: int, seconds: float, inter
                 await asyncio.sleep(interval - dt)
 
     limits = httpx.Limits(max_connections=clients, max_keepalive_connections=clients)
-    async with httpx.AsyncClient(base_url=url, limits=limits, timeout=30) as client:
+    # every API route needs the token when one is configured (reads too: issue 22.2)
+    async with httpx.AsyncClient(base_url=url, limits=limits, timeout=30,
+                                 headers={"Authorization": f"Bearer {TOKEN}"}) as client:
         await asyncio.gather(*(one(client, k) for k in range(clients)))
     return latencies, errors
 

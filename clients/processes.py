@@ -165,7 +165,7 @@ class Service(Process):
         deadline = time.monotonic() + timeout
         while True:
             try:
-                r = httpx.get(self.url + "/api/health", timeout=2)
+                r = httpx.get(self.url + "/api/health", headers=self.headers(), timeout=2)
                 if r.status_code == 200:
                     return r.json()
             except httpx.HTTPError:

@@ -63,6 +63,10 @@ class Settings(BaseSettings):
     import_workers: int = Field(2, ge=1, le=64, description="uploads imported at once (each in a child process "
                                 "of up to memory_limit + 2 GiB); up to 4x as many more wait, further ones get 429")
     host: str = "127.0.0.1"
+    allowed_hosts: list[str] = Field(default_factory=list, description="names (or addresses) besides the "
+                                     "loopback ones that clients may reach this server by: a request whose Host "
+                                     "header names another is refused with 403 (DNS rebinding); '*' = any (only "
+                                     "behind a token). Environment: JSON, FPSCAN_ALLOWED_HOSTS='[\"scanner-pc\"]'")
     port: int = Field(8000, ge=0, le=65535)
     web_root: Path | None = Field(None, description="folder of the web page's static files; None = no page")
     preview_interval_s: float = Field(3.0, gt=0, le=3600, description="live preview refresh period")
@@ -93,6 +97,21 @@ class Settings(BaseSettings):
             if not key or len(key) > 64 or not all(ch.isalnum() or ch in "_-" for ch in key):
                 raise ValueError(f"scanner id {key!r} must be 1-64 characters of [A-Za-z0-9_-]")
         return value
+
+    @field_validator("allowed_hosts")
+    @classmethod
+    def _host_names(cls, value: list[str]) -> list[str]:
+        out = []
+        for name in value:
+            name = name.strip().lower().rstrip(".")
+            if name.startswith("[") and name.endswith("]"):
+                name = name[1:-1]
+            if not name or len(name) > 253 or not all(ch.isalnum() or ch in "-.:_*" for ch in name) \
+                    or ("*" in name and name != "*"):
+                raise ValueError(f"allowed host {name!r} must be a host name or address (no port, no scheme), "
+                                 "or '*' for any")
+            out.append(name)
+        return out
 
     @model_validator(mode="after")
     def _dask_address(self) -> Settings:

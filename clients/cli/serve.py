@@ -8,6 +8,10 @@ HELP = "run the fpscan HTTP service (job queue, scans, reconstructions, web page
 def add_arguments(parser):
     """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser)."""
     parser.add_argument("--host", default=None, help="bind address (default 127.0.0.1; beyond loopback needs --token)")
+    parser.add_argument("--allowed-host", action="append", default=[], metavar="NAME", dest="allowed_hosts",
+                        help="a host name (or address) clients may reach the server by besides localhost, "
+                             "127.0.0.1 and [::1] (repeatable; '*' = any, only with a token): requests naming "
+                             "another Host are refused (DNS rebinding)")
     parser.add_argument("--port", type=int, default=None, help="port (default 8000; 0 = any free port)")
     parser.add_argument("--data-dir", default=None, help="folder for the database, scans and results")
     parser.add_argument("--device", action="append", default=[], metavar="ID=PATH",
@@ -55,6 +59,8 @@ def run(args) -> int:
         value = getattr(args, name)
         if value is not None:
             overrides[name] = value
+    if args.allowed_hosts:
+        overrides["allowed_hosts"] = list(args.allowed_hosts)
     if args.device:
         overrides["devices"] = parse_devices(args.device)
     if args.memory_limit is not None:
@@ -71,6 +77,8 @@ def run(args) -> int:
     if not is_loopback(settings.host) and settings.token_value() is None:  # reads token_file
         raise ValueError(f"binding to {settings.host} (beyond loopback) needs a --token "
                          "(or $FPSCAN_TOKEN_FILE)")
+    if "*" in settings.allowed_hosts and settings.token_value() is None:
+        raise ValueError("--allowed-host '*' (any host name) needs a --token (or $FPSCAN_TOKEN_FILE)")
 
     level = settings.log_level.upper()
     logging.basicConfig(level=getattr(logging, level, logging.INFO), stream=sys.stderr,

@@ -267,6 +267,13 @@ class _Endpoints:
         r = yield _Req("GET", "/api/health")
         return r.json()
 
+    def auth(self):
+        """``GET /api/auth`` (needs no token) -> ``{"token_required": bool,
+        "authenticated": bool}``: whether the server needs a token, and whether this
+        client's is right."""
+        r = yield _Req("GET", "/api/auth")
+        return r.json()
+
     # -- plans
     def create_plan(self, body: Mapping | Any):
         """``POST /api/plans``: create a plan from mask parameters or a point list

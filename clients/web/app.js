@@ -14,7 +14,10 @@
  *               Disk use: GET /api/health (bytes by part), GET /api/datasets,
  *               DELETE /api/datasets/{id} (the storage section, its own functions below)
  * Units: the form shows convenient units (µm, mm, ns, nm); the API receives SI units.
- * The bearer token is asked once (on the first 401/403) and kept in sessionStorage.
+ * Sign-in: the page first asks GET /api/auth (no token needed) whether the server needs a
+ * bearer token; if it does, a login view is shown before any other request, and the token
+ * is kept in sessionStorage (this tab only) until "Sign out". A later 401 (the token was
+ * changed on the server) shows the login view again and retries the request once.
  */
 "use strict";
 
@@ -55,32 +58,78 @@ function detailText(body, status, statusText) {
   return `HTTP ${status}${statusText ? " " + statusText : ""}`;
 }
 
-let tokenPrompt = null; // one dialog at a time, shared by concurrent requests
+let loginWait = null; // resolves once the user has signed in (shared by concurrent requests)
+let loginResolve = null;
 
-function askToken(message) {
-  if (tokenPrompt) return tokenPrompt;
-  const dialog = $("token-dialog");
-  const input = $("token-input");
-  input.value = getToken();
-  if (message) dialog.querySelector("p").textContent = message;
+/** The server's sign-in state: GET /api/auth (needs no token) -> {token_required,
+ *  authenticated} for the token this tab holds. */
+async function authState() {
+  let resp;
+  try {
+    resp = await fetch("/api/auth", { headers: authHeaders() });
+  } catch (err) {
+    throw new ApiError(0, "cannot reach the server (" + err.message + ")");
+  }
+  let body = null;
+  try { body = await resp.json(); } catch (_) { /* not JSON */ }
+  if (!resp.ok) throw new ApiError(resp.status, detailText(body, resp.status, resp.statusText));
+  return body;
+}
+
+/** Show the login view instead of the page's views, with `message` (the server's reason)
+ *  when there is one. Resolves true once the user has signed in. */
+function showLogin(message) {
+  if (loginWait) return loginWait;  // already shown: requests refused meanwhile wait for the same sign-in
   document.body.dataset.tokenPrompts = String((Number(document.body.dataset.tokenPrompts) || 0) + 1);
-  tokenPrompt = new Promise((resolve) => {
-    dialog.addEventListener("close", function onClose() {
-      dialog.removeEventListener("close", onClose);
-      tokenPrompt = null;
-      if (dialog.returnValue === "ok" && input.value.trim()) {
-        sessionStorage.setItem(TOKEN_KEY, input.value.trim());
-        updateTokenButton();
-        resolve(true);
-      } else {
-        resolve(false);
-      }
-    });
-    dialog.returnValue = "";
-    dialog.showModal();
-    input.focus();
-  });
-  return tokenPrompt;
+  document.body.dataset.login = "1";
+  for (const v of views) $("view-" + v).hidden = true;
+  $("view-login").hidden = false;
+  $("login-error").textContent = message || "";
+  $("login-error").hidden = !message;
+  $("login-token").value = "";
+  $("login-token").focus();
+  document.title = "fpscan — sign in";
+  loginWait = new Promise((resolve) => { loginResolve = resolve; });
+  return loginWait;
+}
+
+/** The login form: keep the token for this tab if the server takes it, else say why not. */
+async function submitLogin(ev) {
+  ev.preventDefault();
+  const token = $("login-token").value.trim();
+  if (!token) return;
+  $("login-submit").disabled = true;
+  sessionStorage.setItem(TOKEN_KEY, token);
+  try {
+    const state = await authState();
+    if (state.token_required && !state.authenticated) {
+      sessionStorage.removeItem(TOKEN_KEY);
+      $("login-error").textContent = "The server refused this token (invalid bearer token). Check it and try again.";
+      $("login-error").hidden = false;
+      $("login-token").select();
+      return;
+    }
+  } catch (err) {
+    sessionStorage.removeItem(TOKEN_KEY);
+    $("login-error").textContent = err instanceof ApiError ? err.detail : String(err);
+    $("login-error").hidden = false;
+    return;
+  } finally {
+    $("login-submit").disabled = false;
+  }
+  $("view-login").hidden = true;
+  delete document.body.dataset.login;
+  updateTokenButton();
+  const resolve = loginResolve;
+  loginWait = null;
+  loginResolve = null;
+  if (resolve) resolve(true);
+}
+
+function signOut() {
+  sessionStorage.removeItem(TOKEN_KEY);
+  updateTokenButton();
+  showLogin("Signed out. Enter the token to sign in again.").then(() => route());
 }
 
 function authHeaders(extra) {
@@ -112,11 +161,14 @@ async function apiFetch(path, options = {}, retried = false) {
   const text = await resp.text();
   try { body = JSON.parse(text); } catch (_) { body = text; }
   const detail = detailText(body, resp.status, resp.statusText);
-  if ((resp.status === 401 || resp.status === 403) && !retried) {
+  if (resp.status === 401 && !retried) {  // the token was changed on the server: sign in again
     const msg = getToken()
-      ? `The server refused the token (${detail}). Enter the right token; it is kept for this browser tab only.`
-      : `This server asks for a bearer token (${detail}). It is kept for this browser tab only.`;
-    if (await askToken(msg)) return apiFetch(path, options, true);
+      ? `The server refused the token this tab holds (${detail}). Sign in with the right token.`
+      : `This server needs its access token (${detail}).`;
+    if (await showLogin(msg)) {
+      route();
+      return apiFetch(path, options, true);
+    }
   }
   throw new ApiError(resp.status, detail);
 }
@@ -348,6 +400,7 @@ const views = ["plan", "scan", "jobs"];
 let currentView = null;
 
 function route() {
+  if (document.body.dataset.login) return;  // signing in: the views wait
   const hash = location.hash.replace(/^#\/?/, "");
   const [view, arg] = hash.split("/");
   const name = views.includes(view) ? view : "plan";
@@ -1469,7 +1522,7 @@ async function startRecon(ev) {
 /* ------------------------------------------------------------------ start-up */
 
 function updateTokenButton() {
-  $("token-button").textContent = getToken() ? "Change token" : "Set token";
+  $("token-button").hidden = !getToken();  // "Sign out": only when signed in with a token
 }
 
 async function health() {
@@ -1481,10 +1534,9 @@ async function health() {
   }
 }
 
-function init() {
-  buildMaskSelect().catch(showError);
-  buildMethodSelects().catch(showError);
+async function init() {
   updateTokenButton();
+  $("login-form").addEventListener("submit", submitLogin);
   $("mask-kind").addEventListener("change", () => { renderMaskParams(); schedulePreview(0); });
   $("plan-form").addEventListener("input", () => schedulePreview());
   $("plan-form").addEventListener("submit", savePlan);
@@ -1504,10 +1556,26 @@ function init() {
   $("upload-form").addEventListener("submit", uploadAndReconstruct);
   $("error-close").addEventListener("click", clearError);
   initPictureDialog();
-  $("token-button").addEventListener("click", () => askToken("Enter the server's bearer token. It is kept for this browser tab only."));
+  $("token-button").addEventListener("click", signOut);
+  // sign in first when the server needs a token, so that no request of the page gets 401
+  let state = null;
+  try {
+    state = await authState();
+  } catch (err) {
+    showError(err);
+  }
+  if (state && state.token_required && !state.authenticated) {
+    const stale = Boolean(getToken());
+    sessionStorage.removeItem(TOKEN_KEY);
+    updateTokenButton();
+    await showLogin(stale ? "The server refused the token this tab held (invalid bearer token). Sign in again." : "");
+  }
+  buildMaskSelect().catch(showError);
+  buildMethodSelects().catch(showError);
   window.addEventListener("hashchange", route);
   health();
   route();
+  initStorage();  // after sign-in: its first requests carry the token
 }
 
 document.addEventListener("DOMContentLoaded", init);
@@ -1604,4 +1672,3 @@ function initStorage() {
   onJobs();
 }
 
-document.addEventListener("DOMContentLoaded", initStorage);

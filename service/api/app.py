@@ -25,7 +25,7 @@ from starlette.staticfiles import StaticFiles
 
 from driver.acquire import software_version
 from service.api.context import Context, Slots, ctx, default_slots, read_access
-from service.api.models import Error, Health
+from service.api.models import AuthInfo, Error, Health
 from service.jobs.lifecycle import is_disk_full
 from service.settings import Settings
 
@@ -38,6 +38,8 @@ PROCESS_START = time.time()
 ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
     400: {"model": Error, "description": "bad request"},
     401: {"model": Error, "description": "missing or invalid bearer token"},
+    403: {"model": Error, "description": "refused: a Host name the server does not answer to, or (no token "
+                                         "configured) a state-changing request from another origin"},
     404: {"model": Error, "description": "not found"},
     409: {"model": Error, "description": "conflict with the resource's state"},
     408: {"model": Error, "description": "an upload or plan request body stalled (FPSCAN_BODY_TIMEOUT_S)"},
@@ -248,6 +250,9 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True) 
 
             apply_retention(store, settings)  # a policy tightened while the server was down
             context.queue.start()
+            from service.api.plans import plan_executor
+
+            plan_executor(context)  # the plan worker starts loading now, not at the first plan request
             try:
                 from service.scanning import ScanManager
 
@@ -264,6 +269,8 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True) 
                 context.queue.stop()
             if executor is not None:
                 executor.close()
+            if context.extras.get("plan_executor") is not None:
+                context.extras["plan_executor"].close()
             if context.queue is not None:
                 context.queue.join()  # running jobs re-queue themselves (SIGTERM re-queues)
             store.close()
@@ -301,6 +308,9 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True) 
     app.add_middleware(UploadLimit, limit=settings.upload_limit, json_limit=settings.json_limit, slots=slots,
                        body_timeout_s=settings.body_timeout_s)
     app.add_middleware(ShortIds)
+    from service.api.access import AccessGate
+
+    app.add_middleware(AccessGate, settings=settings)  # outermost: before any slot, thread or body byte
 
     from service.api import datasets, jobs, plans, reconstructions, retention, scans
     from service.jobs.lifecycle import disk_usage
@@ -315,23 +325,34 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True) 
                       disk=disk_usage(settings.data_dir),
                       problems=c.scans.problems() if c.scans is not None else [])
 
+    @app.get("/api/auth", response_model=AuthInfo, tags=["health"])
+    def auth(request: Request) -> AuthInfo:
+        """Whether this server needs a bearer token, and whether the request carried the
+        right one (needs no token itself: the web page asks it first, to show its login view
+        before any other request)."""
+        from service.api.access import token_matches
+
+        expected = settings.token_value()
+        return AuthInfo(token_required=expected is not None,
+                        authenticated=expected is None
+                        or token_matches(request.headers.get("authorization"), expected) is None)
+
     for module in (plans, scans, datasets, reconstructions, jobs, retention):
         app.include_router(module.router)
 
     base_openapi = app.openapi
 
     def openapi() -> dict:
-        """The schema states what the server enforces: on a loopback-only server, reading
-        routes need no token (``security`` lists the empty requirement first)."""
+        """The schema states what the server enforces: with a token configured every API
+        route needs it; without one (a loopback-only server) none does (``security``
+        lists the empty requirement first)."""
         done = app.openapi_schema is not None
         schema = base_openapi()
-        if not done and settings.loopback_only:
+        if not done and settings.token is None and settings.token_file is None:
             for item in schema.get("paths", {}).values():
-                op = item.get("get")
-                if op and op.get("security") and {} not in op["security"]:
-                    op["security"] = [{}, *op["security"]]
-                    op["description"] = (op.get("description", "") + "\n\nNo token needed: this server is "
-                                         "bound to loopback only (the token is asked when bound beyond it).").strip()
+                for op in item.values():
+                    if isinstance(op, dict) and op.get("security") and {} not in op["security"]:
+                        op["security"] = [{}, *op["security"]]
         return schema
 
     app.openapi = openapi  # type: ignore[method-assign]

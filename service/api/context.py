@@ -102,10 +102,10 @@ async def require_token(request: Request, creds: HTTPAuthorizationCredentials | 
 
 
 async def read_access(request: Request, creds: HTTPAuthorizationCredentials | None = Depends(bearer)) -> None:
-    """Reading routes: the bearer token only when the server is bound beyond loopback."""
-    settings = request.app.state.ctx.settings
-    if not settings.loopback_only:
-        _check(settings, creds)
+    """Reading routes: the bearer token whenever one is configured (401 otherwise), on a
+    loopback bind too (``service.api.access.AccessGate`` has already refused a request
+    without it, before anything was reserved; this is the route's own check)."""
+    _check(request.app.state.ctx.settings, creds)
 
 
 def reason(exc: BaseException) -> str:

@@ -83,6 +83,14 @@ class Health(BaseModel):
                                 "(e.g. a scan paused by a full disk or a lost device), one line each")
 
 
+class AuthInfo(BaseModel):
+    """``GET /api/auth``: whether the server needs a bearer token (then every ``/api``
+    route but this one needs it) and whether the request carried the right one."""
+
+    token_required: bool
+    authenticated: bool = Field(description="true when no token is needed or the one sent is right")
+
+
 class Deleted(BaseModel):
     """What a DELETE removed."""
 

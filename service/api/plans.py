@@ -7,12 +7,19 @@ of ``driver.plan``. Every plan, a user point list (lattice indices) included, is
 from __future__ import annotations
 
 import base64
+import collections
 import contextlib
+import functools
+import gzip
 import json
+import threading
 from collections.abc import Iterator
+from typing import Any
 
+import anyio
 import numpy as np
-from fastapi import APIRouter, Depends, HTTPException, Path, Response
+from fastapi import APIRouter, Depends, HTTPException, Path, Request, Response
+from pydantic import TypeAdapter, ValidationError
 
 from service.api.context import Context, ctx, read_access, reason, require_token
 from service.api.models import ID_PATTERN, Deleted, MaskKindInfo, Plan, PlanCreate, PlanDocument, PlanPreview
@@ -121,11 +128,140 @@ def preview_png(plan: dict) -> bytes:
     return render_lattice(idx, values, n_x, n_y, pitch, title=title, colorbar_label=label, poi=poi)
 
 
-def _build_or_422(body) -> dict:
+@functools.cache
+def _plan_request_adapter() -> TypeAdapter:
+    return TypeAdapter(PlanCreate)
+
+
+def parse_plan_request(raw: bytes, content_type: str | None):
+    """The ``PlanCreate`` variant of a request body, read as FastAPI reads a JSON body
+    (JSON when the content type is absent, ``application/json`` or ``…+json``, else the
+    raw bytes, which no variant takes). Raises ``ValueError`` with the reason in the
+    words of the API's 422 answers."""
+    from fastapi.exceptions import RequestValidationError
+
+    from service.api.app import _validation_reason
+
+    if not raw:
+        raise ValueError("body: Field required")
+    value: Any = raw
+    maintype, _, subtype = (content_type or "application/json").split(";")[0].strip().lower().partition("/")
+    if maintype == "application" and (subtype == "json" or subtype.endswith("+json")):
+        try:
+            value = json.loads(raw)
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise ValueError(f"malformed JSON: {getattr(exc, 'msg', None) or exc}") from None
     try:
-        return build_plan(body)
+        return _plan_request_adapter().validate_python(value)
+    except ValidationError as exc:
+        raise ValueError(_validation_reason(RequestValidationError(exc.errors()))) from None
+
+
+def plan_work(raw: bytes, content_type: str | None, preview: bool) -> dict:
+    """A plan request's whole CPU work, run in the plan worker process (so the server's
+    event loop and its other threads never wait for it): parse and check the body
+    (:func:`parse_plan_request`), build the plan (:func:`build_plan`), its summary and,
+    for a preview, its PNG, else its JSON text as stored and served.
+
+    Returns ``{"status": 422, "detail": reason}`` for a refused request, else
+    ``{"status": 200, "summary": {...}, "png": bytes}`` (``preview``) or
+    ``{"status": 201, "summary": {...}, "text": str}``."""
+    try:
+        plan = build_plan(parse_plan_request(raw, content_type))
     except (ValueError, OverflowError) as exc:
-        raise HTTPException(422, reason(exc)) from None
+        return {"status": 422, "detail": reason(exc)}
+    s = summary(plan)
+    if preview:
+        return {"status": 200, "summary": s.model_dump(mode="json"), "png": preview_png(plan)}
+    text = json.dumps(plan)
+    return {"status": 201, "summary": s.model_dump(mode="json"), "text": text, "gzip": gzip_text(text)}
+
+
+def gzip_text(text: str) -> bytes:
+    """``text`` (a plan's JSON) UTF-8 encoded and gzip-compressed, as served to clients that
+    accept it (a plan of 262 144 points: 16 MB of JSON, about 1.5 MB compressed)."""
+    return gzip.compress(text.encode(), compresslevel=5, mtime=0)
+
+
+class _ServedPlans:
+    """The compressed JSON of recently made or read plans, ready to serve (a plan's id is
+    the hash of its content, so an entry never goes stale; at most ``size`` are kept)."""
+
+    def __init__(self, size: int = 16):
+        self.size = size
+        self._lock = threading.Lock()
+        self._items: collections.OrderedDict[str, bytes] = collections.OrderedDict()
+
+    def get(self, plan_id: str) -> bytes | None:
+        with self._lock:
+            if plan_id in self._items:
+                self._items.move_to_end(plan_id)
+            return self._items.get(plan_id)
+
+    def put(self, plan_id: str, data: bytes) -> None:
+        with self._lock:
+            self._items[plan_id] = data
+            self._items.move_to_end(plan_id)
+            while len(self._items) > self.size:
+                self._items.popitem(last=False)
+
+
+SERVED = _ServedPlans()
+
+
+def warm_up() -> None:
+    """Load what plan work needs (the plan models, the mask builders, matplotlib) in the
+    plan worker, by previewing a 4-point plan: the first request then waits for none of it."""
+    plan_work(b'{"lattice": {"n_x": 2, "n_y": 2, "pitch": 1e-4}, "points": [[0, 0], [1, 1]]}', None, True)
+
+
+def preview_png_of_text(text: str) -> bytes:
+    """:func:`preview_png` of a stored plan's JSON text (run in the plan worker process)."""
+    return preview_png(json.loads(text))
+
+
+_EXECUTOR_LOCK = threading.Lock()
+
+
+#: CPU priority (``nice`` increment) of the plan worker: below the server's threads, above
+#: the reconstruction workers (+10), beside the live-preview worker (+5).
+PLAN_WORKER_NICE = 8
+
+
+def plan_executor(c: Context):
+    """The service's plan worker: one spawned process at a lower CPU priority
+    (``PLAN_WORKER_NICE``; a ``service.jobs.executors.LocalExecutor``, which replaces a
+    worker that died), made at start-up; closed with the app."""
+    import multiprocessing
+    import os
+    from concurrent.futures import ProcessPoolExecutor
+
+    from service.jobs.executors import LocalExecutor, lower_priority
+
+    class PlanWorker(LocalExecutor):
+        def _new_pool(self) -> ProcessPoolExecutor:
+            return ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"), initializer=lower_priority,
+                                       initargs=(PLAN_WORKER_NICE, os.getpid()))
+
+    with _EXECUTOR_LOCK:
+        ex = c.extras.get("plan_executor")
+        if ex is None:
+            ex = c.extras["plan_executor"] = PlanWorker(1)
+            ex.submit(warm_up)  # in the background; the first request queues behind it
+        return ex
+
+
+def _in_plan_worker(c: Context, fn, *args):
+    """``fn(*args)`` in the plan worker (blocking: call it from a worker thread), within a
+    turn of ``c.slots["plans"]``. A worker that died is answered 503."""
+    from service.jobs.executors import WorkerDied
+
+    with _plan_turn(c):
+        try:
+            return plan_executor(c).run(fn, *args)
+        except WorkerDied:
+            raise HTTPException(503, "the plan worker process died (out of memory?); retry",
+                                headers={"Retry-After": "5"}) from None
 
 
 @contextlib.contextmanager
@@ -136,36 +272,65 @@ def _plan_turn(c: Context) -> Iterator[None]:
         yield
 
 
+async def _plan_request(request: Request, c: Context, preview: bool) -> dict:
+    raw = await request.body()  # I/O only: parsing and checking happen in the plan worker
+    out = await anyio.to_thread.run_sync(_in_plan_worker, c, plan_work, raw, request.headers.get("content-type"),
+                                         preview)
+    if out["status"] >= 400:
+        raise HTTPException(out["status"], out["detail"])
+    return out
+
+
+# The plan-request routes read their body raw and leave parsing and checking (a point list
+# or a plan JSON of 262 144 points: megabytes of JSON) to the plan worker, so no request
+# holds the event loop. Starlette dispatches to the first route that matches, so these two
+# (left out of the schema) answer; the typed routes after them document the body
+# (PlanCreate) in the OpenAPI schema and, if ever reached, answer the same way.
+@router.post("", status_code=201, include_in_schema=False, dependencies=[Depends(require_token)])
+async def create_plan_raw(request: Request, c: Context = Depends(ctx)) -> Response:
+    """``POST /api/plans`` (documented by :func:`create_plan`): build in the plan worker, store, 201."""
+    out = await _plan_request(request, c, preview=False)
+    s = out["summary"]
+    await anyio.to_thread.run_sync(c.store.put_plan_text, s["id"], out["text"], s)
+    SERVED.put(s["id"], out["gzip"])
+    # pydantic's JSON: a non-finite number (an unbounded scan time) is null, as in every answer
+    return Response(Plan(**s).model_dump_json(), 201, media_type="application/json",
+                    headers={"Location": f"/api/plans/{s['id']}"})
+
+
+@router.post("/preview", include_in_schema=False, dependencies=[Depends(require_token)])
+async def preview_plan_raw(request: Request, c: Context = Depends(ctx)) -> Response:
+    """``POST /api/plans/preview`` (documented by :func:`preview_plan`): build and draw in the plan worker."""
+    out = await _plan_request(request, c, preview=True)
+    s = out["summary"]
+    return Response(PlanPreview(points=s["n_points"], weight_ratio=s["weight_ratio"],
+                                expected_scan_time_s=s["expected_scan_time_s"],
+                                preview_png_base64=base64.b64encode(out["png"]).decode()).model_dump_json(),
+                    media_type="application/json")
+
+
 @router.post("", status_code=201, response_model=Plan, dependencies=[Depends(require_token)])
-def create_plan(
+async def create_plan(
+    request: Request,
     body: PlanCreate,  # a union built from service.plans.kinds.KINDS
-    response: Response, c: Context = Depends(ctx),
-) -> Plan:
+    c: Context = Depends(ctx),
+) -> Response:
     """Create (or find, same content → same id) a plan from a mask kind and its params, a
     point list, or a plan JSON made by ``fpscan plan`` (kept with its id); ``Location``
-    names it."""
-    with _plan_turn(c):
-        plan = _build_or_422(body)
-    s = summary(plan)
-    c.store.put_plan(plan["id"], plan, s.model_dump())
-    response.headers["Location"] = f"/api/plans/{plan['id']}"
-    return s
+    names it. The work runs in the plan worker process."""
+    return await create_plan_raw(request, c)
 
 
 @router.post("/preview", response_model=PlanPreview, dependencies=[Depends(require_token)])
-def preview_plan(
+async def preview_plan(
+    request: Request,
     body: PlanCreate,  # a union built from service.plans.kinds.KINDS
     c: Context = Depends(ctx),
-) -> PlanPreview:
+) -> Response:
     """The plan a request would give, without saving it. Does the work of a plan, so it
     needs the token like the mutating routes (and, like them, 429 when too many plan
     requests are in progress)."""
-    with _plan_turn(c):
-        plan = _build_or_422(body)
-        s = summary(plan)
-        png = preview_png(plan)
-    return PlanPreview(points=s.n_points, weight_ratio=s.weight_ratio, expected_scan_time_s=s.expected_scan_time_s,
-                       preview_png_base64=base64.b64encode(png).decode())
+    return await preview_plan_raw(request, c)
 
 
 @router.get("/kinds", response_model=list[MaskKindInfo], dependencies=[Depends(read_access)])
@@ -196,8 +361,11 @@ def plan_or_404(c: Context, plan_id: str) -> dict:
 
 @router.get("/{plan_id}", response_model=Plan, dependencies=[Depends(read_access)])
 def get_plan(plan_id: str = Path(pattern=ID_PATTERN), c: Context = Depends(ctx)) -> Plan:
-    """One plan's summary."""
-    return summary(plan_or_404(c, plan_id))
+    """One plan's summary (stored with the plan: its points are not read)."""
+    found = c.store.get_plan_summary(plan_id)
+    if found is None:
+        raise HTTPException(404, f"no plan {plan_id}")
+    return Plan(**found)
 
 
 @router.delete("/{plan_id}", response_model=Deleted, dependencies=[Depends(require_token)],
@@ -214,13 +382,32 @@ def delete_plan(plan_id: str = Path(pattern=ID_PATTERN), c: Context = Depends(ct
 
 @router.get("/{plan_id}/plan.json", dependencies=[Depends(read_access)],
             responses={200: {"content": {"application/json": {}}, "description": "the full plan JSON"}})
-def get_plan_json(plan_id: str = Path(pattern=ID_PATTERN), c: Context = Depends(ctx)) -> Response:
-    """The full plan (docs/architecture.md, ``fpscan-plan/1``)."""
-    return Response(json.dumps(plan_or_404(c, plan_id)), media_type="application/json")
+def get_plan_json(request: Request, plan_id: str = Path(pattern=ID_PATTERN), c: Context = Depends(ctx)) -> Response:
+    """The full plan (docs/architecture.md, ``fpscan-plan/1``), served as stored at its
+    creation (never parsed or serialized again): gzip-compressed (``Content-Encoding:
+    gzip``) to clients that accept it, as plain JSON to others."""
+    accepts_gzip = "gzip" in request.headers.get("accept-encoding", "").lower()
+    packed = SERVED.get(plan_id) if accepts_gzip else None
+    if packed is not None and c.store.get_plan_summary(plan_id) is not None:
+        return Response(packed, media_type="application/json",
+                        headers={"Content-Encoding": "gzip", "Vary": "Accept-Encoding"})
+    text = c.store.get_plan_text(plan_id)
+    if text is None:
+        raise HTTPException(404, f"no plan {plan_id}")
+    if accepts_gzip:  # compressed once, in the plan worker, then kept
+        packed = _in_plan_worker(c, gzip_text, text)
+        SERVED.put(plan_id, packed)
+        return Response(packed, media_type="application/json",
+                        headers={"Content-Encoding": "gzip", "Vary": "Accept-Encoding"})
+    return Response(text.encode(), media_type="application/json", headers={"Vary": "Accept-Encoding"})
 
 
 @router.get("/{plan_id}/preview.png", dependencies=[Depends(read_access)], response_class=Response,
             responses={200: {"content": {"image/png": {}}, "description": "mask preview"}})
-def plan_preview_png(plan_id: str = Path(pattern=ID_PATTERN), c: Context = Depends(ctx)) -> Response:
-    """The plan's sensor-mask preview (PNG)."""
-    return Response(preview_png(plan_or_404(c, plan_id)), media_type="image/png")
+async def plan_preview_png(plan_id: str = Path(pattern=ID_PATTERN), c: Context = Depends(ctx)) -> Response:
+    """The plan's sensor-mask preview (PNG), drawn in the plan worker process."""
+    text = await anyio.to_thread.run_sync(c.store.get_plan_text, plan_id)
+    if text is None:
+        raise HTTPException(404, f"no plan {plan_id}")
+    png = await anyio.to_thread.run_sync(_in_plan_worker, c, preview_png_of_text, text)
+    return Response(png, media_type="image/png")

@@ -402,6 +402,24 @@ class JobStore:
             self._db.execute("INSERT OR IGNORE INTO plans (id, body, summary, created) VALUES (?, ?, ?, ?)",
                              (plan_id, json.dumps(body), json.dumps(summary), time.time()))
 
+    def put_plan_text(self, plan_id: str, text: str, summary: dict) -> None:
+        """Store a plan already serialized (``text``: its JSON), as :meth:`put_plan` does."""
+        with self._lock:
+            self._db.execute("INSERT OR IGNORE INTO plans (id, body, summary, created) VALUES (?, ?, ?, ?)",
+                             (plan_id, text, json.dumps(summary), time.time()))
+
+    def get_plan_text(self, plan_id: str) -> str | None:
+        """The plan's JSON as stored (ready to serve, not parsed); None when there is none."""
+        with self._lock:
+            row = self._db.execute("SELECT body FROM plans WHERE id = ?", (plan_id,)).fetchone()
+        return None if row is None else row["body"]
+
+    def get_plan_summary(self, plan_id: str) -> dict | None:
+        """The plan's stored summary alone (its points are not read); None when there is none."""
+        with self._lock:
+            row = self._db.execute("SELECT summary FROM plans WHERE id = ?", (plan_id,)).fetchone()
+        return None if row is None else json.loads(row["summary"])
+
     def get_plan(self, plan_id: str) -> tuple[dict, dict] | None:
         with self._lock:
             row = self._db.execute("SELECT body, summary FROM plans WHERE id = ?", (plan_id,)).fetchone()

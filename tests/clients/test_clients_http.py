@@ -74,7 +74,7 @@ def test_bad_or_missing_token_raises_auth_error_with_server_detail(server, token
 
 
 def test_unknown_job_raises_not_found_with_detail(api, server):
-    raw = httpx.get(server + "/api/jobs/no-such-job")
+    raw = httpx.get(server + "/api/jobs/no-such-job", headers={"Authorization": f"Bearer {TOKEN}"})
     with pytest.raises(NotFound) as err:
         api.get_job("no-such-job")
     assert err.value.status_code == 404
@@ -271,6 +271,7 @@ def test_interrupted_download_resumes_with_range(api, server, tmp_path):
 
 CLIENT_METHODS = {
     ("get", "/api/health"): "health",
+    ("get", "/api/auth"): "auth",
     ("post", "/api/plans"): "create_plan",
     ("get", "/api/plans"): "list_plans",
     ("get", "/api/plans/kinds"): "mask_kinds",

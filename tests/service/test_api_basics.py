@@ -73,7 +73,7 @@ def test_bad_plan_input_gets_422_with_reason(shared_api, body, reason):
     assert reason in r.json()["detail"]
 
 
-def test_token_guards_mutations_only_on_loopback(shared_server):
+def test_token_guards_every_api_route_on_loopback_too(shared_server):
     server = shared_server
     import httpx
 
@@ -85,7 +85,10 @@ def test_token_guards_mutations_only_on_loopback(shared_server):
         assert r.status_code == 401 and "invalid" in r.json()["detail"]
         r = anon.post("/api/jobs/abc/cancel")
         assert r.status_code == 401
-        assert anon.get("/api/jobs").status_code == 200  # reads are open on loopback
+        # reads need the token too (issue 22.2), on a loopback bind as well
+        assert anon.get("/api/jobs").status_code == 401
+        assert anon.get("/api/jobs", headers={"Authorization": f"Bearer {TOKEN}"}).status_code == 200
+        assert anon.get("/api/auth").json() == {"token_required": True, "authenticated": False}
         r = anon.post("/api/plans", json=body, headers={"Authorization": f"Bearer {TOKEN}"})
         assert r.status_code == 201
 

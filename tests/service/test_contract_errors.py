@@ -64,7 +64,7 @@ def test_contract_errors(small_server):
         assert r.status_code == 413, r.text
 
         schema = api.get("/openapi.json").json()
-        assert {} in schema["paths"]["/api/health"]["get"]["security"]  # loopback: reads need no token
+        assert {} not in schema["paths"]["/api/health"]["get"]["security"]  # a token is set: reads need it
         assert {} not in schema["paths"]["/api/plans/preview"]["post"]["security"]
         # exactly one input: a scan job, a dataset, or one dataset per wavelength (unmixing)
         branches = schema["components"]["schemas"]["ReconRequest"]["oneOf"]

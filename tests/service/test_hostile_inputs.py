@@ -39,7 +39,9 @@ class HealthWatch:
         self._thread = threading.Thread(target=self._run, daemon=True)
 
     def _run(self) -> None:
-        with httpx.Client(timeout=HEALTH_S) as c:
+        from tests.service.service_servers import TOKEN  # every API route needs the token (issue 22.2)
+
+        with httpx.Client(timeout=HEALTH_S, headers={"Authorization": f"Bearer {TOKEN}"}) as c:
             while not self._stop.is_set():
                 try:
                     t0 = time.perf_counter()

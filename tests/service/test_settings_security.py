@@ -138,6 +138,8 @@ def test_memory_admission_queues_what_does_not_fit_now(tmp_path):
 @pytest.mark.parametrize("argv, env, reason", [
     (["--device", "foo"], {}, "ID=PATH"),
     (["--host", "0.0.0.0"], {}, "needs a --token"),
+    (["--allowed-host", "*"], {}, "needs a --token"),
+    (["--allowed-host", "http://evil.example/"], {}, "allowed host"),
     ([], {"FPSCAN_WORKERS": "0"}, "workers"),
     (["--settings", "/nonexistent/fpscan.toml"], {}, "cannot read settings file"),
 ])

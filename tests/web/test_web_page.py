@@ -1,7 +1,7 @@
 """End-to-end tests of the web page in a real headless Chromium against a real
 ``fpscan serve`` (token configured) and a simulated scanner from ``fpscan sim`` on a pty.
 
-What the user does, step by step: the token is asked once; a plan is previewed while the
+What the user does, step by step: signs in on the login view (the token is kept for the tab); a plan is previewed while the
 parameters change and saved; a scan is started and watched to 100 % with the live
 preview changing; the result is opened, reconstructed and its volume downloaded.
 
@@ -178,17 +178,28 @@ def fill_plan_form(browser, n_points: int) -> None:
     set_value(browser, "mask-n-points", n_points)
 
 
-def submit_token_if_asked(browser, timeout=15) -> bool:
-    def dialog_open():
-        return browser.execute_script("return document.getElementById('token-dialog').open")
+def login_shown(browser) -> bool:
+    return browser.execute_script("return !document.getElementById('view-login').hidden")
+
+
+def submit_token_if_asked(browser, timeout=15, token=TOKEN) -> bool:
+    """Sign in on the page's login view when it shows within ``timeout`` s (False when
+    it does not)."""
     try:
-        wait_for(dialog_open, timeout, "the token dialog")
+        wait_for(lambda: login_shown(browser), timeout, "the login view")
     except AssertionError:
         return False
-    set_value(browser, "token-input", TOKEN)
-    el(browser, "token-ok").click()
-    wait_for(lambda: not dialog_open(), 5, "the token dialog to close")
+    set_value(browser, "login-token", token)
+    el(browser, "login-submit").click()
+    wait_for(lambda: not login_shown(browser), 10, "the login view to give way to the page")
     return True
+
+
+def refused_requests(browser) -> list:
+    """The page's requests answered 401 so far (the browser's own record:
+    Resource Timing ``responseStatus``)."""
+    return browser.execute_script(
+        "return performance.getEntriesByType('resource').filter(e => e.responseStatus === 401).map(e => e.name)")
 
 
 # ----------------------------------------------------------------------------- tests
@@ -198,10 +209,20 @@ def token_prompts(browser) -> int:
 
 def test_plan_view_preview_errors_token_and_save(browser, server, api, screenshots, state):
     browser.get(server + "/#/plan")
-    # The preview (made at once for the form's defaults) does a plan's work, so it needs
-    # the token: asked now, once, and kept for the session.
-    assert submit_token_if_asked(browser), "the page never asked for the token"
+    # The server needs a token: the page opens on its login view (not a dialog over a page
+    # whose requests failed), before any request that needs the token.
+    wait_for(lambda: login_shown(browser), 15, "the login view")
+    assert not el(browser, "view-plan").is_displayed()
+    shot(browser, screenshots, "login-view")
+    # a wrong token is refused on the login view, with the reason
+    set_value(browser, "login-token", "not-the-token")
+    el(browser, "login-submit").click()
+    wait_for(lambda: "refused" in text(browser, "login-error"), 10, "the refusal on the login view")
+    assert login_shown(browser) and browser.execute_script("return sessionStorage.getItem('fpscan.token')") is None
+    assert submit_token_if_asked(browser), "the login view went away"
     assert browser.execute_script("return sessionStorage.getItem('fpscan.token')") == TOKEN
+    wait_for(lambda: text(browser, "plan-preview-state").startswith("Preview up to date"), 20, "the first preview")
+    assert refused_requests(browser) == [], "a request of the page was refused (401)"
     fill_plan_form(browser, N_POINTS)
 
     # The preview follows the parameters: the server's own numbers for the same request.
@@ -671,19 +692,22 @@ def test_wrong_token_is_refused_with_the_servers_reason(browser, server, api, sc
     # then a wrong one is stored and the save is refused (no typing: every change would
     # preview, and a preview needs the token too)
     wait_for(lambda: text(browser, "plan-preview-state").startswith("Preview up to date"), 20, "the preview")
-    browser.execute_script("sessionStorage.setItem('fpscan.token', 'not-the-token')")
+    browser.execute_script("sessionStorage.setItem('fpscan.token', 'not-the-token')")  # changed on the server
     before = token_prompts(browser)
     el(browser, "plan-save").click()
-    wait_for(lambda: browser.execute_script("return document.getElementById('token-dialog').open"), 15,
-             "the token dialog after a refused token")
+    wait_for(lambda: login_shown(browser), 15, "the login view after a refused token")
     assert token_prompts(browser) == before + 1
-    assert reason in browser.execute_script("return document.querySelector('#token-dialog p').textContent")
-    shot(browser, screenshots, "token-dialog")
-    # Cancelling leaves the server's reason on the page.
-    browser.execute_script("document.getElementById('token-dialog').close('cancel')")
-    wait_for(lambda: reason in text(browser, "error-text") and el(browser, "error").is_displayed(), 10,
-             "the refusal's reason on the page")
-    browser.execute_script("sessionStorage.setItem('fpscan.token', arguments[0])", TOKEN)
+    assert reason in text(browser, "login-error")
+    shot(browser, screenshots, "login-view-refused")
+    # signing in again carries the refused request out (the plan is saved)
+    assert submit_token_if_asked(browser)
+    plan_id = wait_for(lambda: el(browser, "plan-saved").get_attribute("data-plan-id"), 20, "the saved plan id")
+    assert api.get(f"/api/plans/{plan_id}").status_code == 200
+    # "Sign out" forgets the token and shows the login view
+    el(browser, "token-button").click()
+    wait_for(lambda: login_shown(browser), 5, "the login view after signing out")
+    assert browser.execute_script("return sessionStorage.getItem('fpscan.token')") is None
+    assert submit_token_if_asked(browser)
 
 
 def test_without_a_token_nothing_is_asked_and_plain_links_download(browser, tmp_path, download_dir):
@@ -733,6 +757,9 @@ def test_keyboard_navigation_and_state_without_colour(browser, server, screensho
 
     browser.get("about:blank")
     browser.get(server + "/#/plan")
+    if wait_for(lambda: (login_shown(browser) and "login") or el(browser, "view-plan").is_displayed(), 10,
+                "the plan view or the login view") == "login":  # the tab holds no token (a test before failed)
+        submit_token_if_asked(browser)
     wait_for(lambda: el(browser, "view-plan").is_displayed(), 10, "the plan view")
     # Tab from the top of the page reaches the navigation; Enter on "Scan" switches view.
     for _ in range(12):
