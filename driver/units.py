@@ -45,7 +45,13 @@ SOUND_SPEED_RANGE = (1000.0, 2000.0)  # m/s
 _QUANTITY = re.compile(r"^\s*([+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?)\s*([A-Za-zµμ/ ]*?)\s*$")
 
 
-class ImplausibleValue(ValueError):
+class RefusedInput(ValueError):
+    """Input refused by a rule the caller can fix (a value out of range, a unit mistake, an
+    option the method does not take): a usage error -- the CLI exits 2, the API answers
+    422. Subclasses: :class:`ImplausibleValue`, ``service.recon.checks.OptionError``."""
+
+
+class ImplausibleValue(RefusedInput):
     """A value outside what a planar FP scanner works with, most likely a unit mistake;
     the message names the quantity, its plausible range and the likely intended unit."""
 

@@ -89,17 +89,19 @@ def make_client(args, *, timeout: float = 60.0):
 
 
 def client_errors(run: Callable[[Any], int]) -> Callable[[Any], int]:
-    """Decorator for ``run(args)``: client exceptions become one line on stderr, exit 1."""
+    """Decorator for ``run(args)``: client exceptions become one line on stderr, exit 1 --
+    or 2 when the server refused the request as invalid input (HTTP 400 or 422: the usage
+    error of the local checks, ``clients.cli.main``)."""
 
     @functools.wraps(run)
     def wrapper(args) -> int:
-        from clients.http import FpscanClientError
+        from clients.http import ApiError, FpscanClientError
 
         try:
             return run(args)
         except FpscanClientError as exc:
             print(f"fpscan {args.command}: error: {exc}", file=sys.stderr)
-            return 1
+            return 2 if isinstance(exc, ApiError) and exc.status_code in (400, 422) else 1
 
     return wrapper
 

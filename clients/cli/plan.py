@@ -80,8 +80,9 @@ def _add_field(group, f: dict) -> None:
     if f["widget"] == "pairs":
         kw.update(type=_json_value, metavar="JSON|FILE")
         kw["help"] += ": a JSON list of pairs, inline or in a file"
-    elif f["widget"] == "numbers":
-        kw.update(type=number, nargs="+", metavar="N" if f["integer"] else "VALUE")
+    elif f["widget"] == "numbers":  # space- or comma-separated: --poi -2mm 2mm, --poi=-2mm,2mm
+        kw.update(type=lambda s, one=number: [one(x) for x in s.split(",") if x.strip()] or [one(s)],
+                  nargs="+", metavar="N" if f["integer"] else "VALUE")
     else:
         kw.update(type=number, metavar="N" if f["integer"] else "VALUE")
     group.add_argument(flag(f["name"]), **kw)
@@ -164,6 +165,8 @@ def mask_params(args) -> dict:
         if f["widget"] == "pairs" and isinstance(v, dict):
             params.update(v)  # a JSON object names its parameters, e.g. {"indices": [...]}
             continue
+        if f["widget"] == "numbers":  # each token a list (comma-separated values): one list
+            v = [x for token in v for x in token]
         if f["widget"] == "numbers" and len(v) == 1 and f["scalar"]:
             v = v[0]  # n_per_side 13 -> 13; n_per_side 13 9 -> [13, 9]
         params[f["name"]] = v

@@ -75,7 +75,10 @@ def add_arguments(parser):
                    help="clip negative p0 to 0 (tv: constrain p0 >= 0, on by default)")
     g.add_argument("--lambda", dest="lam", type=float, default=None, metavar="LAMBDA",
                    help="tv: TV weight λ in the data's units, >= 0 (default: from the estimated noise level)")
-    g.add_argument("--iterations", type=int, default=None, help="tv: maximum iterations (default 60)")
+    g.add_argument("--iterations", type=int, default=None, help="tv: maximum iterations, 1..100000 (default 60)")
+    g.add_argument("--time-limit", type=quantity("time", "time-limit"), default=None, metavar="SECONDS",
+                   help="tv: wall-time limit of the solver, e.g. 600 or 10min (default 3600 s; on a server at most "
+                        "its tv_time_limit_s); when reached the result says converged false, stop reason 'time limit'")
     g.add_argument("--n-z", type=int, default=None, help="output depth samples (default n_t)")
     g.add_argument("--dz", type=quantity("length", "dz"), default=None,
                    help="output depth spacing, e.g. 20um (default c*dt)")
@@ -117,9 +120,25 @@ def _sniff_format(path) -> str:
         raise ValueError(f"{path}: {exc}") from None
 
 
+def check_options_early(method: str | None, params: dict) -> None:
+    """The options by the kernel's own rules (``service.pipeline.method_options``; without
+    ``--method``, the method is the input's default: the values' rules only), before any
+    file is read: a refused option is a usage error (``OptionError``, exit 2) naming its
+    range, or the method's options for one the method does not take. On a client-only
+    install (no ``service``) the server applies the same rules (422, exit 2)."""
+    try:
+        from service.pipeline import check_option_values, method_options
+    except ImportError:
+        return
+    if method is not None:
+        method_options(method, params)
+    else:
+        check_option_values(params)
+
+
 def _params(args) -> dict:
     params = {}
-    for name in ("eps", "dtype", "upsample", "n_z", "dz", "c", "interp", "lam", "iterations"):
+    for name in ("eps", "dtype", "upsample", "n_z", "dz", "c", "interp", "lam", "iterations", "time_limit"):
         value = getattr(args, name)
         if value is not None:
             params[name] = value
@@ -146,6 +165,7 @@ def run(args) -> int:
             raise ValueError("no input: give a scan file or dataset (or --server with --scan-job)")
         if not Path(args.input).is_file():
             raise ValueError(f"no such file: {args.input}")
+    check_options_early(args.method, _params(args))
     fmt = None if args.scan_job else (args.format or _sniff_format(args.input))
     # no --method: the pipeline's default for the loaded data (service.pipeline.default_method),
     # resolved where the data is read: here locally, by the server with --server

@@ -101,6 +101,9 @@ def run(args) -> int:
                 raise ValueError(f"no such file: {p}")
         if len(args.inputs) > 1 and (args.wavelengths is None or len(args.wavelengths) != len(args.inputs)):
             raise ValueError(f"{len(args.inputs)} inputs need --wavelengths with {len(args.inputs)} values (m)")
+    from clients.cli.recon import check_options_early
+
+    check_options_early(args.method, _params(args))
     if args.server:
         return _remote(args)
     return _local(args)

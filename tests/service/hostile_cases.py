@@ -399,13 +399,16 @@ def mask_parameters_covered() -> set[tuple[str, str]]:
 #: A reconstruction request's options (``ReconParams``) and the valid value each replaces
 #: (``recon_cases`` checks that this names every option the API has).
 RECON_PARAMS = {"c": 1500.0, "c_range": [1400.0, 1600.0], "eps": 1e-6, "dtype": "float32", "upsample": 1, "positivity": False, "lam": 1.0,
-                "iterations": 10, "n_z": 64, "dz": 1e-5, "interp": "*nearest",
+                "iterations": 10, "time_limit": 60.0, "n_z": 64, "dz": 1e-5, "interp": "*nearest",
                 "force": False}
+#: the method each option is tried with (one that takes it: an option the method does not take is a 422)
+RECON_METHOD = {"lam": "tv", "iterations": "tv", "time_limit": "tv", "interp": "kwave"}
 #: Options whose value among ``BAD_VALUES`` is legal: unset (None: the method's default;
 #: dtype and force have no unset), positivity and force 0 (false), λ = 0 (no
 #: regularisation) or tiny, the tolerance 1e-12.
 RECON_LEGAL = {(name, None) for name in RECON_PARAMS if name not in ("dtype", "force")} | {
-    ("positivity", 0), ("force", 0), ("lam", 0), ("lam", 1e-12), ("lam", 5e-324), ("eps", 1e-12)}
+    ("positivity", 0), ("force", 0), ("lam", 0), ("lam", 1e-12), ("lam", 5e-324), ("eps", 1e-12),
+    ("time_limit", 1e-12), ("time_limit", 5e-324)}
 #: A dataset id no server has: a request that passes validation is answered 404.
 NO_DATASET = "0" * 32
 
@@ -421,7 +424,7 @@ def recon_cases() -> list[tuple[str, dict, int, str]]:
     out = []
     for name in RECON_PARAMS:
         for value in BAD_VALUES:
-            body = {"dataset_id": NO_DATASET, "method": "ner", "params": {name: value}}
+            body = {"dataset_id": NO_DATASET, "method": RECON_METHOD.get(name, "ner"), "params": {name: value}}
             legal = (name, value) in RECON_LEGAL
             out.append((f"params.{name}={value}", body, 404 if legal else 422, "" if legal else name))
     for pair in ([0, 0], [1600.0, 1400.0], [1500.0, 1500.0], [1e300, 1e300], [math.nan, 1500.0], [1500.0]):
