@@ -78,7 +78,7 @@ class Settings(BaseSettings):
                                                       "/run/secrets/<name>); used when token is not set")
     retention_keep_results: int | None = Field(None, ge=0, description="keep the newest N finished "
                                                "reconstruction results (None = all); PUT /api/retention overrides")
-    retention_keep_bytes: int | None = Field(None, ge=0, description="keep at most this many bytes of result "
+    retention_keep_bytes: int | None = Field(None, ge=0, le=10**18, description="keep at most this many bytes of result "
                                              "files, oldest finished deleted first (None = no limit)")
     retention_include_scans: bool = Field(False, description="let retention delete finished scan files too")
 

@@ -6,9 +6,12 @@ subcommand. Modules must import heavy dependencies inside ``run`` so that
 ``fpscan --help`` stays fast and works on the base install (httpx + pydantic): a command
 run where its extra is missing says so in one line (exit 2).
 
-Exit codes: 0 success, 1 failure (one-line reason on stderr), 2 usage error: a bad flag,
-refused input (``driver.units.RefusedInput``: a unit mistake, an option outside its rule
-or one the method does not take) or a request the server refused as invalid (HTTP 400/422).
+Exit codes (a one-line reason on stderr): 0 success; 2 refused input -- a bad flag (argparse),
+any ``ValueError`` (the library's refusal of a value, a file or a combination: a unit mistake,
+an option outside its rule or one the method does not take, a missing input file) or a request
+the server refused as invalid (HTTP 400/422); 1 a failure of the work itself -- I/O or a device
+(``OSError``, ``RuntimeError``), the server unreachable or refusing for its state (409, 401,
+503), a job that failed, an incomplete scan.
 """
 from __future__ import annotations
 
@@ -86,7 +89,10 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("fpscan: interrupted", file=sys.stderr)
         return 130
-    except (ValueError, OSError, RuntimeError) as exc:
+    except ValueError as exc:  # refused input (a value, a file's content, a combination): a usage error
+        print(f"fpscan {args.command}: error: {reason(exc)}", file=sys.stderr)
+        return 2
+    except (OSError, RuntimeError) as exc:  # the work failed (I/O, a device)
         print(f"fpscan {args.command}: error: {reason(exc)}", file=sys.stderr)
         return 1
     return int(code or 0)

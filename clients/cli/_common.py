@@ -8,6 +8,17 @@ import sys
 from collections.abc import Callable
 from typing import Any
 
+try:  # the base of refused input (a unit mistake, an option outside its rule): exit 2
+    from driver.units import RefusedInput
+except ImportError:  # pragma: no cover -- driver.units is part of every install
+    RefusedInput = ValueError  # type: ignore[misc,assignment]
+
+
+class UsageError(RefusedInput):
+    """The command line itself is refused before any work: a flag missing or combined with
+    one it excludes, a value out of range, a named file that does not exist. ``fpscan``
+    prints it on one line and exits 2, like argparse's own usage errors."""
+
 
 def add_server_options(parser, *, required: bool = False) -> None:
     """``--server URL`` (default ``$FPSCAN_SERVER``) and ``--token`` (default

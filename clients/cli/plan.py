@@ -15,7 +15,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from clients.cli._common import add_server_options, client_errors, needs_extra
+from clients.cli._common import UsageError, add_server_options, client_errors, needs_extra
 
 COMMAND = "plan"
 HELP = "make a scan plan (sensor mask + weights + order + acquisition settings) as plan JSON"
@@ -160,7 +160,7 @@ def mask_params(args) -> dict:
         v = getattr(args, "p_" + f["name"], None)
         if v is None:
             if f["required"]:
-                raise ValueError(f"{args.mask} needs {flag(f['name'])}")
+                raise UsageError(f"{args.mask} needs {flag(f['name'])}")
             continue
         if f["widget"] == "pairs" and isinstance(v, dict):
             params.update(v)  # a JSON object names its parameters, e.g. {"indices": [...]}
@@ -195,7 +195,7 @@ def run(args) -> int:
     if getattr(args, "_planner_missing", None):
         return needs_extra(args, "driver", args._planner_missing)
     if not args.out and not args.server:
-        raise ValueError("give --out FILE (a local plan) or --server URL (a plan on the server)")
+        raise UsageError("give --out FILE (a local plan) or --server URL (a plan on the server)")
     body = request_body(args)
     if args.server:
         return _remote(args, body)

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import argparse
 
-from clients.cli._common import add_progress_option, add_server_options, client_errors, speed
+from clients.cli._common import UsageError, add_progress_option, add_server_options, client_errors, speed
 
 COMMAND = "recon"
 HELP = "reconstruct p0 (NEDNER/NER/...) from a scan file or dataset, locally or on a server"
@@ -157,14 +157,14 @@ def run(args) -> int:
     from pathlib import Path
 
     if args.scan_job and not args.server:
-        raise ValueError("--scan-job needs --server")
+        raise UsageError("--scan-job needs --server")
     if args.scan_job and args.input:
-        raise ValueError("give either INPUT or --scan-job, not both")
+        raise UsageError("give either INPUT or --scan-job, not both")
     if not args.scan_job:
         if not args.input:
-            raise ValueError("no input: give a scan file or dataset (or --server with --scan-job)")
+            raise UsageError("no input: give a scan file or dataset (or --server with --scan-job)")
         if not Path(args.input).is_file():
-            raise ValueError(f"no such file: {args.input}")
+            raise UsageError(f"no such file: {args.input}")
     check_options_early(args.method, _params(args))
     fmt = None if args.scan_job else (args.format or _sniff_format(args.input))
     # no --method: the pipeline's default for the loaded data (service.pipeline.default_method),
@@ -275,7 +275,7 @@ def _remote(args, fmt: str | None) -> int:
                                               wavelength=args.wavelength)
         else:
             if args.wavelength == "all":
-                raise ValueError("--wavelength all with --server needs --scan-job: an uploaded file is stored at "
+                raise UsageError("--wavelength all with --server needs --scan-job: an uploaded file is stored at "
                                  "one wavelength (--wavelength K); reconstruct locally or upload once per wavelength")
             from driver.units import check_plausible
 

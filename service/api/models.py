@@ -104,7 +104,9 @@ class Retention(_Request):
     are deleted first. Scan files only with ``include_scans``."""
 
     keep_results: int | None = Field(None, ge=0, le=10**9)
-    keep_bytes: int | None = Field(None, ge=0, le=2**62)
+    #: at most 10^18 (1 EB): a bound a float states exactly (the OpenAPI document writes bounds
+    #: as floats; 2^62 read back as 4.611686018427388e+18, above 2^62, so schema-valid values got 422)
+    keep_bytes: int | None = Field(None, ge=0, le=10**18)
     include_scans: bool = False
 
 
