@@ -209,6 +209,11 @@ def run(args) -> int:
     lat = plan.lattice
     print(f"plan {plan.id}: {plan.mask.kind} on {lat.n_x}x{lat.n_y} at {lat.pitch:g} m")
     print(f"points: {plan.mask.obtained_points} (requested {plan.mask.requested_points})")
+    from service.plans.mask import shortfall
+
+    why = shortfall(plan.mask.kind, plan.mask.requested_points, plan.mask.obtained_points, lat.pitch)
+    if why:
+        print(f"note: {why}")
     print(f"weight ratio (outer/inner): {plan.mask.weight_ratio:.4g}")
     t = plan.expected_scan_time_s
     print(f"order: {plan.order}; expected scan time: "
@@ -230,6 +235,8 @@ def _remote(args, body: dict) -> int:
             api.download_plan_preview(pid, args.preview)
     print(f"plan {pid} on {args.server}: {field_of(plan, 'kind')}, {field_of(plan, 'n_points')} points "
           f"(requested {field_of(plan, 'requested_points')})")
+    if field_of(plan, "shortfall"):
+        print(f"note: {field_of(plan, 'shortfall')}")
     print(f"weight ratio (outer/inner): {field_of(plan, 'weight_ratio'):.4g}")
     t = field_of(plan, "expected_scan_time_s")
     print("expected scan time: " + (f"{t:.1f} s" if t is not None else "set by the scanner (no PRF in the plan)"))

@@ -105,13 +105,13 @@ def run(args) -> int:
     from clients.cli.recon import check_options_early
 
     check_options_early(args.method, _params(args))
-    if args.wavelengths is not None:  # the excitation range, naming the likely unit (750 -> 750 nm): exit 2
+    if args.wavelengths is not None:  # unmixing's own rule (range naming the likely unit: 750 -> 750 nm): exit 2
         try:
-            from driver.plan import check_wavelengths
+            from service.recon.unmix import endmember_matrix
         except ImportError:  # a client-only install: the server checks them (422)
             pass
         else:
-            check_wavelengths(list(args.wavelengths))
+            endmember_matrix(list(args.wavelengths))
     if args.server:
         return _remote(args)
     return _local(args)

@@ -275,6 +275,8 @@ class Plan(BaseModel):
     kind: str
     n_points: int
     requested_points: int | None = None
+    shortfall: str | None = Field(None, description="why the plan has fewer points than asked (under 90 %), "
+                                  "one line; null when it has about as many")
     weight_ratio: float | None = None
     expected_scan_time_s: float | None = Field(None, description="points × averages × wavelengths / PRF, s; "
                                                "null when the plan sets no PRF (unthrottled)")

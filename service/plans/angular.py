@@ -113,12 +113,6 @@ def equisteradian_rings(depth: float, rho_max: float, n_points: int) -> list[Rin
                      f"(depth {r0:g} m, rho_max {rho_max:g} m, n_points {n})")
 
 
-#: Fewest points, as a fraction of those asked, a mask around a point of interest may
-#: obtain; below it the request is refused with the reason (the design rounds its counts to
-#: rings of powers of two, so it differs from the request by a few percent by itself).
-MIN_OBTAINED_FRACTION = 0.9
-
-
 def check_depth(r0: float, lattice: Lattice) -> float:
     """The point of interest's depth ``r0`` (m): refused (ValueError naming the reason)
     below one lattice pitch, where the design's angles put nearly every point within a
@@ -134,11 +128,6 @@ def _finish(kind, params, lattice, pos_design, poi, depth, power, requested, rin
     idx = lattice.snap(pos_design)
     _, first = np.unique(idx, axis=0, return_index=True)
     keep = np.sort(first)
-    if len(keep) < MIN_OBTAINED_FRACTION * requested:
-        raise ValueError(
-            f"{kind}: {requested} points asked, but the design's points snap onto only {len(keep)} distinct lattice "
-            f"points: near the point of interest they lie closer than the pitch ({lattice.pitch:g} m) and merge. "
-            f"Ask for at most about {len(keep)} points, a deeper point of interest, or a finer pitch")
     idx = idx[keep]
     rings = None if ring_of is None else np.asarray(ring_of)[keep]
     pos = lattice.positions(idx)
@@ -200,8 +189,8 @@ def equiangular_mask(lattice: Lattice, depth: float, n_points: int, poi=None) ->
     ``design["theta"]`` holds the N angles before snapping.
 
     Raises ValueError: a 2-D lattice, depth ≤ 0 or below one pitch, n_points < 1 or above
-    the lattice, poi outside the line, non-finite values, fewer than 90 % of the points asked
-    obtained (the message says why).
+    the lattice, poi outside the line, non-finite values. Fewer points than asked:
+    ``Mask.shortfall`` says why.
     """
     if not lattice.is_line:
         raise ValueError("an equiangular mask needs a line lattice (n_y = 1); use equisteradian in 3-D")

@@ -75,16 +75,22 @@ def test_negative_points_of_interest_with_units(tmp_path, capsys, poi):
 
 def test_a_depth_below_one_pitch_is_refused_and_a_shortfall_is_explained():
     """Issue 22.4: depth 1e-300 m with 200 points asked gave a 1-point plan; now a depth
-    below one pitch is refused naming why, and a request the design cannot give is refused
-    saying how many it can."""
+    below one pitch is refused naming why, and a plan with fewer points than asked says why
+    (``Mask.shortfall``; the API's ``shortfall``, the CLI's note)."""
     lattice = {"n_x": 64, "n_y": 64, "pitch": 6e-5}
     for depth in (1e-300, 5.9e-5):
         with pytest.raises(ValueError, match="below one lattice pitch"):
             make_plan(kind="equisteradian", lattice=lattice, params={"depth": depth, "n_points": 200})
-    with pytest.raises(ValueError, match=r"2000 points asked, but .* only \d+ distinct lattice points"):
-        make_plan(kind="equisteradian", lattice=lattice, params={"depth": 6e-5, "n_points": 2000})
+    from service.plans import make_mask
+    from service.plans.lattice import Lattice
+
+    short = make_mask("equisteradian", Lattice(64, 64, 6e-5), depth=6e-5, n_points=2000)
+    assert short.obtained_points < 0.9 * 2000  # points closer than the pitch merge: said why
+    assert short.shortfall.startswith(f"{short.obtained_points} of 2000 points asked: ")
+    assert "closer than the lattice pitch" in short.shortfall
     plan = make_plan(kind="equisteradian", lattice=lattice, params={"depth": "3.6mm", "n_points": 200})
     assert plan.mask.params["depth"] == 3.6e-3 and abs(plan.mask.obtained_points - 200) <= 0.1 * 200
+    assert make_mask("equisteradian", Lattice(64, 64, 6e-5), depth=3.6e-3, n_points=200).shortfall is None
     line = make_plan(kind="equiangular", lattice={"n_x": 256, "n_y": 1, "pitch": "60um"},
                      params={"depth": "2 mm", "n_points": 32, "poi": "-1mm"})
     assert line.mask.params["poi"][0] == -1e-3 and line.mask.obtained_points >= 29

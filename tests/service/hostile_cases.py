@@ -251,13 +251,12 @@ POINTS_BY_INDEX = {"indices": [[0, 0], [4, 5]]}
 
 #: (kind, case, value) that are legal (200; case: a parameter, or ``param[0]`` for its
 #: first element): a parameter's default (null) or a valid seed; a zero or tiny Poisson
-#: distance on 32 x 32 (every lattice point: bounded by the lattice); a tiny positive depth
-#: (the point of interest on the sensor plane: the ring design still closes); a point of
-#: interest, a point or an index at (or a tiny offset from) the centre or the corner.
+#: distance on 32 x 32 (every lattice point: bounded by the lattice); a point of
+#: interest, a point or an index at (or a tiny offset from) the centre or the corner. (A tiny
+#: depth is refused: below one lattice pitch, issue 22.4.)
 LEGAL = {("random", "seed", 0), ("poisson", "seed", 0), ("poisson", "n_points", None),
          ("equispaced", "n_per_side", None), ("equiangular", "poi", None), ("equisteradian", "poi", None),
          *(("poisson", "min_distance", v) for v in (1e-12, 5e-324)),
-         *((k, "depth", v) for k in ("equiangular", "equisteradian") for v in (1e-12, 5e-324)),
          *((k, c, v) for k, c in (("equiangular", "poi"), ("equisteradian", "poi[0]"), ("points", "points[0]"))
            for v in (0, 1e-12, 5e-324)),
          ("points", "indices[0]", 0)}
