@@ -145,8 +145,11 @@ def check_wavelengths(wavelengths: Any) -> list[float]:
     for w in wavelengths:
         v = _number("wavelength", w, unit="m")
         if not lo <= v <= hi:
-            raise ValueError(f"wavelengths must lie within {lo * 1e9:g} nm to {hi * 1e9:g} nm, "
-                             f"got {v!r} m ({v * 1e9:g} nm)")
+            from driver.units import ImplausibleValue, suggest_unit
+
+            raise ImplausibleValue(f"wavelengths must lie within {lo * 1e9:g} nm to {hi * 1e9:g} nm, "
+                                   f"got {v:g} m ({v * 1e9:g} nm){suggest_unit(v, lo, hi, 'm')} "
+                                   "Numbers without a unit are m; write the unit, e.g. 750nm.")
         out.append(v)
     if len(set(out)) != len(out):
         raise ValueError(f"wavelengths must not repeat, got {out!r}")

@@ -45,7 +45,13 @@ SOUND_SPEED_RANGE = (1000.0, 2000.0)  # m/s
 _QUANTITY = re.compile(r"^\s*([+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?)\s*([A-Za-zµμ/ ]*?)\s*$")
 
 
-class ImplausibleValue(ValueError):
+class RefusedInput(ValueError):
+    """Input refused by a rule the caller can fix (a value out of range, a unit mistake, an
+    option the method does not take): a usage error -- the CLI exits 2, the API answers
+    422. Subclasses: :class:`ImplausibleValue`, ``service.recon.checks.OptionError``."""
+
+
+class ImplausibleValue(RefusedInput):
     """A value outside what a planar FP scanner works with, most likely a unit mistake;
     the message names the quantity, its plausible range and the likely intended unit."""
 
@@ -126,10 +132,32 @@ def _fmt(x: float, unit: str) -> str:
 
 def _guess(value: float, lo: float, hi: float, units: tuple) -> str:
     """``" -- did you mean 60 µm (60um)?"`` for the first ``(factor, name, suffix)`` that
-    brings ``value`` into ``[lo, hi]``, else ""."""
-    for factor, unit_name, suffix in units:
+    brings ``value`` into ``[lo, hi]``, else "". The suggestion is the quantity the number
+    most likely meant, written in its readable unit: 60 (m) and 60 mm both suggest 60 µm --
+    the number typed, in a unit 10³ or 10⁶ smaller (not "0.06 mm", the same mistaken
+    quantity renamed)."""
+    si = _SI_OF_UNITS.get(units, "m")
+    for factor, _unit_name, _suffix in units:
         if lo <= value * factor <= hi:
-            return f" -- did you mean {value:g} {unit_name} ({value:g}{suffix})?"
+            return _did_you_mean(value * factor, si)
+    for factor in (1e3, 1e6):  # too small: typed in a unit 10³ or 10⁶ too small (60 nm for 60 µm)
+        if lo <= value * factor <= hi:
+            return _did_you_mean(value * factor, si)
+    return ""
+
+
+def _did_you_mean(x: float, unit: str) -> str:
+    shown = _fmt(x, unit)
+    return f" -- did you mean {shown} ({shown.replace(' ', '').replace('µ', 'u')})?"
+
+
+def suggest_unit(value: float, lo: float, hi: float, unit: str) -> str:
+    """The likely-unit hint of a value (SI ``unit``: ``"m"`` or ``"s"``) outside
+    ``[lo, hi]``: the number typed in a unit 10³, 10⁶ or 10⁹ smaller that lands in range
+    (``750`` m for a wavelength: " -- did you mean 750 nm (750nm)?"), else ""."""
+    for factor in (1e-9, 1e-6, 1e-3):
+        if lo <= value * factor <= hi:
+            return _did_you_mean(value * factor, unit)
     return ""
 
 
@@ -144,6 +172,7 @@ def _in_range(name: str, value: float, lo: float, hi: float, unit: str, units: t
 _KIND_OF = {"m": "length", "s": "time", "Hz": "frequency", "m/s": "speed"}
 _LENGTH_UNITS = ((1e-6, "µm", "um"), (1e-3, "mm", "mm"), (1e-9, "nm", "nm"))
 _TIME_UNITS = ((1e-9, "ns", "ns"), (1e-6, "µs", "us"), (1e-12, "ps", "ps"))
+_SI_OF_UNITS = {_LENGTH_UNITS: "m", _TIME_UNITS: "s"}
 
 
 def check_speeds(*, c: Any = None, c_range: Any = None, force: bool = False) -> None:

@@ -259,7 +259,11 @@ def focus_then_reconstruct(dataset: Any, method: str, reconstruct: Callable[...,
     search_method = method
     if method in ITERATIVE_METHODS:
         search_method = "ner" if getattr(dataset, "kind", None) == "grid" else "nedner"
-    search_opts = {k: v for k, v in options.items() if k not in ("dz", "n_z", "dtype", "upsample")}
+    from service.pipeline import METHODS
+
+    takes = set(METHODS[search_method].options) if search_method in METHODS else set(options)
+    # the search method's own options only (an iterative method's lam, iterations... are not the search's)
+    search_opts = {k: v for k, v in options.items() if k not in ("dz", "n_z", "dtype", "upsample") and k in takes}
 
     def at(ds: Any, c: float, **o: Any) -> Any:
         return reconstruct(ds, search_method, should_stop=should_stop, c=c, **{**search_opts, **o})

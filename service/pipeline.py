@@ -66,11 +66,13 @@ OPTIONS: dict[str, str] = {
     "eps": "NUFFT tolerance in [1e-14, 1e-1] (default 1e-6)",
     "upsample": "lateral upsampling factor 1..8 (default 1)",
     "positivity": "clip negative p0 to 0 (default false; tv: true)",
-    "n_z": "output depth samples (default n_t)",
-    "dz": "output depth spacing, m (default c·dt)",
+    "n_z": "output depth samples, 2..65536 (default n_t)",
+    "dz": "output depth spacing, m, in [1e-9, 0.1] (default c·dt)",
     "interp": f"k-Wave interpolation, one of {', '.join(KWAVE_INTERPS)} (default *nearest)",
-    "lam": "TV weight λ in the data's units, >= 0 (tv; default: from the estimated noise level)",
-    "iterations": "maximum iterations, >= 1 (tv; default 60)",
+    "lam": "TV weight λ in the data's units, in [0, 1e30] (tv; default: from the estimated noise level)",
+    "iterations": "maximum iterations, 1..100000 (tv; default 60)",
+    "time_limit": "wall-time limit of the solver, s, in (0, 604800] (tv; default 3600, the server's setting "
+                  "tv_time_limit_s caps it): when reached the result says converged false, stop reason 'time limit'",
 }
 
 _COMMON = ("c", "dtype", "upsample", "positivity", "n_z", "dz")
@@ -131,29 +133,86 @@ def default_method(dataset: Any) -> str:
 
 
 def _dtype(value: Any) -> np.dtype:
-    dt = np.dtype(DEFAULT_DTYPE if value is None else value)
-    if dt.name not in DTYPES:
-        raise ValueError(f"dtype must be one of {', '.join(DTYPES)}, got {value!r}")
+    from service.recon.checks import OptionError
+
+    try:
+        dt = np.dtype(DEFAULT_DTYPE if value is None else value)
+    except TypeError:
+        dt = None
+    if dt is None or dt.name not in DTYPES:
+        raise OptionError(f"dtype must be one of {', '.join(DTYPES)}, got {value!r}")
     return dt
 
 
+def _check_interp(value: Any) -> str:
+    if value not in KWAVE_INTERPS:
+        from service.recon.checks import OptionError
+
+        raise OptionError(f"interp must be one of {', '.join(KWAVE_INTERPS)}, got {value!r}")
+    return str(value)
+
+
+def _check_bool(name: str) -> Callable[[Any], bool]:
+    def check(value: Any) -> bool:
+        if not isinstance(value, (bool, np.bool_)) and not (isinstance(value, int) and value in (0, 1)):
+            from service.recon.checks import OptionError
+
+            raise OptionError(f"{name} must be true or false, got {value!r}")
+        return bool(value)
+
+    return check
+
+
+def option_rules() -> dict[str, Callable[[Any], Any]]:
+    """Each option's rule (value -> checked value, or ``service.recon.checks.OptionError``
+    naming the option and its range): the very functions the kernels apply
+    (``service.recon.checks``), so every door -- :func:`reconstruct`, ``fpscan recon`` /
+    ``unmix`` and ``POST /api/reconstructions`` -- refuses what the kernel would, before any
+    work. ``c`` and ``c_range`` have their own rules (:func:`reconstruct`,
+    ``driver.units.check_speeds``, ``service.autofocus.check_c_range``)."""
+    from service.recon import checks
+
+    return {"eps": checks.check_eps, "upsample": checks.check_upsample, "n_z": checks.check_n_z,
+            "dz": checks.check_dz, "lam": checks.check_lam, "iterations": checks.check_iterations,
+            "time_limit": checks.check_time_limit, "dtype": _dtype, "interp": _check_interp,
+            "positivity": _check_bool("positivity")}
+
+
+def check_option_values(options: dict) -> None:
+    """Apply :func:`option_rules` to every option given (``None``: the default, passes);
+    raises ``service.recon.checks.OptionError`` (a ValueError) naming the first refused."""
+    rules = option_rules()
+    for name, value in options.items():
+        if value is not None and name in rules:
+            rules[name](value)
+
+
 def method_options(method: str, options: dict) -> dict:
-    """The options ``method`` takes, from ``options``: ``None`` values and the options of
-    other methods are left out (so one set of options can serve every method, as with
-    k-Wave's and our methods side by side); a name that is no option at all
-    (:data:`OPTIONS`) raises ValueError naming it, as does an unknown method, and a
-    ``c_range`` without ``c="auto"`` or outside :func:`service.autofocus.check_c_range`.
-    ``force`` (:func:`reconstruct`'s flag, not a method's option) passes and is left out.
-    Returns a new dict."""
+    """The options ``method`` takes, from ``options``, each checked by its rule
+    (:func:`option_rules`); ``None`` values (the defaults) are left out. Raises
+    ValueError naming the problem: an unknown method; a name that is no option at all
+    (:data:`OPTIONS`); an option ``method`` does not take (``OptionError`` naming the
+    method's options: an option that would do nothing is never silently dropped); a value
+    outside its rule; a ``c_range`` without ``c="auto"`` or outside
+    :func:`service.autofocus.check_c_range`. ``force`` (:func:`reconstruct`'s flag, not a
+    method's option) passes and is left out. Returns a new dict."""
+    from service.recon.checks import OptionError
+
     spec = METHODS.get(method)
     if spec is None:
-        raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
+        raise OptionError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
     unknown = sorted(set(options) - set(OPTIONS) - {"force"})  # force: reconstruct's own flag
     if unknown:
-        raise ValueError(f"unknown option {', '.join(unknown)} (options: {', '.join(OPTIONS)})")
+        raise OptionError(f"unknown option {', '.join(unknown)} (options: {', '.join(OPTIONS)})")
+    foreign = sorted(k for k, v in options.items() if v is not None and k in OPTIONS and k not in spec.options
+                     and k != "c_range")
+    if foreign:
+        raise OptionError(f"method {method!r} takes no option {', '.join(foreign)} "
+                          f"(its options: {', '.join(spec.options)})")
+    check_option_values(options)
     if options.get("c_range") is not None:  # never silently unused
         if options.get("c") != "auto":
-            raise ValueError(f"c_range is the autofocus search interval: it needs c='auto', got c={options.get('c')!r}")
+            raise OptionError(f"c_range is the autofocus search interval: it needs c='auto', got c={options.get('c')!r}")
         from service.autofocus import check_c_range
 
         check_c_range(options["c_range"])
@@ -174,8 +233,9 @@ def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = No
     force : accept a ``c`` (or ``c_range``) outside 1000-2000 m/s (a medium other than
         tissue or water); without it such a value is a ValueError naming the likely unit
         mistake (``driver.units.ImplausibleValue``).
-    **options : the method's options (module docstring); ``None`` = default; options
-        only other methods take are ignored.
+    **options : the method's options (module docstring); ``None`` = default; each is
+        checked by its rule (:func:`method_options`) before any work, and an option the
+        method does not take is refused naming the method's options.
 
     Returns
     -------
@@ -185,8 +245,10 @@ def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = No
 
     Raises
     ------
-    ValueError naming the problem (unknown method or option name, a grid method on a
-    sensor mask, no A-lines, bad values, an implausible ``c`` without ``force``);
+    ValueError naming the problem (unknown method or option name, an option the method
+    does not take, a grid method on a sensor mask, no A-lines, bad values -- an option
+    outside its rule is ``service.recon.checks.OptionError`` -- an implausible ``c``
+    without ``force``);
     Cancelled when ``should_stop()`` returned True.
     """
     spec = METHODS.get(method)
@@ -310,6 +372,6 @@ register(Method("kwave", "k-Wave compatible (kspaceLineRecon / kspacePlaneRecon)
                 ("c", "dtype", "positivity", "interp"), _run_kwave,
                 "k-Wave kspaceLineRecon / kspacePlaneRecon (reference/KWAVE_RECON_NOTES.md)"))
 register(Method("tv", "model-based: TV + positivity on the exact model (iterative; sparse, noisy scans)", False,
-                ("eps", "lam", "iterations", "c", "dtype", "positivity", "n_z", "dz"), _run_tv,
+                ("eps", "lam", "iterations", "time_limit", "c", "dtype", "positivity", "n_z", "dz"), _run_tv,
                 "½‖A p0 − g‖²_W + λ TV(p0), p0 ≥ 0, pyproximal primal-dual (Arridge et al., PMB 61 (2016) 8908)",
                 defaults={"positivity": True}))

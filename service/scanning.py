@@ -34,6 +34,9 @@ if TYPE_CHECKING:
 log = logging.getLogger("fpscan.scans")
 
 
+#: Free space (bytes) that must come back on the data folder's disk, beyond what was free
+#: when a full disk stopped a scan, before ``/api/health`` stops calling the disk full.
+DISK_FREED_BYTES = 1 << 20
 #: Longest reason kept for an interrupted scan (HDF5's write errors run to many lines).
 REASON_CHARS = 300
 
@@ -73,6 +76,7 @@ class ScanManager:
         self.previews = PreviewManager(settings.preview_interval_s)
         self._runs: dict[str, _Run] = {}     # scanner_id -> active run
         self._problems: dict[str, str] = {}  # job id -> why it is interrupted (full disk, ...)
+        self._free_at_interrupt: dict[str, int] = {}  # job id -> free bytes when a full disk stopped it
         self._identity: dict[str, str] = {}
         self._lock = threading.Lock()
         self._wake = threading.Event()
@@ -115,9 +119,25 @@ class ScanManager:
 
     def problems(self) -> list[str]:
         """What keeps scans from running now (a full disk, a lost device): one line each,
-        for ``/api/health``."""
+        for ``/api/health``. A full disk is judged now, not when the scan stopped: once at
+        least ``DISK_FREED_BYTES`` more are free on the data folder's disk than then, the line
+        says the space is back and the scan waits for a resume (no stale "disk is full")."""
+        import shutil
+
         with self._lock:
-            return [f"scan {jid}: {why}" for jid, why in self._problems.items()]
+            items = list(self._problems.items())
+            free_then = dict(self._free_at_interrupt)
+        out = []
+        for jid, why in items:
+            if jid in free_then and ("disk full" in why or "disk is full" in why):
+                try:
+                    free_now = shutil.disk_usage(self.settings.data_dir).free
+                except OSError:
+                    free_now = None
+                if free_now is not None and free_now >= free_then[jid] + DISK_FREED_BYTES:
+                    why = "paused by a full disk; space has been freed since: resume it"
+            out.append(f"scan {jid}: {why}")
+        return out
 
     def preview(self, job_id: str):
         return self.previews.get(job_id)
@@ -174,6 +194,7 @@ class ScanManager:
             self.store.clear_cancel(job_id)
             with self._lock:
                 self._problems.pop(job_id, None)
+                self._free_at_interrupt.pop(job_id, None)
         self.wake()
 
     def abort(self, job_id: str) -> None:
@@ -232,16 +253,26 @@ class ScanManager:
         scan file with ``/resume``: the points on disk are kept). While the job store
         itself cannot write (its disk is full too), retried every second, the reason shown
         by ``/api/health`` meanwhile, so the job never stays ``running``."""
+        import shutil
         import sqlite3
 
         why = _one_line(why)
+        try:
+            free = shutil.disk_usage(self.settings.data_dir).free
+        except OSError:
+            free = None
         with self._lock:
             self._problems[jid] = why
+            if free is not None:
+                self._free_at_interrupt[jid] = free
         while True:
             try:
                 self.store.set_state(jid, "paused", only_from=("running", "queued"),
                                      progress={"stage": "interrupted", "reason": why})
                 log.warning("scan job=%s interrupted: %s", jid, why)
+                with self._lock:  # the job store writes again: its own error is no problem any more
+                    if jid in self._problems:
+                        self._problems[jid] = why
                 return
             except sqlite3.Error as exc:
                 with self._lock:

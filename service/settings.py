@@ -72,6 +72,9 @@ class Settings(BaseSettings):
     preview_interval_s: float = Field(3.0, gt=0, le=3600, description="live preview refresh period")
     heartbeat_s: float = Field(2.0, gt=0, le=600, description="lease heartbeat period of running jobs")
     max_attempts: int = Field(3, ge=1, le=100, description="tries of a reconstruction before it fails")
+    tv_time_limit_s: float = Field(3600.0, gt=0, le=7 * 86400, description="wall-time limit of one model-based "
+                                   "(tv) reconstruction, s: the default of its time_limit option and the most a "
+                                   "request may ask; reached, the solver stops and says so (stop_reason 'time limit')")
     resume_scans: bool = Field(False, description="resume scans interrupted by a restart at start-up "
                                                   "(default: they wait, paused, for POST /resume)")
     log_level: str = "info"
@@ -79,7 +82,7 @@ class Settings(BaseSettings):
                                                       "/run/secrets/<name>); used when token is not set")
     retention_keep_results: int | None = Field(None, ge=0, description="keep the newest N finished "
                                                "reconstruction results (None = all); PUT /api/retention overrides")
-    retention_keep_bytes: int | None = Field(None, ge=0, description="keep at most this many bytes of result "
+    retention_keep_bytes: int | None = Field(None, ge=0, le=10**18, description="keep at most this many bytes of result "
                                              "files, oldest finished deleted first (None = no limit)")
     retention_include_scans: bool = Field(False, description="let retention delete finished scan files too")
     retention_datasets_keep_bytes: int | None = Field(None, ge=0, description="keep at most this many bytes of "

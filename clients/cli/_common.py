@@ -10,6 +10,17 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+try:  # the base of refused input (a unit mistake, an option outside its rule): exit 2
+    from driver.units import RefusedInput
+except ImportError:  # pragma: no cover -- driver.units is part of every install
+    RefusedInput = ValueError  # type: ignore[misc,assignment]
+
+
+class UsageError(RefusedInput):
+    """The command line itself is refused before any work: a flag missing or combined with
+    one it excludes, a value out of range, a named file that does not exist. ``fpscan``
+    prints it on one line and exits 2, like argparse's own usage errors."""
+
 
 def add_server_options(parser, *, required: bool = False) -> None:
     """``--server URL`` (default ``$FPSCAN_SERVER``) and ``--token`` (default
@@ -91,17 +102,19 @@ def make_client(args, *, timeout: float = 60.0):
 
 
 def client_errors(run: Callable[[Any], int]) -> Callable[[Any], int]:
-    """Decorator for ``run(args)``: client exceptions become one line on stderr, exit 1."""
+    """Decorator for ``run(args)``: client exceptions become one line on stderr, exit 1 --
+    or 2 when the server refused the request as invalid input (HTTP 400 or 422: the usage
+    error of the local checks, ``clients.cli.main``)."""
 
     @functools.wraps(run)
     def wrapper(args) -> int:
-        from clients.http import FpscanClientError
+        from clients.http import ApiError, FpscanClientError
 
         try:
             return run(args)
         except FpscanClientError as exc:
             print(f"fpscan {args.command}: error: {exc}", file=sys.stderr)
-            return 1
+            return 2 if isinstance(exc, ApiError) and exc.status_code in (400, 422) else 1
 
     return wrapper
 

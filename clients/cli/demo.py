@@ -25,6 +25,8 @@ import json
 import time
 from typing import TYPE_CHECKING
 
+from clients.cli._common import UsageError
+
 if TYPE_CHECKING:
     from clients.processes import Process
 
@@ -124,15 +126,15 @@ class Demo:
         # fpscan plan's unit rules (a pitch of 100 m, dt 12 s, a depth of 3 m): exit 2
         check_plausible(pitch=a.pitch, dt=a.dt, n_t=a.n_t, sound_speed=1500.0, depth=a.poi_depth)
         if a.lattice < 8 or a.lattice > 512:
-            raise ValueError(f"--lattice must be within 8..512, not {a.lattice}")
+            raise UsageError(f"--lattice must be within 8..512, not {a.lattice}")
         if not (0 < a.pitch <= 1e-3):
-            raise ValueError(f"--pitch must be within (0, 1e-3] m, not {a.pitch}")
+            raise UsageError(f"--pitch must be within (0, 1e-3] m, not {a.pitch}")
         if a.points < 10:
-            raise ValueError(f"--points must be at least 10, not {a.points}")
+            raise UsageError(f"--points must be at least 10, not {a.points}")
         if not (8 <= a.n_t <= 65536) or not (0 < a.dt <= 1e-6):
-            raise ValueError("--n-t must be within 8..65536 and --dt within (0, 1e-6] s")
+            raise UsageError("--n-t must be within 8..65536 and --dt within (0, 1e-6] s")
         if not (0 < a.poi_depth <= 0.05):
-            raise ValueError(f"--poi-depth must be within (0, 0.05] m, not {a.poi_depth}")
+            raise UsageError(f"--poi-depth must be within (0, 0.05] m, not {a.poi_depth}")
         self.out.mkdir(parents=True, exist_ok=True)
         (self.out / "logs").mkdir(exist_ok=True)
         # the service's state is the demo's scratch: start from an empty job store

@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import math
 
+from clients.cli._common import UsageError
+
 COMMAND = "evaluate"
 HELP = "run the paper's experiments (limited-view-2d, sparse-masks-3d, nufft-vs-interpolation) -> PNG plots, JSON/CSV tables"
 
@@ -69,7 +71,7 @@ def run(args) -> int:
     from service.experiments import run_experiment
 
     if args.dataset is not None and args.data is None:
-        raise ValueError("--dataset names a dataset inside --data FILE; give --data")
+        raise UsageError("--dataset names a dataset inside --data FILE; give --data")
     names = NAMES if args.experiment == "all" else (args.experiment,)
     data = None
     if args.data is not None:

@@ -10,7 +10,7 @@ The IPASC file is HDF5 written with plain h5py: ``/binary_time_series_data``
 """
 from __future__ import annotations
 
-from clients.cli._common import add_server_options, client_errors
+from clients.cli._common import UsageError, add_server_options, client_errors
 
 COMMAND = "export"
 HELP = ("export a scan file to IPASC HDF5, or a reconstruction result to OME-TIFF or OME-Zarr "
@@ -62,9 +62,9 @@ def run(args) -> int:
 
     if args.server:
         if not args.job:
-            raise ValueError("with --server give the scan job: --job JOB_ID")
+            raise UsageError("with --server give the scan job: --job JOB_ID")
         if args.scan:
-            raise ValueError("give either a local scan file or --server with --job, not both")
+            raise UsageError("give either a local scan file or --server with --job, not both")
         from clients.cli._common import make_client
         from clients.http import field_of
 
@@ -81,24 +81,24 @@ def run(args) -> int:
         print(out)
         return 0
     if args.job:
-        raise ValueError("--job needs --server")
+        raise UsageError("--job needs --server")
     if not args.scan:
-        raise ValueError("no scan file given (or use --server URL --job JOB_ID)")
+        raise UsageError("no scan file given (or use --server URL --job JOB_ID)")
     scan = Path(args.scan)
     if not scan.is_file():
-        raise ValueError(f"no such file: {scan}")
+        raise UsageError(f"no such file: {scan}")
     if _is_result(scan):
         from service.storage.results import export_volume
 
         out = Path(args.out or scan.with_name(f"{scan.stem}{VOLUME_SUFFIXES[args.format]}"))
         if out.resolve() == scan.resolve():
-            raise ValueError("the output would overwrite the result file")
+            raise UsageError("the output would overwrite the result file")
         export_volume(scan, out, args.format)
         print(out)
         return 0
     out = Path(args.out or scan.with_name(f"{scan.stem}_ipasc.h5"))
     if out.resolve() == scan.resolve():
-        raise ValueError("the output would overwrite the scan file")
+        raise UsageError("the output would overwrite the scan file")
     from service.storage.untrusted import read_bounded
 
     # written to a temporary sibling, then renamed; a file a writer has open is read in a

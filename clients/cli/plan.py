@@ -15,7 +15,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from clients.cli._common import add_server_options, client_errors, needs_extra
+from clients.cli._common import UsageError, add_server_options, client_errors, needs_extra
 
 COMMAND = "plan"
 HELP = "make a scan plan (sensor mask + weights + order + acquisition settings) as plan JSON"
@@ -80,8 +80,9 @@ def _add_field(group, f: dict) -> None:
     if f["widget"] == "pairs":
         kw.update(type=_json_value, metavar="JSON|FILE")
         kw["help"] += ": a JSON list of pairs, inline or in a file"
-    elif f["widget"] == "numbers":
-        kw.update(type=number, nargs="+", metavar="N" if f["integer"] else "VALUE")
+    elif f["widget"] == "numbers":  # space- or comma-separated: --poi -2mm 2mm, --poi=-2mm,2mm
+        kw.update(type=lambda s, one=number: [one(x) for x in s.split(",") if x.strip()] or [one(s)],
+                  nargs="+", metavar="N" if f["integer"] else "VALUE")
     else:
         kw.update(type=number, metavar="N" if f["integer"] else "VALUE")
     group.add_argument(flag(f["name"]), **kw)
@@ -159,11 +160,13 @@ def mask_params(args) -> dict:
         v = getattr(args, "p_" + f["name"], None)
         if v is None:
             if f["required"]:
-                raise ValueError(f"{args.mask} needs {flag(f['name'])}")
+                raise UsageError(f"{args.mask} needs {flag(f['name'])}")
             continue
         if f["widget"] == "pairs" and isinstance(v, dict):
             params.update(v)  # a JSON object names its parameters, e.g. {"indices": [...]}
             continue
+        if f["widget"] == "numbers":  # each token a list (comma-separated values): one list
+            v = [x for token in v for x in token]
         if f["widget"] == "numbers" and len(v) == 1 and f["scalar"]:
             v = v[0]  # n_per_side 13 -> 13; n_per_side 13 9 -> [13, 9]
         params[f["name"]] = v
@@ -192,7 +195,7 @@ def run(args) -> int:
     if getattr(args, "_planner_missing", None):
         return needs_extra(args, "driver", args._planner_missing)
     if not args.out and not args.server:
-        raise ValueError("give --out FILE (a local plan) or --server URL (a plan on the server)")
+        raise UsageError("give --out FILE (a local plan) or --server URL (a plan on the server)")
     body = request_body(args)
     if args.server:
         return _remote(args, body)
@@ -206,6 +209,11 @@ def run(args) -> int:
     lat = plan.lattice
     print(f"plan {plan.id}: {plan.mask.kind} on {lat.n_x}x{lat.n_y} at {lat.pitch:g} m")
     print(f"points: {plan.mask.obtained_points} (requested {plan.mask.requested_points})")
+    from service.plans.mask import shortfall
+
+    why = shortfall(plan.mask.kind, plan.mask.requested_points, plan.mask.obtained_points, lat.pitch)
+    if why:
+        print(f"note: {why}")
     print(f"weight ratio (outer/inner): {plan.mask.weight_ratio:.4g}")
     t = plan.expected_scan_time_s
     print(f"order: {plan.order}; expected scan time: "
@@ -227,6 +235,8 @@ def _remote(args, body: dict) -> int:
             api.download_plan_preview(pid, args.preview)
     print(f"plan {pid} on {args.server}: {field_of(plan, 'kind')}, {field_of(plan, 'n_points')} points "
           f"(requested {field_of(plan, 'requested_points')})")
+    if field_of(plan, "shortfall"):
+        print(f"note: {field_of(plan, 'shortfall')}")
     print(f"weight ratio (outer/inner): {field_of(plan, 'weight_ratio'):.4g}")
     t = field_of(plan, "expected_scan_time_s")
     print("expected scan time: " + (f"{t:.1f} s" if t is not None else "set by the scanner (no PRF in the plan)"))

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import argparse
 
-from clients.cli._common import add_progress_option, add_server_options, client_errors, speed
+from clients.cli._common import UsageError, add_progress_option, add_server_options, client_errors, speed
 
 COMMAND = "recon"
 HELP = "reconstruct p0 (NEDNER/NER/...) from a scan file or dataset, locally or on a server"
@@ -75,7 +75,10 @@ def add_arguments(parser):
                    help="clip negative p0 to 0 (tv: constrain p0 >= 0, on by default)")
     g.add_argument("--lambda", dest="lam", type=float, default=None, metavar="LAMBDA",
                    help="tv: TV weight λ in the data's units, >= 0 (default: from the estimated noise level)")
-    g.add_argument("--iterations", type=int, default=None, help="tv: maximum iterations (default 60)")
+    g.add_argument("--iterations", type=int, default=None, help="tv: maximum iterations, 1..100000 (default 60)")
+    g.add_argument("--time-limit", type=quantity("time", "time-limit"), default=None, metavar="SECONDS",
+                   help="tv: wall-time limit of the solver, e.g. 600 or 10min (default 3600 s; on a server at most "
+                        "its tv_time_limit_s); when reached the result says converged false, stop reason 'time limit'")
     g.add_argument("--n-z", type=int, default=None, help="output depth samples (default n_t)")
     g.add_argument("--dz", type=quantity("length", "dz"), default=None,
                    help="output depth spacing, e.g. 20um (default c*dt)")
@@ -117,9 +120,25 @@ def _sniff_format(path) -> str:
         raise ValueError(f"{path}: {exc}") from None
 
 
+def check_options_early(method: str | None, params: dict) -> None:
+    """The options by the kernel's own rules (``service.pipeline.method_options``; without
+    ``--method``, the method is the input's default: the values' rules only), before any
+    file is read: a refused option is a usage error (``OptionError``, exit 2) naming its
+    range, or the method's options for one the method does not take. On a client-only
+    install (no ``service``) the server applies the same rules (422, exit 2)."""
+    try:
+        from service.pipeline import check_option_values, method_options
+    except ImportError:
+        return
+    if method is not None:
+        method_options(method, params)
+    else:
+        check_option_values(params)
+
+
 def _params(args) -> dict:
     params = {}
-    for name in ("eps", "dtype", "upsample", "n_z", "dz", "c", "interp", "lam", "iterations"):
+    for name in ("eps", "dtype", "upsample", "n_z", "dz", "c", "interp", "lam", "iterations", "time_limit"):
         value = getattr(args, name)
         if value is not None:
             params[name] = value
@@ -138,14 +157,15 @@ def run(args) -> int:
     from pathlib import Path
 
     if args.scan_job and not args.server:
-        raise ValueError("--scan-job needs --server")
+        raise UsageError("--scan-job needs --server")
     if args.scan_job and args.input:
-        raise ValueError("give either INPUT or --scan-job, not both")
+        raise UsageError("give either INPUT or --scan-job, not both")
     if not args.scan_job:
         if not args.input:
-            raise ValueError("no input: give a scan file or dataset (or --server with --scan-job)")
+            raise UsageError("no input: give a scan file or dataset (or --server with --scan-job)")
         if not Path(args.input).is_file():
-            raise ValueError(f"no such file: {args.input}")
+            raise UsageError(f"no such file: {args.input}")
+    check_options_early(args.method, _params(args))
     fmt = None if args.scan_job else (args.format or _sniff_format(args.input))
     # no --method: the pipeline's default for the loaded data (service.pipeline.default_method),
     # resolved where the data is read: here locally, by the server with --server
@@ -255,7 +275,7 @@ def _remote(args, fmt: str | None) -> int:
                                               wavelength=args.wavelength)
         else:
             if args.wavelength == "all":
-                raise ValueError("--wavelength all with --server needs --scan-job: an uploaded file is stored at "
+                raise UsageError("--wavelength all with --server needs --scan-job: an uploaded file is stored at "
                                  "one wavelength (--wavelength K); reconstruct locally or upload once per wavelength")
             from driver.units import check_plausible
 

@@ -13,7 +13,7 @@ resume). Rates count only the points this run acquired.
 """
 from __future__ import annotations
 
-from clients.cli._common import add_server_options, client_errors
+from clients.cli._common import UsageError, add_server_options, client_errors
 
 COMMAND = "scan"
 HELP = "acquire a plan from the scanner (or simulator) into a scan file, resuming a partial one"
@@ -72,7 +72,7 @@ def preview_index(wavelengths: list, wanted: float) -> int:
         if abs(float(w) - wanted) <= 1e-6 * abs(float(w)):
             return k
     have = ", ".join(f"{float(w):g}" for w in wavelengths)
-    raise ValueError(f"--preview-wavelength {wanted:g} m is not one of the plan's wavelengths ({have} m)")
+    raise UsageError(f"--preview-wavelength {wanted:g} m is not one of the plan's wavelengths ({have} m)")
 
 
 @client_errors
@@ -86,14 +86,14 @@ def run(args) -> int:
     if args.server and not args.device:  # --device wins over $FPSCAN_SERVER
         return _remote(args)
     if not args.device or not args.out:
-        raise ValueError("a local scan needs --device and --out (or use --server URL)")
+        raise UsageError("a local scan needs --device and --out (or use --server URL)")
     if args.preview_wavelength is not None:
-        raise ValueError("--preview-wavelength is for a scan on a server (--server): a local scan has no live preview")
+        raise UsageError("--preview-wavelength is for a scan on a server (--server): a local scan has no live preview")
     from driver.acquire import acquire
     from driver.plan import load_plan
 
     if args.window < 1 or args.timeout <= 0:
-        raise ValueError("--window must be >= 1 and --timeout > 0")
+        raise UsageError("--window must be >= 1 and --timeout > 0")
     try:
         plan = load_plan(args.plan)  # a wrong file is named before the device is opened
     except ValueError as exc:
@@ -196,7 +196,7 @@ def _remote(args) -> int:
         if scanner is None:
             ids = [field_of(s, "id") for s in api.scanners()]
             if len(ids) != 1:
-                raise ValueError(f"the server has scanners {', '.join(ids) or '(none)'}: choose one with --scanner")
+                raise UsageError(f"the server has scanners {', '.join(ids) or '(none)'}: choose one with --scanner")
             scanner = ids[0]
         job_id = api.start_scan(plan_id, scanner, **extra)
         with ProgressBar(f"scan {job_id[:8]}", quiet=args.quiet) as bar:

@@ -1,6 +1,8 @@
 """`fpscan serve`: run the HTTP service (FastAPI on uvicorn)."""
 from __future__ import annotations
 
+from clients.cli._common import UsageError
+
 COMMAND = "serve"
 HELP = "run the fpscan HTTP service (job queue, scans, reconstructions, web page)"
 
@@ -37,7 +39,7 @@ def parse_devices(items: list[str]) -> dict[str, str]:
     for item in items:
         key, sep, value = item.partition("=")
         if not sep or not key or not value:
-            raise ValueError(f"--device must be ID=PATH, got {item!r}")
+            raise UsageError(f"--device must be ID=PATH, got {item!r}")
         out[key] = value
     return out
 
@@ -73,9 +75,9 @@ def run(args) -> int:
     try:
         settings = Settings.load(args.settings, **overrides)
     except ValidationError as exc:
-        raise ValueError("; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())) from None
+        raise UsageError("; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())) from None
     if not is_loopback(settings.host) and settings.token_value() is None:  # reads token_file
-        raise ValueError(f"binding to {settings.host} (beyond loopback) needs a --token "
+        raise UsageError(f"binding to {settings.host} (beyond loopback) needs a --token "
                          "(or $FPSCAN_TOKEN_FILE)")
     if "*" in settings.allowed_hosts and settings.token_value() is None:
         raise ValueError("--allowed-host '*' (any host name) needs a --token (or $FPSCAN_TOKEN_FILE)")

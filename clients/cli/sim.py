@@ -6,6 +6,8 @@ the ground-truth record (``--record``) and exits 0.
 """
 from __future__ import annotations
 
+from clients.cli._common import UsageError
+
 COMMAND = "sim"
 HELP = "run the simulated FP scanner on a pseudo-terminal (prints its device path first)"
 
@@ -62,25 +64,25 @@ def make_source(kind_and_file: list[str], *, dataset: str = "sensor_data/clean",
 
     kind, rest = kind_and_file[0].lower(), kind_and_file[1:]
     if so2 is not None and kind != "balls":
-        raise ValueError("--so2 needs --source balls")
+        raise UsageError("--so2 needs --source balls")
     if kind == "balls":
         if rest:
-            raise ValueError("--source balls takes no file")
+            raise UsageError("--source balls takes no file")
         balls = default_phantom()
         if so2 is not None and len(so2) == 1:
             so2 = so2 * len(balls)
         return BallSource(balls, c=sound_speed, so2=so2)
     if kind in ("volume", "replay"):
         if len(rest) != 1:
-            raise ValueError(f"--source {kind} needs exactly one FILE")
+            raise UsageError(f"--source {kind} needs exactly one FILE")
         from pathlib import Path
 
         if not Path(rest[0]).is_file():
-            raise ValueError(f"no such file: {rest[0]}")
+            raise UsageError(f"no such file: {rest[0]}")
         if kind == "volume":
             return VolumeSource(Path(rest[0]), c=sound_speed)
         return ReplaySource(Path(rest[0]), dataset=dataset)
-    raise ValueError(f"unknown source {kind!r} (balls, volume FILE, replay FILE)")
+    raise UsageError(f"unknown source {kind!r} (balls, volume FILE, replay FILE)")
 
 
 def run(args) -> int:

@@ -14,6 +14,7 @@ files are downloaded.
 from __future__ import annotations
 
 from clients.cli._common import (
+    UsageError,
     add_progress_option,
     add_server_options,
     client_errors,
@@ -90,17 +91,27 @@ def run(args) -> int:
     from pathlib import Path
 
     if args.scan_job and not args.server:
-        raise ValueError("--scan-job needs --server")
+        raise UsageError("--scan-job needs --server")
     if args.scan_job and args.inputs:
-        raise ValueError("give either INPUT or --scan-job, not both")
+        raise UsageError("give either INPUT or --scan-job, not both")
     if not args.scan_job:
         if not args.inputs:
-            raise ValueError("no input: give a multi-wavelength scan file or one file per wavelength")
+            raise UsageError("no input: give a multi-wavelength scan file or one file per wavelength")
         for p in args.inputs:
             if not Path(p).is_file():
-                raise ValueError(f"no such file: {p}")
+                raise UsageError(f"no such file: {p}")
         if len(args.inputs) > 1 and (args.wavelengths is None or len(args.wavelengths) != len(args.inputs)):
-            raise ValueError(f"{len(args.inputs)} inputs need --wavelengths with {len(args.inputs)} values (m)")
+            raise UsageError(f"{len(args.inputs)} inputs need --wavelengths with {len(args.inputs)} values (m)")
+    from clients.cli.recon import check_options_early
+
+    check_options_early(args.method, _params(args))
+    if args.wavelengths is not None:  # unmixing's own rule (range naming the likely unit: 750 -> 750 nm): exit 2
+        try:
+            from service.recon.unmix import endmember_matrix
+        except ImportError:  # a client-only install: the server checks them (422)
+            pass
+        else:
+            endmember_matrix(list(args.wavelengths))
     if args.server:
         return _remote(args)
     return _local(args)

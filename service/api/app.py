@@ -51,6 +51,33 @@ ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
 }
 
 
+def allowed_methods(app, scope) -> list[str]:
+    """The HTTP methods the routes matching ``scope``'s path take, sorted (with HEAD where
+    GET is), for the ``Allow`` header of a 405 (RFC 9110 §15.5.6)."""
+    from starlette.routing import Match
+
+    methods: set[str] = set()
+    probe = {**scope, "method": "GET"}
+
+    def walk(routes) -> None:
+        for route in routes:
+            inner = getattr(route, "original_router", None)  # an included router (FastAPI wraps them)
+            if inner is not None:
+                walk(inner.routes)
+                continue
+            if not getattr(route, "methods", None):
+                continue
+            try:
+                match, _ = route.matches(probe)
+            except Exception:  # a route type that cannot judge this scope: not ours
+                continue
+            if match != Match.NONE:
+                methods.update(route.methods)
+
+    walk(app.router.routes)
+    return sorted(methods)
+
+
 def _validation_reason(exc: RequestValidationError) -> str:
     parts = []
     for err in exc.errors()[:5]:
@@ -285,7 +312,12 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True) 
     @app.exception_handler(StarletteHTTPException)
     async def _http(request: Request, exc: StarletteHTTPException):
         detail = exc.detail if isinstance(exc.detail, str) else str(exc.detail)
-        return JSONResponse({"detail": detail}, status_code=exc.status_code, headers=getattr(exc, "headers", None))
+        headers = getattr(exc, "headers", None)
+        if exc.status_code == 405:  # Allow: every method of the path (Starlette names only the first route's)
+            allowed = allowed_methods(app, request.scope)
+            headers = {**(headers or {}), "Allow": ", ".join(allowed)} if allowed else headers
+            detail = f"method {request.method} not allowed here; allowed: {', '.join(allowed)}" if allowed else detail
+        return JSONResponse({"detail": detail}, status_code=exc.status_code, headers=headers)
 
     @app.exception_handler(OSError)
     @app.exception_handler(sqlite3.Error)

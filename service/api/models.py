@@ -25,6 +25,7 @@ from service.pipeline import DEFAULT_DTYPE, DTYPES, KWAVE_INTERPS, METHODS
 from service.plans.kinds import KINDS, MaskKind, resolve_kind
 from service.plans.plan import ORDER_NAMES, Acquisition
 from service.plans.plan import Plan as PlanJson
+from service.recon import checks as _checks
 
 
 def _one_of(values) -> Any:
@@ -49,6 +50,12 @@ DatasetFormat = Literal["fpscan", "ipasc", "kwave-hdf5", "npy"]
 ID_PATTERN = r"^[A-Za-z0-9_-]{1,128}$"
 
 LatticeIndex = Annotated[int, Field(ge=0, le=1023)]
+
+
+def _bounds(rule_range: tuple) -> dict:
+    """The JSON schema's ``minimum``/``maximum`` of an option, from its kernel rule's range
+    (``service.recon.checks``): the schema states the bounds the rule enforces."""
+    return {"minimum": rule_range[0], "maximum": rule_range[1]}
 
 
 class _Request(BaseModel):
@@ -105,7 +112,9 @@ class Retention(_Request):
     are deleted first. Scan files only with ``include_scans``."""
 
     keep_results: int | None = Field(None, ge=0, le=10**9)
-    keep_bytes: int | None = Field(None, ge=0, le=2**62)
+    #: at most 10^18 (1 EB): a bound a float states exactly (the OpenAPI document writes bounds
+    #: as floats; 2^62 read back as 4.611686018427388e+18, above 2^62, so schema-valid values got 422)
+    keep_bytes: int | None = Field(None, ge=0, le=10**18)
     include_scans: bool = False
     datasets_keep_bytes: int | None = Field(None, ge=0, le=2**62, description="keep at most this many bytes of "
                                             "uploaded datasets no active job reads; the oldest go first")
@@ -278,6 +287,8 @@ class Plan(BaseModel):
     kind: str
     n_points: int
     requested_points: int | None = None
+    shortfall: str | None = Field(None, description="why the plan has fewer points than asked (under 90 %), "
+                                  "one line; null when it has about as many")
     weight_ratio: float | None = None
     expected_scan_time_s: float | None = Field(None, description="points × averages × wavelengths / PRF, s; "
                                                "null when the plan sets no PRF (unthrottled)")
@@ -400,21 +411,38 @@ class ReconParams(_Request):
                           "the input's)")
     c_range: tuple[Annotated[float, Field(ge=300, le=6000)], Annotated[float, Field(ge=300, le=6000)]] | None = Field(
         None, description="autofocus search interval (c_min, c_max), m/s (default 1450-1600)")
-    eps: float | None = Field(None, ge=1e-15, le=1e-1, description="NUFFT tolerance (ner, nedner; default 1e-6)")
+    eps: float | None = Field(None, description="NUFFT tolerance (ner, nedner, tv; default 1e-6)",
+                              json_schema_extra=_bounds(_checks.EPS_RANGE))
     dtype: _one_of(DTYPES) = Field(DEFAULT_DTYPE, description="working and output precision")  # type: ignore[valid-type]
-    upsample: int | None = Field(None, ge=1, le=8, description="lateral upsampling factor (default 1)")
+    upsample: int | None = Field(None, description="lateral upsampling factor (default 1)",
+                                 json_schema_extra=_bounds(_checks.UPSAMPLE_RANGE))
     positivity: bool | None = Field(None, description="clip negative p0 to 0 (default off; tv: p0 >= 0, on)")
-    lam: float | None = Field(None, ge=0, le=1e30, description="TV weight λ in the data's units "
-                              "(tv; default from the estimated noise level)")
-    iterations: int | None = Field(None, ge=1, le=10000, description="maximum iterations (tv; default 60)")
-    n_z: int | None = Field(None, ge=2, le=65536, description="output depth samples (>= 2)")
-    dz: float | None = Field(None, ge=1e-9, le=0.1, description="output depth spacing, m (>= 1 nm; with the "
-                             "input's c·t_last it sets the working depth rows, counted in the memory admission)")
+    lam: float | None = Field(None, description="TV weight λ in the data's units "
+                              "(tv; default from the estimated noise level)", json_schema_extra=_bounds(_checks.LAM_RANGE))
+    iterations: int | None = Field(None, description="maximum iterations (tv; default 60)",
+                                   json_schema_extra=_bounds(_checks.ITERATIONS_RANGE))
+    time_limit: float | None = Field(None, description="wall-time limit of the solver, s (tv; default and "
+                                     "at most the server's tv_time_limit_s): when reached the result's params say "
+                                     "converged false, stop_reason 'time limit'",
+                                     json_schema_extra={"exclusiveMinimum": 0, "maximum": _checks.TIME_LIMIT_MAX})
+    n_z: int | None = Field(None, description="output depth samples", json_schema_extra=_bounds(_checks.N_Z_RANGE))
+    dz: float | None = Field(None, description="output depth spacing, m (with the input's c·t_last it sets the "
+                             "working depth rows, counted in the memory admission)",
+                             json_schema_extra=_bounds(_checks.DZ_RANGE))
     interp: _one_of(KWAVE_INTERPS) | None = Field(  # type: ignore[valid-type]
         None, description="k-Wave interpolation (kwave; default *nearest)")
     force: bool = Field(False, description="accept a c (or c_range) outside 1000-2000 m/s (a medium other than "
                                            "tissue or water); without it such a value is refused as a likely "
                                            "unit mistake (driver.units.check_speeds)")
+
+    @model_validator(mode="after")
+    def _kernel_rules(self) -> ReconParams:
+        """Every option by the kernel's own rule (``service.pipeline.check_option_values``,
+        the functions of ``service.recon.checks``): the 422 says what the library says."""
+        from service.pipeline import check_option_values
+
+        check_option_values(self.model_dump(exclude={"c", "c_range", "force"}))
+        return self
 
     @model_validator(mode="after")
     def _plausible_speed(self) -> ReconParams:

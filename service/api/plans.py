@@ -87,8 +87,14 @@ def summary(plan: dict) -> Plan:
     """The API summary of a stored plan dict."""
     mask = plan.get("mask", {})
     pid = plan["id"]
-    return Plan(id=pid, kind=mask.get("kind", "points"), n_points=len(plan["points"]["indices"]),
-                requested_points=mask.get("requested_points"), weight_ratio=mask.get("weight_ratio"),
+    from service.plans.mask import shortfall
+
+    n = len(plan["points"]["indices"])
+    return Plan(id=pid, kind=mask.get("kind", "points"), n_points=n,
+                requested_points=mask.get("requested_points"),
+                shortfall=shortfall(mask.get("kind", "points"), mask.get("requested_points"), n,
+                                    (plan.get("lattice") or {}).get("pitch")),
+                weight_ratio=mask.get("weight_ratio"),
                 expected_scan_time_s=expected_scan_time(plan), lattice=plan["lattice"],
                 acquisition=plan["acquisition"],
                 links={"self": f"/api/plans/{pid}", "preview": f"/api/plans/{pid}/preview.png"})

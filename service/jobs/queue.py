@@ -37,9 +37,12 @@ class AdmissionError(ValueError):
     """A job that can never fit in the memory limit."""
 
 
-#: Measured peak / ``service.recon.estimate_peak_memory`` was 1.33-1.41 for NER at every
-#: size from 64² to 384² (issue 14); admission multiplies the estimate by this.
-CALIBRATION = 1.45
+#: Admission multiplies the model-based estimate (``tv``, ``service.recon.checks.tv_memory``,
+#: itself calibrated) by this margin: a 48² x 256, 100-sensor run peaked at 1/1.26 of it
+#: (tests/service/test_memory_admission.py; 1.45 before, when the factor also had to cover
+#: the planar methods). The planar methods' estimate counts their arrays phase by phase and
+#: needs no factor (measured within 4-10 % at upsample 1-8, issue 22).
+CALIBRATION = 1.15
 #: Most depth rows the depth transform may work on (``dz`` far below ``c·dt`` multiplies
 #: them); beyond this a request is refused whatever the memory limit.
 MAX_DEPTH_ROWS = 1 << 20
@@ -73,7 +76,7 @@ def estimate_memory(shape: dict, params: dict) -> int:
     admission rule, applied before a job is queued and again by the worker.
 
     ``shape``: ``n_t`` and ``n_x`` (``n_y``) of the output grid, ``n_points`` for point
-    inputs, ``dt`` (s), ``c`` (m/s) and the lateral pitch ``dx`` (m) of the input (optional;
+    inputs, ``input_itemsize`` (bytes a sample of the input as loaded; default 8), ``dt`` (s), ``c`` (m/s) and the lateral pitch ``dx`` (m) of the input (optional;
     the model-based ``tv`` pads its grid by the record's reach in pitches); ``params``: ``method``, ``dtype``,
     ``upsample``, ``n_z``, ``dz``, ``c``. ``service.recon.estimate_peak_memory`` of the
     working depth rows (:func:`working_depth_rows`) times ``CALIBRATION``, plus the input
@@ -95,7 +98,13 @@ def estimate_memory(shape: dict, params: dict) -> int:
                                  dtype=params.get("dtype") or "float32", method=params.get("method", "ner"),
                                  n_points=shape.get("n_points"), dx=geometry.get("dx"), dt=geometry.get("dt"),
                                  c=geometry.get("c"), dz=geometry.get("dz"))
-    return int(CALIBRATION * value) + n_t * int(shape.get("n_points", n_x * n_y)) * 8  # + the input
+    factor = CALIBRATION if params.get("method") == "tv" else 1.0
+    # + the input as loaded (shape["input_itemsize"] bytes a sample, default 8: float64, as scan files load),
+    # unless it is in the working precision: then it is the working copy the estimate already counts
+    itemsize = int(shape.get("input_itemsize") or 8)
+    work = 8 if (params.get("dtype") or "float32") == "float64" else 4
+    loaded = 0 if itemsize == work and params.get("method") != "tv" else itemsize
+    return int(factor * value) + n_t * int(shape.get("n_points", n_x * n_y)) * loaded
 
 
 def admit(estimate: int, limit: int) -> None:
@@ -212,7 +221,11 @@ class ReconQueue:
         out_dir = self.results_dir / f"{jid}.{job['attempts']}"
         progress_path = self.results_dir / f".{jid}.{job['attempts']}.progress"
         cancel_path = self.results_dir / f".{jid}.{job['attempts']}.cancel"
-        spec = {"input": job["params"]["input"], "params": {**job["params"]["params"], "method": job["params"]["method"]},
+        params = {**job["params"]["params"], "method": job["params"]["method"]}
+        if params["method"] == "tv":  # the operator's wall-time limit: the default, and the most one may ask
+            cap = float(self.settings.tv_time_limit_s)
+            params["time_limit"] = min(float(params.get("time_limit") or cap), cap)
+        spec = {"input": job["params"]["input"], "params": params,
                 "out_dir": str(out_dir), "input_id": job["params"].get("input_id", ""),
                 "progress_path": str(progress_path), "memory_limit": int(self.settings.memory_limit),
                 "cancel_path": str(cancel_path)}

@@ -79,7 +79,7 @@ def check_memory_limit(ds: Any, params: dict, limit: int) -> None:
         shape = {"n_t": ds.alines.shape[1], "n_x": len(grid[0]), "n_y": len(grid[1]) if len(grid) > 1 else 1,
                  "n_points": ds.alines.shape[0],
                  "dx": float(grid[0][1] - grid[0][0]) if len(grid[0]) > 1 else None}
-    shape.update(dt=ds.dt, c=ds.c)
+    shape.update(dt=ds.dt, c=ds.c, input_itemsize=(ds.data if isinstance(ds, GridDataset) else ds.alines).itemsize)
     admit(estimate_memory(shape, params), limit)
 
 

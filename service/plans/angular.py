@@ -113,6 +113,17 @@ def equisteradian_rings(depth: float, rho_max: float, n_points: int) -> list[Rin
                      f"(depth {r0:g} m, rho_max {rho_max:g} m, n_points {n})")
 
 
+def check_depth(r0: float, lattice: Lattice) -> float:
+    """The point of interest's depth ``r0`` (m): refused (ValueError naming the reason)
+    below one lattice pitch, where the design's angles put nearly every point within a
+    pitch of the point of interest and they all snap onto the same few lattice points."""
+    if r0 < lattice.pitch:
+        raise ValueError(f"depth {r0:g} m is below one lattice pitch ({lattice.pitch:g} m): seen from so close, "
+                         "the design's points crowd within a pitch of the point of interest and snap onto the "
+                         "same lattice points; give a depth of at least one pitch (e.g. 3.6mm)")
+    return r0
+
+
 def _finish(kind, params, lattice, pos_design, poi, depth, power, requested, ring_of, design) -> Mask:
     idx = lattice.snap(pos_design)
     _, first = np.unique(idx, axis=0, return_index=True)
@@ -142,7 +153,7 @@ def equisteradian_mask(lattice: Lattice, depth: float, n_points: int, poi=None) 
     """
     if lattice.is_line:
         raise ValueError("an equi-steradian mask needs a 2-D lattice (n_y > 1); use equiangular on a line")
-    r0 = check_positive("depth", depth)
+    r0 = check_depth(check_positive("depth", depth), lattice)
     n = check_count("n_points", n_points, lattice.n_points)
     xc, yc = check_poi(lattice, poi)
     hx, hy = lattice.half_extent
@@ -177,12 +188,13 @@ def equiangular_mask(lattice: Lattice, depth: float, n_points: int, poi=None) ->
     duplicates dropped. Weights ∝ r² normalised to the covered length (m).
     ``design["theta"]`` holds the N angles before snapping.
 
-    Raises ValueError: a 2-D lattice, depth ≤ 0, n_points < 1 or above the lattice, poi
-    outside the line, non-finite values.
+    Raises ValueError: a 2-D lattice, depth ≤ 0 or below one pitch, n_points < 1 or above
+    the lattice, poi outside the line, non-finite values. Fewer points than asked:
+    ``Mask.shortfall`` says why.
     """
     if not lattice.is_line:
         raise ValueError("an equiangular mask needs a line lattice (n_y = 1); use equisteradian in 3-D")
-    r0 = check_positive("depth", depth)
+    r0 = check_depth(check_positive("depth", depth), lattice)
     n = check_count("n_points", n_points, lattice.n_points)
     xc, _ = check_poi(lattice, poi)
     hx, _ = lattice.half_extent

@@ -41,6 +41,32 @@ class MaskParams(BaseModel):
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
+    @model_validator(mode="before")
+    @classmethod
+    def _units(cls, data: Any) -> Any:
+        """Lengths typed with a unit (``"3.6mm"``, ``"-2 mm"``) -> m, by the one unit parser
+        (``driver.units.parse_quantity``), for every field that declares a unit
+        (``field_units``): a number, or each of a point of interest's 1-2 numbers. Bare
+        numbers are SI and pass unchanged; a bad text is a ValueError naming the field."""
+        if not isinstance(data, dict):
+            return data
+        units = field_units(cls)
+        kinds = {"m": "length", "s": "time", "Hz": "frequency", "m/s": "speed"}
+        out = None
+        for name, unit in units.items():
+            v = data.get(name)
+            if unit not in kinds or v is None:
+                continue
+            if isinstance(v, str):
+                new: Any = _parse_unit(v, kinds[unit], name)
+            elif isinstance(v, (list, tuple)) and len(v) <= 2 and any(isinstance(x, str) for x in v):
+                new = [_parse_unit(x, kinds[unit], name) if isinstance(x, str) else x for x in v]
+            else:
+                continue
+            out = dict(data) if out is None else out
+            out[name] = new
+        return data if out is None else out
+
     def mask_kwargs(self) -> dict:
         """The keyword arguments of the kind's mask function (unset optional ones left out)."""
         return {k: v for k, v in self.model_dump().items() if v is not None}
@@ -195,6 +221,12 @@ def resolve_kind(kind: Any) -> MaskKind:
     if name not in KINDS:
         raise ValueError(f"unknown mask kind {kind!r}; known: {', '.join(KINDS)}")
     return KINDS[name]
+
+
+def _parse_unit(text: str, kind: str, name: str) -> float:
+    from driver.units import parse_quantity
+
+    return parse_quantity(text, kind, name=name)
 
 
 def field_units(model: type[BaseModel]) -> dict[str, str]:

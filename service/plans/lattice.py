@@ -12,6 +12,10 @@ __all__ = ["Lattice"]
 
 
 def _check_length(name: str, value) -> float:
+    if isinstance(value, str):  # text with a unit ("60um"): the one unit parser
+        from driver.units import parse_quantity
+
+        value = parse_quantity(value, "length", name=name)
     try:
         v = float(value)
     except (TypeError, ValueError):

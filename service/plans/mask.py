@@ -9,7 +9,30 @@ import numpy as np
 from .lattice import Lattice
 
 __all__ = ["Mask", "weight_ratio", "distance_law_weights", "default_weights", "check_poi",
-           "check_positive", "check_count", "check_seed"]
+           "check_positive", "check_count", "check_seed", "shortfall"]
+
+
+#: A mask holding fewer than this fraction of the points asked says why (``shortfall``); the
+#: ring designs round their counts to powers of two, so a few percent either way is no shortfall.
+SHORTFALL_FRACTION = 0.9
+
+
+def shortfall(kind: str, requested: int | None, obtained: int, pitch: float | None = None) -> str | None:
+    """One line saying why a ``kind`` mask obtained fewer than ``SHORTFALL_FRACTION`` of the
+    ``requested`` points (``pitch``: the lattice pitch, m), or None when it did not."""
+    if not requested or obtained >= SHORTFALL_FRACTION * requested:
+        return None
+    at = f" ({pitch:g} m)" if pitch else ""
+    why = {
+        "equisteradian": f"near the point of interest the design's points lie closer than the lattice pitch{at} and "
+                         "merge when snapped to it; ask fewer points, a deeper point of interest or a finer pitch",
+        "equiangular": f"the design's points lie closer than the lattice pitch{at} (near the point of interest, or "
+                       "piled at the line's ends by a steep fan) and merge when snapped to it; ask fewer points, a "
+                       "deeper point of interest or a finer pitch",
+        "poisson": "the minimum distance leaves room for no more on this lattice; ask a smaller min_distance",
+        "points": "points that snap to the same lattice point count once",
+    }.get(kind, "the lattice holds no more for these parameters")
+    return f"{obtained} of {requested} points asked: {why}"
 
 
 def check_positive(name: str, value, unit: str = "m") -> float:
@@ -165,6 +188,11 @@ class Mask:
     def weight_ratio(self) -> float:
         """Outer/inner weight ratio about the point of interest (see ``weight_ratio``)."""
         return weight_ratio(self.positions, self.weights, self.centre)
+
+    @property
+    def shortfall(self) -> str | None:
+        """Why the mask has fewer points than asked (``shortfall``), or None."""
+        return shortfall(self.kind, self.requested_points, self.obtained_points, self.lattice.pitch)
 
     @property
     def covered_area(self) -> float:

@@ -5,6 +5,8 @@ import os
 
 import numpy as np
 
+from driver.units import RefusedInput
+
 
 def positive(name: str, value) -> float:
     """``value`` as float; ValueError unless finite and > 0."""
@@ -36,19 +38,107 @@ def finite_array(name: str, a, ndims: tuple[int, ...]) -> np.ndarray:
     return arr
 
 
+# -- the reconstruction options' rules: one owner each ----------------------------------
+# The kernels (``planar``, ``tv``) apply these; ``service.pipeline.check_options`` applies
+# the same functions at every door (library, CLI, HTTP) before a job is queued, and the
+# HTTP schema states the same bounds (``service.api.models.ReconParams``).
+
+#: NUFFT tolerance, inclusive
+EPS_RANGE = (1e-14, 1e-1)
+#: lateral upsampling factor, inclusive
+UPSAMPLE_RANGE = (1, 8)
+#: output depth samples, inclusive
+N_Z_RANGE = (2, 65536)
+#: output depth spacing, m, inclusive
+DZ_RANGE = (1e-9, 0.1)
+#: TV weight λ (data units), inclusive
+LAM_RANGE = (0.0, 1e30)
+#: iterations of the model-based solver, inclusive
+ITERATIONS_RANGE = (1, 100000)
+#: wall-time limit of the model-based solver, s: (0, max]
+TIME_LIMIT_MAX = 7 * 86400.0
+
+
+class OptionError(RefusedInput):
+    """A reconstruction option refused by its rule (a value outside its range, or an option
+    the chosen method does not take): the caller's input, a usage error (CLI exit 2,
+    HTTP 422)."""
+
+
+def _number(name: str, value, what: str) -> float:
+    if isinstance(value, bool):
+        raise OptionError(f"{name} must be {what}, got {value!r}")
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        raise OptionError(f"{name} must be {what}, got {value!r}") from None
+
+
+def _integer(name: str, value, lo: int, hi: int) -> int:
+    what = f"an integer in {lo}..{hi}"
+    v = _number(name, value, what)
+    if not np.isfinite(v) or int(v) != v or not lo <= v <= hi:
+        raise OptionError(f"{name} must be {what}, got {value!r}")
+    return int(v)
+
+
 def check_eps(eps) -> float:
-    """NUFFT tolerance in [1e-14, 1e-1] or ValueError."""
-    e = float(eps)
-    if not (1e-14 <= e <= 1e-1):
-        raise ValueError(f"eps must be in [1e-14, 1e-1], got {eps!r}")
+    """NUFFT tolerance in ``EPS_RANGE`` ([1e-14, 1e-1]) or OptionError (a ValueError)."""
+    e = _number("eps", eps, "a number")
+    if not (EPS_RANGE[0] <= e <= EPS_RANGE[1]):
+        raise OptionError(f"eps must be in [1e-14, 1e-1], got {eps!r}")
     return e
+
+
+def check_upsample(upsample) -> int:
+    """Lateral upsampling factor: an integer in ``UPSAMPLE_RANGE`` (1..8) or OptionError."""
+    return _integer("upsample", upsample, *UPSAMPLE_RANGE)
+
+
+def check_n_z(n_z) -> int:
+    """Output depth samples: an integer in ``N_Z_RANGE`` (2..65536) or OptionError."""
+    return _integer("n_z", n_z, *N_Z_RANGE)
+
+
+def check_dz(dz) -> float:
+    """Output depth spacing in m within ``DZ_RANGE`` ([1 nm, 0.1 m]) or OptionError."""
+    v = _number("dz", dz, "a depth spacing in m")
+    if not np.isfinite(v) or not DZ_RANGE[0] <= v <= DZ_RANGE[1]:
+        raise OptionError(f"dz must be in [1e-09, 0.1] m, got {dz!r}")
+    return v
+
+
+def check_lam(lam) -> float:
+    """TV weight λ: a finite number in ``LAM_RANGE`` ([0, 1e30]) or OptionError."""
+    v = _number("lam (the TV weight λ)", lam, "a number >= 0")
+    if not np.isfinite(v) or not LAM_RANGE[0] <= v <= LAM_RANGE[1]:
+        raise OptionError(f"lam (the TV weight λ) must be in [0, 1e+30], got {lam!r}")
+    return v
+
+
+def check_iterations(iterations) -> int:
+    """Most iterations of the model-based solver: an integer in ``ITERATIONS_RANGE``
+    (1..100000) or OptionError."""
+    return _integer("iterations", iterations, *ITERATIONS_RANGE)
+
+
+def check_time_limit(seconds) -> float:
+    """Wall-time limit of the model-based solver in s: in (0, ``TIME_LIMIT_MAX``] (a week)
+    or OptionError."""
+    v = _number("time_limit", seconds, "a number of seconds")
+    if not np.isfinite(v) or not 0 < v <= TIME_LIMIT_MAX:
+        raise OptionError(f"time_limit must be in (0, {TIME_LIMIT_MAX:g}] s, got {seconds!r}")
+    return v
 
 
 def check_dtype(dtype) -> np.dtype:
     """float32 or float64 or ValueError."""
-    dt = np.dtype(dtype)
+    try:
+        dt = np.dtype(dtype)
+    except TypeError:
+        raise OptionError(f"dtype must be float32 or float64, got {dtype!r}") from None
     if dt not in (np.dtype(np.float32), np.dtype(np.float64)):
-        raise ValueError(f"dtype must be float32 or float64, got {dt}")
+        raise OptionError(f"dtype must be float32 or float64, got {dt}")
     return dt
 
 
@@ -89,30 +179,64 @@ def estimate_peak_memory(
     larger of the two);
     ``n_z`` output depth samples (default n_t); ``upsample`` lateral factor; ``dtype``
     float32/float64; ``method`` "ner"/"linear"/"nearest"/"cubic"/"nedner"/"kwave";
-    ``n_points`` sensors for NEDNER (adds the type-1 NUFFT's full-plane spectrum).
+    ``n_points`` sensors for NEDNER (its weighted A-lines, the full-plane type-1 spectrum
+    and, for weights not given, the Voronoi raster of ``service.plans.weights``).
     ``method="tv"`` gives `tv_memory` on the free-space operator's padded grid
     (`driver.physics.forward`'s padding rule) when the pitch ``dx`` (m), ``dt`` (s) and
     ``c`` (m/s) are given (``dz`` default c·dt), else on a conservative one (dx = c·dt).
 
-    The estimate adds the arrays alive at the worst moment of the pipeline: the lateral
-    spectrum (n_t x n_y x (n_x/2+1) complex), the oversampled temporal grid (about twice
-    that), the k-space image (n_z columns) and the output volume, plus 10 % slack.
+    The planar methods (`service.recon.planar`) are counted phase by phase, the arrays
+    alive in each (b: the real itemsize, complex 2b): the lateral spectrum A (n_t x
+    n_y x (n_x/2+1); NEDNER's type-1 output is the full plane n_t x n_y x n_x, of which A is
+    a view), alive to the end; the temporal fine grid U (columns x L), the evaluated
+    spectrum F and its transposed k-space image K (depth rows x columns); K zero-padded
+    for ``upsample`` u (u² times larger); the inverse lateral FFT's complex intermediate
+    (as large as the padded K) and the output (depth rows x n_y u x n_x u); the cropped
+    copy when the transform grid was padded. The peak is the largest phase, plus the
+    input (measured within ±25 % for ner/nedner at upsample 1-8,
+    tests/service/test_memory_admission.py).
     """
     b = np.dtype(dtype).itemsize
+    cb = 2 * b
     n_z = n_t if n_z is None else n_z
     n_in = n_t * n_y * n_x  # the input, as given
+    n_y0, n_x0 = n_y, n_x
     if method not in ("tv", "kwave"):  # the transform sizes the planar methods use
         n_y, n_x = padded_lateral(n_y, n_x, square)
+        from service.recon.planar import _fast_dct1_rows
+
+        n_z = _fast_dct1_rows(max(int(n_z), 2))  # the depth rows the transform works on
     cols = n_y * (n_x // 2 + 1)
-    spectrum = n_t * cols * 2 * b
-    fine = 2 * (n_t + 1) * cols * 2 * b if method in ("ner", "nedner") else (2 * n_t) * cols * 2 * b
-    kimage = n_z * cols * 2 * b
-    out = n_z * n_y * n_x * upsample ** (2 if n_y > 1 else 1) * b
-    peak = max(spectrum + fine, fine + kimage, kimage * (1 + upsample**2) + out)
-    if method == "nedner":
-        peak = max(peak, 2 * n_t * n_y * n_x * 2 * b + (n_points or 0) * n_t * 3 * b)
+    spectrum = n_t * cols * cb
+    if method in ("ner", "nedner"):
+        from driver.physics.nufft import make_grid
+
+        fine = cols * make_grid(n_t, "nufft", 1e-6).L * cb
+    else:
+        fine = cols * (2 * n_t - 1) * cb
+    kimage = n_z * cols * cb
+    u_y = upsample if n_y > 1 else 1
+    padded = n_z * n_y * u_y * (n_x * upsample // 2 + 1) * cb if upsample > 1 else kimage
+    out = n_z * n_y * u_y * n_x * upsample * b
+    crop = n_z * n_y0 * u_y * n_x0 * upsample * b if (n_y0, n_x0) != (n_y, n_x) else 0
+    a_alive = spectrum
+    front = 0
+    if method == "nedner":  # type-1 NUFFT: the full plane, A a view of it; weighted A-lines (float64 + complex)
+        a_alive = n_t * n_y * n_x * cb
+        front = a_alive + (n_points or 0) * n_t * (8 + cb)
+        # the Voronoi raster of weights not given (service.plans.weights: ~1024 samples per cell within
+        # 2^20, ~96 bytes each; measured 68-98 MiB from 500 to 3000 sensors)
+        front = max(front, 96 * min(1024 * max(n_points or 0, 768), 1 << 20) if n_points else 0)
+    if method == "cubic":  # pchip per column group: the mirrored series and its spectra in complex128
+        fine = 5 * cols * (2 * n_t - 1) * 16
+    peak = max(front,
+               a_alive + fine + kimage,                      # temporal step: U and F
+               a_alive + 2 * kimage,                         # F transposed into K
+               a_alive + kimage + padded if upsample > 1 else 0,  # K zero-padded
+               a_alive + 2 * padded + out,                   # inverse lateral FFT
+               a_alive + out + crop)                         # cropped to the grid asked for
     if method == "kwave":  # two half-lateral spectra (transposed copy) + per-chunk buffers
-        peak = int(2.4 * spectrum) + n_t * n_y * n_x * b
+        peak = int(2.4 * n_t * cols * 2 * b) + n_t * n_y * n_x * b
     peak += n_in * b  # the input
     if method == "tv":  # model-based: its own count (the warm start needs less)
         n_data = n_t * (n_points or n_x * n_y)
@@ -123,7 +247,7 @@ def estimate_peak_memory(
         else:  # the worst usual case dx = c dt (lateral reach of the record = n_t pitches)
             pad = (max(n_z, n_t), n_y + n_t if n_y > 1 else 1, n_x + n_t)
         return max(int(peak * 1.1), tv_memory((n_z, n_y, n_x), pad, n_data, n_t, dtype))
-    return int(peak * 1.1)
+    return int(1.04 * peak)  # 4 % above the count: allocator and FFT-plan overheads
 
 
 def padded_lateral(n_y: int, n_x: int, square: bool | None = None) -> tuple[int, int]:

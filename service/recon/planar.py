@@ -73,10 +73,8 @@ def _depth_axis(n_t, dt, c, dz, n_z, t0):
     the image through the periodicity of the depth transform (period 2 (n_work - 1) dz),
     rounded up so that the depth transform runs at a fast FFT length (more rows than
     needed only lengthen the period; the rows asked for are cropped)."""
-    dz = c * dt if dz is None else checks.positive("dz", dz)
-    n_z = n_t if n_z is None else n_z
-    if int(n_z) != n_z or n_z < 2:
-        raise ValueError(f"n_z must be an integer >= 2, got {n_z!r}")
+    dz = c * dt if dz is None else checks.check_dz(dz)
+    n_z = n_t if n_z is None else checks.check_n_z(n_z)
     rows = c * (t0 + (n_t - 1) * dt) / dz * (1 - 1e-12)
     if not rows < 2**31:  # also inf (dz = 5e-324): refused before int() overflows
         raise ValueError(f"dz = {dz:g} m is too fine for this recording: the depth transform would need "
@@ -91,8 +89,7 @@ def _check_options(dt, c, method, eps, dtype, upsample, t0):
     c = checks.positive("c", c)
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
-    if int(upsample) != upsample or upsample < 1 or upsample > 8:
-        raise ValueError(f"upsample must be an integer in 1..8, got {upsample!r}")
+    upsample = checks.check_upsample(upsample)
     if not np.isfinite(t0) or t0 < 0:
         raise ValueError(f"t0 must be finite and >= 0 s, got {t0!r}")
     return dt, c, checks.check_eps(eps), checks.check_dtype(dtype), int(upsample), float(t0)
@@ -198,6 +195,7 @@ def _invert(A: np.ndarray, n_x: int, dx: float, dy: float, dt: float, c: float, 
     # DCT-I along depth of the real and imaginary parts (interleaved view: no split copies)
     re = F.view(rdtype).reshape(F.shape[0], n_z, 2)
     F = scipy.fft.dct(re, type=1, axis=1, overwrite_x=True, workers=-1).reshape(F.shape[0], 2 * n_z).view(ctype)
+    del re  # the view kept the spectrum before the transform alive to the end (one k-space image more at the peak)
     K = np.empty((n_z, n_y * n_xr), dtype=ctype)
     nufft.transpose(F, K)
     K = K.reshape(n_z, n_y, n_xr)

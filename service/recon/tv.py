@@ -39,6 +39,7 @@ principle) are returned in ``params``.
 from __future__ import annotations
 
 import math
+import time
 from typing import Any
 
 import numpy as np
@@ -48,6 +49,9 @@ from service.recon.reconstruction import Reconstruction
 
 DEFAULT_MAX_ITER = 60
 DEFAULT_TOL = 2e-3
+#: default wall-time limit of one model-based reconstruction, s (the server's setting
+#: ``tv_time_limit_s`` caps it there)
+DEFAULT_TIME_LIMIT = 3600.0
 _STEP_RATIO = 10.0  # τ/σ balance of the primal-dual steps (τσ fixed); fastest on the tests' cases
 
 
@@ -63,20 +67,14 @@ def noise_sigma(data: np.ndarray, time_axis: int) -> float:
     return float(np.median(np.abs(d)) / 0.6745)
 
 
-def _check_tv_options(lam, max_iter, tol):
-    if lam is not None:
-        try:
-            lam = float(lam)
-        except (TypeError, ValueError):
-            raise ValueError(f"lam (the TV weight λ) must be a number >= 0, got {lam!r}") from None
-        if not np.isfinite(lam) or lam < 0:
-            raise ValueError(f"lam (the TV weight λ) must be a finite number >= 0, got {lam!r}")
-    if isinstance(max_iter, bool) or int(max_iter) != max_iter or max_iter < 1 or max_iter > 100000:
-        raise ValueError(f"max_iter (iterations) must be an integer in 1..100000, got {max_iter!r}")
+def _check_tv_options(lam, max_iter, tol, time_limit):
+    """The model-based options by their rules (``service.recon.checks``: one owner each)."""
+    lam = None if lam is None else checks.check_lam(lam)
+    max_iter = checks.check_iterations(max_iter)
     tol = float(tol)
     if not np.isfinite(tol) or tol < 0:
         raise ValueError(f"tol must be a finite number >= 0, got {tol!r}")
-    return lam, int(max_iter), tol
+    return lam, max_iter, tol, checks.check_time_limit(time_limit)
 
 
 def reconstruct_tv(
@@ -99,6 +97,7 @@ def reconstruct_tv(
     t0: float = 0.0,
     periodic: bool = False,
     memory_limit: int | None = None,
+    time_limit: float = DEFAULT_TIME_LIMIT,
     progress=None,
 ) -> Reconstruction:
     """Model-based reconstruction: ½‖A p0 − g‖²_W + λ TV(p0), p0 ≥ 0 (module doc).
@@ -120,15 +119,21 @@ def reconstruct_tv(
         (no zero padding; `PlanarOperator`), as NER itself does: several times cheaper
         for large volumes, but sources near an edge wrap around to the far sensors.
     memory_limit : bytes (default: available now).
+    time_limit : wall-time limit in s, in (0, 1 week] (default ``DEFAULT_TIME_LIMIT``, an
+        hour): when it is reached the solver stops after the current iteration and says so
+        in ``params`` (``converged`` false, ``stop_reason`` "time limit").
     progress : optional ``progress(fraction, stage)`` (the pipeline's contract), called
-        with increasing fractions after the warm start (stage "warm start"), the norm
-        estimate ("norm estimate") and every iteration ("iteration k/max_iter"); it may
-        raise to cancel (the pipeline's ``should_stop`` does).
+        with increasing fractions during the warm start (stage "warm start"), after each
+        step of the norm estimate ("norm estimate") and every iteration ("iteration
+        k/max_iter"); it may raise to cancel (the pipeline's ``should_stop`` does), so a
+        cancel acts within one iteration.
 
     Returns
     -------
     `Reconstruction` (p0, z, x, y) on the warm start's grid; ``params`` add ``lam``, ``lam_auto``,
-    ``noise_sigma``, ``iterations``, ``residual`` (‖A p0 − g‖_W / ‖g‖_W), ``norm_A``.
+    ``noise_sigma``, ``iterations``, ``residual`` (‖A p0 − g‖_W / ‖g‖_W), ``norm_A``,
+    ``converged`` (the stopping rule ``tol`` was met), ``stop_reason`` ("converged",
+    "iterations": ``max_iter`` reached, "time limit"), ``time_limit``, ``solve_s``.
 
     Raises
     ------
@@ -143,11 +148,12 @@ def reconstruct_tv(
     from service.recon.operator import PlanarOperator
     from service.recon.planar import reconstruct_grid, reconstruct_points
 
-    lam, max_iter, tol = _check_tv_options(lam, max_iter, tol)
+    lam, max_iter, tol, time_limit = _check_tv_options(lam, max_iter, tol, time_limit)
     rdtype = checks.check_dtype(dtype)
+    started = time.monotonic()
     report = _reporter(progress)
     common: dict[str, Any] = dict(dtype=np.float64, dz=dz, n_z=n_z, t0=t0, eps=eps, positivity=positivity,
-                  memory_limit=memory_limit)
+                  memory_limit=memory_limit, progress=lambda f: report(0.05 * f, "warm start"))
     if positions is None:
         if dx is None:
             raise ValueError("grid data need dx (or give positions for A-lines)")
@@ -185,7 +191,8 @@ def reconstruct_tv(
     gw = (g * sw).ravel().astype(rdtype)
     x0 = np.ascontiguousarray(warm.p0, dtype=rdtype).ravel()
 
-    L = 1.05 * _norm_estimate(Aw, x0.size, rdtype)
+    L = 1.05 * _norm_estimate(Aw, x0.size, rdtype,
+                              step=lambda k, n: report(0.05 + 0.05 * k / n, "norm estimate"))
     if not L > 0:
         raise ValueError("no sensor sees the image within the record (‖A‖ = 0): nothing to reconstruct")
     report(0.1, "norm estimate")
@@ -207,13 +214,19 @@ def reconstruct_tv(
     tau, mu = 0.99 / math.sqrt(2.0) * _STEP_RATIO, 0.99 / math.sqrt(2.0) / _STEP_RATIO
     solver = PrimalDual()
     x, xhat, y = solver.setup(proxf, proxg, K, x0, tau, mu, niter=None)
-    it = 0
+    it, stop_reason = 0, "iterations"
     for it in range(1, max_iter + 1):
         xold = x
         x, xhat, y = solver.step(x, xhat, y)
         change = float(np.linalg.norm(x - xold) / max(float(np.linalg.norm(x)), 1e-300))
-        report(0.1 + 0.9 * it / max_iter, f"iteration {it}/{max_iter}")
+        elapsed = time.monotonic() - started
+        # the fraction: iterations done or time used, whichever is further (both increase)
+        report(0.1 + 0.9 * min(1.0, max(it / max_iter, elapsed / time_limit)), f"iteration {it}/{max_iter}")
         if change < tol:
+            stop_reason = "converged"
+            break
+        if elapsed >= time_limit and it < max_iter:
+            stop_reason = "time limit"
             break
     p0 = x.reshape(shape).astype(rdtype, copy=False)
     res = Aw @ x - gw
@@ -222,26 +235,29 @@ def reconstruct_tv(
                   noise_sigma=sigma, iterations=it, max_iter=max_iter, tol=tol, dtype=rdtype.name,
                   residual=float(np.linalg.norm(res) / max(float(np.linalg.norm(gw)), 1e-300)), norm_A=L / 1.05,
                   positivity=bool(positivity), weights_mean_one=w is not None, periodic=bool(periodic),
-                  solver="pyproximal PrimalDual")
-    report(1.0, f"done after {it} iterations")
+                  solver="pyproximal PrimalDual", converged=stop_reason == "converged", stop_reason=stop_reason,
+                  time_limit=time_limit, solve_s=time.monotonic() - started)
+    report(1.0, f"done after {it} iterations" + (" (time limit reached)" if stop_reason == "time limit" else ""))
     return Reconstruction(p0, warm.z, warm.x, warm.y, params)
 
 
-def _norm_estimate(op, n: int, dtype, steps: int = 10) -> float:
+def _norm_estimate(op, n: int, dtype, steps: int = 10, step=None) -> float:
     """‖op‖ (largest singular value) by ``steps`` power iterations on opᴴop from a
     seeded random start vector, so that one input always gives one result (pylops'
     ``power_iteration`` draws its start from NumPy's global random state, which made
     repeated reconstructions differ in the last digits). Slightly below the true norm
-    (the caller adds a margin)."""
+    (the caller adds a margin). ``step(k, steps)`` (optional) is called after step k."""
     v = np.random.default_rng(0).standard_normal(n).astype(dtype)
     v /= np.linalg.norm(v)
     eig = 0.0
-    for _ in range(steps):
+    for k in range(steps):
         w = op.H @ (op @ v)
         eig = float(np.linalg.norm(w))
         if eig == 0.0:
             return 0.0
         v = (w / eig).astype(dtype, copy=False)
+        if step is not None:
+            step(k + 1, steps)
     return math.sqrt(eig)
 
 

@@ -56,8 +56,8 @@ def test_jobs_subcommand_help(action):
     assert res.returncode == 0 and "--server" in res.stdout
 
 
-def _one_line_error(res, *needles):
-    assert res.returncode == 1, (res.returncode, res.stdout, res.stderr)
+def _one_line_error(res, *needles, code=1):
+    assert res.returncode == code, (res.returncode, res.stdout, res.stderr)
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1, res.stderr
     for needle in needles:
@@ -70,13 +70,17 @@ def test_server_down_is_one_line_exit_1():
 
 
 def test_bad_local_inputs_are_one_line_errors(tmp_path):
-    _one_line_error(fpscan("recon", tmp_path / "missing.h5"), "no such file")
-    _one_line_error(fpscan("recon", "--scan-job", "x"), "--server")
+    # refused input is a usage error, exit 2, whichever command refuses it (issue 22.6)
+    _one_line_error(fpscan("recon", tmp_path / "missing.h5"), "no such file", code=2)
+    _one_line_error(fpscan("recon", "--scan-job", "x"), "--server", code=2)
     (tmp_path / "junk.h5").write_bytes(b"not hdf5")
-    _one_line_error(fpscan("recon", tmp_path / "junk.h5"), "junk.h5")
-    _one_line_error(fpscan("export", tmp_path / "missing.h5"), "no such file")
-    _one_line_error(fpscan("export", "--job", "abc"), "--server")
-    _one_line_error(fpscan("demo", "--out", tmp_path / "d", "--lattice", "3"), "--lattice")
+    _one_line_error(fpscan("recon", tmp_path / "junk.h5"), "junk.h5", code=2)
+    _one_line_error(fpscan("export", tmp_path / "missing.h5"), "no such file", code=2)
+    _one_line_error(fpscan("export", "--job", "abc"), "--server", code=2)
+    _one_line_error(fpscan("demo", "--out", tmp_path / "d", "--lattice", "3"), "--lattice", code=2)
+    _one_line_error(fpscan("recon", tmp_path / "junk.h5", "--eps", "1e-20"), "eps must be in [1e-14, 1e-1]", code=2)
+    _one_line_error(fpscan("plan", "equisteradian", "--depth", "1e-300", "--n-points", "200", "--out",
+                           tmp_path / "p.json"), "below one lattice pitch", code=2)
 
 
 def test_jobs_against_a_server(server):

@@ -296,10 +296,10 @@ def test_scan_server_preview_wavelength(scanned):
     assert made.returncode == 0, made.stderr
     wrong = fpscan("scan", "--server", url, "--scanner", "sim", "--plan", tmp / "two.json",
                    "--preview-wavelength", 9e-7, "--quiet")
-    assert wrong.returncode == 1 and "not one of the plan's wavelengths (7.6e-07, 8.5e-07 m)" in wrong.stderr
+    assert wrong.returncode == 2 and "not one of the plan's wavelengths (7.6e-07, 8.5e-07 m)" in wrong.stderr
     local = fpscan("scan", "--device", tmp / "no-such-tty", "--plan", tmp / "two.json", "--out", tmp / "x.h5",
                    "--preview-wavelength", 8.5e-7)
-    assert local.returncode == 1 and "--preview-wavelength is for a scan on a server" in local.stderr
+    assert local.returncode == 2 and "--preview-wavelength is for a scan on a server" in local.stderr
     res = fpscan("scan", "--server", url, "--scanner", "sim", "--plan", tmp / "two.json",
                  "--preview-wavelength", 8.5e-7, "--quiet")
     assert res.returncode == 0, res.stderr

@@ -96,11 +96,11 @@ def test_sim_cli_rejects_bad_options(tmp_path):
                               timeout=60, check=False)
 
     r = fpscan("sim", "--source", "replay", str(tmp_path / "missing.h5"))
-    assert r.returncode == 1 and "no such file" in r.stderr
+    assert r.returncode == 2 and "no such file" in r.stderr
     r = fpscan("sim", "--faults", "explode=3")
-    assert r.returncode == 1 and "bad fault spec" in r.stderr
+    assert r.returncode == 2 and "bad fault spec" in r.stderr
     r = fpscan("sim", "--dc-variation", "1.5")
-    assert r.returncode == 1 and "dc_variation" in r.stderr
+    assert r.returncode == 2 and "dc_variation" in r.stderr
     r = fpscan("scan", "--device", str(tmp_path / "nope"), "--plan", str(tmp_path / "p.json"),
                "--out", str(tmp_path / "o.h5"))
     assert r.returncode == 1 and "error" in r.stderr

@@ -181,11 +181,11 @@ def test_fpscan_evaluate_cli(tmp_path, capsys, shared_data):
     assert fpscan(["evaluate", "nufft-vs-interpolation", "--small", "--out", str(out)]) == 0
     assert (out / "nufft-vs-interpolation.csv").is_file()
     assert "axial FWHM" in capsys.readouterr().out
-    assert fpscan(["evaluate", "limited-view-2d", "--data", str(tmp_path / "missing.h5")]) == 1
+    assert fpscan(["evaluate", "limited-view-2d", "--data", str(tmp_path / "missing.h5")]) == 2
     assert "not found" in capsys.readouterr().err
     # 3-D data for a 2-D experiment: a clear error, not a crash
     assert fpscan(["evaluate", "limited-view-2d", "--small", "--data", str(shared_data / "kwave3d_balls_yarn.h5"),
-                   "--out", str(out)]) == 1
+                   "--out", str(out)]) == 2
     assert "2-D" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         fpscan(["evaluate", "no-such-experiment"])
@@ -194,10 +194,10 @@ def test_fpscan_evaluate_cli(tmp_path, capsys, shared_data):
     rows = json.loads((out / "limited-view-2d.json").read_text())["table"]
     assert "equiangular" in {r["arrangement"] for r in rows} and "equiangular-tv" not in {r["arrangement"] for r in rows}
     # --dataset chooses the sensor data inside --data; a missing one is named
-    assert fpscan(["evaluate", "limited-view-2d", "--dataset", "sensor_data/noisy30dB"]) == 1
+    assert fpscan(["evaluate", "limited-view-2d", "--dataset", "sensor_data/noisy30dB"]) == 2
     assert "--data" in capsys.readouterr().err
     assert fpscan(["evaluate", "limited-view-2d", "--data", str(shared_data / "kwave2d_points.h5"),
-                   "--dataset", "sensor_data/noisy30dB", "--out", str(out)]) == 1
+                   "--dataset", "sensor_data/noisy30dB", "--out", str(out)]) == 2
     assert "noisy30dB" in capsys.readouterr().err
 
 

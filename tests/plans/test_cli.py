@@ -48,15 +48,16 @@ def test_plan_line_and_points(tmp_path, capsys):
 
 @pytest.mark.parametrize(
     "args, match, code",
-    [  # implausible values (driver.units) are usage errors: exit 2, as argparse's own
+    [  # refused input -- implausible values (driver.units), missing flags, values out of range -- is a usage
+       # error: exit 2, as argparse's own (issue 22.6: it was 1 or 2)
         (["equisteradian", "--depth=-1e-3", "--n-points", "10"], "depth", 2),
-        (["equisteradian", "--depth", "1e-3"], "--n-points", 1),
-        (["equisteradian", "--depth", "1e-3", "--n-points", "10", "--poi", "1", "0"], "outside the lattice", 1),
+        (["equisteradian", "--depth", "1e-3"], "--n-points", 2),
+        (["equisteradian", "--depth", "1e-3", "--n-points", "10", "--poi", "1", "0"], "outside the lattice", 2),
         (["subgrid", "--interval", "4", "--pitch", "0"], "pitch", 2),
-        (["random", "--n-x", "10", "--n-points", "101"], "more than the lattice holds", 1),
+        (["random", "--n-x", "10", "--n-points", "101"], "more than the lattice holds", 2),
     ],
 )
-def test_plan_bad_input_exit_1_with_reason(tmp_path, capsys, args, match, code):
+def test_plan_bad_input_exit_2_with_reason(tmp_path, capsys, args, match, code):
     out = tmp_path / "p.json"
     rc = main(["plan", *args, "--out", str(out)])
     assert rc == code

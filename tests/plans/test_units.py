@@ -35,6 +35,67 @@ def test_cli_unit_mistakes_exit_2_naming_the_unit(tmp_path, capsys, flags, names
     assert not out.exists()
 
 
+@pytest.mark.parametrize("flags, names", [
+    (["--pitch", "60mm", "--depth", "2mm"], ["pitch 0.06 m", "did you mean 60 µm (60um)"]),  # not "0.06 mm"
+    (["--pitch", "0.06um", "--depth", "2mm"], ["did you mean 60 µm"]),  # too small: the unit 10³ too small
+    (["--depth", "2mm", "--dt", "8ms"], ["did you mean 8 ns (8ns)"]),
+])
+def test_every_plausibility_error_suggests_the_likely_unit(tmp_path, capsys, flags, names):
+    """Issue 23.2: the suggestion is the number typed, in the unit it most likely meant."""
+    assert main(BASE + flags + ["--out", str(tmp_path / "p.json")]) == 2
+    err = capsys.readouterr().err
+    for name in names:
+        assert name in err, err
+
+
+def test_unmix_wavelengths_without_a_unit_suggest_nm(tmp_path, capsys):
+    files = []
+    for k in range(2):
+        files.append(str(tmp_path / f"w{k}.npy"))
+        np.save(files[-1], np.zeros((16, 4, 4), np.float32))
+    assert main(["unmix", *files, "--wavelengths", "750", "850", "--dt", "2e-8", "--dx", "1e-4", "-q",
+                 "--out", str(tmp_path / "u")]) == 2
+    err = capsys.readouterr().err
+    assert "750 m" in err and "did you mean 750 nm (750nm)" in err, err
+    assert not (tmp_path / "u").exists()
+
+
+@pytest.mark.parametrize("poi", [["--poi=-0.4mm,0.4mm"], ["--poi", "-0.4mm", "0.4mm"], ["--poi", "-0.4mm,0.4mm"],
+                                 ["--poi", "-400um", "400 um"], ["--poi", "-4e-4", "4e-4"]])
+def test_negative_points_of_interest_with_units(tmp_path, capsys, poi):
+    """Issue 23.2: a point of interest left of / below the axis, typed with units, negative
+    first or second, space- or comma-separated: the same plan as SI numbers."""
+    out = tmp_path / "p.json"
+    assert main(BASE + ["--pitch", "60um", "--depth", "2mm", *poi, "--out", str(out)]) == 0, capsys.readouterr().err
+    assert json.loads(out.read_text())["mask"]["params"]["poi"] == pytest.approx([-4e-4, 4e-4])
+    flipped = tmp_path / "q.json"
+    assert main(BASE + ["--pitch", "60um", "--depth", "2mm", "--poi", "0.4mm", "-0.4mm", "--out", str(flipped)]) == 0
+    assert json.loads(flipped.read_text())["mask"]["params"]["poi"] == pytest.approx([4e-4, -4e-4])
+
+
+def test_a_depth_below_one_pitch_is_refused_and_a_shortfall_is_explained():
+    """Issue 22.4: depth 1e-300 m with 200 points asked gave a 1-point plan; now a depth
+    below one pitch is refused naming why, and a plan with fewer points than asked says why
+    (``Mask.shortfall``; the API's ``shortfall``, the CLI's note)."""
+    lattice = {"n_x": 64, "n_y": 64, "pitch": 6e-5}
+    for depth in (1e-300, 5.9e-5):
+        with pytest.raises(ValueError, match="below one lattice pitch"):
+            make_plan(kind="equisteradian", lattice=lattice, params={"depth": depth, "n_points": 200})
+    from service.plans import make_mask
+    from service.plans.lattice import Lattice
+
+    short = make_mask("equisteradian", Lattice(64, 64, 6e-5), depth=6e-5, n_points=2000)
+    assert short.obtained_points < 0.9 * 2000  # points closer than the pitch merge: said why
+    assert short.shortfall.startswith(f"{short.obtained_points} of 2000 points asked: ")
+    assert "closer than the lattice pitch" in short.shortfall
+    plan = make_plan(kind="equisteradian", lattice=lattice, params={"depth": "3.6mm", "n_points": 200})
+    assert plan.mask.params["depth"] == 3.6e-3 and abs(plan.mask.obtained_points - 200) <= 0.1 * 200
+    assert make_mask("equisteradian", Lattice(64, 64, 6e-5), depth=3.6e-3, n_points=200).shortfall is None
+    line = make_plan(kind="equiangular", lattice={"n_x": 256, "n_y": 1, "pitch": "60um"},
+                     params={"depth": "2 mm", "n_points": 32, "poi": "-1mm"})
+    assert line.mask.params["poi"][0] == -1e-3 and line.mask.obtained_points >= 29
+
+
 def test_unit_suffixes_give_the_same_plan_as_si_numbers(tmp_path, capsys):
     a, b = tmp_path / "a.json", tmp_path / "b.json"
     assert main(BASE + ["--pitch", "60um", "--depth", "3.6 mm", "--dt", "8ns", "--prf", "500 Hz",
@@ -145,7 +206,8 @@ def test_sim_demo_unmix_take_units_and_name_unit_mistakes(tmp_path, capsys):
         code, err = exit_code(argv)
         assert code == 2 and all(n in err for n in names), (argv, err)
     assert not (tmp_path / "d").exists()
-    assert main(["sim", "--source", "nope", "--sound-speed", "2500", "--force"]) == 1  # forced: on to the source
+    code, err = exit_code(["sim", "--source", "nope", "--sound-speed", "2500", "--force"])
+    assert code == 2 and "unknown source" in err and "sound speed" not in err, err  # forced: on to the source
 
     a, b = tmp_path / "a.npy", tmp_path / "b.npy"
     for p in (a, b):

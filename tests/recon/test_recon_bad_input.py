@@ -39,7 +39,7 @@ GOOD = np.random.default_rng(0).standard_normal((32, 8))
         (dict(upsample=0), "upsample"),
         (dict(n_z=1), "n_z"),
         (dict(dz=0.0), "dz"),
-        (dict(dz=5e-324), "too fine"),  # the depth rows overflowed int() (OverflowError)
+        (dict(dz=5e-324), "dz must be in"),  # the depth rows overflowed int() (OverflowError): the rule's range
         (dict(t0=-1e-9), "t0"),
         (dict(memory_limit=1000), "GiB"),
     ],

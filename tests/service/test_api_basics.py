@@ -177,7 +177,7 @@ def test_idempotency_key_and_memory_admission(tmp_path):
             assert r1.status_code == 202 and r2.status_code == 202
             assert r1.json()["id"] == r2.json()["id"]
             assert r1.headers["location"] == f"/api/jobs/{r1.json()['id']}"
-            r3 = c.post("/api/reconstructions", json={**body, "method": "linear"}, headers={"Idempotency-Key": "k-1"})
+            r3 = c.post("/api/reconstructions", json={**body, "params": {"eps": 1e-5}}, headers={"Idempotency-Key": "k-1"})
             assert r3.status_code == 409 and "Idempotency-Key" in r3.json()["detail"]
             r4 = c.post("/api/reconstructions", json=body, headers={"Idempotency-Key": "k-2"})
             assert r4.json()["id"] != r1.json()["id"]

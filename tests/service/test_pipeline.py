@@ -100,9 +100,9 @@ def test_options_and_inputs_are_checked():
         reconstruct(ds, "ner", epsilon=1e-3)
     with pytest.raises(ValueError, match="dtype"):
         reconstruct(ds, "ner", dtype="int16")
-    # options of other methods are ignored: one set of options serves every method
-    np.testing.assert_array_equal(reconstruct(ds, "linear", eps=1e-3, interp="linear").p0,
-                                  reconstruct(ds, "linear").p0)
+    # an option the method does not take is refused naming its options (issue 23.4: never silently unused)
+    with pytest.raises(ValueError, match=r"method 'linear' takes no option eps, interp \(its options: c, dtype"):
+        reconstruct(ds, "linear", eps=1e-3, interp="linear")
     sparse = PointDataset(alines=ds.data.reshape(24, -1).T[::2], positions=ds.to_points().positions[::2],
                           weights=None, dt=ds.dt, c=ds.c, grid=ds.axes(),
                           indices=np.stack(np.meshgrid(np.arange(6), np.arange(5)), -1).reshape(-1, 2)[::2],

@@ -39,7 +39,7 @@ def test_dispatch_runs_tv_with_iteration_progress_and_cancel():
 
 
 @pytest.mark.parametrize(("opts", "match"), [
-    (dict(lam=-1.0), "lam"), (dict(lam=float("inf")), "lam"), (dict(iterations=0), "max_iter"),
+    (dict(lam=-1.0), "lam"), (dict(lam=float("inf")), "lam"), (dict(iterations=0), "iterations"),
     (dict(nan=True), "NaN"), (dict(weights=np.ones(5)), "weights must have shape"),
 ])
 def test_dispatch_rejects_bad_tv_input(opts, match):

@@ -206,6 +206,13 @@ def test_full_disk_under_the_job_store_too(tmp_path, small_disk):
             os.unlink(small_disk / "filler.bin")
             job = wait_state(c, jid, "paused")
             assert job["progress"]["stage"] == "interrupted" and "disk full" in job["progress"]["reason"]
+            # issue 22.6: with the space freed, health no longer says the disk (or database) is full,
+            # before any resume; it says the scan waits for one
+            deadline = time.monotonic() + 30
+            while any("is full" in p or "disk full" in p for p in c.get("/api/health").json()["problems"]):
+                assert time.monotonic() < deadline, c.get("/api/health").json()
+                time.sleep(0.2)
+            assert any("space has been freed" in p for p in c.get("/api/health").json()["problems"])
             assert c.post(f"/api/scans/{jid}/resume").status_code == 200
             final = wait_job(c, jid)
             assert final["state"] == "succeeded" and final["progress"]["reason"] is None, final

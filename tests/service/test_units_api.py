@@ -80,3 +80,27 @@ def test_recon_sound_speed_rule_422_and_force(shared_server, shared_api, tmp_pat
                          capture_output=True, text=True, timeout=120)
     assert cli.returncode == 0, cli.stderr
     assert (tmp_path / "r" / "volume.h5").is_file()
+
+
+def test_api_plan_lengths_take_units_and_a_depth_below_a_pitch_is_refused(shared_api):
+    """Issue 22.4: docs/api.md says plan lengths take units: "3.6mm" for the depth (and a
+    point of interest with units, negative included) gives the plan the SI numbers give;
+    depth 1e-300 m (200 points asked gave a 1-point plan) is a 422 naming why."""
+    si = shared_api.post("/api/plans", json={"lattice": LATTICE, "kind": "equisteradian",
+                                             "params": {"depth": 3.6e-3, "n_points": 60, "poi": [-2e-4, 2e-4]}})
+    text = shared_api.post("/api/plans", json={"lattice": LATTICE, "kind": "equisteradian",
+                                               "params": {"depth": "3.6mm", "n_points": 60, "poi": ["-0.2mm", "200um"]}})
+    assert si.status_code == text.status_code == 201, text.text
+    assert si.json()["id"] == text.json()["id"]
+    for depth in (1e-300, "1e-300 m", "30um"):
+        r = shared_api.post("/api/plans", json={"lattice": LATTICE, "kind": "equisteradian",
+                                                "params": {"depth": depth, "n_points": 200}})
+        assert r.status_code == 422 and "below one lattice pitch" in r.json()["detail"], r.text
+    short = shared_api.post("/api/plans", json={"lattice": LATTICE, "kind": "equisteradian",
+                                                "params": {"depth": "60um", "n_points": 1000}})
+    assert short.status_code == 201 and short.json()["n_points"] < 900, short.text
+    assert short.json()["shortfall"].startswith(f"{short.json()['n_points']} of 1000 points asked: "), short.json()
+    assert text.json()["shortfall"] is None
+    r = shared_api.post("/api/plans", json={"lattice": LATTICE, "kind": "equisteradian",
+                                            "params": {"depth": "3 furlongs", "n_points": 60}})
+    assert r.status_code == 422 and "depth" in r.json()["detail"], r.text

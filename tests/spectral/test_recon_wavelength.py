@@ -92,7 +92,7 @@ def test_cli_wavelength_one_and_all(scan, tmp_path, capsys):
     err = capsys.readouterr().err
     assert "has 2 wavelengths (750 nm, 850 nm): reconstructing the first (index 0)" in err
     assert _volume(tmp_path / "d" / "volume.h5")[1]["wavelength_index"] == 0
-    assert fpscan_main(["recon", str(scan), "--wavelength", "5", "--out", str(tmp_path / "bad"), "-q"]) == 1
+    assert fpscan_main(["recon", str(scan), "--wavelength", "5", "--out", str(tmp_path / "bad"), "-q"]) == 2
     assert "wavelength index 5 is out of range" in capsys.readouterr().err
     with pytest.raises(SystemExit) as exc:
         fpscan_main(["recon", str(scan), "--wavelength", "blue"])

@@ -63,10 +63,10 @@ def test_cli_unmix_two_files(npy_files, tmp_path, capsys):
     rc = fpscan_main(["unmix", str(npy_files[0]), "--wavelengths", "7.5e-07", "--dt", str(DT), "--dx", str(DX),
                       "--out", str(tmp_path / "one"), "-q"])
     err = capsys.readouterr().err
-    assert rc == 1 and "at least two wavelengths" in err and "has 1 (750 nm)" in err
+    assert rc == 2 and "at least two wavelengths" in err and "has 1 (750 nm)" in err
     assert not (tmp_path / "one").exists()
     rc = fpscan_main(["unmix", *map(str, npy_files), "--dt", str(DT), "--dx", str(DX), "-q"])
-    assert rc == 1 and "--wavelengths" in capsys.readouterr().err
+    assert rc == 2 and "--wavelengths" in capsys.readouterr().err
 
 
 @pytest.mark.slow

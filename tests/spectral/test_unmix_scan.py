@@ -60,7 +60,7 @@ def test_single_wavelength_scan_file_is_refused(tmp_path, capsys):
     _scan(scan, [750e-9])
     rc = fpscan_main(["unmix", str(scan), "--out", str(tmp_path / "out"), "-q"])
     err = capsys.readouterr().err
-    assert rc == 1 and "needs at least two wavelengths" in err and "has 1 (750 nm)" in err
+    assert rc == 2 and "needs at least two wavelengths" in err and "has 1 (750 nm)" in err
     assert not (tmp_path / "out").exists()
     with pytest.raises(ValueError, match="at least two wavelengths"):
         from service.spectral import load_wavelength_datasets

@@ -50,7 +50,7 @@ def test_recon_with_a_result_or_a_plan_as_input(tmp_path, capsys):
     plan.write_text(json.dumps(build_plan(3, 3, 16)))
     for wrong, kind in ((_result(tmp_path), "this is a reconstruction result"),
                         (plan, "this is a plan (JSON), not data")):
-        assert main(["recon", str(wrong), "-q", "--out", str(tmp_path / "r")]) == 1
+        assert main(["recon", str(wrong), "-q", "--out", str(tmp_path / "r")]) == 2
         assert kind in capsys.readouterr().err
     with pytest.raises(ValueError, match="this is a reconstruction result"):
         from service.storage.datasets import load_dataset
