@@ -15,6 +15,7 @@ import pytest
 
 from tests.service.service_servers import Server, needs_recon, wait_job
 from tests.service.test_scans import N, make_plan, phantom, start_scan, wait_points
+from tests.waits import HANG_S
 
 driver_sim = pytest.importorskip("driver.simulator")
 
@@ -53,7 +54,7 @@ def check_file(c, job_id, expected: np.ndarray, folder) -> None:
     assert np.array_equal(scan.alines_all, expected)  # (n_wavelengths, n_points, n_t)
 
 
-def wait_state(c, job_id, state: str, timeout: float = 60.0) -> dict:
+def wait_state(c, job_id, state: str, timeout: float = HANG_S) -> dict:
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         job = c.get(f"/api/jobs/{job_id}").json()
@@ -191,7 +192,7 @@ def test_full_disk_under_the_job_store_too(tmp_path, small_disk):
             jid = start_scan(c, plan["id"])
             wait_points(c, jid, 40)
             fill(small_disk)
-            deadline = time.monotonic() + 60
+            deadline = time.monotonic() + HANG_S
             while not (problems := c.get("/api/health").json()["problems"]) and time.monotonic() < deadline:
                 time.sleep(0.2)
             assert problems and all("disk full" in p and "\n" not in p for p in problems), problems
