@@ -122,7 +122,7 @@ def test_soak_mixed_requests_during_a_scan_and_a_reconstruction(tmp_path):
                   f"{sum(1 for r in results if r[1] == 429)} answered 429 (busy)")
         with srv.client() as c:
             assert wait_job(c, recon, timeout=300)["state"] == "succeeded"
-            assert wait_job(c, scan_id, timeout=120)["state"] == "succeeded"
+            assert wait_job(c, scan_id)["state"] == "succeeded"
     finally:
         srv.stop()
         sim.stop()
