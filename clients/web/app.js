@@ -578,6 +578,9 @@ function planBodyCommon() {
 let previewTimer = null;
 let previewAbort = null;
 let previewSeq = 0;
+/** A preview refused with 429 is asked again after the server's Retry-After for busy
+ *  slots (service.api.context.Slots.retry_after_s, 5 s). */
+const PREVIEW_RETRY_MS = 5000;
 
 function schedulePreview(delay = 300) {
   clearTimeout(previewTimer);
@@ -631,6 +634,9 @@ async function updatePreview() {
     $("plan-preview-state").textContent = "No preview: " + (err.detail || err.message);
     panel.classList.add("stale");
     for (const k of ["plan-points", "plan-ratio", "plan-time"]) $(k).textContent = "–";
+    // the server is busy (429: its plan-request slots are full, e.g. with the previews of
+    // earlier keystrokes): ask again for the form's latest parameters when it says to
+    if (err instanceof ApiError && err.status === 429 && previewAbort === ctl) schedulePreview(PREVIEW_RETRY_MS);
     throw err;
   } finally {
     if (previewAbort === ctl) { previewAbort = null; panel.removeAttribute("aria-busy"); }

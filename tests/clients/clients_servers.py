@@ -7,6 +7,7 @@ import contextlib
 from pathlib import Path
 
 from clients.processes import clean_env, free_port, service, simulator
+from tests.waits import HANG_S
 
 __all__ = ["clean_env", "fpscan_server", "fpscan_sim", "free_port", "has_command"]
 
@@ -19,14 +20,14 @@ def has_command(name: str) -> bool:
 
 @contextlib.contextmanager
 def fpscan_server(data_dir: Path, *, token: str | None = None, devices: dict | None = None,
-                  timeout: float = 60.0):
+                  timeout: float = HANG_S):
     """Yield ``(url, process)`` of a running ``fpscan serve``."""
     with service(data_dir, token=token, devices=devices, timeout=timeout) as srv:
         yield srv.url, srv
 
 
 @contextlib.contextmanager
-def fpscan_sim(*args: str, timeout: float = 60.0, log_dir: Path | None = None):
+def fpscan_sim(*args: str, timeout: float = HANG_S, log_dir: Path | None = None):
     """Yield ``(device_path, process)`` of a running ``fpscan sim``."""
     import tempfile
 

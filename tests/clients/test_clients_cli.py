@@ -11,11 +11,12 @@ import numpy as np
 import pytest
 
 from tests.clients.clients_servers import clean_env, free_port
+from tests.waits import HANG_S
 
 TOKEN = "cli-test-token"
 
 
-def fpscan(*args, env=None, timeout=180, cwd=None):
+def fpscan(*args, env=None, timeout=HANG_S, cwd=None):
     return subprocess.run([sys.executable, "-m", "clients", *map(str, args)], capture_output=True, text=True,
                           timeout=timeout, env=env or clean_env(), cwd=cwd)
 

@@ -15,6 +15,7 @@ import pytest
 
 from clients.processes import free_port
 from tests.clients.dockerfile_reader import env_of, parse
+from tests.waits import HANG_S
 
 ROOT = Path(__file__).resolve().parents[2]
 DOCKERFILE = ROOT / "Dockerfile"
@@ -156,7 +157,7 @@ def test_start_command_serves_and_healthcheck_passes(image_install):
     proc = subprocess.Popen(_start_command(ins), env=env, cwd=image_install["cwd"],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True)
     try:
-        deadline = time.monotonic() + 60
+        deadline = time.monotonic() + HANG_S
         ok = False
         while time.monotonic() < deadline and proc.poll() is None:
             if subprocess.run(health, env=env, capture_output=True, timeout=30).returncode == 0:

@@ -20,6 +20,7 @@ from clients.http import (
     field_of,
 )
 from tests.clients.clients_servers import free_port, has_command
+from tests.waits import HANG_S
 
 TOKEN = "client-test-token"
 
@@ -186,7 +187,7 @@ def test_reconstruction_job_with_progress_and_downloads(api, tmp_path):
     assert api.start_reconstruction(dataset_id=dataset_id, method="ner", params={"dtype": "float64"},
                                     idempotency_key=key) == job_id
     seen = []
-    job = api.wait(job_id, on_progress=seen.append, timeout=120)
+    job = api.wait(job_id, on_progress=seen.append, timeout=HANG_S)
     assert job.state == "succeeded"
     assert seen and all(isinstance(p, dict) for p in seen)
     # the finished job's event stream replays everything, and resumes after Last-Event-ID
@@ -223,7 +224,7 @@ def test_async_wait_with_coroutine_callback(api, server, tmp_path):
         async with AsyncClient(server, token=TOKEN) as c:
             ds = await c.upload_dataset(tmp_path / "a.npy", "npy", dt=dt, dx=dx)
             job_id = await c.start_reconstruction(dataset_id=ds, method="nedner", params={"n_z": 32})
-            job = await c.wait(job_id, on_progress=on_progress, timeout=120)
+            job = await c.wait(job_id, on_progress=on_progress, timeout=HANG_S)
             path = await c.download_volume(job_id, tmp_path / "a.h5")
             return job, path, seen
 
@@ -245,7 +246,7 @@ def test_interrupted_download_resumes_with_range(api, server, tmp_path):
     np.save(tmp_path / "r.npy", data)
     dataset_id = api.upload_dataset(tmp_path / "r.npy", "npy", dt=dt, dx=dx)
     job_id = api.start_reconstruction(dataset_id=dataset_id, method="ner", params={"n_z": 32})
-    api.wait(job_id, timeout=120)
+    api.wait(job_id, timeout=HANG_S)
     full = httpx.get(f"{server}/api/reconstructions/{job_id}/volume.h5",
                      headers={"Authorization": f"Bearer {TOKEN}"})
     assert full.status_code == 200
@@ -333,7 +334,7 @@ def test_slice_png(api, tmp_path):
     np.save(tmp_path / "s.npy", data)
     job_id = api.start_reconstruction(dataset_id=api.upload_dataset(tmp_path / "s.npy", "npy", dt=dt, dx=dx),
                                       method="ner", params={"n_z": 32})
-    api.wait(job_id, timeout=120)
+    api.wait(job_id, timeout=HANG_S)
     with Image.open(api.download_slice(job_id, 10, tmp_path / "slice.png")) as im:
         assert im.format == "PNG"
     with pytest.raises(ApiError) as err:

@@ -12,6 +12,7 @@ import pytest
 
 from clients.http import Client, JobFailed
 from tests.clients.clients_servers import clean_env, fpscan_server, fpscan_sim, has_command
+from tests.waits import HANG_S
 
 TOKEN = "scan-test-token"
 N, PITCH = 16, 4e-4
@@ -20,7 +21,7 @@ pytestmark = pytest.mark.skipif(not (has_command("serve") and has_command("sim")
                                 reason="`fpscan serve`/`fpscan sim` not available yet")
 
 
-def fpscan(*args, timeout=180):
+def fpscan(*args, timeout=HANG_S):
     return subprocess.run([sys.executable, "-m", "clients", *map(str, args)], capture_output=True, text=True,
                           timeout=timeout, env=clean_env(FPSCAN_TOKEN=TOKEN))
 
@@ -40,7 +41,7 @@ def scanned(tmp_path_factory):
                                         "acquisition": {"n_t": 384, "dt": 2e-8, "prf": 0}})
                 job_id = api.start_scan(plan.id, "sim")
                 seen = []
-                job = api.wait(job_id, on_progress=seen.append, timeout=120)
+                job = api.wait(job_id, on_progress=seen.append, timeout=HANG_S)
                 assert job.state == "succeeded"
                 assert any(p.get("points_total") == N * N for p in seen)
                 scan = api.download_scan(job_id, tmp / "scan.h5")
@@ -116,7 +117,7 @@ def test_scan_on_a_missing_port_fails_with_reason(scanned):
     api = scanned["api"]
     job_id = api.start_scan(scanned["plan"].id, "ghost")
     with pytest.raises(JobFailed) as err:
-        api.wait(job_id, timeout=120)
+        api.wait(job_id, timeout=HANG_S)
     job = err.value.job
     assert job.state == "failed" and job.error
     assert job.error in str(err.value)
@@ -125,7 +126,7 @@ def test_scan_on_a_missing_port_fails_with_reason(scanned):
     assert len(res.stderr.strip().splitlines()) == 1 and "failed" in res.stderr
 
 
-def _poll(fn, until, timeout=30.0, interval=0.05):
+def _poll(fn, until, timeout=HANG_S, interval=0.05):
     import time
 
     deadline = time.monotonic() + timeout
@@ -166,7 +167,7 @@ def test_pause_resume_and_live_preview(slow_scanner):
     job = _poll(lambda: api.get_job(job_id), lambda j: j.state == "paused")
     assert job.progress.points_done < N * N
     api.resume_scan(job_id)
-    job = api.wait(job_id, timeout=60)
+    job = api.wait(job_id, timeout=HANG_S)
     assert job.state == "succeeded"
     scan = read_scan(api.download_scan(job_id, tmp / "paused.h5"))
     assert scan.completed.all() and len(scan.completed) == N * N
@@ -185,7 +186,7 @@ def test_abort_ends_cancelled(slow_scanner):
     _poll(lambda: api.get_job(job_id), lambda j: (j.progress.points_done or 0) >= 10)
     api.abort_scan(job_id)
     with pytest.raises(JobCancelled) as err:
-        api.wait(job_id, timeout=60)
+        api.wait(job_id, timeout=HANG_S)
     assert err.value.job.state == "cancelled"
     assert err.value.job.progress.points_done < N * N
 
@@ -206,7 +207,7 @@ def test_progress_bar_on_a_terminal(slow_scanner):
                              "--server", api.base_url], stdin=slave, stdout=slave, stderr=slave, env=env)
     os.close(slave)
     out = b""
-    deadline = time.monotonic() + 60
+    deadline = time.monotonic() + HANG_S
     try:
         while time.monotonic() < deadline:
             ready, _, _ = select.select([master], [], [], 0.2)
@@ -255,7 +256,7 @@ def test_server_dying_mid_wait_raises_server_unavailable(tmp_path):
 
                 def waiter():
                     try:
-                        outcome["job"] = api.wait(job_id, timeout=60)
+                        outcome["job"] = api.wait(job_id, timeout=HANG_S)
                     except Exception as exc:  # noqa: BLE001 - the outcome is the test
                         outcome["error"] = exc
 
@@ -263,7 +264,7 @@ def test_server_dying_mid_wait_raises_server_unavailable(tmp_path):
                 t.start()
                 _poll(lambda: api.get_job(job_id), lambda j: (j.progress.points_done or 0) >= 5)
                 os.killpg(srv.pid, signal.SIGKILL)
-                t.join(timeout=60)
+                t.join(timeout=HANG_S)
                 assert not t.is_alive()
                 assert isinstance(outcome.get("error"), ServerUnavailable), outcome
         with fpscan_server(data, token=TOKEN, devices={"slow": device}) as (url, _srv):
@@ -278,7 +279,7 @@ def test_cli_cancel_of_a_running_scan(slow_scanner):
     _poll(lambda: api.get_job(job_id), lambda j: (j.progress.points_done or 0) >= 5)
     res = fpscan("jobs", "cancel", job_id, "--server", api.base_url)
     assert res.returncode == 0, res.stderr
-    job = api.wait(job_id, timeout=60, raise_on_failure=False)
+    job = api.wait(job_id, timeout=HANG_S, raise_on_failure=False)
     assert job.state == "cancelled"
     assert job.progress.points_done < N * N
     res = fpscan("jobs", "list", "--state", "cancelled", "--server", api.base_url)

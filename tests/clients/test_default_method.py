@@ -15,6 +15,7 @@ import pytest
 from clients.http import Client
 from tests.clients.clients_servers import clean_env, has_command
 from tests.clients.test_clients_cli import fpscan
+from tests.waits import HANG_S
 
 TOKEN = "default-method-token"
 DT, DX = 2e-8, 1e-4
@@ -50,7 +51,7 @@ def test_grid_without_method_same_method_and_volume_locally_and_over_http(server
     with Client(server, token=TOKEN) as api:  # the bare API: no "method" in the request body
         ds = api.upload_dataset(src, "npy", dt=DT, dx=DX)
         job_id = api.start_reconstruction(dataset_id=ds)
-        job = api.wait(job_id, timeout=120)
+        job = api.wait(job_id, timeout=HANG_S)
         assert job.params["method"] == expected
         api.download_volume(job_id, tmp_path / "api.h5")
 

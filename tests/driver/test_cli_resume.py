@@ -15,6 +15,7 @@ import pytest
 from clients.processes import start_simulator
 from driver.scanfile import read_scan
 from tests.driver.driver_helpers import grid_plan, read_record
+from tests.waits import HANG_S
 
 pytestmark = pytest.mark.timeout(120)
 FPSCAN = [sys.executable, "-m", "clients"]
@@ -38,13 +39,13 @@ def test_sigkill_host_mid_scan_then_resume(tmp_path):
     record = tmp_path / "truth.h5"
     # the simulator started as the demo and the service tests start it (clients.processes)
     dev, sim = start_simulator("--prf", "400", "--seed", "5", "--snr", "50", "--record", str(record),
-                               log_path=tmp_path / "sim.log", timeout=30)
+                               log_path=tmp_path / "sim.log", timeout=HANG_S)
     try:
         assert dev.startswith("/dev/"), dev
         killed = tmp_path / "killed.h5"
         host = subprocess.Popen(scan_cmd(dev, plan_path, killed), stdout=subprocess.DEVNULL,
                                 stderr=subprocess.DEVNULL)
-        deadline = time.monotonic() + 30
+        deadline = time.monotonic() + HANG_S
         while completed_count(killed) < 150 and time.monotonic() < deadline:
             time.sleep(0.05)
         host.send_signal(signal.SIGKILL)
@@ -60,7 +61,7 @@ def test_sigkill_host_mid_scan_then_resume(tmp_path):
                     out.append(p)
             return out
 
-        deadline = time.monotonic() + 5
+        deadline = time.monotonic() + HANG_S
         while relays() and time.monotonic() < deadline:
             time.sleep(0.05)
         assert not relays()
@@ -68,7 +69,7 @@ def test_sigkill_host_mid_scan_then_resume(tmp_path):
         assert 150 <= partial < 600, partial
         # run it again on the same output: it resumes and completes
         r = subprocess.run(scan_cmd(dev, plan_path, killed), capture_output=True, text=True, check=False,
-                           timeout=60)
+                           timeout=HANG_S)
         assert r.returncode == 0, r.stderr
         # its rate counts only what this run acquired
         assert f"({partial} from before, resumed); this run {600 - partial} points" in r.stdout, r.stdout
@@ -76,7 +77,7 @@ def test_sigkill_host_mid_scan_then_resume(tmp_path):
         # an uninterrupted scan of the same plan
         clean = tmp_path / "clean.h5"
         r = subprocess.run(scan_cmd(dev, plan_path, clean), capture_output=True, text=True, check=False,
-                           timeout=60)
+                           timeout=HANG_S)
         assert r.returncode == 0, r.stderr
     finally:
         sim.stop(timeout=20)  # SIGTERM, then SIGKILL after 20 s
@@ -112,12 +113,12 @@ def test_ctrl_c_leaves_the_device_idle(tmp_path):
     plan = grid_plan(30, 30, n_t=128)  # 900 points at 100 Hz: 9 s if never stopped (room for a loaded machine)
     plan_path = tmp_path / "plan.json"
     plan_path.write_text(json.dumps(plan))
-    dev, sim = start_simulator("--prf", "100", log_path=tmp_path / "sim.log", timeout=30)
+    dev, sim = start_simulator("--prf", "100", log_path=tmp_path / "sim.log", timeout=HANG_S)
     try:
         out = tmp_path / "scan.h5"
         host = subprocess.Popen(scan_cmd(dev, plan_path, out), stdout=subprocess.PIPE,
                                 stderr=subprocess.PIPE, text=True, start_new_session=True)
-        deadline = time.monotonic() + 30
+        deadline = time.monotonic() + HANG_S
         while completed_count(out) < 30 and time.monotonic() < deadline:
             time.sleep(0.05)
         os.killpg(host.pid, signal.SIGINT)  # as a terminal's Ctrl-C: host and its relay

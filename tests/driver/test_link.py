@@ -16,6 +16,7 @@ from driver.scanfile import ScanFile, read_scan
 from driver.simulator import SimConfig, SimulatedScanner
 from driver.sources import BallSource, ReplaySource
 from tests.driver.driver_helpers import grid_plan, read_record, small_phantom
+from tests.waits import HANG_S
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -97,7 +98,7 @@ def test_pause_resume_abort_from_another_thread(tmp_path):
         th = threading.Thread(target=lambda: out.setdefault(
             "res", sc.scan(plan, sf, progress=seen.append, progress_interval=0.05)))
         th.start()
-        deadline = time.monotonic() + 10
+        deadline = time.monotonic() + HANG_S
         while (not seen or seen[-1].points_done < 50) and time.monotonic() < deadline:
             time.sleep(0.02)
         sc.pause()
@@ -113,7 +114,7 @@ def test_pause_resume_abort_from_another_thread(tmp_path):
             time.sleep(0.02)
         assert seen[-1].points_done >= done_paused + 50
         sc.abort()
-        th.join(timeout=10)
+        th.join(timeout=HANG_S)
         assert not th.is_alive()
         res = out["res"]
         assert res.aborted and not res.complete and 100 <= res.points_done < 900
@@ -322,11 +323,11 @@ def test_scan_survives_the_relay_process_dying(tmp_path):
         th = threading.Thread(target=lambda: out.setdefault(
             "res", sc.scan(plan, sf, progress=seen.append, progress_interval=0.05)))
         th.start()
-        deadline = time.monotonic() + 10
+        deadline = time.monotonic() + HANG_S
         while (not seen or seen[-1].points_done < 40) and time.monotonic() < deadline:
             time.sleep(0.02)
         relay.kill()
-        th.join(timeout=30)
+        th.join(timeout=HANG_S)
         sf.close()
         assert out["res"].complete and sc._reader.process is None  # fell back to reading the tty
     assert_matches_record(tmp_path / "scan.h5", tmp_path / "truth.h5", plan)
@@ -408,7 +409,7 @@ def test_interlock_that_closes_again_lets_a_rerun_finish(tmp_path):
         with pytest.raises(InterlockOpen):
             acquire(sim.path, plan, tmp_path / "scan.h5")
         with Scanner(sim.path) as sc:
-            deadline = time.monotonic() + 10
+            deadline = time.monotonic() + HANG_S
             while sc.query("LAS:INT?") == "1" and time.monotonic() < deadline:
                 time.sleep(0.05)
             assert sc.status().state == "FAULT"  # until the host clears it

@@ -19,6 +19,7 @@ from hypothesis import strategies as st
 
 from driver.plan import plan_id_of
 from driver.scanfile import META_KEYS, ScanFile, _clear_status_flags, _lookup3, read_scan
+from tests.waits import HANG_S
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -170,16 +171,19 @@ def test_resume_waits_for_a_reader_holding_the_file(tmp_path):
     path = tmp_path / "held.h5"
     with ScanFile.create(path, plan, instrument=INSTRUMENT, software_version="1") as sf:
         sf.append(0, aline(0, 16), meta(0))
-    holder = subprocess.Popen(
-        [sys.executable, "-c", "import sys, time, h5py\n"
+    holder = subprocess.Popen(  # holds the file open until its stdin closes (not for a time)
+        [sys.executable, "-c", "import sys, h5py\n"
          "f = h5py.File(sys.argv[1], 'r', libver='latest', swmr=True)\n"
-         "print('open', flush=True); time.sleep(1.5); f.close()", str(path)],
-        stdout=subprocess.PIPE, text=True)
+         "print('open', flush=True); sys.stdin.read(); f.close()", str(path)],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     try:
         assert holder.stdout.readline().strip() == "open"
         with pytest.raises(ValueError, match="lock"):
             ScanFile.open_append(path, plan, timeout=0.1)
-        with ScanFile.open_append(path, plan, timeout=30) as sf:  # waits for the reader
+        import threading
+
+        threading.Timer(1.0, holder.stdin.close).start()  # the reader lets go while we wait
+        with ScanFile.open_append(path, plan, timeout=HANG_S) as sf:  # waits for the reader
             assert sf.append(1, aline(1, 16), meta(1))
     finally:
         holder.kill()
@@ -222,7 +226,7 @@ def test_sigkill_then_resume_equals_uninterrupted(tmp_path):
         proc = subprocess.Popen([sys.executable, "-c", WRITER, str(path), str(n), str(n_t), "0"],
                                 stdout=subprocess.PIPE, text=True, cwd=REPO)
         try:
-            deadline = time.monotonic() + 60
+            deadline = time.monotonic() + HANG_S
             for line in proc.stdout:
                 if line.strip().isdigit():
                     acked = int(line)
@@ -273,13 +277,14 @@ READER = textwrap.dedent("""
     last, reads, seen = -1, 0, []
     read_scan(path)
     print("ready", flush=True)
-    deadline = time.monotonic() + 60
-    while time.monotonic() < deadline:
+    while True:  # until every point is read (no clock: the test's timeout bounds it)
         d = read_scan(path)
         done = np.flatnonzero(d.completed)
         assert len(done) >= last, "completed count went backwards"
         for k in done:
             assert (d.alines[k] == aline(int(k), n_t)).all(), f"torn A-line {{k}}"
+        if len(done) != last:
+            print("seen", len(done), flush=True)  # the writer waits for this
         last = len(done); reads += 1; seen.append(last)
         if last == d.n_points:
             break
@@ -300,15 +305,16 @@ def test_swmr_reader_in_other_process_while_writing(tmp_path):
             assert proc.stdout.readline().strip() == "ready"  # reader up before we write
             for k in range(n):
                 sf.append(k, aline(k, n_t), meta(k))
-                if k % 20 == 0:
-                    time.sleep(0.05)
-            out, err = proc.communicate(timeout=60)
+                if k % 20 == 19 and k < n - 1:  # a batch written: on once the reader has seen it
+                    while int((line := proc.stdout.readline() or "seen -1").split()[1]) < k + 1:
+                        assert line.startswith("seen") and proc.poll() is None, f"reader gone: {line!r}"
+            out, err = proc.communicate()
         finally:
             proc.kill()
     assert proc.returncode == 0, err
-    reads, distinct, last = map(int, out.split())
+    reads, distinct, last = map(int, out.split()[-3:])
     assert last == n
-    assert distinct >= 3, f"the reader saw only {distinct} distinct states in {reads} reads"
+    assert distinct >= n // 20, f"the reader saw only {distinct} distinct states in {reads} reads"
 
 
 def test_lookup3_known_vectors_and_superblock(tmp_path):

@@ -23,6 +23,7 @@ from driver.scanfile import FORMAT_1, ScanFile, read_scan
 from driver.simulator import SimConfig, SimulatedScanner
 from driver.sources import BallSource
 from tests.driver.driver_helpers import grid_plan, read_record, small_phantom
+from tests.waits import HANG_S
 
 pytestmark = pytest.mark.timeout(120)
 WAVELENGTHS = [7.6e-7, 8.5e-7]  # either side of the HbO2/Hb isosbestic point (~800 nm)
@@ -137,7 +138,7 @@ def test_sigkill_two_wavelength_scan_then_resume(tmp_path):
         cmd = [sys.executable, "-m", "clients", "scan", "--device", sim.path, "--plan",
                str(plan_path), "--out", str(out), "-q"]
         host = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        deadline = time.monotonic() + 60
+        deadline = time.monotonic() + HANG_S
         while done() < 300 and time.monotonic() < deadline:  # into the second pass
             time.sleep(0.05)
         host.send_signal(signal.SIGKILL)
@@ -147,7 +148,7 @@ def test_sigkill_two_wavelength_scan_then_resume(tmp_path):
         assert partial.completed_all[0].all()  # per pass: wavelength 0 finished first
         # a new process resumes on the same file (retrying while the old relay lets go)
         for _ in range(20):
-            r = subprocess.run(cmd, capture_output=True, text=True, timeout=60)
+            r = subprocess.run(cmd, capture_output=True, text=True, timeout=HANG_S)
             if r.returncode == 0 or "lock" not in r.stderr:
                 break
             time.sleep(0.2)

@@ -10,6 +10,7 @@ import httpx
 import pytest
 
 from clients.processes import Service, start_service
+from tests.waits import HANG_S
 
 REPO = Path(__file__).resolve().parents[2]
 TOKEN = "test-token-123"
@@ -46,7 +47,7 @@ class Server:
     def client(self, timeout: float = 30.0) -> httpx.Client:
         return httpx.Client(base_url=self.url, headers=self.headers(), timeout=timeout)
 
-    def start(self, timeout: float = 60.0) -> Server:
+    def start(self, timeout: float = HANG_S) -> Server:
         env = {"FPSCAN_HEARTBEAT_S": "0.5", "FPSCAN_PREVIEW_INTERVAL_S": "1.0", "OMP_NUM_THREADS": "1"}
         env.update(self.extra_env)
         self.service = start_service(self.data_dir, token=self.token, devices=self.devices, env=env,
@@ -73,7 +74,7 @@ class Server:
 
 
 def wait_job(client: httpx.Client, job_id: str, states=("succeeded", "failed", "cancelled"),
-             timeout: float = 120.0) -> dict:
+             timeout: float = HANG_S) -> dict:
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         job = client.get(f"/api/jobs/{job_id}").json()
@@ -96,7 +97,7 @@ needs_recon = pytest.mark.skipif(not has_recon(), reason="service.recon not avai
 
 
 
-def wait_gone(procs, timeout: float = 15.0) -> list:
+def wait_gone(procs, timeout: float = HANG_S) -> list:
     """Wait until the psutil processes ``procs`` have exited; returns those still alive."""
     import psutil
 

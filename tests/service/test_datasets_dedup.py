@@ -17,6 +17,7 @@ import pytest
 from clients.http import Client, Conflict, NotFound
 from service.jobs.store import JobStore
 from tests.service.service_servers import Server
+from tests.waits import HANG_S
 
 N_T, N, DT, PITCH = 32, 8, 2e-8, 1e-4
 
@@ -42,7 +43,7 @@ def _on_disk(server) -> tuple[int, int]:
 
 def _cli(server, *args: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "clients", "datasets", *args, "--server", server.url,
-                           "--token", server.token], capture_output=True, text=True, timeout=60)
+                           "--token", server.token], capture_output=True, text=True, timeout=HANG_S)
 
 
 @pytest.fixture

@@ -18,6 +18,7 @@ import pytest
 from service.jobs import lifecycle
 from service.jobs.store import JobStore
 from tests.service.service_servers import Server, needs_recon, wait_job
+from tests.waits import HANG_S
 
 pytestmark = needs_recon
 
@@ -44,7 +45,7 @@ def _recon(api, ds: str) -> str:
 
 def _cli(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "clients", *args], capture_output=True, text=True,
-                          timeout=60)
+                          timeout=HANG_S)
 
 
 def _rows(db, table: str, col: str, value: str) -> int:
@@ -158,7 +159,7 @@ def test_delete_retention_and_restart(tmp_path):
         with srv.client() as api:
             assert api.get("/api/retention").json()["keep_results"] == 1  # kept by the restart
             newest = _recon(api, ds)  # the older result goes, whole (files and rows)
-            deadline = time.monotonic() + 30  # retention runs right after the job's success
+            deadline = time.monotonic() + HANG_S  # retention runs right after the job's success
             while folders[1].exists() and time.monotonic() < deadline:
                 time.sleep(0.05)
             assert not folders[1].exists() and (data / "results" / f"{newest}.1").is_dir()

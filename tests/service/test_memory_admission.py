@@ -47,13 +47,14 @@ reconstruct(inp, "ner", **{**params, "n_z": 8})  # warm-up: imports, compiled ke
 
 
 @needs_recon
-@pytest.mark.timeout(300)
 @pytest.mark.parametrize("n, n_t, up, dz", [(96, 512, 1, 0.0), (64, 256, 2, 1e-5), (113, 384, 1, 0.0)])
 def test_admission_estimate_covers_the_measured_peak(n, n_t, up, dz):
     """Peak resident memory of a real NER reconstruction in a fresh process (above its
     warmed-up baseline, which holds the input) stays below the admission estimate."""
+    # no clock of its own: the child runs as long as it needs, bounded by pytest's timeout
+    # (which kills it: subprocess.run kills its child on any exception)
     r = subprocess.run([sys.executable, "-c", PEAK_SCRIPT, str(n), str(n_t), str(up), str(dz)],
-                       capture_output=True, text=True, timeout=240)
+                       capture_output=True, text=True)
     assert r.returncode == 0, r.stderr[-2000:]
     m = json.loads(r.stdout.strip().splitlines()[-1])
     params = {"method": "ner", "upsample": up, "dtype": "float32", **({"dz": dz} if dz else {})}
@@ -110,7 +111,6 @@ reconstruct(ds, "tv", iterations=1)  # warm-up: imports, compiled kernels (compi
 
 
 @needs_recon
-@pytest.mark.timeout(300)
 def test_tv_admission_uses_the_pitch_and_covers_the_measured_peak():
     """The model-based operator pads its grid by the record's reach counted in pitches:
     with the input's pitch known, a coarse pitch needs less memory than the pitch-free
@@ -123,8 +123,9 @@ def test_tv_admission_uses_the_pitch_and_covers_the_measured_peak():
     worst = estimate_memory(shape, params)
     estimate = estimate_memory({**shape, "dx": dx}, params)
     assert estimate < worst / 2  # 1e-4 m is ~3 c·dt: the lateral padding shrinks ~3-fold
+    # no clock of its own (a loaded machine ran it past 240 s): bounded by pytest's timeout
     r = subprocess.run([sys.executable, "-c", TV_PEAK_SCRIPT, str(n), str(n_t), str(n_pts), str(dx)],
-                       capture_output=True, text=True, timeout=240)
+                       capture_output=True, text=True)
     assert r.returncode == 0, r.stderr[-2000:]
     m = json.loads(r.stdout.strip().splitlines()[-1])
     used = m["peak"] - m["base"]

@@ -165,7 +165,7 @@ def test_dask_localcluster_gives_the_local_pool_result(tmp_path, shared_api):
             with srv.client() as c:
                 assert c.get("/api/health").json()["executor"] == "dask"
                 jid = c.post("/api/reconstructions", json={**body, "dataset_id": upload(c, data)}).json()["id"]
-                assert wait_job(c, jid, timeout=180)["state"] == "succeeded"
+                assert wait_job(c, jid)["state"] == "succeeded"
                 remote = download_volume(c, jid)[0]["p0"]
                 workers = srv.workers()
         finally:

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from tests.service.service_servers import Server, needs_recon, wait_gone, wait_job
+from tests.waits import HANG_S
 
 driver_sim = pytest.importorskip("driver.simulator")
 
@@ -63,7 +64,7 @@ def start_scan(c, plan_id) -> str:
     return r.json()["id"]
 
 
-def wait_points(c, job_id, at_least, timeout=60.0) -> dict:
+def wait_points(c, job_id, at_least, timeout=HANG_S) -> dict:
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         job = c.get(f"/api/jobs/{job_id}").json()
@@ -111,29 +112,45 @@ def test_scan_preview_sse_then_nedner_matches_phantom(scan_server, sim, tmp_path
         t = threading.Thread(target=read_sse, daemon=True)
         t.start()
         previews = {}
-        deadline = time.monotonic() + 90
-        while time.monotonic() < deadline:
+
+        def new_previews() -> dict:
+            """Keep every preview version seen (points used, xy PNG); the preview's state."""
             info = c.get(f"/api/scans/{job_id}/preview").json()
             if info["version"] and info["version"] not in previews:
                 png = c.get(f"/api/scans/{job_id}/preview/xy.png")
                 if png.status_code == 200:
                     previews[info["version"]] = (info["points_used"], png.content)
-            if c.get(f"/api/jobs/{job_id}").json()["state"] in ("succeeded", "failed", "cancelled"):
-                break
+            return info
+
+        # a preview of part of the points, whatever the machine's speed: the scan is held
+        # (paused) after a few points until the preview of those shows, then resumed
+        wait_points(c, job_id, 2)
+        assert c.post(f"/api/scans/{job_id}/pause").status_code == 200
+        deadline = time.monotonic() + HANG_S
+        while not any(used < N * N for used, _ in previews.values()):
+            assert time.monotonic() < deadline, f"no preview of the paused scan after {HANG_S} s"
+            new_previews()
+            time.sleep(0.2)
+        assert c.post(f"/api/scans/{job_id}/resume").status_code == 200
+        while c.get(f"/api/jobs/{job_id}").json()["state"] not in ("succeeded", "failed", "cancelled"):
+            assert time.monotonic() < deadline, f"scan {job_id} not finished after {HANG_S} s"
+            new_previews()
             time.sleep(0.2)
         job = wait_job(c, job_id)
         assert job["state"] == "succeeded", job
         assert job["progress"]["faults_recovered"] == 0, job  # none injected: none counted
-        t.join(timeout=30)
+        new_previews()  # the last refresh, with every point, lands before the job ends
+        t.join(timeout=HANG_S)
         # SSE carried the progress of the acquisition up to the last point
         done = [e["points_done"] for e in events if "points_done" in e and e.get("points_done") is not None]
         assert done and done == sorted(done) and done[-1] == N * N
         assert any(e.get("state") == "succeeded" for e in events)
-        # the live preview changed while the scan ran: several versions, more points each time
+        # the live preview changed while the scan ran: a preview of part of the points, then
+        # one of all of them; more points each version, and a different picture
         assert len(previews) >= 2, previews.keys()
         versions = sorted(previews)
         used = [previews[v][0] for v in versions]
-        assert used == sorted(used) and used[0] < used[-1]
+        assert used == sorted(used) and used[0] < used[-1] == N * N, used
         assert previews[versions[0]][1] != previews[versions[-1]][1]
 
         check_scan_file(c, job_id, sim, tmp_path, N * N)
@@ -179,7 +196,12 @@ def test_pause_resume_and_abort(scan_server, sim, tmp_path):
         wait_points(c, job_id, 40)
         r = c.post(f"/api/scans/{job_id}/pause")
         assert r.status_code == 200 and r.json()["state"] == "paused"
-        time.sleep(1.0)  # in-flight A-lines land
+        # the device has stopped and every A-line it sent has landed (not a fixed wait)
+        deadline = time.monotonic() + HANG_S
+        while not (sim.state == "PAUSED" and c.get(f"/api/jobs/{job_id}").json()["progress"]["points_done"]
+                   == sim.stats["alines"]):
+            assert time.monotonic() < deadline, f"paused scan still receiving after {HANG_S} s"
+            time.sleep(0.05)
         before = c.get(f"/api/jobs/{job_id}").json()["progress"]["points_done"]
         time.sleep(1.0)
         after = c.get(f"/api/jobs/{job_id}").json()
@@ -201,7 +223,7 @@ def test_pause_resume_and_abort(scan_server, sim, tmp_path):
         final = wait_job(c, job2)
         assert final["state"] == "cancelled"
         assert 20 <= final["progress"]["points_done"] < N * N
-        deadline = time.monotonic() + 10
+        deadline = time.monotonic() + HANG_S
         while c.get("/api/scanners").json()[0]["status"] != "idle" and time.monotonic() < deadline:
             time.sleep(0.1)
         assert c.get("/api/scanners").json()[0]["status"] == "idle"

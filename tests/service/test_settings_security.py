@@ -16,6 +16,7 @@ from clients.processes import free_port
 from service.jobs.store import JobStore
 from service.settings import Settings
 from tests.service.service_servers import Server, needs_recon, wait_job
+from tests.waits import HANG_S
 
 
 def test_settings_file_environment_and_overrides(tmp_path, monkeypatch):
@@ -59,7 +60,7 @@ def test_beyond_loopback_everything_needs_the_token_and_web_page_is_served(tmp_p
     t.start()
     try:
         url = f"http://127.0.0.1:{port}"
-        deadline = time.monotonic() + 30
+        deadline = time.monotonic() + HANG_S
         while not server.started and time.monotonic() < deadline:
             time.sleep(0.05)
         r = httpx.get(url + "/api/health")
@@ -72,7 +73,7 @@ def test_beyond_loopback_everything_needs_the_token_and_web_page_is_served(tmp_p
         assert httpx.get(url + "/../../etc/passwd").status_code == 404
     finally:
         server.should_exit = True
-        t.join(timeout=15)
+        t.join(timeout=HANG_S)
 
 
 def test_restart_recovery_in_the_store(tmp_path):
@@ -126,7 +127,7 @@ def test_memory_admission_queues_what_does_not_fit_now(tmp_path):
                         files={"file": ("a.npy", _npy(np.ones(shape, np.float32)), "x")}).json()["dataset_id"]
             body = {"dataset_id": ds, "method": "ner", "params": {"dtype": "float64"}}
             ids = [c.post("/api/reconstructions", json=body).json()["id"] for _ in range(2)]
-            jobs = [wait_job(c, j, timeout=180) for j in ids]
+            jobs = [wait_job(c, j) for j in ids]
             assert [j["state"] for j in jobs] == ["succeeded", "succeeded"]
             first, second = sorted(jobs, key=lambda j: j["timings"]["started"])
             assert second["timings"]["started"] >= first["timings"]["finished"]
@@ -153,6 +154,6 @@ def test_fpscan_serve_refuses_bad_settings_with_one_line(argv, env, reason, tmp_
     full_env = {k: v for k, v in os.environ.items() if not k.startswith("FPSCAN_")}
     full_env.update({"FPSCAN_DATA_DIR": str(tmp_path), **env})
     p = subprocess.run([sys.executable, "-m", "clients", "serve", "--port", "0", *argv], cwd=REPO, env=full_env,
-                       capture_output=True, text=True, timeout=60)
+                       capture_output=True, text=True, timeout=HANG_S)
     assert p.returncode == 2  # refused settings: a usage error (issue 22.6)
     assert reason in p.stderr and len(p.stderr.strip().splitlines()) == 1, p.stderr

@@ -136,7 +136,7 @@ def test_soak_mixed_requests_during_a_scan_and_a_reconstruction(tmp_path):
         _check_health_latency([r[2] for r in results if r[0] == "health"])
         with srv.client() as c:
             assert wait_job(c, recon, timeout=300)["state"] == "succeeded"
-            assert wait_job(c, scan_id, timeout=120)["state"] == "succeeded"
+            assert wait_job(c, scan_id)["state"] == "succeeded"
     finally:
         srv.stop()
         sim.stop()

@@ -8,6 +8,8 @@ import io
 import numpy as np
 import pytest
 
+from tests.waits import HANG_S
+
 LATTICE = {"n_x": 40, "n_y": 40, "pitch": 6e-5}
 EQ = {"kind": "equisteradian", "params": {"depth": 2e-3, "n_points": 60}}
 
@@ -77,7 +79,7 @@ def test_recon_sound_speed_rule_422_and_force(shared_server, shared_api, tmp_pat
     cli = subprocess.run([sys.executable, "-m", "clients", "recon", str(x), "--server", shared_server.url,
                           "--token", shared_server.token, "--dt", "20ns", "--dx", "100um", "--c", "2500",
                           "--force", "--method", "ner", "-q", "--out", str(tmp_path / "r")],
-                         capture_output=True, text=True, timeout=120)
+                         capture_output=True, text=True, timeout=HANG_S)
     assert cli.returncode == 0, cli.stderr
     assert (tmp_path / "r" / "volume.h5").is_file()
 

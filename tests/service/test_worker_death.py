@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 from tests.service.service_servers import Server, needs_recon, wait_gone, wait_job
+from tests.waits import HANG_S
 
 TRIALS = int(os.environ.get("FPSCAN_KILL_TRIALS", "10"))
 N, N_T = 32, 256
@@ -33,7 +34,7 @@ def upload(api) -> str:
     return r.json()["dataset_id"]
 
 
-def wait_running(api, jid: str, timeout: float = 120.0) -> dict:
+def wait_running(api, jid: str, timeout: float = HANG_S) -> dict:
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         job = api.get(f"/api/jobs/{jid}").json()
@@ -104,7 +105,7 @@ def test_a_killed_worker_process_requeues_its_reconstruction(tmp_path):
             workers[0].kill()
             assert not wait_gone(workers)
             assert api.get("/api/health").status_code == 200
-            done = wait_job(api, jid, timeout=240)
+            done = wait_job(api, jid)
             assert done["state"] == "succeeded" and done["attempts"] == 2, done
             assert api.get(f"/api/reconstructions/{jid}/volume.h5").status_code == 200
             assert recon_workers(srv) and recon_workers(srv)[0].pid != workers[0].pid

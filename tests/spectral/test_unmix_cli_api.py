@@ -79,7 +79,7 @@ def test_http_unmix_and_autofocus(npy_files, tmp_path):
         with Client(srv.url, token=srv.token, timeout=60) as api:
             ids = [api.upload_dataset(p, "npy", dt=DT, dx=DX) for p in npy_files]
             job_id = api.start_unmix(dataset_ids=ids, wavelengths=W, method="ner", threshold=0.1)
-            job = wait_job(srv.client(), job_id, timeout=240)
+            job = wait_job(srv.client(), job_id)
             assert job["state"] == "succeeded", job
             api.download_unmix(job_id, tmp_path / "unmix.h5")
             api.download_so2(job_id, tmp_path / "so2.png")
@@ -108,7 +108,7 @@ def test_http_unmix_and_autofocus(npy_files, tmp_path):
             # autofocus through the API: the search is recorded with the result
             af_id = api.start_reconstruction(dataset_id=ids[0], method="ner",
                                              params={"c": "auto", "c_range": [1470, 1530]})
-            job = wait_job(srv.client(), af_id, timeout=240)
+            job = wait_job(srv.client(), af_id)
             assert job["state"] == "succeeded", job
             result = job.get("result") or job["params"]["result"]
             af = result["autofocus"]

@@ -14,6 +14,7 @@ from PIL import Image as PILImage
 from driver.scanfile import ScanFile
 from service.storage.render import png_axes
 from tests.storage.storage_helpers import PITCH, build_plan
+from tests.waits import HANG_S
 
 N, N_T, DT = 24, 128, 2e-8
 C = 1490.0  # the helper plan's sound speed
@@ -110,7 +111,7 @@ def test_one_orientation_and_mm_axes_in_every_picture(tmp_path):
     import tifffile
 
     done = subprocess.run([sys.executable, "-m", "clients", "export", str(out / "volume.h5"),
-                           "-o", str(tmp_path / "p0.ome.tif")], capture_output=True, text=True, timeout=120)
+                           "-o", str(tmp_path / "p0.ome.tif")], capture_output=True, text=True, timeout=HANG_S)
     assert done.returncode == 0, done.stderr
     with h5py.File(out / "volume.h5", "r") as f:
         p0, z, y, x = f["p0"][()], f["z"][()], f["y"][()], f["x"][()]

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 
+from tests.waits import HANG_S
 from tests.web.web_e2e_support import CHROMIUM_FLAGS, SCREENSHOTS
 
 
@@ -66,8 +67,8 @@ def browser(download_dir):
                             {"behavior": "allow", "downloadPath": str(download_dir)})
     except Exception:  # noqa: BLE001 - older drivers: the prefs above do it
         pass
-    drv.set_page_load_timeout(30)
-    drv.set_script_timeout(30)
+    drv.set_page_load_timeout(HANG_S)  # hang guards (tests.waits), not speed expectations
+    drv.set_script_timeout(HANG_S)
     yield drv
     drv.quit()
     shutil.rmtree(profile, ignore_errors=True)

@@ -21,6 +21,7 @@ from pathlib import Path
 import pytest
 
 from clients.processes import Service, simulator, start_service
+from tests.waits import HANG_S
 from tests.web.web_e2e_support import REPO_ROOT, has_subcommand, wait_for
 
 httpx = pytest.importorskip("httpx")
@@ -32,7 +33,7 @@ DEPTH_MM = 3.6
 N_POINTS = 120
 PRF_HZ = 25.0  # simulator and plan: ~5 s for the ~130-point scan, time for several live previews
 
-pytestmark = pytest.mark.timeout(120)
+pytestmark = pytest.mark.timeout(600)  # the suite's: waits end on events (tests.waits)
 
 
 # ----------------------------------------------------------------------------- fixtures
@@ -54,7 +55,7 @@ def start_server(data: Path, devices: dict, token: str | None) -> Service:
     if not has_subcommand("serve"):
         pytest.skip("this build has no `fpscan serve`")
     return start_service(data, token=token, devices=devices, env={"FPSCAN_PREVIEW_INTERVAL_S": "0.5"},
-                         log_path=data / "serve.log", timeout=60)
+                         log_path=data / "serve.log", timeout=HANG_S)
 
 
 @pytest.fixture(scope="module")
@@ -116,7 +117,7 @@ def image_digest(browser, element_id) -> str | None:
     return hashlib.sha256(base64.b64decode(data_url.split(",", 1)[1])).hexdigest()
 
 
-def choose(browser, select_id: str, value: str, timeout: float = 15) -> None:
+def choose(browser, select_id: str, value: str, timeout: float = HANG_S) -> None:
     """Pick ``value`` in a <select> once it is offered (the page may be rebuilding the
     list: retried until the choice sticks)."""
     from selenium.webdriver.support.ui import Select
@@ -287,31 +288,37 @@ def test_scan_view_progress_reaches_100_and_live_preview_changes(browser, sim, s
 
     job_id = wait_for(lambda: el(browser, "scan-job").get_attribute("title"), 15, "the scan job id")
     versions: dict[str, str] = {}
-    shot_running = False
-    deadline = time.monotonic() + 90
-    while time.monotonic() < deadline:
+
+    def seen_versions() -> dict[str, str]:
+        """Keep every live preview version the page shows (its xy pixels)."""
         v = el(browser, "scan-mip-xy").get_attribute("data-version")
         if v and v not in versions:
             digest = image_digest(browser, "scan-mip-xy")
             if digest:
                 versions[v] = digest
-        if not shot_running and versions and text(browser, "scan-state") == "running":
-            shot(browser, screenshots, "scan-view-running")
-            shot_running = True
-        if text(browser, "scan-state") in ("succeeded", "failed", "cancelled") and versions:
-            break
-        time.sleep(0.15)
+        return versions
+
+    # a preview of part of the points, whatever the machine's speed: the scan is held
+    # (paused over the API) after a few points until the page shows their preview
+    wait_for(lambda: (api.get(f"/api/jobs/{job_id}").json()["progress"].get("points_done") or 0) >= 2, HANG_S,
+             "the first points")
+    assert api.post(f"/api/scans/{job_id}/pause").status_code == 200
+    wait_for(seen_versions, HANG_S, "a live preview of the paused scan")
+    assert api.post(f"/api/scans/{job_id}/resume").status_code == 200
+    wait_for(lambda: text(browser, "scan-state") == "running", HANG_S, "the page to show running again")
+    shot(browser, screenshots, "scan-view-running")
+    wait_for(lambda: seen_versions() and text(browser, "scan-state") in ("succeeded", "failed", "cancelled"),
+             HANG_S, "the scan to end", 0.15)
     assert text(browser, "scan-state") == "succeeded", api.get(f"/api/jobs/{job_id}").text
     # progress came over Server-Sent Events (not only from polling)
     assert int(browser.execute_script("return document.body.dataset.sseEvents || '0'")) >= 3
-    wait_for(lambda: text(browser, "scan-progress-label") == "100 %", 10, "progress 100 %")
+    wait_for(lambda: text(browser, "scan-progress-label") == "100 %", HANG_S, "progress 100 %")
     assert el(browser, "scan-progress").get_attribute("value") in ("1", "1.0")
     n = state["n_points"]
     assert text(browser, "scan-points") == f"{n} / {n}"
-    time.sleep(1.0)
-    v = el(browser, "scan-mip-xy").get_attribute("data-version")
-    if v and v not in versions and image_digest(browser, "scan-mip-xy"):
-        versions[v] = image_digest(browser, "scan-mip-xy")
+    # the last refresh (every point) lands before the job ends: the page shows it
+    final = str(api.get(f"/api/scans/{job_id}/preview").json()["version"])
+    wait_for(lambda: final in seen_versions(), HANG_S, f"the last live preview (version {final})")
     shot(browser, screenshots, "scan-view-done")
     assert token_prompts(browser) == 1, "the token was asked again"
     assert len(versions) >= 2, f"saw live preview versions {list(versions)}"
@@ -810,7 +817,7 @@ def test_plan_form_offers_exactly_the_servers_kinds_and_parameters(browser, serv
     browser.execute_script("sessionStorage.setItem('fpscan.token', arguments[0])", TOKEN)
     browser.refresh()
     wait_for(lambda: len(browser.execute_script(
-        "return document.getElementById('mask-kind').options")) == len(want), 15, "the mask kinds")
+        "return document.getElementById('mask-kind').options")) == len(want), HANG_S, "the mask kinds")
     offered = browser.execute_script(
         "return [...document.getElementById('mask-kind').options].map(o => o.value)")
     assert offered == list(want)
@@ -818,7 +825,7 @@ def test_plan_form_offers_exactly_the_servers_kinds_and_parameters(browser, serv
         choose(browser, "mask-kind", kind)
         wait_for(lambda k=kind: browser.execute_script(
             "return [...document.querySelectorAll('#mask-params [name]')].map(e => e.name)") == want[k],
-            10, f"the {kind} parameters")
+            HANG_S, f"the {kind} parameters")
     choose(browser, "mask-kind", "equispaced")
     set_value(browser, "mask-interval", 3)
     set_value(browser, "lat-nx", 64)
@@ -826,6 +833,6 @@ def test_plan_form_offers_exactly_the_servers_kinds_and_parameters(browser, serv
     set_value(browser, "lat-pitch", 60)
     set_value(browser, "acq-nt", 256)
     set_value(browser, "acq-dt", 8)
-    wait_for(lambda: text(browser, "plan-points").split()[0] == str(expected["points"]), 20,
+    wait_for(lambda: text(browser, "plan-points").split()[0] == str(expected["points"]), HANG_S,
              "the equispaced preview's point count")
     shot(browser, screenshots, "plan-view-equispaced")
