@@ -234,6 +234,8 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True) 
             from service.jobs.queue import ReconQueue
 
             executor = make_executor(settings)
+            if hasattr(executor, "start_workers"):  # the local pool: its workers start (and warm up) now,
+                context.extras["worker_starts"] = executor.start_workers()  # in the background
             context.queue = ReconQueue(store, executor, settings)
             recovered = store.recover(context.queue.owner, settings.max_attempts)
             from service.jobs.queue import remove_debris
@@ -250,8 +252,6 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True) 
 
             apply_retention(store, settings)  # a policy tightened while the server was down
             context.queue.start()
-            if hasattr(executor, "start_workers"):  # the local pool: its workers start (and warm up) now
-                context.extras["worker_starts"] = executor.start_workers()
             from service.api.plans import plan_executor
 
             plan_executor(context)  # the plan worker starts loading now, not at the first plan request
