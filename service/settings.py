@@ -52,6 +52,13 @@ class Settings(BaseSettings):
     executor: Literal["local", "dask"] = "local"
     dask_scheduler: str | None = Field(None, description="dask.distributed scheduler address (implies executor dask)")
     workers: int = Field(1, ge=1, le=64, description="local process pool size")
+    worker_nice: int = Field(0, ge=0, le=19, description="CPU priority increment (os.nice) of the local "
+                             "reconstruction workers: 0 = the server's own priority (a job then costs what the "
+                             "library costs; the server stays responsive because its CPU work runs off the "
+                             "event loop); raise it (e.g. 10) to favour other programs on a shared machine")
+    warm_up: bool = Field(True, description="compile the reconstruction kernels (a tiny NER and NEDNER), "
+                          "import the writer and draw a picture in each local worker at start-up, in the "
+                          "background (health answers at once; the first job waits for its worker's warm-up)")
     memory_limit: int = Field(8 * 2**30, gt=0, description="bytes available to reconstructions at once")
     upload_limit: int = Field(2 * 2**30, gt=0, description="largest accepted upload, bytes")
     body_timeout_s: float = Field(30.0, gt=0, le=3600, description="an upload or plan request whose body "

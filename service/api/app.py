@@ -261,6 +261,8 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True) 
             from service.jobs.queue import ReconQueue
 
             executor = make_executor(settings)
+            if hasattr(executor, "start_workers"):  # the local pool: its workers start (and warm up) now,
+                context.extras["worker_starts"] = executor.start_workers()  # in the background
             context.queue = ReconQueue(store, executor, settings)
             recovered = store.recover(context.queue.owner, settings.max_attempts)
             from service.jobs.queue import remove_debris

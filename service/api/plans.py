@@ -229,8 +229,9 @@ def preview_png_of_text(text: str) -> bytes:
 _EXECUTOR_LOCK = threading.Lock()
 
 
-#: CPU priority (``nice`` increment) of the plan worker: below the server's threads, above
-#: the reconstruction workers (+10), beside the live-preview worker (+5).
+#: CPU priority (``nice`` increment) of the plan worker: below the server's threads, beside
+#: the live-preview worker (+5); the reconstruction workers run at ``Settings.worker_nice``
+#: (default 0, the server's own priority).
 PLAN_WORKER_NICE = 8
 
 

@@ -5,8 +5,10 @@ from a job thread, never from the event loop), ``run(fn, *args) -> result`` (blo
 and ``close()``.
 
 - :class:`LocalExecutor`: ``concurrent.futures.ProcessPoolExecutor`` with the ``spawn``
-  start method (no fork of a threaded server), ``workers`` processes at a lower CPU
-  priority (``nice`` +10).
+  start method (no fork of a threaded server), ``workers`` processes at the CPU priority
+  increment ``nice`` (``Settings.worker_nice``; default 0, the server's own priority: the
+  server stays responsive because its CPU work runs off the event loop), each warming
+  its kernels when it starts (``warm``: :func:`start_worker`).
 - :class:`DaskExecutor`: ``distributed.Client(address)``; works with any scheduler,
   e.g. a ``LocalCluster`` or a dask-jobqueue cluster. The workers must see the data
   directory (shared file system), since they read inputs and write results there.
@@ -44,6 +46,23 @@ def lower_priority(increment: int = 10, parent: int | None = None) -> None:
     threading.Thread(target=_exit_with_parent, args=(parent,), name="parent-watch", daemon=True).start()
 
 
+def start_worker(increment: int = 0, parent: int | None = None, warm: bool = False) -> None:
+    """Reconstruction worker initializer: :func:`lower_priority` by ``increment``, then,
+    with ``warm``, :func:`service.jobs.work.warm_up` (imports, numba kernels, the result
+    writer and its pictures), so the first job costs what a later one costs. A failing
+    warm-up is logged and ignored (the job then pays the cost itself)."""
+    lower_priority(increment, parent)
+    if warm:
+        try:
+            from service.jobs.work import warm_up
+
+            warm_up(full=True)
+        except Exception:  # noqa: BLE001 -- a warm-up must never stop the worker
+            import logging
+
+            logging.getLogger("fpscan.worker").exception("worker warm-up failed")
+
+
 def stop_pool(pool: ProcessPoolExecutor) -> None:
     """Shut a pool down now: pending work is cancelled and running workers terminated
     (a reconstruction in flight is lost; its job is re-queued at the next start)."""
@@ -57,18 +76,29 @@ def stop_pool(pool: ProcessPoolExecutor) -> None:
 
 
 class LocalExecutor:
-    """A pool of ``workers`` spawned processes."""
+    """A pool of ``workers`` spawned processes at CPU priority increment ``nice``; with
+    ``warm`` each warms its kernels as it starts (:func:`start_worker`)."""
 
     name = "local"
 
-    def __init__(self, workers: int = 1):
+    def __init__(self, workers: int = 1, nice: int = 0, warm: bool = False):
         self.workers = int(workers)
+        self.nice = int(nice)
+        self.warm = bool(warm)
         self.closed = False
         self._pool = self._new_pool()
 
     def _new_pool(self) -> ProcessPoolExecutor:
         return ProcessPoolExecutor(max_workers=self.workers, mp_context=multiprocessing.get_context("spawn"),
-                                   initializer=lower_priority, initargs=(10, os.getpid()))
+                                   initializer=start_worker, initargs=(self.nice, os.getpid(), self.warm))
+
+    def start_workers(self) -> list:
+        """Start every worker process now (in the background: returns their futures at once)
+        rather than at the first job, so their warm-up runs before it. Each future's result
+        is the worker's pid."""
+        from service.jobs.work import worker_pid
+
+        return [self._pool.submit(worker_pid) for _ in range(self.workers)]
 
     def submit(self, fn, *args):
         try:
@@ -144,4 +174,4 @@ def make_executor(settings):
     """The executor the settings ask for."""
     if settings.executor == "dask":
         return DaskExecutor(settings.dask_scheduler)
-    return LocalExecutor(settings.workers)
+    return LocalExecutor(settings.workers, nice=settings.worker_nice, warm=settings.warm_up)

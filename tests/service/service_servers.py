@@ -48,7 +48,10 @@ class Server:
         return httpx.Client(base_url=self.url, headers=self.headers(), timeout=timeout)
 
     def start(self, timeout: float = HANG_S) -> Server:
-        env = {"FPSCAN_HEARTBEAT_S": "0.5", "FPSCAN_PREVIEW_INTERVAL_S": "1.0", "OMP_NUM_THREADS": "1"}
+        # no kernel warm-up in the workers (Settings.warm_up): most test servers run no
+        # reconstruction, and the 2-core test machine is shared; test_worker_priority turns it on
+        env = {"FPSCAN_HEARTBEAT_S": "0.5", "FPSCAN_PREVIEW_INTERVAL_S": "1.0", "OMP_NUM_THREADS": "1",
+               "FPSCAN_WARM_UP": "false"}
         env.update(self.extra_env)
         self.service = start_service(self.data_dir, token=self.token, devices=self.devices, env=env,
                                      log_path=self.log, web=False, timeout=timeout)

@@ -80,10 +80,15 @@ def test_a_killed_server_finishes_every_reconstruction_after_restart(tmp_path, s
         srv.stop()
 
 
+#: the reconstruction workers' priority increment in these tests (``FPSCAN_WORKER_NICE``; the
+#: default is 0): it tells them apart from the plan (+8) and preview (+5) workers
+RECON_NICE = 10
+
+
 def recon_workers(srv: Server) -> list:
-    """The server's reconstruction pool workers: the spawned processes at nice +10
-    (``service.jobs.executors.lower_priority``; preview workers run at +5)."""
-    return [p for p in srv.workers() if "spawn_main" in " ".join(p.cmdline()) and p.nice() >= 10]
+    """The server's reconstruction pool workers: the spawned processes at nice
+    ``RECON_NICE`` (``Settings.worker_nice``; preview workers run at +5, the plan worker at +8)."""
+    return [p for p in srv.workers() if "spawn_main" in " ".join(p.cmdline()) and p.nice() >= RECON_NICE]
 
 
 @needs_recon
@@ -92,7 +97,7 @@ def test_a_killed_worker_process_requeues_its_reconstruction(tmp_path):
     """SIGKILL of the reconstruction worker alone (the server stays up), mid-reconstruction:
     the job is re-queued as a new attempt, runs in a new worker and succeeds; the server
     kept answering."""
-    srv = Server(tmp_path / "data", env={"FPSCAN_MAX_ATTEMPTS": "3"}).start()
+    srv = Server(tmp_path / "data", env={"FPSCAN_MAX_ATTEMPTS": "3", "FPSCAN_WORKER_NICE": str(RECON_NICE)}).start()
     try:
         with srv.client() as api:
             ds = upload(api)

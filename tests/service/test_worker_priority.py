@@ -1,0 +1,85 @@
+"""Worker priority is a setting (issue 20.1): ``Settings.worker_nice`` (default 0, the
+server's own priority) is the CPU priority increment of the reconstruction workers, and
+the local pool starts its workers with the server (warming them up in the background)."""
+from __future__ import annotations
+
+import os
+import time
+
+import pytest
+
+from service.jobs.executors import LocalExecutor
+from service.jobs.work import worker_pid
+from service.settings import Settings
+from tests.service.service_servers import Server
+
+
+def priority(pid: int) -> int:
+    return os.getpriority(os.PRIO_PROCESS, pid)
+
+
+def test_the_default_worker_priority_is_the_servers():
+    assert Settings().worker_nice == 0
+    with pytest.raises(ValueError, match="worker_nice"):
+        Settings(worker_nice=-1)  # raising a priority needs privileges: refused up front
+
+
+@pytest.mark.parametrize("nice", [0, 4])
+def test_local_workers_run_at_the_configured_increment(nice):
+    ex = LocalExecutor(1, nice=nice)
+    try:
+        pid = ex.run(worker_pid)
+        assert pid != os.getpid()
+        assert priority(pid) == min(19, priority(0) + nice)
+    finally:
+        ex.close()
+
+
+@pytest.mark.timeout(120)
+def test_a_server_starts_its_workers_at_the_configured_priority(tmp_path):
+    """A real server with ``FPSCAN_WORKER_NICE=3``: its reconstruction worker is started
+    with the server (before any job) at the server's priority + 3 (none at the old +10)."""
+    srv = Server(tmp_path / "data", env={"FPSCAN_WORKER_NICE": "3", "FPSCAN_WARM_UP": "false"}).start()
+    try:
+        base = priority(srv.proc.pid)
+        deadline = time.monotonic() + 60
+        found: list = []
+        while time.monotonic() < deadline and not found:
+            spawned = [p for p in srv.workers() if "spawn_main" in " ".join(p.cmdline())]
+            found = [p for p in spawned if p.nice() == base + 3]
+            time.sleep(0.1)
+        assert found, [(p.pid, p.nice()) for p in srv.workers()]
+        assert not [p for p in srv.workers() if p.nice() >= base + 10]
+        with srv.client() as api:
+            assert api.get("/api/health").status_code == 200
+    finally:
+        srv.stop()
+
+
+@pytest.mark.timeout(300)
+def test_a_warming_server_is_healthy_and_runs_the_first_job(tmp_path):
+    """With the warm-up on (the default), health answers while the worker warms, and a
+    job submitted at once queues behind the warm-up and succeeds in that worker."""
+    import io
+
+    import numpy as np
+
+    srv = Server(tmp_path / "data", env={"FPSCAN_WARM_UP": "true"}).start()
+    try:
+        with srv.client(timeout=60) as api:
+            assert api.get("/api/health").status_code == 200
+            buf = io.BytesIO()
+            np.save(buf, np.random.default_rng(0).standard_normal((64, 8, 8)).astype(np.float32))
+            r = api.post("/api/datasets", data={"format": "npy", "dt": "2e-8", "dx": "1e-4"},
+                         files={"file": ("d.npy", buf.getvalue())})
+            assert r.status_code == 201, r.text
+            jid = api.post("/api/reconstructions", json={"dataset_id": r.json()["dataset_id"], "method": "ner",
+                                                         "params": {"dtype": "float32"}}).json()["id"]
+            from tests.service.service_servers import wait_job
+
+            done = wait_job(api, jid, timeout=240)
+            assert done["state"] == "succeeded", done
+            timings = done["params"]["result"]["timings"]
+            assert timings["reconstruct_s"] > 0 and timings["write_s"] > 0
+    finally:
+        srv.stop()
