@@ -266,11 +266,14 @@ def _taps(theta, h, L, kind, w, hc, shift, ip, im, wts, j):
         base = int(math.ceil(s - 0.5 * w))
         t = 2.0 * (base - s + 0.5 * w) - 1.0
         nd = hc.shape[1]
+        # Horner's rule for the w taps side by side (degree outer, tap inner): the w
+        # independent chains interleave instead of one chain of nd steps after another
+        row = wts[j]
         for k in range(w):
-            v = hc[k, 0]
-            for d in range(1, nd):
-                v = v * t + hc[k, d]
-            wts[j, k] = v
+            row[k] = hc[k, 0]
+        for d in range(1, nd):
+            for k in range(w):
+                row[k] = row[k] * t + hc[k, d]
     elif kind == 1:
         base = int(math.floor(s))
         frac = s - base
@@ -368,10 +371,10 @@ def _spread_kernel(B, gvals, gptr, order, kz, qw, c, dt, t0, h, L, kind, w, hc, 
                 if b >= 1 and b + w <= L:
                     # no wrap-around (as `_interp_kernel`): consecutive taps at b.. and
                     # mirrored at L-b..
+                    for k in range(w):  # two loops: neither aliases itself
+                        r[b + k] += wts[j, k] * vp
                     for k in range(w):
-                        wk = wts[j, k]
-                        r[b + k] += wk * vp
-                        r[L - b - k] += wk * vm
+                        r[L - b - k] += wts[j, k] * vm
                 else:
                     for k in range(w):
                         wk = wts[j, k]
