@@ -30,6 +30,7 @@ import scipy.fft
 
 from driver.physics import nufft
 from driver.physics.axes import centred_index
+from driver.physics.fast_lengths import fast_dct1_rows, fast_length
 from driver.physics.nufft_plans import lateral_plan
 
 
@@ -53,24 +54,27 @@ def _check_common(p0, dx, dz, dt, n_t, c, t0, eps):
 
 
 def _pad_sizes(shape, dx, dz, dt, n_t, c, t0, extra_lateral=0.0):
+    """Zero-padded working grid (N_z, N_y, N_x) >= shape of the free-space model: no periodic
+    image reaches a sensor within the record. Every length is rounded up to a fast one
+    (`driver.physics.fast_lengths`; more padding only moves the periodic images further
+    away): the depth DCT-I's 2 (N_z - 1), y's complex and x's real FFT; N_y - n_y and
+    N_x - n_x stay even so that the image sits centred."""
     n_z, n_y, n_x = shape
     reach = c * (t0 + (n_t - 0.5) * dt) + 2 * max(dx, dz)
     depth = (n_z - 1) * dz
     k_min = int(math.ceil((reach + depth) / (2 * dz))) + 2
-    n_z2 = max(n_z, k_min)
+    n_z2 = fast_dct1_rows(max(n_z, k_min))
 
-    def lateral(n, is_singleton):
+    def lateral(n, is_singleton, real):
         if is_singleton:
             return n
         need = (n - 1) * dx + extra_lateral + reach
-        n2 = scipy.fft.next_fast_len(max(n, int(math.ceil(need / dx)) + 1))
-        if (n2 - n) % 2:
-            n2 = scipy.fft.next_fast_len(n2 + 1)
-            while (n2 - n) % 2:
-                n2 = scipy.fft.next_fast_len(n2 + 1)
+        n2 = fast_length(max(n, int(math.ceil(need / dx)) + 1), real=real)
+        while (n2 - n) % 2:
+            n2 = fast_length(n2 + 1, real=real)
         return n2
 
-    return n_z2, lateral(n_y, n_y == 1), lateral(n_x, False)
+    return n_z2, lateral(n_y, n_y == 1, False), lateral(n_x, False, True)
 
 
 def _kspace_data(p0, dx, dz, dt, n_t, c, t0, eps, full):

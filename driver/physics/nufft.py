@@ -21,8 +21,9 @@ Two ways to evaluate S(theta) are offered (``kind``):
   phi(u) = exp(beta (sqrt(1 - (2u/w)^2) - 1)), w = ceil(-log10(eps/10)), beta = 2.30 w.
   Relative error ~ eps.
 - ``"linear"``, ``"nearest"`` (k-Wave style, FFT on the regular frequency grid): S on
-  the DFT grid of the mirrored series (L = 2N - 1, what kspaceLineRecon's mirroring gives)
-  and interpolated linearly / by the nearest node (ties to the upper node).
+  the DFT grid of the mirrored series (L = 2N - 1, what kspaceLineRecon's mirroring gives,
+  rounded up to a fast length: `driver.physics.fast_lengths`) and interpolated linearly /
+  by the nearest node (ties to the upper node).
 
 The interpolation runs in one compiled loop (numba) over groups of columns that share
 ``|k_lat|^2`` (the taps depend on nothing else), so kernel values are computed once per
@@ -37,6 +38,8 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 import scipy.fft
+
+from driver.physics.fast_lengths import fast_length
 
 KINDS = ("nufft", "linear", "nearest")
 _KIND_CODE = {"nufft": 0, "linear": 1, "nearest": 2}
@@ -106,7 +109,9 @@ def kernel_polynomials(w: int, beta: float) -> np.ndarray:
     for k in range(w):
         u = (x + k - 0.5 * w) * (2.0 / w)
         phi = es_kernel(u, beta)
-        rows.append(chebyshev.cheb2poly(chebyshev.chebfit(t, phi, w + 4))[::-1])
+        coef = chebyshev.cheb2poly(chebyshev.chebfit(t, phi, w + 4))
+        # cheb2poly drops a highest coefficient that cancels to exactly 0 (numpy 2.4): keep w + 5
+        rows.append(np.pad(coef, (0, w + 5 - len(coef)))[::-1])
     return np.ascontiguousarray(rows, dtype=np.float64)
 
 
@@ -116,6 +121,23 @@ def _kernel_fourier(w: int, beta: float, k: np.ndarray) -> np.ndarray:
     u = nodes * (w / 2.0)
     phi = es_kernel(2.0 * u / w, beta)
     return (np.cos(np.outer(k, u)) @ (phi * weights)) * (w / 2.0)
+
+
+def grid_length(n_t: int, kind: str = "nufft", eps: float = 1e-6) -> int:
+    """L, the fine-grid FFT length `make_grid` plans for series of ``n_t`` samples: the
+    oversampled grid L >= 2 M (nufft, even) or the DFT grid of the mirrored series
+    L >= 2 n_t - 1 (linear, nearest), rounded up to a fast length
+    (`driver.physics.fast_lengths`; S is sampled exactly on any grid of L >= n_t points,
+    a finer one only interpolates better). Raises ValueError for a bad kind/n_t/eps."""
+    if kind not in KINDS:
+        raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
+    n_t = int(n_t)
+    if n_t < 1:
+        raise ValueError("n_t must be >= 1")
+    if kind == "nufft":
+        w, _ = kernel_params(eps)
+        return fast_length(max(2 * (n_t + (n_t % 2)), 2 * w + 2), even=True)
+    return fast_length(2 * n_t - 1) if n_t > 1 else 2
 
 
 @functools.lru_cache(maxsize=32)
@@ -131,8 +153,7 @@ def make_grid(n_t: int, kind: str = "nufft", eps: float = 1e-6) -> TemporalGrid:
     if kind == "nufft":
         w, beta = kernel_params(eps)
         M = n_t + (n_t % 2)
-        L = scipy.fft.next_fast_len(max(2 * M, 2 * w + 2))
-        L += L % 2
+        L = grid_length(n_t, kind, eps)
         h = 2.0 * np.pi / L
         m = np.arange(n_t) - M // 2
         phihat = _kernel_fourier(w, beta, m * h)
@@ -140,7 +161,7 @@ def make_grid(n_t: int, kind: str = "nufft", eps: float = 1e-6) -> TemporalGrid:
         horner = kernel_polynomials(w, beta)
         horner.setflags(write=False)
         return TemporalGrid(n_t, kind, L, M // 2, w, beta, phihat, horner)
-    L = 2 * n_t - 1 if n_t > 1 else 2
+    L = grid_length(n_t, kind, eps)
     ones = np.ones(n_t)
     ones.setflags(write=False)
     return TemporalGrid(n_t, kind, L, 0, 2 if kind == "linear" else 1, 0.0, ones, np.zeros((1, 1)))
@@ -245,11 +266,14 @@ def _taps(theta, h, L, kind, w, hc, shift, ip, im, wts, j):
         base = int(math.ceil(s - 0.5 * w))
         t = 2.0 * (base - s + 0.5 * w) - 1.0
         nd = hc.shape[1]
+        # Horner's rule for the w taps side by side (degree outer, tap inner): the w
+        # independent chains interleave instead of one chain of nd steps after another
+        row = wts[j]
         for k in range(w):
-            v = hc[k, 0]
-            for d in range(1, nd):
-                v = v * t + hc[k, d]
-            wts[j, k] = v
+            row[k] = hc[k, 0]
+        for d in range(1, nd):
+            for k in range(w):
+                row[k] = row[k] * t + hc[k, d]
     elif kind == 1:
         base = int(math.floor(s))
         frac = s - base
@@ -336,16 +360,26 @@ def _spread_kernel(B, gvals, gptr, order, kz, qw, c, dt, t0, h, L, kind, w, hc, 
             pm[j] = complex(math.cos(ph), -math.sin(ph)) * qw[j]
         for ci in range(gptr[g], gptr[g + 1]):
             col = order[ci]
+            r = R[col]
             for j in range(nkz):
                 v = B[col, j]
                 if v == 0:
                     continue
                 vp = pp[j] * v
                 vm = pm[j] * v
-                for k in range(w):
-                    wk = wts[j, k]
-                    R[col, ip[j, k]] += wk * vp
-                    R[col, im[j, k]] += wk * vm
+                b = ip[j, 0]
+                if b >= 1 and b + w <= L:
+                    # no wrap-around (as `_interp_kernel`): consecutive taps at b.. and
+                    # mirrored at L-b..
+                    for k in range(w):  # two loops: neither aliases itself
+                        r[b + k] += wts[j, k] * vp
+                    for k in range(w):
+                        r[L - b - k] += wts[j, k] * vm
+                else:
+                    for k in range(w):
+                        wk = wts[j, k]
+                        r[ip[j, k]] += wk * vp
+                        r[im[j, k]] += wk * vm
 
 
 def evaluate(

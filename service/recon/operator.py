@@ -125,6 +125,17 @@ class PlanarOperator(pylops.LinearOperator):
         """Data shape: (n_t, n_x) / (n_t, n_y, n_x) on the grid, (n_points, n_t) at points."""
         return tuple(self.dimsd)
 
+    def transform_lengths(self) -> dict[str, tuple[int, ...]]:
+        """The FFT lengths `forward` and `adjoint` run on the working grid `padded_shape`
+        (N_z, N_y, N_x): "lateral" ((N_x,) or (N_y, N_x)), "depth" (2 (N_z - 1),) of the
+        DCT-I, "temporal" (L,) of the temporal NUFFT's oversampled grid. Without
+        ``periodic`` they are fast lengths (`driver.physics.fast_lengths`); a periodic
+        operator keeps the image's own grid."""
+        n_z2, n_y2, n_x2 = self.padded_shape
+        lat = (n_x2,) if self.is2d else (n_y2, n_x2)
+        return {"lateral": lat, "depth": (2 * (n_z2 - 1),),
+                "temporal": (nufft.grid_length(self.n_t, "nufft", self.eps),)}
+
     def _check(self, name: str, a, shape) -> np.ndarray:
         arr = checks.finite_array(name, a, (len(shape),))
         if arr.shape != shape:

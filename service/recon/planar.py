@@ -31,6 +31,7 @@ import scipy.fft
 
 from driver.physics import nufft
 from driver.physics.axes import centred_axis
+from driver.physics.fast_lengths import fast_dct1_rows, fast_length
 from driver.physics.nufft_plans import lateral_plan
 from service.recon import checks
 from service.recon.reconstruction import Reconstruction
@@ -41,27 +42,25 @@ _KIND = {"ner": "nufft", "linear": "linear", "nearest": "nearest"}
 
 def _fast_dct1_rows(n: int) -> int:
     """Smallest K >= n whose DCT-I runs on a fast FFT length (2 (K - 1) with only the
-    factors 2, 3, 5, 7, 11: `scipy.fft.next_fast_len`)."""
-    m = scipy.fft.next_fast_len(2 * (n - 1), real=True)
-    while m % 2:
-        m = scipy.fft.next_fast_len(m + 1, real=True)
-    return m // 2 + 1
+    factors 2, 3, 5: `driver.physics.fast_lengths.fast_dct1_rows`)."""
+    return fast_dct1_rows(n)
 
 
 def _fast_lateral(n_y: int, n_x: int, square: bool = False) -> tuple[int, int]:
     """Lateral transform sizes (n_y', n_x') >= (n_y, n_x) at fast FFT lengths: the aperture
     is zero-padded to them (no data outside the aperture, as the continuous formula has it,
     and less wrap-around than the period of the aperture itself); the image is cropped back.
-    x is the rfft axis (factors 2, 3, 5), y a complex one (2, 3, 5, 7, 11).
+    x is the rfft axis (factors 2, 3, 5), y a complex one (2, 3, 5, 7;
+    `driver.physics.fast_lengths.fast_length`).
 
     ``square`` (dy = dx): one length for both axes when it pads neither by more than 15 %,
     so that k_x and k_y take the same values and columns of equal |k_lat| pair up four-
     to eightfold: the temporal interpolation computes its taps once per |k_lat| (226 x 226:
     7 300 instead of 14 000 distinct values)."""
-    n_yp = 1 if n_y == 1 else scipy.fft.next_fast_len(n_y)
-    n_xp = scipy.fft.next_fast_len(n_x, real=True)
+    n_yp = 1 if n_y == 1 else fast_length(n_y)
+    n_xp = fast_length(n_x, real=True)
     if square and n_y > 1:
-        common = scipy.fft.next_fast_len(max(n_y, n_x), real=True)
+        common = fast_length(max(n_y, n_x), real=True)
         if common <= 1.15 * min(n_y, n_x):
             return common, common
     return n_yp, n_xp
@@ -81,6 +80,48 @@ def _depth_axis(n_t, dt, c, dz, n_z, t0):
                          f"{rows:.3g} rows to reach c·t of the last sample; use a larger dz (c·dt is {c * dt:.3g} m)")
     reach = int(np.ceil(rows)) + 1
     return dz, int(n_z), _fast_dct1_rows(max(int(n_z), reach))
+
+
+def _temporal_length(n_t: int, method: str, eps: float) -> int:
+    """Length of the temporal FFT ``method`` runs on series of n_t samples: the NUFFT's
+    oversampled grid (ner) or the refined DFT grid of the mirrored series (linear,
+    nearest: `driver.physics.nufft.make_grid`; cubic: `_cubic_columns`)."""
+    if method == "cubic":
+        return fast_length(2 * n_t - 1)
+    return nufft.grid_length(n_t, _KIND[method], eps)
+
+
+def transform_lengths(data_shape, dt: float = 1.0, c: float = 1.0, *, method: str = "ner", eps: float = 1e-6,
+                      dz: float | None = None, n_z: int | None = None, t0: float = 0.0, upsample: int = 1,
+                      square: bool = True) -> dict[str, tuple[int, ...]]:
+    """The FFT lengths `reconstruct_grid` (and, for a lattice of (n_y, n_x) grid nodes,
+    `reconstruct_points`) runs for data of ``data_shape`` (n_t, n_x) or (n_t, n_y, n_x);
+    the reconstruction chooses them with the same functions.
+
+    ``dt`` (s), ``c`` (m/s), ``dz`` (m), ``n_z``, ``t0`` (s), ``method``, ``eps``,
+    ``upsample`` as `reconstruct_grid`; ``square``: dy = dx.
+
+    Returns
+    -------
+    dict of tuples: "lateral" the forward lateral FFT lengths ((n_x',) or (n_y', n_x')),
+    "temporal" (L,) the temporal FFT length, "depth" (2 (K - 1),) the FFT length of the
+    depth DCT-I, "output" the inverse lateral FFT lengths (upsampled).
+
+    Raises
+    ------
+    ValueError for a bad shape or option (as `reconstruct_grid`).
+    """
+    shape = tuple(int(s) for s in data_shape)
+    if len(shape) not in (2, 3) or shape[0] < 2 or min(shape) < 1:
+        raise ValueError(f"data_shape must be (n_t, n_x) or (n_t, n_y, n_x) with n_t >= 2, got {data_shape!r}")
+    dt, c, eps, _, upsample, t0 = _check_options(dt, c, method, eps, np.float64, upsample, t0)
+    n_t = shape[0]
+    n_y, n_x = (1, shape[1]) if len(shape) == 2 else shape[1:]
+    _, _, n_work = _depth_axis(n_t, dt, c, dz, n_z, t0)
+    n_yp, n_xp = _fast_lateral(n_y, n_x, square=square)
+    lat = (n_xp,) if n_y == 1 else (n_yp, n_xp)
+    return {"lateral": lat, "temporal": (_temporal_length(n_t, method, eps),), "depth": (2 * (n_work - 1),),
+            "output": tuple(n * upsample for n in lat)}
 
 
 def _check_options(dt, c, method, eps, dtype, upsample, t0):
@@ -122,14 +163,15 @@ def _pad_spectrum(K: np.ndarray, n_y: int, n_x: int, u: int, ups_y: bool) -> np.
 def _cubic_columns(A_cols, n_t, klat2, kz, qw, c, dt, t0):
     """Octave 'cubic' (pchip along ω) evaluation of the inversion, column by column
     group (columns sharing |k_lat|² share the query points)."""
-    L = 2 * n_t - 1
+    L = _temporal_length(n_t, "cubic", 0.0)
     a = A_cols.astype(np.complex128)
     if t0 == 0:
         a = a.copy()
         a[:, 0] *= 0.5
     S = scipy.fft.fft(a, n=L, axis=-1, workers=-1)
-    # E on the mirrored DFT grid theta_j = 2 pi j / L, j = -(n_t-1)..(n_t-1)
-    j = np.arange(-(n_t - 1), n_t)
+    # E on the DFT grid theta_j = 2 pi j / L of the mirrored series (L = 2 n_t - 1 rounded
+    # up to a fast length: a finer grid), |j| <= (L - 1) // 2 (theta in (-pi, pi))
+    j = np.arange(-((L - 1) // 2), (L - 1) // 2 + 1)
     theta = 2 * np.pi * j / L
     Ep = S[:, j % L]
     Em = S[:, (-j) % L]

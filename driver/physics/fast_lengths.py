@@ -1,0 +1,61 @@
+"""Fast FFT lengths: the one rule every transform length the product chooses follows.
+
+A length is *fast* when its largest prime factor is at most 7 (pocketfft, behind
+`scipy.fft`, has dedicated passes for the factors 2, 3, 4, 5, 7 of complex transforms and
+2, 3, 4, 5 of real ones; any other factor falls back to a generic pass or to Bluestein's
+algorithm, several times slower). Pure Python, no imports: choosing a length costs
+nothing at start-up.
+"""
+from __future__ import annotations
+
+MAX_FACTOR = 7
+
+
+def largest_prime_factor(n: int) -> int:
+    """Largest prime factor of the integer ``n >= 1`` (1 for n = 1).
+
+    Raises
+    ------
+    ValueError for n < 1.
+    """
+    n = int(n)
+    if n < 1:
+        raise ValueError(f"n must be an integer >= 1, got {n}")
+    largest, p = 1, 2
+    while p * p <= n:
+        while n % p == 0:
+            largest, n = p, n // p
+        p += 1
+    return max(largest, n) if n > 1 else largest
+
+
+def _smooth(n: int, primes: tuple[int, ...]) -> bool:
+    for p in primes:
+        while n % p == 0:
+            n //= p
+    return n == 1
+
+
+def fast_length(n: int, real: bool = False, even: bool = False) -> int:
+    """Smallest fast FFT length >= ``n`` (>= 1): 5-smooth for a real transform (rfft,
+    DCT; = ``scipy.fft.next_fast_len(n, real=True)``), 7-smooth for a complex one;
+    ``even`` asks for an even length.
+
+    Raises
+    ------
+    ValueError for n < 1.
+    """
+    n = int(n)
+    if n < 1:
+        raise ValueError(f"n must be an integer >= 1, got {n}")
+    primes = (2, 3, 5) if real else (2, 3, 5, 7)
+    m = n
+    while not (_smooth(m, primes) and (m % 2 == 0 or not even)):
+        m += 1
+    return m
+
+
+def fast_dct1_rows(n: int) -> int:
+    """Smallest K >= max(n, 2) whose DCT-I (an FFT of the real, even extension of length
+    2 (K - 1)) runs at a fast real length."""
+    return fast_length(2 * (max(int(n), 2) - 1), real=True, even=True) // 2 + 1
