@@ -24,6 +24,7 @@ class Plan(_Response):
     kind: str
     n_points: int
     requested_points: int | None = None
+    shortfall: str | None = None  # why the plan has fewer points than asked
     weight_ratio: float | None = None
     expected_scan_time_s: float | None = None
     lattice: dict[str, Any] = Field(default_factory=dict)
