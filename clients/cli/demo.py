@@ -21,10 +21,9 @@ named in ``report.json``), 1 with a one-line reason when a step failed.
 """
 from __future__ import annotations
 
-import json
 import time
-from typing import TYPE_CHECKING
 
+TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (`fpscan --help` starts faster)
 if TYPE_CHECKING:
     from clients.processes import Process
 
@@ -301,6 +300,8 @@ class Demo:
 
     # -- figures of merit
     def _figures(self) -> None:
+        import json
+
         import h5py
         import numpy as np
 
