@@ -24,8 +24,9 @@ for them.
 numba compiles the kernels on their first call and caches them (``cache=True``) in
 ``__pycache__`` beside their modules, or under ``NUMBA_CACHE_DIR`` where that is set;
 where the package directory is not writable numba falls back to a user cache directory
-of its own. ``fpscan warmup`` (or the server's start) fills the cache, so the first
-reconstruction in a fresh interpreter loads compiled code.
+of its own. Any first call fills the cache, ``fpscan warmup`` (`service.recon.warmup`) for
+every kernel and precision at once, so the first reconstruction in a fresh interpreter
+loads compiled code.
 """
 from __future__ import annotations
 

@@ -42,14 +42,14 @@ def warm_up(dtypes=DTYPES) -> dict:
     ------
     ValueError: an unknown dtype.
     """
-    from driver.physics.forward import forward_grid
-    from service.recon.kwave import kspace_line_recon, kspace_plane_recon
-    from service.recon.planar import reconstruct_grid, reconstruct_points
-
     names = [str(d) for d in dtypes]
     for d in names:
         if d not in DTYPES:
             raise ValueError(f"dtype must be one of {DTYPES}, got {d!r}")
+    from driver.physics.forward import forward_grid
+    from service.recon.kwave import kspace_line_recon, kspace_plane_recon
+    from service.recon.planar import reconstruct_grid, reconstruct_points
+
     t0 = time.perf_counter()
     dx, dt = 1e-4, 2e-8
     rng = np.random.default_rng(0)

@@ -118,3 +118,17 @@ def test_compiled_kernels_survive_the_interpreter(tmp_path):
     assert second.returncode == 0, second.stderr[-3000:]
     got = json.loads(second.stdout.splitlines()[-1])
     assert all(hits > 0 and misses == 0 for hits, misses in got.values()), got
+
+
+def test_warmup_command_options_and_bad_dtype(capsys):
+    from clients.cli import main
+    from service.recon.warmup import warm_up
+
+    with pytest.raises(SystemExit) as exit_:
+        main(["warmup", "--help"])
+    assert exit_.value.code == 0 and "--dtype" in capsys.readouterr().out
+    with pytest.raises(SystemExit) as exit_:
+        main(["warmup", "--dtype", "float16"])  # argparse's choices: a usage error
+    assert exit_.value.code == 2 and "invalid choice" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="dtype must be one of"):
+        warm_up(["float16"])
