@@ -10,7 +10,29 @@ from pathlib import Path
 
 
 def software_version() -> str:
-    """The installed fpscan version (``0+unknown`` when not installed)."""
+    """The installed fpscan version (``0+unknown`` when not installed).
+
+    Read from the first ``fpscan-*.dist-info`` on ``sys.path`` (what ``importlib.metadata``
+    finds, without its import time, which would double ``fpscan --version``'s); falls back
+    to ``importlib.metadata``."""
+    import os
+    import sys
+
+    for entry in sys.path:
+        try:
+            names = [n for n in os.listdir(entry or ".") if n.startswith("fpscan-") and n.endswith(".dist-info")]
+        except OSError:
+            continue
+        for name in sorted(names):
+            try:
+                with open(os.path.join(entry or ".", name, "METADATA"), encoding="utf-8") as f:
+                    for line in f:
+                        if line.startswith("Version:"):
+                            return line.split(":", 1)[1].strip()
+                        if not line.strip():
+                            break  # the end of the headers
+            except OSError:
+                continue
     from importlib.metadata import PackageNotFoundError, version
 
     try:

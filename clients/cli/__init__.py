@@ -2,9 +2,12 @@
 
 Every module in this package that defines ``COMMAND`` (the subcommand's name),
 ``HELP`` (one line), ``add_arguments(parser)`` and ``run(args) -> int`` is a
-subcommand. Modules must import heavy dependencies inside ``run`` so that
-``fpscan --help`` stays fast and works on the base install (httpx + pydantic): a command
-run where its extra is missing says so in one line (exit 2).
+subcommand. Modules must import heavy dependencies inside ``run`` (and anything slow that
+their options need inside ``add_arguments``) so that ``fpscan --version`` and ``fpscan
+--help`` answer at once and work on the base install (httpx + pydantic): `main` calls
+``add_arguments`` only for the subcommand named on the command line, so ``fpscan --help``
+imports nothing but the subcommand modules themselves. A command run where its extra is
+missing says so in one line (exit 2).
 
 Exit codes (a one-line reason on stderr): 0 success; 2 refused input -- a bad flag (argparse),
 any ``ValueError`` (the library's refusal of a value, a file or a combination: a unit mistake,
@@ -17,34 +20,60 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import pkgutil
+import os
 import re
 import sys
 
 
 def _subcommand_modules():
-    for info in sorted(pkgutil.iter_modules(__path__), key=lambda m: m.name):
-        if info.name.startswith("_"):
+    # the package's own .py files (not pkgutil.iter_modules, which imports inspect: a
+    # quarter of the start-up of ``fpscan --version``)
+    names = sorted({n[:-3] for d in __path__ for n in os.listdir(d) if n.endswith(".py")})
+    for name in names:
+        if name.startswith("_"):
             continue
-        module = importlib.import_module(f"{__name__}.{info.name}")
+        module = importlib.import_module(f"{__name__}.{name}")
         if hasattr(module, "COMMAND") and hasattr(module, "run"):
             yield module
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The ``fpscan`` argument parser with one sub-command per module of this package."""
-    from driver.acquire import software_version
+class _VersionAction(argparse.Action):
+    """``--version``: looks the installed version up only when asked (``importlib.metadata``
+    is slower to import than the rest of the command line)."""
 
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
+        super().__init__(option_strings, dest=dest, default=default, nargs=0, help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        from driver.acquire import software_version
+
+        print(f"fpscan {software_version()}")
+        parser.exit()
+
+
+def _top_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="fpscan",
         description="Planar Fabry-Perot photoacoustic scanning: plan, acquire, reconstruct, serve.",
     )
-    parser.add_argument("--version", action="version", version=f"fpscan {software_version()}")
+    parser.add_argument("--version", action=_VersionAction, help="show the program's version number and exit")
+    return parser
+
+
+def build_parser(commands=None) -> argparse.ArgumentParser:
+    """The ``fpscan`` argument parser with one sub-command per module of this package.
+
+    ``commands``: the names of the sub-commands whose options are added (their
+    ``add_arguments`` may import what the options need); default all of them. The others
+    are listed with their one-line help only.
+    """
+    parser = _top_parser()
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for module in _subcommand_modules():
         p = sub.add_parser(module.COMMAND, help=module.HELP, description=module.HELP)
-        module.add_arguments(p)
+        if commands is None or module.COMMAND in commands:
+            module.add_arguments(p)
         p.set_defaults(_run=module.run)
     allow_negative_quantities(parser)
     return parser
@@ -69,9 +98,25 @@ def allow_negative_quantities(parser: argparse.ArgumentParser) -> None:
                 allow_negative_quantities(sub)
 
 
+def _command_named(argv: list[str]) -> str | None:
+    """The sub-command ``argv`` names: its first word that is not an option (the top-level
+    options, ``-h`` and ``--version``, take no value)."""
+    for word in argv:
+        if word == "--":
+            continue
+        if not word.startswith("-"):
+            return word
+    return None
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run ``fpscan`` with ``argv`` (default: ``sys.argv[1:]``); return the exit status."""
-    parser = build_parser()
+    if argv is None:
+        argv = sys.argv[1:]
+    command = _command_named(argv)
+    if command is None and "--version" in argv and not {"-h", "--help"} & set(argv):
+        _top_parser().parse_args(argv)  # prints the version and exits; no subcommand is imported
+    parser = build_parser(() if command is None else (command,))
     args = parser.parse_args(argv)
     from clients.cli._common import missing_extra, needs_extra
     from driver.units import RefusedInput

@@ -5,10 +5,8 @@ from __future__ import annotations
 import functools
 import os
 import sys
-import threading
 import time
 from collections.abc import Callable
-from typing import Any
 
 try:  # the base of refused input (a unit mistake, an option outside its rule): exit 2
     from driver.units import RefusedInput
@@ -101,7 +99,7 @@ def make_client(args, *, timeout: float = 60.0):
                   timeout=timeout)
 
 
-def client_errors(run: Callable[[Any], int]) -> Callable[[Any], int]:
+def client_errors(run: Callable[..., int]) -> Callable[..., int]:
     """Decorator for ``run(args)``: client exceptions become one line on stderr, exit 1 --
     or 2 when the server refused the request as invalid input (HTTP 400 or 422: the usage
     error of the local checks, ``clients.cli.main``)."""
@@ -224,15 +222,19 @@ class ProgressBar:
         self._latest: dict | None = None
         self._latest_at = 0.0
         self._printed_at = 0.0
+        import threading  # here, not at import: `fpscan --help` starts faster
+
         self._lock = threading.Lock()
         self._stop = threading.Event()
-        self._ticker: threading.Thread | None = None
+        self._ticker = None  # the threading.Thread that prints between reports
 
     def __enter__(self) -> ProgressBar:
         if self.quiet:
             return self
         if not self.stream.isatty():
             if self.period > 0:  # period 0: a line for every report, none in between
+                import threading
+
                 self._ticker = threading.Thread(target=self._tick, name="progress-lines", daemon=True)
                 self._ticker.start()
             return self

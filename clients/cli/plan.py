@@ -11,9 +11,7 @@ server's plan JSON.
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
-from typing import Any
 
 from clients.cli._common import UsageError, add_server_options, client_errors, needs_extra
 
@@ -44,8 +42,10 @@ def parse_value(text: str, unit: str | None) -> float:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
-def _json_value(text: str) -> Any:
+def _json_value(text: str) -> object:
     """A JSON value given inline or as a file name holding it."""
+    import json
+
     if text.lstrip()[:1] in ("[", "{"):
         source = text
     else:
@@ -76,7 +76,7 @@ def _add_field(group, f: dict) -> None:
         desc += " (required)"
     elif f["default"] is not None:
         desc += f" (default {f['default']})"
-    kw: dict[str, Any] = {"dest": "p_" + f["name"], "default": None, "help": desc}
+    kw: dict[str, object] = {"dest": "p_" + f["name"], "default": None, "help": desc}
     if f["widget"] == "pairs":
         kw.update(type=_json_value, metavar="JSON|FILE")
         kw["help"] += ": a JSON list of pairs, inline or in a file"
@@ -223,6 +223,8 @@ def run(args) -> int:
 
 
 def _remote(args, body: dict) -> int:
+    import json
+
     from clients.cli._common import make_client
     from clients.http import field_of
 

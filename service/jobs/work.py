@@ -246,17 +246,13 @@ def worker_pid() -> int:
     return os.getpid()
 
 
-#: the methods and dtypes :func:`warm_up` compiles (numba kernels are compiled per dtype)
-WARM_METHODS = ("ner", "nedner", "kwave")
-WARM_DTYPES = ("float32", "float64")
-
-
 def warm_up(full: bool = False) -> dict:
     """Make a fresh worker ready for its first job: import the reconstruction and the
-    result writer; with ``full`` also compile every numba kernel a job uses (a tiny
-    reconstruction ``(32, 4, 4)`` of each of :data:`WARM_METHODS` in each of
-    :data:`WARM_DTYPES`) and write its result folder (h5py, matplotlib and the fonts of
-    the MIP pictures) into a temporary folder. Returns ``{"pid", "seconds"}``."""
+    result writer; with ``full`` also compile (or load from numba's cache) every numba
+    kernel a job uses, in float32 and float64 (:func:`service.recon.warmup.warm_up`, the
+    one warm-up ``fpscan warmup`` runs too), run one tiny job's dispatch and write its result
+    folder (h5py, matplotlib and the fonts of the MIP pictures) into a temporary folder.
+    Returns ``{"pid", "seconds"}``."""
     import h5py  # noqa: F401
 
     from service import recon  # noqa: F401
@@ -268,16 +264,14 @@ def warm_up(full: bool = False) -> dict:
         import numpy as np
 
         from service.pipeline import reconstruct
+        from service.recon.warmup import warm_up as compile_kernels
         from service.storage.datasets import GridDataset
         from service.storage.results import write_result
 
+        compile_kernels()
         data = np.zeros((32, 4, 4), dtype=np.float32)
         data[5, 1:3, 1:3] = 1.0
-        ds = GridDataset(data=data, dx=1e-4, dt=2e-8, c=1500.0, dy=1e-4)
-        rec = None
-        for method in WARM_METHODS:
-            for dtype in WARM_DTYPES:
-                rec = reconstruct(ds, method, dtype=dtype)
+        rec = reconstruct(GridDataset(data=data, dx=1e-4, dt=2e-8, c=1500.0, dy=1e-4), "ner")
         with tempfile.TemporaryDirectory(prefix="fpscan-warm-") as tmp:
             write_result(os.path.join(tmp, "result"), rec, input_id="warm-up")
     return {"pid": os.getpid(), "seconds": time.perf_counter() - t0}

@@ -13,26 +13,35 @@
   `service.plans.weights`, which owns them).
 - `estimate_peak_memory`: bytes a reconstruction needs at its peak (admission control).
 
-Importing the package loads the reconstruction (numba, finufft); the plans' weights
-live in `service.plans.weights`, so planning never pays for that. The model-based part
-(`PlanarOperator`, `reconstruct_tv`) loads pylops/pyproximal, which take longer to
-import than everything else together, `voronoi_weights` the plans package, the k-Wave
-modes scipy.interpolate, so those names (and the forward model) are imported on first use
-(PEP 562): a direct reconstruction starts without them.
+Importing the package is light (numpy only): every name but `Reconstruction` and
+`estimate_peak_memory` is imported on first use (PEP 562), so scipy.fft, numba and
+finufft load with the grid/points reconstruction, scipy.interpolate with the k-Wave
+modes, pylops/pyproximal (which take longer to import than everything else together)
+with the model-based part, the plans package with `voronoi_weights`. A process that
+only checks a request (`estimate_peak_memory`) or holds a `Reconstruction` never pays
+for them.
+
+numba compiles the kernels on their first call and caches them (``cache=True``) in
+``__pycache__`` beside their modules, or under ``NUMBA_CACHE_DIR`` where that is set;
+where the package directory is not writable numba falls back to a user cache directory
+of its own. Any first call fills the cache, ``fpscan warmup`` (`service.recon.warmup`) for
+every kernel and precision at once, so the first reconstruction in a fresh interpreter
+loads compiled code.
 """
 from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
 from service.recon.checks import estimate_peak_memory
-from service.recon.planar import METHODS, reconstruct_grid, reconstruct_points
 from service.recon.reconstruction import Reconstruction
 
 __all__ = ["Reconstruction", "METHODS", "reconstruct_grid", "reconstruct_points", "kspace_line_recon",
            "kspace_plane_recon", "forward_grid", "forward_points", "voronoi_weights",
            "estimate_peak_memory", "PlanarOperator", "reconstruct_tv"]
 
-_LAZY = {"PlanarOperator": "service.recon.operator", "reconstruct_tv": "service.recon.tv",
+_LAZY = {"METHODS": "service.recon.planar", "reconstruct_grid": "service.recon.planar",
+         "reconstruct_points": "service.recon.planar", "PlanarOperator": "service.recon.operator",
+         "reconstruct_tv": "service.recon.tv",
          "voronoi_weights": "service.plans.weights", "kspace_line_recon": "service.recon.kwave",
          "kspace_plane_recon": "service.recon.kwave", "forward_grid": "driver.physics.forward",
          "forward_points": "driver.physics.forward"}
@@ -42,13 +51,14 @@ if TYPE_CHECKING:
     from service.plans.weights import voronoi_weights
     from service.recon.kwave import kspace_line_recon, kspace_plane_recon
     from service.recon.operator import PlanarOperator
+    from service.recon.planar import METHODS, reconstruct_grid, reconstruct_points
     from service.recon.tv import reconstruct_tv
 
 
 def __getattr__(name: str) -> Any:
-    """`PlanarOperator`, `reconstruct_tv` (they load pylops), `voronoi_weights` (the
-    plans package), the k-Wave modes (scipy.interpolate) and the forward model on first
-    use."""
+    """The reconstruction (scipy.fft, numba, finufft), `PlanarOperator`, `reconstruct_tv`
+    (they load pylops), `voronoi_weights` (the plans package), the k-Wave modes
+    (scipy.interpolate) and the forward model on first use."""
     if name in _LAZY:
         import importlib
 

@@ -1,0 +1,23 @@
+"""`fpscan warmup`: compile the reconstruction's kernels into numba's cache, so that the
+first reconstruction of every later interpreter (``fpscan recon``, the server's workers)
+loads compiled code instead of compiling it (see ``service.recon.warmup``: where the cache
+lives, ``NUMBA_CACHE_DIR`` on a read-only install)."""
+from __future__ import annotations
+
+COMMAND = "warmup"
+HELP = "compile the reconstruction's kernels into numba's cache (run once after installing)"
+
+
+def add_arguments(parser):
+    """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser)."""
+    parser.add_argument("--dtype", choices=["float32", "float64", "both"], default="both",
+                        help="precision(s) to compile for (default both)")
+
+
+def run(args) -> int:
+    """Run the tiny reconstructions; print the time taken and the cache directories."""
+    from service.recon.warmup import DTYPES, warm_up
+
+    got = warm_up(DTYPES if args.dtype == "both" else (args.dtype,))
+    print(f"compiled kernels in {got['seconds']:.1f} s; numba cache: {', '.join(got['cache_dirs']) or '(none)'}")
+    return 0

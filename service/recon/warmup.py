@@ -1,0 +1,87 @@
+"""Fill numba's cache of the reconstruction's compiled kernels (``fpscan warmup``).
+
+Every numba kernel of the reconstruction (``driver.physics.nufft``, ``service.recon.kwave``)
+is ``@numba.njit(cache=True)``: the first call in any interpreter compiles it for the
+argument types it gets and writes the machine code to numba's cache; later interpreters
+load it instead of compiling (seconds saved on the first reconstruction). Where the cache
+lives: ``NUMBA_CACHE_DIR`` when set; otherwise ``__pycache__`` beside the kernel's module
+when that directory is writable; otherwise numba's user-wide cache directory (e.g.
+``~/.cache/numba``). A read-only install (a system site-packages, a container image) should
+run ``fpscan warmup`` as the user who reconstructs, or set ``NUMBA_CACHE_DIR`` to a writable
+directory for both the warm-up and the reconstructions. The cache of a kernel is kept until
+its source file changes (numba checks the file's time stamp and size).
+
+:func:`warm_up` runs each method once on tiny data in each precision, so that every kernel
+is compiled for every argument type a reconstruction passes it.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+DTYPES = ("float32", "float64")
+
+
+def warm_up(dtypes=DTYPES) -> dict:
+    """Compile (or load from the cache) every numba kernel of the reconstruction.
+
+    Runs NER (grid), NEDNER (scattered A-lines), the k-Wave-compatible modes and the
+    forward model (the model-based method's operator) on tiny data, in each of ``dtypes``.
+
+    Parameters
+    ----------
+    dtypes : iterable of ``"float32"`` / ``"float64"``; default both.
+
+    Returns
+    -------
+    dict with ``seconds`` (float, wall time) and ``cache_dirs`` (sorted list of str: the
+    directories numba's cache of these kernels is in).
+
+    Raises
+    ------
+    ValueError: an unknown dtype.
+    """
+    names = [str(d) for d in dtypes]
+    for d in names:
+        if d not in DTYPES:
+            raise ValueError(f"dtype must be one of {DTYPES}, got {d!r}")
+    from driver.physics.forward import forward_grid
+    from service.recon.kwave import kspace_line_recon, kspace_plane_recon
+    from service.recon.planar import reconstruct_grid, reconstruct_points
+
+    t0 = time.perf_counter()
+    dx, dt = 1e-4, 2e-8
+    rng = np.random.default_rng(0)
+    for d in names:
+        data = np.zeros((32, 6, 6), dtype=d)
+        data[5, 3, 3] = 1.0
+        reconstruct_grid(data, dx, dt, dtype=d)
+        reconstruct_grid(data[:, 0, :], dx, dt, dtype=d)
+        pos = rng.uniform(0.0, 5 * dx, (30, 2))
+        grid = (np.arange(6) * dx, np.arange(6) * dx)
+        reconstruct_points(rng.standard_normal((30, 32)).astype(d), pos, dt, weights=np.full(30, dx * dx),
+                           grid=grid, dtype=d)
+        for interp in ("*nearest", "*linear"):
+            kspace_plane_recon(data, dx, dx, dt, 1500.0, interp=interp, dtype=d)
+            kspace_line_recon(data[:, 0, :], dx, dt, 1500.0, interp=interp, dtype=d)
+    forward_grid(np.ones((4, 6, 6)), dx, 1500.0 * dt, dt, 32)
+    return {"seconds": time.perf_counter() - t0, "cache_dirs": cache_dirs()}
+
+
+def cache_dirs() -> list[str]:
+    """The directories numba's cache of the reconstruction's kernels is in (sorted)."""
+    import numba
+
+    from driver.physics import nufft
+    from service.recon import kwave
+
+    dirs = set()
+    for module in (nufft, kwave):
+        for value in vars(module).values():
+            cache = getattr(value, "_cache", None)
+            if isinstance(value, numba.core.registry.CPUDispatcher) and cache is not None:
+                path = getattr(cache, "cache_path", None) or getattr(cache, "_cache_path", None)
+                if path:
+                    dirs.add(str(path))
+    return sorted(dirs)

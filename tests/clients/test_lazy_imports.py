@@ -1,0 +1,134 @@
+"""The command line answers at once (issue 20): what a fresh interpreter imports for
+``fpscan --version`` / ``--help``, ``import service.recon`` and a first reconstruction."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+# loaded by the subcommands and the reconstruction, never by the answers that need none of them
+HEAVY = ("numpy", "h5py", "scipy", "numba", "finufft", "pydantic", "httpx", "service", "matplotlib")
+
+
+def _fresh(code: str) -> dict:
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-3000:]
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+CLI = r'''
+import contextlib, io, json, sys
+from clients.cli import main
+buf = io.StringIO()
+with contextlib.redirect_stdout(buf):
+    try:
+        main({argv!r})
+    except SystemExit as exc:
+        code = exc.code
+print(json.dumps({{"code": code, "stdout": buf.getvalue(), "modules": sorted(sys.modules)}}))
+'''
+
+
+@pytest.mark.parametrize("argv", [["--version"], ["--help"], ["-h"]])
+def test_version_and_help_import_no_heavy_module(argv):
+    got = _fresh(CLI.format(argv=argv))
+    assert got["code"] == 0
+    loaded = [m for m in got["modules"] if m.split(".")[0] in HEAVY]
+    assert loaded == [], loaded
+    if argv == ["--version"]:
+        from driver.acquire import software_version
+
+        assert got["stdout"] == f"fpscan {software_version()}\n"
+    else:  # every subcommand is listed with its one-line help
+        from clients.cli import _subcommand_modules
+
+        for module in _subcommand_modules():
+            assert module.COMMAND in got["stdout"] and module.HELP.split()[0] in got["stdout"], module.COMMAND
+
+
+def test_subcommand_help_lists_its_options():
+    """``fpscan recon --help`` still shows recon's options (its module is set up when named)."""
+    got = _fresh(CLI.format(argv=["recon", "--help"]))
+    assert got["code"] == 0
+    assert got["stdout"].startswith("usage: fpscan recon") and "--method" in got["stdout"], got["stdout"][:2000]
+
+
+def test_version_matches_the_installed_metadata():
+    from importlib.metadata import PackageNotFoundError, version
+
+    from driver.acquire import software_version
+
+    try:
+        expected = version("fpscan")
+    except PackageNotFoundError:
+        expected = "0+unknown"
+    assert software_version() == expected
+
+
+RECON = r'''
+import json, sys
+import service.recon
+light = sorted(sys.modules)
+from service.recon import reconstruct_grid
+import numpy as np
+data = np.zeros((16, 4, 4))
+data[3, 2, 2] = 1.0
+rec = reconstruct_grid(data, 1e-4, 2e-8)
+print(json.dumps({"light": light, "after": sorted(sys.modules), "shape": list(rec.p0.shape)}))
+'''
+
+
+def test_import_service_recon_loads_no_transform_library():
+    """``import service.recon`` loads numpy only; scipy.fft and numba come with the first
+    reconstruction, pylops/pyproximal never with a direct one."""
+    got = _fresh(RECON)
+    for name in ("scipy", "numba", "finufft", "pylops", "pyproximal", "h5py"):
+        assert name not in got["light"], name
+    assert "scipy.fft" in got["after"] and "numba" in got["after"]
+    assert "pylops" not in got["after"] and "pyproximal" not in got["after"]
+    assert got["shape"][1:] == [4, 4]
+
+
+CACHED = r'''
+import json
+import numpy as np
+from service.recon import reconstruct_grid
+from driver.physics import nufft
+data = np.zeros((16, 4, 4), dtype=np.float32)
+data[3, 2, 2] = 1.0
+reconstruct_grid(data, 1e-4, 2e-8, dtype="float32")
+stats = {name: getattr(nufft, name).stats for name in ("_place_columns", "transpose", "_interp_kernel")}
+print(json.dumps({name: [sum(s.cache_hits.values()), sum(s.cache_misses.values())] for name, s in stats.items()}))
+'''
+
+
+def test_compiled_kernels_survive_the_interpreter(tmp_path):
+    """numba's cache (``cache=True``) written by one interpreter is loaded, not compiled
+    again, by the next one (here in a fresh ``NUMBA_CACHE_DIR``)."""
+    import os
+
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba")}
+    run = [sys.executable, "-c", CACHED]
+    first = subprocess.run(run, capture_output=True, text=True, timeout=600, env=env)
+    assert first.returncode == 0, first.stderr[-3000:]
+    assert all(misses > 0 for _, misses in json.loads(first.stdout.splitlines()[-1]).values())
+    second = subprocess.run(run, capture_output=True, text=True, timeout=600, env=env)
+    assert second.returncode == 0, second.stderr[-3000:]
+    got = json.loads(second.stdout.splitlines()[-1])
+    assert all(hits > 0 and misses == 0 for hits, misses in got.values()), got
+
+
+def test_warmup_command_options_and_bad_dtype(capsys):
+    from clients.cli import main
+    from service.recon.warmup import warm_up
+
+    with pytest.raises(SystemExit) as exit_:
+        main(["warmup", "--help"])
+    assert exit_.value.code == 0 and "--dtype" in capsys.readouterr().out
+    with pytest.raises(SystemExit) as exit_:
+        main(["warmup", "--dtype", "float16"])  # argparse's choices: a usage error
+    assert exit_.value.code == 2 and "invalid choice" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="dtype must be one of"):
+        warm_up(["float16"])
