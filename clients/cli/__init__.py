@@ -12,7 +12,7 @@ missing says so in one line (exit 2).
 Exit codes (a one-line reason on stderr): 0 success; 2 refused input -- a bad flag (argparse),
 any ``ValueError`` (the library's refusal of a value, a file or a combination: a unit mistake,
 an option outside its rule or one the method does not take, a missing input file) or a request
-the server refused as invalid (HTTP 400/422); 1 a failure of the work itself -- I/O or a device
+the server refused as given (HTTP 400, 404 an unknown id, 422); 1 a failure of the work itself -- I/O or a device
 (``OSError``, ``RuntimeError``), the server unreachable or refusing for its state (409, 401,
 503), a job that failed, an incomplete scan.
 """

@@ -101,8 +101,9 @@ def make_client(args, *, timeout: float = 60.0):
 
 def client_errors(run: Callable[..., int]) -> Callable[..., int]:
     """Decorator for ``run(args)``: client exceptions become one line on stderr, exit 1 --
-    or 2 when the server refused the request as invalid input (HTTP 400 or 422: the usage
-    error of the local checks, ``clients.cli.main``)."""
+    or 2 when the server refused the request as given (HTTP 400, 404 an unknown id, or 422:
+    the usage error of the local checks, ``clients.cli.main``); the server's state (409),
+    access (401/403), load (429) and failures stay 1."""
 
     @functools.wraps(run)
     def wrapper(args) -> int:
@@ -112,7 +113,7 @@ def client_errors(run: Callable[..., int]) -> Callable[..., int]:
             return run(args)
         except FpscanClientError as exc:
             print(f"fpscan {args.command}: error: {exc}", file=sys.stderr)
-            return 2 if isinstance(exc, ApiError) and exc.status_code in (400, 422) else 1
+            return 2 if isinstance(exc, ApiError) and exc.status_code in (400, 404, 422) else 1
 
     return wrapper
 

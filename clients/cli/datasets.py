@@ -1,14 +1,13 @@
 """`fpscan datasets`: list and delete the datasets uploaded to a server
 (``GET /api/datasets``, ``DELETE /api/datasets/{id}``).
 
-Exit codes: 0 done; 2 the server refused the input (an unknown id: 404, a dataset an
-active reconstruction reads: 409, a malformed id: 422), with its reason on stderr; 1 any
-other failure (server unreachable, server error)."""
+Exit codes (``clients.cli._common.client_errors``, as every client command): 0 done; 2 the
+server refused the input (an unknown id: 404, a malformed id: 422), with its reason on
+stderr; 1 any other failure, the server's state included (a dataset an active
+reconstruction reads: 409; server unreachable, server error)."""
 from __future__ import annotations
 
-import sys
-
-from clients.cli._common import add_server_options
+from clients.cli._common import add_server_options, client_errors
 
 COMMAND = "datasets"
 HELP = "list or delete the datasets uploaded to the server (size on disk, content hash, jobs that read them)"
@@ -24,9 +23,9 @@ def add_arguments(parser):
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
     add_server_options(p, required=True)
     p = sub.add_parser("delete", help="delete datasets and their files",
-                       description="Delete stored datasets with their files. Refused (exit 2) for an "
-                                   "unknown id or a dataset a queued, running or paused "
-                                   "reconstruction reads.")
+                       description="Delete stored datasets with their files. Refused for an unknown "
+                                   "id (exit 2) or a dataset a queued, running or paused "
+                                   "reconstruction reads (exit 1).")
     p.add_argument("dataset_ids", nargs="+", metavar="dataset_id")
     add_server_options(p, required=True)
 
@@ -40,42 +39,35 @@ def _size(n: float) -> str:
     return f"{n:.1f} TiB"  # pragma: no cover - the loop returns at GiB
 
 
+@client_errors
 def run(args) -> int:
     """Run this sub-command with the parsed ``args``; return the exit status."""
     import json
     import time
 
     from clients.cli._common import make_client
-    from clients.http import ApiError, FpscanClientError
 
-    try:
-        with make_client(args) as api:
-            if args.action == "list":
-                rows = api.list_datasets()
-                if args.json:
-                    print(json.dumps(rows, indent=2))
-                    return 0
-                print(f"{'id':<12}  {'format':<10}  {'size':>10}  {'uploaded':<16}  {'jobs':>4}  name")
-                for d in rows:
-                    when = time.strftime("%Y-%m-%d %H:%M", time.localtime(d.get("created") or 0))
-                    jobs = f"{len(d.get('jobs') or [])}{'*' if d.get('in_use') else ''}"
-                    print(f"{d['dataset_id']:<12.12}  {d.get('format') or '?':<10}  {_size(d['size_bytes']):>10}  "
-                          f"{when:<16}  {jobs:>4}  {d.get('name') or ''}".rstrip())
-                total = sum(int(d["size_bytes"]) for d in rows)
-                print(f"{len(rows)} dataset{'s' if len(rows) != 1 else ''}, {_size(total)} on disk"
-                      + (" (* = read by an active job)" if any(d.get("in_use") for d in rows) else ""))
+    with make_client(args) as api:
+        if args.action == "list":
+            rows = api.list_datasets()
+            if args.json:
+                print(json.dumps(rows, indent=2))
                 return 0
-            freed = 0
-            for did in args.dataset_ids:
-                gone = api.delete_dataset(did)
-                freed += int(gone.get("bytes_freed") or 0)
-                print(f"{did}: deleted ({_size(int(gone.get('bytes_freed') or 0))} freed)")
-            if len(args.dataset_ids) > 1:
-                print(f"{_size(freed)} freed in all")
+            print(f"{'id':<12}  {'format':<10}  {'size':>10}  {'uploaded':<16}  {'jobs':>4}  name")
+            for d in rows:
+                when = time.strftime("%Y-%m-%d %H:%M", time.localtime(d.get("created") or 0))
+                jobs = f"{len(d.get('jobs') or [])}{'*' if d.get('in_use') else ''}"
+                print(f"{d['dataset_id']:<12.12}  {d.get('format') or '?':<10}  {_size(d['size_bytes']):>10}  "
+                      f"{when:<16}  {jobs:>4}  {d.get('name') or ''}".rstrip())
+            total = sum(int(d["size_bytes"]) for d in rows)
+            print(f"{len(rows)} dataset{'s' if len(rows) != 1 else ''}, {_size(total)} on disk"
+                  + (" (* = read by an active job)" if any(d.get("in_use") for d in rows) else ""))
             return 0
-    except ApiError as exc:
-        print(f"fpscan {args.command}: error: {exc}", file=sys.stderr)
-        return 2 if 400 <= exc.status_code < 500 and exc.status_code not in (401, 403, 429) else 1
-    except FpscanClientError as exc:
-        print(f"fpscan {args.command}: error: {exc}", file=sys.stderr)
-        return 1
+        freed = 0
+        for did in args.dataset_ids:
+            gone = api.delete_dataset(did)
+            freed += int(gone.get("bytes_freed") or 0)
+            print(f"{did}: deleted ({_size(int(gone.get('bytes_freed') or 0))} freed)")
+        if len(args.dataset_ids) > 1:
+            print(f"{_size(freed)} freed in all")
+        return 0

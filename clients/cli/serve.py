@@ -80,7 +80,7 @@ def run(args) -> int:
         raise UsageError(f"binding to {settings.host} (beyond loopback) needs a --token "
                          "(or $FPSCAN_TOKEN_FILE)")
     if "*" in settings.allowed_hosts and settings.token_value() is None:
-        raise ValueError("--allowed-host '*' (any host name) needs a --token (or $FPSCAN_TOKEN_FILE)")
+        raise UsageError("--allowed-host '*' (any host name) needs a --token (or $FPSCAN_TOKEN_FILE)")
 
     level = settings.log_level.upper()
     logging.basicConfig(level=getattr(logging, level, logging.INFO), stream=sys.stderr,

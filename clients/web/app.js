@@ -1590,11 +1590,7 @@ document.addEventListener("DOMContentLoaded", init);
 
 /** Bytes with a binary prefix: 1536 -> "1.5 KiB". */
 function fmtBytes(n) {
-  if (n === null || n === undefined || !isFinite(n)) return "–";
-  const units = ["B", "KiB", "MiB", "GiB", "TiB"];
-  let v = Number(n), i = 0;
-  while (Math.abs(v) >= 1024 && i < units.length - 1) { v /= 1024; i += 1; }
-  return i === 0 ? `${v} B` : `${v.toFixed(v < 10 ? 2 : 1)} ${units[i]}`;
+  return n === null || n === undefined || !isFinite(n) ? "unknown" : fmtQuantity(n, "B");  // one byte formatter
 }
 
 const STORAGE_PARTS = [["datasets_bytes", "Uploaded datasets"], ["results_bytes", "Reconstruction results"],

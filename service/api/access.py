@@ -53,7 +53,9 @@ def host_name(host_header: str) -> str:
 def host_allowed(name: str, settings: Settings) -> bool:
     """Whether clients may reach the server by host name ``name`` (from :func:`host_name`):
     a loopback name, the server's own (non-wildcard) bind address, or one of
-    ``settings.allowed_hosts`` (``"*"``: any)."""
+    ``settings.allowed_hosts`` (``"*"``: any, honoured only when a token is configured:
+    without one, any name would reopen the DNS-rebinding door, however the server was
+    started; ``fpscan serve`` refuses that combination up front)."""
     if not name:
         return False
     if is_loopback(name):
@@ -62,7 +64,9 @@ def host_allowed(name: str, settings: Settings) -> bool:
     bind = settings.host.strip().lower().strip("[]")
     if bind not in WILDCARD_BINDS:
         allowed.add(bind)
-    return "*" in allowed or name in allowed
+    if "*" in allowed and settings.token_value() is not None:
+        return True
+    return name in allowed
 
 
 def same_origin(source: str, host_header: str) -> bool:

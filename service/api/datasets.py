@@ -44,6 +44,7 @@ from pathlib import Path
 from fastapi import APIRouter, Depends, File, Form, HTTPException, UploadFile
 from fastapi import Path as PathParam
 
+from driver.units import parse_quantity
 from service.api.context import Context, ctx, read_access, reason, require_token
 from service.api.models import ID_PATTERN, Dataset, DatasetFormat, DatasetInfo, Deleted
 from service.jobs import lifecycle
@@ -69,10 +70,12 @@ def list_datasets(cx: Context = Depends(ctx)) -> list[DatasetInfo]:
                                              "imports in progress)"}})
 def upload_dataset(file: UploadFile = File(..., description="the data file"),
                    format: DatasetFormat = Form(...),
-                   dt: float | None = Form(None, description="sample interval, s"),
-                   dx: float | None = Form(None, description="lateral spacing along x, m"),
-                   dy: float | None = Form(None, description="lateral spacing along y, m"),
-                   c: float | None = Form(None, description="speed of sound, m/s (1000-2000 unless force)"),
+                   dt: str | None = Form(None, max_length=40, description="sample interval, s (or with a "
+                                                                          "unit: 20ns)"),
+                   dx: str | None = Form(None, max_length=40, description="lateral spacing along x, m (or 100um)"),
+                   dy: str | None = Form(None, max_length=40, description="lateral spacing along y, m (or 100um)"),
+                   c: str | None = Form(None, max_length=40, description="speed of sound, m/s (or 1.5 km/s; "
+                                                                         "1000-2000 unless force)"),
                    force: bool = Form(False, description="accept a c outside 1000-2000 m/s (a medium other "
                                                          "than tissue or water)"),
                    key: str | None = Form(None, max_length=200, description="HDF5 dataset path (kwave-hdf5)"),
@@ -87,9 +90,15 @@ def upload_dataset(file: UploadFile = File(..., description="the data file"),
     ``FPSCAN_IMPORT_WORKERS`` uploads are imported at once (4x as many wait; beyond, 429).
     A dataset holds one wavelength's data (``wavelength``; the response's
     ``wavelength_nm`` says which). 507 when the decoded dataset does not fit the disk."""
+    try:  # numbers typed with units, as everywhere (driver.units.parse_quantity)
+        q = {name: None if text is None or not text.strip() else parse_quantity(text, kind, name=name)
+             for name, text, kind in (("dt", dt, "time"), ("dx", dx, "length"), ("dy", dy, "length"),
+                                      ("c", c, "speed"))}
+    except ValueError as exc:
+        raise HTTPException(422, str(exc)) from None
     with cx.slots["uploads"].turn():
-        return _store_upload(file, format, dt=dt, dx=dx, dy=dy, c=c, key=key, force=force, wavelength=wavelength,
-                             cx=cx)
+        return _store_upload(file, format, dt=q["dt"], dx=q["dx"], dy=q["dy"], c=q["c"], key=key, force=force,
+                             wavelength=wavelength, cx=cx)
 
 
 def _display_name(name: str | None) -> str | None:
@@ -151,7 +160,8 @@ def _store_upload(file: UploadFile, format: str, *, dt, dx, dy, c, key, force: b
                 digest.update(chunk)
                 out.write(chunk)
         sha256 = digest.hexdigest()
-        dedup_key = _dedup_key(sha256, format, dt=dt, dx=dx, dy=dy, c=c, key=key, wavelength=wavelength)
+        dedup_key = _dedup_key(sha256, format, dt=dt, dx=dx, dy=dy, c=c, key=key, wavelength=wavelength,
+                               force=bool(force))
         with _DEDUP_LOCK:
             found = _stored(cx, dedup_key, sha256)
         if found is not None:

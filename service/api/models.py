@@ -18,6 +18,7 @@ from pydantic import (
     Field,
     Tag,
     create_model,
+    field_validator,
     model_validator,
 )
 
@@ -403,7 +404,8 @@ class DatasetInfo(BaseModel):
 class ReconParams(_Request):
     """Reconstruction options (``service.pipeline.OPTIONS``; ``null`` = the method's
     default). Which method takes which option: ``service.pipeline.METHODS``
-    (docs/api.md); options of other methods are ignored."""
+    (docs/api.md); an option the method does not take is refused (422 naming the method's
+    options). Lengths, times and speeds may be text with a unit (``"30um"``, ``"600s"``)."""
 
     c: Annotated[float, Field(gt=0)] | Literal["auto"] | None = Field(
         None, description="speed of sound, m/s (1000-2000 unless force, 100-10000 with it), or 'auto': the "
@@ -434,6 +436,20 @@ class ReconParams(_Request):
     force: bool = Field(False, description="accept a c (or c_range) outside 1000-2000 m/s (a medium other than "
                                            "tissue or water); without it such a value is refused as a likely "
                                            "unit mistake (driver.units.check_speeds)")
+
+    @field_validator("dz", "time_limit", "c", "c_range", mode="before")
+    @classmethod
+    def _units(cls, value: Any, info: Any) -> Any:
+        """Numbers typed with a unit (``"30um"``, ``"600s"``, ``"1.5 km/s"``):
+        to SI by the one parser (``driver.units.parse_quantity``); numbers are SI already."""
+        from driver.units import parse_quantity
+
+        kind = {"dz": "length", "time_limit": "time"}.get(info.field_name, "speed")
+        if isinstance(value, str) and not (info.field_name == "c" and value == "auto"):
+            return parse_quantity(value, kind, name=info.field_name)
+        if info.field_name == "c_range" and isinstance(value, (list, tuple)):
+            return [parse_quantity(v, kind, name="c_range") if isinstance(v, str) else v for v in value]
+        return value
 
     @model_validator(mode="after")
     def _kernel_rules(self) -> ReconParams:

@@ -258,9 +258,20 @@ def plan_executor(c: Context):
         return ex
 
 
-def _in_plan_worker(c: Context, fn, *args):
+def _in_plan_worker(c: Context, fn, *args, admit: bool = False):
     """``fn(*args)`` in the plan worker (blocking: call it from a worker thread), within a
-    turn of ``c.slots["plans"]``. A worker that died is answered 503."""
+    turn of ``c.slots["plans"]``. ``admit``: count the request in first, 429 when the plan
+    slots are full (reads such as ``preview.png``, which ``UploadLimit`` does not count: a
+    burst of them must not queue without bound, each holding a server thread). A worker that
+    died is answered 503."""
+    slots = c.slots["plans"]
+    if admit:
+        if not slots.enter():
+            raise HTTPException(429, slots.busy_reason(), headers={"Retry-After": str(slots.retry_after_s)})
+        try:
+            return _in_plan_worker(c, fn, *args)
+        finally:
+            slots.leave()
     from service.jobs.executors import WorkerDied
 
     with _plan_turn(c):
@@ -387,13 +398,32 @@ def delete_plan(plan_id: str = Path(pattern=ID_PATTERN), c: Context = Depends(ct
         raise HTTPException(409, str(exc)) from None
 
 
+def accepts_encoding(header: str, coding: str) -> bool:
+    """Whether an ``Accept-Encoding`` header accepts ``coding`` (RFC 9110 §12.5.3: a listed
+    coding, or ``*``, with a quality above 0; ``gzip;q=0`` refuses it)."""
+    quality: dict[str, float] = {}
+    for item in header.lower().split(","):
+        name, _, params = item.strip().partition(";")
+        q = 1.0
+        for p in params.split(";"):
+            key, _, value = p.strip().partition("=")
+            if key == "q":
+                try:
+                    q = float(value)
+                except ValueError:
+                    q = 0.0
+        if name:
+            quality[name.strip()] = q
+    return quality.get(coding, quality.get("*", 0.0)) > 0
+
+
 @router.get("/{plan_id}/plan.json", dependencies=[Depends(read_access)],
             responses={200: {"content": {"application/json": {}}, "description": "the full plan JSON"}})
 def get_plan_json(request: Request, plan_id: str = Path(pattern=ID_PATTERN), c: Context = Depends(ctx)) -> Response:
     """The full plan (docs/architecture.md, ``fpscan-plan/1``), served as stored at its
     creation (never parsed or serialized again): gzip-compressed (``Content-Encoding:
     gzip``) to clients that accept it, as plain JSON to others."""
-    accepts_gzip = "gzip" in request.headers.get("accept-encoding", "").lower()
+    accepts_gzip = accepts_encoding(request.headers.get("accept-encoding", ""), "gzip")
     packed = SERVED.get(plan_id) if accepts_gzip else None
     if packed is not None and c.store.get_plan_summary(plan_id) is not None:
         return Response(packed, media_type="application/json",
@@ -402,7 +432,7 @@ def get_plan_json(request: Request, plan_id: str = Path(pattern=ID_PATTERN), c: 
     if text is None:
         raise HTTPException(404, f"no plan {plan_id}")
     if accepts_gzip:  # compressed once, in the plan worker, then kept
-        packed = _in_plan_worker(c, gzip_text, text)
+        packed = _in_plan_worker(c, gzip_text, text, admit=True)
         SERVED.put(plan_id, packed)
         return Response(packed, media_type="application/json",
                         headers={"Content-Encoding": "gzip", "Vary": "Accept-Encoding"})
@@ -416,5 +446,5 @@ async def plan_preview_png(plan_id: str = Path(pattern=ID_PATTERN), c: Context =
     text = await anyio.to_thread.run_sync(c.store.get_plan_text, plan_id)
     if text is None:
         raise HTTPException(404, f"no plan {plan_id}")
-    png = await anyio.to_thread.run_sync(_in_plan_worker, c, preview_png_of_text, text)
+    png = await anyio.to_thread.run_sync(functools.partial(_in_plan_worker, c, preview_png_of_text, text, admit=True))
     return Response(png, media_type="image/png")

@@ -212,7 +212,8 @@ def apply_dataset_retention(store: JobStore, settings: Any, policy: dict | None 
                             now: float | None = None) -> list[str]:
     """Delete uploaded datasets beyond the policy's ``datasets_max_age_s`` (not used, i.e.
     uploaded or uploaded again, for longer)
-    and ``datasets_keep_bytes`` (oldest first until the rest fit; the newest is never removed
+    and ``datasets_keep_bytes`` (least recently used first -- uploaded, or uploaded again and
+    answered by deduplication -- until the rest fit; the most recently used is never removed
     for its bytes); a dataset an active job reads is kept (and still counts towards the
     bytes). Returns the deleted ids."""
     import time
@@ -222,14 +223,15 @@ def apply_dataset_retention(store: JobStore, settings: Any, policy: dict | None 
     if max_age is None and keep_bytes is None:
         return []
     now = time.time() if now is None else now
-    rows = list_datasets(store, settings.data_dir)
+    rows = sorted(list_datasets(store, settings.data_dir), key=lambda r: (r["last_used"], r["created"]))
     victims: list[str] = []
     total = sum(r["size_bytes"] for r in rows)
-    for i, r in enumerate(rows):  # oldest first
+    for i, r in enumerate(rows):  # least recently used first
         if r["in_use"]:
             continue
         too_old = max_age is not None and now - r["last_used"] > max_age
-        # the newest is kept for the bytes: it was just uploaded, to be reconstructed
+        # the most recently used is kept for the bytes: it was just uploaded (or asked for
+        # again), to be reconstructed
         too_much = keep_bytes is not None and total > keep_bytes and i < len(rows) - 1
         if too_old or too_much:
             victims.append(r["dataset_id"])
