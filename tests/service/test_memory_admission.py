@@ -60,6 +60,10 @@ def test_admission_estimate_covers_the_measured_peak(n, n_t, up, dz):
     params = {"method": "ner", "upsample": up, "dtype": "float32", **({"dz": dz} if dz else {})}
     estimate = estimate_memory({"n_t": n_t, "n_x": n, "n_y": n, "dt": 2e-8, "c": 1500.0}, params)
     used = m["peak"] - m["base"]
+    print(f"ner n={n} n_t={n_t} upsample={up} dz={dz}: estimate / measured peak {estimate / used:.3f}")
+    # above a warmed-up baseline that already holds the warm-up's freed-but-kept memory, this
+    # peak is a lower bound of the job's own; the ±25 % band is checked from a cold start in
+    # test_admission_is_within_25_percent_of_the_measured_peak_at_every_upsample
     assert used < estimate, (used, estimate)
 
 
@@ -130,7 +134,7 @@ def test_tv_admission_uses_the_pitch_and_covers_the_measured_peak():
     m = json.loads(r.stdout.strip().splitlines()[-1])
     used = m["peak"] - m["base"]
     print("tv estimate / measured peak:", round(estimate / used, 3))
-    assert 0 < used < estimate, (used, estimate)
+    assert 0 < used < estimate <= 1.25 * used, (used, estimate)  # issue 22.4: within 25 % of the peak
 
 
 UPSAMPLE_SCRIPT = r"""
@@ -175,7 +179,6 @@ print(json.dumps(out))
 
 
 @needs_recon
-@pytest.mark.timeout(300)
 @pytest.mark.parametrize("method", ["ner", "nedner"])
 def test_admission_is_within_25_percent_of_the_measured_peak_at_every_upsample(method):
     """Issue 22.4: the admission estimate (``service.jobs.queue.estimate_memory``, the rule
@@ -189,7 +192,7 @@ def test_admission_is_within_25_percent_of_the_measured_peak_at_every_upsample(m
 
     n, n_t = 48, 192
     r = subprocess.run([sys.executable, "-c", UPSAMPLE_SCRIPT, method, str(n), str(n_t)], capture_output=True,
-                       text=True, timeout=240, env={**os.environ, "MALLOC_MMAP_THRESHOLD_": "65536"})
+                       text=True, env={**os.environ, "MALLOC_MMAP_THRESHOLD_": "65536"})
     assert r.returncode == 0, r.stderr[-2000:]
     used = {int(k): v for k, v in json.loads(r.stdout.strip().splitlines()[-1]).items()}
     shape = {"n_t": n_t, "n_x": n, "n_y": n, "dt": 2e-8, "c": 1500.0, "dx": 1e-4, "input_itemsize": 4,
