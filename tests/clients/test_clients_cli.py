@@ -89,7 +89,8 @@ def test_jobs_against_a_server(server):
     res = fpscan("jobs", "list", "--json", env=env)
     assert res.returncode == 0, res.stderr
     assert isinstance(json.loads(res.stdout), list)
-    _one_line_error(fpscan("jobs", "get", "no-such-job", env=env), "404", "no-such-job")
+    # an unknown id is refused input, as a missing file is: exit 2
+    _one_line_error(fpscan("jobs", "get", "no-such-job", env=env), "404", "no-such-job", code=2)
     res = fpscan("jobs", "cancel", "no-such-job", "--token", "wrong", env=env)
     assert res.returncode == 1 and ("401" in res.stderr or "403" in res.stderr)
 

@@ -25,14 +25,14 @@ def _scan(tmp_path, sim, plan, name: str, **scanner_options):
 def test_fault_free_scans_report_no_faults(tmp_path):
     """Three fresh connections (each starts its relay process: the first reply waits for
     it), then a device that computes a whole plan's A-lines when the plan ends (far longer
-    than a 1 ms retry interval): that command is retransmitted, but the device answers
+    than a 0.2 ms retry interval): that command is retransmitted, but the device answers
     every copy (none was lost), so the count stays 0; the slow reply is a link statistic."""
     plan = grid_plan(12, 10, n_t=128)
     with SimulatedScanner(SimConfig(source=BallSource(small_phantom()), prf=0.0, seed=4)) as sim:
         results = [_scan(tmp_path, sim, plan, f"scan{i}") for i in range(3)]
-    slow_plan = grid_plan(40, 40, n_t=256)
+    slow_plan = grid_plan(64, 64, n_t=256)
     with SimulatedScanner(SimConfig(source=BallSource(small_phantom()), prf=0.0, seed=4, precompute=True)) as sim:
-        hasty = _scan(tmp_path, sim, slow_plan, "hasty", retry=0.001)
+        hasty = _scan(tmp_path, sim, slow_plan, "hasty", retry=0.0002)
         stats = sim.stats
     for res in [*results, hasty]:
         assert res.complete and res.points_done == res.n_points
