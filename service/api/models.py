@@ -446,7 +446,13 @@ class ReconParams(_Request):
 
         kind = {"dz": "length", "time_limit": "time"}.get(info.field_name, "speed")
         if isinstance(value, str) and not (info.field_name == "c" and value == "auto"):
-            return parse_quantity(value, kind, name=info.field_name)
+            try:
+                return parse_quantity(value, kind, name=info.field_name)
+            except ValueError as exc:
+                if info.field_name != "c":
+                    raise
+                raise ValueError(f"c must be a speed (m/s, or with a unit: 1.5 km/s) or 'auto', got {value!r}") \
+                    from exc
         if info.field_name == "c_range" and isinstance(value, (list, tuple)):
             return [parse_quantity(v, kind, name="c_range") if isinstance(v, str) else v for v in value]
         return value
