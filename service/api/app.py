@@ -240,6 +240,57 @@ class ShortIds:
         return await self.app(scope, receive, send)
 
 
+#: longest reuse of the data folder's disk usage in /api/health while its folders are unchanged (s)
+DISK_USAGE_TTL_S = 1.0
+
+
+class DiskUsageCache:
+    """``/api/health``'s disk usage: one walk of the data folder (in a worker thread) serves
+    every caller that asks while it runs, and its answer is reused while the data folder and
+    its part folders keep their modification times (an upload, a new result or a deletion
+    changes them) for at most :data:`DISK_USAGE_TTL_S` (a scan file that grows changes no
+    folder). A flood of health requests costs one walk, not one each."""
+
+    PARTS = ("", "scans", "results", "datasets", "exports")
+
+    def __init__(self, data_dir, walk):
+        self.data_dir = Path(data_dir)
+        self.walk = walk
+        self._value: dict | None = None
+        self._key: tuple | None = None
+        self._at = 0.0
+        self._lock: asyncio.Lock | None = None
+
+    def _folders_key(self) -> tuple:
+        key = []
+        for part in self.PARTS:
+            try:
+                key.append((self.data_dir / part).stat().st_mtime_ns)
+            except OSError:
+                key.append(None)
+        return tuple(key)
+
+    def _fresh(self) -> bool:
+        return (self._value is not None and time.monotonic() - self._at < DISK_USAGE_TTL_S
+                and self._key == self._folders_key())
+
+    async def get(self) -> dict:
+        import anyio
+
+        if self._fresh():
+            assert self._value is not None
+            return self._value
+        if self._lock is None:
+            self._lock = asyncio.Lock()
+        async with self._lock:
+            if not self._fresh():
+                key = self._folders_key()
+                self._value = await anyio.to_thread.run_sync(self.walk, self.data_dir)
+                self._key, self._at = key, time.monotonic()
+            assert self._value is not None
+            return self._value
+
+
 def create_app(settings: Settings | None = None, *, start_workers: bool = True) -> FastAPI:  # noqa: C901 -- lifespan hooks of helpers "hostile" and "lab"
     """The service app. ``start_workers=False`` builds the app without the queue and scan
     threads (for schema inspection)."""
@@ -349,14 +400,19 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True) 
     from service.api import datasets, jobs, plans, reconstructions, retention, scans
     from service.jobs.lifecycle import disk_usage
 
+    disk_cache = DiskUsageCache(settings.data_dir, disk_usage)
+
     @app.get("/api/health", response_model=Health, tags=["health"], dependencies=[Depends(read_access)])
-    def health(c: Context = Depends(ctx)) -> Health:
+    async def health(c: Context = Depends(ctx)) -> Health:
         """Liveness: ``{"status": "ok", "version", "executor", "jobs_running", "disk"}``;
         ``disk``: bytes the data folder uses by part (scans, results, datasets, exports,
-        other) and the free bytes of its file system."""
+        other) and the free bytes of its file system. Answered on the event loop without a
+        server thread (a flood of other requests holds those); the folder walk runs in a
+        thread, once for every caller while one is under way, and is reused while the
+        folders are unchanged for at most ``DISK_USAGE_TTL_S`` (:class:`DiskUsageCache`)."""
         return Health(version=VERSION, executor=settings.executor,
                       jobs_running=c.queue.running() if c.queue is not None else 0,
-                      disk=disk_usage(settings.data_dir),
+                      disk=await disk_cache.get(),
                       problems=c.scans.problems() if c.scans is not None else [])
 
     @app.get("/api/auth", response_model=AuthInfo, tags=["health"])
