@@ -1570,7 +1570,9 @@ async function init() {
   } catch (err) {
     showError(err);
   }
-  if (state && state.token_required && !state.authenticated) {
+  const needsLogin = Boolean(state && state.token_required && !state.authenticated);
+  document.body.dataset.authChecked = needsLogin ? "login" : "open";  // the sign-in decision is made
+  if (needsLogin) {
     const stale = Boolean(getToken());
     sessionStorage.removeItem(TOKEN_KEY);
     updateTokenButton();

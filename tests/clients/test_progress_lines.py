@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from tests.clients.clients_servers import clean_env
+from tests.waits import HANG_S
 
 TOKEN = "progress-test-token"
 LINE = re.compile(r"^recon tv: (?P<stage>[a-z][a-z ]*(?: \d+/\d+)?)  (?P<pct>\d+)%(?P<rest>.*)$")
@@ -57,7 +58,7 @@ def test_progress_lines_repeat_every_period_between_reports():
     log = _Log()
     with ProgressBar("recon tv", stream=log, period=0.05) as bar:
         bar({"stage": "iteration 3/60", "fraction": 0.3, "eta_s": 100.0})
-        deadline = time.monotonic() + 30
+        deadline = time.monotonic() + HANG_S
         while log.getvalue().count("\n") < 4 and time.monotonic() < deadline:
             time.sleep(0.01)
     lines = log.getvalue().splitlines()
@@ -90,7 +91,7 @@ def test_wait_joining_a_running_job_reports_stages_in_order(server, tmp_path):
     with Client(server, token=TOKEN) as api, Client(server, token=TOKEN) as control:
         ds = api.upload_dataset(tmp_path / "in.npy", "npy", dt=20e-9, dx=30e-6)
         job_id = api.start_reconstruction(dataset_id=ds, method="tv", params={"iterations": 10000, "n_z": 64})
-        deadline = time.monotonic() + 120
+        deadline = time.monotonic() + HANG_S
         while not str(api.get_job(job_id).progress.stage or "").startswith("iteration"):
             assert time.monotonic() < deadline, api.get_job(job_id)
             time.sleep(0.05)

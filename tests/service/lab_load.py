@@ -6,10 +6,14 @@ neither slows the test process):
                                                           latencies (s) as a JSON list
     python -m tests.service.lab_load plans URL TOKEN   -> 4 clients make and read plans of
                                                           262 144 points; prints the statuses
+    python -m tests.service.lab_load mixed URL TOKEN SPEC -> the soak's clients (issue 14):
+                                                          SPEC is a JSON file (see mixed_load);
+                                                          prints [kind, status, latency] rows
 """
 from __future__ import annotations
 
 import json
+import random
 import sys
 import threading
 import time
@@ -88,9 +92,68 @@ def plan_load(url: str, token: str) -> dict:
     return out
 
 
+def _mixed_request(c: httpx.Client, kind: str, spec: dict, files: dict[str, bytes]):
+    if kind == "status":
+        return c.get(f"/api/jobs/{spec['scan_id']}")
+    if kind == "health":
+        return c.get("/api/health")
+    if kind == "preview":
+        return c.post("/api/plans/preview", json={"kind": "equisteradian",
+                                                  "lattice": {"n_x": 64, "n_y": 64, "pitch": 6e-5},
+                                                  "params": {"depth": random.choice([1e300, -1, 0]),
+                                                             "n_points": 100}})
+    if kind == "good-upload":
+        return c.post("/api/datasets", data={"format": "npy", "dt": "2e-8", "dx": "1e-4"},
+                      files={"file": ("g.npy", files["good"])})
+    if kind == "bad-upload":
+        return c.post("/api/datasets", data={"format": "fpscan"},
+                      files={"file": ("x.h5", random.choice(files["bad"]))})
+    if kind == "bad-recon":
+        return c.post("/api/reconstructions", json={"dataset_id": spec["dataset_id"], "params": {"n_z": 1}})
+    return c.get("/api/jobs")
+
+
+def mixed_load(url: str, token: str, spec: dict) -> list[tuple[str, int, float]]:
+    """The soak's clients: ``spec["clients"]`` threads, each sending ``spec["per_client"]``
+    requests drawn from ``spec["kinds"]`` (job status of ``spec["scan_id"]``, health,
+    plan previews with bad depths, uploads of ``spec["good"]`` and of the files
+    ``spec["bad"]``, reconstruction requests with bad options on ``spec["dataset_id"]``,
+    the job list), each with a client time-out of ``spec["answer_s"]``. Returns one
+    ``(kind, status, latency_s)`` per request; status -1 is a request never answered."""
+    from pathlib import Path
+
+    files = {"good": Path(spec["good"]).read_bytes(), "bad": [Path(f).read_bytes() for f in spec["bad"]]}
+    results: list[tuple[str, int, float]] = []
+    lock = threading.Lock()
+
+    def client(seed: int) -> None:
+        rnd = random.Random(seed)
+        with _client(url, token, timeout=spec["answer_s"]) as c:
+            for _ in range(spec["per_client"]):
+                kind = rnd.choice(spec["kinds"])
+                t0 = time.perf_counter()
+                try:
+                    status = _mixed_request(c, kind, spec, files).status_code
+                except Exception as exc:  # a time-out is a hang
+                    status = -1
+                    print("soak: no answer", kind, type(exc).__name__, file=sys.stderr)
+                with lock:
+                    results.append((kind, status, time.perf_counter() - t0))
+
+    threads = [threading.Thread(target=client, args=(i,)) for i in range(spec["clients"])]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    return results
+
+
 if __name__ == "__main__":
     what, url, token = sys.argv[1:4]
-    if what == "health":
+    if what == "mixed":
+        with open(sys.argv[4]) as f:
+            print(json.dumps(mixed_load(url, token, json.load(f))))
+    elif what == "health":
         stop = threading.Event()
         threading.Thread(target=lambda: (sys.stdin.read(), stop.set()), daemon=True).start()
         print(json.dumps(poll_health(url, token, stop)))

@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 
 from tests.service.service_servers import REPO, TOKEN, Server
+from tests.waits import HANG_S
 
 #: issue 22.3: /api/health p99 while the largest plans are made and read by 4 clients
 HEALTH_P99_BOUND_S = 0.100
@@ -189,7 +190,7 @@ def test_cross_origin_form_post_cannot_abort_a_scan(open_server):
         # the server's own page (same origin) aborts it
         r = c.post(f"/api/scans/{short}/abort", headers={"Origin": open_server.url})
         assert r.status_code == 200, r.text
-        deadline = time.monotonic() + 30
+        deadline = time.monotonic() + HANG_S
         while c.get(f"/api/jobs/{scan_id}").json()["state"] not in ("cancelled", "succeeded", "failed"):
             assert time.monotonic() < deadline, "the aborted scan did not end"
             time.sleep(0.1)

@@ -212,7 +212,7 @@ def test_full_disk_under_the_job_store_too(tmp_path, small_disk):
             assert job["progress"]["stage"] == "interrupted" and "disk full" in job["progress"]["reason"]
             # issue 22.6: with the space freed, health no longer says the disk (or database) is full,
             # before any resume; it says the scan waits for one
-            deadline = time.monotonic() + 30
+            deadline = time.monotonic() + HANG_S
             while any("is full" in p or "disk full" in p for p in c.get("/api/health").json()["problems"]):
                 assert time.monotonic() < deadline, c.get("/api/health").json()
                 time.sleep(0.2)

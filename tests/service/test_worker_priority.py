@@ -12,6 +12,7 @@ from service.jobs.executors import LocalExecutor
 from service.jobs.work import worker_pid
 from service.settings import Settings
 from tests.service.service_servers import Server
+from tests.waits import HANG_S
 
 
 def priority(pid: int) -> int:
@@ -42,7 +43,7 @@ def test_a_server_starts_its_workers_at_the_configured_priority(tmp_path):
     srv = Server(tmp_path / "data", env={"FPSCAN_WORKER_NICE": "3", "FPSCAN_WARM_UP": "false"}).start()
     try:
         base = priority(srv.proc.pid)
-        deadline = time.monotonic() + 60
+        deadline = time.monotonic() + HANG_S
         found: list = []
         while time.monotonic() < deadline and not found:
             spawned = [p for p in srv.workers() if "spawn_main" in " ".join(p.cmdline())]

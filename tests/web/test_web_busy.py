@@ -43,7 +43,7 @@ def test_a_refused_preview_is_asked_again_once_the_server_has_room(browser, base
 
     url, port = base
     browser.get(url + "/#/plan")
-    wait_for(lambda: _text(browser, "plan-preview-state").startswith("Preview up to date"), HANG_S,
+    wait_for(lambda: _text(browser, "plan-preview-state").startswith("Preview up to date"),
              "the first preview")
     # every plan-request slot taken by a request whose body never comes
     head = (b"POST /api/plans/preview HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\n"
@@ -55,13 +55,12 @@ def test_a_refused_preview_is_asked_again_once_the_server_has_room(browser, base
             sock.sendall(head)
             stalled.append(sock)
         body = browser.execute_script("return planBody()")  # what the page sends
-        wait_for(lambda: httpx.post(f"{url}/api/plans/preview", json=body, timeout=HANG_S).status_code == 429,
-                 HANG_S, "the server to refuse plan requests (slots full)")
+        wait_for(lambda: httpx.post(f"{url}/api/plans/preview", json=body, timeout=HANG_S).status_code == 429, "the server to refuse plan requests (slots full)")
         box = browser.find_element("id", "lat-nx")  # a new parameter: its preview is refused
         box.send_keys(Keys.CONTROL, "a")
         box.send_keys(Keys.DELETE)
         box.send_keys("33")
-        wait_for(lambda: "too many plan requests" in _text(browser, "plan-preview-state"), HANG_S,
+        wait_for(lambda: "too many plan requests" in _text(browser, "plan-preview-state"),
                  "the page to show the server's refusal")
         body = browser.execute_script("return planBody()")
         assert body["lattice"]["n_x"] == 33, body
@@ -70,9 +69,9 @@ def test_a_refused_preview_is_asked_again_once_the_server_has_room(browser, base
             sock.close()
     # no new input: the page asks again by itself and shows the server's preview of the form
     oracle = wait_for(lambda: (r := httpx.post(f"{url}/api/plans/preview", json=body, timeout=HANG_S)).status_code
-                      != 429 and r, HANG_S, "the server to have room")
+                      != 429 and r, "the server to have room")
     assert oracle.status_code == 200, oracle.text
     points = str(oracle.json()["points"])
     wait_for(lambda: _text(browser, "plan-preview-state").startswith("Preview up to date")
-             and _text(browser, "plan-points").split()[0] == points, HANG_S, f"the preview of {points} points")
+             and _text(browser, "plan-points").split()[0] == points, f"the preview of {points} points")
     browser.save_screenshot(str(screenshots / "plan-view-after-busy.png"))

@@ -117,7 +117,7 @@ def image_digest(browser, element_id) -> str | None:
     return hashlib.sha256(base64.b64decode(data_url.split(",", 1)[1])).hexdigest()
 
 
-def choose(browser, select_id: str, value: str, timeout: float = HANG_S) -> None:
+def choose(browser, select_id: str, value: str) -> None:
     """Pick ``value`` in a <select> once it is offered (the page may be rebuilding the
     list: retried until the choice sticks)."""
     from selenium.webdriver.support.ui import Select
@@ -129,7 +129,16 @@ def choose(browser, select_id: str, value: str, timeout: float = HANG_S) -> None
         sel.select_by_value(value)
         return el(browser, select_id).get_attribute("value") == value
 
-    wait_for(pick, timeout, f"{value!r} to be chosen in #{select_id}")
+    wait_for(pick, f"{value!r} to be chosen in #{select_id}")
+
+
+def wait_job_shown(browser, job_id: str, states, what: str) -> str:
+    """Wait until the result view shows job ``job_id`` itself (its id, not the previous
+    job's, which a hash-only navigation leaves on screen until the page has routed) in one
+    of ``states``; returns that state."""
+    wait_for(lambda: el(browser, "result-id").get_attribute("title") == job_id
+             and text(browser, "result-state") in states, what, 0.3)
+    return text(browser, "result-state")
 
 
 def png_pixels_as_browser_png(browser, png_base64: str) -> bytes:
@@ -183,16 +192,17 @@ def login_shown(browser) -> bool:
     return browser.execute_script("return !document.getElementById('view-login').hidden")
 
 
-def submit_token_if_asked(browser, timeout=15, token=TOKEN) -> bool:
-    """Sign in on the page's login view when it shows within ``timeout`` s (False when
-    it does not)."""
-    try:
-        wait_for(lambda: login_shown(browser), timeout, "the login view")
-    except AssertionError:
+def submit_token_if_asked(browser, token=TOKEN) -> bool:
+    """Sign in on the page's login view when the page asks for a token (False when it
+    does not): waits for the page's sign-in check (``body[data-auth-checked]``, set once
+    GET /api/auth has answered), not for a time."""
+    wait_for(lambda: browser.execute_script("return document.body.dataset.authChecked || ''"),
+             "the page's sign-in check")
+    if not login_shown(browser):
         return False
     set_value(browser, "login-token", token)
     el(browser, "login-submit").click()
-    wait_for(lambda: not login_shown(browser), 10, "the login view to give way to the page")
+    wait_for(lambda: not login_shown(browser), "the login view to give way to the page")
     return True
 
 
@@ -212,17 +222,17 @@ def test_plan_view_preview_errors_token_and_save(browser, server, api, screensho
     browser.get(server + "/#/plan")
     # The server needs a token: the page opens on its login view (not a dialog over a page
     # whose requests failed), before any request that needs the token.
-    wait_for(lambda: login_shown(browser), 15, "the login view")
+    wait_for(lambda: login_shown(browser), "the login view")
     assert not el(browser, "view-plan").is_displayed()
     shot(browser, screenshots, "login-view")
     # a wrong token is refused on the login view, with the reason
     set_value(browser, "login-token", "not-the-token")
     el(browser, "login-submit").click()
-    wait_for(lambda: "refused" in text(browser, "login-error"), 10, "the refusal on the login view")
+    wait_for(lambda: "refused" in text(browser, "login-error"), "the refusal on the login view")
     assert login_shown(browser) and browser.execute_script("return sessionStorage.getItem('fpscan.token')") is None
     assert submit_token_if_asked(browser), "the login view went away"
     assert browser.execute_script("return sessionStorage.getItem('fpscan.token')") == TOKEN
-    wait_for(lambda: text(browser, "plan-preview-state").startswith("Preview up to date"), 20, "the first preview")
+    wait_for(lambda: text(browser, "plan-preview-state").startswith("Preview up to date"), "the first preview")
     assert refused_requests(browser) == [], "a request of the page was refused (401)"
     fill_plan_form(browser, N_POINTS)
 
@@ -230,10 +240,10 @@ def test_plan_view_preview_errors_token_and_save(browser, server, api, screensho
     oracle = api.post("/api/plans/preview", json=plan_request(N_POINTS))
     assert oracle.status_code == 200, oracle.text
     expected = oracle.json()
-    wait_for(lambda: text(browser, "plan-points").split()[0] == str(expected["points"]), 20,
+    wait_for(lambda: text(browser, "plan-points").split()[0] == str(expected["points"]),
              f"the page to show {expected['points']} points")
     first = hashlib.sha256(png_pixels_as_browser_png(browser, expected["preview_png_base64"])).hexdigest()
-    wait_for(lambda: image_digest(browser, "plan-preview") == first, 10, "the server's preview image, pixel for pixel")
+    wait_for(lambda: image_digest(browser, "plan-preview") == first, "the server's preview image, pixel for pixel")
     if expected["weight_ratio"] is not None:
         assert float(text(browser, "plan-ratio")) == pytest.approx(expected["weight_ratio"], rel=5e-3)
     assert text(browser, "plan-time") not in ("", "–")
@@ -243,28 +253,28 @@ def test_plan_view_preview_errors_token_and_save(browser, server, api, screensho
     expected2 = api.post("/api/plans/preview", json=plan_request(more)).json()
     assert expected2["points"] != expected["points"]
     set_value(browser, "mask-n-points", more)
-    wait_for(lambda: text(browser, "plan-points").split()[0] == str(expected2["points"]), 20,
+    wait_for(lambda: text(browser, "plan-points").split()[0] == str(expected2["points"]),
              "the point count to follow the parameter")
     second = hashlib.sha256(png_pixels_as_browser_png(browser, expected2["preview_png_base64"])).hexdigest()
     assert second != first
-    wait_for(lambda: image_digest(browser, "plan-preview") == second, 10, "the preview image to change to the server's")
+    wait_for(lambda: image_digest(browser, "plan-preview") == second, "the preview image to change to the server's")
 
     # Bad input: the server's reason is shown, word for word.
     bad = api.post("/api/plans/preview", json=plan_request(0))
     assert 400 <= bad.status_code < 500
     reason = bad.json()["detail"]
     set_value(browser, "mask-n-points", 0)
-    wait_for(lambda: text(browser, "plan-preview-state").startswith("No preview"), 20, "the error to show")
+    wait_for(lambda: text(browser, "plan-preview-state").startswith("No preview"), "the error to show")
     assert reason in text(browser, "plan-preview-state")
     assert el(browser, "error").is_displayed() and reason in text(browser, "error-text")
     shot(browser, screenshots, "plan-view-error")
 
     # Save (a mutating route): the token given for the preview is used, nothing is asked again.
     set_value(browser, "mask-n-points", N_POINTS)
-    wait_for(lambda: text(browser, "plan-points").split()[0] == str(expected["points"]), 20, "the preview to recover")
+    wait_for(lambda: text(browser, "plan-points").split()[0] == str(expected["points"]), "the preview to recover")
     assert token_prompts(browser) == 1
     el(browser, "plan-save").click()
-    plan_id = wait_for(lambda: el(browser, "plan-saved").get_attribute("data-plan-id"), 20, "the saved plan id")
+    plan_id = wait_for(lambda: el(browser, "plan-saved").get_attribute("data-plan-id"), "the saved plan id")
     saved = api.get(f"/api/plans/{plan_id}")
     assert saved.status_code == 200, saved.text
     assert saved.json()["n_points"] == expected["points"]
@@ -286,7 +296,7 @@ def test_scan_view_progress_reaches_100_and_live_preview_changes(browser, sim, s
     choose(browser, "scan-plan", state["plan_id"])
     el(browser, "scan-start").click()
 
-    job_id = wait_for(lambda: el(browser, "scan-job").get_attribute("title"), 15, "the scan job id")
+    job_id = wait_for(lambda: el(browser, "scan-job").get_attribute("title"), "the scan job id")
     versions: dict[str, str] = {}
 
     def seen_versions() -> dict[str, str]:
@@ -300,25 +310,24 @@ def test_scan_view_progress_reaches_100_and_live_preview_changes(browser, sim, s
 
     # a preview of part of the points, whatever the machine's speed: the scan is held
     # (paused over the API) after a few points until the page shows their preview
-    wait_for(lambda: (api.get(f"/api/jobs/{job_id}").json()["progress"].get("points_done") or 0) >= 2, HANG_S,
+    wait_for(lambda: (api.get(f"/api/jobs/{job_id}").json()["progress"].get("points_done") or 0) >= 2,
              "the first points")
     assert api.post(f"/api/scans/{job_id}/pause").status_code == 200
-    wait_for(seen_versions, HANG_S, "a live preview of the paused scan")
+    wait_for(seen_versions, "a live preview of the paused scan")
     assert api.post(f"/api/scans/{job_id}/resume").status_code == 200
-    wait_for(lambda: text(browser, "scan-state") == "running", HANG_S, "the page to show running again")
+    wait_for(lambda: text(browser, "scan-state") == "running", "the page to show running again")
     shot(browser, screenshots, "scan-view-running")
-    wait_for(lambda: seen_versions() and text(browser, "scan-state") in ("succeeded", "failed", "cancelled"),
-             HANG_S, "the scan to end", 0.15)
+    wait_for(lambda: seen_versions() and text(browser, "scan-state") in ("succeeded", "failed", "cancelled"), "the scan to end", 0.15)
     assert text(browser, "scan-state") == "succeeded", api.get(f"/api/jobs/{job_id}").text
     # progress came over Server-Sent Events (not only from polling)
     assert int(browser.execute_script("return document.body.dataset.sseEvents || '0'")) >= 3
-    wait_for(lambda: text(browser, "scan-progress-label") == "100 %", HANG_S, "progress 100 %")
+    wait_for(lambda: text(browser, "scan-progress-label") == "100 %", "progress 100 %")
     assert el(browser, "scan-progress").get_attribute("value") in ("1", "1.0")
     n = state["n_points"]
     assert text(browser, "scan-points") == f"{n} / {n}"
     # the last refresh (every point) lands before the job ends: the page shows it
     final = str(api.get(f"/api/scans/{job_id}/preview").json()["version"])
-    wait_for(lambda: final in seen_versions(), HANG_S, f"the last live preview (version {final})")
+    wait_for(lambda: final in seen_versions(), f"the last live preview (version {final})")
     shot(browser, screenshots, "scan-view-done")
     assert token_prompts(browser) == 1, "the token was asked again"
     assert len(versions) >= 2, f"saw live preview versions {list(versions)}"
@@ -342,10 +351,10 @@ def test_result_view_reconstruct_slices_and_download_volume(browser, server, api
         pytest.skip("needs the scan of the scan-view test")
     scan_id = state["scan_job_id"]
     el(browser, "nav-jobs").click()
-    row = wait_for(lambda: browser.find_element("css selector", f'tr[data-job-id="{scan_id}"]'), 15, "the scan in the job list")
+    row = wait_for(lambda: browser.find_element("css selector", f'tr[data-job-id="{scan_id}"]'), "the scan in the job list")
     assert row.find_element("css selector", ".c-state").text.strip() == "succeeded"
     row.find_element("css selector", "a.c-open").click()
-    wait_for(lambda: el(browser, "result").is_displayed() and text(browser, "result-kind") == "scan", 15, "the scan's result view")
+    wait_for(lambda: el(browser, "result").is_displayed() and text(browser, "result-kind") == "scan", "the scan's result view")
     links = {a.text: a.get_attribute("href") for a in browser.find_elements("css selector", "#result-downloads a")}
     assert any("Scan file" in k for k in links) and any("IPASC" in k for k in links), links
     shot(browser, screenshots, "jobs-scan-result")
@@ -354,24 +363,22 @@ def test_result_view_reconstruct_slices_and_download_volume(browser, server, api
     Select(el(browser, "recon-method")).select_by_value("nedner")
     el(browser, "recon-unmix").click()
     el(browser, "recon-start").click()
-    wait_for(lambda: el(browser, "error").is_displayed() and "at least two wavelengths" in text(browser, "error-text"),
-             15, "the unmixing refusal")
+    wait_for(lambda: el(browser, "error").is_displayed() and "at least two wavelengths" in text(browser, "error-text"), "the unmixing refusal")
     assert text(browser, "result-kind") == "scan"
     el(browser, "recon-unmix").click()  # off again
     el(browser, "error-close").click()
 
     Select(el(browser, "recon-method")).select_by_value("nedner")
     el(browser, "recon-start").click()
-    wait_for(lambda: text(browser, "result-kind") == "recon", 15, "the reconstruction job to open")
+    wait_for(lambda: text(browser, "result-kind") == "recon", "the reconstruction job to open")
     recon_id = el(browser, "result-id").get_attribute("title")
-    wait_for(lambda: text(browser, "result-state") in ("succeeded", "failed"), 90, "the reconstruction to finish", 0.3)
-    assert text(browser, "result-state") == "succeeded", api.get(f"/api/jobs/{recon_id}").text
+    state = wait_job_shown(browser, recon_id, ("succeeded", "failed"), "the reconstruction to finish")
+    assert state == "succeeded", api.get(f"/api/jobs/{recon_id}").text
     for plane in ("xy", "xz", "yz"):
         oracle = api.get(f"/api/reconstructions/{recon_id}/mip/{plane}.png")
         assert oracle.status_code == 200
         want = hashlib.sha256(png_pixels_as_browser_png(browser, base64.b64encode(oracle.content).decode())).hexdigest()
-        wait_for(lambda plane=plane, want=want: image_digest(browser, f"result-mip-{plane}") == want,
-                 15, f"the {plane} MIP's pixels")
+        wait_for(lambda plane=plane, want=want: image_digest(browser, f"result-mip-{plane}") == want, f"the {plane} MIP's pixels")
     # The parameters used are listed.
     params = text(browser, "result-params")
     assert "nedner" in params or "method" in params
@@ -380,26 +387,25 @@ def test_result_view_reconstruct_slices_and_download_volume(browser, server, api
     slider = el(browser, "result-slice")
     top = int(slider.get_attribute("max"))
     assert top > 0, "the slider has no depth range"
-    first = wait_for(lambda: image_digest(browser, "result-slice-img"), 15, "the first depth slice")
+    first = wait_for(lambda: image_digest(browser, "result-slice-img"), "the first depth slice")
     browser.execute_script("const s = arguments[0]; s.value = s.max; s.dispatchEvent(new Event('input'));", slider)
-    wait_for(lambda: (el(browser, "result-slice-img").get_attribute("data-src") or "").endswith(f"index={top}"), 15, "the last slice")
+    wait_for(lambda: (el(browser, "result-slice-img").get_attribute("data-src") or "").endswith(f"index={top}"), "the last slice")
     assert text(browser, "result-slice-value").startswith(f"{top} of")
     dz = api.get(f"/api/jobs/{recon_id}").json()["params"]["result"]["params_used"]["dz"]
     assert text(browser, "result-slice-depth") == f"(z = {top * dz * 1e3:.3f} mm)"  # the depth, not only the index
     last = api.get(f"/api/reconstructions/{recon_id}/slice.png", params={"index": top})
     assert last.status_code == 200
     want = hashlib.sha256(png_pixels_as_browser_png(browser, base64.b64encode(last.content).decode())).hexdigest()
-    wait_for(lambda: image_digest(browser, "result-slice-img") == want, 15, "the last slice's pixels")
+    wait_for(lambda: image_digest(browser, "result-slice-img") == want, "the last slice's pixels")
     assert want != first
     shot(browser, screenshots, "jobs-recon-result")
 
     # Download the volume through the page: byte for byte what the API serves, and HDF5.
     link = next(a for a in browser.find_elements("css selector", "#result-downloads a") if a.text.startswith("Volume"))
     link.click()
-    got = wait_for(lambda: [p for p in download_dir.iterdir() if p.suffix == ".h5" and p.name.startswith("volume")],
-                   30, "the downloaded volume")
+    got = wait_for(lambda: [p for p in download_dir.iterdir() if p.suffix == ".h5" and p.name.startswith("volume")], "the downloaded volume")
     oracle = api.get(f"/api/reconstructions/{recon_id}/volume.h5")
-    wait_for(lambda: got[0].stat().st_size == len(oracle.content), 15, "the download to complete")
+    wait_for(lambda: got[0].stat().st_size == len(oracle.content), "the download to complete")
     assert got[0].read_bytes() == oracle.content
     h5py = pytest.importorskip("h5py")
     with h5py.File(got[0], "r") as f:
@@ -414,15 +420,15 @@ def test_result_view_offers_the_model_based_method_and_its_parameters(browser, s
     if "scan_job_id" not in state:
         pytest.skip("needs the scan of the scan-view test")
     el(browser, "nav-jobs").click()
-    row = wait_for(lambda: browser.find_element("css selector", f'tr[data-job-id="{state["scan_job_id"]}"]'), 15,
+    row = wait_for(lambda: browser.find_element("css selector", f'tr[data-job-id="{state["scan_job_id"]}"]'),
                    "the scan in the job list")
     row.find_element("css selector", "a.c-open").click()
-    wait_for(lambda: el(browser, "result").is_displayed() and text(browser, "result-kind") == "scan", 15,
+    wait_for(lambda: el(browser, "result").is_displayed() and text(browser, "result-kind") == "scan",
              "the scan's result view")
     Select(el(browser, "recon-method")).select_by_value("nedner")
     assert not el(browser, "recon-lambda").is_displayed() and not el(browser, "recon-iterations").is_displayed()
     Select(el(browser, "recon-method")).select_by_value("tv")
-    wait_for(lambda: el(browser, "recon-lambda").is_displayed(), 5, "the λ field")
+    wait_for(lambda: el(browser, "recon-lambda").is_displayed(), "the λ field")
     assert el(browser, "recon-iterations").is_displayed() and el(browser, "recon-positivity").is_selected()
     set_value(browser, "recon-lambda", 0.002)
     set_value(browser, "recon-iterations", 7)
@@ -432,14 +438,12 @@ def test_result_view_offers_the_model_based_method_and_its_parameters(browser, s
     # accepted once "another medium" is ticked
     set_value(browser, "recon-c", 2500)
     el(browser, "recon-start").click()
-    wait_for(lambda: el(browser, "error").is_displayed() and "sound speed 2500 m/s" in text(browser, "error-text"),
-             15, "the refusal of c = 2500 m/s")
+    wait_for(lambda: el(browser, "error").is_displayed() and "sound speed 2500 m/s" in text(browser, "error-text"), "the refusal of c = 2500 m/s")
     assert el(browser, "result-id").get_attribute("title") == before
     el(browser, "error-close").click()
     el(browser, "recon-force").click()
     el(browser, "recon-start").click()
-    wait_for(lambda: text(browser, "result-kind") == "recon" and el(browser, "result-id").get_attribute("title") != before,
-             15, "the tv job to open")
+    wait_for(lambda: text(browser, "result-kind") == "recon" and el(browser, "result-id").get_attribute("title") != before, "the tv job to open")
     job_id = el(browser, "result-id").get_attribute("title")
     job = api.get(f"/api/jobs/{job_id}").json()
     assert job["params"]["method"] == "tv", job
@@ -450,7 +454,7 @@ def test_result_view_offers_the_model_based_method_and_its_parameters(browser, s
                            "document.getElementById('recon-force').checked = false;")  # as later tests expect
     if el(browser, "result-cancel").is_displayed():  # a 7-iteration solve is not needed here
         el(browser, "result-cancel").click()
-    wait_for(lambda: text(browser, "result-state") in ("cancelled", "succeeded"), 60, "the tv job to end", 0.3)
+    wait_job_shown(browser, job_id, ("cancelled", "succeeded"), "the tv job to end")
 
 
 def test_upload_a_data_file_and_reconstruct_it(browser, server, api, screenshots, tmp_path):
@@ -466,15 +470,14 @@ def test_upload_a_data_file_and_reconstruct_it(browser, server, api, screenshots
     np.save(path, data)
 
     el(browser, "nav-jobs").click()
-    wait_for(lambda: el(browser, "view-jobs").is_displayed(), 5, "the jobs view")
+    wait_for(lambda: el(browser, "view-jobs").is_displayed(), "the jobs view")
     # both method choices are the server's methods (GET /api/reconstructions/methods), and
     # the reconstruct form starts from each method's own defaults, showing its options only
     listed = api.get("/api/reconstructions/methods").json()
     names = [m["name"] for m in listed]
     for select in ("upload-method", "recon-method"):
         wait_for(lambda s=select: browser.execute_script(
-            "return [...document.getElementById(arguments[0]).options].map(o => o.value)", s) == names,
-            15, f"the {select} choices")
+            "return [...document.getElementById(arguments[0]).options].map(o => o.value)", s) == names, f"the {select} choices")
     for m in listed:
         opts = {o["name"]: o["default"] for o in m["options"]}
         form = browser.execute_script(
@@ -495,17 +498,16 @@ def test_upload_a_data_file_and_reconstruct_it(browser, server, api, screenshots
     Select(el(browser, "upload-method")).select_by_value("ner")
     before = el(browser, "result-id").get_attribute("title")
     el(browser, "upload-start").click()
-    wait_for(lambda: "sound speed 2500 m/s" in text(browser, "upload-state"), 20, "the server's reason for c")
+    wait_for(lambda: "sound speed 2500 m/s" in text(browser, "upload-state"), "the server's reason for c")
     assert "1000 to 2000" in text(browser, "upload-state")
     el(browser, "upload-force").click()
     el(browser, "upload-start").click()
-    wait_for(lambda: text(browser, "result-kind") == "recon" and el(browser, "result-id").get_attribute("title") != before,
-             20, "the upload's reconstruction job to open")
+    wait_for(lambda: text(browser, "result-kind") == "recon" and el(browser, "result-id").get_attribute("title") != before, "the upload's reconstruction job to open")
     browser.execute_script("document.getElementById('upload-force').checked = false;")  # as later tests expect
     recon_id = el(browser, "result-id").get_attribute("title")
-    wait_for(lambda: text(browser, "result-state") in ("succeeded", "failed"), 60, "the reconstruction to finish", 0.3)
+    state = wait_job_shown(browser, recon_id, ("succeeded", "failed"), "the reconstruction to finish")
     job = api.get(f"/api/jobs/{recon_id}").json()
-    assert text(browser, "result-state") == "succeeded", job
+    assert state == "succeeded", job
     assert job["params"]["dataset_id"] and job["params"]["method"] == "ner"
     assert job["params"]["params"]["force"] is True, job
     shot(browser, screenshots, "jobs-upload-result")
@@ -519,17 +521,17 @@ def test_upload_a_data_file_and_reconstruct_it(browser, server, api, screenshots
     # the same volume for napari / ImageJ: OME-TIFF and zipped OME-Zarr links the server answers
     links = wait_for(lambda: {a.text: a.get_attribute("href") for a in
                               browser.find_elements("css selector", "#result-downloads a")
-                              if "OME" in a.text} or None, 15, "the OME download links")
+                              if "OME" in a.text} or None, "the OME download links")
     assert sorted(links) == ["Volume as OME-TIFF (ImageJ, napari)", "Volume as OME-Zarr, zipped (napari)"], links
     for href in links.values():
         assert api.get(href.split(server, 1)[-1]).status_code == 200, href
     # the job list deletes the finished job (after the confirm dialog): row, record and files gone
     row = f'#view-jobs tr[data-job-id="{recon_id}"]'
     delete = wait_for(lambda: next((b for b in browser.find_elements("css selector", row + " .c-delete")
-                                    if b.is_displayed()), None), 15, "the job's Delete button")
+                                    if b.is_displayed()), None), "the job's Delete button")
     browser.execute_script("window.confirm = () => true;")
     delete.click()
-    wait_for(lambda: not browser.find_elements("css selector", row), 15, "the deleted job's row to go")
+    wait_for(lambda: not browser.find_elements("css selector", row), "the deleted job's row to go")
     assert api.get(f"/api/jobs/{recon_id}").status_code == 404
     assert api.get(f"/api/reconstructions/{recon_id}/volume.h5").status_code == 404
     assert el(browser, "result").is_displayed() is False
@@ -562,17 +564,16 @@ def test_unmix_result_shows_so2_map_and_autofocus_curve(browser, server, api, sc
     assert r.status_code == 202, r.text
     job_id = r.json()["id"]
     browser.get(f"{server}/#/jobs/{job_id}")
-    submit_token_if_asked(browser, timeout=5)
-    wait_for(lambda: text(browser, "result-state") in ("succeeded", "failed"), 120, "the unmixing job to finish", 0.3)
+    submit_token_if_asked(browser)
+    state = wait_job_shown(browser, job_id, ("succeeded", "failed"), "the unmixing job to finish")
     job = api.get(f"/api/jobs/{job_id}").json()
-    assert text(browser, "result-state") == "succeeded", job
+    assert state == "succeeded", job
     result = job.get("result") or job["params"]["result"]
-    wait_for(lambda: el(browser, "result-unmix").is_displayed() and el(browser, "result-autofocus").is_displayed(),
-             15, "the unmixing and autofocus panels")
+    wait_for(lambda: el(browser, "result-unmix").is_displayed() and el(browser, "result-autofocus").is_displayed(), "the unmixing and autofocus panels")
     oracle = api.get(f"/api/reconstructions/{job_id}/so2.png")
     assert oracle.status_code == 200
     want = hashlib.sha256(png_pixels_as_browser_png(browser, base64.b64encode(oracle.content).decode())).hexdigest()
-    wait_for(lambda: image_digest(browser, "result-so2") == want, 15, "the sO2 picture")
+    wait_for(lambda: image_digest(browser, "result-so2") == want, "the sO2 picture")
     af = result["autofocus"]
     points = browser.execute_script(
         "return document.querySelectorAll('#result-af-curve circle').length")
@@ -600,12 +601,12 @@ def test_two_wavelength_scan_reconstructs_the_chosen_wavelength(browser, sim, se
     r = api.post("/api/scans", json={"plan_id": plan.json()["id"], "scanner_id": "sim1"})
     assert r.status_code == 202, r.text
     scan_id = r.json()["id"]
-    wait_for(lambda: api.get(f"/api/jobs/{scan_id}").json()["state"] in ("succeeded", "failed", "cancelled"), 60,
+    wait_for(lambda: api.get(f"/api/jobs/{scan_id}").json()["state"] in ("succeeded", "failed", "cancelled"),
              "the two-wavelength scan", 0.3)
     assert api.get(f"/api/jobs/{scan_id}").json()["state"] == "succeeded"
     browser.get(f"{server}/#/jobs/{scan_id}")
-    submit_token_if_asked(browser, timeout=5)
-    wait_for(lambda: el(browser, "result").is_displayed() and el(browser, "recon-wavelength").is_displayed(), 15,
+    submit_token_if_asked(browser)
+    wait_for(lambda: el(browser, "result").is_displayed() and el(browser, "recon-wavelength").is_displayed(),
              "the scan's wavelengths in the reconstruct form")
     offered = browser.execute_script(
         "return [...document.getElementById('recon-wavelength').options].map((o) => o.textContent)")
@@ -614,14 +615,14 @@ def test_two_wavelength_scan_reconstructs_the_chosen_wavelength(browser, sim, se
     made = []
     for choice in ("1", "all"):
         browser.get(f"{server}/#/jobs/{scan_id}")
-        wait_for(lambda: el(browser, "recon-wavelength").is_displayed() and text(browser, "result-kind") == "scan",
-                 15, "the scan's result view")
+        wait_for(lambda: el(browser, "recon-wavelength").is_displayed()
+                 and el(browser, "result-id").get_attribute("title") == scan_id, "the scan's result view")
         choose(browser, "recon-method", "nedner")
         choose(browser, "recon-wavelength", choice)
         el(browser, "recon-start").click()
-        wait_for(lambda: text(browser, "result-kind") == "recon", 15, "the reconstruction job to open")
+        wait_for(lambda: text(browser, "result-kind") == "recon", "the reconstruction job to open")
         recon_id = el(browser, "result-id").get_attribute("title")
-        wait_for(lambda: text(browser, "result-state") in ("succeeded", "failed"), 60, "the reconstruction", 0.3)
+        wait_job_shown(browser, recon_id, ("succeeded", "failed"), "the reconstruction")
         job = api.get(f"/api/jobs/{recon_id}").json()
         assert job["state"] == "succeeded", job
         assert job["params"]["wavelength"] == (1 if choice == "1" else "all")
@@ -631,7 +632,7 @@ def test_two_wavelength_scan_reconstructs_the_chosen_wavelength(browser, sim, se
         used = json.loads(f.attrs["params"])
     assert used["wavelength_index"] == 1 and used["wavelength_nm"] == pytest.approx(850)
     wait_for(lambda: sum("wavelength" in a.text for a in browser.find_elements("css selector", "#result-downloads a"))
-             == 2, 15, "one volume per wavelength among the downloads")
+             == 2, "one volume per wavelength among the downloads")
     shot(browser, screenshots, "jobs-recon-all-wavelengths")
 
 
@@ -653,37 +654,35 @@ def test_scan_controls_pause_resume_abort(browser, sim, server, api, screenshots
     offered = browser.execute_script(
         "return [...document.getElementById('scan-preview-wavelength').options].map((o) => o.textContent)")
     assert offered == ["750 nm", "850 nm"]
-    wait_for(lambda: el(browser, "scan-start").is_enabled(), 10, "Start to be enabled")
+    wait_for(lambda: el(browser, "scan-start").is_enabled(), "Start to be enabled")
     el(browser, "scan-start").click()
     job_id = wait_for(lambda: (lambda t: t if t and t != state.get("scan_job_id") else None)(
-        el(browser, "scan-job").get_attribute("title")), 15, "the new scan job")
+        el(browser, "scan-job").get_attribute("title")), "the new scan job")
 
     def api_state():
         return api.get(f"/api/jobs/{job_id}").json()
 
     assert api_state()["params"].get("preview_wavelength") == 1
 
-    wait_for(lambda: text(browser, "scan-state") == "running" and (api_state()["progress"].get("points_done") or 0) > 0,
-             30, "the scan to run")
+    wait_for(lambda: text(browser, "scan-state") == "running" and (api_state()["progress"].get("points_done") or 0) > 0, "the scan to run")
     el(browser, "scan-pause").click()
-    wait_for(lambda: text(browser, "scan-state") == "paused", 20, "the page to show paused")
+    wait_for(lambda: text(browser, "scan-state") == "paused", "the page to show paused")
     assert api_state()["state"] == "paused"
     assert el(browser, "scan-resume").is_enabled() and not el(browser, "scan-pause").is_enabled()
     # A reload re-attaches to the scan (its id is in the URL) and shows where it stands.
     assert browser.current_url.endswith(f"#/scan/{job_id}")
     browser.refresh()
-    wait_for(lambda: text(browser, "scan-state") == "paused" and el(browser, "scan-resume").is_enabled(), 20,
+    wait_for(lambda: text(browser, "scan-state") == "paused" and el(browser, "scan-resume").is_enabled(),
              "the reloaded page to show the paused scan")
-    wait_for(lambda: text(browser, "scan-points").startswith(f"{api_state()['progress']['points_done']} / "), 10,
+    wait_for(lambda: text(browser, "scan-points").startswith(f"{api_state()['progress']['points_done']} / "),
              "the reloaded page to show the points done so far")
     held = api_state()["progress"]["points_done"]
     shot(browser, screenshots, "scan-view-paused")
     el(browser, "scan-resume").click()
-    wait_for(lambda: text(browser, "scan-state") == "running", 20, "the page to show running again")
-    wait_for(lambda: api_state()["progress"]["points_done"] > held, 20, "the scan to move on after resume")
+    wait_for(lambda: text(browser, "scan-state") == "running", "the page to show running again")
+    wait_for(lambda: api_state()["progress"]["points_done"] > held, "the scan to move on after resume")
     el(browser, "scan-abort").click()
-    final = wait_for(lambda: (lambda s: s if s in ("cancelled", "failed", "succeeded") else None)(text(browser, "scan-state")),
-                     20, "the abort to end the scan")
+    final = wait_for(lambda: (lambda s: s if s in ("cancelled", "failed", "succeeded") else None)(text(browser, "scan-state")), "the abort to end the scan")
     assert final == api_state()["state"] == "cancelled"
     assert el(browser, "scan-start").is_enabled() and not el(browser, "scan-abort").is_enabled()
     assert token_prompts(browser) == 0, "the token was asked again after the reload"
@@ -698,21 +697,21 @@ def test_wrong_token_is_refused_with_the_servers_reason(browser, server, api, sc
     # the form as loaded (the server's example values) is previewed with the good token;
     # then a wrong one is stored and the save is refused (no typing: every change would
     # preview, and a preview needs the token too)
-    wait_for(lambda: text(browser, "plan-preview-state").startswith("Preview up to date"), 20, "the preview")
+    wait_for(lambda: text(browser, "plan-preview-state").startswith("Preview up to date"), "the preview")
     browser.execute_script("sessionStorage.setItem('fpscan.token', 'not-the-token')")  # changed on the server
     before = token_prompts(browser)
     el(browser, "plan-save").click()
-    wait_for(lambda: login_shown(browser), 15, "the login view after a refused token")
+    wait_for(lambda: login_shown(browser), "the login view after a refused token")
     assert token_prompts(browser) == before + 1
     assert reason in text(browser, "login-error")
     shot(browser, screenshots, "login-view-refused")
     # signing in again carries the refused request out (the plan is saved)
     assert submit_token_if_asked(browser)
-    plan_id = wait_for(lambda: el(browser, "plan-saved").get_attribute("data-plan-id"), 20, "the saved plan id")
+    plan_id = wait_for(lambda: el(browser, "plan-saved").get_attribute("data-plan-id"), "the saved plan id")
     assert api.get(f"/api/plans/{plan_id}").status_code == 200
     # "Sign out" forgets the token and shows the login view
     el(browser, "token-button").click()
-    wait_for(lambda: login_shown(browser), 5, "the login view after signing out")
+    wait_for(lambda: login_shown(browser), "the login view after signing out")
     assert browser.execute_script("return sessionStorage.getItem('fpscan.token')") is None
     assert submit_token_if_asked(browser)
 
@@ -728,9 +727,9 @@ def test_without_a_token_nothing_is_asked_and_plain_links_download(browser, tmp_
     try:
         browser.get(base + "/#/plan")
         fill_plan_form(browser, N_POINTS)
-        wait_for(lambda: text(browser, "plan-preview-state").startswith("Preview up to date"), 20, "the preview")
+        wait_for(lambda: text(browser, "plan-preview-state").startswith("Preview up to date"), "the preview")
         el(browser, "plan-save").click()
-        plan_id = wait_for(lambda: el(browser, "plan-saved").get_attribute("data-plan-id"), 20, "the saved plan")
+        plan_id = wait_for(lambda: el(browser, "plan-saved").get_attribute("data-plan-id"), "the saved plan")
         assert httpx.get(f"{base}/api/plans/{plan_id}", timeout=10).status_code == 200
 
         path = tmp_path / "tiny.npy"
@@ -741,19 +740,17 @@ def test_without_a_token_nothing_is_asked_and_plain_links_download(browser, tmp_
         set_value(browser, "upload-dt", 20)
         set_value(browser, "upload-dx", 100)
         el(browser, "upload-start").click()
-        wait_for(lambda: text(browser, "result-kind") == "recon" and text(browser, "result-state") == "succeeded",
-                 60, "the upload's reconstruction", 0.3)
+        wait_for(lambda: text(browser, "result-kind") == "recon" and text(browser, "result-state") == "succeeded", "the upload's reconstruction", 0.3)
         recon_id = el(browser, "result-id").get_attribute("title")
         assert browser.execute_script("return sessionStorage.getItem('fpscan.token')") is None
         assert token_prompts(browser) == 0
         link = wait_for(lambda: next((a for a in browser.find_elements("css selector", "#result-downloads a")
-                                      if a.text.startswith("Volume")), None), 10, "the volume link")
+                                      if a.text.startswith("Volume")), None), "the volume link")
         link.click()
         oracle = httpx.get(f"{base}/api/reconstructions/{recon_id}/volume.h5", timeout=30).content
         # the file name is the server's (Content-Disposition wins over the link's download name)
         names = [f"volume-{recon_id}.h5", f"{recon_id}.h5"]
-        wait_for(lambda: any((download_dir / n).exists() and (download_dir / n).read_bytes() == oracle for n in names),
-                 30, "the plain link's download, byte for byte")
+        wait_for(lambda: any((download_dir / n).exists() and (download_dir / n).read_bytes() == oracle for n in names), "the plain link's download, byte for byte")
     finally:
         srv.stop()
 
@@ -764,10 +761,10 @@ def test_keyboard_navigation_and_state_without_colour(browser, server, screensho
 
     browser.get("about:blank")
     browser.get(server + "/#/plan")
-    if wait_for(lambda: (login_shown(browser) and "login") or el(browser, "view-plan").is_displayed(), 10,
+    if wait_for(lambda: (login_shown(browser) and "login") or el(browser, "view-plan").is_displayed(),
                 "the plan view or the login view") == "login":  # the tab holds no token (a test before failed)
         submit_token_if_asked(browser)
-    wait_for(lambda: el(browser, "view-plan").is_displayed(), 10, "the plan view")
+    wait_for(lambda: el(browser, "view-plan").is_displayed(), "the plan view")
     # Tab from the top of the page reaches the navigation; Enter on "Scan" switches view.
     for _ in range(12):
         ActionChains(browser).send_keys(Keys.TAB).perform()
@@ -775,7 +772,7 @@ def test_keyboard_navigation_and_state_without_colour(browser, server, screensho
             break
     assert browser.switch_to.active_element.get_attribute("id") == "nav-scan"
     ActionChains(browser).send_keys(Keys.ENTER).perform()
-    wait_for(lambda: el(browser, "view-scan").is_displayed(), 5, "the scan view")
+    wait_for(lambda: el(browser, "view-scan").is_displayed(), "the scan view")
     assert el(browser, "nav-scan").get_attribute("aria-current") == "page"
     # Every form control has an accessible label.
     unlabeled = browser.execute_script(
@@ -785,12 +782,12 @@ def test_keyboard_navigation_and_state_without_colour(browser, server, screensho
     assert unlabeled == []
     # Job states carry a word and a symbol, not colour alone.
     el(browser, "nav-jobs").click()
-    wait_for(lambda: el(browser, "view-jobs").is_displayed(), 5, "the jobs view")
+    wait_for(lambda: el(browser, "view-jobs").is_displayed(), "the jobs view")
     states = browser.execute_script(
         """return [...document.querySelectorAll('#jobs-body .state')].map(e =>
              [e.textContent, getComputedStyle(e, '::before').content]);""")
     if "scan_job_id" in state:
-        wait_for(lambda: len(browser.find_elements("css selector", "#jobs-body .state")) >= 2, 10, "the job list")
+        wait_for(lambda: len(browser.find_elements("css selector", "#jobs-body .state")) >= 2, "the job list")
         states = browser.execute_script(
             """return [...document.querySelectorAll('#jobs-body .state')].map(e =>
                  [e.textContent, getComputedStyle(e, '::before').content]);""")
@@ -817,15 +814,14 @@ def test_plan_form_offers_exactly_the_servers_kinds_and_parameters(browser, serv
     browser.execute_script("sessionStorage.setItem('fpscan.token', arguments[0])", TOKEN)
     browser.refresh()
     wait_for(lambda: len(browser.execute_script(
-        "return document.getElementById('mask-kind').options")) == len(want), HANG_S, "the mask kinds")
+        "return document.getElementById('mask-kind').options")) == len(want), "the mask kinds")
     offered = browser.execute_script(
         "return [...document.getElementById('mask-kind').options].map(o => o.value)")
     assert offered == list(want)
     for kind in want:
         choose(browser, "mask-kind", kind)
         wait_for(lambda k=kind: browser.execute_script(
-            "return [...document.querySelectorAll('#mask-params [name]')].map(e => e.name)") == want[k],
-            HANG_S, f"the {kind} parameters")
+            "return [...document.querySelectorAll('#mask-params [name]')].map(e => e.name)") == want[k], f"the {kind} parameters")
     choose(browser, "mask-kind", "equispaced")
     set_value(browser, "mask-interval", 3)
     set_value(browser, "lat-nx", 64)
@@ -833,6 +829,6 @@ def test_plan_form_offers_exactly_the_servers_kinds_and_parameters(browser, serv
     set_value(browser, "lat-pitch", 60)
     set_value(browser, "acq-nt", 256)
     set_value(browser, "acq-dt", 8)
-    wait_for(lambda: text(browser, "plan-points").split()[0] == str(expected["points"]), HANG_S,
+    wait_for(lambda: text(browser, "plan-points").split()[0] == str(expected["points"]),
              "the equispaced preview's point count")
     shot(browser, screenshots, "plan-view-equispaced")

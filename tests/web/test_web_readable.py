@@ -18,7 +18,6 @@ from tests.web.web_e2e_support import wait_for
 httpx = pytest.importorskip("httpx")
 np = pytest.importorskip("numpy")
 
-pytestmark = pytest.mark.timeout(180)
 
 #: a number as text (a table cell holds one or a list of them, perhaps with a unit)
 NUMBER = re.compile(r"^[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$")
@@ -53,7 +52,7 @@ def _upload(base: str, path, dt: float, dx: float) -> str:
 def _open_finished(browser, base: str, job_id: str) -> dict:
     browser.get(f"{base}/#/jobs/{job_id}")
     wait_for(lambda: el(browser, "result-id").get_attribute("title") == job_id
-             and text(browser, "result-state") in ("succeeded", "failed"), 120, "the job to finish", 0.3)
+             and text(browser, "result-state") in ("succeeded", "failed"), "the job to finish", 0.3)
     job = httpx.get(f"{base}/api/jobs/{job_id}", timeout=30).json()
     assert text(browser, "result-state") == "succeeded", job
     return job
@@ -84,7 +83,7 @@ def test_parameters_with_units_and_enlarged_mip(browser, base, screenshots, tmp_
     job = _open_finished(browser, base, r.json()["id"])
     assert job["params"]["shape"]["dx"] != 1e-4  # the noise is really there on the wire
 
-    rows = wait_for(lambda: (lambda r: r if "used.dx" in r else None)(_param_rows(browser)), 15, "the parameters")
+    rows = wait_for(lambda: (lambda r: r if "used.dx" in r else None)(_param_rows(browser)), "the parameters")
     print(rows)
     assert rows["shape.dx"] == "100 µm" and rows["used.dx"] == "100 µm" and rows["used.dy"] == "100 µm", rows
     assert rows["shape.dt"] == "12 ns" and rows["used.dt"] == "12 ns", rows
@@ -104,23 +103,21 @@ def test_parameters_with_units_and_enlarged_mip(browser, base, screenshots, tmp_
     shot(browser, screenshots, "readable-ner-parameters")
 
     thumb = el(browser, "result-mip-xy")
-    wait_for(lambda: browser.execute_script("return arguments[0].complete && arguments[0].naturalWidth", thumb),
-             15, "the xy MIP")
+    wait_for(lambda: browser.execute_script("return arguments[0].complete && arguments[0].naturalWidth", thumb), "the xy MIP")
     thumb_w = thumb.rect["width"]
     assert not browser.execute_script("return document.getElementById('picture-dialog').open")
     thumb.click()
-    wait_for(lambda: browser.execute_script("return document.getElementById('picture-dialog').open"), 5,
+    wait_for(lambda: browser.execute_script("return document.getElementById('picture-dialog').open"),
              "the picture dialog")
     big = el(browser, "picture-dialog-img")
-    wait_for(lambda: browser.execute_script("return arguments[0].complete && arguments[0].naturalWidth", big),
-             15, "the enlarged MIP")
+    wait_for(lambda: browser.execute_script("return arguments[0].complete && arguments[0].naturalWidth", big), "the enlarged MIP")
     natural = browser.execute_script("return arguments[0].naturalWidth", big)
     assert big.is_displayed() and big.rect["width"] > 1.5 * thumb_w, (big.rect, thumb_w)
     assert big.rect["width"] == pytest.approx(natural, abs=1)  # full size: one image pixel per CSS pixel
     assert "xy" in text(browser, "picture-dialog-caption")
     shot(browser, screenshots, "readable-mip-enlarged")
     el(browser, "picture-dialog-close").click()
-    wait_for(lambda: not browser.execute_script("return document.getElementById('picture-dialog').open"), 5,
+    wait_for(lambda: not browser.execute_script("return document.getElementById('picture-dialog').open"),
              "the picture dialog to close")
 
 
@@ -137,7 +134,7 @@ def test_unmix_job_hides_what_does_not_apply(browser, base, screenshots, tmp_pat
         "dataset_ids": ids, "wavelengths": [750e-9, 850e-9], "method": "ner", "unmix": {}})
     assert r.status_code == 202, r.text
     _open_finished(browser, base, r.json()["id"])
-    wait_for(lambda: _shown(browser, "result-unmix"), 15, "the unmixing panel")
+    wait_for(lambda: _shown(browser, "result-unmix"), "the unmixing panel")
     assert text(browser, "result-unmix-wavelengths") == "750 nm, 850 nm"
     assert not _shown(browser, "result-points") and not _shown(browser, "result-autofocus")
     stats = browser.execute_script(

@@ -13,7 +13,6 @@ from tests.web.web_e2e_support import has_subcommand, wait_for
 httpx = pytest.importorskip("httpx")
 np = pytest.importorskip("numpy")
 
-pytestmark = pytest.mark.timeout(120)
 
 
 def _text(browser, css: str) -> str:
@@ -57,7 +56,7 @@ def test_disk_use_panel_shows_dataset_sizes_and_delete_removes_one(browser, base
 
     browser.get(url + "/#/jobs")
     wait_for(lambda: browser.execute_script(
-        "return document.querySelectorAll('#storage-datasets tbody tr').length") == 2, 20, "the two datasets listed")
+        "return document.querySelectorAll('#storage-datasets tbody tr').length") == 2, "the two datasets listed")
     row = "#storage-parts tr[data-part='datasets']"
     assert browser.execute_script(f"return document.querySelector(\"{row}\").dataset.bytes") == str(on_disk)
     shown = _text(browser, f"{row} td")
@@ -76,13 +75,12 @@ def test_disk_use_panel_shows_dataset_sizes_and_delete_removes_one(browser, base
     # delete the larger one with its button (the page asks first)
     victim = ids[1]
     browser.find_element("css selector", f"#storage-datasets tr[data-dataset-id='{victim}'] button").click()
-    wait_for(lambda: browser.switch_to.alert, 5, "the confirmation").accept()
+    wait_for(lambda: browser.switch_to.alert, "the confirmation").accept()
     wait_for(lambda: browser.execute_script(
-        "return document.querySelectorAll('#storage-datasets tbody tr').length") == 1, 20, "the dataset removed")
+        "return document.querySelectorAll('#storage-datasets tbody tr').length") == 1, "the dataset removed")
     assert not (data / "datasets" / victim).exists()
     assert [d["dataset_id"] for d in httpx.get(f"{url}/api/datasets", timeout=10).json()] == [ids[0]]
     left = httpx.get(f"{url}/api/health", timeout=10).json()["disk"]["datasets_bytes"]
     assert left == listed[ids[0]]["size_bytes"]
-    wait_for(lambda: browser.execute_script(f"return document.querySelector(\"{row}\").dataset.bytes") == str(left),
-             10, "the disk use updated")
+    wait_for(lambda: browser.execute_script(f"return document.querySelector(\"{row}\").dataset.bytes") == str(left), "the disk use updated")
     assert "Deleted dataset" in _text(browser, "#storage-state")

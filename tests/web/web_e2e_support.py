@@ -6,6 +6,8 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+from tests.waits import HANG_S
+
 REPO_ROOT = Path(__file__).resolve().parents[2]
 SCREENSHOTS = REPO_ROOT / "test-artifacts" / "screenshots"
 
@@ -16,8 +18,11 @@ CHROMIUM_FLAGS = [
 ]
 
 
-def wait_for(predicate, timeout: float, what: str, interval: float = 0.1):
-    """Poll ``predicate`` until it returns a truthy value; fail after ``timeout`` s."""
+def wait_for(predicate, what: str, interval: float = 0.1):
+    """Poll ``predicate`` until it returns a truthy value (the event ``what``); fail only
+    after ``tests.waits.HANG_S`` s, a hang: a loaded machine makes a wait longer, never
+    a failure (issue 21.6)."""
+    timeout = HANG_S
     deadline = time.monotonic() + timeout
     last_exc = None
     while time.monotonic() < deadline:
