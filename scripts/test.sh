@@ -11,4 +11,18 @@ if [ -x scripts/test-setup.d ] || [ -d scripts/test-setup.d ]; then
   for step in scripts/test-setup.d/*.sh; do [ -e "$step" ] && bash "$step"; done
 fi
 bash scripts/lint.sh
-exec .venv/bin/python -m pytest "$@"
+# Two parts: the tests in parallel on FPSCAN_TEST_WORKERS processes (default 2, one per core of
+# the reference machine; 0 runs them in this process), a test file's tests on one worker
+# (they share its servers and browser); then, alone, the tests marked `serial`, which hold a
+# time bound an issue sets (health p99, cancel latency) that a neighbour's load would blur.
+# Arguments go to both parts (a part that selects no test counts as passed).
+set +e
+.venv/bin/python -m pytest -n "${FPSCAN_TEST_WORKERS:-2}" --dist loadfile -m "not serial" "$@"
+parallel=$?
+.venv/bin/python -m pytest -p no:xdist -m serial "$@"
+alone=$?
+set -e
+[ "$parallel" -eq 5 ] && parallel=0  # 5: no test selected
+[ "$alone" -eq 5 ] && alone=0
+if [ "$parallel" -ne 0 ]; then exit "$parallel"; fi
+exit "$alone"

@@ -108,21 +108,40 @@ def test_sim_cli_rejects_bad_options(tmp_path):
 
 
 def test_ctrl_c_leaves_the_device_idle(tmp_path):
+    """Ctrl-C (SIGINT to the host's process group) mid-scan: exit 130, the resume command
+    named, the device idle before the plan's end. The test acts on the host's own progress
+    lines (a line per report: ``FPSCAN_PROGRESS_PERIOD=0``), not on a poll of the file."""
+    import re
+    import threading
+
     from driver.host import Scanner
 
-    plan = grid_plan(30, 30, n_t=128)  # 900 points at 100 Hz: 9 s if never stopped (room for a loaded machine)
+    plan = grid_plan(30, 30, n_t=128)  # 900 points at 50 Hz: 18 s if never stopped
     plan_path = tmp_path / "plan.json"
     plan_path.write_text(json.dumps(plan))
-    dev, sim = start_simulator("--prf", "100", log_path=tmp_path / "sim.log", timeout=HANG_S)
+    dev, sim = start_simulator("--prf", "50", log_path=tmp_path / "sim.log", timeout=HANG_S)
     try:
         out = tmp_path / "scan.h5"
-        host = subprocess.Popen(scan_cmd(dev, plan_path, out), stdout=subprocess.PIPE,
-                                stderr=subprocess.PIPE, text=True, start_new_session=True)
-        deadline = time.monotonic() + HANG_S
-        while completed_count(out) < 30 and time.monotonic() < deadline:
-            time.sleep(0.05)
+        cmd = [a for a in scan_cmd(dev, plan_path, out) if a != "-q"]
+        host = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                start_new_session=True, env={**os.environ, "FPSCAN_PROGRESS_PERIOD": "0"})
+        lines: list[str] = []
+        thirty = threading.Event()
+
+        def read_stderr() -> None:
+            for line in host.stderr:
+                lines.append(line)
+                m = re.search(r"(\d+)/900 points", line)
+                if m and int(m.group(1)) >= 30:
+                    thirty.set()
+
+        reader = threading.Thread(target=read_stderr, daemon=True)
+        reader.start()
+        assert thirty.wait(HANG_S), "".join(lines)
         os.killpg(host.pid, signal.SIGINT)  # as a terminal's Ctrl-C: host and its relay
-        _, err = host.communicate(timeout=30)
+        host.wait(timeout=HANG_S)
+        reader.join(HANG_S)
+        err = "".join(lines)
         assert host.returncode == 130, err
         # it says how to resume: the same command again
         assert "to resume, run the same command again" in err and f"--out {out}" in err, err

@@ -125,6 +125,7 @@ def files(tmp_path_factory):
     return tmp_path_factory.mktemp("hostile-files")
 
 
+@pytest.mark.serial
 @pytest.mark.timeout(300)
 def test_hostile_uploads_are_refused_in_bounded_time(hostile_server, files):
     results = []
@@ -166,6 +167,7 @@ def test_hostile_uploads_are_refused_in_bounded_time(hostile_server, files):
         assert not p.is_file() or secret not in p.read_bytes()
 
 
+@pytest.mark.serial
 @pytest.mark.timeout(300)
 def test_every_plan_parameter_at_hostile_values(hostile_server):
     cases = plan_cases()
@@ -196,6 +198,7 @@ def test_every_plan_parameter_at_hostile_values(hostile_server):
     health.assert_answered_in_time()
 
 
+@pytest.mark.serial
 @pytest.mark.timeout(300)
 def test_every_reconstruction_option_at_hostile_values(hostile_server):
     """Each option, the method and the input ids at 0, -1, 1e300, NaN, inf, a string and
@@ -217,6 +220,7 @@ def test_every_reconstruction_option_at_hostile_values(hostile_server):
     health.assert_answered_in_time()
 
 
+@pytest.mark.serial
 @pytest.mark.timeout(300)
 def test_a_flood_of_uploads_is_bounded(hostile_server, files):
     """More uploads at once than the import slots (FPSCAN_IMPORT_WORKERS=1: one importing,

@@ -206,6 +206,7 @@ def _health_lab_load(what: str, url: str, nice: int = 0, **kw):
                             **kw)
 
 
+@pytest.mark.serial
 @pytest.mark.timeout(300)
 def test_health_stays_fast_while_the_largest_plans_are_made_and_read(tmp_path):
     """Issue 22.3's bound: 4 clients make and read plans of 262 144 points (a full 512 x 512

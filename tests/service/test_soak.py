@@ -55,6 +55,7 @@ def _check_health_latency(latencies: list[float]) -> None:
         assert h99 <= HEALTH_P99_FULL_S, f"/api/health p99 {1e3 * h99:.0f} ms under {CLIENTS} clients"
 
 
+@pytest.mark.serial
 @needs_recon
 @pytest.mark.slow
 @pytest.mark.timeout(600)

@@ -65,6 +65,7 @@ def test_a_tv_job_stops_at_its_time_limit_and_its_volume_says_so(tv_server):
     assert params["time_limit"] == 1.0 and params["iterations"] < 100000
 
 
+@pytest.mark.serial
 @needs_recon
 @pytest.mark.timeout(240)
 def test_cancel_acts_within_2_s_of_the_request_on_a_long_tv_job(tv_server):

@@ -46,6 +46,7 @@ def full_server(tmp_path):
     srv.stop()
 
 
+@pytest.mark.serial
 def test_the_issue_bomb_is_refused_over_http_and_nothing_large_is_written(bomb_server, tmp_path):
     bomb = gzip_fill_bomb(BOMB_SHAPE)(tmp_path)
     declared = BOMB_SHAPE[0] * BOMB_SHAPE[1] * 4
