@@ -224,7 +224,7 @@ def to_fine_grid(A: np.ndarray, grid: TemporalGrid, t0_is_zero: bool) -> np.ndar
 def from_fine_grid(R: np.ndarray, grid: TemporalGrid, t0_is_zero: bool) -> np.ndarray:
     """Adjoint of `to_fine_grid`: (n_cols, L) spread values -> (n_cols, n_t) series."""
     n_t = grid.n_t
-    V = scipy.fft.ifft(R, axis=-1, workers=-1) * grid.L  # adjoint of the forward FFT
+    V = scipy.fft.ifft(R, axis=-1, workers=-1, norm="forward")  # adjoint of the forward FFT (no 1/L)
     scale = (1.0 / grid.phihat).astype(V.real.dtype)
     if t0_is_zero:
         scale = scale.copy()
@@ -395,6 +395,7 @@ def evaluate(
     out_dtype=None,
     progress=None,
     n_chunks: int = 8,
+    groups: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray:
     """Evaluate the even-extended transform of every column at omega = c |k|.
 
@@ -404,9 +405,11 @@ def evaluate(
     the temporal Nyquist pi/dt (DESIGN §3.1); False multiplies by qw only.
     progress: optional callable(fraction in (0, 1]) called after each of up to ``n_chunks``
     chunks of column groups (fewer for small transforms).
+    groups: `group_columns` (klat2) when the caller keeps it (an operator applied many
+    times); None: computed here.
     Returns (n_cols, n_kz) complex.
     """
-    gvals, gptr, order = group_columns(klat2)
+    gvals, gptr, order = group_columns(klat2) if groups is None else groups
     out = np.empty((U.shape[0], len(kz)), dtype=out_dtype or U.dtype)
     kz = np.asarray(kz, np.float64)
     qw = np.asarray(qw, np.float64)
@@ -436,10 +439,12 @@ def spread(
     c: float,
     dt: float,
     t0: float,
+    groups: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray:
     """Adjoint of `evaluate` with ``inversion=False``: (n_cols, n_kz) coefficients ->
-    (n_cols, L) spread fine-grid values (input of `from_fine_grid`)."""
-    gvals, gptr, order = group_columns(klat2)
+    (n_cols, L) spread fine-grid values (input of `from_fine_grid`); ``groups`` as
+    `evaluate`."""
+    gvals, gptr, order = group_columns(klat2) if groups is None else groups
     ctype = np.complex64 if B.dtype == np.complex64 else np.complex128
     R = np.zeros((B.shape[0], grid.L), dtype=ctype)
     _spread_kernel(B, gvals, gptr, order, np.asarray(kz, np.float64), np.asarray(qw, np.float64),
