@@ -221,10 +221,12 @@ def to_fine_grid(A: np.ndarray, grid: TemporalGrid, t0_is_zero: bool) -> np.ndar
     return U
 
 
-def from_fine_grid(R: np.ndarray, grid: TemporalGrid, t0_is_zero: bool) -> np.ndarray:
-    """Adjoint of `to_fine_grid`: (n_cols, L) spread values -> (n_cols, n_t) series."""
+def from_fine_grid(R: np.ndarray, grid: TemporalGrid, t0_is_zero: bool, overwrite: bool = False) -> np.ndarray:
+    """Adjoint of `to_fine_grid`: (n_cols, L) spread values -> (n_cols, n_t) series.
+    ``overwrite``: R may be overwritten (no second fine grid at the peak)."""
     n_t = grid.n_t
-    V = scipy.fft.ifft(R, axis=-1, workers=-1, norm="forward")  # adjoint of the forward FFT (no 1/L)
+    # adjoint of the forward FFT (no 1/L)
+    V = scipy.fft.ifft(R, axis=-1, workers=-1, norm="forward", overwrite_x=overwrite)
     scale = (1.0 / grid.phihat).astype(V.real.dtype)
     if t0_is_zero:
         scale = scale.copy()

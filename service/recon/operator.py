@@ -9,10 +9,10 @@ pylops/pyproximal solver runs on it; `forward` / `adjoint` take and return array
 natural shapes.
 
 The discrete sums (periodic case; the non-periodic default first zero-pads p0 to the
-shape (N_z, N_y, N_x) that `forward_grid` / `forward_points` use, so that no periodic
-image reaches a sensor within the record, and crops/embeds accordingly). With
-F(k_lat, k_z,l) = dz Σ_x e^{-i k_lat·x} DCT-I_z(p0)_l on the DFT lateral wavenumbers and
-k_z,l = l Δk, Δk = π / ((N_z - 1) dz), τ_0 = τ_last = ½, τ_l = 1 otherwise::
+working grid (N_z, N_y, N_x) = `padded_shape`, the one `forward_grid` / `forward_points`
+use, and crops/embeds accordingly). With F(k_lat, k_z,l) = dz Σ_x e^{-i k_lat·x}
+DCT-I_z(p0)_l on the DFT lateral wavenumbers and k_z,l = l Δk, Δk = π / ((N_z - 1) dz),
+τ_0 = τ_last = ½, τ_l = 1 otherwise::
 
     G(k_lat, t_n) = (Δk / 4π) Σ_l τ_l F(k_lat, k_z,l) 2 cos(c |k| t_n),   t_n = t0 + n dt
     forward (grid):   g(x, t_n)   = IDFT_lat G(·, t_n)(x)
@@ -24,7 +24,48 @@ reverse: lateral DFT of the data (grid) or a type-1 NUFFT from the sensor positi
 Σ_m g_m e^{-i k·x_m} symmetrised to a Hermitian spectrum (points); the temporal type-2
 NUFFT Σ_n a_n 2 cos(c |k| t_n) times dz Δk / 4π; the DCT-I in depth with both end rows
 halved; the inverse lateral DFT; crop to the image. ⟨A x, y⟩ = ⟨x, Aᴴ y⟩ holds to the
-NUFFT tolerance (dot test ~1e-12 at eps = 1e-12).
+NUFFT tolerance (dot test ~1e-12 at eps = 1e-12 in float64, ~1e-6 in float32).
+
+Padding (`driver.physics.forward._pad_sizes`)
+---------------------------------------------
+The trigonometric model is periodic: laterally with period N dx, in depth (DCT-I) with
+period 2 (N_z - 1) dz about the sensor plane. The data are exact free-space data of the
+band-limited p0 as long as no periodic image of the image reaches a sensor within the
+record, t <= t_last = t0 + (n_t - 1) dt. A source at depth z and lateral offset r from a
+sensor is heard from time sqrt(z² + r²) / c on, never earlier (causality, in 2-D and
+3-D alike), so:
+
+- laterally, the gap between the image (and the sensors) and its nearest periodic copy,
+  N dx - (n - 1) dx, must exceed the record's reach c t_last; the source that needs it
+  is one in row 0 (a deeper one arrives later: sqrt(z² + r²) >= r), so the image's depth
+  gives no discount. Sensors outside the image widen the gap by their overhang;
+- in depth, the nearest non-physical image of a source at depth z lies at
+  2 (N_z - 1) dz - z, so 2 (N_z - 1) dz >= c t_last + (n_z - 1) dz; no padding at all
+  when the image already reaches deeper than half of that.
+
+Both get half a sample and two pitches of margin (the band-limited interpolant of a
+voxel is not compactly supported) and are rounded up to fast FFT lengths
+(`driver.physics.fast_lengths`: the DCT-I's 2 (N_z - 1) and x's real FFT 5-smooth, y's
+complex FFT 7-smooth; N_y = N_x where that pads at most 15 % more, so that columns of
+equal |k_lat| share their temporal taps). Beyond that no padding reaches a sensor in the
+record, hence the model is exact for it: tests/recon/test_recon_operator.py compares a
+source touching the image's edge and its deepest row with the analytic free-space field
+(2-D and 3-D, grid and points: ~3e-6 of the peak; the periodic model is off by more than
+the peak). The cost of a pair therefore grows with c t_last / dx: the padded lateral area
+is (n + c t_last / dx)² against NER's n².
+
+Cost
+----
+Everything that does not depend on the vector is made once per operator: the |k_lat|
+groups of the temporal step, its fine grid, and the lateral NUFFT plans (point sensors;
+`driver.physics.nufft_plans`). The transforms run in the working precision (float32:
+complex64 and single-precision lateral NUFFTs at tolerance max(eps, 2e-5), oversampling
+1.25; float64: complex128). The lateral FFTs skip what is known to be zero or cropped:
+the forward transforms only the image's n_z rows (the padding rows are zero) and the
+adjoint's inverse transforms only the image's rows and the n_y lines kept; the point
+forward runs the temporal step on the half spectrum and completes it by Hermitian
+symmetry for the type-2 NUFFT. `benchmarks/bench_tv_operator.py` times a pair against one
+NER of the same image.
 
 The adjoint is not the inverse: the inverse is the NER/NEDNER reconstruction
 (`reconstruct_grid` / `reconstruct_points`), which weights k-space by k_z/ω instead.
@@ -59,8 +100,8 @@ class PlanarOperator(pylops.LinearOperator):
     t0 : time of sample 0 in s (>= 0). eps : NUFFT tolerance in [1e-14, 1e-1].
     periodic : keep the grid's lateral/depth periodicity (no zero padding); the default
         False models free space exactly as `forward_grid` / `forward_points` do.
-    dtype : float32 or float64: dtype of the arrays returned (the transforms themselves
-        run in float64/complex128).
+    dtype : float32 or float64: dtype of the arrays returned and working precision of the
+        transforms (complex64 / complex128).
 
     Attributes
     ----------
@@ -186,12 +227,12 @@ class PlanarOperator(pylops.LinearOperator):
         `forward_points` with the same parameters (to the NUFFT tolerance), computed in
         the operator's working precision."""
         p0 = self._check("p0", p0, self.ishape)
-        return self._forward(p0)
+        return self._apply_forward(p0)
 
     def adjoint(self, data) -> np.ndarray:
         """Aᴴ data: the true adjoint of `forward` (not its inverse), `oshape` -> `ishape`."""
         data = self._check("data", data, self.oshape)
-        return self._adjoint(data)
+        return self._apply_adjoint(data)
 
     def _lateral_spectrum(self, vol: np.ndarray) -> np.ndarray:
         """(m, n_y, n_x) real -> (m, N_y, N_x//2+1) half spectrum of its zero-padded,
@@ -226,7 +267,7 @@ class PlanarOperator(pylops.LinearOperator):
         out = scipy.fft.irfft(S, n=n_x2, axis=2, workers=-1)
         return out[:, :, ox : ox + n_x] if n_x2 != n_x else out
 
-    def _forward(self, p0: np.ndarray) -> np.ndarray:
+    def _apply_forward(self, p0: np.ndarray) -> np.ndarray:
         n_z2, n_y2, n_x2 = self.padded_shape
         n_z = self._vol[0]
         cols = n_y2 * self._n_xr
@@ -239,7 +280,7 @@ class PlanarOperator(pylops.LinearOperator):
         R = nufft.spread(B, self._grid, self._klat2, self._kz, self._qw_forward, self.c, self.dt, self.t0,
                          groups=self._groups)
         del B
-        G = nufft.from_fine_grid(R, self._grid, t0_is_zero=False)  # (cols, n_t)
+        G = nufft.from_fine_grid(R, self._grid, t0_is_zero=False, overwrite=True)  # (cols, n_t)
         del R
         T = np.empty((self.n_t, cols), dtype=self._ctype)
         nufft.transpose(G, T)
@@ -264,7 +305,7 @@ class PlanarOperator(pylops.LinearOperator):
         if n_x2 > n_xr:
             iy = (-np.arange(n_y2)) % n_y2
             ix = n_x2 - np.arange(n_xr, n_x2)
-            np.conjugate(T[:, iy][:, :, ix], out=full[:, :, n_xr:])
+            np.conjugate(T[:, :, ix][:, iy], out=full[:, :, n_xr:])
         return full
 
     def _dct1(self, B: np.ndarray) -> np.ndarray:
@@ -275,7 +316,7 @@ class PlanarOperator(pylops.LinearOperator):
         out = scipy.fft.dct(re, type=1, axis=1, overwrite_x=True, workers=-1)
         return np.ascontiguousarray(out).reshape(B.shape[0], 2 * n).view(self._ctype)
 
-    def _adjoint(self, data: np.ndarray) -> np.ndarray:
+    def _apply_adjoint(self, data: np.ndarray) -> np.ndarray:
         n_z2, n_y2, n_x2 = self.padded_shape
         n_z, n_y, n_x = self._vol
         cols = n_y2 * self._n_xr
@@ -311,7 +352,7 @@ class PlanarOperator(pylops.LinearOperator):
         # Re(·) in the forward -> Hermitian part here: ½ (Y(k) + conj Y(-k)), FFT index order
         iy = (-np.arange(n_y)) % n_y
         ix = (-np.arange(n_x // 2 + 1)) % n_x
-        H = np.conjugate(Y[:, iy][:, :, ix])
+        H = np.conjugate(Y[:, :, ix][:, iy])
         H += Y[:, :, : n_x // 2 + 1]
         H *= 0.5
         return H
@@ -319,7 +360,7 @@ class PlanarOperator(pylops.LinearOperator):
     # -- pylops ------------------------------------------------------------------
     def _matvec(self, x):
         # solver vectors: flat, finite, in the working dtype; reshapes are views
-        return self._forward(np.asarray(x, dtype=self.dtype).reshape(self.ishape)).ravel()
+        return self._apply_forward(np.asarray(x, dtype=self.dtype).reshape(self.ishape)).ravel()
 
     def _rmatvec(self, y):
-        return self._adjoint(np.asarray(y, dtype=self.dtype).reshape(self.oshape)).ravel()
+        return self._apply_adjoint(np.asarray(y, dtype=self.dtype).reshape(self.oshape)).ravel()
