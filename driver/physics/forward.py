@@ -68,12 +68,15 @@ def _pad_sizes(shape, dx, dz, dt, n_t, c, t0, extra_lateral=0.0):
     record's reach c (t0 + (n_t - 1) dt); a deeper source (depth z) is heard later,
     sqrt(z² + r²) / c, so row 0 sets the bound. Depth: the DCT-I's period 2 (N_z - 1) dz
     puts the nearest non-physical image of a source at depth z at 2 (N_z - 1) dz - z,
-    hence 2 (N_z - 1) dz >= reach + (n_z - 1) dz. ``reach`` adds half a sample and two
-    pitches: the band-limited interpolant of a voxel is not compactly supported."""
+    hence 2 (N_z - 1) dz >= reach + (n_z - 1) dz. The reach adds half a sample and two
+    pitches laterally (max(dx, dz)) and one in depth (dz): the band-limited interpolant of a voxel
+    is not compactly supported."""
     n_z, n_y, n_x = shape
-    reach = c * (t0 + (n_t - 0.5) * dt) + 2 * max(dx, dz)
+    record = c * (t0 + (n_t - 0.5) * dt)
+    reach = record + 2 * max(dx, dz)
     depth = (n_z - 1) * dz
-    k_min = int(math.ceil((reach + depth) / (2 * dz))) + 2
+    # 2 (N_z - 1) dz >= the record's reach + one depth pitch + the image's depth
+    k_min = int(math.ceil((record + dz + depth) / (2 * dz))) + 1
     n_z2 = fast_dct1_rows(max(n_z, k_min))
 
     def lateral(n, is_singleton, real, at_least=1):

@@ -43,15 +43,19 @@ sensor is heard from time sqrt(z² + r²) / c on, never earlier (causality, in 2
   2 (N_z - 1) dz - z, so 2 (N_z - 1) dz >= c t_last + (n_z - 1) dz; no padding at all
   when the image already reaches deeper than half of that.
 
-Both get half a sample and two pitches of margin (the band-limited interpolant of a
-voxel is not compactly supported) and are rounded up to fast FFT lengths
+Both get a margin of half a sample and two lateral pitches (depth: one pitch) and are
+rounded up to fast FFT lengths
 (`driver.physics.fast_lengths`: the DCT-I's 2 (N_z - 1) and x's real FFT 5-smooth, y's
 complex FFT 7-smooth; N_y = N_x where that pads at most 15 % more, so that columns of
 equal |k_lat| share their temporal taps). Beyond that no padding reaches a sensor in the
 record, hence the model is exact for it: tests/recon/test_recon_operator.py compares a
 source touching the image's edge and its deepest row with the analytic free-space field
 (2-D and 3-D, grid and points: ~3e-6 of the peak; the periodic model is off by more than
-the peak). The cost of a pair therefore grows with c t_last / dx: the padded lateral area
+the peak). The rule is exact for what the record can hear, not for the trigonometric
+interpolant's own tails: a source with a sharp edge at the image's border (a voxel-sized
+box in its deepest corner) has sinc tails beyond the image whose periodic copies decay
+only as 1/distance, and differs from a three times larger working grid by a few per cent
+of its peak near the end of the record (with more margin as well: 2 % at five samples). The cost of a pair therefore grows with c t_last / dx: the padded lateral area
 is (n + c t_last / dx)² against NER's n².
 
 Cost

@@ -217,3 +217,6 @@ def test_padding_reaches_exactly_as_far_as_the_record():
                        and (m - 1) * dx >= need]
             assert smaller == [] or square, (shape, n2, smaller)
         assert 2 * (n_z2 - 1) * DZ >= reach + (n_t - 1) * DZ and largest_prime_factor(2 * (n_z2 - 1)) <= 5
+        need_z = C * (n_t - 0.5) * DT + DZ + (n_t - 1) * DZ  # depth: half a sample and a pitch of margin
+        assert not [k for k in range(n_t, n_z2) if largest_prime_factor(2 * (k - 1)) <= 5
+                    and 2 * (k - 1) * DZ >= need_z], (shape, n_z2)
