@@ -360,9 +360,12 @@ def _spread_kernel(B, gvals, gptr, order, kz, qw, c, dt, t0, h, L, kind, w, hc, 
             # conjugates of the interpolation phases
             pp[j] = complex(math.cos(ph), math.sin(ph)) * qw[j]
             pm[j] = complex(math.cos(ph), -math.sin(ph)) * qw[j]
+        # one column's fine grid accumulates in double precision, then is stored once
+        # (R of complex64 would otherwise convert on every tap)
+        r = np.empty(L, np.complex128)
         for ci in range(gptr[g], gptr[g + 1]):
             col = order[ci]
-            r = R[col]
+            r[:] = 0.0
             for j in range(nkz):
                 v = B[col, j]
                 if v == 0:
@@ -382,6 +385,9 @@ def _spread_kernel(B, gvals, gptr, order, kz, qw, c, dt, t0, h, L, kind, w, hc, 
                         wk = wts[j, k]
                         r[ip[j, k]] += wk * vp
                         r[im[j, k]] += wk * vm
+            out = R[col]
+            for i in range(L):
+                out[i] = r[i]
 
 
 def evaluate(
