@@ -140,14 +140,15 @@ def test_analytic_field_oracles_start_from_p0():
     np.testing.assert_allclose(field_3d(r, np.zeros_like(r)), np.exp(-r**2 / (2 * SIGMA**2)), atol=1e-12)
 
 
+@pytest.mark.parametrize("t0", [0.0, 1e-8])
 @pytest.mark.parametrize("sensors", ["grid", "points"])
 @pytest.mark.parametrize("shape", [(22, 24), (22, 20, 20)], ids=["2d", "3d"])
-def test_edge_source_matches_free_space(shape, sensors):
+def test_edge_source_matches_free_space(shape, sensors, t0):
     """A smooth source touching the image's lateral edge (and, in 3-D, its corner) and its
     deepest row: the zero-padded model gives the analytic free-space A-lines at every
     sensor to 1e-3 of their peak, over a record long enough for the source's periodic
     images to reach the far sensors if the padding were short (periodic: far off)."""
-    n_t, t0 = 56, 1e-8
+    n_t = 56
     edge = int(np.ceil(4.5 * SIGMA / DX))  # the source's 4.5σ support touches the edges
     centre = (shape[0] - 1 - int(np.ceil(4.5 * SIGMA / DZ)),) + tuple(n - 1 - edge for n in shape[1:])
     p0, source = gaussian_p0(shape, centre)
