@@ -22,6 +22,22 @@ The padding the free-space model needs grows with the record's reach c·t_last i
 (here n_t · 12 µm / 60 µm = n_t / 5 pitches on each side's gap), so the ratio depends on
 n_t / n_x: the 226² case runs with 256 samples (a quarter of the paper's 1024) to fit
 a 2-core, few-GiB machine; ``--sizes 1024x226x226`` runs the paper's.
+
+Measured (2-core machine shared with other jobs, load 5-6: wall times scatter by ±30 %,
+CPU-time ratios are steadier), pair / NER as CPU-time ratio (wall in brackets):
+
+    size           dtype     working grid      before (complex128, old padding)  after
+    128x128x128    float32   129 x 160 x 160   4.50 (9.2)                        3.0-3.5 (2.9-3.2)
+    128x128x128    float64   129 x 160 x 160   3.69 (3.9)                        3.0-3.4 (3.1-4.9)
+    256x226x226    float32   257 x 288 x 288   8.08 (9.9)                        2.55 (2.78)
+    256x226x226    float64   257 x 288 x 288   5.54 (4.7)                        2.18 (1.84)
+    128x128x128 at 1653 random lattice sensors, pair / NEDNER: float32 2.19 -> 1.00, float64 2.23 -> 1.49
+
+At 128 x 128² the padded lateral area alone is 1.56x NER's (160² half spectrum against
+128²), so two transforms cost at least ~3.1 NERs at NER's own cost per element; the
+exact free-space model cannot pad less (`service.recon.operator`, Padding). At the
+paper's 1024 samples the reach is 205 pitches and the working grid 450 x 450: expect
+about 7x.
 """
 from __future__ import annotations
 
