@@ -221,10 +221,12 @@ def to_fine_grid(A: np.ndarray, grid: TemporalGrid, t0_is_zero: bool) -> np.ndar
     return U
 
 
-def from_fine_grid(R: np.ndarray, grid: TemporalGrid, t0_is_zero: bool) -> np.ndarray:
-    """Adjoint of `to_fine_grid`: (n_cols, L) spread values -> (n_cols, n_t) series."""
+def from_fine_grid(R: np.ndarray, grid: TemporalGrid, t0_is_zero: bool, overwrite: bool = False) -> np.ndarray:
+    """Adjoint of `to_fine_grid`: (n_cols, L) spread values -> (n_cols, n_t) series.
+    ``overwrite``: R may be overwritten (no second fine grid at the peak)."""
     n_t = grid.n_t
-    V = scipy.fft.ifft(R, axis=-1, workers=-1) * grid.L  # adjoint of the forward FFT
+    # adjoint of the forward FFT (no 1/L)
+    V = scipy.fft.ifft(R, axis=-1, workers=-1, norm="forward", overwrite_x=overwrite)
     scale = (1.0 / grid.phihat).astype(V.real.dtype)
     if t0_is_zero:
         scale = scale.copy()
@@ -358,9 +360,12 @@ def _spread_kernel(B, gvals, gptr, order, kz, qw, c, dt, t0, h, L, kind, w, hc, 
             # conjugates of the interpolation phases
             pp[j] = complex(math.cos(ph), math.sin(ph)) * qw[j]
             pm[j] = complex(math.cos(ph), -math.sin(ph)) * qw[j]
+        # one column's fine grid accumulates in double precision, then is stored once
+        # (R of complex64 would otherwise convert on every tap)
+        r = np.empty(L, np.complex128)
         for ci in range(gptr[g], gptr[g + 1]):
             col = order[ci]
-            r = R[col]
+            r[:] = 0.0
             for j in range(nkz):
                 v = B[col, j]
                 if v == 0:
@@ -380,6 +385,9 @@ def _spread_kernel(B, gvals, gptr, order, kz, qw, c, dt, t0, h, L, kind, w, hc, 
                         wk = wts[j, k]
                         r[ip[j, k]] += wk * vp
                         r[im[j, k]] += wk * vm
+            out = R[col]
+            for i in range(L):
+                out[i] = r[i]
 
 
 def evaluate(
@@ -395,6 +403,7 @@ def evaluate(
     out_dtype=None,
     progress=None,
     n_chunks: int = 8,
+    groups: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray:
     """Evaluate the even-extended transform of every column at omega = c |k|.
 
@@ -404,9 +413,11 @@ def evaluate(
     the temporal Nyquist pi/dt (DESIGN §3.1); False multiplies by qw only.
     progress: optional callable(fraction in (0, 1]) called after each of up to ``n_chunks``
     chunks of column groups (fewer for small transforms).
+    groups: `group_columns` (klat2) when the caller keeps it (an operator applied many
+    times); None: computed here.
     Returns (n_cols, n_kz) complex.
     """
-    gvals, gptr, order = group_columns(klat2)
+    gvals, gptr, order = group_columns(klat2) if groups is None else groups
     out = np.empty((U.shape[0], len(kz)), dtype=out_dtype or U.dtype)
     kz = np.asarray(kz, np.float64)
     qw = np.asarray(qw, np.float64)
@@ -436,10 +447,12 @@ def spread(
     c: float,
     dt: float,
     t0: float,
+    groups: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray:
     """Adjoint of `evaluate` with ``inversion=False``: (n_cols, n_kz) coefficients ->
-    (n_cols, L) spread fine-grid values (input of `from_fine_grid`)."""
-    gvals, gptr, order = group_columns(klat2)
+    (n_cols, L) spread fine-grid values (input of `from_fine_grid`); ``groups`` as
+    `evaluate`."""
+    gvals, gptr, order = group_columns(klat2) if groups is None else groups
     ctype = np.complex64 if B.dtype == np.complex64 else np.complex128
     R = np.zeros((B.shape[0], grid.L), dtype=ctype)
     _spread_kernel(B, gvals, gptr, order, np.asarray(kz, np.float64), np.asarray(qw, np.float64),

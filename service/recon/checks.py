@@ -266,16 +266,20 @@ def tv_memory(image_shape, padded_shape, n_data: int, n_t: int, dtype=np.float64
     """Estimated peak bytes of the model-based reconstruction (`service.recon.tv`): the
     solver's image-sized vectors (p, its previous and extrapolated values, Kᵀy, and the
     stacked K p with its d gradient components, twice) in ``dtype``, three data-sized
-    vectors, and the operator's float64/complex128 working arrays on the padded grid
-    (lateral spectrum, temporal fine grid, k-space image: about 10 complex values per
-    padded half-spectrum column and depth row), plus 30 % (a 64 x 64 x 256 run peaked at
-    0.72 GiB above the interpreter against 0.72 GiB estimated with 10 %)."""
+    vectors, and the operator's working arrays on the padded grid in its working
+    precision (complex64 for float32, complex128 for float64;
+    `service.recon.operator.PlanarOperator`): at its peak the temporal fine grid (L per
+    padded half-spectrum column, `driver.physics.nufft.grid_length`) beside the k-space
+    image (max(N_z, n_t) per column), plus 30 % (allocator, FFT buffers, the warm start's
+    leftovers; tests/service/test_memory_admission.py measures it within 25 %)."""
+    from driver.physics.nufft import grid_length
+
     b = np.dtype(dtype).itemsize
     n_img = int(np.prod(image_shape))
     d = sum(1 for n in image_shape if n > 1)
     solver = (4 + 2 * d) * n_img * b + 3 * n_data * b
     nz2, ny2, nx2 = padded_shape
-    operator = 10 * 16 * max(nz2, n_t) * ny2 * (nx2 // 2 + 1)
+    operator = 2 * b * ny2 * (nx2 // 2 + 1) * (grid_length(n_t) + max(nz2, n_t))
     return int(1.3 * (solver + operator))
 
 

@@ -9,10 +9,10 @@ pylops/pyproximal solver runs on it; `forward` / `adjoint` take and return array
 natural shapes.
 
 The discrete sums (periodic case; the non-periodic default first zero-pads p0 to the
-shape (N_z, N_y, N_x) that `forward_grid` / `forward_points` use, so that no periodic
-image reaches a sensor within the record, and crops/embeds accordingly). With
-F(k_lat, k_z,l) = dz Σ_x e^{-i k_lat·x} DCT-I_z(p0)_l on the DFT lateral wavenumbers and
-k_z,l = l Δk, Δk = π / ((N_z - 1) dz), τ_0 = τ_last = ½, τ_l = 1 otherwise::
+working grid (N_z, N_y, N_x) = `padded_shape`, the one `forward_grid` / `forward_points`
+use, and crops/embeds accordingly). With F(k_lat, k_z,l) = dz Σ_x e^{-i k_lat·x}
+DCT-I_z(p0)_l on the DFT lateral wavenumbers and k_z,l = l Δk, Δk = π / ((N_z - 1) dz),
+τ_0 = τ_last = ½, τ_l = 1 otherwise::
 
     G(k_lat, t_n) = (Δk / 4π) Σ_l τ_l F(k_lat, k_z,l) 2 cos(c |k| t_n),   t_n = t0 + n dt
     forward (grid):   g(x, t_n)   = IDFT_lat G(·, t_n)(x)
@@ -24,7 +24,52 @@ reverse: lateral DFT of the data (grid) or a type-1 NUFFT from the sensor positi
 Σ_m g_m e^{-i k·x_m} symmetrised to a Hermitian spectrum (points); the temporal type-2
 NUFFT Σ_n a_n 2 cos(c |k| t_n) times dz Δk / 4π; the DCT-I in depth with both end rows
 halved; the inverse lateral DFT; crop to the image. ⟨A x, y⟩ = ⟨x, Aᴴ y⟩ holds to the
-NUFFT tolerance (dot test ~1e-12 at eps = 1e-12).
+NUFFT tolerance (dot test ~1e-12 at eps = 1e-12 in float64, ~1e-6 in float32).
+
+Padding (`driver.physics.forward._pad_sizes`)
+---------------------------------------------
+The trigonometric model is periodic: laterally with period N dx, in depth (DCT-I) with
+period 2 (N_z - 1) dz about the sensor plane. The data are exact free-space data of the
+band-limited p0 as long as no periodic image of the image reaches a sensor within the
+record, t <= t_last = t0 + (n_t - 1) dt. A source at depth z and lateral offset r from a
+sensor is heard from time sqrt(z² + r²) / c on, never earlier (causality, in 2-D and
+3-D alike), so:
+
+- laterally, the gap between the image (and the sensors) and its nearest periodic copy,
+  N dx - (n - 1) dx, must exceed the record's reach c t_last; the source that needs it
+  is one in row 0 (a deeper one arrives later: sqrt(z² + r²) >= r), so the image's depth
+  gives no discount. Sensors outside the image widen the gap by their overhang;
+- in depth, the nearest non-physical image of a source at depth z lies at
+  2 (N_z - 1) dz - z, so 2 (N_z - 1) dz >= c t_last + (n_z - 1) dz; no padding at all
+  when the image already reaches deeper than half of that.
+
+Both get a margin of half a sample and two lateral pitches (depth: one pitch) and are
+rounded up to fast FFT lengths
+(`driver.physics.fast_lengths`: the DCT-I's 2 (N_z - 1) and x's real FFT 5-smooth, y's
+complex FFT 7-smooth; N_y = N_x where that pads at most 15 % more, so that columns of
+equal |k_lat| share their temporal taps). Beyond that no padding reaches a sensor in the
+record, hence the model is exact for it: tests/recon/test_recon_operator.py compares a
+source touching the image's edge and its deepest row with the analytic free-space field
+(2-D and 3-D, grid and points: ~3e-6 of the peak; the periodic model is off by more than
+the peak). The rule is exact for what the record can hear, not for the trigonometric
+interpolant's own tails: a source with a sharp edge at the image's border (a voxel-sized
+box in its deepest corner) has sinc tails beyond the image whose periodic copies decay
+only as 1/distance, and differs from a three times larger working grid by a few per cent
+of its peak near the end of the record (with more margin as well: 2 % at five samples). The cost of a pair therefore grows with c t_last / dx: the padded lateral area
+is (n + c t_last / dx)² against NER's n².
+
+Cost
+----
+Everything that does not depend on the vector is made once per operator: the |k_lat|
+groups of the temporal step, its fine grid, and the lateral NUFFT plans (point sensors;
+`driver.physics.nufft_plans`). The transforms run in the working precision (float32:
+complex64 and single-precision lateral NUFFTs at tolerance max(eps, 2e-5), oversampling
+1.25; float64: complex128). The lateral FFTs skip what is known to be zero or cropped:
+the forward transforms only the image's n_z rows (the padding rows are zero) and the
+adjoint's inverse transforms only the image's rows and the n_y lines kept; the point
+forward runs the temporal step on the half spectrum and completes it by Hermitian
+symmetry for the type-2 NUFFT. `benchmarks/bench_tv_operator.py` times a pair against one
+NER of the same image.
 
 The adjoint is not the inverse: the inverse is the NER/NEDNER reconstruction
 (`reconstruct_grid` / `reconstruct_points`), which weights k-space by k_z/ω instead.
@@ -39,7 +84,7 @@ import scipy.fft
 
 from driver.physics import nufft
 from driver.physics.axes import centred_index
-from driver.physics.forward import _pad_sizes, forward_grid, forward_points
+from driver.physics.forward import _pad_sizes
 from driver.physics.nufft_plans import lateral_plan
 from service.recon import checks
 
@@ -59,8 +104,8 @@ class PlanarOperator(pylops.LinearOperator):
     t0 : time of sample 0 in s (>= 0). eps : NUFFT tolerance in [1e-14, 1e-1].
     periodic : keep the grid's lateral/depth periodicity (no zero padding); the default
         False models free space exactly as `forward_grid` / `forward_points` do.
-    dtype : float32 or float64: dtype of the arrays returned (the transforms themselves
-        run in float64/complex128).
+    dtype : float32 or float64: dtype of the arrays returned and working precision of the
+        transforms (complex64 / complex128).
 
     Attributes
     ----------
@@ -112,7 +157,9 @@ class PlanarOperator(pylops.LinearOperator):
         self._vol = vol
         self.padded_shape = vol if self.periodic else _pad_sizes(vol, self.dx, self.dz, self.dt, self.n_t,
                                                                    self.c, self.t0, extra_lateral=extra)
+        self._ctype = np.dtype(np.complex64 if rdtype == np.float32 else np.complex128)
         super().__init__(dtype=rdtype, dims=shape, dimsd=oshape, explicit=False, name="PlanarOperator")
+        self._setup()
 
     # -- shapes ------------------------------------------------------------------
     @property
@@ -142,85 +189,182 @@ class PlanarOperator(pylops.LinearOperator):
             raise ValueError(f"{name} must have shape {shape}, got {arr.shape}")
         return arr
 
+    # -- set-up: everything that does not depend on the vector ---------------------------
+    def _setup(self) -> None:
+        """Wavenumbers, their |k_lat| groups, depth weights, the temporal grid and the
+        lateral NUFFT plans of the working grid, made once per operator."""
+        n_z2, n_y2, n_x2 = self.padded_shape
+        n_z, n_y, n_x = self._vol
+        self._off = ((n_y2 - n_y) // 2, (n_x2 - n_x) // 2)
+        self._n_xr = n_x2 // 2 + 1
+        kx = 2 * np.pi * scipy.fft.rfftfreq(n_x2, self.dx)
+        ky = 2 * np.pi * scipy.fft.fftfreq(n_y2, self.dx)
+        self._klat2 = (ky[:, None] ** 2 + kx[None, :] ** 2).ravel()
+        self._groups = nufft.group_columns(self._klat2)
+        dk = np.pi / ((n_z2 - 1) * self.dz)
+        self._kz = dk * np.arange(n_z2)
+        tau = np.ones(n_z2)
+        tau[[0, -1]] = 0.5
+        # forward: F = dz DCT-I(p0), weight Δk τ_l / 4π (dz folded in); adjoint: dz Δk / 4π,
+        # τ applied after its DCT-I
+        self._qw_forward = self.dz * dk * tau / (4 * np.pi)
+        self._qw_adjoint = np.full(n_z2, self.dz * dk / (4 * np.pi))
+        self._grid = nufft.make_grid(self.n_t, "nufft", self.eps)
+        self._plans: tuple[Any, Any] | None = None
+        if self.positions is not None:
+            pos = self.positions
+            coords: tuple[np.ndarray, ...] = (2 * np.pi * centred_index(pos[:, 0], n_x2, self.dx) / n_x2,)
+            modes: tuple[int, ...] = (n_x2,)
+            if not self.is2d:
+                coords = (2 * np.pi * centred_index(pos[:, 1], n_y2, self.dx) / n_y2,) + coords
+                modes = (n_y2, n_x2)
+            # single precision honours about 2e-5 at oversampling 1.25 (service.recon.planar._type1);
+            # both directions share tolerance and oversampling, so they stay each other's adjoint
+            tol = max(self.eps, 2e-5) if self._ctype == np.complex64 else max(self.eps, 1e-14)
+            opts: dict[str, Any] = dict(eps=tol, dtype=self._ctype, upsampfac=1.25 if tol >= 1e-9 else 2.0)
+            self._plans = (lateral_plan(2, coords, modes, self.n_t, isign=1, **opts),
+                           lateral_plan(1, coords, modes, self.n_t, isign=-1, **opts))
+
     # -- the pair ------------------------------------------------------------------
     def forward(self, p0) -> np.ndarray:
-        """A p0: the data (`oshape`) of p0 (`ishape`), Pa -> Pa; equals `forward_grid` /
-        `forward_points` with the same parameters."""
+        """A p0: the data (`oshape`) of p0 (`ishape`), Pa -> Pa; the model of `forward_grid` /
+        `forward_points` with the same parameters (to the NUFFT tolerance), computed in
+        the operator's working precision."""
         p0 = self._check("p0", p0, self.ishape)
-        kw: dict[str, Any] = dict(t0=self.t0, eps=self.eps, periodic=self.periodic)
-        if self.positions is None:
-            g = forward_grid(p0, self.dx, self.dz, self.dt, self.n_t, self.c, **kw)
-        else:
-            g = forward_points(p0, self.dx, self.dz, self.positions, self.dt, self.n_t, self.c, **kw)
-        return g.astype(self.dtype, copy=False)
+        return self._apply_forward(p0)
 
     def adjoint(self, data) -> np.ndarray:
         """Aᴴ data: the true adjoint of `forward` (not its inverse), `oshape` -> `ishape`."""
-        data = self._check("data", data, self.oshape).astype(np.float64, copy=False)
+        data = self._check("data", data, self.oshape)
+        return self._apply_adjoint(data)
+
+    def _lateral_spectrum(self, vol: np.ndarray) -> np.ndarray:
+        """(m, n_y, n_x) real -> (m, N_y, N_x//2+1) half spectrum of its zero-padded,
+        centred embedding in the working grid; only the m given rows are transformed."""
+        m = vol.shape[0]
+        _, n_y2, n_x2 = self.padded_shape
+        _, n_y, n_x = self._vol
+        oy, ox = self._off
+        if ox or n_x2 != n_x:
+            buf = np.zeros((m, n_y, n_x2), dtype=self.dtype)
+            buf[:, :, ox : ox + n_x] = vol
+        else:
+            buf = np.ascontiguousarray(vol, dtype=self.dtype)
+        X = scipy.fft.rfft(buf, axis=2, workers=-1)
+        del buf
+        if n_y2 == 1:
+            return X
+        Y = np.zeros((m, n_y2, self._n_xr), dtype=self._ctype)
+        Y[:, oy : oy + n_y] = X
+        del X
+        return scipy.fft.fft(Y, axis=1, workers=-1, overwrite_x=True)
+
+    def _lateral_inverse(self, S: np.ndarray) -> np.ndarray:
+        """(m, N_y, N_x//2+1) half spectrum -> the image's (m, n_y, n_x) lateral window of
+        its inverse DFT (the transpose of `_lateral_spectrum` up to the DFT's 1/(N_y N_x)):
+        the x transforms run on the n_y rows kept only."""
+        _, n_y2, n_x2 = self.padded_shape
+        _, n_y, n_x = self._vol
+        oy, ox = self._off
+        if n_y2 > 1:
+            S = scipy.fft.ifft(S, axis=1, workers=-1, overwrite_x=True)[:, oy : oy + n_y]
+        out = scipy.fft.irfft(S, n=n_x2, axis=2, workers=-1)
+        return out[:, :, ox : ox + n_x] if n_x2 != n_x else out
+
+    def _apply_forward(self, p0: np.ndarray) -> np.ndarray:
+        n_z2, n_y2, n_x2 = self.padded_shape
+        n_z = self._vol[0]
+        cols = n_y2 * self._n_xr
+        Y = self._lateral_spectrum(p0.reshape(self._vol))  # (n_z, N_y, N_xr)
+        # depth: the n_z image rows of each column, zero below, DCT-I of length N_z
+        B = np.zeros((cols, n_z2), dtype=self._ctype)
+        nufft.transpose(Y.reshape(n_z, cols), B[:, :n_z])
+        del Y
+        B = self._dct1(B)
+        R = nufft.spread(B, self._grid, self._klat2, self._kz, self._qw_forward, self.c, self.dt, self.t0,
+                         groups=self._groups)
+        del B
+        G = nufft.from_fine_grid(R, self._grid, t0_is_zero=False, overwrite=True)  # (cols, n_t)
+        del R
+        T = np.empty((self.n_t, cols), dtype=self._ctype)
+        nufft.transpose(G, T)
+        del G
+        T = T.reshape(self.n_t, n_y2, self._n_xr)
+        if self.positions is None:
+            g = self._lateral_inverse(T)
+            return np.ascontiguousarray(g[:, 0, :] if self.is2d else g, dtype=self.dtype)
+        assert self._plans is not None
+        full = self._hermitian_full(T)
+        del T
+        vals = self._plans[0].execute(full[:, 0, :] if self.is2d else full)  # (n_t, n_points)
+        return np.ascontiguousarray(vals.real.T / (n_x2 * n_y2), dtype=self.dtype)
+
+    def _hermitian_full(self, T: np.ndarray) -> np.ndarray:
+        """The full lateral spectrum (n_t, N_y, N_x) of a real field from its half
+        (n_t, N_y, N_x//2+1): S(-k) = conj S(k)."""
+        n_t, n_y2, n_xr = T.shape
+        n_x2 = self.padded_shape[2]
+        full = np.empty((n_t, n_y2, n_x2), dtype=T.dtype)
+        full[:, :, :n_xr] = T
+        if n_x2 > n_xr:
+            iy = (-np.arange(n_y2)) % n_y2
+            ix = n_x2 - np.arange(n_xr, n_x2)
+            np.conjugate(T[:, :, ix][:, iy], out=full[:, :, n_xr:])
+        return full
+
+    def _dct1(self, B: np.ndarray) -> np.ndarray:
+        """DCT-I along the last axis of a complex (cols, N) array, on the real and
+        imaginary parts in place (interleaved view: no split copies)."""
+        n = B.shape[1]
+        re = B.view(self.dtype).reshape(B.shape[0], n, 2)
+        out = scipy.fft.dct(re, type=1, axis=1, overwrite_x=True, workers=-1)
+        return np.ascontiguousarray(out).reshape(B.shape[0], 2 * n).view(self._ctype)
+
+    def _apply_adjoint(self, data: np.ndarray) -> np.ndarray:
         n_z2, n_y2, n_x2 = self.padded_shape
         n_z, n_y, n_x = self._vol
-        oy, ox = (n_y2 - n_y) // 2, (n_x2 - n_x) // 2
+        cols = n_y2 * self._n_xr
         if self.positions is None:
-            vol = np.zeros((self.n_t, n_y2, n_x2))
-            vol[:, oy : oy + n_y, ox : ox + n_x] = data.reshape(self.n_t, n_y, n_x)
-            A = scipy.fft.rfft2(vol, axes=(1, 2), workers=-1)
-            del vol
+            A = self._lateral_spectrum(data.reshape(self.n_t, n_y, n_x))
         else:
-            A = self._spectrum_at_points(data, n_y2, n_x2)
-        p = self._adjoint_core(A, n_z2, n_y2, n_x2)[:n_z, oy : oy + n_y, ox : ox + n_x]
+            A = self._spectrum_at_points(data)
+        U = nufft.to_fine_grid(A.reshape(self.n_t, cols), self._grid, t0_is_zero=False)
+        del A
+        F = nufft.evaluate(U, self._grid, self._klat2, self._kz, self._qw_adjoint, self.c, self.dt, self.t0,
+                           inversion=False, n_chunks=1, groups=self._groups)
+        del U
+        F = self._dct1(F)
+        K = np.empty((n_z, cols), dtype=self._ctype)  # the image's rows only
+        nufft.transpose(F[:, :n_z], K)
+        del F
+        K[0] *= 0.5  # DCT-Iᵀ = diag(τ) DCT-I diag(1/τ), τ = ½ at both ends
+        if n_z == n_z2:
+            K[-1] *= 0.5
+        p = self._lateral_inverse(K.reshape(n_z, n_y2, self._n_xr))
         p = p[:, 0, :] if self.is2d else p
         return np.ascontiguousarray(p, dtype=self.dtype)
 
-    def _spectrum_at_points(self, data: np.ndarray, n_y: int, n_x: int) -> np.ndarray:
+    def _spectrum_at_points(self, data: np.ndarray) -> np.ndarray:
         """Adjoint of the type-2 point evaluation: Hermitian part of the type-1 NUFFT
-        Σ_m g_m(t) e^{-i k·x_m}, as an rfft2-shaped half spectrum (n_t, n_y, n_x//2+1)."""
-        pos = self.positions
-        assert pos is not None  # point data only
-        strengths = np.ascontiguousarray(data.T).astype(np.complex128)  # (n_t, n_points)
-        tx = 2 * np.pi * centred_index(pos[:, 0], n_x, self.dx) / n_x
-        # planned once per mask (driver.physics.nufft_plans): every iteration only executes
-        eps = max(self.eps, 1e-14)
-        if self.is2d:
-            plan = lateral_plan(1, (tx,), (n_x,), self.n_t, eps=eps, isign=-1, dtype=np.complex128)
-            Y = plan.execute(strengths)[:, None, :]
-        else:
-            ty = 2 * np.pi * centred_index(pos[:, 1], n_y, self.dx) / n_y
-            plan = lateral_plan(1, (ty, tx), (n_y, n_x), self.n_t, eps=eps, isign=-1, dtype=np.complex128)
-            Y = plan.execute(strengths)
+        Σ_m g_m(t) e^{-i k·x_m}, as an rfft2-shaped half spectrum (n_t, N_y, N_x//2+1)."""
+        assert self._plans is not None  # point data only
+        _, n_y, n_x = self.padded_shape
+        strengths = np.ascontiguousarray(data.T, dtype=self._ctype)  # (n_t, n_points)
+        Y = self._plans[1].execute(strengths)
         del strengths
+        Y = Y.reshape(self.n_t, n_y, n_x)
         # Re(·) in the forward -> Hermitian part here: ½ (Y(k) + conj Y(-k)), FFT index order
         iy = (-np.arange(n_y)) % n_y
         ix = (-np.arange(n_x // 2 + 1)) % n_x
-        return 0.5 * (Y[:, :, : n_x // 2 + 1] + np.conj(Y[:, iy][:, :, ix]))
-
-    def _adjoint_core(self, A: np.ndarray, n_z: int, n_y: int, n_x: int) -> np.ndarray:
-        """Transpose of the periodic forward model on the working grid: half lateral
-        spectrum of the data (n_t, n_y, n_x//2+1) -> image (n_z, n_y, n_x)."""
-        n_xr = n_x // 2 + 1
-        kx = 2 * np.pi * scipy.fft.rfftfreq(n_x, self.dx)
-        ky = 2 * np.pi * scipy.fft.fftfreq(n_y, self.dx)
-        klat2 = (ky[:, None] ** 2 + kx[None, :] ** 2).ravel()
-        dk = np.pi / ((n_z - 1) * self.dz)
-        kz = dk * np.arange(n_z)
-        qw = np.full(n_z, self.dz * dk / (4 * np.pi))
-        grid = nufft.make_grid(self.n_t, "nufft", self.eps)
-        U = nufft.to_fine_grid(A.reshape(self.n_t, n_y * n_xr), grid, t0_is_zero=False)
-        del A
-        F = nufft.evaluate(U, grid, klat2, kz, qw, self.c, self.dt, self.t0, inversion=False, n_chunks=1)
-        del U
-        re = F.view(np.float64).reshape(F.shape[0], n_z, 2)  # DCT-I of real and imaginary parts
-        F = scipy.fft.dct(re, type=1, axis=1, overwrite_x=True, workers=-1).reshape(F.shape[0], 2 * n_z)
-        F = F.view(np.complex128)
-        K: np.ndarray = np.empty((n_z, n_y * n_xr), dtype=np.complex128)
-        nufft.transpose(F, K)
-        del F
-        K = K.reshape(n_z, n_y, n_xr)
-        K[[0, -1]] *= 0.5  # DCT-Iᵀ = diag(τ) DCT-I diag(1/τ), τ = ½ at both ends
-        return scipy.fft.irfft2(K, s=(n_y, n_x), axes=(1, 2), workers=-1, overwrite_x=True)
+        H = np.conjugate(Y[:, :, ix][:, iy])
+        H += Y[:, :, : n_x // 2 + 1]
+        H *= 0.5
+        return H
 
     # -- pylops ------------------------------------------------------------------
     def _matvec(self, x):
-        return self.forward(np.asarray(x).reshape(self.ishape)).ravel()
+        # solver vectors: flat, finite, in the working dtype; reshapes are views
+        return self._apply_forward(np.asarray(x, dtype=self.dtype).reshape(self.ishape)).ravel()
 
     def _rmatvec(self, y):
-        return self.adjoint(np.asarray(y).reshape(self.oshape)).ravel()
+        return self._apply_adjoint(np.asarray(y, dtype=self.dtype).reshape(self.oshape)).ravel()

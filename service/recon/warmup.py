@@ -48,6 +48,7 @@ def warm_up(dtypes=DTYPES) -> dict:
             raise ValueError(f"dtype must be one of {DTYPES}, got {d!r}")
     from driver.physics.forward import forward_grid
     from service.recon.kwave import kspace_line_recon, kspace_plane_recon
+    from service.recon.operator import PlanarOperator
     from service.recon.planar import reconstruct_grid, reconstruct_points
 
     t0 = time.perf_counter()
@@ -65,6 +66,9 @@ def warm_up(dtypes=DTYPES) -> dict:
         for interp in ("*nearest", "*linear"):
             kspace_plane_recon(data, dx, dx, dt, 1500.0, interp=interp, dtype=d)
             kspace_line_recon(data[:, 0, :], dx, dt, 1500.0, interp=interp, dtype=d)
+        # the model-based operator runs its transforms in the working precision
+        op = PlanarOperator((4, 6, 6), dx, 1500.0 * dt, dt, 32, dtype=d)
+        op.adjoint(op.forward(np.ones((4, 6, 6))))
     forward_grid(np.ones((4, 6, 6)), dx, 1500.0 * dt, dt, 32)
     return {"seconds": time.perf_counter() - t0, "cache_dirs": cache_dirs()}
 
