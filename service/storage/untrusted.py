@@ -56,6 +56,10 @@ SMALL_BYTES = 1 << 20
 MAX_RATIO = 100
 #: Longest wait for a child process of :func:`run_bounded` to start (s).
 STARTUP_S = 120.0
+#: CPU priority (``nice`` increment) of the reading child: below the server's event loop,
+#: so that a burst of uploads being vetted does not slow every other request (health
+#: included), beside the live-preview worker (+5)
+CHILD_NICE = 5
 
 
 def is_hdf5(path: str | os.PathLike) -> bool:
@@ -223,8 +227,8 @@ def _child(conn: Any, fn: Callable, args: tuple, kwargs: dict) -> None:
 
 def run_bounded(fn: Callable, *args: Any, timeout: float, memory_bytes: int | None = None,
                 what: str = "the file", admit: Callable[[int], str | None] | None = None, **kwargs: Any) -> Any:
-    """``fn(*args, **kwargs)`` in a spawned child process, killed when it has not returned
-    ``timeout`` s after it started (imports done).
+    """``fn(*args, **kwargs)`` in a spawned child process (at CPU priority + ``CHILD_NICE``),
+    killed when it has not returned ``timeout`` s after it started (imports done).
     ``memory_bytes``: address-space limit of the child (``RLIMIT_AS``), so a file that
     expands past it fails there with MemoryError, not in the caller. ``admit``: answers the
     child's :func:`request_admission` (bytes -> None to admit, else the reason); without
@@ -242,6 +246,11 @@ def run_bounded(fn: Callable, *args: Any, timeout: float, memory_bytes: int | No
     proc = ctx.Process(target=_bounded_entry, args=(q, ready, fn, args, kwargs, memory_bytes, answers),
                        daemon=True)
     proc.start()
+    try:  # from here, not in the child: its interpreter start and imports are the costly part
+        if proc.pid is not None:
+            os.setpriority(os.PRIO_PROCESS, proc.pid, os.getpriority(os.PRIO_PROCESS, 0) + CHILD_NICE)
+    except (AttributeError, OSError):  # not on this platform, or the child is already gone
+        pass
     # the time limit starts when the child has imported what it runs (interpreter start-up
     # on a busy machine is not the file's fault), bounded separately by STARTUP_S
     deadline = time.monotonic() + STARTUP_S

@@ -2,8 +2,10 @@
 health poller each run in a process of their own (neither's GIL slows the other, and
 neither slows the test process):
 
-    python -m tests.service.lab_load health URL TOKEN  -> polls until stdin closes; prints the
-                                                          latencies (s) as a JSON list
+    python -m tests.service.lab_load health URL TOKEN [PERIOD]
+                                                       -> polls every PERIOD s (0.05) until stdin
+                                                          closes; prints the latencies (s) as a
+                                                          JSON list
     python -m tests.service.lab_load plans URL TOKEN   -> 4 clients make and read plans of
                                                           262 144 points; prints the statuses
     python -m tests.service.lab_load mixed URL TOKEN SPEC -> the soak's clients (issue 14):
@@ -92,59 +94,112 @@ def plan_load(url: str, token: str) -> dict:
     return out
 
 
-def _mixed_request(c: httpx.Client, kind: str, spec: dict, files: dict[str, bytes]):
-    if kind == "status":
-        return c.get(f"/api/jobs/{spec['scan_id']}")
-    if kind == "health":
-        return c.get("/api/health")
-    if kind == "preview":
-        return c.post("/api/plans/preview", json={"kind": "equisteradian",
-                                                  "lattice": {"n_x": 64, "n_y": 64, "pitch": 6e-5},
-                                                  "params": {"depth": random.choice([1e300, -1, 0]),
-                                                             "n_points": 100}})
-    if kind == "good-upload":
-        return c.post("/api/datasets", data={"format": "npy", "dt": "2e-8", "dx": "1e-4"},
-                      files={"file": ("g.npy", files["good"])})
-    if kind == "bad-upload":
-        return c.post("/api/datasets", data={"format": "fpscan"},
-                      files={"file": ("x.h5", random.choice(files["bad"]))})
-    if kind == "bad-recon":
-        return c.post("/api/reconstructions", json={"dataset_id": spec["dataset_id"], "params": {"n_z": 1}})
-    return c.get("/api/jobs")
+def _encoded(url: str, token: str, spec: dict) -> dict[str, list[bytes]]:
+    """Every request of the soak as the bytes on the wire (HTTP/1.1, keep-alive), by kind:
+    encoded once with httpx, so that sending one costs the load process next to nothing."""
+    from pathlib import Path
+
+    headers = {"Authorization": f"Bearer {token}"} if token else {}
+    good = Path(spec["good"]).read_bytes()
+    bad = [Path(f).read_bytes() for f in spec["bad"]]
+
+    def raw(method: str, path: str, **kw) -> bytes:
+        req = httpx.Request(method, url + path, headers=headers, **kw)
+        body = req.read()
+        host = httpx.URL(url).netloc.decode()
+        lines = [f"{method} {req.url.raw_path.decode()} HTTP/1.1", f"Host: {host}"]
+        lines += [f"{k}: {v}" for k, v in req.headers.items() if k.lower() != "host"]
+        if "content-length" not in req.headers:
+            lines.append(f"Content-Length: {len(body)}")
+        return ("\r\n".join(lines) + "\r\n\r\n").encode() + body
+
+    preview = [raw("POST", "/api/plans/preview", json={
+        "kind": "equisteradian", "lattice": {"n_x": 64, "n_y": 64, "pitch": 6e-5},
+        "params": {"depth": depth, "n_points": 100}}) for depth in (1e300, -1, 0)]
+    return {
+        "status": [raw("GET", f"/api/jobs/{spec['scan_id']}")],
+        "health": [raw("GET", "/api/health")],
+        "preview": preview,
+        "good-upload": [raw("POST", "/api/datasets", data={"format": "npy", "dt": "2e-8", "dx": "1e-4"},
+                            files={"file": ("g.npy", good)})],
+        "bad-upload": [raw("POST", "/api/datasets", data={"format": "fpscan"}, files={"file": ("x.h5", b)})
+                       for b in bad],
+        "bad-recon": [raw("POST", "/api/reconstructions",
+                          json={"dataset_id": spec["dataset_id"], "params": {"n_z": 1}})],
+        "list": [raw("GET", "/api/jobs")],
+    }
+
+
+async def _exchange(reader, writer, request: bytes) -> tuple[int, bool]:
+    """Send one request and read its whole response: (status, the server keeps the
+    connection)."""
+    writer.write(request)
+    await writer.drain()
+    status = int((await reader.readline()).split()[1])
+    length, chunked, keep = 0, False, True
+    while (line := await reader.readline()) not in (b"\r\n", b""):
+        name, _, value = line.decode("latin-1").partition(":")
+        name, value = name.strip().lower(), value.strip().lower()
+        if name == "content-length":
+            length = int(value)
+        elif name == "transfer-encoding" and "chunked" in value:
+            chunked = True
+        elif name == "connection" and value == "close":
+            keep = False
+    if chunked:
+        while (size := int((await reader.readline()).split(b";")[0], 16)) > 0:
+            await reader.readexactly(size + 2)
+        await reader.readline()
+    else:
+        await reader.readexactly(length)
+    return status, keep
 
 
 def mixed_load(url: str, token: str, spec: dict) -> list[tuple[str, int, float]]:
-    """The soak's clients: ``spec["clients"]`` threads, each sending ``spec["per_client"]``
-    requests drawn from ``spec["kinds"]`` (job status of ``spec["scan_id"]``, health,
-    plan previews with bad depths, uploads of ``spec["good"]`` and of the files
-    ``spec["bad"]``, reconstruction requests with bad options on ``spec["dataset_id"]``,
-    the job list), each with a client time-out of ``spec["answer_s"]``. Returns one
-    ``(kind, status, latency_s)`` per request; status -1 is a request never answered."""
-    from pathlib import Path
+    """The soak's clients: ``spec["clients"]`` concurrent clients, each on a keep-alive
+    connection of its own, sending ``spec["per_client"]`` requests one after another,
+    drawn from ``spec["kinds"]`` (job status of ``spec["scan_id"]``, health, plan previews
+    with bad depths, uploads of ``spec["good"]`` and of the files ``spec["bad"]``,
+    reconstruction requests with bad options on ``spec["dataset_id"]``, the job list), each
+    answered within ``spec["answer_s"]`` or counted as never answered. The clients are
+    coroutines in one thread that send requests encoded once (:func:`_encoded`): like
+    clients on other machines they take next to none of the server's cores (50 httpx
+    clients in this process took a whole core from the server on a 2-core machine).
+    Returns one ``(kind, status, latency_s)`` per request; status -1 is a request never
+    answered."""
+    import asyncio
 
-    files = {"good": Path(spec["good"]).read_bytes(), "bad": [Path(f).read_bytes() for f in spec["bad"]]}
+    wire = _encoded(url, token, spec)
+    target = httpx.URL(url)
     results: list[tuple[str, int, float]] = []
-    lock = threading.Lock()
 
-    def client(seed: int) -> None:
+    async def client(seed: int) -> None:
         rnd = random.Random(seed)
-        with _client(url, token, timeout=spec["answer_s"]) as c:
-            for _ in range(spec["per_client"]):
-                kind = rnd.choice(spec["kinds"])
-                t0 = time.perf_counter()
-                try:
-                    status = _mixed_request(c, kind, spec, files).status_code
-                except Exception as exc:  # a time-out is a hang
-                    status = -1
-                    print("soak: no answer", kind, type(exc).__name__, file=sys.stderr)
-                with lock:
-                    results.append((kind, status, time.perf_counter() - t0))
+        conn = None
+        for _ in range(spec["per_client"]):
+            kind = rnd.choice(spec["kinds"])
+            t0 = time.perf_counter()
+            try:
+                if conn is None:
+                    conn = await asyncio.open_connection(target.host, target.port)
+                status, keep = await asyncio.wait_for(_exchange(*conn, rnd.choice(wire[kind])), spec["answer_s"])
+                if not keep:
+                    conn[1].close()
+                    conn = None
+            except Exception as exc:  # a time-out is a hang
+                status = -1
+                print("soak: no answer", kind, type(exc).__name__, file=sys.stderr)
+                if conn is not None:
+                    conn[1].close()
+                conn = None
+            results.append((kind, status, time.perf_counter() - t0))
+        if conn is not None:
+            conn[1].close()
 
-    threads = [threading.Thread(target=client, args=(i,)) for i in range(spec["clients"])]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join()
+    async def main() -> None:
+        await asyncio.gather(*(client(i) for i in range(spec["clients"])))
+
+    asyncio.run(main())
     return results
 
 
@@ -156,6 +211,7 @@ if __name__ == "__main__":
     elif what == "health":
         stop = threading.Event()
         threading.Thread(target=lambda: (sys.stdin.read(), stop.set()), daemon=True).start()
-        print(json.dumps(poll_health(url, token, stop)))
+        period = float(sys.argv[4]) if len(sys.argv) > 4 else 0.05
+        print(json.dumps(poll_health(url, token, stop, period)))
     else:
         print(json.dumps(plan_load(url, token)))

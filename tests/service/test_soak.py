@@ -82,7 +82,7 @@ def test_soak_mixed_requests_during_a_scan_and_a_reconstruction(tmp_path):
 
         # the clients run in a process of their own, one nice level below the server (as the
         # lab-network tests' load): on this 2-core machine their own CPU use is not what is
-        # measured; /api/health is polled every 50 ms by a third process (lab_load health)
+        # measured; /api/health is polled every 20 ms by a third process (lab_load health)
         (files / "good.npy").write_bytes(good_file)
         bad_paths = []
         for i, data in enumerate(bad_files):
@@ -94,7 +94,7 @@ def test_soak_mixed_requests_during_a_scan_and_a_reconstruction(tmp_path):
                 "kinds": kinds, "clients": CLIENTS, "per_client": per_client, "answer_s": ANSWER_S}
         (files / "spec.json").write_text(json.dumps(spec))
         t_start = time.perf_counter()
-        health = _lab_load("health", srv, stdin=subprocess.PIPE)
+        health = _lab_load("health", srv, "0.02", stdin=subprocess.PIPE)
         load = _lab_load("mixed", srv, str(files / "spec.json"), nice=5)
         out, _ = load.communicate(timeout=540)
         probe = json.loads(health.communicate("", timeout=60)[0])

@@ -166,3 +166,13 @@ def test_two_imports_at_once_cannot_fill_the_disk(tmp_path):
     assert adm.reserved() == half
     adm.release("a")
     assert adm.reserve("b", half) is None
+
+
+def test_the_reading_child_runs_below_the_servers_priority():
+    """Files are vetted and imported in a child at the caller's priority + CHILD_NICE
+    (issue 22.3: a burst of uploads must not take the CPU from the server's event loop);
+    the child reports its own niceness (``os.nice(0)``)."""
+    from service.storage.untrusted import CHILD_NICE, run_bounded
+
+    mine = os.nice(0)
+    assert run_bounded(os.nice, 0, timeout=60) == min(mine + CHILD_NICE, 19)
