@@ -123,8 +123,11 @@ def test_ctrl_c_leaves_the_device_idle(tmp_path):
     try:
         out = tmp_path / "scan.h5"
         cmd = [a for a in scan_cmd(dev, plan_path, out) if a != "-q"]
+        # SIGINT as a terminal leaves it: a parallel test worker (pytest-xdist) ignores it,
+        # and an ignored signal is inherited across exec
         host = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                start_new_session=True, env={**os.environ, "FPSCAN_PROGRESS_PERIOD": "0"})
+                                start_new_session=True, env={**os.environ, "FPSCAN_PROGRESS_PERIOD": "0"},
+                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
         lines: list[str] = []
         thirty = threading.Event()
 

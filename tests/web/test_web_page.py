@@ -697,7 +697,9 @@ def test_wrong_token_is_refused_with_the_servers_reason(browser, server, api, sc
     # the form as loaded (the server's example values) is previewed with the good token;
     # then a wrong one is stored and the save is refused (no typing: every change would
     # preview, and a preview needs the token too)
-    wait_for(lambda: text(browser, "plan-preview-state").startswith("Preview up to date"), "the preview")
+    wait_for(lambda: el(browser, "view-plan").is_displayed() and el(browser, "plan-save").is_displayed()
+             and el(browser, "plan-save").is_enabled()
+             and text(browser, "plan-preview-state").startswith("Preview up to date"), "the preview")
     browser.execute_script("sessionStorage.setItem('fpscan.token', 'not-the-token')")  # changed on the server
     before = token_prompts(browser)
     el(browser, "plan-save").click()
@@ -764,6 +766,9 @@ def test_keyboard_navigation_and_state_without_colour(browser, server, screensho
     if wait_for(lambda: (login_shown(browser) and "login") or el(browser, "view-plan").is_displayed(),
                 "the plan view or the login view") == "login":  # the tab holds no token (a test before failed)
         submit_token_if_asked(browser)
+        # load the page again, signed in: Tab would otherwise start where the login field was
+        browser.get("about:blank")
+        browser.get(server + "/#/plan")
     wait_for(lambda: el(browser, "view-plan").is_displayed(), "the plan view")
     # Tab from the top of the page reaches the navigation; Enter on "Scan" switches view.
     for _ in range(12):
