@@ -25,6 +25,19 @@ import httpx
 N_BIG = 512  # 512 x 512 = 262 144 points: the largest plan a request may make (plans.MAX_POINTS)
 
 
+def start(what: str, url: str, token: str | None, *args: str, nice: int = 0, **kw):
+    """``python -m tests.service.lab_load WHAT URL TOKEN ARGS...`` as a child process (stdout
+    a pipe, run from the repository), ``nice`` levels below the caller; ``kw`` go to
+    ``subprocess.Popen`` (``stdin=subprocess.PIPE`` for the health poller)."""
+    import os
+    import subprocess
+    from pathlib import Path
+
+    return subprocess.Popen([sys.executable, "-m", "tests.service.lab_load", what, url, token or "", *args],
+                            cwd=Path(__file__).resolve().parents[2], stdout=subprocess.PIPE, text=True,
+                            preexec_fn=(lambda: os.nice(nice)) if nice else None, **kw)
+
+
 def big_plan_body(kind: str) -> dict:
     """A plan request of 262 144 points: a full 512 x 512 grid, or a point list of every
     lattice point (a 3 MB body)."""

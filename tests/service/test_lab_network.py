@@ -8,10 +8,8 @@ from __future__ import annotations
 
 import io
 import json
-import os
 import socket
 import subprocess
-import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
 
@@ -19,7 +17,8 @@ import httpx
 import numpy as np
 import pytest
 
-from tests.service.service_servers import REPO, TOKEN, Server
+from tests.service import lab_load
+from tests.service.service_servers import TOKEN, Server
 from tests.waits import HANG_S
 
 #: issue 22.3: /api/health p99 while the largest plans are made and read by 4 clients
@@ -200,12 +199,6 @@ def test_cross_origin_form_post_cannot_abort_a_scan(open_server):
         assert c.get(f"/api/jobs/{scan_id}", headers={"Origin": "https://evil.example"}).status_code == 200
 
 
-def _health_lab_load(what: str, url: str, nice: int = 0, **kw):
-    return subprocess.Popen([sys.executable, "-m", "tests.service.lab_load", what, url, TOKEN], cwd=REPO,
-                            stdout=subprocess.PIPE, text=True, preexec_fn=(lambda: os.nice(nice)) if nice else None,
-                            **kw)
-
-
 @pytest.mark.serial
 @pytest.mark.timeout(300)
 def test_health_stays_fast_while_the_largest_plans_are_made_and_read(tmp_path):
@@ -215,10 +208,10 @@ def test_health_stays_fast_while_the_largest_plans_are_made_and_read(tmp_path):
     answers with p99 <= 100 ms."""
     srv = Server(tmp_path / "data").start()
     try:
-        health = _health_lab_load("health", srv.url, stdin=subprocess.PIPE)
+        health = lab_load.start("health", srv.url, TOKEN, stdin=subprocess.PIPE)
         # the load shares this machine with the server: one nice level below (as in
         # benchmarks/bench_service.py), so that its own CPU use is not what is measured
-        load = _health_lab_load("plans", srv.url, nice=5)
+        load = lab_load.start("plans", srv.url, TOKEN, nice=5)
         out, _ = load.communicate(timeout=240)
         lat = np.array(json.loads(health.communicate("", timeout=60)[0]))
         statuses = json.loads(out)

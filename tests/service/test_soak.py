@@ -12,14 +12,14 @@ import io
 import json
 import os
 import subprocess
-import sys
 import time
 
 import numpy as np
 import pytest
 
+from tests.service import lab_load
 from tests.service.hostile_cases import signature_then_noise, truncated
-from tests.service.service_servers import REPO, Server, needs_recon, wait_job
+from tests.service.service_servers import Server, needs_recon, wait_job
 from tests.service.test_scans import make_plan, start_scan, wait_points
 
 driver_sim = pytest.importorskip("driver.simulator")
@@ -34,12 +34,6 @@ def _npy(n: int = 12, n_t: int = 64) -> bytes:
     buf = io.BytesIO()
     np.save(buf, np.random.default_rng(n).standard_normal((n_t, n, n)).astype(np.float32))
     return buf.getvalue()
-
-
-def _lab_load(what: str, srv: Server, *args: str, nice: int = 0, **kw) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "tests.service.lab_load", what, srv.url, srv.token or "", *args],
-                            cwd=REPO, stdout=subprocess.PIPE, text=True,
-                            preexec_fn=(lambda: os.nice(nice)) if nice else None, **kw)
 
 
 def _check_health_latency(latencies: list[float]) -> None:
@@ -94,8 +88,8 @@ def test_soak_mixed_requests_during_a_scan_and_a_reconstruction(tmp_path):
                 "kinds": kinds, "clients": CLIENTS, "per_client": per_client, "answer_s": ANSWER_S}
         (files / "spec.json").write_text(json.dumps(spec))
         t_start = time.perf_counter()
-        health = _lab_load("health", srv, "0.02", stdin=subprocess.PIPE)
-        load = _lab_load("mixed", srv, str(files / "spec.json"), nice=5)
+        health = lab_load.start("health", srv.url, srv.token, "0.02", stdin=subprocess.PIPE)
+        load = lab_load.start("mixed", srv.url, srv.token, str(files / "spec.json"), nice=5)
         out, _ = load.communicate(timeout=540)
         probe = json.loads(health.communicate("", timeout=60)[0])
         assert load.returncode == 0, out
