@@ -270,7 +270,7 @@ def tv_memory(image_shape, padded_shape, n_data: int, n_t: int, dtype=np.float64
     precision (complex64 for float32, complex128 for float64;
     `service.recon.operator.PlanarOperator`): at its peak the temporal fine grid (L per
     padded half-spectrum column, `driver.physics.nufft.grid_length`) beside the k-space
-    image (max(N_z, n_t) per column), plus 30 % (allocator, FFT buffers, the warm start's
+    image (max(N_z, n_t) per column), plus 25 % (allocator, FFT buffers, the warm start's
     leftovers; tests/service/test_memory_admission.py measures it within 25 %)."""
     from driver.physics.nufft import grid_length
 
@@ -280,7 +280,7 @@ def tv_memory(image_shape, padded_shape, n_data: int, n_t: int, dtype=np.float64
     solver = (4 + 2 * d) * n_img * b + 3 * n_data * b
     nz2, ny2, nx2 = padded_shape
     operator = 2 * b * ny2 * (nx2 // 2 + 1) * (grid_length(n_t) + max(nz2, n_t))
-    return int(1.3 * (solver + operator))
+    return int(1.25 * (solver + operator))
 
 
 def check_memory(needed: int, memory_limit) -> None:
