@@ -330,3 +330,28 @@ def quantity(kind: str, name: str) -> Callable[[str], float]:
 
     parse.__name__ = kind  # argparse names the type in its messages
     return parse
+
+
+def format_bytes(n: float) -> str:
+    """Bytes with a binary prefix (``1.5 MiB``)."""
+    for unit in ("B", "KiB", "MiB", "GiB"):
+        if abs(n) < 1024 or unit == "GiB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1024
+    return f"{n:.1f} TiB"  # pragma: no cover - the loop returns at GiB
+
+
+def delete_each(ids, delete, what=lambda gone: "") -> int:
+    """``delete(id)`` for each id in ``ids`` (a dataset or job deletion of the HTTP client,
+    answering a dict with ``bytes_freed``), one line each ("ID: deleted (WHAT N MiB freed)",
+    ``what(answer)`` naming the kind) and a total when there were several. Returns the bytes
+    freed in all; a refused deletion raises the client's error (``client_errors`` reports it)."""
+    freed = 0
+    for item in ids:
+        gone = delete(item)
+        n = int(gone.get("bytes_freed") or 0)
+        freed += n
+        print(f"{item}: deleted ({what(gone)}{format_bytes(n)} freed)")
+    if len(ids) > 1:
+        print(f"{format_bytes(freed)} freed in all")
+    return freed

@@ -7,7 +7,7 @@ stderr; 1 any other failure, the server's state included (a dataset an active
 reconstruction reads: 409; server unreachable, server error)."""
 from __future__ import annotations
 
-from clients.cli._common import add_server_options, client_errors
+from clients.cli._common import add_server_options, client_errors, delete_each, format_bytes
 
 COMMAND = "datasets"
 HELP = "list or delete the datasets uploaded to the server (size on disk, content hash, jobs that read them)"
@@ -30,15 +30,6 @@ def add_arguments(parser):
     add_server_options(p, required=True)
 
 
-def _size(n: float) -> str:
-    """Bytes with a binary prefix (``1.5 MiB``)."""
-    for unit in ("B", "KiB", "MiB", "GiB"):
-        if abs(n) < 1024 or unit == "GiB":
-            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
-        n /= 1024
-    return f"{n:.1f} TiB"  # pragma: no cover - the loop returns at GiB
-
-
 @client_errors
 def run(args) -> int:
     """Run this sub-command with the parsed ``args``; return the exit status."""
@@ -57,17 +48,11 @@ def run(args) -> int:
             for d in rows:
                 when = time.strftime("%Y-%m-%d %H:%M", time.localtime(d.get("created") or 0))
                 jobs = f"{len(d.get('jobs') or [])}{'*' if d.get('in_use') else ''}"
-                print(f"{d['dataset_id']:<12.12}  {d.get('format') or '?':<10}  {_size(d['size_bytes']):>10}  "
+                print(f"{d['dataset_id']:<12.12}  {d.get('format') or '?':<10}  {format_bytes(d['size_bytes']):>10}  "
                       f"{when:<16}  {jobs:>4}  {d.get('name') or ''}".rstrip())
             total = sum(int(d["size_bytes"]) for d in rows)
-            print(f"{len(rows)} dataset{'s' if len(rows) != 1 else ''}, {_size(total)} on disk"
+            print(f"{len(rows)} dataset{'s' if len(rows) != 1 else ''}, {format_bytes(total)} on disk"
                   + (" (* = read by an active job)" if any(d.get("in_use") for d in rows) else ""))
             return 0
-        freed = 0
-        for did in args.dataset_ids:
-            gone = api.delete_dataset(did)
-            freed += int(gone.get("bytes_freed") or 0)
-            print(f"{did}: deleted ({_size(int(gone.get('bytes_freed') or 0))} freed)")
-        if len(args.dataset_ids) > 1:
-            print(f"{_size(freed)} freed in all")
+        delete_each(args.dataset_ids, api.delete_dataset)
         return 0

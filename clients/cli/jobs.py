@@ -3,7 +3,7 @@ reconstructions) over HTTP (``GET /api/jobs``, ``GET /api/jobs/{id}``, the SSE s
 ``POST /api/jobs/{id}/cancel``, ``DELETE /api/jobs/{id}``)."""
 from __future__ import annotations
 
-from clients.cli._common import add_progress_option, add_server_options, client_errors
+from clients.cli._common import add_progress_option, add_server_options, client_errors, delete_each
 
 COMMAND = "jobs"
 HELP = "list, show, wait on, cancel or delete the server's jobs (scans, reconstructions)"
@@ -82,13 +82,7 @@ def run(args) -> int:
             print(json.dumps(to_dict(api.get_job(args.job_id)), indent=2))
             return 0
         if args.action == "delete":
-            freed = 0
-            for jid in args.job_ids:
-                gone = api.delete_job(jid)
-                freed += int(gone.get("bytes_freed") or 0)
-                print(f"{jid}: deleted ({gone.get('kind')}, {gone.get('bytes_freed', 0) / 1e6:.1f} MB freed)")
-            if len(args.job_ids) > 1:
-                print(f"{freed / 1e6:.1f} MB freed in all")
+            delete_each(args.job_ids, api.delete_job, what=lambda gone: f"{gone.get('kind')}, ")
             return 0
         if args.action == "cancel":
             api.cancel_job(args.job_id)
