@@ -414,7 +414,7 @@ function route() {
   currentView = name;
   if (changed) clearError();
   document.title = "fpscan — " + $("nav-" + name).textContent;
-  if (name === "plan" && changed) schedulePreview(0);
+  if (name === "plan" && changed && KINDS) schedulePreview(0);  // else buildMaskSelect previews once built
   if (name === "scan" && changed) refreshScanLists().catch(showError);
   if (name === "scan" && arg && decodeURIComponent(arg) !== scanJob) watchScan(decodeURIComponent(arg));
   if (name === "jobs") {
@@ -582,9 +582,12 @@ let previewSeq = 0;
  *  slots (service.api.context.Slots.retry_after_s, 5 s). */
 const PREVIEW_RETRY_MS = 5000;
 
+/** Preview the form after `delay` ms. The preview panel is aria-busy from now until the
+ *  last scheduled preview has its answer (tests and screen readers wait on that). */
 function schedulePreview(delay = 300) {
   clearTimeout(previewTimer);
-  previewTimer = setTimeout(() => updatePreview().catch(showError), delay);
+  document.querySelector(".preview-panel").setAttribute("aria-busy", "true");
+  previewTimer = setTimeout(() => { previewTimer = null; updatePreview().catch(showError); }, delay);
 }
 
 function countOf(points) {
@@ -611,6 +614,7 @@ async function updatePreview() {
     $("plan-preview-state").textContent = "Not previewed: " + err.message;
     panel.classList.add("stale");
     for (const k of ["plan-points", "plan-ratio", "plan-time"]) $(k).textContent = "–";
+    if (!previewTimer && !previewAbort) panel.removeAttribute("aria-busy");
     return;
   }
   const ctl = new AbortController();
@@ -639,7 +643,7 @@ async function updatePreview() {
     if (err instanceof ApiError && err.status === 429 && previewAbort === ctl) schedulePreview(PREVIEW_RETRY_MS);
     throw err;
   } finally {
-    if (previewAbort === ctl) { previewAbort = null; panel.removeAttribute("aria-busy"); }
+    if (previewAbort === ctl) { previewAbort = null; if (!previewTimer) panel.removeAttribute("aria-busy"); }
   }
 }
 

@@ -10,7 +10,7 @@ import socket
 import pytest
 
 from tests.waits import HANG_S
-from tests.web.web_e2e_support import has_subcommand, wait_for
+from tests.web.web_e2e_support import has_subcommand, open_page, preview_settled, wait_for
 
 httpx = pytest.importorskip("httpx")
 
@@ -42,9 +42,8 @@ def test_a_refused_preview_is_asked_again_once_the_server_has_room(browser, base
     from selenium.webdriver.common.keys import Keys
 
     url, port = base
-    browser.get(url + "/#/plan")
-    wait_for(lambda: _text(browser, "plan-preview-state").startswith("Preview up to date"),
-             "the first preview")
+    open_page(browser, url + "/#/plan")
+    wait_for(lambda: preview_settled(browser), "the first preview")
     # every plan-request slot taken by a request whose body never comes
     head = (b"POST /api/plans/preview HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\n"
             b"Content-Length: 100000\r\n\r\n{")
@@ -72,6 +71,5 @@ def test_a_refused_preview_is_asked_again_once_the_server_has_room(browser, base
                       != 429 and r, "the server to have room")
     assert oracle.status_code == 200, oracle.text
     points = str(oracle.json()["points"])
-    wait_for(lambda: _text(browser, "plan-preview-state").startswith("Preview up to date")
-             and _text(browser, "plan-points").split()[0] == points, f"the preview of {points} points")
+    wait_for(lambda: preview_settled(browser) and _text(browser, "plan-points").split()[0] == points, f"the preview of {points} points")
     browser.save_screenshot(str(screenshots / "plan-view-after-busy.png"))

@@ -22,7 +22,7 @@ import pytest
 
 from clients.processes import Service, simulator, start_service
 from tests.waits import HANG_S
-from tests.web.web_e2e_support import REPO_ROOT, has_subcommand, wait_for
+from tests.web.web_e2e_support import REPO_ROOT, has_subcommand, open_page, preview_settled, wait_for
 
 httpx = pytest.importorskip("httpx")
 
@@ -219,7 +219,7 @@ def token_prompts(browser) -> int:
 
 
 def test_plan_view_preview_errors_token_and_save(browser, server, api, screenshots, state):
-    browser.get(server + "/#/plan")
+    open_page(browser, server + "/#/plan")
     # The server needs a token: the page opens on its login view (not a dialog over a page
     # whose requests failed), before any request that needs the token.
     wait_for(lambda: login_shown(browser), "the login view")
@@ -232,7 +232,7 @@ def test_plan_view_preview_errors_token_and_save(browser, server, api, screensho
     assert login_shown(browser) and browser.execute_script("return sessionStorage.getItem('fpscan.token')") is None
     assert submit_token_if_asked(browser), "the login view went away"
     assert browser.execute_script("return sessionStorage.getItem('fpscan.token')") == TOKEN
-    wait_for(lambda: text(browser, "plan-preview-state").startswith("Preview up to date"), "the first preview")
+    wait_for(lambda: preview_settled(browser), "the first preview")
     assert refused_requests(browser) == [], "a request of the page was refused (401)"
     fill_plan_form(browser, N_POINTS)
 
@@ -693,13 +693,13 @@ def test_wrong_token_is_refused_with_the_servers_reason(browser, server, api, sc
                         headers={"Authorization": "Bearer not-the-token"}, timeout=30)
     assert oracle.status_code == 401
     reason = oracle.json()["detail"]
-    browser.get(server + "/#/plan")
+    open_page(browser, server + "/#/plan")
     # the form as loaded (the server's example values) is previewed with the good token;
     # then a wrong one is stored and the save is refused (no typing: every change would
-    # preview, and a preview needs the token too)
-    wait_for(lambda: el(browser, "view-plan").is_displayed() and el(browser, "plan-save").is_displayed()
-             and el(browser, "plan-save").is_enabled()
-             and text(browser, "plan-preview-state").startswith("Preview up to date"), "the preview")
+    # preview, and a preview needs the token too). The wait is for the load's last
+    # preview: one still to be sent would meet the wrong token and hide the form.
+    wait_for(lambda: el(browser, "view-plan").is_displayed() and el(browser, "plan-save").is_enabled()
+             and preview_settled(browser), "the preview")
     browser.execute_script("sessionStorage.setItem('fpscan.token', 'not-the-token')")  # changed on the server
     before = token_prompts(browser)
     el(browser, "plan-save").click()
@@ -729,7 +729,7 @@ def test_without_a_token_nothing_is_asked_and_plain_links_download(browser, tmp_
     try:
         browser.get(base + "/#/plan")
         fill_plan_form(browser, N_POINTS)
-        wait_for(lambda: text(browser, "plan-preview-state").startswith("Preview up to date"), "the preview")
+        wait_for(lambda: preview_settled(browser), "the preview")
         el(browser, "plan-save").click()
         plan_id = wait_for(lambda: el(browser, "plan-saved").get_attribute("data-plan-id"), "the saved plan")
         assert httpx.get(f"{base}/api/plans/{plan_id}", timeout=10).status_code == 200

@@ -36,6 +36,21 @@ def wait_for(predicate, what: str, interval: float = 0.1):
     raise AssertionError(f"timed out after {timeout} s waiting for {what}" + (f" (last error: {last_exc!r})" if last_exc else ""))
 
 
+def open_page(browser, url: str) -> None:
+    """Load ``url`` as a new document, even when the browser shows the same page at
+    another ``#/`` route (a hash change alone would keep that page's state and timers)."""
+    browser.get("about:blank")
+    browser.get(url)
+
+
+def preview_settled(browser) -> bool:
+    """Whether the plan preview shows the form's parameters: no preview scheduled or in
+    flight (the panel is not aria-busy) and the last one succeeded."""
+    return bool(browser.execute_script(
+        "return !document.querySelector('.preview-panel').hasAttribute('aria-busy')"
+        " && document.getElementById('plan-preview-state').textContent.trim().startsWith('Preview up to date')"))
+
+
 def has_subcommand(name: str) -> bool:
     """Whether this build has ``fpscan <name>`` (its module in ``clients.cli``)."""
     import importlib.util
