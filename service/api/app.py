@@ -247,25 +247,35 @@ DISK_USAGE_TTL_S = 1.0
 
 class DiskUsageCache:
     """``/api/health``'s disk usage: one walk of the data folder (in a thread of its own,
-    outside the server's thread pool) serves
-    every caller that asks while it runs, and its answer is reused while the data folder and
-    its part folders keep their modification times (an upload, a new result or a deletion
-    changes them) for at most :data:`DISK_USAGE_TTL_S` (a scan file that grows changes no
-    folder). A flood of health requests costs one walk, not one each."""
+    outside the server's thread pool) serves every caller that asks while it runs.
+
+    - While the data folder and its part folders keep their modification times, the
+      answer is reused; once it is ``ttl_s`` (:data:`DISK_USAGE_TTL_S`) old (files that grow in place,
+      such as a scan file, change no folder) it is still answered at once and a new walk
+      starts beside it: health never waits for a walk to pick up growth.
+    - When a folder's modification time changed (an upload stored, a result written, a
+      deletion), the next caller waits for a new walk: whoever changed the data reads
+      the change in the next health answer. Uploads are staged outside these folders
+      (``incoming/``), so refused and deduplicated uploads change none of them.
+
+    A flood of health requests costs one walk, not one each."""
 
     PARTS = ("", "scans", "results", "datasets", "exports")
 
-    def __init__(self, data_dir, walk):
+    def __init__(self, data_dir, walk, ttl_s: float = DISK_USAGE_TTL_S):
         self.data_dir = Path(data_dir)
         self.walk = walk
+        self.ttl_s = ttl_s
         self._value: dict | None = None
         self._key: tuple | None = None
         self._at = 0.0
         self._lock: asyncio.Lock | None = None
         self._thread: Any = None  # anyio.CapacityLimiter(1): the walk's own thread
+        self._background: asyncio.Task | None = None
+        self._walks = 0  # walks done
 
     def _folders_key(self) -> tuple:
-        key = []
+        key: list[int | None] = []
         for part in self.PARTS:
             try:
                 key.append((self.data_dir / part).stat().st_mtime_ns)
@@ -273,27 +283,31 @@ class DiskUsageCache:
                 key.append(None)
         return tuple(key)
 
-    def _fresh(self) -> bool:
-        return (self._value is not None and time.monotonic() - self._at < DISK_USAGE_TTL_S
-                and self._key == self._folders_key())
-
-    async def get(self) -> dict:
+    async def _refresh(self) -> None:
         import anyio
 
-        if self._fresh():
-            assert self._value is not None
-            return self._value
         if self._lock is None:
             self._lock, self._thread = asyncio.Lock(), anyio.CapacityLimiter(1)
+        walks_before = self._walks
         async with self._lock:
-            if not self._fresh():
-                key = self._folders_key()
-                # a thread of its own, not one of the server's pool: when every pool thread
-                # is taken (uploads waiting on their reading child), health does not wait
-                self._value = await anyio.to_thread.run_sync(self.walk, self.data_dir, limiter=self._thread)
-                self._key, self._at = key, time.monotonic()
-            assert self._value is not None
-            return self._value
+            key = self._folders_key()
+            if self._walks != walks_before and self._key == key:
+                return  # a walk that started after this caller asked has answered
+            # a thread of its own, not one of the server's pool: when every pool thread
+            # is taken (uploads waiting on their reading child), health does not wait
+            self._value = await anyio.to_thread.run_sync(self.walk, self.data_dir, limiter=self._thread)
+            self._key, self._at = key, time.monotonic()
+            self._walks += 1
+
+    async def get(self) -> dict:
+        if self._value is None or self._key != self._folders_key():
+            await self._refresh()
+        elif time.monotonic() - self._at >= self.ttl_s and (self._background is None or self._background.done()):
+            self._background = asyncio.create_task(self._refresh())
+            # a failed walk is retried by the next caller (its error is not lost in the log)
+            self._background.add_done_callback(lambda t: t.cancelled() or t.exception())
+        assert self._value is not None
+        return self._value
 
 
 async def warm_routes(app: FastAPI, settings: Settings) -> None:
@@ -442,8 +456,9 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True) 
         ``disk``: bytes the data folder uses by part (scans, results, datasets, exports,
         other) and the free bytes of its file system. Answered on the event loop without a
         server thread (a flood of other requests holds those); the folder walk runs in a
-        thread, once for every caller while one is under way, and is reused while the
-        folders are unchanged for at most ``DISK_USAGE_TTL_S`` (:class:`DiskUsageCache`)."""
+        thread, once for every caller while one is under way; a change of the stored data
+        shows in the next answer, growth of files in place within about
+        ``DISK_USAGE_TTL_S`` (:class:`DiskUsageCache`)."""
         return Health(version=VERSION, executor=settings.executor,
                       jobs_running=c.queue.running() if c.queue is not None else 0,
                       disk=await disk_cache.get(),

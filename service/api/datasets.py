@@ -48,6 +48,7 @@ from driver.units import parse_quantity
 from service.api.context import Context, ctx, read_access, reason, require_token
 from service.api.models import ID_PATTERN, Dataset, DatasetFormat, DatasetInfo, Deleted
 from service.jobs import lifecycle
+from service.jobs.queue import INCOMING
 from service.storage.datasets import import_dataset
 from service.storage.untrusted import DiskAdmission, NotAdmitted, hdf5_limit, run_bounded
 
@@ -140,7 +141,9 @@ def _admission(cx: Context) -> DiskAdmission:
 def _store_upload(file: UploadFile, format: str, *, dt, dx, dy, c, key, force: bool, wavelength: int | None,
                   cx: Context) -> Dataset:
     dataset_id = uuid.uuid4().hex
-    dest = Path(cx.settings.data_dir) / "datasets" / dataset_id
+    # staged outside datasets/ until stored (one rename): datasets/ changes only when a
+    # dataset is added, and /api/health's disk usage is re-walked only then
+    dest = Path(cx.settings.data_dir) / INCOMING / dataset_id
     dest.mkdir(parents=True)
     src = dest / "upload.bin"
     limit = cx.settings.upload_limit
@@ -190,6 +193,10 @@ def _store_upload(file: UploadFile, format: str, *, dt, dx, dy, c, key, force: b
         with _DEDUP_LOCK:  # an identical upload may have been stored meanwhile: keep that one
             found = _stored(cx, dedup_key, sha256)
             if found is None:
+                stored = Path(cx.settings.data_dir) / "datasets" / dataset_id
+                stored.parent.mkdir(exist_ok=True)
+                dest.rename(stored)
+                dest = stored
                 cx.store.put_dataset(dataset_id, meta)
     except BaseException:
         shutil.rmtree(dest, ignore_errors=True)

@@ -115,12 +115,19 @@ def admit(estimate: int, limit: int) -> None:
                              "larger dz or float32")
 
 
+#: the data folder's staging area of uploads: ``incoming/<dataset id>/`` until the upload is
+#: stored and renamed to ``datasets/<dataset id>/`` (a refused or deduplicated upload leaves
+#: ``datasets/`` untouched)
+INCOMING = "incoming"
+
+
 def remove_debris(data_dir: str | Path, older_than: float) -> list[str]:
     """Remove what a crash leaves behind and nothing else can: temporary result folders
     (``results/*.tmp-*``), progress and cancel files (``results/.*.progress*``,
-    ``results/.*.cancel``) and partial uploads
-    (``datasets/<id>/`` still holding ``upload.bin``), if last modified before
-    ``older_than`` (UNIX time: the start of this process). Returns the names removed."""
+    ``results/.*.cancel``) and partial uploads (``incoming/<id>/``, where an upload is
+    staged until it is stored, and ``datasets/<id>/`` still holding ``upload.bin``, as
+    earlier versions staged them), if last modified before ``older_than`` (UNIX time:
+    the start of this process). Returns the names removed."""
     data_dir = Path(data_dir)
     candidates = []
     results = data_dir / "results"
@@ -130,6 +137,9 @@ def remove_debris(data_dir: str | Path, older_than: float) -> list[str]:
     datasets = data_dir / "datasets"
     if datasets.is_dir():
         candidates += [p for p in datasets.iterdir() if (p / "upload.bin").exists()]
+    incoming = data_dir / INCOMING
+    if incoming.is_dir():
+        candidates += list(incoming.iterdir())
     removed = []
     for p in candidates:
         try:

@@ -58,8 +58,16 @@ def test_the_same_file_twice_is_stored_once(dserver):
     with dserver.client() as api:
         first = _upload(api, body, name="first.npy")
         before = _on_disk(dserver)
+        folder = (dserver.data_dir / "datasets").stat().st_mtime_ns
         again = _upload(api, body, name="again.npy")
         after = _on_disk(dserver)
+        # staged in incoming/ and discarded there: datasets/ itself is untouched (so
+        # /api/health's disk usage needs no new walk), as for a refused upload
+        refused = api.post("/api/datasets", data={"format": "npy", "dt": repr(DT), "dx": repr(PITCH)},
+                           files={"file": ("bad.npy", b"\x93NUMPY not an array", "application/octet-stream")})
+        assert refused.status_code == 422, refused.text
+        assert (dserver.data_dir / "datasets").stat().st_mtime_ns == folder
+        assert list((dserver.data_dir / "incoming").iterdir()) == []
         assert not first["deduplicated"] and again["deduplicated"], again
         assert again["dataset_id"] == first["dataset_id"]
         assert first["content_sha256"] == again["content_sha256"] == hashlib.sha256(body).hexdigest()

@@ -131,13 +131,17 @@ def test_start_up_removes_only_the_crash_debris_older_than_the_process(tmp_path)
     (results / "job2.1").mkdir()                     # a finished result: kept
     (datasets / "partial").mkdir(parents=True)
     (datasets / "partial" / "upload.bin").write_bytes(b"y")
+    (data / "incoming" / "staged").mkdir(parents=True)   # an upload staged before a crash
+    (data / "incoming" / "staged" / "upload.bin").write_bytes(b"w")
     (datasets / "done").mkdir()
     (datasets / "done" / "dataset.h5").write_bytes(b"z")  # a stored dataset: kept
     old = time.time() - 3600
-    for p in [results / "job1.1.tmp-123-456", results / ".job1.1.progress", datasets / "partial"]:
+    for p in [results / "job1.1.tmp-123-456", results / ".job1.1.progress", datasets / "partial",
+              data / "incoming" / "staged"]:
         os.utime(p, (old, old))
     (results / "job3.1.tmp-9-9").mkdir()             # being written by this process: kept
     removed = remove_debris(data, time.time() - 60)
-    assert sorted(removed) == [".job1.1.progress", "job1.1.tmp-123-456", "partial"]
+    assert sorted(removed) == [".job1.1.progress", "job1.1.tmp-123-456", "partial", "staged"]
+    assert list((data / "incoming").iterdir()) == []
     assert sorted(p.name for p in results.iterdir()) == ["job2.1", "job3.1.tmp-9-9"]
     assert sorted(p.name for p in datasets.iterdir()) == ["done"]
