@@ -48,6 +48,7 @@ from typing import Any, Final
 
 import numpy as np
 
+from driver.constants import C_DEFAULT, C_LIMITS
 from driver.physics.axes import centred_positions
 
 IMAGE_HEADER = struct.Struct("<4sHH32sIIdIIddddI")
@@ -78,8 +79,6 @@ MAX_DT = 1e-3
 MAX_AVERAGES = 4096
 #: highest pulse repetition frequency, Hz (inclusive; 0 = as fast as the scanner can)
 MAX_PRF = 1e5
-#: speed of sound, m/s: above the first, at most the second
-SOUND_SPEED_RANGE = (100.0, 10000.0)
 
 
 def canonical_json(obj: Any) -> str:
@@ -162,7 +161,7 @@ def check_acquisition(acq: Any) -> dict:
     ``dt`` (s, > 0, at most ``MAX_DT`` = 1 ms), optional ``averages`` (int, 1 to
     ``MAX_AVERAGES`` = 4096), ``wavelengths`` (m, see ``check_wavelengths``; at most
     ``MAX_WAVELENGTHS`` = 16), ``prf`` (Hz, 0 to ``MAX_PRF`` = 100 kHz; 0 = as fast as
-    possible), ``sound_speed`` (m/s, ``SOUND_SPEED_RANGE``: above 100, at most 10 000),
+    possible), ``sound_speed`` (m/s, ``driver.constants.C_LIMITS``: above 100, at most 10 000),
     ``wavelength_order`` (``wavelength_order``). The service's ``Acquisition`` model calls
     this, so the library, the API and the scanner side accept the same plans.
 
@@ -178,7 +177,7 @@ def check_acquisition(acq: Any) -> dict:
     if "prf" in acq and acq["prf"] is not None:
         _number("acquisition.prf", acq["prf"], positive=False, unit="Hz", maximum=MAX_PRF)
     if "sound_speed" in acq:
-        lo, hi = SOUND_SPEED_RANGE
+        lo, hi = C_LIMITS
         c = _number("acquisition.sound_speed", acq["sound_speed"], unit="m/s", maximum=hi)
         if c <= lo:
             raise ValueError(f"plan acquisition.sound_speed must be > {lo:g} m/s, got {acq['sound_speed']!r}")
@@ -434,7 +433,7 @@ def plan_image(plan: dict) -> bytes:
                              int(lat["n_x"]), int(lat["n_y"]), float(lat["pitch"]),
                              int(acq["n_t"]), int(acq.get("averages", 1)), float(acq["dt"]),
                              float(acq.get("prf", 0.0) or 0.0), waves[0],
-                             float(acq.get("sound_speed", 1500.0)), len(idx))
+                             float(acq.get("sound_speed", C_DEFAULT)), len(idx))
     spectral = IMAGE_SPECTRAL.pack(len(waves), WAVELENGTH_ORDERS.index(wavelength_order(acq)), 0)
     return (head + spectral + np.asarray(waves, dtype="<f8").tobytes()
             + idx.astype("<u2").tobytes())

@@ -81,6 +81,7 @@ import h5py
 import numpy as np
 from h5py import h5d, h5p, h5s, h5t
 
+from driver.constants import C_DEFAULT
 from driver.plan import canonical_json, check_plan, wavelength_order
 
 FORMAT = "fpscan-scan/2"
@@ -129,7 +130,7 @@ def _check_plan(plan: Any) -> _PlanArrays:
     acq, pts = plan["acquisition"], plan["points"]
     pos = np.asarray(pts["positions"], dtype=np.float64)
     return _PlanArrays(pos.shape[0], int(acq["n_t"]), float(acq["dt"]),
-                       float(acq.get("sound_speed", 1500.0)),
+                       float(acq.get("sound_speed", C_DEFAULT)),
                        np.asarray(acq["wavelengths"], dtype=np.float64).reshape(-1),
                        wavelength_order(acq), pos,
                        np.asarray(pts["indices"], dtype=np.int64).astype(np.int32),

@@ -27,6 +27,7 @@ from typing import Protocol
 
 import numpy as np
 
+from driver.constants import C_DEFAULT
 from driver.kwave_layout import lateral_spacings
 from driver.plan import DevicePlan
 
@@ -90,7 +91,7 @@ class BallSource:
     """
 
     balls: list
-    c: float = 1500.0
+    c: float = C_DEFAULT
     so2: Sequence[float] | None = None
     thb: float | Sequence[float] | None = None
     gruneisen: float = 0.2
@@ -188,7 +189,7 @@ class VolumeSource:
     """
 
     path: Path
-    c: float = 1500.0
+    c: float = C_DEFAULT
 
     def __post_init__(self):
         import h5py

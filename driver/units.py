@@ -30,6 +30,8 @@ import re
 from decimal import Decimal, InvalidOperation
 from typing import Any
 
+from driver.constants import C_DEFAULT, C_LIMITS, C_PLAUSIBLE
+
 #: what each kind of quantity is measured in: (pint dimensionality, SI unit name)
 KINDS = {
     "length": ("[length]", "m"),
@@ -40,7 +42,6 @@ KINDS = {
 
 PITCH_RANGE = (1e-6, 10e-3)       # m
 DT_RANGE = (0.1e-9, 1e-6)         # s
-SOUND_SPEED_RANGE = (1000.0, 2000.0)  # m/s
 
 _QUANTITY = re.compile(r"^\s*([+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?)\s*([A-Za-zµμ/ ]*?)\s*$")
 
@@ -178,13 +179,18 @@ _SI_OF_UNITS = {_LENGTH_UNITS: "m", _TIME_UNITS: "s"}
 def check_speeds(*, c: Any = None, c_range: Any = None, force: bool = False) -> None:
     """The speed-of-sound rule for reconstruction options (``service.pipeline.reconstruct``,
     the API's ``ReconParams``): a numeric ``c`` (m/s) and each end of the autofocus search
-    interval ``c_range`` within 1000–2000 m/s unless ``force``. ``"auto"``, None and
-    non-numbers pass (their own checks name them). Raises :class:`ImplausibleValue`
-    naming ``c`` or ``c_range`` and the likely unit mistake."""
+    interval ``c_range`` within ``driver.constants.C_PLAUSIBLE`` (1000–2000 m/s) unless
+    ``force``; forced, a numeric ``c`` stays within ``C_LIMITS`` (above 100, at most 10 000
+    m/s). ``"auto"``, None and non-numbers pass (their own checks name them). Raises
+    :class:`ImplausibleValue` naming ``c`` or ``c_range`` and the likely unit mistake, or
+    :class:`RefusedInput` for a forced ``c`` outside ``C_LIMITS``."""
     def number(v: Any) -> bool:
         return isinstance(v, (int, float)) and not isinstance(v, bool)
 
     if force:
+        if number(c) and not C_LIMITS[0] < float(c) <= C_LIMITS[1]:
+            raise RefusedInput(f"c must be within {C_LIMITS[0]:g}-{C_LIMITS[1]:g} m/s even with force, "
+                               f"got {float(c):g} m/s")
         return
     if number(c):
         try:
@@ -206,7 +212,7 @@ def check_plausible(*, pitch: float | None = None, dx: float | None = None, dy: 
                     force: bool = False) -> None:
     """Raise :class:`ImplausibleValue` (a ``ValueError``) for the first value outside the
     table of the module docstring, naming the likely unit mistake. All values SI; None =
-    not given. ``force`` accepts a sound speed outside 1000–2000 m/s (other media)."""
+    not given. ``force`` accepts a sound speed outside ``C_PLAUSIBLE`` (other media)."""
     for name, v in (("pitch", pitch), ("dx", dx), ("dy", dy)):
         if v is not None:
             _in_range(name, float(v), *PITCH_RANGE, "m", _LENGTH_UNITS)
@@ -214,20 +220,20 @@ def check_plausible(*, pitch: float | None = None, dx: float | None = None, dy: 
         _in_range("dt", float(dt), *DT_RANGE, "s", _TIME_UNITS)
     if sound_speed is not None and not force:
         c = float(sound_speed)
-        if not SOUND_SPEED_RANGE[0] <= c <= SOUND_SPEED_RANGE[1]:
+        if not C_PLAUSIBLE[0] <= c <= C_PLAUSIBLE[1]:
             hint = ""
-            if SOUND_SPEED_RANGE[0] <= c * 1e3 <= SOUND_SPEED_RANGE[1]:
+            if C_PLAUSIBLE[0] <= c * 1e3 <= C_PLAUSIBLE[1]:
                 hint = f" -- did you mean {c:g} km/s (= {c * 1e3:g} m/s; mm/µs is the same)?"
             raise ImplausibleValue(
-                f"sound speed {c:g} m/s is implausible for tissue or water (expected 1000 to 2000 "
-                f"m/s){hint} Numbers without a unit are m/s; force a value outside the range if the "
+                f"sound speed {c:g} m/s is implausible for tissue or water (expected {C_PLAUSIBLE[0]:g} to "
+                f"{C_PLAUSIBLE[1]:g} m/s){hint} Numbers without a unit are m/s; force a value outside the range if the "
                 "medium really is that fast or slow.")
     recording = n_t * dt if (n_t is not None and dt is not None) else None
     if depth is not None and float(depth) <= 0:
         raise ImplausibleValue(f"depth must be > 0 m (below the sensor plane), got {float(depth):g} m")
     if depth is not None:
         d = float(depth)
-        c = float(sound_speed) if sound_speed is not None else 1500.0
+        c = float(sound_speed) if sound_speed is not None else C_DEFAULT
         reach = c * (n_t - 1) * dt if (n_t is not None and dt is not None) else None
         if d <= 0 or (reach is not None and d > reach):
             def fits(x: float) -> bool:  # a unit guess must land within the recording and >= 10 µm

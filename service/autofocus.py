@@ -1,7 +1,7 @@
 """Sound-speed autofocus: the c that maximises the Tenenbaum sharpness of the image.
 
 A wrong speed of sound defocuses a planar reconstruction: every point source turns into
-an arc. fpscan picks c within a search interval (default :data:`C_RANGE`, 1450-1600 m/s)
+an arc. fpscan picks c within a search interval (default ``driver.constants.C_AUTOFOCUS_RANGE``, 1450-1600 m/s)
 as the maximiser of a focus function, as the paper (Appendix "Quality measures") uses
 the Tenenbaum sharpness to judge images:
 
@@ -36,10 +36,8 @@ from typing import Any
 
 import numpy as np
 
-#: default search interval for c, m/s (water 10-60 °C and soft tissue)
-C_RANGE: tuple[float, float] = (1450.0, 1600.0)
-#: widest interval accepted, m/s
-C_LIMITS: tuple[float, float] = (300.0, 6000.0)
+from driver.constants import C_AUTOFOCUS_LIMITS, C_AUTOFOCUS_RANGE
+
 MAX_DECIMATION = 8
 
 
@@ -73,13 +71,13 @@ class Autofocus:
 
 def check_c_range(c_range: Any) -> tuple[float, float]:
     """``(c_min, c_max)`` in m/s as floats; ``ValueError`` unless finite, c_min < c_max
-    and both within :data:`C_LIMITS`."""
+    and both within ``driver.constants.C_AUTOFOCUS_LIMITS``."""
     try:
         lo, hi = (float(v) for v in c_range)
     except (TypeError, ValueError):
         raise ValueError(f"c_range must be two speeds (c_min, c_max) in m/s, got {c_range!r}") from None
-    if not (math.isfinite(lo) and math.isfinite(hi) and C_LIMITS[0] <= lo < hi <= C_LIMITS[1]):
-        raise ValueError(f"c_range must satisfy {C_LIMITS[0]:g} <= c_min < c_max <= {C_LIMITS[1]:g} m/s, "
+    if not (math.isfinite(lo) and math.isfinite(hi) and C_AUTOFOCUS_LIMITS[0] <= lo < hi <= C_AUTOFOCUS_LIMITS[1]):
+        raise ValueError(f"c_range must satisfy {C_AUTOFOCUS_LIMITS[0]:g} <= c_min < c_max <= {C_AUTOFOCUS_LIMITS[1]:g} m/s, "
                          f"got ({lo}, {hi})")
     return lo, hi
 
@@ -131,7 +129,7 @@ def choose_decimation(alines: np.ndarray, *, max_q: int = MAX_DECIMATION) -> int
     return q
 
 
-def search(sharpness_at: Callable[[float], float], c_range: tuple[float, float] = C_RANGE, *,
+def search(sharpness_at: Callable[[float], float], c_range: tuple[float, float] = C_AUTOFOCUS_RANGE, *,
            n_coarse: int = 7, xtol: float = 2.0) -> tuple[float, dict[float, float], bool]:
     """Maximise ``sharpness_at(c)`` over ``c_range`` (m/s): ``n_coarse`` even samples,
     then a bounded Brent search (scipy) between the best sample's neighbours to ``xtol``.
@@ -182,7 +180,7 @@ def _time_first(dataset: Any) -> np.ndarray:
     return np.asarray(dataset.alines).T
 
 
-def autofocus(dataset: Any, reconstruct: Callable[..., Any], *, c_range: Any = C_RANGE,
+def autofocus(dataset: Any, reconstruct: Callable[..., Any], *, c_range: Any = C_AUTOFOCUS_RANGE,
               n_coarse: int = 7, xtol: float = 2.0, decimation: int | None = None,
               options: dict | None = None, progress: Callable[[float], None] | None = None) -> Autofocus:
     """Find the speed of sound (m/s) that focuses ``dataset`` best (module docstring).
@@ -255,7 +253,7 @@ def focus_then_reconstruct(dataset: Any, method: str, reconstruct: Callable[...,
     [0, 0.5], the final reconstruction the rest. The result's ``params["c"]`` is the
     chosen c and ``params["autofocus"]`` the search (:meth:`Autofocus.as_params`).
     Raises ``ValueError`` for a bad ``c_range`` and what the dispatch raises."""
-    rng = check_c_range(C_RANGE if c_range is None else c_range)
+    rng = check_c_range(C_AUTOFOCUS_RANGE if c_range is None else c_range)
     search_method = method
     if method in ITERATIVE_METHODS:
         search_method = "ner" if getattr(dataset, "kind", None) == "grid" else "nedner"

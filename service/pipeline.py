@@ -44,6 +44,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from driver.constants import C_AUTOFOCUS_RANGE
+
 if TYPE_CHECKING:
     from service.recon.reconstruction import Reconstruction
     from service.storage.datasets import GridDataset, PointDataset
@@ -61,7 +63,7 @@ KWAVE_INTERPS = ("*nearest", "nearest", "*linear", "linear", "*cubic", "cubic")
 #: every option a method may take, with its meaning (units SI)
 OPTIONS: dict[str, str] = {
     "c": "speed of sound, m/s, or 'auto': the c of sharpest focus (service.autofocus; default: the dataset's)",
-    "c_range": "autofocus search interval (c_min, c_max), m/s (default 1450-1600)",
+    "c_range": f"autofocus search interval (c_min, c_max), m/s (default {C_AUTOFOCUS_RANGE[0]:g}-{C_AUTOFOCUS_RANGE[1]:g})",
     "dtype": f"working and output precision, one of {', '.join(DTYPES)} (default {DEFAULT_DTYPE})",
     "eps": "NUFFT tolerance in [1e-14, 1e-1] (default 1e-6)",
     "upsample": "lateral upsampling factor 1..8 (default 1)",

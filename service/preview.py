@@ -25,6 +25,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from driver.constants import C_DEFAULT
+
 log = logging.getLogger("fpscan.preview")
 
 
@@ -133,7 +135,7 @@ def warm_up() -> float:
     t0 = time.perf_counter()
     data = np.zeros((32, 4, 4), dtype=np.float32)
     data[5] = 1.0
-    reconstruct(GridDataset(data=data, dx=1e-4, dt=2e-8, c=1500.0, dy=1e-4), "nedner", eps=1e-3, dtype="float32")
+    reconstruct(GridDataset(data=data, dx=1e-4, dt=2e-8, c=C_DEFAULT, dy=1e-4), "nedner", eps=1e-3, dtype="float32")
     return time.perf_counter() - t0
 
 

@@ -24,6 +24,7 @@ from __future__ import annotations
 import time
 
 from clients.cli._common import UsageError
+from driver.constants import C_DEFAULT
 
 TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (`fpscan --help` starts faster)
 if TYPE_CHECKING:
@@ -123,7 +124,7 @@ class Demo:
         from driver.units import check_plausible
 
         # fpscan plan's unit rules (a pitch of 100 m, dt 12 s, a depth of 3 m): exit 2
-        check_plausible(pitch=a.pitch, dt=a.dt, n_t=a.n_t, sound_speed=1500.0, depth=a.poi_depth)
+        check_plausible(pitch=a.pitch, dt=a.dt, n_t=a.n_t, sound_speed=C_DEFAULT, depth=a.poi_depth)
         if a.lattice < 8 or a.lattice > 512:
             raise UsageError(f"--lattice must be within 8..512, not {a.lattice}")
         if not (0 < a.pitch <= 1e-3):
@@ -140,7 +141,7 @@ class Demo:
         shutil.rmtree(self.out / "server-data", ignore_errors=True)
         self.report["settings"] = {
             "lattice": {"n_x": a.lattice, "n_y": a.lattice, "pitch": a.pitch},
-            "acquisition": {"n_t": a.n_t, "dt": a.dt, "prf": 0.0, "sound_speed": 1500.0},
+            "acquisition": {"n_t": a.n_t, "dt": a.dt, "prf": 0.0, "sound_speed": C_DEFAULT},
             "poi": {"x": 0.0, "y": 0.0, "depth": a.poi_depth},
             "requested_points": a.points,
         }

@@ -14,6 +14,7 @@ import argparse
 from pathlib import Path
 
 from clients.cli._common import UsageError, add_server_options, client_errors, needs_extra
+from driver.constants import C_PLAUSIBLE
 
 COMMAND = "plan"
 HELP = "make a scan plan (sensor mask + weights + order + acquisition settings) as plan JSON"
@@ -118,7 +119,7 @@ def _common_options() -> argparse.ArgumentParser:
     g.add_argument("--sound-speed", type=lambda s: parse_value(s, "m/s"), default=acq.sound_speed,
                    help=f"speed of sound, e.g. 1500m/s (default {acq.sound_speed:g})")
     g.add_argument("--force", action="store_true",
-                   help="accept a sound speed outside 1000-2000 m/s (a medium other than tissue/water)")
+                   help=f"accept a sound speed outside {C_PLAUSIBLE[0]:g}-{C_PLAUSIBLE[1]:g} m/s (a medium other than tissue/water)")
     g = common.add_argument_group("output")
     g.add_argument("--out", help="where to write the plan JSON (required without --server)")
     g.add_argument("--preview", metavar="PNG", help="also write a preview PNG of the mask")

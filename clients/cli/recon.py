@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 
 from clients.cli._common import UsageError, add_progress_option, add_server_options, client_errors, speed
+from driver.constants import C_AUTOFOCUS_RANGE, C_DEFAULT, C_PLAUSIBLE
 
 COMMAND = "recon"
 HELP = "reconstruct p0 (NEDNER/NER/...) from a scan file or dataset, locally or on a server"
@@ -61,10 +62,10 @@ def add_arguments(parser):
                    help="lateral spacing along y, e.g. 100um (default dx)")
     g.add_argument("--c", type=speed, default=None,
                    help="speed of sound, e.g. 1500m/s, or 'auto' (autofocus: sharpest focus; default: the input's "
-                        "or 1500)")
+                        f"or {C_DEFAULT:g})")
     g.add_argument("--c-range", type=quantity("speed", "c-range"), nargs=2, default=None, metavar=("MIN", "MAX"),
-                   help="autofocus search interval, e.g. 1450 1600 (m/s) or 1.45km/s 1.6km/s (default 1450 1600)")
-    g.add_argument("--force", action="store_true", help="accept a speed of sound outside 1000-2000 m/s")
+                   help=f"autofocus search interval, e.g. 1450 1600 (m/s) or 1.45km/s 1.6km/s (default {C_AUTOFOCUS_RANGE[0]:g} {C_AUTOFOCUS_RANGE[1]:g})")
+    g.add_argument("--force", action="store_true", help=f"accept a speed of sound outside {C_PLAUSIBLE[0]:g}-{C_PLAUSIBLE[1]:g} m/s")
     g.add_argument("--key", default=None, help="HDF5 dataset path in a k-Wave file (default sensor_data/clean)")
     g = parser.add_argument_group("reconstruction options")
     g.add_argument("--eps", type=float, default=None, help="NUFFT tolerance (default 1e-6)")

@@ -7,6 +7,7 @@ the ground-truth record (``--record``) and exits 0.
 from __future__ import annotations
 
 from clients.cli._common import UsageError
+from driver.constants import C_DEFAULT, C_PLAUSIBLE
 
 COMMAND = "sim"
 HELP = "run the simulated FP scanner on a pseudo-terminal (prints its device path first)"
@@ -51,14 +52,14 @@ def add_arguments(parser):
                         help="relative amplitude of the sensitivity map (0..1)")
     parser.add_argument("--byte-rate", type=float, default=None,
                         help="limit the device's output to this many bytes/s")
-    parser.add_argument("--sound-speed", type=quantity("speed", "sound speed"), default=1500.0,
-                        help="speed of sound of the phantom, e.g. 1.54km/s (balls, volume; default 1500 m/s)")
+    parser.add_argument("--sound-speed", type=quantity("speed", "sound speed"), default=C_DEFAULT,
+                        help=f"speed of sound of the phantom, e.g. 1.54km/s (balls, volume; default {C_DEFAULT:g} m/s)")
     parser.add_argument("--force", action="store_true",
-                        help="accept a sound speed outside 1000-2000 m/s (a medium other than tissue/water)")
+                        help=f"accept a sound speed outside {C_PLAUSIBLE[0]:g}-{C_PLAUSIBLE[1]:g} m/s (a medium other than tissue/water)")
 
 
 def make_source(kind_and_file: list[str], *, dataset: str = "sensor_data/clean",
-                sound_speed: float = 1500.0, so2: list[float] | None = None):
+                sound_speed: float = C_DEFAULT, so2: list[float] | None = None):
     """The source named on the command line. Raises ValueError for a bad choice."""
     from driver.sources import BallSource, ReplaySource, VolumeSource, default_phantom
 

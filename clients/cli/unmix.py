@@ -22,6 +22,7 @@ from clients.cli._common import (
     quantity,
     speed,
 )
+from driver.constants import C_AUTOFOCUS_RANGE, C_PLAUSIBLE
 
 COMMAND = "unmix"
 HELP = "reconstruct every wavelength and unmix HbO2/Hb into THb and sO2 (masked)"
@@ -42,9 +43,9 @@ def add_arguments(parser):
     parser.add_argument("--c", type=speed, default=None,
                         help="speed of sound, m/s, or 'auto' (autofocus; default: the input's)")
     parser.add_argument("--c-range", type=quantity("speed", "c-range"), nargs=2, default=None, metavar=("MIN", "MAX"),
-                        help="autofocus search interval, e.g. 1450 1600 (m/s) or 1.45km/s 1.6km/s (default 1450 1600)")
+                        help=f"autofocus search interval, e.g. 1450 1600 (m/s) or 1.45km/s 1.6km/s (default {C_AUTOFOCUS_RANGE[0]:g} {C_AUTOFOCUS_RANGE[1]:g})")
     parser.add_argument("--force", action="store_true",
-                        help="accept a speed of sound (--c, --c-range) outside 1000-2000 m/s")
+                        help=f"accept a speed of sound (--c, --c-range) outside {C_PLAUSIBLE[0]:g}-{C_PLAUSIBLE[1]:g} m/s")
     parser.add_argument("--threshold", type=float, default=0.1,
                         help="mask voxels whose THb is below this fraction of the maximum (default 0.1)")
     parser.add_argument("--fluence", type=float, nargs="+", default=None, metavar="J_PER_M2",

@@ -18,6 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from driver.constants import C_DEFAULT
+
 
 @dataclass(frozen=True)
 class Ball:
@@ -69,7 +71,7 @@ def ball_alines(
     balls: Sequence[Ball] | Ball,
     dt: float,
     n_t: int,
-    c: float = 1500.0,
+    c: float = C_DEFAULT,
     t0: float = 0.0,
 ) -> np.ndarray:
     """A-lines of uniform balls at point sensors on the plane z = 0.

@@ -28,6 +28,7 @@ import math
 import numpy as np
 import scipy.fft
 
+from driver.constants import C_DEFAULT
 from driver.physics import nufft
 from driver.physics.axes import centred_index
 from driver.physics.fast_lengths import fast_dct1_rows, fast_length
@@ -135,7 +136,7 @@ def forward_grid(
     dz: float,
     dt: float,
     n_t: int,
-    c: float = 1500.0,
+    c: float = C_DEFAULT,
     *,
     t0: float = 0.0,
     eps: float = 1e-6,
@@ -191,7 +192,7 @@ def forward_points(
     positions: np.ndarray,
     dt: float,
     n_t: int,
-    c: float = 1500.0,
+    c: float = C_DEFAULT,
     *,
     t0: float = 0.0,
     eps: float = 1e-6,

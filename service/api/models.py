@@ -22,6 +22,7 @@ from pydantic import (
     model_validator,
 )
 
+from driver.constants import C_AUTOFOCUS_LIMITS, C_AUTOFOCUS_RANGE, C_LIMITS, C_PLAUSIBLE
 from service.pipeline import DEFAULT_DTYPE, DTYPES, KWAVE_INTERPS, METHODS
 from service.plans.kinds import KINDS, MaskKind, resolve_kind
 from service.plans.plan import ORDER_NAMES, Acquisition
@@ -408,11 +409,14 @@ class ReconParams(_Request):
     options). Lengths, times and speeds may be text with a unit (``"30um"``, ``"600s"``)."""
 
     c: Annotated[float, Field(gt=0)] | Literal["auto"] | None = Field(
-        None, description="speed of sound, m/s (1000-2000 unless force, 100-10000 with it), or 'auto': the "
+        None, description=f"speed of sound, m/s ({C_PLAUSIBLE[0]:g}-{C_PLAUSIBLE[1]:g} unless force, "
+                          f"{C_LIMITS[0]:g}-{C_LIMITS[1]:g} with it), or 'auto': the "
                           "speed of sharpest focus (Tenenbaum sharpness, searched within c_range; default: "
                           "the input's)")
-    c_range: tuple[Annotated[float, Field(ge=300, le=6000)], Annotated[float, Field(ge=300, le=6000)]] | None = Field(
-        None, description="autofocus search interval (c_min, c_max), m/s (default 1450-1600)")
+    c_range: tuple[Annotated[float, Field(ge=C_AUTOFOCUS_LIMITS[0], le=C_AUTOFOCUS_LIMITS[1])],
+                   Annotated[float, Field(ge=C_AUTOFOCUS_LIMITS[0], le=C_AUTOFOCUS_LIMITS[1])]] | None = Field(
+        None, description="autofocus search interval (c_min, c_max), m/s "
+                          f"(default {C_AUTOFOCUS_RANGE[0]:g}-{C_AUTOFOCUS_RANGE[1]:g})")
     eps: float | None = Field(None, description="NUFFT tolerance (ner, nedner, tv; default 1e-6)",
                               json_schema_extra=_bounds(_checks.EPS_RANGE))
     dtype: _one_of(DTYPES) = Field(DEFAULT_DTYPE, description="working and output precision")  # type: ignore[valid-type]
@@ -469,12 +473,11 @@ class ReconParams(_Request):
     @model_validator(mode="after")
     def _plausible_speed(self) -> ReconParams:
         """The speed-of-sound rule of the library and the CLI (``driver.units.check_speeds``):
-        422 naming the likely unit mistake unless ``force``; forced, c stays in 100-10000 m/s."""
+        422 naming the likely unit mistake unless ``force``; forced, c stays within
+        ``driver.constants.C_LIMITS``."""
         from driver.units import check_speeds
 
         check_speeds(c=self.c, c_range=self.c_range, force=self.force)
-        if isinstance(self.c, float) and not 100 < self.c <= 10000:
-            raise ValueError(f"c must be within 100-10000 m/s even with force, got {self.c:g} m/s")
         return self
 
 

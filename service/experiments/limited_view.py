@@ -23,6 +23,7 @@ import time
 
 import numpy as np
 
+from driver.constants import C_DEFAULT
 from driver.physics.axes import centred_axis
 from service.metrics import (
     bounding_box,
@@ -62,7 +63,7 @@ def simulate_tree(*, small: bool, snr_db: float | None, seed: int = 0) -> DenseD
     from service.recon import forward_grid
 
     n_z, n_x = (64, 256) if small else (256, 1024)
-    dx, c = 50e-6, 1500.0
+    dx, c = 50e-6, C_DEFAULT
     dt = dx / c
     p0 = tree_phantom(n_z, n_x)
     n_t = n_x + n_z

@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from driver.constants import C_DEFAULT
 from driver.physics.axes import centred_axis
 from service.metrics import fit_edge_spread, fit_lorentz, side_lobe_level
 from service.pipeline import reconstruct
@@ -49,7 +50,7 @@ def simulate_layer(*, small: bool, depth: float | None = None) -> DenseDataset:
     edges blurred by 2.5 pitches. Raises ValueError if the layer is outside the window."""
     from service.recon import forward_grid
 
-    n_x, n_t, dx, dt, c = (128, 256, 70e-6, 8e-9, 1500.0) if small else (256, 512, 70e-6, 8e-9, 1500.0)
+    n_x, n_t, dx, dt, c = (128, 256, 70e-6, 8e-9, C_DEFAULT) if small else (256, 512, 70e-6, 8e-9, C_DEFAULT)
     dz = c * dt
     if depth is None:
         depth = 1e-3 if small else 2e-3
@@ -108,7 +109,7 @@ def depth_sweep(*, small: bool, methods=METHODS, fractions=(0.15, 0.35, 0.55, 0.
     ``{"depth_m": [...], "peak[<m>]": [...], "axial_fwhm_um[<m>]": [...]}`` (the
     interpolation methods' gain error grows with depth; DESIGN §3.2)."""
     n_t = 256 if small else 512
-    dz = 1500.0 * 8e-9
+    dz = C_DEFAULT * 8e-9
     out: dict = {"depth_m": []}
     for f in fractions:
         ds = simulate_layer(small=small, depth=f * n_t * dz)

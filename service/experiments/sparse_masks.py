@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from driver.constants import C_DEFAULT
 from driver.physics.axes import centred_axis
 from service.metrics import (
     cc_vs_diameter,
@@ -56,7 +57,7 @@ def simulate_yarn(*, small: bool, snr_db: float | None = None, seed: int = 0) ->
     60 µm, dt = 8 ns, exact planar forward model."""
     from service.recon import forward_grid
 
-    n, d, dt, c = (64, 60e-6, 8e-9, 1500.0) if small else (226, 60e-6, 8e-9, 1500.0)
+    n, d, dt, c = (64, 60e-6, 8e-9, C_DEFAULT) if small else (226, 60e-6, 8e-9, C_DEFAULT)
     half = n * d / 2
     n_z = int(np.ceil((0.53 * half + 0.3 * half) / d))
     p0, _ = yarn_phantom(n_z, n, d)

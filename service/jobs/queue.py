@@ -24,6 +24,7 @@ import time
 import uuid
 from pathlib import Path
 
+from driver.constants import C_AUTOFOCUS_RANGE, C_DEFAULT
 from service.jobs.executors import WorkerDied
 from service.jobs.lifecycle import apply_retention, is_disk_full
 from service.jobs.store import JobStore
@@ -61,8 +62,8 @@ def working_depth_rows(shape: dict, params: dict) -> int:
         return n_z
     c_param = params.get("c")
     if c_param == "auto":  # autofocus: the fastest speed it may choose reaches deepest
-        c_param = max(params.get("c_range") or (1450.0, 1600.0))
-    c = float(c_param or shape.get("c") or 1500.0)
+        c_param = max(params.get("c_range") or C_AUTOFOCUS_RANGE)
+    c = float(c_param or shape.get("c") or C_DEFAULT)
     reach = c * (float(params.get("t0") or 0.0) + (n_t - 1) * float(shape["dt"])) / float(dz)
     if not reach < MAX_DEPTH_ROWS:
         raise AdmissionError(f"dz = {dz:g} m is too fine for this input: the depth transform would need "
@@ -91,8 +92,8 @@ def estimate_memory(shape: dict, params: dict) -> int:
     geometry: dict[str, float | None] = {}
     if shape.get("dx") and shape.get("dt"):  # the model-based operator's padding depends on them
         c = params.get("c")
-        c = max(params.get("c_range") or (1450.0, 1600.0)) if c == "auto" else c
-        geometry = {"dx": float(shape["dx"]), "dt": float(shape["dt"]), "c": float(c or shape.get("c") or 1500.0),
+        c = max(params.get("c_range") or C_AUTOFOCUS_RANGE) if c == "auto" else c
+        geometry = {"dx": float(shape["dx"]), "dt": float(shape["dt"]), "c": float(c or shape.get("c") or C_DEFAULT),
                     "dz": float(params["dz"]) if params.get("dz") else None}
     value = estimate_peak_memory(n_t, n_x, n_y, n_z=rows, upsample=up,
                                  dtype=params.get("dtype") or "float32", method=params.get("method", "ner"),

@@ -31,6 +31,8 @@ import os
 import time
 from typing import Any
 
+from driver.constants import C_DEFAULT
+
 INPUT_FORMATS = {"scan": "fpscan", "dataset": "dataset"}
 
 
@@ -271,7 +273,7 @@ def warm_up(full: bool = False) -> dict:
         compile_kernels()
         data = np.zeros((32, 4, 4), dtype=np.float32)
         data[5, 1:3, 1:3] = 1.0
-        rec = reconstruct(GridDataset(data=data, dx=1e-4, dt=2e-8, c=1500.0, dy=1e-4), "ner")
+        rec = reconstruct(GridDataset(data=data, dx=1e-4, dt=2e-8, c=C_DEFAULT, dy=1e-4), "ner")
         with tempfile.TemporaryDirectory(prefix="fpscan-warm-") as tmp:
             write_result(os.path.join(tmp, "result"), rec, input_id="warm-up")
     return {"pid": os.getpid(), "seconds": time.perf_counter() - t0}

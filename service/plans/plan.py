@@ -16,6 +16,7 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
+from driver.constants import C_DEFAULT, C_LIMITS
 from driver.plan import (
     MAX_AVERAGES,
     MAX_DT,
@@ -24,7 +25,6 @@ from driver.plan import (
     MAX_WAVELENGTHS,
     MIN_N_T,
     PLAN_FORMAT,
-    SOUND_SPEED_RANGE,
     canonical_json,
     check_acquisition,
     check_plan,
@@ -112,10 +112,9 @@ class Acquisition(_Strict):
                                                         "maxItems": MAX_WAVELENGTHS})
     prf: float = Field(default=50.0, description="pulse repetition frequency, Hz (0 = as fast as possible)",
                        json_schema_extra={"unit": "Hz", "display_unit": "Hz", "minimum": 0, "maximum": MAX_PRF})
-    sound_speed: float = Field(default=1500.0, description="speed of sound, m/s",
+    sound_speed: float = Field(default=C_DEFAULT, description="speed of sound, m/s",
                                json_schema_extra={"unit": "m/s", "display_unit": "m/s",
-                                                  "exclusiveMinimum": SOUND_SPEED_RANGE[0],
-                                                  "maximum": SOUND_SPEED_RANGE[1]})
+                                                  "exclusiveMinimum": C_LIMITS[0], "maximum": C_LIMITS[1]})
     #: several wavelengths: tune the laser at every point ("per_point", the default when
     #: absent) or once per full pass ("per_pass"); docs/protocol.md §4.1. Left out of the
     #: JSON when not set, so plans without it keep their ids.

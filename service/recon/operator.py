@@ -82,6 +82,7 @@ import numpy as np
 import pylops
 import scipy.fft
 
+from driver.constants import C_DEFAULT
 from driver.physics import nufft
 from driver.physics.axes import centred_index
 from driver.physics.forward import _pad_sizes
@@ -119,7 +120,7 @@ class PlanarOperator(pylops.LinearOperator):
     bad dtype; `forward`/`adjoint` raise it for arrays of the wrong shape or with NaN/inf.
     """
 
-    def __init__(self, shape, dx: float, dz: float, dt: float, n_t: int, c: float = 1500.0, *,
+    def __init__(self, shape, dx: float, dz: float, dt: float, n_t: int, c: float = C_DEFAULT, *,
                  positions=None, t0: float = 0.0, eps: float = 1e-6, periodic: bool = False,
                  dtype=np.float64):
         shape = tuple(int(s) for s in shape)

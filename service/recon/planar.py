@@ -29,6 +29,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.fft
 
+from driver.constants import C_DEFAULT
 from driver.physics import nufft
 from driver.physics.axes import centred_axis
 from driver.physics.fast_lengths import fast_dct1_rows, fast_length
@@ -265,7 +266,7 @@ def reconstruct_grid(
     data: np.ndarray,
     dx: float,
     dt: float,
-    c: float = 1500.0,
+    c: float = C_DEFAULT,
     *,
     method: str = "ner",
     eps: float = 1e-6,
@@ -468,7 +469,7 @@ def reconstruct_points(
     alines: np.ndarray,
     positions: np.ndarray,
     dt: float,
-    c: float = 1500.0,
+    c: float = C_DEFAULT,
     *,
     weights: np.ndarray | None = None,
     grid=None,

@@ -44,6 +44,7 @@ from typing import Any
 
 import numpy as np
 
+from driver.constants import C_DEFAULT
 from service.recon import checks
 from service.recon.reconstruction import Reconstruction
 
@@ -80,7 +81,7 @@ def _check_tv_options(lam, max_iter, tol, time_limit):
 def reconstruct_tv(
     data: np.ndarray,
     dt: float,
-    c: float = 1500.0,
+    c: float = C_DEFAULT,
     *,
     dx: float | None = None,
     positions: np.ndarray | None = None,

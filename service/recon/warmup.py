@@ -20,6 +20,8 @@ import time
 
 import numpy as np
 
+from driver.constants import C_DEFAULT
+
 DTYPES = ("float32", "float64")
 
 
@@ -64,12 +66,12 @@ def warm_up(dtypes=DTYPES) -> dict:
         reconstruct_points(rng.standard_normal((30, 32)).astype(d), pos, dt, weights=np.full(30, dx * dx),
                            grid=grid, dtype=d)
         for interp in ("*nearest", "*linear"):
-            kspace_plane_recon(data, dx, dx, dt, 1500.0, interp=interp, dtype=d)
-            kspace_line_recon(data[:, 0, :], dx, dt, 1500.0, interp=interp, dtype=d)
+            kspace_plane_recon(data, dx, dx, dt, C_DEFAULT, interp=interp, dtype=d)
+            kspace_line_recon(data[:, 0, :], dx, dt, C_DEFAULT, interp=interp, dtype=d)
         # the model-based operator runs its transforms in the working precision
-        op = PlanarOperator((4, 6, 6), dx, 1500.0 * dt, dt, 32, dtype=d)
+        op = PlanarOperator((4, 6, 6), dx, C_DEFAULT * dt, dt, 32, dtype=d)
         op.adjoint(op.forward(np.ones((4, 6, 6))))
-    forward_grid(np.ones((4, 6, 6)), dx, 1500.0 * dt, dt, 32)
+    forward_grid(np.ones((4, 6, 6)), dx, C_DEFAULT * dt, dt, 32)
     return {"seconds": time.perf_counter() - t0, "cache_dirs": cache_dirs()}
 
 

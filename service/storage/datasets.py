@@ -51,6 +51,7 @@ import h5py
 import numpy as np
 
 from driver import kwave_layout
+from driver.constants import C_DEFAULT
 from driver.physics.axes import centred_axis
 
 FORMATS = ("fpscan", "ipasc", "kwave-hdf5", "npy", "dataset")
@@ -386,7 +387,7 @@ def load_npy(path: str | os.PathLike, *, dt: float | None, dx: float | None,
     if dt is None or dx is None:
         raise ValueError("a .npy array needs dt (s) and dx (m)")
     return GridDataset(data=data, dx=_positive("dx", dx), dt=_positive("dt", dt),
-                       c=_positive("c", c if c is not None else 1500.0),
+                       c=_positive("c", c if c is not None else C_DEFAULT),
                        dy=_positive("dy", dy) if (dy is not None and data.ndim == 3) else
                        (_positive("dx", dx) if data.ndim == 3 else None),
                        source="npy")
@@ -438,7 +439,7 @@ def load_kwave_hdf5(path: str | os.PathLike, *, key: str | None = None, dt: floa
         dy = None
     c = c if c is not None else get("c_m_per_s")
     return GridDataset(data=data, dx=dx, dy=dy, dt=_positive("dt", dt),
-                       c=_positive("c", c if c is not None else 1500.0), source="kwave-hdf5",
+                       c=_positive("c", c if c is not None else C_DEFAULT), source="kwave-hdf5",
                        meta={"key": name, "kwave_naming": kwave})
 
 

@@ -32,6 +32,7 @@ import h5py
 import numpy as np
 from h5py import h5d, h5g, h5s, h5t
 
+from driver.constants import C_DEFAULT
 from driver.physics.axes import centred_axis
 from driver.scanfile import read_scan
 
@@ -303,7 +304,7 @@ def read_ipasc(path: str | os.PathLike, *, wavelength_index: int = 0,  # noqa: C
             raise ValueError(f"meta_data/ad_sampling_rate must be > 0 Hz, got {fs}")
         c = m.get("speed_of_sound")
         if c is None:
-            c = 1500.0
+            c = C_DEFAULT
         c_arr = np.ravel(np.asarray(c, dtype=np.float64))
         if c_arr.size == 0 or not np.all(c_arr == c_arr[0]):
             raise ValueError("a spatially varying speed_of_sound is not supported (homogeneous "

@@ -6,6 +6,7 @@ import h5py
 import numpy as np
 import pytest
 
+from driver.constants import C_AUTOFOCUS_RANGE
 from driver.physics import Ball, ball_alines
 from service import autofocus as af
 from service.recon import reconstruct_grid
@@ -34,7 +35,7 @@ def test_autofocus_simulated_balls_1480():
     ds = GridDataset(data, dx, dt, 1500.0, dy=dx)
     r = af.autofocus(ds, _recon)
     assert abs(r.c - c_true) / c_true < 0.003, r.as_params()
-    assert r.c_range == af.C_RANGE and not r.at_edge
+    assert r.c_range == C_AUTOFOCUS_RANGE and not r.at_edge
     assert r.evaluations == len(r.c_values) == len(r.sharpness)
     assert _unimodal_around(r, 5.0), r.as_params()
 

@@ -1,0 +1,70 @@
+"""Issue 21.4: each physical default is stated once, in ``driver.constants``. The oracle is
+the source itself: no other module of the product spells the default speed of sound or an
+end of the autofocus interval as a number (an AST walk, so comments and prose don't count),
+and the values the library, the CLI and the HTTP model offer are the constants."""
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+from driver import constants
+
+ROOT = Path(__file__).resolve().parents[2]
+PACKAGES = ("driver", "service", "clients")
+SPELLED_ONCE = {constants.C_DEFAULT, *constants.C_AUTOFOCUS_RANGE}
+
+
+def _numbers(path: Path):
+    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    for node in ast.walk(tree):
+        if (isinstance(node, ast.Constant) and isinstance(node.value, (int, float))
+                and not isinstance(node.value, bool) and node.value in SPELLED_ONCE):
+            yield node.lineno, node.value
+
+
+def test_the_speed_of_sound_defaults_are_spelled_only_in_the_constants_module():
+    found = [f"{p.relative_to(ROOT)}:{line}: {value!r}"
+             for pkg in PACKAGES for p in sorted((ROOT / pkg).rglob("*.py"))
+             if p != ROOT / "driver" / "constants.py" for line, value in _numbers(p)]
+    assert not found, "use driver.constants instead of:\n" + "\n".join(found)
+
+
+def test_the_library_the_plan_contract_and_the_http_model_take_the_constants():
+    import inspect
+
+    from service.api.models import ReconParams
+    from service.autofocus import autofocus
+    from service.plans.plan import Acquisition
+    from service.recon.planar import reconstruct_grid, reconstruct_points
+
+    assert all(inspect.signature(f).parameters["c"].default == constants.C_DEFAULT
+               for f in (reconstruct_grid, reconstruct_points))
+    assert inspect.signature(autofocus).parameters["c_range"].default == constants.C_AUTOFOCUS_RANGE
+    assert Acquisition.model_fields["sound_speed"].default == constants.C_DEFAULT
+    schema = ReconParams.model_json_schema()["properties"]["c_range"]
+    ends = [item for item in schema["anyOf"] if item.get("type") == "array"][0]["prefixItems"]
+    assert all((e["minimum"], e["maximum"]) == constants.C_AUTOFOCUS_LIMITS for e in ends)
+
+
+@pytest.mark.parametrize("c, force, ok", [(constants.C_PLAUSIBLE[1], False, True),
+                                          (constants.C_PLAUSIBLE[1] + 1, False, False),
+                                          (constants.C_PLAUSIBLE[1] + 1, True, True),
+                                          (constants.C_LIMITS[1], True, True),
+                                          (constants.C_LIMITS[1] + 1, True, False),
+                                          (constants.C_LIMITS[0], True, False)])
+def test_a_forced_speed_stays_within_the_limits_in_the_library_as_over_http(c, force, ok):
+    from pydantic import ValidationError
+
+    from driver.units import RefusedInput, check_speeds
+    from service.api.models import ReconParams
+
+    if ok:
+        check_speeds(c=c, force=force)
+        ReconParams(c=c, force=force)
+    else:
+        with pytest.raises(RefusedInput):
+            check_speeds(c=c, force=force)
+        with pytest.raises(ValidationError):
+            ReconParams(c=c, force=force)
