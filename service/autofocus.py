@@ -241,12 +241,14 @@ ITERATIVE_METHODS = ("tv",)
 
 def focus_then_reconstruct(dataset: Any, method: str, reconstruct: Callable[..., Any], *,
                            c_range: Any = None, progress: Callable[[float, str], None] | None = None,
-                           should_stop: Callable[[], bool] | None = None, **options: Any) -> Any:
+                           should_stop: Callable[[], bool] | None = None,
+                           options_of: Callable[[str], Any] | None = None, **options: Any) -> Any:
     """``c="auto"`` for the dispatch: :func:`autofocus`, then one reconstruction of the
     full data at the chosen c.
 
     ``reconstruct`` is the dispatch (``service.pipeline.reconstruct``); ``options`` are
-    the method's other options (``c`` excluded). The search reconstructs with ``method``
+    the method's other options (``c`` excluded); ``options_of(method)``: the option names
+    a method takes (the dispatch's registry; None: the search passes every option on). The search reconstructs with ``method``
     (a direct method of the dispatch; an iterative one, :data:`ITERATIVE_METHODS`,
     searches with ``service.pipeline.default_method``'s NER/NEDNER instead), lateral
     upsampling 1, float32. Progress: the search reports stage ``"autofocus"`` over
@@ -257,9 +259,7 @@ def focus_then_reconstruct(dataset: Any, method: str, reconstruct: Callable[...,
     search_method = method
     if method in ITERATIVE_METHODS:
         search_method = "ner" if getattr(dataset, "kind", None) == "grid" else "nedner"
-    from service.pipeline import METHODS
-
-    takes = set(METHODS[search_method].options) if search_method in METHODS else set(options)
+    takes = set(options_of(search_method)) if options_of is not None else set(options)
     # the search method's own options only (an iterative method's lam, iterations... are not the search's)
     search_opts = {k: v for k, v in options.items() if k not in ("dz", "n_z", "dtype", "upsample") and k in takes}
 

@@ -268,7 +268,7 @@ def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = No
         rest = {k: v for k, v in options.items() if k not in ("c", "c_range")}
         # the speeds tried lie within c_range, checked above
         return focus_then_reconstruct(dataset, method, partial(reconstruct, force=True),
-                                      c_range=options.get("c_range"),
+                                      c_range=options.get("c_range"), options_of=lambda m: METHODS[m].options,
                                       progress=progress, should_stop=should_stop, **rest)
     opts["dtype"] = _dtype(opts.get("dtype"))
     c = opts.pop("c", None)

@@ -25,10 +25,10 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.staticfiles import StaticFiles
 
 from driver.acquire import software_version
-from service.api.context import Context, Slots, ctx, default_slots, read_access
+from service.api.context import Context, Slots, ctx, default_slots, read_access, validation_reason
 from service.api.models import AuthInfo, Error, Health
-from service.jobs.lifecycle import is_disk_full
 from service.settings import Settings
+from service.storage.disk import is_disk_full
 
 log = logging.getLogger("fpscan.api")
 
@@ -77,19 +77,6 @@ def allowed_methods(app, scope) -> list[str]:
 
     walk(app.router.routes)
     return sorted(methods)
-
-
-def _validation_reason(exc: RequestValidationError) -> str:
-    parts = []
-    for err in exc.errors()[:5]:
-        loc = ".".join(str(p) for p in err.get("loc", ()) if p != "body") or "body"
-        msg = err.get("msg", "invalid").removeprefix("Value error, ")
-        if err.get("type") == "json_invalid":
-            return f"malformed JSON: {err.get('ctx', {}).get('error', msg)}"
-        if err.get("type") in ("literal_error", "enum") and isinstance(err.get("input"), (str, int, float)):
-            msg = f"{msg}, got {str(err['input'])[:64]!r}"  # name the refused value
-        parts.append(f"{loc}: {msg}")
-    return "; ".join(parts) or "invalid request"
 
 
 class UploadLimit:
@@ -408,7 +395,7 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True) 
 
     @app.exception_handler(RequestValidationError)
     async def _validation(request: Request, exc: RequestValidationError):
-        return JSONResponse({"detail": _validation_reason(exc)}, status_code=422)
+        return JSONResponse({"detail": validation_reason(exc)}, status_code=422)
 
     @app.exception_handler(StarletteHTTPException)
     async def _http(request: Request, exc: StarletteHTTPException):

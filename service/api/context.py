@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from fastapi import Depends, HTTPException, Request
+from fastapi.exceptions import RequestValidationError
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from service.jobs.store import JobStore
@@ -106,6 +107,21 @@ async def read_access(request: Request, creds: HTTPAuthorizationCredentials | No
     loopback bind too (``service.api.access.AccessGate`` has already refused a request
     without it, before anything was reserved; this is the route's own check)."""
     _check(request.app.state.ctx.settings, creds)
+
+
+def validation_reason(exc: RequestValidationError) -> str:
+    """The one-line reason of a 422 for a request FastAPI refused: ``field: message; ...``
+    (at most five), or the JSON parser's message for a malformed body."""
+    parts = []
+    for err in exc.errors()[:5]:
+        loc = ".".join(str(p) for p in err.get("loc", ()) if p != "body") or "body"
+        msg = err.get("msg", "invalid").removeprefix("Value error, ")
+        if err.get("type") == "json_invalid":
+            return f"malformed JSON: {err.get('ctx', {}).get('error', msg)}"
+        if err.get("type") in ("literal_error", "enum") and isinstance(err.get("input"), (str, int, float)):
+            msg = f"{msg}, got {str(err['input'])[:64]!r}"  # name the refused value
+        parts.append(f"{loc}: {msg}")
+    return "; ".join(parts) or "invalid request"
 
 
 def reason(exc: BaseException) -> str:

@@ -21,7 +21,7 @@ import numpy as np
 from fastapi import APIRouter, Depends, HTTPException, Path, Request, Response
 from pydantic import TypeAdapter, ValidationError
 
-from service.api.context import Context, ctx, read_access, reason, require_token
+from service.api.context import Context, ctx, read_access, reason, require_token, validation_reason
 from service.api.models import ID_PATTERN, Deleted, MaskKindInfo, Plan, PlanCreate, PlanDocument, PlanPreview
 from service.jobs import lifecycle
 
@@ -146,8 +146,6 @@ def parse_plan_request(raw: bytes, content_type: str | None):
     words of the API's 422 answers."""
     from fastapi.exceptions import RequestValidationError
 
-    from service.api.app import _validation_reason
-
     if not raw:
         raise ValueError("body: Field required")
     value: Any = raw
@@ -160,7 +158,7 @@ def parse_plan_request(raw: bytes, content_type: str | None):
     try:
         return _plan_request_adapter().validate_python(value)
     except ValidationError as exc:
-        raise ValueError(_validation_reason(RequestValidationError(exc.errors()))) from None
+        raise ValueError(validation_reason(RequestValidationError(exc.errors()))) from None
 
 
 def plan_work(raw: bytes, content_type: str | None, preview: bool) -> dict:

@@ -13,7 +13,7 @@ from fastapi.responses import FileResponse
 from service.api.context import Context, ctx, read_access, reason, require_token
 from service.api.jobs import get_job_or_404, job_view
 from service.api.models import ID_PATTERN, Job, MethodInfo, MethodOption, Plane, ReconRequest
-from service.jobs.queue import AdmissionError, admit, estimate_memory
+from service.jobs.admission import AdmissionError, admit, estimate_memory
 from service.jobs.store import IdempotencyConflict
 from service.pipeline import METHODS, OPTIONS, default_method, method_options
 

@@ -331,23 +331,6 @@ def apply_retention(store: JobStore, settings: Any) -> list[str]:
 
 
 # -- disk use ---------------------------------------------------------------------------
-def is_disk_full(exc: BaseException | None) -> bool:
-    """True when ``exc`` (or what caused it) is a full disk: ``OSError`` ENOSPC (h5py's
-    errors too, by their text) or SQLite's "database or disk is full" (SQLITE_FULL)."""
-    import errno
-    import sqlite3
-
-    for _ in range(8):
-        if exc is None:
-            return False
-        if isinstance(exc, OSError) and (exc.errno == errno.ENOSPC or "No space left on device" in str(exc)):
-            return True
-        if isinstance(exc, sqlite3.OperationalError) and "disk is full" in str(exc):
-            return True
-        exc = exc.__cause__ or exc.__context__
-    return False
-
-
 def disk_usage(data_dir: str | os.PathLike) -> dict:
     """Bytes the store uses, by part, and the free space of its file system:
     ``{"total_bytes", "scans_bytes", "results_bytes", "datasets_bytes", "exports_bytes",

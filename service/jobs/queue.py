@@ -5,7 +5,7 @@ event loop).
 Memory admission (DESIGN §7): each job carries its peak-memory estimate (bytes); a job is
 started only while the sum of the running jobs' estimates plus its own stays within
 ``settings.memory_limit`` (the first job in line always may start when nothing runs).
-Jobs that can never fit are refused before they are queued (:func:`admit`).
+Jobs that can never fit are refused before they are queued (``service.jobs.admission``).
 
 Cancel is cooperative: the job thread creates the job's cancel file, the worker's
 ``should_stop`` sees it between steps of the reconstruction and stops
@@ -24,96 +24,14 @@ import time
 import uuid
 from pathlib import Path
 
-from driver.constants import C_AUTOFOCUS_RANGE, C_DEFAULT
 from service.jobs.executors import WorkerDied
-from service.jobs.lifecycle import apply_retention, is_disk_full
+from service.jobs.lifecycle import apply_retention
 from service.jobs.store import JobStore
 from service.jobs.work import run_reconstruction
 from service.pipeline import Cancelled
+from service.storage.disk import is_disk_full
 
 log = logging.getLogger("fpscan.jobs")
-
-
-class AdmissionError(ValueError):
-    """A job that can never fit in the memory limit."""
-
-
-#: Admission multiplies the model-based estimate (``tv``, ``service.recon.checks.tv_memory``,
-#: itself calibrated) by this margin: a 48² x 256, 100-sensor run peaked at 1/1.26 of it
-#: (tests/service/test_memory_admission.py; 1.45 before, when the factor also had to cover
-#: the planar methods). The planar methods' estimate counts their arrays phase by phase and
-#: needs no factor (measured within 4-10 % at upsample 1-8, issue 22).
-CALIBRATION = 1.15
-#: Most depth rows the depth transform may work on (``dz`` far below ``c·dt`` multiplies
-#: them); beyond this a request is refused whatever the memory limit.
-MAX_DEPTH_ROWS = 1 << 20
-
-
-def working_depth_rows(shape: dict, params: dict) -> int:
-    """The depth rows the reconstruction works on: ``max(n_z, ceil(c·t_last/dz) + 1)``
-    (``service.recon.planar``: no recorded signal may fold back through the depth
-    period), with ``n_z`` default ``n_t``, ``dz`` default ``c·dt``. ``shape`` needs
-    ``n_t`` and, when ``dz`` is given, ``dt`` (s) and ``c`` (m/s; ``params["c"]`` wins).
-    Raises :class:`AdmissionError` when that is more than ``MAX_DEPTH_ROWS``."""
-    n_t = int(shape["n_t"])
-    n_z = int(params.get("n_z") or n_t)
-    dz = params.get("dz")
-    if dz is None or shape.get("dt") is None:
-        return n_z
-    c_param = params.get("c")
-    if c_param == "auto":  # autofocus: the fastest speed it may choose reaches deepest
-        c_param = max(params.get("c_range") or C_AUTOFOCUS_RANGE)
-    c = float(c_param or shape.get("c") or C_DEFAULT)
-    reach = c * (float(params.get("t0") or 0.0) + (n_t - 1) * float(shape["dt"])) / float(dz)
-    if not reach < MAX_DEPTH_ROWS:
-        raise AdmissionError(f"dz = {dz:g} m is too fine for this input: the depth transform would need "
-                             f"{reach:.3g} rows (at most {MAX_DEPTH_ROWS}); use a larger dz (c·dt is "
-                             f"{c * float(shape['dt']):.3g} m)")
-    return max(n_z, int(reach) + 2)
-
-
-def estimate_memory(shape: dict, params: dict) -> int:
-    """Peak memory (bytes) of a reconstruction with the options actually used — the one
-    admission rule, applied before a job is queued and again by the worker.
-
-    ``shape``: ``n_t`` and ``n_x`` (``n_y``) of the output grid, ``n_points`` for point
-    inputs, ``input_itemsize`` (bytes a sample of the input as loaded; default 8), ``dt`` (s), ``c`` (m/s) and the lateral pitch ``dx`` (m) of the input (optional;
-    the model-based ``tv`` pads its grid by the record's reach in pitches); ``params``: ``method``, ``dtype``,
-    ``upsample``, ``n_z``, ``dz``, ``c``. ``service.recon.estimate_peak_memory`` of the
-    working depth rows (:func:`working_depth_rows`) times ``CALIBRATION``, plus the input
-    as float64. Raises :class:`AdmissionError` for a depth grid that can never be made."""
-    n_t = int(shape["n_t"])
-    n_x = int(shape["n_x"])
-    n_y = int(shape.get("n_y", 1))
-    up = int(params.get("upsample", 1) or 1)
-    rows = working_depth_rows(shape, params)
-    from service.recon import estimate_peak_memory
-
-    geometry: dict[str, float | None] = {}
-    if shape.get("dx") and shape.get("dt"):  # the model-based operator's padding depends on them
-        c = params.get("c")
-        c = max(params.get("c_range") or C_AUTOFOCUS_RANGE) if c == "auto" else c
-        geometry = {"dx": float(shape["dx"]), "dt": float(shape["dt"]), "c": float(c or shape.get("c") or C_DEFAULT),
-                    "dz": float(params["dz"]) if params.get("dz") else None}
-    value = estimate_peak_memory(n_t, n_x, n_y, n_z=rows, upsample=up,
-                                 dtype=params.get("dtype") or "float32", method=params.get("method", "ner"),
-                                 n_points=shape.get("n_points"), dx=geometry.get("dx"), dt=geometry.get("dt"),
-                                 c=geometry.get("c"), dz=geometry.get("dz"))
-    factor = CALIBRATION if params.get("method") == "tv" else 1.0
-    # + the input as loaded (shape["input_itemsize"] bytes a sample, default 8: float64, as scan files load),
-    # unless it is in the working precision: then it is the working copy the estimate already counts
-    itemsize = int(shape.get("input_itemsize") or 8)
-    work = 8 if (params.get("dtype") or "float32") == "float64" else 4
-    loaded = 0 if itemsize == work and params.get("method") != "tv" else itemsize
-    return int(factor * value) + n_t * int(shape.get("n_points", n_x * n_y)) * loaded
-
-
-def admit(estimate: int, limit: int) -> None:
-    """Raise :class:`AdmissionError` with the reason if ``estimate`` > ``limit`` bytes."""
-    if estimate > limit:
-        raise AdmissionError(f"reconstruction needs about {estimate / 2**30:.2f} GiB, more than the "
-                             f"memory limit of {limit / 2**30:.2f} GiB; reduce the size, upsample or n_z, or use a "
-                             "larger dz or float32")
 
 
 #: the data folder's staging area of uploads: ``incoming/<dataset id>/`` until the upload is

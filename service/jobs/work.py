@@ -66,10 +66,10 @@ def report_stage(path: str | None, stage: str, fraction: float) -> None:
 
 
 def check_memory_limit(ds: Any, params: dict, limit: int) -> None:
-    """The admission rule (``service.jobs.queue.estimate_memory``) again, on the dataset
+    """The admission rule (``service.jobs.admission.estimate_memory``) again, on the dataset
     as loaded: ValueError with the reason if it needs more than ``limit`` bytes (the
     configured limit, not the memory free now)."""
-    from service.jobs.queue import admit, estimate_memory
+    from service.jobs.admission import admit, estimate_memory
     from service.storage.datasets import GridDataset
 
     shape: dict[str, Any]

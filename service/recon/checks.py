@@ -5,6 +5,7 @@ import os
 
 import numpy as np
 
+from driver.physics.fast_lengths import fast_dct1_rows, fast_lateral
 from driver.units import RefusedInput
 
 
@@ -174,7 +175,7 @@ def estimate_peak_memory(
 
     Parameters: ``n_t`` samples; ``n_x``, ``n_y`` lateral grid (``n_y = 1`` in 2-D; the
     planar methods zero-pad it to the fast transform lengths of
-    ``service.recon.planar._fast_lateral``, e.g. 226 -> 240, and the estimate counts
+    ``driver.physics.fast_lengths.fast_lateral``, e.g. 226 -> 240, and the estimate counts
     those; ``square``: dy = dx, which may give both axes one length; None: unknown, the
     larger of the two);
     ``n_z`` output depth samples (default n_t); ``upsample`` lateral factor; ``dtype``
@@ -203,9 +204,7 @@ def estimate_peak_memory(
     n_y0, n_x0 = n_y, n_x
     if method not in ("tv", "kwave"):  # the transform sizes the planar methods use
         n_y, n_x = padded_lateral(n_y, n_x, square)
-        from service.recon.planar import _fast_dct1_rows
-
-        n_z = _fast_dct1_rows(max(int(n_z), 2))  # the depth rows the transform works on
+        n_z = fast_dct1_rows(max(int(n_z), 2))  # the depth rows the transform works on
     cols = n_y * (n_x // 2 + 1)
     spectrum = n_t * cols * cb
     if method in ("ner", "nedner"):
@@ -252,13 +251,11 @@ def estimate_peak_memory(
 
 def padded_lateral(n_y: int, n_x: int, square: bool | None = None) -> tuple[int, int]:
     """The lateral transform sizes (n_y', n_x') of the planar methods for an n_y x n_x
-    grid (``service.recon.planar._fast_lateral``); ``square`` None (pitches unknown): the
+    grid (``driver.physics.fast_lengths.fast_lateral``); ``square`` None (pitches unknown): the
     larger of the square and non-square choices, axis by axis."""
-    from service.recon.planar import _fast_lateral
-
     if square is not None:
-        return _fast_lateral(n_y, n_x, square)
-    (ay, ax), (by, bx) = _fast_lateral(n_y, n_x, False), _fast_lateral(n_y, n_x, True)
+        return fast_lateral(n_y, n_x, square)
+    (ay, ax), (by, bx) = fast_lateral(n_y, n_x, False), fast_lateral(n_y, n_x, True)
     return max(ay, by), max(ax, bx)
 
 

@@ -32,39 +32,13 @@ import scipy.fft
 from driver.constants import C_DEFAULT
 from driver.physics import nufft
 from driver.physics.axes import centred_axis
-from driver.physics.fast_lengths import fast_dct1_rows, fast_length
+from driver.physics.fast_lengths import fast_dct1_rows, fast_lateral, fast_length
 from driver.physics.nufft_plans import lateral_plan
 from service.recon import checks
 from service.recon.reconstruction import Reconstruction
 
 METHODS = ("ner", "linear", "nearest", "cubic")
 _KIND = {"ner": "nufft", "linear": "linear", "nearest": "nearest"}
-
-
-def _fast_dct1_rows(n: int) -> int:
-    """Smallest K >= n whose DCT-I runs on a fast FFT length (2 (K - 1) with only the
-    factors 2, 3, 5: `driver.physics.fast_lengths.fast_dct1_rows`)."""
-    return fast_dct1_rows(n)
-
-
-def _fast_lateral(n_y: int, n_x: int, square: bool = False) -> tuple[int, int]:
-    """Lateral transform sizes (n_y', n_x') >= (n_y, n_x) at fast FFT lengths: the aperture
-    is zero-padded to them (no data outside the aperture, as the continuous formula has it,
-    and less wrap-around than the period of the aperture itself); the image is cropped back.
-    x is the rfft axis (factors 2, 3, 5), y a complex one (2, 3, 5, 7;
-    `driver.physics.fast_lengths.fast_length`).
-
-    ``square`` (dy = dx): one length for both axes when it pads neither by more than 15 %,
-    so that k_x and k_y take the same values and columns of equal |k_lat| pair up four-
-    to eightfold: the temporal interpolation computes its taps once per |k_lat| (226 x 226:
-    7 300 instead of 14 000 distinct values)."""
-    n_yp = 1 if n_y == 1 else fast_length(n_y)
-    n_xp = fast_length(n_x, real=True)
-    if square and n_y > 1:
-        common = fast_length(max(n_y, n_x), real=True)
-        if common <= 1.15 * min(n_y, n_x):
-            return common, common
-    return n_yp, n_xp
 
 
 def _depth_axis(n_t, dt, c, dz, n_z, t0):
@@ -80,7 +54,7 @@ def _depth_axis(n_t, dt, c, dz, n_z, t0):
         raise ValueError(f"dz = {dz:g} m is too fine for this recording: the depth transform would need "
                          f"{rows:.3g} rows to reach c·t of the last sample; use a larger dz (c·dt is {c * dt:.3g} m)")
     reach = int(np.ceil(rows)) + 1
-    return dz, int(n_z), _fast_dct1_rows(max(int(n_z), reach))
+    return dz, int(n_z), fast_dct1_rows(max(int(n_z), reach))
 
 
 def _temporal_length(n_t: int, method: str, eps: float) -> int:
@@ -119,7 +93,7 @@ def transform_lengths(data_shape, dt: float = 1.0, c: float = 1.0, *, method: st
     n_t = shape[0]
     n_y, n_x = (1, shape[1]) if len(shape) == 2 else shape[1:]
     _, _, n_work = _depth_axis(n_t, dt, c, dz, n_z, t0)
-    n_yp, n_xp = _fast_lateral(n_y, n_x, square=square)
+    n_yp, n_xp = fast_lateral(n_y, n_x, square=square)
     lat = (n_xp,) if n_y == 1 else (n_yp, n_xp)
     return {"lateral": lat, "temporal": (_temporal_length(n_t, method, eps),), "depth": (2 * (n_work - 1),),
             "output": tuple(n * upsample for n in lat)}
@@ -325,7 +299,7 @@ def reconstruct_grid(
     dz, n_z, n_work = _depth_axis(n_t, dt, c, dz, n_z, t0)
     is2d = data.ndim == 2
     n_y, n_x = (1, data.shape[1]) if is2d else data.shape[1:]
-    n_yp, n_xp = _fast_lateral(n_y, n_x, square=abs(dy - dx) <= 1e-9 * dx)
+    n_yp, n_xp = fast_lateral(n_y, n_x, square=abs(dy - dx) <= 1e-9 * dx)
     checks.check_memory(
         checks.estimate_peak_memory(n_t, n_xp, n_yp, n_z=n_work, upsample=upsample, dtype=rdtype, method=method),
         memory_limit,
@@ -549,7 +523,7 @@ def reconstruct_points(
     n_x_out = len(axes[0])
     n_y_out = len(axes[1]) if d == 2 else 1
     square = d == 2 and abs(steps[1] - steps[0]) <= 1e-9 * steps[0]
-    n_y, n_x = _fast_lateral(n_y_out, n_x_out, square)  # transform sizes; the image is cropped back
+    n_y, n_x = fast_lateral(n_y_out, n_x_out, square)  # transform sizes; the image is cropped back
     dx = steps[0]
     dy = steps[1] if d == 2 else 1.0
     checks.check_memory(

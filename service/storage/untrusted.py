@@ -215,7 +215,7 @@ def _child(conn: Any, fn: Callable, args: tuple, kwargs: dict) -> None:
     except MemoryError:
         conn.put(("value", "the file needs more memory than the limit allows"))
     except OSError as exc:
-        from service.jobs.lifecycle import is_disk_full
+        from service.storage.disk import is_disk_full
 
         if is_disk_full(exc):  # not the file's fault
             conn.put(("nospace", str(exc)))

@@ -10,7 +10,7 @@ import sys
 import numpy as np
 import pytest
 
-from service.jobs.queue import AdmissionError, estimate_memory, working_depth_rows
+from service.jobs.admission import AdmissionError, estimate_memory, working_depth_rows
 from tests.service.service_servers import needs_recon
 
 # the probes' common part: reset the peak RSS (VmHWM) to the RSS after the warm-up, then
@@ -181,7 +181,7 @@ print(json.dumps(out))
 @needs_recon
 @pytest.mark.parametrize("method", ["ner", "nedner"])
 def test_admission_is_within_25_percent_of_the_measured_peak_at_every_upsample(method):
-    """Issue 22.4: the admission estimate (``service.jobs.queue.estimate_memory``, the rule
+    """Issue 22.4: the admission estimate (``service.jobs.admission.estimate_memory``, the rule
     the API and the worker apply) is within ±25 % of the measured peak of a real
     reconstruction, for NER and NEDNER (sensors off the lattice: the type-1 NUFFT and the
     Voronoi weights) at upsample 1, 2, 4 and 8 (upsample 8 peaked at 1.30x the estimate

@@ -114,7 +114,7 @@ def _npy(a) -> bytes:
 
 @needs_recon
 def test_memory_admission_queues_what_does_not_fit_now(tmp_path):
-    from service.jobs.queue import estimate_memory
+    from service.jobs.admission import estimate_memory
 
     shape = (256, 48, 48)
     est = estimate_memory({"n_t": shape[0], "n_x": shape[2], "n_y": shape[1]},
