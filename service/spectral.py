@@ -21,7 +21,6 @@ in m; ``/wavelengths_m``; attributes ``format`` = ``fpscan-unmix/1``, ``params``
 """
 from __future__ import annotations
 
-import json
 import os
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -29,9 +28,12 @@ from typing import Any
 
 import numpy as np
 
+from service.formats.unmix import UNMIX_FORMAT, read_unmix
 from service.recon.unmix import Unmixed, endmember_matrix, too_few_wavelengths, unmix
 
-UNMIX_FORMAT = "fpscan-unmix/1"
+__all__ = ["UNMIX_FORMAT", "read_unmix", "dataset_wavelengths", "reconstruct_wavelengths", "write_wavelength_results",
+           "unmix_reconstructions", "so2_map", "thb_map", "render_so2_png", "write_unmix", "load_wavelength_datasets",
+           "reconstruct_and_unmix"]
 #: masked pixels of the sO2 picture (THb below the threshold, sO2 unknown): black
 MASK_COLOUR = (0.0, 0.0, 0.0, 1.0)
 
@@ -195,22 +197,6 @@ def write_unmix(out_dir: str | os.PathLike, u: Unmixed, z: Any, x: Any, y: Any =
             "wavelengths_m": [float(v) for v in u.wavelengths]}
 
 
-def read_unmix(path: str | os.PathLike) -> dict:
-    """The arrays and attributes of an ``unmix.h5`` (module docstring) as a dict; raises
-    ``ValueError`` for another file."""
-    import h5py
-
-    with h5py.File(path, "r") as f:
-        if f.attrs.get("format") != UNMIX_FORMAT:
-            raise ValueError(f"{path} is not an {UNMIX_FORMAT} file")
-        out = {k: f[k][...] for k in ("hbo2", "hb", "thb", "so2", "mask", "z", "x", "wavelengths_m")}
-        out["y"] = f["y"][...] if "y" in f else None
-        out["mask"] = out["mask"].astype(bool)
-        out["params"] = json.loads(f.attrs["params"])
-        out["input_id"] = str(f.attrs["input_id"])
-    return out
-
-
 def load_wavelength_datasets(paths: Sequence[str | os.PathLike], format: str | None = None, *,
                              wavelengths: Sequence[float] | None = None,
                              **load: Any) -> tuple[np.ndarray, list[Any]]:
@@ -236,7 +222,7 @@ def load_wavelength_datasets(paths: Sequence[str | os.PathLike], format: str | N
             raise ValueError(f"{len(wavelengths)} wavelengths given for a file with {recorded.size}")
         if recorded.size < 2:
             raise too_few_wavelengths(wavelengths if wavelengths is not None else recorded)
-        fmt = format or dsm.detect_format(paths[0])
+        fmt = ds.source  # the format that read it (no second open to detect it)
         if fmt != "fpscan":
             raise ValueError(f"a {fmt} file holds one wavelength's data; give one file per wavelength")
         return recorded, [ds] + [dsm.load_dataset(paths[0], format, wavelength=k, **load)

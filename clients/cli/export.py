@@ -42,17 +42,16 @@ def _local_export():
 
 
 def _is_result(path) -> bool:
-    """True for a reconstruction result file (``fpscan-result/1``)."""
-    import h5py
-
-    from service.storage.results import FORMAT
+    """True for a reconstruction result file (``fpscan-result/1``: detected by the
+    registry of formats, ``service.formats.detect``; a file a writer has open in a
+    bounded child)."""
+    from service.formats import detect
+    from service.storage.untrusted import read_bounded
 
     try:
-        with h5py.File(path, "r") as f:
-            fmt = f.attrs.get("format")
-    except OSError:
+        return read_bounded(detect, path) == "result"
+    except (ValueError, OSError):
         return False
-    return (fmt.decode() if isinstance(fmt, bytes) else fmt) == FORMAT
 
 
 @client_errors

@@ -22,6 +22,7 @@ from pydantic import (
     model_validator,
 )
 
+from service.formats import upload_formats
 from service.pipeline import DEFAULT_DTYPE, DTYPES, KWAVE_INTERPS, METHODS
 from service.plans.kinds import KINDS, MaskKind, resolve_kind
 from service.plans.plan import ORDER_NAMES, Acquisition
@@ -46,7 +47,8 @@ JobState = Literal["queued", "running", "paused", "succeeded", "failed", "cancel
 JobKind = Literal["scan", "recon"]
 ReconMethod = _one_of(METHODS)
 Plane = Literal["xy", "xz", "yz"]
-DatasetFormat = Literal["fpscan", "ipasc", "kwave-hdf5", "npy"]
+#: the formats ``POST /api/datasets`` accepts: the registry's (``service.formats``, ``upload``)
+DatasetFormat = _one_of(f["name"] for f in upload_formats())
 
 ID_PATTERN = r"^[A-Za-z0-9_-]{1,128}$"
 
@@ -261,6 +263,16 @@ class MethodOption(BaseModel):
     default: Any = Field(None, description="this method's own default (null: the general one in the description)")
 
 
+class DatasetFormatInfo(BaseModel):
+    """One format ``POST /api/datasets`` accepts, as ``GET /api/datasets/formats`` lists it
+    (the registry ``service.formats``; the web page's and the HTTP client's choices)."""
+
+    name: str = Field(description="the value of the upload's format field")
+    title: str = Field(description="what a person reads")
+    wavelengths: bool = Field(description="may hold several excitation wavelengths (the upload's wavelength "
+                                          "chooses one)")
+
+
 class MethodInfo(BaseModel):
     """One reconstruction method as ``GET /api/reconstructions/methods`` lists it
     (``service.pipeline.METHODS``; the web page's method choices are built from these)."""
@@ -370,7 +382,7 @@ class PreviewInfo(BaseModel):
 # -- datasets and reconstructions ----------------------------------------------------
 class Dataset(BaseModel):
     dataset_id: str
-    format: DatasetFormat
+    format: DatasetFormat  # type: ignore[valid-type]
     layout: Literal["grid", "points", "scan"]
     shape: list[int]
     dt: float | None = None

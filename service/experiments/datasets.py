@@ -16,7 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from service.storage.datasets import GridDataset, PointDataset, detect_format, load_dataset, load_scan
+from service import formats
+from service.recon.dataset import GridDataset, PointDataset
+from service.storage.datasets import input_formats
 
 
 @dataclass
@@ -71,7 +73,7 @@ class DenseDataset(GridDataset):
 
 
 def load_dense(path: str | Path, key: str | None = None) -> DenseDataset:
-    """Read a dense dataset with :func:`service.storage.datasets.load_dataset`: the
+    """Read a dense dataset through the registry of formats (:func:`service.formats.load`): the
     k-Wave reference files' layout (or any HDF5 array in k-Wave layout), or an fpscan scan
     file covering its whole lattice.
 
@@ -95,7 +97,7 @@ def load_dense(path: str | Path, key: str | None = None) -> DenseDataset:
         raise ValueError(f"data file not found: {path}")
     try:
         # a scan with no completed point is still judged by its plan's coverage below
-        loaded = load_scan(path, allow_empty=True) if detect_format(path) == "fpscan" else load_dataset(path, key=key)
+        loaded = formats.load(path, choices=input_formats(), key=key, allow_empty=True)[1]
     except ValueError as exc:
         raise ValueError(f"{path}: {exc}") from None
     if isinstance(loaded, PointDataset):

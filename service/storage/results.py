@@ -25,7 +25,9 @@ Exports (:func:`export_volume`, the one dispatch, :data:`EXPORT_FORMATS`): OME-T
 file's array order with physical voxel sizes in µm and the p0 unit.
 
 The file is written to a temporary sibling, fsynced, then renamed over ``path``
-(``os.replace``), so a reader sees either the old file or the complete new one.
+(``os.replace``), so a reader sees either the old file or the complete new one. The
+format's reader and detection (``ResultVolume``, :func:`read_result`) live in
+:mod:`service.formats.result`.
 """
 from __future__ import annotations
 
@@ -33,7 +35,6 @@ import datetime as _dt
 import json
 import os
 import uuid
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -41,8 +42,13 @@ import h5py
 import numpy as np
 
 from driver.scanfile import PRESSURE_UNITS
+from service.formats.result import RESULT_FORMAT as FORMAT
+from service.formats.result import ResultVolume, read_result
 
-FORMAT = "fpscan-result/1"
+__all__ = ["FORMAT", "ORIENTATION", "P0_UNITS", "ResultVolume", "read_result", "params_json", "storage_layout",
+           "write_volume", "write_reconstruction", "write_result", "export_ome_tiff", "export_ome_zarr",
+           "EXPORT_FORMATS", "export_volume", "zip_folder"]
+
 #: the one orientation of every array fpscan stores and every picture it draws
 #: (docs/file-formats.md "Orientation"), written into result files and exports
 ORIENTATION = ("array axes (z, y, x) (2-D: (z, x)), each coordinate increasing with the index; "
@@ -70,31 +76,6 @@ def params_json(params: dict) -> str:
                           default=_jsonable)
     except (TypeError, ValueError) as exc:
         raise ValueError(f"parameters are not JSON-serialisable: {exc}") from None
-
-
-@dataclass
-class ResultVolume:
-    """A result file's content. ``p0`` ``(n_z, n_y, n_x)``/``(n_z, n_x)``; ``z``, ``x``
-    (and ``y``, None in 2-D) coordinate vectors in m; ``method``; ``params`` dict;
-    ``input_id``; ``attrs`` (all root attributes)."""
-
-    p0: np.ndarray
-    z: np.ndarray
-    x: np.ndarray
-    y: np.ndarray | None
-    method: str
-    params: dict
-    input_id: str
-    attrs: dict = field(default_factory=dict)
-
-    @property
-    def ndim(self) -> int:
-        return self.p0.ndim
-
-    @property
-    def p0_unit(self) -> str:
-        """``"Pa"`` (calibrated scan) or ``"a.u."`` (files before the attribute: a.u.)."""
-        return "Pa" if self.attrs.get("p0_unit") == "Pa" else "a.u."
 
 
 def _check_axis(name: str, v: Any, n: int) -> np.ndarray:
@@ -278,27 +259,6 @@ def write_result(out_dir: str | os.PathLike, rec: Any, *, input_id: str) -> dict
             if v is None or isinstance(v, (bool, int, float, str))}
     return {"shape": list(p0.shape), "max": float(np.max(p0)) if p0.size else 0.0, "planes": sorted(pngs),
             "params_used": used}
-
-
-def read_result(path: str | os.PathLike) -> ResultVolume:
-    """Read a result file. Raises FileNotFoundError, ValueError (not a result file)."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"no result file at {path}")
-    try:
-        f = h5py.File(path, "r")
-    except OSError:
-        raise ValueError(f"{path} is not an HDF5 file") from None
-    with f:
-        attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
-        if attrs.get("format") != FORMAT:
-            raise ValueError(f"{path} is not an {FORMAT} file")
-        p0 = f["p0"][()]
-        z, x = f["z"][()], f["x"][()]
-        y = f["y"][()] if "y" in f else None
-    return ResultVolume(p0=p0, z=z, x=x, y=y, method=str(attrs["method"]),
-                        params=json.loads(attrs["params"]), input_id=str(attrs["input_id"]),
-                        attrs=attrs)
 
 
 def _voxel_sizes_um(r: ResultVolume, what: str) -> tuple[str, list[float]]:
