@@ -167,28 +167,10 @@ def write_unmix(out_dir: str | os.PathLike, u: Unmixed, z: Any, x: Any, y: Any =
     """Write ``unmix.h5`` and ``so2.png`` into ``out_dir`` (an existing folder; the caller
     writes the folder atomically). Returns a summary (``so2_median``, ``masked_fraction``,
     ``thb_max``)."""
-    import h5py
-
-    from service.storage.results import params_json
+    from service.formats.unmix import write
 
     out = Path(out_dir)
-    # the result files' one canonical parameter JSON (ValueError before anything is written)
-    params = params_json({**u.params, **(extra or {})})
-    tmp = out / f".unmix.h5.tmp-{os.getpid()}"
-    with h5py.File(tmp, "w") as f:
-        f.attrs["format"] = UNMIX_FORMAT
-        f.attrs["params"] = params
-        f.attrs["input_id"] = input_id
-        f.attrs["concentration_units"] = str(u.params.get("concentration_units", ""))
-        for name in ("hbo2", "hb", "thb", "so2"):
-            f.create_dataset(name, data=getattr(u, name), compression="gzip", compression_opts=4)
-        f.create_dataset("mask", data=u.mask.astype(np.uint8), compression="gzip", compression_opts=4)
-        f.create_dataset("z", data=np.asarray(z, dtype=np.float64))
-        f.create_dataset("x", data=np.asarray(x, dtype=np.float64))
-        if y is not None:
-            f.create_dataset("y", data=np.asarray(y, dtype=np.float64))
-        f.create_dataset("wavelengths_m", data=u.wavelengths)
-    os.replace(tmp, out / "unmix.h5")
+    write(out / "unmix.h5", u, z, x, y, input_id=input_id, extra=extra)
     (out / "so2.png").write_bytes(render_so2_png(u, z, x, y))
     inside = u.so2[u.mask]
     return {"so2_median": float(np.median(inside)) if inside.size else None,
