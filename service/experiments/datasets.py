@@ -90,14 +90,12 @@ def load_dense(path: str | Path, key: str | None = None) -> DenseDataset:
         Missing file, datasets or attributes, wrong dimensions, unequal lateral spacing,
         a scan that does not cover its whole lattice.
     """
-    import h5py
-
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"data file not found: {path}")
     try:
         # a scan with no completed point is still judged by its plan's coverage below
-        loaded = formats.load(path, choices=input_formats(), key=key, allow_empty=True)[1]
+        loaded = formats.load(path, choices=input_formats(), key=key, allow_empty=True, ground_truth=True)[1]
     except ValueError as exc:
         raise ValueError(f"{path}: {exc}") from None
     if isinstance(loaded, PointDataset):
@@ -109,15 +107,7 @@ def load_dense(path: str | Path, key: str | None = None) -> DenseDataset:
         ds = loaded
     if ds.data.ndim == 3 and ds.dy is not None and not np.isclose(ds.dy, ds.dx, rtol=1e-9):
         raise ValueError(f"{path}: lateral spacings differ ({ds.dx} m vs {ds.dy} m); need a square lattice")
-    p0 = dz = None
-    if ds.source != "fpscan":
-        with h5py.File(path, "r") as f:
-            if "p0" in f and isinstance(f["p0"], h5py.Dataset):
-                p0 = np.asarray(f["p0"][...], dtype=np.float64)
-                spacing = f["p0"].attrs.get("spacing_m")
-                dz = float(np.asarray(spacing).ravel()[0]) if spacing is not None else ds.dx
-                if p0.ndim != ds.data.ndim or p0.shape[1:] != ds.data.shape[1:]:
-                    p0 = dz = None
+    p0, dz = ds.meta.get("p0"), ds.meta.get("p0_dz")  # the k-Wave files' ground truth (read with the data)
     meta: dict = {"kwave": bool(ds.meta.get("kwave_naming", False))}
     if ds.source == "fpscan":
         meta = {"scan_plan_id": ds.meta.get("plan_id")}

@@ -14,6 +14,7 @@ from __future__ import annotations
 from typing import Any
 
 import h5py
+import numpy as np
 
 from driver import kwave_layout
 from service.formats._registry import Format, Source
@@ -47,11 +48,25 @@ def find_array(f: h5py.File, key: str | None = None) -> h5py.Dataset:
     return found[0]
 
 
+def _ground_truth(f: h5py.File, data: np.ndarray, dx: float) -> dict:
+    """The reference files' ground truth: ``{"p0": (n_z, [n_y,] n_x) float64, "p0_dz": m}``
+    from a ``p0`` dataset matching ``data``'s lateral shape (depth spacing: its
+    ``spacing_m`` attribute, else ``dx``); ``{}`` when there is none that matches."""
+    ds = f.get("p0")
+    if not isinstance(ds, h5py.Dataset) or ds.ndim != data.ndim or ds.shape[1:] != data.shape[1:]:
+        return {}
+    spacing = ds.attrs.get("spacing_m")
+    return {"p0": np.asarray(ds[...], dtype=np.float64),
+            "p0_dz": float(np.asarray(spacing).ravel()[0]) if spacing is not None else dx}
+
+
 def load(source: Source, *, key: str | None = None, dt: float | None = None, dx: float | None = None,
-         dy: float | None = None, c: float | None = None, **_: Any) -> GridDataset:
-    """The array at ``key`` as grid data (module docstring). Raises ValueError (no such
-    dataset, too large, what ``grid_array`` refuses, spacings neither given nor in the
-    file)."""
+         dy: float | None = None, c: float | None = None, ground_truth: bool = False, **_: Any) -> GridDataset:
+    """The array at ``key`` as grid data (module docstring). ``ground_truth``: also the
+    file's ``p0`` (the k-Wave reference files' initial pressure) in ``meta["p0"]`` with
+    its depth spacing ``meta["p0_dz"]`` (m), when it matches the data's lateral shape.
+    Raises ValueError (no such dataset, too large, what ``grid_array`` refuses, spacings
+    neither given nor in the file)."""
     f = source.h5
     ds = find_array(f, key)
     if ds.size > MAX_ELEMENTS:
@@ -76,9 +91,9 @@ def load(source: Source, *, key: str | None = None, dt: float | None = None, dx:
     else:
         dy = None
     c = c if c is not None else get("c_m_per_s")
+    meta = {"key": name, "kwave_naming": kwave, **(_ground_truth(f, data, dx) if ground_truth else {})}
     return GridDataset(data=data, dx=dx, dy=dy, dt=positive("dt", dt),
-                       c=positive("c", c if c is not None else 1500.0), source="kwave-hdf5",
-                       meta={"key": name, "kwave_naming": kwave})
+                       c=positive("c", c if c is not None else 1500.0), source="kwave-hdf5", meta=meta)
 
 
 FORMAT = Format(name="kwave-hdf5", title="HDF5, k-Wave layout", container="hdf5", sniff=sniff, load=load,
