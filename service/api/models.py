@@ -48,7 +48,8 @@ JobKind = Literal["scan", "recon"]
 ReconMethod = _one_of(METHODS)
 Plane = Literal["xy", "xz", "yz"]
 #: the formats ``POST /api/datasets`` accepts: the registry's (``service.formats``, ``upload``)
-DatasetFormat = _one_of(f["name"] for f in upload_formats())
+DATASET_FORMATS = tuple(f["name"] for f in upload_formats())
+DatasetFormat = Literal[DATASET_FORMATS]  # type: ignore[valid-type]  # a Literal of the registry's names
 
 ID_PATTERN = r"^[A-Za-z0-9_-]{1,128}$"
 
@@ -382,7 +383,7 @@ class PreviewInfo(BaseModel):
 # -- datasets and reconstructions ----------------------------------------------------
 class Dataset(BaseModel):
     dataset_id: str
-    format: DatasetFormat  # type: ignore[valid-type]
+    format: DatasetFormat
     layout: Literal["grid", "points", "scan"]
     shape: list[int]
     dt: float | None = None
