@@ -7,10 +7,10 @@ bytes and, for an HDF5 file, opens it once read-only (``driver.scanfile.open_rea
 SWMR only for a file a writer has open) and checks it there
 (``service.storage.untrusted.check_hdf5_file``: no external links, external storage or
 virtual datasets, no dataset declaring more than ``max_bytes`` or more than it stores)
-before any format's ``sniff`` or ``load`` sees it. Those protections so hold for every
-format, the registered ones and any added later, not per reader. A file HDF5 would open as
-an SWMR reader is read in a bounded child process (``service.storage.untrusted.read_bounded``)
-by the callers that read users' files (:func:`service.storage.datasets.load_dataset`).
+before any format's ``sniff`` or ``load`` sees it; a file HDF5 would open as an SWMR
+reader (a writer has it open) is detected and loaded in a bounded child process
+(``service.storage.untrusted.read_bounded``). Those protections so hold for every format,
+the registered ones and any added later, not per reader.
 """
 from __future__ import annotations
 
@@ -194,10 +194,16 @@ def sniff(source: Source) -> Format | None:
     return None
 
 
-def detect(path: str | os.PathLike, *, max_bytes: int = MAX_BYTES) -> str:
+def detect(path: str | os.PathLike, *, max_bytes: int = MAX_BYTES, bounded: bool = True) -> str:
     """The name of ``path``'s format, from its content (the file opened once and checked:
-    :func:`open_source`). Raises ValueError when no registered format fits (or the file
-    is refused), FileNotFoundError."""
+    :func:`open_source`; a file a writer has open in a bounded child unless ``bounded`` is
+    False, as :func:`load`).
+    Raises ValueError when no registered format fits (or the file is refused),
+    FileNotFoundError."""
+    if bounded:
+        from service.storage.untrusted import read_bounded
+
+        return read_bounded(detect, path, max_bytes=max_bytes, bounded=False)
     with open_source(path, max_bytes=max_bytes) as src:
         fmt = sniff(src)
         if fmt is None:
@@ -214,14 +220,23 @@ def _unknown(source: Source, choices: tuple[str, ...]) -> str:
 
 
 def load(path: str | os.PathLike, kind: str | None = None, *, max_bytes: int = MAX_BYTES,
-         choices: tuple[str, ...] | None = None, **options: Any) -> tuple[str, Any]:
+         choices: tuple[str, ...] | None = None, bounded: bool = True, **options: Any) -> tuple[str, Any]:
     """Open ``path`` once, check it, and load it as the format ``kind`` (None: detected
     from the content). ``choices``: the format names allowed (default every registered
     one). ``options``: passed to the format's ``load`` (each takes what it knows);
     ``wavelength_index`` > 0 is refused for a format without several wavelengths.
+    A file HDF5 would open as an SWMR reader (a writer has it open: HDF5 can block on its
+    damaged metadata for ever) is read in a spawned child process with a time limit
+    (``service.storage.untrusted.read_bounded``; there only the built-in formats are
+    registered, and the content must be picklable); ``bounded=False``: in this process
+    whatever the file (the service's own scan file while it is written: the live preview).
     Returns ``(name, content)``. Raises ValueError (a name not in ``choices``, a file no
-    format fits or that is refused, what the format's ``load`` raises),
-    FileNotFoundError."""
+    format fits or that is refused, what the format's ``load`` raises, a read that did not
+    end in time), FileNotFoundError."""
+    if bounded:
+        from service.storage.untrusted import read_bounded
+
+        return read_bounded(load, path, kind, max_bytes=max_bytes, choices=choices, bounded=False, **options)
     fmt = _get(kind, choices) if kind is not None else None
     with open_source(path, fmt.container if fmt is not None else None, max_bytes=max_bytes,
                      name=kind) as src:

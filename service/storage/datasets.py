@@ -63,15 +63,11 @@ def input_formats() -> tuple[str, ...]:
     return formats.names(input=True)
 
 
-def detect_format(path: str | os.PathLike, _here: bool = False) -> str:
+def detect_format(path: str | os.PathLike) -> str:
     """The input format of a file from its content (``service.formats.detect``: opened
-    once, HDF5 checked); ValueError if none fits, or naming what the file is when it is
-    not data to reconstruct (a plan, a result, a picture). A file a writer has open is
-    opened in a bounded child (as in :func:`load_dataset`)."""
-    if not _here:
-        from service.storage.untrusted import read_bounded
-
-        return read_bounded(detect_format, path, _here=True)
+    once, HDF5 checked, a file a writer has open in a bounded child); ValueError if none
+    fits, or naming what the file is when it is not data to reconstruct (a plan, a
+    result, a picture)."""
     fmt = formats.FORMATS[formats.detect(path)]
     if fmt.refuse:
         raise ValueError(fmt.refuse)
@@ -81,8 +77,7 @@ def detect_format(path: str | os.PathLike, _here: bool = False) -> str:
 def load_dataset(path: str | os.PathLike, format: str | None = None, *, dt: float | None = None,
                  dx: float | None = None, dy: float | None = None, c: float | None = None,
                  key: str | None = None, max_bytes: int = MAX_ELEMENTS * 8,
-                 force: bool = False, wavelength: int | None = None,
-                 _here: bool = False) -> GridDataset | PointDataset:
+                 force: bool = False, wavelength: int | None = None) -> GridDataset | PointDataset:
     """Import a file for reconstruction (module docstring). ``wavelength``: which
     excitation wavelength of a multi-wavelength file (an index into its wavelengths;
     default None: the first, recorded in the dataset's ``meta["wavelength_index"]``); a
@@ -95,15 +90,10 @@ def load_dataset(path: str | os.PathLike, format: str | None = None, *, dt: floa
     ``service.storage.untrusted.check_hdf5_file``: no external storage,
     external links or virtual datasets, no dataset declaring more than ``max_bytes`` or
     more than it stores). A file HDF5 would open as an SWMR reader (a writer has it open)
-    is read in a child process with a time limit
-    (``service.storage.untrusted.read_bounded``: HDF5 can block on its damaged metadata for
+    is read in a child process with a time limit (the registry's
+    ``service.storage.untrusted.read_bounded``: HDF5 can block on its damaged metadata for
     ever). Raises ValueError naming the fault, FileNotFoundError."""
     from driver.units import check_plausible
-    from service.storage.untrusted import read_bounded
-
-    if not _here:  # run here, or in the bounded child for a file a writer has open
-        return read_bounded(load_dataset, path, format, dt=dt, dx=dx, dy=dy, c=c, key=key, max_bytes=max_bytes,
-                            force=force, wavelength=wavelength, _here=True)
 
     num = (int, float)
     check_plausible(dt=dt if isinstance(dt, num) else None, dx=dx if isinstance(dx, num) else None,
@@ -123,10 +113,12 @@ def load_dataset(path: str | os.PathLike, format: str | None = None, *, dt: floa
 
 
 def load_scan(path: str | os.PathLike, *, allow_empty: bool = False, wavelength_index: int = 0) -> PointDataset:
-    """The completed points of a scan file as point data (``service.formats.scan.load``;
-    ``allow_empty``: a scan with no completed point too). Raises ValueError,
+    """The completed points of the service's own scan file, also while it is written, as
+    point data (``service.formats.scan.load``, read in this process: the live preview);
+    ``allow_empty``: a scan with no completed point too. Raises ValueError,
     FileNotFoundError."""
-    return formats.load(path, "fpscan", allow_empty=allow_empty, wavelength_index=wavelength_index)[1]
+    return formats.load(path, "fpscan", bounded=False, allow_empty=allow_empty,
+                        wavelength_index=wavelength_index)[1]
 
 
 def read_dataset(path: str | os.PathLike) -> GridDataset | PointDataset:
