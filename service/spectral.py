@@ -198,7 +198,8 @@ def load_wavelength_datasets(paths: Sequence[str | os.PathLike], format: str | N
     if not paths:
         raise ValueError("no input files")
     if len(paths) == 1:
-        ds = dsm.load_dataset(paths[0], format, **load)
+        every = dsm.load_wavelengths(paths[0], format, wavelength="all", **load)  # one open of the file
+        ds = every[0]
         recorded = dsm.file_wavelengths(ds)
         if wavelengths is not None and len(wavelengths) != 1 and len(wavelengths) != recorded.size:
             raise ValueError(f"{len(wavelengths)} wavelengths given for a file with {recorded.size}")
@@ -207,8 +208,7 @@ def load_wavelength_datasets(paths: Sequence[str | os.PathLike], format: str | N
         fmt = ds.source  # the format that read it (no second open to detect it)
         if fmt != "fpscan":
             raise ValueError(f"a {fmt} file holds one wavelength's data; give one file per wavelength")
-        return recorded, [ds] + [dsm.load_dataset(paths[0], format, wavelength=k, **load)
-                                 for k in range(1, recorded.size)]
+        return recorded, every
     dsets = [dsm.load_dataset(p, format, **load) for p in paths]
     if wavelengths is None:
         rec = [dataset_wavelengths(d) for d in dsets]

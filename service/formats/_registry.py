@@ -88,7 +88,8 @@ class Format:
         Accepted by ``POST /api/datasets`` (the API's, the HTTP client's and the web
         page's choices: ``GET /api/datasets/formats``).
     wavelengths : bool
-        May hold several excitation wavelengths (``wavelength`` chooses one).
+        May hold several excitation wavelengths: its ``load`` takes ``wavelength_index``
+        (one of them) and ``all_wavelengths`` (a list, one per wavelength).
     refuse : str or None
         Not data to reconstruct: the reason :func:`service.storage.datasets.load_dataset`
         gives when the content is detected as this format.
@@ -224,7 +225,9 @@ def load(path: str | os.PathLike, kind: str | None = None, *, max_bytes: int = M
     """Open ``path`` once, check it, and load it as the format ``kind`` (None: detected
     from the content). ``choices``: the format names allowed (default every registered
     one). ``options``: passed to the format's ``load`` (each takes what it knows);
-    ``wavelength_index`` > 0 is refused for a format without several wavelengths.
+    ``wavelength_index`` > 0 is refused for a format without several wavelengths;
+    ``all_wavelengths=True`` gives a list, one content per wavelength (a format with
+    ``wavelengths`` reads them all from its one open; any other gives a list of one).
     A file HDF5 would open as an SWMR reader (a writer has it open: HDF5 can block on its
     damaged metadata for ever) is read in a spawned child process with a time limit
     (``service.storage.untrusted.read_bounded``; there only the built-in formats are
@@ -252,4 +255,6 @@ def load(path: str | os.PathLike, kind: str | None = None, *, max_bytes: int = M
         if index and not fmt.wavelengths:
             raise ValueError(f"wavelength index {index} is out of range: a {fmt.name} file holds one "
                              "wavelength's data")
+        if options.get("all_wavelengths") and not fmt.wavelengths:  # one wavelength: a list of one
+            return fmt.name, [fmt.load(src, **{k: v for k, v in options.items() if k != "all_wavelengths"})]
         return fmt.name, fmt.load(src, **options)

@@ -30,11 +30,20 @@ def _wavelengths(f: Any) -> np.ndarray:
         return np.zeros(0)
 
 
-def load(source: Source, *, wavelength_index: int = 0, **_: Any) -> PointDataset:
+def load(source: Source, *, wavelength_index: int = 0, all_wavelengths: bool = False,
+         **_: Any) -> PointDataset | list[PointDataset]:
     """The file as point data (``read_open_ipasc``) at excitation wavelength
     ``wavelength_index`` (``wavelengths``: that one, ``meta["wavelengths"]`` all the
-    file's). Raises ValueError, also for an index out of range (naming the file's
-    wavelengths)."""
+    file's); ``all_wavelengths``: a list, one dataset per wavelength the file records,
+    read from the one open file. Raises ValueError, also for an index out of range
+    (naming the file's wavelengths)."""
+    if all_wavelengths:
+        return [_dataset(source, k) for k in range(max(1, _wavelengths(source.h5).size))]
+    return _dataset(source, wavelength_index)
+
+
+def _dataset(source: Source, wavelength_index: int) -> PointDataset:
+    """The dataset of one wavelength of the open IPASC file."""
     if wavelength_index:
         check_wavelength_index(wavelength_index, _wavelengths(source.h5), "file")
     r = read_open_ipasc(source.h5, wavelength_index=wavelength_index)

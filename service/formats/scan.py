@@ -21,17 +21,29 @@ def sniff(source: Source) -> bool:
     return source.attr("format").startswith("fpscan-scan/")
 
 
-def load(source: Source, *, allow_empty: bool = False, wavelength_index: int = 0, **_: Any) -> PointDataset:
+def load(source: Source, *, allow_empty: bool = False, wavelength_index: int = 0, all_wavelengths: bool = False,
+         **_: Any) -> PointDataset | list[PointDataset]:
     """The completed points at excitation wavelength ``wavelength_index`` (default the
     first) as point data (DC-normalised pressure ``(n, n_t)`` float64, the plan's
     positions and weights, its lattice and indices; ``wavelengths``: the one wavelength
     read (m); ``meta["wavelengths"]`` all the scan's, ``meta["wavelength_index"]`` the one
-    read). Raises ValueError when no point is complete (unless ``allow_empty``), the plan
-    is invalid or the wavelength index is out of range (naming the scan's wavelengths)."""
-    from driver.plan import check_plan
-    from driver.scanfile import pressure_unit, read_open_scan
+    read). ``all_wavelengths``: a list, one dataset per wavelength of the scan, from one
+    read of the file. Raises ValueError when no point is complete (unless
+    ``allow_empty``), the plan is invalid or the wavelength index is out of range (naming
+    the scan's wavelengths)."""
+    from driver.scanfile import read_open_scan
 
     scan = read_open_scan(source.h5, source.path)
+    if all_wavelengths:
+        return [_dataset(scan, k, allow_empty) for k in range(max(1, int(np.size(scan.wavelengths))))]
+    return _dataset(scan, wavelength_index, allow_empty)
+
+
+def _dataset(scan: Any, wavelength_index: int, allow_empty: bool) -> PointDataset:
+    """One wavelength's completed points of the scan read (``driver.scanfile.ScanData``)."""
+    from driver.plan import check_plan
+    from driver.scanfile import pressure_unit
+
     check_wavelength_index(wavelength_index, scan.wavelengths, "scan")
     scan = scan.at_wavelength(wavelength_index).completed_only() if wavelength_index else scan.completed_only()
     check_plan(scan.plan)  # its lattice becomes the reconstruction grid: bounded there

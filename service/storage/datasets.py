@@ -93,6 +93,15 @@ def load_dataset(path: str | os.PathLike, format: str | None = None, *, dt: floa
     is read in a child process with a time limit (the registry's
     ``service.storage.untrusted.read_bounded``: HDF5 can block on its damaged metadata for
     ever). Raises ValueError naming the fault, FileNotFoundError."""
+    choice = check_wavelength(wavelength, allow_all=False)  # 'all': load_wavelengths
+    return _load(path, format, dt=dt, dx=dx, dy=dy, c=c, key=key, max_bytes=max_bytes, force=force,
+                 wavelength_index=0 if choice is None else int(choice))
+
+
+def _load(path: str | os.PathLike, format: str | None, *, dt: float | None, dx: float | None, dy: float | None,
+          c: float | None, key: str | None, max_bytes: int, force: bool, **which: Any) -> Any:
+    """:func:`load_dataset`'s checks and the registry's load; ``which``:
+    ``wavelength_index`` (one dataset) or ``all_wavelengths=True`` (a list)."""
     from driver.units import check_plausible
 
     num = (int, float)
@@ -102,14 +111,14 @@ def load_dataset(path: str | os.PathLike, format: str | None = None, *, dt: floa
     choices = input_formats()
     if format is not None and format not in choices:
         raise ValueError(f"format must be one of {', '.join(choices)}, got {format!r}")
-    choice = check_wavelength(wavelength, allow_all=False)  # 'all': load_wavelengths
-    _, ds = formats.load(path, format, max_bytes=max_bytes, choices=choices, dt=dt, dx=dx, dy=dy, c=c, key=key,
-                         wavelength_index=0 if choice is None else int(choice))
-    if c is not None:
-        ds.c = positive("c", c)
-    if dt is not None:
-        ds.dt = positive("dt", dt)
-    return ds
+    _, loaded = formats.load(path, format, max_bytes=max_bytes, choices=choices, dt=dt, dx=dx, dy=dy, c=c, key=key,
+                             **which)
+    for ds in loaded if isinstance(loaded, list) else [loaded]:
+        if c is not None:
+            ds.c = positive("c", c)
+        if dt is not None:
+            ds.dt = positive("dt", dt)
+    return loaded
 
 
 def load_scan(path: str | os.PathLike, *, allow_empty: bool = False, wavelength_index: int = 0) -> PointDataset:
@@ -131,16 +140,16 @@ def load_wavelengths(path: str | os.PathLike, format: str | None = None, *, wave
                      **load: Any) -> list[GridDataset | PointDataset]:
     """The datasets of ``path`` at the chosen excitation wavelength(s): ``wavelength`` an
     index or None (one dataset, :func:`load_dataset`) or ``"all"`` (one per wavelength of
-    the file, in its order; a file of one wavelength gives one). ``load``: the other
-    arguments of :func:`load_dataset`. Raises ValueError (a bad choice, an index out of
-    range naming the file's wavelengths, what :func:`load_dataset` raises),
-    FileNotFoundError."""
+    the file, in its order, read from one open of the file; a file of one wavelength gives
+    one). ``load``: the other arguments of :func:`load_dataset`. Raises ValueError (a bad
+    choice, an index out of range naming the file's wavelengths, what
+    :func:`load_dataset` raises), FileNotFoundError."""
     choice = check_wavelength(wavelength)
     if not isinstance(choice, str):  # an index or None
         return [load_dataset(path, format, wavelength=choice, **load)]
-    first = load_dataset(path, format, wavelength=0, **load)
-    n = file_wavelengths(first).size
-    return [first] + [load_dataset(path, format, wavelength=k, **load) for k in range(1, n)]
+    options = {"dt": None, "dx": None, "dy": None, "c": None, "key": None, "max_bytes": MAX_ELEMENTS * 8,
+               "force": False, **load}
+    return list(_load(path, format, all_wavelengths=True, **options))
 
 
 HDF5_KEY_CHARS = set("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_-/.")

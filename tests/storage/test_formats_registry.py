@@ -13,7 +13,7 @@ import pytest
 from service import formats
 from service.formats import Format, Source
 from service.recon.dataset import GridDataset
-from service.storage.datasets import detect_format, input_formats, load_dataset
+from service.storage.datasets import detect_format, input_formats, load_dataset, load_wavelengths
 from tests.storage.storage_helpers import build_plan
 
 TOY_MAGIC = b"TOY-GRID/1"
@@ -124,14 +124,14 @@ def test_hdf5_checks_hold_for_every_format(tmp_path):
 
 
 def test_a_file_is_opened_once_per_load(make_scan, tmp_path, monkeypatch):
-    """Detecting, checking and reading a scan file (and an IPASC file at its second
-    wavelength) opens the HDF5 file once."""
+    """Detecting, checking and reading a scan file (an IPASC file at its second
+    wavelength, every wavelength of a two-wavelength scan) opens the HDF5 file once."""
     from service.storage.ipasc import export_scan
     from tests.storage.test_storage_ipasc_wavelengths import WAVELENGTHS, two_wavelength_scan
 
     scan = make_scan("scan.h5", build_plan(3, 3, 16))
-    ipasc = export_scan(two_wavelength_scan(tmp_path / "two.h5", build_plan(3, 2, 16, wavelengths=WAVELENGTHS)),
-                        tmp_path / "two_ipasc.h5")
+    two = two_wavelength_scan(tmp_path / "two.h5", build_plan(3, 2, 16, wavelengths=WAVELENGTHS))
+    ipasc = export_scan(two, tmp_path / "two_ipasc.h5")
     opened = []
     real_init = h5py.File.__init__
 
@@ -147,3 +147,11 @@ def test_a_file_is_opened_once_per_load(make_scan, tmp_path, monkeypatch):
     ds = load_dataset(ipasc, wavelength=1)
     assert ds.source == "ipasc" and ds.wavelengths == (WAVELENGTHS[1],)
     assert opened == [str(ipasc)]
+    for path in (two, ipasc):
+        opened.clear()
+        every = load_wavelengths(path, wavelength="all")
+        assert [d.wavelengths for d in every] == [(w,) for w in WAVELENGTHS]
+        assert [d.meta["wavelength_index"] for d in every] == [0, 1] and opened == [str(path)]
+        # the same data as one load per wavelength (a load each)
+        for k, d in enumerate(every):
+            np.testing.assert_array_equal(d.alines, load_dataset(path, wavelength=k).alines)
