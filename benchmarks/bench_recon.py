@@ -214,14 +214,13 @@ def _table(sizes, methods, repeat, tv_iterations=None):
 
 
 def _kwave2d(path, repeat, queue):
-    import h5py
     import scipy.fft
 
+    from service.formats import load
     from service.recon import reconstruct_grid
 
-    with h5py.File(path, "r") as f:
-        data = f["sensor_data/clean"][:].astype(np.float64)
-        dx, dt, c = float(f.attrs["dx_m"]), float(f.attrs["dt_s"]), float(f.attrs["c_m_per_s"])
+    ds = load(path, "kwave-hdf5", key="sensor_data/clean")[1]  # the k-Wave format's reader and spacing rule
+    data, dx, dt, c = ds.data.astype(np.float64), ds.dx, ds.dt, ds.c
     reconstruct_grid(data[:64, :64], dx, dt, c)
     t = _best(lambda: reconstruct_grid(data, dx, dt, c), repeat)
     vol = np.ones((2 * data.shape[0], data.shape[1]), np.complex128)

@@ -53,7 +53,7 @@ def _library_child(method: str, paths: list[str]) -> None:
     """In a fresh interpreter: cold (imports + first call) and warm times of each file."""
     t0 = time.perf_counter()
     from service.pipeline import reconstruct
-    from service.storage.datasets import GridDataset
+    from service.recon.dataset import GridDataset
 
     out = []
     for k, path in enumerate(paths):

@@ -806,28 +806,39 @@ def read_scan(path: str | os.PathLike, *, dtype: Any = np.float64,
     wavelength index out of range).
     """
     path = Path(path)
+    if np.dtype(dtype).kind != "f":
+        raise ValueError(f"dtype must be a float type, got {np.dtype(dtype)}")
+    if not path.is_file():
+        raise FileNotFoundError(f"no scan file at {path}")
+    with open_readonly(path, timeout) as f:
+        return read_open_scan(f, path, dtype=dtype, wavelength_index=wavelength_index)
+
+
+def read_open_scan(f: h5py.File, path: str | os.PathLike, *, dtype: Any = np.float64,
+                   wavelength_index: int = 0) -> ScanData:
+    """:func:`read_scan` of a scan file already open (``open_readonly``), ``path`` its
+    name (for messages and ``ScanData.path``): so a caller that opened the file once (the
+    registry of formats, ``service.formats``) reads it without opening it again. Raises
+    ValueError (not a scan file, wavelength index out of range)."""
+    path = Path(path)
     dtype = np.dtype(dtype)
     if dtype.kind != "f":
         raise ValueError(f"dtype must be a float type, got {dtype}")
-    if not path.is_file():
-        raise FileNotFoundError(f"no scan file at {path}")
-    f = open_readonly(path, timeout)
-    with f:
-        fmt = f.attrs.get("format")
-        if fmt not in (FORMAT, FORMAT_1):
-            raise ValueError(f"{path} is not an {FORMAT} (or {FORMAT_1}) file")
-        attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
-        wavelengths = np.asarray(attrs["wavelengths_m"], dtype=np.float64).reshape(-1)
-        if fmt == FORMAT_1:
-            done, meta_arr, alines = _read_v1(f, wavelengths)
-        else:
-            done = f["completed"][()].astype(bool)
-            meta_arr = f["aline_meta"][()]
-            alines = f["alines"][()]
-        plan = json.loads(f["plan_json"][()].decode())
-        positions = f["positions"][()]
-        indices = f["indices"][()]
-        weights = f["weights"][()]
+    fmt = f.attrs.get("format")
+    if fmt not in (FORMAT, FORMAT_1):
+        raise ValueError(f"{path} is not an {FORMAT} (or {FORMAT_1}) file")
+    attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
+    wavelengths = np.asarray(attrs["wavelengths_m"], dtype=np.float64).reshape(-1)
+    if fmt == FORMAT_1:
+        done, meta_arr, alines = _read_v1(f, wavelengths)
+    else:
+        done = f["completed"][()].astype(bool)
+        meta_arr = f["aline_meta"][()]
+        alines = f["alines"][()]
+    plan = json.loads(f["plan_json"][()].decode())
+    positions = f["positions"][()]
+    indices = f["indices"][()]
+    weights = f["weights"][()]
     alines[~done] = 0
     meta_arr[~done] = np.zeros((), META_DTYPE)
     meta_all = {k: np.ascontiguousarray(meta_arr[k]) for k in META_KEYS}

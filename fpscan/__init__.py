@@ -10,8 +10,9 @@ command line, the server and the web page use:
   ``random_mask``, ``poisson_mask``, ``points_mask``, ``equiangular_mask``,
   ``equisteradian_mask``), ``MASK_KINDS``, ``Plan``, ``Acquisition``, ``make_plan``,
   ``plan_from_spec``, ``load_plan``, ``weight_ratio``, ``preview_png``;
-- datasets (:mod:`service.storage.datasets`): ``load_dataset`` (any supported file),
-  ``GridDataset``, ``PointDataset``, ``load_wavelengths``;
+- datasets (:mod:`service.storage.datasets`): ``load_dataset`` (any supported file,
+  :mod:`service.formats`), ``load_wavelengths``; the input model ``GridDataset``,
+  ``PointDataset`` (:mod:`service.recon.dataset`);
 - reconstruction (:mod:`service.pipeline`, the one dispatch): ``reconstruct(dataset,
   method, **options)`` for every method of ``METHODS`` (``nedner``, ``ner``, ``linear``,
   ``nearest``, ``cubic``, ``kwave``, ``tv``), ``Reconstruction``, ``Cancelled``;
@@ -91,8 +92,8 @@ _EXPORTS: dict[str, str] = {
                      "preview_png"], "service.plans"),
     "load_plan": "driver.plan",
     # datasets and the one reconstruction dispatch
-    **dict.fromkeys(["load_dataset", "GridDataset", "PointDataset", "load_wavelengths"],
-                    "service.storage.datasets"),
+    **dict.fromkeys(["load_dataset", "load_wavelengths"], "service.storage.datasets"),
+    **dict.fromkeys(["GridDataset", "PointDataset"], "service.recon.dataset"),
     **dict.fromkeys(["reconstruct", "METHODS", "Cancelled"], "service.pipeline"),
     "Reconstruction": "service.recon.reconstruction",
     # scan files
@@ -117,7 +118,7 @@ _EXPORTS: dict[str, str] = {
                      "WaitTimeout"], "clients.http"),
 }
 #: a public name that differs from its owner's
-_RENAMED = {"export_ipasc": ("service.storage.ipasc", "export_scan")}
+_RENAMED = {"export_ipasc": ("service.formats.ipasc", "export_scan")}
 
 #: the public names (tests check them against _EXPORTS and _RENAMED)
 __all__ = [
@@ -154,6 +155,7 @@ if TYPE_CHECKING:
     from driver.physics import Ball, ball_alines, ball_p0
     from driver.plan import load_plan
     from driver.scanfile import ScanData, ScanFile, pressure_unit, read_scan
+    from service.formats.ipasc import export_scan as export_ipasc
     from service.metrics import (
         EdgeFit,
         LorentzFit,
@@ -194,11 +196,11 @@ if TYPE_CHECKING:
         subgrid_mask,
         weight_ratio,
     )
+    from service.recon.dataset import GridDataset, PointDataset
     from service.recon.reconstruction import Reconstruction
     from service.recon.unmix import unmix
     from service.spectral import so2_map, thb_map
-    from service.storage.datasets import GridDataset, PointDataset, load_dataset, load_wavelengths
-    from service.storage.ipasc import export_scan as export_ipasc
+    from service.storage.datasets import load_dataset, load_wavelengths
     from service.storage.render import render_mip, render_mips, render_so2
     from service.storage.results import (
         EXPORT_FORMATS,

@@ -47,8 +47,8 @@ import numpy as np
 from driver.constants import C_AUTOFOCUS_RANGE
 
 if TYPE_CHECKING:
+    from service.recon.dataset import GridDataset, PointDataset
     from service.recon.reconstruction import Reconstruction
-    from service.storage.datasets import GridDataset, PointDataset
 
     Dataset = GridDataset | PointDataset
 
@@ -273,7 +273,7 @@ def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = No
     opts["dtype"] = _dtype(opts.get("dtype"))
     c = opts.pop("c", None)
     c = float(dataset.c if c is None else c)
-    from service.storage.datasets import GridDataset, PointDataset, p0_unit, wavelength_params
+    from service.recon.dataset import GridDataset, PointDataset, p0_unit, wavelength_params
 
     if spec.needs_grid and isinstance(dataset, PointDataset):
         dataset = dataset.to_grid()

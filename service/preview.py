@@ -130,7 +130,7 @@ def warm_up() -> float:
     """Import and compile (numba) the reconstruction in a fresh worker with a tiny
     NEDNER run, so the first live preview of a scan is not slowed by start-up."""
     from service.pipeline import reconstruct
-    from service.storage.datasets import GridDataset
+    from service.recon.dataset import GridDataset
 
     t0 = time.perf_counter()
     data = np.zeros((32, 4, 4), dtype=np.float32)

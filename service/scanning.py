@@ -24,9 +24,9 @@ import uuid
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from service.disk import is_disk_full
 from service.jobs.store import TERMINAL, JobStore
 from service.preview import PreviewManager
-from service.storage.disk import is_disk_full
 
 if TYPE_CHECKING:
     from driver.host import Scanner

@@ -21,7 +21,6 @@ in m; ``/wavelengths_m``; attributes ``format`` = ``fpscan-unmix/1``, ``params``
 """
 from __future__ import annotations
 
-import json
 import os
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -29,9 +28,12 @@ from typing import Any
 
 import numpy as np
 
+from service.formats.unmix import UNMIX_FORMAT, read_unmix
 from service.recon.unmix import Unmixed, endmember_matrix, too_few_wavelengths, unmix
 
-UNMIX_FORMAT = "fpscan-unmix/1"
+__all__ = ["UNMIX_FORMAT", "read_unmix", "dataset_wavelengths", "reconstruct_wavelengths", "write_wavelength_results",
+           "unmix_reconstructions", "so2_map", "thb_map", "render_so2_png", "write_unmix", "load_wavelength_datasets",
+           "reconstruct_and_unmix"]
 #: masked pixels of the sO2 picture (THb below the threshold, sO2 unknown): black
 MASK_COLOUR = (0.0, 0.0, 0.0, 1.0)
 
@@ -165,50 +167,16 @@ def write_unmix(out_dir: str | os.PathLike, u: Unmixed, z: Any, x: Any, y: Any =
     """Write ``unmix.h5`` and ``so2.png`` into ``out_dir`` (an existing folder; the caller
     writes the folder atomically). Returns a summary (``so2_median``, ``masked_fraction``,
     ``thb_max``)."""
-    import h5py
-
-    from service.storage.results import params_json
+    from service.formats.unmix import write
 
     out = Path(out_dir)
-    # the result files' one canonical parameter JSON (ValueError before anything is written)
-    params = params_json({**u.params, **(extra or {})})
-    tmp = out / f".unmix.h5.tmp-{os.getpid()}"
-    with h5py.File(tmp, "w") as f:
-        f.attrs["format"] = UNMIX_FORMAT
-        f.attrs["params"] = params
-        f.attrs["input_id"] = input_id
-        f.attrs["concentration_units"] = str(u.params.get("concentration_units", ""))
-        for name in ("hbo2", "hb", "thb", "so2"):
-            f.create_dataset(name, data=getattr(u, name), compression="gzip", compression_opts=4)
-        f.create_dataset("mask", data=u.mask.astype(np.uint8), compression="gzip", compression_opts=4)
-        f.create_dataset("z", data=np.asarray(z, dtype=np.float64))
-        f.create_dataset("x", data=np.asarray(x, dtype=np.float64))
-        if y is not None:
-            f.create_dataset("y", data=np.asarray(y, dtype=np.float64))
-        f.create_dataset("wavelengths_m", data=u.wavelengths)
-    os.replace(tmp, out / "unmix.h5")
+    write(out / "unmix.h5", u, z, x, y, input_id=input_id, extra=extra)
     (out / "so2.png").write_bytes(render_so2_png(u, z, x, y))
     inside = u.so2[u.mask]
     return {"so2_median": float(np.median(inside)) if inside.size else None,
             "masked_fraction": float(u.params.get("masked_fraction", 1.0)),
             "thb_max": float(u.thb.max()) if u.thb.size else 0.0,
             "wavelengths_m": [float(v) for v in u.wavelengths]}
-
-
-def read_unmix(path: str | os.PathLike) -> dict:
-    """The arrays and attributes of an ``unmix.h5`` (module docstring) as a dict; raises
-    ``ValueError`` for another file."""
-    import h5py
-
-    with h5py.File(path, "r") as f:
-        if f.attrs.get("format") != UNMIX_FORMAT:
-            raise ValueError(f"{path} is not an {UNMIX_FORMAT} file")
-        out = {k: f[k][...] for k in ("hbo2", "hb", "thb", "so2", "mask", "z", "x", "wavelengths_m")}
-        out["y"] = f["y"][...] if "y" in f else None
-        out["mask"] = out["mask"].astype(bool)
-        out["params"] = json.loads(f.attrs["params"])
-        out["input_id"] = str(f.attrs["input_id"])
-    return out
 
 
 def load_wavelength_datasets(paths: Sequence[str | os.PathLike], format: str | None = None, *,
@@ -230,17 +198,17 @@ def load_wavelength_datasets(paths: Sequence[str | os.PathLike], format: str | N
     if not paths:
         raise ValueError("no input files")
     if len(paths) == 1:
-        ds = dsm.load_dataset(paths[0], format, **load)
+        every = dsm.load_wavelengths(paths[0], format, wavelength="all", **load)  # one open of the file
+        ds = every[0]
         recorded = dsm.file_wavelengths(ds)
         if wavelengths is not None and len(wavelengths) != 1 and len(wavelengths) != recorded.size:
             raise ValueError(f"{len(wavelengths)} wavelengths given for a file with {recorded.size}")
         if recorded.size < 2:
             raise too_few_wavelengths(wavelengths if wavelengths is not None else recorded)
-        fmt = format or dsm.detect_format(paths[0])
+        fmt = ds.source  # the format that read it (no second open to detect it)
         if fmt != "fpscan":
             raise ValueError(f"a {fmt} file holds one wavelength's data; give one file per wavelength")
-        return recorded, [ds] + [dsm.load_dataset(paths[0], format, wavelength=k, **load)
-                                 for k in range(1, recorded.size)]
+        return recorded, every
     dsets = [dsm.load_dataset(p, format, **load) for p in paths]
     if wavelengths is None:
         rec = [dataset_wavelengths(d) for d in dsets]

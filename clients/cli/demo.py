@@ -305,9 +305,9 @@ class Demo:
     def _figures(self) -> None:
         import json
 
-        import h5py
         import numpy as np
 
+        from service.formats.result import read_result
         from service.metrics.projections import mip
 
         recons = self.report["reconstructions"]
@@ -330,18 +330,16 @@ class Demo:
 
         vols, rois = {}, {}
         for name, r in recons.items():
-            with h5py.File(self.out / r["volume"], "r") as f:
-                p0 = np.asarray(f["p0"], dtype=np.float64)
-                z, x = np.asarray(f["z"]), np.asarray(f["x"])
-                y = np.asarray(f["y"]) if "y" in f else None
-                r["shape"] = list(p0.shape)
-                meta = {}
-                for key in ("job", "params"):
-                    if key in f.attrs:
-                        meta.update(json.loads(f.attrs[key]))
-                used = meta.get("points_used", meta.get("n_points", r.get("points_used")))
-                if used is not None:
-                    r["points_used"] = int(used)
+            vol = read_result(self.out / r["volume"])  # the result format's reader (service.formats.result)
+            p0, z, x, y = np.asarray(vol.p0, dtype=np.float64), vol.z, vol.x, vol.y
+            r["shape"] = list(p0.shape)
+            meta = {}
+            for key in ("job", "params"):
+                if key in vol.attrs:
+                    meta.update(json.loads(vol.attrs[key]))
+            used = meta.get("points_used", meta.get("n_points", r.get("points_used")))
+            if used is not None:
+                r["points_used"] = int(used)
             vols[name] = p0
             if y is None:
                 continue

@@ -1,4 +1,4 @@
-"""`fpscan export`: IPASC export of a scan file, locally (``service.storage.ipasc``) or from a
+"""`fpscan export`: IPASC export of a scan file, locally (``service.formats.ipasc``) or from a
 server (``GET /api/scans/{job_id}/ipasc``); OME-TIFF or OME-Zarr export (``--format``) of a
 reconstruction result (``service.storage.results.export_volume``, or ``GET
 /api/reconstructions/{job_id}/volume.ome.tif`` / ``volume.ome.zarr.zip``) for ImageJ/Fiji
@@ -35,24 +35,22 @@ def add_arguments(parser):
 
 
 def _local_export():
-    """The service's own IPASC exporter (``service.storage.ipasc.export_scan``)."""
-    from service.storage.ipasc import export_scan
+    """The service's own IPASC exporter (``service.formats.ipasc.export_scan``)."""
+    from service.formats.ipasc import export_scan
 
     return export_scan
 
 
 def _is_result(path) -> bool:
-    """True for a reconstruction result file (``fpscan-result/1``)."""
-    import h5py
-
-    from service.storage.results import FORMAT
+    """True for a reconstruction result file (``fpscan-result/1``: detected by the
+    registry of formats, ``service.formats.detect``; a file a writer has open in a
+    bounded child)."""
+    from service.formats import detect
 
     try:
-        with h5py.File(path, "r") as f:
-            fmt = f.attrs.get("format")
-    except OSError:
+        return detect(path) == "result"
+    except (ValueError, OSError):
         return False
-    return (fmt.decode() if isinstance(fmt, bytes) else fmt) == FORMAT
 
 
 @client_errors
@@ -99,7 +97,7 @@ def run(args) -> int:
     out = Path(args.out or scan.with_name(f"{scan.stem}_ipasc.h5"))
     if out.resolve() == scan.resolve():
         raise UsageError("the output would overwrite the scan file")
-    from service.storage.untrusted import read_bounded
+    from service.formats.untrusted import read_bounded
 
     # written to a temporary sibling, then renamed; a file a writer has open is read in a
     # bounded child (HDF5 can block on its damaged metadata for ever)

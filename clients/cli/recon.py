@@ -35,16 +35,13 @@ def add_arguments(parser):
     """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser)."""
     try:
         from service.pipeline import DEFAULT_DTYPE, DTYPES, KWAVE_INTERPS, METHODS
-        from service.storage.datasets import FORMATS
     except ImportError:  # client-only install: choices are checked by the server
         from clients.cli._common import default_dtype
 
-        DEFAULT_DTYPE, DTYPES, KWAVE_INTERPS, METHODS, FORMATS = default_dtype(), None, None, {}, None
+        DEFAULT_DTYPE, DTYPES, KWAVE_INTERPS, METHODS = default_dtype(), None, None, {}
 
     parser.add_argument("input", nargs="?", help="scan file (HDF5), IPASC file, k-Wave HDF5 or .npy array")
-    parser.add_argument("--format", choices=FORMATS, default=None,
-                        help="input format (default: from the file: .npy, IPASC, k-Wave HDF5, fpscan scan "
-                             "or fpscan dataset)")
+    add_format_option(parser)
     methods = "; ".join(f"{m.name}: {m.title}" for m in METHODS.values())
     parser.add_argument("--method", choices=list(METHODS) or None, default=None,
                         help="reconstruction method (default: the pipeline's, service.pipeline.default_method: "
@@ -93,6 +90,21 @@ def add_arguments(parser):
                         help="with --server: reconstruct this scan job's file (no INPUT)")
     add_server_options(parser)
     add_progress_option(parser)
+
+
+def add_format_option(parser) -> None:
+    """``--format``: the input formats of the registry (``service.formats``: names and
+    titles in the help); on a client-only install any name (the server checks it)."""
+    try:
+        from service.formats import FORMATS
+        from service.storage.datasets import input_formats
+    except ImportError:  # client-only install: the server checks the format
+        choices, described = None, ""
+    else:
+        choices = input_formats()
+        described = ": " + "; ".join(f"{n} = {FORMATS[n].title}" for n in choices)
+    parser.add_argument("--format", choices=choices, default=None,
+                        help=f"input format (default: from the file's content){described}")
 
 
 def _wavelength(text: str) -> int | str:

@@ -27,8 +27,6 @@ from driver.constants import C_AUTOFOCUS_RANGE, C_PLAUSIBLE
 COMMAND = "unmix"
 HELP = "reconstruct every wavelength and unmix HbO2/Hb into THb and sO2 (masked)"
 
-FORMATS = ("fpscan", "ipasc", "kwave-hdf5", "npy", "dataset")
-
 
 def add_arguments(parser):
     """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser)."""
@@ -36,7 +34,9 @@ def add_arguments(parser):
                         help="a multi-wavelength scan file, or one file per wavelength (with --wavelengths)")
     parser.add_argument("--wavelengths", type=quantity("length", "wavelength"), nargs="+", default=None,
                         metavar="M", help="excitation wavelength of each INPUT, e.g. 750nm 850nm (bare numbers: m)")
-    parser.add_argument("--format", choices=FORMATS, default=None, help="input format (default: from the file)")
+    from clients.cli.recon import add_format_option
+
+    add_format_option(parser)
     parser.add_argument("--method", default=None,
                         help="reconstruction method (default: nedner for scans, ner for grids)")
     parser.add_argument("--out", default=None, metavar="DIR", help="output folder (default: <input>-unmix/)")

@@ -55,7 +55,6 @@ from .models import MODELS
 
 TERMINAL_STATES = frozenset({"succeeded", "failed", "cancelled"})
 MIP_PLANES = ("xy", "xz", "yz")
-DATASET_FORMATS = ("fpscan", "ipasc", "kwave-hdf5", "npy")
 
 ProgressCallback = Callable[[dict], Any]
 
@@ -372,9 +371,8 @@ class _Endpoints:
         """``POST /api/datasets`` (multipart: ``file``, ``format`` and spacings such as
         ``dx``, ``dy``, ``dt``, ``c`` in SI units) -> the dataset id (201).
 
-        Raises ``ValueError`` for an unknown format or a missing file."""
-        if format not in DATASET_FORMATS:
-            raise ValueError(f"format must be one of {', '.join(DATASET_FORMATS)}, not {format!r}")
+        ``format``: one of the server's (:meth:`dataset_formats`; another is answered
+        422 naming them). Raises ``ValueError`` for a missing file."""
         p = Path(path)
         if not p.is_file():
             raise ValueError(f"no such file: {p}")
@@ -413,6 +411,12 @@ class _Endpoints:
         r = yield _Req("POST", "/api/reconstructions", json=body,
                        headers=_idem({}, idempotency_key))
         return _job_id_from(r)
+
+    def dataset_formats(self):
+        """``GET /api/datasets/formats`` -> list of ``{name, title, wavelengths}``: the
+        formats :meth:`upload_dataset` takes (the server's registry of formats)."""
+        r = yield _Req("GET", "/api/datasets/formats")
+        return r.json()
 
     def methods(self):
         """``GET /api/reconstructions/methods`` -> list of ``{name, title, needs_grid,

@@ -10,7 +10,8 @@
  *               GET /api/scans/{id}/preview (+ /preview/{plane}.png) for the live MIPs
  *   Jobs view   GET /api/jobs, GET /api/jobs/{id}, MIPs, depth slices, downloads,
  *               POST /api/reconstructions, POST /api/datasets (upload), POST .../cancel
- *               GET /api/reconstructions/methods (the method choices and their options)
+ *               GET /api/reconstructions/methods (the method choices and their options),
+ *               GET /api/datasets/formats (the upload's format choices)
  *               Disk use: GET /api/health (bytes by part), GET /api/datasets,
  *               DELETE /api/datasets/{id} (the storage section, its own functions below)
  * Units: the form shows convenient units (µm, mm, ns, nm); the API receives SI units.
@@ -1476,6 +1477,21 @@ async function buildMethodSelects() {
   renderReconOptions();
 }
 
+/* Upload formats come from the server (GET /api/datasets/formats, i.e. the registry
+ * service.formats): the upload form lists them in the server's order, the first chosen. */
+async function buildFormatSelect() {
+  const list = await apiJson("/api/datasets/formats");
+  const sel = $("upload-format");
+  sel.textContent = "";
+  for (const f of list) {
+    const o = document.createElement("option");
+    o.value = f.name;
+    o.textContent = f.title;
+    sel.appendChild(o);
+  }
+  if (list.length) sel.value = list[0].name;
+}
+
 /** The reconstruct form for the chosen method: its own defaults, only the options it takes. */
 function renderReconOptions() {
   const method = $("recon-method").value;
@@ -1584,6 +1600,7 @@ async function init() {
   }
   buildMaskSelect().catch(showError);
   buildMethodSelects().catch(showError);
+  buildFormatSelect().catch(showError);
   window.addEventListener("hashchange", route);
   health();
   route();

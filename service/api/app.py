@@ -27,8 +27,8 @@ from starlette.staticfiles import StaticFiles
 from driver.acquire import software_version
 from service.api.context import Context, Slots, ctx, default_slots, read_access, validation_reason
 from service.api.models import AuthInfo, Error, Health
+from service.disk import is_disk_full
 from service.settings import Settings
-from service.storage.disk import is_disk_full
 
 log = logging.getLogger("fpscan.api")
 

@@ -1,16 +1,12 @@
 """Dataset upload: ``POST /api/datasets`` (multipart ``file`` + ``format`` + spacings).
 
-Formats:
-- ``npy``: a NumPy array in k-Wave layout, ``(n_t, n_x)`` or ``(n_t, n_y, n_x)`` (time
-  first, as k-Wave's ``'ty'``/``'tyz'``), with form fields ``dt`` (s), ``dx`` (m),
-  optional ``dy`` (m, default dx) and ``c`` (m/s, default 1500; outside 1000-2000 m/s
-  only with ``force``: ``driver.units.check_plausible``, as everywhere). Loaded with
-  ``allow_pickle=False``.
-- ``kwave-hdf5``: an HDF5 file holding such an array at ``key`` (default
-  ``sensor_data/clean``, then ``sensor_data``); spacings from the form or from the file's
-  ``dt_s``, ``dx_m``, ``dy_m``, ``c_m_per_s`` attributes (shared/data/README.md layout).
-- ``fpscan``: our scan file (``driver.scanfile``), reconstructed from its completed points.
-- ``ipasc``: an IPASC HDF5 file (``service.ipasc.read_ipasc``).
+Formats: those of the registry marked ``upload`` (``service.formats``; listed by
+``GET /api/datasets/formats``, each module documenting its layout): ``npy`` (a NumPy array
+in k-Wave layout, time first, with form fields ``dt`` (s), ``dx`` (m), optional ``dy``
+(m, default dx) and ``c`` (m/s, default 1500; outside 1000-2000 m/s only with ``force``:
+``driver.units.check_plausible``, as everywhere)), ``kwave-hdf5`` (such an array in HDF5
+at ``key``; spacings from the form or the file's attributes), ``fpscan`` (our scan file,
+reconstructed from its completed points) and ``ipasc``.
 
 The upload is stored under a server-chosen id (``<data_dir>/datasets/<id>/``); the client's
 file name is never used as a path (it is kept, cleaned, as the dataset's display name). Every
@@ -29,7 +25,7 @@ Datasets never pile up:
   each new upload too).
 - Admitted against the disk: the decoded dataset's bytes must fit the free space less
   ``disk_reserve_bytes`` less what imports in flight reserved
-  (``service.storage.untrusted.DiskAdmission``), else 507 before it is written.
+  (``service.formats.untrusted.DiskAdmission``), else 507 before it is written.
 """
 from __future__ import annotations
 
@@ -46,11 +42,12 @@ from fastapi import Path as PathParam
 
 from driver.units import parse_quantity
 from service.api.context import Context, ctx, read_access, reason, require_token
-from service.api.models import ID_PATTERN, Dataset, DatasetFormat, DatasetInfo, Deleted
+from service.api.models import ID_PATTERN, Dataset, DatasetFormat, DatasetFormatInfo, DatasetInfo, Deleted
+from service.formats import upload_formats
+from service.formats.untrusted import DiskAdmission, NotAdmitted, hdf5_limit, run_bounded
 from service.jobs import lifecycle
 from service.jobs.queue import INCOMING
 from service.storage.datasets import import_dataset
-from service.storage.untrusted import DiskAdmission, NotAdmitted, hdf5_limit, run_bounded
 
 log = logging.getLogger("fpscan.api")
 #: serialises "is this content stored already?" with storing it (two identical uploads at once)
@@ -63,6 +60,14 @@ def list_datasets(cx: Context = Depends(ctx)) -> list[DatasetInfo]:
     """The stored datasets, oldest first: name, format, size on disk, upload time,
     content hash and the jobs that read them (``in_use``: an active one does)."""
     return [DatasetInfo(**d) for d in lifecycle.list_datasets(cx.store, cx.settings.data_dir)]
+
+
+@router.get("/formats", response_model=list[DatasetFormatInfo], dependencies=[Depends(read_access)])
+def list_formats() -> list[DatasetFormatInfo]:
+    """The formats an upload may have (the registry ``service.formats``, in its order):
+    name (the ``format`` field), title and whether it may hold several wavelengths. The
+    web page builds its format choices from this."""
+    return [DatasetFormatInfo(**f) for f in upload_formats()]
 
 
 @router.post("", status_code=201, response_model=Dataset, dependencies=[Depends(require_token)],

@@ -23,6 +23,7 @@ from pydantic import (
 )
 
 from driver.constants import C_AUTOFOCUS_LIMITS, C_AUTOFOCUS_RANGE, C_LIMITS, C_PLAUSIBLE
+from service.formats import upload_formats
 from service.pipeline import DEFAULT_DTYPE, DTYPES, KWAVE_INTERPS, METHODS
 from service.plans.kinds import KINDS, MaskKind, resolve_kind
 from service.plans.plan import ORDER_NAMES, Acquisition
@@ -47,7 +48,9 @@ JobState = Literal["queued", "running", "paused", "succeeded", "failed", "cancel
 JobKind = Literal["scan", "recon"]
 ReconMethod = _one_of(METHODS)
 Plane = Literal["xy", "xz", "yz"]
-DatasetFormat = Literal["fpscan", "ipasc", "kwave-hdf5", "npy"]
+#: the formats ``POST /api/datasets`` accepts: the registry's (``service.formats``, ``upload``)
+DATASET_FORMATS = tuple(f["name"] for f in upload_formats())
+DatasetFormat = Literal[DATASET_FORMATS]  # type: ignore[valid-type]  # a Literal of the registry's names
 
 ID_PATTERN = r"^[A-Za-z0-9_-]{1,128}$"
 
@@ -260,6 +263,16 @@ class MethodOption(BaseModel):
     name: str
     description: str
     default: Any = Field(None, description="this method's own default (null: the general one in the description)")
+
+
+class DatasetFormatInfo(BaseModel):
+    """One format ``POST /api/datasets`` accepts, as ``GET /api/datasets/formats`` lists it
+    (the registry ``service.formats``; the web page's and the HTTP client's choices)."""
+
+    name: str = Field(description="the value of the upload's format field")
+    title: str = Field(description="what a person reads")
+    wavelengths: bool = Field(description="may hold several excitation wavelengths (the upload's wavelength "
+                                          "chooses one)")
 
 
 class MethodInfo(BaseModel):

@@ -118,7 +118,7 @@ def scan_file(job_id: str = JobId, c: Context = Depends(ctx)):
 def scan_ipasc(job_id: str = JobId, c: Context = Depends(ctx)):
     """The scan's completed A-lines exported to the IPASC HDF5 format
     (``service.ipasc.write_ipasc``)."""
-    from service.storage.ipasc import export_scan
+    from service.formats.ipasc import export_scan
 
     src = _scan_file(c, job_id)
     out = Path(c.settings.data_dir) / "exports" / f"{job_id}.ipasc.h5"

@@ -16,7 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from service.storage.datasets import GridDataset, PointDataset, detect_format, load_dataset, load_scan
+from service import formats
+from service.recon.dataset import GridDataset, PointDataset
+from service.storage.datasets import input_formats
 
 
 @dataclass
@@ -71,7 +73,7 @@ class DenseDataset(GridDataset):
 
 
 def load_dense(path: str | Path, key: str | None = None) -> DenseDataset:
-    """Read a dense dataset with :func:`service.storage.datasets.load_dataset`: the
+    """Read a dense dataset through the registry of formats (:func:`service.formats.load`): the
     k-Wave reference files' layout (or any HDF5 array in k-Wave layout), or an fpscan scan
     file covering its whole lattice.
 
@@ -88,14 +90,12 @@ def load_dense(path: str | Path, key: str | None = None) -> DenseDataset:
         Missing file, datasets or attributes, wrong dimensions, unequal lateral spacing,
         a scan that does not cover its whole lattice.
     """
-    import h5py
-
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"data file not found: {path}")
     try:
         # a scan with no completed point is still judged by its plan's coverage below
-        loaded = load_scan(path, allow_empty=True) if detect_format(path) == "fpscan" else load_dataset(path, key=key)
+        loaded = formats.load(path, choices=input_formats(), key=key, allow_empty=True, ground_truth=True)[1]
     except ValueError as exc:
         raise ValueError(f"{path}: {exc}") from None
     if isinstance(loaded, PointDataset):
@@ -107,15 +107,7 @@ def load_dense(path: str | Path, key: str | None = None) -> DenseDataset:
         ds = loaded
     if ds.data.ndim == 3 and ds.dy is not None and not np.isclose(ds.dy, ds.dx, rtol=1e-9):
         raise ValueError(f"{path}: lateral spacings differ ({ds.dx} m vs {ds.dy} m); need a square lattice")
-    p0 = dz = None
-    if ds.source != "fpscan":
-        with h5py.File(path, "r") as f:
-            if "p0" in f and isinstance(f["p0"], h5py.Dataset):
-                p0 = np.asarray(f["p0"][...], dtype=np.float64)
-                spacing = f["p0"].attrs.get("spacing_m")
-                dz = float(np.asarray(spacing).ravel()[0]) if spacing is not None else ds.dx
-                if p0.ndim != ds.data.ndim or p0.shape[1:] != ds.data.shape[1:]:
-                    p0 = dz = None
+    p0, dz = ds.meta.get("p0"), ds.meta.get("p0_dz")  # the k-Wave files' ground truth (read with the data)
     meta: dict = {"kwave": bool(ds.meta.get("kwave_naming", False))}
     if ds.source == "fpscan":
         meta = {"scan_plan_id": ds.meta.get("plan_id")}

@@ -32,7 +32,7 @@ from service.metrics import (
     tenenbaum_sharpness,
 )
 from service.pipeline import reconstruct
-from service.storage.datasets import GridDataset, PointDataset
+from service.recon.dataset import GridDataset, PointDataset
 
 from .datasets import DenseDataset, add_noise
 from .phantoms import tree_phantom, tree_roi

@@ -37,7 +37,7 @@ from service.metrics import (
     sharpness_vs_diameter,
 )
 from service.pipeline import reconstruct
-from service.storage.datasets import PointDataset
+from service.recon.dataset import PointDataset
 
 from .datasets import DenseDataset, add_noise
 from .phantoms import yarn_phantom

@@ -24,12 +24,12 @@ import time
 import uuid
 from pathlib import Path
 
+from service.disk import is_disk_full
 from service.jobs.executors import WorkerDied
 from service.jobs.lifecycle import apply_retention
 from service.jobs.store import JobStore
 from service.jobs.work import run_reconstruction
 from service.pipeline import Cancelled
-from service.storage.disk import is_disk_full
 
 log = logging.getLogger("fpscan.jobs")
 

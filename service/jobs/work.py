@@ -70,7 +70,7 @@ def check_memory_limit(ds: Any, params: dict, limit: int) -> None:
     as loaded: ValueError with the reason if it needs more than ``limit`` bytes (the
     configured limit, not the memory free now)."""
     from service.jobs.admission import admit, estimate_memory
-    from service.storage.datasets import GridDataset
+    from service.recon.dataset import GridDataset
 
     shape: dict[str, Any]
     if isinstance(ds, GridDataset):
@@ -266,8 +266,8 @@ def warm_up(full: bool = False) -> dict:
         import numpy as np
 
         from service.pipeline import reconstruct
+        from service.recon.dataset import GridDataset
         from service.recon.warmup import warm_up as compile_kernels
-        from service.storage.datasets import GridDataset
         from service.storage.results import write_result
 
         compile_kernels()

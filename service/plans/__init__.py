@@ -9,7 +9,7 @@ Where the scanner measures and with what weight each A-line enters the reconstru
   **params)`` (kinds and their parameter models declared once in ``KINDS``,
   ``service.plans.kinds``) or the per-kind functions — full, subgrid (kind ``equispaced``), hexagonal, random, poisson,
   points, and the paper's ``equiangular_mask`` (2-D) / ``equisteradian_mask`` (3-D).
-  Default weights: clipped Voronoi areas (``service.plans.weights.voronoi_weights``);
+  Default weights: clipped Voronoi areas (``driver.physics.weights.voronoi_weights``);
   equiangular / equi-steradian: r² / r³ about the point of interest (paper §5.2).
 - ``Plan``: an ordered mask plus acquisition settings with its content hash as id, in the
   JSON of docs/architecture.md ("Plan JSON") and in HDF5; ``make_plan`` /

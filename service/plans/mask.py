@@ -106,7 +106,7 @@ def default_weights(lattice: Lattice, positions: np.ndarray, **options) -> np.nd
     m² (m on a line lattice), exactly ``voronoi_weights(positions, pitch)`` — the weights
     ``service.recon.reconstruct_points`` uses by default, so an equispaced sub-grid gets
     (interval·pitch)² everywhere, edges included. ``options`` go to ``voronoi_weights``."""
-    from .weights import voronoi_weights  # scipy on use: the plan models import this module
+    from driver.physics.weights import voronoi_weights  # scipy on use: the plan models import this module
 
     pos = positions[:, :1] if lattice.is_line else positions
     return voronoi_weights(pos, lattice.pitch, **options)

@@ -10,7 +10,7 @@
 - `PlanarOperator`: the forward model and its true adjoint as a pylops LinearOperator.
 - `reconstruct_tv`: model-based reconstruction (TV + positivity, pyproximal primal-dual).
 - `voronoi_weights`: default area weights for non-equispaced sensors (from
-  `service.plans.weights`, which owns them).
+  `driver.physics.weights`, which owns them).
 - `estimate_peak_memory`: bytes a reconstruction needs at its peak (admission control).
 
 Importing the package is light (numpy only): every name but `Reconstruction` and
@@ -42,13 +42,13 @@ __all__ = ["Reconstruction", "METHODS", "reconstruct_grid", "reconstruct_points"
 _LAZY = {"METHODS": "service.recon.planar", "reconstruct_grid": "service.recon.planar",
          "reconstruct_points": "service.recon.planar", "PlanarOperator": "service.recon.operator",
          "reconstruct_tv": "service.recon.tv",
-         "voronoi_weights": "service.plans.weights", "kspace_line_recon": "service.recon.kwave",
+         "voronoi_weights": "driver.physics.weights", "kspace_line_recon": "service.recon.kwave",
          "kspace_plane_recon": "service.recon.kwave", "forward_grid": "driver.physics.forward",
          "forward_points": "driver.physics.forward"}
 
 if TYPE_CHECKING:
     from driver.physics.forward import forward_grid, forward_points
-    from service.plans.weights import voronoi_weights
+    from driver.physics.weights import voronoi_weights
     from service.recon.kwave import kspace_line_recon, kspace_plane_recon
     from service.recon.operator import PlanarOperator
     from service.recon.planar import METHODS, reconstruct_grid, reconstruct_points

@@ -181,7 +181,7 @@ def estimate_peak_memory(
     ``n_z`` output depth samples (default n_t); ``upsample`` lateral factor; ``dtype``
     float32/float64; ``method`` "ner"/"linear"/"nearest"/"cubic"/"nedner"/"kwave";
     ``n_points`` sensors for NEDNER (its weighted A-lines, the full-plane type-1 spectrum
-    and, for weights not given, the Voronoi raster of ``service.plans.weights``).
+    and, for weights not given, the Voronoi raster of ``driver.physics.weights``).
     ``method="tv"`` gives `tv_memory` on the free-space operator's padded grid
     (`driver.physics.forward`'s padding rule) when the pitch ``dx`` (m), ``dt`` (s) and
     ``c`` (m/s) are given (``dz`` default c·dt), else on a conservative one (dx = c·dt).
@@ -223,7 +223,7 @@ def estimate_peak_memory(
     if method == "nedner":  # type-1 NUFFT: the full plane, A a view of it; weighted A-lines (float64 + complex)
         a_alive = n_t * n_y * n_x * cb
         front = a_alive + (n_points or 0) * n_t * (8 + cb)
-        # the Voronoi raster of weights not given (service.plans.weights: ~1024 samples per cell within
+        # the Voronoi raster of weights not given (driver.physics.weights: ~1024 samples per cell within
         # 2^20, ~96 bytes each; measured 68-98 MiB from 500 to 3000 sensors)
         front = max(front, 96 * min(1024 * max(n_points or 0, 768), 1 << 20) if n_points else 0)
     if method == "cubic":  # pchip per column group: the mirrored series and its spectra in complex128

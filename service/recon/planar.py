@@ -342,7 +342,7 @@ def _check_positions(positions, n_points):
 
 
 def _default_grid(pos: np.ndarray) -> tuple[tuple[np.ndarray, ...], float]:
-    from service.plans.weights import infer_pitch  # on use: importing the plans package costs start-up time
+    from driver.physics.weights import infer_pitch  # on use: importing the plans package costs start-up time
 
     pitch = infer_pitch(pos) if len(pos) > 1 else None
     if pitch is None:
@@ -511,7 +511,7 @@ def reconstruct_points(
         if np.any(pos[:, a] < lo - 1e-9 * abs(lo)) or np.any(pos[:, a] > hi + 1e-9 * abs(hi)):
             raise ValueError(f"positions lie outside the output grid along {'xy'[a]}")
     if weights is None:
-        from service.plans.weights import voronoi_weights  # on use (start-up time)
+        from driver.physics.weights import voronoi_weights  # on use (start-up time)
 
         h = voronoi_weights(pos)
     else:

@@ -173,7 +173,7 @@ def reconstruct_tv(
         if pos.shape[1] == 2 and warm.y is not None:  # 2-D lattice: y is set
             pos[:, 1] -= 0.5 * (warm.y[0] + warm.y[-1])
         if weights is None:
-            from service.plans.weights import voronoi_weights
+            from driver.physics.weights import voronoi_weights
 
             w = voronoi_weights(np.asarray(positions, dtype=np.float64).reshape(len(g), -1))
         else:

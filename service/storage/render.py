@@ -425,16 +425,9 @@ def render_result_slice(path: Any, index: int, **options: Any) -> bytes:
     """PNG of the depth slice ``index`` of a result file (``service.storage.results``),
     read without loading the whole volume; a 2-D result gives its image row at that
     depth. Raises ValueError (index out of range), OSError/FileNotFoundError."""
-    import h5py
+    from service.formats.result import read_slice
 
-    with h5py.File(path, "r") as f:
-        ds = f["p0"]
-        if isinstance(index, bool) or not isinstance(index, (int, np.integer)) \
-                or not 0 <= index < ds.shape[0]:
-            raise ValueError(f"index must be an integer in [0, {ds.shape[0]}) (depth samples)")
-        img = ds[index]
-        z, x = f["z"][()], f["x"][()]
-        y = f["y"][()] if "y" in f else None
+    img, z, x, y = read_slice(path, index)
     if img.ndim == 1:  # a 2-D result: the row at this depth
         options.setdefault("title", f"p0 at depth z = {z[index] * 1e3:.3f} mm")
         return render_png(img[None, :], x, z[index:index + 1], hlabel="x", vlabel="z",

@@ -291,6 +291,7 @@ CLIENT_METHODS = {
     ("get", "/api/scans/{job_id}/preview/{plane}.png"): "download_scan_preview",
     ("post", "/api/datasets"): "upload_dataset",
     ("get", "/api/datasets"): "list_datasets",
+    ("get", "/api/datasets/formats"): "dataset_formats",
     ("post", "/api/reconstructions"): "start_reconstruction",
     ("get", "/api/reconstructions/methods"): "methods",
     ("get", "/api/reconstructions/{job_id}/volume.h5"): "download_volume",

@@ -9,6 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial import cKDTree
 
+from driver.physics.weights import voronoi_weights
 from service.plans import (
     Lattice,
     equiangular_mask,
@@ -16,7 +17,6 @@ from service.plans import (
     equisteradian_rings,
     make_mask,
 )
-from service.plans.weights import voronoi_weights
 
 PITCH = 60e-6
 SQ = Lattice(61, 61, PITCH)  # odd: the centre is a lattice point

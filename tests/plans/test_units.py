@@ -144,7 +144,7 @@ def test_recon_sound_speed_rule_cli_and_library(tmp_path, capsys):
     1000-2000 m/s exits 2 naming the likely unit unless ``--force``; the library's
     ``reconstruct(c=...)`` raises ValueError the same way unless ``force=True``."""
     from service.pipeline import reconstruct
-    from service.storage.datasets import GridDataset
+    from service.recon.dataset import GridDataset
 
     x = tmp_path / "x.npy"
     np.save(x, np.zeros((16, 4, 4), dtype=np.float32))

@@ -49,7 +49,7 @@ def test_every_public_name_is_its_owners_object():
     assert fpscan.make_plan is service.plans.make_plan
     assert fpscan.export_volume is service.storage.results.export_volume
     assert set(fpscan.METHODS) >= {"nedner", "ner", "linear", "nearest", "cubic", "kwave", "tv"}
-    from service.storage.ipasc import export_scan
+    from service.formats.ipasc import export_scan
 
     assert fpscan.export_ipasc is export_scan
     meta = tomllib.loads((REPO / "pyproject.toml").read_text())

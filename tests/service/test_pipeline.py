@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from service.pipeline import DEFAULT_DTYPE, METHODS, OPTIONS, Cancelled, reconstruct
-from service.storage.datasets import GridDataset, PointDataset
+from service.recon.dataset import GridDataset, PointDataset
 
 REPO = Path(__file__).resolve().parents[2]
 

@@ -14,7 +14,7 @@ import h5py
 import numpy as np
 import pytest
 
-from service.storage.untrusted import MAX_RATIO, DiskAdmission
+from service.formats.untrusted import MAX_RATIO, DiskAdmission
 from tests.service.hostile_cases import gzip_fill_bomb
 from tests.service.service_servers import Server
 
@@ -132,8 +132,8 @@ def test_an_upload_that_does_not_fit_the_disk_gets_507_before_it_is_written(full
 def test_the_import_asks_before_writing_the_decoded_dataset(tmp_path):
     """The import child asks the parent (``run_bounded(admit=...)``) with the decoded bytes
     before it writes the dataset file; refused, nothing is written and the reason comes back."""
+    from service.formats.untrusted import NotAdmitted, run_bounded
     from service.storage.datasets import import_dataset
-    from service.storage.untrusted import NotAdmitted, run_bounded
 
     src = tmp_path / "int8.npy"  # 16 kB of int8 on the wire, 64 kB of float32 decoded
     np.save(src, np.random.default_rng(3).integers(-100, 100, (64, 16, 16), dtype=np.int8))
@@ -172,7 +172,7 @@ def test_the_reading_child_runs_below_the_servers_priority():
     """Files are vetted and imported in a child at the caller's priority + CHILD_NICE
     (issue 22.3: a burst of uploads must not take the CPU from the server's event loop);
     the child reports its own niceness (``os.nice(0)``)."""
-    from service.storage.untrusted import CHILD_NICE, run_bounded
+    from service.formats.untrusted import CHILD_NICE, run_bounded
 
     mine = os.nice(0)
     assert run_bounded(os.nice, 0, timeout=60) == min(mine + CHILD_NICE, 19)

@@ -10,7 +10,7 @@ from driver.constants import C_AUTOFOCUS_RANGE
 from driver.physics import Ball, ball_alines
 from service import autofocus as af
 from service.recon import reconstruct_grid
-from service.storage.datasets import GridDataset
+from service.recon.dataset import GridDataset
 
 
 def _recon(ds, c, dtype="float32", **opts):

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from driver.scanfile import read_scan
+from service.formats.ipasc import export_scan
 from service.storage.datasets import GridDataset, PointDataset, detect_format, load_dataset
-from service.storage.ipasc import export_scan
 from tests.storage.storage_helpers import build_plan
 
 

@@ -1,4 +1,4 @@
-"""IPASC export/import (service.storage.ipasc) against the scan file and against PACFISH,
+"""IPASC export/import (service.formats.ipasc) against the scan file and against PACFISH,
 the IPASC reference implementation, reading our export and writing a foreign file."""
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from driver.scanfile import read_scan
-from service.storage.ipasc import export_scan, read_ipasc
+from service.formats.ipasc import export_scan, read_ipasc
 from tests.storage.storage_helpers import assert_pacfish_checks_pass, build_plan
 
 

@@ -487,6 +487,12 @@ def test_upload_a_data_file_and_reconstruct_it(browser, server, api, screenshots
             "['recon-positivity-label', 'recon-lambda-label', 'recon-iterations-label']"
             ".map(i => !document.getElementById(i).hidden))", m["name"])
         assert form == [bool(opts.get("positivity")), "positivity" in opts, "lam" in opts, "iterations" in opts], m
+    # the format choices are the server's (GET /api/datasets/formats: the registry of formats), titles too
+    formats = api.get("/api/datasets/formats").json()
+    wait_for(lambda: browser.execute_script(
+        "return [...document.getElementById('upload-format').options].map(o => [o.value, o.textContent])")
+        == [[f["name"], f["title"]] for f in formats], "the upload-format choices")
+    assert "npy" in [f["name"] for f in formats] and "dataset" not in [f["name"] for f in formats]
     browser.find_element("css selector", "#upload-panel summary").click()
     el(browser, "upload-file").send_keys(str(path))
     Select(el(browser, "upload-format")).select_by_value("npy")

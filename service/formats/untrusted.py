@@ -73,35 +73,43 @@ def check_hdf5(path: str | os.PathLike, *, max_bytes: int) -> None:
     (module docstring). Opens the file read-only (``driver.scanfile.open_readonly``:
     without SWMR unless a writer has it) and reads no data.
     Raises ValueError with the reason (the file's own object names only)."""
-    import h5py
-
     from driver.scanfile import open_readonly
 
     try:
         f = open_readonly(path)
     except Exception:  # ValueError from the checks; damaged files can reach other paths
         raise ValueError("not a readable HDF5 file (truncated or corrupt)") from None
+    with f:
+        check_hdf5_file(f, max_bytes=max_bytes)
+
+
+def check_hdf5_file(f: Any, *, max_bytes: int) -> None:
+    """:func:`check_hdf5` on an HDF5 file already open (``h5py.File``, read-only): the
+    registry of formats (:mod:`service.formats`) opens a file once and checks it here
+    before any format reads it. Reads no data. Raises ValueError with the reason."""
+    import h5py
+
     problems: list[str] = []
     sizes = [0, 0]  # declared, stored: bytes of every dataset
-    with f:
-        def visit(name: str, link: Any) -> None:
-            if problems:
-                return
-            if isinstance(link, h5py.ExternalLink):
-                problems.append(f"{name!r} is an external link to another file (refused)")
-                return
-            if not isinstance(link, h5py.HardLink):
-                return
-            obj = f.get(name)
-            if isinstance(obj, h5py.Dataset):
-                problems.extend(_dataset_problems(name, obj, max_bytes, sizes)[:1])
 
-        try:
-            f.visititems_links(visit)
-            if not problems:  # root attributes are read by every format; reading them is bounded
-                dict(f.attrs)
-        except (OSError, RuntimeError, KeyError) as exc:
-            raise ValueError(f"HDF5 file is corrupt ({type(exc).__name__})") from None
+    def visit(name: str, link: Any) -> None:
+        if problems:
+            return
+        if isinstance(link, h5py.ExternalLink):
+            problems.append(f"{name!r} is an external link to another file (refused)")
+            return
+        if not isinstance(link, h5py.HardLink):
+            return
+        obj = f.get(name)
+        if isinstance(obj, h5py.Dataset):
+            problems.extend(_dataset_problems(name, obj, max_bytes, sizes)[:1])
+
+    try:
+        f.visititems_links(visit)
+        if not problems:  # root attributes are read by every format; reading them is bounded
+            dict(f.attrs)
+    except (OSError, RuntimeError, KeyError) as exc:
+        raise ValueError(f"HDF5 file is corrupt ({type(exc).__name__})") from None
     if problems:
         raise ValueError(problems[0])
     declared, stored = sizes
@@ -215,7 +223,7 @@ def _child(conn: Any, fn: Callable, args: tuple, kwargs: dict) -> None:
     except MemoryError:
         conn.put(("value", "the file needs more memory than the limit allows"))
     except OSError as exc:
-        from service.storage.disk import is_disk_full
+        from service.disk import is_disk_full
 
         if is_disk_full(exc):  # not the file's fault
             conn.put(("nospace", str(exc)))
@@ -226,7 +234,7 @@ def _child(conn: Any, fn: Callable, args: tuple, kwargs: dict) -> None:
 
 
 #: what the fork server imports once, so that a reading child starts without imports
-CHILD_PRELOAD = ["service.storage.untrusted", "service.storage.datasets", "driver.scanfile"]
+CHILD_PRELOAD = ["service.formats.untrusted", "service.formats", "service.storage.datasets", "driver.scanfile"]
 
 
 def _child_context() -> Any:

@@ -18,6 +18,11 @@ other). The binary data is the DC-normalised pressure (``driver.scanfile``). Thi
 has no tag for (area weights, lattice indices, the plan, per-A-line metadata) go into
 extra ``/meta_data/fpscan_*`` datasets, which :func:`read_ipasc` uses when present and
 other readers ignore.
+
+In the registry of formats (``service.formats``) this module is the ``ipasc`` format:
+:func:`sniff`, :func:`load` (→ :class:`service.recon.dataset.PointDataset`; it may hold
+several excitation wavelengths: ``wavelength_index`` chooses one, default the first) and
+:func:`export_scan`, its writer.
 """
 from __future__ import annotations
 
@@ -35,6 +40,11 @@ from h5py import h5d, h5g, h5s, h5t
 from driver.constants import C_DEFAULT
 from driver.physics.axes import centred_axis
 from driver.scanfile import read_scan
+from service.formats._registry import Format, Source
+from service.recon.dataset import PointDataset, check_wavelength_index
+
+__all__ = ["DETECTOR_ID_WIDTH", "FORMAT", "export_scan", "import_ipasc", "load", "read_ipasc",
+           "read_open_ipasc", "sniff", "write_ipasc"]
 
 DETECTOR_ID_WIDTH = 10
 
@@ -254,7 +264,7 @@ def _regular_axis(coords: np.ndarray, name: str) -> np.ndarray:
     return u[0] + step * np.arange(n)
 
 
-def read_ipasc(path: str | os.PathLike, *, wavelength_index: int = 0,  # noqa: C901 -- IPASC reader reworked by helper "lab"
+def read_ipasc(path: str | os.PathLike, *, wavelength_index: int = 0,
                measurement_index: int = 0) -> dict:
     """Read an IPASC file as point data for reconstruction.
 
@@ -275,64 +285,71 @@ def read_ipasc(path: str | os.PathLike, *, wavelength_index: int = 0,  # noqa: C
     except OSError:
         raise ValueError(f"{path} is not an HDF5 file") from None
     with f:
-        if "binary_time_series_data" not in f or "meta_data" not in f:
-            raise ValueError("not an IPASC file: /binary_time_series_data or /meta_data missing")
-        raw = f["binary_time_series_data"]
-        if raw.ndim != 4:
-            raise ValueError(f"binary_time_series_data must be 4-D [detectors, samples, "
-                             f"wavelengths, measurements], got shape {raw.shape}")
-        n_det, n_t, n_wl, n_meas = raw.shape
-        if not 0 <= wavelength_index < n_wl:
-            raise ValueError(f"wavelength_index {wavelength_index} out of range [0, {n_wl})")
-        if not 0 <= measurement_index < n_meas:
-            raise ValueError(f"measurement_index {measurement_index} out of range [0, {n_meas})")
-        if raw.dtype.kind not in "iuf":
-            raise ValueError(f"binary data must be real numbers, got {raw.dtype}")
-        m = {k: _value(v) for k, v in f["meta_data"].items() if isinstance(v, h5py.Dataset)}
-        sizes = m.get("sizes")
-        if sizes is not None and list(np.ravel(sizes)) != list(raw.shape):
-            raise ValueError(f"meta_data/sizes {list(np.ravel(sizes))} != binary data shape "
-                             f"{list(raw.shape)}")
-        fs_value = m.get("ad_sampling_rate")
-        try:
-            if fs_value is None:
-                raise TypeError
-            fs = float(fs_value)
-        except (TypeError, ValueError):
-            raise ValueError(f"meta_data/ad_sampling_rate missing or not a number: {fs_value!r}") from None
-        if not (math.isfinite(fs) and fs > 0):
-            raise ValueError(f"meta_data/ad_sampling_rate must be > 0 Hz, got {fs}")
-        c = m.get("speed_of_sound")
-        if c is None:
-            c = C_DEFAULT
-        c_arr = np.ravel(np.asarray(c, dtype=np.float64))
-        if c_arr.size == 0 or not np.all(c_arr == c_arr[0]):
-            raise ValueError("a spatially varying speed_of_sound is not supported (homogeneous "
-                             "medium only)")
-        c = float(c_arr[0])
-        if not (math.isfinite(c) and c > 0):
-            raise ValueError(f"speed_of_sound must be > 0 m/s, got {c}")
-        wl = m.get("acquisition_wavelengths")
-        wavelengths = np.ravel(np.asarray(wl, dtype=np.float64)) if wl is not None else np.zeros(0)
-        dets = f.get("meta_data_device/detectors")
-        if not isinstance(dets, h5py.Group):
-            raise ValueError("not an IPASC file: /meta_data_device/detectors missing")
-        ids = sorted(dets.keys())
-        if len(ids) != n_det:
-            raise ValueError(f"{len(ids)} detectors described but the binary data has {n_det}")
-        pos3 = np.empty((n_det, 3))
-        buf = np.empty(3, dtype="<f8")
-        for i, key in enumerate(ids):
-            try:  # low-level open/read: ~5x faster than dets[key]["detector_position"][()]
-                dsid = h5d.open(dets.id, f"{key}/detector_position".encode())
-            except KeyError:
-                raise ValueError(f"detector {key} has no detector_position") from None
-            if dsid.get_space().get_simple_extent_npoints() != 3 or \
-                    dsid.get_type().get_class() not in (h5t.FLOAT, h5t.INTEGER):
-                raise ValueError(f"detector {key}: detector_position must be 3 numbers")
-            dsid.read(h5s.ALL, h5s.ALL, buf)
-            pos3[i] = buf
-        alines = np.asarray(raw[:, :, wavelength_index, measurement_index], dtype=np.float64)
+        return read_open_ipasc(f, wavelength_index=wavelength_index, measurement_index=measurement_index)
+
+
+def read_open_ipasc(f: h5py.File, *, wavelength_index: int = 0,  # noqa: C901
+                    measurement_index: int = 0) -> dict:
+    """:func:`read_ipasc` of an IPASC file already open (read-only ``h5py.File``): the
+    registry of formats (``service.formats``) opens a file once and reads it here."""
+    if "binary_time_series_data" not in f or "meta_data" not in f:
+        raise ValueError("not an IPASC file: /binary_time_series_data or /meta_data missing")
+    raw = f["binary_time_series_data"]
+    if raw.ndim != 4:
+        raise ValueError(f"binary_time_series_data must be 4-D [detectors, samples, "
+                         f"wavelengths, measurements], got shape {raw.shape}")
+    n_det, n_t, n_wl, n_meas = raw.shape
+    if not 0 <= wavelength_index < n_wl:
+        raise ValueError(f"wavelength_index {wavelength_index} out of range [0, {n_wl})")
+    if not 0 <= measurement_index < n_meas:
+        raise ValueError(f"measurement_index {measurement_index} out of range [0, {n_meas})")
+    if raw.dtype.kind not in "iuf":
+        raise ValueError(f"binary data must be real numbers, got {raw.dtype}")
+    m = {k: _value(v) for k, v in f["meta_data"].items() if isinstance(v, h5py.Dataset)}
+    sizes = m.get("sizes")
+    if sizes is not None and list(np.ravel(sizes)) != list(raw.shape):
+        raise ValueError(f"meta_data/sizes {list(np.ravel(sizes))} != binary data shape "
+                         f"{list(raw.shape)}")
+    fs_value = m.get("ad_sampling_rate")
+    try:
+        if fs_value is None:
+            raise TypeError
+        fs = float(fs_value)
+    except (TypeError, ValueError):
+        raise ValueError(f"meta_data/ad_sampling_rate missing or not a number: {fs_value!r}") from None
+    if not (math.isfinite(fs) and fs > 0):
+        raise ValueError(f"meta_data/ad_sampling_rate must be > 0 Hz, got {fs}")
+    c = m.get("speed_of_sound")
+    if c is None:
+        c = C_DEFAULT
+    c_arr = np.ravel(np.asarray(c, dtype=np.float64))
+    if c_arr.size == 0 or not np.all(c_arr == c_arr[0]):
+        raise ValueError("a spatially varying speed_of_sound is not supported (homogeneous "
+                         "medium only)")
+    c = float(c_arr[0])
+    if not (math.isfinite(c) and c > 0):
+        raise ValueError(f"speed_of_sound must be > 0 m/s, got {c}")
+    wl = m.get("acquisition_wavelengths")
+    wavelengths = np.ravel(np.asarray(wl, dtype=np.float64)) if wl is not None else np.zeros(0)
+    dets = f.get("meta_data_device/detectors")
+    if not isinstance(dets, h5py.Group):
+        raise ValueError("not an IPASC file: /meta_data_device/detectors missing")
+    ids = sorted(dets.keys())
+    if len(ids) != n_det:
+        raise ValueError(f"{len(ids)} detectors described but the binary data has {n_det}")
+    pos3 = np.empty((n_det, 3))
+    buf = np.empty(3, dtype="<f8")
+    for i, key in enumerate(ids):
+        try:  # low-level open/read: ~5x faster than dets[key]["detector_position"][()]
+            dsid = h5d.open(dets.id, f"{key}/detector_position".encode())
+        except KeyError:
+            raise ValueError(f"detector {key} has no detector_position") from None
+        if dsid.get_space().get_simple_extent_npoints() != 3 or \
+                dsid.get_type().get_class() not in (h5t.FLOAT, h5t.INTEGER):
+            raise ValueError(f"detector {key}: detector_position must be 3 numbers")
+        dsid.read(h5s.ALL, h5s.ALL, buf)
+        pos3[i] = buf
+    alines = np.asarray(raw[:, :, wavelength_index, measurement_index], dtype=np.float64)
     if not np.isfinite(pos3).all():
         raise ValueError("detector positions must be finite")
     if np.ptp(pos3[:, 2]) > 1e-9:
@@ -375,3 +392,54 @@ def read_ipasc(path: str | os.PathLike, *, wavelength_index: int = 0,  # noqa: C
 
 
 import_ipasc = read_ipasc
+
+
+def sniff(source: Source) -> bool:
+    """True for an HDF5 file with IPASC's ``/binary_time_series_data``."""
+    return "binary_time_series_data" in source.h5
+
+
+def _wavelengths(f: Any) -> np.ndarray:
+    """The file's ``meta_data/acquisition_wavelengths`` (m), empty when absent (no data read)."""
+    ds = f.get("meta_data/acquisition_wavelengths")
+    try:
+        return np.ravel(np.asarray(ds[()], dtype=np.float64)) if ds is not None else np.zeros(0)
+    except (TypeError, ValueError):
+        return np.zeros(0)
+
+
+def load(source: Source, *, wavelength_index: int = 0, all_wavelengths: bool = False,
+         **_: Any) -> PointDataset | list[PointDataset]:
+    """The file as point data (``read_open_ipasc``) at excitation wavelength
+    ``wavelength_index`` (``wavelengths``: that one, ``meta["wavelengths"]`` all the
+    file's); ``all_wavelengths``: a list, one dataset per wavelength the file records,
+    read from the one open file. Raises ValueError, also for an index out of range
+    (naming the file's wavelengths)."""
+    if all_wavelengths:
+        return [_dataset(source, k) for k in range(max(1, _wavelengths(source.h5).size))]
+    return _dataset(source, wavelength_index)
+
+
+def _dataset(source: Source, wavelength_index: int) -> PointDataset:
+    """The dataset of one wavelength of the open IPASC file."""
+    if wavelength_index:
+        check_wavelength_index(wavelength_index, _wavelengths(source.h5), "file")
+    r = read_open_ipasc(source.h5, wavelength_index=wavelength_index)
+    plan, indices = r["plan"], r["indices"]
+    lattice = None
+    if isinstance(plan, dict) and isinstance(plan.get("lattice"), dict) and indices is not None:
+        lat = plan["lattice"]
+        lattice = {"n_x": int(lat["n_x"]), "n_y": int(lat.get("n_y", 1)), "pitch": float(lat["pitch"])}
+        indices = np.asarray(indices, dtype=np.int64).reshape(-1, 2)
+    wl = r["wavelengths"]
+    return PointDataset(alines=r["alines"], positions=r["positions"], weights=r["weights"],
+                        dt=r["dt"], c=r["c"], grid=r["grid"], source="ipasc",
+                        meta={"uuid": r["uuid"], "plan": plan, "indices": r["indices"],
+                              "wavelengths": wl, "wavelength_index": int(wavelength_index)},
+                        indices=indices if lattice is not None else None, lattice=lattice,
+                        wavelengths=(float(np.ravel(wl)[wavelength_index]),)
+                        if wl is not None and np.size(wl) > wavelength_index else None)
+
+
+FORMAT = Format(name="ipasc", title="IPASC HDF5", container="hdf5", sniff=sniff, load=load, write=export_scan,
+                input=True, upload=True, wavelengths=True, order=50, noun="an IPASC file")

@@ -1,0 +1,64 @@
+"""File formats: one module per format, one registry.
+
+Each module declares one :class:`Format` — its ``sniff`` (cheap detection from the file's
+first bytes and, for HDF5, its root attributes and links), its ``load`` (and ``write``
+where it has one), whether it is a reconstruction input and an upload choice — and this
+package registers it. The registry serves format detection (:func:`detect`), loading by
+name or from the content (:func:`load`), the lists of choices (:func:`names`: the
+reconstruction's ``--format``, ``POST /api/datasets``'s ``format``, ``GET
+/api/datasets/formats`` for the web page and the HTTP client) and the one place a file is
+opened and checked (:func:`open_source`: opened once, the hostile-HDF5 checks of
+``service.formats.untrusted`` applied to every format).
+
+=============  ==========  ==================================================  =====================
+name           module      content                                             role
+=============  ==========  ==================================================  =====================
+``npy``        npy         NumPy array in k-Wave layout → GridDataset          input, upload
+``fpscan``     scan        fpscan scan file → PointDataset                     input, upload
+``dataset``    dataset     canonical dataset (``fpscan-dataset/1``)            input (server's own)
+``result``     result      reconstruction result ``volume.h5`` → ResultVolume  output
+``unmix``      unmix       unmixing result ``unmix.h5`` → dict                 output
+``ipasc``      ipasc       IPASC HDF5 → PointDataset                           input, upload
+``kwave-hdf5`` kwave_hdf5  HDF5 array in k-Wave layout → GridDataset           input, upload
+``plan``       plan        plan JSON → plan dict                               refused as data
+``png``        png         PNG picture → bytes                                 refused as data
+=============  ==========  ==================================================  =====================
+
+Adding a format: a module here with ``sniff``, ``load`` (and ``write``) and a
+``FORMAT = Format(...)``, one line in :data:`BUILTIN` below, and its test; the CLI help,
+the API's choices, the web page and the HTTP client follow from the registry.
+"""
+from __future__ import annotations
+
+from service.formats import dataset, ipasc, kwave_hdf5, npy, plan, png, result, scan, unmix
+from service.formats._registry import (
+    FORMATS,
+    HEAD_BYTES,
+    MAX_BYTES,
+    Format,
+    Source,
+    detect,
+    load,
+    names,
+    open_source,
+    register,
+    sniff,
+    unregister,
+)
+
+__all__ = ["FORMATS", "BUILTIN", "HEAD_BYTES", "MAX_BYTES", "Format", "Source", "detect", "load", "names",
+           "open_source", "register", "sniff", "unregister", "upload_formats"]
+
+#: the formats fpscan knows, in the order of the lists of choices
+BUILTIN = (npy.FORMAT, kwave_hdf5.FORMAT, scan.FORMAT, ipasc.FORMAT, dataset.FORMAT, result.FORMAT,
+           unmix.FORMAT, plan.FORMAT, png.FORMAT)
+for _fmt in BUILTIN:
+    register(_fmt)
+
+
+def upload_formats() -> list[dict]:
+    """The formats ``POST /api/datasets`` accepts, in order: ``{"name", "title",
+    "wavelengths"}`` each (``GET /api/datasets/formats``: the web page's and the HTTP
+    client's choices)."""
+    return [{"name": f.name, "title": f.title, "wavelengths": f.wavelengths}
+            for f in FORMATS.values() if f.upload]

@@ -1,0 +1,260 @@
+"""The registry of file formats (:mod:`service.formats`): what a format declares
+(:class:`Format`), the one place a file is opened and checked (:func:`open_source`), and
+detection and loading by name or from the content.
+
+A file is opened once per load: :func:`open_source` reads its first :data:`HEAD_BYTES`
+bytes and, for an HDF5 file, opens it once read-only (``driver.scanfile.open_readonly``:
+SWMR only for a file a writer has open) and checks it there
+(``service.formats.untrusted.check_hdf5_file``: no external links, external storage or
+virtual datasets, no dataset declaring more than ``max_bytes`` or more than it stores)
+before any format's ``sniff`` or ``load`` sees it; a file HDF5 would open as an SWMR
+reader (a writer has it open) is detected and loaded in a bounded child process
+(``service.formats.untrusted.read_bounded``). Those protections so hold for every format,
+the registered ones and any added later, not per reader.
+"""
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, BinaryIO
+
+from service.recon.dataset import MAX_ELEMENTS
+
+__all__ = ["Format", "Source", "FORMATS", "HEAD_BYTES", "MAX_BYTES", "register", "unregister", "names",
+           "open_source", "sniff", "detect", "load"]
+
+#: bytes of a file's start every ``sniff`` sees (:attr:`Source.head`)
+HEAD_BYTES = 512
+#: default bound on any one HDF5 dataset's declared bytes (``check_hdf5_file``)
+MAX_BYTES = MAX_ELEMENTS * 8
+HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+
+
+@dataclass
+class Source:
+    """A file opened once for detection and loading.
+
+    ``path``: its name; ``head``: its first :data:`HEAD_BYTES` bytes; ``h5``: the
+    read-only ``h5py.File`` (HDF5 files, already checked by
+    ``service.formats.untrusted.check_hdf5_file``), else None; ``fh``: the open binary
+    file positioned at 0 (other files), else None."""
+
+    path: Path
+    head: bytes
+    h5: Any = None
+    fh: BinaryIO | None = None
+
+    @property
+    def is_hdf5(self) -> bool:
+        """True for an HDF5 file (signature at offset 0)."""
+        return self.head[:8] == HDF5_SIGNATURE
+
+    def attr(self, name: str) -> str:
+        """The HDF5 root attribute ``name`` as text (``""`` when absent or not HDF5)."""
+        if self.h5 is None:
+            return ""
+        v = self.h5.attrs.get(name)
+        return v.decode() if isinstance(v, bytes) else str(v if v is not None else "")
+
+
+@dataclass(frozen=True)
+class Format:
+    """One file format: one module of :mod:`service.formats` declares it, the registry
+    (:func:`register`) serves it.
+
+    Attributes
+    ----------
+    name : str
+        The name users give (``--format``, the upload's ``format`` field).
+    title : str
+        What a person reads (the web page's choices, the CLI help).
+    container : {"hdf5", "file"}
+        ``"hdf5"``: the registry opens and checks the HDF5 file (``Source.h5``);
+        ``"file"``: any other file (``Source.fh``, ``Source.head``).
+    sniff : callable
+        ``sniff(source) -> bool``: cheap detection from ``source.head`` and, for HDF5,
+        its root attributes and links (no data read).
+    load : callable
+        ``load(source, **options)``: the content (a ``GridDataset`` / ``PointDataset``
+        for an input format). Options it does not take are ignored (``**_``).
+    write : callable or None
+        ``write(path, obj)`` where the format has a writer.
+    input : bool
+        A reconstruction input (``fpscan recon --format``, ``load_dataset``).
+    upload : bool
+        Accepted by ``POST /api/datasets`` (the API's, the HTTP client's and the web
+        page's choices: ``GET /api/datasets/formats``).
+    wavelengths : bool
+        May hold several excitation wavelengths: its ``load`` takes ``wavelength_index``
+        (one of them) and ``all_wavelengths`` (a list, one per wavelength).
+    refuse : str or None
+        Not data to reconstruct: the reason :func:`service.storage.datasets.load_dataset`
+        gives when the content is detected as this format.
+    order : int
+        Sniffing order, lowest first; the catch-all (any HDF5 array: ``kwave-hdf5``) last.
+    noun : str
+        The format in a message (``"a NumPy .npy array"``; default ``"a <name> file"``).
+    """
+
+    name: str
+    title: str
+    container: str
+    sniff: Callable[[Source], bool]
+    load: Callable[..., Any]
+    write: Callable[..., Any] | None = None
+    input: bool = False
+    upload: bool = False
+    wavelengths: bool = False
+    refuse: str | None = None
+    order: int = 50
+    noun: str = ""
+
+    @property
+    def what(self) -> str:
+        """The format as a noun in a message: ``noun``, else ``"a <name> file"``."""
+        return self.noun or f"a {self.name} file"
+
+
+#: name -> format, every registered format (:func:`register`)
+FORMATS: dict[str, Format] = {}
+
+
+def register(fmt: Format) -> Format:
+    """Add ``fmt`` to the registry (detection, loading, the lists of choices); returns it.
+    Raises ValueError for a name already registered or an unknown container."""
+    if fmt.name in FORMATS:
+        raise ValueError(f"format {fmt.name!r} is registered already")
+    if fmt.container not in ("hdf5", "file"):
+        raise ValueError(f"container must be 'hdf5' or 'file', got {fmt.container!r}")
+    FORMATS[fmt.name] = fmt
+    return fmt
+
+
+def unregister(name: str) -> None:
+    """Remove the format ``name`` (a test's toy format); no error when it is not there."""
+    FORMATS.pop(name, None)
+
+
+def names(*, input: bool | None = None, upload: bool | None = None) -> tuple[str, ...]:
+    """The registered formats' names in registration order, those with the given
+    ``input`` / ``upload`` flags (None: either)."""
+    return tuple(f.name for f in FORMATS.values()
+                 if (input is None or f.input == input) and (upload is None or f.upload == upload))
+
+
+def _get(name: str, choices: tuple[str, ...] | None = None) -> Format:
+    allowed = names() if choices is None else choices
+    if name not in allowed:
+        raise ValueError(f"format must be one of {', '.join(allowed)}, got {name!r}")
+    return FORMATS[name]
+
+
+@contextmanager
+def open_source(path: str | os.PathLike, container: str | None = None, *,
+                max_bytes: int = MAX_BYTES, name: str | None = None) -> Iterator[Source]:
+    """Open ``path`` once for detection and loading (module docstring). ``container``:
+    the container a chosen format needs (``"hdf5"``: a file without the HDF5 signature is
+    refused, naming the format ``name``; ``"file"``: not opened as HDF5); None: from the
+    signature.
+    Raises FileNotFoundError, ValueError (not the container asked for, an HDF5 file that
+    is unreadable or refused by ``check_hdf5_file``)."""
+    from driver.scanfile import open_readonly
+    from service.formats.untrusted import check_hdf5_file
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no such file: {path}")
+    with open(path, "rb") as fh:
+        head = fh.read(HEAD_BYTES)
+        fh.seek(0)
+        hdf5 = head[:8] == HDF5_SIGNATURE
+        if container == "hdf5" and not hdf5:
+            raise ValueError(f"{'a ' + name if name else 'the'} file must be HDF5 (no HDF5 signature at the start)")
+        if not hdf5 or container == "file":
+            yield Source(path=path, head=head, fh=fh)
+            return
+    try:
+        f = open_readonly(path)
+    except Exception:  # ValueError from the superblock checks; damaged files can reach other paths
+        raise ValueError("not a readable HDF5 file (truncated or corrupt)") from None
+    with f:
+        check_hdf5_file(f, max_bytes=max_bytes)
+        yield Source(path=path, head=head, h5=f)
+
+
+def sniff(source: Source) -> Format | None:
+    """The first registered format (by ``order``) of ``source``'s container whose
+    ``sniff`` accepts it; None when none does."""
+    container = "hdf5" if source.h5 is not None else "file"
+    for fmt in sorted(FORMATS.values(), key=lambda f: f.order):
+        if fmt.container == container and fmt.sniff(source):
+            return fmt
+    return None
+
+
+def detect(path: str | os.PathLike, *, max_bytes: int = MAX_BYTES, bounded: bool = True) -> str:
+    """The name of ``path``'s format, from its content (the file opened once and checked:
+    :func:`open_source`; a file a writer has open in a bounded child unless ``bounded`` is
+    False, as :func:`load`).
+    Raises ValueError when no registered format fits (or the file is refused),
+    FileNotFoundError."""
+    if bounded:
+        from service.formats.untrusted import read_bounded
+
+        return read_bounded(detect, path, max_bytes=max_bytes, bounded=False)
+    with open_source(path, max_bytes=max_bytes) as src:
+        fmt = sniff(src)
+        if fmt is None:
+            raise ValueError(_unknown(src, names(input=True)))
+    return fmt.name
+
+
+def _unknown(source: Source, choices: tuple[str, ...]) -> str:
+    """The reason a file fits none of ``choices``."""
+    if source.h5 is None:
+        others = [FORMATS[n].what for n in choices if n in FORMATS and FORMATS[n].container == "file"]
+        return f"file is neither HDF5 nor {' nor '.join(others) or 'another known format'}"
+    return f"the HDF5 file is in none of the known formats ({', '.join(choices)})"
+
+
+def load(path: str | os.PathLike, kind: str | None = None, *, max_bytes: int = MAX_BYTES,
+         choices: tuple[str, ...] | None = None, bounded: bool = True, **options: Any) -> tuple[str, Any]:
+    """Open ``path`` once, check it, and load it as the format ``kind`` (None: detected
+    from the content). ``choices``: the format names allowed (default every registered
+    one). ``options``: passed to the format's ``load`` (each takes what it knows);
+    ``wavelength_index`` > 0 is refused for a format without several wavelengths;
+    ``all_wavelengths=True`` gives a list, one content per wavelength (a format with
+    ``wavelengths`` reads them all from its one open; any other gives a list of one).
+    A file HDF5 would open as an SWMR reader (a writer has it open: HDF5 can block on its
+    damaged metadata for ever) is read in a spawned child process with a time limit
+    (``service.formats.untrusted.read_bounded``; there only the built-in formats are
+    registered, and the content must be picklable); ``bounded=False``: in this process
+    whatever the file (the service's own scan file while it is written: the live preview).
+    Returns ``(name, content)``. Raises ValueError (a name not in ``choices``, a file no
+    format fits or that is refused, what the format's ``load`` raises, a read that did not
+    end in time), FileNotFoundError."""
+    if bounded:
+        from service.formats.untrusted import read_bounded
+
+        return read_bounded(load, path, kind, max_bytes=max_bytes, choices=choices, bounded=False, **options)
+    fmt = _get(kind, choices) if kind is not None else None
+    with open_source(path, fmt.container if fmt is not None else None, max_bytes=max_bytes,
+                     name=kind) as src:
+        if fmt is None:
+            fmt = sniff(src)
+            if fmt is None:
+                raise ValueError(_unknown(src, names(input=True) if choices is None else choices))
+            if fmt.refuse:
+                raise ValueError(fmt.refuse)
+            if choices is not None and fmt.name not in choices:
+                raise ValueError(f"this is {fmt.what}, not one of {', '.join(choices)}")
+        index = options.get("wavelength_index") or 0
+        if index and not fmt.wavelengths:
+            raise ValueError(f"wavelength index {index} is out of range: a {fmt.name} file holds one "
+                             "wavelength's data")
+        if options.get("all_wavelengths") and not fmt.wavelengths:  # one wavelength: a list of one
+            return fmt.name, [fmt.load(src, **{k: v for k, v in options.items() if k != "all_wavelengths"})]
+        return fmt.name, fmt.load(src, **options)

@@ -1,0 +1,108 @@
+"""The canonical dataset file (format ``fpscan-dataset/1``), in which the server keeps
+every upload: it stores a :class:`GridDataset` or a :class:`PointDataset` exactly (dtype
+included), so a reconstruction of it equals one of the original file. Written by
+:func:`write` (``service.storage.datasets.import_dataset``), read by :func:`load`.
+"""
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import h5py
+import numpy as np
+
+from service.formats._registry import Format, Source
+from service.recon.dataset import GridDataset, PointDataset, p0_unit
+
+__all__ = ["FORMAT", "DATASET_FORMAT", "sniff", "load", "write"]
+
+DATASET_FORMAT = "fpscan-dataset/1"
+
+
+def sniff(source: Source) -> bool:
+    """True for an HDF5 file with ``format`` ``fpscan-dataset/1`` (or, as earlier
+    versions wrote, a ``layout`` attribute ``grid`` or ``points``)."""
+    return source.attr("format") == DATASET_FORMAT or source.attr("layout") in ("grid", "points")
+
+
+def write(path: str | os.PathLike, ds: GridDataset | PointDataset) -> None:
+    """Write the canonical dataset file (format ``fpscan-dataset/1``), exactly (dtype kept).
+
+    Layout ``grid``: ``/data`` ``(n_t, n_y, n_x)``/``(n_t, n_x)``; attributes ``dt`` (s),
+    ``dx``, ``dy`` (3-D; m), ``c`` (m/s), ``t0`` (s). Layout ``points``: ``/alines``
+    ``(n, n_t)``, ``/positions`` ``(n, d)`` m, ``/weights`` ``(n,)`` (if any), ``/grid_x``,
+    ``/grid_y`` (3-D) m; attributes ``dt``, ``c``, ``t0``; a lattice adds ``/lattice``
+    ``(n, 2)`` indices (i_x, i_y) and attributes ``lattice_shape`` ``(n_y, n_x)``, ``pitch``.
+    Both: attribute ``format``, ``layout``, ``source``; ``wavelengths_m`` when known, and
+    ``wavelength_index`` (into the source file's wavelengths) when it was chosen from a
+    multi-wavelength file; ``p0_unit`` (``"Pa"`` for calibrated pressure, else ``"a.u."``:
+    :func:`service.recon.dataset.p0_unit`)."""
+    with h5py.File(path, "w") as f:
+        f.attrs.update({"format": DATASET_FORMAT, "layout": ds.kind, "dt": float(ds.dt), "c": float(ds.c),
+                        "t0": float(ds.t0), "source": ds.source})
+        if ds.wavelengths is not None:
+            f.attrs["wavelengths_m"] = np.asarray(ds.wavelengths, dtype=np.float64)
+        if (ds.meta or {}).get("wavelength_index") is not None:
+            f.attrs["wavelength_index"] = int(ds.meta["wavelength_index"])
+        f.attrs["p0_unit"] = p0_unit(ds)
+        if isinstance(ds, GridDataset):
+            f.create_dataset("data", data=ds.data)
+            f.attrs["dx"] = float(ds.dx)
+            if ds.dy is not None and ds.data.ndim == 3:
+                f.attrs["dy"] = float(ds.dy)
+            return
+        f.create_dataset("alines", data=np.asarray(ds.alines))
+        f.create_dataset("positions", data=np.asarray(ds.positions, dtype=np.float64))
+        if ds.weights is not None:
+            f.create_dataset("weights", data=np.asarray(ds.weights, dtype=np.float64))
+        f.create_dataset("grid_x", data=np.asarray(ds.grid[0], dtype=np.float64))
+        if len(ds.grid) > 1:
+            f.create_dataset("grid_y", data=np.asarray(ds.grid[1], dtype=np.float64))
+        if ds.lattice is not None and ds.indices is not None:
+            f.create_dataset("lattice", data=np.asarray(ds.indices, dtype=np.int64))
+            f.attrs["lattice_shape"] = (int(ds.lattice.get("n_y", 1)), int(ds.lattice["n_x"]))
+            f.attrs["pitch"] = float(ds.lattice["pitch"])
+
+
+def load(source: Source, **_: Any) -> GridDataset | PointDataset:
+    """Read a canonical dataset file (:func:`write`; also the layout without the
+    ``format`` attribute that earlier versions wrote). Raises ValueError for a file that
+    is not one."""
+    def text(v: Any) -> str:
+        return v.decode() if isinstance(v, bytes) else str(v)
+
+    f = source.h5
+    try:
+        layout = text(f.attrs["layout"])
+        dt, c, t0 = float(f.attrs["dt"]), float(f.attrs["c"]), float(f.attrs.get("t0", 0.0))
+        wl = f.attrs.get("wavelengths_m")
+        wavelengths = tuple(float(w) for w in np.ravel(wl)) if wl is not None and np.size(wl) else None
+        origin = text(f.attrs.get("source", "dataset"))
+        meta: dict[str, Any] = ({"wavelength_index": int(f.attrs["wavelength_index"])}
+                                if "wavelength_index" in f.attrs else {})
+        if text(f.attrs.get("p0_unit", "a.u.")) == "Pa":
+            meta["p0_unit"] = "Pa"
+        if layout == "grid":
+            data = f["data"][()]
+            dy = float(f.attrs["dy"]) if "dy" in f.attrs and data.ndim == 3 else None
+            return GridDataset(data=data, dx=float(f.attrs["dx"]), dt=dt, c=c, dy=dy, t0=t0,
+                               source=origin, wavelengths=wavelengths, meta=meta)
+        if layout != "points":
+            raise ValueError(f"unknown dataset layout {layout!r}")
+        gx = f["grid_x"][()]
+        grid = (gx, f["grid_y"][()]) if "grid_y" in f else (gx,)
+        indices = lattice = None
+        if "lattice" in f:
+            n_y, n_x = (int(v) for v in f.attrs["lattice_shape"])
+            lattice = {"n_x": n_x, "n_y": n_y, "pitch": float(f.attrs["pitch"])}
+            indices = f["lattice"][()].astype(np.int64).reshape(-1, 2)
+        return PointDataset(alines=f["alines"][()], positions=f["positions"][()],
+                            weights=f["weights"][()] if "weights" in f else None, dt=dt, c=c,
+                            grid=grid, t0=t0, source=origin, indices=indices, lattice=lattice,
+                            wavelengths=wavelengths, meta=meta)
+    except (KeyError, TypeError) as exc:
+        raise ValueError(f"not a canonical dataset file ({exc})") from None
+
+
+FORMAT = Format(name="dataset", title="fpscan dataset (the server's stored upload)", container="hdf5",
+                sniff=sniff, load=load, write=write, input=True, order=20, noun="an fpscan dataset file")

@@ -1,0 +1,75 @@
+"""NumPy ``.npy``: an array in k-Wave layout, time first — ``(n_t, n_y, n_x)`` or
+``(n_t, n_x)`` — read without pickles (``allow_pickle=False``); ``dt`` and ``dx`` are
+required options (the file holds no spacings), ``dy`` defaults to ``dx``, ``c`` to
+1500 m/s. → :class:`service.recon.dataset.GridDataset`.
+"""
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import numpy as np
+
+from driver.constants import C_DEFAULT
+from service.formats._registry import Format, Source
+from service.recon.dataset import GridDataset, grid_array, positive
+
+__all__ = ["FORMAT", "sniff", "load"]
+
+MAGIC = b"\x93NUMPY"
+
+
+def sniff(source: Source) -> bool:
+    """True for a file with the ``.npy`` magic."""
+    return source.head.startswith(MAGIC)
+
+
+def _header(fh: Any) -> tuple[tuple[int, ...], np.dtype]:
+    """Shape and dtype from the header of the open ``.npy`` file ``fh``, which must hold
+    the bytes it declares (an absurd shape is refused before anything is allocated).
+    Leaves ``fh`` at 0."""
+    fmt = np.lib.format
+    try:
+        version = fmt.read_magic(fh)
+        read = fmt.read_array_header_1_0 if version == (1, 0) else fmt.read_array_header_2_0
+        shape, _fortran, dtype = read(fh)
+    except (ValueError, OSError, EOFError, SyntaxError):
+        raise ValueError("file is not a NumPy .npy array (pickles are refused)") from None
+    if dtype.hasobject:
+        raise ValueError("file is not a NumPy .npy array (pickles are refused)")
+    declared = int(np.prod(shape, dtype=object)) * dtype.itemsize
+    size = os.fstat(fh.fileno()).st_size - fh.tell()
+    fh.seek(0)
+    if declared > size:
+        raise ValueError(f"the .npy header declares {tuple(shape)} {dtype} ({declared} bytes), more than the "
+                         f"file holds ({size} bytes)")
+    return tuple(shape), dtype
+
+
+def load(source: Source, *, dt: float | None = None, dx: float | None = None, dy: float | None = None,
+         c: float | None = None, **_: Any) -> GridDataset:
+    """The array as grid data; ``dt`` (s) and ``dx`` (m) required, ``dy`` (m) default
+    ``dx``, ``c`` (m/s) default 1500. Raises ValueError (not an array, a pickle, a header
+    declaring more than the file holds, what ``grid_array`` refuses, missing spacings)."""
+    if source.fh is None:
+        raise ValueError("file is not a NumPy .npy array (pickles are refused)")
+    _header(source.fh)
+    try:
+        a = np.load(source.fh, allow_pickle=False)
+    except (ValueError, OSError, EOFError):
+        raise ValueError("file is not a NumPy .npy array (pickles are refused)") from None
+    if not isinstance(a, np.ndarray):
+        raise ValueError("file is not a single NumPy array")
+    data = grid_array(a)
+    if dt is None or dx is None:
+        raise ValueError("a .npy array needs dt (s) and dx (m)")
+    return GridDataset(data=data, dx=positive("dx", dx), dt=positive("dt", dt),
+                       c=positive("c", c if c is not None else C_DEFAULT),
+                       dy=positive("dy", dy) if (dy is not None and data.ndim == 3) else
+                       (positive("dx", dx) if data.ndim == 3 else None),
+                       source="npy")
+
+
+FORMAT = Format(name="npy", title="NumPy array, k-Wave layout (n_t, n_y, n_x) or (n_t, n_x)",
+                container="file", sniff=sniff, load=load, input=True, upload=True, order=10,
+                noun="a NumPy .npy array")

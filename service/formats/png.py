@@ -1,0 +1,25 @@
+"""PNG picture (the MIPs and slices fpscan draws): recognised so that it is named when
+given as data (not data to reconstruct) → its bytes.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+from service.formats._registry import Format, Source
+
+__all__ = ["FORMAT", "sniff", "load"]
+
+
+def sniff(source: Source) -> bool:
+    """True for a file with the PNG signature."""
+    return source.head.startswith(b"\x89PNG")
+
+
+def load(source: Source, **_: Any) -> bytes:
+    """The file's bytes."""
+    assert source.fh is not None
+    return source.fh.read()
+
+
+FORMAT = Format(name="png", title="PNG picture", container="file", sniff=sniff, load=load, order=30,
+                noun="a PNG picture", refuse="this is a PNG picture, not data to reconstruct")

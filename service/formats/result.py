@@ -1,0 +1,268 @@
+"""Reconstruction result file (``volume.h5``, ``format`` ``fpscan-result/1``; layout:
+:mod:`service.storage.results`, which writes the result folder with the MIPs, and
+docs/file-formats.md): the p0 volume ``/p0`` ``(n_z, n_y, n_x)`` or ``(n_z, n_x)`` with
+its coordinates ``/z``, ``/y``, ``/x`` (m). Written by :func:`write_volume` (atomically),
+read by :func:`load` → :class:`ResultVolume`. An output, not data to reconstruct.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import os
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+
+from driver.scanfile import PRESSURE_UNITS
+from service.formats._registry import Format, Source
+
+__all__ = ["FORMAT", "RESULT_FORMAT", "ORIENTATION", "P0_UNITS", "COMPRESS_BELOW", "ResultVolume", "sniff",
+           "load", "read_result", "read_slice", "write_volume", "params_json", "storage_layout"]
+
+RESULT_FORMAT = "fpscan-result/1"
+
+#: the one orientation of every array fpscan stores and every picture it draws
+#: (docs/file-formats.md "Orientation"), written into result files and exports
+ORIENTATION = ("array axes (z, y, x) (2-D: (z, x)), each coordinate increasing with the index; "
+               "displayed row 0 at the top as napari, ImageJ and matplotlib imshow do: "
+               "x to the right, y downwards, depth z downwards from the sensor plane")
+#: the units of p0: calibrated (Pa) or arbitrary (a.u.), as the scan file's pressure
+P0_UNITS = PRESSURE_UNITS
+
+
+def _jsonable(obj: Any) -> Any:
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, (Path, np.dtype, type)):
+        return str(getattr(obj, "__name__", obj))
+    raise TypeError(f"{type(obj).__name__} is not JSON-serialisable")
+
+
+def params_json(params: dict) -> str:
+    """Canonical JSON of a parameter dict (numpy scalars/arrays converted); ValueError on
+    NaN/inf or values JSON cannot express."""
+    try:
+        return json.dumps(params, sort_keys=True, separators=(",", ":"), allow_nan=False,
+                          default=_jsonable)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"parameters are not JSON-serialisable: {exc}") from None
+
+
+def _check_axis(name: str, v: Any, n: int) -> np.ndarray:
+    a = np.asarray(v, dtype=np.float64)
+    if a.shape != (n,):
+        raise ValueError(f"{name} must have shape ({n},) to match p0, got {a.shape}")
+    if not np.isfinite(a).all():
+        raise ValueError(f"{name} must be finite")
+    if n > 1 and not (np.all(np.diff(a) > 0)):
+        raise ValueError(f"{name} must be strictly increasing")
+    return a
+
+
+#: compress a volume when a sample of it shrinks to this fraction or less
+COMPRESS_BELOW = 0.5
+#: bytes of a volume sampled to decide (evenly spaced depth rows)
+_PROBE_BYTES = 512 << 10
+
+
+def storage_layout(p0: np.ndarray) -> dict[str, Any]:
+    """HDF5 storage options for a result volume ``p0`` (``(n_z, n_y, n_x)`` or
+    ``(n_z, n_x)``), measured for speed (``benchmarks/bench_recon.py --writer``).
+
+    A reconstruction with noise everywhere compresses poorly: gzip with byte shuffle saves
+    ~14 % of a float32 volume and writes at ~10-25 MB/s, where contiguous storage writes at
+    ~300-500 MB/s. A volume that is mostly exact zeros (positivity, model-based ``tv``) or
+    otherwise redundant shrinks to a few per cent at ~200 MB/s with gzip level 1. So a
+    sample of 16 evenly spaced depth rows (at most 512 kB) is compressed with zlib level 1 after
+    byte shuffling; when it shrinks to ``COMPRESS_BELOW`` or less the volume is stored
+    chunked (whole depth rows, ~1 MB chunks), gzip level 1 with shuffle, else contiguous
+    and uncompressed. Either way any HDF5 reader reads it (gzip is HDF5's built-in
+    filter); ``docs/file-formats.md`` states the rule.
+
+    Returns keyword arguments for ``h5py.Group.create_dataset``.
+    """
+    import zlib
+
+    rows = p0.shape[0]
+    row_bytes = max(1, p0[0].nbytes)
+    n_probe = min(rows, 16)
+    sample = p0[np.linspace(0, rows - 1, n_probe).astype(np.intp)]
+    if p0.ndim == 3 and sample.nbytes > _PROBE_BYTES:  # evenly spaced y lines of those rows
+        n_lines = max(1, _PROBE_BYTES // (n_probe * p0.shape[2] * p0.itemsize))
+        sample = sample[:, np.linspace(0, p0.shape[1] - 1, min(n_lines, p0.shape[1])).astype(np.intp)]
+    sample = np.ascontiguousarray(sample)
+    raw = sample.view(np.uint8).reshape(-1, sample.itemsize)
+    shuffled = np.ascontiguousarray(raw.T).tobytes()  # HDF5's shuffle: byte planes
+    if len(zlib.compress(shuffled, 1)) > COMPRESS_BELOW * len(shuffled):
+        return {}  # contiguous, uncompressed
+    per_chunk = max(1, min(rows, (1 << 20) // row_bytes))
+    return {"chunks": (per_chunk, *p0.shape[1:]), "compression": "gzip", "compression_opts": 1,
+            "shuffle": True}
+
+
+def write_volume(path: str | os.PathLike, p0: np.ndarray, z: np.ndarray, x: np.ndarray,
+                 y: np.ndarray | None = None, *, method: str, params: dict, input_id: str,
+                 software_version: str | None = None, dtype: Any = None, p0_unit: str = "a.u.") -> Path:
+    """Write a result file atomically (see module docstring); returns ``path``.
+
+    ``p0``: ``(n_z, n_y, n_x)`` with ``y`` given, or ``(n_z, n_x)`` with ``y=None``; real,
+    finite. It is stored as ``dtype`` (float32 or float64); by default float32, unless the
+    reconstruction asked for float64 (``params["dtype"] == "float64"``): half of its
+    float64 size; compressed where that pays (see :func:`storage_layout`). ``z``, ``y``, ``x``: strictly increasing coordinates in m. ``params``: every
+    parameter of the reconstruction, JSON-serialisable. ``p0_unit``: ``"Pa"`` or ``"a.u."``
+    (:data:`P0_UNITS`). Raises ValueError naming the fault.
+    """
+    if p0_unit not in P0_UNITS:
+        raise ValueError(f"p0_unit must be one of {', '.join(P0_UNITS)}, got {p0_unit!r}")
+    p0 = np.asarray(p0)
+    if p0.dtype.kind not in "iuf":
+        raise ValueError(f"p0 must be real numbers, got {p0.dtype}")
+    if dtype is None:
+        dtype = np.float64 if isinstance(params, dict) and params.get("dtype") == "float64" \
+            else np.float32
+    dtype = np.dtype(dtype)
+    if dtype not in (np.dtype(np.float32), np.dtype(np.float64)):
+        raise ValueError(f"dtype must be float32 or float64, got {dtype}")
+    if p0.ndim not in (2, 3) or min(p0.shape) < 1:
+        raise ValueError(f"p0 must be (n_z, n_x) or (n_z, n_y, n_x), got shape {p0.shape}")
+    if (p0.ndim == 3) != (y is not None):
+        raise ValueError("give y for a 3-D p0 and y=None for a 2-D p0")
+    if not np.isfinite(p0).all():
+        raise ValueError("p0 contains NaN or infinite values")
+    p0 = p0.astype(dtype, copy=False)
+    z = _check_axis("z", z, p0.shape[0])
+    x = _check_axis("x", x, p0.shape[-1])
+    y = _check_axis("y", y, p0.shape[1]) if p0.ndim == 3 else None
+    if not isinstance(method, str) or not method:
+        raise ValueError("method must be a non-empty string")
+    if not isinstance(input_id, str):
+        raise ValueError("input_id must be a string")
+    if not isinstance(params, dict):
+        raise ValueError(f"params must be a dict, got {type(params).__name__}")
+    all_json = params_json(params)
+    each = {str(k): params_json({"v": v})[5:-1] for k, v in params.items()}
+    if software_version is None:
+        from driver.acquire import software_version as installed_version
+
+        software_version = installed_version()
+
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:12]}.tmp")
+    try:
+        with h5py.File(tmp, "w") as f:
+            d = f.create_dataset("p0", data=p0, **storage_layout(p0))
+            axes = [("z", z)] + ([("y", y)] if y is not None else []) + [("x", x)]
+            for i, (name, vec) in enumerate(axes):
+                s = f.create_dataset(name, data=vec)
+                s.attrs["units"] = "m"
+                s.make_scale(name)
+                d.dims[i].attach_scale(s)
+                d.dims[i].label = name
+            d.attrs["units"] = p0_unit
+            d.attrs["orientation"] = ORIENTATION
+            g = f.create_group("params")
+            for k, v in each.items():
+                g.attrs[k] = v
+            a = f.attrs
+            a["format"] = RESULT_FORMAT
+            a["method"] = method
+            a["params"] = all_json
+            a["input_id"] = input_id
+            a["software_version"] = software_version
+            a["created_utc"] = _dt.datetime.now(_dt.UTC).isoformat()
+            a["units"] = f"m for coordinates; p0 in {p0_unit}"
+            a["p0_unit"] = p0_unit
+            a["orientation"] = ORIENTATION
+        with open(tmp, "rb") as fh:
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return path
+
+
+@dataclass
+class ResultVolume:
+    """A result file's content. ``p0`` ``(n_z, n_y, n_x)``/``(n_z, n_x)``; ``z``, ``x``
+    (and ``y``, None in 2-D) coordinate vectors in m; ``method``; ``params`` dict;
+    ``input_id``; ``attrs`` (all root attributes)."""
+
+    p0: np.ndarray
+    z: np.ndarray
+    x: np.ndarray
+    y: np.ndarray | None
+    method: str
+    params: dict
+    input_id: str
+    attrs: dict = field(default_factory=dict)
+
+    @property
+    def ndim(self) -> int:
+        return self.p0.ndim
+
+    @property
+    def p0_unit(self) -> str:
+        """``"Pa"`` (calibrated scan) or ``"a.u."`` (files before the attribute: a.u.)."""
+        return "Pa" if self.attrs.get("p0_unit") == "Pa" else "a.u."
+
+
+def sniff(source: Source) -> bool:
+    """True for an HDF5 file whose ``format`` attribute is ``fpscan-result/<version>``."""
+    return source.attr("format").startswith("fpscan-result/")
+
+
+def load(source: Source, **_: Any) -> ResultVolume:
+    """The result file's volume, coordinates and attributes. Raises ValueError (not a
+    result file)."""
+    f = source.h5
+    attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
+    if attrs.get("format") != RESULT_FORMAT:
+        raise ValueError(f"{source.path} is not an {RESULT_FORMAT} file")
+    p0 = f["p0"][()]
+    z, x = f["z"][()], f["x"][()]
+    y = f["y"][()] if "y" in f else None
+    return ResultVolume(p0=p0, z=z, x=x, y=y, method=str(attrs["method"]),
+                        params=json.loads(attrs["params"]), input_id=str(attrs["input_id"]),
+                        attrs=attrs)
+
+
+def read_result(path: str | os.PathLike) -> ResultVolume:
+    """Read a result file (through the registry: opened once, checked). Raises
+    FileNotFoundError, ValueError (not a result file)."""
+    from service.formats._registry import load as load_as
+
+    return load_as(path, "result")[1]
+
+
+def read_slice(path: str | os.PathLike, index: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """The depth slice ``index`` of a result file's p0 — ``(n_y, n_x)``, or the image row
+    ``(n_x,)`` of a 2-D result — with ``z``, ``x``, ``y`` (None in 2-D), read without
+    loading the whole volume. Raises ValueError (index not an integer in range, not a
+    result file), FileNotFoundError."""
+    from service.formats._registry import open_source
+
+    with open_source(path, "hdf5", name="result") as src:
+        f = src.h5
+        if "p0" not in f or "z" not in f or "x" not in f:
+            raise ValueError(f"{src.path} is not an {RESULT_FORMAT} file")
+        ds = f["p0"]
+        if isinstance(index, bool) or not isinstance(index, (int, np.integer)) \
+                or not 0 <= index < ds.shape[0]:
+            raise ValueError(f"index must be an integer in [0, {ds.shape[0]}) (depth samples)")
+        img = ds[index]
+        z, x = f["z"][()], f["x"][()]
+        y = f["y"][()] if "y" in f else None
+    return img, z, x, y
+
+
+FORMAT = Format(name="result", title="fpscan reconstruction result (volume.h5)", container="hdf5",
+                sniff=sniff, load=load, write=write_volume, order=30, noun="a reconstruction result",
+                refuse="this is a reconstruction result (a p0 volume), not data to reconstruct: open it with "
+                       "h5py, or `fpscan export` it to OME-TIFF for ImageJ/napari")

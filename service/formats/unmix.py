@@ -1,0 +1,82 @@
+"""Unmixing result file (``unmix.h5``, ``format`` ``fpscan-unmix/1``; written by
+:func:`write`, with its sO2 picture by :func:`service.spectral.write_unmix`): the maps ``hbo2``, ``hb``, ``thb``,
+``so2`` and ``mask`` ``(n_z, n_y, n_x)``/``(n_z, n_x)``, the coordinates ``z``, ``y``,
+``x`` (m) and ``wavelengths_m`` → a dict. An output, not data to reconstruct.
+"""
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+from service.formats._registry import Format, Source
+
+__all__ = ["FORMAT", "UNMIX_FORMAT", "sniff", "load", "write", "read_unmix"]
+
+UNMIX_FORMAT = "fpscan-unmix/1"
+
+
+def sniff(source: Source) -> bool:
+    """True for an HDF5 file whose ``format`` attribute is ``fpscan-unmix/<version>``."""
+    return source.attr("format").startswith("fpscan-unmix/")
+
+
+def load(source: Source, **_: Any) -> dict:
+    """The arrays and attributes as a dict (``mask`` bool, ``params`` dict, ``y`` None in
+    2-D). Raises ValueError for another file."""
+    f = source.h5
+    if source.attr("format") != UNMIX_FORMAT:
+        raise ValueError(f"{source.path} is not an {UNMIX_FORMAT} file")
+    out = {k: f[k][...] for k in ("hbo2", "hb", "thb", "so2", "mask", "z", "x", "wavelengths_m")}
+    out["y"] = f["y"][...] if "y" in f else None
+    out["mask"] = out["mask"].astype(bool)
+    out["params"] = json.loads(f.attrs["params"])
+    out["input_id"] = str(f.attrs["input_id"])
+    return out
+
+
+def write(path: str | os.PathLike, u: Any, z: Any, x: Any, y: Any = None, *, input_id: str = "",
+          extra: dict | None = None) -> Path:
+    """Write ``u`` (a ``service.recon.unmix.Unmixed``: maps ``(n_z, [n_y,] n_x)``, mask,
+    wavelengths (m), params) with its coordinates ``z``, ``x``, ``y`` (m; None in 2-D) as
+    ``path`` (via a temporary sibling, renamed). ``extra``: parameters recorded beside
+    ``u.params``. Raises ValueError (parameters JSON cannot hold) before anything is
+    written. Returns ``path``."""
+    import h5py
+    import numpy as np
+
+    from service.formats.result import params_json
+
+    path = Path(path)
+    # the result files' one canonical parameter JSON (ValueError before anything is written)
+    params = params_json({**u.params, **(extra or {})})
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    with h5py.File(tmp, "w") as f:
+        f.attrs["format"] = UNMIX_FORMAT
+        f.attrs["params"] = params
+        f.attrs["input_id"] = input_id
+        f.attrs["concentration_units"] = str(u.params.get("concentration_units", ""))
+        for name in ("hbo2", "hb", "thb", "so2"):
+            f.create_dataset(name, data=getattr(u, name), compression="gzip", compression_opts=4)
+        f.create_dataset("mask", data=u.mask.astype(np.uint8), compression="gzip", compression_opts=4)
+        f.create_dataset("z", data=np.asarray(z, dtype=np.float64))
+        f.create_dataset("x", data=np.asarray(x, dtype=np.float64))
+        if y is not None:
+            f.create_dataset("y", data=np.asarray(y, dtype=np.float64))
+        f.create_dataset("wavelengths_m", data=u.wavelengths)
+    os.replace(tmp, path)
+    return path
+
+
+def read_unmix(path: str | os.PathLike) -> dict:
+    """Read an ``unmix.h5`` (through the registry: opened once, checked); raises
+    ``ValueError`` for another file, FileNotFoundError."""
+    from service.formats._registry import load as load_as
+
+    return load_as(path, "unmix")[1]
+
+
+FORMAT = Format(name="unmix", title="fpscan unmixing result (unmix.h5)", container="hdf5", sniff=sniff,
+                load=load, write=write, order=40, noun="an unmixing result",
+                refuse="this is an unmixing result (sO2 and THb maps), not data to reconstruct: open it with h5py")
