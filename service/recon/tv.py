@@ -20,7 +20,7 @@ const · (k_z/ω) E against the adjoint's E): for a full planar aperture AᵀA h
 |k| / k_z, so P = k_z / |k| (`_ner_weight`, on the image's orthonormal DCT-II, symmetric
 and positive definite) inverts it. Each iteration takes one forward A and one adjoint Aᵀ
 (one operator pair) and steps along P Aᵀ (A y − g) with step 1 / L, L ≈ ‖P AᵀA‖ from
-three seeded power iterations, raised (×1.1) whenever the gain of P AᵀA along the last
+two seeded power iterations, raised (×1.1) whenever the gain of P AᵀA along the last
 move of the iterates exceeds it (free: those products are computed anyway). The proximal
 map of λ TV + positivity is the dual fast gradient projection of Beck & Teboulle (2009),
 warm-started from the previous iteration's dual (no operator). Momentum restarts when J
@@ -36,8 +36,9 @@ Stopping rule (``tol``, default `DEFAULT_TOL` = 1e-3): the objective's mean decr
 the last three iterations below ``tol`` × its decrease since the warm start,
 (J_{k−3} − J_k) / 3 <= tol (J_0 − J_k) ("converged"); else ``max_iter`` ("iterations") or
 the time limit ("time limit"). ``params`` say which, with the last relative decrease
-(``objective_change``) and the operator pairs used (``operator_pairs``, the power
-iterations and ``debias`` included).
+(``objective_change``) and the operator pairs used (``operator_pairs``: (forward +
+adjoint applications) / 2, everything included: the power iterations, Aᵀg, the noise image
+of the automatic λ, A of the warm start, every iteration and ``debias``).
 
 Automatic λ (``lam=None``, the default): λ = ‖P Aᵀ n̂‖_rms, the RMS over the image of the
 preconditioned adjoint of one seeded white-noise realisation n̂ of the estimated noise
@@ -71,7 +72,7 @@ from service.recon.reconstruction import Reconstruction
 DEFAULT_MAX_ITER = 60
 #: the stopping rule: the objective's last decrease below this share of its decrease since the warm start
 DEFAULT_TOL = 1e-3
-_POWER_STEPS = 3  # power iterations for the first step 1 / ‖BA‖ (the solver raises L where it sees more)
+_POWER_STEPS = 2  # power iterations for the first step 1 / ‖BA‖ (the solver raises L where it sees more)
 _MARGIN = 1.1  # step 1 / (_MARGIN ‖BA‖)
 _LAM_SCALE = 1.0  # automatic λ = _LAM_SCALE × the NER image's noise level
 _WINDOW = 3  # the stopping rule's window of iterations
@@ -210,19 +211,24 @@ def reconstruct_tv(
     # B = P Aᵀ: the exact adjoint, NER's k-space weight P = k_z / |k| (symmetric, positive definite)
     P = _ner_weight(shape, dx, dz_used)
 
+    applied = [0, 0]  # forward, adjoint applications: params' operator_pairs is their mean
+
     def B(r: np.ndarray) -> np.ndarray:
+        applied[1] += 1
         return _apply_weight(P, op.rmatvec(r.astype(rdtype, copy=False).ravel()).reshape(shape))
+
+    def forward(v: np.ndarray) -> np.ndarray:
+        applied[0] += 1
+        return op.matvec(v.ravel()).reshape(g.shape)
 
     gw_norm = float(np.linalg.norm(g))
     sigma = noise_sigma(g, 0 if pos is None else 1)
     noise_share = sigma * math.sqrt(g.size) / max(gw_norm, 1e-300)
     Bg = B(g)
-    pairs = 0
 
     # step: 1 / L with L ≈ ‖BA‖ (power iteration, seeded) and a margin
-    L = _MARGIN * _gain_estimate(lambda v: B(op.matvec(v.ravel())), shape, rdtype, _POWER_STEPS,
+    L = _MARGIN * _gain_estimate(lambda v: B(forward(v)), shape, rdtype, _POWER_STEPS,
                              step=lambda k, n: report(0.05 + 0.05 * k / n, "norm estimate"))
-    pairs += _POWER_STEPS
     if not L > 0:
         raise ValueError("no sensor sees the image within the record (‖A‖ = 0): nothing to reconstruct")
     report(0.1, "norm estimate")
@@ -236,15 +242,13 @@ def reconstruct_tv(
     def residual(Ax: np.ndarray) -> float:
         return float(np.linalg.norm(Ax - g))
 
-    x, it, stop_reason, change, Ax, pairs_solve, L = _fista(op, B, g, Bg, x, lam, L, positivity, max_iter, tol,
+    x, it, stop_reason, change, Ax, L = _fista(forward, B, g, Bg, x, lam, L, positivity, max_iter, tol,
                                                             started, time_limit, report, residual)
-    pairs += pairs_solve
     debiased = False
     if debias and stop_reason != "time limit" and np.any(x > 0):
         support = x > _SUPPORT_FRACTION * float(np.max(x))
-        x, _, _, _, Ax, pairs_d, L = _fista(op, B, g, Bg, x, 0.0, L, True, _DEBIAS_ITER, 0.0, started,
+        x, _, _, _, Ax, L = _fista(forward, B, g, Bg, x, 0.0, L, True, _DEBIAS_ITER, 0.0, started,
                                          time_limit, None, residual, support=support)
-        pairs += pairs_d
         debiased = True
     p0 = x.astype(rdtype, copy=False)
     res = Ax - g
@@ -255,7 +259,8 @@ def reconstruct_tv(
                   residual=float(np.linalg.norm(res) / max(gw_norm, 1e-300)),
                   norm_A=L / _MARGIN, positivity=bool(positivity), weights_mean_one=False, data_weights="equal",
                   periodic=bool(periodic), solver="FISTA preconditioned by " + ("NER" if pos is None else "NEDNER"),
-                  objective_change=change if math.isfinite(change) else None, operator_pairs=pairs, debias=debiased,
+                  objective_change=change if math.isfinite(change) else None,
+                  operator_pairs=0.5 * (applied[0] + applied[1]), debias=debiased,
                   converged=stop_reason == "converged", stop_reason=stop_reason,
                   time_limit=time_limit, solve_s=time.monotonic() - started)
     report(1.0, f"done after {it} iterations" + (" (time limit reached)" if stop_reason == "time limit" else ""))
@@ -348,7 +353,7 @@ def _tv_prox(v: np.ndarray, gamma: float, positivity: bool, support, dual):
     return project(v - gamma * _grad_t(p)), p
 
 
-def _fista(op, B, g, Bg, x, lam, L, positivity, max_iter, tol, started, time_limit, report, residual,
+def _fista(forward, B, g, Bg, x, lam, L, positivity, max_iter, tol, started, time_limit, report, residual,
            support=None):
     """Accelerated proximal gradient (FISTA, Beck & Teboulle 2009) on J(p) = ½‖A p − g‖² +
     λ TV(p) (p >= 0 with ``positivity``; p = 0 off ``support`` when given), preconditioned:
@@ -361,10 +366,10 @@ def _fista(op, B, g, Bg, x, lam, L, positivity, max_iter, tol, started, time_lim
     start ("converged"); else ``max_iter`` iterations ("iterations") or the time limit
     ("time limit"). L rises to `_MARGIN` × the gain of BA along the last move of y (free: a
     lower bound of ‖BA‖) when that exceeds it. Returns (x, iterations, stop reason, the
-    rule's last value, A x, operator pairs used, L)."""
+    rule's last value, A x, L). ``forward(v)`` = A v in the data's shape."""
     if support is not None:
         x = np.where(support, x, 0).astype(x.dtype)
-    Ax = op.matvec(x.ravel()).reshape(g.shape)
+    Ax = forward(x)
     y, Ay, t = x, Ax, 1.0
     y_prev = BAy_prev = None
     def objective(Ax_, x_):
@@ -383,7 +388,7 @@ def _fista(op, B, g, Bg, x, lam, L, positivity, max_iter, tol, started, time_lim
                     L, t = _MARGIN * gain, 1.0
         y_prev, BAy_prev = y, BAy
         xn, dual = _tv_prox(y - (BAy - Bg) / L, lam / L, positivity, support, dual)
-        Axn = op.matvec(xn.ravel()).reshape(g.shape)
+        Axn = forward(xn)
         J = objective(Axn, xn)
         tn = 0.5 * (1.0 + math.sqrt(1.0 + 4.0 * t * t))
         if J > J_hist[-1] or float(np.vdot(y - xn, xn - x)) > 0:  # restart the momentum
@@ -404,7 +409,7 @@ def _fista(op, B, g, Bg, x, lam, L, positivity, max_iter, tol, started, time_lim
         if elapsed >= time_limit and it < max_iter:
             stop_reason = "time limit"
             break
-    return x, it, stop_reason, float(change), Ax, it, L
+    return x, it, stop_reason, float(change), Ax, L
 
 
 def _reporter(progress):
