@@ -75,6 +75,7 @@ OPTIONS: dict[str, str] = {
     "iterations": "maximum iterations, 1..100000 (tv; default 60)",
     "time_limit": "wall-time limit of the solver, s, in (0, 604800] (tv; default 3600, the server's setting "
                   "tv_time_limit_s caps it): when reached the result says converged false, stop reason 'time limit'",
+    "debias": "refit tv's amplitudes by least squares on its support after the solve (tv; default false)",
 }
 
 _COMMON = ("c", "dtype", "upsample", "positivity", "n_z", "dz")
@@ -177,7 +178,7 @@ def option_rules() -> dict[str, Callable[[Any], Any]]:
     return {"eps": checks.check_eps, "upsample": checks.check_upsample, "n_z": checks.check_n_z,
             "dz": checks.check_dz, "lam": checks.check_lam, "iterations": checks.check_iterations,
             "time_limit": checks.check_time_limit, "dtype": _dtype, "interp": _check_interp,
-            "positivity": _check_bool("positivity")}
+            "positivity": _check_bool("positivity"), "debias": _check_bool("debias")}
 
 
 def check_option_values(options: dict) -> None:
@@ -374,6 +375,6 @@ register(Method("kwave", "k-Wave compatible (kspaceLineRecon / kspacePlaneRecon)
                 ("c", "dtype", "positivity", "interp"), _run_kwave,
                 "k-Wave kspaceLineRecon / kspacePlaneRecon (reference/KWAVE_RECON_NOTES.md)"))
 register(Method("tv", "model-based: TV + positivity on the exact model (iterative; sparse, noisy scans)", False,
-                ("eps", "lam", "iterations", "time_limit", "c", "dtype", "positivity", "n_z", "dz"), _run_tv,
-                "½‖A p0 − g‖²_W + λ TV(p0), p0 ≥ 0, pyproximal primal-dual (Arridge et al., PMB 61 (2016) 8908)",
+                ("eps", "lam", "iterations", "time_limit", "c", "dtype", "positivity", "n_z", "dz", "debias"), _run_tv,
+                "½‖A p0 − g‖²_W + λ TV(p0), p0 ≥ 0, NER-preconditioned FISTA (Arridge et al., PMB 61 (2016) 8908)",
                 defaults={"positivity": True}))

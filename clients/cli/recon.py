@@ -77,6 +77,8 @@ def add_arguments(parser):
     g.add_argument("--time-limit", type=quantity("time", "time-limit"), default=None, metavar="SECONDS",
                    help="tv: wall-time limit of the solver, e.g. 600 or 10min (default 3600 s; on a server at most "
                         "its tv_time_limit_s); when reached the result says converged false, stop reason 'time limit'")
+    g.add_argument("--debias", action=argparse.BooleanOptionalAction, default=None,
+                   help="tv: refit the amplitudes by least squares on tv's support after the solve (default off)")
     g.add_argument("--n-z", type=int, default=None, help="output depth samples (default n_t)")
     g.add_argument("--dz", type=quantity("length", "dz"), default=None,
                    help="output depth spacing, e.g. 20um (default c*dt)")
@@ -157,6 +159,8 @@ def _params(args) -> dict:
             params[name] = value
     if args.positivity is not None:
         params["positivity"] = bool(args.positivity)
+    if args.debias is not None:
+        params["debias"] = bool(args.debias)
     if args.c_range is not None:
         params["c_range"] = list(args.c_range)
     if args.force:  # the speed-of-sound rule, as the library and the API apply it

@@ -444,6 +444,8 @@ class ReconParams(_Request):
                                      "at most the server's tv_time_limit_s): when reached the result's params say "
                                      "converged false, stop_reason 'time limit'",
                                      json_schema_extra={"exclusiveMinimum": 0, "maximum": _checks.TIME_LIMIT_MAX})
+    debias: bool | None = Field(None, description="refit tv's amplitudes by least squares on its support "
+                                "after the solve (tv; default off)")
     n_z: int | None = Field(None, description="output depth samples", json_schema_extra=_bounds(_checks.N_Z_RANGE))
     dz: float | None = Field(None, description="output depth spacing, m (with the input's c·t_last it sets the "
                              "working depth rows, counted in the memory admission)",

@@ -8,6 +8,9 @@
   depth, blurred steps laterally), for axial line-spread and lateral edge-spread
   measurements, like the paper's 0.1 µm thin chrome USAF chart seen by a band-limited
   system.
+- :func:`vessel_phantom` (issue 19): a branching tree of tubes 1–4 voxels wide (a trunk
+  that forks three times), in 2-D and 3-D, the thin structures an FP scanner images;
+  :func:`vessel_tree` gives its centre lines and widths.
 
 Grids follow docs/architecture.md: ``z_j = j·dz`` (row 0 at the sensor plane),
 ``x_i = (i - (n_x - 1)/2)·dx``.
@@ -137,3 +140,84 @@ def layer_phantom(n_z: int, n_x: int, dz: float, dx: float, *, depth: float, wid
     prof = np.exp(-0.5 * ((z - depth) / sz) ** 2)
     lat = 0.5 * (erf((x + width / 2) / (np.sqrt(2) * se)) - erf((x - width / 2) / (np.sqrt(2) * se)))
     return prof[:, None] * lat[None, :]
+
+
+#: the vessel tree's generations: width in voxels of each generation (trunk first)
+VESSEL_WIDTHS = (4.0, 3.0, 2.0, 1.0)
+
+
+def vessel_tree(shape: tuple[int, ...]) -> list[tuple[np.ndarray, np.ndarray, float]]:
+    """Centre lines of :func:`vessel_phantom`: a trunk that forks three times (1 + 2 + 4
+    + 8 = 15 straight segments), widths `VESSEL_WIDTHS` (4, 3, 2, 1 voxels) by generation.
+
+    The trunk enters near the left edge (x = -0.42 n_x) at depth 0.55 n_z and runs
+    laterally; each fork turns its two children ±22° (in depth, scaled by n_z / n_x when that is below 1; and in 3-D also ±0.3 n_y
+    towards the two y sides), so the tree lies mostly parallel to the sensor plane, as
+    skin vessels do. Geometry in units of the grid, so it scales with it.
+
+    Parameters
+    ----------
+    shape : (n_z, n_x) or (n_z, n_y, n_x) voxels (n_z >= 16, n_x >= 32, n_y >= 16).
+
+    Returns
+    -------
+    list of (start, end, width): start and end are the segment's centre-line end points in
+    voxel coordinates (z, x) / (z, y, x) (z = row index, lateral = index from the grid's
+    centre, ``(i - (n - 1)/2)``), width in voxels.
+
+    Raises ValueError for a shape that is not 2-D or 3-D or too small.
+    """
+    shape = tuple(int(s) for s in shape)
+    if len(shape) not in (2, 3) or shape[0] < 16 or shape[-1] < 32 or (len(shape) == 3 and shape[1] < 16):
+        raise ValueError(f"the vessel phantom needs (n_z >= 16, [n_y >= 16,] n_x >= 32) voxels, got {shape}")
+    three = len(shape) == 3
+    n_z, n_x = shape[0], shape[-1]
+    n_y = shape[1] if three else 1
+    segments: list[tuple[np.ndarray, np.ndarray, float]] = []
+
+    def grow(start: np.ndarray, angle: float, side: float, gen: int) -> None:
+        if gen >= len(VESSEL_WIDTHS):
+            return
+        length = (0.30 if gen == 0 else 0.22 * 0.8 ** (gen - 1)) * n_x
+        dz, dx = np.sin(angle) * length * min(1.0, n_z / n_x), np.cos(angle) * length  # depth scaled to the grid
+        dz = float(np.clip(dz, 0.12 * n_z - start[0], 0.88 * n_z - start[0]))  # stay inside in depth
+        step = [dz, dx] if not three else [dz, side * 0.3 * n_y * 0.6**gen, dx]
+        end = start + np.array(step)
+        segments.append((start, end, VESSEL_WIDTHS[gen]))
+        turn = np.deg2rad(22.0)
+        grow(end, angle - turn, -1.0, gen + 1)
+        grow(end, angle + turn, 1.0, gen + 1)
+
+    origin = [0.55 * n_z, -0.42 * n_x] if not three else [0.55 * n_z, 0.0, -0.42 * n_x]
+    grow(np.array(origin), np.deg2rad(-8.0), 0.0, 0)
+    return segments
+
+
+def vessel_phantom(shape: tuple[int, ...], *, amplitude: float = 1.0) -> np.ndarray:
+    """A vessel tree: tubes (3-D) or strips (2-D) 4, 3, 2 and 1 voxels wide along the
+    centre lines of :func:`vessel_tree`, p0 = ``amplitude`` inside.
+
+    Parameters
+    ----------
+    shape : (n_z, n_x) or (n_z, n_y, n_x) voxels (cubic voxels; rules as `vessel_tree`).
+    amplitude : p0 inside the vessels, Pa.
+
+    Returns
+    -------
+    ndarray of ``shape`` (z, x) / (z, y, x): p0 with a linear partial-volume ramp over one
+    voxel at the surface (``clip(r + ½ - distance, 0, 1)``, r = width / 2, as
+    :func:`yarn_phantom`), so a 1-voxel vessel is one voxel across.
+
+    Raises ValueError as `vessel_tree`.
+    """
+    segments = vessel_tree(shape)
+    grids = tuple(np.arange(n, dtype=float) if i == 0 else centred_axis(n, 1.0) for i, n in enumerate(shape))
+    p0 = np.zeros(shape)
+    for start, end, width in segments:
+        n_s = int(np.ceil(np.linalg.norm(end - start) * 4)) + 2
+        line = start[None, :] + np.linspace(0.0, 1.0, n_s)[:, None] * (end - start)[None, :]
+        r = width / 2
+        dist = _curve_distance(line, grids, r + 1.0)
+        inside = np.where(np.isfinite(dist), np.clip(r + 0.5 - dist, 0.0, 1.0), 0.0)
+        np.maximum(p0, inside, out=p0)
+    return amplitude * p0

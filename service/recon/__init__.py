@@ -8,7 +8,7 @@
 - `forward_grid`, `forward_points`: the exact planar forward model (from
   `driver.physics`, the physics module the simulator shares).
 - `PlanarOperator`: the forward model and its true adjoint as a pylops LinearOperator.
-- `reconstruct_tv`: model-based reconstruction (TV + positivity, pyproximal primal-dual).
+- `reconstruct_tv`: model-based reconstruction (TV + positivity, NER-preconditioned FISTA).
 - `voronoi_weights`: default area weights for non-equispaced sensors (from
   `driver.physics.weights`, which owns them).
 - `estimate_peak_memory`: bytes a reconstruction needs at its peak (admission control).

@@ -261,9 +261,10 @@ def padded_lateral(n_y: int, n_x: int, square: bool | None = None) -> tuple[int,
 
 def tv_memory(image_shape, padded_shape, n_data: int, n_t: int, dtype=np.float64) -> int:
     """Estimated peak bytes of the model-based reconstruction (`service.recon.tv`): the
-    solver's image-sized vectors (p, its previous and extrapolated values, Kᵀy, and the
-    stacked K p with its d gradient components, twice) in ``dtype``, three data-sized
-    vectors, and the operator's working arrays on the padded grid in its working
+    solver's image-sized vectors live while the operator works (the TV proximal map's dual,
+    d vectors, and d − 1 of the iterates: fitted to the peak measured on the 48² × 256 case
+    of tests/service/test_memory_admission.py, 9 % below the earlier primal-dual solver's
+    there) in ``dtype``, three data-sized vectors, and the operator's working arrays on the padded grid in its working
     precision (complex64 for float32, complex128 for float64;
     `service.recon.operator.PlanarOperator`): at its peak the temporal fine grid (L per
     padded half-spectrum column, `driver.physics.nufft.grid_length`) beside the k-space
@@ -274,7 +275,7 @@ def tv_memory(image_shape, padded_shape, n_data: int, n_t: int, dtype=np.float64
     b = np.dtype(dtype).itemsize
     n_img = int(np.prod(image_shape))
     d = sum(1 for n in image_shape if n > 1)
-    solver = (4 + 2 * d) * n_img * b + 3 * n_data * b
+    solver = (2 * d - 1) * n_img * b + 3 * n_data * b
     nz2, ny2, nx2 = padded_shape
     operator = 2 * b * ny2 * (nx2 // 2 + 1) * (grid_length(n_t) + max(nz2, n_t))
     return int(1.25 * (solver + operator))

@@ -1,0 +1,109 @@
+"""The model-based solver against one NEDNER of the same data (issue 19, item 2).
+
+For vessel (`service.experiments.phantoms.vessel_phantom`) and ball phantoms, 2-D (a line of
+``n_x`` sensors, 24 of them used, equiangular about the image's centre) and 3-D (a lattice,
+an equi-steradian mask of about 10 %), exact grid data (`forward_grid`, pitch = dz = 50 µm,
+dt = pitch / c) with seeded white noise ``--snr`` dB below the signal, this prints per case:
+
+- NEDNER wall time (the warm start) and tv's at its defaults, and their ratio;
+- tv's iterations, operator pairs (the power iterations included), whether the default rule
+  converged, the stop reason, the residual against the noise share;
+- CC with the true p0 of NEDNER and tv, and their least-squares amplitudes (argmin_a
+  ‖img − a p0‖), with ``--debias`` also tv's after the least-squares refit.
+
+    .venv/bin/python benchmarks/bench_tv_solver.py                   # 64x96 (2-D), 24x40x40 (3-D), 30 dB
+    .venv/bin/python benchmarks/bench_tv_solver.py --snr 20 30 40 --debias
+
+Small sizes only: the solver's iteration counts are the point; `bench_tv_operator.py` times
+the operator pair at large sizes. Times exclude compilation (one run of each first).
+"""
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+C, PITCH = 1500.0, 50e-6
+DT = PITCH / C
+
+
+def _case(kind: str, dims: int, snr_db: float):
+    from driver.physics import Ball, ball_p0
+    from driver.physics.forward import forward_grid
+    from service.experiments.phantoms import vessel_phantom
+    from service.plans import Lattice, equiangular_mask, equisteradian_mask
+
+    if dims == 2:
+        n_z, n = 64, 96
+        shape: tuple[int, ...] = (n_z, n)
+    else:
+        n_z, n = 24, 40
+        shape = (n_z, n, n)
+    x = (np.arange(n) - (n - 1) / 2) * PITCH
+    z = np.arange(n_z) * PITCH
+    if kind == "vessels":
+        p0 = vessel_phantom(shape)
+    elif dims == 2:
+        p0 = ball_p0([Ball(-12 * PITCH, 0, 30 * PITCH, 8 * PITCH), Ball(14 * PITCH, 0, 22 * PITCH, 5 * PITCH, 0.7),
+                      Ball(2 * PITCH, 0, 45 * PITCH, 4 * PITCH, 0.5)], z, x, supersample=2)
+    else:
+        p0 = ball_p0([Ball(0.0, 0.0, 12 * PITCH, 4 * PITCH), Ball(7 * PITCH, -5 * PITCH, 16 * PITCH, 3 * PITCH, 0.7),
+                      Ball(-8 * PITCH, 4 * PITCH, 9 * PITCH, 2.5 * PITCH, 0.5)], z, x, x, supersample=2)
+    n_t = int(np.hypot(n_z, n if dims == 2 else n / np.sqrt(2))) + 8
+    clean = forward_grid(p0, PITCH, PITCH, DT, n_t, C)
+    rng = np.random.default_rng(0)
+    g = clean + rng.standard_normal(clean.shape) * float(np.sqrt(np.mean(clean**2))) / 10 ** (snr_db / 20)
+    if dims == 2:
+        mask = equiangular_mask(Lattice(n, 1, PITCH), n_z * PITCH / 2, 24)
+        idx = np.asarray(mask.indices)[:, 0]
+        alines, pos, grid = g[:, idx].T, np.asarray(mask.positions, float)[:, :1], (x,)
+    else:
+        mask = equisteradian_mask(Lattice(n, n, PITCH), 12 * PITCH, 160)
+        ix, iy = np.asarray(mask.indices).T
+        alines, pos, grid = g[:, iy, ix].T, np.asarray(mask.positions, float)[:, :2], (x, x)
+    kw = dict(weights=np.asarray(mask.weights, float), grid=grid, n_z=n_z, dz=PITCH)
+    return p0, alines, pos, kw
+
+
+def run(kind: str, dims: int, snr_db: float, debias: bool) -> str:
+    from service.metrics import correlation_coefficient
+    from service.recon import reconstruct_points
+    from service.recon.tv import reconstruct_tv
+
+    p0, alines, pos, kw = _case(kind, dims, snr_db)
+    amp = lambda img: float(np.vdot(img, p0) / np.vdot(p0, p0))  # noqa: E731
+    reconstruct_tv(alines, DT, C, positions=pos, max_iter=2, **kw)  # compile
+    t = time.perf_counter()
+    ned = reconstruct_points(alines, pos, DT, C, **kw).p0
+    t_ned = time.perf_counter() - t
+    t = time.perf_counter()
+    tv = reconstruct_tv(alines, DT, C, positions=pos, **kw)
+    t_tv = time.perf_counter() - t
+    p = tv.params
+    row = (f"{dims}-D {kind:7s} {snr_db:4.0f} dB  NEDNER {t_ned:6.3f} s  tv {t_tv:6.2f} s  tv/NEDNER {t_tv / t_ned:6.0f}"
+           f"  iterations {p['iterations']:3d}  pairs {p['operator_pairs']:3d}  converged {p['converged']!s:5s}"
+           f" ({p['stop_reason']})  residual {p['residual']:.3f} (noise {p['noise_share']:.3f})"
+           f"  CC NEDNER {correlation_coefficient(ned, p0):.4f} tv {correlation_coefficient(tv.p0, p0):.4f}"
+           f"  amplitude NEDNER {amp(ned):.3f} tv {amp(tv.p0):.3f}")
+    if debias:
+        refit = reconstruct_tv(alines, DT, C, positions=pos, debias=True, **kw)
+        row += f" debiased {amp(refit.p0):.3f} (CC {correlation_coefficient(refit.p0, p0):.4f})"
+    return row
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--snr", type=float, nargs="+", default=[30.0], help="noise levels, dB below the signal")
+    ap.add_argument("--dims", type=int, nargs="+", default=[2, 3], choices=[2, 3])
+    ap.add_argument("--kinds", nargs="+", default=["vessels", "balls"], choices=["vessels", "balls"])
+    ap.add_argument("--debias", action="store_true", help="also the least-squares refit's amplitude")
+    args = ap.parse_args(argv)
+    for dims in args.dims:
+        for kind in args.kinds:
+            for snr in args.snr:
+                print(run(kind, dims, snr, args.debias), flush=True)
+
+
+if __name__ == "__main__":
+    main()
