@@ -51,6 +51,14 @@ import numpy as np
 from driver.constants import C_DEFAULT, C_LIMITS
 from driver.physics.axes import centred_positions
 
+__all__ = [
+    "IMAGE_HEADER", "IMAGE_SPECTRAL", "MAGIC", "IMAGE_VERSION", "MAX_WAVELENGTHS", "WAVELENGTH_ORDERS",
+    "PLAN_FORMAT", "WAVELENGTH_RANGE", "MAX_LATTICE_POINTS", "N_T_RANGE", "MIN_N_T", "MAX_N_T", "MAX_DT",
+    "MAX_AVERAGES", "MAX_PRF", "canonical_json", "plan_id_of", "check_wavelengths", "check_acquisition",
+    "wavelength_order", "aline_order", "aline_index", "MAX_WEIGHT_AREAS", "check_plan", "lattice_positions",
+    "load_plan", "file_kind", "DevicePlan", "plan_image", "image_size_limit", "parse_plan_image",
+]
+
 IMAGE_HEADER = struct.Struct("<4sHH32sIIdIIddddI")
 #: what image version 2 adds after IMAGE_HEADER: n_wavelengths, order, reserved
 IMAGE_SPECTRAL = struct.Struct("<HBB")

@@ -62,6 +62,8 @@ from driver.plan import DevicePlan, image_size_limit, parse_plan_image
 if TYPE_CHECKING:
     from driver.sources import PressureFn, Source
 
+__all__ = ["FIRMWARE_VERSION", "INITIAL_WINDOW", "BLOCK", "SimConfig", "SimulatedScanner"]
+
 FIRMWARE_VERSION = "1.0"
 INITIAL_WINDOW = 8
 BLOCK = 128

@@ -31,6 +31,12 @@ import numpy as np
 
 from service.recon.unmix import Unmixed, endmember_matrix, too_few_wavelengths, unmix
 
+__all__ = [
+    "UNMIX_FORMAT", "MASK_COLOUR", "dataset_wavelengths", "reconstruct_wavelengths",
+    "write_wavelength_results", "unmix_reconstructions", "so2_map", "thb_map", "render_so2_png",
+    "write_unmix", "read_unmix", "load_wavelength_datasets", "reconstruct_and_unmix",
+]
+
 UNMIX_FORMAT = "fpscan-unmix/1"
 #: masked pixels of the sO2 picture (THb below the threshold, sO2 unknown): black
 MASK_COLOUR = (0.0, 0.0, 0.0, 1.0)

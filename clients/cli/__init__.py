@@ -24,6 +24,8 @@ import os
 import re
 import sys
 
+__all__ = ["build_parser", "NEGATIVE_QUANTITY", "allow_negative_quantities", "main", "reason"]
+
 
 def _subcommand_modules():
     # the package's own .py files (not pkgutil.iter_modules, which imports inspect: a

@@ -26,6 +26,8 @@ import time
 from clients.cli._common import UsageError
 from driver.constants import C_DEFAULT
 
+__all__ = ["COMMAND", "HELP", "DEFAULTS", "add_arguments", "run", "Demo"]
+
 TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (`fpscan --help` starts faster)
 if TYPE_CHECKING:
     from clients.processes import Process

@@ -16,6 +16,8 @@ import math
 
 from clients.cli._common import UsageError
 
+__all__ = ["COMMAND", "HELP", "NAMES", "add_arguments", "run"]
+
 COMMAND = "evaluate"
 HELP = "run the paper's experiments (limited-view-2d, sparse-masks-3d, nufft-vs-interpolation) -> PNG plots, JSON/CSV tables"
 

@@ -16,6 +16,8 @@ from pathlib import Path
 from clients.cli._common import UsageError, add_server_options, client_errors, needs_extra
 from driver.constants import C_PLAUSIBLE
 
+__all__ = ["COMMAND", "HELP", "flag", "parse_value", "add_arguments", "mask_params", "request_body", "run"]
+
 COMMAND = "plan"
 HELP = "make a scan plan (sensor mask + weights + order + acquisition settings) as plan JSON"
 

@@ -27,6 +27,8 @@ from collections.abc import Sequence
 from clients.cli._common import UsageError, add_progress_option, add_server_options, client_errors, speed
 from driver.constants import C_AUTOFOCUS_RANGE, C_DEFAULT, C_PLAUSIBLE
 
+__all__ = ["COMMAND", "HELP", "add_arguments", "check_options_early", "run"]
+
 COMMAND = "recon"
 HELP = "reconstruct p0 (NEDNER/NER/...) from a scan file or dataset, locally or on a server"
 

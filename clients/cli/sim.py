@@ -9,6 +9,8 @@ from __future__ import annotations
 from clients.cli._common import UsageError
 from driver.constants import C_DEFAULT, C_PLAUSIBLE
 
+__all__ = ["COMMAND", "HELP", "add_arguments", "make_source", "run"]
+
 COMMAND = "sim"
 HELP = "run the simulated FP scanner on a pseudo-terminal (prints its device path first)"
 

@@ -53,6 +53,11 @@ from .errors import (
 )
 from .models import MODELS
 
+__all__ = [
+    "TERMINAL_STATES", "MIP_PLANES", "DATASET_FORMATS", "ProgressCallback", "as_model", "field_of", "to_dict",
+    "Client", "AsyncClient",
+]
+
 TERMINAL_STATES = frozenset({"succeeded", "failed", "cancelled"})
 MIP_PLANES = ("xy", "xz", "yz")
 DATASET_FORMATS = ("fpscan", "ipasc", "kwave-hdf5", "npy")

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
+__all__ = ["centred_axis", "centred_positions", "centred_index"]
+
 
 def centred_axis(n: int, d: float) -> np.ndarray:
     """Coordinates ``x_i = (i - (n - 1)/2)·d`` for ``i = 0..n-1``.

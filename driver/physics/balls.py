@@ -20,6 +20,8 @@ import numpy as np
 
 from driver.constants import C_DEFAULT
 
+__all__ = ["Ball", "ball_alines", "ball_p0"]
+
 
 @dataclass(frozen=True)
 class Ball:

@@ -8,6 +8,8 @@ nothing at start-up.
 """
 from __future__ import annotations
 
+__all__ = ["MAX_FACTOR", "largest_prime_factor", "fast_length", "fast_dct1_rows"]
+
 MAX_FACTOR = 7
 
 

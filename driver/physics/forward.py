@@ -34,6 +34,8 @@ from driver.physics.axes import centred_index
 from driver.physics.fast_lengths import fast_dct1_rows, fast_length
 from driver.physics.nufft_plans import lateral_plan
 
+__all__ = ["forward_grid", "forward_points"]
+
 
 def _check_common(p0, dx, dz, dt, n_t, c, t0, eps):
     p0 = np.asarray(p0)

@@ -41,6 +41,11 @@ import scipy.fft
 
 from driver.physics.fast_lengths import fast_length
 
+__all__ = [
+    "KINDS", "TemporalGrid", "kernel_params", "es_kernel", "kernel_polynomials", "grid_length", "make_grid",
+    "transpose", "to_fine_grid", "from_fine_grid", "group_columns", "evaluate", "spread",
+]
+
 KINDS = ("nufft", "linear", "nearest")
 _KIND_CODE = {"nufft": 0, "linear": 1, "nearest": 2}
 

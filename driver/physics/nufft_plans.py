@@ -23,6 +23,8 @@ from typing import Any
 import finufft
 import numpy as np
 
+__all__ = ["MAX_PLANS", "lateral_plan", "clear_plans"]
+
 #: plans kept (each holds one fine grid: ~(1.25..2)^d x the mode count x 8..16 bytes with
 #: one thread, and the sorted points)
 MAX_PLANS = 8

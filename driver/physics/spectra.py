@@ -30,6 +30,11 @@ from importlib import resources
 
 import numpy as np
 
+__all__ = [
+    "CHROMOPHORES", "HB_MOLAR_MASS_G_PER_MOL", "BLOOD_THB", "extinction_table", "table_range",
+    "molar_extinction", "absorption",
+]
+
 #: chromophore order of every ``(..., 2)`` array in this module and in the unmixing
 CHROMOPHORES: tuple[str, str] = ("HbO2", "Hb")
 #: molar mass of haemoglobin used by Prahl's page to convert g/L to mol/L, g/mol

@@ -33,6 +33,11 @@ from service.settings import Settings
 if TYPE_CHECKING:
     from service.jobs.store import JobStore
 
+__all__ = [
+    "VERSION", "PROCESS_START", "ERROR_RESPONSES", "allowed_methods", "UploadLimit", "MIN_BODY_RATE",
+    "ShortIds", "DISK_USAGE_TTL_S", "DiskUsageCache", "warm_routes", "create_app",
+]
+
 log = logging.getLogger("fpscan.api")
 
 VERSION = software_version()

@@ -18,6 +18,8 @@ import numpy as np
 
 from service.storage.datasets import GridDataset, PointDataset, detect_format, load_dataset, load_scan
 
+__all__ = ["DenseDataset", "load_dense", "add_noise"]
+
 
 @dataclass
 class DenseDataset(GridDataset):

@@ -39,6 +39,8 @@ from .datasets import DenseDataset, add_noise
 from .phantoms import tree_phantom, tree_roi
 from .result import ExperimentResult, setup_matplotlib
 
+__all__ = ["NAME", "PAPER", "resample_depth", "simulate_tree", "run", "plot"]
+
 NAME = "limited-view-2d"
 PAPER = {"cc_equiangular": 0.913, "cc_best_equispaced": 0.849, "best_interval": 13,
          "cc_interpolated": 0.7348, "sharpness_equiangular": 23001, "sharpness_interpolated": 21474}

@@ -31,6 +31,11 @@ from service.jobs.store import JobStore
 from service.jobs.work import run_reconstruction
 from service.pipeline import Cancelled
 
+__all__ = [
+    "AdmissionError", "CALIBRATION", "MAX_DEPTH_ROWS", "working_depth_rows", "estimate_memory", "admit",
+    "INCOMING", "remove_debris", "ReconQueue",
+]
+
 log = logging.getLogger("fpscan.jobs")
 
 

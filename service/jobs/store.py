@@ -22,6 +22,8 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any, overload
 
+__all__ = ["STATES", "TERMINAL", "ACTIVE", "KINDS", "IdempotencyConflict", "Jobs", "JobStore"]
+
 STATES = ("queued", "running", "paused", "succeeded", "failed", "cancelled")
 TERMINAL = frozenset({"succeeded", "failed", "cancelled"})
 ACTIVE = frozenset(STATES) - TERMINAL

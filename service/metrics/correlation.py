@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+__all__ = ["correlation_coefficient"]
+
 
 def correlation_coefficient(image: np.ndarray, reference: np.ndarray, mask: np.ndarray | None = None) -> float:
     """Pearson correlation coefficient of ``image`` and ``reference`` over ``mask``.

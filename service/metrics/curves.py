@@ -19,6 +19,8 @@ from .correlation import correlation_coefficient
 from .roi import _axes_for, roi_mask
 from .sharpness import tenenbaum_sharpness
 
+__all__ = ["cc_vs_pixels", "cc_vs_diameter", "sharpness_vs_diameter"]
+
 
 def _same_shape(image: np.ndarray, reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     image = np.asarray(image, dtype=float)

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+__all__ = ["MIP_AXES", "mip", "mips"]
+
 #: MIP name -> the axis of a ``(n_z, n_y, n_x)`` volume it projects along.
 MIP_AXES = {"xy": 0, "xz": 1, "yz": 2}
 

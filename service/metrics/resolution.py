@@ -17,6 +17,11 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from scipy.optimize import curve_fit
 
+__all__ = [
+    "MIN_FWHM_SAMPLES", "lorentz", "edge_spread", "LorentzFit", "EdgeFit", "fit_lorentz", "fit_edge_spread",
+    "side_lobe_level",
+]
+
 #: Fits whose FWHM comes out below this many sample spacings are rejected as
 #: under-sampled (least squares then degenerates to a 1/(z - z0)² tail; the paper also
 #: omitted edges where a single sample marked the transition).

@@ -11,6 +11,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+__all__ = ["disc_mask", "roi_mask", "bounding_box"]
+
 
 def _axes_for(shape: tuple[int, ...], axes: Sequence[np.ndarray] | None) -> list[np.ndarray]:
     if axes is None:

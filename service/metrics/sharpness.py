@@ -13,6 +13,8 @@ from scipy import ndimage
 
 from .roi import bounding_box
 
+__all__ = ["tenenbaum_sharpness"]
+
 
 def tenenbaum_sharpness(image: np.ndarray, mask: np.ndarray | None = None) -> float:
     """Normalised Tenenbaum sharpness F/N of a 2-D image.
