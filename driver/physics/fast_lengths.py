@@ -16,9 +16,23 @@ MAX_FACTOR = 7
 def largest_prime_factor(n: int) -> int:
     """Largest prime factor of the integer ``n >= 1`` (1 for n = 1).
 
+    Parameters
+    ----------
+    n : int >= 1.
+
+    Returns
+    -------
+    int.
+
     Raises
     ------
     ValueError for n < 1.
+
+    Examples
+    --------
+    >>> from driver.physics.fast_lengths import largest_prime_factor
+    >>> largest_prime_factor(2 * 3 * 7 * 13), largest_prime_factor(1)
+    (13, 1)
     """
     n = int(n)
     if n < 1:
@@ -43,9 +57,27 @@ def fast_length(n: int, real: bool = False, even: bool = False) -> int:
     DCT; = ``scipy.fft.next_fast_len(n, real=True)``), 7-smooth for a complex one;
     ``even`` asks for an even length.
 
+    Parameters
+    ----------
+    n : int >= 1, the shortest acceptable length (samples).
+    real : bool
+        A real transform (5-smooth) instead of a complex one (7-smooth).
+    even : bool
+        Only even lengths.
+
+    Returns
+    -------
+    int >= n.
+
     Raises
     ------
     ValueError for n < 1.
+
+    Examples
+    --------
+    >>> from driver.physics.fast_lengths import fast_length
+    >>> fast_length(97), fast_length(97, real=True)  # 98 = 2·7², 100 = 2²·5²
+    (98, 100)
     """
     n = int(n)
     if n < 1:
@@ -59,5 +91,20 @@ def fast_length(n: int, real: bool = False, even: bool = False) -> int:
 
 def fast_dct1_rows(n: int) -> int:
     """Smallest K >= max(n, 2) whose DCT-I (an FFT of the real, even extension of length
-    2 (K - 1)) runs at a fast real length."""
+    2 (K - 1)) runs at a fast real length.
+
+    Parameters
+    ----------
+    n : int, the fewest rows (samples) wanted.
+
+    Returns
+    -------
+    int K >= max(n, 2).
+
+    Examples
+    --------
+    >>> from driver.physics.fast_lengths import fast_dct1_rows
+    >>> fast_dct1_rows(100)  # 2·(101 - 1) = 200 = 2³·5²
+    101
+    """
     return fast_length(2 * (max(int(n), 2) - 1), real=True, even=True) // 2 + 1
