@@ -335,8 +335,25 @@ def _place_columns(A, scale, shift, L, U):
 
 
 @numba.njit(parallel=True, cache=True)
-def transpose(F, out):
-    """out[j, c] = F[c, j] for 2-D arrays, in cache-friendly tiles (parallel)."""
+def transpose(F: np.ndarray, out: np.ndarray) -> None:
+    """out[j, c] = F[c, j] for 2-D arrays, in cache-friendly tiles (parallel).
+
+    Parameters
+    ----------
+    F : ndarray ``(n_c, n_j)``.
+    out : ndarray ``(n_j, n_c)``, written in place (any dtype ``F`` converts to).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from driver.physics.nufft import transpose
+    >>> out = np.empty((3, 2))
+    >>> transpose(np.arange(6.0).reshape(2, 3), out)
+    >>> out
+    array([[0., 3.],
+           [1., 4.],
+           [2., 5.]])
+    """
     n_c, n_j = F.shape
     tile = 64
     n_blocks = (n_j + tile - 1) // tile
@@ -355,6 +372,27 @@ def to_fine_grid(A: np.ndarray, grid: TemporalGrid, t0_is_zero: bool) -> np.ndar
     -> (n_cols, L) values of S on the fine theta grid, one column per row.
 
     ``A`` is not modified. The t = 0 sample is halved when ``t0_is_zero``.
+
+    Parameters
+    ----------
+    A : ndarray ``(n_t, n_cols)``, real or complex (float32/complex64 stay single precision).
+    grid : TemporalGrid of ``n_t`` (:func:`make_grid`).
+    t0_is_zero : bool, whether sample 0 is at t = 0.
+
+    Returns
+    -------
+    ndarray ``(n_cols, grid.L)`` complex.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from driver.physics.nufft import evaluate, from_fine_grid, make_grid, spread, to_fine_grid
+    >>> n_t, dt, c, t0 = 32, 1e-8, 1500.0, 1e-7  # samples, s, m/s, s
+    >>> t = t0 + dt * np.arange(n_t)
+    >>> kz = np.array([1e4, 5e4, 2e5])  # rad/m; one column with k_lat = 0: omega = c kz
+    >>> grid = make_grid(n_t, "nufft", 1e-10)
+    >>> to_fine_grid(np.ones((n_t, 2)), grid, t0_is_zero=False).shape  # (n_cols, L)
+    (2, 64)
     """
     n_t, n_cols = A.shape
     ctype = np.complex64 if A.dtype in (np.float32, np.complex64) else np.complex128
@@ -371,7 +409,34 @@ def to_fine_grid(A: np.ndarray, grid: TemporalGrid, t0_is_zero: bool) -> np.ndar
 
 def from_fine_grid(R: np.ndarray, grid: TemporalGrid, t0_is_zero: bool, overwrite: bool = False) -> np.ndarray:
     """Adjoint of `to_fine_grid`: (n_cols, L) spread values -> (n_cols, n_t) series.
-    ``overwrite``: R may be overwritten (no second fine grid at the peak)."""
+
+    Parameters
+    ----------
+    R : ndarray ``(n_cols, grid.L)`` complex (from :func:`spread`).
+    grid : TemporalGrid.
+    t0_is_zero : bool, whether sample 0 is at t = 0 (its weight is halved).
+    overwrite : bool
+        ``R`` may be overwritten (no second fine grid at the peak).
+
+    Returns
+    -------
+    ndarray ``(n_cols, n_t)`` complex.
+
+    Examples
+    --------
+    With :func:`spread` it computes the forward model's g_n = Σ_l b_l 2 cos(ω_l t_n):
+
+    >>> import numpy as np
+    >>> from driver.physics.nufft import evaluate, from_fine_grid, make_grid, spread, to_fine_grid
+    >>> n_t, dt, c, t0 = 32, 1e-8, 1500.0, 1e-7  # samples, s, m/s, s
+    >>> t = t0 + dt * np.arange(n_t)
+    >>> kz = np.array([1e4, 5e4, 2e5])  # rad/m; one column with k_lat = 0: omega = c kz
+    >>> grid = make_grid(n_t, "nufft", 1e-10)
+    >>> b = np.array([[1.0, 0.5, -0.25]], dtype=complex)  # (n_cols, n_kz)
+    >>> g = from_fine_grid(spread(b, grid, np.zeros(1), kz, np.ones(3), c, dt, t0), grid, False)
+    >>> bool(np.allclose(g[0], 2 * np.cos(np.outer(t, c * kz)) @ b[0], atol=1e-8))
+    True
+    """
     n_t = grid.n_t
     # adjoint of the forward FFT (no 1/L)
     V = scipy.fft.ifft(R, axis=-1, workers=-1, norm="forward", overwrite_x=overwrite)
@@ -580,6 +645,44 @@ def evaluate(
     groups: `group_columns` (klat2) when the caller keeps it (an operator applied many
     times); None: computed here.
     Returns (n_cols, n_kz) complex.
+
+    Parameters
+    ----------
+    U : ndarray ``(n_cols, L)`` from :func:`to_fine_grid`.
+    grid : TemporalGrid.
+    klat2 : ndarray ``(n_cols,)``, |k_lat|² in rad²/m².
+    kz : ndarray ``(n_kz,)``, depth wavenumbers in rad/m.
+    qw : ndarray ``(n_kz,)``, weights per kz.
+    c : float, m/s.  dt : float, s.  t0 : float, s (time of sample 0).
+    inversion : bool, see above.
+    out_dtype, progress, n_chunks, groups
+        See above.
+
+    Returns
+    -------
+    ndarray ``(n_cols, n_kz)`` complex.
+
+    References
+    ----------
+    .. [1] K. Fourmont, "Non-equispaced fast Fourier transforms with applications to
+       tomography", J. Fourier Anal. Appl. 9 (2003).
+
+    Examples
+    --------
+    The transform of the evenly extended series, E(ω) = Σ_n a_n 2 cos(ω t_n), against the
+    direct sum:
+
+    >>> import numpy as np
+    >>> from driver.physics.nufft import evaluate, from_fine_grid, make_grid, spread, to_fine_grid
+    >>> n_t, dt, c, t0 = 32, 1e-8, 1500.0, 1e-7  # samples, s, m/s, s
+    >>> t = t0 + dt * np.arange(n_t)
+    >>> kz = np.array([1e4, 5e4, 2e5])  # rad/m; one column with k_lat = 0: omega = c kz
+    >>> grid = make_grid(n_t, "nufft", 1e-10)
+    >>> a = np.random.default_rng(0).standard_normal((n_t, 1))  # (n_t, n_cols)
+    >>> U = to_fine_grid(a, grid, t0_is_zero=False)
+    >>> E = evaluate(U, grid, np.zeros(1), kz, np.ones(3), c, dt, t0, inversion=False)
+    >>> bool(np.allclose(E[0], 2 * np.cos(np.outer(c * kz, t)) @ a[:, 0], atol=1e-8))
+    True
     """
     gvals, gptr, order = group_columns(klat2) if groups is None else groups
     out = np.empty((U.shape[0], len(kz)), dtype=out_dtype or U.dtype)
@@ -615,7 +718,35 @@ def spread(
 ) -> np.ndarray:
     """Adjoint of `evaluate` with ``inversion=False``: (n_cols, n_kz) coefficients ->
     (n_cols, L) spread fine-grid values (input of `from_fine_grid`); ``groups`` as
-    `evaluate`."""
+    `evaluate`.
+
+    Parameters
+    ----------
+    B : ndarray ``(n_cols, n_kz)`` complex.
+    grid, klat2, kz, qw, c, dt, t0, groups
+        As :func:`evaluate` (units rad²/m², rad/m, m/s, s).
+
+    Returns
+    -------
+    ndarray ``(n_cols, grid.L)`` complex.
+
+    Examples
+    --------
+    The adjoint identity <evaluate(a), b> = <a, from_fine_grid(spread(b))>:
+
+    >>> import numpy as np
+    >>> from driver.physics.nufft import evaluate, from_fine_grid, make_grid, spread, to_fine_grid
+    >>> n_t, dt, c, t0 = 32, 1e-8, 1500.0, 1e-7  # samples, s, m/s, s
+    >>> t = t0 + dt * np.arange(n_t)
+    >>> kz = np.array([1e4, 5e4, 2e5])  # rad/m; one column with k_lat = 0: omega = c kz
+    >>> grid = make_grid(n_t, "nufft", 1e-10)
+    >>> a = np.random.default_rng(0).standard_normal((n_t, 1))
+    >>> b = np.array([[1.0, 0.5, -0.25]], dtype=complex)
+    >>> E = evaluate(to_fine_grid(a, grid, False), grid, np.zeros(1), kz, np.ones(3), c, dt, t0, False)
+    >>> g = from_fine_grid(spread(b, grid, np.zeros(1), kz, np.ones(3), c, dt, t0), grid, False)
+    >>> bool(np.isclose(np.vdot(b[0], E[0]), np.vdot(g[0], a[:, 0])))
+    True
+    """
     gvals, gptr, order = group_columns(klat2) if groups is None else groups
     ctype = np.complex64 if B.dtype == np.complex64 else np.complex128
     R = np.zeros((B.shape[0], grid.L), dtype=ctype)

@@ -16,10 +16,6 @@ MODULES = [
     "service.metrics.correlation", "service.metrics.curves", "service.metrics.projections",
     "service.metrics.resolution", "service.metrics.roi", "service.metrics.sharpness",
 ]
-#: Not documented with sections yet: the numba-backed steps of the temporal NUFFT, used
-#: only inside ``service.recon`` and ``driver.physics.forward`` (their Examples need the
-#: JIT; they are tested through the reconstructions).
-NOT_YET = {"driver.physics.nufft": {"transpose", "to_fine_grid", "from_fine_grid", "evaluate", "spread"}}
 
 
 def _sections(doc: str) -> set[str]:
@@ -34,15 +30,15 @@ def _public_objects(module_name: str):
     module = importlib.import_module(module_name)
     for name in module.__all__:
         obj = getattr(module, name)
-        if (inspect.isfunction(obj) or inspect.isclass(obj) or callable(getattr(obj, "__wrapped__", None))) \
-                and name not in NOT_YET.get(module_name, ()):
+        # __wrapped__: functools.lru_cache and numba's dispatchers
+        if inspect.isfunction(obj) or inspect.isclass(obj) or callable(getattr(obj, "__wrapped__", None)):
             yield name, obj
 
 
 def _wanted(obj) -> set[str]:
     if inspect.isclass(obj):
         return {"Attributes", "Examples"}
-    fn = getattr(obj, "__wrapped__", obj)  # functools.lru_cache
+    fn = getattr(obj, "__wrapped__", obj)
     sig = inspect.signature(fn)
     wanted = {"Examples"}
     if sig.parameters:
