@@ -107,7 +107,7 @@ def job(c, ds: str, method: str) -> tuple[float, dict]:
     return dt, j
 
 
-def main() -> int:  # noqa: C901 -- one linear measurement script
+def _parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", type=int, nargs="+", default=[128, 226, 256], help="lateral sizes n (n x n)")
     ap.add_argument("--n-t", type=int, default=256)
@@ -115,54 +115,74 @@ def main() -> int:  # noqa: C901 -- one linear measurement script
     ap.add_argument("--no-cli", action="store_true", help="skip the command-line column")
     ap.add_argument("--json", action="store_true", help="also print the raw numbers as JSON")
     ap.add_argument("--library-child", nargs="+", help=argparse.SUPPRESS)
-    args = ap.parse_args()
+    return ap.parse_args(argv)
+
+
+def main() -> int:
+    args = _parse_args()
     if args.library_child:
         _library_child(args.library_child[0], args.library_child[1:])
         return 0
-
-    import httpx
-
-    from clients.processes import start_service
 
     load_start = os.getloadavg()
     rows: dict[tuple[str, int], dict] = {}
     extra: dict = {}
     with tempfile.TemporaryDirectory() as tmp_s:
         tmp = Path(tmp_s)
-        paths = []
-        for n in args.sizes:
-            p = tmp / f"d{n}.npy"
-            np.save(p, dataset(args.n_t, n))
-            paths.append(p)
+        paths = _write_datasets(tmp, args.sizes, args.n_t)
         for m in args.methods:
             for n, lib in zip(args.sizes, library(m, paths)):
                 rows[(m, n)] = {"lib_cold_s": lib["cold_s"], "lib_warm_s": lib["warm_s"]}
-        t = time.perf_counter()
-        srv = start_service(tmp / "data", token=TOKEN, web=False, env={"FPSCAN_LOG_LEVEL": "warning"},
-                            log_path=tmp / "server.log")
-        extra["startup_to_healthy_s"] = time.perf_counter() - t
-        try:
-            with httpx.Client(base_url=srv.url, headers={"Authorization": f"Bearer {TOKEN}"}, timeout=600) as c:
-                ids = {}
-                for n, p in zip(args.sizes, paths):
-                    ids[n] = _upload(c, p)
-                    if n == args.sizes[0]:  # the first job, right after start-up (worker still warming)
-                        first, _ = job(c, ids[n], args.methods[0])
-                        extra["first_job_s"] = first
-                        extra["first_job_over_lib"] = first / rows[(args.methods[0], n)]["lib_warm_s"]
-                for m in args.methods:
-                    for n in args.sizes:
-                        dt, j = job(c, ids[n], m)
-                        tm = j["params"]["result"]["timings"]
-                        rows[(m, n)].update(http_s=dt, recon_s=tm["reconstruct_s"], write_s=tm["write_s"],
-                                            load=os.getloadavg()[0])
-        finally:
-            srv.stop(timeout=20)
+        _measure_http(args, tmp, paths, rows, extra)
         if not args.no_cli:
             for m in args.methods:
                 for n, p in zip(args.sizes, paths):
                     rows[(m, n)]["cli_s"] = cli(m, p, tmp / f"cli-{m}-{n}")
-    load_end = os.getloadavg()
+    _print_table(args, rows, extra, load_start, os.getloadavg())
+    return 0
+
+
+def _write_datasets(tmp: Path, sizes: list[int], n_t: int) -> list[Path]:
+    """One ``.npy`` dataset per lateral size in ``tmp``."""
+    paths = []
+    for n in sizes:
+        p = tmp / f"d{n}.npy"
+        np.save(p, dataset(n_t, n))
+        paths.append(p)
+    return paths
+
+
+def _measure_http(args: argparse.Namespace, tmp: Path, paths: list[Path], rows: dict, extra: dict) -> None:
+    """Start a server; time start-up, the first job after it and one job per method and size."""
+    import httpx
+
+    from clients.processes import start_service
+
+    t = time.perf_counter()
+    srv = start_service(tmp / "data", token=TOKEN, web=False, env={"FPSCAN_LOG_LEVEL": "warning"},
+                        log_path=tmp / "server.log")
+    extra["startup_to_healthy_s"] = time.perf_counter() - t
+    try:
+        with httpx.Client(base_url=srv.url, headers={"Authorization": f"Bearer {TOKEN}"}, timeout=600) as c:
+            ids = {}
+            for n, p in zip(args.sizes, paths):
+                ids[n] = _upload(c, p)
+                if n == args.sizes[0]:  # the first job, right after start-up (worker still warming)
+                    first, _ = job(c, ids[n], args.methods[0])
+                    extra["first_job_s"] = first
+                    extra["first_job_over_lib"] = first / rows[(args.methods[0], n)]["lib_warm_s"]
+            for m in args.methods:
+                for n in args.sizes:
+                    dt, j = job(c, ids[n], m)
+                    tm = j["params"]["result"]["timings"]
+                    rows[(m, n)].update(http_s=dt, recon_s=tm["reconstruct_s"], write_s=tm["write_s"],
+                                        load=os.getloadavg()[0])
+    finally:
+        srv.stop(timeout=20)
+
+
+def _print_table(args: argparse.Namespace, rows: dict, extra: dict, load_start, load_end) -> None:
+    """The markdown table, the start-up lines and (``--json``) the raw numbers."""
 
     def f(v, fmt="{:.2f}"):
         return "–" if v is None else fmt.format(v)
@@ -185,8 +205,6 @@ def main() -> int:  # noqa: C901 -- one linear measurement script
     if args.json:
         print(json.dumps({"rows": [{"method": m, "n": n, **r} for (m, n), r in rows.items()], **extra,
                           "n_t": args.n_t, "load_start": load_start, "load_end": load_end}, indent=1))
-    return 0
-
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -57,6 +57,7 @@ class Process:
 
     def __init__(self, argv: list[str], *, log_path: str | os.PathLike, env: Mapping[str, str] | None = None,
                  stdout_pipe: bool = False, cwd: str | os.PathLike | None = None):
+        self.argv = list(argv)
         self.log_path = Path(log_path)
         self.log_path.parent.mkdir(parents=True, exist_ok=True)
         self._log: IO[bytes] = open(self.log_path, "ab")  # closed in stop()
@@ -103,7 +104,7 @@ class Process:
                     return line.decode().strip()
             elif self.proc.poll() is not None:
                 break
-        raise RuntimeError(f"{' '.join(map(str, self.proc.args[2:4]))} printed no first line within "
+        raise RuntimeError(f"{' '.join(map(str, self.argv[2:4]))} printed no first line within "
                            f"{timeout:.0f} s (exit {self.proc.poll()}):\n{self.log_tail()}")
 
     def _drain(self) -> None:

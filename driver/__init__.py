@@ -15,3 +15,5 @@ Modules (protocol: docs/protocol.md):
 Keep this file free of heavy imports: `driver.physics` is imported by
 `service.recon` and must stay numpy/scipy/finufft only.
 """
+
+__all__: list[str] = []  # the package's API is its modules

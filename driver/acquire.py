@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+__all__ = ["software_version", "acquire"]
+
 
 def software_version() -> str:
     """The installed fpscan version (``0+unknown`` when not installed).

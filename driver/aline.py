@@ -33,6 +33,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+__all__ = ["ALINE_HEADER", "META_KEYS", "ALine", "pack_aline", "unpack_aline"]
+
 ALINE_HEADER = struct.Struct("<IIIIQdddddffIId")
 META_KEYS = ("run_id", "boot_id", "point_index", "pulse_number", "timestamp_s",
              "bias_wavelength_m", "dc_level", "pulse_energy_j", "dt_s", "scale", "offset",

@@ -11,6 +11,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+__all__ = [
+    "MAX_CHUNK", "MAX_COMMAND", "IDN", "RESET", "CLEAR", "OPC", "SYST_ERROR", "SYST_ERROR_NEXT",
+    "SYST_PROTOCOL", "SYST_BOOT", "SYST_LIMITS", "PLAN_BEGIN", "PLAN_DATA", "PLAN_END", "PLAN_ID",
+    "PLAN_HASH", "PLAN_POINTS", "SCAN_START", "SCAN_PAUSE", "SCAN_RESUME", "SCAN_ABORT", "SCAN_STATUS",
+    "LASER_INTERLOCK", "NODES", "ScpiError", "Command", "canonical_header", "parse_command", "int_arg",
+    "plan_begin", "plan_data", "plan_end", "scan_start", "block", "error_of",
+]
+
 #: largest PLAN:DATA block, bytes
 MAX_CHUNK = 4096
 #: largest command payload, bytes

@@ -21,6 +21,11 @@ from enum import IntEnum
 
 from cobs import cobs as _cobs
 
+__all__ = [
+    "PROTOCOL_VERSION", "HEADER", "CRC", "MAX_PAYLOAD", "MAX_WIRE", "FrameType", "FrameError", "Frame",
+    "encode_frame", "decode_frame", "Deframer",
+]
+
 #: protocol version (docs/protocol.md §12): 2 adds the wavelength to A-lines and plan images
 PROTOCOL_VERSION = 2
 HEADER = struct.Struct("<BBHII")

@@ -39,6 +39,11 @@ from driver.framing import PROTOCOL_VERSION, Deframer, Frame, FrameType, encode_
 from driver.plan import aline_index, aline_order, load_plan, plan_image, wavelength_order
 from driver.transport import READER_MODES, TransportError, open_reader
 
+__all__ = [
+    "DriverError", "DeviceTimeout", "DeviceError", "InterlockOpen", "DeviceStatus", "Progress", "ScanResult",
+    "Scanner", "ScanSession",
+]
+
 
 class DriverError(RuntimeError):
     """The scanner link failed (base class of the driver's errors)."""

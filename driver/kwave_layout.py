@@ -15,6 +15,8 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
+__all__ = ["attribute", "is_kwave_named", "lateral_spacings"]
+
 
 def attribute(data_attrs: Mapping[str, Any], file_attrs: Mapping[str, Any], name: str) -> Any:
     """The attribute ``name`` of the array, else of the file, else None."""

@@ -51,6 +51,14 @@ import numpy as np
 from driver.constants import C_DEFAULT, C_LIMITS
 from driver.physics.axes import centred_positions
 
+__all__ = [
+    "IMAGE_HEADER", "IMAGE_SPECTRAL", "MAGIC", "IMAGE_VERSION", "MAX_WAVELENGTHS", "WAVELENGTH_ORDERS",
+    "PLAN_FORMAT", "WAVELENGTH_RANGE", "MAX_LATTICE_POINTS", "N_T_RANGE", "MIN_N_T", "MAX_N_T", "MAX_DT",
+    "MAX_AVERAGES", "MAX_PRF", "canonical_json", "plan_id_of", "check_wavelengths", "check_acquisition",
+    "wavelength_order", "aline_order", "aline_index", "MAX_WEIGHT_AREAS", "check_plan", "lattice_positions",
+    "load_plan", "file_kind", "DevicePlan", "plan_image", "image_size_limit", "parse_plan_image",
+]
+
 IMAGE_HEADER = struct.Struct("<4sHH32sIIdIIddddI")
 #: what image version 2 adds after IMAGE_HEADER: n_wavelengths, order, reserved
 IMAGE_SPECTRAL = struct.Struct("<HBB")
@@ -233,7 +241,7 @@ def aline_index(k, w, n_points: int, n_wavelengths: int, order: str):
 MAX_WEIGHT_AREAS = 4
 
 
-def check_plan(plan: Any) -> dict:  # noqa: C901 -- one flat list of the contract's checks (helper "plans")
+def check_plan(plan: Any) -> dict:
     """Check a parsed plan (docs/architecture.md "Plan JSON", ``fpscan-plan/1``): the one
     validation of the plan contract, used by the host driver, the scan file and the service.
 
@@ -248,6 +256,19 @@ def check_plan(plan: Any) -> dict:  # noqa: C901 -- one flat list of the contrac
 
     Returns the plan (unchanged). Raises ``ValueError`` naming the first problem.
     """
+    pid = _check_plan_header(plan)
+    n_x, n_y, pitch = _check_plan_lattice(plan["lattice"], plan["points"])
+    check_acquisition(plan["acquisition"])
+    _check_plan_points(plan["points"], n_x, n_y, pitch)
+    expected = plan_id_of(plan)
+    if pid != expected:
+        raise ValueError(f"plan id {pid[:16]}... does not match its content hash (sha256 {expected})")
+    return plan
+
+
+def _check_plan_header(plan: Any) -> str:
+    """``check_plan``: a JSON object of ``PLAN_FORMAT`` with every section and a
+    well-formed id; returns the id."""
     if not isinstance(plan, dict):
         raise ValueError(f"a plan must be a JSON object, got {type(plan).__name__}")
     if plan.get("format") != PLAN_FORMAT:
@@ -258,7 +279,11 @@ def check_plan(plan: Any) -> dict:  # noqa: C901 -- one flat list of the contrac
     pid = plan["id"]
     if not isinstance(pid, str) or len(pid) != 64 or any(ch not in "0123456789abcdef" for ch in pid):
         raise ValueError("plan id must be a lowercase sha256 hex digest")
-    lat, pts = plan["lattice"], plan["points"]
+    return pid
+
+
+def _check_plan_lattice(lat: Any, pts: Any) -> tuple[int, int, float]:
+    """``check_plan``: the lattice ``(n_x, n_y, pitch)`` (pitch in m), both sections objects."""
     if not isinstance(lat, dict) or not isinstance(pts, dict):
         raise ValueError("plan 'lattice' and 'points' must be objects")
     try:
@@ -269,7 +294,11 @@ def check_plan(plan: Any) -> dict:  # noqa: C901 -- one flat list of the contrac
         raise ValueError(f"plan lattice has no {exc}") from None
     if n_x * n_y > MAX_LATTICE_POINTS:
         raise ValueError(f"plan lattice {n_x}x{n_y} has more than {MAX_LATTICE_POINTS} points")
-    check_acquisition(plan["acquisition"])
+    return n_x, n_y, pitch
+
+
+def _plan_point_arrays(pts: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``check_plan``: ``points`` as arrays ``(indices, positions, weights)``, unchecked."""
     try:
         raw = np.asarray(pts["indices"])
         pos = np.asarray(pts["positions"], dtype=np.float64)
@@ -278,16 +307,30 @@ def check_plan(plan: Any) -> dict:  # noqa: C901 -- one flat list of the contrac
         raise ValueError(f"plan points has no {exc}") from None
     except (TypeError, ValueError) as exc:
         raise ValueError(f"plan points are malformed: {exc}") from None
+    return raw, pos, w
+
+
+def _check_plan_indices(raw: np.ndarray, n_x: int, n_y: int) -> np.ndarray:
+    """``check_plan``: ``points.indices`` ``(n_points, 2)`` distinct integers inside the
+    lattice; returns them as int64."""
     if raw.ndim != 2 or raw.shape[1:] != (2,) or raw.shape[0] < 1:
         raise ValueError(f"plan points.indices must be (n_points, 2) with n_points >= 1, got shape {raw.shape}")
     if raw.dtype.kind not in "iu":
         raise ValueError("plan points.indices must be integers")
     idx = raw.astype(np.int64)
-    n = idx.shape[0]
     if (idx < 0).any() or (idx[:, 0] >= n_x).any() or (idx[:, 1] >= n_y).any():
         raise ValueError(f"plan points.indices has points outside the lattice {n_x}x{n_y}")
-    if len(np.unique(idx[:, 0] * n_y + idx[:, 1])) != n:
+    if len(np.unique(idx[:, 0] * n_y + idx[:, 1])) != idx.shape[0]:
         raise ValueError("plan points.indices has duplicate points")
+    return idx
+
+
+def _check_plan_points(pts: dict, n_x: int, n_y: int, pitch: float) -> None:
+    """``check_plan``: indices, positions (the lattice positions of the indices, m) and
+    weights (finite, > 0, at most ``MAX_WEIGHT_AREAS`` lattice areas)."""
+    raw, pos, w = _plan_point_arrays(pts)
+    idx = _check_plan_indices(raw, n_x, n_y)
+    n = idx.shape[0]
     if pos.ndim != 2 or pos.shape[0] != n or pos.shape[1] not in (1, 2) or (pos.shape[1] == 1 and n_y != 1):
         raise ValueError(f"plan points.positions must be ({n}, 2) (or ({n}, 1) on a line lattice), "
                          f"got shape {pos.shape}")
@@ -305,10 +348,6 @@ def check_plan(plan: Any) -> dict:  # noqa: C901 -- one flat list of the contrac
     want = lattice_positions(idx, n_x, n_y, pitch)[:, :pos.shape[1]]
     if np.max(np.abs(pos - want)) > 1e-9 * pitch:
         raise ValueError("plan points.positions are not the lattice positions of points.indices")
-    expected = plan_id_of(plan)
-    if pid != expected:
-        raise ValueError(f"plan id {pid[:16]}... does not match its content hash (sha256 {expected})")
-    return plan
 
 
 def lattice_positions(indices: np.ndarray, n_x: int, n_y: int, pitch: float) -> np.ndarray:

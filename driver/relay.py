@@ -17,6 +17,8 @@ import os
 import select
 import sys
 
+__all__ = ["READY", "relay"]
+
 #: the relay's first byte: it is reading the tty (a frame delimiter, harmless to a deframer)
 READY = b"\x00"
 

@@ -84,6 +84,11 @@ from h5py import h5d, h5p, h5s, h5t
 from driver.constants import C_DEFAULT
 from driver.plan import canonical_json, check_plan, wavelength_order
 
+__all__ = [
+    "FORMAT", "FORMAT_1", "META_KEYS", "META_DTYPE", "META_CHUNK", "COMPLETED_CHUNK", "DURABLE_POLICIES",
+    "open_readonly", "ScanFile", "ScanData", "PRESSURE_UNITS", "pressure_unit", "completed_count",
+    "read_scan", "read_open_scan"]
+
 FORMAT = "fpscan-scan/2"
 #: the single-wavelength layout of fpscan ≤ 0.x, still read by read_scan
 FORMAT_1 = "fpscan-scan/1"

@@ -60,7 +60,9 @@ from driver.framing import Deframer, FrameType, encode_frame
 from driver.plan import DevicePlan, image_size_limit, parse_plan_image
 
 if TYPE_CHECKING:
-    from driver.sources import Source
+    from driver.sources import PressureFn, Source
+
+__all__ = ["FIRMWARE_VERSION", "INITIAL_WINDOW", "BLOCK", "SimConfig", "SimulatedScanner"]
 
 FIRMWARE_VERSION = "1.0"
 INITIAL_WINDOW = 8
@@ -196,7 +198,7 @@ class SimulatedScanner:
         self._plan_image = bytearray()
         self._plan_expected = 0
         self._plan_hash = ""
-        self._pressure = None
+        self._pressure: PressureFn | None = None
         self._blocks: dict[int, Future] = {}
         self._errors: collections.deque = collections.deque()
         self._last_cmd: tuple[int, bytes] | None = None
@@ -665,15 +667,17 @@ class SimulatedScanner:
         except ValueError as exc:
             raise _Error(-224, f"Illegal parameter value; {exc}") from None
         c = self.config
+        source = c.source
+        assert source is not None  # set in __init__
         if plan.n_alines > c.max_points or plan.n_t > c.max_samples:
             raise _Error(-222, f"Data out of range; plan of {plan.n_points} points × "
                                f"{plan.n_t} samples exceeds the device's {c.max_points} × "
                                f"{c.max_samples}")
         try:
-            pressure = c.source.prepare(plan)
+            pressure = source.prepare(plan)
         except ValueError as exc:
             raise _Error(-221, f"Settings conflict; {exc}") from None
-        self._peak = float(c.source.peak)
+        self._peak = float(source.peak)
         self._plan, self._pressure, self._plan_hash = plan, pressure, got
         self._order = plan.aline_order()
         self._plan_expected = 0
@@ -688,7 +692,7 @@ class SimulatedScanner:
             self._record_order.append(plan.plan_id)
         if c.precompute:
             for bi in range(math.ceil(plan.n_alines / BLOCK)):
-                self._blocks[bi] = done = Future()
+                self._blocks[bi] = done = Future[dict]()
                 done.set_result(self._generate(plan, pressure, bi))
         else:
             self._blocks[0] = self._pool.submit(self._generate, plan, pressure, 0)

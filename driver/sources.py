@@ -31,6 +31,8 @@ from driver.constants import C_DEFAULT
 from driver.kwave_layout import lateral_spacings
 from driver.plan import DevicePlan
 
+__all__ = ["PressureFn", "Source", "default_phantom", "BallSource", "VolumeSource", "ReplaySource"]
+
 PressureFn = Callable[..., np.ndarray]  # pressure(ks, ws=None) -> (len(ks), n_t)
 
 

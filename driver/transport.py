@@ -30,6 +30,11 @@ import sys
 import serial
 from serial.threaded import Protocol, ReaderThread
 
+__all__ = [
+    "READER_MODES", "RELAY_START_TIMEOUT", "TransportError", "DirectReader", "ThreadReader", "RelayReader",
+    "open_reader",
+]
+
 READER_MODES = ("process", "thread", "direct")
 _WAIT = 0.02  #: longest wait for the first byte of a read(), s
 RELAY_START_TIMEOUT = 10.0  #: longest wait for the relay process to start reading, s

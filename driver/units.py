@@ -32,6 +32,11 @@ from typing import Any
 
 from driver.constants import C_DEFAULT, C_LIMITS, C_PLAUSIBLE
 
+__all__ = [
+    "KINDS", "PITCH_RANGE", "DT_RANGE", "RefusedInput", "ImplausibleValue", "parse_quantity", "suggest_unit",
+    "check_speeds", "check_plausible",
+]
+
 #: what each kind of quantity is measured in: (pint dimensionality, SI unit name)
 KINDS = {
     "length": ("[length]", "m"),

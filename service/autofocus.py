@@ -38,6 +38,11 @@ import numpy as np
 
 from driver.constants import C_AUTOFOCUS_LIMITS, C_AUTOFOCUS_RANGE
 
+__all__ = [
+    "MAX_DECIMATION", "Autofocus", "check_c_range", "focus_sharpness", "choose_decimation", "search",
+    "autofocus", "ITERATIVE_METHODS", "focus_then_reconstruct",
+]
+
 MAX_DECIMATION = 8
 
 

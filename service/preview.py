@@ -27,6 +27,10 @@ import numpy as np
 
 from driver.constants import C_DEFAULT
 
+__all__ = [
+    "PreviewState", "render_preview_png", "preview_grid", "render_preview", "warm_up", "PreviewManager",
+]
+
 log = logging.getLogger("fpscan.preview")
 
 

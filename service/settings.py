@@ -20,6 +20,8 @@ from typing import Any, Literal
 from pydantic import Field, SecretStr, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+__all__ = ["LOOPBACK_HOSTS", "is_loopback", "Settings"]
+
 LOOPBACK_HOSTS = {"127.0.0.1", "localhost", "::1"}
 
 

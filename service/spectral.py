@@ -31,9 +31,12 @@ import numpy as np
 from service.formats.unmix import UNMIX_FORMAT, read_unmix
 from service.recon.unmix import Unmixed, endmember_matrix, too_few_wavelengths, unmix
 
-__all__ = ["UNMIX_FORMAT", "read_unmix", "dataset_wavelengths", "reconstruct_wavelengths", "write_wavelength_results",
-           "unmix_reconstructions", "so2_map", "thb_map", "render_so2_png", "write_unmix", "load_wavelength_datasets",
-           "reconstruct_and_unmix"]
+__all__ = [
+    "UNMIX_FORMAT", "MASK_COLOUR", "dataset_wavelengths", "reconstruct_wavelengths",
+    "write_wavelength_results", "unmix_reconstructions", "so2_map", "thb_map", "render_so2_png",
+    "write_unmix", "read_unmix", "load_wavelength_datasets", "reconstruct_and_unmix",
+]
+
 #: masked pixels of the sO2 picture (THb below the threshold, sO2 unknown): black
 MASK_COLOUR = (0.0, 0.0, 0.0, 1.0)
 

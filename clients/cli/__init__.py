@@ -24,6 +24,8 @@ import os
 import re
 import sys
 
+__all__ = ["build_parser", "NEGATIVE_QUANTITY", "allow_negative_quantities", "main", "reason"]
+
 
 def _subcommand_modules():
     # the package's own .py files (not pkgutil.iter_modules, which imports inspect: a
@@ -91,7 +93,7 @@ def allow_negative_quantities(parser: argparse.ArgumentParser) -> None:
     unknown option). argparse reads a token starting with ``-`` as a value only when it
     matches its negative-number pattern (plain ``-2``, ``-.5``); no fpscan option looks like
     a number, so the pattern is widened to numbers with exponents and units."""
-    parser._negative_number_matcher = NEGATIVE_QUANTITY  # type: ignore[attr-defined]
+    parser._negative_number_matcher = NEGATIVE_QUANTITY
     for action in parser._actions:
         if isinstance(action, argparse._SubParsersAction):
             for sub in set(action.choices.values()):

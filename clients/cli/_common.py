@@ -7,6 +7,12 @@ import os
 import sys
 import time
 from collections.abc import Callable
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import threading
+
+    from rich.progress import Progress, TaskID
 
 try:  # the base of refused input (a unit mistake, an option outside its rule): exit 2
     from driver.units import RefusedInput
@@ -216,9 +222,9 @@ class ProgressBar:
         self.quiet = quiet
         self.stream = stream or sys.stderr
         self.period = progress_period() if period is None else float(period)
-        self._progress = None
-        self._task = None
-        self._last_stage = None
+        self._progress: Progress | None = None
+        self._task: TaskID | None = None
+        self._last_stage: str | None = None
         self._eta = _EtaEstimate()
         self._latest: dict | None = None
         self._latest_at = 0.0
@@ -227,7 +233,7 @@ class ProgressBar:
 
         self._lock = threading.Lock()
         self._stop = threading.Event()
-        self._ticker = None  # the threading.Thread that prints between reports
+        self._ticker: threading.Thread | None = None  # prints between reports
 
     def __enter__(self) -> ProgressBar:
         if self.quiet:
@@ -242,13 +248,13 @@ class ProgressBar:
         from rich.console import Console
         from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-        self._progress = Progress(
+        bar = self._progress = Progress(
             TextColumn("[bold]{task.description}"), BarColumn(),
             TextColumn("{task.percentage:>5.1f}%"), TextColumn("{task.fields[info]}"),
             TimeElapsedColumn(), console=Console(file=self.stream), transient=False,
         )
-        self._progress.__enter__()
-        self._task = self._progress.add_task(self.label, total=1.0, info="")
+        bar.__enter__()
+        self._task = bar.add_task(self.label, total=1.0, info="")
         return self
 
     def __call__(self, progress: dict) -> None:
@@ -262,11 +268,9 @@ class ProgressBar:
         now = time.monotonic()
         if progress.get("eta_s") is None:
             progress["eta_s"] = self._eta(progress, now)
-        if self._progress is not None:
-            kw = {"info": describe_progress(progress, with_fraction=False)}
-            if frac is not None:
-                kw["completed"] = float(frac)
-            self._progress.update(self._task, **kw)
+        if self._progress is not None and self._task is not None:
+            self._progress.update(self._task, info=describe_progress(progress, with_fraction=False),
+                                  completed=None if frac is None else float(frac))
             return
         with self._lock:
             self._latest, self._latest_at = progress, now

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from clients.cli._common import add_server_options, client_errors, delete_each, format_bytes
 
+__all__ = ["COMMAND", "HELP", "add_arguments", "run"]
+
 COMMAND = "datasets"
 HELP = "list or delete the datasets uploaded to the server (size on disk, content hash, jobs that read them)"
 

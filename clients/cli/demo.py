@@ -26,6 +26,8 @@ import time
 from clients.cli._common import UsageError
 from driver.constants import C_DEFAULT
 
+__all__ = ["COMMAND", "HELP", "DEFAULTS", "add_arguments", "run", "Demo"]
+
 TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (`fpscan --help` starts faster)
 if TYPE_CHECKING:
     from clients.processes import Process
@@ -314,14 +316,15 @@ class Demo:
         try:
             from driver.physics import ball_p0
             from driver.sources import default_phantom
+            with_phantom = True
         except ImportError as exc:
             self.skip("correlation with the phantom", f"driver phantom not available ({exc})")
-            ball_p0 = None
+            with_phantom = False
         try:
             from service.metrics.correlation import correlation_coefficient as cc
         except ImportError:
-            def cc(u, v, mask=None):
-                return float(np.corrcoef(np.ravel(u), np.ravel(v))[0, 1])
+            def cc(image: np.ndarray, reference: np.ndarray, mask: np.ndarray | None = None) -> float:
+                return float(np.corrcoef(np.ravel(image), np.ravel(reference))[0, 1])
 
         # The region of interest: the phantom's bounding box (±3.4 mm, 1.0–5.2 mm deep).
         def roi_of(z, y, x):
@@ -344,7 +347,7 @@ class Demo:
             if y is None:
                 continue
             rois[name] = roi = roi_of(z, y, x)
-            if ball_p0 is not None:
+            if with_phantom:
                 phantom = ball_p0(default_phantom(), z, x, y)
                 r["cc_phantom"] = float(cc(p0, phantom))
                 r["cc_phantom_roi"] = float(cc(p0, phantom, roi))

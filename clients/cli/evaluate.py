@@ -16,6 +16,8 @@ import math
 
 from clients.cli._common import UsageError
 
+__all__ = ["COMMAND", "HELP", "NAMES", "add_arguments", "run"]
+
 COMMAND = "evaluate"
 HELP = "run the paper's experiments (limited-view-2d, sparse-masks-3d, nufft-vs-interpolation) -> PNG plots, JSON/CSV tables"
 
@@ -80,10 +82,11 @@ def run(args) -> int:
         data = load_dense(args.data, key=args.dataset)  # ValueError with the reason for a missing or unusable file
     out = Path(args.out)
     for name in names:
-        wrong_dim = data is not None and (
-            (name == "limited-view-2d" and data.ndim != 2) or (name == "sparse-masks-3d" and data.ndim != 3))
+        ndim = None if data is None else data.ndim
+        wrong_dim = ndim is not None and (
+            (name == "limited-view-2d" and ndim != 2) or (name == "sparse-masks-3d" and ndim != 3))
         if wrong_dim and args.experiment == "all":
-            print(f"{name}: skipped ({data.ndim}-D data)")
+            print(f"{name}: skipped ({ndim}-D data)")
             continue
         opts = {"model_based": args.model_based} if name in ("limited-view-2d", "sparse-masks-3d") else {}
         result, paths = run_experiment(name, out, data=data, small=args.small, **opts)

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 from clients.cli._common import UsageError, add_server_options, client_errors
 
+__all__ = ["COMMAND", "HELP", "VOLUME_SUFFIXES", "add_arguments", "run"]
+
 COMMAND = "export"
 HELP = ("export a scan file to IPASC HDF5, or a reconstruction result to OME-TIFF or OME-Zarr "
         "(physical voxel sizes), locally or from a server's job")

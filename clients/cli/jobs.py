@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from clients.cli._common import add_progress_option, add_server_options, client_errors, delete_each
 
+__all__ = ["COMMAND", "HELP", "STATES", "KINDS", "add_arguments", "run"]
+
 COMMAND = "jobs"
 HELP = "list, show, wait on, cancel or delete the server's jobs (scans, reconstructions)"
 

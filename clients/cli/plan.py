@@ -16,6 +16,8 @@ from pathlib import Path
 from clients.cli._common import UsageError, add_server_options, client_errors, needs_extra
 from driver.constants import C_PLAUSIBLE
 
+__all__ = ["COMMAND", "HELP", "flag", "parse_value", "add_arguments", "mask_params", "request_body", "run"]
+
 COMMAND = "plan"
 HELP = "make a scan plan (sensor mask + weights + order + acquisition settings) as plan JSON"
 
@@ -79,8 +81,7 @@ def _add_field(group, f: dict) -> None:
         desc += f" (default {f['default']})"
     kw: dict[str, object] = {"dest": "p_" + f["name"], "default": None, "help": desc}
     if f["widget"] == "pairs":
-        kw.update(type=_json_value, metavar="JSON|FILE")
-        kw["help"] += ": a JSON list of pairs, inline or in a file"
+        kw.update(type=_json_value, metavar="JSON|FILE", help=desc + ": a JSON list of pairs, inline or in a file")
     elif f["widget"] == "numbers":  # space- or comma-separated: --poi -2mm 2mm, --poi=-2mm,2mm
         kw.update(type=lambda s, one=number: [one(x) for x in s.split(",") if x.strip()] or [one(s)],
                   nargs="+", metavar="N" if f["integer"] else "VALUE")

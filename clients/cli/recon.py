@@ -22,9 +22,12 @@ then holds the first wavelength's ``volume.h5`` + MIPs and ``wavelength_<k>/`` f
 from __future__ import annotations
 
 import argparse
+from collections.abc import Sequence
 
 from clients.cli._common import UsageError, add_progress_option, add_server_options, client_errors, speed
 from driver.constants import C_AUTOFOCUS_RANGE, C_DEFAULT, C_PLAUSIBLE
+
+__all__ = ["COMMAND", "HELP", "add_arguments", "check_options_early", "run", "add_format_option"]
 
 COMMAND = "recon"
 HELP = "reconstruct p0 (NEDNER/NER/...) from a scan file or dataset, locally or on a server"
@@ -33,6 +36,8 @@ HELP = "reconstruct p0 (NEDNER/NER/...) from a scan file or dataset, locally or 
 
 def add_arguments(parser):
     """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser)."""
+    DTYPES: Sequence[str] | None
+    KWAVE_INTERPS: Sequence[str] | None
     try:
         from service.pipeline import DEFAULT_DTYPE, DTYPES, KWAVE_INTERPS, METHODS
     except ImportError:  # client-only install: choices are checked by the server
@@ -183,12 +188,11 @@ def run(args) -> int:
         if not Path(args.input).is_file():
             raise UsageError(f"no such file: {args.input}")
     check_options_early(args.method, _params(args))
-    fmt = None if args.scan_job else (args.format or _sniff_format(args.input))
     # no --method: the pipeline's default for the loaded data (service.pipeline.default_method),
     # resolved where the data is read: here locally, by the server with --server
     if args.server:
-        return _remote(args, fmt)
-    return _local(args, fmt)
+        return _remote(args, None if args.scan_job else (args.format or _sniff_format(args.input)))
+    return _local(args, args.format or _sniff_format(args.input))
 
 
 def _default_out(args, method: str):
@@ -208,7 +212,7 @@ def _local(args, fmt: str) -> int:
     from pathlib import Path
 
     from service.pipeline import default_method, reconstruct
-    from service.storage.datasets import file_wavelengths, load_wavelengths
+    from service.storage.datasets import GridDataset, file_wavelengths, load_wavelengths
     from service.storage.results import write_result
 
     say = (lambda msg: None) if args.quiet else (lambda msg: print(f"recon: {msg}", file=sys.stderr, flush=True))
@@ -226,7 +230,7 @@ def _local(args, fmt: str) -> int:
     t1 = time.perf_counter()
     method = args.method or default_method(ds)
     out = _default_out(args, method)
-    shape = ds.data.shape if ds.kind == "grid" else ds.alines.shape
+    shape = ds.data.shape if isinstance(ds, GridDataset) else ds.alines.shape
     say(f"reconstructing with {method} (input {list(shape)})")
     from clients.cli._common import ProgressBar
 

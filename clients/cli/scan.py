@@ -15,6 +15,8 @@ from __future__ import annotations
 
 from clients.cli._common import UsageError, add_server_options, client_errors
 
+__all__ = ["COMMAND", "HELP", "add_arguments", "preview_index", "run"]
+
 COMMAND = "scan"
 HELP = "acquire a plan from the scanner (or simulator) into a scan file, resuming a partial one"
 

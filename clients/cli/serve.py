@@ -3,6 +3,8 @@ from __future__ import annotations
 
 from clients.cli._common import UsageError
 
+__all__ = ["COMMAND", "HELP", "add_arguments", "parse_devices", "run"]
+
 COMMAND = "serve"
 HELP = "run the fpscan HTTP service (job queue, scans, reconstructions, web page)"
 

@@ -9,6 +9,8 @@ from __future__ import annotations
 from clients.cli._common import UsageError
 from driver.constants import C_DEFAULT, C_PLAUSIBLE
 
+__all__ = ["COMMAND", "HELP", "add_arguments", "make_source", "run"]
+
 COMMAND = "sim"
 HELP = "run the simulated FP scanner on a pseudo-terminal (prints its device path first)"
 
@@ -99,9 +101,9 @@ def run(args) -> int:
     # the unit rules of fpscan plan (a sound speed of 1.5 is km/s typed as m/s): exit 2
     check_plausible(sound_speed=args.sound_speed, force=args.force)
 
+    source = make_source(args.source, dataset=args.dataset, sound_speed=args.sound_speed, so2=args.so2)
     config = SimConfig(
-        source=make_source(args.source, dataset=args.dataset, sound_speed=args.sound_speed,
-                           so2=args.so2),
+        source=source,
         prf=args.prf, tuning_delay=args.tuning_delay, laser_tuning_delay=args.laser_tuning_delay,
         dc_variation=args.dc_variation,
         sensitivity_variation=args.sensitivity_variation, bandwidth=args.bandwidth,
@@ -117,7 +119,7 @@ def run(args) -> int:
     sim = SimulatedScanner(config).start()
     try:
         print(sim.path, flush=True)
-        print(f"fpscan sim: {config.source.describe()}, PRF {args.prf:g} Hz, boot id "
+        print(f"fpscan sim: {source.describe()}, PRF {args.prf:g} Hz, boot id "
               f"{sim.boot_id}; stop with Ctrl-C", file=sys.stderr, flush=True)
         while not stop.wait(0.5):
             pass

@@ -24,6 +24,8 @@ from clients.cli._common import (
 )
 from driver.constants import C_AUTOFOCUS_RANGE, C_PLAUSIBLE
 
+__all__ = ["COMMAND", "HELP", "add_arguments", "run"]
+
 COMMAND = "unmix"
 HELP = "reconstruct every wavelength and unmix HbO2/Hb into THb and sO2 (masked)"
 

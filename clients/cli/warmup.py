@@ -4,6 +4,8 @@ loads compiled code instead of compiling it (see ``service.recon.warmup``: where
 lives, ``NUMBA_CACHE_DIR`` on a read-only install)."""
 from __future__ import annotations
 
+__all__ = ["COMMAND", "HELP", "add_arguments", "run"]
+
 COMMAND = "warmup"
 HELP = "compile the reconstruction's kernels into numba's cache (run once after installing)"
 

@@ -36,10 +36,10 @@ import json
 import os
 import time
 import uuid
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Coroutine, Generator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar, Concatenate, Generic, ParamSpec, TypeVar, overload
 
 import httpx
 
@@ -52,6 +52,11 @@ from .errors import (
     error_for_status,
 )
 from .models import MODELS
+
+__all__ = [
+    "TERMINAL_STATES", "MIP_PLANES", "ProgressCallback", "as_model", "field_of", "to_dict",
+    "Client", "AsyncClient",
+]
 
 TERMINAL_STATES = frozenset({"succeeded", "failed", "cancelled"})
 MIP_PLANES = ("xy", "xz", "yz")
@@ -257,15 +262,58 @@ class _Resume:
 
 
 # --------------------------------------------------------------------------- endpoints
+_P = ParamSpec("_P")
+_R = TypeVar("_R")
+
+
+def _sync_method(gen_fn):
+    @functools.wraps(gen_fn)
+    def method(self, *args, **kwargs):
+        return self._drive(gen_fn(self, *args, **kwargs))
+    return method
+
+
+def _async_method(gen_fn):
+    @functools.wraps(gen_fn)
+    async def method(self, *args, **kwargs):
+        return await self._drive(gen_fn(self, *args, **kwargs))
+    return method
+
+
+class _endpoint(Generic[_P, _R]):
+    """An endpoint written once as a generator (``response = yield _Req(...)``), served as
+    a blocking method on :class:`Client` and a coroutine method on :class:`AsyncClient`
+    (which one is read from the class's ``_asynchronous``). The overloads of ``__get__``
+    give the type checker both signatures from the one generator."""
+
+    def __init__(self, gen_fn: Callable[Concatenate[Any, _P], Generator[Any, Any, _R]]):
+        self._sync = _sync_method(gen_fn)
+        self._async = _async_method(gen_fn)
+
+    @overload
+    def __get__(self, obj: None, owner: type) -> Callable[..., Any]: ...
+    @overload
+    def __get__(self, obj: AsyncClient, owner: type | None = None) -> Callable[_P, Coroutine[Any, Any, _R]]: ...
+    @overload
+    def __get__(self, obj: Client, owner: type | None = None) -> Callable[_P, _R]: ...
+
+    def __get__(self, obj: Any, owner: type | None = None) -> Any:
+        cls = owner if owner is not None else type(obj)
+        fn = self._async if getattr(cls, "_asynchronous", False) else self._sync
+        return fn if obj is None else fn.__get__(obj, cls)
+
+
 class _Endpoints:
     """Every endpoint once, as a generator: ``response = yield _Req(...)``."""
 
     # -- health
+    @_endpoint
     def health(self):
         """``GET /api/health`` -> ``{"status": "ok", "version": ...}``."""
         r = yield _Req("GET", "/api/health")
         return r.json()
 
+    @_endpoint
     def auth(self):
         """``GET /api/auth`` (needs no token) -> ``{"token_required": bool,
         "authenticated": bool}``: whether the server needs a token, and whether this
@@ -274,24 +322,28 @@ class _Endpoints:
         return r.json()
 
     # -- plans
+    @_endpoint
     def create_plan(self, body: Mapping | Any):
         """``POST /api/plans``: create a plan from mask parameters or a point list
         (the body of ``service.api.models`` ``PlanCreate``) -> the Plan (201)."""
         r = yield _Req("POST", "/api/plans", json=_jsonable(body))
         return as_model("Plan", r.json())
 
+    @_endpoint
     def preview_plan(self, body: Mapping | Any):
         """``POST /api/plans/preview``: same body, nothing saved -> ``{points,
         weight_ratio, expected_scan_time_s, preview_png_base64}``."""
         r = yield _Req("POST", "/api/plans/preview", json=_jsonable(body))
         return as_model("PlanPreview", r.json())
 
+    @_endpoint
     def mask_kinds(self):
         """``GET /api/plans/kinds`` -> list of ``{kind, label, description, aliases, fields,
         params_schema}``: the mask kinds and their parameters (SI units)."""
         r = yield _Req("GET", "/api/plans/kinds")
         return r.json()
 
+    @_endpoint
     def list_plans(self):
         """``GET /api/plans`` -> list of Plans."""
         r = yield _Req("GET", "/api/plans")
@@ -299,22 +351,26 @@ class _Endpoints:
         items = body.get("items", body) if isinstance(body, dict) else body
         return [as_model("Plan", p) for p in items]
 
+    @_endpoint
     def get_plan(self, plan_id: str):
         """``GET /api/plans/{plan_id}`` -> the Plan."""
         r = yield _Req("GET", f"/api/plans/{plan_id}")
         return as_model("Plan", r.json())
 
+    @_endpoint
     def get_plan_json(self, plan_id: str):
         """``GET /api/plans/{plan_id}/plan.json`` -> the full plan (``fpscan-plan/1``
         dict: lattice, mask, points in scan order, acquisition), as ``fpscan scan`` reads it."""
         r = yield _Req("GET", f"/api/plans/{plan_id}/plan.json")
         return r.json()
 
+    @_endpoint
     def download_plan_preview(self, plan_id: str, dest: str | os.PathLike):
         """``GET /api/plans/{plan_id}/preview.png`` saved to ``dest`` -> Path."""
         return (yield _Download(_Req("GET", f"/api/plans/{plan_id}/preview.png"), Path(dest)))
 
     # -- scanners and scans
+    @_endpoint
     def scanners(self):
         """``GET /api/scanners`` -> the configured serial devices and their status."""
         r = yield _Req("GET", "/api/scanners")
@@ -322,6 +378,7 @@ class _Endpoints:
         items = body.get("items", body) if isinstance(body, dict) and "items" in body else body
         return [as_model("Scanner", s) for s in items] if isinstance(items, list) else items
 
+    @_endpoint
     def start_scan(self, plan_id: str, scanner_id: str, *, idempotency_key: str | None = None,
                    **extra: Any):
         """``POST /api/scans`` ``{plan_id, scanner_id}`` -> the new scan job's id (202).
@@ -333,40 +390,48 @@ class _Endpoints:
         r = yield _Req("POST", "/api/scans", json=body, headers=_idem({}, idempotency_key))
         return _job_id_from(r)
 
+    @_endpoint
     def pause_scan(self, job_id: str):
         """``POST /api/scans/{job_id}/pause`` -> the Job (409 ``Conflict`` if not running)."""
         r = yield _Req("POST", f"/api/scans/{job_id}/pause")
         return as_model("Job", r.json()) if r.content else None
 
+    @_endpoint
     def resume_scan(self, job_id: str):
         """``POST /api/scans/{job_id}/resume`` -> the Job (409 ``Conflict`` if not paused)."""
         r = yield _Req("POST", f"/api/scans/{job_id}/resume")
         return as_model("Job", r.json()) if r.content else None
 
+    @_endpoint
     def abort_scan(self, job_id: str):
         """``POST /api/scans/{job_id}/abort`` -> the Job; the scan ends ``cancelled``."""
         r = yield _Req("POST", f"/api/scans/{job_id}/abort")
         return as_model("Job", r.json()) if r.content else None
 
+    @_endpoint
     def download_scan(self, job_id: str, dest: str | os.PathLike):
         """``GET /api/scans/{job_id}/file`` (the scan file, HDF5) saved to ``dest``."""
         return (yield _Download(_Req("GET", f"/api/scans/{job_id}/file"), Path(dest)))
 
+    @_endpoint
     def download_ipasc(self, job_id: str, dest: str | os.PathLike):
         """``GET /api/scans/{job_id}/ipasc`` (IPASC HDF5 export) saved to ``dest``."""
         return (yield _Download(_Req("GET", f"/api/scans/{job_id}/ipasc"), Path(dest)))
 
+    @_endpoint
     def scan_preview(self, job_id: str):
         """``GET /api/scans/{job_id}/preview`` -> ``{version, points_used, updated}``."""
         r = yield _Req("GET", f"/api/scans/{job_id}/preview")
         return as_model("PreviewInfo", r.json())
 
+    @_endpoint
     def download_scan_preview(self, job_id: str, plane: str, dest: str | os.PathLike):
         """``GET /api/scans/{job_id}/preview/{plane}.png`` (live MIP) saved to ``dest``."""
         _check_plane(plane)
         return (yield _Download(_Req("GET", f"/api/scans/{job_id}/preview/{plane}.png"), Path(dest)))
 
     # -- datasets and reconstructions
+    @_endpoint
     def upload_dataset(self, path: str | os.PathLike, format: str = "fpscan", **fields: Any):
         """``POST /api/datasets`` (multipart: ``file``, ``format`` and spacings such as
         ``dx``, ``dy``, ``dt``, ``c`` in SI units) -> the dataset id (201).
@@ -383,6 +448,7 @@ class _Endpoints:
         body = r.json()
         return str(body.get("dataset_id") or body.get("id"))
 
+    @_endpoint
     def start_reconstruction(self, *, scan_job_id: str | None = None, dataset_id: str | None = None,
                              method: str | None = None, params: Mapping | None = None,
                              wavelength: int | str | None = None, idempotency_key: str | None = None):
@@ -412,18 +478,21 @@ class _Endpoints:
                        headers=_idem({}, idempotency_key))
         return _job_id_from(r)
 
+    @_endpoint
     def dataset_formats(self):
         """``GET /api/datasets/formats`` -> list of ``{name, title, wavelengths}``: the
         formats :meth:`upload_dataset` takes (the server's registry of formats)."""
         r = yield _Req("GET", "/api/datasets/formats")
         return r.json()
 
+    @_endpoint
     def methods(self):
         """``GET /api/reconstructions/methods`` -> list of ``{name, title, needs_grid,
         options: [{name, description, default}], source}``: the reconstruction methods."""
         r = yield _Req("GET", "/api/reconstructions/methods")
         return r.json()
 
+    @_endpoint
     def start_unmix(self, *, scan_job_id: str | None = None, dataset_ids: Sequence[str] | None = None,
                     wavelengths: Sequence[float] | None = None, method: str | None = None,
                     params: Mapping | None = None, threshold: float | None = None,
@@ -455,25 +524,30 @@ class _Endpoints:
         r = yield _Req("POST", "/api/reconstructions", json=body, headers=_idem({}, idempotency_key))
         return _job_id_from(r)
 
+    @_endpoint
     def download_unmix(self, job_id: str, dest: str | os.PathLike):
         """``GET /api/reconstructions/{job_id}/unmix.h5`` (HbO2, Hb, THb, sO2, mask) saved to ``dest``."""
         return (yield _Download(_Req("GET", f"/api/reconstructions/{job_id}/unmix.h5"), Path(dest)))
 
+    @_endpoint
     def download_so2(self, job_id: str, dest: str | os.PathLike):
         """``GET /api/reconstructions/{job_id}/so2.png`` (masked sO2 map, colour bar) saved to ``dest``."""
         return (yield _Download(_Req("GET", f"/api/reconstructions/{job_id}/so2.png"), Path(dest)))
 
+    @_endpoint
     def download_volume(self, job_id: str, dest: str | os.PathLike, *, wavelength: int | None = None):
         """``GET /api/reconstructions/{job_id}/volume.h5`` saved to ``dest``;
         ``wavelength``: wavelength k's volume of a job over every wavelength."""
         params = None if wavelength is None else {"wavelength": int(wavelength)}
         return (yield _Download(_Req("GET", f"/api/reconstructions/{job_id}/volume.h5", params=params), Path(dest)))
 
+    @_endpoint
     def download_ome_tiff(self, job_id: str, dest: str | os.PathLike):
         """``GET /api/reconstructions/{job_id}/volume.ome.tif`` (OME-TIFF, voxel sizes in
         µm) saved to ``dest``."""
         return (yield _Download(_Req("GET", f"/api/reconstructions/{job_id}/volume.ome.tif"), Path(dest)))
 
+    @_endpoint
     def download_ome_zarr(self, job_id: str, dest: str | os.PathLike):
         """``GET /api/reconstructions/{job_id}/volume.ome.zarr.zip`` (OME-Zarr, voxel sizes in
         µm) unpacked into the folder ``dest`` (conventionally ``*.ome.zarr``; an existing
@@ -486,6 +560,7 @@ class _Endpoints:
         finally:
             Path(got).unlink(missing_ok=True)
 
+    @_endpoint
     def download_mip(self, job_id: str, plane: str, dest: str | os.PathLike, *, wavelength: int | None = None):
         """``GET /api/reconstructions/{job_id}/mip/{plane}.png`` saved to ``dest``;
         ``wavelength`` as :meth:`download_volume`."""
@@ -494,12 +569,14 @@ class _Endpoints:
         return (yield _Download(_Req("GET", f"/api/reconstructions/{job_id}/mip/{plane}.png", params=params),
                                 Path(dest)))
 
+    @_endpoint
     def download_slice(self, job_id: str, index: int, dest: str | os.PathLike):
         """``GET /api/reconstructions/{job_id}/slice.png?index=k`` saved to ``dest``."""
         req = _Req("GET", f"/api/reconstructions/{job_id}/slice.png", params={"index": int(index)})
         return (yield _Download(req, Path(dest)))
 
     # -- jobs
+    @_endpoint
     def list_jobs(self, *, state: str | None = None, kind: str | None = None):
         """``GET /api/jobs?state=&kind=`` -> list of Jobs."""
         params = {k: v for k, v in (("state", state), ("kind", kind)) if v}
@@ -508,17 +585,20 @@ class _Endpoints:
         items = body.get("items", body) if isinstance(body, dict) else body
         return [as_model("Job", j) for j in items]
 
+    @_endpoint
     def get_job(self, job_id: str):
         """``GET /api/jobs/{job_id}`` -> the Job (``id, kind, state, progress, timings,
         params, links, error``)."""
         r = yield _Req("GET", f"/api/jobs/{job_id}")
         return as_model("Job", r.json())
 
+    @_endpoint
     def cancel_job(self, job_id: str):
         """``POST /api/jobs/{job_id}/cancel`` (cooperative) -> the Job."""
         r = yield _Req("POST", f"/api/jobs/{job_id}/cancel")
         return as_model("Job", r.json()) if r.content else None
 
+    @_endpoint
     def delete_job(self, job_id: str):
         """``DELETE /api/jobs/{job_id}``: a finished job and its files -> ``{"id", "kind",
         "bytes_freed"}``. Raises ``Conflict`` (409) while the job or a job reading it is
@@ -526,12 +606,14 @@ class _Endpoints:
         r = yield _Req("DELETE", f"/api/jobs/{job_id}")
         return r.json()
 
+    @_endpoint
     def delete_plan(self, plan_id: str):
         """``DELETE /api/plans/{plan_id}`` -> ``{"id", "kind", "bytes_freed"}`` (409 while
         an active scan uses it)."""
         r = yield _Req("DELETE", f"/api/plans/{plan_id}")
         return r.json()
 
+    @_endpoint
     def list_datasets(self):
         """``GET /api/datasets`` -> the stored datasets, oldest first, as dicts: ``dataset_id``,
         ``name``, ``format``, ``layout``, ``shape``, ``size_bytes`` (on disk), ``created``
@@ -540,6 +622,7 @@ class _Endpoints:
         r = yield _Req("GET", "/api/datasets")
         return r.json()
 
+    @_endpoint
     def delete_dataset(self, dataset_id: str):
         """``DELETE /api/datasets/{dataset_id}`` -> ``{"id", "kind", "bytes_freed"}``.
         Raises ``Conflict`` (409) while an active reconstruction reads it, ``NotFound``
@@ -547,6 +630,7 @@ class _Endpoints:
         r = yield _Req("DELETE", f"/api/datasets/{dataset_id}")
         return r.json()
 
+    @_endpoint
     def retention(self, **policy: Any):
         """``GET /api/retention``, or with ``keep_results=``/``keep_bytes=``/
         ``include_scans=``/``datasets_keep_bytes=``/``datasets_max_age_s=`` (s) ``PUT`` it
@@ -588,11 +672,10 @@ def _finish(job: Any) -> Any:
     return job
 
 
-_ENDPOINTS = [n for n, v in vars(_Endpoints).items() if callable(v) and not n.startswith("_")]
-
-
 # --------------------------------------------------------------------------- sync
-class _BaseClient:
+class _BaseClient(_Endpoints):
+    _asynchronous: ClassVar[bool] = False
+
     def __init__(self, base_url: str | None = None, *, token: str | None = None,
                  timeout: float = 30.0):
         base_url = base_url or os.environ.get("FPSCAN_SERVER") or "http://127.0.0.1:8000"
@@ -611,20 +694,6 @@ class _BaseClient:
     def _unavailable(self, exc: Exception) -> ServerUnavailable:
         reason = str(exc) or type(exc).__name__
         return ServerUnavailable(self.base_url, reason)
-
-
-def _sync_method(gen_fn):
-    @functools.wraps(gen_fn)
-    def method(self, *args, **kwargs):
-        return self._drive(gen_fn(self, *args, **kwargs))
-    return method
-
-
-def _async_method(gen_fn):
-    @functools.wraps(gen_fn)
-    async def method(self, *args, **kwargs):
-        return await self._drive(gen_fn(self, *args, **kwargs))
-    return method
 
 
 class Client(_BaseClient):
@@ -693,7 +762,7 @@ class Client(_BaseClient):
 
     # -- events and waiting
     def events(self, job_id: str, *, last_event_id: str | None = None,
-               read_timeout: float = 30.0) -> Iterator[tuple[str, dict, str | None]]:
+               read_timeout: float = 30.0) -> Generator[tuple[str, dict, str | None], None, None]:
         """Iterate ``(event, data, id)`` from ``GET /api/jobs/{job_id}/events`` until the
         server closes the stream. ``data`` is the decoded JSON payload. Raises
         :class:`ApiError` (e.g. 404 unknown job) or :class:`ServerUnavailable`."""
@@ -772,14 +841,12 @@ class Client(_BaseClient):
             job = self.get_job(job_id)
 
 
-for _name in _ENDPOINTS:
-    setattr(Client, _name, _sync_method(getattr(_Endpoints, _name)))
-
-
 # --------------------------------------------------------------------------- async
 class AsyncClient(_BaseClient):
     """``asyncio`` client with the same methods as :class:`Client` (all coroutines;
     :meth:`events` is an async iterator). Use ``async with`` or ``await aclose()``."""
+
+    _asynchronous: ClassVar[bool] = True
 
     def __init__(self, base_url: str | None = None, *, token: str | None = None,
                  timeout: float = 30.0):
@@ -833,6 +900,7 @@ class AsyncClient(_BaseClient):
         try:
             op = next(gen)
             while True:
+                result: Path | httpx.Response
                 if isinstance(op, _Download):
                     result = await self._download(op)
                 else:
@@ -916,7 +984,3 @@ class AsyncClient(_BaseClient):
                 await asyncio.sleep(poll_interval)
             job = await self.get_job(job_id)
 
-
-for _name in _ENDPOINTS:
-    setattr(AsyncClient, _name, _async_method(getattr(_Endpoints, _name)))
-del _name

@@ -10,6 +10,11 @@ from __future__ import annotations
 
 from typing import Any
 
+__all__ = [
+    "FpscanClientError", "ServerUnavailable", "format_detail", "ApiError", "AuthError", "NotFound",
+    "Conflict", "JobError", "JobFailed", "JobCancelled", "WaitTimeout", "error_for_status",
+]
+
 
 class FpscanClientError(Exception):
     """Base class of everything the client raises on purpose."""

@@ -12,6 +12,8 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
+__all__ = ["Plan", "PlanPreview", "Progress", "Timings", "Job", "Scanner", "PreviewInfo", "MODELS"]
+
 
 class _Response(BaseModel):
     model_config = ConfigDict(extra="allow")

@@ -1,0 +1,2 @@
+
+__all__: list[str] = []  # the package's API is its modules

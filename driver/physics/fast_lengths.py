@@ -8,15 +8,31 @@ nothing at start-up.
 """
 from __future__ import annotations
 
+__all__ = ["MAX_FACTOR", "largest_prime_factor", "fast_length", "fast_dct1_rows", "fast_lateral", "SQUARE_PAD"]
+
 MAX_FACTOR = 7
 
 
 def largest_prime_factor(n: int) -> int:
     """Largest prime factor of the integer ``n >= 1`` (1 for n = 1).
 
+    Parameters
+    ----------
+    n : int >= 1.
+
+    Returns
+    -------
+    int.
+
     Raises
     ------
     ValueError for n < 1.
+
+    Examples
+    --------
+    >>> from driver.physics.fast_lengths import largest_prime_factor
+    >>> largest_prime_factor(2 * 3 * 7 * 13), largest_prime_factor(1)
+    (13, 1)
     """
     n = int(n)
     if n < 1:
@@ -41,9 +57,27 @@ def fast_length(n: int, real: bool = False, even: bool = False) -> int:
     DCT; = ``scipy.fft.next_fast_len(n, real=True)``), 7-smooth for a complex one;
     ``even`` asks for an even length.
 
+    Parameters
+    ----------
+    n : int >= 1, the shortest acceptable length (samples).
+    real : bool
+        A real transform (5-smooth) instead of a complex one (7-smooth).
+    even : bool
+        Only even lengths.
+
+    Returns
+    -------
+    int >= n.
+
     Raises
     ------
     ValueError for n < 1.
+
+    Examples
+    --------
+    >>> from driver.physics.fast_lengths import fast_length
+    >>> fast_length(97), fast_length(97, real=True)  # 98 = 2·7², 100 = 2²·5²
+    (98, 100)
     """
     n = int(n)
     if n < 1:
@@ -57,7 +91,22 @@ def fast_length(n: int, real: bool = False, even: bool = False) -> int:
 
 def fast_dct1_rows(n: int) -> int:
     """Smallest K >= max(n, 2) whose DCT-I (an FFT of the real, even extension of length
-    2 (K - 1)) runs at a fast real length."""
+    2 (K - 1)) runs at a fast real length.
+
+    Parameters
+    ----------
+    n : int, the fewest rows (samples) wanted.
+
+    Returns
+    -------
+    int K >= max(n, 2).
+
+    Examples
+    --------
+    >>> from driver.physics.fast_lengths import fast_dct1_rows
+    >>> fast_dct1_rows(100)  # 2·(101 - 1) = 200 = 2³·5²
+    101
+    """
     return fast_length(2 * (max(int(n), 2) - 1), real=True, even=True) // 2 + 1
 
 
@@ -75,7 +124,27 @@ def fast_lateral(n_y: int, n_x: int, square: bool = False) -> tuple[int, int]:
     ``square`` (dy = dx): one length for both axes when it pads neither by more than
     :data:`SQUARE_PAD` (15 %), so that k_x and k_y take the same values and columns of equal
     |k_lat| pair up four- to eightfold: the temporal interpolation computes its taps once
-    per |k_lat| (226 x 226: 7 300 instead of 14 000 distinct values)."""
+    per |k_lat| (226 x 226: 7 300 instead of 14 000 distinct values).
+
+    Parameters
+    ----------
+    n_y, n_x : int, the grid's lateral sizes (rows along y, columns along x).
+    square : bool, whether the pitches are equal (dy = dx).
+
+    Returns
+    -------
+    tuple of int (n_y', n_x'), each at least the given size.
+
+    Examples
+    --------
+    >>> from driver.physics.fast_lengths import fast_lateral
+    >>> fast_lateral(226, 226, square=True)  # 240 = 2⁴·3·5
+    (240, 240)
+    >>> fast_lateral(100, 130, square=True)  # a common 135 would pad y by 35 %
+    (100, 135)
+    >>> fast_lateral(1, 1000)  # a line scan
+    (1, 1000)
+    """
     n_yp = 1 if n_y == 1 else fast_length(n_y)
     n_xp = fast_length(n_x, real=True)
     if square and n_y > 1:

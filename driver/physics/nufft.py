@@ -41,19 +41,45 @@ import scipy.fft
 
 from driver.physics.fast_lengths import fast_length
 
+__all__ = [
+    "KINDS", "TemporalGrid", "kernel_params", "es_kernel", "kernel_polynomials", "grid_length", "make_grid",
+    "transpose", "to_fine_grid", "from_fine_grid", "group_columns", "evaluate", "spread",
+]
+
 KINDS = ("nufft", "linear", "nearest")
 _KIND_CODE = {"nufft": 0, "linear": 1, "nearest": 2}
 
 
 @dataclass(frozen=True)
 class TemporalGrid:
-    """Geometry of the oversampled temporal grid for one transform.
+    """Geometry of the oversampled temporal grid for one transform (made by :func:`make_grid`).
 
-    n_t: samples per series; kind: see module doc; L: fine-grid length; shift: the
-    centring offset M/2 (nufft) or 0; w, beta: kernel width and shape; phihat: (n_t,)
-    kernel Fourier weights used to pre-/post-correct the coefficients (nufft) or ones;
-    horner: (w, degree + 1) polynomial coefficients of the w taps (see
-    `kernel_polynomials`; nufft) or a (1, 1) placeholder.
+    Attributes
+    ----------
+    n_t : int
+        Samples per series.
+    kind : str
+        One of ``KINDS`` (module doc).
+    L : int
+        Fine-grid length (samples).
+    shift : int
+        The centring offset M/2 (nufft) or 0.
+    w : int
+        Kernel width (taps).
+    beta : float
+        Kernel shape.
+    phihat : ndarray ``(n_t,)``
+        Kernel Fourier weights used to pre-/post-correct the coefficients (nufft) or ones.
+    horner : ndarray ``(w, degree + 1)``
+        Polynomial coefficients of the w taps (:func:`kernel_polynomials`; nufft) or a
+        ``(1, 1)`` placeholder.
+
+    Examples
+    --------
+    >>> from driver.physics.nufft import make_grid
+    >>> grid = make_grid(100)
+    >>> grid.L, grid.shift, grid.w, grid.phihat.shape
+    (200, 50, 7, (100,))
     """
 
     n_t: int
@@ -68,7 +94,35 @@ class TemporalGrid:
 
 def kernel_params(eps: float) -> tuple[int, float]:
     """Width w (taps) and shape beta of the ES kernel for tolerance ``eps`` at
-    oversampling 2 (FINUFFT's rule, Barnett, Magland & af Klinteberg 2019, §4)."""
+    oversampling 2 (FINUFFT's rule).
+
+    Parameters
+    ----------
+    eps : float in [1e-14, 1e-1], the relative tolerance of the transform.
+
+    Returns
+    -------
+    w : int, taps (2..16).
+    beta : float, the kernel's shape parameter.
+
+    Raises
+    ------
+    ValueError
+        ``eps`` outside [1e-14, 1e-1].
+
+    References
+    ----------
+    .. [1] A. H. Barnett, J. Magland, L. af Klinteberg, "A parallel nonuniform fast Fourier
+       transform library based on an 'exponential of semicircle' kernel", SIAM J. Sci.
+       Comput. 41 (2019), §4.
+
+    Examples
+    --------
+    >>> from driver.physics.nufft import kernel_params
+    >>> w, beta = kernel_params(1e-6)
+    >>> w, round(beta, 2)
+    (7, 16.1)
+    """
     if not (1e-14 <= eps <= 1e-1):
         raise ValueError(f"eps must be in [1e-14, 1e-1], got {eps}")
     w = int(math.ceil(-math.log10(eps / 10.0)))
@@ -82,7 +136,30 @@ def es_kernel(u: np.ndarray, beta: float) -> np.ndarray:
     SIAM J. Sci. Comput. 41 (2019)) at normalised offsets ``u`` (any shape; the support is
     ``|u| <= 1``, zero outside): ``phi(u) = exp(beta (sqrt(1 - u²) - 1))``. The one place
     the temporal kernel's formula is written (its polynomial taps and its Fourier transform
-    both evaluate it)."""
+    both evaluate it).
+
+    Parameters
+    ----------
+    u : ndarray, any shape; offsets normalised to the kernel's half width (dimensionless).
+    beta : float, the shape (:func:`kernel_params`).
+
+    Returns
+    -------
+    ndarray, the shape of ``u``, float64 in [0, 1] (1 at u = 0).
+
+    References
+    ----------
+    .. [1] A. H. Barnett, J. Magland, L. af Klinteberg, "A parallel nonuniform fast Fourier
+       transform library based on an 'exponential of semicircle' kernel", SIAM J. Sci.
+       Comput. 41 (2019) (the ES kernel).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from driver.physics.nufft import es_kernel
+    >>> es_kernel(np.array([0.0, 1.0, 1.5]), beta=16.1)  # exp(-beta) at the edge, 0 beyond
+    array([1.00000000e+00, 1.01826037e-07, 0.00000000e+00])
+    """
     u = np.asarray(u, dtype=np.float64)
     inside = np.abs(u) <= 1.0
     return np.where(inside, np.exp(beta * (np.sqrt(np.clip(1.0 - u * u, 0.0, None)) - 1.0)), 0.0)
@@ -99,7 +176,32 @@ def kernel_polynomials(w: int, beta: float) -> np.ndarray:
     ``t = 2x - 1`` that approximates ``phi(u_k) = exp(beta (sqrt(1 - u_k²) - 1))``: a
     Chebyshev fit of degree w + 4 at 200 nodes. Its error is about eps/30 of the kernel's
     own tolerance (the square root's edge limits it), e.g. 4e-8 at w = 7 (eps 1e-6).
-    Returns (w, w + 5) float64.
+
+    Parameters
+    ----------
+    w : int, taps (:func:`kernel_params`).
+    beta : float, the kernel's shape.
+
+    Returns
+    -------
+    ndarray ``(w, w + 5)`` float64, highest degree first (``np.polyval`` order).
+
+    References
+    ----------
+    .. [1] A. H. Barnett, J. Magland, L. af Klinteberg, "A parallel nonuniform fast Fourier
+       transform library based on an 'exponential of semicircle' kernel", SIAM J. Sci.
+       Comput. 41 (2019), §5.1.
+
+    Examples
+    --------
+    The middle tap (k = 3 of 7) of a point on a grid node (x = 1/2, t = 0) is the kernel's
+    peak.
+
+    >>> import numpy as np
+    >>> from driver.physics.nufft import kernel_params, kernel_polynomials
+    >>> taps = kernel_polynomials(*kernel_params(1e-6))
+    >>> taps.shape, round(float(np.polyval(taps[3], 0.0)), 9)
+    ((7, 12), 1.0)
     """
     from numpy.polynomial import chebyshev
 
@@ -128,7 +230,29 @@ def grid_length(n_t: int, kind: str = "nufft", eps: float = 1e-6) -> int:
     oversampled grid L >= 2 M (nufft, even) or the DFT grid of the mirrored series
     L >= 2 n_t - 1 (linear, nearest), rounded up to a fast length
     (`driver.physics.fast_lengths`; S is sampled exactly on any grid of L >= n_t points,
-    a finer one only interpolates better). Raises ValueError for a bad kind/n_t/eps."""
+    a finer one only interpolates better).
+
+    Parameters
+    ----------
+    n_t : int >= 1, samples per series.
+    kind : one of ``KINDS``.
+    eps : float, tolerance of the nufft kind (:func:`kernel_params`).
+
+    Returns
+    -------
+    int, samples.
+
+    Raises
+    ------
+    ValueError
+        A bad kind, n_t or eps.
+
+    Examples
+    --------
+    >>> from driver.physics.nufft import grid_length
+    >>> grid_length(100), grid_length(100, "linear")  # 2 M = 200; 2 n_t - 1 = 199 -> fast 200
+    (200, 200)
+    """
     if kind not in KINDS:
         raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
     n_t = int(n_t)
@@ -144,7 +268,31 @@ def grid_length(n_t: int, kind: str = "nufft", eps: float = 1e-6) -> int:
 def make_grid(n_t: int, kind: str = "nufft", eps: float = 1e-6) -> TemporalGrid:
     """Plan the temporal transform for series of ``n_t`` samples (see module doc).
     Cached (iterative solvers apply the same transform many times); the returned
-    grid and its ``phihat`` are read-only."""
+    grid and its ``phihat`` are read-only.
+
+    Parameters
+    ----------
+    n_t : int >= 1, samples per series.
+    kind : one of ``KINDS``.
+    eps : float, tolerance of the nufft kind.
+
+    Returns
+    -------
+    TemporalGrid
+
+    Raises
+    ------
+    ValueError
+        A bad kind, n_t or eps.
+
+    Examples
+    --------
+    >>> from driver.physics.nufft import make_grid
+    >>> make_grid(100) is make_grid(100)  # planned once
+    True
+    >>> make_grid(100, "linear").w
+    2
+    """
     if kind not in KINDS:
         raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
     n_t = int(n_t)
@@ -187,8 +335,25 @@ def _place_columns(A, scale, shift, L, U):
 
 
 @numba.njit(parallel=True, cache=True)
-def transpose(F, out):
-    """out[j, c] = F[c, j] for 2-D arrays, in cache-friendly tiles (parallel)."""
+def transpose(F: np.ndarray, out: np.ndarray) -> None:
+    """out[j, c] = F[c, j] for 2-D arrays, in cache-friendly tiles (parallel).
+
+    Parameters
+    ----------
+    F : ndarray ``(n_c, n_j)``.
+    out : ndarray ``(n_j, n_c)``, written in place (any dtype ``F`` converts to).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from driver.physics.nufft import transpose
+    >>> out = np.empty((3, 2))
+    >>> transpose(np.arange(6.0).reshape(2, 3), out)
+    >>> out
+    array([[0., 3.],
+           [1., 4.],
+           [2., 5.]])
+    """
     n_c, n_j = F.shape
     tile = 64
     n_blocks = (n_j + tile - 1) // tile
@@ -207,6 +372,27 @@ def to_fine_grid(A: np.ndarray, grid: TemporalGrid, t0_is_zero: bool) -> np.ndar
     -> (n_cols, L) values of S on the fine theta grid, one column per row.
 
     ``A`` is not modified. The t = 0 sample is halved when ``t0_is_zero``.
+
+    Parameters
+    ----------
+    A : ndarray ``(n_t, n_cols)``, real or complex (float32/complex64 stay single precision).
+    grid : TemporalGrid of ``n_t`` (:func:`make_grid`).
+    t0_is_zero : bool, whether sample 0 is at t = 0.
+
+    Returns
+    -------
+    ndarray ``(n_cols, grid.L)`` complex.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from driver.physics.nufft import evaluate, from_fine_grid, make_grid, spread, to_fine_grid
+    >>> n_t, dt, c, t0 = 32, 1e-8, 1500.0, 1e-7  # samples, s, m/s, s
+    >>> t = t0 + dt * np.arange(n_t)
+    >>> kz = np.array([1e4, 5e4, 2e5])  # rad/m; one column with k_lat = 0: omega = c kz
+    >>> grid = make_grid(n_t, "nufft", 1e-10)
+    >>> to_fine_grid(np.ones((n_t, 2)), grid, t0_is_zero=False).shape  # (n_cols, L)
+    (2, 64)
     """
     n_t, n_cols = A.shape
     ctype = np.complex64 if A.dtype in (np.float32, np.complex64) else np.complex128
@@ -223,7 +409,34 @@ def to_fine_grid(A: np.ndarray, grid: TemporalGrid, t0_is_zero: bool) -> np.ndar
 
 def from_fine_grid(R: np.ndarray, grid: TemporalGrid, t0_is_zero: bool, overwrite: bool = False) -> np.ndarray:
     """Adjoint of `to_fine_grid`: (n_cols, L) spread values -> (n_cols, n_t) series.
-    ``overwrite``: R may be overwritten (no second fine grid at the peak)."""
+
+    Parameters
+    ----------
+    R : ndarray ``(n_cols, grid.L)`` complex (from :func:`spread`).
+    grid : TemporalGrid.
+    t0_is_zero : bool, whether sample 0 is at t = 0 (its weight is halved).
+    overwrite : bool
+        ``R`` may be overwritten (no second fine grid at the peak).
+
+    Returns
+    -------
+    ndarray ``(n_cols, n_t)`` complex.
+
+    Examples
+    --------
+    With :func:`spread` it computes the forward model's g_n = Σ_l b_l 2 cos(ω_l t_n):
+
+    >>> import numpy as np
+    >>> from driver.physics.nufft import evaluate, from_fine_grid, make_grid, spread, to_fine_grid
+    >>> n_t, dt, c, t0 = 32, 1e-8, 1500.0, 1e-7  # samples, s, m/s, s
+    >>> t = t0 + dt * np.arange(n_t)
+    >>> kz = np.array([1e4, 5e4, 2e5])  # rad/m; one column with k_lat = 0: omega = c kz
+    >>> grid = make_grid(n_t, "nufft", 1e-10)
+    >>> b = np.array([[1.0, 0.5, -0.25]], dtype=complex)  # (n_cols, n_kz)
+    >>> g = from_fine_grid(spread(b, grid, np.zeros(1), kz, np.ones(3), c, dt, t0), grid, False)
+    >>> bool(np.allclose(g[0], 2 * np.cos(np.outer(t, c * kz)) @ b[0], atol=1e-8))
+    True
+    """
     n_t = grid.n_t
     # adjoint of the forward FFT (no 1/L)
     V = scipy.fft.ifft(R, axis=-1, workers=-1, norm="forward", overwrite_x=overwrite)
@@ -245,8 +458,24 @@ def from_fine_grid(R: np.ndarray, grid: TemporalGrid, t0_is_zero: bool, overwrit
 def group_columns(klat2: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Group columns with equal |k_lat|^2 (to 1e-12 relative).
 
-    Returns (group_values (n_groups,), group_ptr (n_groups + 1,), order (n_cols,)):
-    the columns of group g are ``order[group_ptr[g]:group_ptr[g + 1]]``.
+    Parameters
+    ----------
+    klat2 : ndarray, any shape (raveled: ``(n_cols,)``); |k_lat|² of each column, rad²/m².
+
+    Returns
+    -------
+    group_values : ndarray ``(n_groups,)``, ascending.
+    group_ptr : ndarray ``(n_groups + 1,)`` int64.
+    order : ndarray ``(n_cols,)`` int64
+        The columns of group g are ``order[group_ptr[g]:group_ptr[g + 1]]``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from driver.physics.nufft import group_columns
+    >>> values, ptr, order = group_columns(np.array([1.0, 4.0, 1.0, 0.0]))
+    >>> values, ptr, order
+    (array([0., 1., 4.]), array([0, 1, 3, 4]), array([3, 0, 2, 1]))
     """
     k = np.asarray(klat2, dtype=np.float64).ravel()
     scale = max(float(k.max(initial=0.0)), 1e-300)
@@ -416,6 +645,44 @@ def evaluate(
     groups: `group_columns` (klat2) when the caller keeps it (an operator applied many
     times); None: computed here.
     Returns (n_cols, n_kz) complex.
+
+    Parameters
+    ----------
+    U : ndarray ``(n_cols, L)`` from :func:`to_fine_grid`.
+    grid : TemporalGrid.
+    klat2 : ndarray ``(n_cols,)``, |k_lat|² in rad²/m².
+    kz : ndarray ``(n_kz,)``, depth wavenumbers in rad/m.
+    qw : ndarray ``(n_kz,)``, weights per kz.
+    c : float, m/s.  dt : float, s.  t0 : float, s (time of sample 0).
+    inversion : bool, see above.
+    out_dtype, progress, n_chunks, groups
+        See above.
+
+    Returns
+    -------
+    ndarray ``(n_cols, n_kz)`` complex.
+
+    References
+    ----------
+    .. [1] K. Fourmont, "Non-equispaced fast Fourier transforms with applications to
+       tomography", J. Fourier Anal. Appl. 9 (2003).
+
+    Examples
+    --------
+    The transform of the evenly extended series, E(ω) = Σ_n a_n 2 cos(ω t_n), against the
+    direct sum:
+
+    >>> import numpy as np
+    >>> from driver.physics.nufft import evaluate, from_fine_grid, make_grid, spread, to_fine_grid
+    >>> n_t, dt, c, t0 = 32, 1e-8, 1500.0, 1e-7  # samples, s, m/s, s
+    >>> t = t0 + dt * np.arange(n_t)
+    >>> kz = np.array([1e4, 5e4, 2e5])  # rad/m; one column with k_lat = 0: omega = c kz
+    >>> grid = make_grid(n_t, "nufft", 1e-10)
+    >>> a = np.random.default_rng(0).standard_normal((n_t, 1))  # (n_t, n_cols)
+    >>> U = to_fine_grid(a, grid, t0_is_zero=False)
+    >>> E = evaluate(U, grid, np.zeros(1), kz, np.ones(3), c, dt, t0, inversion=False)
+    >>> bool(np.allclose(E[0], 2 * np.cos(np.outer(c * kz, t)) @ a[:, 0], atol=1e-8))
+    True
     """
     gvals, gptr, order = group_columns(klat2) if groups is None else groups
     out = np.empty((U.shape[0], len(kz)), dtype=out_dtype or U.dtype)
@@ -451,7 +718,35 @@ def spread(
 ) -> np.ndarray:
     """Adjoint of `evaluate` with ``inversion=False``: (n_cols, n_kz) coefficients ->
     (n_cols, L) spread fine-grid values (input of `from_fine_grid`); ``groups`` as
-    `evaluate`."""
+    `evaluate`.
+
+    Parameters
+    ----------
+    B : ndarray ``(n_cols, n_kz)`` complex.
+    grid, klat2, kz, qw, c, dt, t0, groups
+        As :func:`evaluate` (units rad²/m², rad/m, m/s, s).
+
+    Returns
+    -------
+    ndarray ``(n_cols, grid.L)`` complex.
+
+    Examples
+    --------
+    The adjoint identity <evaluate(a), b> = <a, from_fine_grid(spread(b))>:
+
+    >>> import numpy as np
+    >>> from driver.physics.nufft import evaluate, from_fine_grid, make_grid, spread, to_fine_grid
+    >>> n_t, dt, c, t0 = 32, 1e-8, 1500.0, 1e-7  # samples, s, m/s, s
+    >>> t = t0 + dt * np.arange(n_t)
+    >>> kz = np.array([1e4, 5e4, 2e5])  # rad/m; one column with k_lat = 0: omega = c kz
+    >>> grid = make_grid(n_t, "nufft", 1e-10)
+    >>> a = np.random.default_rng(0).standard_normal((n_t, 1))
+    >>> b = np.array([[1.0, 0.5, -0.25]], dtype=complex)
+    >>> E = evaluate(to_fine_grid(a, grid, False), grid, np.zeros(1), kz, np.ones(3), c, dt, t0, False)
+    >>> g = from_fine_grid(spread(b, grid, np.zeros(1), kz, np.ones(3), c, dt, t0), grid, False)
+    >>> bool(np.isclose(np.vdot(b[0], E[0]), np.vdot(g[0], a[:, 0])))
+    True
+    """
     gvals, gptr, order = group_columns(klat2) if groups is None else groups
     ctype = np.complex64 if B.dtype == np.complex64 else np.complex128
     R = np.zeros((B.shape[0], grid.L), dtype=ctype)

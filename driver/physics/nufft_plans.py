@@ -23,6 +23,8 @@ from typing import Any
 import finufft
 import numpy as np
 
+__all__ = ["MAX_PLANS", "lateral_plan", "clear_plans"]
+
 #: plans kept (each holds one fine grid: ~(1.25..2)^d x the mode count x 8..16 bytes with
 #: one thread, and the sorted points)
 MAX_PLANS = 8
@@ -76,6 +78,29 @@ def lateral_plan(nufft_type: int, coords: tuple[np.ndarray, ...], n_modes: tuple
     ------
     ValueError
         Coordinates of unequal lengths or non-finite, ``n_trans`` < 1.
+
+    References
+    ----------
+    .. [1] A. H. Barnett, J. Magland, L. af Klinteberg, "A parallel nonuniform fast Fourier
+       transform library based on an 'exponential of semicircle' kernel", SIAM J. Sci.
+       Comput. 41 (2019).
+
+    Examples
+    --------
+    A type-2 transform is the sum over the modes k (FFT order: 0, 1, -2, -1) of
+    ``modes[k]·exp(i k x)`` at each point x; a second request for the same transform gets
+    the cached plan.
+
+    >>> import numpy as np
+    >>> from driver.physics.nufft_plans import lateral_plan
+    >>> x = np.array([0.0, 0.5, -2.0])  # rad
+    >>> modes = np.array([[1, 2, 3, 4]], dtype=complex)  # (n_trans, n_x)
+    >>> plan = lateral_plan(2, (x,), (4,), 1, eps=1e-12, isign=1, dtype=np.complex128)
+    >>> k = np.fft.fftfreq(4, 1 / 4)
+    >>> bool(np.allclose(plan.execute(modes)[0], np.exp(1j * np.outer(x, k)) @ modes[0]))
+    True
+    >>> lateral_plan(2, (x,), (4,), 1, eps=1e-12, isign=1, dtype=np.complex128) is plan
+    True
     """
     dtype = np.dtype(dtype)
     ftype = np.float32 if dtype == np.complex64 else np.float64
@@ -109,6 +134,17 @@ def lateral_plan(nufft_type: int, coords: tuple[np.ndarray, ...], n_modes: tuple
 
 
 def clear_plans() -> None:
-    """Drop every cached plan (frees their memory)."""
+    """Drop every cached plan (frees their memory).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from driver.physics.nufft_plans import clear_plans, lateral_plan
+    >>> x = np.array([0.0, 1.0])
+    >>> plan = lateral_plan(2, (x,), (4,), 1, eps=1e-9, isign=1, dtype=np.complex128)
+    >>> clear_plans()
+    >>> lateral_plan(2, (x,), (4,), 1, eps=1e-9, isign=1, dtype=np.complex128) is plan  # planned anew
+    False
+    """
     with _lock:
         _plans.clear()

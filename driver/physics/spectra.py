@@ -30,6 +30,11 @@ from importlib import resources
 
 import numpy as np
 
+__all__ = [
+    "CHROMOPHORES", "HB_MOLAR_MASS_G_PER_MOL", "BLOOD_THB", "extinction_table", "table_range",
+    "molar_extinction", "absorption",
+]
+
 #: chromophore order of every ``(..., 2)`` array in this module and in the unmixing
 CHROMOPHORES: tuple[str, str] = ("HbO2", "Hb")
 #: molar mass of haemoglobin used by Prahl's page to convert g/L to mol/L, g/mol
@@ -64,15 +69,41 @@ def _parse(text: str) -> np.ndarray:
 def extinction_table() -> tuple[np.ndarray, np.ndarray]:
     """The published table in SI units (read-only arrays).
 
-    Returns ``(wavelengths, epsilon)``: wavelengths ``(n,)`` in m (250-1000 nm, 2 nm
-    steps) and epsilon ``(n, 2)`` decadic molar extinction coefficients in m²/mol,
-    columns ``CHROMOPHORES`` = (HbO2, Hb). Source: Prahl, omlc.org (module docstring).
+    Returns
+    -------
+    wavelengths : ndarray ``(n,)``, m (250-1000 nm, 2 nm steps).
+    epsilon : ndarray ``(n, 2)``
+        Decadic molar extinction coefficients in m²/mol, columns ``CHROMOPHORES`` =
+        (HbO2, Hb).
+
+    References
+    ----------
+    .. [1] S. Prahl, "Optical Absorption of Hemoglobin", Oregon Medical Laser Center,
+       omlc.org/spectra/hemoglobin (the table shipped as ``hemoglobin_prahl.csv``).
+
+    Examples
+    --------
+    >>> from driver.physics.spectra import extinction_table
+    >>> wavelengths, epsilon = extinction_table()
+    >>> wavelengths.shape, epsilon.shape
+    ((376,), (376, 2))
     """
     return _table()
 
 
 def table_range() -> tuple[float, float]:
-    """(shortest, longest) wavelength of the extinction table, m."""
+    """(shortest, longest) wavelength of the extinction table, m.
+
+    Returns
+    -------
+    tuple of float, m.
+
+    Examples
+    --------
+    >>> from driver.physics.spectra import table_range
+    >>> [round(w * 1e9) for w in table_range()]  # nm
+    [250, 1000]
+    """
     wl, _ = _table()
     return float(wl[0]), float(wl[-1])
 
@@ -95,11 +126,38 @@ def _wavelengths(wavelengths: float | Sequence[float] | np.ndarray) -> np.ndarra
 def molar_extinction(wavelengths: float | Sequence[float] | np.ndarray) -> np.ndarray:
     """Decadic molar extinction coefficients of HbO2 and Hb at the given wavelengths.
 
-    ``wavelengths``: scalar or ``(n_wavelengths,)`` in m. Returns ``(n_wavelengths, 2)``
-    in m²/mol, columns (HbO2, Hb), linearly interpolated in Prahl's table (omlc.org).
-    Raises ``ValueError`` for an empty list, a non-numeric or non-finite value and a
-    wavelength outside the table (250-1000 nm; never extrapolated). Which wavelengths a
-    plan may ask for (400-2000 nm, no repeats) is ``driver.plan.check_wavelengths``.
+    Which wavelengths a plan may ask for (400-2000 nm, no repeats) is
+    ``driver.plan.check_wavelengths``.
+
+    Parameters
+    ----------
+    wavelengths : float or sequence or ndarray ``(n_wavelengths,)``, m.
+
+    Returns
+    -------
+    ndarray ``(n_wavelengths, 2)`` in m²/mol, columns (HbO2, Hb), linearly interpolated
+    in Prahl's table.
+
+    Raises
+    ------
+    ValueError
+        An empty list, a non-numeric or non-finite value, or a wavelength outside the
+        table (250-1000 nm; never extrapolated).
+
+    References
+    ----------
+    .. [1] S. Prahl, "Optical Absorption of Hemoglobin", Oregon Medical Laser Center,
+       omlc.org/spectra/hemoglobin.
+
+    Examples
+    --------
+    >>> from driver.physics.spectra import molar_extinction
+    >>> molar_extinction(800e-9).round(1)  # m²/mol, columns (HbO2, Hb)
+    array([[81.6, 76.2]])
+    >>> molar_extinction(1100e-9)
+    Traceback (most recent call last):
+    ...
+    ValueError: no haemoglobin extinction data at [1100.0] nm: Prahl's table covers 250-1000 nm
     """
     w = _wavelengths(wavelengths)
     wl, eps = _table()
@@ -119,10 +177,36 @@ def absorption(wavelengths: float | Sequence[float] | np.ndarray,
 
     μa(λ) = ln(10) · thb · (so2 · ε_HbO2(λ) + (1 - so2) · ε_Hb(λ))   (Prahl, omlc.org)
 
-    ``wavelengths``: scalar or ``(n_wavelengths,)`` in m; ``so2`` (fraction, 0..1) and
-    ``thb`` (mol/m³, ≥ 0) are scalars or arrays broadcast together to shape ``S``.
-    Returns ``(n_wavelengths, *S)``. Raises ``ValueError`` for wavelengths as in
-    ``molar_extinction``, so2 outside [0, 1], thb < 0 or non-finite values.
+    Parameters
+    ----------
+    wavelengths : float or sequence or ndarray ``(n_wavelengths,)``, m.
+    so2 : float or ndarray, oxygen saturation (fraction, 0..1).
+    thb : float or ndarray, total haemoglobin concentration, mol/m³ (>= 0; blood:
+        ``BLOOD_THB``); broadcast with ``so2`` to shape ``S``.
+
+    Returns
+    -------
+    ndarray ``(n_wavelengths, *S)``, μa in m⁻¹.
+
+    Raises
+    ------
+    ValueError
+        Wavelengths as in :func:`molar_extinction`, so2 outside [0, 1], thb < 0 or
+        non-finite values.
+
+    References
+    ----------
+    .. [1] S. Prahl, "Optical Absorption of Hemoglobin", Oregon Medical Laser Center,
+       omlc.org/spectra/hemoglobin ("absorption coefficient").
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from driver.physics.spectra import BLOOD_THB, absorption
+    >>> absorption(800e-9, so2=0.5, thb=BLOOD_THB).round(1)  # whole blood, m⁻¹
+    array([422.4])
+    >>> absorption([750e-9, 850e-9], so2=np.array([0.0, 1.0]), thb=BLOOD_THB).shape
+    (2, 2)
     """
     s = np.asarray(so2, dtype=np.float64)
     t = np.asarray(thb, dtype=np.float64)

@@ -93,7 +93,7 @@ def _weights_1d(x: np.ndarray, lo: float, hi: float, radius: np.ndarray) -> np.n
     return w
 
 
-def voronoi_weights(positions, pitch: float | None = None, *, bounds=None,  # noqa: C901 -- Voronoi cells clipped to the aperture (helper "plans")
+def voronoi_weights(positions, pitch: float | None = None, *, bounds=None,
                     samples_per_cell: int = _SAMPLES_PER_CELL) -> np.ndarray:
     """Clipped Voronoi areas of sensors on the sensor plane (DESIGN §3.3).
 
@@ -131,35 +131,14 @@ def voronoi_weights(positions, pitch: float | None = None, *, bounds=None,  # no
     """
     pos = _as_positions(positions)
     n, dim = pos.shape
-    if pitch is not None:
-        pitch = float(pitch)
-        if not np.isfinite(pitch) or pitch <= 0:
-            raise ValueError(f"pitch must be a positive finite length in m, got {pitch}")
-    if n > 1:
-        uniq = np.unique(pos, axis=0)
-        if uniq.shape[0] != n:
-            raise ValueError(f"positions contain {n - uniq.shape[0]} duplicated sensor position(s)")
+    pitch = _checked_pitch(pitch)
+    _refuse_duplicates(pos)
     lattice_pitch = infer_pitch(pos) if pitch is None else pitch
-    if n == 1:
-        d = np.full(1, lattice_pitch if lattice_pitch else np.inf)
-        if not np.isfinite(d[0]):
-            raise ValueError("a single sensor's cell needs a pitch (give pitch=...)")
-    else:
-        d = _nn_distance(pos)
+    d = _cell_distances(pos, lattice_pitch)
     d_med = float(np.median(d))
     radius = _REACH * np.maximum(d, d_med)
-
-    lo = pos.min(axis=0) - 0.5 * d_med
-    hi = pos.max(axis=0) + 0.5 * d_med
-    box = (lo.copy(), hi.copy())
-    if bounds is not None:
-        b = np.asarray(bounds, dtype=np.float64).reshape(-1, 2)
-        if b.shape[0] != dim or not np.all(np.isfinite(b)) or np.any(b[:, 1] <= b[:, 0]):
-            raise ValueError(f"bounds must be {dim} finite (lo, hi) pairs with lo < hi, got {bounds!r}")
-        if np.any(pos < b[:, 0] - 1e-12) or np.any(pos > b[:, 1] + 1e-12):
-            raise ValueError("bounds must contain every sensor position")
-        lo = np.maximum(lo, b[:, 0])
-        hi = np.minimum(hi, b[:, 1])
+    box = (pos.min(axis=0) - 0.5 * d_med, pos.max(axis=0) + 0.5 * d_med)
+    lo, hi = _clipped_box(pos, box, bounds)
 
     if dim == 1:
         return _weights_1d(pos[:, 0], float(lo[0]), float(hi[0]), radius)
@@ -167,15 +146,73 @@ def voronoi_weights(positions, pitch: float | None = None, *, bounds=None,  # no
     # Shortcut: a complete regular grid (a full lattice or an equispaced sub-grid) whose
     # box is not cut by ``bounds``: every cell is a full square of the grid's spacing.
     grid_pitch = infer_pitch(pos) if pitch is not None else lattice_pitch
-    if grid_pitch is not None and np.all(lo <= box[0]) and np.all(hi >= box[1]):
-        k = np.round((pos - pos.min(axis=0)) / grid_pitch).astype(np.int64)
-        nx, ny = k.max(axis=0) + 1
-        if nx * ny == n and abs(d_med - grid_pitch) <= 1e-9 * grid_pitch:
-            return np.full(n, grid_pitch**2)
+    if grid_pitch is not None and np.all(lo <= box[0]) and np.all(hi >= box[1]) \
+            and _is_full_grid(pos, grid_pitch, d_med):
+        return np.full(n, grid_pitch**2)
 
-    # Raster step: an even number of sub-cells per lattice pitch (or per spacing).
     base = lattice_pitch if lattice_pitch is not None else float(d.min())
-    extent = hi - lo
+    h = _raster_step(base, hi - lo, n, samples_per_cell)
+    samples, frac = _raster(pos.min(axis=0) - 0.5 * base, h, lo, hi)
+    return _raster_areas(pos, samples, frac, radius, h)
+
+
+def _checked_pitch(pitch: float | None) -> float | None:
+    """``voronoi_weights``: the pitch as a float (m), refused unless positive and finite."""
+    if pitch is None:
+        return None
+    pitch = float(pitch)
+    if not np.isfinite(pitch) or pitch <= 0:
+        raise ValueError(f"pitch must be a positive finite length in m, got {pitch}")
+    return pitch
+
+
+def _refuse_duplicates(pos: np.ndarray) -> None:
+    """``voronoi_weights``: ValueError if two sensors share a position."""
+    n = pos.shape[0]
+    if n > 1:
+        uniq = np.unique(pos, axis=0)
+        if uniq.shape[0] != n:
+            raise ValueError(f"positions contain {n - uniq.shape[0]} duplicated sensor position(s)")
+
+
+def _cell_distances(pos: np.ndarray, lattice_pitch: float | None) -> np.ndarray:
+    """Nearest-neighbour distance of every sensor ``(n,)`` in m; a single sensor's is the
+    lattice pitch (ValueError without one)."""
+    if pos.shape[0] > 1:
+        return _nn_distance(pos)
+    d = np.full(1, lattice_pitch if lattice_pitch else np.inf)
+    if not np.isfinite(d[0]):
+        raise ValueError("a single sensor's cell needs a pitch (give pitch=...)")
+    return d
+
+
+def _clipped_box(pos: np.ndarray, box: tuple[np.ndarray, np.ndarray], bounds) -> tuple[np.ndarray, np.ndarray]:
+    """The covered region ``(lo, hi)`` (each ``(d,)``, m): ``box`` intersected with
+    ``bounds`` (checked: ``d`` finite ``(lo, hi)`` pairs holding every sensor)."""
+    lo, hi = box[0].copy(), box[1].copy()
+    if bounds is None:
+        return lo, hi
+    dim = pos.shape[1]
+    b = np.asarray(bounds, dtype=np.float64).reshape(-1, 2)
+    if b.shape[0] != dim or not np.all(np.isfinite(b)) or np.any(b[:, 1] <= b[:, 0]):
+        raise ValueError(f"bounds must be {dim} finite (lo, hi) pairs with lo < hi, got {bounds!r}")
+    if np.any(pos < b[:, 0] - 1e-12) or np.any(pos > b[:, 1] + 1e-12):
+        raise ValueError("bounds must contain every sensor position")
+    return np.maximum(lo, b[:, 0]), np.minimum(hi, b[:, 1])
+
+
+def _is_full_grid(pos: np.ndarray, grid_pitch: float, d_med: float) -> bool:
+    """Whether the plane positions ``(n, 2)`` fill a whole grid of spacing ``grid_pitch``
+    (m) whose nearest-neighbour distance is that spacing."""
+    k = np.round((pos - pos.min(axis=0)) / grid_pitch).astype(np.int64)
+    nx, ny = k.max(axis=0) + 1
+    return bool(nx * ny == pos.shape[0] and abs(d_med - grid_pitch) <= 1e-9 * grid_pitch)
+
+
+def _raster_step(base: float, extent: np.ndarray, n: int, samples_per_cell: int) -> float:
+    """The raster step h (m): an even number of sub-cells per lattice pitch (or per
+    spacing) ``base``, about ``samples_per_cell`` per median cell, at most ``_MAX_RASTER``
+    samples over ``extent`` ``(2,)`` m."""
     cell = float(np.prod(extent)) / n
     m = 2
     while cell / (base / m) ** 2 < samples_per_cell and m < 64:
@@ -185,8 +222,13 @@ def voronoi_weights(positions, pitch: float | None = None, *, bounds=None,  # no
     h = base / m
     if float(np.prod(np.ceil(extent / h))) > _MAX_RASTER:
         h = float(np.sqrt(np.prod(extent) / _MAX_RASTER))
-    # Align the raster to the lattice: cell edges at (sensor coordinate - pitch/2) + j*h.
-    anchor = pos.min(axis=0) - 0.5 * base
+    return h
+
+
+def _raster(anchor: np.ndarray, h: float, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Raster sample centres ``(m, 2)`` (x, y) m over ``[lo, hi]``, cell edges at
+    ``anchor + j·h`` (aligned to the lattice), and the fraction ``(m,)`` of each raster
+    cell inside the box (edge cells cut by it). Raises ValueError for an empty region."""
     j_lo = np.floor((lo - anchor) / h + 1e-9)
     j_hi = np.ceil((hi - anchor) / h - 1e-9)
     axes, fracs = [], []
@@ -204,7 +246,14 @@ def voronoi_weights(positions, pitch: float | None = None, *, bounds=None,  # no
         raise ValueError("the covered region is empty")
     gx, gy = np.meshgrid(axes[0], axes[1], indexing="xy")
     frac = np.outer(fracs[1], fracs[0]).ravel()
-    samples = np.column_stack((gx.ravel(), gy.ravel()))
+    return np.column_stack((gx.ravel(), gy.ravel())), frac
+
+
+def _raster_areas(pos: np.ndarray, samples: np.ndarray, frac: np.ndarray, radius: np.ndarray,
+                  h: float) -> np.ndarray:
+    """Each sensor's area ``(n,)`` in m²: the raster samples (weighted by ``frac``) nearest
+    to it and within its ``radius`` (m), a sample on a bisector shared by the two."""
+    n = pos.shape[0]
     tree = cKDTree(pos)
     if n == 1:
         dist, label = tree.query(samples, k=1)

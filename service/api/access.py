@@ -29,6 +29,11 @@ from fastapi.responses import JSONResponse
 
 from service.settings import Settings, is_loopback
 
+__all__ = [
+    "STATE_CHANGING", "PUBLIC_API_PATHS", "WILDCARD_BINDS", "host_name", "host_allowed", "same_origin",
+    "token_matches", "AccessGate",
+]
+
 log = logging.getLogger("fpscan.api")
 
 #: Methods that change the server's state (the Origin rule applies to them).

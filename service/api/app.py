@@ -16,7 +16,7 @@ import time
 import uuid
 from collections.abc import MutableMapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from fastapi import Depends, FastAPI, Request
 from fastapi.exceptions import RequestValidationError
@@ -29,6 +29,14 @@ from service.api.context import Context, Slots, ctx, default_slots, read_access,
 from service.api.models import AuthInfo, Error, Health
 from service.disk import is_disk_full
 from service.settings import Settings
+
+if TYPE_CHECKING:
+    from service.jobs.store import JobStore
+
+__all__ = [
+    "VERSION", "PROCESS_START", "ERROR_RESPONSES", "allowed_methods", "UploadLimit", "MIN_BODY_RATE",
+    "ShortIds", "DISK_USAGE_TTL_S", "DiskUsageCache", "warm_routes", "create_app",
+]
 
 log = logging.getLogger("fpscan.api")
 
@@ -325,11 +333,35 @@ async def warm_routes(app: FastAPI, settings: Settings) -> None:
         log.exception("route warm-up failed")
 
 
-def create_app(settings: Settings | None = None, *, start_workers: bool = True) -> FastAPI:  # noqa: C901 -- lifespan hooks of helpers "hostile" and "lab"
+def create_app(settings: Settings | None = None, *, start_workers: bool = True) -> FastAPI:
     """The service app. ``start_workers=False`` builds the app without the queue and scan
     threads (for schema inspection)."""
     settings = settings or Settings.load()
     slots = default_slots(settings)
+    app = FastAPI(title="fpscan", version=VERSION, lifespan=_lifespan(settings, slots, start_workers),
+                  responses=ERROR_RESPONSES,
+                  description="Planar Fabry-Perot photoacoustic scanning: plans, scans, reconstructions as jobs.")
+    _add_error_handlers(app)
+    app.add_middleware(UploadLimit, limit=settings.upload_limit, json_limit=settings.json_limit, slots=slots,
+                       body_timeout_s=settings.body_timeout_s)
+    app.add_middleware(ShortIds)
+    from service.api.access import AccessGate
+
+    app.add_middleware(AccessGate, settings=settings)  # outermost: before any slot, thread or body byte
+
+    from service.api import datasets, jobs, plans, reconstructions, retention, scans
+
+    _add_health_routes(app, settings)
+    for module in (plans, scans, datasets, reconstructions, jobs, retention):
+        app.include_router(module.router)
+    _state_security_in_openapi(app, settings)
+    _mount_web_page(app, settings)
+    return app
+
+
+def _lifespan(settings: Settings, slots: dict[str, Slots], start_workers: bool):
+    """``create_app``'s lifespan: the job store and context, then (``start_workers``) the
+    queue, its executor and the scan manager; the route warm-up; on shutdown all stopped."""
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI):
@@ -340,58 +372,73 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True) 
         store = JobStore(settings.database)
         context = Context(settings=settings, store=store, slots=slots)
         app.state.ctx = context
-        executor = None
-        if start_workers:
-            from service.jobs.executors import make_executor
-            from service.jobs.queue import ReconQueue
-
-            executor = make_executor(settings)
-            if hasattr(executor, "start_workers"):  # the local pool: its workers start (and warm up) now,
-                context.extras["worker_starts"] = executor.start_workers()  # in the background
-            context.queue = ReconQueue(store, executor, settings)
-            recovered = store.recover(context.queue.owner, settings.max_attempts)
-            from service.jobs.queue import remove_debris
-
-            debris = remove_debris(settings.data_dir, PROCESS_START)
-            if debris:
-                log.info("startup removed crash debris: %s", ", ".join(debris[:20]))
-            if settings.resume_scans:
-                for jid in recovered["paused"]:
-                    store.set_state(jid, "queued", only_from=("paused",), progress={"stage": "resuming", "reason": None})
-            log.info("startup recovered=%s executor=%s resume_scans=%s", recovered, settings.executor,
-                     settings.resume_scans)
-            from service.jobs.lifecycle import apply_retention
-
-            apply_retention(store, settings)  # a policy tightened while the server was down
-            context.queue.start()
-            from service.api.plans import plan_executor
-
-            plan_executor(context)  # the plan worker starts loading now, not at the first plan request
-            try:
-                from service.scanning import ScanManager
-
-                context.scans = ScanManager(store, settings)
-                context.scans.start()
-            except ImportError as exc:  # the driver is not installed
-                log.warning("scanning unavailable: %s", exc)
+        executor = _start_workers(context, store, settings) if start_workers else None
         await warm_routes(app, settings)
         try:
             yield
         finally:
-            if context.scans is not None:
-                context.scans.stop()
-            if context.queue is not None:
-                context.queue.stop()
-            if executor is not None:
-                executor.close()
-            if context.extras.get("plan_executor") is not None:
-                context.extras["plan_executor"].close()
-            if context.queue is not None:
-                context.queue.join()  # running jobs re-queue themselves (SIGTERM re-queues)
-            store.close()
+            _stop_workers(context, executor, store)
 
-    app = FastAPI(title="fpscan", version=VERSION, lifespan=lifespan, responses=ERROR_RESPONSES,
-                  description="Planar Fabry-Perot photoacoustic scanning: plans, scans, reconstructions as jobs.")
+    return lifespan
+
+
+def _start_workers(context: Context, store: JobStore, settings: Settings) -> Any:
+    """Start the reconstruction queue (after crash recovery, debris removal and the
+    retention policy), the plan worker and the scan manager; returns the executor."""
+    from service.jobs.executors import make_executor
+    from service.jobs.queue import ReconQueue
+
+    executor = make_executor(settings)
+    if hasattr(executor, "start_workers"):  # the local pool: its workers start (and warm up) now,
+        context.extras["worker_starts"] = executor.start_workers()  # in the background
+    context.queue = ReconQueue(store, executor, settings)
+    recovered = store.recover(context.queue.owner, settings.max_attempts)
+    from service.jobs.queue import remove_debris
+
+    debris = remove_debris(settings.data_dir, PROCESS_START)
+    if debris:
+        log.info("startup removed crash debris: %s", ", ".join(debris[:20]))
+    if settings.resume_scans:
+        for jid in recovered["paused"]:
+            store.set_state(jid, "queued", only_from=("paused",), progress={"stage": "resuming", "reason": None})
+    log.info("startup recovered=%s executor=%s resume_scans=%s", recovered, settings.executor,
+             settings.resume_scans)
+    from service.jobs.lifecycle import apply_retention
+
+    apply_retention(store, settings)  # a policy tightened while the server was down
+    context.queue.start()
+    from service.api.plans import plan_executor
+
+    plan_executor(context)  # the plan worker starts loading now, not at the first plan request
+    try:
+        from service.scanning import ScanManager
+
+        context.scans = ScanManager(store, settings)
+        context.scans.start()
+    except ImportError as exc:  # the driver is not installed
+        log.warning("scanning unavailable: %s", exc)
+    return executor
+
+
+def _stop_workers(context: Context, executor: Any, store: JobStore) -> None:
+    """Stop scans, the queue, the executor and the plan worker, wait for the queue's
+    running jobs (they re-queue themselves) and close the store."""
+    if context.scans is not None:
+        context.scans.stop()
+    if context.queue is not None:
+        context.queue.stop()
+    if executor is not None:
+        executor.close()
+    if context.extras.get("plan_executor") is not None:
+        context.extras["plan_executor"].close()
+    if context.queue is not None:
+        context.queue.join()  # running jobs re-queue themselves (SIGTERM re-queues)
+    store.close()
+
+
+def _add_error_handlers(app: FastAPI) -> None:
+    """Every error answers ``{"detail": reason}``: 422 for invalid values, the HTTP error's
+    own status (405 with the path's ``Allow``), 503 for a full disk, 500 with a reference."""
 
     @app.exception_handler(RequestValidationError)
     async def _validation(request: Request, exc: RequestValidationError):
@@ -425,14 +472,9 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True) 
         log.exception("internal error ref=%s %s %s", ref, request.method, request.url.path)
         return JSONResponse({"detail": f"internal error (reference {ref})"}, status_code=500)
 
-    app.add_middleware(UploadLimit, limit=settings.upload_limit, json_limit=settings.json_limit, slots=slots,
-                       body_timeout_s=settings.body_timeout_s)
-    app.add_middleware(ShortIds)
-    from service.api.access import AccessGate
 
-    app.add_middleware(AccessGate, settings=settings)  # outermost: before any slot, thread or body byte
-
-    from service.api import datasets, jobs, plans, reconstructions, retention, scans
+def _add_health_routes(app: FastAPI, settings: Settings) -> None:
+    """``GET /api/health`` and ``GET /api/auth``."""
     from service.jobs.lifecycle import disk_usage
 
     disk_cache = DiskUsageCache(settings.data_dir, disk_usage)
@@ -463,9 +505,9 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True) 
                         authenticated=expected is None
                         or token_matches(request.headers.get("authorization"), expected) is None)
 
-    for module in (plans, scans, datasets, reconstructions, jobs, retention):
-        app.include_router(module.router)
 
+def _state_security_in_openapi(app: FastAPI, settings: Settings) -> None:
+    """Make the app's OpenAPI schema say whether routes need the token."""
     base_openapi = app.openapi
 
     def openapi() -> dict:
@@ -483,10 +525,12 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True) 
 
     app.openapi = openapi  # type: ignore[method-assign]
 
+
+def _mount_web_page(app: FastAPI, settings: Settings) -> None:
+    """Serve ``settings.web_root`` (the web page) at ``/`` when it is a folder."""
     if settings.web_root is not None:
         root = Path(settings.web_root)
         if root.is_dir():
             app.mount("/", StaticFiles(directory=str(root), html=True), name="web")
         else:
             log.warning("web_root %s is not a folder; no web page", root)
-    return app

@@ -17,6 +17,8 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from service.jobs.store import JobStore
 from service.settings import Settings
 
+__all__ = ["bearer", "Slots", "default_slots", "Context", "ctx", "require_token", "read_access", "reason", "validation_reason"]
+
 log = logging.getLogger("fpscan.api")
 
 bearer = HTTPBearer(auto_error=False, description="Bearer token (settings.token)")

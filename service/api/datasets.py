@@ -51,6 +51,8 @@ from service.storage.datasets import import_dataset
 
 log = logging.getLogger("fpscan.api")
 #: serialises "is this content stored already?" with storing it (two identical uploads at once)
+__all__ = ["router", "list_datasets", "list_formats", "upload_dataset", "delete_dataset"]
+
 _DEDUP_LOCK = threading.Lock()
 
 router = APIRouter(prefix="/api/datasets", tags=["datasets"])

@@ -12,6 +12,11 @@ from service.api.models import ID_PATTERN, Deleted, Job, JobKind, JobState
 from service.jobs import lifecycle
 from service.jobs.store import TERMINAL
 
+__all__ = [
+    "router", "JobId", "job_links", "job_view", "get_job_or_404", "list_jobs", "get_job", "cancel_job",
+    "delete_job", "job_events",
+]
+
 router = APIRouter(prefix="/api/jobs", tags=["jobs"])
 
 JobId = Path(pattern=ID_PATTERN, description="job id")

@@ -25,6 +25,14 @@ from service.api.context import Context, ctx, read_access, reason, require_token
 from service.api.models import ID_PATTERN, Deleted, MaskKindInfo, Plan, PlanCreate, PlanDocument, PlanPreview
 from service.jobs import lifecycle
 
+__all__ = [
+    "router", "MAX_POINTS", "PREVIEW_DETAIL_POINTS", "build_plan", "expected_scan_time", "summary",
+    "preview_png", "parse_plan_request", "plan_work", "gzip_text", "SERVED", "warm_up", "preview_png_of_text",
+    "PLAN_WORKER_NICE", "plan_executor", "create_plan_raw", "preview_plan_raw", "create_plan", "preview_plan",
+    "list_mask_kinds", "list_plans", "plan_or_404", "get_plan", "delete_plan", "accepts_encoding",
+    "get_plan_json", "plan_preview_png",
+]
+
 router = APIRouter(prefix="/api/plans", tags=["plans"])
 
 #: Most points a plan made over HTTP may have: building, hashing and drawing a plan costs

@@ -17,6 +17,11 @@ from service.jobs.admission import AdmissionError, admit, estimate_memory
 from service.jobs.store import IdempotencyConflict
 from service.pipeline import METHODS, OPTIONS, default_method, method_options
 
+__all__ = [
+    "router", "JobId", "IdemKey", "list_methods", "start_reconstruction", "WavelengthQuery", "volume",
+    "volume_ome_tiff", "volume_ome_zarr", "unmix_h5", "so2_png", "mip_png", "slice_png",
+]
+
 router = APIRouter(prefix="/api/reconstructions", tags=["reconstructions"])
 
 JobId = PathParam(pattern=ID_PATTERN, description="reconstruction job id")

@@ -8,6 +8,8 @@ from service.api.context import Context, ctx, read_access, require_token
 from service.api.models import Retention
 from service.jobs import lifecycle
 
+__all__ = ["router", "get_retention", "put_retention"]
+
 router = APIRouter(prefix="/api/retention", tags=["storage"])
 
 

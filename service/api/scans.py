@@ -14,6 +14,11 @@ from service.api.jobs import get_job_or_404, job_view
 from service.api.models import ID_PATTERN, Job, Plane, PreviewInfo, Scanner, ScanRequest
 from service.jobs.store import TERMINAL, IdempotencyConflict
 
+__all__ = [
+    "router", "JobId", "list_scanners", "start_scan", "pause_scan", "resume_scan", "abort_scan", "scan_file",
+    "scan_ipasc", "scan_preview", "scan_preview_png",
+]
+
 router = APIRouter(tags=["scans"])
 
 JobId = PathParam(pattern=ID_PATTERN, description="scan job id")

@@ -20,6 +20,8 @@ from service import formats
 from service.recon.dataset import GridDataset, PointDataset
 from service.storage.datasets import input_formats
 
+__all__ = ["DenseDataset", "load_dense", "add_noise"]
+
 
 @dataclass
 class DenseDataset(GridDataset):

@@ -20,6 +20,7 @@ sharpness equiangular 23001 (above every equispaced), interpolated 21474.
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -37,6 +38,8 @@ from service.recon.dataset import GridDataset, PointDataset
 from .datasets import DenseDataset, add_noise
 from .phantoms import tree_phantom, tree_roi
 from .result import ExperimentResult, setup_matplotlib
+
+__all__ = ["NAME", "PAPER", "resample_depth", "simulate_tree", "run", "plot"]
 
 NAME = "limited-view-2d"
 PAPER = {"cc_equiangular": 0.913, "cc_best_equispaced": 0.849, "best_interval": 13,
@@ -73,7 +76,7 @@ def simulate_tree(*, small: bool, snr_db: float | None, seed: int = 0) -> DenseD
                         meta={"clean": clean, "snr_db": snr_db, "seed": seed})
 
 
-def run(  # noqa: C901 -- one experiment: its arrangements in sequence, one table
+def run(
     data: DenseDataset | None = None,
     *,
     small: bool = False,
@@ -133,99 +136,192 @@ def run(  # noqa: C901 -- one experiment: its arrangements in sequence, one tabl
     ref = ref_img.p0
     z = np.asarray(ref_img.z)
     if roi is None:
-        if built_in and data.p0 is not None and data.dz is not None:  # the built-in tree has both
-            roi = tree_roi(data.p0.shape[0], data.dz)
-        else:
-            roi = ((0.5 * n_z * dz, 0.0), 0.95 * n_z * dz)
+        roi = _default_roi(data, built_in, n_z, dz)
     (zc, xc), diameter = roi
-    mask = disc_mask((z, x), diameter, (zc, xc))
-    rect = bounding_box(mask)
-    ref_sharp = tenenbaum_sharpness(_normalised(ref, rect), mask)
-    truth = truth_mask = None
-    if data.p0 is not None and data.dz is not None:
-        # the true p0 on its own depth grid: reconstructions are resampled onto it (rows
-        # within the reconstructed depth), the ROI disc drawn on that grid
-        z_truth = np.arange(data.p0.shape[0]) * data.dz
-        keep = z_truth <= z[-1] * (1 + 1e-9)
-        if keep.sum() >= 2:
-            z_truth, truth = z_truth[keep], data.p0[keep]
-            truth_mask = disc_mask((z_truth, x), diameter, (zc, xc))
+    table = _Table(_scorer(data, ref, z, x, roi))
+    table.rows.append(table.score(ref, arrangement="full", interval=1, n_sensors=n_x, time_s=t_ref))
+    table.images["reference"] = ref
+    from service.plans import Lattice
 
-    def vs_truth(img):
-        if truth is None:
+    lattice = Lattice(n_x, 1, dx)
+    line = _Line(g=g, x=x, dx=dx, dt=dt, c=c, n_z=n_z)
+    _run_equispaced(table, line, lattice, range(1, 33) if intervals is None else intervals, n_sensors)
+    weight_ratio = np.nan
+    if include_equiangular:
+        weight_ratio = _run_equiangular(table, line, lattice, (zc, xc), n_sensors, model_based=model_based,
+                                        tv_iterations=tv_iterations)
+
+    rows = table.rows
+    eqs = [r for r in rows if r["arrangement"] == "equispaced"]
+    params = {
+        "source": data.source, "n_x": n_x, "n_t": n_t, "n_z": n_z, "dx_m": dx, "dt_s": dt, "c_m_per_s": c,
+        "n_sensors": n_sensors, "snr_db": data.meta.get("snr_db") if built_in else None,
+        "seed": seed if built_in else None, "roi_center_m": [zc, xc], "roi_diameter_m": diameter,
+        "reference": "NER from every line point", "small": small,
+    }
+    images = table.images
+    images["phantom"] = data.p0
+    return ExperimentResult(NAME, params, rows, _summary(rows, weight_ratio),
+                            curves={"interval": [r["interval"] for r in eqs], "cc": [r["cc"] for r in eqs],
+                                    "sharpness_rel": [r["sharpness_rel"] for r in eqs]},
+                            images={"recons": images, "sensors": table.sensors, "z": z, "x": x,
+                                    "roi": (zc, xc, diameter)})
+
+
+def _default_roi(data: DenseDataset, built_in: bool, n_z: int, dz: float) -> tuple[tuple[float, float], float]:
+    """``run``'s ROI ``((z_c, x_c), diameter)`` in m when none is given: the built-in tree's
+    disc, else a disc centred at half the reconstructed depth spanning 95 % of it."""
+    if built_in and data.p0 is not None and data.dz is not None:  # the built-in tree has both
+        return tree_roi(data.p0.shape[0], data.dz)
+    return (0.5 * n_z * dz, 0.0), 0.95 * n_z * dz
+
+
+@dataclass
+class _Scorer:
+    """Scores of a reconstruction ``(n_z, n_x)`` in the ROI ``mask`` against the reference
+    ``ref`` and, when known, the true p0 ``truth`` on its own depths ``z_truth`` (m)."""
+
+    ref: np.ndarray
+    z: np.ndarray
+    mask: np.ndarray
+    rect: tuple
+    ref_sharp: float
+    truth: np.ndarray | None = None
+    z_truth: np.ndarray | None = None
+    truth_mask: np.ndarray | None = None
+
+    def vs_truth(self, img: np.ndarray) -> float:
+        """CC in the ROI against the true p0, ``img`` resampled to its depths (NaN: unknown)."""
+        if self.truth is None or self.z_truth is None:
             return np.nan
-        return correlation_coefficient(resample_depth(img, z, z_truth), truth, truth_mask)
+        return correlation_coefficient(resample_depth(img, self.z, self.z_truth), self.truth, self.truth_mask)
 
-    def score(img, **row):
-        norm = _normalised(img, rect)
-        sh = tenenbaum_sharpness(norm, mask)
+    def __call__(self, img: np.ndarray, **row) -> dict:
+        """``row`` with ``cc``, ``sharpness``, ``sharpness_rel`` and ``cc_vs_phantom`` added."""
+        sh = tenenbaum_sharpness(_normalised(img, self.rect), self.mask)
         row.update(
-            cc=correlation_coefficient(img, ref, mask),
+            cc=correlation_coefficient(img, self.ref, self.mask),
             sharpness=sh,
-            sharpness_rel=sh / ref_sharp if ref_sharp > 0 else np.nan,
-            cc_vs_phantom=vs_truth(img),
+            sharpness_rel=sh / self.ref_sharp if self.ref_sharp > 0 else np.nan,
+            cc_vs_phantom=self.vs_truth(img),
         )
         return row
 
-    rows = [score(ref, arrangement="full", interval=1, n_sensors=n_x, time_s=t_ref)]
-    images: dict[str, np.ndarray | None] = {"reference": ref}
-    sensors = {}
-    if intervals is None:
-        intervals = range(1, 33)
-    from service.plans import Lattice, equiangular_mask, subgrid_mask
 
-    lattice = Lattice(n_x, 1, dx)
+def _scorer(data: DenseDataset, ref: np.ndarray, z: np.ndarray, x: np.ndarray,
+            roi: tuple[tuple[float, float], float]) -> _Scorer:
+    """The scorer of ``run``: the ROI disc on the reconstruction grid ``(z, x)`` (m), and
+    the true p0 on its own depth grid (rows within the reconstructed depth, the disc drawn
+    on that grid) when the data hold it."""
+    (zc, xc), diameter = roi
+    mask = disc_mask((z, x), diameter, (zc, xc))
+    rect = bounding_box(mask)
+    scorer = _Scorer(ref=ref, z=z, mask=mask, rect=rect, ref_sharp=tenenbaum_sharpness(_normalised(ref, rect), mask))
+    if data.p0 is not None and data.dz is not None:
+        z_truth = np.arange(data.p0.shape[0]) * data.dz
+        keep = z_truth <= z[-1] * (1 + 1e-9)
+        if keep.sum() >= 2:
+            scorer.z_truth, scorer.truth = z_truth[keep], data.p0[keep]
+            scorer.truth_mask = disc_mask((scorer.z_truth, x), diameter, (zc, xc))
+    return scorer
+
+
+@dataclass
+class _Line:
+    """The line data ``g`` ``(n_t, n_x)`` with lateral axis ``x`` (m), and what every
+    reconstruction of it shares: ``dx`` m, ``dt`` s, ``c`` m/s, ``n_z`` depth rows."""
+
+    g: np.ndarray
+    x: np.ndarray
+    dx: float
+    dt: float
+    c: float
+    n_z: int
+
+    def points(self, idx: np.ndarray, positions: np.ndarray, weights: np.ndarray) -> PointDataset:
+        """The A-lines of line points ``idx`` at ``positions`` ``(n, 1)`` m with ``weights`` (m)."""
+        return PointDataset(alines=self.g[:, idx].T, positions=positions, weights=weights, dt=self.dt, c=self.c,
+                            grid=(self.x,))
+
+    def reconstruct(self, data: GridDataset | PointDataset, method: str, **params) -> np.ndarray:
+        """p0 ``(n_z, n_x)`` of ``data`` by ``method`` on this line's grid (float64)."""
+        return reconstruct(data, method, n_z=self.n_z, dtype="float64", **params).p0
+
+
+@dataclass
+class _Table:
+    """``run``'s rows, reconstructions and sensor x positions (m) by arrangement."""
+
+    score: _Scorer
+    rows: list[dict] = field(default_factory=list)
+    images: dict[str, np.ndarray | None] = field(default_factory=dict)
+    sensors: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def add(self, key: str, img: np.ndarray, sensor_x: np.ndarray, t0: float, **row) -> None:
+        """Score ``img`` (reconstructed since ``t0``, ``time.perf_counter`` s) as ``row``."""
+        self.rows.append(self.score(img, **row, time_s=time.perf_counter() - t0))
+        self.images[key] = img
+        self.sensors[key] = sensor_x
+
+
+def _run_equispaced(table: _Table, line: _Line, lattice, intervals, n_sensors: int) -> None:
+    """``n_sensors`` equispaced sensors at each interval that fits, NEDNER-NUFFT."""
+    from service.plans import subgrid_mask
+
     for s in intervals:
         s = int(s)
-        if (n_sensors - 1) * s + 1 > n_x:
+        if (n_sensors - 1) * s + 1 > line.x.size:
             continue
         sub = subgrid_mask(lattice, s, n_sensors)
         idx = np.asarray(sub.indices)[:, 0]
         t0 = time.perf_counter()
-        img = reconstruct(PointDataset(alines=g[:, idx].T, positions=np.asarray(sub.positions, float)[:, :1],
-                                       weights=np.asarray(sub.weights, float), dt=dt, c=c, grid=(x,)),
-                          "nedner", n_z=n_z, dtype="float64").p0
-        rows.append(score(img, arrangement="equispaced", interval=s, n_sensors=len(idx),
-                          time_s=time.perf_counter() - t0))
-        images[f"equispaced_{s}"] = img
-        sensors[f"equispaced_{s}"] = x[idx]
+        img = line.reconstruct(line.points(idx, np.asarray(sub.positions, float)[:, :1],
+                                           np.asarray(sub.weights, float)), "nedner")
+        table.add(f"equispaced_{s}", img, line.x[idx], t0, arrangement="equispaced", interval=s,
+                  n_sensors=len(idx))
 
-    if include_equiangular:
-        mask_eq = equiangular_mask(lattice, zc, n_sensors, poi=(xc, 0.0))
-        pos = np.asarray(mask_eq.positions, dtype=float)[:, :1]
-        w = np.asarray(mask_eq.weights, dtype=float)
-        idx = np.asarray(mask_eq.indices)[:, 0]
-        t0 = time.perf_counter()
-        img = reconstruct(PointDataset(alines=g[:, idx].T, positions=pos, weights=w, dt=dt, c=c, grid=(x,)),
-                          "nedner", n_z=n_z, dtype="float64").p0
-        rows.append(score(img, arrangement="equiangular", interval=np.nan, n_sensors=len(idx),
-                          time_s=time.perf_counter() - t0))
-        images["equiangular"] = img
-        sensors["equiangular"] = pos[:, 0]
-        if model_based:  # the same 32 A-lines, model-based (TV + positivity, automatic λ)
-            t0 = time.perf_counter()
-            img = reconstruct(PointDataset(alines=g[:, idx].T, positions=pos, weights=w, dt=dt, c=c, grid=(x,)),
-                              "tv", n_z=n_z, dtype="float64", iterations=tv_iterations).p0
-            rows.append(score(img, arrangement="equiangular-tv", interval=np.nan, n_sensors=len(idx),
-                              time_s=time.perf_counter() - t0))
-            images["equiangular-tv"] = img
-            sensors["equiangular-tv"] = pos[:, 0]
-        # conventional: interpolate the 32 A-lines linearly to every line point, then NER
-        order = np.argsort(pos[:, 0])
-        xs, a = pos[order, 0], g[:, idx[order]]
-        t0 = time.perf_counter()
-        j = np.clip(np.searchsorted(xs, x) - 1, 0, len(xs) - 2)
-        f = np.clip((x - xs[j]) / (xs[j + 1] - xs[j]), 0.0, 1.0)
-        filled = a[:, j] * (1 - f) + a[:, j + 1] * f
-        img = reconstruct(GridDataset(data=filled, dx=dx, dt=dt, c=c), "ner", n_z=n_z, dtype="float64").p0
-        rows.append(score(img, arrangement="equiangular-interpolated", interval=np.nan, n_sensors=len(idx),
-                          time_s=time.perf_counter() - t0))
-        images["equiangular-interpolated"] = img
-        sensors["equiangular-interpolated"] = pos[:, 0]
-        weight_ratio = mask_eq.weight_ratio  # outer/inner (service.plans.weight_ratio), as every plan states it
-    else:
-        weight_ratio = np.nan
 
+def _run_equiangular(table: _Table, line: _Line, lattice, poi: tuple[float, float], n_sensors: int, *,
+                     model_based: bool, tv_iterations: int | None) -> float:
+    """``n_sensors`` equiangular sensors around ``poi`` ``(z, x)`` m: NEDNER-NUFFT, ``tv``
+    (``model_based``) and interpolated to every line point + NER. Returns the mask's
+    outer/inner weight ratio."""
+    from service.plans import equiangular_mask
+
+    zc, xc = poi
+    mask_eq = equiangular_mask(lattice, zc, n_sensors, poi=(xc, 0.0))
+    pos = np.asarray(mask_eq.positions, dtype=float)[:, :1]
+    w = np.asarray(mask_eq.weights, dtype=float)
+    idx = np.asarray(mask_eq.indices)[:, 0]
+    row = {"interval": np.nan, "n_sensors": len(idx)}
+    t0 = time.perf_counter()
+    img = line.reconstruct(line.points(idx, pos, w), "nedner")
+    table.add("equiangular", img, pos[:, 0], t0, arrangement="equiangular", **row)
+    if model_based:  # the same 32 A-lines, model-based (TV + positivity, automatic λ)
+        t0 = time.perf_counter()
+        img = line.reconstruct(line.points(idx, pos, w), "tv", iterations=tv_iterations)
+        table.add("equiangular-tv", img, pos[:, 0], t0, arrangement="equiangular-tv", **row)
+    # conventional: interpolate the 32 A-lines linearly to every line point, then NER
+    t0 = time.perf_counter()
+    filled = _interpolated_to_line(pos[:, 0], line.g[:, idx], line.x)
+    img = line.reconstruct(GridDataset(data=filled, dx=line.dx, dt=line.dt, c=line.c), "ner")
+    table.add("equiangular-interpolated", img, pos[:, 0], t0, arrangement="equiangular-interpolated", **row)
+    return mask_eq.weight_ratio  # outer/inner (service.plans.weight_ratio), as every plan states it
+
+
+def _interpolated_to_line(sensor_x: np.ndarray, alines: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """A-lines ``(n_t, n)`` at ``sensor_x`` ``(n,)`` m, linearly interpolated to every line
+    point ``x`` ``(n_x,)`` m (constant beyond the outer sensors): ``(n_t, n_x)``."""
+    order = np.argsort(sensor_x)
+    xs, a = sensor_x[order], alines[:, order]
+    j = np.clip(np.searchsorted(xs, x) - 1, 0, len(xs) - 2)
+    f = np.clip((x - xs[j]) / (xs[j + 1] - xs[j]), 0.0, 1.0)
+    return a[:, j] * (1 - f) + a[:, j + 1] * f
+
+
+def _summary(rows: list[dict], weight_ratio: float) -> dict:
+    """``run``'s summary: the best equispaced CC and its interval, the equiangular CCs and
+    sharpness (relative to the reference's), the paper's values."""
     eqs = [r for r in rows if r["arrangement"] == "equispaced"]
     best = max(eqs, key=lambda r: r["cc"]) if eqs else None
     by = {r["arrangement"]: r for r in rows}
@@ -245,18 +341,7 @@ def run(  # noqa: C901 -- one experiment: its arrangements in sequence, one tabl
     }
     if best and "equiangular" in by:
         summary["equiangular_closer_to_1_than_best_equispaced_pct"] = 100 * (1 - (1 - by["equiangular"]["cc"]) / (1 - best["cc"]))
-    params = {
-        "source": data.source, "n_x": n_x, "n_t": n_t, "n_z": n_z, "dx_m": dx, "dt_s": dt, "c_m_per_s": c,
-        "n_sensors": n_sensors, "snr_db": data.meta.get("snr_db") if built_in else None,
-        "seed": seed if built_in else None, "roi_center_m": [zc, xc], "roi_diameter_m": diameter,
-        "reference": "NER from every line point", "small": small,
-    }
-    images["phantom"] = data.p0
-    return ExperimentResult(NAME, params, rows, summary,
-                            curves={"interval": [r["interval"] for r in eqs], "cc": [r["cc"] for r in eqs],
-                                    "sharpness_rel": [r["sharpness_rel"] for r in eqs]},
-                            images={"recons": images, "sensors": sensors, "z": z, "x": x,
-                                    "roi": (zc, xc, diameter)})
+    return summary
 
 
 def plot(result: ExperimentResult, out_dir) -> list:

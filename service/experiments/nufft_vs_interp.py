@@ -37,6 +37,8 @@ from .datasets import DenseDataset
 from .phantoms import layer_phantom
 from .result import ExperimentResult, setup_matplotlib
 
+__all__ = ["NAME", "METHODS", "PAPER", "simulate_layer", "depth_sweep", "run", "plot"]
+
 NAME = "nufft-vs-interpolation"
 METHODS = ("ner", "linear", "nearest", "kwave-linear")
 PAPER = {"axial_fwhm_um": {"ner": 23.23, "linear": 62.34}, "axial_fwhm_std_um": {"ner": 0.56, "linear": 0.62},

@@ -22,6 +22,8 @@ from scipy.spatial import cKDTree
 
 from driver.physics.axes import centred_axis
 
+__all__ = ["tree_phantom", "tree_roi", "yarn_geometry", "yarn_phantom", "layer_phantom", "vessel_tree", "vessel_phantom"]
+
 
 def tree_phantom(n_z: int, n_x: int, *, amplitude: float = 1.0) -> np.ndarray:
     """A tree (crown of 8 discs, trunk) of height ~0.85 n_z centred laterally.

@@ -11,6 +11,8 @@ from typing import Any
 
 import numpy as np
 
+__all__ = ["ExperimentResult", "setup_matplotlib", "write_experiment"]
+
 
 def _jsonable(v: Any) -> Any:
     if isinstance(v, dict):

@@ -43,6 +43,10 @@ from .datasets import DenseDataset, add_noise
 from .phantoms import yarn_phantom
 from .result import ExperimentResult, setup_matplotlib
 
+__all__ = [
+    "NAME", "PAPER", "POI_DEPTH_RATIO", "EVAL_DIAMETER_RATIO", "DISC_RATIO", "simulate_yarn", "run", "plot",
+]
+
 NAME = "sparse-masks-3d"
 PAPER = {"diameter_mm": 7.2, "aperture_mm": 13.56, "cc_equisteradian": 0.960, "cc_interval_4": 0.947,
          "cc_interval_5": 0.944, "n_equisteradian": 1625, "n_equispaced": 1681, "disc_mm": 8.4}

@@ -49,6 +49,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+__all__ = ["HDF5_SIGNATURE", "SMALL_BYTES", "MAX_RATIO", "STARTUP_S", "CHILD_NICE", "CHILD_PRELOAD", "READ_TIMEOUT_S", "is_hdf5", "check_hdf5", "check_hdf5_file", "NotAdmitted", "request_admission", "DiskAdmission", "run_bounded", "writer_flagged", "read_bounded", "hdf5_limit"]
+
 HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
 #: Datasets up to this many declared bytes are not checked for unwritten storage.
 SMALL_BYTES = 1 << 20

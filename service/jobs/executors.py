@@ -22,6 +22,11 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 
+__all__ = [
+    "lower_priority", "start_worker", "stop_pool", "LocalExecutor", "WorkerDied", "DaskExecutor",
+    "make_executor",
+]
+
 
 def _exit_with_parent(parent: int, period: float = 1.0) -> None:
     while True:

@@ -37,6 +37,12 @@ from typing import Any
 
 from service.jobs.store import ACTIVE, JobStore
 
+__all__ = [
+    "RETENTION_KEY", "InUse", "NotFound", "job_files", "job_dataset_ids", "delete_job", "delete_plan",
+    "delete_dataset", "list_datasets", "apply_dataset_retention", "default_retention", "get_retention",
+    "set_retention", "apply_retention", "disk_usage",
+]
+
 log = logging.getLogger("fpscan.lifecycle")
 
 RETENTION_KEY = "retention"

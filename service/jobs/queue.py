@@ -31,6 +31,10 @@ from service.jobs.store import JobStore
 from service.jobs.work import run_reconstruction
 from service.pipeline import Cancelled
 
+__all__ = [
+    "INCOMING", "remove_debris", "ReconQueue",
+]
+
 log = logging.getLogger("fpscan.jobs")
 
 

@@ -22,6 +22,8 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any, overload
 
+__all__ = ["STATES", "TERMINAL", "ACTIVE", "KINDS", "IdempotencyConflict", "Jobs", "JobStore"]
+
 STATES = ("queued", "running", "paused", "succeeded", "failed", "cancelled")
 TERMINAL = frozenset({"succeeded", "failed", "cancelled"})
 ACTIVE = frozenset(STATES) - TERMINAL
@@ -231,7 +233,8 @@ class JobStore:
             row = db.execute("SELECT state, progress FROM jobs WHERE id = ?", (job_id,)).fetchone()
             if row is None or (only_from is not None and row["state"] not in set(only_from)):
                 return False
-            sets, args = ["state = ?"], [state]
+            sets: list[str] = ["state = ?"]
+            args: list[object] = [state]
             if state == "running":
                 sets.append("started = COALESCE(started, ?)")
                 args.append(now)

@@ -33,6 +33,11 @@ from typing import Any
 
 from driver.constants import C_DEFAULT
 
+__all__ = [
+    "INPUT_FORMATS", "load_inputs", "report_stage", "check_memory_limit", "ADDRESS_SPACE_BASE",
+    "address_space_limit", "memory_bounded", "run_reconstruction", "run_unmix", "worker_pid", "warm_up",
+]
+
 INPUT_FORMATS = {"scan": "fpscan", "dataset": "dataset"}
 
 

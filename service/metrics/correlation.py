@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+__all__ = ["correlation_coefficient"]
+
 
 def correlation_coefficient(image: np.ndarray, reference: np.ndarray, mask: np.ndarray | None = None) -> float:
     """Pearson correlation coefficient of ``image`` and ``reference`` over ``mask``.
@@ -29,6 +31,26 @@ def correlation_coefficient(image: np.ndarray, reference: np.ndarray, mask: np.n
     ValueError
         Shape mismatch, NaN/inf in the region, fewer than 2 pixels, or an image that is
         constant within the region (the coefficient is undefined).
+
+    References
+    ----------
+    .. [1] J. Schmid, T. Glatz, B. Zabihian, M. Liu, W. Drexler, O. Scherzer, "Computational
+       Realization of a Non-Equidistant Grid Sampling in Photoacoustics with a Non-Uniform
+       FFT" (``reference/`` of the design), Appendix "Quality measures", eq. (A1).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from service.metrics import correlation_coefficient
+    >>> ref = np.outer(np.hanning(5), np.hanning(5))
+    >>> correlation_coefficient(2 * ref + 1, ref)  # invariant to a*U + b, a > 0
+    1.0
+    >>> correlation_coefficient(-ref, ref)
+    -1.0
+    >>> correlation_coefficient(np.ones((2, 2)), ref[:2, :2])
+    Traceback (most recent call last):
+    ...
+    ValueError: an image is constant within the region of interest: correlation undefined
     """
     image = np.asarray(image, dtype=float)
     reference = np.asarray(reference, dtype=float)

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+__all__ = ["MIP_AXES", "mip", "mips"]
+
 #: MIP name -> the axis of a ``(n_z, n_y, n_x)`` volume it projects along.
 MIP_AXES = {"xy": 0, "xz": 1, "yz": 2}
 
@@ -26,11 +28,27 @@ def mip(volume: np.ndarray, plane: str = "xy", *, absolute: bool = False) -> np.
     absolute : bool
         Project ``|volume|`` instead of the signed values.
 
+    Returns
+    -------
+    ndarray, 2-D, the dtype and unit of ``volume`` (shapes above).
+
     Raises
     ------
     ValueError
         Not 2-D/3-D, empty, an unknown plane (or not ``"xz"`` for a 2-D image), or NaN in
         the volume.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from service.metrics import mip
+    >>> volume = np.arange(24.0).reshape(2, 3, 4)  # (n_z, n_y, n_x)
+    >>> mip(volume, "xy")  # max over z
+    array([[12., 13., 14., 15.],
+           [16., 17., 18., 19.],
+           [20., 21., 22., 23.]])
+    >>> mip(volume, "yz").shape  # (n_z, n_y)
+    (2, 3)
     """
     volume = np.asarray(volume)
     if plane not in MIP_AXES:
@@ -48,6 +66,27 @@ def mip(volume: np.ndarray, plane: str = "xy", *, absolute: bool = False) -> np.
 def mips(volume: np.ndarray, *, absolute: bool = False) -> dict[str, np.ndarray]:
     """All three MIPs: ``{"xy": (n_y, n_x), "xz": (n_z, n_x), "yz": (n_z, n_y)}``.
 
-    Raises ValueError as :func:`mip`.
+    Parameters
+    ----------
+    volume : ndarray, shape ``(n_z, n_y, n_x)``.
+    absolute : bool
+        Project ``|volume|`` instead of the signed values.
+
+    Returns
+    -------
+    dict of str to ndarray
+        Plane name -> its MIP (:func:`mip`).
+
+    Raises
+    ------
+    ValueError
+        As :func:`mip` (a 2-D image has only the xz plane: use ``mip(image, "xz")``).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from service.metrics import mips
+    >>> {plane: m.shape for plane, m in mips(np.zeros((2, 3, 4))).items()}
+    {'xy': (3, 4), 'xz': (2, 4), 'yz': (2, 3)}
     """
     return {plane: mip(volume, plane, absolute=absolute) for plane in MIP_AXES}

@@ -13,6 +13,8 @@ from scipy import ndimage
 
 from .roi import bounding_box
 
+__all__ = ["tenenbaum_sharpness"]
+
 
 def tenenbaum_sharpness(image: np.ndarray, mask: np.ndarray | None = None) -> float:
     """Normalised Tenenbaum sharpness F/N of a 2-D image.
@@ -34,6 +36,22 @@ def tenenbaum_sharpness(image: np.ndarray, mask: np.ndarray | None = None) -> fl
     ------
     ValueError
         Not 2-D, empty, NaN/inf, mask of a different shape or without any pixel.
+
+    References
+    ----------
+    .. [1] J. Schmid, T. Glatz, B. Zabihian, M. Liu, W. Drexler, O. Scherzer, "Computational
+       Realization of a Non-Equidistant Grid Sampling in Photoacoustics with a Non-Uniform
+       FFT" (``reference/`` of the design), Appendix "Quality measures" (Tenenbaum sharpness, Sobel operator).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from service.metrics import tenenbaum_sharpness
+    >>> tenenbaum_sharpness(np.zeros((4, 4)))  # a constant image has no edges
+    0.0
+    >>> img = np.outer(np.hanning(5), np.hanning(5))
+    >>> tenenbaum_sharpness(img), tenenbaum_sharpness(2 * img)  # scales with the square
+    (3.5, 14.0)
     """
     image = np.asarray(image, dtype=float)
     if image.ndim != 2 or image.size == 0:

@@ -16,7 +16,7 @@ import numpy as np
 from .lattice import Lattice
 from .mask import Mask, check_count, check_poi, check_positive, distance_law_weights
 
-__all__ = ["equiangular_mask", "equisteradian_mask", "equisteradian_rings", "Ring"]
+__all__ = ["equiangular_mask", "equisteradian_mask", "equisteradian_rings", "Ring", "check_depth"]
 
 #: Doubling threshold of the appendix: j_k doubles while r_s > 1.8 r_k.
 DOUBLING_FACTOR = 1.8

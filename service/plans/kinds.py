@@ -26,7 +26,8 @@ if TYPE_CHECKING:
     from .mask import Mask
 
 __all__ = ["KINDS", "MaskKind", "MaskParams", "make_mask", "resolve_kind", "kind_fields",
-           "field_units", "length"]
+           "field_units", "length", "FullParams", "EquispacedParams", "HexagonalParams", "RandomParams",
+           "PoissonParams", "PointsParams", "EquiangularParams", "EquisteradianParams"]
 
 
 def length(description: str, *, display_unit: str = "mm", **constraints: Any) -> Any:

@@ -38,7 +38,7 @@ from .mask import Mask, weight_ratio
 from .ordering import ORDERS, auto_order, scan_order
 
 __all__ = ["PLAN_FORMAT", "Plan", "Acquisition", "make_plan", "plan_from_spec", "canonical_json", "content_id",
-           "ORDER_NAMES"]
+           "ORDER_NAMES", "LatticeSpec", "MaskSpec", "Points", "check_plausible_request"]
 
 #: Scan order names ``make_plan`` takes (``auto``: rings for ring-structured masks,
 #: serpentine otherwise); a plan records the resolved one.

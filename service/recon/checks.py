@@ -8,6 +8,13 @@ import numpy as np
 from driver.physics.fast_lengths import fast_dct1_rows, fast_lateral
 from driver.units import RefusedInput
 
+__all__ = [
+    "positive", "finite_array", "EPS_RANGE", "UPSAMPLE_RANGE", "N_Z_RANGE", "DZ_RANGE", "LAM_RANGE",
+    "ITERATIONS_RANGE", "TIME_LIMIT_MAX", "OptionError", "check_eps", "check_upsample", "check_n_z",
+    "check_dz", "check_lam", "check_iterations", "check_time_limit", "check_dtype", "available_memory",
+    "estimate_peak_memory", "padded_lateral", "tv_memory", "check_memory",
+]
+
 
 def positive(name: str, value) -> float:
     """``value`` as float; ValueError unless finite and > 0."""

@@ -50,7 +50,7 @@ def check_wavelength(wavelength: Any, *, allow_all: bool = True) -> int | str | 
     raise ValueError(f"wavelength must be {what}, got {wavelength!r}")
 
 
-def nm(wavelengths: Any) -> str:
+def _nm(wavelengths: Any) -> str:
     """Wavelengths (m) as text in nm: ``"532 nm, 1064 nm"``."""
     return ", ".join(f"{float(w) * 1e9:g} nm" for w in np.ravel(np.asarray(wavelengths, dtype=np.float64)))
 
@@ -249,7 +249,7 @@ def check_wavelength_index(index: int, wavelengths: Any, what: str) -> None:
     n = int(np.size(wavelengths))
     if not 0 <= index < max(n, 1):
         raise ValueError(f"wavelength index {index} is out of range: the {what} has {n} wavelength"
-                         f"{'s' if n != 1 else ''} ({nm(wavelengths)}), indices 0..{max(n, 1) - 1}")
+                         f"{'s' if n != 1 else ''} ({_nm(wavelengths)}), indices 0..{max(n, 1) - 1}")
 
 
 def dataset_nbytes(ds: GridDataset | PointDataset) -> int:

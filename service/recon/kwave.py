@@ -29,6 +29,8 @@ import scipy.interpolate
 from driver.physics.nufft import group_columns, transpose
 from service.recon import checks
 
+__all__ = ["transform_lengths", "kspace_line_recon", "kspace_plane_recon"]
+
 _INTERPS = {"linear": "linear", "*linear": "linear", "nearest": "nearest", "*nearest": "nearest",
             "cubic": "cubic", "*cubic": "cubic"}
 

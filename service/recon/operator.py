@@ -89,6 +89,7 @@ from driver.physics.forward import _pad_sizes
 from driver.physics.nufft_plans import lateral_plan
 from service.recon import checks
 
+__all__ = ["PlanarOperator"]
 
 class PlanarOperator(pylops.LinearOperator):
     """A: p0 (n_z, n_x) / (n_z, n_y, n_x) on a regular grid -> data at the sensors.

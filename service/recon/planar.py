@@ -37,6 +37,8 @@ from driver.physics.nufft_plans import lateral_plan
 from service.recon import checks
 from service.recon.reconstruction import Reconstruction
 
+__all__ = ["METHODS", "transform_lengths", "reconstruct_grid", "reconstruct_points"]
+
 METHODS = ("ner", "linear", "nearest", "cubic")
 _KIND = {"ner": "nufft", "linear": "linear", "nearest": "nearest"}
 

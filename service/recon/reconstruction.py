@@ -5,6 +5,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+__all__ = ["Reconstruction"]
+
 
 @dataclass
 class Reconstruction:

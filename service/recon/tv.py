@@ -72,6 +72,8 @@ from driver.constants import C_DEFAULT
 from service.recon import checks
 from service.recon.reconstruction import Reconstruction
 
+__all__ = ["DEFAULT_MAX_ITER", "DEFAULT_TOL", "DEFAULT_TIME_LIMIT", "noise_sigma", "reconstruct_tv"]
+
 DEFAULT_MAX_ITER = 60
 #: the stopping rule: the objective's last decrease below this share of its decrease since the warm start
 DEFAULT_TOL = 1e-3

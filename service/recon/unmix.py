@@ -35,6 +35,8 @@ import numpy as np
 
 from driver.physics import spectra
 
+__all__ = ["CHUNK", "Unmixed", "too_few_wavelengths", "endmember_matrix", "nnls2", "unmix"]
+
 #: voxels per block of the vectorised NNLS (bounds the temporary memory: ~60 bytes/voxel)
 CHUNK = 1 << 20
 

@@ -22,6 +22,8 @@ import numpy as np
 
 from driver.constants import C_DEFAULT
 
+__all__ = ["DTYPES", "warm_up", "cache_dirs"]
+
 DTYPES = ("float32", "float64")
 
 
