@@ -287,7 +287,7 @@ class DiskUsageCache:
         async with self._lock:
             key = self._folders_key()
             if self._walks != walks_before and self._key == key:
-                return  # a walk that started after this caller asked has answered
+                return  # a walk ended while this caller waited, and the folders are as it saw them
             # a thread of its own, not one of the server's pool: when every pool thread
             # is taken (uploads waiting on their reading child), health does not wait
             self._value = await anyio.to_thread.run_sync(self.walk, self.data_dir, limiter=self._thread)
@@ -299,10 +299,14 @@ class DiskUsageCache:
             await self._refresh()
         elif time.monotonic() - self._at >= self.ttl_s and (self._background is None or self._background.done()):
             self._background = asyncio.create_task(self._refresh())
-            # a failed walk is retried by the next caller (its error is not lost in the log)
-            self._background.add_done_callback(lambda t: t.cancelled() or t.exception())
+            self._background.add_done_callback(_log_failed_walk)  # the next caller walks again
         assert self._value is not None
         return self._value
+
+
+def _log_failed_walk(task: asyncio.Task) -> None:
+    if not task.cancelled() and task.exception() is not None:
+        log.warning("disk usage walk failed: %s", task.exception())
 
 
 async def warm_routes(app: FastAPI, settings: Settings) -> None:
