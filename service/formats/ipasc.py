@@ -288,84 +288,29 @@ def read_ipasc(path: str | os.PathLike, *, wavelength_index: int = 0,
         return read_open_ipasc(f, wavelength_index=wavelength_index, measurement_index=measurement_index)
 
 
-def read_open_ipasc(f: h5py.File, *, wavelength_index: int = 0,  # noqa: C901
-                    measurement_index: int = 0) -> dict:
+def read_open_ipasc(f: h5py.File, *, wavelength_index: int = 0, measurement_index: int = 0) -> dict:
     """:func:`read_ipasc` of an IPASC file already open (read-only ``h5py.File``): the
     registry of formats (``service.formats``) opens a file once and reads it here."""
-    if "binary_time_series_data" not in f or "meta_data" not in f:
-        raise ValueError("not an IPASC file: /binary_time_series_data or /meta_data missing")
-    raw = f["binary_time_series_data"]
-    if raw.ndim != 4:
-        raise ValueError(f"binary_time_series_data must be 4-D [detectors, samples, "
-                         f"wavelengths, measurements], got shape {raw.shape}")
-    n_det, n_t, n_wl, n_meas = raw.shape
-    if not 0 <= wavelength_index < n_wl:
-        raise ValueError(f"wavelength_index {wavelength_index} out of range [0, {n_wl})")
-    if not 0 <= measurement_index < n_meas:
-        raise ValueError(f"measurement_index {measurement_index} out of range [0, {n_meas})")
-    if raw.dtype.kind not in "iuf":
-        raise ValueError(f"binary data must be real numbers, got {raw.dtype}")
+    raw = _binary_data(f, wavelength_index, measurement_index)
+    n_det = raw.shape[0]
     m = {k: _value(v) for k, v in f["meta_data"].items() if isinstance(v, h5py.Dataset)}
     sizes = m.get("sizes")
     if sizes is not None and list(np.ravel(sizes)) != list(raw.shape):
         raise ValueError(f"meta_data/sizes {list(np.ravel(sizes))} != binary data shape "
                          f"{list(raw.shape)}")
-    fs_value = m.get("ad_sampling_rate")
-    try:
-        if fs_value is None:
-            raise TypeError
-        fs = float(fs_value)
-    except (TypeError, ValueError):
-        raise ValueError(f"meta_data/ad_sampling_rate missing or not a number: {fs_value!r}") from None
-    if not (math.isfinite(fs) and fs > 0):
-        raise ValueError(f"meta_data/ad_sampling_rate must be > 0 Hz, got {fs}")
-    c = m.get("speed_of_sound")
-    if c is None:
-        c = C_DEFAULT
-    c_arr = np.ravel(np.asarray(c, dtype=np.float64))
-    if c_arr.size == 0 or not np.all(c_arr == c_arr[0]):
-        raise ValueError("a spatially varying speed_of_sound is not supported (homogeneous "
-                         "medium only)")
-    c = float(c_arr[0])
-    if not (math.isfinite(c) and c > 0):
-        raise ValueError(f"speed_of_sound must be > 0 m/s, got {c}")
+    fs = _sampling_rate(m)
+    c = _speed_of_sound(m)
     wl = m.get("acquisition_wavelengths")
     wavelengths = np.ravel(np.asarray(wl, dtype=np.float64)) if wl is not None else np.zeros(0)
-    dets = f.get("meta_data_device/detectors")
-    if not isinstance(dets, h5py.Group):
-        raise ValueError("not an IPASC file: /meta_data_device/detectors missing")
-    ids = sorted(dets.keys())
-    if len(ids) != n_det:
-        raise ValueError(f"{len(ids)} detectors described but the binary data has {n_det}")
-    pos3 = np.empty((n_det, 3))
-    buf = np.empty(3, dtype="<f8")
-    for i, key in enumerate(ids):
-        try:  # low-level open/read: ~5x faster than dets[key]["detector_position"][()]
-            dsid = h5d.open(dets.id, f"{key}/detector_position".encode())
-        except KeyError:
-            raise ValueError(f"detector {key} has no detector_position") from None
-        if dsid.get_space().get_simple_extent_npoints() != 3 or \
-                dsid.get_type().get_class() not in (h5t.FLOAT, h5t.INTEGER):
-            raise ValueError(f"detector {key}: detector_position must be 3 numbers")
-        dsid.read(h5s.ALL, h5s.ALL, buf)
-        pos3[i] = buf
+    pos3 = _detector_positions(f, n_det)
     alines = np.asarray(raw[:, :, wavelength_index, measurement_index], dtype=np.float64)
-    if not np.isfinite(pos3).all():
-        raise ValueError("detector positions must be finite")
-    if np.ptp(pos3[:, 2]) > 1e-9:
-        raise ValueError("detectors are not on one plane z = const (planar sensors only)")
     if not np.isfinite(alines).all():
         raise ValueError("binary data contains NaN or infinite values")
     dt = 1.0 / fs
     dt_exact = m.get("fpscan_dt_s")
     if dt_exact is not None and abs(float(dt_exact) * fs - 1.0) < 1e-9:
         dt = float(dt_exact)  # the exact sample interval 1/ad_sampling_rate was derived from
-    plan = None
-    if isinstance(m.get("fpscan_plan_json"), str):
-        try:
-            plan = json.loads(m["fpscan_plan_json"])
-        except json.JSONDecodeError:
-            plan = None
+    plan = _plan(m)
     weights = m.get("fpscan_weights")
     if weights is not None:
         weights = np.ravel(np.asarray(weights, dtype=np.float64))
@@ -389,6 +334,94 @@ def read_open_ipasc(f: h5py.File, *, wavelength_index: int = 0,  # noqa: C901
         "indices": np.asarray(indices) if indices is not None else None,
         "z_plane": float(pos3[0, 2]),
     }
+
+
+def _binary_data(f: h5py.File, wavelength_index: int, measurement_index: int) -> Any:
+    """``/binary_time_series_data`` (not read), checked: 4-D [detectors, samples,
+    wavelengths, measurements], real numbers, the indices within it."""
+    if "binary_time_series_data" not in f or "meta_data" not in f:
+        raise ValueError("not an IPASC file: /binary_time_series_data or /meta_data missing")
+    raw = f["binary_time_series_data"]
+    if raw.ndim != 4:
+        raise ValueError(f"binary_time_series_data must be 4-D [detectors, samples, "
+                         f"wavelengths, measurements], got shape {raw.shape}")
+    _, _, n_wl, n_meas = raw.shape
+    if not 0 <= wavelength_index < n_wl:
+        raise ValueError(f"wavelength_index {wavelength_index} out of range [0, {n_wl})")
+    if not 0 <= measurement_index < n_meas:
+        raise ValueError(f"measurement_index {measurement_index} out of range [0, {n_meas})")
+    if raw.dtype.kind not in "iuf":
+        raise ValueError(f"binary data must be real numbers, got {raw.dtype}")
+    return raw
+
+
+def _sampling_rate(m: dict) -> float:
+    """``meta_data/ad_sampling_rate`` (Hz), finite and > 0."""
+    fs_value = m.get("ad_sampling_rate")
+    try:
+        if fs_value is None:
+            raise TypeError
+        fs = float(fs_value)
+    except (TypeError, ValueError):
+        raise ValueError(f"meta_data/ad_sampling_rate missing or not a number: {fs_value!r}") from None
+    if not (math.isfinite(fs) and fs > 0):
+        raise ValueError(f"meta_data/ad_sampling_rate must be > 0 Hz, got {fs}")
+    return fs
+
+
+def _speed_of_sound(m: dict) -> float:
+    """``meta_data/speed_of_sound`` (m/s; ``C_DEFAULT`` if absent): one value (a
+    homogeneous medium), finite and > 0."""
+    c = m.get("speed_of_sound")
+    if c is None:
+        c = C_DEFAULT
+    c_arr = np.ravel(np.asarray(c, dtype=np.float64))
+    if c_arr.size == 0 or not np.all(c_arr == c_arr[0]):
+        raise ValueError("a spatially varying speed_of_sound is not supported (homogeneous "
+                         "medium only)")
+    c = float(c_arr[0])
+    if not (math.isfinite(c) and c > 0):
+        raise ValueError(f"speed_of_sound must be > 0 m/s, got {c}")
+    return c
+
+
+def _detector_positions(f: h5py.File, n_det: int) -> np.ndarray:
+    """``(n_det, 3)`` detector positions (m) from ``/meta_data_device/detectors/<id>``
+    (ids sorted: detector i is row i of the binary data), finite, on one plane z = const."""
+    dets = f.get("meta_data_device/detectors")
+    if not isinstance(dets, h5py.Group):
+        raise ValueError("not an IPASC file: /meta_data_device/detectors missing")
+    ids = sorted(dets.keys())
+    if len(ids) != n_det:
+        raise ValueError(f"{len(ids)} detectors described but the binary data has {n_det}")
+    pos3 = np.empty((n_det, 3))
+    buf = np.empty(3, dtype="<f8")
+    for i, key in enumerate(ids):
+        try:  # low-level open/read: ~5x faster than dets[key]["detector_position"][()]
+            dsid = h5d.open(dets.id, f"{key}/detector_position".encode())
+        except KeyError:
+            raise ValueError(f"detector {key} has no detector_position") from None
+        if dsid.get_space().get_simple_extent_npoints() != 3 or \
+                dsid.get_type().get_class() not in (h5t.FLOAT, h5t.INTEGER):
+            raise ValueError(f"detector {key}: detector_position must be 3 numbers")
+        dsid.read(h5s.ALL, h5s.ALL, buf)
+        pos3[i] = buf
+    if not np.isfinite(pos3).all():
+        raise ValueError("detector positions must be finite")
+    if np.ptp(pos3[:, 2]) > 1e-9:
+        raise ValueError("detectors are not on one plane z = const (planar sensors only)")
+    return pos3
+
+
+def _plan(m: dict) -> dict | None:
+    """The plan JSON fpscan exported in ``meta_data/fpscan_plan_json``, None when absent or
+    unreadable."""
+    if isinstance(m.get("fpscan_plan_json"), str):
+        try:
+            return json.loads(m["fpscan_plan_json"])
+        except json.JSONDecodeError:
+            return None
+    return None
 
 
 import_ipasc = read_ipasc
