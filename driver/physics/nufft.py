@@ -715,6 +715,8 @@ def spread(
     dt: float,
     t0: float,
     groups: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+    progress=None,
+    n_chunks: int = 1,
 ) -> np.ndarray:
     """Adjoint of `evaluate` with ``inversion=False``: (n_cols, n_kz) coefficients ->
     (n_cols, L) spread fine-grid values (input of `from_fine_grid`); ``groups`` as
@@ -725,6 +727,11 @@ def spread(
     B : ndarray ``(n_cols, n_kz)`` complex.
     grid, klat2, kz, qw, c, dt, t0, groups
         As :func:`evaluate` (units rad²/m², rad/m, m/s, s).
+    progress, n_chunks
+        As :func:`evaluate`: ``progress(fraction)`` after each of up to ``n_chunks``
+        chunks of column groups (default one chunk; chunks of at least ~4M
+        coefficients). Each column is spread by one chunk, so the result does not depend
+        on the chunking.
 
     Returns
     -------
@@ -750,7 +757,17 @@ def spread(
     gvals, gptr, order = group_columns(klat2) if groups is None else groups
     ctype = np.complex64 if B.dtype == np.complex64 else np.complex128
     R = np.zeros((B.shape[0], grid.L), dtype=ctype)
-    _spread_kernel(B, gvals, gptr, order, np.asarray(kz, np.float64), np.asarray(qw, np.float64),
-                   float(c), float(dt), float(t0), 2.0 * np.pi / grid.L, grid.L,
-                   _KIND_CODE[grid.kind], grid.w, grid.horner, grid.shift, R)
+    kz = np.asarray(kz, np.float64)
+    qw = np.asarray(qw, np.float64)
+    n_groups = len(gvals)
+    n_chunks = max(1, min(n_chunks, B.shape[0] * len(kz) // (1 << 22), n_groups))
+    bounds = np.linspace(0, n_groups, n_chunks + 1).astype(np.int64)
+    for i in range(len(bounds) - 1):
+        a, b = int(bounds[i]), int(bounds[i + 1])
+        if b > a:
+            _spread_kernel(B, gvals[a:b], gptr[a : b + 1], order, kz, qw, float(c), float(dt), float(t0),
+                           2.0 * np.pi / grid.L, grid.L, _KIND_CODE[grid.kind], grid.w, grid.horner,
+                           grid.shift, R)
+        if progress is not None:
+            progress((i + 1) / (len(bounds) - 1))
     return R

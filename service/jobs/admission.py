@@ -19,9 +19,9 @@ class AdmissionError(ValueError):
 
 
 #: Admission multiplies the model-based estimate (``tv``, ``service.recon.checks.tv_memory``,
-#: itself calibrated) by this margin: a 48² x 256, 100-sensor run peaked at 1/1.26 of it
-#: (tests/service/test_memory_admission.py; 1.45 before, when the factor also had to cover
-#: the planar methods). The planar methods' estimate counts their arrays phase by phase and
+#: itself calibrated) by this margin: a 48² x 256, 100-sensor run peaked at 1/1.125 of it
+#: (tests/service/test_memory_admission.py, measured after a warm-up on a smaller input; 1.45
+#: before, when the factor also had to cover the planar methods). The planar methods' estimate counts their arrays phase by phase and
 #: needs no factor (measured within 4-10 % at upsample 1-8, issue 22).
 CALIBRATION = 1.15
 #: Most depth rows the depth transform may work on (``dz`` far below ``c·dt`` multiplies

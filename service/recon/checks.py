@@ -12,7 +12,7 @@ __all__ = [
     "positive", "finite_array", "EPS_RANGE", "UPSAMPLE_RANGE", "N_Z_RANGE", "DZ_RANGE", "LAM_RANGE",
     "ITERATIONS_RANGE", "TIME_LIMIT_MAX", "OptionError", "check_eps", "check_upsample", "check_n_z",
     "check_dz", "check_lam", "check_iterations", "check_time_limit", "check_dtype", "available_memory",
-    "estimate_peak_memory", "padded_lateral", "tv_memory", "check_memory",
+    "estimate_peak_memory", "padded_lateral", "OPERATOR_BATCH", "OPERATOR_CHUNK", "tv_memory", "check_memory",
 ]
 
 
@@ -267,17 +267,25 @@ def padded_lateral(n_y: int, n_x: int, square: bool | None = None) -> tuple[int,
     return max(ay, by), max(ax, bx)
 
 
+#: the planar operator's working sizes (`service.recon.operator`), here beside the memory
+#: model that counts them: time samples per batch of the lateral NUFFTs of point data, and
+#: elements (complex) of a chunk's working arrays per row (its k-space columns run in
+#: chunks of about this many elements, whole |k_lat| groups)
+OPERATOR_BATCH = 16
+OPERATOR_CHUNK = 1 << 23
+
+
 def tv_memory(image_shape, padded_shape, n_data: int, n_t: int, dtype=np.float64) -> int:
     """Estimated peak bytes of the model-based reconstruction (`service.recon.tv`): the
     solver's image-sized vectors live while the operator works (the TV proximal map's dual,
-    d vectors, and d − 1 of the iterates: fitted to the peak measured on the 48² × 256 case
-    of tests/service/test_memory_admission.py, 9 % below the earlier primal-dual solver's
-    there) in ``dtype``, three data-sized vectors, and the operator's working arrays on the padded grid in its working
-    precision (complex64 for float32, complex128 for float64;
-    `service.recon.operator.PlanarOperator`): at its peak the temporal fine grid (L per
-    padded half-spectrum column, `driver.physics.nufft.grid_length`) beside the k-space
-    image (max(N_z, n_t) per column), plus 25 % (allocator, FFT buffers, the warm start's
-    leftovers; tests/service/test_memory_admission.py measures it within 25 %)."""
+    d vectors, and d − 1 of the iterates) in ``dtype``, three data-sized vectors, and the
+    operator's working arrays in its working precision (complex64 for float32, complex128
+    for float64; `service.recon.operator.PlanarOperator`): the image's and the data's
+    k-space, (n_z + n_t) per padded half-spectrum column, beside one chunk of columns in
+    the depth and temporal steps (about `OPERATOR_CHUNK` elements per row of the temporal fine
+    grid L, `driver.physics.nufft.grid_length`, the depth N_z and time n_t) and one batch of
+    full lateral spectra of the point NUFFTs; plus 25 % (allocator, FFT buffers, the warm
+    start's leftovers; tests/service/test_memory_admission.py measures it within 25 %)."""
     from driver.physics.nufft import grid_length
 
     b = np.dtype(dtype).itemsize
@@ -285,7 +293,11 @@ def tv_memory(image_shape, padded_shape, n_data: int, n_t: int, dtype=np.float64
     d = sum(1 for n in image_shape if n > 1)
     solver = (2 * d - 1) * n_img * b + 3 * n_data * b
     nz2, ny2, nx2 = padded_shape
-    operator = 2 * b * ny2 * (nx2 // 2 + 1) * (grid_length(n_t) + max(nz2, n_t))
+    cols = ny2 * (nx2 // 2 + 1)
+    fine = grid_length(n_t)
+    chunk = min(cols, max(1, OPERATOR_CHUNK // max(nz2, fine)))
+    operator = 2 * b * (cols * (image_shape[0] + n_t) + chunk * (fine + nz2 + n_t)
+                        + 2 * min(OPERATOR_BATCH, n_t) * ny2 * nx2)
     return int(1.25 * (solver + operator))
 
 

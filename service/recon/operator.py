@@ -76,6 +76,7 @@ The adjoint is not the inverse: the inverse is the NER/NEDNER reconstruction
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -90,6 +91,11 @@ from driver.physics.nufft_plans import lateral_plan
 from service.recon import checks
 
 __all__ = ["PlanarOperator"]
+
+#: elements (complex) per block of rows of the lateral FFTs
+_BLOCK = 1 << 22
+_BATCH = checks.OPERATOR_BATCH
+_CHUNK = checks.OPERATOR_CHUNK
 
 class PlanarOperator(pylops.LinearOperator):
     """A: p0 (n_z, n_x) / (n_z, n_y, n_x) on a regular grid -> data at the sensors.
@@ -108,6 +114,15 @@ class PlanarOperator(pylops.LinearOperator):
         False models free space exactly as `forward_grid` / `forward_points` do.
     dtype : float32 or float64: dtype of the arrays returned and working precision of the
         transforms (complex64 / complex128).
+    checkpoint : optional ``checkpoint()`` called between the steps of `forward` and
+        `adjoint` and inside their long steps (chunks of the temporal NUFFT, batches of the
+        lateral transforms), at most ~0.5 s of work apart at the paper's size; it may raise
+        to abandon the application (a cancelled job: `service.recon.tv`). Settable later
+        as the attribute ``checkpoint``.
+    chunk_elements : the depth and temporal steps run on chunks of k-space columns of
+        about this many elements per row of their largest array (default
+        `service.recon.checks.OPERATOR_CHUNK`, 2²³; the memory model counts one chunk); the
+        result does not depend on it.
 
     Attributes
     ----------
@@ -123,7 +138,8 @@ class PlanarOperator(pylops.LinearOperator):
 
     def __init__(self, shape, dx: float, dz: float, dt: float, n_t: int, c: float = C_DEFAULT, *,
                  positions=None, t0: float = 0.0, eps: float = 1e-6, periodic: bool = False,
-                 dtype=np.float64):
+                 dtype=np.float64, checkpoint: Callable[[], None] | None = None,
+                 chunk_elements: int = _CHUNK):
         shape = tuple(int(s) for s in shape)
         if len(shape) not in (2, 3) or min(shape) < 1 or shape[0] < 2:
             raise ValueError(f"shape must be (n_z, n_x) or (n_z, n_y, n_x) with n_z >= 2, got {shape}")
@@ -139,6 +155,10 @@ class PlanarOperator(pylops.LinearOperator):
         self.t0 = float(t0)
         self.eps = checks.check_eps(eps)
         self.periodic = bool(periodic)
+        self.checkpoint = checkpoint
+        if int(chunk_elements) != chunk_elements or chunk_elements < 1:
+            raise ValueError(f"chunk_elements must be an integer >= 1, got {chunk_elements!r}")
+        self._chunk_elements = int(chunk_elements)
         rdtype = checks.check_dtype(dtype)
         self.is2d = len(shape) == 2
         vol = (shape[0], 1, shape[1]) if self.is2d else shape
@@ -202,7 +222,8 @@ class PlanarOperator(pylops.LinearOperator):
         kx = 2 * np.pi * scipy.fft.rfftfreq(n_x2, self.dx)
         ky = 2 * np.pi * scipy.fft.fftfreq(n_y2, self.dx)
         self._klat2 = (ky[:, None] ** 2 + kx[None, :] ** 2).ravel()
-        self._groups = nufft.group_columns(self._klat2)
+        self._grid = nufft.make_grid(self.n_t, "nufft", self.eps)
+        self._chunks = _column_chunks(self._klat2, max(n_z2, self._grid.L), self._chunk_elements)
         dk = np.pi / ((n_z2 - 1) * self.dz)
         self._kz = dk * np.arange(n_z2)
         tau = np.ones(n_z2)
@@ -211,8 +232,7 @@ class PlanarOperator(pylops.LinearOperator):
         # τ applied after its DCT-I
         self._qw_forward = self.dz * dk * tau / (4 * np.pi)
         self._qw_adjoint = np.full(n_z2, self.dz * dk / (4 * np.pi))
-        self._grid = nufft.make_grid(self.n_t, "nufft", self.eps)
-        self._plans: tuple[Any, Any] | None = None
+        self._plans: dict[tuple[int, int], Any] = {}
         if self.positions is not None:
             pos = self.positions
             coords: tuple[np.ndarray, ...] = (2 * np.pi * centred_index(pos[:, 0], n_x2, self.dx) / n_x2,)
@@ -224,8 +244,10 @@ class PlanarOperator(pylops.LinearOperator):
             # both directions share tolerance and oversampling, so they stay each other's adjoint
             tol = max(self.eps, 2e-5) if self._ctype == np.complex64 else max(self.eps, 1e-14)
             opts: dict[str, Any] = dict(eps=tol, dtype=self._ctype, upsampfac=1.25 if tol >= 1e-9 else 2.0)
-            self._plans = (lateral_plan(2, coords, modes, self.n_t, isign=1, **opts),
-                           lateral_plan(1, coords, modes, self.n_t, isign=-1, **opts))
+            # planned in batches of time samples (`_BATCH`, the last one shorter), so that a
+            # checkpoint runs between batches and the full spectrum is built per batch
+            self._plans = {(t, n): lateral_plan(t, coords, modes, n, isign=1 if t == 2 else -1, **opts)
+                           for t in (1, 2) for n in {min(_BATCH, self.n_t), self.n_t % _BATCH or _BATCH}}
 
     # -- the pair ------------------------------------------------------------------
     def forward(self, p0) -> np.ndarray:
@@ -240,6 +262,17 @@ class PlanarOperator(pylops.LinearOperator):
         data = self._check("data", data, self.oshape)
         return self._apply_adjoint(data)
 
+    def _tick(self) -> None:
+        if self.checkpoint is not None:
+            self.checkpoint()
+
+    def _row_blocks(self, m: int) -> list[slice]:
+        """Blocks of rows of an (m, N_y, N_x//2+1) spectrum of about `_BLOCK` elements each:
+        the lateral transforms run per block with a checkpoint between blocks."""
+        _, n_y2, _ = self.padded_shape
+        step = max(1, _BLOCK // (n_y2 * self._n_xr))
+        return [slice(a, min(a + step, m)) for a in range(0, m, step)]
+
     def _lateral_spectrum(self, vol: np.ndarray) -> np.ndarray:
         """(m, n_y, n_x) real -> (m, N_y, N_x//2+1) half spectrum of its zero-padded,
         centred embedding in the working grid; only the m given rows are transformed."""
@@ -247,59 +280,70 @@ class PlanarOperator(pylops.LinearOperator):
         _, n_y2, n_x2 = self.padded_shape
         _, n_y, n_x = self._vol
         oy, ox = self._off
-        if ox or n_x2 != n_x:
-            buf = np.zeros((m, n_y, n_x2), dtype=self.dtype)
-            buf[:, :, ox : ox + n_x] = vol
-        else:
-            buf = np.ascontiguousarray(vol, dtype=self.dtype)
-        X = scipy.fft.rfft(buf, axis=2, workers=-1)
-        del buf
-        if n_y2 == 1:
-            return X
-        Y = np.zeros((m, n_y2, self._n_xr), dtype=self._ctype)
-        Y[:, oy : oy + n_y] = X
-        del X
-        return scipy.fft.fft(Y, axis=1, workers=-1, overwrite_x=True)
+        out = np.zeros((m, n_y2, self._n_xr), dtype=self._ctype)
+        for rows in self._row_blocks(m):
+            buf = np.zeros((rows.stop - rows.start, n_y, n_x2), dtype=self.dtype)
+            buf[:, :, ox : ox + n_x] = vol[rows]
+            out[rows, oy : oy + n_y] = scipy.fft.rfft(buf, axis=2, workers=-1)
+            del buf
+            if n_y2 > 1:
+                out[rows] = scipy.fft.fft(out[rows], axis=1, workers=-1, overwrite_x=True)
+            self._tick()
+        return out
 
     def _lateral_inverse(self, S: np.ndarray) -> np.ndarray:
         """(m, N_y, N_x//2+1) half spectrum -> the image's (m, n_y, n_x) lateral window of
         its inverse DFT (the transpose of `_lateral_spectrum` up to the DFT's 1/(N_y N_x)):
         the x transforms run on the n_y rows kept only."""
+        m = S.shape[0]
         _, n_y2, n_x2 = self.padded_shape
         _, n_y, n_x = self._vol
         oy, ox = self._off
-        if n_y2 > 1:
-            S = scipy.fft.ifft(S, axis=1, workers=-1, overwrite_x=True)[:, oy : oy + n_y]
-        out = scipy.fft.irfft(S, n=n_x2, axis=2, workers=-1)
-        return out[:, :, ox : ox + n_x] if n_x2 != n_x else out
+        out = np.empty((m, n_y, n_x), dtype=self.dtype)
+        for rows in self._row_blocks(m):
+            block = S[rows]
+            if n_y2 > 1:
+                block = scipy.fft.ifft(block, axis=1, workers=-1)[:, oy : oy + n_y]
+            out[rows] = scipy.fft.irfft(block, n=n_x2, axis=2, workers=-1)[:, :, ox : ox + n_x]
+            del block
+            self._tick()
+        return out
 
     def _apply_forward(self, p0: np.ndarray) -> np.ndarray:
         n_z2, n_y2, n_x2 = self.padded_shape
         n_z = self._vol[0]
         cols = n_y2 * self._n_xr
-        Y = self._lateral_spectrum(p0.reshape(self._vol))  # (n_z, N_y, N_xr)
-        # depth: the n_z image rows of each column, zero below, DCT-I of length N_z
-        B = np.zeros((cols, n_z2), dtype=self._ctype)
-        nufft.transpose(Y.reshape(n_z, cols), B[:, :n_z])
-        del Y
-        B = self._dct1(B)
-        R = nufft.spread(B, self._grid, self._klat2, self._kz, self._qw_forward, self.c, self.dt, self.t0,
-                         groups=self._groups)
-        del B
-        G = nufft.from_fine_grid(R, self._grid, t0_is_zero=False, overwrite=True)  # (cols, n_t)
-        del R
+        Y = self._lateral_spectrum(p0.reshape(self._vol)).reshape(n_z, cols)  # (n_z, N_y N_xr)
         T = np.empty((self.n_t, cols), dtype=self._ctype)
-        nufft.transpose(G, T)
-        del G
+        for idx, klat2, groups in self._chunks:  # columns in chunks of whole |k_lat| groups
+            # depth: the n_z image rows of each column, zero below, DCT-I of length N_z
+            B = np.zeros((len(idx), n_z2), dtype=self._ctype)
+            nufft.transpose(Y[:, idx], B[:, :n_z])
+            B = self._dct1(B)
+            R = nufft.spread(B, self._grid, klat2, self._kz, self._qw_forward, self.c, self.dt, self.t0,
+                             groups=groups)
+            del B
+            G = nufft.from_fine_grid(R, self._grid, t0_is_zero=False, overwrite=True)  # (chunk, n_t)
+            del R
+            Tc = np.empty((self.n_t, len(idx)), dtype=self._ctype)
+            nufft.transpose(G, Tc)
+            T[:, idx] = Tc
+            del G, Tc
+            self._tick()
+        del Y
         T = T.reshape(self.n_t, n_y2, self._n_xr)
         if self.positions is None:
             g = self._lateral_inverse(T)
             return np.ascontiguousarray(g[:, 0, :] if self.is2d else g, dtype=self.dtype)
-        assert self._plans is not None
-        full = self._hermitian_full(T)
-        del T
-        vals = self._plans[0].execute(full[:, 0, :] if self.is2d else full)  # (n_t, n_points)
-        return np.ascontiguousarray(vals.real.T / (n_x2 * n_y2), dtype=self.dtype)
+        vals = np.empty((len(self.positions), self.n_t), dtype=self.dtype)
+        for a, b in self._time_batches():  # the full spectrum batch by batch, then the type-2 NUFFT
+            full = self._hermitian_full(T[a:b])
+            out = self._plans[2, b - a].execute(full[:, 0, :] if self.is2d else full)  # (b - a, n_points)
+            vals[:, a:b] = out.real.T
+            del full, out
+            self._tick()
+        vals /= n_x2 * n_y2
+        return vals
 
     def _hermitian_full(self, T: np.ndarray) -> np.ndarray:
         """The full lateral spectrum (n_t, N_y, N_x) of a real field from its half
@@ -309,9 +353,7 @@ class PlanarOperator(pylops.LinearOperator):
         full = np.empty((n_t, n_y2, n_x2), dtype=T.dtype)
         full[:, :, :n_xr] = T
         if n_x2 > n_xr:
-            iy = (-np.arange(n_y2)) % n_y2
-            ix = n_x2 - np.arange(n_xr, n_x2)
-            np.conjugate(T[:, :, ix][:, iy], out=full[:, :, n_xr:])
+            _conj_reflected(T, n_xr, n_x2, n_x2, full[:, :, n_xr:])
         return full
 
     def _dct1(self, B: np.ndarray) -> np.ndarray:
@@ -330,15 +372,20 @@ class PlanarOperator(pylops.LinearOperator):
             A = self._lateral_spectrum(data.reshape(self.n_t, n_y, n_x))
         else:
             A = self._spectrum_at_points(data)
-        U = nufft.to_fine_grid(A.reshape(self.n_t, cols), self._grid, t0_is_zero=False)
-        del A
-        F = nufft.evaluate(U, self._grid, self._klat2, self._kz, self._qw_adjoint, self.c, self.dt, self.t0,
-                           inversion=False, n_chunks=1, groups=self._groups)
-        del U
-        F = self._dct1(F)
+        A = A.reshape(self.n_t, cols)
         K = np.empty((n_z, cols), dtype=self._ctype)  # the image's rows only
-        nufft.transpose(F[:, :n_z], K)
-        del F
+        for idx, klat2, groups in self._chunks:  # columns in chunks of whole |k_lat| groups
+            U = nufft.to_fine_grid(A[:, idx], self._grid, t0_is_zero=False)
+            F = nufft.evaluate(U, self._grid, klat2, self._kz, self._qw_adjoint, self.c, self.dt, self.t0,
+                               inversion=False, n_chunks=1, groups=groups)
+            del U
+            F = self._dct1(F)
+            Kc = np.empty((n_z, len(idx)), dtype=self._ctype)
+            nufft.transpose(F[:, :n_z], Kc)
+            K[:, idx] = Kc
+            del F, Kc
+            self._tick()
+        del A
         K[0] *= 0.5  # DCT-Iᵀ = diag(τ) DCT-I diag(1/τ), τ = ½ at both ends
         if n_z == n_z2:
             K[-1] *= 0.5
@@ -349,19 +396,25 @@ class PlanarOperator(pylops.LinearOperator):
     def _spectrum_at_points(self, data: np.ndarray) -> np.ndarray:
         """Adjoint of the type-2 point evaluation: Hermitian part of the type-1 NUFFT
         Σ_m g_m(t) e^{-i k·x_m}, as an rfft2-shaped half spectrum (n_t, N_y, N_x//2+1)."""
-        assert self._plans is not None  # point data only
         _, n_y, n_x = self.padded_shape
+        n_xr = n_x // 2 + 1
         strengths = np.ascontiguousarray(data.T, dtype=self._ctype)  # (n_t, n_points)
-        Y = self._plans[1].execute(strengths)
-        del strengths
-        Y = Y.reshape(self.n_t, n_y, n_x)
-        # Re(·) in the forward -> Hermitian part here: ½ (Y(k) + conj Y(-k)), FFT index order
-        iy = (-np.arange(n_y)) % n_y
-        ix = (-np.arange(n_x // 2 + 1)) % n_x
-        H = np.conjugate(Y[:, :, ix][:, iy])
-        H += Y[:, :, : n_x // 2 + 1]
+        H = np.empty((self.n_t, n_y, n_xr), dtype=self._ctype)
+        for a, b in self._time_batches():
+            Y = self._plans[1, b - a].execute(strengths[a:b]).reshape(b - a, n_y, n_x)
+            # Re(·) in the forward -> Hermitian part here: ½ (Y(k) + conj Y(-k)), FFT index order
+            _conj_reflected(Y, 0, n_xr, n_x, H[a:b])
+            H[a:b] += Y[:, :, :n_xr]
+            del Y
+            self._tick()
         H *= 0.5
         return H
+
+    def _time_batches(self) -> list[tuple[int, int]]:
+        """[a, b) ranges of time samples, `_BATCH` long (the last one shorter): the lateral
+        NUFFTs of point data run per batch (their plans are made for these lengths)."""
+        return [(a, min(a + _BATCH, self.n_t)) for a in range(0, self.n_t, _BATCH)]
+
 
     # -- pylops ------------------------------------------------------------------
     def _matvec(self, x):
@@ -370,3 +423,39 @@ class PlanarOperator(pylops.LinearOperator):
 
     def _rmatvec(self, y):
         return self._apply_adjoint(np.asarray(y, dtype=self.dtype).reshape(self.oshape)).ravel()
+
+
+def _conj_reflected(src: np.ndarray, i_lo: int, i_hi: int, n_x: int, out: np.ndarray) -> None:
+    """out[:, j, i - i_lo] = conj(src[:, (-j) % n_y, (-i) % n_x]) for i in [i_lo, i_hi): the
+    reflected wavenumbers S(-k) of a lateral spectrum (FFT order; ``src`` (m, n_y, >= the
+    columns read)), written through strided views (no fancy-index copies of the volume)."""
+    n_y = src.shape[1]
+    rows = [(slice(0, 1), slice(0, 1))]
+    if n_y > 1:
+        rows.append((slice(1, n_y), slice(n_y - 1, 0, -1)))
+    cols = []
+    if i_lo == 0:
+        cols.append((slice(0, 1), slice(0, 1)))
+    a = max(i_lo, 1)
+    if i_hi > a:
+        cols.append((slice(a - i_lo, i_hi - i_lo), slice(n_x - a, n_x - i_hi, -1)))
+    for out_y, src_y in rows:
+        for out_x, src_x in cols:
+            np.conjugate(src[:, src_y, src_x], out=out[:, out_y, out_x])
+
+
+def _column_chunks(klat2: np.ndarray, row: int, elements: int) -> list[tuple[np.ndarray, np.ndarray, tuple]]:
+    """The k-space columns in chunks of whole |k_lat| groups (`driver.physics.nufft.group_columns`:
+    columns of one group share their temporal taps), each about ``elements`` / ``row``
+    columns: a list of (column indices (sorted), their |k_lat|², their groups)."""
+    gvals, gptr, order = nufft.group_columns(klat2)
+    target = max(1, elements // max(1, row))
+    chunks = []
+    a = 0
+    while a < len(gvals):
+        b = int(np.searchsorted(gptr, gptr[a] + target, side="left"))
+        b = min(max(b, a + 1), len(gvals))
+        idx = np.sort(order[gptr[a] : gptr[b]])
+        chunks.append((idx, klat2[idx], nufft.group_columns(klat2[idx])))
+        a = b
+    return chunks

@@ -84,6 +84,7 @@ _WINDOW = 3  # the stopping rule's window of iterations
 _PROX_ITER = 20  # inner (dual, no operator) iterations of the TV + positivity proximal map
 _DEBIAS_ITER = 10  # iterations of the least-squares refit on the support (debias)
 _SUPPORT_FRACTION = 0.05  # the support for debias: p0 above this share of its maximum
+_POLL_S = 0.2  # a cancel is polled at least this often (s) inside long steps
 #: default wall-time limit of one model-based reconstruction, s (the server's setting
 #: ``tv_time_limit_s`` caps it there)
 DEFAULT_TIME_LIMIT = 3600.0
@@ -164,8 +165,10 @@ def reconstruct_tv(
     progress : optional ``progress(fraction, stage)`` (the pipeline's contract), called
         with increasing fractions during the warm start (stage "warm start"), after each
         step of the norm estimate ("norm estimate") and every iteration ("iteration
-        k/max_iter"); it may raise to cancel (the pipeline's ``should_stop`` does), so a
-        cancel acts within one iteration.
+        k/max_iter"), and again with the same fraction at most every 0.2 s inside long steps
+        (the operator's checkpoints: `PlanarOperator` ``checkpoint``); it may raise to cancel
+        (the pipeline's ``should_stop`` does), so a cancel acts within about a second even
+        when one iteration takes minutes.
 
     Returns
     -------
@@ -212,7 +215,7 @@ def reconstruct_tv(
     dz_used, n_t = warm.params["dz"], g.shape[0] if pos is None else g.shape[1]
     shape = warm.p0.shape
     op = PlanarOperator(shape, dx, dz_used, dt, n_t, c, positions=pos, t0=t0, eps=eps, dtype=rdtype,
-                         periodic=periodic)
+                         periodic=periodic, checkpoint=report.poll)
     checks.check_memory(checks.tv_memory(shape, op.padded_shape, g.size, n_t, rdtype), memory_limit)
     # B = P Aᵀ: the exact adjoint, NER's k-space weight P = k_z / |k| (symmetric, positive definite)
     P = _ner_weight(shape, dx, dz_used)
@@ -249,12 +252,13 @@ def reconstruct_tv(
         return float(np.linalg.norm(Ax - g))
 
     x, it, stop_reason, change, Ax, L = _fista(forward, B, g, Bg, x, lam, L, positivity, max_iter, tol,
-                                                            started, time_limit, report, residual)
+                                                            started, time_limit, report, residual,
+                                                            poll=report.poll)
     debiased = False
     if debias and stop_reason != "time limit" and np.any(x > 0):
         support = x > _SUPPORT_FRACTION * float(np.max(x))
         x, _, _, _, Ax, L = _fista(forward, B, g, Bg, x, 0.0, L, True, _DEBIAS_ITER, 0.0, started,
-                                         time_limit, None, residual, support=support)
+                                         time_limit, None, residual, support=support, poll=report.poll)
         debiased = True
     p0 = x.astype(rdtype, copy=False)
     res = Ax - g
@@ -333,11 +337,12 @@ def _tv_norm(x: np.ndarray) -> float:
     return float(np.sum(np.sqrt(np.sum(_grad(x).astype(np.float64) ** 2, axis=0))))
 
 
-def _tv_prox(v: np.ndarray, gamma: float, positivity: bool, support, dual):
+def _tv_prox(v: np.ndarray, gamma: float, positivity: bool, support, dual, poll=None):
     """argmin_x ½‖x − v‖² + γ TV(x) over x >= 0 (positivity) and x = 0 off ``support``
     (None: everywhere allowed): the fast gradient projection of Beck & Teboulle (2009) on
     the dual, `_PROX_ITER` steps from ``dual`` (the previous call's, a warm start; None:
-    0). No operator. Returns (x, dual)."""
+    0). No operator. ``poll()``, if given, is called every few inner steps (a cancel).
+    Returns (x, dual)."""
     def project(x):
         if positivity:
             np.maximum(x, 0, out=x)
@@ -350,7 +355,9 @@ def _tv_prox(v: np.ndarray, gamma: float, positivity: bool, support, dual):
     p = np.zeros((v.ndim,) + v.shape, dtype=v.dtype) if dual is None else dual
     q, t = p.copy(), 1.0
     step = 1.0 / (4.0 * v.ndim * gamma)  # 1 / (γ ‖∇‖²), ‖∇‖² <= 4 d
-    for _ in range(_PROX_ITER):
+    for i in range(_PROX_ITER):
+        if poll is not None and i % 5 == 4:
+            poll()
         pn = q + step * _grad(project(v - gamma * _grad_t(q)))
         pn /= np.maximum(1.0, np.sqrt(np.sum(pn * pn, axis=0)))
         tn = 0.5 * (1.0 + math.sqrt(1.0 + 4.0 * t * t))
@@ -360,13 +367,13 @@ def _tv_prox(v: np.ndarray, gamma: float, positivity: bool, support, dual):
 
 
 def _fista(forward, B, g, Bg, x, lam, L, positivity, max_iter, tol, started, time_limit, report, residual,
-           support=None):
+           support=None, poll=None):
     """Accelerated proximal gradient (FISTA, Beck & Teboulle 2009) on J(p) = ½‖A p − g‖² +
     λ TV(p) (p >= 0 with ``positivity``; p = 0 off ``support`` when given), preconditioned:
     the step is B(A y − g) / L with B = P Aᵀ (module doc); the proximal map `_tv_prox`.
 
     One forward A (of the new iterate; A y follows by linearity) and one B per iteration.
-    ``residual(Ax)`` = ‖A x − g‖, so J(x_k) is exact and free. Momentum restarts (O'Donoghue
+    ``residual(Ax)`` = ‖A x − g‖, so J(x_k) is exact and free; ``poll`` as `_tv_prox`. Momentum restarts (O'Donoghue
     & Candès 2015) when J rises or the momentum points uphill. Stopping rule: the mean
     decrease of J over the last `_WINDOW` iterations below ``tol`` × its decrease since the
     start ("converged"); else ``max_iter`` iterations ("iterations") or the time limit
@@ -393,7 +400,7 @@ def _fista(forward, B, g, Bg, x, lam, L, positivity, max_iter, tol, started, tim
                 if _MARGIN * gain > L:  # the step was too long for what the iterates excite
                     L, t = _MARGIN * gain, 1.0
         y_prev, BAy_prev = y, BAy
-        xn, dual = _tv_prox(y - (BAy - Bg) / L, lam / L, positivity, support, dual)
+        xn, dual = _tv_prox(y - (BAy - Bg) / L, lam / L, positivity, support, dual, poll)
         Axn = forward(xn)
         J = objective(Axn, xn)
         tn = 0.5 * (1.0 + math.sqrt(1.0 + 4.0 * t * t))
@@ -418,12 +425,26 @@ def _fista(forward, B, g, Bg, x, lam, L, positivity, max_iter, tol, started, tim
     return x, it, stop_reason, float(change), Ax, L
 
 
-def _reporter(progress):
-    last = [0.0]
+class _Reporter:
+    """``report(fraction, stage)``: passes increasing fractions on to ``progress``;
+    ``poll()``: the same fraction and stage again, at most every `_POLL_S` seconds, so that
+    a ``progress`` that raises to cancel (the pipeline's ``should_stop``) is heard inside
+    long steps too (the operator's checkpoints, the proximal map's inner iterations)."""
 
-    def report(f: float, stage: str) -> None:
-        if progress is not None and f > last[0]:
-            last[0] = f
-            progress(f, stage)
+    def __init__(self, progress) -> None:
+        self.progress = progress
+        self.fraction, self.stage, self.at = 0.0, "warm start", time.monotonic()
 
-    return report
+    def __call__(self, f: float, stage: str) -> None:
+        if self.progress is not None and f > self.fraction:
+            self.fraction, self.stage, self.at = f, stage, time.monotonic()
+            self.progress(f, stage)
+
+    def poll(self) -> None:
+        if self.progress is not None and time.monotonic() - self.at >= _POLL_S:
+            self.at = time.monotonic()
+            self.progress(self.fraction, self.stage)
+
+
+def _reporter(progress) -> _Reporter:
+    return _Reporter(progress)

@@ -221,3 +221,49 @@ def test_padding_reaches_exactly_as_far_as_the_record():
         need_z = C * (n_t - 0.5) * DT + DZ + (n_t - 1) * DZ  # depth: half a sample and a pitch of margin
         assert not [k for k in range(n_t, n_z2) if largest_prime_factor(2 * (k - 1)) <= 5
                     and 2 * (k - 1) * DZ >= need_z], (shape, n_z2)
+
+
+@pytest.mark.parametrize("sensors", ["grid", "points"])
+def test_chunked_and_batched_steps_give_the_same_pair(sensors):
+    """The depth and temporal steps run on chunks of k-space columns and the point NUFFTs on
+    batches of time samples (16; here 40 samples: two whole batches and a remainder): any
+    chunking computes the same forward and adjoint, which stay each other's adjoint."""
+    shape, n_t = (12, 8, 9), 40
+    pos = None if sensors == "grid" else _positions(shape, 9)
+    whole = PlanarOperator(shape, DX, DZ, DT, n_t, C, positions=pos, eps=1e-12)
+    calls = []
+    chunked = PlanarOperator(shape, DX, DZ, DT, n_t, C, positions=pos, eps=1e-12, chunk_elements=2000,
+                             checkpoint=lambda: calls.append(1))
+    assert len(whole._chunks) == 1 and len(chunked._chunks) > 5
+    p0, g = rng.standard_normal(shape), rng.standard_normal(whole.oshape)
+    assert_close(chunked.forward(p0), whole.forward(p0), 1e-12)
+    n_forward = len(calls)
+    assert_close(chunked.adjoint(g), whole.adjoint(g), 1e-12)
+    assert_adjoint(chunked)
+    # a checkpoint after every chunk (and every batch of point NUFFTs): a cancel is heard
+    # within one chunk's work, however long the whole application takes
+    batches = 3 if sensors == "points" else 0
+    assert n_forward >= len(chunked._chunks) + batches
+    assert len(calls) - n_forward >= len(chunked._chunks) + batches
+    with pytest.raises(ValueError, match="chunk_elements"):
+        PlanarOperator(shape, DX, DZ, DT, n_t, C, chunk_elements=0)
+
+
+def test_a_checkpoint_that_raises_abandons_the_application():
+    """The checkpoint may raise (a cancelled job): the exception leaves `forward` at once,
+    before the remaining chunks run."""
+    shape = (12, 8, 9)
+    seen = []
+
+    class Stop(Exception):
+        pass
+
+    def checkpoint():
+        seen.append(1)
+        if len(seen) == 3:
+            raise Stop
+
+    op = PlanarOperator(shape, DX, DZ, DT, 40, C, eps=1e-9, chunk_elements=2000, checkpoint=checkpoint)
+    with pytest.raises(Stop):
+        op.forward(rng.standard_normal(shape))
+    assert len(seen) == 3 < len(op._chunks)

@@ -13,7 +13,8 @@ import h5py
 import numpy as np
 import pytest
 
-from service.pipeline import reconstruct
+from service.pipeline import Cancelled, reconstruct
+from service.recon import tv
 from service.storage.datasets import GridDataset
 from tests.service.service_servers import Server, needs_recon, wait_job
 
@@ -52,6 +53,32 @@ def test_the_library_stops_at_the_time_limit_and_says_so():
     assert 1 <= p["iterations"] < 100000 and p["time_limit"] == 1e-3 and p["solve_s"] >= 1e-3
     done = reconstruct(ds, "tv", iterations=3, lam=0.0)  # a run that ends by its iteration count
     assert done.params["stop_reason"] in ("iterations", "converged") and done.params["iterations"] <= 3
+
+
+@needs_recon
+def test_a_cancel_is_heard_inside_an_iteration(monkeypatch):
+    """Inside an iteration the solver polls ``should_stop`` again (the operator's
+    checkpoints, the proximal map's inner steps: at most every ``tv._POLL_S`` seconds, here
+    set to 0 so the count does not depend on the machine's speed): a cancel requested just
+    after iteration 1 began is heard before iteration 1 ends, not at its end. Before the
+    polls (issue 22.4), one iteration of a 512 x 64² job took minutes and a cancel waited
+    for it."""
+    monkeypatch.setattr(tv, "_POLL_S", 0.0)
+    ds = GridDataset(data=DATA.copy(), dx=DX, dt=DT, c=C, dy=DX)
+    stages: list[str] = []
+    polls_in_iteration = [0]
+
+    def should_stop() -> bool:
+        if stages and stages[-1] == "iteration 1/100000":  # iteration 1's report is done: iteration 2 runs
+            polls_in_iteration[0] += 1
+            return polls_in_iteration[0] >= 3  # cancel once iteration 2 is under way
+        return False
+
+    with pytest.raises(Cancelled):
+        reconstruct(ds, "tv", iterations=100000, lam=0.0, should_stop=should_stop,
+                    progress=lambda f, stage: stages.append(stage))
+    assert "iteration 1/100000" in stages and "iteration 2/100000" not in stages, stages[-5:]
+    assert polls_in_iteration[0] == 3
 
 
 @needs_recon
