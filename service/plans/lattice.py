@@ -33,7 +33,56 @@ class Lattice:
     ``i = 0..n_x-1``, and the same for y. A 2-D (line) scanner has ``n_y = 1`` (y = 0).
     Indices are ``(i_x, i_y)``; positions ``(x, y)`` in m.
 
-    Raises ValueError: n_x or n_y not a positive integer, pitch ≤ 0 or non-finite.
+    Parameters
+    ----------
+    n_x, n_y : int
+        Number of lattice points along x and y, >= 1 each (``n_y = 1``: a line scanner).
+    pitch : float or str
+        Distance between neighbouring points, m (> 0, finite); a text with a unit
+        (``"60um"``) is parsed by ``driver.units.parse_quantity``.
+
+    Attributes
+    ----------
+    n_x, n_y : int
+        As given.
+    pitch : float
+        In m.
+    n_points : int
+        ``n_x * n_y``.
+    x, y : ndarray, shapes ``(n_x,)`` and ``(n_y,)``
+        Coordinates of the points along each axis, m.
+    is_line : bool
+        True for a line lattice (``n_y = 1``, 2-D imaging).
+    half_extent : tuple of float
+        Distance from the centre to the outermost points along x and y, m.
+    bounds : tuple of (float, float)
+        Covered area ``((x_lo, x_hi), (y_lo, y_hi))`` in m (outermost points ± pitch/2);
+        ``((x_lo, x_hi),)`` on a line lattice.
+    area : float
+        Covered area, m² (m on a line lattice).
+
+    Raises
+    ------
+    ValueError
+        n_x or n_y not a positive integer, pitch <= 0 or non-finite.
+
+    Examples
+    --------
+    >>> from service.plans import Lattice
+    >>> lat = Lattice(5, 3, 1e-4)  # 5 x 3 points, 0.1 mm apart
+    >>> lat.n_points, lat.is_line
+    (15, False)
+    >>> lat.x  # m, centred on the optical axis
+    array([-0.0002, -0.0001,  0.    ,  0.0001,  0.0002])
+    >>> lat.positions([[0, 0], [4, 2]])  # (i_x, i_y) -> (x, y) in m
+    array([[-0.0002, -0.0001],
+           [ 0.0002,  0.0001]])
+    >>> lat.snap([[1.4e-4, -0.6e-4]])  # (x, y) in m -> nearest (i_x, i_y)
+    array([[3, 0]])
+    >>> Lattice(0, 1, 1e-4)
+    Traceback (most recent call last):
+    ...
+    ValueError: n_x must be a positive integer, got 0
     """
 
     n_x: int
