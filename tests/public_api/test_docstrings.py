@@ -12,11 +12,13 @@ import pytest
 
 MODULES = [
     "driver.physics.axes", "driver.physics.balls", "driver.physics.fast_lengths", "driver.physics.forward",
-    "driver.physics.nufft", "driver.physics.nufft_plans", "driver.physics.spectra",
+    "driver.physics.nufft", "driver.physics.nufft_plans", "driver.physics.spectra", "driver.physics.weights",
     "service.metrics.correlation", "service.metrics.curves", "service.metrics.projections",
     "service.metrics.resolution", "service.metrics.roi", "service.metrics.sharpness",
     "service.plans.angular", "service.plans.grids", "service.plans.kinds", "service.plans.lattice",
     "service.plans.mask", "service.plans.ordering", "service.plans.plan", "service.plans.preview",
+    "service.recon.checks", "service.recon.dataset", "service.recon.kwave", "service.recon.operator",
+    "service.recon.planar", "service.recon.reconstruction", "service.recon.unmix", "service.recon.warmup",
 ]
 
 #: Public classes whose docstring is text a user reads elsewhere, not a numpy docstring: a mask
