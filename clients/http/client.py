@@ -66,7 +66,30 @@ ProgressCallback = Callable[[dict], Any]
 
 # --------------------------------------------------------------------------- helpers
 def as_model(name: str, data: Any) -> Any:
-    """``data`` parsed into ``clients.http.models.<name>`` when it fits, else as is."""
+    """A response parsed into ``clients.http.models.<name>`` when it fits, else returned as is.
+
+    Parameters
+    ----------
+    name : str
+        A model name of ``clients.http.models.MODELS`` (``"Job"``, ``"Plan"``, ...).
+    data : any
+        The decoded JSON response.
+
+    Returns
+    -------
+    pydantic.BaseModel or any
+        The model; ``data`` unchanged for an unknown name, a non-dict or a response that does
+        not fit (a server newer or older than this client).
+
+    Examples
+    --------
+    >>> from clients.http.client import as_model
+    >>> job = as_model("Job", {"id": "j1", "kind": "scan", "state": "running", "new_field": 1})
+    >>> type(job).__name__, job.state, job.new_field  # unknown fields are kept
+    ('Job', 'running', 1)
+    >>> as_model("Job", {"id": "j1"})  # does not fit: the raw JSON
+    {'id': 'j1'}
+    """
     cls = MODELS.get(name)
     if cls is None or not isinstance(data, dict):
         return data
@@ -111,7 +134,30 @@ def _keep_sse(exc: ApiError) -> bool:
 
 
 def field_of(obj: Any, name: str, default: Any = None) -> Any:
-    """Read ``name`` from a model or a dict (responses are either)."""
+    """Read a field from a response model or a dict (responses are either).
+
+    Parameters
+    ----------
+    obj : pydantic.BaseModel, Mapping or None
+        The response.
+    name : str
+        The field.
+    default : any, optional
+        Returned when the field is missing or ``obj`` is None.
+
+    Returns
+    -------
+    any
+
+    Examples
+    --------
+    >>> from clients.http import field_of
+    >>> from clients.http.models import Job
+    >>> field_of(Job(id="j1", kind="scan", state="queued"), "state"), field_of({"state": "running"}, "state")
+    ('queued', 'running')
+    >>> field_of(None, "state", "unknown")
+    'unknown'
+    """
     if obj is None:
         return default
     if isinstance(obj, Mapping):
@@ -120,7 +166,27 @@ def field_of(obj: Any, name: str, default: Any = None) -> Any:
 
 
 def to_dict(obj: Any) -> Any:
-    """A JSON-able ``dict`` from a model or a dict."""
+    """A JSON-able dict from a response model or a dict.
+
+    Parameters
+    ----------
+    obj : pydantic.BaseModel or any
+        A model is dumped in JSON mode; anything else is returned unchanged.
+
+    Returns
+    -------
+    dict or any
+
+    Examples
+    --------
+    >>> from clients.http import to_dict
+    >>> from clients.http.models import Job
+    >>> d = to_dict(Job(id="j1", kind="scan", state="queued"))
+    >>> type(d).__name__, d["state"], d["progress"]["fraction"]
+    ('dict', 'queued', 0.0)
+    >>> to_dict({"a": 1})
+    {'a': 1}
+    """
     if hasattr(obj, "model_dump"):
         return obj.model_dump(mode="json")
     return obj
@@ -697,11 +763,79 @@ class _BaseClient(_Endpoints):
 
 
 class Client(_BaseClient):
-    """Blocking client. ``base_url`` defaults to ``$FPSCAN_SERVER`` or
-    ``http://127.0.0.1:8000``; ``token`` to ``$FPSCAN_TOKEN`` (``""``: send none);
-    ``timeout`` in seconds per request. Use as a context manager or call :meth:`close`.
+    """Blocking client of the fpscan HTTP API (``docs/api.md``).
 
-    Raises ``ValueError`` for a malformed URL."""
+    Every endpoint is a method (the same on :class:`AsyncClient`, there as coroutines):
+    health and auth (``health``, ``auth``); plans (``create_plan``, ``preview_plan``,
+    ``mask_kinds``, ``list_plans``, ``get_plan``, ``get_plan_json``,
+    ``download_plan_preview``, ``delete_plan``); scanners and scans (``scanners``,
+    ``start_scan``, ``pause_scan``, ``resume_scan``, ``abort_scan``, ``download_scan``,
+    ``download_ipasc``, ``scan_preview``, ``download_scan_preview``); datasets and
+    reconstructions (``upload_dataset``, ``dataset_formats``, ``methods``,
+    ``start_reconstruction``, ``start_unmix``, ``download_volume``, ``download_ome_tiff``,
+    ``download_ome_zarr``, ``download_mip``, ``download_slice``, ``download_unmix``,
+    ``download_so2``, ``list_datasets``, ``delete_dataset``); jobs (``list_jobs``,
+    ``get_job``, ``cancel_job``, ``delete_job``, ``events``, ``wait``); ``retention``.
+    Downloads go to ``<dest>.part`` and are renamed into place when complete; one cut off
+    by a network failure resumes on the next call.
+
+    Parameters
+    ----------
+    base_url : str, optional
+        ``http://`` or ``https://`` URL of the server; default ``$FPSCAN_SERVER`` or
+        ``http://127.0.0.1:8000``.
+    token : str, optional
+        Bearer token; default ``$FPSCAN_TOKEN`` (``""``: send none).
+    timeout : float, optional
+        Seconds per request (default 30).
+
+    Attributes
+    ----------
+    base_url : str
+        Without a trailing slash.
+    token : str or None
+    timeout : float
+        s.
+
+    Raises
+    ------
+    ValueError
+        A URL that is not http(s).
+
+    Examples
+    --------
+    Creating a client opens no connection:
+
+    >>> from clients.http import Client, ServerUnavailable
+    >>> api = Client("http://127.0.0.1:8000/", token="s3cret")
+    >>> api.base_url, api.token
+    ('http://127.0.0.1:8000', 's3cret')
+    >>> api.close()
+    >>> Client("127.0.0.1:8000")
+    Traceback (most recent call last):
+    ...
+    ValueError: server URL must start with http:// or https://, not '127.0.0.1:8000'
+
+    A server that cannot be reached is a ``ServerUnavailable`` (port 9 on loopback: nothing
+    listens there):
+
+    >>> with Client("http://127.0.0.1:9", token="", timeout=2) as api:
+    ...     api.health()
+    Traceback (most recent call last):
+    ...
+    clients.http.errors.ServerUnavailable: cannot reach fpscan server at http://127.0.0.1:9: ...
+
+    A session against a running server (``fpscan serve``; needs one, so not run here):
+
+    >>> with Client("http://127.0.0.1:8000", token="s3cret") as api:  # doctest: +SKIP
+    ...     plan = api.create_plan({"lattice": {"n_x": 41, "n_y": 41, "pitch": 1e-4},
+    ...                             "mask": {"kind": "equisteradian", "params": {"depth": 2e-3, "n_points": 50}}})
+    ...     scan = api.start_scan(plan.id, "sim")
+    ...     api.wait(scan, on_progress=print)
+    ...     recon = api.start_reconstruction(scan_job_id=scan, method="nedner")
+    ...     api.wait(recon)
+    ...     api.download_volume(recon, "p0.h5")
+    """
 
     def __init__(self, base_url: str | None = None, *, token: str | None = None,
                  timeout: float = 30.0):
@@ -763,9 +897,32 @@ class Client(_BaseClient):
     # -- events and waiting
     def events(self, job_id: str, *, last_event_id: str | None = None,
                read_timeout: float = 30.0) -> Generator[tuple[str, dict, str | None], None, None]:
-        """Iterate ``(event, data, id)`` from ``GET /api/jobs/{job_id}/events`` until the
-        server closes the stream. ``data`` is the decoded JSON payload. Raises
-        :class:`ApiError` (e.g. 404 unknown job) or :class:`ServerUnavailable`."""
+        """Iterate over the events of a job's Server-Sent Events stream.
+
+        ``GET /api/jobs/{job_id}/events`` until the server closes the stream (after the job's
+        final state).
+
+        Parameters
+        ----------
+        job_id : str
+        last_event_id : str, optional
+            Resume after this event (``Last-Event-ID``).
+        read_timeout : float, optional
+            s without a byte before the stream counts as dropped (the server pings every 15 s).
+
+        Yields
+        ------
+        tuple of (str, dict, str or None)
+            ``(event, data, id)``: the event name (``progress``, ``state``), its decoded JSON
+            payload and its id.
+
+        Raises
+        ------
+        ApiError
+            E.g. :class:`NotFound` for an unknown job.
+        ServerUnavailable
+            The server cannot be reached.
+        """
         from httpx_sse import connect_sse
 
         headers = {"Last-Event-ID": last_event_id} if last_event_id else {}
@@ -810,17 +967,40 @@ class Client(_BaseClient):
 
     def wait(self, job_id: str, *, on_progress: ProgressCallback | None = None,
              timeout: float | None = None, poll_interval: float = 0.5, raise_on_failure: bool = True):
-        """Block until job ``job_id`` ends; return its final Job.
+        """Block until a job ends; return its final Job.
 
-        Listens to the SSE stream (reconnecting with ``Last-Event-ID`` when it drops),
-        calling ``on_progress(progress: dict)`` for every progress update in the order the
-        job made them (keys ``fraction, stage, points_done, points_total, rate_per_s,
-        eta_s``), the last one with the job's final progress; falls back to
-        polling ``GET /api/jobs/{id}`` every ``poll_interval`` s when the stream is not
-        available. ``timeout`` in seconds (None: no limit).
+        Listens to the SSE stream (reconnecting with ``Last-Event-ID`` when it drops), calling
+        ``on_progress(progress: dict)`` for every progress update in the order the job made them
+        (keys ``fraction, stage, points_done, points_total, rate_per_s, eta_s``), the last one
+        with the job's final progress; falls back to polling ``GET /api/jobs/{id}`` every
+        ``poll_interval`` s when the stream is not available.
 
-        Raises :class:`JobFailed` / :class:`JobCancelled` (unless ``raise_on_failure`` is
-        False), :class:`WaitTimeout`, :class:`ApiError`, :class:`ServerUnavailable`."""
+        Parameters
+        ----------
+        job_id : str
+        on_progress : callable, optional
+            ``on_progress(progress: dict)``.
+        timeout : float, optional
+            s; None: no limit.
+        poll_interval : float, optional
+            s between polls (default 0.5).
+        raise_on_failure : bool, optional
+            Raise for a job that failed or was cancelled (default True); False returns it.
+
+        Returns
+        -------
+        Job or dict
+            The job's final record.
+
+        Raises
+        ------
+        JobFailed, JobCancelled
+            The job ended so (unless ``raise_on_failure`` is False).
+        WaitTimeout
+            ``timeout`` passed first.
+        ApiError, ServerUnavailable
+            As every endpoint.
+        """
         deadline = None if timeout is None else time.monotonic() + timeout
         last_id: str | None = None
         use_sse = True
@@ -843,8 +1023,46 @@ class Client(_BaseClient):
 
 # --------------------------------------------------------------------------- async
 class AsyncClient(_BaseClient):
-    """``asyncio`` client with the same methods as :class:`Client` (all coroutines;
-    :meth:`events` is an async iterator). Use ``async with`` or ``await aclose()``."""
+    """``asyncio`` client with the same methods as :class:`Client`.
+
+    All endpoint methods are coroutines; :meth:`events` is an async iterator; ``wait``'s
+    ``on_progress`` may be a plain function or a coroutine function. Use ``async with`` or
+    ``await aclose()``.
+
+    Parameters
+    ----------
+    base_url, token, timeout
+        As :class:`Client`.
+
+    Attributes
+    ----------
+    base_url : str
+    token : str or None
+    timeout : float
+        s.
+
+    Raises
+    ------
+    ValueError
+        A URL that is not http(s).
+
+    Examples
+    --------
+    >>> import asyncio
+    >>> from clients.http import AsyncClient, ServerUnavailable
+    >>> async def health(url):
+    ...     async with AsyncClient(url, token="", timeout=2) as api:
+    ...         try:
+    ...             return await api.health()
+    ...         except ServerUnavailable as exc:
+    ...             return exc.base_url
+    >>> asyncio.run(health("http://127.0.0.1:9"))  # nothing listens on port 9
+    'http://127.0.0.1:9'
+    >>> AsyncClient("ftp://host").base_url
+    Traceback (most recent call last):
+    ...
+    ValueError: server URL must start with http:// or https://, not 'ftp://host'
+    """
 
     _asynchronous: ClassVar[bool] = True
 
@@ -911,7 +1129,22 @@ class AsyncClient(_BaseClient):
 
     async def events(self, job_id: str, *, last_event_id: str | None = None,
                      read_timeout: float = 30.0):
-        """Async iterator of ``(event, data, id)``; see :meth:`Client.events`."""
+        """Async iterator of ``(event, data, id)``; see :meth:`Client.events`.
+
+        Parameters
+        ----------
+        job_id, last_event_id, read_timeout
+            As :meth:`Client.events`.
+
+        Yields
+        ------
+        tuple of (str, dict, str or None)
+
+        Raises
+        ------
+        ApiError, ServerUnavailable
+            As :meth:`Client.events`.
+        """
         from httpx_sse import aconnect_sse
 
         headers = {"Last-Event-ID": last_event_id} if last_event_id else {}
@@ -956,8 +1189,24 @@ class AsyncClient(_BaseClient):
     async def wait(self, job_id: str, *, on_progress: ProgressCallback | None = None,
                    timeout: float | None = None, poll_interval: float = 0.5,
                    raise_on_failure: bool = True):
-        """Await the end of job ``job_id``; see :meth:`Client.wait` (same behaviour and
-        errors; ``on_progress`` may be a plain function or a coroutine function)."""
+        """Await the end of a job; see :meth:`Client.wait` (same behaviour and errors).
+
+        Parameters
+        ----------
+        job_id, timeout, poll_interval, raise_on_failure
+            As :meth:`Client.wait`.
+        on_progress : callable, optional
+            A plain function or a coroutine function, called with each progress dict.
+
+        Returns
+        -------
+        Job or dict
+
+        Raises
+        ------
+        JobFailed, JobCancelled, WaitTimeout, ApiError, ServerUnavailable
+            As :meth:`Client.wait`.
+        """
         deadline = None if timeout is None else time.monotonic() + timeout
         last_id: str | None = None
         use_sse = True

@@ -19,6 +19,7 @@ MODULES = [
     "service.plans.mask", "service.plans.ordering", "service.plans.plan", "service.plans.preview",
     "service.recon.checks", "service.recon.dataset", "service.recon.kwave", "service.recon.operator",
     "service.recon.planar", "service.recon.reconstruction", "service.recon.unmix", "service.recon.warmup",
+    "clients.http.client", "clients.http.errors", "clients.http.models",
 ]
 
 #: Public classes whose docstring is text a user reads elsewhere, not a numpy docstring: a mask
