@@ -75,6 +75,19 @@ class Ring:
     phi0: float
 
     def azimuths(self) -> np.ndarray:
+        """Azimuths of the ring's points, ``phi0 + 2π i / count``.
+
+        Returns
+        -------
+        ndarray, shape ``(count,)``
+            rad.
+
+        Examples
+        --------
+        >>> from service.plans.angular import Ring
+        >>> Ring(theta=0.5, theta_lo=0.4, theta_hi=0.6, count=2, phi0=0.0).azimuths().round(4)
+        array([0.    , 3.1416])
+        """
         return self.phi0 + 2 * np.pi * np.arange(self.count) / self.count
 
 

@@ -143,7 +143,19 @@ class MaskParams(BaseModel):
         return data if out is None else out
 
     def mask_kwargs(self) -> dict:
-        """The keyword arguments of the kind's mask function (unset optional ones left out)."""
+        """The keyword arguments of the kind's mask function (unset optional ones left out).
+
+        Returns
+        -------
+        dict
+            SI units.
+
+        Examples
+        --------
+        >>> from service.plans.kinds import PoissonParams
+        >>> PoissonParams(min_distance="240um").mask_kwargs()
+        {'min_distance': 0.00024, 'seed': 0}
+        """
         return {k: v for k, v in self.model_dump().items() if v is not None}
 
 

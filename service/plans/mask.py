@@ -477,7 +477,18 @@ class Mask:
         return float(self.weights.sum())
 
     def recon_positions(self) -> np.ndarray:
-        """Positions in the form ``service.recon`` takes: ``(n, 1)`` x in m on a line
-        lattice (2-D imaging), ``(n, 2)`` (x, y) in m otherwise."""
+        """The positions in the form ``service.recon`` takes them.
+
+        Returns
+        -------
+        ndarray, shape ``(n, 1)`` (line lattice: x) or ``(n, 2)`` ((x, y))
+            m.
+
+        Examples
+        --------
+        >>> from service.plans import Lattice, full_mask
+        >>> full_mask(Lattice(3, 1, 1e-4)).recon_positions().shape
+        (3, 1)
+        """
         pos = self.positions
         return pos[:, :1].copy() if self.lattice.is_line else pos

@@ -347,19 +347,67 @@ class Plan(_Strict):
         return Lattice(self.lattice.n_x, self.lattice.n_y, self.lattice.pitch)
 
     def indices_array(self) -> np.ndarray:
-        """``(n, 2)`` int64 lattice indices in scan order."""
+        """Lattice indices in scan order.
+
+        Returns
+        -------
+        ndarray of int64, shape ``(n, 2)``
+            (i_x, i_y).
+
+        Examples
+        --------
+        >>> from service.plans import make_plan
+        >>> make_plan("full", lattice={"n_x": 3, "n_y": 1, "pitch": 1e-4}).indices_array().tolist()
+        [[0, 0], [1, 0], [2, 0]]
+        """
         return np.asarray(self.points.indices, dtype=np.int64).reshape(-1, 2)
 
     def positions_array(self) -> np.ndarray:
-        """``(n, 2)`` positions (x, y) in m in scan order."""
+        """Positions in scan order.
+
+        Returns
+        -------
+        ndarray, shape ``(n, 2)``
+            (x, y), m.
+
+        Examples
+        --------
+        >>> from service.plans import make_plan
+        >>> make_plan("full", lattice={"n_x": 3, "n_y": 1, "pitch": 1e-4}).positions_array().shape
+        (3, 2)
+        """
         return np.asarray(self.points.positions, dtype=np.float64).reshape(-1, 2)
 
     def weights_array(self) -> np.ndarray:
-        """``(n,)`` weights in m² (m on a line lattice) in scan order."""
+        """Quadrature weights in scan order.
+
+        Returns
+        -------
+        ndarray, shape ``(n,)``
+            m² (m on a line lattice).
+
+        Examples
+        --------
+        >>> from service.plans import make_plan
+        >>> make_plan("full", lattice={"n_x": 3, "n_y": 3, "pitch": 1e-4}).weights_array().shape
+        (9,)
+        """
         return np.asarray(self.points.weights, dtype=np.float64)
 
     def recon_positions(self) -> np.ndarray:
-        """``(n, 1)`` on a line lattice, ``(n, 2)`` otherwise (what ``service.recon`` takes)."""
+        """The positions in the form ``service.recon`` takes them.
+
+        Returns
+        -------
+        ndarray, shape ``(n, 1)`` (line lattice: x) or ``(n, 2)`` ((x, y))
+            m, in scan order.
+
+        Examples
+        --------
+        >>> from service.plans import make_plan
+        >>> make_plan("full", lattice={"n_x": 3, "n_y": 1, "pitch": 1e-4}).recon_positions().ravel().tolist()
+        [-0.0001, 0.0, 0.0001]
+        """
         pos = self.positions_array()
         return pos[:, :1].copy() if self.lattice.n_y == 1 else pos
 
@@ -374,11 +422,42 @@ class Plan(_Strict):
 
     # -- JSON -------------------------------------------------------------------------
     def to_dict(self) -> dict:
+        """The plan as JSON-safe dict (``Plan JSON`` of docs/architecture.md).
+
+        Returns
+        -------
+        dict
+
+        Examples
+        --------
+        >>> from service.plans import make_plan
+        >>> d = make_plan("full", lattice={"n_x": 3, "n_y": 1, "pitch": 1e-4}).to_dict()
+        >>> sorted(d)
+        ['acquisition', 'format', 'id', 'lattice', 'mask', 'order', 'points']
+        """
         return self.model_dump(mode="json")
 
     def to_json(self, path: str | Path | None = None, *, indent: int | None = None) -> str:
-        """The plan as JSON text (canonical when ``indent`` is None); also written to
-        ``path`` if given."""
+        """The plan as JSON text.
+
+        Parameters
+        ----------
+        path : str or Path, optional
+            Also write it there (with a final newline).
+        indent : int, optional
+            Indent (keys sorted); None (default): the canonical form (``canonical_json``).
+
+        Returns
+        -------
+        str
+
+        Examples
+        --------
+        >>> from service.plans import make_plan
+        >>> text = make_plan("full", lattice={"n_x": 3, "n_y": 1, "pitch": 1e-4}).to_json()
+        >>> text[:30]
+        '{"acquisition":{"averages":1,"'
+        """
         d = self.to_dict()
         text = canonical_json(d) if indent is None else json.dumps(d, indent=indent, sort_keys=True)
         if path is not None:
@@ -387,13 +466,68 @@ class Plan(_Strict):
 
     @classmethod
     def from_dict(cls, d: dict) -> Plan:
+        """Read a plan from its dict; validates it (including the id).
+
+        Parameters
+        ----------
+        d : dict
+            The plan JSON as dict.
+
+        Returns
+        -------
+        Plan
+
+        Raises
+        ------
+        ValueError
+            Not a dict, or any rule of the plan contract broken (pydantic.ValidationError).
+
+        Examples
+        --------
+        >>> from service.plans import Plan, make_plan
+        >>> plan = make_plan("full", lattice={"n_x": 3, "n_y": 1, "pitch": 1e-4})
+        >>> Plan.from_dict(plan.to_dict()) == plan
+        True
+        >>> Plan.from_dict([1])
+        Traceback (most recent call last):
+        ...
+        ValueError: a plan must be a JSON object, got list
+        """
         if not isinstance(d, dict):
             raise ValueError(f"a plan must be a JSON object, got {type(d).__name__}")
         return cls.model_validate(d)
 
     @classmethod
     def from_json(cls, text_or_path) -> Plan:
-        """Read a plan from JSON text or a file path; validates it (including the id)."""
+        """Read a plan from JSON text or a file path; validates it (including the id).
+
+        Parameters
+        ----------
+        text_or_path : str or Path
+            JSON text (starting with ``{``) or the path of a file holding it.
+
+        Returns
+        -------
+        Plan
+
+        Raises
+        ------
+        ValueError
+            Not valid JSON, or any rule of the plan contract broken.
+        OSError
+            A path that cannot be read.
+
+        Examples
+        --------
+        >>> from service.plans import Plan, make_plan
+        >>> plan = make_plan("full", lattice={"n_x": 3, "n_y": 1, "pitch": 1e-4})
+        >>> Plan.from_json(plan.to_json(indent=2)).id == plan.id
+        True
+        >>> Plan.from_json("{not json")
+        Traceback (most recent call last):
+        ...
+        ValueError: plan is not valid JSON: ...
+        """
         if isinstance(text_or_path, Path) or (
             isinstance(text_or_path, str) and not text_or_path.lstrip().startswith("{")
         ):
@@ -408,9 +542,27 @@ class Plan(_Strict):
 
     # -- HDF5 ---------------------------------------------------------------------------
     def to_hdf5(self, group) -> None:
-        """Write into an h5py group: attrs ``format``, ``id``, ``order``, ``lattice``,
-        ``mask``, ``acquisition`` (the last three as JSON text) and datasets ``indices``
-        (n, 2) int64, ``positions`` (n, 2) float64 m, ``weights`` (n,) float64."""
+        """Write the plan into an h5py group.
+
+        Attributes ``format``, ``id``, ``order``, ``lattice``, ``mask``, ``acquisition`` (the last
+        three as canonical JSON text) and datasets ``indices`` (n, 2) int64, ``positions`` (n, 2)
+        float64 in m, ``weights`` (n,) float64 in m² (m on a line lattice).
+
+        Parameters
+        ----------
+        group : h5py.Group
+            An empty group (or file) open for writing.
+
+        Examples
+        --------
+        >>> import h5py
+        >>> from service.plans import make_plan
+        >>> plan = make_plan("full", lattice={"n_x": 3, "n_y": 1, "pitch": 1e-4})
+        >>> with h5py.File("plan.h5", "w", driver="core", backing_store=False) as f:  # in memory
+        ...     plan.to_hdf5(f.create_group("plan"))
+        ...     sorted(f["plan"]), f["plan/positions"].shape
+        (['indices', 'positions', 'weights'], (3, 2))
+        """
         group.attrs["format"] = self.format
         group.attrs["id"] = self.id
         group.attrs["order"] = self.order
@@ -422,7 +574,32 @@ class Plan(_Strict):
 
     @classmethod
     def from_hdf5(cls, group) -> Plan:
-        """Read a plan written by ``to_hdf5``; validates it (including the id)."""
+        """Read a plan written by ``to_hdf5``; validates it (including the id).
+
+        Parameters
+        ----------
+        group : h5py.Group
+
+        Returns
+        -------
+        Plan
+
+        Raises
+        ------
+        ValueError
+            A group without a complete plan (naming what is missing), or a plan that breaks the
+            contract.
+
+        Examples
+        --------
+        >>> import h5py
+        >>> from service.plans import Plan, make_plan
+        >>> plan = make_plan("full", lattice={"n_x": 3, "n_y": 1, "pitch": 1e-4})
+        >>> with h5py.File("plan.h5", "w", driver="core", backing_store=False) as f:
+        ...     plan.to_hdf5(f.create_group("plan"))
+        ...     Plan.from_hdf5(f["plan"]).id == plan.id
+        True
+        """
 
         def _s(v):
             return v.decode("utf-8") if isinstance(v, bytes) else str(v)

@@ -211,17 +211,43 @@ class GridDataset:
         return self.data.ndim
 
     def axes(self) -> tuple[np.ndarray, ...]:
-        """Lateral coordinate vectors: ``(x,)`` in 2-D, ``(x, y)`` in 3-D, m, centred."""
+        """Lateral coordinate vectors, centred on the optical axis.
+
+        Returns
+        -------
+        tuple of ndarray
+            ``(x,)`` in 2-D, ``(x, y)`` in 3-D; shapes ``(n_x,)``, ``(n_y,)``; m.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from service.recon.dataset import GridDataset
+        >>> [a.shape for a in GridDataset(np.zeros((8, 3, 4)), 1e-4, 2e-8, 1500.0).axes()]
+        [(4,), (3,)]
+        """
         x = centred_axis(self.data.shape[-1], self.dx)
         if self.data.ndim == 2:
             return (x,)
         return x, centred_axis(self.data.shape[1], self.dy or self.dx)
 
     def to_points(self) -> PointDataset:
-        """Every grid point as a sensor: ``alines`` ``(n_y·n_x, n_t)`` in C order of
-        ``(n_y, n_x)``, positions ``(n, 2)`` (x, y) (``(n, 1)`` in 2-D), no weights (the
-        reconstruction then uses clipped Voronoi areas, here the grid cells), ``grid`` =
-        :meth:`axes`."""
+        """Every grid point as a sensor.
+
+        Returns
+        -------
+        PointDataset
+            ``alines`` ``(n_y·n_x, n_t)`` in C order of ``(n_y, n_x)``, positions ``(n, 2)``
+            (x, y) in m (``(n, 1)`` in 2-D), no weights (the reconstruction then uses clipped
+            Voronoi areas, here the grid cells), ``grid`` = :meth:`axes`.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from service.recon.dataset import GridDataset
+        >>> pts = GridDataset(np.zeros((8, 5)), 1e-4, 2e-8, 1500.0).to_points()
+        >>> pts.alines.shape, pts.positions.shape, pts.weights
+        ((5, 8), (5, 1), None)
+        """
         axes = self.axes()
         if self.data.ndim == 2:
             alines, positions = self.data.T, axes[0][:, None]
@@ -335,10 +361,31 @@ class PointDataset:
         return filled is not None and bool(filled.all()) and len(np.asarray(self.indices)) == filled.size
 
     def to_grid(self) -> GridDataset:
-        """The A-lines of a full-lattice dataset as grid data ``(n_t, n_y, n_x)``
-        (``(n_t, n_x)`` for a line lattice), ``dx = dy`` = the lattice pitch, same dtype.
-        Raises ValueError when the data are not on a lattice or lattice points are
-        missing."""
+        """The A-lines of a full-lattice dataset as grid data.
+
+        Returns
+        -------
+        GridDataset
+            ``(n_t, n_y, n_x)`` (``(n_t, n_x)`` for a line lattice), ``dx = dy`` = the lattice
+            pitch (m), same dtype.
+
+        Raises
+        ------
+        ValueError
+            The data are not on a lattice, or lattice points are missing.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from service.recon.dataset import PointDataset
+        >>> ds = PointDataset(alines=np.ones((2, 8)), positions=np.array([[-5e-5], [5e-5]]), weights=None,
+        ...                   dt=2e-8, c=1500.0, grid=(np.array([-5e-5, 5e-5]),),
+        ...                   indices=np.array([[0, 0], [1, 0]]), lattice={"n_x": 3, "n_y": 1, "pitch": 1e-4})
+        >>> ds.to_grid()
+        Traceback (most recent call last):
+        ...
+        ValueError: this method needs every lattice point; 1 of 3 are missing (use 'nedner' for a sensor mask)
+        """
         filled = self._filled()
         if filled is None or self.lattice is None:
             raise ValueError("this method needs data on a full regular grid; the input is a set of "

@@ -233,11 +233,23 @@ class PlanarOperator(pylops.LinearOperator):
         return tuple(self.dimsd)
 
     def transform_lengths(self) -> dict[str, tuple[int, ...]]:
-        """The FFT lengths `forward` and `adjoint` run on the working grid `padded_shape`
-        (N_z, N_y, N_x): "lateral" ((N_x,) or (N_y, N_x)), "depth" (2 (N_z - 1),) of the
-        DCT-I, "temporal" (L,) of the temporal NUFFT's oversampled grid. Without
-        ``periodic`` they are fast lengths (`driver.physics.fast_lengths`); a periodic
-        operator keeps the image's own grid."""
+        """The FFT lengths `forward` and `adjoint` run on the working grid `padded_shape`.
+
+        Without ``periodic`` they are fast lengths (`driver.physics.fast_lengths`); a periodic
+        operator keeps the image's own grid.
+
+        Returns
+        -------
+        dict of str to tuple of int
+            ``"lateral"`` (``(N_x,)`` or ``(N_y, N_x)``), ``"depth"`` (``(2 (N_z - 1),)``, the
+            DCT-I), ``"temporal"`` (``(L,)``, the temporal NUFFT's oversampled grid).
+
+        Examples
+        --------
+        >>> from service.recon import PlanarOperator
+        >>> PlanarOperator((16, 32), 1e-4, 1e-4, 1e-4 / 1500, 40, 1500.0).transform_lengths()
+        {'lateral': (80,), 'depth': (60,), 'temporal': (80,)}
+        """
         n_z2, n_y2, n_x2 = self.padded_shape
         lat = (n_x2,) if self.is2d else (n_y2, n_x2)
         return {"lateral": lat, "depth": (2 * (n_z2 - 1),),
@@ -287,14 +299,70 @@ class PlanarOperator(pylops.LinearOperator):
 
     # -- the pair ------------------------------------------------------------------
     def forward(self, p0) -> np.ndarray:
-        """A p0: the data (`oshape`) of p0 (`ishape`), Pa -> Pa; the model of `forward_grid` /
-        `forward_points` with the same parameters (to the NUFFT tolerance), computed in
-        the operator's working precision."""
+        """A p0: the sensor data of an initial pressure image.
+
+        The model of `forward_grid` / `forward_points` with the same parameters (to the NUFFT
+        tolerance), computed in the operator's working precision.
+
+        Parameters
+        ----------
+        p0 : array_like, shape `ishape`
+            ``(n_z, n_x)`` or ``(n_z, n_y, n_x)``, Pa.
+
+        Returns
+        -------
+        ndarray, shape `oshape`
+            ``(n_t, n_x)`` / ``(n_t, n_y, n_x)`` on the grid, ``(n_points, n_t)`` at points; Pa.
+
+        Raises
+        ------
+        ValueError
+            A wrong shape, NaN or inf.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from service.recon import PlanarOperator
+        >>> op = PlanarOperator((16, 32), 1e-4, 1e-4, 1e-4 / 1500, 40, 1500.0)
+        >>> op.forward(np.zeros((16, 32))).shape
+        (40, 32)
+        >>> op.forward(np.zeros((3, 3)))
+        Traceback (most recent call last):
+        ...
+        ValueError: p0 must have shape (16, 32), got (3, 3)
+        """
         p0 = self._check("p0", p0, self.ishape)
         return self._apply_forward(p0)
 
     def adjoint(self, data) -> np.ndarray:
-        """Aᴴ data: the true adjoint of `forward` (not its inverse), `oshape` -> `ishape`."""
+        """Aᴴ data: the true adjoint of `forward` (not its inverse).
+
+        Parameters
+        ----------
+        data : array_like, shape `oshape`
+            Sensor data, Pa.
+
+        Returns
+        -------
+        ndarray, shape `ishape`
+
+        Raises
+        ------
+        ValueError
+            A wrong shape, NaN or inf.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from service.recon import PlanarOperator
+        >>> op = PlanarOperator((16, 32), 1e-4, 1e-4, 1e-4 / 1500, 40, 1500.0)
+        >>> op.adjoint(np.ones(op.oshape)).shape
+        (16, 32)
+        >>> op.adjoint(np.full(op.oshape, np.nan))
+        Traceback (most recent call last):
+        ...
+        ValueError: data contains NaN or inf
+        """
         data = self._check("data", data, self.oshape)
         return self._apply_adjoint(data)
 
