@@ -1513,6 +1513,7 @@ class Client(_BaseClient):
         self._http = httpx.Client(base_url=self.base_url, timeout=timeout, headers=self._headers())
 
     def close(self) -> None:
+        """Close the client's connections (leaving a ``with`` block does it)."""
         self._http.close()
 
     def __enter__(self) -> Client:
@@ -1743,6 +1744,7 @@ class AsyncClient(_BaseClient):
                                        headers=self._headers())
 
     async def aclose(self) -> None:
+        """Close the client's connections (leaving an ``async with`` block does it)."""
         await self._http.aclose()
 
     async def __aenter__(self) -> AsyncClient:
