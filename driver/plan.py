@@ -90,12 +90,37 @@ MAX_PRF = 1e5
 
 
 def canonical_json(obj: Any) -> str:
-    """Canonical JSON text of docs/architecture.md: ``json.dumps(obj, sort_keys=True,
-    separators=(",", ":"), allow_nan=False)``; floats as Python's ``repr``.
+    """Canonical JSON text of docs/architecture.md.
 
-    The one implementation of the plan contract's canonical form (the service, the scan
-    file and the HTTP layer all call this). Raises ``ValueError`` for NaN or infinities
-    (not JSON) and for values JSON cannot hold (``TypeError`` turned into ``ValueError``).
+    ``json.dumps(obj, sort_keys=True, separators=(",", ":"), allow_nan=False)``; floats as
+    Python's ``repr``. The one implementation of the plan contract's canonical form (the
+    service, the scan file and the HTTP layer all call this).
+
+    Parameters
+    ----------
+    obj : JSON-serialisable object
+        Usually a plan as a dict.
+
+    Returns
+    -------
+    str
+        Keys sorted, no whitespace.
+
+    Raises
+    ------
+    ValueError
+        NaN or infinities (not JSON) and values JSON cannot hold (``TypeError`` turned into
+        ``ValueError``).
+
+    Examples
+    --------
+    >>> from driver.plan import canonical_json
+    >>> canonical_json({"b": 1, "a": [1.0, 2]})
+    '{"a":[1.0,2],"b":1}'
+    >>> canonical_json({"dt": float("nan")})
+    Traceback (most recent call last):
+    ...
+    ValueError: ...
     """
     try:
         return json.dumps(obj, sort_keys=True, separators=(",", ":"), allow_nan=False)

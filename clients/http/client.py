@@ -66,7 +66,30 @@ ProgressCallback = Callable[[dict], Any]
 
 # --------------------------------------------------------------------------- helpers
 def as_model(name: str, data: Any) -> Any:
-    """``data`` parsed into ``clients.http.models.<name>`` when it fits, else as is."""
+    """A response parsed into ``clients.http.models.<name>`` when it fits, else returned as is.
+
+    Parameters
+    ----------
+    name : str
+        A model name of ``clients.http.models.MODELS`` (``"Job"``, ``"Plan"``, ...).
+    data : any
+        The decoded JSON response.
+
+    Returns
+    -------
+    pydantic.BaseModel or any
+        The model; ``data`` unchanged for an unknown name, a non-dict or a response that does
+        not fit (a server newer or older than this client).
+
+    Examples
+    --------
+    >>> from clients.http.client import as_model
+    >>> job = as_model("Job", {"id": "j1", "kind": "scan", "state": "running", "new_field": 1})
+    >>> type(job).__name__, job.state, job.new_field  # unknown fields are kept
+    ('Job', 'running', 1)
+    >>> as_model("Job", {"id": "j1"})  # does not fit: the raw JSON
+    {'id': 'j1'}
+    """
     cls = MODELS.get(name)
     if cls is None or not isinstance(data, dict):
         return data
@@ -111,7 +134,30 @@ def _keep_sse(exc: ApiError) -> bool:
 
 
 def field_of(obj: Any, name: str, default: Any = None) -> Any:
-    """Read ``name`` from a model or a dict (responses are either)."""
+    """Read a field from a response model or a dict (responses are either).
+
+    Parameters
+    ----------
+    obj : pydantic.BaseModel, Mapping or None
+        The response.
+    name : str
+        The field.
+    default : any, optional
+        Returned when the field is missing or ``obj`` is None.
+
+    Returns
+    -------
+    any
+
+    Examples
+    --------
+    >>> from clients.http import field_of
+    >>> from clients.http.models import Job
+    >>> field_of(Job(id="j1", kind="scan", state="queued"), "state"), field_of({"state": "running"}, "state")
+    ('queued', 'running')
+    >>> field_of(None, "state", "unknown")
+    'unknown'
+    """
     if obj is None:
         return default
     if isinstance(obj, Mapping):
@@ -120,7 +166,27 @@ def field_of(obj: Any, name: str, default: Any = None) -> Any:
 
 
 def to_dict(obj: Any) -> Any:
-    """A JSON-able ``dict`` from a model or a dict."""
+    """A JSON-able dict from a response model or a dict.
+
+    Parameters
+    ----------
+    obj : pydantic.BaseModel or any
+        A model is dumped in JSON mode; anything else is returned unchanged.
+
+    Returns
+    -------
+    dict or any
+
+    Examples
+    --------
+    >>> from clients.http import to_dict
+    >>> from clients.http.models import Job
+    >>> d = to_dict(Job(id="j1", kind="scan", state="queued"))
+    >>> type(d).__name__, d["state"], d["progress"]["fraction"]
+    ('dict', 'queued', 0.0)
+    >>> to_dict({"a": 1})
+    {'a': 1}
+    """
     if hasattr(obj, "model_dump"):
         return obj.model_dump(mode="json")
     return obj
@@ -309,43 +375,126 @@ class _Endpoints:
     # -- health
     @_endpoint
     def health(self):
-        """``GET /api/health`` -> ``{"status": "ok", "version": ...}``."""
+        """``GET /api/health``: whether the server is up.
+
+        Returns
+        -------
+        dict
+            ``{"status": "ok", "version": ...}``.
+
+        Raises
+        ------
+        ApiError
+            The server's reason for a 4xx/5xx (e.g. 503 while the server starts).
+        ServerUnavailable
+            The server cannot be reached.
+        """
         r = yield _Req("GET", "/api/health")
         return r.json()
 
     @_endpoint
     def auth(self):
-        """``GET /api/auth`` (needs no token) -> ``{"token_required": bool,
-        "authenticated": bool}``: whether the server needs a token, and whether this
-        client's is right."""
+        """``GET /api/auth`` (needs no token): whether the server needs a token, and whether
+        this client's is right.
+
+        Returns
+        -------
+        dict
+            ``{"token_required": bool, "authenticated": bool}``.
+
+        Raises
+        ------
+        ServerUnavailable
+            The server cannot be reached.
+        """
         r = yield _Req("GET", "/api/auth")
         return r.json()
 
     # -- plans
     @_endpoint
     def create_plan(self, body: Mapping | Any):
-        """``POST /api/plans``: create a plan from mask parameters or a point list
-        (the body of ``service.api.models`` ``PlanCreate``) -> the Plan (201)."""
+        """``POST /api/plans``: create a plan from mask parameters or a point list.
+
+        Parameters
+        ----------
+        body : Mapping or pydantic model
+            The body of ``service.api.models`` ``PlanCreate``: ``lattice`` (``n_x``, ``n_y``,
+            ``pitch`` in m), ``mask`` (``kind``, ``params`` in SI units), optional ``order`` and
+            ``acquisition``; or a whole plan JSON (``fpscan-plan/1``).
+
+        Returns
+        -------
+        Plan or dict
+            The stored plan (201; the same request gives the same plan).
+
+        Raises
+        ------
+        ApiError
+            The server's reason for a 4xx/5xx (422 naming the invalid field).
+        ServerUnavailable
+            The server cannot be reached.
+        """
         r = yield _Req("POST", "/api/plans", json=_jsonable(body))
         return as_model("Plan", r.json())
 
     @_endpoint
     def preview_plan(self, body: Mapping | Any):
-        """``POST /api/plans/preview``: same body, nothing saved -> ``{points,
-        weight_ratio, expected_scan_time_s, preview_png_base64}``."""
+        """``POST /api/plans/preview``: the mask a plan body gives, nothing saved.
+
+        Parameters
+        ----------
+        body : Mapping or pydantic model
+            As :meth:`create_plan`.
+
+        Returns
+        -------
+        PlanPreview or dict
+            ``points``, ``weight_ratio``, ``expected_scan_time_s`` (s), ``preview_png_base64``.
+
+        Raises
+        ------
+        ApiError
+            The server's reason for a 4xx/5xx (422 naming the invalid field).
+        ServerUnavailable
+            The server cannot be reached.
+        """
         r = yield _Req("POST", "/api/plans/preview", json=_jsonable(body))
         return as_model("PlanPreview", r.json())
 
     @_endpoint
     def mask_kinds(self):
-        """``GET /api/plans/kinds`` -> list of ``{kind, label, description, aliases, fields,
-        params_schema}``: the mask kinds and their parameters (SI units)."""
+        """``GET /api/plans/kinds``: the mask kinds and their parameters (SI units).
+
+        Returns
+        -------
+        list of dict
+            ``{kind, label, description, aliases, fields, params_schema}`` per kind.
+
+        Raises
+        ------
+        ApiError
+            The server's reason for a 4xx/5xx (AuthError for a missing or wrong token).
+        ServerUnavailable
+            The server cannot be reached.
+        """
         r = yield _Req("GET", "/api/plans/kinds")
         return r.json()
 
     @_endpoint
     def list_plans(self):
-        """``GET /api/plans`` -> list of Plans."""
+        """``GET /api/plans``: the stored plans.
+
+        Returns
+        -------
+        list of Plan or dict
+
+        Raises
+        ------
+        ApiError
+            The server's reason for a 4xx/5xx (AuthError for a missing or wrong token).
+        ServerUnavailable
+            The server cannot be reached.
+        """
         r = yield _Req("GET", "/api/plans")
         body = r.json()
         items = body.get("items", body) if isinstance(body, dict) else body
@@ -353,26 +502,89 @@ class _Endpoints:
 
     @_endpoint
     def get_plan(self, plan_id: str):
-        """``GET /api/plans/{plan_id}`` -> the Plan."""
+        """``GET /api/plans/{plan_id}``: one plan's summary.
+
+        Parameters
+        ----------
+        plan_id : str
+
+        Returns
+        -------
+        Plan or dict
+
+        Raises
+        ------
+        ApiError
+            The server's reason for a 4xx/5xx (NotFound for an unknown id).
+        ServerUnavailable
+            The server cannot be reached.
+        """
         r = yield _Req("GET", f"/api/plans/{plan_id}")
         return as_model("Plan", r.json())
 
     @_endpoint
     def get_plan_json(self, plan_id: str):
-        """``GET /api/plans/{plan_id}/plan.json`` -> the full plan (``fpscan-plan/1``
-        dict: lattice, mask, points in scan order, acquisition), as ``fpscan scan`` reads it."""
+        """``GET /api/plans/{plan_id}/plan.json``: the full plan, as ``fpscan scan`` reads it.
+
+        Parameters
+        ----------
+        plan_id : str
+
+        Returns
+        -------
+        dict
+            The ``fpscan-plan/1`` JSON: lattice, mask, points in scan order, acquisition (SI units).
+
+        Raises
+        ------
+        ApiError
+            The server's reason for a 4xx/5xx (NotFound for an unknown id).
+        ServerUnavailable
+            The server cannot be reached.
+        """
         r = yield _Req("GET", f"/api/plans/{plan_id}/plan.json")
         return r.json()
 
     @_endpoint
     def download_plan_preview(self, plan_id: str, dest: str | os.PathLike):
-        """``GET /api/plans/{plan_id}/preview.png`` saved to ``dest`` -> Path."""
+        """``GET /api/plans/{plan_id}/preview.png`` (the mask picture, PNG) saved to ``dest``.
+
+        Parameters
+        ----------
+        plan_id : str
+        dest : str or os.PathLike
+            The file to write (its folder is made; ``dest.part`` while downloading).
+
+        Returns
+        -------
+        pathlib.Path
+            ``dest``.
+
+        Raises
+        ------
+        ApiError
+            The server's reason for a 4xx/5xx (NotFound for an unknown id).
+        ServerUnavailable
+            The server cannot be reached.
+        """
         return (yield _Download(_Req("GET", f"/api/plans/{plan_id}/preview.png"), Path(dest)))
 
     # -- scanners and scans
     @_endpoint
     def scanners(self):
-        """``GET /api/scanners`` -> the configured serial devices and their status."""
+        """``GET /api/scanners``: the configured serial devices and their status.
+
+        Returns
+        -------
+        list of Scanner or dict
+
+        Raises
+        ------
+        ApiError
+            The server's reason for a 4xx/5xx (AuthError for a missing or wrong token).
+        ServerUnavailable
+            The server cannot be reached.
+        """
         r = yield _Req("GET", "/api/scanners")
         body = r.json()
         items = body.get("items", body) if isinstance(body, dict) and "items" in body else body
@@ -381,63 +593,236 @@ class _Endpoints:
     @_endpoint
     def start_scan(self, plan_id: str, scanner_id: str, *, idempotency_key: str | None = None,
                    **extra: Any):
-        """``POST /api/scans`` ``{plan_id, scanner_id}`` -> the new scan job's id (202).
+        """``POST /api/scans`` ``{plan_id, scanner_id}``: start a scan job.
 
-        ``idempotency_key``: same key -> same job (default: a fresh random key); ``extra``
-        fields go into the body, e.g. ``preview_wavelength=1`` (the wavelength the live
-        preview shows)."""
+        Parameters
+        ----------
+        plan_id : str
+        scanner_id : str
+            A scanner of :meth:`scanners`.
+        idempotency_key : str, optional
+            Same key -> same job (default: a fresh random key).
+        **extra
+            Further body fields, e.g. ``preview_wavelength=1`` (the wavelength the live preview
+            shows).
+
+        Returns
+        -------
+        str
+            The new scan job's id (202).
+
+        Raises
+        ------
+        ApiError
+            The server's reason for a 4xx/5xx (NotFound for an unknown plan or scanner).
+        ServerUnavailable
+            The server cannot be reached.
+        """
         body = {"plan_id": plan_id, "scanner_id": scanner_id, **extra}
         r = yield _Req("POST", "/api/scans", json=body, headers=_idem({}, idempotency_key))
         return _job_id_from(r)
 
     @_endpoint
     def pause_scan(self, job_id: str):
-        """``POST /api/scans/{job_id}/pause`` -> the Job (409 ``Conflict`` if not running)."""
+        """``POST /api/scans/{job_id}/pause``: pause a running scan.
+
+        Parameters
+        ----------
+        job_id : str
+
+        Returns
+        -------
+        Job or dict or None
+            The job (None for an empty answer).
+
+        Raises
+        ------
+        ApiError
+            The server's reason for a 4xx/5xx (Conflict (409) if not running, NotFound for an unknown job).
+        ServerUnavailable
+            The server cannot be reached.
+        """
         r = yield _Req("POST", f"/api/scans/{job_id}/pause")
         return as_model("Job", r.json()) if r.content else None
 
     @_endpoint
     def resume_scan(self, job_id: str):
-        """``POST /api/scans/{job_id}/resume`` -> the Job (409 ``Conflict`` if not paused)."""
+        """``POST /api/scans/{job_id}/resume``: resume a paused (or interrupted) scan.
+
+        Parameters
+        ----------
+        job_id : str
+
+        Returns
+        -------
+        Job or dict or None
+            The job (None for an empty answer).
+
+        Raises
+        ------
+        ApiError
+            The server's reason for a 4xx/5xx (Conflict (409) if not paused, NotFound for an unknown job).
+        ServerUnavailable
+            The server cannot be reached.
+        """
         r = yield _Req("POST", f"/api/scans/{job_id}/resume")
         return as_model("Job", r.json()) if r.content else None
 
     @_endpoint
     def abort_scan(self, job_id: str):
-        """``POST /api/scans/{job_id}/abort`` -> the Job; the scan ends ``cancelled``."""
+        """``POST /api/scans/{job_id}/abort``: stop a scan; it ends ``cancelled``.
+
+        Parameters
+        ----------
+        job_id : str
+
+        Returns
+        -------
+        Job or dict or None
+            The job (None for an empty answer).
+
+        Raises
+        ------
+        ApiError
+            The server's reason for a 4xx/5xx (Conflict for a finished job, NotFound for an unknown one).
+        ServerUnavailable
+            The server cannot be reached.
+        """
         r = yield _Req("POST", f"/api/scans/{job_id}/abort")
         return as_model("Job", r.json()) if r.content else None
 
     @_endpoint
     def download_scan(self, job_id: str, dest: str | os.PathLike):
-        """``GET /api/scans/{job_id}/file`` (the scan file, HDF5) saved to ``dest``."""
+        """``GET /api/scans/{job_id}/file`` (the scan file, HDF5) saved to ``dest``.
+
+        Parameters
+        ----------
+        job_id : str
+        dest : str or os.PathLike
+            The file to write (its folder is made; ``dest.part`` while downloading).
+
+        Returns
+        -------
+        pathlib.Path
+            ``dest``.
+
+        Raises
+        ------
+        ApiError
+            The server's reason for a 4xx/5xx (NotFound for an unknown id).
+        ServerUnavailable
+            The server cannot be reached.
+        """
         return (yield _Download(_Req("GET", f"/api/scans/{job_id}/file"), Path(dest)))
 
     @_endpoint
     def download_ipasc(self, job_id: str, dest: str | os.PathLike):
-        """``GET /api/scans/{job_id}/ipasc`` (IPASC HDF5 export) saved to ``dest``."""
+        """``GET /api/scans/{job_id}/ipasc`` (IPASC HDF5 export) saved to ``dest``.
+
+        Parameters
+        ----------
+        job_id : str
+        dest : str or os.PathLike
+            The file to write (its folder is made; ``dest.part`` while downloading).
+
+        Returns
+        -------
+        pathlib.Path
+            ``dest``.
+
+        Raises
+        ------
+        ApiError
+            The server's reason for a 4xx/5xx (NotFound for an unknown id).
+        ServerUnavailable
+            The server cannot be reached.
+        """
         return (yield _Download(_Req("GET", f"/api/scans/{job_id}/ipasc"), Path(dest)))
 
     @_endpoint
     def scan_preview(self, job_id: str):
-        """``GET /api/scans/{job_id}/preview`` -> ``{version, points_used, updated}``."""
+        """``GET /api/scans/{job_id}/preview``: the live preview's state.
+
+        Parameters
+        ----------
+        job_id : str
+
+        Returns
+        -------
+        PreviewInfo or dict
+            ``version``, ``points_used``, ``updated`` (UNIX s), ...
+
+        Raises
+        ------
+        ApiError
+            The server's reason for a 4xx/5xx (NotFound for an unknown id).
+        ServerUnavailable
+            The server cannot be reached.
+        """
         r = yield _Req("GET", f"/api/scans/{job_id}/preview")
         return as_model("PreviewInfo", r.json())
 
     @_endpoint
     def download_scan_preview(self, job_id: str, plane: str, dest: str | os.PathLike):
-        """``GET /api/scans/{job_id}/preview/{plane}.png`` (live MIP) saved to ``dest``."""
+        """``GET /api/scans/{job_id}/preview/{plane}.png`` (live MIP, PNG) saved to ``dest``.
+
+        Parameters
+        ----------
+        job_id : str
+        plane : {"xy", "xz", "yz"}
+            The MIP's plane.
+        dest : str or os.PathLike
+            The file to write (its folder is made; ``dest.part`` while downloading).
+
+        Returns
+        -------
+        pathlib.Path
+            ``dest``.
+
+        Raises
+        ------
+        ValueError
+            An unknown plane (before any request).
+        ApiError
+            The server's reason for a 4xx/5xx (NotFound for an unknown id).
+        ServerUnavailable
+            The server cannot be reached.
+        """
         _check_plane(plane)
         return (yield _Download(_Req("GET", f"/api/scans/{job_id}/preview/{plane}.png"), Path(dest)))
 
     # -- datasets and reconstructions
     @_endpoint
     def upload_dataset(self, path: str | os.PathLike, format: str = "fpscan", **fields: Any):
-        """``POST /api/datasets`` (multipart: ``file``, ``format`` and spacings such as
-        ``dx``, ``dy``, ``dt``, ``c`` in SI units) -> the dataset id (201).
+        """``POST /api/datasets``: upload a data file for reconstruction.
 
-        ``format``: one of the server's (:meth:`dataset_formats`; another is answered
-        422 naming them). Raises ``ValueError`` for a missing file."""
+        The file is streamed (multipart), not read into memory.
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            The file.
+        format : str, optional
+            One of the server's (:meth:`dataset_formats`; another is answered 422 naming them);
+            default ``"fpscan"``.
+        **fields
+            Spacings and settings the format needs, SI units: ``dx``, ``dy`` (m), ``dt`` (s),
+            ``c`` (m/s), ...
+
+        Returns
+        -------
+        str
+            The dataset id (201).
+
+        Raises
+        ------
+        ValueError
+            A missing file (before any request).
+        ApiError
+            The server's reason (422 for a bad file or field).
+        ServerUnavailable
+            The server cannot be reached.
+        """
         p = Path(path)
         if not p.is_file():
             raise ValueError(f"no such file: {p}")
@@ -452,17 +837,43 @@ class _Endpoints:
     def start_reconstruction(self, *, scan_job_id: str | None = None, dataset_id: str | None = None,
                              method: str | None = None, params: Mapping | None = None,
                              wavelength: int | str | None = None, idempotency_key: str | None = None):
-        """``POST /api/reconstructions`` -> the reconstruction job's id (202).
+        """``POST /api/reconstructions``: start a reconstruction job.
 
-        Exactly one of ``scan_job_id`` / ``dataset_id``; ``method`` one of the
-        ``service.recon`` methods (``ner``, ``nedner``, ``linear``, ...; None: the server's
-        default for the data, ner for grid data, nedner for sensor points); ``params`` the
-        recon options (``eps``, ``dtype``, ``upsample``, ``positivity``, ...; ``tv``:
-        ``lam`` (λ, default automatic) and ``iterations``; the job's progress stage
-        names the iteration); ``wavelength``: of a multi-wavelength scan, an index into
-        its wavelengths or ``"all"`` (one volume each: ``download_volume(...,
-        wavelength=k)``); None: the first, recorded in the volume's params.
-        Raises ``ValueError`` when both or neither input is given."""
+        Parameters
+        ----------
+        scan_job_id : str, optional
+            A scan job whose file to reconstruct; exactly one of it and ``dataset_id``.
+        dataset_id : str, optional
+            An uploaded dataset.
+        method : str, optional
+            One of the ``service.recon`` methods (``ner``, ``nedner``, ``linear``, ...,
+            :meth:`methods`); None: the server's default for the data (ner for grid data, nedner
+            for sensor points).
+        params : Mapping, optional
+            The reconstruction options (``eps``, ``dtype``, ``upsample``, ``positivity``, ``dz``
+            in m, ...; ``tv``: ``lam`` (λ, default automatic) and ``iterations``; the job's
+            progress stage names the iteration).
+        wavelength : int or "all", optional
+            Of a multi-wavelength scan: an index into its wavelengths, or ``"all"`` (one volume
+            each: ``download_volume(..., wavelength=k)``); None: the first, recorded in the
+            volume's params.
+        idempotency_key : str, optional
+            Same key -> same job (default: a fresh random key).
+
+        Returns
+        -------
+        str
+            The reconstruction job's id (202).
+
+        Raises
+        ------
+        ValueError
+            Both or neither input given (before any request).
+        ApiError
+            The server's reason (422 naming an invalid option, NotFound for an unknown input).
+        ServerUnavailable
+            The server cannot be reached.
+        """
         if (scan_job_id is None) == (dataset_id is None):
             raise ValueError("give exactly one of scan_job_id or dataset_id")
         body: dict[str, Any] = {"params": dict(params or {})}
@@ -480,15 +891,40 @@ class _Endpoints:
 
     @_endpoint
     def dataset_formats(self):
-        """``GET /api/datasets/formats`` -> list of ``{name, title, wavelengths}``: the
-        formats :meth:`upload_dataset` takes (the server's registry of formats)."""
+        """``GET /api/datasets/formats``: the formats :meth:`upload_dataset` takes.
+
+        Returns
+        -------
+        list of dict
+            ``{name, title, wavelengths}`` per format (the server's registry of formats).
+
+        Raises
+        ------
+        ApiError
+            The server's reason for a 4xx/5xx (AuthError for a missing or wrong token).
+        ServerUnavailable
+            The server cannot be reached.
+        """
         r = yield _Req("GET", "/api/datasets/formats")
         return r.json()
 
     @_endpoint
     def methods(self):
-        """``GET /api/reconstructions/methods`` -> list of ``{name, title, needs_grid,
-        options: [{name, description, default}], source}``: the reconstruction methods."""
+        """``GET /api/reconstructions/methods``: the reconstruction methods.
+
+        Returns
+        -------
+        list of dict
+            ``{name, title, needs_grid, options: [{name, description, default}], source}`` per
+            method.
+
+        Raises
+        ------
+        ApiError
+            The server's reason for a 4xx/5xx (AuthError for a missing or wrong token).
+        ServerUnavailable
+            The server cannot be reached.
+        """
         r = yield _Req("GET", "/api/reconstructions/methods")
         return r.json()
 
@@ -497,14 +933,44 @@ class _Endpoints:
                     wavelengths: Sequence[float] | None = None, method: str | None = None,
                     params: Mapping | None = None, threshold: float | None = None,
                     fluence: Sequence[float] | None = None, idempotency_key: str | None = None):
-        """``POST /api/reconstructions`` with ``unmix`` -> the job's id (202): every
-        wavelength reconstructed (same ``method`` and ``params``; ``params["c"]`` may be
-        ``"auto"``) and unmixed into HbO2/Hb, THb and sO2.
+        """``POST /api/reconstructions`` with ``unmix``: reconstruct every wavelength and unmix.
 
-        Input: a multi-wavelength scan job (``scan_job_id``) or one uploaded dataset per
-        wavelength (``dataset_ids`` with ``wavelengths`` in m). ``threshold``: THb
-        fraction below which voxels are masked; ``fluence``: J/m² per wavelength (default:
-        assumed equal). Raises ``ValueError`` when both or neither input is given."""
+        Every wavelength is reconstructed (same ``method`` and ``params``; ``params["c"]`` may be
+        ``"auto"``) and unmixed into HbO2/Hb, THb and sO2 (``service.recon.unmix``).
+
+        Parameters
+        ----------
+        scan_job_id : str, optional
+            A multi-wavelength scan job; exactly one of it and ``dataset_ids``.
+        dataset_ids : sequence of str, optional
+            One uploaded dataset per wavelength.
+        wavelengths : sequence of float, optional
+            The datasets' wavelengths, m.
+        method : str, optional
+            As :meth:`start_reconstruction`.
+        params : Mapping, optional
+            As :meth:`start_reconstruction`.
+        threshold : float, optional
+            THb fraction in [0, 1) below which voxels are masked.
+        fluence : sequence of float, optional
+            J/m² per wavelength (default: assumed equal).
+        idempotency_key : str, optional
+            Same key -> same job.
+
+        Returns
+        -------
+        str
+            The job's id (202).
+
+        Raises
+        ------
+        ValueError
+            Both or neither input given (before any request).
+        ApiError
+            The server's reason (422 for fewer than two wavelengths, ...).
+        ServerUnavailable
+            The server cannot be reached.
+        """
         if (scan_job_id is None) == (not dataset_ids):
             raise ValueError("give exactly one of scan_job_id or dataset_ids")
         unmix: dict[str, Any] = {}
@@ -526,32 +992,129 @@ class _Endpoints:
 
     @_endpoint
     def download_unmix(self, job_id: str, dest: str | os.PathLike):
-        """``GET /api/reconstructions/{job_id}/unmix.h5`` (HbO2, Hb, THb, sO2, mask) saved to ``dest``."""
+        """``GET /api/reconstructions/{job_id}/unmix.h5`` (HbO2, Hb, THb, sO2, mask; HDF5) saved to ``dest``.
+
+        Parameters
+        ----------
+        job_id : str
+        dest : str or os.PathLike
+            The file to write (its folder is made; ``dest.part`` while downloading).
+
+        Returns
+        -------
+        pathlib.Path
+            ``dest``.
+
+        Raises
+        ------
+        ApiError
+            The server's reason for a 4xx/5xx (NotFound for an unknown id).
+        ServerUnavailable
+            The server cannot be reached.
+        """
         return (yield _Download(_Req("GET", f"/api/reconstructions/{job_id}/unmix.h5"), Path(dest)))
 
     @_endpoint
     def download_so2(self, job_id: str, dest: str | os.PathLike):
-        """``GET /api/reconstructions/{job_id}/so2.png`` (masked sO2 map, colour bar) saved to ``dest``."""
+        """``GET /api/reconstructions/{job_id}/so2.png`` (masked sO2 map with colour bar, PNG) saved to ``dest``.
+
+        Parameters
+        ----------
+        job_id : str
+        dest : str or os.PathLike
+            The file to write (its folder is made; ``dest.part`` while downloading).
+
+        Returns
+        -------
+        pathlib.Path
+            ``dest``.
+
+        Raises
+        ------
+        ApiError
+            The server's reason for a 4xx/5xx (NotFound for an unknown id).
+        ServerUnavailable
+            The server cannot be reached.
+        """
         return (yield _Download(_Req("GET", f"/api/reconstructions/{job_id}/so2.png"), Path(dest)))
 
     @_endpoint
     def download_volume(self, job_id: str, dest: str | os.PathLike, *, wavelength: int | None = None):
-        """``GET /api/reconstructions/{job_id}/volume.h5`` saved to ``dest``;
-        ``wavelength``: wavelength k's volume of a job over every wavelength."""
+        """``GET /api/reconstructions/{job_id}/volume.h5`` (p0 with its axes in m, HDF5) saved to ``dest``.
+
+        Parameters
+        ----------
+        job_id : str
+        dest : str or os.PathLike
+            The file to write (its folder is made; ``dest.part`` while downloading).
+        wavelength : int, optional
+            Wavelength k's volume of a job over every wavelength.
+
+        Returns
+        -------
+        pathlib.Path
+            ``dest``.
+
+        Raises
+        ------
+        ApiError
+            The server's reason for a 4xx/5xx (NotFound for an unknown id).
+        ServerUnavailable
+            The server cannot be reached.
+        """
         params = None if wavelength is None else {"wavelength": int(wavelength)}
         return (yield _Download(_Req("GET", f"/api/reconstructions/{job_id}/volume.h5", params=params), Path(dest)))
 
     @_endpoint
     def download_ome_tiff(self, job_id: str, dest: str | os.PathLike):
-        """``GET /api/reconstructions/{job_id}/volume.ome.tif`` (OME-TIFF, voxel sizes in
-        µm) saved to ``dest``."""
+        """``GET /api/reconstructions/{job_id}/volume.ome.tif`` (OME-TIFF, voxel sizes in µm) saved to ``dest``.
+
+        Parameters
+        ----------
+        job_id : str
+        dest : str or os.PathLike
+            The file to write (its folder is made; ``dest.part`` while downloading).
+
+        Returns
+        -------
+        pathlib.Path
+            ``dest``.
+
+        Raises
+        ------
+        ApiError
+            The server's reason for a 4xx/5xx (NotFound for an unknown id).
+        ServerUnavailable
+            The server cannot be reached.
+        """
         return (yield _Download(_Req("GET", f"/api/reconstructions/{job_id}/volume.ome.tif"), Path(dest)))
 
     @_endpoint
     def download_ome_zarr(self, job_id: str, dest: str | os.PathLike):
-        """``GET /api/reconstructions/{job_id}/volume.ome.zarr.zip`` (OME-Zarr, voxel sizes in
-        µm) unpacked into the folder ``dest`` (conventionally ``*.ome.zarr``; an existing
-        folder there is replaced). Returns ``dest``."""
+        """``GET /api/reconstructions/{job_id}/volume.ome.zarr.zip`` unpacked into a folder.
+
+        OME-Zarr, voxel sizes in µm.
+
+        Parameters
+        ----------
+        job_id : str
+        dest : str or os.PathLike
+            The folder (conventionally ``*.ome.zarr``; an existing one there is replaced).
+
+        Returns
+        -------
+        pathlib.Path
+            ``dest``.
+
+        Raises
+        ------
+        ValueError
+            A zip that is not one folder or names a path outside it.
+        ApiError
+            The server's reason (NotFound for an unknown job).
+        ServerUnavailable
+            The server cannot be reached.
+        """
         dest = Path(dest)
         zipped = dest.with_name(f".{dest.name}.zip")
         got = yield _Download(_Req("GET", f"/api/reconstructions/{job_id}/volume.ome.zarr.zip"), zipped)
@@ -562,8 +1125,32 @@ class _Endpoints:
 
     @_endpoint
     def download_mip(self, job_id: str, plane: str, dest: str | os.PathLike, *, wavelength: int | None = None):
-        """``GET /api/reconstructions/{job_id}/mip/{plane}.png`` saved to ``dest``;
-        ``wavelength`` as :meth:`download_volume`."""
+        """``GET /api/reconstructions/{job_id}/mip/{plane}.png`` (maximum-intensity projection, PNG) saved to ``dest``.
+
+        Parameters
+        ----------
+        job_id : str
+        plane : {"xy", "xz", "yz"}
+            The projection's plane.
+        dest : str or os.PathLike
+            The file to write (its folder is made; ``dest.part`` while downloading).
+        wavelength : int, optional
+            As :meth:`download_volume`.
+
+        Returns
+        -------
+        pathlib.Path
+            ``dest``.
+
+        Raises
+        ------
+        ValueError
+            An unknown plane (before any request).
+        ApiError
+            The server's reason for a 4xx/5xx (NotFound for an unknown id).
+        ServerUnavailable
+            The server cannot be reached.
+        """
         _check_plane(plane)
         params = None if wavelength is None else {"wavelength": int(wavelength)}
         return (yield _Download(_Req("GET", f"/api/reconstructions/{job_id}/mip/{plane}.png", params=params),
@@ -571,14 +1158,55 @@ class _Endpoints:
 
     @_endpoint
     def download_slice(self, job_id: str, index: int, dest: str | os.PathLike):
-        """``GET /api/reconstructions/{job_id}/slice.png?index=k`` saved to ``dest``."""
+        """``GET /api/reconstructions/{job_id}/slice.png?index=k`` (one depth slice, PNG) saved to ``dest``.
+
+        Parameters
+        ----------
+        job_id : str
+        index : int
+            The slice's depth index k.
+        dest : str or os.PathLike
+            The file to write (its folder is made; ``dest.part`` while downloading).
+
+        Returns
+        -------
+        pathlib.Path
+            ``dest``.
+
+        Raises
+        ------
+        ApiError
+            The server's reason for a 4xx/5xx (NotFound for an unknown id).
+        ServerUnavailable
+            The server cannot be reached.
+        """
         req = _Req("GET", f"/api/reconstructions/{job_id}/slice.png", params={"index": int(index)})
         return (yield _Download(req, Path(dest)))
 
     # -- jobs
     @_endpoint
     def list_jobs(self, *, state: str | None = None, kind: str | None = None):
-        """``GET /api/jobs?state=&kind=`` -> list of Jobs."""
+        """``GET /api/jobs?state=&kind=``: the jobs, newest first.
+
+        Parameters
+        ----------
+        state : str, optional
+            Only jobs in this state (``queued``, ``running``, ``paused``, ``succeeded``,
+            ``failed``, ``cancelled``).
+        kind : str, optional
+            Only jobs of this kind.
+
+        Returns
+        -------
+        list of Job or dict
+
+        Raises
+        ------
+        ApiError
+            The server's reason for a 4xx/5xx (AuthError for a missing or wrong token).
+        ServerUnavailable
+            The server cannot be reached.
+        """
         params = {k: v for k, v in (("state", state), ("kind", kind)) if v}
         r = yield _Req("GET", "/api/jobs", params=params or None)
         body = r.json()
@@ -587,54 +1215,162 @@ class _Endpoints:
 
     @_endpoint
     def get_job(self, job_id: str):
-        """``GET /api/jobs/{job_id}`` -> the Job (``id, kind, state, progress, timings,
-        params, links, error``)."""
+        """``GET /api/jobs/{job_id}``: one job.
+
+        Parameters
+        ----------
+        job_id : str
+
+        Returns
+        -------
+        Job or dict
+            ``id, kind, state, progress, timings, params, links, error``.
+
+        Raises
+        ------
+        ApiError
+            The server's reason for a 4xx/5xx (NotFound for an unknown id).
+        ServerUnavailable
+            The server cannot be reached.
+        """
         r = yield _Req("GET", f"/api/jobs/{job_id}")
         return as_model("Job", r.json())
 
     @_endpoint
     def cancel_job(self, job_id: str):
-        """``POST /api/jobs/{job_id}/cancel`` (cooperative) -> the Job."""
+        """``POST /api/jobs/{job_id}/cancel``: cancel a job (cooperative).
+
+        Parameters
+        ----------
+        job_id : str
+
+        Returns
+        -------
+        Job or dict or None
+            The job (None for an empty answer).
+
+        Raises
+        ------
+        ApiError
+            The server's reason for a 4xx/5xx (Conflict for a finished job, NotFound for an unknown one).
+        ServerUnavailable
+            The server cannot be reached.
+        """
         r = yield _Req("POST", f"/api/jobs/{job_id}/cancel")
         return as_model("Job", r.json()) if r.content else None
 
     @_endpoint
     def delete_job(self, job_id: str):
-        """``DELETE /api/jobs/{job_id}``: a finished job and its files -> ``{"id", "kind",
-        "bytes_freed"}``. Raises ``Conflict`` (409) while the job or a job reading it is
-        active."""
+        """``DELETE /api/jobs/{job_id}``: a finished job and its files.
+
+        Parameters
+        ----------
+        job_id : str
+
+        Returns
+        -------
+        dict
+            ``{"id", "kind", "bytes_freed"}``.
+
+        Raises
+        ------
+        ApiError
+            The server's reason for a 4xx/5xx (Conflict (409) while the job or a job reading it is active, NotFound for an unknown id).
+        ServerUnavailable
+            The server cannot be reached.
+        """
         r = yield _Req("DELETE", f"/api/jobs/{job_id}")
         return r.json()
 
     @_endpoint
     def delete_plan(self, plan_id: str):
-        """``DELETE /api/plans/{plan_id}`` -> ``{"id", "kind", "bytes_freed"}`` (409 while
-        an active scan uses it)."""
+        """``DELETE /api/plans/{plan_id}``: a stored plan.
+
+        Parameters
+        ----------
+        plan_id : str
+
+        Returns
+        -------
+        dict
+            ``{"id", "kind", "bytes_freed"}``.
+
+        Raises
+        ------
+        ApiError
+            The server's reason for a 4xx/5xx (Conflict (409) while an active scan uses it, NotFound for an unknown id).
+        ServerUnavailable
+            The server cannot be reached.
+        """
         r = yield _Req("DELETE", f"/api/plans/{plan_id}")
         return r.json()
 
     @_endpoint
     def list_datasets(self):
-        """``GET /api/datasets`` -> the stored datasets, oldest first, as dicts: ``dataset_id``,
-        ``name``, ``format``, ``layout``, ``shape``, ``size_bytes`` (on disk), ``created``
-        (UNIX s), ``content_sha256``, ``jobs`` (ids of the jobs that read it), ``in_use``
-        (an active job does: it cannot be deleted)."""
+        """``GET /api/datasets``: the stored datasets, oldest first.
+
+        Returns
+        -------
+        list of dict
+            ``dataset_id``, ``name``, ``format``, ``layout``, ``shape``, ``size_bytes`` (on disk),
+            ``created`` (UNIX s), ``content_sha256``, ``jobs`` (ids of the jobs that read it),
+            ``in_use`` (an active job does: it cannot be deleted).
+
+        Raises
+        ------
+        ApiError
+            The server's reason for a 4xx/5xx (AuthError for a missing or wrong token).
+        ServerUnavailable
+            The server cannot be reached.
+        """
         r = yield _Req("GET", "/api/datasets")
         return r.json()
 
     @_endpoint
     def delete_dataset(self, dataset_id: str):
-        """``DELETE /api/datasets/{dataset_id}`` -> ``{"id", "kind", "bytes_freed"}``.
-        Raises ``Conflict`` (409) while an active reconstruction reads it, ``NotFound``
-        (404) for an unknown id."""
+        """``DELETE /api/datasets/{dataset_id}``: a stored dataset.
+
+        Parameters
+        ----------
+        dataset_id : str
+
+        Returns
+        -------
+        dict
+            ``{"id", "kind", "bytes_freed"}``.
+
+        Raises
+        ------
+        ApiError
+            The server's reason for a 4xx/5xx (Conflict (409) while an active reconstruction reads it, NotFound (404) for an unknown id).
+        ServerUnavailable
+            The server cannot be reached.
+        """
         r = yield _Req("DELETE", f"/api/datasets/{dataset_id}")
         return r.json()
 
     @_endpoint
     def retention(self, **policy: Any):
-        """``GET /api/retention``, or with ``keep_results=``/``keep_bytes=``/
-        ``include_scans=``/``datasets_keep_bytes=``/``datasets_max_age_s=`` (s) ``PUT`` it
-        -> the policy dict."""
+        """``GET /api/retention``, or ``PUT`` it with a new policy: what the server keeps.
+
+        Parameters
+        ----------
+        **policy
+            ``keep_results``, ``keep_bytes``, ``include_scans``, ``datasets_keep_bytes``,
+            ``datasets_max_age_s`` (s); none: read the policy.
+
+        Returns
+        -------
+        dict
+            The policy.
+
+        Raises
+        ------
+        ApiError
+            The server's reason for a 4xx/5xx (422 for an invalid value).
+        ServerUnavailable
+            The server cannot be reached.
+        """
         if policy:
             r = yield _Req("PUT", "/api/retention", json=policy)
         else:
@@ -697,11 +1433,79 @@ class _BaseClient(_Endpoints):
 
 
 class Client(_BaseClient):
-    """Blocking client. ``base_url`` defaults to ``$FPSCAN_SERVER`` or
-    ``http://127.0.0.1:8000``; ``token`` to ``$FPSCAN_TOKEN`` (``""``: send none);
-    ``timeout`` in seconds per request. Use as a context manager or call :meth:`close`.
+    """Blocking client of the fpscan HTTP API (``docs/api.md``).
 
-    Raises ``ValueError`` for a malformed URL."""
+    Every endpoint is a method (the same on :class:`AsyncClient`, there as coroutines):
+    health and auth (``health``, ``auth``); plans (``create_plan``, ``preview_plan``,
+    ``mask_kinds``, ``list_plans``, ``get_plan``, ``get_plan_json``,
+    ``download_plan_preview``, ``delete_plan``); scanners and scans (``scanners``,
+    ``start_scan``, ``pause_scan``, ``resume_scan``, ``abort_scan``, ``download_scan``,
+    ``download_ipasc``, ``scan_preview``, ``download_scan_preview``); datasets and
+    reconstructions (``upload_dataset``, ``dataset_formats``, ``methods``,
+    ``start_reconstruction``, ``start_unmix``, ``download_volume``, ``download_ome_tiff``,
+    ``download_ome_zarr``, ``download_mip``, ``download_slice``, ``download_unmix``,
+    ``download_so2``, ``list_datasets``, ``delete_dataset``); jobs (``list_jobs``,
+    ``get_job``, ``cancel_job``, ``delete_job``, ``events``, ``wait``); ``retention``.
+    Downloads go to ``<dest>.part`` and are renamed into place when complete; one cut off
+    by a network failure resumes on the next call.
+
+    Parameters
+    ----------
+    base_url : str, optional
+        ``http://`` or ``https://`` URL of the server; default ``$FPSCAN_SERVER`` or
+        ``http://127.0.0.1:8000``.
+    token : str, optional
+        Bearer token; default ``$FPSCAN_TOKEN`` (``""``: send none).
+    timeout : float, optional
+        Seconds per request (default 30).
+
+    Attributes
+    ----------
+    base_url : str
+        Without a trailing slash.
+    token : str or None
+    timeout : float
+        s.
+
+    Raises
+    ------
+    ValueError
+        A URL that is not http(s).
+
+    Examples
+    --------
+    Creating a client opens no connection:
+
+    >>> from clients.http import Client, ServerUnavailable
+    >>> api = Client("http://127.0.0.1:8000/", token="s3cret")
+    >>> api.base_url, api.token
+    ('http://127.0.0.1:8000', 's3cret')
+    >>> api.close()
+    >>> Client("127.0.0.1:8000")
+    Traceback (most recent call last):
+    ...
+    ValueError: server URL must start with http:// or https://, not '127.0.0.1:8000'
+
+    A server that cannot be reached is a ``ServerUnavailable`` (port 9 on loopback: nothing
+    listens there):
+
+    >>> with Client("http://127.0.0.1:9", token="", timeout=2) as api:
+    ...     api.health()
+    Traceback (most recent call last):
+    ...
+    clients.http.errors.ServerUnavailable: cannot reach fpscan server at http://127.0.0.1:9: ...
+
+    A session against a running server (``fpscan serve``; needs one, so not run here):
+
+    >>> with Client("http://127.0.0.1:8000", token="s3cret") as api:  # doctest: +SKIP
+    ...     plan = api.create_plan({"lattice": {"n_x": 41, "n_y": 41, "pitch": 1e-4},
+    ...                             "mask": {"kind": "equisteradian", "params": {"depth": 2e-3, "n_points": 50}}})
+    ...     scan = api.start_scan(plan.id, "sim")
+    ...     api.wait(scan, on_progress=print)
+    ...     recon = api.start_reconstruction(scan_job_id=scan, method="nedner")
+    ...     api.wait(recon)
+    ...     api.download_volume(recon, "p0.h5")
+    """
 
     def __init__(self, base_url: str | None = None, *, token: str | None = None,
                  timeout: float = 30.0):
@@ -709,6 +1513,7 @@ class Client(_BaseClient):
         self._http = httpx.Client(base_url=self.base_url, timeout=timeout, headers=self._headers())
 
     def close(self) -> None:
+        """Close the client's connections (leaving a ``with`` block does it)."""
         self._http.close()
 
     def __enter__(self) -> Client:
@@ -763,9 +1568,32 @@ class Client(_BaseClient):
     # -- events and waiting
     def events(self, job_id: str, *, last_event_id: str | None = None,
                read_timeout: float = 30.0) -> Generator[tuple[str, dict, str | None], None, None]:
-        """Iterate ``(event, data, id)`` from ``GET /api/jobs/{job_id}/events`` until the
-        server closes the stream. ``data`` is the decoded JSON payload. Raises
-        :class:`ApiError` (e.g. 404 unknown job) or :class:`ServerUnavailable`."""
+        """Iterate over the events of a job's Server-Sent Events stream.
+
+        ``GET /api/jobs/{job_id}/events`` until the server closes the stream (after the job's
+        final state).
+
+        Parameters
+        ----------
+        job_id : str
+        last_event_id : str, optional
+            Resume after this event (``Last-Event-ID``).
+        read_timeout : float, optional
+            s without a byte before the stream counts as dropped (the server pings every 15 s).
+
+        Yields
+        ------
+        tuple of (str, dict, str or None)
+            ``(event, data, id)``: the event name (``progress``, ``state``), its decoded JSON
+            payload and its id.
+
+        Raises
+        ------
+        ApiError
+            E.g. :class:`NotFound` for an unknown job.
+        ServerUnavailable
+            The server cannot be reached.
+        """
         from httpx_sse import connect_sse
 
         headers = {"Last-Event-ID": last_event_id} if last_event_id else {}
@@ -810,17 +1638,40 @@ class Client(_BaseClient):
 
     def wait(self, job_id: str, *, on_progress: ProgressCallback | None = None,
              timeout: float | None = None, poll_interval: float = 0.5, raise_on_failure: bool = True):
-        """Block until job ``job_id`` ends; return its final Job.
+        """Block until a job ends; return its final Job.
 
-        Listens to the SSE stream (reconnecting with ``Last-Event-ID`` when it drops),
-        calling ``on_progress(progress: dict)`` for every progress update in the order the
-        job made them (keys ``fraction, stage, points_done, points_total, rate_per_s,
-        eta_s``), the last one with the job's final progress; falls back to
-        polling ``GET /api/jobs/{id}`` every ``poll_interval`` s when the stream is not
-        available. ``timeout`` in seconds (None: no limit).
+        Listens to the SSE stream (reconnecting with ``Last-Event-ID`` when it drops), calling
+        ``on_progress(progress: dict)`` for every progress update in the order the job made them
+        (keys ``fraction, stage, points_done, points_total, rate_per_s, eta_s``), the last one
+        with the job's final progress; falls back to polling ``GET /api/jobs/{id}`` every
+        ``poll_interval`` s when the stream is not available.
 
-        Raises :class:`JobFailed` / :class:`JobCancelled` (unless ``raise_on_failure`` is
-        False), :class:`WaitTimeout`, :class:`ApiError`, :class:`ServerUnavailable`."""
+        Parameters
+        ----------
+        job_id : str
+        on_progress : callable, optional
+            ``on_progress(progress: dict)``.
+        timeout : float, optional
+            s; None: no limit.
+        poll_interval : float, optional
+            s between polls (default 0.5).
+        raise_on_failure : bool, optional
+            Raise for a job that failed or was cancelled (default True); False returns it.
+
+        Returns
+        -------
+        Job or dict
+            The job's final record.
+
+        Raises
+        ------
+        JobFailed, JobCancelled
+            The job ended so (unless ``raise_on_failure`` is False).
+        WaitTimeout
+            ``timeout`` passed first.
+        ApiError, ServerUnavailable
+            As every endpoint.
+        """
         deadline = None if timeout is None else time.monotonic() + timeout
         last_id: str | None = None
         use_sse = True
@@ -843,8 +1694,46 @@ class Client(_BaseClient):
 
 # --------------------------------------------------------------------------- async
 class AsyncClient(_BaseClient):
-    """``asyncio`` client with the same methods as :class:`Client` (all coroutines;
-    :meth:`events` is an async iterator). Use ``async with`` or ``await aclose()``."""
+    """``asyncio`` client with the same methods as :class:`Client`.
+
+    All endpoint methods are coroutines; :meth:`events` is an async iterator; ``wait``'s
+    ``on_progress`` may be a plain function or a coroutine function. Use ``async with`` or
+    ``await aclose()``.
+
+    Parameters
+    ----------
+    base_url, token, timeout
+        As :class:`Client`.
+
+    Attributes
+    ----------
+    base_url : str
+    token : str or None
+    timeout : float
+        s.
+
+    Raises
+    ------
+    ValueError
+        A URL that is not http(s).
+
+    Examples
+    --------
+    >>> import asyncio
+    >>> from clients.http import AsyncClient, ServerUnavailable
+    >>> async def health(url):
+    ...     async with AsyncClient(url, token="", timeout=2) as api:
+    ...         try:
+    ...             return await api.health()
+    ...         except ServerUnavailable as exc:
+    ...             return exc.base_url
+    >>> asyncio.run(health("http://127.0.0.1:9"))  # nothing listens on port 9
+    'http://127.0.0.1:9'
+    >>> AsyncClient("ftp://host").base_url
+    Traceback (most recent call last):
+    ...
+    ValueError: server URL must start with http:// or https://, not 'ftp://host'
+    """
 
     _asynchronous: ClassVar[bool] = True
 
@@ -855,6 +1744,7 @@ class AsyncClient(_BaseClient):
                                        headers=self._headers())
 
     async def aclose(self) -> None:
+        """Close the client's connections (leaving an ``async with`` block does it)."""
         await self._http.aclose()
 
     async def __aenter__(self) -> AsyncClient:
@@ -911,7 +1801,22 @@ class AsyncClient(_BaseClient):
 
     async def events(self, job_id: str, *, last_event_id: str | None = None,
                      read_timeout: float = 30.0):
-        """Async iterator of ``(event, data, id)``; see :meth:`Client.events`."""
+        """Async iterator of ``(event, data, id)``; see :meth:`Client.events`.
+
+        Parameters
+        ----------
+        job_id, last_event_id, read_timeout
+            As :meth:`Client.events`.
+
+        Yields
+        ------
+        tuple of (str, dict, str or None)
+
+        Raises
+        ------
+        ApiError, ServerUnavailable
+            As :meth:`Client.events`.
+        """
         from httpx_sse import aconnect_sse
 
         headers = {"Last-Event-ID": last_event_id} if last_event_id else {}
@@ -956,8 +1861,24 @@ class AsyncClient(_BaseClient):
     async def wait(self, job_id: str, *, on_progress: ProgressCallback | None = None,
                    timeout: float | None = None, poll_interval: float = 0.5,
                    raise_on_failure: bool = True):
-        """Await the end of job ``job_id``; see :meth:`Client.wait` (same behaviour and
-        errors; ``on_progress`` may be a plain function or a coroutine function)."""
+        """Await the end of a job; see :meth:`Client.wait` (same behaviour and errors).
+
+        Parameters
+        ----------
+        job_id, timeout, poll_interval, raise_on_failure
+            As :meth:`Client.wait`.
+        on_progress : callable, optional
+            A plain function or a coroutine function, called with each progress dict.
+
+        Returns
+        -------
+        Job or dict
+
+        Raises
+        ------
+        JobFailed, JobCancelled, WaitTimeout, ApiError, ServerUnavailable
+            As :meth:`Client.wait`.
+        """
         deadline = None if timeout is None else time.monotonic() + timeout
         last_id: str | None = None
         use_sse = True

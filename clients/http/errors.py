@@ -17,11 +17,47 @@ __all__ = [
 
 
 class FpscanClientError(Exception):
-    """Base class of everything the client raises on purpose."""
+    """Base class of everything the client raises on purpose.
+
+    Attributes
+    ----------
+    args : tuple
+        The message.
+
+    Examples
+    --------
+    >>> from clients.http import FpscanClientError, NotFound, ServerUnavailable, WaitTimeout
+    >>> all(issubclass(e, FpscanClientError) for e in (NotFound, ServerUnavailable, WaitTimeout))
+    True
+    >>> issubclass(FpscanClientError, Exception)
+    True
+    """
 
 
 class ServerUnavailable(FpscanClientError):
-    """The server could not be reached (connection refused, DNS, TLS or timeout)."""
+    """The server could not be reached (connection refused, DNS, TLS or timeout).
+
+    Parameters
+    ----------
+    base_url : str
+        The server's URL.
+    reason : str
+        What the transport reported.
+
+    Attributes
+    ----------
+    base_url : str
+    reason : str
+
+    Examples
+    --------
+    >>> from clients.http import ServerUnavailable
+    >>> exc = ServerUnavailable("http://127.0.0.1:8000", "connection refused")
+    >>> print(exc)
+    cannot reach fpscan server at http://127.0.0.1:8000: connection refused
+    >>> exc.reason
+    'connection refused'
+    """
 
     def __init__(self, base_url: str, reason: str):
         self.base_url = base_url
@@ -30,7 +66,28 @@ class ServerUnavailable(FpscanClientError):
 
 
 def format_detail(detail: Any) -> str:
-    """Render a FastAPI ``detail`` (string, or list of validation errors) on one line."""
+    """Render a FastAPI ``detail`` on one line.
+
+    Parameters
+    ----------
+    detail : str, list of dict, None or any
+        The server's reason: a string, or FastAPI's list of validation errors (``loc``,
+        ``msg``).
+
+    Returns
+    -------
+    str
+        The reason; validation errors as ``"loc: msg"`` joined by ``"; "`` (``body`` left out
+        of the location); ``""`` for None.
+
+    Examples
+    --------
+    >>> from clients.http.errors import format_detail
+    >>> format_detail([{"loc": ["body", "params", "eps"], "msg": "Input should be greater than or equal to 1e-14"}])
+    'params.eps: Input should be greater than or equal to 1e-14'
+    >>> format_detail(None)
+    ''
+    """
     if detail is None:
         return ""
     if isinstance(detail, str):
@@ -49,10 +106,33 @@ def format_detail(detail: Any) -> str:
 
 
 class ApiError(FpscanClientError):
-    """The server answered with an error status.
+    """The server answered with an error status (4xx/5xx).
 
-    Attributes: ``status_code`` (int), ``detail`` (the server's reason, as sent),
-    ``method`` and ``url`` of the request.
+    Parameters
+    ----------
+    status_code : int
+        The HTTP status.
+    detail : any
+        The server's ``detail`` (its reason), as sent.
+    method, url : str, optional
+        Of the request.
+
+    Attributes
+    ----------
+    status_code : int
+    detail : any
+        The server's reason, verbatim (the message renders it with :func:`format_detail`).
+    method : str
+    url : str
+
+    Examples
+    --------
+    >>> from clients.http import ApiError
+    >>> exc = ApiError(422, [{"loc": ["body", "eps"], "msg": "must be in [1e-14, 1e-1]"}], method="POST")
+    >>> print(exc)
+    HTTP 422: eps: must be in [1e-14, 1e-1]
+    >>> exc.status_code, exc.method
+    (422, 'POST')
     """
 
     def __init__(self, status_code: int, detail: Any, *, method: str = "", url: str = ""):
@@ -65,19 +145,79 @@ class ApiError(FpscanClientError):
 
 
 class AuthError(ApiError):
-    """401/403: the bearer token is missing or wrong."""
+    """401/403: the bearer token is missing or wrong.
+
+    Attributes
+    ----------
+    status_code, detail, method, url
+        As :class:`ApiError`.
+
+    Examples
+    --------
+    >>> from clients.http import ApiError, AuthError
+    >>> from clients.http.errors import error_for_status
+    >>> exc = error_for_status(401, "missing bearer token")
+    >>> type(exc).__name__, isinstance(exc, ApiError)
+    ('AuthError', True)
+    """
 
 
 class NotFound(ApiError):
-    """404: no such plan, job, dataset or file."""
+    """404: no such plan, job, dataset or file.
+
+    Attributes
+    ----------
+    status_code, detail, method, url
+        As :class:`ApiError`.
+
+    Examples
+    --------
+    >>> from clients.http.errors import error_for_status
+    >>> exc = error_for_status(404, "no such job abc", method="GET", url="http://127.0.0.1:8000/api/jobs/abc")
+    >>> type(exc).__name__, str(exc)
+    ('NotFound', 'HTTP 404: no such job abc')
+    """
 
 
 class Conflict(ApiError):
-    """409: the resource is in a state that does not allow the request."""
+    """409: the resource is in a state that does not allow the request.
+
+    Attributes
+    ----------
+    status_code, detail, method, url
+        As :class:`ApiError`.
+
+    Examples
+    --------
+    >>> from clients.http.errors import error_for_status
+    >>> exc = error_for_status(409, "the scan is not running")
+    >>> type(exc).__name__, exc.detail
+    ('Conflict', 'the scan is not running')
+    """
 
 
 class JobError(FpscanClientError):
-    """Base for jobs that ended without success; ``job`` holds the job's record."""
+    """Base for jobs that ended without success.
+
+    Parameters
+    ----------
+    job : Job or dict
+        The job's record.
+    message : str
+
+    Attributes
+    ----------
+    job : Job or dict
+        The job's record (``state``, ``error``, ``progress``, ...).
+
+    Examples
+    --------
+    >>> from clients.http import JobCancelled, JobError, JobFailed
+    >>> issubclass(JobFailed, JobError), issubclass(JobCancelled, JobError)
+    (True, True)
+    >>> JobError({"id": "j1", "state": "cancelled"}, "job j1 was cancelled").job["state"]
+    'cancelled'
+    """
 
     def __init__(self, job: Any, message: str):
         self.job = job
@@ -85,18 +225,86 @@ class JobError(FpscanClientError):
 
 
 class JobFailed(JobError):
-    """The job ended in state ``failed``; the message is the server's ``error``."""
+    """The job ended in state ``failed``; the message is the server's ``error``.
+
+    Attributes
+    ----------
+    job : Job or dict
+        The job's record.
+
+    Examples
+    --------
+    >>> from clients.http import JobFailed
+    >>> exc = JobFailed({"id": "j1", "state": "failed", "error": "out of memory"}, "job j1 failed: out of memory")
+    >>> print(exc)
+    job j1 failed: out of memory
+    >>> exc.job["error"]
+    'out of memory'
+    """
 
 
 class JobCancelled(JobError):
-    """The job ended in state ``cancelled``."""
+    """The job ended in state ``cancelled``.
+
+    Attributes
+    ----------
+    job : Job or dict
+        The job's record.
+
+    Examples
+    --------
+    >>> from clients.http import JobCancelled
+    >>> exc = JobCancelled({"id": "j1", "state": "cancelled"}, "job j1 was cancelled")
+    >>> print(exc)
+    job j1 was cancelled
+    >>> exc.job["state"]
+    'cancelled'
+    """
 
 
 class WaitTimeout(FpscanClientError, TimeoutError):
-    """Waiting on a job took longer than the caller's timeout."""
+    """Waiting on a job took longer than the caller's timeout.
+
+    Attributes
+    ----------
+    args : tuple of str
+        The message: the job and the state it was still in.
+
+    Examples
+    --------
+    >>> from clients.http import FpscanClientError, WaitTimeout
+    >>> issubclass(WaitTimeout, TimeoutError), issubclass(WaitTimeout, FpscanClientError)
+    (True, True)
+    >>> print(WaitTimeout("job j1 still running after 5 s"))
+    job j1 still running after 5 s
+    """
 
 
 def error_for_status(status_code: int, detail: Any, *, method: str = "", url: str = "") -> ApiError:
-    """The :class:`ApiError` subclass matching ``status_code``."""
+    """The :class:`ApiError` subclass matching an HTTP status.
+
+    Parameters
+    ----------
+    status_code : int
+        The HTTP status.
+    detail : any
+        The server's reason, as sent.
+    method, url : str, optional
+        Of the request.
+
+    Returns
+    -------
+    ApiError
+        :class:`AuthError` for 401/403, :class:`NotFound` for 404, :class:`Conflict` for 409,
+        else :class:`ApiError`.
+
+    Examples
+    --------
+    >>> from clients.http.errors import error_for_status
+    >>> type(error_for_status(403, "wrong token")).__name__
+    'AuthError'
+    >>> print(error_for_status(500, None))
+    HTTP 500: no reason given
+    """
     cls = {401: AuthError, 403: AuthError, 404: NotFound, 409: Conflict}.get(status_code, ApiError)
     return cls(status_code, detail, method=method, url=url)

@@ -20,7 +20,38 @@ class _Response(BaseModel):
 
 
 class Plan(_Response):
-    """Summary of a stored plan (``GET /api/plans/{id}``)."""
+    """Summary of a stored plan (``GET /api/plans/{id}``).
+
+    Attributes
+    ----------
+    id : str
+        The plan's content hash.
+    kind : str
+        Mask kind.
+    n_points : int
+        Points in the plan.
+    requested_points : int or None
+        Points asked for.
+    shortfall : str or None
+        Why the plan has fewer points than asked.
+    weight_ratio : float or None
+        Outer/inner weight ratio.
+    expected_scan_time_s : float or None
+        s; None when the PRF is 0 (unthrottled).
+    lattice : dict
+        ``n_x``, ``n_y``, ``pitch`` (m).
+    acquisition : dict
+        ``n_t``, ``dt`` (s), ``averages``, ``wavelengths`` (m), ``prf`` (Hz), ``sound_speed`` (m/s).
+    links : dict of str to str
+        Related URLs (plan JSON, preview).
+
+    Examples
+    --------
+    >>> from clients.http.models import Plan
+    >>> plan = Plan.model_validate({"id": "abc", "kind": "full", "n_points": 9, "order": "serpentine"})
+    >>> plan.n_points, plan.weight_ratio, plan.order  # a field this client does not know is kept
+    (9, None, 'serpentine')
+    """
 
     id: str
     kind: str
@@ -35,7 +66,25 @@ class Plan(_Response):
 
 
 class PlanPreview(_Response):
-    """A mask preview computed without storing a plan (``POST /api/plans/preview``)."""
+    """A mask preview computed without storing a plan (``POST /api/plans/preview``).
+
+    Attributes
+    ----------
+    points : int
+        Points the mask holds.
+    weight_ratio : float or None
+        Outer/inner weight ratio.
+    expected_scan_time_s : float or None
+        s.
+    preview_png_base64 : str or None
+        The preview picture, PNG in base64.
+
+    Examples
+    --------
+    >>> from clients.http.models import PlanPreview
+    >>> PlanPreview.model_validate({"points": 53, "weight_ratio": 2.83})
+    PlanPreview(points=53, weight_ratio=2.83, expected_scan_time_s=None, preview_png_base64=None)
+    """
 
     points: int
     weight_ratio: float | None = None
@@ -44,7 +93,38 @@ class PlanPreview(_Response):
 
 
 class Progress(_Response):
-    """A job's progress: ``fraction`` in [0, 1], ``stage``, scan counters and ETA (s)."""
+    """A job's progress.
+
+    Attributes
+    ----------
+    fraction : float
+        In [0, 1].
+    stage : str
+        What the job is doing (``queued``; a scan: ``connecting``, ``acquiring``, ``paused``,
+        ``interrupted``, ``done``; ...).
+    points_done, points_total : int or None
+        Scan points measured / planned.
+    alines_done, alines_total : int or None
+        A-lines recorded / planned.
+    rate_per_s : float or None
+        Scan points per second.
+    eta_s : float or None
+        Estimated time to completion, s.
+    faults_recovered : int or None
+        Device faults the scan recovered from.
+    reason : str or None
+        Why a job is paused with stage ``interrupted`` (lost device, full disk); cleared when
+        it resumes.
+
+    Examples
+    --------
+    >>> from clients.http.models import Progress
+    >>> p = Progress.model_validate({"fraction": 0.5, "stage": "acquiring", "points_done": 800, "eta_s": 16.0})
+    >>> p.fraction, p.stage, p.points_total
+    (0.5, 'acquiring', None)
+    >>> Progress().stage  # a job nobody has started
+    'queued'
+    """
 
     fraction: float = 0.0
     stage: str = "queued"
@@ -60,7 +140,22 @@ class Progress(_Response):
 
 
 class Timings(_Response):
-    """UNIX times of a job's creation, start and end, and its queue/run durations (s)."""
+    """UNIX times of a job's creation, start and end (s), and its queue/run durations (s).
+
+    Attributes
+    ----------
+    created, started, finished : float or None
+        UNIX times, s.
+    queued_s, run_s : float or None
+        Durations, s.
+
+    Examples
+    --------
+    >>> from clients.http.models import Timings
+    >>> t = Timings.model_validate({"created": 100.0, "started": 101.5, "queued_s": 1.5})
+    >>> t.queued_s, t.finished
+    (1.5, None)
+    """
 
     created: float | None = None
     started: float | None = None
@@ -70,7 +165,34 @@ class Timings(_Response):
 
 
 class Job(_Response):
-    """A job (``GET /api/jobs/{id}``)."""
+    """A job (``GET /api/jobs/{id}``).
+
+    Attributes
+    ----------
+    id : str
+    kind : str
+        ``scan``, ``reconstruction``, ``unmix``, ...
+    state : str
+        ``queued``, ``running``, ``paused``, ``succeeded``, ``failed`` or ``cancelled``.
+    progress : Progress
+    timings : Timings
+    params : dict
+        The job's parameters (SI units).
+    links : dict of str to str
+        Result URLs.
+    attempts : int
+        Times the job was started (a job whose worker died is requeued and started again).
+    error : str or None
+        Why it failed.
+
+    Examples
+    --------
+    >>> from clients.http.models import Job
+    >>> job = Job.model_validate({"id": "j1", "kind": "scan", "state": "running",
+    ...                           "progress": {"fraction": 0.25, "stage": "acquiring"}})
+    >>> job.state, job.progress.fraction, job.error
+    ('running', 0.25, None)
+    """
 
     id: str
     kind: str
@@ -84,7 +206,26 @@ class Job(_Response):
 
 
 class Scanner(_Response):
-    """A configured scanner (``GET /api/scanners``)."""
+    """A configured scanner (``GET /api/scanners``).
+
+    Attributes
+    ----------
+    id : str
+    port : str or None
+        Serial port.
+    status : str
+        ``idle``, ``busy``, ``unreachable`` or ``unknown``.
+    job_id : str or None
+        The scan job it runs.
+    identity : str or None
+        What the device reported about itself.
+
+    Examples
+    --------
+    >>> from clients.http.models import Scanner
+    >>> Scanner.model_validate({"id": "sim", "status": "idle"})
+    Scanner(id='sim', port=None, status='idle', job_id=None, identity=None)
+    """
 
     id: str
     port: str | None = None
@@ -94,8 +235,28 @@ class Scanner(_Response):
 
 
 class PreviewInfo(_Response):
-    """The live preview's state: version, points used, last refresh (UNIX time, s), the
-    index of the wavelength it shows."""
+    """The live preview's state during a scan.
+
+    Attributes
+    ----------
+    version : int
+        Increases with every refresh.
+    points_used : int
+        Scan points in the current preview.
+    updated : float or None
+        UNIX time of the last refresh, s.
+    refresh_s : float or None
+        Refresh interval, s.
+    wavelength_index : int or None
+        The wavelength it shows (index into the plan's wavelengths).
+
+    Examples
+    --------
+    >>> from clients.http.models import PreviewInfo
+    >>> info = PreviewInfo.model_validate({"version": 3, "points_used": 120, "updated": 1700000000.0})
+    >>> info.version, info.points_used, info.wavelength_index
+    (3, 120, None)
+    """
 
     version: int
     points_used: int

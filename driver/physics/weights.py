@@ -40,13 +40,34 @@ def _as_positions(positions) -> np.ndarray:
 def infer_pitch(positions) -> float | None:
     """The pitch of the regular lattice the positions lie on, or None if there is none.
 
-    positions: ``(n, d)`` in m, d = 1 or 2. With g the smallest positive gap between
-    distinct coordinates along any axis, the pitch is the largest g/k (k = 1..16) of
-    which every coordinate is an integer multiple from the axis minimum (relative
-    tolerance 1e-6), refined over the longest span. So a random subset of a lattice
-    whose closest coordinates are 2 and 3 pitches apart still gives the pitch.
-    Returns None for a single sensor or positions on no common lattice.
-    Raises ValueError for bad shapes or non-finite values.
+    With g the smallest positive gap between distinct coordinates along any axis, the pitch
+    is the largest g/k (k = 1..16) of which every coordinate is an integer multiple from the
+    axis minimum (relative tolerance 1e-6), refined over the longest span. So a random subset
+    of a lattice whose closest coordinates are 2 and 3 pitches apart still gives the pitch.
+
+    Parameters
+    ----------
+    positions : array_like, shape ``(n, d)`` (d = 1 or 2) or ``(n,)``
+        Sensor positions, m.
+
+    Returns
+    -------
+    float or None
+        The pitch in m; None for a single sensor or positions on no common lattice.
+
+    Raises
+    ------
+    ValueError
+        Bad shapes or non-finite values.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from driver.physics.weights import infer_pitch
+    >>> infer_pitch(np.array([[0.0], [2e-4], [5e-4]]))  # gaps of 2 and 3 pitches
+    0.0001
+    >>> infer_pitch(np.array([[0.0]])) is None
+    True
     """
     pos = _as_positions(positions)
     scale = max(float(np.abs(pos).max()), 1e-300)
@@ -97,24 +118,12 @@ def voronoi_weights(positions, pitch: float | None = None, *, bounds=None,
                     samples_per_cell: int = _SAMPLES_PER_CELL) -> np.ndarray:
     """Clipped Voronoi areas of sensors on the sensor plane (DESIGN §3.3).
 
-    positions: ``(n, 2)`` as (x, y) in m, or ``(n, 1)`` / ``(n,)`` as x in m (2-D imaging,
-        a line of sensors).
-    pitch: the scanner lattice pitch in m the positions lie on; ``None`` infers it
-        (``infer_pitch``); for positions on no lattice the raster step follows the sensor
-        spacing instead.
-    bounds: optional clip box, ``((x_lo, x_hi),)`` or ``((x_lo, x_hi), (y_lo, y_hi))`` in m
-        (e.g. the scanner lattice's extent, lattice points ± pitch/2).
-    samples_per_cell: raster samples aimed at per median cell for irregular masks
-        (default 1024: cells to ~1 %; lower is faster, the total stays exact).
-
-    Returns ``(n,)`` weights in m² (plane) or m (line), in the order of ``positions``.
-
-    The covered region is the bounding box of the sensors widened on every side by half
-    the median nearest-neighbour distance ``d_med`` (intersected with ``bounds``); each
-    sensor's cell is additionally limited to the disc of radius ``3·max(d_i, d_med)``
-    around it (``d_i``: its own nearest-neighbour distance), so sparse masks (a disc of
-    sensors on a square lattice) do not claim area far from any sensor, while a uniform
-    random mask still covers > 99.9 % of its box. The weights sum to the covered area. Exactness:
+    The covered region is the bounding box of the sensors widened on every side by half the
+    median nearest-neighbour distance ``d_med`` (intersected with ``bounds``); each sensor's
+    cell is additionally limited to the disc of radius ``3·max(d_i, d_med)`` around it
+    (``d_i``: its own nearest-neighbour distance), so sparse masks (a disc of sensors on a
+    square lattice) do not claim area far from any sensor, while a uniform random mask still
+    covers > 99.9 % of its box. The weights sum to the covered area. Exactness:
 
     - every point of a full regular lattice gets exactly pitch² (pitch on a line);
     - an equispaced sub-grid of interval s gets exactly (s·pitch)² each;
@@ -122,12 +131,54 @@ def voronoi_weights(positions, pitch: float | None = None, *, bounds=None,
 
     In the plane the cells are measured on a raster of sub-cell centres, an even number per
     pitch and aligned to the lattice, so no raster sample lies on the bisector of two
-    axis-aligned lattice neighbours; a sample on any other bisector is shared equally by
-    the two sensors (mirror-symmetric masks get mirror-symmetric weights); irregular masks get ~1024 raster
-    samples per median cell within a budget of 2²⁰ samples.
+    axis-aligned lattice neighbours; a sample on any other bisector is shared equally by the
+    two sensors (mirror-symmetric masks get mirror-symmetric weights); irregular masks get
+    ~1024 raster samples per median cell within a budget of 2²⁰ samples.
 
-    Raises ValueError: bad shape, non-finite values, duplicated positions, pitch ≤ 0 or
-    non-finite, bounds that are malformed or leave a sensor outside.
+    Parameters
+    ----------
+    positions : array_like, shape ``(n, 2)``, ``(n, 1)`` or ``(n,)``
+        (x, y) in m, or x in m (2-D imaging, a line of sensors).
+    pitch : float, optional
+        The scanner lattice pitch in m the positions lie on; None infers it (``infer_pitch``);
+        for positions on no lattice the raster step follows the sensor spacing instead.
+    bounds : tuple of (float, float), optional
+        Clip box, ``((x_lo, x_hi),)`` or ``((x_lo, x_hi), (y_lo, y_hi))`` in m (e.g. the
+        scanner lattice's extent, lattice points ± pitch/2).
+    samples_per_cell : int, optional
+        Raster samples aimed at per median cell for irregular masks (default 1024: cells to
+        ~1 %; lower is faster, the total stays exact).
+
+    Returns
+    -------
+    ndarray, shape ``(n,)``
+        Weights in m² (plane) or m (line), in the order of ``positions``.
+
+    Raises
+    ------
+    ValueError
+        Bad shape, non-finite values, duplicated positions, pitch ≤ 0 or non-finite, bounds
+        that are malformed or leave a sensor outside.
+
+    References
+    ----------
+    .. [1] J. Schmid, T. Glatz, B. Zabihian, M. Liu, W. Drexler, O. Scherzer, "Computational
+       Realization of a Non-Equidistant Grid Sampling in Photoacoustics with a Non-Uniform
+       FFT", eq. (3) (the weights h_m of the lateral sum).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from driver.physics.weights import voronoi_weights
+    >>> voronoi_weights(np.array([[0.0], [1e-4], [3e-4]]))  # m: intervals between mid-points
+    array([0.0001 , 0.00015, 0.00015])
+    >>> grid = np.stack(np.meshgrid(np.arange(3) * 1e-4, np.arange(3) * 1e-4), -1).reshape(-1, 2)
+    >>> bool(np.allclose(voronoi_weights(grid), 1e-8))  # a full lattice: pitch² each
+    True
+    >>> voronoi_weights(np.zeros((2, 2)))
+    Traceback (most recent call last):
+    ...
+    ValueError: positions contain 1 duplicated sensor position(s)
     """
     pos = _as_positions(positions)
     n, dim = pos.shape

@@ -38,9 +38,35 @@ def _aperture(r0: float, rho_max: float) -> float:
 
 @dataclass(frozen=True)
 class Ring:
-    """One ring of the equi-steradian design: polar angle ``theta`` (rad) of its points,
-    its polar band ``[theta_lo, theta_hi]`` (rad), ``count`` points (a power of two) at
-    azimuths ``phi0 + 2π i / count`` (rad)."""
+    """One ring of the equi-steradian design.
+
+    Parameters
+    ----------
+    theta, theta_lo, theta_hi, count, phi0
+        As the attributes below.
+
+    Attributes
+    ----------
+    theta : float
+        Polar angle of the ring's points seen from the point of interest, rad.
+    theta_lo, theta_hi : float
+        The ring's polar band ``[theta_lo, theta_hi]``, rad.
+    count : int
+        Number of points on the ring (a power of two).
+    phi0 : float
+        Azimuth of the first point, rad; the points lie at ``phi0 + 2π i / count``
+        (``azimuths()``, shape ``(count,)``).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from service.plans import equisteradian_rings
+    >>> ring = equisteradian_rings(2e-3, 2e-3, 50)[1]  # the first ring around the centre point
+    >>> ring.count
+    4
+    >>> np.degrees(ring.azimuths())
+    array([ 45., 135., 225., 315.])
+    """
 
     theta: float
     theta_lo: float
@@ -49,6 +75,19 @@ class Ring:
     phi0: float
 
     def azimuths(self) -> np.ndarray:
+        """Azimuths of the ring's points, ``phi0 + 2π i / count``.
+
+        Returns
+        -------
+        ndarray, shape ``(count,)``
+            rad.
+
+        Examples
+        --------
+        >>> from service.plans.angular import Ring
+        >>> Ring(theta=0.5, theta_lo=0.4, theta_hi=0.6, count=2, phi0=0.0).azimuths().round(4)
+        array([0.    , 3.1416])
+        """
         return self.phi0 + 2 * np.pi * np.arange(self.count) / self.count
 
 
@@ -58,9 +97,6 @@ def _ring_xy(rho: float, phis: np.ndarray) -> np.ndarray:
 
 def equisteradian_rings(depth: float, rho_max: float, n_points: int) -> list[Ring]:
     """The equi-steradian ring design (DESIGN §4), before projection and snapping.
-
-    depth: r0, the point of interest's distance from the sensor plane (m); rho_max: the
-    disc's radius on the sensor plane (m); n_points: N, the requested count.
 
     θ_max = atan(ρ_max / r0); Ω = 2π(1 − cos θ_max); ω = Ω/N. Ring 1: one point at θ = 0,
     band [0, θ_1] with 2π(1 − cos θ_1) = ω. Ring k: j_k points (power of two, starting at
@@ -72,9 +108,42 @@ def equisteradian_rings(depth: float, rho_max: float, n_points: int) -> list[Rin
     below θ_max; the ring whose band would reach θ_max is put on θ_max itself (the
     aperture's edge), so the count ends near N.
 
-    Raises ValueError: depth or rho_max ≤ 0 or non-finite, n_points < 1, an aperture
-    under ``MIN_THETA_MAX`` (depth too large for ρ_max), a design that does not close
-    within n_points + 2 rings (the iteration bound).
+    Parameters
+    ----------
+    depth : float
+        r0, the point of interest's distance from the sensor plane, m (> 0).
+    rho_max : float
+        The disc's radius on the sensor plane, m (> 0).
+    n_points : int
+        N, the requested count (>= 1).
+
+    Returns
+    -------
+    list of Ring
+        The rings, centre first; their counts sum to about N.
+
+    Raises
+    ------
+    ValueError
+        depth or rho_max <= 0 or non-finite, n_points < 1, an aperture under
+        ``MIN_THETA_MAX`` (depth too large for ρ_max), a design that does not close within
+        n_points + 2 rings (the iteration bound).
+
+    References
+    ----------
+    .. [1] J. Schmid, T. Glatz, B. Zabihian, M. Liu, W. Drexler, O. Scherzer, "Computational
+       Realization of a Non-Equidistant Grid Sampling in Photoacoustics with a Non-Uniform
+       FFT", Appendix "Algorithm for equi-steradian sensor arrangement".
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from service.plans import equisteradian_rings
+    >>> rings = equisteradian_rings(2e-3, 2e-3, 50)  # r0 = rho_max: a 45° aperture
+    >>> [r.count for r in rings], sum(r.count for r in rings)
+    ([1, 4, 8, 8, 16, 16], 53)
+    >>> round(float(np.degrees(rings[-1].theta)), 1)  # the last ring on the aperture's edge
+    45.0
     """
     r0 = check_positive("depth", depth)
     rho_max = check_positive("rho_max", rho_max)
@@ -114,9 +183,39 @@ def equisteradian_rings(depth: float, rho_max: float, n_points: int) -> list[Rin
 
 
 def check_depth(r0: float, lattice: Lattice) -> float:
-    """The point of interest's depth ``r0`` (m): refused (ValueError naming the reason)
-    below one lattice pitch, where the design's angles put nearly every point within a
-    pitch of the point of interest and they all snap onto the same few lattice points."""
+    """The point of interest's depth, refused below one lattice pitch.
+
+    Seen from closer than a pitch, the design's angles put nearly every point within a pitch
+    of the point of interest and they all snap onto the same few lattice points.
+
+    Parameters
+    ----------
+    r0 : float
+        Depth of the point of interest below the sensor plane, m.
+    lattice : Lattice
+        The scanner lattice (its pitch).
+
+    Returns
+    -------
+    float
+        ``r0`` unchanged.
+
+    Raises
+    ------
+    ValueError
+        ``r0`` below ``lattice.pitch``, naming the reason.
+
+    Examples
+    --------
+    >>> from service.plans import Lattice
+    >>> from service.plans.angular import check_depth
+    >>> check_depth(2e-3, Lattice(41, 41, 1e-4))
+    0.002
+    >>> check_depth(5e-5, Lattice(41, 41, 1e-4))
+    Traceback (most recent call last):
+    ...
+    ValueError: depth 5e-05 m is below one lattice pitch (0.0001 m): ...
+    """
     if r0 < lattice.pitch:
         raise ValueError(f"depth {r0:g} m is below one lattice pitch ({lattice.pitch:g} m): seen from so close, "
                          "the design's points crowd within a pitch of the point of interest and snap onto the "
@@ -139,17 +238,48 @@ def _finish(kind, params, lattice, pos_design, poi, depth, power, requested, rin
 def equisteradian_mask(lattice: Lattice, depth: float, n_points: int, poi=None) -> Mask:
     """Equi-steradian mask (3-D) around a point of interest (DESIGN §4, paper appendix).
 
-    lattice: a 2-D scanner lattice (n_y > 1); depth: r0, the point of interest's distance
-    from the sensor plane (m); n_points: N requested; poi: its lateral position (x, y) in m
-    (default the lattice centre). ρ_max is the distance from poi to the nearest lattice
-    edge (outermost lattice points), so the mask is a disc. The rings of
-    ``equisteradian_rings`` are projected (ρ = r0·tan θ), snapped to the lattice and
-    de-duplicated; weights ∝ r³ normalised to the covered area. The paper's setup
-    (226 × 226, 60 µm, r0 = 3.6 mm, N = 1625) gives θ_max = 61.9° (its 62°).
+    ρ_max is the distance from poi to the nearest lattice edge (outermost lattice points), so
+    the mask is a disc. The rings of ``equisteradian_rings`` are projected (ρ = r0·tan θ),
+    snapped to the lattice and de-duplicated; weights ∝ r³ normalised to the covered area.
+    The paper's setup (226 × 226, 60 µm, r0 = 3.6 mm, N = 1625) gives θ_max = 61.9° (its 62°)
+    and 1653 points.
 
-    Returns a Mask with ``rings`` (ring number per point, 0 = centre) and ``design``
-    (theta/count per ring). Raises ValueError: line lattice, depth ≤ 0, n_points < 1 or
-    above the lattice, poi outside or on the edge of the lattice, non-finite values.
+    Parameters
+    ----------
+    lattice : Lattice
+        A 2-D scanner lattice (n_y > 1).
+    depth : float
+        r0, the point of interest's distance from the sensor plane, m (at least one pitch).
+    n_points : int
+        N requested (1 to the lattice's point count).
+    poi : sequence of 2 floats, optional
+        The point of interest's lateral position (x, y), m; default the lattice centre.
+
+    Returns
+    -------
+    Mask
+        Kind ``"equisteradian"``, with ``rings`` (ring number per point, 0 = centre) and
+        ``design`` (``theta_max``, ``rho_max``, ``ring_theta``, ``ring_count``).
+
+    Raises
+    ------
+    ValueError
+        Line lattice, depth <= 0 or below one pitch, n_points < 1 or above the lattice, poi
+        outside or on the edge of the lattice, non-finite values.
+
+    References
+    ----------
+    .. [1] J. Schmid et al., "Computational Realization of a Non-Equidistant Grid Sampling in
+       Photoacoustics with a Non-Uniform FFT", §5 and Appendix; weights §5.2.
+
+    Examples
+    --------
+    >>> from service.plans import Lattice, equisteradian_mask
+    >>> m = equisteradian_mask(Lattice(41, 41, 1e-4), depth=2e-3, n_points=50)
+    >>> m.obtained_points, int(m.rings.max()), m.design["ring_count"]
+    (53, 5, [1, 4, 8, 8, 16, 16])
+    >>> round(m.weight_ratio, 3)  # outer/inner: (r_edge / r0)³ = (√2)³
+    2.828
     """
     if lattice.is_line:
         raise ValueError("an equi-steradian mask needs a 2-D lattice (n_y > 1); use equiangular on a line")
@@ -181,16 +311,46 @@ def equisteradian_mask(lattice: Lattice, depth: float, n_points: int, poi=None) 
 def equiangular_mask(lattice: Lattice, depth: float, n_points: int, poi=None) -> Mask:
     """Equiangular mask (2-D) around a point of interest (DESIGN §4, paper §5.1).
 
-    lattice: a line lattice (n_y = 1); depth: r0 (m); n_points: N requested; poi: the
-    point of interest's lateral x in m (default the line's centre). θ_max = atan(ρ_max/r0),
-    ρ_max = distance from x_c to the nearer end of the line; sensors at
-    θ_i = −θ_max + i·2θ_max/(N−1) (N = 1: θ = 0), x_i = x_c + r0·tan θ_i, snapped,
+    θ_max = atan(ρ_max/r0), ρ_max the distance from x_c to the nearer end of the line; sensors
+    at θ_i = −θ_max + i·2θ_max/(N−1) (N = 1: θ = 0), x_i = x_c + r0·tan θ_i, snapped,
     duplicates dropped. Weights ∝ r² normalised to the covered length (m).
-    ``design["theta"]`` holds the N angles before snapping.
 
-    Raises ValueError: a 2-D lattice, depth ≤ 0 or below one pitch, n_points < 1 or above
-    the lattice, poi outside the line, non-finite values. Fewer points than asked:
-    ``Mask.shortfall`` says why.
+    Parameters
+    ----------
+    lattice : Lattice
+        A line lattice (n_y = 1).
+    depth : float
+        r0, the point of interest's distance from the sensor line, m (at least one pitch).
+    n_points : int
+        N requested (1 to the lattice's point count).
+    poi : float, optional
+        The point of interest's lateral x, m; default the line's centre.
+
+    Returns
+    -------
+    Mask
+        Kind ``"equiangular"``; ``design["theta"]`` holds the N angles (rad) before snapping.
+        Fewer points than asked: ``Mask.shortfall`` says why.
+
+    Raises
+    ------
+    ValueError
+        A 2-D lattice, depth <= 0 or below one pitch, n_points < 1 or above the lattice, poi
+        outside the line or on its end, non-finite values.
+
+    References
+    ----------
+    .. [1] J. Schmid et al., "Computational Realization of a Non-Equidistant Grid Sampling in
+       Photoacoustics with a Non-Uniform FFT", §5.1; weights §5.2.
+
+    Examples
+    --------
+    >>> from service.plans import Lattice, equiangular_mask
+    >>> m = equiangular_mask(Lattice(101, 1, 1e-4), depth=2e-3, n_points=11)
+    >>> m.indices[:, 0]  # denser under the point of interest, sparser towards the ends
+    array([  0,  22,  33,  40,  45,  50,  55,  60,  67,  78, 100])
+    >>> m.weight_ratio  # r² at the ends over r0²: (5² + 2²) / 2² mm²
+    7.25
     """
     if not lattice.is_line:
         raise ValueError("an equiangular mask needs a line lattice (n_y = 1); use equisteradian in 3-D")

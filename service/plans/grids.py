@@ -32,7 +32,25 @@ def _build(kind, params, lattice, idx, requested, **extra) -> Mask:
 
 
 def full_mask(lattice: Lattice) -> Mask:
-    """Every lattice point, row by row (i_y slowest). Weight pitch² each (pitch on a line)."""
+    """Every lattice point, row by row (i_y slowest).
+
+    Parameters
+    ----------
+    lattice : Lattice
+        The scanner lattice.
+
+    Returns
+    -------
+    Mask
+        Kind ``"full"``, ``n_x * n_y`` points, weight pitch² each (pitch on a line lattice).
+
+    Examples
+    --------
+    >>> from service.plans import Lattice, full_mask
+    >>> m = full_mask(Lattice(4, 1, 1e-4))
+    >>> m.obtained_points, m.weights  # m on a line lattice
+    (4, array([0.0001, 0.0001, 0.0001, 0.0001]))
+    """
     iy, ix = np.meshgrid(np.arange(lattice.n_y), np.arange(lattice.n_x), indexing="ij")
     idx = np.column_stack((ix.ravel(), iy.ravel()))
     return _build("full", {}, lattice, idx, lattice.n_points)
@@ -54,12 +72,46 @@ def _centred_run(n_lattice: int, interval: int, count: int | None, axis: str) ->
 
 
 def subgrid_mask(lattice: Lattice, interval: int, n_per_side=None) -> Mask:
-    """Equispaced sub-grid: every ``interval``-th lattice point, ``n_per_side`` points per
-    side (int, or (n_x, n_y); default as many as fit), centred on the lattice (half a pitch
-    off centre when the parities of lattice and sub-grid differ). Weight (interval·pitch)²
-    each (paper §6: 41 × 41 at interval 5).
+    """Equispaced sub-grid: every ``interval``-th lattice point, centred on the lattice.
 
-    Raises ValueError: interval < 1, counts < 1 or not fitting on the lattice."""
+    Centred half a pitch off centre when the parities of lattice and sub-grid differ. Weight
+    (interval·pitch)² each (paper §6: 41 × 41 at interval 5).
+
+    Parameters
+    ----------
+    lattice : Lattice
+        The scanner lattice.
+    interval : int
+        Lattice points from one sensor to the next (>= 1).
+    n_per_side : int or (int, int), optional
+        Points per side (or ``(n_x, n_y)``); default as many as fit.
+
+    Returns
+    -------
+    Mask
+        Kind ``"equispaced"``.
+
+    Raises
+    ------
+    ValueError
+        interval < 1, counts < 1 or not fitting on the lattice.
+
+    References
+    ----------
+    .. [1] J. Schmid et al., "Computational Realization of a Non-Equidistant Grid Sampling in
+       Photoacoustics with a Non-Uniform FFT", §6.
+
+    Examples
+    --------
+    >>> from service.plans import Lattice, subgrid_mask
+    >>> m = subgrid_mask(Lattice(41, 41, 1e-4), 5)
+    >>> m.obtained_points, float(m.weights[0])  # 9 x 9 points, (0.5 mm)² each
+    (81, 2.5e-07)
+    >>> subgrid_mask(Lattice(41, 41, 1e-4), 5, n_per_side=3).indices[:3]  # centred
+    array([[15, 15],
+           [20, 15],
+           [25, 15]])
+    """
     interval = check_count("interval", interval)
     if n_per_side is None or np.ndim(n_per_side) == 0:
         nx = ny = n_per_side
@@ -80,13 +132,40 @@ def subgrid_mask(lattice: Lattice, interval: int, n_per_side=None) -> Mask:
 
 
 def hexagonal_mask(lattice: Lattice, spacing: float) -> Mask:
-    """Hexagonal (triangular) arrangement with neighbour distance ``spacing`` (m): rows
-    ``spacing·√3/2`` apart, every other row shifted by ``spacing/2``, one point at the
+    """Hexagonal (triangular) arrangement with neighbour distance ``spacing``.
+
+    Rows ``spacing·√3/2`` apart, every other row shifted by ``spacing/2``, one point at the
     lattice centre; points outside the lattice dropped, the rest snapped (duplicates
     dropped). Mirror-symmetric about both lattice axes up to snapping ties.
 
-    Raises ValueError: spacing ≤ 0 or non-finite, a line lattice (n_y = 1; use subgrid),
-    spacing below one pitch or above the lattice's extent."""
+    Parameters
+    ----------
+    lattice : Lattice
+        A 2-D scanner lattice (n_y > 1).
+    spacing : float
+        Neighbour distance, m (at least one pitch, at most the lattice's extent).
+
+    Returns
+    -------
+    Mask
+        Kind ``"hexagonal"``, clipped Voronoi weights (m²).
+
+    Raises
+    ------
+    ValueError
+        spacing <= 0 or non-finite, a line lattice (use subgrid), spacing below one pitch or
+        above the lattice's extent.
+
+    Examples
+    --------
+    >>> from service.plans import Lattice, hexagonal_mask
+    >>> hexagonal_mask(Lattice(41, 41, 1e-4), 5e-4).obtained_points
+    77
+    >>> hexagonal_mask(Lattice(41, 41, 1e-4), 5e-5)
+    Traceback (most recent call last):
+    ...
+    ValueError: spacing 5e-05 m is below the lattice pitch 0.0001 m
+    """
     spacing = check_positive("spacing", spacing)
     if lattice.is_line:
         raise ValueError("a hexagonal mask needs a 2-D lattice (n_y > 1); use subgrid on a line")
@@ -111,8 +190,38 @@ def hexagonal_mask(lattice: Lattice, spacing: float) -> Mask:
 
 
 def random_mask(lattice: Lattice, n_points: int, seed: int = 0) -> Mask:
-    """``n_points`` distinct lattice points drawn uniformly (numpy PCG64, ``seed``),
-    in lattice order. Raises ValueError: n_points < 1 or more than the lattice holds."""
+    """``n_points`` distinct lattice points drawn uniformly (numpy PCG64), in lattice order.
+
+    Parameters
+    ----------
+    lattice : Lattice
+        The scanner lattice.
+    n_points : int
+        Number of points (1 to the lattice's point count).
+    seed : int, optional
+        Random seed in [0, 2**64) (default 0): the same seed gives the same mask.
+
+    Returns
+    -------
+    Mask
+        Kind ``"random"``, clipped Voronoi weights.
+
+    Raises
+    ------
+    ValueError
+        n_points < 1 or more than the lattice holds, a bad seed.
+
+    Examples
+    --------
+    >>> from service.plans import Lattice, random_mask
+    >>> m = random_mask(Lattice(41, 41, 1e-4), 20, seed=1)
+    >>> m.obtained_points, m.params
+    (20, {'n_points': 20, 'seed': 1})
+    >>> random_mask(Lattice(3, 3, 1e-4), 20)
+    Traceback (most recent call last):
+    ...
+    ValueError: n_points = 20 is more than the lattice holds (9)
+    """
     n = check_count("n_points", n_points, lattice.n_points)
     seed = check_seed(seed)
     rng = np.random.default_rng(seed)
@@ -122,13 +231,44 @@ def random_mask(lattice: Lattice, n_points: int, seed: int = 0) -> Mask:
 
 
 def poisson_mask(lattice: Lattice, min_distance: float, seed: int = 0, n_points=None) -> Mask:
-    """Poisson-disc mask: lattice points visited in a seeded random order, each kept if
-    no kept point lies closer than ``min_distance`` (m) (dart throwing over the whole
-    lattice, so the result is maximal: every lattice point is within ``min_distance`` of
-    a kept one); stops after ``n_points`` if given.
+    """Poisson-disc mask: seeded random lattice points no closer than ``min_distance``.
 
-    Raises ValueError: min_distance ≤ 0, non-finite or larger than the lattice's diagonal,
-    n_points < 1 or above the lattice."""
+    Lattice points are visited in a seeded random order, each kept if no kept point lies
+    closer than ``min_distance`` (dart throwing over the whole lattice, so the result is
+    maximal: every lattice point is within ``min_distance`` of a kept one).
+
+    Parameters
+    ----------
+    lattice : Lattice
+        The scanner lattice.
+    min_distance : float
+        Minimum distance between points, m (> 0, at most the lattice's diagonal).
+    seed : int, optional
+        Random seed in [0, 2**64) (default 0).
+    n_points : int, optional
+        Stop after this many points; default no cap.
+
+    Returns
+    -------
+    Mask
+        Kind ``"poisson"``, points in lattice order (i_y slowest), clipped Voronoi weights.
+
+    Raises
+    ------
+    ValueError
+        min_distance <= 0, non-finite or larger than the lattice's diagonal, n_points < 1 or
+        above the lattice, a bad seed.
+
+    Examples
+    --------
+    >>> from scipy.spatial.distance import pdist
+    >>> from service.plans import Lattice, poisson_mask
+    >>> m = poisson_mask(Lattice(41, 41, 1e-4), 4e-4, seed=0)
+    >>> m.obtained_points, bool(pdist(m.positions).min() > 4e-4 * (1 - 1e-9))
+    (78, True)
+    >>> poisson_mask(Lattice(41, 41, 1e-4), 4e-4, n_points=10).obtained_points
+    10
+    """
     r = check_positive("min_distance", min_distance)
     hx, hy = lattice.half_extent
     if r > 2 * math.hypot(hx, hy):
@@ -177,13 +317,43 @@ def poisson_mask(lattice: Lattice, min_distance: float, seed: int = 0, n_points=
 
 
 def points_mask(lattice: Lattice, points=None, indices=None) -> Mask:
-    """A user's points: ``points`` as (x, y) in m (or x on a line lattice), snapped to the
-    nearest lattice point, or ``indices`` (i_x, i_y) directly. Points that snap to the
-    same lattice point are merged (obtained < requested says so); order is kept (the
-    ``auto`` scan order of a point list is ``given``).
+    """A user's points, snapped to the lattice, or lattice indices directly.
 
-    Raises ValueError: neither or both given, empty, non-finite, a point more than half a
-    pitch outside the lattice, an index outside it, duplicated indices, bad shapes."""
+    Points that snap to the same lattice point are merged (obtained < requested says so);
+    order is kept (the ``auto`` scan order of a point list is ``given``).
+
+    Parameters
+    ----------
+    lattice : Lattice
+        The scanner lattice.
+    points : array_like, shape ``(n, 2)`` (or ``(n,)`` / ``(n, 1)`` on a line lattice), optional
+        Positions (x, y), m, snapped to the nearest lattice point.
+    indices : array_like of int, shape ``(n, 2)``, optional
+        Lattice indices (i_x, i_y), 0-based, each at most once. Give exactly one of
+        ``points`` and ``indices``.
+
+    Returns
+    -------
+    Mask
+        Kind ``"points"``, clipped Voronoi weights.
+
+    Raises
+    ------
+    ValueError
+        Neither or both given, empty, non-finite, a point more than half a pitch outside the
+        lattice, an index outside it, duplicated indices, bad shapes.
+
+    Examples
+    --------
+    >>> from service.plans import Lattice, points_mask
+    >>> m = points_mask(Lattice(101, 1, 1e-4), points=[0.0, 1e-4, 1.04e-4])  # x in m
+    >>> m.indices.tolist(), m.requested_points  # the last two snap to one point
+    ([[50, 0], [51, 0]], 3)
+    >>> points_mask(Lattice(41, 41, 1e-4))
+    Traceback (most recent call last):
+    ...
+    ValueError: give exactly one of points (m) or indices
+    """
     if (points is None) == (indices is None):
         raise ValueError("give exactly one of points (m) or indices")
     if points is not None:

@@ -12,6 +12,34 @@ Units: parameters are SI. Each physical field declares its unit in its JSON sche
 (``json_schema_extra={"unit": "m"}`` via ``length()``; ``display_unit`` is what a form
 shows by default), so unit parsing can hook in at one place: ``field_units(model)``.
 Range checks that guarantee bounded work belong to the mask functions.
+
+The parameter models' docstrings are each kind's one-line description (``MaskKind.description``,
+shown by ``fpscan plan --help`` and ``/api/plans/kinds``), so their examples are here:
+
+>>> from service.plans.kinds import (EquiangularParams, EquispacedParams, EquisteradianParams,
+...     FullParams, HexagonalParams, PoissonParams, PointsParams, RandomParams)
+>>> FullParams().mask_kwargs()
+{}
+>>> EquispacedParams(interval=5, n_per_side=(41, 41)).mask_kwargs()
+{'interval': 5, 'n_per_side': (41, 41)}
+>>> HexagonalParams(spacing="240um").mask_kwargs()  # m
+{'spacing': 0.00024}
+>>> RandomParams(n_points=200)
+RandomParams(n_points=200, seed=0)
+>>> PoissonParams(min_distance=2.4e-4).mask_kwargs()
+{'min_distance': 0.00024, 'seed': 0}
+>>> PointsParams(indices=[[0, 0], [4, 4]]).mask_kwargs()
+{'indices': [(0, 0), (4, 4)]}
+>>> EquiangularParams(depth=1.2e-3, n_points=32).mask_kwargs()
+{'depth': 0.0012, 'n_points': 32}
+>>> EquisteradianParams(depth="3.6 mm", n_points=1625, poi=("1mm", 0)).mask_kwargs()
+{'depth': 0.0036, 'n_points': 1625, 'poi': (0.001, 0.0)}
+>>> FullParams(spacing=1e-4)
+Traceback (most recent call last):
+...
+pydantic_core._pydantic_core.ValidationError: 1 validation error for FullParams
+spacing
+  Extra inputs are not permitted ...
 """
 from __future__ import annotations
 
@@ -31,14 +59,60 @@ __all__ = ["KINDS", "MaskKind", "MaskParams", "make_mask", "resolve_kind", "kind
 
 
 def length(description: str, *, display_unit: str = "mm", **constraints: Any) -> Any:
-    """A length field in m (``Field`` with ``unit: "m"`` and a ``display_unit`` for forms)."""
+    """A pydantic length field in m, for a kind's parameter model.
+
+    Parameters
+    ----------
+    description : str
+        The field's description (shown by the CLI and the web form).
+    display_unit : str, optional
+        The unit a form shows by default (``"mm"``, ``"µm"``); values stay in m.
+    **constraints
+        Passed to ``pydantic.Field`` (``gt=0``, ``default=None``, ``examples=[...]``, ...).
+
+    Returns
+    -------
+    pydantic.fields.FieldInfo
+        A ``Field`` whose JSON schema carries ``unit: "m"`` and ``display_unit``.
+
+    Examples
+    --------
+    >>> from service.plans.kinds import length
+    >>> f = length("depth of the point of interest, m", gt=0)
+    >>> f.json_schema_extra
+    {'unit': 'm', 'display_unit': 'mm'}
+    >>> f.metadata
+    [Gt(gt=0)]
+    """
     return Field(description=description, json_schema_extra={"unit": "m", "display_unit": display_unit},
                  **constraints)
 
 
 
 class MaskParams(BaseModel):
-    """Base of every kind's parameter model: unknown parameters and NaN/inf are refused."""
+    """Base of every kind's parameter model: unknown parameters and NaN/inf are refused.
+
+    Lengths typed with a unit (``"3.6mm"``) are converted to m for every field that declares
+    a unit (``field_units``); bare numbers are SI.
+
+    Attributes
+    ----------
+    model_config : pydantic.ConfigDict
+        ``extra="forbid"``, ``allow_inf_nan=False``.
+
+    Raises
+    ------
+    pydantic.ValidationError
+        (a ValueError) naming the field, on construction with bad parameters.
+
+    Examples
+    --------
+    >>> from service.plans.kinds import EquisteradianParams, MaskParams
+    >>> issubclass(EquisteradianParams, MaskParams)
+    True
+    >>> EquisteradianParams(depth="3.6 mm", n_points=1625).mask_kwargs()  # unset poi left out
+    {'depth': 0.0036, 'n_points': 1625}
+    """
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
@@ -69,7 +143,19 @@ class MaskParams(BaseModel):
         return data if out is None else out
 
     def mask_kwargs(self) -> dict:
-        """The keyword arguments of the kind's mask function (unset optional ones left out)."""
+        """The keyword arguments of the kind's mask function (unset optional ones left out).
+
+        Returns
+        -------
+        dict
+            SI units.
+
+        Examples
+        --------
+        >>> from service.plans.kinds import PoissonParams
+        >>> PoissonParams(min_distance="240um").mask_kwargs()
+        {'min_distance': 0.00024, 'seed': 0}
+        """
         return {k: v for k, v in self.model_dump().items() if v is not None}
 
 
@@ -163,11 +249,43 @@ class EquisteradianParams(MaskParams):
 
 @dataclass(frozen=True)
 class MaskKind:
-    """One mask kind: ``params`` model, mask function ``impl`` (``"module:function"`` in
-    this package, first argument the lattice; loaded on first use so that the models are
-    cheap to import), a label, and the other names it is accepted under. ``poi_depth``:
-    the kind's ``depth`` parameter is the depth of a point of interest (m), judged by the
-    plausibility rules (``service.plans.plan.check_plausible_request``)."""
+    """One mask kind, as ``KINDS`` declares it.
+
+    Parameters
+    ----------
+    name, params, impl, label, aliases, poi_depth
+        As the attributes below.
+
+    Attributes
+    ----------
+    name : str
+        The kind's name (``"equisteradian"``, ...).
+    params : type of MaskParams
+        Its parameter model (SI units).
+    impl : str
+        The mask function, ``"module:function"`` in this package, first argument the lattice;
+        loaded on first use so that the models are cheap to import.
+    label : str
+        A label for forms and help.
+    aliases : tuple of str
+        Other names the kind is accepted under.
+    poi_depth : bool
+        The kind's ``depth`` parameter is the depth of a point of interest (m), judged by the
+        plausibility rules (``service.plans.plan.check_plausible_request``).
+    function : callable
+        The mask function ``function(lattice, **params) -> Mask``.
+    description : str
+        The parameter model's docstring on one line (served to the CLI and the web form).
+
+    Examples
+    --------
+    >>> from service.plans import KINDS
+    >>> k = KINDS["equisteradian"]
+    >>> k.function.__name__, k.poi_depth
+    ('equisteradian_mask', True)
+    >>> KINDS["equispaced"].aliases
+    ('subgrid', 'grid')
+    """
 
     name: str
     params: type[MaskParams]
@@ -214,8 +332,32 @@ _ALIASES = {alias: k.name for k in KINDS.values() for alias in k.aliases}
 
 
 def resolve_kind(kind: Any) -> MaskKind:
-    """The ``MaskKind`` of a kind name or alias (case-insensitive); ValueError naming the
-    known kinds otherwise."""
+    """The ``MaskKind`` of a kind name or alias (case-insensitive).
+
+    Parameters
+    ----------
+    kind : str
+        A name in ``KINDS`` or one of the aliases.
+
+    Returns
+    -------
+    MaskKind
+
+    Raises
+    ------
+    ValueError
+        Not a string, or an unknown kind (naming the known kinds).
+
+    Examples
+    --------
+    >>> from service.plans import resolve_kind
+    >>> resolve_kind("Hex").name, resolve_kind("grid").name
+    ('hexagonal', 'equispaced')
+    >>> resolve_kind("spiral")
+    Traceback (most recent call last):
+    ...
+    ValueError: unknown mask kind 'spiral'; known: equisteradian, equiangular, full, equispaced, ...
+    """
     if not isinstance(kind, str):
         raise ValueError(f"mask kind must be a string, got {kind!r}")
     name = _ALIASES.get(kind.lower(), kind.lower())
@@ -231,7 +373,26 @@ def _parse_unit(text: str, kind: str, name: str) -> float:
 
 
 def field_units(model: type[BaseModel]) -> dict[str, str]:
-    """Field name -> SI unit (``"m"``, ``"s"``, ``"Hz"``) for the fields that declare one."""
+    """Field name -> SI unit for the fields of a model that declare one.
+
+    Parameters
+    ----------
+    model : type of pydantic.BaseModel
+        A parameter model (e.g. a kind's ``MaskParams`` subclass).
+
+    Returns
+    -------
+    dict of str to str
+        Field name -> unit (``"m"``, ``"s"``, ``"Hz"``, ``"m/s"``).
+
+    Examples
+    --------
+    >>> from service.plans.kinds import EquisteradianParams, RandomParams, field_units
+    >>> field_units(EquisteradianParams)
+    {'depth': 'm', 'poi': 'm'}
+    >>> field_units(RandomParams)
+    {}
+    """
     out = {}
     for name, f in model.model_fields.items():
         extra = f.json_schema_extra if isinstance(f.json_schema_extra, dict) else {}
@@ -270,14 +431,38 @@ def _leaf_types(prop: Any) -> set:
 
 
 def kind_fields(kind: str) -> list[dict]:
-    """The parameters of ``kind`` as plain descriptors (derived from its model's JSON
-    schema; the CLI and the web form are built from these)::
+    """The parameters of a mask kind as plain descriptors.
 
-        {"name", "title", "description", "widget", "integer", "required", "scalar",
-         "default", "example", "unit", "display_unit", "minimum", "exclusive_minimum"}
+    Derived from the kind's model's JSON schema; the CLI and the web form are built from
+    these. widget: ``number``/``integer`` (one value), ``numbers`` (one or more values on one
+    line; ``scalar``: a single value is taken as a number), ``pairs`` (a list of (a, b) pairs).
 
-    widget: ``number``/``integer`` (one value), ``numbers`` (one or more values on one line;
-    ``scalar``: a single value is taken as a number), ``pairs`` (a list of (a, b) pairs).
+    Parameters
+    ----------
+    kind : str
+        A kind name or alias.
+
+    Returns
+    -------
+    list of dict
+        One per parameter, in the model's order, with keys ``name``, ``title``,
+        ``description``, ``widget``, ``integer``, ``required``, ``scalar``, ``default``,
+        ``example``, ``unit`` (SI, or None), ``display_unit``, ``minimum``,
+        ``exclusive_minimum``.
+
+    Raises
+    ------
+    ValueError
+        An unknown kind.
+
+    Examples
+    --------
+    >>> from service.plans import kind_fields
+    >>> [f["name"] for f in kind_fields("poisson")]
+    ['min_distance', 'seed', 'n_points']
+    >>> f = kind_fields("hexagonal")[0]
+    >>> f["widget"], f["unit"], f["display_unit"], f["required"], f["exclusive_minimum"]
+    ('number', 'm', 'µm', True, 0)
     """
     model = resolve_kind(kind).params
     schema = model.model_json_schema()
@@ -301,12 +486,39 @@ def kind_fields(kind: str) -> list[dict]:
 
 
 def make_mask(kind: str, lattice, **params) -> Mask:
-    """Make a sensor mask of kind ``kind`` (a name in ``KINDS`` or an alias) on ``lattice``
-    (a ``Lattice`` or a dict with n_x, n_y, pitch) with ``params`` checked by the kind's
-    parameter model (SI units; see the models above for each kind's parameters).
+    """Make a sensor mask of a named kind, its parameters checked by the kind's model.
 
-    Raises ValueError: unknown kind, unknown, missing or ill-typed parameters (pydantic's
-    ValidationError is a ValueError), and every bad value the kind's function rejects.
+    Parameters
+    ----------
+    kind : str
+        A name in ``KINDS`` or an alias.
+    lattice : Lattice or dict
+        The scanner lattice, or a dict with ``n_x``, ``n_y``, ``pitch`` (m).
+    **params
+        The kind's parameters, SI units (or texts with a unit for lengths, ``"3.6mm"``); see
+        the kind's parameter model (``KINDS[kind].params``).
+
+    Returns
+    -------
+    Mask
+
+    Raises
+    ------
+    ValueError
+        Unknown kind, unknown, missing or ill-typed parameters (pydantic's ValidationError is
+        a ValueError), and every bad value the kind's function rejects.
+
+    Examples
+    --------
+    >>> from service.plans import Lattice, make_mask
+    >>> make_mask("subgrid", {"n_x": 9, "n_y": 9, "pitch": 1e-4}, interval=4).obtained_points
+    9
+    >>> make_mask("equisteradian", Lattice(41, 41, 1e-4), depth="2mm", n_points=50).obtained_points
+    53
+    >>> make_mask("random", Lattice(9, 9, 1e-4))
+    Traceback (most recent call last):
+    ...
+    ValueError: mask 'random' needs parameter(s): n_points
     """
     from .lattice import Lattice
 

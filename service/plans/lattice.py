@@ -33,7 +33,56 @@ class Lattice:
     ``i = 0..n_x-1``, and the same for y. A 2-D (line) scanner has ``n_y = 1`` (y = 0).
     Indices are ``(i_x, i_y)``; positions ``(x, y)`` in m.
 
-    Raises ValueError: n_x or n_y not a positive integer, pitch ≤ 0 or non-finite.
+    Parameters
+    ----------
+    n_x, n_y : int
+        Number of lattice points along x and y, >= 1 each (``n_y = 1``: a line scanner).
+    pitch : float or str
+        Distance between neighbouring points, m (> 0, finite); a text with a unit
+        (``"60um"``) is parsed by ``driver.units.parse_quantity``.
+
+    Attributes
+    ----------
+    n_x, n_y : int
+        As given.
+    pitch : float
+        In m.
+    n_points : int
+        ``n_x * n_y``.
+    x, y : ndarray, shapes ``(n_x,)`` and ``(n_y,)``
+        Coordinates of the points along each axis, m.
+    is_line : bool
+        True for a line lattice (``n_y = 1``, 2-D imaging).
+    half_extent : tuple of float
+        Distance from the centre to the outermost points along x and y, m.
+    bounds : tuple of (float, float)
+        Covered area ``((x_lo, x_hi), (y_lo, y_hi))`` in m (outermost points ± pitch/2);
+        ``((x_lo, x_hi),)`` on a line lattice.
+    area : float
+        Covered area, m² (m on a line lattice).
+
+    Raises
+    ------
+    ValueError
+        n_x or n_y not a positive integer, pitch <= 0 or non-finite.
+
+    Examples
+    --------
+    >>> from service.plans import Lattice
+    >>> lat = Lattice(5, 3, 1e-4)  # 5 x 3 points, 0.1 mm apart
+    >>> lat.n_points, lat.is_line
+    (15, False)
+    >>> lat.x  # m, centred on the optical axis
+    array([-0.0002, -0.0001,  0.    ,  0.0001,  0.0002])
+    >>> lat.positions([[0, 0], [4, 2]])  # (i_x, i_y) -> (x, y) in m
+    array([[-0.0002, -0.0001],
+           [ 0.0002,  0.0001]])
+    >>> lat.snap([[1.4e-4, -0.6e-4]])  # (x, y) in m -> nearest (i_x, i_y)
+    array([[3, 0]])
+    >>> Lattice(0, 1, 1e-4)
+    Traceback (most recent call last):
+    ...
+    ValueError: n_x must be a positive integer, got 0
     """
 
     n_x: int
@@ -94,9 +143,33 @@ class Lattice:
         return self.n_x * self.n_y * self.pitch**2
 
     def positions(self, indices) -> np.ndarray:
-        """``(n, 2)`` positions (x, y) in m of lattice indices ``(n, 2)`` as (i_x, i_y).
+        """Positions of lattice indices.
 
-        Raises ValueError for indices outside the lattice or of the wrong shape."""
+        Parameters
+        ----------
+        indices : array_like of int, shape ``(n, 2)``
+            Lattice indices (i_x, i_y).
+
+        Returns
+        -------
+        ndarray, shape ``(n, 2)``
+            Positions (x, y), m.
+
+        Raises
+        ------
+        ValueError
+            Indices outside the lattice, not integers, or of the wrong shape.
+
+        Examples
+        --------
+        >>> from service.plans import Lattice
+        >>> Lattice(5, 3, 1e-4).positions([[2, 1]])
+        array([[0., 0.]])
+        >>> Lattice(5, 3, 1e-4).positions([[5, 0]])
+        Traceback (most recent call last):
+        ...
+        ValueError: indices outside the 5 x 3 lattice
+        """
         idx = np.asarray(indices)
         if idx.ndim != 2 or idx.shape[1] != 2:
             raise ValueError(f"indices must have shape (n, 2), got {idx.shape}")
@@ -112,13 +185,38 @@ class Lattice:
         return out
 
     def snap(self, positions) -> np.ndarray:
-        """Nearest lattice indices ``(n, 2)`` of positions ``(n, 2)`` (or ``(n, 1)``) in m.
+        """Nearest lattice indices of positions.
 
-        Ties (a position exactly half-way between two lattice points) are broken away
-        from the lattice centre, so snapping commutes with the lattice's mirror
-        symmetries everywhere except on the centre lines of an even-sized lattice.
-        Raises ValueError for non-finite positions or positions more than half a pitch
-        outside the lattice.
+        Ties (a position exactly half-way between two lattice points) are broken away from the
+        lattice centre, so snapping commutes with the lattice's mirror symmetries everywhere
+        except on the centre lines of an even-sized lattice.
+
+        Parameters
+        ----------
+        positions : array_like, shape ``(n, 2)``, ``(n, 1)`` or ``(n,)``
+            (x, y) or x, m.
+
+        Returns
+        -------
+        ndarray of int64, shape ``(n, 2)``
+            Lattice indices (i_x, i_y).
+
+        Raises
+        ------
+        ValueError
+            Non-finite positions or positions more than half a pitch outside the lattice.
+
+        Examples
+        --------
+        >>> from service.plans import Lattice
+        >>> lat = Lattice(5, 3, 1e-4)
+        >>> lat.snap([[0.5e-4, 0.0], [-0.5e-4, 0.0]])  # ties go away from the centre
+        array([[3, 1],
+               [1, 1]])
+        >>> lat.snap([[1e-3, 0.0]])
+        Traceback (most recent call last):
+        ...
+        ValueError: position (0.001, 0) m lies outside the 5 x 3 lattice (pitch 0.0001 m)
         """
         pos = np.asarray(positions, dtype=np.float64)
         if pos.ndim == 1:
@@ -148,10 +246,39 @@ class Lattice:
         return idx
 
     def contains(self, x: float, y: float = 0.0) -> bool:
-        """Whether the lateral point (x, y) in m lies within the lattice's outermost points."""
+        """Whether a lateral point lies within the lattice's outermost points.
+
+        Parameters
+        ----------
+        x, y : float
+            Lateral position, m (y default 0).
+
+        Returns
+        -------
+        bool
+
+        Examples
+        --------
+        >>> from service.plans import Lattice
+        >>> Lattice(5, 3, 1e-4).contains(2e-4, 1e-4), Lattice(5, 3, 1e-4).contains(3e-4)
+        (True, False)
+        """
         hx, hy = self.half_extent
         tol = 1e-9 * self.pitch
         return abs(x) <= hx + tol and abs(y) <= hy + tol
 
     def to_dict(self) -> dict:
+        """The lattice as JSON-safe dict (the plan JSON's ``lattice``).
+
+        Returns
+        -------
+        dict
+            ``{"n_x", "n_y", "pitch"}``, pitch in m.
+
+        Examples
+        --------
+        >>> from service.plans import Lattice
+        >>> Lattice(5, 3, 1e-4).to_dict()
+        {'n_x': 5, 'n_y': 3, 'pitch': 0.0001}
+        """
         return {"n_x": self.n_x, "n_y": self.n_y, "pitch": self.pitch}

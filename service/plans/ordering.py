@@ -11,9 +11,27 @@ ORDERS = ("serpentine", "rings", "nearest", "given")
 
 
 def serpentine_order(indices) -> np.ndarray:
-    """Permutation ``(n,)`` visiting rows of equal i_y in increasing i_y, x increasing on
-    even-numbered occupied rows and decreasing on odd ones (boustrophedon).
-    indices: ``(n, 2)`` lattice indices (i_x, i_y)."""
+    """Boustrophedon scan order of lattice indices.
+
+    Rows of equal i_y are visited in increasing i_y, x increasing on even-numbered occupied
+    rows and decreasing on odd ones.
+
+    Parameters
+    ----------
+    indices : array_like of int, shape ``(n, 2)``
+        Lattice indices (i_x, i_y).
+
+    Returns
+    -------
+    ndarray of int, shape ``(n,)``
+        The permutation: ``indices[order]`` is in scan order.
+
+    Examples
+    --------
+    >>> from service.plans import serpentine_order
+    >>> serpentine_order([[0, 0], [1, 0], [2, 0], [0, 1], [1, 1], [2, 1]])
+    array([0, 1, 2, 5, 4, 3])
+    """
     idx = np.asarray(indices)
     rows, row_rank = np.unique(idx[:, 1], return_inverse=True)
     x_key = np.where(row_rank % 2 == 0, idx[:, 0], -idx[:, 0])
@@ -21,13 +39,38 @@ def serpentine_order(indices) -> np.ndarray:
 
 
 def ring_order(positions, rings=None, centre=(0.0, 0.0), ring_width: float | None = None) -> np.ndarray:
-    """Permutation ``(n,)`` ring by ring outward, azimuth increasing on even-numbered rings
-    and decreasing on odd ones (alternating direction).
+    """Scan order ring by ring outward, the azimuth direction alternating from ring to ring.
 
-    positions: ``(n, 2)`` in m; rings: ``(n,)`` ring numbers (e.g. an equi-steradian mask's);
-    without them points are binned by lateral distance from ``centre`` in bins of
-    ``ring_width`` m (default: the median nearest-neighbour distance).
-    Points on a line (all y equal) are ordered by increasing x."""
+    Azimuth increases on even-numbered rings and decreases on odd ones. Points on a line
+    (all y equal) are ordered by increasing x.
+
+    Parameters
+    ----------
+    positions : array_like, shape ``(n, 2)``
+        Positions (x, y), m.
+    rings : array_like of int, shape ``(n,)``, optional
+        Ring numbers (e.g. an equi-steradian mask's). Without them points are binned by
+        lateral distance from ``centre`` in bins of ``ring_width``.
+    centre : sequence of 2 floats, optional
+        Centre (x, y) of the rings, m; default the optical axis.
+    ring_width : float, optional
+        Bin width, m; default the median nearest-neighbour distance.
+
+    Returns
+    -------
+    ndarray of int, shape ``(n,)``
+        The permutation.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from service.plans import ring_order
+    >>> pos = np.array([[0, 0], [1e-4, 0], [0, 1e-4], [-1e-4, 0], [0, -1e-4], [2e-4, 0]])
+    >>> ring_order(pos, ring_width=1e-4)  # centre, ring 1 clockwise from -90°, then ring 2
+    array([0, 4, 3, 2, 1, 5])
+    >>> ring_order(np.array([[2e-4, 0], [0, 0], [1e-4, 0]]))  # a line: by x
+    array([1, 2, 0])
+    """
     pos = np.asarray(positions, dtype=np.float64)
     n = pos.shape[0]
     if n <= 1:
@@ -49,9 +92,39 @@ def ring_order(positions, rings=None, centre=(0.0, 0.0), ring_width: float | Non
 
 
 def nearest_neighbour_order(positions, start: int = 0) -> np.ndarray:
-    """Greedy nearest-neighbour tour ``(n,)`` from point ``start``: always move to the
-    closest unvisited point (ties: lowest index). positions ``(n, d)`` in m.
-    O(n log n) typical with a k-d tree rebuilt as points are used up."""
+    """Greedy nearest-neighbour tour: always move to the closest unvisited point.
+
+    Ties go to the lowest index. O(n log n) typical with a k-d tree rebuilt as points are used
+    up.
+
+    Parameters
+    ----------
+    positions : array_like, shape ``(n, d)``
+        Positions, m.
+    start : int, optional
+        Index of the first point (default 0).
+
+    Returns
+    -------
+    ndarray of int64, shape ``(n,)``
+        The tour, a permutation starting with ``start``.
+
+    Raises
+    ------
+    ValueError
+        ``start`` not an index of a point.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from service.plans import nearest_neighbour_order
+    >>> nearest_neighbour_order(np.array([[0.0], [3e-4], [1e-4], [2e-4]]))
+    array([0, 2, 3, 1])
+    >>> nearest_neighbour_order(np.zeros((2, 2)), start=2)
+    Traceback (most recent call last):
+    ...
+    ValueError: start must index a point (0..1), got 2
+    """
     pos = np.asarray(positions, dtype=np.float64)
     n = pos.shape[0]
     if n == 0:
@@ -93,21 +166,69 @@ def nearest_neighbour_order(positions, start: int = 0) -> np.ndarray:
 
 
 def auto_order(mask) -> str:
-    """What ``order="auto"`` means for ``mask``: ``rings`` for ring-structured masks
-    (equi-steradian), ``given`` for a user's point list (kept as listed), else ``serpentine``."""
+    """What ``order="auto"`` means for a mask.
+
+    Parameters
+    ----------
+    mask : Mask
+        The mask (its ``rings`` and ``kind``).
+
+    Returns
+    -------
+    str
+        ``"rings"`` for ring-structured masks (equi-steradian), ``"given"`` for a user's point
+        list (kept as listed), else ``"serpentine"``.
+
+    Examples
+    --------
+    >>> from service.plans import Lattice, equisteradian_mask, full_mask
+    >>> from service.plans.ordering import auto_order
+    >>> auto_order(equisteradian_mask(Lattice(41, 41, 1e-4), 2e-3, 50))
+    'rings'
+    >>> auto_order(full_mask(Lattice(3, 3, 1e-4)))
+    'serpentine'
+    """
     if mask.rings is not None:
         return "rings"
     return "given" if mask.kind == "points" else "serpentine"
 
 
 def scan_order(mask, order: str = "auto") -> np.ndarray:
-    """The permutation ``(n,)`` putting ``mask``'s points in scan order.
+    """The permutation putting a mask's points in scan order.
 
-    order: ``"auto"`` (``auto_order``: rings for ring-structured masks such as
-    equi-steradian, given for point lists, serpentine otherwise), ``"serpentine"``, ``"rings"``, ``"nearest"`` (greedy nearest-neighbour
-    tour starting from the first point of the auto order) or ``"given"`` (the mask's own
-    order, e.g. a user's point list as listed).
-    Raises ValueError naming the order for an unknown order name."""
+    Parameters
+    ----------
+    mask : Mask
+        The mask.
+    order : str, optional
+        ``"auto"`` (default; ``auto_order``: rings for ring-structured masks such as
+        equi-steradian, given for point lists, serpentine otherwise), ``"serpentine"``,
+        ``"rings"``, ``"nearest"`` (greedy nearest-neighbour tour starting from the first point
+        of the auto order) or ``"given"`` (the mask's own order).
+
+    Returns
+    -------
+    ndarray of int, shape ``(n,)``
+        ``mask.indices[scan_order(mask)]`` is in scan order.
+
+    Raises
+    ------
+    ValueError
+        An unknown order name (naming it).
+
+    Examples
+    --------
+    >>> from service.plans import Lattice, full_mask, scan_order
+    >>> m = full_mask(Lattice(3, 2, 1e-4))
+    >>> m.indices[scan_order(m)].tolist()  # serpentine
+    [[0, 0], [1, 0], [2, 0], [2, 1], [1, 1], [0, 1]]
+    >>> scan_order(m, "given")
+    array([0, 1, 2, 3, 4, 5])
+    >>> scan_order(m, "spiral")
+    Traceback (most recent call last):
+    ...
+    ValueError: unknown order 'spiral'; known: auto, serpentine, rings, nearest, given
+    """
     if order not in ("auto", *ORDERS):
         raise ValueError(f"unknown order {order!r}; known: auto, {', '.join(ORDERS)}")
     if order == "auto":

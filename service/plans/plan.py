@@ -46,7 +46,32 @@ ORDER_NAMES = ("auto", *ORDERS)
 
 
 def content_id(plan_dict: dict) -> str:
-    """The plan's content hash (its id): ``driver.plan.plan_id_of``."""
+    """The plan's content hash (its id): ``driver.plan.plan_id_of``.
+
+    Parameters
+    ----------
+    plan_dict : dict
+        A plan as JSON-safe dict (``Plan.to_dict()``); its ``id`` is ignored.
+
+    Returns
+    -------
+    str
+        SHA-256 hex digest of the canonical JSON of everything but ``id``.
+
+    Raises
+    ------
+    ValueError
+        Not a dict, or values JSON cannot represent.
+
+    Examples
+    --------
+    >>> from service.plans import content_id, make_plan
+    >>> plan = make_plan("full", lattice={"n_x": 3, "n_y": 1, "pitch": 1e-4})
+    >>> content_id(plan.to_dict()) == plan.id
+    True
+    >>> len(plan.id)
+    64
+    """
     return plan_id_of(plan_dict)
 
 
@@ -61,6 +86,33 @@ class _Strict(BaseModel):
 
 
 class LatticeSpec(_Strict):
+    """The plan's lattice, as its JSON holds it (see ``Lattice``).
+
+    Attributes
+    ----------
+    n_x, n_y : int
+        Points along x and y, >= 1.
+    pitch : float
+        m, > 0 and finite.
+
+    Raises
+    ------
+    pydantic.ValidationError
+        (a ValueError) for bad values.
+
+    Examples
+    --------
+    >>> from service.plans.plan import LatticeSpec
+    >>> LatticeSpec(n_x=226, n_y=226, pitch=6e-5)
+    LatticeSpec(n_x=226, n_y=226, pitch=6e-05)
+    >>> LatticeSpec(n_x=0, n_y=1, pitch=1e-4)
+    Traceback (most recent call last):
+    ...
+    pydantic_core._pydantic_core.ValidationError: 1 validation error for LatticeSpec
+    n_x
+      Input should be greater than or equal to 1 ...
+    """
+
     n_x: int = Field(ge=1)
     n_y: int = Field(ge=1)
     pitch: float = Field(gt=0, description="m")
@@ -72,6 +124,29 @@ class LatticeSpec(_Strict):
 
 
 class MaskSpec(_Strict):
+    """The plan's mask summary, as its JSON holds it.
+
+    Attributes
+    ----------
+    kind : str
+        The mask kind.
+    params : dict
+        The parameters it was made from (SI units).
+    requested_points, obtained_points : int
+        Points asked for and held, >= 1.
+    weight_ratio : float or None
+        Outer/inner weight ratio (``weight_ratio``), > 0.
+
+    Examples
+    --------
+    >>> from service.plans import make_plan
+    >>> plan = make_plan("equispaced", lattice={"n_x": 9, "n_y": 9, "pitch": 1e-4}, params={"interval": 4})
+    >>> plan.mask
+    MaskSpec(kind='equispaced', params={'interval': 4, 'n_per_side': [3, 3]}, requested_points=9, obtained_points=9, weight_ratio=1.0)
+    >>> plan.mask.obtained_points == plan.n_points
+    True
+    """
+
     kind: str
     params: dict[str, Any] = Field(default_factory=dict)
     requested_points: int = Field(ge=1)
@@ -80,9 +155,29 @@ class MaskSpec(_Strict):
 
 
 class Points(_Strict):
-    """The plan's points in scan order; their checks (shapes, lattice membership, finite
-    positions, weights) are the plan contract's, ``driver.plan.check_plan``, run by
-    :class:`Plan`."""
+    """The plan's points in scan order.
+
+    Their checks (shapes, lattice membership, finite positions, weights) are the plan
+    contract's, ``driver.plan.check_plan``, run by :class:`Plan`.
+
+    Attributes
+    ----------
+    indices : list of (int, int)
+        Lattice indices (i_x, i_y), n of them.
+    positions : list of (float, float)
+        Positions (x, y), m.
+    weights : list of float
+        Quadrature weights, m² (m on a line lattice).
+
+    Examples
+    --------
+    >>> from service.plans import make_plan
+    >>> plan = make_plan("full", lattice={"n_x": 3, "n_y": 1, "pitch": 1e-4})
+    >>> plan.points.indices
+    [(0, 0), (1, 0), (2, 0)]
+    >>> [round(w, 12) for w in plan.points.weights]  # m on a line lattice
+    [0.0001, 0.0001, 0.0001]
+    """
 
     indices: list[tuple[int, int]]
     positions: list[tuple[float, float]] = Field(description="(x, y) in m")
@@ -90,14 +185,46 @@ class Points(_Strict):
 
 
 class Acquisition(_Strict):
-    """Acquisition settings: ``n_t`` samples per A-line at interval ``dt`` (s), ``averages``
-    pulses per point and wavelength, excitation ``wavelengths`` (m, 400 nm to 2000 nm, no
-    repeats), laser ``prf`` (Hz; 0 = as fast as the scanner can), ``sound_speed`` (m/s).
+    """Acquisition settings of a plan.
 
     The limits are the plan contract's, checked by ``driver.plan.check_acquisition`` (the
-    scanner side's check: one set of limits for the library, the API and the scanner);
-    the JSON schema states the same numbers (``driver.plan``'s constants). Raises
-    ``pydantic.ValidationError`` (a ValueError) with the driver's reason."""
+    scanner side's check: one set of limits for the library, the API and the scanner); the
+    JSON schema states the same numbers (``driver.plan``'s constants).
+
+    Attributes
+    ----------
+    n_t : int
+        Samples per A-line (default 1024).
+    dt : float
+        Sample interval, s (default 8 ns).
+    averages : int
+        Pulses averaged per point and wavelength (default 1).
+    wavelengths : list of float
+        Excitation wavelengths, m (400 nm to 2000 nm, no repeats; default [750 nm]).
+    prf : float
+        Laser pulse repetition frequency, Hz (0 = as fast as the scanner can; default 50).
+    sound_speed : float
+        Speed of sound, m/s (default 1500).
+    wavelength_order : {"per_point", "per_pass"} or None
+        With several wavelengths, tune the laser at every point (default) or once per pass;
+        left out of the JSON when not set.
+
+    Raises
+    ------
+    pydantic.ValidationError
+        (a ValueError) with the driver's reason.
+
+    Examples
+    --------
+    >>> from service.plans import Acquisition
+    >>> Acquisition(n_t=2048, dt=4e-9, wavelengths=[5.32e-7, 7.5e-7])
+    Acquisition(n_t=2048, dt=4e-09, averages=1, wavelengths=[5.32e-07, 7.5e-07], prf=50.0, sound_speed=1500.0, wavelength_order=None)
+    >>> Acquisition(dt=-1)
+    Traceback (most recent call last):
+    ...
+    pydantic_core._pydantic_core.ValidationError: 1 validation error for Acquisition
+      Value error, plan acquisition.dt must be finite and > 0 s, got -1.0 ...
+    """
 
     n_t: int = Field(default=1024, description="samples per A-line",
                      json_schema_extra={"minimum": MIN_N_T, "maximum": MAX_N_T})
@@ -134,12 +261,54 @@ class Acquisition(_Strict):
 
 
 class Plan(_Strict):
-    """A scan plan (architecture.md "Plan JSON"). ``points`` are in scan order: point index
-    k in the scanner protocol and the scan file is the k-th entry.
+    """A scan plan (architecture.md "Plan JSON"): an ordered mask plus acquisition settings.
 
-    Validation (ValueError / pydantic.ValidationError, a ValueError): wrong format, ``id``
-    not the content hash, indices outside the lattice or duplicated, positions not the
-    lattice positions of the indices, count mismatches, non-finite or non-positive values.
+    ``points`` are in scan order: point index k in the scanner protocol and the scan file is
+    the k-th entry. Made by ``make_plan`` / ``plan_from_spec``; read by ``from_json``,
+    ``from_dict``, ``from_hdf5``; written by ``to_json``, ``to_dict``, ``to_hdf5``.
+
+    Attributes
+    ----------
+    format : str
+        ``"fpscan-plan/1"``.
+    id : str
+        The content hash (``content_id``).
+    lattice : LatticeSpec
+    mask : MaskSpec
+    points : Points
+        In scan order.
+    order : str
+        The scan order the points are in (serpentine, rings, nearest, given).
+    acquisition : Acquisition
+    n_points : int
+        Number of points.
+    lattice_obj : Lattice
+        The lattice as a ``Lattice``.
+    expected_scan_time_s : float or None
+        Points × averages × wavelengths / PRF, s; None when prf = 0.
+
+    Raises
+    ------
+    ValueError
+        (pydantic.ValidationError) wrong format, ``id`` not the content hash, indices outside
+        the lattice or duplicated, positions not the lattice positions of the indices, count
+        mismatches, non-finite or non-positive values.
+
+    Examples
+    --------
+    >>> from service.plans import Plan, make_plan
+    >>> plan = make_plan("equispaced", lattice={"n_x": 9, "n_y": 9, "pitch": 1e-4}, params={"interval": 4})
+    >>> plan.n_points, plan.order, plan.expected_scan_time_s  # 9 points at 50 Hz
+    (9, 'serpentine', 0.18)
+    >>> plan.positions_array().shape, plan.weights_array()[0]  # (x, y) in m; (0.4 mm)²
+    ((9, 2), np.float64(1.6e-07))
+    >>> Plan.from_json(plan.to_json()).id == plan.id
+    True
+    >>> Plan.from_dict({**plan.to_dict(), "id": "0" * 64})
+    Traceback (most recent call last):
+    ...
+    pydantic_core._pydantic_core.ValidationError: 1 validation error for Plan
+    ...
     """
 
     format: Literal["fpscan-plan/1"] = PLAN_FORMAT
@@ -178,19 +347,67 @@ class Plan(_Strict):
         return Lattice(self.lattice.n_x, self.lattice.n_y, self.lattice.pitch)
 
     def indices_array(self) -> np.ndarray:
-        """``(n, 2)`` int64 lattice indices in scan order."""
+        """Lattice indices in scan order.
+
+        Returns
+        -------
+        ndarray of int64, shape ``(n, 2)``
+            (i_x, i_y).
+
+        Examples
+        --------
+        >>> from service.plans import make_plan
+        >>> make_plan("full", lattice={"n_x": 3, "n_y": 1, "pitch": 1e-4}).indices_array().tolist()
+        [[0, 0], [1, 0], [2, 0]]
+        """
         return np.asarray(self.points.indices, dtype=np.int64).reshape(-1, 2)
 
     def positions_array(self) -> np.ndarray:
-        """``(n, 2)`` positions (x, y) in m in scan order."""
+        """Positions in scan order.
+
+        Returns
+        -------
+        ndarray, shape ``(n, 2)``
+            (x, y), m.
+
+        Examples
+        --------
+        >>> from service.plans import make_plan
+        >>> make_plan("full", lattice={"n_x": 3, "n_y": 1, "pitch": 1e-4}).positions_array().shape
+        (3, 2)
+        """
         return np.asarray(self.points.positions, dtype=np.float64).reshape(-1, 2)
 
     def weights_array(self) -> np.ndarray:
-        """``(n,)`` weights in m² (m on a line lattice) in scan order."""
+        """Quadrature weights in scan order.
+
+        Returns
+        -------
+        ndarray, shape ``(n,)``
+            m² (m on a line lattice).
+
+        Examples
+        --------
+        >>> from service.plans import make_plan
+        >>> make_plan("full", lattice={"n_x": 3, "n_y": 3, "pitch": 1e-4}).weights_array().shape
+        (9,)
+        """
         return np.asarray(self.points.weights, dtype=np.float64)
 
     def recon_positions(self) -> np.ndarray:
-        """``(n, 1)`` on a line lattice, ``(n, 2)`` otherwise (what ``service.recon`` takes)."""
+        """The positions in the form ``service.recon`` takes them.
+
+        Returns
+        -------
+        ndarray, shape ``(n, 1)`` (line lattice: x) or ``(n, 2)`` ((x, y))
+            m, in scan order.
+
+        Examples
+        --------
+        >>> from service.plans import make_plan
+        >>> make_plan("full", lattice={"n_x": 3, "n_y": 1, "pitch": 1e-4}).recon_positions().ravel().tolist()
+        [-0.0001, 0.0, 0.0001]
+        """
         pos = self.positions_array()
         return pos[:, :1].copy() if self.lattice.n_y == 1 else pos
 
@@ -205,11 +422,42 @@ class Plan(_Strict):
 
     # -- JSON -------------------------------------------------------------------------
     def to_dict(self) -> dict:
+        """The plan as JSON-safe dict (``Plan JSON`` of docs/architecture.md).
+
+        Returns
+        -------
+        dict
+
+        Examples
+        --------
+        >>> from service.plans import make_plan
+        >>> d = make_plan("full", lattice={"n_x": 3, "n_y": 1, "pitch": 1e-4}).to_dict()
+        >>> sorted(d)
+        ['acquisition', 'format', 'id', 'lattice', 'mask', 'order', 'points']
+        """
         return self.model_dump(mode="json")
 
     def to_json(self, path: str | Path | None = None, *, indent: int | None = None) -> str:
-        """The plan as JSON text (canonical when ``indent`` is None); also written to
-        ``path`` if given."""
+        """The plan as JSON text.
+
+        Parameters
+        ----------
+        path : str or Path, optional
+            Also write it there (with a final newline).
+        indent : int, optional
+            Indent (keys sorted); None (default): the canonical form (``canonical_json``).
+
+        Returns
+        -------
+        str
+
+        Examples
+        --------
+        >>> from service.plans import make_plan
+        >>> text = make_plan("full", lattice={"n_x": 3, "n_y": 1, "pitch": 1e-4}).to_json()
+        >>> text[:30]
+        '{"acquisition":{"averages":1,"'
+        """
         d = self.to_dict()
         text = canonical_json(d) if indent is None else json.dumps(d, indent=indent, sort_keys=True)
         if path is not None:
@@ -218,13 +466,68 @@ class Plan(_Strict):
 
     @classmethod
     def from_dict(cls, d: dict) -> Plan:
+        """Read a plan from its dict; validates it (including the id).
+
+        Parameters
+        ----------
+        d : dict
+            The plan JSON as dict.
+
+        Returns
+        -------
+        Plan
+
+        Raises
+        ------
+        ValueError
+            Not a dict, or any rule of the plan contract broken (pydantic.ValidationError).
+
+        Examples
+        --------
+        >>> from service.plans import Plan, make_plan
+        >>> plan = make_plan("full", lattice={"n_x": 3, "n_y": 1, "pitch": 1e-4})
+        >>> Plan.from_dict(plan.to_dict()) == plan
+        True
+        >>> Plan.from_dict([1])
+        Traceback (most recent call last):
+        ...
+        ValueError: a plan must be a JSON object, got list
+        """
         if not isinstance(d, dict):
             raise ValueError(f"a plan must be a JSON object, got {type(d).__name__}")
         return cls.model_validate(d)
 
     @classmethod
     def from_json(cls, text_or_path) -> Plan:
-        """Read a plan from JSON text or a file path; validates it (including the id)."""
+        """Read a plan from JSON text or a file path; validates it (including the id).
+
+        Parameters
+        ----------
+        text_or_path : str or Path
+            JSON text (starting with ``{``) or the path of a file holding it.
+
+        Returns
+        -------
+        Plan
+
+        Raises
+        ------
+        ValueError
+            Not valid JSON, or any rule of the plan contract broken.
+        OSError
+            A path that cannot be read.
+
+        Examples
+        --------
+        >>> from service.plans import Plan, make_plan
+        >>> plan = make_plan("full", lattice={"n_x": 3, "n_y": 1, "pitch": 1e-4})
+        >>> Plan.from_json(plan.to_json(indent=2)).id == plan.id
+        True
+        >>> Plan.from_json("{not json")
+        Traceback (most recent call last):
+        ...
+        ValueError: plan is not valid JSON: ...
+        """
         if isinstance(text_or_path, Path) or (
             isinstance(text_or_path, str) and not text_or_path.lstrip().startswith("{")
         ):
@@ -239,9 +542,27 @@ class Plan(_Strict):
 
     # -- HDF5 ---------------------------------------------------------------------------
     def to_hdf5(self, group) -> None:
-        """Write into an h5py group: attrs ``format``, ``id``, ``order``, ``lattice``,
-        ``mask``, ``acquisition`` (the last three as JSON text) and datasets ``indices``
-        (n, 2) int64, ``positions`` (n, 2) float64 m, ``weights`` (n,) float64."""
+        """Write the plan into an h5py group.
+
+        Attributes ``format``, ``id``, ``order``, ``lattice``, ``mask``, ``acquisition`` (the last
+        three as canonical JSON text) and datasets ``indices`` (n, 2) int64, ``positions`` (n, 2)
+        float64 in m, ``weights`` (n,) float64 in m² (m on a line lattice).
+
+        Parameters
+        ----------
+        group : h5py.Group
+            An empty group (or file) open for writing.
+
+        Examples
+        --------
+        >>> import h5py
+        >>> from service.plans import make_plan
+        >>> plan = make_plan("full", lattice={"n_x": 3, "n_y": 1, "pitch": 1e-4})
+        >>> with h5py.File("plan.h5", "w", driver="core", backing_store=False) as f:  # in memory
+        ...     plan.to_hdf5(f.create_group("plan"))
+        ...     sorted(f["plan"]), f["plan/positions"].shape
+        (['indices', 'positions', 'weights'], (3, 2))
+        """
         group.attrs["format"] = self.format
         group.attrs["id"] = self.id
         group.attrs["order"] = self.order
@@ -253,7 +574,32 @@ class Plan(_Strict):
 
     @classmethod
     def from_hdf5(cls, group) -> Plan:
-        """Read a plan written by ``to_hdf5``; validates it (including the id)."""
+        """Read a plan written by ``to_hdf5``; validates it (including the id).
+
+        Parameters
+        ----------
+        group : h5py.Group
+
+        Returns
+        -------
+        Plan
+
+        Raises
+        ------
+        ValueError
+            A group without a complete plan (naming what is missing), or a plan that breaks the
+            contract.
+
+        Examples
+        --------
+        >>> import h5py
+        >>> from service.plans import Plan, make_plan
+        >>> plan = make_plan("full", lattice={"n_x": 3, "n_y": 1, "pitch": 1e-4})
+        >>> with h5py.File("plan.h5", "w", driver="core", backing_store=False) as f:
+        ...     plan.to_hdf5(f.create_group("plan"))
+        ...     Plan.from_hdf5(f["plan"]).id == plan.id
+        True
+        """
 
         def _s(v):
             return v.decode("utf-8") if isinstance(v, bytes) else str(v)
@@ -294,12 +640,42 @@ def _json_safe(obj):
 
 
 def check_plausible_request(mask, kind, lattice, params, acquisition, *, force: bool = False) -> None:
-    """The plausibility rules of ``driver.units.check_plausible`` on a plan request: the
-    lattice pitch, dt, the PRF against the recording, the sound speed (unless ``force``)
-    and the depth of the point of interest of the equiangular/equi-steradian kinds.
-    ``mask``: a ``Mask`` (its lattice, kind and params are used) or None with ``kind``,
-    ``lattice`` (dict or ``Lattice``), ``params``; ``acquisition``: an ``Acquisition`` or
-    dict. Raises ``driver.units.ImplausibleValue`` (a ValueError)."""
+    """The plausibility rules of ``driver.units.check_plausible`` on a plan request.
+
+    Judged: the lattice pitch, dt, the PRF against the recording, the sound speed (unless
+    ``force``) and the depth of the point of interest of the equiangular/equi-steradian kinds.
+    Run before any range check, so that a unit mistake is named as such.
+
+    Parameters
+    ----------
+    mask : Mask or None
+        A mask (its lattice, kind and params are used), or None with ``kind``, ``lattice``
+        and ``params``.
+    kind : str or None
+        Mask kind name.
+    lattice : dict or Lattice or None
+        ``n_x``, ``n_y``, ``pitch`` (m).
+    params : dict or None
+        The kind's parameters (SI units).
+    acquisition : Acquisition or dict or None
+        The acquisition settings (SI units); missing ones take the defaults.
+    force : bool, optional
+        Skip the sound-speed rule.
+
+    Raises
+    ------
+    driver.units.ImplausibleValue
+        (a ValueError) naming the implausible value and the likely unit mistake.
+
+    Examples
+    --------
+    >>> from service.plans import check_plausible_request
+    >>> check_plausible_request(None, "full", {"n_x": 9, "n_y": 9, "pitch": 6e-5}, {}, {"dt": 8e-9})
+    >>> check_plausible_request(None, "full", {"n_x": 9, "n_y": 9, "pitch": 60}, {}, {})
+    Traceback (most recent call last):
+    ...
+    driver.units.ImplausibleValue: pitch 60 m is implausible for a planar FP scanner ... did you mean 60 µm (60um)? ...
+    """
     from driver.units import check_plausible
 
     if acquisition is None:
@@ -334,25 +710,65 @@ def check_plausible_request(mask, kind, lattice, params, acquisition, *, force: 
 def make_plan(mask: Mask | str | None = None, *, kind: str | None = None, lattice=None,
               params: dict | None = None, order: str = "auto",
               acquisition: Acquisition | dict | None = None, force: bool = False, **settings) -> Plan:
-    """A plan: a mask's points put in ``order`` with acquisition settings.
+    """A plan: a mask's points put in scan order, with acquisition settings.
 
     The mask is either given (``make_plan(mask)``) or made here from a kind name
     (``make_plan("equisteradian", lattice=..., params={...})`` or
-    ``make_plan(kind=..., lattice=..., params=...)``, see ``make_mask``; ``lattice`` a
-    ``Lattice`` or a dict n_x, n_y, pitch).
-    order: ``auto`` (rings for equi-steradian, given for point lists, serpentine otherwise), ``serpentine``,
-    ``rings``, ``nearest`` or ``given`` (the mask's own order: a point list as listed). Acquisition settings: an ``Acquisition``, a dict, or keywords
-    n_t, dt (s), averages, wavelengths (m), prf (Hz), sound_speed (m/s); defaults 1024,
-    8 ns, 1, [750 nm], 50 Hz, 1500 m/s.
-
+    ``make_plan(kind=..., lattice=..., params=...)``, see ``make_mask``).
     ``mask.weight_ratio`` is ``service.plans.weight_ratio`` (outer/inner, paper §6) for every
-    kind, point lists included.
+    kind, point lists included. Values a person types are checked for plausibility first
+    (``driver.units.check_plausible``: pitch, dt, the point of interest's depth, the PRF
+    against the recording, the sound speed unless ``force``).
 
-    Values a person types are checked for plausibility first (``driver.units.check_plausible``:
-    pitch, dt, the point of interest's depth, the PRF against the recording, the sound
-    speed unless ``force``): ``driver.units.ImplausibleValue`` names the likely unit mistake.
+    Parameters
+    ----------
+    mask : Mask or str, optional
+        A mask, or a kind name (then ``lattice`` and ``params`` make it).
+    kind : str, optional
+        Mask kind name (instead of a positional one).
+    lattice : Lattice or dict, optional
+        The scanner lattice (``n_x``, ``n_y``, ``pitch`` in m) when the mask is made here.
+    params : dict, optional
+        The kind's parameters, SI units.
+    order : str, optional
+        ``auto`` (default: rings for equi-steradian, given for point lists, serpentine
+        otherwise), ``serpentine``, ``rings``, ``nearest`` or ``given``.
+    acquisition : Acquisition or dict, optional
+        Acquisition settings; or give them as keywords.
+    force : bool, optional
+        Skip the sound-speed plausibility rule.
+    **settings
+        n_t, dt (s), averages, wavelengths (m), prf (Hz), sound_speed (m/s); defaults 1024,
+        8 ns, 1, [750 nm], 50 Hz, 1500 m/s.
 
-    Raises ValueError for an unknown order (naming it), bad settings or bad mask parameters."""
+    Returns
+    -------
+    Plan
+        With its id (the content hash) and the resolved order.
+
+    Raises
+    ------
+    ValueError
+        An unknown order (naming it), bad settings or bad mask parameters;
+        ``driver.units.ImplausibleValue`` (a ValueError) names a likely unit mistake.
+
+    References
+    ----------
+    .. [1] J. Schmid et al., "Computational Realization of a Non-Equidistant Grid Sampling in
+       Photoacoustics with a Non-Uniform FFT", §6 (the weight ratio).
+
+    Examples
+    --------
+    >>> from service.plans import Lattice, make_plan
+    >>> plan = make_plan("equisteradian", lattice=Lattice(41, 41, 1e-4),
+    ...                  params={"depth": 2e-3, "n_points": 50}, n_t=512, prf=100)
+    >>> plan.n_points, plan.order, plan.acquisition.n_t
+    (53, 'rings', 512)
+    >>> make_plan("full", lattice={"n_x": 3, "n_y": 1, "pitch": 1e-4}, order="spiral")
+    Traceback (most recent call last):
+    ...
+    ValueError: unknown order 'spiral'; known: auto, serpentine, rings, nearest, given
+    """
     order = order or "auto"
     if not isinstance(order, str) or order not in ORDER_NAMES:
         raise ValueError(f"unknown order {order!r}; known: {', '.join(ORDER_NAMES)}")
@@ -410,15 +826,36 @@ def make_plan(mask: Mask | str | None = None, *, kind: str | None = None, lattic
 
 
 def plan_from_spec(spec: dict) -> Plan:
-    """A plan from a request body (HTTP layer, CLI)::
+    """A plan from a request body (HTTP layer, CLI).
 
-        {"lattice": {"n_x": 226, "n_y": 226, "pitch": 6e-05},
-         "mask": {"kind": "equisteradian", "params": {"depth": 0.0036, "n_points": 1625}},
-         "order": "auto",                       # optional
-         "acquisition": {"n_t": 1024, ...}}     # optional
+    Parameters
+    ----------
+    spec : dict
+        ``{"lattice": {"n_x", "n_y", "pitch"}, "mask": {"kind", "params"}, "order",
+        "acquisition"}``; ``order`` and ``acquisition`` optional, SI units; ``mask`` may also
+        be ``{"kind": "points", "params": {"points": [[x, y], ...]}}``.
 
-    ``mask`` may also be ``{"kind": "points", "params": {"points": [[x, y], ...]}}``.
-    Raises ValueError with the reason for anything missing or wrong."""
+    Returns
+    -------
+    Plan
+
+    Raises
+    ------
+    ValueError
+        With the reason, for anything missing or wrong.
+
+    Examples
+    --------
+    >>> from service.plans import plan_from_spec
+    >>> plan = plan_from_spec({"lattice": {"n_x": 9, "n_y": 1, "pitch": 1e-4}, "mask": {"kind": "full"},
+    ...                        "acquisition": {"n_t": 256, "prf": 100}})
+    >>> plan.n_points, plan.recon_positions().shape, plan.expected_scan_time_s  # x in m; s
+    (9, (9, 1), 0.09)
+    >>> plan_from_spec({"mask": {"kind": "full"}})
+    Traceback (most recent call last):
+    ...
+    ValueError: plan request needs 'lattice' and 'mask'
+    """
     if not isinstance(spec, dict):
         raise ValueError("plan request must be a JSON object")
     unknown = set(spec) - {"lattice", "mask", "order", "acquisition"}

@@ -11,12 +11,41 @@ __all__ = ["preview_png"]
 
 
 def preview_png(mask_or_plan, path: str | Path | None = None) -> bytes:
-    """Render a ``Mask`` or ``Plan`` as PNG bytes (also written to ``path`` if given).
+    r"""Render a ``Mask`` or ``Plan`` as a PNG picture.
 
     Axes in mm (x right, y down; a line lattice shows x only); the lattice outline is drawn,
     each point coloured by its weight (µm², or µm on a line); a ``+`` marks the point of
-    interest (a plan's mask params ``poi``). The title states kind, obtained/requested
-    points and the outer/inner weight ratio. Raises ValueError for other objects."""
+    interest (a plan's mask params ``poi``). The title states kind, obtained/requested points
+    and the outer/inner weight ratio.
+
+    Parameters
+    ----------
+    mask_or_plan : Mask or Plan
+        What to draw.
+    path : str or Path, optional
+        Also write the PNG there.
+
+    Returns
+    -------
+    bytes
+        The PNG file's content.
+
+    Raises
+    ------
+    ValueError
+        For anything but a Mask or a Plan.
+
+    Examples
+    --------
+    >>> from service.plans import Lattice, full_mask, preview_png
+    >>> png = preview_png(full_mask(Lattice(5, 5, 1e-4)))
+    >>> png[:8]  # the PNG signature
+    b'\x89PNG\r\n\x1a\n'
+    >>> preview_png("mask")
+    Traceback (most recent call last):
+    ...
+    ValueError: preview_png needs a Mask or a Plan, got str
+    """
     from service.storage.render import render_points
 
     from .mask import Mask, weight_ratio

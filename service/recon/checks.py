@@ -17,7 +17,34 @@ __all__ = [
 
 
 def positive(name: str, value) -> float:
-    """``value`` as float; ValueError unless finite and > 0."""
+    """``value`` as a float, refused unless finite and > 0.
+
+    Parameters
+    ----------
+    name : str
+        The quantity's name, used in the error message.
+    value : float or anything ``float()`` takes
+        The value (in the quantity's SI unit).
+
+    Returns
+    -------
+    float
+
+    Raises
+    ------
+    ValueError
+        Not a number, non-finite or <= 0; the message names ``name``.
+
+    Examples
+    --------
+    >>> from service.recon.checks import positive
+    >>> positive("dx", "1e-4")  # m
+    0.0001
+    >>> positive("dt", -1)
+    Traceback (most recent call last):
+    ...
+    ValueError: dt must be a finite number > 0, got -1
+    """
     try:
         v = float(value)
     except (TypeError, ValueError):
@@ -28,8 +55,38 @@ def positive(name: str, value) -> float:
 
 
 def finite_array(name: str, a, ndims: tuple[int, ...]) -> np.ndarray:
-    """``a`` as an ndarray with ndim in ``ndims``; ValueError on NaN/inf, wrong ndim,
-    empty or non-numeric input."""
+    """``a`` as an ndarray of real numbers with a number of dimensions in ``ndims``.
+
+    Parameters
+    ----------
+    name : str
+        The array's name, used in the error message.
+    a : array_like
+        The array (int, uint or float).
+    ndims : tuple of int
+        Allowed numbers of dimensions, e.g. ``(2, 3)`` for ``(n_t, n_x)`` / ``(n_t, n_y, n_x)``.
+
+    Returns
+    -------
+    ndarray
+        ``np.asarray(a)``, not copied.
+
+    Raises
+    ------
+    ValueError
+        NaN/inf, a wrong number of dimensions, empty or non-numeric input.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from service.recon.checks import finite_array
+    >>> finite_array("data", [[1, 2], [3, 4]], (2,)).shape
+    (2, 2)
+    >>> finite_array("data", [[1, np.nan]], (2,))
+    Traceback (most recent call last):
+    ...
+    ValueError: data contains NaN or inf
+    """
     arr = np.asarray(a)
     if arr.dtype.kind not in "fiu":
         raise ValueError(f"{name} must be a real numeric array, got dtype {arr.dtype}")
@@ -68,9 +125,28 @@ TIME_LIMIT_MAX = 7 * 86400.0
 
 
 class OptionError(RefusedInput):
-    """A reconstruction option refused by its rule (a value outside its range, or an option
-    the chosen method does not take): the caller's input, a usage error (CLI exit 2,
-    HTTP 422)."""
+    """A reconstruction option refused by its rule.
+
+    A value outside its range, or an option the chosen method does not take: the caller's
+    input, a usage error (CLI exit 2, HTTP 422). A ``driver.units.RefusedInput``, hence a
+    ``ValueError``.
+
+    Attributes
+    ----------
+    args : tuple of str
+        The message: the option, its rule and the value given.
+
+    Examples
+    --------
+    >>> from service.recon.checks import OptionError, check_eps
+    >>> issubclass(OptionError, ValueError)
+    True
+    >>> try:
+    ...     check_eps(5e-15)
+    ... except OptionError as exc:
+    ...     print(exc)
+    eps must be in [1e-14, 1e-1], got 5e-15
+    """
 
 
 def _number(name: str, value, what: str) -> float:
@@ -91,7 +167,32 @@ def _integer(name: str, value, lo: int, hi: int) -> int:
 
 
 def check_eps(eps) -> float:
-    """NUFFT tolerance in ``EPS_RANGE`` ([1e-14, 1e-1]) or OptionError (a ValueError)."""
+    """The NUFFT tolerance, within ``EPS_RANGE`` ([1e-14, 1e-1], inclusive).
+
+    Parameters
+    ----------
+    eps : float
+        Relative tolerance of the NUFFTs (dimensionless).
+
+    Returns
+    -------
+    float
+
+    Raises
+    ------
+    OptionError
+        (a ValueError) not a number, or outside the range.
+
+    Examples
+    --------
+    >>> from service.recon.checks import check_eps
+    >>> check_eps(1e-6)
+    1e-06
+    >>> check_eps(5e-15)
+    Traceback (most recent call last):
+    ...
+    service.recon.checks.OptionError: eps must be in [1e-14, 1e-1], got 5e-15
+    """
     e = _number("eps", eps, "a number")
     if not (EPS_RANGE[0] <= e <= EPS_RANGE[1]):
         raise OptionError(f"eps must be in [1e-14, 1e-1], got {eps!r}")
@@ -99,17 +200,93 @@ def check_eps(eps) -> float:
 
 
 def check_upsample(upsample) -> int:
-    """Lateral upsampling factor: an integer in ``UPSAMPLE_RANGE`` (1..8) or OptionError."""
+    """The lateral upsampling factor: an integer in ``UPSAMPLE_RANGE`` (1..8).
+
+    Parameters
+    ----------
+    upsample : int or integral float
+        Output points per sensor pitch along each lateral axis.
+
+    Returns
+    -------
+    int
+
+    Raises
+    ------
+    OptionError
+        (a ValueError) not an integer (booleans included), or outside the range.
+
+    Examples
+    --------
+    >>> from service.recon.checks import check_upsample
+    >>> check_upsample(2.0)
+    2
+    >>> check_upsample(9)
+    Traceback (most recent call last):
+    ...
+    service.recon.checks.OptionError: upsample must be an integer in 1..8, got 9
+    """
     return _integer("upsample", upsample, *UPSAMPLE_RANGE)
 
 
 def check_n_z(n_z) -> int:
-    """Output depth samples: an integer in ``N_Z_RANGE`` (2..65536) or OptionError."""
+    """The number of output depth samples: an integer in ``N_Z_RANGE`` (2..65536).
+
+    Parameters
+    ----------
+    n_z : int, integral float or its decimal text
+        Depth samples (rows) of p0.
+
+    Returns
+    -------
+    int
+
+    Raises
+    ------
+    OptionError
+        (a ValueError) not an integer, or outside the range.
+
+    Examples
+    --------
+    >>> from service.recon.checks import check_n_z
+    >>> check_n_z("128")
+    128
+    >>> check_n_z(1)
+    Traceback (most recent call last):
+    ...
+    service.recon.checks.OptionError: n_z must be an integer in 2..65536, got 1
+    """
     return _integer("n_z", n_z, *N_Z_RANGE)
 
 
 def check_dz(dz) -> float:
-    """Output depth spacing in m within ``DZ_RANGE`` ([1 nm, 0.1 m]) or OptionError."""
+    """The output depth spacing, within ``DZ_RANGE`` ([1 nm, 0.1 m]).
+
+    Parameters
+    ----------
+    dz : float
+        Depth spacing, m.
+
+    Returns
+    -------
+    float
+        m.
+
+    Raises
+    ------
+    OptionError
+        (a ValueError) not a finite number, or outside the range.
+
+    Examples
+    --------
+    >>> from service.recon.checks import check_dz
+    >>> check_dz(5e-5)
+    5e-05
+    >>> check_dz(1.0)
+    Traceback (most recent call last):
+    ...
+    service.recon.checks.OptionError: dz must be in [1e-09, 0.1] m, got 1.0
+    """
     v = _number("dz", dz, "a depth spacing in m")
     if not np.isfinite(v) or not DZ_RANGE[0] <= v <= DZ_RANGE[1]:
         raise OptionError(f"dz must be in [1e-09, 0.1] m, got {dz!r}")
@@ -117,7 +294,33 @@ def check_dz(dz) -> float:
 
 
 def check_lam(lam) -> float:
-    """TV weight λ: a finite number in ``LAM_RANGE`` ([0, 1e30]) or OptionError."""
+    """The TV weight λ: a finite number in ``LAM_RANGE`` ([0, 1e30]).
+
+    Parameters
+    ----------
+    lam : float
+        Weight of the total-variation term of ½‖A p0 − g‖² + λ TV(p0) (`service.recon.tv`:
+        TV with forward differences in voxel units, J in Pa², so λ is in Pa).
+
+    Returns
+    -------
+    float
+
+    Raises
+    ------
+    OptionError
+        (a ValueError) not a finite number, or outside the range.
+
+    Examples
+    --------
+    >>> from service.recon.checks import check_lam
+    >>> check_lam(0)
+    0.0
+    >>> check_lam(-1)
+    Traceback (most recent call last):
+    ...
+    service.recon.checks.OptionError: lam (the TV weight λ) must be in [0, 1e+30], got -1
+    """
     v = _number("lam (the TV weight λ)", lam, "a number >= 0")
     if not np.isfinite(v) or not LAM_RANGE[0] <= v <= LAM_RANGE[1]:
         raise OptionError(f"lam (the TV weight λ) must be in [0, 1e+30], got {lam!r}")
@@ -125,14 +328,62 @@ def check_lam(lam) -> float:
 
 
 def check_iterations(iterations) -> int:
-    """Most iterations of the model-based solver: an integer in ``ITERATIONS_RANGE``
-    (1..100000) or OptionError."""
+    """The most iterations of the model-based solver: an integer in ``ITERATIONS_RANGE`` (1..100000).
+
+    Parameters
+    ----------
+    iterations : int or integral float
+
+    Returns
+    -------
+    int
+
+    Raises
+    ------
+    OptionError
+        (a ValueError) not an integer, or outside the range.
+
+    Examples
+    --------
+    >>> from service.recon.checks import check_iterations
+    >>> check_iterations(200)
+    200
+    >>> check_iterations(0)
+    Traceback (most recent call last):
+    ...
+    service.recon.checks.OptionError: iterations must be an integer in 1..100000, got 0
+    """
     return _integer("iterations", iterations, *ITERATIONS_RANGE)
 
 
 def check_time_limit(seconds) -> float:
-    """Wall-time limit of the model-based solver in s: in (0, ``TIME_LIMIT_MAX``] (a week)
-    or OptionError."""
+    """The wall-time limit of the model-based solver, in (0, ``TIME_LIMIT_MAX``] (a week).
+
+    Parameters
+    ----------
+    seconds : float
+        s.
+
+    Returns
+    -------
+    float
+        s.
+
+    Raises
+    ------
+    OptionError
+        (a ValueError) not a finite number, or outside the range.
+
+    Examples
+    --------
+    >>> from service.recon.checks import check_time_limit
+    >>> check_time_limit(60)
+    60.0
+    >>> check_time_limit(0)
+    Traceback (most recent call last):
+    ...
+    service.recon.checks.OptionError: time_limit must be in (0, 604800] s, got 0
+    """
     v = _number("time_limit", seconds, "a number of seconds")
     if not np.isfinite(v) or not 0 < v <= TIME_LIMIT_MAX:
         raise OptionError(f"time_limit must be in (0, {TIME_LIMIT_MAX:g}] s, got {seconds!r}")
@@ -140,7 +391,32 @@ def check_time_limit(seconds) -> float:
 
 
 def check_dtype(dtype) -> np.dtype:
-    """float32 or float64 or ValueError."""
+    """The working precision: float32 or float64.
+
+    Parameters
+    ----------
+    dtype : str, type or numpy.dtype
+        Anything ``numpy.dtype`` takes.
+
+    Returns
+    -------
+    numpy.dtype
+
+    Raises
+    ------
+    OptionError
+        (a ValueError) any other dtype.
+
+    Examples
+    --------
+    >>> from service.recon.checks import check_dtype
+    >>> check_dtype("float32")
+    dtype('float32')
+    >>> check_dtype("int16")
+    Traceback (most recent call last):
+    ...
+    service.recon.checks.OptionError: dtype must be float32 or float64, got int16
+    """
     try:
         dt = np.dtype(dtype)
     except TypeError:
@@ -151,7 +427,21 @@ def check_dtype(dtype) -> np.dtype:
 
 
 def available_memory() -> int:
-    """Bytes of memory available now (Linux MemAvailable; else physical pages free)."""
+    """Bytes of memory available now.
+
+    Linux's ``MemAvailable`` (``/proc/meminfo``); elsewhere the physical pages free.
+
+    Returns
+    -------
+    int
+        Bytes.
+
+    Examples
+    --------
+    >>> from service.recon.checks import available_memory
+    >>> available_memory() > 0
+    True
+    """
     try:
         with open("/proc/meminfo") as fh:
             for line in fh:
@@ -178,20 +468,7 @@ def estimate_peak_memory(
     dz: float | None = None,
     square: bool | None = None,
 ) -> int:
-    """Estimated peak memory in bytes of a planar reconstruction.
-
-    Parameters: ``n_t`` samples; ``n_x``, ``n_y`` lateral grid (``n_y = 1`` in 2-D; the
-    planar methods zero-pad it to the fast transform lengths of
-    ``driver.physics.fast_lengths.fast_lateral``, e.g. 226 -> 240, and the estimate counts
-    those; ``square``: dy = dx, which may give both axes one length; None: unknown, the
-    larger of the two);
-    ``n_z`` output depth samples (default n_t); ``upsample`` lateral factor; ``dtype``
-    float32/float64; ``method`` "ner"/"linear"/"nearest"/"cubic"/"nedner"/"kwave";
-    ``n_points`` sensors for NEDNER (its weighted A-lines, the full-plane type-1 spectrum
-    and, for weights not given, the Voronoi raster of ``driver.physics.weights``).
-    ``method="tv"`` gives `tv_memory` on the free-space operator's padded grid
-    (`driver.physics.forward`'s padding rule) when the pitch ``dx`` (m), ``dt`` (s) and
-    ``c`` (m/s) are given (``dz`` default c·dt), else on a conservative one (dx = c·dt).
+    """Estimated peak memory in bytes of a planar reconstruction (admission control).
 
     The planar methods (`service.recon.planar`) are counted phase by phase, the arrays
     alive in each (b: the real itemsize, complex 2b): the lateral spectrum A (n_t x
@@ -203,6 +480,50 @@ def estimate_peak_memory(
     copy when the transform grid was padded. The peak is the largest phase, plus the
     input (measured within ±25 % for ner/nedner at upsample 1-8,
     tests/service/test_memory_admission.py).
+
+    Parameters
+    ----------
+    n_t : int
+        Samples per A-line.
+    n_x, n_y : int
+        Lateral grid (``n_y = 1`` in 2-D). The planar methods zero-pad it to the fast
+        transform lengths of ``driver.physics.fast_lengths.fast_lateral`` (e.g. 226 -> 240),
+        and the estimate counts those.
+    n_z : int, optional
+        Output depth samples (default n_t).
+    upsample : int, optional
+        Lateral upsampling factor.
+    dtype : float32 or float64, optional
+        Working precision.
+    method : str, optional
+        ``"ner"``, ``"linear"``, ``"nearest"``, ``"cubic"``, ``"nedner"``, ``"kwave"`` or
+        ``"tv"``.
+    n_points : int, optional
+        Sensors, for NEDNER (its weighted A-lines, the full-plane type-1 spectrum and, for
+        weights not given, the Voronoi raster of ``driver.physics.weights``) and tv.
+    dx, dt, c, dz : float, optional
+        Pitch (m), sample interval (s), sound speed (m/s), depth spacing (m; default c·dt):
+        with ``method="tv"`` the estimate is `tv_memory` on the free-space operator's padded
+        grid (`driver.physics.forward`'s padding rule); without them on a conservative one
+        (dx = c·dt).
+    square : bool or None, optional
+        dy = dx, which may give both axes one transform length; None: unknown, the larger of
+        the two.
+
+    Returns
+    -------
+    int
+        Bytes at the peak (4 % above the count for allocator and FFT-plan overheads).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from service.recon import estimate_peak_memory
+    >>> est = estimate_peak_memory(256, 64, 64)  # (n_t, n_y, n_x) = (256, 64, 64), float64 NER
+    >>> est > 256 * 64 * 64 * 8  # more than the input
+    True
+    >>> estimate_peak_memory(256, 64, 64, dtype=np.float32) < est
+    True
     """
     b = np.dtype(dtype).itemsize
     cb = 2 * b
@@ -258,9 +579,29 @@ def estimate_peak_memory(
 
 
 def padded_lateral(n_y: int, n_x: int, square: bool | None = None) -> tuple[int, int]:
-    """The lateral transform sizes (n_y', n_x') of the planar methods for an n_y x n_x
-    grid (``driver.physics.fast_lengths.fast_lateral``); ``square`` None (pitches unknown): the
-    larger of the square and non-square choices, axis by axis."""
+    """The lateral transform sizes the planar methods use for an ``n_y x n_x`` grid.
+
+    Parameters
+    ----------
+    n_y, n_x : int
+        The lateral grid (``n_y = 1`` in 2-D).
+    square : bool or None, optional
+        dy = dx (``driver.physics.fast_lengths.fast_lateral``); None (pitches unknown): the
+        larger of the square and non-square choices, axis by axis.
+
+    Returns
+    -------
+    tuple of int
+        ``(n_y', n_x')``.
+
+    Examples
+    --------
+    >>> from service.recon.checks import padded_lateral
+    >>> padded_lateral(226, 226)
+    (240, 240)
+    >>> padded_lateral(1, 226)
+    (1, 240)
+    """
     if square is not None:
         return fast_lateral(n_y, n_x, square)
     (ay, ax), (by, bx) = fast_lateral(n_y, n_x, False), fast_lateral(n_y, n_x, True)
@@ -276,16 +617,45 @@ OPERATOR_CHUNK = 1 << 23
 
 
 def tv_memory(image_shape, padded_shape, n_data: int, n_t: int, dtype=np.float64) -> int:
-    """Estimated peak bytes of the model-based reconstruction (`service.recon.tv`): the
-    solver's image-sized vectors live while the operator works (the TV proximal map's dual,
-    d vectors, and d − 1 of the iterates) in ``dtype``, three data-sized vectors, and the
-    operator's working arrays in its working precision (complex64 for float32, complex128
-    for float64; `service.recon.operator.PlanarOperator`): the image's and the data's
-    k-space, (n_z + n_t) per padded half-spectrum column, beside one chunk of columns in
-    the depth and temporal steps (about `OPERATOR_CHUNK` elements per row of the temporal fine
-    grid L, `driver.physics.nufft.grid_length`, the depth N_z and time n_t) and one batch of
-    full lateral spectra of the point NUFFTs; plus 25 % (allocator, FFT buffers, the warm
-    start's leftovers; tests/service/test_memory_admission.py measures it within 25 %)."""
+    """Estimated peak bytes of the model-based reconstruction (`service.recon.tv`).
+
+    The solver's image-sized vectors live while the operator works (the TV proximal map's
+    dual, d vectors, and d − 1 of the iterates) in ``dtype``, three data-sized vectors, and
+    the operator's working arrays in its working precision (complex64 for float32,
+    complex128 for float64; `service.recon.operator.PlanarOperator`): the image's and the
+    data's k-space, (n_z + n_t) per padded half-spectrum column, beside one chunk of columns
+    in the depth and temporal steps (about `OPERATOR_CHUNK` elements per row of the
+    temporal fine grid L, `driver.physics.nufft.grid_length`, the depth N_z and time n_t)
+    and one batch of full lateral spectra of the point NUFFTs; plus 25 % (allocator, FFT
+    buffers, the warm start's leftovers; tests/service/test_memory_admission.py measures it
+    within 25 %).
+
+    Parameters
+    ----------
+    image_shape : tuple of int
+        p0's shape ``(n_z, n_y, n_x)`` (``n_y = 1`` in 2-D).
+    padded_shape : tuple of int
+        The operator's working grid ``(N_z, N_y, N_x)``.
+    n_data : int
+        Data samples (n_t times the number of sensors).
+    n_t : int
+        Samples per A-line.
+    dtype : float32 or float64, optional
+
+    Returns
+    -------
+    int
+        Bytes.
+
+    Examples
+    --------
+    >>> from service.recon.checks import tv_memory
+    >>> small = tv_memory((32, 64, 64), (128, 128, 128), 256 * 4096, 256)
+    >>> tv_memory((64, 64, 64), (128, 128, 128), 256 * 4096, 256) > small  # deeper image
+    True
+    >>> tv_memory((32, 64, 64), (128, 128, 128), 256 * 4096, 256, "float32") < small
+    True
+    """
     from driver.physics.nufft import grid_length
 
     b = np.dtype(dtype).itemsize
@@ -302,7 +672,29 @@ def tv_memory(image_shape, padded_shape, n_data: int, n_t: int, dtype=np.float64
 
 
 def check_memory(needed: int, memory_limit) -> None:
-    """ValueError if ``needed`` bytes exceed ``memory_limit`` (default: available now)."""
+    """Refuse a reconstruction that needs more memory than the limit.
+
+    Parameters
+    ----------
+    needed : int
+        Bytes at the peak (`estimate_peak_memory`).
+    memory_limit : int or None
+        Bytes; None: the memory available now (`available_memory`).
+
+    Raises
+    ------
+    ValueError
+        ``needed`` above the limit, naming both in GiB and what to reduce.
+
+    Examples
+    --------
+    >>> from service.recon.checks import check_memory
+    >>> check_memory(2**20, 2**30)
+    >>> check_memory(2**31, 2**30)
+    Traceback (most recent call last):
+    ...
+    ValueError: reconstruction needs about 2.00 GiB at its peak, more than the limit of 1.00 GiB; ...
+    """
     limit = available_memory() if memory_limit is None else int(memory_limit)
     if needed > limit:
         raise ValueError(

@@ -33,10 +33,36 @@ ALL_WAVELENGTHS = "all"
 
 
 def check_wavelength(wavelength: Any, *, allow_all: bool = True) -> int | str | None:
-    """A wavelength choice as given: ``None`` (the default: the first), an index >= 0
-    (an int, or its decimal text as a command line gives it) or ``"all"`` (when
-    ``allow_all``). Returns the int index, ``"all"`` or None; raises ValueError naming
-    the choice otherwise."""
+    """A wavelength choice as given, checked.
+
+    Parameters
+    ----------
+    wavelength : None, int or str
+        None (the default: the first wavelength), an index >= 0 (an int, or its decimal text
+        as a command line gives it) or ``"all"`` (case-insensitive).
+    allow_all : bool, optional
+        Whether ``"all"`` is accepted (default True).
+
+    Returns
+    -------
+    int, str or None
+        The index, ``"all"`` or None.
+
+    Raises
+    ------
+    ValueError
+        Anything else, naming the choice.
+
+    Examples
+    --------
+    >>> from service.recon.dataset import check_wavelength
+    >>> check_wavelength(None), check_wavelength("2"), check_wavelength("All"), check_wavelength(1)
+    (None, 2, 'all', 1)
+    >>> check_wavelength(-1)
+    Traceback (most recent call last):
+    ...
+    ValueError: wavelength must be an index >= 0 into the file's wavelengths or 'all', got -1
+    """
     if wavelength is None:
         return None
     if isinstance(wavelength, str):
@@ -56,8 +82,31 @@ def _nm(wavelengths: Any) -> str:
 
 
 def file_wavelengths(ds: GridDataset | PointDataset) -> np.ndarray:
-    """The excitation wavelengths (m, ``(n_w,)``) of the file ``ds`` was read from (all of
-    them, not only the one ``ds`` holds); empty when the file records none."""
+    """The excitation wavelengths of the file a dataset was read from.
+
+    All of them, not only the one the dataset holds (``meta["wavelengths"]``, else the
+    dataset's own).
+
+    Parameters
+    ----------
+    ds : GridDataset or PointDataset
+
+    Returns
+    -------
+    ndarray, shape ``(n_w,)``
+        Wavelengths in m; empty when the file records none.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from service.recon.dataset import GridDataset, file_wavelengths
+    >>> ds = GridDataset(np.zeros((64, 4)), dx=1e-4, dt=2e-8, c=1500.0, wavelengths=(7.5e-7,),
+    ...                  meta={"wavelength_index": 1, "wavelengths": [5.32e-7, 7.5e-7]})
+    >>> file_wavelengths(ds)  # m
+    array([5.32e-07, 7.50e-07])
+    >>> file_wavelengths(GridDataset(np.zeros((64, 4)), 1e-4, 2e-8, 1500.0)).size
+    0
+    """
     w = (ds.meta or {}).get("wavelengths")
     if w is None:
         w = ds.wavelengths
@@ -65,9 +114,30 @@ def file_wavelengths(ds: GridDataset | PointDataset) -> np.ndarray:
 
 
 def wavelength_params(ds: GridDataset | PointDataset) -> dict:
-    """What a reconstruction of ``ds`` records about its wavelength: ``wavelength_index``
-    (into the file's wavelengths, when read from a multi-wavelength file) and
-    ``wavelength_nm`` (when ``ds`` holds one known wavelength's data); ``{}`` otherwise."""
+    """What a reconstruction of a dataset records about its wavelength.
+
+    Parameters
+    ----------
+    ds : GridDataset or PointDataset
+
+    Returns
+    -------
+    dict
+        ``wavelength_index`` (into the file's wavelengths, when read from a multi-wavelength
+        file) and ``wavelength_nm`` (when ``ds`` holds one known wavelength's data); ``{}``
+        otherwise.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from service.recon.dataset import GridDataset, wavelength_params
+    >>> ds = GridDataset(np.zeros((64, 4)), dx=1e-4, dt=2e-8, c=1500.0, wavelengths=(7.5e-7,),
+    ...                  meta={"wavelength_index": 1, "wavelengths": [5.32e-7, 7.5e-7]})
+    >>> wavelength_params(ds)
+    {'wavelength_index': 1, 'wavelength_nm': 750.0}
+    >>> wavelength_params(GridDataset(np.zeros((64, 4)), 1e-4, 2e-8, 1500.0))
+    {}
+    """
     out: dict = {}
     if (ds.meta or {}).get("wavelength_index") is not None:
         out["wavelength_index"] = int(ds.meta["wavelength_index"])
@@ -79,9 +149,49 @@ def wavelength_params(ds: GridDataset | PointDataset) -> dict:
 
 @dataclass
 class GridDataset:
-    """Data on a regular sensor grid. ``data``: ``(n_t, n_y, n_x)`` or ``(n_t, n_x)``
-    (time first); ``dx``, ``dy`` (None in 2-D) lateral spacings in m; ``dt`` s; ``c`` m/s;
-    ``t0`` s (time of sample 0); ``source`` (format); ``meta`` (anything else)."""
+    """Data on a regular sensor line or plane: the input of the grid methods.
+
+    Parameters
+    ----------
+    data, dx, dt, c, dy, t0, source, meta, wavelengths
+        As the attributes below.
+
+    Attributes
+    ----------
+    data : ndarray, shape ``(n_t, n_x)`` or ``(n_t, n_y, n_x)``
+        Time first (k-Wave's 'ty' / 'tyz' order), Pa (or the instrument's unit).
+    dx : float
+        Lateral spacing along x, m.
+    dt : float
+        Sample interval, s.
+    c : float
+        Sound speed, m/s.
+    dy : float or None
+        Spacing along y, m (None in 2-D, or dy = dx).
+    t0 : float
+        Time of sample 0, s.
+    source : str
+        The format it was read from.
+    meta : dict
+        Anything else (``p0_unit``, ``wavelength_index``, ...).
+    wavelengths : tuple of float or None
+        Excitation wavelength(s) of these data, m.
+    kind : str
+        ``"grid"``.
+    ndim : int
+        2 (line sensor) or 3 (planar sensor).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from service.recon.dataset import GridDataset
+    >>> ds = GridDataset(np.zeros((64, 3, 4), np.float32), dx=1e-4, dt=2e-8, c=1500.0)
+    >>> ds.ndim, [a.round(6).tolist() for a in ds.axes()]  # (x, y) in m, centred
+    (3, [[-0.00015, -5e-05, 5e-05, 0.00015], [-0.0001, 0.0, 0.0001]])
+    >>> pts = ds.to_points()  # every grid point a sensor
+    >>> pts.alines.shape, pts.positions.shape  # (n_y n_x, n_t), (n, 2) (x, y) in m
+    ((12, 64), (12, 2))
+    """
 
     data: np.ndarray
     dx: float
@@ -101,17 +211,43 @@ class GridDataset:
         return self.data.ndim
 
     def axes(self) -> tuple[np.ndarray, ...]:
-        """Lateral coordinate vectors: ``(x,)`` in 2-D, ``(x, y)`` in 3-D, m, centred."""
+        """Lateral coordinate vectors, centred on the optical axis.
+
+        Returns
+        -------
+        tuple of ndarray
+            ``(x,)`` in 2-D, ``(x, y)`` in 3-D; shapes ``(n_x,)``, ``(n_y,)``; m.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from service.recon.dataset import GridDataset
+        >>> [a.shape for a in GridDataset(np.zeros((8, 3, 4)), 1e-4, 2e-8, 1500.0).axes()]
+        [(4,), (3,)]
+        """
         x = centred_axis(self.data.shape[-1], self.dx)
         if self.data.ndim == 2:
             return (x,)
         return x, centred_axis(self.data.shape[1], self.dy or self.dx)
 
     def to_points(self) -> PointDataset:
-        """Every grid point as a sensor: ``alines`` ``(n_y·n_x, n_t)`` in C order of
-        ``(n_y, n_x)``, positions ``(n, 2)`` (x, y) (``(n, 1)`` in 2-D), no weights (the
-        reconstruction then uses clipped Voronoi areas, here the grid cells), ``grid`` =
-        :meth:`axes`."""
+        """Every grid point as a sensor.
+
+        Returns
+        -------
+        PointDataset
+            ``alines`` ``(n_y·n_x, n_t)`` in C order of ``(n_y, n_x)``, positions ``(n, 2)``
+            (x, y) in m (``(n, 1)`` in 2-D), no weights (the reconstruction then uses clipped
+            Voronoi areas, here the grid cells), ``grid`` = :meth:`axes`.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from service.recon.dataset import GridDataset
+        >>> pts = GridDataset(np.zeros((8, 5)), 1e-4, 2e-8, 1500.0).to_points()
+        >>> pts.alines.shape, pts.positions.shape, pts.weights
+        ((5, 8), (5, 1), None)
+        """
         axes = self.axes()
         if self.data.ndim == 2:
             alines, positions = self.data.T, axes[0][:, None]
@@ -126,13 +262,66 @@ class GridDataset:
 
 @dataclass
 class PointDataset:
-    """A-lines at arbitrary sensor positions. ``alines`` ``(n, n_t)``; ``positions``
-    ``(n, 2)`` (x, y) m or ``(n, 1)`` in 2-D; ``weights`` ``(n,)`` area weights or None
-    (then the reconstruction computes Voronoi weights); ``dt`` s; ``c`` m/s; ``grid``: the
-    regular lateral vectors ``(x,)``/``(x, y)`` to reconstruct on; ``t0`` s; ``source``;
-    ``meta`` (plan, ...); ``indices`` ``(n, 2)`` lattice (i_x, i_y) and ``lattice``
-    ``{"n_x", "n_y", "pitch"}`` when the points come from a scanner lattice (then a full
-    lattice can use the grid methods, :meth:`to_grid`); ``wavelengths`` (m) or None."""
+    """A-lines at arbitrary sensor positions: the input of NEDNER (and, on a full lattice, of
+    the grid methods via :meth:`to_grid`).
+
+    Parameters
+    ----------
+    alines, positions, weights, dt, c, grid, t0, source, meta, indices, lattice, wavelengths
+        As the attributes below.
+
+    Attributes
+    ----------
+    alines : ndarray, shape ``(n, n_t)``
+        One A-line per sensor, Pa (or the instrument's unit).
+    positions : ndarray, shape ``(n, 2)`` or ``(n, 1)``
+        Sensor positions (x, y), or x in 2-D, m.
+    weights : ndarray, shape ``(n,)``, or None
+        Area weights, m² (m in 2-D); None: the reconstruction computes clipped Voronoi areas.
+    dt : float
+        Sample interval, s.
+    c : float
+        Sound speed, m/s.
+    grid : tuple of ndarray
+        The regular lateral vectors ``(x,)`` or ``(x, y)`` to reconstruct on, m.
+    t0 : float
+        Time of sample 0, s.
+    source : str
+        The format it was read from.
+    meta : dict
+        Plan, calibration, ...
+    indices : ndarray of int, shape ``(n, 2)``, or None
+        Lattice indices (i_x, i_y) when the points come from a scanner lattice.
+    lattice : dict or None
+        ``{"n_x", "n_y", "pitch"}`` (pitch in m) of that lattice.
+    wavelengths : tuple of float or None
+        Excitation wavelength(s), m.
+    kind : str
+        ``"points"``.
+    ndim : int
+        2 (positions ``(n, 1)``) or 3.
+    full_lattice : bool
+        True when the points are every point of their lattice, exactly once.
+
+    Raises
+    ------
+    ValueError
+        :meth:`to_grid` on data not on a full lattice.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from service.recon.dataset import PointDataset
+    >>> ds = PointDataset(alines=np.ones((3, 64)), positions=np.array([[-1e-4], [0.0], [1e-4]]),
+    ...                   weights=None, dt=2e-8, c=1500.0, grid=(np.array([-1e-4, 0.0, 1e-4]),),
+    ...                   indices=np.array([[0, 0], [1, 0], [2, 0]]),
+    ...                   lattice={"n_x": 3, "n_y": 1, "pitch": 1e-4})
+    >>> ds.ndim, ds.full_lattice
+    (2, True)
+    >>> grid = ds.to_grid()  # (n_t, n_x) on a line lattice
+    >>> grid.data.shape, grid.dx
+    ((64, 3), 0.0001)
+    """
 
     alines: np.ndarray
     positions: np.ndarray
@@ -172,10 +361,31 @@ class PointDataset:
         return filled is not None and bool(filled.all()) and len(np.asarray(self.indices)) == filled.size
 
     def to_grid(self) -> GridDataset:
-        """The A-lines of a full-lattice dataset as grid data ``(n_t, n_y, n_x)``
-        (``(n_t, n_x)`` for a line lattice), ``dx = dy`` = the lattice pitch, same dtype.
-        Raises ValueError when the data are not on a lattice or lattice points are
-        missing."""
+        """The A-lines of a full-lattice dataset as grid data.
+
+        Returns
+        -------
+        GridDataset
+            ``(n_t, n_y, n_x)`` (``(n_t, n_x)`` for a line lattice), ``dx = dy`` = the lattice
+            pitch (m), same dtype.
+
+        Raises
+        ------
+        ValueError
+            The data are not on a lattice, or lattice points are missing.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from service.recon.dataset import PointDataset
+        >>> ds = PointDataset(alines=np.ones((2, 8)), positions=np.array([[-5e-5], [5e-5]]), weights=None,
+        ...                   dt=2e-8, c=1500.0, grid=(np.array([-5e-5, 5e-5]),),
+        ...                   indices=np.array([[0, 0], [1, 0]]), lattice={"n_x": 3, "n_y": 1, "pitch": 1e-4})
+        >>> ds.to_grid()
+        Traceback (most recent call last):
+        ...
+        ValueError: this method needs every lattice point; 1 of 3 are missing (use 'nedner' for a sensor mask)
+        """
         filled = self._filled()
         if filled is None or self.lattice is None:
             raise ValueError("this method needs data on a full regular grid; the input is a set of "
@@ -199,14 +409,59 @@ Dataset = GridDataset | PointDataset
 
 
 def p0_unit(ds: GridDataset | PointDataset) -> str:
-    """The unit of a p0 reconstructed from ``ds``: ``"Pa"`` when the dataset is calibrated
-    pressure (``meta["p0_unit"]``, from a scan whose instrument states its volts-to-pascal
-    calibration: ``driver.scanfile.pressure_unit``), else ``"a.u."``."""
+    """The unit of a p0 reconstructed from a dataset.
+
+    Parameters
+    ----------
+    ds : GridDataset or PointDataset
+
+    Returns
+    -------
+    str
+        ``"Pa"`` when the dataset is calibrated pressure (``meta["p0_unit"]``, from a scan
+        whose instrument states its volts-to-pascal calibration:
+        ``driver.scanfile.pressure_unit``), else ``"a.u."``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from service.recon.dataset import GridDataset, p0_unit
+    >>> p0_unit(GridDataset(np.zeros((4, 4)), 1e-4, 1e-8, 1500.0))
+    'a.u.'
+    >>> p0_unit(GridDataset(np.zeros((4, 4)), 1e-4, 1e-8, 1500.0, meta={"p0_unit": "Pa"}))
+    'Pa'
+    """
     return "Pa" if (ds.meta or {}).get("p0_unit") == "Pa" else "a.u."
 
 
 def positive(name: str, v: Any) -> float:
-    """``v`` as a positive finite float; ValueError naming ``name`` otherwise."""
+    """``v`` as a positive finite float.
+
+    Parameters
+    ----------
+    name : str
+        The quantity's name, used in the error message.
+    v : float or anything ``float()`` takes
+
+    Returns
+    -------
+    float
+
+    Raises
+    ------
+    ValueError
+        Not a number, non-finite or <= 0, naming ``name``.
+
+    Examples
+    --------
+    >>> from service.recon.dataset import positive
+    >>> positive("c", "1500")  # m/s
+    1500.0
+    >>> positive("c", 0)
+    Traceback (most recent call last):
+    ...
+    ValueError: c must be a positive finite number, got 0
+    """
     try:
         f = float(v)
     except (TypeError, ValueError):
@@ -217,10 +472,35 @@ def positive(name: str, v: Any) -> float:
 
 
 def grid_array(a: np.ndarray) -> np.ndarray:
-    """Grid data as read from a file, checked: real numbers, ``(n_t, n_x)`` or
-    ``(n_t, n_y, n_x)`` (time first), at least 2 samples per axis, at most
-    :data:`MAX_ELEMENTS`, all finite; returned as float32 (float64 for wider types).
-    Raises ValueError naming the fault."""
+    """Grid data as read from a file, checked.
+
+    Parameters
+    ----------
+    a : ndarray, shape ``(n_t, n_x)`` or ``(n_t, n_y, n_x)``
+        Time first; real numbers; at least 2 samples per axis, at most :data:`MAX_ELEMENTS`.
+
+    Returns
+    -------
+    ndarray
+        float32 (float64 for wider types), same shape.
+
+    Raises
+    ------
+    ValueError
+        Naming the fault: non-real dtype, wrong number of dimensions, an axis under 2
+        samples, too many elements, NaN or infinities.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from service.recon.dataset import grid_array
+    >>> grid_array(np.zeros((4, 3), np.int16)).dtype, grid_array(np.zeros((4, 3))).dtype
+    (dtype('float32'), dtype('float64'))
+    >>> grid_array(np.zeros(4))
+    Traceback (most recent call last):
+    ...
+    ValueError: array must be (n_t, n_x) or (n_t, n_y, n_x) (time first), got shape (4,)
+    """
     if a.dtype.kind not in "iuf":
         raise ValueError(f"array must hold real numbers, got dtype {a.dtype}")
     if a.ndim not in (2, 3):
@@ -237,15 +517,56 @@ def grid_array(a: np.ndarray) -> np.ndarray:
 
 
 def lattice_axes(lattice: dict) -> tuple[np.ndarray, np.ndarray]:
-    """The lattice's coordinate vectors ``(x, y)`` (m, centred; :func:`centred_axis`) of
-    ``{"n_x", "n_y", "pitch"}``."""
+    """The coordinate vectors of a scanner lattice.
+
+    Parameters
+    ----------
+    lattice : dict
+        ``{"n_x", "n_y", "pitch"}`` (pitch in m; ``n_y`` default 1).
+
+    Returns
+    -------
+    tuple of ndarray
+        ``(x, y)``, shapes ``(n_x,)`` and ``(n_y,)``, m, centred on the optical axis
+        (:func:`driver.physics.axes.centred_axis`).
+
+    Examples
+    --------
+    >>> from service.recon.dataset import lattice_axes
+    >>> x, y = lattice_axes({"n_x": 3, "n_y": 2, "pitch": 1e-4})
+    >>> x.round(6).tolist(), y.round(6).tolist()
+    ([-0.0001, 0.0, 0.0001], [-5e-05, 5e-05])
+    """
     pitch = float(lattice["pitch"])
     return centred_axis(int(lattice["n_x"]), pitch), centred_axis(int(lattice.get("n_y", 1)), pitch)
 
 
 def check_wavelength_index(index: int, wavelengths: Any, what: str) -> None:
-    """ValueError naming ``wavelengths`` (m) when ``index`` is not one of theirs (``what``:
-    "scan", "file")."""
+    """Refuse an index that is not one of a file's wavelengths.
+
+    Parameters
+    ----------
+    index : int
+        The wavelength index asked for.
+    wavelengths : array_like
+        The file's wavelengths, m.
+    what : str
+        What holds them (``"scan"``, ``"file"``), named in the message.
+
+    Raises
+    ------
+    ValueError
+        ``index`` out of range, naming the wavelengths in nm.
+
+    Examples
+    --------
+    >>> from service.recon.dataset import check_wavelength_index
+    >>> check_wavelength_index(1, [7.5e-7, 8.5e-7], "scan")
+    >>> check_wavelength_index(2, [7.5e-7, 8.5e-7], "scan")
+    Traceback (most recent call last):
+    ...
+    ValueError: wavelength index 2 is out of range: the scan has 2 wavelengths (750 nm, 850 nm), indices 0..1
+    """
     n = int(np.size(wavelengths))
     if not 0 <= index < max(n, 1):
         raise ValueError(f"wavelength index {index} is out of range: the {what} has {n} wavelength"
@@ -253,8 +574,29 @@ def check_wavelength_index(index: int, wavelengths: Any, what: str) -> None:
 
 
 def dataset_nbytes(ds: GridDataset | PointDataset) -> int:
-    """Bytes of the arrays :func:`write_dataset` writes for ``ds`` (the canonical file's
-    size less its metadata)."""
+    """Bytes of the arrays :func:`write_dataset` writes for a dataset.
+
+    The canonical file's size less its metadata.
+
+    Parameters
+    ----------
+    ds : GridDataset or PointDataset
+
+    Returns
+    -------
+    int
+        Bytes.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from service.recon.dataset import GridDataset, dataset_nbytes
+    >>> ds = GridDataset(np.zeros((64, 3, 4), np.float32), dx=1e-4, dt=2e-8, c=1500.0)
+    >>> dataset_nbytes(ds)  # 64 x 3 x 4 float32
+    3072
+    >>> dataset_nbytes(ds.to_points())  # + positions (12, 2) and the grid vectors, float64
+    3320
+    """
     if isinstance(ds, GridDataset):
         return int(ds.data.nbytes)
     arrays = [ds.alines, ds.positions, ds.weights, ds.indices, *ds.grid]

@@ -152,16 +152,47 @@ def _cubic_block(P_half, w_full, lat2, phase, kx, c):
 
 
 def transform_lengths(data_shape) -> dict[str, tuple[int, ...]]:
-    """The FFT lengths `kspace_line_recon` / `kspace_plane_recon` run for data of
-    ``data_shape`` (N_t, N_y) / (N_t, N_y, N_z) (time first): "lateral" the data's own
-    lateral shape, "temporal" and "depth" (2 N_t - 1,), the mirrored series.
+    """The FFT lengths `kspace_line_recon` / `kspace_plane_recon` run for data of a given shape.
 
-    These are k-Wave's grids, not rounded to fast lengths: the mirrored length fixes the
-    ω and k_z nodes k-Wave interpolates between, and the unpadded lateral grid its lateral
+    These are k-Wave's grids, not rounded to fast lengths: the mirrored length fixes the ω
+    and k_z nodes k-Wave interpolates between, and the unpadded lateral grid its lateral
     periodicity, so any other length changes the numbers beyond rounding. An exact DFT of
     these lengths through fast ones (Bluestein's chirp-z: two FFTs at a fast length
-    >= 3 N_t - 2) would cost about what pocketfft's own handling costs: 0.75x, 1.06x,
-    1.08x of it at N_t = 256, 1024, 3519 (per-point FFT timings, issue 20)."""
+    >= 3 N_t - 2) would cost about what pocketfft's own handling costs: 0.75x, 1.06x, 1.08x
+    of it at N_t = 256, 1024, 3519 (per-point FFT timings, issue 20).
+
+    Parameters
+    ----------
+    data_shape : tuple of int
+        ``(N_t, N_y)`` or ``(N_t, N_y, N_z)``, time first.
+
+    Returns
+    -------
+    dict of str to tuple of int
+        ``"lateral"`` the data's own lateral shape, ``"temporal"`` and ``"depth"``
+        ``(2 N_t - 1,)``, the mirrored series.
+
+    Raises
+    ------
+    ValueError
+        A shape that is not 2-D or 3-D with N_t >= 2.
+
+    References
+    ----------
+    .. [1] B. E. Treeby, B. T. Cox, "k-Wave: MATLAB toolbox for the simulation and
+       reconstruction of photoacoustic wave fields", J. Biomed. Opt. 15 (2010);
+       ``kspaceLineRecon.m`` / ``kspacePlaneRecon.m`` (``shared/reference/KWAVE_RECON_NOTES.md``).
+
+    Examples
+    --------
+    >>> from service.recon.kwave import transform_lengths
+    >>> transform_lengths((40, 32))
+    {'lateral': (32,), 'temporal': (79,), 'depth': (79,)}
+    >>> transform_lengths((40,))
+    Traceback (most recent call last):
+    ...
+    ValueError: data_shape must be (N_t, N_y) or (N_t, N_y, N_z) with N_t >= 2, got (40,)
+    """
     shape = tuple(int(n) for n in data_shape)
     if len(shape) not in (2, 3) or shape[0] < 2 or min(shape) < 1:
         raise ValueError(f"data_shape must be (N_t, N_y) or (N_t, N_y, N_z) with N_t >= 2, got {data_shape!r}")
@@ -238,24 +269,55 @@ def kspace_line_recon(p, dy, dt, c, data_order="ty", interp="*nearest", pos_cond
 
     Parameters
     ----------
-    p : (N_t, N_y) data for ``data_order='ty'`` or (N_y, N_t) for ``'yt'``, sample 0 at
-        t = 0 (Pa).
-    dy : sensor spacing in m.  dt : sample interval in s.  c : sound speed in m/s.
-    interp : '*nearest' (k-Wave's default), 'nearest', '*linear', 'linear', 'cubic'
-        (Octave: pchip along ω).
-    pos_cond : clip negative values to 0 (k-Wave's PosCond).
-    progress : optional callable(fraction) called with increasing fractions in (0, 1]
-        (after the FFT, per chunk of columns, at the end). Not a k-Wave option.
-    dtype : float64 (k-Wave's precision) or float32 (working precision and output; half
-        the memory, relative error ~1e-6). Not a k-Wave option.
+    p : ndarray, shape ``(N_t, N_y)`` for ``data_order='ty'`` or ``(N_y, N_t)`` for ``'yt'``
+        Pressure, Pa; sample 0 at t = 0.
+    dy : float
+        Sensor spacing, m.
+    dt : float
+        Sample interval, s.
+    c : float
+        Sound speed, m/s.
+    data_order : {"ty", "yt"}, optional
+        Axis order of ``p``.
+    interp : str, optional
+        '*nearest' (k-Wave's default), 'nearest', '*linear', 'linear', 'cubic' (Octave: pchip
+        along ω).
+    pos_cond : bool, optional
+        Clip negative values to 0 (k-Wave's PosCond).
+    progress : callable, optional
+        ``progress(fraction)`` called with increasing fractions in (0, 1] (after the FFT, per
+        chunk of columns, at the end). Not a k-Wave option.
+    dtype : float64 or float32, optional
+        float64 (k-Wave's precision) or float32 (working precision and output; half the
+        memory, relative error ~1e-6). Not a k-Wave option.
 
     Returns
     -------
-    (N_t, N_y) p0 of ``dtype``, row i at depth i c dt (row 0 on the sensor line).
+    ndarray, shape ``(N_t, N_y)``
+        p0 of ``dtype``, row i at depth i c dt (row 0 on the sensor line).
 
     Raises
     ------
-    ValueError for NaN/inf, wrong ndim, non-positive dy/dt/c, unknown data_order/interp.
+    ValueError
+        NaN/inf, wrong ndim, non-positive dy/dt/c, unknown data_order/interp.
+
+    References
+    ----------
+    .. [1] B. E. Treeby, B. T. Cox, "k-Wave: MATLAB toolbox for the simulation and
+       reconstruction of photoacoustic wave fields", J. Biomed. Opt. 15 (2010);
+       ``kspaceLineRecon.m`` (k-Wave commit 0f1a70f, ``shared/reference/KWAVE_RECON_NOTES.md``).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from driver.physics.forward import forward_grid
+    >>> from service.recon.kwave import kspace_line_recon
+    >>> p0 = np.zeros((16, 32))  # a point source at depth row 8, pitch 0.1 mm
+    >>> p0[8, 16] = 1.0
+    >>> data = forward_grid(p0, dx=1e-4, dz=1e-4, dt=1e-4 / 1500, n_t=40, c=1500.0)  # (N_t, N_y)
+    >>> img = kspace_line_recon(data, 1e-4, 1e-4 / 1500, 1500.0)  # rows c dt = 0.1 mm apart
+    >>> img.shape, img.dtype, np.unravel_index(img.argmax(), img.shape)
+    ((40, 32), dtype('float64'), (np.int64(8), np.int64(16)))
     """
     p = checks.finite_array("p", p, (2,))
     if data_order not in ("ty", "yt"):
@@ -272,17 +334,42 @@ def kspace_plane_recon(p, dy, dz, dt, c, data_order="tyz", interp="*nearest", po
 
     Parameters
     ----------
-    p : (N_t, N_y, N_z) data for ``data_order='tyz'`` or (N_y, N_z, N_t) for ``'yzt'``.
-    dy, dz : sensor spacings in m.  dt, c, interp, pos_cond, progress, dtype : as
-        `kspace_line_recon`.
+    p : ndarray, shape ``(N_t, N_y, N_z)`` for ``data_order='tyz'`` or ``(N_y, N_z, N_t)`` for ``'yzt'``
+        Pressure, Pa; sample 0 at t = 0. (k-Wave's y and z are the two lateral axes.)
+    dy, dz : float
+        Sensor spacings along the two lateral axes, m.
+    dt, c, interp, pos_cond, progress, dtype
+        As `kspace_line_recon` (dt in s, c in m/s).
+    data_order : {"tyz", "yzt"}, optional
+        Axis order of ``p``.
 
     Returns
     -------
-    (N_t, N_y, N_z) p0 of ``dtype``, plane i at depth i c dt.
+    ndarray, shape ``(N_t, N_y, N_z)``
+        p0 of ``dtype``, plane i at depth i c dt.
 
     Raises
     ------
-    ValueError as `kspace_line_recon`.
+    ValueError
+        As `kspace_line_recon`.
+
+    References
+    ----------
+    .. [1] B. E. Treeby, B. T. Cox, "k-Wave: MATLAB toolbox for the simulation and
+       reconstruction of photoacoustic wave fields", J. Biomed. Opt. 15 (2010);
+       ``kspacePlaneRecon.m`` (k-Wave commit 0f1a70f, ``shared/reference/KWAVE_RECON_NOTES.md``).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from driver.physics.forward import forward_grid
+    >>> from service.recon.kwave import kspace_plane_recon
+    >>> p0 = np.zeros((8, 8, 8))  # (n_z, n_y, n_x), a point source in the middle
+    >>> p0[4, 4, 4] = 1.0
+    >>> data = forward_grid(p0, 1e-4, 1e-4, 1e-4 / 1500, 24, 1500.0)  # (N_t, N_y, N_z)
+    >>> img = kspace_plane_recon(data, 1e-4, 1e-4, 1e-4 / 1500, 1500.0)
+    >>> img.shape, np.unravel_index(img.argmax(), img.shape)
+    ((24, 8, 8), (np.int64(4), np.int64(4), np.int64(4)))
     """
     p = checks.finite_array("p", p, (3,))
     if data_order not in ("tyz", "yzt"):

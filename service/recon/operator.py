@@ -98,42 +98,101 @@ _BATCH = checks.OPERATOR_BATCH
 _CHUNK = checks.OPERATOR_CHUNK
 
 class PlanarOperator(pylops.LinearOperator):
-    """A: p0 (n_z, n_x) / (n_z, n_y, n_x) on a regular grid -> data at the sensors.
+    """The planar forward model A: p0 on a regular grid -> data at the sensors, with its adjoint.
+
+    A ``pylops.LinearOperator`` (``dims`` = `ishape`, ``dimsd`` = `oshape`), so every
+    pylops/pyproximal solver runs on it; `forward` / `adjoint` take and return arrays of the
+    natural shapes. The adjoint is not the inverse (that is NER/NEDNER).
 
     Parameters
     ----------
-    shape : image shape (n_z, n_x) (2-D) or (n_z, n_y, n_x) (3-D); row 0 at z = 0,
-        lateral coordinates centred on the optical axis, x_i = (i - (n_x - 1)/2) dx.
-    dx : lateral pitch in m (x and y). dz : depth spacing in m.
-    dt : sample interval in s. n_t : samples per A-line. c : sound speed in m/s.
-    positions : None for sensors on the image's lateral grid (data (n_t, n_x) /
-        (n_t, n_y, n_x), time first); else (n_points, 1) x or (n_points, 2) (x, y) in m,
-        centred coordinates as above (data (n_points, n_t)).
-    t0 : time of sample 0 in s (>= 0). eps : NUFFT tolerance in [1e-14, 1e-1].
-    periodic : keep the grid's lateral/depth periodicity (no zero padding); the default
-        False models free space exactly as `forward_grid` / `forward_points` do.
-    dtype : float32 or float64: dtype of the arrays returned and working precision of the
-        transforms (complex64 / complex128).
-    checkpoint : optional ``checkpoint()`` called between the steps of `forward` and
-        `adjoint` and inside their long steps (chunks of the temporal NUFFT, batches of the
-        lateral transforms), at most ~0.5 s of work apart at the paper's size; it may raise
-        to abandon the application (a cancelled job: `service.recon.tv`). Settable later
-        as the attribute ``checkpoint``.
-    chunk_elements : the depth and temporal steps run on chunks of k-space columns of
-        about this many elements per row of their largest array (default
+    shape : tuple of int
+        Image shape ``(n_z, n_x)`` (2-D) or ``(n_z, n_y, n_x)`` (3-D), n_z >= 2; row 0 at
+        z = 0, lateral coordinates centred on the optical axis, x_i = (i - (n_x - 1)/2) dx.
+    dx : float
+        Lateral pitch, m (x and y).
+    dz : float
+        Depth spacing, m.
+    dt : float
+        Sample interval, s.
+    n_t : int
+        Samples per A-line (>= 1).
+    c : float, optional
+        Sound speed, m/s (default 1500).
+    positions : ndarray, shape ``(n_points, 1)`` or ``(n_points, 2)``, optional
+        None (default): sensors on the image's lateral grid, data ``(n_t, n_x)`` /
+        ``(n_t, n_y, n_x)``, time first. Else x or (x, y) in m, centred coordinates as
+        above; data ``(n_points, n_t)``.
+    t0 : float, optional
+        Time of sample 0, s (>= 0).
+    eps : float, optional
+        NUFFT tolerance in [1e-14, 1e-1] (default 1e-6).
+    periodic : bool, optional
+        Keep the grid's lateral/depth periodicity (no zero padding); the default False models
+        free space exactly as `forward_grid` / `forward_points` do.
+    dtype : float32 or float64, optional
+        Dtype of the arrays returned and working precision of the transforms (complex64 /
+        complex128).
+    checkpoint : callable, optional
+        ``checkpoint()``, called between the steps of `forward` and `adjoint` and inside
+        their long steps (after each chunk of k-space columns, each batch of the point
+        NUFFTs, each block of the lateral FFTs); it may raise to abandon the application (a
+        cancelled job: `service.recon.tv`). Settable later as the attribute ``checkpoint``.
+    chunk_elements : int, optional
+        The depth and temporal steps run on chunks of k-space columns of about this many
+        elements per row of their largest array (default
         `service.recon.checks.OPERATOR_CHUNK`, 2²³; the memory model counts one chunk); the
         result does not depend on it.
 
     Attributes
     ----------
-    ishape, oshape : image and data shapes. dtype : as given. padded_shape : the
-    working grid (N_z, N_y, N_x) (= the image shape when ``periodic``).
+    ishape : tuple of int
+        Image shape.
+    oshape : tuple of int
+        Data shape.
+    padded_shape : tuple of int
+        The working grid ``(N_z, N_y, N_x)`` (= the image shape when ``periodic``).
+    dtype : numpy.dtype
+        As given.
+    shape : tuple of int
+        ``(prod(oshape), prod(ishape))``, the matrix shape pylops sees.
 
     Raises
     ------
-    ValueError naming the problem: bad shape, non-positive dx/dz/dt/c, n_t < 1, t0 < 0,
-    eps outside its range, positions of the wrong shape, non-finite or duplicated,
-    bad dtype; `forward`/`adjoint` raise it for arrays of the wrong shape or with NaN/inf.
+    ValueError
+        Naming the problem: bad shape, non-positive dx/dz/dt/c, n_t < 1, t0 < 0, eps outside
+        its range, positions of the wrong shape, non-finite or duplicated, bad dtype;
+        `forward`/`adjoint` raise it for arrays of the wrong shape or with NaN/inf.
+
+    References
+    ----------
+    .. [1] J. Schmid, T. Glatz, B. Zabihian, M. Liu, W. Drexler, O. Scherzer, "Computational
+       Realization of a Non-Equidistant Grid Sampling in Photoacoustics with a Non-Uniform
+       FFT", eqs. (1)-(3) (the planar model it transposes).
+    .. [2] M. Ravasi, I. Vasconcelos, "PyLops -- A linear-operator Python library for
+       scalable algebra and optimization", SoftwareX 11 (2020).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from driver.physics.forward import forward_grid
+    >>> from service.recon import PlanarOperator
+    >>> kw = dict(dx=1e-4, dz=1e-4, dt=1e-4 / 1500, n_t=40, c=1500.0)
+    >>> op = PlanarOperator((16, 32), **kw)
+    >>> op.ishape, op.oshape, op.shape  # p0 (n_z, n_x) -> data (n_t, n_x)
+    ((16, 32), (40, 32), (1280, 512))
+    >>> p0 = np.zeros((16, 32))
+    >>> p0[8, 16] = 1.0
+    >>> bool(np.allclose(op.forward(p0), forward_grid(p0, **kw)))  # the simulator's model
+    True
+
+    The adjoint is the true one (dot test):
+
+    >>> rng = np.random.default_rng(0)
+    >>> x, y = rng.standard_normal(op.ishape), rng.standard_normal(op.oshape)
+    >>> lhs, rhs = np.vdot(op.forward(x), y), np.vdot(x, op.adjoint(y))
+    >>> bool(abs(lhs - rhs) <= 1e-9 * abs(rhs))
+    True
     """
 
     def __init__(self, shape, dx: float, dz: float, dt: float, n_t: int, c: float = C_DEFAULT, *,
@@ -195,11 +254,23 @@ class PlanarOperator(pylops.LinearOperator):
         return tuple(self.dimsd)
 
     def transform_lengths(self) -> dict[str, tuple[int, ...]]:
-        """The FFT lengths `forward` and `adjoint` run on the working grid `padded_shape`
-        (N_z, N_y, N_x): "lateral" ((N_x,) or (N_y, N_x)), "depth" (2 (N_z - 1),) of the
-        DCT-I, "temporal" (L,) of the temporal NUFFT's oversampled grid. Without
-        ``periodic`` they are fast lengths (`driver.physics.fast_lengths`); a periodic
-        operator keeps the image's own grid."""
+        """The FFT lengths `forward` and `adjoint` run on the working grid `padded_shape`.
+
+        Without ``periodic`` they are fast lengths (`driver.physics.fast_lengths`); a periodic
+        operator keeps the image's own grid.
+
+        Returns
+        -------
+        dict of str to tuple of int
+            ``"lateral"`` (``(N_x,)`` or ``(N_y, N_x)``), ``"depth"`` (``(2 (N_z - 1),)``, the
+            DCT-I), ``"temporal"`` (``(L,)``, the temporal NUFFT's oversampled grid).
+
+        Examples
+        --------
+        >>> from service.recon import PlanarOperator
+        >>> PlanarOperator((16, 32), 1e-4, 1e-4, 1e-4 / 1500, 40, 1500.0).transform_lengths()
+        {'lateral': (80,), 'depth': (60,), 'temporal': (80,)}
+        """
         n_z2, n_y2, n_x2 = self.padded_shape
         lat = (n_x2,) if self.is2d else (n_y2, n_x2)
         return {"lateral": lat, "depth": (2 * (n_z2 - 1),),
@@ -251,14 +322,70 @@ class PlanarOperator(pylops.LinearOperator):
 
     # -- the pair ------------------------------------------------------------------
     def forward(self, p0) -> np.ndarray:
-        """A p0: the data (`oshape`) of p0 (`ishape`), Pa -> Pa; the model of `forward_grid` /
-        `forward_points` with the same parameters (to the NUFFT tolerance), computed in
-        the operator's working precision."""
+        """A p0: the sensor data of an initial pressure image.
+
+        The model of `forward_grid` / `forward_points` with the same parameters (to the NUFFT
+        tolerance), computed in the operator's working precision.
+
+        Parameters
+        ----------
+        p0 : array_like, shape `ishape`
+            ``(n_z, n_x)`` or ``(n_z, n_y, n_x)``, Pa.
+
+        Returns
+        -------
+        ndarray, shape `oshape`
+            ``(n_t, n_x)`` / ``(n_t, n_y, n_x)`` on the grid, ``(n_points, n_t)`` at points; Pa.
+
+        Raises
+        ------
+        ValueError
+            A wrong shape, NaN or inf.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from service.recon import PlanarOperator
+        >>> op = PlanarOperator((16, 32), 1e-4, 1e-4, 1e-4 / 1500, 40, 1500.0)
+        >>> op.forward(np.zeros((16, 32))).shape
+        (40, 32)
+        >>> op.forward(np.zeros((3, 3)))
+        Traceback (most recent call last):
+        ...
+        ValueError: p0 must have shape (16, 32), got (3, 3)
+        """
         p0 = self._check("p0", p0, self.ishape)
         return self._apply_forward(p0)
 
     def adjoint(self, data) -> np.ndarray:
-        """Aᴴ data: the true adjoint of `forward` (not its inverse), `oshape` -> `ishape`."""
+        """Aᴴ data: the true adjoint of `forward` (not its inverse).
+
+        Parameters
+        ----------
+        data : array_like, shape `oshape`
+            Sensor data, Pa.
+
+        Returns
+        -------
+        ndarray, shape `ishape`
+
+        Raises
+        ------
+        ValueError
+            A wrong shape, NaN or inf.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from service.recon import PlanarOperator
+        >>> op = PlanarOperator((16, 32), 1e-4, 1e-4, 1e-4 / 1500, 40, 1500.0)
+        >>> op.adjoint(np.ones(op.oshape)).shape
+        (16, 32)
+        >>> op.adjoint(np.full(op.oshape, np.nan))
+        Traceback (most recent call last):
+        ...
+        ValueError: data contains NaN or inf
+        """
         data = self._check("data", data, self.oshape)
         return self._apply_adjoint(data)
 

@@ -71,22 +71,43 @@ def _temporal_length(n_t: int, method: str, eps: float) -> int:
 def transform_lengths(data_shape, dt: float = 1.0, c: float = 1.0, *, method: str = "ner", eps: float = 1e-6,
                       dz: float | None = None, n_z: int | None = None, t0: float = 0.0, upsample: int = 1,
                       square: bool = True) -> dict[str, tuple[int, ...]]:
-    """The FFT lengths `reconstruct_grid` (and, for a lattice of (n_y, n_x) grid nodes,
-    `reconstruct_points`) runs for data of ``data_shape`` (n_t, n_x) or (n_t, n_y, n_x);
-    the reconstruction chooses them with the same functions.
+    """The FFT lengths `reconstruct_grid` runs for data of a given shape.
 
-    ``dt`` (s), ``c`` (m/s), ``dz`` (m), ``n_z``, ``t0`` (s), ``method``, ``eps``,
-    ``upsample`` as `reconstruct_grid`; ``square``: dy = dx.
+    Also those of `reconstruct_points` for a lattice of (n_y, n_x) grid nodes; the
+    reconstruction chooses them with the same functions.
+
+    Parameters
+    ----------
+    data_shape : tuple of int
+        ``(n_t, n_x)`` or ``(n_t, n_y, n_x)``, time first.
+    dt : float, optional
+        Sample interval, s.
+    c : float, optional
+        Sound speed, m/s.
+    method, eps, dz, n_z, t0, upsample
+        As `reconstruct_grid` (dz in m, t0 in s).
+    square : bool, optional
+        dy = dx (default True).
 
     Returns
     -------
-    dict of tuples: "lateral" the forward lateral FFT lengths ((n_x',) or (n_y', n_x')),
-    "temporal" (L,) the temporal FFT length, "depth" (2 (K - 1),) the FFT length of the
-    depth DCT-I, "output" the inverse lateral FFT lengths (upsampled).
+    dict of str to tuple of int
+        ``"lateral"`` the forward lateral FFT lengths (``(n_x',)`` or ``(n_y', n_x')``),
+        ``"temporal"`` ``(L,)`` the temporal FFT length, ``"depth"`` ``(2 (K - 1),)`` the FFT
+        length of the depth DCT-I, ``"output"`` the inverse lateral FFT lengths (upsampled).
 
     Raises
     ------
-    ValueError for a bad shape or option (as `reconstruct_grid`).
+    ValueError
+        A bad shape or option (as `reconstruct_grid`).
+
+    Examples
+    --------
+    >>> from service.recon.planar import transform_lengths
+    >>> transform_lengths((40, 32), dt=1e-4 / 1500, c=1500.0)
+    {'lateral': (32,), 'temporal': (80,), 'depth': (80,), 'output': (32,)}
+    >>> transform_lengths((256, 226, 226))["lateral"]  # padded to a fast length
+    (240, 240)
     """
     shape = tuple(int(s) for s in data_shape)
     if len(shape) not in (2, 3) or shape[0] < 2 or min(shape) < 1:
@@ -258,38 +279,94 @@ def reconstruct_grid(
 ) -> Reconstruction:
     """Reconstruct p0 from data on a regular sensor line or plane (NER-NUFFT by default).
 
+    The exact planar Fourier inversion of the module docstring: lateral FFT, the temporal
+    step (``method``), k_z/ω weighting, DCT-I in depth, inverse lateral FFT.
+
     Parameters
     ----------
-    data : (n_t, n_x) line data or (n_t, n_y, n_x) plane data in Pa, time first
-        (k-Wave's 'ty' / 'tyz' order), samples at t_n = t0 + n dt.
-    dx : lateral sensor spacing in m (also y unless ``dy`` is given).
-    dt : sample interval in s.  c : sound speed in m/s.
-    method : "ner" (NUFFT evaluation of the temporal transform at the non-equispaced
-        frequencies, paper §3.1), "linear", "nearest" or "cubic" (FFT on the regular
-        frequency grid of the mirrored data + interpolation, as k-Wave).
-    eps : NUFFT tolerance in [1e-14, 1e-1] (ner).  dtype : float32 or float64 output
-        (and working precision of the FFTs).
-    dz, n_z : output depth spacing in m and count (default c dt and n_t; n_z >= 2).
-    upsample : lateral upsampling factor 1..8 of the output grid (trigonometric
-        interpolation; the paper uses 2).
-    positivity : clip negative values of p0 to 0.
-    t0 : time of sample 0 in s (>= 0).
-    memory_limit : bytes; default the memory available now.
-    progress : optional callable(fraction) called with increasing fractions in (0, 1]
-        as the steps (lateral FFT, temporal step in chunks, depth transform, inverse
-        lateral FFT) finish.
+    data : ndarray, shape ``(n_t, n_x)`` (line) or ``(n_t, n_y, n_x)`` (plane)
+        Pressure in Pa, time first (k-Wave's 'ty' / 'tyz' order), samples at
+        t_n = t0 + n dt.
+    dx : float
+        Lateral sensor spacing, m (also y unless ``dy`` is given).
+    dt : float
+        Sample interval, s.
+    c : float, optional
+        Sound speed, m/s (default 1500).
+    method : {"ner", "linear", "nearest", "cubic"}, optional
+        "ner" (default): NUFFT evaluation of the temporal transform at the non-equispaced
+        frequencies (paper §3.1); the others: FFT on the regular frequency grid of the
+        mirrored data + interpolation, as k-Wave.
+    eps : float, optional
+        NUFFT tolerance in [1e-14, 1e-1] (ner; default 1e-6).
+    dtype : float32 or float64, optional
+        Output dtype and working precision of the FFTs.
+    dz : float, optional
+        Output depth spacing, m (default c dt).
+    n_z : int, optional
+        Output depth samples, >= 2 (default n_t).
+    upsample : int, optional
+        Lateral upsampling factor 1..8 of the output grid (trigonometric interpolation; the
+        paper uses 2).
+    positivity : bool, optional
+        Clip negative values of p0 to 0.
+    t0 : float, optional
+        Time of sample 0, s (>= 0).
+    dy : float, optional
+        Spacing along y, m (default dx).
+    memory_limit : int, optional
+        Bytes; default the memory available now.
+    progress : callable, optional
+        ``progress(fraction)`` called with increasing fractions in (0, 1] as the steps
+        (lateral FFT, temporal step in chunks, depth transform, inverse lateral FFT) finish.
 
     Returns
     -------
-    `Reconstruction` with p0 (n_z, n_x*u) or (n_z, n_y*u, n_x*u), row 0 at z = 0, lateral
-    coordinates centred on the optical axis. ``params["depth_rows"]`` is K of the module
-    doc: at least the depth the last sample reaches, rounded up to a fast FFT length.
+    Reconstruction
+        p0 of shape ``(n_z, n_x u)`` or ``(n_z, n_y u, n_x u)`` (u = upsample), row 0 at
+        z = 0, lateral coordinates centred on the optical axis. ``params["depth_rows"]`` is K
+        of the module docstring: at least the depth the last sample reaches, rounded up to a
+        fast FFT length.
 
     Raises
     ------
-    ValueError naming the problem: NaN/inf, wrong ndim/shape, non-positive dx/dt/c/dz,
-    unknown method, eps outside [1e-14, 1e-1], bad dtype/upsample/n_z, t0 < 0, or an
-    estimated peak memory above the limit.
+    ValueError
+        Naming the problem: NaN/inf, wrong ndim/shape, non-positive dx/dt/c/dz, unknown
+        method, eps outside [1e-14, 1e-1], bad dtype/upsample/n_z, t0 < 0, or an estimated
+        peak memory above the limit.
+
+    References
+    ----------
+    .. [1] J. Schmid, T. Glatz, B. Zabihian, M. Liu, W. Drexler, O. Scherzer, "Computational
+       Realization of a Non-Equidistant Grid Sampling in Photoacoustics with a Non-Uniform
+       FFT", eqs. (1)-(3) and §3.1 (NER).
+    .. [2] M. Xu, D. Feng, L. V. Wang, "Exact frequency-domain reconstruction for
+       thermoacoustic tomography: I. Planar geometry", IEEE Trans. Med. Imaging 21 (2002).
+    .. [3] M. Haltmeier, O. Scherzer, G. Zangerl, "A reconstruction algorithm for
+       photoacoustic imaging based on the nonuniform FFT", IEEE Trans. Med. Imaging 28 (2009).
+
+    Examples
+    --------
+    A laterally uniform layer comes back exactly: data g = p0(c t) / 2 at every sensor.
+
+    >>> import numpy as np
+    >>> from service.recon.planar import reconstruct_grid
+    >>> g = np.zeros((64, 8))  # (n_t, n_x)
+    >>> g[10] = 0.5
+    >>> r = reconstruct_grid(g, dx=1e-4, dt=1e-4 / 1500, c=1500.0)  # dz = c dt = 0.1 mm
+    >>> r.p0.shape, r.p0.dtype, int(r.p0[:, 4].argmax()), round(float(r.p0[10, 4]), 4)
+    ((64, 8), dtype('float64'), 10, 1.0)
+
+    A point source (the exact forward model, `driver.physics.forward`) at depth row 8:
+
+    >>> from driver.physics.forward import forward_grid
+    >>> p0 = np.zeros((16, 32))
+    >>> p0[8, 16] = 1.0
+    >>> data = forward_grid(p0, dx=1e-4, dz=1e-4, dt=1e-4 / 1500, n_t=40, c=1500.0)
+    >>> r = reconstruct_grid(data.astype(np.float32), 1e-4, 1e-4 / 1500, 1500.0, n_z=16,
+    ...                      dtype=np.float32, upsample=2)
+    >>> r.p0.shape, r.p0.dtype, np.unravel_index(r.p0.argmax(), r.p0.shape)  # x upsampled 2x
+    ((16, 64), dtype('float32'), (np.int64(8), np.int64(32)))
     """
     data = checks.finite_array("data", data, (2, 3))
     dx = checks.positive("dx", dx)
@@ -462,37 +539,71 @@ def reconstruct_points(
 ) -> Reconstruction:
     """NEDNER-NUFFT: reconstruct p0 from A-lines at arbitrary lateral positions.
 
+    The lateral step is a type-1 NUFFT (finufft) from the positions to the grid's
+    wavenumbers, batched over the time samples — or, when every position is a node of the
+    grid (lattice masks), the FFT of the zero-filled grid, which is the same sum exactly; the
+    rest is the pipeline of `reconstruct_grid`.
+
     Parameters
     ----------
-    alines : (n_points, n_t) pressure in Pa, samples at t_n = t0 + n dt.
-    positions : (n_points, 1) x (line sensor, 2-D image) or (n_points, 2) (x, y) in m.
-    dt, c : sample interval in s, sound speed in m/s.
-    weights : (n_points,) area weights h_m (m in 2-D, m² in 3-D), >= 0; default the
-        clipped Voronoi areas (`voronoi_weights`, DESIGN §3.3). Paper eq. (3).
-    grid : output lateral grid, ``(x,)`` or ``(x, y)`` regular coordinate vectors in m;
-        default the smallest regular grid at the positions' lattice pitch covering them.
-        Positions must lie within the grid (half a pitch of slack).
-    method : temporal step, as `reconstruct_grid` ("ner" default = NEDNER-NUFFT).
-    progress : optional callable(fraction), as `reconstruct_grid` (the type-1 NUFFT
-        reports in chunks of time samples).
-    dtype : as `reconstruct_grid`; in float32 the type-1 NUFFT runs at a tolerance of
-        max(eps, 2e-5), the tightest single precision honours without FINUFFT shrinking
-        its kernel (relative image error ~1e-5).
-    Other options as `reconstruct_grid`.
-
-    The lateral step is a type-1 NUFFT (finufft) from the positions to the grid's
-    wavenumbers, batched over the time samples — or, when every position is a node of
-    the grid (lattice masks), the FFT of the zero-filled grid, which is the same sum
-    exactly; the rest is the grid pipeline.
+    alines : ndarray, shape ``(n_points, n_t)``
+        Pressure in Pa, samples at t_n = t0 + n dt.
+    positions : ndarray, shape ``(n_points, 1)`` or ``(n_points, 2)``
+        x (line sensor, 2-D image) or (x, y), m.
+    dt : float
+        Sample interval, s.
+    c : float, optional
+        Sound speed, m/s (default 1500).
+    weights : ndarray, shape ``(n_points,)``, optional
+        Area weights h_m (m in 2-D, m² in 3-D), >= 0 (paper eq. (3)); default the clipped
+        Voronoi areas (`voronoi_weights`, DESIGN §3.3).
+    grid : tuple of ndarray, optional
+        Output lateral grid, ``(x,)`` or ``(x, y)`` regular coordinate vectors in m; default
+        the smallest regular grid at the positions' lattice pitch covering them. Positions
+        must lie within the grid (half a pitch of slack).
+    method : {"ner", "linear", "nearest", "cubic"}, optional
+        Temporal step, as `reconstruct_grid` ("ner", the default, is NEDNER-NUFFT).
+    dtype : float32 or float64, optional
+        As `reconstruct_grid`; in float32 the type-1 NUFFT runs at a tolerance of
+        max(eps, 2e-5), the tightest single precision honours without FINUFFT shrinking its
+        kernel (relative image error ~1e-5).
+    eps, dz, n_z, upsample, positivity, t0, memory_limit
+        As `reconstruct_grid`.
+    progress : callable, optional
+        As `reconstruct_grid` (the type-1 NUFFT reports in chunks of time samples).
 
     Returns
     -------
-    `Reconstruction` with p0 (n_z, n_x*u) or (n_z, n_y*u, n_x*u) on the grid (upsampled by u).
+    Reconstruction
+        p0 of shape ``(n_z, n_x u)`` or ``(n_z, n_y u, n_x u)`` on the grid (upsampled by u).
 
     Raises
     ------
-    ValueError: NaN/inf, wrong shapes, duplicated positions, positions outside the grid,
-    negative or mis-sized weights, non-positive dt/c, bad eps/method/dtype, memory.
+    ValueError
+        NaN/inf, wrong shapes, duplicated positions, positions outside the grid, negative or
+        mis-sized weights, non-positive dt/c, bad eps/method/dtype, memory.
+
+    References
+    ----------
+    .. [1] J. Schmid, T. Glatz, B. Zabihian, M. Liu, W. Drexler, O. Scherzer, "Computational
+       Realization of a Non-Equidistant Grid Sampling in Photoacoustics with a Non-Uniform
+       FFT", eq. (3) and §3.2 (NEDNER).
+
+    Examples
+    --------
+    Every other sensor of a line, a point source at depth row 8 below x = 0.05 mm:
+
+    >>> import numpy as np
+    >>> from driver.physics.forward import forward_points
+    >>> from service.recon.planar import reconstruct_points
+    >>> p0 = np.zeros((16, 32))  # (n_z, n_x), pitch 0.1 mm
+    >>> p0[8, 16] = 1.0
+    >>> x = (np.arange(32) - 15.5) * 1e-4  # the image's lateral axis, m
+    >>> pos = x[::2, None]  # (16, 1) sensors, x in m
+    >>> alines = forward_points(p0, positions=pos, dx=1e-4, dz=1e-4, dt=1e-4 / 1500, n_t=40, c=1500.0)
+    >>> r = reconstruct_points(alines, pos, 1e-4 / 1500, 1500.0, n_z=16, grid=(x,))
+    >>> r.p0.shape, np.unravel_index(r.p0.argmax(), r.p0.shape), r.params["method"]
+    ((16, 32), (np.int64(8), np.int64(16)), 'nedner')
     """
     al = checks.finite_array("alines", alines, (2,))
     n_points, n_t = al.shape

@@ -10,19 +10,40 @@ __all__ = ["Reconstruction"]
 
 @dataclass
 class Reconstruction:
-    """A reconstructed initial-pressure image.
+    """A reconstructed initial-pressure image p0, with its coordinates and parameters.
+
+    Parameters
+    ----------
+    p0, z, x, y, params, p0_unit
+        As the attributes below.
 
     Attributes
     ----------
-    p0 : (n_z, n_x) (2-D) or (n_z, n_y, n_x) (3-D) array, Pa (the units of the data);
-        row 0 at the sensor plane z = 0.
-    z : (n_z,) depths in m (z_j = j dz).
-    x : (n_x,) lateral coordinates in m.
-    y : (n_y,) lateral coordinates in m, or None in 2-D.
-    params : every parameter the reconstruction used (JSON-serialisable dict).
-    p0_unit : the unit of ``p0``: ``"Pa"`` when the input was calibrated pressure (a scan
-        whose instrument records its volts-to-pascal calibration), else ``"a.u."``
-        (``service.storage.datasets.p0_unit``; set by ``service.pipeline.reconstruct``).
+    p0 : ndarray, shape ``(n_z, n_x)`` (2-D) or ``(n_z, n_y, n_x)`` (3-D)
+        Initial pressure in the units of the data (Pa when calibrated); row 0 at the sensor
+        plane z = 0.
+    z : ndarray, shape ``(n_z,)``
+        Depths in m (z_j = j dz).
+    x : ndarray, shape ``(n_x,)``
+        Lateral coordinates in m.
+    y : ndarray, shape ``(n_y,)``, or None
+        Lateral coordinates in m; None in 2-D.
+    params : dict
+        Every parameter the reconstruction used (JSON-serialisable).
+    p0_unit : str
+        ``"Pa"`` when the input was calibrated pressure (a scan whose instrument records its
+        volts-to-pascal calibration), else ``"a.u."`` (``service.storage.datasets.p0_unit``;
+        set by ``service.pipeline.reconstruct``).
+    ndim : int
+        2 for a line-sensor (x, z) image, 3 for a plane-sensor volume.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from service.recon import Reconstruction
+    >>> r = Reconstruction(p0=np.zeros((4, 3)), z=np.arange(4) * 1e-4, x=np.array([-1e-4, 0.0, 1e-4]))
+    >>> r.ndim, r.y, r.p0_unit
+    (2, None, 'a.u.')
     """
 
     p0: np.ndarray

@@ -43,19 +43,41 @@ CHUNK = 1 << 20
 
 @dataclass
 class Unmixed:
-    """Result of :func:`unmix`; every volume has the spatial shape ``S`` of the input
-    (``(n_z, n_y, n_x)`` or ``(n_z, n_x)``), float32.
+    """Result of :func:`unmix`: HbO2, Hb, THb and sO2 volumes.
+
+    Every volume has the spatial shape ``S`` of the input (``(n_z, n_y, n_x)`` or
+    ``(n_z, n_x)``), float32.
+
+    Parameters
+    ----------
+    hbo2, hb, thb, so2, mask, wavelengths, params
+        As the attributes below.
 
     Attributes
     ----------
-    hbo2, hb : concentrations of HbO2 and Hb (mol/m³ with fluence and Γ given, else
-        relative units: see the module docstring).
-    thb : hbo2 + hb, same units.
-    so2 : hbo2 / thb in [0, 1]; NaN outside ``mask``.
-    mask : bool, True where the signal is strong enough for sO2 (thb ≥ threshold ·
-        max(thb)).
-    wavelengths : ``(n_wavelengths,)`` m.
-    params : everything used (JSON-serialisable).
+    hbo2, hb : ndarray, shape ``S``
+        Concentrations of HbO2 and Hb (mol/m³ with fluence and Γ given, else relative units:
+        see the module docstring).
+    thb : ndarray, shape ``S``
+        hbo2 + hb, same units.
+    so2 : ndarray, shape ``S``
+        hbo2 / thb in [0, 1]; NaN outside ``mask``.
+    mask : ndarray of bool, shape ``S``
+        True where the signal is strong enough for sO2 (thb ≥ threshold · max(thb)).
+    wavelengths : ndarray, shape ``(n_wavelengths,)``
+        m.
+    params : dict
+        Everything used (JSON-serialisable).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from service.recon.unmix import endmember_matrix, unmix
+    >>> w = np.array([7.5e-7, 8.0e-7, 8.5e-7])  # m
+    >>> vol = np.einsum("w,zx->wzx", np.log(10) * endmember_matrix(w) @ [0.7, 0.3], np.ones((2, 4)))
+    >>> u = unmix(vol, w)  # p0 of blood at sO2 = 0.7, (n_wavelengths, n_z, n_x)
+    >>> u.so2.shape, u.so2.dtype, bool(np.allclose(u.so2, 0.7)), bool(u.mask.all())
+    ((2, 4), dtype('float32'), True, True)
     """
 
     hbo2: np.ndarray
@@ -68,7 +90,26 @@ class Unmixed:
 
 
 def too_few_wavelengths(wavelengths) -> ValueError:
-    """The error for an input with fewer than two wavelengths (m), naming them."""
+    """The error for an input with fewer than two wavelengths, naming them.
+
+    Parameters
+    ----------
+    wavelengths : array_like or None
+        The dataset's wavelengths, m.
+
+    Returns
+    -------
+    ValueError
+        Not raised: the caller raises it.
+
+    Examples
+    --------
+    >>> from service.recon.unmix import too_few_wavelengths
+    >>> print(too_few_wavelengths([7.5e-7]))
+    unmixing into HbO2 and Hb needs at least two wavelengths; this dataset has 1 (750 nm)
+    >>> print(too_few_wavelengths(None))
+    unmixing into HbO2 and Hb needs at least two wavelengths; this dataset has 0 (none recorded)
+    """
     w = np.asarray([] if wavelengths is None else wavelengths, dtype=np.float64).reshape(-1)
     nm = ", ".join(f"{v * 1e9:g} nm" for v in w) or "none recorded"
     return ValueError("unmixing into HbO2 and Hb needs at least two wavelengths; this dataset has "
@@ -76,12 +117,42 @@ def too_few_wavelengths(wavelengths) -> ValueError:
 
 
 def endmember_matrix(wavelengths) -> np.ndarray:
-    """``(n_wavelengths, 2)`` decadic molar extinction [ε_HbO2, ε_Hb] in m²/mol at the
-    wavelengths (m); raises ``ValueError`` for fewer than two wavelengths (an empty list
-    included), repeats, a wavelength that is no excitation wavelength
-    (``driver.plan.check_wavelengths``: 400-2000 nm), one outside Prahl's table
-    (250-1000 nm) or spectra that cannot be told apart at these wavelengths (condition
-    number > 1e6)."""
+    """Decadic molar extinction [ε_HbO2, ε_Hb] at the wavelengths (Prahl's spectra).
+
+    Parameters
+    ----------
+    wavelengths : array_like, shape ``(n_wavelengths,)``
+        Excitation wavelengths, m (at least two, distinct).
+
+    Returns
+    -------
+    ndarray, shape ``(n_wavelengths, 2)``
+        ε_HbO2 and ε_Hb in m²/mol, one row per wavelength.
+
+    Raises
+    ------
+    ValueError
+        Fewer than two wavelengths (an empty list included), repeats, a wavelength that is
+        no excitation wavelength (``driver.plan.check_wavelengths``: 400-2000 nm), one outside
+        Prahl's table (250-1000 nm) or spectra that cannot be told apart at these wavelengths
+        (condition number > 1e6).
+
+    References
+    ----------
+    .. [1] S. Prahl, "Optical absorption of hemoglobin", Oregon Medical Laser Center (1999),
+       omlc.org/spectra/hemoglobin (``driver.physics.spectra``).
+
+    Examples
+    --------
+    >>> from service.recon.unmix import endmember_matrix
+    >>> endmember_matrix([7.5e-7, 8.5e-7]).round(1)  # HbO2 below Hb at 750 nm, above at 850 nm
+    array([[ 51.8, 140.5],
+           [105.8,  69.1]])
+    >>> endmember_matrix([7.5e-7, 7.5e-7])
+    Traceback (most recent call last):
+    ...
+    ValueError: unmixing needs distinct wavelengths, got [7.5e-07, 7.5e-07] m
+    """
     from driver.plan import check_wavelengths
 
     try:
@@ -102,12 +173,47 @@ def endmember_matrix(wavelengths) -> np.ndarray:
 
 
 def nnls2(A: np.ndarray, Y: np.ndarray, *, chunk: int = CHUNK) -> np.ndarray:
-    """Exact non-negative least squares ``min ||A x - y||, x ≥ 0`` for two unknowns, for
-    every column ``y`` of ``Y`` at once.
+    """Exact non-negative least squares for two unknowns, for many right-hand sides at once.
 
-    ``A``: ``(n, 2)`` of full column rank; ``Y``: ``(n, m)``. Returns ``X`` ``(2, m)``
-    float64, equal to ``scipy.optimize.nnls(A, Y[:, j])[0]`` for every j (up to rounding).
-    Raises ``ValueError`` for wrong shapes, a rank-deficient ``A`` or non-finite values.
+    ``min ||A x - y||, x ≥ 0`` for every column ``y`` of ``Y``: the unconstrained solution
+    when both components are ≥ 0, else the better one-component solution clamped at 0.
+
+    Parameters
+    ----------
+    A : ndarray, shape ``(n, 2)``
+        Of full column rank.
+    Y : ndarray, shape ``(n, m)``
+        One right-hand side per column.
+    chunk : int, optional
+        Columns per block (bounds the temporary memory).
+
+    Returns
+    -------
+    ndarray of float64, shape ``(2, m)``
+        Equal to ``scipy.optimize.nnls(A, Y[:, j])[0]`` for every j (up to rounding).
+
+    Raises
+    ------
+    ValueError
+        Wrong shapes, a rank-deficient ``A`` or non-finite values.
+
+    References
+    ----------
+    .. [1] C. L. Lawson, R. J. Hanson, "Solving Least Squares Problems", Prentice-Hall (1974),
+       ch. 23 (the NNLS problem ``scipy.optimize.nnls`` solves).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from scipy.optimize import nnls
+    >>> from service.recon.unmix import nnls2
+    >>> A = np.array([[1.0, 0.0], [0.0, 1.0], [1.0, 1.0]])
+    >>> Y = np.array([[1.0, -1.0], [2.0, 1.0], [3.0, 0.0]])
+    >>> nnls2(A, Y)  # the second column's x0 is clamped at 0
+    array([[1. , 0. ],
+           [2. , 0.5]])
+    >>> bool(np.allclose(nnls2(A, Y)[:, 1], nnls(A, Y[:, 1])[0]))
+    True
     """
     A = np.asarray(A, dtype=np.float64)
     Y = np.asarray(Y)
@@ -145,25 +251,51 @@ def unmix(volumes: np.ndarray, wavelengths, *, fluence: np.ndarray | float | Non
 
     Parameters
     ----------
-    volumes : ``(n_wavelengths, *S)`` p0 (Pa), one volume per wavelength on one grid
-        (``S`` = ``(n_z, n_y, n_x)`` or ``(n_z, n_x)``).
-    wavelengths : ``(n_wavelengths,)`` excitation wavelengths in m (≥ 2, distinct, in
-        400-1000 nm: an excitation wavelength, ``driver.plan.check_wavelengths``, within
-        Prahl's table).
-    fluence : optional fluence Φ in J/m², ``(n_wavelengths,)`` or broadcastable to
-        ``volumes``; None = the same unknown fluence everywhere (module docstring).
-    gruneisen : Grüneisen parameter Γ (> 0), used with ``fluence``.
-    threshold : fraction in [0, 1) of the largest THb below which a voxel is masked.
-    chunk : voxels per block (memory bound).
+    volumes : ndarray, shape ``(n_wavelengths, *S)``
+        p0 (Pa), one volume per wavelength on one grid (``S`` = ``(n_z, n_y, n_x)`` or
+        ``(n_z, n_x)``).
+    wavelengths : array_like, shape ``(n_wavelengths,)``
+        Excitation wavelengths in m (≥ 2, distinct, in 400-1000 nm: an excitation
+        wavelength, ``driver.plan.check_wavelengths``, within Prahl's table).
+    fluence : ndarray or float, optional
+        Fluence Φ in J/m², ``(n_wavelengths,)`` or broadcastable to ``volumes``; None = the
+        same unknown fluence everywhere (module docstring).
+    gruneisen : float, optional
+        Grüneisen parameter Γ (> 0, dimensionless), used with ``fluence``.
+    threshold : float, optional
+        Fraction in [0, 1) of the largest THb below which a voxel is masked (default 0.1).
+    chunk : int, optional
+        Voxels per block (memory bound).
 
     Returns
     -------
-    :class:`Unmixed`.
+    Unmixed
 
     Raises
     ------
-    ValueError: fewer than two wavelengths (a single-wavelength dataset), shape mismatch,
-    non-finite volumes, fluence ≤ 0, bad threshold, wavelengths outside the table.
+    ValueError
+        Fewer than two wavelengths (a single-wavelength dataset), shape mismatch, non-finite
+        volumes, fluence ≤ 0, bad threshold, wavelengths outside the table.
+
+    References
+    ----------
+    .. [1] S. Prahl, "Optical absorption of hemoglobin", Oregon Medical Laser Center (1999),
+       omlc.org/spectra/hemoglobin.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from service.recon.unmix import endmember_matrix, unmix
+    >>> w = np.array([7.5e-7, 8.5e-7])  # m
+    >>> mu_a = np.log(10) * endmember_matrix(w) @ [0.9, 0.1]  # C_HbO2, C_Hb in mol/m³
+    >>> vol = mu_a[:, None] * np.ones((2, 5))  # (n_wavelengths, n_x): Γ Φ = 1
+    >>> u = unmix(vol, w, fluence=1.0)
+    >>> round(float(u.so2[0]), 4), round(float(u.thb[0]), 4), u.params["fluence"]  # thb in mol/m³
+    (0.9, 1.0, 'given')
+    >>> unmix(vol[:1], w[:1])
+    Traceback (most recent call last):
+    ...
+    ValueError: unmixing into HbO2 and Hb needs at least two wavelengths; this dataset has 1 (750 nm)
     """
     vol = np.asarray(volumes)
     w = np.asarray(wavelengths, dtype=np.float64).reshape(-1)

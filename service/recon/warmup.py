@@ -30,21 +30,34 @@ DTYPES = ("float32", "float64")
 def warm_up(dtypes=DTYPES) -> dict:
     """Compile (or load from the cache) every numba kernel of the reconstruction.
 
-    Runs NER (grid), NEDNER (scattered A-lines), the k-Wave-compatible modes and the
-    forward model (the model-based method's operator) on tiny data, in each of ``dtypes``.
+    Runs NER (grid), NEDNER (scattered A-lines), the k-Wave-compatible modes and the forward
+    model (the model-based method's operator) on tiny data, in each of ``dtypes``.
 
     Parameters
     ----------
-    dtypes : iterable of ``"float32"`` / ``"float64"``; default both.
+    dtypes : iterable of str, optional
+        ``"float32"`` and/or ``"float64"``; default both.
 
     Returns
     -------
-    dict with ``seconds`` (float, wall time) and ``cache_dirs`` (sorted list of str: the
-    directories numba's cache of these kernels is in).
+    dict
+        ``seconds`` (float, wall time, s) and ``cache_dirs`` (sorted list of str: the
+        directories numba's cache of these kernels is in).
 
     Raises
     ------
-    ValueError: an unknown dtype.
+    ValueError
+        An unknown dtype.
+
+    Examples
+    --------
+    >>> from service.recon.warmup import warm_up
+    >>> sorted(warm_up(["float32"]))  # doctest: +SKIP
+    ['cache_dirs', 'seconds']
+    >>> warm_up(["float16"])  # refused before anything runs
+    Traceback (most recent call last):
+    ...
+    ValueError: dtype must be one of ('float32', 'float64'), got 'float16'
     """
     names = [str(d) for d in dtypes]
     for d in names:
@@ -78,7 +91,21 @@ def warm_up(dtypes=DTYPES) -> dict:
 
 
 def cache_dirs() -> list[str]:
-    """The directories numba's cache of the reconstruction's kernels is in (sorted)."""
+    """The directories numba's cache of the reconstruction's kernels is in.
+
+    Returns
+    -------
+    list of str
+        Sorted; ``NUMBA_CACHE_DIR`` when set, else ``__pycache__`` beside the kernels'
+        modules where writable, else numba's user-wide cache.
+
+    Examples
+    --------
+    >>> from service.recon.warmup import cache_dirs
+    >>> dirs = cache_dirs()
+    >>> dirs == sorted(dirs) and all(isinstance(d, str) for d in dirs)
+    True
+    """
     import numba
 
     from driver.physics import nufft

@@ -1,7 +1,7 @@
-"""numpy-style docstrings on the public API of ``driver.physics`` and ``service.metrics``
-(issue 21.5): every public function and class has the sections that apply (Parameters
-with shapes and SI units, Returns, Examples; Attributes for classes), and every Examples
-block runs here as a doctest."""
+"""numpy-style docstrings on the public API of ``driver.physics``, ``service.metrics``,
+``service.plans``, ``service.recon`` and ``clients.http`` (issue 21.5): every public function
+and class has the sections that apply (Parameters with shapes and SI units, Returns, Examples;
+Attributes for classes), and every Examples block runs here as a doctest."""
 from __future__ import annotations
 
 import doctest
@@ -12,10 +12,24 @@ import pytest
 
 MODULES = [
     "driver.physics.axes", "driver.physics.balls", "driver.physics.fast_lengths", "driver.physics.forward",
-    "driver.physics.nufft", "driver.physics.nufft_plans", "driver.physics.spectra",
+    "driver.physics.nufft", "driver.physics.nufft_plans", "driver.physics.spectra", "driver.physics.weights",
     "service.metrics.correlation", "service.metrics.curves", "service.metrics.projections",
     "service.metrics.resolution", "service.metrics.roi", "service.metrics.sharpness",
+    "service.plans.angular", "service.plans.grids", "service.plans.kinds", "service.plans.lattice",
+    "service.plans.mask", "service.plans.ordering", "service.plans.plan", "service.plans.preview",
+    "service.recon.checks", "service.recon.dataset", "service.recon.kwave", "service.recon.operator",
+    "service.recon.planar", "service.recon.reconstruction", "service.recon.unmix", "service.recon.warmup",
+    "clients.http.client", "clients.http.errors", "clients.http.models",
 ]
+
+#: Public classes whose docstring is text a user reads elsewhere, not a numpy docstring: a mask
+#: kind's parameter model is the kind's one-line description (``MaskKind.description``, shown by
+#: ``fpscan plan --help`` and ``/api/plans/kinds``). Their examples live in the module docstring
+#: (counted by ``test_examples_run``).
+SERVED_DOCSTRINGS = {
+    "service.plans.kinds": {"FullParams", "EquispacedParams", "HexagonalParams", "RandomParams",
+                            "PoissonParams", "PointsParams", "EquiangularParams", "EquisteradianParams"},
+}
 
 
 def _sections(doc: str) -> set[str]:
@@ -52,7 +66,9 @@ def _wanted(obj) -> set[str]:
 def test_public_definitions_have_numpy_sections(module_name):
     objects = list(_public_objects(module_name))
     assert objects, module_name
-    lacking = {name: sorted(_wanted(obj) - _sections(obj.__doc__ or "")) for name, obj in objects}
+    served = SERVED_DOCSTRINGS.get(module_name, set())
+    lacking = {name: sorted(_wanted(obj) - _sections(obj.__doc__ or "")) for name, obj in objects
+               if name not in served}
     lacking = {name: missing for name, missing in lacking.items() if missing}
     assert not lacking, f"{module_name}: sections missing {lacking}"
 
