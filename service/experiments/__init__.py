@@ -3,6 +3,8 @@
 - ``limited-view-2d`` (:mod:`.limited_view`, paper §6)
 - ``sparse-masks-3d`` (:mod:`.sparse_masks`, paper §7)
 - ``nufft-vs-interpolation`` (:mod:`.nufft_vs_interp`, paper §4)
+- ``vessels`` (:mod:`.vessels`, issue 19: a thin vessel tree from a sparse, noisy 3-D scan;
+  NER on every point, NEDNER and tv on an equi-steradian mask)
 
 ``run_experiment(name, out_dir, data=path, small=...)`` runs one and writes
 ``<name>.json``, ``<name>.csv`` and its PNG plots. Built on :mod:`service.recon`,
@@ -21,6 +23,7 @@ EXPERIMENTS = {
     "limited-view-2d": "service.experiments.limited_view",
     "sparse-masks-3d": "service.experiments.sparse_masks",
     "nufft-vs-interpolation": "service.experiments.nufft_vs_interp",
+    "vessels": "service.experiments.vessels",
 }
 
 
