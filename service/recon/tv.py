@@ -70,11 +70,12 @@ import scipy.fft
 
 from driver.constants import C_DEFAULT
 from service.recon import checks
+from service.recon import limits as _limits
 from service.recon.reconstruction import Reconstruction
 
 __all__ = ["DEFAULT_MAX_ITER", "DEFAULT_TOL", "DEFAULT_TIME_LIMIT", "noise_sigma", "reconstruct_tv"]
 
-DEFAULT_MAX_ITER = 60
+DEFAULT_MAX_ITER = _limits.DEFAULT_MAX_ITER
 #: the stopping rule: the objective's last decrease below this share of its decrease since the warm start
 DEFAULT_TOL = 1e-3
 _POWER_STEPS = 2  # power iterations for the first step 1 / ‖BA‖ (the solver raises L where it sees more)
@@ -84,9 +85,9 @@ _WINDOW = 3  # the stopping rule's window of iterations
 _PROX_ITER = 20  # inner (dual, no operator) iterations of the TV + positivity proximal map
 _DEBIAS_ITER = 10  # iterations of the least-squares refit on the support (debias)
 _SUPPORT_FRACTION = 0.05  # the support for debias: p0 above this share of its maximum
-#: default wall-time limit of one model-based reconstruction, s (the server's setting
-#: ``tv_time_limit_s`` caps it there)
-DEFAULT_TIME_LIMIT = 3600.0
+#: default wall-time limit of one model-based reconstruction, s (``service.recon.limits``; the
+#: server's setting ``tv_time_limit_s`` caps it there)
+DEFAULT_TIME_LIMIT = _limits.DEFAULT_TIME_LIMIT
 
 
 def noise_sigma(data: np.ndarray, time_axis: int) -> float:
