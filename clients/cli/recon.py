@@ -256,11 +256,12 @@ def _local_all(args, datasets: list, say, t0: float) -> int:
 
 def _remote(args, fmt: str | None) -> int:
     from clients.cli._common import ProgressBar, make_client
+    from clients.cli.recon_options import http_params
 
     with make_client(args, timeout=300) as api:
         if args.scan_job:
-            job_id = api.start_reconstruction(scan_job_id=args.scan_job, method=args.method, params=_params(args),
-                                              wavelength=args.wavelength)
+            job_id = api.start_reconstruction(scan_job_id=args.scan_job, method=args.method,
+                                              params=http_params(_params(args)), wavelength=args.wavelength)
         else:
             if args.wavelength == "all":
                 raise UsageError("--wavelength all with --server needs --scan-job: an uploaded file is stored at "
@@ -269,13 +270,15 @@ def _remote(args, fmt: str | None) -> int:
 
             check_plausible(dt=args.dt, dx=args.dx, dy=args.dy, sound_speed=None if args.c == "auto" else args.c,
                             force=args.force)
-            fields = {k: getattr(args, k) for k in ("dt", "dx", "dy", "c", "key", "wavelength")}
+            fields = {k: getattr(args, k) for k in ("dt", "dx", "dy", "key", "wavelength")}
+            fields["sound_speed"] = args.c
             if args.force:
                 fields["force"] = True
-            if fields["c"] == "auto":  # a search, not the data's speed: it goes with the reconstruction
-                fields["c"] = None
+            if fields["sound_speed"] == "auto":  # a search, not the data's speed: it goes with the reconstruction
+                fields["sound_speed"] = None
             dataset_id = api.upload_dataset(args.input, fmt, **fields)
-            job_id = api.start_reconstruction(dataset_id=dataset_id, method=args.method, params=_params(args))
+            job_id = api.start_reconstruction(dataset_id=dataset_id, method=args.method,
+                                              params=http_params(_params(args)))
         with ProgressBar(f"recon {job_id[:8]}", quiet=args.quiet) as bar:
             job = api.wait(job_id, on_progress=bar)
         from clients.http import field_of

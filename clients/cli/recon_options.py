@@ -17,7 +17,7 @@ from typing import Any
 from clients.cli._common import quantity, speed
 from driver.constants import C_AUTOFOCUS_RANGE, C_DEFAULT, C_PLAUSIBLE
 
-__all__ = ["add_speed_flags", "add_option_flags", "option_names", "option_params"]
+__all__ = ["add_speed_flags", "add_option_flags", "option_names", "option_params", "http_params"]
 
 
 def _registry() -> Any:
@@ -97,3 +97,10 @@ def option_params(args) -> dict:
     if getattr(args, "force", False):  # the speed-of-sound rule, as the library and the API apply it
         params["force"] = True
     return params
+
+
+def http_params(params: dict) -> dict:
+    """``params`` (:func:`option_params`) with the HTTP names of the speed of sound:
+    ``sound_speed``, ``sound_speed_range`` (the server takes ``c`` / ``c_range`` too, deprecated)."""
+    names = {"c": "sound_speed", "c_range": "sound_speed_range"}
+    return {names.get(k, k): v for k, v in params.items()}

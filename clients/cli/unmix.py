@@ -135,6 +135,7 @@ def _local(args) -> int:
 def _remote(args) -> int:
     from clients.cli._common import ProgressBar, make_client
     from clients.cli.recon import _sniff_format
+    from clients.cli.recon_options import http_params
     from clients.http import field_of
 
     formats = [args.format or _sniff_format(p) for p in args.inputs]
@@ -142,12 +143,12 @@ def _remote(args) -> int:
     with make_client(args, timeout=300) as api:
         unmix = {"threshold": args.threshold, "fluence": args.fluence}
         if args.scan_job:
-            job_id = api.start_unmix(scan_job_id=args.scan_job, method=method, params=_params(args), **unmix)
+            job_id = api.start_unmix(scan_job_id=args.scan_job, method=method, params=http_params(_params(args)), **unmix)
         else:
             fields = {k: getattr(args, k) for k in ("dt", "dx", "dy", "key")}
             ids = [api.upload_dataset(p, fmt, **fields) for p, fmt in zip(args.inputs, formats, strict=True)]
             job_id = api.start_unmix(dataset_ids=ids, wavelengths=args.wavelengths, method=method,
-                                     params=_params(args), **unmix)
+                                     params=http_params(_params(args)), **unmix)
         with ProgressBar(f"unmix {job_id[:8]}", quiet=args.quiet) as bar:
             job = api.wait(job_id, on_progress=bar)
         out = _default_out(args)

@@ -434,7 +434,8 @@ class _Endpoints:
     @_endpoint
     def upload_dataset(self, path: str | os.PathLike, format: str = "fpscan", **fields: Any):
         """``POST /api/datasets`` (multipart: ``file``, ``format`` and spacings such as
-        ``dx``, ``dy``, ``dt``, ``c`` in SI units) -> the dataset id (201).
+        ``dx``, ``dy``, ``dt``, ``sound_speed`` in SI units; ``c`` is the deprecated name of
+        ``sound_speed``) -> the dataset id (201).
 
         ``format``: one of the server's (:meth:`dataset_formats`; another is answered
         422 naming them). Raises ``ValueError`` for a missing file."""
@@ -457,9 +458,11 @@ class _Endpoints:
         Exactly one of ``scan_job_id`` / ``dataset_id``; ``method`` one of the
         ``service.recon`` methods (``ner``, ``nedner``, ``linear``, ...; None: the server's
         default for the data, ner for grid data, nedner for sensor points); ``params`` the
-        recon options (``eps``, ``dtype``, ``upsample``, ``positivity``, ...; ``tv``:
-        ``lam`` (λ, default automatic) and ``iterations``; the job's progress stage
-        names the iteration); ``wavelength``: of a multi-wavelength scan, an index into
+        recon options: ``sound_speed`` (m/s or ``"auto"``; ``c`` is its deprecated name),
+        ``sound_speed_range``, ``force`` and the method's own (``eps``, ``dtype``,
+        ``upsample``, ``positivity``, ...; ``tv``: ``lam`` (λ, default automatic) and
+        ``iterations``, the job's progress stage names the iteration; each option's type,
+        range, unit and default: :meth:`methods`); ``wavelength``: of a multi-wavelength scan, an index into
         its wavelengths or ``"all"`` (one volume each: ``download_volume(...,
         wavelength=k)``); None: the first, recorded in the volume's params.
         Raises ``ValueError`` when both or neither input is given."""
@@ -488,7 +491,9 @@ class _Endpoints:
     @_endpoint
     def methods(self):
         """``GET /api/reconstructions/methods`` -> list of ``{name, title, needs_grid,
-        options: [{name, description, default}], source}``: the reconstruction methods."""
+        options: [{name, description, default, value_schema}], source}``: the reconstruction
+        methods; ``value_schema`` is an option's JSON schema (``type``, ``minimum``/``maximum``
+        or ``enum``, ``unit``, ``quantity``): a value outside it is refused (422)."""
         r = yield _Req("GET", "/api/reconstructions/methods")
         return r.json()
 
@@ -498,8 +503,8 @@ class _Endpoints:
                     params: Mapping | None = None, threshold: float | None = None,
                     fluence: Sequence[float] | None = None, idempotency_key: str | None = None):
         """``POST /api/reconstructions`` with ``unmix`` -> the job's id (202): every
-        wavelength reconstructed (same ``method`` and ``params``; ``params["c"]`` may be
-        ``"auto"``) and unmixed into HbO2/Hb, THb and sO2.
+        wavelength reconstructed (same ``method`` and ``params``; ``params["sound_speed"]``
+        may be ``"auto"``) and unmixed into HbO2/Hb, THb and sO2.
 
         Input: a multi-wavelength scan job (``scan_job_id``) or one uploaded dataset per
         wavelength (``dataset_ids`` with ``wavelengths`` in m). ``threshold``: THb
