@@ -4,7 +4,7 @@ Everything that reconstructs calls :func:`reconstruct` — the job worker
 (:mod:`service.jobs.work`), ``fpscan recon`` without ``--server``, the live preview
 (:mod:`service.preview`) and the experiments (:mod:`service.experiments`) — so the same
 input and options give the same volume locally and on the server. Inputs are the
-datasets of :mod:`service.storage.datasets` (read any file with its ``load_dataset``).
+datasets of :mod:`service.recon.dataset` (read any file with ``service.storage.datasets.load_dataset``).
 
 The method vocabulary is :data:`METHODS` (name → :class:`Method`), the registry of
 :mod:`service.recon.methods`: one module per method with its typed options model (type,
@@ -83,8 +83,10 @@ def _options() -> dict[str, str]:
             if o["name"] in out:
                 continue
             rng, unit = _methods._range(o["schema"]), o["schema"].get("unit", "")
-            unit = "" if unit in ("", "1") else f", {unit}"
-            out[o["name"]] = f"{o['description']}{unit}{f', in {rng}' if rng else ''}"
+            said = [unit] if unit not in ("", "1") else []
+            said += [f"one of {rng}" if "enum" in o["schema"] else rng] if rng else []
+            said.append(f"default {_methods.default_text(o['name'])}")
+            out[o["name"]] = f"{o['description']} ({'; '.join(said)})"
     return out
 
 
@@ -184,7 +186,7 @@ def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = No
 
     Parameters
     ----------
-    dataset : `service.storage.datasets.GridDataset` (``data`` ``(n_t, n_y, n_x)`` /
+    dataset : `service.recon.dataset.GridDataset` (``data`` ``(n_t, n_y, n_x)`` /
         ``(n_t, n_x)``) or `PointDataset` (``alines`` ``(n, n_t)`` at ``positions``).
     method : ``nedner``, ``ner``, ``linear``, ``nearest``, ``cubic``, ``kwave``, ...
     progress : optional ``progress(fraction, stage)``.

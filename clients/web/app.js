@@ -1567,7 +1567,11 @@ function renderReconOptions() {
   for (const input of document.querySelectorAll("#recon-options [data-option]")) {
     const o = methodOption(method, input.dataset.option);
     $(input.id + "-label").hidden = !o;
-    if (!o) continue;
+    if (!o) { // not this method's: off and empty, as it is not sent
+      if (input.type === "checkbox") input.checked = false;
+      else if (input.tagName !== "SELECT") input.value = "";
+      continue;
+    }
     if (input.type === "checkbox") input.checked = !!o.default;
     else if (input.tagName === "SELECT") input.value = o.default !== null && o.default !== undefined ? o.default : input.options[0].value;
     else {

@@ -222,7 +222,7 @@ def test_the_generated_surfaces_name_every_option_of_the_registry(shared_api):
         strings = {s for a in parser._actions for s in a.option_strings}
         assert {"--sound-speed", "--c", "--sound-speed-range", "--c-range"} <= strings
     assert registry.docs_table() in (REPO / "docs" / "methods.md").read_text(), \
-        "docs/methods.md is not the registry's rendering: paste service.recon.methods.docs_table()"
+        "docs/methods.md is not the registry's rendering: run scripts/methods_doc.py"
 
 
 @needs_recon
