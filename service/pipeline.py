@@ -82,7 +82,7 @@ def _options() -> dict[str, str]:
         for o in _methods.option_schemas(m):
             if o["name"] in out:
                 continue
-            rng, unit = _methods._range(o["schema"]), o["schema"].get("unit", "")
+            rng, unit = _methods.range_text(o["schema"]), o["schema"].get("unit", "")
             said = [unit] if unit not in ("", "1") else []
             said += [f"one of {rng}" if "enum" in o["schema"] else rng] if rng else []
             said.append(f"default {_methods.default_text(o['name'])}")

@@ -67,7 +67,7 @@ def add_option_flags(group) -> None:
                 continue
             takers = [x.name for x in methods.METHODS.values() if name in x.options_model.model_fields]
             who = "" if len(takers) == len(methods.METHODS) else f"{', '.join(takers)}: "
-            rng = "" if "enum" in schema or schema.get("type") == "boolean" else methods._range(schema)
+            rng = "" if "enum" in schema or schema.get("type") == "boolean" else methods.range_text(schema)
             unit = schema.get("unit", "")
             unit = "" if unit in ("", "1") else f" {unit}"
             said = f"{who}{o['description']}" + (f"; {rng}{unit}" if rng else (f";{unit}" if unit else "")) + \

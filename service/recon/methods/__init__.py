@@ -34,7 +34,7 @@ from pydantic import ValidationError
 from service.recon.methods.options import MethodOptions
 
 __all__ = ["Method", "METHODS", "register", "get", "option_schemas", "option_fields", "docs_table",
-           "planar_memory", "MethodOptions", "default_text", "describe_error"]
+           "planar_memory", "MethodOptions", "default_text", "describe_error", "range_text"]
 
 Runner = Callable[..., Any]
 
@@ -184,7 +184,8 @@ def option_schemas(method: Method) -> list[dict[str, Any]]:
     return out
 
 
-def _range(schema: dict) -> str:
+def range_text(schema: dict) -> str:
+    """A value schema's range in words: ``[1e-14, 0.1]``, ``1..8``, ``(0, 604800]``, the choices."""
     lo, hi = schema.get("minimum", schema.get("exclusiveMinimum")), schema.get("maximum")
     if "enum" in schema:
         return ", ".join(f"`{v}`" for v in schema["enum"])
@@ -210,7 +211,7 @@ def docs_table() -> str:
             row["defaults"][m.name] = o["default"]
     for name, row in per.items():
         o = row["o"]
-        lines.append(f"| `{name}` | {_range(o['schema'])} | {o['schema'].get('unit', '')} | "
+        lines.append(f"| `{name}` | {range_text(o['schema'])} | {o['schema'].get('unit', '')} | "
                      f"{default_text(name, code=True)} | {o['description']} |")
     return "\n".join(lines) + "\n"
 
