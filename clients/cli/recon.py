@@ -22,10 +22,8 @@ then holds the first wavelength's ``volume.h5`` + MIPs and ``wavelength_<k>/`` f
 from __future__ import annotations
 
 import argparse
-from collections.abc import Sequence
 
-from clients.cli._common import UsageError, add_progress_option, add_server_options, client_errors, speed
-from driver.constants import C_AUTOFOCUS_RANGE, C_DEFAULT, C_PLAUSIBLE
+from clients.cli._common import UsageError, add_progress_option, add_server_options, client_errors
 
 __all__ = ["COMMAND", "HELP", "add_arguments", "check_options_early", "run", "add_format_option"]
 
@@ -36,14 +34,11 @@ HELP = "reconstruct p0 (NEDNER/NER/...) from a scan file or dataset, locally or 
 
 def add_arguments(parser):
     """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser)."""
-    DTYPES: Sequence[str] | None
-    KWAVE_INTERPS: Sequence[str] | None
+    METHODS: dict
     try:
-        from service.pipeline import DEFAULT_DTYPE, DTYPES, KWAVE_INTERPS, METHODS
-    except ImportError:  # client-only install: choices are checked by the server
-        from clients.cli._common import default_dtype
-
-        DEFAULT_DTYPE, DTYPES, KWAVE_INTERPS, METHODS = default_dtype(), None, None, {}
+        from service.recon.methods import METHODS
+    except ImportError:  # no service package: the server checks the method
+        METHODS = {}
 
     parser.add_argument("input", nargs="?", help="scan file (HDF5), IPASC file, k-Wave HDF5 or .npy array")
     add_format_option(parser)
@@ -62,33 +57,12 @@ def add_arguments(parser):
     g.add_argument("--dx", type=quantity("length", "dx"), default=None, help="lateral spacing along x, e.g. 100um")
     g.add_argument("--dy", type=quantity("length", "dy"), default=None,
                    help="lateral spacing along y, e.g. 100um (default dx)")
-    g.add_argument("--c", type=speed, default=None,
-                   help="speed of sound, e.g. 1500m/s, or 'auto' (autofocus: sharpest focus; default: the input's "
-                        f"or {C_DEFAULT:g})")
-    g.add_argument("--c-range", type=quantity("speed", "c-range"), nargs=2, default=None, metavar=("MIN", "MAX"),
-                   help=f"autofocus search interval, e.g. 1450 1600 (m/s) or 1.45km/s 1.6km/s (default {C_AUTOFOCUS_RANGE[0]:g} {C_AUTOFOCUS_RANGE[1]:g})")
-    g.add_argument("--force", action="store_true", help=f"accept a speed of sound outside {C_PLAUSIBLE[0]:g}-{C_PLAUSIBLE[1]:g} m/s")
+    from clients.cli.recon_options import add_option_flags, add_speed_flags
+
+    add_speed_flags(g)
     g.add_argument("--key", default=None, help="HDF5 dataset path in a k-Wave file (default sensor_data/clean)")
-    g = parser.add_argument_group("reconstruction options")
-    g.add_argument("--eps", type=float, default=None, help="NUFFT tolerance (default 1e-6)")
-    g.add_argument("--dtype", choices=DTYPES, default=None,
-                   help=f"working and output precision (default {DEFAULT_DTYPE}, locally and on the server)")
-    g.add_argument("--upsample", type=int, default=None, help="lateral upsampling factor")
-    g.add_argument("--positivity", action=argparse.BooleanOptionalAction, default=None,
-                   help="clip negative p0 to 0 (tv: constrain p0 >= 0, on by default)")
-    g.add_argument("--lambda", dest="lam", type=float, default=None, metavar="LAMBDA",
-                   help="tv: TV weight λ in the data's units, >= 0 (default: from the estimated noise level)")
-    g.add_argument("--iterations", type=int, default=None, help="tv: maximum iterations, 1..100000 (default 60)")
-    g.add_argument("--time-limit", type=quantity("time", "time-limit"), default=None, metavar="SECONDS",
-                   help="tv: wall-time limit of the solver, e.g. 600 or 10min (default 3600 s; on a server at most "
-                        "its tv_time_limit_s); when reached the result says converged false, stop reason 'time limit'")
-    g.add_argument("--debias", action=argparse.BooleanOptionalAction, default=None,
-                   help="tv: refit the amplitudes by least squares on tv's support after the solve (default off)")
-    g.add_argument("--n-z", type=int, default=None, help="output depth samples (default n_t)")
-    g.add_argument("--dz", type=quantity("length", "dz"), default=None,
-                   help="output depth spacing, e.g. 20um (default c*dt)")
-    g.add_argument("--interp", choices=KWAVE_INTERPS, default=None,
-                   help="k-Wave interpolation for --method kwave (default *nearest, as k-Wave)")
+    # every method's options, generated from the registry (service.recon.methods)
+    add_option_flags(parser.add_argument_group("reconstruction options (the methods that take each are named)"))
     parser.add_argument("--wavelength", type=_wavelength, default=None, metavar="K|all",
                         help="excitation wavelength of a multi-wavelength scan: an index into its wavelengths, or "
                              "'all' (one volume per wavelength, same method and options, in <out>/wavelength_<k>/; "
@@ -150,27 +124,19 @@ def check_options_early(method: str | None, params: dict) -> None:
         from service.pipeline import check_option_values, method_options
     except ImportError:
         return
-    if method is not None:
-        method_options(method, params)
-    else:
-        check_option_values(params)
+    try:
+        if method is not None:
+            method_options(method, params)
+        else:
+            check_option_values(params)
+    except ImportError:  # a rule's kernel check needs numpy (client-only install): the server checks it
+        return
 
 
 def _params(args) -> dict:
-    params = {}
-    for name in ("eps", "dtype", "upsample", "n_z", "dz", "c", "interp", "lam", "iterations", "time_limit"):
-        value = getattr(args, name)
-        if value is not None:
-            params[name] = value
-    if args.positivity is not None:
-        params["positivity"] = bool(args.positivity)
-    if args.debias is not None:
-        params["debias"] = bool(args.debias)
-    if args.c_range is not None:
-        params["c_range"] = list(args.c_range)
-    if args.force:  # the speed-of-sound rule, as the library and the API apply it
-        params["force"] = True
-    return params
+    from clients.cli.recon_options import option_params
+
+    return option_params(args)
 
 
 @client_errors
@@ -212,7 +178,8 @@ def _local(args, fmt: str) -> int:
     from pathlib import Path
 
     from service.pipeline import default_method, reconstruct
-    from service.storage.datasets import GridDataset, file_wavelengths, load_wavelengths
+    from service.recon.dataset import GridDataset
+    from service.storage.datasets import file_wavelengths, load_wavelengths
     from service.storage.results import write_result
 
     say = (lambda msg: None) if args.quiet else (lambda msg: print(f"recon: {msg}", file=sys.stderr, flush=True))
@@ -289,11 +256,12 @@ def _local_all(args, datasets: list, say, t0: float) -> int:
 
 def _remote(args, fmt: str | None) -> int:
     from clients.cli._common import ProgressBar, make_client
+    from clients.cli.recon_options import http_params
 
     with make_client(args, timeout=300) as api:
         if args.scan_job:
-            job_id = api.start_reconstruction(scan_job_id=args.scan_job, method=args.method, params=_params(args),
-                                              wavelength=args.wavelength)
+            job_id = api.start_reconstruction(scan_job_id=args.scan_job, method=args.method,
+                                              params=http_params(_params(args)), wavelength=args.wavelength)
         else:
             if args.wavelength == "all":
                 raise UsageError("--wavelength all with --server needs --scan-job: an uploaded file is stored at "
@@ -302,13 +270,15 @@ def _remote(args, fmt: str | None) -> int:
 
             check_plausible(dt=args.dt, dx=args.dx, dy=args.dy, sound_speed=None if args.c == "auto" else args.c,
                             force=args.force)
-            fields = {k: getattr(args, k) for k in ("dt", "dx", "dy", "c", "key", "wavelength")}
+            fields = {k: getattr(args, k) for k in ("dt", "dx", "dy", "key", "wavelength")}
+            fields["sound_speed"] = args.c
             if args.force:
                 fields["force"] = True
-            if fields["c"] == "auto":  # a search, not the data's speed: it goes with the reconstruction
-                fields["c"] = None
+            if fields["sound_speed"] == "auto":  # a search, not the data's speed: it goes with the reconstruction
+                fields["sound_speed"] = None
             dataset_id = api.upload_dataset(args.input, fmt, **fields)
-            job_id = api.start_reconstruction(dataset_id=dataset_id, method=args.method, params=_params(args))
+            job_id = api.start_reconstruction(dataset_id=dataset_id, method=args.method,
+                                              params=http_params(_params(args)))
         with ProgressBar(f"recon {job_id[:8]}", quiet=args.quiet) as bar:
             job = api.wait(job_id, on_progress=bar)
         from clients.http import field_of

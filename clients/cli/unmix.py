@@ -3,8 +3,7 @@
 Input: one multi-wavelength scan file (every A-line at every wavelength), or one file
 per wavelength (any format ``fpscan recon`` reads) with ``--wavelengths`` in m.
 Locally (no ``--server``) each wavelength is reconstructed with the one dispatch
-(``service.pipeline.reconstruct``, the same method and options for all; ``--c auto``
-finds the sound speed once) and unmixed (``service.recon.unmix``: NNLS per voxel, same
+(``service.pipeline.reconstruct``, the same method and options for all; ``--sound-speed auto`` finds the sound speed once) and unmixed (``service.recon.unmix``: NNLS per voxel, same
 fluence at every wavelength unless ``--fluence`` is given). ``--out`` receives
 ``unmix.h5`` (``/hbo2``, ``/hb``, ``/thb``, ``/so2``, ``/mask``), ``so2.png`` and one
 result folder per wavelength (``wavelength_<k>/volume.h5`` + MIPs). With ``--server``
@@ -18,11 +17,8 @@ from clients.cli._common import (
     add_progress_option,
     add_server_options,
     client_errors,
-    default_dtype,
     quantity,
-    speed,
 )
-from driver.constants import C_AUTOFOCUS_RANGE, C_PLAUSIBLE
 
 __all__ = ["COMMAND", "HELP", "add_arguments", "run"]
 
@@ -42,12 +38,9 @@ def add_arguments(parser):
     parser.add_argument("--method", default=None,
                         help="reconstruction method (default: nedner for scans, ner for grids)")
     parser.add_argument("--out", default=None, metavar="DIR", help="output folder (default: <input>-unmix/)")
-    parser.add_argument("--c", type=speed, default=None,
-                        help="speed of sound, m/s, or 'auto' (autofocus; default: the input's)")
-    parser.add_argument("--c-range", type=quantity("speed", "c-range"), nargs=2, default=None, metavar=("MIN", "MAX"),
-                        help=f"autofocus search interval, e.g. 1450 1600 (m/s) or 1.45km/s 1.6km/s (default {C_AUTOFOCUS_RANGE[0]:g} {C_AUTOFOCUS_RANGE[1]:g})")
-    parser.add_argument("--force", action="store_true",
-                        help=f"accept a speed of sound (--c, --c-range) outside {C_PLAUSIBLE[0]:g}-{C_PLAUSIBLE[1]:g} m/s")
+    from clients.cli.recon_options import add_option_flags, add_speed_flags
+
+    add_speed_flags(parser, what=", found once for every wavelength")
     parser.add_argument("--threshold", type=float, default=0.1,
                         help="mask voxels whose THb is below this fraction of the maximum (default 0.1)")
     parser.add_argument("--fluence", type=float, nargs="+", default=None, metavar="J_PER_M2",
@@ -58,10 +51,8 @@ def add_arguments(parser):
     g.add_argument("--dy", type=quantity("length", "dy"), default=None,
                    help="lateral spacing along y, e.g. 100um (default dx)")
     g.add_argument("--key", default=None, help="HDF5 dataset path in a k-Wave file")
-    g = parser.add_argument_group("reconstruction options")
-    g.add_argument("--eps", type=float, default=None, help="NUFFT tolerance (default 1e-6)")
-    g.add_argument("--dtype", choices=("float32", "float64"), default=None,
-                   help=f"working precision (default {default_dtype()}, locally and on the server)")
+    # every method's options, generated from the registry (service.recon.methods), as fpscan recon's
+    add_option_flags(parser.add_argument_group("reconstruction options (the methods that take each are named)"))
     parser.add_argument("--scan-job", default=None, metavar="JOB_ID",
                         help="with --server: unmix this (multi-wavelength) scan job's file (no INPUT)")
     add_server_options(parser)
@@ -69,12 +60,9 @@ def add_arguments(parser):
 
 
 def _params(args) -> dict:
-    params = {k: getattr(args, k) for k in ("c", "eps", "dtype") if getattr(args, k) is not None}
-    if args.c_range is not None:
-        params["c_range"] = list(args.c_range)
-    if args.force:  # the speed-of-sound rule (driver.units.check_speeds)
-        params["force"] = True
-    return params
+    from clients.cli.recon_options import option_params
+
+    return option_params(args)
 
 
 def _default_out(args):
@@ -147,6 +135,7 @@ def _local(args) -> int:
 def _remote(args) -> int:
     from clients.cli._common import ProgressBar, make_client
     from clients.cli.recon import _sniff_format
+    from clients.cli.recon_options import http_params
     from clients.http import field_of
 
     formats = [args.format or _sniff_format(p) for p in args.inputs]
@@ -154,12 +143,12 @@ def _remote(args) -> int:
     with make_client(args, timeout=300) as api:
         unmix = {"threshold": args.threshold, "fluence": args.fluence}
         if args.scan_job:
-            job_id = api.start_unmix(scan_job_id=args.scan_job, method=method, params=_params(args), **unmix)
+            job_id = api.start_unmix(scan_job_id=args.scan_job, method=method, params=http_params(_params(args)), **unmix)
         else:
             fields = {k: getattr(args, k) for k in ("dt", "dx", "dy", "key")}
             ids = [api.upload_dataset(p, fmt, **fields) for p, fmt in zip(args.inputs, formats, strict=True)]
             job_id = api.start_unmix(dataset_ids=ids, wavelengths=args.wavelengths, method=method,
-                                     params=_params(args), **unmix)
+                                     params=http_params(_params(args)), **unmix)
         with ProgressBar(f"unmix {job_id[:8]}", quiet=args.quiet) as bar:
             job = api.wait(job_id, on_progress=bar)
         out = _default_out(args)

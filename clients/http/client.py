@@ -807,7 +807,7 @@ class _Endpoints:
             default ``"fpscan"``.
         **fields
             Spacings and settings the format needs, SI units: ``dx``, ``dy`` (m), ``dt`` (s),
-            ``c`` (m/s), ...
+            ``sound_speed`` (m/s; ``c`` is its deprecated name), ...
 
         Returns
         -------
@@ -850,9 +850,11 @@ class _Endpoints:
             :meth:`methods`); None: the server's default for the data (ner for grid data, nedner
             for sensor points).
         params : Mapping, optional
-            The reconstruction options (``eps``, ``dtype``, ``upsample``, ``positivity``, ``dz``
-            in m, ...; ``tv``: ``lam`` (λ, default automatic) and ``iterations``; the job's
-            progress stage names the iteration).
+            The reconstruction options: ``sound_speed`` (m/s or ``"auto"``; ``c`` is its
+            deprecated name), ``sound_speed_range``, ``force`` and the method's own (``eps``,
+            ``dtype``, ``upsample``, ``positivity``, ``dz`` in m, ...; ``tv``: ``lam`` (λ,
+            default automatic) and ``iterations``; the job's progress stage names the
+            iteration). Each option's type, range, unit and default: :meth:`methods`.
         wavelength : int or "all", optional
             Of a multi-wavelength scan: an index into its wavelengths, or ``"all"`` (one volume
             each: ``download_volume(..., wavelength=k)``); None: the first, recorded in the
@@ -915,8 +917,10 @@ class _Endpoints:
         Returns
         -------
         list of dict
-            ``{name, title, needs_grid, options: [{name, description, default}], source}`` per
-            method.
+            ``{name, title, needs_grid, options: [{name, description, default, value_schema}],
+            source}`` per method; ``value_schema`` is an option's JSON schema (``type``,
+            ``minimum``/``maximum`` or ``enum``, ``unit``, ``quantity``): a value outside it is
+            refused (422).
 
         Raises
         ------
@@ -935,8 +939,8 @@ class _Endpoints:
                     fluence: Sequence[float] | None = None, idempotency_key: str | None = None):
         """``POST /api/reconstructions`` with ``unmix``: reconstruct every wavelength and unmix.
 
-        Every wavelength is reconstructed (same ``method`` and ``params``; ``params["c"]`` may be
-        ``"auto"``) and unmixed into HbO2/Hb, THb and sO2 (``service.recon.unmix``).
+        Every wavelength is reconstructed (same ``method`` and ``params``;
+        ``params["sound_speed"]`` may be ``"auto"``) and unmixed into HbO2/Hb, THb and sO2 (``service.recon.unmix``).
 
         Parameters
         ----------

@@ -1407,7 +1407,7 @@ async function uploadAndReconstruct(ev) {
       if (v !== undefined) form.append(name, String(v));
     }
     uploadC = speedField("upload-c");
-    if (typeof uploadC === "number") form.append("c", String(uploadC));
+    if (typeof uploadC === "number") form.append("sound_speed", String(uploadC)); // c: its deprecated name
     if ($("upload-force").checked) form.append("force", "true"); // c outside 1000-2000 m/s
   } catch (err) { showError(err); return; }
   const key = $("upload-key").value.trim();
@@ -1419,7 +1419,7 @@ async function uploadAndReconstruct(ev) {
     $("upload-state").textContent = `Uploaded as dataset ${shortId(ds.dataset_id)}${ds.shape ? " (" + ds.shape.join(" × ") + ")" : ""}; queueing…`;
     const resp = await apiFetch("/api/reconstructions", {
       method: "POST", json: { dataset_id: ds.dataset_id, method: $("upload-method").value,
-                              params: Object.assign(uploadC === "auto" ? { c: "auto" } : {},
+                              params: Object.assign(uploadC === "auto" ? { sound_speed: "auto" } : {},
                                                     $("upload-force").checked ? { force: true } : {}) },
       headers: { "Idempotency-Key": newIdempotencyKey() },
     });
@@ -1448,20 +1448,88 @@ async function cancelResultJob() {
 }
 
 /* Reconstruction methods come from the server (GET /api/reconstructions/methods, i.e.
- * service.pipeline.METHODS): both method choices list them, and the reconstruct form
- * starts from the chosen method's own defaults and shows only the options it takes. */
-let METHODS = null; // name -> {name, title, needs_grid, options: [{name, description, default}], source}
-const RECON_OPTION_LABELS = { positivity: "recon-positivity-label", lam: "recon-lambda-label", iterations: "recon-iterations-label" };
+ * the registry service.recon.methods): both method choices list them, and the reconstruct
+ * form gets one field per option of any method, built from each option's value schema
+ * (type, minimum/maximum, enum, unit, default); choosing a method shows only the options
+ * it takes, starting from its own defaults. The speed of sound has its own field. */
+let METHODS = null; // name -> {name, title, needs_grid, options: [{name, description, default, value_schema}], source}
+const RECON_OWN_FIELDS = new Set(["sound_speed"]); // fields of the form itself, not generated
 
 function methodOption(method, option) {
   const m = METHODS && METHODS[method];
   return m ? m.options.find((o) => o.name === option) : undefined;
 }
 
+/** The id of an option's field: recon-<its CLI flag or name with dashes> (lam: recon-lambda). */
+function optionFieldId(o) {
+  const flag = o.value_schema && o.value_schema.flag;
+  return "recon-" + (flag ? flag.replace(/^--/, "") : o.name.replace(/_/g, "-"));
+}
+
+function shownDefault(o) {
+  if (o.default === null || o.default === undefined) return (o.value_schema && o.value_schema.derived) || "from the data";
+  return String(o.default);
+}
+
+/** One field per option of any method (the first method's schema; the server keeps one rule per name). */
+function buildOptionFields(list) {
+  const box = $("recon-options");
+  box.textContent = "";
+  const seen = new Set();
+  for (const m of list) {
+    for (const o of m.options) {
+      if (seen.has(o.name) || RECON_OWN_FIELDS.has(o.name)) continue;
+      seen.add(o.name);
+      const s = o.value_schema || {};
+      const id = optionFieldId(o);
+      const label = document.createElement("label");
+      label.id = id + "-label";
+      label.title = o.description;
+      let input;
+      const unit = s.unit && s.unit !== "1" ? ` (${s.unit})` : "";
+      if (s.type === "boolean") {
+        input = document.createElement("input");
+        input.type = "checkbox";
+        label.appendChild(input);
+        label.appendChild(document.createTextNode(` ${o.name} (${o.description})`));
+      } else {
+        if (s.enum) {
+          input = document.createElement("select");
+          for (const v of s.enum) {
+            const opt = document.createElement("option");
+            opt.value = v;
+            opt.textContent = v;
+            input.appendChild(opt);
+          }
+        } else {
+          input = document.createElement("input");
+          if (s.quantity) { // a length or time: a number in SI or text with a unit ("30um"), the server parses it
+            input.type = "text";
+            input.size = 8;
+          } else {
+            input.type = "number";
+            input.step = s.type === "integer" ? "1" : "any";
+            if (s.minimum !== undefined) input.min = s.minimum;
+            else if (s.exclusiveMinimum !== undefined) input.min = s.exclusiveMinimum;
+            if (s.maximum !== undefined) input.max = s.maximum;
+          }
+          input.dataset.kind = s.quantity ? "quantity" : s.type;
+        }
+        label.appendChild(document.createTextNode(`${o.name}${unit} `));
+        label.appendChild(input);
+      }
+      input.id = id;
+      input.dataset.option = o.name;
+      box.appendChild(label);
+    }
+  }
+}
+
 async function buildMethodSelects() {
   const list = await apiJson("/api/reconstructions/methods");
   METHODS = {};
   for (const m of list) METHODS[m.name] = m;
+  buildOptionFields(list);
   for (const [id, preferred] of [["recon-method", "nedner"], ["upload-method", "ner"]]) {
     const sel = $(id);
     sel.textContent = "";
@@ -1496,19 +1564,37 @@ async function buildFormatSelect() {
 function renderReconOptions() {
   const method = $("recon-method").value;
   if (!METHODS || !METHODS[method]) return;
-  for (const [name, label] of Object.entries(RECON_OPTION_LABELS)) $(label).hidden = !methodOption(method, name);
-  const positivity = methodOption(method, "positivity");
-  $("recon-positivity").checked = !!(positivity && positivity.default);
+  for (const input of document.querySelectorAll("#recon-options [data-option]")) {
+    const o = methodOption(method, input.dataset.option);
+    $(input.id + "-label").hidden = !o;
+    if (!o) { // not this method's: off and empty, as it is not sent
+      if (input.type === "checkbox") input.checked = false;
+      else if (input.tagName !== "SELECT") input.value = "";
+      continue;
+    }
+    if (input.type === "checkbox") input.checked = !!o.default;
+    else if (input.tagName === "SELECT") input.value = o.default !== null && o.default !== undefined ? o.default : input.options[0].value;
+    else {
+      input.value = "";
+      input.placeholder = "empty = " + shownDefault(o);
+    }
+  }
 }
 
+/** The options the chosen method takes, as the form has them (an empty field: the method's default). */
 function reconParams() {
   const method = $("recon-method").value;
-  const params = { dtype: $("recon-dtype").value };
-  if (methodOption(method, "positivity")) params.positivity = $("recon-positivity").checked;
-  // λ and iterations where the method takes them (empty = its defaults)
-  if (methodOption(method, "lam") && $("recon-lambda").value !== "") params.lam = Number($("recon-lambda").value);
-  if (methodOption(method, "iterations") && $("recon-iterations").value !== "") {
-    params.iterations = Number($("recon-iterations").value);
+  const params = {};
+  for (const input of document.querySelectorAll("#recon-options [data-option]")) {
+    const name = input.dataset.option;
+    if (!methodOption(method, name)) continue;
+    if (input.type === "checkbox") params[name] = input.checked;
+    else if (input.tagName === "SELECT") params[name] = input.value;
+    else if (input.value.trim() !== "") {
+      const v = input.value.trim();
+      // a number (SI), or for a length/time text with a unit that the server parses ("30um", "10min")
+      params[name] = input.dataset.kind === "quantity" && !/^[-+]?[0-9.]+(e[-+]?[0-9]+)?$/i.test(v) ? v : Number(v);
+    }
   }
   return params;
 }
@@ -1519,7 +1605,7 @@ async function startRecon(ev) {
   const params = reconParams();
   try {
     const c = speedField("recon-c");
-    if (c !== undefined) params.c = c;
+    if (c !== undefined) params.sound_speed = c; // the HTTP name (c: its deprecated alias)
     if ($("recon-force").checked) params.force = true; // c outside 1000-2000 m/s (driver.units' rule)
   } catch (err) { showError(err); return; }
   const body = { scan_job_id: resultJob, method: $("recon-method").value, params };

@@ -82,10 +82,11 @@ def upload_dataset(file: UploadFile = File(..., description="the data file"),
                                                                           "unit: 20ns)"),
                    dx: str | None = Form(None, max_length=40, description="lateral spacing along x, m (or 100um)"),
                    dy: str | None = Form(None, max_length=40, description="lateral spacing along y, m (or 100um)"),
-                   c: str | None = Form(None, max_length=40, description="speed of sound, m/s (or 1.5 km/s; "
-                                                                         "1000-2000 unless force)"),
-                   force: bool = Form(False, description="accept a c outside 1000-2000 m/s (a medium other "
-                                                         "than tissue or water)"),
+                   sound_speed: str | None = Form(None, max_length=40, description="speed of sound, m/s (or "
+                                                  "1.5 km/s; 1000-2000 unless force)"),
+                   c: str | None = Form(None, max_length=40, description="deprecated name of sound_speed"),
+                   force: bool = Form(False, description="accept a sound_speed outside 1000-2000 m/s (a medium "
+                                                         "other than tissue or water)"),
                    key: str | None = Form(None, max_length=200, description="HDF5 dataset path (kwave-hdf5)"),
                    wavelength: int | None = Form(None, ge=0, le=1023,
                                                  description="of a multi-wavelength scan or IPASC file: the index of "
@@ -98,6 +99,9 @@ def upload_dataset(file: UploadFile = File(..., description="the data file"),
     ``FPSCAN_IMPORT_WORKERS`` uploads are imported at once (4x as many wait; beyond, 429).
     A dataset holds one wavelength's data (``wavelength``; the response's
     ``wavelength_nm`` says which). 507 when the decoded dataset does not fit the disk."""
+    if sound_speed is not None and c is not None and sound_speed.strip() != c.strip():
+        raise HTTPException(422, "give the speed of sound once: sound_speed (c is its deprecated name)")
+    c = c if sound_speed is None else sound_speed
     try:  # numbers typed with units, as everywhere (driver.units.parse_quantity)
         q = {name: None if text is None or not text.strip() else parse_quantity(text, kind, name=name)
              for name, text, kind in (("dt", dt, "time"), ("dx", dx, "length"), ("dy", dy, "length"),

@@ -7,10 +7,11 @@ Contract: docs/api.md.
 """
 from __future__ import annotations
 
-from typing import Annotated, Any, Literal, Union
+from typing import TYPE_CHECKING, Annotated, Any, Literal, Union
 
 from pydantic import (
     AfterValidator,
+    AliasChoices,
     BaseModel,
     BeforeValidator,
     ConfigDict,
@@ -24,11 +25,11 @@ from pydantic import (
 
 from driver.constants import C_AUTOFOCUS_LIMITS, C_AUTOFOCUS_RANGE, C_LIMITS, C_PLAUSIBLE
 from service.formats import upload_formats
-from service.pipeline import DEFAULT_DTYPE, DTYPES, KWAVE_INTERPS, METHODS
+from service.pipeline import METHODS
 from service.plans.kinds import KINDS, MaskKind, resolve_kind
 from service.plans.plan import ORDER_NAMES, Acquisition
 from service.plans.plan import Plan as PlanJson
-from service.recon import checks as _checks
+from service.recon import methods as _methods
 
 
 def _one_of(values) -> Any:
@@ -55,12 +56,6 @@ DatasetFormat = Literal[DATASET_FORMATS]  # type: ignore[valid-type]  # a Litera
 ID_PATTERN = r"^[A-Za-z0-9_-]{1,128}$"
 
 LatticeIndex = Annotated[int, Field(ge=0, le=1023)]
-
-
-def _bounds(rule_range: tuple) -> dict:
-    """The JSON schema's ``minimum``/``maximum`` of an option, from its kernel rule's range
-    (``service.recon.checks``): the schema states the bounds the rule enforces."""
-    return {"minimum": rule_range[0], "maximum": rule_range[1]}
 
 
 class _Request(BaseModel):
@@ -258,11 +253,15 @@ PlanCreate: Any = Annotated[
 
 
 class MethodOption(BaseModel):
-    """One option of a reconstruction method (``service.pipeline.OPTIONS``)."""
+    """One option of a reconstruction method (its field in the method's options model,
+    ``service.recon.methods``)."""
 
-    name: str
+    name: str = Field(description="the option's name in ReconParams (sound_speed: the speed of sound)")
     description: str
-    default: Any = Field(None, description="this method's own default (null: the general one in the description)")
+    default: Any = Field(None, description="this method's default (null: derived from the data, e.g. n_z = n_t)")
+    value_schema: dict[str, Any] = Field(default_factory=dict, description="JSON schema of a value: type, "
+                                         "minimum/maximum/exclusiveMinimum or enum, and unit (SI), quantity "
+                                         "(length/time: text with a unit accepted); forms are built from it")
 
 
 class DatasetFormatInfo(BaseModel):
@@ -415,85 +414,108 @@ class DatasetInfo(BaseModel):
     in_use: bool = Field(False, description="a queued, running or paused job reads it (it cannot be deleted)")
 
 
-class ReconParams(_Request):
-    """Reconstruction options (``service.pipeline.OPTIONS``; ``null`` = the method's
-    default). Which method takes which option: ``service.pipeline.METHODS``
-    (docs/api.md); an option the method does not take is refused (422 naming the method's
-    options). Lengths, times and speeds may be text with a unit (``"30um"``, ``"600s"``)."""
+class _ReconParamsBase(_Request):
+    """Reconstruction options: the speed of sound (every method's) and ``force``; the
+    methods' own options are added from the registry (:func:`_method_option_fields`)."""
 
     c: Annotated[float, Field(gt=0)] | Literal["auto"] | None = Field(
-        None, description=f"speed of sound, m/s ({C_PLAUSIBLE[0]:g}-{C_PLAUSIBLE[1]:g} unless force, "
-                          f"{C_LIMITS[0]:g}-{C_LIMITS[1]:g} with it), or 'auto': the "
-                          "speed of sharpest focus (Tenenbaum sharpness, searched within c_range; default: "
-                          "the input's)")
+        None, validation_alias=AliasChoices("sound_speed", "c"),
+        description=f"speed of sound, m/s ({C_PLAUSIBLE[0]:g}-{C_PLAUSIBLE[1]:g} unless force, "
+                    f"{C_LIMITS[0]:g}-{C_LIMITS[1]:g} with it), or 'auto': the "
+                    "speed of sharpest focus (Tenenbaum sharpness, searched within c_range; default: "
+                    "the input's). Also accepted as c (deprecated)")
     c_range: tuple[Annotated[float, Field(ge=C_AUTOFOCUS_LIMITS[0], le=C_AUTOFOCUS_LIMITS[1])],
                    Annotated[float, Field(ge=C_AUTOFOCUS_LIMITS[0], le=C_AUTOFOCUS_LIMITS[1])]] | None = Field(
-        None, description="autofocus search interval (c_min, c_max), m/s "
-                          f"(default {C_AUTOFOCUS_RANGE[0]:g}-{C_AUTOFOCUS_RANGE[1]:g})")
-    eps: float | None = Field(None, description="NUFFT tolerance (ner, nedner, tv; default 1e-6)",
-                              json_schema_extra=_bounds(_checks.EPS_RANGE))
-    dtype: _one_of(DTYPES) = Field(DEFAULT_DTYPE, description="working and output precision")  # type: ignore[valid-type]
-    upsample: int | None = Field(None, description="lateral upsampling factor (default 1)",
-                                 json_schema_extra=_bounds(_checks.UPSAMPLE_RANGE))
-    positivity: bool | None = Field(None, description="clip negative p0 to 0 (default off; tv: p0 >= 0, on)")
-    lam: float | None = Field(None, description="TV weight λ in the data's units "
-                              "(tv; default from the estimated noise level)", json_schema_extra=_bounds(_checks.LAM_RANGE))
-    iterations: int | None = Field(None, description="maximum iterations (tv; default 60)",
-                                   json_schema_extra=_bounds(_checks.ITERATIONS_RANGE))
-    time_limit: float | None = Field(None, description="wall-time limit of the solver, s (tv; default and "
-                                     "at most the server's tv_time_limit_s): when reached the result's params say "
-                                     "converged false, stop_reason 'time limit'",
-                                     json_schema_extra={"exclusiveMinimum": 0, "maximum": _checks.TIME_LIMIT_MAX})
-    debias: bool | None = Field(None, description="refit tv's amplitudes by least squares on its support "
-                                "after the solve (tv; default off)")
-    n_z: int | None = Field(None, description="output depth samples", json_schema_extra=_bounds(_checks.N_Z_RANGE))
-    dz: float | None = Field(None, description="output depth spacing, m (with the input's c·t_last it sets the "
-                             "working depth rows, counted in the memory admission)",
-                             json_schema_extra=_bounds(_checks.DZ_RANGE))
-    interp: _one_of(KWAVE_INTERPS) | None = Field(  # type: ignore[valid-type]
-        None, description="k-Wave interpolation (kwave; default *nearest)")
-    force: bool = Field(False, description="accept a c (or c_range) outside 1000-2000 m/s (a medium other than "
-                                           "tissue or water); without it such a value is refused as a likely "
-                                           "unit mistake (driver.units.check_speeds)")
+        None, validation_alias=AliasChoices("sound_speed_range", "c_range"),
+        description="autofocus search interval (c_min, c_max), m/s "
+                    f"(default {C_AUTOFOCUS_RANGE[0]:g}-{C_AUTOFOCUS_RANGE[1]:g}). Also accepted as c_range "
+                    "(deprecated)")
+    force: bool = Field(False, description="accept a sound_speed (or sound_speed_range) outside 1000-2000 m/s (a "
+                                           "medium other than tissue or water); without it such a value is refused "
+                                           "as a likely unit mistake (driver.units.check_speeds)")
 
-    @field_validator("dz", "time_limit", "c", "c_range", mode="before")
+    @field_validator("*", mode="before", check_fields=False)
     @classmethod
     def _units(cls, value: Any, info: Any) -> Any:
-        """Numbers typed with a unit (``"30um"``, ``"600s"``, ``"1.5 km/s"``):
-        to SI by the one parser (``driver.units.parse_quantity``); numbers are SI already."""
+        """Numbers typed with a unit (``"30um"``, ``"600s"``, ``"1.5 km/s"``) for the speed
+        of sound and every option whose field names a ``quantity``: to SI by the one parser
+        (``driver.units.parse_quantity``); numbers are SI already."""
         from driver.units import parse_quantity
 
-        kind = {"dz": "length", "time_limit": "time"}.get(info.field_name, "speed")
-        if isinstance(value, str) and not (info.field_name == "c" and value == "auto"):
+        name = info.field_name
+        kind = "speed" if name in ("c", "c_range") else _OPTION_QUANTITIES.get(name)
+        if kind is None:
+            return value
+        shown = {"c": "sound_speed", "c_range": "sound_speed_range"}.get(name, name)
+        if isinstance(value, str) and not (name == "c" and value == "auto"):
             try:
-                return parse_quantity(value, kind, name=info.field_name)
+                return parse_quantity(value, kind, name=shown)
             except ValueError as exc:
-                if info.field_name != "c":
+                if name != "c":
                     raise
-                raise ValueError(f"c must be a speed (m/s, or with a unit: 1.5 km/s) or 'auto', got {value!r}") \
-                    from exc
-        if info.field_name == "c_range" and isinstance(value, (list, tuple)):
-            return [parse_quantity(v, kind, name="c_range") if isinstance(v, str) else v for v in value]
+                raise ValueError(f"sound_speed (c) must be a speed (m/s, or with a unit: 1.5 km/s) or 'auto', "
+                                 f"got {value!r}") from exc
+        if name == "c_range" and isinstance(value, (list, tuple)):
+            return [parse_quantity(v, kind, name=shown) if isinstance(v, str) else v for v in value]
         return value
 
     @model_validator(mode="after")
-    def _kernel_rules(self) -> ReconParams:
-        """Every option by the kernel's own rule (``service.pipeline.check_option_values``,
-        the functions of ``service.recon.checks``): the 422 says what the library says."""
-        from service.pipeline import check_option_values
-
-        check_option_values(self.model_dump(exclude={"c", "c_range", "force"}))
-        return self
-
-    @model_validator(mode="after")
-    def _plausible_speed(self) -> ReconParams:
+    def _plausible_speed(self) -> _ReconParamsBase:
         """The speed-of-sound rule of the library and the CLI (``driver.units.check_speeds``):
         422 naming the likely unit mistake unless ``force``; forced, c stays within
         ``driver.constants.C_LIMITS``."""
         from driver.units import check_speeds
 
-        check_speeds(c=self.c, c_range=self.c_range, force=self.force)
+        check_speeds(c=getattr(self, "c", None), c_range=getattr(self, "c_range", None), force=self.force)
         return self
+
+
+def _not_null(name: str, default: Any) -> Any:
+    def check(value: Any) -> Any:
+        if value is None:
+            raise ValueError(f"{name} may not be null (leave it out for the default, {default})")
+        return value
+
+    return AfterValidator(check)
+
+
+def _method_option_fields() -> dict[str, Any]:
+    """``ReconParams``' fields from the method registry (``service.recon.methods``): each
+    option with its own type and rule (the kernel's, so a bad value is a 422 naming its
+    range), default null (the chosen method's default); an option every method takes with
+    one default (``dtype``) has that default and may not be null."""
+    fields: dict[str, Any] = {}
+    for name, f in _methods.option_fields().items():
+        takers = [m for m in METHODS.values() if name in m.options_model.model_fields]
+        defaults = {m.name: m.options_model.model_fields[name].default for m in takers}
+        annotation: Any = Annotated[(f.annotation, *f.metadata)] if f.metadata else f.annotation
+        same = len({repr(v) for v in defaults.values()}) == 1
+        default = None
+        if same and len(takers) == len(METHODS) and f.default is not None:
+            default = f.default
+            annotation = Annotated[annotation, _not_null(name, f.default)]
+        said = "default " + _methods.default_text(name)
+        methods = "every method" if len(takers) == len(METHODS) else ", ".join(m.name for m in takers)
+        fields[name] = (annotation, Field(default, description=f"{f.description} ({methods}; {said})",
+                                          json_schema_extra=f.json_schema_extra))
+    return fields
+
+
+#: options whose values may be text with a unit: name -> kind of ``driver.units.parse_quantity``
+_OPTION_QUANTITIES = {name: o["schema"]["quantity"] for m in METHODS.values() for o in _methods.option_schemas(m)
+                      if "quantity" in o["schema"] for name in [o["name"]]}
+
+#: Reconstruction options (``null`` = the method's default): the speed of sound
+#: (``sound_speed``, also accepted as ``c``), ``sound_speed_range``, ``force`` and the union
+#: of the methods' options (``service.recon.methods``: one module per method; which method
+#: takes which option: ``GET /api/reconstructions/methods``, docs/methods.md). An option the
+#: method does not take is refused (422 naming the method's options). Lengths and times may
+#: be text with a unit (``"30um"``, ``"600s"``).
+if TYPE_CHECKING:  # for the type checker: the hand-written part (the generated fields are typed at run time)
+    ReconParams = _ReconParamsBase
+else:
+    ReconParams = create_model("ReconParams", __base__=_ReconParamsBase, __module__=__name__,
+                               __doc__=_ReconParamsBase.__doc__, **_method_option_fields())
 
 
 class UnmixOptions(_Request):

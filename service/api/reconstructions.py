@@ -172,14 +172,28 @@ def _with_wavelength(spec: dict, wavelength: int | str | None, wavelengths: list
 
 @router.get("/methods", response_model=list[MethodInfo], dependencies=[Depends(read_access)])
 def list_methods() -> list[MethodInfo]:
-    """The reconstruction methods (``service.pipeline.METHODS``, in their order): name,
-    title, whether they need a full regular grid, the options each takes (with the
-    method's own defaults) and the algorithm's source. The web page builds its method
-    choices from this."""
+    """The reconstruction methods (the registry ``service.recon.methods``, in its order):
+    name, title, whether they need a full regular grid, the options each takes (the speed
+    of sound ``sound_speed`` first, then its options model's fields, each with this
+    method's default and its JSON schema: type, range, unit) and the algorithm's source.
+    The web page builds its method choices and option fields from this."""
+    from service.recon.methods import option_schemas
+
+    speed = MethodOption(name="sound_speed", description=OPTIONS["c"], default=None,
+                         value_schema=_speed_schema())
     return [MethodInfo(name=m.name, title=m.title, needs_grid=m.needs_grid, source=m.source,
-                       options=[MethodOption(name=o, description=OPTIONS[o], default=m.defaults.get(o))
-                                for o in m.options])
+                       options=[speed, *(MethodOption(name=o["name"], description=o["description"],
+                                                      default=o["default"], value_schema=o["schema"])
+                                         for o in option_schemas(m))])
             for m in METHODS.values()]
+
+
+def _speed_schema() -> dict:
+    """The value schema of ``sound_speed``: a number in m/s (plausible range) or ``"auto"``."""
+    from driver.constants import C_PLAUSIBLE
+
+    return {"anyOf": [{"type": "number", "minimum": C_PLAUSIBLE[0], "maximum": C_PLAUSIBLE[1]},
+                      {"type": "string", "enum": ["auto"]}], "unit": "m/s", "quantity": "speed"}
 
 
 @router.post("", status_code=202, response_model=Job, dependencies=[Depends(require_token)],

@@ -59,15 +59,17 @@ def estimate_memory(shape: dict, params: dict) -> int:
     ``shape``: ``n_t`` and ``n_x`` (``n_y``) of the output grid, ``n_points`` for point
     inputs, ``input_itemsize`` (bytes a sample of the input as loaded; default 8), ``dt`` (s), ``c`` (m/s) and the lateral pitch ``dx`` (m) of the input (optional;
     the model-based ``tv`` pads its grid by the record's reach in pitches); ``params``: ``method``, ``dtype``,
-    ``upsample``, ``n_z``, ``dz``, ``c``. ``service.recon.estimate_peak_memory`` of the
+    ``upsample``, ``n_z``, ``dz``, ``c``. The method's peak-memory model of the
     working depth rows (:func:`working_depth_rows`) times ``CALIBRATION``, plus the input
-    as float64. Raises :class:`AdmissionError` for a depth grid that can never be made."""
+    as float64. The peak model is the method's (``service.recon.methods``, its ``peak_memory``;
+    the planar methods' and tv's are ``service.recon.estimate_peak_memory``). Raises
+    :class:`AdmissionError` for a depth grid that can never be made."""
     n_t = int(shape["n_t"])
     n_x = int(shape["n_x"])
     n_y = int(shape.get("n_y", 1))
     up = int(params.get("upsample", 1) or 1)
     rows = working_depth_rows(shape, params)
-    from service.recon import estimate_peak_memory
+    from service.recon.methods import get as method_named
 
     geometry: dict[str, float | None] = {}
     if shape.get("dx") and shape.get("dt"):  # the model-based operator's padding depends on them
@@ -75,10 +77,11 @@ def estimate_memory(shape: dict, params: dict) -> int:
         c = max(params.get("c_range") or C_AUTOFOCUS_RANGE) if c == "auto" else c
         geometry = {"dx": float(shape["dx"]), "dt": float(shape["dt"]), "c": float(c or shape.get("c") or C_DEFAULT),
                     "dz": float(params["dz"]) if params.get("dz") else None}
-    value = estimate_peak_memory(n_t, n_x, n_y, n_z=rows, upsample=up,
-                                 dtype=params.get("dtype") or "float32", method=params.get("method", "ner"),
-                                 n_points=shape.get("n_points"), dx=geometry.get("dx"), dt=geometry.get("dt"),
-                                 c=geometry.get("c"), dz=geometry.get("dz"))
+    # the method's own peak-memory model (service.recon.methods: its module's peak_memory hook)
+    value = method_named(params.get("method") or "ner").memory(
+        n_t, n_x, n_y, n_z=rows, upsample=up, dtype=params.get("dtype") or "float32",
+        n_points=shape.get("n_points"), dx=geometry.get("dx"), dt=geometry.get("dt"), c=geometry.get("c"),
+        dz=geometry.get("dz"))
     factor = CALIBRATION if params.get("method") == "tv" else 1.0
     # + the input as loaded (shape["input_itemsize"] bytes a sample, default 8: float64, as scan files load),
     # unless it is in the working precision: then it is the working copy the estimate already counts

@@ -13,8 +13,9 @@
   `driver.physics.weights`, which owns them).
 - `estimate_peak_memory`: bytes a reconstruction needs at its peak (admission control).
 
-Importing the package is light (numpy only): every name but `Reconstruction` and
-`estimate_peak_memory` is imported on first use (PEP 562), so scipy.fft, numba and
+Importing the package imports nothing heavy: every name is imported on first use
+(PEP 562; `Reconstruction` and `estimate_peak_memory` with numpy, and
+`service.recon.methods`, the method registry, loads without numpy), so scipy.fft, numba and
 finufft load with the grid/points reconstruction, scipy.interpolate with the k-Wave
 modes, pylops/pyproximal (which take longer to import than everything else together)
 with the model-based part, the plans package with `voronoi_weights`. A process that
@@ -32,14 +33,12 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-from service.recon.checks import estimate_peak_memory
-from service.recon.reconstruction import Reconstruction
-
 __all__ = ["Reconstruction", "METHODS", "reconstruct_grid", "reconstruct_points", "kspace_line_recon",
            "kspace_plane_recon", "forward_grid", "forward_points", "voronoi_weights",
            "estimate_peak_memory", "PlanarOperator", "reconstruct_tv"]
 
-_LAZY = {"METHODS": "service.recon.planar", "reconstruct_grid": "service.recon.planar",
+_LAZY = {"Reconstruction": "service.recon.reconstruction", "estimate_peak_memory": "service.recon.checks",
+         "METHODS": "service.recon.planar", "reconstruct_grid": "service.recon.planar",
          "reconstruct_points": "service.recon.planar", "PlanarOperator": "service.recon.operator",
          "reconstruct_tv": "service.recon.tv",
          "voronoi_weights": "driver.physics.weights", "kspace_line_recon": "service.recon.kwave",
@@ -49,9 +48,11 @@ _LAZY = {"METHODS": "service.recon.planar", "reconstruct_grid": "service.recon.p
 if TYPE_CHECKING:
     from driver.physics.forward import forward_grid, forward_points
     from driver.physics.weights import voronoi_weights
+    from service.recon.checks import estimate_peak_memory
     from service.recon.kwave import kspace_line_recon, kspace_plane_recon
     from service.recon.operator import PlanarOperator
     from service.recon.planar import METHODS, reconstruct_grid, reconstruct_points
+    from service.recon.reconstruction import Reconstruction
     from service.recon.tv import reconstruct_tv
 
 

@@ -108,20 +108,16 @@ def finite_array(name: str, a, ndims: tuple[int, ...]) -> np.ndarray:
 # the same functions at every door (library, CLI, HTTP) before a job is queued, and the
 # HTTP schema states the same bounds (``service.api.models.ReconParams``).
 
-#: NUFFT tolerance, inclusive
-EPS_RANGE = (1e-14, 1e-1)
-#: lateral upsampling factor, inclusive
-UPSAMPLE_RANGE = (1, 8)
-#: output depth samples, inclusive
-N_Z_RANGE = (2, 65536)
-#: output depth spacing, m, inclusive
-DZ_RANGE = (1e-9, 0.1)
-#: TV weight λ (data units), inclusive
-LAM_RANGE = (0.0, 1e30)
-#: iterations of the model-based solver, inclusive
-ITERATIONS_RANGE = (1, 100000)
-#: wall-time limit of the model-based solver, s: (0, max]
-TIME_LIMIT_MAX = 7 * 86400.0
+# the ranges: service.recon.limits (import-free, read by the methods' option models too)
+from service.recon.limits import (  # noqa: E402
+    DZ_RANGE,
+    EPS_RANGE,
+    ITERATIONS_RANGE,
+    LAM_RANGE,
+    N_Z_RANGE,
+    TIME_LIMIT_MAX,
+    UPSAMPLE_RANGE,
+)
 
 
 class OptionError(RefusedInput):

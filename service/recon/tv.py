@@ -70,11 +70,12 @@ import scipy.fft
 
 from driver.constants import C_DEFAULT
 from service.recon import checks
+from service.recon import limits as _limits
 from service.recon.reconstruction import Reconstruction
 
 __all__ = ["DEFAULT_MAX_ITER", "DEFAULT_TOL", "DEFAULT_TIME_LIMIT", "noise_sigma", "reconstruct_tv"]
 
-DEFAULT_MAX_ITER = 60
+DEFAULT_MAX_ITER = _limits.DEFAULT_MAX_ITER
 #: the stopping rule: the objective's last decrease below this share of its decrease since the warm start
 DEFAULT_TOL = 1e-3
 _POWER_STEPS = 2  # power iterations for the first step 1 / ‖BA‖ (the solver raises L where it sees more)
@@ -85,9 +86,9 @@ _PROX_ITER = 20  # inner (dual, no operator) iterations of the TV + positivity p
 _DEBIAS_ITER = 10  # iterations of the least-squares refit on the support (debias)
 _SUPPORT_FRACTION = 0.05  # the support for debias: p0 above this share of its maximum
 _POLL_S = 0.2  # a cancel is polled at least this often (s) inside long steps
-#: default wall-time limit of one model-based reconstruction, s (the server's setting
-#: ``tv_time_limit_s`` caps it there)
-DEFAULT_TIME_LIMIT = 3600.0
+#: default wall-time limit of one model-based reconstruction, s (``service.recon.limits``; the
+#: server's setting ``tv_time_limit_s`` caps it there)
+DEFAULT_TIME_LIMIT = _limits.DEFAULT_TIME_LIMIT
 
 
 def noise_sigma(data: np.ndarray, time_axis: int) -> float:
@@ -233,6 +234,7 @@ def reconstruct_tv(
     gw_norm = float(np.linalg.norm(g))
     sigma = noise_sigma(g, 0 if pos is None else 1)
     noise_share = sigma * math.sqrt(g.size) / max(gw_norm, 1e-300)
+    report(0.06, "norm estimate")  # the operator's set-up and the first adjoint: no longer the warm start
     Bg = B(g)
 
     # step: 1 / L with L ≈ ‖BA‖ (power iteration, seeded) and a margin

@@ -43,7 +43,8 @@ def test_the_library_the_plan_contract_and_the_http_model_take_the_constants():
                for f in (reconstruct_grid, reconstruct_points))
     assert inspect.signature(autofocus).parameters["c_range"].default == constants.C_AUTOFOCUS_RANGE
     assert Acquisition.model_fields["sound_speed"].default == constants.C_DEFAULT
-    schema = ReconParams.model_json_schema()["properties"]["c_range"]
+    # the HTTP names of the speed of sound (issue 21.4): sound_speed / sound_speed_range (c / c_range accepted)
+    schema = ReconParams.model_json_schema()["properties"]["sound_speed_range"]
     ends = [item for item in schema["anyOf"] if item.get("type") == "array"][0]["prefixItems"]
     assert all((e["minimum"], e["maximum"]) == constants.C_AUTOFOCUS_LIMITS for e in ends)
 

@@ -34,7 +34,7 @@ PEAK_SCRIPT = r"""
 import json, sys
 import numpy as np
 from service.pipeline import reconstruct
-from service.storage.datasets import GridDataset
+from service.recon.dataset import GridDataset
 n, n_t, up, dz = int(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3]), float(sys.argv[4])
 params = {"upsample": up, "dtype": "float32"}
 if dz > 0:
@@ -101,7 +101,7 @@ import json, sys
 import numpy as np
 from driver.physics.axes import centred_axis
 from service.pipeline import reconstruct
-from service.storage.datasets import PointDataset
+from service.recon.dataset import PointDataset
 n, n_t, n_pts, dx = int(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3]), float(sys.argv[4])
 rng = np.random.default_rng(0)
 ax = centred_axis(n, dx)
@@ -148,7 +148,7 @@ import json, sys
 import numpy as np
 from driver.physics.axes import centred_axis
 from service.pipeline import reconstruct
-from service.storage.datasets import GridDataset, PointDataset
+from service.recon.dataset import GridDataset, PointDataset
 method, n, n_t = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
 
 

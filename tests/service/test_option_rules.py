@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from service.pipeline import Cancelled, reconstruct
-from service.storage.datasets import GridDataset
+from service.recon.dataset import GridDataset
 from tests.service.service_servers import needs_recon
 
 DT, DX, C = 2e-8, 1e-4, 1500.0

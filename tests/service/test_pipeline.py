@@ -32,7 +32,8 @@ def test_every_surface_offers_the_one_vocabulary(shared_api):
     for m in listed:
         spec = METHODS[m["name"]]
         assert (m["title"], m["needs_grid"], m["source"]) == (spec.title, spec.needs_grid, spec.source)
-        assert [o["name"] for o in m["options"]] == list(spec.options)
+        # the speed of sound as a person reads it (sound_speed; c in code), then the model's options
+        assert [o["name"] for o in m["options"]] == ["sound_speed", *spec.options[1:]]
         assert {o["name"]: o["default"] for o in m["options"] if o["default"] is not None} == spec.defaults
     parser = argparse.ArgumentParser()
     cli_recon.add_arguments(parser)
@@ -126,8 +127,12 @@ def test_full_lattice_points_reconstruct_as_the_grid():
 
 def test_a_methods_own_defaults_apply_unless_given():
     """``Method.defaults`` (tv: positivity on) fill only the options the caller left unset;
-    a default for an option the method does not take is refused at registration."""
+    an option whose rule differs from another method's option of the same name is refused at
+    registration (one rule per option name), and so is a model that is no MethodOptions."""
+    from pydantic import Field
+
     from service.pipeline import Method, register
+    from service.recon.methods import MethodOptions
 
     tv = next((m for m in METHODS.values() if m.defaults.get("positivity")), None)
     if tv is None:
@@ -138,6 +143,11 @@ def test_a_methods_own_defaults_apply_unless_given():
     assert on.params["positivity"] is True and off.params["positivity"] is False
     assert on.p0.min() >= 0 and off.p0.min() < 0
     np.testing.assert_array_equal(on.p0, reconstruct(ds, tv.name, iterations=2, positivity=True).p0)
-    with pytest.raises(ValueError, match="no options"):
-        register(Method("x", "x", False, ("c",), METHODS["ner"].run, defaults={"interp": "linear"}))
+    class Other(MethodOptions):
+        upsample: int = Field(1, ge=1, le=99)  # ner's upsample is 1..8
+
+    with pytest.raises(ValueError, match="one rule per option name"):
+        register(Method("x", "x", False, Other, METHODS["ner"].run))
+    with pytest.raises(ValueError, match="MethodOptions"):
+        register(Method("x", "x", False, dict, METHODS["ner"].run))  # type: ignore[arg-type]
     assert "x" not in METHODS

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from service.pipeline import Cancelled, reconstruct
-from service.storage.datasets import PointDataset
+from service.recon.dataset import PointDataset
 
 C, DT = 1500.0, 20e-9
 DZ = C * DT

@@ -15,7 +15,7 @@ import pytest
 
 from service.pipeline import Cancelled, reconstruct
 from service.recon import tv
-from service.storage.datasets import GridDataset
+from service.recon.dataset import GridDataset
 from tests.service.service_servers import Server, needs_recon, wait_job
 
 DT, DX, C = 2e-8, 1e-4, 1500.0

@@ -49,7 +49,7 @@ def test_recon_c_auto_records_the_search(npy, tmp_path, capsys):
     (["--c", "auto", "--c-range", "1600", "1450"], "c_range must satisfy"),
     (["--c-range", "1450", "1600"], "needs c='auto'"),
     (["--c", "1500", "--c-range", "1450", "1600"], "needs c='auto'"),
-    (["--c", "fast"], "argument --c: "),
+    (["--c", "fast"], "argument --sound-speed/--c: "),  # --c: the deprecated name of --sound-speed
 ])
 def test_bad_c_options_are_refused(npy, tmp_path, capsys, extra, reason):
     out = tmp_path / "r"

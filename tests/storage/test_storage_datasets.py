@@ -8,7 +8,8 @@ import pytest
 
 from driver.scanfile import read_scan
 from service.formats.ipasc import export_scan
-from service.storage.datasets import GridDataset, PointDataset, detect_format, load_dataset
+from service.recon.dataset import GridDataset, PointDataset
+from service.storage.datasets import detect_format, load_dataset
 from tests.storage.storage_helpers import build_plan
 
 

@@ -1,0 +1,106 @@
+"""The reconstruction options of ``fpscan recon`` and ``fpscan unmix``, as flags generated
+from the method registry (``service.recon.methods``: each method's typed options model).
+
+One flag per option of any method: ``--name-with-dashes`` (or the field's ``flag``, e.g.
+``--lambda``), its type from the field's JSON schema (a number, an integer, a choice,
+true/false as ``--x`` / ``--no-x``, a length or time with a unit where the field names a
+``quantity``), its help from the field's description, range, unit and default. The speed of
+sound is ``--sound-speed`` (``--c`` accepted, deprecated) and its autofocus interval
+``--sound-speed-range`` (``--c-range``). The registry loads without numpy, so a client-only
+install has the same flags (the server checks the values, 422 → exit 2).
+"""
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from clients.cli._common import quantity, speed
+from driver.constants import C_AUTOFOCUS_RANGE, C_DEFAULT, C_PLAUSIBLE
+
+__all__ = ["add_speed_flags", "add_option_flags", "option_names", "option_params", "http_params"]
+
+
+def _registry() -> Any:
+    try:
+        from service.recon import methods
+    except ImportError:  # no service package at all: the server checks the options
+        return None
+    return methods
+
+
+def add_speed_flags(group, *, what: str = "") -> None:
+    """``--sound-speed`` (alias ``--c``), ``--sound-speed-range`` (alias ``--c-range``) and
+    ``--force`` on ``group``; dests ``c``, ``c_range``, ``force`` (the code's names)."""
+    group.add_argument("--sound-speed", "--c", dest="c", type=speed, default=None, metavar="C",
+                       help="speed of sound, e.g. 1500 or 1.5km/s (m/s), or 'auto' (autofocus: sharpest focus; "
+                            f"default: the input's or {C_DEFAULT:g}){what}. --c is the deprecated name")
+    group.add_argument("--sound-speed-range", "--c-range", dest="c_range", type=quantity("speed", "sound-speed-range"),
+                       nargs=2, default=None, metavar=("MIN", "MAX"),
+                       help="autofocus search interval, e.g. 1450 1600 (m/s) or 1.45km/s 1.6km/s (default "
+                            f"{C_AUTOFOCUS_RANGE[0]:g} {C_AUTOFOCUS_RANGE[1]:g}). --c-range is the deprecated name")
+    group.add_argument("--force", action="store_true",
+                       help=f"accept a speed of sound outside {C_PLAUSIBLE[0]:g}-{C_PLAUSIBLE[1]:g} m/s (another "
+                            "medium)")
+
+
+def _value_type(name: str, schema: dict, flag: str) -> dict:
+    """The argparse keywords (``type``/``choices``/``action``) for a value of ``schema``."""
+    if schema.get("type") == "boolean":
+        return {"action": argparse.BooleanOptionalAction}
+    if "enum" in schema:
+        return {"choices": list(schema["enum"])}
+    if schema.get("quantity"):
+        return {"type": quantity(schema["quantity"], flag.lstrip("-"))}
+    return {"type": int if schema.get("type") == "integer" else float}
+
+
+def add_option_flags(group) -> None:
+    """One flag per option of the registered methods on ``group`` (module docstring)."""
+    methods = _registry()
+    if methods is None:
+        return
+    for m in methods.METHODS.values():
+        for o in methods.option_schemas(m):
+            name, schema = o["name"], o["schema"]
+            flag = schema.get("flag") or "--" + name.replace("_", "-")
+            if any(flag in a.option_strings for a in group._group_actions):
+                continue
+            takers = [x.name for x in methods.METHODS.values() if name in x.options_model.model_fields]
+            who = "" if len(takers) == len(methods.METHODS) else f"{', '.join(takers)}: "
+            rng = "" if "enum" in schema or schema.get("type") == "boolean" else methods.range_text(schema)
+            unit = schema.get("unit", "")
+            unit = "" if unit in ("", "1") else f" {unit}"
+            said = f"{who}{o['description']}" + (f"; {rng}{unit}" if rng else (f";{unit}" if unit else "")) + \
+                f" (default {methods.default_text(name)}{', locally and on the server' if name == 'dtype' else ''})"
+            metavar = name.upper() if schema.get("type") in ("number", "integer") else None
+            group.add_argument(flag, dest=name, default=None, help=said.replace("%", "%%"),
+                               **({"metavar": metavar} if metavar else {}), **_value_type(name, schema, flag))
+
+
+def option_names() -> list[str]:
+    """The options' names (dests of :func:`add_option_flags`)."""
+    methods = _registry()
+    return [] if methods is None else list(methods.option_fields())
+
+
+def option_params(args) -> dict:
+    """The options given on the command line (``None``: not given, left out) with the speed
+    of sound (``c``, ``c_range``) and ``force`` when set: the ``params`` of
+    ``service.pipeline.reconstruct`` and of ``POST /api/reconstructions``."""
+    params: dict[str, Any] = {}
+    for name in ("c", *option_names()):
+        value = getattr(args, name, None)
+        if value is not None:
+            params[name] = bool(value) if isinstance(value, bool) else value
+    if getattr(args, "c_range", None) is not None:
+        params["c_range"] = list(args.c_range)
+    if getattr(args, "force", False):  # the speed-of-sound rule, as the library and the API apply it
+        params["force"] = True
+    return params
+
+
+def http_params(params: dict) -> dict:
+    """``params`` (:func:`option_params`) with the HTTP names of the speed of sound:
+    ``sound_speed``, ``sound_speed_range`` (the server takes ``c`` / ``c_range`` too, deprecated)."""
+    names = {"c": "sound_speed", "c_range": "sound_speed_range"}
+    return {names.get(k, k): v for k, v in params.items()}

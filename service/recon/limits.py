@@ -1,0 +1,43 @@
+"""The reconstruction options' ranges and vocabularies: plain numbers, no imports.
+
+One owner for each bound: the kernels' rules (:mod:`service.recon.checks`) and the typed
+option models of the methods (:mod:`service.recon.methods`) both read them, so the schema
+a client sees states the range the kernel enforces. This module imports only ``typing`` (the
+method registry loads without numpy, for the command line of a client-only install).
+"""
+from __future__ import annotations
+
+from typing import Final
+
+__all__ = ["EPS_RANGE", "UPSAMPLE_RANGE", "N_Z_RANGE", "DZ_RANGE", "LAM_RANGE", "ITERATIONS_RANGE",
+           "TIME_LIMIT_MAX", "DEFAULT_DTYPE", "DTYPES", "KWAVE_INTERPS", "DEFAULT_EPS", "DEFAULT_MAX_ITER",
+           "DEFAULT_TIME_LIMIT"]
+
+#: NUFFT tolerance, inclusive
+EPS_RANGE = (1e-14, 1e-1)
+#: lateral upsampling factor, inclusive
+UPSAMPLE_RANGE = (1, 8)
+#: output depth samples, inclusive
+N_Z_RANGE = (2, 65536)
+#: output depth spacing, m, inclusive
+DZ_RANGE = (1e-9, 0.1)
+#: TV weight λ (data units), inclusive
+LAM_RANGE = (0.0, 1e30)
+#: iterations of the model-based solver, inclusive
+ITERATIONS_RANGE = (1, 100000)
+#: wall-time limit of the model-based solver, s: (0, max]
+TIME_LIMIT_MAX = 7 * 86400.0
+
+#: the working and output precision used when none is asked for (every method, every caller)
+DEFAULT_DTYPE: Final = "float32"
+#: the precisions a reconstruction may work in
+DTYPES = ("float32", "float64")
+#: k-Wave's interpolation modes (``kspaceLineRecon`` / ``kspacePlaneRecon``)
+KWAVE_INTERPS = ("*nearest", "nearest", "*linear", "linear", "*cubic", "cubic")
+#: NUFFT tolerance used when none is asked for
+DEFAULT_EPS = 1e-6
+#: most iterations of the model-based solver when none are asked for
+DEFAULT_MAX_ITER = 60
+#: default wall-time limit of one model-based reconstruction, s (the server's setting
+#: ``tv_time_limit_s`` caps it there)
+DEFAULT_TIME_LIMIT = 3600.0

@@ -1,0 +1,77 @@
+"""``kwave``: k-Wave's ``kspaceLineRecon`` / ``kspacePlaneRecon`` (kernels:
+:mod:`service.recon.kwave`, transcriptions checked against k-Wave's data; notes in
+reference/KWAVE_RECON_NOTES.md)."""
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Annotated, Any, Literal
+
+from pydantic import BeforeValidator, Field
+
+from service.recon.limits import KWAVE_INTERPS
+from service.recon.methods import Method, planar_memory, register
+from service.recon.methods.options import MethodOptions, PositivityOption
+
+if TYPE_CHECKING:
+    from service.recon.dataset import GridDataset
+    from service.recon.reconstruction import Reconstruction
+
+__all__ = ["Options", "run", "METHOD"]
+
+
+def _check_interp(value: Any) -> Any:
+    if value is None or value in KWAVE_INTERPS:
+        return value
+    from service.recon.checks import OptionError
+
+    raise OptionError(f"interp must be one of {', '.join(KWAVE_INTERPS)}, got {value!r}")
+
+
+Interp = Annotated[Literal["*nearest", "nearest", "*linear", "linear", "*cubic", "cubic"] | None,
+                   BeforeValidator(_check_interp)]
+
+
+class Options(PositivityOption, MethodOptions):
+    """Options of ``kwave``: k-Wave's interpolation (``*``: k-Wave's own variant) and
+    ``pos_cond`` (positivity)."""
+
+    interp: Interp = Field("*nearest", description="k-Wave interpolation (k-Wave's default *nearest)")
+
+
+def run(ds: GridDataset, c: float, opts: dict, step: Callable[[float], None]) -> Reconstruction:
+    """k-Wave's reconstruction of grid data ``(n_t, n_x)`` (kspaceLineRecon, k-Wave's 'ty')
+    or ``(n_t, n_y, n_x)`` (kspacePlaneRecon, 'tyz'), ``c`` in m/s. ValueError when the
+    input's first sample is not at t = 0 (k-Wave's convention)."""
+    import numpy as np
+
+    from driver.physics.axes import centred_axis
+    from service.recon import kspace_line_recon, kspace_plane_recon
+    from service.recon.reconstruction import Reconstruction
+
+    interp = opts.get("interp") or "*nearest"
+    if ds.t0:
+        raise ValueError("method 'kwave' needs sample 0 at t = 0 (k-Wave's convention); this input has "
+                         f"t0 = {ds.t0} s: use 'ner'")
+    dtype, positivity = opts["dtype"], bool(opts.get("positivity", False))
+    data = ds.data
+    if data.ndim == 2:  # k-Wave 'ty': y is our x
+        p0 = kspace_line_recon(data, ds.dx, ds.dt, c, interp=interp, pos_cond=positivity, progress=step,
+                               dtype=dtype)
+        y = None
+    else:  # k-Wave 'tyz': (N_t, N_y, N_z) with k-Wave's y = our y and z = our x
+        dy = ds.dy or ds.dx
+        p0 = kspace_plane_recon(data, dy, ds.dx, ds.dt, c, interp=interp, pos_cond=positivity, progress=step,
+                                dtype=dtype)
+        y = centred_axis(data.shape[1], dy)
+    n_t = data.shape[0]
+    params = dict(method="kwave", interp=interp, dt=ds.dt, c=c, dx=ds.dx, dy=None if y is None else ds.dy or ds.dx,
+                  dtype=dtype.name, dz=c * ds.dt, n_z=n_t, positivity=positivity, t0=0.0, n_t=n_t,
+                  data_shape=list(data.shape),
+                  source="kspaceLineRecon" if y is None else "kspacePlaneRecon")
+    return Reconstruction(p0.astype(dtype, copy=False), np.arange(n_t) * (c * ds.dt),
+                          centred_axis(data.shape[-1], ds.dx), y, params)
+
+
+METHOD = register(Method("kwave", "k-Wave compatible (kspaceLineRecon / kspacePlaneRecon)", True, Options, run,
+                         "k-Wave kspaceLineRecon / kspacePlaneRecon (reference/KWAVE_RECON_NOTES.md)",
+                         planar_memory("kwave"), order=40))
