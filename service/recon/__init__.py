@@ -33,12 +33,12 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-__all__ = ["Reconstruction", "METHODS", "reconstruct_grid", "reconstruct_points", "kspace_line_recon",
+__all__ = ["Reconstruction", "GRID_METHODS", "reconstruct_grid", "reconstruct_points", "kspace_line_recon",
            "kspace_plane_recon", "forward_grid", "forward_points", "voronoi_weights",
            "estimate_peak_memory", "PlanarOperator", "reconstruct_tv"]
 
 _LAZY = {"Reconstruction": "service.recon.reconstruction", "estimate_peak_memory": "service.recon.checks",
-         "METHODS": "service.recon.planar", "reconstruct_grid": "service.recon.planar",
+         "GRID_METHODS": "service.recon.planar", "reconstruct_grid": "service.recon.planar",
          "reconstruct_points": "service.recon.planar", "PlanarOperator": "service.recon.operator",
          "reconstruct_tv": "service.recon.tv",
          "voronoi_weights": "driver.physics.weights", "kspace_line_recon": "service.recon.kwave",
@@ -51,7 +51,7 @@ if TYPE_CHECKING:
     from service.recon.checks import estimate_peak_memory
     from service.recon.kwave import kspace_line_recon, kspace_plane_recon
     from service.recon.operator import PlanarOperator
-    from service.recon.planar import METHODS, reconstruct_grid, reconstruct_points
+    from service.recon.planar import GRID_METHODS, reconstruct_grid, reconstruct_points
     from service.recon.reconstruction import Reconstruction
     from service.recon.tv import reconstruct_tv
 

@@ -37,9 +37,10 @@ from driver.physics.nufft_plans import lateral_plan
 from service.recon import checks
 from service.recon.reconstruction import Reconstruction
 
-__all__ = ["METHODS", "transform_lengths", "reconstruct_grid", "reconstruct_points"]
+__all__ = ["GRID_METHODS", "transform_lengths", "reconstruct_grid", "reconstruct_points"]
 
-METHODS = ("ner", "linear", "nearest", "cubic")
+#: the methods `reconstruct_grid` runs (the method registry is `service.recon.methods`)
+GRID_METHODS = ("ner", "linear", "nearest", "cubic")
 _KIND = {"ner": "nufft", "linear": "linear", "nearest": "nearest"}
 
 
@@ -126,8 +127,8 @@ def _check_options(dt, c, method, eps, dtype, upsample, t0):
     """Validate the options both reconstructions share; ValueError naming the problem."""
     dt = checks.positive("dt", dt)
     c = checks.positive("c", c)
-    if method not in METHODS:
-        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    if method not in GRID_METHODS:
+        raise ValueError(f"method must be one of {GRID_METHODS}, got {method!r}")
     upsample = checks.check_upsample(upsample)
     if not np.isfinite(t0) or t0 < 0:
         raise ValueError(f"t0 must be finite and >= 0 s, got {t0!r}")
