@@ -5,7 +5,6 @@ from __future__ import annotations
 import uuid
 from pathlib import Path
 
-import numpy as np
 from fastapi import APIRouter, Depends, Header, HTTPException, Query, Response
 from fastapi import Path as PathParam
 from fastapi.responses import FileResponse
@@ -13,7 +12,7 @@ from fastapi.responses import FileResponse
 from service.api.context import Context, ctx, read_access, reason, require_token
 from service.api.jobs import get_job_or_404, job_view
 from service.api.models import ID_PATTERN, Job, MethodInfo, MethodOption, Plane, ReconRequest
-from service.jobs.admission import AdmissionError, admit, estimate_memory
+from service.jobs.admission import AdmissionError, admit, estimate_memory, input_shape
 from service.jobs.store import IdempotencyConflict
 from service.pipeline import METHODS, OPTIONS, default_method, method_options
 
@@ -94,8 +93,7 @@ def _unmix_inputs(c: Context, body: ReconRequest) -> tuple[dict, dict, str]:
         raise HTTPException(404, f"the plan of scan job {body.scan_job_id} is gone")
     plan = found[0]
     _check_unmix_wavelengths(list(plan["acquisition"].get("wavelengths") or []))
-    return {"input": spec, "wavelengths": None}, {**shape, "n_wavelengths": len(plan["acquisition"]["wavelengths"])}, \
-        input_id
+    return {"input": spec, "wavelengths": None}, shape, input_id  # shape: input_shape of the plan, its wavelengths
 
 
 def _input_for(c: Context, body: ReconRequest) -> tuple[dict, dict, str]:
@@ -123,16 +121,14 @@ def _input_for(c: Context, body: ReconRequest) -> tuple[dict, dict, str]:
             raise HTTPException(404, f"the plan of scan job {body.scan_job_id} is gone")
         plan = found[0]
         lat, acq = plan["lattice"], plan["acquisition"]
-        shape = {"n_t": acq["n_t"], "n_x": lat["n_x"], "n_y": lat.get("n_y", 1),
-                 "n_points": len(plan["points"]["indices"]), "dt": acq["dt"], "c": acq.get("sound_speed"),
-                 "dx": lat.get("pitch")}
+        shape = input_shape(plan)
         if needs_grid and len(plan["points"]["indices"]) != lat["n_x"] * lat.get("n_y", 1):
             raise HTTPException(422, f"method {body.method!r} needs every lattice point; this scan's plan "
                                      "is a sensor mask: use 'nedner'")
         wavelengths = list(acq.get("wavelengths") or [])
         spec = _with_wavelength({"kind": "scan", "path": scan_path}, body.wavelength, wavelengths,
                                 f"scan job {body.scan_job_id}")
-        return spec, {**shape, "n_wavelengths": max(len(wavelengths), 1)}, f"scan:{body.scan_job_id}"
+        return spec, shape, f"scan:{body.scan_job_id}"
     dataset_id = body.dataset_id
     assert dataset_id is not None  # exactly one of the two, checked above
     meta = c.store.get_dataset(dataset_id)
@@ -141,18 +137,9 @@ def _input_for(c: Context, body: ReconRequest) -> tuple[dict, dict, str]:
     path = str(Path(c.settings.data_dir) / "datasets" / dataset_id / meta["path"])
     # a stored dataset holds one wavelength's data (of a multi-wavelength file: the one chosen at upload)
     ds_spec = _with_wavelength({"kind": "dataset", "path": path}, body.wavelength, [None], f"dataset {dataset_id}")
-    if meta["layout"] == "grid":
-        s = meta["shape"]
-        shape = {"n_t": s[0], "n_x": s[-1], "n_y": s[1] if len(s) == 3 else 1, "dt": meta.get("dt"),
-                 "c": meta.get("c"), "dx": meta.get("dx")}
-        return ds_spec, shape, f"dataset:{body.dataset_id}"
-    if needs_grid and not meta.get("full_lattice"):
+    if meta["layout"] != "grid" and needs_grid and not meta.get("full_lattice"):
         raise HTTPException(422, f"method {body.method!r} needs a full regular grid; this dataset needs 'nedner'")
-    n, n_t = meta["shape"]
-    side = int(np.ceil(np.sqrt(n)))
-    shape = {"n_t": n_t, "n_x": meta.get("n_x", side), "n_y": meta.get("n_y", side), "n_points": n,
-             "dt": meta.get("dt"), "c": meta.get("c"), "dx": meta.get("dx")}
-    return ds_spec, shape, f"dataset:{body.dataset_id}"
+    return ds_spec, input_shape(meta), f"dataset:{body.dataset_id}"
 
 
 def _with_wavelength(spec: dict, wavelength: int | str | None, wavelengths: list, what: str) -> dict:

@@ -2,16 +2,23 @@
 
 :func:`estimate_memory` is a job's peak memory (bytes) from the shape of its input and its
 options; :func:`admit` refuses an estimate over the memory limit (:class:`AdmissionError`,
-a ``ValueError``: 422 over HTTP, exit 2 on the command line). The API applies it before a
-job is queued and the worker again on the dataset as loaded (``service.jobs.work``); the
+a ``ValueError``: 422 over HTTP, exit 2 on the command line). The input's shape comes from
+:func:`input_shape`, the one place it is built (a plan, a stored dataset's record or a
+loaded dataset). The API estimates once, before a job is queued, and stores the figure
+with the job; the worker admits that figure against the configured limit (and estimates
+from the dataset as loaded only for a job that carries none, ``service.jobs.work``); the
 queue (``service.jobs.queue``) starts a job only while the running jobs' estimates plus
 its own fit. The kernels' own peak models are ``service.recon.estimate_peak_memory``.
 """
 from __future__ import annotations
 
+import math
+from typing import Any
+
 from driver.constants import C_AUTOFOCUS_RANGE, C_DEFAULT
 
-__all__ = ["CALIBRATION", "MAX_DEPTH_ROWS", "AdmissionError", "admit", "estimate_memory", "working_depth_rows"]
+__all__ = ["CALIBRATION", "MAX_DEPTH_ROWS", "AdmissionError", "admit", "estimate_memory", "input_shape",
+           "working_depth_rows"]
 
 
 class AdmissionError(ValueError):
@@ -27,6 +34,51 @@ CALIBRATION = 1.15
 #: Most depth rows the depth transform may work on (``dz`` far below ``c·dt`` multiplies
 #: them); beyond this a request is refused whatever the memory limit.
 MAX_DEPTH_ROWS = 1 << 20
+
+
+def input_shape(source: Any) -> dict:
+    """The shape of a reconstruction's input for :func:`estimate_memory` (its ``shape``
+    argument): ``n_t``, ``n_x``, ``n_y``, ``n_points`` (sensor points; absent for grid data),
+    ``dt`` (s), ``c`` (m/s), ``dx`` (m, the lateral pitch; None when unknown) and, for a
+    loaded dataset, ``input_itemsize`` (bytes a sample).
+
+    ``source`` is one of
+
+    - a plan document (``{"lattice", "acquisition", "points", ...}``: a scan's input, one
+      A-line per plan point, ``n_wavelengths`` added);
+    - a stored dataset's record (``{"layout": "grid" | "points", "shape", "dt", "c", "dx",
+      ...}``, ``service.jobs.store``);
+    - a loaded `service.recon.dataset.GridDataset` / `PointDataset`.
+
+    Raises ValueError for anything else."""
+    from service.recon.dataset import GridDataset, PointDataset
+
+    if isinstance(source, GridDataset):
+        d = source.data
+        return {"n_t": d.shape[0], "n_x": d.shape[-1], "n_y": d.shape[1] if d.ndim == 3 else 1, "dx": source.dx,
+                "dt": source.dt, "c": source.c, "input_itemsize": d.itemsize}
+    if isinstance(source, PointDataset):
+        grid = source.grid
+        return {"n_t": source.alines.shape[1], "n_x": len(grid[0]), "n_y": len(grid[1]) if len(grid) > 1 else 1,
+                "n_points": source.alines.shape[0],
+                "dx": float(grid[0][1] - grid[0][0]) if len(grid[0]) > 1 else None,
+                "dt": source.dt, "c": source.c, "input_itemsize": source.alines.itemsize}
+    if isinstance(source, dict) and "lattice" in source and "acquisition" in source:
+        lat, acq = source["lattice"], source["acquisition"]
+        return {"n_t": acq["n_t"], "n_x": lat["n_x"], "n_y": lat.get("n_y", 1),
+                "n_points": len(source["points"]["indices"]), "dt": acq["dt"], "c": acq.get("sound_speed"),
+                "dx": lat.get("pitch"), "n_wavelengths": max(len(acq.get("wavelengths") or []), 1)}
+    if isinstance(source, dict) and source.get("layout") == "grid":
+        s = source["shape"]
+        return {"n_t": s[0], "n_x": s[-1], "n_y": s[1] if len(s) == 3 else 1, "dt": source.get("dt"),
+                "c": source.get("c"), "dx": source.get("dx")}
+    if isinstance(source, dict) and source.get("layout") == "points":
+        n, n_t = source["shape"]
+        side = int(math.ceil(math.sqrt(n)))
+        return {"n_t": n_t, "n_x": source.get("n_x", side), "n_y": source.get("n_y", side), "n_points": n,
+                "dt": source.get("dt"), "c": source.get("c"), "dx": source.get("dx")}
+    raise ValueError(f"no input shape for {type(source).__name__}: give a plan, a stored dataset's record or a "
+                     "loaded dataset")
 
 
 def working_depth_rows(shape: dict, params: dict) -> int:

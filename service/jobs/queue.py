@@ -161,6 +161,7 @@ class ReconQueue:
         spec = {"input": job["params"]["input"], "params": params,
                 "out_dir": str(out_dir), "input_id": job["params"].get("input_id", ""),
                 "progress_path": str(progress_path), "memory_limit": int(self.settings.memory_limit),
+                "memory_estimate": job["params"].get("memory_estimate"),  # made once, at submission
                 "cancel_path": str(cancel_path)}
         for key in ("unmix", "inputs", "wavelengths"):  # a multi-wavelength unmixing job (service.spectral)
             if job["params"].get(key) is not None:

@@ -70,24 +70,15 @@ def report_stage(path: str | None, stage: str, fraction: float) -> None:
             os.unlink(tmp)
 
 
-def check_memory_limit(ds: Any, params: dict, limit: int) -> None:
-    """The admission rule (``service.jobs.admission.estimate_memory``) again, on the dataset
-    as loaded: ValueError with the reason if it needs more than ``limit`` bytes (the
-    configured limit, not the memory free now)."""
-    from service.jobs.admission import admit, estimate_memory
-    from service.recon.dataset import GridDataset
+def check_memory_limit(ds: Any, params: dict, limit: int, estimate: int | None = None) -> None:
+    """Admission in the worker: ValueError with the reason if the job needs more than
+    ``limit`` bytes (the configured limit, not the memory free now). ``estimate``: the
+    job's own figure, made once when it was submitted (``service.jobs.admission``); None
+    (a job that carries none): estimated here from the dataset as loaded
+    (``input_shape``)."""
+    from service.jobs.admission import admit, estimate_memory, input_shape
 
-    shape: dict[str, Any]
-    if isinstance(ds, GridDataset):
-        d = ds.data
-        shape = {"n_t": d.shape[0], "n_x": d.shape[-1], "n_y": d.shape[1] if d.ndim == 3 else 1, "dx": ds.dx}
-    else:
-        grid = ds.grid
-        shape = {"n_t": ds.alines.shape[1], "n_x": len(grid[0]), "n_y": len(grid[1]) if len(grid) > 1 else 1,
-                 "n_points": ds.alines.shape[0],
-                 "dx": float(grid[0][1] - grid[0][0]) if len(grid[0]) > 1 else None}
-    shape.update(dt=ds.dt, c=ds.c, input_itemsize=(ds.data if isinstance(ds, GridDataset) else ds.alines).itemsize)
-    admit(estimate_memory(shape, params), limit)
+    admit(estimate_memory(input_shape(ds), params) if estimate is None else int(estimate), limit)
 
 
 #: Address space a worker may use beyond the memory limit (interpreter, libraries, thread
@@ -161,7 +152,7 @@ def run_reconstruction(spec: dict) -> dict:
     ds = datasets[0]
     params = dict(spec["params"])
     if limit:
-        check_memory_limit(ds, params, int(limit))
+        check_memory_limit(ds, params, int(limit), spec.get("memory_estimate"))
     if spec["input"].get("wavelength") == "all":
         return _run_all_wavelengths(spec, datasets, params, t0)
     t1 = time.perf_counter()

@@ -207,3 +207,53 @@ def test_admission_is_within_25_percent_of_the_measured_peak_at_every_upsample(m
               for up, peak in used.items()}
     print(method, "estimate / measured peak by upsample:", {up: round(q, 3) for up, q in ratios.items()})
     assert all(0.75 <= q <= 1.25 for q in ratios.values()), (ratios, used)
+
+
+@needs_recon
+def test_one_input_shape_for_a_plan_a_stored_record_and_a_loaded_dataset(tmp_path):
+    """`input_shape` is the one place the estimate's shape is built: a scan's plan, the
+    record the store keeps of an uploaded dataset and the dataset as the worker loads it
+    describe the same input alike, so the estimate made at submission is the worker's."""
+    from driver.physics.axes import centred_axis
+    from service.jobs.admission import input_shape
+    from service.plans import make_plan
+    from service.recon.dataset import GridDataset, PointDataset
+
+    plan = make_plan("full", lattice={"n_x": 12, "n_y": 10, "pitch": 1e-4},
+                     acquisition={"n_t": 64, "dt": 2e-8, "sound_speed": 1500.0}).to_dict()
+    grid = GridDataset(data=np.zeros((64, 10, 12), np.float32), dx=1e-4, dy=1e-4, dt=2e-8, c=1500.0)
+    x, y = centred_axis(12, 1e-4), centred_axis(10, 1e-4)
+    gx, gy = np.meshgrid(x, y)
+    points = PointDataset(alines=np.zeros((120, 64)), positions=np.stack([gx.ravel(), gy.ravel()], 1), dt=2e-8,
+                          c=1500.0, grid=(x, y), weights=None)
+    record = {"layout": "grid", "shape": [64, 10, 12], "dt": 2e-8, "c": 1500.0, "dx": 1e-4}
+    keys = ("n_t", "n_x", "n_y", "dt", "c")
+    shapes = [input_shape(s) for s in (plan, grid, points, record)]
+    for s in shapes[1:]:
+        assert {k: s[k] for k in keys} == {k: shapes[0][k] for k in keys}, (s, shapes[0])
+    assert all(np.isclose(s["dx"], 1e-4) for s in shapes)
+    assert shapes[0]["n_points"] == shapes[2]["n_points"] == 120 and shapes[0]["n_wavelengths"] == 1
+    params = {"method": "nedner", "dtype": "float32"}
+    assert estimate_memory(shapes[0], params) == estimate_memory({**shapes[2], "input_itemsize": 8}, params)
+    with pytest.raises(ValueError, match="input shape"):
+        input_shape({"layout": "cube"})
+
+
+@needs_recon
+def test_the_worker_admits_the_jobs_own_estimate(tmp_path):
+    """A job carries the estimate made once at submission; the worker admits that figure
+    (here one over the limit, though the loaded input is tiny) rather than estimating again."""
+    import h5py
+
+    from service.jobs.work import run_reconstruction
+
+    path = tmp_path / "dataset.h5"
+    with h5py.File(path, "w") as f:
+        f.attrs.update({"layout": "grid", "dt": 2e-8, "dx": 1e-4, "c": 1500.0})
+        f["data"] = np.zeros((16, 8, 8), np.float32)
+    spec = {"input": {"kind": "dataset", "path": str(path)}, "params": {"method": "ner"},
+            "out_dir": str(tmp_path / "out"), "memory_limit": 2**30, "memory_estimate": 2**31}
+    with pytest.raises(ValueError, match="2.00 GiB"):
+        run_reconstruction(spec)
+    spec["memory_estimate"] = 2**20
+    assert run_reconstruction(spec)["shape"] == [16, 8, 8]
