@@ -54,14 +54,15 @@ def lower_priority(increment: int = 10, parent: int | None = None) -> None:
 def start_worker(increment: int = 0, parent: int | None = None, warm: bool = False) -> None:
     """Reconstruction worker initializer: :func:`lower_priority` by ``increment``, then,
     with ``warm``, :func:`service.jobs.work.warm_up` (imports, numba kernels, the result
-    writer and its pictures), so the first job costs what a later one costs. A failing
+    writer and its pictures; the k-Wave and model-based kernels in the background), so the
+    first job costs what a later one costs. A failing
     warm-up is logged and ignored (the job then pays the cost itself)."""
     lower_priority(increment, parent)
     if warm:
         try:
             from service.jobs.work import warm_up
 
-            warm_up(full=True)
+            warm_up(full=True, rest_in_background=True)
         except Exception:  # noqa: BLE001 -- a warm-up must never stop the worker
             import logging
 

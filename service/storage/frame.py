@@ -152,12 +152,13 @@ def _vertical_text(canvas, text: str, font, centre: tuple[float, float], right_e
 
 def draw_frame(rgb: np.ndarray, colourbar: np.ndarray, frame: Frame, *, extent_mm: tuple[float, float, float, float],
                levels: tuple[float, float], hlabel: str, vlabel: str | None, title: str | None,
-               colorbar_label: str, font_pt: float, tick_pt: float, dpi: int) -> bytes:
+               colorbar_label: str, font_pt: float, tick_pt: float, dpi: int, grey: bool = False) -> bytes:
     """The PNG of a picture: ``rgb`` ``(n_rows, n_cols, 3)`` uint8 (row 0 drawn at the top)
     scaled (nearest sample) into the plotting area of ``frame``; the colour bar's colours
     ``colourbar`` ``(n, 3)`` uint8 from ``levels[0]`` (bottom) to ``levels[1]`` (top);
     ``extent_mm`` ``(left, right, bottom, top)``: the mm at the plotting area's edges; tick
-    labels at ``tick_pt``, axis labels and title at ``font_pt``."""
+    labels at ``tick_pt``, axis labels and title at ``font_pt``. ``grey``: every colour given is
+    a grey (R = G = B): the PNG is stored as greyscale (mode ``L``)."""
     import io
 
     from PIL import Image, ImageDraw
@@ -227,6 +228,8 @@ def draw_frame(rgb: np.ndarray, colourbar: np.ndarray, frame: Frame, *, extent_m
     if title:
         draw.multiline_text(((f.left + f.right) / 2, f.top - 6 * px), title, font=label_font, fill=(0, 0, 0),
                             anchor="md", align="center")
+    if grey:  # every colour on it is a grey: one byte a pixel (a quarter of the time to encode)
+        canvas = canvas.convert("L")
     buf = io.BytesIO()
     canvas.save(buf, format="PNG", compress_level=1)
     return buf.getvalue()

@@ -168,7 +168,8 @@ def _render_framed(img: np.ndarray, colormap: Any, lo: float, hi: float, edges_m
                          two_line_title=bool(title and "\n" in title))
     png = draw_frame(rgb, lut, frame, extent_mm=extent, levels=(lo, hi), hlabel=hlabel, vlabel=vlabel,
                      title=title, colorbar_label=colorbar_label, font_pt=FONT_PT, tick_pt=TICK_PT,
-                     dpi=FIGURE_DPI)
+                     dpi=FIGURE_DPI, grey=bool((rgb[..., 0] == rgb[..., 1]).all() and (rgb[..., 1] == rgb[..., 2]).all()
+                                               and (lut[:, 0] == lut[:, 1]).all() and (lut[:, 1] == lut[:, 2]).all()))
     geometry = {"left": float(frame.left), "right": float(frame.right), "top": float(frame.top),
                 "bottom": float(frame.bottom), "extent_mm": [float(e) for e in extent]}
     return _with_text_chunk(png, AXES_KEY, json.dumps(geometry))
