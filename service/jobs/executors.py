@@ -92,6 +92,7 @@ class LocalExecutor:
         self.nice = int(nice)
         self.warm = bool(warm)
         self.closed = False
+        self._starts: list | None = None
         self._pool = self._new_pool()
 
     def _new_pool(self) -> ProcessPoolExecutor:
@@ -101,10 +102,12 @@ class LocalExecutor:
     def start_workers(self) -> list:
         """Start every worker process now (in the background: returns their futures at once)
         rather than at the first job, so their warm-up runs before it. Each future's result
-        is the worker's pid."""
+        is the worker's pid. A second call returns the first call's futures."""
         from service.jobs.work import worker_pid
 
-        return [self._pool.submit(worker_pid) for _ in range(self.workers)]
+        if self._starts is None:
+            self._starts = [self._pool.submit(worker_pid) for _ in range(self.workers)]
+        return self._starts
 
     def submit(self, fn, *args):
         try:
