@@ -1,8 +1,10 @@
 """The ONE rendering path for every picture fpscan draws: result MIPs, the live preview
 of a running scan, depth slices and the mask preview of a plan. Axes in mm with equal
 aspect (a millimetre is as long across as down), a colour bar in p0 units (or the mask's
-weight), matplotlib on an Agg canvas (no pyplot state: thread-safe); or raw pixels (one
-pixel per sample, Pillow) in the same orientation.
+weight): image pictures drawn with Pillow in the frame of :mod:`service.storage.frame` (the
+layout, fonts and ticks of the matplotlib figures, ~20 ms a picture), the mask's points, its
+lattice and the sO2 map with matplotlib on an Agg canvas (no pyplot state: thread-safe); or raw
+pixels (one pixel per sample, Pillow) in the same orientation.
 
 Orientation, the same in every picture and every file (docs/file-formats.md,
 "Orientation"): **row 0 of the array at the top, column 0 at the left** -- the way napari,
@@ -84,8 +86,9 @@ def render_png(img: np.ndarray, h: np.ndarray, v: np.ndarray, *, hlabel: str, vl
     """PNG of a 2-D array ``img`` ``(len(v), len(h))``: row i at vertical coordinate
     ``v[i]`` (m), column j at ``h[j]`` (m).
 
-    ``annotate=True``: matplotlib figure with axes in mm (equal aspect), labels, title
-    and a colour bar labelled ``colorbar_label``; ``depth_down`` (the default, and what every
+    ``annotate=True``: a figure (:mod:`service.storage.frame`; a greyscale PNG when every
+    colour is grey) with axes in mm (equal aspect), labels, title and a colour bar labelled
+    ``colorbar_label``; ``depth_down`` (the default, and what every
     fpscan picture uses: module docstring) puts ``v[0]`` at the top, as napari and
     ``imshow`` show row 0; ``depth_down=False`` puts it at the bottom (a y-up plot, for a
     caller that wants one).
