@@ -1,28 +1,34 @@
-"""One table (issue 20.4): what a reconstruction costs through each door -- the library, an HTTP
-job (submit -> succeeded) and the command line -- cold and warm, per method and size, with the
-machine's load average beside every row.
+"""One table (issue 20.1, 20.4): what a reconstruction costs through each door -- the library, the
+job worker's own function, an HTTP job (submit -> succeeded) and the command line -- cold and warm,
+per method and size, as ratios measured in one run, with the machine's load average beside every row.
 
 Columns, per method and lateral size (n_t fixed by ``--n-t``; float32; one synthetic dataset
 per size, content irrelevant to timing):
 
 - ``lib cold``: a fresh interpreter's import of the pipeline + its first reconstruction
-  (numba's on-disk cache as it is); ``lib warm``: the next call in that process;
+  (numba's on-disk cache as it is); ``lib``: a warm ``service.pipeline.reconstruct`` in that
+  process (median of ``--repeat``);
+- ``worker``: ``service.jobs.work.run_reconstruction`` in the same process (what a pool worker
+  runs: load the canonical dataset file, reconstruct, write the result folder), over ``lib``;
+- ``write``: ``service.storage.results.write_result`` (volume.h5 + MIP PNGs) of that
+  reconstruction in the same process, over ``lib`` (target <= 0.3);
 - ``http``: one job over HTTP, submit to ``succeeded`` (polled every 20 ms), on a server whose
-  worker is warm; ``http/lib``: that over ``lib warm`` (target <= 1.3);
-- ``write/recon``: the job's own timings (``params.result.timings``): writing the result folder
-  (volume.h5 + MIP PNGs) over the reconstruction (target <= 0.3);
+  worker is warm, over ``lib`` (target <= 1.3); the library call and the job alternate
+  (lib, http, lib, http, ...: ``--repeat`` rounds, medians), so both see the same load;
+- ``job recon`` / ``job write``: the job's own timings (``params.result.timings``);
 - ``cli``: ``fpscan recon FILE.npy`` wall time (a fresh process: imports, reconstruction, writing);
 - ``load``: 1-minute load average when the row was measured.
 
-Then: start-up to a healthy ``/api/health``, and the first job after start-up (NER at the first
-size, submitted as soon as the server is healthy: it waits for the worker's warm-up) over
-``lib warm`` (target <= 2).
+Then: start-up to a healthy ``/api/health`` (target <= 3 s), and the first job after start-up
+(the first method at the first size, submitted as soon as the server is healthy: it waits for
+the worker's warm-up) over ``lib`` (target <= 2).
 
     .venv/bin/python benchmarks/bench_table.py                   # 128, 226, 256 at n_t 256
-    .venv/bin/python benchmarks/bench_table.py --sizes 128 --n-t 128 --methods ner   # quick
+    .venv/bin/python benchmarks/bench_table.py --sizes 128 --n-t 256 --methods ner --no-cli   # quick
 
-Starts its own server (127.0.0.1, free port) and stops it. Prints the table (markdown) and,
-with ``--json``, the raw numbers.
+Starts its own server (127.0.0.1, free port) and stops it. The child processes (library, server,
+CLI) run with bytecode caching on (``PYTHONDONTWRITEBYTECODE`` removed), as an installed package
+has it. Prints the table (markdown) and, with ``--json``, the raw numbers.
 """
 from __future__ import annotations
 
@@ -49,28 +55,72 @@ def dataset(n_t: int, n: int) -> np.ndarray:
             + 0.1 * rng.standard_normal((n_t, n, n)).astype(np.float32)).astype(np.float32)
 
 
-def _library_child(method: str, paths: list[str]) -> None:
-    """In a fresh interpreter: cold (imports + first call) and warm times of each file."""
+def _library_child(method_paths: list[str]) -> None:
+    """In a fresh interpreter: the cold time (imports + first call) of the first dataset, then
+    one line of JSON per command read from stdin (``METHOD PATH``): a warm library call, the
+    worker's ``run_reconstruction`` and ``write_result`` of the same data, each timed."""
     t0 = time.perf_counter()
+    from service.jobs.work import run_reconstruction
     from service.pipeline import reconstruct
     from service.recon.dataset import GridDataset
+    from service.storage.datasets import write_dataset
+    from service.storage.results import write_result
 
-    out = []
-    for k, path in enumerate(paths):
-        ds = GridDataset(data=np.load(path), dx=DX, dt=DT, c=C, dy=DX)
-        t1 = time.perf_counter()
-        reconstruct(ds, method, dtype="float32")
-        first = time.perf_counter() - (t0 if k == 0 else t1)
-        t2 = time.perf_counter()
-        reconstruct(ds, method, dtype="float32")
-        out.append({"cold_s": first if k == 0 else None, "warm_s": time.perf_counter() - t2})
-    print(json.dumps(out))
+    method, path = method_paths
+    ds = GridDataset(data=np.load(path), dx=DX, dt=DT, c=C, dy=DX)
+    rec = reconstruct(ds, method, dtype="float32")
+    print(json.dumps({"cold_s": time.perf_counter() - t0}), flush=True)
+    canonical: dict[str, str] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        write_result(os.path.join(tmp, "warm"), rec, input_id="bench")  # the writer's imports and fonts
+        for line in sys.stdin:
+            method, path = line.split()
+            ds = GridDataset(data=np.load(path), dx=DX, dt=DT, c=C, dy=DX)
+            if path not in canonical:
+                canonical[path] = os.path.join(tmp, f"ds{len(canonical)}.h5")
+                write_dataset(canonical[path], ds)
+            t = time.perf_counter()
+            rec = reconstruct(ds, method, dtype="float32")
+            lib = time.perf_counter() - t
+            t = time.perf_counter()
+            write_result(os.path.join(tmp, "lib-result"), rec, input_id="bench")
+            write = time.perf_counter() - t
+            del rec  # the worker's call starts with the memory a pool worker has between jobs
+            spec = {"input": {"kind": "dataset", "path": canonical[path]},
+                    "params": {"method": method, "dtype": "float32"}, "out_dir": os.path.join(tmp, "job-result"),
+                    "input_id": "bench"}
+            t = time.perf_counter()
+            summary = run_reconstruction(spec)
+            worker = time.perf_counter() - t
+            print(json.dumps({"lib_s": lib, "write_s": write, "worker_s": worker,
+                              "worker_timings": summary["timings"]}), flush=True)
 
 
-def library(method: str, paths: list[Path]) -> list[dict]:
-    r = subprocess.run([sys.executable, __file__, "--library-child", method, *map(str, paths)],
-                       capture_output=True, text=True, check=True)
-    return json.loads(r.stdout.strip().splitlines()[-1])
+class Library:
+    """The library child process (:func:`_library_child`): ``call(method, path)`` -> timings."""
+
+    def __init__(self, method: str, path: Path):
+        self.proc = subprocess.Popen([sys.executable, __file__, "--library-child", method, str(path)],
+                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        self.cold_s = self._answer()["cold_s"]
+
+    def _answer(self) -> dict:
+        assert self.proc.stdout is not None
+        line = self.proc.stdout.readline()
+        if not line:
+            raise RuntimeError(f"the library child exited {self.proc.wait()}")
+        return json.loads(line)
+
+    def call(self, method: str, path: Path) -> dict:
+        assert self.proc.stdin is not None
+        self.proc.stdin.write(f"{method} {path}\n")
+        self.proc.stdin.flush()
+        return self._answer()
+
+    def close(self) -> None:
+        if self.proc.stdin is not None:
+            self.proc.stdin.close()
+        self.proc.wait(timeout=60)
 
 
 def cli(method: str, path: Path, out: Path) -> float:
@@ -112,28 +162,31 @@ def _parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--sizes", type=int, nargs="+", default=[128, 226, 256], help="lateral sizes n (n x n)")
     ap.add_argument("--n-t", type=int, default=256)
     ap.add_argument("--methods", nargs="+", default=["ner", "nedner", "kwave"])
+    ap.add_argument("--repeat", type=int, default=3, help="rounds of (library call, HTTP job); medians")
     ap.add_argument("--no-cli", action="store_true", help="skip the command-line column")
     ap.add_argument("--json", action="store_true", help="also print the raw numbers as JSON")
-    ap.add_argument("--library-child", nargs="+", help=argparse.SUPPRESS)
+    ap.add_argument("--library-child", nargs=2, help=argparse.SUPPRESS)
     return ap.parse_args(argv)
 
 
 def main() -> int:
     args = _parse_args()
     if args.library_child:
-        _library_child(args.library_child[0], args.library_child[1:])
+        _library_child(args.library_child)
         return 0
 
+    os.environ.pop("PYTHONDONTWRITEBYTECODE", None)  # the children cache bytecode, as an install does
     load_start = os.getloadavg()
     rows: dict[tuple[str, int], dict] = {}
     extra: dict = {}
     with tempfile.TemporaryDirectory() as tmp_s:
         tmp = Path(tmp_s)
         paths = _write_datasets(tmp, args.sizes, args.n_t)
-        for m in args.methods:
-            for n, lib in zip(args.sizes, library(m, paths)):
-                rows[(m, n)] = {"lib_cold_s": lib["cold_s"], "lib_warm_s": lib["warm_s"]}
-        _measure_http(args, tmp, paths, rows, extra)
+        lib = Library(args.methods[0], paths[0])
+        try:
+            _measure(args, tmp, paths, lib, rows, extra)
+        finally:
+            lib.close()
         if not args.no_cli:
             for m in args.methods:
                 for n, p in zip(args.sizes, paths):
@@ -152,33 +205,56 @@ def _write_datasets(tmp: Path, sizes: list[int], n_t: int) -> list[Path]:
     return paths
 
 
-def _measure_http(args: argparse.Namespace, tmp: Path, paths: list[Path], rows: dict, extra: dict) -> None:
-    """Start a server; time start-up, the first job after it and one job per method and size."""
+def _median(values: list[float]) -> float:
+    return float(np.median(values))
+
+
+def _measure(args: argparse.Namespace, tmp: Path, paths: list[Path], lib: Library, rows: dict,
+             extra: dict) -> None:
+    """Start a server; time start-up and the first job after it; then per method and size
+    ``--repeat`` rounds of (library call + worker function + writer, HTTP job)."""
     import httpx
 
     from clients.processes import start_service
 
+    extra["lib_cold_s"] = lib.cold_s
+    # references for the start-up: a bare interpreter, numpy, and the web framework every FastAPI
+    # server imports (fresh interpreters, measured just before the server starts)
+    for name, code in (("python_pass_s", "pass"), ("import_numpy_s", "import numpy"),
+                       ("import_fastapi_s", "import fastapi, uvicorn")):
+        t = time.perf_counter()
+        subprocess.run([sys.executable, "-c", code], check=True)
+        extra[name] = time.perf_counter() - t
     t = time.perf_counter()
     srv = start_service(tmp / "data", token=TOKEN, web=False, env={"FPSCAN_LOG_LEVEL": "warning"},
                         log_path=tmp / "server.log")
     extra["startup_to_healthy_s"] = time.perf_counter() - t
+    extra["startup_load"] = os.getloadavg()[0]
     try:
         with httpx.Client(base_url=srv.url, headers={"Authorization": f"Bearer {TOKEN}"}, timeout=600) as c:
             ids = {}
             for n, p in zip(args.sizes, paths):
                 ids[n] = _upload(c, p)
                 if n == args.sizes[0]:  # the first job, right after start-up (worker still warming)
-                    first, _ = job(c, ids[n], args.methods[0])
-                    extra["first_job_s"] = first
-                    extra["first_job_over_lib"] = first / rows[(args.methods[0], n)]["lib_warm_s"]
+                    extra["first_job_s"], _ = job(c, ids[n], args.methods[0])
+                    extra["first_job_load"] = os.getloadavg()[0]
             for m in args.methods:
-                for n in args.sizes:
-                    dt, j = job(c, ids[n], m)
-                    tm = j["params"]["result"]["timings"]
-                    rows[(m, n)].update(http_s=dt, recon_s=tm["reconstruct_s"], write_s=tm["write_s"],
-                                        load=os.getloadavg()[0])
+                for n, p in zip(args.sizes, paths):
+                    got: dict[str, list] = {}
+                    for _ in range(max(1, args.repeat)):
+                        r = lib.call(m, p)
+                        dt, j = job(c, ids[n], m)
+                        tm = j["params"]["result"]["timings"]
+                        for key, v in (("lib_s", r["lib_s"]), ("worker_s", r["worker_s"]), ("write_s", r["write_s"]),
+                                       ("http_s", dt), ("job_recon_s", tm["reconstruct_s"]),
+                                       ("job_write_s", tm["write_s"]), ("load", os.getloadavg()[0])):
+                            got.setdefault(key, []).append(v)
+                    rows[(m, n)] = {k: _median(v) for k, v in got.items()}
+                    rows[(m, n)]["http_over_lib"] = _median([h / v for h, v in zip(got["http_s"], got["lib_s"])])
     finally:
         srv.stop(timeout=20)
+    m0, n0 = args.methods[0], args.sizes[0]
+    extra["first_job_over_lib"] = extra["first_job_s"] / rows[(m0, n0)]["lib_s"]
 
 
 def _print_table(args: argparse.Namespace, rows: dict, extra: dict, load_start, load_end) -> None:
@@ -187,21 +263,27 @@ def _print_table(args: argparse.Namespace, rows: dict, extra: dict, load_start, 
     def f(v, fmt="{:.2f}"):
         return "–" if v is None else fmt.format(v)
 
-    print(f"\nfpscan bench_table: n_t = {args.n_t}, float32; load average at start "
+    print(f"\nfpscan bench_table: n_t = {args.n_t}, float32, {args.repeat} rounds; load average at start "
           f"{load_start[0]:.2f} {load_start[1]:.2f} {load_start[2]:.2f}, at end "
           f"{load_end[0]:.2f} {load_end[1]:.2f} {load_end[2]:.2f} on {os.cpu_count()} CPUs\n")
-    print("| method | size | lib cold s | lib warm s | http s | http/lib | recon s (job) | write s (job) "
-          "| write/recon | cli s | load |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print("| method | size | lib s | worker s (/lib) | write s (/lib) | http s (/lib) | job recon s "
+          "| job write s (/recon) | cli s | load |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for (m, n), r in rows.items():
-        print(f"| {m} | {args.n_t}×{n}² | {f(r['lib_cold_s'])} | {f(r['lib_warm_s'])} | {f(r.get('http_s'))} "
-              f"| {f(r.get('http_s', 0) / r['lib_warm_s'])} | {f(r.get('recon_s'))} | {f(r.get('write_s'))} "
-              f"| {f(r.get('write_s', 0) / max(r.get('recon_s', 1), 1e-9))} | {f(r.get('cli_s'))} "
-              f"| {f(r.get('load'))} |")
+        lib = r["lib_s"]
+        print(f"| {m} | {args.n_t}×{n}² | {f(lib)} | {f(r['worker_s'])} ({f(r['worker_s'] / lib)}) "
+              f"| {f(r['write_s'])} ({f(r['write_s'] / lib)}) | {f(r['http_s'])} ({f(r['http_over_lib'])}) "
+              f"| {f(r['job_recon_s'])} | {f(r['job_write_s'])} ({f(r['job_write_s'] / max(r['job_recon_s'], 1e-9))}) "
+              f"| {f(r.get('cli_s'))} | {f(r['load'])} |")
     m0, n0 = args.methods[0], args.sizes[0]
-    print(f"\nstart-up to healthy: {extra['startup_to_healthy_s']:.2f} s (target <= 3 s); first job after "
-          f"start-up ({m0}, {args.n_t}×{n0}²): {extra['first_job_s']:.2f} s = {extra['first_job_over_lib']:.2f}× "
-          f"lib warm (target <= 2)")
+    print(f"\nlibrary cold (fresh interpreter: imports + first {m0} at {args.n_t}×{n0}²): {extra['lib_cold_s']:.2f} s")
+    print(f"start-up to healthy: {extra['startup_to_healthy_s']:.2f} s (target <= 3 s; load "
+          f"{extra['startup_load']:.2f}) = {extra['startup_to_healthy_s'] / extra['import_fastapi_s']:.2f}× a fresh "
+          f"`import fastapi, uvicorn` ({extra['import_fastapi_s']:.2f} s; `import numpy` "
+          f"{extra['import_numpy_s']:.2f} s, `pass` {extra['python_pass_s']:.2f} s)")
+    print(f"first job after start-up ({m0}, {args.n_t}×{n0}²): "
+          f"{extra['first_job_s']:.2f} s = {extra['first_job_over_lib']:.2f}× lib (target <= 2; load "
+          f"{extra['first_job_load']:.2f})")
     if args.json:
         print(json.dumps({"rows": [{"method": m, "n": n, **r} for (m, n), r in rows.items()], **extra,
                           "n_t": args.n_t, "load_start": load_start, "load_end": load_end}, indent=1))

@@ -90,15 +90,25 @@ def run(args) -> int:
                                '"message": %(message_json)s}')
     _install_json_messages()
 
-    from service.api.app import create_app
+    executor = None
+    if settings.executor == "local":  # the pool's workers spawn and warm up while the app loads
+        from service.jobs.executors import make_executor
 
-    app = create_app(settings)
-    config = uvicorn.Config(app, host=settings.host, port=settings.port, log_level=settings.log_level.lower(),
-                            access_log=False, lifespan="on")
-    server = uvicorn.Server(config)
-    print(json.dumps({"event": "serving", "host": settings.host, "port": settings.port,
-                      "data_dir": str(settings.data_dir)}), file=sys.stderr, flush=True)
-    server.run()
+        executor = make_executor(settings)
+        executor.start_workers()
+    try:
+        from service.api.app import create_app
+
+        app = create_app(settings, executor=executor)
+        config = uvicorn.Config(app, host=settings.host, port=settings.port, log_level=settings.log_level.lower(),
+                                access_log=False, lifespan="on")
+        server = uvicorn.Server(config)
+        print(json.dumps({"event": "serving", "host": settings.host, "port": settings.port,
+                          "data_dir": str(settings.data_dir)}), file=sys.stderr, flush=True)
+        server.run()
+    finally:
+        if executor is not None:  # closed by the app's shutdown too; here also when the app never started
+            executor.close()
     return 0
 
 

@@ -337,12 +337,15 @@ async def warm_routes(app: FastAPI, settings: Settings) -> None:
         log.exception("route warm-up failed")
 
 
-def create_app(settings: Settings | None = None, *, start_workers: bool = True) -> FastAPI:
+def create_app(settings: Settings | None = None, *, start_workers: bool = True, executor: Any = None) -> FastAPI:
     """The service app. ``start_workers=False`` builds the app without the queue and scan
-    threads (for schema inspection)."""
+    threads (for schema inspection). ``executor``: the reconstruction executor the queue uses
+    (``fpscan serve`` starts the local pool's workers before it imports this module, so they
+    warm up while the server loads; closed with the app); default: made from ``settings`` at
+    start-up (:func:`service.jobs.executors.make_executor`)."""
     settings = settings or Settings.load()
     slots = default_slots(settings)
-    app = FastAPI(title="fpscan", version=VERSION, lifespan=_lifespan(settings, slots, start_workers),
+    app = FastAPI(title="fpscan", version=VERSION, lifespan=_lifespan(settings, slots, start_workers, executor),
                   responses=ERROR_RESPONSES,
                   description="Planar Fabry-Perot photoacoustic scanning: plans, scans, reconstructions as jobs.")
     _add_error_handlers(app)
@@ -363,7 +366,7 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True) 
     return app
 
 
-def _lifespan(settings: Settings, slots: dict[str, Slots], start_workers: bool):
+def _lifespan(settings: Settings, slots: dict[str, Slots], start_workers: bool, given_executor: Any = None):
     """``create_app``'s lifespan: the job store and context, then (``start_workers``) the
     queue, its executor and the scan manager; the route warm-up; on shutdown all stopped."""
 
@@ -376,7 +379,7 @@ def _lifespan(settings: Settings, slots: dict[str, Slots], start_workers: bool):
         store = JobStore(settings.database)
         context = Context(settings=settings, store=store, slots=slots)
         app.state.ctx = context
-        executor = _start_workers(context, store, settings) if start_workers else None
+        executor = _start_workers(context, store, settings, given_executor) if start_workers else None
         await warm_routes(app, settings)
         try:
             yield
@@ -386,13 +389,15 @@ def _lifespan(settings: Settings, slots: dict[str, Slots], start_workers: bool):
     return lifespan
 
 
-def _start_workers(context: Context, store: JobStore, settings: Settings) -> Any:
+def _start_workers(context: Context, store: JobStore, settings: Settings, executor: Any = None) -> Any:
     """Start the reconstruction queue (after crash recovery, debris removal and the
-    retention policy), the plan worker and the scan manager; returns the executor."""
+    retention policy) on ``executor`` (default: made from the settings), the plan worker and
+    the scan manager; returns the executor."""
     from service.jobs.executors import make_executor
     from service.jobs.queue import ReconQueue
 
-    executor = make_executor(settings)
+    if executor is None:
+        executor = make_executor(settings)
     if hasattr(executor, "start_workers"):  # the local pool: its workers start (and warm up) now,
         context.extras["worker_starts"] = executor.start_workers()  # in the background
     context.queue = ReconQueue(store, executor, settings)

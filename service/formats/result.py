@@ -68,7 +68,7 @@ def _check_axis(name: str, v: Any, n: int) -> np.ndarray:
 #: compress a volume when a sample of it shrinks to this fraction or less
 COMPRESS_BELOW = 0.5
 #: bytes of a volume sampled to decide (evenly spaced depth rows)
-_PROBE_BYTES = 512 << 10
+_PROBE_BYTES = 128 << 10
 
 
 def storage_layout(p0: np.ndarray) -> dict[str, Any]:
@@ -79,7 +79,7 @@ def storage_layout(p0: np.ndarray) -> dict[str, Any]:
     ~14 % of a float32 volume and writes at ~10-25 MB/s, where contiguous storage writes at
     ~300-500 MB/s. A volume that is mostly exact zeros (positivity, model-based ``tv``) or
     otherwise redundant shrinks to a few per cent at ~200 MB/s with gzip level 1. So a
-    sample of 16 evenly spaced depth rows (at most 512 kB) is compressed with zlib level 1 after
+    sample of 16 evenly spaced depth rows (at most 128 kB) is compressed with zlib level 1 after
     byte shuffling; when it shrinks to ``COMPRESS_BELOW`` or less the volume is stored
     chunked (whole depth rows, ~1 MB chunks), gzip level 1 with shuffle, else contiguous
     and uncompressed. Either way any HDF5 reader reads it (gzip is HDF5's built-in

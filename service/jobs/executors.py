@@ -54,14 +54,15 @@ def lower_priority(increment: int = 10, parent: int | None = None) -> None:
 def start_worker(increment: int = 0, parent: int | None = None, warm: bool = False) -> None:
     """Reconstruction worker initializer: :func:`lower_priority` by ``increment``, then,
     with ``warm``, :func:`service.jobs.work.warm_up` (imports, numba kernels, the result
-    writer and its pictures), so the first job costs what a later one costs. A failing
+    writer and its pictures; the k-Wave and model-based kernels in the background), so the
+    first job costs what a later one costs. A failing
     warm-up is logged and ignored (the job then pays the cost itself)."""
     lower_priority(increment, parent)
     if warm:
         try:
             from service.jobs.work import warm_up
 
-            warm_up(full=True)
+            warm_up(full=True, rest_in_background=True)
         except Exception:  # noqa: BLE001 -- a warm-up must never stop the worker
             import logging
 
@@ -91,6 +92,7 @@ class LocalExecutor:
         self.nice = int(nice)
         self.warm = bool(warm)
         self.closed = False
+        self._starts: list | None = None
         self._pool = self._new_pool()
 
     def _new_pool(self) -> ProcessPoolExecutor:
@@ -100,10 +102,12 @@ class LocalExecutor:
     def start_workers(self) -> list:
         """Start every worker process now (in the background: returns their futures at once)
         rather than at the first job, so their warm-up runs before it. Each future's result
-        is the worker's pid."""
+        is the worker's pid. A second call returns the first call's futures."""
         from service.jobs.work import worker_pid
 
-        return [self._pool.submit(worker_pid) for _ in range(self.workers)]
+        if self._starts is None:
+            self._starts = [self._pool.submit(worker_pid) for _ in range(self.workers)]
+        return self._starts
 
     def submit(self, fn, *args):
         try:

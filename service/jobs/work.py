@@ -244,13 +244,18 @@ def worker_pid() -> int:
     return os.getpid()
 
 
-def warm_up(full: bool = False) -> dict:
+def warm_up(full: bool = False, rest_in_background: bool = False) -> dict:
     """Make a fresh worker ready for its first job: import the reconstruction and the
     result writer; with ``full`` also compile (or load from numba's cache) every numba
     kernel a job uses, in float32 and float64 (:func:`service.recon.warmup.warm_up`, the
     one warm-up ``fpscan warmup`` runs too), run one tiny job's dispatch and write its result
-    folder (h5py, matplotlib and the fonts of the MIP pictures) into a temporary folder.
-    Returns ``{"pid", "seconds"}``."""
+    folder (h5py and the fonts of the MIP pictures) into a temporary folder.
+
+    The planar kernels (NER, NEDNER: most jobs) and the writer come first; with
+    ``rest_in_background`` the other groups (k-Wave modes, the model-based operator with its
+    pylops import: seconds) warm in a daemon thread after this returns, so the worker takes
+    its first job that much sooner (a job that needs them meanwhile compiles or waits for
+    them under numba's lock). Returns ``{"pid", "seconds"}``: the time until return."""
     import h5py  # noqa: F401
 
     from service import recon  # noqa: F401
@@ -266,10 +271,29 @@ def warm_up(full: bool = False) -> dict:
         from service.recon.warmup import warm_up as compile_kernels
         from service.storage.results import write_result
 
-        compile_kernels()
+        compile_kernels(groups=("planar",))
         data = np.zeros((32, 4, 4), dtype=np.float32)
         data[5, 1:3, 1:3] = 1.0
         rec = reconstruct(GridDataset(data=data, dx=1e-4, dt=2e-8, c=C_DEFAULT, dy=1e-4), "ner")
         with tempfile.TemporaryDirectory(prefix="fpscan-warm-") as tmp:
             write_result(os.path.join(tmp, "result"), rec, input_id="warm-up")
+        if rest_in_background:
+            import threading
+
+            threading.Thread(target=_warm_rest, name="warm-up-rest", daemon=True).start()
+        else:
+            compile_kernels(groups=("kwave", "model"))
     return {"pid": os.getpid(), "seconds": time.perf_counter() - t0}
+
+
+def _warm_rest() -> None:
+    """The kernel groups :func:`warm_up` leaves to the background; a failure is logged (a job
+    then compiles what it needs itself)."""
+    try:
+        from service.recon.warmup import warm_up as compile_kernels
+
+        compile_kernels(groups=("kwave", "model"))
+    except Exception:  # noqa: BLE001 -- a warm-up must never stop the worker
+        import logging
+
+        logging.getLogger("fpscan.worker").exception("worker warm-up (k-Wave modes, model) failed")

@@ -57,10 +57,13 @@ def mip(volume: np.ndarray, plane: str = "xy", *, absolute: bool = False) -> np.
         raise ValueError(f"a MIP needs a non-empty (n_z, n_y, n_x) volume, got shape {volume.shape}")
     if volume.ndim == 2 and plane != "xz":
         raise ValueError(f"a 2-D volume (n_z, n_x) has only the xz plane, not {plane!r}")
-    if np.isnan(volume).any():
-        raise ValueError("volume contains NaN")
     v = np.abs(volume) if absolute else volume
-    return v if v.ndim == 2 else v.max(axis=MIP_AXES[plane])
+    out = v if v.ndim == 2 else v.max(axis=MIP_AXES[plane])
+    # the maximum propagates NaN: every sample lies on one ray, so a NaN anywhere shows here
+    # (one pass over the volume instead of two)
+    if np.isnan(out).any():
+        raise ValueError("volume contains NaN")
+    return out
 
 
 def mips(volume: np.ndarray, *, absolute: bool = False) -> dict[str, np.ndarray]:

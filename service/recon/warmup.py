@@ -22,12 +22,18 @@ import numpy as np
 
 from driver.constants import C_DEFAULT
 
-__all__ = ["DTYPES", "warm_up", "cache_dirs"]
+__all__ = ["DTYPES", "GROUPS", "warm_up", "cache_dirs"]
 
 DTYPES = ("float32", "float64")
 
 
-def warm_up(dtypes=DTYPES) -> dict:
+#: the kernel groups :func:`warm_up` compiles, in the order it does: NER and NEDNER (the
+#: planar inversions: numba, scipy.fft), the k-Wave-compatible modes, the model-based operator
+#: and forward model (``tv``: also pylops and pyproximal, the slowest imports)
+GROUPS = ("planar", "kwave", "model")
+
+
+def warm_up(dtypes=DTYPES, groups=GROUPS) -> dict:
     """Compile (or load from the cache) every numba kernel of the reconstruction.
 
     Runs NER (grid), NEDNER (scattered A-lines), the k-Wave-compatible modes and the forward
@@ -37,6 +43,11 @@ def warm_up(dtypes=DTYPES) -> dict:
     ----------
     dtypes : iterable of str, optional
         ``"float32"`` and/or ``"float64"``; default both.
+    groups : iterable of str, optional
+        Names in :data:`GROUPS`; default all: ``"planar"`` (NER, NEDNER), ``"kwave"`` (the
+        k-Wave-compatible modes), ``"model"`` (the model-based operator and the forward
+        model). A job server warms ``"planar"`` before its worker takes a job and the rest
+        beside it (``service.jobs.work.warm_up``).
 
     Returns
     -------
@@ -47,7 +58,7 @@ def warm_up(dtypes=DTYPES) -> dict:
     Raises
     ------
     ValueError
-        An unknown dtype.
+        An unknown dtype or group.
 
     Examples
     --------
@@ -63,31 +74,61 @@ def warm_up(dtypes=DTYPES) -> dict:
     for d in names:
         if d not in DTYPES:
             raise ValueError(f"dtype must be one of {DTYPES}, got {d!r}")
-    from driver.physics.forward import forward_grid
-    from service.recon.kwave import kspace_line_recon, kspace_plane_recon
-    from service.recon.operator import PlanarOperator
+    wanted = [str(g) for g in groups]
+    for g in wanted:
+        if g not in GROUPS:
+            raise ValueError(f"group must be one of {GROUPS}, got {g!r}")
+    t0 = time.perf_counter()
+    for g in GROUPS:  # in the order of GROUPS
+        if g in wanted:
+            _WARM[g](names)
+    return {"seconds": time.perf_counter() - t0, "cache_dirs": cache_dirs()}
+
+
+_DX, _DT = 1e-4, 2e-8
+
+
+def _tiny(d: str) -> np.ndarray:
+    data = np.zeros((32, 6, 6), dtype=d)
+    data[5, 3, 3] = 1.0
+    return data
+
+
+def _warm_planar(names: list[str]) -> None:
     from service.recon.planar import reconstruct_grid, reconstruct_points
 
-    t0 = time.perf_counter()
-    dx, dt = 1e-4, 2e-8
     rng = np.random.default_rng(0)
     for d in names:
-        data = np.zeros((32, 6, 6), dtype=d)
-        data[5, 3, 3] = 1.0
-        reconstruct_grid(data, dx, dt, dtype=d)
-        reconstruct_grid(data[:, 0, :], dx, dt, dtype=d)
-        pos = rng.uniform(0.0, 5 * dx, (30, 2))
-        grid = (np.arange(6) * dx, np.arange(6) * dx)
-        reconstruct_points(rng.standard_normal((30, 32)).astype(d), pos, dt, weights=np.full(30, dx * dx),
+        data = _tiny(d)
+        reconstruct_grid(data, _DX, _DT, dtype=d)
+        reconstruct_grid(data[:, 0, :], _DX, _DT, dtype=d)
+        pos = rng.uniform(0.0, 5 * _DX, (30, 2))
+        grid = (np.arange(6) * _DX, np.arange(6) * _DX)
+        reconstruct_points(rng.standard_normal((30, 32)).astype(d), pos, _DT, weights=np.full(30, _DX * _DX),
                            grid=grid, dtype=d)
+
+
+def _warm_kwave(names: list[str]) -> None:
+    from service.recon.kwave import kspace_line_recon, kspace_plane_recon
+
+    for d in names:
+        data = _tiny(d)
         for interp in ("*nearest", "*linear"):
-            kspace_plane_recon(data, dx, dx, dt, C_DEFAULT, interp=interp, dtype=d)
-            kspace_line_recon(data[:, 0, :], dx, dt, C_DEFAULT, interp=interp, dtype=d)
-        # the model-based operator runs its transforms in the working precision
-        op = PlanarOperator((4, 6, 6), dx, C_DEFAULT * dt, dt, 32, dtype=d)
+            kspace_plane_recon(data, _DX, _DX, _DT, C_DEFAULT, interp=interp, dtype=d)
+            kspace_line_recon(data[:, 0, :], _DX, _DT, C_DEFAULT, interp=interp, dtype=d)
+
+
+def _warm_model(names: list[str]) -> None:
+    from driver.physics.forward import forward_grid
+    from service.recon.operator import PlanarOperator
+
+    for d in names:  # the model-based operator runs its transforms in the working precision
+        op = PlanarOperator((4, 6, 6), _DX, C_DEFAULT * _DT, _DT, 32, dtype=d)
         op.adjoint(op.forward(np.ones((4, 6, 6))))
-    forward_grid(np.ones((4, 6, 6)), dx, C_DEFAULT * dt, dt, 32)
-    return {"seconds": time.perf_counter() - t0, "cache_dirs": cache_dirs()}
+    forward_grid(np.ones((4, 6, 6)), _DX, C_DEFAULT * _DT, _DT, 32)
+
+
+_WARM = {"planar": _warm_planar, "kwave": _warm_kwave, "model": _warm_model}
 
 
 def cache_dirs() -> list[str]:

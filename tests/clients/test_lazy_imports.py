@@ -132,3 +132,21 @@ def test_warmup_command_options_and_bad_dtype(capsys):
     assert exit_.value.code == 2 and "invalid choice" in capsys.readouterr().err
     with pytest.raises(ValueError, match="dtype must be one of"):
         warm_up(["float16"])
+
+
+def test_job_worker_warms_the_planar_kernels_first():
+    """The planar group of the kernel warm-up (what a job worker warms before it takes a job:
+    ``service.jobs.work.warm_up(full=True, rest_in_background=True)``) never imports the
+    model-based operator and its pylops (the slowest import, warmed in a background thread);
+    unknown groups are a ValueError."""
+    from service.recon.warmup import warm_up
+
+    with pytest.raises(ValueError, match="group must be one of"):
+        warm_up(["float32"], groups=["nope"])
+    got = _fresh(r'''
+import json, sys
+from service.recon.warmup import warm_up
+warm_up(["float32"], groups=["planar"])
+print(json.dumps({"operator": "service.recon.operator" in sys.modules, "pylops": "pylops" in sys.modules}))
+''')
+    assert got == {"operator": False, "pylops": False}, got

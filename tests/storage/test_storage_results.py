@@ -163,7 +163,7 @@ def test_annotated_pngs(tmp_path):
     assert set(pngs) == {"xy", "xz", "yz"}
     for data in pngs.values():
         img = _png(data)
-        assert img.ndim == 3 and img.shape[0] > 100 and img.shape[1] > 300
+        assert img.ndim in (2, 3) and img.shape[0] > 100 and img.shape[1] > 300
     assert set(render_mips(p0[:, 0, :], z, x)) == {"xz"}
     _png(render_slice(p0, z, x, y, 0, cmap="magma"))
     with pytest.raises(ValueError, match="3-D"):
@@ -176,3 +176,34 @@ def test_annotated_pngs(tmp_path):
         render_mip(p0, z, x, None, "xy")
     with pytest.raises(ValueError, match="do not match"):
         render_mip(p0, z[:-1], x, y, "xy")
+
+
+def test_annotated_png_shows_the_colormapped_samples_in_its_frame():
+    """An annotated picture (the Pillow frame of service.storage.frame): 600 px wide; inside
+    the plotting area its ``fpscan:axes`` chunk names, the centre of every sample's cell has
+    matplotlib's colour of that sample (viridis over [vmin, vmax], row 0 at the top); text and
+    ticks left of the area (the y axis) and right of it (the colour bar and its label)."""
+    import matplotlib
+
+    from service.storage.render import png_axes, render_png
+
+    rng = np.random.default_rng(5)
+    img = rng.random((6, 9))
+    h, v = np.arange(9) * 1e-4, np.arange(6) * 1e-4
+    png = render_png(img, h, v, hlabel="x", vlabel="y", cmap="viridis", vmin=0.0, vmax=1.0,
+                     colorbar_label="p0 (Pa)")
+    rgb = _png(png)[..., :3].astype(np.int32)
+    assert rgb.shape[1] == 600
+    g = png_axes(png)
+    assert g["extent_mm"] == pytest.approx([-0.05, 0.85, 0.55, -0.05])  # sample edges in mm, y down
+    cell_w, cell_h = (g["right"] - g["left"]) / 9, (g["bottom"] - g["top"]) / 6
+    assert cell_w == pytest.approx(cell_h, rel=0.05)  # equal aspect
+    want = np.asarray(matplotlib.colormaps["viridis"](img))[..., :3] * 255
+    for i in range(6):
+        for j in range(9):
+            px = rgb[int(g["top"] + (i + 0.5) * cell_h), int(g["left"] + (j + 0.5) * cell_w)]
+            assert np.abs(px - want[i, j]).max() <= 3, (i, j, px, want[i, j])
+    dark = rgb.sum(axis=2) < 200
+    assert dark[:, : int(g["left"]) - 2].sum() > 200  # y tick labels and the y label
+    assert dark[:, int(g["right"]) + 40:].sum() > 200  # colour bar ticks, tick labels, its label
+    assert dark[int(g["bottom"]) + 2:, :].sum() > 200  # x tick labels and the x label
