@@ -15,7 +15,7 @@ import re
 import sqlite3
 import time
 import uuid
-from collections.abc import MutableMapping
+from collections.abc import Awaitable, Callable, MutableMapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -377,12 +377,16 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True) 
                        body_timeout_s=settings.body_timeout_s)
     app.add_middleware(ShortIds)
     from service.api.access import AccessGate
+    from service.api.lanes import HealthLane, RequestTurns
 
-    app.add_middleware(AccessGate, settings=settings)  # outermost: before any slot, thread or body byte
+    app.add_middleware(RequestTurns)  # requests start a few per loop iteration (health's lane)
+    app.add_middleware(AccessGate, settings=settings)  # before any slot, thread, turn or body byte
 
     from service.api import datasets, jobs, plans, reconstructions, retention, scans
 
-    _add_health_routes(app, settings)
+    health_document = _add_health_routes(app, settings)
+    # outermost: health answered ahead of the queue, after the gate's own rules
+    app.add_middleware(HealthLane, settings=settings, document=health_document)
     for module in (plans, scans, datasets, reconstructions, jobs, retention):
         app.include_router(module.router)
     _state_security_in_openapi(app, settings)
@@ -505,25 +509,31 @@ def _add_error_handlers(app: FastAPI) -> None:
         return JSONResponse({"detail": f"internal error (reference {ref})"}, status_code=500)
 
 
-def _add_health_routes(app: FastAPI, settings: Settings) -> None:
-    """``GET /api/health`` and ``GET /api/auth``."""
+def _add_health_routes(app: FastAPI, settings: Settings) -> Callable[[Context], Awaitable[Health]]:
+    """``GET /api/health`` and ``GET /api/auth``; returns health's document (an awaitable
+    of :class:`Health`, given the app's context), which ``service.api.lanes.HealthLane``
+    answers with ahead of the other requests."""
     from service.jobs.lifecycle import disk_usage_steps
 
     disk_cache = DiskUsageCache(settings.data_dir, disk_usage_steps)
+
+    async def health_document(c: Context) -> Health:
+        return Health(version=VERSION, executor=settings.executor,
+                      jobs_running=c.queue.running() if c.queue is not None else 0,
+                      disk=await disk_cache.get(),
+                      problems=c.scans.problems() if c.scans is not None else [])
 
     @app.get("/api/health", response_model=Health, tags=["health"], dependencies=[Depends(read_access)])
     async def health(c: Context = Depends(ctx)) -> Health:
         """Liveness: ``{"status": "ok", "version", "executor", "jobs_running", "disk"}``;
         ``disk``: bytes the data folder uses by part (scans, results, datasets, exports,
         other) and the free bytes of its file system. Answered on the event loop without a
-        server thread (a flood of other requests holds those); the folder walk runs in
-        steps on the loop, once for every caller while one is under way; a change of the
-        stored data shows in the next answer, growth of files in place within about
-        ``DISK_USAGE_TTL_S`` (:class:`DiskUsageCache`)."""
-        return Health(version=VERSION, executor=settings.executor,
-                      jobs_running=c.queue.running() if c.queue is not None else 0,
-                      disk=await disk_cache.get(),
-                      problems=c.scans.problems() if c.scans is not None else [])
+        server thread, ahead of the other requests waiting for their turn
+        (``service.api.lanes``); the folder walk runs in steps on the loop, once for every
+        caller while one is under way; a change of the stored data shows in the next
+        answer, growth of files in place within about ``DISK_USAGE_TTL_S``
+        (:class:`DiskUsageCache`)."""
+        return await health_document(c)
 
     @app.get("/api/auth", response_model=AuthInfo, tags=["health"])
     def auth(request: Request) -> AuthInfo:
@@ -536,6 +546,8 @@ def _add_health_routes(app: FastAPI, settings: Settings) -> None:
         return AuthInfo(token_required=expected is not None,
                         authenticated=expected is None
                         or token_matches(request.headers.get("authorization"), expected) is None)
+
+    return health_document
 
 
 def _state_security_in_openapi(app: FastAPI, settings: Settings) -> None:
