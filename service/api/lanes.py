@@ -50,6 +50,7 @@ class RequestTurns:
         self._started = 0  # requests started in the current iteration
         self._waiting: deque[asyncio.Future] = deque()
         self._tick_due = False  # a call of _next_iteration is scheduled
+        self._loop: asyncio.AbstractEventLoop | None = None  # the loop the counts are of
 
     async def __call__(self, scope, receive, send):
         if scope["type"] == "http":
@@ -60,6 +61,8 @@ class RequestTurns:
         """Return when this request may start: at once while fewer than ``per_iteration``
         have started in this iteration and none waits, else in a later iteration."""
         loop = asyncio.get_running_loop()
+        if loop is not self._loop:  # a new event loop (an app served again): nothing carries over
+            self._loop, self._started, self._waiting, self._tick_due = loop, 0, deque(), False
         if not self._tick_due:
             self._tick_due = True
             loop.call_soon(self._next_iteration)  # runs in the next iteration

@@ -91,3 +91,27 @@ def test_a_request_starts_without_waiting_while_its_iteration_has_turns_left(loo
 def test_per_iteration_must_be_positive():
     with pytest.raises(ValueError, match="per_iteration must be >= 1"):
         RequestTurns(None, per_iteration=0)
+
+
+def test_an_app_served_again_on_a_new_loop_starts_afresh():
+    """Requests left waiting when a loop stopped (a test client closed, a server restarted
+    in-process) neither hold back nor block those of the next loop."""
+    turns = RequestTurns(None, per_iteration=1)
+
+    async def leave_one_waiting():
+        with pytest.raises(StopIteration):
+            turns.turn().send(None)  # takes the iteration's turn
+        for _ in range(2):  # wait: one gets the next iteration's turn, its loop stops before the other's
+            assert not turns.turn().send(None).done()
+
+    async def next_loop():
+        await asyncio.wait_for(turns.turn(), 5)
+        await asyncio.wait_for(turns.turn(), 5)  # the next iteration's turn
+
+    old = asyncio.new_event_loop()
+    try:  # stopped as soon as the coroutine is done, before another iteration
+        old.run_until_complete(leave_one_waiting())
+        assert turns.waiting == 1
+    finally:
+        old.close()
+    asyncio.run(next_loop())
