@@ -1,7 +1,9 @@
 """Who may talk to the service, decided before any work is done for a request.
 
-:class:`AccessGate` (the outermost ASGI middleware) answers a request from its headers
-alone, before a slot is counted, a thread taken or a byte of the body read:
+:class:`AccessGate` (the outermost ASGI middleware but for health's lane,
+``service.api.lanes.HealthLane``, which applies its rules first) answers a request from
+its headers alone, before a slot is counted, a turn or a thread taken or a byte of the
+body read:
 
 - ``Host``: a request whose ``Host`` header is not a loopback name (``localhost``,
   ``127.0.0.1`` and the rest of 127.0.0.0/8, ``[::1]``; any port), the server's own bind

@@ -32,6 +32,7 @@ from __future__ import annotations
 import logging
 import os
 import shutil
+from collections.abc import Generator
 from pathlib import Path
 from typing import Any
 
@@ -40,7 +41,7 @@ from service.jobs.store import ACTIVE, JobStore
 __all__ = [
     "RETENTION_KEY", "InUse", "NotFound", "job_files", "job_dataset_ids", "delete_job", "delete_plan",
     "delete_dataset", "list_datasets", "apply_dataset_retention", "default_retention", "get_retention",
-    "set_retention", "apply_retention", "disk_usage",
+    "set_retention", "apply_retention", "DISK_PARTS", "DISK_WALK_STEP", "disk_usage", "disk_usage_steps",
 ]
 
 log = logging.getLogger("fpscan.lifecycle")
@@ -337,16 +338,68 @@ def apply_retention(store: JobStore, settings: Any) -> list[str]:
 
 
 # -- disk use ---------------------------------------------------------------------------
+#: parts of the data folder that disk_usage counts apart (the rest is ``other_bytes``)
+DISK_PARTS = ("scans", "results", "datasets", "exports")
+#: entries disk_usage_steps looks at between two of its yields
+DISK_WALK_STEP = 256
+
+
 def disk_usage(data_dir: str | os.PathLike) -> dict:
     """Bytes the store uses, by part, and the free space of its file system:
     ``{"total_bytes", "scans_bytes", "results_bytes", "datasets_bytes", "exports_bytes",
-    "other_bytes", "free_bytes"}``."""
+    "other_bytes", "free_bytes"}`` (one walk of the data folder, :func:`disk_usage_steps`
+    run to its end)."""
+    steps = disk_usage_steps(data_dir)
+    while True:
+        try:
+            next(steps)
+        except StopIteration as done:
+            return done.value
+
+
+def disk_usage_steps(data_dir: str | os.PathLike) -> Generator[None, None, dict]:
+    """:func:`disk_usage` as a generator that yields (None) after every
+    :data:`DISK_WALK_STEP` entries and returns the answer: a caller on an event loop lets
+    other work run between the steps (``/api/health``'s ``DiskUsageCache``). One pass over
+    the data folder (files counted by ``lstat`` size, symbolic links not followed below a
+    part's own folder); a file that vanishes during the walk counts 0."""
     data = Path(data_dir)
-    parts = {name: _tree_bytes(data / name) for name in ("scans", "results", "datasets", "exports")}
-    total = _tree_bytes(data) if data.exists() else 0
-    out: dict[str, int | None] = {f"{k}_bytes": v for k, v in parts.items()}
-    out["other_bytes"] = max(total - sum(parts.values()), 0)  # the database, plans, logs
-    out["total_bytes"] = total
+    sizes = dict.fromkeys(DISK_PARTS, 0)
+    other = 0
+    seen = 0
+    if data.is_dir():
+        # (folder, the part it counts to: "" for other_bytes, None for the data folder itself,
+        # whose folders named like a part are that part, followed if they are links)
+        todo: list[tuple[str, str | None]] = [(str(data), None)]
+        while todo:
+            folder, part = todo.pop()
+            try:
+                with os.scandir(folder) as entries:
+                    listed = list(entries)
+            except OSError:
+                continue
+            for entry in listed:
+                seen += 1
+                if seen % DISK_WALK_STEP == 0:
+                    yield
+                try:
+                    if part is None and entry.name in sizes and entry.is_dir():
+                        todo.append((entry.path, entry.name))
+                        continue
+                    if entry.is_dir():  # a link to a folder elsewhere is not followed (nor counted)
+                        if not entry.is_symlink():
+                            todo.append((entry.path, part or ""))
+                        continue
+                    size = entry.stat(follow_symlinks=False).st_size
+                except OSError:
+                    continue
+                if part:
+                    sizes[part] += size
+                else:
+                    other += size
+    out: dict[str, int | None] = {f"{k}_bytes": v for k, v in sizes.items()}
+    out["other_bytes"] = other  # the database, plans, logs
+    out["total_bytes"] = other + sum(sizes.values())
     try:
         out["free_bytes"] = shutil.disk_usage(data if data.exists() else data.parent).free
     except OSError:
