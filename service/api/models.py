@@ -31,6 +31,14 @@ from service.plans.plan import ORDER_NAMES, Acquisition
 from service.plans.plan import Plan as PlanJson
 from service.recon import methods as _methods
 
+__all__ = [
+    "JobState", "JobKind", "ReconMethod", "Plane", "DATASET_FORMATS", "DatasetFormat", "ID_PATTERN", "LatticeIndex",
+    "Error", "DiskUse", "Health", "AuthInfo", "Deleted", "Retention", "MAX_LATTICE_POINTS", "Pitch", "Lattice",
+    "PlanDocument", "PlanCreate", "MethodOption", "DatasetFormatInfo", "MethodInfo", "MaskKindInfo", "Plan",
+    "PlanPreview", "Progress", "Timings", "Job", "ScanRequest", "Scanner", "PreviewInfo", "Dataset", "DatasetInfo",
+    "ReconParams", "UnmixOptions", "ReconRequest",
+]
+
 
 def _one_of(values) -> Any:
     """A string type accepting only ``values`` (listed as the schema's ``enum``), so
