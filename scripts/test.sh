@@ -13,11 +13,11 @@ fi
 bash scripts/lint.sh
 # Two parts: the tests in parallel on FPSCAN_TEST_WORKERS processes (default 2, one per core of
 # the reference machine; 0 runs them in this process), a test file's tests on one worker
-# (they share its servers and browser); then, alone, the tests marked `serial`, which hold a
+# (they share its servers and browser; the 25 slowest are listed); then, alone, the tests marked `serial`, which hold a
 # time bound an issue sets (health p99, cancel latency) that a neighbour's load would blur.
 # Arguments go to both parts (a part that selects no test counts as passed).
 set +e
-.venv/bin/python -m pytest -n "${FPSCAN_TEST_WORKERS:-2}" --dist loadfile -m "not serial" "$@"
+.venv/bin/python -m pytest -n "${FPSCAN_TEST_WORKERS:-2}" --dist loadfile -m "not serial" --durations=25 "$@"
 parallel=$?
 .venv/bin/python -m pytest -p no:xdist -m serial "$@"
 alone=$?
