@@ -11,7 +11,7 @@ from driver.units import RefusedInput
 __all__ = [
     "positive", "finite_array", "EPS_RANGE", "UPSAMPLE_RANGE", "N_Z_RANGE", "DZ_RANGE", "LAM_RANGE",
     "ITERATIONS_RANGE", "TIME_LIMIT_MAX", "OptionError", "check_eps", "check_upsample", "check_n_z",
-    "check_dz", "check_lam", "check_iterations", "check_time_limit", "check_dtype", "available_memory",
+    "check_dz", "check_lam", "check_tol", "check_iterations", "check_time_limit", "check_dtype", "available_memory",
     "estimate_peak_memory", "padded_lateral", "OPERATOR_BATCH", "OPERATOR_CHUNK", "tv_memory", "check_memory",
 ]
 
@@ -116,6 +116,7 @@ from service.recon.limits import (  # noqa: E402
     LAM_RANGE,
     N_Z_RANGE,
     TIME_LIMIT_MAX,
+    TOL_RANGE,
     UPSAMPLE_RANGE,
 )
 
@@ -320,6 +321,40 @@ def check_lam(lam) -> float:
     v = _number("lam (the TV weight λ)", lam, "a number >= 0")
     if not np.isfinite(v) or not LAM_RANGE[0] <= v <= LAM_RANGE[1]:
         raise OptionError(f"lam (the TV weight λ) must be in [0, 1e+30], got {lam!r}")
+    return v
+
+
+def check_tol(tol) -> float:
+    """The model-based solver's stopping threshold: a number in ``TOL_RANGE`` ([0, 0.5]).
+
+    Parameters
+    ----------
+    tol : float
+        Stop when the objective's mean decrease over the last 3 iterations is below ``tol``
+        × its decrease since the warm start (`service.recon.tv`); 0: run every iteration.
+
+    Returns
+    -------
+    float
+
+    Raises
+    ------
+    OptionError
+        (a ValueError) not a finite number, or outside the range.
+
+    Examples
+    --------
+    >>> from service.recon.checks import check_tol
+    >>> check_tol(0.01)
+    0.01
+    >>> check_tol(1)
+    Traceback (most recent call last):
+    ...
+    service.recon.checks.OptionError: tol (the stopping threshold) must be in [0, 0.5], got 1
+    """
+    v = _number("tol (the stopping threshold)", tol, "a number in [0, 0.5]")
+    if not np.isfinite(v) or not TOL_RANGE[0] <= v <= TOL_RANGE[1]:
+        raise OptionError(f"tol (the stopping threshold) must be in [0, 0.5], got {tol!r}")
     return v
 
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 from typing import Final
 
 __all__ = ["EPS_RANGE", "UPSAMPLE_RANGE", "N_Z_RANGE", "DZ_RANGE", "LAM_RANGE", "ITERATIONS_RANGE",
-           "TIME_LIMIT_MAX", "DEFAULT_DTYPE", "DTYPES", "KWAVE_INTERPS", "DEFAULT_EPS", "DEFAULT_MAX_ITER",
+           "TIME_LIMIT_MAX", "TOL_RANGE", "DEFAULT_TOL", "DEFAULT_DTYPE", "DTYPES", "KWAVE_INTERPS", "DEFAULT_EPS", "DEFAULT_MAX_ITER",
            "DEFAULT_TIME_LIMIT"]
 
 #: NUFFT tolerance, inclusive
@@ -27,6 +27,11 @@ LAM_RANGE = (0.0, 1e30)
 ITERATIONS_RANGE = (1, 100000)
 #: wall-time limit of the model-based solver, s: (0, max]
 TIME_LIMIT_MAX = 7 * 86400.0
+#: the model-based solver's stopping threshold (its objective's last decrease over its
+#: decrease since the warm start; 0: run every iteration), inclusive
+TOL_RANGE = (0.0, 0.5)
+#: the stopping threshold used when none is asked for
+DEFAULT_TOL = 1e-3
 
 #: the working and output precision used when none is asked for (every method, every caller)
 DEFAULT_DTYPE: Final = "float32"

@@ -77,7 +77,7 @@ __all__ = ["DEFAULT_MAX_ITER", "DEFAULT_TOL", "DEFAULT_TIME_LIMIT", "noise_sigma
 
 DEFAULT_MAX_ITER = _limits.DEFAULT_MAX_ITER
 #: the stopping rule: the objective's last decrease below this share of its decrease since the warm start
-DEFAULT_TOL = 1e-3
+DEFAULT_TOL = _limits.DEFAULT_TOL
 _POWER_STEPS = 2  # power iterations for the first step 1 / ‖BA‖ (the solver raises L where it sees more)
 _MARGIN = 1.1  # step 1 / (_MARGIN ‖BA‖)
 _LAM_SCALE = 1.0  # automatic λ = _LAM_SCALE × the NER image's noise level
@@ -107,9 +107,7 @@ def _check_tv_options(lam, max_iter, tol, time_limit):
     """The model-based options by their rules (``service.recon.checks``: one owner each)."""
     lam = None if lam is None else checks.check_lam(lam)
     max_iter = checks.check_iterations(max_iter)
-    tol = float(tol)
-    if not np.isfinite(tol) or tol < 0:
-        raise ValueError(f"tol must be a finite number >= 0, got {tol!r}")
+    tol = checks.check_tol(tol)
     return lam, max_iter, tol, checks.check_time_limit(time_limit)
 
 

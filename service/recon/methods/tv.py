@@ -11,9 +11,11 @@ from pydantic import BeforeValidator, Field
 from service.recon.limits import (
     DEFAULT_MAX_ITER,
     DEFAULT_TIME_LIMIT,
+    DEFAULT_TOL,
     ITERATIONS_RANGE,
     LAM_RANGE,
     TIME_LIMIT_MAX,
+    TOL_RANGE,
 )
 from service.recon.methods import Method, planar_memory, register
 from service.recon.methods.options import DepthOptions, Flag, MethodOptions, NufftOptions, kernel_rule
@@ -28,6 +30,8 @@ Lam = Annotated[Annotated[float, Field(ge=LAM_RANGE[0], le=LAM_RANGE[1])] | None
                 BeforeValidator(kernel_rule("check_lam"))]
 Iterations = Annotated[Annotated[int, Field(ge=ITERATIONS_RANGE[0], le=ITERATIONS_RANGE[1])] | None,
                        BeforeValidator(kernel_rule("check_iterations"))]
+Tol = Annotated[Annotated[float, Field(ge=TOL_RANGE[0], le=TOL_RANGE[1])] | None,
+                BeforeValidator(kernel_rule("check_tol"))]
 TimeLimit = Annotated[Annotated[float, Field(gt=0, le=TIME_LIMIT_MAX)] | None,
                       BeforeValidator(kernel_rule("check_time_limit"))]
 
@@ -41,6 +45,9 @@ class Options(DepthOptions, MethodOptions, NufftOptions):
                                         "derived": "from the estimated noise level"})
     iterations: Iterations = Field(DEFAULT_MAX_ITER, description="maximum iterations of the solver",
                                    json_schema_extra={"unit": "1"})
+    tol: Tol = Field(DEFAULT_TOL, description="stopping threshold: stop when the objective's mean decrease "
+                     "over the last 3 iterations is below tol times its decrease since the warm start "
+                     "(0: run every iteration)", json_schema_extra={"unit": "1"})
     time_limit: TimeLimit = Field(DEFAULT_TIME_LIMIT, description="wall-time limit of the solver (the server's "
                                   "setting tv_time_limit_s caps it): when reached the result says converged false, "
                                   "stop reason 'time limit'", json_schema_extra={"unit": "s", "quantity": "time"})
