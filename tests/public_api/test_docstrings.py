@@ -21,7 +21,7 @@ MODULES = [
     "service.recon.planar", "service.recon.reconstruction", "service.recon.unmix", "service.recon.warmup",
     "service.recon.methods", "service.recon.methods.options", "service.recon.methods.ner",
     "service.recon.methods.nedner", "service.recon.methods.interp", "service.recon.methods.kwave",
-    "service.recon.methods.tv", "service.recon.tv",
+    "service.recon.methods.tv", "service.recon.tv", "service.pipeline",
     "clients.http.client", "clients.http.errors", "clients.http.models",
 ]
 
