@@ -38,6 +38,14 @@ is called with non-decreasing fractions in [0, 1] (stage ``"reconstructing"``; a
 step may repeat its fraction so that a cancel is heard: ``tv`` does every 0.2 s at most);
 ``should_stop()`` is polled before each of those calls, and when it returns True
 :func:`reconstruct` raises :class:`Cancelled`.
+
+Examples
+--------
+>>> from service.pipeline import METHODS, OPTIONS
+>>> list(METHODS)
+['nedner', 'ner', 'linear', 'nearest', 'cubic', 'kwave', 'tv']
+>>> OPTIONS["eps"]
+'NUFFT tolerance (relative accuracy of the non-uniform FFTs) ([1e-14, 0.1]; default 1e-06)'
 """
 from __future__ import annotations
 
@@ -96,7 +104,30 @@ OPTIONS: dict[str, str] = _options()
 
 
 class Cancelled(Exception):
-    """The reconstruction stopped because ``should_stop()`` returned True."""
+    """The reconstruction stopped because ``should_stop()`` returned True.
+
+    Raised by :func:`reconstruct` from the first progress step after ``should_stop()``
+    returns True (the job worker marks the job cancelled).
+
+    Attributes
+    ----------
+    args : tuple of str
+        The message, ``"reconstruction cancelled"``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from service.pipeline import Cancelled, reconstruct
+    >>> from service.recon.dataset import GridDataset
+    >>> ds = GridDataset(np.zeros((64, 8)), dx=1e-4, dt=1e-4 / 1500, c=1500.0)
+    >>> try:
+    ...     reconstruct(ds, "ner", should_stop=lambda: True)
+    ... except Cancelled as exc:
+    ...     print(repr(exc))
+    Cancelled('reconstruction cancelled')
+    >>> issubclass(Cancelled, ValueError)  # not a refusal of the input
+    False
+    """
 
 
 def default_method(dataset: Any) -> str:
@@ -105,7 +136,29 @@ def default_method(dataset: Any) -> str:
     worker: ``"ner"`` for grid data, ``"nedner"`` for sensor points (any mask).
 
     ``dataset``: a dataset (its ``kind``) or the kind itself, ``"grid"`` or ``"points"``
-    (a stored dataset's ``layout``; a scan file loads as points)."""
+    (a stored dataset's ``layout``; a scan file loads as points).
+
+    Parameters
+    ----------
+    dataset : GridDataset, PointDataset or str
+        A dataset of :mod:`service.recon.dataset`, or its kind (``"grid"`` / ``"points"``).
+
+    Returns
+    -------
+    str
+        ``"ner"`` for grid data, ``"nedner"`` for anything else.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from service.pipeline import default_method
+    >>> from service.recon.dataset import GridDataset
+    >>> ds = GridDataset(np.zeros((64, 8)), dx=1e-4, dt=1e-4 / 1500, c=1500.0)
+    >>> default_method(ds), default_method(ds.to_points())
+    ('ner', 'nedner')
+    >>> default_method("grid"), default_method("points")
+    ('ner', 'nedner')
+    """
     kind = dataset if isinstance(dataset, str) else getattr(dataset, "kind", None)
     return "ner" if kind == "grid" else "nedner"
 
@@ -133,13 +186,54 @@ def option_rules() -> dict[str, Callable[[Any], Any]]:
     (``service.recon.checks``), so every door -- :func:`reconstruct`, ``fpscan recon`` /
     ``unmix`` and ``POST /api/reconstructions`` -- refuses what the kernel would, before any
     work. ``c`` and ``c_range`` have their own rules (:func:`reconstruct`,
-    ``driver.units.check_speeds``, ``service.autofocus.check_c_range``)."""
+    ``driver.units.check_speeds``, ``service.autofocus.check_c_range``).
+
+    Returns
+    -------
+    dict
+        Option name -> ``rule(value)``, returning the checked value (SI units; e.g. an int
+        ``upsample``, a float ``eps``) or raising ``service.recon.checks.OptionError``.
+
+    Examples
+    --------
+    >>> from service.pipeline import option_rules
+    >>> rules = option_rules()
+    >>> sorted(rules)
+    ['debias', 'dtype', 'dz', 'eps', 'interp', 'iterations', 'lam', 'n_z', 'positivity', 'time_limit',
+     'upsample']
+    >>> rules["upsample"](2.0), rules["eps"]("1e-8")
+    (2, 1e-08)
+    >>> rules["eps"](5e-15)
+    Traceback (most recent call last):
+    ...
+    service.recon.checks.OptionError: eps must be in [1e-14, 1e-1], got 5e-15
+    """
     return {name: _field_rule(name) for name in _methods.option_fields()}
 
 
 def check_option_values(options: dict) -> None:
     """Apply :func:`option_rules` to every option given (``None``: the default, passes);
-    raises ``service.recon.checks.OptionError`` (a ValueError) naming the first refused."""
+    raises ``service.recon.checks.OptionError`` (a ValueError) naming the first refused.
+
+    Parameters
+    ----------
+    options : dict
+        Option name -> value (SI units); names without a rule (``c``, ``c_range``) pass.
+
+    Raises
+    ------
+    service.recon.checks.OptionError
+        The first value its rule refuses.
+
+    Examples
+    --------
+    >>> from service.pipeline import check_option_values
+    >>> check_option_values({"eps": 1e-8, "upsample": None, "c": 1500.0})  # all pass
+    >>> check_option_values({"n_z": 1})
+    Traceback (most recent call last):
+    ...
+    service.recon.checks.OptionError: n_z must be an integer in 2..65536, got 1
+    """
     rules = option_rules()
     for name, value in options.items():
         if value is not None and name in rules:
@@ -155,7 +249,44 @@ def method_options(method: str, options: dict) -> dict:
     outside its rule; a ``c_range`` without ``c="auto"`` or outside
     :func:`service.autofocus.check_c_range`. ``force`` (:func:`reconstruct`'s flag, not a
     method's option) passes and is left out. Returns a new dict of the given values as
-    checked (e.g. ``upsample`` an int)."""
+    checked (e.g. ``upsample`` an int).
+
+    Parameters
+    ----------
+    method : str
+        A key of :data:`METHODS`.
+    options : dict
+        Option name -> value (SI units: ``c`` in m/s or ``"auto"``, ``c_range`` m/s, ``dz``
+        m, ``time_limit`` s); ``None`` means the default.
+
+    Returns
+    -------
+    dict
+        The given, non-``None`` options ``method`` takes, as checked, and ``c`` unchanged.
+
+    Raises
+    ------
+    service.recon.checks.OptionError
+        An unknown method or option name, an option ``method`` does not take, a value
+        outside its rule, a ``c_range`` without ``c="auto"``.
+    ValueError
+        A ``c_range`` that ``service.autofocus.check_c_range`` refuses.
+
+    Examples
+    --------
+    >>> from service.pipeline import method_options
+    >>> method_options("nedner", {"upsample": 2.0, "eps": None, "c": 1480.0})
+    {'upsample': 2, 'c': 1480.0}
+    >>> method_options("ner", {"lam": 0.1})
+    Traceback (most recent call last):
+    ...
+    service.recon.checks.OptionError: method 'ner' takes no option lam (its options: c, eps, dtype, upsample,
+    positivity, n_z, dz)
+    >>> method_options("ner", {"c_range": (1450.0, 1600.0)})
+    Traceback (most recent call last):
+    ...
+    service.recon.checks.OptionError: c_range is the autofocus search interval: it needs c='auto', got c=None
+    """
     from service.recon.checks import OptionError
 
     spec = _methods.get(method)
@@ -187,31 +318,76 @@ def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = No
 
     Parameters
     ----------
-    dataset : `service.recon.dataset.GridDataset` (``data`` ``(n_t, n_y, n_x)`` /
-        ``(n_t, n_x)``) or `PointDataset` (``alines`` ``(n, n_t)`` at ``positions``).
-    method : ``nedner``, ``ner``, ``linear``, ``nearest``, ``cubic``, ``kwave``, ...
-    progress : optional ``progress(fraction, stage)``.
-    should_stop : optional ``should_stop() -> bool``, polled between steps.
-    force : accept a ``c`` (or ``c_range``) outside 1000-2000 m/s (a medium other than
-        tissue or water); without it such a value is a ValueError naming the likely unit
-        mistake (``driver.units.ImplausibleValue``).
-    **options : the method's options (module docstring); ``None`` = default; each is
+    dataset : GridDataset or PointDataset
+        `service.recon.dataset.GridDataset` (``data`` ``(n_t, n_y, n_x)`` / ``(n_t, n_x)``,
+        time first, pitch in m, ``dt`` in s) or `PointDataset` (``alines`` ``(n, n_t)`` at
+        ``positions`` ``(n, 1)`` / ``(n, 2)`` in m).
+    method : str
+        ``nedner``, ``ner``, ``linear``, ``nearest``, ``cubic``, ``kwave``, ``tv``, ...
+    progress : callable, optional
+        ``progress(fraction, stage)``, fractions non-decreasing in [0, 1].
+    should_stop : callable, optional
+        ``should_stop() -> bool``, polled between steps.
+    force : bool, optional
+        Accept a ``c`` (or ``c_range``) outside 1000-2000 m/s (a medium other than tissue
+        or water); without it such a value is a ValueError naming the likely unit mistake
+        (``driver.units.ImplausibleValue``).
+    **options
+        The method's options (module docstring; ``c`` in m/s); ``None`` = default; each is
         checked by its rule (:func:`method_options`) before any work, and an option the
         method does not take is refused naming the method's options.
 
     Returns
     -------
-    `Reconstruction`: ``p0`` ``(n_z, n_y, n_x)`` / ``(n_z, n_x)`` with ``z``, ``x``, ``y``
-    (m), ``params`` (everything used) and ``p0_unit`` (``"Pa"`` for a calibrated scan,
-    else ``"a.u."``: ``service.storage.datasets.p0_unit``).
+    Reconstruction
+        ``p0`` ``(n_z, n_y, n_x)`` / ``(n_z, n_x)`` with ``z``, ``x``, ``y`` (m), ``params``
+        (everything used) and ``p0_unit`` (``"Pa"`` for a calibrated scan, else ``"a.u."``:
+        ``service.storage.datasets.p0_unit``).
 
     Raises
     ------
-    ValueError naming the problem (unknown method or option name, an option the method
-    does not take, a grid method on a sensor mask, no A-lines, bad values -- an option
-    outside its rule is ``service.recon.checks.OptionError`` -- an implausible ``c``
-    without ``force``);
-    Cancelled when ``should_stop()`` returned True.
+    ValueError
+        Naming the problem (unknown method or option name, an option the method does not
+        take, a grid method on a sensor mask, no A-lines, bad values -- an option outside
+        its rule is ``service.recon.checks.OptionError`` -- an implausible ``c`` without
+        ``force``).
+    Cancelled
+        When ``should_stop()`` returned True.
+
+    Examples
+    --------
+    A laterally uniform layer at depth row 10 on an 8-sensor line (dz = c dt = 0.1 mm):
+
+    >>> import numpy as np
+    >>> from service.pipeline import reconstruct
+    >>> from service.recon.dataset import GridDataset
+    >>> g = np.zeros((64, 8))  # (n_t, n_x)
+    >>> g[10] = 0.5
+    >>> ds = GridDataset(g, dx=1e-4, dt=1e-4 / 1500, c=1500.0)
+    >>> seen = []
+    >>> r = reconstruct(ds, "ner", progress=lambda fraction, stage: seen.append((fraction, stage)))
+    >>> r.p0.shape, r.p0.dtype, int(r.p0[:, 4].argmax()), round(float(r.z[10]), 6), r.p0_unit
+    ((64, 8), dtype('float32'), 10, 0.001, 'a.u.')
+    >>> seen[0], seen[-1]
+    ((0.0, 'reconstructing'), (1.0, 'reconstructing'))
+
+    Grid data go to ``nedner`` as sensor points; the options are checked first:
+
+    >>> r = reconstruct(ds, "nedner", dtype="float64", upsample=2)
+    >>> r.p0.shape, r.p0.dtype, r.params["method"]  # x upsampled 2x
+    ((64, 16), dtype('float64'), 'nedner')
+    >>> reconstruct(ds, "ner", eps=5e-15)
+    Traceback (most recent call last):
+    ...
+    service.recon.checks.OptionError: eps must be in [1e-14, 1e-1], got 5e-15
+    >>> reconstruct(ds, "ner", c=1.5)
+    Traceback (most recent call last):
+    ...
+    driver.units.ImplausibleValue: c: sound speed 1.5 m/s is implausible for tissue or water ...
+    >>> reconstruct(ds, "ner", should_stop=lambda: True)
+    Traceback (most recent call last):
+    ...
+    service.pipeline.Cancelled: reconstruction cancelled
     """
     spec = _methods.get(method)
     given = method_options(method, options)

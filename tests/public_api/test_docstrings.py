@@ -19,6 +19,9 @@ MODULES = [
     "service.plans.mask", "service.plans.ordering", "service.plans.plan", "service.plans.preview",
     "service.recon.checks", "service.recon.dataset", "service.recon.kwave", "service.recon.operator",
     "service.recon.planar", "service.recon.reconstruction", "service.recon.unmix", "service.recon.warmup",
+    "service.recon.methods", "service.recon.methods.options", "service.recon.methods.ner",
+    "service.recon.methods.nedner", "service.recon.methods.interp", "service.recon.methods.kwave",
+    "service.recon.methods.tv", "service.recon.tv", "service.pipeline",
     "clients.http.client", "clients.http.errors", "clients.http.models",
 ]
 

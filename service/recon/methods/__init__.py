@@ -41,7 +41,38 @@ Runner = Callable[..., Any]
 
 def planar_memory(method: str) -> Callable[..., int]:
     """The peak-memory model of ``method`` in ``service.recon.checks.estimate_peak_memory``
-    (bytes; ``(n_t, n_x, n_y=1, *, n_z, upsample, dtype, n_points, dx, dt, c, dz)``)."""
+    (bytes; ``(n_t, n_x, n_y=1, *, n_z, upsample, dtype, n_points, dx, dt, c, dz)``).
+
+    Parameters
+    ----------
+    method : str
+        A method name ``estimate_peak_memory`` counts (``ner``, ``nedner``, ``linear``,
+        ``nearest``, ``cubic``, ``kwave``, ``tv``).
+
+    Returns
+    -------
+    callable
+        ``peak(n_t, n_x, n_y=1, **kw) -> int``: the estimated peak memory in bytes of a
+        reconstruction of ``n_t`` time samples on ``n_y`` x ``n_x`` sensors; the keywords
+        (``n_z``, ``upsample``, ``dtype``, ``n_points``, ``dx`` m, ``dt`` s, ``c`` m/s,
+        ``dz`` m) as ``estimate_peak_memory``'s. The estimate is imported on the first call.
+
+    Raises
+    ------
+    ValueError
+        From the returned ``peak``: what ``estimate_peak_memory`` refuses (e.g. an unknown
+        method).
+
+    Examples
+    --------
+    >>> from service.recon.checks import estimate_peak_memory
+    >>> from service.recon.methods import planar_memory
+    >>> peak = planar_memory("ner")
+    >>> peak(64, 8, dtype="float32") == estimate_peak_memory(64, 8, method="ner", dtype="float32")
+    True
+    >>> peak(256, 64, 64) > peak(64, 8)  # bytes grow with the input
+    True
+    """
     def peak(n_t: int, n_x: int, n_y: int = 1, **kw: Any) -> int:
         from service.recon.checks import estimate_peak_memory
 
@@ -56,17 +87,51 @@ class Method:
 
     Parameters
     ----------
-    name : the word users type (``--method``, the API's ``method``).
-    title : one line for lists (web page, ``--help``).
-    needs_grid : True when it needs data on a full regular grid (a full lattice).
-    options_model : its options (a :class:`MethodOptions` subclass: type, range, unit and
-        default of each; ``c`` is every method's and not in it).
-    run : ``run(dataset, c, options, progress)`` → ``Reconstruction`` (module docstring).
-    source : where the algorithm comes from.
-    peak_memory : ``peak_memory(n_t, n_x, n_y, *, n_z, upsample, dtype, n_points, dx, dt, c,
-        dz)`` → bytes at its peak (the memory admission, ``service.jobs.admission``); default
+    name, title, needs_grid, options_model, run, source, peak_memory, order
+        As the attributes below.
+
+    Attributes
+    ----------
+    name : str
+        The word users type (``--method``, the API's ``method``).
+    title : str
+        One line for lists (web page, ``--help``).
+    needs_grid : bool
+        True when it needs data on a full regular grid (a full lattice).
+    options_model : type
+        Its options (a :class:`MethodOptions` subclass: type, range, unit and default of
+        each; ``c``, the speed of sound in m/s, is every method's and not in it).
+    run : callable
+        ``run(dataset, c, options, progress)`` -> ``Reconstruction`` (module docstring).
+    source : str
+        Where the algorithm comes from.
+    peak_memory : callable or None
+        ``peak_memory(n_t, n_x, n_y, *, n_z, upsample, dtype, n_points, dx, dt, c, dz)`` ->
+        bytes at its peak (the memory admission, ``service.jobs.admission``); None (default):
         :func:`planar_memory` of ``name``.
-    order : position in lists (smaller first).
+    order : int
+        Position in lists (smaller first).
+    options : tuple of str
+        The option names it takes: ``c`` and its model's fields.
+    defaults : dict
+        Its options' defaults (those that are values; ``None``: derived from the data).
+
+    Examples
+    --------
+    >>> from service.recon.methods import get
+    >>> m = get("nedner")
+    >>> m.name, m.needs_grid, m.options
+    ('nedner', False, ('c', 'eps', 'dtype', 'upsample', 'positivity', 'n_z', 'dz'))
+    >>> m.defaults
+    {'eps': 1e-06, 'dtype': 'float32', 'upsample': 1, 'positivity': False}
+    >>> m.check({"upsample": 2, "dz": "2e-5"}).dz  # m
+    2e-05
+    >>> m.check({"eps": 5e-15})
+    Traceback (most recent call last):
+    ...
+    service.recon.checks.OptionError: eps must be in [1e-14, 1e-1], got 5e-15
+    >>> m.memory(64, 8) > 0  # bytes
+    True
     """
 
     name: str
@@ -91,7 +156,18 @@ class Method:
     def check(self, options: dict) -> MethodOptions:
         """``options`` (names of its model; ``None`` = the default) validated by its model;
         raises ``service.recon.checks.OptionError`` (a ValueError) with the first refusal,
-        in the kernel rule's words (``eps must be in [1e-14, 1e-1], got 5e-15``)."""
+        in the kernel rule's words (``eps must be in [1e-14, 1e-1], got 5e-15``).
+
+        Examples
+        --------
+        >>> from service.recon.methods import get
+        >>> get("ner").check({"upsample": 2.0, "positivity": None}).model_dump()
+        {'eps': 1e-06, 'dtype': 'float32', 'upsample': 2, 'positivity': False, 'n_z': None, 'dz': None}
+        >>> get("ner").check({"lam": 0.1})
+        Traceback (most recent call last):
+        ...
+        service.recon.checks.OptionError: unknown option lam
+        """
         try:
             return self.options_model.model_validate(options)
         except ValidationError as exc:
@@ -105,7 +181,31 @@ class Method:
 
 
 def describe_error(exc: ValidationError) -> str:
-    """The first error of ``exc`` as one line naming the option (the rule's own words)."""
+    """The first error of ``exc`` as one line naming the option (the rule's own words).
+
+    Parameters
+    ----------
+    exc : pydantic.ValidationError
+        A refusal of a method's options model.
+
+    Returns
+    -------
+    str
+        The kernel rule's message (``"eps must be in [1e-14, 1e-1], got 5e-15"``), else
+        ``"<option>: <pydantic's message>"``, or ``"unknown option <name>"``.
+
+    Examples
+    --------
+    >>> from pydantic import ValidationError
+    >>> from service.recon.methods import describe_error, get
+    >>> for bad in ({"upsample": 9}, {"frobnicate": 1}):
+    ...     try:
+    ...         get("ner").options_model.model_validate(bad)
+    ...     except ValidationError as exc:
+    ...         print(describe_error(exc))
+    upsample must be an integer in 1..8, got 9
+    unknown option frobnicate
+    """
     err = exc.errors()[0]
     name = ".".join(str(p) for p in err["loc"]) or "options"
     msg = str(err["msg"]).removeprefix("Value error, ")
@@ -121,7 +221,48 @@ METHODS: dict[str, Method] = {}
 def register(method: Method) -> Method:
     """Add ``method`` to :data:`METHODS` (kept in ``order``). Raises ValueError when an
     option it shares with a registered method has another type or range there (the
-    generated HTTP model and CLI flag hold one rule per option name)."""
+    generated HTTP model and CLI flag hold one rule per option name).
+
+    Parameters
+    ----------
+    method : Method
+        The method; one of the same name is replaced.
+
+    Returns
+    -------
+    Method
+        ``method`` itself (a method module keeps it as ``METHOD``).
+
+    Raises
+    ------
+    ValueError
+        ``options_model`` is not a :class:`MethodOptions` subclass, or an option it shares
+        with a registered method has another type or range there.
+
+    Examples
+    --------
+    A toy method (then removed, leaving the registry as it was):
+
+    >>> from pydantic import Field
+    >>> from service.recon.methods import METHODS, Method, MethodOptions, register
+    >>> class ToyOptions(MethodOptions):
+    ...     pass
+    >>> toy = register(Method("toy", "a toy", False, ToyOptions, run=print, order=1000))
+    >>> list(METHODS)[-1], toy.options
+    ('toy', ('c', 'dtype'))
+    >>> del METHODS["toy"]
+
+    An option named like another method's must keep its rule:
+
+    >>> class Clash(MethodOptions):
+    ...     eps: float = Field(1e-3, ge=0.0)
+    >>> register(Method("clash", "a clash", False, Clash, run=print))
+    Traceback (most recent call last):
+    ...
+    ValueError: method 'clash': option eps differs from method 'nedner''s (...): one rule per option name
+    >>> "clash" in METHODS
+    False
+    """
     if not (isinstance(method.options_model, type) and issubclass(method.options_model, MethodOptions)):
         raise ValueError(f"method {method.name!r}: options_model must be a MethodOptions subclass")
     others = {n: m for n, m in METHODS.items() if n != method.name}
@@ -140,7 +281,32 @@ def register(method: Method) -> Method:
 
 
 def get(name: str) -> Method:
-    """The method called ``name``; ``OptionError`` (a ValueError) listing them otherwise."""
+    """The method called ``name``; ``OptionError`` (a ValueError) listing them otherwise.
+
+    Parameters
+    ----------
+    name : str
+        A key of :data:`METHODS`.
+
+    Returns
+    -------
+    Method
+
+    Raises
+    ------
+    service.recon.checks.OptionError
+        No method of that name; the message lists the methods.
+
+    Examples
+    --------
+    >>> from service.recon.methods import get
+    >>> get("kwave").title
+    'k-Wave compatible (kspaceLineRecon / kspacePlaneRecon)'
+    >>> get("fbp")
+    Traceback (most recent call last):
+    ...
+    service.recon.checks.OptionError: method must be one of nedner, ner, ..., tv, got 'fbp'
+    """
     spec = METHODS.get(name)
     if spec is None:
         from service.recon.checks import OptionError
@@ -160,7 +326,24 @@ def _rules(model: type[MethodOptions]) -> dict[str, str]:
 def option_fields() -> dict[str, Any]:
     """Every option of the registered methods (name -> pydantic ``FieldInfo``, the first
     method's that takes it), in the order the methods list them. Their rules agree
-    (:func:`register`); their defaults may differ (tv: positivity on)."""
+    (:func:`register`); their defaults may differ (tv: positivity on).
+
+    Returns
+    -------
+    dict
+        Option name -> pydantic ``FieldInfo`` (``default``, ``description``,
+        ``json_schema_extra`` with the SI ``unit``); ``c`` is not among them.
+
+    Examples
+    --------
+    >>> from service.recon.methods import option_fields
+    >>> fields = option_fields()
+    >>> list(fields)
+    ['eps', 'dtype', 'upsample', 'positivity', 'n_z', 'dz', 'interp', 'lam', 'iterations',
+     'time_limit', 'debias']
+    >>> fields["dz"].json_schema_extra["unit"], fields["positivity"].default  # nedner's default
+    ('m', False)
+    """
     out: dict[str, Any] = {}
     for m in METHODS.values():
         for name, f in m.options_model.model_fields.items():
@@ -172,7 +355,30 @@ def option_schemas(method: Method) -> list[dict[str, Any]]:
     """``method``'s options as the methods endpoint and the web page read them: per
     option ``name``, ``description``, ``default`` (this method's), and ``schema``: the JSON
     schema of a value (``type``, ``minimum``/``maximum``/``exclusiveMinimum``, ``enum``)
-    with ``unit`` (SI) and ``quantity`` (``length``/``time``: text with a unit accepted)."""
+    with ``unit`` (SI) and ``quantity`` (``length``/``time``: text with a unit accepted).
+
+    Parameters
+    ----------
+    method : Method
+        A registered method (:func:`get`).
+
+    Returns
+    -------
+    list of dict
+        One per field of its options model, in the model's order (``c`` is not among them).
+
+    Examples
+    --------
+    >>> from service.recon.methods import get, option_schemas
+    >>> [o["name"] for o in option_schemas(get("kwave"))]
+    ['dtype', 'positivity', 'interp']
+    >>> eps = option_schemas(get("ner"))[0]
+    >>> eps["name"], eps["default"], eps["schema"]
+    ('eps', 1e-06, {'maximum': 0.1, 'minimum': 1e-14, 'type': 'number', 'unit': '1'})
+    >>> dz = option_schemas(get("ner"))[-1]
+    >>> dz["default"], dz["schema"]["unit"], dz["schema"]["quantity"]  # None: derived (c dt)
+    (None, 'm', 'length')
+    """
     props = method.options_model.model_json_schema()["properties"]
     out = []
     for name, p in props.items():
@@ -185,7 +391,31 @@ def option_schemas(method: Method) -> list[dict[str, Any]]:
 
 
 def range_text(schema: dict) -> str:
-    """A value schema's range in words: ``[1e-14, 0.1]``, ``1..8``, ``(0, 604800]``, the choices."""
+    """A value schema's range in words: ``[1e-14, 0.1]``, ``1..8``, ``(0, 604800]``, the choices.
+
+    Parameters
+    ----------
+    schema : dict
+        A value's JSON schema (``option_schemas(m)[i]["schema"]``).
+
+    Returns
+    -------
+    str
+        Closed ``[lo, hi]`` / open-below ``(lo, hi]`` for numbers, ``lo..hi`` for integers,
+        the choices in backticks, ``"true / false"`` for a flag, ``""`` when unbounded.
+
+    Examples
+    --------
+    >>> from service.recon.methods import range_text
+    >>> range_text({"type": "number", "minimum": 1e-14, "maximum": 0.1})
+    '[1e-14, 0.1]'
+    >>> range_text({"type": "number", "exclusiveMinimum": 0, "maximum": 604800})  # s
+    '(0, 604800]'
+    >>> range_text({"type": "integer", "minimum": 1, "maximum": 8})
+    '1..8'
+    >>> range_text({"enum": ["float32", "float64"]}), range_text({"type": "boolean"})
+    ('`float32`, `float64`', 'true / false')
+    """
     lo, hi = schema.get("minimum", schema.get("exclusiveMinimum")), schema.get("maximum")
     if "enum" in schema:
         return ", ".join(f"`{v}`" for v in schema["enum"])
@@ -198,7 +428,24 @@ def range_text(schema: dict) -> str:
 def docs_table() -> str:
     """Markdown: one table of the methods (name, input, options, source) and one of the
     options (range, unit, default per method, meaning), generated from :data:`METHODS`
-    (docs/methods.md holds its current rendering; a test checks it)."""
+    (docs/methods.md holds its current rendering; a test checks it).
+
+    Returns
+    -------
+    str
+        The two Markdown tables, separated by a blank line, ending in a newline.
+
+    Examples
+    --------
+    >>> from service.recon.methods import docs_table
+    >>> table = docs_table().splitlines()
+    >>> table[0]
+    '| method | input | options | source |'
+    >>> table[2].split(" | ")[:2]
+    ['| `nedner`', 'any sensor points']
+    >>> next(row for row in table if row.startswith("| `eps`"))
+    '| `eps` | [1e-14, 0.1] | 1 | `1e-06` | NUFFT tolerance (relative accuracy of the non-uniform FFTs) |'
+    """
     lines = ["| method | input | options | source |", "|---|---|---|---|"]
     for m in METHODS.values():
         lines.append(f"| `{m.name}` | {'full grid' if m.needs_grid else 'any sensor points'} | "
@@ -219,7 +466,32 @@ def docs_table() -> str:
 def default_text(name: str, *, code: bool = False) -> str:
     """The default of option ``name`` in words, per method where they differ: ``"1e-06"``,
     ``"n_t"`` (a ``None`` default: the field's ``derived``), ``"false (tv: true)"`` (the most
-    common first)."""
+    common first).
+
+    Parameters
+    ----------
+    name : str
+        An option of a registered method (:func:`option_fields`).
+    code : bool, optional
+        Put the values (not the derived words) in Markdown backticks (the docs table).
+
+    Returns
+    -------
+    str
+
+    Raises
+    ------
+    IndexError
+        No registered method takes ``name``.
+
+    Examples
+    --------
+    >>> from service.recon.methods import default_text
+    >>> default_text("eps"), default_text("n_z"), default_text("dz")
+    ('1e-06', 'n_t', 'c·dt')
+    >>> default_text("positivity"), default_text("positivity", code=True)
+    ('false (tv: true)', '`false` (tv: `true`)')
+    """
     by_value: dict[str, list[str]] = {}
     for m in METHODS.values():
         f = m.options_model.model_fields.get(name)

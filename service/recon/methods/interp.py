@@ -14,7 +14,41 @@ __all__ = ["Options", "KINDS", "METHODS"]
 
 
 class Options(DepthOptions, PositivityOption, UpsampleOption, MethodOptions):
-    """Options of the FFT + interpolation methods (no NUFFT tolerance)."""
+    """Options of the FFT + interpolation methods (no NUFFT tolerance).
+
+    Attributes
+    ----------
+    dtype : {"float32", "float64"}
+        Working and output precision (default ``"float32"``).
+    upsample : int
+        Lateral upsampling factor 1..8 (default 1).
+    positivity : bool
+        Clip negative p0 to 0 (default False).
+    n_z : int or None
+        Output depth samples, 2..65536 (None: n_t).
+    dz : float or None
+        Output depth spacing in m, [1e-9, 0.1] (None: c dt).
+
+    References
+    ----------
+    .. [1] M. Xu, D. Feng, L. V. Wang, "Exact frequency-domain reconstruction for
+       thermoacoustic tomography: I. Planar geometry", IEEE Trans. Med. Imaging 21 (2002).
+
+    Examples
+    --------
+    >>> from pydantic import ValidationError
+    >>> from service.recon.methods import METHODS
+    >>> from service.recon.methods.interp import Options
+    >>> [m for m in METHODS if METHODS[m].options_model is Options]
+    ['linear', 'nearest', 'cubic']
+    >>> Options(n_z=32).n_z
+    32
+    >>> try:
+    ...     Options(eps=1e-6)  # no NUFFT here
+    ... except ValidationError as exc:
+    ...     print(exc.errors()[0]["type"])
+    extra_forbidden
+    """
 
 
 #: name -> (title, source)

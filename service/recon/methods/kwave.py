@@ -33,7 +33,29 @@ Interp = Annotated[Literal["*nearest", "nearest", "*linear", "linear", "*cubic",
 
 class Options(PositivityOption, MethodOptions):
     """Options of ``kwave``: k-Wave's interpolation (``*``: k-Wave's own variant) and
-    ``pos_cond`` (positivity)."""
+    ``pos_cond`` (positivity).
+
+    Attributes
+    ----------
+    dtype : {"float32", "float64"}
+        Working and output precision (default ``"float32"``).
+    positivity : bool
+        k-Wave's ``pos_cond``: clip negative p0 to 0 (default False).
+    interp : {"*nearest", "nearest", "*linear", "linear", "*cubic", "cubic"}
+        k-Wave's interpolation (default ``"*nearest"``, k-Wave's own).
+
+    Examples
+    --------
+    >>> from pydantic import ValidationError
+    >>> from service.recon.methods.kwave import Options
+    >>> Options().interp, Options(interp="cubic").interp
+    ('*nearest', 'cubic')
+    >>> try:
+    ...     Options(interp="spline")
+    ... except ValidationError as exc:
+    ...     print(exc.errors()[0]["msg"])
+    Value error, interp must be one of *nearest, nearest, *linear, linear, *cubic, cubic, got 'spline'
+    """
 
     interp: Interp = Field("*nearest", description="k-Wave interpolation (k-Wave's default *nearest)")
 
@@ -41,7 +63,53 @@ class Options(PositivityOption, MethodOptions):
 def run(ds: GridDataset, c: float, opts: dict, step: Callable[[float], None]) -> Reconstruction:
     """k-Wave's reconstruction of grid data ``(n_t, n_x)`` (kspaceLineRecon, k-Wave's 'ty')
     or ``(n_t, n_y, n_x)`` (kspacePlaneRecon, 'tyz'), ``c`` in m/s. ValueError when the
-    input's first sample is not at t = 0 (k-Wave's convention)."""
+    input's first sample is not at t = 0 (k-Wave's convention).
+
+    Parameters
+    ----------
+    ds : GridDataset
+        ``data`` ``(n_t, n_x)`` or ``(n_t, n_y, n_x)`` (time first), pitch ``dx`` (and
+        ``dy``) in m, ``dt`` in s, ``t0`` = 0 s.
+    c : float
+        Speed of sound, m/s.
+    opts : dict
+        The validated options, every field of :class:`Options` (``dtype`` a NumPy dtype).
+    step : callable
+        ``step(fraction)`` with increasing fractions in (0, 1]; it may raise to cancel.
+
+    Returns
+    -------
+    Reconstruction
+        p0 ``(n_t, n_x)`` / ``(n_t, n_y, n_x)`` on depths ``z = k c dt`` (m), lateral axes
+        centred (m); ``params["source"]`` names the k-Wave function.
+
+    Raises
+    ------
+    ValueError
+        ``ds.t0`` is not 0, or what the kernels (:mod:`service.recon.kwave`) refuse.
+
+    References
+    ----------
+    .. [1] B. E. Treeby, B. T. Cox, "k-Wave: MATLAB toolbox for the simulation and
+       reconstruction of photoacoustic wave fields", J. Biomed. Opt. 15 (2010);
+       ``kspaceLineRecon.m`` / ``kspacePlaneRecon.m``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from service.recon.dataset import GridDataset
+    >>> from service.recon.methods.kwave import Options, run
+    >>> g = np.zeros((64, 8))  # (n_t, n_x): a uniform layer at depth row 10
+    >>> g[10] = 0.5
+    >>> opts = {**Options().model_dump(), "dtype": np.dtype("float32")}
+    >>> r = run(GridDataset(g, dx=1e-4, dt=1e-4 / 1500, c=1500.0), 1500.0, opts, lambda f: None)
+    >>> r.p0.shape, r.p0.dtype, int(r.p0[:, 4].argmax()), r.params["source"]
+    ((64, 8), dtype('float32'), 10, 'kspaceLineRecon')
+    >>> run(GridDataset(g, 1e-4, 1e-4 / 1500, 1500.0, t0=1e-6), 1500.0, opts, lambda f: None)
+    Traceback (most recent call last):
+    ...
+    ValueError: method 'kwave' needs sample 0 at t = 0 (k-Wave's convention); ... t0 = 1e-06 s: use 'ner'
+    """
     import numpy as np
 
     from driver.physics.axes import centred_axis

@@ -22,12 +22,87 @@ __all__ = ["Options", "run", "METHOD"]
 
 
 class Options(DepthOptions, PositivityOption, UpsampleOption, MethodOptions, NufftOptions):
-    """Options of ``nedner`` (the fields of its mix-ins; SI units)."""
+    """Options of ``nedner`` (the fields of its mix-ins; SI units).
+
+    Attributes
+    ----------
+    eps : float
+        NUFFT tolerance in [1e-14, 1e-1] (default 1e-6).
+    dtype : {"float32", "float64"}
+        Working and output precision (default ``"float32"``).
+    upsample : int
+        Lateral upsampling factor 1..8 (default 1).
+    positivity : bool
+        Clip negative p0 to 0 (default False).
+    n_z : int or None
+        Output depth samples, 2..65536 (None: n_t).
+    dz : float or None
+        Output depth spacing in m, [1e-9, 0.1] (None: c dt).
+
+    Examples
+    --------
+    >>> from pydantic import ValidationError
+    >>> from service.recon.methods.nedner import Options
+    >>> Options(upsample=2, dz="5e-5").upsample, Options(upsample=2, dz="5e-5").dz  # dz in m
+    (2, 5e-05)
+    >>> try:
+    ...     Options(lam=0.1)  # a tv option
+    ... except ValidationError as exc:
+    ...     print(exc.errors()[0]["type"])
+    extra_forbidden
+    """
 
 
 def run(ds: PointDataset, c: float, opts: dict, step: Callable[[float], None]) -> Reconstruction:
     """NEDNER-NUFFT of A-lines ``ds.alines`` ``(n, n_t)`` at ``ds.positions`` ``(n, 2)`` (m),
-    ``c`` in m/s; ValueError when there are no A-lines."""
+    ``c`` in m/s; ValueError when there are no A-lines.
+
+    Parameters
+    ----------
+    ds : PointDataset
+        ``alines`` ``(n, n_t)`` at ``positions`` ``(n, 1)`` x / ``(n, 2)`` (x, y) in m, with
+        quadrature ``weights`` ``(n,)`` (None: clipped Voronoi areas), the output ``grid``,
+        ``dt`` in s and ``t0`` in s.
+    c : float
+        Speed of sound, m/s.
+    opts : dict
+        The validated options, every field of :class:`Options` (``dtype`` a NumPy dtype).
+    step : callable
+        ``step(fraction)`` with increasing fractions in (0, 1]; it may raise to cancel.
+
+    Returns
+    -------
+    Reconstruction
+        p0 ``(n_z, n_x u)`` / ``(n_z, n_y u, n_x u)`` on the positions' lattice (u =
+        ``upsample``), axes in m; ``params["method"]`` is ``"nedner"``.
+
+    Raises
+    ------
+    ValueError
+        No A-lines, or what ``service.recon.planar.reconstruct_points`` refuses.
+
+    References
+    ----------
+    .. [1] J. Schmid, T. Glatz, B. Zabihian, M. Liu, W. Drexler, O. Scherzer, "Computational
+       Realization of a Non-Equidistant Grid Sampling in Photoacoustics with a Non-Uniform
+       FFT", §3.2 (NEDNER).
+
+    Examples
+    --------
+    A uniform layer at depth row 10, every point of an 8-sensor line a sensor:
+
+    >>> import numpy as np
+    >>> from service.recon.dataset import GridDataset
+    >>> from service.recon.methods.nedner import Options, run
+    >>> g = np.zeros((64, 8))  # (n_t, n_x)
+    >>> g[10] = 0.5
+    >>> ds = GridDataset(g, dx=1e-4, dt=1e-4 / 1500, c=1500.0).to_points()
+    >>> ds.alines.shape, ds.positions.shape  # (n, n_t), (n, 1) x in m
+    ((8, 64), (8, 1))
+    >>> r = run(ds, 1500.0, {**Options().model_dump(), "dtype": np.dtype("float32")}, lambda f: None)
+    >>> r.p0.shape, r.p0.dtype, int(r.p0[:, 4].argmax()), r.params["method"]
+    ((64, 8), dtype('float32'), 10, 'nedner')
+    """
     from service.recon import reconstruct_points
 
     if ds.alines.shape[0] == 0:

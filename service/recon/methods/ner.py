@@ -22,12 +22,95 @@ __all__ = ["Options", "run", "run_grid", "METHOD"]
 
 
 class Options(DepthOptions, PositivityOption, UpsampleOption, MethodOptions, NufftOptions):
-    """Options of ``ner`` (the fields of its mix-ins; SI units)."""
+    """Options of ``ner`` (the fields of its mix-ins; SI units).
+
+    Attributes
+    ----------
+    eps : float
+        NUFFT tolerance in [1e-14, 1e-1] (default 1e-6).
+    dtype : {"float32", "float64"}
+        Working and output precision (default ``"float32"``).
+    upsample : int
+        Lateral upsampling factor 1..8 (default 1).
+    positivity : bool
+        Clip negative p0 to 0 (default False).
+    n_z : int or None
+        Output depth samples, 2..65536 (None: n_t).
+    dz : float or None
+        Output depth spacing in m, [1e-9, 0.1] (None: c dt).
+
+    Examples
+    --------
+    >>> from pydantic import ValidationError
+    >>> from service.recon.methods.ner import Options
+    >>> Options().model_dump()
+    {'eps': 1e-06, 'dtype': 'float32', 'upsample': 1, 'positivity': False, 'n_z': None, 'dz': None}
+    >>> try:
+    ...     Options(eps=5e-15)
+    ... except ValidationError as exc:
+    ...     print(exc.errors()[0]["msg"])
+    Value error, eps must be in [1e-14, 1e-1], got 5e-15
+    """
 
 
 def run_grid(name: str, ds: GridDataset, c: float, opts: dict, step: Callable[[float], None]) -> Reconstruction:
     """``service.recon.planar.reconstruct_grid`` with ``method=name`` on grid data
-    ``ds.data`` ``(n_t, n_y, n_x)`` or ``(n_t, n_x)``, ``c`` in m/s, the validated options."""
+    ``ds.data`` ``(n_t, n_y, n_x)`` or ``(n_t, n_x)``, ``c`` in m/s, the validated options.
+
+    Parameters
+    ----------
+    name : str
+        ``reconstruct_grid``'s method: ``"ner"``, ``"linear"``, ``"nearest"`` or ``"cubic"``.
+    ds : GridDataset
+        ``data`` ``(n_t, n_x)`` or ``(n_t, n_y, n_x)`` (time first) at pitch ``dx`` (and
+        ``dy``) in m, sample interval ``dt`` in s, first sample at ``t0`` s.
+    c : float
+        Speed of sound, m/s.
+    opts : dict
+        Every field of the method's options model, defaults filled (``dtype`` a NumPy
+        dtype; ``n_z``/``dz`` None: derived from the data).
+    step : callable
+        ``step(fraction)``, called with increasing fractions in (0, 1]; it may raise to
+        cancel.
+
+    Returns
+    -------
+    Reconstruction
+        p0 ``(n_z, n_x u)`` / ``(n_z, n_y u, n_x u)`` (u = ``upsample``), row 0 at z = 0,
+        with ``z``, ``x``, ``y`` in m and ``params``.
+
+    Raises
+    ------
+    ValueError
+        What ``reconstruct_grid`` refuses (NaN/inf data, fewer than 2 samples, an estimated
+        peak memory above the limit, ...).
+
+    References
+    ----------
+    .. [1] J. Schmid, T. Glatz, B. Zabihian, M. Liu, W. Drexler, O. Scherzer, "Computational
+       Realization of a Non-Equidistant Grid Sampling in Photoacoustics with a Non-Uniform
+       FFT", §3.1 (NER).
+    .. [2] M. Xu, D. Feng, L. V. Wang, "Exact frequency-domain reconstruction for
+       thermoacoustic tomography: I. Planar geometry", IEEE Trans. Med. Imaging 21 (2002)
+       (the interpolating methods).
+
+    Examples
+    --------
+    A laterally uniform layer at depth row 10 (data g = p0(c t) / 2 at every sensor):
+
+    >>> import numpy as np
+    >>> from service.recon.dataset import GridDataset
+    >>> from service.recon.methods.ner import Options, run_grid
+    >>> g = np.zeros((64, 8))  # (n_t, n_x)
+    >>> g[10] = 0.5
+    >>> ds = GridDataset(g, dx=1e-4, dt=1e-4 / 1500, c=1500.0)  # dz = c dt = 0.1 mm
+    >>> opts = {**Options().model_dump(), "dtype": np.dtype("float32")}
+    >>> r = run_grid("linear", ds, 1500.0, opts, lambda fraction: None)
+    >>> r.p0.shape, r.p0.dtype, int(r.p0[:, 4].argmax()), round(float(r.p0[10, 4]), 3)
+    ((64, 8), dtype('float32'), 10, 1.0)
+    >>> r.params["method"]
+    'linear'
+    """
     from service.recon import reconstruct_grid
 
     dy = ds.dy if ds.data.ndim == 3 else None
@@ -35,7 +118,50 @@ def run_grid(name: str, ds: GridDataset, c: float, opts: dict, step: Callable[[f
 
 
 def run(ds: GridDataset, c: float, opts: dict, step: Callable[[float], None]) -> Reconstruction:
-    """NER-NUFFT of grid data (:func:`run_grid`)."""
+    """NER-NUFFT of grid data (:func:`run_grid`).
+
+    Parameters
+    ----------
+    ds : GridDataset
+        ``data`` ``(n_t, n_x)`` or ``(n_t, n_y, n_x)`` (time first), pitch in m, ``dt`` in s.
+    c : float
+        Speed of sound, m/s.
+    opts : dict
+        The validated options, every field of :class:`Options` (``dtype`` a NumPy dtype).
+    step : callable
+        ``step(fraction)`` with increasing fractions in (0, 1]; it may raise to cancel.
+
+    Returns
+    -------
+    Reconstruction
+        p0 ``(n_z, n_x u)`` / ``(n_z, n_y u, n_x u)`` (u = ``upsample``), axes in m.
+
+    Raises
+    ------
+    ValueError
+        What ``service.recon.planar.reconstruct_grid`` refuses.
+
+    References
+    ----------
+    .. [1] J. Schmid, T. Glatz, B. Zabihian, M. Liu, W. Drexler, O. Scherzer, "Computational
+       Realization of a Non-Equidistant Grid Sampling in Photoacoustics with a Non-Uniform
+       FFT", §3.1 (NER).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from service.recon.dataset import GridDataset
+    >>> from service.recon.methods.ner import Options, run
+    >>> g = np.zeros((64, 8))  # (n_t, n_x): a uniform layer at depth row 10
+    >>> g[10] = 0.5
+    >>> ds = GridDataset(g, dx=1e-4, dt=1e-4 / 1500, c=1500.0)
+    >>> fractions = []
+    >>> r = run(ds, 1500.0, {**Options().model_dump(), "dtype": np.dtype("float32")}, fractions.append)
+    >>> r.p0.shape, r.p0.dtype, int(r.p0[:, 4].argmax()), round(float(r.p0[10, 4]), 3)
+    ((64, 8), dtype('float32'), 10, 1.0)
+    >>> fractions == sorted(fractions), fractions[-1]
+    (True, 1.0)
+    """
     return run_grid("ner", ds, c, opts, step)
 
 

@@ -41,7 +41,38 @@ __all__ = ["MethodOptions", "NufftOptions", "UpsampleOption", "PositivityOption"
 def kernel_rule(name: str) -> Callable[[Any], Any]:
     """The rule ``service.recon.checks.<name>`` as a before-validator: ``None`` (the
     default) passes, anything else is checked (``OptionError``, a ValueError naming the
-    option and its range) and converted (a float, an int)."""
+    option and its range) and converted (a float, an int).
+
+    Parameters
+    ----------
+    name : str
+        A rule of :mod:`service.recon.checks` (``"check_eps"``, ``"check_upsample"``,
+        ``"check_n_z"``, ``"check_dz"``, ``"check_lam"``, ``"check_iterations"``,
+        ``"check_time_limit"``).
+
+    Returns
+    -------
+    callable
+        ``apply(value)``: ``None`` unchanged, else the rule's checked value (SI units); its
+        ``__name__`` is ``name``. ``service.recon.checks`` is imported on the first call.
+
+    Raises
+    ------
+    service.recon.checks.OptionError
+        From ``apply``: the value is outside the rule (the message names the option and its
+        range).
+
+    Examples
+    --------
+    >>> from service.recon.methods.options import kernel_rule
+    >>> eps = kernel_rule("check_eps")
+    >>> eps(None) is None, eps("1e-3"), kernel_rule("check_upsample")(2.0)
+    (True, 0.001, 2)
+    >>> eps(5e-15)
+    Traceback (most recent call last):
+    ...
+    service.recon.checks.OptionError: eps must be in [1e-14, 1e-1], got 5e-15
+    """
     def apply(value: Any) -> Any:
         if value is None:
             return None
@@ -55,7 +86,35 @@ def kernel_rule(name: str) -> Callable[[Any], Any]:
 
 def check_flag(name: str) -> Callable[[Any], Any]:
     """The rule of a true/false option: a bool (NumPy's too) or the integers 0 and 1;
-    anything else (``"yes"``, 2, 0.5) is an ``OptionError`` naming the option."""
+    anything else (``"yes"``, 2, 0.5) is an ``OptionError`` naming the option.
+
+    Parameters
+    ----------
+    name : str
+        The option's name, used in the error message.
+
+    Returns
+    -------
+    callable
+        ``apply(value)`` -> ``bool`` (``None`` unchanged).
+
+    Raises
+    ------
+    service.recon.checks.OptionError
+        From ``apply``: anything but ``None``, a bool or the integers 0 and 1.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from service.recon.methods.options import check_flag
+    >>> rule = check_flag("positivity")
+    >>> rule(1), rule(np.bool_(False)), rule(None)
+    (True, False, None)
+    >>> rule("yes")
+    Traceback (most recent call last):
+    ...
+    service.recon.checks.OptionError: positivity must be true or false, got 'yes'
+    """
     def apply(value: Any) -> Any:
         if value is None or isinstance(value, bool):
             return value
@@ -72,7 +131,34 @@ def check_flag(name: str) -> Callable[[Any], Any]:
 
 def check_dtype_name(value: Any) -> Any:
     """The rule of ``dtype``: one of :data:`service.recon.limits.DTYPES`, given as its name
-    or as a NumPy dtype / scalar type (``np.float64``), returned as the name."""
+    or as a NumPy dtype / scalar type (``np.float64``), returned as the name.
+
+    Parameters
+    ----------
+    value : str, numpy dtype, type or None
+        The precision asked for; ``None`` (the default) passes.
+
+    Returns
+    -------
+    str or None
+        ``"float32"`` or ``"float64"`` (``None`` unchanged).
+
+    Raises
+    ------
+    service.recon.checks.OptionError
+        Any other dtype, or something that names none.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from service.recon.methods.options import check_dtype_name
+    >>> check_dtype_name(np.float64), check_dtype_name(np.dtype("float32")), check_dtype_name("float32")
+    ('float64', 'float32', 'float32')
+    >>> check_dtype_name("int8")
+    Traceback (most recent call last):
+    ...
+    service.recon.checks.OptionError: dtype must be one of float32, float64, got 'int8'
+    """
     if value is None or (isinstance(value, str) and value in DTYPES):
         return value
     from service.recon.checks import OptionError
@@ -105,14 +191,66 @@ Dtype = Annotated[Literal["float32", "float64"] | None, BeforeValidator(check_dt
 
 
 def Flag(name: str) -> Any:  # noqa: N802  (a type, named as one)
-    """A true/false option named ``name`` (:func:`check_flag`)."""
+    """A true/false option named ``name`` (:func:`check_flag`).
+
+    Parameters
+    ----------
+    name : str
+        The option's name, used in the error message.
+
+    Returns
+    -------
+    typing.Annotated
+        ``bool | None`` with :func:`check_flag` as its before-validator: the type of a
+        field of an options model.
+
+    Examples
+    --------
+    >>> from pydantic import TypeAdapter, ValidationError
+    >>> from service.recon.methods.options import Flag
+    >>> debias = TypeAdapter(Flag("debias"))
+    >>> debias.validate_python(0), debias.validate_python(True)
+    (False, True)
+    >>> try:
+    ...     debias.validate_python(2)
+    ... except ValidationError as exc:
+    ...     print(exc.errors()[0]["msg"])
+    Value error, debias must be true or false, got 2
+    """
     return Annotated[bool | None, BeforeValidator(check_flag(name))]
 
 
 class MethodOptions(BaseModel):
     """The options every method takes (but ``c``, the speed of sound, which
     :func:`service.pipeline.reconstruct` owns: a number, the dataset's, or ``"auto"``).
-    Unknown names, NaN and infinities are refused."""
+    Unknown names, NaN and infinities are refused.
+
+    A frozen pydantic model; a value ``None`` (JSON null) is dropped before validation, so
+    it means the field's default.
+
+    Attributes
+    ----------
+    dtype : {"float32", "float64"}
+        Working and output precision (default ``service.recon.limits.DEFAULT_DTYPE``,
+        ``"float32"``); a NumPy dtype or scalar type is accepted and stored as its name.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from pydantic import ValidationError
+    >>> from service.recon.methods.options import MethodOptions
+    >>> MethodOptions().dtype, MethodOptions(dtype=np.float64).dtype
+    ('float32', 'float64')
+    >>> MethodOptions.model_validate({"dtype": None}).dtype  # null: the default
+    'float32'
+    >>> for bad in ({"dtype": "int8"}, {"eps": 1e-6}):  # eps is no option of this model
+    ...     try:
+    ...         MethodOptions.model_validate(bad)
+    ...     except ValidationError as exc:
+    ...         print(exc.errors()[0]["msg"])
+    Value error, dtype must be one of float32, float64, got 'int8'
+    Extra inputs are not permitted
+    """
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False, frozen=True)
 
@@ -128,27 +266,105 @@ class MethodOptions(BaseModel):
 
 
 class NufftOptions(BaseModel):
-    """Mix-in: the NUFFT tolerance of the methods that use non-uniform FFTs."""
+    """Mix-in: the NUFFT tolerance of the methods that use non-uniform FFTs.
+
+    Attributes
+    ----------
+    eps : float
+        NUFFT tolerance (relative accuracy, dimensionless) in ``EPS_RANGE`` = [1e-14, 1e-1],
+        default ``DEFAULT_EPS`` = 1e-6 (rule: ``service.recon.checks.check_eps``).
+
+    Examples
+    --------
+    >>> from pydantic import ValidationError
+    >>> from service.recon.methods.options import NufftOptions
+    >>> NufftOptions().eps, NufftOptions(eps="1e-8").eps
+    (1e-06, 1e-08)
+    >>> try:
+    ...     NufftOptions(eps=5e-15)
+    ... except ValidationError as exc:
+    ...     print(exc.errors()[0]["msg"])
+    Value error, eps must be in [1e-14, 1e-1], got 5e-15
+    """
 
     eps: Eps = Field(DEFAULT_EPS, description="NUFFT tolerance (relative accuracy of the non-uniform FFTs)",
                      json_schema_extra={"unit": "1"})
 
 
 class UpsampleOption(BaseModel):
-    """Mix-in: lateral upsampling of the output grid."""
+    """Mix-in: lateral upsampling of the output grid.
+
+    Attributes
+    ----------
+    upsample : int
+        Lateral upsampling factor of the output grid in ``UPSAMPLE_RANGE`` = 1..8
+        (dimensionless), default 1 (rule: ``service.recon.checks.check_upsample``).
+
+    Examples
+    --------
+    >>> from pydantic import ValidationError
+    >>> from service.recon.methods.options import UpsampleOption
+    >>> UpsampleOption().upsample, UpsampleOption(upsample=8).upsample
+    (1, 8)
+    >>> try:
+    ...     UpsampleOption(upsample=9)
+    ... except ValidationError as exc:
+    ...     print(exc.errors()[0]["msg"])
+    Value error, upsample must be an integer in 1..8, got 9
+    """
 
     upsample: Upsample = Field(1, description="lateral upsampling factor of the output grid",
                                json_schema_extra={"unit": "1"})
 
 
 class PositivityOption(BaseModel):
-    """Mix-in: clip negative p0 to 0 (default off)."""
+    """Mix-in: clip negative p0 to 0 (default off).
+
+    Attributes
+    ----------
+    positivity : bool
+        Clip negative p0 to 0 (default False; rule: :func:`check_flag`).
+
+    Examples
+    --------
+    >>> from pydantic import ValidationError
+    >>> from service.recon.methods.options import PositivityOption
+    >>> PositivityOption().positivity, PositivityOption(positivity=1).positivity
+    (False, True)
+    >>> try:
+    ...     PositivityOption(positivity="yes")
+    ... except ValidationError as exc:
+    ...     print(exc.errors()[0]["msg"])
+    Value error, positivity must be true or false, got 'yes'
+    """
 
     positivity: Flag("positivity") = Field(False, description="clip negative p0 to 0")  # type: ignore[valid-type]
 
 
 class DepthOptions(BaseModel):
-    """Mix-in: the output depth grid (``n_z`` samples at ``dz``)."""
+    """Mix-in: the output depth grid (``n_z`` samples at ``dz``).
+
+    Attributes
+    ----------
+    n_z : int or None
+        Output depth samples in ``N_Z_RANGE`` = 2..65536; None (default): ``n_t``.
+    dz : float or None
+        Output depth spacing in m, in ``DZ_RANGE`` = [1e-9, 0.1] m; None (default): c dt.
+
+    Examples
+    --------
+    >>> from pydantic import ValidationError
+    >>> from service.recon.methods.options import DepthOptions
+    >>> DepthOptions().n_z is None, DepthOptions(n_z=64, dz="2e-5").dz  # m
+    (True, 2e-05)
+    >>> for bad in ({"n_z": 1}, {"dz": 1.0}):
+    ...     try:
+    ...         DepthOptions(**bad)
+    ...     except ValidationError as exc:
+    ...         print(exc.errors()[0]["msg"])
+    Value error, n_z must be an integer in 2..65536, got 1
+    Value error, dz must be in [1e-09, 0.1] m, got 1.0
+    """
 
     n_z: NZ = Field(None, description="output depth samples", json_schema_extra={"unit": "1", "derived": "n_t"})
     dz: Dz = Field(None, description="output depth spacing; with the input's c·t_last it sets the working depth "

@@ -37,7 +37,43 @@ TimeLimit = Annotated[Annotated[float, Field(gt=0, le=TIME_LIMIT_MAX)] | None,
 
 
 class Options(DepthOptions, MethodOptions, NufftOptions):
-    """Options of ``tv`` (SI units; λ in the data's units)."""
+    """Options of ``tv`` (SI units; λ in the data's units).
+
+    Attributes
+    ----------
+    eps : float
+        NUFFT tolerance in [1e-14, 1e-1] (default 1e-6).
+    dtype : {"float32", "float64"}
+        Working and output precision (default ``"float32"``).
+    n_z : int or None
+        Output depth samples, 2..65536 (None: n_t).
+    dz : float or None
+        Output depth spacing in m, [1e-9, 0.1] (None: c dt).
+    positivity : bool
+        Constrain p0 >= 0 (default True).
+    lam : float or None
+        TV weight λ >= 0 in the data's units (Pa for data in Pa); None (default): from the
+        estimated noise level (``service.recon.tv``).
+    iterations : int
+        Maximum iterations of the solver (default ``DEFAULT_MAX_ITER``).
+    time_limit : float
+        Wall-time limit of the solver in s, in (0, 1 week] (default ``DEFAULT_TIME_LIMIT``).
+    debias : bool
+        Refit the amplitudes by least squares on the support after the solve (default False).
+
+    Examples
+    --------
+    >>> from pydantic import ValidationError
+    >>> from service.recon.methods.tv import Options
+    >>> o = Options(lam=0.01, time_limit="60")
+    >>> o.lam, o.time_limit, o.positivity, "upsample" in Options.model_fields  # time_limit in s
+    (0.01, 60.0, True, False)
+    >>> try:
+    ...     Options(lam=-1)
+    ... except ValidationError as exc:
+    ...     print(exc.errors()[0]["msg"])
+    Value error, lam (the TV weight λ) must be in [0, 1e+30], got -1
+    """
 
     positivity: Flag("positivity") = Field(True, description="constrain p0 >= 0")  # type: ignore[valid-type]
     lam: Lam = Field(None, description="TV weight λ in the data's units",
@@ -58,7 +94,61 @@ class Options(DepthOptions, MethodOptions, NufftOptions):
 def run(ds: PointDataset, c: float, opts: dict, step: Callable[..., None]) -> Reconstruction:
     """Model-based reconstruction of A-lines ``ds.alines`` ``(n, n_t)`` at ``ds.positions``
     (m), ``c`` in m/s; the progress stage names the iteration (``"iteration k/N"``).
-    ValueError when there are no A-lines."""
+    ValueError when there are no A-lines.
+
+    Parameters
+    ----------
+    ds : PointDataset
+        ``alines`` ``(n, n_t)`` at ``positions`` ``(n, 1)`` x / ``(n, 2)`` (x, y) in m,
+        ``weights`` (the NEDNER warm start's), ``grid``, ``dt`` and ``t0`` in s.
+    c : float
+        Speed of sound, m/s.
+    opts : dict
+        The validated options, every field of :class:`Options` (``dtype`` a NumPy dtype).
+    step : callable
+        ``step(fraction, stage)`` with increasing fractions in (0, 1] (a long step may
+        repeat its fraction so that a cancel is heard); it may raise to cancel.
+
+    Returns
+    -------
+    Reconstruction
+        p0 ``(n_z, n_x)`` / ``(n_z, n_y, n_x)`` on the warm start's grid, axes in m;
+        ``params`` as ``service.recon.tv.reconstruct_tv``'s (``lam``, ``iterations``,
+        ``stop_reason``, ...).
+
+    Raises
+    ------
+    ValueError
+        No A-lines, or what ``reconstruct_tv`` refuses.
+
+    References
+    ----------
+    .. [1] S. Arridge, P. Beard, M. Betcke, B. Cox, N. Huynh, F. Lucka, O. Ogunlade, E. Zhang,
+       "Accelerated high-resolution photoacoustic tomography via compressed sensing", Phys.
+       Med. Biol. 61 (2016) 8908.
+    .. [2] A. Beck, M. Teboulle, "A fast iterative shrinkage-thresholding algorithm for linear
+       inverse problems", SIAM J. Imaging Sci. 2 (2009) 183.
+
+    Examples
+    --------
+    A 3 x 3 block (the exact forward model, `driver.physics.forward`) seen by 16 sensors:
+
+    >>> import numpy as np
+    >>> from driver.physics.forward import forward_grid
+    >>> from service.recon.dataset import GridDataset
+    >>> from service.recon.methods.tv import Options, run
+    >>> p0 = np.zeros((12, 16))  # (n_z, n_x), pitch 0.1 mm
+    >>> p0[5:8, 7:10] = 1.0
+    >>> g = forward_grid(p0, dx=1e-4, dz=1e-4, dt=1e-4 / 1500, n_t=24, c=1500.0)
+    >>> ds = GridDataset(g, dx=1e-4, dt=1e-4 / 1500, c=1500.0).to_points()
+    >>> opts = {**Options(iterations=5, n_z=12).model_dump(), "dtype": np.dtype("float32")}
+    >>> stages = []
+    >>> r = run(ds, 1500.0, opts, lambda fraction, stage: stages.append(stage))
+    >>> r.p0.shape, r.p0.dtype, bool(r.p0.min() >= 0), r.params["iterations"]
+    ((12, 16), dtype('float32'), True, 5)
+    >>> stages[0], stages[-1]
+    ('warm start', 'iteration 5/5')
+    """
     from service.recon import reconstruct_tv
 
     if ds.alines.shape[0] == 0:
