@@ -200,7 +200,7 @@ def option_rules() -> dict[str, Callable[[Any], Any]]:
     >>> rules = option_rules()
     >>> sorted(rules)
     ['debias', 'dtype', 'dz', 'eps', 'interp', 'iterations', 'lam', 'n_z', 'positivity', 'time_limit',
-     'upsample']
+     'tol', 'upsample']
     >>> rules["upsample"](2.0), rules["eps"]("1e-8")
     (2, 1e-08)
     >>> rules["eps"](5e-15)

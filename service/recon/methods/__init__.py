@@ -339,7 +339,7 @@ def option_fields() -> dict[str, Any]:
     >>> from service.recon.methods import option_fields
     >>> fields = option_fields()
     >>> list(fields)
-    ['eps', 'dtype', 'upsample', 'positivity', 'n_z', 'dz', 'interp', 'lam', 'iterations',
+    ['eps', 'dtype', 'upsample', 'positivity', 'n_z', 'dz', 'interp', 'lam', 'iterations', 'tol',
      'time_limit', 'debias']
     >>> fields["dz"].json_schema_extra["unit"], fields["positivity"].default  # nedner's default
     ('m', False)
