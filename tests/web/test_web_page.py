@@ -177,6 +177,9 @@ def plan_request(n_points: int) -> dict:
 
 
 def fill_plan_form(browser, n_points: int) -> None:
+    # the plan view shows once the page knows whether it needs a token (GET /api/auth) and
+    # has the mask kinds: until then its fields cannot take keys
+    wait_for(lambda: el(browser, "view-plan").is_displayed() and el(browser, "lat-nx").is_enabled(), "the plan form")
     set_value(browser, "lat-nx", LATTICE["n_x"])
     set_value(browser, "lat-ny", LATTICE["n_y"])
     set_value(browser, "lat-pitch", LATTICE["pitch"] * 1e6)
