@@ -48,6 +48,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from driver.constants import C_AUTOFOCUS_RANGE
+from service.progress import Progress
 from service.recon import methods as _methods
 from service.recon.limits import DEFAULT_DTYPE, DTYPES, KWAVE_INTERPS
 from service.recon.methods import Method
@@ -62,7 +63,6 @@ if TYPE_CHECKING:
 
     Dataset = GridDataset | PointDataset
 
-Progress = Callable[[float, str], None]
 ShouldStop = Callable[[], bool]
 Runner = Callable[..., "Reconstruction"]
 

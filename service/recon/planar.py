@@ -34,6 +34,7 @@ from driver.physics import nufft
 from driver.physics.axes import centred_axis
 from driver.physics.fast_lengths import fast_dct1_rows, fast_lateral, fast_length
 from driver.physics.nufft_plans import lateral_plan
+from service.progress import span as span_of
 from service.recon import checks
 from service.recon.reconstruction import Reconstruction
 
@@ -206,7 +207,7 @@ def _invert(A: np.ndarray, n_x: int, dx: float, dy: float, dt: float, c: float, 
     lo, width = span[0], span[1] - span[0]
     last = [lo]
 
-    def report(f: float) -> None:  # strictly increasing fractions only
+    def report(f: float, stage: str = "") -> None:  # strictly increasing fractions only (stage: unused)
         value = lo + width * f
         if progress is not None and value > last[0]:
             last[0] = value
@@ -228,7 +229,7 @@ def _invert(A: np.ndarray, n_x: int, dx: float, dy: float, dt: float, c: float, 
         del a
         report(0.3)
         F = nufft.evaluate(U, grid, klat2, kz, qw, c, dt, t0, inversion=True,
-                           progress=lambda f: report(0.3 + 0.45 * f))
+                           progress=span_of(report, 0.3, 0.75))
         del U
     report(0.75)
     ctype = np.complex64 if rdtype == np.float32 else np.complex128
