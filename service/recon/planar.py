@@ -34,6 +34,7 @@ from driver.physics import nufft
 from driver.physics.axes import centred_axis
 from driver.physics.fast_lengths import fast_dct1_rows, fast_lateral, fast_length
 from driver.physics.nufft_plans import lateral_plan
+from service.progress import Fraction
 from service.progress import span as span_of
 from service.recon import checks
 from service.recon.reconstruction import Reconstruction
@@ -198,7 +199,7 @@ def _cubic_columns(A_cols, n_t, klat2, kz, qw, c, dt, t0):
 
 def _invert(A: np.ndarray, n_x: int, dx: float, dy: float, dt: float, c: float, n_z: int,
             dz: float, t0: float, method: str, eps: float, rdtype: np.dtype, upsample: int,
-            progress=None, span: tuple[float, float] = (0.0, 1.0)) -> np.ndarray:
+            progress: Fraction | None = None, span: tuple[float, float] = (0.0, 1.0)) -> np.ndarray:
     """Lateral spectrum A (n_t, n_y, n_x//2+1) -> p0 (n_z, n_y*u, n_x*u) (see module doc).
     (The forward model's true adjoint is `service.recon.operator.PlanarOperator.adjoint`.)
 
@@ -277,7 +278,7 @@ def reconstruct_grid(
     t0: float = 0.0,
     dy: float | None = None,
     memory_limit: int | None = None,
-    progress=None,
+    progress: Fraction | None = None,
 ) -> Reconstruction:
     """Reconstruct p0 from data on a regular sensor line or plane (NER-NUFFT by default).
 
@@ -537,7 +538,7 @@ def reconstruct_points(
     positivity: bool = False,
     t0: float = 0.0,
     memory_limit: int | None = None,
-    progress=None,
+    progress: Fraction | None = None,
 ) -> Reconstruction:
     """NEDNER-NUFFT: reconstruct p0 from A-lines at arbitrary lateral positions.
 
