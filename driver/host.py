@@ -40,7 +40,7 @@ from driver.plan import aline_index, aline_order, load_plan, plan_image, wavelen
 from driver.transport import READER_MODES, TransportError, open_reader
 
 __all__ = [
-    "DriverError", "DeviceTimeout", "DeviceError", "InterlockOpen", "DeviceStatus", "Progress", "ScanResult",
+    "DriverError", "DeviceTimeout", "DeviceError", "InterlockOpen", "DeviceStatus", "ScanProgress", "ScanResult",
     "Scanner", "ScanSession",
 ]
 
@@ -91,8 +91,10 @@ class DeviceStatus:
 
 
 @dataclass
-class Progress:
-    """What a progress callback receives (about every ``progress_interval`` s)."""
+class ScanProgress:
+    """What a scan's progress callback receives (about every ``progress_interval`` s): a record
+    of the run, not a fraction (the fraction-and-stage callback of the reconstructions is
+    ``service.progress.Progress``; the service turns this record into the job's progress)."""
 
     points_done: int  #: points complete in the sink (at every wavelength)
     n_points: int
@@ -436,7 +438,7 @@ class Scanner:
             self.query(_CONTROL_COMMANDS[what])
 
     # ------------------------------------------------------------------ scanning
-    def scan(self, plan, sink, *, progress: Callable[[Progress], None] | None = None,
+    def scan(self, plan, sink, *, progress: Callable[[ScanProgress], None] | None = None,
              progress_interval: float = 0.25, upload: bool = True) -> ScanResult:
         """Acquire every A-line (point × wavelength) of ``plan`` not yet complete in ``sink``.
 
@@ -446,7 +448,7 @@ class Scanner:
         int16 (n_t,), meta) -> bool`` (the scan file API; ``meta["wavelength_index"]`` says
         which wavelength), written before the A-line is acknowledged, so the sink's record
         is the truth a later call resumes from. ``progress``: called with
-        :class:`Progress` from this thread. Returns a :class:`ScanResult`.
+        :class:`ScanProgress` from this thread. Returns a :class:`ScanResult`.
 
         Raises ``ValueError`` (plan and sink disagree), :class:`InterlockOpen`,
         :class:`DeviceTimeout` (device silent for ``response_timeout``),
@@ -522,7 +524,7 @@ class ScanSession:
     """
 
     def __init__(self, scanner: Scanner, plan: dict, sink, *,
-                 progress: Callable[[Progress], None] | None = None,
+                 progress: Callable[[ScanProgress], None] | None = None,
                  progress_interval: float = 0.25):
         self.sc = scanner
         self.plan = plan
@@ -662,7 +664,7 @@ class ScanSession:
         rate = (self.done - self.done0) / max(now - t_first, 1e-9)
         eta = (self.done_s.size - self.done) / rate if rate > 0 else float("inf")
         points = int(self.record.all(axis=0).sum()) if self.n_w > 1 else self.done
-        self.progress(Progress(points, self.n, rate, eta, self.sc.faults_recovered(), label,
+        self.progress(ScanProgress(points, self.n, rate, eta, self.sc.faults_recovered(), label,
                                now - self.t_start, self.done, self.done_s.size))
 
     # ------------------------------------------------------------------ receiving

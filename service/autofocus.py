@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 
 from driver.constants import C_AUTOFOCUS_LIMITS, C_AUTOFOCUS_RANGE
+from service.progress import Fraction, Progress, span
 
 __all__ = [
     "MAX_DECIMATION", "Autofocus", "check_c_range", "focus_sharpness", "choose_decimation", "search",
@@ -187,7 +188,7 @@ def _time_first(dataset: Any) -> np.ndarray:
 
 def autofocus(dataset: Any, reconstruct: Callable[..., Any], *, c_range: Any = C_AUTOFOCUS_RANGE,
               n_coarse: int = 7, xtol: float = 2.0, decimation: int | None = None,
-              options: dict | None = None, progress: Callable[[float], None] | None = None) -> Autofocus:
+              options: dict | None = None, progress: Fraction | None = None) -> Autofocus:
     """Find the speed of sound (m/s) that focuses ``dataset`` best (module docstring).
 
     Parameters
@@ -245,7 +246,7 @@ ITERATIVE_METHODS = ("tv",)
 
 
 def focus_then_reconstruct(dataset: Any, method: str, reconstruct: Callable[..., Any], *,
-                           c_range: Any = None, progress: Callable[[float, str], None] | None = None,
+                           c_range: Any = None, progress: Progress | None = None,
                            should_stop: Callable[[], bool] | None = None,
                            options_of: Callable[[str], Any] | None = None, **options: Any) -> Any:
     """``c="auto"`` for the dispatch: :func:`autofocus`, then one reconstruction of the
@@ -271,16 +272,9 @@ def focus_then_reconstruct(dataset: Any, method: str, reconstruct: Callable[...,
     def at(ds: Any, c: float, **o: Any) -> Any:
         return reconstruct(ds, search_method, should_stop=should_stop, c=c, **{**search_opts, **o})
 
-    def search_progress(f: float) -> None:
-        if progress is not None:
-            progress(0.5 * f, "autofocus")
-
-    def final_progress(f: float, stage: str) -> None:
-        if progress is not None:
-            progress(0.5 + 0.5 * f, stage)
-
-    found = autofocus(dataset, at, c_range=rng, progress=search_progress)
-    rec = reconstruct(dataset, method, progress=final_progress, should_stop=should_stop, c=found.c, **options)
+    found = autofocus(dataset, at, c_range=rng, progress=span(progress, 0.0, 0.5, "autofocus"))
+    rec = reconstruct(dataset, method, progress=span(progress, 0.5, 1.0), should_stop=should_stop, c=found.c,
+                      **options)
     rec.params["c"] = found.c
     rec.params["autofocus"] = {**found.as_params(), "search_method": search_method}
     return rec

@@ -56,6 +56,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from driver.constants import C_AUTOFOCUS_RANGE
+from service.progress import Progress, span
 from service.recon import methods as _methods
 from service.recon.limits import DEFAULT_DTYPE, DTYPES, KWAVE_INTERPS
 from service.recon.methods import Method
@@ -70,7 +71,6 @@ if TYPE_CHECKING:
 
     Dataset = GridDataset | PointDataset
 
-Progress = Callable[[float, str], None]
 ShouldStop = Callable[[], bool]
 Runner = Callable[..., "Reconstruction"]
 
@@ -416,12 +416,14 @@ def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = No
     elif not spec.needs_grid and isinstance(dataset, GridDataset):
         dataset = dataset.to_points()
 
-    def step(fraction: float, stage: str = "reconstructing") -> None:
+    def checked(fraction: float, stage: str) -> None:
         if should_stop is not None and should_stop():
             raise Cancelled("reconstruction cancelled")
         if progress is not None:
-            progress(float(fraction), stage)
+            progress(fraction, stage)
 
+    # the method's progress: (fraction, stage) or a kernel's (fraction), stage "reconstructing"
+    step = span(checked, 0.0, 1.0)
     step(0.0)
     result = spec.run(dataset, c, opts, step)
     result.params.update(wavelength_params(dataset))  # which excitation wavelength (storage.datasets)

@@ -29,7 +29,7 @@ from service.jobs.store import TERMINAL, JobStore
 from service.preview import PreviewManager
 
 if TYPE_CHECKING:
-    from driver.host import Scanner
+    from driver.host import Scanner, ScanProgress
 
 log = logging.getLogger("fpscan.scans")
 
@@ -365,7 +365,7 @@ class ScanManager:
                                 wavelength_index=int(job["params"].get("preview_wavelength", 0)))
             last = {"t": 0.0}
 
-            def progress(p) -> None:
+            def progress(p: ScanProgress) -> None:
                 now = time.monotonic()
                 if run.scanner is None or run.pending:
                     with run.lock:  # scanning now: controls go straight to the driver

@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from service.formats.unmix import UNMIX_FORMAT, read_unmix
+from service.progress import Progress, span
 from service.recon.unmix import Unmixed, endmember_matrix, too_few_wavelengths, unmix
 
 __all__ = [
@@ -51,7 +52,7 @@ def dataset_wavelengths(dataset: Any) -> np.ndarray:
 
 
 def reconstruct_wavelengths(datasets: Sequence[Any], method: str, *, reconstruct: Callable[..., Any],
-                            progress: Callable[[float, str], None] | None = None,
+                            progress: Progress | None = None,
                             should_stop: Callable[[], bool] | None = None, **options: Any) -> list[Any]:
     """Reconstruct every wavelength's dataset with the same method and options.
 
@@ -68,10 +69,7 @@ def reconstruct_wavelengths(datasets: Sequence[Any], method: str, *, reconstruct
     out = []
     opts = dict(options)
     for k, ds in enumerate(datasets):
-        def part(fraction: float, stage: str = "reconstructing", k: int = k) -> None:
-            if progress is not None:
-                progress((k + float(fraction)) / n, f"{stage} (wavelength {k + 1}/{n})")
-
+        part = span(progress, k / n, (k + 1) / n, suffix=f" (wavelength {k + 1}/{n})")
         rec = reconstruct(ds, method, progress=part, should_stop=should_stop, **opts)
         if k == 0 and opts.get("c") == "auto":
             opts["c"] = float(rec.params["c"])
@@ -226,7 +224,7 @@ def load_wavelength_datasets(paths: Sequence[str | os.PathLike], format: str | N
 
 def reconstruct_and_unmix(out_dir: str | os.PathLike, datasets: Sequence[Any], wavelengths: Any, method: str, *,
                           input_id: str = "", threshold: float = 0.1, fluence: Any = None,
-                          gruneisen: float = 1.0, progress: Callable[[float, str], None] | None = None,
+                          gruneisen: float = 1.0, progress: Progress | None = None,
                           should_stop: Callable[[], bool] | None = None,
                           reconstruct: Callable[..., Any] | None = None, **options: Any) -> dict:
     """Reconstruct every wavelength (the dispatch, same method and options), unmix, and
@@ -250,11 +248,7 @@ def reconstruct_and_unmix(out_dir: str | os.PathLike, datasets: Sequence[Any], w
         reconstruct = dispatch
     t0 = time.perf_counter()
 
-    def rec_progress(f: float, stage: str) -> None:
-        if progress is not None:
-            progress(0.9 * f, stage)
-
-    recons = reconstruct_wavelengths(datasets, method, reconstruct=reconstruct, progress=rec_progress,
+    recons = reconstruct_wavelengths(datasets, method, reconstruct=reconstruct, progress=span(progress, 0.0, 0.9),
                                      should_stop=should_stop, **options)
     t1 = time.perf_counter()
     u = unmix_reconstructions(recons, w, threshold=threshold, fluence=fluence, gruneisen=gruneisen)

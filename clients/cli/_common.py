@@ -279,6 +279,11 @@ class ProgressBar:
                 self._last_stage = kind
                 self._print(progress, now)
 
+    def report(self, fraction: float, stage: str) -> None:
+        """The bar as a ``service.progress.Progress``: ``report(fraction, stage)`` (a local
+        reconstruction's callback) shows as the job progress ``{"fraction", "stage"}``."""
+        self({"fraction": fraction, "stage": stage})
+
     def _print(self, progress: dict, now: float) -> None:
         """One progress line (the caller holds the lock)."""
         self._printed_at = now

@@ -202,8 +202,7 @@ def _local(args, fmt: str) -> int:
     from clients.cli._common import ProgressBar
 
     with ProgressBar(f"recon {method}", quiet=args.quiet) as bar:  # the reconstruction's own fractions
-        rec = reconstruct(ds, method, progress=lambda f, stage: bar({"fraction": f, "stage": stage}),
-                          **_params(args))
+        rec = reconstruct(ds, method, progress=bar.report, **_params(args))
     t2 = time.perf_counter()
     say(f"writing {out}/")
     write_result(out, rec, input_id=Path(args.input).name)
@@ -241,7 +240,7 @@ def _local_all(args, datasets: list, say, t0: float) -> int:
 
     with ProgressBar(f"recon {method}", quiet=args.quiet) as bar:
         recons = reconstruct_wavelengths(datasets, method, reconstruct=reconstruct,
-                                         progress=lambda f, stage: bar({"fraction": f, "stage": stage}),
+                                         progress=bar.report,
                                          **_params(args))
     t2 = time.perf_counter()
     say(f"writing {out}/")

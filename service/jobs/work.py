@@ -32,9 +32,10 @@ import time
 from typing import Any
 
 from driver.constants import C_DEFAULT
+from service.progress import Progress, span
 
 __all__ = [
-    "INPUT_FORMATS", "load_inputs", "report_stage", "check_memory_limit", "ADDRESS_SPACE_BASE",
+    "INPUT_FORMATS", "load_inputs", "report_stage", "progress_file", "check_memory_limit", "ADDRESS_SPACE_BASE",
     "address_space_limit", "memory_bounded", "run_reconstruction", "run_unmix", "worker_pid", "warm_up",
 ]
 
@@ -68,6 +69,15 @@ def report_stage(path: str | None, stage: str, fraction: float) -> None:
     except OSError:  # progress is best effort (e.g. a remote worker without the folder, a full disk)
         with contextlib.suppress(OSError):
             os.unlink(tmp)
+
+
+def progress_file(path: str | None) -> Progress:
+    """The :data:`service.progress.Progress` that writes to the job's progress file ``path``
+    (:func:`report_stage`; nothing when ``path`` is None)."""
+    def write(fraction: float, stage: str) -> None:
+        report_stage(path, stage, fraction)
+
+    return write
 
 
 def check_memory_limit(ds: Any, params: dict, limit: int, estimate: int | None = None) -> None:
@@ -158,7 +168,7 @@ def run_reconstruction(spec: dict) -> dict:
     t1 = time.perf_counter()
     method = params.pop("method", None) or default_method(ds)
     with memory_bounded(limit):
-        rec = reconstruct(ds, method, progress=lambda f, stage: report_stage(progress, stage, 0.2 + 0.7 * f),
+        rec = reconstruct(ds, method, progress=span(progress_file(progress), 0.2, 0.9),
                           should_stop=(lambda: os.path.exists(cancel)) if cancel else None, **params)
     t2 = time.perf_counter()
     report_stage(progress, "writing", 0.9)
@@ -189,7 +199,7 @@ def _run_all_wavelengths(spec: dict, datasets: list, params: dict, t0: float) ->
     with memory_bounded(limit):
         recons = reconstruct_wavelengths(
             datasets, method, reconstruct=reconstruct,
-            progress=lambda f, stage: report_stage(progress, stage, 0.2 + 0.7 * f),
+            progress=span(progress_file(progress), 0.2, 0.9),
             should_stop=(lambda: os.path.exists(cancel)) if cancel else None, **params)
     t2 = time.perf_counter()
     report_stage(progress, "writing", 0.9)
@@ -230,7 +240,7 @@ def run_unmix(spec: dict) -> dict:
     summary = reconstruct_and_unmix(
         spec["out_dir"], datasets, wavelengths, method, input_id=spec.get("input_id", ""),
         threshold=float(unmix.get("threshold", 0.1)), fluence=unmix.get("fluence"),
-        progress=lambda f, stage: report_stage(progress, stage, 0.1 + 0.85 * f),
+        progress=span(progress_file(progress), 0.1, 0.95),
         should_stop=(lambda: os.path.exists(cancel)) if cancel else None, **params)
     summary["timings"]["load_s"] = t_load
     summary["unmix"]["threshold"] = float(unmix.get("threshold", 0.1))

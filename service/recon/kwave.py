@@ -27,6 +27,7 @@ import scipy.fft
 import scipy.interpolate
 
 from driver.physics.nufft import group_columns, transpose
+from service.progress import Fraction
 from service.recon import checks
 
 __all__ = ["transform_lengths", "kspace_line_recon", "kspace_plane_recon"]
@@ -264,7 +265,7 @@ def _recon(p, dt, c, lateral_d, interp, pos_cond, dtype=np.float64, progress=Non
 
 
 def kspace_line_recon(p, dy, dt, c, data_order="ty", interp="*nearest", pos_cond=False,
-                      progress=None, dtype=np.float64) -> np.ndarray:
+                      progress: Fraction | None = None, dtype=np.float64) -> np.ndarray:
     """2-D planar reconstruction exactly as k-Wave's ``kspaceLineRecon``.
 
     Parameters
@@ -329,7 +330,7 @@ def kspace_line_recon(p, dy, dt, c, data_order="ty", interp="*nearest", pos_cond
 
 
 def kspace_plane_recon(p, dy, dz, dt, c, data_order="tyz", interp="*nearest", pos_cond=False,
-                       progress=None, dtype=np.float64) -> np.ndarray:
+                       progress: Fraction | None = None, dtype=np.float64) -> np.ndarray:
     """3-D planar reconstruction exactly as k-Wave's ``kspacePlaneRecon``.
 
     Parameters

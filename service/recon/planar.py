@@ -34,6 +34,8 @@ from driver.physics import nufft
 from driver.physics.axes import centred_axis
 from driver.physics.fast_lengths import fast_dct1_rows, fast_lateral, fast_length
 from driver.physics.nufft_plans import lateral_plan
+from service.progress import Fraction
+from service.progress import span as span_of
 from service.recon import checks
 from service.recon.reconstruction import Reconstruction
 
@@ -197,7 +199,7 @@ def _cubic_columns(A_cols, n_t, klat2, kz, qw, c, dt, t0):
 
 def _invert(A: np.ndarray, n_x: int, dx: float, dy: float, dt: float, c: float, n_z: int,
             dz: float, t0: float, method: str, eps: float, rdtype: np.dtype, upsample: int,
-            progress=None, span: tuple[float, float] = (0.0, 1.0)) -> np.ndarray:
+            progress: Fraction | None = None, span: tuple[float, float] = (0.0, 1.0)) -> np.ndarray:
     """Lateral spectrum A (n_t, n_y, n_x//2+1) -> p0 (n_z, n_y*u, n_x*u) (see module doc).
     (The forward model's true adjoint is `service.recon.operator.PlanarOperator.adjoint`.)
 
@@ -206,7 +208,7 @@ def _invert(A: np.ndarray, n_x: int, dx: float, dy: float, dt: float, c: float, 
     lo, width = span[0], span[1] - span[0]
     last = [lo]
 
-    def report(f: float) -> None:  # strictly increasing fractions only
+    def report(f: float, stage: str = "") -> None:  # strictly increasing fractions only (stage: unused)
         value = lo + width * f
         if progress is not None and value > last[0]:
             last[0] = value
@@ -228,7 +230,7 @@ def _invert(A: np.ndarray, n_x: int, dx: float, dy: float, dt: float, c: float, 
         del a
         report(0.3)
         F = nufft.evaluate(U, grid, klat2, kz, qw, c, dt, t0, inversion=True,
-                           progress=lambda f: report(0.3 + 0.45 * f))
+                           progress=span_of(report, 0.3, 0.75))
         del U
     report(0.75)
     ctype = np.complex64 if rdtype == np.float32 else np.complex128
@@ -276,7 +278,7 @@ def reconstruct_grid(
     t0: float = 0.0,
     dy: float | None = None,
     memory_limit: int | None = None,
-    progress=None,
+    progress: Fraction | None = None,
 ) -> Reconstruction:
     """Reconstruct p0 from data on a regular sensor line or plane (NER-NUFFT by default).
 
@@ -536,7 +538,7 @@ def reconstruct_points(
     positivity: bool = False,
     t0: float = 0.0,
     memory_limit: int | None = None,
-    progress=None,
+    progress: Fraction | None = None,
 ) -> Reconstruction:
     """NEDNER-NUFFT: reconstruct p0 from A-lines at arbitrary lateral positions.
 

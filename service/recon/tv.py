@@ -69,6 +69,7 @@ import numpy as np
 import scipy.fft
 
 from driver.constants import C_DEFAULT
+from service.progress import Progress, span
 from service.recon import checks
 from service.recon import limits as _limits
 from service.recon.reconstruction import Reconstruction
@@ -169,7 +170,7 @@ def reconstruct_tv(
     memory_limit: int | None = None,
     time_limit: float = DEFAULT_TIME_LIMIT,
     debias: bool = False,
-    progress=None,
+    progress: Progress | None = None,
 ) -> Reconstruction:
     """Model-based reconstruction: ½‖A p0 − g‖² + λ TV(p0), p0 ≥ 0 (module doc).
 
@@ -294,7 +295,7 @@ def reconstruct_tv(
     started = time.monotonic()
     report = _reporter(progress)
     common: dict[str, Any] = dict(dtype=np.float64, dz=dz, n_z=n_z, t0=t0, eps=eps, positivity=positivity,
-                  memory_limit=memory_limit, progress=lambda f: report(0.05 * f, "warm start"))
+                  memory_limit=memory_limit, progress=span(report, 0.0, 0.05, "warm start"))
     if positions is None:
         if dx is None:
             raise ValueError("grid data need dx (or give positions for A-lines)")
@@ -533,7 +534,7 @@ class _Reporter:
     a ``progress`` that raises to cancel (the pipeline's ``should_stop``) is heard inside
     long steps too (the operator's checkpoints, the proximal map's inner iterations)."""
 
-    def __init__(self, progress) -> None:
+    def __init__(self, progress: Progress | None) -> None:
         self.progress = progress
         self.fraction, self.stage, self.at = 0.0, "warm start", time.monotonic()
 
@@ -548,5 +549,5 @@ class _Reporter:
             self.progress(self.fraction, self.stage)
 
 
-def _reporter(progress) -> _Reporter:
+def _reporter(progress: Progress | None) -> _Reporter:
     return _Reporter(progress)

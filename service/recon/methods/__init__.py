@@ -15,8 +15,9 @@ from :data:`METHODS`.
 ``run(dataset, c, options, progress)``: ``dataset`` a ``service.recon.dataset.GridDataset``
 when the method ``needs_grid``, else a ``PointDataset`` (the pipeline converts); ``c`` in
 m/s; ``options`` the validated options as a dict (every field, defaults filled; ``dtype``
-a NumPy dtype; ``None`` for "derived from the data", e.g. ``n_z``); ``progress(fraction)``
-with fractions in [0, 1]. Returns a ``service.recon.reconstruction.Reconstruction``.
+a NumPy dtype; ``None`` for "derived from the data", e.g. ``n_z``); ``progress`` a
+``service.progress.Span``: ``progress(fraction, stage)`` or a kernel's ``progress(fraction)``
+(stage "reconstructing"), fractions in [0, 1]. Returns a ``service.recon.reconstruction.Reconstruction``.
 
 Importing this package needs no numpy (the command line of a client-only install builds its
 flags from it); the kernels load when a method runs.

@@ -3,7 +3,6 @@ NER-preconditioned FISTA on the exact planar model (kernel:
 :func:`service.recon.tv.reconstruct_tv`; Arridge et al., PMB 61 (2016) 8908)."""
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import TYPE_CHECKING, Annotated
 
 from pydantic import BeforeValidator, Field
@@ -21,6 +20,7 @@ from service.recon.methods import Method, planar_memory, register
 from service.recon.methods.options import DepthOptions, Flag, MethodOptions, NufftOptions, kernel_rule
 
 if TYPE_CHECKING:
+    from service.progress import Progress
     from service.recon.dataset import PointDataset
     from service.recon.reconstruction import Reconstruction
 
@@ -91,7 +91,7 @@ class Options(DepthOptions, MethodOptions, NufftOptions):
                                    "support after the solve")
 
 
-def run(ds: PointDataset, c: float, opts: dict, step: Callable[..., None]) -> Reconstruction:
+def run(ds: PointDataset, c: float, opts: dict, step: Progress) -> Reconstruction:
     """Model-based reconstruction of A-lines ``ds.alines`` ``(n, n_t)`` at ``ds.positions``
     (m), ``c`` in m/s; the progress stage names the iteration (``"iteration k/N"``).
     ValueError when there are no A-lines.
