@@ -49,7 +49,7 @@ def test_largest_prime_factor_and_fast_length_against_independent_oracles():
         fast_length(0)
 
 
-@pytest.mark.parametrize("method", planar.METHODS)
+@pytest.mark.parametrize("method", planar.GRID_METHODS)
 def test_planar_temporal_and_depth_lengths_are_fast_for_every_n_t(method):
     for n_t in N_T:
         lengths = planar.transform_lengths((n_t, 64), DT, C, method=method)
