@@ -688,21 +688,27 @@ def evaluate(
     out = np.empty((U.shape[0], len(kz)), dtype=out_dtype or U.dtype)
     kz = np.asarray(kz, np.float64)
     qw = np.asarray(qw, np.float64)
-    # groups in a few chunks (each column's sum is the same whichever chunk holds it), so
-    # that a caller sees real progress through the longest step
-    n_groups = len(gvals)
-    # chunks of at least ~4M evaluations each: small transforms run in one parallel region
-    n_chunks = max(1, min(n_chunks, U.shape[0] * len(kz) // (1 << 22), n_groups))
+    for a, b in _group_chunks(len(gvals), n_chunks, U.shape[0] * len(kz), progress):
+        _interp_kernel(U, gvals[a:b], gptr[a : b + 1], order, kz, qw, float(c), float(dt), float(t0),
+                       2.0 * np.pi / grid.L, grid.L, _KIND_CODE[grid.kind], grid.w, grid.horner,
+                       grid.shift, bool(inversion), out)
+    return out
+
+
+def _group_chunks(n_groups: int, n_chunks: int, work: int, progress=None):
+    """Ranges [a, b) of column groups, up to ``n_chunks`` of them and each of at least ~4M
+    of ``work`` (coefficients: small transforms run in one parallel region); each column's
+    result is the same whichever chunk holds it. ``progress(fraction)`` is called after each
+    chunk (by the caller's loop, as the next range is asked for), so that a caller sees real
+    progress through the longest step."""
+    n_chunks = max(1, min(n_chunks, work // (1 << 22), n_groups))
     bounds = np.linspace(0, n_groups, n_chunks + 1).astype(np.int64)
-    for i in range(len(bounds) - 1):
+    for i in range(n_chunks):
         a, b = int(bounds[i]), int(bounds[i + 1])
         if b > a:
-            _interp_kernel(U, gvals[a:b], gptr[a : b + 1], order, kz, qw, float(c), float(dt), float(t0),
-                           2.0 * np.pi / grid.L, grid.L, _KIND_CODE[grid.kind], grid.w, grid.horner,
-                           grid.shift, bool(inversion), out)
+            yield a, b
         if progress is not None:
-            progress((i + 1) / (len(bounds) - 1))
-    return out
+            progress((i + 1) / n_chunks)
 
 
 def spread(
@@ -759,15 +765,7 @@ def spread(
     R = np.zeros((B.shape[0], grid.L), dtype=ctype)
     kz = np.asarray(kz, np.float64)
     qw = np.asarray(qw, np.float64)
-    n_groups = len(gvals)
-    n_chunks = max(1, min(n_chunks, B.shape[0] * len(kz) // (1 << 22), n_groups))
-    bounds = np.linspace(0, n_groups, n_chunks + 1).astype(np.int64)
-    for i in range(len(bounds) - 1):
-        a, b = int(bounds[i]), int(bounds[i + 1])
-        if b > a:
-            _spread_kernel(B, gvals[a:b], gptr[a : b + 1], order, kz, qw, float(c), float(dt), float(t0),
-                           2.0 * np.pi / grid.L, grid.L, _KIND_CODE[grid.kind], grid.w, grid.horner,
-                           grid.shift, R)
-        if progress is not None:
-            progress((i + 1) / (len(bounds) - 1))
+    for a, b in _group_chunks(len(gvals), n_chunks, B.shape[0] * len(kz), progress):
+        _spread_kernel(B, gvals[a:b], gptr[a : b + 1], order, kz, qw, float(c), float(dt), float(t0),
+                       2.0 * np.pi / grid.L, grid.L, _KIND_CODE[grid.kind], grid.w, grid.horner, grid.shift, R)
     return R
