@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import threading
 import time
 from typing import Any
 
@@ -37,6 +38,7 @@ from service.progress import Progress, span
 __all__ = [
     "INPUT_FORMATS", "load_inputs", "report_stage", "progress_file", "check_memory_limit", "ADDRESS_SPACE_BASE",
     "address_space_limit", "memory_bounded", "run_reconstruction", "run_unmix", "worker_pid", "warm_up",
+    "JobGate", "JOB_GATE",
 ]
 
 INPUT_FORMATS = {"scan": "fpscan", "dataset": "dataset"}
@@ -139,6 +141,44 @@ def memory_bounded(limit: int | None):
                          "reduce the size, upsample or n_z, or use float32") from None
 
 
+class JobGate:
+    """Whether this worker process is running a job, for work that must wait for an idle
+    worker (the background warm-up: :func:`warm_up`'s ``rest_in_background``).
+
+    ``with gate.busy():`` marks a job (nestable, thread-safe); ``gate.wait_idle()`` blocks
+    while one runs and sets ``gate.waited`` first (so a caller can see that it yielded)."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._jobs = 0
+        self._idle = threading.Event()
+        self._idle.set()
+        self.waited = threading.Event()
+
+    @contextlib.contextmanager
+    def busy(self):
+        with self._lock:
+            self._jobs += 1
+            self._idle.clear()
+        try:
+            yield
+        finally:
+            with self._lock:
+                self._jobs -= 1
+                if self._jobs == 0:
+                    self._idle.set()
+
+    def wait_idle(self) -> None:
+        if not self._idle.is_set():
+            self.waited.set()
+        self._idle.wait()
+
+
+#: this worker process's jobs: :func:`run_reconstruction` holds it busy, the background
+#: warm-up waits for it to be idle between its steps
+JOB_GATE = JobGate()
+
+
 def run_reconstruction(spec: dict) -> dict:
     """Executor entry point. ``spec``: ``input`` (see above), ``params`` (``method`` and
     the options of :func:`service.pipeline.reconstruct`), ``out_dir``, ``input_id``,
@@ -147,7 +187,13 @@ def run_reconstruction(spec: dict) -> dict:
     ``service.pipeline.Cancelled`` once that file exists) and ``memory_limit`` (bytes:
     admission checked again on the loaded input, address space bounded while it runs).
     Returns ``{"shape", "max", "planes", "timings", "points_used"}``. Raises
-    ``ValueError`` for inputs the method cannot use or that exceed the memory limit."""
+    ``ValueError`` for inputs the method cannot use or that exceed the memory limit.
+    Holds :data:`JOB_GATE` busy while it runs (the background warm-up waits)."""
+    with JOB_GATE.busy():
+        return _run_reconstruction(spec)
+
+
+def _run_reconstruction(spec: dict) -> dict:
     from service.pipeline import default_method, reconstruct
     from service.storage.results import write_result
 
@@ -263,8 +309,9 @@ def warm_up(full: bool = False, rest_in_background: bool = False) -> dict:
 
     The planar kernels (NER, NEDNER: most jobs) and the writer come first; with
     ``rest_in_background`` the other groups (k-Wave modes, the model-based operator with its
-    pylops import: seconds) warm in a daemon thread after this returns, so the worker takes
-    its first job that much sooner (a job that needs them meanwhile compiles or waits for
+    pylops import: seconds) warm in a daemon thread after this returns, step by step while
+    no job runs (:data:`JOB_GATE`), so the worker takes its first job that much sooner and
+    runs it at full speed (a job that needs them meanwhile compiles or waits for
     them under numba's lock). Returns ``{"pid", "seconds"}``: the time until return."""
     import h5py  # noqa: F401
 
@@ -297,12 +344,17 @@ def warm_up(full: bool = False, rest_in_background: bool = False) -> dict:
 
 
 def _warm_rest() -> None:
-    """The kernel groups :func:`warm_up` leaves to the background; a failure is logged (a job
+    """The kernel groups :func:`warm_up` leaves to the background, one group and precision at
+    a time, each step only while no job runs (:data:`JOB_GATE`); a failure is logged (a job
     then compiles what it needs itself)."""
     try:
+        from service.recon.warmup import DTYPES
         from service.recon.warmup import warm_up as compile_kernels
 
-        compile_kernels(groups=("kwave", "model"))
+        for group in ("kwave", "model"):
+            for dtype in DTYPES:  # small steps, each after the worker's job (if any) is done:
+                JOB_GATE.wait_idle()  # the warm-up must not take CPU (and the GIL) from a job
+                compile_kernels(dtypes=[dtype], groups=[group])
     except Exception:  # noqa: BLE001 -- a warm-up must never stop the worker
         import logging
 
