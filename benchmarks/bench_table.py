@@ -17,7 +17,10 @@ per size, content irrelevant to timing):
   (lib, http, lib, http, ...: ``--repeat`` rounds, medians), so both see the same load;
 - ``job recon`` / ``job write``: the job's own timings (``params.result.timings``);
 - ``cli``: ``fpscan recon FILE.npy`` wall time (a fresh process: imports, reconstruction, writing);
-- ``load``: 1-minute load average when the row was measured.
+- ``load``: 1-minute load average when the row was measured;
+- ``second job``: with ``--second-job`` every row is measured twice, the second time while
+  another client keeps one more job running (the first method at the largest size, back to
+  back; the server then has 2 workers): issue 20.1's "under a second job's load".
 
 Then: start-up to a healthy ``/api/health`` (target <= 3 s), and the first job after start-up
 (the first method at the first size, submitted as soon as the server is healthy: it waits for
@@ -25,6 +28,7 @@ the worker's warm-up) over ``lib`` (target <= 2).
 
     .venv/bin/python benchmarks/bench_table.py                   # 128, 226, 256 at n_t 256
     .venv/bin/python benchmarks/bench_table.py --sizes 128 --n-t 256 --methods ner --no-cli   # quick
+    .venv/bin/python benchmarks/bench_table.py --second-job     # also under a second job's load
 
 Starts its own server (127.0.0.1, free port) and stops it. The child processes (library, server,
 CLI) run with bytecode caching on (``PYTHONDONTWRITEBYTECODE`` removed), as an installed package
@@ -164,6 +168,9 @@ def _parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--methods", nargs="+", default=["ner", "nedner", "kwave"])
     ap.add_argument("--repeat", type=int, default=3, help="rounds of (library call, HTTP job); medians")
     ap.add_argument("--no-cli", action="store_true", help="skip the command-line column")
+    ap.add_argument("--second-job", action="store_true",
+                    help="measure every row again while another client keeps a second job running "
+                         "(server with 2 workers)")
     ap.add_argument("--json", action="store_true", help="also print the raw numbers as JSON")
     ap.add_argument("--library-child", nargs=2, help=argparse.SUPPRESS)
     return ap.parse_args(argv)
@@ -177,7 +184,7 @@ def main() -> int:
 
     os.environ.pop("PYTHONDONTWRITEBYTECODE", None)  # the children cache bytecode, as an install does
     load_start = os.getloadavg()
-    rows: dict[tuple[str, int], dict] = {}
+    rows: dict[tuple[str, int, bool], dict] = {}
     extra: dict = {}
     with tempfile.TemporaryDirectory() as tmp_s:
         tmp = Path(tmp_s)
@@ -190,7 +197,7 @@ def main() -> int:
         if not args.no_cli:
             for m in args.methods:
                 for n, p in zip(args.sizes, paths):
-                    rows[(m, n)]["cli_s"] = cli(m, p, tmp / f"cli-{m}-{n}")
+                    rows[(m, n, False)]["cli_s"] = cli(m, p, tmp / f"cli-{m}-{n}")
     _print_table(args, rows, extra, load_start, os.getloadavg())
     return 0
 
@@ -226,7 +233,8 @@ def _measure(args: argparse.Namespace, tmp: Path, paths: list[Path], lib: Librar
         subprocess.run([sys.executable, "-c", code], check=True)
         extra[name] = time.perf_counter() - t
     t = time.perf_counter()
-    srv = start_service(tmp / "data", token=TOKEN, web=False, env={"FPSCAN_LOG_LEVEL": "warning"},
+    env = {"FPSCAN_LOG_LEVEL": "warning", **({"FPSCAN_WORKERS": "2"} if args.second_job else {})}
+    srv = start_service(tmp / "data", token=TOKEN, web=False, env=env,
                         log_path=tmp / "server.log")
     extra["startup_to_healthy_s"] = time.perf_counter() - t
     extra["startup_load"] = os.getloadavg()[0]
@@ -238,23 +246,64 @@ def _measure(args: argparse.Namespace, tmp: Path, paths: list[Path], lib: Librar
                 if n == args.sizes[0]:  # the first job, right after start-up (worker still warming)
                     extra["first_job_s"], _ = job(c, ids[n], args.methods[0])
                     extra["first_job_load"] = os.getloadavg()[0]
-            for m in args.methods:
-                for n, p in zip(args.sizes, paths):
-                    got: dict[str, list] = {}
-                    for _ in range(max(1, args.repeat)):
-                        r = lib.call(m, p)
-                        dt, j = job(c, ids[n], m)
-                        tm = j["params"]["result"]["timings"]
-                        for key, v in (("lib_s", r["lib_s"]), ("worker_s", r["worker_s"]), ("write_s", r["write_s"]),
-                                       ("http_s", dt), ("job_recon_s", tm["reconstruct_s"]),
-                                       ("job_write_s", tm["write_s"]), ("load", os.getloadavg()[0])):
-                            got.setdefault(key, []).append(v)
-                    rows[(m, n)] = {k: _median(v) for k, v in got.items()}
-                    rows[(m, n)]["http_over_lib"] = _median([h / v for h, v in zip(got["http_s"], got["lib_s"])])
+            for second in (False, True) if args.second_job else (False,):
+                background = _SecondJob(srv.url, ids[args.sizes[-1]], args.methods[0]) if second else None
+                try:
+                    for m in args.methods:
+                        for n, p in zip(args.sizes, paths):
+                            rows[(m, n, second)] = _rounds(args, lib, c, m, n, p, ids[n])
+                finally:
+                    if background is not None:
+                        extra["second_jobs_done"] = background.stop()
     finally:
         srv.stop(timeout=20)
     m0, n0 = args.methods[0], args.sizes[0]
-    extra["first_job_over_lib"] = extra["first_job_s"] / rows[(m0, n0)]["lib_s"]
+    extra["first_job_over_lib"] = extra["first_job_s"] / rows[(m0, n0, False)]["lib_s"]
+
+
+def _rounds(args: argparse.Namespace, lib: Library, c, m: str, n: int, p: Path, ds: str) -> dict:
+    """``--repeat`` rounds of (library call + worker function + writer, HTTP job): medians."""
+    got: dict[str, list] = {}
+    for _ in range(max(1, args.repeat)):
+        r = lib.call(m, p)
+        dt, j = job(c, ds, m)
+        tm = j["params"]["result"]["timings"]
+        for key, v in (("lib_s", r["lib_s"]), ("worker_s", r["worker_s"]), ("write_s", r["write_s"]),
+                       ("http_s", dt), ("job_recon_s", tm["reconstruct_s"]),
+                       ("job_write_s", tm["write_s"]), ("load", os.getloadavg()[0])):
+            got.setdefault(key, []).append(v)
+    row = {k: _median(v) for k, v in got.items()}
+    row["http_over_lib"] = _median([h / v for h, v in zip(got["http_s"], got["lib_s"])])
+    return row
+
+
+class _SecondJob:
+    """``--second-job``: another client keeps one more job running on the server (the first
+    method at the largest size, back to back, on the server's second worker) while the rows
+    are measured: the library call and the HTTP job both share the machine with it."""
+
+    def __init__(self, url: str, dataset_id: str, method: str) -> None:
+        import threading
+
+        import httpx
+
+        self._client = httpx.Client(base_url=url, headers={"Authorization": f"Bearer {TOKEN}"}, timeout=600)
+        self._stop = threading.Event()
+        self.done = 0
+        self._thread = threading.Thread(target=self._loop, args=(dataset_id, method), daemon=True)
+        self._thread.start()
+
+    def _loop(self, dataset_id: str, method: str) -> None:
+        while not self._stop.is_set():
+            job(self._client, dataset_id, method)
+            self.done += 1
+
+    def stop(self) -> int:
+        """Stop after the job in flight; returns how many jobs it ran."""
+        self._stop.set()
+        self._thread.join()
+        self._client.close()
+        return self.done
 
 
 def _print_table(args: argparse.Namespace, rows: dict, extra: dict, load_start, load_end) -> None:
@@ -266,12 +315,12 @@ def _print_table(args: argparse.Namespace, rows: dict, extra: dict, load_start, 
     print(f"\nfpscan bench_table: n_t = {args.n_t}, float32, {args.repeat} rounds; load average at start "
           f"{load_start[0]:.2f} {load_start[1]:.2f} {load_start[2]:.2f}, at end "
           f"{load_end[0]:.2f} {load_end[1]:.2f} {load_end[2]:.2f} on {os.cpu_count()} CPUs\n")
-    print("| method | size | lib s | worker s (/lib) | write s (/lib) | http s (/lib) | job recon s "
+    print("| method | size | second job | lib s | worker s (/lib) | write s (/lib) | http s (/lib) | job recon s "
           "| job write s (/recon) | cli s | load |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
-    for (m, n), r in rows.items():
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for (m, n, second), r in rows.items():
         lib = r["lib_s"]
-        print(f"| {m} | {args.n_t}×{n}² | {f(lib)} | {f(r['worker_s'])} ({f(r['worker_s'] / lib)}) "
+        print(f"| {m} | {args.n_t}×{n}² | {'yes' if second else 'no'} | {f(lib)} | {f(r['worker_s'])} ({f(r['worker_s'] / lib)}) "
               f"| {f(r['write_s'])} ({f(r['write_s'] / lib)}) | {f(r['http_s'])} ({f(r['http_over_lib'])}) "
               f"| {f(r['job_recon_s'])} | {f(r['job_write_s'])} ({f(r['job_write_s'] / max(r['job_recon_s'], 1e-9))}) "
               f"| {f(r.get('cli_s'))} | {f(r['load'])} |")
@@ -285,7 +334,8 @@ def _print_table(args: argparse.Namespace, rows: dict, extra: dict, load_start, 
           f"{extra['first_job_s']:.2f} s = {extra['first_job_over_lib']:.2f}× lib (target <= 2; load "
           f"{extra['first_job_load']:.2f})")
     if args.json:
-        print(json.dumps({"rows": [{"method": m, "n": n, **r} for (m, n), r in rows.items()], **extra,
+        print(json.dumps({"rows": [{"method": m, "n": n, "second_job": sj, **r} for (m, n, sj), r in rows.items()],
+                          **extra,
                           "n_t": args.n_t, "load_start": load_start, "load_end": load_end}, indent=1))
 
 if __name__ == "__main__":
