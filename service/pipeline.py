@@ -2,7 +2,7 @@
 
 Everything that reconstructs calls :func:`reconstruct` — the job worker
 (:mod:`service.jobs.work`), ``fpscan recon`` without ``--server``, the live preview
-(:mod:`service.preview`) and the experiments (:mod:`service.experiments`) — so the same
+(:mod:`service.jobs.preview`) and the experiments (:mod:`service.experiments`) — so the same
 input and options give the same volume locally and on the server. Inputs are the
 datasets of :mod:`service.recon.dataset` (read any file with ``service.storage.datasets.load_dataset``).
 

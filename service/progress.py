@@ -13,7 +13,9 @@ onto ``[lo, hi]`` of the outer callback. The callable :func:`span` returns also 
 kernels' one-argument form ``progress(fraction)`` (``service.recon.planar``,
 ``service.recon.kwave``, ``driver.physics.nufft``, ``service.autofocus.autofocus``), then
 reporting the span's ``stage``: it is the one adapter between the kernels and a
-:data:`Progress`.
+:data:`Progress`. Inside a kernel, :func:`rising` turns the kernel's own one-argument
+callback into a :data:`Progress` that passes on only rising fractions (the kernels promise
+strictly increasing ones), so that the kernel's steps report through :func:`span` too.
 
 Examples
 --------
@@ -27,6 +29,13 @@ Examples
 [(0.375, 'warm start'), (0.55, 'norm estimate'), (0.9, 'reconstructing')]
 >>> span(None, 0.0, 0.5) is None  # no callback: nothing to report to
 True
+>>> fractions = []
+>>> kernel = rising(fractions.append)  # a kernel's one-argument callback
+>>> span(kernel, 0.1, 0.5)(1.0)  # a step of the kernel over [0.1, 0.5], ended
+>>> kernel(0.5)  # no rise: not passed on
+>>> span(kernel, 0.5, 1.0)(0.5)
+>>> fractions
+[0.5, 0.75]
 """
 from __future__ import annotations
 
@@ -34,7 +43,7 @@ import math
 from collections.abc import Callable
 from typing import overload
 
-__all__ = ["Progress", "Fraction", "Span", "span", "DEFAULT_STAGE"]
+__all__ = ["Progress", "Fraction", "Span", "span", "Rising", "rising", "DEFAULT_STAGE"]
 
 #: ``progress(fraction, stage)``: fraction in [0, 1] (non-decreasing), stage text
 Progress = Callable[[float, str], None]
@@ -115,3 +124,58 @@ def span(progress: Progress | None, lo: float, hi: float, stage: str | None = No
     if progress is None:
         return None
     return Span(progress, lo_f, hi_f, stage, suffix)
+
+
+class Rising:
+    """A kernel's one-argument ``progress(fraction)`` as a :data:`Progress` (made by
+    :func:`rising`): ``rising_(fraction, stage=None)`` calls ``progress(fraction)`` when
+    ``fraction`` is above every fraction passed on before (the stage is dropped: a kernel's
+    callback takes none), else nothing. Whatever ``progress`` raises (a cancel) passes through.
+    """
+
+    __slots__ = ("progress", "last")
+
+    def __init__(self, progress: Fraction) -> None:
+        self.progress = progress
+        self.last = -math.inf
+
+    def __call__(self, fraction: float, stage: str | None = None) -> None:
+        f = float(fraction)
+        if f > self.last:
+            self.last = f
+            self.progress(f)
+
+    def __repr__(self) -> str:
+        return f"rising({self.progress!r})"
+
+
+@overload
+def rising(progress: Fraction) -> Rising: ...
+
+
+@overload
+def rising(progress: None) -> None: ...
+
+
+def rising(progress: Fraction | None) -> Rising | None:
+    """The outer callback of a kernel's spans: ``progress`` (the kernel's one-argument
+    ``progress(fraction)``, fractions in [0, 1]) called with strictly increasing fractions only.
+
+    Parameters
+    ----------
+    progress : the kernel's callback, or None (no one listens).
+
+    Returns
+    -------
+    A :class:`Rising` (a :data:`Progress`: ``(fraction, stage=None)``, to hand to :func:`span`
+    for each step of the kernel), or None when ``progress`` is None.
+
+    Examples
+    --------
+    >>> seen = []
+    >>> report = rising(seen.append)
+    >>> report(0.1); report(0.1); report(0.05, "a step back"); report(0.3)
+    >>> seen
+    [0.1, 0.3]
+    """
+    return None if progress is None else Rising(progress)

@@ -12,7 +12,7 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
-__all__ = ["Plan", "PlanPreview", "Progress", "Timings", "Job", "Scanner", "PreviewInfo", "MODELS"]
+__all__ = ["Plan", "PlanPreview", "JobProgress", "Timings", "Job", "Scanner", "PreviewInfo", "MODELS"]
 
 
 class _Response(BaseModel):
@@ -92,8 +92,8 @@ class PlanPreview(_Response):
     preview_png_base64: str | None = None
 
 
-class Progress(_Response):
-    """A job's progress.
+class JobProgress(_Response):
+    """A job's progress (the ``progress`` of a :class:`Job`).
 
     Attributes
     ----------
@@ -118,11 +118,11 @@ class Progress(_Response):
 
     Examples
     --------
-    >>> from clients.http.models import Progress
-    >>> p = Progress.model_validate({"fraction": 0.5, "stage": "acquiring", "points_done": 800, "eta_s": 16.0})
+    >>> from clients.http.models import JobProgress
+    >>> p = JobProgress.model_validate({"fraction": 0.5, "stage": "acquiring", "points_done": 800, "eta_s": 16.0})
     >>> p.fraction, p.stage, p.points_total
     (0.5, 'acquiring', None)
-    >>> Progress().stage  # a job nobody has started
+    >>> JobProgress().stage  # a job nobody has started
     'queued'
     """
 
@@ -174,7 +174,7 @@ class Job(_Response):
         ``scan``, ``reconstruction``, ``unmix``, ...
     state : str
         ``queued``, ``running``, ``paused``, ``succeeded``, ``failed`` or ``cancelled``.
-    progress : Progress
+    progress : JobProgress
     timings : Timings
     params : dict
         The job's parameters (SI units).
@@ -197,7 +197,7 @@ class Job(_Response):
     id: str
     kind: str
     state: str
-    progress: Progress = Field(default_factory=Progress)
+    progress: JobProgress = Field(default_factory=JobProgress)
     timings: Timings = Field(default_factory=Timings)
     params: dict[str, Any] = Field(default_factory=dict)
     links: dict[str, str] = Field(default_factory=dict)
@@ -266,5 +266,5 @@ class PreviewInfo(_Response):
 
 
 MODELS: dict[str, type[BaseModel]] = {
-    m.__name__: m for m in (Plan, PlanPreview, Progress, Timings, Job, Scanner, PreviewInfo)
+    m.__name__: m for m in (Plan, PlanPreview, JobProgress, Timings, Job, Scanner, PreviewInfo)
 }

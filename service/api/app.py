@@ -452,7 +452,7 @@ def _start_workers(context: Context, store: JobStore, settings: Settings, execut
 
     plan_executor(context)  # the plan worker starts loading now, not at the first plan request
     try:
-        from service.scanning import ScanManager
+        from service.jobs.scans import ScanManager
 
         context.scans = ScanManager(store, settings)
         context.scans.start()

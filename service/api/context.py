@@ -79,7 +79,7 @@ class Context:
     settings: Settings
     store: JobStore
     queue: Any = None          # service.jobs.queue.ReconQueue
-    scans: Any = None          # service.scanning.ScanManager
+    scans: Any = None          # service.jobs.scans.ScanManager
     extras: dict = field(default_factory=dict)
     slots: dict[str, Slots] = field(default_factory=dict)  # default_slots(settings)
 

@@ -35,7 +35,7 @@ __all__ = [
     "JobState", "JobKind", "ReconMethod", "Plane", "DATASET_FORMATS", "DatasetFormat", "ID_PATTERN", "LatticeIndex",
     "Error", "DiskUse", "Health", "AuthInfo", "Deleted", "Retention", "MAX_LATTICE_POINTS", "Pitch", "Lattice",
     "PlanDocument", "PlanCreate", "MethodOption", "DatasetFormatInfo", "MethodInfo", "MaskKindInfo", "Plan",
-    "PlanPreview", "Progress", "Timings", "Job", "ScanRequest", "Scanner", "PreviewInfo", "Dataset", "DatasetInfo",
+    "PlanPreview", "JobProgress", "Timings", "Job", "ScanRequest", "Scanner", "PreviewInfo", "Dataset", "DatasetInfo",
     "ReconParams", "UnmixOptions", "ReconRequest",
 ]
 
@@ -328,7 +328,10 @@ class PlanPreview(BaseModel):
 
 
 # -- jobs ----------------------------------------------------------------------------
-class Progress(BaseModel):
+class JobProgress(BaseModel):
+    """A job's progress on the wire (the ``progress`` of a :class:`Job`; the callback type of
+    the library is ``service.progress.Progress``)."""
+
     fraction: float = 0.0
     stage: str = "queued"
     points_done: int | None = None
@@ -356,7 +359,7 @@ class Job(BaseModel):
     id: str
     kind: JobKind
     state: JobState
-    progress: Progress
+    progress: JobProgress
     timings: Timings
     params: dict[str, Any]
     links: dict[str, str]

@@ -19,12 +19,13 @@ from __future__ import annotations
 import json
 import logging
 import shutil
-import threading
 import time
 import uuid
+from collections.abc import Callable
 from pathlib import Path
 
 from service.disk import is_disk_full
+from service.jobs.dispatcher import START, WAIT, Dispatcher, Verdict
 from service.jobs.executors import WorkerDied
 from service.jobs.lifecycle import apply_retention
 from service.jobs.store import JobStore
@@ -79,7 +80,8 @@ def remove_debris(data_dir: str | Path, older_than: float) -> list[str]:
 
 
 class ReconQueue:
-    """Background dispatcher of ``recon`` jobs."""
+    """Background dispatcher of ``recon`` jobs (a :class:`service.jobs.dispatcher.Dispatcher`
+    admitting them under the memory limit, FIFO)."""
 
     def __init__(self, store: JobStore, executor, settings):
         self.store = store
@@ -88,64 +90,39 @@ class ReconQueue:
         self.owner = f"srv-{uuid.uuid4().hex[:12]}"
         self.results_dir = Path(settings.data_dir) / "results"
         self.results_dir.mkdir(parents=True, exist_ok=True)
-        self._wake = threading.Event()
-        self._stop = threading.Event()
-        self._threads: dict[str, threading.Thread] = {}
-        self._lock = threading.Lock()
-        self._dispatcher = threading.Thread(target=self._loop, name="recon-dispatcher", daemon=True)
+        self._dispatcher = Dispatcher(store, "recon", owner=self.owner, lease_s=settings.heartbeat_s * 5,
+                                      admit=self._admit, launch=self._launch, name="recon-dispatcher", log=log)
 
     def start(self) -> None:
         self._dispatcher.start()
 
     def stop(self) -> None:
-        self._stop.set()
-        self._wake.set()
-        self._dispatcher.join(timeout=5)
+        self._dispatcher.stop(timeout=5)
 
     def join(self, timeout: float = 10.0) -> None:
         """Wait (up to ``timeout`` s in all) for the job threads to finish: after the
         executor is closed, they re-queue their jobs (shutdown)."""
-        deadline = time.monotonic() + timeout
-        with self._lock:
-            threads = list(self._threads.values())
-        for t in threads:
-            t.join(max(0.0, deadline - time.monotonic()))
+        self._dispatcher.join(timeout)
 
     def wake(self) -> None:
-        self._wake.set()
+        self._dispatcher.wake()
 
     def running(self) -> int:
-        with self._lock:
-            return sum(t.is_alive() for t in self._threads.values())
+        return self._dispatcher.running()
 
-    def _loop(self) -> None:
-        while not self._stop.is_set():
-            self._wake.wait(0.5)
-            self._wake.clear()
-            try:
-                self._dispatch()
-            except Exception:
-                log.exception("recon dispatcher error")
+    def _admit(self, job: dict, busy: int) -> Verdict:
+        """Start ``job`` while the running jobs' memory estimates plus its own fit the limit
+        (the first always may when nothing runs) and, on the local pool, a worker is free;
+        else hold it and the jobs behind it (FIFO)."""
+        in_use = self.store.running_memory()
+        if busy > 0 and in_use + job["memory_bytes"] > self.settings.memory_limit:
+            return WAIT  # FIFO: wait for memory
+        if busy >= max(self.settings.workers, 1) and self.settings.executor == "local":
+            return WAIT
+        return START
 
-    def _dispatch(self) -> None:
-        with self._lock:
-            for jid in [j for j, t in self._threads.items() if not t.is_alive()]:
-                del self._threads[jid]
-            busy = len(self._threads)
-        for job in self.store.queued("recon"):
-            in_use = self.store.running_memory()
-            if busy > 0 and in_use + job["memory_bytes"] > self.settings.memory_limit:
-                break  # FIFO: wait for memory
-            if busy >= max(self.settings.workers, 1) and self.settings.executor == "local":
-                break
-            claimed = self.store.claim(job["id"], self.owner, lease_s=self.settings.heartbeat_s * 5)
-            if claimed is None:
-                continue
-            t = threading.Thread(target=self._run, args=(claimed,), name=f"recon-{job['id'][:8]}", daemon=True)
-            with self._lock:
-                self._threads[job["id"]] = t
-            busy += 1
-            t.start()
+    def _launch(self, job: dict) -> tuple[str, Callable[[], None]]:
+        return f"recon-{job['id'][:8]}", lambda: self._run(job)
 
     def _run(self, job: dict) -> None:
         jid = job["id"]
@@ -181,7 +158,7 @@ class ReconQueue:
             log.info("recon failed job=%s reason=%s", jid, exc)
             return
         except WorkerDied as exc:
-            if self._stop.is_set():  # shutdown (SIGTERM) killed the worker: not the job's fault
+            if self._dispatcher.stopping:  # shutdown (SIGTERM) killed the worker: not the job's fault
                 self.store.requeue(jid, "server shutting down", count_attempt=False)
                 log.info("recon requeued job=%s (shutdown)", jid)
             elif job["attempts"] < self.settings.max_attempts:
@@ -202,7 +179,7 @@ class ReconQueue:
         finally:
             progress_path.unlink(missing_ok=True)
             cancel_path.unlink(missing_ok=True)
-            self._wake.set()
+            self._dispatcher.wake()
         now = self.store.get(jid)
         if now is None or now["cancel_requested"]:  # cancelled (or deleted) meanwhile
             shutil.rmtree(out_dir, ignore_errors=True)

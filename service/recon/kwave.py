@@ -27,7 +27,7 @@ import scipy.fft
 import scipy.interpolate
 
 from driver.physics.nufft import group_columns, transpose
-from service.progress import Fraction
+from service.progress import Fraction, rising, span
 from service.recon import checks
 
 __all__ = ["transform_lengths", "kspace_line_recon", "kspace_plane_recon"]
@@ -235,8 +235,10 @@ def _recon(p, dt, c, lateral_d, interp, pos_cond, dtype=np.float64, progress=Non
     cols = np.empty((n_cols, nt), dtype=ctype)  # one lateral column per row: contiguous series
     transpose(A.reshape(nt, n_cols), cols)
     del A
-    if progress is not None:
-        progress(0.15)
+    kernel = rising(progress)  # strictly increasing fractions, each step through its span
+    if kernel is not None:
+        kernel(0.15)
+    columns = span(kernel, 0.15, 0.85)
     kz = np.ascontiguousarray(kx[nt - 1 :], dtype=np.float64)
     # ~32 chunks of columns: the per-chunk buffers (mirrored series, spectra) stay a
     # small fraction of the volume while the per-chunk overhead stays negligible
@@ -250,8 +252,8 @@ def _recon(p, dt, c, lateral_d, interp, pos_cond, dtype=np.float64, progress=Non
             F = np.empty_like(P)
             _map_columns(P, lat2[a:b], w, kz, float(c), method == "nearest", F)
         cols[a:b] = _even_transform(F, 1.0 / ntm)  # depth: the k_z-even spectrum -> z >= 0
-        if progress is not None:
-            progress(0.15 + 0.7 * b / n_cols)
+        if columns is not None:
+            columns(b / n_cols)
     out = np.empty((nt, n_cols), dtype=ctype)
     transpose(cols, out)
     del cols
@@ -259,8 +261,8 @@ def _recon(p, dt, c, lateral_d, interp, pos_cond, dtype=np.float64, progress=Non
     res *= 4.0 / c
     if pos_cond:
         np.maximum(res, 0, out=res)
-    if progress is not None:
-        progress(1.0)
+    if kernel is not None:
+        kernel(1.0)
     return res.astype(rdtype, copy=False)
 
 

@@ -34,7 +34,7 @@ from driver.physics import nufft
 from driver.physics.axes import centred_axis
 from driver.physics.fast_lengths import fast_dct1_rows, fast_lateral, fast_length
 from driver.physics.nufft_plans import lateral_plan
-from service.progress import Fraction
+from service.progress import Fraction, Span, rising
 from service.progress import span as span_of
 from service.recon import checks
 from service.recon.reconstruction import Reconstruction
@@ -199,21 +199,13 @@ def _cubic_columns(A_cols, n_t, klat2, kz, qw, c, dt, t0):
 
 def _invert(A: np.ndarray, n_x: int, dx: float, dy: float, dt: float, c: float, n_z: int,
             dz: float, t0: float, method: str, eps: float, rdtype: np.dtype, upsample: int,
-            progress: Fraction | None = None, span: tuple[float, float] = (0.0, 1.0)) -> np.ndarray:
+            progress: Span | None = None) -> np.ndarray:
     """Lateral spectrum A (n_t, n_y, n_x//2+1) -> p0 (n_z, n_y*u, n_x*u) (see module doc).
     (The forward model's true adjoint is `service.recon.operator.PlanarOperator.adjoint`.)
 
-    ``progress(fraction)`` (optional) is called as the steps finish, the fractions spread
-    over ``span`` in proportion to each step's typical share of the run time."""
-    lo, width = span[0], span[1] - span[0]
-    last = [lo]
-
-    def report(f: float, stage: str = "") -> None:  # strictly increasing fractions only (stage: unused)
-        value = lo + width * f
-        if progress is not None and value > last[0]:
-            last[0] = value
-            progress(value)
-
+    ``progress`` (optional: the caller's :func:`service.progress.span` over this step) is
+    called as the steps finish, with fractions in proportion to each step's typical share of
+    the run time."""
     n_t, n_y, n_xr = A.shape
     kx = 2 * np.pi * scipy.fft.rfftfreq(n_x, dx)
     ky = 2 * np.pi * scipy.fft.fftfreq(n_y, dy)
@@ -228,11 +220,13 @@ def _invert(A: np.ndarray, n_x: int, dx: float, dy: float, dt: float, c: float, 
         grid = nufft.make_grid(n_t, _KIND[method], eps)
         U = nufft.to_fine_grid(a, grid, t0_is_zero=(t0 == 0))
         del a
-        report(0.3)
+        if progress is not None:
+            progress(0.3)
         F = nufft.evaluate(U, grid, klat2, kz, qw, c, dt, t0, inversion=True,
-                           progress=span_of(report, 0.3, 0.75))
+                           progress=span_of(progress, 0.3, 0.75))
         del U
-    report(0.75)
+    if progress is not None:
+        progress(0.75)
     ctype = np.complex64 if rdtype == np.float32 else np.complex128
     F = np.ascontiguousarray(F, dtype=ctype)
     # DCT-I along depth of the real and imaginary parts (interleaved view: no split copies)
@@ -243,7 +237,8 @@ def _invert(A: np.ndarray, n_x: int, dx: float, dy: float, dt: float, c: float, 
     nufft.transpose(F, K)
     K = K.reshape(n_z, n_y, n_xr)
     del F
-    report(0.85)
+    if progress is not None:
+        progress(0.85)
     ups_y = n_y > 1
     if upsample > 1:
         K = _pad_spectrum(K, n_y, n_x, upsample, ups_y)
@@ -251,7 +246,8 @@ def _invert(A: np.ndarray, n_x: int, dx: float, dy: float, dt: float, c: float, 
     p0 = scipy.fft.irfft2(K, s=shape, axes=(1, 2), workers=-1, overwrite_x=True)
     if upsample > 1:
         p0 *= upsample ** (2 if ups_y else 1)
-    report(1.0)
+    if progress is not None:
+        progress(1.0)
     return p0.astype(rdtype, copy=False)
 
 
@@ -388,10 +384,11 @@ def reconstruct_grid(
     )
     vol = data.astype(rdtype, copy=False).reshape(n_t, n_y, n_x)
     A = scipy.fft.rfft2(vol, s=(n_yp, n_xp), axes=(1, 2), workers=-1)
-    if progress is not None:
-        progress(0.1)
+    kernel = rising(progress)  # strictly increasing fractions, each step through its span
+    if kernel is not None:
+        kernel(0.1)
     p0 = _crop(_invert(A, n_xp, dx, dy, dt, c, n_work, dz, float(t0), method, eps, rdtype, upsample,
-                       progress=progress, span=(0.1, 1.0)), n_z, n_y * upsample if n_y > 1 else 1, n_x * upsample)
+                       progress=span_of(kernel, 0.1, 1.0)), n_z, n_y * upsample if n_y > 1 else 1, n_x * upsample)
     if positivity:
         np.maximum(p0, 0, out=p0)
     x = centred_axis(n_x, dx)[0] + np.arange(n_x * upsample) * (dx / upsample)
@@ -478,7 +475,8 @@ def _grid_indices(pos: np.ndarray, axes, steps) -> tuple[np.ndarray, np.ndarray]
 def _type1(strengths, pos, axes, dx, dy, n_y, n_x, eps, rdtype, progress):
     """Lateral type-1 NUFFT (finufft) of the weighted A-lines ``strengths`` (n_t, n_points)
     onto the (n_y, n_x) transform grid's wavenumbers: (n_t, n_y, n_x) complex, with the
-    y-Nyquist row split band-limited (see below). Paper eq. (3)."""
+    y-Nyquist row split band-limited (see below). Paper eq. (3). ``progress`` (optional: the
+    caller's :func:`service.progress.span` over this step) is called as the chunks finish."""
     n_t = strengths.shape[0]
     d = pos.shape[1]
     ctype = strengths.dtype
@@ -505,7 +503,7 @@ def _type1(strengths, pos, axes, dx, dy, n_y, n_x, eps, rdtype, progress):
         plan = lateral_plan(1, coords, modes, b - a, dtype=ctype, **opts)
         plan.execute(np.ascontiguousarray(strengths[a:b]), out=A[a:b].reshape((b - a, *modes)))
         if progress is not None:
-            progress(0.3 * (i + 1) / n_chunks)
+            progress((i + 1) / n_chunks)
     if d == 2 and n_y % 2 == 0:
         # The y-Nyquist row holds the aliased pair ±π/dy; off-grid sensors make the two
         # differ, so take the band-limited (cosine) split: ½(A(-k_N, k_x) + A(+k_N, k_x)),
@@ -650,6 +648,7 @@ def reconstruct_points(
     cell = dx * (dy if d == 2 else 1.0)
     weighted = (al * (h / cell)[:, None]).T  # (n_t, n_points)
     on_grid = _grid_indices(pos, axes, steps)
+    kernel = rising(progress)  # strictly increasing fractions, each step through its span
     if on_grid is not None:
         # every sensor on a node of the output grid (lattice masks): the type-1 sum is the
         # FFT of the zero-filled grid, exactly and at FFT speed
@@ -658,15 +657,17 @@ def reconstruct_points(
         del weighted
         A = scipy.fft.rfft2(filled, axes=(1, 2), workers=-1)
         del filled
-        if progress is not None:
-            progress(0.3)
+        if kernel is not None:
+            kernel(0.3)
     else:
         ctype = np.complex64 if rdtype == np.float32 else np.complex128
-        A = _type1(np.ascontiguousarray(weighted, dtype=ctype), pos, axes, dx, dy, n_y, n_x, eps, rdtype, progress)
+        A = _type1(np.ascontiguousarray(weighted, dtype=ctype), pos, axes, dx, dy, n_y, n_x, eps, rdtype,
+                   span_of(kernel, 0.0, 0.3))
         del weighted
         A = A[:, :, : n_x // 2 + 1]
     p0 = _crop(_invert(A, n_x, dx, dy, dt, c, n_work, dz, float(t0), method, eps, rdtype, upsample,
-                       progress=progress, span=(0.3, 1.0)), n_z, n_y_out * upsample if d == 2 else 1, n_x_out * upsample)
+                       progress=span_of(kernel, 0.3, 1.0)), n_z, n_y_out * upsample if d == 2 else 1,
+               n_x_out * upsample)
     if positivity:
         np.maximum(p0, 0, out=p0)
     x = axes[0][0] + np.arange(n_x_out * upsample) * (dx / upsample)

@@ -339,8 +339,9 @@ def reconstruct_tv(
     Bg = B(g)
 
     # step: 1 / L with L ≈ ‖BA‖ (power iteration, seeded) and a margin
+    norm = span(report, 0.05, 0.1, "norm estimate")
     L = _MARGIN * _gain_estimate(lambda v: B(forward(v)), shape, rdtype, _POWER_STEPS,
-                             step=lambda k, n: report(0.05 + 0.05 * k / n, "norm estimate"))
+                             step=lambda k, n: norm(k / n))
     if not L > 0:
         raise ValueError("no sensor sees the image within the record (‖A‖ = 0): nothing to reconstruct")
     report(0.1, "norm estimate")
@@ -485,6 +486,7 @@ def _fista(forward, B, g, Bg, x, lam, L, positivity, max_iter, tol, started, tim
     rule's last value, A x, L). ``forward(v)`` = A v in the data's shape."""
     if support is not None:
         x = np.where(support, x, 0).astype(x.dtype)
+    iterations = span(report, 0.1, 1.0)
     Ax = forward(x)
     y, Ay, t = x, Ax, 1.0
     y_prev = BAy_prev = None
@@ -517,8 +519,8 @@ def _fista(forward, B, g, Bg, x, lam, L, positivity, max_iter, tol, started, tim
         if len(J_hist) > _WINDOW:
             change = (J_hist[-1 - _WINDOW] - J) / (_WINDOW * max(J_hist[0] - J, 1e-300))
         elapsed = time.monotonic() - started
-        if report is not None:
-            report(0.1 + 0.9 * min(1.0, max(it / max_iter, elapsed / time_limit)), f"iteration {it}/{max_iter}")
+        if iterations is not None:
+            iterations(max(it / max_iter, elapsed / time_limit), f"iteration {it}/{max_iter}")
         if 0.0 <= change < tol:
             stop_reason = "converged"
             break

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from service import progress as progress_module
-from service.progress import DEFAULT_STAGE, Span, span
+from service.progress import DEFAULT_STAGE, Span, rising, span
 
 
 def _recorder():
@@ -96,6 +96,36 @@ def test_whatever_the_outer_callback_raises_passes_through():
 
     with pytest.raises(Stop, match="iteration 1/5"):
         span(span(cancel, 0.1, 0.9), 0.0, 0.5)(0.3, "iteration 1/5")
+
+
+def test_a_kernels_spans_pass_on_strictly_rising_fractions_only():
+    """A kernel's steps report through spans of ``rising(progress)``: the kernel's own
+    one-argument callback sees each fraction once, in strictly increasing order, even where a
+    step ends at the fraction the next one starts from, and a cancel still passes through."""
+    seen: list[float] = []
+    kernel = rising(seen.append)
+    kernel(0.1)
+    first = span(kernel, 0.1, 0.3)
+    for k in range(5):  # a step starting at its lo (no rise), ending at its hi
+        first(k / 4)
+    kernel(0.3)  # the step's end, said again by the kernel: no rise
+    second = span(kernel, 0.3, 1.0)
+    second(-1.0)  # clamped to lo: no rise
+    second(0.5)
+    second(0.4)  # a step back: not passed on
+    kernel(1.0)
+    assert seen == sorted(set(seen)) and seen[0] == 0.1 and seen[-1] == 1.0
+    assert seen == pytest.approx([0.1, 0.15, 0.2, 0.25, 0.3, 0.65, 1.0])
+    assert rising(None) is None and span(rising(None), 0.0, 0.5) is None
+
+    class Stop(Exception):
+        pass
+
+    def cancel(f):
+        raise Stop(f)
+
+    with pytest.raises(Stop):
+        span(rising(cancel), 0.2, 0.4)(0.5)
 
 
 def test_module_examples_run():

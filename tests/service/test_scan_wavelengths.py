@@ -18,7 +18,7 @@ def test_preview_shows_the_chosen_wavelength(tmp_path):
     from driver.scanfile import read_scan
     from driver.simulator import SimulatedScanner
     from driver.sources import BallSource
-    from service.preview import render_preview, render_preview_png
+    from service.jobs.preview import render_preview, render_preview_png
     from service.spectral import read_unmix
 
     # sO2 0.3 vs 1.0: at 760 nm the first ball is the brighter, at 850 nm the second

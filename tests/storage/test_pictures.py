@@ -66,8 +66,8 @@ def _assert_at(png: bytes, expected: tuple[float, float], what: str, tol_mm: flo
 
 def test_one_orientation_and_mm_axes_in_every_picture(tmp_path):
     pytest.importorskip("service.recon")
+    from service.jobs.preview import PreviewState, render_preview
     from service.jobs.work import run_reconstruction
-    from service.preview import PreviewState, render_preview
     from service.storage.render import render_result_slice
 
     scan = _ball_scan(tmp_path / "ball.h5")

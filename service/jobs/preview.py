@@ -10,7 +10,8 @@ the whole mask. The output grid is the plan's lattice, thinned for speed
 
 :func:`render_preview` runs in a separate process (a one-worker ``spawn`` pool owned by
 :class:`PreviewManager`): the scan file is read as an SWMR reader there, and the server's
-event loop and serial threads never wait for it.
+event loop and serial threads never wait for it. The refreshes run on the jobs' one loop
+(:class:`service.jobs.dispatcher.Loop`), every ``interval`` seconds.
 """
 from __future__ import annotations
 
@@ -26,6 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from driver.constants import C_DEFAULT
+from service.jobs.dispatcher import Loop
 
 __all__ = [
     "PreviewState", "render_preview_png", "preview_grid", "render_preview", "warm_up", "PreviewManager",
@@ -153,8 +155,7 @@ class PreviewManager:
         self._states: dict[str, PreviewState] = {}
         self._active: dict[str, dict] = {}  # job_id -> {"path", "last_points"}
         self._lock = threading.Lock()
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._loop, name="preview", daemon=True)
+        self._loop = Loop("preview", self._refresh_all, period=self.interval, log=log)
 
     @staticmethod
     def _new_pool() -> ProcessPoolExecutor:
@@ -166,11 +167,10 @@ class PreviewManager:
     def start(self) -> None:
         self._pool = self._new_pool()
         self._pool.submit(warm_up)  # in the background; a refresh queues behind it
-        self._thread.start()
+        self._loop.start()
 
     def stop(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=5)
+        self._loop.stop(timeout=5)
         if self._pool is not None:
             from service.jobs.executors import stop_pool
 
@@ -199,17 +199,17 @@ class PreviewManager:
         with self._lock:
             return self._states.get(job_id)
 
-    def _loop(self) -> None:
-        while not self._stop.wait(self.interval):
-            with self._lock:
-                items = list(self._active.items())
-            for job_id, entry in items:
-                if entry["points_done"] is not None and entry["points_done"] == entry["rendered_at"]:
-                    continue
-                try:
-                    self._refresh(job_id, entry)
-                except Exception:
-                    log.exception("preview refresh failed job=%s", job_id)
+    def _refresh_all(self) -> None:
+        """Refresh the previews of the scans that have new points (the loop's tick)."""
+        with self._lock:
+            items = list(self._active.items())
+        for job_id, entry in items:
+            if entry["points_done"] is not None and entry["points_done"] == entry["rendered_at"]:
+                continue
+            try:
+                self._refresh(job_id, entry)
+            except Exception:
+                log.exception("preview refresh failed job=%s", job_id)
 
     def _refresh(self, job_id: str, entry: dict) -> None:
         if self._pool is None:

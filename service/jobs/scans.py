@@ -5,8 +5,9 @@ A scan job owns its serial port exclusively while it runs (DESIGN §7). The
 ``driver.acquire.acquire`` in its own thread (serial I/O never touches the event loop),
 writing the job's scan file (``<data_dir>/scans/<job_id>.h5``, a server-chosen name).
 Progress (points done, rate, ETA, faults recovered) goes to the job store (and so to the
-SSE stream) about twice a second; the live preview (:mod:`service.preview`) follows the
-scan file.
+SSE stream) about twice a second; the live preview (:mod:`service.jobs.preview`) follows the
+scan file. The queued scans are started by the jobs' one dispatcher
+(:class:`service.jobs.dispatcher.Dispatcher`): a scan starts when its scanner is free.
 
 Controls: ``pause``/``resume``/``abort`` call the open ``driver.host.Scanner`` from the
 request thread (the driver queues them for its scan loop). A scan interrupted by a server
@@ -21,12 +22,14 @@ import math
 import threading
 import time
 import uuid
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from service.disk import is_disk_full
+from service.jobs.dispatcher import SKIP, START, Dispatcher, Verdict
+from service.jobs.preview import PreviewManager
 from service.jobs.store import TERMINAL, JobStore
-from service.preview import PreviewManager
 
 if TYPE_CHECKING:
     from driver.host import Scanner, ScanProgress
@@ -58,7 +61,6 @@ class _Run:
         self.scanner_id = scanner_id
         self.scanner: Scanner | None = None  # once open
         self.pending: list[str] = []  # controls asked before the scanner was open
-        self.thread: threading.Thread | None = None
         self.lock = threading.Lock()
 
 
@@ -79,18 +81,16 @@ class ScanManager:
         self._free_at_interrupt: dict[str, int] = {}  # job id -> free bytes when a full disk stopped it
         self._identity: dict[str, str] = {}
         self._lock = threading.Lock()
-        self._wake = threading.Event()
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._loop, name="scan-dispatcher", daemon=True)
+        self._dispatcher = Dispatcher(store, "scan", owner=self.owner, lease_s=60.0, admit=self._admit,
+                                      launch=self._launch, name="scan-dispatcher", log=log)
 
     # -- lifecycle -----------------------------------------------------------------
     def start(self) -> None:
         self.previews.start()
-        self._thread.start()
+        self._dispatcher.start()
 
     def stop(self) -> None:
-        self._stop.set()
-        self._wake.set()
+        self._dispatcher.stop(timeout=5)  # no scan starts after this
         with self._lock:
             runs = list(self._runs.values())
         for run in runs:  # leave the devices idle; the jobs stay resumable
@@ -100,11 +100,10 @@ class ScanManager:
                         run.scanner.pause()
                     except Exception:
                         pass
-        self._thread.join(timeout=5)
         self.previews.stop()
 
     def wake(self) -> None:
-        self._wake.set()
+        self._dispatcher.wake()
 
     # -- queries ---------------------------------------------------------------------
     def scanners(self) -> list[dict]:
@@ -210,30 +209,21 @@ class ScanManager:
             self._send(run, "abort")
 
     # -- dispatching ---------------------------------------------------------------------
-    def _loop(self) -> None:
-        while not self._stop.is_set():
-            self._wake.wait(0.5)
-            self._wake.clear()
-            try:
-                self._dispatch()
-            except Exception:
-                log.exception("scan dispatcher error")
+    def _admit(self, job: dict, busy: int) -> Verdict:
+        """Start a scan when its scanner is configured and free; else pass over it."""
+        sid = job["params"].get("scanner_id")
+        with self._lock:
+            if sid in self._runs or sid not in self.settings.devices:
+                return SKIP
+        return START
 
-    def _dispatch(self) -> None:
-        for job in self.store.queued("scan"):
-            sid = job["params"].get("scanner_id")
-            with self._lock:
-                if sid in self._runs or sid not in self.settings.devices:
-                    continue
-            claimed = self.store.claim(job["id"], self.owner, lease_s=60.0)
-            if claimed is None:
-                continue
-            run = _Run(job["id"], sid)
-            run.thread = threading.Thread(target=self._execute, args=(claimed, run),
-                                          name=f"scan-{sid}", daemon=True)
-            with self._lock:
-                self._runs[sid] = run
-            run.thread.start()
+    def _launch(self, job: dict) -> tuple[str, Callable[[], None]]:
+        """The scanner is this job's from now on (controls find its run)."""
+        sid = job["params"].get("scanner_id")
+        run = _Run(job["id"], sid)
+        with self._lock:
+            self._runs[sid] = run
+        return f"scan-{sid}", lambda: self._execute(job, run)
 
     def _execute(self, job: dict, run: _Run) -> None:
         jid = job["id"]
@@ -245,8 +235,7 @@ class ScanManager:
         finally:
             with self._lock:
                 self._runs.pop(run.scanner_id, None)
-            self.previews.untrack(jid)
-            self._wake.set()
+            self.previews.untrack(jid)  # (the dispatcher wakes when this returns)
 
     def _interrupt(self, jid: str, why: str) -> None:
         """The job to ``paused`` with stage ``interrupted`` and ``why`` (resumable from its
@@ -277,7 +266,7 @@ class ScanManager:
             except sqlite3.Error as exc:
                 with self._lock:
                     self._problems[jid] = f"{why}; job store: {_one_line(str(exc))}"
-                if self._stop.wait(1.0):
+                if self._dispatcher.wait_stop(1.0):
                     return
 
     def _disk_shortfall(self, plan: dict, scan_path: Path) -> str | None:
