@@ -37,6 +37,7 @@ from service.formats._registry import (
     MAX_BYTES,
     Format,
     Source,
+    describe,
     detect,
     load,
     names,
@@ -46,7 +47,7 @@ from service.formats._registry import (
     unregister,
 )
 
-__all__ = ["FORMATS", "BUILTIN", "HEAD_BYTES", "MAX_BYTES", "Format", "Source", "detect", "load", "names",
+__all__ = ["FORMATS", "BUILTIN", "HEAD_BYTES", "MAX_BYTES", "Format", "Source", "describe", "detect", "load", "names",
            "open_source", "register", "sniff", "unregister", "upload_formats"]
 
 #: the formats fpscan knows, in the order of the lists of choices

@@ -24,7 +24,7 @@ from typing import Any, BinaryIO
 from service.recon.dataset import MAX_ELEMENTS
 
 __all__ = ["Format", "Source", "FORMATS", "HEAD_BYTES", "MAX_BYTES", "register", "unregister", "names",
-           "open_source", "sniff", "detect", "load"]
+           "open_source", "sniff", "detect", "describe", "load"]
 
 #: bytes of a file's start every ``sniff`` sees (:attr:`Source.head`)
 HEAD_BYTES = 512
@@ -210,6 +210,25 @@ def detect(path: str | os.PathLike, *, max_bytes: int = MAX_BYTES, bounded: bool
         if fmt is None:
             raise ValueError(_unknown(src, names(input=True)))
     return fmt.name
+
+
+def describe(path: str | os.PathLike, *, unless: tuple[str, ...] = (), max_bytes: int = MAX_BYTES) -> str | None:
+    """What the file ``path`` is, as a noun for a message (``"a scan file"``, ``"a
+    reconstruction result"``, ``"a NumPy .npy array"``: :attr:`Format.what` of the format
+    :func:`detect` finds), ``"an HDF5 file"`` for an HDF5 file no format fits (or one
+    refused as hostile or unreadable); None for a file of no known format, a missing or
+    unreadable file, or one detected as a format named in ``unless`` (a caller that
+    wanted that format gives its own reason). The one format sniffer of every "this is a
+    scan file, not a plan" message; never raises."""
+    try:
+        name = detect(path, max_bytes=max_bytes)
+    except (ValueError, OSError):
+        try:
+            with open(path, "rb") as fh:
+                return "an HDF5 file" if fh.read(len(HDF5_SIGNATURE)) == HDF5_SIGNATURE else None
+        except OSError:
+            return None
+    return None if name in unless else FORMATS[name].what
 
 
 def _unknown(source: Source, choices: tuple[str, ...]) -> str:
