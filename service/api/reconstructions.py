@@ -14,6 +14,7 @@ from service.api.jobs import get_job_or_404, job_view
 from service.api.models import ID_PATTERN, Job, MethodInfo, MethodOption, Plane, ReconRequest
 from service.jobs.admission import AdmissionError, admit, estimate_memory, input_shape
 from service.jobs.store import IdempotencyConflict
+from service.names import person_names
 from service.pipeline import METHODS, OPTIONS, default_method, method_options
 
 __all__ = [
@@ -212,7 +213,9 @@ def start_reconstruction(body: ReconRequest, response: Response, c: Context = De
         admit(mem, c.settings.memory_limit)
     except AdmissionError as exc:
         raise HTTPException(422, reason(exc)) from None
-    job_params = {"method": body.method, "params": params, "input": spec, "input_id": input_id, "shape": shape,
+    # stored as a person reads them (sound_speed, not the code's c: service.names)
+    job_params = {"method": body.method, "params": person_names(params), "input": spec, "input_id": input_id,
+                  "shape": person_names(shape),
                   "scan_job_id": body.scan_job_id, "dataset_id": body.dataset_id, "memory_estimate": mem,
                   "wavelength": body.wavelength, **extra}
     try:
