@@ -82,3 +82,19 @@ def test_unknown_bytes_keep_the_plain_reason(tmp_path, make_scan, capsys):
     assert main(["scan", "--device", str(tmp_path / "dev"), "--plan", str(f["junk"]),
                  "--out", str(tmp_path / "out.h5")]) == 2
     assert "not a plan: the file is not UTF-8 JSON text" in capsys.readouterr().err
+
+
+def test_the_scan_layout_has_one_reader():
+    """The scan file's layout (its datasets ``aline_meta``, ``completed``, ``plan_json`` and
+    the ``fpscan-scan/`` format names) is spelled in driver.scanfile alone: the registry's
+    entry (service.formats.scan) and every other module go through it."""
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    owners = set()
+    for package in ("driver", "service", "clients", "fpscan"):
+        for path in (root / package).rglob("*.py"):
+            text = path.read_text(encoding="utf-8")
+            if any(word in text for word in ('"aline_meta"', '"completed"]', '"plan_json"', '"fpscan-scan/')):
+                owners.add(path.relative_to(root).as_posix())
+    assert owners == {"driver/scanfile.py"}, owners
