@@ -224,23 +224,18 @@ def write_folder(out_dir: str | os.PathLike, rec: Any, *, input_id: str, mips: d
     existing ``out_dir`` is replaced). Returns ``{"shape", "max", "planes",
     "params_used"}`` (``planes`` sorted; ``params_used``: the scalar parameters the
     reconstruction used). Raises ValueError as :func:`write_volume`."""
-    import shutil
     import time
+
+    from service.disk import folder_replaced
 
     out_dir = Path(out_dir)
     tmp = out_dir.with_name(out_dir.name + f".tmp-{os.getpid()}-{time.monotonic_ns()}")
     tmp.mkdir(parents=True)
-    try:
+    with folder_replaced(out_dir, tmp):
         p0 = np.asarray(rec.p0)
         write_reconstruction(tmp / VOLUME_FILE, rec, input_id=input_id)
         for plane, png in mips.items():
             (tmp / mip_file(plane)).write_bytes(png)
-        if out_dir.exists():
-            shutil.rmtree(out_dir)
-        os.replace(tmp, out_dir)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     # the values the reconstruction used (defaults and the input's c, dt, dx filled in)
     used = {k: v for k, v in json.loads(params_json(dict(getattr(rec, "params", None) or {}))).items()
             if v is None or isinstance(v, (bool, int, float, str))}

@@ -146,12 +146,12 @@ def export_ome_zarr(result_path: str | os.PathLike, out_path: str | os.PathLike)
     existing export there is replaced). Returns ``out_path``. Raises FileNotFoundError,
     ValueError (not a result file, uneven coordinates, ``out_path`` an existing file).
     """
-    import shutil
-
     import zarr
     from ome_zarr.format import FormatV04
     from ome_zarr.io import parse_url
     from ome_zarr.writer import write_image
+
+    from service.disk import folder_replaced
 
     r = read_result(result_path)
     axes, steps = _voxel_sizes_um(r, "OME-Zarr")
@@ -163,7 +163,7 @@ def export_ome_zarr(result_path: str | os.PathLike, out_path: str | os.PathLike)
         raise ValueError(f"{out_path} is a file; an OME-Zarr export is a folder (name it *.ome.zarr)")
     tmp = out_path.with_name(f".{out_path.name}.{os.getpid()}.{uuid.uuid4().hex[:12]}.tmp")
     fmt = FormatV04()
-    try:
+    with folder_replaced(out_path, tmp):
         root = zarr.group(store=parse_url(str(tmp), mode="w", fmt=fmt).store, zarr_format=2)
         write_image(np.ascontiguousarray(r.p0, dtype=np.float32), root, scale_factors=[], fmt=fmt,
                     axes=names, scale=dict(zip(names, steps)),
@@ -177,12 +177,6 @@ def export_ome_zarr(result_path: str | os.PathLike, out_path: str | os.PathLike)
         root.attrs["fpscan"] = {"p0_unit": r.p0_unit, "orientation": ORIENTATION, "method": r.method,
                                 "input_id": r.input_id, "description": _description(r),
                                 "axes": ["z", "y", "x"] if len(axes) == 3 else ["z", "x"]}
-        if out_path.exists():
-            shutil.rmtree(out_path)
-        os.replace(tmp, out_path)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return out_path
 
 

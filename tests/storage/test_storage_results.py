@@ -239,3 +239,7 @@ def test_the_result_folder_is_written_by_its_format(tmp_path):
     assert sorted(p.name for p in out.iterdir()) == sorted([VOLUME_FILE, mip_file("xz")])
     assert read_result(out / VOLUME_FILE).input_id == "u"
     assert not list(tmp_path.glob("result.tmp-*"))
+    # a failure while writing leaves the folder as it was and no temporary folder behind
+    with pytest.raises(TypeError):
+        write_folder(out, rec, input_id="v", mips={"xy": "not bytes"})  # type: ignore[dict-item]
+    assert read_result(out / VOLUME_FILE).input_id == "u" and not list(tmp_path.glob("result.tmp-*"))
