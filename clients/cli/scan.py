@@ -92,14 +92,14 @@ def run(args) -> int:
     if args.preview_wavelength is not None:
         raise UsageError("--preview-wavelength is for a scan on a server (--server): a local scan has no live preview")
     from driver.acquire import acquire
-    from driver.plan import load_plan
+    from service.formats.plan import read_plan
 
     if args.window < 1 or args.timeout <= 0:
         raise UsageError("--window must be >= 1 and --timeout > 0")
     try:
-        plan = load_plan(args.plan)  # a wrong file is named before the device is opened
+        plan = read_plan(args.plan)  # a wrong file is named before the device is opened
     except ValueError as exc:
-        return _bad_plan(exc, args.plan)
+        return _bad_plan(exc)
     before = _points_on_disk(args.out)
     last: dict = {}
     t0 = time.monotonic()
@@ -140,36 +140,30 @@ def run(args) -> int:
     return 0
 
 
-def _bad_plan(exc: ValueError, source=None) -> int:
+def _bad_plan(exc: ValueError) -> int:
     """A ``--plan`` that is no plan (another kind of file, not JSON, a plan that fails its
-    check) is a usage error: its reason on one line, exit 2; a file of another format is
-    named (:func:`_not_a_plan`)."""
+    check) is a usage error: its reason on one line, exit 2."""
     import sys
 
-    print(f"fpscan scan: error: {_not_a_plan(source) or exc}", file=sys.stderr)
+    print(f"fpscan scan: error: {exc}", file=sys.stderr)
     return 2
-
-
-def _not_a_plan(source) -> str | None:
-    """The reason "this is a scan file, not a plan ..." when the file ``source`` is of another format
-    (the registry of formats names it: ``clients.cli._common.wrong_file``)."""
-    from clients.cli._common import wrong_file
-
-    return wrong_file(source, "a plan (a plan is the JSON that `fpscan plan` writes)")
 
 
 def _plan_json(source) -> dict:
     """The JSON of the plan file ``source`` (a plan, or a plan request the server builds),
     as the server is sent it. Raises ValueError: a file that is not JSON text is named by
-    registry of formats (:func:`_not_a_plan`: "this is a scan file, not a plan"), bad JSON
-    with its position."""
+    registry of formats (``service.formats.plan.read_plan``: "this is a scan file, not a
+    plan"), bad JSON with its position."""
     import json
 
     raw = source.read_bytes()
     try:
         return json.loads(raw.decode("utf-8"))
     except UnicodeDecodeError:
-        raise ValueError(_not_a_plan(source) or f"{source}: not a plan: the file is not UTF-8 JSON text") from None
+        from service.formats.plan import read_plan
+
+        read_plan(source)  # raises, naming the kind of file (scan, result, IPASC, NumPy, PNG)
+        raise ValueError(f"{source}: not a plan: the file is not UTF-8 JSON text") from None
     except json.JSONDecodeError as exc:
         raise ValueError(f"{source} is not valid JSON: {exc}") from None
 

@@ -62,6 +62,22 @@ def test_the_driver_gives_a_plain_reason_and_has_no_sniffer(tmp_path, make_scan)
         assert "scan file" not in str(err.value) and "result" not in str(err.value)
 
 
+def test_the_library_plan_loader_names_the_file(tmp_path, make_scan):
+    """fpscan.load_plan (service.formats.plan.read_plan: the driver's loader plus the
+    registry's name for a file of another format)."""
+    import fpscan
+    from service.formats.plan import read_plan
+
+    f = _files(tmp_path, make_scan)
+    assert fpscan.load_plan is read_plan
+    with pytest.raises(ValueError, match="this is a scan file, not a plan"):
+        fpscan.load_plan(f["scan"])
+    with pytest.raises(ValueError, match="not a plan: the file is not UTF-8 JSON text"):
+        fpscan.load_plan(f["junk"])
+    assert fpscan.load_plan(f["plan"]) == driver.plan.load_plan(str(f["plan"]))
+    assert fpscan.load_plan(f["plan"].read_text())["id"] == json.loads(f["plan"].read_text())["id"]
+
+
 @pytest.mark.parametrize("kind, what", [("scan", "a scan file"), ("result", "a reconstruction result"),
                                         ("npy", "a NumPy .npy array"), ("png", "a PNG picture")])
 def test_the_cli_names_a_wrong_plan_file(tmp_path, make_scan, capsys, kind, what):
@@ -98,3 +114,11 @@ def test_the_scan_layout_has_one_reader():
             if any(word in text for word in ('"aline_meta"', '"completed"]', '"plan_json"', '"fpscan-scan/')):
                 owners.add(path.relative_to(root).as_posix())
     assert owners == {"driver/scanfile.py"}, owners
+
+
+def test_plan_module_examples_run():
+    import doctest
+
+    import service.formats.plan
+
+    assert doctest.testmod(service.formats.plan).failed == 0
