@@ -223,9 +223,10 @@ def describe(path: str | os.PathLike, *, unless: tuple[str, ...] = (), max_bytes
     try:
         name = detect(path, max_bytes=max_bytes)
     except (ValueError, OSError):
+        from service.formats.untrusted import is_hdf5
+
         try:
-            with open(path, "rb") as fh:
-                return "an HDF5 file" if fh.read(len(HDF5_SIGNATURE)) == HDF5_SIGNATURE else None
+            return "an HDF5 file" if is_hdf5(path) else None
         except OSError:
             return None
     return None if name in unless else FORMATS[name].what
