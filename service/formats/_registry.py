@@ -250,7 +250,7 @@ def load(path: str | os.PathLike, kind: str | None = None, *, max_bytes: int = M
     ``wavelengths`` reads them all from its one open; any other gives a list of one).
     A file HDF5 would open as an SWMR reader (a writer has it open: HDF5 can block on its
     damaged metadata for ever) is read in a spawned child process with a time limit
-    (``service.formats.untrusted.read_bounded``; there only the built-in formats are
+    (``service.formats.untrusted.read_bounded``; there only the package's format modules are
     registered, and the content must be picklable); ``bounded=False``: in this process
     whatever the file (the service's own scan file while it is written: the live preview).
     Returns ``(name, content)``. Raises ValueError (a name not in ``choices``, a file no
