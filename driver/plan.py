@@ -56,7 +56,7 @@ __all__ = [
     "PLAN_FORMAT", "WAVELENGTH_RANGE", "MAX_LATTICE_POINTS", "N_T_RANGE", "MIN_N_T", "MAX_N_T", "MAX_DT",
     "MAX_AVERAGES", "MAX_PRF", "canonical_json", "plan_id_of", "check_wavelengths", "check_acquisition",
     "wavelength_order", "aline_order", "aline_index", "MAX_WEIGHT_AREAS", "check_plan", "lattice_positions",
-    "load_plan", "file_kind", "DevicePlan", "plan_image", "image_size_limit", "parse_plan_image",
+    "load_plan", "DevicePlan", "plan_image", "image_size_limit", "parse_plan_image",
 ]
 
 IMAGE_HEADER = struct.Struct("<4sHH32sIIdIIddddI")
@@ -386,9 +386,11 @@ def lattice_positions(indices: np.ndarray, n_x: int, n_y: int, pitch: float) -> 
 def load_plan(source: Any) -> dict:
     """Read and check a plan: a path to plan JSON, a JSON string, or an already-parsed dict.
 
-    Returns the plan dict. Raises ``ValueError`` naming the first problem (another kind of
-    file -- "this is a scan file, not a plan" --, not JSON, and everything ``check_plan``
-    rejects); ``OSError`` if the file cannot be read.
+    Returns the plan dict. Raises ``ValueError`` naming the first problem (a file that is
+    not UTF-8 JSON text: "not a plan: ..."; invalid JSON; everything ``check_plan``
+    rejects); ``OSError`` if the file cannot be read. What another kind of file is (a scan
+    file, a result ...) is named by the registry of formats above the driver
+    (``service.formats.describe``: the CLI's "this is a scan file, not a plan").
     """
     if isinstance(source, dict):
         plan = source
@@ -397,10 +399,6 @@ def load_plan(source: Any) -> dict:
             text = str(source)
         else:
             raw = Path(source).read_bytes()
-            what = file_kind(raw, Path(source))
-            if what is not None:
-                raise ValueError(f"{source}: this is {what}, not a plan (a plan is the JSON that "
-                                 "`fpscan plan` writes)")
             try:
                 text = raw.decode("utf-8")
             except UnicodeDecodeError:
@@ -410,34 +408,6 @@ def load_plan(source: Any) -> dict:
         except json.JSONDecodeError as exc:
             raise ValueError(f"plan is not valid JSON: {exc}") from None
     return check_plan(plan)
-
-
-def file_kind(head: bytes, path: Path | None = None) -> str | None:
-    """What a file that is not JSON text is, from its first bytes (and, for HDF5, its
-    ``format`` attribute): "a scan file", "a reconstruction result", "an IPASC file",
-    "an HDF5 file", "a NumPy array", "a PNG picture"; None for anything else."""
-    if head.startswith(b"\x93NUMPY"):
-        return "a NumPy array"
-    if head.startswith(b"\x89PNG"):
-        return "a PNG picture"
-    if not head.startswith(b"\x89HDF\r\n\x1a\n"):
-        return None
-    fmt, ipasc = None, False
-    if path is not None:
-        try:
-            import h5py
-
-            with h5py.File(path, "r") as f:
-                fmt = f.attrs.get("format")
-                ipasc = "binary_time_series_data" in f
-        except OSError:
-            pass
-    fmt = fmt.decode() if isinstance(fmt, bytes) else fmt
-    if isinstance(fmt, str) and fmt.startswith("fpscan-scan/"):
-        return "a scan file"
-    if isinstance(fmt, str) and fmt.startswith("fpscan-result/"):
-        return "a reconstruction result"
-    return "an IPASC file" if ipasc else "an HDF5 file"
 
 
 @dataclass(frozen=True)

@@ -87,11 +87,14 @@ from driver.plan import canonical_json, check_plan, wavelength_order
 __all__ = [
     "FORMAT", "FORMAT_1", "META_KEYS", "META_DTYPE", "META_CHUNK", "COMPLETED_CHUNK", "DURABLE_POLICIES",
     "open_readonly", "ScanFile", "ScanData", "PRESSURE_UNITS", "pressure_unit", "completed_count",
-    "read_scan", "read_open_scan"]
+    "read_scan", "read_open_scan", "FORMAT_FAMILY"]
 
 FORMAT = "fpscan-scan/2"
 #: the single-wavelength layout of fpscan ≤ 0.x, still read by read_scan
 FORMAT_1 = "fpscan-scan/1"
+#: the ``format`` attribute's prefix of every scan-file version (detection:
+#: ``service.formats.scan.sniff``; a version this module does not read is refused by it)
+FORMAT_FAMILY = "fpscan-scan/"
 
 META_KEYS = ("run_id", "boot_id", "point_index", "pulse_number", "timestamp_s",
              "bias_wavelength_m", "dc_level", "pulse_energy_j", "dt_s", "scale", "offset",

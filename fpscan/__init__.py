@@ -90,7 +90,6 @@ _EXPORTS: dict[str, str] = {
                      "random_mask", "poisson_mask", "points_mask", "equiangular_mask", "equisteradian_mask",
                      "MASK_KINDS", "Plan", "Acquisition", "make_plan", "plan_from_spec", "weight_ratio",
                      "preview_png"], "service.plans"),
-    "load_plan": "driver.plan",
     # datasets and the one reconstruction dispatch
     **dict.fromkeys(["load_dataset", "load_wavelengths"], "service.storage.datasets"),
     **dict.fromkeys(["GridDataset", "PointDataset"], "service.recon.dataset"),
@@ -118,7 +117,8 @@ _EXPORTS: dict[str, str] = {
                      "WaitTimeout"], "clients.http"),
 }
 #: a public name that differs from its owner's
-_RENAMED = {"export_ipasc": ("service.formats.ipasc", "export_scan")}
+_RENAMED = {"export_ipasc": ("service.formats.ipasc", "export_scan"),
+            "load_plan": ("service.formats.plan", "read_plan")}
 
 #: the public names (tests check them against _EXPORTS and _RENAMED)
 __all__ = [
@@ -153,9 +153,9 @@ if TYPE_CHECKING:
         WaitTimeout,
     )
     from driver.physics import Ball, ball_alines, ball_p0
-    from driver.plan import load_plan
     from driver.scanfile import ScanData, ScanFile, pressure_unit, read_scan
     from service.formats.ipasc import export_scan as export_ipasc
+    from service.formats.plan import read_plan as load_plan
     from service.metrics import (
         EdgeFit,
         LorentzFit,

@@ -26,6 +26,21 @@ class UsageError(RefusedInput):
     prints it on one line and exits 2, like argparse's own usage errors."""
 
 
+def wrong_file(path, wanted: str) -> str | None:
+    """``"<path>: this is a scan file, not <wanted>"`` when ``path`` is a file of another
+    format, named by the registry of formats (``service.formats.describe``: the one
+    format sniffer); None when it is that format (``"plan"``), of no known format or not
+    a file (the caller's own reason stands)."""
+    from pathlib import Path
+
+    if not isinstance(path, (str, os.PathLike)) or not Path(path).is_file():
+        return None
+    from service.formats import describe
+
+    what = describe(path, unless=("plan",))
+    return f"{path}: this is {what}, not {wanted}" if what else None
+
+
 def add_server_options(parser, *, required: bool = False) -> None:
     """``--server URL`` (default ``$FPSCAN_SERVER``) and ``--token`` (default
     ``$FPSCAN_TOKEN``)."""

@@ -59,11 +59,10 @@ def _json_value(text: str) -> object:
         try:
             source = raw.decode("utf-8")
         except UnicodeDecodeError:
-            from driver.plan import file_kind  # names a scan file, a result, a NumPy array ...
+            from clients.cli._common import wrong_file  # names a scan file, a result, a NumPy array ...
 
-            what = file_kind(raw, Path(text))
-            raise argparse.ArgumentTypeError(f"{text}: this is {what or 'not UTF-8 text'}, "
-                                             "not a JSON list of pairs") from None
+            raise argparse.ArgumentTypeError(wrong_file(text, "a JSON list of pairs")
+                                             or f"{text}: this is not UTF-8 text, not a JSON list of pairs") from None
     try:
         return json.loads(source)
     except json.JSONDecodeError as exc:

@@ -92,12 +92,12 @@ def run(args) -> int:
     if args.preview_wavelength is not None:
         raise UsageError("--preview-wavelength is for a scan on a server (--server): a local scan has no live preview")
     from driver.acquire import acquire
-    from driver.plan import load_plan
+    from service.formats.plan import read_plan
 
     if args.window < 1 or args.timeout <= 0:
         raise UsageError("--window must be >= 1 and --timeout > 0")
     try:
-        plan = load_plan(args.plan)  # a wrong file is named before the device is opened
+        plan = read_plan(args.plan)  # a wrong file is named before the device is opened
     except ValueError as exc:
         return _bad_plan(exc)
     before = _points_on_disk(args.out)
@@ -152,17 +152,17 @@ def _bad_plan(exc: ValueError) -> int:
 def _plan_json(source) -> dict:
     """The JSON of the plan file ``source`` (a plan, or a plan request the server builds),
     as the server is sent it. Raises ValueError: a file that is not JSON text is named by
-    the one plan loader (``driver.plan.load_plan``: "this is a scan file, not a plan"),
-    bad JSON with its position."""
+    registry of formats (``service.formats.plan.read_plan``: "this is a scan file, not a
+    plan"), bad JSON with its position."""
     import json
 
     raw = source.read_bytes()
     try:
         return json.loads(raw.decode("utf-8"))
     except UnicodeDecodeError:
-        from driver.plan import load_plan
+        from service.formats.plan import read_plan
 
-        load_plan(source)  # raises, naming the kind of file (scan, result, IPASC, NumPy, PNG)
+        read_plan(source)  # raises, naming the kind of file (scan, result, IPASC, NumPy, PNG)
         raise ValueError(f"{source}: not a plan: the file is not UTF-8 JSON text") from None
     except json.JSONDecodeError as exc:
         raise ValueError(f"{source} is not valid JSON: {exc}") from None

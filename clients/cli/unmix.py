@@ -158,7 +158,7 @@ def _remote(args) -> int:
     result = (field_of(job, "params") or {}).get("result") or {}
     summary = result.get("unmix") or {}
     masked = summary.get("masked_fraction")
-    c = result.get("c")
+    c = result.get("sound_speed", result.get("c"))  # an older server says c
     print(f"{out}/unmix.h5  so2.png  sO2 median {summary.get('so2_median')}"
           + (f"  masked {masked:.1%}" if masked is not None else "")
           + (f"  c {c:.1f} m/s" if c is not None else "") + f"  job {job_id}")

@@ -271,7 +271,8 @@ const PARAM_UNITS = {
   min_spacing: "m", aperture: "m", z_max: "m", z_min: "m",
   dt: "s", t0: "s",
   prf: "Hz", bandwidth: "Hz",
-  c: "m/s", c_range: "m/s", sound_speed: "m/s", c_values: "m/s",
+  c: "m/s", c_range: "m/s", sound_speed: "m/s", c_values: "m/s", sound_speed_range: "m/s",
+  sound_speed_values: "m/s",
   wavelength_m: "m→nm", wavelengths: "m→nm", wavelengths_m: "m→nm", excitation_wavelengths: "m→nm",
   memory_estimate: "B", memory_bytes: "B", memory_limit: "B", size: "B",
 };
@@ -1262,12 +1263,15 @@ function renderResult(job) {
   }
 }
 
-/** The autofocus summary (``result.autofocus``: c, c_range, c_values, sharpness, time_s,
- *  evaluations, decimation) as text and an SVG curve with the chosen c marked. */
-function renderAutofocus(af) {
+/** The autofocus summary (``result.autofocus``: sound_speed, sound_speed_range,
+ *  sound_speed_values, sharpness, time_s, evaluations, decimation; an older server named
+ *  the speeds c, c_range, c_values) as text and an SVG curve with the chosen c marked. */
+function renderAutofocus(found) {
   const box = $("result-autofocus");
-  box.hidden = !af;
-  if (!af) return;
+  box.hidden = !found;
+  if (!found) return;
+  const af = { ...found, c: found.sound_speed ?? found.c, c_range: found.sound_speed_range ?? found.c_range,
+    c_values: found.sound_speed_values ?? found.c_values };
   $("result-af-c").textContent = fmtNum(af.c, 5);
   $("result-af-range").textContent = (af.c_range || []).map((v) => fmtNum(v, 5)).join("–");
   $("result-af-time").textContent = fmtDuration(af.time_s);

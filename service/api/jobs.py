@@ -11,6 +11,7 @@ from service.api.context import Context, ctx, read_access, require_token
 from service.api.models import ID_PATTERN, Deleted, Job, JobKind, JobState
 from service.jobs import lifecycle
 from service.jobs.store import TERMINAL
+from service.names import person_names
 
 __all__ = [
     "router", "JobId", "job_links", "job_view", "get_job_or_404", "list_jobs", "get_job", "cancel_job",
@@ -43,8 +44,10 @@ def job_links(job: dict) -> dict[str, str]:
 
 
 def job_view(job: dict) -> Job:
-    """The public view of a stored job (no file system paths)."""
-    params = {k: v for k, v in job["params"].items() if k not in ("input", "scan_path")}
+    """The public view of a stored job (no file system paths; parameters named as a person
+    reads them, ``sound_speed``, also for a job an older server stored with ``c``:
+    :func:`service.names.person_names`)."""
+    params = person_names({k: v for k, v in job["params"].items() if k not in ("input", "scan_path")})
     created, started, finished = job["created"], job["started"], job["finished"]
     timings = {"created": created, "started": started, "finished": finished,
                "queued_s": (started - created) if started else None,

@@ -12,8 +12,10 @@ from fastapi.responses import FileResponse
 from service.api.context import Context, ctx, read_access, reason, require_token
 from service.api.jobs import get_job_or_404, job_view
 from service.api.models import ID_PATTERN, Job, MethodInfo, MethodOption, Plane, ReconRequest
+from service.formats.result import VOLUME_FILE, mip_file
 from service.jobs.admission import AdmissionError, admit, estimate_memory, input_shape
 from service.jobs.store import IdempotencyConflict
+from service.names import person_names
 from service.pipeline import METHODS, OPTIONS, default_method, method_options
 
 __all__ = [
@@ -212,7 +214,9 @@ def start_reconstruction(body: ReconRequest, response: Response, c: Context = De
         admit(mem, c.settings.memory_limit)
     except AdmissionError as exc:
         raise HTTPException(422, reason(exc)) from None
-    job_params = {"method": body.method, "params": params, "input": spec, "input_id": input_id, "shape": shape,
+    # stored as a person reads them (sound_speed, not the code's c: service.names)
+    job_params = {"method": body.method, "params": person_names(params), "input": spec, "input_id": input_id,
+                  "shape": person_names(shape),
                   "scan_job_id": body.scan_job_id, "dataset_id": body.dataset_id, "memory_estimate": mem,
                   "wavelength": body.wavelength, **extra}
     try:
@@ -262,7 +266,7 @@ def volume(job_id: str = JobId, wavelength: int | None = WavelengthQuery, c: Con
     ``method``, ``params`` (with ``wavelength_index``/``wavelength_nm`` for a
     multi-wavelength input). ``?wavelength=k``: wavelength ``k``'s volume of a job over
     every wavelength (``wavelength='all'`` or unmix). Supports ``Range``."""
-    path = _volume_dir(c, job_id, wavelength) / "volume.h5"
+    path = _volume_dir(c, job_id, wavelength) / VOLUME_FILE
     return FileResponse(path, media_type="application/x-hdf5",
                         filename=f"{job_id}.h5" if wavelength is None else f"{job_id}-wavelength_{wavelength}.h5")
 
@@ -280,7 +284,7 @@ def volume_ome_tiff(job_id: str = JobId, c: Context = Depends(ctx)):
     path = folder / "volume.ome.tif"
     if not path.exists():
         try:
-            export_ome_tiff(folder / "volume.h5", path)
+            export_ome_tiff(folder / VOLUME_FILE, path)
         except ValueError as exc:
             raise HTTPException(409, str(exc)) from None
     return FileResponse(path, media_type="image/tiff", filename=f"{job_id}.ome.tif")
@@ -304,7 +308,7 @@ def volume_ome_zarr(job_id: str = JobId, c: Context = Depends(ctx)):
     if not path.exists():
         tmp = folder / f".volume.ome.zarr.{uuid.uuid4().hex[:12]}"
         try:
-            export_volume(folder / "volume.h5", tmp, "ome-zarr")
+            export_volume(folder / VOLUME_FILE, tmp, "ome-zarr")
             zip_folder(tmp, path, arcname=f"{job_id}.ome.zarr")
         except ValueError as exc:
             raise HTTPException(409, str(exc)) from None
@@ -345,7 +349,7 @@ def mip_png(plane: Plane, job_id: str = JobId, wavelength: int | None = Waveleng
             c: Context = Depends(ctx)):
     """Maximum-intensity projection: ``xy`` (over z), ``xz`` (over y), ``yz`` (over x);
     ``?wavelength=k`` as for the volume."""
-    path = _volume_dir(c, job_id, wavelength) / f"mip_{plane}.png"
+    path = _volume_dir(c, job_id, wavelength) / mip_file(plane)
     if not path.exists():
         raise HTTPException(404, f"a 2-D image has no {plane} MIP")
     return Response(path.read_bytes(), media_type="image/png")
@@ -361,7 +365,7 @@ def slice_png(job_id: str = JobId, index: int = Query(0, ge=0, le=1_000_000, des
     from service.storage.render import render_result_slice
 
     try:
-        png = render_result_slice(_result_dir(c, job_id) / "volume.h5", index)
+        png = render_result_slice(_result_dir(c, job_id) / VOLUME_FILE, index)
     except ValueError as exc:
         raise HTTPException(422, str(exc)) from None
     return Response(png, media_type="image/png")

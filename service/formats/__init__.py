@@ -25,10 +25,15 @@ name           module      content                                             r
 =============  ==========  ==================================================  =====================
 
 Adding a format: a module here with ``sniff``, ``load`` (and ``write``) and a
-``FORMAT = Format(...)``, one line in :data:`BUILTIN` below, and its test; the CLI help,
-the API's choices, the web page and the HTTP client follow from the registry.
+``FORMAT = Format(...)``, and its test — nothing else: every public module of this
+package that declares a ``FORMAT`` is registered when the package is imported (after the
+built-in ones of :data:`BUILTIN`, in module-name order: :func:`_discover`), and the CLI
+help, the API's choices, the web page and the HTTP client follow from the registry.
 """
 from __future__ import annotations
+
+import importlib
+import pkgutil
 
 from service.formats import dataset, ipasc, kwave_hdf5, npy, plan, png, result, scan, unmix
 from service.formats._registry import (
@@ -37,6 +42,7 @@ from service.formats._registry import (
     MAX_BYTES,
     Format,
     Source,
+    describe,
     detect,
     load,
     names,
@@ -46,7 +52,7 @@ from service.formats._registry import (
     unregister,
 )
 
-__all__ = ["FORMATS", "BUILTIN", "HEAD_BYTES", "MAX_BYTES", "Format", "Source", "detect", "load", "names",
+__all__ = ["FORMATS", "BUILTIN", "HEAD_BYTES", "MAX_BYTES", "Format", "Source", "describe", "detect", "load", "names",
            "open_source", "register", "sniff", "unregister", "upload_formats"]
 
 #: the formats fpscan knows, in the order of the lists of choices
@@ -54,6 +60,23 @@ BUILTIN = (npy.FORMAT, kwave_hdf5.FORMAT, scan.FORMAT, ipasc.FORMAT, dataset.FOR
            unmix.FORMAT, plan.FORMAT, png.FORMAT)
 for _fmt in BUILTIN:
     register(_fmt)
+
+
+def _discover() -> list[Format]:
+    """Register the ``FORMAT`` of every other public module of this package (a format
+    added as one file), in module-name order; returns them. A module without ``FORMAT``
+    (``untrusted``: the hostile-file checks) is no format."""
+    found = []
+    for info in sorted(pkgutil.iter_modules(__path__), key=lambda m: m.name):
+        if info.name.startswith("_"):
+            continue
+        fmt = getattr(importlib.import_module(f"{__name__}.{info.name}"), "FORMAT", None)
+        if isinstance(fmt, Format) and fmt.name not in FORMATS:
+            found.append(register(fmt))
+    return found
+
+
+_discover()
 
 
 def upload_formats() -> list[dict]:

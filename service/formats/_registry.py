@@ -24,7 +24,7 @@ from typing import Any, BinaryIO
 from service.recon.dataset import MAX_ELEMENTS
 
 __all__ = ["Format", "Source", "FORMATS", "HEAD_BYTES", "MAX_BYTES", "register", "unregister", "names",
-           "open_source", "sniff", "detect", "load"]
+           "open_source", "sniff", "detect", "describe", "load"]
 
 #: bytes of a file's start every ``sniff`` sees (:attr:`Source.head`)
 HEAD_BYTES = 512
@@ -212,6 +212,26 @@ def detect(path: str | os.PathLike, *, max_bytes: int = MAX_BYTES, bounded: bool
     return fmt.name
 
 
+def describe(path: str | os.PathLike, *, unless: tuple[str, ...] = (), max_bytes: int = MAX_BYTES) -> str | None:
+    """What the file ``path`` is, as a noun for a message (``"a scan file"``, ``"a
+    reconstruction result"``, ``"a NumPy .npy array"``: :attr:`Format.what` of the format
+    :func:`detect` finds), ``"an HDF5 file"`` for an HDF5 file no format fits (or one
+    refused as hostile or unreadable); None for a file of no known format, a missing or
+    unreadable file, or one detected as a format named in ``unless`` (a caller that
+    wanted that format gives its own reason). The one format sniffer of every "this is a
+    scan file, not a plan" message; never raises."""
+    try:
+        name = detect(path, max_bytes=max_bytes)
+    except (ValueError, OSError):
+        from service.formats.untrusted import is_hdf5
+
+        try:
+            return "an HDF5 file" if is_hdf5(path) else None
+        except OSError:
+            return None
+    return None if name in unless else FORMATS[name].what
+
+
 def _unknown(source: Source, choices: tuple[str, ...]) -> str:
     """The reason a file fits none of ``choices``."""
     if source.h5 is None:
@@ -230,7 +250,7 @@ def load(path: str | os.PathLike, kind: str | None = None, *, max_bytes: int = M
     ``wavelengths`` reads them all from its one open; any other gives a list of one).
     A file HDF5 would open as an SWMR reader (a writer has it open: HDF5 can block on its
     damaged metadata for ever) is read in a spawned child process with a time limit
-    (``service.formats.untrusted.read_bounded``; there only the built-in formats are
+    (``service.formats.untrusted.read_bounded``; there only the package's format modules are
     registered, and the content must be picklable); ``bounded=False``: in this process
     whatever the file (the service's own scan file while it is written: the live preview).
     Returns ``(name, content)``. Raises ValueError (a name not in ``choices``, a file no

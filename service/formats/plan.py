@@ -1,14 +1,55 @@
 """Plan (JSON text, :mod:`driver.plan`): what the scanner acquires → the checked plan
 dict (``driver.plan.load_plan``). Not data to reconstruct: scan it first.
+
+:func:`read_plan` is the plan loader of the library (``fpscan.load_plan``) and the CLI:
+``driver.plan.load_plan`` with a file of another format named by the registry ("this is
+a scan file, not a plan": :func:`not_a_plan`).
 """
 from __future__ import annotations
 
 import json
+import os
+from pathlib import Path
 from typing import Any
 
-from service.formats._registry import Format, Source
+from service.formats._registry import Format, Source, describe
 
-__all__ = ["FORMAT", "sniff", "load"]
+__all__ = ["FORMAT", "sniff", "load", "read_plan", "not_a_plan"]
+
+
+def not_a_plan(source: Any) -> str | None:
+    """``"<source>: this is a scan file, not a plan (...)"`` when ``source`` names a file
+    of another format (:func:`service.formats.describe`); None for a plan file, a file of
+    no known format, JSON text, a dict or a missing file."""
+    if not isinstance(source, (str, os.PathLike)) or str(source).lstrip().startswith("{") \
+            or not Path(source).is_file():
+        return None
+    what = describe(source, unless=("plan",))
+    return f"{source}: this is {what}, not a plan (a plan is the JSON that `fpscan plan` writes)" if what else None
+
+
+def read_plan(source: Any) -> dict:
+    """Read and check a plan: a path to plan JSON, a JSON string or a parsed dict
+    (``driver.plan.load_plan``). Returns the plan dict. Raises ValueError naming the first
+    problem, and for a file of another format what it is (:func:`not_a_plan`); OSError if
+    the file cannot be read.
+
+    Examples
+    --------
+    >>> read_plan("{not json")
+    Traceback (most recent call last):
+    ...
+    ValueError: plan is not valid JSON: Expecting property name enclosed in double quotes: line 1 column 2 (char 1)
+    """
+    from driver.plan import load_plan
+
+    try:
+        return load_plan(source)
+    except ValueError:
+        named = not_a_plan(source)
+        if named is None:
+            raise
+        raise ValueError(named) from None
 
 
 def sniff(source: Source) -> bool:

@@ -1,8 +1,12 @@
 """Reconstruction result file (``volume.h5``, ``format`` ``fpscan-result/1``; layout:
-:mod:`service.storage.results`, which writes the result folder with the MIPs, and
-docs/file-formats.md): the p0 volume ``/p0`` ``(n_z, n_y, n_x)`` or ``(n_z, n_x)`` with
-its coordinates ``/z``, ``/y``, ``/x`` (m). Written by :func:`write_volume` (atomically),
-read by :func:`load` → :class:`ResultVolume`. An output, not data to reconstruct.
+:mod:`service.storage.results` and docs/file-formats.md): the p0 volume ``/p0``
+``(n_z, n_y, n_x)`` or ``(n_z, n_x)`` with its coordinates ``/z``, ``/y``, ``/x`` (m).
+Written by :func:`write_volume` (atomically), read by :func:`load` → :class:`ResultVolume`.
+An output, not data to reconstruct.
+
+The result folder is this format's too: :data:`VOLUME_FILE` and one :func:`mip_file` per
+MIP plane, written as a whole by :func:`write_folder` (the MIP pictures drawn by the
+caller: ``service.storage.results.write_result`` renders them).
 """
 from __future__ import annotations
 
@@ -21,7 +25,8 @@ from driver.scanfile import PRESSURE_UNITS
 from service.formats._registry import Format, Source
 
 __all__ = ["FORMAT", "RESULT_FORMAT", "ORIENTATION", "P0_UNITS", "COMPRESS_BELOW", "ResultVolume", "sniff",
-           "load", "read_result", "read_slice", "write_volume", "params_json", "storage_layout"]
+           "load", "read_result", "read_slice", "write_volume", "params_json", "storage_layout", "VOLUME_FILE",
+           "mip_file", "write_reconstruction", "write_folder"]
 
 RESULT_FORMAT = "fpscan-result/1"
 
@@ -186,6 +191,56 @@ def write_volume(path: str | os.PathLike, p0: np.ndarray, z: np.ndarray, x: np.n
         tmp.unlink(missing_ok=True)
         raise
     return path
+
+
+#: the result folder's volume file (the MIPs beside it: :func:`mip_file`)
+VOLUME_FILE = "volume.h5"
+
+
+def mip_file(plane: str) -> str:
+    """The name of the result folder's MIP picture of ``plane`` (``"xy"``, ``"xz"`` or
+    ``"yz"``): ``mip_<plane>.png``."""
+    return f"mip_{plane}.png"
+
+
+def write_reconstruction(path: str | os.PathLike, rec: Any, *, input_id: str,
+                         method: str | None = None, software_version: str | None = None) -> Path:
+    """Write a ``service.recon.Reconstruction`` (``p0``, ``z``, ``x``, ``y``, ``params``)
+    as a result file; the method defaults to ``rec.params["method"]``. Raises ValueError
+    as :func:`write_volume`."""
+    params = dict(getattr(rec, "params", None) or {})
+    method = method or params.get("method")
+    if not method:
+        raise ValueError("no method given and the reconstruction's params have no 'method'")
+    return write_volume(path, rec.p0, rec.z, rec.x, getattr(rec, "y", None),
+                        method=str(method), params=params, input_id=input_id,
+                        software_version=software_version, p0_unit=getattr(rec, "p0_unit", "a.u."))
+
+
+def write_folder(out_dir: str | os.PathLike, rec: Any, *, input_id: str, mips: dict[str, bytes]) -> dict:
+    """The result folder of a reconstruction ``rec``: :data:`VOLUME_FILE`
+    (:func:`write_reconstruction`) and the PNG bytes of each MIP plane in ``mips``
+    (:func:`mip_file`), written into a temporary sibling folder renamed into place (an
+    existing ``out_dir`` is replaced). Returns ``{"shape", "max", "planes",
+    "params_used"}`` (``planes`` sorted; ``params_used``: the scalar parameters the
+    reconstruction used). Raises ValueError as :func:`write_volume`."""
+    import time
+
+    from service.disk import folder_replaced
+
+    out_dir = Path(out_dir)
+    tmp = out_dir.with_name(out_dir.name + f".tmp-{os.getpid()}-{time.monotonic_ns()}")
+    tmp.mkdir(parents=True)
+    with folder_replaced(out_dir, tmp):
+        p0 = np.asarray(rec.p0)
+        write_reconstruction(tmp / VOLUME_FILE, rec, input_id=input_id)
+        for plane, png in mips.items():
+            (tmp / mip_file(plane)).write_bytes(png)
+    # the values the reconstruction used (defaults and the input's c, dt, dx filled in)
+    used = {k: v for k, v in json.loads(params_json(dict(getattr(rec, "params", None) or {}))).items()
+            if v is None or isinstance(v, (bool, int, float, str))}
+    return {"shape": list(p0.shape), "max": float(np.max(p0)) if p0.size else 0.0, "planes": sorted(mips),
+            "params_used": used}
 
 
 @dataclass

@@ -1,8 +1,12 @@
 """fpscan scan file (:mod:`driver.scanfile`, ``fpscan-scan/1`` and ``/2``): its
 *completed* points, the DC-normalised pressure, the plan's positions, weights and lattice
 → :class:`service.recon.dataset.PointDataset`. May hold several excitation wavelengths
-(``wavelength_index`` chooses one; default the first). Written by the scanner
-(``driver.scanfile.ScanFile``), not here.
+(``wavelength_index`` chooses one; default the first).
+
+A thin registry entry: the layout has one owner, :mod:`driver.scanfile`, which writes it
+while acquiring (``ScanFile``), reopens it to resume (``ScanFile.open_append``) and reads
+it (``read_open_scan``, on the file the registry opened once); here only the detection by
+its ``format`` attribute and the mapping of the read scan to point data.
 """
 from __future__ import annotations
 
@@ -17,8 +21,11 @@ __all__ = ["FORMAT", "sniff", "load"]
 
 
 def sniff(source: Source) -> bool:
-    """True for an HDF5 file whose ``format`` attribute is ``fpscan-scan/<version>``."""
-    return source.attr("format").startswith("fpscan-scan/")
+    """True for an HDF5 file whose ``format`` attribute is ``fpscan-scan/<version>``
+    (``driver.scanfile.FORMAT_FAMILY``)."""
+    from driver.scanfile import FORMAT_FAMILY
+
+    return source.attr("format").startswith(FORMAT_FAMILY)
 
 
 def load(source: Source, *, allow_empty: bool = False, wavelength_index: int = 0, all_wavelengths: bool = False,

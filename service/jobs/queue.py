@@ -30,6 +30,7 @@ from service.jobs.executors import WorkerDied
 from service.jobs.lifecycle import apply_retention
 from service.jobs.store import JobStore
 from service.jobs.work import run_reconstruction
+from service.names import code_names, person_names
 from service.pipeline import Cancelled
 
 __all__ = [
@@ -131,7 +132,8 @@ class ReconQueue:
         out_dir = self.results_dir / f"{jid}.{job['attempts']}"
         progress_path = self.results_dir / f".{jid}.{job['attempts']}.progress"
         cancel_path = self.results_dir / f".{jid}.{job['attempts']}.cancel"
-        params = {**job["params"]["params"], "method": job["params"]["method"]}
+        # stored as a person reads them (sound_speed; an older server's c too): the library's names here
+        params = {**code_names(job["params"]["params"]), "method": job["params"]["method"]}
         if params["method"] == "tv":  # the operator's wall-time limit: the default, and the most one may ask
             cap = float(self.settings.tv_time_limit_s)
             params["time_limit"] = min(float(params.get("time_limit") or cap), cap)
@@ -185,7 +187,7 @@ class ReconQueue:
             shutil.rmtree(out_dir, ignore_errors=True)
             self._finish(jid, "cancelled")
             return
-        self.store.update_params(jid, {"result": summary})
+        self.store.update_params(jid, {"result": person_names(summary)})
         self.store.set_state(jid, "succeeded", result_path=str(out_dir), only_from=("running",),
                              progress={"fraction": 1.0, "stage": "done",
                                        "points_done": summary.get("points_used"),

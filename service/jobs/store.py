@@ -22,6 +22,8 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any, overload
 
+from service.names import person_names
+
 __all__ = ["STATES", "TERMINAL", "ACTIVE", "KINDS", "IdempotencyConflict", "Jobs", "JobStore"]
 
 STATES = ("queued", "running", "paused", "succeeded", "failed", "cancelled")
@@ -166,7 +168,8 @@ class JobStore:
                 if row is not None:
                     old = self._row(row)
                     asked = json.loads(json.dumps(params))
-                    if old["kind"] != kind or {k: old["params"].get(k) for k in asked} != asked:
+                    before = person_names(old["params"])  # a job an older server stored with c
+                    if old["kind"] != kind or {k: before.get(k) for k in asked} != person_names(asked):
                         raise IdempotencyConflict(
                             "Idempotency-Key already used for a different request")
                     return old, False

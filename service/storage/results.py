@@ -26,12 +26,13 @@ file's array order with physical voxel sizes in µm and the p0 unit.
 
 The file is written to a temporary sibling, fsynced, then renamed over ``path``
 (``os.replace``), so a reader sees either the old file or the complete new one. The
-format's reader and detection (``ResultVolume``, :func:`read_result`) live in
-:mod:`service.formats.result`.
+format -- its reader and detection (``ResultVolume``, :func:`read_result`), its writers
+(:func:`write_volume`, :func:`write_reconstruction`, the folder's ``write_folder``) and
+its file names -- lives in :mod:`service.formats.result`; storage keeps what is not the
+format: drawing the MIPs (:func:`write_result`), the exports and zipping.
 """
 from __future__ import annotations
 
-import json
 import os
 import uuid
 from pathlib import Path
@@ -47,6 +48,8 @@ from service.formats.result import (
     params_json,
     read_result,
     storage_layout,
+    write_folder,
+    write_reconstruction,
     write_volume,
 )
 from service.formats.result import RESULT_FORMAT as FORMAT
@@ -55,53 +58,18 @@ __all__ = ["FORMAT", "ORIENTATION", "P0_UNITS", "ResultVolume", "read_result", "
            "write_volume", "write_reconstruction", "write_result", "export_ome_tiff", "export_ome_zarr",
            "EXPORT_FORMATS", "export_volume", "zip_folder", "COMPRESS_BELOW"]
 
-def write_reconstruction(path: str | os.PathLike, rec: Any, *, input_id: str,
-                         method: str | None = None, software_version: str | None = None) -> Path:
-    """Write a ``service.recon.Reconstruction`` (``p0``, ``z``, ``x``, ``y``, ``params``)
-    as a result file; the method defaults to ``rec.params["method"]``. Raises ValueError
-    as :func:`write_volume`."""
-    params = dict(getattr(rec, "params", None) or {})
-    method = method or params.get("method")
-    if not method:
-        raise ValueError("no method given and the reconstruction's params have no 'method'")
-    return write_volume(path, rec.p0, rec.z, rec.x, getattr(rec, "y", None),
-                        method=str(method), params=params, input_id=input_id,
-                        software_version=software_version, p0_unit=getattr(rec, "p0_unit", "a.u."))
-
-
 def write_result(out_dir: str | os.PathLike, rec: Any, *, input_id: str) -> dict:
     """The result folder of a reconstruction, as every caller writes it (the job worker
-    and ``fpscan recon``): ``volume.h5`` (:func:`write_reconstruction`) and
-    ``mip_{xy,xz,yz}.png`` (``mip_xz.png`` only in 2-D;
-    :func:`service.storage.render.render_mips`), written into a temporary sibling folder
-    renamed into place (an existing ``out_dir`` is replaced). Returns ``{"shape", "max",
-    "planes"}``. Raises ValueError as :func:`write_volume`."""
-    import shutil
-    import time
-
+    and ``fpscan recon``): its MIP pictures ``mip_{xy,xz,yz}`` (``mip_xz`` only in 2-D;
+    :func:`service.storage.render.render_mips`) drawn here, the folder (``volume.h5`` and
+    the PNGs, renamed into place, an existing ``out_dir`` replaced) written by its format,
+    :func:`service.formats.result.write_folder`. Returns ``{"shape", "max", "planes",
+    "params_used"}``. Raises ValueError as :func:`write_volume`."""
     from service.storage.render import render_mips
 
-    out_dir = Path(out_dir)
-    tmp = out_dir.with_name(out_dir.name + f".tmp-{os.getpid()}-{time.monotonic_ns()}")
-    tmp.mkdir(parents=True)
-    try:
-        p0 = np.asarray(rec.p0)
-        write_reconstruction(tmp / "volume.h5", rec, input_id=input_id)
-        pngs = render_mips(p0, rec.z, rec.x, getattr(rec, "y", None),
-                           colorbar_label=f"p0 ({getattr(rec, 'p0_unit', 'a.u.')})")
-        for plane, png in pngs.items():
-            (tmp / f"mip_{plane}.png").write_bytes(png)
-        if out_dir.exists():
-            shutil.rmtree(out_dir)
-        os.replace(tmp, out_dir)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    # the values the reconstruction used (defaults and the input's c, dt, dx filled in)
-    used = {k: v for k, v in json.loads(params_json(dict(getattr(rec, "params", None) or {}))).items()
-            if v is None or isinstance(v, (bool, int, float, str))}
-    return {"shape": list(p0.shape), "max": float(np.max(p0)) if p0.size else 0.0, "planes": sorted(pngs),
-            "params_used": used}
+    pngs = render_mips(np.asarray(rec.p0), rec.z, rec.x, getattr(rec, "y", None),
+                       colorbar_label=f"p0 ({getattr(rec, 'p0_unit', 'a.u.')})")
+    return write_folder(out_dir, rec, input_id=input_id, mips=pngs)
 
 
 def _voxel_sizes_um(r: ResultVolume, what: str) -> tuple[str, list[float]]:
@@ -178,12 +146,12 @@ def export_ome_zarr(result_path: str | os.PathLike, out_path: str | os.PathLike)
     existing export there is replaced). Returns ``out_path``. Raises FileNotFoundError,
     ValueError (not a result file, uneven coordinates, ``out_path`` an existing file).
     """
-    import shutil
-
     import zarr
     from ome_zarr.format import FormatV04
     from ome_zarr.io import parse_url
     from ome_zarr.writer import write_image
+
+    from service.disk import folder_replaced
 
     r = read_result(result_path)
     axes, steps = _voxel_sizes_um(r, "OME-Zarr")
@@ -195,7 +163,7 @@ def export_ome_zarr(result_path: str | os.PathLike, out_path: str | os.PathLike)
         raise ValueError(f"{out_path} is a file; an OME-Zarr export is a folder (name it *.ome.zarr)")
     tmp = out_path.with_name(f".{out_path.name}.{os.getpid()}.{uuid.uuid4().hex[:12]}.tmp")
     fmt = FormatV04()
-    try:
+    with folder_replaced(out_path, tmp):
         root = zarr.group(store=parse_url(str(tmp), mode="w", fmt=fmt).store, zarr_format=2)
         write_image(np.ascontiguousarray(r.p0, dtype=np.float32), root, scale_factors=[], fmt=fmt,
                     axes=names, scale=dict(zip(names, steps)),
@@ -209,12 +177,6 @@ def export_ome_zarr(result_path: str | os.PathLike, out_path: str | os.PathLike)
         root.attrs["fpscan"] = {"p0_unit": r.p0_unit, "orientation": ORIENTATION, "method": r.method,
                                 "input_id": r.input_id, "description": _description(r),
                                 "axes": ["z", "y", "x"] if len(axes) == 3 else ["z", "x"]}
-        if out_path.exists():
-            shutil.rmtree(out_path)
-        os.replace(tmp, out_path)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return out_path
 
 

@@ -131,7 +131,7 @@ def test_upload_form_and_recon_options_take_units(open_server):
                                                    "params": {"dz": "30um", "c": "1.5 km/s"}})
         assert r.status_code == 202, r.text
         params = api.get(f"/api/jobs/{r.json()['id']}").json()["params"]["params"]
-        assert params["dz"] == pytest.approx(30e-6) and params["c"] == pytest.approx(1500.0), params
+        assert params["dz"] == pytest.approx(30e-6) and params["sound_speed"] == pytest.approx(1500.0), params
         r = api.post("/api/reconstructions", json={"dataset_id": ds["dataset_id"], "method": "ner",
                                                    "params": {"dz": "30 furlongs"}})
         assert r.status_code == 422 and "dz" in r.text, r.text

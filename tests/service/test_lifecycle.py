@@ -95,7 +95,7 @@ def test_delete_retention_and_restart(tmp_path):
             assert job["id"] == jobs[1]
             assert api.get(f"/api/reconstructions/{short}/volume.h5").status_code == 200
             used = job["params"]["result"]["params_used"]
-            assert used["c"] == 1500.0 and used["dt"] == DT and used["method"] == "ner"
+            assert used["sound_speed"] == 1500.0 and used["dt"] == DT and used["method"] == "ner"
             out = _cli("jobs", "list", "--server", srv.url, "--token", srv.token)
             assert out.returncode == 0 and f"{jobs[1][:12]}  recon  succeeded" in out.stdout
             assert f"ner of dataset {ds[:8]}" in out.stdout, out.stdout

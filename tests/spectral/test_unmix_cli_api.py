@@ -114,9 +114,9 @@ def test_http_unmix_and_autofocus(npy_files, tmp_path):
             af = result["autofocus"]
             # plumbing only (accuracy: tests/spectral/test_autofocus.py): these two big balls on a
             # 40 x 40 aperture focus within 1 %
-            assert abs(af["c"] - C) / C < 0.01 and af["c_range"] == [1470, 1530]
-            assert len(af["c_values"]) == len(af["sharpness"]) == af["evaluations"] >= 7
-            assert result["c"] == af["c"]
+            assert abs(af["sound_speed"] - C) / C < 0.01 and af["sound_speed_range"] == [1470, 1530]
+            assert len(af["sound_speed_values"]) == len(af["sharpness"]) == af["evaluations"] >= 7
+            assert result["sound_speed"] == af["sound_speed"]
             with srv.client() as http:
                 r = http.get(f"/api/reconstructions/{af_id}/so2.png")
                 assert r.status_code == 404 and "not unmixed" in r.text

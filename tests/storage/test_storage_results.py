@@ -207,3 +207,39 @@ def test_annotated_png_shows_the_colormapped_samples_in_its_frame():
     assert dark[:, : int(g["left"]) - 2].sum() > 200  # y tick labels and the y label
     assert dark[:, int(g["right"]) + 40:].sum() > 200  # colour bar ticks, tick labels, its label
     assert dark[int(g["bottom"]) + 2:, :].sum() > 200  # x tick labels and the x label
+
+
+def test_the_result_folder_is_written_by_its_format(tmp_path):
+    """The result folder (volume.h5 + MIP PNGs) has one owner, service.formats.result: its
+    file names and its writer (write_folder); storage draws the MIPs and calls it. The
+    folder read back through the format is the reconstruction, the pictures are
+    render_mips' bytes, and a second write replaces the folder whole."""
+    from types import SimpleNamespace
+
+    from service.formats.result import VOLUME_FILE, mip_file, read_result, write_folder
+    from service.storage.render import render_mips
+    from service.storage.results import write_result
+
+    z, x, y = np.arange(6) * 1e-5, np.arange(5) * 1e-4, np.arange(4) * 1e-4
+    p0 = np.random.default_rng(1).standard_normal((6, 4, 5)).astype(np.float32)
+    rec = SimpleNamespace(p0=p0, z=z, x=x, y=y, params={"method": "ner", "c": 1490.0}, p0_unit="a.u.")
+    out = tmp_path / "result"
+    summary = write_result(out, rec, input_id="t")
+    assert sorted(p.name for p in out.iterdir()) == sorted([VOLUME_FILE] + [mip_file(p) for p in ("xy", "xz", "yz")])
+    assert summary["planes"] == ["xy", "xz", "yz"] and summary["shape"] == [6, 4, 5]
+    assert summary["max"] == pytest.approx(float(p0.max())) and summary["params_used"]["c"] == 1490.0
+    back = read_result(out / VOLUME_FILE)
+    np.testing.assert_array_equal(back.p0, p0)
+    assert back.method == "ner" and back.input_id == "t"
+    pngs = render_mips(p0, z, x, y, colorbar_label="p0 (a.u.)")
+    for plane, png in pngs.items():
+        assert (out / mip_file(plane)).read_bytes() == png
+    # the format's writer alone: the pictures it is given, the old folder replaced
+    assert write_folder(out, rec, input_id="u", mips={"xz": b"\x89PNG only one"})["planes"] == ["xz"]
+    assert sorted(p.name for p in out.iterdir()) == sorted([VOLUME_FILE, mip_file("xz")])
+    assert read_result(out / VOLUME_FILE).input_id == "u"
+    assert not list(tmp_path.glob("result.tmp-*"))
+    # a failure while writing leaves the folder as it was and no temporary folder behind
+    with pytest.raises(TypeError):
+        write_folder(out, rec, input_id="v", mips={"xy": "not bytes"})  # type: ignore[dict-item]
+    assert read_result(out / VOLUME_FILE).input_id == "u" and not list(tmp_path.glob("result.tmp-*"))

@@ -586,8 +586,8 @@ def test_unmix_result_shows_so2_map_and_autofocus_curve(browser, server, api, sc
     af = result["autofocus"]
     points = browser.execute_script(
         "return document.querySelectorAll('#result-af-curve circle').length")
-    assert points == len(af["c_values"]) == af["evaluations"]
-    assert text(browser, "result-af-c") == str(float(f"{af['c']:.5g}")).removesuffix(".0")
+    assert points == len(af["sound_speed_values"]) == af["evaluations"]
+    assert text(browser, "result-af-c") == str(float(f"{af['sound_speed']:.5g}")).removesuffix(".0")
     assert any(ch.isdigit() for ch in text(browser, "result-af-time")), text(browser, "result-af-time")  # search time
     assert text(browser, "result-af-evals") == str(af["evaluations"])
     assert "750 nm" in text(browser, "result-unmix-wavelengths")

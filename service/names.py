@@ -1,0 +1,48 @@
+"""The names a person reads for the quantities code names otherwise (``driver.constants``:
+the speed of sound is ``c`` in code, ``sound_speed`` over HTTP, on the command line and in
+files).
+
+:func:`person_names` renames a job's stored and returned parameters (``params``, the
+input's ``shape``, the ``result`` summary with its ``params_used`` and ``autofocus``) from
+the code names to the person's; :func:`code_names` is its inverse, for the worker that
+calls the library. Both accept either spelling, so a job stored by an older server (with
+``c``) reads back as ``sound_speed``.
+
+Examples
+--------
+>>> person_names({"params": {"c": 1500.0, "dz": 3e-5}, "result": {"autofocus": {"c_range": [1450, 1600]}}})
+{'params': {'sound_speed': 1500.0, 'dz': 3e-05}, 'result': {'autofocus': {'sound_speed_range': [1450, 1600]}}}
+>>> code_names({"sound_speed": "auto", "c_range": [1470, 1530]})
+{'c': 'auto', 'c_range': [1470, 1530]}
+"""
+from __future__ import annotations
+
+from typing import Any
+
+__all__ = ["PERSON_NAMES", "person_names", "code_names"]
+
+#: code name → the name a person reads (HTTP fields, stored job parameters, CLI flags)
+PERSON_NAMES: dict[str, str] = {"c": "sound_speed", "c_range": "sound_speed_range",
+                                "c_values": "sound_speed_values"}
+_CODE_NAMES = {v: k for k, v in PERSON_NAMES.items()}
+
+
+def _renamed(obj: Any, names: dict[str, str]) -> Any:
+    if isinstance(obj, dict):
+        return {names.get(k, k): _renamed(v, names) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_renamed(v, names) for v in obj]
+    return obj
+
+
+def person_names(obj: Any) -> Any:
+    """``obj`` (dicts and lists, nested) with every key of :data:`PERSON_NAMES` renamed to
+    the person's name (``c`` → ``sound_speed``); other keys and all values unchanged. A
+    new object; ``obj`` is not modified."""
+    return _renamed(obj, PERSON_NAMES)
+
+
+def code_names(obj: Any) -> Any:
+    """The inverse of :func:`person_names`: ``sound_speed`` → ``c`` (nested), for the
+    library's keyword arguments. A new object."""
+    return _renamed(obj, _CODE_NAMES)
