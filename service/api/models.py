@@ -505,6 +505,8 @@ def _method_option_fields() -> dict[str, Any]:
         if same and len(takers) == len(METHODS) and f.default is not None:
             default = f.default
             annotation = Annotated[annotation, _not_null(name, f.default)]
+        else:  # null is the method's default at this door, whatever the method's own type says
+            annotation = annotation | None
         said = "default " + _methods.default_text(name)
         methods = "every method" if len(takers) == len(METHODS) else ", ".join(m.name for m in takers)
         fields[name] = (annotation, Field(default, description=f"{f.description} ({methods}; {said})",
