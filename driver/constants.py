@@ -1,9 +1,12 @@
 """fpscan's physical defaults and limits, each stated once (every layer imports them from here).
 
 Naming: in code the speed of sound is ``c`` (m/s); where a person reads it -- command-line
-flags, HTTP fields, plan and scan files -- it is ``sound_speed`` (``--sound-speed``,
-``acquisition.sound_speed``, the scan file's ``sound_speed_m_per_s``). k-Wave's own files
-name it ``c_m_per_s``; fpscan reads that name there and writes it nowhere else.
+flags, HTTP fields and every file fpscan writes (plan, scan file, dataset, result volume,
+unmixing result) -- it is ``sound_speed`` (``--sound-speed``, ``acquisition.sound_speed``,
+the scan file's ``sound_speed`` attribute; ``sound_speed_range``, ``sound_speed_values`` for
+the autofocus search). Readers still accept the names older files carry (``c``, the scan
+file's ``sound_speed_m_per_s``). k-Wave's own files name it ``c_m_per_s`` and IPASC files
+``speed_of_sound``; fpscan reads those names there (and writes IPASC's in its IPASC export).
 
 - :data:`C_DEFAULT`: the speed of sound when the input gives none, 1500 m/s (water near
   20 °C: 1482 m/s; soft tissue 1540 m/s; the value k-Wave's examples use).

@@ -15,7 +15,7 @@ path                   shape, dtype                meaning
 ``/weights``           (n_points,) float64         area weights (m², or m in 2-D)
 ``/plan_json``         scalar UTF-8 string         the plan JSON (docs/architecture.md)
 root attributes                                    ``plan_id``, ``n_points``, ``n_t``,
-                                                   ``dt_s``, ``sound_speed_m_per_s``,
+                                                   ``dt_s``, ``sound_speed`` (m/s),
                                                    ``wavelengths_m`` (n_w,),
                                                    ``n_wavelengths``, ``wavelength_order``,
                                                    ``acquisition_json``,
@@ -95,6 +95,11 @@ FORMAT_1 = "fpscan-scan/1"
 #: the ``format`` attribute's prefix of every scan-file version (detection:
 #: ``service.formats.scan.sniff``; a version this module does not read is refused by it)
 FORMAT_FAMILY = "fpscan-scan/"
+#: the speed of sound's root attribute (m/s): the name a person reads (as the plan's
+#: ``acquisition.sound_speed`` and ``service.names``); files of an older fpscan say
+#: ``sound_speed_m_per_s`` (:data:`_SPEED_BEFORE`), still read
+_SPEED = "sound_speed"
+_SPEED_BEFORE = "sound_speed_m_per_s"
 
 META_KEYS = ("run_id", "boot_id", "point_index", "pulse_number", "timestamp_s",
              "bias_wavelength_m", "dc_level", "pulse_energy_j", "dt_s", "scale", "offset",
@@ -419,7 +424,7 @@ class ScanFile:
                 a["n_points"] = n
                 a["n_t"] = n_t
                 a["dt_s"] = pa.dt
-                a["sound_speed_m_per_s"] = pa.sound_speed
+                a[_SPEED] = pa.sound_speed
                 a["wavelengths_m"] = pa.wavelengths
                 a["n_wavelengths"] = n_w
                 a["wavelength_order"] = pa.order
@@ -826,8 +831,9 @@ def read_open_scan(f: h5py.File, path: str | os.PathLike, *, dtype: Any = np.flo
                    wavelength_index: int = 0) -> ScanData:
     """:func:`read_scan` of a scan file already open (``open_readonly``), ``path`` its
     name (for messages and ``ScanData.path``): so a caller that opened the file once (the
-    registry of formats, ``service.formats``) reads it without opening it again. Raises
-    ValueError (not a scan file, wavelength index out of range)."""
+    registry of formats, ``service.formats``) reads it without opening it again. The speed
+    of sound is the attribute ``sound_speed``, or ``sound_speed_m_per_s`` in a file an older
+    fpscan wrote. Raises ValueError (not a scan file, wavelength index out of range)."""
     path = Path(path)
     dtype = np.dtype(dtype)
     if dtype.kind != "f":
@@ -861,7 +867,7 @@ def read_open_scan(f: h5py.File, path: str | os.PathLike, *, dtype: Any = np.flo
     data = ScanData(
         path=path, plan=plan, plan_id=str(attrs["plan_id"]), n_points=int(attrs["n_points"]),
         n_t=int(attrs["n_t"]), dt=float(attrs["dt_s"]),
-        sound_speed=float(attrs["sound_speed_m_per_s"]), wavelengths=wavelengths,
+        sound_speed=float(attrs[_SPEED] if _SPEED in attrs else attrs[_SPEED_BEFORE]), wavelengths=wavelengths,
         alines=alines[0], scale=scale[0], offset=offset[0], dc_level=dc[0],
         pressure=pressure[0], positions=positions, indices=indices, weights=weights,
         completed=done[0], meta={k: v[0] for k, v in meta_all.items()},

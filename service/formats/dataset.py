@@ -12,11 +12,15 @@ import h5py
 import numpy as np
 
 from service.formats._registry import Format, Source
+from service.names import PERSON_NAMES
 from service.recon.dataset import GridDataset, PointDataset, p0_unit
 
 __all__ = ["FORMAT", "DATASET_FORMAT", "sniff", "load", "write"]
 
 DATASET_FORMAT = "fpscan-dataset/1"
+#: the speed of sound's attribute (m/s), as a person reads it (:mod:`service.names`); files
+#: written before it say ``c``, still read
+_SPEED = PERSON_NAMES["c"]
 
 
 def sniff(source: Source) -> bool:
@@ -29,16 +33,16 @@ def write(path: str | os.PathLike, ds: GridDataset | PointDataset) -> None:
     """Write the canonical dataset file (format ``fpscan-dataset/1``), exactly (dtype kept).
 
     Layout ``grid``: ``/data`` ``(n_t, n_y, n_x)``/``(n_t, n_x)``; attributes ``dt`` (s),
-    ``dx``, ``dy`` (3-D; m), ``c`` (m/s), ``t0`` (s). Layout ``points``: ``/alines``
+    ``dx``, ``dy`` (3-D; m), ``sound_speed`` (m/s), ``t0`` (s). Layout ``points``: ``/alines``
     ``(n, n_t)``, ``/positions`` ``(n, d)`` m, ``/weights`` ``(n,)`` (if any), ``/grid_x``,
-    ``/grid_y`` (3-D) m; attributes ``dt``, ``c``, ``t0``; a lattice adds ``/lattice``
+    ``/grid_y`` (3-D) m; attributes ``dt``, ``sound_speed``, ``t0``; a lattice adds ``/lattice``
     ``(n, 2)`` indices (i_x, i_y) and attributes ``lattice_shape`` ``(n_y, n_x)``, ``pitch``.
     Both: attribute ``format``, ``layout``, ``source``; ``wavelengths_m`` when known, and
     ``wavelength_index`` (into the source file's wavelengths) when it was chosen from a
     multi-wavelength file; ``p0_unit`` (``"Pa"`` for calibrated pressure, else ``"a.u."``:
     :func:`service.recon.dataset.p0_unit`)."""
     with h5py.File(path, "w") as f:
-        f.attrs.update({"format": DATASET_FORMAT, "layout": ds.kind, "dt": float(ds.dt), "c": float(ds.c),
+        f.attrs.update({"format": DATASET_FORMAT, "layout": ds.kind, "dt": float(ds.dt), _SPEED: float(ds.c),
                         "t0": float(ds.t0), "source": ds.source})
         if ds.wavelengths is not None:
             f.attrs["wavelengths_m"] = np.asarray(ds.wavelengths, dtype=np.float64)
@@ -66,15 +70,16 @@ def write(path: str | os.PathLike, ds: GridDataset | PointDataset) -> None:
 
 def load(source: Source, **_: Any) -> GridDataset | PointDataset:
     """Read a canonical dataset file (:func:`write`; also the layout without the
-    ``format`` attribute that earlier versions wrote). Raises ValueError for a file that
-    is not one."""
+    ``format`` attribute, and the speed of sound as ``c`` rather than ``sound_speed``, that
+    earlier versions wrote). Raises ValueError for a file that is not one."""
     def text(v: Any) -> str:
         return v.decode() if isinstance(v, bytes) else str(v)
 
     f = source.h5
     try:
         layout = text(f.attrs["layout"])
-        dt, c, t0 = float(f.attrs["dt"]), float(f.attrs["c"]), float(f.attrs.get("t0", 0.0))
+        dt, t0 = float(f.attrs["dt"]), float(f.attrs.get("t0", 0.0))
+        c = float(f.attrs[_SPEED] if _SPEED in f.attrs else f.attrs["c"])  # "c": an older fpscan's name
         wl = f.attrs.get("wavelengths_m")
         wavelengths = tuple(float(w) for w in np.ravel(wl)) if wl is not None and np.size(wl) else None
         origin = text(f.attrs.get("source", "dataset"))

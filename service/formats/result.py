@@ -4,6 +4,11 @@
 Written by :func:`write_volume` (atomically), read by :func:`load` → :class:`ResultVolume`.
 An output, not data to reconstruct.
 
+The parameters in the file name the speed of sound as a person reads it (:mod:`service.names`:
+``sound_speed``, and the autofocus record's ``sound_speed_range``, ``sound_speed_values``),
+whatever the code called them (``c``, ``c_range``, ``c_values``); :func:`load` reads a file
+an older fpscan wrote with ``c`` under those names too.
+
 The result folder is this format's too: :data:`VOLUME_FILE` and one :func:`mip_file` per
 MIP plane, written as a whole by :func:`write_folder` (the MIP pictures drawn by the
 caller: ``service.storage.results.write_result`` renders them).
@@ -23,6 +28,7 @@ import numpy as np
 
 from driver.scanfile import PRESSURE_UNITS
 from service.formats._registry import Format, Source
+from service.names import person_names
 
 __all__ = ["FORMAT", "RESULT_FORMAT", "ORIENTATION", "P0_UNITS", "COMPRESS_BELOW", "ResultVolume", "sniff",
            "load", "read_result", "read_slice", "write_volume", "params_json", "storage_layout", "VOLUME_FILE",
@@ -120,7 +126,8 @@ def write_volume(path: str | os.PathLike, p0: np.ndarray, z: np.ndarray, x: np.n
     finite. It is stored as ``dtype`` (float32 or float64); by default float32, unless the
     reconstruction asked for float64 (``params["dtype"] == "float64"``): half of its
     float64 size; compressed where that pays (see :func:`storage_layout`). ``z``, ``y``, ``x``: strictly increasing coordinates in m. ``params``: every
-    parameter of the reconstruction, JSON-serialisable. ``p0_unit``: ``"Pa"`` or ``"a.u."``
+    parameter of the reconstruction, JSON-serialisable; stored with the person's names
+    (``c`` → ``sound_speed``, nested too: :func:`service.names.person_names`). ``p0_unit``: ``"Pa"`` or ``"a.u."``
     (:data:`P0_UNITS`). Raises ValueError naming the fault.
     """
     if p0_unit not in P0_UNITS:
@@ -150,8 +157,9 @@ def write_volume(path: str | os.PathLike, p0: np.ndarray, z: np.ndarray, x: np.n
         raise ValueError("input_id must be a string")
     if not isinstance(params, dict):
         raise ValueError(f"params must be a dict, got {type(params).__name__}")
-    all_json = params_json(params)
-    each = {str(k): params_json({"v": v})[5:-1] for k, v in params.items()}
+    stored = person_names(params)  # the file says sound_speed, not the code's c
+    all_json = params_json(stored)
+    each = {str(k): params_json({"v": v})[5:-1] for k, v in stored.items()}
     if software_version is None:
         from driver.acquire import software_version as installed_version
 
@@ -246,8 +254,9 @@ def write_folder(out_dir: str | os.PathLike, rec: Any, *, input_id: str, mips: d
 @dataclass
 class ResultVolume:
     """A result file's content. ``p0`` ``(n_z, n_y, n_x)``/``(n_z, n_x)``; ``z``, ``x``
-    (and ``y``, None in 2-D) coordinate vectors in m; ``method``; ``params`` dict;
-    ``input_id``; ``attrs`` (all root attributes)."""
+    (and ``y``, None in 2-D) coordinate vectors in m; ``method``; ``params`` dict (the
+    speed of sound as ``sound_speed``, also from a file an older fpscan wrote with ``c``);
+    ``input_id``; ``attrs`` (all root attributes, as stored)."""
 
     p0: np.ndarray
     z: np.ndarray
@@ -274,8 +283,9 @@ def sniff(source: Source) -> bool:
 
 
 def load(source: Source, **_: Any) -> ResultVolume:
-    """The result file's volume, coordinates and attributes. Raises ValueError (not a
-    result file)."""
+    """The result file's volume, coordinates and attributes; the parameters with the
+    person's names (``sound_speed``; a file an older fpscan wrote with ``c`` reads the
+    same). Raises ValueError (not a result file)."""
     f = source.h5
     attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
     if attrs.get("format") != RESULT_FORMAT:
@@ -284,7 +294,7 @@ def load(source: Source, **_: Any) -> ResultVolume:
     z, x = f["z"][()], f["x"][()]
     y = f["y"][()] if "y" in f else None
     return ResultVolume(p0=p0, z=z, x=x, y=y, method=str(attrs["method"]),
-                        params=json.loads(attrs["params"]), input_id=str(attrs["input_id"]),
+                        params=person_names(json.loads(attrs["params"])), input_id=str(attrs["input_id"]),
                         attrs=attrs)
 
 

@@ -1,7 +1,9 @@
 """Unmixing result file (``unmix.h5``, ``format`` ``fpscan-unmix/1``; written by
 :func:`write`, with its sO2 picture by :func:`service.spectral.write_unmix`): the maps ``hbo2``, ``hb``, ``thb``,
 ``so2`` and ``mask`` ``(n_z, n_y, n_x)``/``(n_z, n_x)``, the coordinates ``z``, ``y``,
-``x`` (m) and ``wavelengths_m`` → a dict. An output, not data to reconstruct.
+``x`` (m) and ``wavelengths_m`` → a dict. An output, not data to reconstruct. Its
+parameters name the speed of sound ``sound_speed`` (:mod:`service.names`), as the result
+volume's do; a file an older fpscan wrote with ``c`` reads the same.
 """
 from __future__ import annotations
 
@@ -11,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from service.formats._registry import Format, Source
+from service.names import person_names
 
 __all__ = ["FORMAT", "UNMIX_FORMAT", "sniff", "load", "write", "read_unmix"]
 
@@ -23,15 +26,16 @@ def sniff(source: Source) -> bool:
 
 
 def load(source: Source, **_: Any) -> dict:
-    """The arrays and attributes as a dict (``mask`` bool, ``params`` dict, ``y`` None in
-    2-D). Raises ValueError for another file."""
+    """The arrays and attributes as a dict (``mask`` bool, ``params`` dict with
+    ``sound_speed``, also where an older file says ``c``; ``y`` None in 2-D). Raises
+    ValueError for another file."""
     f = source.h5
     if source.attr("format") != UNMIX_FORMAT:
         raise ValueError(f"{source.path} is not an {UNMIX_FORMAT} file")
     out = {k: f[k][...] for k in ("hbo2", "hb", "thb", "so2", "mask", "z", "x", "wavelengths_m")}
     out["y"] = f["y"][...] if "y" in f else None
     out["mask"] = out["mask"].astype(bool)
-    out["params"] = json.loads(f.attrs["params"])
+    out["params"] = person_names(json.loads(f.attrs["params"]))
     out["input_id"] = str(f.attrs["input_id"])
     return out
 
@@ -41,7 +45,8 @@ def write(path: str | os.PathLike, u: Any, z: Any, x: Any, y: Any = None, *, inp
     """Write ``u`` (a ``service.recon.unmix.Unmixed``: maps ``(n_z, [n_y,] n_x)``, mask,
     wavelengths (m), params) with its coordinates ``z``, ``x``, ``y`` (m; None in 2-D) as
     ``path`` (via a temporary sibling, renamed). ``extra``: parameters recorded beside
-    ``u.params``. Raises ValueError (parameters JSON cannot hold) before anything is
+    ``u.params``; both stored with the person's names (``c`` → ``sound_speed``:
+    :func:`service.names.person_names`). Raises ValueError (parameters JSON cannot hold) before anything is
     written. Returns ``path``."""
     import h5py
     import numpy as np
@@ -50,7 +55,7 @@ def write(path: str | os.PathLike, u: Any, z: Any, x: Any, y: Any = None, *, inp
 
     path = Path(path)
     # the result files' one canonical parameter JSON (ValueError before anything is written)
-    params = params_json({**u.params, **(extra or {})})
+    params = params_json(person_names({**u.params, **(extra or {})}))
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
     with h5py.File(tmp, "w") as f:
         f.attrs["format"] = UNMIX_FORMAT

@@ -33,16 +33,18 @@ def test_recon_c_auto_records_the_search(npy, tmp_path, capsys):
     printed = capsys.readouterr()
     assert rc == 0, printed.err
     res = read_result(out / "volume.h5")
-    af = res.params["autofocus"]
-    assert res.params["c"] == af["c"] and af["c_range"] == [1450.0, 1600.0]
-    assert len(af["c_values"]) == len(af["sharpness"]) == af["evaluations"] >= 7
-    assert af["c_values"] == sorted(af["c_values"]) and af["c"] in af["c_values"]
-    assert af["sharpness"][af["c_values"].index(af["c"])] == max(af["sharpness"])
+    af = res.params["autofocus"]  # the file names the speed of sound as a person reads it
+    assert res.params["sound_speed"] == af["sound_speed"] and af["sound_speed_range"] == [1450.0, 1600.0]
+    values = af["sound_speed_values"]
+    assert len(values) == len(af["sharpness"]) == af["evaluations"] >= 7
+    assert values == sorted(values) and af["sound_speed"] in values
+    assert af["sharpness"][values.index(af["sound_speed"])] == max(af["sharpness"])
     assert af["time_s"] > 0 and af["decimation"] >= 1
-    assert abs(af["c"] - C_TRUE) / C_TRUE < 0.01, af  # plumbing; accuracy: test_autofocus.py
-    assert f"c {af['c']:.1f} m/s (autofocus" in printed.out
+    c = af["sound_speed"]
+    assert abs(c - C_TRUE) / C_TRUE < 0.01, af  # plumbing; accuracy: test_autofocus.py
+    assert f"c {c:.1f} m/s (autofocus" in printed.out
     # the final volume is on the chosen c's depth axis: z = c·t
-    assert res.z[1] - res.z[0] == pytest.approx(af["c"] * DT, rel=1e-6)
+    assert res.z[1] - res.z[0] == pytest.approx(c * DT, rel=1e-6)
 
 
 @pytest.mark.parametrize("extra, reason", [

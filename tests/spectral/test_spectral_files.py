@@ -56,7 +56,9 @@ def test_unmix_parameters_are_the_result_files_canonical_json(tmp_path):
     write_unmix(tmp_path, u, z, x, y, extra={"c": np.float64(1490.0), "n_z": np.int64(10),
                                              "c_range": np.array([1450.0, 1600.0])})
     params = read_unmix(tmp_path / "unmix.h5")["params"]
-    assert params["c"] == 1490.0 and params["n_z"] == 10 and params["c_range"] == [1450.0, 1600.0]
+    # stored as a person reads them: sound_speed, not the code's c
+    assert params["sound_speed"] == 1490.0 and params["n_z"] == 10
+    assert params["sound_speed_range"] == [1450.0, 1600.0] and "c" not in params and "c_range" not in params
     (tmp_path / "nan").mkdir()
     with pytest.raises(ValueError, match="JSON"):
         write_unmix(tmp_path / "nan", u, z, x, y, extra={"c": float("nan")})
