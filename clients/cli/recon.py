@@ -209,7 +209,7 @@ def _local(args, fmt: str) -> int:
     t3 = time.perf_counter()
     dims = "x".join(str(n) for n in rec.p0.shape)
     af = rec.params.get("autofocus")
-    focus = f"  c {af['c']:.1f} m/s (autofocus, search {af['time_s']:.2f} s)" if af else ""
+    focus = f"  sound speed {af['c']:.1f} m/s (autofocus, search {af['time_s']:.2f} s)" if af else ""
     print(f"{out}/volume.h5  p0 {dims}  method {method}{_nm(rec.params)}  load {t1 - t0:.2f} s  "
           f"reconstruct {t2 - t1:.2f} s  write {t3 - t2:.2f} s"
           + focus)

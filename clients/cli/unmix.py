@@ -128,7 +128,7 @@ def _local(args) -> int:
                                     **_params(args))
     c = summary.get("c")
     print(f"{out}/unmix.h5  so2.png  sO2 median {summary['so2_median']}  masked {summary['masked_fraction']:.1%}"
-          + (f"  c {c:.1f} m/s" if c is not None else "") + f"  {time.perf_counter() - t0:.2f} s")
+          + (f"  sound speed {c:.1f} m/s" if c is not None else "") + f"  {time.perf_counter() - t0:.2f} s")
     return 0
 
 
@@ -161,5 +161,5 @@ def _remote(args) -> int:
     c = result.get("sound_speed", result.get("c"))  # an older server says c
     print(f"{out}/unmix.h5  so2.png  sO2 median {summary.get('so2_median')}"
           + (f"  masked {masked:.1%}" if masked is not None else "")
-          + (f"  c {c:.1f} m/s" if c is not None else "") + f"  job {job_id}")
+          + (f"  sound speed {c:.1f} m/s" if c is not None else "") + f"  job {job_id}")
     return 0

@@ -42,7 +42,7 @@ def test_recon_c_auto_records_the_search(npy, tmp_path, capsys):
     assert af["time_s"] > 0 and af["decimation"] >= 1
     c = af["sound_speed"]
     assert abs(c - C_TRUE) / C_TRUE < 0.01, af  # plumbing; accuracy: test_autofocus.py
-    assert f"c {c:.1f} m/s (autofocus" in printed.out
+    assert f"sound speed {c:.1f} m/s (autofocus" in printed.out
     # the final volume is on the chosen c's depth axis: z = c·t
     assert res.z[1] - res.z[0] == pytest.approx(c * DT, rel=1e-6)
 
