@@ -452,7 +452,7 @@ def test_result_view_offers_the_model_based_method_and_its_parameters(browser, s
     assert job["params"]["method"] == "tv", job
     sent = job["params"]["params"]
     assert sent["lam"] == 0.002 and sent["iterations"] == 7 and sent["positivity"] is True, sent
-    assert sent["c"] == 2500 and sent["force"] is True, sent
+    assert sent["sound_speed"] == 2500 and sent["force"] is True, sent  # stored under the person's name
     browser.execute_script("document.getElementById('recon-c').value = '';"
                            "document.getElementById('recon-force').checked = false;")  # as later tests expect
     if el(browser, "result-cancel").is_displayed():  # a 7-iteration solve is not needed here
