@@ -354,8 +354,9 @@ def reconstruct_tv(
     report(0.1, "norm estimate")
     # the noise image B n̂ of one seeded white-noise record n̂ of unit σ: σ̂ times its RMS is the
     # image's noise level (the automatic λ)
-    noise_image = B(np.random.default_rng(0).standard_normal(g.shape))
-    image_noise = sigma * float(np.linalg.norm(noise_image)) / math.sqrt(noise_image.size)
+    noise_image = B(np.random.default_rng(0).standard_normal(g.shape)).ravel()
+    image_noise = sigma * math.sqrt(float(np.einsum("i,i->", noise_image, noise_image, dtype=np.float64))
+                                    / noise_image.size)  # accumulated in float64
     del noise_image
     auto = lam is None
     if auto:
