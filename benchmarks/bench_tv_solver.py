@@ -82,7 +82,7 @@ def run(kind: str, dims: int, snr_db: float, debias: bool) -> str:
     t_tv = time.perf_counter() - t
     p = tv.params
     row = (f"{dims}-D {kind:7s} {snr_db:4.0f} dB  NEDNER {t_ned:6.3f} s  tv {t_tv:6.2f} s  tv/NEDNER {t_tv / t_ned:6.0f}"
-           f"  iterations {p['iterations']:3d}  pairs {p['operator_pairs']:3d}  converged {p['converged']!s:5s}"
+           f"  iterations {p['iterations']:3d}  pairs {p['operator_pairs']:5.1f}  converged {p['converged']!s:5s}"
            f" ({p['stop_reason']})  residual {p['residual']:.3f} (noise {p['noise_share']:.3f})"
            f"  CC NEDNER {correlation_coefficient(ned, p0):.4f} tv {correlation_coefficient(tv.p0, p0):.4f}"
            f"  amplitude NEDNER {amp(ned):.3f} tv {amp(tv.p0):.3f}")

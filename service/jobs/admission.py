@@ -26,11 +26,12 @@ class AdmissionError(ValueError):
 
 
 #: Admission multiplies the model-based estimate (``tv``, ``service.recon.checks.tv_memory``,
-#: itself calibrated) by this margin: a 48² x 256, 100-sensor run peaked at 1/1.125 of it
-#: (tests/service/test_memory_admission.py, measured after a warm-up on a smaller input; 1.45
-#: before, when the factor also had to cover the planar methods). The planar methods' estimate counts their arrays phase by phase and
+#: itself calibrated) by this margin: a 48² x 256, 100-sensor run peaked at about 1/1.1 of it
+#: (tests/service/test_memory_admission.py, measured after a warm-up on a smaller input; 1.15
+#: before the solver's TV part worked in place (issue 19), 1.45 when the factor also had to
+#: cover the planar methods). The planar methods' estimate counts their arrays phase by phase and
 #: needs no factor (measured within 4-10 % at upsample 1-8, issue 22).
-CALIBRATION = 1.15
+CALIBRATION = 1.05
 #: Most depth rows the depth transform may work on (``dz`` far below ``c·dt`` multiplies
 #: them); beyond this a request is refused whatever the memory limit.
 MAX_DEPTH_ROWS = 1 << 20

@@ -650,16 +650,18 @@ OPERATOR_CHUNK = 1 << 23
 def tv_memory(image_shape, padded_shape, n_data: int, n_t: int, dtype=np.float64) -> int:
     """Estimated peak bytes of the model-based reconstruction (`service.recon.tv`).
 
-    The solver's image-sized vectors live while the operator works (the TV proximal map's
-    dual, d vectors, and d − 1 of the iterates) in ``dtype``, three data-sized vectors, and
-    the operator's working arrays in its working precision (complex64 for float32,
-    complex128 for float64; `service.recon.operator.PlanarOperator`): the image's and the
-    data's k-space, (n_z + n_t) per padded half-spectrum column, beside one chunk of columns
-    in the depth and temporal steps (about `OPERATOR_CHUNK` elements per row of the
-    temporal fine grid L, `driver.physics.nufft.grid_length`, the depth N_z and time n_t)
-    and one batch of full lateral spectra of the point NUFFTs; plus 25 % (allocator, FFT
-    buffers, the warm start's leftovers; tests/service/test_memory_admission.py measures it
-    within 25 %).
+    The solver's image-sized vectors live while the operator works (d + 5 in ``dtype``: the
+    TV proximal map's dual, d vectors, the iterates x and y, the last preconditioned
+    gradient, the new one or the new iterate, and the preconditioner P), the data-sized ones
+    (the data in float64, A x, A y and a residual in ``dtype``), and the operator's working
+    arrays in its working precision (complex64 for float32, complex128 for float64;
+    `service.recon.operator.PlanarOperator`): the image's and the data's k-space, (n_z + n_t)
+    per padded half-spectrum column, beside one chunk of columns in the depth and temporal
+    steps (about `OPERATOR_CHUNK` elements per row; the temporal fine grid L,
+    `driver.physics.nufft.grid_length`, beside the depth N_z or the time n_t, whichever is
+    longer: the steps hold two of them at a time) and one batch of full lateral spectra of
+    the point NUFFTs; plus 25 % (allocator, FFT buffers and plans;
+    tests/service/test_memory_admission.py measures it within 25 %).
 
     Parameters
     ----------
@@ -692,12 +694,12 @@ def tv_memory(image_shape, padded_shape, n_data: int, n_t: int, dtype=np.float64
     b = np.dtype(dtype).itemsize
     n_img = int(np.prod(image_shape))
     d = sum(1 for n in image_shape if n > 1)
-    solver = (2 * d - 1) * n_img * b + 3 * n_data * b
+    solver = (d + 5) * n_img * b + n_data * (8 + 3 * b)
     nz2, ny2, nx2 = padded_shape
     cols = ny2 * (nx2 // 2 + 1)
     fine = grid_length(n_t)
     chunk = min(cols, max(1, OPERATOR_CHUNK // max(nz2, fine)))
-    operator = 2 * b * (cols * (image_shape[0] + n_t) + chunk * (fine + nz2 + n_t)
+    operator = 2 * b * (cols * (image_shape[0] + n_t) + chunk * (fine + max(nz2, n_t))
                         + 2 * min(OPERATOR_BATCH, n_t) * ny2 * nx2)
     return int(1.25 * (solver + operator))
 

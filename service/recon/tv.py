@@ -19,10 +19,12 @@ by NER. NER is the adjoint with its k-space weight k_z / |k| (`service.recon.pla
 const · (k_z/ω) E against the adjoint's E): for a full planar aperture AᵀA has the symbol
 |k| / k_z, so P = k_z / |k| (`_ner_weight`, on the image's orthonormal DCT-II, symmetric
 and positive definite) inverts it. Each iteration takes one forward A and one adjoint Aᵀ
-(one operator pair) and steps along P Aᵀ (A y − g) with step 1 / L, L ≈ ‖P AᵀA‖ from
-two seeded power iterations, raised (×1.1) whenever the gain of P AᵀA along the last
-move of the iterates exceeds it (free: those products are computed anyway). The proximal
-map of λ TV + positivity is the dual fast gradient projection of Beck & Teboulle (2009),
+(one operator pair) and steps along P Aᵀ (A y − g) (one adjoint of the residual: no
+separate Aᵀg) with step 1 / L, L ≈ ‖P AᵀA‖ from two seeded power iterations (about 0.7 of
+‖P AᵀA‖ on the test cases: fewer steps, or one from the noise image P Aᵀ n̂, land lower,
+0.55-0.6, and the late-detected instability costs quality), raised (×1.1) whenever the
+gain of P AᵀA along the last move of the iterates exceeds it (free: those products are
+computed anyway). The proximal map of λ TV + positivity is the dual fast gradient projection of Beck & Teboulle (2009),
 warm-started from the previous iteration's dual (no operator). Momentum restarts when J
 rises or points uphill (O'Donoghue & Candès 2015). At λ = 0 without positivity the fixed
 point is the least-squares solution; with λ > 0 it is the fixed point of the P-preconditioned
@@ -37,8 +39,13 @@ the last three iterations below ``tol`` × its decrease since the warm start,
 (J_{k−3} − J_k) / 3 <= tol (J_0 − J_k) ("converged"); else ``max_iter`` ("iterations") or
 the time limit ("time limit"). ``params`` say which, with the last relative decrease
 (``objective_change``) and the operator pairs used (``operator_pairs``: (forward +
-adjoint applications) / 2, everything included: the power iterations, Aᵀg, the noise image
-of the automatic λ, A of the warm start, every iteration and ``debias``).
+adjoint applications) / 2, everything included: the power iterations, the noise image of
+the automatic λ, A of the warm start — 3 pairs before the first iteration —,
+every iteration and ``debias``).
+
+Memory: the TV part works in place (`_grad`, `_grad_t`, `_tv_prox` write into given
+arrays; `_tv_norm` by float64 slabs), so that while the operator works the solver holds
+d + 5 images (`service.recon.checks.tv_memory`).
 
 Automatic λ (``lam=None``, the default): λ = ‖P Aᵀ n̂‖_rms, the RMS over the image of the
 preconditioned adjoint of one seeded white-noise realisation n̂ of the estimated noise
@@ -320,7 +327,7 @@ def reconstruct_tv(
                          periodic=periodic, checkpoint=report.poll)
     checks.check_memory(checks.tv_memory(shape, op.padded_shape, g.size, n_t, rdtype), memory_limit)
     # B = P Aᵀ: the exact adjoint, NER's k-space weight P = k_z / |k| (symmetric, positive definite)
-    P = _ner_weight(shape, dx, dz_used)
+    P = _ner_weight(shape, dx, dz_used, rdtype)
 
     applied = [0, 0]  # forward, adjoint applications: params' operator_pairs is their mean
 
@@ -336,38 +343,45 @@ def reconstruct_tv(
     sigma = noise_sigma(g, 0 if pos is None else 1)
     noise_share = sigma * math.sqrt(g.size) / max(gw_norm, 1e-300)
     report(0.06, "norm estimate")  # the operator's set-up and the first adjoint: no longer the warm start
-    Bg = B(g)
 
-    # step: 1 / L with L ≈ ‖BA‖ (power iteration, seeded) and a margin
+    # step: 1 / L with L ≈ ‖BA‖ (power iteration from a seeded white image) and a margin
     norm = span(report, 0.05, 0.1, "norm estimate")
-    L = _MARGIN * _gain_estimate(lambda v: B(forward(v)), shape, rdtype, _POWER_STEPS,
-                             step=lambda k, n: norm(k / n))
+    start = np.random.default_rng(0).standard_normal(shape).astype(rdtype)
+    L = _MARGIN * _gain_estimate(lambda v: B(forward(v)), start, _POWER_STEPS, step=lambda k, n: norm(k / n))
+    del start
     if not L > 0:
         raise ValueError("no sensor sees the image within the record (‖A‖ = 0): nothing to reconstruct")
     report(0.1, "norm estimate")
-    image_noise = float(np.sqrt(np.mean(B(sigma * np.random.default_rng(0).standard_normal(g.shape)) ** 2)))
+    # the noise image B n̂ of one seeded white-noise record n̂ of unit σ: σ̂ times its RMS is the
+    # image's noise level (the automatic λ)
+    noise_image = B(np.random.default_rng(0).standard_normal(g.shape)).ravel()
+    image_noise = sigma * math.sqrt(float(np.einsum("i,i->", noise_image, noise_image, dtype=np.float64))
+                                    / noise_image.size)  # accumulated in float64
+    del noise_image
     auto = lam is None
     if auto:
         lam = _LAM_SCALE * image_noise
     x = np.ascontiguousarray(warm.p0, dtype=rdtype)
     if positivity:
         np.maximum(x, 0, out=x)
+    z_axis, x_axis, y_axis, warm_params = warm.z, warm.x, warm.y, warm.params
+    del warm  # its float64 image: the solver's x is a copy (float32) or that image itself
     def residual(Ax: np.ndarray) -> float:
         return float(np.linalg.norm(Ax - g))
 
-    x, it, stop_reason, change, Ax, L = _fista(forward, B, g, Bg, x, lam, L, positivity, max_iter, tol,
+    x, it, stop_reason, change, Ax, L = _fista(forward, B, g, x, lam, L, positivity, max_iter, tol,
                                                             started, time_limit, report, residual,
                                                             poll=report.poll)
     debiased = False
     if debias and stop_reason != "time limit" and np.any(x > 0):
         support = x > _SUPPORT_FRACTION * float(np.max(x))
-        x, _, _, _, Ax, L = _fista(forward, B, g, Bg, x, 0.0, L, True, _DEBIAS_ITER, 0.0, started,
+        x, _, _, _, Ax, L = _fista(forward, B, g, x, 0.0, L, True, _DEBIAS_ITER, 0.0, started,
                                          time_limit, None, residual, support=support, poll=report.poll)
         debiased = True
     p0 = x.astype(rdtype, copy=False)
     res = Ax - g
-    params = dict(warm.params)
-    params.update(method="tv", warm_start=warm.params["method"], lam=float(lam), lam_auto=bool(auto),
+    params = dict(warm_params)
+    params.update(method="tv", warm_start=warm_params["method"], lam=float(lam), lam_auto=bool(auto),
                   noise_sigma=sigma, image_noise=image_noise, noise_share=noise_share, iterations=it,
                   max_iter=max_iter, tol=tol, dtype=rdtype.name,
                   residual=float(np.linalg.norm(res) / max(gw_norm, 1e-300)),
@@ -378,75 +392,121 @@ def reconstruct_tv(
                   converged=stop_reason == "converged", stop_reason=stop_reason,
                   time_limit=time_limit, solve_s=time.monotonic() - started)
     report(1.0, f"done after {it} iterations" + (" (time limit reached)" if stop_reason == "time limit" else ""))
-    return Reconstruction(p0, warm.z, warm.x, warm.y, params)
+    return Reconstruction(p0, z_axis, x_axis, y_axis, params)
 
 
-def _ner_weight(shape, dx: float, dz: float) -> np.ndarray:
+def _ner_weight(shape, dx: float, dz: float, dtype=np.float64) -> np.ndarray:
     """NER's k-space weight k_z / |k| on the image's orthonormal DCT-II grid (mirror
     boundaries; k_i = π j / (n_i d_i), depth shifted by half a bin so that the weight is
     > 0 everywhere), in (0, 1]: the inverse of AᵀA's symbol |k| / k_z
-    for a full planar aperture, hence a symmetric positive semi-definite preconditioner."""
+    for a full planar aperture, hence a symmetric positive semi-definite preconditioner.
+    ``shape`` in ``dtype``, computed in float64 by depth rows (no float64 volume)."""
     ks = [np.pi * np.arange(n) / (n * d) for n, d in zip(shape, (dz,) + (dx,) * (len(shape) - 1))]
-    ks[0] = ks[0] + np.pi / (2 * shape[0] * dz)  # half a depth bin: k_z > 0, so P is positive definite
-    grids = np.meshgrid(*ks, indexing="ij", sparse=True)
-    return grids[0] / np.sqrt(sum(k * k for k in grids))
+    kz = ks[0] + np.pi / (2 * shape[0] * dz)  # half a depth bin: k_z > 0, so P is positive definite
+    lateral = sum(k * k for k in np.meshgrid(*ks[1:], indexing="ij", sparse=True))  # |k_lat|², shape[1:]
+    P = np.empty(shape, dtype=dtype)
+    for i, k in enumerate(kz):
+        P[i] = k / np.sqrt(k * k + lateral)
+    return P
 
 
 def _apply_weight(P: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """P x: the multiplier ``P`` on the orthonormal DCT-II of ``x`` (all axes)."""
-    return scipy.fft.idctn(P * scipy.fft.dctn(x, type=2, norm="ortho", workers=-1), type=2, norm="ortho",
-                           workers=-1).astype(x.dtype, copy=False)
+    """P x: the multiplier ``P`` on the orthonormal DCT-II of ``x`` (all axes), in place
+    (``x`` is overwritten and returned, in its dtype)."""
+    x = scipy.fft.dctn(x, type=2, norm="ortho", workers=-1, overwrite_x=True)
+    x *= P
+    return scipy.fft.idctn(x, type=2, norm="ortho", workers=-1, overwrite_x=True)
 
 
-def _gain_estimate(apply, shape, dtype, steps: int, step=None) -> float:
+def _gain_estimate(apply, start: np.ndarray, steps: int, step=None) -> float:
     """Largest gain ‖BA v‖ / ‖v‖ of ``apply`` (= B A, B the NER/NEDNER of a residual) by
-    ``steps`` power iterations from a seeded start vector (one input, one result)."""
-    v = np.random.default_rng(0).standard_normal(shape).astype(dtype)
-    v /= np.linalg.norm(v)
+    ``steps`` power iterations from ``start`` (an image; not modified)."""
+    v = start / np.linalg.norm(start)
     gain = 0.0
     for k in range(steps):
-        u = np.asarray(apply(v), dtype=dtype).reshape(shape)
+        u = np.asarray(apply(v), dtype=v.dtype).reshape(v.shape)
         gain = float(np.linalg.norm(u))
         if gain == 0.0:
             return 0.0
-        v = u / gain
+        v = np.divide(u, gain, out=u)
         if step is not None:
             step(k + 1, steps)
     return gain
 
 
-def _grad(x: np.ndarray) -> np.ndarray:
-    """Forward differences along every axis, 0 at the last index: (ndim, *x.shape)."""
-    out = np.zeros((x.ndim,) + x.shape, dtype=x.dtype)
+def _faces(ndim: int, a: int):
+    """Index tuples along axis ``a``: all but the last index, all but the first, the last."""
+    def along(s):
+        return tuple(s if b == a else slice(None) for b in range(ndim))
+    return along(slice(0, -1)), along(slice(1, None)), along(slice(-1, None))
+
+
+def _diff(x: np.ndarray, a: int, out: np.ndarray) -> np.ndarray:
+    """The forward difference of ``x`` along axis ``a`` into ``out`` (x's shape), 0 at the last index."""
+    head, tail, last = _faces(x.ndim, a)
+    np.subtract(x[tail], x[head], out=out[head])
+    out[last] = 0
+    return out
+
+
+def _grad(x: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """Forward differences along every axis, 0 at the last index: (ndim, *x.shape), into
+    ``out`` when given (no other array)."""
+    if out is None:
+        out = np.empty((x.ndim,) + x.shape, dtype=x.dtype)
     for a in range(x.ndim):
-        np.subtract(np.delete(x, 0, axis=a), np.delete(x, -1, axis=a),
-                    out=out[a][tuple(slice(0, -1) if b == a else slice(None) for b in range(x.ndim))])
+        _diff(x, a, out[a])
     return out
 
 
-def _grad_t(q: np.ndarray) -> np.ndarray:
-    """The transpose of `_grad` (minus the divergence)."""
+def _grad_t(q: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """The transpose of `_grad` (minus the divergence), into ``out`` (q's shape without its
+    first axis) when given (no other array)."""
     d = q.shape[0]
-    out = np.zeros(q.shape[1:], dtype=q.dtype)
+    if out is None:
+        out = np.empty(q.shape[1:], dtype=q.dtype)
     for a in range(d):
-        head = tuple(slice(0, -1) if b == a else slice(None) for b in range(d))
-        tail = tuple(slice(1, None) if b == a else slice(None) for b in range(d))
-        out[head] -= q[a][head]
-        out[tail] += q[a][head]
+        head, tail, last = _faces(d, a)
+        if a == 0:  # out = 0 - q₀ on the head, 0 on the last row
+            np.negative(q[0][head], out=out[head])
+            out[last] = 0
+        else:
+            np.subtract(out[head], q[a][head], out=out[head])
+        np.add(out[tail], q[a][head], out=out[tail])
     return out
+
+
+_SLAB = 1 << 18  # elements per slab of `_tv_norm`'s float64 work
 
 
 def _tv_norm(x: np.ndarray) -> float:
-    """TV(x) = Σ_voxels |∇x|₂ (forward differences, voxel units)."""
-    return float(np.sum(np.sqrt(np.sum(_grad(x).astype(np.float64) ** 2, axis=0))))
+    """TV(x) = Σ_voxels |∇x|₂ (forward differences, voxel units), in float64, by slabs of
+    rows along axis 0 (a few MB of work, whatever the volume)."""
+    n = x.shape[0]
+    rows = max(1, _SLAB // max(1, x[0].size))
+    total = 0.0
+    for i in range(0, n, rows):
+        j = min(n, i + rows)
+        s = x[i:min(n, j + 1)]  # one more row: the depth difference of row j - 1
+        g2 = np.zeros((j - i,) + x.shape[1:])
+        d = (s[1:] - s[:-1]).astype(np.float64)  # differences in x's dtype, as `_grad`
+        np.multiply(d, d, out=g2[:len(d)])
+        s = s[:j - i]
+        for a in range(1, x.ndim):
+            head, tail, _ = _faces(x.ndim, a)
+            d = (s[tail] - s[head]).astype(np.float64)
+            g2[head] += d * d
+        total += float(np.sum(np.sqrt(g2, out=g2)))
+    return total
 
 
 def _tv_prox(v: np.ndarray, gamma: float, positivity: bool, support, dual, poll=None):
     """argmin_x ½‖x − v‖² + γ TV(x) over x >= 0 (positivity) and x = 0 off ``support``
     (None: everywhere allowed): the fast gradient projection of Beck & Teboulle (2009) on
-    the dual, `_PROX_ITER` steps from ``dual`` (the previous call's, a warm start; None:
-    0). No operator. ``poll()``, if given, is called every few inner steps (a cancel).
-    Returns (x, dual)."""
+    the dual, `_PROX_ITER` steps from ``dual`` (the previous call's, a warm start, updated in
+    place; None: 0). No operator. ``poll()``, if given, is called every few inner steps (a
+    cancel). Returns (x, dual); x is ``v``, overwritten. Work: the dual's extrapolation (d
+    images) and two images, made once per call."""
     def project(x):
         if positivity:
             np.maximum(x, 0, out=x)
@@ -455,41 +515,67 @@ def _tv_prox(v: np.ndarray, gamma: float, positivity: bool, support, dual, poll=
         return x
 
     if gamma <= 0:
-        return project(v.copy()), dual
+        return project(v), dual
+    gamma = float(gamma)
     p = np.zeros((v.ndim,) + v.shape, dtype=v.dtype) if dual is None else dual
     q, t = p.copy(), 1.0
+    w, tmp = np.empty_like(v), np.empty_like(v)
     step = 1.0 / (4.0 * v.ndim * gamma)  # 1 / (γ ‖∇‖²), ‖∇‖² <= 4 d
     for i in range(_PROX_ITER):
         if poll is not None and i % 5 == 4:
             poll()
-        pn = q + step * _grad(project(v - gamma * _grad_t(q)))
-        pn /= np.maximum(1.0, np.sqrt(np.sum(pn * pn, axis=0)))
+        # q ← pn = q + step ∇ P(v − γ ∇ᵀq)
+        _grad_t(q, out=w)
+        np.multiply(w, gamma, out=w)
+        project(np.subtract(v, w, out=w))
+        for a in range(v.ndim):
+            np.add(q[a], np.multiply(_diff(w, a, tmp), step, out=tmp), out=q[a])
+        # pn /= max(1, |pn|)
+        np.multiply(q[0], q[0], out=w)
+        for a in range(1, v.ndim):
+            np.add(w, np.multiply(q[a], q[a], out=tmp), out=w)
+        np.maximum(np.sqrt(w, out=w), 1.0, out=w)
+        for a in range(v.ndim):
+            np.divide(q[a], w, out=q[a])
+        # the extrapolation pn + β (pn − p) into p's array; then p ← pn, q ← the extrapolation
         tn = 0.5 * (1.0 + math.sqrt(1.0 + 4.0 * t * t))
-        q = pn + ((t - 1.0) / tn) * (pn - p)
-        p, t = pn, tn
-    return project(v - gamma * _grad_t(p)), p
+        beta = (t - 1.0) / tn
+        for a in range(v.ndim):
+            np.add(q[a], np.multiply(np.subtract(q[a], p[a], out=p[a]), beta, out=p[a]), out=p[a])
+        p, q, t = q, p, tn
+    del q, tmp
+    _grad_t(p, out=w)
+    np.multiply(w, gamma, out=w)
+    return project(np.subtract(v, w, out=v)), p
 
 
-def _fista(forward, B, g, Bg, x, lam, L, positivity, max_iter, tol, started, time_limit, report, residual,
+def _fista(forward, G, g, x, lam, L, positivity, max_iter, tol, started, time_limit, report, residual,
            support=None, poll=None):
     """Accelerated proximal gradient (FISTA, Beck & Teboulle 2009) on J(p) = ½‖A p − g‖² +
     λ TV(p) (p >= 0 with ``positivity``; p = 0 off ``support`` when given), preconditioned:
-    the step is B(A y − g) / L with B = P Aᵀ (module doc); the proximal map `_tv_prox`.
+    the step is G(A y − g) / L with G = B = P Aᵀ of a residual (module doc); the proximal
+    map `_tv_prox`.
 
-    One forward A (of the new iterate; A y follows by linearity) and one B per iteration.
+    One forward A (of the new iterate; A y follows by linearity) and one G per iteration.
     ``residual(Ax)`` = ‖A x − g‖, so J(x_k) is exact and free; ``poll`` as `_tv_prox`. Momentum restarts (O'Donoghue
     & Candès 2015) when J rises or the momentum points uphill. Stopping rule: the mean
     decrease of J over the last `_WINDOW` iterations below ``tol`` × its decrease since the
     start ("converged"); else ``max_iter`` iterations ("iterations") or the time limit
     ("time limit"). L rises to `_MARGIN` × the gain of BA along the last move of y (free: a
     lower bound of ‖BA‖) when that exceeds it. Returns (x, iterations, stop reason, the
-    rule's last value, A x, L). ``forward(v)`` = A v in the data's shape."""
+    rule's last value, A x, L). ``forward(v)`` = A v in the data's shape; ``x`` may be
+    overwritten.
+
+    Memory: while the operator works, 4 images (x, y, the last G(A y − g) and the new one
+    or the new iterate) beside the proximal map's dual (d images); the proximal map's own
+    work (d + 2 images) lives only while it runs."""
     if support is not None:
         x = np.where(support, x, 0).astype(x.dtype)
     iterations = span(report, 0.1, 1.0)
     Ax = forward(x)
     y, Ay, t = x, Ax, 1.0
-    y_prev = BAy_prev = None
+    G_prev, dy = None, 0.0  # G(A y − g) of the last y, ‖y − last y‖
+
     def objective(Ax_, x_):
         return 0.5 * residual(Ax_) ** 2 + (lam * _tv_norm(x_) if lam > 0 else 0.0)
 
@@ -497,24 +583,29 @@ def _fista(forward, B, g, Bg, x, lam, L, positivity, max_iter, tol, started, tim
     dual = None
     change, it, stop_reason = float("nan"), 0, "iterations"
     for it in range(1, max_iter + 1):
-        BAy = B(Ay)
-        if y_prev is not None:  # the gain of BA along the last move of y: a free lower bound of ‖BA‖
-            dy = float(np.linalg.norm(y - y_prev))
-            if dy > 0:
-                gain = float(np.linalg.norm(BAy - BAy_prev)) / dy
+        Gy = G(np.subtract(Ay, g, dtype=Ay.dtype))  # the residual in the working dtype (B's input)
+        v = np.empty_like(x)
+        if G_prev is not None:
+            if dy > 0:  # the gain of BA along the last move of y: a free lower bound of ‖BA‖
+                gain = float(np.linalg.norm(np.subtract(Gy, G_prev, out=v))) / dy
                 if _MARGIN * gain > L:  # the step was too long for what the iterates excite
                     L, t = _MARGIN * gain, 1.0
-        y_prev, BAy_prev = y, BAy
-        xn, dual = _tv_prox(y - (BAy - Bg) / L, lam / L, positivity, support, dual, poll)
+        G_prev = Gy
+        np.subtract(y, np.divide(Gy, L, out=v), out=v)  # the gradient step y − G(A y − g) / L
+        xn, dual = _tv_prox(v, lam / L, positivity, support, dual, poll)  # xn is v
+        del v
         Axn = forward(xn)
         J = objective(Axn, xn)
         tn = 0.5 * (1.0 + math.sqrt(1.0 + 4.0 * t * t))
-        if J > J_hist[-1] or float(np.vdot(y - xn, xn - x)) > 0:  # restart the momentum
+        if J > J_hist[-1] or _dot_of_differences(y, xn, xn, x) > 0:  # restart the momentum
             tn = 1.0
         beta = (t - 1.0) / tn if tn > 1.0 else 0.0
-        x_prev, x, Ax_prev, Ax = x, xn, Ax, Axn
-        y, Ay = x + beta * (x - x_prev), Ax + beta * (Ax - Ax_prev)
-        t = tn
+        # y_new = x_new + β (x_new − x) into a new array; ‖y_new − y‖ in the old y's (x, y are done)
+        yn = np.subtract(xn, x, out=np.empty_like(x))
+        np.add(xn, np.multiply(yn, beta, out=yn), out=yn)
+        dy = float(np.linalg.norm(np.subtract(yn, y, out=y)))
+        Ay = Axn + beta * (Axn - Ax)
+        x, Ax, y, t = xn, Axn, yn, tn
         J_hist.append(J)
         if len(J_hist) > _WINDOW:
             change = (J_hist[-1 - _WINDOW] - J) / (_WINDOW * max(J_hist[0] - J, 1e-300))
@@ -528,6 +619,13 @@ def _fista(forward, B, g, Bg, x, lam, L, positivity, max_iter, tol, started, tim
             stop_reason = "time limit"
             break
     return x, it, stop_reason, float(change), Ax, L
+
+
+def _dot_of_differences(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray) -> float:
+    """⟨a − b, c − d⟩ (arrays of one shape), by slabs along axis 0 (no full-size temporary)."""
+    rows = max(1, _SLAB // max(1, a[0].size))
+    return sum(float(np.vdot(a[i:i + rows] - b[i:i + rows], c[i:i + rows] - d[i:i + rows]))
+               for i in range(0, len(a), rows))
 
 
 class _Reporter:
