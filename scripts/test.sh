@@ -27,7 +27,10 @@ workers="${FPSCAN_TEST_WORKERS:-2}"
 threads="${NUMBA_NUM_THREADS:-}"
 case "$workers" in
   ''|0|*[!0-9]*) ;;  # in this process, or a count pytest-xdist works out itself: numba's default
-  *) if [ -z "$threads" ]; then threads=$(( $(nproc) / workers )); [ "$threads" -ge 1 ] || threads=1; fi ;;
+  *) if [ -z "$threads" ]; then
+       threads=$(( $(.venv/bin/python -c "import os; print(os.cpu_count() or 1)") / workers ))
+       [ "$threads" -ge 1 ] || threads=1
+     fi ;;
 esac
 set +e
 if [ -n "$threads" ]; then
