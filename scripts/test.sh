@@ -21,8 +21,9 @@ bash scripts/lint.sh
 unset PYTHONDONTWRITEBYTECODE
 # One numba thread per test worker when the workers fill the cores: numba's OpenMP threads
 # spin-wait, and 2 workers x 2 threads on 2 cores spent their time waiting for each other
-# (the two tv test files on 2 workers: 342 s wall, 234 s CPU with 2 threads each; 234 s, 134 s
-# with 1). The serial part keeps numba's default (every core).
+# (the two tv test files on 2 workers, machine loaded: 342 s wall, 234 s CPU with 2 threads
+# each, 234 s and 134 s with 1; run in the other order, 196 s / 244 s against 143 s / 140 s).
+# The serial part keeps numba's default (every core).
 workers="${FPSCAN_TEST_WORKERS:-2}"
 threads="${NUMBA_NUM_THREADS:-}"
 case "$workers" in
