@@ -49,7 +49,13 @@ def _check_health_latency(latencies: list[float]) -> None:
         assert h99 <= HEALTH_P99_FULL_S, f"/api/health p99 {1e3 * h99:.0f} ms under {CLIENTS} clients"
 
 
-@pytest.mark.serial
+def _serial_if_full(test):
+    """Alone (``serial``) only where the soak holds a time bound: the full soak's health p99.
+    The default soak asserts answers and status codes, no time, and runs in the parallel part."""
+    return pytest.mark.serial(test) if FULL else test
+
+
+@_serial_if_full
 @needs_recon
 @pytest.mark.slow
 @pytest.mark.timeout(600)
