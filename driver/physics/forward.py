@@ -23,15 +23,13 @@ recorded time window: the result is then the free-space data of the band-limited
 """
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import scipy.fft
 
 from driver.constants import C_DEFAULT
 from driver.physics import nufft
 from driver.physics.axes import centred_index
-from driver.physics.fast_lengths import fast_dct1_rows, fast_length
+from driver.physics.grid_sizes import pad_sizes
 from driver.physics.nufft_plans import lateral_plan
 
 __all__ = ["forward_grid", "forward_points"]
@@ -54,52 +52,6 @@ def _check_common(p0, dx, dz, dt, n_t, c, t0, eps):
         raise ValueError(f"t0 must be finite and >= 0 s, got {t0}")
     nufft.kernel_params(eps)  # validates eps
     return p0.astype(np.float64, copy=False)
-
-
-def _pad_sizes(shape, dx, dz, dt, n_t, c, t0, extra_lateral=0.0):
-    """Zero-padded working grid (N_z, N_y, N_x) >= shape of the free-space model: no periodic
-    image reaches a sensor within the record. Every length is rounded up to a fast one
-    (`driver.physics.fast_lengths`; more padding only moves the periodic images further
-    away): the depth DCT-I's 2 (N_z - 1), y's complex and x's real FFT; N_y - n_y and
-    N_x - n_x stay even so that the image sits centred; N_y = N_x (both real fast
-    lengths) where that pads at most 15 % more.
-
-    The rule is the tight one for an image whose rows start at the sensor plane. Lateral:
-    the nearest periodic image of a source lies N dx - (n - 1) dx beyond the farthest
-    sensor of the aperture (plus ``extra_lateral`` for sensors outside it), and a source
-    in row 0 is heard at lateral offset r at time r / c, so that gap must exceed the
-    record's reach c (t0 + (n_t - 1) dt); a deeper source (depth z) is heard later,
-    sqrt(z² + r²) / c, so row 0 sets the bound. Depth: the DCT-I's period 2 (N_z - 1) dz
-    puts the nearest non-physical image of a source at depth z at 2 (N_z - 1) dz - z,
-    hence 2 (N_z - 1) dz >= reach + (n_z - 1) dz. The reach adds half a sample and two
-    pitches laterally (max(dx, dz)) and one in depth (dz): the band-limited interpolant of a voxel
-    is not compactly supported."""
-    n_z, n_y, n_x = shape
-    record = c * (t0 + (n_t - 0.5) * dt)
-    reach = record + 2 * max(dx, dz)
-    depth = (n_z - 1) * dz
-    # 2 (N_z - 1) dz >= the record's reach + one depth pitch + the image's depth
-    k_min = int(math.ceil((record + dz + depth) / (2 * dz))) + 1
-    n_z2 = fast_dct1_rows(max(n_z, k_min))
-
-    def lateral(n, is_singleton, real, at_least=1):
-        if is_singleton:
-            return n
-        need = (n - 1) * dx + extra_lateral + reach
-        n2 = fast_length(max(n, at_least, int(math.ceil(need / dx)) + 1), real=real)
-        while (n2 - n) % 2:
-            n2 = fast_length(n2 + 1, real=real)
-        return n2
-
-    n_y2, n_x2 = lateral(n_y, n_y == 1, False), lateral(n_x, False, True)
-    if n_y > 1 and (n_y - n_x) % 2 == 0:
-        # one length for both axes when it pads little more (<= 15 %): k_x and k_y then take
-        # the same values, so columns of equal |k_lat| group four- to eightfold and the
-        # temporal step computes its taps once per group (as `service.recon.planar`)
-        common = lateral(n_x, False, True, at_least=max(n_y2, n_x2))
-        if common <= 1.15 * max(n_y2, n_x2):
-            n_y2 = n_x2 = common
-    return n_z2, n_y2, n_x2
 
 
 def _kspace_data(p0, dx, dz, dt, n_t, c, t0, eps, full):
@@ -184,7 +136,7 @@ def forward_grid(
     p0 = _check_common(p0, dx, dz, dt, n_t, c, t0, eps)
     vol, is2d = _as3d(p0)
     if not periodic:
-        nz2, ny2, nx2 = _pad_sizes(vol.shape, dx, dz, dt, n_t, c, t0)
+        nz2, ny2, nx2 = pad_sizes(vol.shape, dx, dz, dt, n_t, c, t0)
         vol = _embed(vol, (nz2, ny2, nx2))
     G = _kspace_data(vol, dx, dz, dt, int(n_t), c, t0, eps, full=False)
     data = scipy.fft.irfft2(G, s=vol.shape[1:], axes=(1, 2), workers=-1)
@@ -264,7 +216,7 @@ def forward_points(
         # forward_grid for sensors within it, so both see the same band-limited p0)
         half = 0.5 * (max(vol.shape[1], vol.shape[2]) - 1) * dx
         extra = 2.0 * max(0.0, float(np.max(np.abs(pos))) - half)
-        nz2, ny2, nx2 = _pad_sizes(vol.shape, dx, dz, dt, n_t, c, t0, extra_lateral=extra)
+        nz2, ny2, nx2 = pad_sizes(vol.shape, dx, dz, dt, n_t, c, t0, extra_lateral=extra)
         vol = _embed(vol, (nz2, ny2, nx2))
     n_z, n_y, n_x = vol.shape
     G = _kspace_data(vol, dx, dz, dt, int(n_t), c, t0, eps, full=True)  # (n_t, n_y, n_x)

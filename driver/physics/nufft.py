@@ -39,14 +39,13 @@ import numba
 import numpy as np
 import scipy.fft
 
-from driver.physics.fast_lengths import fast_length
+from driver.physics.grid_sizes import KINDS, grid_length, kernel_params
 
 __all__ = [
     "KINDS", "TemporalGrid", "kernel_params", "es_kernel", "kernel_polynomials", "grid_length", "make_grid",
     "transpose", "to_fine_grid", "from_fine_grid", "group_columns", "evaluate", "spread",
 ]
 
-KINDS = ("nufft", "linear", "nearest")
 _KIND_CODE = {"nufft": 0, "linear": 1, "nearest": 2}
 
 
@@ -90,45 +89,6 @@ class TemporalGrid:
     beta: float
     phihat: np.ndarray
     horner: np.ndarray
-
-
-def kernel_params(eps: float) -> tuple[int, float]:
-    """Width w (taps) and shape beta of the ES kernel for tolerance ``eps`` at
-    oversampling 2 (FINUFFT's rule).
-
-    Parameters
-    ----------
-    eps : float in [1e-14, 1e-1], the relative tolerance of the transform.
-
-    Returns
-    -------
-    w : int, taps (2..16).
-    beta : float, the kernel's shape parameter.
-
-    Raises
-    ------
-    ValueError
-        ``eps`` outside [1e-14, 1e-1].
-
-    References
-    ----------
-    .. [1] A. H. Barnett, J. Magland, L. af Klinteberg, "A parallel nonuniform fast Fourier
-       transform library based on an 'exponential of semicircle' kernel", SIAM J. Sci.
-       Comput. 41 (2019), §4.
-
-    Examples
-    --------
-    >>> from driver.physics.nufft import kernel_params
-    >>> w, beta = kernel_params(1e-6)
-    >>> w, round(beta, 2)
-    (7, 16.1)
-    """
-    if not (1e-14 <= eps <= 1e-1):
-        raise ValueError(f"eps must be in [1e-14, 1e-1], got {eps}")
-    w = int(math.ceil(-math.log10(eps / 10.0)))
-    w = max(2, min(w, 16))
-    beta_over_w = {2: 2.20, 3: 2.26, 4: 2.38}.get(w, 2.30)
-    return w, beta_over_w * w
 
 
 def es_kernel(u: np.ndarray, beta: float) -> np.ndarray:
@@ -223,45 +183,6 @@ def _kernel_fourier(w: int, beta: float, k: np.ndarray) -> np.ndarray:
     u = nodes * (w / 2.0)
     phi = es_kernel(2.0 * u / w, beta)
     return (np.cos(np.outer(k, u)) @ (phi * weights)) * (w / 2.0)
-
-
-def grid_length(n_t: int, kind: str = "nufft", eps: float = 1e-6) -> int:
-    """L, the fine-grid FFT length `make_grid` plans for series of ``n_t`` samples: the
-    oversampled grid L >= 2 M (nufft, even) or the DFT grid of the mirrored series
-    L >= 2 n_t - 1 (linear, nearest), rounded up to a fast length
-    (`driver.physics.fast_lengths`; S is sampled exactly on any grid of L >= n_t points,
-    a finer one only interpolates better).
-
-    Parameters
-    ----------
-    n_t : int >= 1, samples per series.
-    kind : one of ``KINDS``.
-    eps : float, tolerance of the nufft kind (:func:`kernel_params`).
-
-    Returns
-    -------
-    int, samples.
-
-    Raises
-    ------
-    ValueError
-        A bad kind, n_t or eps.
-
-    Examples
-    --------
-    >>> from driver.physics.nufft import grid_length
-    >>> grid_length(100), grid_length(100, "linear")  # 2 M = 200; 2 n_t - 1 = 199 -> fast 200
-    (200, 200)
-    """
-    if kind not in KINDS:
-        raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
-    n_t = int(n_t)
-    if n_t < 1:
-        raise ValueError("n_t must be >= 1")
-    if kind == "nufft":
-        w, _ = kernel_params(eps)
-        return fast_length(max(2 * (n_t + (n_t % 2)), 2 * w + 2), even=True)
-    return fast_length(2 * n_t - 1) if n_t > 1 else 2
 
 
 @functools.lru_cache(maxsize=32)

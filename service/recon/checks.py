@@ -567,9 +567,9 @@ def estimate_peak_memory(
     cols = n_y * (n_x // 2 + 1)
     spectrum = n_t * cols * cb
     if method in ("ner", "nedner"):
-        from driver.physics.nufft import make_grid
+        from driver.physics.grid_sizes import grid_length
 
-        fine = cols * make_grid(n_t, "nufft", 1e-6).L * cb
+        fine = cols * grid_length(n_t, "nufft", 1e-6) * cb  # make_grid's L, without loading the kernels
     else:
         fine = cols * (2 * n_t - 1) * cb
     kimage = n_z * cols * cb
@@ -600,9 +600,9 @@ def estimate_peak_memory(
     if method == "tv":  # model-based: its own count (the warm start needs less)
         n_data = n_t * (n_points or n_x * n_y)
         if dx and dt and c:  # the operator's own padding rule
-            from driver.physics.forward import _pad_sizes
+            from driver.physics.grid_sizes import pad_sizes
 
-            pad = _pad_sizes((n_z, n_y, n_x), dx, dz or c * dt, dt, n_t, c, 0.0)
+            pad = pad_sizes((n_z, n_y, n_x), dx, dz or c * dt, dt, n_t, c, 0.0)
         else:  # the worst usual case dx = c dt (lateral reach of the record = n_t pitches)
             pad = (max(n_z, n_t), n_y + n_t if n_y > 1 else 1, n_x + n_t)
         return max(int(peak * 1.1), tv_memory((n_z, n_y, n_x), pad, n_data, n_t, dtype))
@@ -658,7 +658,7 @@ def tv_memory(image_shape, padded_shape, n_data: int, n_t: int, dtype=np.float64
     `service.recon.operator.PlanarOperator`): the image's and the data's k-space, (n_z + n_t)
     per padded half-spectrum column, beside one chunk of columns in the depth and temporal
     steps (about `OPERATOR_CHUNK` elements per row; the temporal fine grid L,
-    `driver.physics.nufft.grid_length`, beside the depth N_z or the time n_t, whichever is
+    `driver.physics.grid_sizes.grid_length`, beside the depth N_z or the time n_t, whichever is
     longer: the steps hold two of them at a time) and one batch of full lateral spectra of
     the point NUFFTs; plus 25 % (allocator, FFT buffers and plans;
     tests/service/test_memory_admission.py measures it within 25 %).
@@ -689,7 +689,7 @@ def tv_memory(image_shape, padded_shape, n_data: int, n_t: int, dtype=np.float64
     >>> tv_memory((32, 64, 64), (128, 128, 128), 256 * 4096, 256, "float32") < small
     True
     """
-    from driver.physics.nufft import grid_length
+    from driver.physics.grid_sizes import grid_length
 
     b = np.dtype(dtype).itemsize
     n_img = int(np.prod(image_shape))

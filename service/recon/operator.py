@@ -26,7 +26,7 @@ NUFFT Σ_n a_n 2 cos(c |k| t_n) times dz Δk / 4π; the DCT-I in depth with both
 halved; the inverse lateral DFT; crop to the image. ⟨A x, y⟩ = ⟨x, Aᴴ y⟩ holds to the
 NUFFT tolerance (dot test ~1e-12 at eps = 1e-12 in float64, ~1e-6 in float32).
 
-Padding (`driver.physics.forward._pad_sizes`)
+Padding (`driver.physics.grid_sizes.pad_sizes`)
 ---------------------------------------------
 The trigonometric model is periodic: laterally with period N dx, in depth (DCT-I) with
 period 2 (N_z - 1) dz about the sensor plane. The data are exact free-space data of the
@@ -86,7 +86,7 @@ import scipy.fft
 from driver.constants import C_DEFAULT
 from driver.physics import nufft
 from driver.physics.axes import centred_index
-from driver.physics.forward import _pad_sizes
+from driver.physics.grid_sizes import pad_sizes
 from driver.physics.nufft_plans import lateral_plan
 from service.recon import checks
 
@@ -236,7 +236,7 @@ class PlanarOperator(pylops.LinearOperator):
             half = 0.5 * (max(vol[1], vol[2]) - 1) * self.dx
             extra = 2.0 * max(0.0, float(np.max(np.abs(pos))) - half)
         self._vol = vol
-        self.padded_shape = vol if self.periodic else _pad_sizes(vol, self.dx, self.dz, self.dt, self.n_t,
+        self.padded_shape = vol if self.periodic else pad_sizes(vol, self.dx, self.dz, self.dt, self.n_t,
                                                                    self.c, self.t0, extra_lateral=extra)
         self._ctype = np.dtype(np.complex64 if rdtype == np.float32 else np.complex128)
         super().__init__(dtype=rdtype, dims=shape, dimsd=oshape, explicit=False, name="PlanarOperator")
