@@ -244,7 +244,10 @@ def _measure(args: argparse.Namespace, tmp: Path, paths: list[Path], lib: Librar
             for n, p in zip(args.sizes, paths):
                 ids[n] = _upload(c, p)
                 if n == args.sizes[0]:  # the first job, right after start-up (worker still warming)
-                    extra["first_job_s"], _ = job(c, ids[n], args.methods[0])
+                    extra["first_job_s"], first = job(c, ids[n], args.methods[0])
+                    extra["first_job_timings"] = {**first["params"]["result"]["timings"],
+                                                  "queued_s": first["timings"]["queued_s"],
+                                                  "run_s": first["timings"]["run_s"]}
                     extra["first_job_load"] = os.getloadavg()[0]
             for second in (False, True) if args.second_job else (False,):
                 background = _SecondJob(srv.url, ids[args.sizes[-1]], args.methods[0]) if second else None
@@ -332,7 +335,8 @@ def _print_table(args: argparse.Namespace, rows: dict, extra: dict, load_start, 
           f"{extra['import_numpy_s']:.2f} s, `pass` {extra['python_pass_s']:.2f} s)")
     print(f"first job after start-up ({m0}, {args.n_t}×{n0}²): "
           f"{extra['first_job_s']:.2f} s = {extra['first_job_over_lib']:.2f}× lib (target <= 2; load "
-          f"{extra['first_job_load']:.2f})")
+          f"{extra['first_job_load']:.2f}); its parts: "
+          + ", ".join(f"{k} {v:.2f}" for k, v in extra["first_job_timings"].items()))
     if args.json:
         print(json.dumps({"rows": [{"method": m, "n": n, "second_job": sj, **r} for (m, n, sj), r in rows.items()],
                           **extra,
