@@ -6,7 +6,6 @@ themselves checked against k-Wave's data in tests/recon)."""
 from __future__ import annotations
 
 import argparse
-import re
 from pathlib import Path
 
 import numpy as np
@@ -39,9 +38,11 @@ def test_every_surface_offers_the_one_vocabulary(shared_api):
     cli_recon.add_arguments(parser)
     method_action = next(a for a in parser._actions if a.dest == "method")
     assert list(method_action.choices) == list(METHODS)
-    api_doc = (REPO / "docs" / "api.md").read_text()
-    rows = re.findall(r"^\s*\| ((?:`[a-z]+`(?:, )?)+) \|", api_doc, re.M)  # the method table's first column
-    assert {n for row in rows for n in re.findall(r"`([a-z]+)`", row)} == set(METHODS)
+    # the API page points at the generated page (a new method is one file: no hand-kept list),
+    # which names every method (test_method_registry checks it is the registry's rendering)
+    assert "(methods.md)" in (REPO / "docs" / "api.md").read_text()
+    methods_doc = (REPO / "docs" / "methods.md").read_text()
+    assert all(f"`{name}`" in methods_doc for name in METHODS)
     help_text = parser.format_help()
     assert f"default {DEFAULT_DTYPE}" in help_text
     for m in METHODS.values():
