@@ -14,20 +14,12 @@ import numpy as np
 import service.names
 from service.jobs.store import JobStore
 from service.names import code_names, person_names
+from tests.json_keys import all_keys
 from tests.service.service_servers import Server, needs_recon, wait_job
 
 pytestmark = needs_recon
 
 DT, DX = 2e-8, 1e-4
-
-
-def _keys(obj) -> set[str]:
-    """Every key of a nested JSON value."""
-    if isinstance(obj, dict):
-        return set(obj) | set().union(*(_keys(v) for v in obj.values()))
-    if isinstance(obj, list):
-        return set().union(*(_keys(v) for v in obj))
-    return set()
 
 
 def _npy() -> bytes:
@@ -48,7 +40,7 @@ def test_names_module_examples_and_round_trip():
     tree = {"params": {"c": "auto", "c_range": [1450.0, 1600.0], "dz": 3e-5},
             "result": {"c": 1490.0, "autofocus": {"c": 1490.0, "c_values": [1450.0, 1490.0]}}}
     assert code_names(person_names(tree)) == tree
-    assert "c" not in _keys(person_names(tree)) and "dz" in _keys(person_names(tree))
+    assert "c" not in all_keys(person_names(tree)) and "dz" in all_keys(person_names(tree))
 
 
 def test_jobs_store_and_return_sound_speed_and_read_older_jobs(tmp_path):
@@ -71,12 +63,12 @@ def test_jobs_store_and_return_sound_speed_and_read_older_jobs(tmp_path):
                 p = job["params"]
                 assert p["params"]["sound_speed"] == value and p["shape"]["sound_speed"] == 1500.0, p
                 assert p["result"]["sound_speed"] == value == p["result"]["params_used"]["sound_speed"], p
-                assert "c" not in _keys(p) and "c_range" not in _keys(p), p
+                assert "c" not in all_keys(p) and "c_range" not in all_keys(p), p
                 stored = _stored(srv, job_id)  # what the server wrote into SQLite
-                assert stored["params"]["sound_speed"] == value and "c" not in _keys(stored), stored
+                assert stored["params"]["sound_speed"] == value and "c" not in all_keys(stored), stored
             listed = {j["id"]: j for j in api.get("/api/jobs", params={"kind": "recon"}).json()}
             assert {listed[i]["params"]["params"]["sound_speed"] for i in ids} == {1490.0, 1510.0}
-            assert not any("c" in _keys(j["params"]) for j in listed.values())
+            assert not any("c" in all_keys(j["params"]) for j in listed.values())
             first = _stored(srv, ids[0])
     finally:
         srv.stop()
@@ -100,12 +92,12 @@ def test_jobs_store_and_return_sound_speed_and_read_older_jobs(tmp_path):
         with srv.client() as api:
             p = api.get(f"/api/jobs/{ids[0]}").json()["params"]
             assert p["params"]["sound_speed"] == 1490.0 == p["result"]["params_used"]["sound_speed"], p
-            assert "c" not in _keys(p), p
+            assert "c" not in all_keys(p), p
             job = wait_job(api, older["id"])
             assert job["state"] == "succeeded", job
             # the older job ran with its own c (not the dataset's 1500): read as sound_speed
             assert job["params"]["result"]["params_used"]["sound_speed"] == 1480.0, job["params"]
-            assert job["params"]["params"]["sound_speed"] == 1480.0 and "c" not in _keys(job["params"])
+            assert job["params"]["params"]["sound_speed"] == 1480.0 and "c" not in all_keys(job["params"])
             # the same request again under the older job's key is that job, not a conflict
             r = api.post("/api/reconstructions", headers={"Idempotency-Key": "older-server"},
                          json={"dataset_id": first["dataset_id"], "method": "ner",

@@ -21,18 +21,10 @@ from service.recon.dataset import GridDataset, PointDataset
 from service.recon.unmix import unmix
 from service.spectral import read_unmix, write_unmix
 from service.storage.datasets import load_dataset
+from tests.json_keys import all_keys
 from tests.storage.storage_helpers import build_plan
 
 OLD = ("c", "c_range", "c_values", "sound_speed_m_per_s")
-
-
-def _keys(obj) -> set[str]:
-    """Every key of a nested JSON value."""
-    if isinstance(obj, dict):
-        return set(obj) | set().union(*(_keys(v) for v in obj.values()))
-    if isinstance(obj, list):
-        return set().union(*(_keys(v) for v in obj))
-    return set()
 
 
 def _grid() -> GridDataset:
@@ -86,7 +78,7 @@ def test_result_volume_says_sound_speed_and_reads_an_older_c(tmp_path):
     assert stored["sound_speed"] == 1490.0 and stored["autofocus"]["sound_speed_range"] == [1450.0, 1600.0]
     assert stored["autofocus"]["sound_speed_values"] == [1450.0, 1490.0, 1600.0]
     assert group["sound_speed"] == 1490.0 and group["autofocus"] == stored["autofocus"]
-    assert not set(OLD) & (_keys(stored) | set(group)), stored
+    assert not set(OLD) & (all_keys(stored) | set(group)), stored
     new = read_result(tmp_path / "new.h5")
     # a result file as an older fpscan wrote it: the same attributes with c, c_range, c_values
     with h5py.File(tmp_path / "old.h5", "w") as f:
@@ -115,7 +107,7 @@ def test_unmix_file_says_sound_speed_and_reads_an_older_c(tmp_path):
     with h5py.File(tmp_path / "unmix.h5", "r") as f:
         stored = json.loads(f.attrs["params"])
     assert stored["sound_speed"] == 1490.0 and stored["autofocus"]["sound_speed_range"] == [1450.0, 1600.0]
-    assert not set(OLD) & _keys(stored), stored
+    assert not set(OLD) & all_keys(stored), stored
     new = read_unmix(tmp_path / "unmix.h5")
     # an unmix.h5 an older fpscan wrote: its parameters with c and c_range
     older = {**{k: v for k, v in stored.items() if k not in ("sound_speed", "autofocus")}, "c": 1490.0,
