@@ -90,7 +90,9 @@ def test_wait_joining_a_running_job_reports_stages_in_order(server, tmp_path):
     np.save(tmp_path / "in.npy", rng.standard_normal((128, 24)).astype(np.float32))
     with Client(server, token=TOKEN) as api, Client(server, token=TOKEN) as control:
         ds = api.upload_dataset(tmp_path / "in.npy", "npy", dt=20e-9, dx=30e-6)
-        job_id = api.start_reconstruction(dataset_id=ds, method="tv", params={"iterations": 10000, "n_z": 64})
+        # tol 0: no stopping rule, so the job iterates until it is cancelled (with the default rule
+        # it may converge, and succeed, before the cancel arrives: CI under load did so once)
+        job_id = api.start_reconstruction(dataset_id=ds, method="tv", params={"iterations": 10000, "n_z": 64, "tol": 0})
         deadline = time.monotonic() + HANG_S
         while not str(api.get_job(job_id).progress.stage or "").startswith("iteration"):
             assert time.monotonic() < deadline, api.get_job(job_id)

@@ -105,7 +105,7 @@ def test_cancel_acts_within_2_s_of_the_request_on_a_long_tv_job(tv_server):
     with tv_server.client() as api:
         ds = _upload(api, LONG)
         r = api.post("/api/reconstructions", json={"dataset_id": ds, "method": "tv",
-                                                   "params": {"iterations": 100000, "lam": 0.0}})
+                                                   "params": {"iterations": 100000, "lam": 0.0, "tol": 0}})
         assert r.status_code == 202, r.text
         jid = r.json()["id"]
         requested = None
