@@ -41,6 +41,25 @@ def wrong_file(path, wanted: str) -> str | None:
     return f"{path}: this is {what}, not {wanted}" if what else None
 
 
+def check_input_files(args, paths: list[str], missing: str) -> None:
+    """Refuse a local-input or ``--scan-job`` choice that cannot run: ``--scan-job`` without
+    ``--server``, both INPUT and ``--scan-job``, neither (``missing`` says what to give), or
+    an INPUT that is no file. Raises :class:`UsageError` (exit 2) with the reason."""
+    from pathlib import Path
+
+    if args.scan_job and not args.server:
+        raise UsageError("--scan-job needs --server")
+    if args.scan_job and paths:
+        raise UsageError("give either INPUT or --scan-job, not both")
+    if args.scan_job:
+        return
+    if not paths:
+        raise UsageError(f"no input: {missing}")
+    for p in paths:
+        if not Path(p).is_file():
+            raise UsageError(f"no such file: {p}")
+
+
 def add_server_options(parser, *, required: bool = False) -> None:
     """``--server URL`` (default ``$FPSCAN_SERVER``) and ``--token`` (default
     ``$FPSCAN_TOKEN``)."""

@@ -23,7 +23,13 @@ from __future__ import annotations
 
 import argparse
 
-from clients.cli._common import UsageError, add_progress_option, add_server_options, client_errors
+from clients.cli._common import (
+    UsageError,
+    add_progress_option,
+    add_server_options,
+    check_input_files,
+    client_errors,
+)
 
 __all__ = ["COMMAND", "HELP", "add_arguments", "check_options_early", "run", "add_format_option"]
 
@@ -142,17 +148,8 @@ def _params(args) -> dict:
 @client_errors
 def run(args) -> int:
     """Run this sub-command with the parsed ``args``; return the exit status."""
-    from pathlib import Path
-
-    if args.scan_job and not args.server:
-        raise UsageError("--scan-job needs --server")
-    if args.scan_job and args.input:
-        raise UsageError("give either INPUT or --scan-job, not both")
-    if not args.scan_job:
-        if not args.input:
-            raise UsageError("no input: give a scan file or dataset (or --server with --scan-job)")
-        if not Path(args.input).is_file():
-            raise UsageError(f"no such file: {args.input}")
+    check_input_files(args, [args.input] if args.input else [],
+                      "give a scan file or dataset (or --server with --scan-job)")
     check_options_early(args.method, _params(args))
     # no --method: the pipeline's default for the loaded data (service.pipeline.default_method),
     # resolved where the data is read: here locally, by the server with --server

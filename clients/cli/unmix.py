@@ -16,6 +16,7 @@ from clients.cli._common import (
     UsageError,
     add_progress_option,
     add_server_options,
+    check_input_files,
     client_errors,
     quantity,
 )
@@ -79,18 +80,8 @@ def _default_out(args):
 @client_errors
 def run(args) -> int:
     """Run this sub-command with the parsed ``args``; return the exit status."""
-    from pathlib import Path
-
-    if args.scan_job and not args.server:
-        raise UsageError("--scan-job needs --server")
-    if args.scan_job and args.inputs:
-        raise UsageError("give either INPUT or --scan-job, not both")
+    check_input_files(args, args.inputs or [], "give a multi-wavelength scan file or one file per wavelength")
     if not args.scan_job:
-        if not args.inputs:
-            raise UsageError("no input: give a multi-wavelength scan file or one file per wavelength")
-        for p in args.inputs:
-            if not Path(p).is_file():
-                raise UsageError(f"no such file: {p}")
         if len(args.inputs) > 1 and (args.wavelengths is None or len(args.wavelengths) != len(args.inputs)):
             raise UsageError(f"{len(args.inputs)} inputs need --wavelengths with {len(args.inputs)} values (m)")
     from clients.cli.recon import check_options_early

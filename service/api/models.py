@@ -330,17 +330,21 @@ class PlanPreview(BaseModel):
 # -- jobs ----------------------------------------------------------------------------
 class JobProgress(BaseModel):
     """A job's progress on the wire (the ``progress`` of a :class:`Job`; the callback type of
-    the library is ``service.progress.Progress``)."""
+    the library is ``service.progress.Progress``). Each field's unit is in its description,
+    which the OpenAPI document (``/openapi.json``) serves."""
 
-    fraction: float = 0.0
-    stage: str = "queued"
-    points_done: int | None = None
-    points_total: int | None = None
+    fraction: float = Field(0.0, description="share of the job done, in [0, 1]")
+    stage: str = Field("queued", description="what the job is doing: queued; a scan: connecting, acquiring, "
+                       "paused, interrupted, done; a reconstruction: its method's stages")
+    points_done: int | None = Field(None, description="scan: points measured at every wavelength "
+                                    "(a preview: points used)")
+    points_total: int | None = Field(None, description="scan: points in the plan")
     alines_done: int | None = Field(None, description="scan: A-lines on disk (points x wavelengths)")
-    alines_total: int | None = None
-    rate_per_s: float | None = None
-    eta_s: float | None = None
-    faults_recovered: int | None = None
+    alines_total: int | None = Field(None, description="scan: A-lines planned (points x wavelengths)")
+    rate_per_s: float | None = Field(None, description="scan: points per second, 1/s")
+    eta_s: float | None = Field(None, description="estimated time to completion, s")
+    faults_recovered: int | None = Field(None, description="scan: link faults recovered so far (bad frames, "
+                                         "NAKs, timeouts, resets)")
     reason: str | None = Field(None, description="why a job is paused with stage interrupted (lost device, "
                                "full disk), one line; cleared when it resumes")
 

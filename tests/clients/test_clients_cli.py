@@ -84,6 +84,18 @@ def test_bad_local_inputs_are_one_line_errors(tmp_path):
                            tmp_path / "p.json"), "below one lattice pitch", code=2)
 
 
+@pytest.mark.parametrize("command", ["recon", "unmix"])
+def test_input_or_scan_job_refusals_agree(command, tmp_path):
+    """recon and unmix refuse the same impossible input choices with the same one-line
+    reason (clients.cli._common.check_input_files), exit 2, before touching any server."""
+    url = f"http://127.0.0.1:{free_port()}"  # nobody listens: a refusal must come first
+    (tmp_path / "a.h5").write_bytes(b"x")
+    _one_line_error(fpscan(command, "--scan-job", "abc"), "--scan-job needs --server", code=2)
+    _one_line_error(fpscan(command, tmp_path / "a.h5", "--scan-job", "abc", "--server", url), "not both", code=2)
+    _one_line_error(fpscan(command), "no input:", code=2)
+    _one_line_error(fpscan(command, tmp_path / "missing.h5"), "no such file", "missing.h5", code=2)
+
+
 def test_jobs_against_a_server(server):
     env = clean_env(FPSCAN_SERVER=server, FPSCAN_TOKEN=TOKEN)
     res = fpscan("jobs", "list", "--json", env=env)
