@@ -154,7 +154,7 @@ def run(
     rows = table.rows
     eqs = [r for r in rows if r["arrangement"] == "equispaced"]
     params = {
-        "source": data.source, "n_x": n_x, "n_t": n_t, "n_z": n_z, "dx_m": dx, "dt_s": dt, "c_m_per_s": c,
+        "source": data.source, "n_x": n_x, "n_t": n_t, "n_z": n_z, "dx_m": dx, "dt_s": dt, "sound_speed": c,
         "n_sensors": n_sensors, "snr_db": data.meta.get("snr_db") if built_in else None,
         "seed": seed if built_in else None, "roi_center_m": [zc, xc], "roi_diameter_m": diameter,
         "reference": "NER from every line point", "small": small,

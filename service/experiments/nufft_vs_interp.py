@@ -221,7 +221,7 @@ def run(data: DenseDataset | None = None, *, small: bool = False, methods=METHOD
             summary[f"axial_improvement_pct[{other} vs ner]"] = 100 * (by[other]["axial_fwhm_um"] / by["ner"]["axial_fwhm_um"] - 1)
             summary[f"lateral_improvement_pct[{other} vs ner]"] = 100 * (by[other]["lateral_fwhm_um"] / by["ner"]["lateral_fwhm_um"] - 1)
             summary[f"time_ratio[{other} / ner]"] = by[other]["time_s"] / by["ner"]["time_s"]
-    params = {"source": data.source, "shape": list(g.shape), "dx_m": dx, "dt_s": dt, "c_m_per_s": c,
+    params = {"source": data.source, "shape": list(g.shape), "dx_m": dx, "dt_s": dt, "sound_speed": c,
               "n_z": n_z, "dz_m": dz, "methods": list(methods), "repeats": repeats, "n_columns": n_columns,
               "lorentz_window": 8, "small": small}
     curves = depth_sweep(small=small, methods=methods) if (sweep and built_in and not _layer) else {}

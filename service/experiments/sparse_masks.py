@@ -208,7 +208,7 @@ def run(
     summary["cc_vs_phantom"] = {r["arrangement"] if r["arrangement"] != "equispaced" else f"interval_{r['interval']}":
                                 r["cc_vs_phantom"] for r in rows}
     summary.update(_versus_grids(es_row, rows, curves, band))
-    params = {"source": data.source, "n_lattice": n, "pitch_m": d, "n_t": n_t, "dt_s": dt, "c_m_per_s": c,
+    params = {"source": data.source, "n_lattice": n, "pitch_m": d, "n_t": n_t, "dt_s": dt, "sound_speed": c,
               "n_z": n_z, "poi_depth_m": poi_depth, "fraction_requested": fraction, "n_side": n_side,
               "intervals": list(intervals), "threshold": 0.04, "disc_diameter_m": disc_d,
               "eval_diameter_m": eval_d, "small": small, "reference": "xy-MIP of NER from every lattice point",

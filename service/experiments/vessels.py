@@ -137,7 +137,7 @@ def run(data: DenseDataset | None = None, *, small: bool = False, fraction: floa
         rows.append(row)
         mips[method] = (img.max(axis=0), img.max(axis=1))
     summary = {f"cc_{r['method']}": r["cc"] for r in rows}
-    params = {"shape": list(truth.shape), "pitch_m": ds.dx, "dt_s": ds.dt, "c_m_per_s": ds.c, "snr_db": snr_db,
+    params = {"shape": list(truth.shape), "pitch_m": ds.dx, "dt_s": ds.dt, "sound_speed": ds.c, "snr_db": snr_db,
               "fraction": fraction, "sensors": int(len(iy)), "lattice_points": n * n, "poi_depth_m": poi_depth,
               "dtype": "float32"}
     return ExperimentResult(NAME, params, rows, summary, images={"mips": mips, "x": x, "z": ds.dx * np.arange(n_z)})

@@ -18,6 +18,7 @@ from service.experiments import (
     sparse_masks,
 )
 from service.experiments.datasets import add_noise
+from tests.json_keys import all_keys
 
 
 @pytest.fixture(scope="module")
@@ -34,6 +35,9 @@ def test_limited_view_small_writes_table_and_plots(tmp_path):
         assert p.stat().st_size > 0
     assert all(p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" for p in paths if p.suffix == ".png")
     table = json.loads((tmp_path / "limited-view-2d.json").read_text())
+    # the report names the speed of sound as a person reads it (issue 21.4), as every file does
+    assert table["params"]["sound_speed"] == 1500.0
+    assert not {"c", "c_m_per_s", "sound_speed_m_per_s"} & all_keys(table), sorted(all_keys(table))
     rows = {(r["arrangement"], r["interval"]): r for r in table["table"]}
     assert set(rows) == {("full", 1), ("equispaced", 1), ("equispaced", 4), ("equispaced", 8),
                          ("equiangular", None), ("equiangular-interpolated", None), ("equiangular-tv", None)}
