@@ -8,8 +8,8 @@ pairs spent before the first iteration.
   with and without positivity; its traced peak is its dual's extrapolation and two images;
 - a tv run spends 3 operator pairs before its first iteration (two power steps, the noise
   image, A of the warm start; no separate Aᵀg), and the default rule converges within 30
-  pairs on the 3-D vessels and the 2-D balls of tests/recon/test_recon_tv_solver.py (the
-  2-D vessels are tested there); not yet on the 3-D balls (30 iterations, 33 pairs: xfail).
+  pairs on the 3-D vessels, the 2-D and the 3-D balls of tests/recon/test_recon_tv_solver.py
+  (the 2-D vessels are tested there).
 """
 from __future__ import annotations
 
@@ -113,10 +113,7 @@ def test_three_operator_pairs_before_the_first_iteration():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize(("kind", "dims"), [
-    ("balls", 2), ("vessels", 3),
-    pytest.param("balls", 3, marks=pytest.mark.xfail(strict=True, reason="30 iterations + 3 pairs of set-up")),
-])
+@pytest.mark.parametrize(("kind", "dims"), [("balls", 2), ("vessels", 3), ("balls", 3)])
 def test_the_default_rule_converges_within_30_operator_pairs_on_every_case(kind, dims):
     p = _tv(_case(kind, 30, dims)).params
     assert p["stop_reason"] == "converged" and p["operator_pairs"] <= 30, p
