@@ -27,6 +27,7 @@ Everything here is a plain function of picklable arguments so dask can ship it.
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import threading
 import time
@@ -38,7 +39,7 @@ from service.progress import Progress, span
 __all__ = [
     "INPUT_FORMATS", "load_inputs", "report_stage", "progress_file", "check_memory_limit", "ADDRESS_SPACE_BASE",
     "address_space_limit", "memory_bounded", "run_reconstruction", "run_unmix", "worker_pid", "warm_up",
-    "JobGate", "JOB_GATE",
+    "JobGate", "JOB_GATE", "WARM_QUIET_S",
 ]
 
 INPUT_FORMATS = {"scan": "fpscan", "dataset": "dataset"}
@@ -146,13 +147,15 @@ class JobGate:
     worker (the background warm-up: :func:`warm_up`'s ``rest_in_background``).
 
     ``with gate.busy():`` marks a job (nestable, thread-safe); ``gate.wait_idle()`` blocks
-    while one runs and sets ``gate.waited`` first (so a caller can see that it yielded)."""
+    while one runs and sets ``gate.waited`` first (so a caller can see that it yielded);
+    ``gate.wait_quiet(s)`` blocks until no job has run for ``s`` seconds."""
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
         self._jobs = 0
         self._idle = threading.Event()
         self._idle.set()
+        self._last_end = -math.inf  # time.monotonic() when the last job ended
         self.waited = threading.Event()
 
     @contextlib.contextmanager
@@ -166,6 +169,7 @@ class JobGate:
             with self._lock:
                 self._jobs -= 1
                 if self._jobs == 0:
+                    self._last_end = time.monotonic()
                     self._idle.set()
 
     def wait_idle(self) -> None:
@@ -173,10 +177,23 @@ class JobGate:
             self.waited.set()
         self._idle.wait()
 
+    def wait_quiet(self, seconds: float, since: float | None = None) -> None:
+        """Block until no job runs and none has for ``seconds`` (s), counted from the later
+        of the last job's end and ``since`` (a ``time.monotonic()``; default: now)."""
+        since = time.monotonic() if since is None else since
+        while True:
+            self.wait_idle()
+            with self._lock:
+                left = max(self._last_end, since) + seconds - time.monotonic()
+                if self._jobs == 0 and left <= 0:
+                    return
+            time.sleep(max(left, 0.0))
 
-#: this worker process's jobs: :func:`run_reconstruction` holds it busy, the background
-#: warm-up waits for it to be idle between its steps
+
 JOB_GATE = JobGate()
+#: the background warm-up takes a step only after this long without a job (s): a job that
+#: comes right after start-up or right after another runs alone
+WARM_QUIET_S = 2.0
 
 
 def run_reconstruction(spec: dict) -> dict:
@@ -351,9 +368,12 @@ def _warm_rest() -> None:
         from service.recon.warmup import DTYPES
         from service.recon.warmup import warm_up as compile_kernels
 
+        started = time.monotonic()
         for group in ("kwave", "model"):
-            for dtype in DTYPES:  # small steps, each after the worker's job (if any) is done:
-                JOB_GATE.wait_idle()  # the warm-up must not take CPU (and the GIL) from a job
+            for dtype in DTYPES:  # small steps, each once the worker has had no job for a while:
+                # the warm-up must not take CPU (and the GIL) from a job, nor start a step
+                # just as one arrives (the first job after start-up usually comes at once)
+                JOB_GATE.wait_quiet(WARM_QUIET_S, since=started)
                 compile_kernels(dtypes=[dtype], groups=[group])
     except Exception:  # noqa: BLE001 -- a warm-up must never stop the worker
         import logging

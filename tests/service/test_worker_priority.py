@@ -118,3 +118,26 @@ def test_the_background_warm_up_waits_while_a_job_runs():
     assert before == []
     assert after == ["pylops", "service.recon.kwave", "service.recon.operator"]
     assert not alive
+
+
+def test_the_gate_stays_shut_for_a_quiet_period_after_each_job():
+    """``JobGate.wait_quiet``: blocked while a job runs (it says so), and after the job ends
+    it returns no sooner than the quiet period — a lower bound, which a loaded machine can
+    only lengthen; with no job and ``since`` long past it returns at once."""
+    import threading
+    import time
+
+    from service.jobs.work import JobGate
+
+    gate, quiet, returned = JobGate(), 0.3, []
+    with gate.busy():
+        waiter = threading.Thread(target=lambda: (gate.wait_quiet(quiet), returned.append(time.monotonic())))
+        waiter.start()
+        assert gate.waited.wait(HANG_S), "wait_quiet did not block on the running job"
+        assert not returned
+        ended = time.monotonic()
+    waiter.join(HANG_S)
+    assert returned and returned[0] - ended >= quiet, (returned, ended)
+    idle = JobGate()
+    idle.wait_quiet(quiet, since=time.monotonic() - 10 * quiet)  # no job, the period long over
+    assert not idle.waited.is_set()
