@@ -190,6 +190,8 @@ class JobGate:
             time.sleep(max(left, 0.0))
 
 
+#: this worker process's jobs: :func:`run_reconstruction` holds it busy, the background
+#: warm-up waits for it to be idle (and quiet: :data:`WARM_QUIET_S`) between its steps
 JOB_GATE = JobGate()
 #: the background warm-up takes a step only after this long without a job (s): a job that
 #: comes right after start-up or right after another runs alone
