@@ -42,9 +42,23 @@ def wrong_file(path, wanted: str) -> str | None:
 
 
 def check_input_files(args, paths: list[str], missing: str) -> None:
-    """Refuse a local-input or ``--scan-job`` choice that cannot run: ``--scan-job`` without
-    ``--server``, both INPUT and ``--scan-job``, neither (``missing`` says what to give), or
-    an INPUT that is no file. Raises :class:`UsageError` (exit 2) with the reason."""
+    """Refuse a local-input or ``--scan-job`` choice that cannot run (``fpscan recon``, ``fpscan unmix``).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed command line; reads ``scan_job`` and ``server``.
+    paths : list of str
+        The INPUT files given (empty when none).
+    missing : str
+        What to give, for the "no input" reason.
+
+    Raises
+    ------
+    UsageError
+        (exit 2, one line) ``--scan-job`` without ``--server``; both INPUT and ``--scan-job``;
+        neither; an INPUT that is no file.
+    """
     from pathlib import Path
 
     if args.scan_job and not args.server:

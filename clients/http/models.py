@@ -107,7 +107,7 @@ class JobProgress(_Response):
     alines_done, alines_total : int or None
         A-lines recorded / planned.
     rate_per_s : float or None
-        Scan points per second.
+        A-lines landed per second, 1/s.
     eta_s : float or None
         Estimated time to completion, s.
     faults_recovered : int or None

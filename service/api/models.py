@@ -336,12 +336,12 @@ class JobProgress(BaseModel):
     fraction: float = Field(0.0, description="share of the job done, in [0, 1]")
     stage: str = Field("queued", description="what the job is doing: queued; a scan: connecting, acquiring, "
                        "paused, interrupted, done; a reconstruction: its method's stages")
-    points_done: int | None = Field(None, description="scan: points measured at every wavelength "
-                                    "(a preview: points used)")
+    points_done: int | None = Field(None, description="scan: points measured at every wavelength; "
+                                    "a finished reconstruction: the sensor points it used")
     points_total: int | None = Field(None, description="scan: points in the plan")
     alines_done: int | None = Field(None, description="scan: A-lines on disk (points x wavelengths)")
     alines_total: int | None = Field(None, description="scan: A-lines planned (points x wavelengths)")
-    rate_per_s: float | None = Field(None, description="scan: points per second, 1/s")
+    rate_per_s: float | None = Field(None, description="scan: A-lines landed per second, 1/s")
     eta_s: float | None = Field(None, description="estimated time to completion, s")
     faults_recovered: int | None = Field(None, description="scan: link faults recovered so far (bad frames, "
                                          "NAKs, timeouts, resets)")

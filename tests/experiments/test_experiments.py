@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from clients.cli import main as fpscan
+from driver.constants import C_DEFAULT
 from service.experiments import (
     limited_view,
     load_dense,
@@ -36,7 +37,7 @@ def test_limited_view_small_writes_table_and_plots(tmp_path):
     assert all(p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" for p in paths if p.suffix == ".png")
     table = json.loads((tmp_path / "limited-view-2d.json").read_text())
     # the report names the speed of sound as a person reads it (issue 21.4), as every file does
-    assert table["params"]["sound_speed"] == 1500.0
+    assert table["params"]["sound_speed"] == C_DEFAULT  # the tree is simulated at the default
     assert not {"c", "c_m_per_s", "sound_speed_m_per_s"} & all_keys(table), sorted(all_keys(table))
     rows = {(r["arrangement"], r["interval"]): r for r in table["table"]}
     assert set(rows) == {("full", 1), ("equispaced", 1), ("equispaced", 4), ("equispaced", 8),
