@@ -30,6 +30,7 @@ from driver.constants import C_DEFAULT
 from driver.physics import nufft
 from driver.physics.axes import centred_index
 from driver.physics.grid_sizes import pad_sizes
+from driver.physics.lateral import irfft_lateral
 from driver.physics.nufft_plans import lateral_plan
 
 __all__ = ["forward_grid", "forward_points"]
@@ -139,7 +140,7 @@ def forward_grid(
         nz2, ny2, nx2 = pad_sizes(vol.shape, dx, dz, dt, n_t, c, t0)
         vol = _embed(vol, (nz2, ny2, nx2))
     G = _kspace_data(vol, dx, dz, dt, int(n_t), c, t0, eps, full=False)
-    data = scipy.fft.irfft2(G, s=vol.shape[1:], axes=(1, 2), workers=-1)
+    data = irfft_lateral(G, vol.shape[1:])
     if not periodic:
         data = _crop_lateral(data, p0.shape[-1], 1 if is2d else p0.shape[1])
     return data[:, 0, :] if is2d else data

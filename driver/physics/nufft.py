@@ -408,136 +408,175 @@ def group_columns(klat2: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray
     return k[first], ptr.astype(np.int64), order.astype(np.int64)
 
 
-@numba.njit(cache=True, inline="always")
-def _taps(theta, h, L, kind, w, hc, shift, ip, im, wts, j):
-    """Fill taps for +theta (indices ip) and -theta (indices im) in row j; return the
-    centring phase angle shift*theta. nufft: tap values by Horner's rule from ``hc``
-    (`kernel_polynomials`)."""
-    s = theta / h
+@numba.njit(cache=True, fastmath=True)
+def _group_taps(k2, kz, qw, c, dt, t0, h, kind, w, hc, shift, inversion, base, wts, ar, ai):
+    """The taps of one column group (one |k_lat|², ``k2``) at every kz, shared by all its
+    columns; returns n_j, the number of kz filled (inversion: those at or below the
+    temporal Nyquist, kz ascending; otherwise all).
+
+    Row j: ``base[j]`` the first tap's fine-grid index (before wrapping), ``wts[:, j]`` the
+    w tap weights (tap-major, so that Horner's rule runs over j in SIMD lanes: the
+    polynomial of tap k in ``t = 2x - 1``, `kernel_polynomials`), and ``ar[j] + i ai[j]``
+    the weight times e^{i φ_j} with φ_j = shift θ_j + ω_j t0, the centring and t0 phase of
+    the +θ evaluation (its conjugate belongs to the -θ one)."""
+    nkz = kz.shape[0]
+    nd = hc.shape[1]
+    pi_lim = math.pi * (1.0 + 1e-12)
+    nj = nkz
+    for j in range(nkz):
+        om = c * math.sqrt(k2 + kz[j] * kz[j])
+        th = om * dt
+        if inversion:
+            if th > pi_lim:  # kz ascending: every later one is above the Nyquist too
+                nj = j
+                break
+            # k_z / omega, with the limit 1/c at omega = 0
+            sc = qw[j] * (kz[j] / om if om > 0.0 else 1.0 / c)
+        else:
+            sc = qw[j]
+        s = th / h
+        if kind == 0:
+            b = int(math.ceil(s - 0.5 * w))
+            wts[0, j] = 2.0 * (b - s + 0.5 * w) - 1.0  # t, replaced by the taps below
+        elif kind == 1:
+            b = int(math.floor(s))
+            wts[0, j] = s - b
+        else:
+            b = int(math.floor(s + 0.5))
+        base[j] = b
+        ph = shift * th + om * t0
+        ar[j] = sc * math.cos(ph)
+        ai[j] = sc * math.sin(ph)
     if kind == 0:
-        base = int(math.ceil(s - 0.5 * w))
-        t = 2.0 * (base - s + 0.5 * w) - 1.0
-        nd = hc.shape[1]
-        # Horner's rule for the w taps side by side (degree outer, tap inner): the w
-        # independent chains interleave instead of one chain of nd steps after another
-        row = wts[j]
+        for j in range(nj):
+            ar[nkz + j] = wts[0, j]  # t kept aside (ar has 2 nkz entries)
+        t = ar[nkz:]
         for k in range(w):
-            row[k] = hc[k, 0]
-        for d in range(1, nd):
-            for k in range(w):
-                row[k] = row[k] * t + hc[k, d]
+            row = wts[k]
+            c0 = hc[k, 0]
+            for j in range(nj):
+                row[j] = c0
+            for d in range(1, nd):
+                cd = hc[k, d]
+                for j in range(nj):
+                    row[j] = row[j] * t[j] + cd
     elif kind == 1:
-        base = int(math.floor(s))
-        frac = s - base
-        wts[j, 0] = 1.0 - frac
-        wts[j, 1] = frac
+        for j in range(nj):
+            frac = wts[0, j]
+            wts[0, j] = 1.0 - frac
+            wts[1, j] = frac
     else:
-        base = int(math.floor(s + 0.5))
-        wts[j, 0] = 1.0
-    for k in range(w):
-        jj = (base + k) % L
-        ip[j, k] = jj
-        im[j, k] = (L - jj) % L
-    return shift * theta
+        for j in range(nj):
+            wts[0, j] = 1.0
+    return nj
 
 
-@numba.njit(parallel=True, cache=True)
+@numba.njit(parallel=True, cache=True, fastmath=True)
 def _interp_kernel(U, gvals, gptr, order, kz, qw, c, dt, t0, h, L, kind, w, hc, shift,
                    inversion, out):
+    """out[col, j] = sc_j (e^{-iφ_j} S⁺ + e^{iφ_j} S⁻): the w-tap interpolation of row
+    ``U[col]`` at +θ_j and -θ_j (`_group_taps`), in real arithmetic (a complex product
+    with a real weight would cost a full complex multiply)."""
     n_groups = gvals.shape[0]
     nkz = kz.shape[0]
-    pi_lim = math.pi * (1.0 + 1e-12)
     for g in numba.prange(n_groups):
-        k2 = gvals[g]
-        ip = np.empty((nkz, w), np.int64)
-        im = np.empty((nkz, w), np.int64)
-        wts = np.zeros((nkz, w), np.float64)
-        pp = np.empty(nkz, np.complex128)
-        pm = np.empty(nkz, np.complex128)
-        sc = np.zeros(nkz, np.float64)
-        for j in range(nkz):
-            om = c * math.sqrt(k2 + kz[j] * kz[j])
-            th = om * dt
-            if inversion:
-                if th > pi_lim:
-                    continue
-                # k_z / omega, with the limit 1/c at omega = 0
-                sc[j] = qw[j] * (kz[j] / om if om > 0.0 else 1.0 / c)
-            else:
-                sc[j] = qw[j]
-            ph = _taps(th, h, L, kind, w, hc, shift, ip, im, wts, j) + om * t0
-            pp[j] = complex(math.cos(ph), -math.sin(ph))
-            pm[j] = complex(math.cos(ph), math.sin(ph))
+        base = np.empty(nkz, np.int64)
+        wts = np.empty((w, nkz), np.float64)
+        ar = np.empty(2 * nkz, np.float64)
+        ai = np.empty(nkz, np.float64)
+        nj = _group_taps(gvals[g], kz, qw, c, dt, t0, h, kind, w, hc, shift, inversion, base, wts, ar, ai)
         for ci in range(gptr[g], gptr[g + 1]):
             col = order[ci]
             u = U[col]
-            for j in range(nkz):
-                if sc[j] == 0.0:
-                    out[col, j] = 0.0
-                    continue
-                s1 = 0j
-                s2 = 0j
-                b = ip[j, 0]
+            o = out[col]
+            for j in range(nj):
+                b = base[j]
+                p1r = 0.0
+                p1i = 0.0
+                p2r = 0.0
+                p2i = 0.0
                 if b >= 1 and b + w <= L:
                     # no wrap-around: consecutive taps at b.. and mirrored at L-b..
                     for k in range(w):
-                        wk = wts[j, k]
-                        s1 += wk * u[b + k]
-                        s2 += wk * u[L - b - k]
+                        wk = wts[k, j]
+                        v1 = u[b + k]
+                        v2 = u[L - b - k]
+                        p1r += wk * v1.real
+                        p1i += wk * v1.imag
+                        p2r += wk * v2.real
+                        p2i += wk * v2.imag
                 else:
                     for k in range(w):
-                        wk = wts[j, k]
-                        s1 += wk * u[ip[j, k]]
-                        s2 += wk * u[im[j, k]]
-                out[col, j] = sc[j] * (pp[j] * s1 + pm[j] * s2)
+                        wk = wts[k, j]
+                        jj = (b + k) % L
+                        v1 = u[jj]
+                        v2 = u[(L - jj) % L]
+                        p1r += wk * v1.real
+                        p1i += wk * v1.imag
+                        p2r += wk * v2.real
+                        p2i += wk * v2.imag
+                # (ar - i ai) S⁺ + (ar + i ai) S⁻
+                sr = p1r + p2r
+                si = p1i + p2i
+                dr = p1r - p2r
+                di = p1i - p2i
+                o[j] = complex(ar[j] * sr + ai[j] * di, ar[j] * si - ai[j] * dr)
+            for j in range(nj, nkz):
+                o[j] = 0.0
 
 
-@numba.njit(parallel=True, cache=True)
+@numba.njit(parallel=True, cache=True, fastmath=True)
 def _spread_kernel(B, gvals, gptr, order, kz, qw, c, dt, t0, h, L, kind, w, hc, shift, R):
+    """The adjoint of `_interp_kernel` (inversion False): spread B[col, j] e^{±iφ_j} qw_j
+    onto the w taps at +θ_j and -θ_j of row ``R[col]``."""
     n_groups = gvals.shape[0]
     nkz = kz.shape[0]
     for g in numba.prange(n_groups):
-        k2 = gvals[g]
-        ip = np.empty((nkz, w), np.int64)
-        im = np.empty((nkz, w), np.int64)
-        wts = np.zeros((nkz, w), np.float64)
-        pp = np.empty(nkz, np.complex128)
-        pm = np.empty(nkz, np.complex128)
-        for j in range(nkz):
-            om = c * math.sqrt(k2 + kz[j] * kz[j])
-            th = om * dt
-            ph = _taps(th, h, L, kind, w, hc, shift, ip, im, wts, j) + om * t0
-            # conjugates of the interpolation phases
-            pp[j] = complex(math.cos(ph), math.sin(ph)) * qw[j]
-            pm[j] = complex(math.cos(ph), -math.sin(ph)) * qw[j]
-        # one column's fine grid accumulates in double precision, then is stored once
-        # (R of complex64 would otherwise convert on every tap)
-        r = np.empty(L, np.complex128)
+        base = np.empty(nkz, np.int64)
+        wts = np.empty((w, nkz), np.float64)
+        ar = np.empty(2 * nkz, np.float64)
+        ai = np.empty(nkz, np.float64)
+        _group_taps(gvals[g], kz, qw, c, dt, t0, h, kind, w, hc, shift, False, base, wts, ar, ai)
+        # one column's fine grid accumulates in double precision (real and imaginary parts
+        # interleaved), then is stored once (R of complex64 would convert on every tap)
+        r = np.empty(2 * L, np.float64)
         for ci in range(gptr[g], gptr[g + 1]):
             col = order[ci]
             r[:] = 0.0
+            bc = B[col]
             for j in range(nkz):
-                v = B[col, j]
+                v = bc[j]
                 if v == 0:
                     continue
-                vp = pp[j] * v
-                vm = pm[j] * v
-                b = ip[j, 0]
+                vr = v.real
+                vi = v.imag
+                # conjugates of the interpolation phases: (ar + i ai) v at +θ, (ar - i ai) v at -θ
+                ppr = ar[j] * vr - ai[j] * vi
+                ppi = ar[j] * vi + ai[j] * vr
+                pmr = ar[j] * vr + ai[j] * vi
+                pmi = ar[j] * vi - ai[j] * vr
+                b = base[j]
                 if b >= 1 and b + w <= L:
-                    # no wrap-around (as `_interp_kernel`): consecutive taps at b.. and
-                    # mirrored at L-b..
                     for k in range(w):  # two loops: neither aliases itself
-                        r[b + k] += wts[j, k] * vp
+                        wk = wts[k, j]
+                        r[2 * (b + k)] += wk * ppr
+                        r[2 * (b + k) + 1] += wk * ppi
                     for k in range(w):
-                        r[L - b - k] += wts[j, k] * vm
+                        wk = wts[k, j]
+                        r[2 * (L - b - k)] += wk * pmr
+                        r[2 * (L - b - k) + 1] += wk * pmi
                 else:
                     for k in range(w):
-                        wk = wts[j, k]
-                        r[ip[j, k]] += wk * vp
-                        r[im[j, k]] += wk * vm
+                        wk = wts[k, j]
+                        jj = (b + k) % L
+                        jm = (L - jj) % L
+                        r[2 * jj] += wk * ppr
+                        r[2 * jj + 1] += wk * ppi
+                        r[2 * jm] += wk * pmr
+                        r[2 * jm + 1] += wk * pmi
             out = R[col]
             for i in range(L):
-                out[i] = r[i]
+                out[i] = complex(r[2 * i], r[2 * i + 1])
 
 
 def evaluate(
@@ -558,7 +597,7 @@ def evaluate(
     """Evaluate the even-extended transform of every column at omega = c |k|.
 
     U : (n_cols, L) from `to_fine_grid`. klat2 : (n_cols,) |k_lat|^2 in rad^2/m^2.
-    kz : (n_kz,) depth wavenumbers in rad/m. qw : (n_kz,) weights per kz.
+    kz : (n_kz,) depth wavenumbers in rad/m (ascending when inversion). qw : (n_kz,) weights per kz.
     inversion=True multiplies by qw * kz/omega (1/c at omega = 0) and zeroes omega above
     the temporal Nyquist pi/dt (DESIGN §3.1); False multiplies by qw only.
     progress: optional callable(fraction in (0, 1]) called after each of up to ``n_chunks``
@@ -582,6 +621,11 @@ def evaluate(
     Returns
     -------
     ndarray ``(n_cols, n_kz)`` complex.
+
+    Raises
+    ------
+    ValueError
+        ``inversion`` with kz not ascending.
 
     References
     ----------
@@ -609,6 +653,8 @@ def evaluate(
     out = np.empty((U.shape[0], len(kz)), dtype=out_dtype or U.dtype)
     kz = np.asarray(kz, np.float64)
     qw = np.asarray(qw, np.float64)
+    if inversion and np.any(np.diff(kz) < 0):
+        raise ValueError("kz must be ascending for the inversion (every kz after the first above the Nyquist is too)")
     for a, b in _group_chunks(len(gvals), n_chunks, U.shape[0] * len(kz), progress):
         _interp_kernel(U, gvals[a:b], gptr[a : b + 1], order, kz, qw, float(c), float(dt), float(t0),
                        2.0 * np.pi / grid.L, grid.L, _KIND_CODE[grid.kind], grid.w, grid.horner,

@@ -26,6 +26,7 @@ import numpy as np
 import scipy.fft
 import scipy.interpolate
 
+from driver.physics.lateral import irfft_lateral
 from driver.physics.nufft import group_columns, transpose
 from service.progress import Fraction, rising, span
 from service.recon import checks
@@ -257,7 +258,7 @@ def _recon(p, dt, c, lateral_d, interp, pos_cond, dtype=np.float64, progress=Non
     out = np.empty((nt, n_cols), dtype=ctype)
     transpose(cols, out)
     del cols
-    res = scipy.fft.irfftn(out.reshape(spec_shape), s=lat_shape, axes=lat_axes, workers=-1, overwrite_x=True)
+    res = irfft_lateral(out.reshape(spec_shape), lat_shape, lat_axes)
     res *= 4.0 / c
     if pos_cond:
         np.maximum(res, 0, out=res)

@@ -33,6 +33,7 @@ from driver.constants import C_DEFAULT
 from driver.physics import nufft
 from driver.physics.axes import centred_axis
 from driver.physics.fast_lengths import fast_dct1_rows, fast_lateral, fast_length
+from driver.physics.lateral import irfft_lateral
 from driver.physics.nufft_plans import lateral_plan
 from service.progress import Fraction, Span, rising
 from service.progress import span as span_of
@@ -243,7 +244,7 @@ def _invert(A: np.ndarray, n_x: int, dx: float, dy: float, dt: float, c: float, 
     if upsample > 1:
         K = _pad_spectrum(K, n_y, n_x, upsample, ups_y)
     shape = ((n_y * upsample) if ups_y else n_y, n_x * upsample)
-    p0 = scipy.fft.irfft2(K, s=shape, axes=(1, 2), workers=-1, overwrite_x=True)
+    p0 = irfft_lateral(K, shape)
     if upsample > 1:
         p0 *= upsample ** (2 if ups_y else 1)
     if progress is not None:
