@@ -43,7 +43,8 @@ from driver.physics.grid_sizes import KINDS, grid_length, kernel_params
 
 __all__ = [
     "KINDS", "TemporalGrid", "kernel_params", "es_kernel", "kernel_polynomials", "grid_length", "make_grid",
-    "transpose", "to_fine_grid", "from_fine_grid", "group_columns", "evaluate", "spread",
+    "transpose", "gather_columns", "scatter_columns", "to_fine_grid", "from_fine_grid", "group_columns",
+    "evaluate", "spread",
 ]
 
 _KIND_CODE = {"nufft": 0, "linear": 1, "nearest": 2}
@@ -237,9 +238,10 @@ def make_grid(n_t: int, kind: str = "nufft", eps: float = 1e-6) -> TemporalGrid:
 
 
 @numba.njit(parallel=True, cache=True)
-def _place_columns(A, scale, shift, L, U):
-    """U[c, (n - shift) mod L] = A[n, c] * scale[n], in cache-friendly tiles."""
-    n_t, n_cols = A.shape
+def _place_columns(A, cols, scale, shift, L, U):
+    """U[c, (n - shift) mod L] = A[n, cols[c]] * scale[n], in cache-friendly tiles."""
+    n_t = A.shape[0]
+    n_cols = cols.shape[0]
     tile = 64
     n_blocks = (n_cols + tile - 1) // tile
     for b in numba.prange(n_blocks):
@@ -248,11 +250,83 @@ def _place_columns(A, scale, shift, L, U):
         for n0 in range(0, n_t, tile):
             n1 = min(n0 + tile, n_t)
             for c in range(c0, c1):
+                col = cols[c]
                 for n in range(n0, n1):
                     j = n - shift
                     if j < 0:
                         j += L
-                    U[c, j] = A[n, c] * scale[n]
+                    U[c, j] = A[n, col] * scale[n]
+
+
+@numba.njit(parallel=True, cache=True)
+def gather_columns(A: np.ndarray, cols: np.ndarray, out: np.ndarray) -> None:
+    """out[c, j] = A[j, cols[c]]: chosen columns of a 2-D array, transposed, in
+    cache-friendly tiles (parallel; no copy of the chosen columns first).
+
+    Parameters
+    ----------
+    A : ndarray ``(n_j, n_a)``.
+    cols : ndarray ``(n_c,)`` int64, column indices into ``A``.
+    out : ndarray ``(n_c, n_j)``, written in place (any dtype ``A`` converts to).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from driver.physics.nufft import gather_columns
+    >>> out = np.empty((2, 3))
+    >>> gather_columns(np.arange(12.0).reshape(3, 4), np.array([3, 1]), out)
+    >>> out
+    array([[ 3.,  7., 11.],
+           [ 1.,  5.,  9.]])
+    """
+    n_j = A.shape[0]
+    n_c = cols.shape[0]
+    tile = 64
+    n_blocks = (n_c + tile - 1) // tile
+    for b in numba.prange(n_blocks):
+        c0 = b * tile
+        c1 = min(c0 + tile, n_c)
+        for j0 in range(0, n_j, tile):
+            j1 = min(j0 + tile, n_j)
+            for c in range(c0, c1):
+                col = cols[c]
+                for j in range(j0, j1):
+                    out[c, j] = A[j, col]
+
+
+@numba.njit(parallel=True, cache=True)
+def scatter_columns(F: np.ndarray, cols: np.ndarray, out: np.ndarray) -> None:
+    """out[j, cols[c]] = F[c, j]: the transpose of `gather_columns`, rows of ``F`` written
+    to chosen columns of ``out`` (distinct ``cols``), in cache-friendly tiles (parallel).
+
+    Parameters
+    ----------
+    F : ndarray ``(n_c, n_j)``.
+    cols : ndarray ``(n_c,)`` int64, distinct column indices into ``out``.
+    out : ndarray ``(n_j, n_a)``, written in place at those columns.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from driver.physics.nufft import scatter_columns
+    >>> out = np.zeros((3, 4))
+    >>> scatter_columns(np.array([[3.0, 7.0, 11.0], [1.0, 5.0, 9.0]]), np.array([3, 1]), out)
+    >>> out
+    array([[ 0.,  1.,  0.,  3.],
+           [ 0.,  5.,  0.,  7.],
+           [ 0.,  9.,  0., 11.]])
+    """
+    n_c, n_j = F.shape
+    tile = 64
+    n_blocks = (n_j + tile - 1) // tile
+    for b in numba.prange(n_blocks):
+        j0 = b * tile
+        j1 = min(j0 + tile, n_j)
+        for c0 in range(0, n_c, tile):
+            c1 = min(c0 + tile, n_c)
+            for j in range(j0, j1):
+                for c in range(c0, c1):
+                    out[j, cols[c]] = F[c, j]
 
 
 @numba.njit(parallel=True, cache=True)
@@ -288,7 +362,8 @@ def transpose(F: np.ndarray, out: np.ndarray) -> None:
                     out[j, c] = F[c, j]
 
 
-def to_fine_grid(A: np.ndarray, grid: TemporalGrid, t0_is_zero: bool) -> np.ndarray:
+def to_fine_grid(A: np.ndarray, grid: TemporalGrid, t0_is_zero: bool,
+                 columns: np.ndarray | None = None) -> np.ndarray:
     """(n_t, n_cols) coefficients (time first, as a lateral FFT of the data leaves them)
     -> (n_cols, L) values of S on the fine theta grid, one column per row.
 
@@ -296,9 +371,12 @@ def to_fine_grid(A: np.ndarray, grid: TemporalGrid, t0_is_zero: bool) -> np.ndar
 
     Parameters
     ----------
-    A : ndarray ``(n_t, n_cols)``, real or complex (float32/complex64 stay single precision).
+    A : ndarray ``(n_t, n_a)``, real or complex (float32/complex64 stay single precision).
     grid : TemporalGrid of ``n_t`` (:func:`make_grid`).
     t0_is_zero : bool, whether sample 0 is at t = 0.
+    columns : ndarray ``(n_cols,)`` int, optional
+        The columns of ``A`` to transform, in this order (default all: n_cols = n_a); read in
+        place, not copied first.
 
     Returns
     -------
@@ -315,15 +393,15 @@ def to_fine_grid(A: np.ndarray, grid: TemporalGrid, t0_is_zero: bool) -> np.ndar
     >>> to_fine_grid(np.ones((n_t, 2)), grid, t0_is_zero=False).shape  # (n_cols, L)
     (2, 64)
     """
-    n_t, n_cols = A.shape
     ctype = np.complex64 if A.dtype in (np.float32, np.complex64) else np.complex128
-    U = np.zeros((n_cols, grid.L), dtype=ctype)
+    cols = np.arange(A.shape[1], dtype=np.int64) if columns is None else np.asarray(columns, dtype=np.int64)
+    U = np.zeros((len(cols), grid.L), dtype=ctype)
     scale = (1.0 / grid.phihat).astype(U.real.dtype)
     if t0_is_zero:
         scale = scale.copy()
         scale[0] *= 0.5
     # nufft: centred mode m = n - shift sits at fine index m mod L; FFT-grid kinds: shift 0
-    _place_columns(np.ascontiguousarray(A, dtype=ctype), scale, grid.shift, grid.L, U)
+    _place_columns(np.ascontiguousarray(A, dtype=ctype), cols, scale, grid.shift, grid.L, U)
     scipy.fft.fft(U, axis=-1, overwrite_x=True, workers=-1)
     return U
 

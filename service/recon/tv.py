@@ -56,8 +56,8 @@ adjoint applications) / 2, everything included: the power iterations, the noise 
 the automatic λ, A of the warm start — 3 pairs before the first iteration —,
 every iteration and ``debias``).
 
-Memory: the TV part works in place (`_grad`, `_grad_t`, `_tv_prox` write into given
-arrays; `_tv_norm` by float64 slabs), so that while the operator works the solver holds
+Memory: the TV part works in place (`_tv_prox`'s compiled sweeps write into given arrays;
+`_tv_norm` needs no work array), so that while the operator works the solver holds
 d + 5 images (`service.recon.checks.tv_memory`).
 
 Automatic λ (``lam=None``, the default): λ = ‖P Aᵀ n̂‖_rms, the RMS over the image of the
@@ -85,6 +85,7 @@ import math
 import time
 from typing import Any
 
+import numba
 import numpy as np
 import scipy.fft
 
@@ -448,70 +449,104 @@ def _gain_estimate(apply, start: np.ndarray, steps: int, step=None) -> float:
     return gain
 
 
-def _faces(ndim: int, a: int):
-    """Index tuples along axis ``a``: all but the last index, all but the first, the last."""
-    def along(s):
-        return tuple(s if b == a else slice(None) for b in range(ndim))
-    return along(slice(0, -1)), along(slice(1, None)), along(slice(-1, None))
+def _as3d(x: np.ndarray) -> np.ndarray:
+    """An image (n_z, n_x) or (n_z, n_y, n_x) as a 3-D view (n_z, 1, n_x) / itself."""
+    return x.reshape(x.shape[0], 1, x.shape[1]) if x.ndim == 2 else x
 
 
-def _diff(x: np.ndarray, a: int, out: np.ndarray) -> np.ndarray:
-    """The forward difference of ``x`` along axis ``a`` into ``out`` (x's shape), 0 at the last index."""
-    head, tail, last = _faces(x.ndim, a)
-    np.subtract(x[tail], x[head], out=out[head])
-    out[last] = 0
-    return out
+def _dual_axes(q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The z, y, x components of a dual field (d, *image shape) as 3-D views; in 2-D the y
+    component is a placeholder the kernels never touch."""
+    if q.shape[0] == 2:
+        return _as3d(q[0]), np.zeros((1, 1, 1), dtype=q.dtype), _as3d(q[1])
+    return q[0], q[1], q[2]
 
 
-def _grad(x: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-    """Forward differences along every axis, 0 at the last index: (ndim, *x.shape), into
-    ``out`` when given (no other array)."""
-    if out is None:
-        out = np.empty((x.ndim,) + x.shape, dtype=x.dtype)
-    for a in range(x.ndim):
-        _diff(x, a, out[a])
-    return out
+@numba.njit(parallel=True, cache=True)
+def _prox_primal(v, qz, qy, qx, has_y, gamma, positivity, support, use_support, out):
+    """The primal step ``out`` = P(v − γ ∇ᵀq) voxel by voxel, ∇ᵀ the transpose of the forward differences (0 at
+    the last index): (∇ᵀq)_i = Σ_a [i_a < n_a − 1] (−q_a)_i + [i_a > 0] (q_a)_{i − e_a}; P
+    clips below 0 (``positivity``) and zeroes off ``support`` (``use_support``). ``out`` may
+    be ``v``: each voxel reads only its own v."""
+    nz, ny, nx = v.shape
+    for z in numba.prange(nz):
+        for y in range(ny):
+            for x in range(nx):
+                g = 0.0
+                if z < nz - 1:
+                    g -= qz[z, y, x]
+                if z > 0:
+                    g += qz[z - 1, y, x]
+                if has_y:
+                    if y < ny - 1:
+                        g -= qy[z, y, x]
+                    if y > 0:
+                        g += qy[z, y - 1, x]
+                if x < nx - 1:
+                    g -= qx[z, y, x]
+                if x > 0:
+                    g += qx[z, y, x - 1]
+                r = v[z, y, x] - gamma * g
+                if positivity and r < 0.0:
+                    r = 0.0
+                if use_support and not support[z, y, x]:
+                    r = 0.0
+                out[z, y, x] = r
 
 
-def _grad_t(q: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-    """The transpose of `_grad` (minus the divergence), into ``out`` (q's shape without its
-    first axis) when given (no other array)."""
-    d = q.shape[0]
-    if out is None:
-        out = np.empty(q.shape[1:], dtype=q.dtype)
-    for a in range(d):
-        head, tail, last = _faces(d, a)
-        if a == 0:  # out = 0 - q₀ on the head, 0 on the last row
-            np.negative(q[0][head], out=out[head])
-            out[last] = 0
-        else:
-            np.subtract(out[head], q[a][head], out=out[head])
-        np.add(out[tail], q[a][head], out=out[tail])
-    return out
+@numba.njit(parallel=True, cache=True)
+def _prox_dual(w, qz, qy, qx, pz, py, px, has_y, step, beta):
+    """One dual step of the fast gradient projection, voxel by voxel: pn = q + step ∇w,
+    pn /= max(1, |pn|) into q, and the extrapolation pn + β (pn − p) into p."""
+    nz, ny, nx = w.shape
+    for z in numba.prange(nz):
+        for y in range(ny):
+            for x in range(nx):
+                c = w[z, y, x]
+                a = qz[z, y, x] + step * ((w[z + 1, y, x] - c) if z < nz - 1 else 0.0)
+                b = 0.0
+                if has_y:
+                    b = qy[z, y, x] + step * ((w[z, y + 1, x] - c) if y < ny - 1 else 0.0)
+                e = qx[z, y, x] + step * ((w[z, y, x + 1] - c) if x < nx - 1 else 0.0)
+                m = math.sqrt(a * a + b * b + e * e)
+                if m > 1.0:
+                    a /= m
+                    b /= m
+                    e /= m
+                qz[z, y, x] = a
+                pz[z, y, x] = a + beta * (a - pz[z, y, x])
+                if has_y:
+                    qy[z, y, x] = b
+                    py[z, y, x] = b + beta * (b - py[z, y, x])
+                qx[z, y, x] = e
+                px[z, y, x] = e + beta * (e - px[z, y, x])
 
 
-_SLAB = 1 << 18  # elements per slab of `_tv_norm`'s float64 work
+@numba.njit(parallel=True, cache=True)
+def _tv_norm_kernel(x):
+    """Σ_voxels sqrt(Σ_a (forward difference along a)²) of a 3-D array, the differences in
+    x's dtype (as the proximal map sees them), the sum in float64."""
+    nz, ny, nx = x.shape
+    total = 0.0
+    for z in numba.prange(nz):
+        row = 0.0
+        for y in range(ny):
+            for i in range(nx):
+                c = x[z, y, i]
+                d0 = np.float64(x[z + 1, y, i] - c) if z < nz - 1 else 0.0
+                d1 = np.float64(x[z, y + 1, i] - c) if y < ny - 1 else 0.0
+                d2 = np.float64(x[z, y, i + 1] - c) if i < nx - 1 else 0.0
+                row += math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+        total += row
+    return total
+
+
+_SLAB = 1 << 18  # elements per slab of `_dot_of_differences`' work
 
 
 def _tv_norm(x: np.ndarray) -> float:
-    """TV(x) = Σ_voxels |∇x|₂ (forward differences, voxel units), in float64, by slabs of
-    rows along axis 0 (a few MB of work, whatever the volume)."""
-    n = x.shape[0]
-    rows = max(1, _SLAB // max(1, x[0].size))
-    total = 0.0
-    for i in range(0, n, rows):
-        j = min(n, i + rows)
-        s = x[i:min(n, j + 1)]  # one more row: the depth difference of row j - 1
-        g2 = np.zeros((j - i,) + x.shape[1:])
-        d = (s[1:] - s[:-1]).astype(np.float64)  # differences in x's dtype, as `_grad`
-        np.multiply(d, d, out=g2[:len(d)])
-        s = s[:j - i]
-        for a in range(1, x.ndim):
-            head, tail, _ = _faces(x.ndim, a)
-            d = (s[tail] - s[head]).astype(np.float64)
-            g2[head] += d * d
-        total += float(np.sum(np.sqrt(g2, out=g2)))
-    return total
+    """TV(x) = Σ_voxels |∇x|₂ (forward differences, voxel units), in float64; no work array."""
+    return float(_tv_norm_kernel(_as3d(np.ascontiguousarray(x))))
 
 
 def _tv_prox(v: np.ndarray, gamma: float, positivity: bool, support, dual, poll=None):
@@ -519,48 +554,41 @@ def _tv_prox(v: np.ndarray, gamma: float, positivity: bool, support, dual, poll=
     (None: everywhere allowed): the fast gradient projection of Beck & Teboulle (2009) on
     the dual, `_PROX_ITER` steps from ``dual`` (the previous call's, a warm start, updated in
     place; None: 0). No operator. ``poll()``, if given, is called every few inner steps (a
-    cancel). Returns (x, dual); x is ``v``, overwritten. Work: the dual's extrapolation (d
-    images) and two images, made once per call."""
+    cancel). Returns (x, dual); x is ``v`` (C-contiguous), overwritten. Each inner step is two
+    compiled sweeps over the volume (`_prox_primal`, `_prox_dual`). Work: the dual's
+    extrapolation (d images) and one image, made once per call."""
+    has_support = support is not None
+    supp = _as3d(np.ascontiguousarray(support, dtype=bool)) if has_support else np.zeros((1, 1, 1), bool)
+
     def project(x):
         if positivity:
             np.maximum(x, 0, out=x)
-        if support is not None:
+        if has_support:
             x[~support] = 0
         return x
 
     if gamma <= 0:
         return project(v), dual
     gamma = float(gamma)
+    v = np.ascontiguousarray(v)  # the kernels see it through 3-D views
     p = np.zeros((v.ndim,) + v.shape, dtype=v.dtype) if dual is None else dual
     q, t = p.copy(), 1.0
-    w, tmp = np.empty_like(v), np.empty_like(v)
+    w = np.empty_like(v)
+    has_y = v.ndim == 3
+    v3, w3 = _as3d(v), _as3d(w)
     step = 1.0 / (4.0 * v.ndim * gamma)  # 1 / (γ ‖∇‖²), ‖∇‖² <= 4 d
     for i in range(_PROX_ITER):
         if poll is not None and i % 5 == 4:
             poll()
-        # q ← pn = q + step ∇ P(v − γ ∇ᵀq)
-        _grad_t(q, out=w)
-        np.multiply(w, gamma, out=w)
-        project(np.subtract(v, w, out=w))
-        for a in range(v.ndim):
-            np.add(q[a], np.multiply(_diff(w, a, tmp), step, out=tmp), out=q[a])
-        # pn /= max(1, |pn|)
-        np.multiply(q[0], q[0], out=w)
-        for a in range(1, v.ndim):
-            np.add(w, np.multiply(q[a], q[a], out=tmp), out=w)
-        np.maximum(np.sqrt(w, out=w), 1.0, out=w)
-        for a in range(v.ndim):
-            np.divide(q[a], w, out=q[a])
-        # the extrapolation pn + β (pn − p) into p's array; then p ← pn, q ← the extrapolation
+        # w = P(v − γ ∇ᵀq); q ← pn = (q + step ∇w) / max(1, |·|); p ← pn + β (pn − p); swap
+        _prox_primal(v3, *_dual_axes(q), has_y, gamma, positivity, supp, has_support, w3)
         tn = 0.5 * (1.0 + math.sqrt(1.0 + 4.0 * t * t))
         beta = (t - 1.0) / tn
-        for a in range(v.ndim):
-            np.add(q[a], np.multiply(np.subtract(q[a], p[a], out=p[a]), beta, out=p[a]), out=p[a])
+        _prox_dual(w3, *_dual_axes(q), *_dual_axes(p), has_y, step, beta)
         p, q, t = q, p, tn
-    del q, tmp
-    _grad_t(p, out=w)
-    np.multiply(w, gamma, out=w)
-    return project(np.subtract(v, w, out=v)), p
+    del q, w
+    _prox_primal(v3, *_dual_axes(p), has_y, gamma, positivity, supp, has_support, v3)
+    return v, p
 
 
 def _fista(forward, G, g, x, lam, L, positivity, max_iter, tol, started, time_limit, report, residual,
@@ -583,7 +611,7 @@ def _fista(forward, G, g, x, lam, L, positivity, max_iter, tol, started, time_li
 
     Memory: while the operator works, 4 images (x, y, the last G(A y − g) and the new one
     or the new iterate) beside the proximal map's dual (d images); the proximal map's own
-    work (d + 2 images) lives only while it runs."""
+    work (d + 1 images) lives only while it runs."""
     if support is not None:
         x = np.where(support, x, 0).astype(x.dtype)
     iterations = span(report, 0.1, 1.0)

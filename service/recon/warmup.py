@@ -120,11 +120,15 @@ def _warm_kwave(names: list[str]) -> None:
 
 def _warm_model(names: list[str]) -> None:
     from driver.physics.forward import forward_grid
+    from service.recon import tv
     from service.recon.operator import PlanarOperator
 
     for d in names:  # the model-based operator runs its transforms in the working precision
         op = PlanarOperator((4, 6, 6), _DX, C_DEFAULT * _DT, _DT, 32, dtype=d)
         op.adjoint(op.forward(np.ones((4, 6, 6))))
+        v = np.ones((4, 6, 6), dtype=d)  # the TV part's compiled sweeps (2-D images run as 3-D views)
+        tv._tv_prox(v, 0.1, True, None, None)
+        tv._tv_norm(v)
     forward_grid(np.ones((4, 6, 6)), _DX, C_DEFAULT * _DT, _DT, 32)
 
 

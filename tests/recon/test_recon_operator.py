@@ -267,3 +267,50 @@ def test_a_checkpoint_that_raises_abandons_the_application():
     with pytest.raises(Stop):
         op.forward(rng.standard_normal(shape))
     assert len(seen) == 3 < len(op._chunks)
+
+
+def _lattice_positions(shape, n=9, beyond=1):
+    """n sensors on the image's lateral grid nodes (the scanner's lattice), one of them
+    ``beyond`` pitches outside the image (the working grid still holds it)."""
+    lat = [(np.arange(m) - (m - 1) / 2) * DX for m in shape[1:][::-1]]  # x[, y]
+    pick = np.random.default_rng(5)
+    pos = np.column_stack([a[pick.integers(0, len(a), n)] for a in lat])
+    pos[0, 0] = lat[0][-1] + beyond * DX
+    return np.unique(pos, axis=0)
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+@pytest.mark.parametrize("periodic", [False, True])
+@pytest.mark.parametrize("shape", [(16, 9), (12, 10), (10, 5, 6), (9, 6, 7), (12, 8, 8)])
+def test_sensors_on_the_lattice_take_exact_lateral_transforms(shape, periodic, dtype):
+    """Sensors on grid nodes skip the lateral NUFFTs (exact DFTs on the rows that hold
+    sensors): the pair is still each other's adjoint, and the forward is the model of
+    `forward_points` (finufft's type-2 NUFFT, an independent path; free space) and of the
+    grid operator read at those nodes (periodic: the same working grid; in free space the two
+    pad differently, and a random p0's sharp-edged tails differ by a few per cent late in
+    the record)."""
+    pos = _lattice_positions(shape, beyond=0 if periodic else 1)
+    op = PlanarOperator(shape, DX, DZ, DT, 14, C, positions=pos, t0=2e-8, eps=1e-12, periodic=periodic,
+                        dtype=dtype)
+    assert op._nodes is not None and not op._plans  # the exact path, no NUFFT plans
+    assert_adjoint(op, 1e-10 if dtype == np.float64 else 2e-5)
+    p0 = rng.standard_normal(shape)
+    got = op.forward(p0)
+    assert got.shape == (len(pos), 14) and got.dtype == dtype
+    tol = 1e-9 if dtype == np.float64 else 2e-5
+    if not periodic:
+        assert_close(got, forward_points(p0, DX, DZ, pos, DT, 14, C, t0=2e-8, eps=1e-12), tol)
+        return
+    inside = np.all(np.abs(pos) <= (np.array(shape[1:][::-1]) - 1) / 2 * DX + 1e-12, axis=1)
+    grid = PlanarOperator(shape, DX, DZ, DT, 14, C, t0=2e-8, eps=1e-12, periodic=periodic, dtype=dtype)
+    on_grid = grid.forward(p0).reshape(14, -1)  # (n_t, n_y n_x), C order
+    ix = np.rint(pos[:, 0] / DX + (shape[-1] - 1) / 2).astype(int)
+    iy = np.rint(pos[:, 1] / DX + (shape[1] - 1) / 2).astype(int) if len(shape) == 3 else 0 * ix
+    assert_close(got[inside], on_grid[:, (iy * shape[-1] + ix)[inside]].T, tol)
+
+
+def test_sensors_off_the_lattice_keep_the_nufft():
+    pos = _lattice_positions((10, 5, 6))
+    pos[1, 1] += 0.3 * DX
+    op = PlanarOperator((10, 5, 6), DX, DZ, DT, 14, C, positions=pos)
+    assert op._nodes is None and op._plans

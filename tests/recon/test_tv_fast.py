@@ -1,11 +1,12 @@
-"""The model-based solver's TV part and its set-up cost (issue 19): the in-place kernels
+"""The model-based solver's TV part and its set-up cost (issue 19): the compiled kernels
 against independent oracles, their memory (numpy's allocations, traced), and the operator
 pairs spent before the first iteration.
 
-- `_grad` / `_grad_t` against ``np.diff`` and the adjoint identity ⟨∇x, q⟩ = ⟨x, ∇ᵀq⟩;
-- `_tv_norm` by slabs against the whole-volume formula, across slab boundaries;
+- the proximal map's compiled sweeps against the same fast gradient projection written with
+  numpy's ``np.diff`` (`_numpy_prox`), and against the adjoint identity ⟨∇x, q⟩ = ⟨x, ∇ᵀq⟩;
+- `_tv_norm` against the whole-volume formula;
 - `_tv_prox` (warm-started dual) against the closed form of 1-D TV denoising of a step,
-  with and without positivity; its traced peak is its dual's extrapolation and two images;
+  with and without positivity; its traced peak is its dual's extrapolation and one image;
 - a tv run spends 3 operator pairs before its first iteration (two power steps, the noise
   image, A of the warm start; no separate Aᵀg), and the default rule converges within 30
   pairs on the 3-D vessels, the 2-D and the 3-D balls of tests/recon/test_recon_tv_solver.py
@@ -27,30 +28,80 @@ def _diff_oracle(x: np.ndarray, a: int) -> np.ndarray:
     return np.diff(x, axis=a, append=np.take(x, [-1], axis=a))
 
 
-@pytest.mark.parametrize("shape", [(7, 9), (6, 5, 8), (1, 5, 4)])
+def _grad(x: np.ndarray) -> np.ndarray:
+    return np.stack([_diff_oracle(x, a) for a in range(x.ndim)])
+
+
+def _grad_t(q: np.ndarray) -> np.ndarray:
+    """−div q: the transpose of `_grad` (differences of q with 0 before the first index and
+    after the last, along each axis)."""
+    out = np.zeros(q.shape[1:], dtype=np.float64)
+    for a in range(q.shape[0]):
+        qa = np.moveaxis(q[a].astype(np.float64), a, 0)
+        t = np.zeros_like(qa)
+        t[:-1] -= qa[:-1]
+        t[1:] += qa[:-1]
+        out += np.moveaxis(t, 0, a)
+    return out
+
+
+def _numpy_prox(v, gamma, positivity, support, dual, inner):
+    """Beck & Teboulle's fast gradient projection on the dual, in float64 numpy (the oracle)."""
+    def project(x):
+        x = np.maximum(x, 0) if positivity else x
+        return np.where(support, x, 0) if support is not None else x
+
+    p = dual.astype(np.float64)
+    q, t, step = p.copy(), 1.0, 1.0 / (4.0 * v.ndim * gamma)
+    for _ in range(inner):
+        w = project(v - gamma * _grad_t(q))
+        pn = q + step * _grad(w)
+        pn /= np.maximum(1.0, np.sqrt(np.sum(pn * pn, axis=0)))
+        tn = 0.5 * (1.0 + np.sqrt(1.0 + 4.0 * t * t))
+        q, p, t = pn + (t - 1.0) / tn * (pn - p), pn, tn
+    return project(v - gamma * _grad_t(p)), p
+
+
+@pytest.mark.parametrize("shape", [(7, 9), (6, 5, 8), (1, 5, 4), (9, 1)])
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
-def test_gradient_and_its_transpose(shape, dtype):
+def test_the_transpose_is_the_adjoint_of_the_differences(shape, dtype):
+    """With γ = 1 and no projection, the primal sweep gives v − ∇ᵀq: ⟨∇x, q⟩ = ⟨x, ∇ᵀq⟩."""
     rng = np.random.default_rng(0)
     x = rng.standard_normal(shape).astype(dtype)
     q = rng.standard_normal((len(shape),) + shape).astype(dtype)
-    grad = tv._grad(x)
-    assert grad.shape == (len(shape),) + shape and grad.dtype == dtype
-    for a in range(len(shape)):
-        np.testing.assert_array_equal(grad[a], _diff_oracle(x, a))
-    out = np.full(shape, np.nan, dtype=dtype)  # every element written, none read
-    assert tv._grad_t(q, out=out) is out
-    lhs = float(np.vdot(grad.astype(np.float64), q.astype(np.float64)))
-    rhs = float(np.vdot(x.astype(np.float64), out.astype(np.float64)))
+    out = np.full(shape, np.nan, dtype=dtype)  # every element written
+    zero = np.zeros(shape, dtype=dtype)
+    tv._prox_primal(tv._as3d(zero), *tv._dual_axes(q), len(shape) == 3, 1.0, False,
+                    np.zeros((1, 1, 1), bool), False, tv._as3d(out))
+    gt = -out.astype(np.float64)
+    np.testing.assert_allclose(gt, _grad_t(q), rtol=0, atol=1e-5 if dtype == np.float32 else 1e-12)
+    lhs = float(np.vdot(_grad(x).astype(np.float64), q.astype(np.float64)))
+    rhs = float(np.vdot(x.astype(np.float64), gt))
     assert abs(lhs - rhs) <= (1e-5 if dtype == np.float32 else 1e-12) * np.sqrt(x.size) * 4
 
 
-@pytest.mark.parametrize("slab", [1, 7, 40, 1 << 18])
-def test_tv_norm_by_slabs_is_the_whole_volume_formula(monkeypatch, slab):
-    monkeypatch.setattr(tv, "_SLAB", slab)  # 1: a row per slab; 7, 40: slabs of 1 and several rows
-    rng = np.random.default_rng(1)
-    for x in (rng.standard_normal((9, 4, 5)), rng.standard_normal((11, 6)).astype(np.float32)):
-        squares = sum(_diff_oracle(x, a).astype(np.float64) ** 2 for a in range(x.ndim))
-        assert tv._tv_norm(x) == pytest.approx(float(np.sum(np.sqrt(squares))), rel=1e-12)
+@pytest.mark.parametrize("shape", [(12, 15), (6, 7, 8), (5, 1, 6)])
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize(("positivity", "with_support"), [(False, False), (True, False), (True, True)])
+def test_the_compiled_proximal_map_is_the_numpy_algorithm(shape, dtype, positivity, with_support):
+    rng = np.random.default_rng(4)
+    v = rng.standard_normal(shape)
+    dual = np.clip(rng.standard_normal((len(shape),) + shape) * 0.3, -0.5, 0.5)
+    support = rng.random(shape) > 0.3 if with_support else None
+    want, want_dual = _numpy_prox(v, 0.3, positivity, support, dual, tv._PROX_ITER)
+    got, got_dual = tv._tv_prox(v.astype(dtype), 0.3, positivity, support, dual.astype(dtype))
+    tol = 2e-5 if dtype == np.float32 else 1e-12
+    assert got.dtype == dtype and got_dual.dtype == dtype
+    np.testing.assert_allclose(got, want, rtol=0, atol=tol)
+    np.testing.assert_allclose(got_dual, want_dual, rtol=0, atol=tol)
+
+
+@pytest.mark.parametrize("shape", [(9, 4, 5), (11, 6), (1, 5, 4), (7, 1)])
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_tv_norm_is_the_whole_volume_formula(shape, dtype):
+    x = np.random.default_rng(1).standard_normal(shape).astype(dtype)
+    squares = sum(_diff_oracle(x, a).astype(np.float64) ** 2 for a in range(x.ndim))
+    assert tv._tv_norm(x) == pytest.approx(float(np.sum(np.sqrt(squares))), rel=1e-12)
 
 
 @pytest.mark.parametrize("positivity", [False, True])
@@ -86,7 +137,7 @@ def test_tv_prox_keeps_to_the_support_and_works_in_place():
 
 def test_tv_prox_and_tv_norm_memory():
     """Traced numpy allocations: `_tv_prox` with its dual given needs its dual's extrapolation
-    (d images) and two images; `_tv_norm` a few slabs, not a volume."""
+    (d images) and one image; `_tv_norm` none."""
     v = np.random.default_rng(3).standard_normal((64, 48, 48)).astype(np.float32)
     dual = np.zeros((3,) + v.shape, dtype=np.float32)
     tracemalloc.start()
@@ -101,8 +152,8 @@ def test_tv_prox_and_tv_norm_memory():
         norm_peak = tracemalloc.get_traced_memory()[1] - base
     finally:
         tracemalloc.stop()
-    assert 5 * v.nbytes <= prox_peak < 5.5 * v.nbytes, prox_peak / v.nbytes  # (d + 2) images and slivers
-    assert norm_peak < 6 * 8 * tv._SLAB, norm_peak
+    assert 4 * v.nbytes <= prox_peak < 4.5 * v.nbytes, prox_peak / v.nbytes  # (d + 1) images and slivers
+    assert norm_peak < 0.01 * v.nbytes, norm_peak
 
 
 def test_three_operator_pairs_before_the_first_iteration():
