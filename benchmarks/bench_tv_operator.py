@@ -33,6 +33,13 @@ CPU-time ratios are steadier), pair / NER as CPU-time ratio (wall in brackets):
     256x226x226    float64   257 x 288 x 288   5.54 (4.7)                        2.18 (1.84)
     128x128x128 at 1653 random lattice sensors, pair / NEDNER: float32 2.19 -> 1.00, float64 2.23 -> 1.49
 
+Then (2026-11-23 afternoon, idle; the previous tree f0bb686 and this one alternating, median of
+3, float32 at 256x226x226): the grid pair 2.13 -> 1.74 s (NER 0.66 -> 0.46 s: the compiled
+temporal interpolation and the in-place inverse lateral FFT made NER faster too, so pair/NER
+reads 3.22 -> 3.81); the pair at 1653 lattice sensors 3.55 -> 1.58 s, pair/NEDNER 3.72 -> 1.97
+(sensors on grid nodes take exact lateral DFTs instead of NUFFTs, and the temporal step
+gathers and scatters its columns in place).
+
 At 128 x 128² the padded lateral area alone is 1.56x NER's (160² half spectrum against
 128²), so two transforms cost at least ~3.1 NERs at NER's own cost per element; the
 exact free-space model cannot pad less (`service.recon.operator`, Padding). At the
