@@ -258,10 +258,10 @@ def _place_columns(A, cols, scale, shift, L, U):
                     U[c, j] = A[n, col] * scale[n]
 
 
-@numba.njit(parallel=True, cache=True)
 def gather_columns(A: np.ndarray, cols: np.ndarray, out: np.ndarray) -> None:
     """out[c, j] = A[j, cols[c]]: chosen columns of a 2-D array, transposed, in
-    cache-friendly tiles (parallel; no copy of the chosen columns first).
+    cache-friendly tiles (parallel; no copy of the chosen columns first): `_place_columns`
+    with unit scale and no shift.
 
     Parameters
     ----------
@@ -279,19 +279,8 @@ def gather_columns(A: np.ndarray, cols: np.ndarray, out: np.ndarray) -> None:
     array([[ 3.,  7., 11.],
            [ 1.,  5.,  9.]])
     """
-    n_j = A.shape[0]
-    n_c = cols.shape[0]
-    tile = 64
-    n_blocks = (n_c + tile - 1) // tile
-    for b in numba.prange(n_blocks):
-        c0 = b * tile
-        c1 = min(c0 + tile, n_c)
-        for j0 in range(0, n_j, tile):
-            j1 = min(j0 + tile, n_j)
-            for c in range(c0, c1):
-                col = cols[c]
-                for j in range(j0, j1):
-                    out[c, j] = A[j, col]
+    unit = np.ones(A.shape[0], dtype=out.real.dtype)
+    _place_columns(A, np.asarray(cols, dtype=np.int64), unit, 0, out.shape[1], out)
 
 
 @numba.njit(parallel=True, cache=True)
@@ -329,9 +318,9 @@ def scatter_columns(F: np.ndarray, cols: np.ndarray, out: np.ndarray) -> None:
                     out[j, cols[c]] = F[c, j]
 
 
-@numba.njit(parallel=True, cache=True)
 def transpose(F: np.ndarray, out: np.ndarray) -> None:
-    """out[j, c] = F[c, j] for 2-D arrays, in cache-friendly tiles (parallel).
+    """out[j, c] = F[c, j] for 2-D arrays, in cache-friendly tiles (parallel; `scatter_columns`
+    to every column).
 
     Parameters
     ----------
@@ -349,17 +338,7 @@ def transpose(F: np.ndarray, out: np.ndarray) -> None:
            [1., 4.],
            [2., 5.]])
     """
-    n_c, n_j = F.shape
-    tile = 64
-    n_blocks = (n_j + tile - 1) // tile
-    for b in numba.prange(n_blocks):
-        j0 = b * tile
-        j1 = min(j0 + tile, n_j)
-        for c0 in range(0, n_c, tile):
-            c1 = min(c0 + tile, n_c)
-            for j in range(j0, j1):
-                for c in range(c0, c1):
-                    out[j, c] = F[c, j]
+    scatter_columns(F, np.arange(F.shape[0], dtype=np.int64), out)
 
 
 def to_fine_grid(A: np.ndarray, grid: TemporalGrid, t0_is_zero: bool,

@@ -462,64 +462,103 @@ def _dual_axes(q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return q[0], q[1], q[2]
 
 
+@numba.njit(cache=True)
+def _primal_plane(v, qz, qy, qx, has_y, gamma, positivity, support, use_support, z, out):
+    """Plane z of `_prox_primal` into the 2-D ``out`` (n_y, n_x)."""
+    nz, ny, nx = v.shape
+    for y in range(ny):
+        for x in range(nx):
+            g = 0.0
+            if z < nz - 1:
+                g -= qz[z, y, x]
+            if z > 0:
+                g += qz[z - 1, y, x]
+            if has_y:
+                if y < ny - 1:
+                    g -= qy[z, y, x]
+                if y > 0:
+                    g += qy[z, y - 1, x]
+            if x < nx - 1:
+                g -= qx[z, y, x]
+            if x > 0:
+                g += qx[z, y, x - 1]
+            r = v[z, y, x] - gamma * g
+            if positivity and r < 0.0:
+                r = 0.0
+            if use_support and not support[z, y, x]:
+                r = 0.0
+            out[y, x] = r
+
+
 @numba.njit(parallel=True, cache=True)
 def _prox_primal(v, qz, qy, qx, has_y, gamma, positivity, support, use_support, out):
-    """The primal step ``out`` = P(v − γ ∇ᵀq) voxel by voxel, ∇ᵀ the transpose of the forward differences (0 at
-    the last index): (∇ᵀq)_i = Σ_a [i_a < n_a − 1] (−q_a)_i + [i_a > 0] (q_a)_{i − e_a}; P
-    clips below 0 (``positivity``) and zeroes off ``support`` (``use_support``). ``out`` may
-    be ``v``: each voxel reads only its own v."""
-    nz, ny, nx = v.shape
-    for z in numba.prange(nz):
-        for y in range(ny):
-            for x in range(nx):
-                g = 0.0
-                if z < nz - 1:
-                    g -= qz[z, y, x]
-                if z > 0:
-                    g += qz[z - 1, y, x]
-                if has_y:
-                    if y < ny - 1:
-                        g -= qy[z, y, x]
-                    if y > 0:
-                        g += qy[z, y - 1, x]
-                if x < nx - 1:
-                    g -= qx[z, y, x]
-                if x > 0:
-                    g += qx[z, y, x - 1]
-                r = v[z, y, x] - gamma * g
-                if positivity and r < 0.0:
-                    r = 0.0
-                if use_support and not support[z, y, x]:
-                    r = 0.0
-                out[z, y, x] = r
+    """The primal step ``out`` = P(v − γ ∇ᵀq) voxel by voxel (`_primal_plane` per plane), ∇ᵀ
+    the transpose of the forward differences (0 at the last index): (∇ᵀq)_i = Σ_a
+    [i_a < n_a − 1] (−q_a)_i + [i_a > 0] (q_a)_{i − e_a}; P clips below 0 (``positivity``)
+    and zeroes off ``support`` (``use_support``). ``out`` may be ``v``: each voxel reads only
+    its own v."""
+    for z in numba.prange(v.shape[0]):
+        _primal_plane(v, qz, qy, qx, has_y, gamma, positivity, support, use_support, z, out[z])
+
+
+@numba.njit(cache=True)
+def _dual_plane(cur, nxt, z, qz, qy, qx, pz, py, px, has_y, step, beta):
+    """Plane z of the dual step: pn = q + step ∇w (w's plane z ``cur``, plane z + 1 ``nxt``),
+    pn /= max(1, |pn|) into q, the extrapolation pn + β (pn − p) into p."""
+    nz = qz.shape[0]
+    ny, nx = cur.shape
+    for y in range(ny):
+        for x in range(nx):
+            c = cur[y, x]
+            a = qz[z, y, x] + step * ((nxt[y, x] - c) if z < nz - 1 else 0.0)
+            b = 0.0
+            if has_y:
+                b = qy[z, y, x] + step * ((cur[y + 1, x] - c) if y < ny - 1 else 0.0)
+            e = qx[z, y, x] + step * ((cur[y, x + 1] - c) if x < nx - 1 else 0.0)
+            m = math.sqrt(a * a + b * b + e * e)
+            if m > 1.0:
+                a /= m
+                b /= m
+                e /= m
+            qz[z, y, x] = a
+            pz[z, y, x] = a + beta * (a - pz[z, y, x])
+            if has_y:
+                qy[z, y, x] = b
+                py[z, y, x] = b + beta * (b - py[z, y, x])
+            qx[z, y, x] = e
+            px[z, y, x] = e + beta * (e - px[z, y, x])
 
 
 @numba.njit(parallel=True, cache=True)
-def _prox_dual(w, qz, qy, qx, pz, py, px, has_y, step, beta):
-    """One dual step of the fast gradient projection, voxel by voxel: pn = q + step ∇w,
-    pn /= max(1, |pn|) into q, and the extrapolation pn + β (pn − p) into p."""
-    nz, ny, nx = w.shape
-    for z in numba.prange(nz):
-        for y in range(ny):
-            for x in range(nx):
-                c = w[z, y, x]
-                a = qz[z, y, x] + step * ((w[z + 1, y, x] - c) if z < nz - 1 else 0.0)
-                b = 0.0
-                if has_y:
-                    b = qy[z, y, x] + step * ((w[z, y + 1, x] - c) if y < ny - 1 else 0.0)
-                e = qx[z, y, x] + step * ((w[z, y, x + 1] - c) if x < nx - 1 else 0.0)
-                m = math.sqrt(a * a + b * b + e * e)
-                if m > 1.0:
-                    a /= m
-                    b /= m
-                    e /= m
-                qz[z, y, x] = a
-                pz[z, y, x] = a + beta * (a - pz[z, y, x])
-                if has_y:
-                    qy[z, y, x] = b
-                    py[z, y, x] = b + beta * (b - py[z, y, x])
-                qx[z, y, x] = e
-                px[z, y, x] = e + beta * (e - px[z, y, x])
+def _prox_step(v, qz, qy, qx, pz, py, px, has_y, gamma, positivity, support, use_support, step, beta,
+               starts, planes):
+    """One inner step of the fast gradient projection in one sweep: w = P(v − γ ∇ᵀq) plane by
+    plane, each plane of w made just before the dual step of the plane above it needs it
+    (from q not yet stepped there), then q ← pn, p ← the extrapolation (`_dual_plane`). The
+    volume's planes split into slabs [starts[k], starts[k + 1]) swept in parallel; ``planes``
+    (n_slabs, 3, n_y, n_x) holds w at each slab's first plane, made from the old q before any
+    slab steps, and each slab's two-plane ring. The same arithmetic as a full primal sweep
+    followed by a full dual sweep, without the image w: one pass over v, q and p."""
+    nz = v.shape[0]
+    n_slabs = starts.shape[0] - 1
+    for k in numba.prange(n_slabs):
+        _primal_plane(v, qz, qy, qx, has_y, gamma, positivity, support, use_support, starts[k], planes[k, 0])
+    for k in numba.prange(n_slabs):
+        z0 = starts[k]
+        z1 = starts[k + 1]
+        cur = planes[k, 0]
+        ring = 1
+        for z in range(z0, z1):
+            if z + 1 < z1:
+                nxt = planes[k, ring]
+                _primal_plane(v, qz, qy, qx, has_y, gamma, positivity, support, use_support, z + 1, nxt)
+            elif z + 1 < nz:
+                nxt = planes[k + 1, 0]
+            else:
+                nxt = cur  # the last plane: no difference along z
+            _dual_plane(cur, nxt, z, qz, qy, qx, pz, py, px, has_y, step, beta)
+            cur = nxt
+            ring = 3 - ring
 
 
 @numba.njit(parallel=True, cache=True)
@@ -554,9 +593,9 @@ def _tv_prox(v: np.ndarray, gamma: float, positivity: bool, support, dual, poll=
     (None: everywhere allowed): the fast gradient projection of Beck & Teboulle (2009) on
     the dual, `_PROX_ITER` steps from ``dual`` (the previous call's, a warm start, updated in
     place; None: 0). No operator. ``poll()``, if given, is called every few inner steps (a
-    cancel). Returns (x, dual); x is ``v`` (C-contiguous), overwritten. Each inner step is two
-    compiled sweeps over the volume (`_prox_primal`, `_prox_dual`). Work: the dual's
-    extrapolation (d images) and one image, made once per call."""
+    cancel). Returns (x, dual); x is ``v`` (C-contiguous), overwritten. Each inner step is one
+    compiled sweep over the volume (`_prox_step`; the primal w lives a few planes at a time).
+    Work: the dual's extrapolation (d images), made once per call."""
     has_support = support is not None
     supp = _as3d(np.ascontiguousarray(support, dtype=bool)) if has_support else np.zeros((1, 1, 1), bool)
 
@@ -573,20 +612,22 @@ def _tv_prox(v: np.ndarray, gamma: float, positivity: bool, support, dual, poll=
     v = np.ascontiguousarray(v)  # the kernels see it through 3-D views
     p = np.zeros((v.ndim,) + v.shape, dtype=v.dtype) if dual is None else dual
     q, t = p.copy(), 1.0
-    w = np.empty_like(v)
     has_y = v.ndim == 3
-    v3, w3 = _as3d(v), _as3d(w)
+    v3 = _as3d(v)
+    n_slabs = max(1, min(v3.shape[0], 2 * numba.get_num_threads()))
+    starts = np.linspace(0, v3.shape[0], n_slabs + 1).astype(np.int64)
+    planes = np.empty((n_slabs, 3) + v3.shape[1:], dtype=v.dtype)
     step = 1.0 / (4.0 * v.ndim * gamma)  # 1 / (γ ‖∇‖²), ‖∇‖² <= 4 d
     for i in range(_PROX_ITER):
         if poll is not None and i % 5 == 4:
             poll()
         # w = P(v − γ ∇ᵀq); q ← pn = (q + step ∇w) / max(1, |·|); p ← pn + β (pn − p); swap
-        _prox_primal(v3, *_dual_axes(q), has_y, gamma, positivity, supp, has_support, w3)
         tn = 0.5 * (1.0 + math.sqrt(1.0 + 4.0 * t * t))
         beta = (t - 1.0) / tn
-        _prox_dual(w3, *_dual_axes(q), *_dual_axes(p), has_y, step, beta)
+        _prox_step(v3, *_dual_axes(q), *_dual_axes(p), has_y, gamma, positivity, supp, has_support, step, beta,
+                   starts, planes)
         p, q, t = q, p, tn
-    del q, w
+    del q, planes
     _prox_primal(v3, *_dual_axes(p), has_y, gamma, positivity, supp, has_support, v3)
     return v, p
 
@@ -611,7 +652,7 @@ def _fista(forward, G, g, x, lam, L, positivity, max_iter, tol, started, time_li
 
     Memory: while the operator works, 4 images (x, y, the last G(A y − g) and the new one
     or the new iterate) beside the proximal map's dual (d images); the proximal map's own
-    work (d + 1 images) lives only while it runs."""
+    work (d images) lives only while it runs."""
     if support is not None:
         x = np.where(support, x, 0).astype(x.dtype)
     iterations = span(report, 0.1, 1.0)

@@ -99,7 +99,7 @@ from driver.physics import nufft
 data = np.zeros((16, 4, 4), dtype=np.float32)
 data[3, 2, 2] = 1.0
 reconstruct_grid(data, 1e-4, 2e-8, dtype="float32")
-stats = {name: getattr(nufft, name).stats for name in ("_place_columns", "transpose", "_interp_kernel")}
+stats = {name: getattr(nufft, name).stats for name in ("_place_columns", "scatter_columns", "_interp_kernel")}
 print(json.dumps({name: [sum(s.cache_hits.values()), sum(s.cache_misses.values())] for name, s in stats.items()}))
 '''
 
