@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["centred_axis", "centred_positions", "centred_index"]
+__all__ = ["centred_axis", "centred_positions", "centred_index", "node_indices"]
 
 
 def centred_axis(n: int, d: float) -> np.ndarray:
@@ -75,3 +75,40 @@ def centred_index(x, n: int, d: float) -> np.ndarray:
     array([0. , 1.5, 3. ])
     """
     return np.asarray(x) / float(d) + (int(n) - 1) / 2.0
+
+
+def node_indices(positions, axes, steps) -> tuple[np.ndarray, np.ndarray] | None:
+    """The node of a regular grid each sensor sits on, if every one sits on a node.
+
+    Parameters
+    ----------
+    positions : ndarray ``(n_points, d)``, d = 1 (x) or 2 (x, y); m.
+    axes : sequence of d ndarrays, the grid's x (and y) coordinates, m, regular and increasing.
+    steps : sequence of d floats, their spacings, m.
+
+    Returns
+    -------
+    (i_x, i_y) : two ndarrays ``(n_points,)`` int64 (i_y zeros for d = 1), or None when a
+    position is more than 1e-6 of a pitch off a node or outside the axes.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from driver.physics.axes import centred_axis, node_indices
+    >>> x = centred_axis(4, 1e-4)
+    >>> node_indices(np.array([[-1.5e-4], [1.5e-4]]), (x,), (1e-4,))
+    (array([0, 3]), array([0, 0]))
+    >>> node_indices(np.array([[0.0]]), (x,), (1e-4,)) is None  # between two nodes
+    True
+    """
+    pos = np.asarray(positions, dtype=np.float64)
+    idx = []
+    for a in range(pos.shape[1]):
+        f = (pos[:, a] - axes[a][0]) / steps[a]
+        i = np.rint(f)
+        if np.any(np.abs(f - i) > 1e-6) or i.min() < 0 or i.max() > len(axes[a]) - 1:
+            return None
+        idx.append(i.astype(np.int64))
+    if len(idx) == 1:
+        idx.append(np.zeros_like(idx[0]))
+    return idx[0], idx[1]

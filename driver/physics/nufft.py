@@ -465,15 +465,24 @@ def group_columns(klat2: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray
     return k[first], ptr.astype(np.int64), order.astype(np.int64)
 
 
+@numba.njit(cache=True)
+def _tap_arrays(nkz, w):
+    """One column group's work arrays for `_group_taps`: base (nkz,) int64, wts (w, nkz),
+    t (nkz,), ar (nkz,), ai (nkz,) float64."""
+    return (np.empty(nkz, np.int64), np.empty((w, nkz), np.float64), np.empty(nkz, np.float64),
+            np.empty(nkz, np.float64), np.empty(nkz, np.float64))
+
+
 @numba.njit(cache=True, fastmath=True)
-def _group_taps(k2, kz, qw, c, dt, t0, h, kind, w, hc, shift, inversion, base, wts, ar, ai):
+def _group_taps(k2, kz, qw, c, dt, t0, h, kind, w, hc, shift, inversion, base, wts, t, ar, ai):
     """The taps of one column group (one |k_lat|², ``k2``) at every kz, shared by all its
     columns; returns n_j, the number of kz filled (inversion: those at or below the
     temporal Nyquist, kz ascending; otherwise all).
 
     Row j: ``base[j]`` the first tap's fine-grid index (before wrapping), ``wts[:, j]`` the
     w tap weights (tap-major, so that Horner's rule runs over j in SIMD lanes: the
-    polynomial of tap k in ``t = 2x - 1``, `kernel_polynomials`), and ``ar[j] + i ai[j]``
+    polynomial of tap k in ``t[j] = 2x - 1``, `kernel_polynomials`; linear: the fraction), and
+    ``ar[j] + i ai[j]``
     the weight times e^{i φ_j} with φ_j = shift θ_j + ω_j t0, the centring and t0 phase of
     the +θ evaluation (its conjugate belongs to the -θ one)."""
     nkz = kz.shape[0]
@@ -494,10 +503,10 @@ def _group_taps(k2, kz, qw, c, dt, t0, h, kind, w, hc, shift, inversion, base, w
         s = th / h
         if kind == 0:
             b = int(math.ceil(s - 0.5 * w))
-            wts[0, j] = 2.0 * (b - s + 0.5 * w) - 1.0  # t, replaced by the taps below
+            t[j] = 2.0 * (b - s + 0.5 * w) - 1.0
         elif kind == 1:
             b = int(math.floor(s))
-            wts[0, j] = s - b
+            t[j] = s - b
         else:
             b = int(math.floor(s + 0.5))
         base[j] = b
@@ -505,9 +514,6 @@ def _group_taps(k2, kz, qw, c, dt, t0, h, kind, w, hc, shift, inversion, base, w
         ar[j] = sc * math.cos(ph)
         ai[j] = sc * math.sin(ph)
     if kind == 0:
-        for j in range(nj):
-            ar[nkz + j] = wts[0, j]  # t kept aside (ar has 2 nkz entries)
-        t = ar[nkz:]
         for k in range(w):
             row = wts[k]
             c0 = hc[k, 0]
@@ -519,9 +525,8 @@ def _group_taps(k2, kz, qw, c, dt, t0, h, kind, w, hc, shift, inversion, base, w
                     row[j] = row[j] * t[j] + cd
     elif kind == 1:
         for j in range(nj):
-            frac = wts[0, j]
-            wts[0, j] = 1.0 - frac
-            wts[1, j] = frac
+            wts[0, j] = 1.0 - t[j]
+            wts[1, j] = t[j]
     else:
         for j in range(nj):
             wts[0, j] = 1.0
@@ -537,11 +542,8 @@ def _interp_kernel(U, gvals, gptr, order, kz, qw, c, dt, t0, h, L, kind, w, hc, 
     n_groups = gvals.shape[0]
     nkz = kz.shape[0]
     for g in numba.prange(n_groups):
-        base = np.empty(nkz, np.int64)
-        wts = np.empty((w, nkz), np.float64)
-        ar = np.empty(2 * nkz, np.float64)
-        ai = np.empty(nkz, np.float64)
-        nj = _group_taps(gvals[g], kz, qw, c, dt, t0, h, kind, w, hc, shift, inversion, base, wts, ar, ai)
+        base, wts, t, ar, ai = _tap_arrays(nkz, w)
+        nj = _group_taps(gvals[g], kz, qw, c, dt, t0, h, kind, w, hc, shift, inversion, base, wts, t, ar, ai)
         for ci in range(gptr[g], gptr[g + 1]):
             col = order[ci]
             u = U[col]
@@ -589,11 +591,8 @@ def _spread_kernel(B, gvals, gptr, order, kz, qw, c, dt, t0, h, L, kind, w, hc, 
     n_groups = gvals.shape[0]
     nkz = kz.shape[0]
     for g in numba.prange(n_groups):
-        base = np.empty(nkz, np.int64)
-        wts = np.empty((w, nkz), np.float64)
-        ar = np.empty(2 * nkz, np.float64)
-        ai = np.empty(nkz, np.float64)
-        _group_taps(gvals[g], kz, qw, c, dt, t0, h, kind, w, hc, shift, False, base, wts, ar, ai)
+        base, wts, t, ar, ai = _tap_arrays(nkz, w)
+        _group_taps(gvals[g], kz, qw, c, dt, t0, h, kind, w, hc, shift, False, base, wts, t, ar, ai)
         # one column's fine grid accumulates in double precision (real and imaginary parts
         # interleaved), then is stored once (R of complex64 would convert on every tap)
         r = np.empty(2 * L, np.float64)

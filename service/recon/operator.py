@@ -92,7 +92,7 @@ import scipy.fft
 
 from driver.constants import C_DEFAULT
 from driver.physics import nufft
-from driver.physics.axes import centred_index
+from driver.physics.axes import centred_axis, centred_index, node_indices
 from driver.physics.grid_sizes import pad_sizes
 from driver.physics.nufft_plans import lateral_plan
 from service.recon import checks
@@ -599,19 +599,15 @@ class PlanarOperator(pylops.LinearOperator):
 
 
 def _lattice_nodes(pos: np.ndarray, padded_shape, dx: float):
-    """Where every sensor sits on a node of the working grid (to 1e-6 of a pitch; the
-    scanner's lattice, the image's lateral grid, is one): (the node rows that hold sensors,
+    """Where every sensor sits on a node of the working grid (`driver.physics.axes.node_indices`;
+    the scanner's lattice, the image's lateral grid, is one): (the node rows that hold sensors,
     each sensor's place among them, each sensor's column), so that the lateral point
     transforms are exact DFTs on those rows; else None (the lateral NUFFTs)."""
     _, n_y2, n_x2 = padded_shape
-    index = [centred_index(pos[:, 0], n_x2, dx)]
-    index.append(centred_index(pos[:, 1], n_y2, dx) if pos.shape[1] == 2 else np.zeros(len(pos)))
-    nodes = []
-    for f, n in zip(index, (n_x2, n_y2)):
-        i = np.rint(f)
-        if np.any(np.abs(f - i) > 1e-6) or i.min() < 0 or i.max() > n - 1:
-            return None
-        nodes.append(i.astype(np.int64))
+    axes = (centred_axis(n_x2, dx), centred_axis(n_y2, dx))[: pos.shape[1]]
+    nodes = node_indices(pos, axes, (dx, dx)[: pos.shape[1]])
+    if nodes is None:
+        return None
     cols, node_rows = nodes
     if len(np.unique(node_rows * n_x2 + cols)) < len(cols):  # two sensors on one node: the NUFFTs sum them
         return None

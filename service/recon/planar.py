@@ -31,7 +31,7 @@ import scipy.fft
 
 from driver.constants import C_DEFAULT
 from driver.physics import nufft
-from driver.physics.axes import centred_axis
+from driver.physics.axes import centred_axis, node_indices
 from driver.physics.fast_lengths import fast_dct1_rows, fast_lateral, fast_length
 from driver.physics.lateral import irfft_lateral
 from driver.physics.nufft_plans import lateral_plan
@@ -458,21 +458,6 @@ def _check_grid(grid, d: int) -> tuple[np.ndarray, ...]:
     return tuple(out)
 
 
-def _grid_indices(pos: np.ndarray, axes, steps) -> tuple[np.ndarray, np.ndarray] | None:
-    """(i_x, i_y) node indices of the positions if every one lies on a node of the output
-    grid (to 1e-6 of a pitch), else None."""
-    idx = []
-    for a in range(pos.shape[1]):
-        f = (pos[:, a] - axes[a][0]) / steps[a]
-        i = np.rint(f)
-        if np.any(np.abs(f - i) > 1e-6) or i.min() < 0 or i.max() > len(axes[a]) - 1:
-            return None
-        idx.append(i.astype(np.int64))
-    if len(idx) == 1:
-        idx.append(np.zeros_like(idx[0]))
-    return idx[0], idx[1]
-
-
 def _type1(strengths, pos, axes, dx, dy, n_y, n_x, eps, rdtype, progress):
     """Lateral type-1 NUFFT (finufft) of the weighted A-lines ``strengths`` (n_t, n_points)
     onto the (n_y, n_x) transform grid's wavenumbers: (n_t, n_y, n_x) complex, with the
@@ -648,7 +633,7 @@ def reconstruct_points(
     )
     cell = dx * (dy if d == 2 else 1.0)
     weighted = (al * (h / cell)[:, None]).T  # (n_t, n_points)
-    on_grid = _grid_indices(pos, axes, steps)
+    on_grid = node_indices(pos, axes, steps)
     kernel = rising(progress)  # strictly increasing fractions, each step through its span
     if on_grid is not None:
         # every sensor on a node of the output grid (lattice masks): the type-1 sum is the

@@ -572,9 +572,9 @@ def _dual_plane(cur, nxt, z, qz, qy, qx, pz, py, px, has_y, step, beta, scratch)
         for x in range(nx - 1):
             dx[x] = c[x + 1] - c[x]
         dx[nx - 1] = 0.0
-        yq = y if has_y else 0
-        _dual_row(dz, dy, dx, qz[z, y], qy[z, yq] if has_y else qy[0, 0], qx[z, y], pz[z, y],
-                  py[z, yq] if has_y else py[0, 0], px[z, y], has_y, step, beta, nx)
+        # in 2-D qy, py are (1, 1, 1) placeholders `_dual_row` never touches
+        _dual_row(dz, dy, dx, qz[z, y], qy[z, y] if has_y else qy[0, 0], qx[z, y], pz[z, y],
+                  py[z, y] if has_y else py[0, 0], px[z, y], has_y, step, beta, nx)
 
 
 @numba.njit(parallel=True, cache=True)
@@ -646,7 +646,6 @@ def _tv_prox(v: np.ndarray, gamma: float, positivity: bool, support, dual, poll=
     compiled sweep over the volume (`_prox_step`; the primal w lives a few planes at a time).
     Work: the dual's extrapolation (d images), made once per call."""
     has_support = support is not None
-    supp = _as3d(np.ascontiguousarray(support, dtype=bool)) if has_support else np.zeros((1, 1, 1), bool)
 
     def project(x):
         if positivity:
@@ -658,6 +657,7 @@ def _tv_prox(v: np.ndarray, gamma: float, positivity: bool, support, dual, poll=
     if gamma <= 0:
         return project(v), dual
     gamma = float(gamma)
+    supp = _as3d(np.ascontiguousarray(support, dtype=bool)) if has_support else np.zeros((1, 1, 1), bool)
     v = np.ascontiguousarray(v)  # the kernels see it through 3-D views
     p = np.zeros((v.ndim,) + v.shape, dtype=v.dtype) if dual is None else dual
     q, t = p.copy(), 1.0
