@@ -25,20 +25,21 @@ Two ways to evaluate S(theta) are offered (``kind``):
   rounded up to a fast length: `driver.physics.fast_lengths`) and interpolated linearly /
   by the nearest node (ties to the upper node).
 
-The interpolation runs in one compiled loop (numba) over groups of columns that share
-``|k_lat|^2`` (the taps depend on nothing else), so kernel values are computed once per
-group.
+The interpolation runs in one compiled loop (numba, `driver.physics.nufft_kernels`) over
+groups of columns that share ``|k_lat|^2`` (the taps depend on nothing else), so kernel
+values are computed once per group. A small transform (`driver.physics.fft_engine.is_small`:
+a tiny image, a quick look) runs the same arithmetic in numpy instead, so that it needs
+neither numba nor scipy.fft (their imports and numba's cache load cost a fresh interpreter
+about 1.5 s, many times such a reconstruction).
 """
 from __future__ import annotations
 
 import functools
-import math
 from dataclasses import dataclass
 
-import numba
 import numpy as np
-import scipy.fft
 
+from driver.physics import fft_engine
 from driver.physics.grid_sizes import KINDS, grid_length, kernel_params
 
 __all__ = [
@@ -48,6 +49,13 @@ __all__ = [
 ]
 
 _KIND_CODE = {"nufft": 0, "linear": 1, "nearest": 2}
+
+
+def _compiled():
+    """The numba kernels (imported on first use: numba's import costs start-up time)."""
+    from driver.physics import nufft_kernels
+
+    return nufft_kernels
 
 
 @dataclass(frozen=True)
@@ -237,31 +245,10 @@ def make_grid(n_t: int, kind: str = "nufft", eps: float = 1e-6) -> TemporalGrid:
     return TemporalGrid(n_t, kind, L, 0, 2 if kind == "linear" else 1, 0.0, ones, np.zeros((1, 1)))
 
 
-@numba.njit(parallel=True, cache=True)
-def _place_columns(A, cols, scale, shift, L, U):
-    """U[c, (n - shift) mod L] = A[n, cols[c]] * scale[n], in cache-friendly tiles."""
-    n_t = A.shape[0]
-    n_cols = cols.shape[0]
-    tile = 64
-    n_blocks = (n_cols + tile - 1) // tile
-    for b in numba.prange(n_blocks):
-        c0 = b * tile
-        c1 = min(c0 + tile, n_cols)
-        for n0 in range(0, n_t, tile):
-            n1 = min(n0 + tile, n_t)
-            for c in range(c0, c1):
-                col = cols[c]
-                for n in range(n0, n1):
-                    j = n - shift
-                    if j < 0:
-                        j += L
-                    U[c, j] = A[n, col] * scale[n]
-
-
 def gather_columns(A: np.ndarray, cols: np.ndarray, out: np.ndarray) -> None:
     """out[c, j] = A[j, cols[c]]: chosen columns of a 2-D array, transposed, in
-    cache-friendly tiles (parallel; no copy of the chosen columns first): `_place_columns`
-    with unit scale and no shift.
+    cache-friendly tiles (parallel; no copy of the chosen columns first): the compiled
+    ``place_columns`` with unit scale and no shift.
 
     Parameters
     ----------
@@ -280,10 +267,9 @@ def gather_columns(A: np.ndarray, cols: np.ndarray, out: np.ndarray) -> None:
            [ 1.,  5.,  9.]])
     """
     unit = np.ones(A.shape[0], dtype=out.real.dtype)
-    _place_columns(A, np.asarray(cols, dtype=np.int64), unit, 0, out.shape[1], out)
+    _compiled().place_columns(A, np.asarray(cols, dtype=np.int64), unit, 0, out.shape[1], out)
 
 
-@numba.njit(parallel=True, cache=True)
 def scatter_columns(F: np.ndarray, cols: np.ndarray, out: np.ndarray) -> None:
     """out[j, cols[c]] = F[c, j]: the transpose of `gather_columns`, rows of ``F`` written
     to chosen columns of ``out`` (distinct ``cols``), in cache-friendly tiles (parallel).
@@ -305,17 +291,7 @@ def scatter_columns(F: np.ndarray, cols: np.ndarray, out: np.ndarray) -> None:
            [ 0.,  5.,  0.,  7.],
            [ 0.,  9.,  0., 11.]])
     """
-    n_c, n_j = F.shape
-    tile = 64
-    n_blocks = (n_j + tile - 1) // tile
-    for b in numba.prange(n_blocks):
-        j0 = b * tile
-        j1 = min(j0 + tile, n_j)
-        for c0 in range(0, n_c, tile):
-            c1 = min(c0 + tile, n_c)
-            for j in range(j0, j1):
-                for c in range(c0, c1):
-                    out[j, cols[c]] = F[c, j]
+    _compiled().scatter_columns(F, np.asarray(cols, dtype=np.int64), out)
 
 
 def transpose(F: np.ndarray, out: np.ndarray) -> None:
@@ -338,7 +314,10 @@ def transpose(F: np.ndarray, out: np.ndarray) -> None:
            [1., 4.],
            [2., 5.]])
     """
-    scatter_columns(F, np.arange(F.shape[0], dtype=np.int64), out)
+    if fft_engine.is_small(F.size):
+        out[...] = F.T
+    else:
+        _compiled().scatter_columns(F, np.arange(F.shape[0], dtype=np.int64), out)
 
 
 def to_fine_grid(A: np.ndarray, grid: TemporalGrid, t0_is_zero: bool,
@@ -380,9 +359,11 @@ def to_fine_grid(A: np.ndarray, grid: TemporalGrid, t0_is_zero: bool,
         scale = scale.copy()
         scale[0] *= 0.5
     # nufft: centred mode m = n - shift sits at fine index m mod L; FFT-grid kinds: shift 0
-    _place_columns(np.ascontiguousarray(A, dtype=ctype), cols, scale, grid.shift, grid.L, U)
-    scipy.fft.fft(U, axis=-1, overwrite_x=True, workers=-1)
-    return U
+    if fft_engine.is_small(U.size):
+        U[:, (np.arange(A.shape[0]) - grid.shift) % grid.L] = (A[:, cols] * scale[:, None]).T
+    else:
+        _compiled().place_columns(np.ascontiguousarray(A, dtype=ctype), cols, scale, grid.shift, grid.L, U)
+    return fft_engine.fft(U, axis=-1, overwrite_x=True)
 
 
 def from_fine_grid(R: np.ndarray, grid: TemporalGrid, t0_is_zero: bool, overwrite: bool = False) -> np.ndarray:
@@ -417,6 +398,8 @@ def from_fine_grid(R: np.ndarray, grid: TemporalGrid, t0_is_zero: bool, overwrit
     """
     n_t = grid.n_t
     # adjoint of the forward FFT (no 1/L)
+    import scipy.fft  # the forward model and the model-based operator only: never small
+
     V = scipy.fft.ifft(R, axis=-1, workers=-1, norm="forward", overwrite_x=overwrite)
     scale = (1.0 / grid.phihat).astype(V.real.dtype)
     if t0_is_zero:
@@ -463,176 +446,6 @@ def group_columns(klat2: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray
     counts = np.bincount(inverse, minlength=len(uniq))
     ptr = np.concatenate([[0], np.cumsum(counts)])
     return k[first], ptr.astype(np.int64), order.astype(np.int64)
-
-
-@numba.njit(cache=True)
-def _tap_arrays(nkz, w):
-    """One column group's work arrays for `_group_taps`: base (nkz,) int64, wts (w, nkz),
-    t (nkz,), ar (nkz,), ai (nkz,) float64."""
-    return (np.empty(nkz, np.int64), np.empty((w, nkz), np.float64), np.empty(nkz, np.float64),
-            np.empty(nkz, np.float64), np.empty(nkz, np.float64))
-
-
-@numba.njit(cache=True, fastmath=True)
-def _group_taps(k2, kz, qw, c, dt, t0, h, kind, w, hc, shift, inversion, base, wts, t, ar, ai):
-    """The taps of one column group (one |k_lat|², ``k2``) at every kz, shared by all its
-    columns; returns n_j, the number of kz filled (inversion: those at or below the
-    temporal Nyquist, kz ascending; otherwise all).
-
-    Row j: ``base[j]`` the first tap's fine-grid index (before wrapping), ``wts[:, j]`` the
-    w tap weights (tap-major, so that Horner's rule runs over j in SIMD lanes: the
-    polynomial of tap k in ``t[j] = 2x - 1``, `kernel_polynomials`; linear: the fraction), and
-    ``ar[j] + i ai[j]``
-    the weight times e^{i φ_j} with φ_j = shift θ_j + ω_j t0, the centring and t0 phase of
-    the +θ evaluation (its conjugate belongs to the -θ one)."""
-    nkz = kz.shape[0]
-    nd = hc.shape[1]
-    pi_lim = math.pi * (1.0 + 1e-12)
-    nj = nkz
-    for j in range(nkz):
-        om = c * math.sqrt(k2 + kz[j] * kz[j])
-        th = om * dt
-        if inversion:
-            if th > pi_lim:  # kz ascending: every later one is above the Nyquist too
-                nj = j
-                break
-            # k_z / omega, with the limit 1/c at omega = 0
-            sc = qw[j] * (kz[j] / om if om > 0.0 else 1.0 / c)
-        else:
-            sc = qw[j]
-        s = th / h
-        if kind == 0:
-            b = int(math.ceil(s - 0.5 * w))
-            t[j] = 2.0 * (b - s + 0.5 * w) - 1.0
-        elif kind == 1:
-            b = int(math.floor(s))
-            t[j] = s - b
-        else:
-            b = int(math.floor(s + 0.5))
-        base[j] = b
-        ph = shift * th + om * t0
-        ar[j] = sc * math.cos(ph)
-        ai[j] = sc * math.sin(ph)
-    if kind == 0:
-        for k in range(w):
-            row = wts[k]
-            c0 = hc[k, 0]
-            for j in range(nj):
-                row[j] = c0
-            for d in range(1, nd):
-                cd = hc[k, d]
-                for j in range(nj):
-                    row[j] = row[j] * t[j] + cd
-    elif kind == 1:
-        for j in range(nj):
-            wts[0, j] = 1.0 - t[j]
-            wts[1, j] = t[j]
-    else:
-        for j in range(nj):
-            wts[0, j] = 1.0
-    return nj
-
-
-@numba.njit(parallel=True, cache=True, fastmath=True)
-def _interp_kernel(U, gvals, gptr, order, kz, qw, c, dt, t0, h, L, kind, w, hc, shift,
-                   inversion, out):
-    """out[col, j] = sc_j (e^{-iφ_j} S⁺ + e^{iφ_j} S⁻): the w-tap interpolation of row
-    ``U[col]`` at +θ_j and -θ_j (`_group_taps`), in real arithmetic (a complex product
-    with a real weight would cost a full complex multiply)."""
-    n_groups = gvals.shape[0]
-    nkz = kz.shape[0]
-    for g in numba.prange(n_groups):
-        base, wts, t, ar, ai = _tap_arrays(nkz, w)
-        nj = _group_taps(gvals[g], kz, qw, c, dt, t0, h, kind, w, hc, shift, inversion, base, wts, t, ar, ai)
-        for ci in range(gptr[g], gptr[g + 1]):
-            col = order[ci]
-            u = U[col]
-            o = out[col]
-            for j in range(nj):
-                b = base[j]
-                p1r = 0.0
-                p1i = 0.0
-                p2r = 0.0
-                p2i = 0.0
-                if b >= 1 and b + w <= L:
-                    # no wrap-around: consecutive taps at b.. and mirrored at L-b..
-                    for k in range(w):
-                        wk = wts[k, j]
-                        v1 = u[b + k]
-                        v2 = u[L - b - k]
-                        p1r += wk * v1.real
-                        p1i += wk * v1.imag
-                        p2r += wk * v2.real
-                        p2i += wk * v2.imag
-                else:
-                    for k in range(w):
-                        wk = wts[k, j]
-                        jj = (b + k) % L
-                        v1 = u[jj]
-                        v2 = u[(L - jj) % L]
-                        p1r += wk * v1.real
-                        p1i += wk * v1.imag
-                        p2r += wk * v2.real
-                        p2i += wk * v2.imag
-                # (ar - i ai) S⁺ + (ar + i ai) S⁻
-                sr = p1r + p2r
-                si = p1i + p2i
-                dr = p1r - p2r
-                di = p1i - p2i
-                o[j] = complex(ar[j] * sr + ai[j] * di, ar[j] * si - ai[j] * dr)
-            for j in range(nj, nkz):
-                o[j] = 0.0
-
-
-@numba.njit(parallel=True, cache=True, fastmath=True)
-def _spread_kernel(B, gvals, gptr, order, kz, qw, c, dt, t0, h, L, kind, w, hc, shift, R):
-    """The adjoint of `_interp_kernel` (inversion False): spread B[col, j] e^{±iφ_j} qw_j
-    onto the w taps at +θ_j and -θ_j of row ``R[col]``."""
-    n_groups = gvals.shape[0]
-    nkz = kz.shape[0]
-    for g in numba.prange(n_groups):
-        base, wts, t, ar, ai = _tap_arrays(nkz, w)
-        _group_taps(gvals[g], kz, qw, c, dt, t0, h, kind, w, hc, shift, False, base, wts, t, ar, ai)
-        # one column's fine grid accumulates in double precision (real and imaginary parts
-        # interleaved), then is stored once (R of complex64 would convert on every tap)
-        r = np.empty(2 * L, np.float64)
-        for ci in range(gptr[g], gptr[g + 1]):
-            col = order[ci]
-            r[:] = 0.0
-            bc = B[col]
-            for j in range(nkz):
-                v = bc[j]
-                if v == 0:
-                    continue
-                vr = v.real
-                vi = v.imag
-                # conjugates of the interpolation phases: (ar + i ai) v at +θ, (ar - i ai) v at -θ
-                ppr = ar[j] * vr - ai[j] * vi
-                ppi = ar[j] * vi + ai[j] * vr
-                pmr = ar[j] * vr + ai[j] * vi
-                pmi = ar[j] * vi - ai[j] * vr
-                b = base[j]
-                if b >= 1 and b + w <= L:
-                    for k in range(w):  # two loops: neither aliases itself
-                        wk = wts[k, j]
-                        r[2 * (b + k)] += wk * ppr
-                        r[2 * (b + k) + 1] += wk * ppi
-                    for k in range(w):
-                        wk = wts[k, j]
-                        r[2 * (L - b - k)] += wk * pmr
-                        r[2 * (L - b - k) + 1] += wk * pmi
-                else:
-                    for k in range(w):
-                        wk = wts[k, j]
-                        jj = (b + k) % L
-                        jm = (L - jj) % L
-                        r[2 * jj] += wk * ppr
-                        r[2 * jj + 1] += wk * ppi
-                        r[2 * jm] += wk * pmr
-                        r[2 * jm + 1] += wk * pmi
-            out = R[col]
-            for i in range(L):
-                out[i] = complex(r[2 * i], r[2 * i + 1])
 
 
 def evaluate(
@@ -711,11 +524,58 @@ def evaluate(
     qw = np.asarray(qw, np.float64)
     if inversion and np.any(np.diff(kz) < 0):
         raise ValueError("kz must be ascending for the inversion (every kz after the first above the Nyquist is too)")
+    if fft_engine.is_small(U.size + out.size):
+        _interp_small(U, gvals, gptr, order, kz, qw, float(c), float(dt), float(t0), grid, bool(inversion), out)
+        if progress is not None:
+            progress(1.0)
+        return out
+    kernel = _compiled().interp_kernel
     for a, b in _group_chunks(len(gvals), n_chunks, U.shape[0] * len(kz), progress):
-        _interp_kernel(U, gvals[a:b], gptr[a : b + 1], order, kz, qw, float(c), float(dt), float(t0),
-                       2.0 * np.pi / grid.L, grid.L, _KIND_CODE[grid.kind], grid.w, grid.horner,
-                       grid.shift, bool(inversion), out)
+        kernel(U, gvals[a:b], gptr[a : b + 1], order, kz, qw, float(c), float(dt), float(t0),
+               2.0 * np.pi / grid.L, grid.L, _KIND_CODE[grid.kind], grid.w, grid.horner,
+               grid.shift, bool(inversion), out)
     return out
+
+
+def _interp_small(U, gvals, gptr, order, kz, qw, c, dt, t0, grid, inversion, out):
+    """`nufft_kernels.interp_kernel` in numpy, for a small transform (no compiler): the same
+    taps (`nufft_kernels.group_taps`, per column group, float64) and the same sums, every
+    column and kz at once. Memory: (n_cols, n_kz, w) weights, bounded by the caller's
+    size test."""
+    L, w, h = grid.L, grid.w, 2.0 * np.pi / grid.L
+    om = c * np.sqrt(gvals[:, None] + kz[None, :] ** 2)  # (n_groups, n_kz)
+    th = om * dt
+    sc = np.broadcast_to(qw, om.shape)
+    if inversion:
+        # k_z / omega (1/c at omega = 0); zero from the first kz above the temporal Nyquist on
+        sc = sc * np.where(om > 0.0, kz / np.where(om > 0.0, om, 1.0), 1.0 / c)
+        sc = sc * np.logical_and.accumulate(th <= np.pi * (1.0 + 1e-12), axis=1)
+    s = th / h
+    if grid.kind == "nufft":
+        b = np.ceil(s - 0.5 * w)
+        t = 2.0 * (b - s + 0.5 * w) - 1.0
+        wts = np.empty((w,) + s.shape)
+        for k in range(w):  # the tap polynomials by Horner's rule (`kernel_polynomials`)
+            row = np.full(s.shape, grid.horner[k, 0])
+            for d in range(1, grid.horner.shape[1]):
+                row = row * t + grid.horner[k, d]
+            wts[k] = row
+    elif grid.kind == "linear":
+        b = np.floor(s)
+        wts = np.stack([1.0 - (s - b), s - b])
+    else:
+        b = np.floor(s + 0.5)
+        wts = np.ones((1,) + s.shape)
+    ph = grid.shift * th + om * t0
+    ar, ai = sc * np.cos(ph), sc * np.sin(ph)
+    group = np.empty(len(order), np.int64)  # each column's group
+    group[order] = np.repeat(np.arange(len(gvals)), np.diff(gptr))
+    idx = (b.astype(np.int64)[group][:, :, None] + np.arange(w)) % L  # (n_cols, n_kz, w)
+    rows = np.arange(len(group))[:, None, None]
+    wc = np.moveaxis(wts, 0, -1)[group]
+    p1 = (wc * U[rows, idx]).sum(axis=-1)  # S(+θ) and S(-θ)
+    p2 = (wc * U[rows, (L - idx) % L]).sum(axis=-1)
+    out[...] = ar[group] * (p1 + p2) - 1j * ai[group] * (p1 - p2)
 
 
 def _group_chunks(n_groups: int, n_chunks: int, work: int, progress=None):
@@ -789,6 +649,6 @@ def spread(
     kz = np.asarray(kz, np.float64)
     qw = np.asarray(qw, np.float64)
     for a, b in _group_chunks(len(gvals), n_chunks, B.shape[0] * len(kz), progress):
-        _spread_kernel(B, gvals[a:b], gptr[a : b + 1], order, kz, qw, float(c), float(dt), float(t0),
+        _compiled().spread_kernel(B, gvals[a:b], gptr[a : b + 1], order, kz, qw, float(c), float(dt), float(t0),
                        2.0 * np.pi / grid.L, grid.L, _KIND_CODE[grid.kind], grid.w, grid.horner, grid.shift, R)
     return R

@@ -27,10 +27,9 @@ FFT by a type-1 NUFFT (finufft) from the sensor positions, batched over time sam
 from __future__ import annotations
 
 import numpy as np
-import scipy.fft
 
 from driver.constants import C_DEFAULT
-from driver.physics import nufft
+from driver.physics import fft_engine, nufft
 from driver.physics.axes import centred_axis, node_indices
 from driver.physics.fast_lengths import fast_dct1_rows, fast_lateral, fast_length
 from driver.physics.lateral import irfft_lateral
@@ -170,6 +169,8 @@ def _cubic_columns(A_cols, n_t, klat2, kz, qw, c, dt, t0):
     if t0 == 0:
         a = a.copy()
         a[:, 0] *= 0.5
+    import scipy.fft  # on use: this mode imports scipy.interpolate anyway
+
     S = scipy.fft.fft(a, n=L, axis=-1, workers=-1)
     # E on the DFT grid theta_j = 2 pi j / L of the mirrored series (L = 2 n_t - 1 rounded
     # up to a fast length: a finer grid), |j| <= (L - 1) // 2 (theta in (-pi, pi))
@@ -208,8 +209,8 @@ def _invert(A: np.ndarray, n_x: int, dx: float, dy: float, dt: float, c: float, 
     called as the steps finish, with fractions in proportion to each step's typical share of
     the run time."""
     n_t, n_y, n_xr = A.shape
-    kx = 2 * np.pi * scipy.fft.rfftfreq(n_x, dx)
-    ky = 2 * np.pi * scipy.fft.fftfreq(n_y, dy)
+    kx = 2 * np.pi * np.fft.rfftfreq(n_x, dx)
+    ky = 2 * np.pi * np.fft.fftfreq(n_y, dy)
     klat2 = (ky[:, None] ** 2 + kx[None, :] ** 2).ravel()
     a = A.reshape(n_t, n_y * n_xr)  # time first: column c is a[:, c]
     dk = np.pi / ((n_z - 1) * dz)
@@ -230,10 +231,8 @@ def _invert(A: np.ndarray, n_x: int, dx: float, dy: float, dt: float, c: float, 
         progress(0.75)
     ctype = np.complex64 if rdtype == np.float32 else np.complex128
     F = np.ascontiguousarray(F, dtype=ctype)
-    # DCT-I along depth of the real and imaginary parts (interleaved view: no split copies)
-    re = F.view(rdtype).reshape(F.shape[0], n_z, 2)
-    F = scipy.fft.dct(re, type=1, axis=1, overwrite_x=True, workers=-1).reshape(F.shape[0], 2 * n_z).view(ctype)
-    del re  # the view kept the spectrum before the transform alive to the end (one k-space image more at the peak)
+    # DCT-I along depth of the real and imaginary parts (in place, through an interleaved view)
+    F = fft_engine.dct1(F, axis=1, overwrite_x=True)
     K = np.empty((n_z, n_y * n_xr), dtype=ctype)
     nufft.transpose(F, K)
     K = K.reshape(n_z, n_y, n_xr)
@@ -384,7 +383,7 @@ def reconstruct_grid(
         memory_limit,
     )
     vol = data.astype(rdtype, copy=False).reshape(n_t, n_y, n_x)
-    A = scipy.fft.rfft2(vol, s=(n_yp, n_xp), axes=(1, 2), workers=-1)
+    A = fft_engine.rfft2(vol, s=(n_yp, n_xp), axes=(1, 2))
     kernel = rising(progress)  # strictly increasing fractions, each step through its span
     if kernel is not None:
         kernel(0.1)
@@ -410,11 +409,16 @@ def _check_positions(positions, n_points):
     if pos.shape[0] != n_points:
         raise ValueError(f"positions has {pos.shape[0]} rows but alines has {n_points} A-lines")
     if n_points > 1:
-        from scipy.spatial import cKDTree  # on use: a slow import
+        if n_points <= 512:  # every pair (at most 131k distances): no scipy import for a small scan
+            gap = np.sqrt(((pos[:, None, :] - pos[None, :, :]) ** 2).sum(axis=-1))
+            np.fill_diagonal(gap, np.inf)
+            nearest = gap.min(axis=1)
+        else:
+            from scipy.spatial import cKDTree  # on use: a slow import
 
-        dist, _ = cKDTree(pos).query(pos, k=2)
+            nearest = cKDTree(pos).query(pos, k=2)[0][:, 1]
         scale = max(float(np.abs(pos).max()), 1e-300)
-        dup = dist[:, 1] <= 1e-9 * scale
+        dup = nearest <= 1e-9 * scale
         if np.any(dup):
             i = int(np.flatnonzero(dup)[0])
             raise ValueError(f"positions contain duplicates (e.g. point {i} at {pos[i].tolist()})")
@@ -641,7 +645,7 @@ def reconstruct_points(
         filled = np.zeros((n_t, n_y, n_x), dtype=rdtype)
         filled[:, on_grid[1], on_grid[0]] = weighted
         del weighted
-        A = scipy.fft.rfft2(filled, axes=(1, 2), workers=-1)
+        A = fft_engine.rfft2(filled, axes=(1, 2))
         del filled
         if kernel is not None:
             kernel(0.3)

@@ -1,6 +1,6 @@
 """Fill numba's cache of the reconstruction's compiled kernels (``fpscan warmup``).
 
-Every numba kernel of the reconstruction (``driver.physics.nufft``, ``service.recon.kwave``)
+Every numba kernel of the reconstruction (``driver.physics.nufft_kernels``, ``service.recon.kwave``)
 is ``@numba.njit(cache=True)``: the first call in any interpreter compiles it for the
 argument types it gets and writes the machine code to numba's cache; later interpreters
 load it instead of compiling (seconds saved on the first reconstruction). Where the cache
@@ -88,22 +88,28 @@ def warm_up(dtypes=DTYPES, groups=GROUPS) -> dict:
 _DX, _DT = 1e-4, 2e-8
 
 
-def _tiny(d: str) -> np.ndarray:
-    data = np.zeros((32, 6, 6), dtype=d)
+def _tiny(d: str, n: int = 6) -> np.ndarray:
+    data = np.zeros((32, n, n), dtype=d)
     data[5, 3, 3] = 1.0
     return data
+
+
+#: lateral samples of the planar warm-up: above `driver.physics.fft_engine.SMALL_ELEMENTS`
+#: (a smaller transform runs in numpy and would compile nothing)
+_PLANAR_N = 64
 
 
 def _warm_planar(names: list[str]) -> None:
     from service.recon.planar import reconstruct_grid, reconstruct_points
 
+    n = _PLANAR_N
     rng = np.random.default_rng(0)
     for d in names:
-        data = _tiny(d)
+        data = _tiny(d, n)
         reconstruct_grid(data, _DX, _DT, dtype=d)
-        reconstruct_grid(data[:, 0, :], _DX, _DT, dtype=d)
-        pos = rng.uniform(0.0, 5 * _DX, (30, 2))
-        grid = (np.arange(6) * _DX, np.arange(6) * _DX)
+        reconstruct_grid(np.tile(data[:, 0, :], (1, n)), _DX, _DT, dtype=d)  # a line of n * n sensors
+        pos = rng.uniform(0.0, (n - 1) * _DX, (30, 2))
+        grid = (np.arange(n) * _DX, np.arange(n) * _DX)
         reconstruct_points(rng.standard_normal((30, 32)).astype(d), pos, _DT, weights=np.full(30, _DX * _DX),
                            grid=grid, dtype=d)
 
@@ -153,11 +159,11 @@ def cache_dirs() -> list[str]:
     """
     import numba
 
-    from driver.physics import nufft
+    from driver.physics import nufft_kernels
     from service.recon import kwave
 
     dirs = set()
-    for module in (nufft, kwave):
+    for module in (nufft_kernels, kwave):
         for value in vars(module).values():
             cache = getattr(value, "_cache", None)
             if isinstance(value, numba.core.registry.CPUDispatcher) and cache is not None:

@@ -71,35 +71,46 @@ RECON = r'''
 import json, sys
 import service.recon
 light = sorted(sys.modules)
-from service.recon import reconstruct_grid
+from service.recon import reconstruct_grid, reconstruct_points
 import numpy as np
-data = np.zeros((16, 4, 4))
+data = np.zeros((32, 8, 8), dtype=np.float32)
 data[3, 2, 2] = 1.0
-rec = reconstruct_grid(data, 1e-4, 2e-8)
-print(json.dumps({"light": light, "after": sorted(sys.modules), "shape": list(rec.p0.shape)}))
+tiny = reconstruct_grid(data, 1e-4, 2e-8)
+rng = np.random.default_rng(0)
+pos = rng.uniform(0.0, 7e-4, (40, 2))
+reconstruct_points(rng.standard_normal((40, 32)), pos, 2e-8, weights=np.full(40, 1e-8),
+                   grid=(np.arange(8) * 1e-4, np.arange(8) * 1e-4))
+after_tiny = sorted(sys.modules)
+rec = reconstruct_grid(np.zeros((64, 48, 48)), 1e-4, 2e-8)
+print(json.dumps({"light": light, "tiny": after_tiny, "after": sorted(sys.modules),
+                  "shape": [list(tiny.p0.shape), list(rec.p0.shape)]}))
 '''
 
 
 def test_import_service_recon_loads_no_transform_library():
-    """``import service.recon`` loads numpy only; scipy.fft and numba come with the first
-    reconstruction, pylops/pyproximal never with a direct one."""
+    """``import service.recon`` loads numpy only; a small NER and NEDNER (32 x 8 x 8, 40
+    A-lines) run in numpy and finufft (`driver.physics.fft_engine`: no scipy, no numba,
+    whose imports and cache load cost a fresh interpreter about 1.5 s); a larger one brings
+    scipy.fft and numba; pylops/pyproximal never come with a direct reconstruction."""
     got = _fresh(RECON)
     for name in ("scipy", "numba", "finufft", "pylops", "pyproximal", "h5py"):
         assert name not in got["light"], name
+    tiny = {m.split(".")[0] for m in got["tiny"]}
+    assert "scipy" not in tiny and "numba" not in tiny and "llvmlite" not in tiny, sorted(tiny)
     assert "scipy.fft" in got["after"] and "numba" in got["after"]
     assert "pylops" not in got["after"] and "pyproximal" not in got["after"]
-    assert got["shape"][1:] == [4, 4]
+    assert got["shape"] == [[32, 8, 8], [64, 48, 48]]
 
 
 CACHED = r'''
 import json
 import numpy as np
 from service.recon import reconstruct_grid
-from driver.physics import nufft
-data = np.zeros((16, 4, 4), dtype=np.float32)
+from driver.physics import nufft_kernels
+data = np.zeros((32, 64, 64), dtype=np.float32)  # above the small-transform size: the compiled kernels run
 data[3, 2, 2] = 1.0
 reconstruct_grid(data, 1e-4, 2e-8, dtype="float32")
-stats = {name: getattr(nufft, name).stats for name in ("_place_columns", "scatter_columns", "_interp_kernel")}
+stats = {name: getattr(nufft_kernels, name).stats for name in ("place_columns", "scatter_columns", "interp_kernel")}
 print(json.dumps({name: [sum(s.cache_hits.values()), sum(s.cache_misses.values())] for name, s in stats.items()}))
 '''
 
@@ -172,5 +183,5 @@ def test_admitting_a_job_loads_no_transform_library():
     assert all(v > 0 for v in got["sizes"].values()), got["sizes"]
     assert got["sizes"]["tv"] > got["sizes"]["ner"]
     loaded = [m for m in got["modules"] if m.split(".")[0] in ("numba", "finufft", "pylops", "llvmlite")
-              or m.startswith("scipy.fft") or m == "driver.physics.nufft"]
+              or m.startswith("scipy.fft") or m in ("driver.physics.nufft", "driver.physics.nufft_kernels")]
     assert loaded == [], loaded

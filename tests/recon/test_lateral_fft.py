@@ -10,6 +10,9 @@ import scipy.fft
 from driver.physics import nufft
 from driver.physics.lateral import irfft_lateral
 
+# every test twice: small transforms in numpy, and everything in scipy.fft + numba (conftest)
+pytestmark = pytest.mark.usefixtures("engine")
+
 
 @pytest.mark.parametrize("dtype", [np.complex64, np.complex128])
 @pytest.mark.parametrize(("spectrum", "shape", "axes"), [

@@ -9,6 +9,8 @@ from service.recon import reconstruct_grid, reconstruct_points, voronoi_weights
 from tests.recon import recon_oracle as oracle
 
 C, DT, DX = 1500.0, 25e-9, 60e-6
+# every test twice: small transforms in numpy, and everything in scipy.fft + numba (conftest)
+pytestmark = pytest.mark.usefixtures("engine")
 rng = np.random.default_rng(99)
 
 

@@ -1,0 +1,122 @@
+"""Which FFT library runs a transform: numpy.fft for small arrays, scipy.fft for the rest.
+
+``import scipy.fft`` costs about 0.3-0.5 s of a fresh interpreter (it brings
+``scipy._lib._array_api`` and ``scipy.special``), more than a small reconstruction takes
+in all; numpy.fft (the same pocketfft, single-threaded, single precision kept since
+numpy 2.0) is loaded with numpy. So a transform of at most :data:`SMALL_ELEMENTS`
+elements runs in numpy.fft, a larger one in scipy.fft with every core (``workers=-1``).
+The choice depends on the array's size alone, so that the same data give the same
+result in every process (the library, the CLI and the job worker alike).
+
+`driver.physics.nufft` takes the same decision for its compiled kernels (:func:`is_small`).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["SMALL_ELEMENTS", "is_small", "fft", "rfft2", "irfft_lateral", "dct1"]
+
+#: elements (of the transform's input) at or below which a transform is "small": runs in
+#: numpy, and the temporal step in numpy instead of numba (`driver.physics.nufft`).
+#: 2**16: a 2-D image of 256 columns x 128 samples, or a 3-D volume of 32 x 8 x 8.
+SMALL_ELEMENTS = 1 << 16
+
+
+def is_small(n_elements: int) -> bool:
+    """Whether a step over ``n_elements`` array elements runs without scipy.fft and numba.
+
+    Examples
+    --------
+    >>> from driver.physics.fft_engine import is_small
+    >>> is_small(32 * 8 * 8), is_small(256 * 128 * 128)
+    (True, False)
+    """
+    return int(n_elements) <= SMALL_ELEMENTS
+
+
+def fft(x: np.ndarray, axis: int = -1, overwrite_x: bool = False) -> np.ndarray:
+    """Complex FFT along ``axis`` (``scipy.fft.fft`` semantics: no normalisation); the
+    result may be ``x`` itself when ``overwrite_x``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from driver.physics.fft_engine import fft
+    >>> fft(np.array([1.0, 0.0, 0.0, 0.0], dtype=np.complex64))
+    array([1.+0.j, 1.+0.j, 1.+0.j, 1.+0.j], dtype=complex64)
+    """
+    if is_small(x.size):
+        return np.fft.fft(x, axis=axis)
+    import scipy.fft
+
+    return scipy.fft.fft(x, axis=axis, overwrite_x=overwrite_x, workers=-1)
+
+
+def rfft2(x: np.ndarray, s: tuple[int, int] | None = None, axes: tuple[int, int] = (-2, -1)) -> np.ndarray:
+    """Real 2-D FFT over ``axes`` (zero-padded or cut to ``s``), the last axis halved
+    (``scipy.fft.rfft2`` semantics); float32 in, complex64 out.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from driver.physics.fft_engine import rfft2
+    >>> rfft2(np.ones((2, 3), dtype=np.float32), s=(2, 4)).shape
+    (2, 3)
+    """
+    if is_small(x.size):
+        return np.fft.rfft2(x, s=s, axes=axes)
+    import scipy.fft
+
+    return scipy.fft.rfft2(x, s=s, axes=axes, workers=-1)
+
+
+def irfft_lateral(K: np.ndarray, shape: tuple[int, ...], axes: tuple[int, ...], overwrite: bool) -> np.ndarray:
+    """The inverse lateral real FFT of `driver.physics.lateral.irfft_lateral` (its owner:
+    argument checks and documentation): complex passes along ``axes[:-1]`` (in place when
+    ``overwrite``), then the real one along ``axes[-1]``."""
+    if is_small(K.size):
+        for n, ax in zip(shape[:-1], axes[:-1]):
+            if K.shape[ax] > 1 or n > 1:
+                K = np.fft.ifft(K, n=n, axis=ax)
+        return np.fft.irfft(K, n=shape[-1], axis=axes[-1])
+    import scipy.fft
+
+    for n, ax in zip(shape[:-1], axes[:-1]):
+        if K.shape[ax] > 1 or n > 1:
+            K = scipy.fft.ifft(K, n=n, axis=ax, workers=-1, overwrite_x=overwrite)
+            overwrite = True
+    return scipy.fft.irfft(K, n=shape[-1], axis=axes[-1], workers=-1, overwrite_x=overwrite)
+
+
+def dct1(x: np.ndarray, axis: int = -1, overwrite_x: bool = False) -> np.ndarray:
+    """DCT-I along ``axis``, unnormalised: y_k = x_0 + (-1)^k x_{n-1} + 2 Σ_{j=1}^{n-2} x_j
+    cos(π j k / (n - 1)) (``scipy.fft.dct(type=1)``); a complex ``x`` is transformed as its
+    real and imaginary parts (a C-contiguous one through an interleaved real view: no split
+    copies). ``n >= 2``.
+
+    Small arrays: the DFT of the even extension (x_0 .. x_{n-1}, x_{n-2} .. x_1), whose
+    first n values are the DCT-I.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from driver.physics.fft_engine import dct1
+    >>> dct1(np.array([1.0, 2.0, 3.0]))  # (1 + 3 + 4, 1 - 3, 1 + 3 - 4)
+    array([ 8., -2.,  0.])
+    >>> dct1(np.array([1.0 + 1.0j, 0.0]))
+    array([1.+1.j, 1.+1.j])
+    """
+    axis = axis % x.ndim
+    n = x.shape[axis]
+    if is_small(x.size):
+        inner = np.flip(np.take(x, np.arange(1, n - 1), axis=axis), axis=axis)
+        ext = np.concatenate([x, inner], axis=axis)
+        y = np.fft.fft(ext, axis=axis) if np.iscomplexobj(x) else np.fft.rfft(ext, axis=axis).real
+        return np.ascontiguousarray(np.take(y, np.arange(n), axis=axis))
+    import scipy.fft
+
+    if np.iscomplexobj(x) and x.flags.c_contiguous:
+        re = x.view(x.real.dtype).reshape(*x.shape, 2)
+        out = scipy.fft.dct(re, type=1, axis=axis, overwrite_x=overwrite_x, workers=-1)
+        return out.view(x.dtype).reshape(x.shape)
+    return scipy.fft.dct(x, type=1, axis=axis, overwrite_x=overwrite_x, workers=-1)

@@ -1,0 +1,225 @@
+"""The compiled (numba) kernels of the temporal step (`driver.physics.nufft`, which owns
+the API, the grids and the small-transform path that needs no compiler).
+
+Every kernel is ``@numba.njit(cache=True)``: the first call in an interpreter compiles it for
+its argument types, or loads it from numba's cache (``fpscan warmup``,
+`service.recon.warmup`). Importing this module imports numba (about 0.3 s), so
+`driver.physics.nufft` imports it on the first transform too large for numpy alone.
+"""
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+__all__ = ["place_columns", "scatter_columns", "tap_arrays", "group_taps", "interp_kernel", "spread_kernel"]
+
+
+@numba.njit(parallel=True, cache=True)
+def place_columns(A, cols, scale, shift, L, U):
+    """U[c, (n - shift) mod L] = A[n, cols[c]] * scale[n], in cache-friendly tiles."""
+    n_t = A.shape[0]
+    n_cols = cols.shape[0]
+    tile = 64
+    n_blocks = (n_cols + tile - 1) // tile
+    for b in numba.prange(n_blocks):
+        c0 = b * tile
+        c1 = min(c0 + tile, n_cols)
+        for n0 in range(0, n_t, tile):
+            n1 = min(n0 + tile, n_t)
+            for c in range(c0, c1):
+                col = cols[c]
+                for n in range(n0, n1):
+                    j = n - shift
+                    if j < 0:
+                        j += L
+                    U[c, j] = A[n, col] * scale[n]
+
+
+
+@numba.njit(parallel=True, cache=True)
+def scatter_columns(F, cols, out):
+    """out[j, cols[c]] = F[c, j] (distinct ``cols``), in cache-friendly tiles (`driver.physics.nufft.scatter_columns`)."""
+    n_c, n_j = F.shape
+    tile = 64
+    n_blocks = (n_j + tile - 1) // tile
+    for b in numba.prange(n_blocks):
+        j0 = b * tile
+        j1 = min(j0 + tile, n_j)
+        for c0 in range(0, n_c, tile):
+            c1 = min(c0 + tile, n_c)
+            for j in range(j0, j1):
+                for c in range(c0, c1):
+                    out[j, cols[c]] = F[c, j]
+
+
+
+@numba.njit(cache=True)
+def tap_arrays(nkz, w):
+    """One column group's work arrays for `group_taps`: base (nkz,) int64, wts (w, nkz),
+    t (nkz,), ar (nkz,), ai (nkz,) float64."""
+    return (np.empty(nkz, np.int64), np.empty((w, nkz), np.float64), np.empty(nkz, np.float64),
+            np.empty(nkz, np.float64), np.empty(nkz, np.float64))
+
+
+@numba.njit(cache=True, fastmath=True)
+def group_taps(k2, kz, qw, c, dt, t0, h, kind, w, hc, shift, inversion, base, wts, t, ar, ai):
+    """The taps of one column group (one |k_lat|², ``k2``) at every kz, shared by all its
+    columns; returns n_j, the number of kz filled (inversion: those at or below the
+    temporal Nyquist, kz ascending; otherwise all).
+
+    Row j: ``base[j]`` the first tap's fine-grid index (before wrapping), ``wts[:, j]`` the
+    w tap weights (tap-major, so that Horner's rule runs over j in SIMD lanes: the
+    polynomial of tap k in ``t[j] = 2x - 1``, `kernel_polynomials`; linear: the fraction), and
+    ``ar[j] + i ai[j]``
+    the weight times e^{i φ_j} with φ_j = shift θ_j + ω_j t0, the centring and t0 phase of
+    the +θ evaluation (its conjugate belongs to the -θ one)."""
+    nkz = kz.shape[0]
+    nd = hc.shape[1]
+    pi_lim = math.pi * (1.0 + 1e-12)
+    nj = nkz
+    for j in range(nkz):
+        om = c * math.sqrt(k2 + kz[j] * kz[j])
+        th = om * dt
+        if inversion:
+            if th > pi_lim:  # kz ascending: every later one is above the Nyquist too
+                nj = j
+                break
+            # k_z / omega, with the limit 1/c at omega = 0
+            sc = qw[j] * (kz[j] / om if om > 0.0 else 1.0 / c)
+        else:
+            sc = qw[j]
+        s = th / h
+        if kind == 0:
+            b = int(math.ceil(s - 0.5 * w))
+            t[j] = 2.0 * (b - s + 0.5 * w) - 1.0
+        elif kind == 1:
+            b = int(math.floor(s))
+            t[j] = s - b
+        else:
+            b = int(math.floor(s + 0.5))
+        base[j] = b
+        ph = shift * th + om * t0
+        ar[j] = sc * math.cos(ph)
+        ai[j] = sc * math.sin(ph)
+    if kind == 0:
+        for k in range(w):
+            row = wts[k]
+            c0 = hc[k, 0]
+            for j in range(nj):
+                row[j] = c0
+            for d in range(1, nd):
+                cd = hc[k, d]
+                for j in range(nj):
+                    row[j] = row[j] * t[j] + cd
+    elif kind == 1:
+        for j in range(nj):
+            wts[0, j] = 1.0 - t[j]
+            wts[1, j] = t[j]
+    else:
+        for j in range(nj):
+            wts[0, j] = 1.0
+    return nj
+
+
+@numba.njit(parallel=True, cache=True, fastmath=True)
+def interp_kernel(U, gvals, gptr, order, kz, qw, c, dt, t0, h, L, kind, w, hc, shift,
+                   inversion, out):
+    """out[col, j] = sc_j (e^{-iφ_j} S⁺ + e^{iφ_j} S⁻): the w-tap interpolation of row
+    ``U[col]`` at +θ_j and -θ_j (`group_taps`), in real arithmetic (a complex product
+    with a real weight would cost a full complex multiply)."""
+    n_groups = gvals.shape[0]
+    nkz = kz.shape[0]
+    for g in numba.prange(n_groups):
+        base, wts, t, ar, ai = tap_arrays(nkz, w)
+        nj = group_taps(gvals[g], kz, qw, c, dt, t0, h, kind, w, hc, shift, inversion, base, wts, t, ar, ai)
+        for ci in range(gptr[g], gptr[g + 1]):
+            col = order[ci]
+            u = U[col]
+            o = out[col]
+            for j in range(nj):
+                b = base[j]
+                p1r = 0.0
+                p1i = 0.0
+                p2r = 0.0
+                p2i = 0.0
+                if b >= 1 and b + w <= L:
+                    # no wrap-around: consecutive taps at b.. and mirrored at L-b..
+                    for k in range(w):
+                        wk = wts[k, j]
+                        v1 = u[b + k]
+                        v2 = u[L - b - k]
+                        p1r += wk * v1.real
+                        p1i += wk * v1.imag
+                        p2r += wk * v2.real
+                        p2i += wk * v2.imag
+                else:
+                    for k in range(w):
+                        wk = wts[k, j]
+                        jj = (b + k) % L
+                        v1 = u[jj]
+                        v2 = u[(L - jj) % L]
+                        p1r += wk * v1.real
+                        p1i += wk * v1.imag
+                        p2r += wk * v2.real
+                        p2i += wk * v2.imag
+                # (ar - i ai) S⁺ + (ar + i ai) S⁻
+                sr = p1r + p2r
+                si = p1i + p2i
+                dr = p1r - p2r
+                di = p1i - p2i
+                o[j] = complex(ar[j] * sr + ai[j] * di, ar[j] * si - ai[j] * dr)
+            for j in range(nj, nkz):
+                o[j] = 0.0
+
+
+@numba.njit(parallel=True, cache=True, fastmath=True)
+def spread_kernel(B, gvals, gptr, order, kz, qw, c, dt, t0, h, L, kind, w, hc, shift, R):
+    """The adjoint of `interp_kernel` (inversion False): spread B[col, j] e^{±iφ_j} qw_j
+    onto the w taps at +θ_j and -θ_j of row ``R[col]``."""
+    n_groups = gvals.shape[0]
+    nkz = kz.shape[0]
+    for g in numba.prange(n_groups):
+        base, wts, t, ar, ai = tap_arrays(nkz, w)
+        group_taps(gvals[g], kz, qw, c, dt, t0, h, kind, w, hc, shift, False, base, wts, t, ar, ai)
+        # one column's fine grid accumulates in double precision (real and imaginary parts
+        # interleaved), then is stored once (R of complex64 would convert on every tap)
+        r = np.empty(2 * L, np.float64)
+        for ci in range(gptr[g], gptr[g + 1]):
+            col = order[ci]
+            r[:] = 0.0
+            bc = B[col]
+            for j in range(nkz):
+                v = bc[j]
+                if v == 0:
+                    continue
+                vr = v.real
+                vi = v.imag
+                # conjugates of the interpolation phases: (ar + i ai) v at +θ, (ar - i ai) v at -θ
+                ppr = ar[j] * vr - ai[j] * vi
+                ppi = ar[j] * vi + ai[j] * vr
+                pmr = ar[j] * vr + ai[j] * vi
+                pmi = ar[j] * vi - ai[j] * vr
+                b = base[j]
+                if b >= 1 and b + w <= L:
+                    for k in range(w):  # two loops: neither aliases itself
+                        wk = wts[k, j]
+                        r[2 * (b + k)] += wk * ppr
+                        r[2 * (b + k) + 1] += wk * ppi
+                    for k in range(w):
+                        wk = wts[k, j]
+                        r[2 * (L - b - k)] += wk * pmr
+                        r[2 * (L - b - k) + 1] += wk * pmi
+                else:
+                    for k in range(w):
+                        wk = wts[k, j]
+                        jj = (b + k) % L
+                        jm = (L - jj) % L
+                        r[2 * jj] += wk * ppr
+                        r[2 * jj + 1] += wk * ppi
+                        r[2 * jm] += wk * pmr
+                        r[2 * jm + 1] += wk * pmi
+            out = R[col]
+            for i in range(L):
+                out[i] = complex(r[2 * i], r[2 * i + 1])

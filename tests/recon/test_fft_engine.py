@@ -1,0 +1,58 @@
+"""The FFT engine (`driver.physics.fft_engine`): numpy.fft for small arrays and scipy.fft
+for the rest give the same transforms, against scipy.fft's own functions (the oracle) and,
+for the DCT-I, against its defining cosine sum."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.fft
+
+from driver.physics import fft_engine
+
+rng = np.random.default_rng(5)
+
+
+def _tol(dtype):
+    return 2e-6 if np.dtype(dtype) in (np.float32, np.complex64) else 1e-12
+
+
+def _close(got, want, dtype):
+    assert got.shape == want.shape, (got.shape, want.shape)
+    assert got.dtype == want.dtype, (got.dtype, want.dtype)
+    assert np.linalg.norm(got - want) <= _tol(dtype) * np.linalg.norm(want)
+
+
+def _data(shape, dtype):
+    x = rng.standard_normal(shape)
+    if np.dtype(dtype).kind == "c":
+        x = x + 1j * rng.standard_normal(shape)
+    return x.astype(dtype)
+
+
+@pytest.mark.parametrize("n", [2, 3, 9, 16])
+@pytest.mark.parametrize("dtype", [np.float32, np.float64, np.complex64, np.complex128])
+@pytest.mark.usefixtures("engine")
+def test_dct1_is_the_cosine_sum(n, dtype):
+    x = _data((3, n, 4), dtype)
+    j = np.arange(n)
+    weight = np.where((j == 0) | (j == n - 1), 1.0, 2.0)
+    basis = weight[None, :] * np.cos(np.pi * np.outer(j, j) / max(n - 1, 1))  # (k, j)
+    want = np.einsum("kj,ajb->akb", basis, x.astype(np.complex128 if np.iscomplexobj(x) else np.float64))
+    got = fft_engine.dct1(x.copy(), axis=1, overwrite_x=True)
+    assert got.dtype == x.dtype and got.shape == x.shape
+    assert np.linalg.norm(got - want) <= 10 * _tol(dtype) * np.linalg.norm(want)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("shape", [(4, 6, 8), (5, 300, 250)])  # below and above SMALL_ELEMENTS
+def test_rfft2_and_fft_are_scipys(dtype, shape):
+    x = _data(shape, dtype)
+    _close(fft_engine.rfft2(x, s=(shape[1] + 2, shape[2] - 1), axes=(1, 2)),
+           scipy.fft.rfft2(x, s=(shape[1] + 2, shape[2] - 1), axes=(1, 2)), dtype)
+    z = _data(shape, np.complex64 if dtype == np.float32 else np.complex128)
+    _close(fft_engine.fft(z.copy(), axis=-1, overwrite_x=True), scipy.fft.fft(z, axis=-1), dtype)
+
+
+def test_small_is_a_size_and_nothing_else():
+    assert fft_engine.is_small(fft_engine.SMALL_ELEMENTS)
+    assert not fft_engine.is_small(fft_engine.SMALL_ELEMENTS + 1)
