@@ -10,24 +10,36 @@
 - :mod:`.curves` — "CC vs number of pixels of interest" and "CC vs ROI diameter"
   (paper §7, Figs. "Correlation coefficient ...").
 
-Pure numpy/scipy; no I/O.
+Pure numpy/scipy; no I/O. The names load on first use (PEP 562): the sharpness and the
+fits import scipy.ndimage and scipy.optimize (about 1.2 s of a fresh interpreter), which the
+MIP pictures of every result (`service.storage.render`) do not need.
 """
 from __future__ import annotations
 
-from .correlation import correlation_coefficient
-from .curves import cc_vs_diameter, cc_vs_pixels, sharpness_vs_diameter
-from .projections import mip, mips
-from .resolution import (
-    EdgeFit,
-    LorentzFit,
-    edge_spread,
-    fit_edge_spread,
-    fit_lorentz,
-    lorentz,
-    side_lobe_level,
-)
-from .roi import bounding_box, disc_mask, roi_mask
-from .sharpness import tenenbaum_sharpness
+from typing import TYPE_CHECKING, Any
+
+_LAZY = {"correlation_coefficient": "correlation", "cc_vs_diameter": "curves", "cc_vs_pixels": "curves",
+         "sharpness_vs_diameter": "curves", "mip": "projections", "mips": "projections",
+         "EdgeFit": "resolution", "LorentzFit": "resolution", "edge_spread": "resolution",
+         "fit_edge_spread": "resolution", "fit_lorentz": "resolution", "lorentz": "resolution",
+         "side_lobe_level": "resolution", "bounding_box": "roi", "disc_mask": "roi", "roi_mask": "roi",
+         "tenenbaum_sharpness": "sharpness"}
+
+if TYPE_CHECKING:
+    from .correlation import correlation_coefficient
+    from .curves import cc_vs_diameter, cc_vs_pixels, sharpness_vs_diameter
+    from .projections import mip, mips
+    from .resolution import (
+        EdgeFit,
+        LorentzFit,
+        edge_spread,
+        fit_edge_spread,
+        fit_lorentz,
+        lorentz,
+        side_lobe_level,
+    )
+    from .roi import bounding_box, disc_mask, roi_mask
+    from .sharpness import tenenbaum_sharpness
 
 __all__ = [
     "EdgeFit",
@@ -48,3 +60,14 @@ __all__ = [
     "side_lobe_level",
     "tenenbaum_sharpness",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    """Each measure from its module, on first use."""
+    if name in _LAZY:
+        import importlib
+
+        value = getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
