@@ -91,7 +91,7 @@ import pylops
 import scipy.fft
 
 from driver.constants import C_DEFAULT
-from driver.physics import nufft
+from driver.physics import fft_engine, nufft
 from driver.physics.axes import centred_axis, centred_index, node_indices
 from driver.physics.grid_sizes import pad_sizes
 from driver.physics.nufft_plans import lateral_plan
@@ -456,7 +456,7 @@ class PlanarOperator(pylops.LinearOperator):
             # depth: the n_z image rows of each column, zero below, DCT-I of length N_z
             B = np.zeros((len(idx), n_z2), dtype=self._ctype)
             nufft.gather_columns(Y, idx, B[:, :n_z])
-            B = self._dct1(B)
+            B = fft_engine.dct1(B, axis=1, overwrite_x=True)  # depth: DCT-I of the real and imaginary parts
             R = nufft.spread(B, self._grid, klat2, self._kz, self._qw_forward, self.c, self.dt, self.t0,
                              groups=groups)
             del B
@@ -493,14 +493,6 @@ class PlanarOperator(pylops.LinearOperator):
             _conj_reflected(T, n_xr, n_x2, n_x2, full[:, :, n_xr:])
         return full
 
-    def _dct1(self, B: np.ndarray) -> np.ndarray:
-        """DCT-I along the last axis of a complex (cols, N) array, on the real and
-        imaginary parts in place (interleaved view: no split copies)."""
-        n = B.shape[1]
-        re = B.view(self.dtype).reshape(B.shape[0], n, 2)
-        out = scipy.fft.dct(re, type=1, axis=1, overwrite_x=True, workers=-1)
-        return np.ascontiguousarray(out).reshape(B.shape[0], 2 * n).view(self._ctype)
-
     def _apply_adjoint(self, data: np.ndarray) -> np.ndarray:
         n_z2, n_y2, n_x2 = self.padded_shape
         n_z, n_y, n_x = self._vol
@@ -516,7 +508,7 @@ class PlanarOperator(pylops.LinearOperator):
             F = nufft.evaluate(U, self._grid, klat2, self._kz, self._qw_adjoint, self.c, self.dt, self.t0,
                                inversion=False, n_chunks=1, groups=groups)
             del U
-            F = self._dct1(F)
+            F = fft_engine.dct1(F, axis=1, overwrite_x=True)
             nufft.scatter_columns(F[:, :n_z], idx, K)
             del F
             self._tick()
