@@ -80,6 +80,24 @@ def test_reconstruct_points_rejects(kwargs, match):
         reconstruct_points(args.pop("alines"), args.pop("positions"), args.pop("dt"), args.pop("c"), **args)
 
 
+@pytest.mark.parametrize("n_points", [40, 512, 513, 900])  # every pair up to 512 points, a k-d tree above
+def test_duplicate_positions_are_found_at_any_count(n_points):
+    """A duplicate (within 1e-9 of the mask's extent) is refused whichever search finds it; a
+    point 1e-6 of the extent away from another is not a duplicate."""
+    side = int(np.ceil(np.sqrt(n_points)))
+    grid = np.stack(np.meshgrid(np.arange(side), np.arange(side)), -1).reshape(-1, 2)[:n_points] * DX
+    alines = np.random.default_rng(2).standard_normal((n_points, 20))
+    dup = grid.copy()
+    dup[-1] = dup[n_points // 2] + 1e-12 * DX * side
+    with pytest.raises(ValueError, match="duplicates"):
+        reconstruct_points(alines, dup, DT, C, weights=np.ones(n_points))
+    near = grid.copy()
+    near[-1] = near[n_points // 2] + 1e-6 * DX * side
+    rec = reconstruct_points(alines, near, DT, C, weights=np.ones(n_points), n_z=4,
+                             grid=(np.arange(side) * DX, np.arange(side) * DX))
+    assert rec.p0.shape == (4, side, side)
+
+
 def test_kwave_dropins_reject_bad_options():
     with pytest.raises(ValueError, match="Interp"):
         kspace_line_recon(GOOD, DX, DT, C, interp="spline")
