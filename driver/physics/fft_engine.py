@@ -118,5 +118,5 @@ def dct1(x: np.ndarray, axis: int = -1, overwrite_x: bool = False) -> np.ndarray
     if np.iscomplexobj(x) and x.flags.c_contiguous:
         re = x.view(x.real.dtype).reshape(*x.shape, 2)
         out = scipy.fft.dct(re, type=1, axis=axis, overwrite_x=overwrite_x, workers=-1)
-        return out.view(x.dtype).reshape(x.shape)
+        return np.ascontiguousarray(out).view(x.dtype).reshape(x.shape)
     return scipy.fft.dct(x, type=1, axis=axis, overwrite_x=overwrite_x, workers=-1)

@@ -296,7 +296,7 @@ def scatter_columns(F: np.ndarray, cols: np.ndarray, out: np.ndarray) -> None:
 
 def transpose(F: np.ndarray, out: np.ndarray) -> None:
     """out[j, c] = F[c, j] for 2-D arrays, in cache-friendly tiles (parallel; `scatter_columns`
-    to every column).
+    to every column; a small array: numpy's copy of the transposed view).
 
     Parameters
     ----------
@@ -325,7 +325,9 @@ def to_fine_grid(A: np.ndarray, grid: TemporalGrid, t0_is_zero: bool,
     """(n_t, n_cols) coefficients (time first, as a lateral FFT of the data leaves them)
     -> (n_cols, L) values of S on the fine theta grid, one column per row.
 
-    ``A`` is not modified. The t = 0 sample is halved when ``t0_is_zero``.
+    ``A`` is not modified. The t = 0 sample is halved when ``t0_is_zero``. A small transform
+    (`driver.physics.fft_engine.is_small` of the fine grid) runs in numpy, a larger one in the
+    compiled placement and scipy.fft.
 
     Parameters
     ----------
@@ -473,7 +475,9 @@ def evaluate(
     chunks of column groups (fewer for small transforms).
     groups: `group_columns` (klat2) when the caller keeps it (an operator applied many
     times); None: computed here.
-    Returns (n_cols, n_kz) complex.
+    Returns (n_cols, n_kz) complex. A small transform (U and the result together at most
+    `driver.physics.fft_engine.SMALL_ELEMENTS`) runs in numpy (`_interp_small`: the same
+    taps and sums), a larger one in the compiled kernel.
 
     Parameters
     ----------
