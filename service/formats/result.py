@@ -19,6 +19,7 @@ import datetime as _dt
 import json
 import os
 import uuid
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -225,13 +226,16 @@ def write_reconstruction(path: str | os.PathLike, rec: Any, *, input_id: str,
                         software_version=software_version, p0_unit=getattr(rec, "p0_unit", "a.u."))
 
 
-def write_folder(out_dir: str | os.PathLike, rec: Any, *, input_id: str, mips: dict[str, bytes]) -> dict:
+def write_folder(out_dir: str | os.PathLike, rec: Any, *, input_id: str,
+                 mips: dict[str, bytes] | Callable[[], dict[str, bytes]]) -> dict:
     """The result folder of a reconstruction ``rec``: :data:`VOLUME_FILE`
     (:func:`write_reconstruction`) and the PNG bytes of each MIP plane in ``mips``
     (:func:`mip_file`), written into a temporary sibling folder renamed into place (an
-    existing ``out_dir`` is replaced). Returns ``{"shape", "max", "planes",
-    "params_used"}`` (``planes`` sorted; ``params_used``: the scalar parameters the
-    reconstruction used). Raises ValueError as :func:`write_volume`."""
+    existing ``out_dir`` is replaced). ``mips`` may be a callable returning them, called
+    once the volume is written (and flushed to disk): a caller can draw the pictures
+    meanwhile. Returns ``{"shape", "max", "planes", "params_used"}`` (``planes`` sorted;
+    ``params_used``: the scalar parameters the reconstruction used). Raises ValueError as
+    :func:`write_volume`, and what ``mips()`` raises."""
     import time
 
     from service.disk import folder_replaced
@@ -242,6 +246,8 @@ def write_folder(out_dir: str | os.PathLike, rec: Any, *, input_id: str, mips: d
     with folder_replaced(out_dir, tmp):
         p0 = np.asarray(rec.p0)
         write_reconstruction(tmp / VOLUME_FILE, rec, input_id=input_id)
+        if callable(mips):
+            mips = mips()
         for plane, png in mips.items():
             (tmp / mip_file(plane)).write_bytes(png)
     # the values the reconstruction used (defaults and the input's c, dt, dx filled in)

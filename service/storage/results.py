@@ -64,12 +64,18 @@ def write_result(out_dir: str | os.PathLike, rec: Any, *, input_id: str) -> dict
     :func:`service.storage.render.render_mips`) drawn here, the folder (``volume.h5`` and
     the PNGs, renamed into place, an existing ``out_dir`` replaced) written by its format,
     :func:`service.formats.result.write_folder`. Returns ``{"shape", "max", "planes",
-    "params_used"}``. Raises ValueError as :func:`write_volume`."""
+    "params_used"}``. Raises ValueError as :func:`write_volume`.
+
+    The pictures are drawn in a thread while the volume is written and flushed to disk
+    (``os.fsync``, which releases the GIL: most of a large result's write time)."""
+    from concurrent.futures import ThreadPoolExecutor
+
     from service.storage.render import render_mips
 
-    pngs = render_mips(np.asarray(rec.p0), rec.z, rec.x, getattr(rec, "y", None),
-                       colorbar_label=f"p0 ({getattr(rec, 'p0_unit', 'a.u.')})")
-    return write_folder(out_dir, rec, input_id=input_id, mips=pngs)
+    with ThreadPoolExecutor(1, thread_name_prefix="mip-pictures") as pool:
+        pngs = pool.submit(render_mips, np.asarray(rec.p0), rec.z, rec.x, getattr(rec, "y", None),
+                           colorbar_label=f"p0 ({getattr(rec, 'p0_unit', 'a.u.')})")
+        return write_folder(out_dir, rec, input_id=input_id, mips=pngs.result)
 
 
 def _voxel_sizes_um(r: ResultVolume, what: str) -> tuple[str, list[float]]:

@@ -243,3 +243,20 @@ def test_the_result_folder_is_written_by_its_format(tmp_path):
     with pytest.raises(TypeError):
         write_folder(out, rec, input_id="v", mips={"xy": "not bytes"})  # type: ignore[dict-item]
     assert read_result(out / VOLUME_FILE).input_id == "u" and not list(tmp_path.glob("result.tmp-*"))
+    # the pictures from a callable, asked for once the volume is on disk (write_result draws
+    # them in a thread meanwhile); one that fails leaves the folder as it was too
+    seen = []
+
+    def pictures():
+        seen.extend(p.name for p in tmp_path.glob("result.tmp-*/*"))
+        return {"xz": b"\x89PNG late"}
+
+    assert write_folder(out, rec, input_id="w", mips=pictures)["planes"] == ["xz"]
+    assert seen == [VOLUME_FILE] and (out / mip_file("xz")).read_bytes() == b"\x89PNG late"
+
+    def broken():
+        raise ValueError("no pictures")
+
+    with pytest.raises(ValueError, match="no pictures"):
+        write_folder(out, rec, input_id="x", mips=broken)
+    assert read_result(out / VOLUME_FILE).input_id == "w" and not list(tmp_path.glob("result.tmp-*"))
