@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["SMALL_ELEMENTS", "is_small", "fft", "rfft2", "irfft_lateral", "dct1"]
+__all__ = ["SMALL_ELEMENTS", "is_small", "fft", "ifft", "irfft", "rfft2", "dct1"]
 
 #: elements (of the transform's input) at or below which a transform is "small": runs in
 #: numpy, and the temporal step in numpy instead of numba (`driver.physics.nufft`).
@@ -24,6 +24,16 @@ SMALL_ELEMENTS = 1 << 16
 
 def is_small(n_elements: int) -> bool:
     """Whether a step over ``n_elements`` array elements runs without scipy.fft and numba.
+
+    Parameters
+    ----------
+    n_elements : int
+        Elements of the step's arrays (any dtype).
+
+    Returns
+    -------
+    bool
+        ``n_elements <= SMALL_ELEMENTS``.
 
     Examples
     --------
@@ -35,8 +45,19 @@ def is_small(n_elements: int) -> bool:
 
 
 def fft(x: np.ndarray, axis: int = -1, overwrite_x: bool = False) -> np.ndarray:
-    """Complex FFT along ``axis`` (``scipy.fft.fft`` semantics: no normalisation); the
-    result may be ``x`` itself when ``overwrite_x``.
+    """Complex FFT along one axis, unnormalised (``scipy.fft.fft``; pocketfft either way).
+
+    Parameters
+    ----------
+    x : ndarray, any shape, complex64 or complex128 (the precision is kept).
+    axis : int, optional
+        The transformed axis (default the last).
+    overwrite_x : bool, optional
+        ``x`` may be overwritten (a large array is then transformed in place).
+
+    Returns
+    -------
+    ndarray, the shape and dtype of ``x``; may be ``x`` itself when ``overwrite_x``.
 
     Examples
     --------
@@ -52,9 +73,85 @@ def fft(x: np.ndarray, axis: int = -1, overwrite_x: bool = False) -> np.ndarray:
     return scipy.fft.fft(x, axis=axis, overwrite_x=overwrite_x, workers=-1)
 
 
+def ifft(x: np.ndarray, n: int, axis: int, overwrite_x: bool = False) -> np.ndarray:
+    """Inverse complex FFT of length ``n`` along one axis, with the 1/n factor
+    (``scipy.fft.ifft``).
+
+    Parameters
+    ----------
+    x : ndarray, any shape, complex64 or complex128 (the precision is kept).
+    n : int
+        Output length along ``axis`` (``x`` is cut or zero-padded to it).
+    axis : int
+        The transformed axis.
+    overwrite_x : bool, optional
+        ``x`` may be overwritten (a large array is then transformed in place).
+
+    Returns
+    -------
+    ndarray, the shape of ``x`` with length ``n`` along ``axis``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from driver.physics.fft_engine import ifft
+    >>> ifft(np.ones(4, dtype=np.complex128), 4, 0)
+    array([1.+0.j, 0.+0.j, 0.+0.j, 0.+0.j])
+    """
+    if is_small(x.size):
+        return np.fft.ifft(x, n=n, axis=axis)
+    import scipy.fft
+
+    return scipy.fft.ifft(x, n=n, axis=axis, overwrite_x=overwrite_x, workers=-1)
+
+
+def irfft(x: np.ndarray, n: int, axis: int, overwrite_x: bool = False) -> np.ndarray:
+    """Inverse real FFT of length ``n`` along one axis from its ``n // 2 + 1`` non-negative
+    frequencies, with the 1/n factor (``scipy.fft.irfft``).
+
+    Parameters
+    ----------
+    x : ndarray, any shape, complex64 or complex128: the half spectrum along ``axis``.
+    n : int
+        Output length along ``axis``.
+    axis : int
+        The transformed axis.
+    overwrite_x : bool, optional
+        ``x`` may be overwritten.
+
+    Returns
+    -------
+    ndarray, real (float32 from complex64), the shape of ``x`` with length ``n`` along ``axis``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from driver.physics.fft_engine import irfft
+    >>> irfft(np.array([4.0, 0.0, 0.0], dtype=np.complex128), 4, 0)
+    array([1., 1., 1., 1.])
+    """
+    if is_small(x.size):
+        return np.fft.irfft(x, n=n, axis=axis)
+    import scipy.fft
+
+    return scipy.fft.irfft(x, n=n, axis=axis, overwrite_x=overwrite_x, workers=-1)
+
+
 def rfft2(x: np.ndarray, s: tuple[int, int] | None = None, axes: tuple[int, int] = (-2, -1)) -> np.ndarray:
-    """Real 2-D FFT over ``axes`` (zero-padded or cut to ``s``), the last axis halved
-    (``scipy.fft.rfft2`` semantics); float32 in, complex64 out.
+    """Real 2-D FFT over two axes, unnormalised, the last one halved (``scipy.fft.rfft2``).
+
+    Parameters
+    ----------
+    x : ndarray, real, any shape with the two ``axes`` (float32 gives complex64).
+    s : (int, int), optional
+        Lengths along ``axes`` (``x`` zero-padded or cut to them); default their own.
+    axes : (int, int), optional
+        The transformed axes (default the last two).
+
+    Returns
+    -------
+    ndarray, complex: the shape of ``x`` with ``s`` along ``axes``, the last of them
+    ``s[1] // 2 + 1`` long.
 
     Examples
     --------
@@ -70,32 +167,29 @@ def rfft2(x: np.ndarray, s: tuple[int, int] | None = None, axes: tuple[int, int]
     return scipy.fft.rfft2(x, s=s, axes=axes, workers=-1)
 
 
-def irfft_lateral(K: np.ndarray, shape: tuple[int, ...], axes: tuple[int, ...], overwrite: bool) -> np.ndarray:
-    """The inverse lateral real FFT of `driver.physics.lateral.irfft_lateral` (its owner:
-    argument checks and documentation): complex passes along ``axes[:-1]`` (in place when
-    ``overwrite``), then the real one along ``axes[-1]``."""
-    if is_small(K.size):
-        for n, ax in zip(shape[:-1], axes[:-1]):
-            if K.shape[ax] > 1 or n > 1:
-                K = np.fft.ifft(K, n=n, axis=ax)
-        return np.fft.irfft(K, n=shape[-1], axis=axes[-1])
-    import scipy.fft
-
-    for n, ax in zip(shape[:-1], axes[:-1]):
-        if K.shape[ax] > 1 or n > 1:
-            K = scipy.fft.ifft(K, n=n, axis=ax, workers=-1, overwrite_x=overwrite)
-            overwrite = True
-    return scipy.fft.irfft(K, n=shape[-1], axis=axes[-1], workers=-1, overwrite_x=overwrite)
-
-
 def dct1(x: np.ndarray, axis: int = -1, overwrite_x: bool = False) -> np.ndarray:
-    """DCT-I along ``axis``, unnormalised: y_k = x_0 + (-1)^k x_{n-1} + 2 Σ_{j=1}^{n-2} x_j
-    cos(π j k / (n - 1)) (``scipy.fft.dct(type=1)``); a complex ``x`` is transformed as its
+    """DCT-I along one axis, unnormalised: y_k = x_0 + (-1)^k x_{n-1} + 2 Σ_{j=1}^{n-2} x_j
+    cos(π j k / (n - 1)) (``scipy.fft.dct(type=1)``). A complex ``x`` is transformed as its
     real and imaginary parts (a C-contiguous one through an interleaved real view: no split
-    copies). ``n >= 2``.
+    copies). A small array: the DFT of the even extension (x_0 .. x_{n-1}, x_{n-2} .. x_1),
+    whose first n values are the DCT-I.
 
-    Small arrays: the DFT of the even extension (x_0 .. x_{n-1}, x_{n-2} .. x_1), whose
-    first n values are the DCT-I.
+    Parameters
+    ----------
+    x : ndarray, any shape, real or complex (the precision is kept), n >= 2 along ``axis``.
+    axis : int, optional
+        The transformed axis (default the last).
+    overwrite_x : bool, optional
+        ``x`` may be overwritten.
+
+    Returns
+    -------
+    ndarray, the shape and dtype of ``x``.
+
+    Raises
+    ------
+    ValueError
+        Fewer than 2 samples along ``axis``.
 
     Examples
     --------
@@ -108,6 +202,8 @@ def dct1(x: np.ndarray, axis: int = -1, overwrite_x: bool = False) -> np.ndarray
     """
     axis = axis % x.ndim
     n = x.shape[axis]
+    if n < 2:
+        raise ValueError(f"a DCT-I needs at least 2 samples along axis {axis}, got {n}")
     if is_small(x.size):
         inner = np.flip(np.take(x, np.arange(1, n - 1), axis=axis), axis=axis)
         ext = np.concatenate([x, inner], axis=axis)

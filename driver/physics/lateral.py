@@ -55,4 +55,8 @@ def irfft_lateral(K: np.ndarray, shape: tuple[int, ...], axes: tuple[int, ...] =
     axes = tuple(int(a) for a in axes)
     if len(shape) != len(axes) or not axes:
         raise ValueError(f"shape {shape} and axes {axes} must have the same, non-zero length")
-    return fft_engine.irfft_lateral(K, shape, axes, overwrite)
+    for n, ax in zip(shape[:-1], axes[:-1]):
+        if K.shape[ax] > 1 or n > 1:
+            K = fft_engine.ifft(K, n, ax, overwrite_x=overwrite)
+            overwrite = True
+    return fft_engine.irfft(K, shape[-1], axes[-1], overwrite_x=overwrite)

@@ -11,7 +11,8 @@ import inspect
 import pytest
 
 MODULES = [
-    "driver.physics.axes", "driver.physics.balls", "driver.physics.fast_lengths", "driver.physics.forward",
+    "driver.physics.axes", "driver.physics.balls", "driver.physics.fast_lengths", "driver.physics.fft_engine",
+    "driver.physics.forward",
     "driver.physics.lateral",
     "driver.physics.nufft", "driver.physics.nufft_plans", "driver.physics.spectra", "driver.physics.weights",
     "service.metrics.correlation", "service.metrics.curves", "service.metrics.projections",

@@ -56,3 +56,9 @@ def test_rfft2_and_fft_are_scipys(dtype, shape):
 def test_small_is_a_size_and_nothing_else():
     assert fft_engine.is_small(fft_engine.SMALL_ELEMENTS)
     assert not fft_engine.is_small(fft_engine.SMALL_ELEMENTS + 1)
+
+
+@pytest.mark.usefixtures("engine")
+def test_dct1_refuses_fewer_than_two_samples_on_either_path():
+    with pytest.raises(ValueError, match="at least 2 samples"):
+        fft_engine.dct1(np.ones((3, 1)), axis=1)
