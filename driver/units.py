@@ -27,10 +27,12 @@ from __future__ import annotations
 import functools
 import math
 import re
-from decimal import Decimal, InvalidOperation
-from typing import Any
 
 from driver.constants import C_DEFAULT, C_LIMITS, C_PLAUSIBLE
+
+TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (`fpscan --help` imports this module)
+if TYPE_CHECKING:
+    from typing import Any
 
 __all__ = [
     "KINDS", "PITCH_RANGE", "DT_RANGE", "RefusedInput", "ImplausibleValue", "parse_quantity", "suggest_unit",
@@ -64,6 +66,8 @@ class ImplausibleValue(RefusedInput):
 
 @functools.cache
 def _registry():
+    from decimal import Decimal
+
     import pint
 
     return pint.UnitRegistry(non_int_type=Decimal)
@@ -91,6 +95,8 @@ def parse_quantity(value: Any, kind: str, *, name: str = "value") -> float:
             raise ValueError(f"{name} must be a number with an optional {kind} unit "
                              f"(e.g. 60um, 3.6 mm, 8ns, 500 Hz; bare numbers are {si}), got {text!r}")
         number, unit = m.group(1), m.group(2).strip().replace("μ", "µ")
+        from decimal import Decimal, InvalidOperation  # imported here: ``fpscan --help`` imports this module
+
         try:
             magnitude = Decimal(number)
         except InvalidOperation:

@@ -53,9 +53,31 @@ class _VersionAction(argparse.Action):
         parser.exit()
 
 
+class _HelpFormatter(argparse.HelpFormatter):
+    """argparse's help formatter at the terminal's width, read by `shutil.get_terminal_size`'s
+    rule (``$COLUMNS``, else the terminal on stdout, else 80 columns) without importing
+    shutil, whose archive modules were a tenth of ``fpscan --help``."""
+
+    def __init__(self, prog, indent_increment=2, max_help_position=24, width=None):
+        if width is None:
+            try:
+                width = int(os.environ["COLUMNS"])
+            except (KeyError, ValueError):
+                width = 0
+            if width <= 0:
+                stdout = sys.__stdout__
+                try:
+                    width = os.get_terminal_size(stdout.fileno()).columns if stdout is not None else 0
+                except (AttributeError, ValueError, OSError):  # not a terminal, or no file descriptor
+                    width = 0
+            width = (width or 80) - 2
+        super().__init__(prog, indent_increment, max_help_position, width)
+
+
 def _top_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="fpscan",
+        formatter_class=_HelpFormatter,
         description="Planar Fabry-Perot photoacoustic scanning: plan, acquire, reconstruct, serve.",
     )
     parser.add_argument("--version", action=_VersionAction, help="show the program's version number and exit")
@@ -65,18 +87,28 @@ def _top_parser() -> argparse.ArgumentParser:
 def build_parser(commands=None) -> argparse.ArgumentParser:
     """The ``fpscan`` argument parser with one sub-command per module of this package.
 
-    ``commands``: the names of the sub-commands whose options are added (their
-    ``add_arguments`` may import what the options need); default all of them. The others
-    are listed with their one-line help only.
+    ``commands``: the names of the sub-commands whose parsers are built, with their options
+    (their ``add_arguments`` may import what the options need); default all of them. The
+    others are listed with their one-line help only (``fpscan --help``; naming one of them
+    is not parsed: ``main`` builds the sub-command the command line names).
     """
     parser = _top_parser()
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    building = False
+
+    def sub_parser(**kwargs):
+        # argparse's parser of one sub-command; only a named one is built (each costs about
+        # 2 ms, mostly gettext look-ups: 13 of them were most of ``fpscan --help``)
+        return argparse.ArgumentParser(formatter_class=_HelpFormatter, **kwargs) if building else None
+
+    # argparse calls parser_class(**kwargs) (any callable; typeshed wants a class)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=sub_parser)  # type: ignore[call-overload]
     sub.required = True
     for module in _subcommand_modules():
+        building = commands is None or module.COMMAND in commands
         p = sub.add_parser(module.COMMAND, help=module.HELP, description=module.HELP)
-        if commands is None or module.COMMAND in commands:
+        if building:
             module.add_arguments(p)
-        p.set_defaults(_run=module.run)
+            p.set_defaults(_run=module.run)
     allow_negative_quantities(parser)
     return parser
 
@@ -97,7 +129,8 @@ def allow_negative_quantities(parser: argparse.ArgumentParser) -> None:
     for action in parser._actions:
         if isinstance(action, argparse._SubParsersAction):
             for sub in set(action.choices.values()):
-                allow_negative_quantities(sub)
+                if sub is not None:  # a sub-command listed but not built (`build_parser`)
+                    allow_negative_quantities(sub)
 
 
 def _command_named(argv: list[str]) -> str | None:

@@ -6,11 +6,11 @@ import functools
 import os
 import sys
 import time
-from collections.abc import Callable
-from typing import TYPE_CHECKING
 
+TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (`fpscan --help` starts faster)
 if TYPE_CHECKING:
     import threading
+    from collections.abc import Callable
 
     from rich.progress import Progress, TaskID
 

@@ -55,6 +55,32 @@ def test_subcommand_help_lists_its_options():
     assert got["stdout"].startswith("usage: fpscan recon") and "--method" in got["stdout"], got["stdout"][:2000]
 
 
+@pytest.mark.parametrize("columns", ["50", "120", "", "junk"])
+def test_help_width_follows_shutils_rule(columns):
+    """``fpscan --help`` wraps at the width argparse's own formatter (`shutil.get_terminal_size`)
+    picks for the same ``$COLUMNS`` (unset, or not a number: stdout is a pipe here, so 80)."""
+    code = r'''
+import argparse, json
+from clients.cli import build_parser
+ours = build_parser(())
+stdlib = build_parser(())
+stdlib.formatter_class = argparse.HelpFormatter
+print(json.dumps({"ours": ours.format_help(), "stdlib": stdlib.format_help()}))
+'''
+    import os
+
+    env = {k: v for k, v in os.environ.items() if k != "COLUMNS"}
+    if columns:
+        env["COLUMNS"] = columns
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, env=env)
+    assert out.returncode == 0, out.stderr[-3000:]
+    got = json.loads(out.stdout)
+    assert got["ours"] == got["stdlib"]
+    width = int(columns) if columns.isdigit() else 80
+    assert max(map(len, got["ours"].splitlines())) <= width - 2
+    assert max(map(len, got["ours"].splitlines())) > width - 20  # wrapped at that width, not narrower
+
+
 def test_version_matches_the_installed_metadata():
     from importlib.metadata import PackageNotFoundError, version
 
