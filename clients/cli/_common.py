@@ -91,11 +91,12 @@ def add_server_options(parser, *, required: bool = False) -> None:
 
 def default_dtype() -> str:
     """The reconstruction precision used when none is asked for:
-    ``service.pipeline.DEFAULT_DTYPE`` (the same for ``fpscan recon``, the server and the
-    web page); on a client-only install (no ``service`` package) ``"float32"``, the value
-    the server states in its ``ReconParams`` schema."""
+    ``service.recon.limits.DEFAULT_DTYPE`` (the same for ``fpscan recon``, the server and the
+    web page; read from the module that owns it, which imports nothing heavy: ``fpscan serve``
+    spawns its workers that much sooner); on a client-only install (no ``service`` package)
+    ``"float32"``, the value the server states in its ``ReconParams`` schema."""
     try:
-        from service.pipeline import DEFAULT_DTYPE
+        from service.recon.limits import DEFAULT_DTYPE
     except ImportError:
         return "float32"
     return DEFAULT_DTYPE

@@ -82,7 +82,7 @@ def warm_up(dtypes=DTYPES, groups=GROUPS) -> dict:
     for g in GROUPS:  # in the order of GROUPS
         if g in wanted:
             _WARM[g](names)
-    return {"seconds": time.perf_counter() - t0, "cache_dirs": cache_dirs()}
+    return {"seconds": time.perf_counter() - t0, "cache_dirs": cache_dirs(wanted)}
 
 
 _DX, _DT = 1e-4, 2e-8
@@ -141,14 +141,33 @@ def _warm_model(names: list[str]) -> None:
 _WARM = {"planar": _warm_planar, "kwave": _warm_kwave, "model": _warm_model}
 
 
-def cache_dirs() -> list[str]:
+#: the modules holding each group's numba kernels
+_KERNEL_MODULES = {
+    "planar": ("driver.physics.nufft_kernels",),
+    "kwave": ("service.recon.kwave",),
+    "model": ("driver.physics.nufft_kernels", "service.recon.tv"),
+}
+
+
+def cache_dirs(groups=GROUPS) -> list[str]:
     """The directories numba's cache of the reconstruction's kernels is in.
+
+    Parameters
+    ----------
+    groups : iterable of str, optional
+        Names in :data:`GROUPS` whose kernels are looked at (their modules are imported);
+        default all.
 
     Returns
     -------
     list of str
         Sorted; ``NUMBA_CACHE_DIR`` when set, else ``__pycache__`` beside the kernels'
         modules where writable, else numba's user-wide cache.
+
+    Raises
+    ------
+    ValueError
+        An unknown group.
 
     Examples
     --------
@@ -157,14 +176,18 @@ def cache_dirs() -> list[str]:
     >>> dirs == sorted(dirs) and all(isinstance(d, str) for d in dirs)
     True
     """
+    import importlib
+
     import numba
 
-    from driver.physics import nufft_kernels
-    from service.recon import kwave
-
+    names: list[str] = []
+    for g in groups:
+        if g not in _KERNEL_MODULES:
+            raise ValueError(f"group must be one of {GROUPS}, got {g!r}")
+        names += [m for m in _KERNEL_MODULES[g] if m not in names]
     dirs = set()
-    for module in (nufft_kernels, kwave):
-        for value in vars(module).values():
+    for name in names:
+        for value in vars(importlib.import_module(name)).values():
             cache = getattr(value, "_cache", None)
             if isinstance(value, numba.core.registry.CPUDispatcher) and cache is not None:
                 path = getattr(cache, "cache_path", None) or getattr(cache, "_cache_path", None)

@@ -174,19 +174,40 @@ def test_warmup_command_options_and_bad_dtype(capsys):
 def test_job_worker_warms_the_planar_kernels_first():
     """The planar group of the kernel warm-up (what a job worker warms before it takes a job:
     ``service.jobs.work.warm_up(full=True, rest_in_background=True)``) never imports the
-    model-based operator and its pylops (the slowest import, warmed in a background thread);
-    unknown groups are a ValueError."""
-    from service.recon.warmup import warm_up
+    model-based operator and its pylops (the slowest import, warmed in a background thread)
+    nor the k-Wave modes and their scipy.interpolate; it reports the cache of the kernels it
+    warmed. Unknown groups are a ValueError."""
+    from service.recon.warmup import cache_dirs, warm_up
 
     with pytest.raises(ValueError, match="group must be one of"):
         warm_up(["float32"], groups=["nope"])
+    with pytest.raises(ValueError, match="group must be one of"):
+        cache_dirs(["nope"])
     got = _fresh(r'''
 import json, sys
 from service.recon.warmup import warm_up
-warm_up(["float32"], groups=["planar"])
-print(json.dumps({"operator": "service.recon.operator" in sys.modules, "pylops": "pylops" in sys.modules}))
+out = warm_up(["float32"], groups=["planar"])
+print(json.dumps({"operator": "service.recon.operator" in sys.modules, "pylops": "pylops" in sys.modules,
+                  "kwave": "service.recon.kwave" in sys.modules, "interpolate": "scipy.interpolate" in sys.modules,
+                  "dirs": out["cache_dirs"]}))
 ''')
-    assert got == {"operator": False, "pylops": False}, got
+    dirs = got.pop("dirs")
+    assert got == {"operator": False, "pylops": False, "kwave": False, "interpolate": False}, got
+    assert dirs and set(dirs) <= set(cache_dirs()), (dirs, cache_dirs())
+
+
+def test_serve_spawns_its_workers_before_the_heavy_imports():
+    """``fpscan serve``'s command line (its options and their help, which states the default
+    precision) is parsed without numpy, pydantic or the method registry: the job workers
+    spawn, and start warming up, before the server's own imports."""
+    got = _fresh(CLI.format(argv=["serve", "--help"]))
+    assert got["code"] == 0
+    from service.recon.limits import DEFAULT_DTYPE
+
+    assert f"reconstructions are {DEFAULT_DTYPE}" in got["stdout"]
+    heavy = [m for m in got["modules"] if m.split(".")[0] in ("numpy", "pydantic", "scipy", "fastapi")
+             or m in ("service.pipeline", "service.recon.methods", "service.settings")]
+    assert heavy == [], heavy
 
 
 ADMIT = r'''
