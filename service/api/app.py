@@ -409,6 +409,10 @@ def _lifespan(settings: Settings, slots: dict[str, Slots], start_workers: bool, 
         settings.token_value()  # an unreadable or empty token_file stops the start here
         store = JobStore(settings.database)
         context = Context(settings=settings, store=store, slots=slots)
+        from service.api.jobs import EventWakeups
+
+        context.wakeups = EventWakeups(asyncio.get_running_loop())
+        store.add_listener(context.wakeups.notify)
         app.state.ctx = context
         executor = _start_workers(context, store, settings, given_executor) if start_workers else None
         await warm_routes(app, settings)

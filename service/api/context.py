@@ -80,6 +80,7 @@ class Context:
     store: JobStore
     queue: Any = None          # service.jobs.queue.ReconQueue
     scans: Any = None          # service.jobs.scans.ScanManager
+    wakeups: Any = None        # service.api.jobs.EventWakeups: the store's events wake the job streams
     extras: dict = field(default_factory=dict)
     slots: dict[str, Slots] = field(default_factory=dict)  # default_slots(settings)
 

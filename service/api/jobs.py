@@ -2,6 +2,8 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
+from collections.abc import Iterator
 
 import anyio
 from fastapi import APIRouter, Depends, Header, HTTPException, Path, Query, Request, Response
@@ -15,12 +17,55 @@ from service.names import person_names
 
 __all__ = [
     "router", "JobId", "job_links", "job_view", "get_job_or_404", "list_jobs", "get_job", "cancel_job",
-    "delete_job", "job_events",
+    "delete_job", "job_events", "EventWakeups", "POLL_S",
 ]
 
 router = APIRouter(prefix="/api/jobs", tags=["jobs"])
 
 JobId = Path(pattern=ID_PATTERN, description="job id")
+
+#: how often an events stream looks at the store when nothing woke it (s): the pace for
+#: events another process committed, and of noticing a client gone
+POLL_S = 0.2
+
+
+class EventWakeups:
+    """Wakes a job's events streams as soon as the job store commits an event of that job
+    (:meth:`service.jobs.store.JobStore.add_listener`), rather than at their next poll
+    (:data:`POLL_S`): a client waiting on a job hears that it finished when it does.
+
+    ``loop``: the server's event loop. :meth:`notify` may be called from any thread.
+    """
+
+    def __init__(self, loop: asyncio.AbstractEventLoop):
+        self._loop = loop
+        self._waiting: dict[str, set[asyncio.Event]] = {}
+
+    def notify(self, job_id: str) -> None:
+        """A committed event of ``job_id`` (any thread): wake its streams."""
+        if job_id not in self._waiting:  # no stream on it (one starting now reads the store after)
+            return
+        with contextlib.suppress(RuntimeError):  # the loop has closed: the server is stopping
+            self._loop.call_soon_threadsafe(self._wake, job_id)
+
+    def _wake(self, job_id: str) -> None:
+        for event in self._waiting.get(job_id, ()):
+            event.set()
+
+    @contextlib.contextmanager
+    def watch(self, job_id: str) -> Iterator[asyncio.Event]:
+        """An ``asyncio.Event`` set at every committed event of ``job_id`` while the block
+        runs (in the loop's thread); clear it before reading the store, wait on it after."""
+        event = asyncio.Event()
+        self._waiting.setdefault(job_id, set()).add(event)
+        try:
+            yield event
+        finally:
+            waiting = self._waiting.get(job_id)
+            if waiting is not None:
+                waiting.discard(event)
+                if not waiting:
+                    del self._waiting[job_id]
 
 
 def job_links(job: dict) -> dict[str, str]:
@@ -131,22 +176,26 @@ async def job_events(request: Request, job_id: str = JobId, c: Context = Depends
 
     async def stream():
         nonlocal after
-        while True:
-            if await request.is_disconnected():
-                return
-            events = await anyio.to_thread.run_sync(c.store.events_after, job_id, after)
-            for ev in events:
-                after = ev["seq"]
-                yield ServerSentEvent(data=ev["data"], event=ev["event"], id=str(ev["seq"]))
-            if not events:
-                current = await anyio.to_thread.run_sync(c.store.get, job_id)
-                if current is None or current["state"] in TERMINAL:
-                    rest = await anyio.to_thread.run_sync(c.store.events_after, job_id, after)
-                    for ev in rest:
-                        after = ev["seq"]
-                        yield ServerSentEvent(data=ev["data"], event=ev["event"], id=str(ev["seq"]))
-                    if not rest:
-                        return
-                await asyncio.sleep(0.2)
+        wakeups = c.wakeups
+        with wakeups.watch(job_id) if wakeups is not None else contextlib.nullcontext(asyncio.Event()) as woken:
+            while True:
+                if await request.is_disconnected():
+                    return
+                woken.clear()  # an event committed from here on wakes the wait below
+                events = await anyio.to_thread.run_sync(c.store.events_after, job_id, after)
+                for ev in events:
+                    after = ev["seq"]
+                    yield ServerSentEvent(data=ev["data"], event=ev["event"], id=str(ev["seq"]))
+                if not events:
+                    current = await anyio.to_thread.run_sync(c.store.get, job_id)
+                    if current is None or current["state"] in TERMINAL:
+                        rest = await anyio.to_thread.run_sync(c.store.events_after, job_id, after)
+                        for ev in rest:
+                            after = ev["seq"]
+                            yield ServerSentEvent(data=ev["data"], event=ev["event"], id=str(ev["seq"]))
+                        if not rest:
+                            return
+                    with contextlib.suppress(TimeoutError):
+                        await asyncio.wait_for(woken.wait(), POLL_S)
 
     return EventSourceResponse(stream(), ping=15)

@@ -18,7 +18,7 @@ import sqlite3
 import threading
 import time
 import uuid
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any, overload
 
@@ -104,6 +104,8 @@ class JobStore:
                                    isolation_level=None)
         self._db.row_factory = sqlite3.Row
         self._cache: dict[str, dict] = {}  # job id -> row; every write to a job drops its entry
+        self._listeners: list[Callable[[str], None]] = []
+        self._touched: list[str] = []  # the jobs the current transaction recorded events of
         with self._lock:
             self._db.execute("PRAGMA journal_mode=WAL")
             self._db.execute("PRAGMA synchronous=NORMAL")
@@ -114,17 +116,40 @@ class JobStore:
             self._db.close()
 
     # -- helpers -----------------------------------------------------------------
+    def add_listener(self, fn: Callable[[str], None]) -> None:
+        """Call ``fn(job_id)`` after each committed transaction that recorded an event of
+        that job (a state change, progress), in the thread that made the change, outside the
+        store's lock; an exception of ``fn`` is logged and ignored. The events endpoint
+        wakes its streams with it instead of waiting for its next poll."""
+        self._listeners.append(fn)
+
+    def remove_listener(self, fn: Callable[[str], None]) -> None:
+        """Stop calling ``fn`` (:meth:`add_listener`); a function not added is ignored."""
+        if fn in self._listeners:
+            self._listeners.remove(fn)
+
     def _tx(self, fn):
         with self._lock:
             self._cache.clear()
+            self._touched = []
             self._db.execute("BEGIN IMMEDIATE")
             try:
                 out = fn(self._db)
             except BaseException:
                 self._db.execute("ROLLBACK")
+                self._touched = []
                 raise
             self._db.execute("COMMIT")
-            return out
+            touched, self._touched = list(dict.fromkeys(self._touched)), []
+        for job_id in touched:
+            for listener in list(self._listeners):
+                try:
+                    listener(job_id)
+                except Exception:  # noqa: BLE001 -- a listener never undoes a committed change
+                    import logging
+
+                    logging.getLogger("fpscan.store").exception("job event listener failed")
+        return out
 
     @staticmethod
     @overload
@@ -143,8 +168,8 @@ class JobStore:
         job["cancel_requested"] = bool(job["cancel_requested"])
         return job
 
-    @staticmethod
-    def _event(db: sqlite3.Connection, job_id: str, event: str, data: dict) -> int:
+    def _event(self, db: sqlite3.Connection, job_id: str, event: str, data: dict) -> int:
+        self._touched.append(job_id)  # inside `_tx`: its listeners hear of it after the commit
         seq = db.execute("SELECT COALESCE(MAX(seq), 0) + 1 FROM events WHERE job_id = ?", (job_id,)).fetchone()[0]
         db.execute("INSERT INTO events (job_id, seq, event, data, created) VALUES (?, ?, ?, ?, ?)",
                    (job_id, seq, event, json.dumps(data), time.time()))
