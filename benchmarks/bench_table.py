@@ -12,7 +12,8 @@ per size, content irrelevant to timing):
   runs: load the canonical dataset file, reconstruct, write the result folder), over ``lib``;
 - ``write``: ``service.storage.results.write_result`` (volume.h5 + MIP PNGs) of that
   reconstruction in the same process, over ``lib`` (target <= 0.3);
-- ``http``: one job over HTTP, submit to ``succeeded`` (polled every 20 ms), on a server whose
+- ``http``: one job over HTTP, submit to ``succeeded`` (the end of the job's events stream, as
+  ``clients.http.Client.wait`` waits), on a server whose
   worker is warm, over ``lib`` (target <= 1.3); the library call and the job alternate
   (lib, http, lib, http, ...: ``--repeat`` rounds, medians), so both see the same load;
 - ``job recon`` / ``job write``: the job's own timings (``params.result.timings``);
@@ -150,12 +151,13 @@ def job(c, ds: str, method: str) -> tuple[float, dict]:
     r = c.post("/api/reconstructions", json={"dataset_id": ds, "method": method, "params": {"dtype": "float32"}})
     r.raise_for_status()
     jid = r.json()["id"]
-    while True:
-        j = c.get(f"/api/jobs/{jid}").json()
-        if j["state"] in ("succeeded", "failed", "cancelled"):
-            break
-        time.sleep(0.02)
+    # as a client waits (clients.http.Client.wait): the job's events stream, which ends
+    # after the job's final state
+    with c.stream("GET", f"/api/jobs/{jid}/events") as events:
+        for _ in events.iter_lines():
+            pass
     dt = time.perf_counter() - t
+    j = c.get(f"/api/jobs/{jid}").json()
     if j["state"] != "succeeded":
         raise RuntimeError(f"job {jid} {j['state']}: {j.get('error')}")
     return dt, j
