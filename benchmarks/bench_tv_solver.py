@@ -9,10 +9,13 @@ dt = pitch / c) with seeded white noise ``--snr`` dB below the signal, this prin
 - tv's iterations, operator pairs (the power iterations included), whether the default rule
   converged, the stop reason, the residual against the noise share;
 - CC with the true p0 of NEDNER and tv, and their least-squares amplitudes (argmin_a
-  ‖img − a p0‖), with ``--debias`` also tv's after the least-squares refit.
+  ‖img − a p0‖), with ``--debias`` also tv's after the least-squares refit;
+- with ``--sweep``, tv's CC at λ ×1/8 … ×8 of the automatic one, the best factor and the CC
+  lost at the automatic λ (issue 19, item 3: ≤ 0.01; docs/results.md's table).
 
     .venv/bin/python benchmarks/bench_tv_solver.py                   # 64x96 (2-D), 24x40x40 (3-D), 30 dB
     .venv/bin/python benchmarks/bench_tv_solver.py --snr 20 30 40 --debias
+    .venv/bin/python benchmarks/bench_tv_solver.py --dims 3 --points 48 80 160 --snr 20 30 40 --sweep
 
 Small sizes only: the solver's iteration counts are the point; `bench_tv_operator.py` times
 the operator pair at large sizes. Times exclude compilation (one run of each first).
@@ -28,7 +31,10 @@ C, PITCH = 1500.0, 50e-6
 DT = PITCH / C
 
 
-def _case(kind: str, dims: int, snr_db: float):
+SWEEP = (1 / 8, 1 / 4, 1 / 2, 1.0, 2.0, 4.0, 8.0)
+
+
+def _case(kind: str, dims: int, snr_db: float, points: int = 160):
     from driver.physics import Ball, ball_p0
     from driver.physics.forward import forward_grid
     from service.experiments.phantoms import vessel_phantom
@@ -59,19 +65,19 @@ def _case(kind: str, dims: int, snr_db: float):
         idx = np.asarray(mask.indices)[:, 0]
         alines, pos, grid = g[:, idx].T, np.asarray(mask.positions, float)[:, :1], (x,)
     else:
-        mask = equisteradian_mask(Lattice(n, n, PITCH), 12 * PITCH, 160)
+        mask = equisteradian_mask(Lattice(n, n, PITCH), 12 * PITCH, points)
         ix, iy = np.asarray(mask.indices).T
         alines, pos, grid = g[:, iy, ix].T, np.asarray(mask.positions, float)[:, :2], (x, x)
     kw = dict(weights=np.asarray(mask.weights, float), grid=grid, n_z=n_z, dz=PITCH)
     return p0, alines, pos, kw
 
 
-def run(kind: str, dims: int, snr_db: float, debias: bool) -> str:
+def run(kind: str, dims: int, snr_db: float, debias: bool, points: int = 160, sweep: bool = False) -> str:
     from service.metrics import correlation_coefficient
     from service.recon import reconstruct_points
     from service.recon.tv import reconstruct_tv
 
-    p0, alines, pos, kw = _case(kind, dims, snr_db)
+    p0, alines, pos, kw = _case(kind, dims, snr_db, points)
     amp = lambda img: float(np.vdot(img, p0) / np.vdot(p0, p0))  # noqa: E731
     reconstruct_tv(alines, DT, C, positions=pos, max_iter=2, **kw)  # compile
     t = time.perf_counter()
@@ -81,7 +87,8 @@ def run(kind: str, dims: int, snr_db: float, debias: bool) -> str:
     tv = reconstruct_tv(alines, DT, C, positions=pos, **kw)
     t_tv = time.perf_counter() - t
     p = tv.params
-    row = (f"{dims}-D {kind:7s} {snr_db:4.0f} dB  NEDNER {t_ned:6.3f} s  tv {t_tv:6.2f} s  tv/NEDNER {t_tv / t_ned:6.0f}"
+    where = "" if dims == 2 else f" {len(alines)} points"
+    row = (f"{dims}-D {kind:7s}{where} {snr_db:4.0f} dB  NEDNER {t_ned:6.3f} s  tv {t_tv:6.2f} s  tv/NEDNER {t_tv / t_ned:6.0f}"
            f"  iterations {p['iterations']:3d}  pairs {p['operator_pairs']:5.1f}  converged {p['converged']!s:5s}"
            f" ({p['stop_reason']})  residual {p['residual']:.3f} (noise {p['noise_share']:.3f})"
            f"  CC NEDNER {correlation_coefficient(ned, p0):.4f} tv {correlation_coefficient(tv.p0, p0):.4f}"
@@ -89,6 +96,13 @@ def run(kind: str, dims: int, snr_db: float, debias: bool) -> str:
     if debias:
         refit = reconstruct_tv(alines, DT, C, positions=pos, debias=True, **kw)
         row += f" debiased {amp(refit.p0):.3f} (CC {correlation_coefficient(refit.p0, p0):.4f})"
+    if sweep:
+        ccs = {f: correlation_coefficient(tv.p0 if f == 1.0 else
+                                          reconstruct_tv(alines, DT, C, positions=pos, lam=f * p["lam"], **kw).p0, p0)
+               for f in SWEEP}
+        best = max(ccs, key=lambda f: ccs[f])
+        row += (f"  λ sweep {' '.join(f'x{f:g} {cc:.4f}' for f, cc in ccs.items())}: best x{best:g},"
+                f" lost at the automatic λ {ccs[best] - ccs[1.0]:.4f}")
     return row
 
 
@@ -98,11 +112,15 @@ def main(argv=None) -> None:
     ap.add_argument("--dims", type=int, nargs="+", default=[2, 3], choices=[2, 3])
     ap.add_argument("--kinds", nargs="+", default=["vessels", "balls"], choices=["vessels", "balls"])
     ap.add_argument("--debias", action="store_true", help="also the least-squares refit's amplitude")
+    ap.add_argument("--points", type=int, nargs="+", default=[160],
+                    help="3-D: sensors of the equi-steradian mask, of the 1600 lattice points")
+    ap.add_argument("--sweep", action="store_true", help="also the λ sweep x1/8 .. x8 of the automatic λ")
     args = ap.parse_args(argv)
     for dims in args.dims:
         for kind in args.kinds:
             for snr in args.snr:
-                print(run(kind, dims, snr, args.debias), flush=True)
+                for points in (args.points if dims == 3 else [0]):
+                    print(run(kind, dims, snr, args.debias, points, args.sweep), flush=True)
 
 
 if __name__ == "__main__":
