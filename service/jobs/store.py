@@ -14,6 +14,7 @@ from __future__ import annotations
 import builtins
 import copy
 import json
+import logging
 import sqlite3
 import threading
 import time
@@ -25,6 +26,8 @@ from typing import Any, overload
 from service.names import person_names
 
 __all__ = ["STATES", "TERMINAL", "ACTIVE", "KINDS", "IdempotencyConflict", "Jobs", "JobStore"]
+
+log = logging.getLogger("fpscan.store")
 
 STATES = ("queued", "running", "paused", "succeeded", "failed", "cancelled")
 TERMINAL = frozenset({"succeeded", "failed", "cancelled"})
@@ -146,9 +149,7 @@ class JobStore:
                 try:
                     listener(job_id)
                 except Exception:  # noqa: BLE001 -- a listener never undoes a committed change
-                    import logging
-
-                    logging.getLogger("fpscan.store").exception("job event listener failed")
+                    log.exception("job event listener failed")
         return out
 
     @staticmethod
