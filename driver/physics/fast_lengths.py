@@ -8,7 +8,7 @@ nothing at start-up.
 """
 from __future__ import annotations
 
-__all__ = ["MAX_FACTOR", "largest_prime_factor", "fast_length", "fast_dct1_rows", "fast_lateral", "SQUARE_PAD"]
+__all__ = ["MAX_FACTOR", "largest_prime_factor", "fast_length", "fast_dct1_rows", "fast_lateral", "fast_real_shape", "SQUARE_PAD"]
 
 MAX_FACTOR = 7
 
@@ -152,3 +152,34 @@ def fast_lateral(n_y: int, n_x: int, square: bool = False) -> tuple[int, int]:
         if common <= SQUARE_PAD * min(n_y, n_x):
             return common, common
     return n_yp, n_xp
+
+
+def fast_real_shape(shape: tuple[int, ...]) -> tuple[int, ...]:
+    """Each axis of ``shape`` at the smallest fast length of a real transform (rfft, DCT;
+    :func:`fast_length` with ``real=True``); an axis of length 1 stays 1.
+
+    The grid on which a multi-dimensional real transform of an array of ``shape`` runs when
+    the array is zero-padded to it (the model-based solver's preconditioner,
+    `service.recon.tv`).
+
+    Parameters
+    ----------
+    shape : tuple of int >= 1.
+
+    Returns
+    -------
+    tuple of int, each at least the given length.
+
+    Raises
+    ------
+    ValueError for a length < 1.
+
+    Examples
+    --------
+    >>> from driver.physics.fast_lengths import fast_real_shape
+    >>> fast_real_shape((1024, 226, 226))  # 226 = 2·113 -> 240 = 2⁴·3·5
+    (1024, 240, 240)
+    >>> fast_real_shape((97, 1, 64))
+    (100, 1, 64)
+    """
+    return tuple(fast_length(n, real=True) for n in shape)

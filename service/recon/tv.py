@@ -17,8 +17,8 @@ total variation with forward differences in voxel units (J in Pa², so λ is in 
 Solver (issue 19): accelerated proximal gradient (FISTA, Beck & Teboulle 2009) preconditioned
 by NER. NER is the adjoint with its k-space weight k_z / |k| (`service.recon.planar`: F =
 const · (k_z/ω) E against the adjoint's E): for a full planar aperture AᵀA has the symbol
-|k| / k_z, so P = k_z / |k| (`_ner_weight`, on the image's orthonormal DCT-II, symmetric
-and positive definite) inverts it. Each iteration takes one forward A and one adjoint Aᵀ
+|k| / k_z, so P = k_z / |k| (`_ner_weight`, on the orthonormal DCT-II of the image
+zero-padded to fast lengths, symmetric and positive definite) inverts it. Each iteration takes one forward A and one adjoint Aᵀ
 (one operator pair) and steps along P Aᵀ (A y − g) (one adjoint of the residual: no
 separate Aᵀg) with step 1 / L, L ≈ ‖P AᵀA‖ from two seeded power iterations (about 0.7 of
 ‖P AᵀA‖ on the test cases: fewer steps, or one from the noise image P Aᵀ n̂, land lower,
@@ -90,6 +90,7 @@ import numpy as np
 import scipy.fft
 
 from driver.constants import C_DEFAULT
+from driver.physics.fast_lengths import fast_real_shape
 from service.progress import Progress, span
 from service.recon import checks
 from service.recon import limits as _limits
@@ -107,10 +108,11 @@ _MOMENTUM = 0.94  # the momentum β between restarts (constant: module doc)
 _WINDOW = 3  # the stopping rule's window of iterations
 #: inner (dual, no operator) iterations of the TV + positivity proximal map, warm-started from
 #: the last call's dual. 3, 5, 10 and 20 gave the same result on the vessels experiment (48 x
-#: 96², 981 sensors: CC 0.9838-0.9839, 21 iterations, converged) and 10 passes every λ sweep and
-#: convergence test; 10 instead of 20 made tv at 256 x 128² 14 % faster (24.5-27.1 s against
-#: 29.4-31.1 s, 20 iterations both)
-_PROX_ITER = 10
+#: 96², 981 sensors: CC 0.9838-0.9839, 21 iterations, converged); at 256 x 128² (533-sensor
+#: equi-steradian mask, float32) 5 and 10 gave the same 20 iterations and images 0.18 % apart
+#: (3: 0.5 %), and 5 passes every λ sweep and convergence test; 5 instead of 10 made that run
+#: 17 % faster (21.8 s against 26.3 s)
+_PROX_ITER = 5
 _DEBIAS_ITER = 10  # iterations of the least-squares refit on the support (debias)
 _SUPPORT_FRACTION = 0.05  # the support for debias: p0 above this share of its maximum
 _POLL_S = 0.2  # a cancel is polled at least this often (s) inside long steps
@@ -416,26 +418,58 @@ def reconstruct_tv(
 
 
 def _ner_weight(shape, dx: float, dz: float, dtype=np.float64) -> np.ndarray:
-    """NER's k-space weight k_z / |k| on the image's orthonormal DCT-II grid (mirror
-    boundaries; k_i = π j / (n_i d_i), depth shifted by half a bin so that the weight is
-    > 0 everywhere), in (0, 1]: the inverse of AᵀA's symbol |k| / k_z
-    for a full planar aperture, hence a symmetric positive semi-definite preconditioner.
-    ``shape`` in ``dtype``, computed in float64 by depth rows (no float64 volume)."""
-    ks = [np.pi * np.arange(n) / (n * d) for n, d in zip(shape, (dz,) + (dx,) * (len(shape) - 1))]
-    kz = ks[0] + np.pi / (2 * shape[0] * dz)  # half a depth bin: k_z > 0, so P is positive definite
-    lateral = sum(k * k for k in np.meshgrid(*ks[1:], indexing="ij", sparse=True))  # |k_lat|², shape[1:]
-    P = np.empty(shape, dtype=dtype)
+    """NER's k-space weight k_z / |k| on the orthonormal DCT-II grid of the image zero-padded
+    to fast lengths (`driver.physics.fast_lengths.fast_real_shape`: an axis of a DCT at a
+    length with a large prime factor, 226 = 2·113, ran 3.7x slower per element than one of
+    240; mirror boundaries at the padded grid's ends; k_i = π j / (N_i d_i), depth shifted by
+    half a bin so that the weight is > 0 everywhere), in (0, 1]: the inverse of AᵀA's symbol
+    |k| / k_z for a full planar aperture.
+
+    Parameters
+    ----------
+    shape : tuple of int
+        The image ``(n_z, n_x)`` / ``(n_z, n_y, n_x)``.
+    dx, dz : float
+        Lateral and depth spacing, m.
+    dtype : float32 or float64
+
+    Returns
+    -------
+    ndarray
+        P on the padded grid ``fast_real_shape(shape)`` (same axis order), in ``dtype``,
+        computed in float64 by depth rows (no float64 volume). `_apply_weight` applies it as
+        x -> crop(DCTᵀ P DCT pad(x)), a symmetric positive definite map of the image (the
+        zero padding is an isometry and its adjoint the crop); on a grid that is already fast
+        it is the image's own DCT-II."""
+    grid = fast_real_shape(tuple(int(n) for n in shape))
+    ks = [np.pi * np.arange(n) / (n * d) for n, d in zip(grid, (dz,) + (dx,) * (len(grid) - 1))]
+    kz = ks[0] + np.pi / (2 * grid[0] * dz)  # half a depth bin: k_z > 0, so P is positive definite
+    lateral = sum(k * k for k in np.meshgrid(*ks[1:], indexing="ij", sparse=True))  # |k_lat|², grid[1:]
+    P = np.empty(grid, dtype=dtype)
     for i, k in enumerate(kz):
         P[i] = k / np.sqrt(k * k + lateral)
     return P
 
 
 def _apply_weight(P: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """P x: the multiplier ``P`` on the orthonormal DCT-II of ``x`` (all axes), in place
-    (``x`` is overwritten and returned, in its dtype)."""
-    x = scipy.fft.dctn(x, type=2, norm="ortho", workers=-1, overwrite_x=True)
-    x *= P
-    return scipy.fft.idctn(x, type=2, norm="ortho", workers=-1, overwrite_x=True)
+    """P x: the multiplier ``P`` (`_ner_weight`, on the padded grid ``P.shape``) on the
+    orthonormal DCT-II of ``x`` zero-padded to that grid (all axes), cropped back; ``x`` is
+    overwritten and returned, in its dtype (the transform runs in place when no axis is
+    padded)."""
+    if P.shape == x.shape:
+        x = scipy.fft.dctn(x, type=2, norm="ortho", workers=-1, overwrite_x=True)
+        x *= P
+        return scipy.fft.idctn(x, type=2, norm="ortho", workers=-1, overwrite_x=True)
+    image = tuple(slice(0, n) for n in x.shape)
+    buf = np.empty(P.shape, dtype=x.dtype)
+    buf[image] = x
+    for axis, n in enumerate(x.shape):  # zero the padding only (one pass over the grid less)
+        buf[(slice(None),) * axis + (slice(n, None),)] = 0
+    buf = scipy.fft.dctn(buf, type=2, norm="ortho", workers=-1, overwrite_x=True)
+    buf *= P
+    buf = scipy.fft.idctn(buf, type=2, norm="ortho", workers=-1, overwrite_x=True)
+    x[...] = buf[image]
+    return x
 
 
 def _gain_estimate(apply, start: np.ndarray, steps: int, step=None) -> float:
