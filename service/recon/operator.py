@@ -75,7 +75,9 @@ that hold sensors only) and its adjoint the DFT of the data placed on their node
 and without the NUFFT's oversampled grid (the tv solver at 256 × 128², 533 sensors, float32:
 41 → 35 s). The temporal step gathers and scatters its chunks of columns in place
 (`driver.physics.nufft.gather_columns` / `scatter_columns`: no copies of the chosen
-columns; the same run 35 → 28 s). `benchmarks/bench_tv_operator.py` times a pair against one
+columns; the same run 35 → 28 s), and a step's input and output k-space (image and data)
+share one array, since a chunk reads its columns of the one whole before it writes them in
+the other (tv at 512 × 128², 533 sensors, float32: peak 19.3 → 15.7 times the volume). `benchmarks/bench_tv_operator.py` times a pair against one
 NER of the same image.
 
 The adjoint is not the inverse: the inverse is the NER/NEDNER reconstruction
@@ -403,6 +405,16 @@ class PlanarOperator(pylops.LinearOperator):
         if self.checkpoint is not None:
             self.checkpoint()
 
+    def _kspace(self, m_in: int, m_out: int) -> tuple[np.ndarray, np.ndarray]:
+        """The step's input spectrum (m_in, N_y (N_x//2+1)), zeros, and its output
+        (m_out, same columns) as two views of one array of max(m_in, m_out) rows: the temporal
+        and depth steps read a chunk's columns of the input whole before they write its
+        columns of the output, and each column belongs to one chunk, so one k-space array
+        serves both (at the paper's size 0.77 GB less at the peak)."""
+        _, n_y2, _ = self.padded_shape
+        buf = np.zeros((max(m_in, m_out), n_y2 * self._n_xr), dtype=self._ctype)
+        return buf[:m_in], buf[:m_out]
+
     def _row_blocks(self, m: int) -> list[slice]:
         """Blocks of rows of an (m, N_y, N_x//2+1) spectrum of about `_BLOCK` elements each:
         the lateral transforms run per block with a checkpoint between blocks."""
@@ -410,14 +422,16 @@ class PlanarOperator(pylops.LinearOperator):
         step = max(1, _BLOCK // (n_y2 * self._n_xr))
         return [slice(a, min(a + step, m)) for a in range(0, m, step)]
 
-    def _lateral_spectrum(self, vol: np.ndarray) -> np.ndarray:
+    def _lateral_spectrum(self, vol: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """(m, n_y, n_x) real -> (m, N_y, N_x//2+1) half spectrum of its zero-padded,
-        centred embedding in the working grid; only the m given rows are transformed."""
+        centred embedding in the working grid; only the m given rows are transformed. ``out``:
+        where to write it (zeros of that shape; default a new array)."""
         m = vol.shape[0]
         _, n_y2, n_x2 = self.padded_shape
         _, n_y, n_x = self._vol
         oy, ox = self._off
-        out = np.zeros((m, n_y2, self._n_xr), dtype=self._ctype)
+        if out is None:
+            out = np.zeros((m, n_y2, self._n_xr), dtype=self._ctype)
         for rows in self._row_blocks(m):
             buf = np.zeros((rows.stop - rows.start, n_y, n_x2), dtype=self.dtype)
             buf[:, :, ox : ox + n_x] = vol[rows]
@@ -449,9 +463,10 @@ class PlanarOperator(pylops.LinearOperator):
     def _apply_forward(self, p0: np.ndarray) -> np.ndarray:
         n_z2, n_y2, n_x2 = self.padded_shape
         n_z = self._vol[0]
-        cols = n_y2 * self._n_xr
-        Y = self._lateral_spectrum(p0.reshape(self._vol)).reshape(n_z, cols)  # (n_z, N_y N_xr)
-        T = np.empty((self.n_t, cols), dtype=self._ctype)
+        # the image's k-space Y and the data's T share one array (`_kspace`): a chunk's columns
+        # of Y are read before its columns of T are written, and no other chunk reads them
+        Y, T = self._kspace(n_z, self.n_t)
+        self._lateral_spectrum(p0.reshape(self._vol), out=Y.reshape(n_z, n_y2, self._n_xr))
         for idx, klat2, groups in self._chunks:  # columns in chunks of whole |k_lat| groups
             # depth: the n_z image rows of each column, zero below, DCT-I of length N_z
             B = np.zeros((len(idx), n_z2), dtype=self._ctype)
@@ -496,13 +511,13 @@ class PlanarOperator(pylops.LinearOperator):
     def _apply_adjoint(self, data: np.ndarray) -> np.ndarray:
         n_z2, n_y2, n_x2 = self.padded_shape
         n_z, n_y, n_x = self._vol
-        cols = n_y2 * self._n_xr
+        # the data's k-space A and the image's K (its rows only) share one array (`_kspace`)
+        A, K = self._kspace(self.n_t, n_z)
+        spectrum = A.reshape(self.n_t, n_y2, self._n_xr)
         if self.positions is None:
-            A = self._lateral_spectrum(data.reshape(self.n_t, n_y, n_x))
+            self._lateral_spectrum(data.reshape(self.n_t, n_y, n_x), out=spectrum)
         else:
-            A = self._spectrum_at_points(data)
-        A = A.reshape(self.n_t, cols)
-        K = np.empty((n_z, cols), dtype=self._ctype)  # the image's rows only
+            self._spectrum_at_points(data, spectrum)
         for idx, klat2, groups in self._chunks:  # columns in chunks of whole |k_lat| groups
             U = nufft.to_fine_grid(A, self._grid, t0_is_zero=False, columns=idx)
             F = nufft.evaluate(U, self._grid, klat2, self._kz, self._qw_adjoint, self.c, self.dt, self.t0,
@@ -538,14 +553,14 @@ class PlanarOperator(pylops.LinearOperator):
             self._tick()
         return vals
 
-    def _spectrum_at_nodes(self, data: np.ndarray) -> np.ndarray:
+    def _spectrum_at_nodes(self, data: np.ndarray, H: np.ndarray) -> np.ndarray:
         """Adjoint of `_values_at_nodes`: the data placed on their nodes of the working grid
         (zero elsewhere), lateral half spectrum (n_t, N_y, N_x//2+1) — the Hermitian part of
-        Σ_m g_m e^{-i k·x_m} exactly, since the placed field is real."""
+        Σ_m g_m e^{-i k·x_m} exactly, since the placed field is real — written into ``H``
+        (zeros of that shape) and returned."""
         _, n_y2, n_x2 = self.padded_shape
         assert self._nodes is not None
         rows, row_of, cols = self._nodes
-        H = np.zeros((self.n_t, n_y2, self._n_xr), dtype=self._ctype)
         for a, b in self._time_batches():
             placed = np.zeros((b - a, len(rows), n_x2), dtype=self.dtype)
             placed[:, row_of, cols] = data[:, a:b].T  # distinct nodes (`_lattice_nodes`)
@@ -556,15 +571,15 @@ class PlanarOperator(pylops.LinearOperator):
             self._tick()
         return H
 
-    def _spectrum_at_points(self, data: np.ndarray) -> np.ndarray:
+    def _spectrum_at_points(self, data: np.ndarray, H: np.ndarray) -> np.ndarray:
         """Adjoint of the type-2 point evaluation: Hermitian part of the type-1 NUFFT
-        Σ_m g_m(t) e^{-i k·x_m}, as an rfft2-shaped half spectrum (n_t, N_y, N_x//2+1)."""
+        Σ_m g_m(t) e^{-i k·x_m}, as an rfft2-shaped half spectrum (n_t, N_y, N_x//2+1),
+        written into ``H`` (zeros of that shape) and returned."""
         if self._nodes is not None:
-            return self._spectrum_at_nodes(data)
+            return self._spectrum_at_nodes(data, H)
         _, n_y, n_x = self.padded_shape
         n_xr = n_x // 2 + 1
         strengths = np.ascontiguousarray(data.T, dtype=self._ctype)  # (n_t, n_points)
-        H = np.empty((self.n_t, n_y, n_xr), dtype=self._ctype)
         for a, b in self._time_batches():
             Y = self._plans[1, b - a].execute(strengths[a:b]).reshape(b - a, n_y, n_x)
             # Re(·) in the forward -> Hermitian part here: ½ (Y(k) + conj Y(-k)), FFT index order

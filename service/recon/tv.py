@@ -57,8 +57,10 @@ the automatic λ, A of the warm start — 3 pairs before the first iteration —
 every iteration and ``debias``).
 
 Memory: the TV part works in place (`_tv_prox`'s compiled sweeps write into given arrays;
-`_tv_norm` needs no work array), so that while the operator works the solver holds
-d + 5 images (`service.recon.checks.tv_memory`).
+`_tv_norm` needs no work array) and the preconditioner P is computed voxel by voxel where it
+is applied (no image of its own), so that while the operator works the solver holds d + 4
+images (`service.recon.checks.tv_memory`); the operator's image and data k-space share one
+array (`service.recon.operator.PlanarOperator`).
 
 Automatic λ (``lam=None``, the default): λ = ‖P Aᵀ n̂‖_rms, the RMS over the image of the
 preconditioned adjoint of one seeded white-noise realisation n̂ of the estimated noise
@@ -83,7 +85,7 @@ from __future__ import annotations
 
 import math
 import time
-from typing import Any
+from typing import Any, NamedTuple
 
 import numba
 import numpy as np
@@ -349,7 +351,7 @@ def reconstruct_tv(
                          periodic=periodic, checkpoint=report.poll)
     checks.check_memory(checks.tv_memory(shape, op.padded_shape, g.size, n_t, rdtype), memory_limit)
     # B = P Aᵀ: the exact adjoint, NER's k-space weight P = k_z / |k| (symmetric, positive definite)
-    P = _ner_weight(shape, dx, dz_used, rdtype)
+    P = _ner_weight(shape, dx, dz_used)
 
     applied = [0, 0]  # forward, adjoint applications: params' operator_pairs is their mean
 
@@ -417,7 +419,17 @@ def reconstruct_tv(
     return Reconstruction(p0, z_axis, x_axis, y_axis, params)
 
 
-def _ner_weight(shape, dx: float, dz: float, dtype=np.float64) -> np.ndarray:
+class _NerWeight(NamedTuple):
+    """NER's k-space weight P = k_z / |k| (`_ner_weight`), kept as its axes, not as an image:
+    ``kz`` ``(N_z,)`` and ``lat2`` = |k_lat|² ``(N_y, N_x)`` (2-D: ``(1, N_x)``), rad/m and
+    rad²/m², float64; ``shape`` the padded grid ``(N_z, N_x)`` / ``(N_z, N_y, N_x)``."""
+
+    kz: np.ndarray
+    lat2: np.ndarray
+    shape: tuple[int, ...]
+
+
+def _ner_weight(shape, dx: float, dz: float) -> _NerWeight:
     """NER's k-space weight k_z / |k| on the orthonormal DCT-II grid of the image zero-padded
     to fast lengths (`driver.physics.fast_lengths.fast_real_shape`: an axis of a DCT at a
     length with a large prime factor, 226 = 2·113, ran 3.7x slower per element than one of
@@ -431,44 +443,56 @@ def _ner_weight(shape, dx: float, dz: float, dtype=np.float64) -> np.ndarray:
         The image ``(n_z, n_x)`` / ``(n_z, n_y, n_x)``.
     dx, dz : float
         Lateral and depth spacing, m.
-    dtype : float32 or float64
 
     Returns
     -------
-    ndarray
-        P on the padded grid ``fast_real_shape(shape)`` (same axis order), in ``dtype``,
-        computed in float64 by depth rows (no float64 volume). `_apply_weight` applies it as
-        x -> crop(DCTᵀ P DCT pad(x)), a symmetric positive definite map of the image (the
-        zero padding is an isometry and its adjoint the crop); on a grid that is already fast
-        it is the image's own DCT-II."""
+    _NerWeight
+        The weight's axes on the padded grid ``fast_real_shape(shape)`` (same axis order):
+        P is computed voxel by voxel where it is applied (`_apply_weight`), so that it costs
+        no image of memory. `_apply_weight` applies it as x -> crop(DCTᵀ P DCT pad(x)), a
+        symmetric positive definite map of the image (the zero padding is an isometry and
+        its adjoint the crop); on a grid that is already fast it is the image's own DCT-II."""
     grid = fast_real_shape(tuple(int(n) for n in shape))
     ks = [np.pi * np.arange(n) / (n * d) for n, d in zip(grid, (dz,) + (dx,) * (len(grid) - 1))]
     kz = ks[0] + np.pi / (2 * grid[0] * dz)  # half a depth bin: k_z > 0, so P is positive definite
-    lateral = sum(k * k for k in np.meshgrid(*ks[1:], indexing="ij", sparse=True))  # |k_lat|², grid[1:]
-    P = np.empty(grid, dtype=dtype)
-    for i, k in enumerate(kz):
-        P[i] = k / np.sqrt(k * k + lateral)
-    return P
+    lat2 = sum(k * k for k in np.meshgrid(*ks[1:], indexing="ij", sparse=True))  # |k_lat|², grid[1:]
+    lat2 = np.ascontiguousarray(np.broadcast_to(lat2, grid[1:]), dtype=np.float64).reshape(-1, grid[-1])
+    return _NerWeight(kz, lat2, grid)
 
 
-def _apply_weight(P: np.ndarray, x: np.ndarray) -> np.ndarray:
+@numba.njit(parallel=True, cache=True, fastmath=True)
+def _weight_kernel(c, kz, lat2):
+    """c[i, j, l] *= kz[i] / sqrt(kz[i]² + lat2[j, l]) in place (c: DCT coefficients, 3-D)."""
+    for i in numba.prange(c.shape[0]):
+        k = kz[i]
+        k2 = k * k
+        for j in range(c.shape[1]):
+            row = c[i, j]
+            lat = lat2[j]
+            for m in range(c.shape[2]):
+                row[m] *= k / math.sqrt(k2 + lat[m])
+
+
+def _apply_weight(P: _NerWeight, x: np.ndarray) -> np.ndarray:
     """P x: the multiplier ``P`` (`_ner_weight`, on the padded grid ``P.shape``) on the
     orthonormal DCT-II of ``x`` zero-padded to that grid (all axes), cropped back; ``x`` is
     overwritten and returned, in its dtype (the transform runs in place when no axis is
     padded)."""
     if P.shape == x.shape:
-        x = scipy.fft.dctn(x, type=2, norm="ortho", workers=-1, overwrite_x=True)
-        x *= P
-        return scipy.fft.idctn(x, type=2, norm="ortho", workers=-1, overwrite_x=True)
-    image = tuple(slice(0, n) for n in x.shape)
-    buf = np.empty(P.shape, dtype=x.dtype)
-    buf[image] = x
-    for axis, n in enumerate(x.shape):  # zero the padding only (one pass over the grid less)
-        buf[(slice(None),) * axis + (slice(n, None),)] = 0
-    buf = scipy.fft.dctn(buf, type=2, norm="ortho", workers=-1, overwrite_x=True)
-    buf *= P
-    buf = scipy.fft.idctn(buf, type=2, norm="ortho", workers=-1, overwrite_x=True)
-    x[...] = buf[image]
+        c = scipy.fft.dctn(x, type=2, norm="ortho", workers=-1, overwrite_x=True)
+    else:
+        image = tuple(slice(0, n) for n in x.shape)
+        c = np.empty(P.shape, dtype=x.dtype)
+        c[image] = x
+        for axis, n in enumerate(x.shape):  # zero the padding only (one pass over the grid less)
+            c[(slice(None),) * axis + (slice(n, None),)] = 0
+        c = scipy.fft.dctn(c, type=2, norm="ortho", workers=-1, overwrite_x=True)
+    c = np.ascontiguousarray(c)  # (the kernel writes through a 3-D view of it)
+    _weight_kernel(c.reshape(P.shape[0], P.lat2.shape[0], P.shape[-1]), P.kz, P.lat2)
+    c = scipy.fft.idctn(c, type=2, norm="ortho", workers=-1, overwrite_x=True)
+    if P.shape == x.shape:
+        return c
+    x[...] = c[image]
     return x
 
 

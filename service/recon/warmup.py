@@ -135,6 +135,7 @@ def _warm_model(names: list[str]) -> None:
         v = np.ones((4, 6, 6), dtype=d)  # the TV part's compiled sweeps (2-D images run as 3-D views)
         tv._tv_prox(v, 0.1, True, None, None)
         tv._tv_norm(v)
+        tv._apply_weight(tv._ner_weight(v.shape, _DX, C_DEFAULT * _DT), v)  # the preconditioner's kernel
     forward_grid(np.ones((4, 6, 6)), _DX, C_DEFAULT * _DT, _DT, 32)
 
 

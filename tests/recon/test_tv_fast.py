@@ -183,28 +183,36 @@ def _dct2_matrix(n: int) -> np.ndarray:
 @pytest.mark.parametrize("shape", [(11, 13), (7, 5, 6), (8, 10)])
 def test_preconditioner_runs_on_fast_lengths_and_is_the_padded_dense_map(shape):
     """P (`_ner_weight`) lives on the image zero-padded to fast real lengths (226 -> 240 at the
-    paper's size), and `_apply_weight` is crop(Qᵀ diag(P) Q pad(x)) with Q the orthonormal
-    DCT-II of the padded grid, built here as dense matrices from the cosine formula: symmetric
-    and positive definite on the image. A grid already at fast lengths is not padded."""
+    paper's size), and `_apply_weight` is crop(Qᵀ diag(k_z / |k|) Q pad(x)) with Q the
+    orthonormal DCT-II of the padded grid, both built here from their formulas as dense
+    matrices: symmetric and positive definite on the image. A grid already at fast lengths is
+    not padded."""
     from driver.physics.fast_lengths import fast_length
 
-    P = tv._ner_weight(shape, 60e-6, 12e-6)
+    dx, dz = 60e-6, 12e-6
+    P = tv._ner_weight(shape, dx, dz)
     grid = tuple(fast_length(n, real=True) for n in shape)
-    assert P.shape == grid and np.all(P > 0) and np.all(P <= 1)
+    assert P.shape == grid
     if shape == (8, 10):
         assert grid == shape
+    # the weight k_z / |k| on the padded DCT-II grid: k = π j / (N d), depth shifted by half a bin
+    ks = [np.pi * (np.arange(n) + (0.5 if a == 0 else 0.0)) / (n * (dz if a == 0 else dx))
+          for a, n in enumerate(grid)]
+    kk = np.meshgrid(*ks, indexing="ij")
+    D = (kk[0] / np.sqrt(sum(k * k for k in kk))).ravel()
+    assert np.all(D > 0) and np.all(D <= 1)
     Q = np.ones((1, 1))
     for n in grid:
         Q = np.kron(Q, _dct2_matrix(n))
     pad = np.zeros(grid, bool)
     pad[tuple(slice(0, n) for n in shape)] = True
     C = np.eye(Q.shape[0])[pad.ravel()]  # (image voxels, padded voxels): the crop
-    M = C @ Q.T @ (P.ravel()[:, None] * Q) @ C.T
+    M = C @ Q.T @ (D[:, None] * Q) @ C.T
     np.testing.assert_allclose(M, M.T, atol=1e-12)
     assert np.linalg.eigvalsh(M).min() > 0
     x = np.random.default_rng(3).standard_normal(shape)
     np.testing.assert_allclose(tv._apply_weight(P, x.copy()), (M @ x.ravel()).reshape(shape), atol=1e-12)
     x32 = x.astype(np.float32)
-    got = tv._apply_weight(P.astype(np.float32), x32)
+    got = tv._apply_weight(P, x32)
     assert got.dtype == np.float32 and got.shape == shape
     np.testing.assert_allclose(got, (M @ x.ravel()).reshape(shape), atol=1e-5)
