@@ -26,8 +26,9 @@ NER (float64) of the same size in the same process instead: ``pair`` is one
 `PlanarOperator` forward + adjoint on the sensor grid (free-space model, zero-padded;
 ``pair-periodic`` without padding; target <= 2.5x), ``tv`` a `reconstruct_tv` of the
 equi-steradian mask (1653 points at 226 x 226) with its default stopping rule (float32):
-iterations, time / NER, peak memory / the input volume (n_t x n_y x n_x float32;
-target <= 4x). ``--tv-iterations N`` caps the iterations (for a quick estimate).
+iterations, time / NER, tv's own peak memory above the RSS before it / the input volume
+(n_t x n_y x n_x float32; the process's peak is reset after the NER runs, /proc/self/clear_refs;
+issue 19: <= 10x). ``--tv-iterations N`` caps the iterations (for a quick estimate).
 """
 from __future__ import annotations
 
@@ -73,6 +74,28 @@ def _rss() -> int:
         return int(fh.read().split()[1]) * resource.getpagesize()
 
 
+def _reset_peak() -> None:
+    """Reset this process's peak resident memory (VmHWM) to the RSS now (Linux), so that
+    `_peak` measures what follows, not an earlier, larger step (the NER runs before tv)."""
+    try:
+        with open("/proc/self/clear_refs", "w") as fh:
+            fh.write("5")
+    except OSError:
+        pass
+
+
+def _peak() -> int:
+    """Peak resident memory since `_reset_peak`, bytes (VmHWM; elsewhere ru_maxrss)."""
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+
+
 def _run_model(method, n_t, n_y, n_x, repeat, queue, max_iter=None):
     """The operator pair / tv, as ratios to one NER of the same size (same process)."""
     from service.recon import PlanarOperator, reconstruct_grid, reconstruct_tv
@@ -103,13 +126,14 @@ def _run_model(method, n_t, n_y, n_x, repeat, queue, max_iter=None):
         import psutil
 
         base = psutil.Process().memory_info().rss  # the interpreter, libraries and the NER runs
+        _reset_peak()  # tv's own peak, not the NER runs' before it
         t0 = time.perf_counter()
         img = reconstruct_tv(al, DT, C, positions=pos, weights=w, grid=(x, y), dtype=np.float32, **kw)
         t = time.perf_counter() - t0
         note = (f"{len(pos)} sensors ({kind}), {img.params['iterations']} iterations, "
                 f"λ = {img.params['lam']:.3g}, (peak - RSS before) / input = "
-                f"{(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024 - base) / (4 * n_t * n_y * n_x):.1f}")
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+                f"{(_peak() - base) / (4 * n_t * n_y * n_x):.1f}")
+    peak = _peak()
     queue.put((t, t_ner, peak, note))
 
 
