@@ -431,9 +431,9 @@ class _NerWeight(NamedTuple):
 
 def _ner_weight(shape, dx: float, dz: float) -> _NerWeight:
     """NER's k-space weight k_z / |k| on the orthonormal DCT-II grid of the image zero-padded
-    to fast lengths (`driver.physics.fast_lengths.fast_real_shape`: an axis of a DCT at a
-    length with a large prime factor, 226 = 2·113, ran 3.7x slower per element than one of
-    240; mirror boundaries at the padded grid's ends; k_i = π j / (N_i d_i), depth shifted by
+    to fast lengths (`driver.physics.fast_lengths.fast_real_shape`: on axes of 226 = 2·113 the
+    DCT-II and its inverse took 2.08 s at 1024 × 226², against 0.57 s at 1024 × 240², float32;
+    mirror boundaries at the padded grid's ends; k_i = π j / (N_i d_i), depth shifted by
     half a bin so that the weight is > 0 everywhere), in (0, 1]: the inverse of AᵀA's symbol
     |k| / k_z for a full planar aperture.
 
