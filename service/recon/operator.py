@@ -422,16 +422,14 @@ class PlanarOperator(pylops.LinearOperator):
         step = max(1, _BLOCK // (n_y2 * self._n_xr))
         return [slice(a, min(a + step, m)) for a in range(0, m, step)]
 
-    def _lateral_spectrum(self, vol: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    def _lateral_spectrum(self, vol: np.ndarray, out: np.ndarray) -> np.ndarray:
         """(m, n_y, n_x) real -> (m, N_y, N_x//2+1) half spectrum of its zero-padded,
-        centred embedding in the working grid; only the m given rows are transformed. ``out``:
-        where to write it (zeros of that shape; default a new array)."""
+        centred embedding in the working grid, written into ``out`` (zeros of that shape, a
+        view of `_kspace`) and returned; only the m given rows are transformed."""
         m = vol.shape[0]
         _, n_y2, n_x2 = self.padded_shape
         _, n_y, n_x = self._vol
         oy, ox = self._off
-        if out is None:
-            out = np.zeros((m, n_y2, self._n_xr), dtype=self._ctype)
         for rows in self._row_blocks(m):
             buf = np.zeros((rows.stop - rows.start, n_y, n_x2), dtype=self.dtype)
             buf[:, :, ox : ox + n_x] = vol[rows]
@@ -480,7 +478,6 @@ class PlanarOperator(pylops.LinearOperator):
             nufft.scatter_columns(G, idx, T)
             del G
             self._tick()
-        del Y
         T = T.reshape(self.n_t, n_y2, self._n_xr)
         if self.positions is None:
             g = self._lateral_inverse(T)
@@ -527,7 +524,6 @@ class PlanarOperator(pylops.LinearOperator):
             nufft.scatter_columns(F[:, :n_z], idx, K)
             del F
             self._tick()
-        del A
         K[0] *= 0.5  # DCT-Iᵀ = diag(τ) DCT-I diag(1/τ), τ = ½ at both ends
         if n_z == n_z2:
             K[-1] *= 0.5

@@ -478,21 +478,15 @@ def _apply_weight(P: _NerWeight, x: np.ndarray) -> np.ndarray:
     orthonormal DCT-II of ``x`` zero-padded to that grid (all axes), cropped back; ``x`` is
     overwritten and returned, in its dtype (the transform runs in place when no axis is
     padded)."""
-    if P.shape == x.shape:
-        c = scipy.fft.dctn(x, type=2, norm="ortho", workers=-1, overwrite_x=True)
-    else:
-        image = tuple(slice(0, n) for n in x.shape)
-        c = np.empty(P.shape, dtype=x.dtype)
-        c[image] = x
-        for axis, n in enumerate(x.shape):  # zero the padding only (one pass over the grid less)
-            c[(slice(None),) * axis + (slice(n, None),)] = 0
-        c = scipy.fft.dctn(c, type=2, norm="ortho", workers=-1, overwrite_x=True)
+    pad = [(0, N - n) for N, n in zip(P.shape, x.shape)]
+    padded = any(after for _, after in pad)
+    c = scipy.fft.dctn(np.pad(x, pad) if padded else x, type=2, norm="ortho", workers=-1, overwrite_x=True)
     c = np.ascontiguousarray(c)  # (the kernel writes through a 3-D view of it)
     _weight_kernel(c.reshape(P.shape[0], P.lat2.shape[0], P.shape[-1]), P.kz, P.lat2)
     c = scipy.fft.idctn(c, type=2, norm="ortho", workers=-1, overwrite_x=True)
-    if P.shape == x.shape:
+    if not padded:
         return c
-    x[...] = c[image]
+    x[...] = c[tuple(slice(0, n) for n in x.shape)]
     return x
 
 
