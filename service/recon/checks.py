@@ -650,18 +650,22 @@ OPERATOR_CHUNK = 1 << 23
 def tv_memory(image_shape, padded_shape, n_data: int, n_t: int, dtype=np.float64) -> int:
     """Estimated peak bytes of the model-based reconstruction (`service.recon.tv`).
 
-    The solver's image-sized vectors live while the operator works (d + 4 in ``dtype``: the
-    TV proximal map's dual, d vectors, the iterates x and y, the last preconditioned
-    gradient, the new one or the new iterate; the preconditioner P is computed where it is
-    applied, on the image padded to fast lengths after the operator's arrays are freed), the data-sized ones
-    (the data in float64, A x, A y and a residual in ``dtype``), and the operator's working
-    arrays in its working precision (complex64 for float32, complex128 for float64;
+    The larger of two phases (`service.recon.tv._fista`). While the operator works: the
+    solver's 4 image-sized vectors in ``dtype`` (the iterate x, y or the new iterate, the
+    last preconditioned gradient and the operator's output) and the TV proximal map's dual
+    (d vectors) at half that precision, beside the operator's working arrays in its working
+    precision (complex64 for float32, complex128 for float64;
     `service.recon.operator.PlanarOperator`): the image's and the data's k-space in one array,
     max(n_z, n_t) per padded half-spectrum column, beside one chunk of columns in the depth and temporal
     steps (about `OPERATOR_CHUNK` elements per row; the temporal fine grid L,
     `driver.physics.grid_sizes.grid_length`, beside the depth N_z or the time n_t, whichever is
     longer: the steps hold two of them at a time) and one batch of full lateral spectra of
-    the point NUFFTs; plus 15 % (allocator, FFT buffers and plans;
+    the point NUFFTs. While the proximal map works: 4 + d vectors (x, the gradient step, the
+    preconditioned gradient, the new iterate and the dual at full precision). The
+    preconditioner P is computed where it is applied, on the image padded to fast lengths
+    after the operator's arrays are freed. Both phases add the data-sized vectors (the data
+    in float64, A x, A y and a residual in ``dtype``), and the estimate 15 % (allocator, FFT
+    buffers and plans;
     tests/service/test_memory_admission.py measures it within 25 %).
 
     Parameters
@@ -695,14 +699,15 @@ def tv_memory(image_shape, padded_shape, n_data: int, n_t: int, dtype=np.float64
     b = np.dtype(dtype).itemsize
     n_img = int(np.prod(image_shape))
     d = sum(1 for n in image_shape if n > 1)
-    solver = (d + 4) * n_img * b + n_data * (8 + 3 * b)
     nz2, ny2, nx2 = padded_shape
     cols = ny2 * (nx2 // 2 + 1)
     fine = grid_length(n_t)
     chunk = min(cols, max(1, OPERATOR_CHUNK // max(nz2, fine)))
     operator = 2 * b * (cols * max(image_shape[0], n_t) + chunk * (fine + max(nz2, n_t))
                         + 2 * min(OPERATOR_BATCH, n_t) * ny2 * nx2)
-    return int(1.15 * (solver + operator))
+    with_operator = 4 * n_img * b + d * n_img * b // 2 + operator
+    proximal = (4 + d) * n_img * b
+    return int(1.15 * (max(with_operator, proximal) + n_data * (8 + 3 * b)))
 
 
 def check_memory(needed: int, memory_limit) -> None:

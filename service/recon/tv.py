@@ -24,8 +24,12 @@ separate Aᵀg) with step 1 / L, L ≈ ‖P AᵀA‖ from two seeded power itera
 ‖P AᵀA‖ on the test cases: fewer steps, or one from the noise image P Aᵀ n̂, land lower,
 0.55-0.6, and the late-detected instability costs quality), raised (×1.1) whenever the
 gain of P AᵀA along the last move of the iterates exceeds it (free: those products are
-computed anyway). The proximal map of λ TV + positivity is the dual fast gradient projection of Beck & Teboulle (2009),
-warm-started from the previous iteration's dual (no operator). Momentum: a constant
+computed anyway). The proximal map of λ TV + positivity is gradient projection on the dual
+(Chambolle 2005; Beck & Teboulle 2009's GP), warm-started from the previous iteration's dual
+(no operator). Beck & Teboulle's fast variant (FGP) needs the dual's extrapolation, d images
+more, for the same results here: on the twelve cases of tests/recon/test_recon_tv_solver.py
+(blobs and vessels, 2-D and 3-D, 20, 30 and 40 dB) the same CC to 0.001 and the same
+iterations to one, with 5 warm-started inner steps either way. Momentum: a constant
 β = `_MOMENTUM` = 0.94 (y_{k+1} = x_{k+1} + β (x_{k+1} − x_k)), set to 0 for one step (a
 restart) when J rises or the momentum points uphill (O'Donoghue & Candès 2015). A constant
 β is Nesterov's scheme for a strongly convex objective, β = (1 − √q) / (1 + √q) with q the
@@ -56,11 +60,13 @@ adjoint applications) / 2, everything included: the power iterations, the noise 
 the automatic λ, A of the warm start — 3 pairs before the first iteration —,
 every iteration and ``debias``).
 
-Memory: the TV part works in place (`_tv_prox`'s compiled sweeps write into given arrays;
-`_tv_norm` needs no work array) and the preconditioner P is computed voxel by voxel where it
-is applied (no image of its own), so that while the operator works the solver holds d + 4
-images (`service.recon.checks.tv_memory`); the operator's image and data k-space share one
-array (`service.recon.operator.PlanarOperator`).
+Memory: the TV part works in place (`_tv_prox`'s compiled sweeps step the dual in place;
+`_tv_norm` needs no work array), the dual waits between iterations at half the working
+precision, the gradient step is made in y's place, and the preconditioner P is computed
+voxel by voxel where it is applied (no image of its own), so that while the operator works
+the solver holds 3 images and the dual's d/2 (`_fista`; `service.recon.checks.tv_memory`);
+the operator's image and data k-space share one array
+(`service.recon.operator.PlanarOperator`).
 
 Automatic λ (``lam=None``, the default): λ = ‖P Aᵀ n̂‖_rms, the RMS over the image of the
 preconditioned adjoint of one seeded white-noise realisation n̂ of the estimated noise
@@ -113,7 +119,7 @@ _WINDOW = 3  # the stopping rule's window of iterations
 #: 96², 981 sensors: CC 0.9838-0.9839, 21 iterations, converged); at 256 x 128² (533-sensor
 #: equi-steradian mask, float32) 5 and 10 gave the same 20 iterations and images 0.18 % apart
 #: (3: 0.5 %), and 5 passes every λ sweep and convergence test; 5 instead of 10 made that run
-#: 17 % faster (21.8 s against 26.3 s)
+#: 17 % faster (21.8 s against 26.3 s) (all with FGP, before gradient projection replaced it)
 _PROX_ITER = 5
 _DEBIAS_ITER = 10  # iterations of the least-squares refit on the support (debias)
 _SUPPORT_FRACTION = 0.05  # the support for debias: p0 above this share of its maximum
@@ -393,13 +399,17 @@ def reconstruct_tv(
     def residual(Ax: np.ndarray) -> float:
         return float(np.linalg.norm(Ax - g))
 
-    x, it, stop_reason, change, Ax, L = _fista(forward, B, g, x, lam, L, positivity, max_iter, tol,
+    first = [x]  # handed over: _fista reuses its memory, and this frame keeps no reference
+    del x
+    x, it, stop_reason, change, Ax, L = _fista(forward, B, g, first, lam, L, positivity, max_iter, tol,
                                                             started, time_limit, report, residual,
                                                             poll=report.poll)
     debiased = False
     if debias and stop_reason != "time limit" and np.any(x > 0):
         support = x > _SUPPORT_FRACTION * float(np.max(x))
-        x, _, _, _, Ax, L = _fista(forward, B, g, x, 0.0, L, True, _DEBIAS_ITER, 0.0, started,
+        first = [x]
+        del x
+        x, _, _, _, Ax, L = _fista(forward, B, g, first, 0.0, L, True, _DEBIAS_ITER, 0.0, started,
                                          time_limit, None, residual, support=support, poll=report.poll)
         debiased = True
     p0 = x.astype(rdtype, copy=False)
@@ -584,29 +594,23 @@ def _prox_primal(v, qz, qy, qx, has_y, gamma, positivity, support, use_support, 
 
 
 @numba.njit(cache=True, fastmath=True)
-def _dual_row(a_diff, b_diff, e_diff, qz, qy, qx, pz, py, px, has_y, step, beta, n):
+def _dual_row(a_diff, b_diff, e_diff, qz, qy, qx, has_y, step, n):
     """One row of the dual step from the rows of w's differences along z, y, x (a zero row
-    where the difference is 0): pn = q + step ∇w, pn /= max(1, |pn|) into q, pn + β (pn − p)
-    into p; a loop without branches (SIMD)."""
+    where the difference is 0): q ← (q + step ∇w) / max(1, |·|), in place; a loop without
+    branches (SIMD)."""
     for x in range(n):
         a = qz[x] + step * a_diff[x]
         b = qy[x] + step * b_diff[x] if has_y else 0.0
         e = qx[x] + step * e_diff[x]
         inv = 1.0 / max(1.0, math.sqrt(a * a + b * b + e * e))
-        a *= inv
-        b *= inv
-        e *= inv
-        qz[x] = a
-        pz[x] = a + beta * (a - pz[x])
-        qx[x] = e
-        px[x] = e + beta * (e - px[x])
+        qz[x] = a * inv
+        qx[x] = e * inv
         if has_y:
-            qy[x] = b
-            py[x] = b + beta * (b - py[x])
+            qy[x] = b * inv
 
 
 @numba.njit(cache=True, fastmath=True)
-def _dual_plane(cur, nxt, z, qz, qy, qx, pz, py, px, has_y, step, beta, scratch):
+def _dual_plane(cur, nxt, z, qz, qy, qx, has_y, step, scratch):
     """Plane z of the dual step (w's plane z ``cur``, plane z + 1 ``nxt``), row by row:
     ``scratch`` (>= 3, n_x) holds the row's differences of w along z, y and x."""
     nz = qz.shape[0]
@@ -629,21 +633,20 @@ def _dual_plane(cur, nxt, z, qz, qy, qx, pz, py, px, has_y, step, beta, scratch)
         for x in range(nx - 1):
             dx[x] = c[x + 1] - c[x]
         dx[nx - 1] = 0.0
-        # in 2-D qy, py are (1, 1, 1) placeholders `_dual_row` never touches
-        _dual_row(dz, dy, dx, qz[z, y], qy[z, y] if has_y else qy[0, 0], qx[z, y], pz[z, y],
-                  py[z, y] if has_y else py[0, 0], px[z, y], has_y, step, beta, nx)
+        # in 2-D qy is a (1, 1, 1) placeholder `_dual_row` never touches
+        _dual_row(dz, dy, dx, qz[z, y], qy[z, y] if has_y else qy[0, 0], qx[z, y], has_y, step, nx)
 
 
 @numba.njit(parallel=True, cache=True)
-def _prox_step(v, qz, qy, qx, pz, py, px, has_y, gamma, positivity, support, use_support, step, beta,
-               starts, planes, rows):
-    """One inner step of the fast gradient projection in one sweep: w = P(v − γ ∇ᵀq) plane by
-    plane, each plane of w made just before the dual step of the plane above it needs it
-    (from q not yet stepped there), then q ← pn, p ← the extrapolation (`_dual_plane`). The
+def _prox_step(v, qz, qy, qx, has_y, gamma, positivity, support, use_support, step, starts, planes, rows):
+    """One inner step of the dual gradient projection in one sweep, q updated in place: w =
+    P(v − γ ∇ᵀq) plane by plane, each plane of w made just before the dual step of the plane
+    above it needs it (from q not yet stepped there), then q ← the projected step (`_dual_plane`). The
     volume's planes split into slabs [starts[k], starts[k + 1]) swept in parallel; ``planes``
     (n_slabs, 3, n_y, n_x) holds w at each slab's first plane, made from the old q before any
-    slab steps, and each slab's two-plane ring; ``rows`` (n_slabs, 4, n_x) its scratch rows. The same arithmetic as a full primal sweep
-    followed by a full dual sweep, without the image w: one pass over v, q and p."""
+    slab steps, and each slab's two-plane ring; ``rows`` (n_slabs, 4, n_x) its scratch rows.
+    The same arithmetic as a full primal sweep followed by a full dual sweep, without the
+    image w: one pass over v and q."""
     nz = v.shape[0]
     n_slabs = starts.shape[0] - 1
     for k in numba.prange(n_slabs):
@@ -662,7 +665,7 @@ def _prox_step(v, qz, qy, qx, pz, py, px, has_y, gamma, positivity, support, use
                 nxt = planes[k + 1, 0]
             else:
                 nxt = cur  # the last plane: no difference along z
-            _dual_plane(cur, nxt, z, qz, qy, qx, pz, py, px, has_y, step, beta, rows[k])
+            _dual_plane(cur, nxt, z, qz, qy, qx, has_y, step, rows[k])
             cur = nxt
             ring = 3 - ring
 
@@ -686,22 +689,21 @@ def _tv_norm_kernel(x):
     return total
 
 
-_SLAB = 1 << 18  # elements per slab of `_dot_of_differences`' work
-
-
 def _tv_norm(x: np.ndarray) -> float:
     """TV(x) = Σ_voxels |∇x|₂ (forward differences, voxel units), in float64; no work array."""
     return float(_tv_norm_kernel(_as3d(np.ascontiguousarray(x))))
 
 
-def _tv_prox(v: np.ndarray, gamma: float, positivity: bool, support, dual, poll=None):
+def _tv_prox(v: np.ndarray, gamma: float, positivity: bool, support, dual, poll=None, in_place: bool = True):
     """argmin_x ½‖x − v‖² + γ TV(x) over x >= 0 (positivity) and x = 0 off ``support``
-    (None: everywhere allowed): the fast gradient projection of Beck & Teboulle (2009) on
-    the dual, `_PROX_ITER` steps from ``dual`` (the previous call's, a warm start, updated in
-    place; None: 0). No operator. ``poll()``, if given, is called every few inner steps (a
-    cancel). Returns (x, dual); x is ``v`` (C-contiguous), overwritten. Each inner step is one
-    compiled sweep over the volume (`_prox_step`; the primal w lives a few planes at a time).
-    Work: the dual's extrapolation (d images), made once per call."""
+    (None: everywhere allowed): gradient projection on the dual (Chambolle 2005; Beck &
+    Teboulle 2009's GP), `_PROX_ITER` steps from ``dual`` (the previous call's, a warm start,
+    updated in place; None: 0). No operator. ``poll()``, if given, is called every few inner
+    steps (a cancel). Returns (x, dual); x is ``v`` (C-contiguous), overwritten, with
+    ``in_place`` (the default), else a new array (v is kept). Each inner step is one compiled
+    sweep over the volume (`_prox_step`; the primal w lives a few planes at a time), the dual
+    stepped in place: no work image beyond the dual itself (d images, made when ``dual`` is
+    None)."""
     has_support = support is not None
 
     def project(x):
@@ -712,12 +714,11 @@ def _tv_prox(v: np.ndarray, gamma: float, positivity: bool, support, dual, poll=
         return x
 
     if gamma <= 0:
-        return project(v), dual
+        return project(v if in_place else v.copy()), dual
     gamma = float(gamma)
     supp = _as3d(np.ascontiguousarray(support, dtype=bool)) if has_support else np.zeros((1, 1, 1), bool)
     v = np.ascontiguousarray(v)  # the kernels see it through 3-D views
-    p = np.zeros((v.ndim,) + v.shape, dtype=v.dtype) if dual is None else dual
-    q, t = p.copy(), 1.0
+    q = np.zeros((v.ndim,) + v.shape, dtype=v.dtype) if dual is None else dual
     has_y = v.ndim == 3
     v3 = _as3d(v)
     n_slabs = max(1, min(v3.shape[0], 2 * numba.get_num_threads()))
@@ -728,18 +729,15 @@ def _tv_prox(v: np.ndarray, gamma: float, positivity: bool, support, dual, poll=
     for i in range(_PROX_ITER):
         if poll is not None and i % 5 == 4:
             poll()
-        # w = P(v − γ ∇ᵀq); q ← pn = (q + step ∇w) / max(1, |·|); p ← pn + β (pn − p); swap
-        tn = 0.5 * (1.0 + math.sqrt(1.0 + 4.0 * t * t))
-        beta = (t - 1.0) / tn
-        _prox_step(v3, *_dual_axes(q), *_dual_axes(p), has_y, gamma, positivity, supp, has_support, step, beta,
-                   starts, planes, rows)
-        p, q, t = q, p, tn
-    del q, planes, rows
-    _prox_primal(v3, *_dual_axes(p), has_y, gamma, positivity, supp, has_support, v3)
-    return v, p
+        # w = P(v − γ ∇ᵀq); q ← (q + step ∇w) / max(1, |·|)
+        _prox_step(v3, *_dual_axes(q), has_y, gamma, positivity, supp, has_support, step, starts, planes, rows)
+    del planes, rows
+    x = v if in_place else np.empty_like(v)
+    _prox_primal(v3, *_dual_axes(q), has_y, gamma, positivity, supp, has_support, _as3d(x))
+    return x, q
 
 
-def _fista(forward, G, g, x, lam, L, positivity, max_iter, tol, started, time_limit, report, residual,
+def _fista(forward, G, g, start, lam, L, positivity, max_iter, tol, started, time_limit, report, residual,
            support=None, poll=None):
     """Accelerated proximal gradient (FISTA, Beck & Teboulle 2009) on J(p) = ½‖A p − g‖² +
     λ TV(p) (p >= 0 with ``positivity``; p = 0 off ``support`` when given), preconditioned:
@@ -754,47 +752,61 @@ def _fista(forward, G, g, x, lam, L, positivity, max_iter, tol, started, time_li
     start ("converged"); else ``max_iter`` iterations ("iterations") or the time limit
     ("time limit"). L rises to `_MARGIN` × the gain of BA along the last move of y (free: a
     lower bound of ‖BA‖) when that exceeds it. Returns (x, iterations, stop reason, the
-    rule's last value, A x, L). ``forward(v)`` = A v in the data's shape; ``x`` may be
-    overwritten.
+    rule's last value, A x, L). ``forward(v)`` = A v in the data's shape; ``start`` is a
+    list holding the first x, which is taken out of it (its memory is reused: the caller
+    keeps no reference).
 
-    Memory: while the operator works, 4 images (x, y, the last G(A y − g) and the new one
-    or the new iterate) beside the proximal map's dual (d images); the proximal map's own
-    work (d images) lives only while it runs."""
+    Memory (the proximal map's dual is d = 2 or 3 images, kept between calls at half the
+    working precision, `_DUAL_STORE`: |dual| <= 1, so its warm start keeps 2⁻¹¹): while A
+    works, 3 images (x, the new iterate, the last G(A y − g)) and d/2; while G works, 3 (x,
+    y, the last G(A y − g)) and d/2 beside G's output; while the proximal map works, 3 (x,
+    the gradient step made in y's place, G(A y − g)) and d (its dual at full precision),
+    then one more for the new iterate. Everything that needs y after its gradient step (the restart test and
+    ‖y_new − y‖ for the gain, for both momenta y_new can take) is summed before A works,
+    with y = the step + G(A y − g) / L (`_moves`), so y's memory is free then."""
+    x = start.pop()
     if support is not None:
         x = np.where(support, x, 0).astype(x.dtype)
     iterations = span(report, 0.1, 1.0)
     Ax = forward(x)
-    y, Ay = x, Ax
+    y, Ay = x.copy(), Ax  # y's memory takes the gradient step (x is kept for the momentum)
     G_prev, dy = None, 0.0  # G(A y − g) of the last y, ‖y − last y‖
+    half = _DUAL_STORE[x.dtype.type]
 
     def objective(Ax_, x_):
         return 0.5 * residual(Ax_) ** 2 + (lam * _tv_norm(x_) if lam > 0 else 0.0)
 
     J_hist = [objective(Ax, x)]
-    dual = None
+    stored = None  # the proximal map's dual between calls, at half precision
     change, it, stop_reason = float("nan"), 0, "iterations"
     for it in range(1, max_iter + 1):
         Gy = G(np.subtract(Ay, g, dtype=Ay.dtype))  # the residual in the working dtype (B's input)
-        v = np.empty_like(x)
-        if G_prev is not None:
-            if dy > 0:  # the gain of BA along the last move of y: a free lower bound of ‖BA‖
-                gain = float(np.linalg.norm(np.subtract(Gy, G_prev, out=v))) / dy
-                if _MARGIN * gain > L:  # the step was too long for what the iterates excite
-                    L = _MARGIN * gain
+        if G_prev is not None and dy > 0:  # the gain of BA along the last move of y: a lower bound of ‖BA‖
+            gain = _difference_norm(Gy.ravel(), G_prev.ravel()) / dy
+            if _MARGIN * gain > L:  # the step was too long for what the iterates excite
+                L = _MARGIN * gain
         G_prev = Gy
-        np.subtract(y, np.divide(Gy, L, out=v), out=v)  # the gradient step y − G(A y − g) / L
-        xn, dual = _tv_prox(v, lam / L, positivity, support, dual, poll)  # xn is v
+        v = y  # the gradient step y − G(A y − g) / L, in y's place (y = v + Gy / L from here on)
+        del y
+        _axpy(v.ravel(), Gy.ravel(), -1.0 / L)
+        dual = None if stored is None else stored.astype(x.dtype)
+        stored = None
+        xn, dual = _tv_prox(v, lam / L, positivity, support, dual, poll, in_place=False)
+        stored = None if dual is None else dual.astype(half)  # None at λ = 0 (no dual)
+        del dual
+        # a = x_new − y, b = x_new − x: the restart test ⟨a, b⟩ < 0 and ‖y_new − y‖ = ‖a + β b‖
+        # for β = 0 and `_MOMENTUM`, now, so that y (v) is free while A works
+        ab, aa, cc = _moves(xn.ravel(), v.ravel(), Gy.ravel(), 1.0 / L, x.ravel(), _MOMENTUM)
         del v
         Axn = forward(xn)
         J = objective(Axn, xn)
         # constant momentum, restarted (β = 0) when J rises or the momentum points uphill
-        beta = 0.0 if J > J_hist[-1] or _dot_of_differences(y, xn, xn, x) > 0 else _MOMENTUM
-        # y_new = x_new + β (x_new − x) into a new array; ‖y_new − y‖ in the old y's (x, y are done)
-        yn = np.subtract(xn, x, out=np.empty_like(x))
-        np.add(xn, np.multiply(yn, beta, out=yn), out=yn)
-        dy = float(np.linalg.norm(np.subtract(yn, y, out=y)))
+        beta = 0.0 if J > J_hist[-1] or ab < 0 else _MOMENTUM
+        dy = math.sqrt(cc if beta else aa)
+        y = x  # y_new = x_new + β (x_new − x), in x's place (x is done)
+        _extrapolate(y.ravel(), xn.ravel(), beta)
         Ay = Axn + beta * (Axn - Ax)
-        x, Ax, y = xn, Axn, yn
+        x, Ax = xn, Axn
         J_hist.append(J)
         if len(J_hist) > _WINDOW:
             change = (J_hist[-1 - _WINDOW] - J) / (_WINDOW * max(J_hist[0] - J, 1e-300))
@@ -810,11 +822,50 @@ def _fista(forward, G, g, x, lam, L, positivity, max_iter, tol, started, time_li
     return x, it, stop_reason, float(change), Ax, L
 
 
-def _dot_of_differences(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray) -> float:
-    """⟨a − b, c − d⟩ (arrays of one shape), by slabs along axis 0 (no full-size temporary)."""
-    rows = max(1, _SLAB // max(1, a[0].size))
-    return sum(float(np.vdot(a[i:i + rows] - b[i:i + rows], c[i:i + rows] - d[i:i + rows]))
-               for i in range(0, len(a), rows))
+#: the dtype of the proximal map's dual between calls (`_fista`): half the working precision
+_DUAL_STORE = {np.float32: np.float16, np.float64: np.float32}
+
+
+@numba.njit(parallel=True, cache=True)
+def _difference_norm(a, b):
+    """‖a − b‖₂ of two flat arrays, summed in float64 (no work array)."""
+    total = 0.0
+    for i in numba.prange(a.size):
+        d = np.float64(a[i]) - np.float64(b[i])
+        total += d * d
+    return math.sqrt(total)
+
+
+@numba.njit(parallel=True, cache=True)
+def _axpy(y, x, s):
+    """In place, y += s x (flat arrays of one dtype)."""
+    for i in numba.prange(y.size):
+        y[i] += s * x[i]
+
+
+@numba.njit(parallel=True, cache=True)
+def _extrapolate(x, xn, beta):
+    """In place, x ← xn + β (xn − x) (flat arrays): FISTA's next y in the old iterate's place."""
+    for i in numba.prange(x.size):
+        x[i] = xn[i] + beta * (xn[i] - x[i])
+
+
+@numba.njit(parallel=True, cache=True)
+def _moves(xn, v, gy, inv_l, x, beta):
+    """With y = v + inv_l gy (the gradient step v = y − gy / L undone), a = xn − y and
+    b = xn − x (flat arrays): (⟨a, b⟩, ‖a‖², ‖a + β b‖²), summed in float64."""
+    ab = 0.0
+    aa = 0.0
+    cc = 0.0
+    for i in numba.prange(xn.size):
+        xi = np.float64(xn[i])
+        a = xi - (np.float64(v[i]) + inv_l * np.float64(gy[i]))
+        b = xi - np.float64(x[i])
+        c = a + beta * b
+        ab += a * b
+        aa += a * a
+        cc += c * c
+    return ab, aa, cc
 
 
 class _Reporter:

@@ -136,6 +136,11 @@ def _warm_model(names: list[str]) -> None:
         tv._tv_prox(v, 0.1, True, None, None)
         tv._tv_norm(v)
         tv._apply_weight(tv._ner_weight(v.shape, _DX, C_DEFAULT * _DT), v)  # the preconditioner's kernel
+        flat = v.ravel()  # the solver's in-place vector kernels
+        tv._axpy(flat, flat, 0.5)
+        tv._extrapolate(flat, flat, 0.5)
+        tv._difference_norm(flat, flat)
+        tv._moves(flat, flat, flat, 1.0, flat, 0.5)
     forward_grid(np.ones((4, 6, 6)), _DX, C_DEFAULT * _DT, _DT, 32)
 
 
