@@ -644,16 +644,17 @@ def padded_lateral(n_y: int, n_x: int, square: bool | None = None) -> tuple[int,
 #: elements (complex) of a chunk's working arrays per row (its k-space columns run in
 #: chunks of about this many elements, whole |k_lat| groups)
 OPERATOR_BATCH = 16
-OPERATOR_CHUNK = 1 << 23
+OPERATOR_CHUNK = 1 << 22
 
 
 def tv_memory(image_shape, padded_shape, n_data: int, n_t: int, dtype=np.float64) -> int:
     """Estimated peak bytes of the model-based reconstruction (`service.recon.tv`).
 
     The larger of two phases (`service.recon.tv._fista`). While the operator works: the
-    solver's 4 image-sized vectors in ``dtype`` (the iterate x, y or the new iterate, the
-    last preconditioned gradient and the operator's output) and the TV proximal map's dual
-    (d vectors) at half that precision, beside the operator's working arrays in its working
+    solver's 3 image-sized vectors in ``dtype`` (the iterate x, y or the new iterate, the
+    last preconditioned gradient; the adjoint writes its output over its k-space, where the
+    system can release the rest) and the TV proximal map's dual (d vectors) at half that
+    precision, beside the operator's working arrays in its working
     precision (complex64 for float32, complex128 for float64;
     `service.recon.operator.PlanarOperator`): the image's and the data's k-space in one array,
     max(n_z, n_t) per padded half-spectrum column, beside one chunk of columns in the depth and temporal
@@ -705,7 +706,7 @@ def tv_memory(image_shape, padded_shape, n_data: int, n_t: int, dtype=np.float64
     chunk = min(cols, max(1, OPERATOR_CHUNK // max(nz2, fine)))
     operator = 2 * b * (cols * max(image_shape[0], n_t) + chunk * (fine + max(nz2, n_t))
                         + 2 * min(OPERATOR_BATCH, n_t) * ny2 * nx2)
-    with_operator = 4 * n_img * b + d * n_img * b // 2 + operator
+    with_operator = 3 * n_img * b + d * n_img * b // 2 + operator
     proximal = (4 + d) * n_img * b
     return int(1.15 * (max(with_operator, proximal) + n_data * (8 + 3 * b)))
 

@@ -85,6 +85,7 @@ The adjoint is not the inverse: the inverse is the NER/NEDNER reconstruction
 """
 from __future__ import annotations
 
+import mmap
 from collections.abc import Callable
 from typing import Any
 
@@ -102,7 +103,7 @@ from service.recon import checks
 __all__ = ["PlanarOperator"]
 
 #: elements (complex) per block of rows of the lateral FFTs
-_BLOCK = 1 << 22
+_BLOCK = 1 << 20
 _BATCH = checks.OPERATOR_BATCH
 _CHUNK = checks.OPERATOR_CHUNK
 
@@ -405,15 +406,24 @@ class PlanarOperator(pylops.LinearOperator):
         if self.checkpoint is not None:
             self.checkpoint()
 
-    def _kspace(self, m_in: int, m_out: int) -> tuple[np.ndarray, np.ndarray]:
+    def _kspace(self, m_in: int, m_out: int, pages: mmap.mmap | None = None) -> tuple[np.ndarray, np.ndarray]:
         """The step's input spectrum (m_in, N_y (N_x//2+1)), zeros, and its output
         (m_out, same columns) as two views of one array of max(m_in, m_out) rows: the temporal
         and depth steps read a chunk's columns of the input whole before they write its
         columns of the output, and each column belongs to one chunk, so one k-space array
-        serves both (at the paper's size 0.77 GB less at the peak)."""
+        serves both (at the paper's size 0.77 GB less at the peak). With ``pages`` (an
+        anonymous memory map of `_kspace_bytes`, zero-filled) the array lives there."""
         _, n_y2, _ = self.padded_shape
-        buf = np.zeros((max(m_in, m_out), n_y2 * self._n_xr), dtype=self._ctype)
+        rows, cols = max(m_in, m_out), n_y2 * self._n_xr
+        if pages is None:
+            buf = np.zeros((rows, cols), dtype=self._ctype)
+        else:
+            buf = np.frombuffer(pages, dtype=self._ctype, count=rows * cols).reshape(rows, cols)
         return buf[:m_in], buf[:m_out]
+
+    def _kspace_bytes(self, m_in: int, m_out: int) -> int:
+        _, n_y2, _ = self.padded_shape
+        return max(m_in, m_out) * n_y2 * self._n_xr * self._ctype.itemsize
 
     def _row_blocks(self, m: int) -> list[slice]:
         """Blocks of rows of an (m, N_y, N_x//2+1) spectrum of about `_BLOCK` elements each:
@@ -440,15 +450,19 @@ class PlanarOperator(pylops.LinearOperator):
             self._tick()
         return out
 
-    def _lateral_inverse(self, S: np.ndarray) -> np.ndarray:
+    def _lateral_inverse(self, S: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """(m, N_y, N_x//2+1) half spectrum -> the image's (m, n_y, n_x) lateral window of
         its inverse DFT (the transpose of `_lateral_spectrum` up to the DFT's 1/(N_y N_x)):
-        the x transforms run on the n_y rows kept only."""
+        the x transforms run on the n_y rows kept only. Into ``out`` if given (it may be the
+        start of S's own memory: a block of rows is read whole before its rows of ``out``
+        are written, and a row of ``out``, n_y n_x reals, is shorter than a row of S,
+        N_y (N_x//2+1) complex values, so no row of S is written before it is read)."""
         m = S.shape[0]
         _, n_y2, n_x2 = self.padded_shape
         _, n_y, n_x = self._vol
         oy, ox = self._off
-        out = np.empty((m, n_y, n_x), dtype=self.dtype)
+        if out is None:
+            out = np.empty((m, n_y, n_x), dtype=self.dtype)
         for rows in self._row_blocks(m):
             block = S[rows]
             if n_y2 > 1:
@@ -508,8 +522,12 @@ class PlanarOperator(pylops.LinearOperator):
     def _apply_adjoint(self, data: np.ndarray) -> np.ndarray:
         n_z2, n_y2, n_x2 = self.padded_shape
         n_z, n_y, n_x = self._vol
-        # the data's k-space A and the image's K (its rows only) share one array (`_kspace`)
-        A, K = self._kspace(self.n_t, n_z)
+        # the data's k-space A and the image's K (its rows only) share one array (`_kspace`),
+        # in pages of its own where the system can release them: the image is then written
+        # over K's first rows and the rest released (`_release_after`), so the adjoint's
+        # output takes no memory beside the k-space
+        pages = _anonymous_pages(self._kspace_bytes(self.n_t, n_z))
+        A, K = self._kspace(self.n_t, n_z, pages)
         spectrum = A.reshape(self.n_t, n_y2, self._n_xr)
         if self.positions is None:
             self._lateral_spectrum(data.reshape(self.n_t, n_y, n_x), out=spectrum)
@@ -527,7 +545,13 @@ class PlanarOperator(pylops.LinearOperator):
         K[0] *= 0.5  # DCT-Iᵀ = diag(τ) DCT-I diag(1/τ), τ = ½ at both ends
         if n_z == n_z2:
             K[-1] *= 0.5
-        p = self._lateral_inverse(K.reshape(n_z, n_y2, self._n_xr))
+        out = None
+        if pages is not None:
+            out = np.frombuffer(pages, dtype=self.dtype, count=n_z * n_y * n_x).reshape(n_z, n_y, n_x)
+        p = self._lateral_inverse(K.reshape(n_z, n_y2, self._n_xr), out)
+        del A, K
+        if pages is not None:
+            _release_after(pages, p.nbytes)
         p = p[:, 0, :] if self.is2d else p
         return np.ascontiguousarray(p, dtype=self.dtype)
 
@@ -599,6 +623,26 @@ class PlanarOperator(pylops.LinearOperator):
 
     def _rmatvec(self, y):
         return self._apply_adjoint(np.asarray(y, dtype=self.dtype).reshape(self.oshape)).ravel()
+
+
+def _anonymous_pages(nbytes: int) -> mmap.mmap | None:
+    """Zero-filled anonymous memory of ``nbytes`` whose tail `_release_after` can hand back to
+    the system (mmap + madvise MADV_DONTNEED, Linux and other POSIX systems); None where
+    madvise is missing (the caller allocates with numpy instead)."""
+    if nbytes <= 0 or not hasattr(mmap, "MADV_DONTNEED") or not hasattr(mmap.mmap, "madvise"):
+        return None
+    pages = mmap.mmap(-1, nbytes)
+    if hasattr(mmap, "MADV_HUGEPAGE"):  # as numpy asks for its large arrays: fewer page faults
+        pages.madvise(mmap.MADV_HUGEPAGE)
+    return pages
+
+
+def _release_after(pages: mmap.mmap, nbytes: int) -> None:
+    """Hand the pages of ``pages`` after its first ``nbytes`` back to the system (they read as
+    zeros if touched again): the resident memory drops to what is kept."""
+    start = -(-nbytes // mmap.PAGESIZE) * mmap.PAGESIZE
+    if start < len(pages):
+        pages.madvise(mmap.MADV_DONTNEED, start, len(pages) - start)
 
 
 def _lattice_nodes(pos: np.ndarray, padded_shape, dx: float):
