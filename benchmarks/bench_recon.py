@@ -131,6 +131,7 @@ def _run_model(method, n_t, n_y, n_x, repeat, queue, max_iter=None):
         img = reconstruct_tv(al, DT, C, positions=pos, weights=w, grid=(x, y), dtype=np.float32, **kw)
         t = time.perf_counter() - t0
         note = (f"{len(pos)} sensors ({kind}), {img.params['iterations']} iterations, "
+                f"{img.params['stop_reason']}, "
                 f"λ = {img.params['lam']:.3g}, (peak - RSS before) / input = "
                 f"{(_peak() - base) / (4 * n_t * n_y * n_x):.1f}")
     peak = _peak()
