@@ -77,7 +77,9 @@ and without the NUFFT's oversampled grid (the tv solver at 256 × 128², 533 sen
 (`driver.physics.nufft.gather_columns` / `scatter_columns`: no copies of the chosen
 columns; the same run 35 → 28 s), and a step's input and output k-space (image and data)
 share one array, since a chunk reads its columns of the one whole before it writes them in
-the other (tv at 512 × 128², 533 sensors, float32: peak 19.3 → 15.7 times the volume). `benchmarks/bench_tv_operator.py` times a pair against one
+the other (tv at 512 × 128², 533 sensors, float32: peak 19.3 → 15.7 times the volume); the
+adjoint then writes its image over that array's first rows and releases the rest of its
+pages (`_release_after`), so its output costs no memory beside the k-space. `benchmarks/bench_tv_operator.py` times a pair against one
 NER of the same image.
 
 The adjoint is not the inverse: the inverse is the NER/NEDNER reconstruction

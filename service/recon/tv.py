@@ -761,10 +761,11 @@ def _fista(forward, G, g, start, lam, L, positivity, max_iter, tol, started, tim
     works, 3 images (x, the new iterate, the last G(A y − g)) and d/2; while G works, 3 (x,
     y, the last G(A y − g)) and d/2 beside G's output; while the proximal map works, 3 (x,
     the gradient step made in y's place, G(A y − g)) and d (its dual at full precision),
-    then one more for the new iterate. Everything that needs y after its gradient step (the restart test and
-    ‖y_new − y‖ for the gain, for both momenta y_new can take) is summed before A works,
-    with y = the step + G(A y − g) / L (`_moves`), so y's memory is free then."""
-    x = start.pop()
+    then one more for the new iterate. Everything that needs y after its gradient step (the
+    restart test and ‖y_new − y‖ for the gain, for both momenta y_new can take) is summed
+    before A works, with y = the step + G(A y − g) / L (`_moves`), so y's memory is free
+    then. The vectors are C-contiguous: the in-place kernels see them through flat views."""
+    x = np.ascontiguousarray(start.pop())
     if support is not None:
         x = np.where(support, x, 0).astype(x.dtype)
     iterations = span(report, 0.1, 1.0)
