@@ -635,7 +635,10 @@ def _anonymous_pages(nbytes: int) -> mmap.mmap | None:
         return None
     pages = mmap.mmap(-1, nbytes)
     if hasattr(mmap, "MADV_HUGEPAGE"):  # as numpy asks for its large arrays: fewer page faults
-        pages.madvise(mmap.MADV_HUGEPAGE)
+        try:
+            pages.madvise(mmap.MADV_HUGEPAGE)
+        except OSError:  # a kernel without transparent huge pages: small pages do
+            pass
     return pages
 
 
