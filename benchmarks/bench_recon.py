@@ -123,9 +123,7 @@ def _run_model(method, n_t, n_y, n_x, repeat, queue, max_iter=None):
         al = al + rng.standard_normal(al.shape) * float(np.sqrt(np.mean(al**2))) / 10 ** 1.5
         reconstruct_tv(al[:40, :32], DT, C, positions=pos[:40], n_z=8, max_iter=2, dtype=np.float32)  # warm-up
         kw = {} if max_iter is None else {"max_iter": max_iter}
-        import psutil
-
-        base = psutil.Process().memory_info().rss  # the interpreter, libraries and the NER runs
+        base = _rss()  # the interpreter, libraries and the NER runs
         _reset_peak()  # tv's own peak, not the NER runs' before it
         t0 = time.perf_counter()
         img = reconstruct_tv(al, DT, C, positions=pos, weights=w, grid=(x, y), dtype=np.float32, **kw)

@@ -408,24 +408,23 @@ class PlanarOperator(pylops.LinearOperator):
         if self.checkpoint is not None:
             self.checkpoint()
 
-    def _kspace(self, m_in: int, m_out: int, pages: mmap.mmap | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def _kspace(self, m_in: int, m_out: int, releasable: bool = False
+                ) -> tuple[np.ndarray, np.ndarray, mmap.mmap | None]:
         """The step's input spectrum (m_in, N_y (N_x//2+1)), zeros, and its output
         (m_out, same columns) as two views of one array of max(m_in, m_out) rows: the temporal
         and depth steps read a chunk's columns of the input whole before they write its
         columns of the output, and each column belongs to one chunk, so one k-space array
-        serves both (at the paper's size 0.77 GB less at the peak). With ``pages`` (an
-        anonymous memory map of `_kspace_bytes`, zero-filled) the array lives there."""
+        serves both (at the paper's size 0.77 GB less at the peak). With ``releasable`` the
+        array lives in anonymous pages (`_anonymous_pages`), returned third so that part of
+        them can be released (`_release_after`); else (and where the system cannot) None."""
         _, n_y2, _ = self.padded_shape
         rows, cols = max(m_in, m_out), n_y2 * self._n_xr
+        pages = _anonymous_pages(rows * cols * self._ctype.itemsize) if releasable else None
         if pages is None:
             buf = np.zeros((rows, cols), dtype=self._ctype)
         else:
             buf = np.frombuffer(pages, dtype=self._ctype, count=rows * cols).reshape(rows, cols)
-        return buf[:m_in], buf[:m_out]
-
-    def _kspace_bytes(self, m_in: int, m_out: int) -> int:
-        _, n_y2, _ = self.padded_shape
-        return max(m_in, m_out) * n_y2 * self._n_xr * self._ctype.itemsize
+        return buf[:m_in], buf[:m_out], pages
 
     def _row_blocks(self, m: int) -> list[slice]:
         """Blocks of rows of an (m, N_y, N_x//2+1) spectrum of about `_BLOCK` elements each:
@@ -479,7 +478,7 @@ class PlanarOperator(pylops.LinearOperator):
         n_z = self._vol[0]
         # the image's k-space Y and the data's T share one array (`_kspace`): a chunk's columns
         # of Y are read before its columns of T are written, and no other chunk reads them
-        Y, T = self._kspace(n_z, self.n_t)
+        Y, T, _ = self._kspace(n_z, self.n_t)
         self._lateral_spectrum(p0.reshape(self._vol), out=Y.reshape(n_z, n_y2, self._n_xr))
         for idx, klat2, groups in self._chunks:  # columns in chunks of whole |k_lat| groups
             # depth: the n_z image rows of each column, zero below, DCT-I of length N_z
@@ -528,8 +527,7 @@ class PlanarOperator(pylops.LinearOperator):
         # in pages of its own where the system can release them: the image is then written
         # over K's first rows and the rest released (`_release_after`), so the adjoint's
         # output takes no memory beside the k-space
-        pages = _anonymous_pages(self._kspace_bytes(self.n_t, n_z))
-        A, K = self._kspace(self.n_t, n_z, pages)
+        A, K, pages = self._kspace(self.n_t, n_z, releasable=True)
         spectrum = A.reshape(self.n_t, n_y2, self._n_xr)
         if self.positions is None:
             self._lateral_spectrum(data.reshape(self.n_t, n_y, n_x), out=spectrum)

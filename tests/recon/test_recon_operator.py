@@ -2,6 +2,11 @@
 test, every variant), and the forward model is `forward_grid` / `forward_points`."""
 from __future__ import annotations
 
+import json
+import os
+import subprocess
+import sys
+
 import numpy as np
 import pylops
 import pytest
@@ -347,16 +352,12 @@ print(json.dumps({"peak": rss()["VmHWM"] - before, "image": got.nbytes,
 """
 
 
-@pytest.mark.skipif(not __import__("os").path.exists("/proc/self/clear_refs"), reason="needs Linux's /proc")
+@pytest.mark.skipif(not os.path.exists("/proc/self/clear_refs"), reason="needs Linux's /proc")
 def test_the_adjoint_writes_its_image_over_its_k_space():
     """The adjoint's peak is its k-space, not the k-space and the image beside it: the image
     is written over the k-space's first rows and the rest of its pages is released. A periodic
     operator in float32 (k-space about as large as the image), tiny chunks: peak RSS above the
     RSS before, in a fresh interpreter (/proc/self/clear_refs resets the peak)."""
-    import json
-    import subprocess
-    import sys
-
     r = subprocess.run([sys.executable, "-c", ADJOINT_PEAK_SCRIPT], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr[-2000:]
     m = json.loads(r.stdout.strip().splitlines()[-1])
