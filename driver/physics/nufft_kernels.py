@@ -55,6 +55,87 @@ def scatter_columns(F, cols, out):
 
 
 
+_TWO_PI = 2.0 * math.pi
+_INV_TWO_PI = 1.0 / _TWO_PI
+# Taylor coefficients of sin(h)/h and cos(h) in h² (|h| <= pi/2: truncation below 3e-16)
+_SIN = tuple((-1.0) ** k / math.factorial(2 * k + 1) for k in range(10))
+_COS = tuple((-1.0) ** k / math.factorial(2 * k) for k in range(11))
+
+
+@numba.njit(inline="always", fastmath=True)
+def _cos_sin(x):
+    """(cos x, sin x) for a float64 x, without libm, so that a loop over it vectorises: x is
+    reduced to r in [-pi, pi] (r = x - 2 pi round(x / 2 pi)), h = r / 2 is taken by its
+    Taylor series, then cos r = 1 - 2 sin² h and sin r = 2 sin h cos h. The error is that
+    of the reduction, about |x| times the float64 epsilon (the error the phase x carries
+    anyway), plus a few 1e-16."""
+    r = x - _TWO_PI * math.floor(x * _INV_TWO_PI + 0.5)
+    h = 0.5 * r
+    q = h * h
+    s = _SIN[9]
+    s = s * q + _SIN[8]
+    s = s * q + _SIN[7]
+    s = s * q + _SIN[6]
+    s = s * q + _SIN[5]
+    s = s * q + _SIN[4]
+    s = s * q + _SIN[3]
+    s = s * q + _SIN[2]
+    s = s * q + _SIN[1]
+    s = (s * q + _SIN[0]) * h
+    co = _COS[10]
+    co = co * q + _COS[9]
+    co = co * q + _COS[8]
+    co = co * q + _COS[7]
+    co = co * q + _COS[6]
+    co = co * q + _COS[5]
+    co = co * q + _COS[4]
+    co = co * q + _COS[3]
+    co = co * q + _COS[2]
+    co = co * q + _COS[1]
+    co = co * q + _COS[0]
+    return 1.0 - 2.0 * s * s, 2.0 * s * co
+
+
+@numba.njit(inline="always", fastmath=True)
+def _horner_rows(hc, w, t, nj, wts):
+    """wts[k, j] = the polynomial hc[k] (highest degree first) at t[j], for j < nj: Horner's
+    rule over j in SIMD lanes, four coefficients a pass (a pass a coefficient was bound by
+    loads and stores, not arithmetic)."""
+    nd = hc.shape[1]
+    r = (nd - 1) % 4  # the first 1 + r coefficients, then passes of four
+    for k in range(w):
+        row = wts[k]
+        c0 = hc[k, 0]
+        if r == 0:
+            for j in range(nj):
+                row[j] = c0
+        elif r == 1:
+            c1 = hc[k, 1]
+            for j in range(nj):
+                row[j] = c0 * t[j] + c1
+        elif r == 2:
+            c1 = hc[k, 1]
+            c2 = hc[k, 2]
+            for j in range(nj):
+                x = t[j]
+                row[j] = (c0 * x + c1) * x + c2
+        else:
+            c1 = hc[k, 1]
+            c2 = hc[k, 2]
+            c3 = hc[k, 3]
+            for j in range(nj):
+                x = t[j]
+                row[j] = ((c0 * x + c1) * x + c2) * x + c3
+        for d in range(r + 1, hc.shape[1], 4):
+            a0 = hc[k, d]
+            a1 = hc[k, d + 1]
+            a2 = hc[k, d + 2]
+            a3 = hc[k, d + 3]
+            for j in range(nj):
+                x = t[j]
+                row[j] = (((row[j] * x + a0) * x + a1) * x + a2) * x + a3
+
+
 @numba.njit(cache=True)
 def tap_arrays(nkz, w):
     """One column group's work arrays for `group_taps`: base (nkz,) int64, wts (w, nkz),
@@ -76,43 +157,48 @@ def group_taps(k2, kz, qw, c, dt, t0, h, kind, w, hc, shift, inversion, base, wt
     the weight times e^{i φ_j} with φ_j = shift θ_j + ω_j t0, the centring and t0 phase of
     the +θ evaluation (its conjugate belongs to the -θ one)."""
     nkz = kz.shape[0]
-    nd = hc.shape[1]
     pi_lim = math.pi * (1.0 + 1e-12)
     nj = nkz
-    for j in range(nkz):
+    if inversion:
+        # the first kz above the temporal Nyquist (theta grows with kz): a bisection, so that
+        # the loop below has no exit and runs in SIMD lanes
+        lo = 0
+        hi = nkz
+        while lo < hi:
+            mid = (lo + hi) // 2
+            if c * math.sqrt(k2 + kz[mid] * kz[mid]) * dt > pi_lim:
+                hi = mid
+            else:
+                lo = mid + 1
+        nj = lo
+    inv_c = 1.0 / c
+    hw = 0.5 * w
+    for j in range(nj):
         om = c * math.sqrt(k2 + kz[j] * kz[j])
         th = om * dt
         if inversion:
-            if th > pi_lim:  # kz ascending: every later one is above the Nyquist too
-                nj = j
-                break
             # k_z / omega, with the limit 1/c at omega = 0
-            sc = qw[j] * (kz[j] / om if om > 0.0 else 1.0 / c)
+            sc = qw[j] * (kz[j] / om if om > 0.0 else inv_c)
         else:
             sc = qw[j]
         s = th / h
         if kind == 0:
-            b = int(math.ceil(s - 0.5 * w))
-            t[j] = 2.0 * (b - s + 0.5 * w) - 1.0
+            bf = math.ceil(s - hw)
+            t[j] = 2.0 * (bf - s + hw) - 1.0
         elif kind == 1:
-            b = int(math.floor(s))
-            t[j] = s - b
+            bf = math.floor(s)
+            t[j] = s - bf
         else:
-            b = int(math.floor(s + 0.5))
-        base[j] = b
-        ph = shift * th + om * t0
-        ar[j] = sc * math.cos(ph)
-        ai[j] = sc * math.sin(ph)
+            bf = math.floor(s + 0.5)
+        base[j] = int(bf)
+        ar[j] = shift * th + om * t0  # the phase, until the pass below
+        ai[j] = sc
+    for j in range(nj):  # no libm call: the loop runs in SIMD lanes
+        cs, sn = _cos_sin(ar[j])
+        ar[j] = ai[j] * cs
+        ai[j] = ai[j] * sn
     if kind == 0:
-        for k in range(w):
-            row = wts[k]
-            c0 = hc[k, 0]
-            for j in range(nj):
-                row[j] = c0
-            for d in range(1, nd):
-                cd = hc[k, d]
-                for j in range(nj):
-                    row[j] = row[j] * t[j] + cd
+        _horner_rows(hc, w, t, nj, wts)
     elif kind == 1:
         for j in range(nj):
             wts[0, j] = 1.0 - t[j]

@@ -16,3 +16,42 @@ def test_tap_polynomials_match_the_kernel_to_a_fraction_of_eps(eps):
         phi = np.exp(beta * (np.sqrt(1.0 - u * u) - 1.0))  # the ES kernel itself
         approx = np.polyval(coef[k], 2.0 * x - 1.0)
         assert np.max(np.abs(approx - phi)) <= max(eps / 10, 1e-14), (k, np.max(np.abs(approx - phi)))
+
+
+@pytest.mark.parametrize("eps", [1e-2, 1e-4, 1e-6, 1e-9, 1e-12])
+@pytest.mark.parametrize("inversion", [True, False])
+def test_compiled_taps_match_the_kernel_formula_and_numpy_trigonometry(eps, inversion):
+    """`nufft_kernels.group_taps` (bisection for the Nyquist cut, Horner's rule four
+    coefficients a pass, the phase's cosine and sine without libm) against the ES kernel
+    formula and numpy's cos/sin, at every tap width's remainder of the pass length and at
+    phases from 0 to ~5e3 rad."""
+    from driver.physics import nufft_kernels
+    from driver.physics.nufft import make_grid
+
+    n_t, c, dt, t0 = 3000, 1500.0, 1e-8, 3e-7  # samples, m/s, s, s
+    grid = make_grid(n_t, "nufft", eps)
+    w, h = grid.w, 2.0 * np.pi / grid.L
+    kz = np.linspace(0.0, 1.2 * np.pi / (c * dt), 2049)  # rad/m, past the temporal Nyquist
+    qw = np.linspace(0.5, 1.5, kz.size)
+    for k2 in (0.0, (0.3 * np.pi / (c * dt)) ** 2):  # rad²/m²: phases from 0, and large ones
+        base, wts, t, ar, ai = nufft_kernels.tap_arrays(kz.size, w)
+        nj = nufft_kernels.group_taps(k2, kz, qw, c, dt, t0, h, 0, w, grid.horner, grid.shift, inversion,
+                                      base, wts, t, ar, ai)
+        om = c * np.sqrt(k2 + kz**2)
+        th = om * dt
+        expect_nj = int(np.count_nonzero(th <= np.pi * (1.0 + 1e-12))) if inversion else kz.size
+        assert nj == expect_nj and (nj < kz.size) == inversion
+        th, om, s = th[:nj], om[:nj], th[:nj] / h
+        x = 0.5 * (t[:nj] + 1.0)  # the first tap's offset in [0, 1), as the compiled code took it
+        assert np.all((x >= -1e-9) & (x < 1.0 + 1e-9))
+        assert np.max(np.abs(x - (base[:nj] - s + 0.5 * w))) <= 1e-9  # base = ceil(s - w/2), to rounding
+        u = x[None, :] + np.arange(w)[:, None] - 0.5 * w  # tap offsets from the point, in fine-grid steps
+        phi = np.exp(grid.beta * (np.sqrt(np.clip(1.0 - (2.0 * u / w) ** 2, 0.0, None)) - 1.0))
+        assert np.max(np.abs(wts[:, :nj] - phi)) <= max(eps / 10, 1e-13)
+        # k_z / omega, with its limit 1/c at omega = 0
+        sc = qw[:nj] * np.where(om > 0, kz[:nj] / np.where(om > 0, om, 1.0), 1.0 / c) if inversion else qw[:nj]
+        ph = grid.shift * th + om * t0
+        assert np.min(ph) < 1e-9 if k2 == 0.0 else np.max(ph) > 4e3
+        tol = np.abs(sc) * (4 * np.finfo(float).eps * ph + 1e-15)  # the phase's own rounding, per element
+        assert np.all(np.abs(ar[:nj] - sc * np.cos(ph)) <= tol)
+        assert np.all(np.abs(ai[:nj] - sc * np.sin(ph)) <= tol)
