@@ -109,13 +109,17 @@ idx = rng.choice(n * n, n_pts, replace=False)
 pos = np.stack([ax[idx % n], ax[idx // n]], 1)
 ds = PointDataset(alines=rng.standard_normal((n_pts, n_t)), positions=pos, dt=2e-8, c=1500.0, grid=(ax, ax),
                   weights=None)
-# warm-up on a small input of the same kind: imports, compiled kernels (compiling may peak high);
-# not on ds itself, whose freed arrays the allocator would keep and hide from the measured peak
+# warm-up on a small input of the same kind (imports), then the kernels a job worker warms
+# before it takes a job (a transform this small runs in numpy and would load none of them;
+# compiling or loading them may peak high); not on ds itself, whose freed arrays the allocator
+# would keep and hide from the measured peak
 ax_s = centred_axis(12, dx)
 k = np.arange(20)
 small = PointDataset(alines=rng.standard_normal((20, 32)), positions=np.stack([ax_s[k % 12], ax_s[k // 12]], 1),
                      dt=2e-8, c=1500.0, grid=(ax_s, ax_s), weights=None)
 reconstruct(small, "tv", iterations=1)
+from service.recon.warmup import warm_up
+warm_up(["float32"], ("planar", "model"))
 
 """ + MEASURE.replace("RUN", 'reconstruct(ds, "tv", iterations=2)')
 
