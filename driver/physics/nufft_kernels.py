@@ -73,26 +73,12 @@ def _cos_sin(x):
     h = 0.5 * r
     q = h * h
     s = _SIN[9]
-    s = s * q + _SIN[8]
-    s = s * q + _SIN[7]
-    s = s * q + _SIN[6]
-    s = s * q + _SIN[5]
-    s = s * q + _SIN[4]
-    s = s * q + _SIN[3]
-    s = s * q + _SIN[2]
-    s = s * q + _SIN[1]
-    s = (s * q + _SIN[0]) * h
+    for k in range(8, -1, -1):  # Horner's rule in q (a fixed count: unrolled)
+        s = s * q + _SIN[k]
+    s = s * h
     co = _COS[10]
-    co = co * q + _COS[9]
-    co = co * q + _COS[8]
-    co = co * q + _COS[7]
-    co = co * q + _COS[6]
-    co = co * q + _COS[5]
-    co = co * q + _COS[4]
-    co = co * q + _COS[3]
-    co = co * q + _COS[2]
-    co = co * q + _COS[1]
-    co = co * q + _COS[0]
+    for k in range(9, -1, -1):
+        co = co * q + _COS[k]
     return 1.0 - 2.0 * s * s, 2.0 * s * co
 
 
@@ -167,38 +153,30 @@ def group_taps(k2, kz, qw, c, dt, t0, h, kind, w, hc, shift, inversion, base, wt
     nkz = kz.shape[0]
     pi_lim = math.pi * (1.0 + 1e-12)
     nj = nkz
-    if inversion:
-        # the first kz above the temporal Nyquist (theta grows with kz): a bisection, so that
-        # the loop below has no exit and runs in SIMD lanes
-        lo = 0
-        hi = nkz
-        while lo < hi:
-            mid = (lo + hi) // 2
-            if c * math.sqrt(k2 + kz[mid] * kz[mid]) * dt > pi_lim:
-                hi = mid
-            else:
-                lo = mid + 1
-        nj = lo
-    inv_c = 1.0 / c
-    hw = 0.5 * w
-    for j in range(nj):
+    # A scalar loop, on purpose: run in SIMD lanes (the Nyquist cut found first), it was
+    # compiled differently fresh and from numba's cache, and a tap base at a rounding
+    # boundary (ceil(s - w/2)) then differed between processes (5e-8 of the result).
+    for j in range(nkz):
         om = c * math.sqrt(k2 + kz[j] * kz[j])
         th = om * dt
         if inversion:
+            if th > pi_lim:  # kz ascending: every later one is above the Nyquist too
+                nj = j
+                break
             # k_z / omega, with the limit 1/c at omega = 0
-            sc = qw[j] * (kz[j] / om if om > 0.0 else inv_c)
+            sc = qw[j] * (kz[j] / om if om > 0.0 else 1.0 / c)
         else:
             sc = qw[j]
         s = th / h
         if kind == 0:
-            bf = math.ceil(s - hw)
-            t[j] = 2.0 * (bf - s + hw) - 1.0
+            b = int(math.ceil(s - 0.5 * w))
+            t[j] = 2.0 * (b - s + 0.5 * w) - 1.0
         elif kind == 1:
-            bf = math.floor(s)
-            t[j] = s - bf
+            b = int(math.floor(s))
+            t[j] = s - b
         else:
-            bf = math.floor(s + 0.5)
-        base[j] = int(bf)
+            b = int(math.floor(s + 0.5))
+        base[j] = b
         ar[j] = shift * th + om * t0  # the phase, until the pass below
         ai[j] = sc
     for j in range(nj):  # no libm call: the loop runs in SIMD lanes

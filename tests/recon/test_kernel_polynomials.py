@@ -2,7 +2,8 @@
 import numpy as np
 import pytest
 
-from driver.physics.nufft import kernel_params, kernel_polynomials
+from driver.physics import nufft_kernels
+from driver.physics.nufft import kernel_params, kernel_polynomials, make_grid
 
 
 @pytest.mark.parametrize("eps", [1e-2, 1e-4, 1e-6, 1e-9, 1e-12, 1e-14])
@@ -21,13 +22,10 @@ def test_tap_polynomials_match_the_kernel_to_a_fraction_of_eps(eps):
 @pytest.mark.parametrize("eps", [1e-2, 1e-4, 1e-6, 1e-9, 1e-12])
 @pytest.mark.parametrize("inversion", [True, False])
 def test_compiled_taps_match_the_kernel_formula_and_numpy_trigonometry(eps, inversion):
-    """`nufft_kernels.group_taps` (bisection for the Nyquist cut, Horner's rule four
-    coefficients a pass, the phase's cosine and sine without libm) against the ES kernel
+    """`nufft_kernels.group_taps` (the Nyquist cut, Horner's rule four coefficients a pass,
+    the phase's cosine and sine without libm) against the ES kernel
     formula and numpy's cos/sin, at every tap width's remainder of the pass length and at
     phases from 0 to ~5e3 rad."""
-    from driver.physics import nufft_kernels
-    from driver.physics.nufft import make_grid
-
     n_t, c, dt, t0 = 3000, 1500.0, 1e-8, 3e-7  # samples, m/s, s, s
     grid = make_grid(n_t, "nufft", eps)
     w, h = grid.w, 2.0 * np.pi / grid.L
@@ -56,3 +54,40 @@ def test_compiled_taps_match_the_kernel_formula_and_numpy_trigonometry(eps, inve
         tol = np.abs(sc) * (4 * np.finfo(float).eps * ph + 1e-15)  # the phase's own rounding, per element
         assert np.all(np.abs(ar[:nj] - sc * np.cos(ph)) <= tol)
         assert np.all(np.abs(ai[:nj] - sc * np.sin(ph)) <= tol)
+
+
+_KERNEL_RUN = r"""
+import hashlib
+import numpy as np
+from driver.physics import nufft
+from driver.physics.nufft_kernels import interp_kernel, spread_kernel
+n_t, n, dx, dt, c = 256, 32, 60e-6, 8e-9, 1500.0
+grid = nufft.make_grid(n_t, "nufft", 1e-6)
+kx, ky = 2 * np.pi * np.fft.rfftfreq(n, dx), 2 * np.pi * np.fft.fftfreq(n, dx)
+gv, gp, order = nufft.group_columns((ky[:, None] ** 2 + kx[None, :] ** 2).ravel())
+kz = np.pi / (n_t * 2 * c * dt) * np.arange(n_t + 1)
+U = np.random.default_rng(0).standard_normal((len(order), grid.L, 2)).view(complex)[..., 0]
+out = np.empty((len(order), kz.size), complex)
+args = (gv, gp, order, kz, np.ones(kz.size), c, dt, 3e-7, 2 * np.pi / grid.L, grid.L, 0, grid.w, grid.horner,
+        grid.shift)
+interp_kernel(U, *args, True, out)
+R = np.empty_like(U)
+spread_kernel(out, *args, R)
+print(hashlib.sha256(out.tobytes() + R.tobytes()).hexdigest())
+"""
+
+
+def test_kernels_give_the_same_bits_compiled_afresh_and_loaded_from_the_cache(tmp_path):
+    """A job worker loads the kernels from numba's cache, a new installation compiles them:
+    both must give the same result to the bit (the local and the server result compared
+    exactly, `tests/service/test_recon_jobs.py`), including where a tap base sits on a
+    rounding boundary."""
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
+    runs = [subprocess.run([sys.executable, "-c", _KERNEL_RUN], capture_output=True, text=True, env=env, check=True)
+            for _ in range(2)]  # the first compiles and writes the cache, the second loads it
+    assert any(tmp_path.rglob("*.nbc")), "the first run wrote no cache"
+    assert runs[0].stdout.strip() == runs[1].stdout.strip()
