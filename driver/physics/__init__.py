@@ -9,11 +9,14 @@
   the forward model (spreading) and by the NER reconstruction (interpolation).
 - `spectra`: molar extinction spectra of HbO2 and Hb (Prahl's table, shipped as data)
   and the absorption μa of haemoglobin at a given sO2 and concentration.
+- `threads`: the compiled kernels' OpenMP threads sleep as soon as a kernel ends (imported
+  here, first, so that it runs before any kernel loads OpenMP).
 
 Importing the package loads only `balls` (numpy): import the forward model
 (`driver.physics.forward`, finufft and numba) and `nufft` (numba) from their modules, so
 that each user pays for what it uses.
 """
+from driver.physics import threads  # noqa: F401  (first: the OpenMP wait policy)
 from driver.physics.balls import Ball, ball_alines, ball_p0
 
 __all__ = ["Ball", "ball_alines", "ball_p0"]
