@@ -15,11 +15,16 @@ plane), columns at the sensor positions.
 The numbers are k-Wave's, computed on the symmetries k-Wave leaves unused (real data:
 lateral rfft; the mirrored series is even: one half of the ω and k_z axes, each column's
 mapping in one compiled loop), which makes it a few times faster and its peak memory a
-few times the input instead of ~15 times.
+few times the input instead of ~15 times. The data stay time first, as the lateral FFT
+leaves them (no transpose), and the time and depth transforms of the even series are one
+real matrix product each up to `MATRIX_MAX_N` samples (BLAS beats the FFT at k-Wave's
+odd lengths there), FFTs of the mirrored series above.
 """
 from __future__ import annotations
 
+import contextlib
 import math
+import threading
 
 import numba
 import numpy as np
@@ -27,7 +32,7 @@ import scipy.fft
 import scipy.interpolate
 
 from driver.physics.lateral import irfft_lateral
-from driver.physics.nufft import group_columns, transpose
+from driver.physics.nufft import group_columns
 from service.progress import Fraction, rising, span
 from service.recon import checks
 
@@ -67,67 +72,130 @@ def _pchip_columns(P, w, w_new_cols):
     return out
 
 
-def _even_transform(a: np.ndarray, scale: float = 1.0) -> np.ndarray:
-    """Real-even DFT of odd length M = 2 N - 1 along the last axis, first half kept.
+# k-Wave's mirrored series is even, so its DFT of odd length M = 2 N - 1 (k-Wave's; 511 =
+# 7·73, 2047 = 23·89: often a large prime factor) is the real-even transform
+# y_k = a_0 + 2 Σ_{n=1}^{N-1} a_n cos(2π k n / M), k = 0..N-1 (`_even_matrix`). Up to this N
+# it runs as one real matrix product (BLAS) over the whole volume, above it as the FFT of
+# the mirrored series, chunk by chunk. Per output point, 2 cores, float64
+# (docs/performance.md): the product 7 ns at N = 128, 13 ns at 256, 19 ns at 384, 24 ns at
+# 512; the FFT 20-35 ns at any N.
+MATRIX_MAX_N = 400
 
-    ``a`` (cols, N) complex -> (cols, N): ``y_k = scale (a_0 + 2 Σ_{n=1}^{N-1} a_n
-    cos(2π k n / M))``, k = 0..N-1. This is what k-Wave's mirror to 2 N - 1 samples, (i)fft
-    and (i)fftshift amount to along time (forward) and depth (inverse): the mirrored series
-    is even, so its spectrum is even and only one half is needed. Computed as the FFT of
-    the mirrored series (its even half is exact to rounding)."""
-    n = a.shape[-1]
-    buf = np.empty(a.shape[:-1] + (2 * n - 1,), dtype=a.dtype)
-    buf[..., :n] = a
-    buf[..., n:] = a[..., :0:-1]
-    out = scipy.fft.fft(buf, axis=-1, overwrite_x=True, workers=-1)[..., :n]
+
+def _even_matrix(n: int, scale: float, rdtype) -> np.ndarray:
+    """(n, n) real matrix of the real-even DFT of odd length M = 2 n - 1, first half kept:
+    ``C[k, j] = scale w_j cos(2π k j / M)``, w_0 = 1, w_j = 2 (the argument reduced exactly:
+    k j mod M in integers). ``C @ a`` along time (forward) or depth (inverse, scale 1 / M)
+    is what k-Wave's mirror to M samples, (i)fft and (i)fftshift amount to for the
+    non-negative half."""
+    m = 2 * n - 1
+    k = np.arange(n, dtype=np.int64)
+    C = np.cos((2 * np.pi / m) * (np.outer(k, k) % m))
+    C[:, 1:] *= 2.0
     if scale != 1.0:
-        out *= scale
-    return out
+        C *= scale
+    return C.astype(rdtype)
+
+
+def _mirrored_fft(a: np.ndarray) -> np.ndarray:
+    """The real-even transform of `_even_matrix` (scale 1) along axis 0 of ``a`` (N, cols)
+    complex, as the FFT of the mirrored series of length 2 N - 1 (its even half is exact to
+    rounding): (N, cols), C-contiguous."""
+    n = a.shape[0]
+    buf = np.empty((2 * n - 1,) + a.shape[1:], dtype=a.dtype)
+    buf[:n] = a
+    buf[n:] = a[n - 1 : 0 : -1]
+    return scipy.fft.fft(buf, axis=0, overwrite_x=True, workers=-1)[:n]
+
+
+_BLAS_LOCK = threading.Lock()  # one product section at a time per process (see below)
+_BLAS: list = []  # threadpoolctl's controller of the loaded BLAS libraries, made on first use
+
+
+@contextlib.contextmanager
+def _products_in_threads():
+    """A context giving ``matmul(C, X, out)``: ``out = C @ X`` with the columns of ``X``
+    split over as many threads as BLAS had, each running single-threaded BLAS.
+
+    OpenBLAS's own threads spin for about 0.1 s after a product before they sleep; the
+    compiled kernels and FFTs that follow it here then ran at half speed (the mapping 17 ->
+    34 ms at 256 x 128²). Threads of our own, with BLAS at one thread in them
+    (threadpoolctl), wait for the next product without spinning. BLAS's thread count is
+    process-wide, so product sections take a lock: two at once in one process would restore
+    each other's limit."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    with _BLAS_LOCK:
+        if not _BLAS:
+            from threadpoolctl import ThreadpoolController
+
+            _BLAS.append(ThreadpoolController().select(user_api="blas"))
+        blas = _BLAS[0]
+        parts = max((lib["num_threads"] for lib in blas.info()), default=1)
+        with blas.limit(limits=1), ThreadPoolExecutor(parts) as pool:
+
+            def matmul(C: np.ndarray, X: np.ndarray, out: np.ndarray) -> None:
+                cuts = [X.shape[1] * i // parts for i in range(parts + 1)]
+                done = [pool.submit(np.matmul, C, X[:, c0:c1], out=out[:, c0:c1])
+                        for c0, c1 in zip(cuts, cuts[1:]) if c1 > c0]
+                for d in done:
+                    d.result()
+
+            yield matmul
+
+
+_BLOCK = 8  # columns the mapping takes at a time (8 complex128: two cache lines of a row)
 
 
 @numba.njit(parallel=True, cache=True)
 def _map_columns(P, lat2, w, kz, c, nearest, out):
-    """k-Wave's k-space mapping for the ω >= 0 half, one lateral column per row of P
-    (compiled, in place of numpy fancy indexing): out[j, l] = interp_ω(sf · P[j, :])
-    evaluated at ω' = c sqrt(kz_l² + lat2_j).
+    """k-Wave's k-space mapping for the ω >= 0 half, one lateral column per column of P
+    (n_w, n_cols), time first (compiled, in place of numpy fancy indexing): out[l, j] =
+    interp_ω(sf · P[:, j]) evaluated at ω' = c sqrt(kz_l² + lat2_j).
 
     sf = c² sqrt((ω/c)² - k_lat²) / (2ω) (c/2 at ω = k_lat = 0), zero where |ω| < c|k_lat|;
     linear interpolation or the nearest node (ties to the upper node) on the uniform nodes
     w, located as searchsorted(w, ω', side='right') - 1 clipped to [0, n_w - 2] (k-Wave's
     interp1 on the same nodes); queries above w[-1] give 0."""
-    n_cols, n_w = P.shape
+    n_w, n_cols = P.shape
     n_q = kz.shape[0]
     wmax = w[n_w - 1]
     dw = w[1] - w[0]
-    for j in numba.prange(n_cols):
-        l2 = lat2[j]
-        kl = c * math.sqrt(l2)
-        blk = np.empty(n_w, dtype=P.dtype)
-        for i in range(n_w):
-            wi = w[i]
-            if wi == 0.0 and l2 == 0.0:
-                sf = c / 2.0
-            elif abs(wi) < kl:
-                sf = 0.0
-            else:
-                arg = (wi / c) ** 2 - l2
-                sf = c * c * math.sqrt(arg) / (2.0 * wi) if arg >= 0.0 and wi != 0.0 else 0.0
-            blk[i] = sf * P[j, i]
+    n_blocks = (n_cols + _BLOCK - 1) // _BLOCK
+    for b in numba.prange(n_blocks):  # a block of adjacent columns: whole cache lines a row
+        j0 = b * _BLOCK
+        nb = min(_BLOCK, n_cols - j0)
+        blk = np.empty((n_w, _BLOCK), dtype=P.dtype)
+        for jj in range(nb):
+            l2 = lat2[j0 + jj]
+            kl = c * math.sqrt(l2)
+            for i in range(n_w):
+                wi = w[i]
+                if wi == 0.0 and l2 == 0.0:
+                    sf = c / 2.0
+                elif abs(wi) < kl:
+                    sf = 0.0
+                else:
+                    arg = (wi / c) ** 2 - l2
+                    sf = c * c * math.sqrt(arg) / (2.0 * wi) if arg >= 0.0 and wi != 0.0 else 0.0
+                blk[i, jj] = sf * P[i, j0 + jj]
         for q in range(n_q):
-            wq = c * math.sqrt(kz[q] * kz[q] + l2)
-            if wq > wmax:
-                out[j, q] = 0.0
-                continue
-            i = min(int(wq / dw), n_w - 2)
-            while i > 0 and w[i] > wq:
-                i -= 1
-            while i < n_w - 2 and w[i + 1] <= wq:
-                i += 1
-            if nearest:
-                out[j, q] = blk[i + 1] if (wq - w[i]) >= (w[i + 1] - wq) else blk[i]
-            else:
-                frac = (wq - w[i]) / (w[i + 1] - w[i])
-                out[j, q] = blk[i] * (1.0 - frac) + blk[i + 1] * frac
+            for jj in range(nb):
+                l2 = lat2[j0 + jj]
+                wq = c * math.sqrt(kz[q] * kz[q] + l2)
+                if wq > wmax:
+                    out[q, j0 + jj] = 0.0
+                    continue
+                i = min(int(wq / dw), n_w - 2)
+                while i > 0 and w[i] > wq:
+                    i -= 1
+                while i < n_w - 2 and w[i + 1] <= wq:
+                    i += 1
+                if nearest:
+                    out[q, j0 + jj] = blk[i + 1, jj] if (wq - w[i]) >= (w[i + 1] - wq) else blk[i, jj]
+                else:
+                    frac = (wq - w[i]) / (w[i + 1] - w[i])
+                    out[q, j0 + jj] = blk[i, jj] * (1.0 - frac) + blk[i + 1, jj] * frac
 
 
 def _cubic_block(P_half, w_full, lat2, phase, kx, c):
@@ -154,14 +222,16 @@ def _cubic_block(P_half, w_full, lat2, phase, kx, c):
 
 
 def transform_lengths(data_shape) -> dict[str, tuple[int, ...]]:
-    """The FFT lengths `kspace_line_recon` / `kspace_plane_recon` run for data of a given shape.
+    """The DFT lengths `kspace_line_recon` / `kspace_plane_recon` run for data of a given shape.
 
     These are k-Wave's grids, not rounded to fast lengths: the mirrored length fixes the ω
     and k_z nodes k-Wave interpolates between, and the unpadded lateral grid its lateral
     periodicity, so any other length changes the numbers beyond rounding. An exact DFT of
     these lengths through fast ones (Bluestein's chirp-z: two FFTs at a fast length
     >= 3 N_t - 2) would cost about what pocketfft's own handling costs: 0.75x, 1.06x, 1.08x
-    of it at N_t = 256, 1024, 3519 (per-point FFT timings, issue 20).
+    of it at N_t = 256, 1024, 3519 (per-point FFT timings, issue 20). Up to
+    `MATRIX_MAX_N` samples the temporal and depth DFTs run as matrix products instead
+    (faster than any FFT of these lengths there); the lengths stay the same.
 
     Parameters
     ----------
@@ -202,6 +272,44 @@ def transform_lengths(data_shape) -> dict[str, tuple[int, ...]]:
     return {"lateral": shape[1:], "temporal": (ntm,), "depth": (ntm,)}
 
 
+_CHUNK_BYTES = 8 << 20  # the product path's columns per chunk: 8 MiB of spectrum (2048 at N = 256)
+
+
+def _by_products(a, mapping, ntm, rdtype, progress):
+    """The time -> depth step of `_recon`, in place in ``a`` (N, cols), time first: per
+    chunk of columns the real-even transform along time (a product with `_even_matrix`),
+    the mapping, the transform along depth (a product). Chunks of `_CHUNK_BYTES`: the
+    per-chunk spectra stay a small fraction of the volume, and progress is reported (and a
+    cancel seen) as each ends."""
+    n, n_cols = a.shape
+    forward, inverse = _even_matrix(n, 1.0, rdtype), _even_matrix(n, 1.0 / ntm, rdtype)
+    chunk = max(128, _CHUNK_BYTES // (n * a.itemsize))
+    with _products_in_threads() as matmul:
+        for c0 in range(0, n_cols, chunk):
+            c1 = min(c0 + chunk, n_cols)
+            P = np.empty((n, c1 - c0), dtype=a.dtype)
+            F = np.empty_like(P)
+            matmul(forward, a[:, c0:c1].view(rdtype), P.view(rdtype))
+            mapping(P, c0, c1, F)
+            matmul(inverse, F.view(rdtype), a[:, c0:c1].view(rdtype))
+            if progress is not None:
+                progress(c1 / n_cols)
+
+
+def _by_ffts(a, mapping, ntm, rdtype, progress):
+    """The same step as `_by_products` by FFTs of the mirrored series, in ~32 chunks of
+    columns (the mirrored series stay a small fraction of the volume)."""
+    n, n_cols = a.shape
+    chunk = max(64, -(-n_cols // 32))
+    for c0 in range(0, n_cols, chunk):
+        c1 = min(c0 + chunk, n_cols)
+        F = np.empty((n, c1 - c0), dtype=a.dtype)
+        mapping(_mirrored_fft(a[:, c0:c1]), c0, c1, F)
+        np.multiply(_mirrored_fft(F), 1.0 / ntm, out=a[:, c0:c1])
+        if progress is not None:
+            progress(c1 / n_cols)
+
+
 def _recon(p, dt, c, lateral_d, interp, pos_cond, dtype=np.float64, progress=None):
     """k-Wave's algorithm (module doc) on the symmetries it leaves unused: the data are
     real (lateral rfft) and the mirrored series even (one half of the ω and k_z axes), so
@@ -211,7 +319,6 @@ def _recon(p, dt, c, lateral_d, interp, pos_cond, dtype=np.float64, progress=Non
     if method is None:
         raise ValueError(f"Interp must be one of {sorted(_INTERPS)}, got {interp!r}")
     rdtype = checks.check_dtype(dtype)
-    ctype = np.complex64 if rdtype == np.float32 else np.complex128
     nt = p.shape[0]
     if nt < 2:
         raise ValueError("p needs at least 2 time samples")
@@ -233,32 +340,27 @@ def _recon(p, dt, c, lateral_d, interp, pos_cond, dtype=np.float64, progress=Non
     A = scipy.fft.rfftn(np.asarray(p, dtype=rdtype), axes=lat_axes, workers=-1)
     spec_shape = A.shape
     n_cols = int(np.prod(spec_shape[1:]))
-    cols = np.empty((n_cols, nt), dtype=ctype)  # one lateral column per row: contiguous series
-    transpose(A.reshape(nt, n_cols), cols)
-    del A
+    a = A.reshape(nt, n_cols)  # time first: lateral column j is a[:, j]
     kernel = rising(progress)  # strictly increasing fractions, each step through its span
     if kernel is not None:
         kernel(0.15)
-    columns = span(kernel, 0.15, 0.85)
     kz = np.ascontiguousarray(kx[nt - 1 :], dtype=np.float64)
-    # ~32 chunks of columns: the per-chunk buffers (mirrored series, spectra) stay a
-    # small fraction of the volume while the per-chunk overhead stays negligible
-    chunk = max(64, -(-n_cols // 32))
-    for a in range(0, n_cols, chunk):
-        b = min(a + chunk, n_cols)
-        P = _even_transform(cols[a:b])  # the ω >= 0 half of k-Wave's spectrum
-        if method == "cubic":
-            F = _cubic_block(P.astype(np.complex128), w_full, lat2[a:b], phase[a:b], kx, c)
-        else:
-            F = np.empty_like(P)
-            _map_columns(P, lat2[a:b], w, kz, float(c), method == "nearest", F)
-        cols[a:b] = _even_transform(F, 1.0 / ntm)  # depth: the k_z-even spectrum -> z >= 0
-        if columns is not None:
-            columns(b / n_cols)
-    out = np.empty((nt, n_cols), dtype=ctype)
-    transpose(cols, out)
-    del cols
-    res = irfft_lateral(out.reshape(spec_shape), lat_shape, lat_axes)
+
+    def mapping(P, c0, c1, out):  # k-Wave's k-space mapping of columns c0:c1 (P: their ω >= 0 half)
+        if method != "cubic":
+            _map_columns(P, lat2[c0:c1], w, kz, float(c), method == "nearest", out)
+            return
+        step = max(64, -(-n_cols // 32))  # pchip's buffers: a small fraction of the volume
+        for s0 in range(c0, c1, step):
+            s1 = min(s0 + step, c1)
+            out[:, s0 - c0 : s1 - c0] = _cubic_block(P[:, s0 - c0 : s1 - c0].T.astype(np.complex128), w_full,
+                                                     lat2[s0:s1], phase[s0:s1], kx, c).T
+
+    by = _by_products if nt <= MATRIX_MAX_N else _by_ffts
+    by(a, mapping, ntm, rdtype, span(kernel, 0.15, 0.85))  # in place: A holds the image's k-space
+    del a
+    res = irfft_lateral(A, lat_shape, lat_axes)
+    del A
     res *= 4.0 / c
     if pos_cond:
         np.maximum(res, 0, out=res)

@@ -5,7 +5,7 @@ import h5py
 import numpy as np
 import pytest
 
-from service.recon import kspace_line_recon, kspace_plane_recon, reconstruct_grid
+from service.recon import kspace_line_recon, kspace_plane_recon, kwave, reconstruct_grid
 from tests.recon import kwave_transcription as literal
 
 INTERP = {"starlinear": "*linear", "nearest": "nearest", "cubic": "cubic"}
@@ -53,12 +53,17 @@ def test_ner_agrees_with_kwave_where_interpolation_is_accurate(kwave2d):
     assert cc > 0.8
 
 
+# above kwave.MATRIX_MAX_N time samples the real-even transforms run as FFTs, up to it as products
+_BY_FFT = kwave.MATRIX_MAX_N + 9
+
+
 @pytest.mark.parametrize("interp", ["*nearest", "*linear", "cubic"])
-@pytest.mark.parametrize("shape", [(17, 10, 9), (16, 8, 12), (21, 7, 6), (33, 20), (30, 19)])
+@pytest.mark.parametrize("shape", [(17, 10, 9), (16, 8, 12), (21, 7, 6), (33, 20), (30, 19), (_BY_FFT, 7, 6), (_BY_FFT, 12)])
 def test_kspace_recon_matches_literal_kwave_transcription(shape, interp):
     """The symmetric (rfft, half-spectrum, compiled) implementation gives the literal
-    algorithm's numbers at odd and even sizes, 2-D and 3-D (the stored k-Wave data are
-    2-D with an even sensor count only)."""
+    algorithm's numbers at odd and even sizes, 2-D and 3-D, with its time and depth
+    transforms as matrix products and as FFTs (the stored k-Wave data are 2-D with an even
+    sensor count and 3519 samples only)."""
     p = np.random.default_rng(5).standard_normal(shape)
     if len(shape) == 3:
         out = kspace_plane_recon(p, 1e-4, 1.2e-4, 2e-8, 1500.0, interp=interp, pos_cond=True)
@@ -75,3 +80,15 @@ def test_kspace_line_recon_float32_matches_kwave(kwave2d):
     assert out.dtype == np.float32
     ref = d["recons"]["recon_starlinear_poscond0"]
     assert np.abs(out[: ref.shape[0]] - ref).max() / np.abs(ref).max() <= 1e-5
+
+
+@pytest.mark.parametrize("n_t", [64, _BY_FFT])
+def test_kspace_plane_recon_float32_matches_float64(n_t):
+    """float32 runs its products (sgemm) and FFTs in single precision: the relative error
+    stays at the float32 level for both transforms."""
+    p = np.random.default_rng(7).standard_normal((n_t, 12, 10))
+    for interp in ("*linear", "*nearest"):
+        ref = kspace_plane_recon(p, 1e-4, 1e-4, 2e-8, 1500.0, interp=interp)
+        out = kspace_plane_recon(p.astype(np.float32), 1e-4, 1e-4, 2e-8, 1500.0, interp=interp, dtype=np.float32)
+        assert out.dtype == np.float32
+        assert np.abs(out - ref).max() <= 1e-5 * np.abs(ref).max(), interp
