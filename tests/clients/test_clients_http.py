@@ -350,7 +350,7 @@ BLOCKER = r'''
 import importlib.abc, sys
 BLOCKED = {"numpy", "scipy", "h5py", "pint", "fastapi", "starlette", "uvicorn", "sse_starlette",
            "multipart", "pydantic_settings", "dask", "distributed", "finufft", "numba", "matplotlib",
-           "PIL", "tifffile", "pylops", "pyproximal", "serial", "cobs", "psutil"}
+           "PIL", "tifffile", "pylops", "pyproximal", "threadpoolctl", "serial", "cobs", "psutil"}
 class Block(importlib.abc.MetaPathFinder):
     def find_spec(self, name, path=None, target=None):
         if name.split(".")[0] in BLOCKED:
