@@ -82,23 +82,21 @@ def _pchip_columns(P, w, w_new_cols):
 MATRIX_MAX_N = 400
 
 
-def _even_matrix(n: int, scale: float, rdtype) -> np.ndarray:
-    """(n, n) real matrix of the real-even DFT of odd length M = 2 n - 1, first half kept:
-    ``C[k, j] = scale w_j cos(2π k j / M)``, w_0 = 1, w_j = 2 (the argument reduced exactly:
-    k j mod M in integers). ``C @ a`` along time (forward) or depth (inverse, scale 1 / M)
-    is what k-Wave's mirror to M samples, (i)fft and (i)fftshift amount to for the
-    non-negative half."""
+def _even_matrix(n: int) -> np.ndarray:
+    """(n, n) float64 matrix of the real-even DFT of odd length M = 2 n - 1, first half kept:
+    ``C[k, j] = w_j cos(2π k j / M)``, w_0 = 1, w_j = 2 (the argument reduced exactly: k j
+    mod M in integers). ``C @ a`` along time (forward), or ``C @ a / M`` along depth
+    (inverse), is what k-Wave's mirror to M samples, (i)fft and (i)fftshift amount to for
+    the non-negative half."""
     m = 2 * n - 1
     k = np.arange(n, dtype=np.int64)
     C = np.cos((2 * np.pi / m) * (np.outer(k, k) % m))
     C[:, 1:] *= 2.0
-    if scale != 1.0:
-        C *= scale
-    return C.astype(rdtype)
+    return C
 
 
 def _mirrored_fft(a: np.ndarray) -> np.ndarray:
-    """The real-even transform of `_even_matrix` (scale 1) along axis 0 of ``a`` (N, cols)
+    """The real-even transform of `_even_matrix` along axis 0 of ``a`` (N, cols)
     complex, as the FFT of the mirrored series of length 2 N - 1 (its even half is exact to
     rounding): (N, cols), C-contiguous."""
     n = a.shape[0]
@@ -282,7 +280,8 @@ def _by_products(a, mapping, ntm, rdtype, progress):
     per-chunk spectra stay a small fraction of the volume, and progress is reported (and a
     cancel seen) as each ends."""
     n, n_cols = a.shape
-    forward, inverse = _even_matrix(n, 1.0, rdtype), _even_matrix(n, 1.0 / ntm, rdtype)
+    C = _even_matrix(n)  # the cosines once: the inverse is the same matrix over M
+    forward, inverse = C.astype(rdtype, copy=False), (C * (1.0 / ntm)).astype(rdtype, copy=False)
     chunk = max(128, _CHUNK_BYTES // (n * a.itemsize))
     with _products_in_threads() as matmul:
         for c0 in range(0, n_cols, chunk):

@@ -1,4 +1,8 @@
 """The temporal NUFFT's kernel taps by Horner's rule match the ES kernel formula."""
+import os
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -82,10 +86,6 @@ def test_kernels_give_the_same_bits_compiled_afresh_and_loaded_from_the_cache(tm
     both must give the same result to the bit (the local and the server result compared
     exactly, `tests/service/test_recon_jobs.py`), including where a tap base sits on a
     rounding boundary."""
-    import os
-    import subprocess
-    import sys
-
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
     runs = [subprocess.run([sys.executable, "-c", _KERNEL_RUN], capture_output=True, text=True, env=env, check=True)
             for _ in range(2)]  # the first compiles and writes the cache, the second loads it
