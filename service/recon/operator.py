@@ -447,14 +447,15 @@ class PlanarOperator(pylops.LinearOperator):
             out[rows, oy : oy + n_y] = scipy.fft.rfft(buf, axis=2, workers=-1)
             del buf
             if n_y2 > 1:
-                out[rows] = scipy.fft.fft(out[rows], axis=1, workers=-1, overwrite_x=True)
+                _fft_in_place(out[rows], axis=1)
             self._tick()
         return out
 
     def _lateral_inverse(self, S: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """(m, N_y, N_x//2+1) half spectrum -> the image's (m, n_y, n_x) lateral window of
         its inverse DFT (the transpose of `_lateral_spectrum` up to the DFT's 1/(N_y N_x)):
-        the x transforms run on the n_y rows kept only. Into ``out`` if given (it may be the
+        the x transforms run on the n_y rows kept only. S is consumed (the y transforms run
+        in its memory). Into ``out`` if given (it may be the
         start of S's own memory: a block of rows is read whole before its rows of ``out``
         are written, and a row of ``out``, n_y n_x reals, is shorter than a row of S,
         N_y (N_x//2+1) complex values, so no row of S is written before it is read)."""
@@ -467,7 +468,7 @@ class PlanarOperator(pylops.LinearOperator):
         for rows in self._row_blocks(m):
             block = S[rows]
             if n_y2 > 1:
-                block = scipy.fft.ifft(block, axis=1, workers=-1)[:, oy : oy + n_y]
+                block = scipy.fft.ifft(block, axis=1, workers=-1, overwrite_x=True)[:, oy : oy + n_y]
             out[rows] = scipy.fft.irfft(block, n=n_x2, axis=2, workers=-1)[:, :, ox : ox + n_x]
             del block
             self._tick()
@@ -558,7 +559,8 @@ class PlanarOperator(pylops.LinearOperator):
     def _values_at_nodes(self, T: np.ndarray) -> np.ndarray:
         """Point forward for sensors on working-grid nodes: the inverse lateral DFT of the half
         spectrum T (n_t, N_y, N_x//2+1) (= Re Σ_k G(k) e^{i k·x_m} / (N_x N_y) of the full
-        Hermitian spectrum, exactly), on the rows that hold sensors only; (n_points, n_t)."""
+        Hermitian spectrum, exactly), on the rows that hold sensors only; (n_points, n_t). T
+        is consumed (the y transforms run in its memory)."""
         _, n_y2, n_x2 = self.padded_shape
         assert self._nodes is not None
         rows, row_of, cols = self._nodes
@@ -566,7 +568,7 @@ class PlanarOperator(pylops.LinearOperator):
         for a, b in self._time_batches():
             block = T[a:b]
             if n_y2 > 1:
-                block = scipy.fft.ifft(block, axis=1, workers=-1)[:, rows]
+                block = np.take(scipy.fft.ifft(block, axis=1, workers=-1, overwrite_x=True), rows, axis=1)
             g = scipy.fft.irfft(block, n=n_x2, axis=2, workers=-1)  # (b - a, len(rows), N_x)
             vals[:, a:b] = g[:, row_of, cols].T
             del block, g
@@ -584,10 +586,13 @@ class PlanarOperator(pylops.LinearOperator):
         for a, b in self._time_batches():
             placed = np.zeros((b - a, len(rows), n_x2), dtype=self.dtype)
             placed[:, row_of, cols] = data[:, a:b].T  # distinct nodes (`_lattice_nodes`)
-            H[a:b, rows] = scipy.fft.rfft(placed, axis=2, workers=-1)
+            spectra = scipy.fft.rfft(placed, axis=2, workers=-1)
+            block = H[a:b]
+            for j, row in enumerate(rows):  # row by row: numpy's H[a:b, rows] = took 16x longer
+                block[:, row] = spectra[:, j]
             if n_y2 > 1:
-                H[a:b] = scipy.fft.fft(H[a:b], axis=1, workers=-1, overwrite_x=True)
-            del placed
+                _fft_in_place(block, axis=1)
+            del placed, spectra, block
             self._tick()
         return H
 
@@ -623,6 +628,15 @@ class PlanarOperator(pylops.LinearOperator):
 
     def _rmatvec(self, y):
         return self._apply_adjoint(np.asarray(y, dtype=self.dtype).reshape(self.oshape)).ravel()
+
+
+def _fft_in_place(x: np.ndarray, axis: int) -> None:
+    """x <- its DFT along ``axis`` (complex, a view of a contiguous block of rows). pocketfft
+    transforms such an array in its own memory when allowed to overwrite it; the copy back
+    (x[...] = result: 10 ms of a 512 × 240 × 121 complex64 spectrum) runs only where it did not."""
+    res = scipy.fft.fft(x, axis=axis, workers=-1, overwrite_x=True)
+    if res.ctypes.data != x.ctypes.data or res.strides != x.strides:
+        x[...] = res
 
 
 def _anonymous_pages(nbytes: int) -> mmap.mmap | None:

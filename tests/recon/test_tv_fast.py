@@ -226,3 +226,28 @@ def test_preconditioner_runs_on_fast_lengths_and_is_the_padded_dense_map(shape):
     got = tv._apply_weight(P, x32)
     assert got.dtype == np.float32 and got.shape == shape
     np.testing.assert_allclose(got, (M @ x.ravel()).reshape(shape), atol=1e-5)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_the_dual_waits_at_half_the_bytes_and_comes_back(dtype):
+    """`_store_dual` / `_restore_dual` (the dual between FISTA's iterations): float32 as int16
+    fixed point, round(q · 32767), float64 as float32; back to within half a step of the
+    storage (numpy's own rounding is the oracle) and clipped at ±1 (a projected component
+    may exceed 1 by rounding)."""
+    rng = np.random.default_rng(5)
+    q = rng.uniform(-1, 1, (3, 7, 8, 9)).astype(dtype)
+    q[0, 0, 0, :3] = [1.0, -1.0, 0.0]
+    q[1, 0, 0, 0] = np.nextafter(dtype(1), dtype(2))  # just above 1
+    stored = tv._store_dual(q)
+    assert stored.shape == q.shape and stored.itemsize * 2 == q.itemsize
+    back = tv._restore_dual(stored, dtype)
+    assert back.dtype == dtype and back.shape == q.shape
+    if dtype == np.float32:
+        assert stored.dtype == np.int16
+        want = np.rint(np.clip(q.astype(np.float64), -1, 1) * 32767)
+        assert np.max(np.abs(stored - want)) <= 1  # rounding ties may go either way
+        np.testing.assert_allclose(back, np.clip(q, -1, 1), rtol=0, atol=0.5 / 32767 + 1e-7)
+        assert stored[0, 0, 0, :3].tolist() == [32767, -32767, 0] and stored[1, 0, 0, 0] == 32767
+    else:
+        np.testing.assert_array_equal(stored, q.astype(np.float32))
+        np.testing.assert_array_equal(back, q.astype(np.float32).astype(np.float64))
