@@ -853,21 +853,21 @@ def _restore_dual(stored: np.ndarray, dtype) -> np.ndarray:
 
 @numba.njit(parallel=True, cache=True)
 def _quantise(q, out, scale):
-    """out = round(clip(q, -1, 1) · scale) (flat arrays; ``out`` integer)."""
+    """Fixed point: out = round(clip(q, -1, 1) · scale) (flat arrays; ``out`` integer)."""
     for i in numba.prange(q.size):
         out[i] = math.floor(min(max(q[i], -1.0), 1.0) * scale + 0.5)
 
 
 @numba.njit(parallel=True, cache=True)
 def _dequantise(s, out, inv_scale):
-    """out = s · inv_scale (flat arrays)."""
+    """Fixed point undone: out = s · inv_scale (flat arrays)."""
     for i in numba.prange(s.size):
         out[i] = s[i] * inv_scale
 
 
 @numba.njit(parallel=True, cache=True)
 def _cast(src, out):
-    """out = src, converted to ``out``'s dtype (flat arrays)."""
+    """A parallel copy: out = src, converted to ``out``'s dtype (flat arrays)."""
     for i in numba.prange(src.size):
         out[i] = src[i]
 
