@@ -653,8 +653,8 @@ def tv_memory(image_shape, padded_shape, n_data: int, n_t: int, dtype=np.float64
     The larger of two phases (`service.recon.tv._fista`). While the operator works: the
     solver's 3 image-sized vectors in ``dtype`` (the iterate x, y or the new iterate, the
     last preconditioned gradient; the adjoint writes its output over its k-space, where the
-    system can release the rest) and the TV proximal map's dual (d vectors) at half that
-    precision, beside the operator's working arrays in its working
+    system can release the rest) and the TV proximal map's dual (d vectors) at half those
+    bytes (`service.recon.tv._store_dual`), beside the operator's working arrays in its working
     precision (complex64 for float32, complex128 for float64;
     `service.recon.operator.PlanarOperator`): the image's and the data's k-space in one array,
     max(n_z, n_t) per padded half-spectrum column, beside one chunk of columns in the depth and temporal

@@ -441,11 +441,14 @@ class PlanarOperator(pylops.LinearOperator):
         _, n_y2, n_x2 = self.padded_shape
         _, n_y, n_x = self._vol
         oy, ox = self._off
-        for rows in self._row_blocks(m):
-            buf = np.zeros((rows.stop - rows.start, n_y, n_x2), dtype=self.dtype)
+        blocks = self._row_blocks(m)
+        # one zero-padded buffer for all blocks: each fills the same window (the padding stays
+        # zero), and its pages are touched once (a fresh one per block: 0.12 s at 1024 × 450²)
+        pad = np.zeros((blocks[0].stop - blocks[0].start, n_y, n_x2), dtype=self.dtype)
+        for rows in blocks:
+            buf = pad[: rows.stop - rows.start]
             buf[:, :, ox : ox + n_x] = vol[rows]
             out[rows, oy : oy + n_y] = scipy.fft.rfft(buf, axis=2, workers=-1)
-            del buf
             if n_y2 > 1:
                 _fft_in_place(out[rows], axis=1)
             self._tick()
@@ -583,8 +586,10 @@ class PlanarOperator(pylops.LinearOperator):
         _, n_y2, n_x2 = self.padded_shape
         assert self._nodes is not None
         rows, row_of, cols = self._nodes
+        # one buffer for all batches: each writes the same nodes, the rest stays zero
+        grid = np.zeros((_BATCH, len(rows), n_x2), dtype=self.dtype)
         for a, b in self._time_batches():
-            placed = np.zeros((b - a, len(rows), n_x2), dtype=self.dtype)
+            placed = grid[: b - a]
             placed[:, row_of, cols] = data[:, a:b].T  # distinct nodes (`_lattice_nodes`)
             spectra = scipy.fft.rfft(placed, axis=2, workers=-1)
             block = H[a:b]
@@ -592,7 +597,7 @@ class PlanarOperator(pylops.LinearOperator):
                 block[:, row] = spectra[:, j]
             if n_y2 > 1:
                 _fft_in_place(block, axis=1)
-            del placed, spectra, block
+            del spectra, block
             self._tick()
         return H
 

@@ -61,8 +61,8 @@ the automatic λ, A of the warm start — 3 pairs before the first iteration —
 every iteration and ``debias``).
 
 Memory: the TV part works in place (`_tv_prox`'s compiled sweeps step the dual in place;
-`_tv_norm` needs no work array), the dual waits between iterations at half the working
-precision, the gradient step is made in y's place, and the preconditioner P is computed
+`_tv_norm` needs no work array), the dual waits between iterations in half the working
+precision's bytes (int16 fixed point for float32, `_store_dual`), the gradient step is made in y's place, and the preconditioner P is computed
 voxel by voxel where it is applied (no image of its own), so that while the operator works
 the solver holds 3 images and the dual's d/2 (`_fista`; `service.recon.checks.tv_memory`);
 the operator's image and data k-space share one array
@@ -777,7 +777,7 @@ def _fista(forward, G, g, start, lam, L, positivity, max_iter, tol, started, tim
         return 0.5 * residual(Ax_) ** 2 + (lam * _tv_norm(x_) if lam > 0 else 0.0)
 
     J_hist = [objective(Ax, x)]
-    stored = None  # the proximal map's dual between calls, at half precision
+    stored = None  # the proximal map's dual between calls, in half the bytes (`_store_dual`)
     change, it, stop_reason = float("nan"), 0, "iterations"
     for it in range(1, max_iter + 1):
         Gy = G(np.subtract(Ay, g, dtype=Ay.dtype))  # the residual in the working dtype (B's input)
