@@ -63,10 +63,10 @@ every iteration and ``debias``).
 Memory: the TV part works in place (`_tv_prox`'s compiled sweeps step the dual in place;
 `_tv_norm` needs no work array), the dual waits between iterations in half the working
 precision's bytes (int16 fixed point for float32, `_store_dual`), the gradient step is made
-in y's place, and the preconditioner P is computed voxel by voxel where it is applied (no image of its own), so that while the operator works
-the solver holds 3 images and the dual's d/2 (`_fista`; `service.recon.checks.tv_memory`);
-the operator's image and data k-space share one array
-(`service.recon.operator.PlanarOperator`).
+in y's place, and the preconditioner P is computed voxel by voxel where it is applied (no
+image of its own), so that while the operator works the solver holds 3 images and the
+dual's d/2 (`_fista`; `service.recon.checks.tv_memory`); the operator's image and data
+k-space share one array (`service.recon.operator.PlanarOperator`).
 
 Automatic λ (``lam=None``, the default): λ = ‖P Aᵀ n̂‖_rms, the RMS over the image of the
 preconditioned adjoint of one seeded white-noise realisation n̂ of the estimated noise
@@ -758,8 +758,7 @@ def _fista(forward, G, g, start, lam, L, positivity, max_iter, tol, started, tim
 
     Memory (the proximal map's dual is d = 2 or 3 images, kept between calls at half the
     working precision's bytes, `_store_dual`: |dual| <= 1, so a float32 warm start keeps
-    1.5e-5): while A
-    works, 3 images (x, the new iterate, the last G(A y − g)) and d/2; while G works, 3 (x,
+    1.5e-5): while A works, 3 images (x, the new iterate, the last G(A y − g)) and d/2; while G works, 3 (x,
     y, the last G(A y − g)) and d/2 beside G's output; while the proximal map works, 3 (x,
     the gradient step made in y's place, G(A y − g)) and d (its dual at full precision),
     then one more for the new iterate. Everything that needs y after its gradient step (the
