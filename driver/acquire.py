@@ -6,13 +6,13 @@ interrupted scan: only the points not yet complete are acquired) and runs
 """
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 __all__ = ["software_version", "acquire"]
 
-_VERSION: list[str] = []  # the version found by the first call: this process's code
 
-
+@functools.cache
 def software_version() -> str:
     """The installed fpscan version (``0+unknown`` when not installed).
 
@@ -20,12 +20,6 @@ def software_version() -> str:
     finds, without its import time, which would double ``fpscan --version``'s); falls back
     to ``importlib.metadata``. Looked up once a process (listing ``sys.path`` took 4 ms
     of every result file's write): the version of the code this process runs."""
-    if not _VERSION:
-        _VERSION.append(_installed_version())
-    return _VERSION[0]
-
-
-def _installed_version() -> str:
     import os
     import sys
 

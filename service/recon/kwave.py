@@ -23,6 +23,7 @@ odd lengths there), FFTs of the mirrored series above.
 from __future__ import annotations
 
 import contextlib
+import functools
 import math
 import threading
 
@@ -107,7 +108,14 @@ def _mirrored_fft(a: np.ndarray) -> np.ndarray:
 
 
 _BLAS_LOCK = threading.Lock()  # one product section at a time per process (see below)
-_BLAS: list = []  # threadpoolctl's controller of the loaded BLAS libraries, made on first use
+
+
+@functools.cache
+def _blas():
+    """The controller (threadpoolctl) of the loaded BLAS libraries, made on first use."""
+    from threadpoolctl import ThreadpoolController
+
+    return ThreadpoolController().select(user_api="blas")
 
 
 @contextlib.contextmanager
@@ -124,11 +132,7 @@ def _products_in_threads():
     from concurrent.futures import ThreadPoolExecutor
 
     with _BLAS_LOCK:
-        if not _BLAS:
-            from threadpoolctl import ThreadpoolController
-
-            _BLAS.append(ThreadpoolController().select(user_api="blas"))
-        blas = _BLAS[0]
+        blas = _blas()
         parts = max((lib["num_threads"] for lib in blas.info()), default=1)
         with blas.limit(limits=1), ThreadPoolExecutor(parts) as pool:
 
