@@ -10,6 +10,8 @@ dt = pitch / c) with seeded white noise ``--snr`` dB below the signal, this prin
   converged, the stop reason, the residual against the noise share;
 - CC with the true p0 of NEDNER and tv, and their least-squares amplitudes (argmin_a
   ‖img − a p0‖), with ``--debias`` also tv's after the least-squares refit;
+- the automatic λ over the image's noise level and the warm start's discrepancy D₀ that
+  sets it (`service.recon.tv`, module doc);
 - with ``--sweep``, tv's CC at λ ×1/8 … ×8 of the automatic one, the best factor and the CC
   lost at the automatic λ (issue 19, item 3: ≤ 0.01; docs/results.md's table).
 
@@ -89,6 +91,7 @@ def run(kind: str, dims: int, snr_db: float, debias: bool, points: int = 160, sw
     p = tv.params
     where = "" if dims == 2 else f" {len(alines)} points"
     row = (f"{dims}-D {kind:7s}{where} {snr_db:4.0f} dB  NEDNER {t_ned:6.3f} s  tv {t_tv:6.2f} s  tv/NEDNER {t_tv / t_ned:6.0f}"
+           f"  λ {p['lam_factor']:.2f} x the noise level (warm start's discrepancy {p['warm_discrepancy']:.1f})"
            f"  iterations {p['iterations']:3d}  pairs {p['operator_pairs']:5.1f}  converged {p['converged']!s:5s}"
            f" ({p['stop_reason']})  residual {p['residual']:.3f} (noise {p['noise_share']:.3f})"
            f"  CC NEDNER {correlation_coefficient(ned, p0):.4f} tv {correlation_coefficient(tv.p0, p0):.4f}"

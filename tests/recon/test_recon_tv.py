@@ -137,9 +137,10 @@ def test_automatic_lambda_is_within_0_01_cc_of_the_best_of_a_sweep(tree_2d):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="issue 19 item 3 not met on this 3 % equi-steradian mask (53 of 1600 "
-                   "sensors): the best λ is 4-8x the automatic one (CC 0.980 against 0.912 at the default rule)")
 def test_automatic_lambda_is_within_0_01_cc_of_the_best_of_a_sweep_3d(balls_3d):
+    """Issue 19 item 3 on a 3 % equi-steradian mask (53 of 1600 sensors), where the image's
+    noise level alone was 4-8x too weak (CC 0.912 against 0.980): the warm start's
+    discrepancy raises it (service.recon.tv, module doc)."""
     b = balls_3d
     auto = b.get("auto") or _tv_3d(b)
     lam = auto.params["lam"]
@@ -148,6 +149,27 @@ def test_automatic_lambda_is_within_0_01_cc_of_the_best_of_a_sweep_3d(balls_3d):
     ccs = [correlation_coefficient((auto if f == 1.0 else _tv_3d(b, lam=f * lam)).p0, b["p0"], b["roi"])
            for f in factors]
     assert ccs[2] >= max(ccs) - 0.01, dict(zip(factors, ccs))
+
+
+def test_the_automatic_lambda_reads_the_warm_starts_discrepancy(balls_3d):
+    """D₀ = ‖A x₀ − g‖ / (σ̂ √N) of the NEDNER warm start (p0 >= 0), A the direct-sum forward
+    model (`forward_points`), is what tv records and raises λ by; on this 3 % mask the warm
+    start misses the data by far more than the noise, so λ is several image noise levels."""
+    from driver.physics.forward import forward_points
+    from service.recon.tv import _LAM_KNEE, _LAM_POWER
+
+    b = balls_3d
+    auto = b.get("auto") or _tv_3d(b)
+    g = b["alines"]
+    x = b["x"]
+    warm = reconstruct_points(g, b["pos"], DT, C, weights=b["w"], grid=(x, x), n_z=b["n_z"]).p0
+    missed = forward_points(np.maximum(warm, 0), x[1] - x[0], DZ, b["pos"], DT, g.shape[1], C) - g
+    d0 = float(np.linalg.norm(missed)) / (noise_sigma(g, 1) * np.sqrt(g.size))
+    p = auto.params
+    assert p["warm_discrepancy"] == pytest.approx(d0, rel=2e-3)
+    assert d0 > 2 * _LAM_KNEE
+    assert p["lam_factor"] == pytest.approx((d0 / _LAM_KNEE) ** _LAM_POWER, rel=2e-3)
+    assert p["lam"] == pytest.approx(p["lam_factor"] * p["image_noise"], rel=1e-6)
 
 
 def test_memory_estimate_admits_by_method():

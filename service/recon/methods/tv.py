@@ -78,7 +78,7 @@ class Options(DepthOptions, MethodOptions, NufftOptions):
     positivity: Flag("positivity") = Field(True, description="constrain p0 >= 0")  # type: ignore[valid-type]
     lam: Lam = Field(None, description="TV weight λ in the data's units",
                      json_schema_extra={"unit": "data units", "flag": "--lambda",
-                                        "derived": "from the estimated noise level"})
+                                        "derived": "from the noise level, raised on sparse masks"})
     iterations: Iterations = Field(DEFAULT_MAX_ITER, description="maximum iterations of the solver",
                                    json_schema_extra={"unit": "1"})
     tol: Tol = Field(DEFAULT_TOL, description="stopping threshold: stop when the objective's mean decrease "
