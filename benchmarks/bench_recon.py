@@ -130,7 +130,8 @@ def _run_model(method, n_t, n_y, n_x, repeat, queue, max_iter=None):
         t = time.perf_counter() - t0
         note = (f"{len(pos)} sensors ({kind}), {img.params['iterations']} iterations, "
                 f"{img.params['stop_reason']}, "
-                f"λ = {img.params['lam']:.3g}, (peak - RSS before) / input = "
+                f"λ = {img.params['lam']:.3g} ({img.params['lam_factor']:.2f} x the noise level), "
+                f"(peak - RSS before) / input = "
                 f"{(_peak() - base) / (4 * n_t * n_y * n_x):.1f}")
     peak = _peak()
     queue.put((t, t_ner, peak, note))
