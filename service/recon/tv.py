@@ -400,12 +400,7 @@ def reconstruct_tv(
                                     / noise_image.size)  # accumulated in float64
     del noise_image
     auto = lam is None
-    noise_norm = sigma * math.sqrt(g.size)
-    warm_discrepancy = [math.nan]
-
-    def lam_rule(start_residual: float) -> float:  # the automatic λ from ‖A x₀ − g‖ (module doc)
-        warm_discrepancy[0] = start_residual / noise_norm if noise_norm > 0 else math.inf
-        return image_noise * _lam_factor(warm_discrepancy[0])
+    rule = _DiscrepancyRule(image_noise, sigma * math.sqrt(g.size))
     x = np.ascontiguousarray(warm.p0, dtype=rdtype)
     if positivity:
         np.maximum(x, 0, out=x)
@@ -416,7 +411,7 @@ def reconstruct_tv(
 
     first = [x]  # handed over: _fista reuses its memory, and this frame keeps no reference
     del x
-    x, it, stop_reason, change, Ax, L, lam = _fista(forward, B, g, first, lam_rule if lam is None else lam, L,
+    x, it, stop_reason, change, Ax, L, lam = _fista(forward, B, g, first, rule if lam is None else lam, L,
                                                     positivity, max_iter, tol, started, time_limit, report,
                                                     residual, poll=report.poll)
     debiased = False
@@ -425,14 +420,13 @@ def reconstruct_tv(
         first = [x]
         del x
         x, _, _, _, Ax, L, _ = _fista(forward, B, g, first, 0.0, L, True, _DEBIAS_ITER, 0.0, started,
-                                         time_limit, None, residual, support=support, poll=report.poll)
+                                      time_limit, None, residual, support=support, poll=report.poll)
         debiased = True
     p0 = x.astype(rdtype, copy=False)
     res = Ax - g
     params = dict(warm_params)
     params.update(method="tv", warm_start=warm_params["method"], lam=float(lam), lam_auto=bool(auto),
-                  lam_factor=float(lam) / image_noise if auto and image_noise > 0 else None,
-                  warm_discrepancy=warm_discrepancy[0] if math.isfinite(warm_discrepancy[0]) else None,
+                  lam_factor=rule.factor if auto else None, warm_discrepancy=rule.warm_discrepancy,
                   noise_sigma=sigma, image_noise=image_noise, noise_share=noise_share, iterations=it,
                   max_iter=max_iter, tol=tol, dtype=rdtype.name,
                   residual=float(np.linalg.norm(res) / max(gw_norm, 1e-300)),
@@ -842,13 +836,23 @@ def _fista(forward, G, g, start, lam, L, positivity, max_iter, tol, started, tim
     return x, it, stop_reason, float(change), Ax, L, lam
 
 
-def _lam_factor(warm_discrepancy: float) -> float:
-    """The automatic λ over the image's noise level: max(1, (D₀ / `_LAM_KNEE`) ** `_LAM_POWER`)
-    for the warm start's discrepancy D₀ = ‖A x₀ − g‖ / (σ̂ √N) (module doc); 1 where D₀ is
-    not finite (no noise estimate)."""
-    if not math.isfinite(warm_discrepancy):
-        return 1.0
-    return max(1.0, (warm_discrepancy / _LAM_KNEE) ** _LAM_POWER)
+class _DiscrepancyRule:
+    """The automatic λ as a rule of the warm start's residual r₀ = ‖A x₀ − g‖ (module doc):
+    ``rule(r₀)`` = s · max(1, (D₀ / `_LAM_KNEE`) ** `_LAM_POWER`), D₀ = r₀ / (σ̂ √N), for
+    the image's noise level s and the noise's norm σ̂ √N. After the call ``factor`` is λ / s
+    and ``warm_discrepancy`` D₀ (None while unknown, or without a noise estimate: then the
+    factor is 1)."""
+
+    def __init__(self, image_noise: float, noise_norm: float):
+        self.image_noise, self.noise_norm = image_noise, noise_norm
+        self.factor: float = 1.0
+        self.warm_discrepancy: float | None = None
+
+    def __call__(self, start_residual: float) -> float:
+        if self.noise_norm > 0 and math.isfinite(start_residual / self.noise_norm):
+            d0 = start_residual / self.noise_norm
+            self.warm_discrepancy, self.factor = d0, max(1.0, (d0 / _LAM_KNEE) ** _LAM_POWER)
+        return self.image_noise * self.factor
 
 
 #: the fixed-point scale of a float32 dual between calls (`_store_dual`)
