@@ -4,6 +4,8 @@ sweep, float32, progress/cancel and bad input. Data are exact forward-model data
 (`forward_grid`) with seeded white noise 30 dB below the signal."""
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -139,8 +141,8 @@ def test_automatic_lambda_is_within_0_01_cc_of_the_best_of_a_sweep(tree_2d):
 @pytest.mark.slow
 def test_automatic_lambda_is_within_0_01_cc_of_the_best_of_a_sweep_3d(balls_3d):
     """Issue 19 item 3 on a 3 % equi-steradian mask (53 of 1600 sensors), where the image's
-    noise level alone was 4-8x too weak (CC 0.912 against 0.980): the warm start's
-    discrepancy raises it (service.recon.tv, module doc)."""
+    noise level alone was too weak (CC 0.953 against 0.979 at the best λ of a sweep): the
+    warm start's discrepancy raises it (service.recon.tv, module doc)."""
     b = balls_3d
     auto = b.get("auto") or _tv_3d(b)
     lam = auto.params["lam"]
@@ -193,7 +195,10 @@ def test_progress_every_iteration_and_cancel():
     img = reconstruct_tv(g, DT, C, dx=2 * DZ, n_z=6, max_iter=4, tol=0, progress=lambda f, s: seen.append((f, s)))
     fractions = [f for f, _ in seen]
     assert img.params["iterations"] == 4 and fractions == sorted(fractions) and fractions[-1] == 1.0
-    assert [s for _, s in seen if s.startswith("iteration")] == [f"iteration {k}/4" for k in range(1, 5)]
+    # a step that outlasts the poll interval (a loaded machine, kernels compiling) hears its
+    # report again (the same fraction and stage, for cancel): one entry per report here
+    reports = [k for k, _ in itertools.groupby(seen)]
+    assert [s for _, s in reports if s.startswith("iteration")] == [f"iteration {k}/4" for k in range(1, 5)]
 
     class Stop(Exception):
         pass
