@@ -91,7 +91,8 @@ def run(kind: str, dims: int, snr_db: float, debias: bool, points: int = 160, sw
     p = tv.params
     where = "" if dims == 2 else f" {len(alines)} points"
     row = (f"{dims}-D {kind:7s}{where} {snr_db:4.0f} dB  NEDNER {t_ned:6.3f} s  tv {t_tv:6.2f} s  tv/NEDNER {t_tv / t_ned:6.0f}"
-           f"  λ {p['lam_factor']:.2f} x the noise level (warm start's discrepancy {p['warm_discrepancy']:.1f})"
+           f"  λ {p['lam_factor']:.2f} x the noise level"
+           f" (warm start's discrepancy {p['warm_discrepancy']:.1f})"
            f"  iterations {p['iterations']:3d}  pairs {p['operator_pairs']:5.1f}  converged {p['converged']!s:5s}"
            f" ({p['stop_reason']})  residual {p['residual']:.3f} (noise {p['noise_share']:.3f})"
            f"  CC NEDNER {correlation_coefficient(ned, p0):.4f} tv {correlation_coefficient(tv.p0, p0):.4f}"

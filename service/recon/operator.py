@@ -586,9 +586,10 @@ class PlanarOperator(pylops.LinearOperator):
         _, n_y2, n_x2 = self.padded_shape
         assert self._nodes is not None
         rows, row_of, cols = self._nodes
+        batches = self._time_batches()
         # one buffer for all batches: each writes the same nodes, the rest stays zero
-        grid = np.zeros((_BATCH, len(rows), n_x2), dtype=self.dtype)
-        for a, b in self._time_batches():
+        grid = np.zeros((batches[0][1] - batches[0][0], len(rows), n_x2), dtype=self.dtype)
+        for a, b in batches:
             placed = grid[: b - a]
             placed[:, row_of, cols] = data[:, a:b].T  # distinct nodes (`_lattice_nodes`)
             spectra = scipy.fft.rfft(placed, axis=2, workers=-1)

@@ -849,8 +849,8 @@ class _DiscrepancyRule:
         self.warm_discrepancy: float | None = None
 
     def __call__(self, start_residual: float) -> float:
-        if self.noise_norm > 0 and math.isfinite(start_residual / self.noise_norm):
-            d0 = start_residual / self.noise_norm
+        d0 = start_residual / self.noise_norm if self.noise_norm > 0 else math.inf
+        if math.isfinite(d0):
             self.warm_discrepancy, self.factor = d0, max(1.0, (d0 / _LAM_KNEE) ** _LAM_POWER)
         return self.image_noise * self.factor
 
