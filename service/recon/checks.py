@@ -330,8 +330,9 @@ def check_tol(tol) -> float:
     Parameters
     ----------
     tol : float
-        Stop when the objective's mean decrease over the last 3 iterations is below ``tol``
-        × its decrease since the warm start (`service.recon.tv`); 0: run every iteration.
+        Stop when the image's relative change per iteration, ‖x_k − x_{k−1}‖ / ‖x_k‖, has
+        stayed below ``tol`` for the last 3 iterations (`service.recon.tv`); 0: run every
+        iteration.
 
     Returns
     -------

@@ -27,11 +27,11 @@ LAM_RANGE = (0.0, 1e30)
 ITERATIONS_RANGE = (1, 100000)
 #: wall-time limit of the model-based solver, s: (0, max]
 TIME_LIMIT_MAX = 7 * 86400.0
-#: the model-based solver's stopping threshold (its objective's last decrease over its
-#: decrease since the warm start; 0: run every iteration), inclusive
+#: the model-based solver's stopping threshold (the iterate's relative change per iteration,
+#: the largest of the last 3; 0: run every iteration), inclusive
 TOL_RANGE = (0.0, 0.5)
 #: the stopping threshold used when none is asked for
-DEFAULT_TOL = 1e-3
+DEFAULT_TOL = 5e-3
 
 #: the working and output precision used when none is asked for (every method, every caller)
 DEFAULT_DTYPE: Final = "float32"
@@ -42,7 +42,7 @@ KWAVE_INTERPS = ("*nearest", "nearest", "*linear", "linear", "*cubic", "cubic")
 #: NUFFT tolerance used when none is asked for
 DEFAULT_EPS = 1e-6
 #: most iterations of the model-based solver when none are asked for
-DEFAULT_MAX_ITER = 60
+DEFAULT_MAX_ITER = 100
 #: default wall-time limit of one model-based reconstruction, s (the server's setting
 #: ``tv_time_limit_s`` caps it there)
 DEFAULT_TIME_LIMIT = 3600.0

@@ -3,8 +3,8 @@
 seeded white noise 20/30/40 dB below the signal; oracles the true p0 (CC, least-squares
 amplitude) and, for the branch contrast, the NEDNER image of the noise alone.
 
-- the default stopping rule (objective) is met within 30 operator pairs, and the result is
-  within 0.005 CC of an 80-iteration run;
+- the default stopping rule (the image's change) is met, and the result is within 0.005 CC
+  of a 150-iteration run, in 2-D and 3-D; within 30 operator pairs is not (a strict xfail);
 - the automatic λ is within 0.01 CC of the best of a sweep ×1/8 … ×8 (default suite: blobs
   and vessels at 30 dB; 20 and 40 dB and the 3-D cases, 24 x 40 x 40 voxels on a 10 %
   equi-steradian mask, are marked slow);
@@ -124,19 +124,31 @@ def test_vessel_phantom_is_a_tree_of_tubes_1_to_4_voxels_wide():
         vessel_phantom((8, 20))
 
 
-def test_the_default_rule_converges_within_30_operator_pairs():
-    case = _case("vessels", 30)
+@pytest.mark.parametrize("dims", [2, 3])
+def test_the_default_rule_stops_where_the_image_has_converged(dims):
+    """The rule on the image's change: the result is within 0.005 CC of a 150-iteration run.
+    The objective's rule (until 2026-11-24: its last decrease below 1e-3 of its decrease
+    since the warm start) stopped the 3-D case at 20 iterations, 0.958 against 0.978 after
+    100."""
+    case = _case("vessels", 30, dims)
     rec = _tv(case)
     p = rec.params
     assert p["stop_reason"] == "converged" and p["converged"] is True, p
-    assert p["operator_pairs"] <= 30 and p["iterations"] <= p["operator_pairs"], p
-    assert 0 <= p["objective_change"] < p["tol"]
+    assert p["iterations"] < p["max_iter"] and p["iterations"] <= p["operator_pairs"], p
+    assert 0 <= p["iterate_change"] < p["tol"]
     assert p["lam_auto"] and p["lam"] > 0 and p["noise_sigma"] > 0 and p["image_noise"] > 0
     assert p["residual"] < 1.5 * p["noise_share"]  # near the discrepancy principle's level
-    longer = _tv(case, max_iter=80, tol=0.0)
-    assert longer.params["stop_reason"] == "iterations" and longer.params["iterations"] == 80
+    longer = _tv(case, max_iter=150, tol=0.0)
+    assert longer.params["stop_reason"] == "iterations" and longer.params["iterations"] == 150
     assert _cc(rec.p0, case) >= _cc(longer.p0, case) - 0.005
     assert _cc(rec.p0, case) > _cc(_nedner(case, case["alines"]), case) + 0.05
+
+
+@pytest.mark.xfail(strict=True, reason="issue 19 item 2, not met: converged by the rule on the image, tv "
+                   "takes 28-33 iterations in 2-D (36 pairs here) and 29-78 on 3-D sparse masks")
+def test_the_default_rule_converges_within_30_operator_pairs():
+    p = _tv(_case("vessels", 30)).params
+    assert p["stop_reason"] == "converged" and p["operator_pairs"] <= 30, p
 
 
 @pytest.mark.parametrize(("kind", "snr_db", "dims"), [

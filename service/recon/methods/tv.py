@@ -78,11 +78,11 @@ class Options(DepthOptions, MethodOptions, NufftOptions):
     positivity: Flag("positivity") = Field(True, description="constrain p0 >= 0")  # type: ignore[valid-type]
     lam: Lam = Field(None, description="TV weight λ in the data's units",
                      json_schema_extra={"unit": "data units", "flag": "--lambda",
-                                        "derived": "from the noise level, raised on sparse masks"})
+                                        "derived": "from the noise level and the warm start's misfit"})
     iterations: Iterations = Field(DEFAULT_MAX_ITER, description="maximum iterations of the solver",
                                    json_schema_extra={"unit": "1"})
-    tol: Tol = Field(DEFAULT_TOL, description="stopping threshold: stop when the objective's mean decrease "
-                     "over the last 3 iterations is below tol times its decrease since the warm start "
+    tol: Tol = Field(DEFAULT_TOL, description="stopping threshold: stop when the image's relative change "
+                     "per iteration, ‖x_k − x_k−1‖ / ‖x_k‖, stays below tol for 3 iterations "
                      "(0: run every iteration)", json_schema_extra={"unit": "1"})
     time_limit: TimeLimit = Field(DEFAULT_TIME_LIMIT, description="wall-time limit of the solver (the server's "
                                   "setting tv_time_limit_s caps it): when reached the result says converged false, "
