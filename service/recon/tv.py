@@ -62,7 +62,7 @@ automatic λ, A of the warm start — 3 pairs before the first iteration —, ev
 ``debias``). Until 2026-11-24 the rule was on the objective (its mean decrease over the
 last 3 iterations below 1e-3 of its decrease since the warm start). It stopped after 17-29
 iterations while the image was still changing: on 3 % equi-steradian masks in 3-D the CC
-with the true p0 rose by another 0.02-0.10 on the way to the minimiser (0.872 → 0.938 on the
+with the true p0 rose by another 0.02-0.10 on the way to the minimiser (0.872 → 0.939 on the
 vessel tree at 30 dB), because J is flat along the directions the sparse data leave to TV.
 On 30 cases (docs/results.md, "When tv has converged") the rule on the image stops within
 0.007 CC of the CC after 100 iterations, after 29-65 iterations (48 on average).
@@ -90,7 +90,8 @@ measures them — about 2-10 where the warm start fits the data to a few noise n
 power 0.25 are calibrated at the stopping rule's default, on 30 cases: 3-D balls and vessel
 trees on equi-steradian masks of 3-10 % of a 40 × 40 lattice at two lateral pitches and
 2-D lines of 24 sensors, 20-40 dB (docs/results.md, "When tv has converged"), where λ lands
-within 0.007 CC of the best of a ×1/8 … ×8 sweep. (The rule before, s · max(1, (D₀ /
+within 0.007 CC of the best of a ×1/8 … ×8 sweep (within 0.008 on 20 cases the fit never
+saw). (The rule before, s · max(1, (D₀ /
 9.5)^0.75), was calibrated on images the objective's rule had stopped early; on converged
 images it was too strong for vessels, by up to 0.06 CC.) ``params`` return λ, s
 (``image_noise``), D₀ (``warm_discrepancy``), the factor (``lam_factor``), σ̂ and the
