@@ -91,9 +91,9 @@ power 0.25 are calibrated at the stopping rule's default, on 30 cases: 3-D balls
 trees on equi-steradian masks of 3-10 % of a 40 × 40 lattice at two lateral pitches and
 2-D lines of 24 sensors, 20-40 dB (docs/results.md, "When tv has converged"), where λ lands
 within 0.007 CC of the best of a ×1/8 … ×8 sweep (within 0.008 on 20 cases the fit never
-saw). (The rule before, s · max(1, (D₀ /
-9.5)^0.75), was calibrated on images the objective's rule had stopped early; on converged
-images it was too strong for vessels, by up to 0.06 CC.) ``params`` return λ, s
+saw). (The rule before, s · max(1, (D₀ / 9.5)^0.75), was calibrated on images the
+objective's rule had stopped early; on converged images it was too strong for vessels, by
+up to 0.06 CC.) ``params`` return λ, s
 (``image_noise``), D₀ (``warm_discrepancy``), the factor (``lam_factor``), σ̂ and the
 data's noise share (``noise_share`` = σ̂ √N / ‖g‖, to compare with ``residual`` = ‖A p0 −
 g‖ / ‖g‖: the discrepancy principle).
@@ -106,6 +106,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections import deque
 from typing import Any, NamedTuple
 
 import numba
@@ -802,7 +803,7 @@ def _fista(forward, G, g, start, lam, L, positivity, max_iter, tol, started, tim
         return 0.5 * residual(Ax_) ** 2 + (lam * _tv_norm(x_) if lam > 0 else 0.0)
 
     J_prev = objective(Ax, x)  # the restart test's
-    steps: list[float] = []  # ‖x_k − x_{k−1}‖ / ‖x_k‖, the stopping rule's measure
+    steps: deque[float] = deque(maxlen=_WINDOW)  # ‖x_k − x_{k−1}‖ / ‖x_k‖ of the last iterations
     stored = None  # the proximal map's dual between calls, in half the bytes (`_store_dual`)
     change, it, stop_reason = float("nan"), 0, "iterations"
     for it in range(1, max_iter + 1):
@@ -835,8 +836,8 @@ def _fista(forward, G, g, start, lam, L, positivity, max_iter, tol, started, tim
         x, Ax = xn, Axn
         J_prev = J
         steps.append(math.sqrt(bb / nn) if nn > 0 else (0.0 if bb == 0 else math.inf))
-        if len(steps) >= _WINDOW:
-            change = max(steps[-_WINDOW:])
+        if len(steps) == _WINDOW:
+            change = max(steps)
         elapsed = time.monotonic() - started
         if iterations is not None:
             iterations(max(it / max_iter, elapsed / time_limit), f"iteration {it}/{max_iter}")
