@@ -16,7 +16,6 @@ owner is gone.
 """
 from __future__ import annotations
 
-import json
 import logging
 import shutil
 import time
@@ -29,7 +28,7 @@ from service.jobs.dispatcher import START, WAIT, Dispatcher, Verdict
 from service.jobs.executors import WorkerDied
 from service.jobs.lifecycle import apply_retention
 from service.jobs.store import JobStore
-from service.jobs.work import run_reconstruction
+from service.jobs.work import ProgressLog, run_reconstruction
 from service.names import code_names, person_names
 from service.pipeline import Cancelled
 
@@ -200,20 +199,20 @@ class ReconQueue:
 
     def _wait(self, jid: str, future, progress_path: Path, cancel_path: Path):
         """The job's result; meanwhile renew its lease, turn the worker's stage reports
-        (:func:`service.jobs.work.report_stage`) into progress events and, once the job's
+        (:func:`service.jobs.work.report_stage`, read with :class:`ProgressLog`) into
+        progress events, the last ones once the worker has returned, and, once the job's
         cancellation is requested, create ``cancel_path`` (the worker's ``should_stop``)."""
-        last, beat = None, time.monotonic()
+        stages, beat = ProgressLog(progress_path), time.monotonic()
         while True:
             try:
-                return future.result(timeout=0.25)
+                result = future.result(timeout=0.25)
             except TimeoutError:
                 pass
-            try:
-                stage = json.loads(progress_path.read_text())
-            except (OSError, ValueError):
-                stage = None
-            if stage and stage != last:
-                last = stage
+            else:
+                for stage in stages.new():
+                    self.store.update_progress(jid, stage)
+                return result
+            for stage in stages.new():
                 self.store.update_progress(jid, stage)
             if not cancel_path.exists() and (self.store.get(jid) or {}).get("cancel_requested"):
                 try:

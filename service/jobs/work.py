@@ -37,7 +37,7 @@ from driver.constants import C_DEFAULT
 from service.progress import Progress, span
 
 __all__ = [
-    "INPUT_FORMATS", "load_inputs", "report_stage", "progress_file", "check_memory_limit", "ADDRESS_SPACE_BASE",
+    "INPUT_FORMATS", "load_inputs", "report_stage", "progress_file", "ProgressLog", "check_memory_limit", "ADDRESS_SPACE_BASE",
     "address_space_limit", "memory_bounded", "run_reconstruction", "run_unmix", "worker_pid", "warm_up",
     "JobGate", "JOB_GATE", "WARM_QUIET_S",
 ]
@@ -58,29 +58,83 @@ def load_inputs(spec_input: dict) -> list:
 
 
 def report_stage(path: str | None, stage: str, fraction: float) -> None:
-    """Write the job's current stage to its progress file (``{"stage", "fraction"}``,
-    replaced atomically); the server's job thread turns changes into progress events."""
+    """Append the job's current stage to its progress file ``path``: one JSON line
+    ``{"stage", "fraction"}`` per report, written with one ``write`` in append mode, so a
+    reader sees whole lines in order. The server's job thread reads the new lines
+    (:class:`ProgressLog`) and turns them into progress events: no stage is lost, however
+    short (a solve that ends between two of its reads still shows its iterations)."""
     if not path:
         return
     import json
 
-    tmp = f"{path}.tmp-{os.getpid()}"
+    line = (json.dumps({"stage": stage, "fraction": fraction}) + "\n").encode()
     try:
-        with open(tmp, "w") as f:
-            json.dump({"stage": stage, "fraction": fraction}, f)
-        os.replace(tmp, path)
+        fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o600)
+        try:
+            os.write(fd, line)
+        finally:
+            os.close(fd)
     except OSError:  # progress is best effort (e.g. a remote worker without the folder, a full disk)
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
+        pass
 
 
 def progress_file(path: str | None) -> Progress:
     """The :data:`service.progress.Progress` that writes to the job's progress file ``path``
-    (:func:`report_stage`; nothing when ``path`` is None)."""
+    (:func:`report_stage`; a report equal to the previous one is not written again; nothing
+    when ``path`` is None)."""
+    last: list[tuple[float, str]] = []
+
     def write(fraction: float, stage: str) -> None:
+        if last and last[0] == (fraction, stage):
+            return
+        last[:] = [(fraction, stage)]
         report_stage(path, stage, fraction)
 
     return write
+
+
+class ProgressLog:
+    """The reader of a job's progress file (:func:`report_stage`'s lines), used by the
+    server's job thread. ``new()`` returns the stages (``{"stage", "fraction"}`` dicts)
+    written since its last call, in order, without repeats of the stage last returned and
+    thinned to at most ``most`` (evenly spaced, the newest always kept) so a solve of
+    thousands of short iterations does not flood the job's events. A line still being
+    written waits for the next call; a missing file or a line that is not JSON is skipped."""
+
+    #: bytes read per call at most (the rest waits for the next call)
+    READ_MAX = 1 << 20
+
+    def __init__(self, path: str | os.PathLike, most: int = 16) -> None:
+        if most < 1:
+            raise ValueError(f"ProgressLog needs most >= 1, got {most!r}")
+        self.path, self.most, self.offset = path, most, 0
+        self.last: dict | None = None
+
+    def new(self) -> list[dict]:
+        import json
+
+        try:
+            with open(self.path, "rb") as f:
+                f.seek(self.offset)
+                chunk = f.read(self.READ_MAX)
+        except OSError:
+            return []
+        end = chunk.rfind(b"\n") + 1
+        self.offset += end
+        out: list[dict] = []
+        for line in chunk[:end].splitlines():
+            try:
+                stage = json.loads(line)
+            except ValueError:
+                continue
+            if isinstance(stage, dict) and stage != (out[-1] if out else self.last):
+                out.append(stage)
+        if len(out) > self.most:
+            step = len(out) / self.most
+            out = [out[len(out) - 1 - int(k * step)] for k in range(self.most)][::-1]
+        if out:
+            self.last = out[-1]
+        return out
 
 
 def check_memory_limit(ds: Any, params: dict, limit: int, estimate: int | None = None) -> None:

@@ -1,6 +1,7 @@
 """Honest progress: a reconstruction job's progress events rise through the reconstruct
 stage with the reconstruction's own per-chunk fractions (not one jump from 20 % to 90 %),
-read from the Server-Sent Events of a real server."""
+read from the Server-Sent Events of a real server; and the worker's progress file loses
+no stage, however short (its reader on a real file, lines written by the worker's writer)."""
 from __future__ import annotations
 
 import io
@@ -14,7 +15,7 @@ pytestmark = needs_recon
 
 
 def test_progress_events_strictly_increase_through_reconstruction(tmp_path):
-    n, n_t = 96, 2048  # NEDNER over 9216 points: seconds of chunks even on an idle machine (the server polls 4x per second)
+    n, n_t = 64, 1024  # NEDNER over 4096 points: several chunks, each reported
     data = np.random.default_rng(1).standard_normal((n_t, n, n)).astype(np.float32)
     buf = io.BytesIO()
     np.save(buf, data)
@@ -39,3 +40,30 @@ def test_progress_events_strictly_increase_through_reconstruction(tmp_path):
     assert any(0.25 < f < 0.85 for f in fractions), fractions
     everything = [p["fraction"] for p in progress]
     assert all(b >= a for a, b in zip(everything, everything[1:])), everything  # never backwards
+
+
+def test_the_progress_file_keeps_every_stage_in_order_and_waits_for_a_torn_line(tmp_path):
+    from service.jobs.work import ProgressLog, progress_file
+
+    path = tmp_path / ".job.1.progress"
+    log = ProgressLog(path, most=4)
+    assert log.new() == []  # no file yet: nothing, no error
+    write = progress_file(str(path))
+    write(0.1, "loading")
+    write(0.1, "loading")  # a repeat is not written again
+    write(0.3, "iteration 1/3")
+    assert log.new() == [{"stage": "loading", "fraction": 0.1}, {"stage": "iteration 1/3", "fraction": 0.3}]
+    assert path.read_text().count("loading") == 1
+    with open(path, "ab") as f:  # a line the worker is still writing, then a line that is not JSON
+        f.write(b'{"stage": "iteration 2/3", "fra')
+    assert log.new() == []
+    with open(path, "ab") as f:
+        f.write(b'ction": 0.5}\nnot json\n')
+    assert log.new() == [{"stage": "iteration 2/3", "fraction": 0.5}]
+    for k in range(3, 13):  # a burst between two reads: thinned to `most`, evenly, the newest kept
+        write(0.5 + k / 100, f"iteration {k}/12")
+    burst = log.new()
+    assert len(burst) == 4 and burst[-1]["stage"] == "iteration 12/12", burst
+    ks = [int(b["stage"].split()[1].split("/")[0]) for b in burst]
+    assert ks == sorted(ks) and len(set(ks)) == 4 and ks[0] <= 6, ks
+    assert log.new() == []

@@ -209,10 +209,9 @@ def test_tv_job_progress_names_the_iteration_and_bad_options_are_422(shared_api)
     and worker ones: tests/service/test_pipeline_parity.py.)"""
     from driver.physics.balls import Ball, ball_alines
 
-    # large enough that the iterations last seconds: the server samples the worker's
-    # progress file 4x per second, so a solve of a few tenths of a second (12 x 12 x 48,
-    # 20 iterations) could end between two samples and show no iteration at all
-    n, n_t, max_iter = 24, 96, 60
+    # small: the server reads every line of the worker's progress file, also after the
+    # worker has returned, so a solve that ends between two of its reads shows its iterations
+    n, n_t, max_iter = 12, 48, 20
     x = (np.arange(n) - (n - 1) / 2) * PITCH
     yy, xx = np.meshgrid(x, x, indexing="ij")
     pos = np.stack([xx.ravel(), yy.ravel()], axis=1)
