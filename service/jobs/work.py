@@ -99,7 +99,8 @@ class ProgressLog:
     written since its last call, in order, without repeats of the stage last returned and
     thinned to at most ``most`` (evenly spaced, the newest always kept) so a solve of
     thousands of short iterations does not flood the job's events. A line still being
-    written waits for the next call; a missing file or a line that is not JSON is skipped."""
+    written waits for the next call; a missing file or a line that is not JSON is skipped.
+    ``ValueError`` for ``most`` < 1."""
 
     #: bytes read per call at most (the rest waits for the next call)
     READ_MAX = 1 << 20
