@@ -205,15 +205,13 @@ class ReconQueue:
         stages, beat = ProgressLog(progress_path), time.monotonic()
         while True:
             try:
-                result = future.result(timeout=0.25)
+                result, done = future.result(timeout=0.25), True
             except TimeoutError:
-                pass
-            else:
-                for stage in stages.new():
-                    self.store.update_progress(jid, stage)
-                return result
+                done = False
             for stage in stages.new():
                 self.store.update_progress(jid, stage)
+            if done:
+                return result
             if not cancel_path.exists() and (self.store.get(jid) or {}).get("cancel_requested"):
                 try:
                     cancel_path.touch()

@@ -82,12 +82,13 @@ def progress_file(path: str | None) -> Progress:
     """The :data:`service.progress.Progress` that writes to the job's progress file ``path``
     (:func:`report_stage`; a report equal to the previous one is not written again; nothing
     when ``path`` is None)."""
-    last: list[tuple[float, str]] = []
+    last: tuple[float, str] | None = None
 
     def write(fraction: float, stage: str) -> None:
-        if last and last[0] == (fraction, stage):
+        nonlocal last
+        if last == (fraction, stage):
             return
-        last[:] = [(fraction, stage)]
+        last = (fraction, stage)
         report_stage(path, stage, fraction)
 
     return write

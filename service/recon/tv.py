@@ -423,7 +423,7 @@ def reconstruct_tv(
 
     first = [x]  # handed over: _fista reuses its memory, and this frame keeps no reference
     del x
-    x, it, stop_reason, change, Ax, L, lam = _fista(forward, B, g, first, rule if lam is None else lam, L,
+    x, it, stop_reason, change, Ax, L, lam = _fista(forward, B, g, first, rule if auto else lam, L,
                                                     positivity, max_iter, tol, started, time_limit, report,
                                                     residual, poll=report.poll)
     debiased = False
