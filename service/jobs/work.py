@@ -39,7 +39,7 @@ from service.progress import Progress, span
 __all__ = [
     "INPUT_FORMATS", "load_inputs", "report_stage", "progress_file", "ProgressLog", "check_memory_limit", "ADDRESS_SPACE_BASE",
     "address_space_limit", "memory_bounded", "run_reconstruction", "run_unmix", "worker_pid", "warm_up",
-    "JobGate", "JOB_GATE", "WARM_QUIET_S",
+    "warm_heap", "HEAP_MMAP_THRESHOLD", "HEAP_WARM_BYTES", "JobGate", "JOB_GATE", "WARM_QUIET_S",
 ]
 
 INPUT_FORMATS = {"scan": "fpscan", "dataset": "dataset"}
@@ -380,7 +380,8 @@ def warm_up(full: bool = False, rest_in_background: bool = False) -> dict:
     result writer; with ``full`` also compile (or load from numba's cache) every numba
     kernel a job uses, in float32 and float64 (:func:`service.recon.warmup.warm_up`, the
     one warm-up ``fpscan warmup`` runs too), run one tiny job's dispatch and write its result
-    folder (h5py and the fonts of the MIP pictures) into a temporary folder.
+    folder (h5py and the fonts of the MIP pictures) into a temporary folder, and last give the
+    heap written pages for the first job's arrays (:func:`warm_heap`).
 
     The planar kernels (NER, NEDNER: most jobs) and the writer come first; with
     ``rest_in_background`` the other groups (k-Wave modes, the model-based operator with its
@@ -415,7 +416,62 @@ def warm_up(full: bool = False, rest_in_background: bool = False) -> dict:
             threading.Thread(target=_warm_rest, name="warm-up-rest", daemon=True).start()
         else:
             compile_kernels(groups=("kwave", "model"))
+        warm_heap()  # last: no warm-up step takes its pages (the background one runs in its own arena)
     return {"pid": os.getpid(), "seconds": time.perf_counter() - t0}
+
+
+#: glibc's threshold above which an allocation gets pages of its own (mmap), set by
+#: :func:`warm_heap`: the value glibc's dynamic rule reaches anyway after a process frees its
+#: first mapping of that size (its maximum on 64-bit systems, ``DEFAULT_MMAP_THRESHOLD_MAX``)
+HEAP_MMAP_THRESHOLD = 32 << 20
+#: bytes of heap :func:`warm_heap` grows, writes and keeps; the heap's free top is kept up to
+#: twice that (``M_TRIM_THRESHOLD``)
+HEAP_WARM_BYTES = 64 << 20
+
+
+def warm_heap() -> bool:
+    """Give the worker's heap pages it has already written, so that a first job's arrays reuse
+    them instead of faulting in fresh ones (issue 20.1: the first job after start-up).
+
+    A fresh process's C library (glibc) maps every allocation above 128 KiB to new pages,
+    which the kernel hands out zeroed, one fault per page, on their first write; it raises that
+    threshold only after the process frees a mapping (to its size, at most 32 MiB) and then
+    serves smaller arrays from the heap, whose written pages it keeps for reuse. A
+    reconstruction's first call paid those faults on every work array (NER float32 of
+    256 × 128² after the kernel warm-up, a fresh interpreter, median of 5: 0.130 s, against
+    0.107 s after this and 0.06-0.08 s for later calls). Here the thresholds are set to what
+    glibc's own rule reaches after such a free (``mallopt``: mmap threshold
+    `HEAP_MMAP_THRESHOLD`, trim threshold twice `HEAP_WARM_BYTES`) and `HEAP_WARM_BYTES` of
+    heap are allocated in blocks below the threshold, written, and freed: they stay in the
+    process as the heap's free top. Arrays above the threshold are mapped as before. Costs
+    the worker `HEAP_WARM_BYTES` of resident memory.
+
+    Returns
+    -------
+    bool
+        True when the thresholds were set (glibc); False where the C library has no
+        ``mallopt`` (musl's is a stub, macOS has none): nothing is changed there.
+
+    References
+    ----------
+    .. [1] mallopt(3), the GNU C Library (``M_MMAP_THRESHOLD``, ``M_TRIM_THRESHOLD``).
+    """
+    import ctypes
+
+    import numpy as np
+
+    m_trim_threshold, m_mmap_threshold = -1, -3  # malloc.h
+    try:
+        mallopt = ctypes.CDLL(None).mallopt
+    except (OSError, AttributeError):
+        return False
+    mallopt.argtypes, mallopt.restype = (ctypes.c_int, ctypes.c_int), ctypes.c_int
+    if not (mallopt(m_mmap_threshold, HEAP_MMAP_THRESHOLD) and mallopt(m_trim_threshold, 2 * HEAP_WARM_BYTES)):
+        return False
+    block = HEAP_MMAP_THRESHOLD // 2
+    blocks = [np.ones(block // 8) for _ in range(HEAP_WARM_BYTES // block)]  # written: the pages are faulted in
+    del blocks  # freed into the heap's top, below the trim threshold: kept
+    return True
 
 
 def _warm_rest() -> None:
