@@ -438,12 +438,12 @@ def warm_heap() -> bool:
     threshold only after the process frees a mapping (to its size, at most 32 MiB) and then
     serves smaller arrays from the heap, whose written pages it keeps for reuse. A
     reconstruction's first call paid those faults on every work array (NER float32 of
-    256 × 128² after the kernel warm-up, a fresh interpreter, median of 5: 0.130 s, against
-    0.107 s after this and 0.06-0.08 s for later calls). Here the thresholds are set to what
-    glibc's own rule reaches after such a free (``mallopt``: mmap threshold
-    `HEAP_MMAP_THRESHOLD`, trim threshold twice `HEAP_WARM_BYTES`) and `HEAP_WARM_BYTES` of
-    heap are allocated in blocks below the threshold, written, and freed: they stay in the
-    process as the heap's free top. Arrays above the threshold are mapped as before. Costs
+    256 × 128² after the worker's warm-up, fresh interpreters, median of 8: 0.157 s, against
+    0.124 s after this and 0.06-0.09 s for later calls; docs/performance.md). Here the
+    thresholds are set to what glibc's own rule reaches after such a free (``mallopt``: mmap
+    threshold `HEAP_MMAP_THRESHOLD`, trim threshold twice `HEAP_WARM_BYTES`) and
+    `HEAP_WARM_BYTES` of heap are allocated in blocks below the threshold, written, and freed:
+    they stay in the process as the heap's free top. Arrays above the threshold are mapped as before. Costs
     the worker `HEAP_WARM_BYTES` of resident memory.
 
     Returns
@@ -463,7 +463,7 @@ def warm_heap() -> bool:
     m_trim_threshold, m_mmap_threshold = -1, -3  # malloc.h
     try:
         mallopt = ctypes.CDLL(None).mallopt
-    except (OSError, AttributeError):
+    except (OSError, AttributeError, TypeError):  # no C library to ask, or one without mallopt
         return False
     mallopt.argtypes, mallopt.restype = (ctypes.c_int, ctypes.c_int), ctypes.c_int
     if not (mallopt(m_mmap_threshold, HEAP_MMAP_THRESHOLD) and mallopt(m_trim_threshold, 2 * HEAP_WARM_BYTES)):

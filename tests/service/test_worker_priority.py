@@ -147,6 +147,7 @@ WARM_HEAP = """
 import resource
 import numpy as np
 from service.jobs.work import HEAP_WARM_BYTES, warm_heap
+assert 3 * (16 << 20) <= HEAP_WARM_BYTES
 if not warm_heap():
     print(repr(None))
 else:
