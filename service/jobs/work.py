@@ -443,8 +443,8 @@ def warm_heap() -> bool:
     thresholds are set to what glibc's own rule reaches after such a free (``mallopt``: mmap
     threshold `HEAP_MMAP_THRESHOLD`, trim threshold twice `HEAP_WARM_BYTES`) and
     `HEAP_WARM_BYTES` of heap are allocated in blocks below the threshold, written, and freed:
-    they stay in the process as the heap's free top. Arrays above the threshold are mapped as before. Costs
-    the worker `HEAP_WARM_BYTES` of resident memory.
+    they stay in the process as the heap's free top. Arrays above the threshold are mapped as
+    before. Costs the worker `HEAP_WARM_BYTES` of resident memory.
 
     Returns
     -------
