@@ -586,6 +586,8 @@ class PlanarOperator(pylops.LinearOperator):
         _, n_y2, n_x2 = self.padded_shape
         assert self._nodes is not None
         rows, row_of, cols = self._nodes
+        breaks = (np.flatnonzero(np.diff(rows) != 1) + 1).tolist()  # rows is sorted: where runs of adjacent rows end
+        runs = list(zip([0, *breaks], [*breaks, len(rows)]))
         batches = self._time_batches()
         # one buffer for all batches: each writes the same nodes, the rest stays zero
         grid = np.zeros((batches[0][1] - batches[0][0], len(rows), n_x2), dtype=self.dtype)
@@ -594,8 +596,8 @@ class PlanarOperator(pylops.LinearOperator):
             placed[:, row_of, cols] = data[:, a:b].T  # distinct nodes (`_lattice_nodes`)
             spectra = scipy.fft.rfft(placed, axis=2, workers=-1)
             block = H[a:b]
-            for j, row in enumerate(rows):  # row by row: numpy's H[a:b, rows] = took 16x longer
-                block[:, row] = spectra[:, j]
+            for j0, j1 in runs:  # runs of adjacent rows: numpy's H[a:b, rows] = took 16x longer
+                block[:, rows[j0] : rows[j0] + j1 - j0] = spectra[:, j0:j1]
             if n_y2 > 1:
                 _fft_in_place(block, axis=1)
             del spectra, block
@@ -646,12 +648,22 @@ def _fft_in_place(x: np.ndarray, axis: int) -> None:
 
 
 def _anonymous_pages(nbytes: int) -> mmap.mmap | None:
-    """Zero-filled anonymous memory of ``nbytes`` whose tail `_release_after` can hand back to
-    the system (mmap + madvise MADV_DONTNEED, Linux and other POSIX systems); None where
-    madvise is missing (the caller allocates with numpy instead)."""
-    if nbytes <= 0 or not hasattr(mmap, "MADV_DONTNEED") or not hasattr(mmap.mmap, "madvise"):
+    """Zero-filled private anonymous memory of ``nbytes`` whose tail `_release_after` can hand
+    back to the system (mmap MAP_PRIVATE | MAP_ANONYMOUS + madvise MADV_DONTNEED, Linux and
+    other POSIX systems); None where those are missing (the caller allocates with numpy
+    instead).
+
+    Private, not Python's default MAP_SHARED: a shared anonymous mapping is backed by shared
+    memory (shmem), whose pages MADV_DONTNEED only unmaps (the process's resident size drops,
+    the system's memory does not until the mapping closes: a 256 MiB mapping kept 256 MiB of
+    ``Shmem`` in /proc/meminfo after the release), and which takes no transparent huge pages
+    (the first touch of 128 MiB: 0.106 s shared, 0.011 s private with MADV_HUGEPAGE, 2-core
+    machine)."""
+    private, anonymous = getattr(mmap, "MAP_PRIVATE", None), getattr(mmap, "MAP_ANONYMOUS", None)
+    if (nbytes <= 0 or private is None or anonymous is None or not hasattr(mmap, "MADV_DONTNEED")
+            or not hasattr(mmap.mmap, "madvise")):
         return None
-    pages = mmap.mmap(-1, nbytes)
+    pages = mmap.mmap(-1, nbytes, flags=private | anonymous)
     if hasattr(mmap, "MADV_HUGEPAGE"):  # as numpy asks for its large arrays: fewer page faults
         try:
             pages.madvise(mmap.MADV_HUGEPAGE)
