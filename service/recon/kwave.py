@@ -18,7 +18,10 @@ mapping in one compiled loop), which makes it a few times faster and its peak me
 few times the input instead of ~15 times. The data stay time first, as the lateral FFT
 leaves them (no transpose), and the time and depth transforms of the even series are one
 real matrix product each up to `MATRIX_MAX_N` samples (BLAS beats the FFT at k-Wave's
-odd lengths there), FFTs of the mirrored series above.
+odd lengths there); above it, two smaller products by the prime-factor algorithm where
+2 N_t - 1 splits into coprime factors (`_EvenPFA`: 2047 = 23·89 at k-Wave's 1024 samples),
+else FFTs of the mirrored series. The lateral real DFT runs as a matrix product at lengths
+with a large prime factor (`product_length`: 226 = 2·113, the paper's scan), an FFT otherwise.
 """
 from __future__ import annotations
 
@@ -32,12 +35,13 @@ import numpy as np
 import scipy.fft
 import scipy.interpolate
 
+from driver.physics import fft_engine
 from driver.physics.lateral import irfft_lateral
 from driver.physics.nufft import group_columns
 from service.progress import Fraction, rising, span
 from service.recon import checks
 
-__all__ = ["transform_lengths", "kspace_line_recon", "kspace_plane_recon"]
+__all__ = ["transform_lengths", "product_length", "PRODUCT_MAX_N", "kspace_line_recon", "kspace_plane_recon"]
 
 _INTERPS = {"linear": "linear", "*linear": "linear", "nearest": "nearest", "*nearest": "nearest",
             "cubic": "cubic", "*cubic": "cubic"}
@@ -96,6 +100,80 @@ def _even_matrix(n: int) -> np.ndarray:
     return C
 
 
+#: the largest m1 + m2 of a coprime split M = m1 m2 that `_EvenPFA` takes (its flops per
+#: point grow with m1 + m2): 2047 = 23·89 (k-Wave's 1024 samples) 112, 3519 = 23·153 176
+PFA_MAX_SUM = 200
+
+
+def _coprime_split(m: int) -> tuple[int, int] | None:
+    """The split m = m1 m2 with gcd(m1, m2) = 1, 3 <= m1 <= m2, of least m1 + m2; None if m
+    has none (a prime, or a prime power)."""
+    best = None
+    for m1 in range(3, math.isqrt(m) + 1):
+        if m % m1 == 0 and math.gcd(m1, m // m1) == 1 and (best is None or m1 + m // m1 < sum(best)):
+            best = (m1, m // m1)
+    return best
+
+
+class _EvenPFA:
+    """The real-even transform of `_even_matrix` (times ``scale``) by the prime-factor
+    (Good–Thomas) algorithm on a coprime split M = 2 N - 1 = m1 m2 (`_coprime_split`):
+    the mirrored series indexed n = (n1 m2 + n2 m1) mod M is a 2-D array (m1, m2) whose 2-D
+    DFT, without twiddles, holds y_k at (k mod m1, k mod m2). Both stages are real matrix
+    products (BLAS), and both use the evenness of the series: x[-n1, -n2] = x[n1, n2], so
+    the DFT along n2 (real input: k2 <= (m2 - 1) / 2) is needed for n1 <= (m1 - 1) / 2 only
+    (the other rows are its conjugates), and the result is real and even, so the second
+    stage sums 2 Re(...) over those rows and yields every y_k with k2 <= (m2 - 1) / 2 (the
+    others at (-k1, -k2)). About M (m1 + m2) flops per real column against the plain
+    product's 2 N²: at k-Wave's 1024 samples (2047 = 23·89), 2 cores, float64, 15 ns a
+    complex point against the mirrored FFT's 32 ns (docs/performance.md).
+
+    ``pfa(X, out)`` writes the transform of ``X`` (N, cols) real, along axis 0, into ``out``
+    (N, cols)."""
+
+    def __init__(self, n: int, split: tuple[int, int], dtype, scale: float = 1.0):
+        m = 2 * n - 1
+        m1, m2 = split
+        self.h1, self.h2, self.m1, self.m2 = (m1 - 1) // 2, (m2 - 1) // 2, m1, m2
+        n1, n2 = np.arange(self.h1 + 1), np.arange(m2)
+        idx = (n2[:, None] * m1 + n1[None, :] * m2) % m  # (m2, h1 + 1): rows n2, columns n1
+        self.gather = np.minimum(idx, m - idx).ravel()  # the mirrored series' sample n is a_|n|
+        ang2 = (2 * np.pi / m2) * (np.outer(np.arange(self.h2 + 1), n2) % m2)  # (h2 + 1, m2)
+        # stage 1: Y[k2, n1] = Yc - i Ys, rows (k2, cos) and (k2, sin) interleaved
+        self.stage1 = np.stack([np.cos(ang2), np.sin(ang2)], axis=1).reshape(-1, m2).astype(dtype)
+        ang1 = (2 * np.pi / m1) * (np.outer(np.arange(m1), n1) % m1)  # (m1, h1 + 1)
+        w = np.full(self.h1 + 1, 2.0 * scale)
+        w[0] = scale  # row n1 = 0 is its own mirror
+        self.stage2 = np.concatenate([np.cos(ang1) * w, -np.sin(ang1) * w], axis=1).astype(dtype)
+        k = np.arange(n)
+        k1, k2 = k % m1, k % m2
+        flip = k2 > self.h2  # y_k = X[-k1, -k2]
+        self.scatter = np.where(flip, m2 - k2, k2) * m1 + np.where(flip, (-k1) % m1, k1)
+        self._local = threading.local()  # each thread's work arrays (`_work`)
+
+    def __call__(self, X: np.ndarray, out: np.ndarray) -> None:
+        c = X.shape[1]
+        G, Y, Z = self._work(c, X.dtype)
+        np.take(X, self.gather, axis=0, out=G, mode="clip")  # (m2 (h1 + 1), c)
+        np.matmul(self.stage1, G.reshape(self.m2, -1), out=Y.reshape(self.stage1.shape[0], -1))  # views
+        np.matmul(self.stage2, Y, out=Z)  # (h2 + 1, m1, c): X[k2, k1]
+        np.take(Z.reshape(-1, c), self.scatter, axis=0, out=out, mode="clip")
+
+    def _work(self, c: int, dtype) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The calling thread's work arrays for ``c`` columns (C-contiguous views of buffers made once
+        and reused: a fresh set per chunk cost the system's page faults each time the
+        allocator had returned them, 2.6 -> 3.3 s of k-Wave's algorithm at 1024 × 226² in a
+        fresh process)."""
+        sizes = (len(self.gather) * c, self.stage1.shape[0] * (self.h1 + 1) * c, (self.h2 + 1) * self.m1 * c)
+        work = getattr(self._local, "work", None)
+        if work is None or work[0].size < sizes[0] or work[0].dtype != dtype:
+            work = tuple(np.empty(n, dtype) for n in sizes)
+            self._local.work = work
+        G, Y, Z = (w[:n] for w, n in zip(work, sizes))
+        return (G.reshape(len(self.gather), c), Y.reshape(self.h2 + 1, 2 * (self.h1 + 1), c),
+                Z.reshape(self.h2 + 1, self.m1, c))
+
+
 def _mirrored_fft(a: np.ndarray) -> np.ndarray:
     """The real-even transform of `_even_matrix` along axis 0 of ``a`` (N, cols)
     complex, as the FFT of the mirrored series of length 2 N - 1 (its even half is exact to
@@ -119,9 +197,11 @@ def _blas():
 
 
 @contextlib.contextmanager
-def _products_in_threads():
-    """A context giving ``matmul(C, X, out)``: ``out = C @ X`` with the columns of ``X``
-    split over as many threads as BLAS had, each running single-threaded BLAS.
+def _products_in_threads(by_rows: bool = False):
+    """A context giving ``matmul(C, X, out)``: ``out = C @ X`` (or ``C(X, out)`` for an
+    `_EvenPFA`) with the columns of ``X`` split over as many threads as BLAS had, each
+    running single-threaded BLAS (with ``by_rows``: ``out = X @ C`` with the rows of ``X``
+    split, both C-contiguous).
 
     OpenBLAS's own threads spin for about 0.1 s after a product before they sleep; the
     compiled kernels and FFTs that follow it here then ran at half speed (the mapping 17 ->
@@ -136,14 +216,107 @@ def _products_in_threads():
         parts = max((lib["num_threads"] for lib in blas.info()), default=1)
         with blas.limit(limits=1), ThreadPoolExecutor(parts) as pool:
 
-            def matmul(C: np.ndarray, X: np.ndarray, out: np.ndarray) -> None:
+            def matmul(C: np.ndarray | _EvenPFA, X: np.ndarray, out: np.ndarray) -> None:
+                apply = C if isinstance(C, _EvenPFA) else functools.partial(np.matmul, C)
                 cuts = [X.shape[1] * i // parts for i in range(parts + 1)]
-                done = [pool.submit(np.matmul, C, X[:, c0:c1], out=out[:, c0:c1])
+                done = [pool.submit(apply, X[:, c0:c1], out=out[:, c0:c1])
                         for c0, c1 in zip(cuts, cuts[1:]) if c1 > c0]
                 for d in done:
                     d.result()
 
-            yield matmul
+            def matmul_rows(C: np.ndarray, X: np.ndarray, out: np.ndarray) -> None:
+                cuts = [X.shape[0] * i // parts for i in range(parts + 1)]
+                done = [pool.submit(np.matmul, X[r0:r1], C, out=out[r0:r1])
+                        for r0, r1 in zip(cuts, cuts[1:]) if r1 > r0]
+                for d in done:
+                    d.result()
+
+            yield matmul_rows if by_rows else matmul
+
+
+def product_length(n: int) -> bool:
+    """Whether the lateral real DFT of length ``n`` (k-Wave's unpadded lateral grid: the scan's
+    own size) runs as a matrix product instead of an FFT: ``n`` <= `PRODUCT_MAX_N` with a prime
+    factor p >= 31 and n <= 4 p. pocketfft takes such a length by a generic pass of p or by
+    Bluestein's chirp-z, at about twice the cost per point of a 5-smooth one; a real product
+    (BLAS) costs 2 (n + 2) flops a point whatever n's factors. Per point, 2 cores
+    (docs/performance.md), float64, FFT / product: n = 97 11.0 / 4.5 ns, 226 = 2·113 8.7 / 6.0,
+    302 = 2·151 10.8 / 7.7, 454 = 2·227 15.3 / 10.9; but 518 = 14·37 3.8 / 12.3; float32
+    about half of each.
+
+    Examples
+    --------
+    >>> from service.recon.kwave import product_length
+    >>> product_length(226), product_length(240), product_length(518)
+    (True, False, False)
+    """
+    n = int(n)
+    if n > PRODUCT_MAX_N or n < 31:
+        return False
+    p, m, f = 1, n, 2
+    while f * f <= m:  # the largest prime factor p of n
+        while m % f == 0:
+            p, m = f, m // f
+        f += 1
+    p = max(p, m) if m > 1 else p
+    return p >= 31 and n <= 4 * p
+
+
+#: the longest lateral length `product_length` gives to a matrix product
+PRODUCT_MAX_N = 1024
+
+
+@functools.lru_cache(maxsize=8)
+def _lateral_matrices(n: int, dtype: np.dtype) -> tuple[np.ndarray, np.ndarray]:
+    """The real DFT of length ``n`` and its inverse as real matrices in ``dtype``: W (n, 2 h),
+    h = n // 2 + 1, with x @ W the interleaved (real, imaginary) pairs of ``rfft(x)``; and
+    V (2 h, n) with (interleaved X) @ V = ``irfft(X, n)`` (the imaginary parts of the
+    zero and Nyquist frequencies ignored, as irfft does: their sines vanish). The
+    arguments are reduced exactly (j k mod n in integers)."""
+    h = n // 2 + 1
+    ang = (2 * np.pi / n) * (np.outer(np.arange(n), np.arange(h)) % n)  # (n, h)
+    cos, sin = np.cos(ang), np.sin(ang)
+    W = np.stack([cos, -sin], axis=2).reshape(n, 2 * h)
+    weight = np.full(h, 2.0 / n)
+    weight[0] = 1.0 / n
+    if n % 2 == 0:
+        weight[-1] = 1.0 / n
+    V = np.stack([weight[:, None] * cos.T, -weight[:, None] * sin.T], axis=1).reshape(2 * h, n)
+    return W.astype(dtype), V.astype(dtype)
+
+
+def _lateral_forward(p: np.ndarray, lat_axes: tuple[int, ...]) -> np.ndarray:
+    """``scipy.fft.rfftn(p, axes=lat_axes)`` (p time first, real), the real axis (the last)
+    as a matrix product where `product_length` says so (a large array only)."""
+    n = p.shape[-1]
+    if fft_engine.is_small(p.size) or not product_length(n):
+        return scipy.fft.rfftn(p, axes=lat_axes, workers=-1)
+    W, _ = _lateral_matrices(n, p.dtype)
+    rows = np.ascontiguousarray(p).reshape(-1, n)
+    cdtype = np.complex64 if p.dtype == np.float32 else np.complex128
+    out = np.empty(p.shape[:-1] + (n // 2 + 1,), dtype=cdtype)
+    with _products_in_threads(by_rows=True) as matmul:
+        matmul(W, rows, out.reshape(rows.shape[0], -1).view(p.dtype))
+    if len(lat_axes) == 2:
+        out = scipy.fft.fft(out, axis=lat_axes[0], overwrite_x=True, workers=-1)
+    return out
+
+
+def _lateral_inverse(A: np.ndarray, lat_shape: tuple[int, ...], lat_axes: tuple[int, ...]) -> np.ndarray:
+    """`driver.physics.lateral.irfft_lateral` (``A`` consumed), the real axis as a matrix
+    product where `product_length` says so (a large array only)."""
+    n = lat_shape[-1]
+    if fft_engine.is_small(A.size // A.shape[-1] * n) or not product_length(n):  # the output's size
+        return irfft_lateral(A, lat_shape, lat_axes)
+    if len(lat_axes) == 2:
+        A = scipy.fft.ifft(A, axis=lat_axes[0], overwrite_x=True, workers=-1)
+    rdtype = np.float32 if A.dtype == np.complex64 else np.float64
+    _, V = _lateral_matrices(n, np.dtype(rdtype))
+    rows = np.ascontiguousarray(A).reshape(-1, A.shape[-1]).view(rdtype)
+    out = np.empty(A.shape[:-1] + (n,), dtype=rdtype)
+    with _products_in_threads(by_rows=True) as matmul:
+        matmul(V, rows, out.reshape(rows.shape[0], n))
+    return out
 
 
 _BLOCK = 8  # columns the mapping takes at a time (8 complex128: two cache lines of a row)
@@ -233,7 +406,9 @@ def transform_lengths(data_shape) -> dict[str, tuple[int, ...]]:
     >= 3 N_t - 2) would cost about what pocketfft's own handling costs: 0.75x, 1.06x, 1.08x
     of it at N_t = 256, 1024, 3519 (per-point FFT timings, issue 20). Up to
     `MATRIX_MAX_N` samples the temporal and depth DFTs run as matrix products instead
-    (faster than any FFT of these lengths there); the lengths stay the same.
+    (faster than any FFT of these lengths there), above it by the prime-factor algorithm
+    where 2 N_t - 1 has a coprime split (`PFA_MAX_SUM`), and the lateral real DFT as a
+    product at lengths `product_length` names; the lengths stay the same.
 
     Parameters
     ----------
@@ -277,21 +452,27 @@ def transform_lengths(data_shape) -> dict[str, tuple[int, ...]]:
 _CHUNK_BYTES = 8 << 20  # the product path's columns per chunk: 8 MiB of spectrum (2048 at N = 256)
 
 
-def _by_products(a, mapping, ntm, rdtype, progress):
+def _by_products(a, mapping, ntm, rdtype, progress, split=None):
     """The time -> depth step of `_recon`, in place in ``a`` (N, cols), time first: per
-    chunk of columns the real-even transform along time (a product with `_even_matrix`),
-    the mapping, the transform along depth (a product). Chunks of `_CHUNK_BYTES`: the
+    chunk of columns the real-even transform along time (a product with `_even_matrix`, or
+    with a coprime ``split`` of 2 N - 1 the prime-factor algorithm `_EvenPFA`), the
+    mapping, the transform along depth (the same over M). Chunks of `_CHUNK_BYTES`: the
     per-chunk spectra stay a small fraction of the volume, and progress is reported (and a
     cancel seen) as each ends."""
     n, n_cols = a.shape
-    C = _even_matrix(n)  # the cosines once: the inverse is the same matrix over M
-    forward, inverse = C.astype(rdtype, copy=False), (C * (1.0 / ntm)).astype(rdtype, copy=False)
-    chunk = max(128, _CHUNK_BYTES // (n * a.itemsize))
+    forward: np.ndarray | _EvenPFA
+    inverse: np.ndarray | _EvenPFA
+    if split is not None:
+        forward, inverse = _EvenPFA(n, split, rdtype), _EvenPFA(n, split, rdtype, 1.0 / ntm)
+    else:
+        C = _even_matrix(n)  # the cosines once: the inverse is the same matrix over M
+        forward, inverse = C.astype(rdtype, copy=False), (C * (1.0 / ntm)).astype(rdtype, copy=False)
+    chunk = min(n_cols, max(128, _CHUNK_BYTES // (n * a.itemsize)))
+    spectra = np.empty((2, n * chunk), dtype=a.dtype)  # P and F of every chunk (no fresh pages per chunk)
     with _products_in_threads() as matmul:
         for c0 in range(0, n_cols, chunk):
             c1 = min(c0 + chunk, n_cols)
-            P = np.empty((n, c1 - c0), dtype=a.dtype)
-            F = np.empty_like(P)
+            P, F = (buf[: n * (c1 - c0)].reshape(n, c1 - c0) for buf in spectra)
             matmul(forward, a[:, c0:c1].view(rdtype), P.view(rdtype))
             mapping(P, c0, c1, F)
             matmul(inverse, F.view(rdtype), a[:, c0:c1].view(rdtype))
@@ -340,7 +521,7 @@ def _recon(p, dt, c, lateral_d, interp, pos_cond, dtype=np.float64, progress=Non
         ph = [np.exp(2j * np.pi * np.arange(n) * (n // 2) / n) for n in lat_shape[:-1]]
         ph.append(np.exp(2j * np.pi * np.arange(lat_shape[-1] // 2 + 1) * (lat_shape[-1] // 2) / lat_shape[-1]))
         phase = np.ravel(ph[0][:, None] * ph[1][None, :] if len(ph) == 2 else ph[0])
-    A = scipy.fft.rfftn(np.asarray(p, dtype=rdtype), axes=lat_axes, workers=-1)
+    A = _lateral_forward(np.asarray(p, dtype=rdtype), lat_axes)
     spec_shape = A.shape
     n_cols = int(np.prod(spec_shape[1:]))
     a = A.reshape(nt, n_cols)  # time first: lateral column j is a[:, j]
@@ -359,10 +540,13 @@ def _recon(p, dt, c, lateral_d, interp, pos_cond, dtype=np.float64, progress=Non
             out[:, s0 - c0 : s1 - c0] = _cubic_block(P[:, s0 - c0 : s1 - c0].T.astype(np.complex128), w_full,
                                                      lat2[s0:s1], phase[s0:s1], kx, c).T
 
-    by = _by_products if nt <= MATRIX_MAX_N else _by_ffts
-    by(a, mapping, ntm, rdtype, span(kernel, 0.15, 0.85))  # in place: A holds the image's k-space
+    split = None if nt <= MATRIX_MAX_N else _coprime_split(ntm)
+    if nt <= MATRIX_MAX_N or (split is not None and sum(split) <= PFA_MAX_SUM):
+        _by_products(a, mapping, ntm, rdtype, span(kernel, 0.15, 0.85), split)  # in place: A holds the image's k-space
+    else:
+        _by_ffts(a, mapping, ntm, rdtype, span(kernel, 0.15, 0.85))
     del a
-    res = irfft_lateral(A, lat_shape, lat_axes)
+    res = _lateral_inverse(A, lat_shape, lat_axes)
     del A
     res *= 4.0 / c
     if pos_cond:

@@ -53,17 +53,23 @@ def test_ner_agrees_with_kwave_where_interpolation_is_accurate(kwave2d):
     assert cc > 0.8
 
 
-# above kwave.MATRIX_MAX_N time samples the real-even transforms run as FFTs, up to it as products
-_BY_FFT = kwave.MATRIX_MAX_N + 9
+# up to kwave.MATRIX_MAX_N time samples the real-even transforms run as matrix products; above it by
+# the prime-factor algorithm where 2 N - 1 has a coprime split (kwave.PFA_MAX_SUM), else as FFTs
+_BY_PFA = kwave.MATRIX_MAX_N + 9  # 817 = 19·43
+_BY_FFT = next(n for n in range(kwave.MATRIX_MAX_N + 1, 2 * kwave.MATRIX_MAX_N) if kwave._coprime_split(2 * n - 1) is None)
 
 
 @pytest.mark.parametrize("interp", ["*nearest", "*linear", "cubic"])
-@pytest.mark.parametrize("shape", [(17, 10, 9), (16, 8, 12), (21, 7, 6), (33, 20), (30, 19), (_BY_FFT, 7, 6), (_BY_FFT, 12)])
+@pytest.mark.parametrize("shape", [(17, 10, 9), (16, 8, 12), (21, 7, 6), (33, 20), (30, 19), (_BY_FFT, 7, 6),
+                                   (_BY_FFT, 12), (_BY_PFA, 7, 6), (_BY_PFA, 5, 37), (1024, 74)])
 def test_kspace_recon_matches_literal_kwave_transcription(shape, interp):
     """The symmetric (rfft, half-spectrum, compiled) implementation gives the literal
     algorithm's numbers at odd and even sizes, 2-D and 3-D, with its time and depth
-    transforms as matrix products and as FFTs (the stored k-Wave data are 2-D with an even
-    sensor count and 3519 samples only)."""
+    transforms as matrix products, by the prime-factor algorithm (817 = 19·43; 2047 = 23·89,
+    k-Wave's 1024 samples) and as FFTs (a prime 2 N - 1), and its lateral real DFT as a
+    matrix product (37 and 74 = 2·37 columns, `kwave.product_length`) or an FFT (the stored
+    k-Wave data are 2-D with an even sensor count and 3519 samples only)."""
+    assert kwave._coprime_split(2 * _BY_PFA - 1) == (19, 43) and kwave.product_length(shape[-1]) == (shape[-1] in (37, 74))
     p = np.random.default_rng(5).standard_normal(shape)
     if len(shape) == 3:
         out = kspace_plane_recon(p, 1e-4, 1.2e-4, 2e-8, 1500.0, interp=interp, pos_cond=True)
@@ -82,11 +88,11 @@ def test_kspace_line_recon_float32_matches_kwave(kwave2d):
     assert np.abs(out[: ref.shape[0]] - ref).max() / np.abs(ref).max() <= 1e-5
 
 
-@pytest.mark.parametrize("n_t", [64, _BY_FFT])
-def test_kspace_plane_recon_float32_matches_float64(n_t):
-    """float32 runs its products (sgemm) and FFTs in single precision: the relative error
-    stays at the float32 level for both transforms."""
-    p = np.random.default_rng(7).standard_normal((n_t, 12, 10))
+@pytest.mark.parametrize("n_t, n_x", [(64, 10), (_BY_FFT, 10), (_BY_PFA, 37)])
+def test_kspace_plane_recon_float32_matches_float64(n_t, n_x):
+    """float32 runs its products (sgemm), prime-factor stages, lateral products and FFTs in
+    single precision: the relative error stays at the float32 level for each."""
+    p = np.random.default_rng(7).standard_normal((n_t, 12, n_x))
     for interp in ("*linear", "*nearest"):
         ref = kspace_plane_recon(p, 1e-4, 1e-4, 2e-8, 1500.0, interp=interp)
         out = kspace_plane_recon(p.astype(np.float32), 1e-4, 1e-4, 2e-8, 1500.0, interp=interp, dtype=np.float32)
