@@ -244,6 +244,17 @@ def product_length(n: int) -> bool:
     302 = 2·151 10.8 / 7.7, 454 = 2·227 15.3 / 10.9; but 518 = 14·37 3.8 / 12.3; float32
     about half of each.
 
+    Parameters
+    ----------
+    n : int
+        The lateral length (samples along the scan's last lateral axis).
+
+    Returns
+    -------
+    bool
+        True where `kspace_line_recon` / `kspace_plane_recon` take that axis's real DFT and its
+        inverse as matrix products (for arrays above `driver.physics.fft_engine.SMALL_ELEMENTS`).
+
     Examples
     --------
     >>> from service.recon.kwave import product_length
