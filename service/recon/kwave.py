@@ -36,6 +36,7 @@ import scipy.fft
 import scipy.interpolate
 
 from driver.physics import fft_engine
+from driver.physics.fast_lengths import largest_prime_factor
 from driver.physics.lateral import irfft_lateral
 from driver.physics.nufft import group_columns
 from service.progress import Fraction, rising, span
@@ -197,11 +198,11 @@ def _blas():
 
 
 @contextlib.contextmanager
-def _products_in_threads(by_rows: bool = False):
-    """A context giving ``matmul(C, X, out)``: ``out = C @ X`` (or ``C(X, out)`` for an
-    `_EvenPFA`) with the columns of ``X`` split over as many threads as BLAS had, each
-    running single-threaded BLAS (with ``by_rows``: ``out = X @ C`` with the rows of ``X``
-    split, both C-contiguous).
+def _products_in_threads():
+    """A context giving ``(matmul, matmul_rows)``: ``matmul(C, X, out)`` writes ``out = C @ X``
+    (or ``C(X, out)`` for an `_EvenPFA`) with the columns of ``X`` split over as many threads
+    as BLAS had, each running single-threaded BLAS; ``matmul_rows(C, X, out)`` writes
+    ``out = X @ C`` with the rows of ``X`` split (both C-contiguous).
 
     OpenBLAS's own threads spin for about 0.1 s after a product before they sleep; the
     compiled kernels and FFTs that follow it here then ran at half speed (the mapping 17 ->
@@ -231,7 +232,11 @@ def _products_in_threads(by_rows: bool = False):
                 for d in done:
                     d.result()
 
-            yield matmul_rows if by_rows else matmul
+            yield matmul, matmul_rows
+
+
+#: the longest lateral length `product_length` gives to a matrix product
+PRODUCT_MAX_N = 1024
 
 
 def product_length(n: int) -> bool:
@@ -264,17 +269,8 @@ def product_length(n: int) -> bool:
     n = int(n)
     if n > PRODUCT_MAX_N or n < 31:
         return False
-    p, m, f = 1, n, 2
-    while f * f <= m:  # the largest prime factor p of n
-        while m % f == 0:
-            p, m = f, m // f
-        f += 1
-    p = max(p, m) if m > 1 else p
+    p = largest_prime_factor(n)
     return p >= 31 and n <= 4 * p
-
-
-#: the longest lateral length `product_length` gives to a matrix product
-PRODUCT_MAX_N = 1024
 
 
 @functools.lru_cache(maxsize=8)
@@ -306,8 +302,8 @@ def _lateral_forward(p: np.ndarray, lat_axes: tuple[int, ...]) -> np.ndarray:
     rows = np.ascontiguousarray(p).reshape(-1, n)
     cdtype = np.complex64 if p.dtype == np.float32 else np.complex128
     out = np.empty(p.shape[:-1] + (n // 2 + 1,), dtype=cdtype)
-    with _products_in_threads(by_rows=True) as matmul:
-        matmul(W, rows, out.reshape(rows.shape[0], -1).view(p.dtype))
+    with _products_in_threads() as (_, matmul_rows):
+        matmul_rows(W, rows, out.reshape(rows.shape[0], -1).view(p.dtype))
     if len(lat_axes) == 2:
         out = scipy.fft.fft(out, axis=lat_axes[0], overwrite_x=True, workers=-1)
     return out
@@ -325,8 +321,8 @@ def _lateral_inverse(A: np.ndarray, lat_shape: tuple[int, ...], lat_axes: tuple[
     _, V = _lateral_matrices(n, np.dtype(rdtype))
     rows = np.ascontiguousarray(A).reshape(-1, A.shape[-1]).view(rdtype)
     out = np.empty(A.shape[:-1] + (n,), dtype=rdtype)
-    with _products_in_threads(by_rows=True) as matmul:
-        matmul(V, rows, out.reshape(rows.shape[0], n))
+    with _products_in_threads() as (_, matmul_rows):
+        matmul_rows(V, rows, out.reshape(rows.shape[0], n))
     return out
 
 
@@ -480,7 +476,7 @@ def _by_products(a, mapping, ntm, rdtype, progress, split=None):
         forward, inverse = C.astype(rdtype, copy=False), (C * (1.0 / ntm)).astype(rdtype, copy=False)
     chunk = min(n_cols, max(128, _CHUNK_BYTES // (n * a.itemsize)))
     spectra = np.empty((2, n * chunk), dtype=a.dtype)  # P and F of every chunk (no fresh pages per chunk)
-    with _products_in_threads() as matmul:
+    with _products_in_threads() as (matmul, _):
         for c0 in range(0, n_cols, chunk):
             c1 = min(c0 + chunk, n_cols)
             P, F = (buf[: n * (c1 - c0)].reshape(n, c1 - c0) for buf in spectra)

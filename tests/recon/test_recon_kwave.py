@@ -5,6 +5,7 @@ import h5py
 import numpy as np
 import pytest
 
+from driver.physics import fft_engine
 from service.recon import kspace_line_recon, kspace_plane_recon, kwave, reconstruct_grid
 from tests.recon import kwave_transcription as literal
 
@@ -70,6 +71,8 @@ def test_kspace_recon_matches_literal_kwave_transcription(shape, interp):
     matrix product (37 and 74 = 2·37 columns, `kwave.product_length`) or an FFT (the stored
     k-Wave data are 2-D with an even sensor count and 3519 samples only)."""
     assert kwave._coprime_split(2 * _BY_PFA - 1) == (19, 43) and kwave.product_length(shape[-1]) == (shape[-1] in (37, 74))
+    if kwave.product_length(shape[-1]):  # large enough for the product (small arrays run in numpy.fft)
+        assert np.prod(shape) > fft_engine.SMALL_ELEMENTS
     p = np.random.default_rng(5).standard_normal(shape)
     if len(shape) == 3:
         out = kspace_plane_recon(p, 1e-4, 1.2e-4, 2e-8, 1500.0, interp=interp, pos_cond=True)
