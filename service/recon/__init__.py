@@ -17,7 +17,7 @@ Importing the package imports nothing heavy: every name is imported on first use
 (PEP 562; `Reconstruction` and `estimate_peak_memory` with numpy, and
 `service.recon.methods`, the method registry, loads without numpy), so scipy.fft, numba and
 finufft load with the grid/points reconstruction, scipy.interpolate with the k-Wave
-modes, pylops/pyproximal (which take longer to import than everything else together)
+``*cubic`` mode, pylops/pyproximal (which take longer to import than everything else together)
 with the model-based part, the plans package with `voronoi_weights`. A process that
 only checks a request (`estimate_peak_memory`) or holds a `Reconstruction` never pays
 for them.
@@ -59,7 +59,7 @@ if TYPE_CHECKING:
 def __getattr__(name: str) -> Any:
     """The reconstruction (scipy.fft, numba, finufft), `PlanarOperator`, `reconstruct_tv`
     (they load pylops), `voronoi_weights` (the plans package), the k-Wave modes
-    (scipy.interpolate) and the forward model on first use."""
+    (their ``*cubic`` mode: scipy.interpolate) and the forward model on first use."""
     if name in _LAZY:
         import importlib
 

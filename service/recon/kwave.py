@@ -33,7 +33,6 @@ import threading
 import numba
 import numpy as np
 import scipy.fft
-import scipy.interpolate
 
 from driver.physics import fft_engine
 from driver.physics.fast_lengths import largest_prime_factor
@@ -63,7 +62,10 @@ def _pchip_columns(P, w, w_new_cols):
     (n_w, n_cols) from the uniform nodes w to a query vector per column (w_new_cols,
     (n_q, n_cols)); queries above max(w) -> 0 (MATLAB's NaN / Octave's NA, zeroed by
     k-Wave). Columns sharing k_lat² share their query vector and are interpolated together.
-    (Nearest and linear run in the compiled `_map_columns`.)"""
+    (Nearest and linear run in the compiled `_map_columns`.) scipy.interpolate is imported
+    here, by the one mode that uses it: its import (~0.2 s) is most of the k-Wave modes' own."""
+    import scipy.interpolate
+
     wmax = w[-1]
     out = np.zeros((w_new_cols.shape[0], P.shape[1]), dtype=np.complex128)
     gvals, gptr, order = group_columns(w_new_cols[0, :])

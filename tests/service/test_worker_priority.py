@@ -94,18 +94,17 @@ with work.JOB_GATE.busy():  # a job is running in this worker
     rest = threading.Thread(target=work._warm_rest, daemon=True)
     rest.start()
     assert work.JOB_GATE.waited.wait(HANG_S), "the background warm-up never reached its gate"
-    # it yielded before its first step: nothing of the k-Wave modes or the model is loaded
-    before = sorted(m for m in ("service.recon.kwave", "service.recon.operator", "pylops") if m in sys.modules)
+    # it yielded before its first step: nothing of the model is loaded
+    before = sorted(m for m in ("service.recon.operator", "pylops") if m in sys.modules)
     assert rest.is_alive()
 rest.join(HANG_S)
-after = sorted(m for m in ("service.recon.kwave", "service.recon.operator", "pylops") if m in sys.modules)
+after = sorted(m for m in ("service.recon.operator", "pylops") if m in sys.modules)
 print(repr((before, after, rest.is_alive())))
 """
 
 
 def test_the_background_warm_up_waits_while_a_job_runs():
-    """Issue 20.1: the worker's background warm-up (k-Wave modes, the model-based operator,
-    pylops) takes no CPU from a job: each of its steps waits until no job runs, so the first
+    """Issue 20.1: the worker's background warm-up (the model-based operator, pylops) takes no CPU from a job: each of its steps waits until no job runs, so the first
     job after start-up runs at full speed (in a fresh interpreter: nothing is loaded yet)."""
     import ast
     import subprocess
@@ -116,7 +115,7 @@ def test_the_background_warm_up_waits_while_a_job_runs():
     assert out.returncode == 0, out.stderr[-2000:]
     before, after, alive = ast.literal_eval(out.stdout.strip().splitlines()[-1])
     assert before == []
-    assert after == ["pylops", "service.recon.kwave", "service.recon.operator"]
+    assert after == ["pylops", "service.recon.operator"]
     assert not alive
 
 
