@@ -46,8 +46,8 @@ def warm_up(dtypes=DTYPES, groups=GROUPS) -> dict:
     groups : iterable of str, optional
         Names in :data:`GROUPS`; default all: ``"planar"`` (NER, NEDNER), ``"kwave"`` (the
         k-Wave-compatible modes), ``"model"`` (the model-based operator and the forward
-        model). A job server warms ``"planar"`` before its worker takes a job and the rest
-        beside it (``service.jobs.work.warm_up``).
+        model). A job server warms ``"planar"`` and ``"kwave"`` before its worker takes a
+        job and ``"model"`` beside it (``service.jobs.work.WARM_FIRST``, ``WARM_LATER``).
 
     Returns
     -------
