@@ -395,10 +395,10 @@ def warm_up(full: bool = False, rest_in_background: bool = False) -> dict:
     The kernel groups of :data:`WARM_FIRST` (NER, NEDNER, the k-Wave modes: every method but
     ``tv``) and the writer come first; with ``rest_in_background`` those of
     :data:`WARM_LATER` (the model-based operator with its pylops import: seconds) warm in a
-    daemon thread after this returns, step by step while
-    no job runs (:data:`JOB_GATE`), so the worker takes its first job that much sooner and
-    runs it at full speed (a job that needs them meanwhile compiles or waits for
-    them under numba's lock). Returns ``{"pid", "seconds"}``: the time until return."""
+    daemon thread after this returns, step by step while no job runs (:data:`JOB_GATE`), so
+    the worker takes its first job that much sooner and runs it at full speed (a job that
+    needs them meanwhile compiles or waits for them under numba's lock). Returns
+    ``{"pid", "seconds"}``: the time until return."""
     import h5py  # noqa: F401
 
     from service import recon  # noqa: F401
@@ -485,9 +485,9 @@ def warm_heap() -> bool:
 
 
 def _warm_rest() -> None:
-    """The kernel groups :func:`warm_up` leaves to the background (:data:`WARM_LATER`), one group and precision at
-    a time, each step only while no job runs (:data:`JOB_GATE`); a failure is logged (a job
-    then compiles what it needs itself)."""
+    """The kernel groups :func:`warm_up` leaves to the background (:data:`WARM_LATER`), one
+    group and precision at a time, each step only while no job runs (:data:`JOB_GATE`); a
+    failure is logged (a job then compiles what it needs itself)."""
     try:
         from service.recon.warmup import DTYPES
         from service.recon.warmup import warm_up as compile_kernels

@@ -104,8 +104,9 @@ print(repr((before, after, rest.is_alive())))
 
 
 def test_the_background_warm_up_waits_while_a_job_runs():
-    """Issue 20.1: the worker's background warm-up (the model-based operator, pylops) takes no CPU from a job: each of its steps waits until no job runs, so the first
-    job after start-up runs at full speed (in a fresh interpreter: nothing is loaded yet)."""
+    """Issue 20.1: the worker's background warm-up (the model-based operator, pylops) takes no
+    CPU from a job: each of its steps waits until no job runs, so the first job after start-up
+    runs at full speed (in a fresh interpreter: nothing is loaded yet)."""
     import ast
     import subprocess
     import sys
