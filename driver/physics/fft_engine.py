@@ -21,6 +21,22 @@ __all__ = ["SMALL_ELEMENTS", "is_small", "fft", "ifft", "irfft", "rfft2", "dct1"
 #: 2**16: a 2-D image of 256 columns x 128 samples, or a 3-D volume of 32 x 8 x 8.
 SMALL_ELEMENTS = 1 << 16
 
+#: bytes of input a transform with ``out`` (`rfft2`, `irfft`) takes at a time: a slab of
+#: leading indices whose temporaries the C heap reuses slab after slab (a whole-volume
+#: temporary is mapped fresh, and faulted in page by page, on every call)
+SLAB_BYTES = 16 << 20
+
+
+def _slabs(x: np.ndarray, out: np.ndarray, axes: tuple[int, ...]) -> range:
+    """The starts of `SLAB_BYTES` slabs of ``x`` along axis 0, after checking that ``out``
+    can take the result slab by slab (ValueError otherwise)."""
+    if x.ndim < 2 or 0 in tuple(a % x.ndim for a in axes):
+        raise ValueError(f"out needs an untransformed leading axis; got axes {axes} of a {x.ndim}-D array")
+    if out.shape[0] != x.shape[0] or not out.flags.c_contiguous:
+        raise ValueError(f"out must be C-contiguous with {x.shape[0]} leading rows, got {out.shape}")
+    step = max(1, SLAB_BYTES // max(1, x[:1].nbytes))
+    return range(0, x.shape[0], step)
+
 
 def is_small(n_elements: int) -> bool:
     """Whether a step over ``n_elements`` array elements runs without scipy.fft and numba.
@@ -105,7 +121,7 @@ def ifft(x: np.ndarray, n: int, axis: int, overwrite_x: bool = False) -> np.ndar
     return scipy.fft.ifft(x, n=n, axis=axis, overwrite_x=overwrite_x, workers=-1)
 
 
-def irfft(x: np.ndarray, n: int, axis: int, overwrite_x: bool = False) -> np.ndarray:
+def irfft(x: np.ndarray, n: int, axis: int, overwrite_x: bool = False, out: np.ndarray | None = None) -> np.ndarray:
     """Inverse real FFT of length ``n`` along one axis from its ``n // 2 + 1`` non-negative
     frequencies, with the 1/n factor (``scipy.fft.irfft``).
 
@@ -118,10 +134,19 @@ def irfft(x: np.ndarray, n: int, axis: int, overwrite_x: bool = False) -> np.nda
         The transformed axis.
     overwrite_x : bool, optional
         ``x`` may be overwritten.
+    out : ndarray, optional
+        C-contiguous real array of the result's shape and dtype to write into, slab by slab
+        of leading indices (``axis`` must not be 0); default a new array.
 
     Returns
     -------
-    ndarray, real (float32 from complex64), the shape of ``x`` with length ``n`` along ``axis``.
+    ndarray, real (float32 from complex64), the shape of ``x`` with length ``n`` along ``axis``
+    (``out`` when given).
+
+    Raises
+    ------
+    ValueError
+        ``out`` with ``axis`` 0, or not C-contiguous with the result's leading length.
 
     Examples
     --------
@@ -131,13 +156,24 @@ def irfft(x: np.ndarray, n: int, axis: int, overwrite_x: bool = False) -> np.nda
     array([1., 1., 1., 1.])
     """
     if is_small(x.size):
-        return np.fft.irfft(x, n=n, axis=axis)
+        if out is None:
+            return np.fft.irfft(x, n=n, axis=axis)
+        _slabs(x, out, (axis,))
+        out[...] = np.fft.irfft(x, n=n, axis=axis)
+        return out
     import scipy.fft
 
-    return scipy.fft.irfft(x, n=n, axis=axis, overwrite_x=overwrite_x, workers=-1)
+    if out is None:
+        return scipy.fft.irfft(x, n=n, axis=axis, overwrite_x=overwrite_x, workers=-1)
+    slabs = _slabs(x, out, (axis,))
+    for a in slabs:
+        out[a : a + slabs.step] = scipy.fft.irfft(x[a : a + slabs.step], n=n, axis=axis, overwrite_x=overwrite_x,
+                                                   workers=-1)
+    return out
 
 
-def rfft2(x: np.ndarray, s: tuple[int, int] | None = None, axes: tuple[int, int] = (-2, -1)) -> np.ndarray:
+def rfft2(x: np.ndarray, s: tuple[int, int] | None = None, axes: tuple[int, int] = (-2, -1),
+          out: np.ndarray | None = None) -> np.ndarray:
     """Real 2-D FFT over two axes, unnormalised, the last one halved (``scipy.fft.rfft2``).
 
     Parameters
@@ -147,11 +183,21 @@ def rfft2(x: np.ndarray, s: tuple[int, int] | None = None, axes: tuple[int, int]
         Lengths along ``axes`` (``x`` zero-padded or cut to them); default their own.
     axes : (int, int), optional
         The transformed axes (default the last two).
+    out : ndarray, optional
+        C-contiguous complex array of the result's shape and dtype to write into, slab by
+        slab of leading indices (axis 0 must not be transformed): no whole-volume
+        temporary, such as the zero-padded copy of ``x`` that ``scipy.fft.rfft2`` makes;
+        default a new array.
 
     Returns
     -------
     ndarray, complex: the shape of ``x`` with ``s`` along ``axes``, the last of them
-    ``s[1] // 2 + 1`` long.
+    ``s[1] // 2 + 1`` long (``out`` when given).
+
+    Raises
+    ------
+    ValueError
+        ``out`` with axis 0 transformed, or not C-contiguous with the result's leading length.
 
     Examples
     --------
@@ -161,10 +207,19 @@ def rfft2(x: np.ndarray, s: tuple[int, int] | None = None, axes: tuple[int, int]
     (2, 3)
     """
     if is_small(x.size):
-        return np.fft.rfft2(x, s=s, axes=axes)
+        if out is None:
+            return np.fft.rfft2(x, s=s, axes=axes)
+        _slabs(x, out, axes)
+        out[...] = np.fft.rfft2(x, s=s, axes=axes)
+        return out
     import scipy.fft
 
-    return scipy.fft.rfft2(x, s=s, axes=axes, workers=-1)
+    if out is None:
+        return scipy.fft.rfft2(x, s=s, axes=axes, workers=-1)
+    slabs = _slabs(x, out, axes)
+    for a in slabs:
+        out[a : a + slabs.step] = scipy.fft.rfft2(x[a : a + slabs.step], s=s, axes=axes, workers=-1)
+    return out
 
 
 def dct1(x: np.ndarray, axis: int = -1, overwrite_x: bool = False) -> np.ndarray:

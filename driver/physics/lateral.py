@@ -16,7 +16,7 @@ __all__ = ["irfft_lateral"]
 
 
 def irfft_lateral(K: np.ndarray, shape: tuple[int, ...], axes: tuple[int, ...] = (1, 2),
-                  overwrite: bool = True) -> np.ndarray:
+                  overwrite: bool = True, out: np.ndarray | None = None) -> np.ndarray:
     """``scipy.fft.irfftn(K, s=shape, axes=axes)`` without its copy of ``K``.
 
     Parameters
@@ -32,6 +32,10 @@ def irfft_lateral(K: np.ndarray, shape: tuple[int, ...], axes: tuple[int, ...] =
         volume).
     overwrite : bool, optional
         ``K`` may be overwritten (default True: the complex passes run in place).
+    out : ndarray, optional
+        C-contiguous real array of the result's shape and dtype, not overlapping ``K``, that
+        the real pass writes into (`driver.physics.fft_engine.irfft`; axis 0 must not be
+        lateral); default a new array.
 
     Returns
     -------
@@ -41,7 +45,7 @@ def irfft_lateral(K: np.ndarray, shape: tuple[int, ...], axes: tuple[int, ...] =
     Raises
     ------
     ValueError
-        ``shape`` and ``axes`` of different lengths.
+        ``shape`` and ``axes`` of different lengths; an ``out`` that does not fit.
 
     Examples
     --------
@@ -59,4 +63,4 @@ def irfft_lateral(K: np.ndarray, shape: tuple[int, ...], axes: tuple[int, ...] =
         if K.shape[ax] > 1 or n > 1:
             K = fft_engine.ifft(K, n, ax, overwrite_x=overwrite)
             overwrite = True
-    return fft_engine.irfft(K, shape[-1], axes[-1], overwrite_x=overwrite)
+    return fft_engine.irfft(K, shape[-1], axes[-1], overwrite_x=overwrite, out=out)

@@ -464,6 +464,7 @@ def evaluate(
     progress=None,
     n_chunks: int = 8,
     groups: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+    out: np.ndarray | None = None,
 ) -> np.ndarray:
     """Evaluate the even-extended transform of every column at omega = c |k|.
 
@@ -475,6 +476,9 @@ def evaluate(
     chunks of column groups (fewer for small transforms).
     groups: `group_columns` (klat2) when the caller keeps it (an operator applied many
     times); None: computed here.
+    out: a C-contiguous (n_cols, n_kz) array of ``out_dtype`` (default U's) to write the
+    result into, not overlapping U (memory the caller has already written: no fresh pages to
+    fault in); None: a new one.
     Returns (n_cols, n_kz) complex. A small transform (U and the result together at most
     `driver.physics.fft_engine.SMALL_ELEMENTS`) runs in numpy (`_interp_small`: the same
     taps and sums), a larger one in the compiled kernel.
@@ -488,7 +492,7 @@ def evaluate(
     qw : ndarray ``(n_kz,)``, weights per kz.
     c : float, m/s.  dt : float, s.  t0 : float, s (time of sample 0).
     inversion : bool, see above.
-    out_dtype, progress, n_chunks, groups
+    out_dtype, progress, n_chunks, groups, out
         See above.
 
     Returns
@@ -498,7 +502,7 @@ def evaluate(
     Raises
     ------
     ValueError
-        ``inversion`` with kz not ascending.
+        ``inversion`` with kz not ascending; an ``out`` of the wrong shape, dtype or layout.
 
     References
     ----------
@@ -523,7 +527,11 @@ def evaluate(
     True
     """
     gvals, gptr, order = group_columns(klat2) if groups is None else groups
-    out = np.empty((U.shape[0], len(kz)), dtype=out_dtype or U.dtype)
+    shape, dtype = (U.shape[0], len(kz)), np.dtype(out_dtype or U.dtype)
+    if out is None:
+        out = np.empty(shape, dtype=dtype)
+    elif out.shape != shape or out.dtype != dtype or not out.flags.c_contiguous:
+        raise ValueError(f"out must be a C-contiguous {shape} array of {dtype}, got {out.shape} {out.dtype}")
     kz = np.asarray(kz, np.float64)
     qw = np.asarray(qw, np.float64)
     if inversion and np.any(np.diff(kz) < 0):

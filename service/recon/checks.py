@@ -506,7 +506,8 @@ def estimate_peak_memory(
     alive in each (b: the real itemsize, complex 2b): the lateral spectrum A (n_t x
     n_y x (n_x/2+1); NEDNER's type-1 output is the full plane n_t x n_y x n_x, of which A is
     a view), alive to the end; the temporal fine grid U (columns x L), the evaluated
-    spectrum F and its transposed k-space image K (depth rows x columns); K zero-padded
+    spectrum F and its transposed k-space image K (depth rows x columns), F and the image in
+    A's memory and K in U's (`service.recon.planar._workspace`); K zero-padded
     for ``upsample`` u (u² times larger); the inverse lateral FFT, in place on the padded K
     (`driver.physics.lateral.irfft_lateral`), beside its output (depth rows x n_y u x n_x u); the cropped
     copy when the transform grid was padded. The peak is the largest phase, plus the
@@ -574,11 +575,14 @@ def estimate_peak_memory(
     else:
         fine = cols * (2 * n_t - 1) * cb
     kimage = n_z * cols * cb
+    # the lateral spectrum's memory, which the evaluated spectrum F and the image reuse
+    # (`service.recon.planar._workspace`); K is transposed into the fine grid's memory
+    space = max(spectrum, kimage)
     u_y = upsample if n_y > 1 else 1
     padded = n_z * n_y * u_y * (n_x * upsample // 2 + 1) * cb if upsample > 1 else kimage
     out = n_z * n_y * u_y * n_x * upsample * b
     crop = n_z * n_y0 * u_y * n_x0 * upsample * b if (n_y0, n_x0) != (n_y, n_x) else 0
-    a_alive = spectrum
+    a_alive = 0  # A is held in the space
     front = 0
     if method == "nedner":  # type-1 NUFFT: the full plane, A a view of it; weighted A-lines (float64 + complex)
         a_alive = n_t * n_y * n_x * cb
@@ -587,14 +591,20 @@ def estimate_peak_memory(
         # 2^20, ~80 bytes each; measured 82 MiB (tracemalloc) from 500 to 3000 sensors since its
         # steps free their arrays as they end, 98 MiB before)
         front = max(front, 80 * min(1024 * max(n_points or 0, 768), 1 << 20) if n_points else 0)
-    if method == "cubic":  # pchip per column group: the mirrored series and its spectra in complex128
-        fine = 5 * cols * (2 * n_t - 1) * 16
-    peak = max(front,
-               a_alive + fine + kimage,                      # temporal step: U and F
-               a_alive + 2 * kimage,                         # F transposed into K
-               a_alive + kimage + padded if upsample > 1 else 0,  # K zero-padded
-               a_alive + padded + out,                       # inverse lateral FFT (in place, then out)
-               a_alive + out + crop)                         # cropped to the grid asked for
+    cubic = 0
+    if method == "cubic":  # pchip per column group: the mirrored series and its spectra in complex128;
+        fine = 5 * cols * (2 * n_t - 1) * 16  # F a new array, K too (no fine grid to hold it)
+        cubic = a_alive + space + 2 * kimage
+    up = upsample > 1
+    a_alive += space
+    kmem = fine if kimage <= fine and method != "cubic" else kimage  # K in U's memory, or (more rows) apart
+    peak = max(front + space,
+               a_alive + fine,                               # temporal step: U, F in the space
+               a_alive + kmem,                               # F transposed into K
+               a_alive + kmem + padded if up else 0,          # K zero-padded
+               a_alive + padded + out if up else 0,           # inverse lateral FFT (in place, then out)
+               a_alive + (out if up else 0) + crop,           # cropped to the grid asked for
+               cubic)
     if method == "kwave":  # two half-lateral spectra (transposed copy) + per-chunk buffers
         peak = int(2.4 * n_t * cols * 2 * b) + n_t * n_y * n_x * b
     peak += n_in * b  # the input

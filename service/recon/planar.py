@@ -199,15 +199,35 @@ def _cubic_columns(A_cols, n_t, klat2, kz, qw, c, dt, t0):
     return out
 
 
+def _workspace(n_t: int, n_z: int, n_cols: int, ctype: type[np.complexfloating]) -> np.ndarray:
+    """Memory for the lateral spectrum (n_t, n_cols) that `_invert` reuses for its depth
+    spectrum (n_cols, n_z) and the image: max(n_t, n_z) n_cols complex values, flat."""
+    return np.empty(max(n_t, n_z) * n_cols, dtype=ctype)
+
+
+def _reuse(space: np.ndarray | None, shape: tuple[int, ...], dtype) -> np.ndarray | None:
+    """``space``'s memory as a C-contiguous array of ``shape`` and ``dtype`` (its contents
+    undefined), or None where ``space`` is None or too small (the step then makes its own).
+    Every step of a reconstruction writes its result into memory an earlier step has
+    already written, so that a call faults in fresh pages for two arrays, not five
+    (docs/performance.md, 2026-11-25)."""
+    need = int(np.prod(shape)) * np.dtype(dtype).itemsize
+    if space is None or space.nbytes < need or not space.flags.c_contiguous:
+        return None
+    return space.reshape(-1).view(np.uint8)[:need].view(dtype).reshape(shape)
+
+
 def _invert(A: np.ndarray, n_x: int, dx: float, dy: float, dt: float, c: float, n_z: int,
             dz: float, t0: float, method: str, eps: float, rdtype: np.dtype, upsample: int,
-            progress: Span | None = None) -> np.ndarray:
+            progress: Span | None = None, space: np.ndarray | None = None) -> np.ndarray:
     """Lateral spectrum A (n_t, n_y, n_x//2+1) -> p0 (n_z, n_y*u, n_x*u) (see module doc).
     (The forward model's true adjoint is `service.recon.operator.PlanarOperator.adjoint`.)
 
     ``progress`` (optional: the caller's :func:`service.progress.span` over this step) is
     called as the steps finish, with fractions in proportion to each step's typical share of
-    the run time."""
+    the run time. ``space`` (optional: `_workspace`, whose memory may hold A) is reused for
+    the depth spectrum and the image; A is then overwritten. The fine temporal grid's
+    memory holds the transposed depth spectrum."""
     n_t, n_y, n_xr = A.shape
     kx = 2 * np.pi * np.fft.rfftfreq(n_x, dx)
     ky = 2 * np.pi * np.fft.fftfreq(n_y, dy)
@@ -216,24 +236,28 @@ def _invert(A: np.ndarray, n_x: int, dx: float, dy: float, dt: float, c: float, 
     dk = np.pi / ((n_z - 1) * dz)
     kz = dk * np.arange(n_z)
     qw = np.full(n_z, c * c * dt * dk / np.pi)
+    ctype = np.complex64 if rdtype == np.float32 else np.complex128
+    U = None
     if method == "cubic":
         F = _cubic_columns(a.T, n_t, klat2, kz, qw, c, dt, t0)
     else:
         grid = nufft.make_grid(n_t, _KIND[method], eps)
         U = nufft.to_fine_grid(a, grid, t0_is_zero=(t0 == 0))
-        del a
+        del a, A  # read: its memory (space) takes the depth spectrum
         if progress is not None:
             progress(0.3)
         F = nufft.evaluate(U, grid, klat2, kz, qw, c, dt, t0, inversion=True,
-                           progress=span_of(progress, 0.3, 0.75))
-        del U
+                           progress=span_of(progress, 0.3, 0.75),
+                           out=_reuse(space, (U.shape[0], n_z), U.dtype))
     if progress is not None:
         progress(0.75)
-    ctype = np.complex64 if rdtype == np.float32 else np.complex128
     F = np.ascontiguousarray(F, dtype=ctype)
     # DCT-I along depth of the real and imaginary parts (in place, through an interleaved view)
     F = fft_engine.dct1(F, axis=1, overwrite_x=True)
-    K = np.empty((n_z, n_y * n_xr), dtype=ctype)
+    K = _reuse(U, (n_z, n_y * n_xr), ctype)  # the fine grid is read: its memory takes K
+    del U
+    if K is None:
+        K = np.empty((n_z, n_y * n_xr), dtype=ctype)
     nufft.transpose(F, K)
     K = K.reshape(n_z, n_y, n_xr)
     del F
@@ -243,7 +267,7 @@ def _invert(A: np.ndarray, n_x: int, dx: float, dy: float, dt: float, c: float, 
     if upsample > 1:
         K = _pad_spectrum(K, n_y, n_x, upsample, ups_y)
     shape = ((n_y * upsample) if ups_y else n_y, n_x * upsample)
-    p0 = irfft_lateral(K, shape)
+    p0 = irfft_lateral(K, shape, out=_reuse(space, (n_z, *shape), rdtype))
     if upsample > 1:
         p0 *= upsample ** (2 if ups_y else 1)
     if progress is not None:
@@ -383,12 +407,16 @@ def reconstruct_grid(
         memory_limit,
     )
     vol = data.astype(rdtype, copy=False).reshape(n_t, n_y, n_x)
-    A = fft_engine.rfft2(vol, s=(n_yp, n_xp), axes=(1, 2))
+    ctype = np.complex64 if rdtype == np.float32 else np.complex128
+    spectrum = (n_t, n_yp, n_xp // 2 + 1)
+    space = _workspace(n_t, n_work, n_yp * (n_xp // 2 + 1), ctype)
+    A = fft_engine.rfft2(vol, s=(n_yp, n_xp), axes=(1, 2), out=_reuse(space, spectrum, ctype))
     kernel = rising(progress)  # strictly increasing fractions, each step through its span
     if kernel is not None:
         kernel(0.1)
     p0 = _crop(_invert(A, n_xp, dx, dy, dt, c, n_work, dz, float(t0), method, eps, rdtype, upsample,
-                       progress=span_of(kernel, 0.1, 1.0)), n_z, n_y * upsample if n_y > 1 else 1, n_x * upsample)
+                       progress=span_of(kernel, 0.1, 1.0), space=space),
+               n_z, n_y * upsample if n_y > 1 else 1, n_x * upsample)
     if positivity:
         np.maximum(p0, 0, out=p0)
     x = centred_axis(n_x, dx)[0] + np.arange(n_x * upsample) * (dx / upsample)
@@ -639,24 +667,25 @@ def reconstruct_points(
     weighted = (al * (h / cell)[:, None]).T  # (n_t, n_points)
     on_grid = node_indices(pos, axes, steps)
     kernel = rising(progress)  # strictly increasing fractions, each step through its span
+    ctype = np.complex64 if rdtype == np.float32 else np.complex128
+    space = _workspace(n_t, n_work, n_y * (n_x // 2 + 1), ctype)
     if on_grid is not None:
         # every sensor on a node of the output grid (lattice masks): the type-1 sum is the
         # FFT of the zero-filled grid, exactly and at FFT speed
         filled = np.zeros((n_t, n_y, n_x), dtype=rdtype)
         filled[:, on_grid[1], on_grid[0]] = weighted
         del weighted
-        A = fft_engine.rfft2(filled, axes=(1, 2))
+        A = fft_engine.rfft2(filled, axes=(1, 2), out=_reuse(space, (n_t, n_y, n_x // 2 + 1), ctype))
         del filled
         if kernel is not None:
             kernel(0.3)
     else:
-        ctype = np.complex64 if rdtype == np.float32 else np.complex128
         A = _type1(np.ascontiguousarray(weighted, dtype=ctype), pos, axes, dx, dy, n_y, n_x, eps, rdtype,
                    span_of(kernel, 0.0, 0.3))
         del weighted
         A = A[:, :, : n_x // 2 + 1]
     p0 = _crop(_invert(A, n_x, dx, dy, dt, c, n_work, dz, float(t0), method, eps, rdtype, upsample,
-                       progress=span_of(kernel, 0.3, 1.0)), n_z, n_y_out * upsample if d == 2 else 1,
+                       progress=span_of(kernel, 0.3, 1.0), space=space), n_z, n_y_out * upsample if d == 2 else 1,
                n_x_out * upsample)
     if positivity:
         np.maximum(p0, 0, out=p0)

@@ -62,3 +62,38 @@ def test_small_is_a_size_and_nothing_else():
 def test_dct1_refuses_fewer_than_two_samples_on_either_path():
     with pytest.raises(ValueError, match="at least 2 samples"):
         fft_engine.dct1(np.ones((3, 1)), axis=1)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("shape", [(4, 6, 8), (9, 60, 50)])
+@pytest.mark.parametrize("slab_rows", [1, 4, 100])  # one slab a row, a short last slab, one slab
+@pytest.mark.usefixtures("engine")
+def test_rfft2_and_irfft_write_into_out_slab_by_slab(dtype, shape, slab_rows, monkeypatch):
+    """With ``out`` the transforms run slab by slab of leading rows into it: the same values
+    as scipy.fft's whole-array transforms, in the array given."""
+    x = _data(shape, dtype)
+    monkeypatch.setattr(fft_engine, "SLAB_BYTES", slab_rows * x[:1].nbytes)
+    s = (shape[1] + 2, shape[2] + 3)  # zero-padded, as NER pads to fast lengths
+    ctype = np.complex64 if dtype == np.float32 else np.complex128
+    out = np.full((shape[0], s[0], s[1] // 2 + 1), np.nan, ctype)
+    got = fft_engine.rfft2(x, s=s, axes=(1, 2), out=out)
+    assert got is out
+    _close(got, scipy.fft.rfft2(x, s=s, axes=(1, 2)), dtype)
+    spectrum = got.copy()
+    real = np.full((shape[0], s[0], s[1]), np.nan, dtype)
+    monkeypatch.setattr(fft_engine, "SLAB_BYTES", slab_rows * spectrum[:1].nbytes)
+    assert fft_engine.irfft(got, s[1], 2, overwrite_x=True, out=real) is real
+    _close(real, scipy.fft.irfft(spectrum, s[1], axis=2), dtype)
+
+
+@pytest.mark.usefixtures("engine")
+def test_out_that_cannot_take_the_slabs_is_refused():
+    x = _data((4, 6, 8), np.float64)
+    with pytest.raises(ValueError, match="leading rows"):
+        fft_engine.rfft2(x, axes=(1, 2), out=np.empty((3, 6, 5), complex))
+    with pytest.raises(ValueError, match="C-contiguous"):
+        fft_engine.rfft2(x, axes=(1, 2), out=np.empty((4, 6, 10), complex)[:, :, ::2])
+    with pytest.raises(ValueError, match="untransformed leading axis"):
+        fft_engine.rfft2(x, axes=(0, 2), out=np.empty((4, 6, 5), complex))
+    with pytest.raises(ValueError, match="untransformed leading axis"):
+        fft_engine.irfft(np.ones((5, 3), complex), 8, 0, out=np.empty((8, 3)))

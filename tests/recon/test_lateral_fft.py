@@ -50,3 +50,29 @@ def test_inversion_refuses_descending_kz():
     with pytest.raises(ValueError, match="ascending"):
         nufft.evaluate(U, grid, np.zeros(2), np.array([2e5, 1e5, 0.0]), np.ones(3), 1500.0, 1e-8, 0.0,
                        inversion=True)
+
+
+@pytest.mark.parametrize("dtype", [np.complex64, np.complex128])
+def test_irfft_lateral_writes_into_out(dtype):
+    rng = np.random.default_rng(3)
+    K = (rng.standard_normal((5, 9, 6)) + 1j * rng.standard_normal((5, 9, 6))).astype(dtype)
+    want = scipy.fft.irfftn(K, s=(9, 10), axes=(1, 2))
+    out = np.full(want.shape, np.nan, want.dtype)
+    assert irfft_lateral(K.copy(), (9, 10), out=out) is out
+    tol = 1e-5 if dtype == np.complex64 else 1e-12
+    assert np.linalg.norm(out - want) <= tol * np.linalg.norm(want)
+
+
+def test_evaluate_writes_into_out_and_refuses_one_that_does_not_fit():
+    grid = nufft.make_grid(16)
+    a = np.random.default_rng(2).standard_normal((16, 3))
+    U = nufft.to_fine_grid(a, grid, t0_is_zero=True)
+    kz = np.array([0.0, 1e5, 2e5])
+    args = (U, grid, np.array([0.0, 1e9, 4e9]), kz, np.ones(3), 1500.0, 1e-8, 0.0)
+    want = nufft.evaluate(*args, inversion=True)
+    out = np.full(want.shape, np.nan, want.dtype)
+    assert nufft.evaluate(*args, inversion=True, out=out) is out
+    assert np.array_equal(out, want)
+    for bad in (np.empty((3, 4), want.dtype), np.empty((3, 3), np.complex64), np.empty((3, 6), want.dtype)[:, ::2]):
+        with pytest.raises(ValueError, match="out must be"):
+            nufft.evaluate(*args, inversion=True, out=bad)
