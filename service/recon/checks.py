@@ -6,6 +6,7 @@ import os
 import numpy as np
 
 from driver.physics.fast_lengths import fast_dct1_rows, fast_lateral
+from driver.physics.fft_engine import SLAB_BYTES
 from driver.units import RefusedInput
 
 __all__ = [
@@ -509,10 +510,10 @@ def estimate_peak_memory(
     spectrum F and its transposed k-space image K (depth rows x columns), F and the image in
     A's memory and K in U's (`service.recon.planar._workspace`); K zero-padded
     for ``upsample`` u (u² times larger); the inverse lateral FFT, in place on the padded K
-    (`driver.physics.lateral.irfft_lateral`), beside its output (depth rows x n_y u x n_x u); the cropped
-    copy when the transform grid was padded. The peak is the largest phase, plus the
-    input (measured within ±25 % for ner/nedner at upsample 1-8,
-    tests/service/test_memory_admission.py).
+    (`driver.physics.lateral.irfft_lateral`), beside its output (depth rows x n_y u x n_x u);
+    the crop to the grid asked for, packed in place a slab at a time when the transform grid
+    was padded. The peak is the largest phase, plus the input (measured within ±25 % for
+    ner/nedner at upsample 1-8, tests/service/test_memory_admission.py).
 
     Parameters
     ----------
@@ -582,6 +583,7 @@ def estimate_peak_memory(
     padded = n_z * n_y * u_y * (n_x * upsample // 2 + 1) * cb if upsample > 1 else kimage
     out = n_z * n_y * u_y * n_x * upsample * b
     crop = n_z * n_y0 * u_y * n_x0 * upsample * b if (n_y0, n_x0) != (n_y, n_x) else 0
+    crop = min(crop, SLAB_BYTES)  # packed in place, a slab at a time (`service.recon.planar._crop`)
     a_alive = 0  # A is held in the space
     front = 0
     if method == "nedner":  # type-1 NUFFT: the full plane, A a view of it; weighted A-lines (float64 + complex)

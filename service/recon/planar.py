@@ -276,10 +276,21 @@ def _invert(A: np.ndarray, n_x: int, dx: float, dy: float, dt: float, c: float, 
 
 
 def _crop(p0: np.ndarray, n_z: int, n_y: int, n_x: int) -> np.ndarray:
-    """The image rows and columns asked for, contiguous (a copy only if columns are cut)."""
+    """The image rows and columns asked for, contiguous. Where columns are cut, they are
+    packed into the front of p0's own memory (p0 is the call's own array), a slab of planes
+    at a time, not copied into a new array: a slab is written below the planes it has not
+    read yet (a cut plane is shorter than a whole one), and numpy copies a slab that
+    overlaps its own source first."""
     if p0.shape[1:] == (n_y, n_x):
         return p0[:n_z]
-    return np.ascontiguousarray(p0[:n_z, :n_y, :n_x])
+    if not p0.flags.c_contiguous:
+        return np.ascontiguousarray(p0[:n_z, :n_y, :n_x])
+    out = p0.reshape(-1)[: n_z * n_y * n_x].reshape(n_z, n_y, n_x)
+    step = max(1, fft_engine.SLAB_BYTES // max(1, out[:1].nbytes))
+    for z in range(0, n_z, step):
+        e = min(z + step, n_z)
+        out[z:e] = p0[z:e, :n_y, :n_x]
+    return out
 
 
 def reconstruct_grid(

@@ -80,3 +80,20 @@ def test_slabs_do_not_change_the_image(dtype, monkeypatch):
         assert a.dtype == dtype and np.array_equal(a, b)
         tol = 1e-4 if dtype == np.float32 else 1e-10
         assert np.linalg.norm(a - w) <= tol * np.linalg.norm(w)
+
+
+@pytest.mark.parametrize("slab_planes", [1, 3, 1000])
+@pytest.mark.parametrize(("shape", "cut"), [((9, 15, 16), (7, 13, 11)), ((6, 1, 20), (6, 1, 17)),
+                                            ((5, 12, 12), (5, 12, 12))])
+def test_the_crop_packs_the_image_into_its_own_memory(shape, cut, slab_planes, monkeypatch):
+    """`_crop` against numpy's copy of the same cut: packed in place, a slab of planes at a
+    time (one plane a slab: the first planes overlap their own source), into the front of
+    the array's memory."""
+    from service.recon.planar import _crop
+
+    full = np.random.default_rng(6).standard_normal(shape)
+    monkeypatch.setattr(fft_engine, "SLAB_BYTES", slab_planes * cut[1] * cut[2] * full.itemsize)
+    work = full.copy()
+    got = _crop(work, *cut)
+    assert got.shape == cut and got.flags.c_contiguous and np.shares_memory(got, work)
+    assert np.array_equal(got, full[: cut[0], : cut[1], : cut[2]])
