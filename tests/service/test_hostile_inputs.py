@@ -226,13 +226,19 @@ def test_every_reconstruction_option_at_hostile_values(hostile_server):
 def test_a_flood_of_uploads_is_bounded(hostile_server, files):
     """More uploads at once than the import slots (FPSCAN_IMPORT_WORKERS=1: one importing,
     four waiting) are refused at once with 429 and Retry-After, the others answered with
-    their reason; /api/health keeps answering; nothing is left on disk."""
+    their reason; /api/health keeps answering; nothing is left on disk. The twelve are sent
+    together (a barrier after each client has connected): sent as their threads happened to
+    start, they could arrive one after another on a loaded machine, each finding a free slot
+    (the serial part saw twelve 422s once)."""
     body = truncated(0.5)(files).read_bytes()
     statuses: list[tuple[int, str, str | None]] = []
     lock = threading.Lock()
+    together = threading.Barrier(12, timeout=HANG_S)  # a thread that never comes: BrokenBarrierError, no hang
 
     def one() -> None:
         with hostile_server.client(timeout=120.0) as api:
+            api.get("/api/health")  # connected: the upload below goes out with the others'
+            together.wait()
             try:
                 r = api.post("/api/datasets", files={"file": ("x.h5", body)}, data={"format": "fpscan"})
                 item = (r.status_code, r.json().get("detail", ""), r.headers.get("Retry-After"))
