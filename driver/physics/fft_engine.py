@@ -27,13 +27,16 @@ SMALL_ELEMENTS = 1 << 16
 SLAB_BYTES = 16 << 20
 
 
-def _slabs(x: np.ndarray, out: np.ndarray, axes: tuple[int, ...]) -> range:
+def _slabs(x: np.ndarray, out: np.ndarray, axes: tuple[int, ...], lengths: dict[int, int], dtype) -> range:
     """The starts of `SLAB_BYTES` slabs of ``x`` along axis 0, after checking that ``out``
-    can take the result slab by slab (ValueError otherwise)."""
+    can take the result slab by slab: C-contiguous, ``x``'s shape but ``lengths`` (axis:
+    length) along the transformed axes, and ``dtype`` (ValueError otherwise)."""
     if x.ndim < 2 or 0 in tuple(a % x.ndim for a in axes):
         raise ValueError(f"out needs an untransformed leading axis; got axes {axes} of a {x.ndim}-D array")
-    if out.shape[0] != x.shape[0] or not out.flags.c_contiguous:
-        raise ValueError(f"out must be C-contiguous with {x.shape[0]} leading rows, got {out.shape}")
+    shape = tuple(lengths.get(a, n) for a, n in enumerate(x.shape))
+    if out.shape != shape or out.dtype != dtype or not out.flags.c_contiguous:
+        raise ValueError(f"out must be a C-contiguous {shape} array of {np.dtype(dtype)} with {x.shape[0]} "
+                         f"leading rows, got {out.shape} {out.dtype}")
     step = max(1, SLAB_BYTES // max(1, x[:1].nbytes))
     return range(0, x.shape[0], step)
 
@@ -146,7 +149,7 @@ def irfft(x: np.ndarray, n: int, axis: int, overwrite_x: bool = False, out: np.n
     Raises
     ------
     ValueError
-        ``out`` with ``axis`` 0, or not C-contiguous with the result's leading length.
+        ``out`` with ``axis`` 0, or not a C-contiguous array of the result's shape and dtype.
 
     Examples
     --------
@@ -155,17 +158,17 @@ def irfft(x: np.ndarray, n: int, axis: int, overwrite_x: bool = False, out: np.n
     >>> irfft(np.array([4.0, 0.0, 0.0], dtype=np.complex128), 4, 0)
     array([1., 1., 1., 1.])
     """
+    if out is not None:
+        slabs = _slabs(x, out, (axis,), {axis % x.ndim: n}, np.float32 if x.dtype == np.complex64 else np.float64)
     if is_small(x.size):
         if out is None:
             return np.fft.irfft(x, n=n, axis=axis)
-        _slabs(x, out, (axis,))
         out[...] = np.fft.irfft(x, n=n, axis=axis)
         return out
     import scipy.fft
 
     if out is None:
         return scipy.fft.irfft(x, n=n, axis=axis, overwrite_x=overwrite_x, workers=-1)
-    slabs = _slabs(x, out, (axis,))
     for a in slabs:
         out[a : a + slabs.step] = scipy.fft.irfft(x[a : a + slabs.step], n=n, axis=axis, overwrite_x=overwrite_x,
                                                    workers=-1)
@@ -197,7 +200,8 @@ def rfft2(x: np.ndarray, s: tuple[int, int] | None = None, axes: tuple[int, int]
     Raises
     ------
     ValueError
-        ``out`` with axis 0 transformed, or not C-contiguous with the result's leading length.
+        ``out`` with axis 0 transformed, or not a C-contiguous array of the result's shape and
+        dtype.
 
     Examples
     --------
@@ -206,17 +210,20 @@ def rfft2(x: np.ndarray, s: tuple[int, int] | None = None, axes: tuple[int, int]
     >>> rfft2(np.ones((2, 3), dtype=np.float32), s=(2, 4)).shape
     (2, 3)
     """
+    if out is not None:
+        ax = tuple(a % x.ndim for a in axes)
+        n_a, n_b = (x.shape[ax[0]], x.shape[ax[1]]) if s is None else (int(s[0]), int(s[1]))
+        slabs = _slabs(x, out, axes, {ax[0]: n_a, ax[1]: n_b // 2 + 1},
+                       np.complex64 if x.dtype == np.float32 else np.complex128)
     if is_small(x.size):
         if out is None:
             return np.fft.rfft2(x, s=s, axes=axes)
-        _slabs(x, out, axes)
         out[...] = np.fft.rfft2(x, s=s, axes=axes)
         return out
     import scipy.fft
 
     if out is None:
         return scipy.fft.rfft2(x, s=s, axes=axes, workers=-1)
-    slabs = _slabs(x, out, axes)
     for a in slabs:
         out[a : a + slabs.step] = scipy.fft.rfft2(x[a : a + slabs.step], s=s, axes=axes, workers=-1)
     return out
