@@ -584,29 +584,29 @@ def estimate_peak_memory(
     out = n_z * n_y * u_y * n_x * upsample * b
     crop = n_z * n_y0 * u_y * n_x0 * upsample * b if (n_y0, n_x0) != (n_y, n_x) else 0
     crop = min(crop, SLAB_BYTES)  # packed in place, a slab at a time (`service.recon.planar._crop`)
-    a_alive = 0  # A is held in the space
+    alive = space  # held throughout: A (NEDNER's type-1 plane apart), then F, then the image
     front = 0
     if method == "nedner":  # type-1 NUFFT: the full plane, A a view of it; weighted A-lines (float64 + complex)
-        a_alive = n_t * n_y * n_x * cb
-        front = a_alive + (n_points or 0) * n_t * (8 + cb)
+        plane = n_t * n_y * n_x * cb
+        alive += plane
+        front = plane + (n_points or 0) * n_t * (8 + cb)
         # the Voronoi raster of weights not given (driver.physics.weights: ~1024 samples per cell within
         # 2^20, ~80 bytes each; measured 82 MiB (tracemalloc) from 500 to 3000 sensors since its
         # steps free their arrays as they end, 98 MiB before)
         front = max(front, 80 * min(1024 * max(n_points or 0, 768), 1 << 20) if n_points else 0)
-    cubic = 0
-    if method == "cubic":  # pchip per column group: the mirrored series and its spectra in complex128;
-        fine = 5 * cols * (2 * n_t - 1) * 16  # F a new array, K too (no fine grid to hold it)
-        cubic = a_alive + space + 2 * kimage
+    if method == "cubic":  # pchip per column group: the mirrored series and its spectra in complex128
+        fine = 5 * cols * (2 * n_t - 1) * 16
+    # K in the fine grid's memory, or an array of its own (cubic: no fine grid; more depth rows than
+    # the fine grid has); cubic's F is an array of its own too
+    kmem = kimage if method == "cubic" or kimage > fine else fine
+    f_apart = kimage if method == "cubic" else 0
     up = upsample > 1
-    a_alive += space
-    kmem = fine if kimage <= fine and method != "cubic" else kimage  # K in U's memory, or (more rows) apart
     peak = max(front + space,
-               a_alive + fine,                               # temporal step: U, F in the space
-               a_alive + kmem,                               # F transposed into K
-               a_alive + kmem + padded if up else 0,          # K zero-padded
-               a_alive + padded + out if up else 0,           # inverse lateral FFT (in place, then out)
-               a_alive + (out if up else 0) + crop,           # cropped to the grid asked for
-               cubic)
+               alive + fine,                                 # temporal step: U, F in the space
+               alive + kmem + f_apart,                       # F transposed into K
+               alive + kmem + padded if up else 0,           # K zero-padded
+               alive + padded + out if up else 0,            # inverse lateral FFT (in place, then out)
+               alive + (out if up else 0) + crop)            # cropped to the grid asked for
     if method == "kwave":  # two half-lateral spectra (transposed copy) + per-chunk buffers
         peak = int(2.4 * n_t * cols * 2 * b) + n_t * n_y * n_x * b
     peak += n_in * b  # the input

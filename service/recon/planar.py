@@ -199,10 +199,11 @@ def _cubic_columns(A_cols, n_t, klat2, kz, qw, c, dt, t0):
     return out
 
 
-def _workspace(n_t: int, n_z: int, n_cols: int, ctype: type[np.complexfloating]) -> np.ndarray:
+def _workspace(n_t: int, n_z: int, n_cols: int, rdtype: np.dtype) -> np.ndarray:
     """Memory for the lateral spectrum (n_t, n_cols) that `_invert` reuses for its depth
-    spectrum (n_cols, n_z) and the image: max(n_t, n_z) n_cols complex values, flat."""
-    return np.empty(max(n_t, n_z) * n_cols, dtype=ctype)
+    spectrum (n_cols, n_z) and the image: max(n_t, n_z) n_cols complex values of the
+    working precision (complex64 for float32), flat."""
+    return np.empty(max(n_t, n_z) * n_cols, dtype=np.result_type(rdtype, np.complex64))
 
 
 def _reuse(space: np.ndarray | None, shape: tuple[int, ...], dtype) -> np.ndarray | None:
@@ -277,14 +278,12 @@ def _invert(A: np.ndarray, n_x: int, dx: float, dy: float, dt: float, c: float, 
 
 def _crop(p0: np.ndarray, n_z: int, n_y: int, n_x: int) -> np.ndarray:
     """The image rows and columns asked for, contiguous. Where columns are cut, they are
-    packed into the front of p0's own memory (p0 is the call's own array), a slab of planes
-    at a time, not copied into a new array: a slab is written below the planes it has not
-    read yet (a cut plane is shorter than a whole one), and numpy copies a slab that
-    overlaps its own source first."""
+    packed into the front of p0's own memory (p0 is the call's own array, C-contiguous as
+    the inverse lateral FFT leaves it), a slab of planes at a time, not copied into a new
+    array: a slab is written below the planes it has not read yet (a cut plane is shorter
+    than a whole one), and numpy copies a slab that overlaps its own source first."""
     if p0.shape[1:] == (n_y, n_x):
         return p0[:n_z]
-    if not p0.flags.c_contiguous:
-        return np.ascontiguousarray(p0[:n_z, :n_y, :n_x])
     out = p0.reshape(-1)[: n_z * n_y * n_x].reshape(n_z, n_y, n_x)
     step = max(1, fft_engine.SLAB_BYTES // max(1, out[:1].nbytes))
     for z in range(0, n_z, step):
@@ -418,10 +417,8 @@ def reconstruct_grid(
         memory_limit,
     )
     vol = data.astype(rdtype, copy=False).reshape(n_t, n_y, n_x)
-    ctype = np.complex64 if rdtype == np.float32 else np.complex128
-    spectrum = (n_t, n_yp, n_xp // 2 + 1)
-    space = _workspace(n_t, n_work, n_yp * (n_xp // 2 + 1), ctype)
-    A = fft_engine.rfft2(vol, s=(n_yp, n_xp), axes=(1, 2), out=_reuse(space, spectrum, ctype))
+    space = _workspace(n_t, n_work, n_yp * (n_xp // 2 + 1), rdtype)
+    A = fft_engine.rfft2(vol, s=(n_yp, n_xp), axes=(1, 2), out=_reuse(space, (n_t, n_yp, n_xp // 2 + 1), space.dtype))
     kernel = rising(progress)  # strictly increasing fractions, each step through its span
     if kernel is not None:
         kernel(0.1)
@@ -678,20 +675,19 @@ def reconstruct_points(
     weighted = (al * (h / cell)[:, None]).T  # (n_t, n_points)
     on_grid = node_indices(pos, axes, steps)
     kernel = rising(progress)  # strictly increasing fractions, each step through its span
-    ctype = np.complex64 if rdtype == np.float32 else np.complex128
-    space = _workspace(n_t, n_work, n_y * (n_x // 2 + 1), ctype)
+    space = _workspace(n_t, n_work, n_y * (n_x // 2 + 1), rdtype)
     if on_grid is not None:
         # every sensor on a node of the output grid (lattice masks): the type-1 sum is the
         # FFT of the zero-filled grid, exactly and at FFT speed
         filled = np.zeros((n_t, n_y, n_x), dtype=rdtype)
         filled[:, on_grid[1], on_grid[0]] = weighted
         del weighted
-        A = fft_engine.rfft2(filled, axes=(1, 2), out=_reuse(space, (n_t, n_y, n_x // 2 + 1), ctype))
+        A = fft_engine.rfft2(filled, axes=(1, 2), out=_reuse(space, (n_t, n_y, n_x // 2 + 1), space.dtype))
         del filled
         if kernel is not None:
             kernel(0.3)
     else:
-        A = _type1(np.ascontiguousarray(weighted, dtype=ctype), pos, axes, dx, dy, n_y, n_x, eps, rdtype,
+        A = _type1(np.ascontiguousarray(weighted, dtype=space.dtype), pos, axes, dx, dy, n_y, n_x, eps, rdtype,
                    span_of(kernel, 0.0, 0.3))
         del weighted
         A = A[:, :, : n_x // 2 + 1]
