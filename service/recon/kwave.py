@@ -204,7 +204,9 @@ def _products_in_threads():
     """A context giving ``(matmul, matmul_rows)``: ``matmul(C, X, out)`` writes ``out = C @ X``
     (or ``C(X, out)`` for an `_EvenPFA`) with the columns of ``X`` split over as many threads
     as BLAS had, each running single-threaded BLAS; ``matmul_rows(C, X, out)`` writes
-    ``out = X @ C`` with the rows of ``X`` split (both C-contiguous).
+    ``out = X @ C`` with the rows of ``X`` split (both C-contiguous). With ``over=True``,
+    ``out`` is written over ``X``'s own memory: it starts where ``X`` starts and its rows are
+    no longer than ``X``'s (`_rows_over`).
 
     OpenBLAS's own threads spin for about 0.1 s after a product before they sleep; the
     compiled kernels and FFTs that follow it here then ran at half speed (the mapping 17 ->
@@ -227,14 +229,48 @@ def _products_in_threads():
                 for d in done:
                     d.result()
 
-            def matmul_rows(C: np.ndarray, X: np.ndarray, out: np.ndarray) -> None:
+            def matmul_rows(C: np.ndarray, X: np.ndarray, out: np.ndarray, over: bool = False) -> None:
                 cuts = [X.shape[0] * i // parts for i in range(parts + 1)]
+                if over:
+                    _rows_over(pool, C, X, out, cuts)
+                    return
                 done = [pool.submit(np.matmul, X[r0:r1], C, out=out[r0:r1])
                         for r0, r1 in zip(cuts, cuts[1:]) if r1 > r0]
                 for d in done:
                     d.result()
 
             yield matmul, matmul_rows
+
+
+_OVER_BYTES = 512 << 10  # rows of X a thread of `_rows_over` takes at a time (L2-resident)
+
+
+def _rows_over(pool, C: np.ndarray, X: np.ndarray, out: np.ndarray, cuts: list[int]) -> None:
+    """``out = X @ C`` written over ``X``'s own memory (``out`` (R, m) starts where ``X`` (R, k)
+    does, m <= k, both C-contiguous), the rows split at ``cuts`` over the threads of ``pool``.
+
+    Output row r lies below input row r (r m <= r k), so a thread that goes through its rows
+    in order, a block at a time (each block's product into its own small array, then copied
+    into place), writes only over rows it has read. Only its first rows reach below its
+    first input row, into the previous thread's: their products are kept aside and copied
+    into place once every thread is done."""
+    m, k = out.shape[1], X.shape[1]
+    step = max(1, _OVER_BYTES // (k * X.itemsize))
+
+    def part(r0: int, r1: int) -> np.ndarray:
+        head = min(r1, -(-r0 * k // m))  # rows r < head write below input row r0
+        kept = np.matmul(X[r0:head], C)
+        tmp = np.empty((step, m), dtype=out.dtype)
+        for a in range(head, r1, step):
+            b = min(a + step, r1)
+            np.matmul(X[a:b], C, out=tmp[: b - a])
+            out[a:b] = tmp[: b - a]
+        return kept
+
+    done = [(r0, pool.submit(part, r0, r1)) for r0, r1 in zip(cuts, cuts[1:]) if r1 > r0]
+    kept = [(r0, d.result()) for r0, d in done]  # every thread has read all its rows
+    for r0, rows in kept:
+        out[r0 : r0 + rows.shape[0]] = rows
 
 
 #: the longest lateral length `product_length` gives to a matrix product
@@ -311,21 +347,26 @@ def _lateral_forward(p: np.ndarray, lat_axes: tuple[int, ...]) -> np.ndarray:
     return out
 
 
-def _lateral_inverse(A: np.ndarray, lat_shape: tuple[int, ...], lat_axes: tuple[int, ...]) -> np.ndarray:
-    """`driver.physics.lateral.irfft_lateral` (``A`` consumed), the real axis as a matrix
-    product where `product_length` says so (a large array only)."""
+def _lateral_inverse(A: np.ndarray, lat_shape: tuple[int, ...], lat_axes: tuple[int, ...],
+                     scale: float = 1.0) -> np.ndarray:
+    """``scale`` times `driver.physics.lateral.irfft_lateral` (``A`` consumed), the real axis
+    as a matrix product where `product_length` says so (a large array only); the product's
+    result is written over ``A``'s own memory (a view of it is returned), the scale folded
+    into the matrix."""
     n = lat_shape[-1]
     if fft_engine.is_small(A.size // A.shape[-1] * n) or not product_length(n):  # the output's size
-        return irfft_lateral(A, lat_shape, lat_axes)
+        res = irfft_lateral(A, lat_shape, lat_axes)
+        res *= scale
+        return res
     if len(lat_axes) == 2:
         A = scipy.fft.ifft(A, axis=lat_axes[0], overwrite_x=True, workers=-1)
     rdtype = np.float32 if A.dtype == np.complex64 else np.float64
     _, V = _lateral_matrices(n, np.dtype(rdtype))
     rows = np.ascontiguousarray(A).reshape(-1, A.shape[-1]).view(rdtype)
-    out = np.empty(A.shape[:-1] + (n,), dtype=rdtype)
+    out = rows.reshape(-1)[: rows.shape[0] * n].reshape(rows.shape[0], n)  # over the spectrum
     with _products_in_threads() as (_, matmul_rows):
-        matmul_rows(V, rows, out.reshape(rows.shape[0], n))
-    return out
+        matmul_rows((V * scale).astype(rdtype, copy=False), rows, out, over=True)
+    return out.reshape(A.shape[:-1] + (n,))
 
 
 _BLOCK = 8  # columns the mapping takes at a time (8 complex128: two cache lines of a row)
@@ -555,9 +596,8 @@ def _recon(p, dt, c, lateral_d, interp, pos_cond, dtype=np.float64, progress=Non
     else:
         _by_ffts(a, mapping, ntm, rdtype, span(kernel, 0.15, 0.85))
     del a
-    res = _lateral_inverse(A, lat_shape, lat_axes)
+    res = _lateral_inverse(A, lat_shape, lat_axes, 4.0 / c)
     del A
-    res *= 4.0 / c
     if pos_cond:
         np.maximum(res, 0, out=res)
     if kernel is not None:

@@ -101,3 +101,26 @@ def test_kspace_plane_recon_float32_matches_float64(n_t, n_x):
         out = kspace_plane_recon(p.astype(np.float32), 1e-4, 1e-4, 2e-8, 1500.0, interp=interp, dtype=np.float32)
         assert out.dtype == np.float32
         assert np.abs(out - ref).max() <= 1e-5 * np.abs(ref).max(), interp
+
+
+@pytest.mark.parametrize("parts", [1, 2, 3, 5])
+@pytest.mark.parametrize(("k", "m", "step_rows"), [(38, 37, 4), (228, 226, 7), (12, 12, 3), (20, 11, 1000)])
+def test_rows_product_written_over_its_input_equals_the_product(monkeypatch, parts, k, m, step_rows):
+    """`kwave._rows_over` (the lateral inverse's rows written over the spectrum) gives
+    ``X @ C`` as computed into fresh memory, for row splits over 1-5 threads whose heads
+    reach into the previous thread's rows, blocks of a few rows or all of them, and output
+    rows as long as the input's (m = k) or much shorter."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    rng = np.random.default_rng(3)
+    n_rows = 97
+    X = rng.standard_normal((n_rows, k))
+    C = rng.standard_normal((k, m))
+    want = X @ C
+    monkeypatch.setattr(kwave, "_OVER_BYTES", step_rows * k * X.itemsize)
+    out = X.reshape(-1)[: n_rows * m].reshape(n_rows, m)
+    cuts = [n_rows * i // parts for i in range(parts + 1)]
+    with ThreadPoolExecutor(parts) as pool:
+        kwave._rows_over(pool, C, X, out, cuts)
+    assert np.shares_memory(out, X)
+    np.testing.assert_allclose(out, want, rtol=0, atol=1e-12 * np.abs(want).max())
