@@ -252,6 +252,26 @@ def _child_context() -> Any:
     return ctx
 
 
+def _child_nice() -> int | None:
+    """The niceness of a reading child: the caller's + ``CHILD_NICE`` (at most 19); None where
+    the platform has no priorities."""
+    try:
+        return min(os.getpriority(os.PRIO_PROCESS, 0) + CHILD_NICE, 19)
+    except (AttributeError, OSError):
+        return None
+
+
+def _set_nice(pid: int, nice: int | None) -> None:
+    """Set process ``pid``'s (0: this one's) niceness to ``nice`` where it can (None: nothing;
+    a child already gone, or a value below the current one without privileges: left as is)."""
+    if nice is None:
+        return
+    try:
+        os.setpriority(os.PRIO_PROCESS, pid, nice)
+    except (AttributeError, OSError):
+        pass
+
+
 def run_bounded(fn: Callable, *args: Any, timeout: float, memory_bytes: int | None = None,
                 what: str = "the file", admit: Callable[[int], str | None] | None = None, **kwargs: Any) -> Any:
     """``fn(*args, **kwargs)`` in a child process (:func:`_child_context`; at CPU priority
@@ -271,14 +291,12 @@ def run_bounded(fn: Callable, *args: Any, timeout: float, memory_bytes: int | No
     # an Event, not a queue message: a queue's message is written by a feeder thread, which
     # never runs while the child's main thread blocks in HDF5 holding the GIL
     ready = ctx.Event()
-    proc = ctx.Process(target=_bounded_entry, args=(q, ready, fn, args, kwargs, memory_bytes, answers),
+    nice = _child_nice()
+    proc = ctx.Process(target=_bounded_entry, args=(q, ready, fn, args, kwargs, memory_bytes, answers, nice),
                        daemon=True)
     proc.start()
-    try:  # from here, not in the child: its interpreter start and imports are the costly part
-        if proc.pid is not None:
-            os.setpriority(os.PRIO_PROCESS, proc.pid, os.getpriority(os.PRIO_PROCESS, 0) + CHILD_NICE)
-    except (AttributeError, OSError):  # not on this platform, or the child is already gone
-        pass
+    if proc.pid is not None:  # from here too, not only in the child: a spawned child's start is costly
+        _set_nice(proc.pid, nice)
     # the time limit starts when the child has imported what it runs (interpreter start-up
     # on a busy machine is not the file's fault), bounded separately by STARTUP_S
     deadline = time.monotonic() + STARTUP_S
@@ -321,8 +339,12 @@ def run_bounded(fn: Callable, *args: Any, timeout: float, memory_bytes: int | No
 
 
 def _bounded_entry(q: Any, ready: Any, fn: Callable, args: tuple, kwargs: dict, memory_bytes: int | None,
-                   answers: Any = None) -> None:
+                   answers: Any = None, nice: int | None = None) -> None:
+    """The child's start: its niceness ``nice`` (absolute, the same value the parent sets
+    from outside: a forked child can run ``fn`` before the parent's setpriority reaches it),
+    its address-space limit, then ``fn`` (:func:`_child`)."""
     global _ADMISSION
+    _set_nice(0, nice)
     if answers is not None:
         _ADMISSION = (q, answers)
     ready.set()
