@@ -125,9 +125,11 @@ def ifft(x: np.ndarray, n: int, axis: int, overwrite_x: bool = False) -> np.ndar
     return scipy.fft.ifft(x, n=n, axis=axis, overwrite_x=overwrite_x, workers=-1)
 
 
-def irfft(x: np.ndarray, n: int, axis: int, overwrite_x: bool = False, out: np.ndarray | None = None) -> np.ndarray:
+def irfft(x: np.ndarray, n: int, axis: int, overwrite_x: bool = False, out: np.ndarray | None = None,
+          keep: int | None = None) -> np.ndarray:
     """Inverse real FFT of length ``n`` along one axis from its ``n // 2 + 1`` non-negative
-    frequencies, with the 1/n factor (``scipy.fft.irfft``).
+    frequencies, with the 1/n factor (``scipy.fft.irfft``); optionally only its first
+    ``keep`` samples along that axis.
 
     Parameters
     ----------
@@ -140,17 +142,23 @@ def irfft(x: np.ndarray, n: int, axis: int, overwrite_x: bool = False, out: np.n
         ``x`` may be overwritten.
     out : ndarray, optional
         C-contiguous real array of the result's shape and dtype to write into, slab by slab
-        of leading indices (``axis`` must not be 0); default a new array.
+        of leading indices (``axis`` must not be 0); default a new array. It may start
+        where ``x``'s own memory starts when a leading index of the result takes no more
+        bytes than one of ``x``: each slab is transformed whole before it is written.
+    keep : int, optional
+        Samples kept along ``axis``, 1 <= keep <= n (default n): the result's first ``keep``
+        (an image cropped to the grid asked for, without a copy of its own).
 
     Returns
     -------
-    ndarray, real (float32 from complex64), the shape of ``x`` with length ``n`` along ``axis``
-    (``out`` when given).
+    ndarray, real (float32 from complex64), the shape of ``x`` with length ``keep`` along
+    ``axis`` (``out`` when given).
 
     Raises
     ------
     ValueError
-        ``out`` with ``axis`` 0, or not a C-contiguous array of the result's shape and dtype.
+        ``out`` with ``axis`` 0, or not a C-contiguous array of the result's shape and dtype;
+        ``keep`` outside 1..n.
 
     Examples
     --------
@@ -159,20 +167,25 @@ def irfft(x: np.ndarray, n: int, axis: int, overwrite_x: bool = False, out: np.n
     >>> irfft(np.array([4.0, 0.0, 0.0], dtype=np.complex128), 4, 0)
     array([1., 1., 1., 1.])
     """
+    keep = n if keep is None else int(keep)
+    if not 1 <= keep <= n:
+        raise ValueError(f"keep must be 1..{n}, got {keep}")
+    cut = (slice(None),) * (axis % x.ndim) + (slice(0, keep),)  # the kept samples along axis
     if out is not None:
-        slabs = _slabs(x, out, (axis,), {axis % x.ndim: n}, np.float32 if x.dtype == np.complex64 else np.float64)
+        slabs = _slabs(x, out, (axis,), {axis % x.ndim: keep}, np.float32 if x.dtype == np.complex64 else np.float64)
     if is_small(x.size):
         if out is None:
-            return np.fft.irfft(x, n=n, axis=axis)
-        out[...] = np.fft.irfft(x, n=n, axis=axis)
+            return np.ascontiguousarray(np.fft.irfft(x, n=n, axis=axis)[cut])
+        out[...] = np.fft.irfft(x, n=n, axis=axis)[cut]
         return out
     import scipy.fft
 
     if out is None:
-        return scipy.fft.irfft(x, n=n, axis=axis, overwrite_x=overwrite_x, workers=-1)
+        res = scipy.fft.irfft(x, n=n, axis=axis, overwrite_x=overwrite_x, workers=-1)
+        return res if keep == n else np.ascontiguousarray(res[cut])
     for a in slabs:
         out[a : a + slabs.step] = scipy.fft.irfft(x[a : a + slabs.step], n=n, axis=axis, overwrite_x=overwrite_x,
-                                                   workers=-1)
+                                                   workers=-1)[cut]
     return out
 
 

@@ -16,7 +16,8 @@ __all__ = ["irfft_lateral"]
 
 
 def irfft_lateral(K: np.ndarray, shape: tuple[int, ...], axes: tuple[int, ...] = (1, 2),
-                  overwrite: bool = True, out: np.ndarray | None = None) -> np.ndarray:
+                  overwrite: bool = True, out: np.ndarray | None = None,
+                  keep: tuple[int, ...] | None = None) -> np.ndarray:
     """``scipy.fft.irfftn(K, s=shape, axes=axes)`` without its copy of ``K``.
 
     Parameters
@@ -33,19 +34,27 @@ def irfft_lateral(K: np.ndarray, shape: tuple[int, ...], axes: tuple[int, ...] =
     overwrite : bool, optional
         ``K`` may be overwritten (default True: the complex passes run in place).
     out : ndarray, optional
-        C-contiguous real array of the result's shape and dtype, not overlapping ``K``, that
-        the real pass writes into (`driver.physics.fft_engine.irfft`; axis 0 must not be
-        lateral); default a new array.
+        C-contiguous real array of the result's shape and dtype that the real pass writes
+        into, slab by slab of leading indices (`driver.physics.fft_engine.irfft`; axis 0
+        must not be lateral); default a new array. It may start where ``K``'s own memory
+        starts (with ``overwrite``, the image written over its spectrum): a slab is
+        transformed whole before it is written, and a leading index of the result takes no
+        more bytes than one of ``K``, so no slab is written over one not yet read.
+    keep : tuple of int, optional
+        The leading samples kept along each of ``axes`` (1 <= keep <= shape; default all):
+        the result cropped to them (the grid asked for inside a padded transform grid)
+        without a copy of its own; the real pass runs on the kept rows only.
 
     Returns
     -------
-    ndarray, real, the shape of ``K`` with ``axes`` replaced by ``shape``; the dtype
-    follows ``K`` (complex64 -> float32).
+    ndarray, real, the shape of ``K`` with ``axes`` replaced by ``keep`` (``shape``); the
+    dtype follows ``K`` (complex64 -> float32).
 
     Raises
     ------
     ValueError
-        ``shape`` and ``axes`` of different lengths; an ``out`` that does not fit.
+        ``shape``, ``keep`` and ``axes`` of different lengths; ``keep`` outside 1..shape; an
+        ``out`` that does not fit.
 
     Examples
     --------
@@ -57,10 +66,15 @@ def irfft_lateral(K: np.ndarray, shape: tuple[int, ...], axes: tuple[int, ...] =
     """
     shape = tuple(int(s) for s in shape)
     axes = tuple(int(a) for a in axes)
-    if len(shape) != len(axes) or not axes:
-        raise ValueError(f"shape {shape} and axes {axes} must have the same, non-zero length")
-    for n, ax in zip(shape[:-1], axes[:-1]):
+    keep = shape if keep is None else tuple(int(k) for k in keep)
+    if len(shape) != len(axes) or not axes or len(keep) != len(shape):
+        raise ValueError(f"shape {shape}, keep {keep} and axes {axes} must have the same, non-zero length")
+    if not all(1 <= k <= n for k, n in zip(keep, shape)):
+        raise ValueError(f"keep {keep} must lie within 1..shape {shape}")
+    for n, k, ax in zip(shape[:-1], keep[:-1], axes[:-1]):
         if K.shape[ax] > 1 or n > 1:
             K = fft_engine.ifft(K, n, ax, overwrite_x=overwrite)
             overwrite = True
-    return fft_engine.irfft(K, shape[-1], axes[-1], overwrite_x=overwrite, out=out)
+        if k < n:  # the rows kept: the real pass transforms those only
+            K = K[(slice(None),) * (ax % K.ndim) + (slice(0, k),)]
+    return fft_engine.irfft(K, shape[-1], axes[-1], overwrite_x=overwrite, out=out, keep=keep[-1])

@@ -6,7 +6,6 @@ import os
 import numpy as np
 
 from driver.physics.fast_lengths import fast_dct1_rows, fast_lateral
-from driver.physics.fft_engine import SLAB_BYTES
 from driver.units import RefusedInput
 
 __all__ = [
@@ -510,10 +509,10 @@ def estimate_peak_memory(
     spectrum F and its transposed k-space image K (depth rows x columns), F and the image in
     A's memory and K in U's (`service.recon.planar._workspace`); K zero-padded
     for ``upsample`` u (u² times larger); the inverse lateral FFT, in place on the padded K
-    (`driver.physics.lateral.irfft_lateral`), beside its output (depth rows x n_y u x n_x u);
-    the crop to the grid asked for, packed in place a slab at a time when the transform grid
-    was padded. The peak is the largest phase, plus the input (measured within ±25 % for
-    ner/nedner at upsample 1-8, tests/service/test_memory_admission.py).
+    (`driver.physics.lateral.irfft_lateral`), beside its output (depth rows x n_y u x n_x u
+    of the grid asked for: the padding is not written). The peak is the largest phase,
+    plus the input (measured within ±25 % for ner/nedner at upsample 1-8,
+    tests/service/test_memory_admission.py).
 
     Parameters
     ----------
@@ -581,9 +580,7 @@ def estimate_peak_memory(
     space = max(spectrum, kimage)
     u_y = upsample if n_y > 1 else 1
     padded = n_z * n_y * u_y * (n_x * upsample // 2 + 1) * cb if upsample > 1 else kimage
-    out = n_z * n_y * u_y * n_x * upsample * b
-    crop = n_z * n_y0 * u_y * n_x0 * upsample * b if (n_y0, n_x0) != (n_y, n_x) else 0
-    crop = min(crop, SLAB_BYTES)  # packed in place, a slab at a time (`service.recon.planar._crop`)
+    out = n_z * n_y0 * u_y * n_x0 * upsample * b  # the grid asked for only (irfft_lateral's keep)
     alive = space  # held throughout: A (NEDNER's type-1 plane apart), then F, then the image
     front = 0
     if method == "nedner":  # type-1 NUFFT: the full plane, A a view of it; weighted A-lines (float64 + complex)
@@ -605,8 +602,7 @@ def estimate_peak_memory(
                alive + fine,                                 # temporal step: U, F in the space
                alive + kmem + f_apart,                       # F transposed into K
                alive + kmem + padded if up else 0,           # K zero-padded
-               alive + padded + out if up else 0,            # inverse lateral FFT (in place, then out)
-               alive + (out if up else 0) + crop)            # cropped to the grid asked for
+               alive + padded + out if up else 0)            # inverse lateral FFT (in place, then out)
     if method == "kwave":  # two half-lateral spectra (transposed copy) + per-chunk buffers
         peak = int(2.4 * n_t * cols * 2 * b) + n_t * n_y * n_x * b
     peak += n_in * b  # the input

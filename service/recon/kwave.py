@@ -334,8 +334,13 @@ def _lateral_forward(p: np.ndarray, lat_axes: tuple[int, ...]) -> np.ndarray:
     """``scipy.fft.rfftn(p, axes=lat_axes)`` (p time first, real), the real axis (the last)
     as a matrix product where `product_length` says so (a large array only)."""
     n = p.shape[-1]
-    if fft_engine.is_small(p.size) or not product_length(n):
+    if fft_engine.is_small(p.size):
         return scipy.fft.rfftn(p, axes=lat_axes, workers=-1)
+    if not product_length(n):  # rfftn's second pass would take an array of its own: in place here
+        out = scipy.fft.rfft(p, axis=-1, workers=-1)
+        if len(lat_axes) == 2:
+            out = scipy.fft.fft(out, axis=lat_axes[0], overwrite_x=True, workers=-1)
+        return out
     W, _ = _lateral_matrices(n, p.dtype)
     rows = np.ascontiguousarray(p).reshape(-1, n)
     cdtype = np.complex64 if p.dtype == np.float32 else np.complex128
@@ -350,12 +355,16 @@ def _lateral_forward(p: np.ndarray, lat_axes: tuple[int, ...]) -> np.ndarray:
 def _lateral_inverse(A: np.ndarray, lat_shape: tuple[int, ...], lat_axes: tuple[int, ...],
                      scale: float = 1.0) -> np.ndarray:
     """``scale`` times `driver.physics.lateral.irfft_lateral` (``A`` consumed), the real axis
-    as a matrix product where `product_length` says so (a large array only); the product's
-    result is written over ``A``'s own memory (a view of it is returned), the scale folded
-    into the matrix."""
+    as a matrix product where `product_length` says so (a large array only, the scale
+    folded into the matrix); the image is written over ``A``'s own memory (a view of it is
+    returned)."""
     n = lat_shape[-1]
     if fft_engine.is_small(A.size // A.shape[-1] * n) or not product_length(n):  # the output's size
-        res = irfft_lateral(A, lat_shape, lat_axes)
+        rdtype = np.float32 if A.dtype == np.complex64 else np.float64
+        over: np.ndarray | None = None
+        if A.flags.c_contiguous and lat_axes[0] == 1:  # slab by slab over the spectrum (irfft_lateral's out)
+            over = A.reshape(-1).view(rdtype)[: A.size // A.shape[-1] * n].reshape(A.shape[:-1] + (n,))
+        res = irfft_lateral(A, lat_shape, lat_axes, out=over)
         res *= scale
         return res
     if len(lat_axes) == 2:

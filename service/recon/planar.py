@@ -220,8 +220,11 @@ def _reuse(space: np.ndarray | None, shape: tuple[int, ...], dtype) -> np.ndarra
 
 def _invert(A: np.ndarray, n_x: int, dx: float, dy: float, dt: float, c: float, n_z: int,
             dz: float, t0: float, method: str, eps: float, rdtype: np.dtype, upsample: int,
-            progress: Span | None = None, space: np.ndarray | None = None) -> np.ndarray:
-    """Lateral spectrum A (n_t, n_y, n_x//2+1) -> p0 (n_z, n_y*u, n_x*u) (see module doc).
+            keep: tuple[int, int, int], progress: Span | None = None, space: np.ndarray | None = None) -> np.ndarray:
+    """Lateral spectrum A (n_t, n_y, n_x//2+1) -> p0 (n_z, n_y*u, n_x*u) (see module doc),
+    of which the leading ``keep`` (rows, y, x) are returned: the grid asked for inside the
+    padded transform grid, C-contiguous (the inverse lateral FFT runs on the kept depth
+    rows only and writes the kept samples only, `driver.physics.lateral.irfft_lateral`).
     (The forward model's true adjoint is `service.recon.operator.PlanarOperator.adjoint`.)
 
     ``progress`` (optional: the caller's :func:`service.progress.span` over this step) is
@@ -268,28 +271,12 @@ def _invert(A: np.ndarray, n_x: int, dx: float, dy: float, dt: float, c: float, 
     if upsample > 1:
         K = _pad_spectrum(K, n_y, n_x, upsample, ups_y)
     shape = ((n_y * upsample) if ups_y else n_y, n_x * upsample)
-    p0 = irfft_lateral(K, shape, out=_reuse(space, (n_z, *shape), rdtype))
+    p0 = irfft_lateral(K[: keep[0]], shape, out=_reuse(space, keep, rdtype), keep=keep[1:])
     if upsample > 1:
         p0 *= upsample ** (2 if ups_y else 1)
     if progress is not None:
         progress(1.0)
     return p0.astype(rdtype, copy=False)
-
-
-def _crop(p0: np.ndarray, n_z: int, n_y: int, n_x: int) -> np.ndarray:
-    """The image rows and columns asked for, contiguous. Where columns are cut, they are
-    packed into the front of p0's own memory (p0 is the call's own array, C-contiguous as
-    the inverse lateral FFT leaves it), a slab of planes at a time, not copied into a new
-    array: a slab is written below the planes it has not read yet (a cut plane is shorter
-    than a whole one), and numpy copies a slab that overlaps its own source first."""
-    if p0.shape[1:] == (n_y, n_x):
-        return p0[:n_z]
-    out = p0.reshape(-1)[: n_z * n_y * n_x].reshape(n_z, n_y, n_x)
-    step = max(1, fft_engine.SLAB_BYTES // max(1, out[:1].nbytes))
-    for z in range(0, n_z, step):
-        e = min(z + step, n_z)
-        out[z:e] = p0[z:e, :n_y, :n_x]
-    return out
 
 
 def reconstruct_grid(
@@ -422,9 +409,9 @@ def reconstruct_grid(
     kernel = rising(progress)  # strictly increasing fractions, each step through its span
     if kernel is not None:
         kernel(0.1)
-    p0 = _crop(_invert(A, n_xp, dx, dy, dt, c, n_work, dz, float(t0), method, eps, rdtype, upsample,
-                       progress=span_of(kernel, 0.1, 1.0), space=space),
-               n_z, n_y * upsample if n_y > 1 else 1, n_x * upsample)
+    p0 = _invert(A, n_xp, dx, dy, dt, c, n_work, dz, float(t0), method, eps, rdtype, upsample,
+                 (n_z, n_y * upsample if n_y > 1 else 1, n_x * upsample), progress=span_of(kernel, 0.1, 1.0),
+                 space=space)
     if positivity:
         np.maximum(p0, 0, out=p0)
     x = centred_axis(n_x, dx)[0] + np.arange(n_x * upsample) * (dx / upsample)
@@ -691,9 +678,9 @@ def reconstruct_points(
                    span_of(kernel, 0.0, 0.3))
         del weighted
         A = A[:, :, : n_x // 2 + 1]
-    p0 = _crop(_invert(A, n_x, dx, dy, dt, c, n_work, dz, float(t0), method, eps, rdtype, upsample,
-                       progress=span_of(kernel, 0.3, 1.0), space=space), n_z, n_y_out * upsample if d == 2 else 1,
-               n_x_out * upsample)
+    p0 = _invert(A, n_x, dx, dy, dt, c, n_work, dz, float(t0), method, eps, rdtype, upsample,
+                 (n_z, n_y_out * upsample if d == 2 else 1, n_x_out * upsample), progress=span_of(kernel, 0.3, 1.0),
+                 space=space)
     if positivity:
         np.maximum(p0, 0, out=p0)
     x = axes[0][0] + np.arange(n_x_out * upsample) * (dx / upsample)

@@ -86,6 +86,26 @@ def test_rfft2_and_irfft_write_into_out_slab_by_slab(dtype, shape, slab_rows, mo
     _close(real, scipy.fft.irfft(spectrum, s[1], axis=2), dtype)
 
 
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("slab_rows", [1, 3, 100])  # one slab a row, a short last slab, one slab
+@pytest.mark.usefixtures("engine")
+def test_irfft_keeps_its_leading_samples_and_may_write_over_its_input(dtype, slab_rows, monkeypatch):
+    """``keep``: scipy.fft's whole transform cut to its first samples (an image cropped to the
+    grid asked for); with and without ``out``, and with ``out`` at the start of the
+    spectrum's own memory (each slab is read whole before it is written)."""
+    x = _data((9, 13, 11), np.complex64 if dtype == np.float32 else np.complex128)  # 20 samples' half spectrum
+    want = scipy.fft.irfft(x, 20, axis=2)[:, :, :17]
+    monkeypatch.setattr(fft_engine, "SLAB_BYTES", slab_rows * x[:1].nbytes)
+    _close(fft_engine.irfft(x.copy(), 20, 2, keep=17), want, dtype)
+    work = x.copy()
+    out = work.reshape(-1).view(dtype)[: 9 * 13 * 17].reshape(9, 13, 17)
+    assert fft_engine.irfft(work, 20, 2, overwrite_x=True, out=out, keep=17) is out
+    _close(out, want, dtype)
+    for bad in (0, 21):
+        with pytest.raises(ValueError, match="keep must be 1..20"):
+            fft_engine.irfft(x, 20, 2, keep=bad)
+
+
 @pytest.mark.usefixtures("engine")
 def test_out_that_cannot_take_the_slabs_is_refused():
     x = _data((4, 6, 8), np.float64)

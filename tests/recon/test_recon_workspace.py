@@ -10,6 +10,7 @@ import sys
 
 import numpy as np
 import pytest
+import scipy.fft
 
 from driver.physics import fft_engine
 from service.recon import reconstruct_grid, reconstruct_points
@@ -83,17 +84,22 @@ def test_slabs_do_not_change_the_image(dtype, monkeypatch):
 
 
 @pytest.mark.parametrize("slab_planes", [1, 3, 1000])
-@pytest.mark.parametrize(("shape", "cut"), [((9, 15, 16), (7, 13, 11)), ((6, 1, 20), (6, 1, 17)),
-                                            ((5, 12, 12), (5, 12, 12))])
-def test_the_crop_packs_the_image_into_its_own_memory(shape, cut, slab_planes, monkeypatch):
-    """`_crop` against numpy's copy of the same cut: packed in place, a slab of planes at a
-    time (one plane a slab: the first planes overlap their own source), into the front of
-    the array's memory."""
-    from service.recon.planar import _crop
+@pytest.mark.parametrize(("shape", "keep"), [((9, 16, 16), (13, 11)), ((6, 1, 20), (1, 17)), ((5, 12, 12), (12, 12))])
+def test_the_inverse_lateral_fft_keeps_the_grid_asked_for(shape, keep, slab_planes, monkeypatch):
+    """`irfft_lateral`'s ``keep`` (NER's crop of the padded transform grid to the grid asked
+    for) against scipy.fft.irfftn's whole image cut the same way, written over the
+    spectrum's own memory, a slab of planes at a time (one plane a slab: each slab's output
+    overlaps spectrum planes it has just read)."""
+    from driver.physics.lateral import irfft_lateral
 
-    full = np.random.default_rng(6).standard_normal(shape)
-    monkeypatch.setattr(fft_engine, "SLAB_BYTES", slab_planes * cut[1] * cut[2] * full.itemsize)
-    work = full.copy()
-    got = _crop(work, *cut)
-    assert got.shape == cut and got.flags.c_contiguous and np.shares_memory(got, work)
-    assert np.array_equal(got, full[: cut[0], : cut[1], : cut[2]])
+    monkeypatch.setattr(fft_engine, "SMALL_ELEMENTS", 0)  # scipy.fft and its slabs, at any size
+    image = np.random.default_rng(6).standard_normal(shape)
+    K = scipy.fft.rfftn(image, axes=(1, 2))
+    want = image[:, : keep[0], : keep[1]]
+    monkeypatch.setattr(fft_engine, "SLAB_BYTES", slab_planes * keep[0] * keep[1] * image.itemsize)
+    out = K.reshape(-1).view(np.float64)[: shape[0] * keep[0] * keep[1]].reshape(shape[0], *keep)
+    got = irfft_lateral(K, shape[1:], out=out, keep=keep)
+    assert got is out and np.shares_memory(got, K)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12 * np.abs(image).max())
+    with pytest.raises(ValueError, match="keep"):
+        irfft_lateral(K, shape[1:], keep=(shape[1] + 1, 1))
