@@ -126,3 +126,22 @@ def test_memory_estimate_grows_with_size_and_halves_with_float32():
     assert 0.4 < f32 / big < 0.6
     # the 226 x 226 x 1024 volume itself is 418 MB in float64: the peak is several times it
     assert 4 * 1024 * 226 * 226 * 8 < big < 20 * 1024 * 226 * 226 * 8
+
+
+@pytest.mark.parametrize("dtype", [np.float16, np.float32, np.float64])
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+@pytest.mark.parametrize("where", [0, 777, -1])
+def test_a_single_nan_or_inf_anywhere_is_found_in_every_precision(dtype, bad, where):
+    """`checks.finite_array` sums in the array's own precision: one NaN or ±inf anywhere,
+    in float16, float32 or float64, is refused; finite values whose sum overflows that
+    precision (float16's 65504, float32's 3.4e38) pass; integers pass unsummed."""
+    from service.recon.checks import finite_array
+
+    data = np.random.default_rng(1).standard_normal((40, 5, 6)).astype(dtype)
+    data.reshape(-1)[where] = bad
+    with pytest.raises(ValueError, match="NaN or inf"):
+        finite_array("data", data, (3,))
+    big = np.full((40, 5, 6), np.finfo(dtype).max / 2, dtype=dtype)  # finite, its sum is not
+    assert finite_array("data", big, (3,)) is big
+    ints = np.full((40, 5, 6), np.iinfo(np.int64).max, dtype=np.int64)
+    assert finite_array("data", ints, (3,)) is ints
