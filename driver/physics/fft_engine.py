@@ -23,8 +23,7 @@ SMALL_ELEMENTS = 1 << 16
 
 #: bytes of input a transform with ``out`` (`rfft2`, `irfft`) takes at a time: a slab of
 #: leading indices whose temporaries the C heap reuses slab after slab (a whole-volume
-#: temporary is mapped fresh, and faulted in page by page, on every call); NER's in-place
-#: crop (`service.recon.planar._crop`) moves slabs of this size too
+#: temporary is mapped fresh, and faulted in page by page, on every call)
 SLAB_BYTES = 16 << 20
 
 

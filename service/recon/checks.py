@@ -488,10 +488,11 @@ def available_memory() -> int:
 
 
 #: `estimate_peak_memory`'s bound of k-Wave's time-depth step buffers and other work arrays beside
-#: the spectrum (measured, tracemalloc: 44-80 MB at 512 x 128², 600 x 97 x 90 and 1024 x 226²
-#: float64 and 2048 x 1024 in 2-D: the prime-factor stages' per-thread work arrays, the chunks'
-#: spectra)
-KWAVE_STEP_BYTES = 96 << 20
+#: the input and the spectrum: the prime-factor stages' per-thread work arrays, the chunks' spectra,
+#: the pchip mapping's arrays (`service.recon.kwave._CUBIC_BYTES` each). Measured as a fresh
+#: process's resident peak (VmHWM) beyond input + spectrum: 122-127 MiB at 1024 x 100 x 226,
+#: 1024 x 226² and 2048 x 60 x 226 in float64, any interpolation; lower elsewhere
+KWAVE_STEP_BYTES = 160 << 20
 
 
 def estimate_peak_memory(

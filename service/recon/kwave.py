@@ -432,6 +432,9 @@ def _map_columns(P, lat2, w, kz, c, nearest, out):
                     out[q, j0 + jj] = blk[i, jj] * (1.0 - frac) + blk[i + 1, jj] * frac
 
 
+_CUBIC_BYTES = 2 << 20  # one of `_cubic_block`'s arrays of a chunk of columns (checks.KWAVE_STEP_BYTES)
+
+
 def _cubic_block(P_half, w_full, lat2, phase, kx, c):
     """The pchip (Octave 'cubic') mapping of a chunk of columns (rows of ``P_half``, (cols, N)
     -> (cols, N)) on the full mirrored ω grid (pchip slopes at ω = 0 see the negative
@@ -593,7 +596,8 @@ def _recon(p, dt, c, lateral_d, interp, pos_cond, dtype=np.float64, progress=Non
         if method != "cubic":
             _map_columns(P, lat2[c0:c1], w, kz, float(c), method == "nearest", out)
             return
-        step = max(64, -(-n_cols // 32))  # pchip's buffers: a small fraction of the volume
+        # pchip's buffers, about ten arrays of (2 N - 1) x step in complex128: `_CUBIC_BYTES` each
+        step = max(16, min(-(-n_cols // 32), _CUBIC_BYTES // (ntm * 16)))
         for s0 in range(c0, c1, step):
             s1 = min(s0 + step, c1)
             out[:, s0 - c0 : s1 - c0] = _cubic_block(P[:, s0 - c0 : s1 - c0].T.astype(np.complex128), w_full,

@@ -268,9 +268,9 @@ import json, sys
 import numpy as np
 from service.pipeline import reconstruct
 from service.recon.dataset import GridDataset
-n_t, n = int(sys.argv[1]), int(sys.argv[2])
-params = {"dtype": "float32", "interp": "*linear"}
-data = np.random.default_rng(0).standard_normal((n_t, n, n)).astype(np.float32)
+n_t, n_y, n_x, dtype, interp = int(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3]), sys.argv[4], sys.argv[5]
+params = {"dtype": dtype, "interp": interp}
+data = np.random.default_rng(0).standard_normal((n_t, n_y, n_x)).astype(dtype)
 inp = GridDataset(data=data, dx=1e-4, dt=2e-8, c=1500.0, dy=1e-4)
 warm = GridDataset(data=data[:, :24, :24].copy(), dx=1e-4, dt=2e-8, c=1500.0, dy=1e-4)
 reconstruct(warm, "kwave", **params)  # imports and compiled kernels, on a small input
@@ -279,20 +279,26 @@ reconstruct(warm, "kwave", **params)  # imports and compiled kernels, on a small
 
 
 @needs_recon
-@pytest.mark.parametrize("n_t, n", [(1024, 226), (1024, 240)])  # lateral real DFT as products / as FFTs
-def test_kwave_admission_estimate_covers_the_measured_peak_closely(n_t, n):
+@pytest.mark.parametrize("n_t, n_y, n_x, dtype, interp", [
+    (1024, 226, 226, "float32", "*linear"),  # lateral real DFT as products
+    (1024, 240, 240, "float32", "*linear"),  # as FFTs
+    (2048, 60, 226, "float64", "cubic"),  # pchip's buffers (before: estimate / peak 0.92)
+])
+def test_kwave_admission_estimate_covers_the_measured_peak_closely(n_t, n_y, n_x, dtype, interp):
     """k-Wave's modes write their image over their lateral spectrum: the estimate (that
     spectrum, the time-depth step's buffers, the input) covers the peak of a real run in a
     fresh process and stays within 1.3x of it at a size where the spectrum dominates
     (before: 2.4 spectra + the image, about twice the peak)."""
     from service.recon.kwave import product_length
 
-    assert product_length(n) == (n == 226)
-    r = subprocess.run([sys.executable, "-c", KWAVE_PEAK_SCRIPT, str(n_t), str(n)], capture_output=True, text=True)
+    assert product_length(n_x) == (n_x == 226)
+    r = subprocess.run([sys.executable, "-c", KWAVE_PEAK_SCRIPT, str(n_t), str(n_y), str(n_x), dtype, interp],
+                       capture_output=True, text=True)
     assert r.returncode == 0, r.stderr[-2000:]
     m = json.loads(r.stdout.strip().splitlines()[-1])
-    estimate = estimate_memory({"n_t": n_t, "n_x": n, "n_y": n, "dt": 2e-8, "c": 1500.0, "input_itemsize": 4},
-                               {"method": "kwave", "dtype": "float32"})
-    used = m["peak"] - m["base"] + n_t * n * n * 4  # the input is in the baseline; the estimate counts it
-    print(f"kwave n_t={n_t} n={n}: estimate / measured peak {estimate / used:.3f}")
+    itemsize = np.dtype(dtype).itemsize
+    estimate = estimate_memory({"n_t": n_t, "n_x": n_x, "n_y": n_y, "dt": 2e-8, "c": 1500.0,
+                                "input_itemsize": itemsize}, {"method": "kwave", "dtype": dtype})
+    used = m["peak"] - m["base"] + n_t * n_y * n_x * itemsize  # the input is in the baseline; the estimate counts it
+    print(f"kwave {n_t} x {n_y} x {n_x} {dtype} {interp}: estimate / measured peak {estimate / used:.3f}")
     assert used < estimate <= 1.3 * used, (used, estimate)
