@@ -63,6 +63,30 @@ def test_temporal_step_matches_direct_cosine_sums():
     assert errs[2] <= 1e-8
 
 
+def test_temporal_step_in_single_precision_matches_direct_cosine_sums(engine):
+    """complex64 coefficients stay complex64 through the fine grid and the interpolation
+    (whose tap sums run in float32 in the compiled kernel): at a NUFFT tolerance of 1e-9 the
+    result is within float32 rounding (measured 1.2e-7 compiled, 5e-8 in numpy) of the
+    float64 direct sums, where complex128 is within the tolerance."""
+    n_t, n_cols = 64, 9
+    a = (rng.standard_normal((n_cols, n_t)) + 1j * rng.standard_normal((n_cols, n_t))).astype(np.complex64)
+    klat2 = rng.uniform(0, (np.pi / DX) ** 2, n_cols)
+    kz = np.linspace(0, np.pi / (C * DT), 48)
+    t0 = 2e-8
+    t = t0 + DT * np.arange(n_t)
+    omega = C * np.sqrt(klat2[:, None] + kz[None, :] ** 2)
+    direct = np.einsum("czn,cn->cz", 2 * np.cos(omega[..., None] * t), a.astype(np.complex128))
+    grid = nufft.make_grid(n_t, "nufft", 1e-9)
+    E = {}
+    for dtype in (np.complex64, np.complex128):
+        U = nufft.to_fine_grid(a.T.astype(dtype), grid, t0_is_zero=False)
+        assert U.dtype == dtype
+        E[dtype] = nufft.evaluate(U, grid, klat2, kz, np.ones(len(kz)), C, DT, t0, inversion=False)
+    assert E[np.complex64].dtype == np.complex64
+    assert rel(E[np.complex128], direct) <= 1e-8
+    assert rel(E[np.complex64], direct) <= 5e-7
+
+
 @pytest.mark.parametrize("shape", [(40, 12), (24, 6, 8), (21, 5, 7)])
 def test_ner_matches_direct_sum(shape):
     g = rng.standard_normal(shape)
