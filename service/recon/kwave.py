@@ -359,8 +359,8 @@ def _lateral_inverse(A: np.ndarray, lat_shape: tuple[int, ...], lat_axes: tuple[
     folded into the matrix); the image is written over ``A``'s own memory (a view of it is
     returned)."""
     n = lat_shape[-1]
+    rdtype = np.float32 if A.dtype == np.complex64 else np.float64
     if fft_engine.is_small(A.size // A.shape[-1] * n) or not product_length(n):  # the output's size
-        rdtype = np.float32 if A.dtype == np.complex64 else np.float64
         over: np.ndarray | None = None
         if A.flags.c_contiguous and lat_axes[0] == 1:  # slab by slab over the spectrum (irfft_lateral's out)
             over = A.reshape(-1).view(rdtype)[: A.size // A.shape[-1] * n].reshape(A.shape[:-1] + (n,))
@@ -369,7 +369,6 @@ def _lateral_inverse(A: np.ndarray, lat_shape: tuple[int, ...], lat_axes: tuple[
         return res
     if len(lat_axes) == 2:
         A = scipy.fft.ifft(A, axis=lat_axes[0], overwrite_x=True, workers=-1)
-    rdtype = np.float32 if A.dtype == np.complex64 else np.float64
     _, V = _lateral_matrices(n, np.dtype(rdtype))
     rows = np.ascontiguousarray(A).reshape(-1, A.shape[-1]).view(rdtype)
     out = rows.reshape(-1)[: rows.shape[0] * n].reshape(rows.shape[0], n)  # over the spectrum
