@@ -352,28 +352,24 @@ def _lateral_forward(p: np.ndarray, lat_axes: tuple[int, ...]) -> np.ndarray:
     return out
 
 
-def _lateral_inverse(A: np.ndarray, lat_shape: tuple[int, ...], lat_axes: tuple[int, ...],
-                     scale: float = 1.0) -> np.ndarray:
-    """``scale`` times `driver.physics.lateral.irfft_lateral` (``A`` consumed), the real axis
-    as a matrix product where `product_length` says so (a large array only, the scale
-    folded into the matrix); the image is written over ``A``'s own memory (a view of it is
-    returned)."""
+def _lateral_inverse(A: np.ndarray, lat_shape: tuple[int, ...], lat_axes: tuple[int, ...]) -> np.ndarray:
+    """`driver.physics.lateral.irfft_lateral` (``A`` consumed), the real axis as a matrix
+    product where `product_length` says so (a large array only); the image is written over
+    ``A``'s own memory (a view of it is returned)."""
     n = lat_shape[-1]
     rdtype = np.float32 if A.dtype == np.complex64 else np.float64
     if fft_engine.is_small(A.size // A.shape[-1] * n) or not product_length(n):  # the output's size
         over: np.ndarray | None = None
         if A.flags.c_contiguous and lat_axes[0] == 1:  # slab by slab over the spectrum (irfft_lateral's out)
             over = A.reshape(-1).view(rdtype)[: A.size // A.shape[-1] * n].reshape(A.shape[:-1] + (n,))
-        res = irfft_lateral(A, lat_shape, lat_axes, out=over)
-        res *= scale
-        return res
+        return irfft_lateral(A, lat_shape, lat_axes, out=over)
     if len(lat_axes) == 2:
         A = scipy.fft.ifft(A, axis=lat_axes[0], overwrite_x=True, workers=-1)
     _, V = _lateral_matrices(n, np.dtype(rdtype))
     rows = np.ascontiguousarray(A).reshape(-1, A.shape[-1]).view(rdtype)
     out = rows.reshape(-1)[: rows.shape[0] * n].reshape(rows.shape[0], n)  # over the spectrum
     with _products_in_threads() as (_, matmul_rows):
-        matmul_rows((V * scale).astype(rdtype, copy=False), rows, out, over=True)
+        matmul_rows(V, rows, out, over=True)
     return out.reshape(A.shape[:-1] + (n,))
 
 
@@ -513,21 +509,22 @@ def transform_lengths(data_shape) -> dict[str, tuple[int, ...]]:
 _CHUNK_BYTES = 8 << 20  # the product path's columns per chunk: 8 MiB of spectrum (2048 at N = 256)
 
 
-def _by_products(a, mapping, ntm, rdtype, progress, split=None):
+def _by_products(a, mapping, scale, rdtype, progress, split=None):
     """The time -> depth step of `_recon`, in place in ``a`` (N, cols), time first: per
     chunk of columns the real-even transform along time (a product with `_even_matrix`, or
     with a coprime ``split`` of 2 N - 1 the prime-factor algorithm `_EvenPFA`), the
-    mapping, the transform along depth (the same over M). Chunks of `_CHUNK_BYTES`: the
+    mapping, the transform along depth (the same, times ``scale``: the inverse's 1 / M and
+    whatever factor the image takes, folded into its matrix). Chunks of `_CHUNK_BYTES`: the
     per-chunk spectra stay a small fraction of the volume, and progress is reported (and a
     cancel seen) as each ends."""
     n, n_cols = a.shape
     forward: np.ndarray | _EvenPFA
     inverse: np.ndarray | _EvenPFA
     if split is not None:
-        forward, inverse = _EvenPFA(n, split, rdtype), _EvenPFA(n, split, rdtype, 1.0 / ntm)
+        forward, inverse = _EvenPFA(n, split, rdtype), _EvenPFA(n, split, rdtype, scale)
     else:
-        C = _even_matrix(n)  # the cosines once: the inverse is the same matrix over M
-        forward, inverse = C.astype(rdtype, copy=False), (C * (1.0 / ntm)).astype(rdtype, copy=False)
+        C = _even_matrix(n)  # the cosines once: the inverse is the same matrix, scaled
+        forward, inverse = C.astype(rdtype, copy=False), (C * scale).astype(rdtype, copy=False)
     chunk = min(n_cols, max(128, _CHUNK_BYTES // (n * a.itemsize)))
     spectra = np.empty((2, n * chunk), dtype=a.dtype)  # P and F of every chunk (no fresh pages per chunk)
     with _products_in_threads() as (matmul, _):
@@ -541,16 +538,16 @@ def _by_products(a, mapping, ntm, rdtype, progress, split=None):
                 progress(c1 / n_cols)
 
 
-def _by_ffts(a, mapping, ntm, rdtype, progress):
+def _by_ffts(a, mapping, scale, rdtype, progress):
     """The same step as `_by_products` by FFTs of the mirrored series, in ~32 chunks of
-    columns (the mirrored series stay a small fraction of the volume)."""
+    columns (the mirrored series stay a small fraction of the volume); ``scale`` as there."""
     n, n_cols = a.shape
     chunk = max(64, -(-n_cols // 32))
     for c0 in range(0, n_cols, chunk):
         c1 = min(c0 + chunk, n_cols)
         F = np.empty((n, c1 - c0), dtype=a.dtype)
         mapping(_mirrored_fft(a[:, c0:c1]), c0, c1, F)
-        np.multiply(_mirrored_fft(F), 1.0 / ntm, out=a[:, c0:c1])
+        np.multiply(_mirrored_fft(F), scale, out=a[:, c0:c1])
         if progress is not None:
             progress(c1 / n_cols)
 
@@ -603,12 +600,13 @@ def _recon(p, dt, c, lateral_d, interp, pos_cond, dtype=np.float64, progress=Non
                                                      lat2[s0:s1], phase[s0:s1], kx, c).T
 
     split = None if nt <= MATRIX_MAX_N else _coprime_split(ntm)
+    scale = (4.0 / c) / ntm  # the depth transform's 1 / M and the image's 4 / c, in its matrix or pass
     if nt <= MATRIX_MAX_N or (split is not None and sum(split) <= PFA_MAX_SUM):
-        _by_products(a, mapping, ntm, rdtype, span(kernel, 0.15, 0.85), split)  # in place: A holds the image's k-space
+        _by_products(a, mapping, scale, rdtype, span(kernel, 0.15, 0.85), split)  # in place: A holds the image's k-space
     else:
-        _by_ffts(a, mapping, ntm, rdtype, span(kernel, 0.15, 0.85))
+        _by_ffts(a, mapping, scale, rdtype, span(kernel, 0.15, 0.85))
     del a
-    res = _lateral_inverse(A, lat_shape, lat_axes, 4.0 / c)
+    res = _lateral_inverse(A, lat_shape, lat_axes)
     del A
     if pos_cond:
         np.maximum(res, 0, out=res)
