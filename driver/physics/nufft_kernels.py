@@ -313,7 +313,7 @@ def spread_kernel(B, gvals, gptr, order, kz, qw, c, dt, t0, h, L, kind, w, hc, s
             if b >= 1 and b + w <= L:  # no tap wraps around
                 for k in range(w):
                     wk = wts[k, j]
-                    _add_scaled(r, b + k, wk, pp)  # two calls: neither aliases itself
+                    _add_scaled(r, b + k, wk, pp)
                     _add_scaled(r, L - b - k, wk, pm)
             else:
                 for k in range(w):

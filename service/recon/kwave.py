@@ -513,8 +513,8 @@ def _by_products(a, mapping, scale, rdtype, progress, split=None):
     """The time -> depth step of `_recon`, in place in ``a`` (N, cols), time first: per
     chunk of columns the real-even transform along time (a product with `_even_matrix`, or
     with a coprime ``split`` of 2 N - 1 the prime-factor algorithm `_EvenPFA`), the
-    mapping, the transform along depth (the same, times ``scale``: the inverse's 1 / M and
-    whatever factor the image takes, folded into its matrix). Chunks of `_CHUNK_BYTES`: the
+    mapping, the transform along depth (the same, times ``scale``: `_recon` passes the
+    inverse's 1 / M times the image's 4 / c, folded into its matrix). Chunks of `_CHUNK_BYTES`: the
     per-chunk spectra stay a small fraction of the volume, and progress is reported (and a
     cancel seen) as each ends."""
     n, n_cols = a.shape
