@@ -1,6 +1,8 @@
 """The fpscan HTTP client: :class:`Client` (blocking) and :class:`AsyncClient`
 (asyncio), both over httpx, and the exceptions they raise. See ``docs/api.md``."""
-from .client import TERMINAL_STATES, AsyncClient, Client, field_of, to_dict
+from .async_client import AsyncClient
+from .calls import field_of, to_dict
+from .client import Client
 from .errors import (
     ApiError,
     AuthError,
@@ -13,6 +15,7 @@ from .errors import (
     ServerUnavailable,
     WaitTimeout,
 )
+from .waiting import TERMINAL_STATES
 
 __all__ = [
     "AsyncClient", "Client", "TERMINAL_STATES", "field_of", "to_dict",

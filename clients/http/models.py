@@ -4,7 +4,7 @@ These mirror the response models of ``docs/api.md`` (the server's ``service.api.
 but are lenient, so a client keeps working against a slightly newer or older server:
 unknown fields are kept (``extra="allow"``), states and kinds are plain strings, and
 fields a server may omit have defaults. A response that does not fit is returned as the
-raw JSON (see :func:`clients.http.client.as_model`). Units are SI (m, s, Hz).
+raw JSON (see :func:`clients.http.calls.as_model`). Units are SI (m, s, Hz).
 """
 from __future__ import annotations
 

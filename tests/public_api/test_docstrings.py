@@ -24,7 +24,10 @@ MODULES = [
     "service.recon.methods", "service.recon.methods.options", "service.recon.methods.ner",
     "service.recon.methods.nedner", "service.recon.methods.interp", "service.recon.methods.kwave",
     "service.recon.methods.tv", "service.recon.tv", "service.pipeline",
-    "clients.http.client", "clients.http.errors", "clients.http.models",
+    "clients.http.client", "clients.http.async_client", "clients.http.calls", "clients.http.transport",
+    "clients.http.waiting", "clients.http.errors", "clients.http.models", "clients.http.endpoints.server",
+    "clients.http.endpoints.plans", "clients.http.endpoints.scans", "clients.http.endpoints.datasets",
+    "clients.http.endpoints.reconstructions", "clients.http.endpoints.jobs",
 ]
 
 #: Public classes whose docstring is text a user reads elsewhere, not a numpy docstring: a mask

@@ -1,0 +1,487 @@
+"""Reconstructions: ``/api/reconstructions`` (the methods, start a reconstruction or an unmixing,
+and the results: volume, MIPs, depth slices, OME-TIFF, OME-Zarr, unmixed maps)."""
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from ..calls import (
+    AsyncCaller,
+    Call,
+    Download,
+    Request,
+    SyncCaller,
+    check_plane,
+    idempotency,
+    read_job_id,
+    read_json,
+)
+from ..transport import unzip_folder
+
+__all__ = ["Reconstructions", "AsyncReconstructions"]
+
+
+def _build_methods() -> Call[Any]:
+    """``GET /api/reconstructions/methods`` (:meth:`Reconstructions.methods`)."""
+    return Call(Request("GET", "/api/reconstructions/methods"), read_json)
+
+
+def _input(body: dict[str, Any], scan_job_id: str | None, dataset_id: str | None) -> dict[str, Any]:
+    if (scan_job_id is None) == (dataset_id is None):
+        raise ValueError("give exactly one of scan_job_id or dataset_id")
+    if scan_job_id is not None:
+        body["scan_job_id"] = scan_job_id
+    else:
+        body["dataset_id"] = dataset_id
+    return body
+
+
+def _build_start_reconstruction(scan_job_id: str | None, dataset_id: str | None, method: str | None,
+                               params: Mapping | None, wavelength: int | str | None,
+                               idempotency_key: str | None) -> Call[str | None]:
+    """``POST /api/reconstructions`` (:meth:`Reconstructions.start_reconstruction`); both or
+    neither input is a ValueError."""
+    body: dict[str, Any] = {"params": dict(params or {})}
+    if method is not None:
+        body["method"] = method
+    if wavelength is not None:
+        body["wavelength"] = wavelength
+    body = _input(body, scan_job_id, dataset_id)
+    return Call(Request("POST", "/api/reconstructions", json=body, headers=idempotency(idempotency_key)),
+                read_job_id)
+
+
+def _build_start_unmix(scan_job_id: str | None, dataset_ids: Sequence[str] | None,
+                      wavelengths: Sequence[float] | None, method: str | None, params: Mapping | None,
+                      threshold: float | None, fluence: Sequence[float] | None,
+                      idempotency_key: str | None) -> Call[str | None]:
+    """``POST /api/reconstructions`` with ``unmix`` (:meth:`Reconstructions.start_unmix`); both
+    or neither input is a ValueError."""
+    if (scan_job_id is None) == (not dataset_ids):
+        raise ValueError("give exactly one of scan_job_id or dataset_ids")
+    unmix: dict[str, Any] = {}
+    if threshold is not None:
+        unmix["threshold"] = float(threshold)
+    if fluence is not None:
+        unmix["fluence"] = [float(f) for f in fluence]
+    body: dict[str, Any] = {"params": dict(params or {}), "unmix": unmix}
+    if method is not None:
+        body["method"] = method
+    if scan_job_id is not None:
+        body["scan_job_id"] = scan_job_id
+    else:
+        body["dataset_ids"] = list(dataset_ids or [])
+        if wavelengths is not None:
+            body["wavelengths"] = [float(w) for w in wavelengths]
+    return Call(Request("POST", "/api/reconstructions", json=body, headers=idempotency(idempotency_key)),
+                read_job_id)
+
+
+def _wavelength(wavelength: int | None) -> dict[str, int] | None:
+    return None if wavelength is None else {"wavelength": int(wavelength)}
+
+
+def _build_download_result(job_id: str, name: str, dest: str | os.PathLike,
+                          params: Mapping[str, Any] | None = None) -> Download[Path]:
+    """``GET /api/reconstructions/{job_id}/{name}`` saved to ``dest`` (``volume.h5``,
+    ``mip/xy.png``, ``slice.png``, ``volume.ome.tif``, ``unmix.h5``, ``so2.png``)."""
+    return Download(Request("GET", f"/api/reconstructions/{job_id}/{name}", params=params), Path(dest))
+
+
+def _build_download_mip(job_id: str, plane: str, dest: str | os.PathLike,
+                       wavelength: int | None) -> Download[Path]:
+    """``GET /api/reconstructions/{job_id}/mip/{plane}.png`` (:meth:`Reconstructions.download_mip`);
+    an unknown plane is a ValueError."""
+    check_plane(plane)
+    return _build_download_result(job_id, f"mip/{plane}.png", dest, _wavelength(wavelength))
+
+
+def _build_download_ome_zarr(job_id: str, dest: str | os.PathLike) -> Download[Path]:
+    """``GET /api/reconstructions/{job_id}/volume.ome.zarr.zip`` unpacked into the folder ``dest``
+    (:meth:`Reconstructions.download_ome_zarr`)."""
+    folder = Path(dest)
+
+    def unpack(zipped: Path) -> Path:
+        try:
+            return unzip_folder(zipped, folder)
+        finally:
+            zipped.unlink(missing_ok=True)
+
+    return Download(Request("GET", f"/api/reconstructions/{job_id}/volume.ome.zarr.zip"),
+                    folder.with_name(f".{folder.name}.zip"), unpack)
+
+
+class Reconstructions(SyncCaller):
+    """The reconstruction endpoints of :class:`clients.http.Client` (blocking).
+
+    Attributes
+    ----------
+    None
+        A mixin of methods.
+
+    Examples
+    --------
+    >>> from clients.http import Client
+    >>> from clients.http.endpoints.reconstructions import Reconstructions
+    >>> issubclass(Client, Reconstructions)
+    True
+    """
+
+    def methods(self) -> Any:
+        """``GET /api/reconstructions/methods``: the reconstruction methods.
+
+        Returns
+        -------
+        list of dict
+            ``{name, title, needs_grid, options: [{name, description, default, value_schema}],
+            source}`` per method; ``value_schema`` is an option's JSON schema (``type``,
+            ``minimum``/``maximum`` or ``enum``, ``unit``, ``quantity``): a value outside it is
+            refused (422).
+
+        Raises
+        ------
+        ApiError
+            The server's reason for a 4xx/5xx (AuthError for a missing or wrong token).
+        ServerUnavailable
+            The server cannot be reached.
+        """
+        return self._call(_build_methods())
+
+    def start_reconstruction(self, *, scan_job_id: str | None = None, dataset_id: str | None = None,
+                             method: str | None = None, params: Mapping | None = None,
+                             wavelength: int | str | None = None,
+                             idempotency_key: str | None = None) -> str | None:
+        """``POST /api/reconstructions``: start a reconstruction job.
+
+        Parameters
+        ----------
+        scan_job_id : str, optional
+            A scan job whose file to reconstruct; exactly one of it and ``dataset_id``.
+        dataset_id : str, optional
+            An uploaded dataset.
+        method : str, optional
+            One of the ``service.recon`` methods (``ner``, ``nedner``, ``linear``, ...,
+            :meth:`methods`); None: the server's default for the data (ner for grid data, nedner
+            for sensor points).
+        params : Mapping, optional
+            The reconstruction options: ``sound_speed`` (m/s or ``"auto"``; ``c`` is its
+            deprecated name), ``sound_speed_range``, ``force`` and the method's own (``eps``,
+            ``dtype``, ``upsample``, ``positivity``, ``dz`` in m, ...; ``tv``: ``lam`` (λ,
+            default automatic) and ``iterations``; the job's progress stage names the
+            iteration). Each option's type, range, unit and default: :meth:`methods`.
+        wavelength : int or "all", optional
+            Of a multi-wavelength scan: an index into its wavelengths, or ``"all"`` (one volume
+            each: ``download_volume(..., wavelength=k)``); None: the first, recorded in the
+            volume's params.
+        idempotency_key : str, optional
+            Same key -> same job (default: a fresh random key).
+
+        Returns
+        -------
+        str
+            The reconstruction job's id (202).
+
+        Raises
+        ------
+        ValueError
+            Both or neither input given (before any request).
+        ApiError
+            The server's reason (422 naming an invalid option, NotFound for an unknown input).
+        ServerUnavailable
+            The server cannot be reached.
+        """
+        return self._call(_build_start_reconstruction(scan_job_id, dataset_id, method, params, wavelength,
+                                                     idempotency_key))
+
+    def start_unmix(self, *, scan_job_id: str | None = None, dataset_ids: Sequence[str] | None = None,
+                    wavelengths: Sequence[float] | None = None, method: str | None = None,
+                    params: Mapping | None = None, threshold: float | None = None,
+                    fluence: Sequence[float] | None = None, idempotency_key: str | None = None) -> str | None:
+        """``POST /api/reconstructions`` with ``unmix``: reconstruct every wavelength and unmix.
+
+        Every wavelength is reconstructed (same ``method`` and ``params``;
+        ``params["sound_speed"]`` may be ``"auto"``) and unmixed into HbO2/Hb, THb and sO2
+        (``service.recon.unmix``).
+
+        Parameters
+        ----------
+        scan_job_id : str, optional
+            A multi-wavelength scan job; exactly one of it and ``dataset_ids``.
+        dataset_ids : sequence of str, optional
+            One uploaded dataset per wavelength.
+        wavelengths : sequence of float, optional
+            The datasets' wavelengths, m.
+        method : str, optional
+            As :meth:`start_reconstruction`.
+        params : Mapping, optional
+            As :meth:`start_reconstruction`.
+        threshold : float, optional
+            THb fraction in [0, 1) below which voxels are masked.
+        fluence : sequence of float, optional
+            J/m² per wavelength (default: assumed equal).
+        idempotency_key : str, optional
+            Same key -> same job.
+
+        Returns
+        -------
+        str
+            The job's id (202).
+
+        Raises
+        ------
+        ValueError
+            Both or neither input given (before any request).
+        ApiError
+            The server's reason (422 for fewer than two wavelengths, ...).
+        ServerUnavailable
+            The server cannot be reached.
+        """
+        return self._call(_build_start_unmix(scan_job_id, dataset_ids, wavelengths, method, params, threshold,
+                                            fluence, idempotency_key))
+
+    def download_unmix(self, job_id: str, dest: str | os.PathLike) -> Path:
+        """``GET /api/reconstructions/{job_id}/unmix.h5`` (HbO2, Hb, THb, sO2, mask; HDF5) saved to ``dest``.
+
+        Parameters
+        ----------
+        job_id : str
+        dest : str or os.PathLike
+            The file to write (its folder is made; ``dest.part`` while downloading).
+
+        Returns
+        -------
+        pathlib.Path
+            ``dest``.
+
+        Raises
+        ------
+        ApiError
+            The server's reason for a 4xx/5xx (NotFound for an unknown id).
+        ServerUnavailable
+            The server cannot be reached.
+        """
+        return self._call(_build_download_result(job_id, "unmix.h5", dest))
+
+    def download_so2(self, job_id: str, dest: str | os.PathLike) -> Path:
+        """``GET /api/reconstructions/{job_id}/so2.png`` (masked sO2 map with colour bar, PNG) saved to ``dest``.
+
+        Parameters
+        ----------
+        job_id : str
+        dest : str or os.PathLike
+            The file to write (its folder is made; ``dest.part`` while downloading).
+
+        Returns
+        -------
+        pathlib.Path
+            ``dest``.
+
+        Raises
+        ------
+        ApiError
+            The server's reason for a 4xx/5xx (NotFound for an unknown id).
+        ServerUnavailable
+            The server cannot be reached.
+        """
+        return self._call(_build_download_result(job_id, "so2.png", dest))
+
+    def download_volume(self, job_id: str, dest: str | os.PathLike, *, wavelength: int | None = None) -> Path:
+        """``GET /api/reconstructions/{job_id}/volume.h5`` (p0 with its axes in m, HDF5) saved to ``dest``.
+
+        Parameters
+        ----------
+        job_id : str
+        dest : str or os.PathLike
+            The file to write (its folder is made; ``dest.part`` while downloading).
+        wavelength : int, optional
+            Wavelength k's volume of a job over every wavelength.
+
+        Returns
+        -------
+        pathlib.Path
+            ``dest``.
+
+        Raises
+        ------
+        ApiError
+            The server's reason for a 4xx/5xx (NotFound for an unknown id).
+        ServerUnavailable
+            The server cannot be reached.
+        """
+        return self._call(_build_download_result(job_id, "volume.h5", dest, _wavelength(wavelength)))
+
+    def download_ome_tiff(self, job_id: str, dest: str | os.PathLike) -> Path:
+        """``GET /api/reconstructions/{job_id}/volume.ome.tif`` (OME-TIFF, voxel sizes in µm) saved to ``dest``.
+
+        Parameters
+        ----------
+        job_id : str
+        dest : str or os.PathLike
+            The file to write (its folder is made; ``dest.part`` while downloading).
+
+        Returns
+        -------
+        pathlib.Path
+            ``dest``.
+
+        Raises
+        ------
+        ApiError
+            The server's reason for a 4xx/5xx (NotFound for an unknown id).
+        ServerUnavailable
+            The server cannot be reached.
+        """
+        return self._call(_build_download_result(job_id, "volume.ome.tif", dest))
+
+    def download_ome_zarr(self, job_id: str, dest: str | os.PathLike) -> Path:
+        """``GET /api/reconstructions/{job_id}/volume.ome.zarr.zip`` unpacked into a folder.
+
+        OME-Zarr, voxel sizes in µm.
+
+        Parameters
+        ----------
+        job_id : str
+        dest : str or os.PathLike
+            The folder (conventionally ``*.ome.zarr``; an existing one there is replaced).
+
+        Returns
+        -------
+        pathlib.Path
+            ``dest``.
+
+        Raises
+        ------
+        ValueError
+            A zip that is not one folder or names a path outside it.
+        ApiError
+            The server's reason (NotFound for an unknown job).
+        ServerUnavailable
+            The server cannot be reached.
+        """
+        return self._call(_build_download_ome_zarr(job_id, dest))
+
+    def download_mip(self, job_id: str, plane: str, dest: str | os.PathLike, *,
+                     wavelength: int | None = None) -> Path:
+        """``GET /api/reconstructions/{job_id}/mip/{plane}.png`` (maximum-intensity projection, PNG) saved to ``dest``.
+
+        Parameters
+        ----------
+        job_id : str
+        plane : {"xy", "xz", "yz"}
+            The projection's plane.
+        dest : str or os.PathLike
+            The file to write (its folder is made; ``dest.part`` while downloading).
+        wavelength : int, optional
+            As :meth:`download_volume`.
+
+        Returns
+        -------
+        pathlib.Path
+            ``dest``.
+
+        Raises
+        ------
+        ValueError
+            An unknown plane (before any request).
+        ApiError
+            The server's reason for a 4xx/5xx (NotFound for an unknown id).
+        ServerUnavailable
+            The server cannot be reached.
+        """
+        return self._call(_build_download_mip(job_id, plane, dest, wavelength))
+
+    def download_slice(self, job_id: str, index: int, dest: str | os.PathLike) -> Path:
+        """``GET /api/reconstructions/{job_id}/slice.png?index=k`` (one depth slice, PNG) saved to ``dest``.
+
+        Parameters
+        ----------
+        job_id : str
+        index : int
+            The slice's depth index k.
+        dest : str or os.PathLike
+            The file to write (its folder is made; ``dest.part`` while downloading).
+
+        Returns
+        -------
+        pathlib.Path
+            ``dest``.
+
+        Raises
+        ------
+        ApiError
+            The server's reason for a 4xx/5xx (NotFound for an unknown id).
+        ServerUnavailable
+            The server cannot be reached.
+        """
+        return self._call(_build_download_result(job_id, "slice.png", dest, {"index": int(index)}))
+
+
+class AsyncReconstructions(AsyncCaller):
+    """The reconstruction endpoints of :class:`clients.http.AsyncClient`: :class:`Reconstructions`'
+    methods as coroutines.
+
+    Attributes
+    ----------
+    None
+        A mixin of methods.
+
+    Examples
+    --------
+    >>> from clients.http import AsyncClient
+    >>> from clients.http.endpoints.reconstructions import AsyncReconstructions
+    >>> issubclass(AsyncClient, AsyncReconstructions)
+    True
+    """
+
+    async def methods(self) -> Any:
+        """As :meth:`Reconstructions.methods`, awaited."""
+        return await self._call(_build_methods())
+
+    async def start_reconstruction(self, *, scan_job_id: str | None = None, dataset_id: str | None = None,
+                                   method: str | None = None, params: Mapping | None = None,
+                                   wavelength: int | str | None = None,
+                                   idempotency_key: str | None = None) -> str | None:
+        """As :meth:`Reconstructions.start_reconstruction`, awaited."""
+        return await self._call(_build_start_reconstruction(scan_job_id, dataset_id, method, params, wavelength,
+                                                           idempotency_key))
+
+    async def start_unmix(self, *, scan_job_id: str | None = None, dataset_ids: Sequence[str] | None = None,
+                          wavelengths: Sequence[float] | None = None, method: str | None = None,
+                          params: Mapping | None = None, threshold: float | None = None,
+                          fluence: Sequence[float] | None = None,
+                          idempotency_key: str | None = None) -> str | None:
+        """As :meth:`Reconstructions.start_unmix`, awaited."""
+        return await self._call(_build_start_unmix(scan_job_id, dataset_ids, wavelengths, method, params,
+                                                  threshold, fluence, idempotency_key))
+
+    async def download_unmix(self, job_id: str, dest: str | os.PathLike) -> Path:
+        """As :meth:`Reconstructions.download_unmix`, awaited."""
+        return await self._call(_build_download_result(job_id, "unmix.h5", dest))
+
+    async def download_so2(self, job_id: str, dest: str | os.PathLike) -> Path:
+        """As :meth:`Reconstructions.download_so2`, awaited."""
+        return await self._call(_build_download_result(job_id, "so2.png", dest))
+
+    async def download_volume(self, job_id: str, dest: str | os.PathLike, *,
+                              wavelength: int | None = None) -> Path:
+        """As :meth:`Reconstructions.download_volume`, awaited."""
+        return await self._call(_build_download_result(job_id, "volume.h5", dest, _wavelength(wavelength)))
+
+    async def download_ome_tiff(self, job_id: str, dest: str | os.PathLike) -> Path:
+        """As :meth:`Reconstructions.download_ome_tiff`, awaited."""
+        return await self._call(_build_download_result(job_id, "volume.ome.tif", dest))
+
+    async def download_ome_zarr(self, job_id: str, dest: str | os.PathLike) -> Path:
+        """As :meth:`Reconstructions.download_ome_zarr`, awaited."""
+        return await self._call(_build_download_ome_zarr(job_id, dest))
+
+    async def download_mip(self, job_id: str, plane: str, dest: str | os.PathLike, *,
+                           wavelength: int | None = None) -> Path:
+        """As :meth:`Reconstructions.download_mip`, awaited."""
+        return await self._call(_build_download_mip(job_id, plane, dest, wavelength))
+
+    async def download_slice(self, job_id: str, index: int, dest: str | os.PathLike) -> Path:
+        """As :meth:`Reconstructions.download_slice`, awaited."""
+        return await self._call(_build_download_result(job_id, "slice.png", dest, {"index": int(index)}))

@@ -1,0 +1,218 @@
+"""The rules of waiting on a job, shared by both clients' ``events`` and ``wait``.
+
+A wait listens to the job's Server-Sent Events stream ``/api/jobs/{id}/events``
+(reconnecting with ``Last-Event-ID``), falls back to polling ``GET /api/jobs/{id}`` where the
+stream is unavailable, and reports each progress update once, in the order the job made it.
+"""
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable
+from typing import Any
+
+from .calls import field_of
+from .errors import ApiError, JobCancelled, JobFailed
+
+__all__ = ["TERMINAL_STATES", "ProgressCallback", "read_timeout", "past", "report_snapshot", "keep_sse",
+           "parse_event", "progress_of", "finish"]
+
+#: the states a job never leaves
+TERMINAL_STATES = frozenset({"succeeded", "failed", "cancelled"})
+
+#: ``on_progress(progress: dict)``: keys ``fraction, stage, points_done, points_total, rate_per_s, eta_s``
+ProgressCallback = Callable[[dict], Any]
+
+
+def read_timeout(deadline: float | None) -> float:
+    """Read timeout of one event stream, s: 20 (longer than the server's 15 s pings), less when
+    the deadline (``time.monotonic()`` s) is nearer, at least 0.5.
+
+    Parameters
+    ----------
+    deadline : float or None
+
+    Returns
+    -------
+    float
+
+    Examples
+    --------
+    >>> from clients.http.waiting import read_timeout
+    >>> read_timeout(None)
+    20.0
+    """
+    if deadline is None:
+        return 20.0
+    return min(20.0, max(0.5, deadline - time.monotonic()))
+
+
+def past(deadline: float | None) -> bool:
+    """Whether the deadline (``time.monotonic()`` s, or None: none) has passed.
+
+    Parameters
+    ----------
+    deadline : float or None
+
+    Returns
+    -------
+    bool
+
+    Examples
+    --------
+    >>> from clients.http.waiting import past
+    >>> past(None), past(0.0)
+    (False, True)
+    """
+    return deadline is not None and time.monotonic() > deadline
+
+
+def report_snapshot(job: Any, use_sse: bool) -> bool:
+    """Whether ``wait`` reports the progress of a ``GET /api/jobs/{id}`` snapshot: when the
+    job has ended (its final progress), still waits in the queue (nothing came before it)
+    or progress is polled. While the event stream is followed it alone reports a running
+    job's progress, in order: the stream replays the job's events from its start, so a
+    snapshot reported first would show a later stage before the earlier ones
+    (``writing 90%`` before ``starting 0%``).
+
+    Parameters
+    ----------
+    job : Job or dict
+        The snapshot.
+    use_sse : bool
+        Whether the event stream is followed.
+
+    Returns
+    -------
+    bool
+
+    Examples
+    --------
+    >>> from clients.http.waiting import report_snapshot
+    >>> running = {"state": "running", "progress": {"fraction": 0.5, "stage": "iteration 3/100"}}
+    >>> report_snapshot(running, use_sse=True), report_snapshot(running, use_sse=False)
+    (False, True)
+    """
+    progress = field_of(job, "progress")
+    if progress is None:
+        return False
+    waiting = field_of(job, "state") == "queued" and field_of(progress, "stage") in (None, "queued")
+    return not use_sse or waiting or field_of(job, "state") in TERMINAL_STATES
+
+
+def keep_sse(exc: ApiError) -> bool:
+    """Whether to keep reading events after ``exc``: no for a missing (404) or unsupported
+    (405, 501) stream, where the caller polls instead; any other error is raised.
+
+    Parameters
+    ----------
+    exc : ApiError
+
+    Returns
+    -------
+    bool
+        False (poll instead).
+
+    Raises
+    ------
+    ApiError
+        ``exc`` itself, for any other status.
+
+    Examples
+    --------
+    >>> from clients.http import ApiError
+    >>> from clients.http.waiting import keep_sse
+    >>> keep_sse(ApiError(501, "no events here"))
+    False
+    """
+    if exc.status_code in (404, 405, 501):
+        return False
+    raise exc
+
+
+def parse_event(name: str | None, payload: str) -> tuple[str, dict]:
+    """An SSE event's name (default ``message``) and its JSON payload as a dict (a payload that
+    is not JSON becomes ``{"message": text}``, a JSON non-dict ``{"value": ...}``).
+
+    Parameters
+    ----------
+    name : str or None
+        The ``event:`` field.
+    payload : str
+        The ``data:`` field.
+
+    Returns
+    -------
+    tuple of (str, dict)
+
+    Examples
+    --------
+    >>> from clients.http.waiting import parse_event
+    >>> parse_event("progress", '{"fraction": 0.5}'), parse_event(None, "hello")
+    (('progress', {'fraction': 0.5}), ('message', {'message': 'hello'}))
+    """
+    try:
+        data = json.loads(payload) if payload else {}
+    except ValueError:
+        data = {"message": payload}
+    if not isinstance(data, dict):
+        data = {"value": data}
+    return name or "message", data
+
+
+def progress_of(data: dict) -> dict:
+    """The progress of a ``progress`` event's payload (its ``progress`` field, or the payload).
+
+    Parameters
+    ----------
+    data : dict
+
+    Returns
+    -------
+    dict
+
+    Examples
+    --------
+    >>> from clients.http.waiting import progress_of
+    >>> progress_of({"progress": {"fraction": 1.0}}), progress_of({"fraction": 0.2})
+    ({'fraction': 1.0}, {'fraction': 0.2})
+    """
+    prog = data.get("progress")
+    return prog if isinstance(prog, dict) else data
+
+
+def finish(job: Any) -> Any:
+    """The job of an ended wait, raised for a failed or cancelled one.
+
+    Parameters
+    ----------
+    job : Job or dict
+        The final record.
+
+    Returns
+    -------
+    Job or dict
+        ``job`` (succeeded).
+
+    Raises
+    ------
+    JobFailed, JobCancelled
+        With the job attached.
+
+    Examples
+    --------
+    >>> from clients.http.waiting import finish
+    >>> finish({"id": "j1", "state": "succeeded"})["state"]
+    'succeeded'
+    >>> finish({"id": "j1", "state": "failed", "error": "disk full"})
+    Traceback (most recent call last):
+    ...
+    clients.http.errors.JobFailed: job j1 failed: disk full
+    """
+    state = field_of(job, "state")
+    if state == "failed":
+        err = field_of(job, "error") or "no reason given"
+        raise JobFailed(job, f"job {field_of(job, 'id')} failed: {err}")
+    if state == "cancelled":
+        raise JobCancelled(job, f"job {field_of(job, 'id')} was cancelled")
+    return job
