@@ -7,6 +7,7 @@ import json
 import subprocess
 import sys
 
+import h5py
 import numpy as np
 import pytest
 
@@ -151,3 +152,39 @@ def test_recon_on_server_equals_local(kwave3d, server, tmp_path):
     np.testing.assert_allclose(b, a, rtol=0, atol=1e-5 * np.abs(a).max())
     assert sorted(p.name for p in (tmp_path / "remote").iterdir()) == \
         ["mip_xy.png", "mip_xz.png", "mip_yz.png", "volume.h5"]
+
+
+def test_recon_reads_kwave_mat_files_locally_and_on_the_server(shared_data, server, tmp_path):
+    """k-Wave's .mat output as a k-Wave user saves it: Octave's MAT v5 and the same arrays as
+    MATLAB's v7.3, each reconstructed by `fpscan recon` locally and on the server (uploaded,
+    format sniffed from the content) into the same volume; a file without its spacings takes
+    them as options with units."""
+    import scipy.io
+
+    from tests.storage.mat_files import write_mat5, write_mat73
+
+    v5 = shared_data / "kwave_mat" / "kwave2d_line_sensor_v7.mat"
+    arrays = {k: v for k, v in scipy.io.loadmat(v5).items() if not k.startswith("__")}
+    v73 = write_mat73(tmp_path / "sensor_data_v73.mat", arrays)
+    env = clean_env(FPSCAN_TOKEN=TOKEN)
+    volumes = {}
+    for name, path in (("v5", v5), ("v73", v73)):
+        for where in ("local", "remote"):
+            out = tmp_path / f"{name}-{where}"
+            remote = ("--server", server) if where == "remote" else ()
+            res = fpscan("recon", path, "--method", "ner", "--n-z", "96", "--out", out, "--quiet", *remote, env=env)
+            assert res.returncode == 0, res.stderr
+            with h5py.File(out / "volume.h5", "r") as f:
+                volumes[name, where] = f["p0"][...]
+    first = volumes["v5", "local"]
+    assert first.shape == (96, 128)
+    for key, vol in volumes.items():
+        np.testing.assert_array_equal(vol, first, err_msg=str(key))
+    bare = write_mat5(tmp_path / "bare.mat", {"sensor_data": arrays["sensor_data"]})
+    res = fpscan("recon", bare, "--method", "ner", "--out", tmp_path / "bare", "--quiet", env=env)
+    assert res.returncode == 2 and "dt is neither given nor in the MAT-file" in res.stderr, res.stderr
+    res = fpscan("recon", bare, "--dt", "10ns", "--dx", "50um", "--method", "ner", "--n-z", "96",
+                 "--out", tmp_path / "bare", "--quiet", env=env)
+    assert res.returncode == 0, res.stderr
+    with h5py.File(tmp_path / "bare" / "volume.h5", "r") as f:
+        np.testing.assert_array_equal(f["p0"][...], first)
