@@ -407,6 +407,32 @@ def format_bytes(n: float) -> str:
     return f"{n:.1f} TiB"  # pragma: no cover - the loop returns at GiB
 
 
+def check_out_writable(path, flag: str = "--out") -> None:
+    """Refuse, before any work, an output ``path`` (a result folder or a file) that cannot be
+    written: its parent folder is created if missing and must take a new entry (tried with a
+    temporary folder there, removed at once: permissions alone do not say it, e.g. for root
+    in ``/proc``). Raises UsageError (exit 2) naming ``flag``, the folder and the reason."""
+    import tempfile
+    from pathlib import Path
+
+    parent = Path(path).absolute().parent
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        tempfile.TemporaryDirectory(prefix=".fpscan-write-check-", dir=parent).cleanup()
+    except OSError as exc:
+        raise UsageError(f"{flag} {path}: cannot write in {parent} ({exc.strerror or exc})") from None
+
+
+def full_job_id(api, job_id: str) -> str:
+    """The full id of the job ``job_id`` names (a unique prefix, as ``fpscan jobs list``
+    shows ids, works wherever a job id does: the server resolves it in a job's path, this
+    for an id sent in a request's body, e.g. ``--scan-job``). Raises the client's errors
+    (``NotFound``; ``Conflict`` naming the matches of an ambiguous prefix)."""
+    from clients.http import field_of
+
+    return str(field_of(api.get_job(job_id), "id"))
+
+
 def delete_each(ids, delete, what=lambda gone: "") -> int:
     """``delete(id)`` for each id in ``ids`` (a dataset or job deletion of the HTTP client,
     answering a dict with ``bytes_freed``), one line each ("ID: deleted (WHAT N MiB freed)",

@@ -151,6 +151,10 @@ def run(args) -> int:
     check_input_files(args, [args.input] if args.input else [],
                       "give a scan file or dataset (or --server with --scan-job)")
     check_options_early(args.method, _params(args))
+    if args.out:  # before the work, not after it (the default folder sits beside the input)
+        from clients.cli._common import check_out_writable
+
+        check_out_writable(args.out)
     # no --method: the pipeline's default for the loaded data (service.pipeline.default_method),
     # resolved where the data is read: here locally, by the server with --server
     if args.server:
@@ -280,7 +284,9 @@ def _remote(args, fmt: str | None) -> int:
 
     with make_client(args, timeout=300) as api:
         if args.scan_job:
-            job_id = api.start_reconstruction(scan_job_id=args.scan_job, method=args.method,
+            from clients.cli._common import full_job_id
+
+            job_id = api.start_reconstruction(scan_job_id=full_job_id(api, args.scan_job), method=args.method,
                                               params=http_params(_params(args)), wavelength=args.wavelength)
         else:
             if args.wavelength == "all":

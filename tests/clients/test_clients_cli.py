@@ -188,3 +188,34 @@ def test_recon_reads_kwave_mat_files_locally_and_on_the_server(shared_data, serv
     assert res.returncode == 0, res.stderr
     with h5py.File(tmp_path / "bare" / "volume.h5", "r") as f:
         np.testing.assert_array_equal(f["p0"][...], first)
+
+
+def test_cli_messages_and_ids_a_lab_meets(server, tmp_path):
+    """An --out that cannot be written is refused before any work, in one line; an
+    implausible sound speed names the flag that accepts it (--force); a reader that closes
+    the pipe (`fpscan jobs list | head`) gets no error line (exit 141, as `ls | head`); a
+    dataset id prefix works as a job id prefix does, and `--ids` lists full ids for scripts."""
+    from clients.http import Client
+
+    env = clean_env(FPSCAN_TOKEN=TOKEN)
+    data = tmp_path / "d.npy"
+    np.save(data, np.random.default_rng(0).standard_normal((64, 8)).astype(np.float32))
+    res = fpscan("recon", data, "--dt", "20ns", "--dx", "100um", "--out", "/proc/forbidden/out", env=env)
+    assert res.returncode == 2 and res.stderr.strip().splitlines() == [
+        "fpscan recon: error: --out /proc/forbidden/out: cannot write in /proc/forbidden (No such file or directory)"], \
+        res.stderr
+    res = fpscan("recon", data, "--dt", "20ns", "--dx", "100um", "--sound-speed", "15000", env=env)
+    assert res.returncode == 2 and "give --force for a value outside the range" in res.stderr, res.stderr
+    with Client(server, token=TOKEN) as api:
+        ds = api.upload_dataset(data, "npy", dt=20e-9, dx=100e-6)
+    res = fpscan("datasets", "list", "--server", server, "--ids", env=env)
+    assert ds in res.stdout.split(), res.stdout
+    res = fpscan("datasets", "delete", ds[:8], "--server", server, env=env)
+    assert res.returncode == 0 and res.stdout.startswith(f"{ds}: deleted"), (res.stdout, res.stderr)
+    res = fpscan("datasets", "delete", "feedfacefeed", "--server", server, env=env)
+    assert res.returncode == 2 and "no dataset id starts with 'feedfacefeed'" in res.stderr, res.stderr
+    closed = subprocess.Popen([sys.executable, "-m", "clients", "jobs", "list", "--server", server], env=env,
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    closed.stdout.close()  # the reader is gone before the command writes a byte
+    _, err = closed.communicate(timeout=HANG_S)
+    assert closed.returncode == 141 and err == b"", (closed.returncode, err)
