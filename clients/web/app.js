@@ -38,17 +38,43 @@ class ApiError extends Error {
 
 function getToken() { return sessionStorage.getItem(TOKEN_KEY) || ""; }
 
+/* The quantities this page's fields take, in the units its labels state (SI on the wire). */
+const FIELD_UNITS = {
+  pitch: ["µm", 1e-6], dx: ["µm", 1e-6], dy: ["µm", 1e-6], depth: ["mm", 1e-3], dt: ["ns", 1e-9],
+  prf: ["Hz", 1], "sound speed": ["m/s", 1],
+};
+
+/** A server reason worded for this page's fields. The server speaks to every client (the
+ *  command line's "write the unit, e.g. 8ns", the path "equisteradian.lattice.pitch:"): here a
+ *  number goes into a field labelled with its unit, so the reason names that field and its
+ *  unit ("dt in ns: 8e+9 ns is implausible for a planar FP scanner (expected 100 ps to 1 µs)")
+ *  and says to tick "another medium" where the command line says --force. Other reasons are
+ *  returned as they are. */
+function inFieldTerms(reason) {
+  const text = String(reason);
+  const bare = text.replace(/^(?:(?:[A-Za-z_][\w\-\[\]]*\.)*[A-Za-z_][\w\-\[\]]*: (?=[a-z]))+/, "");  // location paths
+  const m = bare.match(/^(pitch|dx|dy|depth|dt|prf|sound speed) (-?[\d.]+(?:e[-+]?\d+)?) (m|s|Hz|m\/s) (.*)$/s);
+  if (m && FIELD_UNITS[m[1]]) {
+    const [unit, scale] = FIELD_UNITS[m[1]];
+    const shownValue = Number((Number(m[2]) / scale).toPrecision(6));
+    let rest = m[4].replace(/ -- did you mean [^?]*\?/, "").replace(/ ?Numbers without a unit[^.;]*[.;]?.*$/s, "");
+    if (/force a value outside the range/.test(text)) rest += "; tick “another medium” to accept it";
+    return `${m[1]} in ${unit}: ${shownValue} ${unit} ${rest.trim()}`;
+  }
+  return text.replace("force a value outside the range", "tick “another medium” for a value outside the range");
+}
+
 /** The server's reason from an error body: FastAPI's `detail` (a string, or a list of
- *  validation errors {loc, msg}). */
+ *  validation errors {loc, msg}), worded for this page's fields (:func:`inFieldTerms`). */
 function detailText(body, status, statusText) {
   if (body && typeof body === "object" && "detail" in body) {
     const d = body.detail;
-    if (typeof d === "string") return d;
+    if (typeof d === "string") return inFieldTerms(d);
     if (Array.isArray(d)) {
       return d.map((e) => {
         if (e && typeof e === "object") {
           const loc = Array.isArray(e.loc) ? e.loc.filter((p) => p !== "body").join(".") : "";
-          return (loc ? loc + ": " : "") + (e.msg || JSON.stringify(e));
+          return inFieldTerms((loc ? loc + ": " : "") + (e.msg || JSON.stringify(e)));
         }
         return String(e);
       }).join("; ");
