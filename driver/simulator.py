@@ -121,6 +121,21 @@ class SimConfig:
 _Error = scpi.ScpiError
 
 
+class _Held:
+    """:meth:`SimulatedScanner.hold`'s context: the device loop sleeps (as in a stall fault)
+    until it ends."""
+
+    def __init__(self, sim: SimulatedScanner) -> None:
+        self.sim = sim
+
+    def __enter__(self) -> SimulatedScanner:
+        self.sim._stall_until = math.inf
+        return self.sim
+
+    def __exit__(self, *exc: object) -> None:
+        self.sim._stall_until = 0.0
+
+
 class SimulatedScanner:
     """Device side of the FP scanner protocol on a pty, run in a background thread.
 
@@ -179,6 +194,13 @@ class SimulatedScanner:
 
     def __exit__(self, *exc):
         self.stop()
+
+    def hold(self) -> _Held:
+        """A context in which the device reads and answers nothing: what the host sends waits
+        in the pty and is read, in order, when the context ends (nothing is lost, no fault is
+        counted). A device busy for exactly as long as its caller needs, e.g. a test's slow
+        reply made by an event (the host has resent its command) rather than by a clock."""
+        return _Held(self)
 
     @property
     def boot_id(self) -> int:
