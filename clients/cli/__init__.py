@@ -24,7 +24,8 @@ import os
 import re
 import sys
 
-__all__ = ["build_parser", "NEGATIVE_QUANTITY", "allow_negative_quantities", "main", "reason"]
+__all__ = ["build_parser", "NEGATIVE_QUANTITY", "allow_negative_quantities", "main", "reason", "in_flags",
+           "CLOSED_PIPE", "closed_pipe"]
 
 
 def _subcommand_modules():

@@ -277,7 +277,8 @@ def run_reconstruction(spec: dict) -> dict:
     reported there), ``cancel_path`` (the reconstruction stops with
     ``service.pipeline.Cancelled`` once that file exists) and ``memory_limit`` (bytes:
     admission checked again on the loaded input, address space bounded while it runs).
-    Returns ``{"shape", "max", "planes", "timings", "points_used"}``. Raises
+    Returns ``{"shape", "max", "planes", "timings", "points_used", "outcome"}`` (``outcome``: an
+    iterative method's one line on how it ended, ``service.progress.outcome``). Raises
     ``ValueError`` for inputs the method cannot use or that exceed the memory limit.
     Holds :data:`JOB_GATE` busy while it runs (the background warm-up waits)."""
     with JOB_GATE.busy():
@@ -317,6 +318,11 @@ def _run_reconstruction(spec: dict) -> dict:
         summary["autofocus"] = rec.params["autofocus"]
     if ds.kind == "points":
         summary["points_used"] = int(ds.alines.shape[0])
+    from service.progress import outcome
+
+    ended = outcome(rec.params, method)  # an iterative method: how it ended, one line (the server's log)
+    if ended:
+        summary["outcome"] = ended
     return summary
 
 

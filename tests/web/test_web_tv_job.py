@@ -30,13 +30,18 @@ pytestmark = pytest.mark.timeout(600)  # the suite's: waits end on events (tests
 
 
 @pytest.fixture(scope="module")
-def server(tmp_path_factory):
+def served(tmp_path_factory):
     data = tmp_path_factory.mktemp("serve-tv")
     srv = start_server(data, {}, TOKEN)
     try:
-        yield srv.url
+        yield srv
     finally:
         srv.stop()
+
+
+@pytest.fixture(scope="module")
+def server(served):
+    return served.url
 
 
 @pytest.fixture(scope="module")
@@ -97,7 +102,7 @@ def test_kwave_mat_uploaded_from_the_page_reconstructs_as_the_library_does(brows
         assert job["params"]["result"]["params_used"]["dt"] == pytest.approx(1e-8)
 
 
-def test_tv_job_page_running_and_done(browser, server, api, mat_files, screenshots):
+def test_tv_job_page_running_and_done(browser, served, server, api, mat_files, screenshots):
     """A tv job without a stopping rule (tol 0) on its page while it runs: a progress bar, the
     iteration and the stopping rule's value against its tolerance, the time left; cancelled
     from the page. Then tv with its defaults, uploaded from the page: once done, its summary
@@ -140,6 +145,10 @@ def test_tv_job_page_running_and_done(browser, server, api, mat_files, screensho
     assert text(browser, "summary-grid").startswith(" × ".join(map(str, api.get(f"/api/jobs/{done}").json()
                                                                         ["params"]["result"]["shape"])))
     assert text(browser, "summary-time")
+    # the same outcome, one line, in the server's log ("log" as a lab reads it)
+    line = wait_for(lambda: next((ln for ln in served.log_tail(200_000).splitlines() if f"recon done job={done}" in ln),
+                                 None), "the job's line in the server's log")
+    assert f"tv: {outcome.split(' (')[0]}" in line, line
     # the raw parameters are there, folded
     assert el(browser, "result-params-box").get_attribute("open") is None
     assert int(text(browser, "result-params-count")) > 20
