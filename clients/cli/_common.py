@@ -272,6 +272,7 @@ class ProgressBar:
         self._progress: Progress | None = None
         self._task: TaskID | None = None
         self._last_stage: str | None = None
+        self._printed: tuple[float, str | None] = (0.0, None)  # the last line's fraction and stage
         from service.progress import Eta
 
         self._eta = Eta()
@@ -324,7 +325,11 @@ class ProgressBar:
         with self._lock:
             self._latest, self._latest_at = progress, now
             kind = _stage_kind(progress.get("stage"))
-            if kind != self._last_stage or now - self._printed_at >= self.period:
+            # once a line at 100 % is out, the pipeline's closing "reconstructing 100%" and the
+            # same ending again (finish) add nothing to a log
+            ended = (frac is not None and float(frac) >= 1.0 and self._printed[0] >= 1.0
+                     and progress.get("stage") in ("reconstructing", self._printed[1]))
+            if not ended and (kind != self._last_stage or now - self._printed_at >= self.period):
                 self._last_stage = kind
                 self._print(progress, now)
 
@@ -344,6 +349,7 @@ class ProgressBar:
     def _print(self, progress: dict, now: float) -> None:
         """One progress line (the caller holds the lock)."""
         self._printed_at = now
+        self._printed = (float(progress.get("fraction") or 0.0), progress.get("stage"))
         frac = progress.get("fraction")
         text = describe_progress(progress, with_fraction=False)
         if frac is not None:  # stage, %, then points, rate, ETA
