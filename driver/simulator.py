@@ -121,6 +121,26 @@ class SimConfig:
 _Error = scpi.ScpiError
 
 
+class _Held:
+    """:meth:`SimulatedScanner.hold`'s context: entering asks the device loop to park and
+    waits until it has (the step it was in, and any reply of it, done), so nothing sent from
+    then on is read until the context ends. Raises RuntimeError when the loop does not park
+    (a stopped device)."""
+
+    def __init__(self, sim: SimulatedScanner) -> None:
+        self.sim = sim
+
+    def __enter__(self) -> SimulatedScanner:
+        self.sim._hold.set()
+        if not self.sim._parked.wait(30.0):  # a guard: the loop parks within one of its steps
+            self.sim._hold.clear()
+            raise RuntimeError("the simulated device did not stop reading (is it running?)")
+        return self.sim
+
+    def __exit__(self, *exc: object) -> None:
+        self.sim._hold.clear()
+
+
 class SimulatedScanner:
     """Device side of the FP scanner protocol on a pty, run in a background thread.
 
@@ -141,6 +161,7 @@ class SimulatedScanner:
         self.path = os.ttyname(self._slave)
         self._stop = threading.Event()
         self._stall_until = 0.0
+        self._hold, self._parked = threading.Event(), threading.Event()  # hold(): asked, and done
         self._peak = 1.0
         self._thread: threading.Thread | None = None
         self._lock = threading.Lock()
@@ -179,6 +200,13 @@ class SimulatedScanner:
 
     def __exit__(self, *exc):
         self.stop()
+
+    def hold(self) -> _Held:
+        """A context in which the device reads and answers nothing: what the host sends waits
+        in the pty and is read, in order, when the context ends (nothing is lost, no fault is
+        counted). A device busy for exactly as long as its caller needs, e.g. a test's slow
+        reply made by an event (the host has resent its command) rather than by a clock."""
+        return _Held(self)
 
     @property
     def boot_id(self) -> int:
@@ -238,6 +266,11 @@ class SimulatedScanner:
         self._send(FrameType.EVENT, f"BOOT {self._boot_id}".encode())
         fd = self._master
         while not self._stop.is_set():
+            if self._hold.is_set():  # hold(): read and answer nothing until it ends
+                self._parked.set()
+                time.sleep(0.002)
+                continue
+            self._parked.clear()
             now = time.monotonic()
             if now < self._stall_until:
                 time.sleep(min(0.02, self._stall_until - now))

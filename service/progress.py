@@ -40,10 +40,14 @@ True
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from typing import overload
+import re
+import time
+from collections.abc import Callable, Mapping
+from typing import Any, overload
 
-__all__ = ["Progress", "Fraction", "Span", "span", "Rising", "rising", "DEFAULT_STAGE"]
+__all__ = ["Progress", "Fraction", "Span", "span", "Rising", "rising", "DEFAULT_STAGE", "IterationStage",
+           "parse_iteration", "iteration_fields", "describe_iteration", "SETUP_STAGES", "stage_kind", "Eta",
+           "outcome"]
 
 #: ``progress(fraction, stage)``: fraction in [0, 1] (non-decreasing), stage text
 Progress = Callable[[float, str], None]
@@ -81,7 +85,8 @@ class Span:
         f = _clamp(fraction)
         # fraction 1 reports hi itself (0.2 + (0.9 - 0.2) * 1 rounds to 0.8999999999999999), and
         # nothing above it (a later report at hi, e.g. "writing" 0.9, is then no step back)
-        self.outer(self.hi if f == 1.0 else min(self.hi, self.lo + (self.hi - self.lo) * f), text + self.suffix)
+        self.outer(self.hi if f == 1.0 else min(self.hi, self.lo + (self.hi - self.lo) * f),
+                   text + self.suffix if self.suffix else text)  # an IterationStage stays one
 
     def __repr__(self) -> str:
         return f"span({self.outer!r}, {self.lo:g}, {self.hi:g}, stage={self.stage!r}, suffix={self.suffix!r})"
@@ -179,3 +184,232 @@ def rising(progress: Fraction | None) -> Rising | None:
     [0.1, 0.3]
     """
     return None if progress is None else Rising(progress)
+
+
+# ------------------------------------------------------------------ iterative methods
+class IterationStage(str):
+    """The stage of an iterative method at iteration ``k`` of at most ``n``: the text
+    ``"iteration k/n"`` (what a person reads, and every consumer of a stage takes it as
+    text) carrying the numbers: ``k``, ``n``, the stopping rule's current value ``rule``
+    and its tolerance ``tol`` (the method stops once the rule is below it; None while
+    unknown), and the rule's name ``rule_name``. A :class:`Span`'s suffix keeps it one
+    (``stage + " (wavelength 2/3)"``); :func:`iteration_fields` gives the numbers as the
+    job's progress fields.
+
+    Examples
+    --------
+    >>> s = IterationStage(7, 100, rule=0.021, tol=0.005)
+    >>> s, s == "iteration 7/100", (s + " (wavelength 2/3)").k
+    ('iteration 7/100', True, 7)
+    >>> describe_iteration(iteration_fields(s))
+    'iteration 7/100, image change 0.021 (stops below 0.005)'
+    """
+
+    k: int
+    n: int
+    rule: float | None
+    tol: float | None
+    rule_name: str
+
+    def __new__(cls, k: int, n: int, rule: float | None = None, tol: float | None = None, *,
+                rule_name: str = "image change", text: str | None = None) -> IterationStage:
+        self = super().__new__(cls, text if text is not None else f"iteration {int(k)}/{int(n)}")
+        self.k, self.n = int(k), int(n)
+        self.rule = float(rule) if rule is not None and math.isfinite(float(rule)) else None
+        self.tol = float(tol) if tol is not None and math.isfinite(float(tol)) else None
+        self.rule_name = rule_name
+        return self
+
+    def __add__(self, other: str) -> IterationStage:
+        return IterationStage(self.k, self.n, self.rule, self.tol, rule_name=self.rule_name, text=str(self) + other)
+
+    def __getnewargs_ex__(self) -> tuple[tuple, dict]:
+        return (self.k, self.n, self.rule, self.tol), {"rule_name": self.rule_name, "text": str(self)}
+
+
+_ITERATION = re.compile(r"iteration (\d+)/(\d+)")
+
+
+def parse_iteration(stage: Any) -> IterationStage | None:
+    """``stage`` as an :class:`IterationStage` (itself, or the text ``"iteration k/n..."``
+    without the rule's numbers); None for any other stage."""
+    if isinstance(stage, IterationStage):
+        return stage
+    m = _ITERATION.match(str(stage or ""))
+    return IterationStage(int(m[1]), int(m[2]), text=str(stage)) if m else None
+
+
+def iteration_fields(stage: Any) -> dict[str, Any]:
+    """The job progress fields of an iteration stage: ``iteration`` (k), ``iterations_max``
+    (n), ``stop_rule`` (its name), ``stop_value`` (the rule's value, None while unknown),
+    ``stop_tol`` (the tolerance); ``{}`` for any other stage."""
+    it = parse_iteration(stage)
+    if it is None:
+        return {}
+    return {"iteration": it.k, "iterations_max": it.n, "stop_rule": it.rule_name, "stop_value": it.rule,
+            "stop_tol": it.tol}
+
+
+def describe_iteration(fields: Mapping[str, Any]) -> str | None:
+    """One line of the iteration fields (:func:`iteration_fields`, or a job's progress):
+    ``"iteration 7/100, image change 0.021 (stops below 0.005)"``; None without them.
+    The web page writes the same (``clients/web/app.js``, ``iterationText``)."""
+    k, n = fields.get("iteration"), fields.get("iterations_max")
+    if k is None or n is None:
+        return None
+    text = f"iteration {k}/{n}"
+    value, tol = fields.get("stop_value"), fields.get("stop_tol")
+    if value is not None:
+        text += f", {fields.get('stop_rule') or 'stopping rule'} {value:.2g}"
+        if tol is not None:
+            text += f" (stops below {tol:.2g})" if tol > 0 else " (tol 0: no early stop)"
+    return text
+
+
+#: stages of an iterative method before its first iteration (tv: its warm start and the
+#: estimate of the operator's norm): no estimate of the time left is honest there, since
+#: the iterations' cost is not measured yet
+SETUP_STAGES = frozenset({"warm start", "norm estimate"})
+
+
+def stage_kind(stage: Any) -> str:
+    """A stage without its counters: ``"iteration"`` for an iteration stage, else the text
+    without trailing words that hold digits (``"chunk 3/8"`` -> ``"chunk"``): the step that
+    starts a new progress line and a new rate estimate."""
+    if parse_iteration(stage) is not None:
+        return "iteration"
+    words = str(stage or "").split()
+    while words and any(ch.isdigit() for ch in words[-1]):
+        words.pop()
+    return " ".join(words)
+
+
+class Eta:
+    """The time left of a piece of work from its progress reports, in s (or None):
+    ``eta(fraction, stage)`` at each report.
+
+    - In an iteration stage (:func:`parse_iteration`): (n − k) × the measured time per
+      iteration, an exponential moving average (weight ``smoothing``) of the time between
+      iteration reports, shown once ``settle`` intervals are measured (the first
+      iteration carries set-up work). It counts to the iteration limit n: the stopping
+      rule may end the work sooner.
+    - In :data:`SETUP_STAGES`: None (the iterations are not measured yet).
+    - In any other stage: the fraction's rate since the stage began,
+      ``(elapsed in stage) × (1 − f) / (f − f at the stage's start)``.
+
+    Within a stage, an estimate never moves by more than 2× from the one before counted
+    down by the time since (at least 1 s): ``e_new`` in ``[e/2, 2e]`` for
+    ``e = max(e_prev − elapsed, 1)``, so a slow or a fast iteration shifts the estimate
+    gradually (tqdm's and rich's smoothed rates do the same in spirit). A new stage kind
+    (:func:`stage_kind`) starts afresh. ``clock``: the time source (s; a test's own).
+
+    Examples
+    --------
+    >>> t = [0.0]
+    >>> eta = Eta(clock=lambda: t[0])
+    >>> for k in range(1, 5):
+    ...     t[0] = 2.0 * k  # two seconds per iteration
+    ...     print(eta(k / 10, IterationStage(k, 10)))
+    None
+    None
+    14.0
+    12.0
+    """
+
+    def __init__(self, *, smoothing: float = 0.3, settle: int = 2, clock: Callable[[], float] = time.monotonic):
+        if not 0 < smoothing <= 1 or settle < 1:
+            raise ValueError(f"Eta needs 0 < smoothing <= 1 and settle >= 1, got {smoothing}, {settle}")
+        self.smoothing, self.settle, self.clock = float(smoothing), int(settle), clock
+        self._kind: str | None = None
+        self._t0 = self._f0 = 0.0
+        self._last_k: int | None = None
+        self._last_k_at = 0.0
+        self._per_iteration: float | None = None
+        self._intervals = 0
+        self._shown: tuple[float, float] | None = None  # (estimate, when)
+
+    def __call__(self, fraction: float, stage: Any) -> float | None:
+        now = self.clock()
+        kind = stage_kind(stage)
+        if kind != self._kind:
+            self._kind, self._t0, self._f0 = kind, now, float(fraction)
+            self._last_k, self._per_iteration, self._intervals, self._shown = None, None, 0, None
+        it = parse_iteration(stage)
+        if it is not None:
+            raw = self._iterations(it, now)
+        elif kind in SETUP_STAGES:
+            raw = None
+        else:
+            f = float(fraction)
+            raw = None if f <= self._f0 or f >= 1.0 else (now - self._t0) * (1.0 - f) / (f - self._f0)
+        if raw is None:
+            return None if self._shown is None else max(self._shown[0] - (now - self._shown[1]), 0.0)
+        if self._shown is not None:
+            base = max(self._shown[0] - (now - self._shown[1]), 1.0)
+            raw = min(max(raw, base / 2), 2 * base)
+        self._shown = (raw, now)
+        return raw
+
+    def _iterations(self, it: IterationStage, now: float) -> float | None:
+        if self._last_k is not None and it.k > self._last_k:
+            step = (now - self._last_k_at) / (it.k - self._last_k)
+            a = self.smoothing
+            self._per_iteration = step if self._per_iteration is None else (1 - a) * self._per_iteration + a * step
+            self._intervals += 1
+        if self._last_k is None or it.k > self._last_k:
+            self._last_k, self._last_k_at = it.k, now
+        if self._per_iteration is None or self._intervals < self.settle:
+            return None
+        return max(it.n - it.k, 0) * self._per_iteration
+
+
+def outcome(params: Mapping[str, Any], method: str | None = None) -> str | None:
+    """One line on how an iterative reconstruction ended, from its ``params`` (a
+    ``Reconstruction``'s, or a result's ``params_used``): converged or not (and why it
+    stopped), the iterations, the stopping rule against its tolerance, λ and whether it was
+    automatic (with the reason when it is 0), and the residual against the data's noise
+    level. None for a method without iterations. The web page writes the same
+    (``clients/web/app.js``, ``outcomeText``).
+
+    Examples
+    --------
+    >>> outcome({"method": "tv", "converged": True, "stop_reason": "converged", "iterations": 37,
+    ...          "max_iter": 100, "iterate_change": 0.0041, "tol": 0.005, "lam": 0.0123, "lam_auto": True,
+    ...          "residual": 0.031, "noise_share": 0.030})
+    'tv: converged after 37 iterations (image change 0.0041 < 0.005); λ 0.0123 (automatic); residual 3.1 % of the data, noise 3.0 %'
+    >>> outcome({"method": "ner"}) is None
+    True
+    """
+    if params.get("iterations") is None or "converged" not in params:
+        return None
+    name = method or params.get("method") or "reconstruction"
+    n, limit = int(params["iterations"]), params.get("max_iter")
+    change, tol = params.get("iterate_change"), params.get("tol")
+    rule = ""
+    if change is not None and tol is not None:
+        rule = f" (image change {change:.2g} {'<' if change < tol else '>='} {tol:.2g})"
+    if params.get("converged"):
+        head = f"converged after {n} iterations{rule}"
+    elif params.get("stop_reason") == "time limit":
+        head = f"not converged: stopped at the time limit after {n} iterations{rule}"
+    else:
+        head = f"not converged: stopped at the iteration limit, {n}{f' of {limit}' if limit else ''} iterations{rule}"
+    parts = [f"{name}: {head}"]
+    lam = params.get("lam")
+    if lam is not None:
+        auto = bool(params.get("lam_auto"))
+        text = f"λ {lam:.3g} ({'automatic' if auto else 'given'})"
+        if auto and lam == 0 and params.get("lam_note"):
+            text += f": {params['lam_note']}"
+        parts.append(text)
+    residual, noise = params.get("residual"), params.get("noise_share")
+    if residual is not None:
+        parts.append(f"residual {_percent(residual)} of the data"
+                     + (f", noise {_percent(noise)}" if noise is not None else ""))
+    return "; ".join(parts)
+
+
+def _percent(share: float) -> str:
+    """A share as a percentage with two significant digits: ``"3.1 %"``, ``"0.042 %"``."""
+    v = 100 * float(share)
+    return f"{v:.1f} %" if abs(v) >= 1 else f"{v:.2g} %"

@@ -24,7 +24,8 @@ import os
 import re
 import sys
 
-__all__ = ["build_parser", "NEGATIVE_QUANTITY", "allow_negative_quantities", "main", "reason"]
+__all__ = ["build_parser", "NEGATIVE_QUANTITY", "allow_negative_quantities", "main", "reason", "in_flags",
+           "CLOSED_PIPE", "closed_pipe"]
 
 
 def _subcommand_modules():
@@ -158,8 +159,11 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         code = args._run(args)
+        sys.stdout.flush()  # here, not at exit: a reader gone away is seen where it is handled
+    except BrokenPipeError:  # `fpscan jobs list | head`: the reader has what it wanted
+        return closed_pipe()
     except RefusedInput as exc:  # a unit mistake or a refused option is a usage error, like a bad flag
-        print(f"fpscan {args.command}: error: {exc}", file=sys.stderr)
+        print(f"fpscan {args.command}: error: {in_flags(str(exc))}", file=sys.stderr)
         return 2
     except ImportError as exc:  # a command run on an install without its extra
         extra = missing_extra(exc)
@@ -170,12 +174,38 @@ def main(argv: list[str] | None = None) -> int:
         print("fpscan: interrupted", file=sys.stderr)
         return 130
     except ValueError as exc:  # refused input (a value, a file's content, a combination): a usage error
-        print(f"fpscan {args.command}: error: {reason(exc)}", file=sys.stderr)
+        print(f"fpscan {args.command}: error: {in_flags(reason(exc))}", file=sys.stderr)
         return 2
     except (OSError, RuntimeError) as exc:  # the work failed (I/O, a device)
         print(f"fpscan {args.command}: error: {reason(exc)}", file=sys.stderr)
         return 1
     return int(code or 0)
+
+
+def in_flags(message: str) -> str:
+    """A reason worded for every caller (``driver.units``: "force a value outside the range")
+    in the command line's own terms: the flag that does it, ``--force``."""
+    return message.replace("force a value outside the range", "give --force for a value outside the range")
+
+
+#: the exit status after stdout's reader went away: a process killed by SIGPIPE, as shells report it
+CLOSED_PIPE = 128 + 13
+
+
+def closed_pipe() -> int:
+    """Stdout's reader went away (``fpscan jobs list | head``): say nothing (no ``[Errno 32]``
+    line, no traceback at exit) and return :data:`CLOSED_PIPE`, the status of ``ls | head``'s
+    ``ls``. Stdout is pointed at the null device so the interpreter's final flush cannot
+    fail again."""
+    import os
+
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError):
+        pass
+    return CLOSED_PIPE
 
 
 def reason(exc: BaseException) -> str:

@@ -182,13 +182,32 @@ def _fmt_eta(seconds: float | None) -> str:
     return f"{h}:{m:02d}:{s:02d}" if h else f"{m:02d}:{s:02d}"
 
 
+def _iteration_detail(progress: dict) -> str:
+    """An iterative method's stopping rule against its tolerance (``image change 0.021
+    (stops below 0.005)``) from the progress fields of ``service.progress.iteration_fields``;
+    "" without them or on a client-only install."""
+    if progress.get("stop_value") is None:
+        return ""
+    try:
+        from service.progress import describe_iteration
+    except ImportError:  # pragma: no cover -- a client-only install: the iteration count says enough
+        return ""
+    text = describe_iteration(progress) or ""
+    return text.partition(", ")[2]
+
+
 def describe_progress(progress: dict, *, with_fraction: bool = True) -> str:
-    """One line for a job's progress dict: stage, points done/total, points/s, ETA
-    (when the server estimates one) and, without a point count, the percentage."""
+    """One line for a job's progress dict: stage, an iterative method's stopping rule
+    against its tolerance, points done/total, points/s, ETA (the server's, or the one
+    estimated here) and, without a point count, the percentage."""
     parts = []
     stage = progress.get("stage")
     if stage:
         parts.append(str(stage))
+    if str(stage or "").startswith("iteration"):
+        detail = _iteration_detail(progress)
+        if detail:
+            parts.append(detail)
     done, total = progress.get("points_done"), progress.get("points_total")
     if total:
         parts.append(f"{done or 0}/{total} points")
@@ -227,33 +246,10 @@ def progress_period() -> float:
 
 def _stage_kind(stage) -> str:
     """A stage without its counter (``"iteration 3/50"`` -> ``"iteration"``): the step that
-    starts a new progress line and a new rate estimate."""
-    words = str(stage or "").split()
-    while words and any(ch.isdigit() for ch in words[-1]):
-        words.pop()
-    return " ".join(words)
+    starts a new progress line (``service.progress.stage_kind``)."""
+    from service.progress import stage_kind
 
-
-class _EtaEstimate:
-    """Remaining time from the fraction's rate within the current stage (the server's
-    ``eta_s`` wins when it gives one): ``(elapsed in stage) * (1 - f) / (f - f at stage start)``."""
-
-    def __init__(self) -> None:
-        self._kind: str | None = None
-        self._t0 = 0.0
-        self._f0 = 0.0
-
-    def __call__(self, progress: dict, now: float) -> float | None:
-        frac, kind = progress.get("fraction"), _stage_kind(progress.get("stage"))
-        if frac is None:
-            return None
-        frac = float(frac)
-        if kind != self._kind:
-            self._kind, self._t0, self._f0 = kind, now, frac
-            return None
-        if frac <= self._f0 or frac >= 1.0:
-            return None
-        return (now - self._t0) * (1.0 - frac) / (frac - self._f0)
+    return stage_kind(stage)
 
 
 class ProgressBar:
@@ -263,8 +259,10 @@ class ProgressBar:
     Draws with ``rich`` on a terminal (stderr): bar, percentage, stage, points, ETA. Off a
     terminal it prints a line (stage, %, points, ETA) when the stage changes and at least
     every ``period`` s (default :func:`progress_period`) while the job runs, even between
-    reports; ``quiet`` draws nothing. The ETA is the server's (``eta_s``) or estimated from
-    the fraction's rate in the current stage."""
+    reports; ``quiet`` draws nothing. The ETA is the server's (``eta_s``) or estimated here
+    by the one model of ``service.progress.Eta`` (an iterative method's from its measured
+    time per iteration, moving at most 2x between updates). :meth:`finish` ends the bar
+    with the outcome (``"converged after 37 iterations"``) rather than the last stage."""
 
     def __init__(self, label: str, *, quiet: bool = False, stream=None, period: float | None = None):
         self.label = label
@@ -274,7 +272,10 @@ class ProgressBar:
         self._progress: Progress | None = None
         self._task: TaskID | None = None
         self._last_stage: str | None = None
-        self._eta = _EtaEstimate()
+        self._printed: tuple[float, str | None] = (0.0, None)  # the last line's fraction and stage
+        from service.progress import Eta
+
+        self._eta = Eta()
         self._latest: dict | None = None
         self._latest_at = 0.0
         self._printed_at = 0.0
@@ -315,8 +316,8 @@ class ProgressBar:
             frac = (progress.get("points_done") or 0) / progress["points_total"]
             progress["fraction"] = frac
         now = time.monotonic()
-        if progress.get("eta_s") is None:
-            progress["eta_s"] = self._eta(progress, now)
+        if progress.get("eta_s") is None and frac is not None:
+            progress["eta_s"] = self._eta(float(frac), progress.get("stage"))
         if self._progress is not None and self._task is not None:
             self._progress.update(self._task, info=describe_progress(progress, with_fraction=False),
                                   completed=None if frac is None else float(frac))
@@ -324,18 +325,31 @@ class ProgressBar:
         with self._lock:
             self._latest, self._latest_at = progress, now
             kind = _stage_kind(progress.get("stage"))
-            if kind != self._last_stage or now - self._printed_at >= self.period:
+            # once a line at 100 % is out, the pipeline's closing "reconstructing 100%" and the
+            # same ending again (finish) add nothing to a log
+            ended = (frac is not None and float(frac) >= 1.0 and self._printed[0] >= 1.0
+                     and progress.get("stage") in ("reconstructing", self._printed[1]))
+            if not ended and (kind != self._last_stage or now - self._printed_at >= self.period):
                 self._last_stage = kind
                 self._print(progress, now)
 
     def report(self, fraction: float, stage: str) -> None:
         """The bar as a ``service.progress.Progress``: ``report(fraction, stage)`` (a local
-        reconstruction's callback) shows as the job progress ``{"fraction", "stage"}``."""
-        self({"fraction": fraction, "stage": stage})
+        reconstruction's callback) shows as the job progress ``{"fraction", "stage"}``, with
+        an iterative method's iteration fields (``service.progress.iteration_fields``)."""
+        from service.progress import IterationStage, iteration_fields
+
+        fields = iteration_fields(stage) if isinstance(stage, IterationStage) else {}
+        self({"fraction": fraction, "stage": str(stage), **fields})
+
+    def finish(self, text: str) -> None:
+        """End the bar at 100 % showing ``text`` (how the work ended) instead of its last stage."""
+        self({"fraction": 1.0, "stage": text, "eta_s": None})
 
     def _print(self, progress: dict, now: float) -> None:
         """One progress line (the caller holds the lock)."""
         self._printed_at = now
+        self._printed = (float(progress.get("fraction") or 0.0), progress.get("stage"))
         frac = progress.get("fraction")
         text = describe_progress(progress, with_fraction=False)
         if frac is not None:  # stage, %, then points, rate, ETA
@@ -397,6 +411,32 @@ def format_bytes(n: float) -> str:
             return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
         n /= 1024
     return f"{n:.1f} TiB"  # pragma: no cover - the loop returns at GiB
+
+
+def check_out_writable(path, flag: str = "--out") -> None:
+    """Refuse, before any work, an output ``path`` (a result folder or a file) that cannot be
+    written: its parent folder is created if missing and must take a new entry (tried with a
+    temporary folder there, removed at once: permissions alone do not say it, e.g. for root
+    in ``/proc``). Raises UsageError (exit 2) naming ``flag``, the folder and the reason."""
+    import tempfile
+    from pathlib import Path
+
+    parent = Path(path).absolute().parent
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        tempfile.TemporaryDirectory(prefix=".fpscan-write-check-", dir=parent).cleanup()
+    except OSError as exc:
+        raise UsageError(f"{flag} {path}: cannot write in {parent} ({exc.strerror or exc})") from None
+
+
+def full_job_id(api, job_id: str) -> str:
+    """The full id of the job ``job_id`` names (a unique prefix, as ``fpscan jobs list``
+    shows ids, works wherever a job id does: the server resolves it in a job's path, this
+    for an id sent in a request's body, e.g. ``--scan-job``). Raises the client's errors
+    (``NotFound``; ``Conflict`` naming the matches of an ambiguous prefix)."""
+    from clients.http import field_of
+
+    return str(field_of(api.get_job(job_id), "id"))
 
 
 def delete_each(ids, delete, what=lambda gone: "") -> int:

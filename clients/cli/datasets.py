@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from clients.cli._common import add_server_options, client_errors, delete_each, format_bytes
 
-__all__ = ["COMMAND", "HELP", "add_arguments", "run"]
+__all__ = ["COMMAND", "HELP", "add_arguments", "run", "full_ids"]
 
 COMMAND = "datasets"
 HELP = "list or delete the datasets uploaded to the server (size on disk, content hash, jobs that read them)"
@@ -23,10 +23,13 @@ def add_arguments(parser):
                        description="List the stored datasets, oldest first: id, format, size on disk, "
                                    "upload time, name and the jobs that read them.")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    p.add_argument("--ids", action="store_true", help="print only the full dataset ids, one per line, oldest "
+                   "first")
     add_server_options(p, required=True)
     p = sub.add_parser("delete", help="delete datasets and their files",
-                       description="Delete stored datasets with their files. Refused for an unknown "
-                                   "id (exit 2) or a dataset a queued, running or paused "
+                       description="Delete stored datasets with their files; an id may be a unique prefix "
+                                   "(as `fpscan datasets list` shows it), as job ids may. Refused for an "
+                                   "unknown or ambiguous id (exit 2) or a dataset a queued, running or paused "
                                    "reconstruction reads (exit 1).")
     p.add_argument("dataset_ids", nargs="+", metavar="dataset_id")
     add_server_options(p, required=True)
@@ -46,6 +49,9 @@ def run(args) -> int:
             if args.json:
                 print(json.dumps(rows, indent=2))
                 return 0
+            if args.ids:
+                print("\n".join(d["dataset_id"] for d in rows))
+                return 0
             print(f"{'id':<12}  {'format':<10}  {'size':>10}  {'uploaded':<16}  {'jobs':>4}  name")
             for d in rows:
                 when = time.strftime("%Y-%m-%d %H:%M", time.localtime(d.get("created") or 0))
@@ -56,5 +62,27 @@ def run(args) -> int:
             print(f"{len(rows)} dataset{'s' if len(rows) != 1 else ''}, {format_bytes(total)} on disk"
                   + (" (* = read by an active job)" if any(d.get("in_use") for d in rows) else ""))
             return 0
-        delete_each(args.dataset_ids, api.delete_dataset)
+        full = full_ids(args.dataset_ids, [d["dataset_id"] for d in api.list_datasets()], "dataset")
+        delete_each(full, api.delete_dataset)
         return 0
+
+
+def full_ids(given: list[str], known: list[str], what: str) -> list[str]:
+    """Each of ``given`` as the one id of ``known`` it is a prefix of (a full id stays as it
+    is, known or not: the server answers for it). Raises UsageError (exit 2) for a prefix
+    that matches several ids, naming them, or none."""
+    from clients.cli._common import UsageError
+
+    out = []
+    for g in given:
+        matches = [k for k in known if k.startswith(g)]
+        if g in known or (not matches and len(g) >= 32):
+            out.append(g)
+        elif len(matches) == 1:
+            out.append(matches[0])
+        elif matches:
+            raise UsageError(f"{what} id prefix {g!r} matches several {what}s ({', '.join(m[:12] for m in matches)}): "
+                             "give more characters")
+        else:
+            raise UsageError(f"no {what} id starts with {g!r} (fpscan {what}s list shows them)")
+    return out

@@ -22,6 +22,8 @@ def add_arguments(parser):
     p.add_argument("--state", choices=STATES, help="only jobs in this state")
     p.add_argument("--kind", choices=KINDS, help="only jobs of this kind")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    p.add_argument("--ids", action="store_true", help="print only the full job ids, one per line, newest first "
+                   "(for scripts: JOB=$(fpscan jobs list --kind recon --ids | head -1))")
     add_server_options(p, required=True)
     p = sub.add_parser("get", help="show one job as JSON", description="Show one job as JSON.")
     p.add_argument("job_id")
@@ -70,6 +72,9 @@ def run(args) -> int:
             jobs = api.list_jobs(state=args.state, kind=args.kind)
             if args.json:
                 print(json.dumps([to_dict(j) for j in jobs], indent=2))
+                return 0
+            if args.ids:
+                print("\n".join(str(field_of(j, "id")) for j in jobs))
                 return 0
             # short ids (a unique prefix is accepted wherever a job id is)
             print(f"{'id':<12}  {'kind':<5}  {'state':<10}  {'what':<34}  progress")

@@ -151,6 +151,10 @@ def run(args) -> int:
     check_input_files(args, [args.input] if args.input else [],
                       "give a scan file or dataset (or --server with --scan-job)")
     check_options_early(args.method, _params(args))
+    if args.out:  # before the work, not after it (the default folder sits beside the input)
+        from clients.cli._common import check_out_writable
+
+        check_out_writable(args.out)
     # no --method: the pipeline's default for the loaded data (service.pipeline.default_method),
     # resolved where the data is read: here locally, by the server with --server
     if args.server:
@@ -197,9 +201,13 @@ def _local(args, fmt: str) -> int:
     shape = ds.data.shape if isinstance(ds, GridDataset) else ds.alines.shape
     say(f"reconstructing with {method} (input {list(shape)})")
     from clients.cli._common import ProgressBar
+    from service.progress import outcome
 
     with ProgressBar(f"recon {method}", quiet=args.quiet) as bar:  # the reconstruction's own fractions
         rec = reconstruct(ds, method, progress=bar.report, **_params(args))
+        ended = outcome(rec.params, method)
+        if ended:  # an iterative method: the bar ends on how it ended, not on its last stage
+            bar.finish(_head(ended))
     t2 = time.perf_counter()
     say(f"writing {out}/")
     write_result(out, rec, input_id=Path(args.input).name)
@@ -210,7 +218,27 @@ def _local(args, fmt: str) -> int:
     print(f"{out}/volume.h5  p0 {dims}  method {method}{_nm(rec.params)}  load {t1 - t0:.2f} s  "
           f"reconstruct {t2 - t1:.2f} s  write {t3 - t2:.2f} s"
           + focus)
+    if ended:
+        print(ended)  # the last line: converged or not, iterations, λ, residual against the noise
     return 0
+
+
+def _head(ended: str) -> str:
+    """The outcome's first clause without the method (``"converged after 37 iterations"``)."""
+    return ended.partition(": ")[2].partition(" (")[0].partition(";")[0]
+
+
+def _outcome_of(job, method: str | None) -> str | None:
+    """:func:`service.progress.outcome` of a finished job's result (``params.result.params_used``);
+    None for a method without iterations, or on a client-only install."""
+    from clients.http import field_of
+
+    used = ((field_of(job, "params") or {}).get("result") or {}).get("params_used") or {}
+    try:
+        from service.progress import outcome
+    except ImportError:  # pragma: no cover -- a client-only install
+        return None
+    return outcome(used, method)
 
 
 def _nm(params: dict) -> str:
@@ -256,7 +284,9 @@ def _remote(args, fmt: str | None) -> int:
 
     with make_client(args, timeout=300) as api:
         if args.scan_job:
-            job_id = api.start_reconstruction(scan_job_id=args.scan_job, method=args.method,
+            from clients.cli._common import full_job_id
+
+            job_id = api.start_reconstruction(scan_job_id=full_job_id(api, args.scan_job), method=args.method,
                                               params=http_params(_params(args)), wavelength=args.wavelength)
         else:
             if args.wavelength == "all":
@@ -277,12 +307,17 @@ def _remote(args, fmt: str | None) -> int:
                                               params=http_params(_params(args)))
         with ProgressBar(f"recon {job_id[:8]}", quiet=args.quiet) as bar:
             job = api.wait(job_id, on_progress=bar)
-        from clients.http import field_of
+            from clients.http import field_of
 
-        method = (field_of(job, "params") or {}).get("method") or args.method  # as the server resolved it
+            method = (field_of(job, "params") or {}).get("method") or args.method  # as the server resolved it
+            ended = _outcome_of(job, method)
+            if ended:
+                bar.finish(_head(ended))
         out = _default_out(args, method)
         planes = _download(api, job_id, out, None)
         print(f"{out}/volume.h5  job {job_id}  method {method}  MIPs {', '.join(planes)}")
+        if ended:
+            print(ended)
         if args.wavelength == "all":  # every wavelength's folder, as the job wrote it
             rows = ((field_of(job, "params") or {}).get("result") or {}).get("wavelengths") or []
             for row in rows:

@@ -83,6 +83,17 @@ def run(args) -> int:
     if "*" in settings.allowed_hosts and settings.token_value() is None:
         raise UsageError("--allowed-host '*' (any host name) needs a --token (or $FPSCAN_TOKEN_FILE)")
 
+    # one server per data folder, on a free port: both refused in one line before anything
+    # reads the job store (its start-up recovery would pause a live server's running scan)
+    from service.data_lock import DataFolderInUse, PortInUse, check_port, lock_data_folder
+
+    try:
+        check_port(settings.host, settings.port)
+        folder_lock = lock_data_folder(settings.data_dir)  # held until this process ends
+    except (DataFolderInUse, PortInUse) as exc:
+        print(f"fpscan serve: error: {exc}", file=sys.stderr, flush=True)
+        return 1
+
     level = settings.log_level.upper()
     logging.basicConfig(level=getattr(logging, level, logging.INFO), stream=sys.stderr,
                         format='{"time": "%(asctime)s", "level": "%(levelname)s", "logger": "%(name)s", '
@@ -108,8 +119,9 @@ def run(args) -> int:
                           "data_dir": str(settings.data_dir)}), file=sys.stderr, flush=True)
         server.run()
     finally:
-        if executor is not None:  # closed by the app's shutdown too; here also when the app never started
-            executor.close()
+        if executor is not None and not getattr(executor, "closed", False):  # the app's shutdown closes it
+            executor.close()  # too; here when the app never started (closing twice raised)
+        folder_lock.release()
     return 0
 
 

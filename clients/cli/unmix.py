@@ -94,6 +94,10 @@ def run(args) -> int:
             pass
         else:
             endmember_matrix(list(args.wavelengths))
+    if args.out:  # before the work, not after it
+        from clients.cli._common import check_out_writable
+
+        check_out_writable(args.out)
     if args.server:
         return _remote(args)
     return _local(args)
@@ -134,7 +138,9 @@ def _remote(args) -> int:
     with make_client(args, timeout=300) as api:
         unmix = {"threshold": args.threshold, "fluence": args.fluence}
         if args.scan_job:
-            job_id = api.start_unmix(scan_job_id=args.scan_job, method=method, params=http_params(_params(args)), **unmix)
+            from clients.cli._common import full_job_id
+
+            job_id = api.start_unmix(scan_job_id=full_job_id(api, args.scan_job), method=method, params=http_params(_params(args)), **unmix)
         else:
             fields = {k: getattr(args, k) for k in ("dt", "dx", "dy", "key")}
             ids = [api.upload_dataset(p, fmt, **fields) for p, fmt in zip(args.inputs, formats, strict=True)]

@@ -38,17 +38,43 @@ class ApiError extends Error {
 
 function getToken() { return sessionStorage.getItem(TOKEN_KEY) || ""; }
 
+/* The quantities this page's fields take, in the units its labels state (SI on the wire). */
+const FIELD_UNITS = {
+  pitch: ["µm", 1e-6], dx: ["µm", 1e-6], dy: ["µm", 1e-6], depth: ["mm", 1e-3], dt: ["ns", 1e-9],
+  prf: ["Hz", 1], "sound speed": ["m/s", 1],
+};
+
+/** A server reason worded for this page's fields. The server speaks to every client (the
+ *  command line's "write the unit, e.g. 8ns", the path "equisteradian.lattice.pitch:"): here a
+ *  number goes into a field labelled with its unit, so the reason names that field and its
+ *  unit ("dt in ns: 8e+9 ns is implausible for a planar FP scanner (expected 100 ps to 1 µs)")
+ *  and says to tick "another medium" where the command line says --force. Other reasons are
+ *  returned as they are. */
+function inFieldTerms(reason) {
+  const text = String(reason);
+  const bare = text.replace(/^(?:(?:[A-Za-z_][\w\-\[\]]*\.)*[A-Za-z_][\w\-\[\]]*: (?=[a-z]))+/, "");  // location paths
+  const m = bare.match(/^(pitch|dx|dy|depth|dt|prf|sound speed) (-?[\d.]+(?:e[-+]?\d+)?) (m|s|Hz|m\/s) (.*)$/s);
+  if (m && FIELD_UNITS[m[1]]) {
+    const [unit, scale] = FIELD_UNITS[m[1]];
+    const shownValue = Number((Number(m[2]) / scale).toPrecision(6));
+    let rest = m[4].replace(/ -- did you mean [^?]*\?/, "").replace(/ ?Numbers without a unit[^.;]*[.;]?.*$/s, "");
+    if (/force a value outside the range/.test(text)) rest += "; tick “another medium” to accept it";
+    return `${m[1]} in ${unit}: ${shownValue} ${unit} ${rest.trim()}`;
+  }
+  return text.replace("force a value outside the range", "tick “another medium” for a value outside the range");
+}
+
 /** The server's reason from an error body: FastAPI's `detail` (a string, or a list of
- *  validation errors {loc, msg}). */
+ *  validation errors {loc, msg}), worded for this page's fields (:func:`inFieldTerms`). */
 function detailText(body, status, statusText) {
   if (body && typeof body === "object" && "detail" in body) {
     const d = body.detail;
-    if (typeof d === "string") return d;
+    if (typeof d === "string") return inFieldTerms(d);
     if (Array.isArray(d)) {
       return d.map((e) => {
         if (e && typeof e === "object") {
           const loc = Array.isArray(e.loc) ? e.loc.filter((p) => p !== "body").join(".") : "";
-          return (loc ? loc + ": " : "") + (e.msg || JSON.stringify(e));
+          return inFieldTerms((loc ? loc + ": " : "") + (e.msg || JSON.stringify(e)));
         }
         return String(e);
       }).join("; ");
@@ -1003,7 +1029,108 @@ function jobProgressText(j) {
   let frac = p.fraction;
   if ((frac === undefined || frac === null) && p.points_total) frac = p.points_done / p.points_total;
   const pct = frac !== undefined && frac !== null && isFinite(frac) ? Math.round(frac * 100) + " %" : "–";
-  return p.stage ? `${pct} (${p.stage})` : pct;
+  const eta = !TERMINAL.has(j.state) && typeof p.eta_s === "number" ? `, ${fmtDuration(p.eta_s)} left` : "";
+  return p.stage ? `${pct} (${p.stage}${eta})` : pct;
+}
+
+/* ------------------------------------------------------------------ iterative methods
+ * The same words as the CLI (service.progress: describe_iteration, outcome). */
+
+/** "iteration 7/100, image change 0.021 (stops below 0.005)" from a job's progress fields
+ *  (iteration, iterations_max, stop_rule, stop_value, stop_tol); null without them. */
+function iterationText(p) {
+  if (p.iteration === undefined || p.iteration === null || !p.iterations_max) return null;
+  let t = `iteration ${p.iteration}/${p.iterations_max}`;
+  if (typeof p.stop_value === "number") {
+    t += `, ${p.stop_rule || "stopping rule"} ${fmtNum(p.stop_value, 2)}`;
+    if (typeof p.stop_tol === "number") t += p.stop_tol > 0 ? ` (stops below ${fmtNum(p.stop_tol, 2)})` : " (tol 0: no early stop)";
+  }
+  return t;
+}
+
+/** What a running job is doing, for a person: its iteration and stopping rule, else its stage. */
+function stageText(p) {
+  const stage = String(p.stage || "");
+  return (stage.startsWith("iteration") && iterationText(p)) || stage || "–";
+}
+
+function pctText(x) {
+  const v = 100 * Number(x);
+  return (Math.abs(v) >= 1 ? v.toFixed(1) : String(Number(v.toPrecision(2)))) + " %";
+}
+
+/** How an iterative reconstruction ended, from its params_used (null for another method):
+ *  {head: "converged after 37 iterations (image change 0.0041 < 0.005)", converged,
+ *   lambda: "0.0123 (automatic)", residual: "3.1 % of the data, noise 3.0 %"}. */
+function outcomeOf(used) {
+  if (!used || used.iterations === undefined || used.iterations === null || used.converged === undefined) return null;
+  const n = used.iterations;
+  let rule = "";
+  if (typeof used.iterate_change === "number" && typeof used.tol === "number") {
+    rule = ` (image change ${fmtNum(used.iterate_change, 2)} ${used.iterate_change < used.tol ? "<" : "≥"} ${fmtNum(used.tol, 2)})`;
+  }
+  let head;
+  if (used.converged) head = `converged after ${n} iterations${rule}`;
+  else if (used.stop_reason === "time limit") head = `not converged: stopped at the time limit after ${n} iterations${rule}`;
+  else head = `not converged: stopped at the iteration limit, ${n}${used.max_iter ? " of " + used.max_iter : ""} iterations${rule}`;
+  let lambda = null;
+  if (typeof used.lam === "number") {
+    lambda = `${fmtNum(used.lam)} (${used.lam_auto ? "automatic" : "given"})`;
+    if (used.lam_auto && used.lam === 0 && used.lam_note) lambda += `: ${used.lam_note}`;
+  }
+  let residual = null;
+  if (typeof used.residual === "number") {
+    residual = `${pctText(used.residual)} of the data` + (typeof used.noise_share === "number" ? `, noise ${pctText(used.noise_share)}` : "");
+  }
+  return { head, converged: !!used.converged, lambda, residual };
+}
+
+/** The running job's progress on its own page: bar, %, iteration (or stage), time left. */
+function showResultProgress(job) {
+  const active = !TERMINAL.has(job.state);
+  $("result-progress").hidden = !active;
+  if (!active) return;
+  const p = job.progress || {};
+  let frac = p.fraction;
+  if ((frac === undefined || frac === null) && p.points_total) frac = p.points_done / p.points_total;
+  if (frac !== undefined && frac !== null && isFinite(frac)) {
+    $("result-progress-bar").value = frac;
+    $("result-progress-pct").textContent = Math.round(frac * 100) + " %";
+  }
+  $("result-progress-stage").textContent = job.state === "queued" ? "queued" : stageText(p);
+  $("result-progress-eta").textContent = typeof p.eta_s === "number" ? fmtDuration(p.eta_s)
+    : (job.state === "running" ? "estimating…" : "–");
+}
+
+/** The result's summary, first on its page: method, outcome, λ, residual, grid, time. */
+function renderSummary(job) {
+  const done = job.state === "succeeded" && job.kind !== "scan";
+  $("result-summary").hidden = !done;
+  if (!done) return;
+  const r = resultOf(job);
+  const used = r.params_used || {};
+  const method = used.method || (job.params || {}).method;
+  const title = METHODS && METHODS[method] ? `${method} (${METHODS[method].title})` : method;
+  setStat("summary-method", title || null);
+  const o = outcomeOf(used);
+  setStat("summary-outcome", o ? o.head : null);
+  $("summary-outcome").className = o ? (o.converged ? "outcome-converged" : "outcome-open") : "";
+  setStat("summary-lambda", o ? o.lambda : null);
+  setStat("summary-residual", o ? o.residual : null);
+  let grid = null;
+  if (r.shape) {
+    const axes = r.shape.length === 3 ? ["z", "y", "x"] : ["z", "x"];
+    const steps = axes.map((a) => (typeof used["d" + a] === "number" ? `d${a} ${fmtQuantity(used["d" + a], "m")}` : null))
+      .filter((v) => v);
+    grid = `${r.shape.join(" × ")} (${axes.map((a) => "n_" + a).join(" × ")})` + (steps.length ? ", " + steps.join(", ") : "");
+  }
+  setStat("summary-grid", grid);
+  const t = job.timings || {};
+  const rt = r.timings || {};
+  const parts = [];
+  if (typeof rt.reconstruct_s === "number") parts.push(`reconstruct ${fmtDuration(rt.reconstruct_s)}`);
+  if (typeof t.run_s === "number") parts.push(`job ${fmtDuration(t.run_s)}`);
+  setStat("summary-time", parts.join(", ") || null);
 }
 
 function jobCreated(j) {
@@ -1186,6 +1313,8 @@ function renderResult(job) {
   $("result-watch").hidden = !(active && job.kind === "scan");
   $("result-watch").href = "#/scan/" + encodeURIComponent(job.id);
 
+  showResultProgress(job);
+  renderSummary(job);
   const tbody = $("result-params").tBodies[0];
   tbody.textContent = "";
   const addRows = (rows) => {
@@ -1196,6 +1325,7 @@ function renderResult(job) {
       tr.append(a, b);
       tbody.appendChild(tr);
     }
+    $("result-params-count").textContent = String(tbody.rows.length);
   };
   // what was asked (unset options left out) and, once done, the values the reconstruction used
   addRows(paramRows(job.params || {}).filter(([k]) => !k.startsWith("result.")));
@@ -1246,12 +1376,17 @@ function renderResult(job) {
       if (path) loadImage(img, path).catch(showError);
     }
     const n = sliceCount(job);
+    // a 2-D image is its own xz picture: a depth "slice" of it would be one row
+    $("result-slice-box").hidden = Array.isArray(resultOf(job).shape) && resultOf(job).shape.length === 2;
     const slider = $("result-slice");
     const dz = sliceSpacing(job);
     slider.dataset.dz = dz === null ? "" : String(dz);
     slider.max = String(n ? n - 1 : 0);
     slider.disabled = !n;
-    if (slider.dataset.job !== String(job.id)) { slider.value = String(n ? Math.floor((n - 1) / 2) : 0); slider.dataset.job = String(job.id); }
+    // the slice opens at the depth of the volume's maximum (the middle depth may be pure noise)
+    const peak = resultOf(job).max_index;
+    const start = Array.isArray(peak) && Number.isInteger(peak[0]) ? peak[0] : (n ? Math.floor((n - 1) / 2) : 0);
+    if (slider.dataset.job !== String(job.id)) { slider.value = String(start); slider.dataset.job = String(job.id); }
     if (Number(slider.value) > Number(slider.max)) slider.value = slider.max;
     const r = resultOf(job);
     $("scale-max").textContent = r.max !== undefined ? `slice maximum (volume maximum ${fmtNum(r.max)})` : "slice maximum";
@@ -1373,6 +1508,7 @@ async function openResult(jobId) {
     resultWatch = watchJob(jobId, async (j) => {
       if (resultJob !== jobId) return;
       setState($("result-state"), j.state);
+      showResultProgress(j);
       if (j.state !== lastState && TERMINAL.has(j.state)) {
         lastState = j.state;
         if (currentView === "jobs") refreshJobs().catch(() => {});

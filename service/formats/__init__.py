@@ -20,6 +20,7 @@ name           module      content                                             r
 ``unmix``      unmix       unmixing result ``unmix.h5`` → dict                 output
 ``ipasc``      ipasc       IPASC HDF5 → PointDataset                           input, upload
 ``kwave-hdf5`` kwave_hdf5  HDF5 array in k-Wave layout → GridDataset           input, upload
+``kwave-mat``  kwave_mat   k-Wave MAT-file (MAT v5, v7.3) → GridDataset         input, upload
 ``plan``       plan        plan JSON → plan dict                               refused as data
 ``png``        png         PNG picture → bytes                                 refused as data
 =============  ==========  ==================================================  =====================
@@ -35,7 +36,7 @@ from __future__ import annotations
 import importlib
 import pkgutil
 
-from service.formats import dataset, ipasc, kwave_hdf5, npy, plan, png, result, scan, unmix
+from service.formats import dataset, ipasc, kwave_hdf5, kwave_mat, npy, plan, png, result, scan, unmix
 from service.formats._registry import (
     FORMATS,
     HEAD_BYTES,
@@ -56,7 +57,7 @@ __all__ = ["FORMATS", "BUILTIN", "HEAD_BYTES", "MAX_BYTES", "Format", "Source", 
            "open_source", "register", "sniff", "unregister", "upload_formats"]
 
 #: the formats fpscan knows, in the order of the lists of choices
-BUILTIN = (npy.FORMAT, kwave_hdf5.FORMAT, scan.FORMAT, ipasc.FORMAT, dataset.FORMAT, result.FORMAT,
+BUILTIN = (npy.FORMAT, kwave_hdf5.FORMAT, kwave_mat.FORMAT, scan.FORMAT, ipasc.FORMAT, dataset.FORMAT, result.FORMAT,
            unmix.FORMAT, plan.FORMAT, png.FORMAT)
 for _fmt in BUILTIN:
     register(_fmt)

@@ -26,11 +26,25 @@ from service.recon.dataset import MAX_ELEMENTS
 __all__ = ["Format", "Source", "FORMATS", "HEAD_BYTES", "MAX_BYTES", "register", "unregister", "names",
            "open_source", "sniff", "detect", "describe", "load"]
 
-#: bytes of a file's start every ``sniff`` sees (:attr:`Source.head`)
-HEAD_BYTES = 512
+#: bytes of a file's start every ``sniff`` sees (:attr:`Source.head`): a MATLAB v7.3 MAT-file's
+#: 512-byte header and the HDF5 signature behind it included
+HEAD_BYTES = 1024
 #: default bound on any one HDF5 dataset's declared bytes (``check_hdf5_file``)
 MAX_BYTES = MAX_ELEMENTS * 8
 HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+#: where an HDF5 file's superblock may start in the files fpscan reads: at 0, or behind a
+#: 512-byte user block (MATLAB's v7.3 MAT-files: their text header, then HDF5). HDF5 itself
+#: looks at 0, 512, 1024, 2048, ...; fpscan opens only these two.
+HDF5_OFFSETS = (0, 512)
+
+
+def hdf5_offset(head: bytes) -> int | None:
+    """Where ``head`` (a file's first bytes) holds the HDF5 signature: 0, 512 (behind a
+    user block: a MATLAB v7.3 MAT-file) or None (not HDF5)."""
+    for offset in HDF5_OFFSETS:
+        if head[offset:offset + 8] == HDF5_SIGNATURE:
+            return offset
+    return None
 
 
 @dataclass
@@ -49,8 +63,9 @@ class Source:
 
     @property
     def is_hdf5(self) -> bool:
-        """True for an HDF5 file (signature at offset 0)."""
-        return self.head[:8] == HDF5_SIGNATURE
+        """True for an HDF5 file (signature at offset 0, or at 512 behind a user block:
+        :func:`hdf5_offset`)."""
+        return hdf5_offset(self.head) is not None
 
     def attr(self, name: str) -> str:
         """The HDF5 root attribute ``name`` as text (``""`` when absent or not HDF5)."""
@@ -71,15 +86,20 @@ class Format:
         The name users give (``--format``, the upload's ``format`` field).
     title : str
         What a person reads (the web page's choices, the CLI help).
-    container : {"hdf5", "file"}
+    container : {"hdf5", "file", "any"}
         ``"hdf5"``: the registry opens and checks the HDF5 file (``Source.h5``);
-        ``"file"``: any other file (``Source.fh``, ``Source.head``).
+        ``"file"``: any other file (``Source.fh``, ``Source.head``); ``"any"``: either,
+        by the file's signature (a format with an HDF5 and a plain variant: MATLAB's
+        MAT-files, v7.3 and v5), its ``sniff`` and ``load`` seeing ``Source.h5`` or
+        ``Source.fh``.
     sniff : callable
         ``sniff(source) -> bool``: cheap detection from ``source.head`` and, for HDF5,
         its root attributes and links (no data read).
     load : callable
         ``load(source, **options)``: the content (a ``GridDataset`` / ``PointDataset``
-        for an input format). Options it does not take are ignored (``**_``).
+        for an input format). Options it does not take are ignored (``**_``); the
+        registry passes ``max_bytes`` (the bound on any one array's declared bytes) with
+        them, for a format that decodes arrays HDF5's checks do not see (MAT v5's zlib).
     write : callable or None
         ``write(path, obj)`` where the format has a writer.
     input : bool
@@ -127,8 +147,8 @@ def register(fmt: Format) -> Format:
     Raises ValueError for a name already registered or an unknown container."""
     if fmt.name in FORMATS:
         raise ValueError(f"format {fmt.name!r} is registered already")
-    if fmt.container not in ("hdf5", "file"):
-        raise ValueError(f"container must be 'hdf5' or 'file', got {fmt.container!r}")
+    if fmt.container not in ("hdf5", "file", "any"):
+        raise ValueError(f"container must be 'hdf5', 'file' or 'any', got {fmt.container!r}")
     FORMATS[fmt.name] = fmt
     return fmt
 
@@ -157,8 +177,8 @@ def open_source(path: str | os.PathLike, container: str | None = None, *,
                 max_bytes: int = MAX_BYTES, name: str | None = None) -> Iterator[Source]:
     """Open ``path`` once for detection and loading (module docstring). ``container``:
     the container a chosen format needs (``"hdf5"``: a file without the HDF5 signature is
-    refused, naming the format ``name``; ``"file"``: not opened as HDF5); None: from the
-    signature.
+    refused, naming the format ``name``; ``"file"``: not opened as HDF5); None or
+    ``"any"``: from the signature (at 0, or at 512 behind a user block: :func:`hdf5_offset`).
     Raises FileNotFoundError, ValueError (not the container asked for, an HDF5 file that
     is unreadable or refused by ``check_hdf5_file``)."""
     from driver.scanfile import open_readonly
@@ -170,14 +190,15 @@ def open_source(path: str | os.PathLike, container: str | None = None, *,
     with open(path, "rb") as fh:
         head = fh.read(HEAD_BYTES)
         fh.seek(0)
-        hdf5 = head[:8] == HDF5_SIGNATURE
-        if container == "hdf5" and not hdf5:
-            raise ValueError(f"{'a ' + name if name else 'the'} file must be HDF5 (no HDF5 signature at the start)")
-        if not hdf5 or container == "file":
+        offset = hdf5_offset(head)
+        if container == "hdf5" and offset is None:
+            raise ValueError(f"{'a ' + name if name else 'the'} file must be HDF5 (no HDF5 signature at the start)"
+                             + _mat_hint(head))
+        if offset is None or container == "file":
             yield Source(path=path, head=head, fh=fh)
             return
     try:
-        f = open_readonly(path)
+        f = open_readonly(path) if offset == 0 else _open_behind_user_block(path)
     except Exception:  # ValueError from the superblock checks; damaged files can reach other paths
         raise ValueError("not a readable HDF5 file (truncated or corrupt)") from None
     with f:
@@ -185,12 +206,30 @@ def open_source(path: str | os.PathLike, container: str | None = None, *,
         yield Source(path=path, head=head, h5=f)
 
 
+def _open_behind_user_block(path: Path) -> Any:
+    """An HDF5 file whose superblock sits behind a 512-byte user block (a MATLAB v7.3
+    MAT-file), opened read-only without SWMR: ``driver.scanfile.open_readonly`` checks a
+    superblock at 0 only, and these files come from MATLAB, never from a writer fpscan
+    reads while it writes (a file flagged as open for writing is refused by HDF5 itself,
+    which is what a plain open does: no SWMR retries). Raises OSError."""
+    import h5py
+
+    return h5py.File(path, "r", locking=False)
+
+
+def _mat_hint(head: bytes) -> str:
+    """For a MATLAB MAT-file asked to be read as plain HDF5: which format reads it."""
+    if head.startswith(b"MATLAB"):
+        return "; this is a MATLAB MAT-file: read it with format kwave-mat"
+    return ""
+
+
 def sniff(source: Source) -> Format | None:
-    """The first registered format (by ``order``) of ``source``'s container whose
-    ``sniff`` accepts it; None when none does."""
+    """The first registered format (by ``order``) of ``source``'s container (or of
+    container ``"any"``) whose ``sniff`` accepts it; None when none does."""
     container = "hdf5" if source.h5 is not None else "file"
     for fmt in sorted(FORMATS.values(), key=lambda f: f.order):
-        if fmt.container == container and fmt.sniff(source):
+        if fmt.container in (container, "any") and fmt.sniff(source):
             return fmt
     return None
 
@@ -235,7 +274,7 @@ def describe(path: str | os.PathLike, *, unless: tuple[str, ...] = (), max_bytes
 def _unknown(source: Source, choices: tuple[str, ...]) -> str:
     """The reason a file fits none of ``choices``."""
     if source.h5 is None:
-        others = [FORMATS[n].what for n in choices if n in FORMATS and FORMATS[n].container == "file"]
+        others = [FORMATS[n].what for n in choices if n in FORMATS and FORMATS[n].container in ("file", "any")]
         return f"file is neither HDF5 nor {' nor '.join(others) or 'another known format'}"
     return f"the HDF5 file is in none of the known formats ({', '.join(choices)})"
 
@@ -276,5 +315,6 @@ def load(path: str | os.PathLike, kind: str | None = None, *, max_bytes: int = M
             raise ValueError(f"wavelength index {index} is out of range: a {fmt.name} file holds one "
                              "wavelength's data")
         if options.get("all_wavelengths") and not fmt.wavelengths:  # one wavelength: a list of one
-            return fmt.name, [fmt.load(src, **{k: v for k, v in options.items() if k != "all_wavelengths"})]
-        return fmt.name, fmt.load(src, **options)
+            return fmt.name, [fmt.load(src, max_bytes=max_bytes,
+                                       **{k: v for k, v in options.items() if k != "all_wavelengths"})]
+        return fmt.name, fmt.load(src, max_bytes=max_bytes, **options)

@@ -68,6 +68,9 @@ def load(source: Source, *, key: str | None = None, dt: float | None = None, dx:
     its depth spacing ``meta["p0_dz"]`` (m), when it matches the data's lateral shape.
     Raises ValueError (no such dataset, too large, what ``grid_array`` refuses, spacings
     neither given nor in the file)."""
+    if source.head.startswith(b"MATLAB"):  # HDF5 behind MATLAB's header: arrays stored transposed
+        raise ValueError("this is a MATLAB v7.3 MAT-file (HDF5 with MATLAB's transposed layout): read it with "
+                         "format kwave-mat")
     f = source.h5
     ds = find_array(f, key)
     if ds.size > MAX_ELEMENTS:

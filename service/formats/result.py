@@ -233,9 +233,10 @@ def write_folder(out_dir: str | os.PathLike, rec: Any, *, input_id: str,
     (:func:`mip_file`), written into a temporary sibling folder renamed into place (an
     existing ``out_dir`` is replaced). ``mips`` may be a callable returning them, called
     once the volume is written (and flushed to disk): a caller can draw the pictures
-    meanwhile. Returns ``{"shape", "max", "planes", "params_used"}`` (``planes`` sorted;
-    ``params_used``: the scalar parameters the reconstruction used). Raises ValueError as
-    :func:`write_volume`, and what ``mips()`` raises."""
+    meanwhile. Returns ``{"shape", "max", "max_index", "planes", "params_used"}``
+    (``max_index``: the array index of the maximum, depth first, where the web page opens
+    its depth slice; ``planes`` sorted; ``params_used``: the scalar parameters the
+    reconstruction used). Raises ValueError as :func:`write_volume`, and what ``mips()`` raises."""
     import time
 
     from service.disk import folder_replaced
@@ -253,8 +254,9 @@ def write_folder(out_dir: str | os.PathLike, rec: Any, *, input_id: str,
     # the values the reconstruction used (defaults and the input's c, dt, dx filled in)
     used = {k: v for k, v in json.loads(params_json(dict(getattr(rec, "params", None) or {}))).items()
             if v is None or isinstance(v, (bool, int, float, str))}
-    return {"shape": list(p0.shape), "max": float(np.max(p0)) if p0.size else 0.0, "planes": sorted(mips),
-            "params_used": used}
+    peak = [int(i) for i in np.unravel_index(int(np.argmax(p0)), p0.shape)] if p0.size else None
+    return {"shape": list(p0.shape), "max": float(np.max(p0)) if p0.size else 0.0, "max_index": peak,
+            "planes": sorted(mips), "params_used": used}
 
 
 @dataclass

@@ -191,7 +191,8 @@ class ReconQueue:
                              progress={"fraction": 1.0, "stage": "done",
                                        "points_done": summary.get("points_used"),
                                        "points_total": summary.get("points_used")})
-        log.info("recon done job=%s seconds=%.3f shape=%s", jid, time.perf_counter() - t0, summary.get("shape"))
+        log.info("recon done job=%s seconds=%.3f shape=%s%s", jid, time.perf_counter() - t0, summary.get("shape"),
+                 f" {summary['outcome']}" if summary.get("outcome") else "")  # how an iterative method ended
         try:  # a new result: older ones beyond the retention policy go
             apply_retention(self.store, self.settings)
         except Exception:

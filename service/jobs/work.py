@@ -58,9 +58,9 @@ def load_inputs(spec_input: dict) -> list:
     return load_wavelengths(spec_input["path"], INPUT_FORMATS[kind], wavelength=spec_input.get("wavelength"))
 
 
-def report_stage(path: str | None, stage: str, fraction: float) -> None:
+def report_stage(path: str | None, stage: str, fraction: float, **fields: Any) -> None:
     """Append the job's current stage to its progress file ``path``: one JSON line
-    ``{"stage", "fraction"}`` per report, written with one ``write`` in append mode, so a
+    ``{"stage", "fraction", **fields}`` per report, written with one ``write`` in append mode, so a
     reader sees whole lines in order. The server's job thread reads the new lines
     (:class:`ProgressLog`) and turns them into progress events: no stage is lost, however
     short (a solve that ends between two of its reads still shows its iterations)."""
@@ -68,7 +68,7 @@ def report_stage(path: str | None, stage: str, fraction: float) -> None:
         return
     import json
 
-    line = (json.dumps({"stage": stage, "fraction": fraction}) + "\n").encode()
+    line = (json.dumps({"stage": str(stage), "fraction": fraction, **fields}) + "\n").encode()
     try:
         fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o600)
         try:
@@ -82,15 +82,30 @@ def report_stage(path: str | None, stage: str, fraction: float) -> None:
 def progress_file(path: str | None) -> Progress:
     """The :data:`service.progress.Progress` that writes to the job's progress file ``path``
     (:func:`report_stage`; a report equal to the previous one is not written again; nothing
-    when ``path`` is None)."""
+    when ``path`` is None). Each line also carries, where known, the time left ``eta_s``
+    (``service.progress.Eta``) and an iterative method's iteration, its limit and its
+    stopping rule's value and tolerance (``service.progress.iteration_fields`` of an
+    ``IterationStage``); a field a line no longer knows is written as null, since the job's
+    progress merges the lines."""
+    from service.progress import Eta, IterationStage, iteration_fields
+
     last: tuple[float, str] | None = None
+    eta = Eta()
+    before: set[str] = set()
 
     def write(fraction: float, stage: str) -> None:
-        nonlocal last
+        nonlocal last, before
         if last == (fraction, stage):
             return
         last = (fraction, stage)
-        report_stage(path, stage, fraction)
+        fields: dict[str, Any] = iteration_fields(stage) if isinstance(stage, IterationStage) else {}
+        seconds = eta(fraction, stage)
+        if seconds is not None:
+            fields["eta_s"] = round(seconds, 1)
+        known = set(fields)
+        fields.update(dict.fromkeys(before - known))  # cleared, not left stale in the merged progress
+        before = known
+        report_stage(path, stage, fraction, **fields)
 
     return write
 
@@ -262,7 +277,8 @@ def run_reconstruction(spec: dict) -> dict:
     reported there), ``cancel_path`` (the reconstruction stops with
     ``service.pipeline.Cancelled`` once that file exists) and ``memory_limit`` (bytes:
     admission checked again on the loaded input, address space bounded while it runs).
-    Returns ``{"shape", "max", "planes", "timings", "points_used"}``. Raises
+    Returns ``{"shape", "max", "planes", "timings", "points_used", "outcome"}`` (``outcome``: an
+    iterative method's one line on how it ended, ``service.progress.outcome``). Raises
     ``ValueError`` for inputs the method cannot use or that exceed the memory limit.
     Holds :data:`JOB_GATE` busy while it runs (the background warm-up waits)."""
     with JOB_GATE.busy():
@@ -302,6 +318,11 @@ def _run_reconstruction(spec: dict) -> dict:
         summary["autofocus"] = rec.params["autofocus"]
     if ds.kind == "points":
         summary["points_used"] = int(ds.alines.shape[0])
+    from service.progress import outcome
+
+    ended = outcome(rec.params, method)  # an iterative method: how it ended, one line (the server's log)
+    if ended:
+        summary["outcome"] = ended
     return summary
 
 

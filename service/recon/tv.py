@@ -115,7 +115,7 @@ import scipy.fft
 
 from driver.constants import C_DEFAULT
 from driver.physics.fast_lengths import fast_real_shape
-from service.progress import Progress, span
+from service.progress import IterationStage, Progress, span
 from service.recon import checks
 from service.recon import limits as _limits
 from service.recon.reconstruction import Reconstruction
@@ -294,7 +294,8 @@ def reconstruct_tv(
     Reconstruction
         p0 ``(n_z, n_x)`` / ``(n_z, n_y, n_x)`` with ``z``, ``x``, ``y`` (m) on the warm
         start's grid; ``params`` add ``lam``, ``lam_auto``, ``lam_factor`` (λ over
-        ``image_noise``; None for a given λ), ``warm_discrepancy`` (D₀, module doc),
+        ``image_noise``; None for a given λ), ``lam_note`` (only when the automatic λ is 0:
+        why — noiseless data), ``warm_discrepancy`` (D₀, module doc),
         ``noise_sigma`` (σ̂, Pa), ``image_noise``, ``noise_share``, ``iterations``, ``residual``
         (‖A p0 − g‖ / ‖g‖), ``norm_A`` (‖P AᵀA‖, the step's L), ``converged`` (the stopping
         rule ``tol`` was met), ``stop_reason`` ("converged", "iterations": ``max_iter`` reached,
@@ -448,7 +449,12 @@ def reconstruct_tv(
                   operator_pairs=0.5 * (applied[0] + applied[1]), debias=debiased,
                   converged=stop_reason == "converged", stop_reason=stop_reason,
                   time_limit=time_limit, solve_s=time.monotonic() - started)
-    report(1.0, f"done after {it} iterations" + (" (time limit reached)" if stop_reason == "time limit" else ""))
+    if auto and lam == 0:  # said, not silent: on noiseless data the automatic λ has nothing to scale
+        params["lam_note"] = ("the data show no noise (σ̂ = 0: the finest wavelet coefficients along time vanish), "
+                              "so the automatic λ is 0, a least-squares fit" + (" with positivity" if positivity else "")
+                              + "; set λ (--lambda; lam over HTTP) for a TV weight")
+    report(1.0, ("converged" if stop_reason == "converged" else "stopped") + f" after {it} iterations"
+           + {"time limit": " (time limit)", "iterations": " (iteration limit)"}.get(stop_reason, ""))
     return Reconstruction(p0, z_axis, x_axis, y_axis, params)
 
 
@@ -840,7 +846,8 @@ def _fista(forward, G, g, start, lam, L, positivity, max_iter, tol, started, tim
             change = max(steps)
         elapsed = time.monotonic() - started
         if iterations is not None:
-            iterations(max(it / max_iter, elapsed / time_limit), f"iteration {it}/{max_iter}")
+            # the stage "iteration k/N" carries the stopping rule's value (its window so far) and tol
+            iterations(max(it / max_iter, elapsed / time_limit), IterationStage(it, max_iter, max(steps), tol))
         if 0.0 <= change < tol:
             stop_reason = "converged"
             break

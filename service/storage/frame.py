@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["Frame", "frame_layout", "draw_frame", "colour_lut", "tick_values", "tick_labels"]
+__all__ = ["Frame", "frame_layout", "draw_frame", "colour_lut", "tick_values", "tick_labels", "power_in_label"]
 
 _MINUS = "\u2212"
 
@@ -110,6 +110,30 @@ def tick_labels(ticks: np.ndarray) -> tuple[list[str], str]:
         text = f"{0.0 if abs(v) < 1e-9 * max(step, 1e-300) else v:.{decimals}f}"
         labels.append(text.replace("-", _MINUS))
     return labels, (f"1e{exponent}".replace("-", _MINUS) if exponent else "")
+
+
+_SUPERSCRIPT = str.maketrans("0123456789-\u2212", "⁰¹²³⁴⁵⁶⁷⁸⁹⁻⁻")
+
+
+def power_in_label(label: str, power: str) -> str:
+    """A colour bar's ``label`` with the common power of ten of its tick labels (``power``
+    as :func:`tick_labels` gives it, ``"1e6"``) inside its unit: ``"p0 (a.u.)"`` →
+    ``"p0 (×10⁶ a.u.)"``, a label without a unit gets one (``"weight (×10⁶)"``); ``power``
+    ``""``: the label as it is. Drawn so, the power sits with the unit it scales rather
+    than above the bar, where it met the title.
+
+    Examples
+    --------
+    >>> power_in_label("p0 (a.u.)", "1e6"), power_in_label("sO2", "1e\u22123")
+    ('p0 (×10⁶ a.u.)', 'sO2 (×10⁻³)')
+    """
+    if not power:
+        return label
+    factor = "×10" + power.split("e", 1)[1].translate(_SUPERSCRIPT)
+    if label.endswith(")") and "(" in label:
+        head, _, unit = label[:-1].rpartition("(")
+        return f"{head}({factor} {unit})"
+    return f"{label} ({factor})"
 
 
 def colour_lut(cmap: Any, n: int = 256) -> np.ndarray:
@@ -220,9 +244,8 @@ def draw_frame(rgb: np.ndarray, colourbar: np.ndarray, frame: Frame, *, extent_m
         draw.line((f.cb_right, y, f.cb_right + tick_len, y), fill=(0, 0, 0), width=line)
         draw.text((f.cb_right + tick_len + pad, y), text, font=tick_font, fill=(0, 0, 0), anchor="lm")
         label_right = max(label_right, f.cb_right + tick_len + pad + _text_width(draw, text, tick_font))
-    if power:
-        draw.text((f.cb_left, f.cb_top - 2 * px), power, font=tick_font, fill=(0, 0, 0), anchor="ld")
-    _vertical_text(canvas, colorbar_label, label_font, (0.0, (f.cb_top + f.cb_bottom) / 2),
+    # the common power goes into the label's unit ("p0 (×10⁶ a.u.)"), not above the bar by the title
+    _vertical_text(canvas, power_in_label(colorbar_label, power), label_font, (0.0, (f.cb_top + f.cb_bottom) / 2),
                    left_edge=label_right + 4 * px)
 
     if title:

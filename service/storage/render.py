@@ -252,22 +252,82 @@ def _figure(width_mm: float, height_mm: float, *, dpi: int = FIGURE_DPI):
     return fig, fig.add_subplot(1, 1, 1)
 
 
+#: larger units a colour bar's label switches to when its values reach 10⁴ of the smaller:
+#: weights in mm² (mm) rather than 10⁶ µm²
+_LARGER_UNIT = {"µm²": ("mm²", 1e6), "µm": ("mm", 1e3)}
+
+
+def _colourbar_scale(label: str, lo: float, hi: float) -> tuple[float, str]:
+    """The divisor of a colour bar's tick values and its label: ``µm²`` / ``µm`` become ``mm²``
+    / ``mm`` for values of 10⁴ and more (no factor on a weight), and any power of ten still
+    left (values outside [1e-3, 1e4), as ``service.storage.frame.tick_labels``) goes into the
+    label's unit (``"p0 (×10⁶ a.u.)"``), never beside the bar where it met the title."""
+    import math
+
+    from service.storage.frame import power_in_label
+
+    big = max(abs(lo), abs(hi))
+    divisor = 1.0
+    if label.endswith(")") and "(" in label:
+        head, _, unit = label[:-1].rpartition("(")
+        if unit in _LARGER_UNIT and big >= 1e4:
+            unit, divisor = _LARGER_UNIT[unit]
+            label = f"{head}({unit})"
+    scaled = big / divisor
+    if scaled > 0 and not 1e-3 <= scaled < 1e4:
+        exponent = int(math.floor(math.log10(scaled)))
+        divisor *= 10.0 ** exponent
+        label = power_in_label(label, f"1e{exponent}")
+    return divisor, label
+
+
+def _fit_title(fig, ax, title: str) -> int:
+    """Set ``title`` on ``ax`` at FONT_PT (centred over the plot, as every picture's), each
+    line wrapped at spaces so that it stays inside the figure (the mask preview's
+    "equisteradian: 1653 of 1625 requested points on 226×226" was cut at both sides); returns
+    the number of lines drawn. Call once the axes have their final horizontal place."""
+    import textwrap
+
+    box = ax.get_position()
+    centre = (box.x0 + box.x1) / 2  # figure fraction
+    room_px = 2 * min(centre, 1 - centre) * fig.get_size_inches()[0] * fig.dpi * 0.97
+    renderer = fig.canvas.get_renderer()
+    text = ax.set_title(title, fontsize=FONT_PT)
+    for chars in range(max(len(line) for line in title.split("\n")), 8, -1):
+        if text.get_window_extent(renderer).width <= room_px:
+            break
+        text.set_text("\n".join(textwrap.fill(line, chars, break_long_words=False) for line in title.split("\n")))
+    return text.get_text().count("\n") + 1
+
+
 def _finish(fig, ax, mappable, *, hlabel: str, vlabel: str | None, title: str | None,
             colorbar_label: str) -> bytes:
-    """Labels, title and colour bar of every picture; the PNG with its ``fpscan:axes``
-    geometry chunk (module docstring)."""
+    """Labels, title (wrapped to fit: :func:`_fit_title`) and colour bar (its units chosen so
+    no factor sits beside it: :func:`_colourbar_scale`) of every picture; the PNG with its
+    ``fpscan:axes`` geometry chunk (module docstring)."""
+    from matplotlib.ticker import FuncFormatter
+
     ax.set_xlabel(f"{hlabel} (mm)")
     if vlabel:
         ax.set_ylabel(f"{vlabel} (mm)")
-    if title:
-        ax.set_title(title, fontsize=10)
     cb = fig.colorbar(mappable, ax=ax, fraction=0.046, pad=0.04)
+    lo, hi = mappable.get_clim()
+    divisor, colorbar_label = _colourbar_scale(colorbar_label, float(lo), float(hi))
+    if divisor != 1.0:
+        cb.formatter = FuncFormatter(lambda v, _pos: f"{v / divisor:g}".replace("-", "\u2212"))
+        cb.update_ticks()
     cb.set_label(colorbar_label)
     _readable_text(ax, cb)
-    # fixed margins in inches (a layout engine costs a second full draw)
+    # fixed margins in inches (a layout engine costs a second full draw): the sides first, then
+    # the title fitted between them, then the top by its lines
     w_in, h_in = fig.get_size_inches()
-    fig.subplots_adjust(left=0.75 / w_in, right=1 - 0.85 / w_in, bottom=0.6 / h_in,
-                        top=1 - (0.8 if title and "\n" in title else 0.45) / h_in)
+    fig.subplots_adjust(left=0.75 / w_in, right=1 - 0.85 / w_in, bottom=0.6 / h_in, top=1 - 0.45 / h_in)
+    lines = _fit_title(fig, ax, title) if title else 0
+    top_in = 0.25 + 0.22 * lines if lines else 0.45
+    if h_in - top_in - 0.6 < 1.2:  # room for the plot under a long title
+        h_in = top_in + 0.6 + 1.2
+        fig.set_size_inches(w_in, h_in)
+    fig.subplots_adjust(bottom=0.6 / h_in, top=1 - top_in / h_in)
     buf = io.BytesIO()
     fig.savefig(buf, format="png")  # draws the figure: the axes' pixel box is final now
     height_px = fig.bbox.height

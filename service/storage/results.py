@@ -56,7 +56,8 @@ from service.formats.result import RESULT_FORMAT as FORMAT
 
 __all__ = ["FORMAT", "ORIENTATION", "P0_UNITS", "ResultVolume", "read_result", "params_json", "storage_layout",
            "write_volume", "write_reconstruction", "write_result", "export_ome_tiff", "export_ome_zarr",
-           "EXPORT_FORMATS", "export_volume", "zip_folder", "COMPRESS_BELOW"]
+           "EXPORT_FORMATS", "export_volume", "zip_folder", "COMPRESS_BELOW", "PYRAMID_TOP", "PYRAMID_MIN", "ZARR_CHUNK",
+           "pyramid_factors"]
 
 def write_result(out_dir: str | os.PathLike, rec: Any, *, input_id: str) -> dict:
     """The result folder of a reconstruction, as every caller writes it (the job worker
@@ -135,26 +136,63 @@ def export_ome_tiff(result_path: str | os.PathLike, out_path: str | os.PathLike)
     return out_path
 
 
-def export_ome_zarr(result_path: str | os.PathLike, out_path: str | os.PathLike) -> Path:
-    """Write the p0 of a result file as an OME-Zarr image (``ome-zarr``'s writer; NGFF
-    0.4, Zarr v2: what napari-ome-zarr, Fiji and the OME readers open) at ``out_path``
-    (a folder, conventionally ``*.ome.zarr``).
+#: the largest axis (samples) of an OME-Zarr export's coarsest pyramid level: levels halve
+#: every axis until the volume fits it (napari then opens a large volume at a coarse level
+#: first and loads finer chunks as one zooms in)
+PYRAMID_TOP = 256
+#: no axis of a pyramid level below this many samples (a level is added only while it holds)
+PYRAMID_MIN = 8
+#: chunk edge (samples) of every level: napari reads the chunks it shows, not the array
+ZARR_CHUNK = 128
 
-    One resolution level (path ``s0``): float32 ``(n_z, n_y, n_x)`` with axes ``z``, ``y``, ``x``
-    (2-D ``(n_z, n_x)``: ``y``, ``x`` with depth as y, as the OME-TIFF) of type
-    ``space`` and unit ``micrometer``; the ``coordinateTransformations`` scale is the
-    voxel size in µm and the translation the first sample's position in µm (the centred
-    lateral axes, depth from the sensor plane). The array order of the result file:
-    row 0 = the smallest y, displayed at the top by napari as in fpscan's pictures
-    (:data:`ORIENTATION`). The group's ``fpscan`` attribute holds ``p0_unit`` (``"Pa"``
-    or ``"a.u."``), ``orientation``, ``method``, ``input_id`` and ``axes_m`` (each axis's
-    name). Written to a temporary sibling folder, then renamed over ``out_path`` (an
-    existing export there is replaced). Returns ``out_path``. Raises FileNotFoundError,
-    ValueError (not a result file, uneven coordinates, ``out_path`` an existing file).
+
+def pyramid_factors(shape: tuple[int, ...], names: list[str]) -> list[dict[str, int]]:
+    """The downsampling factors of an OME-Zarr export's pyramid levels below the full
+    resolution: ``{axis: 2**k}`` for every axis, k = 1, 2, ... while the level before still
+    has an axis longer than :data:`PYRAMID_TOP` and every axis of the new level keeps at least
+    :data:`PYRAMID_MIN` samples. ``[]`` for a volume small enough to show at once.
+
+    Examples
+    --------
+    >>> pyramid_factors((1024, 226, 226), ["z", "y", "x"])
+    [{'z': 2, 'y': 2, 'x': 2}, {'z': 4, 'y': 4, 'x': 4}]
+    >>> pyramid_factors((96, 40, 40), ["z", "y", "x"])
+    []
+    """
+    out: list[dict[str, int]] = []
+    f = 1
+    while max(n // f for n in shape) > PYRAMID_TOP and min(n // (2 * f) for n in shape) >= PYRAMID_MIN:
+        f *= 2
+        out.append(dict.fromkeys(names, f))
+    return out
+
+
+def export_ome_zarr(result_path: str | os.PathLike, out_path: str | os.PathLike) -> Path:
+    """Write the p0 of a result file as an OME-Zarr image at ``out_path`` (a folder,
+    conventionally ``*.ome.zarr``) with ``ome-zarr``'s writer in its default, current format:
+    NGFF 0.5 on Zarr v3 (what napari-ome-zarr and the OME readers of that version open
+    without a version warning).
+
+    A multiscale pyramid: level ``s0`` is the volume, float32 ``(n_z, n_y, n_x)`` with axes
+    ``z``, ``y``, ``x`` (2-D ``(n_z, n_x)``: ``y``, ``x`` with depth as y, as the OME-TIFF) of
+    type ``space`` and unit ``micrometer``; levels ``s1``, ``s2``, ... halve every axis
+    (:func:`pyramid_factors`: until the coarsest fits :data:`PYRAMID_TOP` samples per axis;
+    block means, skimage's ``downscale_local_mean``), each in chunks of at most
+    :data:`ZARR_CHUNK` samples per axis, so napari opens a large volume lazily. Each level's
+    ``coordinateTransformations``: ``scale`` = its voxel size in µm, ``translation`` = the
+    position of its first voxel's centre in µm (level 0: the first sample's position, the
+    centred lateral axes and the depth from the sensor plane). The array order of the result
+    file: row 0 = the smallest y, displayed at the top by napari as in fpscan's pictures
+    (:data:`ORIENTATION`). The group's ``fpscan`` attribute holds ``p0_unit`` (``"Pa"`` or
+    ``"a.u."``), ``orientation``, ``method``, ``input_id``, ``description`` and ``axes``.
+    Written to a temporary sibling folder, then renamed over ``out_path`` (an existing
+    export there is replaced). Returns ``out_path``. Raises FileNotFoundError, ValueError
+    (not a result file, uneven coordinates, ``out_path`` an existing file).
     """
     import zarr
-    from ome_zarr.format import FormatV04
+    from ome_zarr.format import CurrentFormat
     from ome_zarr.io import parse_url
+    from ome_zarr.scale import Methods
     from ome_zarr.writer import write_image
 
     from service.disk import folder_replaced
@@ -168,18 +206,21 @@ def export_ome_zarr(result_path: str | os.PathLike, out_path: str | os.PathLike)
     if out_path.exists() and not out_path.is_dir():
         raise ValueError(f"{out_path} is a file; an OME-Zarr export is a folder (name it *.ome.zarr)")
     tmp = out_path.with_name(f".{out_path.name}.{os.getpid()}.{uuid.uuid4().hex[:12]}.tmp")
-    fmt = FormatV04()
+    fmt = CurrentFormat()
+    p0 = np.ascontiguousarray(r.p0, dtype=np.float32)
     with folder_replaced(out_path, tmp):
-        root = zarr.group(store=parse_url(str(tmp), mode="w", fmt=fmt).store, zarr_format=2)
-        write_image(np.ascontiguousarray(r.p0, dtype=np.float32), root, scale_factors=[], fmt=fmt,
-                    axes=names, scale=dict(zip(names, steps)),
-                    axes_units=dict.fromkeys(names, "micrometer"), name=f"p0 ({r.method}, {r.input_id})")
-        # the writer places level 0 at the origin: move it to the first sample's position
-        multiscales: Any = root.attrs["multiscales"]
-        for t in multiscales[0]["datasets"][0]["coordinateTransformations"]:
-            if t["type"] == "translation":
-                t["translation"] = origin
-        root.attrs["multiscales"] = multiscales
+        root = zarr.group(store=parse_url(str(tmp), mode="w", fmt=fmt).store)
+        write_image(p0, root, scale_factors=pyramid_factors(p0.shape, names), method=Methods.LOCAL_MEAN, fmt=fmt,
+                    axes=names, scale=dict(zip(names, steps)), axes_units=dict.fromkeys(names, "micrometer"),
+                    storage_options={"chunks": tuple(min(n, ZARR_CHUNK) for n in p0.shape)},
+                    name=f"p0 ({r.method}, {r.input_id})")
+        # the writer places level 0 at the origin: every level moves by the first sample's position
+        ome: Any = root.attrs["ome"]
+        for level in ome["multiscales"][0]["datasets"]:
+            for t in level["coordinateTransformations"]:
+                if t["type"] == "translation":
+                    t["translation"] = [float(f"{o + v:.12g}") for o, v in zip(origin, t["translation"])]
+        root.attrs["ome"] = ome
         root.attrs["fpscan"] = {"p0_unit": r.p0_unit, "orientation": ORIENTATION, "method": r.method,
                                 "input_id": r.input_id, "description": _description(r),
                                 "axes": ["z", "y", "x"] if len(axes) == 3 else ["z", "x"]}

@@ -7,6 +7,7 @@ import json
 import subprocess
 import sys
 
+import h5py
 import numpy as np
 import pytest
 
@@ -151,3 +152,70 @@ def test_recon_on_server_equals_local(kwave3d, server, tmp_path):
     np.testing.assert_allclose(b, a, rtol=0, atol=1e-5 * np.abs(a).max())
     assert sorted(p.name for p in (tmp_path / "remote").iterdir()) == \
         ["mip_xy.png", "mip_xz.png", "mip_yz.png", "volume.h5"]
+
+
+def test_recon_reads_kwave_mat_files_locally_and_on_the_server(shared_data, server, tmp_path):
+    """k-Wave's .mat output as a k-Wave user saves it: Octave's MAT v5 and the same arrays as
+    MATLAB's v7.3, each reconstructed by `fpscan recon` locally and on the server (uploaded,
+    format sniffed from the content) into the same volume; a file without its spacings takes
+    them as options with units."""
+    import scipy.io
+
+    from tests.storage.mat_files import write_mat5, write_mat73
+
+    v5 = shared_data / "kwave_mat" / "kwave2d_line_sensor_v7.mat"
+    arrays = {k: v for k, v in scipy.io.loadmat(v5).items() if not k.startswith("__")}
+    v73 = write_mat73(tmp_path / "sensor_data_v73.mat", arrays)
+    env = clean_env(FPSCAN_TOKEN=TOKEN)
+    volumes = {}
+    for name, path in (("v5", v5), ("v73", v73)):
+        for where in ("local", "remote"):
+            out = tmp_path / f"{name}-{where}"
+            remote = ("--server", server) if where == "remote" else ()
+            res = fpscan("recon", path, "--method", "ner", "--n-z", "96", "--out", out, "--quiet", *remote, env=env)
+            assert res.returncode == 0, res.stderr
+            with h5py.File(out / "volume.h5", "r") as f:
+                volumes[name, where] = f["p0"][...]
+    first = volumes["v5", "local"]
+    assert first.shape == (96, 128)
+    for key, vol in volumes.items():
+        np.testing.assert_array_equal(vol, first, err_msg=str(key))
+    bare = write_mat5(tmp_path / "bare.mat", {"sensor_data": arrays["sensor_data"]})
+    res = fpscan("recon", bare, "--method", "ner", "--out", tmp_path / "bare", "--quiet", env=env)
+    assert res.returncode == 2 and "dt is neither given nor in the MAT-file" in res.stderr, res.stderr
+    res = fpscan("recon", bare, "--dt", "10ns", "--dx", "50um", "--method", "ner", "--n-z", "96",
+                 "--out", tmp_path / "bare", "--quiet", env=env)
+    assert res.returncode == 0, res.stderr
+    with h5py.File(tmp_path / "bare" / "volume.h5", "r") as f:
+        np.testing.assert_array_equal(f["p0"][...], first)
+
+
+def test_cli_messages_and_ids_a_lab_meets(server, tmp_path):
+    """An --out that cannot be written is refused before any work, in one line; an
+    implausible sound speed names the flag that accepts it (--force); a reader that closes
+    the pipe (`fpscan jobs list | head`) gets no error line (exit 141, as `ls | head`); a
+    dataset id prefix works as a job id prefix does, and `--ids` lists full ids for scripts."""
+    from clients.http import Client
+
+    env = clean_env(FPSCAN_TOKEN=TOKEN)
+    data = tmp_path / "d.npy"
+    np.save(data, np.random.default_rng(0).standard_normal((64, 8)).astype(np.float32))
+    res = fpscan("recon", data, "--dt", "20ns", "--dx", "100um", "--out", "/proc/forbidden/out", env=env)
+    assert res.returncode == 2 and res.stderr.strip().splitlines() == [
+        "fpscan recon: error: --out /proc/forbidden/out: cannot write in /proc/forbidden (No such file or directory)"], \
+        res.stderr
+    res = fpscan("recon", data, "--dt", "20ns", "--dx", "100um", "--sound-speed", "15000", env=env)
+    assert res.returncode == 2 and "give --force for a value outside the range" in res.stderr, res.stderr
+    with Client(server, token=TOKEN) as api:
+        ds = api.upload_dataset(data, "npy", dt=20e-9, dx=100e-6)
+    res = fpscan("datasets", "list", "--server", server, "--ids", env=env)
+    assert ds in res.stdout.split(), res.stdout
+    res = fpscan("datasets", "delete", ds[:8], "--server", server, env=env)
+    assert res.returncode == 0 and res.stdout.startswith(f"{ds}: deleted"), (res.stdout, res.stderr)
+    res = fpscan("datasets", "delete", "feedfacefeed", "--server", server, env=env)
+    assert res.returncode == 2 and "no dataset id starts with 'feedfacefeed'" in res.stderr, res.stderr
+    closed = subprocess.Popen([sys.executable, "-m", "clients", "jobs", "list", "--server", server], env=env,
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    closed.stdout.close()  # the reader is gone before the command writes a byte
+    _, err = closed.communicate(timeout=HANG_S)
+    assert closed.returncode == 141 and err == b"", (closed.returncode, err)

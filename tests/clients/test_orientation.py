@@ -243,7 +243,7 @@ def test_ome_zarr_zip_holds_one_folder(server, tmp_path):
     assert f'filename="{job}.ome.zarr.zip"' in r.headers["content-disposition"]
     names = zipfile.ZipFile(io.BytesIO(r.content)).namelist()
     assert {n.split("/", 1)[0] for n in names} == {f"{job}.ome.zarr"}
-    assert f"{job}.ome.zarr/.zattrs" in names and any("/s0/" in n for n in names)
+    assert f"{job}.ome.zarr/zarr.json" in names and any("/s0/" in n for n in names)  # Zarr v3 (NGFF 0.5)
     again = httpx.get(url, headers={"Authorization": f"Bearer {TOKEN}"}, timeout=60)
     assert again.content == r.content
     # fpscan export from the server's job: the unpacked folder, opened by ome-zarr's Reader

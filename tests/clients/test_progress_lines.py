@@ -112,3 +112,65 @@ def test_wait_joining_a_running_job_reports_stages_in_order(server, tmp_path):
     fractions = [p["fraction"] for p in seen if p.get("fraction") is not None and p.get("stage") != "cancelled"]
     assert stages[0] in ("starting", "loading"), stages
     assert fractions == sorted(fractions), list(zip(stages, fractions))
+
+
+def test_eta_of_iterations_moves_at_most_twofold_and_follows_the_measured_rate():
+    """``service.progress.Eta`` fed as a tv solve reports (a clock of the test's own): no
+    estimate in the set-up stages nor before two iterations are measured; then (n - k) times
+    the measured time per iteration at a steady rate (the oracle), never more than 2x away
+    from the previous estimate counted down by the time since (iterations 2x and 0.25x as
+    long as before, a 10x slower stretch), and back on the new rate's figure after it."""
+    from service.progress import Eta, IterationStage
+
+    now = [0.0]
+    eta = Eta(clock=lambda: now[0])
+    for f, stage in ((0.0, "warm start"), (0.03, "warm start"), (0.06, "norm estimate"), (0.1, "norm estimate")):
+        now[0] += 30.0  # a long set-up: its fractions say nothing of the iterations' cost
+        assert eta(f, stage) is None
+    n = 200
+    steps = [1.0] * 20 + [2.0, 0.25] * 5 + [10.0] * 30 + [1.0] * 60
+    shown: list[tuple[int, float, float]] = []  # (k, when, estimate)
+    for k, step in enumerate(steps, start=1):
+        now[0] += step
+        e = eta(0.1 + 0.9 * k / n, IterationStage(k, n, rule=1.0 / k, tol=5e-3))
+        if k < 3:
+            assert e is None, k  # the first interval carries set-up work: two measured first
+            continue
+        assert e is not None
+        if shown:
+            _, t, before = shown[-1]
+            expected = max(before - (now[0] - t), 1.0)
+            assert expected / 2 - 1e-9 <= e <= 2 * expected + 1e-9, (k, before, e)
+        shown.append((k, now[0], e))
+    assert shown[10][2] == pytest.approx((n - shown[10][0]) * 1.0)  # steady 1 s per iteration
+    k, _, last = shown[-1]
+    assert last == pytest.approx((n - k) * 1.0, rel=0.05)  # the rate after the slow stretch, measured again
+
+
+def test_a_local_tv_run_ends_on_its_outcome(tmp_path):
+    """`fpscan recon --method tv` on noiseless data: the bar's last line is how the solve
+    ended (not "reconstructing"), and the last line on stdout says converged or not, the
+    iterations, λ = 0 with its reason (the data show no noise) and the residual against the
+    noise; the ETA appears only once iterations are measured, never in the set-up stages."""
+    from driver.physics.balls import Ball, ball_alines
+
+    n, n_t, pitch, dt = 16, 96, 1e-4, 2e-8
+    x = (np.arange(n) - (n - 1) / 2) * pitch
+    alines = ball_alines(np.stack([x], axis=1), [Ball(x=0.0, y=0.0, z=0.6e-3, radius=1.5e-4, amplitude=1.0)],
+                         dt, n_t, 1500.0)
+    np.save(tmp_path / "clean.npy", alines.T.astype(np.float32))
+    res = subprocess.run(
+        [sys.executable, "-m", "clients", "recon", str(tmp_path / "clean.npy"), "--dt", "20ns", "--dx", "100um",
+         "--method", "tv", "--iterations", "30", "--n-z", "32", "--out", str(tmp_path / "out")],
+        capture_output=True, text=True, timeout=HANG_S, env=clean_env(FPSCAN_PROGRESS_PERIOD="0"))
+    assert res.returncode == 0, res.stderr
+    bar = [line for line in res.stderr.splitlines() if line.startswith("recon tv: ")]
+    last = res.stdout.strip().splitlines()[-1]
+    assert re.fullmatch(r"recon tv: (converged after \d+ iterations|not converged: stopped at the iteration limit, "
+                        r"30 of 30 iterations)  100%", bar[-1]), bar[-3:]
+    assert re.match(r"tv: (converged after \d+ iterations|not converged: stopped at the iteration limit, 30 of 30 "
+                    r"iterations) \(image change \S+ [<≥>=]+ 0\.005\); λ 0 \(automatic\): the data show no noise", last), last
+    assert "; residual " in last and "% of the data, noise 0 %" in last, last
+    assert not any("ETA" in line for line in bar if line.startswith(("recon tv: warm start", "recon tv: norm"))), bar
+    counted = [(int(m[1]), line) for line in bar if (m := re.match(r"recon tv: iteration (\d+)/30", line))]
+    assert len(counted) >= 3 and all(("ETA" in line) == (k >= 3) for k, line in counted), counted

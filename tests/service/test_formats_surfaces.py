@@ -15,7 +15,7 @@ def test_every_surface_offers_the_registrys_formats(shared_api, tmp_path):
     from clients.cli import unmix as cli_unmix
 
     uploads = [f.name for f in formats.FORMATS.values() if f.upload]
-    assert uploads == ["npy", "kwave-hdf5", "fpscan", "ipasc"]  # what users could always upload
+    assert uploads == ["npy", "kwave-hdf5", "kwave-mat", "fpscan", "ipasc"]  # what users may upload
     listed = shared_api.get("/api/datasets/formats").json()
     assert listed == [{"name": n, "title": formats.FORMATS[n].title, "wavelengths": formats.FORMATS[n].wavelengths}
                       for n in uploads]

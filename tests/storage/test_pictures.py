@@ -185,3 +185,61 @@ def test_large_plan_preview_has_the_same_orientation():
     corner = ((hole + n) / 2 - (n - 1) / 2) * PITCH * 1e3  # the hole's centre, mm
     assert abs(h - corner) < 0.3 and abs(v - corner) < 0.3, (h, v, corner)
     assert rows.size == pytest.approx((bottom - top) * (right - left) * (n - hole) ** 2 / n ** 2, rel=0.15)
+
+
+def _ink(png: bytes) -> np.ndarray:
+    """Where a picture is not white (text, lines, colours): a boolean image."""
+    return np.asarray(PILImage.open(io.BytesIO(png)).convert("L")) < 200
+
+
+@pytest.mark.parametrize("large", [False, True])
+def test_mask_preview_titles_fit_and_weights_carry_no_factor(large):
+    """The README's equi-steradian plan (226 x 226 at 60 µm, 1625 points): the preview's
+    title stays inside the picture (no ink in the first and last columns above the plot;
+    it was cut at both sides), in the markers' and the lattice's drawing alike; its weights
+    (up to 0.3 mm²) are drawn in mm², so no power of ten sits beside the colour bar (no ink
+    between the title and the bar's top)."""
+    from service.plans import make_plan
+    from service.plans import preview_png as marker_preview
+
+    plan = make_plan(kind="equisteradian", lattice={"n_x": 226, "n_y": 226, "pitch": 60e-6},
+                     params={"depth": 3.6e-3, "n_points": 1625}, acquisition={"n_t": N_T, "dt": DT})
+    if large:  # the lattice drawing the API uses for plans above PREVIEW_DETAIL_POINTS, as it calls it
+        from service.storage.render import render_lattice
+
+        d = plan.model_dump(mode="json")
+        png = render_lattice(np.asarray(d["points"]["indices"]), np.asarray(d["points"]["weights"]) * 1e12, 226, 226,
+                             60e-6, title="equisteradian: 1653 of 1625 requested points on 226×226\n"
+                                          "outer/inner weight ratio 9.69", colorbar_label="weight (µm²)")
+    else:
+        png = marker_preview(plan)
+    g = png_axes(png)
+    ink = _ink(png)
+    above = ink[:int(g["top"]) - 4]
+    assert above.any()  # the title is there
+    assert not above[:, :3].any() and not above[:, -3:].any(), "the title is cut at the picture's side"
+    right_of_plot = ink[:int(g["top"]) - 4, int(g["right"]) + 10:]
+    rows = np.nonzero(right_of_plot.any(axis=1))[0]
+    title_rows = np.nonzero(above[:, :int(g["right"])].any(axis=1))[0]
+    assert rows.size == 0 or rows.max() <= title_rows.max(), "ink beside the colour bar's top (a power of ten)"
+
+
+def test_colour_bar_powers_sit_in_the_unit():
+    """p0 of 3e6 a.u.: the annotated MIP has nothing above its colour bar (the power went
+    into the label, ``p0 (×10⁶ a.u.)``: ``service.storage.frame.power_in_label``), while the
+    same picture of p0 up to 3 has the same (empty) band."""
+    from service.storage.frame import power_in_label
+    from service.storage.render import render_mip
+
+    assert power_in_label("p0 (a.u.)", "1e6") == "p0 (×10⁶ a.u.)"
+    assert power_in_label("p0 (Pa)", "1e\u22124") == "p0 (×10⁻⁴ Pa)"
+    rng = np.random.default_rng(1)
+    axes = (np.arange(40) * 1e-5, (np.arange(30) - 14.5) * 1e-4, (np.arange(30) - 14.5) * 1e-4)
+    bands = []
+    for scale in (3.0, 3e6):
+        png = render_mip(rng.random((40, 30, 30)) * scale, *axes, "xy")
+        g = png_axes(png)
+        ink = _ink(png)
+        # between the plot's top and the title: the band right of the plot, above the bar
+        bands.append(ink[int(g["top"]) - 18:int(g["top"]) - 2, int(g["right"]) + 5:].sum())
+    assert bands == [0, 0], bands

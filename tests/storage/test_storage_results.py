@@ -260,3 +260,43 @@ def test_the_result_folder_is_written_by_its_format(tmp_path):
     with pytest.raises(ValueError, match="no pictures"):
         write_folder(out, rec, input_id="x", mips=broken)
     assert read_result(out / VOLUME_FILE).input_id == "w" and not list(tmp_path.glob("result.tmp-*"))
+
+
+def test_ome_zarr_export_is_ngff_05_with_a_pyramid_the_reader_opens_without_a_warning(tmp_path, caplog):
+    """The OME-Zarr export in ome-zarr's current format (NGFF 0.5 on Zarr v3): ome-zarr's
+    Reader (napari-ome-zarr's) opens it without a version-mismatch warning; a volume longer
+    than PYRAMID_TOP along an axis gets halved levels, each the block means of the one above
+    (the oracle: numpy's reshape-mean), chunked for lazy reading, at its voxel size and the
+    position of its first voxel's centre (level 0: the first sample's)."""
+    import logging
+
+    import zarr
+    from ome_zarr.io import parse_url
+    from ome_zarr.reader import Reader
+
+    from service.storage.results import PYRAMID_TOP, ZARR_CHUNK, export_volume
+
+    rng = np.random.default_rng(2)
+    p0 = rng.random((520, 16, 64)).astype(np.float32)  # depth 520 > PYRAMID_TOP: one level below
+    z, y, x = np.arange(520) * 15e-6, (np.arange(16) - 7.5) * 1e-4, (np.arange(64) - 31.5) * 1e-4
+    write_volume(tmp_path / "v.h5", p0, z, x, y, method="ner", params={}, input_id="t")
+    export_volume(tmp_path / "v.h5", tmp_path / "v.ome.zarr", "ome-zarr")
+    with caplog.at_level(logging.DEBUG):
+        nodes = list(Reader(parse_url(str(tmp_path / "v.ome.zarr")))())
+    assert not [r for r in caplog.records if "mismatch" in r.getMessage().lower()], caplog.records
+    group = zarr.open_group(str(tmp_path / "v.ome.zarr"), mode="r")
+    assert group.metadata.zarr_format == 3 and group.attrs["ome"]["version"] == "0.5"
+    levels = [np.asarray(d) for d in nodes[0].data]
+    assert len(levels) == 2 and p0.shape[0] > PYRAMID_TOP
+    np.testing.assert_array_equal(levels[0], p0)
+    want = p0.reshape(260, 2, 8, 2, 32, 2).mean(axis=(1, 3, 5))
+    np.testing.assert_allclose(levels[1], want, rtol=1e-6)
+    assert all(max(d.chunksize) <= ZARR_CHUNK for d in nodes[0].data)
+    transforms = nodes[0].metadata["coordinateTransformations"]
+    step = np.array([15.0, 100.0, 100.0])
+    first = np.array([z[0], y[0], x[0]]) * 1e6
+    for k, (scale, shift) in enumerate(transforms):
+        f = 2 ** k
+        assert scale["scale"] == pytest.approx(step * f)
+        assert shift["translation"] == pytest.approx(first + (f - 1) / 2 * step)  # the block's centre
+    assert group.attrs["fpscan"]["p0_unit"] == "a.u."

@@ -271,6 +271,15 @@ def test_plan_view_preview_errors_token_and_save(browser, server, api, screensho
     assert reason in text(browser, "plan-preview-state")
     assert el(browser, "error").is_displayed() and reason in text(browser, "error-text")
     shot(browser, screenshots, "plan-view-error")
+    # a number the server refuses is worded for the field it came from and its unit, not the
+    # command line's "write the unit, e.g. 8ns" behind the request's path
+    set_value(browser, "mask-n-points", N_POINTS)
+    set_value(browser, "acq-dt", 8e9)  # ns: 8 s
+    wait_for(lambda: text(browser, "plan-preview-state").startswith("No preview: dt in ns: 8000000000 ns is "
+                                                                  "implausible"), "the dt field's reason")
+    shown = text(browser, "plan-preview-state")
+    assert "write the unit" not in shown and "equisteradian" not in shown and "(expected 100 ps to 1 µs)" in shown, shown
+    set_value(browser, "acq-dt", 20)
 
     # Save (a mutating route): the token given for the preview is used, nothing is asked again.
     set_value(browser, "mask-n-points", N_POINTS)
@@ -441,7 +450,8 @@ def test_result_view_offers_the_model_based_method_and_its_parameters(browser, s
     # accepted once "another medium" is ticked
     set_value(browser, "recon-c", 2500)
     el(browser, "recon-start").click()
-    wait_for(lambda: el(browser, "error").is_displayed() and "sound speed 2500 m/s" in text(browser, "error-text"), "the refusal of c = 2500 m/s")
+    wait_for(lambda: el(browser, "error").is_displayed() and "sound speed in m/s: 2500 m/s is implausible" in text(browser, "error-text")
+             and "tick “another medium”" in text(browser, "error-text"), "the refusal of c = 2500 m/s")
     assert el(browser, "result-id").get_attribute("title") == before
     el(browser, "error-close").click()
     el(browser, "recon-force").click()
@@ -507,7 +517,7 @@ def test_upload_a_data_file_and_reconstruct_it(browser, server, api, screenshots
     Select(el(browser, "upload-method")).select_by_value("ner")
     before = el(browser, "result-id").get_attribute("title")
     el(browser, "upload-start").click()
-    wait_for(lambda: "sound speed 2500 m/s" in text(browser, "upload-state"), "the server's reason for c")
+    wait_for(lambda: "sound speed in m/s: 2500 m/s" in text(browser, "upload-state"), "the server's reason for c")
     assert "1000 to 2000" in text(browser, "upload-state")
     el(browser, "upload-force").click()
     el(browser, "upload-start").click()

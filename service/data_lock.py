@@ -1,0 +1,149 @@
+"""One server per data folder, and a port checked before anything starts.
+
+Two ``fpscan serve`` on one data folder would share one job store: the second one's
+start-up recovery marks the first one's running scan ``paused`` (and re-queues its
+reconstructions) while it goes on, and both dispatch the same queue. So a server takes an
+exclusive lock on a file in its data folder (:data:`LOCK_FILE`) before anything reads or
+changes the store, as Jupyter Server and PostgreSQL (``postmaster.pid``) refuse a second
+server on one data directory, and holds it for its lifetime.
+
+The lock is a POSIX record lock (``fcntl.lockf``): the kernel releases it when the process
+ends, however it ends (a SIGKILL or a power cut leaves no stale lock to clean up by hand),
+and it is per process, so the server's worker processes (spawned, the file not inherited)
+never hold it. The lock file holds the holder's PID as text, read back for the refusal's
+one line; the file itself stays (its content, not its existence, is no lock).
+
+:func:`check_port` binds the address the server is about to listen on and lets go of it:
+a port already taken is one line, before the data folder is touched.
+"""
+from __future__ import annotations
+
+import contextlib
+import errno
+import os
+import socket
+from pathlib import Path
+
+__all__ = ["LOCK_FILE", "DataFolderInUse", "PortInUse", "DataFolderLock", "lock_data_folder", "check_port"]
+
+#: the lock file in the data folder
+LOCK_FILE = "fpscan.lock"
+
+
+class DataFolderInUse(RuntimeError):
+    """Another live process holds the data folder's lock (the message names its PID)."""
+
+
+class PortInUse(RuntimeError):
+    """The address and port a server would listen on are taken (or not available)."""
+
+
+class DataFolderLock:
+    """The held lock of one data folder (:func:`lock_data_folder`); :meth:`release` (or the
+    process's end) lets it go."""
+
+    def __init__(self, path: Path, fd: int) -> None:
+        self.path, self._fd = path, fd
+
+    @property
+    def held(self) -> bool:
+        return self._fd >= 0
+
+    def release(self) -> None:
+        """Let the lock go (closing the file releases the process's record lock)."""
+        if self._fd >= 0:
+            fd, self._fd = self._fd, -1
+            os.close(fd)
+
+    def __enter__(self) -> DataFolderLock:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
+
+
+def _holder(path: Path) -> str:
+    """The holder as the lock file names it: ``"pid 1234"``, else ``"another process"``."""
+    try:
+        text = path.read_text(encoding="ascii", errors="replace").strip()
+    except OSError:
+        return "another process"
+    return f"pid {text}" if text.isdigit() else "another process"
+
+
+def lock_data_folder(data_dir: str | os.PathLike) -> DataFolderLock:
+    """Take the exclusive lock of ``data_dir`` (created if missing) for this process.
+
+    Parameters
+    ----------
+    data_dir : path
+        The server's data folder (its job store, plans, scans and results).
+
+    Returns
+    -------
+    DataFolderLock
+        Held until :meth:`DataFolderLock.release` or the process's end; the lock file
+        (:data:`LOCK_FILE`) then holds this process's PID.
+
+    Raises
+    ------
+    DataFolderInUse
+        Another live process holds it: one line naming the folder and that process's PID.
+    OSError
+        The folder or its lock file cannot be created or opened (permissions, a full disk).
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from service.data_lock import lock_data_folder
+    >>> folder = tempfile.mkdtemp()
+    >>> with lock_data_folder(folder) as lock:
+    ...     lock.held
+    True
+    """
+    import fcntl
+
+    folder = Path(data_dir)
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / LOCK_FILE
+    fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+    try:
+        fcntl.lockf(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError as exc:
+        os.close(fd)
+        if exc.errno in (errno.EACCES, errno.EAGAIN):
+            raise DataFolderInUse(f"the data folder {folder} is in use by another fpscan server "
+                                  f"({_holder(path)}); stop that one, or give this one another --data-dir") from None
+        raise
+    try:
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode("ascii"), 0)
+    except OSError:  # the PID is for the message only: the lock holds without it
+        pass
+    return DataFolderLock(path, fd)
+
+
+def check_port(host: str, port: int) -> None:
+    """Refuse now a ``host``:``port`` the server could not listen on: bind it as uvicorn
+    does (``SO_REUSEADDR``; IPv6 for an address with ``:``) and let go of it at once.
+    Port 0 (any free port) always passes.
+
+    Raises
+    ------
+    PortInUse
+        One line naming the address: taken by another program, or not an address of this
+        machine.
+    """
+    if int(port) == 0:
+        return
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    with contextlib.closing(socket.socket(family, socket.SOCK_STREAM)) as sock:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            sock.bind((host, int(port)))
+        except OSError as exc:
+            where = f"[{host}]:{port}" if family == socket.AF_INET6 else f"{host}:{port}"
+            if exc.errno == errno.EADDRINUSE:
+                raise PortInUse(f"port {port} is in use ({where}): another server listens there; stop it or "
+                                "choose another --port") from None
+            raise PortInUse(f"cannot listen on {where}: {exc.strerror or exc}") from None

@@ -1,0 +1,84 @@
+"""One server per data folder, a taken port refused in one line (``service.data_lock``
+behind ``fpscan serve``). Real processes: a simulator on a pty, ``fpscan serve`` on
+127.0.0.1, a second ``fpscan serve`` as a user would start it by mistake."""
+from __future__ import annotations
+
+import socket
+import subprocess
+import sys
+
+import pytest
+
+from clients.http import Client
+from clients.processes import start_service
+from tests.clients.clients_servers import clean_env, fpscan_sim, free_port, has_command
+from tests.waits import HANG_S
+
+TOKEN = "one-server-token"
+N, PITCH = 16, 2e-4
+QUIET = {"FPSCAN_WARM_UP": "false"}  # no kernels to compile: these servers reconstruct nothing
+
+pytestmark = pytest.mark.skipif(not (has_command("serve") and has_command("sim")),
+                                reason="`fpscan serve`/`fpscan sim` not available")
+
+
+def _serve(data_dir, port: int) -> subprocess.CompletedProcess:
+    """``fpscan serve`` in the foreground (it must exit by itself)."""
+    return subprocess.run([sys.executable, "-m", "clients", "serve", "--host", "127.0.0.1", "--port", str(port),
+                           "--data-dir", str(data_dir), "--no-web"], capture_output=True, text=True,
+                          timeout=HANG_S, env=clean_env(FPSCAN_TOKEN=TOKEN, **QUIET))
+
+
+def _one_line(res: subprocess.CompletedProcess) -> str:
+    lines = res.stderr.strip().splitlines()
+    assert res.returncode == 1 and len(lines) == 1 and not res.stdout.strip(), (res.returncode, res.stderr)
+    return lines[0]
+
+
+def test_a_second_server_on_a_live_folder_is_refused_and_the_lock_dies_with_its_holder(tmp_path):
+    """A second server on the folder of a server that is scanning exits at once with one line
+    naming the holder's PID and touches nothing: the scan stays ``running`` (no "server
+    restarted" recovery event) and ends with every point. After a SIGKILL of the first
+    server the folder is free again for a new one."""
+    data = tmp_path / "data"
+    with fpscan_sim("--source", "balls") as (device, _sim):
+        first = start_service(data, token=TOKEN, devices={"sim": device}, web=False, env=QUIET,
+                              log_path=tmp_path / "first.log")
+        try:
+            with Client(first.url, token=TOKEN) as api:
+                # 256 points at 40 Hz: over six seconds of scanning, the second server's refusal in them
+                plan = api.create_plan({"lattice": {"n_x": N, "n_y": N, "pitch": PITCH},
+                                        "points": [[i, j] for j in range(N) for i in range(N)],
+                                        "acquisition": {"n_t": 128, "dt": 2e-8, "prf": 40}})
+                job = api.start_scan(plan.id, "sim")
+                for event, body, _ in api.events(job):  # until the scan has measured a point
+                    if event == "progress" and (body.get("points_done") or 0) > 0:
+                        break
+                line = _one_line(_serve(data, free_port()))
+                assert f"pid {first.pid}" in line and "in use by another fpscan server" in line, line
+                assert api.get_job(job).state == "running"
+                done = api.wait(job, timeout=HANG_S)
+                assert done.state == "succeeded"
+                events = list(api.events(job))  # the whole record, until the stream closes
+                assert not any("server restarted" in str(body) for _, body, _ in events), events
+                from driver.scanfile import read_scan
+
+                scan = read_scan(api.download_scan(job, tmp_path / "scan.h5"))
+                assert scan.completed.all() and len(scan.completed) == N * N
+        finally:
+            first.kill()  # SIGKILL: no shutdown, no unlock
+        second = start_service(data, token=TOKEN, web=False, env=QUIET, log_path=tmp_path / "second.log")
+        try:
+            assert (data / "fpscan.lock").read_text().strip() == str(second.pid)
+        finally:
+            second.stop()
+
+
+def test_a_port_in_use_is_one_line_before_the_data_folder_is_touched(tmp_path):
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        line = _one_line(_serve(tmp_path / "data", port))
+    assert f"port {port} is in use" in line, line
+    assert not (tmp_path / "data").exists()

@@ -1,0 +1,109 @@
+"""The README's five-minute tour runs as written: its shell blocks (the command line and the
+curl section) and its Python blocks, in their order, in one bash session in a fresh folder,
+against the simulator and a real server, exactly as a lab would paste them. The one change:
+the server listens on a free port instead of 8000 (the suite runs beside other servers).
+
+Oracles: each command's exit status (``set -e``: the first failing line fails the test), the
+files the tour says it makes, and what the README states about them: the local and the
+server's reconstruction of the same scan are the same volume; tv's defaults are the method's
+own (``service.recon.methods``)."""
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from tests.clients.clients_servers import clean_env, free_port, has_command
+from tests.conftest import REPO_ROOT
+from tests.waits import HANG_S
+
+README = REPO_ROOT / "README.md"
+
+pytestmark = pytest.mark.skipif(not (has_command("serve") and has_command("sim")),
+                                reason="`fpscan serve`/`fpscan sim` not available")
+
+
+def tour_blocks(text: str) -> list[tuple[str, str]]:
+    """The code blocks of the README's "A five-minute tour", in order: ``("sh", text)`` for an
+    indented block, ``("python", text)`` for a fenced python block."""
+    section = text[text.index("## A five-minute tour"):text.index("## Configuration")]
+    lines = section.splitlines()
+    blocks: list[tuple[str, str]] = []
+    i = 0
+    while i < len(lines):
+        if lines[i].startswith("```python"):
+            j = lines.index("```", i + 1)
+            blocks.append(("python", "\n".join(lines[i + 1:j])))
+            i = j + 1
+        elif lines[i].startswith("    ") and not lines[i - 1].strip():
+            body = []
+            while i < len(lines) and (lines[i].startswith("    ") or
+                                      (not lines[i].strip() and i + 1 < len(lines) and lines[i + 1].startswith("    "))):
+                body.append(lines[i][4:])
+                i += 1
+            blocks.append(("sh", "\n".join(body)))
+        else:
+            i += 1
+    return blocks
+
+
+def tour_script(blocks: list[tuple[str, str]], port: int) -> str:
+    """One bash script of the blocks (each python block through ``python - <<EOF``), stopping at
+    the first failing command, on ``port``."""
+    parts = ["set -e"]
+    for kind, body in blocks:
+        parts.append(body if kind == "sh" else f"python - <<'FPSCAN_README_PY'\n{body}\nFPSCAN_README_PY")
+    script = "\n".join(parts) + "\n"
+    assert script.count("127.0.0.1:8000") >= 2 and "--port 8000" in script
+    return script.replace("127.0.0.1:8000", f"127.0.0.1:{port}").replace("--port 8000", f"--port {port}")
+
+
+def test_the_tour_parses_into_its_blocks():
+    kinds = [k for k, _ in tour_blocks(README.read_text(encoding="utf-8"))]
+    assert kinds == ["sh", "python", "python", "sh", "sh"], kinds
+
+
+def test_the_readme_states_tvs_own_defaults():
+    """What the README says of tv's options is what the method's options model holds."""
+    from service.recon.methods import METHODS
+
+    text = " ".join(README.read_text(encoding="utf-8").split())
+    said = re.search(r"`--iterations` \(default (\d+)", text)
+    options = METHODS["tv"].options_model.model_fields
+    assert said and int(said[1]) == options["iterations"].default, said
+
+
+@pytest.mark.skipif(not (shutil.which("curl") and shutil.which("jq")), reason="the curl section needs curl and jq")
+def test_the_five_minute_tour_runs_as_written(tmp_path):
+    blocks = tour_blocks(README.read_text(encoding="utf-8"))
+    script = tour_script(blocks, free_port())
+    (tmp_path / ".venv").symlink_to(sys.prefix, target_is_directory=True)  # `source .venv/bin/activate`
+    proc = subprocess.Popen(["bash", "-c", script], cwd=tmp_path, env=clean_env(), stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    try:
+        out, _ = proc.communicate(timeout=HANG_S)
+    finally:
+        try:  # the tour's background server and simulator, should a line have failed before its `kill`
+            os.killpg(proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        proc.wait()
+    logs = "".join(f"\n--- {p.name}\n{p.read_text(errors='replace')[-3000:]}" for p in
+                   (tmp_path / "serve.log", tmp_path / "sim.log") if p.exists())
+    assert proc.returncode == 0, out[-6000:] + logs
+    for made in ("plan.json", "mask.png", "scan.h5", "scan_job.h5", "scan-nedner/volume.h5", "remote-nedner/volume.h5",
+                 "scan_ipasc.h5", "volume.ome.tif", "volume.ome.zarr", "scan-nedner-py/volume.h5", "volume_py.ome.zarr",
+                 "scan_api.h5", "volume_api.h5", "mip_xy.png", "volume_api.ome.zarr", "volume_curl.h5",
+                 "mip_xy_curl.png", "volume.ome.zarr.zip"):
+        assert (tmp_path / made).exists(), made
+    import h5py
+
+    with h5py.File(tmp_path / "scan-nedner/volume.h5", "r") as a, h5py.File(tmp_path / "remote-nedner/volume.h5") as b:
+        np.testing.assert_array_equal(a["p0"][...], b["p0"][...])  # "both give the same volume"
+    assert "Broken pipe" not in out and "Traceback" not in out, out[-6000:]
