@@ -73,6 +73,8 @@ import numbers
 import os
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -82,11 +84,12 @@ import numpy as np
 from h5py import h5d, h5p, h5s, h5t
 
 from driver.constants import C_DEFAULT
+from driver.hdf5_checks import HDF5_SIGNATURE, check_hdf5_file
 from driver.plan import canonical_json, check_plan, wavelength_order
 
 __all__ = [
     "FORMAT", "FORMAT_1", "META_KEYS", "META_DTYPE", "META_CHUNK", "COMPLETED_CHUNK", "DURABLE_POLICIES",
-    "open_readonly", "ScanFile", "ScanData", "PRESSURE_UNITS", "pressure_unit", "completed_count",
+    "open_readonly", "open_checked", "ScanFile", "ScanData", "PRESSURE_UNITS", "pressure_unit", "completed_count",
     "read_scan", "read_open_scan", "FORMAT_FAMILY"]
 
 FORMAT = "fpscan-scan/2"
@@ -190,7 +193,6 @@ def _lookup3(data: bytes, initval: int = 0) -> int:
     return c
 
 
-_SIGNATURE = b"\x89HDF\r\n\x1a\n"
 
 
 def _clear_status_flags(path: Path) -> bool:
@@ -202,7 +204,7 @@ def _clear_status_flags(path: Path) -> bool:
     """
     with open(path, "r+b") as fh:
         head = fh.read(12)
-        if len(head) < 12 or head[:8] != _SIGNATURE:
+        if len(head) < 12 or head[:8] != HDF5_SIGNATURE:
             raise ValueError(f"{path} is not an HDF5 file with a superblock at offset 0")
         version, size_off = head[8], head[9]
         if version not in (2, 3):
@@ -286,7 +288,7 @@ def _superblock_open_for_write(path: Path) -> bool:
     truncated or corrupt superblock. Other versions return False (HDF5 checks them)."""
     with open(path, "rb") as fh:
         head = fh.read(12)
-        if len(head) < 12 or head[:8] != _SIGNATURE:
+        if len(head) < 12 or head[:8] != HDF5_SIGNATURE:
             raise ValueError(f"{path} is not an HDF5 file")
         version, size_off = head[8], head[9]
         if version not in (2, 3):
@@ -330,6 +332,39 @@ def _make_dataset(parent: h5py.Group, name: str, shape: tuple, dtype: np.dtype,
     tid = h5t.py_create(np.dtype(dtype), logical=True)
     dsid = h5d.create(parent.id, name.encode(), tid, h5s.create_simple(shape), dcpl=dcpl)
     return h5py.Dataset(dsid)
+
+
+
+@contextmanager
+def open_checked(path: str | os.PathLike, *, max_bytes: int) -> Iterator[Any]:
+    """An HDF5 file opened read-only (``driver.scanfile.open_readonly``: without SWMR unless a
+    writer has it) and checked (:func:`check_hdf5_file`) before the caller reads anything;
+    closed on leaving.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    max_bytes : int
+        The most bytes any one dataset may declare.
+
+    Yields
+    ------
+    h5py.File
+        Read-only.
+
+    Raises
+    ------
+    ValueError
+        Not a readable HDF5 file (truncated or corrupt), or refused by :func:`check_hdf5_file`
+        (the reason names the file's own objects only).
+    """
+    try:
+        f = open_readonly(path)
+    except Exception:  # ValueError from the checks; damaged files can reach other paths
+        raise ValueError("not a readable HDF5 file (truncated or corrupt)") from None
+    with f:
+        check_hdf5_file(f, max_bytes=max_bytes)
+        yield f
 
 
 class ScanFile:

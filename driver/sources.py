@@ -31,7 +31,11 @@ from driver.constants import C_DEFAULT
 from driver.kwave_layout import lateral_spacings
 from driver.plan import DevicePlan
 
-__all__ = ["PressureFn", "Source", "default_phantom", "BallSource", "VolumeSource", "ReplaySource"]
+__all__ = ["PressureFn", "Source", "SOURCE_MAX_BYTES", "default_phantom", "BallSource", "VolumeSource", "ReplaySource"]
+
+#: the most bytes one dataset of a volume or replay file may declare (the service's bound on any
+#: input, ``service.formats.MAX_BYTES``); the file is vetted (``driver.hdf5_checks``) before it is read
+SOURCE_MAX_BYTES = 1 << 34
 
 PressureFn = Callable[..., np.ndarray]  # pressure(ks, ws=None) -> (len(ks), n_t)
 
@@ -187,17 +191,18 @@ class VolumeSource:
     The HDF5 file holds ``p0`` ``(n_z, n_y, n_x)`` in Pa (row 0 at the sensor plane) with
     attributes ``dx_m`` (lateral voxel, m) and optionally ``dz_m`` (depth voxel, default
     ``dx_m``); the lateral grid is centred on the optical axis.
-    Raises ``ValueError`` if the file lacks them.
+    Raises ``ValueError`` if the file lacks them, or is refused as hostile
+    (``driver.scanfile.open_checked``: external links or storage, declared sizes beyond what it stores).
     """
 
     path: Path
     c: float = C_DEFAULT
 
     def __post_init__(self):
-        import h5py
+        from driver.scanfile import open_checked
 
         self.path = Path(self.path)
-        with h5py.File(self.path, "r") as f:
+        with open_checked(self.path, max_bytes=SOURCE_MAX_BYTES) as f:
             if "p0" not in f:
                 raise ValueError(f"{self.path}: no 'p0' dataset")
             self.p0 = np.asarray(f["p0"], dtype=np.float64)
@@ -251,17 +256,18 @@ class ReplaySource:
     ``dz_m`` in a k-Wave-named file, else ``dx_m``; :mod:`driver.kwave_layout`) and its lattice sits
     centred on the stored grid (both centred on the optical axis, so plan point (i_x, i_y)
     replays grid point (i_x + (N_x − n_x)/2, i_y + (N_y − n_y)/2)); otherwise ``prepare``
-    raises ``ValueError`` with the reason.
+    raises ``ValueError`` with the reason; a file refused as hostile
+    (``driver.scanfile.open_checked``) raises ``ValueError`` at construction.
     """
 
     path: Path
     dataset: str = "sensor_data/clean"
 
     def __post_init__(self):
-        import h5py
+        from driver.scanfile import open_checked
 
         self.path = Path(self.path)
-        with h5py.File(self.path, "r") as f:
+        with open_checked(self.path, max_bytes=SOURCE_MAX_BYTES) as f:
             if self.dataset not in f:
                 raise ValueError(f"{self.path}: no dataset {self.dataset!r}")
             data = np.asarray(f[self.dataset])

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, BinaryIO
 
+from driver.hdf5_checks import HDF5_SIGNATURE
 from service.recon.dataset import MAX_ELEMENTS
 
 __all__ = ["Format", "Source", "FORMATS", "HEAD_BYTES", "MAX_BYTES", "register", "unregister", "names",
@@ -31,7 +32,6 @@ __all__ = ["Format", "Source", "FORMATS", "HEAD_BYTES", "MAX_BYTES", "register",
 HEAD_BYTES = 1024
 #: default bound on any one HDF5 dataset's declared bytes (``check_hdf5_file``)
 MAX_BYTES = MAX_ELEMENTS * 8
-HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
 #: where an HDF5 file's superblock may start in the files fpscan reads: at 0, or behind a
 #: 512-byte user block (MATLAB's v7.3 MAT-files: their text header, then HDF5). HDF5 itself
 #: looks at 0, 512, 1024, 2048, ...; fpscan opens only these two.

@@ -162,7 +162,7 @@ def import_dataset(src: str | os.PathLike, dest_dir: str | os.PathLike, fmt: str
     (the API stores it in the job store). Run by ``POST /api/datasets`` in a bounded child
     process (``service.formats.untrusted.run_bounded``).
     ``max_bytes``: largest declared dataset of an HDF5 file
-    (:func:`service.formats.untrusted.check_hdf5`, run before anything is read).
+    (``driver.hdf5_checks.check_hdf5_file``, run before anything is read).
     ``force``: accept a ``c`` outside 1000-2000 m/s (as :func:`load_dataset`).
     ``wavelength``: which excitation wavelength of a multi-wavelength file to store (an
     index; None: the first; as :func:`load_dataset`, recorded in the metadata).

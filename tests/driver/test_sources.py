@@ -99,3 +99,31 @@ def test_averaging_pulses_reduces_noise_by_sqrt_n(tmp_path):
     clean = ball_alines(np.asarray(plan["points"]["positions"]), small_phantom(), 8e-9, 1024)
     sigma = max(b.amplitude for b in small_phantom()) / snr / np.sqrt(4)
     assert (scan.pressure - clean).std() == pytest.approx(sigma, rel=0.05)
+
+
+@pytest.mark.parametrize("source", ["volume", "replay"])
+def test_volume_and_replay_files_go_through_the_hdf5_vetting(tmp_path, source):
+    # a file that points at another one (an external link), and one whose dataset declares far more
+    # than it stores: both refused before anything is read, as every HDF5 input of the service
+    from driver.sources import ReplaySource
+
+    secret = tmp_path / "secret.h5"
+    with h5py.File(secret, "w") as f:
+        f["p0"] = np.ones((2, 2, 2))
+    linked = tmp_path / "linked.h5"
+    with h5py.File(linked, "w") as f:
+        f.attrs["dx_m"] = 1e-4
+        f.attrs["dt_s"] = 8e-9
+        f["p0"] = h5py.ExternalLink(str(secret), "p0")
+        f["sensor_data/clean"] = h5py.ExternalLink(str(secret), "p0")
+    sparse = tmp_path / "sparse.h5"
+    with h5py.File(sparse, "w") as f:
+        f.attrs["dx_m"] = 1e-4
+        f.attrs["dt_s"] = 8e-9
+        for name in ("p0", "sensor_data/clean"):
+            f.create_dataset(name, shape=(512, 512, 512), dtype="f8", chunks=(64, 64, 64), compression="gzip")
+    make = (lambda p: VolumeSource(p)) if source == "volume" else (lambda p: ReplaySource(p))
+    with pytest.raises(ValueError, match="external link"):
+        make(linked)
+    with pytest.raises(ValueError, match="never written|declare"):
+        make(sparse)
