@@ -115,12 +115,14 @@ import scipy.fft
 
 from driver.constants import C_DEFAULT
 from driver.physics.fast_lengths import fast_real_shape
+from driver.physics.resample import resample
 from service.progress import Progress, span
 from service.recon import checks
 from service.recon import limits as _limits
 from service.recon.reconstruction import Reconstruction
+from service.recon.tv_grid import TvGrid, noise_sigma, tv_grid
 
-__all__ = ["DEFAULT_MAX_ITER", "DEFAULT_TOL", "DEFAULT_TIME_LIMIT", "noise_sigma", "reconstruct_tv"]
+__all__ = ["DEFAULT_MAX_ITER", "DEFAULT_TOL", "DEFAULT_TIME_LIMIT", "TvGrid", "noise_sigma", "reconstruct_tv", "tv_grid"]
 
 DEFAULT_MAX_ITER = _limits.DEFAULT_MAX_ITER
 #: the stopping rule: the image's relative change per iteration below this in each of the last 3
@@ -148,54 +150,6 @@ _POLL_S = 0.2  # a cancel is polled at least this often (s) inside long steps
 #: default wall-time limit of one model-based reconstruction, s (``service.recon.limits``; the
 #: server's setting ``tv_time_limit_s`` caps it there)
 DEFAULT_TIME_LIMIT = _limits.DEFAULT_TIME_LIMIT
-
-
-def noise_sigma(data: np.ndarray, time_axis: int) -> float:
-    """Noise standard deviation of ``data`` (Pa), from the median absolute deviation of
-    the finest Haar wavelet coefficients along ``time_axis`` (Donoho & Johnstone 1994):
-    σ = median |g_{2n+1} − g_{2n}| / (√2 · 0.6745).
-
-    Robust to a sparse signal: steps and edges change few of the pairwise differences.
-
-    Parameters
-    ----------
-    data : array_like
-        Samples in any unit (Pa, or the instrument's), any shape; e.g. A-lines ``(n, n_t)``
-        (``time_axis=1``) or grid data ``(n_t, n_x)`` / ``(n_t, n_y, n_x)`` (``time_axis=0``).
-    time_axis : int
-        The axis along which the samples follow in time.
-
-    Returns
-    -------
-    float
-        σ̂ in the data's unit; 0.0 when there are fewer than 2 samples along ``time_axis``.
-
-    References
-    ----------
-    .. [1] D. L. Donoho, I. M. Johnstone, "Ideal spatial adaptation by wavelet shrinkage",
-       Biometrika 81 (1994) 425.
-
-    Examples
-    --------
-    Seeded white noise of σ = 0.01 Pa on 8 A-lines of 512 samples, with and without a step:
-
-    >>> import numpy as np
-    >>> from service.recon.tv import noise_sigma
-    >>> noise = np.random.default_rng(0).normal(0.0, 0.01, (8, 512))  # (n, n_t)
-    >>> round(noise_sigma(noise, time_axis=1), 4), round(noise_sigma(noise.T, time_axis=0), 4)
-    (0.0101, 0.0101)
-    >>> step = np.where(np.arange(512) >= 100, 1.0, 0.0)  # a 1 Pa edge barely moves it
-    >>> round(noise_sigma(noise + step, time_axis=1), 4)
-    0.0101
-    >>> noise_sigma(np.ones((3, 1)), time_axis=1)  # one sample: no estimate
-    0.0
-    """
-    g = np.moveaxis(np.asarray(data, dtype=np.float64), time_axis, -1)
-    n = g.shape[-1] // 2 * 2
-    if n < 2:
-        return 0.0
-    d = (g[..., 1:n:2] - g[..., 0:n:2]) / math.sqrt(2.0)
-    return float(np.median(np.abs(d)) / 0.6745)
 
 
 def _check_tv_options(lam, max_iter, tol, time_limit):
@@ -228,6 +182,7 @@ def reconstruct_tv(
     memory_limit: int | None = None,
     time_limit: float = DEFAULT_TIME_LIMIT,
     debias: bool = False,
+    bandwidth: float | None = None,
     progress: Progress | None = None,
 ) -> Reconstruction:
     """Model-based reconstruction: ½‖A p0 − g‖² + λ TV(p0), p0 ≥ 0 (module doc).
@@ -351,21 +306,31 @@ def reconstruct_tv(
     from service.recon.planar import reconstruct_grid, reconstruct_points
 
     lam, max_iter, tol, time_limit = _check_tv_options(lam, max_iter, tol, time_limit)
+    bandwidth = None if bandwidth is None else checks.check_bandwidth(bandwidth)
     rdtype = checks.check_dtype(dtype)
     started = time.monotonic()
     report = _reporter(progress)
-    common: dict[str, Any] = dict(dtype=np.float64, dz=dz, n_z=n_z, t0=t0, eps=eps, positivity=positivity,
+    if positions is None and dx is None:
+        raise ValueError("grid data need dx (or give positions for A-lines)")
+    # the grid the data can resolve (`service.recon.tv_grid`): the operator's samples and band,
+    # the image's depth grid; the data low-passed and resampled to those samples
+    time_axis = 0 if positions is None else 1
+    g = np.asarray(checks.finite_array("data" if positions is None else "alines", data, (2, 3)), dtype=np.float64)
+    if g.shape[time_axis] < 2:
+        raise ValueError(f"data need at least 2 time samples, got shape {g.shape}")
+    chosen = tv_grid(g.shape[time_axis], dt, c, data=g, time_axis=time_axis, bandwidth=bandwidth, dz=dz, n_z=n_z)
+    if chosen.resampled:
+        g = resample(g, chosen.n_t, axis=time_axis)
+    dt_op = chosen.dt
+    common: dict[str, Any] = dict(dtype=rdtype, dz=chosen.dz, n_z=chosen.n_z, t0=t0, eps=eps, positivity=positivity,
                   memory_limit=memory_limit, progress=span(report, 0.0, 0.05, "warm start"))
     if positions is None:
-        if dx is None:
-            raise ValueError("grid data need dx (or give positions for A-lines)")
-        warm = reconstruct_grid(data, dx, dt, c, **common)
-        g = np.asarray(data, dtype=np.float64)
+        assert dx is not None  # checked above
+        warm = reconstruct_grid(g, dx, dt_op, c, **common)
         pos = None
         dx = warm.params["dx"]
     else:
-        warm = reconstruct_points(data, positions, dt, c, weights=weights, grid=grid, **common)
-        g = np.asarray(data, dtype=np.float64)
+        warm = reconstruct_points(g, positions, dt_op, c, weights=weights, grid=grid, **common)
         dx = warm.params["dx"]
         if warm.params.get("dy") is not None and not np.isclose(warm.params["dy"], dx, rtol=1e-9):
             raise ValueError(f"tv needs equal x and y pitch, got {dx} and {warm.params['dy']} m")
@@ -374,10 +339,10 @@ def reconstruct_tv(
         if pos.shape[1] == 2 and warm.y is not None:  # 2-D lattice: y is set
             pos[:, 1] -= 0.5 * (warm.y[0] + warm.y[-1])
     report(0.05, "warm start")
-    dz_used, n_t = warm.params["dz"], g.shape[0] if pos is None else g.shape[1]
+    dz_used, n_t = warm.params["dz"], g.shape[time_axis]
     shape = warm.p0.shape
-    op = PlanarOperator(shape, dx, dz_used, dt, n_t, c, positions=pos, t0=t0, eps=eps, dtype=rdtype,
-                         periodic=periodic, checkpoint=report.poll)
+    op = PlanarOperator(shape, dx, dz_used, dt_op, n_t, c, positions=pos, t0=t0, eps=eps, dtype=rdtype,
+                         periodic=periodic, checkpoint=report.poll, band=chosen.band)
     checks.check_memory(checks.tv_memory(shape, op.padded_shape, g.size, n_t, rdtype), memory_limit)
     # B = P Aᵀ: the exact adjoint, NER's k-space weight P = k_z / |k| (symmetric, positive definite)
     P = _ner_weight(shape, dx, dz_used)
@@ -393,7 +358,7 @@ def reconstruct_tv(
         return op.matvec(v.ravel()).reshape(g.shape)
 
     gw_norm = float(np.linalg.norm(g))
-    sigma = noise_sigma(g, 0 if pos is None else 1)
+    sigma = noise_sigma(g, time_axis)  # at the operator's rate (the band's noise)
     noise_share = sigma * math.sqrt(g.size) / max(gw_norm, 1e-300)
     report(0.06, "norm estimate")  # the operator's set-up and the first adjoint: no longer the warm start
 
@@ -437,6 +402,8 @@ def reconstruct_tv(
     p0 = x.astype(rdtype, copy=False)
     res = Ax - g
     params = dict(warm_params)
+    params.update(dt=dt, operator_dt=dt_op, operator_n_t=n_t, band=chosen.band, band_reason=chosen.reason,
+                  bandwidth=bandwidth)
     params.update(method="tv", warm_start=warm_params["method"], lam=float(lam), lam_auto=bool(auto),
                   lam_factor=rule.factor if auto else None, warm_discrepancy=rule.warm_discrepancy,
                   noise_sigma=sigma, image_noise=image_noise, noise_share=noise_share, iterations=it,
