@@ -362,20 +362,31 @@ def reconstruct_tv(
     noise_share = sigma * math.sqrt(g.size) / max(gw_norm, 1e-300)
     report(0.06, "norm estimate")  # the operator's set-up and the first adjoint: no longer the warm start
 
-    # step: 1 / L with L ≈ ‖BA‖ (power iteration from a seeded white image) and a margin
+    # step: 1 / L with L ≈ ‖BA‖ (power iteration from a seeded white image) and a margin; and
+    # the noise image B n̂ of one seeded white-noise record n̂ of unit σ, whose RMS times σ̂ is
+    # the image's noise level (the automatic λ). Both depend on the geometry alone (the
+    # operator, P and the seeds), so they are kept per geometry (`_GEOMETRY`): the same scan
+    # plan again costs no pairs for them, and gets the same numbers a fresh process computes
+    key = _geometry_key(op, shape, dx, dz_used, pos, rdtype, g.shape)
+    kept = _GEOMETRY.get(key)
+    geometry_kept = kept is not None
     norm = span(report, 0.05, 0.1, "norm estimate")
-    start = np.random.default_rng(0).standard_normal(shape).astype(rdtype)
-    L = _MARGIN * _gain_estimate(lambda v: B(forward(v)), start, _POWER_STEPS, step=lambda k, n: norm(k / n))
-    del start
+    if kept is None:
+        start = np.random.default_rng(0).standard_normal(shape).astype(rdtype)
+        gain = _gain_estimate(lambda v: B(forward(v)), start, _POWER_STEPS, step=lambda k, n: norm(k / n))
+        del start
+        noise_image = B(np.random.default_rng(0).standard_normal(g.shape)).ravel()
+        noise_rms = math.sqrt(float(np.einsum("i,i->", noise_image, noise_image, dtype=np.float64))
+                              / noise_image.size)  # accumulated in float64
+        del noise_image
+        kept = (gain, noise_rms)
+        _GEOMETRY.put(key, kept)
+    gain, noise_rms = kept
+    L = _MARGIN * gain
     if not L > 0:
         raise ValueError("no sensor sees the image within the record (‖A‖ = 0): nothing to reconstruct")
     report(0.1, "norm estimate")
-    # the noise image B n̂ of one seeded white-noise record n̂ of unit σ: σ̂ times its RMS is the
-    # image's noise level (the automatic λ)
-    noise_image = B(np.random.default_rng(0).standard_normal(g.shape)).ravel()
-    image_noise = sigma * math.sqrt(float(np.einsum("i,i->", noise_image, noise_image, dtype=np.float64))
-                                    / noise_image.size)  # accumulated in float64
-    del noise_image
+    image_noise = sigma * noise_rms
     auto = lam is None
     rule = _DiscrepancyRule(image_noise, sigma * math.sqrt(g.size))
     x = np.ascontiguousarray(warm.p0, dtype=rdtype)
@@ -412,7 +423,7 @@ def reconstruct_tv(
                   norm_A=L / _MARGIN, positivity=bool(positivity), weights_mean_one=False, data_weights="equal",
                   periodic=bool(periodic), solver="FISTA preconditioned by " + ("NER" if pos is None else "NEDNER"),
                   iterate_change=change if math.isfinite(change) else None,
-                  operator_pairs=0.5 * (applied[0] + applied[1]), debias=debiased,
+                  operator_pairs=0.5 * (applied[0] + applied[1]), geometry_kept=geometry_kept, debias=debiased,
                   converged=stop_reason == "converged", stop_reason=stop_reason,
                   time_limit=time_limit, solve_s=time.monotonic() - started)
     report(1.0, f"done after {it} iterations" + (" (time limit reached)" if stop_reason == "time limit" else ""))
@@ -815,6 +826,53 @@ def _fista(forward, G, g, start, lam, L, positivity, max_iter, tol, started, tim
             stop_reason = "time limit"
             break
     return x, it, stop_reason, float(change), Ax, L, lam
+
+
+class _GeometryMemo:
+    """The last few geometries' ‖BA‖ estimate and noise-image RMS (`reconstruct_tv`): numbers
+    of the operator, the preconditioner and the seeded starts alone, so a repeated scan plan
+    (the same mask, grid, sampling and band) skips the 2.5 operator pairs that make them, and
+    its result is the one a fresh process computes. At most `_GEOMETRY_KEPT` entries (a few
+    floats each), the oldest dropped first; safe across threads."""
+
+    def __init__(self, size: int) -> None:
+        import threading
+
+        self._size, self._lock = size, threading.Lock()
+        self._items: dict[tuple, tuple[float, float]] = {}
+
+    def get(self, key: tuple) -> tuple[float, float] | None:
+        with self._lock:
+            value = self._items.pop(key, None)
+            if value is not None:
+                self._items[key] = value  # most recent last
+            return value
+
+    def put(self, key: tuple, value: tuple[float, float]) -> None:
+        with self._lock:
+            self._items.pop(key, None)
+            self._items[key] = value
+            while len(self._items) > self._size:
+                self._items.pop(next(iter(self._items)))
+
+    def clear(self) -> None:
+        with self._lock:
+            self._items.clear()
+
+
+#: geometries kept (`_GeometryMemo`): a lab alternates between a few scan plans
+_GEOMETRY_KEPT = 8
+_GEOMETRY = _GeometryMemo(_GEOMETRY_KEPT)
+
+
+def _geometry_key(op, shape, dx: float, dz: float, pos, rdtype, data_shape) -> tuple:
+    """What ‖BA‖ and the noise image depend on: the operator's grid, sampling, band, sensors
+    (their bytes' digest), precision and the data's shape (the noise record's)."""
+    import hashlib
+
+    where = None if pos is None else hashlib.sha256(np.ascontiguousarray(pos, dtype=np.float64).tobytes()).hexdigest()
+    return (tuple(shape), float(dx), float(dz), float(op.dt), int(op.n_t), float(op.c), float(op.t0), float(op.eps),
+            op.band, bool(op.periodic), op.padded_shape, np.dtype(rdtype).name, tuple(data_shape), where)
 
 
 class _DiscrepancyRule:
