@@ -49,7 +49,17 @@ proximal step (the minimiser of J exactly when the step's metric is Euclidean; P
 it the NER-weighted one — a preconditioned, not a different, data term). pyproximal's
 ``ProximalGradient`` is not used because it evaluates the objective with extra operator
 applications every step; here J(x) = ½‖Ax − g‖² + λ TV(x) is exact and free, A x being
-computed anyway. Warm start: the NER (grid) / NEDNER (points) image, clipped to >= 0.
+computed anyway. Warm start: the NER (grid) / NEDNER (points) image in the working dtype,
+clipped to >= 0.
+
+Grid (issue 47; `service.recon.tv_grid`): the operator works at the band the data carry above
+their noise floor (or a sensor bandwidth the caller declares, ``bandwidth``), not at the
+record's own sampling: the data are low-passed and resampled exactly to the fewest samples
+whose band reaches it (`driver.physics.resample`), the operator is band-limited there in
+k-space (`PlanarOperator` ``band``), and the default depth grid is dz = c dt', n_z = those
+samples (a given dz or n_z is kept, the other then c dt or n_t as before). Data whose band reaches the record's Nyquist frequency keep
+today's grid exactly. ``params`` record ``operator_dt``, ``operator_n_t``, ``band`` (Hz or None)
+and ``band_reason``; σ̂, the noise image and the residuals are those of the resampled data.
 
 Stopping rule (``tol``, default `DEFAULT_TOL` = 5e-3; ``max_iter`` default
 `DEFAULT_MAX_ITER` = 100): the image's relative change per iteration, ‖x_k − x_{k−1}‖ /
@@ -59,7 +69,10 @@ time limit ("time limit"). ``params`` say which, with the rule's last value
 (``iterate_change``) and the operator pairs used (``operator_pairs``: (forward + adjoint
 applications) / 2, everything included: the power iterations, the noise image of the
 automatic λ, A of the warm start — 3 pairs before the first iteration —, every iteration and
-``debias``). Until 2026-11-24 the rule was on the objective (its mean decrease over the
+``debias``). The step's ‖BA‖ estimate and the noise image's RMS depend on the geometry alone
+(operator, P, seeded starts): they are kept for the last few geometries (`_GEOMETRY`), so a
+repeated scan plan spends half a pair before its first iteration and gets the image a fresh
+process computes (``params["geometry_kept"]``). Until 2026-11-24 the rule was on the objective (its mean decrease over the
 last 3 iterations below 1e-3 of its decrease since the warm start). It stopped after 17-29
 iterations while the image was still changing: on 3 % equi-steradian masks in 3-D the CC
 with the true p0 rose by another 0.02-0.10 on the way to the minimiser (0.872 → 0.939 on the
@@ -221,7 +234,10 @@ def reconstruct_tv(
     eps : float, optional
         NUFFT tolerance.
     dz, n_z, t0 : optional
-        As `reconstruct_grid` (depth spacing m, depth samples, time of sample 0 s).
+        Depth spacing (m), depth samples and time of sample 0 (s). With neither dz nor n_z
+        given, the operator's grid (`service.recon.tv_grid.tv_grid`: c dt' and n_t' at the
+        data's band; c dt and n_t when the data fill the band up to Nyquist); a given one is
+        kept and the other follows the record's own rule (c dt, n_t).
     periodic : bool, optional
         Model the grid as laterally periodic (no zero padding; `PlanarOperator`), as NER
         itself does: several times cheaper for large volumes, but sources near an edge wrap
@@ -235,6 +251,9 @@ def reconstruct_tv(
     debias : bool, optional
         After the solve, refit the amplitudes by least squares on tv's support (module doc;
         `_DEBIAS_ITER` more operator pairs). Default False.
+    bandwidth : float, optional
+        A sensor bandwidth the caller declares, Hz, in [1e3, 1e12]: the operator works at that
+        band instead of the one read off the data (module doc, "Grid").
     progress : callable, optional
         ``progress(fraction, stage)`` (the pipeline's contract), called
         with increasing fractions during the warm start (stage "warm start"), after each
@@ -254,7 +273,10 @@ def reconstruct_tv(
         (‖A p0 − g‖ / ‖g‖), ``norm_A`` (‖P AᵀA‖, the step's L), ``converged`` (the stopping
         rule ``tol`` was met), ``stop_reason`` ("converged", "iterations": ``max_iter`` reached,
         "time limit"), ``iterate_change`` (the rule's last value), ``operator_pairs``,
-        ``solver``, ``debias``, ``time_limit``, ``solve_s``.
+        ``geometry_kept`` (‖BA‖ and the noise image were kept from a run on this geometry),
+        ``solver``, ``debias``, ``time_limit``, ``solve_s``; and the grid: ``dt`` (the
+        record's), ``operator_dt``, ``operator_n_t``, ``band`` (Hz, None: Nyquist),
+        ``band_reason`` ("data", "declared", "nyquist"), ``bandwidth`` (as declared).
 
     Raises
     ------

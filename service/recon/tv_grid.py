@@ -21,9 +21,11 @@ at the sampling the scanner happened to use:
   `driver.physics.resample.resampled_length` (its kept band reaches f_c), the data low-passed
   and resampled to them exactly (`driver.physics.resample.resample`), the operator
   band-limited to f_c in k-space (`service.recon.operator.PlanarOperator` ``band``);
-- **the image's depth grid**: dz = c dt' and n_z = M by default, as every planar method's
-  default dz = c dt and n_z = n_t (the depth Nyquist wavenumber then equals the band's);
-  a dz or n_z the caller gives is kept.
+- **the image's depth grid**: dz = c dt' and n_z = M when the caller sets neither, as every
+  planar method's default dz = c dt and n_z = n_t (the depth Nyquist wavenumber then equals
+  the band's); a dz or n_z the caller gives is kept, and the other then follows that rule at
+  the record's own sampling (dz = c dt, n_z = n_t), so that a caller who fixes one of them
+  gets the grid it had before.
 
 Data whose band reaches the record's Nyquist frequency keep today's grid exactly (no
 resampling, no band limit). Pure numpy (scipy's DCT is imported on first use; no numba), so
@@ -224,7 +226,8 @@ def tv_grid(n_t: int, dt: float, c: float = C_DEFAULT, *, data=None, time_axis: 
     bandwidth : float, optional
         A sensor bandwidth the caller declares, Hz: the band instead of the data's estimate.
     dz, n_z : optional
-        The image's depth spacing (m) and samples, kept as given; defaults c dt' and M.
+        The image's depth spacing (m) and samples, kept as given; with neither given c dt' and
+        M, with one given the other c dt or n_t (the record's own rule).
 
     Returns
     -------
@@ -265,8 +268,11 @@ def tv_grid(n_t: int, dt: float, c: float = C_DEFAULT, *, data=None, time_axis: 
     if m >= n_t:  # the record's own rate is the coarsest that keeps the band
         band, m, reason = None, n_t, "nyquist"
     dt_m = dt if m == n_t else (n_t - 1) * dt / (m - 1)
-    dz_out = c * dt_m if dz is None else float(dz)
-    n_z_out = m if n_z is None else int(n_z)
+    if dz is None and n_z is None:  # the image's depth grid follows the operator's sampling
+        dz_out, n_z_out = c * dt_m, m
+    else:  # a caller who sets either keeps today's rule for the other (dz = c dt, n_z = n_t)
+        dz_out = c * dt if dz is None else float(dz)
+        n_z_out = n_t if n_z is None else int(n_z)
     if not math.isfinite(dz_out) or dz_out <= 0:
         raise ValueError(f"dz must be finite and > 0 m, got {dz!r}")
     return TvGrid(m, dt_m, band, dz_out, n_z_out, reason)

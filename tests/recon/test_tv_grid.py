@@ -93,11 +93,15 @@ def test_the_band_is_read_off_the_data_above_their_noise():
     assert data_band(rng2.standard_normal((40, 600)), 10e-9, 1, 1.0) is None  # noise alone: nothing to cut
     full = rng2.standard_normal((40, 600)) + 1e-3 * rng2.standard_normal((40, 600))  # signal up to Nyquist
     assert data_band(full, 10e-9, 1, 1e-3) is None
-    grid = tv_grid(600, 10e-9, C, data=pulse + 1e-4 * rng2.standard_normal(pulse.shape), time_axis=1)
+    noisy = pulse + 1e-4 * rng2.standard_normal(pulse.shape)
+    grid = tv_grid(600, 10e-9, C, data=noisy, time_axis=1)
     assert grid.reason == "data" and grid.n_t < 600 and np.isclose(grid.dz, C * grid.dt)
     assert (grid.n_t - 2) / (2 * 599 * 10e-9) >= grid.band  # the kept terms reach the band
-    kept = tv_grid(600, 10e-9, C, data=pulse, time_axis=1, dz=5e-6, n_z=77)  # given: honoured
-    assert (kept.dz, kept.n_z) == (5e-6, 77)
+    kept = tv_grid(600, 10e-9, C, data=noisy, time_axis=1, dz=5e-6, n_z=77)  # given: honoured
+    assert (kept.dz, kept.n_z) == (5e-6, 77) and kept.n_t == grid.n_t
+    one = tv_grid(600, 10e-9, C, data=noisy, time_axis=1, n_z=77)  # one given: the other as before
+    assert (one.dz, one.n_z) == (C * 10e-9, 77)
+    assert tv_grid(600, 10e-9, C, data=noisy, time_axis=1, dz=5e-6).n_z == 600
     declared = tv_grid(600, 10e-9, C, bandwidth=20e6)
     assert declared.reason == "declared" and declared.band == 20e6
 

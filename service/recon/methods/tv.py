@@ -46,11 +46,12 @@ class Options(DepthOptions, MethodOptions, NufftOptions):
     dtype : {"float32", "float64"}
         Working and output precision (default ``"float32"``).
     n_z : int or None
-        Output depth samples, 2..65536 (None: the samples the operator works at, n_t for
-        data whose band reaches Nyquist; ``service.recon.tv_grid``).
+        Output depth samples, 2..65536 (None: with dz None too, the samples the operator works
+        at, n_t for data whose band reaches Nyquist; ``service.recon.tv_grid``; else n_t).
     dz : float or None
-        Output depth spacing in m, [1e-9, 0.1] (None: c dt' at the operator's sampling dt',
-        which follows the data's band above their noise floor, c dt at full band).
+        Output depth spacing in m, [1e-9, 0.1] (None: with n_z None too, c dt' at the
+        operator's sampling dt', which follows the data's band above their noise floor, c dt
+        at full band; else c dt).
     positivity : bool
         Constrain p0 >= 0 (default True).
     lam : float or None
