@@ -118,6 +118,13 @@ class TvGrid(NamedTuple):
         What set the band: ``"data"`` (the data's band above their noise floor),
         ``"declared"`` (the caller's sensor bandwidth), ``"nyquist"`` (the data are full band,
         or were not looked at).
+
+    Examples
+    --------
+    >>> from service.recon.tv_grid import tv_grid
+    >>> grid = tv_grid(1024, 8e-9, 1500.0, bandwidth=20e6)  # (n_t, dt, c): a 20 MHz sensor
+    >>> grid.n_t, grid.resampled, grid.reason
+    (330, True, 'declared')
     """
 
     n_t: int
