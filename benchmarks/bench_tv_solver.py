@@ -18,6 +18,8 @@ dt = pitch / c) with seeded white noise ``--snr`` dB below the signal, this prin
     .venv/bin/python benchmarks/bench_tv_solver.py                   # 64x96 (2-D), 24x40x40 (3-D), 30 dB
     .venv/bin/python benchmarks/bench_tv_solver.py --snr 20 30 40 --debias
     .venv/bin/python benchmarks/bench_tv_solver.py --dims 3 --points 48 80 160 --snr 20 30 40 --sweep
+    .venv/bin/python benchmarks/bench_tv_solver.py --dims 3 --kinds blobs vessels-flipped --points 48 160 \
+        --snr 20 30 40 --seed 7 --poi 10 --sweep    # cases the automatic λ's calibration never saw
 
 Small sizes only: the solver's iteration counts are the point; `bench_tv_operator.py` times
 the operator pair at large sizes. Times exclude compilation (one run of each first).
@@ -36,7 +38,22 @@ DT = PITCH / C
 SWEEP = (1 / 8, 1 / 4, 1 / 2, 1.0, 2.0, 4.0, 8.0)
 
 
-def _case(kind: str, dims: int, snr_db: float, points: int = 160):
+def _blobs(shape, seed: int) -> np.ndarray:
+    """Five Gaussian blobs (σ 1-3 voxels, amplitudes 0.4-1) at seeded places: smooth
+    sources, unlike the balls' sharp edges and the vessels' tubes (a phantom the automatic λ
+    was not calibrated on)."""
+    rng = np.random.default_rng(seed)
+    grids = np.meshgrid(*[np.arange(n, dtype=float) for n in shape], indexing="ij")
+    p0 = np.zeros(shape)
+    for _ in range(5):
+        centre = [rng.uniform(0.25 * n, 0.75 * n) for n in shape]
+        width = rng.uniform(1.0, 3.0)
+        r2 = sum((g - c) ** 2 for g, c in zip(grids, centre))
+        p0 += rng.uniform(0.4, 1.0) * np.exp(-r2 / (2 * width**2))
+    return p0
+
+
+def _case(kind: str, dims: int, snr_db: float, points: int = 160, seed: int = 0, poi: float = 12.0):
     from driver.physics import Ball, ball_p0
     from driver.physics.forward import forward_grid
     from service.experiments.phantoms import vessel_phantom
@@ -52,6 +69,10 @@ def _case(kind: str, dims: int, snr_db: float, points: int = 160):
     z = np.arange(n_z) * PITCH
     if kind == "vessels":
         p0 = vessel_phantom(shape)
+    elif kind == "vessels-flipped":  # the tree mirrored laterally, two voxels deeper
+        p0 = np.roll(vessel_phantom(shape)[(slice(None),) + (slice(None, None, -1),) * (dims - 1)], 2, axis=0)
+    elif kind == "blobs":
+        p0 = _blobs(shape, 47 + seed)
     elif dims == 2:
         p0 = ball_p0([Ball(-12 * PITCH, 0, 30 * PITCH, 8 * PITCH), Ball(14 * PITCH, 0, 22 * PITCH, 5 * PITCH, 0.7),
                       Ball(2 * PITCH, 0, 45 * PITCH, 4 * PITCH, 0.5)], z, x, supersample=2)
@@ -60,26 +81,27 @@ def _case(kind: str, dims: int, snr_db: float, points: int = 160):
                       Ball(-8 * PITCH, 4 * PITCH, 9 * PITCH, 2.5 * PITCH, 0.5)], z, x, x, supersample=2)
     n_t = int(np.hypot(n_z, n if dims == 2 else n / np.sqrt(2))) + 8
     clean = forward_grid(p0, PITCH, PITCH, DT, n_t, C)
-    rng = np.random.default_rng(0)
+    rng = np.random.default_rng(seed)
     g = clean + rng.standard_normal(clean.shape) * float(np.sqrt(np.mean(clean**2))) / 10 ** (snr_db / 20)
     if dims == 2:
         mask = equiangular_mask(Lattice(n, 1, PITCH), n_z * PITCH / 2, 24)
         idx = np.asarray(mask.indices)[:, 0]
         alines, pos, grid = g[:, idx].T, np.asarray(mask.positions, float)[:, :1], (x,)
     else:
-        mask = equisteradian_mask(Lattice(n, n, PITCH), 12 * PITCH, points)
+        mask = equisteradian_mask(Lattice(n, n, PITCH), poi * PITCH, points)
         ix, iy = np.asarray(mask.indices).T
         alines, pos, grid = g[:, iy, ix].T, np.asarray(mask.positions, float)[:, :2], (x, x)
     kw = dict(weights=np.asarray(mask.weights, float), grid=grid, n_z=n_z, dz=PITCH)
     return p0, alines, pos, kw
 
 
-def run(kind: str, dims: int, snr_db: float, debias: bool, points: int = 160, sweep: bool = False) -> str:
+def run(kind: str, dims: int, snr_db: float, debias: bool, points: int = 160, sweep: bool = False, seed: int = 0,
+        poi: float = 12.0) -> str:
     from service.metrics import correlation_coefficient
     from service.recon import reconstruct_points
     from service.recon.tv import reconstruct_tv
 
-    p0, alines, pos, kw = _case(kind, dims, snr_db, points)
+    p0, alines, pos, kw = _case(kind, dims, snr_db, points, seed, poi)
     amp = lambda img: float(np.vdot(img, p0) / np.vdot(p0, p0))  # noqa: E731
     reconstruct_tv(alines, DT, C, positions=pos, max_iter=2, **kw)  # compile
     t = time.perf_counter()
@@ -114,7 +136,11 @@ def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--snr", type=float, nargs="+", default=[30.0], help="noise levels, dB below the signal")
     ap.add_argument("--dims", type=int, nargs="+", default=[2, 3], choices=[2, 3])
-    ap.add_argument("--kinds", nargs="+", default=["vessels", "balls"], choices=["vessels", "balls"])
+    ap.add_argument("--kinds", nargs="+", default=["vessels", "balls"],
+                    choices=["vessels", "balls", "vessels-flipped", "blobs"],
+                    help="phantoms; vessels-flipped and blobs were not in the automatic λ's calibration")
+    ap.add_argument("--seed", type=int, default=0, help="noise seed (and the blobs' places)")
+    ap.add_argument("--poi", type=float, default=12.0, help="3-D: the mask's point of interest, depth in pitches")
     ap.add_argument("--debias", action="store_true", help="also the least-squares refit's amplitude")
     ap.add_argument("--points", type=int, nargs="+", default=[160],
                     help="3-D: sensors of the equi-steradian mask, of the 1600 lattice points")
@@ -124,7 +150,7 @@ def main(argv=None) -> None:
         for kind in args.kinds:
             for snr in args.snr:
                 for points in (args.points if dims == 3 else [0]):
-                    print(run(kind, dims, snr, args.debias, points, args.sweep), flush=True)
+                    print(run(kind, dims, snr, args.debias, points, args.sweep, args.seed, args.poi), flush=True)
 
 
 if __name__ == "__main__":

@@ -11,7 +11,7 @@ from driver.units import RefusedInput
 __all__ = [
     "positive", "finite_array", "EPS_RANGE", "UPSAMPLE_RANGE", "N_Z_RANGE", "DZ_RANGE", "LAM_RANGE",
     "ITERATIONS_RANGE", "TIME_LIMIT_MAX", "OptionError", "check_eps", "check_upsample", "check_n_z",
-    "check_dz", "check_lam", "check_tol", "check_iterations", "check_time_limit", "check_dtype", "available_memory",
+    "check_dz", "check_lam", "check_bandwidth", "check_tol", "check_iterations", "check_time_limit", "check_dtype", "available_memory",
     "estimate_peak_memory", "padded_lateral", "OPERATOR_BATCH", "OPERATOR_CHUNK", "tv_memory", "check_memory",
 ]
 
@@ -113,6 +113,7 @@ def finite_array(name: str, a, ndims: tuple[int, ...]) -> np.ndarray:
 
 # the ranges: service.recon.limits (import-free, read by the methods' option models too)
 from service.recon.limits import (  # noqa: E402
+    BANDWIDTH_RANGE,
     DZ_RANGE,
     EPS_RANGE,
     ITERATIONS_RANGE,
@@ -324,6 +325,42 @@ def check_lam(lam) -> float:
     v = _number("lam (the TV weight λ)", lam, "a number >= 0")
     if not np.isfinite(v) or not LAM_RANGE[0] <= v <= LAM_RANGE[1]:
         raise OptionError(f"lam (the TV weight λ) must be in [0, 1e+30], got {lam!r}")
+    return v
+
+
+def check_bandwidth(bandwidth) -> float:
+    """A sensor bandwidth the caller declares, Hz: a finite number in ``BANDWIDTH_RANGE``
+    ([1e3, 1e12]); tv works at that band instead of the one it reads off the data
+    (`service.recon.tv_grid`).
+
+    Parameters
+    ----------
+    bandwidth : float
+        The highest frequency the sensor passes, Hz.
+
+    Returns
+    -------
+    float
+
+    Raises
+    ------
+    OptionError
+        (a ValueError) not a finite number, or outside the range.
+
+    Examples
+    --------
+    >>> from service.recon.checks import check_bandwidth
+    >>> check_bandwidth("2e7")  # Hz
+    20000000.0
+    >>> check_bandwidth(0)
+    Traceback (most recent call last):
+    ...
+    service.recon.checks.OptionError: bandwidth (the sensor's band, Hz) must be in [1e+03, 1e+12], got 0
+    """
+    v = _number("bandwidth (the sensor's band, Hz)", bandwidth, "a number > 0")
+    if not np.isfinite(v) or not BANDWIDTH_RANGE[0] <= v <= BANDWIDTH_RANGE[1]:
+        raise OptionError(f"bandwidth (the sensor's band, Hz) must be in [{BANDWIDTH_RANGE[0]:.0e}, "
+                          f"{BANDWIDTH_RANGE[1]:.0e}], got {bandwidth!r}")
     return v
 
 

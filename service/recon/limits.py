@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Final
 
-__all__ = ["EPS_RANGE", "UPSAMPLE_RANGE", "N_Z_RANGE", "DZ_RANGE", "LAM_RANGE", "ITERATIONS_RANGE",
+__all__ = ["BANDWIDTH_RANGE", "EPS_RANGE", "UPSAMPLE_RANGE", "N_Z_RANGE", "DZ_RANGE", "LAM_RANGE", "ITERATIONS_RANGE",
            "TIME_LIMIT_MAX", "TOL_RANGE", "DEFAULT_TOL", "DEFAULT_DTYPE", "DTYPES", "KWAVE_INTERPS", "DEFAULT_EPS", "DEFAULT_MAX_ITER",
            "DEFAULT_TIME_LIMIT"]
 
@@ -23,6 +23,9 @@ N_Z_RANGE = (2, 65536)
 DZ_RANGE = (1e-9, 0.1)
 #: TV weight λ (data units), inclusive
 LAM_RANGE = (0.0, 1e30)
+#: a sensor bandwidth tv may be told, Hz, inclusive (1 kHz: no photoacoustic sensor passes
+#: less; 1 THz: far above any sampling a scanner records)
+BANDWIDTH_RANGE = (1e3, 1e12)
 #: iterations of the model-based solver, inclusive
 ITERATIONS_RANGE = (1, 100000)
 #: wall-time limit of the model-based solver, s: (0, max]

@@ -155,6 +155,15 @@ class PlanarOperator(pylops.LinearOperator):
         elements per row of their largest array (default
         `service.recon.checks.OPERATOR_CHUNK`, 2²³; the memory model counts one chunk); the
         result does not depend on it.
+    band : float, optional
+        A temporal band limit f_c in Hz (None, the default: none). The model's data are then
+        those of the field low-passed at f_c, exactly: a k-space component of p0 sounds at
+        the one frequency c |k| / 2π (DESIGN §3.1), so the low-pass is the k-space ball
+        |k| <= 2π f_c / c, applied to the depth transform's coefficients before the temporal
+        step (and after it in the adjoint: the pair stays each other's transpose). Columns
+        with |k_lat| beyond it are skipped whole. With f_c at most the Nyquist frequency
+        1 / (2 dt) the samples carry no aliased energy, so data resampled to dt by an ideal
+        low-pass (`driver.physics.resample`) are this model's data (`service.recon.tv_grid`).
 
     Attributes
     ----------
@@ -172,7 +181,7 @@ class PlanarOperator(pylops.LinearOperator):
     Raises
     ------
     ValueError
-        Naming the problem: bad shape, non-positive dx/dz/dt/c, n_t < 1, t0 < 0, eps outside
+        Naming the problem: bad shape, non-positive dx/dz/dt/c/band, n_t < 1, t0 < 0, eps outside
         its range, positions of the wrong shape, non-finite or duplicated, bad dtype;
         `forward`/`adjoint` raise it for arrays of the wrong shape or with NaN/inf.
 
@@ -210,7 +219,7 @@ class PlanarOperator(pylops.LinearOperator):
     def __init__(self, shape, dx: float, dz: float, dt: float, n_t: int, c: float = C_DEFAULT, *,
                  positions=None, t0: float = 0.0, eps: float = 1e-6, periodic: bool = False,
                  dtype=np.float64, checkpoint: Callable[[], None] | None = None,
-                 chunk_elements: int = _CHUNK):
+                 chunk_elements: int = _CHUNK, band: float | None = None):
         shape = tuple(int(s) for s in shape)
         if len(shape) not in (2, 3) or min(shape) < 1 or shape[0] < 2:
             raise ValueError(f"shape must be (n_z, n_x) or (n_z, n_y, n_x) with n_z >= 2, got {shape}")
@@ -226,6 +235,7 @@ class PlanarOperator(pylops.LinearOperator):
         self.t0 = float(t0)
         self.eps = checks.check_eps(eps)
         self.periodic = bool(periodic)
+        self.band = None if band is None else checks.positive("band", band)
         self.checkpoint = checkpoint
         if int(chunk_elements) != chunk_elements or chunk_elements < 1:
             raise ValueError(f"chunk_elements must be an integer >= 1, got {chunk_elements!r}")
@@ -306,9 +316,23 @@ class PlanarOperator(pylops.LinearOperator):
         ky = 2 * np.pi * scipy.fft.fftfreq(n_y2, self.dx)
         self._klat2 = (ky[:, None] ** 2 + kx[None, :] ** 2).ravel()
         self._grid = nufft.make_grid(self.n_t, "nufft", self.eps)
-        self._chunks = _column_chunks(self._klat2, max(n_z2, self._grid.L), self._chunk_elements)
         dk = np.pi / ((n_z2 - 1) * self.dz)
         self._kz = dk * np.arange(n_z2)
+        kept = np.arange(len(self._klat2))
+        if self.band is not None:
+            kc2 = (2 * np.pi * self.band / self.c) ** 2
+            kept = np.flatnonzero(self._klat2 <= kc2)
+        self._skipped = np.setdiff1d(np.arange(len(self._klat2)), kept)
+        chunks = _column_chunks(self._klat2[kept], max(n_z2, self._grid.L), self._chunk_elements)
+        self._chunks = []
+        for idx, klat2, groups in chunks:
+            cols = kept[idx]
+            rows = None
+            if self.band is not None:
+                rows = np.minimum(np.floor(np.sqrt(np.maximum(kc2 - klat2, 0.0)) / dk).astype(np.int64) + 1, n_z2)
+                if np.all(rows >= n_z2):
+                    rows = None
+            self._chunks.append((cols, klat2, groups, rows))
         tau = np.ones(n_z2)
         tau[[0, -1]] = 0.5
         # forward: F = dz DCT-I(p0), weight Δk τ_l / 4π (dz folded in); adjoint: dz Δk / 4π,
@@ -484,11 +508,13 @@ class PlanarOperator(pylops.LinearOperator):
         # of Y are read before its columns of T are written, and no other chunk reads them
         Y, T, _ = self._kspace(n_z, self.n_t)
         self._lateral_spectrum(p0.reshape(self._vol), out=Y.reshape(n_z, n_y2, self._n_xr))
-        for idx, klat2, groups in self._chunks:  # columns in chunks of whole |k_lat| groups
+        for idx, klat2, groups, rows in self._chunks:  # columns in chunks of whole |k_lat| groups
             # depth: the n_z image rows of each column, zero below, DCT-I of length N_z
             B = np.zeros((len(idx), n_z2), dtype=self._ctype)
             nufft.gather_columns(Y, idx, B[:, :n_z])
             B = fft_engine.dct1(B, axis=1, overwrite_x=True)  # depth: DCT-I of the real and imaginary parts
+            if rows is not None:
+                B[np.arange(n_z2)[None, :] >= rows[:, None]] = 0
             R = nufft.spread(B, self._grid, klat2, self._kz, self._qw_forward, self.c, self.dt, self.t0,
                              groups=groups)
             del B
@@ -497,6 +523,8 @@ class PlanarOperator(pylops.LinearOperator):
             nufft.scatter_columns(G, idx, T)
             del G
             self._tick()
+        if len(self._skipped):
+            T[:, self._skipped] = 0
         T = T.reshape(self.n_t, n_y2, self._n_xr)
         if self.positions is None:
             g = self._lateral_inverse(T)
@@ -537,15 +565,19 @@ class PlanarOperator(pylops.LinearOperator):
             self._lateral_spectrum(data.reshape(self.n_t, n_y, n_x), out=spectrum)
         else:
             self._spectrum_at_points(data, spectrum)
-        for idx, klat2, groups in self._chunks:  # columns in chunks of whole |k_lat| groups
+        for idx, klat2, groups, rows in self._chunks:  # columns in chunks of whole |k_lat| groups
             U = nufft.to_fine_grid(A, self._grid, t0_is_zero=False, columns=idx)
             F = nufft.evaluate(U, self._grid, klat2, self._kz, self._qw_adjoint, self.c, self.dt, self.t0,
                                inversion=False, n_chunks=1, groups=groups)
             del U
+            if rows is not None:
+                F[np.arange(n_z2)[None, :] >= rows[:, None]] = 0
             F = fft_engine.dct1(F, axis=1, overwrite_x=True)
             nufft.scatter_columns(F[:, :n_z], idx, K)
             del F
             self._tick()
+        if len(self._skipped):
+            K[:, self._skipped] = 0
         K[0] *= 0.5  # DCT-Iᵀ = diag(τ) DCT-I diag(1/τ), τ = ½ at both ends
         if n_z == n_z2:
             K[-1] *= 0.5

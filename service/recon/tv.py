@@ -49,7 +49,17 @@ proximal step (the minimiser of J exactly when the step's metric is Euclidean; P
 it the NER-weighted one — a preconditioned, not a different, data term). pyproximal's
 ``ProximalGradient`` is not used because it evaluates the objective with extra operator
 applications every step; here J(x) = ½‖Ax − g‖² + λ TV(x) is exact and free, A x being
-computed anyway. Warm start: the NER (grid) / NEDNER (points) image, clipped to >= 0.
+computed anyway. Warm start: the NER (grid) / NEDNER (points) image in the working dtype,
+clipped to >= 0.
+
+Grid (issue 47; `service.recon.tv_grid`): the operator works at the band the data carry above
+their noise floor (or a sensor bandwidth the caller declares, ``bandwidth``), not at the
+record's own sampling: the data are low-passed and resampled exactly to the fewest samples
+whose band reaches it (`driver.physics.resample`), the operator is band-limited there in
+k-space (`PlanarOperator` ``band``), and the default depth grid is dz = c dt', n_z = those
+samples (a given dz or n_z is kept, the other then c dt or n_t as before). Data whose band reaches the record's Nyquist frequency keep
+today's grid exactly. ``params`` record ``operator_dt``, ``operator_n_t``, ``band`` (Hz or None)
+and ``band_reason``; σ̂, the noise image and the residuals are those of the resampled data.
 
 Stopping rule (``tol``, default `DEFAULT_TOL` = 5e-3; ``max_iter`` default
 `DEFAULT_MAX_ITER` = 100): the image's relative change per iteration, ‖x_k − x_{k−1}‖ /
@@ -59,7 +69,10 @@ time limit ("time limit"). ``params`` say which, with the rule's last value
 (``iterate_change``) and the operator pairs used (``operator_pairs``: (forward + adjoint
 applications) / 2, everything included: the power iterations, the noise image of the
 automatic λ, A of the warm start — 3 pairs before the first iteration —, every iteration and
-``debias``). Until 2026-11-24 the rule was on the objective (its mean decrease over the
+``debias``). The step's ‖BA‖ estimate and the noise image's RMS depend on the geometry alone
+(operator, P, seeded starts): they are kept for the last few geometries (`_GEOMETRY`), so a
+repeated scan plan spends half a pair before its first iteration and gets the image a fresh
+process computes (``params["geometry_kept"]``). Until 2026-11-24 the rule was on the objective (its mean decrease over the
 last 3 iterations below 1e-3 of its decrease since the warm start). It stopped after 17-29
 iterations while the image was still changing: on 3 % equi-steradian masks in 3-D the CC
 with the true p0 rose by another 0.02-0.10 on the way to the minimiser (0.872 → 0.939 on the
@@ -115,12 +128,14 @@ import scipy.fft
 
 from driver.constants import C_DEFAULT
 from driver.physics.fast_lengths import fast_real_shape
+from driver.physics.resample import resample
 from service.progress import IterationStage, Progress, span
 from service.recon import checks
 from service.recon import limits as _limits
 from service.recon.reconstruction import Reconstruction
+from service.recon.tv_grid import TvGrid, noise_sigma, tv_grid
 
-__all__ = ["DEFAULT_MAX_ITER", "DEFAULT_TOL", "DEFAULT_TIME_LIMIT", "noise_sigma", "reconstruct_tv"]
+__all__ = ["DEFAULT_MAX_ITER", "DEFAULT_TOL", "DEFAULT_TIME_LIMIT", "TvGrid", "noise_sigma", "reconstruct_tv", "tv_grid"]
 
 DEFAULT_MAX_ITER = _limits.DEFAULT_MAX_ITER
 #: the stopping rule: the image's relative change per iteration below this in each of the last 3
@@ -148,54 +163,6 @@ _POLL_S = 0.2  # a cancel is polled at least this often (s) inside long steps
 #: default wall-time limit of one model-based reconstruction, s (``service.recon.limits``; the
 #: server's setting ``tv_time_limit_s`` caps it there)
 DEFAULT_TIME_LIMIT = _limits.DEFAULT_TIME_LIMIT
-
-
-def noise_sigma(data: np.ndarray, time_axis: int) -> float:
-    """Noise standard deviation of ``data`` (Pa), from the median absolute deviation of
-    the finest Haar wavelet coefficients along ``time_axis`` (Donoho & Johnstone 1994):
-    σ = median |g_{2n+1} − g_{2n}| / (√2 · 0.6745).
-
-    Robust to a sparse signal: steps and edges change few of the pairwise differences.
-
-    Parameters
-    ----------
-    data : array_like
-        Samples in any unit (Pa, or the instrument's), any shape; e.g. A-lines ``(n, n_t)``
-        (``time_axis=1``) or grid data ``(n_t, n_x)`` / ``(n_t, n_y, n_x)`` (``time_axis=0``).
-    time_axis : int
-        The axis along which the samples follow in time.
-
-    Returns
-    -------
-    float
-        σ̂ in the data's unit; 0.0 when there are fewer than 2 samples along ``time_axis``.
-
-    References
-    ----------
-    .. [1] D. L. Donoho, I. M. Johnstone, "Ideal spatial adaptation by wavelet shrinkage",
-       Biometrika 81 (1994) 425.
-
-    Examples
-    --------
-    Seeded white noise of σ = 0.01 Pa on 8 A-lines of 512 samples, with and without a step:
-
-    >>> import numpy as np
-    >>> from service.recon.tv import noise_sigma
-    >>> noise = np.random.default_rng(0).normal(0.0, 0.01, (8, 512))  # (n, n_t)
-    >>> round(noise_sigma(noise, time_axis=1), 4), round(noise_sigma(noise.T, time_axis=0), 4)
-    (0.0101, 0.0101)
-    >>> step = np.where(np.arange(512) >= 100, 1.0, 0.0)  # a 1 Pa edge barely moves it
-    >>> round(noise_sigma(noise + step, time_axis=1), 4)
-    0.0101
-    >>> noise_sigma(np.ones((3, 1)), time_axis=1)  # one sample: no estimate
-    0.0
-    """
-    g = np.moveaxis(np.asarray(data, dtype=np.float64), time_axis, -1)
-    n = g.shape[-1] // 2 * 2
-    if n < 2:
-        return 0.0
-    d = (g[..., 1:n:2] - g[..., 0:n:2]) / math.sqrt(2.0)
-    return float(np.median(np.abs(d)) / 0.6745)
 
 
 def _check_tv_options(lam, max_iter, tol, time_limit):
@@ -228,6 +195,7 @@ def reconstruct_tv(
     memory_limit: int | None = None,
     time_limit: float = DEFAULT_TIME_LIMIT,
     debias: bool = False,
+    bandwidth: float | None = None,
     progress: Progress | None = None,
 ) -> Reconstruction:
     """Model-based reconstruction: ½‖A p0 − g‖² + λ TV(p0), p0 ≥ 0 (module doc).
@@ -266,7 +234,10 @@ def reconstruct_tv(
     eps : float, optional
         NUFFT tolerance.
     dz, n_z, t0 : optional
-        As `reconstruct_grid` (depth spacing m, depth samples, time of sample 0 s).
+        Depth spacing (m), depth samples and time of sample 0 (s). With neither dz nor n_z
+        given, the operator's grid (`service.recon.tv_grid.tv_grid`: c dt' and n_t' at the
+        data's band; c dt and n_t when the data fill the band up to Nyquist); a given one is
+        kept and the other follows the record's own rule (c dt, n_t).
     periodic : bool, optional
         Model the grid as laterally periodic (no zero padding; `PlanarOperator`), as NER
         itself does: several times cheaper for large volumes, but sources near an edge wrap
@@ -280,6 +251,9 @@ def reconstruct_tv(
     debias : bool, optional
         After the solve, refit the amplitudes by least squares on tv's support (module doc;
         `_DEBIAS_ITER` more operator pairs). Default False.
+    bandwidth : float, optional
+        A sensor bandwidth the caller declares, Hz, in [1e3, 1e12]: the operator works at that
+        band instead of the one read off the data (module doc, "Grid").
     progress : callable, optional
         ``progress(fraction, stage)`` (the pipeline's contract), called
         with increasing fractions during the warm start (stage "warm start"), after each
@@ -300,7 +274,10 @@ def reconstruct_tv(
         (‖A p0 − g‖ / ‖g‖), ``norm_A`` (‖P AᵀA‖, the step's L), ``converged`` (the stopping
         rule ``tol`` was met), ``stop_reason`` ("converged", "iterations": ``max_iter`` reached,
         "time limit"), ``iterate_change`` (the rule's last value), ``operator_pairs``,
-        ``solver``, ``debias``, ``time_limit``, ``solve_s``.
+        ``geometry_kept`` (‖BA‖ and the noise image were kept from a run on this geometry),
+        ``solver``, ``debias``, ``time_limit``, ``solve_s``; and the grid: ``dt`` (the
+        record's), ``operator_dt``, ``operator_n_t``, ``band`` (Hz, None: Nyquist),
+        ``band_reason`` ("data", "declared", "nyquist"), ``bandwidth`` (as declared).
 
     Raises
     ------
@@ -352,21 +329,31 @@ def reconstruct_tv(
     from service.recon.planar import reconstruct_grid, reconstruct_points
 
     lam, max_iter, tol, time_limit = _check_tv_options(lam, max_iter, tol, time_limit)
+    bandwidth = None if bandwidth is None else checks.check_bandwidth(bandwidth)
     rdtype = checks.check_dtype(dtype)
     started = time.monotonic()
     report = _reporter(progress)
-    common: dict[str, Any] = dict(dtype=np.float64, dz=dz, n_z=n_z, t0=t0, eps=eps, positivity=positivity,
+    if positions is None and dx is None:
+        raise ValueError("grid data need dx (or give positions for A-lines)")
+    # the grid the data can resolve (`service.recon.tv_grid`): the operator's samples and band,
+    # the image's depth grid; the data low-passed and resampled to those samples
+    time_axis = 0 if positions is None else 1
+    g = np.asarray(checks.finite_array("data" if positions is None else "alines", data, (2, 3)), dtype=np.float64)
+    if g.shape[time_axis] < 2:
+        raise ValueError(f"data need at least 2 time samples, got shape {g.shape}")
+    chosen = tv_grid(g.shape[time_axis], dt, c, data=g, time_axis=time_axis, bandwidth=bandwidth, dz=dz, n_z=n_z)
+    if chosen.resampled:
+        g = resample(g, chosen.n_t, axis=time_axis)
+    dt_op = chosen.dt
+    common: dict[str, Any] = dict(dtype=rdtype, dz=chosen.dz, n_z=chosen.n_z, t0=t0, eps=eps, positivity=positivity,
                   memory_limit=memory_limit, progress=span(report, 0.0, 0.05, "warm start"))
     if positions is None:
-        if dx is None:
-            raise ValueError("grid data need dx (or give positions for A-lines)")
-        warm = reconstruct_grid(data, dx, dt, c, **common)
-        g = np.asarray(data, dtype=np.float64)
+        assert dx is not None  # checked above
+        warm = reconstruct_grid(g, dx, dt_op, c, **common)
         pos = None
         dx = warm.params["dx"]
     else:
-        warm = reconstruct_points(data, positions, dt, c, weights=weights, grid=grid, **common)
-        g = np.asarray(data, dtype=np.float64)
+        warm = reconstruct_points(g, positions, dt_op, c, weights=weights, grid=grid, **common)
         dx = warm.params["dx"]
         if warm.params.get("dy") is not None and not np.isclose(warm.params["dy"], dx, rtol=1e-9):
             raise ValueError(f"tv needs equal x and y pitch, got {dx} and {warm.params['dy']} m")
@@ -375,10 +362,10 @@ def reconstruct_tv(
         if pos.shape[1] == 2 and warm.y is not None:  # 2-D lattice: y is set
             pos[:, 1] -= 0.5 * (warm.y[0] + warm.y[-1])
     report(0.05, "warm start")
-    dz_used, n_t = warm.params["dz"], g.shape[0] if pos is None else g.shape[1]
+    dz_used, n_t = warm.params["dz"], g.shape[time_axis]
     shape = warm.p0.shape
-    op = PlanarOperator(shape, dx, dz_used, dt, n_t, c, positions=pos, t0=t0, eps=eps, dtype=rdtype,
-                         periodic=periodic, checkpoint=report.poll)
+    op = PlanarOperator(shape, dx, dz_used, dt_op, n_t, c, positions=pos, t0=t0, eps=eps, dtype=rdtype,
+                         periodic=periodic, checkpoint=report.poll, band=chosen.band)
     checks.check_memory(checks.tv_memory(shape, op.padded_shape, g.size, n_t, rdtype), memory_limit)
     # B = P Aᵀ: the exact adjoint, NER's k-space weight P = k_z / |k| (symmetric, positive definite)
     P = _ner_weight(shape, dx, dz_used)
@@ -394,24 +381,35 @@ def reconstruct_tv(
         return op.matvec(v.ravel()).reshape(g.shape)
 
     gw_norm = float(np.linalg.norm(g))
-    sigma = noise_sigma(g, 0 if pos is None else 1)
+    sigma = noise_sigma(g, time_axis)  # at the operator's rate (the band's noise)
     noise_share = sigma * math.sqrt(g.size) / max(gw_norm, 1e-300)
     report(0.06, "norm estimate")  # the operator's set-up and the first adjoint: no longer the warm start
 
-    # step: 1 / L with L ≈ ‖BA‖ (power iteration from a seeded white image) and a margin
+    # step: 1 / L with L ≈ ‖BA‖ (power iteration from a seeded white image) and a margin; and
+    # the noise image B n̂ of one seeded white-noise record n̂ of unit σ, whose RMS times σ̂ is
+    # the image's noise level (the automatic λ). Both depend on the geometry alone (the
+    # operator, P and the seeds), so they are kept per geometry (`_GEOMETRY`): the same scan
+    # plan again costs no pairs for them, and gets the same numbers a fresh process computes
+    key = _geometry_key(op, shape, dx, dz_used, pos, rdtype, g.shape)
+    kept = _GEOMETRY.get(key)
+    geometry_kept = kept is not None
     norm = span(report, 0.05, 0.1, "norm estimate")
-    start = np.random.default_rng(0).standard_normal(shape).astype(rdtype)
-    L = _MARGIN * _gain_estimate(lambda v: B(forward(v)), start, _POWER_STEPS, step=lambda k, n: norm(k / n))
-    del start
+    if kept is None:
+        start = np.random.default_rng(0).standard_normal(shape).astype(rdtype)
+        gain = _gain_estimate(lambda v: B(forward(v)), start, _POWER_STEPS, step=lambda k, n: norm(k / n))
+        del start
+        noise_image = B(np.random.default_rng(0).standard_normal(g.shape)).ravel()
+        noise_rms = math.sqrt(float(np.einsum("i,i->", noise_image, noise_image, dtype=np.float64))
+                              / noise_image.size)  # accumulated in float64
+        del noise_image
+        kept = (gain, noise_rms)
+        _GEOMETRY.put(key, kept)
+    gain, noise_rms = kept
+    L = _MARGIN * gain
     if not L > 0:
         raise ValueError("no sensor sees the image within the record (‖A‖ = 0): nothing to reconstruct")
     report(0.1, "norm estimate")
-    # the noise image B n̂ of one seeded white-noise record n̂ of unit σ: σ̂ times its RMS is the
-    # image's noise level (the automatic λ)
-    noise_image = B(np.random.default_rng(0).standard_normal(g.shape)).ravel()
-    image_noise = sigma * math.sqrt(float(np.einsum("i,i->", noise_image, noise_image, dtype=np.float64))
-                                    / noise_image.size)  # accumulated in float64
-    del noise_image
+    image_noise = sigma * noise_rms
     auto = lam is None
     rule = _DiscrepancyRule(image_noise, sigma * math.sqrt(g.size))
     x = np.ascontiguousarray(warm.p0, dtype=rdtype)
@@ -438,6 +436,8 @@ def reconstruct_tv(
     p0 = x.astype(rdtype, copy=False)
     res = Ax - g
     params = dict(warm_params)
+    params.update(dt=dt, operator_dt=dt_op, operator_n_t=n_t, band=chosen.band, band_reason=chosen.reason,
+                  bandwidth=bandwidth)
     params.update(method="tv", warm_start=warm_params["method"], lam=float(lam), lam_auto=bool(auto),
                   lam_factor=rule.factor if auto else None, warm_discrepancy=rule.warm_discrepancy,
                   noise_sigma=sigma, image_noise=image_noise, noise_share=noise_share, iterations=it,
@@ -446,7 +446,7 @@ def reconstruct_tv(
                   norm_A=L / _MARGIN, positivity=bool(positivity), weights_mean_one=False, data_weights="equal",
                   periodic=bool(periodic), solver="FISTA preconditioned by " + ("NER" if pos is None else "NEDNER"),
                   iterate_change=change if math.isfinite(change) else None,
-                  operator_pairs=0.5 * (applied[0] + applied[1]), debias=debiased,
+                  operator_pairs=0.5 * (applied[0] + applied[1]), geometry_kept=geometry_kept, debias=debiased,
                   converged=stop_reason == "converged", stop_reason=stop_reason,
                   time_limit=time_limit, solve_s=time.monotonic() - started)
     if auto and lam == 0:  # said, not silent: on noiseless data the automatic λ has nothing to scale
@@ -855,6 +855,53 @@ def _fista(forward, G, g, start, lam, L, positivity, max_iter, tol, started, tim
             stop_reason = "time limit"
             break
     return x, it, stop_reason, float(change), Ax, L, lam
+
+
+class _GeometryMemo:
+    """The last few geometries' ‖BA‖ estimate and noise-image RMS (`reconstruct_tv`): numbers
+    of the operator, the preconditioner and the seeded starts alone, so a repeated scan plan
+    (the same mask, grid, sampling and band) skips the 2.5 operator pairs that make them, and
+    its result is the one a fresh process computes. At most `_GEOMETRY_KEPT` entries (a few
+    floats each), the oldest dropped first; safe across threads."""
+
+    def __init__(self, size: int) -> None:
+        import threading
+
+        self._size, self._lock = size, threading.Lock()
+        self._items: dict[tuple, tuple[float, float]] = {}
+
+    def get(self, key: tuple) -> tuple[float, float] | None:
+        with self._lock:
+            value = self._items.pop(key, None)
+            if value is not None:
+                self._items[key] = value  # most recent last
+            return value
+
+    def put(self, key: tuple, value: tuple[float, float]) -> None:
+        with self._lock:
+            self._items.pop(key, None)
+            self._items[key] = value
+            while len(self._items) > self._size:
+                self._items.pop(next(iter(self._items)))
+
+    def clear(self) -> None:
+        with self._lock:
+            self._items.clear()
+
+
+#: geometries kept (`_GeometryMemo`): a lab alternates between a few scan plans
+_GEOMETRY_KEPT = 8
+_GEOMETRY = _GeometryMemo(_GEOMETRY_KEPT)
+
+
+def _geometry_key(op, shape, dx: float, dz: float, pos, rdtype, data_shape) -> tuple:
+    """What ‖BA‖ and the noise image depend on: the operator's grid, sampling, band, sensors
+    (their bytes' digest), precision and the data's shape (the noise record's)."""
+    import hashlib
+
+    where = None if pos is None else hashlib.sha256(np.ascontiguousarray(pos, dtype=np.float64).tobytes()).hexdigest()
+    return (tuple(shape), float(dx), float(dz), float(op.dt), int(op.n_t), float(op.c), float(op.t0), float(op.eps),
+            op.band, bool(op.periodic), op.padded_shape, np.dtype(rdtype).name, tuple(data_shape), where)
 
 
 class _DiscrepancyRule:

@@ -4,10 +4,11 @@ seeded white noise 20/30/40 dB below the signal; oracles the true p0 (CC, least-
 amplitude) and, for the branch contrast, the NEDNER image of the noise alone.
 
 - the default stopping rule (the image's change) is met, and the result is within 0.005 CC
-  of a 150-iteration run, in 2-D and 3-D; within 30 operator pairs is not (a strict xfail);
+  of a 150-iteration run, in 2-D and 3-D; within 30 operator pairs is not, nor within 0.5 %
+  (relative distance) of a 300-iteration run (strict xfails: issue 47 item 2, not met);
 - the automatic λ is within 0.01 CC of the best of a sweep ×1/8 … ×8 (default suite: blobs
-  and vessels at 30 dB; 20 and 40 dB and the 3-D cases, 24 x 40 x 40 voxels on a 10 %
-  equi-steradian mask, are marked slow);
+  and vessels at 30 dB; 20 and 40 dB and the 3-D cases, 24 x 40 x 40 voxels on 10 % and
+  3.3 % equi-steradian masks, are marked slow);
 - every vessel branch 2 voxels or wider keeps its centre line ≥ 3 noise σ above the local
   background;
 - ``debias`` raises tv's amplitude, to at least NEDNER's.
@@ -33,11 +34,12 @@ SWEEP = (1 / 8, 1 / 4, 1 / 2, 1.0, 2.0, 4.0, 8.0)
 _CASES: dict = {}
 
 
-def _case(kind: str, snr_db: float, dims: int = 2) -> dict:
+def _case(kind: str, snr_db: float, dims: int = 2, points: int = 160) -> dict:
     """Phantom, noisy data at the mask's sensors, the noise alone there, and the solver's
     keyword arguments (cached per module: several tests share a case). 3-D: 24 x 40 x 40
-    voxels, an equi-steradian mask of 160 of the 1600 lattice points (10 %), float32."""
-    key = (kind, snr_db, dims)
+    voxels, an equi-steradian mask of ``points`` of the 1600 lattice points (160: 10 %; 53:
+    3.3 %), float32."""
+    key = (kind, snr_db, dims, points)
     if key in _CASES:
         return _CASES[key]
     n_z, n_x = (N_Z, N_X) if dims == 2 else (24, 40)
@@ -64,7 +66,7 @@ def _case(kind: str, snr_db: float, dims: int = 2) -> dict:
         alines, noise_at = (clean + noise)[:, idx].T, noise[:, idx].T
         kw = dict(positions=np.asarray(mask.positions, float)[:, :1], grid=(x,))
     else:
-        mask = equisteradian_mask(Lattice(n_x, n_x, DX), 12 * DX, 160)
+        mask = equisteradian_mask(Lattice(n_x, n_x, DX), 12 * DX, points)
         ix, iy = np.asarray(mask.indices).T
         alines, noise_at = (clean + noise)[:, iy, ix].T, noise[:, iy, ix].T
         kw = dict(positions=np.asarray(mask.positions, float)[:, :2], grid=(x, x), dtype=np.float32)
@@ -144,21 +146,37 @@ def test_the_default_rule_stops_where_the_image_has_converged(dims):
     assert _cc(rec.p0, case) > _cc(_nedner(case, case["alines"]), case) + 0.05
 
 
-@pytest.mark.xfail(strict=True, reason="issue 19 item 2, not met: converged by the rule on the image, tv "
-                   "takes 24-44 iterations on 2-D lines (36 pairs here) and 38-78 on 3-D masks of 3-14 %")
+@pytest.mark.xfail(strict=True, reason="issues 19 item 2 and 47 item 2, not met: converged by the rule on the "
+                   "image, tv takes 24-44 iterations on 2-D lines (36 pairs here) and 38-78 on 3-D masks of 3-14 %")
 def test_the_default_rule_converges_within_30_operator_pairs():
     p = _tv(_case("vessels", 30)).params
     assert p["stop_reason"] == "converged" and p["operator_pairs"] <= 30, p
 
 
-@pytest.mark.parametrize(("kind", "snr_db", "dims"), [
-    ("balls", 30, 2), ("vessels", 30, 2),
-    pytest.param("balls", 20, 2, marks=pytest.mark.slow), pytest.param("vessels", 20, 2, marks=pytest.mark.slow),
-    pytest.param("balls", 40, 2, marks=pytest.mark.slow), pytest.param("vessels", 40, 2, marks=pytest.mark.slow),
-    pytest.param("balls", 30, 3, marks=pytest.mark.slow), pytest.param("vessels", 30, 3, marks=pytest.mark.slow),
+@pytest.mark.xfail(strict=True, reason="issue 47 item 2, not met: at the rule's stop the image is 2.5 % (2-D "
+                   "vessels) to 10 % (2-D balls) from a 300-iteration run at the same λ; the distance falls by "
+                   "about 3 % an iteration")
+def test_the_rules_image_is_within_half_a_percent_of_a_300_iteration_run():
+    case = _case("vessels", 30)
+    rec = _tv(case)
+    longer = _tv(case, lam=rec.params["lam"], max_iter=300, tol=0.0)
+    distance = np.linalg.norm(rec.p0 - longer.p0) / np.linalg.norm(longer.p0)
+    assert distance <= 0.005, distance
+
+
+@pytest.mark.parametrize(("kind", "snr_db", "dims", "points"), [
+    ("balls", 30, 2, 0), ("vessels", 30, 2, 0),
+    pytest.param("balls", 20, 2, 0, marks=pytest.mark.slow), pytest.param("vessels", 20, 2, 0, marks=pytest.mark.slow),
+    pytest.param("balls", 40, 2, 0, marks=pytest.mark.slow), pytest.param("vessels", 40, 2, 0, marks=pytest.mark.slow),
+    pytest.param("balls", 30, 3, 160, marks=pytest.mark.slow),
+    pytest.param("vessels", 30, 3, 160, marks=pytest.mark.slow),
+    pytest.param("vessels", 30, 3, 53, marks=pytest.mark.slow),
 ])
-def test_automatic_lambda_is_within_0_01_cc_of_the_best_of_a_sweep(kind, snr_db, dims):
-    case = _case(kind, snr_db, dims)
+def test_automatic_lambda_is_within_0_01_cc_of_the_best_of_a_sweep(kind, snr_db, dims, points):
+    """3-D at 10 % of the lattice's points and (vessels) at 3.3 %: issue 47 item 4; on the six
+    3.3 % cases of `benchmarks/bench_tv_solver.py` (balls and vessels, 20/30/40 dB) the
+    automatic λ loses at most 0.0051 CC (docs/results.md)."""
+    case = _case(kind, snr_db, dims, points or 160)
     auto = _tv(case)
     lam = auto.params["lam"]
     ccs = [_cc((auto if f == 1.0 else _tv(case, lam=f * lam)).p0, case) for f in SWEEP]

@@ -9,7 +9,8 @@ pairs spent before the first iteration.
   with and without positivity; its traced peak: no image of work with the dual given (it is
   stepped in place), one for a new x;
 - a tv run spends 3 operator pairs before its first iteration (two power steps, the noise
-  image, A of the warm start; no separate Aᵀg), and the default rule converges before its
+  image, A of the warm start; no separate Aᵀg), half of one on a geometry it has seen (the
+  same image as a fresh process), and the default rule converges before its
   iteration limit on the 2-D and the 3-D balls of tests/recon/test_recon_tv_solver.py (the
   vessels are tested there).
 """
@@ -168,11 +169,20 @@ def test_tv_prox_and_tv_norm_memory():
     assert norm_peak < 0.01 * v.nbytes, norm_peak
 
 
-def test_three_operator_pairs_before_the_first_iteration():
+def test_three_operator_pairs_before_the_first_iteration_and_half_of_one_for_a_geometry_seen():
+    """A new geometry: the power iterations (2 pairs), the noise image (an adjoint) and A of the
+    warm start (a forward) before the first iteration. The same geometry again (a scan plan
+    repeated): only A of the warm start, and the very image a fresh process makes."""
     case = _case("vessels", 30)
-    for n in (1, 3):
+    tv._GEOMETRY.clear()
+    for n, setup, kept in ((1, 3, False), (3, 0.5, True)):
         p = _tv(case, max_iter=n, tol=0.0).params
-        assert p["iterations"] == n and p["operator_pairs"] == n + 3, p
+        assert p["iterations"] == n and p["operator_pairs"] == n + setup and p["geometry_kept"] is kept, p
+    again = _tv(case, max_iter=3, tol=0.0).p0
+    tv._GEOMETRY.clear()
+    fresh = _tv(case, max_iter=3, tol=0.0)
+    assert fresh.params["geometry_kept"] is False
+    np.testing.assert_array_equal(again, fresh.p0)
 
 
 @pytest.mark.slow

@@ -24,7 +24,7 @@ if TYPE_CHECKING:
     from service.recon.dataset import PointDataset
     from service.recon.reconstruction import Reconstruction
 
-__all__ = ["Options", "run", "METHOD"]
+__all__ = ["Options", "run", "declared_bandwidth", "BANDWIDTH_KEY", "METHOD"]
 
 Lam = Annotated[Annotated[float, Field(ge=LAM_RANGE[0], le=LAM_RANGE[1])] | None,
                 BeforeValidator(kernel_rule("check_lam"))]
@@ -46,9 +46,12 @@ class Options(DepthOptions, MethodOptions, NufftOptions):
     dtype : {"float32", "float64"}
         Working and output precision (default ``"float32"``).
     n_z : int or None
-        Output depth samples, 2..65536 (None: n_t).
+        Output depth samples, 2..65536 (None: with dz None too, the samples the operator works
+        at, n_t for data whose band reaches Nyquist; ``service.recon.tv_grid``; else n_t).
     dz : float or None
-        Output depth spacing in m, [1e-9, 0.1] (None: c dt).
+        Output depth spacing in m, [1e-9, 0.1] (None: with n_z None too, c dt' at the
+        operator's sampling dt', which follows the data's band above their noise floor, c dt
+        at full band; else c dt).
     positivity : bool
         Constrain p0 >= 0 (default True).
     lam : float or None
@@ -157,7 +160,47 @@ def run(ds: PointDataset, c: float, opts: dict, step: Progress) -> Reconstructio
     iterations = opts.pop("iterations", None) or DEFAULT_MAX_ITER
     positivity = bool(opts.pop("positivity", True))
     return reconstruct_tv(ds.alines, ds.dt, c, positions=ds.positions, weights=ds.weights, grid=ds.grid,
-                          t0=ds.t0, max_iter=iterations, positivity=positivity, progress=step, **opts)
+                          t0=ds.t0, max_iter=iterations, positivity=positivity, progress=step,
+                          bandwidth=declared_bandwidth(ds.meta), **opts)
+
+
+#: the dataset's ``meta`` key of a sensor bandwidth the scan declares, Hz
+BANDWIDTH_KEY = "sensor_bandwidth_hz"
+
+
+def declared_bandwidth(meta: dict | None) -> float | None:
+    """The sensor bandwidth a dataset's metadata declares (``meta["sensor_bandwidth_hz"]``,
+    Hz), which tv then works at instead of the band it reads off the data
+    (``service.recon.tv_grid``); None when it declares none.
+
+    Parameters
+    ----------
+    meta : dict or None
+        The dataset's metadata.
+
+    Returns
+    -------
+    float or None
+        Hz.
+
+    Raises
+    ------
+    ValueError
+        A declared value that is not a number in [1e3, 1e12] Hz
+        (``service.recon.checks.check_bandwidth``).
+
+    Examples
+    --------
+    >>> from service.recon.methods.tv import declared_bandwidth
+    >>> declared_bandwidth({"sensor_bandwidth_hz": 2.2e7}), declared_bandwidth({})
+    (22000000.0, None)
+    """
+    value = (meta or {}).get(BANDWIDTH_KEY)
+    if value is None:
+        return None
+    from service.recon.checks import check_bandwidth
+
+    return check_bandwidth(value)
 
 
 METHOD = register(Method(

@@ -1,0 +1,148 @@
+"""tv at the paper's size (issue 47, "Done when"): wall time over one NER, iterations, operator
+pairs, converged, peak memory over the image and CC with the true p0, per grid.
+
+The case: the paper's scan — a 226 x 226 lattice of 60 µm, 1024 samples of 8 ns, c = 1500 m/s,
+the equi-steradian mask of `service.plans.equisteradian_mask` asked for 1625 points around
+a point of interest 3.6 mm deep (1653 points) — of three uniform balls near that point (radii
+0.30, 0.20 and 0.15 mm at 3.6, 4.32 and 2.88 mm; amplitudes 1, 0.7, 0.5), exact A-lines
+(`driver.physics.ball_alines`: the N-waves averaged over each sample) with seeded white noise
+``--snr`` dB below the signal's RMS; tv in float32 at its defaults but for the grid. Rows:
+
+- ``defaults``: the grid tv picks (`service.recon.tv_grid`: the data's band above their noise);
+- ``today's grid``: dz = c·dt at the record's own sampling (``bandwidth`` = the Nyquist frequency);
+- ``22 MHz sensor`` (with ``--declared 22e6``): the same data with a sensor bandwidth declared
+  (the operator and the data cut there), to show what a band-limited grid costs and buys.
+
+Each row runs in a fresh process: NER float32 of random data on the full 226 x 226 lattice
+(the same grid, best of ``--repeat``), then tv; tv's peak is the process's VmHWM above its
+RSS before tv (reset after NER, `/proc/self/clear_refs`), over the image's bytes (n_z n_y n_x
+float32). The CC is against the analytic balls sampled on tv's own grid (`ball_p0`,
+supersampled 2x). ``--scale 0.5`` runs the same case at half the size in every dimension
+(113², 512 samples, 437 points) for a quick look.
+
+    .venv/bin/python benchmarks/bench_tv_paper.py [--scale 1] [--snr 30] [--declared 22e6]
+"""
+from __future__ import annotations
+
+import argparse
+import multiprocessing as mp
+import resource
+import time
+
+import numpy as np
+
+C, DT, PITCH = 1500.0, 8e-9, 60e-6
+
+
+def paper_case(scale: float = 1.0, snr_db: float = 30.0, seed: int = 1) -> dict:
+    """The scan above (``scale`` < 1 shrinks the lattice, the record, the depth and the balls)."""
+    from driver.physics import Ball, ball_alines
+    from driver.physics.axes import centred_axis
+    from service.plans import Lattice, equisteradian_mask
+
+    n = int(round(226 * scale))
+    n_t = int(round(1024 * scale))
+    depth = 3.6e-3 * n / 226
+    mask = equisteradian_mask(Lattice(n, n, PITCH), depth, int(round(1625 * n * n / 226**2)))
+    pos = np.asarray(mask.positions, float)
+    balls = [Ball(0.0, 0.0, depth, 0.3e-3 * scale),
+             Ball(0.8e-3 * scale, -0.5e-3 * scale, 1.2 * depth, 0.2e-3 * scale, 0.7),
+             Ball(-0.9e-3 * scale, 0.6e-3 * scale, 0.8 * depth, 0.15e-3 * scale, 0.5)]
+    clean = ball_alines(pos, balls, DT, n_t, C)
+    noise = np.random.default_rng(seed).standard_normal(clean.shape)
+    alines = clean + noise * float(np.sqrt(np.mean(clean**2))) / 10 ** (snr_db / 20)
+    x = centred_axis(n, PITCH)
+    return dict(alines=alines, positions=pos, weights=np.asarray(mask.weights, float), grid=(x, x), balls=balls,
+                n=n, n_t=n_t)
+
+
+def _rss() -> int:
+    with open("/proc/self/statm") as fh:
+        return int(fh.read().split()[1]) * resource.getpagesize()
+
+
+def _reset_peak() -> None:
+    try:
+        with open("/proc/self/clear_refs", "w") as fh:
+            fh.write("5")
+    except OSError:
+        pass
+
+
+def _peak() -> int:
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+
+
+def _row(label: str, scale: float, snr: float, bandwidth, repeat: int, queue) -> None:
+    from driver.physics import ball_p0
+    from service.metrics import correlation_coefficient
+    from service.recon import reconstruct_grid
+    from service.recon.tv import reconstruct_tv
+
+    case = paper_case(scale, snr)
+    n, n_t = case["n"], case["n_t"]
+    data = np.random.default_rng(2).standard_normal((n_t, n, n)).astype(np.float32)
+    reconstruct_grid(data[:32, :16, :16], PITCH, DT, C, dtype=np.float32)  # compiled kernels
+    best = np.inf
+    for _ in range(repeat):
+        t = time.perf_counter()
+        reconstruct_grid(data, PITCH, DT, C, dtype=np.float32)
+        best = min(best, time.perf_counter() - t)
+    del data
+    pos = case["positions"]
+    reconstruct_tv(case["alines"][:40, :32], DT, C, positions=pos[:40], n_z=8, max_iter=2, dtype=np.float32)
+    base = _rss()
+    _reset_peak()
+    t = time.perf_counter()
+    rec = reconstruct_tv(case["alines"], DT, C, positions=pos, weights=case["weights"], grid=case["grid"],
+                         dtype=np.float32, bandwidth=bandwidth)
+    wall = time.perf_counter() - t
+    peak = _peak() - base
+    p = rec.params
+    truth = ball_p0(case["balls"], rec.z, rec.x, rec.y, supersample=2)
+    queue.put(dict(label=label, ner=best, tv=wall, iterations=p["iterations"], pairs=p["operator_pairs"],
+                   converged=p["converged"], stop=p["stop_reason"], peak=peak / rec.p0.nbytes,
+                   cc=correlation_coefficient(rec.p0, truth), shape=rec.p0.shape, dz=float(rec.z[1]),
+                   op_n_t=p["operator_n_t"], band=p["band"], reason=p["band_reason"], lam=p["lam_factor"]))
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scale", type=float, default=1.0)
+    ap.add_argument("--snr", type=float, default=30.0)
+    ap.add_argument("--repeat", type=int, default=3, help="NER runs (best of)")
+    ap.add_argument("--declared", type=float, default=None, help="also a row with this sensor bandwidth, Hz")
+    ap.add_argument("--rows", nargs="+", default=["defaults", "today"], choices=["defaults", "today", "declared"])
+    args = ap.parse_args(argv)
+    rows = [r for r in args.rows]
+    if args.declared and "declared" not in rows:
+        rows.append("declared")
+    print(f"paper case x{args.scale:g}: {args.snr:g} dB, float32; NER float32 of the same lattice in the same process")
+    print("| grid | tv s | NER s | tv / NER | iterations | pairs | converged | peak / image | CC (true p0) | image "
+          "(n_z x n_y x n_x, dz) | operator samples, band |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    ctx = mp.get_context("spawn")
+    for row in rows:
+        bandwidth = {"defaults": None, "today": 1 / (2 * DT), "declared": args.declared}[row]
+        label = {"defaults": "defaults", "today": "today's grid (dz = c·dt)",
+                 "declared": f"{(args.declared or 0) / 1e6:g} MHz sensor declared"}[row]
+        queue = ctx.Queue()
+        proc = ctx.Process(target=_row, args=(label, args.scale, args.snr, bandwidth, args.repeat, queue))
+        proc.start()
+        r = queue.get()
+        proc.join()
+        band = "none" if r["band"] is None else f"{r['band'] / 1e6:.1f} MHz ({r['reason']})"
+        print(f"| {r['label']} | {r['tv']:.1f} | {r['ner']:.3f} | {r['tv'] / r['ner']:.0f} | {r['iterations']} | "
+              f"{r['pairs']:g} | {r['converged']} ({r['stop']}) | {r['peak']:.1f} | {r['cc']:.4f} | "
+              f"{' x '.join(map(str, r['shape']))}, {r['dz'] * 1e6:.1f} µm | {r['op_n_t']}, {band} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()

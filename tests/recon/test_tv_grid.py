@@ -1,0 +1,128 @@
+"""tv's grid follows the data's band (issue 47, item 1): the band-limited resampling and its
+transpose, the band-limited operator (dot test; its forward against `forward_points` at the
+new rate, and against the data resampled by `driver.physics.resample`), the band read off the
+data above their noise floor, and tv honouring a given dz / n_z and recording its grid."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from driver.physics.forward import forward_points
+from driver.physics.resample import resample, resample_adjoint, resampled_length
+from service.metrics import correlation_coefficient
+from service.recon.operator import PlanarOperator
+from service.recon.tv import reconstruct_tv
+from service.recon.tv_grid import data_band, noise_sigma, tv_grid
+
+C, DX = 1500.0, 60e-6
+rng = np.random.default_rng(47)
+
+
+def test_resampling_is_exact_on_its_band_and_its_transpose_is_the_adjoint():
+    t = np.linspace(0.0, 1.0, 97)  # a record of 97 samples on [0, 1]
+    terms = [(0.0, 0.3), (4.5, 1.0), (11.0, -0.7)]  # cosines of 4.5 and 11 periods: DCT-I terms 9 and 22
+    series = lambda tt: sum(a * np.cos(2 * np.pi * f * tt) for f, a in terms)  # noqa: E731
+    for m in (24, 40, 97, 150):  # every term kept (k <= m - 2), down- and up-sampled
+        np.testing.assert_allclose(resample(series(t), m), series(np.linspace(0, 1, m)), atol=1e-12)
+    low = resample(series(t), 20)  # terms up to k = 18: the 11-period cosine is cut, exactly
+    np.testing.assert_allclose(low, series(np.linspace(0, 1, 20)) + 0.7 * np.cos(2 * np.pi * 11 * np.linspace(0, 1, 20)),
+                               atol=1e-12)
+    u, v = rng.standard_normal((3, 97)), rng.standard_normal((3, 31))
+    assert np.isclose(np.vdot(resample(u, 31, axis=1), v), np.vdot(u, resample_adjoint(v, 97, axis=1)), rtol=1e-12)
+    assert resampled_length(1024, 8e-9, 20e6) == 330 and resampled_length(1024, 8e-9, 62.5e6) == 1024
+    with pytest.raises(ValueError, match="at least 2"):
+        resample(np.ones(1), 5)
+
+
+def _blob(shape, dz, width):
+    """A Gaussian blob of σ = ``width`` (m) at mid-depth: at 100 µm its spectrum is
+    negligible above the band below (|k| σ = 8.7 at its edge) and so is its cut at the
+    image's borders (4σ away and more)."""
+    z = np.arange(shape[0]) * dz
+    axes = [(np.arange(n) - (n - 1) / 2) * DX for n in shape[1:]]
+    grids = np.meshgrid(z, *axes, indexing="ij")
+    r2 = (grids[0] - z[shape[0] // 2]) ** 2 + sum(a**2 for a in grids[1:])
+    return np.exp(-r2 / (2 * width**2))
+
+
+@pytest.mark.parametrize("shape", [(30, 24), (28, 20, 20)], ids=["2d", "3d"])
+def test_the_band_limited_operator_is_the_model_at_the_new_rate(shape):
+    """At dt' = 3 dt the band-limited operator (f_c = the new Nyquist frequency) passes the dot
+    test, equals `forward_points` sampled at dt' for a blob with no energy above the band, and
+    equals that model at dt resampled to dt' (the data's path in tv; the record reaches past
+    the blob's last echo: where a record ends mid-signal, the resampling's even extension
+    has a kink there and its error gathers in the last few samples)."""
+    dt = 8e-9
+    n_t = 3 * 40 + 1
+    m = 41
+    dt_m = (n_t - 1) * dt / (m - 1)
+    band = 1 / (2 * dt_m)
+    dz = C * dt_m
+    d = len(shape) - 1
+    pos = (rng.uniform(-0.45, 0.45, (9, d)) * np.array(shape[1:][::-1]) * DX)
+    op = PlanarOperator(shape, DX, dz, dt_m, m, C, positions=pos, band=band, eps=1e-12)
+    x, y = rng.standard_normal(op.ishape), rng.standard_normal(op.oshape)
+    lhs, rhs = np.vdot(op.forward(x), y), np.vdot(x, op.adjoint(y))
+    assert abs(lhs - rhs) <= 1e-10 * abs(lhs)
+    p0 = _blob(shape, dz, 100e-6)
+    new_rate = forward_points(p0, DX, dz, pos, dt_m, m, C, eps=1e-12)
+    g = op.forward(p0)
+    assert np.abs(g - new_rate).max() <= 1e-4 * np.abs(new_rate).max()
+    at_dt = forward_points(p0, DX, dz, pos, dt, n_t, C, eps=1e-12)
+    assert np.abs(resample(at_dt, m, axis=1) - g).max() <= 2e-3 * np.abs(g).max()
+    # without the band limit the samples at dt' alias what lies above it: a voxel-sized source
+    spike = np.zeros(shape)
+    spike[(shape[0] // 2,) + tuple(n // 2 for n in shape[1:])] = 1.0
+    plain = PlanarOperator(shape, DX, dz, dt_m, m, C, positions=pos, eps=1e-12).forward(spike)
+    limited = op.forward(spike)
+    assert np.abs(plain - limited).max() > 0.05 * np.abs(limited).max()
+
+
+def test_the_band_is_read_off_the_data_above_their_noise():
+    t = np.arange(600) * 10e-9  # Nyquist 50 MHz
+    rng2 = np.random.default_rng(1)
+    # a 5 MHz Gaussian pulse per A-line (its spectrum falls below 1e-3 of its peak by ~15 MHz), noise
+    pulse = np.exp(-0.5 * ((t[None, :] - rng2.uniform(1e-6, 5e-6, (40, 1))) / 50e-9) ** 2)
+    for sigma in (1e-2, 1e-4):
+        g = pulse + sigma * rng2.standard_normal(pulse.shape)
+        f = data_band(g, 10e-9, 1, noise_sigma(g, 1))
+        assert f is not None and 3e6 < f < 20e6, f
+        assert abs(noise_sigma(g, 1) - sigma) < 0.1 * sigma
+    less_noise = data_band(pulse + 1e-4 * rng2.standard_normal(pulse.shape), 10e-9, 1, 1e-4)
+    assert less_noise > data_band(pulse + 1e-2 * rng2.standard_normal(pulse.shape), 10e-9, 1, 1e-2)
+    assert data_band(rng2.standard_normal((40, 600)), 10e-9, 1, 1.0) is None  # noise alone: nothing to cut
+    full = rng2.standard_normal((40, 600)) + 1e-3 * rng2.standard_normal((40, 600))  # signal up to Nyquist
+    assert data_band(full, 10e-9, 1, 1e-3) is None
+    noisy = pulse + 1e-4 * rng2.standard_normal(pulse.shape)
+    grid = tv_grid(600, 10e-9, C, data=noisy, time_axis=1)
+    assert grid.reason == "data" and grid.n_t < 600 and np.isclose(grid.dz, C * grid.dt)
+    assert (grid.n_t - 2) / (2 * 599 * 10e-9) >= grid.band  # the kept terms reach the band
+    kept = tv_grid(600, 10e-9, C, data=noisy, time_axis=1, dz=5e-6, n_z=77)  # given: honoured
+    assert (kept.dz, kept.n_z) == (5e-6, 77) and kept.n_t == grid.n_t
+    one = tv_grid(600, 10e-9, C, data=noisy, time_axis=1, n_z=77)  # one given: the other as before
+    assert (one.dz, one.n_z) == (C * 10e-9, 77)
+    assert tv_grid(600, 10e-9, C, data=noisy, time_axis=1, dz=5e-6).n_z == 600
+    declared = tv_grid(600, 10e-9, C, bandwidth=20e6)
+    assert declared.reason == "declared" and declared.band == 20e6
+
+
+def test_tv_on_band_limited_data_works_on_a_coarser_grid_and_says_so():
+    """Data of a smooth 2-D source through a low-pass (the forward model at dt, resampled by
+    itself to a quarter band and back: a band-limited record): tv picks fewer samples,
+    records the grid and why, keeps a given dz and n_z, and its image matches the source."""
+    shape, dt, n_t = (48, 40), 10e-9, 160
+    dz = C * dt
+    p0 = _blob(shape, dz, 160e-6) + 0.6 * _blob(shape, dz, 90e-6)
+    sensors = np.arange(0, shape[1], 2)
+    pos = ((sensors - (shape[1] - 1) / 2) * DX)[:, None]
+    clean = forward_points(p0, DX, dz, pos, dt, n_t, C)
+    noisy = clean + rng.standard_normal(clean.shape) * float(np.sqrt(np.mean(clean**2))) / 10 ** 1.5
+    x = (np.arange(shape[1]) - (shape[1] - 1) / 2) * DX
+    rec = reconstruct_tv(noisy, dt, C, positions=pos, grid=(x,), n_z=shape[0], dz=dz, max_iter=60)
+    p = rec.params
+    assert p["band_reason"] == "data" and p["operator_n_t"] < n_t and p["band"] < 1 / (2 * dt)
+    assert np.isclose(p["operator_dt"], (n_t - 1) * dt / (p["operator_n_t"] - 1))
+    assert rec.p0.shape == shape and np.isclose(rec.z[1], dz)  # the given depth grid, kept
+    assert correlation_coefficient(rec.p0, p0) > 0.95
+    default = reconstruct_tv(noisy, dt, C, positions=pos, grid=(x,), max_iter=3)
+    assert default.p0.shape[0] == p["operator_n_t"] and np.isclose(default.z[1], C * p["operator_dt"])
