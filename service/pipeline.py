@@ -49,7 +49,8 @@ Examples
 """
 from __future__ import annotations
 
-from collections.abc import Callable
+import os
+from collections.abc import Callable, Sequence
 from functools import partial
 from typing import TYPE_CHECKING, Any
 
@@ -61,7 +62,7 @@ from service.recon import methods as _methods
 from service.recon.limits import DEFAULT_DTYPE, DTYPES, KWAVE_INTERPS
 from service.recon.methods import Method
 
-__all__ = ["METHODS", "OPTIONS", "DEFAULT_DTYPE", "DTYPES", "KWAVE_INTERPS", "Method", "register", "Cancelled",
+__all__ = ["METHODS", "OPTIONS", "DEFAULT_DTYPE", "DTYPES", "KWAVE_INTERPS", "Method", "register", "Cancelled", "run_file",
            "Progress", "ShouldStop", "default_method", "option_rules", "check_option_values", "method_options",
            "reconstruct"]
 
@@ -430,3 +431,144 @@ def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = No
     result.p0_unit = p0_unit(dataset)  # Pa for a calibrated scan, else a.u.
     step(1.0)
     return result
+
+
+def run_file(inputs: str | os.PathLike | Sequence[str | os.PathLike],
+             out_dir: str | os.PathLike | Callable[[str], str | os.PathLike],
+             method: str | None = None, *, format: str | None = None, wavelength: int | str | None = None,
+             wavelengths: Sequence[float] | None = None, unmix: dict | None = None, load: dict | None = None,
+             input_id: str = "", progress: Progress | None = None, should_stop: ShouldStop | None = None,
+             on_loaded: Callable[[Dataset, str], Any] | None = None, **options: Any) -> dict:
+    """Read a file, reconstruct it and write its result folder: the one orchestration of the job
+    worker (``service.jobs.work``), ``fpscan recon`` and ``fpscan unmix`` (locally), so that a
+    file gives the same folder whoever runs it.
+
+    Three shapes of work, by the arguments:
+
+    - one volume (default): the file read at ``wavelength`` (an index; None: the first) with
+      ``service.storage.datasets.load_wavelengths``, reconstructed by :func:`reconstruct`,
+      written by ``service.storage.results.write_result`` (``volume.h5`` + MIPs);
+    - every wavelength (``wavelength="all"``): one volume each, same method and options
+      (``service.spectral.reconstruct_wavelengths``), written by
+      ``service.spectral.write_wavelength_results`` (the first at the top, ``wavelength_<k>/``);
+    - unmixing (``unmix`` given: ``threshold``, ``fluence``): every wavelength of one
+      multi-wavelength scan file, or of one file per wavelength (``inputs`` a list, with
+      ``wavelengths``), reconstructed and unmixed (``service.spectral.reconstruct_and_unmix``:
+      ``unmix.h5``, ``so2.png`` and one folder per wavelength).
+
+    Parameters
+    ----------
+    inputs : path or sequence of paths
+        The file; several only with ``unmix`` (one per wavelength).
+    out_dir : path or callable
+        The result folder (an existing one is replaced), or ``out_dir(method) -> path`` of the
+        method chosen (``fpscan recon``'s default ``<input>-<method>/``).
+    method : str, optional
+        A key of :data:`METHODS`; None: :func:`default_method` of the data as loaded.
+    format : str, optional
+        The inputs' format (``service.formats``); None: detected from the content.
+    wavelength : int or "all", optional
+        Of a multi-wavelength file (not with ``unmix``).
+    wavelengths : sequence of float, optional
+        m, one per input with ``unmix`` (default: what each file records).
+    unmix : dict, optional
+        ``{"threshold": THb fraction in [0, 1), "fluence": J/m² per wavelength or None}``.
+    load : dict, optional
+        The format's load options (``dt`` s, ``dx``, ``dy`` m, ``key``, ``c`` m/s, ``force``).
+    input_id : str, optional
+        Recorded in the result (the dataset id, the file's name).
+    progress : callable, optional
+        ``progress(fraction, stage)``: ``"loading"`` at 0, the reconstruction's own stages
+        on [0.2, 0.9] (unmixing: [0.2, 0.95]), ``"writing"`` at 0.9, ``"done"`` at 1.
+    should_stop : callable, optional
+        As :func:`reconstruct`.
+    on_loaded : callable, optional
+        ``on_loaded(dataset, method)`` after loading, before any reconstruction (the first
+        wavelength's dataset and the method chosen): the server's memory admission raises
+        there to refuse the work; the command line says what it reconstructs.
+    **options
+        The method's options, as :func:`reconstruct` (``c`` in m/s or ``"auto"``, ``force``, ...).
+
+    Returns
+    -------
+    dict
+        ``method``, ``shape``, ``max``, ``planes``, ``params_used``, ``c`` (m/s), ``timings``
+        (``load_s``, ``reconstruct_s``, ``write_s``; unmixing also ``unmix_s``), and where they
+        apply ``autofocus``, ``points_used``, ``outcome`` (an iterative method's one line on
+        how it ended, ``service.progress.outcome``), ``wavelengths`` (a row per wavelength:
+        ``index``, ``nm``, ``shape``, ``max``), ``unmix``, ``so2_median``, ``masked_fraction``.
+
+    Raises
+    ------
+    ValueError
+        What loading, :func:`reconstruct`, ``on_loaded`` or the writers refuse (with the reason).
+    Cancelled
+        When ``should_stop()`` returned True.
+    FileNotFoundError
+        A missing input.
+    """
+    import time
+
+    from service.progress import outcome
+    from service.storage.datasets import load_wavelengths
+
+    paths = [inputs] if isinstance(inputs, str | os.PathLike) else list(inputs)
+    load = {k: v for k, v in (load or {}).items() if v is not None}
+    t0 = time.perf_counter()
+    if progress is not None:
+        progress(0.0, "loading")
+    if unmix is not None:
+        from service.spectral import load_wavelength_datasets
+
+        wl, datasets = load_wavelength_datasets(paths, format, wavelengths=wavelengths, **load)
+    else:
+        if len(paths) != 1:
+            raise ValueError(f"one input file, got {len(paths)} (several only to unmix, one per wavelength)")
+        datasets = load_wavelengths(paths[0], format, wavelength=wavelength, **load)
+    method = method or default_method(datasets[0])
+    if on_loaded is not None:
+        on_loaded(datasets[0], method)
+    if callable(out_dir):
+        out_dir = out_dir(method)
+    t1 = time.perf_counter()
+    run = span(progress, 0.2, 0.95 if unmix is not None else 0.9)
+    if unmix is not None:
+        from service.spectral import reconstruct_and_unmix
+
+        summary = reconstruct_and_unmix(out_dir, datasets, wl, method, input_id=input_id,
+                                        threshold=float(unmix.get("threshold", 0.1)), fluence=unmix.get("fluence"),
+                                        progress=run, should_stop=should_stop, reconstruct=reconstruct, **options)
+        summary["timings"]["load_s"] = t1 - t0
+        summary["unmix"]["threshold"] = float(unmix.get("threshold", 0.1))
+        first = summary["params"]
+    else:
+        if wavelength == "all":
+            from service.spectral import reconstruct_wavelengths, write_wavelength_results
+
+            recons = reconstruct_wavelengths(datasets, method, reconstruct=reconstruct, progress=run,
+                                             should_stop=should_stop, **options)
+        else:
+            recons = [reconstruct(datasets[0], method, progress=run, should_stop=should_stop, **options)]
+        t2 = time.perf_counter()
+        if progress is not None:
+            progress(0.9, "writing")
+        if wavelength == "all":
+            summary = write_wavelength_results(out_dir, recons, input_id=input_id)
+        else:
+            from service.storage.results import write_result
+
+            summary = write_result(out_dir, recons[0], input_id=input_id)
+        summary["timings"] = {"load_s": t1 - t0, "reconstruct_s": t2 - t1, "write_s": time.perf_counter() - t2}
+        first = recons[0].params
+        summary["c"] = first.get("c")
+    summary["method"] = method
+    if "autofocus" in first:
+        summary["autofocus"] = first["autofocus"]
+    if datasets[0].kind == "points":
+        summary["points_used"] = int(datasets[0].alines.shape[0])
+    ended = outcome(first, method)
+    if ended:
+        summary["outcome"] = ended
+    if progress is not None:
+        progress(1.0, "done")
+    return summary

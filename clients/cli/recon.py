@@ -174,50 +174,48 @@ def _default_out(args, method: str):
 
 
 def _local(args, fmt: str) -> int:
+    """Reconstruct here: :func:`service.pipeline.run_file`, the job worker's orchestration (so the
+    same file gives the same folder); this command says what it does and prints the result."""
     import sys
-    import time
     from pathlib import Path
 
-    from service.pipeline import default_method, reconstruct
-    from service.recon.dataset import GridDataset
-    from service.storage.datasets import file_wavelengths, load_wavelengths
-    from service.storage.results import write_result
+    from clients.cli._common import ProgressBar
+    from service.pipeline import run_file
+    from service.recon.dataset import GridDataset, file_wavelengths
 
     say = (lambda msg: None) if args.quiet else (lambda msg: print(f"recon: {msg}", file=sys.stderr, flush=True))
-    t0 = time.perf_counter()
     say(f"importing {args.input} ({fmt})")
-    datasets = load_wavelengths(args.input, fmt, wavelength=args.wavelength, dt=args.dt, dx=args.dx, dy=args.dy,
-                                c=None if args.c == "auto" else args.c, key=args.key, force=args.force)
-    ds = datasets[0]
-    every = file_wavelengths(ds)
-    if every.size > 1 and args.wavelength is None:  # the documented default, said
-        say(f"the input has {every.size} wavelengths ({', '.join(f'{w * 1e9:g} nm' for w in every)}): "
-            f"reconstructing the first (index 0); choose with --wavelength K or all")
-    if args.wavelength == "all":
-        return _local_all(args, datasets, say, t0)
-    t1 = time.perf_counter()
-    method = args.method or default_method(ds)
-    out = _default_out(args, method)
-    shape = ds.data.shape if isinstance(ds, GridDataset) else ds.alines.shape
-    say(f"reconstructing with {method} (input {list(shape)})")
-    from clients.cli._common import ProgressBar
-    from service.progress import outcome
 
-    with ProgressBar(f"recon {method}", quiet=args.quiet) as bar:  # the reconstruction's own fractions
-        rec = reconstruct(ds, method, progress=bar.report, **_params(args))
-        ended = outcome(rec.params, method)
+    def loaded(ds, method: str) -> None:
+        every = file_wavelengths(ds)
+        if every.size > 1 and args.wavelength is None:  # the documented default, said
+            say(f"the input has {every.size} wavelengths ({', '.join(f'{w * 1e9:g} nm' for w in every)}): "
+                f"reconstructing the first (index 0); choose with --wavelength K or all")
+        shape = ds.data.shape if isinstance(ds, GridDataset) else ds.alines.shape
+        say(f"reconstructing {'every wavelength ' if args.wavelength == 'all' else ''}with {method} "
+            f"(input {list(shape)})")
+
+    load = {"dt": args.dt, "dx": args.dx, "dy": args.dy, "key": args.key, "force": args.force,
+            "c": None if args.c == "auto" else args.c}
+    with ProgressBar(f"recon {args.method or ''}".rstrip(), quiet=args.quiet) as bar:
+        summary = run_file(args.input, lambda m: _default_out(args, m), args.method, format=fmt,
+                           wavelength=args.wavelength, load=load, input_id=Path(args.input).name,
+                           progress=bar.report, on_loaded=loaded, **_params(args))
+        ended = summary.get("outcome")
         if ended:  # an iterative method: the bar ends on how it ended, not on its last stage
             bar.finish(_head(ended))
-    t2 = time.perf_counter()
-    say(f"writing {out}/")
-    write_result(out, rec, input_id=Path(args.input).name)
-    t3 = time.perf_counter()
-    dims = "x".join(str(n) for n in rec.p0.shape)
-    af = rec.params.get("autofocus")
+    method, out, t = summary["method"], _default_out(args, summary["method"]), summary["timings"]
+    times = f"load {t['load_s']:.2f} s  reconstruct {t['reconstruct_s']:.2f} s  write {t['write_s']:.2f} s"
+    if args.wavelength == "all":
+        for row in summary["wavelengths"]:
+            print(f"{out}/wavelength_{row['index']}/volume.h5  p0 {'x'.join(map(str, row['shape']))}  "
+                  f"method {method}{_nm(row)}")
+        print(f"{len(summary['wavelengths'])} wavelengths  {times}")
+        return 0
+    af = summary.get("autofocus")
     focus = f"  sound speed {af['c']:.1f} m/s (autofocus, search {af['time_s']:.2f} s)" if af else ""
-    print(f"{out}/volume.h5  p0 {dims}  method {method}{_nm(rec.params)}  load {t1 - t0:.2f} s  "
-          f"reconstruct {t2 - t1:.2f} s  write {t3 - t2:.2f} s"
-          + focus)
+    print(f"{out}/volume.h5  p0 {'x'.join(str(n) for n in summary['shape'])}  method {method}"
+          f"{_nm(summary['params_used'])}  {times}{focus}")
     if ended:
         print(ended)  # the last line: converged or not, iterations, λ, residual against the noise
     return 0
@@ -245,37 +243,6 @@ def _nm(params: dict) -> str:
     """``"  wavelength 850 nm"`` from a result's params (or a wavelength row); "" when unknown."""
     w = params.get("wavelength_nm")
     return f"  wavelength {w:g} nm" if w is not None else ""
-
-
-def _local_all(args, datasets: list, say, t0: float) -> int:
-    """``--wavelength all`` locally: every wavelength with the same method and options
-    (``service.spectral.reconstruct_wavelengths``, as the server's job), written with
-    ``service.spectral.write_wavelength_results``."""
-    import time
-    from pathlib import Path
-
-    from service.pipeline import default_method, reconstruct
-    from service.spectral import reconstruct_wavelengths, write_wavelength_results
-
-    t1 = time.perf_counter()
-    method = args.method or default_method(datasets[0])
-    out = _default_out(args, method)
-    say(f"reconstructing {len(datasets)} wavelengths with {method}")
-    from clients.cli._common import ProgressBar
-
-    with ProgressBar(f"recon {method}", quiet=args.quiet) as bar:
-        recons = reconstruct_wavelengths(datasets, method, reconstruct=reconstruct,
-                                         progress=bar.report,
-                                         **_params(args))
-    t2 = time.perf_counter()
-    say(f"writing {out}/")
-    written = write_wavelength_results(out, recons, input_id=Path(args.input).name)
-    for row in written["wavelengths"]:
-        print(f"{out}/wavelength_{row['index']}/volume.h5  p0 {'x'.join(map(str, row['shape']))}  "
-              f"method {method}{_nm(row)}")
-    print(f"{len(recons)} wavelengths  load {t1 - t0:.2f} s  reconstruct {t2 - t1:.2f} s  "
-          f"write {time.perf_counter() - t2:.2f} s")
-    return 0
 
 
 def _remote(args, fmt: str | None) -> int:

@@ -2,8 +2,10 @@
 
 Input: one multi-wavelength scan file (every A-line at every wavelength), or one file
 per wavelength (any format ``fpscan recon`` reads) with ``--wavelengths`` in m.
-Locally (no ``--server``) each wavelength is reconstructed with the one dispatch
-(``service.pipeline.reconstruct``, the same method and options for all; ``--sound-speed auto`` finds the sound speed once) and unmixed (``service.recon.unmix``: NNLS per voxel, same
+Locally (no ``--server``) the job worker's orchestration runs here
+(``service.pipeline.run_file``): each wavelength is reconstructed with the one dispatch
+(``service.pipeline.reconstruct``, the same method and options for all; ``--sound-speed auto``
+finds the sound speed once) and unmixed (``service.recon.unmix``: NNLS per voxel, same
 fluence at every wavelength unless ``--fluence`` is given). ``--out`` receives
 ``unmix.h5`` (``/hbo2``, ``/hb``, ``/thb``, ``/so2``, ``/mask``), ``so2.png`` and one
 result folder per wavelength (``wavelength_<k>/volume.h5`` + MIPs). With ``--server``
@@ -104,26 +106,29 @@ def run(args) -> int:
 
 
 def _local(args) -> int:
+    """Unmix here: :func:`service.pipeline.run_file` with ``unmix``, the job worker's
+    orchestration; this command says what it does and prints the result."""
     import sys
-    import time
 
-    from service import pipeline
-    from service.spectral import load_wavelength_datasets, reconstruct_and_unmix
+    from service.pipeline import run_file
 
     out = _default_out(args)
     say = (lambda msg: None) if args.quiet else (lambda msg: print(f"unmix: {msg}", file=sys.stderr, flush=True))
-    t0 = time.perf_counter()
+
+    def loaded(ds, method: str) -> None:
+        say(f"{len(args.inputs) if len(args.inputs) > 1 else 'every'} wavelength(s) of {', '.join(args.inputs)}, "
+            f"method {method}")
+
     load = {k: getattr(args, k) for k in ("dt", "dx", "dy", "key")}
-    wavelengths, datasets = load_wavelength_datasets(args.inputs, args.format, wavelengths=args.wavelengths, **load)
-    method = args.method or pipeline.default_method(datasets[0])
-    say(f"{len(datasets)} wavelengths ({', '.join(f'{w * 1e9:g} nm' for w in wavelengths)}), method {method}")
-    summary = reconstruct_and_unmix(out, datasets, wavelengths, method, input_id=",".join(args.inputs),
-                                    threshold=args.threshold, fluence=args.fluence,
-                                    progress=None if args.quiet else (lambda f, s: say(f"{s} {100 * f:.0f} %")),
-                                    **_params(args))
-    c = summary.get("c")
-    print(f"{out}/unmix.h5  so2.png  sO2 median {summary['so2_median']}  masked {summary['masked_fraction']:.1%}"
-          + (f"  sound speed {c:.1f} m/s" if c is not None else "") + f"  {time.perf_counter() - t0:.2f} s")
+    summary = run_file(args.inputs, out, args.method, format=args.format, wavelengths=args.wavelengths,
+                       unmix={"threshold": args.threshold, "fluence": args.fluence}, load=load,
+                       input_id=",".join(args.inputs), on_loaded=loaded,
+                       progress=None if args.quiet else (lambda f, s: say(f"{s} {100 * f:.0f} %")), **_params(args))
+    c, t = summary.get("c"), summary["timings"]
+    nm = ", ".join(f"{w * 1e9:g} nm" for w in summary["wavelengths_m"])
+    print(f"{out}/unmix.h5  so2.png  {nm}  sO2 median {summary['so2_median']}  "
+          f"masked {summary['masked_fraction']:.1%}" + (f"  sound speed {c:.1f} m/s" if c is not None else "")
+          + f"  {sum(t.values()):.2f} s")
     return 0
 
 

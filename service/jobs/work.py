@@ -1,9 +1,10 @@
 """The reconstruction job body: runs inside an executor worker (process pool or dask).
 
-``run_reconstruction(spec)`` reads the job's input with
-:func:`service.storage.datasets.load_dataset`, reconstructs it with
-:func:`service.pipeline.reconstruct` (the same call ``fpscan recon`` makes locally) and
-writes the result folder with :func:`service.storage.results.write_result`:
+``run_reconstruction(spec)`` runs :func:`service.pipeline.run_file` (the one orchestration,
+the same call ``fpscan recon`` and ``fpscan unmix`` make locally: the input read with
+``service.storage.datasets``, reconstructed with :func:`service.pipeline.reconstruct`, the
+result folder written with ``service.storage.results.write_result``) with the worker's own
+parts (memory admission and bounds, progress and cancel files):
 
 - ``volume.h5``: ``/p0`` (``(n_z, n_y, n_x)`` or ``(n_z, n_x)``, Pa relative to the
   input's units), ``/z``, ``/x`` (and ``/y``) coordinate vectors in m; attributes
@@ -34,28 +35,16 @@ import time
 from typing import Any
 
 from driver.constants import C_DEFAULT
-from service.progress import Progress, span
+from service.progress import Progress
 
 __all__ = [
-    "INPUT_FORMATS", "load_inputs", "report_stage", "progress_file", "ProgressLog", "check_memory_limit", "ADDRESS_SPACE_BASE",
-    "address_space_limit", "memory_bounded", "run_reconstruction", "run_unmix", "worker_pid", "warm_up",
+    "INPUT_FORMATS", "report_stage", "progress_file", "ProgressLog", "check_memory_limit", "ADDRESS_SPACE_BASE",
+    "address_space_limit", "memory_bounded", "run_reconstruction", "worker_pid", "warm_up",
     "warm_heap", "HEAP_MMAP_THRESHOLD", "HEAP_WARM_BYTES", "JobGate", "JOB_GATE", "WARM_QUIET_S",
     "WARM_FIRST", "WARM_LATER",
 ]
 
 INPUT_FORMATS = {"scan": "fpscan", "dataset": "dataset"}
-
-
-def load_inputs(spec_input: dict) -> list:
-    """The datasets of a job input (see module docstring): one, or one per wavelength
-    with ``"wavelength": "all"`` (:func:`service.storage.datasets.load_wavelengths`).
-    Raises ValueError (also for a wavelength index out of range)."""
-    from service.storage.datasets import load_wavelengths
-
-    kind = spec_input.get("kind")
-    if kind not in INPUT_FORMATS:
-        raise ValueError(f"unknown job input kind {kind!r}")
-    return load_wavelengths(spec_input["path"], INPUT_FORMATS[kind], wavelength=spec_input.get("wavelength"))
 
 
 def report_stage(path: str | None, stage: str, fraction: float, **fields: Any) -> None:
@@ -286,110 +275,33 @@ def run_reconstruction(spec: dict) -> dict:
 
 
 def _run_reconstruction(spec: dict) -> dict:
-    from service.pipeline import default_method, reconstruct
-    from service.storage.results import write_result
+    """The job's work: :func:`service.pipeline.run_file` (the one orchestration, ``fpscan recon``'s
+    and ``fpscan unmix``'s too) with the worker's own parts: the input files of the spec, the
+    memory admission on the loaded data and the bounded address space, the progress file and the
+    cancel file."""
+    from service.pipeline import run_file
 
-    if spec.get("unmix") is not None:
-        return run_unmix(spec)
     progress = spec.get("progress_path")
     cancel = spec.get("cancel_path")
-    t0 = time.perf_counter()
-    report_stage(progress, "loading", 0.1)
     limit = spec.get("memory_limit")
-    datasets = load_inputs(spec["input"])
-    ds = datasets[0]
     params = dict(spec["params"])
-    if limit:
-        check_memory_limit(ds, params, int(limit), spec.get("memory_estimate"))
-    if spec["input"].get("wavelength") == "all":
-        return _run_all_wavelengths(spec, datasets, params, t0)
-    t1 = time.perf_counter()
-    method = params.pop("method", None) or default_method(ds)
-    with memory_bounded(limit):
-        rec = reconstruct(ds, method, progress=span(progress_file(progress), 0.2, 0.9),
-                          should_stop=(lambda: os.path.exists(cancel)) if cancel else None, **params)
-    t2 = time.perf_counter()
-    report_stage(progress, "writing", 0.9)
-    summary = write_result(spec["out_dir"], rec, input_id=spec.get("input_id", ""))
-    t3 = time.perf_counter()
-    summary["timings"] = {"load_s": t1 - t0, "reconstruct_s": t2 - t1, "write_s": t3 - t2}
-    summary["c"] = rec.params.get("c")
-    if "autofocus" in rec.params:
-        summary["autofocus"] = rec.params["autofocus"]
-    if ds.kind == "points":
-        summary["points_used"] = int(ds.alines.shape[0])
-    from service.progress import outcome
-
-    ended = outcome(rec.params, method)  # an iterative method: how it ended, one line (the server's log)
-    if ended:
-        summary["outcome"] = ended
-    return summary
-
-
-def _run_all_wavelengths(spec: dict, datasets: list, params: dict, t0: float) -> dict:
-    """``wavelength="all"``: every wavelength with the same method and options
-    (:func:`service.spectral.reconstruct_wavelengths`, the unmixing job's loop) written
-    with :func:`service.spectral.write_wavelength_results`. Returns the first wavelength's
-    summary plus ``wavelengths`` (one row per wavelength: index, nm, shape, max)."""
-    from service.pipeline import default_method, reconstruct
-    from service.spectral import reconstruct_wavelengths, write_wavelength_results
-
-    progress = spec.get("progress_path")
-    cancel = spec.get("cancel_path")
-    limit = spec.get("memory_limit")
-    method = params.pop("method", None) or default_method(datasets[0])
-    t1 = time.perf_counter()
-    with memory_bounded(limit):
-        recons = reconstruct_wavelengths(
-            datasets, method, reconstruct=reconstruct,
-            progress=span(progress_file(progress), 0.2, 0.9),
-            should_stop=(lambda: os.path.exists(cancel)) if cancel else None, **params)
-    t2 = time.perf_counter()
-    report_stage(progress, "writing", 0.9)
-    summary = write_wavelength_results(spec["out_dir"], recons, input_id=spec.get("input_id", ""))
-    summary["timings"] = {"load_s": t1 - t0, "reconstruct_s": t2 - t1, "write_s": time.perf_counter() - t2}
-    summary["c"] = recons[0].params.get("c")
-    if "autofocus" in recons[0].params:
-        summary["autofocus"] = recons[0].params["autofocus"]
-    if datasets[0].kind == "points":
-        summary["points_used"] = int(datasets[0].alines.shape[0])
-    return summary
-
-
-def run_unmix(spec: dict) -> dict:
-    """Executor entry point of a multi-wavelength job (``spec["unmix"]`` set: ``threshold``,
-    ``fluence``): ``inputs`` (one input per wavelength, with ``wavelengths`` in m) or
-    ``input`` (a multi-wavelength scan file); every wavelength reconstructed with the same
-    method and options, then unmixed (:func:`service.spectral.reconstruct_and_unmix`:
-    the result folder gets ``unmix.h5``, ``so2.png`` and one result per wavelength). Returns
-    the reconstruction summary of wavelength 1 plus ``unmix``, ``c``, ``autofocus``."""
-    from service.pipeline import default_method
-    from service.spectral import load_wavelength_datasets, reconstruct_and_unmix
-
-    progress = spec.get("progress_path")
-    cancel = spec.get("cancel_path")
-    t0 = time.perf_counter()
-    report_stage(progress, "loading", 0.05)
+    method = params.pop("method", None)
+    unmix = spec.get("unmix")
     inputs = spec.get("inputs") or [spec["input"]]
     kinds = {i.get("kind") for i in inputs}
     if len(kinds) != 1 or not kinds <= set(INPUT_FORMATS):
         raise ValueError(f"unknown job input kinds {sorted(map(str, kinds))}")
-    wavelengths, datasets = load_wavelength_datasets([i["path"] for i in inputs], INPUT_FORMATS[kinds.pop()],
-                                                     wavelengths=spec.get("wavelengths"))
-    t_load = time.perf_counter() - t0
-    params = dict(spec["params"])
-    method = params.pop("method", None) or default_method(datasets[0])
-    unmix = dict(spec["unmix"] or {})
-    summary = reconstruct_and_unmix(
-        spec["out_dir"], datasets, wavelengths, method, input_id=spec.get("input_id", ""),
-        threshold=float(unmix.get("threshold", 0.1)), fluence=unmix.get("fluence"),
-        progress=span(progress_file(progress), 0.1, 0.95),
-        should_stop=(lambda: os.path.exists(cancel)) if cancel else None, **params)
-    summary["timings"]["load_s"] = t_load
-    summary["unmix"]["threshold"] = float(unmix.get("threshold", 0.1))
-    if "autofocus" in summary["params"]:
-        summary["autofocus"] = summary["params"]["autofocus"]
-    return summary
+
+    def admit(ds: Any, chosen: str) -> None:  # the memory admission, again on the data as loaded
+        if limit and unmix is None:
+            check_memory_limit(ds, {**params, "method": chosen}, int(limit), spec.get("memory_estimate"))
+
+    with memory_bounded(limit):
+        return run_file([i["path"] for i in inputs], spec["out_dir"], method, format=INPUT_FORMATS[kinds.pop()],
+                        wavelength=None if unmix is not None else spec["input"].get("wavelength"),
+                        wavelengths=spec.get("wavelengths"), unmix=None if unmix is None else dict(unmix),
+                        input_id=spec.get("input_id", ""), progress=progress_file(progress),
+                        should_stop=(lambda: os.path.exists(cancel)) if cancel else None, on_loaded=admit, **params)
 
 
 def worker_pid() -> int:
