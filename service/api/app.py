@@ -15,6 +15,7 @@ import re
 import sqlite3
 import time
 import uuid
+from collections import deque
 from collections.abc import Awaitable, Callable, MutableMapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -26,7 +27,8 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.staticfiles import StaticFiles
 
 from driver.acquire import software_version
-from service.api.context import Context, Slots, ctx, default_slots, read_access, validation_reason
+from service.api.context import Context, Slots, capped, ctx, default_slots, read_access, validation_reason
+from service.api.logcaps import shown
 from service.api.models import AuthInfo, Error, Health
 from service.disk import is_disk_full
 from service.settings import Settings
@@ -37,6 +39,7 @@ if TYPE_CHECKING:
 __all__ = [
     "VERSION", "PROCESS_START", "ERROR_RESPONSES", "allowed_methods", "UploadLimit", "MIN_BODY_RATE",
     "ShortIds", "DISK_USAGE_TTL_S", "DiskUsageCache", "warm_routes", "freeze_startup_objects", "create_app",
+    "internal_error", "InternalErrors",
 ]
 
 log = logging.getLogger("fpscan.api")
@@ -88,108 +91,169 @@ def allowed_methods(app, scope) -> list[str]:
     return sorted(methods)
 
 
-class UploadLimit:
-    """ASGI middleware: refuse request bodies over their limit with 413 (by
-    ``Content-Length`` up front, and by counting for chunked bodies): ``limit`` bytes for
-    an upload (``POST /api/datasets``, plus multipart overhead), ``json_limit`` for any
-    other body (JSON is parsed whole into memory before a route sees it).
+#: Slowest body (bytes/s, averaged over ``Settings.body_rate_window_s``) an upload or plan
+#: request may send (``Settings.body_min_rate``, whose default this is): a trickle would
+#: hold an upload or plan slot for hours.
+MIN_BODY_RATE = 100 * 1024
 
-    ``slots`` (:func:`~service.api.context.default_slots`): uploads and plan requests
-    (``ADMITTED``) are counted in before their body is read, and refused with 429 when too
-    many are in progress (the form parser spools every upload to a temporary file, and a
-    JSON body is parsed, before the route runs); the route then waits for its turn. Such a
-    request whose body stalls ``body_timeout_s`` (or trickles in slower than
-    ``MIN_BODY_RATE``) is refused with 408, so a slow client cannot hold a slot for long."""
+
+class UploadLimit:
+    """ASGI middleware: every request body within its limit, at a rate a client means.
+
+    - **Size** (413, by ``Content-Length`` up front and by counting for chunked bodies):
+      ``limit`` bytes for an upload (``POST /api/datasets``, plus multipart overhead),
+      ``json_limit`` for a plan request (``PLAN_ROUTES``: parsed in the plan worker; a plan
+      JSON of the largest lattice is 15-32 MiB), ``request_json_limit`` for any other body
+      (JSON parsed and validated on the event loop before a route sees it: a body must stay
+      as small as its schema can need, kilobytes).
+    - **Time** (408, ``Connection: close``): a body that sends nothing for
+      ``body_timeout_s``, and an upload or plan body that arrives slower than ``min_rate``
+      bytes/s averaged over ``rate_window_s`` (after its first window), so a slow client
+      cannot hold a slot for long (nginx's ``client_body_timeout`` with a minimum rate).
+    - **Slots** (``slots``, :func:`~service.api.context.default_slots`): uploads and plan
+      requests (``ADMITTED``) are counted in, per client address first, before their body
+      is read, and refused with 429 when too many are in progress (the form parser spools
+      every upload to a temporary file, and a JSON body is parsed, before the route runs);
+      the route then waits for its turn."""
 
     #: (method, path) -> the slots that admit it
     ADMITTED = {("POST", "/api/datasets"): "uploads", ("POST", "/api/plans"): "plans",
                 ("POST", "/api/plans/preview"): "plans"}
+    #: the routes whose JSON body may be up to ``json_limit`` (parsed in the plan worker)
+    PLAN_ROUTES = frozenset({("POST", "/api/plans"), ("POST", "/api/plans/preview")})
 
     def __init__(self, app, limit: int, json_limit: int | None = None, slots: dict[str, Slots] | None = None,
-                 body_timeout_s: float = 30.0):
+                 body_timeout_s: float = 30.0, request_json_limit: int | None = None,
+                 min_rate: float = MIN_BODY_RATE, rate_window_s: float = 10.0):
         self.app = app
         self.body_timeout_s = body_timeout_s
         self.upload_limit = limit
         self.json_limit = min(limit, json_limit) if json_limit else limit
+        self.request_json_limit = min(self.json_limit, request_json_limit) if request_json_limit else self.json_limit
+        self.min_rate = float(min_rate)
+        self.rate_window_s = float(rate_window_s)
         self.slots = slots or {}
 
     async def __call__(self, scope, receive, send):
         if scope["type"] != "http":
             return await self.app(scope, receive, send)
         key = (scope.get("method", ""), scope.get("path", "").rstrip("/"))
-        limit = self.upload_limit + 1_000_000 if key == ("POST", "/api/datasets") else self.json_limit
+        if key == ("POST", "/api/datasets"):
+            limit = self.upload_limit + 1_000_000
+        else:
+            limit = self.json_limit if key in self.PLAN_ROUTES else self.request_json_limit
         slots = self.slots.get(self.ADMITTED.get(key, ""))
         if slots is None:
             return await self._limited(scope, receive, send, limit)
-        if not slots.enter():
-            resp = JSONResponse({"detail": slots.busy_reason()}, 429, headers={"Retry-After": str(slots.retry_after_s)})
+        client = (scope.get("client") or ("?", 0))[0]
+        if not slots.enter(client):
+            resp = JSONResponse({"detail": slots.busy_reason(client)}, 429,
+                                headers={"Retry-After": str(slots.retry_after_s)})
             return await resp(scope, receive, send)
         try:
-            return await self._limited(scope, receive, send, limit, self.body_timeout_s)
+            return await self._limited(scope, receive, send, limit, self.min_rate)
         finally:
-            slots.leave()
+            slots.leave(client)
 
-    async def _limited(self, scope, receive, send, limit: int, idle_s: float | None = None):
-        """Pass the request on, refusing a body over ``limit`` bytes (413) and, with
-        ``idle_s``, a body that stalls ``idle_s`` s or arrives slower than
-        ``MIN_BODY_RATE`` after that (408): an admitted request holds a slot meanwhile."""
-        too_large = JSONResponse({"detail": f"request body larger than the limit of {limit} bytes"}, 413)
+    async def _limited(self, scope, receive, send, limit: int, min_rate: float = 0.0):
+        """Pass the request on, refusing a body over ``limit`` bytes (413), one that stalls
+        ``body_timeout_s`` s or, with ``min_rate`` (bytes/s), arrives slower than that over
+        ``rate_window_s`` (408): :class:`_BodyWatch`."""
         if _declared_length(scope) > limit:
-            return await too_large(scope, receive, send)
-        seen = 0
+            return await _too_large(limit)(scope, receive, send)
         t0 = time.perf_counter()
+        watch = _BodyWatch(receive, limit, self.body_timeout_s, min_rate, self.rate_window_s)
         status = {"code": 0}
-        refusal: dict[str, Any] = {"resp": None, "sent": False}
-        body_done = False
+        sent_refusal = False
 
-        async def refuse() -> None:
-            if not refusal["sent"]:
-                refusal["sent"] = True
-                await refusal["resp"](scope, receive, send)
+        async def refuse(resp: JSONResponse) -> None:
+            nonlocal sent_refusal
+            if not sent_refusal:
+                sent_refusal = True
+                await resp(scope, receive, send)
 
         async def logging_send(message):
-            if refusal["resp"] is not None:
+            if watch.refusal is not None:
                 # the body was refused: whatever the route made of the cut-off body (a
                 # form parser answers 400), the client gets the refusal
-                return await refuse()
+                return await refuse(watch.refusal)
             if message["type"] == "http.response.start":
                 status["code"] = message["status"]
             await send(message)
 
-        async def counting_receive():
-            nonlocal seen, body_done
-            if idle_s is None or body_done:
-                message = await receive()
-            else:
-                try:
-                    message = await asyncio.wait_for(receive(), idle_s)
-                except TimeoutError:
-                    refusal["resp"] = _too_slow(f"no request body data for {idle_s:g} s")
-                    raise _Refused() from None
-            if message["type"] == "http.request":
-                seen += len(message.get("body", b""))
-                body_done = not message.get("more_body", False)
-                if seen > limit:
-                    refusal["resp"] = too_large
-                    raise _Refused()
-                elapsed = time.perf_counter() - t0
-                if idle_s is not None and not body_done and elapsed > idle_s and seen < MIN_BODY_RATE * elapsed:
-                    refusal["resp"] = _too_slow(f"request body arriving slower than {MIN_BODY_RATE} bytes/s")
-                    raise _Refused()
-            return message
-
         try:
-            await self.app(scope, counting_receive, logging_send)
+            await self.app(scope, watch.receive, logging_send)
             if log.isEnabledFor(logging.DEBUG):
-                log.debug("request method=%s path=%s status=%s ms=%.1f", scope["method"], scope["path"],
+                log.debug("request method=%s path=%s status=%s ms=%.1f", scope["method"], shown(scope["path"]),
                           status["code"], 1e3 * (time.perf_counter() - t0))
         except _Refused:
-            await refuse()
+            assert watch.refusal is not None
+            await refuse(watch.refusal)
 
 
-#: Slowest body (bytes/s, on average) an admitted request may send after its first
-#: ``body_timeout_s``: a trickle would hold an upload or plan slot for hours.
-MIN_BODY_RATE = 16 * 1024
+class _BodyWatch:
+    """The ``receive`` of one request, watched: its body within ``limit`` bytes (else
+    413), no wait for its next part longer than ``idle_s`` and, with ``min_rate``
+    (bytes/s), at least that rate over the last ``window`` s once the body has been
+    arriving that long (else 408). A refusal sets :attr:`refusal` (the answer) and raises
+    ``_Refused``; once the body is complete, ``receive`` is the server's own."""
+
+    def __init__(self, receive, limit: int, idle_s: float, min_rate: float, window: float) -> None:
+        self._receive = receive
+        self.limit, self.idle_s, self.min_rate, self.window = limit, idle_s, min_rate, window
+        self.refusal: JSONResponse | None = None
+        self.seen = 0
+        self.done = False
+        self.t0 = time.perf_counter()
+        self.marks: deque[tuple[float, int]] = deque([(self.t0, 0)])  # (time, bytes seen): the rate's window
+
+    def too_slow(self, now: float) -> bool:
+        """Whether the body's rate over the last window is under ``min_rate``."""
+        if not self.min_rate or now - self.t0 < self.window:
+            return False
+        while len(self.marks) > 1 and self.marks[1][0] <= now - self.window:
+            self.marks.popleft()
+        since, then = self.marks[0]
+        return self.seen - then < self.min_rate * (now - since)
+
+    def _refuse(self, resp: JSONResponse) -> _Refused:
+        self.refusal = resp
+        return _Refused()
+
+    async def receive(self):
+        if self.done:
+            return await self._receive()
+        last = time.perf_counter()
+        slow = f"request body arriving slower than {self.min_rate:g} bytes/s over {self.window:g} s"
+        while True:
+            wait = self.idle_s - (time.perf_counter() - last)
+            if self.min_rate:
+                wait = min(wait, max(self.window / 4, 0.05))  # look at the rate while nothing comes
+            try:
+                message = await asyncio.wait_for(self._receive(), max(wait, 0.0))
+                break
+            except TimeoutError:
+                now = time.perf_counter()
+                if now - last >= self.idle_s:
+                    raise self._refuse(_too_slow(f"no request body data for {self.idle_s:g} s")) from None
+                if self.too_slow(now):
+                    raise self._refuse(_too_slow(slow)) from None
+        if message["type"] != "http.request":
+            self.done = True  # a disconnect: nothing more to time
+            return message
+        self.seen += len(message.get("body", b""))
+        self.done = not message.get("more_body", False)
+        if self.seen > self.limit:
+            raise self._refuse(_too_large(self.limit))
+        now = time.perf_counter()
+        self.marks.append((now, self.seen))
+        if not self.done and self.too_slow(now):
+            raise self._refuse(_too_slow(slow))
+        return message
+
+
+def _too_large(limit: int) -> JSONResponse:
+    return JSONResponse({"detail": f"request body larger than the limit of {limit} bytes"}, 413)
 
 
 def _declared_length(scope) -> int:
@@ -377,7 +441,8 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True, 
                   description="Planar Fabry-Perot photoacoustic scanning: plans, scans, reconstructions as jobs.")
     _add_error_handlers(app)
     app.add_middleware(UploadLimit, limit=settings.upload_limit, json_limit=settings.json_limit, slots=slots,
-                       body_timeout_s=settings.body_timeout_s)
+                       body_timeout_s=settings.body_timeout_s, request_json_limit=settings.request_json_limit,
+                       min_rate=settings.body_min_rate, rate_window_s=settings.body_rate_window_s)
     app.add_middleware(ShortIds)
     from service.api.access import AccessGate
     from service.api.lanes import HealthLane, RequestTurns
@@ -390,6 +455,7 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True, 
     health_document = _add_health_routes(app, settings)
     # outermost: health answered ahead of the queue, after the gate's own rules
     app.add_middleware(HealthLane, settings=settings, document=health_document)
+    app.add_middleware(InternalErrors)  # outermost: no error drops a kept-alive connection
     for module in (plans, scans, datasets, reconstructions, jobs, retention):
         app.include_router(module.router)
     _state_security_in_openapi(app, settings)
@@ -491,7 +557,7 @@ def _add_error_handlers(app: FastAPI) -> None:
 
     @app.exception_handler(StarletteHTTPException)
     async def _http(request: Request, exc: StarletteHTTPException):
-        detail = exc.detail if isinstance(exc.detail, str) else str(exc.detail)
+        detail = capped(exc.detail if isinstance(exc.detail, str) else str(exc.detail))
         headers = getattr(exc, "headers", None)
         if exc.status_code == 405:  # Allow: every method of the path (Starlette names only the first route's)
             allowed = allowed_methods(app, request.scope)
@@ -505,7 +571,7 @@ def _add_error_handlers(app: FastAPI) -> None:
         # handled here, not by the catch-all below (Starlette re-raises from that one and
         # the server then drops the client's kept-alive connection)
         if is_disk_full(exc):  # the server's condition, not a bug: say so, and how to fix it
-            log.warning("disk full %s %s: %s", request.method, request.url.path, exc)
+            log.warning("disk full %s %s: %s", request.method, shown(request.url.path), exc)
             return JSONResponse({"detail": "the data folder's disk is full; free space, then retry "
                                            "(/api/health shows the free bytes)"},
                                 status_code=503, headers={"Retry-After": "10"})
@@ -513,9 +579,45 @@ def _add_error_handlers(app: FastAPI) -> None:
 
     @app.exception_handler(Exception)
     async def _internal(request: Request, exc: Exception):
-        ref = uuid.uuid4().hex[:8]
-        log.exception("internal error ref=%s %s %s", ref, request.method, request.url.path)
-        return JSONResponse({"detail": f"internal error (reference {ref})"}, status_code=500)
+        return internal_error(request.scope, exc)
+
+
+def internal_error(scope, exc: BaseException) -> JSONResponse:
+    """The 500 of an unexpected error: logged with a reference (method, path capped), the
+    client told only the reference."""
+    ref = uuid.uuid4().hex[:8]
+    log.error("internal error ref=%s %s %s", ref, scope.get("method"), shown(scope.get("path", "")), exc_info=exc)
+    return JSONResponse({"detail": f"internal error (reference {ref})"}, status_code=500)
+
+
+class InternalErrors:
+    """ASGI middleware, the outermost of the app's own: an error no handler took becomes a
+    500 answer (:func:`internal_error`) and goes no further. Starlette's own last handler
+    re-raises after answering, and uvicorn then closes the client's kept-alive connection
+    and logs the traceback a second time; here the connection stays open for the client's
+    next request. An error after the answer started is logged and the connection closed
+    (there is no way to tell the client)."""
+
+    def __init__(self, app):
+        self.app = app
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http":
+            return await self.app(scope, receive, send)
+        started = False
+
+        async def tracked_send(message):
+            nonlocal started
+            if message["type"] == "http.response.start":
+                started = True
+            await send(message)
+
+        try:
+            await self.app(scope, receive, tracked_send)
+        except Exception as exc:
+            if started:
+                raise
+            await internal_error(scope, exc)(scope, receive, send)
 
 
 def _add_health_routes(app: FastAPI, settings: Settings) -> Callable[[Context], Awaitable[Health]]:
