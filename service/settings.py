@@ -128,7 +128,13 @@ class Settings(BaseSettings):
     retention_datasets_max_age_s: float | None = Field(None, ge=0, description="delete uploaded datasets no active "
                                                        "job reads once older than this, s (None = never)")
     disk_reserve_bytes: int = Field(256 * 2**20, ge=0, description="free disk an upload's import must leave: a "
-                                    "dataset that would leave less (counting imports in flight) is refused with 507")
+                                    "dataset that would leave less (counting imports in flight) is refused with 507; "
+                                    "below it /api/health lists the disk as full")
+    db_reserve_bytes: int = Field(8 * 2**20, ge=0, le=2**30, description="bytes kept in a reserve file beside the "
+                                  "job database and given up when its disk fills, so that jobs' final states, cancels "
+                                  "and deletions can still be written (0 = none)")
+    disk_walk_period_s: float = Field(600.0, gt=0, le=7 * 86400, description="seconds between two walks of the "
+                                      "data folder that check the disk-use counters /api/health answers from")
 
     @field_validator("devices")
     @classmethod

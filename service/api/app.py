@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import inspect
 import logging
 import re
 import sqlite3
@@ -38,7 +37,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "VERSION", "PROCESS_START", "ERROR_RESPONSES", "allowed_methods", "UploadLimit", "MIN_BODY_RATE",
-    "ShortIds", "DISK_USAGE_TTL_S", "DiskUsageCache", "warm_routes", "freeze_startup_objects", "create_app",
+    "ShortIds", "warm_routes", "freeze_startup_objects", "create_app",
     "internal_error", "InternalErrors",
 ]
 
@@ -147,8 +146,8 @@ class UploadLimit:
             return await self._limited(scope, receive, send, limit)
         client = (scope.get("client") or ("?", 0))[0]
         if not slots.enter(client):
-            resp = JSONResponse({"detail": slots.busy_reason(client)}, 429,
-                                headers={"Retry-After": str(slots.retry_after_s)})
+            resp = JSONResponse({"detail": slots.busy_reason(client)}, 429,  # its body is never read: close
+                                headers={"Retry-After": str(slots.retry_after_s), "Connection": "close"})
             return await resp(scope, receive, send)
         try:
             return await self._limited(scope, receive, send, limit, self.min_rate)
@@ -253,7 +252,8 @@ class _BodyWatch:
 
 
 def _too_large(limit: int) -> JSONResponse:
-    return JSONResponse({"detail": f"request body larger than the limit of {limit} bytes"}, 413)
+    return JSONResponse({"detail": f"request body larger than the limit of {limit} bytes"}, 413,
+                        headers={"Connection": "close"})  # the rest of its body is never read
 
 
 def _declared_length(scope) -> int:
@@ -299,92 +299,6 @@ class ShortIds:
                     path = f"/api/{m.group(1)}/{found[0]}{m.group(3) or ''}"
                     scope = dict(scope, path=path, raw_path=path.encode())
         return await self.app(scope, receive, send)
-
-
-#: longest reuse of the data folder's disk usage in /api/health while its folders are unchanged (s)
-DISK_USAGE_TTL_S = 1.0
-
-
-class DiskUsageCache:
-    """``/api/health``'s disk usage: one walk of the data folder serves every caller that
-    asks while it runs.
-
-    - While the data folder and its part folders keep their modification times, the
-      answer is reused; once it is ``ttl_s`` (:data:`DISK_USAGE_TTL_S`) old (files that grow in place,
-      such as a scan file, change no folder) it is still answered at once and a new walk
-      starts beside it: health never waits for a walk to pick up growth.
-    - When a folder's modification time changed (an upload stored, a result written, a
-      deletion), the next caller waits for a new walk: whoever changed the data reads
-      the change in the next health answer. Uploads are staged outside these folders
-      (``incoming/``), so refused and deduplicated uploads change none of them.
-
-    ``walk(data_dir)`` returns the answer, or is a generator that yields between steps and
-    returns it (``service.jobs.lifecycle.disk_usage_steps``): the walk then runs on the
-    event loop a step (some hundred entries, about a millisecond) at a time between the
-    other requests. Not in a thread: a thread that makes a system call per file waits for
-    the interpreter lock after each one, up to the switch interval (5 ms) while the loop is
-    busy — a walk of 16 entries took 0.2-0.6 s that way under the 50-client soak.
-
-    A flood of health requests costs one walk, not one each."""
-
-    PARTS = ("", "scans", "results", "datasets", "exports")
-
-    def __init__(self, data_dir, walk, ttl_s: float = DISK_USAGE_TTL_S):
-        self.data_dir = Path(data_dir)
-        self.walk = walk
-        self.ttl_s = ttl_s
-        self._value: dict | None = None
-        self._key: tuple | None = None
-        self._at = 0.0
-        self._lock: asyncio.Lock | None = None
-        self._background: asyncio.Task | None = None
-        self._walks = 0  # walks done
-
-    def _folders_key(self) -> tuple:
-        key: list[int | None] = []
-        for part in self.PARTS:
-            try:
-                key.append((self.data_dir / part).stat().st_mtime_ns)
-            except OSError:
-                key.append(None)
-        return tuple(key)
-
-    async def _refresh(self) -> None:
-        if self._lock is None:
-            self._lock = asyncio.Lock()
-        walks_before = self._walks
-        async with self._lock:
-            key = self._folders_key()
-            if self._walks != walks_before and self._key == key:
-                return  # a walk ended while this caller waited, and the folders are as it saw them
-            await asyncio.sleep(0)  # callers that ask together wait for this walk
-            value = self.walk(self.data_dir)
-            if inspect.isgenerator(value):
-                steps = value
-                while True:
-                    try:
-                        next(steps)
-                    except StopIteration as done:
-                        value = done.value
-                        break
-                    await asyncio.sleep(0)  # the other requests' turn
-            self._value = value
-            self._key, self._at = key, time.monotonic()
-            self._walks += 1
-
-    async def get(self) -> dict:
-        if self._value is None or self._key != self._folders_key():
-            await self._refresh()
-        elif time.monotonic() - self._at >= self.ttl_s and (self._background is None or self._background.done()):
-            self._background = asyncio.create_task(self._refresh())
-            self._background.add_done_callback(_log_failed_walk)  # the next caller walks again
-        assert self._value is not None
-        return self._value
-
-
-def _log_failed_walk(task: asyncio.Task) -> None:
-    if not task.cancelled() and task.exception() is not None:
-        log.warning("disk usage walk failed: %s", task.exception())
 
 
 async def warm_routes(app: FastAPI, settings: Settings) -> None:
@@ -473,7 +387,7 @@ def _lifespan(settings: Settings, slots: dict[str, Slots], start_workers: bool, 
 
         Path(settings.data_dir).mkdir(parents=True, exist_ok=True)
         settings.token_value()  # an unreadable or empty token_file stops the start here
-        store = JobStore(settings.database)
+        store = JobStore(settings.database, reserve_bytes=settings.db_reserve_bytes)
         context = Context(settings=settings, store=store, slots=slots)
         from service.api.jobs import EventWakeups
 
@@ -481,14 +395,29 @@ def _lifespan(settings: Settings, slots: dict[str, Slots], start_workers: bool, 
         store.add_listener(context.wakeups.notify)
         app.state.ctx = context
         executor = _start_workers(context, store, settings, given_executor) if start_workers else None
+        usage = await _count_disk_usage(settings)
         await warm_routes(app, settings)
         freeze_startup_objects()
         try:
             yield
         finally:
+            usage.stop()
             _stop_workers(context, executor, store)
 
     return lifespan
+
+
+async def _count_disk_usage(settings: Settings):
+    """The data folder's disk-use counters (``service.storage.usage``) set by one walk
+    before the server answers (in a thread: start-up only), then checked by a walk every
+    ``disk_walk_period_s`` in a thread of their own; returns them."""
+    from service.jobs.lifecycle import disk_usage
+    from service.storage.usage import usage_for
+
+    usage = usage_for(settings.data_dir, settings.database)
+    await asyncio.to_thread(usage.reconcile, disk_usage)
+    usage.start_walks(disk_usage, settings.disk_walk_period_s)
+    return usage
 
 
 def _start_workers(context: Context, store: JobStore, settings: Settings, executor: Any = None) -> Any:
@@ -624,26 +553,26 @@ def _add_health_routes(app: FastAPI, settings: Settings) -> Callable[[Context], 
     """``GET /api/health`` and ``GET /api/auth``; returns health's document (an awaitable
     of :class:`Health`, given the app's context), which ``service.api.lanes.HealthLane``
     answers with ahead of the other requests."""
-    from service.jobs.lifecycle import disk_usage_steps
+    from service.storage.usage import usage_for
 
-    disk_cache = DiskUsageCache(settings.data_dir, disk_usage_steps)
+    usage = usage_for(settings.data_dir, settings.database)
 
     async def health_document(c: Context) -> Health:
         return Health(version=VERSION, executor=settings.executor,
                       jobs_running=c.queue.running() if c.queue is not None else 0,
-                      disk=await disk_cache.get(),
-                      problems=c.scans.problems() if c.scans is not None else [])
+                      disk=usage.snapshot(), problems=health_problems(c))
 
     @app.get("/api/health", response_model=Health, tags=["health"], dependencies=[Depends(read_access)])
     async def health(c: Context = Depends(ctx)) -> Health:
-        """Liveness: ``{"status": "ok", "version", "executor", "jobs_running", "disk"}``;
-        ``disk``: bytes the data folder uses by part (scans, results, datasets, exports,
-        other) and the free bytes of its file system. Answered on the event loop without a
-        server thread, ahead of the other requests waiting for their turn
-        (``service.api.lanes``); the folder walk runs in steps on the loop, once for every
-        caller while one is under way; a change of the stored data shows in the next
-        answer, growth of files in place within about ``DISK_USAGE_TTL_S``
-        (:class:`DiskUsageCache`)."""
+        """Liveness: ``{"status": "ok", "version", "executor", "jobs_running", "disk",
+        "problems"}``; ``disk``: bytes the data folder uses by part (scans, results, datasets,
+        exports, other) and the free bytes of its file system; ``problems``: what keeps jobs
+        from running now, one line each (a full disk, a lost device). Answered on the event
+        loop without a server thread, ahead of the other requests waiting for their turn
+        (``service.api.lanes``), in time independent of the data folder: the bytes are
+        counters kept as files are written and removed (``service.storage.usage``, checked
+        by a walk in a thread of its own), a stored change shows in the next answer, a scan
+        file's growth within a second."""
         return await health_document(c)
 
     @app.get("/api/auth", response_model=AuthInfo, tags=["health"])
@@ -659,6 +588,28 @@ def _add_health_routes(app: FastAPI, settings: Settings) -> Callable[[Context], 
                         or token_matches(request.headers.get("authorization"), expected) is None)
 
     return health_document
+
+
+def health_problems(c: Context) -> list[str]:
+    """What keeps jobs from running now, one line each: the data folder's disk below the
+    reserve (``disk_reserve_bytes``), the job database's reserve in use, reconstructions
+    waiting for disk space (``service.jobs.queue``) and interrupted scans
+    (``service.jobs.scans``)."""
+    from service.storage.usage import usage_for
+
+    out: list[str] = []
+    settings = c.settings
+    free = usage_for(settings.data_dir).snapshot().get("free_bytes")
+    if free is not None and free < settings.disk_reserve_bytes:
+        out.append(f"the data folder's disk is full: {free} bytes free, below the reserve of "
+                   f"{settings.disk_reserve_bytes} (disk_reserve_bytes); reconstructions that do not fit fail or wait, "
+                   "scans pause: free space")
+    out += c.store.problems()
+    if c.queue is not None:
+        out += c.queue.problems()
+    if c.scans is not None:
+        out += c.scans.problems()
+    return out
 
 
 def _state_security_in_openapi(app: FastAPI, settings: Settings) -> None:

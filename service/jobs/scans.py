@@ -13,7 +13,9 @@ Controls: ``pause``/``resume``/``abort`` call the open ``driver.host.Scanner`` f
 request thread (the driver queues them for its scan loop). A scan interrupted by a server
 restart is ``paused`` (stage ``interrupted``); ``resume`` re-queues it and the driver
 continues from the scan file's record of completed points, so no A-line is lost or
-acquired twice.
+acquired twice. A scan paused by a full disk resumes by itself once its scan file fits the
+free disk again (and at least ``DISK_FREED_BYTES`` more are free than when it stopped),
+looked at every second.
 """
 from __future__ import annotations
 
@@ -27,9 +29,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from service.disk import is_disk_full
-from service.jobs.dispatcher import SKIP, START, Dispatcher, Verdict
+from service.jobs.dispatcher import SKIP, START, Dispatcher, Loop, Verdict
 from service.jobs.preview import PreviewManager
 from service.jobs.store import TERMINAL, JobStore
+from service.storage.usage import usage_for
 
 if TYPE_CHECKING:
     from driver.host import Scanner, ScanProgress
@@ -83,13 +86,16 @@ class ScanManager:
         self._lock = threading.Lock()
         self._dispatcher = Dispatcher(store, "scan", owner=self.owner, lease_s=60.0, admit=self._admit,
                                       launch=self._launch, name="scan-dispatcher", log=log)
+        self._disk_watch = Loop("scan-disk-watch", self._resume_when_room, period=1.0, log=log)
 
     # -- lifecycle -----------------------------------------------------------------
     def start(self) -> None:
         self.previews.start()
         self._dispatcher.start()
+        self._disk_watch.start()
 
     def stop(self) -> None:
+        self._disk_watch.stop(timeout=5)
         self._dispatcher.stop(timeout=5)  # no scan starts after this
         with self._lock:
             runs = list(self._runs.values())
@@ -227,12 +233,16 @@ class ScanManager:
 
     def _execute(self, job: dict, run: _Run) -> None:
         jid = job["id"]
+        scan_path = Path(job["params"].get("scan_path") or self.scans_dir / f"{jid}.h5")
+        usage = usage_for(self.settings.data_dir)
+        usage.growing(scan_path)  # /api/health reads its size while it grows
         try:
             self._acquire(job, run)
         except Exception as exc:  # never let a scan thread die silently, nor a job stay running
             log.exception("scan job=%s crashed", jid)
             self._interrupt(jid, f"scan stopped ({type(exc).__name__}: {self.settings.redact(str(exc))})")
         finally:
+            usage.grown(scan_path)
             with self._lock:
                 self._runs.pop(run.scanner_id, None)
             self.previews.untrack(jid)  # (the dispatcher wakes when this returns)
@@ -268,6 +278,36 @@ class ScanManager:
                     self._problems[jid] = f"{why}; job store: {_one_line(str(exc))}"
                 if self._dispatcher.wait_stop(1.0):
                     return
+
+    def _resume_when_room(self) -> None:
+        """Resume the scans a full disk paused once their scan file fits again (the disk
+        watch's tick): its remaining A-lines fit the free disk (:meth:`_disk_shortfall`) and
+        at least ``DISK_FREED_BYTES`` more are free than when it stopped."""
+        import shutil
+
+        with self._lock:
+            waiting = [(jid, free) for jid, free in self._free_at_interrupt.items()
+                       if "disk full" in self._problems.get(jid, "") or "disk is full" in self._problems.get(jid, "")]
+        for jid, free_then in waiting:
+            job = self.store.get(jid)
+            if job is None or job["state"] in TERMINAL:  # cancelled or deleted meanwhile
+                with self._lock:
+                    self._problems.pop(jid, None)
+                    self._free_at_interrupt.pop(jid, None)
+                continue
+            if job["state"] != "paused":  # still being interrupted (its pause not yet written)
+                continue
+            found = self.store.get_plan(job["params"]["plan_id"])
+            if found is None:
+                continue
+            scan_path = Path(job["params"].get("scan_path") or self.scans_dir / f"{jid}.h5")
+            try:
+                free_now = shutil.disk_usage(self.settings.data_dir).free
+            except OSError:
+                continue
+            if free_now >= free_then + DISK_FREED_BYTES and self._disk_shortfall(found[0], scan_path) is None:
+                log.info("scan job=%s: the disk has room again (%d bytes free); resuming", jid, free_now)
+                self.resume(jid)
 
     def _disk_shortfall(self, plan: dict, scan_path: Path) -> str | None:
         """The reason a scan file cannot be completed on its disk (free space below what
