@@ -38,7 +38,7 @@ if TYPE_CHECKING:
 __all__ = [
     "VERSION", "PROCESS_START", "ERROR_RESPONSES", "allowed_methods", "UploadLimit", "MIN_BODY_RATE",
     "ShortIds", "warm_routes", "freeze_startup_objects", "create_app",
-    "internal_error", "InternalErrors",
+    "internal_error", "InternalErrors", "health_problems",
 ]
 
 log = logging.getLogger("fpscan.api")

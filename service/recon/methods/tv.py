@@ -163,12 +163,13 @@ def run(ds: PointDataset, c: float, opts: dict, step: Progress) -> Reconstructio
 #: seconds of work per operator pair and unit (the padded grid's ``M log2 M``, ``M`` its
 #: points), float32 on the reference 2 cores: a pair measured 0.57 s at 256 x 64^2 (15 % mask,
 #: padded to 257 x 200^2: 2.4e-9) and 5.2 s at 512 x 64^2 (513 x 324^2: 3.7e-9) at load 5, and
-#: 6.5 s at the paper's 1024 x 226^2 (1025 x 450^2: 1.1e-9; docs/performance.md): the estimate
-#: is 0.7-2.3x those
-PAIR_RATE = 2.5e-9
+#: 6.5 s at the paper's 1024 x 226^2 (1025 x 450^2: 1.1e-9, idle; docs/performance.md); the
+#: TV step of each iteration is counted in it (benchmarks/bench_work_estimate.py)
+PAIR_RATE = 3.5e-9
 #: operator pairs besides one per iteration: the power iterations (2), the noise image's
-#: adjoint, the warm start and the last residual (measured: 6 pairs for 3 iterations)
-SETUP_PAIRS = 3.5
+#: adjoint, the first residual (measured: 6 pairs for 3 iterations) and the set-up's other
+#: steps, the equivalent of 2 more
+SETUP_PAIRS = 5.0
 #: the debias refit's iterations (``service.recon.tv``)
 DEBIAS_ITERATIONS = 10
 
