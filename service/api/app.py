@@ -600,6 +600,8 @@ def health_problems(c: Context) -> list[str]:
     out: list[str] = []
     settings = c.settings
     free = usage_for(settings.data_dir).snapshot().get("free_bytes")
+    if free is not None and c.store.reserve_spent is not None:  # those bytes are the job database's
+        free = max(0, free - c.store.reserve_bytes)
     if free is not None and free < settings.disk_reserve_bytes:
         out.append(f"the data folder's disk is full: {free} bytes free, below the reserve of "
                    f"{settings.disk_reserve_bytes} (disk_reserve_bytes); reconstructions that do not fit fail or wait, "

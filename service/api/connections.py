@@ -255,7 +255,8 @@ def guarded_protocol(settings: Settings, guard: ConnectionGuard | None = None) -
 
 def server_config(app: Any, settings: Settings) -> Any:
     """The ``uvicorn.Config`` that serves ``app`` by ``settings``: bind address, the
-    guarded protocol (:func:`guarded_protocol`), the keep-alive timeout
+    guarded protocol (:func:`guarded_protocol`; no WebSocket upgrades: the service has no
+    WebSocket route), the keep-alive timeout
     (``settings.keep_alive_s``), the graceful-shutdown bound (``settings.shutdown_grace_s``:
     open connections, SSE streams included, are closed after it), no access log; then every
     log handler capped (:func:`service.api.logcaps.install_log_caps`)."""
@@ -263,6 +264,7 @@ def server_config(app: Any, settings: Settings) -> Any:
 
     config = uvicorn.Config(app, host=settings.host, port=settings.port, log_level=settings.log_level.lower(),
                             access_log=False, lifespan="on", http=guarded_protocol(settings),
+                            ws="none",  # no WebSocket routes: an upgrade would leave the guard's count behind
                             timeout_keep_alive=max(1, int(round(settings.keep_alive_s))),
                             timeout_graceful_shutdown=max(1, int(round(settings.shutdown_grace_s))))
     install_log_caps()

@@ -341,7 +341,8 @@ def disk_usage(data_dir: str | os.PathLike) -> dict:
     """Bytes the store uses, by part, and the free space of its file system:
     ``{"total_bytes", "scans_bytes", "results_bytes", "datasets_bytes", "exports_bytes",
     "other_bytes", "free_bytes"}`` (one walk of the data folder, :func:`disk_usage_steps`
-    run to its end)."""
+    run to its end): the check of ``/api/health``'s counters
+    (``service.storage.usage.DiskUsage.reconcile``, in a thread of its own)."""
     steps = disk_usage_steps(data_dir)
     while True:
         try:
@@ -352,8 +353,8 @@ def disk_usage(data_dir: str | os.PathLike) -> dict:
 
 def disk_usage_steps(data_dir: str | os.PathLike) -> Generator[None, None, dict]:
     """:func:`disk_usage` as a generator that yields (None) after every
-    :data:`DISK_WALK_STEP` entries and returns the answer: a caller on an event loop lets
-    other work run between the steps (``/api/health``'s ``DiskUsageCache``). One pass over
+    :data:`DISK_WALK_STEP` entries and returns the answer: a caller on an event loop may
+    let other work run between the steps. One pass over
     the data folder (files counted by ``lstat`` size, symbolic links not followed below a
     part's own folder); a file that vanishes during the walk counts 0."""
     data = Path(data_dir)

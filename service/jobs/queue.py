@@ -42,7 +42,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from service.disk import is_disk_full
-from service.jobs.dispatcher import SKIP, START, WAIT, Dispatcher, Verdict
+from service.jobs.dispatcher import SKIP, START, WAIT, Dispatcher, Loop, Verdict
 from service.jobs.executors import WorkerDied
 from service.jobs.lifecycle import apply_retention
 from service.jobs.store import JobStore
@@ -52,7 +52,7 @@ from service.pipeline import Cancelled
 from service.storage.usage import usage_for
 
 __all__ = [
-    "INCOMING", "DISK_LOOK_S", "DiskFull", "disk_full_reason", "remove_debris", "ReconQueue",
+    "INCOMING", "DISK_LOOK_S", "RESERVE_LOOK_S", "DiskFull", "disk_full_reason", "remove_debris", "ReconQueue",
 ]
 
 log = logging.getLogger("fpscan.jobs")
@@ -104,6 +104,8 @@ class DiskFull(Exception):
 
 #: seconds between two looks of a running job's thread at the free disk
 DISK_LOOK_S = 1.0
+#: seconds between two looks at whether the job database's spent reserve can be written again
+RESERVE_LOOK_S = 2.0
 
 
 def disk_full_reason(free: int | None, needed: int) -> str:
@@ -130,11 +132,15 @@ class ReconQueue:
         self._dispatcher = Dispatcher(store, "recon", owner=self.owner, lease_s=settings.heartbeat_s * 5,
                                       admit=self._admit, launch=self._launch, name="recon-dispatcher", log=log,
                                       orphaned=self._orphaned)
+        # the job database's reserve, spent on a full disk, written again once there is room
+        self._reserve_watch = Loop("store-reserve", store.restore_reserve, period=RESERVE_LOOK_S, log=log)
 
     def start(self) -> None:
         self._dispatcher.start()
+        self._reserve_watch.start()
 
     def stop(self) -> None:
+        self._reserve_watch.stop(timeout=5)
         self._dispatcher.stop(timeout=5)
 
     def join(self, timeout: float = 10.0) -> None:

@@ -19,6 +19,7 @@ looked at every second.
 """
 from __future__ import annotations
 
+import errno
 import logging
 import math
 import threading
@@ -43,6 +44,8 @@ log = logging.getLogger("fpscan.scans")
 #: Free space (bytes) that must come back on the data folder's disk, beyond what was free
 #: when a full disk stopped a scan, before ``/api/health`` stops calling the disk full.
 DISK_FREED_BYTES = 1 << 20
+#: Seconds between two looks of a running scan at whether the rest of its file fits the disk.
+DISK_LOOK_S = 1.0
 #: Longest reason kept for an interrupted scan (HDF5's write errors run to many lines).
 REASON_CHARS = 300
 
@@ -56,6 +59,10 @@ def _one_line(text: str) -> str:
 def _missing_device(port: str) -> bool:
     """True for a device path (not a pyserial URL) that does not exist."""
     return "://" not in port and not Path(port).exists()
+
+
+class _NoRoom(OSError):
+    """The rest of a scan file no longer fits its disk (``ScanManager._room_watch``)."""
 
 
 class _Run:
@@ -312,7 +319,8 @@ class ScanManager:
     def _disk_shortfall(self, plan: dict, scan_path: Path) -> str | None:
         """The reason a scan file cannot be completed on its disk (free space below what
         its remaining A-lines need: ``n_points × (2 n_t × n_wavelengths + 128)`` bytes
-        less what the file has allocated), or None."""
+        less what the file has allocated), or None. The job database's reserve, while it
+        is spent (a full disk), does not count as free: it holds the jobs' states."""
         import shutil
 
         acq = plan["acquisition"]
@@ -323,10 +331,30 @@ class ScanManager:
             free = shutil.disk_usage(scan_path.parent).free
         except OSError:
             return None
+        if self.store.reserve_spent is not None:
+            free = max(0, free - self.store.reserve_bytes)
         if need - have > free:
             return (f"disk full: the scan file needs {need - have} more bytes, {free} are free on the data "
                     "folder's disk; free space, then resume")
         return None
+
+    def _room_watch(self, plan: dict, scan_path: Path) -> Callable[[ScanProgress], None]:
+        """A check for the scan's progress reports: every :data:`DISK_LOOK_S`, the rest of the
+        scan file must still fit the disk (:meth:`_disk_shortfall`), else it raises
+        :class:`_NoRoom` (an ENOSPC ``OSError``): the scan stops as a full disk would stop it,
+        before it takes the bytes the job database holds for the jobs' states."""
+        last = [time.monotonic()]
+
+        def check(p: ScanProgress) -> None:
+            now = time.monotonic()
+            if now - last[0] < DISK_LOOK_S or p.state in ("done", "aborted"):
+                return
+            last[0] = now
+            short = self._disk_shortfall(plan, scan_path)
+            if short:
+                raise _NoRoom(errno.ENOSPC, short)
+
+        return check
 
     def _acquire_or_interrupt(self, jid: str, run_acquire):
         """``run_acquire()``'s result; None when the scan stopped: a bad plan or file fails
@@ -339,6 +367,8 @@ class ScanManager:
             log.warning("scan job=%s failed: %s", jid, exc)
             self.store.set_state(jid, "failed", error=self.settings.redact(str(exc)),
                                  only_from=("running", "paused"))
+        except _NoRoom as exc:  # the rest of the file no longer fits: resumable, and by itself
+            self._interrupt(jid, exc.strerror or "disk full")
         except OSError as exc:  # the disk (ENOSPC, EIO): the points on disk stay resumable
             why = "disk full" if is_disk_full(exc) else "scan file write failed"
             self._interrupt(jid, f"{why}: {self.settings.redact(str(exc))}; free space, then resume")
@@ -393,9 +423,11 @@ class ScanManager:
             self.previews.track(jid, str(scan_path),
                                 wavelength_index=int(job["params"].get("preview_wavelength", 0)))
             last = {"t": 0.0}
+            room = self._room_watch(plan, scan_path)
 
             def progress(p: ScanProgress) -> None:
                 now = time.monotonic()
+                room(p)
                 if run.scanner is None or run.pending:
                     with run.lock:  # scanning now: controls go straight to the driver
                         run.scanner = scanner

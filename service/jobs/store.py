@@ -177,9 +177,17 @@ class JobStore:
         return True
 
     def _after_write(self) -> None:
-        """After a write: a spent reserve is written again once the disk has room for twice it."""
+        """After a write: a spent reserve is written again once the disk has room for twice it
+        (looked at most every few seconds)."""
         if self.reserve_spent is None or time.monotonic() - self._reserve_look < _RESERVE_RETRY_S:
             return
+        self.restore_reserve()
+
+    def restore_reserve(self) -> bool:
+        """Write a spent reserve again if the disk has room for twice it (a server's
+        periodic look, and after writes); True when the reserve is in place."""
+        if self.reserve_spent is None:
+            return True
         self._reserve_look = time.monotonic()
         try:
             import shutil
@@ -190,6 +198,7 @@ class JobStore:
         if room and self._write_reserve():
             log.info("job store: the disk has room again; its reserve is back")
             self.reserve_spent = None
+        return self.reserve_spent is None
 
     def _write(self, call):
         """``call()`` (a write); on a full disk the reserve is given up and ``call`` tried once more."""

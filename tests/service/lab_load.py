@@ -241,7 +241,9 @@ def mixed_load(url: str, token: str, spec: dict) -> list[tuple[str, int, float]]
     drawn from ``spec["kinds"]`` (job status of ``spec["scan_id"]``, health, plan previews
     with bad depths, uploads of ``spec["good"]`` and of the files ``spec["bad"]``,
     reconstruction requests with bad options on ``spec["dataset_id"]``, the job list), each
-    answered within ``spec["answer_s"]`` or counted as never answered. The clients are
+    answered within ``spec["answer_s"]`` or counted as never answered; with
+    ``spec["pause_s"]`` each client waits about that long (0.5-1.5 times) after an answer,
+    as a person's client does between requests. The clients are
     coroutines in one thread that send requests encoded once (:func:`_encoded`): like
     clients on other machines they take next to none of the server's cores (50 httpx
     clients in this process took a whole core from the server on a 2-core machine).
@@ -273,6 +275,8 @@ def mixed_load(url: str, token: str, spec: dict) -> list[tuple[str, int, float]]
                     conn[1].close()
                 conn = None
             results.append((kind, status, time.perf_counter() - t0))
+            if spec.get("pause_s"):
+                await asyncio.sleep(spec["pause_s"] * rnd.uniform(0.5, 1.5))
         if conn is not None:
             conn[1].close()
 

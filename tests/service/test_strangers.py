@@ -148,3 +148,43 @@ def test_refused_requests_with_long_paths_add_little_log(limited_server):
           f"{grew} bytes of log; answers {codes}")
     assert codes == {431: STRANGERS, 401: STRANGERS}, codes
     assert grew < 1_000_000, grew
+
+
+def test_the_guard_s_rule():
+    """Per address at most ``per_address``; beyond ``max_connections`` in all only an
+    address's allowance; never beyond the hard limit; a release makes room again."""
+    from service.api.connections import ConnectionGuard
+
+    guard = ConnectionGuard(per_address=3, max_connections=5, allowance=1, hard_limit=7)
+    answers = [guard.admit("a") for _ in range(4)]
+    assert answers[:3] == [None] * 3 and "holds 3 connections" in (answers[3] or "")
+    assert guard.held("a") == 3 and guard.total == 3
+    assert guard.admit("b") is None and guard.admit("b") is None  # 5 in all now
+    assert "at most 5 beyond 1 per address" in (guard.admit("b") or "")  # b holds its allowance already
+    assert guard.admit("c") is None and guard.admit("d") is None  # newcomers get their allowance: 7
+    assert "as many as it can" in (guard.admit("e") or "")  # the hard limit
+    guard.release("a")
+    assert guard.admit("e") is None and guard.total == 7
+    assert guard.refused_count == 3
+
+
+def test_refusals_are_one_line_per_address_per_interval_with_a_count(caplog):
+    import logging
+
+    from service.api.logcaps import CappedRecords, RefusalLog, shown
+
+    log = logging.getLogger("fpscan.test-refusals")
+    refusals = RefusalLog(log, interval_s=3600)
+    with caplog.at_level(logging.INFO, logger="fpscan.test-refusals"):
+        written = [refusals.refused("10.0.0.1", "refused path=%s", shown("/" + "x" * 60_000)) for _ in range(1000)]
+        refusals.refused("10.0.0.2", "refused path=%s", "/api/jobs")
+    assert written.count(True) == 1
+    lines = [r.getMessage() for r in caplog.records]
+    assert len(lines) == 2 and all(len(line) < 400 for line in lines), lines
+    assert "(60001 characters)" in lines[0]
+    refusals.interval_s = 0.0
+    with caplog.at_level(logging.INFO, logger="fpscan.test-refusals"):
+        refusals.refused("10.0.0.1", "refused again")
+    assert "999 more refusals from 10.0.0.1" in caplog.records[-1].getMessage()
+    record = logging.LogRecord("x", logging.ERROR, __file__, 1, "%s", ("y" * 10_000,), None)
+    assert CappedRecords(limit=2000).filter(record) and len(record.getMessage()) < 2100
