@@ -108,12 +108,13 @@ DISK_LOOK_S = 1.0
 RESERVE_LOOK_S = 2.0
 
 
-def disk_full_reason(free: int | None, needed: int) -> str:
+def disk_full_reason(free: int | None, needed: int, reserve: int = 0) -> str:
     """The one-line reason a job ends with on a full disk: ``"disk full: N bytes free, M
-    needed ..."``."""
+    needed ..."`` (``reserve``: bytes of those kept free, ``disk_reserve_bytes``)."""
     shown = "an unknown number of" if free is None else str(int(free))
-    return (f"disk full: {shown} bytes free, {int(needed)} needed for the result on the data folder's disk; "
-            "free space, then submit the reconstruction again")
+    kept = f" ({int(reserve)} of them kept in reserve, disk_reserve_bytes)" if reserve else ""
+    return (f"disk full: {shown} bytes free{kept}, {int(needed)} needed for the result on the data folder's "
+            "disk; free space, then submit the reconstruction again")
 
 
 class ReconQueue:
@@ -187,8 +188,9 @@ class ReconQueue:
             return WAIT
         needed = int(job["params"].get("result_bytes") or 0)
         free = self._free_bytes() if needed else None
-        if free is not None and free - int(self.settings.disk_reserve_bytes) < needed:
-            why = disk_full_reason(free, needed)
+        reserve = int(self.settings.disk_reserve_bytes)
+        if free is not None and free - reserve < needed:
+            why = disk_full_reason(free, needed, reserve)
             try:
                 if self.store.set_state(job["id"], "failed", error=why, only_from=("queued",),
                                         progress={"stage": "failed"}):

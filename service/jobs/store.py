@@ -122,6 +122,7 @@ class JobStore:
         self.reserve_bytes = int(reserve_bytes)
         self.reserve_spent: float | None = None  # when the reserve was given up (time.time()), None: kept
         self._reserve_look = 0.0  # time.monotonic() of the last look at writing it again
+        self._reserve_lock = threading.Lock()  # spending and writing it again never cross
         self._lock = threading.RLock()
         self._db = sqlite3.connect(str(self.path), check_same_thread=False, timeout=30.0,
                                    isolation_level=None)
@@ -168,10 +169,11 @@ class JobStore:
 
     def _spend_reserve(self) -> bool:
         """Give the reserve's bytes back to the disk; False when there is none to give."""
-        if self.reserve_bytes <= 0 or not self.reserve_path.exists():
-            return False
-        self.reserve_path.unlink(missing_ok=True)
-        self.reserve_spent = time.time()
+        with self._reserve_lock:
+            if self.reserve_bytes <= 0 or not self.reserve_path.exists():
+                return False
+            self.reserve_path.unlink(missing_ok=True)
+            self.reserve_spent = time.time()
         log.warning("job store: the disk is full; its reserve of %d bytes was given up for job states",
                     self.reserve_bytes)
         return True
@@ -195,10 +197,11 @@ class JobStore:
             room = shutil.disk_usage(self.path.parent).free >= 2 * self.reserve_bytes + (1 << 20)
         except OSError:
             room = False
-        if room and self._write_reserve():
-            log.info("job store: the disk has room again; its reserve is back")
-            self.reserve_spent = None
-        return self.reserve_spent is None
+        with self._reserve_lock:
+            if room and self.reserve_spent is not None and self._write_reserve():
+                log.info("job store: the disk has room again; its reserve is back")
+                self.reserve_spent = None
+            return self.reserve_spent is None
 
     def _write(self, call):
         """``call()`` (a write); on a full disk the reserve is given up and ``call`` tried once more."""
