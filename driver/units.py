@@ -35,8 +35,8 @@ if TYPE_CHECKING:
     from typing import Any
 
 __all__ = [
-    "KINDS", "PITCH_RANGE", "DT_RANGE", "RefusedInput", "ImplausibleValue", "parse_quantity", "suggest_unit",
-    "check_speeds", "check_plausible",
+    "KINDS", "PITCH_RANGE", "DT_RANGE", "MAGNITUDE_MAX", "RefusedInput", "ImplausibleValue", "parse_quantity",
+    "suggest_unit", "check_speeds", "check_plausible",
 ]
 
 #: what each kind of quantity is measured in: (pint dimensionality, SI unit name)
@@ -48,6 +48,10 @@ KINDS = {
 }
 
 PITCH_RANGE = (1e-6, 10e-3)       # m
+#: largest magnitude a typed number may have, checked on the text's number before any
+#: arithmetic: no quantity of the field is larger, and decimal arithmetic on "1e999999999"
+#: overflows (``decimal.Overflow``); tiny numbers only underflow to 0 (then refused by range)
+MAGNITUDE_MAX = 1e30
 DT_RANGE = (0.1e-9, 1e-6)         # s
 
 _QUANTITY = re.compile(r"^\s*([+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?)\s*([A-Za-zµμ/ ]*?)\s*$")
@@ -79,7 +83,8 @@ def parse_quantity(value: Any, kind: str, *, name: str = "value") -> float:
     ``value``: a number (SI already) or text ``"<number>"`` (SI) or ``"<number> <unit>"``
     (``"60um"``, ``"3.6 mm"``, ``"8ns"``, ``"500 Hz"``, ``"1.5 km/s"``). ``kind``: one of
     :data:`KINDS`. Raises ValueError naming ``name`` for text that is not a number with a
-    unit of that kind (or not finite).
+    unit of that kind, for a typed number above :data:`MAGNITUDE_MAX` (checked before
+    any arithmetic) and for a value that is not finite.
     """
     if kind not in KINDS:
         raise ValueError(f"unknown kind of quantity {kind!r}; one of {', '.join(KINDS)}")
@@ -95,6 +100,9 @@ def parse_quantity(value: Any, kind: str, *, name: str = "value") -> float:
             raise ValueError(f"{name} must be a number with an optional {kind} unit "
                              f"(e.g. 60um, 3.6 mm, 8ns, 500 Hz; bare numbers are {si}), got {text!r}")
         number, unit = m.group(1), m.group(2).strip().replace("μ", "µ")
+        if not abs(float(number)) <= MAGNITUDE_MAX:  # a float first: "1e999999999" is inf here, not decimal's
+            raise ValueError(f"{name}: the number {number!r} is out of range (magnitude at most "  # Overflow later
+                             f"{MAGNITUDE_MAX:g})")
         from decimal import Decimal, InvalidOperation  # imported here: ``fpscan --help`` imports this module
 
         try:
@@ -109,13 +117,16 @@ def parse_quantity(value: Any, kind: str, *, name: str = "value") -> float:
             ureg = _registry()
             try:
                 q = magnitude * ureg.Unit(unit)
-            except (pint.errors.PintError, AttributeError, ValueError, TypeError):
+            except (pint.errors.PintError, AttributeError, ValueError, TypeError, ArithmeticError):
                 raise ValueError(f"{name}: unknown unit {unit!r} (a {kind}: e.g. "
                                  f"{', '.join(_EXAMPLES[kind])})") from None
             if not q.check(dim):
                 raise ValueError(f"{name}: {text.strip()!r} is not a {kind} (expected {si} or e.g. "
                                  f"{', '.join(_EXAMPLES[kind])})")
-            out = float(q.to(si).magnitude)
+            try:  # decimal's own bounds (Overflow, an ArithmeticError) stay a refusal, never a crash
+                out = float(q.to(si).magnitude)
+            except ArithmeticError:
+                raise ValueError(f"{name}: {text.strip()!r} is out of range") from None
     if not math.isfinite(out):
         raise ValueError(f"{name} must be finite, got {value!r}")
     return out

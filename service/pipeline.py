@@ -247,8 +247,9 @@ def method_options(method: str, options: dict) -> dict:
     Raises ValueError naming the problem: an unknown method; a name that is no option at
     all (:data:`OPTIONS`); an option ``method`` does not take (``OptionError`` naming the
     method's options: an option that would do nothing is never silently dropped); a value
-    outside its rule; a ``c_range`` without ``c="auto"`` or outside
-    :func:`service.autofocus.check_c_range`. ``force`` (:func:`reconstruct`'s flag, not a
+    outside its rule; ``c="auto"`` for a method whose own reconstruction cannot run the
+    search (it takes no ``dz``, ``n_z``: ``kwave``); a ``c_range`` without ``c="auto"`` or
+    outside :func:`service.autofocus.check_c_range`. ``force`` (:func:`reconstruct`'s flag, not a
     method's option) passes and is left out. Returns a new dict of the given values as
     checked (e.g. ``upsample`` an int).
 
@@ -299,6 +300,13 @@ def method_options(method: str, options: dict) -> dict:
     if foreign:
         raise OptionError(f"method {method!r} takes no option {', '.join(foreign)} "
                           f"(its options: {', '.join(spec.options)})")
+    if options.get("c") == "auto":
+        from service.autofocus import ITERATIVE_METHODS
+
+        if method not in ITERATIVE_METHODS and not {"dz", "n_z"} <= set(spec.options):
+            raise OptionError(f"method {method!r} cannot search the speed of sound (sound_speed 'auto'): the search "
+                              "reconstructs every speed tried on one depth grid (dz, n_z), which it does not take; "
+                              "give the speed of sound in m/s, or search with ner first")
     given = {k: v for k, v in options.items() if v is not None and k in spec.options and k != "c"}
     checked = spec.check(given)
     if options.get("c_range") is not None:  # never silently unused

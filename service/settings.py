@@ -63,10 +63,38 @@ class Settings(BaseSettings):
                           "background (health answers at once; the first job waits for its worker's warm-up)")
     memory_limit: int = Field(8 * 2**30, gt=0, description="bytes available to reconstructions at once")
     upload_limit: int = Field(2 * 2**30, gt=0, description="largest accepted upload, bytes")
-    body_timeout_s: float = Field(30.0, gt=0, le=3600, description="an upload or plan request whose body "
-                                  "stalls this long (or then trickles under 16 KiB/s) is refused with 408")
-    json_limit: int = Field(64 * 2**20, gt=0, description="largest JSON request body, bytes (parsed whole in "
-                            "memory; the plan JSON of the largest lattice is 15-32 MiB)")
+    body_timeout_s: float = Field(30.0, gt=0, le=3600, description="a request whose body sends nothing for "
+                                  "this long is refused with 408")
+    body_min_rate: int = Field(100 * 1024, ge=0, description="slowest a request body may arrive, bytes/s averaged "
+                               "over body_rate_window_s (after its first window): an upload or plan body slower "
+                               "than this is refused with 408; 0 = no floor")
+    body_rate_window_s: float = Field(10.0, gt=0, le=3600, description="the window body_min_rate is averaged over, s")
+    json_limit: int = Field(64 * 2**20, gt=0, description="largest plan request body (POST /api/plans, "
+                            "/api/plans/preview), bytes: parsed in the plan worker; the plan JSON of the largest "
+                            "lattice is 15-32 MiB")
+    request_json_limit: int = Field(64 * 1024, gt=0, le=64 * 2**20, description="largest JSON body of every other "
+                                    "request (reconstructions, scans, retention, ...), bytes: parsed and validated "
+                                    "on the event loop, so capped at what its schema can need")
+    header_timeout_s: float = Field(5.0, gt=0, le=600, description="a connection that has not sent a complete "
+                                    "request head (request line and headers) this long after it was accepted, or "
+                                    "after the first byte of its next request, is closed, s")
+    max_head_bytes: int = Field(16 * 1024, ge=1024, le=2**20, description="longest request line and headers, "
+                                "bytes: a longer head is refused with 431 before the app sees it")
+    keep_alive_s: float = Field(5.0, gt=0, le=3600, description="an idle kept-alive connection is closed after "
+                                "this long, s")
+    shutdown_grace_s: float = Field(5.0, gt=0, le=3600, description="on shutdown, connections still open "
+                                    "(event streams included) are closed after this long, s")
+    connections_per_address: int = Field(64, ge=1, le=100_000, description="most open connections of one client "
+                                         "address; more are refused at accept time (503)")
+    max_connections: int | None = Field(None, ge=1, le=1_000_000, description="open connections in all beyond "
+                                        "which a client address gets only its allowance of 4 (refused: 503); "
+                                        "None = half the process's open-file limit")
+    uploads_per_client: int | None = Field(None, ge=1, le=1024, description="uploads (and plan requests) one client "
+                                           "address may have in progress or waiting; more get 429 while the "
+                                           "server's slots are not all taken by others; None = import_workers")
+    work_limit_s: float = Field(8 * 3600.0, gt=0, le=30 * 86400, description="most work one reconstruction may "
+                                "ask for, in seconds on 2 cores by its method's estimate "
+                                "(service.jobs.admission.estimate_work); more is refused with 422")
     import_timeout_s: float = Field(60.0, gt=0, le=3600, description="longest time an upload's import may "
                                     "take before it is refused (damaged files can block the HDF5 library)")
     import_workers: int = Field(2, ge=1, le=64, description="uploads imported at once (each in a child process "
@@ -100,7 +128,13 @@ class Settings(BaseSettings):
     retention_datasets_max_age_s: float | None = Field(None, ge=0, description="delete uploaded datasets no active "
                                                        "job reads once older than this, s (None = never)")
     disk_reserve_bytes: int = Field(256 * 2**20, ge=0, description="free disk an upload's import must leave: a "
-                                    "dataset that would leave less (counting imports in flight) is refused with 507")
+                                    "dataset that would leave less (counting imports in flight) is refused with 507; "
+                                    "below it /api/health lists the disk as full")
+    db_reserve_bytes: int = Field(8 * 2**20, ge=0, le=2**30, description="bytes kept in a reserve file beside the "
+                                  "job database and given up when its disk fills, so that jobs' final states, cancels "
+                                  "and deletions can still be written (0 = none)")
+    disk_walk_period_s: float = Field(600.0, gt=0, le=7 * 86400, description="seconds between two walks of the "
+                                      "data folder that check the disk-use counters /api/health answers from")
 
     @field_validator("devices")
     @classmethod

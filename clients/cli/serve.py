@@ -110,11 +110,11 @@ def run(args) -> int:
         import uvicorn  # after the workers' spawn: they warm up while the server loads (0.2 s sooner)
 
         from service.api.app import create_app
+        from service.api.connections import server_config
 
         app = create_app(settings, executor=executor)
-        config = uvicorn.Config(app, host=settings.host, port=settings.port, log_level=settings.log_level.lower(),
-                                access_log=False, lifespan="on")
-        server = uvicorn.Server(config)
+        # timeouts, connection limits and capped logs: service.api.connections
+        server = uvicorn.Server(server_config(app, settings))
         print(json.dumps({"event": "serving", "host": settings.host, "port": settings.port,
                           "data_dir": str(settings.data_dir)}), file=sys.stderr, flush=True)
         server.run()

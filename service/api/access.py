@@ -29,6 +29,7 @@ from urllib.parse import urlsplit
 
 from fastapi.responses import JSONResponse
 
+from service.api.logcaps import RefusalLog, shown
 from service.settings import Settings, is_loopback
 
 __all__ = [
@@ -113,11 +114,14 @@ class AccessGate:
     """ASGI middleware: the Host, token and Origin rules of this module, applied to every
     HTTP request from its headers alone (nothing of the body is read for a refusal, and
     the refusal closes the connection). ``settings``: the service's settings (the token
-    is read on each request, so a rotated ``token_file`` takes effect at once)."""
+    is read on each request, so a rotated ``token_file`` takes effect at once). Refusals
+    are logged at most one line per client address per interval, each field capped
+    (``service.api.logcaps``)."""
 
     def __init__(self, app, settings: Settings):
         self.app = app
         self.settings = settings
+        self.refusals = RefusalLog(log)  # one line per client address per interval, fields capped
 
     async def __call__(self, scope, receive, send):
         if scope["type"] not in ("http", "websocket"):
@@ -128,8 +132,9 @@ class AccessGate:
             headers = {"Connection": "close"}
             if status == 401:
                 headers["WWW-Authenticate"] = "Bearer"
-            log.info("refused method=%s path=%s status=%s: %s", scope.get("method"), scope.get("path"), status,
-                     detail)
+            client = scope.get("client") or ("?", 0)
+            self.refusals.refused(client[0], "refused client=%s method=%s path=%s status=%s: %s", client[0],
+                                  shown(scope.get("method"), 16), shown(scope.get("path", "")), status, detail)
             if scope["type"] == "websocket":
                 return await send({"type": "websocket.close", "code": 1008})
             return await JSONResponse({"detail": detail}, status, headers=headers)(scope, receive, send)

@@ -9,12 +9,12 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import inspect
 import logging
 import re
 import sqlite3
 import time
 import uuid
+from collections import deque
 from collections.abc import Awaitable, Callable, MutableMapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -26,7 +26,8 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.staticfiles import StaticFiles
 
 from driver.acquire import software_version
-from service.api.context import Context, Slots, ctx, default_slots, read_access, validation_reason
+from service.api.context import Context, Slots, capped, ctx, default_slots, read_access, validation_reason
+from service.api.logcaps import shown
 from service.api.models import AuthInfo, Error, Health
 from service.disk import is_disk_full
 from service.settings import Settings
@@ -36,7 +37,8 @@ if TYPE_CHECKING:
 
 __all__ = [
     "VERSION", "PROCESS_START", "ERROR_RESPONSES", "allowed_methods", "UploadLimit", "MIN_BODY_RATE",
-    "ShortIds", "DISK_USAGE_TTL_S", "DiskUsageCache", "warm_routes", "freeze_startup_objects", "create_app",
+    "ShortIds", "warm_routes", "freeze_startup_objects", "create_app",
+    "internal_error", "InternalErrors", "health_problems",
 ]
 
 log = logging.getLogger("fpscan.api")
@@ -88,108 +90,170 @@ def allowed_methods(app, scope) -> list[str]:
     return sorted(methods)
 
 
-class UploadLimit:
-    """ASGI middleware: refuse request bodies over their limit with 413 (by
-    ``Content-Length`` up front, and by counting for chunked bodies): ``limit`` bytes for
-    an upload (``POST /api/datasets``, plus multipart overhead), ``json_limit`` for any
-    other body (JSON is parsed whole into memory before a route sees it).
+#: Slowest body (bytes/s, averaged over ``Settings.body_rate_window_s``) an upload or plan
+#: request may send (``Settings.body_min_rate``, whose default this is): a trickle would
+#: hold an upload or plan slot for hours.
+MIN_BODY_RATE = 100 * 1024
 
-    ``slots`` (:func:`~service.api.context.default_slots`): uploads and plan requests
-    (``ADMITTED``) are counted in before their body is read, and refused with 429 when too
-    many are in progress (the form parser spools every upload to a temporary file, and a
-    JSON body is parsed, before the route runs); the route then waits for its turn. Such a
-    request whose body stalls ``body_timeout_s`` (or trickles in slower than
-    ``MIN_BODY_RATE``) is refused with 408, so a slow client cannot hold a slot for long."""
+
+class UploadLimit:
+    """ASGI middleware: every request body within its limit, at a rate a client means.
+
+    - **Size** (413, by ``Content-Length`` up front and by counting for chunked bodies):
+      ``limit`` bytes for an upload (``POST /api/datasets``, plus multipart overhead),
+      ``json_limit`` for a plan request (``PLAN_ROUTES``: parsed in the plan worker; a plan
+      JSON of the largest lattice is 15-32 MiB), ``request_json_limit`` for any other body
+      (JSON parsed and validated on the event loop before a route sees it: a body must stay
+      as small as its schema can need, kilobytes).
+    - **Time** (408, ``Connection: close``): a body that sends nothing for
+      ``body_timeout_s``, and an upload or plan body that arrives slower than ``min_rate``
+      bytes/s averaged over ``rate_window_s`` (after its first window), so a slow client
+      cannot hold a slot for long (nginx's ``client_body_timeout`` with a minimum rate).
+    - **Slots** (``slots``, :func:`~service.api.context.default_slots`): uploads and plan
+      requests (``ADMITTED``) are counted in, per client address first, before their body
+      is read, and refused with 429 when too many are in progress (the form parser spools
+      every upload to a temporary file, and a JSON body is parsed, before the route runs);
+      the route then waits for its turn."""
 
     #: (method, path) -> the slots that admit it
     ADMITTED = {("POST", "/api/datasets"): "uploads", ("POST", "/api/plans"): "plans",
                 ("POST", "/api/plans/preview"): "plans"}
+    #: the routes whose JSON body may be up to ``json_limit`` (parsed in the plan worker)
+    PLAN_ROUTES = frozenset({("POST", "/api/plans"), ("POST", "/api/plans/preview")})
 
     def __init__(self, app, limit: int, json_limit: int | None = None, slots: dict[str, Slots] | None = None,
-                 body_timeout_s: float = 30.0):
+                 body_timeout_s: float = 30.0, request_json_limit: int | None = None,
+                 min_rate: float = MIN_BODY_RATE, rate_window_s: float = 10.0):
         self.app = app
         self.body_timeout_s = body_timeout_s
         self.upload_limit = limit
         self.json_limit = min(limit, json_limit) if json_limit else limit
+        self.request_json_limit = min(self.json_limit, request_json_limit) if request_json_limit else self.json_limit
+        self.min_rate = float(min_rate)
+        self.rate_window_s = float(rate_window_s)
         self.slots = slots or {}
 
     async def __call__(self, scope, receive, send):
         if scope["type"] != "http":
             return await self.app(scope, receive, send)
         key = (scope.get("method", ""), scope.get("path", "").rstrip("/"))
-        limit = self.upload_limit + 1_000_000 if key == ("POST", "/api/datasets") else self.json_limit
+        if key == ("POST", "/api/datasets"):
+            limit = self.upload_limit + 1_000_000
+        else:
+            limit = self.json_limit if key in self.PLAN_ROUTES else self.request_json_limit
         slots = self.slots.get(self.ADMITTED.get(key, ""))
         if slots is None:
             return await self._limited(scope, receive, send, limit)
-        if not slots.enter():
-            resp = JSONResponse({"detail": slots.busy_reason()}, 429, headers={"Retry-After": str(slots.retry_after_s)})
+        client = (scope.get("client") or ("?", 0))[0]
+        if not slots.enter(client):
+            resp = JSONResponse({"detail": slots.busy_reason(client)}, 429,  # its body is never read: close
+                                headers={"Retry-After": str(slots.retry_after_s), "Connection": "close"})
             return await resp(scope, receive, send)
         try:
-            return await self._limited(scope, receive, send, limit, self.body_timeout_s)
+            return await self._limited(scope, receive, send, limit, self.min_rate)
         finally:
-            slots.leave()
+            slots.leave(client)
 
-    async def _limited(self, scope, receive, send, limit: int, idle_s: float | None = None):
-        """Pass the request on, refusing a body over ``limit`` bytes (413) and, with
-        ``idle_s``, a body that stalls ``idle_s`` s or arrives slower than
-        ``MIN_BODY_RATE`` after that (408): an admitted request holds a slot meanwhile."""
-        too_large = JSONResponse({"detail": f"request body larger than the limit of {limit} bytes"}, 413)
+    async def _limited(self, scope, receive, send, limit: int, min_rate: float = 0.0):
+        """Pass the request on, refusing a body over ``limit`` bytes (413), one that stalls
+        ``body_timeout_s`` s or, with ``min_rate`` (bytes/s), arrives slower than that over
+        ``rate_window_s`` (408): :class:`_BodyWatch`."""
         if _declared_length(scope) > limit:
-            return await too_large(scope, receive, send)
-        seen = 0
+            return await _too_large(limit)(scope, receive, send)
         t0 = time.perf_counter()
+        watch = _BodyWatch(receive, limit, self.body_timeout_s, min_rate, self.rate_window_s)
         status = {"code": 0}
-        refusal: dict[str, Any] = {"resp": None, "sent": False}
-        body_done = False
+        sent_refusal = False
 
-        async def refuse() -> None:
-            if not refusal["sent"]:
-                refusal["sent"] = True
-                await refusal["resp"](scope, receive, send)
+        async def refuse(resp: JSONResponse) -> None:
+            nonlocal sent_refusal
+            if not sent_refusal:
+                sent_refusal = True
+                await resp(scope, receive, send)
 
         async def logging_send(message):
-            if refusal["resp"] is not None:
+            if watch.refusal is not None:
                 # the body was refused: whatever the route made of the cut-off body (a
                 # form parser answers 400), the client gets the refusal
-                return await refuse()
+                return await refuse(watch.refusal)
             if message["type"] == "http.response.start":
                 status["code"] = message["status"]
             await send(message)
 
-        async def counting_receive():
-            nonlocal seen, body_done
-            if idle_s is None or body_done:
-                message = await receive()
-            else:
-                try:
-                    message = await asyncio.wait_for(receive(), idle_s)
-                except TimeoutError:
-                    refusal["resp"] = _too_slow(f"no request body data for {idle_s:g} s")
-                    raise _Refused() from None
-            if message["type"] == "http.request":
-                seen += len(message.get("body", b""))
-                body_done = not message.get("more_body", False)
-                if seen > limit:
-                    refusal["resp"] = too_large
-                    raise _Refused()
-                elapsed = time.perf_counter() - t0
-                if idle_s is not None and not body_done and elapsed > idle_s and seen < MIN_BODY_RATE * elapsed:
-                    refusal["resp"] = _too_slow(f"request body arriving slower than {MIN_BODY_RATE} bytes/s")
-                    raise _Refused()
-            return message
-
         try:
-            await self.app(scope, counting_receive, logging_send)
+            await self.app(scope, watch.receive, logging_send)
             if log.isEnabledFor(logging.DEBUG):
-                log.debug("request method=%s path=%s status=%s ms=%.1f", scope["method"], scope["path"],
+                log.debug("request method=%s path=%s status=%s ms=%.1f", scope["method"], shown(scope["path"]),
                           status["code"], 1e3 * (time.perf_counter() - t0))
         except _Refused:
-            await refuse()
+            assert watch.refusal is not None
+            await refuse(watch.refusal)
 
 
-#: Slowest body (bytes/s, on average) an admitted request may send after its first
-#: ``body_timeout_s``: a trickle would hold an upload or plan slot for hours.
-MIN_BODY_RATE = 16 * 1024
+class _BodyWatch:
+    """The ``receive`` of one request, watched: its body within ``limit`` bytes (else
+    413), no wait for its next part longer than ``idle_s`` and, with ``min_rate``
+    (bytes/s), at least that rate over the last ``window`` s once the body has been
+    arriving that long (else 408). A refusal sets :attr:`refusal` (the answer) and raises
+    ``_Refused``; once the body is complete, ``receive`` is the server's own."""
+
+    def __init__(self, receive, limit: int, idle_s: float, min_rate: float, window: float) -> None:
+        self._receive = receive
+        self.limit, self.idle_s, self.min_rate, self.window = limit, idle_s, min_rate, window
+        self.refusal: JSONResponse | None = None
+        self.seen = 0
+        self.done = False
+        self.t0 = time.perf_counter()
+        self.marks: deque[tuple[float, int]] = deque([(self.t0, 0)])  # (time, bytes seen): the rate's window
+
+    def too_slow(self, now: float) -> bool:
+        """Whether the body's rate over the last window is under ``min_rate``."""
+        if not self.min_rate or now - self.t0 < self.window:
+            return False
+        while len(self.marks) > 1 and self.marks[1][0] <= now - self.window:
+            self.marks.popleft()
+        since, then = self.marks[0]
+        return self.seen - then < self.min_rate * (now - since)
+
+    def _refuse(self, resp: JSONResponse) -> _Refused:
+        self.refusal = resp
+        return _Refused()
+
+    async def receive(self):
+        if self.done:
+            return await self._receive()
+        last = time.perf_counter()
+        slow = f"request body arriving slower than {self.min_rate:g} bytes/s over {self.window:g} s"
+        while True:
+            wait = self.idle_s - (time.perf_counter() - last)
+            if self.min_rate:
+                wait = min(wait, max(self.window / 4, 0.05))  # look at the rate while nothing comes
+            try:
+                message = await asyncio.wait_for(self._receive(), max(wait, 0.0))
+                break
+            except TimeoutError:
+                now = time.perf_counter()
+                if now - last >= self.idle_s:
+                    raise self._refuse(_too_slow(f"no request body data for {self.idle_s:g} s")) from None
+                if self.too_slow(now):
+                    raise self._refuse(_too_slow(slow)) from None
+        if message["type"] != "http.request":
+            self.done = True  # a disconnect: nothing more to time
+            return message
+        self.seen += len(message.get("body", b""))
+        self.done = not message.get("more_body", False)
+        if self.seen > self.limit:
+            raise self._refuse(_too_large(self.limit))
+        now = time.perf_counter()
+        self.marks.append((now, self.seen))
+        if not self.done and self.too_slow(now):
+            raise self._refuse(_too_slow(slow))
+        return message
+
+
+def _too_large(limit: int) -> JSONResponse:
+    return JSONResponse({"detail": f"request body larger than the limit of {limit} bytes"}, 413,
+                        headers={"Connection": "close"})  # the rest of its body is never read
 
 
 def _declared_length(scope) -> int:
@@ -235,92 +299,6 @@ class ShortIds:
                     path = f"/api/{m.group(1)}/{found[0]}{m.group(3) or ''}"
                     scope = dict(scope, path=path, raw_path=path.encode())
         return await self.app(scope, receive, send)
-
-
-#: longest reuse of the data folder's disk usage in /api/health while its folders are unchanged (s)
-DISK_USAGE_TTL_S = 1.0
-
-
-class DiskUsageCache:
-    """``/api/health``'s disk usage: one walk of the data folder serves every caller that
-    asks while it runs.
-
-    - While the data folder and its part folders keep their modification times, the
-      answer is reused; once it is ``ttl_s`` (:data:`DISK_USAGE_TTL_S`) old (files that grow in place,
-      such as a scan file, change no folder) it is still answered at once and a new walk
-      starts beside it: health never waits for a walk to pick up growth.
-    - When a folder's modification time changed (an upload stored, a result written, a
-      deletion), the next caller waits for a new walk: whoever changed the data reads
-      the change in the next health answer. Uploads are staged outside these folders
-      (``incoming/``), so refused and deduplicated uploads change none of them.
-
-    ``walk(data_dir)`` returns the answer, or is a generator that yields between steps and
-    returns it (``service.jobs.lifecycle.disk_usage_steps``): the walk then runs on the
-    event loop a step (some hundred entries, about a millisecond) at a time between the
-    other requests. Not in a thread: a thread that makes a system call per file waits for
-    the interpreter lock after each one, up to the switch interval (5 ms) while the loop is
-    busy — a walk of 16 entries took 0.2-0.6 s that way under the 50-client soak.
-
-    A flood of health requests costs one walk, not one each."""
-
-    PARTS = ("", "scans", "results", "datasets", "exports")
-
-    def __init__(self, data_dir, walk, ttl_s: float = DISK_USAGE_TTL_S):
-        self.data_dir = Path(data_dir)
-        self.walk = walk
-        self.ttl_s = ttl_s
-        self._value: dict | None = None
-        self._key: tuple | None = None
-        self._at = 0.0
-        self._lock: asyncio.Lock | None = None
-        self._background: asyncio.Task | None = None
-        self._walks = 0  # walks done
-
-    def _folders_key(self) -> tuple:
-        key: list[int | None] = []
-        for part in self.PARTS:
-            try:
-                key.append((self.data_dir / part).stat().st_mtime_ns)
-            except OSError:
-                key.append(None)
-        return tuple(key)
-
-    async def _refresh(self) -> None:
-        if self._lock is None:
-            self._lock = asyncio.Lock()
-        walks_before = self._walks
-        async with self._lock:
-            key = self._folders_key()
-            if self._walks != walks_before and self._key == key:
-                return  # a walk ended while this caller waited, and the folders are as it saw them
-            await asyncio.sleep(0)  # callers that ask together wait for this walk
-            value = self.walk(self.data_dir)
-            if inspect.isgenerator(value):
-                steps = value
-                while True:
-                    try:
-                        next(steps)
-                    except StopIteration as done:
-                        value = done.value
-                        break
-                    await asyncio.sleep(0)  # the other requests' turn
-            self._value = value
-            self._key, self._at = key, time.monotonic()
-            self._walks += 1
-
-    async def get(self) -> dict:
-        if self._value is None or self._key != self._folders_key():
-            await self._refresh()
-        elif time.monotonic() - self._at >= self.ttl_s and (self._background is None or self._background.done()):
-            self._background = asyncio.create_task(self._refresh())
-            self._background.add_done_callback(_log_failed_walk)  # the next caller walks again
-        assert self._value is not None
-        return self._value
-
-
-def _log_failed_walk(task: asyncio.Task) -> None:
-    if not task.cancelled() and task.exception() is not None:
-        log.warning("disk usage walk failed: %s", task.exception())
 
 
 async def warm_routes(app: FastAPI, settings: Settings) -> None:
@@ -377,7 +355,8 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True, 
                   description="Planar Fabry-Perot photoacoustic scanning: plans, scans, reconstructions as jobs.")
     _add_error_handlers(app)
     app.add_middleware(UploadLimit, limit=settings.upload_limit, json_limit=settings.json_limit, slots=slots,
-                       body_timeout_s=settings.body_timeout_s)
+                       body_timeout_s=settings.body_timeout_s, request_json_limit=settings.request_json_limit,
+                       min_rate=settings.body_min_rate, rate_window_s=settings.body_rate_window_s)
     app.add_middleware(ShortIds)
     from service.api.access import AccessGate
     from service.api.lanes import HealthLane, RequestTurns
@@ -390,6 +369,7 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True, 
     health_document = _add_health_routes(app, settings)
     # outermost: health answered ahead of the queue, after the gate's own rules
     app.add_middleware(HealthLane, settings=settings, document=health_document)
+    app.add_middleware(InternalErrors)  # outermost: no error drops a kept-alive connection
     for module in (plans, scans, datasets, reconstructions, jobs, retention):
         app.include_router(module.router)
     _state_security_in_openapi(app, settings)
@@ -407,7 +387,7 @@ def _lifespan(settings: Settings, slots: dict[str, Slots], start_workers: bool, 
 
         Path(settings.data_dir).mkdir(parents=True, exist_ok=True)
         settings.token_value()  # an unreadable or empty token_file stops the start here
-        store = JobStore(settings.database)
+        store = JobStore(settings.database, reserve_bytes=settings.db_reserve_bytes)
         context = Context(settings=settings, store=store, slots=slots)
         from service.api.jobs import EventWakeups
 
@@ -415,14 +395,29 @@ def _lifespan(settings: Settings, slots: dict[str, Slots], start_workers: bool, 
         store.add_listener(context.wakeups.notify)
         app.state.ctx = context
         executor = _start_workers(context, store, settings, given_executor) if start_workers else None
+        usage = await _count_disk_usage(settings)
         await warm_routes(app, settings)
         freeze_startup_objects()
         try:
             yield
         finally:
+            usage.stop()
             _stop_workers(context, executor, store)
 
     return lifespan
+
+
+async def _count_disk_usage(settings: Settings):
+    """The data folder's disk-use counters (``service.storage.usage``) set by one walk
+    before the server answers (in a thread: start-up only), then checked by a walk every
+    ``disk_walk_period_s`` in a thread of their own; returns them."""
+    from service.jobs.lifecycle import disk_usage
+    from service.storage.usage import usage_for
+
+    usage = usage_for(settings.data_dir, settings.database)
+    await asyncio.to_thread(usage.reconcile, disk_usage)
+    usage.start_walks(disk_usage, settings.disk_walk_period_s)
+    return usage
 
 
 def _start_workers(context: Context, store: JobStore, settings: Settings, executor: Any = None) -> Any:
@@ -491,7 +486,7 @@ def _add_error_handlers(app: FastAPI) -> None:
 
     @app.exception_handler(StarletteHTTPException)
     async def _http(request: Request, exc: StarletteHTTPException):
-        detail = exc.detail if isinstance(exc.detail, str) else str(exc.detail)
+        detail = capped(exc.detail if isinstance(exc.detail, str) else str(exc.detail))
         headers = getattr(exc, "headers", None)
         if exc.status_code == 405:  # Allow: every method of the path (Starlette names only the first route's)
             allowed = allowed_methods(app, request.scope)
@@ -505,7 +500,7 @@ def _add_error_handlers(app: FastAPI) -> None:
         # handled here, not by the catch-all below (Starlette re-raises from that one and
         # the server then drops the client's kept-alive connection)
         if is_disk_full(exc):  # the server's condition, not a bug: say so, and how to fix it
-            log.warning("disk full %s %s: %s", request.method, request.url.path, exc)
+            log.warning("disk full %s %s: %s", request.method, shown(request.url.path), exc)
             return JSONResponse({"detail": "the data folder's disk is full; free space, then retry "
                                            "(/api/health shows the free bytes)"},
                                 status_code=503, headers={"Retry-After": "10"})
@@ -513,35 +508,71 @@ def _add_error_handlers(app: FastAPI) -> None:
 
     @app.exception_handler(Exception)
     async def _internal(request: Request, exc: Exception):
-        ref = uuid.uuid4().hex[:8]
-        log.exception("internal error ref=%s %s %s", ref, request.method, request.url.path)
-        return JSONResponse({"detail": f"internal error (reference {ref})"}, status_code=500)
+        return internal_error(request.scope, exc)
+
+
+def internal_error(scope, exc: BaseException) -> JSONResponse:
+    """The 500 of an unexpected error: logged with a reference (method, path capped), the
+    client told only the reference."""
+    ref = uuid.uuid4().hex[:8]
+    log.error("internal error ref=%s %s %s", ref, scope.get("method"), shown(scope.get("path", "")), exc_info=exc)
+    return JSONResponse({"detail": f"internal error (reference {ref})"}, status_code=500)
+
+
+class InternalErrors:
+    """ASGI middleware, the outermost of the app's own: an error no handler took becomes a
+    500 answer (:func:`internal_error`) and goes no further. Starlette's own last handler
+    re-raises after answering, and uvicorn then closes the client's kept-alive connection
+    and logs the traceback a second time; here the connection stays open for the client's
+    next request. An error after the answer started is logged and the connection closed
+    (there is no way to tell the client)."""
+
+    def __init__(self, app):
+        self.app = app
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http":
+            return await self.app(scope, receive, send)
+        started = False
+
+        async def tracked_send(message):
+            nonlocal started
+            if message["type"] == "http.response.start":
+                started = True
+            await send(message)
+
+        try:
+            await self.app(scope, receive, tracked_send)
+        except Exception as exc:
+            if started:
+                raise
+            await internal_error(scope, exc)(scope, receive, send)
 
 
 def _add_health_routes(app: FastAPI, settings: Settings) -> Callable[[Context], Awaitable[Health]]:
     """``GET /api/health`` and ``GET /api/auth``; returns health's document (an awaitable
     of :class:`Health`, given the app's context), which ``service.api.lanes.HealthLane``
     answers with ahead of the other requests."""
-    from service.jobs.lifecycle import disk_usage_steps
+    from service.storage.usage import usage_for
 
-    disk_cache = DiskUsageCache(settings.data_dir, disk_usage_steps)
+    usage = usage_for(settings.data_dir, settings.database)
 
     async def health_document(c: Context) -> Health:
         return Health(version=VERSION, executor=settings.executor,
                       jobs_running=c.queue.running() if c.queue is not None else 0,
-                      disk=await disk_cache.get(),
-                      problems=c.scans.problems() if c.scans is not None else [])
+                      disk=usage.snapshot(), problems=health_problems(c))
 
     @app.get("/api/health", response_model=Health, tags=["health"], dependencies=[Depends(read_access)])
     async def health(c: Context = Depends(ctx)) -> Health:
-        """Liveness: ``{"status": "ok", "version", "executor", "jobs_running", "disk"}``;
-        ``disk``: bytes the data folder uses by part (scans, results, datasets, exports,
-        other) and the free bytes of its file system. Answered on the event loop without a
-        server thread, ahead of the other requests waiting for their turn
-        (``service.api.lanes``); the folder walk runs in steps on the loop, once for every
-        caller while one is under way; a change of the stored data shows in the next
-        answer, growth of files in place within about ``DISK_USAGE_TTL_S``
-        (:class:`DiskUsageCache`)."""
+        """Liveness: ``{"status": "ok", "version", "executor", "jobs_running", "disk",
+        "problems"}``; ``disk``: bytes the data folder uses by part (scans, results, datasets,
+        exports, other) and the free bytes of its file system; ``problems``: what keeps jobs
+        from running now, one line each (a full disk, a lost device). Answered on the event
+        loop without a server thread, ahead of the other requests waiting for their turn
+        (``service.api.lanes``), in time independent of the data folder: the bytes are
+        counters kept as files are written and removed (``service.storage.usage``, checked
+        by a walk in a thread of its own), a stored change shows in the next answer, a scan
+        file's growth within a second."""
         return await health_document(c)
 
     @app.get("/api/auth", response_model=AuthInfo, tags=["health"])
@@ -557,6 +588,30 @@ def _add_health_routes(app: FastAPI, settings: Settings) -> Callable[[Context], 
                         or token_matches(request.headers.get("authorization"), expected) is None)
 
     return health_document
+
+
+def health_problems(c: Context) -> list[str]:
+    """What keeps jobs from running now, one line each: the data folder's disk below the
+    reserve (``disk_reserve_bytes``), the job database's reserve in use, reconstructions
+    waiting for disk space (``service.jobs.queue``) and interrupted scans
+    (``service.jobs.scans``)."""
+    from service.storage.usage import usage_for
+
+    out: list[str] = []
+    settings = c.settings
+    free = usage_for(settings.data_dir).snapshot().get("free_bytes")
+    if free is not None and c.store.reserve_spent is not None:  # those bytes are the job database's
+        free = max(0, free - c.store.reserve_bytes)
+    if free is not None and free < settings.disk_reserve_bytes:
+        out.append(f"the data folder's disk is full: {free} bytes free, below the reserve of "
+                   f"{settings.disk_reserve_bytes} (disk_reserve_bytes); reconstructions that do not fit fail or wait, "
+                   "scans pause: free space")
+    out += c.store.problems()
+    if c.queue is not None:
+        out += c.queue.problems()
+    if c.scans is not None:
+        out += c.scans.problems()
+    return out
 
 
 def _state_security_in_openapi(app: FastAPI, settings: Settings) -> None:

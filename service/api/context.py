@@ -17,7 +17,8 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from service.jobs.store import JobStore
 from service.settings import Settings
 
-__all__ = ["bearer", "Slots", "default_slots", "Context", "ctx", "require_token", "read_access", "reason", "validation_reason"]
+__all__ = ["bearer", "Slots", "default_slots", "Context", "ctx", "require_token", "read_access", "DETAIL_MAX", "capped",
+           "reason", "validation_reason"]
 
 log = logging.getLogger("fpscan.api")
 
@@ -33,29 +34,55 @@ class Slots:
 
     ``enter``/``leave`` count a request in and out (the ``UploadLimit`` middleware does it
     before the body is read); the route's ``turn()`` waits for one of the ``running``
-    turns. Thread-safe."""
+    turns. With ``per_client``, slots go per client first: a client address holding
+    ``per_client`` of them already gets another only while more than ``per_client`` stay
+    free for the others, so no one client takes them all (ten uploads trickling in from
+    one address left none for anyone else). Thread-safe."""
 
-    def __init__(self, what: str, running: int, waiting: int, retry_after_s: int = 5):
+    def __init__(self, what: str, running: int, waiting: int, retry_after_s: int = 5, per_client: int | None = None):
         self.what = what
         self.limit = running + waiting
         self.retry_after_s = retry_after_s
+        self.per_client = per_client
         self._turns = threading.BoundedSemaphore(running)
         self._lock = threading.Lock()
         self._inside = 0
+        self._by_client: dict[str | None, int] = {}
 
-    def enter(self) -> bool:
-        """Count one more request in; False (not counted) when ``running + waiting`` are in."""
+    def enter(self, client: str | None = None) -> bool:
+        """Count one more request of ``client`` (its address) in; False (not counted) when
+        ``running + waiting`` are in, or when ``client`` holds its share and no more than
+        that share is free for the others."""
         with self._lock:
             if self._inside >= self.limit:
                 return False
+            mine = self._by_client.get(client, 0)
+            if self.per_client is not None and mine >= self.per_client \
+                    and self.limit - self._inside <= self.per_client:
+                return False
             self._inside += 1
+            self._by_client[client] = mine + 1
             return True
 
-    def leave(self) -> None:
+    def leave(self, client: str | None = None) -> None:
         with self._lock:
             self._inside = max(0, self._inside - 1)
+            mine = self._by_client.get(client, 0) - 1
+            if mine > 0:
+                self._by_client[client] = mine
+            else:
+                self._by_client.pop(client, None)
 
-    def busy_reason(self) -> str:
+    def held(self, client: str | None = None) -> int:
+        """Slots ``client`` holds now."""
+        with self._lock:
+            return self._by_client.get(client, 0)
+
+    def busy_reason(self, client: str | None = None) -> str:
+        mine = self.held(client)
+        if self.per_client is not None and mine >= self.per_client:
+            return (f"too many {self.what} at once from this client ({mine} in progress or waiting; the rest of the "
+                    f"server's {self.limit} are kept for others); retry in {self.retry_after_s} s")
         return f"too many {self.what} at once ({self.limit} in progress or waiting); retry in {self.retry_after_s} s"
 
     @contextlib.contextmanager
@@ -69,9 +96,12 @@ def default_slots(settings: Settings) -> dict[str, Slots]:
     """The admission bounds of a service: ``uploads`` (``settings.import_workers`` imports at
     once, 4x as many waiting) and ``plans`` (one plan built at a time, 8 waiting: plan work
     is mostly JSON and validation holding the GIL, so a second thread would only slow the
-    other routes down)."""
+    other routes down). Both go per client first (``settings.uploads_per_client``, default
+    ``import_workers``: :class:`Slots`' ``per_client``)."""
     n = settings.import_workers
-    return {"uploads": Slots("uploads", n, 4 * n), "plans": Slots("plan requests", 1, 8)}
+    share = settings.uploads_per_client or n
+    return {"uploads": Slots("uploads", n, 4 * n, per_client=share),
+            "plans": Slots("plan requests", 1, 8, per_client=share)}
 
 
 @dataclass
@@ -112,6 +142,16 @@ async def read_access(request: Request, creds: HTTPAuthorizationCredentials | No
     _check(request.app.state.ctx.settings, creds)
 
 
+#: longest reason a 4xx carries (characters): a refused value is echoed in part, never whole
+#: (a request may carry a 60 kB string; its echo would be the answer's bulk)
+DETAIL_MAX = 1000
+
+
+def capped(text: str, limit: int = DETAIL_MAX) -> str:
+    """``text`` cut to ``limit`` characters, saying how long it was when cut."""
+    return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters in all)"
+
+
 def validation_reason(exc: RequestValidationError) -> str:
     """The one-line reason of a 422 for a request FastAPI refused: ``field: message; ...``
     (at most five), or the JSON parser's message for a malformed body."""
@@ -123,7 +163,7 @@ def validation_reason(exc: RequestValidationError) -> str:
             return f"malformed JSON: {err.get('ctx', {}).get('error', msg)}"
         if err.get("type") in ("literal_error", "enum") and isinstance(err.get("input"), (str, int, float)):
             msg = f"{msg}, got {str(err['input'])[:64]!r}"  # name the refused value
-        parts.append(f"{loc}: {msg}")
+        parts.append(capped(f"{loc}: {msg}", DETAIL_MAX // 4))
     return "; ".join(parts) or "invalid request"
 
 
@@ -134,9 +174,10 @@ def reason(exc: BaseException) -> str:
     from pydantic import ValidationError
 
     if isinstance(exc, ValidationError):
-        parts = [f"{'.'.join(str(p) for p in e.get('loc', ())) or 'value'}: "
-                 f"{e.get('msg', 'invalid').removeprefix('Value error, ')}" for e in exc.errors()[:5]]
+        parts = [capped(f"{'.'.join(str(p) for p in e.get('loc', ())) or 'value'}: "
+                        f"{e.get('msg', 'invalid').removeprefix('Value error, ')}", DETAIL_MAX // 4)
+                 for e in exc.errors()[:5]]
         return "; ".join(parts) or "invalid value"
     lines = [ln.strip() for ln in str(exc).splitlines()
              if ln.strip() and not ln.strip().startswith("For further information visit")]
-    return "; ".join(lines) or type(exc).__name__
+    return capped("; ".join(lines) or type(exc).__name__)

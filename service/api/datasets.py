@@ -48,6 +48,7 @@ from service.formats.untrusted import DiskAdmission, NotAdmitted, hdf5_limit, ru
 from service.jobs import lifecycle
 from service.jobs.queue import INCOMING
 from service.storage.datasets import import_dataset
+from service.storage.usage import usage_for
 
 log = logging.getLogger("fpscan.api")
 #: serialises "is this content stored already?" with storing it (two identical uploads at once)
@@ -209,6 +210,7 @@ def _store_upload(file: UploadFile, format: str, *, dt, dx, dy, c, key, force: b
                 dest.rename(stored)
                 dest = stored
                 cx.store.put_dataset(dataset_id, meta)
+                usage_for(cx.settings.data_dir).add_path(stored)  # /api/health's counters
     except BaseException:
         shutil.rmtree(dest, ignore_errors=True)
         raise

@@ -11,12 +11,20 @@ from fastapi.responses import FileResponse
 
 from service.api.context import Context, ctx, read_access, reason, require_token
 from service.api.jobs import get_job_or_404, job_view
-from service.api.models import ID_PATTERN, Job, MethodInfo, MethodOption, Plane, ReconRequest
+from service.api.models import ID_PATTERN, Error, Job, MethodInfo, MethodOption, Plane, ReconRequest
 from service.formats.result import VOLUME_FILE, mip_file
-from service.jobs.admission import AdmissionError, admit, estimate_memory, input_shape
+from service.jobs.admission import (
+    admit,
+    admit_work,
+    estimate_memory,
+    estimate_result_bytes,
+    estimate_work,
+    input_shape,
+)
 from service.jobs.store import IdempotencyConflict
 from service.names import person_names
 from service.pipeline import METHODS, OPTIONS, default_method, method_options
+from service.storage.usage import usage_for
 
 __all__ = [
     "router", "JobId", "IdemKey", "list_methods", "start_reconstruction", "WavelengthQuery", "volume",
@@ -187,11 +195,14 @@ def _speed_schema() -> dict:
 
 @router.post("", status_code=202, response_model=Job, dependencies=[Depends(require_token)],
              responses={409: {"description": "Idempotency-Key reused with other parameters, or no scan file"},
-                        404: {"description": "unknown scan job or dataset"}})
+                        404: {"description": "unknown scan job or dataset"},
+                        507: {"model": Error, "description": "the result does not fit the free disk"}})
 def start_reconstruction(body: ReconRequest, response: Response, c: Context = Depends(ctx),
                          idempotency_key: str | None = IdemKey) -> Job:
     """Queue a reconstruction → 202, ``Location: /api/jobs/{id}``. Refused with 422 when
-    it can never fit in the memory limit."""
+    it can never fit in the memory limit, when its work estimate is over the server's work
+    limit (the reason says both), or when its method refuses the input's options (tv: an
+    image deeper than the record can hear); 507 when its result does not fit the free disk."""
     body = _with_method(c, _full_scan_job_id(c, body))
     extra: dict = {}
     if body.unmix is not None and body.wavelength is not None:
@@ -205,6 +216,7 @@ def start_reconstruction(body: ReconRequest, response: Response, c: Context = De
     params = body.params.model_dump()
     try:
         mem = estimate_memory(shape, {**params, "method": body.method})
+        work = _work(c, shape, params, body, extra)
         if body.unmix is not None:  # every wavelength's volume is held for the unmixing (float32, x3 temporaries)
             n_w = len(extra.get("inputs") or []) or int(shape.get("n_wavelengths", 2))
             mem += 3 * n_w * 4 * int(shape["n_t"]) * int(shape["n_x"]) * int(shape.get("n_y", 1))
@@ -212,12 +224,19 @@ def start_reconstruction(body: ReconRequest, response: Response, c: Context = De
             mem += int(shape.get("n_wavelengths", 1)) * 8 * int(shape["n_t"]) * int(shape["n_x"]) * \
                 int(shape.get("n_y", 1))
         admit(mem, c.settings.memory_limit)
-    except AdmissionError as exc:
+        admit_work(work, c.settings.work_limit_s)
+    except ValueError as exc:  # AdmissionError, or the method's refusal of options the input cannot carry
         raise HTTPException(422, reason(exc)) from None
+    needed = _result_bytes(shape, params, body, extra)
+    free = _free_bytes(c)
+    if free is not None and free < needed:
+        raise HTTPException(507, f"no room for the result on the data folder's disk: {free} bytes free (beyond "
+                                 f"the reserve), {needed} needed; free space, then retry")
     # stored as a person reads them (sound_speed, not the code's c: service.names)
     job_params = {"method": body.method, "params": person_names(params), "input": spec, "input_id": input_id,
                   "shape": person_names(shape),
                   "scan_job_id": body.scan_job_id, "dataset_id": body.dataset_id, "memory_estimate": mem,
+                  "work_estimate_s": float(f"{work:.4g}"), "result_bytes": needed,
                   "wavelength": body.wavelength, **extra}
     try:
         job, _created = c.store.create_job("recon", job_params, idempotency_key=idempotency_key, memory_bytes=mem)
@@ -227,6 +246,47 @@ def start_reconstruction(body: ReconRequest, response: Response, c: Context = De
         c.queue.wake()
     response.headers["Location"] = f"/api/jobs/{job['id']}"
     return job_view(job)
+
+
+def _work(c: Context, shape: dict, params: dict, body: ReconRequest, extra: dict) -> float:
+    """The job's work in seconds on 2 cores (``service.jobs.admission.estimate_work``) with
+    tv's time limit as the worker will cap it (the server's ``tv_time_limit_s``), times the
+    wavelengths it reconstructs (``wavelength: "all"``, unmixing)."""
+    asked = {**params, "method": body.method}
+    if body.method == "tv":
+        cap = float(c.settings.tv_time_limit_s)
+        asked["time_limit"] = min(float(params.get("time_limit") or cap), cap)
+    seconds = estimate_work(shape, asked)
+    if body.unmix is not None:
+        seconds *= len(extra.get("inputs") or []) or int(shape.get("n_wavelengths", 2))
+    elif body.wavelength == "all":
+        seconds *= int(shape.get("n_wavelengths", 1))
+    return seconds
+
+
+def _free_bytes(c: Context) -> int | None:
+    """Free bytes of the data folder's disk for a result (None when unknown): less the
+    reserve an upload must leave (``disk_reserve_bytes``) and the job database's reserve
+    while it is spent."""
+    import shutil
+
+    try:
+        free = shutil.disk_usage(c.settings.data_dir).free
+    except OSError:
+        return None
+    spent = c.store.reserve_bytes if c.store.reserve_spent is not None else 0
+    return max(0, free - int(c.settings.disk_reserve_bytes) - spent)
+
+
+def _result_bytes(shape: dict, params: dict, body: ReconRequest, extra: dict) -> int:
+    """Bytes the job's result needs on disk (``service.jobs.admission.estimate_result_bytes``):
+    a volume per wavelength it reconstructs, and the unmixing's maps."""
+    volumes = 1
+    if body.unmix is not None:
+        volumes = (len(extra.get("inputs") or []) or int(shape.get("n_wavelengths", 2))) + 5
+    elif body.wavelength == "all":
+        volumes = int(shape.get("n_wavelengths", 1))
+    return estimate_result_bytes(shape, {**params, "method": body.method}, volumes)
 
 
 def _result_dir(c: Context, job_id: str) -> Path:
@@ -287,6 +347,7 @@ def volume_ome_tiff(job_id: str = JobId, c: Context = Depends(ctx)):
             export_ome_tiff(folder / VOLUME_FILE, path)
         except ValueError as exc:
             raise HTTPException(409, str(exc)) from None
+        usage_for(c.settings.data_dir).add_path(path)  # /api/health's counters
     return FileResponse(path, media_type="image/tiff", filename=f"{job_id}.ome.tif")
 
 
@@ -314,6 +375,7 @@ def volume_ome_zarr(job_id: str = JobId, c: Context = Depends(ctx)):
             raise HTTPException(409, str(exc)) from None
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
+        usage_for(c.settings.data_dir).add_path(path)  # /api/health's counters
     return FileResponse(path, media_type="application/zip", filename=f"{job_id}.ome.zarr.zip")
 
 

@@ -124,13 +124,18 @@ def scan_ipasc(job_id: str = JobId, c: Context = Depends(ctx)):
     """The scan's completed A-lines exported to the IPASC HDF5 format
     (``service.ipasc.write_ipasc``)."""
     from service.formats.ipasc import export_scan
+    from service.storage.usage import usage_for
 
     src = _scan_file(c, job_id)
     out = Path(c.settings.data_dir) / "exports" / f"{job_id}.ipasc.h5"
+    usage = usage_for(c.settings.data_dir)  # /api/health's counters: the export replaces any earlier one
+    usage.add_path(out, removed=True)
     try:
         export_scan(src, out)
     except ValueError as exc:
         raise HTTPException(409, str(exc)) from None
+    finally:
+        usage.add_path(out)
     return FileResponse(out, media_type="application/x-hdf5", filename=f"{job_id}.ipasc.h5")
 
 

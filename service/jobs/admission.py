@@ -17,8 +17,8 @@ from typing import Any
 
 from driver.constants import C_AUTOFOCUS_RANGE, C_DEFAULT
 
-__all__ = ["CALIBRATION", "MAX_DEPTH_ROWS", "AdmissionError", "admit", "estimate_memory", "input_shape",
-           "working_depth_rows"]
+__all__ = ["CALIBRATION", "MAX_DEPTH_ROWS", "AUTOFOCUS_EVALUATIONS", "AdmissionError", "admit", "estimate_memory",
+           "estimate_work", "admit_work", "estimate_result_bytes", "input_shape", "working_depth_rows"]
 
 
 class AdmissionError(ValueError):
@@ -38,10 +38,11 @@ MAX_DEPTH_ROWS = 1 << 20
 
 
 def input_shape(source: Any) -> dict:
-    """The shape of a reconstruction's input for :func:`estimate_memory` (its ``shape``
-    argument): ``n_t``, ``n_x``, ``n_y``, ``n_points`` (sensor points; absent for grid data),
-    ``dt`` (s), ``c`` (m/s), ``dx`` (m, the lateral pitch; None when unknown) and, for a
-    loaded dataset, ``input_itemsize`` (bytes a sample).
+    """The shape of a reconstruction's input for :func:`estimate_memory` and
+    :func:`estimate_work` (their ``shape`` argument): ``n_t``, ``n_x``, ``n_y``, ``n_points``
+    (sensor points; absent for grid data), ``dt`` (s), ``c`` (m/s), ``dx`` (m, the lateral
+    pitch; None when unknown), ``t0`` (s, the time of sample 0; None when unknown: a dataset
+    stored by an older server) and, for a loaded dataset, ``input_itemsize`` (bytes a sample).
 
     ``source`` is one of
 
@@ -57,27 +58,27 @@ def input_shape(source: Any) -> dict:
     if isinstance(source, GridDataset):
         d = source.data
         return {"n_t": d.shape[0], "n_x": d.shape[-1], "n_y": d.shape[1] if d.ndim == 3 else 1, "dx": source.dx,
-                "dt": source.dt, "c": source.c, "input_itemsize": d.itemsize}
+                "dt": source.dt, "c": source.c, "t0": source.t0, "input_itemsize": d.itemsize}
     if isinstance(source, PointDataset):
         grid = source.grid
         return {"n_t": source.alines.shape[1], "n_x": len(grid[0]), "n_y": len(grid[1]) if len(grid) > 1 else 1,
                 "n_points": source.alines.shape[0],
                 "dx": float(grid[0][1] - grid[0][0]) if len(grid[0]) > 1 else None,
-                "dt": source.dt, "c": source.c, "input_itemsize": source.alines.itemsize}
+                "dt": source.dt, "c": source.c, "t0": source.t0, "input_itemsize": source.alines.itemsize}
     if isinstance(source, dict) and "lattice" in source and "acquisition" in source:
         lat, acq = source["lattice"], source["acquisition"]
         return {"n_t": acq["n_t"], "n_x": lat["n_x"], "n_y": lat.get("n_y", 1),
                 "n_points": len(source["points"]["indices"]), "dt": acq["dt"], "c": acq.get("sound_speed"),
-                "dx": lat.get("pitch"), "n_wavelengths": max(len(acq.get("wavelengths") or []), 1)}
+                "dx": lat.get("pitch"), "t0": 0.0, "n_wavelengths": max(len(acq.get("wavelengths") or []), 1)}
     if isinstance(source, dict) and source.get("layout") == "grid":
         s = source["shape"]
         return {"n_t": s[0], "n_x": s[-1], "n_y": s[1] if len(s) == 3 else 1, "dt": source.get("dt"),
-                "c": source.get("c"), "dx": source.get("dx")}
+                "c": source.get("c"), "dx": source.get("dx"), "t0": source.get("t0")}
     if isinstance(source, dict) and source.get("layout") == "points":
         n, n_t = source["shape"]
         side = int(math.ceil(math.sqrt(n)))
         return {"n_t": n_t, "n_x": source.get("n_x", side), "n_y": source.get("n_y", side), "n_points": n,
-                "dt": source.get("dt"), "c": source.get("c"), "dx": source.get("dx")}
+                "dt": source.get("dt"), "c": source.get("c"), "dx": source.get("dx"), "t0": source.get("t0")}
     raise ValueError(f"no input shape for {type(source).__name__}: give a plan, a stored dataset's record or a "
                      "loaded dataset")
 
@@ -142,6 +143,122 @@ def estimate_memory(shape: dict, params: dict) -> int:
     work = 8 if (params.get("dtype") or "float32") == "float64" else 4
     loaded = 0 if itemsize == work and params.get("method") != "tv" else itemsize
     return int(factor * value) + n_t * int(shape.get("n_points", n_x * n_y)) * loaded
+
+
+def estimate_result_bytes(shape: dict, params: dict, volumes: int = 1) -> int:
+    """Bytes a reconstruction's result folder takes on disk: ``volumes`` images of ``n_z``
+    rows (default ``n_t``; k-Wave's modes: ``n_t``) by the lateral grid times ``upsample`` in
+    the working precision (``volume.h5``, chunked and uncompressed), 2 % for the HDF5 file's
+    own structure and 1 MiB per volume for its pictures (MIPs: PNG). The queue holds a job
+    whose result does not fit the free disk and ends a running one whose result no longer
+    does (``service.jobs.queue``).
+
+    Parameters
+    ----------
+    shape : dict
+        :func:`input_shape`'s.
+    params : dict
+        ``method``, ``n_z``, ``upsample``, ``dtype``.
+    volumes : int, optional
+        Volumes written (a wavelength each; an unmixing job's maps count as 5 more).
+
+    Returns
+    -------
+    int
+        Bytes.
+
+    Examples
+    --------
+    >>> from service.jobs.admission import estimate_result_bytes
+    >>> estimate_result_bytes({"n_t": 256, "n_x": 128, "n_y": 128}, {"method": "ner"})  # float32
+    18161336
+    """
+    n_z = int(shape["n_t"]) if params.get("method") == "kwave" else int(params.get("n_z") or shape["n_t"])
+    up = int(params.get("upsample", 1) or 1)
+    n_y = int(shape.get("n_y", 1))
+    voxels = n_z * int(shape["n_x"]) * up * (n_y * up if n_y > 1 else 1)
+    itemsize = 8 if (params.get("dtype") or "float32") == "float64" else 4
+    return int(max(1, volumes) * (voxels * itemsize * 1.02 + (1 << 20)))
+
+
+#: reconstructions an autofocus search (``sound_speed: "auto"``) makes besides the final one, at
+#: most (``service.autofocus``: a coarse scan of 7, then up to 8 refinements)
+AUTOFOCUS_EVALUATIONS = 15
+
+
+def estimate_work(shape: dict, params: dict) -> float:
+    """The work of a reconstruction with the options actually used, in seconds on the
+    reference 2 cores (``service.recon.methods.FLOAT64_WORK``) -- the one work rule, applied
+    with :func:`admit_work` before a job is queued.
+
+    The method's own estimate (``service.recon.methods``: its ``work`` hook; the planar
+    methods' ``transform_units`` of their transform grid times their measured rate, tv's
+    operator pairs on its padded grid, its iterations' share capped by ``time_limit``), on
+    the working depth rows (:func:`working_depth_rows`), plus an autofocus search's
+    evaluations when ``c`` is ``"auto"``. A method's hook may refuse options the input
+    cannot carry (tv: an image deeper than the record can hear; kwave: an input whose sample
+    0 is not at t = 0), with the words the worker would use.
+
+    Parameters
+    ----------
+    shape : dict
+        :func:`input_shape`'s.
+    params : dict
+        ``method`` and the options as asked (``c`` in m/s or ``"auto"``, ``dz`` m,
+        ``time_limit`` s, ...).
+
+    Returns
+    -------
+    float
+        Seconds.
+
+    Raises
+    ------
+    AdmissionError
+        A depth grid that can never be made (:func:`working_depth_rows`).
+    ValueError
+        The method's refusal (``service.recon.checks.OptionError``).
+    """
+    n_t, n_x, n_y = int(shape["n_t"]), int(shape["n_x"]), int(shape.get("n_y", 1))
+    rows = working_depth_rows(shape, params)
+    from service.recon.methods import get as method_named
+
+    c = params.get("c")
+    c = max(params.get("c_range") or C_AUTOFOCUS_RANGE) if c == "auto" else c
+    name = params.get("method") or "ner"
+    common = dict(upsample=int(params.get("upsample", 1) or 1), dtype=params.get("dtype") or "float32",
+                  n_points=shape.get("n_points"), dx=shape.get("dx"), dt=shape.get("dt"),
+                  c=float(c or shape.get("c") or C_DEFAULT), t0=shape.get("t0"))
+    seconds = method_named(name).estimate_work(n_t, n_x, n_y, n_z=rows, options=params, **common)
+    if params.get("c") == "auto":  # the search: the method itself, or the direct method for an iterative one
+        from service.autofocus import ITERATIVE_METHODS
+
+        search = ("nedner" if shape.get("n_points") else "ner") if name in ITERATIVE_METHODS else name
+        depth = 3 * n_t  # its grid: twice as fine as the decimated samples at c_min, as deep as c_max reaches
+        seconds += AUTOFOCUS_EVALUATIONS * method_named(search).estimate_work(
+            n_t, n_x, n_y, n_z=depth, options={}, **{**common, "upsample": 1, "dtype": "float32"})
+    return seconds
+
+
+def admit_work(seconds: float, limit_s: float) -> None:
+    """Raise :class:`AdmissionError` saying the estimate and the limit if ``seconds`` (of
+    :func:`estimate_work`) > ``limit_s`` (the server's ``work_limit_s``)."""
+    if seconds > limit_s:
+        raise AdmissionError(f"reconstruction needs about {_duration(seconds)} of work by its estimate ({seconds:.3g} "
+                             f"s on 2 cores), more than the server's work limit of {_duration(limit_s)} "
+                             f"(work_limit_s = {limit_s:g} s); reduce the size, n_z, upsample, iterations or "
+                             "time_limit, or use a larger dz or float32")
+
+
+def _duration(seconds: float) -> str:
+    """``seconds`` in words: ``"42 s"``, ``"12 min"``, ``"3.4 h"``, ``"2.1 days"``."""
+    if seconds < 120:
+        return f"{seconds:.3g} s"
+    if seconds < 7200:
+        return f"{seconds / 60:.3g} min"
+    if seconds < 2 * 86400:
+        return f"{seconds / 3600:.3g} h"
+    return f"{seconds / 86400:.3g} days"
 
 
 def admit(estimate: int, limit: int) -> None:

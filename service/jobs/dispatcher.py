@@ -154,11 +154,16 @@ class Dispatcher(Loop):
         The loop thread's name.
     period, log
         As for :class:`Loop`.
+    orphaned : callable, optional
+        ``orphaned(job_id, exc)``, called in the job's thread when its body raised: the body
+        decides how its job ends, and this ends it when the body could not (a job is never
+        left ``running`` without a thread).
     """
 
     def __init__(self, store: JobStore, kind: str, *, owner: str, lease_s: float,
                  admit: Callable[[dict, int], Verdict], launch: Callable[[dict], tuple[str, Callable[[], Any]]],
-                 name: str, period: float = 0.5, log: logging.Logger | None = None) -> None:
+                 name: str, period: float = 0.5, log: logging.Logger | None = None,
+                 orphaned: Callable[[str, BaseException], Any] | None = None) -> None:
         super().__init__(name, self.dispatch, period=period, log=log)
         self.store = store
         self.kind = kind
@@ -166,6 +171,7 @@ class Dispatcher(Loop):
         self.lease_s = float(lease_s)
         self._admit = admit
         self._launch = launch
+        self._orphaned = orphaned
         self._threads: dict[str, threading.Thread] = {}
         self._lock = threading.Lock()
 
@@ -207,7 +213,12 @@ class Dispatcher(Loop):
     def _run(self, job_id: str, body: Callable[[], Any]) -> None:
         try:
             body()
-        except Exception:  # a body decides how its job ends; this is a bug in it
+        except Exception as exc:  # a body decides how its job ends; this is a bug in it
             self._log.exception("%s: job=%s ended with an error", self.name, job_id)
+            if self._orphaned is not None:
+                try:
+                    self._orphaned(job_id, exc)
+                except Exception:  # noqa: BLE001 -- logged; the restart's recovery is the last resort
+                    self._log.exception("%s: job=%s could not be ended", self.name, job_id)
         finally:
             self.wake()  # its memory, its scanner are free again

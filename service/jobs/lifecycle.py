@@ -37,6 +37,7 @@ from pathlib import Path
 from typing import Any
 
 from service.jobs.store import ACTIVE, JobStore
+from service.storage.usage import tree_bytes, usage_for
 
 __all__ = [
     "RETENTION_KEY", "InUse", "NotFound", "job_files", "job_dataset_ids", "delete_job", "delete_plan",
@@ -62,19 +63,7 @@ class NotFound(KeyError):
 
 def _tree_bytes(path: Path) -> int:
     """Bytes of the files under ``path`` (a file or a folder; 0 if missing)."""
-    try:
-        if path.is_file():
-            return path.stat().st_size
-    except OSError:
-        return 0
-    total = 0
-    for root, _dirs, files in os.walk(path):
-        for name in files:
-            try:
-                total += os.lstat(os.path.join(root, name)).st_size
-            except OSError:
-                pass
-    return total
+    return tree_bytes(path)
 
 
 def _remove(path: Path) -> None:
@@ -152,11 +141,14 @@ def delete_job(store: JobStore, data_dir: str | os.PathLike, job_id: str) -> dic
     if users:
         raise InUse(f"scan job {job_id} is read by {users[0]['state']} reconstruction {users[0]['id']}")
     files = job_files(job, data_dir)
-    freed = sum(_tree_bytes(p) for p in files)
+    sizes = [_tree_bytes(p) for p in files]
+    freed = sum(sizes)
     if not store.delete_job(job_id):  # it became active again (resumed) in the meantime
         raise InUse(f"job {job_id} is active: cancel it first")
-    for p in files:
+    usage = usage_for(data_dir)
+    for p, n in zip(files, sizes, strict=True):
         _remove(p)
+        usage.add_path(p, removed=True, nbytes=n)  # /api/health's counters
     log.info("deleted job=%s kind=%s bytes=%d", job_id, job["kind"], freed)
     return {"id": job_id, "kind": job["kind"], "bytes_freed": freed}
 
@@ -185,6 +177,7 @@ def delete_dataset(store: JobStore, data_dir: str | os.PathLike, dataset_id: str
     freed = _tree_bytes(folder)
     store.delete_dataset(dataset_id)
     _remove(folder)
+    usage_for(data_dir).add_path(folder, removed=True, nbytes=freed)  # /api/health's counters
     log.info("deleted dataset=%s bytes=%d", dataset_id, freed)
     return {"id": dataset_id, "bytes_freed": freed}
 
@@ -348,7 +341,8 @@ def disk_usage(data_dir: str | os.PathLike) -> dict:
     """Bytes the store uses, by part, and the free space of its file system:
     ``{"total_bytes", "scans_bytes", "results_bytes", "datasets_bytes", "exports_bytes",
     "other_bytes", "free_bytes"}`` (one walk of the data folder, :func:`disk_usage_steps`
-    run to its end)."""
+    run to its end): the check of ``/api/health``'s counters
+    (``service.storage.usage.DiskUsage.reconcile``, in a thread of its own)."""
     steps = disk_usage_steps(data_dir)
     while True:
         try:
@@ -359,8 +353,8 @@ def disk_usage(data_dir: str | os.PathLike) -> dict:
 
 def disk_usage_steps(data_dir: str | os.PathLike) -> Generator[None, None, dict]:
     """:func:`disk_usage` as a generator that yields (None) after every
-    :data:`DISK_WALK_STEP` entries and returns the answer: a caller on an event loop lets
-    other work run between the steps (``/api/health``'s ``DiskUsageCache``). One pass over
+    :data:`DISK_WALK_STEP` entries and returns the answer: a caller on an event loop may
+    let other work run between the steps. One pass over
     the data folder (files counted by ``lstat`` size, symbolic links not followed below a
     part's own folder); a file that vanishes during the walk counts 0."""
     data = Path(data_dir)

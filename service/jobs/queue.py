@@ -13,27 +13,46 @@ Cancel is cooperative: the job thread creates the job's cancel file, the worker'
 ends ``cancelled``. Lease and heartbeat: the running thread renews the job's lease every
 ``settings.heartbeat_s``; after a restart, :meth:`JobStore.recover` re-queues jobs whose
 owner is gone.
+
+A full disk fails a job, never strands it (issue 50.2). Each job carries the bytes its
+result needs (``params["result_bytes"]``, ``service.jobs.admission.estimate_result_bytes``):
+
+- a queued job whose result does not fit the free disk (less ``disk_reserve_bytes``, as for
+  an upload) when its turn comes ends ``failed`` with "disk full: N bytes free, M needed"
+  (the door refuses such a job with 507 up front);
+- a running job's thread looks at the free disk every second until its worker writes: once
+  the result no longer fits, the job ends ``failed`` with "disk full: N bytes free, M
+  needed" at once, and its worker is stopped (cancel file) and its folder removed (the job
+  database's reserve, while spent, does not count as free: it holds the jobs' states);
+- a worker that meets ENOSPC while writing ends the job the same way;
+- progress and heartbeats that cannot be written are skipped; a final state that cannot be
+  written (the job database's disk full beyond its reserve, ``JobStore``) is retried every
+  second until it is, and ``/api/health`` says so meanwhile; a job thread that fails in any
+  other way still ends its job (``failed``, the dispatcher's ``orphaned`` hook).
 """
 from __future__ import annotations
 
 import logging
 import shutil
+import sqlite3
+import threading
 import time
 import uuid
 from collections.abc import Callable
 from pathlib import Path
 
 from service.disk import is_disk_full
-from service.jobs.dispatcher import START, WAIT, Dispatcher, Verdict
+from service.jobs.dispatcher import SKIP, START, WAIT, Dispatcher, Loop, Verdict
 from service.jobs.executors import WorkerDied
 from service.jobs.lifecycle import apply_retention
 from service.jobs.store import JobStore
 from service.jobs.work import ProgressLog, run_reconstruction
 from service.names import code_names, person_names
 from service.pipeline import Cancelled
+from service.storage.usage import usage_for
 
 __all__ = [
-    "INCOMING", "remove_debris", "ReconQueue",
+    "INCOMING", "DISK_LOOK_S", "RESERVE_LOOK_S", "DiskFull", "disk_full_reason", "remove_debris", "ReconQueue",
 ]
 
 log = logging.getLogger("fpscan.jobs")
@@ -79,9 +98,28 @@ def remove_debris(data_dir: str | Path, older_than: float) -> list[str]:
     return removed
 
 
+class DiskFull(Exception):
+    """A running job's result no longer fits the free disk (its reason the message)."""
+
+
+#: seconds between two looks of a running job's thread at the free disk
+DISK_LOOK_S = 1.0
+#: seconds between two looks at whether the job database's spent reserve can be written again
+RESERVE_LOOK_S = 2.0
+
+
+def disk_full_reason(free: int | None, needed: int, reserve: int = 0) -> str:
+    """The one-line reason a job ends with on a full disk: ``"disk full: N bytes free, M
+    needed ..."`` (``reserve``: bytes of those kept free, ``disk_reserve_bytes``)."""
+    shown = "an unknown number of" if free is None else str(int(free))
+    kept = f" ({int(reserve)} of them kept in reserve, disk_reserve_bytes)" if reserve else ""
+    return (f"disk full: {shown} bytes free{kept}, {int(needed)} needed for the result on the data folder's "
+            "disk; free space, then submit the reconstruction again")
+
+
 class ReconQueue:
     """Background dispatcher of ``recon`` jobs (a :class:`service.jobs.dispatcher.Dispatcher`
-    admitting them under the memory limit, FIFO)."""
+    admitting them under the memory limit, FIFO, and the free disk; module docstring)."""
 
     def __init__(self, store: JobStore, executor, settings):
         self.store = store
@@ -90,13 +128,20 @@ class ReconQueue:
         self.owner = f"srv-{uuid.uuid4().hex[:12]}"
         self.results_dir = Path(settings.data_dir) / "results"
         self.results_dir.mkdir(parents=True, exist_ok=True)
+        self._problems: dict[str, str] = {}  # job id -> what keeps it from running or ending
+        self._problems_lock = threading.Lock()
         self._dispatcher = Dispatcher(store, "recon", owner=self.owner, lease_s=settings.heartbeat_s * 5,
-                                      admit=self._admit, launch=self._launch, name="recon-dispatcher", log=log)
+                                      admit=self._admit, launch=self._launch, name="recon-dispatcher", log=log,
+                                      orphaned=self._orphaned)
+        # the job database's reserve, spent on a full disk, written again once there is room
+        self._reserve_watch = Loop("store-reserve", store.restore_reserve, period=RESERVE_LOOK_S, log=log)
 
     def start(self) -> None:
         self._dispatcher.start()
+        self._reserve_watch.start()
 
     def stop(self) -> None:
+        self._reserve_watch.stop(timeout=5)
         self._dispatcher.stop(timeout=5)
 
     def join(self, timeout: float = 10.0) -> None:
@@ -110,15 +155,49 @@ class ReconQueue:
     def running(self) -> int:
         return self._dispatcher.running()
 
+    def problems(self) -> list[str]:
+        """What keeps reconstructions from running or ending now, one line each (``/api/health``)."""
+        with self._problems_lock:
+            return [f"reconstruction {jid}: {why}" for jid, why in self._problems.items()]
+
+    def _problem(self, jid: str, why: str | None) -> None:
+        with self._problems_lock:
+            if why is None:
+                self._problems.pop(jid, None)
+            else:
+                self._problems[jid] = why
+
+    def _free_bytes(self) -> int | None:
+        """Free bytes of the results' disk for results: less the job database's reserve
+        while it is spent (those bytes are the database's, for the jobs' states)."""
+        try:
+            free = shutil.disk_usage(self.results_dir).free
+        except OSError:
+            return None
+        return max(0, free - (self.store.reserve_bytes if self.store.reserve_spent is not None else 0))
+
     def _admit(self, job: dict, busy: int) -> Verdict:
         """Start ``job`` while the running jobs' memory estimates plus its own fit the limit
-        (the first always may when nothing runs) and, on the local pool, a worker is free;
-        else hold it and the jobs behind it (FIFO)."""
+        (the first always may when nothing runs) and, on the local pool, a worker is free,
+        else hold it and the jobs behind it (FIFO); a job whose result does not fit the free
+        disk ends ``failed`` with the reason (never waiting without end)."""
         in_use = self.store.running_memory()
         if busy > 0 and in_use + job["memory_bytes"] > self.settings.memory_limit:
             return WAIT  # FIFO: wait for memory
         if busy >= max(self.settings.workers, 1) and self.settings.executor == "local":
             return WAIT
+        needed = int(job["params"].get("result_bytes") or 0)
+        free = self._free_bytes() if needed else None
+        reserve = int(self.settings.disk_reserve_bytes)
+        if free is not None and free - reserve < needed:
+            why = disk_full_reason(free, needed, reserve)
+            try:
+                if self.store.set_state(job["id"], "failed", error=why, only_from=("queued",),
+                                        progress={"stage": "failed"}):
+                    log.warning("recon failed job=%s before it started: %s", job["id"], why)
+            except sqlite3.Error as exc:  # the job database's disk too: the next round tries again
+                log.warning("recon job=%s: its failure not written: %s", job["id"], exc)
+            return SKIP
         return START
 
     def _launch(self, job: dict) -> tuple[str, Callable[[], None]]:
@@ -144,15 +223,23 @@ class ReconQueue:
         for key in ("unmix", "inputs", "wavelengths"):  # a multi-wavelength unmixing job (service.spectral)
             if job["params"].get(key) is not None:
                 spec[key] = job["params"][key]
-        self.store.update_progress(jid, {"fraction": 0.0, "stage": "starting"})
+        needed = int(job["params"].get("result_bytes") or 0)
+        self._progress(jid, {"fraction": 0.0, "stage": "starting"})
         log.info("recon start job=%s attempt=%s method=%s", jid, job["attempts"], spec["params"]["method"])
         t0 = time.perf_counter()
+        future = None
         try:
-            summary = self._wait(jid, self.executor.submit(run_reconstruction, spec), progress_path, cancel_path)
+            future = self.executor.submit(run_reconstruction, spec)
+            summary = self._wait(jid, future, progress_path, cancel_path, needed)
         except Cancelled:
             shutil.rmtree(out_dir, ignore_errors=True)
             self._finish(jid, "cancelled")
             log.info("recon cancelled job=%s", jid)
+            return
+        except DiskFull as exc:  # ended at once; its worker stops at its next step, its folder goes
+            self._finish(jid, "failed", error=str(exc))
+            log.warning("recon failed job=%s: %s", jid, exc)
+            self._drain(future, out_dir)
             return
         except ValueError as exc:
             self._finish(jid, "failed", error=self.settings.redact(str(exc)))
@@ -160,19 +247,19 @@ class ReconQueue:
             return
         except WorkerDied as exc:
             if self._dispatcher.stopping:  # shutdown (SIGTERM) killed the worker: not the job's fault
-                self.store.requeue(jid, "server shutting down", count_attempt=False)
+                self._record(jid, lambda: self.store.requeue(jid, "server shutting down", count_attempt=False))
                 log.info("recon requeued job=%s (shutdown)", jid)
             elif job["attempts"] < self.settings.max_attempts:
-                self.store.requeue(jid, "the worker process died")
+                self._record(jid, lambda: self.store.requeue(jid, "the worker process died"))
                 log.warning("recon requeued job=%s (worker died, attempt %s)", jid, job["attempts"])
             else:
                 self._finish(jid, "failed", error=f"{exc} ({job['attempts']} attempts)")
             return
         except Exception as exc:  # worker crash or bug: keep internals in the log only
             if is_disk_full(exc):  # the server's condition: say so (the input is intact)
+                shutil.rmtree(out_dir, ignore_errors=True)
                 log.warning("recon failed job=%s: disk full: %s", jid, exc)
-                self._finish(jid, "failed", error="the data folder's disk is full (no room for the result); "
-                                                  "free space, then submit the reconstruction again")
+                self._finish(jid, "failed", error=disk_full_reason(self._free_bytes(), needed))
                 return
             log.exception("recon error job=%s", jid)
             self._finish(jid, "failed", error=f"reconstruction failed ({type(exc).__name__})")
@@ -186,11 +273,16 @@ class ReconQueue:
             shutil.rmtree(out_dir, ignore_errors=True)
             self._finish(jid, "cancelled")
             return
-        self.store.update_params(jid, {"result": person_names(summary)})
-        self.store.set_state(jid, "succeeded", result_path=str(out_dir), only_from=("running",),
-                             progress={"fraction": 1.0, "stage": "done",
-                                       "points_done": summary.get("points_used"),
-                                       "points_total": summary.get("points_used")})
+        usage_for(self.settings.data_dir).add_path(out_dir)  # /api/health's counters
+
+        def succeed() -> None:
+            self.store.update_params(jid, {"result": person_names(summary)})
+            self.store.set_state(jid, "succeeded", result_path=str(out_dir), only_from=("running",),
+                                 progress={"fraction": 1.0, "stage": "done",
+                                           "points_done": summary.get("points_used"),
+                                           "points_total": summary.get("points_used")})
+
+        self._record(jid, succeed)
         log.info("recon done job=%s seconds=%.3f shape=%s%s", jid, time.perf_counter() - t0, summary.get("shape"),
                  f" {summary['outcome']}" if summary.get("outcome") else "")  # how an iterative method ended
         try:  # a new result: older ones beyond the retention policy go
@@ -198,30 +290,85 @@ class ReconQueue:
         except Exception:
             log.exception("retention failed after job=%s", jid)
 
-    def _wait(self, jid: str, future, progress_path: Path, cancel_path: Path):
+    def _wait(self, jid: str, future, progress_path: Path, cancel_path: Path, needed: int = 0):
         """The job's result; meanwhile renew its lease, turn the worker's stage reports
         (:func:`service.jobs.work.report_stage`, read with :class:`ProgressLog`) into
         progress events, the last ones once the worker has returned, and, once the job's
-        cancellation is requested, create ``cancel_path`` (the worker's ``should_stop``)."""
-        stages, beat = ProgressLog(progress_path), time.monotonic()
+        cancellation is requested, create ``cancel_path`` (the worker's ``should_stop``).
+        Until the worker writes, look at the free disk every :data:`DISK_LOOK_S`: raise
+        :class:`DiskFull` (the worker told to stop) once ``needed`` bytes no longer fit."""
+        stages, beat, look = ProgressLog(progress_path), time.monotonic(), 0.0
+        writing = False
         while True:
             try:
                 result, done = future.result(timeout=0.25), True
             except TimeoutError:
                 done = False
             for stage in stages.new():
-                self.store.update_progress(jid, stage)
+                writing = writing or stage.get("stage") == "writing"
+                self._progress(jid, stage)
             if done:
                 return result
+            if needed and not writing and time.monotonic() - look >= DISK_LOOK_S:
+                look = time.monotonic()
+                free = self._free_bytes()
+                if free is not None and free < needed:
+                    self._stop_worker(cancel_path)
+                    raise DiskFull(disk_full_reason(free, needed))
             if not cancel_path.exists() and (self.store.get(jid) or {}).get("cancel_requested"):
-                try:
-                    cancel_path.touch()
-                except OSError:  # best effort: the job then ends when its step returns
-                    pass
+                self._stop_worker(cancel_path)
             if time.monotonic() - beat > self.settings.heartbeat_s:
                 beat = time.monotonic()
-                self.store.heartbeat(jid, self.owner, self.settings.heartbeat_s * 5)
+                try:
+                    self.store.heartbeat(jid, self.owner, self.settings.heartbeat_s * 5)
+                except sqlite3.Error as exc:  # the job database's disk: the lease waits for the next beat
+                    log.warning("recon job=%s heartbeat not written: %s", jid, exc)
+
+    @staticmethod
+    def _stop_worker(cancel_path: Path) -> None:
+        """Ask the worker to stop (its ``should_stop`` sees the file)."""
+        try:
+            cancel_path.touch()
+        except OSError:  # best effort: the job then ends when its step returns
+            pass
+
+    def _drain(self, future, out_dir: Path) -> None:
+        """Wait for a worker told to stop (a job already ended), then remove its folder."""
+        if future is not None:
+            try:
+                future.result()
+            except BaseException:  # noqa: BLE001 -- the job has ended; how its worker stopped does not matter
+                pass
+        shutil.rmtree(out_dir, ignore_errors=True)
+
+    def _progress(self, jid: str, progress: dict) -> None:
+        """Record a progress event; one that cannot be written (the job database's disk
+        full) is skipped: progress is best effort, the job's end is not."""
+        try:
+            self.store.update_progress(jid, progress)
+        except sqlite3.Error as exc:
+            log.warning("recon job=%s progress not written: %s", jid, exc)
+
+    def _record(self, jid: str, write) -> None:
+        """``write()`` a job's state change, retried every second while the job database
+        cannot write (its disk full beyond its reserve), said by :meth:`problems`
+        meanwhile, until it is written or the server stops (a restart recovers the job)."""
+        while True:
+            try:
+                write()
+                self._problem(jid, None)
+                return
+            except sqlite3.Error as exc:
+                self._problem(jid, f"its end cannot be recorded ({' '.join(str(exc).split())}); free space on "
+                                   "the data folder's disk")
+                log.warning("recon job=%s state not written, retrying: %s", jid, exc)
+                if self._dispatcher.wait_stop(1.0):
+                    return
 
     def _finish(self, jid: str, state: str, error: str | None = None) -> None:
-        self.store.set_state(jid, state, error=error, only_from=("running",),
-                             progress={"stage": state})
+        self._record(jid, lambda: self.store.set_state(jid, state, error=error, only_from=("running",),
+                                                       progress={"stage": state}))
+
+    def _orphaned(self, jid: str, exc: BaseException) -> None:
+        """A job thread that failed outside its own handling: its job still ends (failed)."""
+        self._finish(jid, "failed", error=f"reconstruction failed (internal error: {type(exc).__name__})")

@@ -13,10 +13,13 @@ Controls: ``pause``/``resume``/``abort`` call the open ``driver.host.Scanner`` f
 request thread (the driver queues them for its scan loop). A scan interrupted by a server
 restart is ``paused`` (stage ``interrupted``); ``resume`` re-queues it and the driver
 continues from the scan file's record of completed points, so no A-line is lost or
-acquired twice.
+acquired twice. A scan paused by a full disk resumes by itself once its scan file fits the
+free disk again (and at least ``DISK_FREED_BYTES`` more are free than when it stopped),
+looked at every second.
 """
 from __future__ import annotations
 
+import errno
 import logging
 import math
 import threading
@@ -27,9 +30,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from service.disk import is_disk_full
-from service.jobs.dispatcher import SKIP, START, Dispatcher, Verdict
+from service.jobs.dispatcher import SKIP, START, Dispatcher, Loop, Verdict
 from service.jobs.preview import PreviewManager
 from service.jobs.store import TERMINAL, JobStore
+from service.storage.usage import usage_for
 
 if TYPE_CHECKING:
     from driver.host import Scanner, ScanProgress
@@ -40,6 +44,8 @@ log = logging.getLogger("fpscan.scans")
 #: Free space (bytes) that must come back on the data folder's disk, beyond what was free
 #: when a full disk stopped a scan, before ``/api/health`` stops calling the disk full.
 DISK_FREED_BYTES = 1 << 20
+#: Seconds between two looks of a running scan at whether the rest of its file fits the disk.
+DISK_LOOK_S = 1.0
 #: Longest reason kept for an interrupted scan (HDF5's write errors run to many lines).
 REASON_CHARS = 300
 
@@ -53,6 +59,10 @@ def _one_line(text: str) -> str:
 def _missing_device(port: str) -> bool:
     """True for a device path (not a pyserial URL) that does not exist."""
     return "://" not in port and not Path(port).exists()
+
+
+class _NoRoom(OSError):
+    """The rest of a scan file no longer fits its disk (``ScanManager._room_watch``)."""
 
 
 class _Run:
@@ -83,13 +93,16 @@ class ScanManager:
         self._lock = threading.Lock()
         self._dispatcher = Dispatcher(store, "scan", owner=self.owner, lease_s=60.0, admit=self._admit,
                                       launch=self._launch, name="scan-dispatcher", log=log)
+        self._disk_watch = Loop("scan-disk-watch", self._resume_when_room, period=1.0, log=log)
 
     # -- lifecycle -----------------------------------------------------------------
     def start(self) -> None:
         self.previews.start()
         self._dispatcher.start()
+        self._disk_watch.start()
 
     def stop(self) -> None:
+        self._disk_watch.stop(timeout=5)
         self._dispatcher.stop(timeout=5)  # no scan starts after this
         with self._lock:
             runs = list(self._runs.values())
@@ -227,12 +240,16 @@ class ScanManager:
 
     def _execute(self, job: dict, run: _Run) -> None:
         jid = job["id"]
+        scan_path = Path(job["params"].get("scan_path") or self.scans_dir / f"{jid}.h5")
+        usage = usage_for(self.settings.data_dir)
+        usage.growing(scan_path)  # /api/health reads its size while it grows
         try:
             self._acquire(job, run)
         except Exception as exc:  # never let a scan thread die silently, nor a job stay running
             log.exception("scan job=%s crashed", jid)
             self._interrupt(jid, f"scan stopped ({type(exc).__name__}: {self.settings.redact(str(exc))})")
         finally:
+            usage.grown(scan_path)
             with self._lock:
                 self._runs.pop(run.scanner_id, None)
             self.previews.untrack(jid)  # (the dispatcher wakes when this returns)
@@ -269,10 +286,41 @@ class ScanManager:
                 if self._dispatcher.wait_stop(1.0):
                     return
 
+    def _resume_when_room(self) -> None:
+        """Resume the scans a full disk paused once their scan file fits again (the disk
+        watch's tick): its remaining A-lines fit the free disk (:meth:`_disk_shortfall`) and
+        at least ``DISK_FREED_BYTES`` more are free than when it stopped."""
+        import shutil
+
+        with self._lock:
+            waiting = [(jid, free) for jid, free in self._free_at_interrupt.items()
+                       if "disk full" in self._problems.get(jid, "") or "disk is full" in self._problems.get(jid, "")]
+        for jid, free_then in waiting:
+            job = self.store.get(jid)
+            if job is None or job["state"] in TERMINAL:  # cancelled or deleted meanwhile
+                with self._lock:
+                    self._problems.pop(jid, None)
+                    self._free_at_interrupt.pop(jid, None)
+                continue
+            if job["state"] != "paused":  # still being interrupted (its pause not yet written)
+                continue
+            found = self.store.get_plan(job["params"]["plan_id"])
+            if found is None:
+                continue
+            scan_path = Path(job["params"].get("scan_path") or self.scans_dir / f"{jid}.h5")
+            try:
+                free_now = shutil.disk_usage(self.settings.data_dir).free
+            except OSError:
+                continue
+            if free_now >= free_then + DISK_FREED_BYTES and self._disk_shortfall(found[0], scan_path) is None:
+                log.info("scan job=%s: the disk has room again (%d bytes free); resuming", jid, free_now)
+                self.resume(jid)
+
     def _disk_shortfall(self, plan: dict, scan_path: Path) -> str | None:
         """The reason a scan file cannot be completed on its disk (free space below what
         its remaining A-lines need: ``n_points × (2 n_t × n_wavelengths + 128)`` bytes
-        less what the file has allocated), or None."""
+        less what the file has allocated), or None. The job database's reserve, while it
+        is spent (a full disk), does not count as free: it holds the jobs' states."""
         import shutil
 
         acq = plan["acquisition"]
@@ -283,10 +331,30 @@ class ScanManager:
             free = shutil.disk_usage(scan_path.parent).free
         except OSError:
             return None
+        if self.store.reserve_spent is not None:
+            free = max(0, free - self.store.reserve_bytes)
         if need - have > free:
             return (f"disk full: the scan file needs {need - have} more bytes, {free} are free on the data "
                     "folder's disk; free space, then resume")
         return None
+
+    def _room_watch(self, plan: dict, scan_path: Path) -> Callable[[ScanProgress], None]:
+        """A check for the scan's progress reports: every :data:`DISK_LOOK_S`, the rest of the
+        scan file must still fit the disk (:meth:`_disk_shortfall`), else it raises
+        :class:`_NoRoom` (an ENOSPC ``OSError``): the scan stops as a full disk would stop it,
+        before it takes the bytes the job database holds for the jobs' states."""
+        last = [time.monotonic()]
+
+        def check(p: ScanProgress) -> None:
+            now = time.monotonic()
+            if now - last[0] < DISK_LOOK_S or p.state in ("done", "aborted"):
+                return
+            last[0] = now
+            short = self._disk_shortfall(plan, scan_path)
+            if short:
+                raise _NoRoom(errno.ENOSPC, short)
+
+        return check
 
     def _acquire_or_interrupt(self, jid: str, run_acquire):
         """``run_acquire()``'s result; None when the scan stopped: a bad plan or file fails
@@ -299,6 +367,8 @@ class ScanManager:
             log.warning("scan job=%s failed: %s", jid, exc)
             self.store.set_state(jid, "failed", error=self.settings.redact(str(exc)),
                                  only_from=("running", "paused"))
+        except _NoRoom as exc:  # the rest of the file no longer fits: resumable, and by itself
+            self._interrupt(jid, exc.strerror or "disk full")
         except OSError as exc:  # the disk (ENOSPC, EIO): the points on disk stay resumable
             why = "disk full" if is_disk_full(exc) else "scan file write failed"
             self._interrupt(jid, f"{why}: {self.settings.redact(str(exc))}; free space, then resume")
@@ -353,9 +423,11 @@ class ScanManager:
             self.previews.track(jid, str(scan_path),
                                 wavelength_index=int(job["params"].get("preview_wavelength", 0)))
             last = {"t": 0.0}
+            room = self._room_watch(plan, scan_path)
 
             def progress(p: ScanProgress) -> None:
                 now = time.monotonic()
+                room(p)
                 if run.scanner is None or run.pending:
                     with run.lock:  # scanning now: controls go straight to the driver
                         run.scanner = scanner

@@ -8,6 +8,13 @@ Server-Sent Events stream can honour ``Last-Event-ID``.
 
 Thread-safe: one connection guarded by a lock (statements are short).
 All times are UNIX seconds (float).
+
+A full disk (SQLite's SQLITE_FULL, "database or disk is full") never strands a job's state:
+the store keeps a reserve file beside the database (``<database>.reserve``,
+:data:`DB_RESERVE_BYTES`, written at start-up) and, when a write finds the disk full, removes
+it and writes again, so that the jobs' final states, cancels and deletions can still be
+recorded while the rest of the server refuses new work; the reserve is written again once
+the disk has room (:meth:`JobStore.problems` says while it is spent).
 """
 from __future__ import annotations
 
@@ -15,6 +22,7 @@ import builtins
 import copy
 import json
 import logging
+import os
 import sqlite3
 import threading
 import time
@@ -23,11 +31,18 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any, overload
 
+from service.disk import is_disk_full
 from service.names import person_names
 
-__all__ = ["STATES", "TERMINAL", "ACTIVE", "KINDS", "IdempotencyConflict", "Jobs", "JobStore"]
+__all__ = ["STATES", "TERMINAL", "ACTIVE", "KINDS", "DB_RESERVE_BYTES", "IdempotencyConflict", "Jobs", "JobStore"]
 
 log = logging.getLogger("fpscan.store")
+
+#: bytes of the reserve file kept beside the database for job states on a full disk (SQLite's
+#: WAL grows by 4 MiB at most between checkpoints; each state or progress event adds a row)
+DB_RESERVE_BYTES = 8 << 20
+#: seconds between two looks, after a write, at whether a spent reserve can be written again
+_RESERVE_RETRY_S = 5.0
 
 STATES = ("queued", "running", "paused", "succeeded", "failed", "cancelled")
 TERMINAL = frozenset({"succeeded", "failed", "cancelled"})
@@ -96,12 +111,18 @@ Jobs = list[dict[str, Any]]  # (``list`` is a method name inside JobStore)
 class JobStore:
     """Jobs, their events, plans and datasets in one SQLite file (WAL).
 
-    ``path``: the database file (parent folders are created).
+    ``path``: the database file (parent folders are created); ``reserve_bytes``: the
+    reserve kept beside it for a full disk (module docstring; 0: none).
     """
 
-    def __init__(self, path: str | Path):
+    def __init__(self, path: str | Path, reserve_bytes: int = DB_RESERVE_BYTES):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.reserve_path = self.path.with_name(self.path.name + ".reserve")
+        self.reserve_bytes = int(reserve_bytes)
+        self.reserve_spent: float | None = None  # when the reserve was given up (time.time()), None: kept
+        self._reserve_look = 0.0  # time.monotonic() of the last look at writing it again
+        self._reserve_lock = threading.Lock()  # spending and writing it again never cross
         self._lock = threading.RLock()
         self._db = sqlite3.connect(str(self.path), check_same_thread=False, timeout=30.0,
                                    isolation_level=None)
@@ -113,10 +134,92 @@ class JobStore:
             self._db.execute("PRAGMA journal_mode=WAL")
             self._db.execute("PRAGMA synchronous=NORMAL")
             self._db.executescript(_SCHEMA)
+        self._write_reserve()
 
     def close(self) -> None:
         with self._lock:
             self._db.close()
+
+    # -- a full disk ------------------------------------------------------------------
+    def _write_reserve(self) -> bool:
+        """Write the reserve file (all of it: its blocks allocated); True when it is there."""
+        if self.reserve_bytes <= 0:
+            return True
+        try:
+            if self.reserve_path.exists() and self.reserve_path.stat().st_size >= self.reserve_bytes:
+                return True
+            fd = os.open(self.reserve_path, os.O_WRONLY | os.O_CREAT, 0o600)
+            try:
+                try:
+                    os.posix_fallocate(fd, 0, self.reserve_bytes)
+                except (AttributeError, OSError) as exc:  # no fallocate here: write zeros
+                    if is_disk_full(exc):
+                        raise
+                    block = bytes(1 << 20)
+                    for start in range(0, self.reserve_bytes, len(block)):
+                        os.pwrite(fd, block[:self.reserve_bytes - start], start)
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+        except OSError as exc:
+            self.reserve_path.unlink(missing_ok=True)
+            log.warning("job store reserve %s not written: %s", self.reserve_path, exc)
+            return False
+        return True
+
+    def _spend_reserve(self) -> bool:
+        """Give the reserve's bytes back to the disk; False when there is none to give."""
+        with self._reserve_lock:
+            if self.reserve_bytes <= 0 or not self.reserve_path.exists():
+                return False
+            self.reserve_path.unlink(missing_ok=True)
+            self.reserve_spent = time.time()
+        log.warning("job store: the disk is full; its reserve of %d bytes was given up for job states",
+                    self.reserve_bytes)
+        return True
+
+    def _after_write(self) -> None:
+        """After a write: a spent reserve is written again once the disk has room for twice it
+        (looked at most every few seconds)."""
+        if self.reserve_spent is None or time.monotonic() - self._reserve_look < _RESERVE_RETRY_S:
+            return
+        self.restore_reserve()
+
+    def restore_reserve(self) -> bool:
+        """Write a spent reserve again if the disk has room for twice it (a server's
+        periodic look, and after writes); True when the reserve is in place."""
+        if self.reserve_spent is None:
+            return True
+        self._reserve_look = time.monotonic()
+        try:
+            import shutil
+
+            room = shutil.disk_usage(self.path.parent).free >= 2 * self.reserve_bytes + (1 << 20)
+        except OSError:
+            room = False
+        with self._reserve_lock:
+            if room and self.reserve_spent is not None and self._write_reserve():
+                log.info("job store: the disk has room again; its reserve is back")
+                self.reserve_spent = None
+            return self.reserve_spent is None
+
+    def _write(self, call):
+        """``call()`` (a write); on a full disk the reserve is given up and ``call`` tried once more."""
+        try:
+            out = call()
+        except sqlite3.OperationalError as exc:
+            if not is_disk_full(exc) or not self._spend_reserve():
+                raise
+            out = call()
+        self._after_write()
+        return out
+
+    def problems(self) -> builtins.list[str]:
+        """One line while the reserve is spent (the disk filled), else none (``/api/health``)."""
+        if self.reserve_spent is None:
+            return []
+        return [f"the job database's disk filled at {time.strftime('%H:%M:%S', time.localtime(self.reserve_spent))}: "
+                f"its reserve of {self.reserve_bytes} bytes is spent on job states; free space on the data folder's disk"]
 
     # -- helpers -----------------------------------------------------------------
     def add_listener(self, fn: Callable[[str], None]) -> None:
@@ -132,17 +235,24 @@ class JobStore:
             self._listeners.remove(fn)
 
     def _tx(self, fn):
+        return self._write(lambda: self._tx_once(fn))
+
+    def _tx_once(self, fn):
         with self._lock:
             self._cache.clear()
             self._touched = []
             self._db.execute("BEGIN IMMEDIATE")
             try:
                 out = fn(self._db)
+                self._db.execute("COMMIT")
             except BaseException:
-                self._db.execute("ROLLBACK")
+                if self._db.in_transaction:  # SQLite rolls back by itself on some errors (SQLITE_FULL)
+                    try:
+                        self._db.execute("ROLLBACK")
+                    except sqlite3.Error:
+                        pass
                 self._touched = []
                 raise
-            self._db.execute("COMMIT")
             touched, self._touched = list(dict.fromkeys(self._touched)), []
         for job_id in touched:
             for listener in list(self._listeners):
@@ -371,10 +481,12 @@ class JobStore:
 
     def heartbeat(self, job_id: str, owner: str, lease_s: float) -> None:
         now = time.time()
-        with self._lock:
-            self._cache.pop(job_id, None)
-            self._db.execute("UPDATE jobs SET heartbeat = ?, lease_until = ? WHERE id = ? AND lease_owner = ?",
-                             (now, now + lease_s, job_id, owner))
+        def write():
+            with self._lock:
+                self._cache.pop(job_id, None)
+                self._db.execute("UPDATE jobs SET heartbeat = ?, lease_until = ? WHERE id = ? AND lease_owner = ?",
+                                 (now, now + lease_s, job_id, owner))
+        self._write(write)
 
     def recover(self, owner: str, max_attempts: int) -> dict[str, builtins.list[str]]:
         """Restart recovery for a new server instance ``owner``: running reconstructions
@@ -430,15 +542,15 @@ class JobStore:
 
     # -- plans and datasets --------------------------------------------------------
     def put_plan(self, plan_id: str, body: dict, summary: dict) -> None:
-        with self._lock:
-            self._db.execute("INSERT OR IGNORE INTO plans (id, body, summary, created) VALUES (?, ?, ?, ?)",
-                             (plan_id, json.dumps(body), json.dumps(summary), time.time()))
+        self.put_plan_text(plan_id, json.dumps(body), summary)
 
     def put_plan_text(self, plan_id: str, text: str, summary: dict) -> None:
         """Store a plan already serialized (``text``: its JSON), as :meth:`put_plan` does."""
-        with self._lock:
-            self._db.execute("INSERT OR IGNORE INTO plans (id, body, summary, created) VALUES (?, ?, ?, ?)",
-                             (plan_id, text, json.dumps(summary), time.time()))
+        def write():
+            with self._lock:
+                self._db.execute("INSERT OR IGNORE INTO plans (id, body, summary, created) VALUES (?, ?, ?, ?)",
+                                 (plan_id, text, json.dumps(summary), time.time()))
+        self._write(write)
 
     def get_plan_text(self, plan_id: str) -> str | None:
         """The plan's JSON as stored (ready to serve, not parsed); None when there is none."""
@@ -463,9 +575,11 @@ class JobStore:
         return [json.loads(r["summary"]) for r in rows]
 
     def put_dataset(self, dataset_id: str, meta: dict) -> None:
-        with self._lock:
-            self._db.execute("INSERT INTO datasets (id, meta, created) VALUES (?, ?, ?)",
-                             (dataset_id, json.dumps(meta), time.time()))
+        def write():
+            with self._lock:
+                self._db.execute("INSERT INTO datasets (id, meta, created) VALUES (?, ?, ?)",
+                                 (dataset_id, json.dumps(meta), time.time()))
+        self._write(write)
 
     def get_dataset(self, dataset_id: str) -> dict | None:
         with self._lock:
@@ -481,9 +595,11 @@ class JobStore:
     def touch_dataset(self, dataset_id: str) -> None:
         """Record that ``dataset_id`` was asked for again (its meta's ``last_used``, UNIX s):
         retention by age counts from then."""
-        with self._lock:
-            self._db.execute("UPDATE datasets SET meta = json_set(meta, '$.last_used', ?) WHERE id = ?",
-                             (time.time(), dataset_id))
+        def write():
+            with self._lock:
+                self._db.execute("UPDATE datasets SET meta = json_set(meta, '$.last_used', ?) WHERE id = ?",
+                                 (time.time(), dataset_id))
+        self._write(write)
 
     def find_datasets(self, dedup_key: str) -> builtins.list[str]:
         """The ids of the datasets stored under ``dedup_key`` (their meta's), oldest first."""
@@ -525,12 +641,16 @@ class JobStore:
         return self._tx(work)
 
     def delete_plan(self, plan_id: str) -> bool:
-        with self._lock:
-            return self._db.execute("DELETE FROM plans WHERE id = ?", (plan_id,)).rowcount == 1
+        def write():
+            with self._lock:
+                return self._db.execute("DELETE FROM plans WHERE id = ?", (plan_id,)).rowcount == 1
+        return bool(self._write(write))
 
     def delete_dataset(self, dataset_id: str) -> bool:
-        with self._lock:
-            return self._db.execute("DELETE FROM datasets WHERE id = ?", (dataset_id,)).rowcount == 1
+        def write():
+            with self._lock:
+                return self._db.execute("DELETE FROM datasets WHERE id = ?", (dataset_id,)).rowcount == 1
+        return bool(self._write(write))
 
     def get_config(self, key: str) -> Any:
         """A stored configuration value (JSON), or None."""
@@ -539,6 +659,8 @@ class JobStore:
         return None if row is None else json.loads(row["value"])
 
     def set_config(self, key: str, value: Any) -> None:
-        with self._lock:
-            self._db.execute("INSERT INTO config (key, value) VALUES (?, ?) ON CONFLICT(key) DO UPDATE"
-                             " SET value = excluded.value", (key, json.dumps(value)))
+        def write():
+            with self._lock:
+                self._db.execute("INSERT INTO config (key, value) VALUES (?, ?) ON CONFLICT(key) DO UPDATE"
+                                 " SET value = excluded.value", (key, json.dumps(value)))
+        self._write(write)

@@ -489,9 +489,11 @@ def check_dtype(dtype) -> np.dtype:
     ...
     service.recon.checks.OptionError: dtype must be float32 or float64, got int16
     """
+    if isinstance(dtype, str) and len(dtype) > 32:  # no dtype name is longer; NumPy's parser is not fed text
+        raise OptionError(f"dtype must be float32 or float64, got {dtype[:32]!r}...")
     try:
         dt = np.dtype(dtype)
-    except TypeError:
+    except (TypeError, ValueError, SyntaxError):  # NumPy's parser raises SyntaxError for "(1,2"
         raise OptionError(f"dtype must be float32 or float64, got {dtype!r}") from None
     if dt not in (np.dtype(np.float32), np.dtype(np.float64)):
         raise OptionError(f"dtype must be float32 or float64, got {dt}")

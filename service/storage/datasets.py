@@ -187,7 +187,7 @@ def import_dataset(src: str | os.PathLike, dest_dir: str | os.PathLike, fmt: str
 
     request_admission(dataset_nbytes(ds))  # the service's disk admission, before a byte is written
     write_dataset(dest_dir / "dataset.h5", ds)
-    common = {"dt": ds.dt, "c": ds.c, "path": "dataset.h5", **wavelength_params(ds)}
+    common = {"dt": ds.dt, "c": ds.c, "t0": float(ds.t0 or 0.0), "path": "dataset.h5", **wavelength_params(ds)}
     if isinstance(ds, GridDataset):
         return {"layout": "grid", "shape": list(ds.data.shape), "dx": ds.dx, **common}
     n_x, n_y = len(ds.grid[0]), len(ds.grid[1]) if len(ds.grid) > 1 else 1

@@ -11,6 +11,9 @@ neither slows the test process):
     python -m tests.service.lab_load mixed URL TOKEN SPEC -> the soak's clients (issue 14):
                                                           SPEC is a JSON file (see mixed_load);
                                                           prints [kind, status, latency] rows
+    python -m tests.service.lab_load bodies URL TOKEN N DATASET -> 4 clients send the largest
+                                                          bodies the API takes, N each (see
+                                                          big_bodies); prints the statuses
 """
 from __future__ import annotations
 
@@ -107,6 +110,70 @@ def plan_load(url: str, token: str) -> dict:
     return out
 
 
+def largest_recon_bodies(dataset_id: str, limit: int = 64 * 1024) -> list[bytes]:
+    """Reconstruction requests of ``limit`` bytes each (``request_json_limit``), the most the
+    server reads of such a body, filled with what was slow to check: a dtype of ``"f4,"``
+    repeated (NumPy's dtype parser took 4.4 s for 3 MB of it), a unit text as long, nested
+    lists, many unknown options."""
+    def padded(make) -> bytes:
+        n = 1
+        while len(json.dumps(make(n * 2)).encode()) <= limit:
+            n *= 2
+        lo, hi = n, 2 * n
+        while hi - lo > 1:
+            mid = (lo + hi) // 2
+            lo, hi = (mid, hi) if len(json.dumps(make(mid)).encode()) <= limit else (lo, mid)
+        return json.dumps(make(lo)).encode()
+
+    return [
+        padded(lambda n: {"dataset_id": dataset_id, "method": "ner", "params": {"dtype": "f4," * n}}),
+        padded(lambda n: {"dataset_id": dataset_id, "method": "tv", "params": {"dz": "1" * n + " um"}}),
+        padded(lambda n: {"dataset_id": dataset_id, "method": "ner", "params": {"n_z": [[1, 2]] * n}}),
+        padded(lambda n: {"dataset_id": dataset_id, "method": "ner", "params": {f"opt{i}": i for i in range(n)}}),
+    ]
+
+
+def big_bodies(url: str, token: str, per_client: int, dataset_id: str) -> list[int]:
+    """Four clients, each on a kept-alive connection of its own, send requests one after
+    another: three ``per_client`` of the largest reconstruction bodies
+    (:func:`largest_recon_bodies`, 64 KiB), one the largest plan (a point list of 262 144
+    points, 3 MB: plan bodies are parsed in the plan worker, seconds each) until they are
+    done. Returns every status."""
+    bodies = largest_recon_bodies(dataset_id)
+    plan = json.dumps(big_plan_body("points")).encode()
+    hdr = {"Content-Type": "application/json"}
+    statuses: list[int] = []
+    lock = threading.Lock()
+
+    done = threading.Event()
+
+    def client(k: int) -> None:
+        with _client(url, token) as c:
+            for i in range(per_client):
+                r = c.post("/api/reconstructions", content=bodies[(k + i) % len(bodies)], headers=hdr)
+                with lock:
+                    statuses.append(r.status_code)
+
+    def planner() -> None:
+        with _client(url, token) as c:
+            while True:
+                r = c.post("/api/plans/preview", content=plan, headers=hdr)
+                with lock:
+                    statuses.append(r.status_code)
+                if done.is_set():
+                    return
+
+    threads = [threading.Thread(target=client, args=(k,)) for k in range(3)]
+    plans = threading.Thread(target=planner)
+    for t in (*threads, plans):
+        t.start()
+    for t in threads:
+        t.join()
+    done.set()
+    plans.join()
+    return statuses
+
+
 def _encoded(url: str, token: str, spec: dict) -> dict[str, list[bytes]]:
     """Every request of the soak as the bytes on the wire (HTTP/1.1, keep-alive), by kind:
     encoded once with httpx, so that sending one costs the load process next to nothing."""
@@ -174,7 +241,9 @@ def mixed_load(url: str, token: str, spec: dict) -> list[tuple[str, int, float]]
     drawn from ``spec["kinds"]`` (job status of ``spec["scan_id"]``, health, plan previews
     with bad depths, uploads of ``spec["good"]`` and of the files ``spec["bad"]``,
     reconstruction requests with bad options on ``spec["dataset_id"]``, the job list), each
-    answered within ``spec["answer_s"]`` or counted as never answered. The clients are
+    answered within ``spec["answer_s"]`` or counted as never answered; with
+    ``spec["pause_s"]`` each client waits about that long (0.5-1.5 times) after an answer,
+    as a person's client does between requests. The clients are
     coroutines in one thread that send requests encoded once (:func:`_encoded`): like
     clients on other machines they take next to none of the server's cores (50 httpx
     clients in this process took a whole core from the server on a 2-core machine).
@@ -206,6 +275,8 @@ def mixed_load(url: str, token: str, spec: dict) -> list[tuple[str, int, float]]
                     conn[1].close()
                 conn = None
             results.append((kind, status, time.perf_counter() - t0))
+            if spec.get("pause_s"):
+                await asyncio.sleep(spec["pause_s"] * rnd.uniform(0.5, 1.5))
         if conn is not None:
             conn[1].close()
 
@@ -221,6 +292,8 @@ if __name__ == "__main__":
     if what == "mixed":
         with open(sys.argv[4]) as f:
             print(json.dumps(mixed_load(url, token, json.load(f))))
+    elif what == "bodies":
+        print(json.dumps(big_bodies(url, token, int(sys.argv[4]), sys.argv[5])))
     elif what == "health":
         stop = threading.Event()
         threading.Thread(target=lambda: (sys.stdin.read(), stop.set()), daemon=True).start()

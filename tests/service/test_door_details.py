@@ -46,11 +46,13 @@ def test_plan_reads_are_counted_in_and_refused_when_the_plan_slots_are_full(tmp_
             assert r.status_code == 201, r.text
             pid = r.json()["id"]
             assert api.get(f"/api/plans/{pid}/preview.png").status_code == 200
-            # token holders whose plan requests stall: every plan slot (1 running + 8 waiting) taken
+            # token holders whose plan requests stall: every plan slot (1 running + 8 waiting)
+            # taken, from two addresses (one address may hold all but 2 of them: slots go per client)
             port = int(srv.url.rsplit(":", 1)[1])
 
             def stall() -> None:
-                s = socket.create_connection(("127.0.0.1", port), timeout=10)
+                source = f"127.0.0.{2 + len(stalled) // 7}"
+                s = socket.create_connection(("127.0.0.1", port), timeout=10, source_address=(source, 0))
                 s.sendall(f"POST /api/plans HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nContent-Length: 100000\r\n"
                           f"Authorization: Bearer {srv.token}\r\nContent-Type: application/json\r\n\r\n{{".encode())
                 stalled.append(s)

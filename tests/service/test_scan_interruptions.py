@@ -152,11 +152,10 @@ def test_full_disk_mid_scan_pauses_with_the_reason_then_resumes(tmp_path, small_
             assert job["progress"]["points_done"] < N * N
             health = c.get("/api/health").json()
             assert any("disk full" in p for p in health["problems"]), health
-            # a reconstruction queued meanwhile ends (not running forever) with the reason,
-            # and leaves no temporary files behind
-            rid = c.post("/api/reconstructions", json={"dataset_id": ds, "method": "ner"}).json()["id"]
-            rec = wait_job(c, rid)
-            assert rec["state"] == "failed" and "disk is full" in rec["error"], rec
+            # a reconstruction asked for meanwhile is refused at the door (its result does not
+            # fit), and leaves no temporary files behind
+            r = c.post("/api/reconstructions", json={"dataset_id": ds, "method": "ner"})
+            assert r.status_code == 507 and "no room for the result" in r.json()["detail"], r.text
             results = small_disk / "data" / "results"
             assert not [p.name for p in results.iterdir()] if results.exists() else True
             # resumed while still full: refused up front by the space check, paused again. The
@@ -166,8 +165,7 @@ def test_full_disk_mid_scan_pauses_with_the_reason_then_resumes(tmp_path, small_
             assert r.status_code == 200 and r.json()["state"] in ("queued", "paused"), r.text
             job = wait_state(c, jid, "paused")
             assert "disk" in job["progress"]["reason"]
-            os.unlink(small_disk / "filler.bin")
-            assert c.post(f"/api/scans/{jid}/resume").status_code == 200
+            os.unlink(small_disk / "filler.bin")  # the scan resumes by itself once its file fits
             final = wait_job(c, jid)
             assert final["state"] == "succeeded", final
             assert c.get("/api/health").json()["problems"] == []
@@ -181,8 +179,8 @@ def test_full_disk_mid_scan_pauses_with_the_reason_then_resumes(tmp_path, small_
 def test_full_disk_under_the_job_store_too(tmp_path, small_disk):
     """The job database on the full disk as well (the default layout): requests that must
     write answer 503 with the reason (not 500), an upload leaves nothing behind,
-    /api/health names the problem on one line; once space is freed the job is paused with
-    the reason, /resume completes it bit-identically and clears the reason."""
+    /api/health names the problem on one line; once space is freed the job, paused with the
+    reason, resumes by itself and completes bit-identically, the reason cleared."""
     import io
 
     sim = new_sim()
@@ -210,18 +208,13 @@ def test_full_disk_under_the_job_store_too(tmp_path, small_disk):
             assert (r.status_code, "disk" in r.json()["detail"]) in ((503, True), (507, True)), r.text
             assert not list((small_disk / "data" / "datasets").glob("*"))
             os.unlink(small_disk / "filler.bin")
-            job = wait_state(c, jid, "paused")
-            assert job["progress"]["stage"] == "interrupted" and "disk full" in job["progress"]["reason"]
-            # issue 22.6: with the space freed, health no longer says the disk (or database) is full,
-            # before any resume; it says the scan waits for one
-            deadline = time.monotonic() + HANG_S
-            while any("is full" in p or "disk full" in p for p in c.get("/api/health").json()["problems"]):
-                assert time.monotonic() < deadline, c.get("/api/health").json()
-                time.sleep(0.2)
-            assert any("space has been freed" in p for p in c.get("/api/health").json()["problems"])
-            assert c.post(f"/api/scans/{jid}/resume").status_code == 200
+            # with the space freed the scan, paused by the full disk, resumes by itself (issue
+            # 50.2) and health no longer says the disk (or database) is full
             final = wait_job(c, jid)
             assert final["state"] == "succeeded" and final["progress"]["reason"] is None, final
+            assert c.get("/api/health").json()["problems"] == []
+            events = c.get(f"/api/jobs/{jid}/events").text  # the stream ends after the final state
+            assert '"state": "paused"' in events, events[-2000:]
             check_file(c, jid, truth([sim], tmp_path, plan["id"]), tmp_path)
     finally:
         srv.stop()

@@ -35,7 +35,8 @@ from pydantic import ValidationError
 from service.recon.methods.options import MethodOptions
 
 __all__ = ["Method", "METHODS", "register", "get", "option_schemas", "option_fields", "docs_table",
-           "planar_memory", "MethodOptions", "default_text", "describe_error", "range_text"]
+           "planar_memory", "FLOAT64_WORK", "PLANAR_WORK_RATE", "transform_units", "planar_work", "MethodOptions",
+           "default_text", "describe_error", "range_text"]
 
 Runner = Callable[..., Any]
 
@@ -82,6 +83,87 @@ def planar_memory(method: str) -> Callable[..., int]:
     return peak
 
 
+#: the work estimates' reference: seconds on 2 cores of the machine they were measured on
+#: (AMD EPYC Zen 4, AVX-512, shared with other work: load average 4-6); float64 costs this
+#: factor more than float32 (measured 1.1-2.4, planar methods at 256 x 128^2 to 512 x 226^2)
+FLOAT64_WORK = 1.6
+
+
+def transform_units(n_t: int, n_x: int, n_y: int = 1, *, n_z: int | None = None, upsample: int = 1) -> float:
+    """The work unit of the planar methods: ``N log2 N`` for the transform grid they work on,
+    ``N`` = the working depth rows (at least ``n_t``, at a fast DCT-I length) times the
+    lateral transform sizes (``service.recon.checks.padded_lateral``), an upsampled inverse
+    counted as ``1 + (u² - 1) / 4`` such grids (measured: upsample 2 costs 1.1-3x upsample 1).
+
+    Parameters
+    ----------
+    n_t : int
+        Samples per A-line.
+    n_x, n_y : int
+        Lateral grid (``n_y = 1`` in 2-D).
+    n_z : int, optional
+        Working depth rows (default ``n_t``).
+    upsample : int, optional
+        Lateral upsampling factor.
+
+    Returns
+    -------
+    float
+        ``N log2 N`` (dimensionless).
+
+    Examples
+    --------
+    >>> from service.recon.methods import transform_units
+    >>> transform_units(256, 128, 128) > transform_units(256, 64, 64) > 0
+    True
+    """
+    import math
+
+    from driver.physics.fast_lengths import fast_dct1_rows
+    from service.recon.checks import padded_lateral
+
+    rows = fast_dct1_rows(max(int(n_z or n_t), int(n_t), 2))
+    p_y, p_x = padded_lateral(int(n_y), int(n_x))
+    u = int(upsample or 1)
+    n = rows * p_y * p_x * (1 + (u * u - 1) / 4)
+    return n * math.log2(max(n, 2.0))
+
+
+def planar_work(rate: float, per_point_sample: float = 0.0) -> Callable[..., float]:
+    """A planar method's work estimate: ``rate`` seconds per :func:`transform_units` unit
+    (float32; float64 :data:`FLOAT64_WORK` times that), plus ``per_point_sample`` seconds per
+    sensor point and sample (NEDNER's type-1 NUFFT over the points).
+
+    Parameters
+    ----------
+    rate : float
+        Seconds per unit, measured on the reference machine (each method's module).
+    per_point_sample : float, optional
+        Seconds per sensor point and time sample.
+
+    Returns
+    -------
+    callable
+        ``work(n_t, n_x, n_y=1, *, n_z, upsample, dtype, n_points, **_) -> float`` seconds.
+
+    Examples
+    --------
+    >>> from service.recon.methods import planar_work
+    >>> work = planar_work(2e-9)
+    >>> 0.05 < work(256, 128, 128, dtype="float32") < 1.0  # s: NER measured 0.14-0.17 s there
+    True
+    >>> work(256, 128, 128, dtype="float64") > work(256, 128, 128, dtype="float32")
+    True
+    """
+    def work(n_t: int, n_x: int, n_y: int = 1, *, n_z: int | None = None, upsample: int = 1,
+             dtype: Any = "float32", n_points: int | None = None, **_: Any) -> float:
+        seconds = rate * transform_units(n_t, n_x, n_y, n_z=n_z, upsample=upsample)
+        seconds += per_point_sample * float(n_points or 0) * float(n_t)
+        return seconds * (FLOAT64_WORK if str(dtype) == "float64" else 1.0)
+
+    return work
+
+
 @dataclass(frozen=True)
 class Method:
     """One reconstruction method.
@@ -112,6 +194,12 @@ class Method:
         :func:`planar_memory` of ``name``.
     order : int
         Position in lists (smaller first).
+    work : callable or None
+        ``work(n_t, n_x, n_y, *, n_z, upsample, dtype, n_points, dx, dt, c, t0, options)`` ->
+        seconds on the reference 2 cores (:data:`FLOAT64_WORK`; the work admission,
+        ``service.jobs.admission.estimate_work``); it may raise ``OptionError`` for options
+        the input cannot carry (tv: an image deeper than the record can hear). None
+        (default): :func:`planar_work` at :data:`PLANAR_WORK_RATE`.
     options : tuple of str
         The option names it takes: ``c`` and its model's fields.
     defaults : dict
@@ -143,6 +231,7 @@ class Method:
     source: str = ""
     peak_memory: Callable[..., int] | None = None
     order: int = 100
+    work: Callable[..., float] | None = None
 
     @property
     def options(self) -> tuple[str, ...]:
@@ -180,6 +269,10 @@ class Method:
         """Peak bytes (:attr:`peak_memory`)."""
         return (self.peak_memory or planar_memory(self.name))(n_t, n_x, n_y, **kw)
 
+    def estimate_work(self, n_t: int, n_x: int, n_y: int = 1, **kw: Any) -> float:
+        """Seconds of work on the reference 2 cores (:attr:`work`)."""
+        return float((self.work or planar_work(PLANAR_WORK_RATE))(n_t, n_x, n_y, **kw))
+
 
 def describe_error(exc: ValidationError) -> str:
     """The first error of ``exc`` as one line naming the option (the rule's own words).
@@ -214,6 +307,9 @@ def describe_error(exc: ValidationError) -> str:
         return f"unknown option {name}"
     return msg if msg.startswith(name) else f"{name}: {msg}"
 
+
+#: seconds per :func:`transform_units` unit of a planar method that states none (float32)
+PLANAR_WORK_RATE = 3e-9
 
 #: the method vocabulary (name -> Method), in the order lists show it
 METHODS: dict[str, Method] = {}

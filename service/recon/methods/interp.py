@@ -6,11 +6,11 @@ from __future__ import annotations
 from collections.abc import Callable
 from functools import partial
 
-from service.recon.methods import Method, planar_memory, register
+from service.recon.methods import Method, planar_memory, planar_work, register
 from service.recon.methods.ner import run_grid
 from service.recon.methods.options import DepthOptions, MethodOptions, PositivityOption, UpsampleOption
 
-__all__ = ["Options", "KINDS", "METHODS"]
+__all__ = ["Options", "KINDS", "WORK_RATES", "METHODS"]
 
 
 class Options(DepthOptions, PositivityOption, UpsampleOption, MethodOptions):
@@ -59,7 +59,12 @@ KINDS = {
     "cubic": ("FFT + cubic (pchip) interpolation", "FFT on the regular frequency grid + pchip interpolation"),
 }
 
+#: seconds of work per ``transform_units`` unit (float32, the reference 2 cores; ``planar_work``):
+#: measured 1.0-2.0e-9 (linear, nearest) and 3.1-3.4e-8 (cubic: pchip per column group) from
+#: 256 x 64^2 to 512 x 226^2 at load 5, float64 1.1-2.4x; the largest, rounded up
+WORK_RATES = {"linear": 3e-9, "nearest": 3e-9, "cubic": 4e-8}
+
 _run: Callable = run_grid
 METHODS = [register(Method(name, title, True, Options, partial(_run, name), source, planar_memory(name),
-                           order=30 + k))
+                           order=30 + k, work=planar_work(WORK_RATES[name])))
            for k, (name, (title, source)) in enumerate(KINDS.items())]

@@ -9,14 +9,14 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal
 from pydantic import BeforeValidator, Field
 
 from service.recon.limits import KWAVE_INTERPS
-from service.recon.methods import Method, planar_memory, register
+from service.recon.methods import Method, planar_memory, planar_work, register
 from service.recon.methods.options import MethodOptions, PositivityOption
 
 if TYPE_CHECKING:
     from service.recon.dataset import GridDataset
     from service.recon.reconstruction import Reconstruction
 
-__all__ = ["Options", "run", "METHOD"]
+__all__ = ["Options", "run", "check_start", "WORK_RATE", "work", "METHOD"]
 
 
 def _check_interp(value: Any) -> Any:
@@ -117,9 +117,7 @@ def run(ds: GridDataset, c: float, opts: dict, step: Callable[[float], None]) ->
     from service.recon.reconstruction import Reconstruction
 
     interp = opts.get("interp") or "*nearest"
-    if ds.t0:
-        raise ValueError("method 'kwave' needs sample 0 at t = 0 (k-Wave's convention); this input has "
-                         f"t0 = {ds.t0} s: use 'ner'")
+    check_start(ds.t0)
     dtype, positivity = opts["dtype"], bool(opts.get("positivity", False))
     data = ds.data
     if data.ndim == 2:  # k-Wave 'ty': y is our x
@@ -140,6 +138,72 @@ def run(ds: GridDataset, c: float, opts: dict, step: Callable[[float], None]) ->
                           centred_axis(data.shape[-1], ds.dx), y, params)
 
 
+def check_start(t0: float | None) -> None:
+    """k-Wave's convention: the record's first sample at t = 0. ValueError naming the input's
+    ``t0`` (s) otherwise (None: unknown, passes).
+
+    Parameters
+    ----------
+    t0 : float or None
+        Time of the input's sample 0, s.
+
+    Raises
+    ------
+    ValueError
+        ``t0`` is not 0.
+
+    Examples
+    --------
+    >>> from service.recon.methods.kwave import check_start
+    >>> check_start(0.0)
+    >>> check_start(1e-6)
+    Traceback (most recent call last):
+    ...
+    ValueError: method 'kwave' needs sample 0 at t = 0 (k-Wave's convention); this input has t0 = 1e-06 s: use 'ner'
+    """
+    if t0:
+        raise ValueError("method 'kwave' needs sample 0 at t = 0 (k-Wave's convention); this input has "
+                         f"t0 = {t0} s: use 'ner'")
+
+
+#: seconds of work per ``transform_units`` unit (float32, the reference 2 cores; ``planar_work``):
+#: measured 1.4-2.0e-9 from 256 x 128^2 to 512 x 226^2 at load 5 (float64 1.6-2.4x); rounded up
+WORK_RATE = 3e-9
+
+
+def work(n_t: int, n_x: int, n_y: int = 1, *, t0: float | None = None, **kw: Any) -> float:
+    """Seconds of work (``planar_work`` at :data:`WORK_RATE`) of an input whose sample 0 is at
+    ``t0`` (s): an input that does not start at t = 0 is refused at the door with the words
+    :func:`run` would use (:func:`check_start`).
+
+    Parameters
+    ----------
+    n_t, n_x, n_y : int
+        The input's samples and lateral grid.
+    t0 : float, optional
+        Time of its sample 0, s (None: unknown).
+    **kw
+        As ``planar_work``'s.
+
+    Returns
+    -------
+    float
+        Seconds on the reference 2 cores.
+
+    Raises
+    ------
+    ValueError
+        ``t0`` is not 0.
+
+    Examples
+    --------
+    >>> from service.recon.methods.kwave import work
+    >>> 0 < work(256, 128, 128, dtype="float32") < 1.0
+    True
+    """
+    check_start(t0)
+    return planar_work(WORK_RATE)(n_t, n_x, n_y, **kw)
+
 METHOD = register(Method("kwave", "k-Wave compatible (kspaceLineRecon / kspacePlaneRecon)", True, Options, run,
                          "k-Wave kspaceLineRecon / kspacePlaneRecon (reference/KWAVE_RECON_NOTES.md)",
-                         planar_memory("kwave"), order=40))
+                         planar_memory("kwave"), order=40, work=work))

@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
-from service.recon.methods import Method, planar_memory, register
+from service.recon.methods import Method, planar_memory, planar_work, register
 from service.recon.methods.options import (
     DepthOptions,
     MethodOptions,
@@ -18,7 +18,7 @@ if TYPE_CHECKING:
     from service.recon.dataset import PointDataset
     from service.recon.reconstruction import Reconstruction
 
-__all__ = ["Options", "run", "METHOD"]
+__all__ = ["Options", "run", "WORK_RATE", "METHOD"]
 
 
 class Options(DepthOptions, PositivityOption, UpsampleOption, MethodOptions, NufftOptions):
@@ -112,6 +112,11 @@ def run(ds: PointDataset, c: float, opts: dict, step: Callable[[float], None]) -
                               method="ner", t0=ds.t0, progress=step, **opts)
 
 
+#: seconds of work per ``transform_units`` unit (float32, the reference 2 cores; ``planar_work``):
+#: measured 1.6-3.9e-9 from 256 x 128^2 to 512 x 226^2 (every lattice point a sensor) at load
+#: 5, float64 1.1-1.6x; rounded up
+WORK_RATE = 4e-9
+
 METHOD = register(Method("nedner", "NEDNER-NUFFT (any sensor mask)", False, Options, run,
                          "paper §3.2: temporal NUFFT + type-1 NUFFT over the sensor positions",
-                         planar_memory("nedner"), order=10))
+                         planar_memory("nedner"), order=10, work=planar_work(WORK_RATE)))

@@ -163,14 +163,17 @@ def check_dtype_name(value: Any) -> Any:
         return value
     from service.recon.checks import OptionError
 
-    try:
-        import numpy as np
+    name = None
+    if not isinstance(value, (str, bytes)):  # text is checked as text: NumPy's dtype parser is never
+        try:  # handed a request's string ("(1,2" raised SyntaxError in it; "f4,f4,..." took seconds)
+            import numpy as np
 
-        name = np.dtype(value).name
-    except TypeError:
-        name = None
+            name = np.dtype(value).name
+        except (TypeError, ValueError):
+            name = None
     if name not in DTYPES:
-        raise OptionError(f"dtype must be one of {', '.join(DTYPES)}, got {value!r}")
+        shown = repr(value) if len(repr(value)) <= 64 else repr(value)[:60] + "...'"
+        raise OptionError(f"dtype must be one of {', '.join(DTYPES)}, got {shown}")
     return name
 
 

@@ -3,7 +3,7 @@ NER-preconditioned FISTA on the exact planar model (kernel:
 :func:`service.recon.tv.reconstruct_tv`; Arridge et al., PMB 61 (2016) 8908)."""
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, Any
 
 from pydantic import BeforeValidator, Field
 
@@ -24,7 +24,8 @@ if TYPE_CHECKING:
     from service.recon.dataset import PointDataset
     from service.recon.reconstruction import Reconstruction
 
-__all__ = ["Options", "run", "declared_bandwidth", "BANDWIDTH_KEY", "METHOD"]
+__all__ = ["Options", "run", "declared_bandwidth", "BANDWIDTH_KEY", "PAIR_RATE", "SETUP_PAIRS", "grid",
+           "check_depth", "work", "METHOD"]
 
 Lam = Annotated[Annotated[float, Field(ge=LAM_RANGE[0], le=LAM_RANGE[1])] | None,
                 BeforeValidator(kernel_rule("check_lam"))]
@@ -203,7 +204,171 @@ def declared_bandwidth(meta: dict | None) -> float | None:
     return check_bandwidth(value)
 
 
+#: seconds of work per operator pair and unit (the padded grid's ``M log2 M``, ``M`` its
+#: points), float32 on the reference 2 cores: a pair measured 0.57 s at 256 x 64^2 (15 % mask,
+#: padded to 257 x 200^2: 2.4e-9) and 5.2 s at 512 x 64^2 (513 x 324^2: 3.7e-9) at load 5, and
+#: 6.5 s at the paper's 1024 x 226^2 (1025 x 450^2: 1.1e-9, idle; docs/performance.md); the
+#: TV step of each iteration is counted in it (benchmarks/bench_work_estimate.py)
+PAIR_RATE = 3.5e-9
+#: operator pairs besides one per iteration: the power iterations (2), the noise image's
+#: adjoint, the first residual (measured: 6 pairs for 3 iterations) and the set-up's other
+#: steps, the equivalent of 2 more
+SETUP_PAIRS = 5.0
+#: the debias refit's iterations (``service.recon.tv``)
+DEBIAS_ITERATIONS = 10
+
+
+def grid(n_t: int, dt: float, c: float, *, dz: float | None = None, n_z: int | None = None,
+         t0: float = 0.0, bandwidth: float | None = None) -> tuple[float, int]:
+    """The image grid of tv for a record: ``(dz, n_z)`` (m, rows) as tv chooses it
+    (``service.recon.tv_grid.tv_grid``: without the data, or a declared ``bandwidth`` in Hz, the
+    full band's, the largest it can pick), the grid the work estimate and the depth rule read.
+
+    Parameters
+    ----------
+    n_t : int
+        Samples per A-line.
+    dt, c : float
+        Sample interval (s), speed of sound (m/s).
+    dz, n_z : optional
+        As asked (None: the default).
+    t0 : float, optional
+        Time of sample 0, s.
+
+    Returns
+    -------
+    tuple
+        ``(dz, n_z)``.
+
+    Raises
+    ------
+    ValueError
+        What the depth axis refuses (``dz``, ``n_z`` out of range; a ``dz`` too fine to reach
+        the last sample).
+
+    Examples
+    --------
+    >>> from service.recon.methods.tv import grid
+    >>> grid(256, 4e-8, 1500.0)  # c dt, n_t
+    (6e-05, 256)
+    >>> dz, n_z = grid(1024, 8e-9, 1500.0, bandwidth=20e6)  # a 20 MHz sensor: a coarser grid
+    >>> round(dz * 1e6, 2), n_z
+    (37.31, 330)
+    """
+    from service.recon.planar import _depth_axis  # the depth axis's own checks (range, reach)
+    from service.recon.tv_grid import tv_grid
+
+    chosen = tv_grid(int(n_t), float(dt), float(c), bandwidth=bandwidth, dz=dz, n_z=n_z)
+    _depth_axis(int(n_t), float(dt), float(c), chosen.dz, chosen.n_z, float(t0 or 0.0))
+    return float(chosen.dz), int(chosen.n_z)
+
+
+def check_depth(n_t: int, dt: float, c: float, dz: float, n_z: int, t0: float = 0.0) -> None:
+    """Refuse an image deeper than the record can hear: its last row ``(n_z - 1) dz`` beyond
+    ``c (t0 + (n_t - 1) dt)``, the depth of the last sample. The model-based operator pads
+    its grid by the image's depth and its lateral reach by ``max(dx, dz)``, so such rows only
+    cost (an image of 256 rows of 0.1 m took 5.3 GB and 23 minutes for 27 iterations).
+
+    Parameters
+    ----------
+    n_t : int
+        Samples per A-line.
+    dt, c : float
+        Sample interval (s), speed of sound (m/s).
+    dz, n_z : float, int
+        The image's depth spacing (m) and rows.
+    t0 : float, optional
+        Time of sample 0, s.
+
+    Raises
+    ------
+    service.recon.checks.OptionError
+        The image is deeper than the record; the message names both and the most rows.
+
+    Examples
+    --------
+    >>> from service.recon.methods.tv import check_depth
+    >>> check_depth(256, 4e-8, 1500.0, 6e-5, 256)  # the default grid reaches the last sample
+    >>> check_depth(256, 4e-8, 1500.0, 0.1, 256)
+    Traceback (most recent call last):
+    ...
+    service.recon.checks.OptionError: tv's image would reach 25.5 m deep (n_z = 256 rows of dz = 0.1 m), deeper ...
+    """
+    reach = float(c) * (float(t0 or 0.0) + (int(n_t) - 1) * float(dt))
+    depth = (int(n_z) - 1) * float(dz)
+    if depth > reach * (1 + 1e-9) + 1e-15:
+        from service.recon.checks import OptionError
+
+        most = int(reach / float(dz) * (1 + 1e-9)) + 1
+        fix = f"at this dz use n_z <= {most}, or a smaller dz" if most >= 2 else "use a smaller dz"
+        raise OptionError(f"tv's image would reach {depth:.3g} m deep (n_z = {n_z} rows of dz = {dz:.3g} m), deeper "
+                          f"than the record can hear: c (t0 + (n_t - 1) dt) = {reach:.3g} m; {fix} "
+                          f"(c dt = {float(c) * float(dt):.3g} m)")
+
+
+def work(n_t: int, n_x: int, n_y: int = 1, *, dtype: Any = "float32", n_points: int | None = None,
+         dx: float | None = None, dt: float | None = None, c: float | None = None, t0: float | None = 0.0,
+         options: dict | None = None, **_: Any) -> float:
+    """The work of tv: seconds on the reference 2 cores for its operator pairs on its padded grid
+    (:data:`PAIR_RATE`: one per iteration up to ``iterations``, the debias refit's, and
+    :data:`SETUP_PAIRS`), the iterations' share capped by ``time_limit`` (s; the solver stops
+    there), plus the NEDNER warm start. The grid is :func:`grid`'s, padded as the operator
+    pads it (``driver.physics.grid_sizes.pad_sizes``); an image deeper than the record is
+    refused (:func:`check_depth`).
+
+    Parameters
+    ----------
+    n_t, n_x, n_y : int
+        The input's samples and lateral grid.
+    dtype : str, optional
+        ``"float32"`` or ``"float64"``.
+    n_points : int, optional
+        Sensors.
+    dx, dt, c, t0 : float, optional
+        Pitch (m), sample interval (s), speed of sound (m/s), time of sample 0 (s); without
+        ``dx``/``dt`` the warm start's estimate alone is counted.
+    options : dict, optional
+        tv's options as asked (``dz``, ``n_z``, ``iterations``, ``time_limit``, ``debias``).
+
+    Returns
+    -------
+    float
+        Seconds.
+
+    Raises
+    ------
+    service.recon.checks.OptionError
+        An image deeper than the record; ``ValueError`` for a grid the depth axis refuses.
+
+    Examples
+    --------
+    >>> from service.recon.methods.tv import work
+    >>> s = work(256, 64, 64, n_points=600, dx=1e-4, dt=3.3e-8, c=1500.0, options={"iterations": 100})
+    >>> 30 < s < 600  # measured: 0.57 s a pair there
+    True
+    """
+    import math
+
+    from service.recon.limits import DEFAULT_MAX_ITER, DEFAULT_TIME_LIMIT
+    from service.recon.methods import FLOAT64_WORK, planar_work
+    from service.recon.methods.nedner import WORK_RATE as WARM_RATE
+
+    o = dict(options or {})
+    warm = planar_work(WARM_RATE)(n_t, n_x, n_y, n_points=n_points, dtype="float64")
+    if not (dx and dt and c):
+        return warm
+    dz, n_z = grid(n_t, dt, c, dz=o.get("dz"), n_z=o.get("n_z"), t0=t0 or 0.0)
+    check_depth(n_t, dt, c, dz, n_z, t0 or 0.0)
+    from driver.physics.grid_sizes import pad_sizes
+
+    points = math.prod(pad_sizes((n_z, n_y, n_x), dx, dz, dt, n_t, c, t0 or 0.0))
+    pair = PAIR_RATE * points * math.log2(max(points, 2)) * (FLOAT64_WORK if str(dtype) == "float64" else 1.0)
+    iterations = int(o.get("iterations") or DEFAULT_MAX_ITER) + (DEBIAS_ITERATIONS if o.get("debias") else 0)
+    limit = float(o.get("time_limit") or DEFAULT_TIME_LIMIT)
+    return warm + SETUP_PAIRS * pair + min(iterations * pair, limit)
+
+
 METHOD = register(Method(
     "tv", "model-based: TV + positivity on the exact model (iterative; sparse, noisy scans)", False, Options, run,
     "½‖A p0 − g‖²_W + λ TV(p0), p0 ≥ 0, NER-preconditioned FISTA (Arridge et al., PMB 61 (2016) 8908)",
-    planar_memory("tv"), order=50))
+    planar_memory("tv"), order=50, work=work))

@@ -1,0 +1,137 @@
+"""What a request may put into the server's log: each field capped, refusals counted, not
+written one line each.
+
+A stranger's requests cost the server a log line each: before this, every refused request
+was logged with its whole path (a 60 kB path, 60 kB of log; one client looping wrote 12 MB
+in 1.1 s). Here, as Jupyter Server truncates its request log:
+
+- :func:`shown`: a field a client chose (a path, a Host header, a method), as logged: up to
+  :data:`FIELD_MAX` characters, with its length when cut;
+- :class:`RefusalLog`: refusals are logged at most one line per client address per
+  ``interval_s`` (the first at once; the next line says how many were not written since);
+- :class:`CappedRecords`: a logging filter for the server's log handlers that cuts any record
+  to :data:`RECORD_MAX` characters (a backstop for whatever else quotes a request: a
+  library's message, an exception's text) and writes a message that uvicorn's connection
+  logger repeats (its "Invalid HTTP request received." comes once per bad request) at most
+  once per ``interval_s``, with the count of those left out.
+"""
+from __future__ import annotations
+
+import logging
+import threading
+import time
+
+__all__ = ["FIELD_MAX", "RECORD_MAX", "REPEAT_INTERVAL_S", "shown", "RefusalLog", "CappedRecords",
+           "install_log_caps"]
+
+#: characters of a client's field (a path, a header) a log line carries
+FIELD_MAX = 200
+#: characters of one log record's message at most (the rest is cut, its length said)
+RECORD_MAX = 2000
+#: one line per address (refusals) or per repeated message per this many seconds
+REPEAT_INTERVAL_S = 10.0
+
+
+def shown(text: object, limit: int = FIELD_MAX) -> str:
+    """``text`` as a log line carries it: at most ``limit`` characters, and its length
+    when it was longer (``"/api/aaaa... (60000 characters)"``).
+
+    Examples
+    --------
+    >>> shown("/api/health")
+    '/api/health'
+    >>> shown("/" + "a" * 300, limit=8)
+    '/aaaaaaa... (301 characters)'
+    """
+    s = str(text)
+    return s if len(s) <= limit else f"{s[:limit]}... ({len(s)} characters)"
+
+
+class RefusalLog:
+    """Log refusals of requests at most one line per client address per ``interval_s``
+    (s): the first refusal from an address is logged at once, later ones in the interval
+    are counted and the next line written says how many were left out. Thread-safe; the
+    table of addresses is bounded (``max_addresses``; the oldest entries go first)."""
+
+    def __init__(self, logger: logging.Logger, interval_s: float = REPEAT_INTERVAL_S,
+                 max_addresses: int = 4096) -> None:
+        self.logger = logger
+        self.interval_s = float(interval_s)
+        self.max_addresses = int(max_addresses)
+        self._lock = threading.Lock()
+        self._seen: dict[str, tuple[float, int]] = {}  # address -> (time of its last line, refusals left out)
+
+    def refused(self, address: str | None, message: str, *args: object, level: int = logging.INFO) -> bool:
+        """Log ``message % args`` for a refusal from ``address`` unless one was logged for it
+        less than ``interval_s`` ago (then count it). Returns whether a line was written."""
+        key = address or "?"
+        now = time.monotonic()
+        with self._lock:
+            last, skipped = self._seen.get(key, (-float("inf"), 0))
+            if now - last < self.interval_s:
+                self._seen[key] = (last, skipped + 1)
+                return False
+            self._seen.pop(key, None)
+            self._seen[key] = (now, 0)
+            while len(self._seen) > self.max_addresses:
+                self._seen.pop(next(iter(self._seen)))
+        suffix = f" (and {skipped} more refusals from {key} not logged since)" if skipped else ""
+        self.logger.log(level, message + "%s", *args, suffix)
+        return True
+
+
+class CappedRecords(logging.Filter):
+    """A handler filter: each record's message cut to ``limit`` characters (its length
+    said), and a message repeated by one of ``repeat_loggers`` written at most once per
+    ``interval_s`` (the next one says how many were left out). Records of level ERROR and
+    above always pass (cut, never dropped)."""
+
+    def __init__(self, limit: int = RECORD_MAX, interval_s: float = REPEAT_INTERVAL_S,
+                 max_messages: int = 1024, repeat_loggers: tuple[str, ...] = ("uvicorn.error",)) -> None:
+        super().__init__()
+        self.repeat_loggers = frozenset(repeat_loggers)
+        self.limit = int(limit)
+        self.interval_s = float(interval_s)
+        self.max_messages = int(max_messages)
+        self._lock = threading.Lock()
+        self._repeats: dict[tuple[str, str], tuple[float, int]] = {}
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        try:
+            message = record.getMessage()
+        except Exception:  # noqa: BLE001 -- a record that cannot format itself is passed on as it is
+            return True
+        if record.levelno < logging.ERROR and record.name in self.repeat_loggers:
+            key = (record.name, message[:FIELD_MAX])
+            now = time.monotonic()
+            with self._lock:
+                last, skipped = self._repeats.get(key, (-float("inf"), 0))
+                if now - last < self.interval_s:
+                    self._repeats[key] = (last, skipped + 1)
+                    return False
+                self._repeats.pop(key, None)
+                self._repeats[key] = (now, 0)
+                while len(self._repeats) > self.max_messages:
+                    self._repeats.pop(next(iter(self._repeats)))
+            if skipped:
+                message = f"{message} (repeated {skipped} more times, not logged)"
+        if len(message) > self.limit:
+            message = shown(message, self.limit)
+        if message != record.getMessage():
+            record.msg, record.args = message, None
+            if hasattr(record, "message_json"):  # `fpscan serve`'s JSON lines carry it made already
+                import json
+
+                record.message_json = json.dumps(message)
+        return True
+
+
+def install_log_caps(limit: int = RECORD_MAX, interval_s: float = REPEAT_INTERVAL_S) -> CappedRecords:
+    """Add one :class:`CappedRecords` to every handler of the root logger and of uvicorn's
+    loggers (those that do not propagate); returns it."""
+    caps = CappedRecords(limit, interval_s)
+    for name in ("", "uvicorn", "uvicorn.error", "uvicorn.access"):
+        for handler in logging.getLogger(name).handlers:
+            if not any(isinstance(f, CappedRecords) for f in handler.filters):
+                handler.addFilter(caps)
+    return caps

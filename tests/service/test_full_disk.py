@@ -1,0 +1,172 @@
+"""A full disk fails a job, never strands it (issue 50.2): a real ``fpscan serve`` whose whole
+data folder (job database included) lies on a 64 MiB tmpfs, filled while a scan, a tv
+reconstruction and an NER reconstruction (its speed of sound searched: seconds) run and two
+more reconstructions wait for a worker (one of them is cancelled on the full disk).
+
+- Each job reaches a settled state within 30 s of the fill: the reconstructions ``failed``
+  with "disk full: N bytes free, M needed", the scan ``paused`` with its reason (it resumes
+  by itself once its file fits again).
+- Meanwhile cancel and DELETE work (the job database writes into its reserve), a dataset can
+  be deleted, a new reconstruction is refused with 507, and ``/api/health`` lists the
+  problem.
+- Once space is freed the scan completes by itself, a new reconstruction succeeds and
+  ``/api/health`` lists no problem.
+
+Needs ``mount -t tmpfs`` (root, or a container that allows it): skipped where it cannot
+mount, with the reason. Holds the issue's time bound (30 s): ``serial``.
+"""
+from __future__ import annotations
+
+import io
+import os
+import subprocess
+import time
+
+import numpy as np
+import pytest
+
+from tests.service.service_servers import Server, needs_recon, wait_job
+from tests.service.test_scans import make_plan, start_scan, wait_points
+from tests.waits import HANG_S
+
+driver_sim = pytest.importorskip("driver.simulator")
+
+SETTLE_S = 30.0
+
+
+@pytest.fixture
+def small_disk(tmp_path):
+    folder = tmp_path / "tmpfs"
+    folder.mkdir()
+    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64m", "tmpfs", str(folder)], capture_output=True,
+                       text=True)
+    if r.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {r.stderr.strip() or r.returncode}")
+    try:
+        yield folder
+    finally:
+        subprocess.run(["umount", "-l", str(folder)], capture_output=True)
+
+
+def _fill(folder) -> None:
+    """Write a file until the disk is full."""
+    with open(folder / "filler.bin", "wb") as f:
+        try:
+            while True:
+                f.write(b"\0" * (1 << 20))
+                f.flush()
+        except OSError:
+            pass
+
+
+def _npy(shape, seed: int) -> bytes:
+    buf = io.BytesIO()
+    np.save(buf, np.random.default_rng(seed).standard_normal(shape).astype(np.float32))
+    return buf.getvalue()
+
+
+def _upload(c, shape, seed: int) -> str:
+    r = c.post("/api/datasets", data={"format": "npy", "dt": "2e-8", "dx": "1e-4"},
+               files={"file": (f"d{seed}.npy", _npy(shape, seed))})
+    assert r.status_code == 201, r.text
+    return r.json()["dataset_id"]
+
+
+def _start(c, dataset_id: str, method: str, params: dict) -> str:
+    r = c.post("/api/reconstructions", json={"dataset_id": dataset_id, "method": method, "params": params})
+    assert r.status_code == 202, r.text
+    return r.json()["id"]
+
+
+def _wait_stage(c, job_id: str, stage_prefix: str) -> None:
+    deadline = time.monotonic() + HANG_S
+    while time.monotonic() < deadline:
+        job = c.get(f"/api/jobs/{job_id}").json()
+        assert job["state"] in ("queued", "running"), job
+        if job["state"] == "running" and str(job["progress"].get("stage") or "").startswith(stage_prefix):
+            return
+        time.sleep(0.05)
+    raise AssertionError(f"job {job_id} never reached stage {stage_prefix!r}")
+
+
+def _settle(c, job_ids: dict, t_fill: float) -> dict:
+    """Wait until every job is settled (scans: paused or final; reconstructions: final);
+    returns job id -> (seconds after the fill, job)."""
+    settled: dict = {}
+    deadline = time.monotonic() + HANG_S
+    while len(settled) < len(job_ids) and time.monotonic() < deadline:
+        for jid, kind in job_ids.items():
+            if jid in settled:
+                continue
+            job = c.get(f"/api/jobs/{jid}").json()
+            if job["state"] in ("succeeded", "failed", "cancelled") or (kind == "scan" and job["state"] == "paused"):
+                settled[jid] = (time.monotonic() - t_fill, job)
+        time.sleep(0.05)
+    assert len(settled) == len(job_ids), {j: c.get(f"/api/jobs/{j}").json()["state"] for j in job_ids}
+    return settled
+
+
+@pytest.mark.serial
+@needs_recon
+@pytest.mark.timeout(600)
+def test_a_full_disk_settles_every_job_and_the_server_works_again_once_freed(tmp_path, small_disk):
+    from driver.sources import BallSource
+    from tests.service.test_scans import phantom
+
+    sim = driver_sim.SimulatedScanner(source=BallSource(phantom()), prf=100.0, seed=3).start()
+    srv = Server(small_disk / "data", devices={"sim": sim.path},
+                 env={"FPSCAN_WORKERS": "2", "FPSCAN_DISK_RESERVE_BYTES": str(2 << 20)})
+    srv.log = tmp_path / "server.log"  # not on the disk that fills
+    srv.start()
+    try:
+        with srv.client() as c:
+            plan = make_plan(c, prf=10.0)  # 400 points at 10 Hz: 40 s
+            small = _upload(c, (64, 16, 16), 1)
+            big = _upload(c, (1024, 64, 64), 2)  # its speed-of-sound search: about 6 s
+            tv = _start(c, small, "tv", {"iterations": 20000, "tol": 0, "time_limit": 600})
+            ner = _start(c, big, "ner", {"sound_speed": "auto"})
+            queued = _start(c, small, "ner", {})  # these two wait for one of the 2 workers
+            cancelled = _start(c, small, "ner", {"upsample": 2})
+            _wait_stage(c, tv, "iteration")
+            _wait_stage(c, ner, "autofocus")
+            scan = start_scan(c, plan["id"])
+            wait_points(c, scan, 3)
+            _wait_stage(c, ner, "autofocus")  # still searching: every job is under way when the disk fills
+            t_fill = time.monotonic()
+            _fill(small_disk)
+            # at once, on the full disk: a cancel is recorded
+            r = c.post(f"/api/jobs/{cancelled}/cancel")
+            assert r.status_code == 200 and r.json()["state"] == "cancelled", r.text
+            settled = _settle(c, {scan: "scan", tv: "recon", ner: "recon", queued: "recon", cancelled: "recon"},
+                              t_fill)
+            for jid, (after, job) in settled.items():
+                print(f"full disk: {job['kind']} job {jid[:8]} {job['state']} {after:.1f} s after the fill: "
+                      f"{job['error'] or job['progress'].get('reason')}")
+            assert all(after <= SETTLE_S for after, _ in settled.values()), settled
+            assert settled[cancelled][1]["state"] == "cancelled", settled[cancelled]
+            for jid in (tv, ner, queued):
+                job = settled[jid][1]
+                assert job["state"] == "failed" and job["error"].startswith("disk full: "), job
+                assert "bytes free" in job["error"] and "needed" in job["error"], job
+            scan_job = settled[scan][1]
+            assert scan_job["state"] == "paused" and "disk" in scan_job["progress"]["reason"], scan_job
+            problems = c.get("/api/health").json()["problems"]
+            assert any("disk is full" in p for p in problems), problems
+            # the server still keeps its books: deletions, refusals with the reason
+            for jid in (tv, queued, cancelled):
+                assert c.delete(f"/api/jobs/{jid}").status_code == 200
+            assert c.delete(f"/api/datasets/{small}").status_code == 200
+            r = c.post("/api/reconstructions", json={"dataset_id": big, "method": "ner"})
+            assert r.status_code == 507 and "no room for the result" in r.json()["detail"], r.text
+            os.unlink(small_disk / "filler.bin")
+            final = wait_job(c, scan)  # resumed by itself
+            assert final["state"] == "succeeded" and final["progress"]["points_done"] == 400, final
+            again = _start(c, big, "ner", {})
+            assert wait_job(c, again)["state"] == "succeeded"
+            deadline = time.monotonic() + HANG_S
+            while (problems := c.get("/api/health").json()["problems"]) and time.monotonic() < deadline:
+                time.sleep(0.2)
+            assert problems == [], problems
+    finally:
+        srv.stop()
+        sim.stop()
