@@ -226,8 +226,9 @@ def reconstruct_and_unmix(out_dir: str | os.PathLike, datasets: Sequence[Any], w
                           input_id: str = "", threshold: float = 0.1, fluence: Any = None,
                           gruneisen: float = 1.0, progress: Progress | None = None,
                           should_stop: Callable[[], bool] | None = None,
-                          reconstruct: Callable[..., Any] | None = None, **options: Any) -> dict:
-    """Reconstruct every wavelength (the dispatch, same method and options), unmix, and
+                          reconstruct: Callable[..., Any], **options: Any) -> dict:
+    """Reconstruct every wavelength (``reconstruct``: the dispatch ``service.pipeline.reconstruct``,
+    which calls this through ``run_file``; same method and options), unmix, and
     write the result folder ``out_dir``: ``volume.h5`` + MIPs of the first wavelength (as
     any reconstruction result), ``wavelength_<k>/`` the same per wavelength,
     ``unmix.h5`` and ``so2.png`` (:func:`write_unmix`). Returns a summary (``unmix``,
@@ -243,9 +244,6 @@ def reconstruct_and_unmix(out_dir: str | os.PathLike, datasets: Sequence[Any], w
     if len(datasets) != w.size:
         raise ValueError(f"{len(datasets)} datasets for {w.size} wavelengths")
     endmember_matrix(w)  # wavelengths that cannot be unmixed end here, before any reconstruction
-    if reconstruct is None:
-        from service.pipeline import reconstruct as dispatch
-        reconstruct = dispatch
     t0 = time.perf_counter()
 
     recons = reconstruct_wavelengths(datasets, method, reconstruct=reconstruct, progress=span(progress, 0.0, 0.9),
