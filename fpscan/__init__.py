@@ -20,8 +20,10 @@ command line, the server and the web page use:
   ``pressure_unit``;
 - results (:mod:`service.storage.results`): ``write_result`` (``volume.h5`` + MIP PNGs),
   ``write_volume``, ``read_result``, ``ResultVolume``;
-- export: ``export_volume`` (``"ome-tiff"`` or ``"ome-zarr"``), ``export_ome_tiff``,
-  ``export_ome_zarr``, ``export_ipasc`` (a scan file to IPASC HDF5);
+- export (:mod:`service.formats`, one module per format): ``export_file(src, out, format)`` for
+  every format of ``export_formats()`` (a scan file: ``"ipasc"``; a result volume:
+  ``"ome-tiff"``, ``"ome-zarr"``, ...), ``export_ome_tiff``, ``export_ome_zarr``, ``export_ipasc``
+  (a scan file to IPASC HDF5);
 - pictures (:mod:`service.storage.render`): ``render_mip``, ``render_mips``, ``render_so2``;
 - spectral unmixing: ``unmix``, ``so2_map``, ``thb_map``;
 - metrics (:mod:`service.metrics`): ``correlation_coefficient``, ``mip``, ``mips``,
@@ -70,7 +72,7 @@ True
 >>> vol = fpscan.read_result(out / "result" / "volume.h5")
 >>> vol.p0.shape, vol.p0_unit
 ((96, 16, 16), 'a.u.')
->>> fpscan.export_volume(out / "result" / "volume.h5", out / "p0.ome.zarr", "ome-zarr").name
+>>> fpscan.export_file(out / "result" / "volume.h5", out / "p0.ome.zarr", "ome-zarr").name
 'p0.ome.zarr'
 
 The server's client (``fpscan serve`` on a URL):
@@ -98,8 +100,10 @@ _EXPORTS: dict[str, str] = {
     # scan files
     **dict.fromkeys(["read_scan", "ScanFile", "ScanData", "pressure_unit"], "driver.scanfile"),
     # results and exports
-    **dict.fromkeys(["write_result", "write_volume", "read_result", "ResultVolume", "export_volume",
-                     "export_ome_tiff", "export_ome_zarr", "EXPORT_FORMATS"], "service.storage.results"),
+    **dict.fromkeys(["write_result", "write_volume", "read_result", "ResultVolume"], "service.storage.results"),
+    **dict.fromkeys(["export_file", "export_formats"], "service.formats"),
+    "export_ome_tiff": "service.formats.ome_tiff",
+    "export_ome_zarr": "service.formats.ngff",
     # pictures, spectral unmixing
     **dict.fromkeys(["render_mip", "render_mips", "render_so2"], "service.storage.render"),
     "unmix": "service.recon.unmix",
@@ -123,13 +127,13 @@ _RENAMED = {"export_ipasc": ("service.formats.ipasc", "export_scan"),
 #: the public names (tests check them against _EXPORTS and _RENAMED)
 __all__ = [
     "Acquisition", "ApiError", "AsyncClient", "AuthError", "Ball", "Cancelled", "Client",
-    "Conflict", "EXPORT_FORMATS", "EdgeFit", "FpscanClientError", "GridDataset", "JobCancelled",
+    "Conflict", "EdgeFit", "FpscanClientError", "GridDataset", "JobCancelled",
     "JobError", "JobFailed", "Lattice", "LorentzFit", "MASK_KINDS", "METHODS", "Mask", "NotFound",
     "Plan", "PointDataset", "Reconstruction", "ResultVolume", "ScanData", "ScanFile",
     "ServerUnavailable", "WaitTimeout", "__version__", "ball_alines", "ball_p0", "bounding_box",
     "cc_vs_diameter", "cc_vs_pixels", "correlation_coefficient", "disc_mask", "edge_spread",
-    "equiangular_mask", "equisteradian_mask", "export_ipasc", "export_ome_tiff", "export_ome_zarr",
-    "export_volume", "fit_edge_spread", "fit_lorentz", "full_mask", "hexagonal_mask",
+    "equiangular_mask", "equisteradian_mask", "export_file", "export_formats", "export_ipasc",
+    "export_ome_tiff", "export_ome_zarr", "fit_edge_spread", "fit_lorentz", "full_mask", "hexagonal_mask",
     "load_dataset", "load_plan", "load_wavelengths", "lorentz", "make_mask", "make_plan", "mip",
     "mips", "plan_from_spec", "points_mask", "poisson_mask", "pressure_unit", "preview_png",
     "random_mask", "read_result", "read_scan", "reconstruct", "render_mip", "render_mips",
@@ -154,7 +158,10 @@ if TYPE_CHECKING:
     )
     from driver.physics import Ball, ball_alines, ball_p0
     from driver.scanfile import ScanData, ScanFile, pressure_unit, read_scan
+    from service.formats import export_file, export_formats
     from service.formats.ipasc import export_scan as export_ipasc
+    from service.formats.ngff import export_ome_zarr
+    from service.formats.ome_tiff import export_ome_tiff
     from service.formats.plan import read_plan as load_plan
     from service.metrics import (
         EdgeFit,
@@ -202,16 +209,7 @@ if TYPE_CHECKING:
     from service.spectral import so2_map, thb_map
     from service.storage.datasets import load_dataset, load_wavelengths
     from service.storage.render import render_mip, render_mips, render_so2
-    from service.storage.results import (
-        EXPORT_FORMATS,
-        ResultVolume,
-        export_ome_tiff,
-        export_ome_zarr,
-        export_volume,
-        read_result,
-        write_result,
-        write_volume,
-    )
+    from service.storage.results import ResultVolume, read_result, write_result, write_volume
 
     __version__: str
 

@@ -1,6 +1,7 @@
 """The one test for a full disk, for every writer of the data folder (uploads, scan
-files, results, the job database), and the one way a folder is put in place whole
-(:func:`folder_replaced`: result folders, OME-Zarr exports)."""
+files, results, the job database), and the one way a file or a folder is put in place
+whole (:func:`file_replaced`: exports; :func:`folder_replaced`: result folders, OME-Zarr
+exports)."""
 from __future__ import annotations
 
 import os
@@ -9,7 +10,70 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["is_disk_full", "folder_replaced"]
+__all__ = ["is_disk_full", "file_replaced", "folder_replaced", "copy_replaced"]
+
+
+@contextmanager
+def file_replaced(out: str | os.PathLike) -> Iterator[Path]:
+    """Write a file as a temporary sibling of ``out`` (unique per call: concurrent writers of
+    one target never share it), then rename it over ``out`` (``os.replace``: a reader sees the
+    old file or the whole new one); on any error the temporary file is removed and the error
+    raised. ``out``'s folder is made if missing. Yields the temporary path.
+
+    Parameters
+    ----------
+    out : str or os.PathLike
+        The file to put in place.
+
+    Yields
+    ------
+    pathlib.Path
+        Where the body writes.
+
+    Raises
+    ------
+    OSError
+        The folder cannot be made, or the rename fails (and what the body raises).
+    """
+    import uuid
+
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".{out.name}.{os.getpid()}.{uuid.uuid4().hex[:12]}.tmp")
+    try:
+        yield tmp
+        os.replace(tmp, out)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def copy_replaced(src: str | os.PathLike, out: str | os.PathLike) -> Path:
+    """Copy the file ``src`` to ``out``, put in place whole (:func:`file_replaced`): the export
+    of a file as itself (a result ``volume.h5``, a scan file).
+
+    Parameters
+    ----------
+    src, out : str or os.PathLike
+
+    Returns
+    -------
+    pathlib.Path
+        ``out``.
+
+    Raises
+    ------
+    ValueError
+        ``out`` is ``src`` itself.
+    OSError
+        As the copy.
+    """
+    out = Path(out)
+    if out.exists() and out.resolve() == Path(src).resolve():
+        raise ValueError("the export would overwrite its own source file")
+    with file_replaced(out) as tmp:
+        shutil.copyfile(src, tmp)
+    return out
 
 
 @contextmanager

@@ -514,6 +514,23 @@ def run_file(inputs: str | os.PathLike | Sequence[str | os.PathLike],
         When ``should_stop()`` returned True.
     FileNotFoundError
         A missing input.
+
+    Examples
+    --------
+    A laterally uniform layer on an 8-sensor line, saved as a NumPy array in k-Wave's layout
+    ``(n_t, n_x)``; the method defaults to the data's (``ner`` for grid data):
+
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> import numpy as np
+    >>> from service.pipeline import run_file
+    >>> tmp = Path(tempfile.mkdtemp())
+    >>> g = np.zeros((64, 8))
+    >>> g[10] = 0.5
+    >>> np.save(tmp / "line.npy", g)
+    >>> s = run_file(tmp / "line.npy", tmp / "out", load={"dt": 1e-4 / 1500, "dx": 1e-4})  # s, m
+    >>> s["method"], s["shape"], sorted(p.name for p in (tmp / "out").iterdir())
+    ('ner', [64, 8], ['mip_xz.png', 'volume.h5'])
     """
     import time
 

@@ -1,108 +1,122 @@
-"""`fpscan export`: IPASC export of a scan file, locally (``service.formats.ipasc``) or from a
-server (``GET /api/scans/{job_id}/ipasc``); OME-TIFF or OME-Zarr export (``--format``) of a
-reconstruction result (``service.storage.results.export_volume``, or ``GET
-/api/reconstructions/{job_id}/volume.ome.tif`` / ``volume.ome.zarr.zip``) for ImageJ/Fiji
-and napari.
+"""`fpscan export`: a scan file or a reconstruction result in another format, locally or from a
+server's job.
 
-The IPASC file is HDF5 written with plain h5py: ``/binary_time_series_data``
-``[detectors, samples, wavelengths, measurements]``, ``/meta_data/...`` and
-``/meta_data_device/...`` (IPASC data format; SI units).
+The export formats are the registry's (``service.formats.export_formats``: IPASC from a scan
+file, OME-TIFF and OME-Zarr from a result ``volume.h5``, the files themselves, and whatever
+format module is added): ``--format`` names one; without it, the file's (or the job's) first
+export that is not the file itself. Locally the file's format is detected from its content and
+written by ``service.formats.export_file``; with ``--server`` the job's export is downloaded
+(``GET /api/jobs/{job_id}/export/{format}``: the job's ``export_<format>`` links, its default
+first), a folder export (OME-Zarr) unpacked.
 """
 from __future__ import annotations
 
 from clients.cli._common import UsageError, add_server_options, client_errors
 
-__all__ = ["COMMAND", "HELP", "VOLUME_SUFFIXES", "add_arguments", "run"]
+__all__ = ["COMMAND", "HELP", "add_arguments", "run"]
 
 COMMAND = "export"
-HELP = ("export a scan file to IPASC HDF5, or a reconstruction result to OME-TIFF or OME-Zarr "
-        "(physical voxel sizes), locally or from a server's job")
-#: --format → the suffix of the default output name (service.storage.results.EXPORT_FORMATS)
-VOLUME_SUFFIXES = {"ome-tiff": ".ome.tif", "ome-zarr": ".ome.zarr"}
+HELP = ("export a scan file (IPASC, ...) or a reconstruction result (OME-TIFF, OME-Zarr, ...: physical voxel "
+        "sizes), locally or from a server's job")
+
+
+def _formats() -> tuple[dict, str]:
+    """The registry's export formats (name -> Format) and their help text; none on a
+    client-only install (the server checks the name)."""
+    try:
+        from service.formats import FORMATS, export_formats
+    except ImportError:
+        return {}, ""
+    fmts = {n: FORMATS[n] for n in export_formats()}
+    return fmts, "; ".join(f"{n}: {f.title} (from {FORMATS[f.export_from].what})" for n, f in fmts.items()
+                           if f.export_from)
 
 
 def add_arguments(parser):
     """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser)."""
-    parser.add_argument("scan", nargs="?", help="scan file (→ IPASC) or result volume.h5 (→ OME-TIFF / "
-                                                "OME-Zarr) to export locally")
+    fmts, described = _formats()
+    parser.add_argument("scan", nargs="?", metavar="FILE",
+                        help="scan file or result volume.h5 to export locally")
     parser.add_argument("--job", default=None, metavar="JOB_ID",
-                        help="with --server: the scan job (→ IPASC) or reconstruction job (→ OME-TIFF)")
+                        help="with --server: the scan or reconstruction job whose file to export")
     parser.add_argument("--out", "-o", default=None,
-                        help="output file (default: <scan>_ipasc.h5 / <job>_ipasc.h5, or <name>.ome.tif / "
-                             "<name>.ome.zarr, a folder)")
-    parser.add_argument("--format", default="ome-tiff", choices=sorted(VOLUME_SUFFIXES),
-                        help="format of a reconstruction result's export (default ome-tiff); a scan "
-                             "file always exports to IPASC")
+                        help="output file or folder (default: <name><the format's suffix>, e.g. scan_ipasc.h5, "
+                             "volume.ome.tif)")
+    parser.add_argument("--format", default=None, choices=list(fmts) or None,
+                        help="export format (default: the file's first export other than itself: IPASC for a "
+                             f"scan file, OME-TIFF for a result){'. ' + described if described else ''}")
     add_server_options(parser)
 
 
-def _local_export():
-    """The service's own IPASC exporter (``service.formats.ipasc.export_scan``)."""
-    from service.formats.ipasc import export_scan
+def _default_export(source: str) -> str:
+    """The export of a file of format ``source`` without ``--format``: its first export
+    (registration order) other than the file itself. Raises UsageError when it has none."""
+    from service.formats import FORMATS, export_formats
 
-    return export_scan
-
-
-def _is_result(path) -> bool:
-    """True for a reconstruction result file (``fpscan-result/1``: detected by the
-    registry of formats, ``service.formats.detect``; a file a writer has open in a
-    bounded child)."""
-    from service.formats import detect
-
-    try:
-        return detect(path) == "result"
-    except (ValueError, OSError):
-        return False
+    others = [n for n in export_formats(source) if n != source]
+    if not others:
+        raise UsageError(f"{FORMATS[source].what} has no export")
+    return others[0]
 
 
 @client_errors
 def run(args) -> int:
     """Run this sub-command with the parsed ``args``; return the exit status."""
-    from pathlib import Path
-
     if args.server:
-        if not args.job:
-            raise UsageError("with --server give the scan job: --job JOB_ID")
-        if args.scan:
-            raise UsageError("give either a local scan file or --server with --job, not both")
-        from clients.cli._common import make_client
-        from clients.http import field_of
-
-        with make_client(args, timeout=300) as api:
-            if field_of(api.get_job(args.job), "kind") == "recon":
-                out = Path(args.out or f"{args.job}{VOLUME_SUFFIXES[args.format]}")
-                if args.format == "ome-zarr":
-                    api.download_ome_zarr(args.job, out)
-                else:
-                    api.download_ome_tiff(args.job, out)
-            else:
-                out = Path(args.out or f"{args.job}_ipasc.h5")
-                api.download_ipasc(args.job, out)
-        print(out)
-        return 0
+        return _remote(args)
     if args.job:
         raise UsageError("--job needs --server")
     if not args.scan:
-        raise UsageError("no scan file given (or use --server URL --job JOB_ID)")
-    scan = Path(args.scan)
-    if not scan.is_file():
-        raise UsageError(f"no such file: {scan}")
-    if _is_result(scan):
-        from service.storage.results import export_volume
+        raise UsageError("no file given (or use --server URL --job JOB_ID)")
+    from pathlib import Path
 
-        out = Path(args.out or scan.with_name(f"{scan.stem}{VOLUME_SUFFIXES[args.format]}"))
-        if out.resolve() == scan.resolve():
-            raise UsageError("the output would overwrite the result file")
-        export_volume(scan, out, args.format)
-        print(out)
-        return 0
-    out = Path(args.out or scan.with_name(f"{scan.stem}_ipasc.h5"))
-    if out.resolve() == scan.resolve():
-        raise UsageError("the output would overwrite the scan file")
-    from service.formats.untrusted import read_bounded
+    from service.formats import FORMATS, detect, export_file, export_formats
 
-    # written to a temporary sibling, then renamed; a file a writer has open is read in a
-    # bounded child (HDF5 can block on its damaged metadata for ever)
-    read_bounded(_local_export(), scan, out)
+    src = Path(args.scan)
+    if not src.is_file():
+        raise UsageError(f"no such file: {src}")
+    try:
+        source = detect(src)
+    except ValueError as exc:
+        raise UsageError(f"{src}: {exc}") from None
+    if not export_formats(source):
+        raise UsageError(f"{src} is {FORMATS[source].what}: nothing to export (give a scan file or a result "
+                         "volume.h5)")
+    name = args.format or _default_export(source)
+    out = Path(args.out or src.with_name(f"{src.name.removesuffix('.h5')}{FORMATS[name].suffix}"))
+    if out.exists() and out.resolve() == src.resolve():
+        raise UsageError("the output would overwrite the file it exports")
+    try:
+        export_file(src, out, name)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    print(out)
+    return 0
+
+
+def _remote(args) -> int:
+    """``--server``: the job's export downloaded (its default export without ``--format``)."""
+    from pathlib import Path
+
+    from clients.cli._common import full_job_id, make_client
+    from clients.http import field_of
+
+    if not args.job:
+        raise UsageError("with --server give the job: --job JOB_ID")
+    if args.scan:
+        raise UsageError("give either a local file or --server with --job, not both")
+    with make_client(args, timeout=300) as api:
+        job_id = full_job_id(api, args.job)
+        links = field_of(api.get_job(job_id), "links") or {}
+        fmts = {f["name"]: f for f in api.formats()}
+        offered = [k.removeprefix("export_") for k in links if k.startswith("export_")]
+        if not offered:
+            raise UsageError(f"job {job_id} has nothing to export (yet)")
+        # the job's file exported as itself, or its first other export (the local rule)
+        name = args.format or next((n for n in offered if fmts.get(n, {}).get("export_from") != n), offered[0])
+        if name not in offered:
+            raise UsageError(f"job {job_id} exports {', '.join(offered)}, not {name}")
+        out = Path(args.out or f"{job_id}{fmts.get(name, {}).get('suffix', '')}")
+        api.export(job_id, name, out)
     print(out)
     return 0

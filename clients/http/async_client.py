@@ -102,7 +102,7 @@ class AsyncClient(Connection, AsyncServer, AsyncPlans, AsyncScans, AsyncDatasets
     # -- transport: every endpoint method ends here
     async def _call(self, call: Call[T] | Download[T]) -> T:
         if isinstance(call, Download):
-            return call.finish(await self._download(call.request, call.dest))
+            return call.finish(*(await self._download(call.request, call.dest)))
         return call.read(await self._send(call.request))
 
     async def _send(self, req: Request) -> httpx.Response:
@@ -120,7 +120,7 @@ class AsyncClient(Connection, AsyncServer, AsyncPlans, AsyncScans, AsyncDatasets
         raise_for(r)
         return r
 
-    async def _download(self, req: Request, dest: Path) -> Path:
+    async def _download(self, req: Request, dest: Path) -> tuple[Path, str]:
         dest.parent.mkdir(parents=True, exist_ok=True)
         state = Resume(dest)
         for _attempt in range(2):
@@ -133,10 +133,11 @@ class AsyncClient(Connection, AsyncServer, AsyncPlans, AsyncScans, AsyncDatasets
                     if r.status_code >= 400:
                         await r.aread()
                         raise_for(r)
+                    content_type = r.headers.get("content-type", "")
                     with state.open(r) as fh:
                         async for chunk in r.aiter_bytes(1 << 20):
                             fh.write(chunk)
-                return state.done()
+                return state.done(), content_type
             except httpx.TransportError as exc:  # keep the part: the next call resumes it
                 raise self.unavailable(exc) from None
             except BaseException:

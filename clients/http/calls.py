@@ -103,7 +103,7 @@ class Call(Generic[T]):
     read: Callable[[httpx.Response], T]
 
 
-def _same(path: Path) -> Path:
+def _same(path: Path, content_type: str) -> Path:
     return path
 
 
@@ -122,20 +122,21 @@ class Download(Generic[T]):
     dest : pathlib.Path
         The file to write (its folder is made; ``dest.part`` while downloading).
     finish : callable
-        ``finish(dest) -> result`` once the file is complete (default: ``dest`` itself).
+        ``finish(dest, content_type) -> result`` once the file is complete, with the answer's
+        ``Content-Type`` (default: ``dest`` itself).
 
     Examples
     --------
     >>> from pathlib import Path
     >>> from clients.http.calls import Download, Request
     >>> d = Download(Request("GET", "/api/scans/j1/file"), Path("scan.h5"))
-    >>> d.finish(d.dest)
+    >>> d.finish(d.dest, "application/x-hdf5")
     PosixPath('scan.h5')
     """
 
     request: Request
     dest: Path
-    finish: Callable[[Path], T] = _same  # type: ignore[assignment]
+    finish: Callable[[Path, str], T] = _same  # type: ignore[assignment]
 
 
 class SyncCaller:

@@ -155,7 +155,7 @@ class Client(Connection, Server, Plans, Scans, Datasets, Reconstructions, Jobs):
     # -- transport: every endpoint method ends here
     def _call(self, call: Call[T] | Download[T]) -> T:
         if isinstance(call, Download):
-            return call.finish(self._download(call.request, call.dest))
+            return call.finish(*(self._download(call.request, call.dest)))
         return call.read(self._send(call.request))
 
     def _send(self, req: Request) -> httpx.Response:
@@ -173,7 +173,7 @@ class Client(Connection, Server, Plans, Scans, Datasets, Reconstructions, Jobs):
         raise_for(r)
         return r
 
-    def _download(self, req: Request, dest: Path) -> Path:
+    def _download(self, req: Request, dest: Path) -> tuple[Path, str]:
         dest.parent.mkdir(parents=True, exist_ok=True)
         state = Resume(dest)
         for _attempt in range(2):
@@ -185,10 +185,11 @@ class Client(Connection, Server, Plans, Scans, Datasets, Reconstructions, Jobs):
                     if r.status_code >= 400:
                         r.read()
                         raise_for(r)
+                    content_type = r.headers.get("content-type", "")
                     with state.open(r) as fh:
                         for chunk in r.iter_bytes(1 << 20):
                             fh.write(chunk)
-                return state.done()
+                return state.done(), content_type
             except httpx.TransportError as exc:  # keep the part: the next call resumes it
                 raise self.unavailable(exc) from None
             except BaseException:

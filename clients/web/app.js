@@ -11,7 +11,7 @@
  *   Jobs view   GET /api/jobs, GET /api/jobs/{id}, MIPs, depth slices, downloads,
  *               POST /api/reconstructions, POST /api/datasets (upload), POST .../cancel
  *               GET /api/reconstructions/methods (the method choices and their options),
- *               GET /api/datasets/formats (the upload's format choices)
+ *               GET /api/formats (the upload's format choices, the export downloads)
  *               Disk use: GET /api/health (bytes by part), GET /api/datasets,
  *               DELETE /api/datasets/{id} (the storage section, its own functions below)
  * Units: the form shows convenient units (µm, mm, ns, nm); the API receives SI units.
@@ -1221,6 +1221,22 @@ function closeResult() {
   $("result").hidden = true;
 }
 
+/** A job's file in every export format of the server's registry (GET /api/formats): the
+ *  job's export_<format> links, but the file itself (its own link), each titled by its format. */
+function exportsOf(jobId, links, fileFormat) {
+  const out = [];
+  const id = encodeURIComponent(jobId);
+  const names = links ? Object.keys(links).filter((k) => k.startsWith("export_")).map((k) => k.slice(7))
+    : Object.values(FORMATS || {}).filter((f) => f.export_from === fileFormat).map((f) => f.name);
+  for (const name of names) {
+    const f = (FORMATS || {})[name] || { name, title: name, export_from: fileFormat, suffix: `-${name}`, folder: false };
+    if (name === fileFormat) continue; // the file itself: its own link
+    const path = links && links[`export_${name}`] ? links[`export_${name}`] : `/api/jobs/${id}/export/${encodeURIComponent(name)}`;
+    out.push([f.folder ? `${f.title}, zipped` : f.title, path, `${jobId}${f.suffix}${f.folder ? ".zip" : ""}`]);
+  }
+  return out;
+}
+
 function downloadsFor(job) {
   const id = encodeURIComponent(job.id);
   const list = [];
@@ -1228,14 +1244,11 @@ function downloadsFor(job) {
   const links = job.links || {};
   if (job.kind === "scan") {
     list.push(["Scan file (HDF5)", links.file || `/api/scans/${id}/file`, `scan-${job.id}.h5`]);
-    list.push(["IPASC export (HDF5)", links.ipasc || `/api/scans/${id}/ipasc`, `scan-${job.id}-ipasc.hdf5`]);
+    list.push(...exportsOf(job.id, links, "fpscan"));
   } else {
     list.push(["Volume (HDF5)", links.volume || `/api/reconstructions/${id}/volume.h5`, `volume-${job.id}.h5`]);
-    // the same volume for napari / ImageJ (row 0 at the top, as the pictures here)
-    list.push(["Volume as OME-TIFF (ImageJ, napari)", links.volume_ome_tiff || `/api/reconstructions/${id}/volume.ome.tif`,
-      `volume-${job.id}.ome.tif`]);
-    list.push(["Volume as OME-Zarr, zipped (napari)", links.volume_ome_zarr || `/api/reconstructions/${id}/volume.ome.zarr.zip`,
-      `volume-${job.id}.ome.zarr.zip`]);
+    // the same volume for napari / ImageJ (row 0 at the top, as the pictures here), ...
+    list.push(...exportsOf(job.id, links, "result"));
     // a job over every wavelength (wavelength "all" or unmix): one volume each
     for (const row of resultOf(job).wavelengths || []) {
       const nm = row.wavelength_nm !== null && row.wavelength_nm !== undefined ? ` at ${fmtNum(row.wavelength_nm)} nm` : "";
@@ -1250,7 +1263,7 @@ function downloadsFor(job) {
     if (scanId) {
       const s = encodeURIComponent(scanId);
       list.push(["Scan file (HDF5)", `/api/scans/${s}/file`, `scan-${scanId}.h5`]);
-      list.push(["IPASC export (HDF5)", `/api/scans/${s}/ipasc`, `scan-${scanId}-ipasc.hdf5`]);
+      list.push(...exportsOf(scanId, null, "fpscan"));
     }
   }
   return list;
@@ -1685,10 +1698,15 @@ async function buildMethodSelects() {
   renderReconOptions();
 }
 
-/* Upload formats come from the server (GET /api/datasets/formats, i.e. the registry
- * service.formats): the upload form lists them in the server's order, the first chosen. */
+/* File formats come from the server (GET /api/formats, i.e. the registry service.formats):
+ * the upload form lists those an upload may have, in the server's order, the first chosen;
+ * a job's downloads offer every export format (exportsOf). */
+let FORMATS = null; // name -> the server's FormatInfo
+
 async function buildFormatSelect() {
-  const list = await apiJson("/api/datasets/formats");
+  const all = await apiJson("/api/formats");
+  FORMATS = Object.fromEntries(all.map((f) => [f.name, f]));
+  const list = all.filter((f) => f.upload);
   const sel = $("upload-format");
   sel.textContent = "";
   for (const f of list) {

@@ -364,13 +364,13 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True, 
     app.add_middleware(RequestTurns)  # requests start a few per loop iteration (health's lane)
     app.add_middleware(AccessGate, settings=settings)  # before any slot, thread, turn or body byte
 
-    from service.api import datasets, jobs, plans, reconstructions, retention, scans
+    from service.api import datasets, exports, jobs, plans, reconstructions, retention, scans
 
     health_document = _add_health_routes(app, settings)
     # outermost: health answered ahead of the queue, after the gate's own rules
     app.add_middleware(HealthLane, settings=settings, document=health_document)
     app.add_middleware(InternalErrors)  # outermost: no error drops a kept-alive connection
-    for module in (plans, scans, datasets, reconstructions, jobs, retention):
+    for module in (plans, scans, datasets, reconstructions, jobs, exports, retention):
         app.include_router(module.router)
     _state_security_in_openapi(app, settings)
     _mount_web_page(app, settings)

@@ -69,22 +69,29 @@ class EventWakeups:
 
 
 def job_links(job: dict) -> dict[str, str]:
-    """Links of a job's resources (self, events, cancel, and its kind's results)."""
+    """Links of a job's resources (self, events, cancel, and its kind's results): its file in
+    every export format as ``export_<format>`` (``GET /api/jobs/{id}/export/{format}``)."""
     jid = job["id"]
     links = {"self": f"/api/jobs/{jid}", "events": f"/api/jobs/{jid}/events", "cancel": f"/api/jobs/{jid}/cancel",
              "delete": f"/api/jobs/{jid}"}
+    source = None
     if job["kind"] == "scan":
-        links.update({"file": f"/api/scans/{jid}/file", "ipasc": f"/api/scans/{jid}/ipasc",
-                      "preview": f"/api/scans/{jid}/preview", "pause": f"/api/scans/{jid}/pause",
-                      "resume": f"/api/scans/{jid}/resume", "abort": f"/api/scans/{jid}/abort"})
+        links.update({"file": f"/api/scans/{jid}/file", "preview": f"/api/scans/{jid}/preview",
+                      "pause": f"/api/scans/{jid}/pause", "resume": f"/api/scans/{jid}/resume",
+                      "abort": f"/api/scans/{jid}/abort"})
+        source = "fpscan"
     elif job["state"] == "succeeded":
         planes = job["params"].get("result", {}).get("planes", ["xy", "xz", "yz"])
         links["volume"] = f"/api/reconstructions/{jid}/volume.h5"
-        links["volume_ome_tiff"] = f"/api/reconstructions/{jid}/volume.ome.tif"
-        links["volume_ome_zarr"] = f"/api/reconstructions/{jid}/volume.ome.zarr.zip"
         links["slice"] = f"/api/reconstructions/{jid}/slice.png"
         for plane in planes:
             links[f"mip_{plane}"] = f"/api/reconstructions/{jid}/mip/{plane}.png"
+        source = "result"
+    if source is not None:  # every export format of the job's file (service.formats: GET /api/formats)
+        from service.formats import export_formats
+
+        for name in export_formats(source):
+            links[f"export_{name}"] = f"/api/jobs/{jid}/export/{name}"
     return links
 
 

@@ -34,7 +34,7 @@ from service.recon import methods as _methods
 __all__ = [
     "JobState", "JobKind", "ReconMethod", "Plane", "DATASET_FORMATS", "DatasetFormat", "ID_PATTERN", "LatticeIndex",
     "Error", "DiskUse", "Health", "AuthInfo", "Deleted", "Retention", "MAX_LATTICE_POINTS", "Pitch", "Lattice",
-    "PlanDocument", "PlanCreate", "MethodOption", "DatasetFormatInfo", "MethodInfo", "MaskKindInfo", "Plan",
+    "PlanDocument", "PlanCreate", "MethodOption", "DatasetFormatInfo", "FormatInfo", "MethodInfo", "MaskKindInfo", "Plan",
     "PlanPreview", "JobProgress", "Timings", "Job", "ScanRequest", "Scanner", "PreviewInfo", "Dataset", "DatasetInfo",
     "ReconParams", "UnmixOptions", "ReconRequest",
 ]
@@ -280,6 +280,35 @@ class DatasetFormatInfo(BaseModel):
     title: str = Field(description="what a person reads")
     wavelengths: bool = Field(description="may hold several excitation wavelengths (the upload's wavelength "
                                           "chooses one)")
+
+
+class FormatInfo(BaseModel):
+    """One file format of the server's registry (``service.formats``), as ``GET /api/formats``
+    lists it: what it reads and what it exports."""
+
+    name: str = Field(description="the format's name (an upload's format field, --format, an export's name)")
+    title: str = Field(description="what a person reads")
+    noun: str = Field(description="the format in a sentence ('a scan file')")
+    input: bool = Field(description="a reconstruction input")
+    upload: bool = Field(description="accepted by POST /api/datasets")
+    wavelengths: bool = Field(description="may hold several excitation wavelengths")
+    export_from: str | None = Field(description="the format whose files it exports (a scan job's: fpscan; a "
+                                                "reconstruction's: result); null: no export")
+    suffix: str = Field(description="the ending of an export's file name")
+    media_type: str = Field(description="an export's Content-Type (a folder export is served as application/zip)")
+    folder: bool = Field(description="an export that is a folder (OME-Zarr), served zipped")
+    options: list[MethodOption] = Field(default_factory=list, description="its load options (an upload's fields)")
+
+    @classmethod
+    def of(cls, fmt: Any) -> FormatInfo:
+        """The public view of a registered ``service.formats.Format``."""
+        from service.recon.methods import option_schemas
+
+        options = [MethodOption(name=o["name"], description=o["description"], default=o["default"],
+                                value_schema=o["schema"]) for o in option_schemas(fmt.options)] if fmt.options else []
+        return cls(name=fmt.name, title=fmt.title, noun=fmt.what, input=fmt.input, upload=fmt.upload,
+                   wavelengths=fmt.wavelengths, export_from=fmt.export_from, suffix=fmt.suffix,
+                   media_type=fmt.media_type, folder=fmt.folder, options=options)
 
 
 class MethodInfo(BaseModel):

@@ -2,7 +2,6 @@
 download its volume (HDF5, HTTP Range), MIPs and depth slices (PNG)."""
 from __future__ import annotations
 
-import uuid
 from pathlib import Path
 
 from fastapi import APIRouter, Depends, Header, HTTPException, Query, Response
@@ -24,11 +23,10 @@ from service.jobs.admission import (
 from service.jobs.store import IdempotencyConflict
 from service.names import person_names
 from service.pipeline import METHODS, OPTIONS, default_method, method_options
-from service.storage.usage import usage_for
 
 __all__ = [
-    "router", "JobId", "IdemKey", "list_methods", "start_reconstruction", "WavelengthQuery", "volume",
-    "volume_ome_tiff", "volume_ome_zarr", "unmix_h5", "so2_png", "mip_png", "slice_png",
+    "router", "JobId", "IdemKey", "list_methods", "start_reconstruction", "WavelengthQuery", "result_dir",
+    "volume_dir", "volume", "unmix_h5", "so2_png", "mip_png", "slice_png",
 ]
 
 router = APIRouter(prefix="/api/reconstructions", tags=["reconstructions"])
@@ -289,7 +287,9 @@ def _result_bytes(shape: dict, params: dict, body: ReconRequest, extra: dict) ->
     return estimate_result_bytes(shape, {**params, "method": body.method}, volumes)
 
 
-def _result_dir(c: Context, job_id: str) -> Path:
+def result_dir(c: Context, job_id: str) -> Path:
+    """The result folder of the succeeded reconstruction ``job_id``: 404 for no such job,
+    409 while it has none."""
     job = get_job_or_404(c, job_id, "recon")
     if job["state"] != "succeeded" or not job["result_path"]:
         raise HTTPException(409, f"reconstruction {job_id} is {job['state']}, no result yet")
@@ -300,11 +300,11 @@ WavelengthQuery = Query(None, ge=0, le=15, description="the volume of wavelength
                                                        "'all' or unmix (default: the first)")
 
 
-def _volume_dir(c: Context, job_id: str, wavelength: int | None) -> Path:
+def volume_dir(c: Context, job_id: str, wavelength: int | None) -> Path:
     """The folder of the job's volume at ``wavelength`` (``wavelength_<k>/`` of a job over
     every wavelength; the job's own folder when absent, or when it is the one wavelength
     the job reconstructed); 404 naming what the job has otherwise."""
-    folder = _result_dir(c, job_id)
+    folder = result_dir(c, job_id)
     if wavelength is None:
         return folder
     if (folder / f"wavelength_{wavelength}").is_dir():
@@ -326,57 +326,9 @@ def volume(job_id: str = JobId, wavelength: int | None = WavelengthQuery, c: Con
     ``method``, ``params`` (with ``wavelength_index``/``wavelength_nm`` for a
     multi-wavelength input). ``?wavelength=k``: wavelength ``k``'s volume of a job over
     every wavelength (``wavelength='all'`` or unmix). Supports ``Range``."""
-    path = _volume_dir(c, job_id, wavelength) / VOLUME_FILE
+    path = volume_dir(c, job_id, wavelength) / VOLUME_FILE
     return FileResponse(path, media_type="application/x-hdf5",
                         filename=f"{job_id}.h5" if wavelength is None else f"{job_id}-wavelength_{wavelength}.h5")
-
-
-@router.get("/{job_id}/volume.ome.tif", dependencies=[Depends(read_access)], response_class=FileResponse,
-            responses={200: {"content": {"image/tiff": {}}, "description": "p0 volume (OME-TIFF)"},
-                       206: {"description": "partial content (HTTP Range)"}})
-def volume_ome_tiff(job_id: str = JobId, c: Context = Depends(ctx)):
-    """The result volume as OME-TIFF (float32, axes ``ZYX`` -- 2-D: ``YX`` with depth
-    as Y -- physical voxel sizes in µm; ``service.storage.results.export_ome_tiff``), for
-    ImageJ/Fiji and napari. Made on first request, then served from the result folder."""
-    from service.storage.results import export_ome_tiff
-
-    folder = _result_dir(c, job_id)
-    path = folder / "volume.ome.tif"
-    if not path.exists():
-        try:
-            export_ome_tiff(folder / VOLUME_FILE, path)
-        except ValueError as exc:
-            raise HTTPException(409, str(exc)) from None
-        usage_for(c.settings.data_dir).add_path(path)  # /api/health's counters
-    return FileResponse(path, media_type="image/tiff", filename=f"{job_id}.ome.tif")
-
-
-@router.get("/{job_id}/volume.ome.zarr.zip", dependencies=[Depends(read_access)], response_class=FileResponse,
-            responses={200: {"content": {"application/zip": {}},
-                             "description": "p0 volume (OME-Zarr folder <job>.ome.zarr, zipped)"},
-                       206: {"description": "partial content (HTTP Range)"}})
-def volume_ome_zarr(job_id: str = JobId, c: Context = Depends(ctx)):
-    """The result volume as OME-Zarr (NGFF 0.4; float32, axes ``z``, ``y``, ``x`` in
-    micrometer with the voxel size as scale; ``service.storage.results.export_ome_zarr``),
-    zipped: one folder ``<job_id>.ome.zarr`` to unzip and open in napari. Made on first
-    request, then served from the result folder."""
-    import shutil
-
-    from service.storage.results import export_volume, zip_folder
-
-    folder = _result_dir(c, job_id)
-    path = folder / "volume.ome.zarr.zip"
-    if not path.exists():
-        tmp = folder / f".volume.ome.zarr.{uuid.uuid4().hex[:12]}"
-        try:
-            export_volume(folder / VOLUME_FILE, tmp, "ome-zarr")
-            zip_folder(tmp, path, arcname=f"{job_id}.ome.zarr")
-        except ValueError as exc:
-            raise HTTPException(409, str(exc)) from None
-        finally:
-            shutil.rmtree(tmp, ignore_errors=True)
-        usage_for(c.settings.data_dir).add_path(path)  # /api/health's counters
-    return FileResponse(path, media_type="application/zip", filename=f"{job_id}.ome.zarr.zip")
 
 
 @router.get("/{job_id}/unmix.h5", dependencies=[Depends(read_access)], response_class=FileResponse,
@@ -387,7 +339,7 @@ def unmix_h5(job_id: str = JobId, c: Context = Depends(ctx)):
     """The unmixing of a multi-wavelength job: ``/hbo2``, ``/hb``, ``/thb``, ``/so2`` (NaN
     where masked), ``/mask``, ``/z``, ``/x``, ``/y`` (m), ``/wavelengths_m``
     (``service.spectral``). Supports ``Range``."""
-    path = _result_dir(c, job_id) / "unmix.h5"
+    path = result_dir(c, job_id) / "unmix.h5"
     if not path.exists():
         raise HTTPException(404, f"reconstruction {job_id} was not unmixed (ask with 'unmix')")
     return FileResponse(path, media_type="application/x-hdf5", filename=f"{job_id}-unmix.h5")
@@ -399,7 +351,7 @@ def unmix_h5(job_id: str = JobId, c: Context = Depends(ctx)):
 def so2_png(job_id: str = JobId, c: Context = Depends(ctx)):
     """The sO2 picture: at each (x, y) the sO2 of the voxel of largest THb along depth,
     colour bar 0..100 %, brightness from THb, background black (``service.spectral.render_so2_png``)."""
-    path = _result_dir(c, job_id) / "so2.png"
+    path = result_dir(c, job_id) / "so2.png"
     if not path.exists():
         raise HTTPException(404, f"reconstruction {job_id} was not unmixed (ask with 'unmix')")
     return Response(path.read_bytes(), media_type="image/png")
@@ -411,7 +363,7 @@ def mip_png(plane: Plane, job_id: str = JobId, wavelength: int | None = Waveleng
             c: Context = Depends(ctx)):
     """Maximum-intensity projection: ``xy`` (over z), ``xz`` (over y), ``yz`` (over x);
     ``?wavelength=k`` as for the volume."""
-    path = _volume_dir(c, job_id, wavelength) / mip_file(plane)
+    path = volume_dir(c, job_id, wavelength) / mip_file(plane)
     if not path.exists():
         raise HTTPException(404, f"a 2-D image has no {plane} MIP")
     return Response(path.read_bytes(), media_type="image/png")
@@ -427,7 +379,7 @@ def slice_png(job_id: str = JobId, index: int = Query(0, ge=0, le=1_000_000, des
     from service.storage.render import render_result_slice
 
     try:
-        png = render_result_slice(_result_dir(c, job_id) / VOLUME_FILE, index)
+        png = render_result_slice(result_dir(c, job_id) / VOLUME_FILE, index)
     except ValueError as exc:
         raise HTTPException(422, str(exc)) from None
     return Response(png, media_type="image/png")

@@ -15,8 +15,9 @@ from service.api.models import ID_PATTERN, Job, Plane, PreviewInfo, Scanner, Sca
 from service.jobs.store import TERMINAL, IdempotencyConflict
 
 __all__ = [
-    "router", "JobId", "list_scanners", "start_scan", "pause_scan", "resume_scan", "abort_scan", "scan_file",
-    "scan_ipasc", "scan_preview", "scan_preview_png",
+    "router", "JobId", "list_scanners", "start_scan", "pause_scan", "resume_scan", "abort_scan", "scan_file_path",
+    "scan_file",
+    "scan_preview", "scan_preview_png",
 ]
 
 router = APIRouter(tags=["scans"])
@@ -102,7 +103,8 @@ def abort_scan(job_id: str = JobId, c: Context = Depends(ctx)) -> Job:
     return _control(c, job_id, "abort")
 
 
-def _scan_file(c: Context, job_id: str) -> Path:
+def scan_file_path(c: Context, job_id: str) -> Path:
+    """The scan file of the scan job ``job_id``: 404 for no such job, 409 while it has none."""
     job = get_job_or_404(c, job_id, "scan")
     path = job["params"].get("scan_path")
     if not path or not Path(path).exists():
@@ -115,28 +117,7 @@ def _scan_file(c: Context, job_id: str) -> Path:
                        206: {"description": "partial content (HTTP Range)"}})
 def scan_file(job_id: str = JobId, c: Context = Depends(ctx)):
     """The scan file (HDF5, ``driver.scanfile`` layout); supports ``Range``."""
-    return FileResponse(_scan_file(c, job_id), media_type="application/x-hdf5", filename=f"{job_id}.h5")
-
-
-@router.get("/api/scans/{job_id}/ipasc", dependencies=[Depends(read_access)], response_class=FileResponse,
-            responses={200: {"content": {"application/x-hdf5": {}}, "description": "IPASC HDF5 export"}})
-def scan_ipasc(job_id: str = JobId, c: Context = Depends(ctx)):
-    """The scan's completed A-lines exported to the IPASC HDF5 format
-    (``service.ipasc.write_ipasc``)."""
-    from service.formats.ipasc import export_scan
-    from service.storage.usage import usage_for
-
-    src = _scan_file(c, job_id)
-    out = Path(c.settings.data_dir) / "exports" / f"{job_id}.ipasc.h5"
-    usage = usage_for(c.settings.data_dir)  # /api/health's counters: the export replaces any earlier one
-    usage.add_path(out, removed=True)
-    try:
-        export_scan(src, out)
-    except ValueError as exc:
-        raise HTTPException(409, str(exc)) from None
-    finally:
-        usage.add_path(out)
-    return FileResponse(out, media_type="application/x-hdf5", filename=f"{job_id}.ipasc.h5")
+    return FileResponse(scan_file_path(c, job_id), media_type="application/x-hdf5", filename=f"{job_id}.h5")
 
 
 @router.get("/api/scans/{job_id}/preview", response_model=PreviewInfo, dependencies=[Depends(read_access)])

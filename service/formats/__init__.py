@@ -23,10 +23,17 @@ name           module      content                                             r
 ``kwave-mat``  kwave_mat   k-Wave MAT-file (MAT v5, v7.3) → GridDataset         input, upload
 ``plan``       plan        plan JSON → plan dict                               refused as data
 ``png``        png         PNG picture → bytes                                 refused as data
+``ome-tiff``   ome_tiff    p0 volume as OME-TIFF (from a result)               export
+``ome-zarr``   ngff        p0 volume as OME-Zarr, NGFF 0.5 (from a result)     export (a folder)
 =============  ==========  ==================================================  =====================
 
-Adding a format: a module here with ``sniff``, ``load`` (and ``write``) and a
-``FORMAT = Format(...)``, and its test — nothing else: every public module of this
+Exports: a format with ``export_from`` and ``export`` writes files of another (``result`` and
+``fpscan`` export themselves, ``ipasc`` a scan file, ``ome-tiff`` / ``ome-zarr`` a result):
+:func:`export_formats`, :func:`export_file` (the one dispatch of ``fpscan export``, ``GET
+/api/jobs/{id}/export/{format}``, the HTTP client's ``export`` and the web page's downloads).
+
+Adding a format: a module here with ``sniff``, ``load`` (and ``write``), or an
+``export``, and a ``FORMAT = Format(...)``, and its test — nothing else: every public module of this
 package that declares a ``FORMAT`` is registered when the package is imported (after the
 built-in ones of :data:`BUILTIN`, in module-name order: :func:`_discover`), and the CLI
 help, the API's choices, the web page and the HTTP client follow from the registry.
@@ -36,7 +43,20 @@ from __future__ import annotations
 import importlib
 import pkgutil
 
-from service.formats import dataset, ipasc, kwave_hdf5, kwave_mat, npy, plan, png, result, scan, unmix
+from service.formats import (
+    dataset,
+    ipasc,
+    kwave_hdf5,
+    kwave_mat,
+    ngff,
+    npy,
+    ome_tiff,
+    plan,
+    png,
+    result,
+    scan,
+    unmix,
+)
 from service.formats._registry import (
     FORMATS,
     HEAD_BYTES,
@@ -45,6 +65,8 @@ from service.formats._registry import (
     Source,
     describe,
     detect,
+    export_file,
+    export_formats,
     load,
     names,
     open_source,
@@ -53,12 +75,12 @@ from service.formats._registry import (
     unregister,
 )
 
-__all__ = ["FORMATS", "BUILTIN", "HEAD_BYTES", "MAX_BYTES", "Format", "Source", "describe", "detect", "load", "names",
-           "open_source", "register", "sniff", "unregister", "upload_formats"]
+__all__ = ["FORMATS", "BUILTIN", "HEAD_BYTES", "MAX_BYTES", "Format", "Source", "describe", "detect", "export_file",
+           "export_formats", "load", "names", "open_source", "register", "sniff", "unregister", "upload_formats"]
 
 #: the formats fpscan knows, in the order of the lists of choices
 BUILTIN = (npy.FORMAT, kwave_hdf5.FORMAT, kwave_mat.FORMAT, scan.FORMAT, ipasc.FORMAT, dataset.FORMAT, result.FORMAT,
-           unmix.FORMAT, plan.FORMAT, png.FORMAT)
+           unmix.FORMAT, plan.FORMAT, png.FORMAT, ome_tiff.FORMAT, ngff.FORMAT)
 for _fmt in BUILTIN:
     register(_fmt)
 

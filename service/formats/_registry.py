@@ -25,7 +25,7 @@ from driver.hdf5_checks import HDF5_SIGNATURE
 from service.recon.dataset import MAX_ELEMENTS
 
 __all__ = ["Format", "Source", "FORMATS", "HEAD_BYTES", "MAX_BYTES", "register", "unregister", "names",
-           "open_source", "sniff", "detect", "describe", "load"]
+           "open_source", "sniff", "detect", "describe", "load", "export_formats", "export_file"]
 
 #: bytes of a file's start every ``sniff`` sees (:attr:`Source.head`): a MATLAB v7.3 MAT-file's
 #: 512-byte header and the HDF5 signature behind it included
@@ -92,16 +92,37 @@ class Format:
         by the file's signature (a format with an HDF5 and a plain variant: MATLAB's
         MAT-files, v7.3 and v5), its ``sniff`` and ``load`` seeing ``Source.h5`` or
         ``Source.fh``.
-    sniff : callable
+    sniff : callable or None
         ``sniff(source) -> bool``: cheap detection from ``source.head`` and, for HDF5,
-        its root attributes and links (no data read).
-    load : callable
+        its root attributes and links (no data read); None: never detected (a format
+        fpscan only writes).
+    load : callable or None
         ``load(source, **options)``: the content (a ``GridDataset`` / ``PointDataset``
         for an input format). Options it does not take are ignored (``**_``); the
         registry passes ``max_bytes`` (the bound on any one array's declared bytes) with
         them, for a format that decodes arrays HDF5's checks do not see (MAT v5's zlib).
+        None: no reader.
     write : callable or None
         ``write(path, obj)`` where the format has a writer.
+    export_from : str or None
+        The registered format whose files this one exports (``"result"``: a reconstruction's
+        ``volume.h5``; ``"fpscan"``: a scan file); None: no export. Exports are offered by
+        ``fpscan export`` (``--format``), ``GET /api/jobs/{id}/export/{name}``, the HTTP
+        client's ``export`` and the web page's downloads: :func:`export_formats`.
+    export : callable or None
+        ``export(src_path, out_path) -> out_path``: writes the export of the file
+        ``src_path`` (a file of ``export_from``) at ``out_path`` (a temporary sibling renamed
+        into place); raises ValueError with the reason.
+    suffix : str
+        The ending of an export's default file name (``<stem><suffix>``, e.g. ``".ome.tif"``).
+    media_type : str
+        The export's HTTP ``Content-Type`` (a folder export is served as ``application/zip``).
+    folder : bool
+        The export is a folder (OME-Zarr): served zipped over HTTP, unpacked by the client.
+    options : type or None
+        Its load options: a pydantic model whose fields (type, range, unit, default) ``load``
+        takes by name; the upload's fields, ``fpscan recon``'s flags and the web page's upload
+        form are generated from them (``GET /api/formats``). None: it takes none.
     input : bool
         A reconstruction input (``fpscan recon --format``, ``load_dataset``).
     upload : bool
@@ -122,9 +143,15 @@ class Format:
     name: str
     title: str
     container: str
-    sniff: Callable[[Source], bool]
-    load: Callable[..., Any]
+    sniff: Callable[[Source], bool] | None = None
+    load: Callable[..., Any] | None = None
     write: Callable[..., Any] | None = None
+    export_from: str | None = None
+    export: Callable[[Path, Path], Path] | None = None
+    suffix: str = ""
+    media_type: str = "application/octet-stream"
+    folder: bool = False
+    options: type | None = None
     input: bool = False
     upload: bool = False
     wavelengths: bool = False
@@ -149,6 +176,8 @@ def register(fmt: Format) -> Format:
         raise ValueError(f"format {fmt.name!r} is registered already")
     if fmt.container not in ("hdf5", "file", "any"):
         raise ValueError(f"container must be 'hdf5', 'file' or 'any', got {fmt.container!r}")
+    if (fmt.export_from is None) != (fmt.export is None):
+        raise ValueError(f"format {fmt.name!r}: export_from and export go together")
     FORMATS[fmt.name] = fmt
     return fmt
 
@@ -229,7 +258,7 @@ def sniff(source: Source) -> Format | None:
     container ``"any"``) whose ``sniff`` accepts it; None when none does."""
     container = "hdf5" if source.h5 is not None else "file"
     for fmt in sorted(FORMATS.values(), key=lambda f: f.order):
-        if fmt.container in (container, "any") and fmt.sniff(source):
+        if fmt.sniff is not None and fmt.container in (container, "any") and fmt.sniff(source):
             return fmt
     return None
 
@@ -310,6 +339,8 @@ def load(path: str | os.PathLike, kind: str | None = None, *, max_bytes: int = M
                 raise ValueError(fmt.refuse)
             if choices is not None and fmt.name not in choices:
                 raise ValueError(f"this is {fmt.what}, not one of {', '.join(choices)}")
+        if fmt.load is None:
+            raise ValueError(f"{fmt.name} is a format fpscan writes only (no reader)")
         index = options.get("wavelength_index") or 0
         if index and not fmt.wavelengths:
             raise ValueError(f"wavelength index {index} is out of range: a {fmt.name} file holds one "
@@ -318,3 +349,62 @@ def load(path: str | os.PathLike, kind: str | None = None, *, max_bytes: int = M
             return fmt.name, [fmt.load(src, max_bytes=max_bytes,
                                        **{k: v for k, v in options.items() if k != "all_wavelengths"})]
         return fmt.name, fmt.load(src, max_bytes=max_bytes, **options)
+
+
+def export_formats(source: str | None = None) -> tuple[str, ...]:
+    """The names of the export formats (:attr:`Format.export_from` set), in registration order.
+
+    Parameters
+    ----------
+    source : str, optional
+        Only those that export files of this format (``"result"``: a reconstruction's
+        ``volume.h5``; ``"fpscan"``: a scan file); None: every export format.
+
+    Returns
+    -------
+    tuple of str
+    """
+    return tuple(f.name for f in FORMATS.values()
+                 if f.export_from is not None and (source is None or f.export_from == source))
+
+
+def export_file(src: str | os.PathLike, out: str | os.PathLike, format: str) -> Path:
+    """Write the export ``format`` of the file ``src``: the one export dispatch of ``fpscan
+    export``, ``GET /api/jobs/{id}/export/{format}`` and the ``fpscan`` package.
+
+    Parameters
+    ----------
+    src : str or os.PathLike
+        A file of the format's :attr:`Format.export_from` (a result ``volume.h5`` or a scan
+        file), detected from its content (:func:`detect`: opened once and checked).
+    out : str or os.PathLike
+        Where to write (a folder for a :attr:`Format.folder` export; an existing export there is
+        replaced).
+    format : str
+        One of :func:`export_formats`.
+
+    Returns
+    -------
+    pathlib.Path
+        ``out``.
+
+    Raises
+    ------
+    ValueError
+        An unknown export format; ``src`` of another format (naming what it is and what the
+        format exports from); what the exporter refuses.
+    FileNotFoundError
+        No file ``src``.
+    """
+    allowed = export_formats()
+    if format not in allowed:
+        raise ValueError(f"export format must be one of {', '.join(allowed)}, got {format!r}")
+    fmt = FORMATS[format]
+    src = Path(src)
+    found = detect(src)
+    if found != fmt.export_from:
+        want = FORMATS[fmt.export_from].what if fmt.export_from in FORMATS else fmt.export_from
+        raise ValueError(f"{fmt.name} exports {want}; {src.name} is {FORMATS[found].what} "
+                         f"(its exports: {', '.join(export_formats(found)) or 'none'})")
+    assert fmt.export is not None  # register() keeps export_from and export together
+    return fmt.export(src, Path(out))

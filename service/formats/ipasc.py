@@ -475,4 +475,5 @@ def _dataset(source: Source, wavelength_index: int) -> PointDataset:
 
 
 FORMAT = Format(name="ipasc", title="IPASC HDF5", container="hdf5", sniff=sniff, load=load, write=export_scan,
-                input=True, upload=True, wavelengths=True, order=50, noun="an IPASC file")
+                input=True, upload=True, wavelengths=True, order=50, noun="an IPASC file",
+                export_from="fpscan", export=export_scan, suffix="_ipasc.h5", media_type="application/x-hdf5")

@@ -28,12 +28,13 @@ import h5py
 import numpy as np
 
 from driver.scanfile import PRESSURE_UNITS
+from service.disk import copy_replaced
 from service.formats._registry import Format, Source
 from service.names import person_names
 
 __all__ = ["FORMAT", "RESULT_FORMAT", "ORIENTATION", "P0_UNITS", "COMPRESS_BELOW", "ResultVolume", "sniff",
            "load", "read_result", "read_slice", "write_volume", "params_json", "storage_layout", "VOLUME_FILE",
-           "mip_file", "write_reconstruction", "write_folder"]
+           "mip_file", "write_reconstruction", "write_folder", "voxel_sizes_um", "volume_description"]
 
 RESULT_FORMAT = "fpscan-result/1"
 
@@ -306,6 +307,54 @@ def load(source: Source, **_: Any) -> ResultVolume:
                         attrs=attrs)
 
 
+def voxel_sizes_um(r: ResultVolume, what: str) -> tuple[str, list[float]]:
+    """The axes of a volume's export (``"ZYX"``; 2-D ``"YX"``, depth z as the image's Y) and the
+    voxel size of each in µm (a single sample counts as 1 µm): what OME-TIFF and OME-Zarr state.
+
+    Parameters
+    ----------
+    r : ResultVolume
+    what : str
+        The export, for the message (``"OME-TIFF"``).
+
+    Returns
+    -------
+    tuple of (str, list of float)
+
+    Raises
+    ------
+    ValueError
+        An axis that is not evenly spaced.
+    """
+    def step_um(v: np.ndarray, name: str) -> float:
+        if len(v) < 2:
+            return 1.0
+        d = np.diff(v)
+        if not np.allclose(d, d[0], rtol=1e-6, atol=0):
+            raise ValueError(f"{name} is not evenly spaced: {what} needs one voxel size per axis")
+        return float(f"{d[0] * 1e6:.12g}")  # µm, without the last bits of rounding noise
+
+    if r.p0.ndim == 3 and r.y is not None:
+        return "ZYX", [step_um(r.z, "z"), step_um(r.y, "y"), step_um(r.x, "x")]
+    return "YX", [step_um(r.z, "z"), step_um(r.x, "x")]
+
+
+def volume_description(r: ResultVolume) -> str:
+    """One line an export carries about its volume: method, p0 unit, axes and :data:`ORIENTATION`.
+
+    Parameters
+    ----------
+    r : ResultVolume
+
+    Returns
+    -------
+    str
+    """
+    return (f"fpscan p0 ({r.method}); p0 unit: {r.p0_unit}; "
+            f"{'axes (z, y, x)' if r.p0.ndim == 3 else 'axes (z, x): depth z as the image Y'}; "
+            f"orientation: {ORIENTATION}")
+
+
 def read_result(path: str | os.PathLike) -> ResultVolume:
     """Read a result file (through the registry: opened once, checked). Raises
     FileNotFoundError, ValueError (not a result file)."""
@@ -337,5 +386,6 @@ def read_slice(path: str | os.PathLike, index: Any) -> tuple[np.ndarray, np.ndar
 
 FORMAT = Format(name="result", title="fpscan reconstruction result (volume.h5)", container="hdf5",
                 sniff=sniff, load=load, write=write_volume, order=30, noun="a reconstruction result",
+                export_from="result", export=copy_replaced, suffix=".h5", media_type="application/x-hdf5",
                 refuse="this is a reconstruction result (a p0 volume), not data to reconstruct: open it with "
                        "h5py, or `fpscan export` it to OME-TIFF for ImageJ/napari")

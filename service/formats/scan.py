@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from service.disk import copy_replaced
 from service.formats._registry import Format, Source
 from service.recon.dataset import PointDataset, check_wavelength_index, lattice_axes
 
@@ -80,4 +81,5 @@ def _dataset(scan: Any, wavelength_index: int, allow_empty: bool) -> PointDatase
 
 
 FORMAT = Format(name="fpscan", title="fpscan scan file", container="hdf5", sniff=sniff, load=load,
-                input=True, upload=True, wavelengths=True, order=10, noun="a scan file")
+                input=True, upload=True, wavelengths=True, order=10, noun="a scan file",
+                export_from="fpscan", export=copy_replaced, suffix=".h5", media_type="application/x-hdf5")

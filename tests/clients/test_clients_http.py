@@ -286,7 +286,6 @@ CLIENT_METHODS = {
     ("post", "/api/scans/{job_id}/resume"): "resume_scan",
     ("post", "/api/scans/{job_id}/abort"): "abort_scan",
     ("get", "/api/scans/{job_id}/file"): "download_scan",
-    ("get", "/api/scans/{job_id}/ipasc"): "download_ipasc",
     ("get", "/api/scans/{job_id}/preview"): "scan_preview",
     ("get", "/api/scans/{job_id}/preview/{plane}.png"): "download_scan_preview",
     ("post", "/api/datasets"): "upload_dataset",
@@ -295,8 +294,6 @@ CLIENT_METHODS = {
     ("post", "/api/reconstructions"): "start_reconstruction",
     ("get", "/api/reconstructions/methods"): "methods",
     ("get", "/api/reconstructions/{job_id}/volume.h5"): "download_volume",
-    ("get", "/api/reconstructions/{job_id}/volume.ome.tif"): "download_ome_tiff",
-    ("get", "/api/reconstructions/{job_id}/volume.ome.zarr.zip"): "download_ome_zarr",
     ("get", "/api/reconstructions/{job_id}/mip/{plane}.png"): "download_mip",
     ("get", "/api/reconstructions/{job_id}/slice.png"): "download_slice",
     ("get", "/api/jobs"): "list_jobs",
@@ -310,6 +307,8 @@ CLIENT_METHODS = {
     ("put", "/api/retention"): "retention",
     ("get", "/api/reconstructions/{job_id}/unmix.h5"): "download_unmix",
     ("get", "/api/reconstructions/{job_id}/so2.png"): "download_so2",
+    ("get", "/api/formats"): "formats",
+    ("get", "/api/jobs/{job_id}/export/{format}"): "export",
 }
 
 

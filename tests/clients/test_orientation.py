@@ -146,10 +146,11 @@ def test_one_orientation_in_every_path(server, tmp_path):
         links = field_of(api.get_job(job), "links")
         for plane in ("xy", "xz"):
             api.download_mip(job, plane, tmp_path / f"served_{plane}.png")
-        api.download_ome_tiff(job, tmp_path / "served.ome.tif")
-        got = api.download_ome_zarr(job, tmp_path / "served.ome.zarr")
+        api.export(job, "ome-tiff", tmp_path / "served.ome.tif")
+        got = api.export(job, "ome-zarr", tmp_path / "served.ome.zarr")
         api.download_volume(job, tmp_path / "served.h5")
-    assert got == tmp_path / "served.ome.zarr" and not (tmp_path / ".served.ome.zarr.zip").exists()
+    assert got == tmp_path / "served.ome.zarr" and got.is_dir()
+    assert not list(tmp_path.glob(".served.ome.zarr*"))  # the zip downloaded beside it is gone
     seen["server PNG MIP xy (web page)"] = _png_quadrant((tmp_path / "served_xy.png").read_bytes())
     seen_xz["server PNG MIP xz (web page)"] = _png_quadrant((tmp_path / "served_xz.png").read_bytes())
     with tifffile.TiffFile(tmp_path / "served.ome.tif") as tif:
@@ -164,7 +165,7 @@ def test_one_orientation_in_every_path(server, tmp_path):
     print("orientation (xz, displayed):", *(f"  {k}: {v}" for k, v in seen_xz.items()), sep="\n")
     assert set(seen.values()) == {WANT_XY}, seen
     assert set(seen_xz.values()) == {WANT_XZ}, seen_xz
-    assert field_of(links, "volume_ome_zarr").endswith("/volume.ome.zarr.zip")
+    assert field_of(links, "export_ome-zarr") == f"/api/jobs/{job}/export/ome-zarr"
 
     # ome-zarr's reader: shape, axes in micrometer, scale = voxel size in µm, translation
     # = the first sample's position in µm; the same numbers as the HDF5 volume
@@ -208,8 +209,8 @@ def test_p0_unit_is_pa_for_a_calibrated_scan(tmp_path):
         rec = fpscan.reconstruct(fpscan.load_dataset(path), "ner")
         fpscan.write_result(tmp_path / name, rec, input_id=name)
         vol = tmp_path / name / "volume.h5"
-        fpscan.export_volume(vol, tmp_path / f"{name}.ome.tif")
-        fpscan.export_volume(vol, tmp_path / f"{name}.ome.zarr", "ome-zarr")
+        fpscan.export_file(vol, tmp_path / f"{name}.ome.tif", "ome-tiff")
+        fpscan.export_file(vol, tmp_path / f"{name}.ome.zarr", "ome-zarr")
         with h5py.File(vol, "r") as f:
             unit = f.attrs["p0_unit"]
             assert f["p0"].attrs["units"] == unit
@@ -221,8 +222,8 @@ def test_p0_unit_is_pa_for_a_calibrated_scan(tmp_path):
     assert units == {"pa": "Pa", "au": "a.u."}
     with pytest.raises(ValueError, match="pressure_unit must be one of Pa, a.u."):
         fpscan.pressure_unit({"pressure_unit": "mV"})
-    with pytest.raises(ValueError, match="format must be one of ome-tiff, ome-zarr"):
-        fpscan.export_volume(vol, tmp_path / "x.png", "png")
+    with pytest.raises(ValueError, match="export format must be one of .*ome-tiff, ome-zarr"):
+        fpscan.export_file(vol, tmp_path / "x.png", "png")
 
 
 def test_ome_zarr_zip_holds_one_folder(server, tmp_path):
@@ -237,7 +238,7 @@ def test_ome_zarr_zip_holds_one_folder(server, tmp_path):
         dataset_id = api.upload_dataset(tmp_path / "data.npy", "npy", dt=DT, dx=DX)
         job = api.start_reconstruction(dataset_id=dataset_id, method="ner")
         api.wait(job, timeout=240)
-    url = f"{server}/api/reconstructions/{job}/volume.ome.zarr.zip"
+    url = f"{server}/api/jobs/{job}/export/ome-zarr"
     r = httpx.get(url, headers={"Authorization": f"Bearer {TOKEN}"}, timeout=60)
     assert r.status_code == 200 and r.headers["content-type"] == "application/zip"
     assert f'filename="{job}.ome.zarr.zip"' in r.headers["content-disposition"]
@@ -254,5 +255,5 @@ def test_ome_zarr_zip_holds_one_folder(server, tmp_path):
     assert done.returncode == 0 and done.stdout.strip() == str(out), done.stderr
     assert _zarr_read(out)[0].shape == (N_T, N, N)
     # the same read access as the OME-TIFF beside it
-    tif = url.replace("volume.ome.zarr.zip", "volume.ome.tif")
+    tif = url.replace("ome-zarr", "ome-tiff")
     assert httpx.get(url, timeout=10).status_code == httpx.get(tif, timeout=10).status_code

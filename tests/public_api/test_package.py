@@ -35,9 +35,9 @@ def test_every_public_name_is_its_owners_object():
     import clients.http
     import driver.scanfile
     import fpscan
+    import service.formats
     import service.pipeline
     import service.plans
-    import service.storage.results
 
     assert set(fpscan.__all__) == set(fpscan._EXPORTS) | set(fpscan._RENAMED) | {"__version__"}
     for name in fpscan.__all__:
@@ -47,7 +47,7 @@ def test_every_public_name_is_its_owners_object():
     assert fpscan.Client is clients.http.Client and fpscan.AsyncClient is clients.http.AsyncClient
     assert fpscan.read_scan is driver.scanfile.read_scan
     assert fpscan.make_plan is service.plans.make_plan
-    assert fpscan.export_volume is service.storage.results.export_volume
+    assert fpscan.export_file is service.formats.export_file
     assert set(fpscan.METHODS) >= {"nedner", "ner", "linear", "nearest", "cubic", "kwave", "tv"}
     from service.formats.ipasc import export_scan
 

@@ -105,7 +105,7 @@ def test_delete_retention_and_restart(tmp_path):
             # the volume as OME-TIFF over HTTP (short id): shape and voxel sizes in µm
             import tifffile
 
-            r = api.get(f"/api/reconstructions/{short}/volume.ome.tif")
+            r = api.get(f"/api/jobs/{short}/export/ome-tiff")
             assert r.status_code == 200, r.text
             with tifffile.TiffFile(io.BytesIO(r.content)) as tif:
                 assert tif.is_ome and tif.series[0].axes == "ZYX" and tif.series[0].shape == (N_T, N, N)

@@ -170,7 +170,7 @@ def test_scan_preview_sse_then_nedner_matches_phantom(scan_server, sim, tmp_path
 
         # IPASC round trip: export → import → reconstruct gives the same image; so does
         # uploading the scan file itself
-        ipasc = c.get(f"/api/scans/{job_id}/ipasc")
+        ipasc = c.get(f"/api/jobs/{job_id}/export/ipasc")
         assert ipasc.status_code == 200
         with h5py.File(io.BytesIO(ipasc.content), "r") as f:
             assert f["binary_time_series_data"].shape[:2] == (N * N, N_T)

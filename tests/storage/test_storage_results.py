@@ -274,13 +274,14 @@ def test_ome_zarr_export_is_ngff_05_with_a_pyramid_the_reader_opens_without_a_wa
     from ome_zarr.io import parse_url
     from ome_zarr.reader import Reader
 
-    from service.storage.results import PYRAMID_TOP, ZARR_CHUNK, export_volume
+    from service.formats import export_file
+    from service.formats.ngff import PYRAMID_TOP, ZARR_CHUNK
 
     rng = np.random.default_rng(2)
     p0 = rng.random((520, 16, 64)).astype(np.float32)  # depth 520 > PYRAMID_TOP: one level below
     z, y, x = np.arange(520) * 15e-6, (np.arange(16) - 7.5) * 1e-4, (np.arange(64) - 31.5) * 1e-4
     write_volume(tmp_path / "v.h5", p0, z, x, y, method="ner", params={}, input_id="t")
-    export_volume(tmp_path / "v.h5", tmp_path / "v.ome.zarr", "ome-zarr")
+    export_file(tmp_path / "v.h5", tmp_path / "v.ome.zarr", "ome-zarr")
     with caplog.at_level(logging.DEBUG):
         nodes = list(Reader(parse_url(str(tmp_path / "v.ome.zarr")))())
     assert not [r for r in caplog.records if "mismatch" in r.getMessage().lower()], caplog.records

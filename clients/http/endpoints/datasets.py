@@ -32,6 +32,11 @@ def _build_dataset_formats() -> Call[Any]:
     return Call(Request("GET", "/api/datasets/formats"), read_json)
 
 
+def _build_formats() -> Call[Any]:
+    """``GET /api/formats`` (:meth:`Datasets.formats`)."""
+    return Call(Request("GET", "/api/formats"), read_json)
+
+
 def _build_list_datasets() -> Call[Any]:
     """``GET /api/datasets`` (:meth:`Datasets.list_datasets`)."""
     return Call(Request("GET", "/api/datasets"), read_json)
@@ -107,6 +112,27 @@ class Datasets(SyncCaller):
         """
         return self._call(_build_dataset_formats())
 
+    def formats(self) -> Any:
+        """``GET /api/formats``: every file format the server reads or writes (its registry).
+
+        Returns
+        -------
+        list of dict
+            ``{name, title, noun, input, upload, wavelengths, export_from, suffix, media_type,
+            folder, options}`` per format: ``input`` / ``upload`` a reconstruction input / an
+            upload choice, ``export_from`` the format whose files it exports (None: no export),
+            ``suffix`` an export's file-name ending, ``folder`` an export that is a folder (served
+            zipped), ``options`` its load options (name, description, value schema).
+
+        Raises
+        ------
+        ApiError
+            The server's reason for a 4xx/5xx (AuthError for a missing or wrong token).
+        ServerUnavailable
+            The server cannot be reached.
+        """
+        return self._call(_build_formats())
+
     def list_datasets(self) -> Any:
         """``GET /api/datasets``: the stored datasets, oldest first.
 
@@ -173,6 +199,10 @@ class AsyncDatasets(AsyncCaller):
     async def dataset_formats(self) -> Any:
         """As :meth:`Datasets.dataset_formats`, awaited."""
         return await self._call(_build_dataset_formats())
+
+    async def formats(self) -> Any:
+        """As :meth:`Datasets.formats`, awaited."""
+        return await self._call(_build_formats())
 
     async def list_datasets(self) -> Any:
         """As :meth:`Datasets.list_datasets`, awaited."""

@@ -1,11 +1,14 @@
-"""Jobs: ``/api/jobs`` (list, one job, cancel, delete). Following a job's events and waiting
-for its end are the clients' own (:meth:`clients.http.Client.events`, ``wait``): they send many
-requests."""
+"""Jobs: ``/api/jobs`` (list, one job, cancel, delete, its file exported in a registered format).
+Following a job's events and waiting for its end are the clients' own
+(:meth:`clients.http.Client.events`, ``wait``): they send many requests."""
 from __future__ import annotations
 
+import os
+from pathlib import Path
 from typing import Any
 
-from ..calls import AsyncCaller, Call, Request, SyncCaller, read_json, read_model, read_models
+from ..calls import AsyncCaller, Call, Download, Request, SyncCaller, read_json, read_model, read_models
+from ..transport import unzip_folder
 
 __all__ = ["Jobs", "AsyncJobs"]
 
@@ -29,6 +32,31 @@ def _build_cancel_job(job_id: str) -> Call[Any]:
 def _build_delete_job(job_id: str) -> Call[Any]:
     """``DELETE /api/jobs/{job_id}`` (:meth:`Jobs.delete_job`)."""
     return Call(Request("DELETE", f"/api/jobs/{job_id}"), read_json)
+
+
+def _build_export(job_id: str, format: str, dest: str | os.PathLike, wavelength: int | None) -> Download[Path]:
+    """``GET /api/jobs/{job_id}/export/{format}`` (:meth:`Jobs.export`), downloaded beside
+    ``dest`` (resumable) and then put in place: a zipped folder export (``Content-Type:
+    application/zip``) unpacked into the folder ``dest`` unless ``dest`` ends in ``.zip``."""
+    dest = Path(dest)
+    if not format or "/" in format:
+        raise ValueError(f"format must be an export format's name, got {format!r}")
+    keep_zip = dest.name.endswith(".zip")
+
+    def finish(got: Path, content_type: str) -> Path:
+        if keep_zip:
+            return got
+        if content_type.split(";")[0].strip() != "application/zip":
+            os.replace(got, dest)  # a file export: into place
+            return dest
+        try:
+            return unzip_folder(got, dest)
+        finally:
+            got.unlink(missing_ok=True)
+
+    params = None if wavelength is None else {"wavelength": int(wavelength)}
+    return Download(Request("GET", f"/api/jobs/{job_id}/export/{format}", params=params),
+                    dest if keep_zip else dest.with_name(f".{dest.name}.download"), finish)
 
 
 class Jobs(SyncCaller):
@@ -136,6 +164,43 @@ class Jobs(SyncCaller):
         """
         return self._call(_build_delete_job(job_id))
 
+    def export(self, job_id: str, format: str, dest: str | os.PathLike, *,
+               wavelength: int | None = None) -> Path:
+        """``GET /api/jobs/{job_id}/export/{format}``: a job's file in an export format, saved to ``dest``.
+
+        A scan job exports its scan file, a reconstruction its p0 volume: the formats of the
+        server's registry (:meth:`formats`; a job's ``export_<format>`` links name those it
+        offers), e.g. ``ipasc`` (a scan), ``ome-tiff`` and ``ome-zarr`` (a volume, voxel sizes in
+        µm), ``fpscan`` / ``result`` (the file itself). A folder export (OME-Zarr) comes zipped and
+        is unpacked into the folder ``dest`` (kept zipped when ``dest`` ends in ``.zip``).
+
+        Parameters
+        ----------
+        job_id : str
+        format : str
+            The export format's name.
+        dest : str or os.PathLike
+            The file (or folder) to write; its folder is made; an existing folder there is replaced.
+        wavelength : int, optional
+            Wavelength k's volume of a reconstruction over every wavelength.
+
+        Returns
+        -------
+        pathlib.Path
+            ``dest``.
+
+        Raises
+        ------
+        ValueError
+            An empty format name (before any request); a zip that is not one folder.
+        ApiError
+            The server's reason for a 4xx/5xx (NotFound for an unknown job or a format the job
+            does not export, naming those it does; Conflict while its result is not there).
+        ServerUnavailable
+            The server cannot be reached.
+        """
+        return self._call(_build_export(job_id, format, dest, wavelength))
+
 
 class AsyncJobs(AsyncCaller):
     """The job endpoints of :class:`clients.http.AsyncClient`: :class:`Jobs`' methods as coroutines.
@@ -168,3 +233,8 @@ class AsyncJobs(AsyncCaller):
     async def delete_job(self, job_id: str) -> Any:
         """As :meth:`Jobs.delete_job`, awaited."""
         return await self._call(_build_delete_job(job_id))
+
+    async def export(self, job_id: str, format: str, dest: str | os.PathLike, *,
+                     wavelength: int | None = None) -> Path:
+        """As :meth:`Jobs.export`, awaited."""
+        return await self._call(_build_export(job_id, format, dest, wavelength))

@@ -1,5 +1,6 @@
 """Reconstructions: ``/api/reconstructions`` (the methods, start a reconstruction or an unmixing,
-and the results: volume, MIPs, depth slices, OME-TIFF, OME-Zarr, unmixed maps)."""
+and the results: volume, MIPs, depth slices, unmixed maps; a result's exports are a job's:
+:meth:`clients.http.Client.export`)."""
 from __future__ import annotations
 
 import os
@@ -18,7 +19,6 @@ from ..calls import (
     read_job_id,
     read_json,
 )
-from ..transport import unzip_folder
 
 __all__ = ["Reconstructions", "AsyncReconstructions"]
 
@@ -86,7 +86,7 @@ def _wavelength(wavelength: int | None) -> dict[str, int] | None:
 def _build_download_result(job_id: str, name: str, dest: str | os.PathLike,
                           params: Mapping[str, Any] | None = None) -> Download[Path]:
     """``GET /api/reconstructions/{job_id}/{name}`` saved to ``dest`` (``volume.h5``,
-    ``mip/xy.png``, ``slice.png``, ``volume.ome.tif``, ``unmix.h5``, ``so2.png``)."""
+    ``mip/xy.png``, ``slice.png``, ``unmix.h5``, ``so2.png``)."""
     return Download(Request("GET", f"/api/reconstructions/{job_id}/{name}", params=params), Path(dest))
 
 
@@ -96,21 +96,6 @@ def _build_download_mip(job_id: str, plane: str, dest: str | os.PathLike,
     an unknown plane is a ValueError."""
     check_plane(plane)
     return _build_download_result(job_id, f"mip/{plane}.png", dest, _wavelength(wavelength))
-
-
-def _build_download_ome_zarr(job_id: str, dest: str | os.PathLike) -> Download[Path]:
-    """``GET /api/reconstructions/{job_id}/volume.ome.zarr.zip`` unpacked into the folder ``dest``
-    (:meth:`Reconstructions.download_ome_zarr`)."""
-    folder = Path(dest)
-
-    def unpack(zipped: Path) -> Path:
-        try:
-            return unzip_folder(zipped, folder)
-        finally:
-            zipped.unlink(missing_ok=True)
-
-    return Download(Request("GET", f"/api/reconstructions/{job_id}/volume.ome.zarr.zip"),
-                    folder.with_name(f".{folder.name}.zip"), unpack)
 
 
 class Reconstructions(SyncCaller):
@@ -312,56 +297,6 @@ class Reconstructions(SyncCaller):
         """
         return self._call(_build_download_result(job_id, "volume.h5", dest, _wavelength(wavelength)))
 
-    def download_ome_tiff(self, job_id: str, dest: str | os.PathLike) -> Path:
-        """``GET /api/reconstructions/{job_id}/volume.ome.tif`` (OME-TIFF, voxel sizes in µm) saved to ``dest``.
-
-        Parameters
-        ----------
-        job_id : str
-        dest : str or os.PathLike
-            The file to write (its folder is made; ``dest.part`` while downloading).
-
-        Returns
-        -------
-        pathlib.Path
-            ``dest``.
-
-        Raises
-        ------
-        ApiError
-            The server's reason for a 4xx/5xx (NotFound for an unknown id).
-        ServerUnavailable
-            The server cannot be reached.
-        """
-        return self._call(_build_download_result(job_id, "volume.ome.tif", dest))
-
-    def download_ome_zarr(self, job_id: str, dest: str | os.PathLike) -> Path:
-        """``GET /api/reconstructions/{job_id}/volume.ome.zarr.zip`` unpacked into a folder.
-
-        OME-Zarr, voxel sizes in µm.
-
-        Parameters
-        ----------
-        job_id : str
-        dest : str or os.PathLike
-            The folder (conventionally ``*.ome.zarr``; an existing one there is replaced).
-
-        Returns
-        -------
-        pathlib.Path
-            ``dest``.
-
-        Raises
-        ------
-        ValueError
-            A zip that is not one folder or names a path outside it.
-        ApiError
-            The server's reason (NotFound for an unknown job).
-        ServerUnavailable
-            The server cannot be reached.
-        """
-        return self._call(_build_download_ome_zarr(job_id, dest))
-
     def download_mip(self, job_id: str, plane: str, dest: str | os.PathLike, *,
                      wavelength: int | None = None) -> Path:
         """``GET /api/reconstructions/{job_id}/mip/{plane}.png`` (maximum-intensity projection, PNG) saved to ``dest``.
@@ -468,14 +403,6 @@ class AsyncReconstructions(AsyncCaller):
                               wavelength: int | None = None) -> Path:
         """As :meth:`Reconstructions.download_volume`, awaited."""
         return await self._call(_build_download_result(job_id, "volume.h5", dest, _wavelength(wavelength)))
-
-    async def download_ome_tiff(self, job_id: str, dest: str | os.PathLike) -> Path:
-        """As :meth:`Reconstructions.download_ome_tiff`, awaited."""
-        return await self._call(_build_download_result(job_id, "volume.ome.tif", dest))
-
-    async def download_ome_zarr(self, job_id: str, dest: str | os.PathLike) -> Path:
-        """As :meth:`Reconstructions.download_ome_zarr`, awaited."""
-        return await self._call(_build_download_ome_zarr(job_id, dest))
 
     async def download_mip(self, job_id: str, plane: str, dest: str | os.PathLike, *,
                            wavelength: int | None = None) -> Path:

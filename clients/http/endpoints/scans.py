@@ -1,5 +1,5 @@
 """Scanners and scans: ``/api/scanners`` and ``/api/scans`` (start, pause, resume, abort, the
-scan file, its IPASC export, the live preview)."""
+scan file, the live preview; a scan's exports are a job's: :meth:`clients.http.Client.export`)."""
 from __future__ import annotations
 
 import os
@@ -42,11 +42,6 @@ def _build_scan_action(job_id: str, action: str) -> Call[Any]:
 def _build_download_scan(job_id: str, dest: str | os.PathLike) -> Download[Path]:
     """``GET /api/scans/{job_id}/file`` (:meth:`Scans.download_scan`)."""
     return Download(Request("GET", f"/api/scans/{job_id}/file"), Path(dest))
-
-
-def _build_download_ipasc(job_id: str, dest: str | os.PathLike) -> Download[Path]:
-    """``GET /api/scans/{job_id}/ipasc`` (:meth:`Scans.download_ipasc`)."""
-    return Download(Request("GET", f"/api/scans/{job_id}/ipasc"), Path(dest))
 
 
 def _build_scan_preview(job_id: str) -> Call[Any]:
@@ -210,29 +205,6 @@ class Scans(SyncCaller):
         """
         return self._call(_build_download_scan(job_id, dest))
 
-    def download_ipasc(self, job_id: str, dest: str | os.PathLike) -> Path:
-        """``GET /api/scans/{job_id}/ipasc`` (IPASC HDF5 export) saved to ``dest``.
-
-        Parameters
-        ----------
-        job_id : str
-        dest : str or os.PathLike
-            The file to write (its folder is made; ``dest.part`` while downloading).
-
-        Returns
-        -------
-        pathlib.Path
-            ``dest``.
-
-        Raises
-        ------
-        ApiError
-            The server's reason for a 4xx/5xx (NotFound for an unknown id).
-        ServerUnavailable
-            The server cannot be reached.
-        """
-        return self._call(_build_download_ipasc(job_id, dest))
-
     def scan_preview(self, job_id: str) -> Any:
         """``GET /api/scans/{job_id}/preview``: the live preview's state.
 
@@ -323,10 +295,6 @@ class AsyncScans(AsyncCaller):
     async def download_scan(self, job_id: str, dest: str | os.PathLike) -> Path:
         """As :meth:`Scans.download_scan`, awaited."""
         return await self._call(_build_download_scan(job_id, dest))
-
-    async def download_ipasc(self, job_id: str, dest: str | os.PathLike) -> Path:
-        """As :meth:`Scans.download_ipasc`, awaited."""
-        return await self._call(_build_download_ipasc(job_id, dest))
 
     async def scan_preview(self, job_id: str) -> Any:
         """As :meth:`Scans.scan_preview`, awaited."""

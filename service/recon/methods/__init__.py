@@ -30,7 +30,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from pydantic import ValidationError
+from pydantic import BaseModel, ValidationError
 
 from service.recon.methods.options import MethodOptions
 
@@ -290,7 +290,7 @@ def describe_error(exc: ValidationError) -> str:
 
     Examples
     --------
-    >>> from pydantic import ValidationError
+    >>> from pydantic import BaseModel, ValidationError
     >>> from service.recon.methods import describe_error, get
     >>> for bad in ({"upsample": 9}, {"frobnicate": 1}):
     ...     try:
@@ -449,16 +449,17 @@ def option_fields() -> dict[str, Any]:
     return out
 
 
-def option_schemas(method: Method) -> list[dict[str, Any]]:
-    """``method``'s options as the methods endpoint and the web page read them: per
+def option_schemas(method: Method | type[BaseModel]) -> list[dict[str, Any]]:
+    """``method``'s options (or those of an options model: a file format's load options) as the
+    methods and formats endpoints and the web page read them: per
     option ``name``, ``description``, ``default`` (this method's), and ``schema``: the JSON
     schema of a value (``type``, ``minimum``/``maximum``/``exclusiveMinimum``, ``enum``)
     with ``unit`` (SI) and ``quantity`` (``length``/``time``: text with a unit accepted).
 
     Parameters
     ----------
-    method : Method
-        A registered method (:func:`get`).
+    method : Method or pydantic model class
+        A registered method (:func:`get`), or an options model.
 
     Returns
     -------
@@ -477,7 +478,8 @@ def option_schemas(method: Method) -> list[dict[str, Any]]:
     >>> dz["default"], dz["schema"]["unit"], dz["schema"]["quantity"]  # None: derived (c dt)
     (None, 'm', 'length')
     """
-    props = method.options_model.model_json_schema()["properties"]
+    model = method.options_model if isinstance(method, Method) else method
+    props = model.model_json_schema()["properties"]
     out = []
     for name, p in props.items():
         value = next((b for b in p.get("anyOf", []) if b.get("type") != "null"), None) or \

@@ -1,0 +1,124 @@
+"""Files in and out: the registry of formats (``GET /api/formats``) and a job's file exported in
+any of them (``GET /api/jobs/{job_id}/export/{format}``): one route for every export format,
+found in the registry (:func:`service.formats.export_formats`), so that a format added as one
+module appears here, in the job's links, the HTTP client and the web page with no other edit.
+
+A scan job exports its scan file (format ``fpscan``), a reconstruction its result volume
+(``result``; ``?wavelength=k``: wavelength k's of a job over every wavelength). The file itself
+is served as it is; another format is written by its exporter (``service.formats.export_file``)
+beside the job's files once and then served from there (a result never changes; a scan's export
+is written anew on every request, since the scan may have grown). A folder export (OME-Zarr) is
+served zipped. Exports run in FastAPI's thread pool, off the event loop.
+"""
+from __future__ import annotations
+
+import shutil
+import uuid
+from pathlib import Path
+
+from fastapi import APIRouter, Depends, HTTPException, Query
+from fastapi import Path as PathParam
+from fastapi.responses import FileResponse
+
+from service.api.context import Context, ctx, read_access
+from service.api.jobs import get_job_or_404
+from service.api.models import ID_PATTERN, FormatInfo
+from service.formats import FORMATS, export_file, export_formats
+from service.formats.result import VOLUME_FILE
+
+__all__ = ["router", "list_formats", "export", "job_export_source", "EXPORTS_DIR"]
+
+router = APIRouter(tags=["formats"])
+
+#: the folder of the data folder where scans' exports are written (a scan's file may grow)
+EXPORTS_DIR = "exports"
+
+
+@router.get("/api/formats", response_model=list[FormatInfo], dependencies=[Depends(read_access)])
+def list_formats() -> list[FormatInfo]:
+    """Every file format of the server's registry, in its order: what it reads (``input``,
+    ``upload``) and what it exports (``export_from``: the format of the files it is made
+    from; ``suffix``, ``folder``), with its load options. The web page's upload choices and
+    download links, and the HTTP client's default file names, come from this."""
+    return [FormatInfo.of(f) for f in FORMATS.values()]
+
+
+def job_export_source(c: Context, job: dict, wavelength: int | None = None) -> tuple[str, Path]:
+    """The file a job exports and its format: a scan job's scan file (``"fpscan"``), a
+    succeeded reconstruction's volume (``"result"``, at ``wavelength``). Raises HTTPException:
+    409 while the file is not there (a reconstruction not yet done, a scan not started), 404 for
+    a wavelength the job has not, 422 for ``wavelength`` on a scan."""
+    if job["kind"] == "scan":
+        if wavelength is not None:
+            raise HTTPException(422, "wavelength applies to a reconstruction's volume; a scan exports every "
+                                     "wavelength it holds")
+        from service.api.scans import scan_file_path
+
+        return "fpscan", scan_file_path(c, job["id"])
+    from service.api.reconstructions import volume_dir
+
+    return "result", volume_dir(c, job["id"], wavelength) / VOLUME_FILE
+
+
+WavelengthQuery = Query(None, ge=0, le=15, description="a reconstruction's volume at wavelength k (a job over "
+                                                       "every wavelength); default: its volume")
+
+
+@router.get("/api/jobs/{job_id}/export/{format}", dependencies=[Depends(read_access)], response_class=FileResponse,
+            responses={200: {"description": "the job's file in that format (a folder export zipped)"},
+                       206: {"description": "partial content (HTTP Range)"},
+                       404: {"description": "no such job, or a format the job does not export (the reason "
+                                            "names those it does)"},
+                       409: {"description": "the job has no file yet, or its file cannot be exported so"},
+                       507: {"description": "the disk is full"}})
+def export(job_id: str = PathParam(pattern=ID_PATTERN, description="a scan or reconstruction job's id"),
+           format: str = PathParam(pattern=r"^[a-z0-9][a-z0-9-]{0,39}$", description="an export format's name "
+                                   "(GET /api/formats: those with export_from)"),
+           wavelength: int | None = WavelengthQuery, c: Context = Depends(ctx)):
+    """The job's file (a scan file, or a reconstruction's p0 volume) in the export ``format``
+    (``service.formats``: the job's ``export_<format>`` links name them; e.g. ``ipasc`` of a
+    scan, ``ome-tiff`` and ``ome-zarr`` of a volume, the file itself as ``fpscan`` / ``result``);
+    a folder export (OME-Zarr) as a zip of one folder ``<job_id><suffix>``. Supports ``Range``."""
+    job = get_job_or_404(c, job_id)
+    source, src = job_export_source(c, job, wavelength)
+    offered = export_formats(source)
+    if format not in offered:
+        raise HTTPException(404, f"a {job['kind']} job exports {', '.join(offered)}; no export format {format!r}")
+    fmt = FORMATS[format]
+    name = f"{job_id}{'' if wavelength is None else f'-wavelength_{wavelength}'}{fmt.suffix}"
+    if format == source:  # the file itself
+        return FileResponse(src, media_type=fmt.media_type, filename=name)
+    if source == "result":  # a result never changes: its exports are kept beside it
+        out = src.with_name(f"volume{fmt.suffix}" + (".zip" if fmt.folder else ""))
+        if not out.exists():
+            _write_export(c, src, out, format, arcname=f"{job_id}{fmt.suffix}")
+    else:  # a scan may grow: written anew
+        out = Path(c.settings.data_dir) / EXPORTS_DIR / (f"{job_id}{fmt.suffix}" + (".zip" if fmt.folder else ""))
+        _write_export(c, src, out, format, arcname=f"{job_id}{fmt.suffix}", replace=True)
+    return FileResponse(out, media_type="application/zip" if fmt.folder else fmt.media_type,
+                        filename=name + (".zip" if fmt.folder else ""))
+
+
+def _write_export(c: Context, src: Path, out: Path, format: str, *, arcname: str, replace: bool = False) -> None:
+    """Write the export ``format`` of ``src`` at ``out`` (a folder export zipped into ``out``),
+    counted in health's disk-usage counters; 409 with the exporter's reason."""
+    from service.storage.results import zip_folder
+    from service.storage.usage import usage_for
+
+    usage = usage_for(c.settings.data_dir)
+    if replace and out.exists():
+        usage.add_path(out, removed=True)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        if FORMATS[format].folder:
+            tmp = out.with_name(f".{out.name}.{uuid.uuid4().hex[:12]}")
+            try:
+                export_file(src, tmp, format)
+                zip_folder(tmp, out, arcname=arcname)
+            finally:
+                shutil.rmtree(tmp, ignore_errors=True)
+        else:
+            export_file(src, out, format)
+    except ValueError as exc:
+        raise HTTPException(409, str(exc)) from None
+    usage.add_path(out)
