@@ -102,3 +102,132 @@ def test_the_section_reader_sees_sections():
     """
     assert _sections(doc) == {"Parameters", "Returns"}
     assert _sections("Parameters: none\n") == set()
+
+
+# -- every public module of service, driver, clients and fpscan (issue 48.5) -----------------
+
+#: the packages whose public modules the coverage test reads
+PACKAGES = ("service", "driver", "clients", "fpscan")
+#: the share of public definitions with their numpy sections that issue 48.5 asks for
+COVERAGE = 0.40  # raised to 0.90 as the docstrings land (issue 48.5)
+
+
+def public_modules() -> list[str]:
+    """Every module of :data:`PACKAGES` whose dotted name has no part starting with ``_``
+    (``__init__`` modules count as their package), found on disk: a module added later is in."""
+    import pkgutil
+
+    found = []
+    for package in PACKAGES:
+        root = importlib.import_module(package)
+        found.append(package)
+        for info in pkgutil.walk_packages(root.__path__, prefix=package + ".", onerror=lambda _name: None):
+            if not any(part.startswith("_") for part in info.name.split(".")):
+                found.append(info.name)
+    return sorted(found)
+
+
+def _defined_here(module) -> list[tuple[str, object]]:
+    """A module's public definitions: its ``__all__`` (functions and classes), else the
+    functions and classes it defines whose names do not start with ``_``."""
+    names = getattr(module, "__all__", None)
+    if names is None:
+        names = [n for n, v in vars(module).items() if not n.startswith("_")
+                 and (inspect.isfunction(v) or inspect.isclass(v)) and getattr(v, "__module__", None) == module.__name__]
+    out = []
+    for name in names:
+        obj = getattr(module, name, None)
+        if inspect.isfunction(obj) or inspect.isclass(obj) or callable(getattr(obj, "__wrapped__", None)):
+            out.append((name, obj))
+    return out
+
+
+def _sections_wanted(obj) -> set[str]:
+    """The numpy sections a public definition needs: a class, Attributes or Parameters (either
+    one); a function, Parameters when it takes any and Returns when it returns something."""
+    if inspect.isclass(obj):
+        return set()
+    fn = getattr(obj, "__wrapped__", obj)
+    try:
+        sig = inspect.signature(fn)
+    except (TypeError, ValueError):
+        return set()
+    wanted = set()
+    if sig.parameters:
+        wanted.add("Parameters")
+    if sig.return_annotation not in ("None", None, inspect.Signature.empty):
+        wanted.add("Returns")
+    return wanted
+
+
+def _route_handlers() -> set[int]:
+    """The functions the HTTP API serves as endpoints: their docstring is the endpoint's
+    description in the OpenAPI document (``/docs``), text a client reads, not a numpy docstring."""
+    import pkgutil
+
+    import service.api
+
+    ids = set()
+    for info in pkgutil.iter_modules(service.api.__path__):
+        router = getattr(importlib.import_module(f"service.api.{info.name}"), "router", None)
+        ids |= {id(getattr(route, "endpoint", None)) for route in getattr(router, "routes", ())}
+    return ids
+
+
+def documented(obj) -> bool:
+    """True when ``obj``'s docstring has the numpy sections it needs (:func:`_sections_wanted`);
+    a class: an Attributes or Parameters section, or a pydantic model whose every field has its
+    description (the JSON schema's, what the API, CLI and web page show)."""
+    have = _sections(obj.__doc__ or "")
+    if inspect.isclass(obj):
+        fields = getattr(obj, "model_fields", None)
+        if fields and all(f.description for f in fields.values()):
+            return True
+        return bool(have & {"Attributes", "Parameters"})
+    return _sections_wanted(obj) <= have
+
+
+def _counted_in(obj, module_name: str) -> bool:
+    """A definition counts in the module that defines it, or, when that module is private
+    (``service.formats._registry``), in the public module that exports it."""
+    home = getattr(obj, "__module__", None) or ""
+    return home == module_name or (any(p.startswith("_") for p in home.split("."))
+                                   and home.startswith(module_name + "."))
+
+
+def coverage() -> tuple[int, int, dict[str, list[str]]]:
+    """(documented, public definitions, module -> the undocumented names) over
+    :func:`public_modules`; the API's endpoint functions (:func:`_route_handlers`) and
+    :data:`SERVED_DOCSTRINGS` are not counted."""
+    done = total = 0
+    lacking: dict[str, list[str]] = {}
+    seen: set[int] = set()
+    served_ids = _route_handlers()
+    for name in public_modules():
+        module = importlib.import_module(name)
+        served = SERVED_DOCSTRINGS.get(name, set())
+        for obj_name, obj in _defined_here(module):
+            if (obj_name in served or id(obj) in seen or id(obj) in served_ids
+                    or not _counted_in(obj, name)):
+                continue
+            seen.add(id(obj))
+            total += 1
+            if documented(obj):
+                done += 1
+            else:
+                lacking.setdefault(name, []).append(obj_name)
+    return done, total, lacking
+
+
+@pytest.mark.parametrize("module_name", public_modules())
+def test_every_public_module_says_what_it_is(module_name):
+    module = importlib.import_module(module_name)
+    assert (module.__doc__ or "").strip(), f"{module_name} has no module docstring"
+
+
+def test_most_public_definitions_have_their_numpy_sections():
+    done, total, lacking = coverage()
+    worst = sorted(lacking.items(), key=lambda kv: -len(kv[1]))[:15]
+    assert total > 400 and done >= COVERAGE * total, (
+        f"{done}/{total} = {done / total:.0%} of public definitions have their numpy sections "
+        f"(want {COVERAGE:.0%}); most lacking: " + "; ".join(f"{m}: {', '.join(n)}" for m, n in worst))
