@@ -41,7 +41,7 @@ from service.progress import Fraction, Progress, span
 
 __all__ = [
     "MAX_DECIMATION", "Autofocus", "check_c_range", "focus_sharpness", "choose_decimation", "search",
-    "autofocus", "ITERATIVE_METHODS", "focus_then_reconstruct",
+    "autofocus", "focus_then_reconstruct",
 ]
 
 MAX_DECIMATION = 8
@@ -241,10 +241,6 @@ def autofocus(dataset: Any, reconstruct: Callable[..., Any], *, c_range: Any = C
                      at_edge=at_edge, extra={"dz": dz, "n_z": n_z})
 
 
-#: methods too slow to search with; their autofocus searches with the dataset's direct method
-ITERATIVE_METHODS = ("tv",)
-
-
 def focus_then_reconstruct(dataset: Any, method: str, reconstruct: Callable[..., Any], *,
                            c_range: Any = None, progress: Progress | None = None,
                            should_stop: Callable[[], bool] | None = None,
@@ -255,16 +251,19 @@ def focus_then_reconstruct(dataset: Any, method: str, reconstruct: Callable[...,
     ``reconstruct`` is the dispatch (``service.pipeline.reconstruct``); ``options`` are
     the method's other options (``c`` excluded); ``options_of(method)``: the option names
     a method takes (the dispatch's registry; None: the search passes every option on). The search reconstructs with ``method``
-    (a direct method of the dispatch; an iterative one, :data:`ITERATIVE_METHODS`,
-    searches with ``service.pipeline.default_method``'s NER/NEDNER instead), lateral
+    (a direct method of the dispatch; an iterative one, ``Method.iterative`` of
+    ``service.recon.methods``, searches with the input's default direct method instead,
+    ``service.recon.methods.default_for``), lateral
     upsampling 1, float32. Progress: the search reports stage ``"autofocus"`` over
     [0, 0.5], the final reconstruction the rest. The result's ``params["c"]`` is the
     chosen c and ``params["autofocus"]`` the search (:meth:`Autofocus.as_params`).
     Raises ``ValueError`` for a bad ``c_range`` and what the dispatch raises."""
     rng = check_c_range(C_AUTOFOCUS_RANGE if c_range is None else c_range)
+    from service.recon.methods import METHODS, default_for
+
     search_method = method
-    if method in ITERATIVE_METHODS:
-        search_method = "ner" if getattr(dataset, "kind", None) == "grid" else "nedner"
+    if method in METHODS and METHODS[method].iterative:
+        search_method = default_for("grid" if getattr(dataset, "kind", None) == "grid" else "points")
     takes = set(options_of(search_method)) if options_of is not None else set(options)
     # the search method's own options only (an iterative method's lam, iterations... are not the search's)
     search_opts = {k: v for k, v in options.items() if k not in ("dz", "n_z", "dtype", "upsample") and k in takes}

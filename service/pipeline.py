@@ -134,7 +134,8 @@ class Cancelled(Exception):
 def default_method(dataset: Any) -> str:
     """The method used when none is asked for -- the one rule for ``fpscan recon``/``unmix``
     (locally and with ``--server``), the API (a request without ``method``) and the job
-    worker: ``"ner"`` for grid data, ``"nedner"`` for sensor points (any mask).
+    worker: the registry's default for the input (``service.recon.methods.default_for``: NER for
+    grid data, NEDNER for sensor points, any mask).
 
     ``dataset``: a dataset (its ``kind``) or the kind itself, ``"grid"`` or ``"points"``
     (a stored dataset's ``layout``; a scan file loads as points).
@@ -147,7 +148,7 @@ def default_method(dataset: Any) -> str:
     Returns
     -------
     str
-        ``"ner"`` for grid data, ``"nedner"`` for anything else.
+        ``default_for("grid")`` for grid data, ``default_for("points")`` for anything else.
 
     Examples
     --------
@@ -160,8 +161,10 @@ def default_method(dataset: Any) -> str:
     >>> default_method("grid"), default_method("points")
     ('ner', 'nedner')
     """
+    from service.recon.methods import default_for
+
     kind = dataset if isinstance(dataset, str) else getattr(dataset, "kind", None)
-    return "ner" if kind == "grid" else "nedner"
+    return default_for("grid" if kind == "grid" else "points")
 
 
 def _dtype(value: Any) -> np.dtype:
@@ -301,12 +304,10 @@ def method_options(method: str, options: dict) -> dict:
         raise OptionError(f"method {method!r} takes no option {', '.join(foreign)} "
                           f"(its options: {', '.join(spec.options)})")
     if options.get("c") == "auto":
-        from service.autofocus import ITERATIVE_METHODS
-
-        if method not in ITERATIVE_METHODS and not {"dz", "n_z"} <= set(spec.options):
+        if not spec.iterative and not {"dz", "n_z"} <= set(spec.options):
             raise OptionError(f"method {method!r} cannot search the speed of sound (sound_speed 'auto'): the search "
                               "reconstructs every speed tried on one depth grid (dz, n_z), which it does not take; "
-                              "give the speed of sound in m/s, or search with ner first")
+                              f"give the speed of sound in m/s, or search with {default_method('grid')} first")
     given = {k: v for k, v in options.items() if v is not None and k in spec.options and k != "c"}
     checked = spec.check(given)
     if options.get("c_range") is not None:  # never silently unused

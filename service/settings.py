@@ -17,7 +17,7 @@ import tomllib
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import Field, SecretStr, field_validator, model_validator
+from pydantic import AliasChoices, Field, SecretStr, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 __all__ = ["LOOPBACK_HOSTS", "is_loopback", "Settings"]
@@ -109,9 +109,13 @@ class Settings(BaseSettings):
     preview_interval_s: float = Field(3.0, gt=0, le=3600, description="live preview refresh period")
     heartbeat_s: float = Field(2.0, gt=0, le=600, description="lease heartbeat period of running jobs")
     max_attempts: int = Field(3, ge=1, le=100, description="tries of a reconstruction before it fails")
-    tv_time_limit_s: float = Field(3600.0, gt=0, le=7 * 86400, description="wall-time limit of one model-based "
-                                   "(tv) reconstruction, s: the default of its time_limit option and the most a "
-                                   "request may ask; reached, the solver stops and says so (stop_reason 'time limit')")
+    time_limit_s: float = Field(3600.0, gt=0, le=7 * 86400, description="wall-time limit of one reconstruction by "
+                                "a time-limited (iterative) method, s: the default of its time_limit option and the "
+                                "most a request may ask; reached, the solver stops and says so (stop_reason 'time "
+                                "limit'). Environment: FPSCAN_TIME_LIMIT_S (FPSCAN_TV_TIME_LIMIT_S, its name before "
+                                "issue 48, is still read)",
+                                validation_alias=AliasChoices("time_limit_s", "fpscan_time_limit_s", "tv_time_limit_s",
+                                                              "fpscan_tv_time_limit_s"))
     resume_scans: bool = Field(False, description="resume scans interrupted by a restart at start-up "
                                                   "(default: they wait, paused, for POST /resume)")
     log_level: str = "info"

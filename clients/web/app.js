@@ -1683,7 +1683,9 @@ async function buildMethodSelects() {
   METHODS = {};
   for (const m of list) METHODS[m.name] = m;
   buildOptionFields(list);
-  for (const [id, preferred] of [["recon-method", "nedner"], ["upload-method", "ner"]]) {
+  // the server's defaults (a scan: any sensor mask; an upload: a full lattice, the usual file)
+  const defaultFor = (kind) => (list.find((m) => (m.default_for || []).includes(kind)) || list[0] || {}).name;
+  for (const [id, preferred] of [["recon-method", defaultFor("points")], ["upload-method", defaultFor("grid")]]) {
     const sel = $(id);
     sel.textContent = "";
     for (const m of list) {

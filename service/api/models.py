@@ -320,6 +320,12 @@ class MethodInfo(BaseModel):
     needs_grid: bool = Field(description="needs data on a full regular grid (every lattice point)")
     options: list[MethodOption]
     source: str
+    iterative: bool = Field(False, description="an iterative solver: sound_speed 'auto' searches with the input's "
+                                               "default direct method, then runs it once")
+    time_limited: bool = Field(False, description="takes time_limit (s), capped by the server's time_limit_s")
+    cancellable: bool = Field(True, description="reports progress between steps; a cancel ends it within a step")
+    default_for: list[str] = Field(default_factory=list, description="the inputs it is the default method for: "
+                                                                     "'grid' (a full lattice), 'points' (any mask)")
 
 
 class MaskKindInfo(BaseModel):

@@ -23,6 +23,7 @@ from service.jobs.admission import (
 from service.jobs.store import IdempotencyConflict
 from service.names import person_names
 from service.pipeline import METHODS, OPTIONS, default_method, method_options
+from service.recon.methods import get as method_named
 
 __all__ = [
     "router", "JobId", "IdemKey", "list_methods", "start_reconstruction", "WavelengthQuery", "result_dir",
@@ -132,7 +133,7 @@ def _input_for(c: Context, body: ReconRequest) -> tuple[dict, dict, str]:
         shape = input_shape(plan)
         if needs_grid and len(plan["points"]["indices"]) != lat["n_x"] * lat.get("n_y", 1):
             raise HTTPException(422, f"method {body.method!r} needs every lattice point; this scan's plan "
-                                     "is a sensor mask: use 'nedner'")
+                                     f"is a sensor mask: use {default_method('points')!r}")
         wavelengths = list(acq.get("wavelengths") or [])
         spec = _with_wavelength({"kind": "scan", "path": scan_path}, body.wavelength, wavelengths,
                                 f"scan job {body.scan_job_id}")
@@ -146,7 +147,8 @@ def _input_for(c: Context, body: ReconRequest) -> tuple[dict, dict, str]:
     # a stored dataset holds one wavelength's data (of a multi-wavelength file: the one chosen at upload)
     ds_spec = _with_wavelength({"kind": "dataset", "path": path}, body.wavelength, [None], f"dataset {dataset_id}")
     if meta["layout"] != "grid" and needs_grid and not meta.get("full_lattice"):
-        raise HTTPException(422, f"method {body.method!r} needs a full regular grid; this dataset needs 'nedner'")
+        raise HTTPException(422, f"method {body.method!r} needs a full regular grid; this dataset needs "
+                                 f"{default_method('points')!r}")
     return ds_spec, input_shape(meta), f"dataset:{body.dataset_id}"
 
 
@@ -168,7 +170,8 @@ def _with_wavelength(spec: dict, wavelength: int | str | None, wavelengths: list
 @router.get("/methods", response_model=list[MethodInfo], dependencies=[Depends(read_access)])
 def list_methods() -> list[MethodInfo]:
     """The reconstruction methods (the registry ``service.recon.methods``, in its order):
-    name, title, whether they need a full regular grid, the options each takes (the speed
+    name, title, whether they need a full regular grid, whether iterative, time-limited and
+    cancellable, the inputs each is the default for, the options each takes (the speed
     of sound ``sound_speed`` first, then its options model's fields, each with this
     method's default and its JSON schema: type, range, unit) and the algorithm's source.
     The web page builds its method choices and option fields from this."""
@@ -176,7 +179,8 @@ def list_methods() -> list[MethodInfo]:
 
     speed = MethodOption(name="sound_speed", description=OPTIONS["c"], default=None,
                          value_schema=_speed_schema())
-    return [MethodInfo(name=m.name, title=m.title, needs_grid=m.needs_grid, source=m.source,
+    return [MethodInfo(name=m.name, title=m.title, needs_grid=m.needs_grid, source=m.source, iterative=m.iterative,
+                       time_limited=m.time_limited, cancellable=m.cancellable, default_for=list(m.default_for),
                        options=[speed, *(MethodOption(name=o["name"], description=o["description"],
                                                       default=o["default"], value_schema=o["schema"])
                                          for o in option_schemas(m))])
@@ -248,11 +252,11 @@ def start_reconstruction(body: ReconRequest, response: Response, c: Context = De
 
 def _work(c: Context, shape: dict, params: dict, body: ReconRequest, extra: dict) -> float:
     """The job's work in seconds on 2 cores (``service.jobs.admission.estimate_work``) with
-    tv's time limit as the worker will cap it (the server's ``tv_time_limit_s``), times the
+    a time-limited method's time limit as the worker will cap it (the server's ``time_limit_s``), times the
     wavelengths it reconstructs (``wavelength: "all"``, unmixing)."""
     asked = {**params, "method": body.method}
-    if body.method == "tv":
-        cap = float(c.settings.tv_time_limit_s)
+    if body.method is not None and method_named(body.method).time_limited:
+        cap = float(c.settings.time_limit_s)
         asked["time_limit"] = min(float(params.get("time_limit") or cap), cap)
     seconds = estimate_work(shape, asked)
     if body.unmix is not None:

@@ -8,7 +8,9 @@ loaded dataset). The API estimates once, before a job is queued, and stores the 
 with the job; the worker admits that figure against the configured limit (and estimates
 from the dataset as loaded only for a job that carries none, ``service.jobs.work``); the
 queue (``service.jobs.queue``) starts a job only while the running jobs' estimates plus
-its own fit. The kernels' own peak models are ``service.recon.estimate_peak_memory``.
+its own fit. The methods' own peak models are ``service.recon.memory``'s (each method's
+``peak_memory``, ``service.recon.methods``), with the method's admission class (its
+``memory_calibration`` margin, whether it ``holds_input``).
 """
 from __future__ import annotations
 
@@ -17,7 +19,7 @@ from typing import Any
 
 from driver.constants import C_AUTOFOCUS_RANGE, C_DEFAULT
 
-__all__ = ["CALIBRATION", "MAX_DEPTH_ROWS", "AUTOFOCUS_EVALUATIONS", "AdmissionError", "admit", "estimate_memory",
+__all__ = ["MAX_DEPTH_ROWS", "AUTOFOCUS_EVALUATIONS", "AdmissionError", "admit", "estimate_memory",
            "estimate_work", "admit_work", "estimate_result_bytes", "input_shape", "working_depth_rows"]
 
 
@@ -25,13 +27,6 @@ class AdmissionError(ValueError):
     """A job that can never fit in the memory limit."""
 
 
-#: Admission multiplies the model-based estimate (``tv``, ``service.recon.checks.tv_memory``,
-#: itself calibrated) by this margin: a 48² x 256, 100-sensor run peaked at about 1/1.1 of it
-#: (tests/service/test_memory_admission.py, measured after a warm-up on a smaller input; 1.15
-#: before the solver's TV part worked in place (issue 19), 1.45 when the factor also had to
-#: cover the planar methods). The planar methods' estimate counts their arrays phase by phase and
-#: needs no factor (measured within 4-10 % at upsample 1-8, issue 22).
-CALIBRATION = 1.05
 #: Most depth rows the depth transform may work on (``dz`` far below ``c·dt`` multiplies
 #: them); beyond this a request is refused whatever the memory limit.
 MAX_DEPTH_ROWS = 1 << 20
@@ -106,6 +101,14 @@ def working_depth_rows(shape: dict, params: dict) -> int:
     return max(n_z, int(reach) + 2)
 
 
+def _default_method(shape: dict) -> str:
+    """The registry's default method for an input of this shape (points when it has
+    ``n_points``, else a grid): ``service.recon.methods.default_for``."""
+    from service.recon.methods import default_for
+
+    return default_for("points" if shape.get("n_points") else "grid")
+
+
 def estimate_memory(shape: dict, params: dict) -> int:
     """Peak memory (bytes) of a reconstruction with the options actually used — the one
     admission rule, applied before a job is queued and again by the worker.
@@ -114,9 +117,10 @@ def estimate_memory(shape: dict, params: dict) -> int:
     inputs, ``input_itemsize`` (bytes a sample of the input as loaded; default 8), ``dt`` (s), ``c`` (m/s) and the lateral pitch ``dx`` (m) of the input (optional;
     the model-based ``tv`` pads its grid by the record's reach in pitches); ``params``: ``method``, ``dtype``,
     ``upsample``, ``n_z``, ``dz``, ``c``. The method's peak-memory model of the
-    working depth rows (:func:`working_depth_rows`) times ``CALIBRATION``, plus the input
-    as float64. The peak model is the method's (``service.recon.methods``, its ``peak_memory``;
-    the planar methods' and tv's are ``service.recon.estimate_peak_memory``). Raises
+    working depth rows (:func:`working_depth_rows`) times the method's ``memory_calibration``,
+    plus the input as loaded (unless it is in the working precision and the method does not
+    ``holds_input``). The peak model is the method's (``service.recon.methods``, its
+    ``peak_memory``: a model of ``service.recon.memory``). Raises
     :class:`AdmissionError` for a depth grid that can never be made."""
     n_t = int(shape["n_t"])
     n_x = int(shape["n_x"])
@@ -132,16 +136,17 @@ def estimate_memory(shape: dict, params: dict) -> int:
         geometry = {"dx": float(shape["dx"]), "dt": float(shape["dt"]), "c": float(c or shape.get("c") or C_DEFAULT),
                     "dz": float(params["dz"]) if params.get("dz") else None}
     # the method's own peak-memory model (service.recon.methods: its module's peak_memory hook)
-    value = method_named(params.get("method") or "ner").memory(
+    method = method_named(params.get("method") or _default_method(shape))
+    value = method.memory(
         n_t, n_x, n_y, n_z=rows, upsample=up, dtype=params.get("dtype") or "float32",
         n_points=shape.get("n_points"), dx=geometry.get("dx"), dt=geometry.get("dt"), c=geometry.get("c"),
         dz=geometry.get("dz"))
-    factor = CALIBRATION if params.get("method") == "tv" else 1.0
+    factor = method.memory_calibration
     # + the input as loaded (shape["input_itemsize"] bytes a sample, default 8: float64, as scan files load),
     # unless it is in the working precision: then it is the working copy the estimate already counts
     itemsize = int(shape.get("input_itemsize") or 8)
     work = 8 if (params.get("dtype") or "float32") == "float64" else 4
-    loaded = 0 if itemsize == work and params.get("method") != "tv" else itemsize
+    loaded = 0 if itemsize == work and not method.holds_input else itemsize
     return int(factor * value) + n_t * int(shape.get("n_points", n_x * n_y)) * loaded
 
 
@@ -173,7 +178,10 @@ def estimate_result_bytes(shape: dict, params: dict, volumes: int = 1) -> int:
     >>> estimate_result_bytes({"n_t": 256, "n_x": 128, "n_y": 128}, {"method": "ner"})  # float32
     18161336
     """
-    n_z = int(shape["n_t"]) if params.get("method") == "kwave" else int(params.get("n_z") or shape["n_t"])
+    from service.recon.methods import get as method_named
+
+    takes_depth = "n_z" in method_named(params.get("method") or _default_method(shape)).options
+    n_z = int(params.get("n_z") or shape["n_t"]) if takes_depth else int(shape["n_t"])  # else n_t rows (k-Wave)
     up = int(params.get("upsample", 1) or 1)
     n_y = int(shape.get("n_y", 1))
     voxels = n_z * int(shape["n_x"]) * up * (n_y * up if n_y > 1 else 1)
@@ -225,15 +233,13 @@ def estimate_work(shape: dict, params: dict) -> float:
 
     c = params.get("c")
     c = max(params.get("c_range") or C_AUTOFOCUS_RANGE) if c == "auto" else c
-    name = params.get("method") or "ner"
+    name = params.get("method") or _default_method(shape)
     common = dict(upsample=int(params.get("upsample", 1) or 1), dtype=params.get("dtype") or "float32",
                   n_points=shape.get("n_points"), dx=shape.get("dx"), dt=shape.get("dt"),
                   c=float(c or shape.get("c") or C_DEFAULT), t0=shape.get("t0"))
     seconds = method_named(name).estimate_work(n_t, n_x, n_y, n_z=rows, options=params, **common)
     if params.get("c") == "auto":  # the search: the method itself, or the direct method for an iterative one
-        from service.autofocus import ITERATIVE_METHODS
-
-        search = ("nedner" if shape.get("n_points") else "ner") if name in ITERATIVE_METHODS else name
+        search = _default_method(shape) if method_named(name).iterative else name
         depth = 3 * n_t  # its grid: twice as fine as the decimated samples at c_min, as deep as c_max reaches
         seconds += AUTOFOCUS_EVALUATIONS * method_named(search).estimate_work(
             n_t, n_x, n_y, n_z=depth, options={}, **{**common, "upsample": 1, "dtype": "float32"})

@@ -108,7 +108,7 @@ def render_preview(scan_path: str, *, wavelength_index: int = 0, eps: float = 1e
     from dataclasses import replace
 
     from service.metrics.projections import mip
-    from service.pipeline import reconstruct
+    from service.pipeline import default_method, reconstruct
     from service.storage.datasets import load_scan
 
     t0 = time.perf_counter()
@@ -123,7 +123,7 @@ def render_preview(scan_path: str, *, wavelength_index: int = 0, eps: float = 1e
         alines = alines[:, :n_keep].reshape(n, n_keep // k, k).mean(axis=2)
     grid = tuple(preview_grid(np.asarray(g), max_lateral) for g in ds.grid)
     preview = replace(ds, alines=alines, dt=ds.dt * k, grid=grid, weights=None, indices=None, lattice=None)
-    rec = reconstruct(preview, "nedner", eps=eps, dtype="float32")
+    rec = reconstruct(preview, default_method("points"), eps=eps, dtype="float32")
     y = getattr(rec, "y", None)
     planes = ("xy", "xz", "yz") if y is not None else ("xz",)
     mips = {plane: mip(rec.p0, plane) for plane in planes}
@@ -134,14 +134,16 @@ def render_preview(scan_path: str, *, wavelength_index: int = 0, eps: float = 1e
 
 def warm_up() -> float:
     """Import and compile (numba) the reconstruction in a fresh worker with a tiny
-    NEDNER run, so the first live preview of a scan is not slowed by start-up."""
-    from service.pipeline import reconstruct
+    run of the preview's method (``default_method("points")``: NEDNER), so the first live preview
+    of a scan is not slowed by start-up."""
+    from service.pipeline import default_method, reconstruct
     from service.recon.dataset import GridDataset
 
     t0 = time.perf_counter()
     data = np.zeros((32, 4, 4), dtype=np.float32)
     data[5] = 1.0
-    reconstruct(GridDataset(data=data, dx=1e-4, dt=2e-8, c=C_DEFAULT, dy=1e-4), "nedner", eps=1e-3, dtype="float32")
+    reconstruct(GridDataset(data=data, dx=1e-4, dt=2e-8, c=C_DEFAULT, dy=1e-4), default_method("points"), eps=1e-3,
+                dtype="float32")
     return time.perf_counter() - t0
 
 

@@ -49,6 +49,7 @@ from service.jobs.store import JobStore
 from service.jobs.work import ProgressLog, run_reconstruction
 from service.names import code_names, person_names
 from service.pipeline import Cancelled
+from service.recon.methods import get as method_named
 from service.storage.usage import usage_for
 
 __all__ = [
@@ -212,8 +213,8 @@ class ReconQueue:
         cancel_path = self.results_dir / f".{jid}.{job['attempts']}.cancel"
         # stored as a person reads them (sound_speed; an older server's c too): the library's names here
         params = {**code_names(job["params"]["params"]), "method": job["params"]["method"]}
-        if params["method"] == "tv":  # the operator's wall-time limit: the default, and the most one may ask
-            cap = float(self.settings.tv_time_limit_s)
+        if method_named(params["method"]).time_limited:  # the server's wall-time limit: the default and the most
+            cap = float(self.settings.time_limit_s)
             params["time_limit"] = min(float(params.get("time_limit") or cap), cap)
         spec = {"input": job["params"]["input"], "params": params,
                 "out_dir": str(out_dir), "input_id": job["params"].get("input_id", ""),

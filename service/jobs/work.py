@@ -41,7 +41,6 @@ __all__ = [
     "INPUT_FORMATS", "report_stage", "progress_file", "ProgressLog", "check_memory_limit", "ADDRESS_SPACE_BASE",
     "address_space_limit", "memory_bounded", "run_reconstruction", "worker_pid", "warm_up",
     "warm_heap", "HEAP_MMAP_THRESHOLD", "HEAP_WARM_BYTES", "JobGate", "JOB_GATE", "WARM_QUIET_S",
-    "WARM_FIRST", "WARM_LATER",
 ]
 
 INPUT_FORMATS = {"scan": "fpscan", "dataset": "dataset"}
@@ -309,14 +308,6 @@ def worker_pid() -> int:
     return os.getpid()
 
 
-#: the kernel groups (:data:`service.recon.warmup.GROUPS`) a worker warms before its first job:
-#: the planar inversions and the k-Wave modes, ~0.4 s from numba's cache (a first k-Wave job
-#: that loaded its own kernels took 3x its library time); and those it warms after, in the
-#: background: the model-based operator (pylops, ~1 s)
-WARM_FIRST = ("planar", "kwave")
-WARM_LATER = ("model",)
-
-
 def warm_up(full: bool = False, rest_in_background: bool = False) -> dict:
     """Make a fresh worker ready for its first job: import the reconstruction and the
     result writer; with ``full`` also compile (or load from numba's cache) every numba
@@ -325,10 +316,11 @@ def warm_up(full: bool = False, rest_in_background: bool = False) -> dict:
     folder (h5py and the fonts of the MIP pictures) into a temporary folder, and last give the
     heap written pages for the first job's arrays (:func:`warm_heap`).
 
-    The kernel groups of :data:`WARM_FIRST` (NER, NEDNER, the k-Wave modes: every method but
-    ``tv``) and the writer come first; with ``rest_in_background`` those of
-    :data:`WARM_LATER` (the model-based operator with its pylops import: seconds) warm in a
-    daemon thread after this returns, step by step while no job runs (:data:`JOB_GATE`), so
+    The warm-ups of the methods that are quick to warm (``Method.warm_in_background`` false:
+    the planar inversions and the k-Wave modes, ~0.4 s from numba's cache; a first k-Wave job
+    that loaded its own kernels took 3x its library time) and the writer come first; with
+    ``rest_in_background`` the others (the model-based operator with its pylops import:
+    seconds) warm in a daemon thread after this returns, step by step while no job runs (:data:`JOB_GATE`), so
     the worker takes its first job that much sooner and runs it at full speed (a job that
     needs them meanwhile compiles or waits for them under numba's lock). Returns
     ``{"pid", "seconds"}``: the time until return."""
@@ -342,15 +334,15 @@ def warm_up(full: bool = False, rest_in_background: bool = False) -> dict:
 
         import numpy as np
 
-        from service.pipeline import reconstruct
+        from service.pipeline import default_method, reconstruct
         from service.recon.dataset import GridDataset
         from service.recon.warmup import warm_up as compile_kernels
         from service.storage.results import write_result
 
-        compile_kernels(groups=WARM_FIRST)
+        compile_kernels(background=False)
         data = np.zeros((32, 4, 4), dtype=np.float32)
         data[5, 1:3, 1:3] = 1.0
-        rec = reconstruct(GridDataset(data=data, dx=1e-4, dt=2e-8, c=C_DEFAULT, dy=1e-4), "ner")
+        rec = reconstruct(GridDataset(data=data, dx=1e-4, dt=2e-8, c=C_DEFAULT, dy=1e-4), default_method("grid"))
         with tempfile.TemporaryDirectory(prefix="fpscan-warm-") as tmp:
             write_result(os.path.join(tmp, "result"), rec, input_id="warm-up")
         if rest_in_background:
@@ -358,7 +350,7 @@ def warm_up(full: bool = False, rest_in_background: bool = False) -> dict:
 
             threading.Thread(target=_warm_rest, name="warm-up-rest", daemon=True).start()
         else:
-            compile_kernels(groups=WARM_LATER)
+            compile_kernels(background=True)
         warm_heap()  # last: no warm-up step takes its pages (the background one runs in its own arena)
     return {"pid": os.getpid(), "seconds": time.perf_counter() - t0}
 
@@ -418,21 +410,22 @@ def warm_heap() -> bool:
 
 
 def _warm_rest() -> None:
-    """The kernel groups :func:`warm_up` leaves to the background (:data:`WARM_LATER`), one
-    group and precision at a time, each step only while no job runs (:data:`JOB_GATE`); a
+    """The methods' warm-ups :func:`warm_up` leaves to the background (``Method.warm_in_background``),
+    one method and precision at a time, each step only while no job runs (:data:`JOB_GATE`); a
     failure is logged (a job then compiles what it needs itself)."""
     try:
+        from service.recon.methods import METHODS
         from service.recon.warmup import DTYPES
         from service.recon.warmup import warm_up as compile_kernels
 
         started = time.monotonic()
-        for group in WARM_LATER:
+        for name in [m.name for m in METHODS.values() if m.warm_in_background]:
             for dtype in DTYPES:  # small steps, each once the worker has had no job for a while:
                 # the warm-up must not take CPU (and the GIL) from a job, nor start a step
                 # just as one arrives (the first job after start-up usually comes at once)
                 JOB_GATE.wait_quiet(WARM_QUIET_S, since=started)
-                compile_kernels(dtypes=[dtype], groups=[group])
+                compile_kernels(dtypes=[dtype], methods=[name])
     except Exception:  # noqa: BLE001 -- a warm-up must never stop the worker
         import logging
 
-        logging.getLogger("fpscan.worker").exception("worker warm-up (model) failed")
+        logging.getLogger("fpscan.worker").exception("worker warm-up (the background methods) failed")

@@ -37,7 +37,7 @@ __all__ = ["Reconstruction", "GRID_METHODS", "reconstruct_grid", "reconstruct_po
            "kspace_plane_recon", "forward_grid", "forward_points", "voronoi_weights",
            "estimate_peak_memory", "PlanarOperator", "reconstruct_tv"]
 
-_LAZY = {"Reconstruction": "service.recon.reconstruction", "estimate_peak_memory": "service.recon.checks",
+_LAZY = {"Reconstruction": "service.recon.reconstruction", "estimate_peak_memory": "service.recon.methods",
          "GRID_METHODS": "service.recon.planar", "reconstruct_grid": "service.recon.planar",
          "reconstruct_points": "service.recon.planar", "PlanarOperator": "service.recon.operator",
          "reconstruct_tv": "service.recon.tv",
@@ -48,8 +48,8 @@ _LAZY = {"Reconstruction": "service.recon.reconstruction", "estimate_peak_memory
 if TYPE_CHECKING:
     from driver.physics.forward import forward_grid, forward_points
     from driver.physics.weights import voronoi_weights
-    from service.recon.checks import estimate_peak_memory
     from service.recon.kwave import kspace_line_recon, kspace_plane_recon
+    from service.recon.methods import estimate_peak_memory
     from service.recon.operator import PlanarOperator
     from service.recon.planar import GRID_METHODS, reconstruct_grid, reconstruct_points
     from service.recon.reconstruction import Reconstruction

@@ -427,7 +427,7 @@ def _map_columns(P, lat2, w, kz, c, nearest, out):
                     out[q, j0 + jj] = blk[i, jj] * (1.0 - frac) + blk[i + 1, jj] * frac
 
 
-_CUBIC_BYTES = 2 << 20  # one of `_cubic_block`'s arrays of a chunk of columns (checks.KWAVE_STEP_BYTES)
+_CUBIC_BYTES = 2 << 20  # one of `_cubic_block`'s arrays of a chunk of columns (memory.KWAVE_STEP_BYTES)
 
 
 def _cubic_block(P_half, w_full, lat2, phase, kx, c):

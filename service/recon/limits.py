@@ -47,5 +47,5 @@ DEFAULT_EPS = 1e-6
 #: most iterations of the model-based solver when none are asked for
 DEFAULT_MAX_ITER = 100
 #: default wall-time limit of one model-based reconstruction, s (the server's setting
-#: ``tv_time_limit_s`` caps it there)
+#: ``time_limit_s`` caps it there)
 DEFAULT_TIME_LIMIT = 3600.0

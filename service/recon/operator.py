@@ -100,14 +100,14 @@ from driver.physics import fft_engine, nufft
 from driver.physics.axes import centred_axis, centred_index, node_indices
 from driver.physics.grid_sizes import pad_sizes
 from driver.physics.nufft_plans import lateral_plan
-from service.recon import checks
+from service.recon import checks, memory
 
 __all__ = ["PlanarOperator"]
 
 #: elements (complex) per block of rows of the lateral FFTs
 _BLOCK = 1 << 20
-_BATCH = checks.OPERATOR_BATCH
-_CHUNK = checks.OPERATOR_CHUNK
+_BATCH = memory.OPERATOR_BATCH
+_CHUNK = memory.OPERATOR_CHUNK
 
 class PlanarOperator(pylops.LinearOperator):
     """The planar forward model A: p0 on a regular grid -> data at the sensors, with its adjoint.
@@ -153,7 +153,7 @@ class PlanarOperator(pylops.LinearOperator):
     chunk_elements : int, optional
         The depth and temporal steps run on chunks of k-space columns of about this many
         elements per row of their largest array (default
-        `service.recon.checks.OPERATOR_CHUNK`, 2²³; the memory model counts one chunk); the
+        `service.recon.memory.OPERATOR_CHUNK`, 2²³; the memory model counts one chunk); the
         result does not depend on it.
     band : float, optional
         A temporal band limit f_c in Hz (None, the default: none). The model's data are then

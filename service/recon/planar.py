@@ -36,7 +36,7 @@ from driver.physics.lateral import irfft_lateral
 from driver.physics.nufft_plans import lateral_plan
 from service.progress import Fraction, Span, rising
 from service.progress import span as span_of
-from service.recon import checks
+from service.recon import checks, memory
 from service.recon.reconstruction import Reconstruction
 
 __all__ = ["GRID_METHODS", "transform_lengths", "reconstruct_grid", "reconstruct_points"]
@@ -44,6 +44,8 @@ __all__ = ["GRID_METHODS", "transform_lengths", "reconstruct_grid", "reconstruct
 #: the methods `reconstruct_grid` runs (the method registry is `service.recon.methods`)
 GRID_METHODS = ("ner", "linear", "nearest", "cubic")
 _KIND = {"ner": "nufft", "linear": "linear", "nearest": "nearest"}
+#: the temporal step of each grid method in the memory model (`service.recon.memory.planar_peak`)
+_TEMPORAL_STEP = {"ner": "nufft", "linear": "regular", "nearest": "regular", "cubic": "pchip"}
 
 
 def _depth_axis(n_t, dt, c, dz, n_z, t0):
@@ -400,7 +402,8 @@ def reconstruct_grid(
     n_y, n_x = (1, data.shape[1]) if is2d else data.shape[1:]
     n_yp, n_xp = fast_lateral(n_y, n_x, square=abs(dy - dx) <= 1e-9 * dx)
     checks.check_memory(
-        checks.estimate_peak_memory(n_t, n_xp, n_yp, n_z=n_work, upsample=upsample, dtype=rdtype, method=method),
+        memory.planar_peak(n_t, n_xp, n_yp, n_z=n_work, upsample=upsample, dtype=rdtype,
+                           temporal=_TEMPORAL_STEP[method]),
         memory_limit,
     )
     vol = data.astype(rdtype, copy=False).reshape(n_t, n_y, n_x)
@@ -654,8 +657,8 @@ def reconstruct_points(
     dx = steps[0]
     dy = steps[1] if d == 2 else 1.0
     checks.check_memory(
-        checks.estimate_peak_memory(n_t, n_x, n_y, n_z=n_work, upsample=upsample, dtype=rdtype,
-                                    method="nedner", n_points=n_points),
+        memory.planar_peak(n_t, n_x, n_y, n_z=n_work, upsample=upsample, dtype=rdtype, points=True,
+                           n_points=n_points),
         memory_limit,
     )
     cell = dx * (dy if d == 2 else 1.0)

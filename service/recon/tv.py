@@ -85,7 +85,7 @@ Memory: the TV part works in place (`_tv_prox`'s compiled sweeps step the dual i
 precision's bytes (int16 fixed point for float32, `_store_dual`), the gradient step is made
 in y's place, and the preconditioner P is computed voxel by voxel where it is applied (no
 image of its own), so that while the operator works the solver holds 3 images and the
-dual's d/2 (`_fista`; `service.recon.checks.tv_memory`); the operator's image and data
+dual's d/2 (`_fista`; `service.recon.memory.tv_memory`); the operator's image and data
 k-space share one array (`service.recon.operator.PlanarOperator`).
 
 Automatic λ (``lam=None``, the default): λ = 0.6 s · max(1, (D₀ / 9.5)^0.25). s = ‖P Aᵀ n̂‖_rms is
@@ -130,7 +130,7 @@ from driver.constants import C_DEFAULT
 from driver.physics.fast_lengths import fast_real_shape
 from driver.physics.resample import resample
 from service.progress import IterationStage, Progress, span
-from service.recon import checks
+from service.recon import checks, memory
 from service.recon import limits as _limits
 from service.recon.reconstruction import Reconstruction
 from service.recon.tv_grid import TvGrid, noise_sigma, tv_grid
@@ -161,7 +161,7 @@ _DEBIAS_ITER = 10  # iterations of the least-squares refit on the support (debia
 _SUPPORT_FRACTION = 0.05  # the support for debias: p0 above this share of its maximum
 _POLL_S = 0.2  # a cancel is polled at least this often (s) inside long steps
 #: default wall-time limit of one model-based reconstruction, s (``service.recon.limits``; the
-#: server's setting ``tv_time_limit_s`` caps it there)
+#: server's setting ``time_limit_s`` caps it there)
 DEFAULT_TIME_LIMIT = _limits.DEFAULT_TIME_LIMIT
 
 
@@ -366,7 +366,7 @@ def reconstruct_tv(
     shape = warm.p0.shape
     op = PlanarOperator(shape, dx, dz_used, dt_op, n_t, c, positions=pos, t0=t0, eps=eps, dtype=rdtype,
                          periodic=periodic, checkpoint=report.poll, band=chosen.band)
-    checks.check_memory(checks.tv_memory(shape, op.padded_shape, g.size, n_t, rdtype), memory_limit)
+    checks.check_memory(memory.tv_memory(shape, op.padded_shape, g.size, n_t, rdtype), memory_limit)
     # B = P Aᵀ: the exact adjoint, NER's k-space weight P = k_z / |k| (symmetric, positive definite)
     P = _ner_weight(shape, dx, dz_used)
 

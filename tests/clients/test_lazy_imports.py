@@ -171,29 +171,32 @@ def test_warmup_command_options_and_bad_dtype(capsys):
         warm_up(["float16"])
 
 
-def test_job_worker_warms_every_method_but_tv_first():
-    """The kernel groups a job worker warms before it takes a job (``service.jobs.work.WARM_FIRST``:
-    the planar inversions and the k-Wave modes) never import the model-based operator and its
-    pylops (the slowest import, ``WARM_LATER``, warmed in a background thread) nor
-    scipy.interpolate (only the k-Wave ``*cubic`` mode's); they report the cache of the kernels
-    they warmed. Unknown groups are a ValueError."""
-    from service.jobs.work import WARM_FIRST, WARM_LATER
-    from service.recon.warmup import GROUPS, cache_dirs, warm_up
+def test_job_worker_warms_the_quick_methods_first():
+    """The methods a job worker warms before it takes a job (``warm_up(background=False)``: those
+    whose ``Method.warm_in_background`` is false, the planar inversions and the k-Wave modes)
+    never import the model-based operator and its pylops (the slowest import, warmed in a
+    background thread) nor scipy.interpolate (only the k-Wave ``*cubic`` mode's); they report
+    the cache of the kernels they warmed. Every method with a warm-up is in one of the two
+    sets; unknown methods are a ValueError."""
+    from service.recon.methods import METHODS
+    from service.recon.warmup import cache_dirs, warm_up
 
-    assert sorted(WARM_FIRST + WARM_LATER) == sorted(GROUPS)
-    with pytest.raises(ValueError, match="group must be one of"):
-        warm_up(["float32"], groups=["nope"])
-    with pytest.raises(ValueError, match="group must be one of"):
+    quick = {m.name for m in METHODS.values() if m.warm_up and not m.warm_in_background}
+    slow = {m.name for m in METHODS.values() if m.warm_up and m.warm_in_background}
+    assert quick and slow and not quick & slow
+    with pytest.raises(ValueError, match="method must be one of"):
+        warm_up(["float32"], methods=["nope"])
+    with pytest.raises(ValueError, match="method must be one of"):
         cache_dirs(["nope"])
     got = _fresh(r'''
 import json, sys
-from service.jobs.work import WARM_FIRST
 from service.recon.warmup import warm_up
-out = warm_up(["float32"], groups=WARM_FIRST)
+out = warm_up(["float32"], background=False)
 print(json.dumps({"operator": "service.recon.operator" in sys.modules, "pylops": "pylops" in sys.modules,
                   "kwave": "service.recon.kwave" in sys.modules, "interpolate": "scipy.interpolate" in sys.modules,
-                  "dirs": out["cache_dirs"]}))
+                  "methods": out["methods"], "dirs": out["cache_dirs"]}))
 ''')
+    assert set(got.pop("methods")) == quick
     dirs = got.pop("dirs")
     assert got == {"operator": False, "pylops": False, "kwave": True, "interpolate": False}, got
     assert dirs and set(dirs) <= set(cache_dirs()), (dirs, cache_dirs())

@@ -19,7 +19,7 @@ MODULES = [
     "service.metrics.resolution", "service.metrics.roi", "service.metrics.sharpness",
     "service.plans.angular", "service.plans.grids", "service.plans.kinds", "service.plans.lattice",
     "service.plans.mask", "service.plans.ordering", "service.plans.plan", "service.plans.preview",
-    "service.recon.checks", "service.recon.dataset", "service.recon.kwave", "service.recon.operator",
+    "service.recon.checks", "service.recon.memory", "service.recon.dataset", "service.recon.kwave", "service.recon.operator",
     "service.recon.planar", "service.recon.reconstruction", "service.recon.unmix", "service.recon.warmup",
     "service.recon.methods", "service.recon.methods.options", "service.recon.methods.ner",
     "service.recon.methods.nedner", "service.recon.methods.interp", "service.recon.methods.kwave",

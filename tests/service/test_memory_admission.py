@@ -119,7 +119,7 @@ small = PointDataset(alines=rng.standard_normal((20, 32)), positions=np.stack([a
                      dt=2e-8, c=1500.0, grid=(ax_s, ax_s), weights=None)
 reconstruct(small, "tv", iterations=1)
 from service.recon.warmup import warm_up
-warm_up(["float32"], ("planar", "model"))
+warm_up(["float32"], ("ner", "nedner", "tv"))
 
 """ + MEASURE.replace("RUN", 'reconstruct(ds, "tv", iterations=2)')
 

@@ -1,5 +1,5 @@
 """The model-based ``tv`` cannot hold the worker indefinitely (issue 22.4): it has a
-wall-time limit (the ``time_limit`` option; the server's ``tv_time_limit_s`` setting is its
+wall-time limit (the ``time_limit`` option; the server's ``time_limit_s`` setting is its
 default and cap) that stops the solver and says so honestly in the result's params, and a
 cancel acts within 2 s of the request (the bound the issue names; one iteration of the job
 here takes well under a second), seen as the job's ``cancelled`` state event."""

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import importlib
 import pkgutil
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -35,52 +35,94 @@ from pydantic import BaseModel, ValidationError
 from service.recon.methods.options import MethodOptions
 
 __all__ = ["Method", "METHODS", "register", "get", "option_schemas", "option_fields", "docs_table",
-           "planar_memory", "FLOAT64_WORK", "PLANAR_WORK_RATE", "transform_units", "planar_work", "MethodOptions",
+           "peak_model", "estimate_peak_memory", "default_for", "INPUT_KINDS", "FLOAT64_WORK", "PLANAR_WORK_RATE", "transform_units", "planar_work", "MethodOptions",
            "default_text", "describe_error", "range_text"]
 
 Runner = Callable[..., Any]
 
 
-def planar_memory(method: str) -> Callable[..., int]:
-    """The peak-memory model of ``method`` in ``service.recon.checks.estimate_peak_memory``
-    (bytes; ``(n_t, n_x, n_y=1, *, n_z, upsample, dtype, n_points, dx, dt, c, dz)``).
+def peak_model(model: str, **fixed: Any) -> Callable[..., int]:
+    """A method's peak-memory model: the model ``model`` of ``service.recon.memory`` with the
+    keywords ``fixed`` (what the method's kernels do), imported on the first call (this package
+    loads without numpy).
 
     Parameters
     ----------
-    method : str
-        A method name ``estimate_peak_memory`` counts (``ner``, ``nedner``, ``linear``,
-        ``nearest``, ``cubic``, ``kwave``, ``tv``).
+    model : str
+        A model of ``service.recon.memory``: ``"planar_peak"``, ``"kwave_peak"``,
+        ``"model_based_peak"``.
+    **fixed
+        Its keywords for this method (``temporal="nufft"``, ``points=True``, ...).
 
     Returns
     -------
     callable
-        ``peak(n_t, n_x, n_y=1, **kw) -> int``: the estimated peak memory in bytes of a
-        reconstruction of ``n_t`` time samples on ``n_y`` x ``n_x`` sensors; the keywords
-        (``n_z``, ``upsample``, ``dtype``, ``n_points``, ``dx`` m, ``dt`` s, ``c`` m/s,
-        ``dz`` m) as ``estimate_peak_memory``'s. The estimate is imported on the first call.
+        ``peak(n_t, n_x, n_y=1, **kw) -> int``: bytes at the peak of a reconstruction of
+        ``n_t`` time samples on ``n_y`` x ``n_x`` sensors; the keywords (``n_z``, ``upsample``,
+        ``dtype``, ``n_points``, ``dx`` m, ``dt`` s, ``c`` m/s, ``dz`` m) as the model's.
 
     Raises
     ------
-    ValueError
-        From the returned ``peak``: what ``estimate_peak_memory`` refuses (e.g. an unknown
-        method).
+    AttributeError
+        From the returned ``peak``: no such model.
 
     Examples
     --------
-    >>> from service.recon.checks import estimate_peak_memory
-    >>> from service.recon.methods import planar_memory
-    >>> peak = planar_memory("ner")
-    >>> peak(64, 8, dtype="float32") == estimate_peak_memory(64, 8, method="ner", dtype="float32")
+    >>> from service.recon.memory import planar_peak
+    >>> from service.recon.methods import peak_model
+    >>> peak = peak_model("planar_peak", temporal="nufft")
+    >>> peak(64, 8, dtype="float32") == planar_peak(64, 8, dtype="float32", temporal="nufft")
     True
     >>> peak(256, 64, 64) > peak(64, 8)  # bytes grow with the input
     True
     """
     def peak(n_t: int, n_x: int, n_y: int = 1, **kw: Any) -> int:
-        from service.recon.checks import estimate_peak_memory
+        from service.recon import memory
 
-        return estimate_peak_memory(n_t, n_x, n_y, method=method, **kw)
+        return int(getattr(memory, model)(n_t, n_x, n_y, **{**kw, **fixed}))
 
     return peak
+
+
+def estimate_peak_memory(n_t: int, n_x: int, n_y: int = 1, *, method: str | None = None, **kw: Any) -> int:
+    """Estimated peak memory in bytes of a reconstruction by ``method``: the method's own model
+    (``service.recon.methods.get(method).memory``).
+
+    Parameters
+    ----------
+    n_t : int
+        Samples per A-line.
+    n_x, n_y : int
+        Lateral grid (``n_y = 1`` in 2-D).
+    method : str, optional
+        A registered method (``service.recon.methods.METHODS``); None: the default for a
+        full lattice (``service.recon.methods.default_for("grid")``).
+    **kw
+        The model's keywords: ``n_z`` (output depth samples), ``upsample``, ``dtype``
+        (float32/float64), ``n_points`` (sensors of point data), ``dx`` (m), ``dt`` (s), ``c``
+        (m/s), ``dz`` (m), ``square`` (dy = dx; None unknown).
+
+    Returns
+    -------
+    int
+        Bytes at the peak.
+
+    Raises
+    ------
+    service.recon.checks.OptionError
+        An unknown method.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from service.recon import estimate_peak_memory
+    >>> est = estimate_peak_memory(256, 64, 64)  # (n_t, n_y, n_x) = (256, 64, 64), float64 NER
+    >>> est > 256 * 64 * 64 * 8  # more than the input
+    True
+    >>> estimate_peak_memory(256, 64, 64, dtype=np.float32) < est
+    True
+    """
+    return get(method or default_for("grid")).memory(n_t, n_x, n_y, **kw)
 
 
 #: the work estimates' reference: seconds on 2 cores of the machine they were measured on
@@ -92,7 +134,7 @@ FLOAT64_WORK = 1.6
 def transform_units(n_t: int, n_x: int, n_y: int = 1, *, n_z: int | None = None, upsample: int = 1) -> float:
     """The work unit of the planar methods: ``N log2 N`` for the transform grid they work on,
     ``N`` = the working depth rows (at least ``n_t``, at a fast DCT-I length) times the
-    lateral transform sizes (``service.recon.checks.padded_lateral``), an upsampled inverse
+    lateral transform sizes (``service.recon.memory.padded_lateral``), an upsampled inverse
     counted as ``1 + (u² - 1) / 4`` such grids (measured: upsample 2 costs 1.1-3x upsample 1).
 
     Parameters
@@ -120,7 +162,7 @@ def transform_units(n_t: int, n_x: int, n_y: int = 1, *, n_z: int | None = None,
     import math
 
     from driver.physics.fast_lengths import fast_dct1_rows
-    from service.recon.checks import padded_lateral
+    from service.recon.memory import padded_lateral
 
     rows = fast_dct1_rows(max(int(n_z or n_t), int(n_t), 2))
     p_y, p_x = padded_lateral(int(n_y), int(n_x))
@@ -170,7 +212,7 @@ class Method:
 
     Parameters
     ----------
-    name, title, needs_grid, options_model, run, source, peak_memory, order
+    name, title, needs_grid, options_model, run, source, peak_memory, order, work, ...
         As the attributes below.
 
     Attributes
@@ -190,8 +232,9 @@ class Method:
         Where the algorithm comes from.
     peak_memory : callable or None
         ``peak_memory(n_t, n_x, n_y, *, n_z, upsample, dtype, n_points, dx, dt, c, dz)`` ->
-        bytes at its peak (the memory admission, ``service.jobs.admission``); None (default):
-        :func:`planar_memory` of ``name``.
+        bytes at its peak (the memory admission, ``service.jobs.admission``; a model of
+        ``service.recon.memory``, :func:`peak_model`); None (default): NER's,
+        ``service.recon.memory.planar_peak``.
     order : int
         Position in lists (smaller first).
     work : callable or None
@@ -200,6 +243,33 @@ class Method:
         ``service.jobs.admission.estimate_work``); it may raise ``OptionError`` for options
         the input cannot carry (tv: an image deeper than the record can hear). None
         (default): :func:`planar_work` at :data:`PLANAR_WORK_RATE`.
+    iterative : bool
+        An iterative solver (seconds to hours): ``c = "auto"`` searches the sound speed with the
+        default direct method of the input (:func:`default_for`) and then runs it once.
+    time_limited : bool
+        It takes a ``time_limit`` option (s) that the server's ``time_limit_s`` setting caps (its
+        default, and the most a request may ask).
+    cancellable : bool
+        Its run reports progress between steps or iterations (``progress``), each a point where a
+        cancel or stop request (``should_stop``) ends it within a step.
+    default_for : tuple of str
+        The inputs it is the default method for: ``"grid"`` (a full lattice), ``"points"`` (any
+        sensor mask); :func:`default_for`.
+    warm_up : callable or None
+        ``warm_up(dtypes)``: compile (or load from numba's cache) its kernels on tiny data in
+        each dtype name of ``dtypes`` (``service.recon.warmup.warm_up``, ``fpscan warmup``, a job
+        worker before its first job); None: nothing of its own to warm.
+    kernel_modules : tuple of str
+        The modules holding its numba kernels (``service.recon.warmup.cache_dirs``).
+    warm_in_background : bool
+        Its warm-up is slow (pylops' import: seconds): a job worker runs it in the background
+        after it is ready for jobs (``service.jobs.work.warm_up``).
+    memory_calibration : float
+        Its admission class: the factor the memory admission applies to :attr:`peak_memory`
+        (``service.jobs.admission.estimate_memory``; 1 for a model measured within its margin).
+    holds_input : bool
+        It keeps the input as loaded beside its working copy (the memory admission counts it even
+        in the working precision).
     options : tuple of str
         The option names it takes: ``c`` and its model's fields.
     defaults : dict
@@ -232,6 +302,15 @@ class Method:
     peak_memory: Callable[..., int] | None = None
     order: int = 100
     work: Callable[..., float] | None = None
+    iterative: bool = False
+    time_limited: bool = False
+    cancellable: bool = True
+    default_for: tuple[str, ...] = ()
+    warm_up: Callable[[Sequence[str]], None] | None = None
+    kernel_modules: tuple[str, ...] = ()
+    warm_in_background: bool = False
+    memory_calibration: float = 1.0
+    holds_input: bool = False
 
     @property
     def options(self) -> tuple[str, ...]:
@@ -267,7 +346,7 @@ class Method:
 
     def memory(self, n_t: int, n_x: int, n_y: int = 1, **kw: Any) -> int:
         """Peak bytes (:attr:`peak_memory`)."""
-        return (self.peak_memory or planar_memory(self.name))(n_t, n_x, n_y, **kw)
+        return (self.peak_memory or peak_model("planar_peak"))(n_t, n_x, n_y, **kw)
 
     def estimate_work(self, n_t: int, n_x: int, n_y: int = 1, **kw: Any) -> float:
         """Seconds of work on the reference 2 cores (:attr:`work`)."""
@@ -410,6 +489,44 @@ def get(name: str) -> Method:
 
         raise OptionError(f"method must be one of {', '.join(METHODS)}, got {name!r}")
     return spec
+
+
+#: the kinds of input a method may be the default for (:attr:`Method.default_for`)
+INPUT_KINDS = ("grid", "points")
+
+
+def default_for(kind: str) -> str:
+    """The default method for an input of ``kind``: the first registered method (in list order)
+    that declares it in :attr:`Method.default_for`.
+
+    Parameters
+    ----------
+    kind : {"grid", "points"}
+        ``"grid"``: A-lines on a full regular lattice; ``"points"``: A-lines at any sensor points
+        (a sensor mask).
+
+    Returns
+    -------
+    str
+        The method's name.
+
+    Raises
+    ------
+    ValueError
+        An unknown ``kind``, or no registered method is the default for it.
+
+    Examples
+    --------
+    >>> from service.recon.methods import default_for
+    >>> default_for("grid"), default_for("points")
+    ('ner', 'nedner')
+    """
+    if kind not in INPUT_KINDS:
+        raise ValueError(f"kind must be one of {INPUT_KINDS}, got {kind!r}")
+    for method in METHODS.values():
+        if kind in method.default_for:
+            return method.name
+    raise ValueError(f"no registered method is the default for {kind} input")
 
 
 def _rules(model: type[MethodOptions]) -> dict[str, str]:
@@ -589,8 +706,10 @@ def default_text(name: str, *, code: bool = False) -> str:
     >>> from service.recon.methods import default_text
     >>> default_text("eps"), default_text("n_z"), default_text("dz")
     ('1e-06', 'n_t', 'c·dt')
-    >>> default_text("positivity"), default_text("positivity", code=True)
-    ('false (tv: true)', '`false` (tv: `true`)')
+    >>> default_text("positivity")  # doctest: +ELLIPSIS
+    'false (...tv...: true)'
+    >>> default_text("positivity", code=True)  # doctest: +ELLIPSIS
+    '`false` (...tv...: `true`)'
     """
     by_value: dict[str, list[str]] = {}
     for m in METHODS.values():

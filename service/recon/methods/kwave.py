@@ -3,20 +3,20 @@
 reference/KWAVE_RECON_NOTES.md)."""
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 from pydantic import BeforeValidator, Field
 
 from service.recon.limits import KWAVE_INTERPS
-from service.recon.methods import Method, planar_memory, planar_work, register
+from service.recon.methods import Method, peak_model, planar_work, register
 from service.recon.methods.options import MethodOptions, PositivityOption
 
 if TYPE_CHECKING:
     from service.recon.dataset import GridDataset
     from service.recon.reconstruction import Reconstruction
 
-__all__ = ["Options", "run", "check_start", "WORK_RATE", "work", "METHOD"]
+__all__ = ["Options", "run", "check_start", "WORK_RATE", "work", "warm_up", "METHOD"]
 
 
 def _check_interp(value: Any) -> Any:
@@ -204,6 +204,37 @@ def work(n_t: int, n_x: int, n_y: int = 1, *, t0: float | None = None, **kw: Any
     check_start(t0)
     return planar_work(WORK_RATE)(n_t, n_x, n_y, **kw)
 
+def warm_up(dtypes: Sequence[str]) -> None:
+    """Compile (or load from numba's cache) the k-Wave modes' kernels: a tiny plane and line
+    with k-Wave's nearest and linear interpolation in each precision.
+
+    Parameters
+    ----------
+    dtypes : sequence of str
+        ``"float32"`` and/or ``"float64"``.
+
+    Examples
+    --------
+    >>> from service.recon.methods import get
+    >>> from service.recon.methods.kwave import warm_up
+    >>> get("kwave").warm_up is warm_up
+    True
+    """
+    import numpy as np
+
+    from driver.constants import C_DEFAULT
+    from service.recon.kwave import kspace_line_recon, kspace_plane_recon
+
+    dx, dt = 1e-4, 2e-8
+    for d in dtypes:
+        data = np.zeros((32, 6, 6), dtype=d)
+        data[5, 3, 3] = 1.0
+        for interp in ("*nearest", "*linear"):
+            kspace_plane_recon(data, dx, dx, dt, C_DEFAULT, interp=interp, dtype=d)
+            kspace_line_recon(data[:, 0, :], dx, dt, C_DEFAULT, interp=interp, dtype=d)
+
+
 METHOD = register(Method("kwave", "k-Wave compatible (kspaceLineRecon / kspacePlaneRecon)", True, Options, run,
                          "k-Wave kspaceLineRecon / kspacePlaneRecon (reference/KWAVE_RECON_NOTES.md)",
-                         planar_memory("kwave"), order=40, work=work))
+                         peak_model("kwave_peak"), order=40, work=work, warm_up=warm_up,
+                         kernel_modules=("service.recon.kwave",)))

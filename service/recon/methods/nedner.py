@@ -2,10 +2,10 @@
 NUFFT over the sensor positions (kernel: :func:`service.recon.planar.reconstruct_points`)."""
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
-from service.recon.methods import Method, planar_memory, planar_work, register
+from service.recon.methods import Method, peak_model, planar_work, register
 from service.recon.methods.options import (
     DepthOptions,
     MethodOptions,
@@ -18,7 +18,7 @@ if TYPE_CHECKING:
     from service.recon.dataset import PointDataset
     from service.recon.reconstruction import Reconstruction
 
-__all__ = ["Options", "run", "WORK_RATE", "METHOD"]
+__all__ = ["Options", "run", "WORK_RATE", "warm_up", "METHOD"]
 
 
 class Options(DepthOptions, PositivityOption, UpsampleOption, MethodOptions, NufftOptions):
@@ -117,6 +117,37 @@ def run(ds: PointDataset, c: float, opts: dict, step: Callable[[float], None]) -
 #: 5, float64 1.1-1.6x; rounded up
 WORK_RATE = 4e-9
 
+def warm_up(dtypes: Sequence[str]) -> None:
+    """Compile (or load from numba's cache) NEDNER's kernels: 30 scattered A-lines onto a
+    64 x 64 grid in each precision.
+
+    Parameters
+    ----------
+    dtypes : sequence of str
+        ``"float32"`` and/or ``"float64"``.
+
+    Examples
+    --------
+    >>> from service.recon.methods import get
+    >>> from service.recon.methods.nedner import warm_up
+    >>> get("nedner").warm_up is warm_up
+    True
+    """
+    import numpy as np
+
+    from service.recon.planar import reconstruct_points
+
+    n, dx, dt = 64, 1e-4, 2e-8
+    rng = np.random.default_rng(0)
+    for d in dtypes:
+        pos = rng.uniform(0.0, (n - 1) * dx, (30, 2))
+        grid = (np.arange(n) * dx, np.arange(n) * dx)
+        reconstruct_points(rng.standard_normal((30, 32)).astype(d), pos, dt, weights=np.full(30, dx * dx),
+                           grid=grid, dtype=d)
+
+
 METHOD = register(Method("nedner", "NEDNER-NUFFT (any sensor mask)", False, Options, run,
                          "paper §3.2: temporal NUFFT + type-1 NUFFT over the sensor positions",
-                         planar_memory("nedner"), order=10, work=planar_work(WORK_RATE)))
+                         peak_model("planar_peak", temporal="nufft", points=True), order=10,
+                         work=planar_work(WORK_RATE), default_for=("points",), warm_up=warm_up,
+                         kernel_modules=("driver.physics.nufft_kernels",)))

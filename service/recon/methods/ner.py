@@ -2,10 +2,10 @@
 FFT (kernel: :func:`service.recon.planar.reconstruct_grid`)."""
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
-from service.recon.methods import Method, planar_memory, planar_work, register
+from service.recon.methods import Method, peak_model, planar_work, register
 from service.recon.methods.options import (
     DepthOptions,
     MethodOptions,
@@ -18,7 +18,7 @@ if TYPE_CHECKING:
     from service.recon.dataset import GridDataset
     from service.recon.reconstruction import Reconstruction
 
-__all__ = ["Options", "run", "run_grid", "WORK_RATE", "METHOD"]
+__all__ = ["Options", "run", "run_grid", "WORK_RATE", "warm_up", "METHOD"]
 
 
 class Options(DepthOptions, PositivityOption, UpsampleOption, MethodOptions, NufftOptions):
@@ -169,6 +169,36 @@ def run(ds: GridDataset, c: float, opts: dict, step: Callable[[float], None]) ->
 #: measured 0.9-2.9e-9 from 256 x 64^2 to 512 x 226^2 at load 5 (float64 1.1-1.7x); rounded up
 WORK_RATE = 3e-9
 
+def warm_up(dtypes: Sequence[str]) -> None:
+    """Compile (or load from numba's cache) NER's kernels: one tiny grid and one line of
+    sensors in each precision, laterally above ``driver.physics.fft_engine.SMALL_ELEMENTS``
+    (a smaller transform runs in numpy and would compile nothing).
+
+    Parameters
+    ----------
+    dtypes : sequence of str
+        ``"float32"`` and/or ``"float64"``.
+
+    Examples
+    --------
+    >>> from service.recon.methods import get
+    >>> from service.recon.methods.ner import warm_up
+    >>> get("ner").warm_up is warm_up
+    True
+    """
+    import numpy as np
+
+    from service.recon.planar import reconstruct_grid
+
+    n, dx, dt = 64, 1e-4, 2e-8
+    for d in dtypes:
+        data = np.zeros((32, n, n), dtype=d)
+        data[5, 3, 3] = 1.0
+        reconstruct_grid(data, dx, dt, dtype=d)
+        reconstruct_grid(np.tile(data[:, 0, :], (1, n)), dx, dt, dtype=d)  # a line of n * n sensors
+
+
 METHOD = register(Method("ner", "NER-NUFFT (full regular grid)", True, Options, run,
-                         "paper §3.1: temporal NUFFT, lateral FFT", planar_memory("ner"), order=20,
-                         work=planar_work(WORK_RATE)))
+                         "paper §3.1: temporal NUFFT, lateral FFT", peak_model("planar_peak", temporal="nufft"),
+                         order=20, work=planar_work(WORK_RATE), default_for=("grid",), warm_up=warm_up,
+                         kernel_modules=("driver.physics.nufft_kernels",)))

@@ -3,6 +3,7 @@ NER-preconditioned FISTA on the exact planar model (kernel:
 :func:`service.recon.tv.reconstruct_tv`; Arridge et al., PMB 61 (2016) 8908)."""
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Annotated, Any
 
 from pydantic import BeforeValidator, Field
@@ -16,7 +17,7 @@ from service.recon.limits import (
     TIME_LIMIT_MAX,
     TOL_RANGE,
 )
-from service.recon.methods import Method, planar_memory, register
+from service.recon.methods import Method, peak_model, register
 from service.recon.methods.options import DepthOptions, Flag, MethodOptions, NufftOptions, kernel_rule
 
 if TYPE_CHECKING:
@@ -25,7 +26,7 @@ if TYPE_CHECKING:
     from service.recon.reconstruction import Reconstruction
 
 __all__ = ["Options", "run", "declared_bandwidth", "BANDWIDTH_KEY", "PAIR_RATE", "SETUP_PAIRS", "grid",
-           "check_depth", "work", "METHOD"]
+           "check_depth", "work", "MEMORY_CALIBRATION", "warm_up", "METHOD"]
 
 Lam = Annotated[Annotated[float, Field(ge=LAM_RANGE[0], le=LAM_RANGE[1])] | None,
                 BeforeValidator(kernel_rule("check_lam"))]
@@ -89,7 +90,7 @@ class Options(DepthOptions, MethodOptions, NufftOptions):
                      "per iteration, ‖x_k − x_k−1‖ / ‖x_k‖, stays below tol for 3 iterations "
                      "(0: run every iteration)", json_schema_extra={"unit": "1"})
     time_limit: TimeLimit = Field(DEFAULT_TIME_LIMIT, description="wall-time limit of the solver (the server's "
-                                  "setting tv_time_limit_s caps it): when reached the result says converged false, "
+                                  "setting time_limit_s caps it): when reached the result says converged false, "
                                   "stop reason 'time limit'", json_schema_extra={"unit": "s", "quantity": "time"})
     debias: Flag("debias") = Field(False, description="refit the amplitudes by least squares on the "  # type: ignore[valid-type]
                                    "support after the solve")
@@ -368,7 +369,60 @@ def work(n_t: int, n_x: int, n_y: int = 1, *, dtype: Any = "float32", n_points: 
     return warm + SETUP_PAIRS * pair + min(iterations * pair, limit)
 
 
+#: the memory admission's margin on tv's model (``service.recon.memory.model_based_peak``, itself
+#: calibrated): a 48² x 256, 100-sensor run peaked at about 1/1.1 of it
+#: (tests/service/test_memory_admission.py, measured after a warm-up on a smaller input; 1.15
+#: before the solver's TV part worked in place (issue 19), 1.45 when the factor also had to
+#: cover the planar methods). The planar methods' models count their arrays phase by phase and
+#: need no factor (measured within 4-10 % at upsample 1-8, issue 22).
+MEMORY_CALIBRATION = 1.05
+
+
+def warm_up(dtypes: Sequence[str]) -> None:
+    """Compile (or load from numba's cache) the model-based operator's and solver's kernels
+    (``service.recon.operator``, ``service.recon.tv``, ``driver.physics.forward``; the first
+    imports pylops and pyproximal: seconds) on a 4 x 6 x 6 image in each precision.
+
+    Parameters
+    ----------
+    dtypes : sequence of str
+        ``"float32"`` and/or ``"float64"``.
+
+    Examples
+    --------
+    >>> from service.recon.methods import get
+    >>> from service.recon.methods.tv import warm_up
+    >>> get("tv").warm_up is warm_up
+    True
+    """
+    import numpy as np
+
+    from driver.constants import C_DEFAULT
+    from driver.physics.forward import forward_grid
+    from service.recon import tv
+    from service.recon.operator import PlanarOperator
+
+    dx, dt = 1e-4, 2e-8
+    for d in dtypes:  # the model-based operator runs its transforms in the working precision
+        op = PlanarOperator((4, 6, 6), dx, C_DEFAULT * dt, dt, 32, dtype=d)
+        op.adjoint(op.forward(np.ones((4, 6, 6))))
+        v = np.ones((4, 6, 6), dtype=d)  # the TV part's compiled sweeps (2-D images run as 3-D views)
+        tv._tv_prox(v, 0.1, True, None, None)
+        tv._tv_norm(v)
+        tv._apply_weight(tv._ner_weight(v.shape, dx, C_DEFAULT * dt), v)  # the preconditioner's kernel
+        flat = v.ravel()  # the solver's in-place vector kernels
+        tv._axpy(flat, flat, 0.5)
+        tv._extrapolate(flat, flat, 0.5)
+        tv._difference_norm(flat, flat)
+        tv._moves(flat, flat, flat, 1.0, flat, 0.5)
+        dual = np.zeros((3, 4, 6, 6), dtype=d)  # the dual's wait between iterations
+        tv._restore_dual(tv._store_dual(dual), dual.dtype)
+    forward_grid(np.ones((4, 6, 6)), dx, C_DEFAULT * dt, dt, 32)
+
+
 METHOD = register(Method(
     "tv", "model-based: TV + positivity on the exact model (iterative; sparse, noisy scans)", False, Options, run,
     "½‖A p0 − g‖²_W + λ TV(p0), p0 ≥ 0, NER-preconditioned FISTA (Arridge et al., PMB 61 (2016) 8908)",
-    planar_memory("tv"), order=50, work=work))
+    peak_model("model_based_peak"), order=50, work=work, iterative=True, time_limited=True, warm_up=warm_up,
+    kernel_modules=("driver.physics.nufft_kernels", "service.recon.tv"), warm_in_background=True,
+    memory_calibration=MEMORY_CALIBRATION, holds_input=True))

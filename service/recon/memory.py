@@ -1,0 +1,335 @@
+"""The peak-memory models of the reconstructions (admission control): bytes a method needs at
+its peak, counted phase by phase from the arrays its kernels hold alive.
+
+Each method declares its model (``service.recon.methods``: ``Method.peak_memory``) from the
+models here, named for what the kernels do, not for the methods: :func:`planar_peak` (the
+planar inversions of ``service.recon.planar``: the temporal step on a NUFFT grid, on the
+regular grid or by pchip, a type-1 NUFFT over the sensor points or not),
+:func:`kwave_peak` (``service.recon.kwave``'s k-Wave modes) and :func:`model_based_peak`
+(the model-based solve of ``service.recon.tv`` on the free-space operator,
+:func:`tv_memory`). ``service.recon.methods.estimate_peak_memory`` asks the registry for a
+method's model by name. The kernels check their own inputs against the same models before they allocate.
+Measured against fresh processes' peaks in tests/service/test_memory_admission.py.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from driver.physics.fast_lengths import fast_dct1_rows, fast_lateral
+
+__all__ = ["KWAVE_STEP_BYTES", "TEMPORAL_STEPS", "planar_peak", "kwave_peak",
+           "model_based_peak", "padded_lateral", "OPERATOR_BATCH", "OPERATOR_CHUNK", "tv_memory"]
+
+#: the bound of k-Wave's time-depth step buffers and other work arrays beside
+#: the input and the spectrum: the prime-factor stages' per-thread work arrays, the chunks' spectra,
+#: the pchip mapping's arrays (`service.recon.kwave._CUBIC_BYTES` each). Measured as a fresh
+#: process's resident peak (VmHWM) beyond input + spectrum: 122-127 MiB at 1024 x 100 x 226,
+#: 1024 x 226² and 2048 x 60 x 226 in float64, any interpolation; lower elsewhere
+KWAVE_STEP_BYTES = 160 << 20
+
+#: the temporal steps :func:`planar_peak` counts: ``"nufft"`` (the NER/NEDNER NUFFT's fine grid),
+#: ``"regular"`` (k-Wave-style interpolation on the regular frequency grid: linear, nearest),
+#: ``"pchip"`` (Octave's 'cubic' along ω, per column group in complex128)
+TEMPORAL_STEPS = ("nufft", "regular", "pchip")
+
+
+def _planar_count(n_t: int, n_x: int, n_y: int, *, n_z: int | None, upsample: int, dtype: npt.DTypeLike,
+                  temporal: str, points: bool, n_points: int | None, square: bool | None, pad: bool) -> int:
+    """:func:`planar_peak`'s count before its margin (the input included)."""
+    if temporal not in TEMPORAL_STEPS:
+        raise ValueError(f"temporal must be one of {TEMPORAL_STEPS}, got {temporal!r}")
+    b = np.dtype(dtype).itemsize
+    cb = 2 * b
+    n_z = n_t if n_z is None else n_z
+    n_in = n_t * n_y * n_x  # the input, as given
+    n_y0, n_x0 = n_y, n_x
+    if pad:  # the transform sizes the planar methods use
+        n_y, n_x = padded_lateral(n_y, n_x, square)
+        n_z = fast_dct1_rows(max(int(n_z), 2))  # the depth rows the transform works on
+    cols = n_y * (n_x // 2 + 1)
+    spectrum = n_t * cols * cb
+    if temporal == "nufft":
+        from driver.physics.grid_sizes import grid_length
+
+        fine = cols * grid_length(n_t, "nufft", 1e-6) * cb  # make_grid's L, without loading the kernels
+    else:
+        fine = cols * (2 * n_t - 1) * cb
+    kimage = n_z * cols * cb
+    # the lateral spectrum's memory, which the evaluated spectrum F and the image reuse
+    # (`service.recon.planar._workspace`); K is transposed into the fine grid's memory
+    space = max(spectrum, kimage)
+    u_y = upsample if n_y > 1 else 1
+    padded = n_z * n_y * u_y * (n_x * upsample // 2 + 1) * cb if upsample > 1 else kimage
+    out = n_z * n_y0 * u_y * n_x0 * upsample * b  # the grid asked for only (irfft_lateral's keep)
+    alive = space  # held throughout: A (NEDNER's type-1 plane apart), then F, then the image
+    front = 0
+    if points:  # type-1 NUFFT: the full plane, A a view of it; weighted A-lines (float64 + complex)
+        plane = n_t * n_y * n_x * cb
+        alive += plane
+        front = plane + (n_points or 0) * n_t * (8 + cb)
+        # the Voronoi raster of weights not given (driver.physics.weights: ~1024 samples per cell within
+        # 2^20, ~80 bytes each; measured 82 MiB (tracemalloc) from 500 to 3000 sensors since its
+        # steps free their arrays as they end, 98 MiB before)
+        front = max(front, 80 * min(1024 * max(n_points or 0, 768), 1 << 20) if n_points else 0)
+    pchip = temporal == "pchip"
+    if pchip:  # pchip per column group: the mirrored series and its spectra in complex128
+        fine = 5 * cols * (2 * n_t - 1) * 16
+    # K in the fine grid's memory, or an array of its own (pchip: no fine grid; more depth rows than
+    # the fine grid has); pchip's F is an array of its own too
+    kmem = kimage if pchip or kimage > fine else fine
+    f_apart = kimage if pchip else 0
+    up = upsample > 1
+    peak = max(front + space,
+               alive + fine,                                 # temporal step: U, F in the space
+               alive + kmem + f_apart,                       # F transposed into K
+               alive + kmem + padded if up else 0,           # K zero-padded
+               alive + padded + out if up else 0)            # inverse lateral FFT (in place, then out)
+    return peak + n_in * b  # the input
+
+
+def planar_peak(n_t: int, n_x: int, n_y: int = 1, *, n_z: int | None = None, upsample: int = 1,
+                dtype: npt.DTypeLike = np.float64, temporal: str = "nufft", points: bool = False,
+                n_points: int | None = None, square: bool | None = None, **_: Any) -> int:
+    """Estimated peak memory in bytes of a planar inversion (``service.recon.planar``).
+
+    Counted phase by phase, the arrays alive in each (b: the real itemsize, complex 2b): the
+    lateral spectrum A (n_t x n_y x (n_x/2+1); with ``points``, the type-1 output is the full
+    plane n_t x n_y x n_x, of which A is a view), alive to the end; the temporal fine grid U
+    (columns x L), the evaluated spectrum F and its transposed k-space image K (depth rows x
+    columns), F and the image in A's memory and K in U's (``service.recon.planar._workspace``);
+    K zero-padded for ``upsample`` u (u² times larger); the inverse lateral FFT, in place on
+    the padded K (``driver.physics.lateral.irfft_lateral``), beside its output (depth rows x
+    n_y u x n_x u of the grid asked for: the padding is not written). The peak is the largest
+    phase, plus the input (measured within ±25 % for NER/NEDNER at upsample 1-8,
+    tests/service/test_memory_admission.py).
+
+    Parameters
+    ----------
+    n_t : int
+        Samples per A-line.
+    n_x, n_y : int
+        Lateral grid (``n_y = 1`` in 2-D), zero-padded to the fast transform lengths of
+        ``driver.physics.fast_lengths.fast_lateral`` (e.g. 226 -> 240), which are counted.
+    n_z : int, optional
+        Output depth samples (default n_t).
+    upsample : int, optional
+        Lateral upsampling factor.
+    dtype : float32 or float64, optional
+        Working precision.
+    temporal : {"nufft", "regular", "pchip"}, optional
+        The temporal step (:data:`TEMPORAL_STEPS`).
+    points : bool, optional
+        A type-1 NUFFT over ``n_points`` sensor points (NEDNER's lateral step) instead of an FFT
+        of a full lattice.
+    n_points : int, optional
+        Sensors, with ``points`` (their weighted A-lines and, for weights not given, the
+        Voronoi raster of ``driver.physics.weights``).
+    square : bool or None, optional
+        dy = dx, which may give both axes one transform length; None: unknown, the larger of
+        the two.
+
+    Returns
+    -------
+    int
+        Bytes at the peak (4 % above the count for allocator and FFT-plan overheads).
+
+    Raises
+    ------
+    ValueError
+        An unknown ``temporal``.
+
+    Examples
+    --------
+    >>> from service.recon.memory import planar_peak
+    >>> grid = planar_peak(256, 64, 64, dtype="float32")
+    >>> planar_peak(256, 64, 64, dtype="float32", points=True, n_points=500) > grid  # the type-1 plane
+    True
+    """
+    return int(1.04 * _planar_count(n_t, n_x, n_y, n_z=n_z, upsample=upsample, dtype=dtype, temporal=temporal,
+                                    points=points, n_points=n_points, square=square, pad=True))
+
+
+def kwave_peak(n_t: int, n_x: int, n_y: int = 1, *, dtype: npt.DTypeLike = np.float64, **_: Any) -> int:
+    """Estimated peak memory in bytes of k-Wave's modes (``service.recon.kwave``): their lateral
+    half spectrum (n_t x n_y x (n_x/2+1), unpadded), over which the image is written, and the
+    time-depth step's per-chunk buffers (:data:`KWAVE_STEP_BYTES`, or a fifth of the spectrum
+    where that step runs as FFTs of the mirrored series), plus the input.
+
+    Parameters
+    ----------
+    n_t : int
+        Samples per A-line (and depth rows of the image).
+    n_x, n_y : int
+        Lateral grid (``n_y = 1`` in 2-D).
+    dtype : float32 or float64, optional
+        Working precision.
+
+    Returns
+    -------
+    int
+        Bytes at the peak (4 % above the count).
+
+    Examples
+    --------
+    >>> from service.recon.memory import KWAVE_STEP_BYTES, kwave_peak
+    >>> kwave_peak(256, 64, 64) > KWAVE_STEP_BYTES
+    True
+    """
+    cb = 2 * np.dtype(dtype).itemsize
+    spectrum = n_t * n_y * (n_x // 2 + 1) * cb
+    peak = spectrum + max(KWAVE_STEP_BYTES, spectrum // 5) + n_t * n_y * n_x * np.dtype(dtype).itemsize
+    return int(1.04 * peak)
+
+
+def model_based_peak(n_t: int, n_x: int, n_y: int = 1, *, n_z: int | None = None, dtype: npt.DTypeLike = np.float64,
+                     n_points: int | None = None, dx: float | None = None, dt: float | None = None,
+                     c: float | None = None, dz: float | None = None, **_: Any) -> int:
+    """Estimated peak memory in bytes of the model-based solve (``service.recon.tv``): the larger
+    of its warm start (a planar inversion on the unpadded grid with regular-grid steps, 10 %
+    above the count) and the solve itself (:func:`tv_memory`) on the operator's padded grid.
+
+    Parameters
+    ----------
+    n_t : int
+        Samples per A-line.
+    n_x, n_y : int
+        Lateral grid (``n_y = 1`` in 2-D).
+    n_z : int, optional
+        Image depth samples (default n_t).
+    dtype : float32 or float64, optional
+        Working precision.
+    n_points : int, optional
+        Sensors (default every lattice point).
+    dx, dt, c, dz : float, optional
+        Pitch (m), sample interval (s), sound speed (m/s), depth spacing (m; default c·dt): the
+        operator's own padding rule (``driver.physics.grid_sizes.pad_sizes``); without them the
+        worst usual case dx = c·dt (the record reaches n_t pitches laterally).
+
+    Returns
+    -------
+    int
+        Bytes at the peak.
+
+    Examples
+    --------
+    >>> from service.recon.memory import model_based_peak, planar_peak
+    >>> model_based_peak(256, 64, 64, dtype="float32") > planar_peak(256, 64, 64, dtype="float32")
+    True
+    """
+    n_z = n_t if n_z is None else n_z
+    warm = _planar_count(n_t, n_x, n_y, n_z=n_z, upsample=1, dtype=dtype, temporal="regular", points=False,
+                         n_points=None, square=None, pad=False)
+    n_data = n_t * (n_points or n_x * n_y)
+    if dx and dt and c:  # the operator's own padding rule
+        from driver.physics.grid_sizes import pad_sizes
+
+        pad = pad_sizes((n_z, n_y, n_x), dx, dz or c * dt, dt, n_t, c, 0.0)
+    else:  # the worst usual case dx = c dt (lateral reach of the record = n_t pitches)
+        pad = (max(n_z, n_t), n_y + n_t if n_y > 1 else 1, n_x + n_t)
+    return max(int(warm * 1.1), tv_memory((n_z, n_y, n_x), pad, n_data, n_t, dtype))
+
+
+def padded_lateral(n_y: int, n_x: int, square: bool | None = None) -> tuple[int, int]:
+    """The lateral transform sizes the planar methods use for an ``n_y x n_x`` grid.
+
+    Parameters
+    ----------
+    n_y, n_x : int
+        The lateral grid (``n_y = 1`` in 2-D).
+    square : bool or None, optional
+        dy = dx (``driver.physics.fast_lengths.fast_lateral``); None (pitches unknown): the
+        larger of the square and non-square choices, axis by axis.
+
+    Returns
+    -------
+    tuple of int
+        ``(n_y', n_x')``.
+
+    Examples
+    --------
+    >>> from service.recon.memory import padded_lateral
+    >>> padded_lateral(226, 226)
+    (240, 240)
+    >>> padded_lateral(1, 226)
+    (1, 240)
+    """
+    if square is not None:
+        return fast_lateral(n_y, n_x, square)
+    (ay, ax), (by, bx) = fast_lateral(n_y, n_x, False), fast_lateral(n_y, n_x, True)
+    return max(ay, by), max(ax, bx)
+
+
+#: the planar operator's working sizes (`service.recon.operator`), here beside the memory
+#: model that counts them: time samples per batch of the lateral NUFFTs of point data, and
+#: elements (complex) of a chunk's working arrays per row (its k-space columns run in
+#: chunks of about this many elements, whole |k_lat| groups)
+OPERATOR_BATCH = 16
+OPERATOR_CHUNK = 1 << 22
+
+
+def tv_memory(image_shape: tuple[int, ...], padded_shape: tuple[int, ...], n_data: int, n_t: int,
+              dtype: npt.DTypeLike = np.float64) -> int:
+    """Estimated peak bytes of the model-based reconstruction (`service.recon.tv`).
+
+    The larger of two phases (`service.recon.tv._fista`). While the operator works: the
+    solver's 3 image-sized vectors in ``dtype`` (the iterate x, y or the new iterate, the
+    last preconditioned gradient; the adjoint writes its output over its k-space, where the
+    system can release the rest) and the TV proximal map's dual (d vectors) at half those
+    bytes (`service.recon.tv._store_dual`), beside the operator's working arrays in its working
+    precision (complex64 for float32, complex128 for float64;
+    `service.recon.operator.PlanarOperator`): the image's and the data's k-space in one array,
+    max(n_z, n_t) per padded half-spectrum column, beside one chunk of columns in the depth and temporal
+    steps (about `OPERATOR_CHUNK` elements per row; the temporal fine grid L,
+    `driver.physics.grid_sizes.grid_length`, beside the depth N_z or the time n_t, whichever is
+    longer: the steps hold two of them at a time) and one batch of full lateral spectra of
+    the point NUFFTs. While the proximal map works: 4 + d vectors (x, the gradient step, the
+    preconditioned gradient, the new iterate and the dual at full precision). The
+    preconditioner P is computed where it is applied, on the image padded to fast lengths
+    after the operator's arrays are freed. Both phases add the data-sized vectors (the data
+    in float64, A x, A y and a residual in ``dtype``), and the estimate 15 % (allocator, FFT
+    buffers and plans;
+    tests/service/test_memory_admission.py measures it within 25 %).
+
+    Parameters
+    ----------
+    image_shape : tuple of int
+        p0's shape ``(n_z, n_y, n_x)`` (``n_y = 1`` in 2-D).
+    padded_shape : tuple of int
+        The operator's working grid ``(N_z, N_y, N_x)``.
+    n_data : int
+        Data samples (n_t times the number of sensors).
+    n_t : int
+        Samples per A-line.
+    dtype : float32 or float64, optional
+
+    Returns
+    -------
+    int
+        Bytes.
+
+    Examples
+    --------
+    >>> from service.recon.memory import tv_memory
+    >>> small = tv_memory((32, 64, 64), (128, 128, 128), 256 * 4096, 256)
+    >>> tv_memory((64, 64, 64), (128, 128, 128), 256 * 4096, 256) > small  # deeper image
+    True
+    >>> tv_memory((32, 64, 64), (128, 128, 128), 256 * 4096, 256, "float32") < small
+    True
+    """
+    from driver.physics.grid_sizes import grid_length
+
+    b = np.dtype(dtype).itemsize
+    n_img = int(np.prod(image_shape))
+    d = sum(1 for n in image_shape if n > 1)
+    nz2, ny2, nx2 = padded_shape
+    cols = ny2 * (nx2 // 2 + 1)
+    fine = grid_length(n_t)
+    chunk = min(cols, max(1, OPERATOR_CHUNK // max(nz2, fine)))
+    operator = 2 * b * (cols * max(image_shape[0], n_t) + chunk * (fine + max(nz2, n_t))
+                        + 2 * min(OPERATOR_BATCH, n_t) * ny2 * nx2)
+    with_operator = 3 * n_img * b + d * n_img * b // 2 + operator
+    proximal = (4 + d) * n_img * b
+    return int(1.15 * (max(with_operator, proximal) + n_data * (8 + 3 * b)))
