@@ -17,7 +17,7 @@ __all__ = ["place_columns", "scatter_columns", "tap_arrays", "group_taps", "inte
 
 
 @numba.njit(parallel=True, cache=True)
-def place_columns(A, cols, scale, shift, L, U):
+def place_columns(A: np.ndarray, cols: np.ndarray, scale: np.ndarray, shift: int, L: int, U: np.ndarray) -> None:
     """U[c, (n - shift) mod L] = A[n, cols[c]] * scale[n], in cache-friendly tiles."""
     n_t = A.shape[0]
     n_cols = cols.shape[0]
@@ -39,7 +39,7 @@ def place_columns(A, cols, scale, shift, L, U):
 
 
 @numba.njit(parallel=True, cache=True)
-def scatter_columns(F, cols, out):
+def scatter_columns(F: np.ndarray, cols: np.ndarray, out: np.ndarray) -> None:
     """out[j, cols[c]] = F[c, j] (distinct ``cols``), in cache-friendly tiles (`driver.physics.nufft.scatter_columns`)."""
     n_c, n_j = F.shape
     tile = 64
@@ -63,7 +63,7 @@ _COS = tuple((-1.0) ** k / math.factorial(2 * k) for k in range(11))
 
 
 @numba.njit(inline="always", fastmath=True)
-def _cos_sin(x):
+def _cos_sin(x: float) -> tuple[float, float]:
     """(cos x, sin x) for a float64 x, without libm, so that a loop over it vectorises: x is
     reduced to r in [-pi, pi] (r = x - 2 pi round(x / 2 pi)), h = r / 2 is taken by its
     Taylor series, then cos r = 1 - 2 sin² h and sin r = 2 sin h cos h. The error is that
@@ -83,7 +83,7 @@ def _cos_sin(x):
 
 
 @numba.njit(inline="always", fastmath=True)
-def _horner_rows(hc, w, t, nj, wts):
+def _horner_rows(hc: np.ndarray, w: int, t: np.ndarray, nj: int, wts: np.ndarray) -> None:
     """wts[k, j] = the polynomial hc[k] (highest degree first) at t[j], for j < nj: Horner's
     rule over j in SIMD lanes, four coefficients a pass (a pass a coefficient was bound by
     loads and stores, not arithmetic)."""
@@ -129,7 +129,7 @@ _PAD = 8
 
 
 @numba.njit(cache=True)
-def tap_arrays(nkz, w):
+def tap_arrays(nkz: int, w: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """One column group's work arrays for `group_taps`: base (nkz,) int64, wts
     (max(w, _PAD), nkz) (rows from w on zero), t (nkz,), ar (nkz,), ai (nkz,) float64."""
     wts = np.empty((max(w, _PAD), nkz), np.float64)
@@ -139,7 +139,9 @@ def tap_arrays(nkz, w):
 
 
 @numba.njit(cache=True, fastmath=True)
-def group_taps(k2, kz, qw, c, dt, t0, h, kind, w, hc, shift, inversion, base, wts, t, ar, ai):
+def group_taps(k2: float, kz: np.ndarray, qw: np.ndarray, c: float, dt: float, t0: float, h: float, kind: int,
+               w: int, hc: np.ndarray, shift: int, inversion: bool, base: np.ndarray, wts: np.ndarray,
+               t: np.ndarray, ar: np.ndarray, ai: np.ndarray) -> int:
     """The taps of one column group (one |k_lat|², ``k2``) at every kz, shared by all its
     columns; returns n_j, the number of kz filled (inversion: those at or below the
     temporal Nyquist, kz ascending; otherwise all).
@@ -196,8 +198,9 @@ def group_taps(k2, kz, qw, c, dt, t0, h, kind, w, hc, shift, inversion, base, wt
 
 
 @numba.njit(parallel=True, cache=True, fastmath=True)
-def interp_kernel(U, gvals, gptr, order, kz, qw, c, dt, t0, h, L, kind, w, hc, shift,
-                   inversion, out):
+def interp_kernel(U: np.ndarray, gvals: np.ndarray, gptr: np.ndarray, order: np.ndarray, kz: np.ndarray,
+                  qw: np.ndarray, c: float, dt: float, t0: float, h: float, L: int, kind: int, w: int,
+                  hc: np.ndarray, shift: int, inversion: bool, out: np.ndarray) -> None:
     """out[col, j] = sc_j (e^{-iφ_j} S⁺ + e^{iφ_j} S⁻): the w-tap interpolation of row
     ``U[col]`` at +θ_j and -θ_j (`group_taps`), in real arithmetic (a complex product
     with a real weight would cost a full complex multiply). The taps' sums run in ``U``'s
@@ -263,7 +266,7 @@ def interp_kernel(U, gvals, gptr, order, kz, qw, c, dt, t0, h, L, kind, w, hc, s
 
 
 @numba.njit(inline="always", fastmath=True)
-def _add_scaled(r, i, wk, p):
+def _add_scaled(r: np.ndarray, i: int, wk: float, p: np.ndarray) -> None:
     """r[i] += wk p (``r`` 2-D, ``p`` as long as its rows); unrolled for a group of one
     column (every group of a 2-D operator)."""
     if p.shape[0] == 2:
@@ -275,7 +278,9 @@ def _add_scaled(r, i, wk, p):
 
 
 @numba.njit(parallel=True, cache=True, fastmath=True)
-def spread_kernel(B, gvals, gptr, order, kz, qw, c, dt, t0, h, L, kind, w, hc, shift, R):
+def spread_kernel(B: np.ndarray, gvals: np.ndarray, gptr: np.ndarray, order: np.ndarray, kz: np.ndarray,
+                  qw: np.ndarray, c: float, dt: float, t0: float, h: float, L: int, kind: int, w: int,
+                  hc: np.ndarray, shift: int, R: np.ndarray) -> None:
     """The adjoint of `interp_kernel` (inversion False): spread B[col, j] e^{±iφ_j} qw_j
     onto the w taps at +θ_j and -θ_j of row ``R[col]``.
 
