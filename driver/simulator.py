@@ -210,7 +210,8 @@ class SimulatedScanner:
     path : str
         The pty's device path for the host (``/dev/pts/N``).
     stats : collections.Counter
-        Counts of what the device did (frames, faults injected, ...).
+        Counts of what the device did: ``alines`` sent, ``tx_bytes``, ``resent``, ``timeouts``,
+        ``rx_bad_frames``, ``duplicate_commands``, ``stalls``, ``resets``, ``internal_errors``.
 
     Raises
     ------
