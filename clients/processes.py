@@ -30,19 +30,47 @@ __all__ = ["Process", "Service", "clean_env", "fpscan_argv", "free_port", "servi
 
 
 def free_port() -> int:
-    """A TCP port on 127.0.0.1 that is free now (another program may still take it)."""
+    """A TCP port on 127.0.0.1 that is free now (another program may still take it).
+
+    Returns
+    -------
+    int
+        The port number.
+    """
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
 
 
 def fpscan_argv(*args: str) -> list[str]:
-    """The command line of ``fpscan ARGS...`` with this interpreter."""
+    """The command line of ``fpscan ARGS...`` with this interpreter.
+
+    Parameters
+    ----------
+    *args : str
+        The arguments after ``fpscan``.
+
+    Returns
+    -------
+    list of str
+        ``[sys.executable, "-m", "clients", *args]``.
+    """
     return [sys.executable, "-m", "clients", *args]
 
 
 def clean_env(**extra: str) -> dict[str, str]:
-    """The environment of the current process without any ``FPSCAN_*`` setting, plus ``extra``."""
+    """The environment of the current process without any ``FPSCAN_*`` setting, plus ``extra``.
+
+    Parameters
+    ----------
+    **extra : str
+        Variables to add (or override).
+
+    Returns
+    -------
+    dict[str, str]
+        A new environment mapping.
+    """
     env = {k: v for k, v in os.environ.items() if not k.startswith("FPSCAN_")}
     env.update(extra)
     return env
@@ -53,6 +81,30 @@ class Process:
 
     With ``stdout_pipe`` its stdout is a pipe for :meth:`first_line` (then copied on to
     the log so that the child never blocks on a full pipe).
+
+    Parameters
+    ----------
+    argv : list of str
+        The command line.
+    log_path : str or os.PathLike
+        The log file (appended to; its folder is created).
+    env : Mapping[str, str], optional
+        The child's environment (None: this process's).
+    stdout_pipe : bool, optional
+        Make stdout a pipe for :meth:`first_line` (default False: stdout goes to the log).
+    cwd : str or os.PathLike, optional
+        The child's working directory (None: this process's).
+
+    Attributes
+    ----------
+    argv : list of str
+        As given.
+    log_path : Path
+        As given.
+    proc : subprocess.Popen
+        The child.
+    pid : int
+        Its process id.
     """
 
     def __init__(self, argv: list[str], *, log_path: str | os.PathLike, env: Mapping[str, str] | None = None,
@@ -147,7 +199,32 @@ class Process:
 
 
 class Service(Process):
-    """A running ``fpscan serve`` on 127.0.0.1 (see :func:`start_service`)."""
+    """A running ``fpscan serve`` on 127.0.0.1 (see :func:`start_service`).
+
+    Parameters
+    ----------
+    argv : list of str
+        The command line.
+    port : int
+        The port it listens on.
+    token : str or None
+        Its bearer token (None: no token).
+    data_dir : Path
+        Its data folder.
+    **kw : Any
+        Passed to :class:`Process` (``log_path``, ``env``, ...).
+
+    Attributes
+    ----------
+    port : int
+        As given.
+    token : str or None
+        As given.
+    data_dir : Path
+        As given.
+    url : str
+        ``http://127.0.0.1:<port>``.
+    """
 
     def __init__(self, argv: list[str], *, port: int, token: str | None, data_dir: Path, **kw: Any):
         super().__init__(argv, **kw)
@@ -188,6 +265,36 @@ def start_service(data_dir: str | os.PathLike, *, token: str | None = None, devi
     settings (the caller's own ``FPSCAN_*`` variables are not passed on); ``web``: serve
     the web page. A port taken by another program in between is retried ``attempts``
     times. Raises ``RuntimeError`` (with the log's tail) when it does not start.
+
+    Parameters
+    ----------
+    data_dir : str or os.PathLike
+        The service's data folder (``FPSCAN_DATA_DIR``).
+    token : str, optional
+        ``FPSCAN_TOKEN`` (None: no token).
+    devices : Mapping[str, str], optional
+        ``FPSCAN_DEVICES``: scanner id -> device path.
+    env : Mapping[str, str], optional
+        Further environment variables (``FPSCAN_*`` settings).
+    log_path : str or os.PathLike, optional
+        The log file (default ``<data_dir>-server.log`` beside the data folder).
+    web : bool, optional
+        Serve the web page (default True).
+    timeout : float, optional
+        Seconds to wait for ``GET /api/health`` to answer 200 (default 90).
+    attempts : int, optional
+        Tries with a fresh port when the server exits before it is healthy (default 3).
+
+    Returns
+    -------
+    Service
+        The healthy service; the caller stops it (:meth:`Process.stop`).
+
+    Raises
+    ------
+    RuntimeError
+        It exited on every attempt or did not answer within ``timeout`` (the log's tail in
+        the message).
     """
     data_dir = Path(data_dir)
     log = Path(log_path) if log_path is not None else data_dir.parent / f"{data_dir.name}-server.log"
@@ -213,7 +320,27 @@ def start_service(data_dir: str | os.PathLike, *, token: str | None = None, devi
 
 
 def start_simulator(*args: str, log_path: str | os.PathLike, timeout: float = 60.0) -> tuple[str, Process]:
-    """Start ``fpscan sim ARGS...`` on a pseudo-terminal; returns ``(device path, process)``."""
+    """Start ``fpscan sim ARGS...`` on a pseudo-terminal; returns ``(device path, process)``.
+
+    Parameters
+    ----------
+    *args : str
+        ``fpscan sim``'s arguments.
+    log_path : str or os.PathLike
+        The log file.
+    timeout : float, optional
+        Seconds to wait for the device path, its first line (default 60).
+
+    Returns
+    -------
+    tuple of (str, Process)
+        The device path (``/dev/pts/N``) and the process; the caller stops it.
+
+    Raises
+    ------
+    RuntimeError
+        No (or an empty) first line within ``timeout``; the process is stopped.
+    """
     proc = Process(fpscan_argv("sim", *args), log_path=log_path, env=clean_env(), stdout_pipe=True)
     try:
         device = proc.first_line(timeout)
@@ -227,7 +354,20 @@ def start_simulator(*args: str, log_path: str | os.PathLike, timeout: float = 60
 
 @contextlib.contextmanager
 def service(data_dir: str | os.PathLike, **kw: Any) -> Iterator[Service]:
-    """:func:`start_service` as a context manager that stops it on exit."""
+    """:func:`start_service` as a context manager that stops it on exit.
+
+    Parameters
+    ----------
+    data_dir : str or os.PathLike
+        The service's data folder.
+    **kw : Any
+        :func:`start_service`'s options.
+
+    Returns
+    -------
+    context manager of Service
+        Entered, the healthy service.
+    """
     srv = start_service(data_dir, **kw)
     try:
         yield srv
@@ -237,7 +377,18 @@ def service(data_dir: str | os.PathLike, **kw: Any) -> Iterator[Service]:
 
 @contextlib.contextmanager
 def simulator(*args: str, log_path: str | os.PathLike, timeout: float = 60.0) -> Iterator[tuple[str, Process]]:
-    """:func:`start_simulator` as a context manager that stops it on exit."""
+    """:func:`start_simulator` as a context manager that stops it on exit.
+
+    Parameters
+    ----------
+    *args, log_path, timeout
+        As :func:`start_simulator`.
+
+    Returns
+    -------
+    context manager of tuple of (str, Process)
+        Entered, the device path and the process.
+    """
     device, proc = start_simulator(*args, log_path=log_path, timeout=timeout)
     try:
         yield device, proc

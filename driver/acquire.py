@@ -19,7 +19,13 @@ def software_version() -> str:
     Read from the first ``fpscan-*.dist-info`` on ``sys.path`` (what ``importlib.metadata``
     finds, without its import time, which would double ``fpscan --version``'s); falls back
     to ``importlib.metadata``. Looked up once a process (listing ``sys.path`` took 4 ms
-    of every result file's write): the version of the code this process runs."""
+    of every result file's write): the version of the code this process runs.
+
+    Returns
+    -------
+    str
+        The version string, e.g. ``"1.4.0"``, or ``"0+unknown"``.
+    """
     import os
     import sys
 
@@ -57,6 +63,39 @@ def acquire(port: str, plan, out, *, progress=None, scanner=None, durable: str =
 
     Raises ``ValueError`` (bad plan, file of another plan), :class:`~driver.host.DriverError`
     and its subclasses (link failures), ``OSError`` (file system).
+
+    Parameters
+    ----------
+    port : str
+        The scanner's serial port (or the simulator's address), as :class:`~driver.host.Scanner`
+        takes it; unused when ``scanner`` is given.
+    plan : dict or str or Path
+        The plan, or the path of its JSON file (:func:`driver.plan.load_plan`).
+    out : str or Path
+        The scan file (HDF5) to create, or to resume when it exists.
+    progress : callable, optional
+        Called with each :class:`~driver.host.ScanProgress` (from the scanning thread).
+    scanner : Scanner, optional
+        An already open scanner; it is left open at the end.
+    durable : str, optional
+        The scan file's durability policy, ``"process"`` (default) or ``"fsync"``
+        (`driver.scanfile`).
+    **scanner_options
+        Passed to :class:`~driver.host.Scanner` when this call opens it.
+
+    Returns
+    -------
+    ScanResult
+        The outcome of the scan (:class:`~driver.host.ScanResult`).
+
+    Raises
+    ------
+    ValueError
+        A bad plan, or an existing ``out`` of another plan.
+    DriverError
+        Link or device failures (:class:`~driver.host.DriverError` and its subclasses).
+    OSError
+        File system errors.
     """
     from driver.host import Scanner
     from driver.plan import load_plan

@@ -43,7 +43,39 @@ META_KEYS = ("run_id", "boot_id", "point_index", "pulse_number", "timestamp_s",
 
 @dataclass(slots=True)
 class ALine:
-    """One received or generated A-line; ``samples`` is int16 of shape ``(n_t,)``."""
+    """One received or generated A-line; ``samples`` is int16 of shape ``(n_t,)``.
+
+    Attributes
+    ----------
+    run_id : int
+        The run the A-line belongs to (``SCAN:STAR`` reply).
+    boot_id : int
+        The device's boot id (changes on every reset).
+    point_index : int
+        k, the plan point.
+    pulse_number : int
+        Excitation pulses fired since boot, counting this point's (last) pulse.
+    timestamp_s : float
+        Time of that pulse, s since boot.
+    bias_wavelength_m : float
+        Interrogation (bias) wavelength, m.
+    dt_s : float
+        Sample interval, s.
+    scale : float
+        Signal per count: signal = sample·scale + offset.
+    offset : float
+        Signal offset (same unit as ``scale``).
+    dc_level : float
+        Photodiode DC level at the bias point, V.
+    pulse_energy_j : float
+        Excitation pulse energy, J.
+    samples : ndarray ``(n_t,)`` int16
+        The samples, sample n at t = n·dt after the excitation pulse.
+    wavelength_index : int
+        w, index into the plan's excitation wavelengths (default 0).
+    excitation_wavelength_m : float
+        Excitation wavelength of this A-line, m (0 = not reported).
+    """
 
     run_id: int
     boot_id: int
@@ -70,7 +102,26 @@ def pack_aline(run_id: int, boot_id: int, point_index: int, pulse_number: int,
                offset: float, dc_level: float, pulse_energy_j: float,
                samples: np.ndarray, wavelength_index: int = 0,
                excitation_wavelength_m: float = 0.0) -> bytes:
-    """Serialise one A-line payload; ``samples`` is converted to little-endian int16."""
+    """Serialise one A-line payload; ``samples`` is converted to little-endian int16.
+
+    Parameters
+    ----------
+    run_id, boot_id, point_index, pulse_number : int
+        As :class:`ALine`.
+    timestamp_s, bias_wavelength_m, dt_s, scale, offset, dc_level, pulse_energy_j : float
+        As :class:`ALine` (s, m, s, signal per count, signal, V, J).
+    samples : ndarray ``(n_t,)``
+        The samples (converted to int16).
+    wavelength_index : int, optional
+        w (default 0).
+    excitation_wavelength_m : float, optional
+        m (default 0: not reported).
+
+    Returns
+    -------
+    bytes
+        The payload: the 88-byte header (:data:`ALINE_HEADER`) and ``2·n_t`` sample bytes.
+    """
     s = np.ascontiguousarray(samples, dtype="<i2")
     return ALINE_HEADER.pack(run_id, boot_id, point_index, s.size, pulse_number, timestamp_s,
                              bias_wavelength_m, dt_s, scale, offset, dc_level,
@@ -79,7 +130,23 @@ def pack_aline(run_id: int, boot_id: int, point_index: int, pulse_number: int,
 
 
 def unpack_aline(payload: bytes) -> ALine:
-    """Parse an A-line payload. Raises ``ValueError`` if its length disagrees with n_t."""
+    """Parse an A-line payload. Raises ``ValueError`` if its length disagrees with n_t.
+
+    Parameters
+    ----------
+    payload : bytes
+        An A-line frame's payload (module docstring).
+
+    Returns
+    -------
+    ALine
+        The A-line, its samples an int16 copy.
+
+    Raises
+    ------
+    ValueError
+        The payload is shorter than its header, or its sample bytes are not ``2·n_t``.
+    """
     if len(payload) < ALINE_HEADER.size:
         raise ValueError(f"A-line payload of {len(payload)} bytes is shorter than its header")
     (run_id, boot_id, k, n_t, pulse, ts, bias, dt, scale, offset, dc,

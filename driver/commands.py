@@ -60,7 +60,22 @@ for _node in NODES:
 
 
 class ScpiError(ValueError):
-    """A command failed; ``code`` is the SCPI error number (negative: standard)."""
+    """A command failed; ``code`` is the SCPI error number (negative: standard).
+
+    Parameters
+    ----------
+    code : int
+        The SCPI error number, e.g. -113 (undefined header).
+    message : str
+        The error queue text, ``"<description>; <detail>"``.
+
+    Attributes
+    ----------
+    code : int
+        As given.
+    message : str
+        As given (also the exception's text).
+    """
 
     def __init__(self, code: int, message: str):
         super().__init__(message)
@@ -70,6 +85,20 @@ class ScpiError(ValueError):
 
 @dataclass
 class Command:
+    """One parsed command payload (:func:`parse_command`).
+
+    Attributes
+    ----------
+    header : str
+        The header as received, e.g. ``"scan:star"``.
+    name : str
+        Its canonical long form, upper case, e.g. ``"SCAN:START"``.
+    args : list of str
+        The comma-separated arguments before any block, stripped of blanks.
+    block : bytes or None
+        The data of a trailing definite-length block (``PLAN:DATA``), else None.
+    """
+
     header: str  #: as received
     name: str  #: canonical long form, upper case, e.g. ``SCAN:START``
     args: list[str]
@@ -77,7 +106,24 @@ class Command:
 
 
 def canonical_header(header: str) -> str:
-    """``scan:star`` → ``SCAN:START``. Raises :class:`ScpiError` (-113) if unknown."""
+    """``scan:star`` → ``SCAN:START``. Raises :class:`ScpiError` (-113) if unknown.
+
+    Parameters
+    ----------
+    header : str
+        A header in short or long form, any case, with an optional leading colon and
+        trailing ``?``; a ``*XXX`` common command is upper-cased only.
+
+    Returns
+    -------
+    str
+        The canonical long form, upper case (``?`` kept).
+
+    Raises
+    ------
+    ScpiError
+        -113 (undefined header) when a node is not in :data:`NODES`.
+    """
     h = header.upper()
     if h.startswith("*"):
         return h
@@ -91,7 +137,25 @@ def canonical_header(header: str) -> str:
 
 
 def parse_command(payload: bytes) -> Command:
-    """Parse one command payload. Raises :class:`ScpiError` with the SCPI code."""
+    """Parse one command payload. Raises :class:`ScpiError` with the SCPI code.
+
+    Parameters
+    ----------
+    payload : bytes
+        ``HEADER[ ARG[,ARG...]]`` in ASCII, optionally ending in one definite-length block.
+
+    Returns
+    -------
+    Command
+        The header, its canonical name, the arguments and the block.
+
+    Raises
+    ------
+    ScpiError
+        -223 a payload over :data:`MAX_COMMAND` bytes; -102 a non-ASCII or malformed header;
+        -113 an unknown header; -161 a bad block length field or a block shorter than its
+        length; -108 data after the block; -104 a non-ASCII argument; -109 a trailing comma.
+    """
     if len(payload) > MAX_COMMAND:
         raise ScpiError(-223, f"Too much data; command of {len(payload)} bytes")
     head, _, rest = payload.partition(b" ")
@@ -133,7 +197,25 @@ def parse_command(payload: bytes) -> Command:
 
 
 def int_arg(cmd: Command, i: int) -> int:
-    """Argument ``i`` as an integer. Raises :class:`ScpiError` (-109 missing, -104 type)."""
+    """Argument ``i`` as an integer. Raises :class:`ScpiError` (-109 missing, -104 type).
+
+    Parameters
+    ----------
+    cmd : Command
+        The parsed command.
+    i : int
+        The argument's index (0-based).
+
+    Returns
+    -------
+    int
+        Its value.
+
+    Raises
+    ------
+    ScpiError
+        -109 when the command has no argument ``i``, -104 when it is not an integer.
+    """
     if i >= len(cmd.args):
         raise ScpiError(-109, f"Missing parameter; {cmd.header} needs argument {i + 1}")
     try:
@@ -143,33 +225,102 @@ def int_arg(cmd: Command, i: int) -> int:
 
 
 def plan_begin(n_bytes: int) -> str:
-    """``PLAN:BEG <n_bytes>``: start a plan upload of ``n_bytes``."""
+    """``PLAN:BEG <n_bytes>``: start a plan upload of ``n_bytes``.
+
+    Parameters
+    ----------
+    n_bytes : int
+        Size of the plan image, bytes.
+
+    Returns
+    -------
+    str
+        The command text.
+    """
     return f"{PLAN_BEGIN} {int(n_bytes)}"
 
 
 def plan_data(offset: int, chunk: bytes) -> bytes:
-    """``PLAN:DATA <offset>,#<block>``: one chunk of the plan image (binary-safe)."""
+    """``PLAN:DATA <offset>,#<block>``: one chunk of the plan image (binary-safe).
+
+    Parameters
+    ----------
+    offset : int
+        Byte offset of the chunk in the plan image.
+    chunk : bytes
+        The chunk (at most :data:`MAX_CHUNK` bytes for the device to take it).
+
+    Returns
+    -------
+    bytes
+        The command payload.
+    """
     return f"{PLAN_DATA} {int(offset)},".encode() + block(chunk)
 
 
 def plan_end(sha256_hex: str) -> str:
-    """``PLAN:END <sha256 hex>``: finish the upload; the device checks the image's hash."""
+    """``PLAN:END <sha256 hex>``: finish the upload; the device checks the image's hash.
+
+    Parameters
+    ----------
+    sha256_hex : str
+        SHA-256 of the whole plan image, hex.
+
+    Returns
+    -------
+    str
+        The command text.
+    """
     return f"{PLAN_END} {sha256_hex}"
 
 
 def scan_start(index: int) -> str:
-    """``SCAN:STAR <index>``: start a run at acquisition index ``index``."""
+    """``SCAN:STAR <index>``: start a run at acquisition index ``index``.
+
+    Parameters
+    ----------
+    index : int
+        The first A-line (acquisition index, docs/protocol.md §4.1) of the run.
+
+    Returns
+    -------
+    str
+        The command text.
+    """
     return f"{SCAN_START} {int(index)}"
 
 
 def block(data: bytes) -> bytes:
-    """Encode ``data`` as an IEEE 488.2 definite-length block ``#<d><len><data>``."""
+    """Encode ``data`` as an IEEE 488.2 definite-length block ``#<d><len><data>``.
+
+    Parameters
+    ----------
+    data : bytes
+        The block's content.
+
+    Returns
+    -------
+    bytes
+        ``#``, the number of digits of the length, the length in decimal, then ``data``.
+    """
     n = str(len(data)).encode()
     return b"#" + str(len(n)).encode() + n + data
 
 
 def error_of(exc: Exception) -> tuple[int, str]:
-    """The SCPI error queue entry ``(code, message)`` that reports ``exc``."""
+    """The SCPI error queue entry ``(code, message)`` that reports ``exc``.
+
+    Parameters
+    ----------
+    exc : Exception
+        The failure of a command.
+
+    Returns
+    -------
+    tuple of (int, str)
+        A :class:`ScpiError`'s own code and message; otherwise ``-100`` (command error)
+        and ``"Command error; <exc>"``.
+    """
     if isinstance(exc, ScpiError):
         return exc.code, exc.message
     return -100, f"Command error; {exc}"

@@ -24,7 +24,22 @@ __all__ = ["FaultSpec", "damage"]
 
 @dataclass
 class FaultSpec:
-    """Parsed fault spec; point indices are plan point indices k."""
+    """Parsed fault spec; point indices are plan point indices k.
+
+    Attributes
+    ----------
+    corrupt : float
+        Probability per byte (both directions) that the byte is replaced, in [0, 1).
+    drop : float
+        Probability per byte (both directions) that the byte is lost, in [0, 1).
+    stalls : dict[int, float]
+        Point k -> seconds the device goes silent before acquiring it (once).
+    resets : set[int]
+        Points before which the device resets (once; new boot id).
+    interlocks : dict[int, float]
+        Point k -> seconds the laser interlock stays open from before acquiring it (once;
+        ``inf``: until it is closed by hand).
+    """
 
     corrupt: float = 0.0
     drop: float = 0.0
@@ -80,7 +95,24 @@ class FaultSpec:
 
 
 def damage(data: bytes, corrupt: float, drop: float, rng: np.random.Generator) -> bytes:
-    """Return ``data`` with bytes replaced (rate ``corrupt``) and removed (rate ``drop``)."""
+    """Return ``data`` with bytes replaced (rate ``corrupt``) and removed (rate ``drop``).
+
+    Parameters
+    ----------
+    data : bytes
+        The bytes on the wire.
+    corrupt : float
+        Probability per byte that it is replaced (XOR with a random non-zero byte).
+    drop : float
+        Probability per byte that it is removed.
+    rng : numpy.random.Generator
+        The seeded generator that draws the faults.
+
+    Returns
+    -------
+    bytes
+        The damaged bytes (``data`` itself when nothing is hit).
+    """
     n = len(data)
     if n == 0:
         return data

@@ -37,7 +37,25 @@ MAX_WIRE = MAX_PAYLOAD + HEADER.size + CRC.size + (MAX_PAYLOAD // 254) + 8
 
 
 class FrameType(IntEnum):
-    """Frame types (docs/protocol.md §2.3)."""
+    """Frame types (docs/protocol.md §2.3).
+
+    Attributes
+    ----------
+    CMD : int
+        1, host → device: one SCPI command (ASCII, may end in a binary block).
+    RSP : int
+        2, device → host: success reply to the CMD whose seq is in ``ack``.
+    ERR : int
+        3, device → host: failure reply ``<code>,"<message>"`` to the CMD in ``ack``.
+    ALINE : int
+        4, device → host: one A-line, ``seq`` = data sequence number.
+    ACK : int
+        5, host → device: ``ack`` = next expected data seq, ``window`` = credit.
+    NAK : int
+        6, host → device: like ACK plus payload = missing data seqs (u32 LE each).
+    EVENT : int
+        7, device → host: unsolicited notice (ASCII), e.g. ``BOOT 1234``.
+    """
 
     CMD = 1  #: host → device: one SCPI command (ASCII, may end in a binary block)
     RSP = 2  #: device → host: success reply to the CMD whose seq is in ``ack``
@@ -49,12 +67,32 @@ class FrameType(IntEnum):
 
 
 class FrameError(ValueError):
-    """A received frame is malformed (COBS, length, CRC, version or type)."""
+    """A received frame is malformed (COBS, length, CRC, version or type).
+
+    Parameters
+    ----------
+    *args : str
+        The reason (as ``ValueError``).
+    """
 
 
 @dataclass(frozen=True, slots=True)
 class Frame:
-    """One decoded frame. ``payload`` is ``bytes``; integers are as in the header."""
+    """One decoded frame. ``payload`` is ``bytes``; integers are as in the header.
+
+    Attributes
+    ----------
+    type : int
+        The frame type (:class:`FrameType`).
+    seq : int
+        Sequence number (u32).
+    ack : int
+        Cumulative acknowledgement (u32).
+    window : int
+        Credit window in frames (u16, host → device).
+    payload : bytes
+        The payload, 0 … :data:`MAX_PAYLOAD` bytes.
+    """
 
     type: int
     seq: int = 0
@@ -69,6 +107,27 @@ def encode_frame(ftype: int, payload: bytes = b"", *, seq: int = 0, ack: int = 0
 
     Raises ``ValueError`` if the payload exceeds :data:`MAX_PAYLOAD` or a header field is
     out of range.
+
+    Parameters
+    ----------
+    ftype : int
+        The frame type (:class:`FrameType`).
+    payload : bytes, optional
+        At most :data:`MAX_PAYLOAD` bytes (default empty).
+    seq, ack : int, optional
+        Sequence number and cumulative acknowledgement (taken modulo 2³²; default 0).
+    window : int, optional
+        Credit window in frames, 0 … 65535 (default 0).
+
+    Returns
+    -------
+    bytes
+        ``COBS(header ‖ payload ‖ CRC-32) ‖ 0x00``.
+
+    Raises
+    ------
+    ValueError
+        The payload is too long, or ``ftype`` or ``window`` does not fit its header field.
     """
     if len(payload) > MAX_PAYLOAD:
         raise ValueError(f"payload of {len(payload)} bytes exceeds {MAX_PAYLOAD}")
@@ -86,6 +145,22 @@ def decode_frame(wire: bytes) -> Frame:
 
     Raises :class:`FrameError` with the reason (bad COBS, too short, CRC mismatch, wrong
     version, unknown type).
+
+    Parameters
+    ----------
+    wire : bytes
+        The COBS-encoded frame without its delimiter.
+
+    Returns
+    -------
+    Frame
+        The decoded frame.
+
+    Raises
+    ------
+    FrameError
+        Bad COBS encoding, a body shorter than header + CRC, a CRC mismatch, another
+        protocol version or an unknown frame type.
     """
     try:
         body = _cobs.decode(wire)
@@ -113,6 +188,20 @@ class Deframer:
     Damaged frames are counted in :attr:`errors` (and the last reason kept in
     :attr:`last_error`) and skipped; the stream resynchronises at the next 0x00.
     A run of more than :data:`MAX_WIRE` bytes without a delimiter is discarded.
+
+    Parameters
+    ----------
+    max_wire : int, optional
+        The longest partial frame kept, bytes (default :data:`MAX_WIRE`).
+
+    Attributes
+    ----------
+    errors : int
+        Damaged or oversize frames so far.
+    frames : int
+        Frames decoded so far.
+    last_error : str
+        The reason of the last error ("" before any).
     """
 
     def __init__(self, max_wire: int = MAX_WIRE):

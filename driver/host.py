@@ -46,15 +46,44 @@ __all__ = [
 
 
 class DriverError(RuntimeError):
-    """The scanner link failed (base class of the driver's errors)."""
+    """The scanner link failed (base class of the driver's errors).
+
+    Parameters
+    ----------
+    *args : str
+        The message (as ``RuntimeError``).
+    """
 
 
 class DeviceTimeout(DriverError):
-    """The device did not answer within the timeout (after retransmissions)."""
+    """The device did not answer within the timeout (after retransmissions).
+
+    Parameters
+    ----------
+    *args : str
+        The message (as ``RuntimeError``).
+    """
 
 
 class DeviceError(DriverError):
-    """The device rejected a command: ``code`` and ``message`` from its ERR reply."""
+    """The device rejected a command: ``code`` and ``message`` from its ERR reply.
+
+    Parameters
+    ----------
+    code : int
+        The SCPI error number of the ERR reply.
+    message : str
+        Its message.
+    command : str, optional
+        The command it answered (named in the exception's text when given).
+
+    Attributes
+    ----------
+    code : int
+        As given.
+    message : str
+        As given.
+    """
 
     def __init__(self, code: int, message: str, command: str = ""):
         super().__init__(f"device error {code} ({message})" + (f" on {command!r}" if command
@@ -64,12 +93,36 @@ class DeviceError(DriverError):
 
 
 class InterlockOpen(DeviceError):
-    """The laser interlock is open: the device cannot fire (no automatic recovery)."""
+    """The laser interlock is open: the device cannot fire (no automatic recovery).
+
+    Parameters
+    ----------
+    code, message, command
+        As :class:`DeviceError`.
+    """
 
 
 @dataclass
 class DeviceStatus:
-    """Parsed ``SCAN:STAT?`` reply."""
+    """Parsed ``SCAN:STAT?`` reply.
+
+    Attributes
+    ----------
+    state : str
+        ``IDLE``, ``RUNNING``, ``PAUSED`` or ``FAULT``.
+    boot_id : int
+        The device's boot id (new at every power-up or reset).
+    run_id : int
+        The current (or last) run.
+    next_index : int
+        The next A-line index to acquire (docs/protocol.md §4.1).
+    n_points : int
+        The reply's ``n_alines``: A-lines of the uploaded plan, points × wavelengths.
+    next_seq : int
+        The next data sequence number.
+    unacked : int
+        A-line frames awaiting an ACK.
+    """
 
     state: str
     boot_id: int
@@ -94,7 +147,29 @@ class DeviceStatus:
 class ScanProgress:
     """What a scan's progress callback receives (about every ``progress_interval`` s): a record
     of the run, not a fraction (the fraction-and-stage callback of the reconstructions is
-    ``service.progress.Progress``; the service turns this record into the job's progress)."""
+    ``service.progress.Progress``; the service turns this record into the job's progress).
+
+    Attributes
+    ----------
+    points_done : int
+        Points complete in the sink (at every wavelength).
+    n_points : int
+        Points of the plan.
+    rate : float
+        A-lines/s landed in this call of scan().
+    eta_s : float
+        Remaining A-lines / rate, s (inf if unknown).
+    faults_recovered : int
+        Link faults recovered so far (bad frames, NAKs, timeouts, resets).
+    state : str
+        ``"running"``, ``"paused"``, ``"recovering"``, ``"done"`` or ``"aborted"``.
+    elapsed_s : float
+        Time since the call started, s.
+    alines_done : int
+        A-lines complete in the sink (points × wavelengths).
+    n_alines : int
+        A-lines of the plan.
+    """
 
     points_done: int  #: points complete in the sink (at every wavelength)
     n_points: int
@@ -109,7 +184,33 @@ class ScanProgress:
 
 @dataclass
 class ScanResult:
-    """Outcome of :meth:`Scanner.scan`."""
+    """Outcome of :meth:`Scanner.scan`.
+
+    Attributes
+    ----------
+    n_points : int
+        Points of the plan.
+    points_done : int
+        Points complete at every wavelength.
+    complete : bool
+        Whether every A-line of the plan is in the sink.
+    aborted : bool
+        Whether the scan was aborted.
+    elapsed_s : float
+        The whole call, s.
+    acquisition_s : float
+        From the first SCAN:STAR reply to the last new A-line, s.
+    alines_received : int
+        New A-line frames received (first copies; points may repeat).
+    faults : dict
+        Link faults detected and recovered since the port was opened (see below).
+    link : dict
+        Link statistics that are not faults (see below).
+    n_alines : int
+        A-lines of the plan: points × wavelengths.
+    alines_done : int
+        A-lines complete in the sink.
+    """
 
     n_points: int
     points_done: int  #: points complete at every wavelength
@@ -137,18 +238,46 @@ class ScanResult:
 class Scanner:
     """The host side of one scanner link.
 
-    ``port``: device path (``/dev/ttyACM0``, ``/dev/pts/3``) or pyserial URL.
-    ``window``: credit window in A-line frames. ``retry``: command retransmission interval,
-    s. ``response_timeout``: longest wait for a command reply or for a stalled device, s.
-    ``stall_timeout``: silence during a scan after which the host polls the device, s.
-    ``reader``: how a local tty is drained (:mod:`driver.transport`): ``"process"``
-    (default: the relay process :mod:`driver.relay`, immune to the interpreter lock),
-    ``"thread"`` (pyserial's ``ReaderThread``) or ``"direct"`` (read in the calling
-    thread). URL transports are always read directly.
-    ``lock_timeout``: how long to retry a port locked by another process, s.
+    Parameters
+    ----------
+    port : str
+        Device path (``/dev/ttyACM0``, ``/dev/pts/3``) or pyserial URL.
+    window : int, optional
+        Credit window in A-line frames, 1 … 65535 (default 256).
+    retry : float, optional
+        Command retransmission interval, s (default 0.15).
+    response_timeout : float, optional
+        Longest wait for a command reply or for a stalled device, s (default 10).
+    stall_timeout : float, optional
+        Silence during a scan after which the host polls the device, s (default 1).
+    baudrate : int, optional
+        The serial port's baud rate (default 115200).
+    reader : str, optional
+        How a local tty is drained (:mod:`driver.transport`): ``"process"``
+        (default: the relay process :mod:`driver.relay`, immune to the interpreter lock),
+        ``"thread"`` (pyserial's ``ReaderThread``) or ``"direct"`` (read in the calling
+        thread). URL transports are always read directly.
+    lock_timeout : float, optional
+        How long to retry a port locked by another process, s (default 2).
 
-    Raises :class:`DriverError` if the port cannot be opened or is locked by another
-    process (exclusive ``flock``), ``ValueError`` for a bad setting.
+    Attributes
+    ----------
+    port : str
+        As given.
+    window, retry, response_timeout, stall_timeout
+        The settings as given (int, then floats).
+    faults : collections.Counter
+        Link faults recovered since the port was opened (``bad_frames``, ``bad_alines``,
+        ``naks``, ``command_retries``, ``upload_retries``, ``stall_polls``, ``resets``).
+    link_stats : collections.Counter
+        Link statistics that are not faults (``slow_replies``).
+
+    Raises
+    ------
+    DriverError
+        The port cannot be opened or is locked by another process (exclusive ``flock``).
+    ValueError
+        A bad ``reader`` or ``window``.
     """
 
     def __init__(self, port: str, *, window: int = 256, retry: float = 0.15,
@@ -520,7 +649,25 @@ class ScanSession:
     from resets, and reports progress. The :class:`Scanner` it runs on provides the link
     (commands, frame dispatch); the transport reader below that moves the bytes.
 
-    Raises ``ValueError`` if the plan and the sink disagree.
+    Parameters
+    ----------
+    scanner : Scanner
+        The open link the session runs on.
+    plan : dict
+        The checked plan (:func:`driver.plan.load_plan`).
+    sink : object
+        The scan file API: ``completed_by_wavelength()`` (bool ``(n_wavelengths, n_points)``)
+        or ``completed()`` (bool ``(n_points,)``, one wavelength), ``append(k, samples, meta)``
+        and optionally ``plan_id`` (:meth:`Scanner.scan`).
+    progress : callable, optional
+        Called with a :class:`ScanProgress` about every ``progress_interval`` s.
+    progress_interval : float, optional
+        Seconds between progress reports (default 0.25).
+
+    Raises
+    ------
+    ValueError
+        The sink's record does not match the plan's shape, or the sink is for another plan.
     """
 
     def __init__(self, scanner: Scanner, plan: dict, sink, *,

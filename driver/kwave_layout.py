@@ -19,13 +19,41 @@ __all__ = ["attribute", "is_kwave_named", "lateral_spacings"]
 
 
 def attribute(data_attrs: Mapping[str, Any], file_attrs: Mapping[str, Any], name: str) -> Any:
-    """The attribute ``name`` of the array, else of the file, else None."""
+    """The attribute ``name`` of the array, else of the file, else None.
+
+    Parameters
+    ----------
+    data_attrs : Mapping[str, Any]
+        The array's HDF5 attributes.
+    file_attrs : Mapping[str, Any]
+        The file's (root group's) HDF5 attributes.
+    name : str
+        The attribute to look up.
+
+    Returns
+    -------
+    Any
+        Its value as stored, or None where neither has it.
+    """
     return data_attrs.get(name, file_attrs.get(name))
 
 
 def is_kwave_named(data_attrs: Mapping[str, Any], file_attrs: Mapping[str, Any]) -> bool:
     """True for k-Wave's own naming (depth = x): ``kwave_DataOrder`` on the array or
-    ``kwave_commit`` on the file."""
+    ``kwave_commit`` on the file.
+
+    Parameters
+    ----------
+    data_attrs : Mapping[str, Any]
+        The array's HDF5 attributes.
+    file_attrs : Mapping[str, Any]
+        The file's (root group's) HDF5 attributes.
+
+    Returns
+    -------
+    bool
+        Whether the file uses k-Wave's axis names.
+    """
     return "kwave_DataOrder" in data_attrs or "kwave_commit" in file_attrs
 
 
@@ -34,7 +62,28 @@ def lateral_spacings(data_attrs: Mapping[str, Any], file_attrs: Mapping[str, Any
     """``(dx, dy)``, the attribute values (m, as stored: the caller checks them) of our
     lateral x and y spacings of a time-first array of ``ndim`` (2 or 3) dimensions, from
     its attributes and its file's (module docstring); ``dy`` is None for 2-D data, either
-    is None where the file does not say. Raises ValueError for another ``ndim``."""
+    is None where the file does not say.
+
+    Parameters
+    ----------
+    data_attrs : Mapping[str, Any]
+        The array's HDF5 attributes.
+    file_attrs : Mapping[str, Any]
+        The file's (root group's) HDF5 attributes.
+    ndim : int
+        The array's dimensions: 2 for ``(n_t, n_x)``, 3 for ``(n_t, n_y, n_x)``.
+
+    Returns
+    -------
+    dx, dy : Any
+        The stored spacing attributes, m (unchecked), or None where missing; ``dy`` is
+        None for 2-D data.
+
+    Raises
+    ------
+    ValueError
+        ``ndim`` is neither 2 nor 3.
+    """
     if ndim not in (2, 3):
         raise ValueError(f"k-Wave layout data are (t, x) or (t, y, x), got {ndim} dimensions")
 

@@ -133,7 +133,23 @@ def canonical_json(obj: Any) -> str:
 def plan_id_of(plan: dict) -> str:
     """The plan's id: SHA-256 hex digest (FIPS 180-4) of the UTF-8 canonical JSON
     (``canonical_json``) of everything but ``id``. Raises ``ValueError`` if the plan
-    holds values JSON cannot represent (NaN, infinity, objects)."""
+    holds values JSON cannot represent (NaN, infinity, objects).
+
+    Parameters
+    ----------
+    plan : dict
+        The plan (its ``id``, if any, is left out of the hash).
+
+    Returns
+    -------
+    str
+        64 lowercase hex digits.
+
+    Raises
+    ------
+    ValueError
+        ``plan`` is not a dict, or holds values JSON cannot represent.
+    """
     if not isinstance(plan, dict):
         raise ValueError(f"a plan must be a JSON object, got {type(plan).__name__}")
     body = {k: v for k, v in plan.items() if k != "id"}
@@ -167,7 +183,26 @@ def _number(name: str, value: Any, *, positive: bool = True, unit: str = "",
 def check_wavelengths(wavelengths: Any) -> list[float]:
     """Excitation wavelengths (m) as a list of floats: non-empty, each within
     ``WAVELENGTH_RANGE`` (400 nm to 2000 nm, the tunable OPO range a FP scanner's
-    excitation laser covers), no duplicates. Raises ``ValueError`` naming the fault."""
+    excitation laser covers), no duplicates. Raises ``ValueError`` naming the fault.
+
+    Parameters
+    ----------
+    wavelengths : list or tuple of float
+        Excitation wavelengths, m.
+
+    Returns
+    -------
+    list of float
+        The wavelengths, m, in the given order.
+
+    Raises
+    ------
+    ValueError
+        Not a list or tuple, empty, a value that is not a finite number > 0, or a repeat.
+    ImplausibleValue
+        A wavelength outside ``WAVELENGTH_RANGE``, with the likely unit mistake
+        (:class:`driver.units.ImplausibleValue`, a ``ValueError``).
+    """
     if isinstance(wavelengths, (str, bytes)) or not isinstance(wavelengths, (list, tuple)):
         raise ValueError(f"wavelengths must be a list of wavelengths in m, got {wavelengths!r}")
     if len(wavelengths) == 0:
@@ -198,7 +233,25 @@ def check_acquisition(acq: Any) -> dict:
     ``wavelength_order`` (``wavelength_order``). The service's ``Acquisition`` model calls
     this, so the library, the API and the scanner side accept the same plans.
 
-    Returns it; raises ``ValueError`` naming the first fault."""
+    Returns it; raises ``ValueError`` naming the first fault.
+
+    Parameters
+    ----------
+    acq : dict
+        The plan's ``acquisition`` object.
+
+    Returns
+    -------
+    dict
+        ``acq`` itself, unchanged.
+
+    Raises
+    ------
+    ValueError
+        Naming the first fault: not an object, ``n_t`` or ``dt`` missing, a value of the
+        wrong type or outside its limits, too many wavelengths, an unknown
+        ``wavelength_order``.
+    """
     if not isinstance(acq, dict):
         raise ValueError("plan 'acquisition' must be an object")
     if "n_t" not in acq or "dt" not in acq:
@@ -224,7 +277,23 @@ def wavelength_order(acq: dict) -> str:
     """The acquisition's ``wavelength_order``: ``"per_point"`` (default: at every point the
     laser is tuned through all wavelengths before the galvos move on) or ``"per_pass"``
     (one full pass over the points per wavelength). Trade-off: docs/protocol.md §4.1.
-    Raises ``ValueError`` for another value."""
+    Raises ``ValueError`` for another value.
+
+    Parameters
+    ----------
+    acq : dict
+        The plan's ``acquisition`` object.
+
+    Returns
+    -------
+    str
+        ``"per_point"`` or ``"per_pass"``.
+
+    Raises
+    ------
+    ValueError
+        Another value than those of ``WAVELENGTH_ORDERS`` (or None).
+    """
     order = acq.get("wavelength_order")
     if order is None:
         return WAVELENGTH_ORDERS[0]
@@ -238,9 +307,27 @@ def aline_order(n_points: int, n_wavelengths: int, order: str,
                 s: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Point and wavelength index of A-lines in acquisition order.
 
-    ``s``: A-line indices (int array; default all, ``0 … n_points·n_wavelengths - 1``).
-    Returns ``(k, w)``, int64 arrays shaped like ``s``: A-line index s is point ``k`` at
-    wavelength ``w`` (module docstring). Raises ``ValueError`` for an unknown ``order``.
+    Parameters
+    ----------
+    n_points : int
+        Points of the plan.
+    n_wavelengths : int
+        Excitation wavelengths of the plan.
+    order : str
+        ``"per_point"`` (every wavelength at a point, then the next point) or ``"per_pass"``
+        (every point at a wavelength, then the next wavelength).
+    s : ndarray of int, optional
+        A-line indices, any shape (default all, ``0 … n_points·n_wavelengths - 1``).
+
+    Returns
+    -------
+    k, w : ndarray of int64
+        Shaped like ``s``: A-line index s is point ``k`` at wavelength ``w`` (module docstring).
+
+    Raises
+    ------
+    ValueError
+        An unknown ``order``.
     """
     if s is None:
         s = np.arange(n_points * n_wavelengths, dtype=np.int64)
@@ -254,7 +341,29 @@ def aline_order(n_points: int, n_wavelengths: int, order: str,
 
 def aline_index(k, w, n_points: int, n_wavelengths: int, order: str):
     """Inverse of :func:`aline_order`: the acquisition index of point ``k`` at wavelength
-    ``w`` (ints or int arrays). Raises ``ValueError`` for an unknown ``order``."""
+    ``w`` (ints or int arrays). Raises ``ValueError`` for an unknown ``order``.
+
+    Parameters
+    ----------
+    k : int or ndarray of int
+        Point indices.
+    w : int or ndarray of int
+        Wavelength indices (broadcast against ``k``).
+    n_points, n_wavelengths : int
+        Points and wavelengths of the plan.
+    order : str
+        ``"per_point"`` or ``"per_pass"`` (:func:`aline_order`).
+
+    Returns
+    -------
+    int or ndarray of int
+        The acquisition (A-line) index of each (k, w).
+
+    Raises
+    ------
+    ValueError
+        An unknown ``order``.
+    """
     if order == "per_point":
         return k * n_wavelengths + w
     if order == "per_pass":
@@ -280,6 +389,22 @@ def check_plan(plan: Any) -> dict:
     planner's record and not checked here.
 
     Returns the plan (unchanged). Raises ``ValueError`` naming the first problem.
+
+    Parameters
+    ----------
+    plan : dict
+        The parsed plan JSON.
+
+    Returns
+    -------
+    dict
+        ``plan`` itself, unchanged.
+
+    Raises
+    ------
+    ValueError
+        Naming the first problem (a wrong format, a missing section, a malformed id or one
+        that is not the content hash, a bad lattice, acquisition or points).
     """
     pid = _check_plan_header(plan)
     n_x, n_y, pitch = _check_plan_lattice(plan["lattice"], plan["points"])
@@ -378,7 +503,22 @@ def _check_plan_points(pts: dict, n_x: int, n_y: int, pitch: float) -> None:
 def lattice_positions(indices: np.ndarray, n_x: int, n_y: int, pitch: float) -> np.ndarray:
     """Positions ``(n, 2)`` as (x, y) in m of lattice indices ``(n, 2)`` (i_x, i_y) on an
     ``n_x × n_y`` lattice at ``pitch`` (m) centred on the optical axis:
-    ``x = (i_x - (n_x - 1)/2)·pitch``, ``y = (i_y - (n_y - 1)/2)·pitch``."""
+    ``x = (i_x - (n_x - 1)/2)·pitch``, ``y = (i_y - (n_y - 1)/2)·pitch``.
+
+    Parameters
+    ----------
+    indices : ndarray ``(n, 2)``
+        Lattice indices (i_x, i_y).
+    n_x, n_y : int
+        Lattice points along x and y.
+    pitch : float
+        Lattice pitch, m.
+
+    Returns
+    -------
+    ndarray ``(n, 2)`` float64
+        Positions (x, y), m.
+    """
     i = np.asarray(indices, dtype=np.float64).reshape(-1, 2)
     return np.stack([centred_positions(i[:, 0], n_x, pitch), centred_positions(i[:, 1], n_y, pitch)], axis=1)
 
@@ -391,6 +531,23 @@ def load_plan(source: Any) -> dict:
     rejects); ``OSError`` if the file cannot be read. What another kind of file is (a scan
     file, a result ...) is named by the registry of formats above the driver
     (``service.formats.describe``: the CLI's "this is a scan file, not a plan").
+
+    Parameters
+    ----------
+    source : dict, str or Path
+        A parsed plan, plan JSON text (starting with ``{``), or the path of a plan JSON file.
+
+    Returns
+    -------
+    dict
+        The checked plan (:func:`check_plan`).
+
+    Raises
+    ------
+    ValueError
+        A file that is not UTF-8 JSON text, invalid JSON, or a plan :func:`check_plan` rejects.
+    OSError
+        The file cannot be read.
     """
     if isinstance(source, dict):
         plan = source
@@ -413,7 +570,35 @@ def load_plan(source: Any) -> dict:
 @dataclass(frozen=True)
 class DevicePlan:
     """A parsed plan image. ``indices`` is uint16 ``(n_points, 2)`` as (i_x, i_y);
-    ``wavelengths`` (m) in plan order; ``order`` one of ``WAVELENGTH_ORDERS``."""
+    ``wavelengths`` (m) in plan order; ``order`` one of ``WAVELENGTH_ORDERS``.
+
+    Attributes
+    ----------
+    plan_id : str
+        The plan's id, 64 hex digits.
+    n_x, n_y : int
+        Lattice points along x and y.
+    pitch : float
+        Lattice pitch, m.
+    n_t : int
+        Samples per A-line.
+    averages : int
+        Pulses averaged per A-line.
+    dt : float
+        Sample interval, s.
+    prf : float
+        Pulse repetition frequency, Hz (0: as fast as possible).
+    wavelength : float
+        The first excitation wavelength, m.
+    sound_speed : float
+        m/s.
+    indices : ndarray ``(n_points, 2)`` uint16
+        Lattice indices (i_x, i_y) in acquisition order.
+    wavelengths : tuple of float
+        Excitation wavelengths, m, in plan order.
+    order : str
+        The wavelength order, ``"per_point"`` or ``"per_pass"``.
+    """
 
     plan_id: str
     n_x: int
@@ -456,6 +641,21 @@ def plan_image(plan: dict) -> bytes:
     docstring).
 
     Raises ``ValueError`` if the plan is invalid or does not fit the image (indices ≥ 65536).
+
+    Parameters
+    ----------
+    plan : dict or str or Path
+        The plan (anything :func:`load_plan` reads).
+
+    Returns
+    -------
+    bytes
+        The image: header, wavelength table, then the indices as little-endian uint16 pairs.
+
+    Raises
+    ------
+    ValueError
+        An invalid plan, or lattice indices above 65535.
     """
     plan = load_plan(plan)
     lat, acq = plan["lattice"], plan["acquisition"]
@@ -474,13 +674,42 @@ def plan_image(plan: dict) -> bytes:
 
 
 def image_size_limit(max_points: int) -> int:
-    """Largest plan image a device with ``max_points`` accepts, bytes."""
+    """Largest plan image a device with ``max_points`` accepts, bytes.
+
+    Parameters
+    ----------
+    max_points : int
+        The most points the device takes.
+
+    Returns
+    -------
+    int
+        The image size with ``MAX_WAVELENGTHS`` wavelengths and ``max_points`` points, bytes.
+    """
     return IMAGE_HEADER.size + IMAGE_SPECTRAL.size + 8 * MAX_WAVELENGTHS + 4 * max_points
 
 
 def parse_plan_image(image: bytes) -> DevicePlan:
     """Parse a plan image, version 2 or 1 (device side). Raises ``ValueError`` with the
-    reason."""
+    reason.
+
+    Parameters
+    ----------
+    image : bytes
+        The uploaded image (:func:`plan_image`).
+
+    Returns
+    -------
+    DevicePlan
+        Its settings, indices and wavelengths.
+
+    Raises
+    ------
+    ValueError
+        A short or truncated image, a wrong magic or version, a bad wavelength table, a length
+        that disagrees with the point count, empty or non-positive settings, or points
+        outside the lattice.
+    """
     if len(image) < IMAGE_HEADER.size:
         raise ValueError(f"plan image of {len(image)} bytes is shorter than its header")
     (magic, version, _, pid, n_x, n_y, pitch, n_t, averages, dt, prf, wavelength, c,

@@ -24,7 +24,26 @@ READY = b"\x00"
 
 
 def relay(fd: int, out: int = 1, parent: int | None = None) -> int:
-    """Copy ``fd`` to ``out`` until ``out`` closes, ``fd`` fails or ``parent`` dies."""
+    """Copy ``fd`` to ``out`` until ``out`` closes, ``fd`` fails or ``parent`` dies.
+
+    Writes :data:`READY` first, then copies what ``fd`` yields (up to 64 KiB a read),
+    checking every 0.1 s of silence whether the parent is still alive.
+
+    Parameters
+    ----------
+    fd : int
+        The open descriptor to read (the host's serial tty).
+    out : int, optional
+        The descriptor to write to (default 1, stdout: the pipe the host reads).
+    parent : int or None, optional
+        Process id of the parent to outlive; None: this process's parent now.
+
+    Returns
+    -------
+    int
+        The exit status: 0 when ``out`` closes, ``fd`` reaches end of file or the parent has
+        died; 1 when ``fd`` fails (select or read error, the message on stderr).
+    """
     parent = os.getppid() if parent is None else parent
     try:
         os.write(out, READY)

@@ -312,7 +312,25 @@ def open_readonly(path: str | os.PathLike, timeout: float = 5.0) -> h5py.File:
     (or left open when killed) is opened as an SWMR reader; any other without SWMR:
     HDF5's SWMR reader retries unreadable metadata (of a truncated or corrupt file)
     without end, holding the GIL, where a normal open reports the damage. ``timeout``:
-    retries while a writer holds the file lock (s). Raises ValueError."""
+    retries while a writer holds the file lock (s). Raises ValueError.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The HDF5 file.
+    timeout : float, optional
+        Seconds to retry while a writer holds the file lock (default 5).
+
+    Returns
+    -------
+    h5py.File
+        The file, open read-only (the caller closes it).
+
+    Raises
+    ------
+    ValueError
+        A corrupt or truncated superblock, or a file HDF5 cannot open.
+    """
     path = Path(path)
     live = _superblock_open_for_write(path)
     kwargs: dict[str, Any] = {"libver": "latest", "swmr": True} if live else {}
@@ -347,10 +365,10 @@ def open_checked(path: str | os.PathLike, *, max_bytes: int) -> Iterator[Any]:
     max_bytes : int
         The most bytes any one dataset may declare.
 
-    Yields
-    ------
-    h5py.File
-        Read-only.
+    Returns
+    -------
+    context manager of h5py.File
+        Entered, the file, read-only (``with open_checked(path, max_bytes=n) as f``).
 
     Raises
     ------
@@ -373,6 +391,32 @@ class ScanFile:
     Create with :meth:`create` or resume with :meth:`open_append`; then :meth:`append`
     each A-line as it arrives; :meth:`close` (or use as a context manager). One writer per
     file (enforced by a lock); any number of SWMR readers (:func:`read_scan`).
+
+    Parameters
+    ----------
+    path : Path
+        The scan file (the constructor is internal: :meth:`create`, :meth:`open_append`).
+    h5 : h5py.File
+        The file, open for SWMR writing.
+    lock_fd : int
+        The descriptor holding the writer lock.
+    durable : str
+        ``"process"`` or ``"fsync"`` (module docstring).
+
+    Attributes
+    ----------
+    plan_id : str
+        The plan's id.
+    n_points : int
+        Points of the plan.
+    n_t : int
+        Samples per A-line.
+    wavelengths : ndarray ``(n_wavelengths,)`` float64
+        Excitation wavelengths, m.
+    n_wavelengths : int
+        Number of excitation wavelengths.
+    wavelength_order : str
+        ``"per_point"`` or ``"per_pass"``.
     """
 
     def __init__(self, path: Path, h5: h5py.File, lock_fd: int, durable: str) -> None:
@@ -719,20 +763,64 @@ class ScanData:
     wavelength (first axis w, the index into ``wavelengths``). Rows of A-lines whose
     completion flag is False hold no data: ``alines`` 0, metadata 0, ``pressure`` NaN.
 
-    - ``alines``: ``(n_points, n_t)`` int16 as received; ``alines_all``
-      ``(n_wavelengths, n_points, n_t)``.
-    - ``scale``, ``offset``, ``dc_level``: ``(n_points,)`` float64 (from the metadata).
-    - ``pressure``: ``(n_points, n_t)`` float, DC-normalised
-      ``(alines·scale + offset) / dc_level`` (module docstring); ``pressure_all``
-      ``(n_wavelengths, n_points, n_t)``.
-    - ``completed``: ``(n_points,)`` bool at ``wavelength_index``; ``completed_all``
-      ``(n_wavelengths, n_points)``.
-    - ``positions``: ``(n_points, 2)`` (x, y) in m (2-D plans: ``(n_points, 1)``);
-      ``indices`` ``(n_points, 2)`` lattice (i_x, i_y); ``weights`` ``(n_points,)``.
-    - ``meta``: dict key → ``(n_points,)`` array for every key of ``META_KEYS``;
-      ``meta_all``: key → ``(n_wavelengths, n_points)``.
-    - ``dt`` (s), ``sound_speed`` (m/s), ``wavelengths`` (m, ``(n_wavelengths,)``) and
-      ``wavelength_order`` from the plan's acquisition.
+    Attributes
+    ----------
+    path : Path
+        The file read.
+    plan : dict
+        The plan JSON stored in the file.
+    plan_id : str
+        The plan's id.
+    n_points : int
+        Points (rows of the per-point arrays).
+    n_t : int
+        Samples per A-line.
+    dt : float
+        Sample interval, s (from the plan's acquisition).
+    sound_speed : float
+        m/s (from the plan's acquisition).
+    wavelengths : ndarray ``(n_wavelengths,)`` float64
+        Excitation wavelengths, m.
+    alines : ndarray ``(n_points, n_t)`` int16
+        The samples as received, at ``wavelength_index``.
+    scale, offset, dc_level : ndarray ``(n_points,)`` float64
+        From the metadata, at ``wavelength_index``.
+    pressure : ndarray ``(n_points, n_t)`` float
+        DC-normalised ``(alines·scale + offset) / dc_level`` (module docstring).
+    positions : ndarray ``(n_points, 2)``
+        (x, y) in m (2-D plans: ``(n_points, 1)``).
+    indices : ndarray ``(n_points, 2)``
+        Lattice indices (i_x, i_y).
+    weights : ndarray ``(n_points,)``
+        The plan's sensor weights (areas, m²; m on a line lattice).
+    completed : ndarray ``(n_points,)`` bool
+        The completion record at ``wavelength_index``.
+    meta : dict
+        Key → ``(n_points,)`` array for every key of ``META_KEYS``.
+    acquisition : dict
+        The plan's acquisition object.
+    instrument : dict
+        The scanner's identity (``instrument_json``; :func:`pressure_unit`).
+    software_version : str
+        The fpscan version that wrote the file.
+    created_utc : str
+        Creation time, ISO 8601 (UTC).
+    attrs : dict
+        Every file attribute (bytes decoded).
+    n_wavelengths : int
+        Number of excitation wavelengths.
+    wavelength_index : int
+        The wavelength the per-A-line views show (index into ``wavelengths``).
+    wavelength_order : str
+        ``"per_point"`` or ``"per_pass"``.
+    alines_all : ndarray ``(n_wavelengths, n_points, n_t)`` int16
+        Samples at every wavelength.
+    pressure_all : ndarray ``(n_wavelengths, n_points, n_t)`` float
+        Pressure at every wavelength.
+    completed_all : ndarray ``(n_wavelengths, n_points)`` bool
+        The completion record at every wavelength.
+    meta_all : dict
+        Key → ``(n_wavelengths, n_points)`` array.
     """
 
     path: Path
@@ -819,7 +907,23 @@ def pressure_unit(instrument: dict | None) -> str:
     scan file's ``instrument_json``) states the volts-to-pascal calibration with
     ``"pressure_unit": "Pa"`` (``scale``/``offset`` give volts and the sensitivity is
     1 V/(Pa·V): module docstring), else ``"a.u."`` (arbitrary units, proportional to
-    pressure). Raises ValueError for a ``pressure_unit`` other than those two."""
+    pressure). Raises ValueError for a ``pressure_unit`` other than those two.
+
+    Parameters
+    ----------
+    instrument : dict or None
+        The scan file's instrument dict (None: none stated).
+
+    Returns
+    -------
+    str
+        ``"Pa"`` or ``"a.u."``.
+
+    Raises
+    ------
+    ValueError
+        A ``pressure_unit`` other than those of ``PRESSURE_UNITS``.
+    """
     unit = (instrument or {}).get("pressure_unit", "a.u.")
     if unit not in PRESSURE_UNITS:
         raise ValueError(f"instrument pressure_unit must be one of {', '.join(PRESSURE_UNITS)}, got {unit!r}")
@@ -829,7 +933,27 @@ def pressure_unit(instrument: dict | None) -> str:
 def completed_count(path: str | os.PathLike, *, timeout: float = 5.0) -> int:
     """The number of points complete at every wavelength in a scan file (complete,
     partial or left open by a killed writer), reading only its completion record.
-    Raises FileNotFoundError, ValueError (not a scan file)."""
+    Raises FileNotFoundError, ValueError (not a scan file).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The scan file.
+    timeout : float, optional
+        Seconds to retry while a writer holds the file lock (default 5).
+
+    Returns
+    -------
+    int
+        Points complete at every wavelength.
+
+    Raises
+    ------
+    FileNotFoundError
+        No file at ``path``.
+    ValueError
+        Not a scan file (or not a readable HDF5 file).
+    """
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no scan file at {path}")
@@ -852,6 +976,29 @@ def read_scan(path: str | os.PathLike, *, dtype: Any = np.float64,
     The completion record is read first, so every A-line it marks complete has its
     samples and metadata present. Raises FileNotFoundError, ValueError (not a scan file,
     wavelength index out of range).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The scan file.
+    dtype : numpy float dtype, optional
+        Float type of the ``pressure`` views (default float64; float32 halves their memory).
+    timeout : float, optional
+        Seconds to retry while a writer holds the file lock (default 5).
+    wavelength_index : int, optional
+        The wavelength the per-A-line views show (default 0).
+
+    Returns
+    -------
+    ScanData
+        Everything in the file, read at one instant.
+
+    Raises
+    ------
+    FileNotFoundError
+        No file at ``path``.
+    ValueError
+        ``dtype`` not a float type, not a scan file, or ``wavelength_index`` out of range.
     """
     path = Path(path)
     if np.dtype(dtype).kind != "f":
@@ -868,7 +1015,29 @@ def read_open_scan(f: h5py.File, path: str | os.PathLike, *, dtype: Any = np.flo
     name (for messages and ``ScanData.path``): so a caller that opened the file once (the
     registry of formats, ``service.formats``) reads it without opening it again. The speed
     of sound is the attribute ``sound_speed``, or ``sound_speed_m_per_s`` in a file an older
-    fpscan wrote. Raises ValueError (not a scan file, wavelength index out of range)."""
+    fpscan wrote. Raises ValueError (not a scan file, wavelength index out of range).
+
+    Parameters
+    ----------
+    f : h5py.File
+        The scan file, open read-only.
+    path : str or os.PathLike
+        Its name.
+    dtype : numpy float dtype, optional
+        Float type of the ``pressure`` views (default float64).
+    wavelength_index : int, optional
+        The wavelength the per-A-line views show (default 0).
+
+    Returns
+    -------
+    ScanData
+        Everything in the file.
+
+    Raises
+    ------
+    ValueError
+        ``dtype`` not a float type, not a scan file, or ``wavelength_index`` out of range.
+    """
     path = Path(path)
     dtype = np.dtype(dtype)
     if dtype.kind != "f":

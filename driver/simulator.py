@@ -71,7 +71,55 @@ BLOCK = 128
 
 @dataclass
 class SimConfig:
-    """Settings of the simulated scanner (SI units; see the module docstring)."""
+    """Settings of the simulated scanner (SI units; see the module docstring).
+
+    Raises ``ValueError`` (on construction) naming the first setting out of range.
+
+    Attributes
+    ----------
+    source : Source or None
+        A :mod:`driver.sources` source; None = ``BallSource(default_phantom())``.
+    prf : float
+        Laser pulse repetition frequency, Hz (0 = unthrottled).
+    tuning_delay : float
+        Bias-wavelength tuning time per point, s.
+    laser_tuning_delay : float
+        Excitation-wavelength tuning time, s.
+    dc_level : float
+        Mean photodiode DC level, V (> 0).
+    dc_variation : float
+        Relative amplitude of the DC-level map, in [0, 1).
+    sensitivity_variation : float
+        Relative amplitude of the sensitivity map, in [0, 1).
+    bandwidth : float or None
+        Sensor −3 dB bandwidth, Hz (None = unlimited).
+    snr : float or None
+        Peak signal / noise standard deviation (None = no noise).
+    byte_rate : float or None
+        Output byte-rate limit, bytes/s, at least 100 (None = none).
+    faults : FaultSpec
+        Injected link and device faults (:mod:`driver.faults`).
+    seed : int
+        Seed of the noise, the maps and the faults.
+    record : Path or None
+        Ground-truth HDF5 file written by ``write_record()`` (at :meth:`SimulatedScanner.stop`).
+    pulse_energy : float
+        Mean excitation pulse energy, J.
+    bias_wavelength : float
+        Centre bias wavelength, m.
+    max_points : int
+        Most A-lines (points × wavelengths) of a plan the device takes, 1 … 2²⁴.
+    max_samples : int
+        Most samples per A-line, 1 … 32768.
+    max_window : int
+        Largest credit window the device honours, frames, 1 … 65535.
+    rto : float
+        Retransmission timeout without ACK progress, s.
+    serial : str
+        The serial number ``*IDN?`` reports.
+    precompute : bool
+        Generate all A-lines of a plan at ``PLAN:END``.
+    """
 
     source: Source | None = None  #: a driver.sources source; None = BallSource(default_phantom())
     prf: float = 50.0  #: laser pulse repetition frequency, Hz (0 = unthrottled)
@@ -147,6 +195,30 @@ class SimulatedScanner:
     Use as a context manager or call :meth:`start` / :meth:`stop`. :attr:`path` is the
     device path for the host (``/dev/pts/N``). Thread-safe accessors: :attr:`boot_id`,
     :attr:`state`. Raises ``OSError`` if no pty can be opened.
+
+    Parameters
+    ----------
+    config : SimConfig, optional
+        The settings; None: ``SimConfig(**kwargs)``.
+    **kwargs
+        :class:`SimConfig` fields, used when ``config`` is None.
+
+    Attributes
+    ----------
+    config : SimConfig
+        The settings (its ``source`` filled in).
+    path : str
+        The pty's device path for the host (``/dev/pts/N``).
+    stats : collections.Counter
+        Counts of what the device did: ``alines`` sent, ``tx_bytes``, ``resent``, ``timeouts``,
+        ``rx_bad_frames``, ``duplicate_commands``, ``stalls``, ``resets``, ``internal_errors``.
+
+    Raises
+    ------
+    OSError
+        No pty can be opened.
+    ValueError
+        A setting out of range (from :class:`SimConfig`).
     """
 
     def __init__(self, config: SimConfig | None = None, **kwargs):

@@ -42,7 +42,13 @@ PressureFn = Callable[..., np.ndarray]  # pressure(ks, ws=None) -> (len(ks), n_t
 
 class Source(Protocol):
     """What the simulator needs of a source (:class:`BallSource`, :class:`VolumeSource`,
-    :class:`ReplaySource`)."""
+    :class:`ReplaySource`).
+
+    Attributes
+    ----------
+    peak : float
+        Reference amplitude for the SNR, Pa.
+    """
 
     @property
     def peak(self) -> float:
@@ -64,6 +70,11 @@ def default_phantom() -> list:
     Sized for a 226 × 226 lattice at 60 µm (13.5 mm aperture): balls of radius 0.15–0.3 mm
     at depths 1.5–4.5 mm, and a tube of radius 0.1 mm bending through depth 2.5–3.5 mm.
     Returns a list of ``driver.physics.Ball`` (m, Pa).
+
+    Returns
+    -------
+    list of Ball
+        The balls: positions and radii in m, amplitudes in Pa.
     """
     from driver.physics import Ball
 
@@ -94,6 +105,21 @@ class BallSource:
     (Prahl's table, ``driver.physics.spectra.absorption``), and its ``amplitude`` is not
     used. Raises ``ValueError`` (at construction) for so2/thb of the wrong length or out of
     range, and (in :meth:`prepare`) for wavelengths outside the table.
+
+    Attributes
+    ----------
+    balls : list of Ball
+        The balls (positions and radii in m, amplitudes in Pa).
+    c : float
+        Sound speed, m/s (default ``driver.constants.C_DEFAULT``).
+    so2 : sequence of float or None
+        Oxygen saturation per ball, 0..1 (None: no spectral phantom; the amplitudes are used).
+    thb : float or sequence of float or None
+        Total haemoglobin per ball (or one for all), mol/m³ (None: ``BLOOD_THB``).
+    gruneisen : float
+        Grüneisen parameter Γ, dimensionless (default 0.2).
+    fluence : float
+        Fluence Φ, J/m² (default 100).
     """
 
     balls: list
@@ -193,6 +219,13 @@ class VolumeSource:
     ``dx_m``); the lateral grid is centred on the optical axis.
     Raises ``ValueError`` if the file lacks them, or is refused as hostile
     (``driver.scanfile.open_checked``: external links or storage, declared sizes beyond what it stores).
+
+    Attributes
+    ----------
+    path : Path
+        The HDF5 file.
+    c : float
+        Sound speed, m/s (default ``driver.constants.C_DEFAULT``).
     """
 
     path: Path
@@ -258,6 +291,13 @@ class ReplaySource:
     replays grid point (i_x + (N_x − n_x)/2, i_y + (N_y − n_y)/2)); otherwise ``prepare``
     raises ``ValueError`` with the reason; a file refused as hostile
     (``driver.scanfile.open_checked``) raises ``ValueError`` at construction.
+
+    Attributes
+    ----------
+    path : Path
+        The HDF5 file.
+    dataset : str
+        The dataset's path in the file (default ``"sensor_data/clean"``).
     """
 
     path: Path

@@ -41,11 +41,25 @@ RELAY_START_TIMEOUT = 10.0  #: longest wait for the relay process to start readi
 
 
 class TransportError(OSError):
-    """Reading from the serial port failed (the message names the port and the cause)."""
+    """Reading from the serial port failed (the message names the port and the cause).
+
+    Parameters
+    ----------
+    *args : str
+        The message (as ``OSError``).
+    """
 
 
 class DirectReader:
-    """Read the port through pyserial in the calling thread."""
+    """Read the port through pyserial in the calling thread.
+
+    Parameters
+    ----------
+    ser : serial.Serial
+        The open pyserial port.
+    port : str, optional
+        Its name in error messages (default the port's own ``port`` attribute).
+    """
 
     def __init__(self, ser, port: str = "") -> None:
         self._ser = ser
@@ -86,7 +100,15 @@ class _QueueProtocol(Protocol):
 
 
 class ThreadReader:
-    """pyserial's ``ReaderThread`` drains the port; :meth:`read` collects its chunks."""
+    """pyserial's ``ReaderThread`` drains the port; :meth:`read` collects its chunks.
+
+    Parameters
+    ----------
+    ser : serial.Serial
+        The open pyserial port.
+    port : str, optional
+        Its name in error messages (default the port's own ``port`` attribute).
+    """
 
     def __init__(self, ser, port: str = "") -> None:
         self._port = port or getattr(ser, "port", "")
@@ -117,7 +139,22 @@ class ThreadReader:
 
 class RelayReader:
     """The relay process (:mod:`driver.relay`) drains the tty descriptor ``fd`` into a
-    pipe; :meth:`read` reads that pipe. Raises ``OSError`` if the relay cannot start."""
+    pipe; :meth:`read` reads that pipe. Raises ``OSError`` if the relay cannot start.
+
+    Parameters
+    ----------
+    ser : serial.Serial
+        The open pyserial port (read directly should the relay end).
+    fd : int
+        Its tty descriptor, handed to the relay process.
+    port : str, optional
+        Its name in error messages (default the port's own ``port`` attribute).
+
+    Raises
+    ------
+    OSError
+        The relay process did not start reading within :data:`RELAY_START_TIMEOUT` s.
+    """
 
     def __init__(self, ser, fd: int, port: str = "") -> None:
         import fcntl
@@ -193,6 +230,25 @@ def open_reader(ser, mode: str = "process", port: str = ""):
     ``mode``: ``"process"``, ``"thread"`` or ``"direct"``; ports without a descriptor
     (URL transports) are always read directly; if no relay process can be started, a
     reader thread is used. Raises ``ValueError`` for an unknown mode.
+
+    Parameters
+    ----------
+    ser : serial.Serial
+        The open pyserial port.
+    mode : str, optional
+        ``"process"`` (default), ``"thread"`` or ``"direct"``.
+    port : str, optional
+        The port's name in error messages.
+
+    Returns
+    -------
+    RelayReader, ThreadReader or DirectReader
+        The reader (``read()`` and ``close()``).
+
+    Raises
+    ------
+    ValueError
+        An unknown ``mode``.
     """
     if mode not in READER_MODES:
         raise ValueError(f"reader must be 'process', 'thread' or 'direct', not {mode!r}")

@@ -60,12 +60,24 @@ _QUANTITY = re.compile(r"^\s*([+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?)\s*([A-Z
 class RefusedInput(ValueError):
     """Input refused by a rule the caller can fix (a value out of range, a unit mistake, an
     option the method does not take): a usage error -- the CLI exits 2, the API answers
-    422. Subclasses: :class:`ImplausibleValue`, ``service.recon.checks.OptionError``."""
+    422. Subclasses: :class:`ImplausibleValue`, ``service.recon.checks.OptionError``.
+
+    Parameters
+    ----------
+    *args : str
+        The message (as ``ValueError``): what was refused and how to fix it.
+    """
 
 
 class ImplausibleValue(RefusedInput):
     """A value outside what a planar FP scanner works with, most likely a unit mistake;
-    the message names the quantity, its plausible range and the likely intended unit."""
+    the message names the quantity, its plausible range and the likely intended unit.
+
+    Parameters
+    ----------
+    *args : str
+        The message (as ``ValueError``).
+    """
 
 
 @functools.cache
@@ -80,11 +92,29 @@ def _registry():
 def parse_quantity(value: Any, kind: str, *, name: str = "value") -> float:
     """``value`` in SI units as a float.
 
-    ``value``: a number (SI already) or text ``"<number>"`` (SI) or ``"<number> <unit>"``
-    (``"60um"``, ``"3.6 mm"``, ``"8ns"``, ``"500 Hz"``, ``"1.5 km/s"``). ``kind``: one of
-    :data:`KINDS`. Raises ValueError naming ``name`` for text that is not a number with a
-    unit of that kind, for a typed number above :data:`MAGNITUDE_MAX` (checked before
-    any arithmetic) and for a value that is not finite.
+    Parameters
+    ----------
+    value : int, float or str
+        A number (SI already) or text ``"<number>"`` (SI) or ``"<number> <unit>"``
+        (``"60um"``, ``"3.6 mm"``, ``"8ns"``, ``"500 Hz"``, ``"1.5 km/s"``); text longer
+        than 40 characters is refused.
+    kind : str
+        One of :data:`KINDS` (``"length"``, ``"time"``, ``"frequency"``, ``"speed"``).
+    name : str, optional
+        The quantity's name in error messages (default ``"value"``).
+
+    Returns
+    -------
+    float
+        The value in the kind's SI unit (m, s, Hz or m/s).
+
+    Raises
+    ------
+    ValueError
+        Naming ``name``: an unknown ``kind``; a bool; text that is not a number with a unit
+        of that kind (an unknown unit, a unit of another dimension); a typed number above
+        :data:`MAGNITUDE_MAX` (checked before any arithmetic) or out of range after the
+        conversion; a value that is not finite.
     """
     if kind not in KINDS:
         raise ValueError(f"unknown kind of quantity {kind!r}; one of {', '.join(KINDS)}")
@@ -177,7 +207,22 @@ def _did_you_mean(x: float, unit: str) -> str:
 def suggest_unit(value: float, lo: float, hi: float, unit: str) -> str:
     """The likely-unit hint of a value (SI ``unit``: ``"m"`` or ``"s"``) outside
     ``[lo, hi]``: the number typed in a unit 10³, 10⁶ or 10⁹ smaller that lands in range
-    (``750`` m for a wavelength: " -- did you mean 750 nm (750nm)?"), else ""."""
+    (``750`` m for a wavelength: " -- did you mean 750 nm (750nm)?"), else "".
+
+    Parameters
+    ----------
+    value : float
+        The value as given, read in SI units.
+    lo, hi : float
+        The plausible range, SI units.
+    unit : str
+        The SI unit, ``"m"`` or ``"s"``.
+
+    Returns
+    -------
+    str
+        The hint to append to an error message, or ``""`` when no smaller unit fits.
+    """
     for factor in (1e-9, 1e-6, 1e-3):
         if lo <= value * factor <= hi:
             return _did_you_mean(value * factor, unit)
@@ -205,7 +250,25 @@ def check_speeds(*, c: Any = None, c_range: Any = None, force: bool = False) -> 
     ``force``; forced, a numeric ``c`` stays within ``C_LIMITS`` (above 100, at most 10 000
     m/s). ``"auto"``, None and non-numbers pass (their own checks name them). Raises
     :class:`ImplausibleValue` naming ``c`` or ``c_range`` and the likely unit mistake, or
-    :class:`RefusedInput` for a forced ``c`` outside ``C_LIMITS``."""
+    :class:`RefusedInput` for a forced ``c`` outside ``C_LIMITS``.
+
+    Parameters
+    ----------
+    c : Any, optional
+        The sound speed option, m/s (a number is checked; ``"auto"``, None and other values pass).
+    c_range : Any, optional
+        The autofocus search interval ``(lo, hi)``, m/s (each numeric end of a list or tuple
+        is checked).
+    force : bool, optional
+        Accept speeds outside ``C_PLAUSIBLE`` (other media); ``c`` must still lie within ``C_LIMITS``.
+
+    Raises
+    ------
+    ImplausibleValue
+        ``c`` or an end of ``c_range`` outside ``C_PLAUSIBLE`` (not forced).
+    RefusedInput
+        A forced ``c`` outside ``C_LIMITS``.
+    """
     def number(v: Any) -> bool:
         return isinstance(v, (int, float)) and not isinstance(v, bool)
 
@@ -234,7 +297,33 @@ def check_plausible(*, pitch: float | None = None, dx: float | None = None, dy: 
                     force: bool = False) -> None:
     """Raise :class:`ImplausibleValue` (a ``ValueError``) for the first value outside the
     table of the module docstring, naming the likely unit mistake. All values SI; None =
-    not given. ``force`` accepts a sound speed outside ``C_PLAUSIBLE`` (other media)."""
+    not given. ``force`` accepts a sound speed outside ``C_PLAUSIBLE`` (other media).
+
+    Parameters
+    ----------
+    pitch, dx, dy : float, optional
+        Lateral spacings, m (within ``PITCH_RANGE``).
+    dt : float, optional
+        Sample interval, s (within ``DT_RANGE``).
+    n_t : int, optional
+        Samples per A-line (with ``dt``: the recording's length for the depth and PRF checks).
+    prf : float, optional
+        Pulse repetition frequency, Hz: its period must not be shorter than one recording
+        ``n_t·dt`` (checked when ``n_t`` and ``dt`` are given).
+    sound_speed : float, optional
+        m/s, within ``C_PLAUSIBLE`` unless ``force`` (also the speed of the depth check;
+        default ``C_DEFAULT``).
+    depth : float, optional
+        Imaging depth below the sensor plane, m: > 0 and, with ``n_t`` and ``dt``, within the
+        recording's reach ``c·(n_t − 1)·dt``.
+    force : bool, optional
+        Skip the sound-speed range check.
+
+    Raises
+    ------
+    ImplausibleValue
+        The first value out of its range, with the likely unit mistake in the message.
+    """
     for name, v in (("pitch", pitch), ("dx", dx), ("dy", dy)):
         if v is not None:
             _in_range(name, float(v), *PITCH_RANGE, "m", _LENGTH_UNITS)

@@ -92,6 +92,16 @@ def build_parser(commands=None) -> argparse.ArgumentParser:
     (their ``add_arguments`` may import what the options need); default all of them. The
     others are listed with their one-line help only (``fpscan --help``; naming one of them
     is not parsed: ``main`` builds the sub-command the command line names).
+
+    Parameters
+    ----------
+    commands : collection of str, optional
+        The sub-commands to build (None: all of them).
+
+    Returns
+    -------
+    argparse.ArgumentParser
+        The top-level parser; each built sub-command's ``_run`` default is its module's ``run``.
     """
     parser = _top_parser()
     building = False
@@ -125,7 +135,13 @@ def allow_negative_quantities(parser: argparse.ArgumentParser) -> None:
     (``--poi -2mm 2mm``, ``--lambda -1e-12``: refused by the option's own rule, not as an
     unknown option). argparse reads a token starting with ``-`` as a value only when it
     matches its negative-number pattern (plain ``-2``, ``-.5``); no fpscan option looks like
-    a number, so the pattern is widened to numbers with exponents and units."""
+    a number, so the pattern is widened to numbers with exponents and units.
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        Changed in place, with every sub-parser built (:data:`NEGATIVE_QUANTITY`).
+    """
     parser._negative_number_matcher = NEGATIVE_QUANTITY
     for action in parser._actions:
         if isinstance(action, argparse._SubParsersAction):
@@ -146,7 +162,22 @@ def _command_named(argv: list[str]) -> str | None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run ``fpscan`` with ``argv`` (default: ``sys.argv[1:]``); return the exit status."""
+    """Run ``fpscan`` with ``argv`` (default: ``sys.argv[1:]``); return the exit status.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        The arguments after the program name (default ``sys.argv[1:]``).
+
+    Returns
+    -------
+    int
+        The exit status: the sub-command's (0 when it returns None); 2 for refused input
+        (``ValueError``, :class:`driver.units.RefusedInput`) or a missing extra; 1 when the
+        work failed (``OSError``, ``RuntimeError``); 130 when interrupted; :data:`CLOSED_PIPE`
+        when stdout's reader went away. argparse's own errors and ``--help``/``--version``
+        exit through ``SystemExit``.
+    """
     if argv is None:
         argv = sys.argv[1:]
     command = _command_named(argv)
@@ -184,7 +215,18 @@ def main(argv: list[str] | None = None) -> int:
 
 def in_flags(message: str) -> str:
     """A reason worded for every caller (``driver.units``: "force a value outside the range")
-    in the command line's own terms: the flag that does it, ``--force``."""
+    in the command line's own terms: the flag that does it, ``--force``.
+
+    Parameters
+    ----------
+    message : str
+        An error message.
+
+    Returns
+    -------
+    str
+        The message with "force a value outside the range" replaced by the flag's wording.
+    """
     return message.replace("force a value outside the range", "give --force for a value outside the range")
 
 
@@ -196,7 +238,13 @@ def closed_pipe() -> int:
     """Stdout's reader went away (``fpscan jobs list | head``): say nothing (no ``[Errno 32]``
     line, no traceback at exit) and return :data:`CLOSED_PIPE`, the status of ``ls | head``'s
     ``ls``. Stdout is pointed at the null device so the interpreter's final flush cannot
-    fail again."""
+    fail again.
+
+    Returns
+    -------
+    int
+        :data:`CLOSED_PIPE` (141).
+    """
     import os
 
     try:
@@ -211,7 +259,18 @@ def closed_pipe() -> int:
 def reason(exc: BaseException) -> str:
     """The message of an error for one line on stderr: a pydantic ``ValidationError``
     (a ``ValueError`` with ``errors()``) as ``field: reason; ...`` without pydantic's
-    boilerplate, anything else as ``str(exc)``."""
+    boilerplate, anything else as ``str(exc)``.
+
+    Parameters
+    ----------
+    exc : BaseException
+        The error.
+
+    Returns
+    -------
+    str
+        Its one-line message.
+    """
     errors = getattr(exc, "errors", None)
     if callable(errors):
         try:

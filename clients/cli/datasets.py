@@ -16,7 +16,13 @@ HELP = "list or delete the datasets uploaded to the server (size on disk, conten
 
 
 def add_arguments(parser):
-    """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser)."""
+    """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser).
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The sub-command's parser, changed in place.
+    """
     sub = parser.add_subparsers(dest="action", metavar="ACTION")
     sub.required = True
     p = sub.add_parser("list", help="list the stored datasets",
@@ -37,7 +43,20 @@ def add_arguments(parser):
 
 @client_errors
 def run(args) -> int:
-    """Run this sub-command with the parsed ``args``; return the exit status."""
+    """Run this sub-command with the parsed ``args``; return the exit status.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed command line (:func:`add_arguments`).
+
+    Returns
+    -------
+    int
+        The exit status: 0 on success. Errors of the client become exit 1, or 2 when the server refused
+        the request as given (``clients.cli._common.client_errors``); other refused input and
+        failures raise (:func:`clients.cli.main` reports them and sets the status).
+    """
     import json
     import time
 
@@ -70,7 +89,28 @@ def run(args) -> int:
 def full_ids(given: list[str], known: list[str], what: str) -> list[str]:
     """Each of ``given`` as the one id of ``known`` it is a prefix of (a full id stays as it
     is, known or not: the server answers for it). Raises UsageError (exit 2) for a prefix
-    that matches several ids, naming them, or none."""
+    that matches several ids, naming them, or none.
+
+    Parameters
+    ----------
+    given : list of str
+        Ids or id prefixes from the command line.
+    known : list of str
+        The server's ids.
+    what : str
+        What they are, for messages (``"dataset"``).
+
+    Returns
+    -------
+    list of str
+        The full ids, in the order given.
+
+    Raises
+    ------
+    UsageError
+        A prefix that matches several ids (naming them), or none (unless 32 characters or
+        longer: then it is passed on as a full id).
+    """
     from clients.cli._common import UsageError
 
     out = []

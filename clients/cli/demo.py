@@ -54,7 +54,13 @@ def add_arguments(parser):
     """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser).
     Lengths and times take units (``100um``, ``12ns``, ``3mm``; bare numbers are SI:
     ``clients.cli._common.quantity``); a unit mistake is refused by ``fpscan plan``'s
-    rules (``driver.units.check_plausible``, exit 2) before anything starts."""
+    rules (``driver.units.check_plausible``, exit 2) before anything starts.
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The sub-command's parser, changed in place.
+    """
     from clients.cli._common import quantity
 
     parser.add_argument("--out", default="demo-output", help="output folder (default: demo-output)")
@@ -80,7 +86,20 @@ def add_arguments(parser):
 
 
 def run(args) -> int:
-    """Run this sub-command with the parsed ``args``; return the exit status."""
+    """Run this sub-command with the parsed ``args``; return the exit status.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed command line (:func:`add_arguments`).
+
+    Returns
+    -------
+    int
+        The exit status: 0 on success. Errors of the client become exit 1, or 2 when the server refused
+        the request as given (``clients.cli._common.client_errors``); other refused input and
+        failures raise (:func:`clients.cli.main` reports them and sets the status).
+    """
     from clients.cli._common import client_errors
 
     return client_errors(lambda a: Demo(a).run())(args)
@@ -95,7 +114,26 @@ def _has_subcommand(name: str) -> bool:
 
 # --------------------------------------------------------------------------- the demo
 class Demo:
-    """The demo's steps; ``report`` collects what ``report.json`` holds."""
+    """The demo's steps; ``report`` collects what ``report.json`` holds.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed command line (:func:`add_arguments`).
+
+    Attributes
+    ----------
+    args : argparse.Namespace
+        As given.
+    out : Path
+        The output folder (``--out``).
+    t_start : float
+        ``time.perf_counter()`` at construction, s.
+    report : dict
+        What ``report.json`` holds (``format``, ``skipped`` steps, the steps' results).
+    procs : list of Process
+        The simulator and server processes started (:mod:`clients.processes`).
+    """
 
     def __init__(self, args):
         import time

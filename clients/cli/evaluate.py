@@ -27,7 +27,13 @@ NAMES = ("limited-view-2d", "sparse-masks-3d", "nufft-vs-interpolation", "vessel
 
 
 def add_arguments(parser):
-    """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser)."""
+    """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser).
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The sub-command's parser, changed in place.
+    """
     parser.add_argument("experiment", choices=NAMES + ("all",), help="which experiment (or all)")
     parser.add_argument("--data", default=None, metavar="FILE",
                         help="dense dataset instead of the built-in phantom: HDF5 with sensor_data/clean and dt_s/dx_m "
@@ -73,7 +79,19 @@ def _headline(result) -> str:
 
 
 def run(args) -> int:
-    """Run this sub-command with the parsed ``args``; return the exit status."""
+    """Run this sub-command with the parsed ``args``; return the exit status.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed command line (:func:`add_arguments`).
+
+    Returns
+    -------
+    int
+        The exit status: 0 on success (refused input and failures raise: :func:`clients.cli.main`
+        reports them and sets the status).
+    """
     from pathlib import Path
 
     from service.experiments import run_experiment

@@ -33,7 +33,13 @@ def _formats() -> tuple[dict, str]:
 
 
 def add_arguments(parser):
-    """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser)."""
+    """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser).
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The sub-command's parser, changed in place.
+    """
     fmts, described = _formats()
     parser.add_argument("scan", nargs="?", metavar="FILE",
                         help="scan file or result volume.h5 to export locally")
@@ -61,7 +67,20 @@ def _default_export(source: str) -> str:
 
 @client_errors
 def run(args) -> int:
-    """Run this sub-command with the parsed ``args``; return the exit status."""
+    """Run this sub-command with the parsed ``args``; return the exit status.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed command line (:func:`add_arguments`).
+
+    Returns
+    -------
+    int
+        The exit status: 0 on success. Errors of the client become exit 1, or 2 when the server refused
+        the request as given (``clients.cli._common.client_errors``); other refused input and
+        failures raise (:func:`clients.cli.main` reports them and sets the status).
+    """
     if args.server:
         return _remote(args)
     if args.job:

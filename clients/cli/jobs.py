@@ -15,7 +15,13 @@ KINDS = ("scan", "recon")
 
 
 def add_arguments(parser):
-    """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser)."""
+    """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser).
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The sub-command's parser, changed in place.
+    """
     sub = parser.add_subparsers(dest="action", metavar="ACTION")
     sub.required = True
     p = sub.add_parser("list", help="list jobs", description="List jobs, newest first.")
@@ -61,7 +67,20 @@ def _what(job) -> str:
 
 @client_errors
 def run(args) -> int:
-    """Run this sub-command with the parsed ``args``; return the exit status."""
+    """Run this sub-command with the parsed ``args``; return the exit status.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed command line (:func:`add_arguments`).
+
+    Returns
+    -------
+    int
+        The exit status: 0 on success. Errors of the client become exit 1, or 2 when the server refused
+        the request as given (``clients.cli._common.client_errors``); other refused input and
+        failures raise (:func:`clients.cli.main` reports them and sets the status).
+    """
     import json
 
     from clients.cli._common import ProgressBar, make_client

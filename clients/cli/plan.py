@@ -23,7 +23,18 @@ HELP = "make a scan plan (sensor mask + weights + order + acquisition settings) 
 
 
 def flag(name: str) -> str:
-    """The command-line flag of a parameter: ``n_points`` -> ``--n-points``."""
+    """The command-line flag of a parameter: ``n_points`` -> ``--n-points``.
+
+    Parameters
+    ----------
+    name : str
+        The parameter's name.
+
+    Returns
+    -------
+    str
+        The flag.
+    """
     return "--" + name.replace("_", "-")
 
 
@@ -33,7 +44,28 @@ _UNIT_KINDS = {"m": "length", "s": "time", "Hz": "frequency", "m/s": "speed"}
 def parse_value(text: str, unit: str | None) -> float:
     """One number from the command line in the parameter's SI ``unit``: a bare number is
     SI, text may carry a unit (``60um``, ``3.6mm``, ``8ns``, ``500Hz``;
-    ``driver.units.parse_quantity``). A bad value is a usage error (exit 2) naming it."""
+    ``driver.units.parse_quantity``). A bad value is a usage error (exit 2) naming it.
+
+    Parameters
+    ----------
+    text : str
+        The value as typed.
+    unit : str or None
+        The parameter's SI unit (``"m"``, ``"s"``, ``"Hz"``, ``"m/s"``); another unit or None:
+        a plain number.
+
+    Returns
+    -------
+    float
+        The value in SI units.
+
+    Raises
+    ------
+    argparse.ArgumentTypeError
+        Text that is not a number with a unit of that kind.
+    ValueError
+        Text that is not a number, for a parameter without a unit.
+    """
     kind = _UNIT_KINDS.get(unit or "")
     if kind is None:
         return float(text)
@@ -131,7 +163,13 @@ def add_arguments(parser):
     """Declare ``fpscan plan``'s options on ``parser``: one sub-parser per mask kind
     (aliases included) with one flag per parameter of its model, plus the common options.
     Where the planner (``service.plans``: numpy, scipy; the ``fpscan[driver]`` extra) is not
-    installed, e.g. a client-only install, the command is declared but says so when run."""
+    installed, e.g. a client-only install, the command is declared but says so when run.
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The sub-command's parser, changed in place.
+    """
     try:
         from service.plans.kinds import KINDS, kind_fields
 
@@ -153,7 +191,23 @@ def add_arguments(parser):
 
 def mask_params(args) -> dict:
     """The kind's parameters from the parsed flags (unset optional ones left out).
-    Raises ValueError naming a missing required flag."""
+    Raises ValueError naming a missing required flag.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed command line (``args.mask`` the kind, ``args.p_<name>`` its parameters).
+
+    Returns
+    -------
+    dict
+        Parameter name -> value, in SI units.
+
+    Raises
+    ------
+    UsageError
+        A required parameter's flag is missing (a ``ValueError``).
+    """
     from service.plans.kinds import kind_fields
 
     params: dict = {}
@@ -175,7 +229,25 @@ def mask_params(args) -> dict:
 
 
 def request_body(args) -> dict:
-    """The plan request (``POST /api/plans`` body) the flags describe."""
+    """The plan request (``POST /api/plans`` body) the flags describe.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed command line.
+
+    Returns
+    -------
+    dict
+        ``kind``, ``lattice``, ``params``, ``order``, ``force`` and ``acquisition`` (SI units;
+        ``n_y`` defaults to 1 for the equiangular kind, else to ``n_x``; the wavelengths
+        to 750 nm).
+
+    Raises
+    ------
+    UsageError
+        A required parameter's flag is missing (:func:`mask_params`).
+    """
     n_y = args.n_y if args.n_y is not None else (1 if args.mask == "equiangular" else args.n_x)
     return {
         "kind": args.mask,
@@ -192,7 +264,20 @@ def request_body(args) -> dict:
 
 @client_errors
 def run(args) -> int:
-    """Make the plan locally (``--out``) or on the server (``--server``); exit status."""
+    """Make the plan locally (``--out``) or on the server (``--server``); exit status.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed command line (:func:`add_arguments`).
+
+    Returns
+    -------
+    int
+        The exit status: 0 on success; 2 without the planner installed (the ``fpscan[driver]``
+        extra). Errors of the client become exit 1, or 2 when the server refused the request as given
+        (``clients.cli._common.client_errors``).
+    """
     if getattr(args, "_planner_missing", None):
         return needs_extra(args, "driver", args._planner_missing)
     if not args.out and not args.server:

@@ -22,7 +22,13 @@ HELP = "acquire a plan from the scanner (or simulator) into a scan file, resumin
 
 
 def add_arguments(parser):
-    """Declare ``fpscan scan``'s options on ``parser`` (local device or server job)."""
+    """Declare ``fpscan scan``'s options on ``parser`` (local device or server job).
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The sub-command's parser, changed in place.
+    """
     parser.add_argument("--device",
                         help="serial device path (/dev/ttyACM0, /dev/pts/N) or pyserial URL (local scan)")
     parser.add_argument("--plan", required=True,
@@ -69,7 +75,25 @@ def _wavelength_arg(text: str) -> float:
 
 def preview_index(wavelengths: list, wanted: float) -> int:
     """Index of ``wanted`` (m) among a plan's excitation ``wavelengths`` (m; equal to
-    1e-6 relative); ``ValueError`` naming the plan's wavelengths when it is not one."""
+    1e-6 relative); ``ValueError`` naming the plan's wavelengths when it is not one.
+
+    Parameters
+    ----------
+    wavelengths : list of float
+        The plan's excitation wavelengths, m.
+    wanted : float
+        The wavelength asked for, m.
+
+    Returns
+    -------
+    int
+        Its index in ``wavelengths``.
+
+    Raises
+    ------
+    UsageError
+        ``wanted`` is none of them (a ``ValueError``).
+    """
     for k, w in enumerate(wavelengths):
         if abs(float(w) - wanted) <= 1e-6 * abs(float(w)):
             return k
@@ -79,7 +103,21 @@ def preview_index(wavelengths: list, wanted: float) -> int:
 
 @client_errors
 def run(args) -> int:
-    """Acquire locally (``--device``) or as a server job (``--server``); exit status."""
+    """Acquire locally (``--device``) or as a server job (``--server``); exit status.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed command line (:func:`add_arguments`).
+
+    Returns
+    -------
+    int
+        The exit status of a local scan: 0 when the scan is complete; 1 incomplete (aborted or
+        stopped); 2 a ``--plan`` that is no plan; 130 interrupted (the same command resumes).
+        Errors of the client become exit 1, or 2 when the server refused the request as given
+        (``clients.cli._common.client_errors``).
+    """
     import sys
     import time
 

@@ -10,7 +10,13 @@ HELP = "run the fpscan HTTP service (job queue, scans, reconstructions, web page
 
 
 def add_arguments(parser):
-    """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser)."""
+    """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser).
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The sub-command's parser, changed in place.
+    """
     parser.add_argument("--host", default=None, help="bind address (default 127.0.0.1; beyond loopback needs --token)")
     parser.add_argument("--allowed-host", action="append", default=[], metavar="NAME", dest="allowed_hosts",
                         help="a host name (or address) clients may reach the server by besides localhost, "
@@ -36,7 +42,23 @@ def add_arguments(parser):
 
 
 def parse_devices(items: list[str]) -> dict[str, str]:
-    """``["fp1=/dev/ttyACM0", ...]`` → ``{"fp1": "/dev/ttyACM0"}``; raises ValueError."""
+    """``["fp1=/dev/ttyACM0", ...]`` → ``{"fp1": "/dev/ttyACM0"}``; raises ValueError.
+
+    Parameters
+    ----------
+    items : list of str
+        ``ID=PATH`` items from ``--device``.
+
+    Returns
+    -------
+    dict[str, str]
+        Scanner id -> device path.
+
+    Raises
+    ------
+    UsageError
+        An item without ``=``, an id or a path (a ``ValueError``).
+    """
     out = {}
     for item in items:
         key, sep, value = item.partition("=")
@@ -47,7 +69,19 @@ def parse_devices(items: list[str]) -> dict[str, str]:
 
 
 def run(args) -> int:
-    """Run this sub-command with the parsed ``args``; return the exit status."""
+    """Run this sub-command with the parsed ``args``; return the exit status.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed command line (:func:`add_arguments`).
+
+    Returns
+    -------
+    int
+        The exit status: 0 after the server stopped; 1 when the port or the data folder is already in
+        use.
+    """
     import importlib.resources
     import json
     import logging

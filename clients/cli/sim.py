@@ -18,7 +18,13 @@ HELP = "run the simulated FP scanner on a pseudo-terminal (prints its device pat
 def add_arguments(parser):
     """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser).
     Frequencies, times and the sound speed take units (``500Hz``, ``2 MHz``, ``5ms``,
-    ``1.54 km/s``; bare numbers are SI: ``clients.cli._common.quantity``)."""
+    ``1.54 km/s``; bare numbers are SI: ``clients.cli._common.quantity``).
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The sub-command's parser, changed in place.
+    """
     from clients.cli._common import quantity
 
     parser.add_argument("--source", nargs="+", default=["balls"], metavar="ARG",
@@ -62,7 +68,32 @@ def add_arguments(parser):
 
 def make_source(kind_and_file: list[str], *, dataset: str = "sensor_data/clean",
                 sound_speed: float = C_DEFAULT, so2: list[float] | None = None):
-    """The source named on the command line. Raises ValueError for a bad choice."""
+    """The source named on the command line. Raises ValueError for a bad choice.
+
+    Parameters
+    ----------
+    kind_and_file : list of str
+        ``["balls"]``, ``["volume", FILE]`` or ``["replay", FILE]`` (``--source``).
+    dataset : str, optional
+        The dataset a replay file replays (default ``"sensor_data/clean"``).
+    sound_speed : float, optional
+        The phantom's sound speed, m/s (balls, volume).
+    so2 : list of float, optional
+        Oxygen saturation, one for all balls or one per ball (balls only).
+
+    Returns
+    -------
+    BallSource, VolumeSource or ReplaySource
+        The :mod:`driver.sources` source.
+
+    Raises
+    ------
+    UsageError
+        An unknown kind, a file given to ``balls`` or missing otherwise, a file that does not
+        exist, or ``so2`` without ``balls`` (a ``ValueError``).
+    ValueError
+        A source that refuses its file or settings.
+    """
     from driver.sources import BallSource, ReplaySource, VolumeSource, default_phantom
 
     kind, rest = kind_and_file[0].lower(), kind_and_file[1:]
@@ -89,7 +120,19 @@ def make_source(kind_and_file: list[str], *, dataset: str = "sensor_data/clean",
 
 
 def run(args) -> int:
-    """Run this sub-command with the parsed ``args``; return the exit status."""
+    """Run this sub-command with the parsed ``args``; return the exit status.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed command line (:func:`add_arguments`).
+
+    Returns
+    -------
+    int
+        The exit status: 0 on success (refused input and failures raise: :func:`clients.cli.main`
+        reports them and sets the status).
+    """
     import signal
     import sys
     import threading

@@ -30,7 +30,13 @@ HELP = "reconstruct every wavelength and unmix HbO2/Hb into THb and sO2 (masked)
 
 
 def add_arguments(parser):
-    """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser)."""
+    """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser).
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The sub-command's parser, changed in place.
+    """
     parser.add_argument("inputs", nargs="*", metavar="INPUT",
                         help="a multi-wavelength scan file, or one file per wavelength (with --wavelengths)")
     parser.add_argument("--wavelengths", type=quantity("length", "wavelength"), nargs="+", default=None,
@@ -81,7 +87,20 @@ def _default_out(args):
 
 @client_errors
 def run(args) -> int:
-    """Run this sub-command with the parsed ``args``; return the exit status."""
+    """Run this sub-command with the parsed ``args``; return the exit status.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed command line (:func:`add_arguments`).
+
+    Returns
+    -------
+    int
+        The exit status: 0 on success. Errors of the client become exit 1, or 2 when the server refused
+        the request as given (``clients.cli._common.client_errors``); other refused input and
+        failures raise (:func:`clients.cli.main` reports them and sets the status).
+    """
     check_input_files(args, args.inputs or [], "give a multi-wavelength scan file or one file per wavelength")
     if not args.scan_job:
         if len(args.inputs) > 1 and (args.wavelengths is None or len(args.wavelengths) != len(args.inputs)):

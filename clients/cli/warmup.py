@@ -11,13 +11,30 @@ HELP = "compile the reconstruction's kernels into numba's cache (run once after 
 
 
 def add_arguments(parser):
-    """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser)."""
+    """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser).
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The sub-command's parser, changed in place.
+    """
     parser.add_argument("--dtype", choices=["float32", "float64", "both"], default="both",
                         help="precision(s) to compile for (default both)")
 
 
 def run(args) -> int:
-    """Run the tiny reconstructions; print the time taken and the cache directories."""
+    """Run the tiny reconstructions; print the time taken and the cache directories.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed command line (:func:`add_arguments`).
+
+    Returns
+    -------
+    int
+        0.
+    """
     from service.recon.warmup import DTYPES, warm_up
 
     got = warm_up(DTYPES if args.dtype == "both" else (args.dtype,))

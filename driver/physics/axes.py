@@ -3,7 +3,10 @@ the one implementation of ``x_i = (i - (n - 1)/2)·d`` that the scanner lattice,
 plans, the datasets and the reconstructions share. Pure numpy."""
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
+import numpy.typing as npt
 
 __all__ = ["centred_axis", "centred_positions", "centred_index", "node_indices"]
 
@@ -29,7 +32,7 @@ def centred_axis(n: int, d: float) -> np.ndarray:
     return (np.arange(int(n)) - (int(n) - 1) / 2.0) * float(d)
 
 
-def centred_positions(indices, n: int, d: float) -> np.ndarray:
+def centred_positions(indices: npt.ArrayLike, n: int, d: float) -> np.ndarray:
     """Coordinates of lattice indices on a centred axis: ``(i - (n - 1)/2)·d``, the same
     numbers as ``centred_axis(n, d)[indices]``.
 
@@ -52,7 +55,7 @@ def centred_positions(indices, n: int, d: float) -> np.ndarray:
     return (np.asarray(indices) - (int(n) - 1) / 2.0) * float(d)
 
 
-def centred_index(x, n: int, d: float) -> np.ndarray:
+def centred_index(x: npt.ArrayLike, n: int, d: float) -> np.ndarray:
     """The fractional index ``x/d + (n - 1)/2`` of coordinates on a centred axis: the
     inverse of :func:`centred_positions`, used where sensor positions meet a grid (NUFFT
     angles ``2π·index/n``).
@@ -77,7 +80,8 @@ def centred_index(x, n: int, d: float) -> np.ndarray:
     return np.asarray(x) / float(d) + (int(n) - 1) / 2.0
 
 
-def node_indices(positions, axes, steps) -> tuple[np.ndarray, np.ndarray] | None:
+def node_indices(positions: npt.ArrayLike, axes: Sequence[np.ndarray], steps: Sequence[float]
+                 ) -> tuple[np.ndarray, np.ndarray] | None:
     """The node of a regular grid each sensor sits on, if every one sits on a node.
 
     Parameters

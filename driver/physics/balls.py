@@ -154,7 +154,7 @@ def ball_alines(
     return out
 
 
-def _mean_n_wave(r, ta, tb, radius, c):
+def _mean_n_wave(r: np.ndarray, ta: np.ndarray, tb: np.ndarray, radius: float, c: float) -> np.ndarray:
     """Integral over t in [ta, tb] of (r - c|t|)/(2r) restricted to |r - c|t|| <= R."""
     # Split intervals that straddle t = 0 (the wave is even in t).
     neg = ta < 0
@@ -166,7 +166,7 @@ def _mean_n_wave(r, ta, tb, radius, c):
     return total
 
 
-def _integral_positive(r, ta, tb, radius, c):
+def _integral_positive(r: np.ndarray, ta: np.ndarray, tb: np.ndarray, radius: float, c: float) -> np.ndarray:
     # u = r - c t runs from r - c ta down to r - c tb; integrand u/(2r) dt = -u du/(2 r c)
     u_hi = np.minimum(r - c * ta, radius)
     u_lo = np.maximum(r - c * tb, -radius)
@@ -223,7 +223,7 @@ def ball_p0(
     if s < 1:
         raise ValueError("supersample must be >= 1")
 
-    def offsets(v):
+    def offsets(v: np.ndarray) -> np.ndarray:
         d = np.diff(v).mean() if len(v) > 1 else 0.0
         return ((np.arange(s) + 0.5) / s - 0.5) * d
 

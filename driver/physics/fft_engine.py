@@ -13,6 +13,7 @@ result in every process (the library, the CLI and the job worker alike).
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 
 __all__ = ["SMALL_ELEMENTS", "is_small", "fft", "ifft", "irfft", "rfft2", "dct1"]
 
@@ -27,7 +28,8 @@ SMALL_ELEMENTS = 1 << 16
 SLAB_BYTES = 16 << 20
 
 
-def _slabs(x: np.ndarray, out: np.ndarray, axes: tuple[int, ...], lengths: dict[int, int], dtype) -> range:
+def _slabs(x: np.ndarray, out: np.ndarray, axes: tuple[int, ...], lengths: dict[int, int],
+           dtype: npt.DTypeLike) -> range:
     """The starts of `SLAB_BYTES` slabs of ``x`` along axis 0, after checking that ``out``
     can take the result slab by slab: C-contiguous, ``x``'s shape but ``lengths`` (axis:
     length) along the transformed axes, and ``dtype`` (ValueError otherwise)."""

@@ -24,6 +24,7 @@ recorded time window: the result is then the free-space data of the band-limited
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 import scipy.fft
 
 from driver.constants import C_DEFAULT
@@ -36,7 +37,8 @@ from driver.physics.nufft_plans import lateral_plan
 __all__ = ["forward_grid", "forward_points"]
 
 
-def _check_common(p0, dx, dz, dt, n_t, c, t0, eps):
+def _check_common(p0: npt.ArrayLike, dx: float, dz: float, dt: float, n_t: int, c: float, t0: float,
+                  eps: float) -> np.ndarray:
     p0 = np.asarray(p0)
     if p0.ndim not in (2, 3):
         raise ValueError(f"p0 must be (n_z, n_x) or (n_z, n_y, n_x), got shape {p0.shape}")
@@ -55,7 +57,8 @@ def _check_common(p0, dx, dz, dt, n_t, c, t0, eps):
     return p0.astype(np.float64, copy=False)
 
 
-def _kspace_data(p0, dx, dz, dt, n_t, c, t0, eps, full):
+def _kspace_data(p0: np.ndarray, dx: float, dz: float, dt: float, n_t: int, c: float, t0: float, eps: float,
+                 full: bool) -> np.ndarray:
     """p0 (n_z, n_y, n_x) -> (n_t, n_y, n_x or n_x//2+1) lateral spectrum of the data."""
     n_z, n_y, n_x = p0.shape
     if full:
@@ -81,7 +84,7 @@ def _kspace_data(p0, dx, dz, dt, n_t, c, t0, eps, full):
     return G.T.reshape(n_t, F.shape[1], F.shape[2])
 
 
-def _as3d(p0):
+def _as3d(p0: np.ndarray) -> tuple[np.ndarray, bool]:
     return (p0[:, None, :], True) if p0.ndim == 2 else (p0, False)
 
 
@@ -146,7 +149,7 @@ def forward_grid(
     return data[:, 0, :] if is2d else data
 
 
-def _embed(vol, shape):
+def _embed(vol: np.ndarray, shape: tuple[int, int, int]) -> np.ndarray:
     nz, ny, nx = vol.shape
     out = np.zeros(shape)
     oy, ox = (shape[1] - ny) // 2, (shape[2] - nx) // 2
@@ -154,7 +157,7 @@ def _embed(vol, shape):
     return out
 
 
-def _crop_lateral(data, n_x, n_y):
+def _crop_lateral(data: np.ndarray, n_x: int, n_y: int) -> np.ndarray:
     oy, ox = (data.shape[1] - n_y) // 2, (data.shape[2] - n_x) // 2
     return data[:, oy : oy + n_y, ox : ox + n_x]
 

@@ -8,6 +8,7 @@ here on the server's request path without loading numba or scipy.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 from driver.physics.fast_lengths import fast_dct1_rows, fast_length
 
@@ -95,7 +96,8 @@ def grid_length(n_t: int, kind: str = "nufft", eps: float = 1e-6) -> int:
     return fast_length(2 * n_t - 1) if n_t > 1 else 2
 
 
-def pad_sizes(shape, dx, dz, dt, n_t, c, t0, extra_lateral=0.0):
+def pad_sizes(shape: Sequence[int], dx: float, dz: float, dt: float, n_t: int, c: float, t0: float,
+              extra_lateral: float = 0.0) -> tuple[int, int, int]:
     """Zero-padded working grid (N_z, N_y, N_x) >= shape of the free-space model: no periodic
     image reaches a sensor within the record. Every length is rounded up to a fast one
     (`driver.physics.fast_lengths`; more padding only moves the periodic images further
@@ -150,7 +152,7 @@ def pad_sizes(shape, dx, dz, dt, n_t, c, t0, extra_lateral=0.0):
     k_min = int(math.ceil((record + dz + depth) / (2 * dz))) + 1
     n_z2 = fast_dct1_rows(max(n_z, k_min))
 
-    def lateral(n, is_singleton, real, at_least=1):
+    def lateral(n: int, is_singleton: bool, real: bool, at_least: int = 1) -> int:
         if is_singleton:
             return n
         need = (n - 1) * dx + extra_lateral + reach

@@ -35,9 +35,12 @@ about 1.5 s, many times such a reconstruction).
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from types import ModuleType
 
 import numpy as np
+import numpy.typing as npt
 
 from driver.physics import fft_engine
 from driver.physics.grid_sizes import KINDS, grid_length, kernel_params
@@ -51,7 +54,7 @@ __all__ = [
 _KIND_CODE = {"nufft": 0, "linear": 1, "nearest": 2}
 
 
-def _compiled():
+def _compiled() -> ModuleType:
     """The numba kernels (imported on first use: numba's import costs start-up time)."""
     from driver.physics import nufft_kernels
 
@@ -460,8 +463,8 @@ def evaluate(
     dt: float,
     t0: float,
     inversion: bool,
-    out_dtype=None,
-    progress=None,
+    out_dtype: npt.DTypeLike | None = None,
+    progress: Callable[[float], object] | None = None,
     n_chunks: int = 8,
     groups: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
     out: np.ndarray | None = None,
@@ -549,7 +552,9 @@ def evaluate(
     return out
 
 
-def _interp_small(U, gvals, gptr, order, kz, qw, c, dt, t0, grid, inversion, out):
+def _interp_small(U: np.ndarray, gvals: np.ndarray, gptr: np.ndarray, order: np.ndarray, kz: np.ndarray,
+                  qw: np.ndarray, c: float, dt: float, t0: float, grid: TemporalGrid, inversion: bool,
+                  out: np.ndarray) -> None:
     """`nufft_kernels.interp_kernel` in numpy, for a small transform (no compiler): the same
     taps (`nufft_kernels.group_taps`, per column group, float64) and the same sums, every
     column and kz at once. Memory: (n_cols, n_kz, w) weights, bounded by the caller's
@@ -590,7 +595,8 @@ def _interp_small(U, gvals, gptr, order, kz, qw, c, dt, t0, grid, inversion, out
     out[...] = ar[group] * (p1 + p2) - 1j * ai[group] * (p1 - p2)
 
 
-def _group_chunks(n_groups: int, n_chunks: int, work: int, progress=None):
+def _group_chunks(n_groups: int, n_chunks: int, work: int,
+                  progress: Callable[[float], object] | None = None) -> Iterator[tuple[int, int]]:
     """Ranges [a, b) of column groups, up to ``n_chunks`` of them and each of at least ~4M
     of ``work`` (coefficients: small transforms run in one parallel region); each column's
     result is the same whichever chunk holds it. ``progress(fraction)`` is called after each
@@ -616,7 +622,7 @@ def spread(
     dt: float,
     t0: float,
     groups: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
-    progress=None,
+    progress: Callable[[float], object] | None = None,
     n_chunks: int = 1,
 ) -> np.ndarray:
     """Adjoint of `evaluate` with ``inversion=False``: (n_cols, n_kz) coefficients ->

@@ -17,8 +17,24 @@ __all__ = ["place_columns", "scatter_columns", "tap_arrays", "group_taps", "inte
 
 
 @numba.njit(parallel=True, cache=True)
-def place_columns(A, cols, scale, shift, L, U):
-    """U[c, (n - shift) mod L] = A[n, cols[c]] * scale[n], in cache-friendly tiles."""
+def place_columns(A: np.ndarray, cols: np.ndarray, scale: np.ndarray, shift: int, L: int, U: np.ndarray) -> None:
+    """U[c, (n - shift) mod L] = A[n, cols[c]] * scale[n], in cache-friendly tiles.
+
+    Parameters
+    ----------
+    A : ndarray ``(n_t, n_all)``
+        The series, one per column.
+    cols : ndarray ``(n_cols,)`` int64
+        The columns of ``A`` to place.
+    scale : ndarray ``(n_t,)``
+        Factor per sample (the kernel's correction weights).
+    shift : int
+        The centring offset: sample n goes to fine index ``(n - shift) mod L``.
+    L : int
+        Fine-grid length (samples).
+    U : ndarray ``(n_cols, L)``
+        Written in place (entries not hit are left as they are).
+    """
     n_t = A.shape[0]
     n_cols = cols.shape[0]
     tile = 64
@@ -39,8 +55,18 @@ def place_columns(A, cols, scale, shift, L, U):
 
 
 @numba.njit(parallel=True, cache=True)
-def scatter_columns(F, cols, out):
-    """out[j, cols[c]] = F[c, j] (distinct ``cols``), in cache-friendly tiles (`driver.physics.nufft.scatter_columns`)."""
+def scatter_columns(F: np.ndarray, cols: np.ndarray, out: np.ndarray) -> None:
+    """out[j, cols[c]] = F[c, j] (distinct ``cols``), in cache-friendly tiles (`driver.physics.nufft.scatter_columns`).
+
+    Parameters
+    ----------
+    F : ndarray ``(n_c, n_j)``
+        Values, one row per column.
+    cols : ndarray ``(n_c,)`` int64
+        Distinct destination columns of ``out``.
+    out : ndarray ``(n_j, n_all)``
+        Written in place.
+    """
     n_c, n_j = F.shape
     tile = 64
     n_blocks = (n_j + tile - 1) // tile
@@ -63,7 +89,7 @@ _COS = tuple((-1.0) ** k / math.factorial(2 * k) for k in range(11))
 
 
 @numba.njit(inline="always", fastmath=True)
-def _cos_sin(x):
+def _cos_sin(x: float) -> tuple[float, float]:
     """(cos x, sin x) for a float64 x, without libm, so that a loop over it vectorises: x is
     reduced to r in [-pi, pi] (r = x - 2 pi round(x / 2 pi)), h = r / 2 is taken by its
     Taylor series, then cos r = 1 - 2 sin² h and sin r = 2 sin h cos h. The error is that
@@ -83,7 +109,7 @@ def _cos_sin(x):
 
 
 @numba.njit(inline="always", fastmath=True)
-def _horner_rows(hc, w, t, nj, wts):
+def _horner_rows(hc: np.ndarray, w: int, t: np.ndarray, nj: int, wts: np.ndarray) -> None:
     """wts[k, j] = the polynomial hc[k] (highest degree first) at t[j], for j < nj: Horner's
     rule over j in SIMD lanes, four coefficients a pass (a pass a coefficient was bound by
     loads and stores, not arithmetic)."""
@@ -129,9 +155,22 @@ _PAD = 8
 
 
 @numba.njit(cache=True)
-def tap_arrays(nkz, w):
+def tap_arrays(nkz: int, w: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """One column group's work arrays for `group_taps`: base (nkz,) int64, wts
-    (max(w, _PAD), nkz) (rows from w on zero), t (nkz,), ar (nkz,), ai (nkz,) float64."""
+    (max(w, _PAD), nkz) (rows from w on zero), t (nkz,), ar (nkz,), ai (nkz,) float64.
+
+    Parameters
+    ----------
+    nkz : int
+        Number of depth wavenumbers.
+    w : int
+        Taps per evaluation (kernel width).
+
+    Returns
+    -------
+    base, wts, t, ar, ai : ndarray
+        Uninitialised work arrays (but ``wts`` rows ``w`` on, zero), shapes as above.
+    """
     wts = np.empty((max(w, _PAD), nkz), np.float64)
     wts[w:] = 0.0
     return (np.empty(nkz, np.int64), wts, np.empty(nkz, np.float64),
@@ -139,7 +178,9 @@ def tap_arrays(nkz, w):
 
 
 @numba.njit(cache=True, fastmath=True)
-def group_taps(k2, kz, qw, c, dt, t0, h, kind, w, hc, shift, inversion, base, wts, t, ar, ai):
+def group_taps(k2: float, kz: np.ndarray, qw: np.ndarray, c: float, dt: float, t0: float, h: float, kind: int,
+               w: int, hc: np.ndarray, shift: int, inversion: bool, base: np.ndarray, wts: np.ndarray,
+               t: np.ndarray, ar: np.ndarray, ai: np.ndarray) -> int:
     """The taps of one column group (one |k_lat|², ``k2``) at every kz, shared by all its
     columns; returns n_j, the number of kz filled (inversion: those at or below the
     temporal Nyquist, kz ascending; otherwise all).
@@ -149,7 +190,42 @@ def group_taps(k2, kz, qw, c, dt, t0, h, kind, w, hc, shift, inversion, base, wt
     polynomial of tap k in ``t[j] = 2x - 1``, `kernel_polynomials`; linear: the fraction), and
     ``ar[j] + i ai[j]``
     the weight times e^{i φ_j} with φ_j = shift θ_j + ω_j t0, the centring and t0 phase of
-    the +θ evaluation (its conjugate belongs to the -θ one)."""
+    the +θ evaluation (its conjugate belongs to the -θ one).
+
+    Parameters
+    ----------
+    k2 : float
+        The group's |k_lat|², rad²/m².
+    kz : ndarray ``(n_kz,)`` float64
+        Depth wavenumbers, rad/m (ascending when ``inversion``).
+    qw : ndarray ``(n_kz,)`` float64
+        Quadrature weight per kz.
+    c : float
+        Sound speed, m/s.
+    dt : float
+        Sample interval, s.
+    t0 : float
+        Time of sample 0, s.
+    h : float
+        Fine-grid angular step ``2π / L``, rad.
+    kind : int
+        The temporal transform: 0 nufft, 1 linear, 2 nearest.
+    w : int
+        Taps per evaluation (kernel width).
+    hc : ndarray ``(w, degree + 1)`` float64
+        The taps' polynomial coefficients (nufft only).
+    shift : int
+        The centring offset of the fine grid (``TemporalGrid.shift``).
+    inversion : bool
+        Multiply by kz/ω (1/c at ω = 0) and stop at the temporal Nyquist; otherwise by qw only.
+    base, wts, t, ar, ai : ndarray
+        The work arrays of `tap_arrays`, written in place (rows j < n_j).
+
+    Returns
+    -------
+    int
+        n_j, the number of kz filled.
+    """
     nkz = kz.shape[0]
     pi_lim = math.pi * (1.0 + 1e-12)
     nj = nkz
@@ -196,14 +272,53 @@ def group_taps(k2, kz, qw, c, dt, t0, h, kind, w, hc, shift, inversion, base, wt
 
 
 @numba.njit(parallel=True, cache=True, fastmath=True)
-def interp_kernel(U, gvals, gptr, order, kz, qw, c, dt, t0, h, L, kind, w, hc, shift,
-                   inversion, out):
+def interp_kernel(U: np.ndarray, gvals: np.ndarray, gptr: np.ndarray, order: np.ndarray, kz: np.ndarray,
+                  qw: np.ndarray, c: float, dt: float, t0: float, h: float, L: int, kind: int, w: int,
+                  hc: np.ndarray, shift: int, inversion: bool, out: np.ndarray) -> None:
     """out[col, j] = sc_j (e^{-iφ_j} S⁺ + e^{iφ_j} S⁻): the w-tap interpolation of row
     ``U[col]`` at +θ_j and -θ_j (`group_taps`), in real arithmetic (a complex product
     with a real weight would cost a full complex multiply). The taps' sums run in ``U``'s
     own precision (complex64: float32 weights and sums, twice the SIMD lanes: 20 % faster at
     1024 x 226², results within float32 rounding of float64 sums, 1.3e-7 of the largest);
-    the phases in float64."""
+    the phases in float64.
+
+    Parameters
+    ----------
+    U : ndarray ``(n_cols, L)`` complex64 or complex128
+        The fine-grid series (`driver.physics.nufft.to_fine_grid`).
+    gvals : ndarray ``(n_groups,)`` float64
+        |k_lat|² of each column group, rad²/m² (`driver.physics.nufft.group_columns`).
+    gptr : ndarray ``(n_groups + 1,)`` int64
+        Group pointers: the columns of group g are ``order[gptr[g]:gptr[g + 1]]``.
+    order : ndarray ``(n_cols,)`` int64
+        Column indices sorted by group.
+    kz : ndarray ``(n_kz,)`` float64
+        Depth wavenumbers, rad/m.
+    qw : ndarray ``(n_kz,)`` float64
+        Quadrature weight per kz.
+    c : float
+        Sound speed, m/s.
+    dt : float
+        Sample interval, s.
+    t0 : float
+        Time of sample 0, s.
+    h : float
+        Fine-grid angular step ``2π / L``, rad.
+    L : int
+        Fine-grid length (samples).
+    kind : int
+        The temporal transform: 0 nufft, 1 linear, 2 nearest.
+    w : int
+        Taps per evaluation (kernel width).
+    hc : ndarray ``(w, degree + 1)`` float64
+        The taps' polynomial coefficients (`driver.physics.nufft.kernel_polynomials`; nufft only).
+    shift : int
+        The centring offset of the fine grid (``TemporalGrid.shift``).
+    inversion : bool
+        Multiply by kz/ω (1/c at ω = 0) and zero ω above the temporal Nyquist; otherwise by qw only.
+    out : ndarray ``(n_cols, n_kz)`` complex
+        Written in place.
+    """
     n_groups = gvals.shape[0]
     nkz = kz.shape[0]
     zero = np.zeros(1, U.real.dtype)[0]  # 0 in U's real precision: the sums' type
@@ -263,7 +378,7 @@ def interp_kernel(U, gvals, gptr, order, kz, qw, c, dt, t0, h, L, kind, w, hc, s
 
 
 @numba.njit(inline="always", fastmath=True)
-def _add_scaled(r, i, wk, p):
+def _add_scaled(r: np.ndarray, i: int, wk: float, p: np.ndarray) -> None:
     """r[i] += wk p (``r`` 2-D, ``p`` as long as its rows); unrolled for a group of one
     column (every group of a 2-D operator)."""
     if p.shape[0] == 2:
@@ -275,7 +390,9 @@ def _add_scaled(r, i, wk, p):
 
 
 @numba.njit(parallel=True, cache=True, fastmath=True)
-def spread_kernel(B, gvals, gptr, order, kz, qw, c, dt, t0, h, L, kind, w, hc, shift, R):
+def spread_kernel(B: np.ndarray, gvals: np.ndarray, gptr: np.ndarray, order: np.ndarray, kz: np.ndarray,
+                  qw: np.ndarray, c: float, dt: float, t0: float, h: float, L: int, kind: int, w: int,
+                  hc: np.ndarray, shift: int, R: np.ndarray) -> None:
     """The adjoint of `interp_kernel` (inversion False): spread B[col, j] e^{±iφ_j} qw_j
     onto the w taps at +θ_j and -θ_j of row ``R[col]``.
 
@@ -287,7 +404,43 @@ def spread_kernel(B, gvals, gptr, order, kz, qw, c, dt, t0, h, L, kind, w, hc, s
     order as one column at a time: bit-identical to that, and in 3-D faster (a forward's
     spreading at 1024 x 226², float32: 0.94 -> 0.74 s; 512 x 128²: 0.14 -> 0.11 s); a 2-D
     operator's groups are single columns, and there it is a little slower (1024², float64:
-    0.008 -> 0.011 s)."""
+    0.008 -> 0.011 s).
+
+    Parameters
+    ----------
+    B : ndarray ``(n_cols, n_kz)`` complex
+        The coefficients.
+    gvals : ndarray ``(n_groups,)`` float64
+        |k_lat|² of each column group, rad²/m² (`driver.physics.nufft.group_columns`).
+    gptr : ndarray ``(n_groups + 1,)`` int64
+        Group pointers: the columns of group g are ``order[gptr[g]:gptr[g + 1]]``.
+    order : ndarray ``(n_cols,)`` int64
+        Column indices sorted by group.
+    kz : ndarray ``(n_kz,)`` float64
+        Depth wavenumbers, rad/m.
+    qw : ndarray ``(n_kz,)`` float64
+        Quadrature weight per kz.
+    c : float
+        Sound speed, m/s.
+    dt : float
+        Sample interval, s.
+    t0 : float
+        Time of sample 0, s.
+    h : float
+        Fine-grid angular step ``2π / L``, rad.
+    L : int
+        Fine-grid length (samples).
+    kind : int
+        The temporal transform: 0 nufft, 1 linear, 2 nearest.
+    w : int
+        Taps per evaluation (kernel width).
+    hc : ndarray ``(w, degree + 1)`` float64
+        The taps' polynomial coefficients (`driver.physics.nufft.kernel_polynomials`; nufft only).
+    shift : int
+        The centring offset of the fine grid (``TemporalGrid.shift``).
+    R : ndarray ``(n_cols, L)`` complex
+        Written in place: each column of these groups is overwritten with its spread values.
+    """
     n_groups = gvals.shape[0]
     nkz = kz.shape[0]
     for g in numba.prange(n_groups):

@@ -26,6 +26,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import numpy.typing as npt
 
 __all__ = ["resample", "resample_adjoint", "resampled_length"]
 
@@ -73,7 +74,7 @@ def resampled_length(n_t: int, dt: float, band: float) -> int:
     return min(int(n_t), int(math.ceil(need * (1 - 1e-12))) + 2)
 
 
-def _check(x: np.ndarray, axis: int, n_out: int, n_in: int | None) -> tuple[np.ndarray, int]:
+def _check(x: npt.ArrayLike, axis: int, n_out: int, n_in: int | None) -> tuple[np.ndarray, int]:
     x = np.asarray(x)
     if x.dtype.kind not in "fiu":
         raise ValueError(f"resampling needs real samples, got dtype {x.dtype}")
@@ -86,7 +87,7 @@ def _check(x: np.ndarray, axis: int, n_out: int, n_in: int | None) -> tuple[np.n
     return x, axis
 
 
-def resample(x, n_out: int, axis: int = -1) -> np.ndarray:
+def resample(x: npt.ArrayLike, n_out: int, axis: int = -1) -> np.ndarray:
     """The record's cosine series cut below the new Nyquist frequency and sampled at ``n_out``
     points on the same interval [t0, t_last] (module doc).
 
@@ -142,7 +143,7 @@ def resample(x, n_out: int, axis: int = -1) -> np.ndarray:
     return out
 
 
-def resample_adjoint(x, n_in: int, axis: int = -1) -> np.ndarray:
+def resample_adjoint(x: npt.ArrayLike, n_in: int, axis: int = -1) -> np.ndarray:
     """The transpose of `resample` to ``n_in`` samples: ⟨resample(u), v⟩ = ⟨u,
     resample_adjoint(v)⟩ for every u of ``n_in`` samples.
 
@@ -200,7 +201,7 @@ def resample_adjoint(x, n_in: int, axis: int = -1) -> np.ndarray:
     return out
 
 
-def _end_weights(n: int, axis: int, ndim: int, dtype) -> np.ndarray:
+def _end_weights(n: int, axis: int, ndim: int, dtype: npt.DTypeLike) -> np.ndarray:
     """diag(½, 1, ..., 1, ½) of length n, shaped to broadcast along ``axis``."""
     w = np.ones(n, dtype=dtype)
     w[[0, -1]] = 0.5

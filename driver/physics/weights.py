@@ -12,6 +12,7 @@ Depends on numpy and scipy only.
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 from scipy.spatial import cKDTree
 
 __all__ = ["voronoi_weights", "infer_pitch"]
@@ -24,7 +25,7 @@ _REACH = 3.0
 _REL_TOL = 1e-6
 
 
-def _as_positions(positions) -> np.ndarray:
+def _as_positions(positions: npt.ArrayLike) -> np.ndarray:
     pos = np.asarray(positions, dtype=np.float64)
     if pos.ndim == 1:
         pos = pos[:, None]
@@ -37,7 +38,7 @@ def _as_positions(positions) -> np.ndarray:
     return pos
 
 
-def infer_pitch(positions) -> float | None:
+def infer_pitch(positions: npt.ArrayLike) -> float | None:
     """The pitch of the regular lattice the positions lie on, or None if there is none.
 
     With g the smallest positive gap between distinct coordinates along any axis, the pitch
@@ -114,7 +115,7 @@ def _weights_1d(x: np.ndarray, lo: float, hi: float, radius: np.ndarray) -> np.n
     return w
 
 
-def voronoi_weights(positions, pitch: float | None = None, *, bounds=None,
+def voronoi_weights(positions: npt.ArrayLike, pitch: float | None = None, *, bounds: npt.ArrayLike | None = None,
                     samples_per_cell: int = _SAMPLES_PER_CELL) -> np.ndarray:
     """Clipped Voronoi areas of sensors on the sensor plane (DESIGN §3.3).
 
@@ -237,7 +238,8 @@ def _cell_distances(pos: np.ndarray, lattice_pitch: float | None) -> np.ndarray:
     return d
 
 
-def _clipped_box(pos: np.ndarray, box: tuple[np.ndarray, np.ndarray], bounds) -> tuple[np.ndarray, np.ndarray]:
+def _clipped_box(pos: np.ndarray, box: tuple[np.ndarray, np.ndarray],
+                 bounds: npt.ArrayLike | None) -> tuple[np.ndarray, np.ndarray]:
     """The covered region ``(lo, hi)`` (each ``(d,)``, m): ``box`` intersected with
     ``bounds`` (checked: ``d`` finite ``(lo, hi)`` pairs holding every sensor)."""
     lo, hi = box[0].copy(), box[1].copy()
