@@ -48,8 +48,20 @@ WILDCARD_BINDS = frozenset({"0.0.0.0", "::", ""})
 
 
 def host_name(host_header: str) -> str:
-    """The host part of a ``Host`` header (``"[::1]:8000"`` → ``"::1"``,
-    ``"Example.org.:80"`` → ``"example.org"``), lower case, without port or trailing dot."""
+    """The host part of a ``Host`` header, lower case, without port or trailing dot.
+
+    ``"[::1]:8000"`` → ``"::1"``, ``"Example.org.:80"`` → ``"example.org"``.
+
+    Parameters
+    ----------
+    host_header : str
+        The ``Host`` header's value.
+
+    Returns
+    -------
+    str
+        The host name (``""`` for an empty header).
+    """
     h = host_header.strip().lower()
     if h.startswith("["):
         h = h[1:h.find("]")] if "]" in h else h[1:]
@@ -59,11 +71,30 @@ def host_name(host_header: str) -> str:
 
 
 def host_allowed(name: str, settings: Settings) -> bool:
-    """Whether clients may reach the server by host name ``name`` (from :func:`host_name`):
-    a loopback name, the server's own (non-wildcard) bind address, or one of
+    """Whether clients may reach the server by host name ``name``.
+
+    Allowed: a loopback name, the server's own (non-wildcard) bind address, or one of
     ``settings.allowed_hosts`` (``"*"``: any, honoured only when a token is configured:
     without one, any name would reopen the DNS-rebinding door, however the server was
-    started; ``fpscan serve`` refuses that combination up front)."""
+    started; ``fpscan serve`` refuses that combination up front).
+
+    Parameters
+    ----------
+    name : str
+        The host name, as :func:`host_name` gives it.
+    settings : Settings
+        The service's settings (``allowed_hosts``, ``host``, the token).
+
+    Returns
+    -------
+    bool
+        True when the name is allowed; False for ``""``.
+
+    Raises
+    ------
+    ValueError
+        When ``"*"`` is allowed and the token file cannot be read (``Settings.token_value``).
+    """
     if not name:
         return False
     if is_loopback(name):
@@ -78,9 +109,22 @@ def host_allowed(name: str, settings: Settings) -> bool:
 
 
 def same_origin(source: str, host_header: str) -> bool:
-    """Whether ``source`` (an ``Origin`` or ``Referer`` value) names the host and port the
-    request was sent to (its ``Host`` header). ``"null"`` (a sandboxed or file page) is
-    never the same."""
+    """Whether ``source`` names the host and port the request was sent to.
+
+    Parameters
+    ----------
+    source : str
+        An ``Origin`` or ``Referer`` header's value.
+    host_header : str
+        The request's ``Host`` header.
+
+    Returns
+    -------
+    bool
+        True when ``source``'s network location (lower case, without a trailing dot) equals
+        the ``Host`` header; False for ``"null"`` (a sandboxed or file page), an unparsable
+        URL or one with user information.
+    """
     try:
         netloc = urlsplit(source.strip()).netloc.lower()
     except ValueError:
@@ -91,8 +135,21 @@ def same_origin(source: str, host_header: str) -> bool:
 
 
 def token_matches(authorization: str | None, expected: str) -> str | None:
-    """None when the ``Authorization`` header carries the bearer token ``expected``
-    (compared in constant time), else the reason for the refusal."""
+    """Check the bearer token of an ``Authorization`` header, in constant time.
+
+    Parameters
+    ----------
+    authorization : str or None
+        The ``Authorization`` header's value (None: no header).
+    expected : str
+        The configured token.
+
+    Returns
+    -------
+    str or None
+        None when the header carries ``Bearer <expected>``, else the reason for the refusal
+        (``"missing bearer token"`` or ``"invalid bearer token"``).
+    """
     if not authorization:
         return "missing bearer token"
     scheme, _, value = authorization.strip().partition(" ")
@@ -111,12 +168,31 @@ def _header(scope, name: bytes) -> str | None:
 
 
 class AccessGate:
-    """ASGI middleware: the Host, token and Origin rules of this module, applied to every
-    HTTP request from its headers alone (nothing of the body is read for a refusal, and
-    the refusal closes the connection). ``settings``: the service's settings (the token
-    is read on each request, so a rotated ``token_file`` takes effect at once). Refusals
+    """ASGI middleware: the Host, token and Origin rules of this module.
+
+    They apply to every HTTP request (and websocket) from its headers alone: nothing of the
+    body is read for a refusal, and the refusal closes the connection (401 with
+    ``WWW-Authenticate: Bearer``, 403, or 503 when the token file cannot be read). Refusals
     are logged at most one line per client address per interval, each field capped
-    (``service.api.logcaps``)."""
+    (``service.api.logcaps``).
+
+    Parameters
+    ----------
+    app : ASGI application
+        The application it guards.
+    settings : Settings
+        The service's settings (the token is read on each request, so a rotated
+        ``token_file`` takes effect at once).
+
+    Attributes
+    ----------
+    app : ASGI application
+        As given.
+    settings : Settings
+        As given.
+    refusals : RefusalLog
+        The rate-limited log of refusals.
+    """
 
     def __init__(self, app, settings: Settings):
         self.app = app
@@ -141,7 +217,18 @@ class AccessGate:
         return await self.app(scope, receive, send)
 
     def refusal(self, scope) -> tuple[int, str] | None:
-        """``(status, reason)`` when the request is refused, else None."""
+        """The refusal of a request, from its headers.
+
+        Parameters
+        ----------
+        scope : dict
+            The ASGI scope.
+
+        Returns
+        -------
+        tuple of (int, str) or None
+            ``(status, reason)`` when the request is refused, else None.
+        """
         host = _header(scope, b"host")
         if host is None:
             return 403, "the request has no Host header; send the name the server is reached by"

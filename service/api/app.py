@@ -64,8 +64,22 @@ ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
 
 
 def allowed_methods(app, scope) -> list[str]:
-    """The HTTP methods the routes matching ``scope``'s path take, sorted (with HEAD where
-    GET is), for the ``Allow`` header of a 405 (RFC 9110 §15.5.6)."""
+    """The HTTP methods the routes matching ``scope``'s path take, for a 405's ``Allow`` header.
+
+    RFC 9110 §15.5.6; included routers are walked too.
+
+    Parameters
+    ----------
+    app : FastAPI
+        The application.
+    scope : dict
+        The request's ASGI scope (its path is matched; its method is not).
+
+    Returns
+    -------
+    list of str
+        The methods, sorted (with HEAD where GET is, as the routes declare them).
+    """
     from starlette.routing import Match
 
     methods: set[str] = set()
@@ -113,7 +127,47 @@ class UploadLimit:
       requests (``ADMITTED``) are counted in, per client address first, before their body
       is read, and refused with 429 when too many are in progress (the form parser spools
       every upload to a temporary file, and a JSON body is parsed, before the route runs);
-      the route then waits for its turn."""
+      the route then waits for its turn.
+
+    Parameters
+    ----------
+    app : ASGI application
+        The application it wraps.
+    limit : int
+        The largest upload body in bytes (``POST /api/datasets``; 1 MB of multipart overhead
+        is allowed on top).
+    json_limit : int or None, optional
+        The largest plan request body in bytes (at most ``limit``); default None: ``limit``.
+    slots : dict of str to Slots or None, optional
+        ``{"uploads": ..., "plans": ...}``: the slots that admit those requests; default
+        None: none (no 429).
+    body_timeout_s : float, optional
+        Seconds a body may send nothing; default 30.
+    request_json_limit : int or None, optional
+        The largest body of any other request in bytes (at most the plan limit); default
+        None: the plan limit.
+    min_rate : float, optional
+        The slowest upload or plan body in bytes/s; default :data:`MIN_BODY_RATE` (100 KiB/s).
+    rate_window_s : float, optional
+        Seconds the rate is averaged over; default 10.
+
+    Attributes
+    ----------
+    app : ASGI application
+        As given.
+    upload_limit : int
+        ``limit``.
+    json_limit, request_json_limit : int
+        The effective limits in bytes.
+    body_timeout_s, min_rate, rate_window_s : float
+        As given.
+    slots : dict of str to Slots
+        As given (empty: none).
+    ADMITTED : dict
+        ``(method, path) -> slots name``: the requests slots admit (class attribute).
+    PLAN_ROUTES : frozenset
+        The ``(method, path)`` pairs whose body may be up to ``json_limit`` (class attribute).
+    """
 
     #: (method, path) -> the slots that admit it
     ADMITTED = {("POST", "/api/datasets"): "uploads", ("POST", "/api/plans"): "plans",
@@ -273,10 +327,25 @@ class _Refused(Exception):
 
 
 class ShortIds:
-    """ASGI middleware: a unique prefix of a job id (4 to 31 hex characters, as the CLI and
-    the web page show ids) works wherever a job id is in the path
-    (``/api/jobs/…``, ``/api/scans/…``, ``/api/reconstructions/…``): the path is rewritten
-    to the full id; an ambiguous prefix is a 409 naming the matches."""
+    """ASGI middleware: a unique prefix of a job id works wherever a job id is in the path.
+
+    A prefix of 4 to 31 hex characters (as the CLI and the web page show ids) in
+    ``/api/jobs/…``, ``/api/scans/…`` or ``/api/reconstructions/…`` is rewritten to the full
+    id; an ambiguous prefix is a 409 naming the matches; a prefix of no job is passed on as
+    it is.
+
+    Parameters
+    ----------
+    app : ASGI application
+        The application it wraps.
+
+    Attributes
+    ----------
+    app : ASGI application
+        As given.
+    PATH : re.Pattern
+        The paths it rewrites (class attribute).
+    """
 
     PATH = re.compile(r"^/api/(jobs|scans|reconstructions)/([0-9a-fA-F]{4,31})(/.*)?$")
 
@@ -302,12 +371,26 @@ class ShortIds:
 
 
 async def warm_routes(app: FastAPI, settings: Settings) -> None:
-    """Match one request against every route before the first client comes: FastAPI builds
-    a route's request and response models at its first match, on the event loop (measured:
-    up to 0.2 s on a loaded 2-core machine, in front of every request then waiting, health
-    included). The request (``GET /api/.routes-warm-up``, from loopback with the token) goes
-    through the whole ASGI stack in-process, matches no route (404) and so has tried them
-    all; nothing is reserved or written."""
+    """Match one request against every route before the first client comes.
+
+    FastAPI builds a route's request and response models at its first match, on the event
+    loop (measured: up to 0.2 s on a loaded 2-core machine, in front of every request then
+    waiting, health included). The request (``GET /api/.routes-warm-up``, from loopback with
+    the token) goes through the whole ASGI stack in-process, matches no route (404) and so
+    has tried them all; nothing is reserved or written. A failure is logged, not raised.
+
+    Parameters
+    ----------
+    app : FastAPI
+        The application.
+    settings : Settings
+        The service's settings (the token the request carries).
+
+    Raises
+    ------
+    ValueError
+        When the token file cannot be read (``Settings.token_value``).
+    """
     token = settings.token_value()
     headers = [(b"host", b"127.0.0.1")]
     if token is not None:
@@ -343,11 +426,26 @@ def freeze_startup_objects() -> None:
 
 
 def create_app(settings: Settings | None = None, *, start_workers: bool = True, executor: Any = None) -> FastAPI:
-    """The service app. ``start_workers=False`` builds the app without the queue and scan
-    threads (for schema inspection). ``executor``: the reconstruction executor the queue uses
-    (``fpscan serve`` starts the local pool's workers before it imports this module, so they
-    warm up while the server loads; closed with the app); default: made from ``settings`` at
-    start-up (:func:`service.jobs.executors.make_executor`)."""
+    """The service app: its routes, middleware, error handlers and web page.
+
+    Parameters
+    ----------
+    settings : Settings or None, optional
+        The service's settings; default None: ``Settings.load()``.
+    start_workers : bool, optional
+        Start the queue and scan threads at start-up; default True (False builds the app
+        without them, for schema inspection).
+    executor : LocalExecutor or DaskExecutor or None, optional
+        The reconstruction executor the queue uses (``fpscan serve`` starts the local pool's
+        workers before it imports this module, so they warm up while the server loads;
+        closed with the app); default None: made from ``settings`` at start-up
+        (:func:`service.jobs.executors.make_executor`).
+
+    Returns
+    -------
+    FastAPI
+        The application.
+    """
     settings = settings or Settings.load()
     slots = default_slots(settings)
     app = FastAPI(title="fpscan", version=VERSION, lifespan=_lifespan(settings, slots, start_workers, executor),
@@ -512,8 +610,20 @@ def _add_error_handlers(app: FastAPI) -> None:
 
 
 def internal_error(scope, exc: BaseException) -> JSONResponse:
-    """The 500 of an unexpected error: logged with a reference (method, path capped), the
-    client told only the reference."""
+    """The 500 of an unexpected error: logged with a reference, the client told only the reference.
+
+    Parameters
+    ----------
+    scope : dict
+        The request's ASGI scope (its method and path, capped, are logged).
+    exc : BaseException
+        The error (logged with its traceback).
+
+    Returns
+    -------
+    JSONResponse
+        Status 500, ``{"detail": "internal error (reference <8 hex>)"}``.
+    """
     ref = uuid.uuid4().hex[:8]
     log.error("internal error ref=%s %s %s", ref, scope.get("method"), shown(scope.get("path", "")), exc_info=exc)
     return JSONResponse({"detail": f"internal error (reference {ref})"}, status_code=500)
@@ -525,7 +635,18 @@ class InternalErrors:
     re-raises after answering, and uvicorn then closes the client's kept-alive connection
     and logs the traceback a second time; here the connection stays open for the client's
     next request. An error after the answer started is logged and the connection closed
-    (there is no way to tell the client)."""
+    (there is no way to tell the client).
+
+    Parameters
+    ----------
+    app : ASGI application
+        The application it wraps.
+
+    Attributes
+    ----------
+    app : ASGI application
+        As given.
+    """
 
     def __init__(self, app):
         self.app = app
@@ -591,10 +712,20 @@ def _add_health_routes(app: FastAPI, settings: Settings) -> Callable[[Context], 
 
 
 def health_problems(c: Context) -> list[str]:
-    """What keeps jobs from running now, one line each: the data folder's disk below the
-    reserve (``disk_reserve_bytes``), the job database's reserve in use, reconstructions
-    waiting for disk space (``service.jobs.queue``) and interrupted scans
-    (``service.jobs.scans``)."""
+    """What keeps jobs from running now, one line each, for ``/api/health``.
+
+    Parameters
+    ----------
+    c : Context
+        The app's context (settings, store, queue, scans).
+
+    Returns
+    -------
+    list of str
+        The data folder's disk below the reserve (``disk_reserve_bytes``), the job database's
+        reserve in use, reconstructions waiting for disk space (``service.jobs.queue``) and
+        interrupted scans (``service.jobs.scans``); empty when nothing is wrong.
+    """
     from service.storage.usage import usage_for
 
     out: list[str] = []

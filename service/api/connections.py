@@ -50,8 +50,13 @@ FD_HEADROOM = 128
 
 
 def open_file_limit() -> int | None:
-    """The process's soft limit of open files (``RLIMIT_NOFILE``), None where unknown or
-    unlimited."""
+    """The process's soft limit of open files (``RLIMIT_NOFILE``).
+
+    Returns
+    -------
+    int or None
+        The limit; None where unknown or unlimited.
+    """
     try:
         import resource
 
@@ -62,11 +67,37 @@ def open_file_limit() -> int | None:
 
 
 class ConnectionGuard:
-    """Open connections by client address, and the rule that admits a new one
-    (module docstring). ``per_address``: most connections of one address;
-    ``max_connections``: connections in all beyond which an address gets only its
-    ``allowance``; ``hard_limit``: connections in all never exceeded (default: the
-    open-file limit less :data:`FD_HEADROOM`). Thread-safe."""
+    """Open connections by client address, and the rule that admits a new one (module docstring).
+
+    Thread-safe.
+
+    Parameters
+    ----------
+    per_address : int
+        Most connections of one address, >= 1.
+    max_connections : int
+        Connections in all beyond which an address gets only its ``allowance``, >= 1.
+    allowance : int, optional
+        Connections every address may open however many the server holds, >= 0; default
+        :data:`CONNECTION_ALLOWANCE` (4).
+    hard_limit : int or None, optional
+        Connections in all never exceeded; default None: the open-file limit less
+        :data:`FD_HEADROOM` (at least ``max_connections``), or 2**30 where that is unknown.
+
+    Attributes
+    ----------
+    per_address, max_connections, allowance, hard_limit : int
+        The limits.
+    total : int
+        Connections open now.
+    refused_count : int
+        Connections refused so far.
+
+    Raises
+    ------
+    ValueError
+        If ``per_address`` or ``max_connections`` is below 1, or ``allowance`` below 0.
+    """
 
     def __init__(self, per_address: int, max_connections: int, allowance: int = CONNECTION_ALLOWANCE,
                  hard_limit: int | None = None) -> None:
@@ -131,9 +162,22 @@ class _HeadTooLarge(Exception):
 
 
 class GuardedHttp(HttpToolsProtocol):
-    """uvicorn's ``httptools`` protocol with this module's rules (module docstring). Made
-    per server by :func:`guarded_protocol`, which sets the class attributes ``guard``,
-    ``header_timeout_s``, ``max_head_bytes`` and ``refusals``."""
+    """uvicorn's ``httptools`` protocol with this module's rules (module docstring).
+
+    Made per server by :func:`guarded_protocol`, which sets the class attributes below; uvicorn
+    makes one instance per connection.
+
+    Attributes
+    ----------
+    guard : ConnectionGuard
+        The server's count of connections by address.
+    header_timeout_s : float
+        Seconds a request head may take to arrive (default 5).
+    max_head_bytes : int
+        The longest request line and headers in bytes (default 16384); longer is a 431.
+    refusals : RefusalLog
+        The rate-limited log of refusals.
+    """
 
     guard: ConnectionGuard
     header_timeout_s: float = 5.0
@@ -243,8 +287,22 @@ class GuardedHttp(HttpToolsProtocol):
 
 
 def guarded_protocol(settings: Settings, guard: ConnectionGuard | None = None) -> type[GuardedHttp]:
-    """A :class:`GuardedHttp` subclass with the rules of ``settings`` and its own
-    :class:`ConnectionGuard` (one per server)."""
+    """A :class:`GuardedHttp` subclass with the rules of ``settings`` and its own guard.
+
+    Parameters
+    ----------
+    settings : Settings
+        The service's settings (``header_timeout_s``, ``max_head_bytes``, the connection
+        limits).
+    guard : ConnectionGuard or None, optional
+        The guard to use; default None: ``ConnectionGuard.from_settings(settings)`` (one per
+        server).
+
+    Returns
+    -------
+    type
+        The subclass of :class:`GuardedHttp`, for ``uvicorn.Config(http=...)``.
+    """
     return type("GuardedHttp", (GuardedHttp,), {
         "guard": guard or ConnectionGuard.from_settings(settings),
         "header_timeout_s": float(settings.header_timeout_s),
@@ -254,12 +312,26 @@ def guarded_protocol(settings: Settings, guard: ConnectionGuard | None = None) -
 
 
 def server_config(app: Any, settings: Settings) -> Any:
-    """The ``uvicorn.Config`` that serves ``app`` by ``settings``: bind address, the
-    guarded protocol (:func:`guarded_protocol`; no WebSocket upgrades: the service has no
-    WebSocket route), the keep-alive timeout
+    """The ``uvicorn.Config`` that serves ``app`` by ``settings``.
+
+    Bind address and port, the guarded protocol (:func:`guarded_protocol`; no WebSocket
+    upgrades: the service has no WebSocket route), the keep-alive timeout
     (``settings.keep_alive_s``), the graceful-shutdown bound (``settings.shutdown_grace_s``:
     open connections, SSE streams included, are closed after it), no access log; then every
-    log handler capped (:func:`service.api.logcaps.install_log_caps`)."""
+    log handler is capped (:func:`service.api.logcaps.install_log_caps`).
+
+    Parameters
+    ----------
+    app : ASGI application
+        The application to serve.
+    settings : Settings
+        The service's settings.
+
+    Returns
+    -------
+    uvicorn.Config
+        The server's configuration.
+    """
     import uvicorn
 
     config = uvicorn.Config(app, host=settings.host, port=settings.port, log_level=settings.log_level.lower(),

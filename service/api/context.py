@@ -37,7 +37,32 @@ class Slots:
     turns. With ``per_client``, slots go per client first: a client address holding
     ``per_client`` of them already gets another only while more than ``per_client`` stay
     free for the others, so no one client takes them all (ten uploads trickling in from
-    one address left none for anyone else). Thread-safe."""
+    one address left none for anyone else). Thread-safe.
+
+    Parameters
+    ----------
+    what : str
+        What is admitted, as the 429's reason names it (``"uploads"``, ``"plan requests"``).
+    running : int
+        Requests that may work at once.
+    waiting : int
+        Requests that may wait for a turn beyond them.
+    retry_after_s : int, optional
+        The ``Retry-After`` of a refusal in s; default 5.
+    per_client : int or None, optional
+        A client's share (see above); default None: no per-client rule.
+
+    Attributes
+    ----------
+    what : str
+        As given.
+    limit : int
+        ``running + waiting``: requests counted in at most.
+    retry_after_s : int
+        As given.
+    per_client : int or None
+        As given.
+    """
 
     def __init__(self, what: str, running: int, waiting: int, retry_after_s: int = 5, per_client: int | None = None):
         self.what = what
@@ -50,9 +75,19 @@ class Slots:
         self._by_client: dict[str | None, int] = {}
 
     def enter(self, client: str | None = None) -> bool:
-        """Count one more request of ``client`` (its address) in; False (not counted) when
-        ``running + waiting`` are in, or when ``client`` holds its share and no more than
-        that share is free for the others."""
+        """Count one more request of ``client`` in.
+
+        Parameters
+        ----------
+        client : str or None, optional
+            The client's address; default None.
+
+        Returns
+        -------
+        bool
+            True when counted in; False (not counted) when ``running + waiting`` are in, or
+            when ``client`` holds its share and no more than that share is free for the others.
+        """
         with self._lock:
             if self._inside >= self.limit:
                 return False
@@ -93,11 +128,22 @@ class Slots:
 
 
 def default_slots(settings: Settings) -> dict[str, Slots]:
-    """The admission bounds of a service: ``uploads`` (``settings.import_workers`` imports at
-    once, 4x as many waiting) and ``plans`` (one plan built at a time, 8 waiting: plan work
-    is mostly JSON and validation holding the GIL, so a second thread would only slow the
-    other routes down). Both go per client first (``settings.uploads_per_client``, default
-    ``import_workers``: :class:`Slots`' ``per_client``)."""
+    """The admission bounds of a service.
+
+    Parameters
+    ----------
+    settings : Settings
+        The service's settings (``import_workers``, ``uploads_per_client``).
+
+    Returns
+    -------
+    dict of str to Slots
+        ``uploads`` (``settings.import_workers`` imports at once, 4x as many waiting) and
+        ``plans`` (one plan built at a time, 8 waiting: plan work is mostly JSON and
+        validation holding the GIL, so a second thread would only slow the other routes
+        down). Both go per client first (``settings.uploads_per_client``, default
+        ``import_workers``: :class:`Slots`' ``per_client``).
+    """
     n = settings.import_workers
     share = settings.uploads_per_client or n
     return {"uploads": Slots("uploads", n, 4 * n, per_client=share),
@@ -106,6 +152,26 @@ def default_slots(settings: Settings) -> dict[str, Slots]:
 
 @dataclass
 class Context:
+    """The running service's shared state, one per app (``app.state.ctx``).
+
+    Attributes
+    ----------
+    settings : Settings
+        The service's settings.
+    store : JobStore
+        The job store.
+    queue : service.jobs.queue.ReconQueue or None
+        The reconstruction queue (None when the app runs without workers).
+    scans : service.jobs.scans.ScanManager or None
+        The scan manager (None without workers or without a scanner driver).
+    wakeups : service.api.jobs.EventWakeups or None
+        The store's events wake the job streams through it.
+    extras : dict
+        Other shared objects, by name.
+    slots : dict of str to Slots
+        The admission bounds (:func:`default_slots`).
+    """
+
     settings: Settings
     store: JobStore
     queue: Any = None          # service.jobs.queue.ReconQueue
@@ -116,7 +182,18 @@ class Context:
 
 
 async def ctx(request: Request) -> Context:
-    """FastAPI dependency: the service's shared :class:`Context` (app state)."""
+    """FastAPI dependency: the service's shared :class:`Context` (app state).
+
+    Parameters
+    ----------
+    request : fastapi.Request
+        The request.
+
+    Returns
+    -------
+    Context
+        ``request.app.state.ctx``.
+    """
     return request.app.state.ctx
 
 
@@ -131,14 +208,45 @@ def _check(settings: Settings, creds: HTTPAuthorizationCredentials | None) -> No
 
 
 async def require_token(request: Request, creds: HTTPAuthorizationCredentials | None = Depends(bearer)) -> None:
-    """Mutating routes: the bearer token when one is configured (401 otherwise)."""
+    """FastAPI dependency of the mutating routes: the bearer token when one is configured.
+
+    Parameters
+    ----------
+    request : fastapi.Request
+        The request.
+    creds : HTTPAuthorizationCredentials or None
+        Its ``Authorization`` header, as :data:`bearer` reads it.
+
+    Raises
+    ------
+    fastapi.HTTPException
+        401 (``WWW-Authenticate: Bearer``) for a missing or wrong token.
+    ValueError
+        When the token file cannot be read (``Settings.token_value``).
+    """
     _check(request.app.state.ctx.settings, creds)
 
 
 async def read_access(request: Request, creds: HTTPAuthorizationCredentials | None = Depends(bearer)) -> None:
-    """Reading routes: the bearer token whenever one is configured (401 otherwise), on a
-    loopback bind too (``service.api.access.AccessGate`` has already refused a request
-    without it, before anything was reserved; this is the route's own check)."""
+    """FastAPI dependency of the reading routes: the bearer token whenever one is configured.
+
+    On a loopback bind too (``service.api.access.AccessGate`` has already refused a request
+    without it, before anything was reserved; this is the route's own check).
+
+    Parameters
+    ----------
+    request : fastapi.Request
+        The request.
+    creds : HTTPAuthorizationCredentials or None
+        Its ``Authorization`` header, as :data:`bearer` reads it.
+
+    Raises
+    ------
+    fastapi.HTTPException
+        401 (``WWW-Authenticate: Bearer``) for a missing or wrong token.
+    ValueError
+        When the token file cannot be read (``Settings.token_value``).
+    """
     _check(request.app.state.ctx.settings, creds)
 
 
@@ -148,13 +256,38 @@ DETAIL_MAX = 1000
 
 
 def capped(text: str, limit: int = DETAIL_MAX) -> str:
-    """``text`` cut to ``limit`` characters, saying how long it was when cut."""
+    """``text`` cut to ``limit`` characters, saying how long it was when cut.
+
+    Parameters
+    ----------
+    text : str
+        The text.
+    limit : int, optional
+        The most characters kept; default :data:`DETAIL_MAX` (1000).
+
+    Returns
+    -------
+    str
+        ``text`` itself, or its first ``limit`` characters followed by
+        ``"... (<n> characters in all)"``.
+    """
     return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters in all)"
 
 
 def validation_reason(exc: RequestValidationError) -> str:
-    """The one-line reason of a 422 for a request FastAPI refused: ``field: message; ...``
-    (at most five), or the JSON parser's message for a malformed body."""
+    """The one-line reason of a 422 for a request FastAPI refused.
+
+    Parameters
+    ----------
+    exc : RequestValidationError
+        FastAPI's refusal.
+
+    Returns
+    -------
+    str
+        ``field: message; ...`` (at most five, each capped, naming a refused literal value),
+        or ``"malformed JSON: ..."`` with the JSON parser's message for a malformed body.
+    """
     parts = []
     for err in exc.errors()[:5]:
         loc = ".".join(str(p) for p in err.get("loc", ()) if p != "body") or "body"
@@ -168,9 +301,20 @@ def validation_reason(exc: RequestValidationError) -> str:
 
 
 def reason(exc: BaseException) -> str:
-    """The one-line reason for a refused input: a pydantic ``ValidationError`` as
-    ``field: message; ...`` (no documentation URLs, no input echo), anything else as its
-    text with line breaks folded."""
+    """The one-line reason for a refused input.
+
+    Parameters
+    ----------
+    exc : BaseException
+        The error.
+
+    Returns
+    -------
+    str
+        A pydantic ``ValidationError`` as ``field: message; ...`` (at most five; no
+        documentation URLs, no input echo), anything else as its text with line breaks
+        folded (its type's name when it has none); capped at :data:`DETAIL_MAX` characters.
+    """
     from pydantic import ValidationError
 
     if isinstance(exc, ValidationError):

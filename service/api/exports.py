@@ -44,10 +44,30 @@ def list_formats() -> list[FormatInfo]:
 
 
 def job_export_source(c: Context, job: dict, wavelength: int | None = None) -> tuple[str, Path]:
-    """The file a job exports and its format: a scan job's scan file (``"fpscan"``), a
-    succeeded reconstruction's volume (``"result"``, at ``wavelength``). Raises HTTPException:
-    409 while the file is not there (a reconstruction not yet done, a scan not started), 404 for
-    a wavelength the job has not, 422 for ``wavelength`` on a scan."""
+    """The file a job exports, and its format.
+
+    Parameters
+    ----------
+    c : Context
+        The app's context.
+    job : dict
+        The stored job (``id``, ``kind``, ...).
+    wavelength : int or None, optional
+        A reconstruction's volume at this wavelength (a job over every wavelength); default
+        None: its volume.
+
+    Returns
+    -------
+    tuple of (str, pathlib.Path)
+        ``("fpscan", scan file)`` for a scan job, ``("result", volume file)`` for a succeeded
+        reconstruction.
+
+    Raises
+    ------
+    fastapi.HTTPException
+        409 while the file is not there (a reconstruction not yet done, a scan not started),
+        404 for a wavelength the job has not, 422 for ``wavelength`` on a scan.
+    """
     if job["kind"] == "scan":
         if wavelength is not None:
             raise HTTPException(422, "wavelength applies to a reconstruction's volume; a scan exports every "

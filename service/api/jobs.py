@@ -34,7 +34,12 @@ class EventWakeups:
     (:meth:`service.jobs.store.JobStore.add_listener`), rather than at their next poll
     (:data:`POLL_S`): a client waiting on a job hears that it finished when it does.
 
-    ``loop``: the server's event loop. :meth:`notify` may be called from any thread.
+    :meth:`notify` may be called from any thread; :meth:`watch` runs in the loop's thread.
+
+    Parameters
+    ----------
+    loop : asyncio.AbstractEventLoop
+        The server's event loop.
     """
 
     def __init__(self, loop: asyncio.AbstractEventLoop):
@@ -69,8 +74,21 @@ class EventWakeups:
 
 
 def job_links(job: dict) -> dict[str, str]:
-    """Links of a job's resources (self, events, cancel, and its kind's results): its file in
-    every export format as ``export_<format>`` (``GET /api/jobs/{id}/export/{format}``)."""
+    """Links of a job's resources.
+
+    Parameters
+    ----------
+    job : dict
+        The stored job (``id``, ``kind``, ``state``, ``params``).
+
+    Returns
+    -------
+    dict of str to str
+        Name -> API path: ``self``, ``events``, ``cancel``, ``delete``; a scan's ``file``,
+        ``preview``, ``pause``, ``resume``, ``abort``; a succeeded reconstruction's
+        ``volume``, ``slice`` and ``mip_<plane>``; and for both the job's file in every export
+        format as ``export_<format>`` (``GET /api/jobs/{id}/export/{format}``).
+    """
     jid = job["id"]
     links = {"self": f"/api/jobs/{jid}", "events": f"/api/jobs/{jid}/events", "cancel": f"/api/jobs/{jid}/cancel",
              "delete": f"/api/jobs/{jid}"}
@@ -96,9 +114,22 @@ def job_links(job: dict) -> dict[str, str]:
 
 
 def job_view(job: dict) -> Job:
-    """The public view of a stored job (no file system paths; parameters named as a person
-    reads them, ``sound_speed``, also for a job an older server stored with ``c``:
-    :func:`service.names.person_names`)."""
+    """The public view of a stored job.
+
+    No file system paths; parameters named as a person reads them (``sound_speed``, also for
+    a job an older server stored with ``c``: :func:`service.names.person_names`).
+
+    Parameters
+    ----------
+    job : dict
+        The stored job.
+
+    Returns
+    -------
+    Job
+        The API's model, with its timings (``queued_s``, ``run_s``) and links
+        (:func:`job_links`).
+    """
     params = person_names({k: v for k, v in job["params"].items() if k not in ("input", "scan_path")})
     created, started, finished = job["created"], job["started"], job["finished"]
     timings = {"created": created, "started": started, "finished": finished,
@@ -109,7 +140,27 @@ def job_view(job: dict) -> Job:
 
 
 def get_job_or_404(c: Context, job_id: str, kind: str | None = None) -> dict:
-    """The job ``job_id`` (of ``kind`` if given); HTTP 404 when there is none."""
+    """The stored job ``job_id`` (of ``kind`` if given).
+
+    Parameters
+    ----------
+    c : Context
+        The app's context.
+    job_id : str
+        The job.
+    kind : str or None, optional
+        ``"scan"`` or ``"recon"``; default None: any.
+
+    Returns
+    -------
+    dict
+        The stored job.
+
+    Raises
+    ------
+    fastapi.HTTPException
+        404 when there is no such job (of that kind).
+    """
     job = c.store.get(job_id)
     if job is None or (kind is not None and job["kind"] != kind):
         raise HTTPException(404, f"no {kind or ''} job {job_id}".replace("  ", " "))

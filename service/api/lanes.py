@@ -40,7 +40,30 @@ class RequestTurns:
     """ASGI middleware: HTTP requests start at most ``per_iteration`` per event-loop
     iteration, in arrival order (first come, first started); the others wait, parked on a
     future, for a later iteration. Placed inside the access gate, so that a request
-    refused for its Host or token never waits in this queue nor delays one that is not."""
+    refused for its Host or token never waits in this queue nor delays one that is not.
+
+    Parameters
+    ----------
+    app : ASGI application
+        The application it wraps.
+    per_iteration : int, optional
+        Requests that may start per loop iteration, >= 1; default
+        :data:`STARTS_PER_ITERATION` (4).
+
+    Attributes
+    ----------
+    app : ASGI application
+        As given.
+    per_iteration : int
+        As given.
+    waiting : int
+        Requests waiting for their turn now (property).
+
+    Raises
+    ------
+    ValueError
+        If ``per_iteration`` is below 1.
+    """
 
     def __init__(self, app, per_iteration: int = STARTS_PER_ITERATION):
         if per_iteration < 1:
@@ -92,11 +115,31 @@ class RequestTurns:
 
 
 class HealthLane:
-    """ASGI middleware: answer ``GET /api/health`` at once from ``document(ctx)`` (an
-    awaitable of the ``Health`` model, given the app's ``Context``), ahead of the
-    :class:`RequestTurns` queue. The request first passes the access gate's rules
-    (``gate(scope)`` is :meth:`service.api.access.AccessGate.refusal` of the app's
-    settings); a request they refuse, and every other request, goes on to ``app``."""
+    """ASGI middleware: answer ``GET /api/health`` at once, ahead of the :class:`RequestTurns` queue.
+
+    The request first passes the access gate's rules (``gate(scope)`` is
+    :meth:`service.api.access.AccessGate.refusal` of the app's settings); a request they
+    refuse, and every other request, goes on to ``app`` (so does health before the app has
+    started and has no context).
+
+    Parameters
+    ----------
+    app : ASGI application
+        The application it wraps.
+    settings : Settings
+        The service's settings (the access rules).
+    document : callable
+        ``document(ctx)``: an awaitable of the ``Health`` model, given the app's ``Context``.
+
+    Attributes
+    ----------
+    app : ASGI application
+        As given.
+    document : callable
+        As given.
+    gate : callable
+        ``gate(scope) -> (status, reason) or None``, the access gate's rules.
+    """
 
     def __init__(self, app, settings: Settings, document: Callable[[Any], Awaitable[Any]]):
         from service.api.access import AccessGate

@@ -33,8 +33,19 @@ REPEAT_INTERVAL_S = 10.0
 
 
 def shown(text: object, limit: int = FIELD_MAX) -> str:
-    """``text`` as a log line carries it: at most ``limit`` characters, and its length
-    when it was longer (``"/api/aaaa... (60000 characters)"``).
+    """``text`` as a log line carries it: at most ``limit`` characters, and its length when longer.
+
+    Parameters
+    ----------
+    text : object
+        The field (converted with ``str``).
+    limit : int, optional
+        The most characters kept; default :data:`FIELD_MAX` (200).
+
+    Returns
+    -------
+    str
+        The text, or its first ``limit`` characters followed by ``"... (<n> characters)"``.
 
     Examples
     --------
@@ -51,7 +62,26 @@ class RefusalLog:
     """Log refusals of requests at most one line per client address per ``interval_s``
     (s): the first refusal from an address is logged at once, later ones in the interval
     are counted and the next line written says how many were left out. Thread-safe; the
-    table of addresses is bounded (``max_addresses``; the oldest entries go first)."""
+    table of addresses is bounded (``max_addresses``; the oldest entries go first).
+
+    Parameters
+    ----------
+    logger : logging.Logger
+        The logger the lines go to.
+    interval_s : float, optional
+        Seconds between two lines for one address; default :data:`REPEAT_INTERVAL_S` (10 s).
+    max_addresses : int, optional
+        Addresses remembered at most; default 4096.
+
+    Attributes
+    ----------
+    logger : logging.Logger
+        As given.
+    interval_s : float
+        As given.
+    max_addresses : int
+        As given.
+    """
 
     def __init__(self, logger: logging.Logger, interval_s: float = REPEAT_INTERVAL_S,
                  max_addresses: int = 4096) -> None:
@@ -62,8 +92,27 @@ class RefusalLog:
         self._seen: dict[str, tuple[float, int]] = {}  # address -> (time of its last line, refusals left out)
 
     def refused(self, address: str | None, message: str, *args: object, level: int = logging.INFO) -> bool:
-        """Log ``message % args`` for a refusal from ``address`` unless one was logged for it
-        less than ``interval_s`` ago (then count it). Returns whether a line was written."""
+        """Log a refusal from ``address``, unless one was logged for it less than ``interval_s`` ago.
+
+        A refusal not logged is counted; the next line for the address says how many were
+        left out.
+
+        Parameters
+        ----------
+        address : str or None
+            The client's address (None counts as ``"?"``).
+        message : str
+            The %-format of the line.
+        *args : object
+            Its arguments.
+        level : int, optional
+            The logging level; default ``logging.INFO``.
+
+        Returns
+        -------
+        bool
+            Whether a line was written.
+        """
         key = address or "?"
         now = time.monotonic()
         with self._lock:
@@ -84,7 +133,31 @@ class CappedRecords(logging.Filter):
     """A handler filter: each record's message cut to ``limit`` characters (its length
     said), and a message repeated by one of ``repeat_loggers`` written at most once per
     ``interval_s`` (the next one says how many were left out). Records of level ERROR and
-    above always pass (cut, never dropped)."""
+    above always pass (cut, never dropped).
+
+    Parameters
+    ----------
+    limit : int, optional
+        The most characters of a message; default :data:`RECORD_MAX` (2000).
+    interval_s : float, optional
+        Seconds between two records of one repeated message; default
+        :data:`REPEAT_INTERVAL_S` (10 s).
+    max_messages : int, optional
+        Repeated messages remembered at most (the oldest go first); default 1024.
+    repeat_loggers : tuple of str, optional
+        The loggers whose repeated messages are thinned; default ``("uvicorn.error",)``.
+
+    Attributes
+    ----------
+    limit : int
+        As given.
+    interval_s : float
+        As given.
+    max_messages : int
+        As given.
+    repeat_loggers : frozenset of str
+        As given.
+    """
 
     def __init__(self, limit: int = RECORD_MAX, interval_s: float = REPEAT_INTERVAL_S,
                  max_messages: int = 1024, repeat_loggers: tuple[str, ...] = ("uvicorn.error",)) -> None:
@@ -127,8 +200,23 @@ class CappedRecords(logging.Filter):
 
 
 def install_log_caps(limit: int = RECORD_MAX, interval_s: float = REPEAT_INTERVAL_S) -> CappedRecords:
-    """Add one :class:`CappedRecords` to every handler of the root logger and of uvicorn's
-    loggers (those that do not propagate); returns it."""
+    """Add one :class:`CappedRecords` to every handler of the root logger and of uvicorn's loggers.
+
+    A handler that has a :class:`CappedRecords` already is left as it is.
+
+    Parameters
+    ----------
+    limit : int, optional
+        The most characters of a message; default :data:`RECORD_MAX` (2000).
+    interval_s : float, optional
+        Seconds between two records of one repeated message; default
+        :data:`REPEAT_INTERVAL_S` (10 s).
+
+    Returns
+    -------
+    CappedRecords
+        The filter added.
+    """
     caps = CappedRecords(limit, interval_s)
     for name in ("", "uvicorn", "uvicorn.error", "uvicorn.access"):
         for handler in logging.getLogger(name).handlers:

@@ -43,10 +43,29 @@ PREVIEW_DETAIL_POINTS = 1 << 14
 
 
 def build_plan(req) -> dict:
-    """The plan JSON for a request (a ``PlanCreate`` variant): a plan JSON is checked
-    (``driver.plan`` via ``service.plans.Plan``) and kept as it is, so it keeps its id;
-    anything else is built by ``service.plans.make_plan``, the one plan builder (a user
-    point list is the mask kind ``points``). Raises ``ValueError`` with the reason."""
+    """The plan JSON for a plan request.
+
+    A plan JSON is checked (``driver.plan`` via ``service.plans.Plan``) and kept as it is, so
+    it keeps its id; anything else is built by ``service.plans.make_plan``, the one plan
+    builder (a user point list is the mask kind ``points``).
+
+    Parameters
+    ----------
+    req : PlanCreate
+        A variant of the request model: a plan document, mask parameters, or a point list.
+
+    Returns
+    -------
+    dict
+        The plan JSON (``fpscan-plan/1``).
+
+    Raises
+    ------
+    ValueError
+        With the reason: implausible units (a pitch of 60 m, dt 8 s), a point list given both
+        as points and params or as neither, bad mask parameters, or more than
+        :data:`MAX_POINTS` points.
+    """
     from service.plans import check_plausible_request, make_mask, make_plan
 
     if isinstance(req, PlanDocument):
@@ -83,8 +102,19 @@ def build_plan(req) -> dict:
 
 
 def expected_scan_time(plan: dict) -> float | None:
-    """Seconds: points × averages × wavelengths / PRF (None when the PRF is 0 =
-    unthrottled: the scanner's own rate decides)."""
+    """The expected duration of a plan's scan: points × averages × wavelengths / PRF.
+
+    Parameters
+    ----------
+    plan : dict
+        The plan JSON (its ``points`` and ``acquisition``: ``prf`` in Hz, ``averages``,
+        ``wavelengths``).
+
+    Returns
+    -------
+    float or None
+        Seconds; None when the PRF is 0 (unthrottled: the scanner's own rate decides).
+    """
     acq = plan["acquisition"]
     n = len(plan["points"]["indices"])
     prf = float(acq.get("prf", 0) or 0)
@@ -92,7 +122,19 @@ def expected_scan_time(plan: dict) -> float | None:
 
 
 def summary(plan: dict) -> Plan:
-    """The API summary of a stored plan dict."""
+    """The API summary of a stored plan dict.
+
+    Parameters
+    ----------
+    plan : dict
+        The plan JSON.
+
+    Returns
+    -------
+    Plan
+        Its id, mask kind, point counts and shortfall, weight ratio, expected scan time,
+        lattice, acquisition and links.
+    """
     mask = plan.get("mask", {})
     pid = plan["id"]
     from service.plans.mask import shortfall
@@ -114,7 +156,18 @@ def preview_png(plan: dict) -> bytes:
     as coloured markers (``service.plans.preview_png``) up to ``PREVIEW_DETAIL_POINTS``
     points; beyond that (markers cost time linear in the points) and for a plan the plan
     model cannot read, the mask as an image on its lattice (``render_lattice``: one cell
-    per lattice point, coloured by weight)."""
+    per lattice point, coloured by weight).
+
+    Parameters
+    ----------
+    plan : dict
+        The plan JSON.
+
+    Returns
+    -------
+    bytes
+        The PNG file's bytes.
+    """
     if len(plan["points"]["indices"]) <= PREVIEW_DETAIL_POINTS:
         try:
             from service.plans import Plan as PlanModel
@@ -148,10 +201,27 @@ def _plan_request_adapter() -> TypeAdapter:
 
 
 def parse_plan_request(raw: bytes, content_type: str | None):
-    """The ``PlanCreate`` variant of a request body, read as FastAPI reads a JSON body
-    (JSON when the content type is absent, ``application/json`` or ``…+json``, else the
-    raw bytes, which no variant takes). Raises ``ValueError`` with the reason in the
-    words of the API's 422 answers."""
+    """The ``PlanCreate`` variant of a request body, read as FastAPI reads a JSON body.
+
+    Parameters
+    ----------
+    raw : bytes
+        The request body.
+    content_type : str or None
+        Its ``Content-Type``: JSON when absent, ``application/json`` or ``…+json``; else the
+        raw bytes are validated, which no variant takes.
+
+    Returns
+    -------
+    PlanCreate
+        The validated request.
+
+    Raises
+    ------
+    ValueError
+        With the reason in the words of the API's 422 answers (an empty body, malformed
+        JSON, a validation error).
+    """
     from fastapi.exceptions import RequestValidationError
 
     if not raw:
@@ -175,9 +245,23 @@ def plan_work(raw: bytes, content_type: str | None, preview: bool) -> dict:
     (:func:`parse_plan_request`), build the plan (:func:`build_plan`), its summary and,
     for a preview, its PNG, else its JSON text as stored and served.
 
-    Returns ``{"status": 422, "detail": reason}`` for a refused request, else
-    ``{"status": 200, "summary": {...}, "png": bytes}`` (``preview``) or
-    ``{"status": 201, "summary": {...}, "text": str}``."""
+    Parameters
+    ----------
+    raw : bytes
+        The request body.
+    content_type : str or None
+        Its ``Content-Type``.
+    preview : bool
+        Draw the preview PNG (``POST /api/plans/preview``) rather than make the plan's text.
+
+    Returns
+    -------
+    dict
+        ``{"status": 422, "detail": reason}`` for a refused request, else
+        ``{"status": 200, "summary": {...}, "png": bytes}`` (``preview``) or
+        ``{"status": 201, "summary": {...}, "text": str, "gzip": bytes}`` (the JSON text and
+        :func:`gzip_text` of it).
+    """
     try:
         plan = build_plan(parse_plan_request(raw, content_type))
     except (ValueError, OverflowError) as exc:
@@ -190,8 +274,20 @@ def plan_work(raw: bytes, content_type: str | None, preview: bool) -> dict:
 
 
 def gzip_text(text: str) -> bytes:
-    """``text`` (a plan's JSON) UTF-8 encoded and gzip-compressed, as served to clients that
-    accept it (a plan of 262 144 points: 16 MB of JSON, about 1.5 MB compressed)."""
+    """``text`` (a plan's JSON) UTF-8 encoded and gzip-compressed, as served to clients that accept it.
+
+    A plan of 262 144 points: 16 MB of JSON, about 1.5 MB compressed.
+
+    Parameters
+    ----------
+    text : str
+        The text.
+
+    Returns
+    -------
+    bytes
+        The gzip data (level 5, no time stamp: the same text gives the same bytes).
+    """
     return gzip.compress(text.encode(), compresslevel=5, mtime=0)
 
 
@@ -228,7 +324,18 @@ def warm_up() -> None:
 
 
 def preview_png_of_text(text: str) -> bytes:
-    """:func:`preview_png` of a stored plan's JSON text (run in the plan worker process)."""
+    """:func:`preview_png` of a stored plan's JSON text (run in the plan worker process).
+
+    Parameters
+    ----------
+    text : str
+        The plan's JSON text.
+
+    Returns
+    -------
+    bytes
+        The PNG file's bytes.
+    """
     return preview_png(json.loads(text))
 
 
@@ -242,9 +349,22 @@ PLAN_WORKER_NICE = 8
 
 
 def plan_executor(c: Context):
-    """The service's plan worker: one spawned process at a lower CPU priority
-    (``PLAN_WORKER_NICE``; a ``service.jobs.executors.LocalExecutor``, which replaces a
-    worker that died), made at start-up; closed with the app."""
+    """The service's plan worker: one spawned process at a lower CPU priority.
+
+    Made on first use (at start-up) and kept in ``c.extras["plan_executor"]``; it warms up in
+    the background; closed with the app.
+
+    Parameters
+    ----------
+    c : Context
+        The app's context.
+
+    Returns
+    -------
+    LocalExecutor
+        A one-worker ``service.jobs.executors.LocalExecutor`` at priority increment
+        :data:`PLAN_WORKER_NICE`, which replaces a worker that died.
+    """
     import multiprocessing
     import os
     from concurrent.futures import ProcessPoolExecutor
@@ -376,7 +496,25 @@ def list_plans(c: Context = Depends(ctx)) -> list[Plan]:
 
 
 def plan_or_404(c: Context, plan_id: str) -> dict:
-    """The stored plan dict ``plan_id``; HTTP 404 when there is none."""
+    """The stored plan dict ``plan_id``.
+
+    Parameters
+    ----------
+    c : Context
+        The app's context.
+    plan_id : str
+        The plan's id.
+
+    Returns
+    -------
+    dict
+        The plan JSON.
+
+    Raises
+    ------
+    fastapi.HTTPException
+        404 when there is no such plan.
+    """
     found = c.store.get_plan(plan_id)
     if found is None:
         raise HTTPException(404, f"no plan {plan_id}")
@@ -405,8 +543,23 @@ def delete_plan(plan_id: str = Path(pattern=ID_PATTERN), c: Context = Depends(ct
 
 
 def accepts_encoding(header: str, coding: str) -> bool:
-    """Whether an ``Accept-Encoding`` header accepts ``coding`` (RFC 9110 §12.5.3: a listed
-    coding, or ``*``, with a quality above 0; ``gzip;q=0`` refuses it)."""
+    """Whether an ``Accept-Encoding`` header accepts ``coding``.
+
+    RFC 9110 §12.5.3: a listed coding, or ``*``, with a quality above 0; ``gzip;q=0``
+    refuses it.
+
+    Parameters
+    ----------
+    header : str
+        The ``Accept-Encoding`` header's value.
+    coding : str
+        A content coding in lower case (``"gzip"``).
+
+    Returns
+    -------
+    bool
+        True when accepted.
+    """
     quality: dict[str, float] = {}
     for item in header.lower().split(","):
         name, _, params = item.strip().partition(";")

@@ -104,7 +104,25 @@ def abort_scan(job_id: str = JobId, c: Context = Depends(ctx)) -> Job:
 
 
 def scan_file_path(c: Context, job_id: str) -> Path:
-    """The scan file of the scan job ``job_id``: 404 for no such job, 409 while it has none."""
+    """The scan file of the scan job ``job_id``.
+
+    Parameters
+    ----------
+    c : Context
+        The app's context.
+    job_id : str
+        The scan job.
+
+    Returns
+    -------
+    pathlib.Path
+        The scan file.
+
+    Raises
+    ------
+    fastapi.HTTPException
+        404 for no such scan job, 409 while it has no scan file.
+    """
     job = get_job_or_404(c, job_id, "scan")
     path = job["params"].get("scan_path")
     if not path or not Path(path).exists():

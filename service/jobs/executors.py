@@ -36,11 +36,21 @@ def _exit_with_parent(parent: int, period: float = 1.0) -> None:
 
 
 def lower_priority(increment: int = 10, parent: int | None = None) -> None:
-    """Worker initializer: run at a lower CPU priority (``os.nice``), so the server's
-    event loop and serial threads stay responsive on a small machine, and exit when the
-    server process is gone (a pool worker would otherwise wait forever on its queue after
-    a crash of the server). ``parent``: the server's pid, taken when the pool was made
-    (the server may already be dead when a worker that was still starting gets here)."""
+    """Worker initializer: run at a lower CPU priority, and exit when the server is gone.
+
+    The lower priority (``os.nice``; ignored where not available or not permitted) keeps the
+    server's event loop and serial threads responsive on a small machine. A daemon thread
+    checks the parent every second and exits the worker when the server process is gone (a
+    pool worker would otherwise wait forever on its queue after a crash of the server).
+
+    Parameters
+    ----------
+    increment : int, optional
+        The ``os.nice`` increment; default 10.
+    parent : int or None, optional
+        The server's pid, taken when the pool was made (the server may already be dead when
+        a worker that was still starting gets here); default None: the current parent.
+    """
     try:
         os.nice(increment)
     except (AttributeError, OSError):  # not on this platform / not permitted
@@ -52,11 +62,22 @@ def lower_priority(increment: int = 10, parent: int | None = None) -> None:
 
 
 def start_worker(increment: int = 0, parent: int | None = None, warm: bool = False) -> None:
-    """Reconstruction worker initializer: :func:`lower_priority` by ``increment``, then,
-    with ``warm``, :func:`service.jobs.work.warm_up` (imports, numba kernels, the result
+    """Reconstruction worker initializer: lower the priority, then optionally warm up.
+
+    With ``warm``, :func:`service.jobs.work.warm_up` runs (imports, numba kernels, the result
     writer and its pictures; the k-Wave and model-based kernels in the background), so the
-    first job costs what a later one costs. A failing
-    warm-up is logged and ignored (the job then pays the cost itself)."""
+    first job costs what a later one costs. A failing warm-up is logged and ignored (the job
+    then pays the cost itself).
+
+    Parameters
+    ----------
+    increment : int, optional
+        CPU priority increment for :func:`lower_priority`; default 0.
+    parent : int or None, optional
+        The server's pid (:func:`lower_priority`); default None: the current parent.
+    warm : bool, optional
+        Warm the kernels up; default False.
+    """
     lower_priority(increment, parent)
     if warm:
         try:
@@ -70,8 +91,16 @@ def start_worker(increment: int = 0, parent: int | None = None, warm: bool = Fal
 
 
 def stop_pool(pool: ProcessPoolExecutor) -> None:
-    """Shut a pool down now: pending work is cancelled and running workers terminated
-    (a reconstruction in flight is lost; its job is re-queued at the next start)."""
+    """Shut a pool down now: pending work is cancelled and running workers terminated.
+
+    A reconstruction in flight is lost; its job is re-queued at the next start. Each
+    terminated worker is waited for up to 5 s.
+
+    Parameters
+    ----------
+    pool : concurrent.futures.ProcessPoolExecutor
+        The pool.
+    """
     processes = list(getattr(pool, "_processes", {}).values())
     pool.shutdown(wait=False, cancel_futures=True)
     for proc in processes:
@@ -82,8 +111,32 @@ def stop_pool(pool: ProcessPoolExecutor) -> None:
 
 
 class LocalExecutor:
-    """A pool of ``workers`` spawned processes at CPU priority increment ``nice``; with
-    ``warm`` each warms its kernels as it starts (:func:`start_worker`)."""
+    """A pool of spawned worker processes that run reconstructions.
+
+    ``submit(fn, *args)`` returns a future whose ``result(timeout)`` raises
+    :class:`WorkerDied` when the worker died (a fresh pool is made for the next job);
+    ``run(fn, *args)`` waits for the result; ``close()`` stops the pool (:func:`stop_pool`).
+
+    Parameters
+    ----------
+    workers : int, optional
+        The number of processes; default 1.
+    nice : int, optional
+        Their CPU priority increment (``os.nice``); default 0.
+    warm : bool, optional
+        Each warms its kernels as it starts (:func:`start_worker`); default False.
+
+    Attributes
+    ----------
+    name : str
+        ``"local"``.
+    workers, nice : int
+        As given.
+    warm : bool
+        As given.
+    closed : bool
+        True once :meth:`close` was called.
+    """
 
     name = "local"
 
@@ -100,9 +153,16 @@ class LocalExecutor:
                                    initializer=start_worker, initargs=(self.nice, os.getpid(), self.warm))
 
     def start_workers(self) -> list:
-        """Start every worker process now (in the background: returns their futures at once)
-        rather than at the first job, so their warm-up runs before it. Each future's result
-        is the worker's pid. A second call returns the first call's futures."""
+        """Start every worker process now rather than at the first job.
+
+        They start in the background, so their warm-up runs before the first job. A second
+        call returns the first call's futures.
+
+        Returns
+        -------
+        list of concurrent.futures.Future
+            One future per worker, returned at once; each one's result is the worker's pid.
+        """
         from service.jobs.work import worker_pid
 
         if self._starts is None:
@@ -125,8 +185,15 @@ class LocalExecutor:
 
 
 class WorkerDied(RuntimeError):
-    """The process running a job died (killed by the OS, or by a shutdown): the job may be
-    run again."""
+    """The process running a job died (killed by the OS, or by a shutdown).
+
+    A ``RuntimeError``; the job may be run again.
+
+    Attributes
+    ----------
+    args : tuple
+        The message, ``("the reconstruction worker process died",)``.
+    """
 
 
 class _LocalFuture:
@@ -149,7 +216,23 @@ class _LocalFuture:
 
 
 class DaskExecutor:
-    """A dask.distributed client connected to ``address``."""
+    """A dask.distributed client connected to a scheduler: reconstructions run on its workers.
+
+    The same ``submit`` / ``run`` / ``close`` as :class:`LocalExecutor`. The workers must see
+    the data directory (shared file system).
+
+    Parameters
+    ----------
+    address : str
+        The scheduler's address (e.g. ``"tcp://host:8786"``); connecting waits up to 20 s.
+
+    Attributes
+    ----------
+    name : str
+        ``"dask"``.
+    address : str
+        As given.
+    """
 
     name = "dask"
 
@@ -180,7 +263,20 @@ class _DaskFuture:
 
 
 def make_executor(settings):
-    """The executor the settings ask for."""
+    """The executor the settings ask for.
+
+    Parameters
+    ----------
+    settings : service.settings.Settings
+        Reads ``executor`` (``"dask"`` or ``"local"``), ``dask_scheduler``, ``workers``,
+        ``worker_nice`` and ``warm_up``.
+
+    Returns
+    -------
+    LocalExecutor or DaskExecutor
+        A :class:`DaskExecutor` connected to ``dask_scheduler`` when ``executor`` is
+        ``"dask"``, else a :class:`LocalExecutor`.
+    """
     if settings.executor == "dask":
         return DaskExecutor(settings.dask_scheduler)
     return LocalExecutor(settings.workers, nice=settings.worker_nice, warm=settings.warm_up)

@@ -51,11 +51,27 @@ RETENTION_KEY = "retention"
 
 
 class InUse(ValueError):
-    """The thing to delete is used by an active job (HTTP 409)."""
+    """The thing to delete is used by an active job (HTTP 409).
+
+    A ``ValueError``.
+
+    Attributes
+    ----------
+    args : tuple
+        The message, naming the job that holds it.
+    """
 
 
 class NotFound(KeyError):
-    """No such plan, job or dataset (HTTP 404)."""
+    """No such plan, job or dataset (HTTP 404).
+
+    A ``KeyError`` whose ``str`` is its message unquoted.
+
+    Attributes
+    ----------
+    args : tuple
+        The message (``"no job <id>"``, ...).
+    """
 
     def __str__(self) -> str:  # KeyError would quote the message
         return str(self.args[0]) if self.args else "not found"
@@ -74,7 +90,23 @@ def _remove(path: Path) -> None:
 
 
 def job_files(job: dict, data_dir: str | os.PathLike) -> list[Path]:
-    """The files and folders that belong to ``job`` (existing ones only)."""
+    """The files and folders that belong to ``job`` (existing ones only).
+
+    A scan job's scan file and IPASC export; a reconstruction's result folder(s) of every
+    attempt and their progress files.
+
+    Parameters
+    ----------
+    job : dict
+        A job row of the store (``id``, ``kind``, ``params``, ``result_path``).
+    data_dir : str or os.PathLike
+        The data folder (``settings.data_dir``).
+
+    Returns
+    -------
+    list of pathlib.Path
+        The existing paths, each once.
+    """
     data = Path(data_dir)
     jid = job["id"]
     out: list[Path] = []
@@ -101,8 +133,19 @@ def job_files(job: dict, data_dir: str | os.PathLike) -> list[Path]:
 
 
 def job_dataset_ids(job: dict) -> set[str]:
-    """The uploaded datasets a reconstruction job reads: its ``dataset_id``, or the
-    datasets of an unmixing job (``input_id`` ``datasets:<id>,<id>...``)."""
+    """The uploaded datasets a reconstruction job reads.
+
+    Parameters
+    ----------
+    job : dict
+        A job row of the store (``kind``, ``params``).
+
+    Returns
+    -------
+    set of str
+        Its ``dataset_id``, or the datasets of an unmixing job (``input_id``
+        ``datasets:<id>,<id>...``); empty for a scan job.
+    """
     if job.get("kind") != "recon":
         return set()
     p = job["params"]
@@ -129,9 +172,29 @@ def _users(store: JobStore, *, scan_job: str | None = None, plan: str | None = N
 
 
 def delete_job(store: JobStore, data_dir: str | os.PathLike, job_id: str) -> dict:
-    """Delete a finished job, its events and its files. Returns ``{"id", "kind",
-    "bytes_freed"}``. Raises :class:`NotFound`, :class:`InUse` (the job is active, or an
-    active reconstruction reads this scan)."""
+    """Delete a finished job, its events and its files.
+
+    Parameters
+    ----------
+    store : JobStore
+        The job store.
+    data_dir : str or os.PathLike
+        The data folder (``settings.data_dir``).
+    job_id : str
+        The job.
+
+    Returns
+    -------
+    dict
+        ``{"id", "kind", "bytes_freed"}``.
+
+    Raises
+    ------
+    NotFound
+        If there is no such job.
+    InUse
+        If the job is active, or an active reconstruction reads this scan.
+    """
     job = store.get(job_id)
     if job is None:
         raise NotFound(f"no job {job_id}")
@@ -154,8 +217,27 @@ def delete_job(store: JobStore, data_dir: str | os.PathLike, job_id: str) -> dic
 
 
 def delete_plan(store: JobStore, plan_id: str) -> dict:
-    """Delete a stored plan. Raises :class:`NotFound`, :class:`InUse` (an active scan
-    uses it)."""
+    """Delete a stored plan.
+
+    Parameters
+    ----------
+    store : JobStore
+        The job store.
+    plan_id : str
+        The plan.
+
+    Returns
+    -------
+    dict
+        ``{"id", "bytes_freed"}`` (``bytes_freed`` 0: a plan has no files).
+
+    Raises
+    ------
+    NotFound
+        If there is no such plan.
+    InUse
+        If an active scan uses it.
+    """
     if store.get_plan(plan_id) is None:
         raise NotFound(f"no plan {plan_id}")
     users = _users(store, plan=plan_id)
@@ -166,8 +248,29 @@ def delete_plan(store: JobStore, plan_id: str) -> dict:
 
 
 def delete_dataset(store: JobStore, data_dir: str | os.PathLike, dataset_id: str) -> dict:
-    """Delete an uploaded dataset and its folder. Raises :class:`NotFound`,
-    :class:`InUse` (an active reconstruction reads it)."""
+    """Delete an uploaded dataset and its folder.
+
+    Parameters
+    ----------
+    store : JobStore
+        The job store.
+    data_dir : str or os.PathLike
+        The data folder (``settings.data_dir``).
+    dataset_id : str
+        The dataset.
+
+    Returns
+    -------
+    dict
+        ``{"id", "bytes_freed"}``.
+
+    Raises
+    ------
+    NotFound
+        If there is no such dataset.
+    InUse
+        If an active reconstruction reads it.
+    """
     if store.get_dataset(dataset_id) is None:
         raise NotFound(f"no dataset {dataset_id}")
     users = _users(store, dataset=dataset_id)
@@ -183,11 +286,24 @@ def delete_dataset(store: JobStore, data_dir: str | os.PathLike, dataset_id: str
 
 
 def list_datasets(store: JobStore, data_dir: str | os.PathLike) -> list[dict]:
-    """Every uploaded dataset, oldest first: ``{"dataset_id", "name", "format", "layout",
-    "shape", "dt", "wavelength_nm", "wavelength_index", "content_sha256", "size_bytes"
-    (its files on disk), "created" (UNIX s), "last_used" (UNIX s: the upload, or the
-    latest identical upload answered with it), "jobs" (ids of the jobs that read it, any
-    state), "in_use" (a queued, running or paused one does)}``."""
+    """Every uploaded dataset, oldest first.
+
+    Parameters
+    ----------
+    store : JobStore
+        The job store.
+    data_dir : str or os.PathLike
+        The data folder (``settings.data_dir``).
+
+    Returns
+    -------
+    list of dict
+        ``{"dataset_id", "name", "format", "layout", "shape", "dt", "wavelength_nm",
+        "wavelength_index", "content_sha256", "size_bytes" (its files on disk), "created"
+        (UNIX s), "last_used" (UNIX s: the upload, or the latest identical upload answered
+        with it), "jobs" (ids of the jobs that read it, any state), "in_use" (a queued,
+        running or paused one does)}``.
+    """
     users: dict[str, list[str]] = {}
     active: set[str] = set()
     for job in store.list(kind="recon", limit=1_000_000):
@@ -210,12 +326,30 @@ def list_datasets(store: JobStore, data_dir: str | os.PathLike) -> list[dict]:
 
 def apply_dataset_retention(store: JobStore, settings: Any, policy: dict | None = None,
                             now: float | None = None) -> list[str]:
-    """Delete uploaded datasets beyond the policy's ``datasets_max_age_s`` (not used, i.e.
-    uploaded or uploaded again, for longer)
-    and ``datasets_keep_bytes`` (least recently used first -- uploaded, or uploaded again and
-    answered by deduplication -- until the rest fit; the most recently used is never removed
-    for its bytes); a dataset an active job reads is kept (and still counts towards the
-    bytes). Returns the deleted ids."""
+    """Delete uploaded datasets beyond the retention policy's dataset part.
+
+    A dataset not used (uploaded, or uploaded again) for longer than ``datasets_max_age_s``
+    goes; then, beyond ``datasets_keep_bytes``, the least recently used go first (used:
+    uploaded, or uploaded again and answered by deduplication) until the rest fit; the most
+    recently used is never removed for its bytes. A dataset an active job reads is kept (and
+    still counts towards the bytes).
+
+    Parameters
+    ----------
+    store : JobStore
+        The job store.
+    settings : service.settings.Settings
+        The service settings: ``data_dir`` and the ``retention_*`` defaults.
+    policy : dict or None, optional
+        The policy (:func:`get_retention`'s dict); default None: the one in force.
+    now : float or None, optional
+        The current time in UNIX s; default None: ``time.time()``.
+
+    Returns
+    -------
+    list of str
+        The deleted datasets' ids.
+    """
     import time
 
     policy = policy or get_retention(store, settings)
@@ -250,7 +384,19 @@ def apply_dataset_retention(store: JobStore, settings: Any, policy: dict | None 
 
 # -- retention --------------------------------------------------------------------------
 def default_retention(settings: Any) -> dict:
-    """The policy the service settings give (``retention_*``; None = no limit)."""
+    """The retention policy the service settings give (``retention_*``).
+
+    Parameters
+    ----------
+    settings : service.settings.Settings
+        The service settings (a missing ``retention_*`` attribute counts as no limit).
+
+    Returns
+    -------
+    dict
+        ``{"keep_results", "keep_bytes", "include_scans", "datasets_keep_bytes",
+        "datasets_max_age_s"}``; None = no limit.
+    """
     return {"keep_results": getattr(settings, "retention_keep_results", None),
             "keep_bytes": getattr(settings, "retention_keep_bytes", None),
             "include_scans": bool(getattr(settings, "retention_include_scans", False)),
@@ -259,16 +405,48 @@ def default_retention(settings: Any) -> dict:
 
 
 def get_retention(store: JobStore, settings: Any) -> dict:
-    """The retention policy in force: the stored one, else the settings'."""
+    """The retention policy in force: the stored one, else the settings'.
+
+    Parameters
+    ----------
+    store : JobStore
+        The job store.
+    settings : service.settings.Settings
+        The service settings (:func:`default_retention`; they fill keys the stored policy lacks).
+
+    Returns
+    -------
+    dict
+        The policy, as :func:`default_retention` gives it.
+    """
     stored = store.get_config(RETENTION_KEY)
     return {**default_retention(settings), **stored} if isinstance(stored, dict) else \
         default_retention(settings)
 
 
 def set_retention(store: JobStore, policy: dict) -> dict:
-    """Store a policy ``{"keep_results": int|None, "keep_bytes": int|None,
-    "include_scans": bool, "datasets_keep_bytes": int|None, "datasets_max_age_s":
-    float|None}`` (it survives restarts). Raises ValueError for negative numbers."""
+    """Store a retention policy (it survives restarts).
+
+    Parameters
+    ----------
+    store : JobStore
+        The job store.
+    policy : dict
+        ``{"keep_results": int|None, "keep_bytes": int|None, "include_scans": bool,
+        "datasets_keep_bytes": int|None, "datasets_max_age_s": float|None}``; missing keys
+        are None (``include_scans`` False), other keys are dropped.
+
+    Returns
+    -------
+    dict
+        The policy as stored.
+
+    Raises
+    ------
+    ValueError
+        If a count or byte limit is not a whole number >= 0 or None, or
+        ``datasets_max_age_s`` is not a finite number of seconds >= 0 or None.
+    """
     out = {"keep_results": policy.get("keep_results"), "keep_bytes": policy.get("keep_bytes"),
            "include_scans": bool(policy.get("include_scans", False)),
            "datasets_keep_bytes": policy.get("datasets_keep_bytes"),
@@ -286,13 +464,25 @@ def set_retention(store: JobStore, policy: dict) -> dict:
 
 
 def apply_retention(store: JobStore, settings: Any) -> list[str]:
-    """Delete the oldest finished jobs beyond the retention policy, and the datasets
-    beyond its dataset part (:func:`apply_dataset_retention`); returns their ids.
+    """Delete the oldest finished jobs beyond the retention policy, and the datasets beyond it.
 
-    Candidates: finished reconstructions that have result files (and, with
-    ``include_scans``, finished scans with a scan file that no active job reads), oldest
-    finished first. ``keep_results`` keeps the newest N reconstruction results;
-    ``keep_bytes`` then removes the oldest candidates until their files fit.
+    The datasets go first (:func:`apply_dataset_retention`). Candidate jobs: finished
+    reconstructions that have result files (and, with ``include_scans``, finished scans with
+    a scan file that no active job reads), oldest finished first. ``keep_results`` keeps the
+    newest N reconstruction results; ``keep_bytes`` then removes the oldest candidates until
+    their files fit. A job that became active or vanished meanwhile is kept (logged).
+
+    Parameters
+    ----------
+    store : JobStore
+        The job store.
+    settings : service.settings.Settings
+        The service settings: ``data_dir`` and the ``retention_*`` defaults.
+
+    Returns
+    -------
+    list of str
+        The ids of the deleted datasets, then of the deleted jobs.
     """
     policy = get_retention(store, settings)
     datasets = apply_dataset_retention(store, settings, policy)
@@ -338,11 +528,24 @@ DISK_WALK_STEP = 256
 
 
 def disk_usage(data_dir: str | os.PathLike) -> dict:
-    """Bytes the store uses, by part, and the free space of its file system:
-    ``{"total_bytes", "scans_bytes", "results_bytes", "datasets_bytes", "exports_bytes",
-    "other_bytes", "free_bytes"}`` (one walk of the data folder, :func:`disk_usage_steps`
-    run to its end): the check of ``/api/health``'s counters
-    (``service.storage.usage.DiskUsage.reconcile``, in a thread of its own)."""
+    """Bytes the store uses, by part, and the free space of its file system.
+
+    One walk of the data folder (:func:`disk_usage_steps` run to its end): the check of
+    ``/api/health``'s counters (``service.storage.usage.DiskUsage.reconcile``, in a thread
+    of its own).
+
+    Parameters
+    ----------
+    data_dir : str or os.PathLike
+        The data folder (``settings.data_dir``).
+
+    Returns
+    -------
+    dict
+        ``{"total_bytes", "scans_bytes", "results_bytes", "datasets_bytes",
+        "exports_bytes", "other_bytes", "free_bytes"}`` (int; ``free_bytes`` None when it
+        cannot be read).
+    """
     steps = disk_usage_steps(data_dir)
     while True:
         try:
@@ -352,11 +555,26 @@ def disk_usage(data_dir: str | os.PathLike) -> dict:
 
 
 def disk_usage_steps(data_dir: str | os.PathLike) -> Generator[None, None, dict]:
-    """:func:`disk_usage` as a generator that yields (None) after every
-    :data:`DISK_WALK_STEP` entries and returns the answer: a caller on an event loop may
-    let other work run between the steps. One pass over
-    the data folder (files counted by ``lstat`` size, symbolic links not followed below a
-    part's own folder); a file that vanishes during the walk counts 0."""
+    """:func:`disk_usage` as a generator, so a caller on an event loop may let other work run.
+
+    One pass over the data folder (files counted by ``lstat`` size, symbolic links not
+    followed below a part's own folder); a file that vanishes during the walk counts 0.
+
+    Parameters
+    ----------
+    data_dir : str or os.PathLike
+        The data folder (``settings.data_dir``).
+
+    Yields
+    ------
+    None
+        After every :data:`DISK_WALK_STEP` entries.
+
+    Returns
+    -------
+    dict
+        The answer, as :func:`disk_usage` gives it (the generator's ``StopIteration.value``).
+    """
     data = Path(data_dir)
     sizes = dict.fromkeys(DISK_PARTS, 0)
     other = 0

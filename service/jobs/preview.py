@@ -38,10 +38,33 @@ log = logging.getLogger("fpscan.preview")
 
 @dataclass
 class PreviewState:
-    """One refresh: ``version`` (1, 2, ...), ``points_used``, ``updated`` (UNIX time),
-    ``refresh_s`` (seconds the refresh took), ``mips`` ``{plane: 2-D array}`` and their
-    coordinates ``axes`` ``(z, x, y)`` (m), ``p0_unit`` (the colour bar's). :meth:`png` draws a plane on first request
-    (``service.storage.render``, the pictures a result has) and keeps it."""
+    """One refresh of a scan's live preview.
+
+    :meth:`png` draws a plane on first request (``service.storage.render``, the pictures a
+    result has) and keeps it.
+
+    Attributes
+    ----------
+    version : int
+        1, 2, ... (0: none yet).
+    points_used : int
+        The completed points reconstructed.
+    updated : float or None
+        When the refresh finished, UNIX s.
+    refresh_s : float or None
+        Seconds the refresh took.
+    mips : dict of str to ndarray
+        ``{plane: 2-D array}``: ``"xy"`` ``(n_y, n_x)``, ``"xz"`` ``(n_z, n_x)``, ``"yz"``
+        ``(n_z, n_y)`` (only ``"xz"`` for a line scan).
+    axes : tuple
+        Their coordinates ``(z, x, y)`` in m (``y`` None for a line scan).
+    wavelength_index : int
+        The excitation wavelength shown (an index into the plan's wavelengths).
+    p0_unit : str
+        The colour bar's unit, ``"Pa"`` or ``"a.u."``.
+    planes : tuple of str
+        The planes it has (property).
+    """
 
     version: int = 0
     points_used: int = 0
@@ -59,7 +82,23 @@ class PreviewState:
         return tuple(self.mips)
 
     def png(self, plane: str) -> bytes:
-        """The PNG of ``plane``; KeyError when this preview has no such plane."""
+        """The PNG of ``plane``, drawn on first request and kept.
+
+        Parameters
+        ----------
+        plane : str
+            ``"xy"``, ``"xz"`` or ``"yz"``.
+
+        Returns
+        -------
+        bytes
+            The PNG file's bytes.
+
+        Raises
+        ------
+        KeyError
+            When this preview has no such plane.
+        """
         with self._lock:
             if plane not in self._pngs:
                 self._pngs[plane] = render_preview_png(self.mips[plane], plane, self.axes, self.points_used,
@@ -68,8 +107,35 @@ class PreviewState:
 
 
 def render_preview_png(img: np.ndarray, plane: str, axes: tuple, points: int, *, p0_unit: str = "a.u.") -> bytes:
-    """A live-preview MIP drawn like a result's MIP (``service.storage.render``: mm
-    axes, equal aspect, row 0 at the top: y down / depth down, colour bar)."""
+    """A live-preview MIP drawn like a result's MIP.
+
+    ``service.storage.render``: mm axes, equal aspect, row 0 at the top (y down / depth
+    down), colour bar; the title names the points used.
+
+    Parameters
+    ----------
+    img : ndarray, shape (n_v, n_h)
+        The MIP: ``(n_y, n_x)`` for ``"xy"``, ``(n_z, n_x)`` for ``"xz"``, ``(n_z, n_y)`` for
+        ``"yz"``.
+    plane : str
+        ``"xy"``, ``"xz"`` or ``"yz"``.
+    axes : tuple
+        ``(z, x, y)`` coordinate vectors in m (``y`` None for a line scan).
+    points : int
+        The points the preview used (shown in the title).
+    p0_unit : str, optional
+        The colour bar's unit; default ``"a.u."``.
+
+    Returns
+    -------
+    bytes
+        The PNG file's bytes.
+
+    Raises
+    ------
+    ValueError
+        If ``img``'s shape does not match the axes (:func:`service.storage.render.render_png`).
+    """
     from service.storage.render import render_png
 
     z, x, y = axes
@@ -81,8 +147,23 @@ def render_preview_png(img: np.ndarray, plane: str, axes: tuple, points: int, *,
 
 
 def preview_grid(axis: np.ndarray, max_points: int) -> np.ndarray:
-    """A coarser regular grid over the same span as the centred lattice axis ``axis``:
-    stride ``ceil(n / max_points)``, centred (docs/architecture.md convention)."""
+    """A coarser regular grid over the same span as the centred lattice axis ``axis``.
+
+    Stride ``ceil(n / max_points)``, centred (docs/architecture.md convention).
+
+    Parameters
+    ----------
+    axis : ndarray, shape (n,)
+        A centred, evenly spaced lattice axis in m.
+    max_points : int
+        The most points the grid may have.
+
+    Returns
+    -------
+    ndarray, shape (m,)
+        The coarser axis in m, ``m = ceil(n / stride)``; ``axis`` itself when the stride is 1
+        or ``n < 2``.
+    """
     n = len(axis)
     step = max(1, -(-n // max_points))
     if step == 1 or n < 2:
@@ -94,16 +175,41 @@ def preview_grid(axis: np.ndarray, max_points: int) -> np.ndarray:
 
 def render_preview(scan_path: str, *, wavelength_index: int = 0, eps: float = 1e-3, max_lateral: int = 128,
                    max_samples: int = 512) -> dict:
-    """NEDNER reconstruction of the completed points of a scan file at one excitation
-    wavelength (``wavelength_index`` into the plan's wavelengths, default the first) → its MIPs.
+    """NEDNER reconstruction of the completed points of a scan file at one wavelength → its MIPs.
 
     A preview trades resolution for speed: the output grid is the plan's lattice thinned
     to at most ``max_lateral`` points per axis, and the A-lines are low-passed and
     decimated in time (means of ``k`` consecutive samples, ``dt·k``) to at most
     ``max_samples`` samples; float32, NUFFT tolerance ``eps``.
-    Returns ``{"points_used": n, "mips": {plane: 2-D array}, "axes": (z, x, y),
-    "seconds": s, "p0_unit": "Pa" | "a.u."}`` (``service.metrics.mip``; drawn by :func:`render_preview_png` when
-    asked for); ``mips`` is empty when fewer than 2 points are complete.
+
+    Parameters
+    ----------
+    scan_path : str
+        The scan file (read while it is written).
+    wavelength_index : int, optional
+        The excitation wavelength, an index into the plan's wavelengths; default 0 (the first).
+    eps : float, optional
+        The NUFFT tolerance; default 1e-3.
+    max_lateral : int, optional
+        The most output points per lateral axis; default 128.
+    max_samples : int, optional
+        The most time samples per A-line; default 512.
+
+    Returns
+    -------
+    dict
+        ``{"points_used": n, "mips": {plane: 2-D array}, "axes": (z, x, y), "seconds": s,
+        "p0_unit": "Pa" | "a.u."}`` (MIPs by ``service.metrics.mip``, coordinates in m,
+        ``seconds`` the time taken; drawn by :func:`render_preview_png` when asked for).
+        When fewer than 2 points are complete, ``mips`` is empty, ``axes`` is ``()`` and
+        there is no ``p0_unit``.
+
+    Raises
+    ------
+    FileNotFoundError
+        If the scan file does not exist.
+    ValueError
+        If it is not a readable scan file (:func:`service.storage.datasets.load_scan`).
     """
     from dataclasses import replace
 
@@ -133,9 +239,16 @@ def render_preview(scan_path: str, *, wavelength_index: int = 0, eps: float = 1e
 
 
 def warm_up() -> float:
-    """Import and compile (numba) the reconstruction in a fresh worker with a tiny
-    run of the preview's method (``default_method("points")``: NEDNER), so the first live preview
-    of a scan is not slowed by start-up."""
+    """Import and compile (numba) the reconstruction in a fresh worker with a tiny run of the
+    preview's method (``default_method("points")``: NEDNER).
+
+    So the first live preview of a scan is not slowed by start-up.
+
+    Returns
+    -------
+    float
+        Seconds the warm-up took.
+    """
     from service.pipeline import default_method, reconstruct
     from service.recon.dataset import GridDataset
 
@@ -148,8 +261,23 @@ def warm_up() -> float:
 
 
 class PreviewManager:
-    """Refreshes the previews of running scans every ``interval`` s (only when new
-    points arrived), in one spawned worker process."""
+    """Refreshes the previews of running scans, in one spawned worker process.
+
+    A refresh runs every ``interval`` s for each tracked scan that has new points
+    (:meth:`track`, :meth:`note_progress`, :meth:`untrack`); :meth:`get` gives a scan's
+    latest :class:`PreviewState`. :meth:`start` starts the worker (warming it up) and the
+    loop, :meth:`stop` ends both.
+
+    Parameters
+    ----------
+    interval : float
+        Seconds between two refreshes.
+
+    Attributes
+    ----------
+    interval : float
+        As given.
+    """
 
     def __init__(self, interval: float):
         self.interval = float(interval)

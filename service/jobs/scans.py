@@ -75,7 +75,39 @@ class _Run:
 
 
 class ScanManager:
-    """Runs scan jobs on the scanners of ``settings.devices``."""
+    """Runs scan jobs on the scanners of ``settings.devices`` (module docstring).
+
+    :meth:`start` starts the live previews, the dispatcher and the full-disk watch;
+    :meth:`stop` pauses the running scans (they stay resumable) and stops them. The controls
+    :meth:`pause`, :meth:`resume`, :meth:`abort` and :meth:`cancel` are called from request
+    threads (``pause`` and ``resume`` raise ValueError for a job that cannot take them).
+
+    Parameters
+    ----------
+    store : JobStore
+        The job store.
+    settings : service.settings.Settings
+        The service settings: ``devices`` (scanner id -> serial port), ``data_dir``,
+        ``preview_interval_s``, ...
+
+    Attributes
+    ----------
+    store : JobStore
+        As given.
+    settings : service.settings.Settings
+        As given.
+    owner : str
+        This manager's lease owner name in the store (``scan-<hex>``).
+    scans_dir : pathlib.Path
+        ``<data_dir>/scans``, where the scan files are written (created).
+    previews : PreviewManager
+        The live previews of the running scans.
+
+    Raises
+    ------
+    ImportError
+        When the scanner driver (``driver.acquire``) cannot be imported: no scanning.
+    """
 
     def __init__(self, store: JobStore, settings):
         import driver.acquire  # noqa: F401  (ImportError: no driver → no scanning)

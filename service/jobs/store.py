@@ -102,7 +102,15 @@ _JOB_COLUMNS = ("id", "kind", "state", "params", "progress", "idempotency_key", 
 
 
 class IdempotencyConflict(ValueError):
-    """The Idempotency-Key is already used by a job with different parameters."""
+    """The Idempotency-Key is already used by a job with different parameters.
+
+    A ``ValueError``.
+
+    Attributes
+    ----------
+    args : tuple
+        The message.
+    """
 
 
 Jobs = list[dict[str, Any]]  # (``list`` is a method name inside JobStore)
@@ -111,8 +119,24 @@ Jobs = list[dict[str, Any]]  # (``list`` is a method name inside JobStore)
 class JobStore:
     """Jobs, their events, plans and datasets in one SQLite file (WAL).
 
-    ``path``: the database file (parent folders are created); ``reserve_bytes``: the
-    reserve kept beside it for a full disk (module docstring; 0: none).
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The database file (parent folders are created).
+    reserve_bytes : int, optional
+        The reserve kept beside it for a full disk (module docstring; 0: none); default
+        :data:`DB_RESERVE_BYTES` (8 MiB).
+
+    Attributes
+    ----------
+    path : pathlib.Path
+        The database file.
+    reserve_path : pathlib.Path
+        The reserve file, ``<database>.reserve``.
+    reserve_bytes : int
+        The reserve's size in bytes.
+    reserve_spent : float or None
+        When the reserve was given up (UNIX s), None while it is kept.
     """
 
     def __init__(self, path: str | Path, reserve_bytes: int = DB_RESERVE_BYTES):

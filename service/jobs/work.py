@@ -47,11 +47,26 @@ INPUT_FORMATS = {"scan": "fpscan", "dataset": "dataset"}
 
 
 def report_stage(path: str | None, stage: str, fraction: float, **fields: Any) -> None:
-    """Append the job's current stage to its progress file ``path``: one JSON line
-    ``{"stage", "fraction", **fields}`` per report, written with one ``write`` in append mode, so a
-    reader sees whole lines in order. The server's job thread reads the new lines
-    (:class:`ProgressLog`) and turns them into progress events: no stage is lost, however
-    short (a solve that ends between two of its reads still shows its iterations)."""
+    """Append the job's current stage to its progress file ``path``.
+
+    One JSON line ``{"stage", "fraction", **fields}`` per report, written with one ``write``
+    in append mode, so a reader sees whole lines in order. The server's job thread reads the
+    new lines (:class:`ProgressLog`) and turns them into progress events: no stage is lost,
+    however short (a solve that ends between two of its reads still shows its iterations).
+    Progress is best effort: a file that cannot be written (a remote worker without the
+    folder, a full disk) is ignored.
+
+    Parameters
+    ----------
+    path : str or None
+        The progress file; None or ``""``: nothing is written.
+    stage : str
+        The stage's name (``"loading"``, ``"reconstructing"``, ...).
+    fraction : float
+        The fraction of the job done, in [0, 1].
+    **fields
+        More JSON-serialisable fields of the line (``eta_s``, an iteration's figures, ...).
+    """
     if not path:
         return
     import json
@@ -68,13 +83,25 @@ def report_stage(path: str | None, stage: str, fraction: float, **fields: Any) -
 
 
 def progress_file(path: str | None) -> Progress:
-    """The :data:`service.progress.Progress` that writes to the job's progress file ``path``
-    (:func:`report_stage`; a report equal to the previous one is not written again; nothing
-    when ``path`` is None). Each line also carries, where known, the time left ``eta_s``
+    """The :data:`service.progress.Progress` that writes to the job's progress file ``path``.
+
+    Each report goes through :func:`report_stage`; a report equal to the previous one is not
+    written again. Each line also carries, where known, the time left ``eta_s``
     (``service.progress.Eta``) and an iterative method's iteration, its limit and its
     stopping rule's value and tolerance (``service.progress.iteration_fields`` of an
     ``IterationStage``); a field a line no longer knows is written as null, since the job's
-    progress merges the lines."""
+    progress merges the lines.
+
+    Parameters
+    ----------
+    path : str or None
+        The progress file; None: the callback writes nothing.
+
+    Returns
+    -------
+    Progress
+        The callback ``progress(fraction, stage)``.
+    """
     from service.progress import Eta, IterationStage, iteration_fields
 
     last: tuple[float, str] | None = None
@@ -99,13 +126,40 @@ def progress_file(path: str | None) -> Progress:
 
 
 class ProgressLog:
-    """The reader of a job's progress file (:func:`report_stage`'s lines), used by the
-    server's job thread. ``new()`` returns the stages (``{"stage", "fraction"}`` dicts)
-    written since its last call, in order, without repeats of the stage last returned and
-    thinned to at most ``most`` (evenly spaced, the newest always kept) so a solve of
-    thousands of short iterations does not flood the job's events. A line still being
-    written waits for the next call; a missing file or a line that is not JSON is skipped.
-    ``ValueError`` for ``most`` < 1."""
+    """The reader of a job's progress file (:func:`report_stage`'s lines), used by the server's job thread.
+
+    ``new()`` returns the stages (``{"stage", "fraction", ...}`` dicts) written since its
+    last call, in order, without repeats of the stage last returned and thinned to at most
+    ``most`` (evenly spaced, the newest always kept) so a solve of thousands of short
+    iterations does not flood the job's events. A line still being written waits for the
+    next call; a missing file or a line that is not JSON is skipped. At most
+    :attr:`READ_MAX` bytes are read per call.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The progress file.
+    most : int, optional
+        The most stages one ``new()`` returns, >= 1; default 16.
+
+    Attributes
+    ----------
+    path : str or os.PathLike
+        As given.
+    most : int
+        As given.
+    offset : int
+        Bytes of the file read so far (whole lines).
+    last : dict or None
+        The stage last returned.
+    READ_MAX : int
+        Bytes read per call at most (class attribute, 1 MiB).
+
+    Raises
+    ------
+    ValueError
+        For ``most`` < 1.
+    """
 
     #: bytes read per call at most (the rest waits for the next call)
     READ_MAX = 1 << 20
@@ -144,11 +198,28 @@ class ProgressLog:
 
 
 def check_memory_limit(ds: Any, params: dict, limit: int, estimate: int | None = None) -> None:
-    """Admission in the worker: ValueError with the reason if the job needs more than
-    ``limit`` bytes (the configured limit, not the memory free now). ``estimate``: the
-    job's own figure, made once when it was submitted (``service.jobs.admission``); None
-    (a job that carries none): estimated here from the dataset as loaded
-    (``input_shape``)."""
+    """Admission in the worker: refuse a job that needs more than ``limit`` bytes.
+
+    The limit is the configured one, not the memory free now.
+
+    Parameters
+    ----------
+    ds : GridDataset or PointDataset
+        The dataset as loaded.
+    params : dict
+        The reconstruction's ``method`` and options.
+    limit : int
+        The memory limit in bytes.
+    estimate : int or None, optional
+        The job's own figure in bytes, made once when it was submitted
+        (``service.jobs.admission``); default None (a job that carries none): estimated here
+        from the dataset as loaded (``input_shape``).
+
+    Raises
+    ------
+    service.jobs.admission.AdmissionError
+        A ``ValueError`` with the reason, if the job needs more than ``limit``.
+    """
     from service.jobs.admission import admit, estimate_memory, input_shape
 
     admit(estimate_memory(input_shape(ds), params) if estimate is None else int(estimate), limit)
@@ -161,9 +232,21 @@ ADDRESS_SPACE_BASE = 6 * 2**30
 
 @contextlib.contextmanager
 def address_space_limit(limit: int | None):
-    """While inside: the process's soft ``RLIMIT_AS`` at ``limit + ADDRESS_SPACE_BASE``, so
-    a reconstruction past the limit fails with MemoryError instead of swapping the
-    machine; restored after. No-op without ``limit`` or where not supported."""
+    """Context manager: bound the process's address space while inside.
+
+    The soft ``RLIMIT_AS`` is set to ``limit + ADDRESS_SPACE_BASE`` (at most the hard
+    limit), so a reconstruction past the limit fails with MemoryError instead of swapping
+    the machine; it is restored after. No-op without ``limit`` or where not supported.
+
+    Parameters
+    ----------
+    limit : int or None
+        The memory limit in bytes; None or 0: no bound.
+
+    Yields
+    ------
+    None
+    """
     try:
         import resource
 
@@ -190,8 +273,24 @@ def address_space_limit(limit: int | None):
 
 @contextlib.contextmanager
 def memory_bounded(limit: int | None):
-    """:func:`address_space_limit`, with a MemoryError under a set ``limit`` turned into
-    the ValueError a job fails with (no limit: a real out-of-memory, raised as it is)."""
+    """Context manager: :func:`address_space_limit`, with a MemoryError turned into a ValueError.
+
+    Parameters
+    ----------
+    limit : int or None
+        The memory limit in bytes; None or 0: no bound.
+
+    Yields
+    ------
+    None
+
+    Raises
+    ------
+    ValueError
+        When a MemoryError ends the block under a set ``limit``: the reason a job fails with.
+    MemoryError
+        Without a limit (a real out-of-memory, raised as it is).
+    """
     try:
         with address_space_limit(limit):
             yield
@@ -203,12 +302,19 @@ def memory_bounded(limit: int | None):
 
 
 class JobGate:
-    """Whether this worker process is running a job, for work that must wait for an idle
-    worker (the background warm-up: :func:`warm_up`'s ``rest_in_background``).
+    """Whether this worker process is running a job, for work that must wait for an idle worker.
 
+    Used by the background warm-up (:func:`warm_up`'s ``rest_in_background``).
     ``with gate.busy():`` marks a job (nestable, thread-safe); ``gate.wait_idle()`` blocks
     while one runs and sets ``gate.waited`` first (so a caller can see that it yielded);
-    ``gate.wait_quiet(s)`` blocks until no job has run for ``s`` seconds."""
+    ``gate.wait_quiet(s)`` blocks until no job has run for ``s`` seconds. Takes no
+    parameters.
+
+    Attributes
+    ----------
+    waited : threading.Event
+        Set once ``wait_idle`` had to wait for a job.
+    """
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
@@ -238,8 +344,15 @@ class JobGate:
         self._idle.wait()
 
     def wait_quiet(self, seconds: float, since: float | None = None) -> None:
-        """Block until no job runs and none has for ``seconds`` (s), counted from the later
-        of the last job's end and ``since`` (a ``time.monotonic()``; default: now)."""
+        """Block until no job runs and none has for ``seconds``.
+
+        Parameters
+        ----------
+        seconds : float
+            The quiet time in s, counted from the later of the last job's end and ``since``.
+        since : float or None, optional
+            A ``time.monotonic()`` value; default None: now.
+        """
         since = time.monotonic() if since is None else since
         while True:
             self.wait_idle()
@@ -259,16 +372,36 @@ WARM_QUIET_S = 2.0
 
 
 def run_reconstruction(spec: dict) -> dict:
-    """Executor entry point. ``spec``: ``input`` (see above), ``params`` (``method`` and
-    the options of :func:`service.pipeline.reconstruct`), ``out_dir``, ``input_id``,
-    optional ``progress_path`` (stages ``loading``, ``reconstructing``, ``writing`` are
-    reported there), ``cancel_path`` (the reconstruction stops with
-    ``service.pipeline.Cancelled`` once that file exists) and ``memory_limit`` (bytes:
-    admission checked again on the loaded input, address space bounded while it runs).
-    Returns ``{"shape", "max", "planes", "timings", "points_used", "outcome"}`` (``outcome``: an
-    iterative method's one line on how it ended, ``service.progress.outcome``). Raises
-    ``ValueError`` for inputs the method cannot use or that exceed the memory limit.
-    Holds :data:`JOB_GATE` busy while it runs (the background warm-up waits)."""
+    """Executor entry point: run one reconstruction job and write its result folder.
+
+    Holds :data:`JOB_GATE` busy while it runs (the background warm-up waits).
+
+    Parameters
+    ----------
+    spec : dict
+        ``input`` (module docstring; or ``inputs``, a list of them, for unmixing with
+        ``unmix``), ``params`` (``method`` and the options of
+        :func:`service.pipeline.reconstruct`), ``out_dir``, ``input_id``; optional
+        ``progress_path`` (stages ``loading``, ``reconstructing``, ``writing`` are reported
+        there), ``cancel_path`` (the reconstruction stops with ``service.pipeline.Cancelled``
+        once that file exists), ``memory_limit`` (bytes: admission checked again on the
+        loaded input, address space bounded while it runs), ``memory_estimate`` (bytes, the
+        figure made at submission) and ``wavelengths``.
+
+    Returns
+    -------
+    dict
+        ``{"shape", "max", "planes", "timings", "points_used", "outcome"}`` (``outcome``: an
+        iterative method's one line on how it ended, ``service.progress.outcome``).
+
+    Raises
+    ------
+    ValueError
+        For inputs of unknown or mixed kinds, inputs the method cannot use, or a job that
+        exceeds the memory limit.
+    service.pipeline.Cancelled
+        When the cancel file appears.
+    """
     with JOB_GATE.busy():
         return _run_reconstruction(spec)
 
@@ -304,7 +437,13 @@ def _run_reconstruction(spec: dict) -> dict:
 
 
 def worker_pid() -> int:
-    """The worker process's pid (a no-op job that starts a pool's workers)."""
+    """The worker process's pid (a no-op job that starts a pool's workers).
+
+    Returns
+    -------
+    int
+        ``os.getpid()`` of the process it runs in.
+    """
     return os.getpid()
 
 
@@ -322,8 +461,22 @@ def warm_up(full: bool = False, rest_in_background: bool = False) -> dict:
     ``rest_in_background`` the others (the model-based operator with its pylops import:
     seconds) warm in a daemon thread after this returns, step by step while no job runs (:data:`JOB_GATE`), so
     the worker takes its first job that much sooner and runs it at full speed (a job that
-    needs them meanwhile compiles or waits for them under numba's lock). Returns
-    ``{"pid", "seconds"}``: the time until return."""
+    needs them meanwhile compiles or waits for them under numba's lock).
+
+    Parameters
+    ----------
+    full : bool, optional
+        Also compile the kernels, run a tiny job and write its result; default False (the
+        imports only).
+    rest_in_background : bool, optional
+        With ``full``, warm :data:`WARM_LATER` in a background thread rather than before
+        returning; default False.
+
+    Returns
+    -------
+    dict
+        ``{"pid", "seconds"}``: the worker's pid and the seconds until return.
+    """
     import h5py  # noqa: F401
 
     from service import recon  # noqa: F401

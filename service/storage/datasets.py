@@ -58,16 +58,39 @@ __all__ = ["load_dataset", "load_wavelengths", "detect_format", "input_formats",
 
 
 def input_formats() -> tuple[str, ...]:
-    """The names of the formats a reconstruction reads (``service.formats``, registration
-    order): the choices of :func:`load_dataset`'s ``format`` and ``fpscan recon --format``."""
+    """The names of the formats a reconstruction reads.
+
+    Returns
+    -------
+    tuple of str
+        The input formats of ``service.formats``, in registration order: the choices of
+        :func:`load_dataset`'s ``format`` and ``fpscan recon --format``.
+    """
     return formats.names(input=True)
 
 
 def detect_format(path: str | os.PathLike) -> str:
-    """The input format of a file from its content (``service.formats.detect``: opened
-    once, HDF5 checked, a file a writer has open in a bounded child); ValueError if none
-    fits, or naming what the file is when it is not data to reconstruct (a plan, a
-    result, a picture)."""
+    """The input format of a file, from its content.
+
+    Detection is ``service.formats.detect``'s: the file is opened once, HDF5 checked, a
+    file a writer has open read in a bounded child.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file.
+
+    Returns
+    -------
+    str
+        The format's name (one of :func:`input_formats`).
+
+    Raises
+    ------
+    ValueError
+        If no format fits, or naming what the file is when it is not data to reconstruct (a
+        plan, a result, a picture).
+    """
     fmt = formats.FORMATS[formats.detect(path)]
     if fmt.refuse:
         raise ValueError(fmt.refuse)
@@ -78,21 +101,56 @@ def load_dataset(path: str | os.PathLike, format: str | None = None, *, dt: floa
                  dx: float | None = None, dy: float | None = None, c: float | None = None,
                  key: str | None = None, max_bytes: int = MAX_ELEMENTS * 8,
                  force: bool = False, wavelength: int | None = None) -> GridDataset | PointDataset:
-    """Import a file for reconstruction (module docstring). ``wavelength``: which
-    excitation wavelength of a multi-wavelength file (an index into its wavelengths;
-    default None: the first, recorded in the dataset's ``meta["wavelength_index"]``); a
-    file of one wavelength takes only None or 0 (``"all"``: :func:`load_wavelengths`).
-    An index out of range is a ValueError naming the file's wavelengths. Explicit ``dt`` (s), ``dx``,
-    ``dy`` (m) and ``c`` (m/s) override what the file says; they are what a person typed,
-    so they must be plausible (``driver.units.check_plausible``: a unit mistake such as
-    ``dt=20`` for 20 ns is named; ``force`` accepts an unusual ``c``). An HDF5 file is
-    checked first, by the registry for every format (``service.formats.open_source`` with
-    ``service.formats.untrusted.check_hdf5_file``: no external storage,
-    external links or virtual datasets, no dataset declaring more than ``max_bytes`` or
-    more than it stores). A file HDF5 would open as an SWMR reader (a writer has it open)
-    is read in a child process with a time limit (the registry's
+    """Import a file for reconstruction (module docstring).
+
+    An HDF5 file is checked first, by the registry for every format
+    (``service.formats.open_source`` with ``service.formats.untrusted.check_hdf5_file``: no
+    external storage, external links or virtual datasets, no dataset declaring more than
+    ``max_bytes`` or more than it stores). A file HDF5 would open as an SWMR reader (a
+    writer has it open) is read in a child process with a time limit (the registry's
     ``service.formats.untrusted.read_bounded``: HDF5 can block on its damaged metadata for
-    ever). Raises ValueError naming the fault, FileNotFoundError."""
+    ever).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file to read.
+    format : str or None, optional
+        One of :func:`input_formats`; default None: detected from the content.
+    dt : float or None, optional
+        Sampling interval in s, overriding the file's (required for ``.npy``).
+    dx, dy : float or None, optional
+        Sensor spacing along x and y in m, overriding the file's (``dx`` required for ``.npy``).
+    c : float or None, optional
+        Speed of sound in m/s, overriding the file's.
+    key : str or None, optional
+        The HDF5 dataset path of the data, for formats that take one.
+    max_bytes : int, optional
+        Largest dataset an HDF5 file may declare, in bytes; default ``MAX_ELEMENTS * 8``.
+    force : bool, optional
+        Accept an unusual ``c`` (outside the plausible range for soft tissue); default False.
+    wavelength : int or None, optional
+        Which excitation wavelength of a multi-wavelength file (an index into its
+        wavelengths); default None: the first, recorded in the dataset's
+        ``meta["wavelength_index"]``. A file of one wavelength takes only None or 0 (for
+        ``"all"`` use :func:`load_wavelengths`).
+
+    Returns
+    -------
+    GridDataset or PointDataset
+        Grid data ``(n_t, n_x)`` or ``(n_t, n_y, n_x)``, or point data (A-lines ``(n, n_t)``
+        at their positions).
+
+    Raises
+    ------
+    ValueError
+        Naming the fault: an unknown ``format``, ``"all"`` as ``wavelength``, an index out of
+        range (naming the file's wavelengths), an implausible explicit ``dt``, ``dx``, ``dy``
+        or ``c`` (``driver.units.check_plausible``: a unit mistake such as ``dt=20`` for 20 ns
+        is named), an unsafe or unreadable file.
+    FileNotFoundError
+        If ``path`` does not exist.
+    """
     choice = check_wavelength(wavelength, allow_all=False)  # 'all': load_wavelengths
     return _load(path, format, dt=dt, dx=dx, dy=dy, c=c, key=key, max_bytes=max_bytes, force=force,
                  wavelength_index=0 if choice is None else int(choice))
@@ -122,28 +180,91 @@ def _load(path: str | os.PathLike, format: str | None, *, dt: float | None, dx: 
 
 
 def load_scan(path: str | os.PathLike, *, allow_empty: bool = False, wavelength_index: int = 0) -> PointDataset:
-    """The completed points of the service's own scan file, also while it is written, as
-    point data (``service.formats.scan.load``, read in this process: the live preview);
-    ``allow_empty``: a scan with no completed point too. Raises ValueError,
-    FileNotFoundError."""
+    """The completed points of the service's own scan file, as point data.
+
+    The file may still be being written; it is read in this process
+    (``service.formats.scan.load``: the live preview).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The scan file.
+    allow_empty : bool, optional
+        Accept a scan with no completed point too; default False.
+    wavelength_index : int, optional
+        Which excitation wavelength of the scan (an index into its wavelengths); default 0.
+
+    Returns
+    -------
+    PointDataset
+        The completed A-lines ``(n, n_t)`` at their positions.
+
+    Raises
+    ------
+    ValueError
+        If the file is not a readable scan file (or has no completed point, unless
+        ``allow_empty``).
+    FileNotFoundError
+        If ``path`` does not exist.
+    """
     return formats.load(path, "fpscan", bounded=False, allow_empty=allow_empty,
                         wavelength_index=wavelength_index)[1]
 
 
 def read_dataset(path: str | os.PathLike) -> GridDataset | PointDataset:
-    """Read a canonical dataset file (``service.formats.dataset``). Raises ValueError for
-    a file that is not one, FileNotFoundError."""
+    """Read a canonical dataset file (``service.formats.dataset``).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The dataset file (``fpscan-dataset/1``).
+
+    Returns
+    -------
+    GridDataset or PointDataset
+        The dataset as it was stored.
+
+    Raises
+    ------
+    ValueError
+        For a file that is not a canonical dataset file.
+    FileNotFoundError
+        If ``path`` does not exist.
+    """
     return formats.load(path, "dataset")[1]
 
 
 def load_wavelengths(path: str | os.PathLike, format: str | None = None, *, wavelength: Any = None,
                      **load: Any) -> list[GridDataset | PointDataset]:
-    """The datasets of ``path`` at the chosen excitation wavelength(s): ``wavelength`` an
-    index or None (one dataset, :func:`load_dataset`) or ``"all"`` (one per wavelength of
-    the file, in its order, read from one open of the file; a file of one wavelength gives
-    one). ``load``: the other arguments of :func:`load_dataset`. Raises ValueError (a bad
-    choice, an index out of range naming the file's wavelengths, what
-    :func:`load_dataset` raises), FileNotFoundError."""
+    """The datasets of ``path`` at the chosen excitation wavelength(s).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file to read.
+    format : str or None, optional
+        One of :func:`input_formats`; default None: detected from the content.
+    wavelength : int or None or "all", optional
+        An index into the file's wavelengths or None (one dataset, :func:`load_dataset`), or
+        ``"all"`` (one per wavelength of the file, in its order, read from one open of the
+        file; a file of one wavelength gives one). Default None: the first.
+    **load
+        The other arguments of :func:`load_dataset` (``dt``, ``dx``, ``dy``, ``c``, ``key``,
+        ``max_bytes``, ``force``).
+
+    Returns
+    -------
+    list of GridDataset or PointDataset
+        One dataset per chosen wavelength.
+
+    Raises
+    ------
+    ValueError
+        A bad choice, an index out of range (naming the file's wavelengths), or what
+        :func:`load_dataset` raises.
+    FileNotFoundError
+        If ``path`` does not exist.
+    """
     choice = check_wavelength(wavelength)
     if not isinstance(choice, str):  # an index or None
         return [load_dataset(path, format, wavelength=choice, **load)]
@@ -157,19 +278,56 @@ HDF5_KEY_CHARS = set("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ012345
 
 def import_dataset(src: str | os.PathLike, dest_dir: str | os.PathLike, fmt: str, *, dt, dx, dy, c, key,
                    max_bytes: int | None = None, force: bool = False, wavelength: int | None = None) -> dict:
-    """Validate and convert an uploaded file with :func:`load_dataset` (every input format)
-    into ``dest_dir/dataset.h5`` (:func:`write_dataset`); returns the dataset's metadata
-    (the API stores it in the job store). Run by ``POST /api/datasets`` in a bounded child
-    process (``service.formats.untrusted.run_bounded``).
-    ``max_bytes``: largest declared dataset of an HDF5 file
-    (``driver.hdf5_checks.check_hdf5_file``, run before anything is read).
-    ``force``: accept a ``c`` outside 1000-2000 m/s (as :func:`load_dataset`).
-    ``wavelength``: which excitation wavelength of a multi-wavelength file to store (an
-    index; None: the first; as :func:`load_dataset`, recorded in the metadata).
-    Before the dataset file is written its bytes (:func:`dataset_nbytes`) are admitted
+    """Validate and convert an uploaded file into ``dest_dir/dataset.h5``.
+
+    The file is read with :func:`load_dataset` (every input format) and written with
+    :func:`write_dataset`. Run by ``POST /api/datasets`` in a bounded child process
+    (``service.formats.untrusted.run_bounded``). Before the dataset file is written its
+    bytes (:func:`dataset_nbytes`) are admitted
     (``service.formats.untrusted.request_admission``: the service's free-disk admission).
-    Raises ``ValueError`` with the reason; ``service.formats.untrusted.NotAdmitted`` when
-    the disk cannot take it."""
+
+    Parameters
+    ----------
+    src : str or os.PathLike
+        The uploaded file.
+    dest_dir : str or os.PathLike
+        The dataset's folder (``dataset.h5`` is written in it).
+    fmt : str or None
+        The input format (one of :func:`input_formats`; None: detected).
+    dt : float or None
+        Sampling interval in s, overriding the file's.
+    dx, dy : float or None
+        Sensor spacing along x and y in m, overriding the file's.
+    c : float or None
+        Speed of sound in m/s, overriding the file's.
+    key : str or None
+        The HDF5 dataset path of the data (at most 200 characters of ``[A-Za-z0-9_-/.]``).
+    max_bytes : int or None, optional
+        Largest declared dataset of an HDF5 file in bytes (``driver.hdf5_checks.check_hdf5_file``,
+        run before anything is read); default None: ``MAX_ELEMENTS * 8``.
+    force : bool, optional
+        Accept a ``c`` outside 1000-2000 m/s (as :func:`load_dataset`); default False.
+    wavelength : int or None, optional
+        Which excitation wavelength of a multi-wavelength file to store (an index; None: the
+        first; as :func:`load_dataset`, recorded in the metadata).
+
+    Returns
+    -------
+    dict
+        The dataset's metadata, which the API stores in the job store: ``layout``
+        (``"grid"`` or ``"points"``), ``shape``, ``dx``, ``dt``, ``c``, ``t0``, ``path``
+        (``"dataset.h5"``) and the wavelength's params; for points also ``n_x``, ``n_y`` and
+        ``full_lattice``.
+
+    Raises
+    ------
+    ValueError
+        With the reason: a bad ``key``, a ``dt``, ``dx``, ``dy`` or ``c`` that is not a
+        positive finite number, a file that is not a readable dataset of ``fmt``, a point
+        dataset with no A-lines, or what :func:`load_dataset` raises.
+    service.formats.untrusted.NotAdmitted
+        When the disk cannot take the dataset.
+    """
     if key is not None and (not key or len(key) > 200 or not set(key) <= HDF5_KEY_CHARS):
         raise ValueError("key must be an HDF5 dataset path of [A-Za-z0-9_-/.]")
     for name, value in (("dt", dt), ("dx", dx), ("dy", dy), ("c", c)):

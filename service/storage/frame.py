@@ -28,9 +28,24 @@ _MINUS = "\u2212"
 
 @dataclass(frozen=True)
 class Frame:
-    """Pixel layout of a picture: canvas ``width`` × ``height``; the plotting area (the image)
-    ``[left, right) × [top, bottom)`` and the colour bar ``[cb_left, cb_right) × [cb_top,
-    cb_bottom)``, all integer pixel edges (row 0 at the top)."""
+    """Pixel layout of a picture: the canvas, the plotting area (the image) and the colour bar.
+
+    All are integer pixel edges, row 0 at the top; the plotting area is
+    ``[left, right) × [top, bottom)``, the colour bar ``[cb_left, cb_right) × [cb_top, cb_bottom)``.
+
+    Attributes
+    ----------
+    width, height : int
+        The canvas's size in pixels.
+    left, right : int
+        The plotting area's left (inclusive) and right (exclusive) column.
+    top, bottom : int
+        The plotting area's top (inclusive) and bottom (exclusive) row.
+    cb_left, cb_right : int
+        The colour bar's left (inclusive) and right (exclusive) column.
+    cb_top, cb_bottom : int
+        The colour bar's top (inclusive) and bottom (exclusive) row.
+    """
 
     width: int
     height: int
@@ -46,11 +61,31 @@ class Frame:
 
 def frame_layout(width_mm: float, height_mm: float, *, width_in: float, dpi: int, two_line_title: bool = False
                  ) -> Frame:
-    """The layout of a picture of a ``width_mm`` × ``height_mm`` plotting area at equal aspect:
-    the figure size of ``render._figure`` and the margins of ``render._finish`` (0.75 in left,
-    0.85 in right, 0.6 in bottom, 0.45 in top, 0.8 in with a two-line title); the image's cell
-    takes 91.4 % of the area's width, anchored right, the colour bar 4.6 % at its right with a
-    box aspect of 20 (matplotlib's ``make_axes_gridspec`` with ``fraction=0.046, pad=0.04``)."""
+    """The layout of a picture of a ``width_mm`` × ``height_mm`` plotting area at equal aspect.
+
+    It follows the figure size of ``render._figure`` and the margins of ``render._finish``
+    (0.75 in left, 0.85 in right, 0.6 in bottom, 0.45 in top, 0.8 in with a two-line title);
+    the image's cell takes 91.4 % of the area's width, anchored right, the colour bar 4.6 % at
+    its right with a box aspect of 20 (matplotlib's ``make_axes_gridspec`` with
+    ``fraction=0.046, pad=0.04``). The figure's height follows the aspect, clipped to
+    1.6-6 in.
+
+    Parameters
+    ----------
+    width_mm, height_mm : float
+        The plotting area's extent in mm (only their ratio counts; signs are ignored).
+    width_in : float
+        The figure's width in inches.
+    dpi : int
+        Pixels per inch.
+    two_line_title : bool, optional
+        Leave room for a title of two lines; default False.
+
+    Returns
+    -------
+    Frame
+        The pixel layout.
+    """
     aspect = abs(height_mm) / max(abs(width_mm), 1e-12)
     height_in = float(np.clip((width_in - 2.0) * aspect + 1.05, 1.6, 6.0))
     w_px, h_px = int(round(width_in * dpi)), int(round(height_in * dpi))
@@ -75,10 +110,30 @@ def frame_layout(width_mm: float, height_mm: float, *, width_in: float, dpi: int
 
 def tick_values(lo: float, hi: float, length_px: float, *, font_pt: float, dpi: int, horizontal: bool
                 ) -> np.ndarray:
-    """Tick positions inside ``[min(lo, hi), max(lo, hi)]`` as matplotlib's default locator puts
-    them on an axis ``length_px`` long with tick labels of ``font_pt``: ``MaxNLocator`` with steps
-    1, 2, 2.5, 5, 10 and as many bins as ``Axis.get_tick_space`` allows (length in points over
-    3 × the font size across, 2 × along a vertical axis; 1..9)."""
+    """Tick positions as matplotlib's default locator puts them on an axis.
+
+    ``MaxNLocator`` with steps 1, 2, 2.5, 5, 10 and as many bins as ``Axis.get_tick_space``
+    allows (length in points over 3 × the font size across, 2 × along a vertical axis; 1..9).
+
+    Parameters
+    ----------
+    lo, hi : float
+        The axis's ends, in data units (either order).
+    length_px : float
+        The axis's length in pixels.
+    font_pt : float
+        The tick labels' font size in points.
+    dpi : int
+        Pixels per inch.
+    horizontal : bool
+        True for a horizontal axis, False for a vertical one.
+
+    Returns
+    -------
+    ndarray, shape (n_ticks,)
+        Float64 tick positions inside ``[min(lo, hi), max(lo, hi)]``; ``[lo]`` alone when
+        ``lo == hi``.
+    """
     from matplotlib.ticker import MaxNLocator
 
     a, b = sorted((float(lo), float(hi)))
@@ -92,9 +147,22 @@ def tick_values(lo: float, hi: float, length_px: float, *, font_pt: float, dpi: 
 
 
 def tick_labels(ticks: np.ndarray) -> tuple[list[str], str]:
-    """Labels of evenly spaced ``ticks`` with as few decimals as their step needs, and the
-    common power of ten drawn once beside the axis (``"1e−5"``; ``""`` for values between
-    1e-3 and 1e4, as matplotlib's ``ScalarFormatter``); minus signs as U+2212."""
+    """Labels of evenly spaced ``ticks``, and their common power of ten.
+
+    Parameters
+    ----------
+    ticks : ndarray, shape (n_ticks,)
+        Evenly spaced tick positions.
+
+    Returns
+    -------
+    labels : list of str
+        One label per tick, with as few decimals as their step needs (after division by the
+        common power); minus signs as U+2212.
+    power : str
+        The common power of ten drawn once beside the axis (``"1e−5"``); ``""`` when the
+        largest magnitude lies between 1e-3 and 1e4, as matplotlib's ``ScalarFormatter``.
+    """
     t = np.asarray(ticks, dtype=np.float64)
     big = float(np.max(np.abs(t))) if t.size else 0.0
     exponent = 0
@@ -116,11 +184,23 @@ _SUPERSCRIPT = str.maketrans("0123456789-\u2212", "⁰¹²³⁴⁵⁶⁷⁸⁹�
 
 
 def power_in_label(label: str, power: str) -> str:
-    """A colour bar's ``label`` with the common power of ten of its tick labels (``power``
-    as :func:`tick_labels` gives it, ``"1e6"``) inside its unit: ``"p0 (a.u.)"`` →
-    ``"p0 (×10⁶ a.u.)"``, a label without a unit gets one (``"weight (×10⁶)"``); ``power``
-    ``""``: the label as it is. Drawn so, the power sits with the unit it scales rather
-    than above the bar, where it met the title.
+    """A colour bar's ``label`` with the common power of ten of its tick labels inside its unit.
+
+    ``"p0 (a.u.)"`` → ``"p0 (×10⁶ a.u.)"``; a label without a unit gets one
+    (``"weight (×10⁶)"``). Drawn so, the power sits with the unit it scales rather than
+    above the bar, where it met the title.
+
+    Parameters
+    ----------
+    label : str
+        The colour bar's label, its unit (if any) in parentheses at its end.
+    power : str
+        The common power of ten as :func:`tick_labels` gives it (``"1e6"``); ``""``: none.
+
+    Returns
+    -------
+    str
+        The label with the power; ``label`` as it is when ``power`` is ``""``.
 
     Examples
     --------
@@ -137,7 +217,20 @@ def power_in_label(label: str, power: str) -> str:
 
 
 def colour_lut(cmap: Any, n: int = 256) -> np.ndarray:
-    """``(n, 3)`` uint8 colours of a matplotlib colormap over its range."""
+    """The colours of a matplotlib colormap over its range, as a lookup table.
+
+    Parameters
+    ----------
+    cmap : matplotlib.colors.Colormap
+        The colormap (any callable mapping values in [0, 1] to RGBA rows).
+    n : int, optional
+        The number of colours; default 256.
+
+    Returns
+    -------
+    ndarray, shape (n, 3)
+        uint8 RGB colours, from the colormap's low end (row 0) to its high end.
+    """
     return (np.asarray(cmap(np.linspace(0.0, 1.0, n)))[:, :3] * 255.0 + 0.5).astype(np.uint8)
 
 
@@ -177,12 +270,44 @@ def _vertical_text(canvas, text: str, font, centre: tuple[float, float], right_e
 def draw_frame(rgb: np.ndarray, colourbar: np.ndarray, frame: Frame, *, extent_mm: tuple[float, float, float, float],
                levels: tuple[float, float], hlabel: str, vlabel: str | None, title: str | None,
                colorbar_label: str, font_pt: float, tick_pt: float, dpi: int, grey: bool = False) -> bytes:
-    """The PNG of a picture: ``rgb`` ``(n_rows, n_cols, 3)`` uint8 (row 0 drawn at the top)
-    scaled (nearest sample) into the plotting area of ``frame``; the colour bar's colours
-    ``colourbar`` ``(n, 3)`` uint8 from ``levels[0]`` (bottom) to ``levels[1]`` (top);
-    ``extent_mm`` ``(left, right, bottom, top)``: the mm at the plotting area's edges; tick
-    labels at ``tick_pt``, axis labels and title at ``font_pt``. ``grey``: every colour given is
-    a grey (R = G = B): the PNG is stored as greyscale (mode ``L``)."""
+    """Draw the PNG of a picture: the image, its axes, ticks, labels, title and colour bar.
+
+    Parameters
+    ----------
+    rgb : ndarray, shape (n_rows, n_cols, 3)
+        uint8 image, row 0 drawn at the top, scaled (nearest sample) into the plotting area.
+    colourbar : ndarray, shape (n, 3)
+        uint8 colours of the colour bar, from ``levels[0]`` (bottom) to ``levels[1]`` (top).
+    frame : Frame
+        The pixel layout (:func:`frame_layout`).
+    extent_mm : tuple of float
+        ``(left, right, bottom, top)``: the positions in mm at the plotting area's edges.
+    levels : tuple of float
+        ``(low, high)``: the values at the colour bar's bottom and top.
+    hlabel : str
+        The horizontal axis's name (`` (mm)`` is appended).
+    vlabel : str or None
+        The vertical axis's name (`` (mm)`` is appended); None: no vertical ticks or label (a
+        line picture).
+    title : str or None
+        The title above the plotting area (may have two lines); None: none.
+    colorbar_label : str
+        The colour bar's label (:func:`power_in_label` adds its ticks' power of ten).
+    font_pt : float
+        Font size of the axis labels and title in points.
+    tick_pt : float
+        Font size of the tick labels in points.
+    dpi : int
+        Pixels per inch.
+    grey : bool, optional
+        Every colour given is a grey (R = G = B): the PNG is stored as greyscale (mode
+        ``L``); default False.
+
+    Returns
+    -------
+    bytes
+        The PNG file's bytes.
+    """
     import io
 
     from PIL import Image, ImageDraw

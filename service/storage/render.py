@@ -64,7 +64,23 @@ def _levels(img: np.ndarray, vmin: float | None, vmax: float | None) -> tuple[fl
 
 
 def to_uint8(img: np.ndarray, vmin: float | None = None, vmax: float | None = None) -> np.ndarray:
-    """Grey levels 0..255 of a 2-D array (module docstring); NaN → 0."""
+    """Grey levels 0..255 of a 2-D array (module docstring); NaN → 0.
+
+    Parameters
+    ----------
+    img : ndarray, shape (n_rows, n_cols)
+        The image (any real dtype).
+    vmin : float or None, optional
+        The value shown black; default None: 0.
+    vmax : float or None, optional
+        The value shown white; default None: the image's largest finite value.
+
+    Returns
+    -------
+    ndarray, shape (n_rows, n_cols)
+        uint8 grey levels, linear between ``vmin`` and ``vmax``, clipped; all 0 when
+        ``vmax`` is not above ``vmin``.
+    """
     img = np.asarray(img, dtype=np.float64)
     lo, hi = _levels(img, vmin, vmax)
     if not hi > lo:
@@ -83,20 +99,51 @@ def render_png(img: np.ndarray, h: np.ndarray, v: np.ndarray, *, hlabel: str, vl
                depth_down: bool = True, title: str | None = None, cmap: str = "gray",
                vmin: float | None = None, vmax: float | None = None, annotate: bool = True,
                colorbar_label: str = "p0 (a.u.)", bad_colour: Any = None) -> bytes:
-    """PNG of a 2-D array ``img`` ``(len(v), len(h))``: row i at vertical coordinate
-    ``v[i]`` (m), column j at ``h[j]`` (m).
+    """PNG of a 2-D array ``img``: row i at vertical coordinate ``v[i]``, column j at ``h[j]``.
 
     ``annotate=True``: a figure (:mod:`service.storage.frame`; a greyscale PNG when every
-    colour is grey) with axes in mm (equal aspect), labels, title and a colour bar labelled
-    ``colorbar_label``; ``depth_down`` (the default, and what every
-    fpscan picture uses: module docstring) puts ``v[0]`` at the top, as napari and
-    ``imshow`` show row 0; ``depth_down=False`` puts it at the bottom (a y-up plot, for a
-    caller that wants one).
-    ``annotate=False``: exactly one pixel per sample in the same orientation (the first
-    PNG row is ``v[0]`` when ``depth_down``, else ``v[-1]``), grey levels of
-    :func:`to_uint8` (``cmap`` applied if not ``"gray"``). ``bad_colour`` (a matplotlib
-    colour, annotated figures only): NaN pixels (e.g. masked) drawn in it instead of at
-    ``vmin``. Raises ValueError on shape mismatch or an unknown colormap.
+    colour is grey) with axes in mm (equal aspect), labels, title, a colour bar labelled
+    ``colorbar_label`` and the ``fpscan:axes`` chunk. ``annotate=False``: exactly one pixel
+    per sample in the same orientation (the first PNG row is ``v[0]`` when ``depth_down``,
+    else ``v[-1]``), grey levels of :func:`to_uint8` (``cmap`` applied if not ``"gray"``).
+
+    Parameters
+    ----------
+    img : ndarray, shape (len(v), len(h))
+        The image.
+    h : ndarray, shape (n_h,)
+        Horizontal coordinate of each column in m.
+    v : ndarray, shape (n_v,)
+        Vertical coordinate of each row in m.
+    hlabel, vlabel : str
+        The axes' names (`` (mm)`` is appended), annotated pictures only.
+    depth_down : bool, optional
+        Put ``v[0]`` at the top, as napari and ``imshow`` show row 0 (the default, and what
+        every fpscan picture uses: module docstring); False puts it at the bottom (a y-up plot,
+        for a caller that wants one).
+    title : str or None, optional
+        The title; default None: none.
+    cmap : str, optional
+        A matplotlib colormap name; default ``"gray"``.
+    vmin, vmax : float or None, optional
+        The values at the colour scale's ends; default None: 0 and the image's maximum.
+    annotate : bool, optional
+        Draw a figure with axes (default True) or raw pixels (False).
+    colorbar_label : str, optional
+        The colour bar's label; default ``"p0 (a.u.)"``.
+    bad_colour : matplotlib colour or None, optional
+        Annotated figures only: NaN pixels (e.g. masked) drawn in it instead of at ``vmin``;
+        default None.
+
+    Returns
+    -------
+    bytes
+        The PNG file's bytes.
+
+    Raises
+    ------
+    ValueError
+        If ``img`` is not 2-D of shape ``(len(v), len(h))``, or ``cmap`` is unknown.
     """
     img = np.asarray(img)
     if img.ndim != 2 or img.shape != (len(v), len(h)):
@@ -180,15 +227,37 @@ def _render_framed(img: np.ndarray, colormap: Any, lo: float, hi: float, edges_m
 
 def so2_rgb(so2: np.ndarray, thb: np.ndarray, *, threshold: float = 0.1, cmap: str = "RdYlBu_r",
             gamma: float = 0.5) -> np.ndarray:
-    """The colours of an sO2 picture as the PATATO / iThera maps draw them: RGB ``(*S, 3)``
-    float in [0, 1] for sO2 ``so2`` (fraction 0..1, NaN where unknown) and total
-    haemoglobin ``thb`` (same shape ``S``, any unit, >= 0).
+    """The colours of an sO2 picture as the PATATO / iThera maps draw them.
 
     Colour (hue) from sO2 through ``cmap`` over 0 (blue) .. 1 (red); brightness from THb:
     ``(thb / max(thb)) ** gamma`` (``gamma`` < 1 lifts weak vessels); black where sO2 is
     unknown (NaN) or THb is below ``threshold`` · max(THb) -- the background, which would
     otherwise show noise at full saturation. An image with no THb above 0 is all black.
-    Raises ValueError (shapes differ, threshold outside [0, 1), gamma not > 0)."""
+
+    Parameters
+    ----------
+    so2 : ndarray, shape S
+        Oxygen saturation as a fraction 0..1, NaN where unknown.
+    thb : ndarray, shape S
+        Total haemoglobin (any unit, >= 0).
+    threshold : float, optional
+        THb below this fraction of its maximum is shown black; in [0, 1), default 0.1.
+    cmap : str, optional
+        A matplotlib colormap name; default ``"RdYlBu_r"``.
+    gamma : float, optional
+        Exponent of the brightness, > 0; default 0.5.
+
+    Returns
+    -------
+    ndarray, shape (*S, 3)
+        Float RGB colours in [0, 1].
+
+    Raises
+    ------
+    ValueError
+        If the shapes differ, ``threshold`` lies outside [0, 1), ``gamma`` is not > 0, or
+        ``cmap`` is unknown.
+    """
     so2 = np.asarray(so2, dtype=np.float64)
     thb = np.asarray(thb, dtype=np.float64)
     if so2.shape != thb.shape:
@@ -210,11 +279,41 @@ def so2_rgb(so2: np.ndarray, thb: np.ndarray, *, threshold: float = 0.1, cmap: s
 def render_so2(so2: np.ndarray, thb: np.ndarray, h: np.ndarray, v: np.ndarray, *, hlabel: str,
                vlabel: str, title: str | None = None, threshold: float = 0.1,
                cmap: str = "RdYlBu_r") -> bytes:
-    """PNG of an sO2 map ``so2`` ``(len(v), len(h))`` (fraction, NaN where unknown) with
-    brightness from total haemoglobin ``thb`` (same shape) and the background masked
-    black (:func:`so2_rgb`), in the frame of every picture (module docstring: axes in mm,
-    equal aspect, row 0 = ``v[0]`` at the top, ``fpscan:axes`` chunk); the colour bar is
-    sO2 in % (0..100). Raises ValueError as :func:`so2_rgb` and on shape mismatch."""
+    """PNG of an sO2 map, with brightness from total haemoglobin and the background black.
+
+    The colours are :func:`so2_rgb`'s, in the frame of every picture (module docstring: axes
+    in mm, equal aspect, row 0 = ``v[0]`` at the top, ``fpscan:axes`` chunk); the colour bar
+    is sO2 in % (0..100).
+
+    Parameters
+    ----------
+    so2 : ndarray, shape (len(v), len(h))
+        Oxygen saturation as a fraction 0..1, NaN where unknown.
+    thb : ndarray, shape (len(v), len(h))
+        Total haemoglobin (any unit, >= 0).
+    h : ndarray, shape (n_h,)
+        Horizontal coordinate of each column in m.
+    v : ndarray, shape (n_v,)
+        Vertical coordinate of each row in m.
+    hlabel, vlabel : str
+        The axes' names (`` (mm)`` is appended).
+    title : str or None, optional
+        The title; default None: none.
+    threshold : float, optional
+        THb below this fraction of its maximum is shown black; default 0.1.
+    cmap : str, optional
+        A matplotlib colormap name; default ``"RdYlBu_r"``.
+
+    Returns
+    -------
+    bytes
+        The PNG file's bytes.
+
+    Raises
+    ------
+    ValueError
+        As :func:`so2_rgb`, and if ``so2`` is not 2-D of shape ``(len(v), len(h))``.
+    """
     from matplotlib.cm import ScalarMappable
     from matplotlib.colors import Normalize
 
@@ -363,8 +462,24 @@ def _with_text_chunk(png: bytes, key: str, text: str) -> bytes:
 
 
 def png_axes(png: bytes) -> dict:
-    """The ``fpscan:axes`` geometry of an annotated PNG (module docstring). Raises
-    ValueError when the PNG has none."""
+    """The ``fpscan:axes`` geometry of an annotated PNG (module docstring).
+
+    Parameters
+    ----------
+    png : bytes
+        The PNG file's bytes.
+
+    Returns
+    -------
+    dict
+        ``left``, ``top``, ``right``, ``bottom``: the plotting area's pixel edges; ``extent_mm``
+        ``[left, right, bottom, top]``: the mm at those edges.
+
+    Raises
+    ------
+    ValueError
+        When the PNG has no such chunk (not an annotated fpscan picture).
+    """
     from PIL import Image as PILImage
 
     with PILImage.open(io.BytesIO(png)) as im:
@@ -379,11 +494,41 @@ def render_points(positions: np.ndarray, values: np.ndarray, bounds: tuple, *,
                   title: str | None = None, colorbar_label: str = "weight",
                   marker_size: float | None = None, poi: tuple | None = None,
                   cmap: str = "viridis") -> bytes:
-    """PNG of scattered lateral points ``positions`` ``(n, 2)`` (x, y) m — or ``(n, 1)``
-    for a line — coloured by ``values`` ``(n,)``, inside the lattice outline ``bounds``
-    (``((x_lo, x_hi), (y_lo, y_hi))`` m, or ``((x_lo, x_hi),)``), with an optional point
-    of interest ``poi`` (x, y) m marked ``+``. Same frame as every other picture: axes in
-    mm, equal aspect, y down (the smallest y at the top, as every picture), colour bar. Raises ValueError on shape mismatch."""
+    """PNG of scattered lateral points coloured by their values, inside the lattice outline.
+
+    Same frame as every other picture: axes in mm, equal aspect, y down (the smallest y at
+    the top, as every picture), colour bar, ``fpscan:axes`` chunk.
+
+    Parameters
+    ----------
+    positions : ndarray, shape (n, 2) or (n, 1)
+        Lateral positions (x, y) in m, or x alone for a line.
+    values : ndarray, shape (n,)
+        The value of each point (its colour).
+    bounds : tuple
+        The lattice outline in m: ``((x_lo, x_hi), (y_lo, y_hi))``, or ``((x_lo, x_hi),)`` for
+        a line.
+    title : str or None, optional
+        The title; default None: none.
+    colorbar_label : str, optional
+        The colour bar's label; default ``"weight"``.
+    marker_size : float or None, optional
+        Marker area in points²; default None: from the number of points (0.5-30).
+    poi : tuple or None, optional
+        A point of interest (x, y) in m, marked ``+``; default None.
+    cmap : str, optional
+        A matplotlib colormap name; default ``"viridis"``.
+
+    Returns
+    -------
+    bytes
+        The PNG file's bytes.
+
+    Raises
+    ------
+    ValueError
+        If ``positions`` is not ``(n, 2)`` or ``(n, 1)`` or ``values`` not ``(n,)``.
+    """
     from matplotlib.patches import Rectangle
 
     pos = np.asarray(positions, dtype=np.float64)
@@ -420,14 +565,46 @@ def render_points(positions: np.ndarray, values: np.ndarray, bounds: tuple, *,
 def render_lattice(indices: np.ndarray, values: np.ndarray, n_x: int, n_y: int, pitch: float, *,
                    title: str | None = None, colorbar_label: str = "weight", poi: tuple | None = None,
                    cmap: str = "viridis", empty_colour: Any = "0.9") -> bytes:
-    """PNG of a mask as an image on its lattice: one cell per lattice point, the points
-    ``indices`` ``(n, 2)`` (i_x, i_y) coloured by ``values`` ``(n,)``, the others in
-    ``empty_colour``; for masks of many points, where :func:`render_points`' markers cost
-    time linear in the points (≈ 1.7 s for 51 076) and merge into one another. Lattice
-    ``n_x × n_y`` at ``pitch`` m, centred (``x_i = (i - (n_x - 1)/2)·pitch``); a line
-    lattice (``n_y == 1``) is drawn as a band. The same frame as every picture: axes in mm,
-    equal aspect, y down (row 0 = the smallest y at the top), colour bar, ``fpscan:axes`` chunk; ``poi`` (x, y) m marked ``+``.
-    Raises ValueError (shapes, indices outside the lattice, pitch not > 0)."""
+    """PNG of a mask as an image on its lattice: one cell per lattice point.
+
+    For masks of many points, where :func:`render_points`' markers cost time linear in the
+    points (≈ 1.7 s for 51 076) and merge into one another. The lattice is centred
+    (``x_i = (i - (n_x - 1)/2)·pitch``); a line lattice (``n_y == 1``) is drawn as a band.
+    The same frame as every picture: axes in mm, equal aspect, y down (row 0 = the smallest
+    y at the top), colour bar, ``fpscan:axes`` chunk.
+
+    Parameters
+    ----------
+    indices : ndarray, shape (n, 2)
+        Lattice indices (i_x, i_y) of the mask's points.
+    values : ndarray, shape (n,)
+        The value of each point (its colour).
+    n_x, n_y : int
+        The lattice's size, >= 1.
+    pitch : float
+        Lattice spacing in m, > 0.
+    title : str or None, optional
+        The title; default None: none.
+    colorbar_label : str, optional
+        The colour bar's label; default ``"weight"``.
+    poi : tuple or None, optional
+        A point of interest (x, y) in m, marked ``+``; default None.
+    cmap : str, optional
+        A matplotlib colormap name; default ``"viridis"``.
+    empty_colour : matplotlib colour, optional
+        The colour of lattice points not in the mask; default ``"0.9"`` (light grey).
+
+    Returns
+    -------
+    bytes
+        The PNG file's bytes.
+
+    Raises
+    ------
+    ValueError
+        If the shapes do not match, indices lie outside the lattice, ``n_x`` or ``n_y`` is
+        below 1, ``pitch`` is not > 0, or ``cmap`` is unknown.
+    """
     idx = np.asarray(indices, dtype=np.int64).reshape(-1, 2)
     val = np.asarray(values, dtype=np.float64)
     n_x, n_y = int(n_x), int(n_y)
@@ -487,9 +664,34 @@ def _coords(p0: np.ndarray, z: Any, x: Any, y: Any) -> tuple[np.ndarray, np.ndar
 
 def render_mip(p0: np.ndarray, z: Any, x: Any, y: Any = None, plane: str = "xy",
                **options: Any) -> bytes:
-    """PNG of the MIP of ``p0`` on ``plane`` (module docstring); ``options`` go to
-    :func:`render_png` (``cmap``, ``vmin``, ``vmax``, ``annotate``, ``title``).
-    Raises ValueError (bad plane, shapes)."""
+    """PNG of the maximum intensity projection (MIP) of ``p0`` on ``plane`` (module docstring).
+
+    Parameters
+    ----------
+    p0 : ndarray, shape (n_z, n_y, n_x) or (n_z, n_x)
+        The image, row 0 at the sensor plane.
+    z : array_like, shape (n_z,)
+        Depth of each row in m.
+    x : array_like, shape (n_x,)
+        Lateral x of each column in m.
+    y : array_like, shape (n_y,), or None, optional
+        Lateral y in m (required for a 3-D ``p0``); default None.
+    plane : str, optional
+        ``"xy"``, ``"xz"`` or ``"yz"`` (only ``"xz"`` in 2-D); default ``"xy"``.
+    **options
+        Passed to :func:`render_png` (``cmap``, ``vmin``, ``vmax``, ``annotate``, ``title``,
+        ...); the default title is ``"MIP {plane}"`` (``"p0 (x, z)"`` in 2-D).
+
+    Returns
+    -------
+    bytes
+        The PNG file's bytes.
+
+    Raises
+    ------
+    ValueError
+        A bad plane, or shapes of ``p0``, ``z``, ``x``, ``y`` that do not match.
+    """
     z, x, y = _coords(p0, z, x, y)
     img = mip(p0, plane)
     h, hl = (y, "y") if plane == "yz" else (x, "x")
@@ -500,8 +702,33 @@ def render_mip(p0: np.ndarray, z: Any, x: Any, y: Any = None, plane: str = "xy",
 
 def render_mips(p0: np.ndarray, z: Any, x: Any, y: Any = None, *, title_prefix: str = "",
                 **options: Any) -> dict[str, bytes]:
-    """``{plane: PNG}`` for every plane the image has (xy, xz, yz in 3-D; xz in 2-D);
-    ``title_prefix`` goes before each default title."""
+    """The MIP pictures of every plane the image has (xy, xz, yz in 3-D; xz in 2-D).
+
+    Parameters
+    ----------
+    p0 : ndarray, shape (n_z, n_y, n_x) or (n_z, n_x)
+        The image, row 0 at the sensor plane.
+    z : array_like, shape (n_z,)
+        Depth of each row in m.
+    x : array_like, shape (n_x,)
+        Lateral x of each column in m.
+    y : array_like, shape (n_y,), or None, optional
+        Lateral y in m (required for a 3-D ``p0``); default None.
+    title_prefix : str, optional
+        Text put before each default title; default ``""``.
+    **options
+        Passed to :func:`render_mip` for every plane.
+
+    Returns
+    -------
+    dict of str to bytes
+        ``{plane: PNG}``.
+
+    Raises
+    ------
+    ValueError
+        As :func:`render_mip`.
+    """
     planes = PLANES if np.ndim(p0) == 3 else ("xz",)
     out = {}
     for plane in planes:
@@ -515,8 +742,34 @@ def render_mips(p0: np.ndarray, z: Any, x: Any, y: Any = None, *, title_prefix: 
 def render_slice(p0: np.ndarray, z: Any, x: Any, y: Any, index: int, **options: Any) -> bytes:
     """PNG of the depth slice ``p0[index]`` (x to the right, y downwards) of a 3-D volume.
 
-    Grey levels default to the slice's own maximum. Raises ValueError (2-D image, index
-    out of range, shapes)."""
+    Grey levels default to the slice's own maximum.
+
+    Parameters
+    ----------
+    p0 : ndarray, shape (n_z, n_y, n_x)
+        The volume, row 0 at the sensor plane.
+    z : array_like, shape (n_z,)
+        Depth of each slice in m.
+    x : array_like, shape (n_x,)
+        Lateral x in m.
+    y : array_like, shape (n_y,)
+        Lateral y in m.
+    index : int
+        The slice, in ``[0, n_z)``.
+    **options
+        Passed to :func:`render_png` (through :func:`render_lateral`).
+
+    Returns
+    -------
+    bytes
+        The PNG file's bytes.
+
+    Raises
+    ------
+    ValueError
+        A 2-D image, an index that is not an integer or out of range, or shapes that do not
+        match.
+    """
     z, x, y = _coords(p0, z, x, y)
     if np.ndim(p0) != 3:
         raise ValueError("depth slices need a 3-D volume (n_z, n_y, n_x)")
@@ -528,9 +781,31 @@ def render_slice(p0: np.ndarray, z: Any, x: Any, y: Any, index: int, **options: 
 
 
 def render_result_slice(path: Any, index: int, **options: Any) -> bytes:
-    """PNG of the depth slice ``index`` of a result file (``service.storage.results``),
-    read without loading the whole volume; a 2-D result gives its image row at that
-    depth. Raises ValueError (index out of range), OSError/FileNotFoundError."""
+    """PNG of the depth slice ``index`` of a result file, read without loading the whole volume.
+
+    A 2-D result gives its image row at that depth.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The result file (``service.storage.results``).
+    index : int
+        The depth row, in ``[0, n_z)``.
+    **options
+        Passed to :func:`render_png`.
+
+    Returns
+    -------
+    bytes
+        The PNG file's bytes.
+
+    Raises
+    ------
+    ValueError
+        If ``index`` is out of range.
+    OSError
+        If the file cannot be read (FileNotFoundError if it is missing).
+    """
     from service.formats.result import read_slice
 
     img, z, x, y = read_slice(path, index)
@@ -542,9 +817,31 @@ def render_result_slice(path: Any, index: int, **options: Any) -> bytes:
 
 
 def render_lateral(img: np.ndarray, x: Any, y: Any, depth: float, **options: Any) -> bytes:
-    """PNG of one lateral plane ``img`` ``(n_y, n_x)`` at depth ``depth`` m (x to the
-    right, y down: row 0 at the top; the depth in mm in the title); ``options`` as
-    :func:`render_png`."""
+    """PNG of one lateral plane (x to the right, y down: row 0 at the top).
+
+    Parameters
+    ----------
+    img : ndarray, shape (n_y, n_x)
+        The plane.
+    x : array_like, shape (n_x,)
+        Lateral x in m.
+    y : array_like, shape (n_y,)
+        Lateral y in m.
+    depth : float
+        The plane's depth in m (shown in mm in the default title).
+    **options
+        Passed to :func:`render_png`.
+
+    Returns
+    -------
+    bytes
+        The PNG file's bytes.
+
+    Raises
+    ------
+    ValueError
+        As :func:`render_png` (shape mismatch, unknown colormap).
+    """
     options.setdefault("title", f"depth slice z = {depth * 1e3:.3f} mm")
     return render_png(np.asarray(img), np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64),
                       hlabel="x", vlabel="y", **options)

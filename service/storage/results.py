@@ -58,15 +58,37 @@ __all__ = ["FORMAT", "ORIENTATION", "P0_UNITS", "ResultVolume", "read_result", "
            "write_volume", "write_reconstruction", "write_result", "zip_folder", "COMPRESS_BELOW"]
 
 def write_result(out_dir: str | os.PathLike, rec: Any, *, input_id: str) -> dict:
-    """The result folder of a reconstruction, as every caller writes it (the job worker
-    and ``fpscan recon``): its MIP pictures ``mip_{xy,xz,yz}`` (``mip_xz`` only in 2-D;
-    :func:`service.storage.render.render_mips`) drawn here, the folder (``volume.h5`` and
-    the PNGs, renamed into place, an existing ``out_dir`` replaced) written by its format,
-    :func:`service.formats.result.write_folder`. Returns ``{"shape", "max", "planes",
-    "params_used"}``. Raises ValueError as :func:`write_volume`.
+    """Write the result folder of a reconstruction, as every caller writes it.
+
+    The job worker and ``fpscan recon`` both call this: its MIP pictures ``mip_{xy,xz,yz}``
+    (``mip_xz`` only in 2-D; :func:`service.storage.render.render_mips`) are drawn here, the
+    folder (``volume.h5`` and the PNGs, renamed into place, an existing ``out_dir`` replaced)
+    is written by its format, :func:`service.formats.result.write_folder`.
 
     The pictures are drawn in a thread while the volume is written and flushed to disk
-    (``os.fsync``, which releases the GIL: most of a large result's write time)."""
+    (``os.fsync``, which releases the GIL: most of a large result's write time).
+
+    Parameters
+    ----------
+    out_dir : str or os.PathLike
+        The result folder to write (replaced if it exists).
+    rec : Reconstruction
+        The reconstruction: ``p0`` of shape ``(n_z, n_y, n_x)`` or ``(n_z, n_x)``, depths ``z``
+        ``(n_z,)`` and lateral positions ``x`` ``(n_x,)`` (and ``y`` ``(n_y,)`` in 3-D) in m,
+        optionally ``p0_unit`` (``"Pa"`` or ``"a.u."``, the colour bar's label) and its params.
+    input_id : str
+        The id of the scan or dataset it was reconstructed from (stored in the file).
+
+    Returns
+    -------
+    dict
+        ``{"shape", "max", "planes", "params_used"}``.
+
+    Raises
+    ------
+    ValueError
+        As :func:`write_volume` (a bad ``p0``, axes, unit or params).
+    """
     from concurrent.futures import ThreadPoolExecutor
 
     from service.storage.render import render_mips
@@ -78,9 +100,26 @@ def write_result(out_dir: str | os.PathLike, rec: Any, *, input_id: str) -> dict
 
 
 def zip_folder(folder: str | os.PathLike, out_path: str | os.PathLike, *, arcname: str | None = None) -> Path:
-    """Zip ``folder`` (e.g. an OME-Zarr export) into ``out_path``, its files under
-    ``arcname`` (default the folder's name) — stored uncompressed (float data barely
-    compresses), written to a temporary sibling, then renamed. Returns ``out_path``."""
+    """Zip ``folder`` (e.g. an OME-Zarr export) into ``out_path``.
+
+    The files are stored uncompressed (float data barely compresses), written to a
+    temporary sibling, then renamed over ``out_path`` (the temporary file is removed on
+    failure).
+
+    Parameters
+    ----------
+    folder : str or os.PathLike
+        The folder to zip (its files, recursively).
+    out_path : str or os.PathLike
+        The zip file to write.
+    arcname : str or None, optional
+        The folder name of the files in the archive; default None: ``folder``'s name.
+
+    Returns
+    -------
+    pathlib.Path
+        ``out_path``.
+    """
     import zipfile
 
     folder, out_path = Path(folder), Path(out_path)

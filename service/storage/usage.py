@@ -50,8 +50,19 @@ _DATABASE_SUFFIXES = ("", "-wal", "-shm", ".reserve")
 
 
 def tree_bytes(path: str | os.PathLike) -> int:
-    """Bytes of the files under ``path`` (a file, or a folder walked without following
-    links; 0 if missing), by ``lstat`` size."""
+    """Bytes of the files under ``path``, by ``lstat`` size.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A file, or a folder walked without following links.
+
+    Returns
+    -------
+    int
+        The file's size, or the sum of the sizes of the files under the folder, in bytes;
+        0 if ``path`` is missing (files that vanish during the walk are skipped).
+    """
     p = Path(path)
     try:
         st = p.lstat()
@@ -70,8 +81,22 @@ def tree_bytes(path: str | os.PathLike) -> int:
 
 
 def part_of(path: str | os.PathLike, data_dir: str | os.PathLike) -> str:
-    """The part of the data folder ``path`` lies in (``"scans"``, ``"results"``,
-    ``"datasets"``, ``"exports"``), ``"other"`` elsewhere in it or outside it."""
+    """The part of the data folder that ``path`` lies in.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A file or folder (made absolute; links are not resolved).
+    data_dir : str or os.PathLike
+        The data folder.
+
+    Returns
+    -------
+    str
+        ``"scans"``, ``"results"``, ``"datasets"`` or ``"exports"`` (the first folder of
+        ``path`` below ``data_dir``, one of :data:`PARTS`); ``"other"`` elsewhere in the data
+        folder or outside it.
+    """
     try:
         rel = Path(os.path.abspath(path)).relative_to(os.path.abspath(data_dir))
     except ValueError:
@@ -81,8 +106,30 @@ def part_of(path: str | os.PathLike, data_dir: str | os.PathLike) -> str:
 
 
 class DiskUsage:
-    """Bytes of ``data_dir`` by part (module docstring); ``database`` the job database's
-    file (its WAL files beside it are counted with it, as ``other``). Thread-safe."""
+    """Bytes of ``data_dir`` by part (module docstring), kept as counters. Thread-safe.
+
+    Parameters
+    ----------
+    data_dir : str or os.PathLike
+        The data folder whose parts (:data:`PARTS`, plus ``other``) are counted.
+    database : str or os.PathLike or None, optional
+        The job database's file (its WAL files beside it are counted with it, as ``other``,
+        when it lies in the data folder itself); default ``data_dir / "jobs.sqlite"``.
+
+    Attributes
+    ----------
+    data_dir : pathlib.Path
+        The data folder.
+    database : pathlib.Path
+        The job database's file.
+    walks : int
+        The number of checking walks done (:meth:`reconcile`).
+    last_walk_s : float or None
+        Seconds the last checking walk took; None before the first.
+    LIVE_TTL_S : float
+        Seconds the live part of an answer (growing files, the database's files, the free
+        bytes) is reused (class attribute, 1.0).
+    """
 
     #: seconds the live part of an answer (growing files, the database's files, the free
     #: bytes: a system call each) is reused; the counters are always current
@@ -103,7 +150,15 @@ class DiskUsage:
 
     # -- counting (the writers) --------------------------------------------------------
     def add(self, part: str, nbytes: int) -> None:
-        """Count ``nbytes`` (negative: freed) in ``part``."""
+        """Count ``nbytes`` in ``part``.
+
+        Parameters
+        ----------
+        part : str
+            One of :data:`PARTS` or ``"other"``; any other name counts as ``"other"``.
+        nbytes : int
+            Bytes written (negative: freed); a counter never goes below 0.
+        """
         if part not in self._counts:
             part = "other"
         with self._lock:
@@ -112,17 +167,38 @@ class DiskUsage:
                 self._changes.append((part, int(nbytes)))
 
     def add_path(self, path: str | os.PathLike, *, removed: bool = False, nbytes: int | None = None) -> int:
-        """Count the bytes of ``path`` (a file or folder, measured now unless ``nbytes`` is
-        given) in its part, or take them off with ``removed`` (measure before removing).
-        Returns the bytes."""
+        """Count the bytes of ``path`` in its part (:func:`part_of`), or take them off.
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            A file or folder of the data folder.
+        removed : bool, optional
+            Take the bytes off instead (measure before removing); default False.
+        nbytes : int or None, optional
+            The bytes, when known; default None: measured now (:func:`tree_bytes`).
+
+        Returns
+        -------
+        int
+            The bytes counted (or taken off), not negative.
+        """
         n = tree_bytes(path) if nbytes is None else int(nbytes)
         self.add(part_of(path, self.data_dir), -n if removed else n)
         return n
 
     def growing(self, path: str | os.PathLike) -> None:
-        """``path`` grows in place from now (a scan file being written): its size is read
-        for every answer until :meth:`grown`. Its bytes so far are taken off its part's
-        counter meanwhile (they are in the file's size)."""
+        """Register ``path`` as growing in place from now (a scan file being written).
+
+        Its size is read for every answer until :meth:`grown`. Its bytes so far are taken
+        off its part's counter meanwhile (they are in the file's size). A path already
+        registered is left as it is.
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            The growing file.
+        """
         key = os.path.abspath(path)
         part = part_of(key, self.data_dir)
         size = tree_bytes(key)
@@ -133,7 +209,13 @@ class DiskUsage:
         self.add(part, -size)
 
     def grown(self, path: str | os.PathLike) -> None:
-        """``path`` no longer grows: its size now is counted in its part."""
+        """Register that ``path`` no longer grows: its size now is counted in its part.
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            A file registered with :meth:`growing` (anything else is ignored).
+        """
         key = os.path.abspath(path)
         with self._lock:
             part = self._growing.pop(key, None)
@@ -142,11 +224,17 @@ class DiskUsage:
 
     # -- the answer (health) -------------------------------------------------------------
     def snapshot(self) -> dict:
-        """``{"total_bytes", "scans_bytes", "results_bytes", "datasets_bytes",
-        "exports_bytes", "other_bytes", "free_bytes"}``: the counters, plus the growing files'
-        sizes, the job database's files and the file system's free bytes as read at most
-        :attr:`LIVE_TTL_S` ago (a ``stat`` per growing file and database file, one
-        ``statvfs``)."""
+        """The data folder's bytes by part, as health reports them.
+
+        Returns
+        -------
+        dict
+            ``{"total_bytes", "scans_bytes", "results_bytes", "datasets_bytes",
+            "exports_bytes", "other_bytes", "free_bytes"}`` (int; ``free_bytes`` None when it
+            cannot be read): the counters, plus the growing files' sizes, the job database's
+            files and the file system's free bytes as read at most :attr:`LIVE_TTL_S` ago (a
+            ``stat`` per growing file and database file, one ``statvfs``).
+        """
         now = time.monotonic()
         live = self._live
         if live is None or now - live[0] >= self.LIVE_TTL_S:
@@ -162,7 +250,14 @@ class DiskUsage:
         return out
 
     def free_bytes(self) -> int | None:
-        """Free bytes of the data folder's file system now (None when it cannot be read)."""
+        """Free bytes of the data folder's file system now.
+
+        Returns
+        -------
+        int or None
+            The free bytes (of the data folder's parent while the folder does not exist);
+            None when they cannot be read.
+        """
         try:
             return shutil.disk_usage(self.data_dir if self.data_dir.exists() else self.data_dir.parent).free
         except OSError:
@@ -192,10 +287,28 @@ class DiskUsage:
 
     # -- the check ---------------------------------------------------------------------
     def reconcile(self, walk: Callable[[Path], dict]) -> dict:
-        """Walk the data folder (``walk(data_dir)`` -> ``disk_usage``'s dict) and set each
-        counter to the walk's figure, less the growing files and the job database (read
-        for each answer), plus the changes counted while the walk ran. A counter that was
-        more than :data:`DRIFT_BYTES` off is logged. Returns the walk's answer."""
+        """Walk the data folder and set each counter to the walk's figure.
+
+        Each counter becomes the walk's figure, less the growing files and the job database
+        (read for each answer), plus the changes counted while the walk ran. A counter that
+        was more than :data:`DRIFT_BYTES` off is logged (not on the first walk).
+
+        Parameters
+        ----------
+        walk : callable
+            ``walk(data_dir) -> dict``, the bytes by part as
+            :func:`service.jobs.lifecycle.disk_usage` returns them (``"scans_bytes"``, ...).
+
+        Returns
+        -------
+        dict
+            The walk's answer.
+
+        Raises
+        ------
+        Exception
+            Whatever ``walk`` raises (the counters are left as they were).
+        """
         with self._lock:
             self._changes = []
         t0 = time.perf_counter()
@@ -220,8 +333,19 @@ class DiskUsage:
         return walked
 
     def start_walks(self, walk: Callable[[Path], dict], period_s: float = WALK_PERIOD_S) -> None:
-        """Check the counters every ``period_s`` s in a daemon thread of its own (the first
-        check after one period: the caller walks once at start-up); :meth:`stop` ends it."""
+        """Check the counters periodically in a daemon thread of its own.
+
+        The first check comes after one period (the caller walks once at start-up); a failed
+        walk is logged and leaves the counters as they are; :meth:`stop` ends the thread. A
+        second call while the thread runs does nothing.
+
+        Parameters
+        ----------
+        walk : callable
+            ``walk(data_dir) -> dict``, as for :meth:`reconcile`.
+        period_s : float, optional
+            Seconds between two walks; default :data:`WALK_PERIOD_S` (600 s).
+        """
         if self._thread is not None:
             return
 
@@ -249,7 +373,21 @@ _USAGES_LOCK = threading.Lock()
 
 
 def usage_for(data_dir: str | os.PathLike, database: str | os.PathLike | None = None) -> DiskUsage:
-    """The process's one :class:`DiskUsage` of ``data_dir`` (made on first use)."""
+    """The process's one :class:`DiskUsage` of ``data_dir`` (made on first use).
+
+    Parameters
+    ----------
+    data_dir : str or os.PathLike
+        The data folder (keyed by its absolute path).
+    database : str or os.PathLike or None, optional
+        The job database's file; when given, it replaces the database of an existing
+        :class:`DiskUsage`. Default None (``data_dir / "jobs.sqlite"`` for a new one).
+
+    Returns
+    -------
+    DiskUsage
+        The one counter set of ``data_dir`` in this process.
+    """
     key = os.path.abspath(data_dir)
     with _USAGES_LOCK:
         found = _USAGES.get(key)
