@@ -616,7 +616,8 @@ def _recon(p: np.ndarray, dt: float, c: float, lateral_d: tuple[float, ...], int
         kernel(0.15)
     kz = np.ascontiguousarray(kx[nt - 1 :], dtype=np.float64)
 
-    def mapping(P: np.ndarray, c0: int, c1: int, out: np.ndarray) -> None:  # k-Wave's k-space mapping of columns c0:c1 (P: their ω >= 0 half)
+    # k-Wave's k-space mapping of columns c0:c1 (P: their ω >= 0 half)
+    def mapping(P: np.ndarray, c0: int, c1: int, out: np.ndarray) -> None:
         if method != "cubic":
             _map_columns(P, lat2[c0:c1], w, kz, float(c), method == "nearest", out)
             return

@@ -75,9 +75,9 @@ def _temporal_length(n_t: int, method: str, eps: float) -> int:
     return nufft.grid_length(n_t, _KIND[method], eps)
 
 
-def transform_lengths(data_shape: Sequence[int], dt: float = 1.0, c: float = 1.0, *, method: str = "ner", eps: float = 1e-6,
-                      dz: float | None = None, n_z: int | None = None, t0: float = 0.0, upsample: int = 1,
-                      square: bool = True) -> dict[str, tuple[int, ...]]:
+def transform_lengths(data_shape: Sequence[int], dt: float = 1.0, c: float = 1.0, *, method: str = "ner",
+                      eps: float = 1e-6, dz: float | None = None, n_z: int | None = None, t0: float = 0.0,
+                      upsample: int = 1, square: bool = True) -> dict[str, tuple[int, ...]]:
     """The FFT lengths `reconstruct_grid` runs for data of a given shape.
 
     Also those of `reconstruct_points` for a lattice of (n_y, n_x) grid nodes; the
