@@ -31,16 +31,43 @@ LOCK_FILE = "fpscan.lock"
 
 
 class DataFolderInUse(RuntimeError):
-    """Another live process holds the data folder's lock (the message names its PID)."""
+    """Another live process holds the data folder's lock (the message names its PID).
+
+    Parameters
+    ----------
+    message : str
+        One line naming the folder and the holder (``"pid 1234"`` or ``"another process"``).
+    """
 
 
 class PortInUse(RuntimeError):
-    """The address and port a server would listen on are taken (or not available)."""
+    """The address and port a server would listen on are taken (or not available).
+
+    Parameters
+    ----------
+    message : str
+        One line naming the address (``host:port``, ``[host]:port`` for IPv6) and the reason.
+    """
 
 
 class DataFolderLock:
     """The held lock of one data folder (:func:`lock_data_folder`); :meth:`release` (or the
-    process's end) lets it go."""
+    process's end) lets it go. Also a context manager: leaving the ``with`` block releases it.
+
+    Parameters
+    ----------
+    path : pathlib.Path
+        The lock file (:data:`LOCK_FILE` in the data folder).
+    fd : int
+        Its open file descriptor, which holds the record lock (``fcntl.lockf``).
+
+    Attributes
+    ----------
+    path : pathlib.Path
+        The lock file.
+    held : bool
+        True until :meth:`release`.
+    """
 
     def __init__(self, path: Path, fd: int) -> None:
         self.path, self._fd = path, fd
@@ -127,6 +154,14 @@ def check_port(host: str, port: int) -> None:
     """Refuse now a ``host``:``port`` the server could not listen on: bind it as uvicorn
     does (``SO_REUSEADDR``; IPv6 for an address with ``:``) and let go of it at once.
     Port 0 (any free port) always passes.
+
+    Parameters
+    ----------
+    host : str
+        The address to listen on (a name, an IPv4 address, or an IPv6 address without
+        brackets).
+    port : int
+        The TCP port, 0-65535.
 
     Raises
     ------

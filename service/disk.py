@@ -25,10 +25,10 @@ def file_replaced(out: str | os.PathLike) -> Iterator[Path]:
     out : str or os.PathLike
         The file to put in place.
 
-    Yields
-    ------
-    pathlib.Path
-        Where the body writes.
+    Returns
+    -------
+    contextlib.AbstractContextManager of pathlib.Path
+        A context manager whose ``with`` value is the temporary path the body writes.
 
     Raises
     ------
@@ -80,7 +80,26 @@ def copy_replaced(src: str | os.PathLike, out: str | os.PathLike) -> Path:
 def folder_replaced(out: str | os.PathLike, tmp: str | os.PathLike) -> Iterator[Path]:
     """Write a folder as ``tmp`` (a sibling of ``out``, made by the body), then put it in
     place of ``out`` (an existing ``out`` folder removed first, ``os.replace``); on any
-    error in the body or the move ``tmp`` is removed and the error raised. Yields ``tmp``."""
+    error in the body or the move ``tmp`` is removed and the error raised. Yields ``tmp``.
+
+    Parameters
+    ----------
+    out : str or os.PathLike
+        The folder to put in place.
+    tmp : str or os.PathLike
+        The temporary folder the body makes and fills (a sibling of ``out``, so that the
+        rename stays on one file system).
+
+    Returns
+    -------
+    contextlib.AbstractContextManager of pathlib.Path
+        A context manager whose ``with`` value is ``tmp`` as a path.
+
+    Raises
+    ------
+    OSError
+        The old ``out`` cannot be removed or the rename fails (and what the body raises).
+    """
     out, tmp = Path(out), Path(tmp)
     try:
         yield tmp
@@ -94,7 +113,18 @@ def folder_replaced(out: str | os.PathLike, tmp: str | os.PathLike) -> Iterator[
 
 def is_disk_full(exc: BaseException | None) -> bool:
     """True when ``exc`` (or what caused it) is a full disk: ``OSError`` ENOSPC (h5py's
-    errors too, by their text) or SQLite's "database or disk is full" (SQLITE_FULL)."""
+    errors too, by their text) or SQLite's "database or disk is full" (SQLITE_FULL).
+
+    Parameters
+    ----------
+    exc : BaseException or None
+        The error; its chain (``__cause__``, else ``__context__``) is followed up to 8 links.
+
+    Returns
+    -------
+    bool
+        True for a full disk anywhere in that chain; False for None or any other error.
+    """
     import errno
     import sqlite3
 

@@ -38,11 +38,33 @@ def _renamed(obj: Any, names: dict[str, str]) -> Any:
 def person_names(obj: Any) -> Any:
     """``obj`` (dicts and lists, nested) with every key of :data:`PERSON_NAMES` renamed to
     the person's name (``c`` → ``sound_speed``); other keys and all values unchanged. A
-    new object; ``obj`` is not modified."""
+    new object; ``obj`` is not modified.
+
+    Parameters
+    ----------
+    obj : object
+        A JSON-like value: dicts and lists are walked, anything else is returned as is.
+
+    Returns
+    -------
+    object
+        A copy of ``obj`` (new dicts and lists) with the keys renamed.
+    """
     return _renamed(obj, PERSON_NAMES)
 
 
 def code_names(obj: Any) -> Any:
     """The inverse of :func:`person_names`: ``sound_speed`` → ``c`` (nested), for the
-    library's keyword arguments. A new object."""
+    library's keyword arguments. A new object.
+
+    Parameters
+    ----------
+    obj : object
+        A JSON-like value: dicts and lists are walked, anything else is returned as is.
+
+    Returns
+    -------
+    object
+        A copy of ``obj`` (new dicts and lists) with the person's names renamed to the code's.
+    """
     return _renamed(obj, _CODE_NAMES)

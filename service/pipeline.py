@@ -131,7 +131,7 @@ class Cancelled(Exception):
     """
 
 
-def default_method(dataset: Any) -> str:
+def default_method(dataset: Dataset | str) -> str:
     """The method used when none is asked for -- the one rule for ``fpscan recon``/``unmix``
     (locally and with ``--server``), the API (a request without ``method``) and the job
     worker: the registry's default for the input (``service.recon.methods.default_for``: NER for

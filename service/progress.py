@@ -72,6 +72,23 @@ class Span:
     with ``fraction`` clamped to [0, 1] (fraction 1 reports ``hi`` exactly); a call without a stage (a kernel's
     ``progress(fraction)``) reports the span's own ``stage``. Whatever the outer callback
     raises (a cancel) passes through.
+
+    Parameters
+    ----------
+    outer : Progress
+        The callback ``outer(fraction, stage)`` the span reports to.
+    lo, hi : float
+        The part of ``outer``'s range this span covers: its fraction 0 reports ``lo``, 1
+        reports ``hi``.
+    stage : str, optional
+        The stage reported for a call without one (default :data:`DEFAULT_STAGE`).
+    suffix : str, optional
+        Text appended to every stage reported (e.g. ``" (wavelength 2/3)"``).
+
+    Attributes
+    ----------
+    outer, lo, hi, stage, suffix
+        As given (``lo`` and ``hi`` as floats).
     """
 
     __slots__ = ("outer", "lo", "hi", "stage", "suffix")
@@ -136,6 +153,18 @@ class Rising:
     :func:`rising`): ``rising_(fraction, stage=None)`` calls ``progress(fraction)`` when
     ``fraction`` is above every fraction passed on before (the stage is dropped: a kernel's
     callback takes none), else nothing. Whatever ``progress`` raises (a cancel) passes through.
+
+    Parameters
+    ----------
+    progress : Fraction
+        The kernel's callback ``progress(fraction)``.
+
+    Attributes
+    ----------
+    progress : Fraction
+        As given.
+    last : float
+        The largest fraction passed on so far (``-inf`` before the first).
     """
 
     __slots__ = ("progress", "last")
@@ -196,6 +225,31 @@ class IterationStage(str):
     (``stage + " (wavelength 2/3)"``); :func:`iteration_fields` gives the numbers as the
     job's progress fields.
 
+    Parameters
+    ----------
+    k : int
+        The current iteration.
+    n : int
+        The iteration limit.
+    rule : float, optional
+        The stopping rule's current value; None (or a value that is not finite) while unknown.
+    tol : float, optional
+        The rule's tolerance; None (or a value that is not finite) while unknown.
+    rule_name : str, optional
+        The stopping rule's name (default ``"image change"``).
+    text : str, optional
+        The text itself (default ``"iteration k/n"``); :meth:`__add__` passes the text with
+        its suffix.
+
+    Attributes
+    ----------
+    k, n : int
+        The iteration and the limit.
+    rule, tol : float or None
+        The rule's value and tolerance (None while unknown).
+    rule_name : str
+        The rule's name.
+
     Examples
     --------
     >>> s = IterationStage(7, 100, rule=0.021, tol=0.005)
@@ -232,7 +286,20 @@ _ITERATION = re.compile(r"iteration (\d+)/(\d+)")
 
 def parse_iteration(stage: Any) -> IterationStage | None:
     """``stage`` as an :class:`IterationStage` (itself, or the text ``"iteration k/n..."``
-    without the rule's numbers); None for any other stage."""
+    without the rule's numbers); None for any other stage.
+
+    Parameters
+    ----------
+    stage : object
+        A stage as a progress callback receives it: an :class:`IterationStage`, a str, or
+        None.
+
+    Returns
+    -------
+    IterationStage or None
+        The stage with its iteration numbers (``rule`` and ``tol`` None when read from text),
+        or None when ``stage`` does not start with ``"iteration k/n"``.
+    """
     if isinstance(stage, IterationStage):
         return stage
     m = _ITERATION.match(str(stage or ""))
@@ -242,7 +309,18 @@ def parse_iteration(stage: Any) -> IterationStage | None:
 def iteration_fields(stage: Any) -> dict[str, Any]:
     """The job progress fields of an iteration stage: ``iteration`` (k), ``iterations_max``
     (n), ``stop_rule`` (its name), ``stop_value`` (the rule's value, None while unknown),
-    ``stop_tol`` (the tolerance); ``{}`` for any other stage."""
+    ``stop_tol`` (the tolerance); ``{}`` for any other stage.
+
+    Parameters
+    ----------
+    stage : object
+        A stage (:func:`parse_iteration`).
+
+    Returns
+    -------
+    dict of str to object
+        The five fields above, or an empty dict when ``stage`` is no iteration stage.
+    """
     it = parse_iteration(stage)
     if it is None:
         return {}
@@ -253,7 +331,20 @@ def iteration_fields(stage: Any) -> dict[str, Any]:
 def describe_iteration(fields: Mapping[str, Any]) -> str | None:
     """One line of the iteration fields (:func:`iteration_fields`, or a job's progress):
     ``"iteration 7/100, image change 0.021 (stops below 0.005)"``; None without them.
-    The web page writes the same (``clients/web/app.js``, ``iterationText``)."""
+    The web page writes the same (``clients/web/app.js``, ``iterationText``).
+
+    Parameters
+    ----------
+    fields : Mapping of str to object
+        ``iteration``, ``iterations_max`` and optionally ``stop_rule``, ``stop_value`` and
+        ``stop_tol``.
+
+    Returns
+    -------
+    str or None
+        The line (the rule's value only when known; ``"(tol 0: no early stop)"`` for a zero
+        tolerance), or None when ``iteration`` or ``iterations_max`` is missing.
+    """
     k, n = fields.get("iteration"), fields.get("iterations_max")
     if k is None or n is None:
         return None
@@ -275,7 +366,19 @@ SETUP_STAGES = frozenset({"warm start", "norm estimate"})
 def stage_kind(stage: Any) -> str:
     """A stage without its counters: ``"iteration"`` for an iteration stage, else the text
     without trailing words that hold digits (``"chunk 3/8"`` -> ``"chunk"``): the step that
-    starts a new progress line and a new rate estimate."""
+    starts a new progress line and a new rate estimate.
+
+    Parameters
+    ----------
+    stage : object
+        A stage (a str, an :class:`IterationStage` or None).
+
+    Returns
+    -------
+    str
+        ``"iteration"``, or the stage's text without its trailing counter words (``""`` for
+        None).
+    """
     if parse_iteration(stage) is not None:
         return "iteration"
     words = str(stage or "").split()
@@ -302,6 +405,30 @@ class Eta:
     ``e = max(e_prev − elapsed, 1)``, so a slow or a fast iteration shifts the estimate
     gradually (tqdm's and rich's smoothed rates do the same in spirit). A new stage kind
     (:func:`stage_kind`) starts afresh. ``clock``: the time source (s; a test's own).
+
+    Parameters
+    ----------
+    smoothing : float, optional
+        Weight of the newest interval in the moving average of the time per iteration,
+        in (0, 1] (default 0.3).
+    settle : int, optional
+        Iteration intervals measured before an estimate is shown, >= 1 (default 2).
+    clock : callable, optional
+        ``clock()`` -> the time in s (default ``time.monotonic``).
+
+    Attributes
+    ----------
+    smoothing : float
+        As given.
+    settle : int
+        As given.
+    clock : callable
+        As given.
+
+    Raises
+    ------
+    ValueError
+        ``smoothing`` outside (0, 1] or ``settle`` < 1.
 
     Examples
     --------
@@ -370,6 +497,23 @@ def outcome(params: Mapping[str, Any], method: str | None = None) -> str | None:
     automatic (with the reason when it is 0), and the residual against the data's noise
     level. None for a method without iterations. The web page writes the same
     (``clients/web/app.js``, ``outcomeText``).
+
+    Parameters
+    ----------
+    params : Mapping of str to object
+        The reconstruction's parameters: ``iterations``, ``converged``, and optionally
+        ``method``, ``max_iter``, ``stop_reason``, ``iterate_change``, ``tol``, ``lam``,
+        ``lam_auto``, ``lam_note``, ``residual`` and ``noise_share`` (shares of the data's
+        norm).
+    method : str, optional
+        The name the line starts with (default ``params["method"]``, else
+        ``"reconstruction"``).
+
+    Returns
+    -------
+    str or None
+        The line, its parts joined by ``"; "``; None when ``params`` has no ``iterations`` or
+        no ``converged``.
 
     Examples
     --------

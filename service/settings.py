@@ -26,7 +26,18 @@ LOOPBACK_HOSTS = {"127.0.0.1", "localhost", "::1"}
 
 
 def is_loopback(host: str) -> bool:
-    """True for ``localhost`` and loopback addresses (127.0.0.0/8, ::1)."""
+    """True for ``localhost`` and loopback addresses (127.0.0.0/8, ::1).
+
+    Parameters
+    ----------
+    host : str
+        A host name or an IP address (IPv6 without brackets).
+
+    Returns
+    -------
+    bool
+        True for ``"localhost"`` or a loopback address; False for any other name or address.
+    """
     if host == "localhost":
         return True
     try:
@@ -51,7 +62,9 @@ class Settings(BaseSettings):
     db_path: Path | None = Field(None, description="SQLite job database (default: <data_dir>/jobs.sqlite)")
     devices: dict[str, str] = Field(default_factory=dict, description="scanner id -> serial path or pyserial URL")
     token: SecretStr | None = Field(None, description="bearer token; None = no token")
-    executor: Literal["local", "dask"] = "local"
+    executor: Literal["local", "dask"] = Field("local", description="where reconstructions run: 'local' "
+                                               "(a process pool of this server) or 'dask' (a dask.distributed "
+                                               "cluster at dask_scheduler)")
     dask_scheduler: str | None = Field(None, description="dask.distributed scheduler address (implies executor dask)")
     workers: int = Field(1, ge=1, le=64, description="local process pool size")
     worker_nice: int = Field(0, ge=0, le=19, description="CPU priority increment (os.nice) of the local "
@@ -99,12 +112,12 @@ class Settings(BaseSettings):
                                     "take before it is refused (damaged files can block the HDF5 library)")
     import_workers: int = Field(2, ge=1, le=64, description="uploads imported at once (each in a child process "
                                 "of up to memory_limit + 2 GiB); up to 4x as many more wait, further ones get 429")
-    host: str = "127.0.0.1"
+    host: str = Field("127.0.0.1", description="address the server listens on (loopback by default)")
     allowed_hosts: list[str] = Field(default_factory=list, description="names (or addresses) besides the "
                                      "loopback ones that clients may reach this server by: a request whose Host "
                                      "header names another is refused with 403 (DNS rebinding); '*' = any (only "
                                      "behind a token). Environment: JSON, FPSCAN_ALLOWED_HOSTS='[\"scanner-pc\"]'")
-    port: int = Field(8000, ge=0, le=65535)
+    port: int = Field(8000, ge=0, le=65535, description="TCP port the server listens on; 0 = any free port")
     web_root: Path | None = Field(None, description="folder of the web page's static files; None = no page")
     preview_interval_s: float = Field(3.0, gt=0, le=3600, description="live preview refresh period")
     heartbeat_s: float = Field(2.0, gt=0, le=600, description="lease heartbeat period of running jobs")
@@ -118,7 +131,8 @@ class Settings(BaseSettings):
                                                               "fpscan_tv_time_limit_s"))
     resume_scans: bool = Field(False, description="resume scans interrupted by a restart at start-up "
                                                   "(default: they wait, paused, for POST /resume)")
-    log_level: str = "info"
+    log_level: str = Field("info", description="log level of the server and its app (critical, error, warning, info, "
+                           "debug; case-insensitive)")
     token_file: Path | None = Field(None, description="file holding the bearer token (Docker secrets: "
                                                       "/run/secrets/<name>); used when token is not set")
     retention_keep_results: int | None = Field(None, ge=0, description="keep the newest N finished "

@@ -43,8 +43,20 @@ MASK_COLOUR = (0.0, 0.0, 0.0, 1.0)
 
 
 def dataset_wavelengths(dataset: Any) -> np.ndarray:
-    """The excitation wavelengths (m, ``(n_w,)``) a dataset records (its ``wavelengths``,
-    else ``meta["wavelengths"]``); empty when it records none."""
+    """The excitation wavelengths a dataset records: its ``wavelengths``, else
+    ``meta["wavelengths"]``; empty when it records none.
+
+    Parameters
+    ----------
+    dataset : object
+        A loaded dataset (``service.recon.dataset.Dataset`` or anything with a
+        ``wavelengths`` attribute or a ``meta`` dict).
+
+    Returns
+    -------
+    ndarray, shape ``(n_w,)``
+        The wavelengths in m, float64 (``(0,)`` when none are recorded).
+    """
     w = getattr(dataset, "wavelengths", None)
     if w is None:
         w = (getattr(dataset, "meta", None) or {}).get("wavelengths")
@@ -56,13 +68,36 @@ def reconstruct_wavelengths(datasets: Sequence[Any], method: str, *, reconstruct
                             should_stop: Callable[[], bool] | None = None, **options: Any) -> list[Any]:
     """Reconstruct every wavelength's dataset with the same method and options.
 
-    ``datasets``: one dataset per wavelength (same sensors and grid); ``reconstruct``:
-    the dispatch ``reconstruct(dataset, method, progress=..., **options)`` →
-    ``Reconstruction``. With ``c="auto"`` the first wavelength's reconstruction chooses
-    c and the others reuse it (recorded in their ``params["autofocus_from"]``).
-    ``progress(fraction, stage)`` spans all wavelengths. Returns the reconstructions in
-    the order of ``datasets``. Raises ``ValueError`` for an empty list and whatever the
-    dispatch raises."""
+    With ``c="auto"`` the first wavelength's reconstruction chooses c and the others reuse it
+    (recorded in their ``params["autofocus_from"]``).
+
+    Parameters
+    ----------
+    datasets : sequence of Dataset
+        One dataset per wavelength (same sensors and grid).
+    method : str
+        The reconstruction method's name (``service.recon.methods``).
+    reconstruct : callable
+        The dispatch ``reconstruct(dataset, method, progress=..., should_stop=..., **options)``
+        -> ``Reconstruction``.
+    progress : callable, optional
+        ``progress(fraction, stage)``, spanning all wavelengths (each wavelength's stage gets the
+        suffix ``" (wavelength k/n)"``).
+    should_stop : callable, optional
+        ``should_stop()`` -> True to cancel; passed on to ``reconstruct``.
+    **options
+        The method's options, the same for every wavelength (``c`` in m/s or ``"auto"``).
+
+    Returns
+    -------
+    list of Reconstruction
+        The reconstructions, in the order of ``datasets``.
+
+    Raises
+    ------
+    ValueError
+        An empty ``datasets``; and whatever the dispatch raises.
+    """
     if len(datasets) == 0:
         raise ValueError("no wavelengths to reconstruct")
     n = len(datasets)
@@ -82,16 +117,36 @@ def reconstruct_wavelengths(datasets: Sequence[Any], method: str, *, reconstruct
 
 def write_wavelength_results(out_dir: str | os.PathLike, recons: Sequence[Any], wavelengths: Any = None, *,
                              input_id: str = "") -> dict:
-    """Write the result folder of a multi-wavelength reconstruction: ``volume.h5`` + MIPs
-    of the first wavelength at the top (as any reconstruction result, so a viewer of one
-    volume shows it) and ``wavelength_<k>/`` (``volume.h5`` + MIPs) for each
-    reconstruction ``k`` (:func:`service.storage.results.write_result`; the unmixing job
-    and ``wavelength="all"`` share this layout). ``wavelengths`` (m, one per
-    reconstruction, or None) are recorded as ``wavelength_nm`` in each volume's params
-    where the reconstruction does not record its own. Returns the first's summary
-    (``shape``, ``max``, ``planes``, ``params_used``) plus ``wavelengths``: one
-    ``{"index", "wavelength_nm", "shape", "max"}`` per reconstruction. Raises
-    ``ValueError`` for a count of wavelengths that differs from the reconstructions."""
+    """Write the result folder of a multi-wavelength reconstruction.
+
+    ``volume.h5`` + MIPs of the first wavelength at the top (as any reconstruction result, so
+    a viewer of one volume shows it) and ``wavelength_<k>/`` (``volume.h5`` + MIPs) for each
+    reconstruction ``k`` (:func:`service.storage.results.write_result`; the unmixing job and
+    ``wavelength="all"`` share this layout).
+
+    Parameters
+    ----------
+    out_dir : str or os.PathLike
+        The result folder.
+    recons : sequence of Reconstruction
+        One reconstruction per wavelength.
+    wavelengths : array_like, shape ``(n_w,)``, optional
+        The wavelengths in m, one per reconstruction, recorded as ``wavelength_nm`` in each
+        volume's params where the reconstruction does not record its own. None: none recorded.
+    input_id : str, optional
+        The input's id, recorded in each volume.
+
+    Returns
+    -------
+    dict
+        The first volume's summary (``shape``, ``max``, ``planes``, ``params_used``) plus
+        ``wavelengths``: one ``{"index", "wavelength_nm", "shape", "max"}`` per reconstruction.
+
+    Raises
+    ------
+    ValueError
+        No reconstructions, or a count of wavelengths that differs from the reconstructions.
+    """
     from service.storage.results import write_result
 
     if len(recons) == 0:
@@ -114,9 +169,28 @@ def write_wavelength_results(out_dir: str | os.PathLike, recons: Sequence[Any], 
 
 def unmix_reconstructions(recons: Sequence[Any], wavelengths: Any, **kwargs: Any) -> Unmixed:
     """Unmix per-wavelength reconstructions (``p0`` on one grid) into HbO2/Hb, THb and sO2
-    (:func:`service.recon.unmix.unmix`; ``kwargs``: ``fluence``, ``gruneisen``,
-    ``threshold``). Raises ``ValueError`` for a single wavelength, mismatched grids or
-    a count of wavelengths that differs from the volumes."""
+    (:func:`service.recon.unmix.unmix`).
+
+    Parameters
+    ----------
+    recons : sequence of Reconstruction
+        One reconstruction per wavelength, all on one grid (same ``p0`` shape and z, x, y axes).
+    wavelengths : array_like, shape ``(n_w,)``
+        The excitation wavelengths, m, one per reconstruction.
+    **kwargs
+        ``fluence``, ``gruneisen``, ``threshold`` for :func:`service.recon.unmix.unmix`.
+
+    Returns
+    -------
+    Unmixed
+        HbO2, Hb, THb, sO2 and the mask on the reconstructions' grid.
+
+    Raises
+    ------
+    ValueError
+        A single wavelength, mismatched grids, a count of wavelengths that differs from the
+        volumes, or what :func:`service.recon.unmix.unmix` refuses.
+    """
     w = np.asarray(wavelengths, dtype=np.float64).reshape(-1)
     if len(recons) != w.size:
         raise ValueError(f"{len(recons)} volumes for {w.size} wavelengths")
@@ -133,8 +207,20 @@ def unmix_reconstructions(recons: Sequence[Any], wavelengths: Any, **kwargs: Any
 
 
 def so2_map(u: Unmixed) -> np.ndarray:
-    """2-D sO2 picture: 3-D → ``(n_y, n_x)``, the sO2 at each column's largest-THb voxel
-    (NaN where that voxel is masked); 2-D → the ``(n_z, n_x)`` sO2 image itself."""
+    """2-D sO2 picture: the sO2 at each column's largest-THb voxel.
+
+    Parameters
+    ----------
+    u : Unmixed
+        An unmixing result, ``(n_z, n_y, n_x)`` or ``(n_z, n_x)``.
+
+    Returns
+    -------
+    ndarray
+        3-D input: ``(n_y, n_x)``, the sO2 (0..1) at each lateral position's voxel of largest THb
+        along depth (NaN where that voxel is masked); 2-D input: the ``(n_z, n_x)`` sO2 image
+        itself.
+    """
     if u.so2.ndim == 2:
         return u.so2
     k = np.argmax(u.thb, axis=0)[None]
@@ -142,17 +228,45 @@ def so2_map(u: Unmixed) -> np.ndarray:
 
 
 def thb_map(u: Unmixed) -> np.ndarray:
-    """2-D THb picture matching :func:`so2_map`: 3-D → ``(n_y, n_x)``, the largest THb along
-    depth (the voxel whose sO2 :func:`so2_map` shows); 2-D → the ``(n_z, n_x)`` THb image."""
+    """2-D THb picture matching :func:`so2_map`.
+
+    Parameters
+    ----------
+    u : Unmixed
+        An unmixing result, ``(n_z, n_y, n_x)`` or ``(n_z, n_x)``.
+
+    Returns
+    -------
+    ndarray
+        3-D input: ``(n_y, n_x)``, the largest THb along depth (the voxel whose sO2
+        :func:`so2_map` shows); 2-D input: the ``(n_z, n_x)`` THb image. In ``u``'s
+        concentration units.
+    """
     return u.thb if u.thb.ndim == 2 else np.max(u.thb, axis=0)
 
 
 def render_so2_png(u: Unmixed, z: Any, x: Any, y: Any = None) -> bytes:
-    """PNG of :func:`so2_map` through the one rendering path
-    (:func:`service.storage.render.render_so2`: mm axes, row 0 at the top, colour bar):
-    sO2 as colour (``RdYlBu_r`` over 0 % blue .. 100 % red), brightness from THb
-    (:func:`thb_map`), black (:data:`MASK_COLOUR`) where THb is below the unmixing's
-    ``threshold`` (default 0.1) of its maximum or sO2 is unknown."""
+    """PNG of :func:`so2_map` through the one rendering path.
+
+    :func:`service.storage.render.render_so2`: mm axes, row 0 at the top, colour bar; sO2 as
+    colour (``RdYlBu_r`` over 0 % blue .. 100 % red), brightness from THb (:func:`thb_map`),
+    black (:data:`MASK_COLOUR`) where THb is below the unmixing's ``threshold`` (default 0.1)
+    of its maximum or sO2 is unknown.
+
+    Parameters
+    ----------
+    u : Unmixed
+        An unmixing result.
+    z, x : array_like
+        The depth and x axes, m.
+    y : array_like, optional
+        The y axis, m (3-D results: the picture's vertical axis); None for 2-D.
+
+    Returns
+    -------
+    bytes
+        The PNG file's bytes.
+    """
     from service.storage.render import render_so2
 
     threshold = float((u.params or {}).get("threshold", 0.1))
@@ -165,9 +279,30 @@ def render_so2_png(u: Unmixed, z: Any, x: Any, y: Any = None) -> bytes:
 
 def write_unmix(out_dir: str | os.PathLike, u: Unmixed, z: Any, x: Any, y: Any = None, *,
                 input_id: str = "", extra: dict | None = None) -> dict:
-    """Write ``unmix.h5`` and ``so2.png`` into ``out_dir`` (an existing folder; the caller
-    writes the folder atomically). Returns a summary (``so2_median``, ``masked_fraction``,
-    ``thb_max``)."""
+    """Write ``unmix.h5`` and ``so2.png`` into ``out_dir`` (an existing folder; the caller writes
+    the folder atomically).
+
+    Parameters
+    ----------
+    out_dir : str or os.PathLike
+        The result folder.
+    u : Unmixed
+        The unmixing result.
+    z, x : array_like
+        The depth and x axes, m.
+    y : array_like, optional
+        The y axis, m; None for 2-D.
+    input_id : str, optional
+        The input's id (the file's ``input_id`` attribute).
+    extra : dict, optional
+        More parameters recorded in the file's ``params`` (e.g. ``method``, ``c``).
+
+    Returns
+    -------
+    dict
+        ``so2_median`` (the median sO2 inside the mask, None when all is masked),
+        ``masked_fraction``, ``thb_max`` and ``wavelengths_m``.
+    """
     from service.formats.unmix import write
 
     out = Path(out_dir)
@@ -185,13 +320,31 @@ def load_wavelength_datasets(paths: Sequence[str | os.PathLike], format: str | N
                              **load: Any) -> tuple[np.ndarray, list[Any]]:
     """The datasets of a multi-wavelength acquisition, one per wavelength.
 
-    ``paths``: one multi-wavelength scan file (each wavelength's completed A-lines), or
-    one file per wavelength (any format of :func:`service.storage.datasets.load_dataset`)
-    with ``wavelengths`` (m, one per file; default: the single wavelength each file
-    records). ``load``: ``dt``, ``dx``, ``dy``, ``key``, ``c`` for ``load_dataset``.
-    Returns ``(wavelengths (n_w,) m, [dataset, ...])``. Raises ``ValueError`` (a
-    single-wavelength input, counts that differ, unknown wavelengths) and
-    ``FileNotFoundError``."""
+    Parameters
+    ----------
+    paths : sequence of str or os.PathLike
+        One multi-wavelength scan file (each wavelength's completed A-lines), or one file per
+        wavelength (any format of :func:`service.storage.datasets.load_dataset`).
+    format : str, optional
+        The input format's name; None: detected.
+    wavelengths : sequence of float, optional
+        The wavelengths in m, one per file (default: the single wavelength each file records).
+    **load
+        ``dt``, ``dx``, ``dy``, ``key``, ``c`` for ``load_dataset`` (None values are dropped).
+
+    Returns
+    -------
+    tuple of (ndarray, list of Dataset)
+        The wavelengths ``(n_w,)`` in m and the datasets in the same order.
+
+    Raises
+    ------
+    ValueError
+        No files, a single-wavelength input, a single file that is no fpscan scan file, counts
+        that differ, unknown or bad wavelengths.
+    FileNotFoundError
+        A file that does not exist.
+    """
     from service.storage import datasets as dsm
 
     load = {k: v for k, v in load.items() if v is not None}
@@ -227,15 +380,55 @@ def reconstruct_and_unmix(out_dir: str | os.PathLike, datasets: Sequence[Any], w
                           gruneisen: float = 1.0, progress: Progress | None = None,
                           should_stop: Callable[[], bool] | None = None,
                           reconstruct: Callable[..., Any], **options: Any) -> dict:
-    """Reconstruct every wavelength (``reconstruct``: the dispatch ``service.pipeline.reconstruct``,
-    which calls this through ``run_file``; same method and options), unmix, and
-    write the result folder ``out_dir``: ``volume.h5`` + MIPs of the first wavelength (as
-    any reconstruction result), ``wavelength_<k>/`` the same per wavelength,
-    ``unmix.h5`` and ``so2.png`` (:func:`write_unmix`). Returns a summary (``unmix``,
-    ``c``, ``wavelengths_m``, ``timings``, the reconstruction ``params`` of wavelength 1).
-    Raises ``ValueError`` before any reconstruction for fewer than two wavelengths,
-    repeats, wavelengths outside 400-1000 nm
-    (:func:`service.recon.unmix.endmember_matrix`) and counts that differ."""
+    """Reconstruct every wavelength, unmix, and write the result folder ``out_dir``.
+
+    The folder: ``volume.h5`` + MIPs of the first wavelength (as any reconstruction result),
+    ``wavelength_<k>/`` the same per wavelength, ``unmix.h5`` and ``so2.png``
+    (:func:`write_unmix`). Progress: the reconstructions on [0, 0.9], ``"writing"`` at 0.95.
+
+    Parameters
+    ----------
+    out_dir : str or os.PathLike
+        The result folder (existing; the caller writes it atomically).
+    datasets : sequence of Dataset
+        One dataset per wavelength (same sensors and grid).
+    wavelengths : array_like, shape ``(n_w,)``
+        The excitation wavelengths, m, one per dataset.
+    method : str
+        The reconstruction method's name; the same method and ``options`` for every wavelength.
+    input_id : str, optional
+        The input's id, recorded in the files.
+    threshold : float, optional
+        Fraction in [0, 1) of the largest THb below which a voxel is masked (default 0.1).
+    fluence : ndarray or float, optional
+        Fluence Φ, J/m² (:func:`service.recon.unmix.unmix`); None: the same unknown
+        fluence everywhere.
+    gruneisen : float, optional
+        The Grüneisen parameter Γ, used with ``fluence`` (default 1).
+    progress : callable, optional
+        ``progress(fraction, stage)``.
+    should_stop : callable, optional
+        ``should_stop()`` -> True to cancel.
+    reconstruct : callable
+        The dispatch ``service.pipeline.reconstruct``, which calls this through ``run_file``.
+    **options
+        The method's options.
+
+    Returns
+    -------
+    dict
+        The first wavelength's volume summary plus ``wavelengths`` (per volume), ``unmix`` (the
+        :func:`write_unmix` summary), ``so2_median``, ``masked_fraction``, ``c``,
+        ``wavelengths_m``, ``params`` (wavelength 1's reconstruction parameters) and
+        ``timings`` (``reconstruct_s``, ``unmix_s``, ``write_s``).
+
+    Raises
+    ------
+    ValueError
+        Before any reconstruction: fewer than two wavelengths or datasets, repeats,
+        wavelengths outside 400-1000 nm (:func:`service.recon.unmix.endmember_matrix`), counts
+        that differ; and whatever the reconstruction or unmixing raises.
+    """
     import time
 
     w = np.asarray(wavelengths, dtype=np.float64).reshape(-1)

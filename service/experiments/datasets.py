@@ -25,11 +25,34 @@ __all__ = ["DenseDataset", "load_dense", "add_noise"]
 
 @dataclass
 class DenseDataset(GridDataset):
-    """Sensor data on a full regular lattice (a :class:`GridDataset`: ``data``
-    ``(n_t, n_x)`` (2-D, line sensor) or ``(n_t, n_y, n_x)`` (3-D) in Pa, ``dx`` (m, same
-    in x and y), ``dt`` (s, t_n = n·dt), ``c`` (m/s), ``source``, ``meta``) with an
-    optional ground truth ``p0`` ``(n_z, n_x)`` / ``(n_z, n_y, n_x)`` of depth spacing
-    ``dz`` (m), row 0 at the sensor plane.
+    """Sensor data on a full regular lattice with an optional ground truth.
+
+    A :class:`GridDataset` (its fields: ``data``, ``dx``, ``dt``, ``c``, ``dy``, ``t0``,
+    ``source``, ``meta``, ``wavelengths``) plus the ground truth the experiments score
+    against.
+
+    Attributes
+    ----------
+    data : ndarray
+        Pressure in Pa, ``(n_t, n_x)`` (2-D, line sensor) or ``(n_t, n_y, n_x)`` (3-D), time
+        first.
+    dx : float
+        Lateral pitch, m (the same in x and y).
+    dt : float
+        Sample interval, s (t_n = n·dt).
+    c : float
+        Sound speed, m/s.
+    dy : float or None
+        The y pitch, m, where the dataset records one.
+    source : str
+        Where the data came from (a file name or a simulation's name).
+    meta : dict
+        Other facts about the data (e.g. ``kwave``, ``scan_plan_id``, ``snr_db``).
+    p0 : ndarray or None
+        Ground-truth initial pressure ``(n_z, n_x)`` / ``(n_z, n_y, n_x)``, row 0 at the sensor
+        plane; None without one.
+    dz : float or None
+        The ground truth's depth spacing, m.
     """
 
     p0: np.ndarray | None = None
@@ -75,16 +98,28 @@ class DenseDataset(GridDataset):
 
 
 def load_dense(path: str | Path, key: str | None = None) -> DenseDataset:
-    """Read a dense dataset through the registry of formats (:func:`service.formats.load`): the
-    k-Wave reference files' layout (or any HDF5 array in k-Wave layout), or an fpscan scan
-    file covering its whole lattice.
+    """Read a dense dataset through the registry of formats (:func:`service.formats.load`).
 
-    The data must be ``(n_t, n_lateral)`` or ``(n_t, n_y, n_x)`` with ``dt_s`` and the
-    lateral spacing in the file; the two lateral spacings must be equal (square lattice).
-    ``c_m_per_s`` defaults to 1500. A ``p0`` dataset, if present, is kept as ground truth
-    (its depth spacing from its ``spacing_m`` attribute). Data are float64. ``key``: the
-    HDF5 dataset holding the sensor data (e.g. ``sensor_data/noisy30dB``; default
-    ``sensor_data/clean`` or the file's only 2-/3-D dataset).
+    The k-Wave reference files' layout (or any HDF5 array in k-Wave layout), or an fpscan scan
+    file covering its whole lattice. The data must be ``(n_t, n_lateral)`` or
+    ``(n_t, n_y, n_x)`` with ``dt_s`` and the lateral spacing in the file; the two lateral
+    spacings must be equal (square lattice). ``c_m_per_s`` defaults to 1500. A ``p0``
+    dataset, if present, is kept as ground truth (its depth spacing from its ``spacing_m``
+    attribute). Data are float64.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The data file.
+    key : str, optional
+        The HDF5 dataset holding the sensor data (e.g. ``sensor_data/noisy30dB``; default
+        ``sensor_data/clean`` or the file's only 2-/3-D dataset).
+
+    Returns
+    -------
+    DenseDataset
+        The data (float64), with ``source`` the file's name and the ground truth where the file
+        holds one.
 
     Raises
     ------
@@ -120,8 +155,26 @@ def load_dense(path: str | Path, key: str | None = None) -> DenseDataset:
 def add_noise(data: np.ndarray, snr_db: float | None, seed: int = 0) -> np.ndarray:
     """White Gaussian noise at ``snr_db`` dB below the data's mean power (paper §6: 30 dB).
 
-    ``sigma = rms(data) / 10^(snr_db/20)``; ``None`` returns the data unchanged.
-    Raises ValueError for a non-finite SNR.
+    ``sigma = rms(data) / 10^(snr_db/20)``.
+
+    Parameters
+    ----------
+    data : ndarray
+        The clean data, any shape (Pa).
+    snr_db : float or None
+        Signal-to-noise ratio in dB; None returns ``data`` unchanged (the same object).
+    seed : int, optional
+        Seed of the noise (``numpy.random.default_rng``).
+
+    Returns
+    -------
+    ndarray
+        ``data`` plus the noise, a new array of the same shape.
+
+    Raises
+    ------
+    ValueError
+        A non-finite SNR.
     """
     if snr_db is None:
         return data

@@ -47,8 +47,22 @@ PAPER = {"cc_equiangular": 0.913, "cc_best_equispaced": 0.849, "best_interval": 
 
 
 def resample_depth(img: np.ndarray, z: np.ndarray, z_new: np.ndarray) -> np.ndarray:
-    """Rows of ``img`` (depths ``z``, m, increasing) linearly interpolated to the depths
-    ``z_new`` (within ``z``): ``(len(z_new),) + img.shape[1:]``."""
+    """Rows of ``img`` linearly interpolated to other depths.
+
+    Parameters
+    ----------
+    img : ndarray, shape ``(n_z, ...)``
+        An image, depth first.
+    z : ndarray, shape ``(n_z,)``
+        The depths of its rows, m, increasing (at least two).
+    z_new : ndarray, shape ``(n_new,)``
+        The depths wanted, m, within ``z`` (outside it the end rows are repeated).
+
+    Returns
+    -------
+    ndarray, shape ``(n_new,) + img.shape[1:]``
+        The interpolated rows.
+    """
     j = np.clip(np.searchsorted(z, z_new) - 1, 0, len(z) - 2)
     f = np.clip((z_new - z[j]) / (z[j + 1] - z[j]), 0.0, 1.0).reshape((-1,) + (1,) * (img.ndim - 1))
     return img[j] * (1 - f) + img[j + 1] * f
@@ -60,9 +74,26 @@ def _normalised(img: np.ndarray, rect) -> np.ndarray:
 
 
 def simulate_tree(*, small: bool, snr_db: float | None, seed: int = 0) -> DenseDataset:
-    """The built-in §6 dataset: tree phantom on ``(256, 1024)`` (small: ``(64, 256)``)
-    pixels of 50 µm, dt = dx/c, forward model, optional noise. ``data`` is noisy;
-    ``meta['clean']`` holds the clean data."""
+    """The built-in §6 dataset: the tree phantom, its forward model and optional noise.
+
+    The phantom on ``(256, 1024)`` (small: ``(64, 256)``) pixels of 50 µm, dt = dx/c, n_t =
+    n_x + n_z samples (`service.recon.forward_grid`).
+
+    Parameters
+    ----------
+    small : bool
+        The small phantom (tests).
+    snr_db : float or None
+        Noise level, dB below the data's mean power (`add_noise`); None: clean.
+    seed : int, optional
+        Seed of the noise.
+
+    Returns
+    -------
+    DenseDataset
+        ``data`` ``(n_t, n_x)`` with noise, ``p0`` the phantom (dz = dx), ``meta['clean']`` the
+        clean data (and ``snr_db``, ``seed``).
+    """
     from service.recon import forward_grid
 
     n_z, n_x = (64, 256) if small else (256, 1024)
@@ -345,9 +376,24 @@ def _summary(rows: list[dict], weight_ratio: float) -> dict:
 
 
 def plot(result: ExperimentResult, out_dir) -> list:
-    """``limited-view-2d_cc.png`` (CC and sharpness vs interval, equiangular as lines)
-    and ``limited-view-2d_images.png`` (reference, best equispaced, equiangular,
-    interpolated, with the ROI and the sensors)."""
+    """Plot the §6 comparison into ``out_dir``.
+
+    ``limited-view-2d_cc.png`` (CC and sharpness vs interval, equiangular as lines) and
+    ``limited-view-2d_images.png`` (reference, best equispaced, equiangular, interpolated, with
+    the ROI and the sensors).
+
+    Parameters
+    ----------
+    result : ExperimentResult
+        The result of `run` (its ``curves``, ``table`` and ``images``).
+    out_dir : str or pathlib.Path
+        An existing folder.
+
+    Returns
+    -------
+    list of pathlib.Path
+        The two PNG files.
+    """
     from pathlib import Path
 
     plt = setup_matplotlib()

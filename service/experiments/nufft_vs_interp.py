@@ -46,10 +46,30 @@ PAPER = {"axial_fwhm_um": {"ner": 23.23, "linear": 62.34}, "axial_fwhm_std_um": 
 
 
 def simulate_layer(*, small: bool, depth: float | None = None) -> DenseDataset:
-    """Built-in dataset: 256 (small: 128) line points of 70 µm, dt = 8 ns, c = 1500 m/s,
-    512 (small: 256) samples; a layer of FWHM thickness 2.5·c·dt centred 0.37 samples off
-    the grid at ``depth`` (default 2 mm; small: 1 mm), half the aperture wide, lateral
-    edges blurred by 2.5 pitches. Raises ValueError if the layer is outside the window."""
+    """Built-in dataset: a thin layer under a line of sensors, through the forward model.
+
+    256 (small: 128) line points of 70 µm, dt = 8 ns, c = 1500 m/s, 512 (small: 256) samples;
+    a layer of FWHM thickness 2.5·c·dt centred 0.37 samples off the grid at ``depth``, half
+    the aperture wide, lateral edges blurred by 2.5 pitches.
+
+    Parameters
+    ----------
+    small : bool
+        The small version (tests).
+    depth : float, optional
+        The layer's depth, m (default 2 mm; small: 1 mm), moved to 0.37 samples off the grid.
+
+    Returns
+    -------
+    DenseDataset
+        ``data`` ``(n_t, n_x)`` (clean), ``p0`` the layer (dz = c·dt), ``meta`` with
+        ``layer_depth_m`` and ``layer_width_m``.
+
+    Raises
+    ------
+    ValueError
+        The layer is outside the recorded window.
+    """
     from service.recon import forward_grid
 
     n_x, n_t, dx, dt, c = (128, 256, 70e-6, 8e-9, C_DEFAULT) if small else (256, 512, 70e-6, 8e-9, C_DEFAULT)
@@ -106,10 +126,27 @@ def _axial_lateral(p, z, x, cols, zs, kz, width, dx):
 
 
 def depth_sweep(*, small: bool, methods=METHODS, fractions=(0.15, 0.35, 0.55, 0.75, 0.9)) -> dict:
-    """Peak amplitude (relative to the true layer) and axial FWHM (µm) of the built-in
-    layer placed at ``fractions`` of the recorded depth window n_t·c·dt, per method:
-    ``{"depth_m": [...], "peak[<m>]": [...], "axial_fwhm_um[<m>]": [...]}`` (the
-    interpolation methods' gain error grows with depth; DESIGN §3.2)."""
+    """Peak amplitude and axial FWHM of the built-in layer against its depth, per method.
+
+    The layer is placed at ``fractions`` of the recorded depth window n_t·c·dt (the
+    interpolation methods' gain error grows with depth; DESIGN §3.2).
+
+    Parameters
+    ----------
+    small : bool
+        The small version (tests).
+    methods : sequence of str, optional
+        The methods compared (default :data:`METHODS`).
+    fractions : sequence of float, optional
+        The layer depths as fractions of the recorded window.
+
+    Returns
+    -------
+    dict
+        ``{"depth_m": [...], "peak[<m>]": [...], "axial_fwhm_um[<m>]": [...]}``: per depth, the
+        layer's depth in m and, per method ``m``, its peak relative to the true layer and its
+        axial FWHM in µm.
+    """
     n_t = 256 if small else 512
     dz = C_DEFAULT * 8e-9
     out: dict = {"depth_m": []}
@@ -230,9 +267,23 @@ def run(data: DenseDataset | None = None, *, small: bool = False, methods=METHOD
 
 
 def plot(result: ExperimentResult, out_dir) -> list[Path]:
-    """``nufft-vs-interpolation_profiles.png``: axial and lateral profiles per method
-    (with the true p0 for the built-in layer), run times, and (built-in layer) peak and
-    axial FWHM vs depth."""
+    """Plot the §4 comparison: ``nufft-vs-interpolation_profiles.png``.
+
+    Axial and lateral profiles per method (with the true p0 for the built-in layer), run
+    times, and (built-in layer) peak and axial FWHM vs depth.
+
+    Parameters
+    ----------
+    result : ExperimentResult
+        The result of `run`.
+    out_dir : str or pathlib.Path
+        An existing folder.
+
+    Returns
+    -------
+    list of pathlib.Path
+        The one PNG file.
+    """
     plt = setup_matplotlib()
     prof = result.images["profiles"]
     methods = result.params["methods"]

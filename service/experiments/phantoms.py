@@ -28,9 +28,26 @@ __all__ = ["tree_phantom", "tree_roi", "yarn_geometry", "yarn_phantom", "layer_p
 def tree_phantom(n_z: int, n_x: int, *, amplitude: float = 1.0) -> np.ndarray:
     """A tree (crown of 8 discs, trunk) of height ~0.85 n_z centred laterally.
 
-    Returns ndarray ``(n_z, n_x)`` of p0 (``amplitude`` inside, 0 outside, edge pixels
-    anti-aliased by 4 × 4 supersampling). Geometry in units of ``n_z`` pixels, so it
-    scales with the grid. Raises ValueError if ``n_x < n_z // 2`` or ``n_z < 16``.
+    Geometry in units of ``n_z`` pixels, so it scales with the grid.
+
+    Parameters
+    ----------
+    n_z : int
+        Depth rows (>= 16).
+    n_x : int
+        Lateral pixels (>= n_z // 2).
+    amplitude : float, optional
+        p0 inside the tree (default 1).
+
+    Returns
+    -------
+    ndarray, shape ``(n_z, n_x)``
+        p0: ``amplitude`` inside, 0 outside, edge pixels anti-aliased by 4 × 4 supersampling.
+
+    Raises
+    ------
+    ValueError
+        ``n_x < n_z // 2`` or ``n_z < 16``.
     """
     if n_z < 16 or n_x < n_z // 2:
         raise ValueError(f"tree phantom needs n_z >= 16 and n_x >= n_z/2, got ({n_z}, {n_x})")
@@ -53,8 +70,20 @@ def tree_phantom(n_z: int, n_x: int, *, amplitude: float = 1.0) -> np.ndarray:
 
 
 def tree_roi(n_z: int, dz: float) -> tuple[tuple[float, float], float]:
-    """The §6 region of interest around :func:`tree_phantom`: centre ``(z, x)`` and
-    diameter in m for a grid of depth spacing ``dz`` (a disc enclosing the tree)."""
+    """The §6 region of interest around :func:`tree_phantom`: a disc enclosing the tree.
+
+    Parameters
+    ----------
+    n_z : int
+        Depth rows of the phantom's grid.
+    dz : float
+        Its depth spacing, m.
+
+    Returns
+    -------
+    tuple of ((float, float), float)
+        The disc's centre ``(z, x)`` and its diameter, m.
+    """
     return (0.5 * n_z * dz, 0.0), 0.95 * n_z * dz
 
 
@@ -66,10 +95,20 @@ def _curve_distance(points: np.ndarray, grids: tuple[np.ndarray, ...], reach: fl
 
 
 def yarn_geometry(half_width: float) -> tuple[np.ndarray, float]:
-    """Centre-line samples ``(m, 3)`` as (z, y, x) in m of the yarn, and the knot depth.
+    """Centre-line samples of the yarn (three wavy strands and a trefoil knot), and the knot depth.
 
-    ``half_width`` is half the lateral extent of the lattice (m); the knot sits at depth
-    ``0.53 · half_width`` (3.6 mm for the paper's 13.56 mm aperture)."""
+    The knot sits at depth ``0.53 · half_width`` (3.6 mm for the paper's 13.56 mm aperture).
+
+    Parameters
+    ----------
+    half_width : float
+        Half the lateral extent of the lattice, m.
+
+    Returns
+    -------
+    tuple of (ndarray, float)
+        The samples ``(m, 3)`` as (z, y, x) in m, and the knot's depth in m.
+    """
     L = half_width
     zc = 0.53 * L
     parts = []
@@ -124,8 +163,15 @@ def layer_phantom(n_z: int, n_x: int, dz: float, dx: float, *, depth: float, wid
     edge : FWHM in m of the Gaussian that blurs each lateral edge (its error-function
         edge-spread profile).
 
-    Returns ndarray ``(n_z, n_x)``, maximum 1 at the layer centre.
-    Raises ValueError if the layer leaves the grid or a size is not positive.
+    Returns
+    -------
+    ndarray, shape ``(n_z, n_x)``
+        p0, maximum 1 at the layer centre.
+
+    Raises
+    ------
+    ValueError
+        The layer leaves the grid or a size is not positive.
     """
     from scipy.special import erf
 

@@ -68,10 +68,27 @@ def setup_matplotlib():
 
 
 def write_experiment(result: ExperimentResult, out_dir: str | Path, plot=None) -> list[Path]:
-    """Write ``<name>.json``, ``<name>.csv`` and the plots (``plot(result, out_dir)``
-    returns the PNG paths) into ``out_dir`` (created). Returns every path written.
+    """Write ``<name>.json``, ``<name>.csv`` and the plots into ``out_dir`` (created).
 
-    Raises OSError if the folder cannot be written.
+    Parameters
+    ----------
+    result : ExperimentResult
+        The experiment's result (its ``name`` names the files; its ``table`` rows become the
+        CSV's, their keys in order of first appearance the columns).
+    out_dir : str or pathlib.Path
+        The output folder.
+    plot : callable, optional
+        ``plot(result, out_dir)`` -> the PNG paths it wrote; None: no plots.
+
+    Returns
+    -------
+    list of pathlib.Path
+        Every path written: the JSON, the CSV, then the plots.
+
+    Raises
+    ------
+    OSError
+        The folder cannot be written.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

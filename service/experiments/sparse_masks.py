@@ -57,8 +57,25 @@ DISC_RATIO = 8.4 / 13.56
 
 
 def simulate_yarn(*, small: bool, snr_db: float | None = None, seed: int = 0) -> DenseDataset:
-    """Built-in dense dataset: yarn phantom, 226 × 226 (small: 64 × 64) lattice of
-    60 µm, dt = 8 ns, exact planar forward model."""
+    """Built-in dense dataset: the yarn phantom through the exact planar forward model.
+
+    A 226 × 226 (small: 64 × 64) lattice of 60 µm, dt = 8 ns, c = 1500 m/s, n_t samples in
+    which sound travels 0.6 of the lattice's side.
+
+    Parameters
+    ----------
+    small : bool
+        The small version (tests).
+    snr_db : float, optional
+        Noise level, dB below the data's mean power (`add_noise`); None (default): clean.
+    seed : int, optional
+        Seed of the noise.
+
+    Returns
+    -------
+    DenseDataset
+        ``data`` ``(n_t, n, n)``, ``p0`` the yarn ``(n_z, n, n)`` (z, y, x) with dz = the pitch.
+    """
     from service.recon import forward_grid
 
     n, d, dt, c = (64, 60e-6, 8e-9, C_DEFAULT) if small else (226, 60e-6, 8e-9, C_DEFAULT)
@@ -238,8 +255,23 @@ def _versus_grids(es_row: dict, rows: list[dict], curves: dict, band: np.ndarray
 
 
 def plot(result: ExperimentResult, out_dir) -> list[Path]:
-    """``sparse-masks-3d_curves.png`` (CC vs pixels, CC vs diameter, sharpness vs
-    diameter) and ``sparse-masks-3d_mips.png`` (masks and xy-MIPs)."""
+    """Plot the §7 comparison into ``out_dir``.
+
+    ``sparse-masks-3d_curves.png`` (CC vs pixels, CC vs diameter, sharpness vs diameter) and
+    ``sparse-masks-3d_mips.png`` (masks and xy-MIPs).
+
+    Parameters
+    ----------
+    result : ExperimentResult
+        The result of `run`.
+    out_dir : str or pathlib.Path
+        An existing folder.
+
+    Returns
+    -------
+    list of pathlib.Path
+        The two PNG files.
+    """
     plt = setup_matplotlib()
     out = Path(out_dir)
     cur = result.curves

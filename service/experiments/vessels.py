@@ -42,10 +42,26 @@ METHODS = ("ner", "nedner", "tv")
 
 
 def simulate_vessels(*, small: bool, snr_db: float = 30.0, seed: int = 0) -> DenseDataset:
-    """Built-in dataset: the vessel tree on 48 x 96 x 96 (small: 24 x 40 x 40) voxels of
-    50 µm, dt = dx / c (c = 1500 m/s), every lattice point recorded for the time a sound
-    wave crosses the volume's diagonal, white noise ``snr_db`` below the data's RMS (seeded).
-    ``p0`` (z, y, x) is the truth; ``meta["clean"]`` the noise-free data."""
+    """Built-in dataset: the vessel tree, every lattice point recorded, with noise.
+
+    48 x 96 x 96 (small: 24 x 40 x 40) voxels of 50 µm, dt = dx / c (c = 1500 m/s), every
+    lattice point recorded for the time a sound wave crosses the volume's diagonal, white
+    noise ``snr_db`` below the data's RMS (seeded).
+
+    Parameters
+    ----------
+    small : bool
+        The small version (tests).
+    snr_db : float, optional
+        Noise level in dB (default 30).
+    seed : int, optional
+        Seed of the noise.
+
+    Returns
+    -------
+    DenseDataset
+        ``data`` ``(n_t, n_x, n_x)`` with noise, ``p0`` (z, y, x) the truth (dz = dx).
+    """
     from service.recon import forward_grid
 
     n_z, n_x = (24, 40) if small else (48, 96)
@@ -62,11 +78,25 @@ def simulate_vessels(*, small: bool, snr_db: float = 30.0, seed: int = 0) -> Den
 
 
 def branch_contrasts(img: np.ndarray, truth: np.ndarray) -> list[dict]:
-    """Contrast of every vessel branch 2 voxels or wider in ``img`` (z, y, x) (or (z, x)),
-    relative to the same measure on ``truth``: the mean along the middle of its centre line
-    (points 40-160 of 200: away from its forks) minus the mean over a shell 3-8 voxels
-    beyond its surface, away from every vessel. Returns one dict per branch: ``width``
-    (voxels), ``contrast``, ``true_contrast``, ``relative``."""
+    """Contrast of every vessel branch 2 voxels or wider in ``img``, relative to the truth's.
+
+    A branch's contrast: the mean along the middle of its centre line (points 40-160 of 200:
+    away from its forks) minus the mean over a shell 3-8 voxels beyond its surface, away from
+    every vessel; the same measure on ``truth`` is the reference.
+
+    Parameters
+    ----------
+    img : ndarray
+        A reconstruction on the phantom's grid, ``(n_z, n_y, n_x)`` (or ``(n_z, n_x)``).
+    truth : ndarray
+        The true p0 on the same grid.
+
+    Returns
+    -------
+    list of dict
+        One per branch: ``width`` (voxels), ``contrast``, ``true_contrast``, ``relative``
+        (their ratio).
+    """
     shape = img.shape
     grids = np.meshgrid(*[np.arange(n, dtype=float) if i == 0 else np.arange(n) - (n - 1) / 2
                           for i, n in enumerate(shape)], indexing="ij")
@@ -95,13 +125,35 @@ def branch_contrasts(img: np.ndarray, truth: np.ndarray) -> list[dict]:
 
 def run(data: DenseDataset | None = None, *, small: bool = False, fraction: float = 0.1,
         snr_db: float = 30.0, model_based: bool = True) -> ExperimentResult:
-    """Run the experiment on the built-in vessel tree (``data`` must be None: the oracle is
-    the phantom). ``fraction``: share of the lattice in the sparse equi-steradian mask, in
-    (0, 1]; ``model_based=False`` leaves the tv row out.
+    """Run the experiment on the built-in vessel tree.
 
-    Returns the result (table: one row per method; summary: each method's CC; images: MIPs).
+    NER on every lattice point, NEDNER and tv on a sparse equi-steradian mask (float32).
 
-    Raises ValueError for ``data`` given or ``fraction`` outside (0, 1]."""
+    Parameters
+    ----------
+    data : DenseDataset, optional
+        Must be None: the oracle is the phantom.
+    small : bool, optional
+        The small phantom (tests).
+    fraction : float, optional
+        Share of the lattice in the sparse equi-steradian mask, in (0, 1] (default 0.1).
+    snr_db : float, optional
+        Noise level of the data, dB (default 30).
+    model_based : bool, optional
+        False leaves the tv row out.
+
+    Returns
+    -------
+    ExperimentResult
+        Table: one row per method (``method``, ``sensors``, ``cc``, ``amplitude``,
+        ``min_branch_contrast``, ``seconds``; tv also ``iterations``, ``operator_pairs``,
+        ``converged``, ``lam``); summary: each method's CC; images: MIPs.
+
+    Raises
+    ------
+    ValueError
+        ``data`` given, or ``fraction`` outside (0, 1].
+    """
     from service.plans import Lattice, equisteradian_mask
     from service.recon.dataset import GridDataset, PointDataset
 
@@ -144,8 +196,21 @@ def run(data: DenseDataset | None = None, *, small: bool = False, fraction: floa
 
 
 def plot(result: ExperimentResult, out_dir) -> list[Path]:
-    """``vessels_mips.png``: depth MIPs (top row, x-y) and lateral MIPs (bottom row, x-z)
-    of the true p0 and each method's reconstruction."""
+    """Plot ``vessels_mips.png``: depth MIPs (top row, x-y) and lateral MIPs (bottom row, x-z) of
+    the true p0 and each method's reconstruction.
+
+    Parameters
+    ----------
+    result : ExperimentResult
+        The result of `run`.
+    out_dir : str or pathlib.Path
+        An existing folder.
+
+    Returns
+    -------
+    list of pathlib.Path
+        The one PNG file.
+    """
     plt = setup_matplotlib()
     mips = result.images["mips"]
     x = result.images["x"] * 1e3

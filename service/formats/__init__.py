@@ -103,8 +103,14 @@ _discover()
 
 
 def upload_formats() -> list[dict]:
-    """The formats ``POST /api/datasets`` accepts, in order: ``{"name", "title",
-    "wavelengths"}`` each (``GET /api/datasets/formats``: the web page's and the HTTP
-    client's choices)."""
+    """The formats ``POST /api/datasets`` accepts, in order (``GET /api/datasets/formats``: the
+    web page's and the HTTP client's choices).
+
+    Returns
+    -------
+    list of dict
+        ``{"name", "title", "wavelengths"}`` per format, ``wavelengths`` True where the format
+        can hold several excitation wavelengths.
+    """
     return [{"name": f.name, "title": f.title, "wavelengths": f.wavelengths}
             for f in FORMATS.values() if f.upload]

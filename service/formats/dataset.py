@@ -24,8 +24,19 @@ _SPEED = PERSON_NAMES["c"]
 
 
 def sniff(source: Source) -> bool:
-    """True for an HDF5 file with ``format`` ``fpscan-dataset/1`` (or, as earlier
-    versions wrote, a ``layout`` attribute ``grid`` or ``points``)."""
+    """True for an HDF5 file with ``format`` ``fpscan-dataset/1`` (or, as earlier versions wrote,
+    a ``layout`` attribute ``grid`` or ``points``).
+
+    Parameters
+    ----------
+    source : Source
+        The opened file (:class:`service.formats.Source`).
+
+    Returns
+    -------
+    bool
+        Whether this format reads it.
+    """
     return source.attr("format") == DATASET_FORMAT or source.attr("layout") in ("grid", "points")
 
 
@@ -40,7 +51,20 @@ def write(path: str | os.PathLike, ds: GridDataset | PointDataset) -> None:
     Both: attribute ``format``, ``layout``, ``source``; ``wavelengths_m`` when known, and
     ``wavelength_index`` (into the source file's wavelengths) when it was chosen from a
     multi-wavelength file; ``p0_unit`` (``"Pa"`` for calibrated pressure, else ``"a.u."``:
-    :func:`service.recon.dataset.p0_unit`)."""
+    :func:`service.recon.dataset.p0_unit`).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file to write (replaced if it exists).
+    ds : GridDataset or PointDataset
+        The dataset.
+
+    Raises
+    ------
+    OSError
+        The file cannot be written.
+    """
     with h5py.File(path, "w") as f:
         f.attrs.update({"format": DATASET_FORMAT, "layout": ds.kind, "dt": float(ds.dt), _SPEED: float(ds.c),
                         "t0": float(ds.t0), "source": ds.source})
@@ -69,9 +93,28 @@ def write(path: str | os.PathLike, ds: GridDataset | PointDataset) -> None:
 
 
 def load(source: Source, **_: Any) -> GridDataset | PointDataset:
-    """Read a canonical dataset file (:func:`write`; also the layout without the
-    ``format`` attribute, and the speed of sound as ``c`` rather than ``sound_speed``, that
-    earlier versions wrote). Raises ValueError for a file that is not one."""
+    """Read a canonical dataset file (:func:`write`).
+
+    Also the layout without the ``format`` attribute, and the speed of sound as ``c`` rather
+    than ``sound_speed``, that earlier versions wrote.
+
+    Parameters
+    ----------
+    source : Source
+        The opened HDF5 file.
+    **_
+        Other loading options, ignored.
+
+    Returns
+    -------
+    GridDataset or PointDataset
+        The dataset as written (dtype kept).
+
+    Raises
+    ------
+    ValueError
+        A file that is not one (missing attributes or datasets, an unknown layout).
+    """
     def text(v: Any) -> str:
         return v.decode() if isinstance(v, bytes) else str(v)
 

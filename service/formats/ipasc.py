@@ -35,6 +35,7 @@ from typing import Any
 
 import h5py
 import numpy as np
+import numpy.typing as npt
 from h5py import h5d, h5g, h5s, h5t
 
 from driver.constants import C_DEFAULT
@@ -106,18 +107,37 @@ def _instrument_id(instrument: dict) -> str:
 
 
 def export_scan(scan_path: str | os.PathLike, out_path: str | os.PathLike, *,
-                dtype: Any = np.float64, data_uuid: str | None = None) -> Path:
+                dtype: npt.DTypeLike = np.float64, data_uuid: str | None = None) -> Path:
     """Export the completed A-lines of a scan file to an IPASC HDF5 file.
 
-    ``scan_path``: an fpscan scan file (complete or partial; only completed points are
-    exported, in scan order). ``out_path``: written to a temporary sibling, then renamed
-    (its folder is created if missing).
-    ``dtype``: float type of the binary data (float64 keeps the pressure bit-exact).
     Several excitation wavelengths make the binary data's wavelength axis (in the plan's
     order, ``acquisition_wavelengths``); only points complete at every wavelength are
     exported.
-    Returns the output path. Raises ValueError (no completed points, bad dtype),
-    FileNotFoundError.
+
+    Parameters
+    ----------
+    scan_path : str or os.PathLike
+        An fpscan scan file (complete or partial; only completed points are exported, in scan
+        order).
+    out_path : str or os.PathLike
+        The IPASC file, written to a temporary sibling, then renamed (its folder is created if
+        missing).
+    dtype : float32 or float64, optional
+        Float type of the binary data (float64, the default, keeps the pressure bit-exact).
+    data_uuid : str, optional
+        The file's ``meta_data/uuid`` (default a new random UUID).
+
+    Returns
+    -------
+    pathlib.Path
+        ``out_path``.
+
+    Raises
+    ------
+    ValueError
+        No completed points (at every wavelength), or a dtype that is not float32/float64.
+    FileNotFoundError
+        ``scan_path`` does not exist.
     """
     dtype = np.dtype(dtype)
     if dtype not in (np.dtype(np.float32), np.dtype(np.float64)):
@@ -142,7 +162,7 @@ def export_scan(scan_path: str | os.PathLike, out_path: str | os.PathLike, *,
                              data=np.moveaxis(scan.pressure_all.astype(dtype), 0, -1)[..., None])
             m = f.create_group("meta_data")
 
-            def put(group, name, value):
+            def put(group: h5py.Group, name: str, value: str | float | np.ndarray | None) -> None:
                 if value is None:
                     value = "None"
                 if isinstance(value, str):
@@ -268,14 +288,33 @@ def read_ipasc(path: str | os.PathLike, *, wavelength_index: int = 0,
                measurement_index: int = 0) -> dict:
     """Read an IPASC file as point data for reconstruction.
 
-    Returns a dict: ``alines`` ``(n, n_t)`` float64 (detector i = row i), ``positions``
-    ``(n, 2)`` (x, y) m (``(n, 1)`` for an fpscan 2-D export), ``weights`` ``(n,)`` or None
-    (fpscan exports carry the plan's weights), ``dt`` s (1/``ad_sampling_rate``), ``c`` m/s
-    (``speed_of_sound``, 1500 if absent), ``wavelengths`` (m), ``grid`` (regular lateral
-    coordinate vectors: the plan's lattice, else spanned by the detector positions),
-    ``uuid``, ``plan`` (dict or None), ``indices`` (lattice indices or None).
-    Raises ValueError naming the fault (not IPASC, inconsistent sizes, non-planar
-    detectors, non-finite data), FileNotFoundError.
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The IPASC HDF5 file.
+    wavelength_index : int, optional
+        Index into the binary data's wavelength axis (default 0).
+    measurement_index : int, optional
+        Index into its measurement axis (default 0).
+
+    Returns
+    -------
+    dict
+        ``alines`` ``(n, n_t)`` float64 (detector i = row i), ``positions`` ``(n, 2)`` (x, y) m
+        (``(n, 1)`` for an fpscan 2-D export), ``weights`` ``(n,)`` or None (fpscan exports
+        carry the plan's weights), ``dt`` s (1/``ad_sampling_rate``), ``c`` m/s
+        (``speed_of_sound``, 1500 if absent), ``wavelengths`` (m), ``grid`` (regular lateral
+        coordinate vectors: the plan's lattice, else spanned by the detector positions),
+        ``uuid``, ``plan`` (dict or None), ``indices`` (lattice indices or None), ``z_plane``
+        (the detectors' z, m).
+
+    Raises
+    ------
+    ValueError
+        Naming the fault: not HDF5, not IPASC, inconsistent sizes, an index out of range,
+        non-planar detectors, non-finite data.
+    FileNotFoundError
+        No file at ``path``.
     """
     path = Path(path)
     if not path.is_file():
@@ -289,8 +328,27 @@ def read_ipasc(path: str | os.PathLike, *, wavelength_index: int = 0,
 
 
 def read_open_ipasc(f: h5py.File, *, wavelength_index: int = 0, measurement_index: int = 0) -> dict:
-    """:func:`read_ipasc` of an IPASC file already open (read-only ``h5py.File``): the
-    registry of formats (``service.formats``) opens a file once and reads it here."""
+    """:func:`read_ipasc` of an IPASC file already open.
+
+    The registry of formats (``service.formats``) opens a file once and reads it here.
+
+    Parameters
+    ----------
+    f : h5py.File
+        The open, read-only file.
+    wavelength_index, measurement_index : int, optional
+        As :func:`read_ipasc`.
+
+    Returns
+    -------
+    dict
+        As :func:`read_ipasc`.
+
+    Raises
+    ------
+    ValueError
+        As :func:`read_ipasc`.
+    """
     raw = _binary_data(f, wavelength_index, measurement_index)
     n_det = raw.shape[0]
     m = {k: _value(v) for k, v in f["meta_data"].items() if isinstance(v, h5py.Dataset)}
@@ -428,7 +486,18 @@ import_ipasc = read_ipasc
 
 
 def sniff(source: Source) -> bool:
-    """True for an HDF5 file with IPASC's ``/binary_time_series_data``."""
+    """True for an HDF5 file with IPASC's ``/binary_time_series_data``.
+
+    Parameters
+    ----------
+    source : Source
+        The opened HDF5 file.
+
+    Returns
+    -------
+    bool
+        Whether this format reads it.
+    """
     return "binary_time_series_data" in source.h5
 
 
@@ -443,11 +512,31 @@ def _wavelengths(f: Any) -> np.ndarray:
 
 def load(source: Source, *, wavelength_index: int = 0, all_wavelengths: bool = False,
          **_: Any) -> PointDataset | list[PointDataset]:
-    """The file as point data (``read_open_ipasc``) at excitation wavelength
-    ``wavelength_index`` (``wavelengths``: that one, ``meta["wavelengths"]`` all the
-    file's); ``all_wavelengths``: a list, one dataset per wavelength the file records,
-    read from the one open file. Raises ValueError, also for an index out of range
-    (naming the file's wavelengths)."""
+    """The file as point data (:func:`read_open_ipasc`) at one excitation wavelength, or at all.
+
+    Parameters
+    ----------
+    source : Source
+        The opened HDF5 file.
+    wavelength_index : int, optional
+        The excitation wavelength to read (default 0); the dataset's ``wavelengths`` is that
+        one, its ``meta["wavelengths"]`` all the file's.
+    all_wavelengths : bool, optional
+        Read every wavelength the file records, from the one open file.
+    **_
+        Other loading options, ignored.
+
+    Returns
+    -------
+    PointDataset or list of PointDataset
+        The dataset; with ``all_wavelengths`` a list, one per wavelength.
+
+    Raises
+    ------
+    ValueError
+        What :func:`read_open_ipasc` refuses, and an index out of range (naming the file's
+        wavelengths).
+    """
     if all_wavelengths:
         return [_dataset(source, k) for k in range(max(1, _wavelengths(source.h5).size))]
     return _dataset(source, wavelength_index)

@@ -27,13 +27,43 @@ DEFAULT_KEYS = ("sensor_data/clean", "sensor_data")
 
 
 def sniff(source: Source) -> bool:
-    """Any HDF5 file (the catch-all: the other HDF5 formats are sniffed first)."""
+    """Any HDF5 file (the catch-all: the other HDF5 formats are sniffed first).
+
+    Parameters
+    ----------
+    source : Source
+        The opened HDF5 file (:class:`service.formats.Source`).
+
+    Returns
+    -------
+    bool
+        Whether this format reads it.
+    """
     return source.h5 is not None
 
 
 def find_array(f: h5py.File, key: str | None = None) -> h5py.Dataset:
-    """The dataset holding the data: ``key``, else ``sensor_data/clean``, ``sensor_data``,
-    else the file's only 2-/3-D dataset. Raises ValueError naming what is missing."""
+    """The dataset holding the data: ``key``, else ``sensor_data/clean``, ``sensor_data``, else
+    the file's only 2-/3-D dataset.
+
+    Parameters
+    ----------
+    f : h5py.File
+        The open file.
+    key : str, optional
+        The dataset's path in the file.
+
+    Returns
+    -------
+    h5py.Dataset
+        The dataset (not read).
+
+    Raises
+    ------
+    ValueError
+        Naming what is missing: no dataset ``key``, or no default key and not exactly one 2-/3-D
+        dataset.
+    """
     if key is not None:
         if key not in f or not isinstance(f[key], h5py.Dataset):
             raise ValueError(f"no dataset {key!r} in the HDF5 file")
@@ -63,11 +93,38 @@ def _ground_truth(f: h5py.File, data: np.ndarray, dx: float) -> dict:
 
 def load(source: Source, *, key: str | None = None, dt: float | None = None, dx: float | None = None,
          dy: float | None = None, c: float | None = None, ground_truth: bool = False, **_: Any) -> GridDataset:
-    """The array at ``key`` as grid data (module docstring). ``ground_truth``: also the
-    file's ``p0`` (the k-Wave reference files' initial pressure) in ``meta["p0"]`` with
-    its depth spacing ``meta["p0_dz"]`` (m), when it matches the data's lateral shape.
-    Raises ValueError (no such dataset, too large, what ``grid_array`` refuses, spacings
-    neither given nor in the file)."""
+    """The array at ``key`` as grid data (module docstring).
+
+    Parameters
+    ----------
+    source : Source
+        The opened HDF5 file.
+    key : str, optional
+        The dataset holding the data (:func:`find_array`).
+    dt : float, optional
+        Sample interval, s (default the file's ``dt_s``).
+    dx, dy : float, optional
+        Lateral pitches, m (default the file's attributes; ``dy`` defaults to ``dx``; 3-D only).
+    c : float, optional
+        Sound speed, m/s (default the file's ``c_m_per_s``, else 1500).
+    ground_truth : bool, optional
+        Also the file's ``p0`` (the k-Wave reference files' initial pressure) in ``meta["p0"]``
+        with its depth spacing ``meta["p0_dz"]`` (m), when it matches the data's lateral shape.
+    **_
+        Other loading options, ignored.
+
+    Returns
+    -------
+    GridDataset
+        ``(n_t, n_x)`` or ``(n_t, n_y, n_x)`` data, ``source`` ``"kwave-hdf5"``, ``meta`` with
+        ``key`` and ``kwave_naming``.
+
+    Raises
+    ------
+    ValueError
+        A MATLAB v7.3 MAT-file, no such dataset, too large, what ``grid_array`` refuses,
+        spacings neither given nor in the file.
+    """
     if source.head.startswith(b"MATLAB"):  # HDF5 behind MATLAB's header: arrays stored transposed
         raise ValueError("this is a MATLAB v7.3 MAT-file (HDF5 with MATLAB's transposed layout): read it with "
                          "format kwave-mat")

@@ -49,7 +49,7 @@ from __future__ import annotations
 import io
 import struct
 import zlib
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
 
@@ -74,7 +74,18 @@ _NUMERIC = {"double", "single", "int8", "uint8", "int16", "uint16", "int32", "ui
 
 def sniff(source: Source) -> bool:
     """True for a MAT v5 file (text header and the version/endian bytes at 124-127) or a
-    MAT v7.3 file (its text header, HDF5 behind it)."""
+    MAT v7.3 file (its text header, HDF5 behind it).
+
+    Parameters
+    ----------
+    source : Source
+        The opened file (MAT v5) or HDF5 file (MAT v7.3) (:class:`service.formats.Source`).
+
+    Returns
+    -------
+    bool
+        Whether this format reads it.
+    """
     head = source.head
     if source.h5 is not None:
         return head.startswith(V73_TEXT)
@@ -82,7 +93,7 @@ def sniff(source: Source) -> bool:
 
 
 # ----------------------------------------------------------------------------- MAT v5
-def _inflated_v5(fh: Any, max_bytes: int) -> bytes:
+def _inflated_v5(fh: BinaryIO, max_bytes: int) -> bytes:
     """The MAT v5 file open in ``fh`` with every compressed element inflated (header and
     elements as an uncompressed v5 file), decoding at most ``max_bytes`` in all and at most
     ``MAX_RATIO`` times the bytes stored (+ ``SMALL_BYTES``). Raises ValueError."""
@@ -130,7 +141,7 @@ def _inflated_v5(fh: Any, max_bytes: int) -> bytes:
     return b"".join(out)
 
 
-def _v5_variables(fh: Any, names: set[str], max_bytes: int) -> tuple[dict[str, Any], list[str]]:
+def _v5_variables(fh: BinaryIO, names: set[str], max_bytes: int) -> tuple[dict[str, Any], list[str]]:
     """The variables ``names`` of the MAT v5 file in ``fh`` (scipy's ``simplify_cells``
     form: arrays squeezed, structs as dicts) that are numeric, logical, char or structs,
     and every variable's name. Raises ValueError."""
@@ -194,9 +205,29 @@ def _h5_variables(f: Any, names: set[str]) -> tuple[dict[str, Any], list[str]]:
 
 
 def read_variables(source: Source, names: set[str], *, max_bytes: int = MAX_ELEMENTS * 8) -> tuple[dict, list[str]]:
-    """The variables ``names`` of the MAT-file ``source`` (v5 or v7.3; a struct's value is
-    a dict of its fields, arrays in MATLAB's index order, squeezed; what has no plain
-    value is left out or None) and the names of all its variables. Raises ValueError."""
+    """The variables ``names`` of the MAT-file ``source`` and the names of all its variables.
+
+    Parameters
+    ----------
+    source : Source
+        The opened MAT-file (v5: ``source.fh``; v7.3: ``source.h5``).
+    names : set of str
+        The variables to read (top-level names).
+    max_bytes : int, optional
+        The most bytes a MAT v5 file's compressed elements may inflate to, in all.
+
+    Returns
+    -------
+    tuple of (dict, list of str)
+        The variables found, by name (a struct's value is a dict of its fields, arrays in
+        MATLAB's index order, squeezed; what has no plain value is left out or None), and the
+        names of every variable in the file.
+
+    Raises
+    ------
+    ValueError
+        A file that is not open, truncated or corrupt, or inflates beyond the limits.
+    """
     if source.h5 is not None:
         return _h5_variables(source.h5, names)
     if source.fh is None:
@@ -319,9 +350,35 @@ def _ground_truth(variables: dict, data: np.ndarray, dz: float | None) -> dict:
 def load(source: Source, *, key: str | None = None, dt: float | None = None, dx: float | None = None,
          dy: float | None = None, c: float | None = None, ground_truth: bool = False,
          max_bytes: int = MAX_ELEMENTS * 8, **_: Any) -> GridDataset:
-    """The MAT-file's sensor data as grid data (module docstring). ``ground_truth``: also
-    the file's p0 (``p0_true``, ``p0`` or ``source.p0`` matching the data's lateral shape)
-    in ``meta["p0"]`` with its depth spacing ``meta["p0_dz"]`` (m).
+    """The MAT-file's sensor data as grid data (module docstring).
+
+    Parameters
+    ----------
+    source : Source
+        The opened MAT-file.
+    key : str, optional
+        The data variable (a ``struct.field`` path allowed; default ``sensor_data``, else the
+        file's only numeric 2-/3-D variable).
+    dt : float, optional
+        Sample interval, s (default ``kgrid.dt`` or a variable ``dt``).
+    dx, dy : float, optional
+        Lateral pitches, m (default from the file, module docstring; ``dy`` 3-D only).
+    c : float, optional
+        Sound speed, m/s (default ``c0``, ``c``, ``sound_speed`` or ``medium.sound_speed``,
+        else 1500).
+    ground_truth : bool, optional
+        Also the file's p0 (``p0_true``, ``p0`` or ``source.p0`` matching the data's lateral
+        shape) in ``meta["p0"]`` with its depth spacing ``meta["p0_dz"]`` (m).
+    max_bytes : int, optional
+        The most bytes the compressed variables may inflate to (MAT v5).
+    **_
+        Other loading options, ignored.
+
+    Returns
+    -------
+    GridDataset
+        ``(n_t, n_x)`` or ``(n_t, n_y, n_x)`` data, ``source`` ``"kwave-mat"``, ``meta`` with
+        ``key``, ``layout``, ``kwave_naming`` and ``mat_version``.
 
     Raises
     ------

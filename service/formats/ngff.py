@@ -33,6 +33,18 @@ def pyramid_factors(shape: tuple[int, ...], names: list[str]) -> list[dict[str, 
     has an axis longer than :data:`PYRAMID_TOP` and every axis of the new level keeps at least
     :data:`PYRAMID_MIN` samples. ``[]`` for a volume small enough to show at once.
 
+    Parameters
+    ----------
+    shape : tuple of int
+        The full-resolution volume's shape, e.g. ``(n_z, n_y, n_x)``.
+    names : list of str
+        The axes' names, one per axis of ``shape``.
+
+    Returns
+    -------
+    list of dict of str to int
+        One ``{axis: factor}`` per level below the full resolution, coarsest last.
+
     Examples
     --------
     >>> pyramid_factors((1024, 226, 226), ["z", "y", "x"])
@@ -67,8 +79,26 @@ def export_ome_zarr(result_path: str | os.PathLike, out_path: str | os.PathLike)
     (:data:`service.formats.result.ORIENTATION`). The group's ``fpscan`` attribute holds ``p0_unit`` (``"Pa"`` or
     ``"a.u."``), ``orientation``, ``method``, ``input_id``, ``description`` and ``axes``.
     Written to a temporary sibling folder, then renamed over ``out_path`` (an existing
-    export there is replaced). Returns ``out_path``. Raises FileNotFoundError, ValueError
-    (not a result file, uneven coordinates, ``out_path`` an existing file).
+    export there is replaced).
+
+    Parameters
+    ----------
+    result_path : str or os.PathLike
+        A reconstruction result ``volume.h5`` (``service.formats.result``).
+    out_path : str or os.PathLike
+        The OME-Zarr folder to write.
+
+    Returns
+    -------
+    pathlib.Path
+        ``out_path``.
+
+    Raises
+    ------
+    FileNotFoundError
+        ``result_path`` does not exist.
+    ValueError
+        Not a result file, uneven coordinates, or ``out_path`` an existing file.
     """
     import zarr
     from ome_zarr.format import CurrentFormat

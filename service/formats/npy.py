@@ -6,7 +6,7 @@ required options (the file holds no spacings), ``dy`` defaults to ``dx``, ``c`` 
 from __future__ import annotations
 
 import os
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
 
@@ -20,11 +20,22 @@ MAGIC = b"\x93NUMPY"
 
 
 def sniff(source: Source) -> bool:
-    """True for a file with the ``.npy`` magic."""
+    """True for a file with the ``.npy`` magic.
+
+    Parameters
+    ----------
+    source : Source
+        The opened file.
+
+    Returns
+    -------
+    bool
+        Whether it starts with :data:`MAGIC`.
+    """
     return source.head.startswith(MAGIC)
 
 
-def _header(fh: Any) -> tuple[tuple[int, ...], np.dtype]:
+def _header(fh: BinaryIO) -> tuple[tuple[int, ...], np.dtype]:
     """Shape and dtype from the header of the open ``.npy`` file ``fh``, which must hold
     the bytes it declares (an absurd shape is refused before anything is allocated).
     Leaves ``fh`` at 0."""
@@ -48,9 +59,34 @@ def _header(fh: Any) -> tuple[tuple[int, ...], np.dtype]:
 
 def load(source: Source, *, dt: float | None = None, dx: float | None = None, dy: float | None = None,
          c: float | None = None, **_: Any) -> GridDataset:
-    """The array as grid data; ``dt`` (s) and ``dx`` (m) required, ``dy`` (m) default
-    ``dx``, ``c`` (m/s) default 1500. Raises ValueError (not an array, a pickle, a header
-    declaring more than the file holds, what ``grid_array`` refuses, missing spacings)."""
+    """The array as grid data, time first.
+
+    Parameters
+    ----------
+    source : Source
+        The opened file (``source.fh``).
+    dt : float
+        Sample interval, s (required).
+    dx : float
+        Lateral pitch, m (required).
+    dy : float, optional
+        The y pitch, m (3-D data; default ``dx``).
+    c : float, optional
+        Sound speed, m/s (default 1500).
+    **_
+        Other loading options, ignored.
+
+    Returns
+    -------
+    GridDataset
+        ``(n_t, n_x)`` or ``(n_t, n_y, n_x)`` data in the file's dtype, ``source`` ``"npy"``.
+
+    Raises
+    ------
+    ValueError
+        Not an array, a pickle, a header declaring more than the file holds, what
+        ``grid_array`` refuses, missing or non-positive spacings.
+    """
     if source.fh is None:
         raise ValueError("file is not a NumPy .npy array (pickles are refused)")
     _header(source.fh)

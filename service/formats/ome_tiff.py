@@ -25,8 +25,26 @@ def export_ome_tiff(result_path: str | os.PathLike, out_path: str | os.PathLike)
     file (TIFF row 0 = the first, smallest y, drawn at the top by ImageJ and napari as in
     fpscan's pictures: :data:`service.formats.result.ORIENTATION`). The p0 unit and the orientation are in the
     image's OME ``Description`` (``p0 unit: Pa`` or ``p0 unit: a.u.``). Written to a
-    temporary sibling, then renamed. Returns ``out_path``. Raises FileNotFoundError,
-    ValueError (not a result file, or coordinates that are not evenly spaced).
+    temporary sibling, then renamed.
+
+    Parameters
+    ----------
+    result_path : str or os.PathLike
+        A reconstruction result ``volume.h5`` (``service.formats.result``).
+    out_path : str or os.PathLike
+        The TIFF file to write.
+
+    Returns
+    -------
+    pathlib.Path
+        ``out_path``.
+
+    Raises
+    ------
+    FileNotFoundError
+        ``result_path`` does not exist.
+    ValueError
+        Not a result file, or coordinates that are not evenly spaced.
     """
     import tifffile
 

@@ -18,9 +18,22 @@ __all__ = ["FORMAT", "sniff", "load", "read_plan", "not_a_plan"]
 
 
 def not_a_plan(source: Any) -> str | None:
-    """``"<source>: this is a scan file, not a plan (...)"`` when ``source`` names a file
-    of another format (:func:`service.formats.describe`); None for a plan file, a file of
-    no known format, JSON text, a dict or a missing file."""
+    """The message for a file of another format given as a plan.
+
+    ``"<source>: this is a scan file, not a plan (...)"`` when ``source`` names a file of
+    another format (:func:`service.formats.describe`).
+
+    Parameters
+    ----------
+    source : object
+        What was given as a plan: a path, JSON text or a dict.
+
+    Returns
+    -------
+    str or None
+        The message; None for a plan file, a file of no known format, JSON text, a dict or a
+        missing file.
+    """
     if not isinstance(source, (str, os.PathLike)) or str(source).lstrip().startswith("{") \
             or not Path(source).is_file():
         return None
@@ -30,9 +43,25 @@ def not_a_plan(source: Any) -> str | None:
 
 def read_plan(source: Any) -> dict:
     """Read and check a plan: a path to plan JSON, a JSON string or a parsed dict
-    (``driver.plan.load_plan``). Returns the plan dict. Raises ValueError naming the first
-    problem, and for a file of another format what it is (:func:`not_a_plan`); OSError if
-    the file cannot be read.
+    (``driver.plan.load_plan``).
+
+    Parameters
+    ----------
+    source : str, os.PathLike or dict
+        A path to plan JSON, a JSON string or a parsed dict.
+
+    Returns
+    -------
+    dict
+        The checked plan.
+
+    Raises
+    ------
+    ValueError
+        Naming the first problem, and for a file of another format what it is
+        (:func:`not_a_plan`).
+    OSError
+        The file cannot be read.
 
     Examples
     --------
@@ -53,13 +82,41 @@ def read_plan(source: Any) -> dict:
 
 
 def sniff(source: Source) -> bool:
-    """True for a file whose first non-blank character is ``{`` (JSON object text)."""
+    """True for a file whose first non-blank character is ``{`` (JSON object text).
+
+    Parameters
+    ----------
+    source : Source
+        The opened file (:class:`service.formats.Source`).
+
+    Returns
+    -------
+    bool
+        Whether this format reads it.
+    """
     return source.head.lstrip().startswith(b"{")
 
 
 def load(source: Source, **_: Any) -> dict:
-    """The plan, checked (``driver.plan.check_plan``). Raises ValueError naming the
-    first problem (not UTF-8 JSON, what ``check_plan`` refuses)."""
+    """The plan, checked (``driver.plan.load_plan``).
+
+    Parameters
+    ----------
+    source : Source
+        The opened file (``source.fh``).
+    **_
+        Other loading options, ignored.
+
+    Returns
+    -------
+    dict
+        The checked plan.
+
+    Raises
+    ------
+    ValueError
+        Naming the first problem: not UTF-8 JSON, or what ``driver.plan.check_plan`` refuses.
+    """
     from driver.plan import load_plan
 
     assert source.fh is not None

@@ -11,12 +11,36 @@ __all__ = ["FORMAT", "sniff", "load"]
 
 
 def sniff(source: Source) -> bool:
-    """True for a file with the PNG signature."""
+    """True for a file with the PNG signature.
+
+    Parameters
+    ----------
+    source : Source
+        The opened file (:class:`service.formats.Source`).
+
+    Returns
+    -------
+    bool
+        Whether this format reads it.
+    """
     return source.head.startswith(b"\x89PNG")
 
 
 def load(source: Source, **_: Any) -> bytes:
-    """The file's bytes."""
+    """The file's bytes.
+
+    Parameters
+    ----------
+    source : Source
+        The opened file (``source.fh``).
+    **_
+        Loading options, ignored.
+
+    Returns
+    -------
+    bytes
+        The whole file.
+    """
     assert source.fh is not None
     return source.fh.read()
 

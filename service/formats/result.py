@@ -22,15 +22,19 @@ import uuid
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import h5py
 import numpy as np
+import numpy.typing as npt
 
 from driver.scanfile import PRESSURE_UNITS
 from service.disk import copy_replaced
 from service.formats._registry import Format, Source
 from service.names import person_names
+
+if TYPE_CHECKING:
+    from service.recon.reconstruction import Reconstruction
 
 __all__ = ["FORMAT", "RESULT_FORMAT", "ORIENTATION", "P0_UNITS", "COMPRESS_BELOW", "ResultVolume", "sniff",
            "load", "read_result", "read_slice", "write_volume", "params_json", "storage_layout", "VOLUME_FILE",
@@ -58,8 +62,24 @@ def _jsonable(obj: Any) -> Any:
 
 
 def params_json(params: dict) -> str:
-    """Canonical JSON of a parameter dict (numpy scalars/arrays converted); ValueError on
-    NaN/inf or values JSON cannot express."""
+    """Canonical JSON of a parameter dict (keys sorted, compact; numpy scalars and arrays
+    converted, paths, dtypes and types as text).
+
+    Parameters
+    ----------
+    params : dict
+        The parameters.
+
+    Returns
+    -------
+    str
+        The JSON text.
+
+    Raises
+    ------
+    ValueError
+        NaN/inf, or values JSON cannot express.
+    """
     try:
         return json.dumps(params, sort_keys=True, separators=(",", ":"), allow_nan=False,
                           default=_jsonable)
@@ -98,7 +118,16 @@ def storage_layout(p0: np.ndarray) -> dict[str, Any]:
     and uncompressed. Either way any HDF5 reader reads it (gzip is HDF5's built-in
     filter); ``docs/file-formats.md`` states the rule.
 
-    Returns keyword arguments for ``h5py.Group.create_dataset``.
+    Parameters
+    ----------
+    p0 : ndarray
+        The volume as it will be stored, ``(n_z, n_y, n_x)`` or ``(n_z, n_x)``.
+
+    Returns
+    -------
+    dict of str to object
+        Keyword arguments for ``h5py.Group.create_dataset``: ``{}`` (contiguous) or
+        ``chunks``, ``compression``, ``compression_opts`` and ``shuffle``.
     """
     import zlib
 
@@ -121,16 +150,50 @@ def storage_layout(p0: np.ndarray) -> dict[str, Any]:
 
 def write_volume(path: str | os.PathLike, p0: np.ndarray, z: np.ndarray, x: np.ndarray,
                  y: np.ndarray | None = None, *, method: str, params: dict, input_id: str,
-                 software_version: str | None = None, dtype: Any = None, p0_unit: str = "a.u.") -> Path:
-    """Write a result file atomically (see module docstring); returns ``path``.
+                 software_version: str | None = None, dtype: npt.DTypeLike | None = None,
+                 p0_unit: str = "a.u.") -> Path:
+    """Write a result file atomically (see module docstring).
 
-    ``p0``: ``(n_z, n_y, n_x)`` with ``y`` given, or ``(n_z, n_x)`` with ``y=None``; real,
-    finite. It is stored as ``dtype`` (float32 or float64); by default float32, unless the
-    reconstruction asked for float64 (``params["dtype"] == "float64"``): half of its
-    float64 size; compressed where that pays (see :func:`storage_layout`). ``z``, ``y``, ``x``: strictly increasing coordinates in m. ``params``: every
-    parameter of the reconstruction, JSON-serialisable; stored with the person's names
-    (``c`` → ``sound_speed``, nested too: :func:`service.names.person_names`). ``p0_unit``: ``"Pa"`` or ``"a.u."``
-    (:data:`P0_UNITS`). Raises ValueError naming the fault.
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file to write (a temporary sibling, flushed, then renamed into place).
+    p0 : ndarray
+        ``(n_z, n_y, n_x)`` with ``y`` given, or ``(n_z, n_x)`` with ``y=None``; real, finite.
+    z, x : ndarray
+        Strictly increasing coordinates in m, ``(n_z,)`` and ``(n_x,)``.
+    y : ndarray, optional
+        Strictly increasing y coordinates ``(n_y,)`` in m; None for a 2-D ``p0``.
+    method : str
+        The reconstruction method's name (non-empty).
+    params : dict
+        Every parameter of the reconstruction, JSON-serialisable; stored with the person's
+        names (``c`` -> ``sound_speed``, nested too: :func:`service.names.person_names`).
+    input_id : str
+        The input's id.
+    software_version : str, optional
+        Recorded as the attribute ``software_version`` (default the installed fpscan's).
+    dtype : float32 or float64, optional
+        The stored dtype; by default float32, unless the reconstruction asked for float64
+        (``params["dtype"] == "float64"``). Compressed where that pays
+        (:func:`storage_layout`).
+    p0_unit : {"a.u.", "Pa"}, optional
+        The unit of p0 (:data:`P0_UNITS`).
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+
+    Raises
+    ------
+    ValueError
+        Naming the fault: a bad ``p0_unit`` or ``dtype``, p0 not real, of the wrong shape or
+        not finite, ``y`` given for 2-D (or missing for 3-D), coordinates of the wrong shape,
+        not finite or not increasing, an empty ``method``, ``params`` that are no dict or not
+        JSON-serialisable.
+    OSError
+        The file cannot be written.
     """
     if p0_unit not in P0_UNITS:
         raise ValueError(f"p0_unit must be one of {', '.join(P0_UNITS)}, got {p0_unit!r}")
@@ -208,16 +271,49 @@ VOLUME_FILE = "volume.h5"
 
 
 def mip_file(plane: str) -> str:
-    """The name of the result folder's MIP picture of ``plane`` (``"xy"``, ``"xz"`` or
-    ``"yz"``): ``mip_<plane>.png``."""
+    """The name of the result folder's MIP picture of ``plane``.
+
+    Parameters
+    ----------
+    plane : str
+        ``"xy"``, ``"xz"`` or ``"yz"``.
+
+    Returns
+    -------
+    str
+        ``mip_<plane>.png``.
+    """
     return f"mip_{plane}.png"
 
 
-def write_reconstruction(path: str | os.PathLike, rec: Any, *, input_id: str,
+def write_reconstruction(path: str | os.PathLike, rec: Reconstruction, *, input_id: str,
                          method: str | None = None, software_version: str | None = None) -> Path:
-    """Write a ``service.recon.Reconstruction`` (``p0``, ``z``, ``x``, ``y``, ``params``)
-    as a result file; the method defaults to ``rec.params["method"]``. Raises ValueError
-    as :func:`write_volume`."""
+    """Write a ``service.recon.Reconstruction`` as a result file (:func:`write_volume`).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file to write.
+    rec : Reconstruction
+        The reconstruction: ``p0``, ``z``, ``x``, ``y``, ``params`` (and ``p0_unit``, default
+        ``"a.u."``).
+    input_id : str
+        The input's id.
+    method : str, optional
+        The method's name (default ``rec.params["method"]``).
+    software_version : str, optional
+        As :func:`write_volume`.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+
+    Raises
+    ------
+    ValueError
+        No method given or in the params, and as :func:`write_volume`.
+    """
     params = dict(getattr(rec, "params", None) or {})
     method = method or params.get("method")
     if not method:
@@ -227,17 +323,39 @@ def write_reconstruction(path: str | os.PathLike, rec: Any, *, input_id: str,
                         software_version=software_version, p0_unit=getattr(rec, "p0_unit", "a.u."))
 
 
-def write_folder(out_dir: str | os.PathLike, rec: Any, *, input_id: str,
+def write_folder(out_dir: str | os.PathLike, rec: Reconstruction, *, input_id: str,
                  mips: dict[str, bytes] | Callable[[], dict[str, bytes]]) -> dict:
-    """The result folder of a reconstruction ``rec``: :data:`VOLUME_FILE`
-    (:func:`write_reconstruction`) and the PNG bytes of each MIP plane in ``mips``
-    (:func:`mip_file`), written into a temporary sibling folder renamed into place (an
-    existing ``out_dir`` is replaced). ``mips`` may be a callable returning them, called
-    once the volume is written (and flushed to disk): a caller can draw the pictures
-    meanwhile. Returns ``{"shape", "max", "max_index", "planes", "params_used"}``
-    (``max_index``: the array index of the maximum, depth first, where the web page opens
-    its depth slice; ``planes`` sorted; ``params_used``: the scalar parameters the
-    reconstruction used). Raises ValueError as :func:`write_volume`, and what ``mips()`` raises."""
+    """Write the result folder of a reconstruction ``rec``.
+
+    :data:`VOLUME_FILE` (:func:`write_reconstruction`) and the PNG bytes of each MIP plane in
+    ``mips`` (:func:`mip_file`), written into a temporary sibling folder renamed into place
+    (an existing ``out_dir`` is replaced).
+
+    Parameters
+    ----------
+    out_dir : str or os.PathLike
+        The result folder.
+    rec : Reconstruction
+        The reconstruction.
+    input_id : str
+        The input's id.
+    mips : dict of str to bytes, or callable
+        PNG bytes per plane (``"xy"``, ...), or a callable returning them, called once the
+        volume is written (and flushed to disk): a caller can draw the pictures meanwhile.
+
+    Returns
+    -------
+    dict
+        ``{"shape", "max", "max_index", "planes", "params_used"}``: ``max_index`` the array
+        index of the maximum, depth first, where the web page opens its depth slice (None for
+        an empty volume); ``planes`` sorted; ``params_used`` the scalar parameters the
+        reconstruction used.
+
+    Raises
+    ------
+    ValueError
+        As :func:`write_volume`, and what ``mips()`` raises.
+    """
     import time
 
     from service.disk import folder_replaced
@@ -262,10 +380,26 @@ def write_folder(out_dir: str | os.PathLike, rec: Any, *, input_id: str,
 
 @dataclass
 class ResultVolume:
-    """A result file's content. ``p0`` ``(n_z, n_y, n_x)``/``(n_z, n_x)``; ``z``, ``x``
-    (and ``y``, None in 2-D) coordinate vectors in m; ``method``; ``params`` dict (the
-    speed of sound as ``sound_speed``, also from a file an older fpscan wrote with ``c``);
-    ``input_id``; ``attrs`` (all root attributes, as stored)."""
+    """A result file's content.
+
+    Attributes
+    ----------
+    p0 : ndarray
+        The volume ``(n_z, n_y, n_x)`` or ``(n_z, n_x)``, as stored.
+    z, x : ndarray
+        Coordinate vectors in m.
+    y : ndarray or None
+        The y coordinates in m; None in 2-D.
+    method : str
+        The reconstruction method's name.
+    params : dict
+        The reconstruction's parameters (the speed of sound as ``sound_speed``, also from a
+        file an older fpscan wrote with ``c``).
+    input_id : str
+        The input's id.
+    attrs : dict
+        All root attributes, as stored (text decoded).
+    """
 
     p0: np.ndarray
     z: np.ndarray
@@ -287,14 +421,44 @@ class ResultVolume:
 
 
 def sniff(source: Source) -> bool:
-    """True for an HDF5 file whose ``format`` attribute is ``fpscan-result/<version>``."""
+    """True for an HDF5 file whose ``format`` attribute is ``fpscan-result/<version>``.
+
+    Parameters
+    ----------
+    source : Source
+        The opened HDF5 file (:class:`service.formats.Source`).
+
+    Returns
+    -------
+    bool
+        Whether this format reads it.
+    """
     return source.attr("format").startswith("fpscan-result/")
 
 
 def load(source: Source, **_: Any) -> ResultVolume:
-    """The result file's volume, coordinates and attributes; the parameters with the
-    person's names (``sound_speed``; a file an older fpscan wrote with ``c`` reads the
-    same). Raises ValueError (not a result file)."""
+    """The result file's volume, coordinates and attributes.
+
+    The parameters come with the person's names (``sound_speed``; a file an older fpscan wrote
+    with ``c`` reads the same).
+
+    Parameters
+    ----------
+    source : Source
+        The opened HDF5 file.
+    **_
+        Loading options, ignored.
+
+    Returns
+    -------
+    ResultVolume
+        The whole volume, read.
+
+    Raises
+    ------
+    ValueError
+        Not a result file.
+    """
     f = source.h5
     attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
     if attrs.get("format") != RESULT_FORMAT:
@@ -356,18 +520,53 @@ def volume_description(r: ResultVolume) -> str:
 
 
 def read_result(path: str | os.PathLike) -> ResultVolume:
-    """Read a result file (through the registry: opened once, checked). Raises
-    FileNotFoundError, ValueError (not a result file)."""
+    """Read a result file (through the registry: opened once, checked).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The ``volume.h5``.
+
+    Returns
+    -------
+    ResultVolume
+        Its content.
+
+    Raises
+    ------
+    FileNotFoundError
+        No file at ``path``.
+    ValueError
+        Not a result file.
+    """
     from service.formats._registry import load as load_as
 
     return load_as(path, "result")[1]
 
 
 def read_slice(path: str | os.PathLike, index: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
-    """The depth slice ``index`` of a result file's p0 — ``(n_y, n_x)``, or the image row
-    ``(n_x,)`` of a 2-D result — with ``z``, ``x``, ``y`` (None in 2-D), read without
-    loading the whole volume. Raises ValueError (index not an integer in range, not a
-    result file), FileNotFoundError."""
+    """One depth slice of a result file's p0, read without loading the whole volume.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The ``volume.h5``.
+    index : int
+        The depth sample, in [0, n_z).
+
+    Returns
+    -------
+    tuple of (ndarray, ndarray, ndarray, ndarray or None)
+        The slice ``(n_y, n_x)`` (or the image row ``(n_x,)`` of a 2-D result), then ``z``,
+        ``x`` and ``y`` (None in 2-D), m.
+
+    Raises
+    ------
+    ValueError
+        ``index`` not an integer in range, or not a result file.
+    FileNotFoundError
+        No file at ``path``.
+    """
     from service.formats._registry import open_source
 
     with open_source(path, "hdf5", name="result") as src:

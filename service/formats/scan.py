@@ -10,7 +10,7 @@ its ``format`` attribute and the mapping of the read scan to point data.
 """
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -18,12 +18,26 @@ from service.disk import copy_replaced
 from service.formats._registry import Format, Source
 from service.recon.dataset import PointDataset, check_wavelength_index, lattice_axes
 
+if TYPE_CHECKING:
+    from driver.scanfile import ScanData
+
 __all__ = ["FORMAT", "sniff", "load"]
 
 
 def sniff(source: Source) -> bool:
     """True for an HDF5 file whose ``format`` attribute is ``fpscan-scan/<version>``
-    (``driver.scanfile.FORMAT_FAMILY``)."""
+    (``driver.scanfile.FORMAT_FAMILY``).
+
+    Parameters
+    ----------
+    source : Source
+        The opened HDF5 file (:class:`service.formats.Source`).
+
+    Returns
+    -------
+    bool
+        Whether this format reads it.
+    """
     from driver.scanfile import FORMAT_FAMILY
 
     return source.attr("format").startswith(FORMAT_FAMILY)
@@ -31,14 +45,35 @@ def sniff(source: Source) -> bool:
 
 def load(source: Source, *, allow_empty: bool = False, wavelength_index: int = 0, all_wavelengths: bool = False,
          **_: Any) -> PointDataset | list[PointDataset]:
-    """The completed points at excitation wavelength ``wavelength_index`` (default the
-    first) as point data (DC-normalised pressure ``(n, n_t)`` float64, the plan's
-    positions and weights, its lattice and indices; ``wavelengths``: the one wavelength
-    read (m); ``meta["wavelengths"]`` all the scan's, ``meta["wavelength_index"]`` the one
-    read). ``all_wavelengths``: a list, one dataset per wavelength of the scan, from one
-    read of the file. Raises ValueError when no point is complete (unless
-    ``allow_empty``), the plan is invalid or the wavelength index is out of range (naming
-    the scan's wavelengths)."""
+    """The scan's completed points at one excitation wavelength as point data, or at all.
+
+    Parameters
+    ----------
+    source : Source
+        The opened HDF5 scan file.
+    allow_empty : bool, optional
+        Accept a scan with no completed point (an empty dataset).
+    wavelength_index : int, optional
+        The excitation wavelength to read (default 0, the first).
+    all_wavelengths : bool, optional
+        A list, one dataset per wavelength of the scan, from one read of the file.
+    **_
+        Other loading options, ignored.
+
+    Returns
+    -------
+    PointDataset or list of PointDataset
+        DC-normalised pressure ``(n, n_t)`` float64, the plan's positions and weights, its
+        lattice and indices; ``wavelengths``: the one wavelength read (m);
+        ``meta["wavelengths"]`` all the scan's, ``meta["wavelength_index"]`` the one read.
+        With ``all_wavelengths`` a list.
+
+    Raises
+    ------
+    ValueError
+        No point is complete (unless ``allow_empty``), the plan is invalid, or the wavelength
+        index is out of range (naming the scan's wavelengths).
+    """
     from driver.scanfile import read_open_scan
 
     scan = read_open_scan(source.h5, source.path)
@@ -47,7 +82,7 @@ def load(source: Source, *, allow_empty: bool = False, wavelength_index: int = 0
     return _dataset(scan, wavelength_index, allow_empty)
 
 
-def _dataset(scan: Any, wavelength_index: int, allow_empty: bool) -> PointDataset:
+def _dataset(scan: ScanData, wavelength_index: int, allow_empty: bool) -> PointDataset:
     """One wavelength's completed points of the scan read (``driver.scanfile.ScanData``)."""
     from driver.plan import check_plan
     from driver.scanfile import pressure_unit

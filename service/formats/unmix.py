@@ -10,10 +10,15 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from service.formats._registry import Format, Source
 from service.names import person_names
+
+if TYPE_CHECKING:
+    import numpy.typing as npt
+
+    from service.recon.unmix import Unmixed
 
 __all__ = ["FORMAT", "UNMIX_FORMAT", "sniff", "load", "write", "read_unmix"]
 
@@ -21,14 +26,43 @@ UNMIX_FORMAT = "fpscan-unmix/1"
 
 
 def sniff(source: Source) -> bool:
-    """True for an HDF5 file whose ``format`` attribute is ``fpscan-unmix/<version>``."""
+    """True for an HDF5 file whose ``format`` attribute is ``fpscan-unmix/<version>``.
+
+    Parameters
+    ----------
+    source : Source
+        The opened HDF5 file (:class:`service.formats.Source`).
+
+    Returns
+    -------
+    bool
+        Whether this format reads it.
+    """
     return source.attr("format").startswith("fpscan-unmix/")
 
 
 def load(source: Source, **_: Any) -> dict:
-    """The arrays and attributes as a dict (``mask`` bool, ``params`` dict with
-    ``sound_speed``, also where an older file says ``c``; ``y`` None in 2-D). Raises
-    ValueError for another file."""
+    """The unmixing result's arrays and attributes as a dict.
+
+    Parameters
+    ----------
+    source : Source
+        The opened HDF5 file.
+    **_
+        Loading options, ignored.
+
+    Returns
+    -------
+    dict
+        ``hbo2``, ``hb``, ``thb``, ``so2`` ``(n_z, [n_y,] n_x)``, ``mask`` (bool), ``z``, ``x``,
+        ``y`` (m; None in 2-D), ``wavelengths_m``, ``params`` (dict with ``sound_speed``, also
+        where an older file says ``c``) and ``input_id``.
+
+    Raises
+    ------
+    ValueError
+        A file whose ``format`` is not ``fpscan-unmix/1``.
+    """
     f = source.h5
     if source.attr("format") != UNMIX_FORMAT:
         raise ValueError(f"{source.path} is not an {UNMIX_FORMAT} file")
@@ -40,14 +74,39 @@ def load(source: Source, **_: Any) -> dict:
     return out
 
 
-def write(path: str | os.PathLike, u: Any, z: Any, x: Any, y: Any = None, *, input_id: str = "",
-          extra: dict | None = None) -> Path:
-    """Write ``u`` (a ``service.recon.unmix.Unmixed``: maps ``(n_z, [n_y,] n_x)``, mask,
-    wavelengths (m), params) with its coordinates ``z``, ``x``, ``y`` (m; None in 2-D) as
-    ``path`` (via a temporary sibling, renamed). ``extra``: parameters recorded beside
-    ``u.params``; both stored with the person's names (``c`` → ``sound_speed``:
-    :func:`service.names.person_names`). Raises ValueError (parameters JSON cannot hold) before anything is
-    written. Returns ``path``."""
+def write(path: str | os.PathLike, u: Unmixed, z: npt.ArrayLike, x: npt.ArrayLike, y: npt.ArrayLike | None = None,
+          *, input_id: str = "", extra: dict | None = None) -> Path:
+    """Write an unmixing result as ``path`` (via a temporary sibling, renamed).
+
+    ``extra`` is recorded beside ``u.params``; both are stored with the person's names (``c``
+    -> ``sound_speed``: :func:`service.names.person_names`).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file to write (``unmix.h5``).
+    u : Unmixed
+        A ``service.recon.unmix.Unmixed``: maps ``(n_z, [n_y,] n_x)``, mask, wavelengths (m),
+        params.
+    z, x : array_like
+        The depth and x coordinates, m.
+    y : array_like, optional
+        The y coordinates, m; None in 2-D.
+    input_id : str, optional
+        The input's id (attribute ``input_id``).
+    extra : dict, optional
+        More parameters to record.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+
+    Raises
+    ------
+    ValueError
+        Parameters that JSON cannot hold, before anything is written.
+    """
     import h5py
     import numpy as np
 
@@ -75,8 +134,25 @@ def write(path: str | os.PathLike, u: Any, z: Any, x: Any, y: Any = None, *, inp
 
 
 def read_unmix(path: str | os.PathLike) -> dict:
-    """Read an ``unmix.h5`` (through the registry: opened once, checked); raises
-    ``ValueError`` for another file, FileNotFoundError."""
+    """Read an ``unmix.h5`` (through the registry: opened once, checked).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file.
+
+    Returns
+    -------
+    dict
+        As :func:`load`.
+
+    Raises
+    ------
+    ValueError
+        Another file.
+    FileNotFoundError
+        No file at ``path``.
+    """
     from service.formats._registry import load as load_as
 
     return load_as(path, "unmix")[1]

@@ -41,8 +41,14 @@ CHILD_NICE = 5
 
 
 class NotAdmitted(Exception):
-    """The service cannot take what an import would write (not enough free disk, counting
-    the imports in flight): the server's condition, not the file's fault (HTTP 507)."""
+    """The service cannot take what an import would write (not enough free disk, counting the
+    imports in flight): the server's condition, not the file's fault (HTTP 507).
+
+    Parameters
+    ----------
+    reason : str
+        Why: the bytes asked for, the room left and what to do.
+    """
 
 
 #: In a child of :func:`run_bounded` given ``admit``: (request queue, answer queue).
@@ -50,10 +56,22 @@ _ADMISSION: tuple[Any, Any] | None = None
 
 
 def request_admission(nbytes: int) -> None:
-    """Ask to write ``nbytes`` (the decoded dataset) before writing it. In a child of
-    :func:`run_bounded` called with ``admit``, the parent answers (``DiskAdmission``:
-    free space less what imports in flight reserved); elsewhere (a local read) nothing
-    is asked. Raises :class:`NotAdmitted` with the reason when refused."""
+    """Ask to write ``nbytes`` (the decoded dataset) before writing it.
+
+    In a child of :func:`run_bounded` called with ``admit``, the parent answers
+    (``DiskAdmission``: free space less what imports in flight reserved); elsewhere (a local
+    read) nothing is asked.
+
+    Parameters
+    ----------
+    nbytes : int
+        The bytes the import will write.
+
+    Raises
+    ------
+    NotAdmitted
+        With the reason, when refused.
+    """
     if _ADMISSION is None:
         return
     requests, answers = _ADMISSION
@@ -64,11 +82,28 @@ def request_admission(nbytes: int) -> None:
 
 
 class DiskAdmission:
-    """Free-space admission of imports that run at once: an import asks before it writes
-    (:func:`request_admission`) and is admitted when its bytes fit the free space of
-    ``folder``'s file system less ``reserve_bytes`` (left for the job database, scans and
-    results) less what the imports in flight were admitted for; its reservation lasts until
-    :meth:`release`. So two uploads at once cannot together fill the disk. Thread-safe."""
+    """Free-space admission of imports that run at once.
+
+    An import asks before it writes (:func:`request_admission`) and is admitted when its bytes
+    fit the free space of ``folder``'s file system less ``reserve_bytes`` (left for the job
+    database, scans and results) less what the imports in flight were admitted for; its
+    reservation lasts until :meth:`release`. So two uploads at once cannot together fill the
+    disk. Thread-safe.
+
+    Parameters
+    ----------
+    folder : str or os.PathLike
+        A folder on the file system the imports write to (the data folder).
+    reserve_bytes : int
+        Bytes always left free.
+
+    Attributes
+    ----------
+    folder : pathlib.Path
+        As given.
+    reserve_bytes : int
+        As given.
+    """
 
     def __init__(self, folder: str | os.PathLike, reserve_bytes: int):
         import threading
@@ -164,17 +199,45 @@ def _set_nice(pid: int, nice: int | None) -> None:
 
 def run_bounded(fn: Callable, *args: Any, timeout: float, memory_bytes: int | None = None,
                 what: str = "the file", admit: Callable[[int], str | None] | None = None, **kwargs: Any) -> Any:
-    """``fn(*args, **kwargs)`` in a child process (:func:`_child_context`; at CPU priority
-    + ``CHILD_NICE``),
-    killed when it has not returned ``timeout`` s after it started (imports done).
-    ``memory_bytes``: address-space limit of the child (``RLIMIT_AS``), so a file that
-    expands past it fails there with MemoryError, not in the caller. ``admit``: answers the
-    child's :func:`request_admission` (bytes -> None to admit, else the reason); without
-    it the child's requests are admitted unasked. ``fn`` and its
-    arguments and result must be picklable. Raises ValueError with the reason for any
-    failure of ``fn``, and for a child that times out or dies; :class:`NotAdmitted` when
-    ``admit`` refused; OSError (ENOSPC) when the
-    disk it writes to is full (the server's condition, not the file's)."""
+    """``fn(*args, **kwargs)`` in a child process, killed when it takes too long.
+
+    The child (:func:`_child_context`) runs at CPU priority + ``CHILD_NICE`` and is killed
+    when it has not returned ``timeout`` s after it started (imports done; the start itself is
+    bounded by :data:`STARTUP_S`). ``fn`` and its arguments and result must be picklable.
+
+    Parameters
+    ----------
+    fn : callable
+        The function to run.
+    *args
+        Its positional arguments.
+    timeout : float
+        Time limit in s, from the child's start.
+    memory_bytes : int, optional
+        Address-space limit of the child (``RLIMIT_AS``), so a file that expands past it fails
+        there with MemoryError, not in the caller.
+    what : str, optional
+        What is read, for the messages (default ``"the file"``).
+    admit : callable, optional
+        Answers the child's :func:`request_admission` (bytes -> None to admit, else the
+        reason); without it the child's requests are admitted unasked.
+    **kwargs
+        Its keyword arguments.
+
+    Returns
+    -------
+    object
+        What ``fn`` returns.
+
+    Raises
+    ------
+    ValueError
+        With the reason for any failure of ``fn``, and for a child that times out or dies.
+    NotAdmitted
+        ``admit`` refused.
+    OSError
+        ENOSPC: the disk it writes to is full (the server's condition, not the file's).
+    """
     ctx = _child_context()
     q = ctx.Queue()
     answers = ctx.Queue() if admit is not None else None
@@ -253,10 +316,23 @@ READ_TIMEOUT_S = 60.0
 
 
 def writer_flagged(path: str | os.PathLike) -> bool:
-    """True for an HDF5 file whose superblock says a writer has (or had, if killed) it open
-    for SWMR writing: ``driver.scanfile.open_readonly`` opens it as an SWMR reader, which
-    HDF5 can block in for ever on damaged metadata. False for anything else, a file that
-    is not HDF5 or a damaged superblock included (those are refused by the readers)."""
+    """True for an HDF5 file whose superblock says a writer has (or had, if killed) it open for
+    SWMR writing.
+
+    ``driver.scanfile.open_readonly`` opens such a file as an SWMR reader, which HDF5 can
+    block in for ever on damaged metadata.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file.
+
+    Returns
+    -------
+    bool
+        False for anything else, a file that is not HDF5 or a damaged superblock included
+        (those are refused by the readers).
+    """
     from driver.scanfile import _superblock_open_for_write
 
     try:
@@ -267,13 +343,39 @@ def writer_flagged(path: str | os.PathLike) -> bool:
 
 def read_bounded(fn: Callable, path: str | os.PathLike, *args: Any, timeout: float | None = None,
                  **kwargs: Any) -> Any:
-    """``fn(path, *args, **kwargs)``: in this process, or, for a file HDF5 would open as an
-    SWMR reader (:func:`writer_flagged`), in a child process killed after ``timeout`` s
-    (default ``FPSCAN_IMPORT_TIMEOUT_S`` or ``READ_TIMEOUT_S``, 60 s;
-    :func:`run_bounded`: the result must be picklable). Raises what ``fn`` raises; in the
-    child, ValueError with the reason (also for a read that did not end in time). The
-    child is spawned: a script calling this at import time needs the
-    ``if __name__ == "__main__":`` guard of ``multiprocessing``."""
+    """``fn(path, *args, **kwargs)``, in a bounded child process where HDF5 could block.
+
+    In this process, or, for a file HDF5 would open as an SWMR reader (:func:`writer_flagged`),
+    in a child process killed after ``timeout`` s (:func:`run_bounded`: the result must be
+    picklable). The child is spawned: a script calling this at import time needs the
+    ``if __name__ == "__main__":`` guard of ``multiprocessing``.
+
+    Parameters
+    ----------
+    fn : callable
+        The reader, ``fn(path, *args, **kwargs)``.
+    path : str or os.PathLike
+        The file.
+    *args
+        More positional arguments for ``fn``.
+    timeout : float, optional
+        Time limit of the child, s (default ``FPSCAN_IMPORT_TIMEOUT_S`` or
+        :data:`READ_TIMEOUT_S`, 60 s).
+    **kwargs
+        Keyword arguments for ``fn``.
+
+    Returns
+    -------
+    object
+        What ``fn`` returns.
+
+    Raises
+    ------
+    ValueError
+        In the child: the reason ``fn`` failed, also for a read that did not end in time.
+    Exception
+        In this process: what ``fn`` raises.
+    """
     if not writer_flagged(path) or multiprocessing.current_process().daemon:  # a bounded child already
         return fn(path, *args, **kwargs)
     if timeout is None:
@@ -282,8 +384,22 @@ def read_bounded(fn: Callable, path: str | os.PathLike, *args: Any, timeout: flo
 
 
 def hdf5_limit(upload_limit: int, memory_limit: int) -> int:
-    """Largest declared dataset (bytes) an upload may hold: it must fit the upload limit
-    uncompressed ×4 (compressed files) and half the reconstruction memory limit (the
-    import converts samples to float)."""
+    """Largest declared dataset (bytes) an upload may hold.
+
+    It must fit the upload limit uncompressed ×4 (compressed files) and half the
+    reconstruction memory limit (the import converts samples to float).
+
+    Parameters
+    ----------
+    upload_limit : int
+        The largest accepted upload, bytes.
+    memory_limit : int
+        Bytes available to reconstructions at once.
+
+    Returns
+    -------
+    int
+        ``min(4 upload_limit, memory_limit // 2)``.
+    """
     return int(min(4 * upload_limit, memory_limit // 2))
 

@@ -11,7 +11,7 @@ and correlation coefficient / Tenenbaum sharpness vs ROI diameter.
 """
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -94,7 +94,9 @@ def cc_vs_pixels(
     return out
 
 
-def _per_diameter(fn, image, reference, axes, diameters, threshold, center):
+def _per_diameter(fn: Callable[[np.ndarray, np.ndarray, np.ndarray], float], image: np.ndarray,
+                  reference: np.ndarray, axes: Sequence[np.ndarray] | None, diameters: Sequence[float] | np.ndarray,
+                  threshold: float | None, center: Sequence[float] | None) -> np.ndarray:
     image, reference = _same_shape(image, reference)
     axes = _axes_for(reference.shape, axes)
     diameters = np.asarray(diameters, dtype=float)

@@ -264,7 +264,7 @@ def fit_lorentz(
     q = p / height
     popt = _lorentz_start(u, q, baseline)
 
-    def jac(uu, *params):
+    def jac(uu: np.ndarray, *params: float) -> np.ndarray:
         a0, z0, w = params[:3]
         d = w * w + 4.0 * (uu - z0) ** 2
         cols = [2.0 * w / (np.pi * d), 16.0 * a0 * w * (uu - z0) / (np.pi * d * d),

@@ -29,9 +29,12 @@ import contextlib
 import functools
 import math
 import threading
+from collections.abc import Callable, Iterator, Sequence
+from typing import TYPE_CHECKING, Protocol
 
 import numba
 import numpy as np
+import numpy.typing as npt
 import scipy.fft
 
 from driver.physics import fft_engine
@@ -40,6 +43,11 @@ from driver.physics.lateral import irfft_lateral
 from driver.physics.nufft import group_columns
 from service.progress import Fraction, rising, span
 from service.recon import checks
+
+if TYPE_CHECKING:
+    from concurrent.futures import Executor
+
+    from threadpoolctl import ThreadpoolController
 
 __all__ = ["transform_lengths", "product_length", "PRODUCT_MAX_N", "kspace_line_recon", "kspace_plane_recon"]
 
@@ -57,7 +65,7 @@ def _kvec(n: int, d: float) -> np.ndarray:
     return (2 * np.pi / d) * v
 
 
-def _pchip_columns(P, w, w_new_cols):
+def _pchip_columns(P: np.ndarray, w: np.ndarray, w_new_cols: np.ndarray) -> np.ndarray:
     """Piecewise-cubic Hermite (pchip, Octave's 'cubic') interpolation along axis 0 of P
     (n_w, n_cols) from the uniform nodes w to a query vector per column (w_new_cols,
     (n_q, n_cols)); queries above max(w) -> 0 (MATLAB's NaN / Octave's NA, zeroed by
@@ -134,7 +142,7 @@ class _EvenPFA:
     ``pfa(X, out)`` writes the transform of ``X`` (N, cols) real, along axis 0, into ``out``
     (N, cols)."""
 
-    def __init__(self, n: int, split: tuple[int, int], dtype, scale: float = 1.0):
+    def __init__(self, n: int, split: tuple[int, int], dtype: npt.DTypeLike, scale: float = 1.0) -> None:
         m = 2 * n - 1
         m1, m2 = split
         self.h1, self.h2, self.m1, self.m2 = (m1 - 1) // 2, (m2 - 1) // 2, m1, m2
@@ -162,7 +170,7 @@ class _EvenPFA:
         np.matmul(self.stage2, Y, out=Z)  # (h2 + 1, m1, c): X[k2, k1]
         np.take(Z.reshape(-1, c), self.scatter, axis=0, out=out, mode="clip")
 
-    def _work(self, c: int, dtype) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _work(self, c: int, dtype: np.dtype) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The calling thread's work arrays for ``c`` columns (C-contiguous views of buffers made once
         and reused: a fresh set per chunk cost the system's page faults each time the
         allocator had returned them, 2.6 -> 3.3 s of k-Wave's algorithm at 1024 × 226² in a
@@ -192,15 +200,31 @@ _BLAS_LOCK = threading.Lock()  # one product section at a time per process (see 
 
 
 @functools.cache
-def _blas():
+def _blas() -> ThreadpoolController:
     """The controller (threadpoolctl) of the loaded BLAS libraries, made on first use."""
     from threadpoolctl import ThreadpoolController
 
     return ThreadpoolController().select(user_api="blas")
 
 
+class _MatMul(Protocol):
+    """``matmul(C, X, out)`` of `_products_in_threads`: ``out = C @ X``."""
+
+    def __call__(self, C: np.ndarray | _EvenPFA, X: np.ndarray, out: np.ndarray) -> None: ...
+
+
+class _MatMulRows(Protocol):
+    """``matmul_rows(C, X, out, over=False)`` of `_products_in_threads`: ``out = X @ C``."""
+
+    def __call__(self, C: np.ndarray, X: np.ndarray, out: np.ndarray, over: bool = False) -> None: ...
+
+
+#: the k-space mapping of `_recon`: ``mapping(P, c0, c1, out)`` for the columns c0:c1
+_Mapping = Callable[[np.ndarray, int, int, np.ndarray], None]
+
+
 @contextlib.contextmanager
-def _products_in_threads():
+def _products_in_threads() -> Iterator[tuple[_MatMul, _MatMulRows]]:
     """A context giving ``(matmul, matmul_rows)``: ``matmul(C, X, out)`` writes ``out = C @ X``
     (or ``C(X, out)`` for an `_EvenPFA`) with the columns of ``X`` split over as many threads
     as BLAS had, each running single-threaded BLAS; ``matmul_rows(C, X, out)`` writes
@@ -245,7 +269,7 @@ def _products_in_threads():
 _OVER_BYTES = 512 << 10  # rows of X a thread of `_rows_over` takes at a time (L2-resident)
 
 
-def _rows_over(pool, C: np.ndarray, X: np.ndarray, out: np.ndarray, cuts: list[int]) -> None:
+def _rows_over(pool: Executor, C: np.ndarray, X: np.ndarray, out: np.ndarray, cuts: list[int]) -> None:
     """``out = X @ C`` written over ``X``'s own memory (``out`` (R, m) starts where ``X`` (R, k)
     does, m <= k, both C-contiguous), the rows split at ``cuts`` over the threads of ``pool``.
 
@@ -377,7 +401,8 @@ _BLOCK = 8  # columns the mapping takes at a time (8 complex128: two cache lines
 
 
 @numba.njit(parallel=True, cache=True)
-def _map_columns(P, lat2, w, kz, c, nearest, out):
+def _map_columns(P: np.ndarray, lat2: np.ndarray, w: np.ndarray, kz: np.ndarray, c: float, nearest: bool,
+                 out: np.ndarray) -> None:
     """k-Wave's k-space mapping for the ω >= 0 half, one lateral column per column of P
     (n_w, n_cols), time first (compiled, in place of numpy fancy indexing): out[l, j] =
     interp_ω(sf · P[:, j]) evaluated at ω' = c sqrt(kz_l² + lat2_j).
@@ -430,7 +455,8 @@ def _map_columns(P, lat2, w, kz, c, nearest, out):
 _CUBIC_BYTES = 2 << 20  # one of `_cubic_block`'s arrays of a chunk of columns (memory.KWAVE_STEP_BYTES)
 
 
-def _cubic_block(P_half, w_full, lat2, phase, kx, c):
+def _cubic_block(P_half: np.ndarray, w_full: np.ndarray, lat2: np.ndarray, phase: np.ndarray, kx: np.ndarray,
+                 c: float) -> np.ndarray:
     """The pchip (Octave 'cubic') mapping of a chunk of columns (rows of ``P_half``, (cols, N)
     -> (cols, N)) on the full mirrored ω grid (pchip slopes at ω = 0 see the negative
     side), as k-Wave evaluates it.
@@ -453,7 +479,7 @@ def _cubic_block(P_half, w_full, lat2, phase, kx, c):
     return (_pchip_columns(block, w_full, w_new) * np.conj(phase)[None, :]).T
 
 
-def transform_lengths(data_shape) -> dict[str, tuple[int, ...]]:
+def transform_lengths(data_shape: Sequence[int]) -> dict[str, tuple[int, ...]]:
     """The DFT lengths `kspace_line_recon` / `kspace_plane_recon` run for data of a given shape.
 
     These are k-Wave's grids, not rounded to fast lengths: the mirrored length fixes the ω
@@ -509,7 +535,8 @@ def transform_lengths(data_shape) -> dict[str, tuple[int, ...]]:
 _CHUNK_BYTES = 8 << 20  # the product path's columns per chunk: 8 MiB of spectrum (2048 at N = 256)
 
 
-def _by_products(a, mapping, scale, rdtype, progress, split=None):
+def _by_products(a: np.ndarray, mapping: _Mapping, scale: float, rdtype: np.dtype, progress: Fraction | None,
+                 split: tuple[int, int] | None = None) -> None:
     """The time -> depth step of `_recon`, in place in ``a`` (N, cols), time first: per
     chunk of columns the real-even transform along time (a product with `_even_matrix`, or
     with a coprime ``split`` of 2 N - 1 the prime-factor algorithm `_EvenPFA`), the
@@ -538,7 +565,7 @@ def _by_products(a, mapping, scale, rdtype, progress, split=None):
                 progress(c1 / n_cols)
 
 
-def _by_ffts(a, mapping, scale, rdtype, progress):
+def _by_ffts(a: np.ndarray, mapping: _Mapping, scale: float, rdtype: np.dtype, progress: Fraction | None) -> None:
     """The same step as `_by_products` by FFTs of the mirrored series, in ~32 chunks of
     columns (the mirrored series stay a small fraction of the volume); ``scale`` as there."""
     n, n_cols = a.shape
@@ -552,7 +579,8 @@ def _by_ffts(a, mapping, scale, rdtype, progress):
             progress(c1 / n_cols)
 
 
-def _recon(p, dt, c, lateral_d, interp, pos_cond, dtype=np.float64, progress=None):
+def _recon(p: np.ndarray, dt: float, c: float, lateral_d: tuple[float, ...], interp: str, pos_cond: bool,
+           dtype: npt.DTypeLike = np.float64, progress: Fraction | None = None) -> np.ndarray:
     """k-Wave's algorithm (module doc) on the symmetries it leaves unused: the data are
     real (lateral rfft) and the mirrored series even (one half of the ω and k_z axes), so
     the transforms run on about a quarter of the mirrored volume and the peak memory stays
@@ -588,7 +616,8 @@ def _recon(p, dt, c, lateral_d, interp, pos_cond, dtype=np.float64, progress=Non
         kernel(0.15)
     kz = np.ascontiguousarray(kx[nt - 1 :], dtype=np.float64)
 
-    def mapping(P, c0, c1, out):  # k-Wave's k-space mapping of columns c0:c1 (P: their ω >= 0 half)
+    # k-Wave's k-space mapping of columns c0:c1 (P: their ω >= 0 half)
+    def mapping(P: np.ndarray, c0: int, c1: int, out: np.ndarray) -> None:
         if method != "cubic":
             _map_columns(P, lat2[c0:c1], w, kz, float(c), method == "nearest", out)
             return
@@ -615,8 +644,9 @@ def _recon(p, dt, c, lateral_d, interp, pos_cond, dtype=np.float64, progress=Non
     return res.astype(rdtype, copy=False)
 
 
-def kspace_line_recon(p, dy, dt, c, data_order="ty", interp="*nearest", pos_cond=False,
-                      progress: Fraction | None = None, dtype=np.float64) -> np.ndarray:
+def kspace_line_recon(p: npt.ArrayLike, dy: float, dt: float, c: float, data_order: str = "ty",
+                      interp: str = "*nearest", pos_cond: bool = False, progress: Fraction | None = None,
+                      dtype: npt.DTypeLike = np.float64) -> np.ndarray:
     """2-D planar reconstruction exactly as k-Wave's ``kspaceLineRecon``.
 
     Parameters
@@ -680,8 +710,9 @@ def kspace_line_recon(p, dy, dt, c, data_order="ty", interp="*nearest", pos_cond
     return _recon(p, dt, c, (dy,), interp, pos_cond, dtype=dtype, progress=progress)
 
 
-def kspace_plane_recon(p, dy, dz, dt, c, data_order="tyz", interp="*nearest", pos_cond=False,
-                       progress: Fraction | None = None, dtype=np.float64) -> np.ndarray:
+def kspace_plane_recon(p: npt.ArrayLike, dy: float, dz: float, dt: float, c: float, data_order: str = "tyz",
+                       interp: str = "*nearest", pos_cond: bool = False, progress: Fraction | None = None,
+                       dtype: npt.DTypeLike = np.float64) -> np.ndarray:
     """3-D planar reconstruction exactly as k-Wave's ``kspacePlaneRecon``.
 
     Parameters

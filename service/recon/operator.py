@@ -88,10 +88,11 @@ The adjoint is not the inverse: the inverse is the NER/NEDNER reconstruction
 from __future__ import annotations
 
 import mmap
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 import pylops
 import scipy.fft
 
@@ -216,10 +217,10 @@ class PlanarOperator(pylops.LinearOperator):
     True
     """
 
-    def __init__(self, shape, dx: float, dz: float, dt: float, n_t: int, c: float = C_DEFAULT, *,
-                 positions=None, t0: float = 0.0, eps: float = 1e-6, periodic: bool = False,
-                 dtype=np.float64, checkpoint: Callable[[], None] | None = None,
-                 chunk_elements: int = _CHUNK, band: float | None = None):
+    def __init__(self, shape: Sequence[int], dx: float, dz: float, dt: float, n_t: int, c: float = C_DEFAULT, *,
+                 positions: npt.ArrayLike | None = None, t0: float = 0.0, eps: float = 1e-6, periodic: bool = False,
+                 dtype: npt.DTypeLike = np.float64, checkpoint: Callable[[], None] | None = None,
+                 chunk_elements: int = _CHUNK, band: float | None = None) -> None:
         shape = tuple(int(s) for s in shape)
         if len(shape) not in (2, 3) or min(shape) < 1 or shape[0] < 2:
             raise ValueError(f"shape must be (n_z, n_x) or (n_z, n_y, n_x) with n_z >= 2, got {shape}")
@@ -298,7 +299,7 @@ class PlanarOperator(pylops.LinearOperator):
         return {"lateral": lat, "depth": (2 * (n_z2 - 1),),
                 "temporal": (nufft.grid_length(self.n_t, "nufft", self.eps),)}
 
-    def _check(self, name: str, a, shape) -> np.ndarray:
+    def _check(self, name: str, a: npt.ArrayLike, shape: tuple[int, ...]) -> np.ndarray:
         arr = checks.finite_array(name, a, (len(shape),))
         if arr.shape != shape:
             raise ValueError(f"{name} must have shape {shape}, got {arr.shape}")
@@ -360,7 +361,7 @@ class PlanarOperator(pylops.LinearOperator):
                            for t in (1, 2) for n in {min(_BATCH, self.n_t), self.n_t % _BATCH or _BATCH}}
 
     # -- the pair ------------------------------------------------------------------
-    def forward(self, p0) -> np.ndarray:
+    def forward(self, p0: npt.ArrayLike) -> np.ndarray:
         """A p0: the sensor data of an initial pressure image.
 
         The model of `forward_grid` / `forward_points` with the same parameters (to the NUFFT
@@ -396,7 +397,7 @@ class PlanarOperator(pylops.LinearOperator):
         p0 = self._check("p0", p0, self.ishape)
         return self._apply_forward(p0)
 
-    def adjoint(self, data) -> np.ndarray:
+    def adjoint(self, data: npt.ArrayLike) -> np.ndarray:
         """Aᴴ data: the true adjoint of `forward` (not its inverse).
 
         Parameters
@@ -662,11 +663,11 @@ class PlanarOperator(pylops.LinearOperator):
 
 
     # -- pylops ------------------------------------------------------------------
-    def _matvec(self, x):
+    def _matvec(self, x: np.ndarray) -> np.ndarray:
         # solver vectors: flat, finite, in the working dtype; reshapes are views
         return self._apply_forward(np.asarray(x, dtype=self.dtype).reshape(self.ishape)).ravel()
 
-    def _rmatvec(self, y):
+    def _rmatvec(self, y: np.ndarray) -> np.ndarray:
         return self._apply_adjoint(np.asarray(y, dtype=self.dtype).reshape(self.oshape)).ravel()
 
 
@@ -712,7 +713,8 @@ def _release_after(pages: mmap.mmap, nbytes: int) -> None:
         pages.madvise(mmap.MADV_DONTNEED, start, len(pages) - start)
 
 
-def _lattice_nodes(pos: np.ndarray, padded_shape, dx: float):
+def _lattice_nodes(pos: np.ndarray, padded_shape: tuple[int, ...],
+                   dx: float) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """Where every sensor sits on a node of the working grid (`driver.physics.axes.node_indices`;
     the scanner's lattice, the image's lateral grid, is one): (the node rows that hold sensors,
     each sensor's place among them, each sensor's column), so that the lateral point

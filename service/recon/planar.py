@@ -26,7 +26,10 @@ FFT by a type-1 NUFFT (finufft) from the sensor positions, batched over time sam
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
+import numpy.typing as npt
 
 from driver.constants import C_DEFAULT
 from driver.physics import fft_engine, nufft
@@ -48,7 +51,8 @@ _KIND = {"ner": "nufft", "linear": "linear", "nearest": "nearest"}
 _TEMPORAL_STEP = {"ner": "nufft", "linear": "regular", "nearest": "regular", "cubic": "pchip"}
 
 
-def _depth_axis(n_t, dt, c, dz, n_z, t0):
+def _depth_axis(n_t: int, dt: float, c: float, dz: float | None, n_z: int | None,
+                t0: float) -> tuple[float, int, int]:
     """(dz, n_z, n_work): the output depth grid and the working depth count, which also
     reaches the depth c t of the last sample, so that no recorded signal folds back into
     the image through the periodicity of the depth transform (period 2 (n_work - 1) dz),
@@ -73,9 +77,9 @@ def _temporal_length(n_t: int, method: str, eps: float) -> int:
     return nufft.grid_length(n_t, _KIND[method], eps)
 
 
-def transform_lengths(data_shape, dt: float = 1.0, c: float = 1.0, *, method: str = "ner", eps: float = 1e-6,
-                      dz: float | None = None, n_z: int | None = None, t0: float = 0.0, upsample: int = 1,
-                      square: bool = True) -> dict[str, tuple[int, ...]]:
+def transform_lengths(data_shape: Sequence[int], dt: float = 1.0, c: float = 1.0, *, method: str = "ner",
+                      eps: float = 1e-6, dz: float | None = None, n_z: int | None = None, t0: float = 0.0,
+                      upsample: int = 1, square: bool = True) -> dict[str, tuple[int, ...]]:
     """The FFT lengths `reconstruct_grid` runs for data of a given shape.
 
     Also those of `reconstruct_points` for a lattice of (n_y, n_x) grid nodes; the
@@ -127,7 +131,8 @@ def transform_lengths(data_shape, dt: float = 1.0, c: float = 1.0, *, method: st
             "output": tuple(n * upsample for n in lat)}
 
 
-def _check_options(dt, c, method, eps, dtype, upsample, t0):
+def _check_options(dt: float, c: float, method: str, eps: float, dtype: npt.DTypeLike, upsample: int,
+                   t0: float) -> tuple[float, float, float, np.dtype, int, float]:
     """Validate the options both reconstructions share; ValueError naming the problem."""
     dt = checks.positive("dt", dt)
     c = checks.positive("c", c)
@@ -163,7 +168,8 @@ def _pad_spectrum(K: np.ndarray, n_y: int, n_x: int, u: int, ups_y: bool) -> np.
     return out
 
 
-def _cubic_columns(A_cols, n_t, klat2, kz, qw, c, dt, t0):
+def _cubic_columns(A_cols: np.ndarray, n_t: int, klat2: np.ndarray, kz: np.ndarray, qw: np.ndarray, c: float,
+                   dt: float, t0: float) -> np.ndarray:
     """Octave 'cubic' (pchip along ω) evaluation of the inversion, column by column
     group (columns sharing |k_lat|² share the query points)."""
     L = _temporal_length(n_t, "cubic", 0.0)
@@ -208,7 +214,7 @@ def _workspace(n_t: int, n_z: int, n_cols: int, rdtype: np.dtype) -> np.ndarray:
     return np.empty(max(n_t, n_z) * n_cols, dtype=np.result_type(rdtype, np.complex64))
 
 
-def _reuse(space: np.ndarray | None, shape: tuple[int, ...], dtype) -> np.ndarray | None:
+def _reuse(space: np.ndarray | None, shape: tuple[int, ...], dtype: npt.DTypeLike) -> np.ndarray | None:
     """``space``'s memory as a C-contiguous array of ``shape`` and ``dtype`` (its contents
     undefined), or None where ``space`` is None or too small (the step then makes its own).
     Every step of a reconstruction writes its result into memory an earlier step has
@@ -289,7 +295,7 @@ def reconstruct_grid(
     *,
     method: str = "ner",
     eps: float = 1e-6,
-    dtype=np.float64,
+    dtype: npt.DTypeLike = np.float64,
     dz: float | None = None,
     n_z: int | None = None,
     upsample: int = 1,
@@ -426,7 +432,7 @@ def reconstruct_grid(
     return Reconstruction(p0[:, 0, :] if is2d else p0, np.arange(n_z) * dz, x, y, params)
 
 
-def _check_positions(positions, n_points):
+def _check_positions(positions: np.ndarray, n_points: int) -> np.ndarray:
     pos = checks.finite_array("positions", positions, (1, 2)).astype(np.float64)
     if pos.ndim == 1:
         pos = pos[:, None]
@@ -470,7 +476,7 @@ def _default_grid(pos: np.ndarray) -> tuple[tuple[np.ndarray, ...], float]:
     return tuple(axes), pitch
 
 
-def _check_grid(grid, d: int) -> tuple[np.ndarray, ...]:
+def _check_grid(grid: np.ndarray | Sequence[npt.ArrayLike], d: int) -> tuple[np.ndarray, ...]:
     if isinstance(grid, np.ndarray) and grid.ndim == 1:
         grid = (grid,)
     grid = tuple(grid)
@@ -488,7 +494,8 @@ def _check_grid(grid, d: int) -> tuple[np.ndarray, ...]:
     return tuple(out)
 
 
-def _type1(strengths, pos, axes, dx, dy, n_y, n_x, eps, rdtype, progress):
+def _type1(strengths: np.ndarray, pos: np.ndarray, axes: tuple[np.ndarray, ...], dx: float, dy: float, n_y: int,
+           n_x: int, eps: float, rdtype: np.dtype, progress: Span | None) -> np.ndarray:
     """Lateral type-1 NUFFT (finufft) of the weighted A-lines ``strengths`` (n_t, n_points)
     onto the (n_y, n_x) transform grid's wavenumbers: (n_t, n_y, n_x) complex, with the
     y-Nyquist row split band-limited (see below). Paper eq. (3). ``progress`` (optional: the
@@ -503,7 +510,7 @@ def _type1(strengths, pos, axes, dx, dy, n_y, n_x, eps, rdtype, progress):
     eps_nu = max(eps, 2e-5) if rdtype == np.float32 else eps
     # one thread: batched type-1 transforms with 2 threads were ~40x slower on 2 busy cores;
     # oversampling 1.25 keeps the batched FFTs small (FINUFFT supports it down to ~1e-9)
-    opts = dict(eps=eps_nu, isign=-1, upsampfac=1.25 if eps_nu >= 1e-9 else 2.0)
+    upsampfac = 1.25 if eps_nu >= 1e-9 else 2.0
     # the batched type-1 transforms in a few chunks of time samples (each transform is
     # independent of the others), so that progress is reported through this step too
     # planned once per mask and chunk size (driver.physics.nufft_plans): the live preview,
@@ -516,7 +523,7 @@ def _type1(strengths, pos, axes, dx, dy, n_y, n_x, eps, rdtype, progress):
     modes = (n_x,) if d == 1 else (n_y, n_x)
     for i, a in enumerate(range(0, n_t, size)):
         b = min(a + size, n_t)
-        plan = lateral_plan(1, coords, modes, b - a, dtype=ctype, **opts)
+        plan = lateral_plan(1, coords, modes, b - a, eps=eps_nu, isign=-1, dtype=ctype, upsampfac=upsampfac)
         plan.execute(np.ascontiguousarray(strengths[a:b]), out=A[a:b].reshape((b - a, *modes)))
         if progress is not None:
             progress((i + 1) / n_chunks)
@@ -542,10 +549,10 @@ def reconstruct_points(
     c: float = C_DEFAULT,
     *,
     weights: np.ndarray | None = None,
-    grid=None,
+    grid: np.ndarray | Sequence[npt.ArrayLike] | None = None,
     method: str = "ner",
     eps: float = 1e-6,
-    dtype=np.float64,
+    dtype: npt.DTypeLike = np.float64,
     dz: float | None = None,
     n_z: int | None = None,
     upsample: int = 1,

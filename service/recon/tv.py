@@ -120,10 +120,12 @@ from __future__ import annotations
 import math
 import time
 from collections import deque
-from typing import Any, NamedTuple
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numba
 import numpy as np
+import numpy.typing as npt
 import scipy.fft
 
 from driver.constants import C_DEFAULT
@@ -134,6 +136,9 @@ from service.recon import checks, memory
 from service.recon import limits as _limits
 from service.recon.reconstruction import Reconstruction
 from service.recon.tv_grid import TvGrid, noise_sigma, tv_grid
+
+if TYPE_CHECKING:
+    from service.recon.operator import PlanarOperator
 
 __all__ = ["DEFAULT_MAX_ITER", "DEFAULT_TOL", "DEFAULT_TIME_LIMIT", "TvGrid", "noise_sigma", "reconstruct_tv", "tv_grid"]
 
@@ -165,7 +170,8 @@ _POLL_S = 0.2  # a cancel is polled at least this often (s) inside long steps
 DEFAULT_TIME_LIMIT = _limits.DEFAULT_TIME_LIMIT
 
 
-def _check_tv_options(lam, max_iter, tol, time_limit):
+def _check_tv_options(lam: float | None, max_iter: int, tol: float,
+                      time_limit: float) -> tuple[float | None, int, float, float]:
     """The model-based options by their rules (``service.recon.checks``: one owner each)."""
     lam = None if lam is None else checks.check_lam(lam)
     max_iter = checks.check_iterations(max_iter)
@@ -181,12 +187,12 @@ def reconstruct_tv(
     dx: float | None = None,
     positions: np.ndarray | None = None,
     weights: np.ndarray | None = None,
-    grid=None,
+    grid: np.ndarray | Sequence[npt.ArrayLike] | None = None,
     lam: float | None = None,
     positivity: bool = True,
     max_iter: int = DEFAULT_MAX_ITER,
     tol: float = DEFAULT_TOL,
-    dtype=np.float64,
+    dtype: npt.DTypeLike = np.float64,
     eps: float = 1e-6,
     dz: float | None = None,
     n_z: int | None = None,
@@ -422,7 +428,7 @@ def reconstruct_tv(
 
     first = [x]  # handed over: _fista reuses its memory, and this frame keeps no reference
     del x
-    x, it, stop_reason, change, Ax, L, lam = _fista(forward, B, g, first, rule if auto else lam, L,
+    x, it, stop_reason, change, Ax, L, lam = _fista(forward, B, g, first, rule if lam is None else lam, L,
                                                     positivity, max_iter, tol, started, time_limit, report,
                                                     residual, poll=report.poll)
     debiased = False
@@ -468,7 +474,7 @@ class _NerWeight(NamedTuple):
     shape: tuple[int, ...]
 
 
-def _ner_weight(shape, dx: float, dz: float) -> _NerWeight:
+def _ner_weight(shape: Sequence[int], dx: float, dz: float) -> _NerWeight:
     """NER's k-space weight k_z / |k| on the orthonormal DCT-II grid of the image zero-padded
     to fast lengths (`driver.physics.fast_lengths.fast_real_shape`: on axes of 226 = 2·113 the
     DCT-II and its inverse took 2.08 s at 1024 × 226², against 0.57 s at 1024 × 240², float32;
@@ -500,7 +506,7 @@ def _ner_weight(shape, dx: float, dz: float) -> _NerWeight:
 
 
 @numba.njit(parallel=True, cache=True, fastmath=True)
-def _weight_kernel(c, kz, lat2):
+def _weight_kernel(c: np.ndarray, kz: np.ndarray, lat2: np.ndarray) -> None:
     """c[i, j, l] *= kz[i] / sqrt(kz[i]² + lat2[j, l]) in place (c: DCT coefficients, 3-D)."""
     for i in numba.prange(c.shape[0]):
         k = kz[i]
@@ -529,7 +535,8 @@ def _apply_weight(P: _NerWeight, x: np.ndarray) -> np.ndarray:
     return x
 
 
-def _gain_estimate(apply, start: np.ndarray, steps: int, step=None) -> float:
+def _gain_estimate(apply: Callable[[np.ndarray], np.ndarray], start: np.ndarray, steps: int,
+                   step: Callable[[int, int], None] | None = None) -> float:
     """Largest gain ‖BA v‖ / ‖v‖ of ``apply`` (= B A, B the NER/NEDNER of a residual) by
     ``steps`` power iterations from ``start`` (an image; not modified)."""
     v = start / np.linalg.norm(start)
@@ -559,7 +566,8 @@ def _dual_axes(q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 @numba.njit(cache=True, fastmath=True)
-def _transpose_row(qz, qy, qx, has_y, z, y, o):
+def _transpose_row(qz: np.ndarray, qy: np.ndarray, qx: np.ndarray, has_y: bool, z: int, y: int,
+                   o: np.ndarray) -> None:
     """Row y of plane z of ∇ᵀq into ``o`` (n_x), in passes without a branch inside (SIMD)."""
     nz, ny, nx = qz.shape
     if z < nz - 1:
@@ -589,7 +597,9 @@ def _transpose_row(qz, qy, qx, has_y, z, y, o):
 
 
 @numba.njit(cache=True, fastmath=True)
-def _primal_plane(v, qz, qy, qx, has_y, gamma, positivity, support, use_support, z, out, o):
+def _primal_plane(v: np.ndarray, qz: np.ndarray, qy: np.ndarray, qx: np.ndarray, has_y: bool, gamma: float,
+                  positivity: bool, support: np.ndarray, use_support: bool, z: int, out: np.ndarray,
+                  o: np.ndarray) -> None:
     """Plane z of `_prox_primal` into the 2-D ``out`` (n_y, n_x), row by row: ∇ᵀq into the
     row ``o`` (n_x, `_transpose_row`), then the projection into ``out`` (which may be v's
     plane z)."""
@@ -611,7 +621,8 @@ def _primal_plane(v, qz, qy, qx, has_y, gamma, positivity, support, use_support,
 
 
 @numba.njit(parallel=True, cache=True)
-def _prox_primal(v, qz, qy, qx, has_y, gamma, positivity, support, use_support, out):
+def _prox_primal(v: np.ndarray, qz: np.ndarray, qy: np.ndarray, qx: np.ndarray, has_y: bool, gamma: float,
+                 positivity: bool, support: np.ndarray, use_support: bool, out: np.ndarray) -> None:
     """The primal step ``out`` = P(v − γ ∇ᵀq) voxel by voxel (`_primal_plane` per plane), ∇ᵀ
     the transpose of the forward differences (0 at the last index): (∇ᵀq)_i = Σ_a
     [i_a < n_a − 1] (−q_a)_i + [i_a > 0] (q_a)_{i − e_a}; P clips below 0 (``positivity``)
@@ -623,7 +634,8 @@ def _prox_primal(v, qz, qy, qx, has_y, gamma, positivity, support, use_support, 
 
 
 @numba.njit(cache=True, fastmath=True)
-def _dual_row(a_diff, b_diff, e_diff, qz, qy, qx, has_y, step, n):
+def _dual_row(a_diff: np.ndarray, b_diff: np.ndarray, e_diff: np.ndarray, qz: np.ndarray, qy: np.ndarray,
+              qx: np.ndarray, has_y: bool, step: float, n: int) -> None:
     """One row of the dual step from the rows of w's differences along z, y, x (a zero row
     where the difference is 0): q ← (q + step ∇w) / max(1, |·|), in place; a loop without
     branches (SIMD)."""
@@ -639,7 +651,8 @@ def _dual_row(a_diff, b_diff, e_diff, qz, qy, qx, has_y, step, n):
 
 
 @numba.njit(cache=True, fastmath=True)
-def _dual_plane(cur, nxt, z, qz, qy, qx, has_y, step, scratch):
+def _dual_plane(cur: np.ndarray, nxt: np.ndarray, z: int, qz: np.ndarray, qy: np.ndarray, qx: np.ndarray,
+                has_y: bool, step: float, scratch: np.ndarray) -> None:
     """Plane z of the dual step (w's plane z ``cur``, plane z + 1 ``nxt``), row by row:
     ``scratch`` (>= 3, n_x) holds the row's differences of w along z, y and x."""
     nz = qz.shape[0]
@@ -667,7 +680,9 @@ def _dual_plane(cur, nxt, z, qz, qy, qx, has_y, step, scratch):
 
 
 @numba.njit(parallel=True, cache=True)
-def _prox_step(v, qz, qy, qx, has_y, gamma, positivity, support, use_support, step, starts, planes, rows):
+def _prox_step(v: np.ndarray, qz: np.ndarray, qy: np.ndarray, qx: np.ndarray, has_y: bool, gamma: float,
+               positivity: bool, support: np.ndarray, use_support: bool, step: float, starts: np.ndarray,
+               planes: np.ndarray, rows: np.ndarray) -> None:
     """One inner step of the dual gradient projection in one sweep, q updated in place: w =
     P(v − γ ∇ᵀq) plane by plane, each plane of w made just before the dual step of the plane
     above it needs it (from q not yet stepped there), then q ← the projected step (`_dual_plane`). The
@@ -700,7 +715,7 @@ def _prox_step(v, qz, qy, qx, has_y, gamma, positivity, support, use_support, st
 
 
 @numba.njit(parallel=True, cache=True)
-def _tv_norm_kernel(x):
+def _tv_norm_kernel(x: np.ndarray) -> float:
     """Σ_voxels sqrt(Σ_a (forward difference along a)²) of a 3-D array, the differences in
     x's dtype (as the proximal map sees them), the sum in float64."""
     nz, ny, nx = x.shape
@@ -723,7 +738,9 @@ def _tv_norm(x: np.ndarray) -> float:
     return float(_tv_norm_kernel(_as3d(np.ascontiguousarray(x))))
 
 
-def _tv_prox(v: np.ndarray, gamma: float, positivity: bool, support, dual, poll=None, in_place: bool = True):
+def _tv_prox(v: np.ndarray, gamma: float, positivity: bool, support: np.ndarray | None, dual: np.ndarray | None,
+             poll: Callable[[], None] | None = None,
+             in_place: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
     """argmin_x ½‖x − v‖² + γ TV(x) over x >= 0 (positivity) and x = 0 off ``support``
     (None: everywhere allowed): gradient projection on the dual (Chambolle 2005; Beck &
     Teboulle 2009's GP), `_PROX_ITER` steps from ``dual`` (the previous call's, a warm start,
@@ -735,10 +752,10 @@ def _tv_prox(v: np.ndarray, gamma: float, positivity: bool, support, dual, poll=
     None)."""
     has_support = support is not None
 
-    def project(x):
+    def project(x: np.ndarray) -> np.ndarray:
         if positivity:
             np.maximum(x, 0, out=x)
-        if has_support:
+        if support is not None:
             x[~support] = 0
         return x
 
@@ -766,8 +783,12 @@ def _tv_prox(v: np.ndarray, gamma: float, positivity: bool, support, dual, poll=
     return x, q
 
 
-def _fista(forward, G, g, start, lam, L, positivity, max_iter, tol, started, time_limit, report, residual,
-           support=None, poll=None):
+def _fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray], np.ndarray], g: np.ndarray,
+           start: list[np.ndarray], lam: float | Callable[[float], float], L: float, positivity: bool,
+           max_iter: int, tol: float, started: float, time_limit: float, report: _Reporter | None,
+           residual: Callable[[np.ndarray], float], support: np.ndarray | None = None,
+           poll: Callable[[], None] | None = None,
+           ) -> tuple[np.ndarray, int, str, float, np.ndarray, float, float]:
     """Accelerated proximal gradient (FISTA, Beck & Teboulle 2009) on J(p) = ½‖A p − g‖² +
     λ TV(p) (p >= 0 with ``positivity``; p = 0 off ``support`` when given), preconditioned:
     the step is G(A y − g) / L with G = B = P Aᵀ of a residual (module doc); the proximal
@@ -805,7 +826,7 @@ def _fista(forward, G, g, start, lam, L, positivity, max_iter, tol, started, tim
     y, Ay = x.copy(), Ax  # y's memory takes the gradient step (x is kept for the momentum)
     G_prev, dy = None, 0.0  # G(A y − g) of the last y, ‖y − last y‖
 
-    def objective(Ax_, x_):
+    def objective(Ax_: np.ndarray, x_: np.ndarray) -> float:
         return 0.5 * residual(Ax_) ** 2 + (lam * _tv_norm(x_) if lam > 0 else 0.0)
 
     J_prev = objective(Ax, x)  # the restart test's
@@ -894,7 +915,8 @@ _GEOMETRY_KEPT = 8
 _GEOMETRY = _GeometryMemo(_GEOMETRY_KEPT)
 
 
-def _geometry_key(op, shape, dx: float, dz: float, pos, rdtype, data_shape) -> tuple:
+def _geometry_key(op: PlanarOperator, shape: tuple[int, ...], dx: float, dz: float, pos: np.ndarray | None,
+                  rdtype: npt.DTypeLike, data_shape: tuple[int, ...]) -> tuple:
     """What ‖BA‖ and the noise image depend on: the operator's grid, sampling, band, sensors
     (their bytes' digest), precision and the data's shape (the noise record's)."""
     import hashlib
@@ -942,7 +964,7 @@ def _store_dual(dual: np.ndarray) -> np.ndarray:
     return out
 
 
-def _restore_dual(stored: np.ndarray, dtype) -> np.ndarray:
+def _restore_dual(stored: np.ndarray, dtype: npt.DTypeLike) -> np.ndarray:
     """`_store_dual` undone: a new array of ``dtype`` (float32 from int16, float64 from float32)."""
     out = np.empty(stored.shape, dtype=dtype)
     if stored.dtype == np.int16:
@@ -953,28 +975,28 @@ def _restore_dual(stored: np.ndarray, dtype) -> np.ndarray:
 
 
 @numba.njit(parallel=True, cache=True)
-def _quantise(q, out, scale):
+def _quantise(q: np.ndarray, out: np.ndarray, scale: float) -> None:
     """Fixed point: out = round(clip(q, -1, 1) · scale) (flat arrays; ``out`` integer)."""
     for i in numba.prange(q.size):
         out[i] = math.floor(min(max(q[i], -1.0), 1.0) * scale + 0.5)
 
 
 @numba.njit(parallel=True, cache=True)
-def _dequantise(s, out, inv_scale):
+def _dequantise(s: np.ndarray, out: np.ndarray, inv_scale: float) -> None:
     """Fixed point undone: out = s · inv_scale (flat arrays)."""
     for i in numba.prange(s.size):
         out[i] = s[i] * inv_scale
 
 
 @numba.njit(parallel=True, cache=True)
-def _cast(src, out):
+def _cast(src: np.ndarray, out: np.ndarray) -> None:
     """A parallel copy: out = src, converted to ``out``'s dtype (flat arrays)."""
     for i in numba.prange(src.size):
         out[i] = src[i]
 
 
 @numba.njit(parallel=True, cache=True)
-def _difference_norm(a, b):
+def _difference_norm(a: np.ndarray, b: np.ndarray) -> float:
     """‖a − b‖₂ of two flat arrays, summed in float64 (no work array)."""
     total = 0.0
     for i in numba.prange(a.size):
@@ -984,21 +1006,22 @@ def _difference_norm(a, b):
 
 
 @numba.njit(parallel=True, cache=True)
-def _axpy(y, x, s):
+def _axpy(y: np.ndarray, x: np.ndarray, s: float) -> None:
     """In place, y += s x (flat arrays of one dtype)."""
     for i in numba.prange(y.size):
         y[i] += s * x[i]
 
 
 @numba.njit(parallel=True, cache=True)
-def _extrapolate(x, xn, beta):
+def _extrapolate(x: np.ndarray, xn: np.ndarray, beta: float) -> None:
     """In place, x ← xn + β (xn − x) (flat arrays): FISTA's next y in the old iterate's place."""
     for i in numba.prange(x.size):
         x[i] = xn[i] + beta * (xn[i] - x[i])
 
 
 @numba.njit(parallel=True, cache=True)
-def _moves(xn, v, gy, inv_l, x, beta):
+def _moves(xn: np.ndarray, v: np.ndarray, gy: np.ndarray, inv_l: float, x: np.ndarray,
+           beta: float) -> tuple[float, float, float, float, float]:
     """With y = v + inv_l gy (the gradient step v = y − gy / L undone), a = xn − y and
     b = xn − x (flat arrays): (⟨a, b⟩, ‖a‖², ‖a + β b‖², ‖b‖², ‖xn‖²), summed in float64."""
     ab = 0.0

@@ -44,6 +44,7 @@ import math
 from typing import NamedTuple
 
 import numpy as np
+import numpy.typing as npt
 
 from driver.constants import C_DEFAULT
 from driver.physics.resample import resampled_length
@@ -51,7 +52,7 @@ from driver.physics.resample import resampled_length
 __all__ = ["TvGrid", "noise_sigma", "data_band", "tv_grid"]
 
 
-def noise_sigma(data: np.ndarray, time_axis: int) -> float:
+def noise_sigma(data: npt.ArrayLike, time_axis: int) -> float:
     """Noise standard deviation of ``data`` (Pa), from the median absolute deviation of
     the finest Haar wavelet coefficients along ``time_axis`` (Donoho & Johnstone 1994):
     σ = median |g_{2n+1} − g_{2n}| / (√2 · 0.6745).
@@ -140,7 +141,7 @@ class TvGrid(NamedTuple):
         return self.band is not None
 
 
-def data_band(data, dt: float, time_axis: int, sigma: float) -> float | None:
+def data_band(data: npt.ArrayLike, dt: float, time_axis: int, sigma: float) -> float | None:
     """The data's band above their noise floor, Hz (module doc): the lowest frequency above
     which the data's energy is at most twice the noise's.
 
@@ -215,7 +216,7 @@ def data_band(data, dt: float, time_axis: int, sigma: float) -> float | None:
     return max(k_keep - 1, 1) / (2.0 * (n - 1) * float(dt))
 
 
-def tv_grid(n_t: int, dt: float, c: float = C_DEFAULT, *, data=None, time_axis: int = 0,
+def tv_grid(n_t: int, dt: float, c: float = C_DEFAULT, *, data: npt.ArrayLike | None = None, time_axis: int = 0,
             sigma: float | None = None, bandwidth: float | None = None, dz: float | None = None,
             n_z: int | None = None) -> TvGrid:
     """The grid tv works on (module doc): the operator's samples and band, and the image's

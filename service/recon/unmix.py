@@ -32,6 +32,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+import numpy.typing as npt
 
 from driver.physics import spectra
 
@@ -89,7 +90,7 @@ class Unmixed:
     params: dict = field(default_factory=dict)
 
 
-def too_few_wavelengths(wavelengths) -> ValueError:
+def too_few_wavelengths(wavelengths: npt.ArrayLike | None) -> ValueError:
     """The error for an input with fewer than two wavelengths, naming them.
 
     Parameters
@@ -116,7 +117,7 @@ def too_few_wavelengths(wavelengths) -> ValueError:
                       f"{w.size} ({nm})")
 
 
-def endmember_matrix(wavelengths) -> np.ndarray:
+def endmember_matrix(wavelengths: npt.ArrayLike) -> np.ndarray:
     """Decadic molar extinction [ε_HbO2, ε_Hb] at the wavelengths (Prahl's spectra).
 
     Parameters
@@ -245,7 +246,7 @@ def nnls2(A: np.ndarray, Y: np.ndarray, *, chunk: int = CHUNK) -> np.ndarray:
     return X
 
 
-def unmix(volumes: np.ndarray, wavelengths, *, fluence: np.ndarray | float | None = None,
+def unmix(volumes: np.ndarray, wavelengths: npt.ArrayLike, *, fluence: np.ndarray | float | None = None,
           gruneisen: float = 1.0, threshold: float = 0.1, chunk: int = CHUNK) -> Unmixed:
     """Unmix per-wavelength p0 volumes into HbO2 and Hb (NNLS per voxel), THb and sO2.
 
