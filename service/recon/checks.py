@@ -5,6 +5,7 @@ models themselves are ``service.recon.memory``'s)."""
 from __future__ import annotations
 
 import os
+from typing import Any
 
 import numpy as np
 
@@ -18,7 +19,7 @@ __all__ = [
 ]
 
 
-def positive(name: str, value) -> float:
+def positive(name: str, value: Any) -> float:
     """``value`` as a float, refused unless finite and > 0.
 
     Parameters
@@ -56,7 +57,7 @@ def positive(name: str, value) -> float:
     return v
 
 
-def finite_array(name: str, a, ndims: tuple[int, ...]) -> np.ndarray:
+def finite_array(name: str, a: Any, ndims: tuple[int, ...]) -> np.ndarray:
     """``a`` as an ndarray of real numbers with a number of dimensions in ``ndims``.
 
     Parameters
@@ -152,7 +153,7 @@ class OptionError(RefusedInput):
     """
 
 
-def _number(name: str, value, what: str) -> float:
+def _number(name: str, value: Any, what: str) -> float:
     if isinstance(value, bool):
         raise OptionError(f"{name} must be {what}, got {value!r}")
     try:
@@ -161,7 +162,7 @@ def _number(name: str, value, what: str) -> float:
         raise OptionError(f"{name} must be {what}, got {value!r}") from None
 
 
-def _integer(name: str, value, lo: int, hi: int) -> int:
+def _integer(name: str, value: Any, lo: int, hi: int) -> int:
     what = f"an integer in {lo}..{hi}"
     v = _number(name, value, what)
     if not np.isfinite(v) or int(v) != v or not lo <= v <= hi:
@@ -169,7 +170,7 @@ def _integer(name: str, value, lo: int, hi: int) -> int:
     return int(v)
 
 
-def check_eps(eps) -> float:
+def check_eps(eps: Any) -> float:
     """The NUFFT tolerance, within ``EPS_RANGE`` ([1e-14, 1e-1], inclusive).
 
     Parameters
@@ -202,7 +203,7 @@ def check_eps(eps) -> float:
     return e
 
 
-def check_upsample(upsample) -> int:
+def check_upsample(upsample: Any) -> int:
     """The lateral upsampling factor: an integer in ``UPSAMPLE_RANGE`` (1..8).
 
     Parameters
@@ -232,7 +233,7 @@ def check_upsample(upsample) -> int:
     return _integer("upsample", upsample, *UPSAMPLE_RANGE)
 
 
-def check_n_z(n_z) -> int:
+def check_n_z(n_z: Any) -> int:
     """The number of output depth samples: an integer in ``N_Z_RANGE`` (2..65536).
 
     Parameters
@@ -262,7 +263,7 @@ def check_n_z(n_z) -> int:
     return _integer("n_z", n_z, *N_Z_RANGE)
 
 
-def check_dz(dz) -> float:
+def check_dz(dz: Any) -> float:
     """The output depth spacing, within ``DZ_RANGE`` ([1 nm, 0.1 m]).
 
     Parameters
@@ -296,7 +297,7 @@ def check_dz(dz) -> float:
     return v
 
 
-def check_lam(lam) -> float:
+def check_lam(lam: Any) -> float:
     """The TV weight λ: a finite number in ``LAM_RANGE`` ([0, 1e30]).
 
     Parameters
@@ -330,7 +331,7 @@ def check_lam(lam) -> float:
     return v
 
 
-def check_bandwidth(bandwidth) -> float:
+def check_bandwidth(bandwidth: Any) -> float:
     """A sensor bandwidth the caller declares, Hz: a finite number in ``BANDWIDTH_RANGE``
     ([1e3, 1e12]); tv works at that band instead of the one it reads off the data
     (`service.recon.tv_grid`).
@@ -366,7 +367,7 @@ def check_bandwidth(bandwidth) -> float:
     return v
 
 
-def check_tol(tol) -> float:
+def check_tol(tol: Any) -> float:
     """The model-based solver's stopping threshold: a number in ``TOL_RANGE`` ([0, 0.5]).
 
     Parameters
@@ -401,7 +402,7 @@ def check_tol(tol) -> float:
     return v
 
 
-def check_iterations(iterations) -> int:
+def check_iterations(iterations: Any) -> int:
     """The most iterations of the model-based solver: an integer in ``ITERATIONS_RANGE`` (1..100000).
 
     Parameters
@@ -430,7 +431,7 @@ def check_iterations(iterations) -> int:
     return _integer("iterations", iterations, *ITERATIONS_RANGE)
 
 
-def check_time_limit(seconds) -> float:
+def check_time_limit(seconds: Any) -> float:
     """The wall-time limit of the model-based solver, in (0, ``TIME_LIMIT_MAX``] (a week).
 
     Parameters
@@ -464,7 +465,7 @@ def check_time_limit(seconds) -> float:
     return v
 
 
-def check_dtype(dtype) -> np.dtype:
+def check_dtype(dtype: Any) -> np.dtype:
     """The working precision: float32 or float64.
 
     Parameters
@@ -528,7 +529,7 @@ def available_memory() -> int:
     return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
 
 
-def check_memory(needed: int, memory_limit) -> None:
+def check_memory(needed: int, memory_limit: int | None) -> None:
     """Refuse a reconstruction that needs more memory than the limit.
 
     Parameters
