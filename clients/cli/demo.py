@@ -289,7 +289,7 @@ class Demo:
             scan_file = api.download_scan(job_id, self.out / f"scan_{plan_name}.h5")
             if plan_name == "equisteradian":
                 # the scan in the community's format, and the service's live preview of it
-                api.download_ipasc(job_id, self.out / f"scan_{plan_name}_ipasc.h5")
+                api.export(job_id, "ipasc", self.out / f"scan_{plan_name}_ipasc.h5")
                 preview = to_dict(api.scan_preview(job_id)) or {}
                 if preview.get("version"):
                     api.download_scan_preview(job_id, "xy", self.out / "live_preview_xy.png")

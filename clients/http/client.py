@@ -70,12 +70,13 @@ class Client(Connection, Server, Plans, Scans, Datasets, Reconstructions, Jobs):
     ``mask_kinds``, ``list_plans``, ``get_plan``, ``get_plan_json``,
     ``download_plan_preview``, ``delete_plan``); scanners and scans (``scanners``,
     ``start_scan``, ``pause_scan``, ``resume_scan``, ``abort_scan``, ``download_scan``,
-    ``download_ipasc``, ``scan_preview``, ``download_scan_preview``); datasets and
-    reconstructions (``upload_dataset``, ``dataset_formats``, ``methods``,
-    ``start_reconstruction``, ``start_unmix``, ``download_volume``, ``download_ome_tiff``,
-    ``download_ome_zarr``, ``download_mip``, ``download_slice``, ``download_unmix``,
-    ``download_so2``, ``list_datasets``, ``delete_dataset``); jobs (``list_jobs``,
-    ``get_job``, ``cancel_job``, ``delete_job``, ``events``, ``wait``); ``retention``.
+    ``scan_preview``, ``download_scan_preview``); datasets and
+    reconstructions (``upload_dataset``, ``dataset_formats``, ``formats``, ``methods``,
+    ``start_reconstruction``, ``start_unmix``, ``download_volume``, ``download_mip``,
+    ``download_slice``, ``download_unmix``, ``download_so2``, ``list_datasets``,
+    ``delete_dataset``); jobs (``list_jobs``, ``get_job``, ``cancel_job``, ``delete_job``,
+    ``events``, ``wait``, ``export``: a job's file in any export format of ``formats``, e.g.
+    ``"ipasc"``, ``"ome-tiff"``, ``"ome-zarr"``); ``retention``.
     Downloads go to ``<dest>.part`` and are renamed into place when complete; one cut off
     by a network failure resumes on the next call.
 
