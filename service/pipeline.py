@@ -29,7 +29,7 @@ Options (SI units; ``None`` means "the default"):
 - ``interp``: k-Wave's interpolation (``kwave``): ``"*nearest"`` (k-Wave's default),
   ``"nearest"``, ``"*linear"``, ``"linear"``, ``"*cubic"``, ``"cubic"``.
 
-A ``c`` (and each end of ``c_range``) outside 1000-2000 m/s is refused as a likely unit
+A ``c`` (and each end of ``c_range``) outside ``driver.constants.C_PLAUSIBLE`` (m/s) is refused as a likely unit
 mistake (``driver.units.check_speeds``, the rule of the CLI, the API and the web form)
 unless :func:`reconstruct` is called with ``force=True`` (another medium).
 
@@ -56,7 +56,6 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from driver.constants import C_AUTOFOCUS_RANGE
 from service.progress import Progress, span
 from service.recon import methods as _methods
 from service.recon.limits import DEFAULT_DTYPE, DTYPES, KWAVE_INTERPS
@@ -83,11 +82,10 @@ register = _methods.register
 def _options() -> dict[str, str]:
     """Every option a method may take, with its meaning, range, unit and default (from the
     methods' option models; ``c`` and ``c_range`` are the pipeline's own)."""
-    out = {
-        "c": "speed of sound, m/s, or 'auto': the c of sharpest focus (service.autofocus; default: the dataset's)",
-        "c_range": f"autofocus search interval (c_min, c_max), m/s (default {C_AUTOFOCUS_RANGE[0]:g}-"
-                   f"{C_AUTOFOCUS_RANGE[1]:g})",
-    }
+    from service.recon.methods.options import SpeedOptions
+
+    speed = SpeedOptions.model_fields
+    out = {"c": speed["c"].description or "", "c_range": speed["c_range"].description or ""}
     for m in METHODS.values():
         for o in _methods.option_schemas(m):
             if o["name"] in out:
@@ -339,7 +337,7 @@ def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = No
     should_stop : callable, optional
         ``should_stop() -> bool``, polled between steps.
     force : bool, optional
-        Accept a ``c`` (or ``c_range``) outside 1000-2000 m/s (a medium other than tissue
+        Accept a ``c`` (or ``c_range``) outside ``driver.constants.C_PLAUSIBLE`` (m/s; a medium other than tissue
         or water); without it such a value is a ValueError naming the likely unit mistake
         (``driver.units.ImplausibleValue``).
     **options

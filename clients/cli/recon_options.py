@@ -31,19 +31,41 @@ def _registry() -> Any:
     return methods
 
 
-def add_speed_flags(group, *, what: str = "") -> None:
+def _speed_fields() -> dict[str, str]:
+    """The registry's speed option (``service.recon.methods.options.SpeedOptions``): each
+    field's flag and description; without the service package (a client-only install) the
+    same words from ``driver.constants``."""
+    try:
+        from service.recon.methods.options import SpeedOptions
+    except ImportError:
+        return {"c": f"speed of sound, m/s; default: the input's, else {C_DEFAULT:g}",
+                "c_range": f"autofocus search interval (c_min, c_max), m/s (default {C_AUTOFOCUS_RANGE[0]:g}-"
+                           f"{C_AUTOFOCUS_RANGE[1]:g})",
+                "force": f"accept a sound_speed outside {C_PLAUSIBLE[0]:g}-{C_PLAUSIBLE[1]:g} m/s (another medium)"}
+    return {name: (f.description or "").split(". Also accepted as")[0]
+            for name, f in SpeedOptions.model_fields.items()}
+
+
+def add_speed_flags(group: Any, *, what: str = "") -> None:
     """``--sound-speed`` (alias ``--c``), ``--sound-speed-range`` (alias ``--c-range``) and
-    ``--force`` on ``group``; dests ``c``, ``c_range``, ``force`` (the code's names)."""
+    ``--force`` on ``group``; dests ``c``, ``c_range``, ``force`` (the code's names); their help
+    from the registry's one speed option (unit, bounds, default: :func:`_speed_fields`).
+
+    Parameters
+    ----------
+    group : argparse.ArgumentParser or argument group
+        Where the flags go.
+    what : str, optional
+        Text appended to ``--sound-speed``'s help (what the speed is used for here).
+    """
+    said = _speed_fields()
     group.add_argument("--sound-speed", "--c", dest="c", type=speed, default=None, metavar="C",
-                       help="speed of sound, e.g. 1500 or 1.5km/s (m/s), or 'auto' (autofocus: sharpest focus; "
-                            f"default: the input's or {C_DEFAULT:g}){what}. --c is the deprecated name")
+                       help=f"{said['c']}{what}; e.g. 1500 or 1.5km/s. --c is the deprecated name".replace("%", "%%"))
     group.add_argument("--sound-speed-range", "--c-range", dest="c_range", type=quantity("speed", "sound-speed-range"),
                        nargs=2, default=None, metavar=("MIN", "MAX"),
-                       help="autofocus search interval, e.g. 1450 1600 (m/s) or 1.45km/s 1.6km/s (default "
-                            f"{C_AUTOFOCUS_RANGE[0]:g} {C_AUTOFOCUS_RANGE[1]:g}). --c-range is the deprecated name")
-    group.add_argument("--force", action="store_true",
-                       help=f"accept a speed of sound outside {C_PLAUSIBLE[0]:g}-{C_PLAUSIBLE[1]:g} m/s (another "
-                            "medium)")
+                       help=f"{said['c_range']}; e.g. 1450 1600 or 1.45km/s 1.6km/s. --c-range is the deprecated "
+                            "name".replace("%", "%%"))
+    group.add_argument("--force", action="store_true", help=said["force"].replace("%", "%%"))
 
 
 def _value_type(name: str, schema: dict, flag: str) -> dict:

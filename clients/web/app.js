@@ -599,7 +599,7 @@ function planBodyCommon() {
       wavelengths: wl,
       sound_speed: numberField("acq-c", "Sound speed"),
     },
-    force: $("acq-force").checked, // a sound speed outside 1000-2000 m/s (driver.units' rule)
+    force: $("acq-force").checked, // a sound speed outside the plausible range (driver.units' rule)
   };
 }
 
@@ -1561,7 +1561,7 @@ async function uploadAndReconstruct(ev) {
     }
     uploadC = speedField("upload-c");
     if (typeof uploadC === "number") form.append("sound_speed", String(uploadC)); // c: its deprecated name
-    if ($("upload-force").checked) form.append("force", "true"); // c outside 1000-2000 m/s
+    if ($("upload-force").checked) form.append("force", "true"); // c outside the plausible range
   } catch (err) { showError(err); return; }
   const key = $("upload-key").value.trim();
   if (key) form.append("key", key);
@@ -1697,6 +1697,13 @@ async function buildMethodSelects() {
     }
     sel.value = preferred in METHODS ? preferred : list[0].name;
   }
+  // the "another medium" labels: the plausible speeds of the registry's one speed option
+  // (sound_speed's value schema; service.recon.methods.options.SpeedOptions)
+  const speed = ((list[0] || {}).options || []).find((o) => o.name === "sound_speed");
+  const number = speed && (speed.value_schema.anyOf || []).find((s) => s.type === "number");
+  if (number) {
+    for (const span of document.querySelectorAll(".speed-plausible")) span.textContent = `${number.minimum}–${number.maximum} ${speed.value_schema.unit || "m/s"}`;
+  }
   renderReconOptions();
 }
 
@@ -1766,7 +1773,7 @@ async function startRecon(ev) {
   try {
     const c = speedField("recon-c");
     if (c !== undefined) params.sound_speed = c; // the HTTP name (c: its deprecated alias)
-    if ($("recon-force").checked) params.force = true; // c outside 1000-2000 m/s (driver.units' rule)
+    if ($("recon-force").checked) params.force = true; // c outside the plausible range (driver.units' rule)
   } catch (err) { showError(err); return; }
   const body = { scan_job_id: resultJob, method: $("recon-method").value, params };
   if ($("recon-unmix").checked) body.unmix = {}; // every wavelength: no wavelength choice

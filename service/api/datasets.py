@@ -3,7 +3,8 @@
 Formats: those of the registry marked ``upload`` (``service.formats``; listed by
 ``GET /api/datasets/formats``, each module documenting its layout): ``npy`` (a NumPy array
 in k-Wave layout, time first, with form fields ``dt`` (s), ``dx`` (m), optional ``dy``
-(m, default dx) and ``c`` (m/s, default 1500; outside 1000-2000 m/s only with ``force``:
+(m, default dx) and ``sound_speed`` (m/s, default 1500; outside ``driver.constants.C_PLAUSIBLE``
+only with ``force``, the registry's ``SpeedOptions``:
 ``driver.units.check_plausible``, as everywhere)), ``kwave-hdf5`` (such an array in HDF5
 at ``key``; spacings from the form or the file's attributes), ``fpscan`` (our scan file,
 reconstructed from its completed points) and ``ipasc``.
@@ -40,6 +41,7 @@ from pathlib import Path
 from fastapi import APIRouter, Depends, File, Form, HTTPException, UploadFile
 from fastapi import Path as PathParam
 
+from driver.constants import C_DEFAULT
 from driver.units import parse_quantity
 from service.api.context import Context, ctx, read_access, reason, require_token
 from service.api.models import ID_PATTERN, Dataset, DatasetFormat, DatasetFormatInfo, DatasetInfo, Deleted
@@ -47,6 +49,7 @@ from service.formats import upload_formats
 from service.formats.untrusted import DiskAdmission, NotAdmitted, hdf5_limit, run_bounded
 from service.jobs import lifecycle
 from service.jobs.queue import INCOMING
+from service.recon.methods.options import SpeedOptions, plausible_speeds
 from service.storage.datasets import import_dataset
 from service.storage.usage import usage_for
 
@@ -73,6 +76,13 @@ def list_formats() -> list[DatasetFormatInfo]:
     return [DatasetFormatInfo(**f) for f in upload_formats()]
 
 
+#: the upload's speed fields, in the words of the registry's one speed option
+#: (``service.recon.methods.options.SpeedOptions``: unit, bounds, default)
+_SPEED = (f"speed of sound, m/s (or 1.5 km/s; {plausible_speeds()} unless force; default: the file's, else "
+          f"{C_DEFAULT:g})")
+_FORCE = SpeedOptions.model_fields["force"].description
+
+
 @router.post("", status_code=201, response_model=Dataset, dependencies=[Depends(require_token)],
              responses={413: {"description": "upload larger than the configured limit"},
                         507: {"description": "the decoded dataset does not fit the free disk (counting the "
@@ -83,11 +93,9 @@ def upload_dataset(file: UploadFile = File(..., description="the data file"),
                                                                           "unit: 20ns)"),
                    dx: str | None = Form(None, max_length=40, description="lateral spacing along x, m (or 100um)"),
                    dy: str | None = Form(None, max_length=40, description="lateral spacing along y, m (or 100um)"),
-                   sound_speed: str | None = Form(None, max_length=40, description="speed of sound, m/s (or "
-                                                  "1.5 km/s; 1000-2000 unless force)"),
+                   sound_speed: str | None = Form(None, max_length=40, description=_SPEED),
                    c: str | None = Form(None, max_length=40, description="deprecated name of sound_speed"),
-                   force: bool = Form(False, description="accept a sound_speed outside 1000-2000 m/s (a medium "
-                                                         "other than tissue or water)"),
+                   force: bool = Form(False, description=_FORCE),
                    key: str | None = Form(None, max_length=200, description="HDF5 dataset path (kwave-hdf5)"),
                    wavelength: int | None = Form(None, ge=0, le=1023,
                                                  description="of a multi-wavelength scan or IPASC file: the index of "

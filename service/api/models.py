@@ -11,7 +11,6 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal, Union
 
 from pydantic import (
     AfterValidator,
-    AliasChoices,
     BaseModel,
     BeforeValidator,
     ConfigDict,
@@ -23,13 +22,13 @@ from pydantic import (
     model_validator,
 )
 
-from driver.constants import C_AUTOFOCUS_LIMITS, C_AUTOFOCUS_RANGE, C_LIMITS, C_PLAUSIBLE
 from service.formats import upload_formats
 from service.pipeline import METHODS
 from service.plans.kinds import KINDS, MaskKind, resolve_kind
 from service.plans.plan import ORDER_NAMES, Acquisition
 from service.plans.plan import Plan as PlanJson
 from service.recon import methods as _methods
+from service.recon.methods.options import SpeedOptions, plausible_speeds
 
 __all__ = [
     "JobState", "JobKind", "ReconMethod", "Plane", "DATASET_FORMATS", "DatasetFormat", "ID_PATTERN", "LatticeIndex",
@@ -192,7 +191,7 @@ class _PlanCreate(_Request):
         None, description="scan order (default auto: rings for equisteradian, given for a point list, "
                           "serpentine otherwise)")
     acquisition: Acquisition = Field(default_factory=Acquisition)
-    force: bool = Field(False, description="accept a sound speed outside 1000-2000 m/s")
+    force: bool = Field(False, description=f"accept a sound speed outside {plausible_speeds()} m/s")
 
     @model_validator(mode="before")
     @classmethod
@@ -464,25 +463,13 @@ class DatasetInfo(BaseModel):
     in_use: bool = Field(False, description="a queued, running or paused job reads it (it cannot be deleted)")
 
 
-class _ReconParamsBase(_Request):
-    """Reconstruction options: the speed of sound (every method's) and ``force``; the
-    methods' own options are added from the registry (:func:`_method_option_fields`)."""
+class _ReconParamsBase(SpeedOptions, _Request):
+    """Reconstruction options: the speed of sound (every method's: ``c`` as ``sound_speed``,
+    ``c_range`` as ``sound_speed_range``, ``force``; the registry's one typed model,
+    ``service.recon.methods.options.SpeedOptions``); the methods' own options are added from
+    the registry (:func:`_method_option_fields`)."""
 
-    c: Annotated[float, Field(gt=0)] | Literal["auto"] | None = Field(
-        None, validation_alias=AliasChoices("sound_speed", "c"),
-        description=f"speed of sound, m/s ({C_PLAUSIBLE[0]:g}-{C_PLAUSIBLE[1]:g} unless force, "
-                    f"{C_LIMITS[0]:g}-{C_LIMITS[1]:g} with it), or 'auto': the "
-                    "speed of sharpest focus (Tenenbaum sharpness, searched within c_range; default: "
-                    "the input's). Also accepted as c (deprecated)")
-    c_range: tuple[Annotated[float, Field(ge=C_AUTOFOCUS_LIMITS[0], le=C_AUTOFOCUS_LIMITS[1])],
-                   Annotated[float, Field(ge=C_AUTOFOCUS_LIMITS[0], le=C_AUTOFOCUS_LIMITS[1])]] | None = Field(
-        None, validation_alias=AliasChoices("sound_speed_range", "c_range"),
-        description="autofocus search interval (c_min, c_max), m/s "
-                    f"(default {C_AUTOFOCUS_RANGE[0]:g}-{C_AUTOFOCUS_RANGE[1]:g}). Also accepted as c_range "
-                    "(deprecated)")
-    force: bool = Field(False, description="accept a sound_speed (or sound_speed_range) outside 1000-2000 m/s (a "
-                                           "medium other than tissue or water); without it such a value is refused "
-                                           "as a likely unit mistake (driver.units.check_speeds)")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, populate_by_name=False)
 
     @field_validator("*", mode="before", check_fields=False)
     @classmethod
@@ -493,10 +480,13 @@ class _ReconParamsBase(_Request):
         from driver.units import parse_quantity
 
         name = info.field_name
-        kind = "speed" if name in ("c", "c_range") else _OPTION_QUANTITIES.get(name)
+        speed = SpeedOptions.model_fields.get(name)
+        extra = speed.json_schema_extra if speed is not None and isinstance(speed.json_schema_extra, dict) else {}
+        kind = str(extra["quantity"]) if "quantity" in extra else None if speed is not None \
+            else _OPTION_QUANTITIES.get(name)
         if kind is None:
             return value
-        shown = {"c": "sound_speed", "c_range": "sound_speed_range"}.get(name, name)
+        shown = str(extra.get("shown", name))
         if isinstance(value, str) and not (name == "c" and value == "auto"):
             try:
                 return parse_quantity(value, kind, name=shown)

@@ -22,7 +22,7 @@ from service.jobs.admission import (
 )
 from service.jobs.store import IdempotencyConflict
 from service.names import person_names
-from service.pipeline import METHODS, OPTIONS, default_method, method_options
+from service.pipeline import METHODS, default_method, method_options
 from service.recon.methods import get as method_named
 
 __all__ = [
@@ -176,23 +176,16 @@ def list_methods() -> list[MethodInfo]:
     method's default and its JSON schema: type, range, unit) and the algorithm's source.
     The web page builds its method choices and option fields from this."""
     from service.recon.methods import option_schemas
+    from service.recon.methods.options import SpeedOptions, speed_schema
 
-    speed = MethodOption(name="sound_speed", description=OPTIONS["c"], default=None,
-                         value_schema=_speed_schema())
+    speed = MethodOption(name="sound_speed", description=SpeedOptions.model_fields["c"].description or "",
+                         default=None, value_schema=speed_schema())
     return [MethodInfo(name=m.name, title=m.title, needs_grid=m.needs_grid, source=m.source, iterative=m.iterative,
                        time_limited=m.time_limited, cancellable=m.cancellable, default_for=list(m.default_for),
                        options=[speed, *(MethodOption(name=o["name"], description=o["description"],
                                                       default=o["default"], value_schema=o["schema"])
                                          for o in option_schemas(m))])
             for m in METHODS.values()]
-
-
-def _speed_schema() -> dict:
-    """The value schema of ``sound_speed``: a number in m/s (plausible range) or ``"auto"``."""
-    from driver.constants import C_PLAUSIBLE
-
-    return {"anyOf": [{"type": "number", "minimum": C_PLAUSIBLE[0], "maximum": C_PLAUSIBLE[1]},
-                      {"type": "string", "enum": ["auto"]}], "unit": "m/s", "quantity": "speed"}
 
 
 @router.post("", status_code=202, response_model=Job, dependencies=[Depends(require_token)],

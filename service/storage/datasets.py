@@ -306,7 +306,8 @@ def import_dataset(src: str | os.PathLike, dest_dir: str | os.PathLike, fmt: str
         Largest declared dataset of an HDF5 file in bytes (``driver.hdf5_checks.check_hdf5_file``,
         run before anything is read); default None: ``MAX_ELEMENTS * 8``.
     force : bool, optional
-        Accept a ``c`` outside 1000-2000 m/s (as :func:`load_dataset`); default False.
+        Accept a ``c`` outside ``driver.constants.C_PLAUSIBLE`` (m/s; as :func:`load_dataset`);
+        default False.
     wavelength : int or None, optional
         Which excitation wavelength of a multi-wavelength file to store (an index; None: the
         first; as :func:`load_dataset`, recorded in the metadata).

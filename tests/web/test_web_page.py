@@ -511,6 +511,12 @@ def test_upload_a_data_file_and_reconstruct_it(browser, server, api, screenshots
     Select(el(browser, "upload-format")).select_by_value("npy")
     set_value(browser, "upload-dt", 20)      # ns
     set_value(browser, "upload-dx", 100)     # µm; dy left empty = dx
+    # the "another medium" labels name the plausible speeds of the registry's speed option
+    speed = next(o for o in listed[0]["options"] if o["name"] == "sound_speed")["value_schema"]["anyOf"][0]
+    plausible = f"{speed['minimum']:g}–{speed['maximum']:g} m/s"
+    wait_for(lambda: all(plausible in browser.execute_script(
+        "return document.getElementById(arguments[0]).parentElement.textContent", i)
+        for i in ("upload-force", "recon-force", "acq-force")), "the plausible speeds in the force labels")
     # c = 2500 m/s is refused with the server's reason (the rule of the CLI and the library)
     # until "another medium" is ticked
     set_value(browser, "upload-c", 2500)

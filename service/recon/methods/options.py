@@ -22,8 +22,9 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, model_validator
+from pydantic import AliasChoices, BaseModel, BeforeValidator, ConfigDict, Field, model_validator
 
+from driver.constants import C_AUTOFOCUS_LIMITS, C_AUTOFOCUS_RANGE, C_DEFAULT, C_LIMITS, C_PLAUSIBLE
 from service.recon.limits import (
     DEFAULT_DTYPE,
     DEFAULT_EPS,
@@ -34,7 +35,7 @@ from service.recon.limits import (
     UPSAMPLE_RANGE,
 )
 
-__all__ = ["MethodOptions", "NufftOptions", "UpsampleOption", "PositivityOption", "DepthOptions", "Eps",
+__all__ = ["SpeedOptions", "plausible_speeds", "speed_schema", "MethodOptions", "NufftOptions", "UpsampleOption", "PositivityOption", "DepthOptions", "Eps",
            "Upsample", "NZ", "Dz", "Dtype", "Flag", "kernel_rule", "check_flag", "check_dtype_name"]
 
 
@@ -221,6 +222,106 @@ def Flag(name: str) -> Any:  # noqa: N802  (a type, named as one)
     Value error, debias must be true or false, got 2
     """
     return Annotated[bool | None, BeforeValidator(check_flag(name))]
+
+
+def plausible_speeds(sep: str = "-") -> str:
+    """The speeds of sound accepted without ``force`` (``driver.constants.C_PLAUSIBLE``, tissue
+    and water) as text for a message, a help line or a form label.
+
+    Parameters
+    ----------
+    sep : str, optional
+        Between the two ends (``"-"``; ``"–"`` for a page, ``" to "`` for a sentence).
+
+    Returns
+    -------
+    str
+        ``"1000-2000"`` (m/s, without the unit).
+
+    Examples
+    --------
+    >>> from service.recon.methods.options import plausible_speeds
+    >>> plausible_speeds(), plausible_speeds(" to ")
+    ('1000-2000', '1000 to 2000')
+    """
+    return f"{C_PLAUSIBLE[0]:g}{sep}{C_PLAUSIBLE[1]:g}"
+
+
+Speed = Annotated[float, Field(gt=0)]
+AutofocusSpeed = Annotated[float, Field(ge=C_AUTOFOCUS_LIMITS[0], le=C_AUTOFOCUS_LIMITS[1])]
+
+
+class SpeedOptions(BaseModel):
+    """The speed of sound, every method's option, as one typed model: its unit, bounds and default,
+    the autofocus interval and ``force``. The HTTP request model (``service.api.models``:
+    ``ReconParams`` inherits these fields), ``GET /api/reconstructions/methods`` (its value schema,
+    :func:`speed_schema`, from which the web page's fields and labels are built), the upload form
+    (``POST /api/datasets``), the flags of ``fpscan recon`` / ``unmix``
+    (``clients.cli.recon_options.add_speed_flags``) and every message about a speed read it; the
+    numbers are ``driver.constants``' (``C_PLAUSIBLE`` without ``force``, ``C_LIMITS`` with it,
+    ``C_AUTOFOCUS_RANGE`` the search's default). ``c`` in code, ``sound_speed`` where a person
+    reads it (``c`` accepted, deprecated); the check is ``driver.units.check_speeds``.
+
+    Attributes
+    ----------
+    c : float, "auto" or None
+        Speed of sound in m/s; ``"auto"``: the speed of sharpest focus searched within
+        ``c_range``; None: the input's (else ``driver.constants.C_DEFAULT``).
+    c_range : tuple of float or None
+        The autofocus search interval (c_min, c_max) in m/s, each within ``C_AUTOFOCUS_LIMITS``;
+        None: ``C_AUTOFOCUS_RANGE``.
+    force : bool
+        Accept a speed (or an end of the interval) outside ``C_PLAUSIBLE`` (another medium).
+
+    Examples
+    --------
+    >>> from service.recon.methods.options import SpeedOptions
+    >>> SpeedOptions.model_validate({"sound_speed": 1480}).c
+    1480.0
+    >>> SpeedOptions.model_fields["c"].json_schema_extra["unit"]
+    'm/s'
+    """
+
+    model_config = ConfigDict(populate_by_name=True)
+
+    c: Speed | Literal["auto"] | None = Field(
+        None, validation_alias=AliasChoices("sound_speed", "c"),
+        description=f"speed of sound, m/s ({plausible_speeds()} unless force, "
+                    f"{C_LIMITS[0]:g}-{C_LIMITS[1]:g} with it), or 'auto': the speed of sharpest focus (Tenenbaum "
+                    f"sharpness, searched within sound_speed_range); default: the input's, else {C_DEFAULT:g}. "
+                    "Also accepted as c (deprecated)",
+        json_schema_extra={"unit": "m/s", "quantity": "speed", "flag": "--sound-speed", "shown": "sound_speed"})
+    c_range: tuple[AutofocusSpeed, AutofocusSpeed] | None = Field(
+        None, validation_alias=AliasChoices("sound_speed_range", "c_range"),
+        description="autofocus search interval (c_min, c_max), m/s (default "
+                    f"{C_AUTOFOCUS_RANGE[0]:g}-{C_AUTOFOCUS_RANGE[1]:g}). Also accepted as c_range (deprecated)",
+        json_schema_extra={"unit": "m/s", "quantity": "speed", "flag": "--sound-speed-range",
+                           "shown": "sound_speed_range"})
+    force: bool = Field(False, description=f"accept a sound_speed (or sound_speed_range) outside {plausible_speeds()} "
+                                           "m/s (a medium other than tissue or water); without it such a value is "
+                                           "refused as a likely unit mistake (driver.units.check_speeds)")
+
+
+def speed_schema() -> dict:
+    """The value schema of ``sound_speed`` as ``GET /api/reconstructions/methods`` lists it (the web
+    page's speed fields and labels): a number in m/s within ``C_PLAUSIBLE``, or ``"auto"``.
+
+    Returns
+    -------
+    dict
+        ``{"anyOf": [number schema, {"enum": ["auto"]}], "unit": "m/s", "quantity": "speed",
+        "limits": [lo, hi]}`` (``limits``: ``C_LIMITS``, what ``force`` allows).
+
+    Examples
+    --------
+    >>> from service.recon.methods.options import speed_schema
+    >>> s = speed_schema()
+    >>> s["anyOf"][0]["minimum"], s["anyOf"][0]["maximum"], s["unit"]
+    (1000.0, 2000.0, 'm/s')
+    """
+    return {"anyOf": [{"type": "number", "minimum": C_PLAUSIBLE[0], "maximum": C_PLAUSIBLE[1]},
+                      {"type": "string", "enum": ["auto"]}], "unit": "m/s", "quantity": "speed",
+            "limits": [C_LIMITS[0], C_LIMITS[1]]}
 
 
 class MethodOptions(BaseModel):
