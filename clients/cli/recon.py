@@ -55,18 +55,11 @@ def add_arguments(parser):
                              "Grid methods need every lattice point.")
     parser.add_argument("--out", default=None, metavar="DIR",
                         help="output folder (default: <input>-<method>/ or recon-<job>/)")
-    g = parser.add_argument_group("data spacings (npy and k-Wave inputs; SI units)")
-    from clients.cli._common import quantity
+    g = parser.add_argument_group("the input's load options (each format's own; SI units) and speed of sound")
+    from clients.cli.recon_options import add_load_flags, add_option_flags, add_speed_flags
 
-    g.add_argument("--dt", type=quantity("time", "dt"), default=None,
-                   help="sample interval, e.g. 20ns (bare numbers are SI)")
-    g.add_argument("--dx", type=quantity("length", "dx"), default=None, help="lateral spacing along x, e.g. 100um")
-    g.add_argument("--dy", type=quantity("length", "dy"), default=None,
-                   help="lateral spacing along y, e.g. 100um (default dx)")
-    from clients.cli.recon_options import add_option_flags, add_speed_flags
-
+    add_load_flags(g)  # generated from the formats' load options (service.formats.load_options)
     add_speed_flags(g)
-    g.add_argument("--key", default=None, help="HDF5 dataset path in a k-Wave file (default sensor_data/clean)")
     # every method's options, generated from the registry (service.recon.methods)
     add_option_flags(parser.add_argument_group("reconstruction options (the methods that take each are named)"))
     parser.add_argument("--wavelength", type=_wavelength, default=None, metavar="K|all",

@@ -20,7 +20,7 @@ TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (`fpscan 
 if TYPE_CHECKING:
     from typing import Any
 
-__all__ = ["add_speed_flags", "add_option_flags", "option_names", "option_params", "http_params"]
+__all__ = ["add_speed_flags", "add_load_flags", "add_option_flags", "option_names", "option_params", "http_params"]
 
 
 def _registry() -> Any:
@@ -66,6 +66,47 @@ def add_speed_flags(group: Any, *, what: str = "") -> None:
                        help=f"{said['c_range']}; e.g. 1450 1600 or 1.45km/s 1.6km/s. --c-range is the deprecated "
                             "name".replace("%", "%%"))
     group.add_argument("--force", action="store_true", help=said["force"].replace("%", "%%"))
+
+
+#: the load options' flags on a client-only install (no format registry to read them from)
+_LOAD_FALLBACK: list[dict[str, Any]] = [
+    {"name": "dt", "description": "sample interval, e.g. 20ns (bare numbers are SI)", "formats": [],
+     "schema": {"type": "number", "unit": "s", "quantity": "time"}},
+    {"name": "dx", "description": "lateral spacing along x, e.g. 100um", "formats": [],
+     "schema": {"type": "number", "unit": "m", "quantity": "length"}},
+    {"name": "dy", "description": "lateral spacing along y, e.g. 100um (default dx)", "formats": [],
+     "schema": {"type": "number", "unit": "m", "quantity": "length"}},
+    {"name": "key", "description": "HDF5 dataset path (or MAT-file variable) of the data in a k-Wave file",
+     "formats": [], "schema": {"type": "string"}},
+]
+
+
+def add_load_flags(group: Any, *, skip: tuple[str, ...] = ("wavelength",)) -> None:
+    """One flag per load option of the registered file formats (``service.formats.load_options``:
+    ``--dt``, ``--dx``, ``--dy``, ``--key``), with the formats that take each in its help; a value
+    the chosen format does not take is refused when the file is loaded.
+
+    Parameters
+    ----------
+    group : argparse.ArgumentParser or argument group
+        Where the flags go.
+    skip : tuple of str, optional
+        Options the command declares itself (``--wavelength``: an index or ``all``).
+    """
+    try:
+        from service.formats.load_options import load_option_schemas
+    except ImportError:  # client-only install: the server checks the options
+        options = _LOAD_FALLBACK
+    else:
+        options = load_option_schemas()
+    for o in options:
+        if o["name"] in skip:
+            continue
+        schema, flag = o["schema"], "--" + o["name"].replace("_", "-")
+        who = f" ({', '.join(o['formats'])})" if o["formats"] else ""
+        kind = {} if schema.get("type") == "string" else _value_type(o["name"], schema, flag)
+        group.add_argument(flag, dest=o["name"], default=None, help=f"{o['description']}{who}".replace("%", "%%"),
+                           **kind)
 
 
 def _value_type(name: str, schema: dict, flag: str) -> dict:

@@ -47,19 +47,15 @@ def add_arguments(parser):
     parser.add_argument("--method", default=None,
                         help="reconstruction method (default: nedner for scans, ner for grids)")
     parser.add_argument("--out", default=None, metavar="DIR", help="output folder (default: <input>-unmix/)")
-    from clients.cli.recon_options import add_option_flags, add_speed_flags
+    from clients.cli.recon_options import add_load_flags, add_option_flags, add_speed_flags
 
     add_speed_flags(parser, what=", found once for every wavelength")
     parser.add_argument("--threshold", type=float, default=0.1,
                         help="mask voxels whose THb is below this fraction of the maximum (default 0.1)")
     parser.add_argument("--fluence", type=float, nargs="+", default=None, metavar="J_PER_M2",
                         help="fluence at each wavelength, J/m² (default: assumed equal at every wavelength)")
-    g = parser.add_argument_group("data spacings (npy and k-Wave inputs; SI units)")
-    g.add_argument("--dt", type=quantity("time", "dt"), default=None, help="sample interval, e.g. 20ns")
-    g.add_argument("--dx", type=quantity("length", "dx"), default=None, help="lateral spacing along x, e.g. 100um")
-    g.add_argument("--dy", type=quantity("length", "dy"), default=None,
-                   help="lateral spacing along y, e.g. 100um (default dx)")
-    g.add_argument("--key", default=None, help="HDF5 dataset path in a k-Wave file")
+    g = parser.add_argument_group("the inputs' load options (each format's own; SI units)")
+    add_load_flags(g)  # generated from the formats' load options (service.formats.load_options)
     # every method's options, generated from the registry (service.recon.methods), as fpscan recon's
     add_option_flags(parser.add_argument_group("reconstruction options (the methods that take each are named)"))
     parser.add_argument("--scan-job", default=None, metavar="JOB_ID",

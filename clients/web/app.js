@@ -1556,6 +1556,7 @@ async function uploadAndReconstruct(ev) {
     const fields = [["dt", "upload-dt", 1e-9, "dt"], ["dx", "upload-dx", 1e-6, "dx"],
                     ["dy", "upload-dy", 1e-6, "dy"]];
     for (const [name, id, scale, what] of fields) {
+      if (!takesLoadOption(name)) continue; // not the chosen format's load option
       const v = numberField(id, what, { scale, optional: true });
       if (v !== undefined) form.append(name, String(v));
     }
@@ -1564,7 +1565,7 @@ async function uploadAndReconstruct(ev) {
     if ($("upload-force").checked) form.append("force", "true"); // c outside the plausible range
   } catch (err) { showError(err); return; }
   const key = $("upload-key").value.trim();
-  if (key) form.append("key", key);
+  if (key && takesLoadOption("key")) form.append("key", key);
   $("upload-start").disabled = true;
   $("upload-state").textContent = `Uploading ${file.name}…`;
   try {
@@ -1725,6 +1726,22 @@ async function buildFormatSelect() {
     sel.appendChild(o);
   }
   if (list.length) sel.value = list[0].name;
+  sel.addEventListener("change", renderUploadOptions);
+  renderUploadOptions();
+}
+
+/** Whether the chosen upload format declares the load option ``name`` (GET /api/formats: its
+ *  ``options``, the format's own typed model, service.formats.load_options). */
+function takesLoadOption(name) {
+  const f = (FORMATS || {})[$("upload-format").value];
+  return !!f && (f.options || []).some((o) => o.name === name);
+}
+
+/** The upload form shows the fields of the chosen format's load options only. */
+function renderUploadOptions() {
+  for (const label of document.querySelectorAll("#upload-form [data-load-option]")) {
+    label.hidden = !takesLoadOption(label.dataset.loadOption);
+  }
 }
 
 /** The reconstruct form for the chosen method: its own defaults, only the options it takes. */

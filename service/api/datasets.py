@@ -31,12 +31,14 @@ Datasets never pile up:
 from __future__ import annotations
 
 import hashlib
+import inspect
 import json
 import logging
 import shutil
 import threading
 import uuid
 from pathlib import Path
+from typing import Any
 
 from fastapi import APIRouter, Depends, File, Form, HTTPException, UploadFile
 from fastapi import Path as PathParam
@@ -46,6 +48,7 @@ from driver.units import parse_quantity
 from service.api.context import Context, ctx, read_access, reason, require_token
 from service.api.models import ID_PATTERN, Dataset, DatasetFormat, DatasetFormatInfo, DatasetInfo, Deleted
 from service.formats import upload_formats
+from service.formats.load_options import check_load_options, load_option_schemas
 from service.formats.untrusted import DiskAdmission, NotAdmitted, hdf5_limit, run_bounded
 from service.jobs import lifecycle
 from service.jobs.queue import INCOMING
@@ -83,43 +86,67 @@ _SPEED = (f"speed of sound, m/s (or 1.5 km/s; {plausible_speeds()} unless force;
 _FORCE = SpeedOptions.model_fields["force"].description
 
 
-@router.post("", status_code=201, response_model=Dataset, dependencies=[Depends(require_token)],
-             responses={413: {"description": "upload larger than the configured limit"},
-                        507: {"description": "the decoded dataset does not fit the free disk (counting the "
-                                             "imports in progress)"}})
 def upload_dataset(file: UploadFile = File(..., description="the data file"),
                    format: DatasetFormat = Form(...),
-                   dt: str | None = Form(None, max_length=40, description="sample interval, s (or with a "
-                                                                          "unit: 20ns)"),
-                   dx: str | None = Form(None, max_length=40, description="lateral spacing along x, m (or 100um)"),
-                   dy: str | None = Form(None, max_length=40, description="lateral spacing along y, m (or 100um)"),
                    sound_speed: str | None = Form(None, max_length=40, description=_SPEED),
                    c: str | None = Form(None, max_length=40, description="deprecated name of sound_speed"),
                    force: bool = Form(False, description=_FORCE),
-                   key: str | None = Form(None, max_length=200, description="HDF5 dataset path (kwave-hdf5)"),
-                   wavelength: int | None = Form(None, ge=0, le=1023,
-                                                 description="of a multi-wavelength scan or IPASC file: the index of "
-                                                             "the excitation wavelength to store (default: the "
-                                                             "first); out of range: 422 naming the file's"),
-                   cx: Context = Depends(ctx)) -> Dataset:
+                   cx: Context = Depends(ctx), **options: Any) -> Dataset:
     """Upload a dataset for reconstruction → 201 ``{dataset_id, ...}``; the same file with
     the same options again → 201 with the stored one (``deduplicated: true``, nothing new
     stored: 201 as for any upload, so clients need not tell the cases apart). At most
     ``FPSCAN_IMPORT_WORKERS`` uploads are imported at once (4x as many wait; beyond, 429).
-    A dataset holds one wavelength's data (``wavelength``; the response's
-    ``wavelength_nm`` says which). 507 when the decoded dataset does not fit the disk."""
+    The form's other fields are the formats' load options (``dt``, ``dx``, ``dy``, ``key``,
+    ``wavelength``: each format's own, ``GET /api/formats``; one the chosen format does not
+    take is refused with 422). A dataset holds one wavelength's data (``wavelength``; the
+    response's ``wavelength_nm`` says which). 507 when the decoded dataset does not fit the
+    disk."""
     if sound_speed is not None and c is not None and sound_speed.strip() != c.strip():
         raise HTTPException(422, "give the speed of sound once: sound_speed (c is its deprecated name)")
     c = c if sound_speed is None else sound_speed
+    quantities = {o["name"]: o["schema"]["quantity"] for o in _LOAD_OPTIONS if o["schema"].get("quantity")}
     try:  # numbers typed with units, as everywhere (driver.units.parse_quantity)
-        q = {name: None if text is None or not text.strip() else parse_quantity(text, kind, name=name)
-             for name, text, kind in (("dt", dt, "time"), ("dx", dx, "length"), ("dy", dy, "length"),
-                                      ("c", c, "speed"))}
+        q = {name: None if text is None or not str(text).strip() else parse_quantity(text, kind, name=name)
+             for name, text, kind in [*((n, options.get(n), k) for n, k in quantities.items()), ("c", c, "speed")]}
+        given = {**options, **{n: q[n] for n in quantities}}
+        check_load_options(format, {k: v for k, v in given.items() if k != "wavelength"})
     except ValueError as exc:
         raise HTTPException(422, str(exc)) from None
     with cx.slots["uploads"].turn():
-        return _store_upload(file, format, dt=q["dt"], dx=q["dx"], dy=q["dy"], c=q["c"], key=key, force=force,
-                             wavelength=wavelength, cx=cx)
+        return _store_upload(file, format, dt=given.get("dt"), dx=given.get("dx"), dy=given.get("dy"), c=q["c"],
+                             key=given.get("key"), force=force, wavelength=given.get("wavelength"), cx=cx)
+
+
+#: the formats' load options (``service.formats.load_options``): the upload's generated fields
+_LOAD_OPTIONS = load_option_schemas()
+
+
+def _form_field(option: dict[str, Any]) -> inspect.Parameter:
+    """The upload's form field of one load option: text with a unit for a quantity (parsed by
+    ``driver.units.parse_quantity``), an integer within its bounds, or bounded text."""
+    schema, who = option["schema"], ", ".join(option["formats"])
+    said = f"{option['description']} ({who})"
+    default: Any
+    if schema.get("quantity"):
+        annotation: Any = str | None
+        default = Form(None, max_length=40, description=f"{said}; {schema.get('unit', '')}, or with a unit")
+    elif schema.get("type") == "integer":
+        annotation = int | None
+        default = Form(None, ge=schema.get("minimum"), le=schema.get("maximum"), description=said)
+    else:
+        annotation = str | None
+        default = Form(None, max_length=int(schema.get("maxLength", 200)), description=said)
+    return inspect.Parameter(option["name"], inspect.Parameter.KEYWORD_ONLY, default=default, annotation=annotation)
+
+
+_fixed = [p for p in inspect.signature(upload_dataset).parameters.values() if p.kind != p.VAR_KEYWORD]
+upload_dataset.__signature__ = inspect.Signature(  # type: ignore[attr-defined]
+    [*(p.replace(kind=p.KEYWORD_ONLY) for p in _fixed), *(_form_field(o) for o in _LOAD_OPTIONS)])
+upload_dataset = router.post(
+    "", status_code=201, response_model=Dataset, dependencies=[Depends(require_token)],
+    responses={413: {"description": "upload larger than the configured limit"},
+               507: {"description": "the decoded dataset does not fit the free disk (counting the imports in "
+                                    "progress)"}})(upload_dataset)
 
 
 def _display_name(name: str | None) -> str | None:

@@ -32,8 +32,9 @@ Exports: a format with ``export_from`` and ``export`` writes files of another (`
 :func:`export_formats`, :func:`export_file` (the one dispatch of ``fpscan export``, ``GET
 /api/jobs/{id}/export/{format}``, the HTTP client's ``export`` and the web page's downloads).
 
-Adding a format: a module here with ``sniff``, ``load`` (and ``write``), or an
-``export``, and a ``FORMAT = Format(...)``, and its test — nothing else: every public module of this
+Adding a format: a module here with ``sniff``, ``load`` (and ``write``; its load options as a
+typed model of ``service.formats.load_options``, ``Format.options``), or an ``export``, and a
+``FORMAT = Format(...)``, and its test — nothing else: every public module of this
 package that declares a ``FORMAT`` is registered when the package is imported (after the
 built-in ones of :data:`BUILTIN`, in module-name order: :func:`_discover`), and the CLI
 help, the API's choices, the web page and the HTTP client follow from the registry.

@@ -19,10 +19,13 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import TYPE_CHECKING, Any, BinaryIO
 
 from driver.hdf5_checks import HDF5_SIGNATURE
 from service.recon.dataset import MAX_ELEMENTS
+
+if TYPE_CHECKING:
+    from pydantic import BaseModel
 
 __all__ = ["Format", "Source", "FORMATS", "HEAD_BYTES", "MAX_BYTES", "register", "unregister", "names",
            "open_source", "sniff", "detect", "describe", "load", "export_formats", "export_file"]
@@ -151,7 +154,7 @@ class Format:
     suffix: str = ""
     media_type: str = "application/octet-stream"
     folder: bool = False
-    options: type | None = None
+    options: type[BaseModel] | None = None
     input: bool = False
     upload: bool = False
     wavelengths: bool = False

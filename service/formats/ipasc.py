@@ -42,6 +42,7 @@ from driver.constants import C_DEFAULT
 from driver.physics.axes import centred_axis
 from driver.scanfile import read_scan
 from service.formats._registry import Format, Source
+from service.formats.load_options import WavelengthChoice
 from service.recon.dataset import PointDataset, check_wavelength_index
 
 __all__ = ["DETECTOR_ID_WIDTH", "FORMAT", "export_scan", "import_ipasc", "load", "read_ipasc",
@@ -564,5 +565,5 @@ def _dataset(source: Source, wavelength_index: int) -> PointDataset:
 
 
 FORMAT = Format(name="ipasc", title="IPASC HDF5", container="hdf5", sniff=sniff, load=load, write=export_scan,
-                input=True, upload=True, wavelengths=True, order=50, noun="an IPASC file",
+                input=True, upload=True, wavelengths=True, order=50, noun="an IPASC file", options=WavelengthChoice,
                 export_from="fpscan", export=export_scan, suffix="_ipasc.h5", media_type="application/x-hdf5")

@@ -19,6 +19,7 @@ import numpy as np
 from driver import kwave_layout
 from driver.constants import C_DEFAULT
 from service.formats._registry import Format, Source
+from service.formats.load_options import KwaveOptions
 from service.recon.dataset import MAX_ELEMENTS, GridDataset, grid_array, positive
 
 __all__ = ["FORMAT", "sniff", "load", "find_array"]
@@ -158,4 +159,4 @@ def load(source: Source, *, key: str | None = None, dt: float | None = None, dx:
 
 
 FORMAT = Format(name="kwave-hdf5", title="HDF5, k-Wave layout", container="hdf5", sniff=sniff, load=load,
-                input=True, upload=True, order=90, noun="an HDF5 array in k-Wave layout")
+                input=True, upload=True, order=90, noun="an HDF5 array in k-Wave layout", options=KwaveOptions)

@@ -56,6 +56,7 @@ import numpy as np
 from driver import kwave_layout
 from driver.constants import C_DEFAULT
 from service.formats._registry import Format, Source
+from service.formats.load_options import KwaveOptions
 from service.recon.dataset import MAX_ELEMENTS, GridDataset, grid_array, positive
 
 __all__ = ["FORMAT", "sniff", "load", "V5_TEXT", "V73_TEXT", "read_variables"]
@@ -429,4 +430,5 @@ def load(source: Source, *, key: str | None = None, dt: float | None = None, dx:
 
 
 FORMAT = Format(name="kwave-mat", title="k-Wave MAT-file (MATLAB/Octave save: v5, v7, v7.3)", container="any",
-                sniff=sniff, load=load, input=True, upload=True, order=20, noun="a k-Wave MAT-file")
+                sniff=sniff, load=load, input=True, upload=True, order=20, noun="a k-Wave MAT-file",
+                options=KwaveOptions)

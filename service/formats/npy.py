@@ -12,6 +12,7 @@ import numpy as np
 
 from driver.constants import C_DEFAULT
 from service.formats._registry import Format, Source
+from service.formats.load_options import GridSpacing
 from service.recon.dataset import GridDataset, grid_array, positive
 
 __all__ = ["FORMAT", "sniff", "load"]
@@ -108,4 +109,4 @@ def load(source: Source, *, dt: float | None = None, dx: float | None = None, dy
 
 FORMAT = Format(name="npy", title="NumPy array, k-Wave layout (n_t, n_y, n_x) or (n_t, n_x)",
                 container="file", sniff=sniff, load=load, input=True, upload=True, order=10,
-                noun="a NumPy .npy array")
+                noun="a NumPy .npy array", options=GridSpacing)

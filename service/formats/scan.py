@@ -16,6 +16,7 @@ import numpy as np
 
 from service.disk import copy_replaced
 from service.formats._registry import Format, Source
+from service.formats.load_options import WavelengthChoice
 from service.recon.dataset import PointDataset, check_wavelength_index, lattice_axes
 
 if TYPE_CHECKING:
@@ -116,5 +117,5 @@ def _dataset(scan: ScanData, wavelength_index: int, allow_empty: bool) -> PointD
 
 
 FORMAT = Format(name="fpscan", title="fpscan scan file", container="hdf5", sniff=sniff, load=load,
-                input=True, upload=True, wavelengths=True, order=10, noun="a scan file",
+                input=True, upload=True, wavelengths=True, order=10, noun="a scan file", options=WavelengthChoice,
                 export_from="fpscan", export=copy_replaced, suffix=".h5", media_type="application/x-hdf5")

@@ -159,18 +159,27 @@ def load_dataset(path: str | os.PathLike, format: str | None = None, *, dt: floa
 def _load(path: str | os.PathLike, format: str | None, *, dt: float | None, dx: float | None, dy: float | None,
           c: float | None, key: str | None, max_bytes: int, force: bool, **which: Any) -> Any:
     """:func:`load_dataset`'s checks and the registry's load; ``which``:
-    ``wavelength_index`` (one dataset) or ``all_wavelengths=True`` (a list)."""
+    ``wavelength_index`` (one dataset) or ``all_wavelengths=True`` (a list). The load options
+    given (``dt``, ``dx``, ``dy``, ``key``) must be the format's own
+    (``service.formats.load_options.check_load_options``: a ValueError naming the ones it takes)."""
     from driver.units import check_plausible
 
     num = (int, float)
     check_plausible(dt=dt if isinstance(dt, num) else None, dx=dx if isinstance(dx, num) else None,
                     dy=dy if isinstance(dy, num) else None,
                     sound_speed=c if isinstance(c, num) else None, force=force)
+    from service.formats.load_options import check_load_options
+
     choices = input_formats()
     if format is not None and format not in choices:
         raise ValueError(f"format must be one of {', '.join(choices)}, got {format!r}")
-    _, loaded = formats.load(path, format, max_bytes=max_bytes, choices=choices, dt=dt, dx=dx, dy=dy, c=c, key=key,
-                             **which)
+    asked = {"dt": dt, "dx": dx, "dy": dy, "key": key}  # the load options (the format's own model)
+    if format is not None:
+        check_load_options(format, asked)
+    name, loaded = formats.load(path, format, max_bytes=max_bytes, choices=choices, dt=dt, dx=dx, dy=dy, c=c,
+                                key=key, **which)
+    if format is None:  # detected from the content: its options, now that it is known
+        check_load_options(name, asked)
     for ds in loaded if isinstance(loaded, list) else [loaded]:
         if c is not None:
             ds.c = positive("c", c)

@@ -508,7 +508,14 @@ def test_upload_a_data_file_and_reconstruct_it(browser, server, api, screenshots
     assert "npy" in [f["name"] for f in formats] and "dataset" not in [f["name"] for f in formats]
     browser.find_element("css selector", "#upload-panel summary").click()
     el(browser, "upload-file").send_keys(str(path))
-    Select(el(browser, "upload-format")).select_by_value("npy")
+    # the form shows the chosen format's load options only (GET /api/formats: its typed model)
+    taken = {f["name"]: {o["name"] for o in f["options"]} for f in api.get("/api/formats").json() if f["upload"]}
+    shown = ("return [...document.querySelectorAll('#upload-form [data-load-option]')]"
+             ".filter(l => !l.hidden).map(l => l.dataset.loadOption)")
+    for name in ("kwave-hdf5", "fpscan", "npy"):
+        Select(el(browser, "upload-format")).select_by_value(name)
+        assert set(browser.execute_script(shown)) == taken[name] & {"dt", "dx", "dy", "key"}, name
+    assert taken["npy"] == {"dt", "dx", "dy"} and "key" in taken["kwave-hdf5"]
     set_value(browser, "upload-dt", 20)      # ns
     set_value(browser, "upload-dx", 100)     # µm; dy left empty = dx
     # the "another medium" labels name the plausible speeds of the registry's speed option
