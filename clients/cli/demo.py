@@ -8,7 +8,7 @@ What it runs, all on this machine and all through the real code paths:
    127.0.0.1 with a random bearer token, the simulator configured as scanner ``sim``;
 3. over HTTP (:class:`clients.http.Client`): an equi-steradian plan around the phantom's
    centre and a dense full-lattice plan; both scanned over the serial protocol through the
-   service; the sparse scan reconstructed with ``nedner``, the dense one with ``ner``;
+   service; the sparse scan reconstructed with the server's default method for a sensor mask (NEDNER), the dense one with its default for a full lattice (NER);
 4. into ``--out`` (default ``./demo-output/``): the scan files (and the sparse one in
    IPASC format), the volumes (HDF5), the xy/xz/yz MIPs (PNG), the mask preview (PNG),
    the service's live preview of the sparse scan (PNG) and ``report.json`` with point counts,
@@ -144,6 +144,7 @@ class Demo:
         self.t_start = time.perf_counter()
         self.report: dict = {"format": "fpscan-demo-report/1", "skipped": []}
         self.procs: list[Process] = []
+        self.sparse = self.dense = ""  # the reconstructions' names: the server's default methods (_pipeline)
 
     def say(self, msg: str) -> None:
         import sys
@@ -277,9 +278,14 @@ class Demo:
 
         scans: dict = {}
         recon_jobs: dict = {}
-        specs = [("equisteradian", "nedner", "nedner")]
+        # the server's default methods (GET /api/reconstructions/methods: default_for): the sparse
+        # mask's (NEDNER) and the full lattice's (NER, the dense reference)
+        defaults = {kind: next(m["name"] for m in api.methods() if kind in (m.get("default_for") or []))
+                    for kind in ("points", "grid")}
+        self.sparse, self.dense = defaults["points"], f"{defaults['grid']}_dense"
+        specs = [("equisteradian", defaults["points"], self.sparse)]
         if "full" in plans:
-            specs.append(("full", "ner", "ner_dense"))
+            specs.append(("full", defaults["grid"], self.dense))
         for plan_name, method, recon_name in specs:
             t_asked = time.perf_counter()
             job_id = api.start_scan(field_of(plans[plan_name], "id"), "sim")
@@ -391,12 +397,12 @@ class Demo:
                 r["cc_phantom_roi"] = float(cc(p0, phantom, roi))
                 r["cc_phantom_mip_xy"] = float(cc(mip(p0, "xy"), mip(phantom, "xy")))
                 r["cc_phantom_mip_xz"] = float(cc(mip(p0, "xz"), mip(phantom, "xz")))
-        if "nedner" in vols and "ner_dense" in vols and vols["nedner"].shape == vols["ner_dense"].shape \
-                and "nedner" in rois:
-            a, ref = vols["nedner"], vols["ner_dense"]
-            recons["nedner"]["cc_dense_reference"] = float(cc(a, ref))
-            recons["nedner"]["cc_dense_reference_roi"] = float(cc(a, ref, rois["nedner"]))
-            recons["nedner"]["cc_dense_reference_mip_xy"] = float(cc(a.max(axis=0), ref.max(axis=0)))
+        sparse, dense = self.sparse, self.dense
+        if sparse in vols and dense in vols and vols[sparse].shape == vols[dense].shape and sparse in rois:
+            a, ref = vols[sparse], vols[dense]
+            recons[sparse]["cc_dense_reference"] = float(cc(a, ref))
+            recons[sparse]["cc_dense_reference_roi"] = float(cc(a, ref, rois[sparse]))
+            recons[sparse]["cc_dense_reference_mip_xy"] = float(cc(a.max(axis=0), ref.max(axis=0)))
         scans = self.report.get("scans", {})
         if "equisteradian" in scans and "full" in scans:
             self.report["point_fraction"] = scans["equisteradian"]["points"] / scans["full"]["points"]
