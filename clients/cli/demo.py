@@ -8,7 +8,8 @@ What it runs, all on this machine and all through the real code paths:
    127.0.0.1 with a random bearer token, the simulator configured as scanner ``sim``;
 3. over HTTP (:class:`clients.http.Client`): an equi-steradian plan around the phantom's
    centre and a dense full-lattice plan; both scanned over the serial protocol through the
-   service; the sparse scan reconstructed with the server's default method for a sensor mask (NEDNER), the dense one with its default for a full lattice (NER);
+   service; the sparse scan reconstructed with the server's default method for a sensor
+   mask (NEDNER), the dense one with its default for a full lattice (NER);
 4. into ``--out`` (default ``./demo-output/``): the scan files (and the sparse one in
    IPASC format), the volumes (HDF5), the xy/xz/yz MIPs (PNG), the mask preview (PNG),
    the service's live preview of the sparse scan (PNG) and ``report.json`` with point counts,
