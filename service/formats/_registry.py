@@ -52,12 +52,20 @@ def hdf5_offset(head: bytes) -> int | None:
 
 @dataclass
 class Source:
-    """A file opened once for detection and loading.
+    """A file opened once for detection and loading (made by :func:`open_source`).
 
-    ``path``: its name; ``head``: its first :data:`HEAD_BYTES` bytes; ``h5``: the
-    read-only ``h5py.File`` (HDF5 files, already checked by
-    ``service.formats.untrusted.check_hdf5_file``), else None; ``fh``: the open binary
-    file positioned at 0 (other files), else None."""
+    Attributes
+    ----------
+    path : pathlib.Path
+        The file's name.
+    head : bytes
+        Its first :data:`HEAD_BYTES` bytes (fewer for a shorter file).
+    h5 : h5py.File or None
+        The read-only ``h5py.File`` (HDF5 files, already checked by
+        ``service.formats.untrusted.check_hdf5_file``), else None.
+    fh : BinaryIO or None
+        The open binary file positioned at 0 (other files), else None.
+    """
 
     path: Path
     head: bytes
@@ -173,8 +181,24 @@ FORMATS: dict[str, Format] = {}
 
 
 def register(fmt: Format) -> Format:
-    """Add ``fmt`` to the registry (detection, loading, the lists of choices); returns it.
-    Raises ValueError for a name already registered or an unknown container."""
+    """Add ``fmt`` to the registry (detection, loading, the lists of choices).
+
+    Parameters
+    ----------
+    fmt : Format
+        The format to add.
+
+    Returns
+    -------
+    Format
+        ``fmt`` itself (so a format module may write ``FMT = register(Format(...))``).
+
+    Raises
+    ------
+    ValueError
+        A name already registered; a container other than ``"hdf5"``, ``"file"`` or
+        ``"any"``; ``export_from`` without ``export`` or the reverse.
+    """
     if fmt.name in FORMATS:
         raise ValueError(f"format {fmt.name!r} is registered already")
     if fmt.container not in ("hdf5", "file", "any"):
@@ -186,13 +210,33 @@ def register(fmt: Format) -> Format:
 
 
 def unregister(name: str) -> None:
-    """Remove the format ``name`` (a test's toy format); no error when it is not there."""
+    """Remove the format ``name`` (a test's toy format); no error when it is not there.
+
+    Parameters
+    ----------
+    name : str
+        The registered name (:attr:`Format.name`).
+    """
     FORMATS.pop(name, None)
 
 
 def names(*, input: bool | None = None, upload: bool | None = None) -> tuple[str, ...]:
-    """The registered formats' names in registration order, those with the given
-    ``input`` / ``upload`` flags (None: either)."""
+    """The registered formats' names in registration order, those with the given flags.
+
+    Parameters
+    ----------
+    input : bool, optional
+        Only formats whose :attr:`Format.input` is this (a reconstruction input or not);
+        None (default): either.
+    upload : bool, optional
+        Only formats whose :attr:`Format.upload` is this (accepted by ``POST /api/datasets``
+        or not); None (default): either.
+
+    Returns
+    -------
+    tuple of str
+        The format names.
+    """
     return tuple(f.name for f in FORMATS.values()
                  if (input is None or f.input == input) and (upload is None or f.upload == upload))
 
@@ -207,12 +251,37 @@ def _get(name: str, choices: tuple[str, ...] | None = None) -> Format:
 @contextmanager
 def open_source(path: str | os.PathLike, container: str | None = None, *,
                 max_bytes: int = MAX_BYTES, name: str | None = None) -> Iterator[Source]:
-    """Open ``path`` once for detection and loading (module docstring). ``container``:
-    the container a chosen format needs (``"hdf5"``: a file without the HDF5 signature is
-    refused, naming the format ``name``; ``"file"``: not opened as HDF5); None or
-    ``"any"``: from the signature (at 0, or at 512 behind a user block: :func:`hdf5_offset`).
-    Raises FileNotFoundError, ValueError (not the container asked for, an HDF5 file that
-    is unreadable or refused by ``check_hdf5_file``)."""
+    """Open ``path`` once for detection and loading (module docstring); a context manager.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file.
+    container : {"hdf5", "file", "any"} or None, optional
+        The container a chosen format needs: ``"hdf5"``: a file without the HDF5 signature
+        is refused, naming the format ``name``; ``"file"``: not opened as HDF5; None
+        (default) or ``"any"``: from the signature (at 0, or at 512 behind a user block:
+        :func:`hdf5_offset`).
+    max_bytes : int, optional
+        The bound on any one HDF5 dataset's declared bytes (``check_hdf5_file``); default
+        :data:`MAX_BYTES`.
+    name : str, optional
+        The chosen format's name, for the message when ``container="hdf5"`` refuses a file.
+
+    Returns
+    -------
+    contextlib.AbstractContextManager of Source
+        Entered (``with open_source(path) as src``), the open file: ``h5`` set (checked) for
+        an HDF5 file, else ``fh``; closed when the ``with`` block ends.
+
+    Raises
+    ------
+    FileNotFoundError
+        No file ``path``.
+    ValueError
+        Not the container asked for (with a hint for a MATLAB MAT-file); an HDF5 file that
+        is unreadable (truncated or corrupt) or refused by ``check_hdf5_file``.
+    """
     from driver.scanfile import open_readonly
     from service.formats.untrusted import check_hdf5_file
 
@@ -258,7 +327,18 @@ def _mat_hint(head: bytes) -> str:
 
 def sniff(source: Source) -> Format | None:
     """The first registered format (by ``order``) of ``source``'s container (or of
-    container ``"any"``) whose ``sniff`` accepts it; None when none does."""
+    container ``"any"``) whose ``sniff`` accepts it.
+
+    Parameters
+    ----------
+    source : Source
+        The file, opened by :func:`open_source`.
+
+    Returns
+    -------
+    Format or None
+        The format; None when none accepts it.
+    """
     container = "hdf5" if source.h5 is not None else "file"
     for fmt in sorted(FORMATS.values(), key=lambda f: f.order):
         if fmt.sniff is not None and fmt.container in (container, "any") and fmt.sniff(source):
@@ -268,10 +348,30 @@ def sniff(source: Source) -> Format | None:
 
 def detect(path: str | os.PathLike, *, max_bytes: int = MAX_BYTES, bounded: bool = True) -> str:
     """The name of ``path``'s format, from its content (the file opened once and checked:
-    :func:`open_source`; a file a writer has open in a bounded child unless ``bounded`` is
-    False, as :func:`load`).
-    Raises ValueError when no registered format fits (or the file is refused),
-    FileNotFoundError."""
+    :func:`open_source`).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file.
+    max_bytes : int, optional
+        The bound on any one HDF5 dataset's declared bytes; default :data:`MAX_BYTES`.
+    bounded : bool, optional
+        True (default): a file a writer has open is read in a bounded child process, as
+        :func:`load`; False: in this process whatever the file.
+
+    Returns
+    -------
+    str
+        The registered format's name.
+
+    Raises
+    ------
+    ValueError
+        No registered format fits, or the file is refused (:func:`open_source`).
+    FileNotFoundError
+        No file ``path``.
+    """
     if bounded:
         from service.formats.untrusted import read_bounded
 
@@ -284,13 +384,28 @@ def detect(path: str | os.PathLike, *, max_bytes: int = MAX_BYTES, bounded: bool
 
 
 def describe(path: str | os.PathLike, *, unless: tuple[str, ...] = (), max_bytes: int = MAX_BYTES) -> str | None:
-    """What the file ``path`` is, as a noun for a message (``"a scan file"``, ``"a
-    reconstruction result"``, ``"a NumPy .npy array"``: :attr:`Format.what` of the format
-    :func:`detect` finds), ``"an HDF5 file"`` for an HDF5 file no format fits (or one
-    refused as hostile or unreadable); None for a file of no known format, a missing or
-    unreadable file, or one detected as a format named in ``unless`` (a caller that
-    wanted that format gives its own reason). The one format sniffer of every "this is a
-    scan file, not a plan" message; never raises."""
+    """What the file ``path`` is, as a noun for a message.
+
+    The one format sniffer of every "this is a scan file, not a plan" message; never raises.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file.
+    unless : tuple of str, optional
+        Format names for which None is returned (a caller that wanted that format gives
+        its own reason); default none.
+    max_bytes : int, optional
+        The bound on any one HDF5 dataset's declared bytes; default :data:`MAX_BYTES`.
+
+    Returns
+    -------
+    str or None
+        :attr:`Format.what` of the format :func:`detect` finds (``"a scan file"``, ``"a
+        reconstruction result"``, ``"a NumPy .npy array"``); ``"an HDF5 file"`` for an HDF5
+        file no format fits (or one refused as hostile or unreadable); None for a file of no
+        known format, a missing or unreadable file, or one detected as a format in ``unless``.
+    """
     try:
         name = detect(path, max_bytes=max_bytes)
     except (ValueError, OSError):
@@ -313,20 +428,51 @@ def _unknown(source: Source, choices: tuple[str, ...]) -> str:
 
 def load(path: str | os.PathLike, kind: str | None = None, *, max_bytes: int = MAX_BYTES,
          choices: tuple[str, ...] | None = None, bounded: bool = True, **options: Any) -> tuple[str, Any]:
-    """Open ``path`` once, check it, and load it as the format ``kind`` (None: detected
-    from the content). ``choices``: the format names allowed (default every registered
-    one). ``options``: passed to the format's ``load`` (each takes what it knows);
-    ``wavelength_index`` > 0 is refused for a format without several wavelengths;
-    ``all_wavelengths=True`` gives a list, one content per wavelength (a format with
-    ``wavelengths`` reads them all from its one open; any other gives a list of one).
+    """Open ``path`` once, check it, and load it as the format ``kind``.
+
     A file HDF5 would open as an SWMR reader (a writer has it open: HDF5 can block on its
     damaged metadata for ever) is read in a spawned child process with a time limit
     (``service.formats.untrusted.read_bounded``; there only the package's format modules are
-    registered, and the content must be picklable); ``bounded=False``: in this process
-    whatever the file (the service's own scan file while it is written: the live preview).
-    Returns ``(name, content)``. Raises ValueError (a name not in ``choices``, a file no
-    format fits or that is refused, what the format's ``load`` raises, a read that did not
-    end in time), FileNotFoundError."""
+    registered, and the content must be picklable) unless ``bounded`` is False.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file.
+    kind : str, optional
+        The format's name; None (default): detected from the content (:func:`sniff`; a
+        format with :attr:`Format.refuse` set is refused with its reason).
+    max_bytes : int, optional
+        The bound on any one array's declared bytes, passed to ``check_hdf5_file`` and to
+        the format's ``load``; default :data:`MAX_BYTES`.
+    choices : tuple of str, optional
+        The format names allowed; None (default): every registered one.
+    bounded : bool, optional
+        True (default): as above; False: in this process whatever the file (the service's
+        own scan file while it is written: the live preview).
+    **options
+        Passed to the format's ``load`` (each takes what it knows). ``wavelength_index`` > 0
+        is refused for a format without several wavelengths; ``all_wavelengths=True`` gives
+        a list, one content per wavelength (a format with ``wavelengths`` reads them all
+        from its one open; any other gives a list of one).
+
+    Returns
+    -------
+    name : str
+        The format's name (``kind``, or the one detected).
+    content : object
+        What the format's ``load`` returns (a ``GridDataset`` / ``PointDataset`` for an
+        input format), or a list of them with ``all_wavelengths=True``.
+
+    Raises
+    ------
+    ValueError
+        A name not in ``choices``; a file no format fits, that is refused, or of a detected
+        format not in ``choices``; a format without a reader; a wavelength index out of
+        range; what the format's ``load`` raises; a bounded read that did not end in time.
+    FileNotFoundError
+        No file ``path``.
+    """
     if bounded:
         from service.formats.untrusted import read_bounded
 
