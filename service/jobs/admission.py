@@ -24,7 +24,14 @@ __all__ = ["MAX_DEPTH_ROWS", "AUTOFOCUS_EVALUATIONS", "AdmissionError", "admit",
 
 
 class AdmissionError(ValueError):
-    """A job that can never fit in the memory limit."""
+    """A job that can never fit in the memory limit (or the work limit, or a depth grid that
+    can never be made); a ``ValueError``: 422 over HTTP, exit 2 on the command line.
+
+    Parameters
+    ----------
+    message : str
+        The reason, naming the estimate and the limit (what the user reads).
+    """
 
 
 #: Most depth rows the depth transform may work on (``dz`` far below ``c·dt`` multiplies
@@ -34,20 +41,32 @@ MAX_DEPTH_ROWS = 1 << 20
 
 def input_shape(source: Any) -> dict:
     """The shape of a reconstruction's input for :func:`estimate_memory` and
-    :func:`estimate_work` (their ``shape`` argument): ``n_t``, ``n_x``, ``n_y``, ``n_points``
-    (sensor points; absent for grid data), ``dt`` (s), ``c`` (m/s), ``dx`` (m, the lateral
-    pitch; None when unknown), ``t0`` (s, the time of sample 0; None when unknown: a dataset
-    stored by an older server) and, for a loaded dataset, ``input_itemsize`` (bytes a sample).
+    :func:`estimate_work` (their ``shape`` argument).
 
-    ``source`` is one of
+    Parameters
+    ----------
+    source : dict or GridDataset or PointDataset
+        One of
 
-    - a plan document (``{"lattice", "acquisition", "points", ...}``: a scan's input, one
-      A-line per plan point, ``n_wavelengths`` added);
-    - a stored dataset's record (``{"layout": "grid" | "points", "shape", "dt", "c", "dx",
-      ...}``, ``service.jobs.store``);
-    - a loaded `service.recon.dataset.GridDataset` / `PointDataset`.
+        - a plan document (``{"lattice", "acquisition", "points", ...}``: a scan's input, one
+          A-line per plan point);
+        - a stored dataset's record (``{"layout": "grid" | "points", "shape", "dt", "c", "dx",
+          ...}``, ``service.jobs.store``);
+        - a loaded `service.recon.dataset.GridDataset` / `PointDataset`.
 
-    Raises ValueError for anything else."""
+    Returns
+    -------
+    dict
+        ``n_t``, ``n_x``, ``n_y``, ``n_points`` (sensor points; absent for grid data), ``dt``
+        (s), ``c`` (m/s), ``dx`` (m, the lateral pitch; None when unknown), ``t0`` (s, the time
+        of sample 0; None when unknown: a dataset stored by an older server), for a loaded
+        dataset ``input_itemsize`` (bytes a sample) and for a plan ``n_wavelengths``.
+
+    Raises
+    ------
+    ValueError
+        ``source`` is none of these.
+    """
     from service.recon.dataset import GridDataset, PointDataset
 
     if isinstance(source, GridDataset):
@@ -81,9 +100,27 @@ def input_shape(source: Any) -> dict:
 def working_depth_rows(shape: dict, params: dict) -> int:
     """The depth rows the reconstruction works on: ``max(n_z, ceil(c·t_last/dz) + 1)``
     (``service.recon.planar``: no recorded signal may fold back through the depth
-    period), with ``n_z`` default ``n_t``, ``dz`` default ``c·dt``. ``shape`` needs
-    ``n_t`` and, when ``dz`` is given, ``dt`` (s) and ``c`` (m/s; ``params["c"]`` wins).
-    Raises :class:`AdmissionError` when that is more than ``MAX_DEPTH_ROWS``."""
+    period), with ``n_z`` default ``n_t``, ``dz`` default ``c·dt``.
+
+    Parameters
+    ----------
+    shape : dict
+        :func:`input_shape`'s: needs ``n_t`` and, when ``dz`` is given, ``dt`` (s) and
+        ``c`` (m/s; ``params["c"]`` wins).
+    params : dict
+        The options: ``n_z``, ``dz`` (m), ``c`` (m/s, or ``"auto"``: the fastest of
+        ``c_range``, default ``C_AUTOFOCUS_RANGE``), ``t0`` (s).
+
+    Returns
+    -------
+    int
+        Depth rows; ``n_z`` (default ``n_t``) when ``dz`` or ``dt`` is not given.
+
+    Raises
+    ------
+    AdmissionError
+        The rows ``c·t_last/dz`` reach are not fewer than :data:`MAX_DEPTH_ROWS`.
+    """
     n_t = int(shape["n_t"])
     n_z = int(params.get("n_z") or n_t)
     dz = params.get("dz")
@@ -113,15 +150,33 @@ def estimate_memory(shape: dict, params: dict) -> int:
     """Peak memory (bytes) of a reconstruction with the options actually used — the one
     admission rule, applied before a job is queued and again by the worker.
 
-    ``shape``: ``n_t`` and ``n_x`` (``n_y``) of the output grid, ``n_points`` for point
-    inputs, ``input_itemsize`` (bytes a sample of the input as loaded; default 8), ``dt`` (s), ``c`` (m/s) and the lateral pitch ``dx`` (m) of the input (optional;
-    the model-based ``tv`` pads its grid by the record's reach in pitches); ``params``: ``method``, ``dtype``,
-    ``upsample``, ``n_z``, ``dz``, ``c``. The method's peak-memory model of the
-    working depth rows (:func:`working_depth_rows`) times the method's ``memory_calibration``,
-    plus the input as loaded (unless it is in the working precision and the method does not
-    ``holds_input``). The peak model is the method's (``service.recon.methods``, its
-    ``peak_memory``: a model of ``service.recon.memory``). Raises
-    :class:`AdmissionError` for a depth grid that can never be made."""
+    The method's peak-memory model of the working depth rows (:func:`working_depth_rows`)
+    times the method's ``memory_calibration``, plus the input as loaded (unless it is in the
+    working precision and the method does not ``holds_input``). The peak model is the
+    method's (``service.recon.methods``, its ``peak_memory``: a model of
+    ``service.recon.memory``).
+
+    Parameters
+    ----------
+    shape : dict
+        :func:`input_shape`'s: ``n_t`` and ``n_x`` (``n_y``) of the output grid, ``n_points``
+        for point inputs, ``input_itemsize`` (bytes a sample of the input as loaded; default
+        8), ``dt`` (s), ``c`` (m/s) and the lateral pitch ``dx`` (m) of the input (optional;
+        the model-based ``tv`` pads its grid by the record's reach in pitches).
+    params : dict
+        ``method`` (default: the registry's default for the input's layout), ``dtype``
+        (default ``"float32"``), ``upsample``, ``n_z``, ``dz`` (m), ``c`` (m/s or ``"auto"``).
+
+    Returns
+    -------
+    int
+        Bytes.
+
+    Raises
+    ------
+    AdmissionError
+        A depth grid that can never be made (:func:`working_depth_rows`).
+    """
     n_t = int(shape["n_t"])
     n_x = int(shape["n_x"])
     n_y = int(shape.get("n_y", 1))
@@ -247,8 +302,20 @@ def estimate_work(shape: dict, params: dict) -> float:
 
 
 def admit_work(seconds: float, limit_s: float) -> None:
-    """Raise :class:`AdmissionError` saying the estimate and the limit if ``seconds`` (of
-    :func:`estimate_work`) > ``limit_s`` (the server's ``work_limit_s``)."""
+    """Refuse a reconstruction whose estimated work is over the server's work limit.
+
+    Parameters
+    ----------
+    seconds : float
+        The estimate (:func:`estimate_work`), in s on the reference 2 cores.
+    limit_s : float
+        The server's ``work_limit_s``, in s.
+
+    Raises
+    ------
+    AdmissionError
+        ``seconds`` > ``limit_s``, saying the estimate and the limit.
+    """
     if seconds > limit_s:
         raise AdmissionError(f"reconstruction needs about {_duration(seconds)} of work by its estimate ({seconds:.3g} "
                              f"s on 2 cores), more than the server's work limit of {_duration(limit_s)} "
@@ -268,7 +335,20 @@ def _duration(seconds: float) -> str:
 
 
 def admit(estimate: int, limit: int) -> None:
-    """Raise :class:`AdmissionError` with the reason if ``estimate`` > ``limit`` bytes."""
+    """Refuse a reconstruction whose estimated peak memory is over the memory limit.
+
+    Parameters
+    ----------
+    estimate : int
+        The peak memory (:func:`estimate_memory`), in bytes.
+    limit : int
+        The memory limit, in bytes.
+
+    Raises
+    ------
+    AdmissionError
+        ``estimate`` > ``limit``, with the reason (both in GiB).
+    """
     if estimate > limit:
         raise AdmissionError(f"reconstruction needs about {estimate / 2**30:.2f} GiB, more than the "
                              f"memory limit of {limit / 2**30:.2f} GiB; reduce the size, upsample or n_z, or use a "

@@ -66,12 +66,26 @@ INCOMING = "incoming"
 
 
 def remove_debris(data_dir: str | Path, older_than: float) -> list[str]:
-    """Remove what a crash leaves behind and nothing else can: temporary result folders
-    (``results/*.tmp-*``), progress and cancel files (``results/.*.progress*``,
-    ``results/.*.cancel``) and partial uploads (``incoming/<id>/``, where an upload is
-    staged until it is stored, and ``datasets/<id>/`` still holding ``upload.bin``, as
-    earlier versions staged them), if last modified before ``older_than`` (UNIX time:
-    the start of this process). Returns the names removed."""
+    """Remove what a crash leaves behind and nothing else can.
+
+    That is: temporary result folders (``results/*.tmp-*``), progress and cancel files
+    (``results/.*.progress*``, ``results/.*.cancel``) and partial uploads (``incoming/<id>/``,
+    where an upload is staged until it is stored, and ``datasets/<id>/`` still holding
+    ``upload.bin``, as earlier versions staged them). A path that is gone meanwhile or cannot
+    be removed is skipped (no error).
+
+    Parameters
+    ----------
+    data_dir : str or pathlib.Path
+        The service's data folder.
+    older_than : float
+        UNIX time (s): only what was last modified before it goes (the start of this process).
+
+    Returns
+    -------
+    list of str
+        The names (last path component) of the files and folders removed.
+    """
     data_dir = Path(data_dir)
     candidates = []
     results = data_dir / "results"
@@ -100,7 +114,13 @@ def remove_debris(data_dir: str | Path, older_than: float) -> list[str]:
 
 
 class DiskFull(Exception):
-    """A running job's result no longer fits the free disk (its reason the message)."""
+    """A running job's result no longer fits the free disk.
+
+    Parameters
+    ----------
+    message : str
+        The reason the job ends with (:func:`disk_full_reason`).
+    """
 
 
 #: seconds between two looks of a running job's thread at the free disk
@@ -111,7 +131,22 @@ RESERVE_LOOK_S = 2.0
 
 def disk_full_reason(free: int | None, needed: int, reserve: int = 0) -> str:
     """The one-line reason a job ends with on a full disk: ``"disk full: N bytes free, M
-    needed ..."`` (``reserve``: bytes of those kept free, ``disk_reserve_bytes``)."""
+    needed ..."``.
+
+    Parameters
+    ----------
+    free : int or None
+        Free bytes on the data folder's disk; None: unknown (said as "an unknown number of").
+    needed : int
+        Bytes the result needs (``params["result_bytes"]``).
+    reserve : int, optional
+        Bytes of those kept free (``disk_reserve_bytes``), named when not 0; default 0.
+
+    Returns
+    -------
+    str
+        The reason, ending with what to do (free space, then submit again).
+    """
     shown = "an unknown number of" if free is None else str(int(free))
     kept = f" ({int(reserve)} of them kept in reserve, disk_reserve_bytes)" if reserve else ""
     return (f"disk full: {shown} bytes free{kept}, {int(needed)} needed for the result on the data folder's "
@@ -120,7 +155,36 @@ def disk_full_reason(free: int | None, needed: int, reserve: int = 0) -> str:
 
 class ReconQueue:
     """Background dispatcher of ``recon`` jobs (a :class:`service.jobs.dispatcher.Dispatcher`
-    admitting them under the memory limit, FIFO, and the free disk; module docstring)."""
+    admitting them under the memory limit, FIFO, and the free disk; module docstring).
+
+    :meth:`start` starts the dispatcher and the watch of the job database's reserve,
+    :meth:`stop` stops them; :meth:`join` waits for the job threads.
+
+    Parameters
+    ----------
+    store : JobStore
+        The job database the jobs are taken from and their states written to.
+    executor : object
+        Runs a job's ``run_reconstruction(spec)``: its ``submit`` returns a future
+        (``service.jobs.executors``; a dead worker raises ``WorkerDied``).
+    settings : object
+        The server's settings: ``data_dir``, ``memory_limit`` (bytes), ``workers``,
+        ``executor`` (``"local"``: at most ``workers`` jobs run), ``heartbeat_s`` (s),
+        ``disk_reserve_bytes``, ``time_limit_s`` (s), ``max_attempts`` and ``redact``.
+
+    Attributes
+    ----------
+    store : JobStore
+        As given.
+    executor : object
+        As given.
+    settings : object
+        As given.
+    owner : str
+        This server's name on the jobs it runs (``"srv-<12 hex digits>"``, the lease's owner).
+    results_dir : pathlib.Path
+        ``<data_dir>/results``, created if missing: one folder ``<job id>.<attempt>`` a result.
+    """
 
     def __init__(self, store: JobStore, executor, settings):
         self.store = store
