@@ -15,7 +15,7 @@ the Tenenbaum sharpness to judge images:
 - **Speed**: the search runs on a copy of the data decimated in time by q (an
   anti-aliased polyphase resampler, ``scipy.signal.resample_poly``, which keeps sample
   times exact), with q chosen from the data's spectrum (:func:`choose_decimation`: the
-  band holding all but 1e-4 of the signal power above the noise floor stays below 0.8 of
+  band holding 90 % of the signal power above the noise floor stays below 0.8 of
   the new Nyquist frequency; q ≤ 8), reconstructed in float32 on one fixed depth grid
   for every c. Lateral sampling is never decimated (it moves the focus).
 - **Search**: ``n_coarse`` speeds evenly over the interval, then a bounded Brent search
@@ -49,13 +49,30 @@ MAX_DECIMATION = 8
 
 @dataclass
 class Autofocus:
-    """Outcome of an autofocus search.
+    """Outcome of an autofocus search (:func:`autofocus`).
 
-    ``c``: the chosen speed of sound, m/s; ``c_values``/``sharpness``: the sharpness
-    curve (every evaluated c in ascending order, m/s, and its focus value, dimensionless);
-    ``c_range``: the search interval (m/s); ``decimation``: the time decimation factor q;
-    ``evaluations``: reconstructions run; ``time_s``: wall time of the search, s;
-    ``at_edge``: True when the maximum lies at an end of the interval (widen it)."""
+    Attributes
+    ----------
+    c : float
+        The chosen speed of sound, m/s.
+    c_values : list of float
+        Every evaluated c in ascending order, m/s (the sharpness curve's abscissae).
+    sharpness : list of float
+        The focus value (:func:`focus_sharpness`, dimensionless) at each of ``c_values``.
+    c_range : tuple of float
+        The search interval ``(c_min, c_max)``, m/s.
+    decimation : int
+        The time decimation factor q the search ran with.
+    evaluations : int
+        Reconstructions run.
+    time_s : float
+        Wall time of the search, s.
+    at_edge : bool
+        True when the maximum lies at an end of the interval (widen it); default False.
+    extra : dict
+        Further entries for :meth:`as_params` (:func:`autofocus` puts the search's depth
+        grid there: ``dz`` in m and ``n_z``); default empty.
+    """
 
     c: float
     c_values: list[float]
@@ -76,8 +93,24 @@ class Autofocus:
 
 
 def check_c_range(c_range: Any) -> tuple[float, float]:
-    """``(c_min, c_max)`` in m/s as floats; ``ValueError`` unless finite, c_min < c_max
-    and both within ``driver.constants.C_AUTOFOCUS_LIMITS``."""
+    """Check an autofocus search interval.
+
+    Parameters
+    ----------
+    c_range : sequence of two numbers
+        ``(c_min, c_max)`` in m/s.
+
+    Returns
+    -------
+    tuple of float
+        ``(c_min, c_max)`` in m/s as floats.
+
+    Raises
+    ------
+    ValueError
+        Not two numbers; not finite; not c_min < c_max; not both within
+        ``driver.constants.C_AUTOFOCUS_LIMITS``.
+    """
     try:
         lo, hi = (float(v) for v in c_range)
     except (TypeError, ValueError):
@@ -91,8 +124,21 @@ def check_c_range(c_range: Any) -> tuple[float, float]:
 def focus_sharpness(p0: np.ndarray) -> float:
     """Focus value of an image: Tenenbaum sharpness of its depth MIP / the MIP's mean square.
 
-    ``p0``: ``(n_z, n_y, n_x)`` or ``(n_z, n_x)`` (depth first). Returns a float ≥ 0
-    (0 for an all-zero image). Raises ``ValueError`` for another shape or NaN/inf."""
+    Parameters
+    ----------
+    p0 : numpy.ndarray
+        The image, ``(n_z, n_y, n_x)`` or ``(n_z, n_x)`` (depth first).
+
+    Returns
+    -------
+    float
+        The focus value, ≥ 0 and dimensionless (0 for an all-zero image).
+
+    Raises
+    ------
+    ValueError
+        Another shape (or an empty array); NaN or inf in ``p0``.
+    """
     from service.metrics.projections import mip
     from service.metrics.sharpness import tenenbaum_sharpness
 
@@ -112,11 +158,25 @@ def focus_sharpness(p0: np.ndarray) -> float:
 
 def choose_decimation(alines: np.ndarray, *, max_q: int = MAX_DECIMATION) -> int:
     """Time decimation factor q (1..max_q) that keeps the signal band of ``alines``
-    (``(n_t, ...)`` time first) below 0.8 of the decimated Nyquist frequency.
+    below 0.8 of the decimated Nyquist frequency.
 
     The band edge is the frequency below which 90 % of the signal power lies: the mean
     power spectrum over (up to 512) A-lines less its noise floor (the median power of the
-    upper half of the spectrum). Keeps ≥ 32 samples."""
+    upper half of the spectrum). Keeps ≥ 32 samples.
+
+    Parameters
+    ----------
+    alines : numpy.ndarray
+        The signals, ``(n_t, ...)`` (time first; e.g. ``(n_t, n_y, n_x)`` or ``(n_t, n)``).
+    max_q : int, optional
+        The largest factor; default :data:`MAX_DECIMATION` (8).
+
+    Returns
+    -------
+    int
+        q; 1 when the spectrum is too short (fewer than 4 bins) or holds no signal above
+        its noise floor.
+    """
     a = np.asarray(alines)
     n_t = a.shape[0]
     flat = a.reshape(n_t, -1)
@@ -140,7 +200,34 @@ def search(sharpness_at: Callable[[float], float], c_range: tuple[float, float] 
     """Maximise ``sharpness_at(c)`` over ``c_range`` (m/s): ``n_coarse`` even samples,
     then a bounded Brent search (scipy) between the best sample's neighbours to ``xtol``.
 
-    Returns ``(c_best, {c: value}, at_edge)``."""
+    Parameters
+    ----------
+    sharpness_at : callable
+        ``sharpness_at(c) -> float``: the focus value at speed ``c`` (m/s); called once per c.
+    c_range : tuple of float, optional
+        ``(c_min, c_max)`` in m/s (:func:`check_c_range`); default
+        ``driver.constants.C_AUTOFOCUS_RANGE``.
+    n_coarse : int, optional
+        Evenly spaced speeds sampled first, ends included; at least 3; default 7.
+    xtol : float, optional
+        The Brent search's tolerance, m/s; default 2.
+
+    Returns
+    -------
+    c_best : float
+        The speed with the highest value seen (Brent's answer or a better sample), m/s.
+    curve : dict of float to float
+        Every evaluated speed (m/s) and its value.
+    at_edge : bool
+        True when the best coarse sample is an end of the interval and ``c_best`` lies
+        within ``2 * xtol`` of an end (widen the interval).
+
+    Raises
+    ------
+    ValueError
+        A bad ``c_range`` (:func:`check_c_range`); ``n_coarse`` < 3; ``xtol`` not a finite
+        number > 0.
+    """
     from scipy.optimize import minimize_scalar
 
     lo, hi = check_c_range(c_range)
@@ -191,21 +278,45 @@ def autofocus(dataset: Any, reconstruct: Callable[..., Any], *, c_range: Any = C
               options: dict | None = None, progress: Fraction | None = None) -> Autofocus:
     """Find the speed of sound (m/s) that focuses ``dataset`` best (module docstring).
 
+    Every c is reconstructed on one depth grid: ``dz = c_min·dt·q/2`` (twice as fine as the
+    decimated samples at c_min), ``n_z`` rows as deep as c_max reaches.
+
     Parameters
     ----------
-    dataset : a grid or point dataset (:mod:`service.storage.datasets`: ``data``
-        ``(n_t, ...)`` / ``alines`` ``(n, n_t)``, ``dt`` s, ``t0`` s).
-    reconstruct : ``reconstruct(dataset, c=..., dz=..., n_z=..., dtype="float32",
-        **options)`` → an object with ``p0`` (the pipeline's dispatch bound to a method,
-        its ``should_stop`` included: a cancelled reconstruction ends the search).
-    c_range : (c_min, c_max) in m/s.  n_coarse, xtol : see :func:`search`.
-    decimation : time decimation factor q (1..8); None = :func:`choose_decimation`.
-    options : further reconstruction options (e.g. ``eps``, ``upsample``).
-    progress : optional ``progress(fraction)`` per evaluation (fraction of ~n_coarse + 8).
+    dataset : GridDataset or PointDataset
+        A grid or point dataset (:mod:`service.storage.datasets`: ``data`` ``(n_t, ...)``
+        / ``alines`` ``(n, n_t)``, ``dt`` s, ``t0`` s).
+    reconstruct : callable
+        ``reconstruct(dataset, c=..., dz=..., n_z=..., dtype="float32", **options)`` → an
+        object with ``p0`` (the pipeline's dispatch bound to a method, its ``should_stop``
+        included: a cancelled reconstruction ends the search).
+    c_range : tuple of float, optional
+        ``(c_min, c_max)`` in m/s; default ``driver.constants.C_AUTOFOCUS_RANGE``.
+    n_coarse : int, optional
+        See :func:`search`; default 7.
+    xtol : float, optional
+        See :func:`search`, m/s; default 2.
+    decimation : int, optional
+        Time decimation factor q (1..8); None (default): :func:`choose_decimation`.
+    options : dict, optional
+        Further reconstruction options (e.g. ``eps``, ``upsample``); ``dz``, ``n_z`` and
+        ``dtype`` are the search's own.
+    progress : callable, optional
+        ``progress(fraction)`` after each evaluation (the fraction of ``n_coarse + 8``,
+        at most 1).
+
+    Returns
+    -------
+    Autofocus
+        The chosen c, the sharpness curve, q, the evaluations and the time; ``extra``
+        holds the search's ``dz`` (m) and ``n_z``.
 
     Raises
     ------
-    ValueError for a bad interval, decimation or dataset.
+    ValueError
+        A bad interval (:func:`check_c_range`), decimation, ``n_coarse`` or ``xtol``
+        (:func:`search`); an image with NaN or inf (:func:`focus_sharpness`); what
+        ``reconstruct`` raises for the dataset.
     """
     lo, hi = check_c_range(c_range)
     t_start = time.perf_counter()
@@ -248,16 +359,47 @@ def focus_then_reconstruct(dataset: Any, method: str, reconstruct: Callable[...,
     """``c="auto"`` for the dispatch: :func:`autofocus`, then one reconstruction of the
     full data at the chosen c.
 
-    ``reconstruct`` is the dispatch (``service.pipeline.reconstruct``); ``options`` are
-    the method's other options (``c`` excluded); ``options_of(method)``: the option names
-    a method takes (the dispatch's registry; None: the search passes every option on). The search reconstructs with ``method``
-    (a direct method of the dispatch; an iterative one, ``Method.iterative`` of
-    ``service.recon.methods``, searches with the input's default direct method instead,
-    ``service.recon.methods.default_for``), lateral
-    upsampling 1, float32. Progress: the search reports stage ``"autofocus"`` over
-    [0, 0.5], the final reconstruction the rest. The result's ``params["c"]`` is the
-    chosen c and ``params["autofocus"]`` the search (:meth:`Autofocus.as_params`).
-    Raises ``ValueError`` for a bad ``c_range`` and what the dispatch raises."""
+    The search reconstructs with ``method`` (a direct method of the dispatch; an iterative
+    one, ``Method.iterative`` of ``service.recon.methods``, searches with the input's default
+    direct method instead, ``service.recon.methods.default_for``), lateral upsampling 1,
+    float32. Progress: the search reports stage ``"autofocus"`` over [0, 0.5], the final
+    reconstruction the rest.
+
+    Parameters
+    ----------
+    dataset : GridDataset or PointDataset
+        The input, as for :func:`autofocus`.
+    method : str
+        The reconstruction method's name.
+    reconstruct : callable
+        The dispatch (``service.pipeline.reconstruct``):
+        ``reconstruct(dataset, method, progress=..., should_stop=..., c=..., **options)``.
+    c_range : tuple of float, optional
+        ``(c_min, c_max)`` in m/s; None (default): ``driver.constants.C_AUTOFOCUS_RANGE``.
+    progress : Progress, optional
+        Receives the stages and fractions above.
+    should_stop : callable, optional
+        ``should_stop() -> bool``, passed to every reconstruction (a cancelled job ends the
+        search).
+    options_of : callable, optional
+        ``options_of(method)``: the option names a method takes (the dispatch's registry);
+        the search passes only those of its method on (``dz``, ``n_z``, ``dtype`` and
+        ``upsample`` never). None (default): every option in ``options``.
+    **options
+        The method's other options (``c`` excluded), all passed to the final reconstruction.
+
+    Returns
+    -------
+    object
+        The final reconstruction (what ``reconstruct`` returns); its ``params["c"]`` is the
+        chosen c (m/s) and ``params["autofocus"]`` the search (:meth:`Autofocus.as_params`,
+        with ``search_method``).
+
+    Raises
+    ------
+    ValueError
+        A bad ``c_range``; what the dispatch raises.
+    """
     rng = check_c_range(C_AUTOFOCUS_RANGE if c_range is None else c_range)
     from service.recon.methods import METHODS, default_for
 
