@@ -70,13 +70,37 @@ class _Request(BaseModel):
 
 
 class Error(BaseModel):
-    """Every 4xx/5xx body: ``{"detail": "<reason>"}``."""
+    """Every 4xx/5xx body: ``{"detail": "<reason>"}``.
+
+    Attributes
+    ----------
+    detail : str
+        The reason, one line.
+    """
 
     detail: str
 
 
 class DiskUse(BaseModel):
-    """Bytes the data folder uses, by part, and the free space of its file system."""
+    """Bytes the data folder uses, by part, and the free space of its file system.
+
+    Attributes
+    ----------
+    total_bytes : int
+        The sum of the parts.
+    scans_bytes : int
+        Scan files.
+    results_bytes : int
+        Reconstruction results.
+    datasets_bytes : int
+        Uploaded datasets.
+    exports_bytes : int
+        Exports.
+    other_bytes : int
+        The job database, plans and anything else.
+    free_bytes : int or None
+        Free bytes of the data folder's file system; null when unknown.
+    """
 
     total_bytes: int
     scans_bytes: int
@@ -88,6 +112,25 @@ class DiskUse(BaseModel):
 
 
 class Health(BaseModel):
+    """``GET /api/health``: the server is alive, what it runs and what keeps jobs from running.
+
+    Attributes
+    ----------
+    status : "ok"
+        Always ``"ok"``.
+    version : str
+        The server's version.
+    executor : str
+        Where reconstructions run (the server's ``executor`` setting: ``"local"`` or ``"dask"``).
+    jobs_running : int
+        Reconstruction jobs running now (default 0).
+    disk : DiskUse or None
+        Bytes the data folder uses by part, and its free space.
+    problems : list of str
+        What keeps jobs from running now (e.g. a scan paused by a full disk or a lost
+        device), one line each.
+    """
+
     status: Literal["ok"] = "ok"
     version: str
     executor: str
@@ -99,14 +142,32 @@ class Health(BaseModel):
 
 class AuthInfo(BaseModel):
     """``GET /api/auth``: whether the server needs a bearer token (then every ``/api``
-    route but this one needs it) and whether the request carried the right one."""
+    route but this one needs it) and whether the request carried the right one.
+
+    Attributes
+    ----------
+    token_required : bool
+        The server needs a bearer token.
+    authenticated : bool
+        True when no token is needed or the one sent is right.
+    """
 
     token_required: bool
     authenticated: bool = Field(description="true when no token is needed or the one sent is right")
 
 
 class Deleted(BaseModel):
-    """What a DELETE removed."""
+    """What a DELETE removed.
+
+    Attributes
+    ----------
+    id : str
+        The id of what was removed.
+    kind : str
+        What it was: a job's kind (``"scan"``, ``"recon"``), ``"plan"`` or ``"dataset"``.
+    bytes_freed : int
+        Bytes of files removed (default 0).
+    """
 
     id: str
     kind: str
@@ -116,7 +177,21 @@ class Deleted(BaseModel):
 class Retention(_Request):
     """Retention policy: keep the newest ``keep_results`` finished reconstruction results
     and at most ``keep_bytes`` bytes of result files (null = no limit); the oldest finished
-    are deleted first. Scan files only with ``include_scans``."""
+    are deleted first. Scan files only with ``include_scans``.
+
+    Attributes
+    ----------
+    keep_results : int or None
+        Finished reconstruction results kept, newest first (0 to 10^9); null: no limit.
+    keep_bytes : int or None
+        Bytes of result files kept at most (0 to 10^18); null: no limit.
+    include_scans : bool
+        Scan files count and may be deleted too (default false).
+    datasets_keep_bytes : int or None
+        Bytes of uploaded datasets no active job reads kept at most; the oldest go first.
+    datasets_max_age_s : float or None
+        Uploaded datasets no active job reads are deleted once older than this, s.
+    """
 
     keep_results: int | None = Field(None, ge=0, le=10**9)
     #: at most 10^18 (1 EB): a bound a float states exactly (the OpenAPI document writes bounds
@@ -152,7 +227,17 @@ Pitch = Annotated[float, BeforeValidator(_pitch)]
 
 class Lattice(_Request):
     """The scanner lattice: ``n_x × n_y`` points at ``pitch`` (m), centred on the axis;
-    at most ``MAX_LATTICE_POINTS`` (262144, e.g. 512 × 512) points in all."""
+    at most ``MAX_LATTICE_POINTS`` (262144, e.g. 512 × 512) points in all.
+
+    Attributes
+    ----------
+    n_x : int
+        Points along x (1 to 1024).
+    n_y : int
+        Points along y (1 to 1024; default 1: a line).
+    pitch : float
+        Lattice pitch, m (1 µm to 10 mm; text with a unit such as ``"60um"`` is accepted).
+    """
 
     n_x: int = Field(ge=1, le=1024)
     n_y: int = Field(1, ge=1, le=1024)
@@ -244,7 +329,17 @@ def _plan_create(k: MaskKind) -> type[_PlanCreate]:
 
 class PlanDocument(PlanJson):
     """A plan JSON as ``fpscan plan --out plan.json`` writes it (``fpscan-plan/1``,
-    docs/architecture.md); stored under its own id after the plan contract's checks."""
+    docs/architecture.md); stored under its own id after the plan contract's checks.
+
+    Attributes
+    ----------
+    format : str
+        ``"fpscan-plan/1"``.
+    id : str
+        The plan's content hash.
+    lattice, mask, points, order, acquisition
+        As in ``service.plans.plan.Plan`` (the points in scan order).
+    """
 
 
 #: The body of ``POST /api/plans`` and ``/api/plans/preview``: one variant per mask kind
@@ -261,7 +356,20 @@ PlanCreate: Any = Annotated[
 
 class MethodOption(BaseModel):
     """One option of a reconstruction method (its field in the method's options model,
-    ``service.recon.methods``)."""
+    ``service.recon.methods``), or a file format's load option (:class:`FormatInfo`).
+
+    Attributes
+    ----------
+    name : str
+        The option's name in ReconParams (sound_speed: the speed of sound).
+    description : str
+        What it is, for a person.
+    default : Any
+        This method's default (null: derived from the data, e.g. n_z = n_t).
+    value_schema : dict
+        JSON schema of a value: type, minimum/maximum/exclusiveMinimum or enum, and unit
+        (SI), quantity (length/time: text with a unit accepted); forms are built from it.
+    """
 
     name: str = Field(description="the option's name in ReconParams (sound_speed: the speed of sound)")
     description: str
@@ -312,7 +420,30 @@ class FormatInfo(BaseModel):
 
 class MethodInfo(BaseModel):
     """One reconstruction method as ``GET /api/reconstructions/methods`` lists it
-    (``service.pipeline.METHODS``; the web page's method choices are built from these)."""
+    (``service.pipeline.METHODS``; the web page's method choices are built from these).
+
+    Attributes
+    ----------
+    name : str
+        The method's name (``ReconRequest.method``).
+    title : str
+        What a person reads.
+    needs_grid : bool
+        Needs data on a full regular grid (every lattice point).
+    options : list of MethodOption
+        The options it takes.
+    source : str
+        Where the algorithm comes from.
+    iterative : bool
+        An iterative solver: sound_speed 'auto' searches with the input's default direct
+        method, then runs it once (default false).
+    time_limited : bool
+        Takes time_limit (s), capped by the server's time_limit_s (default false).
+    cancellable : bool
+        Reports progress between steps; a cancel ends it within a step (default true).
+    default_for : list of str
+        The inputs it is the default method for: 'grid' (a full lattice), 'points' (any mask).
+    """
 
     name: str
     title: str
@@ -328,7 +459,23 @@ class MethodInfo(BaseModel):
 
 
 class MaskKindInfo(BaseModel):
-    """One mask kind as ``GET /api/plans/kinds`` lists it (forms are built from these)."""
+    """One mask kind as ``GET /api/plans/kinds`` lists it (forms are built from these).
+
+    Attributes
+    ----------
+    kind : str
+        The kind's name (a plan request's ``kind``).
+    label : str
+        What a person reads.
+    description : str
+        The kind in one line.
+    aliases : list of str
+        Other names the kind is accepted by.
+    fields : list of dict
+        Its parameters as plain descriptors (``service.plans.kinds.kind_fields``).
+    params_schema : dict
+        The JSON schema of its parameter model (a plan request's ``params``).
+    """
 
     kind: str
     label: str
@@ -339,6 +486,34 @@ class MaskKindInfo(BaseModel):
 
 
 class Plan(BaseModel):
+    """A stored plan's summary (``POST /api/plans``, ``GET /api/plans``, ``GET /api/plans/{id}``).
+
+    Attributes
+    ----------
+    id : str
+        The plan's id (its content hash).
+    kind : str
+        Its mask kind (``"points"`` for a point list).
+    n_points : int
+        Points in the plan.
+    requested_points : int or None
+        Points the mask asked for (the mask's ``requested_points``); null when not recorded.
+    shortfall : str or None
+        Why the plan has fewer points than asked (under 90 %), one line; null when it has
+        about as many.
+    weight_ratio : float or None
+        The mask's outer/inner weight ratio (``service.plans.mask.weight_ratio``).
+    expected_scan_time_s : float or None
+        Points × averages × wavelengths / PRF, s; null when the plan sets no PRF (unthrottled).
+    lattice : dict
+        The plan's lattice (``n_x``, ``n_y``, ``pitch`` in m).
+    acquisition : dict
+        The plan's acquisition settings (``service.plans.plan.Acquisition``: ``n_t``, ``dt``
+        in s, ``prf`` in Hz, ...).
+    links : dict of str to str
+        Name -> API path: ``self``, ``preview`` (the mask preview PNG).
+    """
+
     id: str
     kind: str
     n_points: int
@@ -354,6 +529,20 @@ class Plan(BaseModel):
 
 
 class PlanPreview(BaseModel):
+    """``POST /api/plans/preview``: a plan built and drawn, not stored.
+
+    Attributes
+    ----------
+    points : int
+        Points in the plan.
+    weight_ratio : float or None
+        The mask's outer/inner weight ratio (``service.plans.mask.weight_ratio``).
+    expected_scan_time_s : float or None
+        Points × averages × wavelengths / PRF, s; null when the plan sets no PRF (unthrottled).
+    preview_png_base64 : str
+        The mask preview PNG, base64-encoded.
+    """
+
     points: int
     weight_ratio: float | None = None
     expected_scan_time_s: float | None = Field(None, description="points × averages × wavelengths / PRF, s; "
@@ -386,6 +575,22 @@ class JobProgress(BaseModel):
 
 
 class Timings(BaseModel):
+    """When a job was created, started and finished (UNIX times, s) and how long it waited and ran.
+
+    Attributes
+    ----------
+    created : float
+        UNIX time the job was submitted, s.
+    started : float or None
+        UNIX time it started, s; null until then.
+    finished : float or None
+        UNIX time it ended, s; null until then.
+    queued_s : float or None
+        Seconds from created to started; null until it started.
+    run_s : float or None
+        Seconds from started to finished; null until it ended.
+    """
+
     created: float
     started: float | None = None
     finished: float | None = None
@@ -394,6 +599,33 @@ class Timings(BaseModel):
 
 
 class Job(BaseModel):
+    """A scan or reconstruction job as ``GET /api/jobs/{id}`` shows it.
+
+    Attributes
+    ----------
+    id : str
+        The job's id.
+    kind : {"scan", "recon"}
+        What it does.
+    state : {"queued", "running", "paused", "succeeded", "failed", "cancelled"}
+        Where it is.
+    progress : JobProgress
+        Its latest progress.
+    timings : Timings
+        When it was created, started and finished.
+    params : dict
+        What it was asked to do (a reconstruction's method and options, its ``result``
+        summary once it succeeded; the speed of sound named ``sound_speed``).
+    links : dict of str to str
+        Name -> API path of its resources (``self``, ``events``, ``cancel``, ``delete``; a
+        scan's ``file``, ``preview``, ...; a succeeded reconstruction's ``volume``, ``slice``,
+        ``mip_<plane>``; ``export_<format>``).
+    attempts : int
+        Times it was started (default 0).
+    error : str or None
+        Why it failed, one line; null otherwise.
+    """
+
     id: str
     kind: JobKind
     state: JobState
@@ -407,6 +639,19 @@ class Job(BaseModel):
 
 # -- scans ---------------------------------------------------------------------------
 class ScanRequest(_Request):
+    """``POST /api/scans``: scan a stored plan on a scanner.
+
+    Attributes
+    ----------
+    plan_id : str
+        The stored plan's id.
+    scanner_id : str
+        The scanner's id (``GET /api/scanners``, the server's configured devices).
+    preview_wavelength : int
+        Index into the plan's excitation wavelengths: the wavelength the live preview shows
+        (default 0, the first).
+    """
+
     plan_id: str = Field(pattern=ID_PATTERN)
     scanner_id: str = Field(pattern=ID_PATTERN)
     preview_wavelength: int = Field(0, ge=0, description="index into the plan's excitation wavelengths: "
@@ -414,6 +659,24 @@ class ScanRequest(_Request):
 
 
 class Scanner(BaseModel):
+    """One scanner the server is configured with, and what it is doing.
+
+    Attributes
+    ----------
+    id : str
+        The scanner's id (a ``ScanRequest``'s ``scanner_id``).
+    port : str
+        Its device (serial port) path.
+    status : {"idle", "busy", "unreachable", "unknown"}
+        ``busy``: it runs a scan; ``unreachable``: its device is missing; ``unknown``: the
+        server has no scanning (no driver).
+    job_id : str or None
+        The scan job it runs; null when none.
+    identity : str or None
+        What the device said when it was last identified (at the start of a scan); null
+        until then.
+    """
+
     id: str
     port: str
     status: Literal["idle", "busy", "unreachable", "unknown"]
@@ -422,6 +685,22 @@ class Scanner(BaseModel):
 
 
 class PreviewInfo(BaseModel):
+    """A scan's live preview state (``GET /api/scans/{id}/preview``).
+
+    Attributes
+    ----------
+    version : int
+        Grows with every refresh (0: none yet).
+    points_used : int
+        The completed points the preview reconstructed.
+    wavelength_index : int
+        The excitation wavelength shown (index into the plan's; default 0).
+    updated : float or None
+        UNIX time of the last refresh, s.
+    refresh_s : float or None
+        How long the last refresh took, s.
+    """
+
     version: int
     points_used: int
     wavelength_index: int = Field(0, description="the excitation wavelength shown (index into the plan's)")
@@ -431,6 +710,31 @@ class PreviewInfo(BaseModel):
 
 # -- datasets and reconstructions ----------------------------------------------------
 class Dataset(BaseModel):
+    """An uploaded dataset as ``POST /api/datasets`` stored it.
+
+    Attributes
+    ----------
+    dataset_id : str
+        Its id (a ``ReconRequest``'s ``dataset_id``).
+    format : str
+        The format it was read as (one of ``DATASET_FORMATS``).
+    layout : {"grid", "points", "scan"}
+        ``grid``: data on a full lattice; ``points``: A-lines at sensor points.
+    shape : list of int
+        The stored data's shape: ``[n_t, n_y, n_x]`` or ``[n_t, n_x]`` for a grid,
+        ``[n_points, n_t]`` for points.
+    dt : float or None
+        Sample interval, s.
+    wavelength_nm : float or None
+        The excitation wavelength whose data the dataset holds, nm (a scan or IPASC file that
+        records it).
+    deduplicated : bool
+        The same file with the same import options was stored before: this is that dataset,
+        nothing new was stored (default false).
+    content_sha256 : str or None
+        SHA-256 of the uploaded file's bytes.
+    """
+
     dataset_id: str
     format: DatasetFormat
     layout: Literal["grid", "points", "scan"]
@@ -444,7 +748,30 @@ class Dataset(BaseModel):
 
 
 class DatasetInfo(BaseModel):
-    """A stored dataset in ``GET /api/datasets``."""
+    """A stored dataset in ``GET /api/datasets``.
+
+    Attributes
+    ----------
+    dataset_id : str
+        Its id.
+    name : str or None
+        The uploaded file's name (display only).
+    format, layout, shape, dt, wavelength_nm, content_sha256
+        As in :class:`Dataset`.
+    wavelength_index : int or None
+        The index of its wavelength among the uploaded file's.
+    size_bytes : int
+        Bytes of its files on disk.
+    created : float
+        UNIX time of the upload, s.
+    last_used : float or None
+        UNIX time of the upload or of the latest identical upload answered with it
+        (retention by age counts from it), s.
+    jobs : list of str
+        Ids of the reconstruction jobs that read it.
+    in_use : bool
+        A queued, running or paused job reads it (it cannot be deleted).
+    """
 
     dataset_id: str
     name: str | None = Field(None, description="the uploaded file's name (display only)")
@@ -571,7 +898,35 @@ class UnmixOptions(_Request):
 class ReconRequest(_Request):
     """Reconstruct a scan job's file or an uploaded dataset (exactly one of them); with
     ``unmix``: every wavelength of a multi-wavelength scan job, or one uploaded dataset
-    per wavelength (``dataset_ids`` with ``wavelengths``), then HbO2/Hb unmixing."""
+    per wavelength (``dataset_ids`` with ``wavelengths``), then HbO2/Hb unmixing.
+
+    Attributes
+    ----------
+    scan_job_id : str or None
+        A scan job whose file to reconstruct; exclusive with dataset_id(s).
+    dataset_id : str or None
+        An uploaded dataset to reconstruct; exclusive with scan_job_id.
+    dataset_ids : list of str or None
+        One dataset per wavelength (1 to 16; with unmix only).
+    wavelengths : list of float or None
+        Excitation wavelength of each of dataset_ids, m.
+    method : str or None
+        Reconstruction method; absent or null: the default for the input
+        (``service.pipeline.default_method``).
+    params : ReconParams
+        Reconstruction options (null: the method's default).
+    wavelength : int or "all" or None
+        Excitation wavelength of a multi-wavelength input: an index (0 to 15), or ``"all"``
+        (one volume per wavelength); absent: the first. Not with unmix.
+    unmix : UnmixOptions or None
+        Unmix HbO2/Hb after reconstructing every wavelength.
+
+    Raises
+    ------
+    pydantic.ValidationError
+        (a ValueError; 422 over HTTP) Not exactly one of scan_job_id, dataset_id and
+        dataset_ids; dataset_ids without unmix; a field out of its range.
+    """
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False, json_schema_extra={
         "oneOf": [{"required": ["scan_job_id"], "not": {"anyOf": [{"required": ["dataset_id"]},

@@ -285,8 +285,25 @@ def _result_bytes(shape: dict, params: dict, body: ReconRequest, extra: dict) ->
 
 
 def result_dir(c: Context, job_id: str) -> Path:
-    """The result folder of the succeeded reconstruction ``job_id``: 404 for no such job,
-    409 while it has none."""
+    """The result folder of the succeeded reconstruction ``job_id``.
+
+    Parameters
+    ----------
+    c : Context
+        The app's context.
+    job_id : str
+        The reconstruction job.
+
+    Returns
+    -------
+    pathlib.Path
+        The job's result folder (its ``result_path``).
+
+    Raises
+    ------
+    fastapi.HTTPException
+        404 for no such reconstruction job; 409 while it has no result (not ``succeeded``).
+    """
     job = get_job_or_404(c, job_id, "recon")
     if job["state"] != "succeeded" or not job["result_path"]:
         raise HTTPException(409, f"reconstruction {job_id} is {job['state']}, no result yet")
@@ -298,9 +315,29 @@ WavelengthQuery = Query(None, ge=0, le=15, description="the volume of wavelength
 
 
 def volume_dir(c: Context, job_id: str, wavelength: int | None) -> Path:
-    """The folder of the job's volume at ``wavelength`` (``wavelength_<k>/`` of a job over
-    every wavelength; the job's own folder when absent, or when it is the one wavelength
-    the job reconstructed); 404 naming what the job has otherwise."""
+    """The folder of the job's volume at ``wavelength``.
+
+    Parameters
+    ----------
+    c : Context
+        The app's context.
+    job_id : str
+        The reconstruction job.
+    wavelength : int or None
+        The wavelength index k; None: the job's own folder.
+
+    Returns
+    -------
+    pathlib.Path
+        ``wavelength_<k>/`` of a job over every wavelength; the job's own folder when
+        ``wavelength`` is None, or when it is the one wavelength the job reconstructed.
+
+    Raises
+    ------
+    fastapi.HTTPException
+        404 naming the wavelengths the job has when it has no volume at ``wavelength``;
+        404 / 409 from :func:`result_dir`.
+    """
     folder = result_dir(c, job_id)
     if wavelength is None:
         return folder
