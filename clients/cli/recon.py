@@ -39,7 +39,17 @@ HELP = "reconstruct p0 (NEDNER/NER/...) from a scan file or dataset, locally or 
 
 
 def add_arguments(parser):
-    """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser)."""
+    """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser).
+
+    INPUT, ``--format``, ``--method`` (the registry's methods), ``--out``, the load options'
+    flags, the speed-of-sound flags, every method's options (``clients.cli.recon_options``),
+    ``--wavelength``, ``--scan-job``, the server and progress options.
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The ``recon`` sub-parser.
+    """
     METHODS: dict
     try:
         from service.recon.methods import METHODS
@@ -74,7 +84,14 @@ def add_arguments(parser):
 
 def add_format_option(parser) -> None:
     """``--format``: the input formats of the registry (``service.formats``: names and
-    titles in the help); on a client-only install any name (the server checks it)."""
+    titles in the help); on a client-only install any name (the server checks it).
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The sub-parser (``fpscan recon``, ``fpscan unmix``); dest ``format``, default None
+        (from the file's content).
+    """
     try:
         from service.formats import FORMATS
         from service.storage.datasets import input_formats
@@ -114,11 +131,26 @@ def _sniff_format(path) -> str:
 
 
 def check_options_early(method: str | None, params: dict) -> None:
-    """The options by the kernel's own rules (``service.pipeline.method_options``; without
-    ``--method``, the method is the input's default: the values' rules only), before any
-    file is read: a refused option is a usage error (``OptionError``, exit 2) naming its
-    range, or the method's options for one the method does not take. On a client-only
-    install (no ``service``) the server applies the same rules (422, exit 2)."""
+    """Check the options by the kernel's own rules before any file is read.
+
+    With a method, ``service.pipeline.method_options``; without ``--method`` (the method is
+    the input's default), the values' rules only (``service.pipeline.check_option_values``).
+    On a client-only install (no ``service``, or a rule whose check needs numpy) nothing is
+    checked here: the server applies the same rules (422, exit 2).
+
+    Parameters
+    ----------
+    method : str or None
+        ``--method``; None: not given.
+    params : dict
+        The options given (``clients.cli.recon_options.option_params``).
+
+    Raises
+    ------
+    service.recon.checks.OptionError
+        (a ValueError; a usage error, exit 2) A refused option, naming its range, or the
+        method's options for one the method does not take.
+    """
     try:
         from service.pipeline import check_option_values, method_options
     except ImportError:
@@ -140,7 +172,36 @@ def _params(args) -> dict:
 
 @client_errors
 def run(args) -> int:
-    """Run this sub-command with the parsed ``args``; return the exit status."""
+    """Run this sub-command with the parsed ``args``: locally, or with ``--server`` as a job
+    whose volume and MIPs are downloaded (module docstring).
+
+    Client errors (``clients.http.FpscanClientError``) are one line on stderr and exit 1,
+    or 2 for a request the server refused as given (``clients.cli._common.client_errors``).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed command line (:func:`add_arguments`'s options).
+
+    Returns
+    -------
+    int
+        The exit status (0 on success).
+
+    Raises
+    ------
+    UsageError
+        (exit 2) No INPUT and no ``--scan-job``, both, an INPUT that is no file,
+        ``--scan-job`` without ``--server``, an ``--out`` that cannot be written,
+        ``--wavelength all`` with ``--server`` without ``--scan-job``.
+    service.recon.checks.OptionError
+        A refused option (:func:`check_options_early`).
+    ValueError
+        An input whose format cannot be told from its content, or that cannot be loaded.
+    ModuleNotFoundError
+        No ``--format`` given and the reader that tells the format is not installed (h5py:
+        the driver extra); the message says to give ``--format``.
+    """
     check_input_files(args, [args.input] if args.input else [],
                       "give a scan file or dataset (or --server with --scan-job)")
     check_options_early(args.method, _params(args))

@@ -121,7 +121,16 @@ def _value_type(name: str, schema: dict, flag: str) -> dict:
 
 
 def add_option_flags(group) -> None:
-    """One flag per option of the registered methods on ``group`` (module docstring)."""
+    """One flag per option of the registered methods on ``group`` (module docstring).
+
+    A flag already on ``group`` is not added again; without the service package (a
+    client-only install) none is added.
+
+    Parameters
+    ----------
+    group : argparse.ArgumentParser or argument group
+        Where the flags go; each flag's dest is the option's name, its default None (not given).
+    """
     methods = _registry()
     if methods is None:
         return
@@ -144,15 +153,32 @@ def add_option_flags(group) -> None:
 
 
 def option_names() -> list[str]:
-    """The options' names (dests of :func:`add_option_flags`)."""
+    """The options' names (dests of :func:`add_option_flags`).
+
+    Returns
+    -------
+    list of str
+        Every registered method's option names; empty without the service package.
+    """
     methods = _registry()
     return [] if methods is None else list(methods.option_fields())
 
 
 def option_params(args) -> dict:
-    """The options given on the command line (``None``: not given, left out) with the speed
-    of sound (``c``, ``c_range``) and ``force`` when set: the ``params`` of
-    ``service.pipeline.reconstruct`` and of ``POST /api/reconstructions``."""
+    """The options given on the command line: the ``params`` of
+    ``service.pipeline.reconstruct`` and of ``POST /api/reconstructions``.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed command line (flags of :func:`add_option_flags` and :func:`add_speed_flags`).
+
+    Returns
+    -------
+    dict
+        Each option given (``None``: not given, left out), with the speed of sound ``c``
+        (m/s), ``c_range`` (a list ``[c_min, c_max]``, m/s) and ``force`` (True) when set.
+    """
     params: dict[str, Any] = {}
     for name in ("c", *option_names()):
         value = getattr(args, name, None)
@@ -166,7 +192,18 @@ def option_params(args) -> dict:
 
 
 def http_params(params: dict) -> dict:
-    """``params`` (:func:`option_params`) with the HTTP names of the speed of sound:
-    ``sound_speed``, ``sound_speed_range`` (the server takes ``c`` / ``c_range`` too, deprecated)."""
+    """``params`` with the HTTP names of the speed of sound.
+
+    Parameters
+    ----------
+    params : dict
+        :func:`option_params`'s.
+
+    Returns
+    -------
+    dict
+        A copy with ``c`` renamed ``sound_speed`` and ``c_range`` ``sound_speed_range`` (the
+        server takes ``c`` / ``c_range`` too, deprecated); other keys as they are.
+    """
     names = {"c": "sound_speed", "c_range": "sound_speed_range"}
     return {names.get(k, k): v for k, v in params.items()}
