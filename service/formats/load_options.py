@@ -41,7 +41,18 @@ def _positive(name: str) -> Any:
 
 
 def Positive(name: str) -> Any:  # noqa: N802 -- a type, as the methods' Flag(...)
-    """``float > 0 | None`` checked by :func:`_positive` (the field's type in a model)."""
+    """``float > 0 | None`` checked by :func:`_positive` (the field's type in a model).
+
+    Parameters
+    ----------
+    name : str
+        The option's name, in the refusal (``dt must be a finite number > 0, got -1``).
+
+    Returns
+    -------
+    typing.Annotated
+        The field's type: a number > 0 (JSON schema ``exclusiveMinimum: 0``) or None.
+    """
     return Annotated[Annotated[float, Field(gt=0)] | None, _positive(name)]
 
 
