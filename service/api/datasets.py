@@ -104,7 +104,7 @@ def upload_dataset(file: UploadFile = File(..., description="the data file"),
     if sound_speed is not None and c is not None and sound_speed.strip() != c.strip():
         raise HTTPException(422, "give the speed of sound once: sound_speed (c is its deprecated name)")
     c = c if sound_speed is None else sound_speed
-    quantities = {o["name"]: o["schema"]["quantity"] for o in _LOAD_OPTIONS if o["schema"].get("quantity")}
+    quantities = _LOAD_QUANTITIES
     try:  # numbers typed with units, as everywhere (driver.units.parse_quantity)
         q = {name: None if text is None or not str(text).strip() else parse_quantity(text, kind, name=name)
              for name, text, kind in [*((n, options.get(n), k) for n, k in quantities.items()), ("c", c, "speed")]}
@@ -119,6 +119,8 @@ def upload_dataset(file: UploadFile = File(..., description="the data file"),
 
 #: the formats' load options (``service.formats.load_options``): the upload's generated fields
 _LOAD_OPTIONS = load_option_schemas()
+#: those whose values may be text with a unit: name -> kind of ``driver.units.parse_quantity``
+_LOAD_QUANTITIES = {o["name"]: o["schema"]["quantity"] for o in _LOAD_OPTIONS if o["schema"].get("quantity")}
 
 
 def _form_field(option: dict[str, Any]) -> inspect.Parameter:

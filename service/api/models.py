@@ -796,7 +796,7 @@ class _ReconParamsBase(SpeedOptions, _Request):
     ``service.recon.methods.options.SpeedOptions``); the methods' own options are added from
     the registry (:func:`_method_option_fields`)."""
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, populate_by_name=False)
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)  # _Request's (SpeedOptions states none)
 
     @field_validator("*", mode="before", check_fields=False)
     @classmethod
@@ -807,13 +807,10 @@ class _ReconParamsBase(SpeedOptions, _Request):
         from driver.units import parse_quantity
 
         name = info.field_name
-        speed = SpeedOptions.model_fields.get(name)
-        extra = speed.json_schema_extra if speed is not None and isinstance(speed.json_schema_extra, dict) else {}
-        kind = str(extra["quantity"]) if "quantity" in extra else None if speed is not None \
-            else _OPTION_QUANTITIES.get(name)
+        kind = _OPTION_QUANTITIES.get(name)
         if kind is None:
             return value
-        shown = str(extra.get("shown", name))
+        shown = _SHOWN.get(name, name)
         if isinstance(value, str) and not (name == "c" and value == "auto"):
             try:
                 return parse_quantity(value, kind, name=shown)
@@ -870,9 +867,16 @@ def _method_option_fields() -> dict[str, Any]:
     return fields
 
 
+#: the speed option's fields' extras (``SpeedOptions``: ``unit``, ``quantity``, ``shown``)
+_SPEED_EXTRAS = {name: f.json_schema_extra for name, f in SpeedOptions.model_fields.items()
+                 if isinstance(f.json_schema_extra, dict)}
 #: options whose values may be text with a unit: name -> kind of ``driver.units.parse_quantity``
-_OPTION_QUANTITIES = {name: o["schema"]["quantity"] for m in METHODS.values() for o in _methods.option_schemas(m)
-                      if "quantity" in o["schema"] for name in [o["name"]]}
+#: (the speed of sound's and the methods')
+_OPTION_QUANTITIES = {**{name: str(e["quantity"]) for name, e in _SPEED_EXTRAS.items() if "quantity" in e},
+                      **{o["name"]: o["schema"]["quantity"] for m in METHODS.values()
+                         for o in _methods.option_schemas(m) if "quantity" in o["schema"]}}
+#: the names a person reads for the speed fields (``c`` -> ``sound_speed``) in a refusal
+_SHOWN = {name: str(e["shown"]) for name, e in _SPEED_EXTRAS.items() if "shown" in e}
 
 #: Reconstruction options (``null`` = the method's default): the speed of sound
 #: (``sound_speed``, also accepted as ``c``), ``sound_speed_range``, ``force`` and the union

@@ -15,6 +15,8 @@ import sys
 import numpy as np
 import pytest
 
+from tests.waits import HANG_S
+
 TOKEN = "npz-token"
 N, DX, DT, N_T, C = 8, 1e-4, 4e-8, 48, 1500.0
 
@@ -66,7 +68,7 @@ def test_npz_export_everywhere_from_one_file(server, tmp_path):
         assert info["npz"]["export_from"] == "result" and info["npz"]["suffix"] == ".npz"
         dataset_id = api.upload_dataset(tmp_path / "data.npy", "npy", dt=DT, dx=DX, dy=DX)
         job = api.start_reconstruction(dataset_id=dataset_id, method="ner")
-        api.wait(job, timeout=240)
+        api.wait(job, timeout=HANG_S)
         links = field_of(api.get_job(job), "links")
         assert field_of(links, "export_npz") == f"/api/jobs/{job}/export/npz"
         api.download_volume(job, tmp_path / "served.h5")

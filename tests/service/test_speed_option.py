@@ -13,6 +13,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+from clients.processes import clean_env
 from driver.constants import C_AUTOFOCUS_RANGE, C_LIMITS, C_PLAUSIBLE
 from service.recon.methods.options import SpeedOptions, plausible_speeds, speed_schema
 
@@ -46,7 +47,7 @@ def test_every_surface_reads_the_one_option(shared_api):
     assert PLAUSIBLE in upload["properties"]["sound_speed"]["description"]
     assert upload["properties"]["force"]["description"] == SpeedOptions.model_fields["force"].description
     helped = subprocess.run([sys.executable, "-m", "clients", "recon", "--help"], capture_output=True, text=True,
-                            timeout=120, env={"COLUMNS": "400", "PATH": "/usr/bin:/bin"})
+                            timeout=120, env=clean_env(COLUMNS="400"))
     assert helped.returncode == 0, helped.stderr
     force = next(line for line in helped.stdout.splitlines() if line.strip().startswith("--force"))
     assert PLAUSIBLE in force, force

@@ -282,8 +282,6 @@ class SpeedOptions(BaseModel):
     'm/s'
     """
 
-    model_config = ConfigDict(populate_by_name=True)
-
     c: Speed | Literal["auto"] | None = Field(
         None, validation_alias=AliasChoices("sound_speed", "c"),
         description=f"speed of sound, m/s ({plausible_speeds()} unless force, "
