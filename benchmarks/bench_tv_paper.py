@@ -8,8 +8,10 @@ a point of interest 3.6 mm deep (1653 points) — of three uniform balls near th
 (`driver.physics.ball_alines`: the N-waves averaged over each sample) with seeded white noise
 ``--snr`` dB below the signal's RMS; tv in float32 at its defaults but for the grid. Rows:
 
-- ``defaults``: the grid tv picks (`service.recon.tv_grid`: the data's band above their noise);
-- ``today's grid``: dz = c·dt at the record's own sampling (``bandwidth`` = the Nyquist frequency);
+- ``defaults``: the grid tv picks (`service.recon.tv_grid`: the record cut after its last echo,
+  the data's band above their noise);
+- ``today's grid``: dz = c·dt at the record's own sampling over the whole record (``bandwidth`` =
+  the Nyquist frequency, ``whole_record``);
 - ``22 MHz sensor`` (with ``--declared 22e6``): the same data with a sensor bandwidth declared
   (the operator and the data cut there), to show what a band-limited grid costs and buys.
 
@@ -80,7 +82,7 @@ def _peak() -> int:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
 
 
-def _row(label: str, scale: float, snr: float, bandwidth, repeat: int, queue) -> None:
+def _row(label: str, scale: float, snr: float, bandwidth, whole: bool, repeat: int, queue) -> None:
     from driver.physics import ball_p0
     from service.metrics import correlation_coefficient
     from service.recon import reconstruct_grid
@@ -102,7 +104,7 @@ def _row(label: str, scale: float, snr: float, bandwidth, repeat: int, queue) ->
     _reset_peak()
     t = time.perf_counter()
     rec = reconstruct_tv(case["alines"], DT, C, positions=pos, weights=case["weights"], grid=case["grid"],
-                         dtype=np.float32, bandwidth=bandwidth)
+                         dtype=np.float32, bandwidth=bandwidth, whole_record=whole)
     wall = time.perf_counter() - t
     peak = _peak() - base
     p = rec.params
@@ -110,7 +112,8 @@ def _row(label: str, scale: float, snr: float, bandwidth, repeat: int, queue) ->
     queue.put(dict(label=label, ner=best, tv=wall, iterations=p["iterations"], pairs=p["operator_pairs"],
                    converged=p["converged"], stop=p["stop_reason"], peak=peak / rec.p0.nbytes,
                    cc=correlation_coefficient(rec.p0, truth), shape=rec.p0.shape, dz=float(rec.z[1]),
-                   op_n_t=p["operator_n_t"], band=p["band"], reason=p["band_reason"], lam=p["lam_factor"]))
+                   op_n_t=p["operator_n_t"], band=p["band"], reason=p["band_reason"], lam=p["lam_factor"],
+                   record=p["record_n_t"], n_t=n_t))
 
 
 def main(argv=None) -> None:
@@ -126,22 +129,24 @@ def main(argv=None) -> None:
         rows.append("declared")
     print(f"paper case x{args.scale:g}: {args.snr:g} dB, float32; NER float32 of the same lattice in the same process")
     print("| grid | tv s | NER s | tv / NER | iterations | pairs | converged | peak / image | CC (true p0) | image "
-          "(n_z x n_y x n_x, dz) | operator samples, band |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+          "(n_z x n_y x n_x, dz) | record kept | operator samples, band |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     ctx = mp.get_context("spawn")
     for row in rows:
         bandwidth = {"defaults": None, "today": 1 / (2 * DT), "declared": args.declared}[row]
         label = {"defaults": "defaults", "today": "today's grid (dz = c·dt)",
                  "declared": f"{(args.declared or 0) / 1e6:g} MHz sensor declared"}[row]
         queue = ctx.Queue()
-        proc = ctx.Process(target=_row, args=(label, args.scale, args.snr, bandwidth, args.repeat, queue))
+        proc = ctx.Process(target=_row, args=(label, args.scale, args.snr, bandwidth, row == "today", args.repeat,
+                                              queue))
         proc.start()
         r = queue.get()
         proc.join()
         band = "none" if r["band"] is None else f"{r['band'] / 1e6:.1f} MHz ({r['reason']})"
         print(f"| {r['label']} | {r['tv']:.1f} | {r['ner']:.3f} | {r['tv'] / r['ner']:.0f} | {r['iterations']} | "
               f"{r['pairs']:g} | {r['converged']} ({r['stop']}) | {r['peak']:.1f} | {r['cc']:.4f} | "
-              f"{' x '.join(map(str, r['shape']))}, {r['dz'] * 1e6:.1f} µm | {r['op_n_t']}, {band} |", flush=True)
+              f"{' x '.join(map(str, r['shape']))}, {r['dz'] * 1e6:.1f} µm | {r['record']} of {r['n_t']} | "
+              f"{r['op_n_t']}, {band} |", flush=True)
 
 
 if __name__ == "__main__":

@@ -1,5 +1,5 @@
-"""The grid the model-based method works on: the data's band above their noise floor, the
-operator's time sampling and tv's default image depth grid (issue 47, item 1).
+"""The grid the model-based method works on: the record's extent and the data's band above their
+noise floor, the operator's time sampling and tv's default image depth grid (issue 47, item 1).
 
 The planar model maps each k-space component of p0 to one temporal frequency, f = c |k| / 2π
 (DESIGN §3.1), so a band of the data is a ball |k| <= 2π f_c / c of the image's k-space. tv
@@ -23,7 +23,24 @@ at the sampling the scanner happened to use:
   12.5 MHz, k-Wave's own grid limit; the same comparison between the data's NEDNER image and
   that of the noise alone, in k-space shells, cut at 8.4 MHz — no Wiener-type cut reaches
   12.5 MHz there, docs/performance.md);
-- **the operator's sampling**: M samples on the record's own interval,
+- **the record's extent** (`data_extent`): the record is cut after the last sample that shows
+  signal — an echo above σ √(2 ln (100 N)) at any sensor (the universal threshold of
+  Donoho & Johnstone for 100 N samples), or energy summed over the A-lines from that sample
+  on above the noise's by 5 of its standard deviations — and a margin of 2 % of the
+  record; ``whole_record`` keeps it all. The model stays exact (the operator simply has
+  fewer samples), and a source at depth z is heard only at t >= z / c, so the image's
+  default depth ends where the kept record does. What the cut drops is noise and one piece
+  of information: the far sensors' silence about shallow voxels they would hear late.
+  Measured on the paper's scan at half size (113², 512 samples, 30 dB; the same λ), after
+  150 iterations the cut record's image and the whole record's have the same CC with the
+  true balls (0.9845 both); at the stopping rule's earlier stop they differ by where the
+  rule stops (docs/performance.md). It shortens the operator's record, its depth and its
+  lateral padding (which grows with c t_last, `service.recon.operator`): the paper's scan
+  (three balls 2.9-4.3 mm deep, heard by the farthest sensors until sample 755 of 1024)
+  keeps 776 samples, and a pair works on 801 × 384² points instead of 1025 × 450²: tv took
+  425 s instead of 934 s there. An image depth the caller gives is always reached: the cut
+  never falls before its last row's sample;
+- **the operator's sampling**: M samples on the kept record's interval,
   `driver.physics.resample.resampled_length` (its kept band reaches f_c), the data low-passed
   and resampled to them exactly (`driver.physics.resample.resample`), the operator
   band-limited to f_c in k-space (`service.recon.operator.PlanarOperator` ``band``);
@@ -33,8 +50,8 @@ at the sampling the scanner happened to use:
   the record's own sampling (dz = c dt, n_z = n_t), so that a caller who fixes one of them
   gets the grid it had before.
 
-Data whose band reaches the record's Nyquist frequency keep today's grid exactly (no
-resampling, no band limit). Pure numpy (scipy's DCT is imported on first use; no numba), so
+Data whose band reaches the record's Nyquist frequency and whose signal lasts to the record's
+end keep today's grid exactly (no cut, no resampling, no band limit). Pure numpy (scipy's DCT is imported on first use; no numba), so
 that a server can size a tv job from it (`tv_grid` without data gives the grid of a
 full-band record: the largest tv may choose).
 """
@@ -49,7 +66,7 @@ import numpy.typing as npt
 from driver.constants import C_DEFAULT
 from driver.physics.resample import resampled_length
 
-__all__ = ["TvGrid", "noise_sigma", "data_band", "tv_grid"]
+__all__ = ["TvGrid", "noise_sigma", "data_band", "data_extent", "tv_grid"]
 
 
 def noise_sigma(data: npt.ArrayLike, time_axis: int) -> float:
@@ -119,13 +136,20 @@ class TvGrid(NamedTuple):
         What set the band: ``"data"`` (the data's band above their noise floor),
         ``"declared"`` (the caller's sensor bandwidth), ``"nyquist"`` (the data are full band,
         or were not looked at).
+    record_n_t : int
+        Samples of the record kept, from its first (`data_extent`); the record's own n_t when
+        nothing is cut. The operator's ``n_t`` samples span the kept record's interval.
+    extent_reason : str
+        What set the kept record: ``"data"`` (the data hold no more signal than noise after
+        it), ``"image"`` (the depth the caller gave reaches further), ``"record"`` (nothing
+        cut: the signal lasts to the record's end, or the data were not looked at).
 
     Examples
     --------
     >>> from service.recon.tv_grid import tv_grid
     >>> grid = tv_grid(1024, 8e-9, 1500.0, bandwidth=20e6)  # (n_t, dt, c): a 20 MHz sensor
-    >>> grid.n_t, grid.resampled, grid.reason
-    (330, True, 'declared')
+    >>> grid.n_t, grid.resampled, grid.reason, grid.record_n_t, grid.extent_reason
+    (330, True, 'declared', 1024, 'record')
     """
 
     n_t: int
@@ -134,11 +158,18 @@ class TvGrid(NamedTuple):
     dz: float
     n_z: int
     reason: str
+    record_n_t: int
+    extent_reason: str
 
     @property
     def resampled(self) -> bool:
-        """Whether the operator works at fewer samples than the record has."""
+        """Whether the operator works at fewer samples than the kept record has (a band limit)."""
         return self.band is not None
+
+    @property
+    def cut(self) -> bool:
+        """Whether the record's end is dropped (``record_n_t`` below the record's samples)."""
+        return self.extent_reason != "record"
 
 
 def data_band(data: npt.ArrayLike, dt: float, time_axis: int, sigma: float) -> float | None:
@@ -216,11 +247,102 @@ def data_band(data: npt.ArrayLike, dt: float, time_axis: int, sigma: float) -> f
     return max(k_keep - 1, 1) / (2.0 * (n - 1) * float(dt))
 
 
+def data_extent(data: npt.ArrayLike, time_axis: int, sigma: float) -> int | None:
+    """Samples of the record that hold signal above its noise (module doc): the last sample
+    that shows signal by either of two tests, and a margin after it.
+
+    - an echo at one sensor: any A-line's |g| above σ √(2 ln (100 N)), N the data's
+      samples (Donoho & Johnstone's universal threshold σ √(2 ln N) for 100 times the
+      samples: the largest of N samples of white noise passes it with a probability of
+      about 2 / (100 √(2π) t) ≈ 0.15 % at t ≈ 5.5 σ, where at σ √(2 ln N) it is 10-20 %),
+      so a strong echo that only a few far sensors hear is kept however small its share of
+      the whole record's energy;
+    - signal spread over many samples, each below that threshold: the data's energy from the
+      sample on, summed over the A-lines, above the noise's by more than `_EXTENT_Z` = 5
+      standard deviations of the noise's energy there (m samples of white noise: mean m σ²,
+      standard deviation σ² √(2 m)) — a test of the tail, as `data_band`'s, but against the
+      noise's spread rather than twice its mean, because a weak echo in time is short beside
+      the long noise after it (a 2-D source's 1/√t tail, a few far sensors' last echoes);
+
+    then `_EXTENT_MARGIN` of the record more (at least `_EXTENT_MARGIN_MIN` samples), for the
+    fall of the last echo from the threshold to the noise (a Gaussian pulse of width s and
+    height 100 σ takes 0.6 s to fall from 5 σ to σ). A test that finds signal by chance keeps
+    more, never less.
+
+    Parameters
+    ----------
+    data : array_like
+        Samples, any shape, time along ``time_axis`` (A-lines ``(n, n_t)`` with 1; grid data
+        ``(n_t, ...)`` with 0).
+    time_axis : int
+        The time axis.
+    sigma : float
+        The noise's standard deviation per sample, in the data's unit (`noise_sigma`).
+
+    Returns
+    -------
+    int or None
+        K < n_t: the samples 0..K - 1 are kept, the rest hold no more than noise; None when
+        the signal (with the margin) lasts to the record's end, when no sample shows signal
+        (noise alone), or without a noise estimate (σ <= 0).
+
+    References
+    ----------
+    .. [1] D. L. Donoho, I. M. Johnstone, "Ideal spatial adaptation by wavelet shrinkage",
+       Biometrika 81 (1994) 425 (the universal threshold).
+
+    Examples
+    --------
+    Pulses that end by sample 300 of 1000, on 64 A-lines of white noise (the margin: 20
+    samples):
+
+    >>> import numpy as np
+    >>> from service.recon.tv_grid import data_extent
+    >>> rng = np.random.default_rng(0)
+    >>> t = np.arange(1000)
+    >>> g = np.where((t > 200) & (t < 300), 1.0, 0.0) + 0.01 * rng.standard_normal((64, 1000))
+    >>> data_extent(g, 1, sigma=0.01)
+    320
+    >>> data_extent(rng.standard_normal((64, 1000)), 1, sigma=1.0) is None  # noise alone
+    True
+    """
+    g = np.moveaxis(np.asarray(data), time_axis, 0)
+    n = g.shape[0]
+    if n < 3 or not sigma > 0 or g.size == 0:
+        return None
+    g = g.reshape(n, -1)  # (n_t, A-lines): a view for A-lines (n, n_t) and for time-first grid data
+    lines = g.shape[1]
+    sigma = float(sigma)
+    threshold = sigma * math.sqrt(2.0 * math.log(100.0 * g.size))
+    energy, loudest = np.empty(n), np.empty(n)
+    step = max(1, 2**20 // lines)
+    for a in range(0, n, step):  # per sample: Σ over the A-lines of its square, and its largest |g|
+        block = np.asarray(g[a : a + step], dtype=np.float64)
+        energy[a : a + step] = np.einsum("ij,ij->i", block, block)
+        loudest[a : a + step] = np.abs(block).max(axis=1)
+    tail = np.cumsum(energy[::-1])[::-1]  # tail[k] = Σ_{j >= k} energy[j]
+    count = lines * np.arange(n, 0, -1, dtype=np.float64)  # samples from k on
+    noise_tail = sigma**2 * count  # their energy's mean under white noise
+    heard = np.flatnonzero((loudest > threshold) | (tail - noise_tail > _EXTENT_Z * sigma**2 * np.sqrt(2.0 * count)))
+    if heard.size == 0:  # noise alone
+        return None
+    kept = int(heard[-1]) + 1 + max(_EXTENT_MARGIN_MIN, math.ceil(_EXTENT_MARGIN * n))
+    return kept if kept < n else None
+
+
+#: `data_extent`'s test of the tail: its energy above the noise's mean by this many standard deviations
+_EXTENT_Z = 5.0
+#: the margin `data_extent` keeps after the last sample with signal: a share of the record, and
+#: at least so many samples
+_EXTENT_MARGIN = 0.02
+_EXTENT_MARGIN_MIN = 4
+
+
 def tv_grid(n_t: int, dt: float, c: float = C_DEFAULT, *, data: npt.ArrayLike | None = None, time_axis: int = 0,
             sigma: float | None = None, bandwidth: float | None = None, dz: float | None = None,
-            n_z: int | None = None) -> TvGrid:
-    """The grid tv works on (module doc): the operator's samples and band, and the image's
-    depth grid.
+            n_z: int | None = None, t0: float = 0.0, whole_record: bool = False) -> TvGrid:
+    """The grid tv works on (module doc): the record's kept extent, the operator's samples and
+    band, and the image's depth grid.
 
     Parameters
     ----------
@@ -231,8 +353,9 @@ def tv_grid(n_t: int, dt: float, c: float = C_DEFAULT, *, data: npt.ArrayLike | 
     c : float, optional
         Sound speed, m/s.
     data : array_like, optional
-        The record, time along ``time_axis``: its band above the noise floor sets the grid
-        (`data_band`). None (and no ``bandwidth``): the full band, today's grid dz = c dt.
+        The record, time along ``time_axis``: its extent (`data_extent`) and its band above
+        the noise floor (`data_band`, of the kept record) set the grid. None (and no
+        ``bandwidth``): the whole record at full band, today's grid dz = c dt.
     time_axis : int, optional
         The time axis of ``data`` (0 for grid data ``(n_t, ...)``, 1 for A-lines ``(n, n_t)``).
     sigma : float, optional
@@ -241,7 +364,14 @@ def tv_grid(n_t: int, dt: float, c: float = C_DEFAULT, *, data: npt.ArrayLike | 
         A sensor bandwidth the caller declares, Hz: the band instead of the data's estimate.
     dz, n_z : optional
         The image's depth spacing (m) and samples, kept as given; with neither given c dt' and
-        M, with one given the other c dt or n_t (the record's own rule).
+        M, with one given the other c dt or n_t (the record's own rule). The kept record
+        always reaches the depth of the image's last row.
+    t0 : float, optional
+        Time of sample 0, s (where the image's last row is heard).
+    whole_record : bool, optional
+        Keep the whole record (no cut after the last echo, `data_extent`): the samples after
+        it are noise, but they also say that the far sensors hear nothing of the image's
+        shallow voxels (module doc).
 
     Returns
     -------
@@ -261,6 +391,18 @@ def tv_grid(n_t: int, dt: float, c: float = C_DEFAULT, *, data: npt.ArrayLike | 
     >>> g = tv_grid(1024, 8e-9, 1500.0, bandwidth=20e6)  # a 20 MHz sensor
     >>> g.n_t, g.band, round(g.dz * 1e6, 2), g.n_z, g.reason
     (330, 20000000.0, 37.31, 330, 'declared')
+
+    A record whose signal ends at sample 600 of 1024 (64 A-lines): the rest is cut, and the
+    default image ends where the kept record does:
+
+    >>> import numpy as np
+    >>> t = np.arange(1024)
+    >>> data = np.where((t > 500) & (t < 600), 1.0, 0.0) + 0.01 * np.random.default_rng(0).standard_normal((64, 1024))
+    >>> g = tv_grid(1024, 8e-9, 1500.0, data=data, time_axis=1, sigma=0.01)
+    >>> g.record_n_t, g.extent_reason, g.n_z == g.n_t  # 600 and the margin, 2 % of the record
+    (621, 'data', True)
+    >>> tv_grid(1024, 8e-9, 1500.0, data=data, time_axis=1, sigma=0.01, n_z=900).record_n_t  # a deeper image: reached
+    900
     """
     if int(n_t) != n_t or n_t < 2:
         raise ValueError(f"n_t must be an integer >= 2, got {n_t!r}")
@@ -268,20 +410,24 @@ def tv_grid(n_t: int, dt: float, c: float = C_DEFAULT, *, data: npt.ArrayLike | 
         if not (np.isfinite(v) and v > 0):
             raise ValueError(f"{name} must be finite and > 0, got {v!r}")
     n_t = int(n_t)
+    if bandwidth is not None and not (np.isfinite(bandwidth) and bandwidth > 0):
+        raise ValueError(f"bandwidth must be finite and > 0 Hz, got {bandwidth!r}")
+    if data is not None and sigma is None:
+        sigma = noise_sigma(data, time_axis)
+    kept, extent_reason = (n_t, "record") if whole_record else _kept_record(n_t, dt, c, data, time_axis, sigma,
+                                                                             dz, n_z, t0)
     band, reason = None, "nyquist"
     if bandwidth is not None:
-        if not (np.isfinite(bandwidth) and bandwidth > 0):
-            raise ValueError(f"bandwidth must be finite and > 0 Hz, got {bandwidth!r}")
         band, reason = float(bandwidth), "declared"
     elif data is not None:
-        if sigma is None:
-            sigma = noise_sigma(data, time_axis)
-        band = data_band(data, dt, time_axis, float(sigma))
+        assert sigma is not None  # set above
+        head = np.take(np.asarray(data), np.arange(kept), axis=time_axis) if kept < n_t else data
+        band = data_band(head, dt, time_axis, float(sigma))
         reason = "nyquist" if band is None else "data"
-    m = n_t if band is None else resampled_length(n_t, dt, band)
-    if m >= n_t:  # the record's own rate is the coarsest that keeps the band
-        band, m, reason = None, n_t, "nyquist"
-    dt_m = dt if m == n_t else (n_t - 1) * dt / (m - 1)
+    m = kept if band is None else resampled_length(kept, dt, band)
+    if m >= kept:  # the record's own rate is the coarsest that keeps the band
+        band, m, reason = None, kept, "nyquist"
+    dt_m = dt if m == kept else (kept - 1) * dt / (m - 1)
     if dz is None and n_z is None:  # the image's depth grid follows the operator's sampling
         dz_out, n_z_out = c * dt_m, m
     else:  # a caller who sets either keeps today's rule for the other (dz = c dt, n_z = n_t)
@@ -289,4 +435,25 @@ def tv_grid(n_t: int, dt: float, c: float = C_DEFAULT, *, data: npt.ArrayLike | 
         n_z_out = n_t if n_z is None else int(n_z)
     if not math.isfinite(dz_out) or dz_out <= 0:
         raise ValueError(f"dz must be finite and > 0 m, got {dz!r}")
-    return TvGrid(m, dt_m, band, dz_out, n_z_out, reason)
+    return TvGrid(m, dt_m, band, dz_out, n_z_out, reason, kept, extent_reason)
+
+
+#: the fewest samples a cut record keeps
+_MIN_KEPT = 8
+
+
+def _kept_record(n_t: int, dt: float, c: float, data: npt.ArrayLike | None, time_axis: int, sigma: float | None,
+                 dz: float | None, n_z: int | None, t0: float) -> tuple[int, str]:
+    """(samples kept, why) for `tv_grid`: the data's extent (`data_extent`), but never before
+    the sample that hears the last row of an image depth the caller gives."""
+    kept, why = n_t, "record"
+    if data is not None and sigma is not None:
+        extent = data_extent(data, time_axis, float(sigma))
+        if extent is not None and extent < n_t:
+            kept, why = max(extent, min(n_t, _MIN_KEPT)), "data"
+    if kept < n_t and (dz is not None or n_z is not None):
+        last_row = ((n_t if n_z is None else int(n_z)) - 1) * (c * dt if dz is None else float(dz))
+        reach = (last_row / c - float(t0)) / dt  # the sample that hears it
+        if not reach < kept - 1:
+            kept, why = (n_t, "record") if not reach < n_t - 1 else (int(math.ceil(reach)) + 1, "image")
+    return kept, why

@@ -12,7 +12,7 @@ from driver.physics.resample import resample, resample_adjoint, resampled_length
 from service.metrics import correlation_coefficient
 from service.recon.operator import PlanarOperator
 from service.recon.tv import reconstruct_tv
-from service.recon.tv_grid import data_band, noise_sigma, tv_grid
+from service.recon.tv_grid import data_band, data_extent, noise_sigma, tv_grid
 
 C, DX = 1500.0, 60e-6
 rng = np.random.default_rng(47)
@@ -96,7 +96,8 @@ def test_the_band_is_read_off_the_data_above_their_noise():
     noisy = pulse + 1e-4 * rng2.standard_normal(pulse.shape)
     grid = tv_grid(600, 10e-9, C, data=noisy, time_axis=1)
     assert grid.reason == "data" and grid.n_t < 600 and np.isclose(grid.dz, C * grid.dt)
-    assert (grid.n_t - 2) / (2 * 599 * 10e-9) >= grid.band  # the kept terms reach the band
+    assert grid.extent_reason == "data" and 500 <= grid.record_n_t < 600  # the last pulse ends by 5.2 µs
+    assert (grid.n_t - 2) / (2 * (grid.record_n_t - 1) * 10e-9) >= grid.band  # the kept terms reach the band
     kept = tv_grid(600, 10e-9, C, data=noisy, time_axis=1, dz=5e-6, n_z=77)  # given: honoured
     assert (kept.dz, kept.n_z) == (5e-6, 77) and kept.n_t == grid.n_t
     one = tv_grid(600, 10e-9, C, data=noisy, time_axis=1, n_z=77)  # one given: the other as before
@@ -126,3 +127,61 @@ def test_tv_on_band_limited_data_works_on_a_coarser_grid_and_says_so():
     assert correlation_coefficient(rec.p0, p0) > 0.95
     default = reconstruct_tv(noisy, dt, C, positions=pos, grid=(x,), max_iter=3)
     assert default.p0.shape[0] == p["operator_n_t"] and np.isclose(default.z[1], C * p["operator_dt"])
+
+
+def test_the_records_extent_is_read_off_the_data_above_their_noise():
+    """`data_extent`: pulses in white noise are kept past the last sample where they beat σ,
+    and at most the margin (2 % of the record: 16 samples) further; noise alone, and a
+    signal in the last samples, cut nothing."""
+    rng2 = np.random.default_rng(3)
+    t = np.arange(800)
+    for end, sigma in ((300, 1e-2), (520, 1e-3)):
+        # 40 A-lines of Gaussian pulses of 8 samples' width whose last one peaks 30 samples before ``end``
+        peaks = np.append(rng2.uniform(100, end - 30, 39), end - 30)[:, None]
+        clean = np.exp(-0.5 * ((t - peaks) / 8.0) ** 2)
+        g = clean + sigma * rng2.standard_normal((40, 800))
+        k = data_extent(g, 1, noise_sigma(g, 1))
+        above = int(np.flatnonzero(clean.max(axis=0) > sigma)[-1])  # the pulses' last sample above σ
+        assert k is not None and above < k <= above + 17, (above, k)
+        assert data_extent(g.T, 0, noise_sigma(g, 1)) == k  # time first: the same
+    assert data_extent(rng2.standard_normal((40, 800)), 1, 1.0) is None  # noise alone
+    late = np.exp(-0.5 * ((t - 790) / 8.0) ** 2) + 1e-3 * rng2.standard_normal((40, 800))
+    assert data_extent(late, 1, 1e-3) is None  # the signal lasts to the end
+    assert data_extent(late, 1, 0.0) is None  # no noise estimate: nothing to compare with
+
+
+def test_tv_cuts_the_records_noise_after_its_last_echo_and_keeps_a_given_depth():
+    """A 2-D source heard above the noise until about sample 100 of a 400-sample record: tv
+    keeps the record to its last echo (the rest is noise alone), its default image ends where the
+    kept record does, its image matches the source about as well as the whole record's does
+    (``whole_record``), and a depth the caller gives is reached (the record kept to it)."""
+    shape, dt, n_t = (60, 40), 40e-9, 400
+    dz = C * dt
+    p0 = _blob(shape, dz, 120e-6)
+    sensors = np.arange(0, shape[1], 2)
+    pos = ((sensors - (shape[1] - 1) / 2) * DX)[:, None]
+    clean = forward_points(p0, DX, dz, pos, dt, n_t, C)
+    sigma = float(np.sqrt(np.mean(clean**2))) / 10 ** 1.5
+    noisy = clean + np.random.default_rng(5).standard_normal(clean.shape) * sigma
+    # the last sample an echo beats the universal threshold at a sensor (5.2 σ for these 8000 samples; 6 σ: the
+    # noise cannot hide it), and the last it beats 1e-3 σ
+    heard = np.flatnonzero(np.abs(clean).max(axis=0) > 6 * sigma)[-1]
+    faint = np.flatnonzero(np.abs(clean).max(axis=0) > 1e-3 * sigma)[-1]
+    x = (np.arange(shape[1]) - (shape[1] - 1) / 2) * DX
+
+    def truth(rec):  # the blob (centre 30 dz deep) on tv's grid
+        zz, xx = np.meshgrid(rec.z, x, indexing="ij")
+        return np.exp(-((zz - 30 * dz) ** 2 + xx**2) / (2 * 120e-6**2))
+
+    cut = reconstruct_tv(noisy, dt, C, positions=pos, grid=(x,), max_iter=60)
+    p = cut.params
+    assert p["extent_reason"] == "data" and heard < p["record_n_t"] <= faint + 1, (heard, p["record_n_t"], faint)
+    assert p["operator_n_t"] <= p["record_n_t"] and cut.p0.shape == (p["operator_n_t"], shape[1])
+    assert np.isclose(cut.z[-1], C * (p["record_n_t"] - 1) * dt)  # the image ends where the kept record does
+    whole = reconstruct_tv(noisy, dt, C, positions=pos, grid=(x,), whole_record=True, max_iter=60)
+    assert whole.params["extent_reason"] == "record" and whole.params["record_n_t"] == n_t
+    assert whole.params["whole_record"] is True and p["whole_record"] is False
+    assert correlation_coefficient(cut.p0, truth(cut)) > 0.95
+    assert correlation_coefficient(cut.p0, truth(cut)) >= correlation_coefficient(whole.p0, truth(whole)) - 0.01
+    deep = reconstruct_tv(noisy, dt, C, positions=pos, grid=(x,), n_z=300, max_iter=2)
+    assert deep.params["record_n_t"] == 300 and deep.params["extent_reason"] == "image" and deep.p0.shape[0] == 300

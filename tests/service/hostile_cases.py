@@ -429,15 +429,16 @@ def mask_parameters_covered() -> set[tuple[str, str]]:
 #: (``recon_cases`` checks that this names every option the API has).
 RECON_PARAMS = {"c": 1500.0, "c_range": [1400.0, 1600.0], "eps": 1e-6, "dtype": "float32", "upsample": 1, "positivity": False, "lam": 1.0,
                 "iterations": 10, "time_limit": 60.0, "n_z": 64, "dz": 1e-5, "interp": "*nearest",
-                "debias": False, "tol": 1e-3, "force": False}
+                "debias": False, "whole_record": False, "tol": 1e-3, "force": False}
 #: the method each option is tried with (one that takes it: an option the method does not take is a 422)
-RECON_METHOD = {"lam": "tv", "iterations": "tv", "time_limit": "tv", "debias": "tv", "tol": "tv", "interp": "kwave"}
+RECON_METHOD = {"lam": "tv", "iterations": "tv", "time_limit": "tv", "debias": "tv", "whole_record": "tv", "tol": "tv",
+                "interp": "kwave"}
 #: Options whose value among ``BAD_VALUES`` is legal: unset (None: the method's default;
 #: dtype and force have no unset), positivity, debias and force 0 (false), λ = 0 (no
 #: regularisation) or tiny, the tolerance 1e-12, tv's stopping threshold 0 (run every
 #: iteration) or tiny.
 RECON_LEGAL = {(name, None) for name in RECON_PARAMS if name not in ("dtype", "force")} | {
-    ("positivity", 0), ("debias", 0), ("force", 0), ("lam", 0), ("lam", 1e-12), ("lam", 5e-324), ("eps", 1e-12),
+    ("positivity", 0), ("debias", 0), ("whole_record", 0), ("force", 0), ("lam", 0), ("lam", 1e-12), ("lam", 5e-324), ("eps", 1e-12),
     ("time_limit", 1e-12), ("time_limit", 5e-324), ("tol", 0), ("tol", 1e-12), ("tol", 5e-324)}
 #: A dataset id no server has: a request that passes validation is answered 404.
 NO_DATASET = "0" * 32

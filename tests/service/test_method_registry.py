@@ -100,7 +100,7 @@ def _cli_args(options: dict) -> list[str] | None:
         flag = _flag(name)
         if isinstance(value, bool):
             args.append(flag if value else "--no-" + flag[2:])
-        elif name in ("positivity", "debias"):
+        elif name in ("positivity", "debias", "whole_record"):
             return None
         else:
             args += [flag, repr(value) if isinstance(value, float) else str(value)]

@@ -65,6 +65,9 @@ class Options(DepthOptions, MethodOptions, NufftOptions):
         Wall-time limit of the solver in s, in (0, 1 week] (default ``DEFAULT_TIME_LIMIT``).
     debias : bool
         Refit the amplitudes by least squares on the support after the solve (default False).
+    whole_record : bool
+        Keep the whole record instead of cutting it after its last echo (default False;
+        ``service.recon.tv_grid``).
 
     Examples
     --------
@@ -94,6 +97,9 @@ class Options(DepthOptions, MethodOptions, NufftOptions):
                                   "stop reason 'time limit'", json_schema_extra={"unit": "s", "quantity": "time"})
     debias: Flag("debias") = Field(False, description="refit the amplitudes by least squares on the "  # type: ignore[valid-type]
                                    "support after the solve")
+    whole_record: Flag("whole_record") = Field(  # type: ignore[valid-type]
+        False, description="keep the whole record: by default tv cuts it after the last echo above the noise (a "
+        "shorter, cheaper operator), which also drops the far sensors' silence about shallow voxels")
 
 
 def run(ds: PointDataset, c: float, opts: dict, step: Progress) -> Reconstruction:
