@@ -49,7 +49,8 @@ class Options(DepthOptions, MethodOptions, NufftOptions):
         Working and output precision (default ``"float32"``).
     n_z : int or None
         Output depth samples, 2..65536 (None: with dz None too, the samples the operator works
-        at, n_t for data whose band reaches Nyquist; ``service.recon.tv_grid``; else n_t).
+        at over the record kept up to its last echo, those samples themselves for data whose
+        band reaches Nyquist; ``service.recon.tv_grid``; else n_t).
     dz : float or None
         Output depth spacing in m, [1e-9, 0.1] (None: with n_z None too, c dt' at the
         operator's sampling dt', which follows the data's band above their noise floor, c dt
