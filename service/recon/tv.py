@@ -775,21 +775,65 @@ def _tv_prox(v: np.ndarray, gamma: float, positivity: bool, support: np.ndarray 
     sweep over the volume (`_prox_step`; the primal w lives a few planes at a time), the dual
     stepped in place: no work image beyond the dual itself (d images, made when ``dual`` is
     None)."""
-    has_support = support is not None
-
-    def project(x: np.ndarray) -> np.ndarray:
-        if positivity:
-            np.maximum(x, 0, out=x)
-        if support is not None:
-            x[~support] = 0
-        return x
-
     if gamma <= 0:
-        return project(v if in_place else v.copy()), dual
-    gamma = float(gamma)
-    supp = _as3d(np.ascontiguousarray(support, dtype=bool)) if has_support else np.zeros((1, 1, 1), bool)
+        return _project(v if in_place else v.copy(), positivity, support), dual
     v = np.ascontiguousarray(v)  # the kernels see it through 3-D views
     q = np.zeros((v.ndim,) + v.shape, dtype=v.dtype) if dual is None else dual
+    _dual_steps(v, q, float(gamma), positivity, support, poll)
+    x = v if in_place else np.empty_like(v)
+    _prox_primal(_as3d(v), *_dual_axes(q), v.ndim == 3, float(gamma), positivity, *_support3(support), _as3d(x))
+    return x, q
+
+
+def _tv_prox_stored(v: np.ndarray, gamma: float, positivity: bool, support: np.ndarray | None,
+                    stored: list[np.ndarray | None],
+                    poll: Callable[[], None] | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+    """`_tv_prox` (not in place: v is kept) with its dual kept between calls in half the
+    working precision's bytes (`_store_dual`). ``stored`` is a list holding the last call's
+    stored dual (None: 0), taken out of it: it is restored, freed, stepped, stored anew and
+    freed again before the new iterate is made, whose final primal step reads the stored
+    dual (the map is linear in it: γ ∇ᵀ(s / 32767) = (γ / 32767) ∇ᵀ s). So the full-precision
+    dual (d images) and the new iterate are never held together, nor the old and the new
+    stored dual: d + d/2 images at most beside v, where `_tv_prox` and `_store_dual` held
+    d + d/2 + 1 (the paper's scan: tv's peak 9.3 -> 8.4 images, now inside the operator). Returns (x, the new
+    stored dual); at γ <= 0 the projection of v and the stored dual unchanged."""
+    old = stored.pop()
+    if gamma <= 0:
+        return _project(v.copy(), positivity, support), old
+    v = np.ascontiguousarray(v)
+    q = np.zeros((v.ndim,) + v.shape, dtype=v.dtype) if old is None else _restore_dual(old, v.dtype)
+    del old
+    _dual_steps(v, q, float(gamma), positivity, support, poll)
+    kept = _store_dual(q)
+    del q
+    x = np.empty_like(v)
+    scale = 1.0 / _DUAL_SCALE if kept.dtype == np.int16 else 1.0
+    _prox_primal(_as3d(v), *_dual_axes(kept), v.ndim == 3, float(gamma) * scale, positivity, *_support3(support),
+                 _as3d(x))
+    return x, kept
+
+
+def _project(x: np.ndarray, positivity: bool, support: np.ndarray | None) -> np.ndarray:
+    """The image ``x`` clipped below 0 (``positivity``) and zeroed off ``support``, in place."""
+    if positivity:
+        np.maximum(x, 0, out=x)
+    if support is not None:
+        x[~support] = 0
+    return x
+
+
+def _support3(support: np.ndarray | None) -> tuple[np.ndarray, bool]:
+    """The kernels' (support as a 3-D bool array, whether there is one): a placeholder when None."""
+    if support is None:
+        return np.zeros((1, 1, 1), bool), False
+    return _as3d(np.ascontiguousarray(support, dtype=bool)), True
+
+
+def _dual_steps(v: np.ndarray, q: np.ndarray, gamma: float, positivity: bool, support: np.ndarray | None,
+                poll: Callable[[], None] | None) -> None:
+    """`_PROX_ITER` inner steps of `_tv_prox`'s dual gradient projection on ``q`` (d, *v.shape),
+    in place: w = P(v − γ ∇ᵀq); q ← (q + step ∇w) / max(1, |·|), step = 1 / (γ ‖∇‖²)."""
+    supp, has_support = _support3(support)
     has_y = v.ndim == 3
     v3 = _as3d(v)
     n_slabs = max(1, min(v3.shape[0], 2 * numba.get_num_threads()))
@@ -800,12 +844,7 @@ def _tv_prox(v: np.ndarray, gamma: float, positivity: bool, support: np.ndarray 
     for i in range(_PROX_ITER):
         if poll is not None and i % 5 == 4:
             poll()
-        # w = P(v − γ ∇ᵀq); q ← (q + step ∇w) / max(1, |·|)
         _prox_step(v3, *_dual_axes(q), has_y, gamma, positivity, supp, has_support, step, starts, planes, rows)
-    del planes, rows
-    x = v if in_place else np.empty_like(v)
-    _prox_primal(v3, *_dual_axes(q), has_y, gamma, positivity, supp, has_support, _as3d(x))
-    return x, q
 
 
 def _fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray], np.ndarray], g: np.ndarray,
@@ -836,8 +875,9 @@ def _fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray]
     working precision's bytes, `_store_dual`: |dual| <= 1, so a float32 warm start keeps
     1.5e-5): while A works, 3 images (x, the new iterate, the last G(A y − g)) and d/2; while G works, 3 (x,
     y, the last G(A y − g)) and d/2 beside G's output; while the proximal map works, 3 (x,
-    the gradient step made in y's place, G(A y − g)) and d (its dual at full precision),
-    then one more for the new iterate. Everything that needs y after its gradient step (the
+    the gradient step made in y's place, G(A y − g)) and d + d/2 at most (its dual at full
+    precision beside the stored one), then one more for the new iterate, made from the stored
+    dual once the full one is freed (`_tv_prox_stored`). Everything that needs y after its gradient step (the
     restart test and ‖y_new − y‖ for the gain, for both momenta y_new can take) is summed
     before A works, with y = the step + G(A y − g) / L (`_moves`), so y's memory is free
     then. The vectors are C-contiguous: the in-place kernels see them through flat views."""
@@ -868,11 +908,9 @@ def _fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray]
         v = y  # the gradient step y − G(A y − g) / L, in y's place (y = v + Gy / L from here on)
         del y
         _axpy(v.ravel(), Gy.ravel(), -1.0 / L)
-        dual = None if stored is None else _restore_dual(stored, x.dtype)
+        box: list[np.ndarray | None] = [stored]  # handed over: freed inside once restored
         stored = None
-        xn, dual = _tv_prox(v, lam / L, positivity, support, dual, poll, in_place=False)
-        stored = None if dual is None else _store_dual(dual)  # None at λ = 0 (no dual)
-        del dual
+        xn, stored = _tv_prox_stored(v, lam / L, positivity, support, box, poll)  # None at λ = 0 (no dual)
         # a = x_new − y, b = x_new − x: the restart test ⟨a, b⟩ < 0 and ‖y_new − y‖ = ‖a + β b‖
         # for β = 0 and `_MOMENTUM`, now, so that y (v) is free while A works
         ab, aa, cc, bb, nn = _moves(xn.ravel(), v.ravel(), Gy.ravel(), 1.0 / L, x.ravel(), _MOMENTUM)

@@ -415,6 +415,7 @@ def warm_up(dtypes: Sequence[str]) -> None:
         op.adjoint(op.forward(np.ones((4, 6, 6))))
         v = np.ones((4, 6, 6), dtype=d)  # the TV part's compiled sweeps (2-D images run as 3-D views)
         tv._tv_prox(v, 0.1, True, None, None)
+        tv._tv_prox_stored(v, 0.1, True, None, [tv._tv_prox_stored(v, 0.1, True, None, [None])[1]])  # stored dual
         tv._tv_norm(v)
         tv._apply_weight(tv._ner_weight(v.shape, dx, C_DEFAULT * dt), v)  # the preconditioner's kernel
         flat = v.ravel()  # the solver's in-place vector kernels
