@@ -51,9 +51,9 @@ at the sampling the scanner happened to use:
   gets the grid it had before.
 
 Data whose band reaches the record's Nyquist frequency and whose signal lasts to the record's
-end keep today's grid exactly (no cut, no resampling, no band limit). Pure numpy (scipy's DCT is imported on first use; no numba), so
-that a server can size a tv job from it (`tv_grid` without data gives the grid of a
-full-band record: the largest tv may choose).
+end keep today's grid exactly (no cut, no resampling, no band limit). Pure numpy (scipy's DCT
+is imported on first use; no numba), so that a server can size a tv job from it (`tv_grid`
+without data gives the grid of a whole, full-band record: the largest tv may choose).
 """
 from __future__ import annotations
 
