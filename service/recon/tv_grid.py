@@ -421,7 +421,7 @@ def tv_grid(n_t: int, dt: float, c: float = C_DEFAULT, *, data: npt.ArrayLike | 
         band, reason = float(bandwidth), "declared"
     elif data is not None:
         assert sigma is not None  # set above
-        head = np.take(np.asarray(data), np.arange(kept), axis=time_axis) if kept < n_t else data
+        head = np.asarray(data)[(slice(None),) * time_axis + (slice(0, kept),)]  # the kept record: a view
         band = data_band(head, dt, time_axis, float(sigma))
         reason = "nyquist" if band is None else "data"
     m = kept if band is None else resampled_length(kept, dt, band)
@@ -446,14 +446,16 @@ def _kept_record(n_t: int, dt: float, c: float, data: npt.ArrayLike | None, time
                  dz: float | None, n_z: int | None, t0: float) -> tuple[int, str]:
     """(samples kept, why) for `tv_grid`: the data's extent (`data_extent`), but never before
     the sample that hears the last row of an image depth the caller gives."""
-    kept, why = n_t, "record"
-    if data is not None and sigma is not None:
-        extent = data_extent(data, time_axis, float(sigma))
-        if extent is not None and extent < n_t:
-            kept, why = max(extent, min(n_t, _MIN_KEPT)), "data"
-    if kept < n_t and (dz is not None or n_z is not None):
-        last_row = ((n_t if n_z is None else int(n_z)) - 1) * (c * dt if dz is None else float(dz))
-        reach = (last_row / c - float(t0)) / dt  # the sample that hears it
-        if not reach < kept - 1:
-            kept, why = (n_t, "record") if not reach < n_t - 1 else (int(math.ceil(reach)) + 1, "image")
-    return kept, why
+    extent = None if data is None or sigma is None else data_extent(data, time_axis, float(sigma))
+    kept = n_t if extent is None else max(extent, min(n_t, _MIN_KEPT))
+    if kept >= n_t:  # the signal lasts to the end (or the record is shorter than the fewest kept)
+        return n_t, "record"
+    if dz is None and n_z is None:
+        return kept, "data"
+    last_row = ((n_t if n_z is None else int(n_z)) - 1) * (c * dt if dz is None else float(dz))
+    reach = (last_row / c - float(t0)) / dt  # the sample that hears it (NaN or inf: a dz tv_grid refuses)
+    if not reach < n_t - 1:
+        return n_t, "record"
+    if reach >= kept - 1:
+        return int(math.ceil(reach)) + 1, "image"
+    return kept, "data"
