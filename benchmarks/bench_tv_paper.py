@@ -19,8 +19,10 @@ Each row runs in a fresh process: NER float32 of random data on the full 226 x 2
 (the same grid, best of ``--repeat``), then tv; tv's peak is the process's VmHWM above its
 RSS before tv (reset after NER, `/proc/self/clear_refs`), over the image's bytes (n_z n_y n_x
 float32). The CC is against the analytic balls sampled on tv's own grid (`ball_p0`,
-supersampled 2x). ``--scale 0.5`` runs the same case at half the size in every dimension
-(113², 512 samples, 437 points) for a quick look.
+supersampled 2x). The admission estimate is the server's
+(`service.jobs.admission.estimate_memory` of the job as for a stored dataset, whose record facts
+the import found: `service.recon.tv_grid.record_facts`) over that peak. ``--scale 0.5`` runs the
+same case at half the size in every dimension (113², 512 samples, 437 points) for a quick look.
 
     .venv/bin/python benchmarks/bench_tv_paper.py [--scale 1] [--snr 30] [--declared 22e6]
 """
@@ -84,9 +86,11 @@ def _peak() -> int:
 
 def _row(label: str, scale: float, snr: float, bandwidth, whole: bool, repeat: int, queue) -> None:
     from driver.physics import ball_p0
+    from service.jobs.admission import estimate_memory
     from service.metrics import correlation_coefficient
     from service.recon import reconstruct_grid
     from service.recon.tv import reconstruct_tv
+    from service.recon.tv_grid import record_facts
 
     case = paper_case(scale, snr)
     n, n_t = case["n"], case["n_t"]
@@ -99,6 +103,10 @@ def _row(label: str, scale: float, snr: float, bandwidth, whole: bool, repeat: i
         best = min(best, time.perf_counter() - t)
     del data
     pos = case["positions"]
+    # the admission's estimate of this job (service.jobs.admission, as for a stored dataset: its record facts)
+    shape = {"n_t": n_t, "n_x": n, "n_y": n, "n_points": len(pos), "dt": DT, "c": C, "dx": PITCH, "t0": 0.0,
+             "record_facts": record_facts(case["alines"], DT, 1).as_dict(), "bandwidth": bandwidth}
+    estimate = estimate_memory(shape, {"method": "tv", "dtype": "float32", "whole_record": whole})
     reconstruct_tv(case["alines"][:40, :32], DT, C, positions=pos[:40], n_z=8, max_iter=2, dtype=np.float32)
     base = _rss()
     _reset_peak()
@@ -113,7 +121,7 @@ def _row(label: str, scale: float, snr: float, bandwidth, whole: bool, repeat: i
                    converged=p["converged"], stop=p["stop_reason"], peak=peak / rec.p0.nbytes,
                    cc=correlation_coefficient(rec.p0, truth), shape=rec.p0.shape, dz=float(rec.z[1]),
                    op_n_t=p["operator_n_t"], band=p["band"], reason=p["band_reason"], lam=p["lam_factor"],
-                   record=p["record_n_t"], n_t=n_t))
+                   record=p["record_n_t"], n_t=n_t, admission=estimate / peak))
 
 
 def main(argv=None) -> None:
@@ -129,8 +137,8 @@ def main(argv=None) -> None:
         rows.append("declared")
     print(f"paper case x{args.scale:g}: {args.snr:g} dB, float32; NER float32 of the same lattice in the same process")
     print("| grid | tv s | NER s | tv / NER | iterations | pairs | converged | peak / image | CC (true p0) | image "
-          "(n_z x n_y x n_x, dz) | record kept | operator samples, band |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+          "(n_z x n_y x n_x, dz) | record kept | operator samples, band | admission estimate / peak |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     ctx = mp.get_context("spawn")
     for row in rows:
         bandwidth = {"defaults": None, "today": 1 / (2 * DT), "declared": args.declared}[row]
@@ -146,7 +154,7 @@ def main(argv=None) -> None:
         print(f"| {r['label']} | {r['tv']:.1f} | {r['ner']:.3f} | {r['tv'] / r['ner']:.0f} | {r['iterations']} | "
               f"{r['pairs']:g} | {r['converged']} ({r['stop']}) | {r['peak']:.1f} | {r['cc']:.4f} | "
               f"{' x '.join(map(str, r['shape']))}, {r['dz'] * 1e6:.1f} µm | {r['record']} of {r['n_t']} | "
-              f"{r['op_n_t']}, {band} |", flush=True)
+              f"{r['op_n_t']}, {band} | {r['admission']:.2f} |", flush=True)
 
 
 if __name__ == "__main__":

@@ -60,7 +60,10 @@ def input_shape(source: Any) -> dict:
         ``n_t``, ``n_x``, ``n_y``, ``n_points`` (sensor points; absent for grid data), ``dt``
         (s), ``c`` (m/s), ``dx`` (m, the lateral pitch; None when unknown), ``t0`` (s, the time
         of sample 0; None when unknown: a dataset stored by an older server), for a loaded
-        dataset ``input_itemsize`` (bytes a sample) and for a plan ``n_wavelengths``.
+        dataset ``input_itemsize`` (bytes a sample) and for a plan ``n_wavelengths``; for a
+        stored record, where it has them, ``record_facts`` (what the record holds above its
+        noise, found at import: tv sizes its cut record from them) and ``bandwidth`` (a
+        declared sensor bandwidth, Hz).
 
     Raises
     ------
@@ -87,14 +90,27 @@ def input_shape(source: Any) -> dict:
     if isinstance(source, dict) and source.get("layout") == "grid":
         s = source["shape"]
         return {"n_t": s[0], "n_x": s[-1], "n_y": s[1] if len(s) == 3 else 1, "dt": source.get("dt"),
-                "c": source.get("c"), "dx": source.get("dx"), "t0": source.get("t0")}
+                "c": source.get("c"), "dx": source.get("dx"), "t0": source.get("t0"), **_facts(source)}
     if isinstance(source, dict) and source.get("layout") == "points":
         n, n_t = source["shape"]
         side = int(math.ceil(math.sqrt(n)))
         return {"n_t": n_t, "n_x": source.get("n_x", side), "n_y": source.get("n_y", side), "n_points": n,
-                "dt": source.get("dt"), "c": source.get("c"), "dx": source.get("dx"), "t0": source.get("t0")}
+                "dt": source.get("dt"), "c": source.get("c"), "dx": source.get("dx"), "t0": source.get("t0"),
+                **_facts(source)}
     raise ValueError(f"no input shape for {type(source).__name__}: give a plan, a stored dataset's record or a "
                      "loaded dataset")
+
+
+def _facts(record: dict) -> dict:
+    """What a stored dataset's record says of its data beyond their shape: ``record_facts``
+    (what the record holds above its noise, ``service.recon.tv_grid.RecordFacts``, stored at
+    import) and a declared ``bandwidth`` (Hz), where it has them."""
+    out = {}
+    if isinstance(record.get("record_facts"), dict):
+        out["record_facts"] = record["record_facts"]
+    if record.get("sensor_bandwidth_hz") is not None:
+        out["bandwidth"] = record["sensor_bandwidth_hz"]
+    return out
 
 
 def working_depth_rows(shape: dict, params: dict) -> int:
@@ -162,7 +178,8 @@ def estimate_memory(shape: dict, params: dict) -> int:
         :func:`input_shape`'s: ``n_t`` and ``n_x`` (``n_y``) of the output grid, ``n_points``
         for point inputs, ``input_itemsize`` (bytes a sample of the input as loaded; default
         8), ``dt`` (s), ``c`` (m/s) and the lateral pitch ``dx`` (m) of the input (optional;
-        the model-based ``tv`` pads its grid by the record's reach in pitches).
+        the model-based ``tv`` pads its grid by the record's reach in pitches), ``t0`` (s),
+        ``record_facts`` and ``bandwidth`` (a stored record's: tv's grid for its data).
     params : dict
         ``method`` (default: the registry's default for the input's layout), ``dtype``
         (default ``"float32"``), ``upsample``, ``n_z``, ``dz`` (m), ``c`` (m/s or ``"auto"``).
@@ -195,7 +212,8 @@ def estimate_memory(shape: dict, params: dict) -> int:
     value = method.memory(
         n_t, n_x, n_y, n_z=rows, upsample=up, dtype=params.get("dtype") or "float32",
         n_points=shape.get("n_points"), dx=geometry.get("dx"), dt=geometry.get("dt"), c=geometry.get("c"),
-        dz=geometry.get("dz"))
+        dz=geometry.get("dz"), t0=shape.get("t0"), options=params, record_facts=shape.get("record_facts"),
+        bandwidth=shape.get("bandwidth"))
     factor = method.memory_calibration
     # + the input as loaded (shape["input_itemsize"] bytes a sample, default 8: float64, as scan files load),
     # unless it is in the working precision: then it is the working copy the estimate already counts
@@ -291,7 +309,8 @@ def estimate_work(shape: dict, params: dict) -> float:
     name = params.get("method") or _default_method(shape)
     common = dict(upsample=int(params.get("upsample", 1) or 1), dtype=params.get("dtype") or "float32",
                   n_points=shape.get("n_points"), dx=shape.get("dx"), dt=shape.get("dt"),
-                  c=float(c or shape.get("c") or C_DEFAULT), t0=shape.get("t0"))
+                  c=float(c or shape.get("c") or C_DEFAULT), t0=shape.get("t0"),
+                  record_facts=shape.get("record_facts"), bandwidth=shape.get("bandwidth"))
     seconds = method_named(name).estimate_work(n_t, n_x, n_y, n_z=rows, options=params, **common)
     if params.get("c") == "auto":  # the search: the method itself, or the direct method for an iterative one
         search = _default_method(shape) if method_named(name).iterative else name

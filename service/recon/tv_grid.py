@@ -52,8 +52,10 @@ at the sampling the scanner happened to use:
 
 Data whose band reaches the record's Nyquist frequency and whose signal lasts to the record's
 end keep today's grid exactly (no cut, no resampling, no band limit). Pure numpy (scipy's DCT
-is imported on first use; no numba), so that a server can size a tv job from it (`tv_grid`
-without data gives the grid of a whole, full-band record: the largest tv may choose).
+is imported on first use; no numba), so that a server can size a tv job from it: `tv_grid`
+without data gives the grid of a whole, full-band record, the largest tv may choose; given
+the `RecordFacts` a server stores with a dataset when it imports it (`record_facts`: σ, the
+samples up to the last echo, their band), the grid tv will choose for those data.
 """
 from __future__ import annotations
 
@@ -66,7 +68,7 @@ import numpy.typing as npt
 from driver.constants import C_DEFAULT
 from driver.physics.resample import resampled_length
 
-__all__ = ["TvGrid", "noise_sigma", "data_band", "data_extent", "tv_grid"]
+__all__ = ["TvGrid", "RecordFacts", "noise_sigma", "data_band", "data_extent", "record_facts", "tv_grid"]
 
 
 def noise_sigma(data: npt.ArrayLike, time_axis: int) -> float:
@@ -109,12 +111,19 @@ def noise_sigma(data: npt.ArrayLike, time_axis: int) -> float:
     >>> noise_sigma(np.ones((3, 1)), time_axis=1)  # one sample: no estimate
     0.0
     """
-    g = np.moveaxis(np.asarray(data, dtype=np.float64), time_axis, -1)
-    n = g.shape[-1] // 2 * 2
-    if n < 2:
+    g = np.moveaxis(np.asarray(data), time_axis, 0)
+    half = g.shape[0] // 2
+    if half < 1 or g.size == 0:
         return 0.0
-    d = (g[..., 1:n:2] - g[..., 0:n:2]) / math.sqrt(2.0)
-    return float(np.median(np.abs(d)) / 0.6745)
+    g = g.reshape(g.shape[0], -1)  # (n_t, A-lines): a view for A-lines (n, n_t) and for time-first grid data
+    d = np.empty((half, g.shape[1]))  # |g_{2n+1} - g_{2n}| / √2, in float64 and in blocks: no float64 copy of the data
+    step = max(1, 2**19 // g.shape[1])
+    for a in range(0, half, step):
+        b = min(half, a + step)
+        block = np.asarray(g[2 * a : 2 * b], dtype=np.float64)
+        np.abs(np.subtract(block[1::2], block[0::2], out=d[a:b]), out=d[a:b])
+        np.divide(d[a:b], math.sqrt(2.0), out=d[a:b])
+    return float(np.median(d) / 0.6745)
 
 
 class TvGrid(NamedTuple):
@@ -170,6 +179,120 @@ class TvGrid(NamedTuple):
     def cut(self) -> bool:
         """Whether the record's end is dropped (``record_n_t`` below the record's samples)."""
         return self.extent_reason != "record"
+
+
+class RecordFacts(NamedTuple):
+    """What a record holds above its noise (`record_facts`): the facts `tv_grid` reads off the
+    data, kept where the data are not at hand — a server stores them with a dataset when it
+    imports it (``service.storage.datasets.import_dataset``), so that its admission sizes a tv
+    job on the grid tv will choose (``service.recon.methods.tv``).
+
+    Attributes
+    ----------
+    n_t : int
+        Samples per A-line of the record.
+    signal_n_t : int or None
+        Samples kept after the cut past the last echo (`data_extent`, margin included); None:
+        the signal lasts to the record's end (or no sample shows signal: noise alone).
+    band : float or None
+        The band above the noise floor of those samples (`data_band`), Hz; None: up to the
+        record's Nyquist frequency.
+    sigma : float
+        The noise's standard deviation per sample (`noise_sigma`), in the data's unit.
+
+    Examples
+    --------
+    >>> from service.recon.tv_grid import RecordFacts
+    >>> RecordFacts.from_dict(RecordFacts(1024, 776, None, 0.01).as_dict())
+    RecordFacts(n_t=1024, signal_n_t=776, band=None, sigma=0.01)
+    """
+
+    n_t: int
+    signal_n_t: int | None
+    band: float | None
+    sigma: float
+
+    def as_dict(self) -> dict:
+        """The facts as a JSON-ready dict (the dataset record's ``record_facts``)."""
+        return dict(self._asdict())
+
+    @classmethod
+    def from_dict(cls, d: dict) -> RecordFacts:
+        """The facts from :meth:`as_dict`'s dict.
+
+        Raises
+        ------
+        ValueError
+            A field missing or out of range (n_t < 2, a kept length outside [1, n_t), a
+            non-positive band, a negative σ).
+        """
+        try:
+            n_t, kept, band, sigma = int(d["n_t"]), d["signal_n_t"], d["band"], float(d["sigma"])
+            kept = None if kept is None else int(kept)
+            band = None if band is None else float(band)
+        except (KeyError, TypeError, ValueError):
+            raise ValueError(f"record facts need n_t, signal_n_t, band and sigma, got {d!r}") from None
+        if n_t < 2 or (kept is not None and not 1 <= kept < n_t) or (band is not None and not (
+                math.isfinite(band) and band > 0)) or not (math.isfinite(sigma) and sigma >= 0):
+            raise ValueError(f"record facts out of range: {d!r}")
+        return cls(n_t, kept, band, sigma)
+
+
+def record_facts(data: npt.ArrayLike, dt: float, time_axis: int) -> RecordFacts:
+    """The facts `tv_grid` reads off a record, without the caller's options: its noise σ
+    (`noise_sigma`), the samples kept after its last echo (`data_extent`) and the band of
+    those samples above the noise floor (`data_band`). `tv_grid` given these ``facts`` instead
+    of the data picks the grid it picks from the data, except where a depth the caller gives
+    keeps more of the record than the signal does: there the band is the one of the signal's
+    samples, at least as wide as that of the longer, noisier record (an estimate that errs
+    towards the larger grid).
+
+    Parameters
+    ----------
+    data : array_like
+        Samples, any shape, time along ``time_axis`` (A-lines ``(n, n_t)`` with 1; grid data
+        ``(n_t, ...)`` with 0).
+    dt : float
+        Sample interval, s.
+    time_axis : int
+        The time axis.
+
+    Returns
+    -------
+    RecordFacts
+
+    Raises
+    ------
+    ValueError
+        dt not finite and > 0; fewer than 2 samples along ``time_axis``.
+
+    Examples
+    --------
+    Pulses that end by sample 300 of 1000 on 64 A-lines of white noise:
+
+    >>> import numpy as np
+    >>> from service.recon.tv_grid import record_facts, tv_grid
+    >>> t = np.arange(1000)
+    >>> data = np.where((t > 200) & (t < 300), 1.0, 0.0) + 0.01 * np.random.default_rng(0).standard_normal((64, 1000))
+    >>> facts = record_facts(data, 1e-8, time_axis=1)
+    >>> facts.signal_n_t
+    320
+    >>> tv_grid(1000, 1e-8, 1500.0, facts=facts) == tv_grid(1000, 1e-8, 1500.0, data=data, time_axis=1)
+    True
+    """
+    if not (np.isfinite(dt) and dt > 0):
+        raise ValueError(f"dt must be finite and > 0, got {dt!r}")
+    a = np.asarray(data)
+    n_t = int(a.shape[time_axis])
+    if n_t < 2:
+        raise ValueError(f"a record needs at least 2 samples, got {n_t}")
+    sigma = noise_sigma(a, time_axis)
+    kept = data_extent(a, time_axis, sigma)
+    if kept is not None:
+        kept = max(kept, min(n_t, _MIN_KEPT))
+        kept = None if kept >= n_t else kept
+    head = a[(slice(None),) * time_axis + (slice(0, n_t if kept is None else kept),)]  # a view
+    return RecordFacts(n_t, kept, data_band(head, dt, time_axis, sigma), sigma)
 
 
 def data_band(data: npt.ArrayLike, dt: float, time_axis: int, sigma: float) -> float | None:
@@ -340,7 +463,8 @@ _EXTENT_MARGIN_MIN = 4
 
 def tv_grid(n_t: int, dt: float, c: float = C_DEFAULT, *, data: npt.ArrayLike | None = None, time_axis: int = 0,
             sigma: float | None = None, bandwidth: float | None = None, dz: float | None = None,
-            n_z: int | None = None, t0: float = 0.0, whole_record: bool = False) -> TvGrid:
+            n_z: int | None = None, t0: float = 0.0, whole_record: bool = False,
+            facts: RecordFacts | None = None) -> TvGrid:
     """The grid tv works on (module doc): the record's kept extent, the operator's samples and
     band, and the image's depth grid.
 
@@ -372,6 +496,9 @@ def tv_grid(n_t: int, dt: float, c: float = C_DEFAULT, *, data: npt.ArrayLike | 
         Keep the whole record (no cut after the last echo, `data_extent`): the samples after
         it are noise, but they also say that the far sensors hear nothing of the image's
         shallow voxels (module doc).
+    facts : RecordFacts, optional
+        Without ``data``: what the record was found to hold (`record_facts`), read instead of
+        the data (a server sizing a job from a stored dataset's record).
 
     Returns
     -------
@@ -380,7 +507,7 @@ def tv_grid(n_t: int, dt: float, c: float = C_DEFAULT, *, data: npt.ArrayLike | 
     Raises
     ------
     ValueError
-        n_t < 2, non-positive dt, c or bandwidth.
+        n_t < 2, non-positive dt, c or bandwidth; ``facts`` of another record length.
 
     Examples
     --------
@@ -414,8 +541,13 @@ def tv_grid(n_t: int, dt: float, c: float = C_DEFAULT, *, data: npt.ArrayLike | 
         raise ValueError(f"bandwidth must be finite and > 0 Hz, got {bandwidth!r}")
     if data is not None and sigma is None:
         sigma = noise_sigma(data, time_axis)
-    kept, extent_reason = (n_t, "record") if whole_record else _kept_record(n_t, dt, c, data, time_axis, sigma,
-                                                                             dz, n_z, t0)
+    if data is None and facts is not None:
+        if facts.n_t != n_t:
+            raise ValueError(f"the record facts are of a record of {facts.n_t} samples, not {n_t}")
+        extent = facts.signal_n_t
+    else:
+        extent = None if data is None or sigma is None or whole_record else data_extent(data, time_axis, float(sigma))
+    kept, extent_reason = (n_t, "record") if whole_record else _kept_record(n_t, dt, c, extent, dz, n_z, t0)
     band, reason = None, "nyquist"
     if bandwidth is not None:
         band, reason = float(bandwidth), "declared"
@@ -423,6 +555,9 @@ def tv_grid(n_t: int, dt: float, c: float = C_DEFAULT, *, data: npt.ArrayLike | 
         assert sigma is not None  # set above
         head = np.asarray(data)[(slice(None),) * time_axis + (slice(0, kept),)]  # the kept record: a view
         band = data_band(head, dt, time_axis, float(sigma))
+        reason = "nyquist" if band is None else "data"
+    elif facts is not None:  # the band of the signal's samples: at least that of a longer record (`record_facts`)
+        band = facts.band
         reason = "nyquist" if band is None else "data"
     m = kept if band is None else resampled_length(kept, dt, band)
     if m >= kept:  # the record's own rate is the coarsest that keeps the band
@@ -442,11 +577,11 @@ def tv_grid(n_t: int, dt: float, c: float = C_DEFAULT, *, data: npt.ArrayLike | 
 _MIN_KEPT = 8
 
 
-def _kept_record(n_t: int, dt: float, c: float, data: npt.ArrayLike | None, time_axis: int, sigma: float | None,
-                 dz: float | None, n_z: int | None, t0: float) -> tuple[int, str]:
-    """(samples kept, why) for `tv_grid`: the data's extent (`data_extent`), but never before
-    the sample that hears the last row of an image depth the caller gives."""
-    extent = None if data is None or sigma is None else data_extent(data, time_axis, float(sigma))
+def _kept_record(n_t: int, dt: float, c: float, extent: int | None, dz: float | None, n_z: int | None,
+                 t0: float) -> tuple[int, str]:
+    """(samples kept, why) for `tv_grid`: the data's extent (`data_extent`; None: the whole
+    record), but never before the sample that hears the last row of an image depth the caller
+    gives."""
     kept = n_t if extent is None else max(extent, min(n_t, _MIN_KEPT))
     if kept >= n_t:  # the signal lasts to the end (or the record is shorter than the fewest kept)
         return n_t, "record"

@@ -326,8 +326,10 @@ def import_dataset(src: str | os.PathLike, dest_dir: str | os.PathLike, fmt: str
     dict
         The dataset's metadata, which the API stores in the job store: ``layout``
         (``"grid"`` or ``"points"``), ``shape``, ``dx``, ``dt``, ``c``, ``t0``, ``path``
-        (``"dataset.h5"``) and the wavelength's params; for points also ``n_x``, ``n_y`` and
-        ``full_lattice``.
+        (``"dataset.h5"``), the wavelength's params and ``record_facts`` (what the record holds
+        above its noise, ``service.recon.tv_grid.record_facts``: the memory admission sizes a tv
+        job on the grid tv will choose from them), with ``sensor_bandwidth_hz`` where the file
+        declares one; for points also ``n_x``, ``n_y`` and ``full_lattice``.
 
     Raises
     ------
@@ -355,10 +357,28 @@ def import_dataset(src: str | os.PathLike, dest_dir: str | os.PathLike, fmt: str
 
     request_admission(dataset_nbytes(ds))  # the service's disk admission, before a byte is written
     write_dataset(dest_dir / "dataset.h5", ds)
-    common = {"dt": ds.dt, "c": ds.c, "t0": float(ds.t0 or 0.0), "path": "dataset.h5", **wavelength_params(ds)}
+    common = {"dt": ds.dt, "c": ds.c, "t0": float(ds.t0 or 0.0), "path": "dataset.h5", **wavelength_params(ds),
+              **_record_facts(ds)}
     if isinstance(ds, GridDataset):
         return {"layout": "grid", "shape": list(ds.data.shape), "dx": ds.dx, **common}
     n_x, n_y = len(ds.grid[0]), len(ds.grid[1]) if len(ds.grid) > 1 else 1
     return {"layout": "points", "shape": list(ds.alines.shape), "n_x": n_x, "n_y": n_y,
             "full_lattice": ds.full_lattice,
             "dx": float(ds.grid[0][1] - ds.grid[0][0]) if len(ds.grid[0]) > 1 else None, **common}
+
+
+def _record_facts(ds: GridDataset | PointDataset) -> dict:
+    """``record_facts`` of a dataset's record (``service.recon.tv_grid.record_facts``: its noise
+    σ, the samples up to its last echo, their band above the noise; in blocks, without a float64
+    copy of the data) and the sensor bandwidth its metadata declares, for the stored record."""
+    from service.recon.methods.tv import BANDWIDTH_KEY, declared_bandwidth
+    from service.recon.tv_grid import record_facts
+
+    data, time_axis = (ds.data, 0) if isinstance(ds, GridDataset) else (ds.alines, 1)
+    out: dict[str, Any] = {}
+    if data.shape[time_axis] >= 2:  # a single sample holds no record to cut
+        out["record_facts"] = record_facts(data, ds.dt, time_axis).as_dict()
+    bandwidth = declared_bandwidth(ds.meta)
+    if bandwidth is not None:
+        out[BANDWIDTH_KEY] = bandwidth
+    return out

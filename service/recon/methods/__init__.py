@@ -231,14 +231,16 @@ class Method:
     source : str
         Where the algorithm comes from.
     peak_memory : callable or None
-        ``peak_memory(n_t, n_x, n_y, *, n_z, upsample, dtype, n_points, dx, dt, c, dz)`` ->
+        ``peak_memory(n_t, n_x, n_y, *, n_z, upsample, dtype, n_points, dx, dt, c, dz, t0,
+        options, record_facts, bandwidth, **_)`` ->
         bytes at its peak (the memory admission, ``service.jobs.admission``; a model of
         ``service.recon.memory``, :func:`peak_model`); None (default): NER's,
         ``service.recon.memory.planar_peak``.
     order : int
         Position in lists (smaller first).
     work : callable or None
-        ``work(n_t, n_x, n_y, *, n_z, upsample, dtype, n_points, dx, dt, c, t0, options)`` ->
+        ``work(n_t, n_x, n_y, *, n_z, upsample, dtype, n_points, dx, dt, c, t0, options,
+        record_facts, bandwidth, **_)`` ->
         seconds on the reference 2 cores (:data:`FLOAT64_WORK`; the work admission,
         ``service.jobs.admission.estimate_work``); it may raise ``OptionError`` for options
         the input cannot carry (tv: an image deeper than the record can hear). None

@@ -17,16 +17,17 @@ from service.recon.limits import (
     TIME_LIMIT_MAX,
     TOL_RANGE,
 )
-from service.recon.methods import Method, peak_model, register
+from service.recon.methods import Method, register
 from service.recon.methods.options import DepthOptions, Flag, MethodOptions, NufftOptions, kernel_rule
 
 if TYPE_CHECKING:
     from service.progress import Progress
     from service.recon.dataset import PointDataset
     from service.recon.reconstruction import Reconstruction
+    from service.recon.tv_grid import TvGrid
 
 __all__ = ["Options", "run", "declared_bandwidth", "BANDWIDTH_KEY", "PAIR_RATE", "SETUP_PAIRS", "grid",
-           "check_depth", "work", "MEMORY_CALIBRATION", "warm_up", "METHOD"]
+           "check_depth", "work", "peak_memory", "MEMORY_CALIBRATION", "warm_up", "METHOD"]
 
 Lam = Annotated[Annotated[float, Field(ge=LAM_RANGE[0], le=LAM_RANGE[1])] | None,
                 BeforeValidator(kernel_rule("check_lam"))]
@@ -227,10 +228,12 @@ DEBIAS_ITERATIONS = 10
 
 
 def grid(n_t: int, dt: float, c: float, *, dz: float | None = None, n_z: int | None = None,
-         t0: float = 0.0, bandwidth: float | None = None) -> tuple[float, int]:
+         t0: float = 0.0, bandwidth: float | None = None, record_facts: dict | None = None,
+         whole_record: bool = False) -> tuple[float, int]:
     """The image grid of tv for a record: ``(dz, n_z)`` (m, rows) as tv chooses it
-    (``service.recon.tv_grid.tv_grid``: without the data, or a declared ``bandwidth`` in Hz, the
-    full band's, the largest it can pick), the grid the work estimate and the depth rule read.
+    (``service.recon.tv_grid.tv_grid``: from a stored dataset's ``record_facts``, else the
+    whole, full-band record's or a declared ``bandwidth``'s in Hz, the largest it can pick), the
+    grid the work estimate and the depth rule read.
 
     Parameters
     ----------
@@ -242,6 +245,14 @@ def grid(n_t: int, dt: float, c: float, *, dz: float | None = None, n_z: int | N
         As asked (None: the default).
     t0 : float, optional
         Time of sample 0, s.
+    bandwidth : float, optional
+        A declared sensor bandwidth, Hz.
+    record_facts : dict, optional
+        What the record holds above its noise, as a stored dataset's record keeps it
+        (``service.recon.tv_grid.RecordFacts.as_dict``); one that does not fit the record is
+        ignored (the whole record is sized).
+    whole_record : bool, optional
+        tv's option: no cut after the last echo.
 
     Returns
     -------
@@ -264,11 +275,29 @@ def grid(n_t: int, dt: float, c: float, *, dz: float | None = None, n_z: int | N
     (37.31, 330)
     """
     from service.recon.planar import _depth_axis  # the depth axis's own checks (range, reach)
-    from service.recon.tv_grid import tv_grid
 
-    chosen = tv_grid(int(n_t), float(dt), float(c), bandwidth=bandwidth, dz=dz, n_z=n_z)
+    chosen = _chosen_grid(n_t, dt, c, dz=dz, n_z=n_z, t0=t0, bandwidth=bandwidth, record_facts=record_facts,
+                          whole_record=whole_record)
     _depth_axis(int(n_t), float(dt), float(c), chosen.dz, chosen.n_z, float(t0 or 0.0))
     return float(chosen.dz), int(chosen.n_z)
+
+
+def _chosen_grid(n_t: int, dt: float, c: float, *, dz: float | None, n_z: int | None, t0: float | None,
+                 bandwidth: float | None, record_facts: dict | None, whole_record: bool) -> TvGrid:
+    """The grid tv picks (`service.recon.tv_grid.tv_grid`) for a record known by its stored facts
+    (`grid`'s parameters)."""
+    from service.recon.tv_grid import RecordFacts, tv_grid
+
+    facts = None
+    if record_facts is not None:
+        try:
+            facts = RecordFacts.from_dict(record_facts)
+        except ValueError:
+            facts = None
+        if facts is not None and facts.n_t != int(n_t):  # not this record's: size the whole record
+            facts = None
+    return tv_grid(int(n_t), float(dt), float(c), bandwidth=bandwidth, dz=dz, n_z=n_z, t0=float(t0 or 0.0),
+                   whole_record=bool(whole_record), facts=facts)
 
 
 def check_depth(n_t: int, dt: float, c: float, dz: float, n_z: int, t0: float = 0.0) -> None:
@@ -316,7 +345,8 @@ def check_depth(n_t: int, dt: float, c: float, dz: float, n_z: int, t0: float = 
 
 def work(n_t: int, n_x: int, n_y: int = 1, *, dtype: Any = "float32", n_points: int | None = None,
          dx: float | None = None, dt: float | None = None, c: float | None = None, t0: float | None = 0.0,
-         options: dict | None = None, **_: Any) -> float:
+         options: dict | None = None, record_facts: dict | None = None, bandwidth: float | None = None,
+         **_: Any) -> float:
     """The work of tv: seconds on the reference 2 cores for its operator pairs on its padded grid
     (:data:`PAIR_RATE`: one per iteration up to ``iterations``, the debias refit's, and
     :data:`SETUP_PAIRS`), the iterations' share capped by ``time_limit`` (s; the solver stops
@@ -336,7 +366,10 @@ def work(n_t: int, n_x: int, n_y: int = 1, *, dtype: Any = "float32", n_points: 
         Pitch (m), sample interval (s), speed of sound (m/s), time of sample 0 (s); without
         ``dx``/``dt`` the warm start's estimate alone is counted.
     options : dict, optional
-        tv's options as asked (``dz``, ``n_z``, ``iterations``, ``time_limit``, ``debias``).
+        tv's options as asked (``dz``, ``n_z``, ``iterations``, ``time_limit``, ``debias``,
+        ``whole_record``).
+    record_facts, bandwidth : optional
+        The stored dataset's facts and declared sensor bandwidth (Hz), as :func:`grid`'s.
 
     Returns
     -------
@@ -365,15 +398,82 @@ def work(n_t: int, n_x: int, n_y: int = 1, *, dtype: Any = "float32", n_points: 
     warm = planar_work(WARM_RATE)(n_t, n_x, n_y, n_points=n_points, dtype="float64")
     if not (dx and dt and c):
         return warm
-    dz, n_z = grid(n_t, dt, c, dz=o.get("dz"), n_z=o.get("n_z"), t0=t0 or 0.0)
+    dz, n_z = grid(n_t, dt, c, dz=o.get("dz"), n_z=o.get("n_z"), t0=t0 or 0.0)  # the depth axis's checks
     check_depth(n_t, dt, c, dz, n_z, t0 or 0.0)
+    chosen = _chosen_grid(n_t, dt, c, dz=o.get("dz"), n_z=o.get("n_z"), t0=t0, bandwidth=bandwidth,
+                          record_facts=record_facts, whole_record=bool(o.get("whole_record")))
     from driver.physics.grid_sizes import pad_sizes
 
-    points = math.prod(pad_sizes((n_z, n_y, n_x), dx, dz, dt, n_t, c, t0 or 0.0))
+    points = math.prod(pad_sizes((chosen.n_z, n_y, n_x), dx, chosen.dz, chosen.dt, chosen.n_t, c, t0 or 0.0))
     pair = PAIR_RATE * points * math.log2(max(points, 2)) * (FLOAT64_WORK if str(dtype) == "float64" else 1.0)
     iterations = int(o.get("iterations") or DEFAULT_MAX_ITER) + (DEBIAS_ITERATIONS if o.get("debias") else 0)
     limit = float(o.get("time_limit") or DEFAULT_TIME_LIMIT)
     return warm + SETUP_PAIRS * pair + min(iterations * pair, limit)
+
+
+def peak_memory(n_t: int, n_x: int, n_y: int = 1, *, n_z: int | None = None, dtype: Any = "float32",
+                n_points: int | None = None, dx: float | None = None, dt: float | None = None,
+                c: float | None = None, dz: float | None = None, t0: float | None = 0.0,
+                options: dict | None = None, record_facts: dict | None = None, bandwidth: float | None = None,
+                **_: Any) -> int:
+    """The peak memory of tv in bytes on the grid it will choose
+    (``service.recon.memory.model_based_peak`` of the operator's samples and tv's image; the
+    memory admission, ``service.jobs.admission.estimate_memory``): with a stored dataset's
+    ``record_facts`` the record cut after its last echo and resampled to its band as tv cuts
+    and resamples it (``service.recon.tv_grid``), else the whole, full-band record (the
+    largest grid tv may choose).
+
+    Parameters
+    ----------
+    n_t, n_x, n_y : int
+        The input's samples and lateral grid.
+    n_z : int, optional
+        The working depth rows the admission counts (used without ``dx``, ``dt``, ``c``).
+    dtype : str, optional
+        ``"float32"`` or ``"float64"``.
+    n_points : int, optional
+        Sensors.
+    dx, dt, c, dz, t0 : float, optional
+        Pitch (m), sample interval (s), speed of sound (m/s), depth spacing asked (m), time of
+        sample 0 (s).
+    options : dict, optional
+        tv's options as asked (``n_z``, ``dz``, ``whole_record``).
+    record_facts, bandwidth : optional
+        As :func:`grid`'s.
+
+    Returns
+    -------
+    int
+        Bytes.
+
+    Examples
+    --------
+    A record whose echoes end at a third of it (stored facts) needs less than the whole:
+
+    >>> from service.recon.methods.tv import peak_memory
+    >>> kw = dict(dx=6e-5, dt=8e-9, c=1500.0, n_points=400)
+    >>> facts = {"n_t": 768, "signal_n_t": 256, "band": None, "sigma": 0.01}
+    >>> peak_memory(768, 96, 96, record_facts=facts, **kw) < peak_memory(768, 96, 96, **kw) / 2
+    True
+    >>> peak_memory(768, 96, 96, record_facts=facts, options={"whole_record": True}, **kw) == peak_memory(
+    ...     768, 96, 96, **kw)
+    True
+    """
+    import math
+
+    from service.recon.memory import model_based_peak
+
+    o = dict(options or {})
+    if not (dx and dt and c):
+        return model_based_peak(n_t, n_x, n_y, n_z=n_z, dtype=dtype, n_points=n_points)
+    chosen = _chosen_grid(n_t, dt, c, dz=o.get("dz") or dz, n_z=o.get("n_z"), t0=t0, bandwidth=bandwidth,
+                          record_facts=record_facts, whole_record=bool(o.get("whole_record")))
+    # the rows the NEDNER warm start works on: no sample of the kept record may fold back through
+    # the depth period (``service.jobs.admission.working_depth_rows``'s rule on the kept record)
+    reach = c * (float(t0 or 0.0) + (chosen.n_t - 1) * chosen.dt) / chosen.dz
+    rows = max(chosen.n_z, int(reach) + 2) if math.isfinite(reach) else chosen.n_z
+    return model_based_peak(chosen.n_t, n_x, n_y, n_z=rows, dtype=dtype, n_points=n_points, dx=dx,
+                            dt=chosen.dt, c=c, dz=chosen.dz)
 
 
 #: the memory admission's margin on tv's model (``service.recon.memory.model_based_peak``, itself
@@ -431,6 +531,6 @@ def warm_up(dtypes: Sequence[str]) -> None:
 METHOD = register(Method(
     "tv", "model-based: TV + positivity on the exact model (iterative; sparse, noisy scans)", False, Options, run,
     "½‖A p0 − g‖²_W + λ TV(p0), p0 ≥ 0, NER-preconditioned FISTA (Arridge et al., PMB 61 (2016) 8908)",
-    peak_model("model_based_peak"), order=50, work=work, iterative=True, time_limited=True, warm_up=warm_up,
+    peak_memory, order=50, work=work, iterative=True, time_limited=True, warm_up=warm_up,
     kernel_modules=("driver.physics.nufft_kernels", "service.recon.tv"), warm_in_background=True,
     memory_calibration=MEMORY_CALIBRATION, holds_input=True))
