@@ -90,10 +90,14 @@ On 30 cases (docs/results.md, "When tv has converged") the rule on the image sto
 Memory: the TV part works in place (`_tv_prox`'s compiled sweeps step the dual in place;
 `_tv_norm` needs no work array), the dual waits between iterations in half the working
 precision's bytes (int16 fixed point for float32, `_store_dual`), the gradient step is made
-in y's place, and the preconditioner P is computed voxel by voxel where it is applied (no
-image of its own), so that while the operator works the solver holds 3 images and the
-dual's d/2 (`_fista`; `service.recon.memory.tv_memory`); the operator's image and data
-k-space share one array (`service.recon.operator.PlanarOperator`).
+in y's place, the last preconditioned gradient waits for the next iteration's gain test as
+16-bit fixed point (`_store_gradient`; the test subtracts what the rounding can add, so it
+stays a lower bound of ‖BA‖), and the preconditioner P is computed voxel by voxel where it
+is applied (no image of its own), so that while the operator works the solver holds 2
+images, the dual's d/2 and half an image for the gradient (`_fista`;
+`service.recon.memory.tv_memory`); the operator's image and data k-space share one array
+(`service.recon.operator.PlanarOperator`). At the paper's size the peak is 7.5 images
+inside the proximal map (its dual at full precision beside the stored one).
 
 Automatic λ (``lam=None``, the default): λ = 0.6 s · max(1, (D₀ / 9.5)^0.25). s = ‖P Aᵀ n̂‖_rms is
 the image's noise level: the RMS over the image of the preconditioned adjoint of one seeded
@@ -873,11 +877,15 @@ def _fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray]
 
     Memory (the proximal map's dual is d = 2 or 3 images, kept between calls at half the
     working precision's bytes, `_store_dual`: |dual| <= 1, so a float32 warm start keeps
-    1.5e-5): while A works, 3 images (x, the new iterate, the last G(A y − g)) and d/2; while G works, 3 (x,
-    y, the last G(A y − g)) and d/2 beside G's output; while the proximal map works, 3 (x,
-    the gradient step made in y's place, G(A y − g)) and d + d/2 at most (its dual at full
-    precision beside the stored one), then one more for the new iterate, made from the stored
-    dual once the full one is freed (`_tv_prox_stored`). Everything that needs y after its gradient step (the
+    1.5e-5; the last G(A y − g), which only the next iteration's gain reads, waits as 16-bit
+    fixed point, `_store_gradient`: half a float32 image): while A works, 2 images (x, the new
+    iterate), d/2 and the last G's half; while G works, 2 (x, y), d/2 and the last G's half
+    beside G's output; while the proximal map works, 3 (x, the gradient step made
+    in y's place, G(A y − g)) and d + d/2 at most (its dual at full precision beside the
+    stored one), then one more for the new iterate, made from the stored dual once the full
+    one is freed (`_tv_prox_stored`). At the paper's size (d = 3) the proximal map's 7.5
+    images are the solver's peak; the operator's k-space (about 3 images there) adds to its 4
+    while A or G works. Everything that needs y after its gradient step (the
     restart test and ‖y_new − y‖ for the gain, for both momenta y_new can take) is summed
     before A works, with y = the step + G(A y − g) / L (`_moves`), so y's memory is free
     then. The vectors are C-contiguous: the in-place kernels see them through flat views."""
@@ -889,7 +897,9 @@ def _fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray]
     if callable(lam):  # λ from the start's residual ‖A x − g‖ (the automatic λ's rule)
         lam = float(lam(residual(Ax)))
     y, Ay = x.copy(), Ax  # y's memory takes the gradient step (x is kept for the momentum)
-    G_prev, dy = None, 0.0  # G(A y − g) of the last y, ‖y − last y‖
+    # G(A y − g) of the last y, kept as 16-bit fixed point with its quantum (`_store_gradient`), and ‖y − last y‖
+    G_prev: tuple[np.ndarray, float] | None = None
+    dy = 0.0
 
     def objective(Ax_: np.ndarray, x_: np.ndarray) -> float:
         return 0.5 * residual(Ax_) ** 2 + (lam * _tv_norm(x_) if lam > 0 else 0.0)
@@ -901,10 +911,10 @@ def _fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray]
     for it in range(1, max_iter + 1):
         Gy = G(np.subtract(Ay, g, dtype=Ay.dtype))  # the residual in the working dtype (B's input)
         if G_prev is not None and dy > 0:  # the gain of BA along the last move of y: a lower bound of ‖BA‖
-            gain = _difference_norm(Gy.ravel(), G_prev.ravel()) / dy
+            gain = _gain_lower_bound(Gy.ravel(), G_prev) / dy
             if _MARGIN * gain > L:  # the step was too long for what the iterates excite
                 L = _MARGIN * gain
-        G_prev = Gy
+        G_prev = None
         v = y  # the gradient step y − G(A y − g) / L, in y's place (y = v + Gy / L from here on)
         del y
         _axpy(v.ravel(), Gy.ravel(), -1.0 / L)
@@ -915,6 +925,8 @@ def _fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray]
         # for β = 0 and `_MOMENTUM`, now, so that y (v) is free while A works
         ab, aa, cc, bb, nn = _moves(xn.ravel(), v.ravel(), Gy.ravel(), 1.0 / L, x.ravel(), _MOMENTUM)
         del v
+        G_prev = _store_gradient(Gy)  # for the next gain, in half (float64: a quarter) of the bytes
+        del Gy
         Axn = forward(xn)
         J = objective(Axn, xn)
         # constant momentum, restarted (β = 0) when J rises or the momentum points uphill
@@ -1027,6 +1039,47 @@ def _store_dual(dual: np.ndarray) -> np.ndarray:
     return out
 
 
+def _store_gradient(g: np.ndarray) -> tuple[np.ndarray, float]:
+    """A preconditioned gradient G(A y − g) kept for the next iteration's gain (`_fista`) as
+    16-bit fixed point: (round(g / q), q) with the quantum q = max |g| / 32767, so that each
+    value is off by at most q / 2 (`_gain_lower_bound` subtracts that)."""
+    flat = g.reshape(-1)
+    top = _max_abs(flat)
+    quantum = top / _DUAL_SCALE if top > 0 else 1.0
+    out = np.empty(flat.shape, dtype=np.int16)
+    _quantise(flat, out, 1.0 / quantum)
+    return out, quantum
+
+
+def _gain_lower_bound(g: np.ndarray, stored: tuple[np.ndarray, float]) -> float:
+    """‖g − g_prev‖ from below, with g_prev kept by `_store_gradient`: the distance to the
+    fixed-point values less the largest their rounding can move it, q √N / 2 (‖e‖ for
+    |e_i| <= q / 2; with 1e-6 of it for the float64 sums), so that the solver's L rises only
+    where ‖BA‖ really exceeds it."""
+    values, quantum = stored
+    measured = _difference_norm_fixed(g, values, quantum)
+    return max(0.0, measured - 0.5 * quantum * math.sqrt(g.size) * (1.0 + 1e-6))
+
+
+@numba.njit(parallel=True, cache=True)
+def _max_abs(a: np.ndarray) -> float:
+    """The largest |a_i| of a flat array (0 for an empty one), in float64."""
+    top = 0.0
+    for i in numba.prange(a.size):
+        top = max(top, abs(np.float64(a[i])))
+    return top
+
+
+@numba.njit(parallel=True, cache=True)
+def _difference_norm_fixed(a: np.ndarray, s: np.ndarray, quantum: float) -> float:
+    """‖a − s · quantum‖₂ of a flat array and fixed-point values ``s``, summed in float64."""
+    total = 0.0
+    for i in numba.prange(a.size):
+        d = np.float64(a[i]) - np.float64(s[i]) * quantum
+        total += d * d
+    return math.sqrt(total)
+
+
 def _restore_dual(stored: np.ndarray, dtype: npt.DTypeLike) -> np.ndarray:
     """`_store_dual` undone: a new array of ``dtype`` (float32 from int16, float64 from float32)."""
     out = np.empty(stored.shape, dtype=dtype)
@@ -1039,9 +1092,9 @@ def _restore_dual(stored: np.ndarray, dtype: npt.DTypeLike) -> np.ndarray:
 
 @numba.njit(parallel=True, cache=True)
 def _quantise(q: np.ndarray, out: np.ndarray, scale: float) -> None:
-    """Fixed point: out = round(clip(q, -1, 1) · scale) (flat arrays; ``out`` integer)."""
+    """Fixed point: out = round(clip(q · scale, -32767, 32767)) (flat arrays; ``out`` int16)."""
     for i in numba.prange(q.size):
-        out[i] = math.floor(min(max(q[i], -1.0), 1.0) * scale + 0.5)
+        out[i] = math.floor(min(max(q[i] * scale, -32767.0), 32767.0) + 0.5)
 
 
 @numba.njit(parallel=True, cache=True)

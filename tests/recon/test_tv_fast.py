@@ -261,3 +261,28 @@ def test_the_dual_waits_at_half_the_bytes_and_comes_back(dtype):
     else:
         np.testing.assert_array_equal(stored, q.astype(np.float32))
         np.testing.assert_array_equal(back, q.astype(np.float32).astype(np.float64))
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_the_last_gradient_waits_as_16_bits_and_its_gain_stays_a_lower_bound(dtype):
+    """`_store_gradient` keeps G(A y − g) for the next iteration's gain test as int16 with the
+    quantum max|G| / 32767, each value within half a quantum (numpy's rounding is the
+    oracle); `_gain_lower_bound` never exceeds the true ‖G − G_prev‖ (the solver must not
+    raise L on rounding) and falls short of it by at most the rounding's whole reach, q √N.
+    A gradient of zeros is kept as zeros."""
+    rng = np.random.default_rng(6)
+    g_prev = (rng.standard_normal(5000) * np.exp(rng.uniform(-6, 3, 5000))).astype(dtype)  # a wide range
+    values, quantum = tv._store_gradient(g_prev)
+    assert values.dtype == np.int16 and values.shape == g_prev.shape
+    assert quantum == pytest.approx(np.abs(g_prev.astype(np.float64)).max() / 32767, rel=1e-12)
+    assert np.max(np.abs(values * quantum - g_prev)) <= 0.5 * quantum * (1 + 1e-6)
+    reach = quantum * np.sqrt(g_prev.size)
+    for size in (1e-6, 1e-3, 1.0):  # from below the rounding's reach to far above it
+        g = (g_prev + size * np.abs(g_prev).max() * rng.standard_normal(g_prev.size)).astype(dtype)
+        true = float(np.linalg.norm(g.astype(np.float64) - g_prev.astype(np.float64)))
+        bound = tv._gain_lower_bound(g, (values, quantum))
+        assert 0.0 <= bound <= true and bound >= true - reach, (size, bound, true, reach)
+    zeros = np.zeros(10, dtype=dtype)
+    values, quantum = tv._store_gradient(zeros)
+    assert not values.any() and tv._gain_lower_bound(zeros + 1, (values, quantum)) == pytest.approx(
+        np.sqrt(10) - 0.5 * np.sqrt(10) * (1 + 1e-6))

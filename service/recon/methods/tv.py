@@ -522,6 +522,7 @@ def warm_up(dtypes: Sequence[str]) -> None:
         tv._axpy(flat, flat, 0.5)
         tv._extrapolate(flat, flat, 0.5)
         tv._difference_norm(flat, flat)
+        tv._gain_lower_bound(flat, tv._store_gradient(v))  # the last gradient's 16-bit wait
         tv._moves(flat, flat, flat, 1.0, flat, 0.5)
         dual = np.zeros((3, 4, 6, 6), dtype=d)  # the dual's wait between iterations
         tv._restore_dual(tv._store_dual(dual), dual.dtype)
