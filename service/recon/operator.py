@@ -87,7 +87,6 @@ The adjoint is not the inverse: the inverse is the NER/NEDNER reconstruction
 """
 from __future__ import annotations
 
-import ctypes
 import mmap
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -504,22 +503,6 @@ class PlanarOperator(pylops.LinearOperator):
         return out
 
     def _apply_forward(self, p0: np.ndarray) -> np.ndarray:
-        try:
-            return self._forward_steps(p0)
-        finally:  # the chunks' freed working arrays back to the system (`_trim_heap`)
-            _trim_heap(self._kspace_bytes())
-
-    def _apply_adjoint(self, data: np.ndarray) -> np.ndarray:
-        try:
-            return self._adjoint_steps(data)
-        finally:
-            _trim_heap(self._kspace_bytes())
-
-    def _kspace_bytes(self) -> int:
-        """Bytes of the k-space array `_kspace` makes."""
-        return max(self._vol[0], self.n_t) * self.padded_shape[1] * self._n_xr * self._ctype.itemsize
-
-    def _forward_steps(self, p0: np.ndarray) -> np.ndarray:
         n_z2, n_y2, n_x2 = self.padded_shape
         n_z = self._vol[0]
         # the image's k-space Y and the data's T share one array (`_kspace`): a chunk's columns
@@ -570,7 +553,7 @@ class PlanarOperator(pylops.LinearOperator):
             _conj_reflected(T, n_xr, n_x2, n_x2, full[:, :, n_xr:])
         return full
 
-    def _adjoint_steps(self, data: np.ndarray) -> np.ndarray:
+    def _apply_adjoint(self, data: np.ndarray) -> np.ndarray:
         n_z2, n_y2, n_x2 = self.padded_shape
         n_z, n_y, n_x = self._vol
         # the data's k-space A and the image's K (its rows only) share one array (`_kspace`),
@@ -695,30 +678,6 @@ def _fft_in_place(x: np.ndarray, axis: int) -> None:
     res = scipy.fft.fft(x, axis=axis, workers=-1, overwrite_x=True)
     if res.ctypes.data != x.ctypes.data or res.strides != x.strides:
         x[...] = res
-
-
-def _load_malloc_trim() -> Callable[[int], int] | None:
-    """The C library's ``malloc_trim`` (glibc; None elsewhere: another C library, or none found)."""
-    try:
-        return ctypes.CDLL(None).malloc_trim
-    except (OSError, AttributeError):
-        return None
-
-
-_MALLOC_TRIM = _load_malloc_trim()
-#: k-space bytes above which an operator application hands the heap's free memory back (`_trim_heap`)
-_TRIM_BYTES = 1 << 26
-
-
-def _trim_heap(kspace_bytes: int) -> None:
-    """After a large operator application, hand the C heap's free memory back to the system
-    (glibc ``malloc_trim(0)``): the chunks' working arrays (under glibc's mmap threshold, which
-    rises to 32 MB as large arrays are freed) come from the heap, and glibc keeps what they
-    freed; at the paper's size that pool is 0.36 of the image's bytes, held through the
-    solver's proximal map, whose own peak it would raise. Nothing for operators whose k-space
-    is under `_TRIM_BYTES` (the call walks the heap: not worth it there) or without glibc."""
-    if _MALLOC_TRIM is not None and kspace_bytes > _TRIM_BYTES:
-        _MALLOC_TRIM(0)
 
 
 def _anonymous_pages(nbytes: int) -> mmap.mmap | None:

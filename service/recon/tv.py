@@ -90,14 +90,21 @@ On 30 cases (docs/results.md, "When tv has converged") the rule on the image sto
 Memory: the TV part works in place (`_tv_prox`'s compiled sweeps step the dual in place;
 `_tv_norm` needs no work array), the dual waits between iterations in half the working
 precision's bytes (int16 fixed point for float32, `_store_dual`), the gradient step is made
-in y's place, the last preconditioned gradient waits for the next iteration's gain test as
-16-bit fixed point (`_store_gradient`; the test subtracts what the rounding can add, so it
-stays a lower bound of ‖BA‖), and the preconditioner P is computed voxel by voxel where it
-is applied (no image of its own), so that while the operator works the solver holds 2
-images, the dual's d/2 and half an image for the gradient (`_fista`;
+in y's place, the preconditioner P is computed voxel by voxel where it is applied (no image
+of its own), and two vectors wait as 16-bit fixed point with their quantum max|·| / 32767:
+the last preconditioned gradient, which only the next gain test reads (`_store_gradient`;
+the test subtracts what the rounding can add, so it stays a lower bound of ‖BA‖), and the
+last move b = x − x_prev, from which y = x + β b was made (`_store_move`): x is not kept
+beside y but read back as y − β q round(b / q), exactly, so only y, the extrapolation
+point, carries the rounding (at most β q / 2 a voxel, vanishing with the moves; on the
+test cases the same iterations, L and CC to 5 digits). While the operator works the solver
+then holds 1 image, the dual's d/2 and two halves (`_fista`;
 `service.recon.memory.tv_memory`); the operator's image and data k-space share one array
-(`service.recon.operator.PlanarOperator`). At the paper's size the peak is 7.5 images
-inside the proximal map (its dual at full precision beside the stored one).
+(`service.recon.operator.PlanarOperator`). At the paper's size the peak is 7.6 images (8.3
+before the two fixed-point vectors), inside the proximal map (its dual at full precision
+beside the stored one) and the operator alike; of those, about 0.4 is the C heap's pool of
+the operator's chunk arrays, which glibc keeps after they are freed (its ``malloc_trim``
+after each application gave 7.2, and cost 5 % of a pair: not done).
 
 Automatic λ (``lam=None``, the default): λ = 0.6 s · max(1, (D₀ / 9.5)^0.25). s = ‖P Aᵀ n̂‖_rms is
 the image's noise level: the RMS over the image of the preconditioned adjoint of one seeded
@@ -877,17 +884,18 @@ def _fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray]
 
     Memory (the proximal map's dual is d = 2 or 3 images, kept between calls at half the
     working precision's bytes, `_store_dual`: |dual| <= 1, so a float32 warm start keeps
-    1.5e-5; the last G(A y − g), which only the next iteration's gain reads, waits as 16-bit
-    fixed point, `_store_gradient`: half a float32 image): while A works, 2 images (x, the new
-    iterate), d/2 and the last G's half; while G works, 2 (x, y), d/2 and the last G's half
-    beside G's output; while the proximal map works, 3 (x, the gradient step made
-    in y's place, G(A y − g)) and d + d/2 at most (its dual at full precision beside the
-    stored one), then one more for the new iterate, made from the stored dual once the full
-    one is freed (`_tv_prox_stored`). At the paper's size (d = 3) the proximal map's 7.5
-    images are the solver's peak; the operator's k-space (about 3 images there) adds to its 4
-    while A or G works. Everything that needs y after its gradient step (the
-    restart test and ‖y_new − y‖ for the gain, for both momenta y_new can take) is summed
-    before A works, with y = the step + G(A y − g) / L (`_moves`), so y's memory is free
+    1.5e-5; the last G(A y − g), which only the next iteration's gain reads, and the last
+    move b = x − x_prev wait as 16-bit fixed point, `_store_gradient` and `_store_move`:
+    half a float32 image each; x itself is y − β q round(b / q), read back where it is
+    needed): while A works, 1 image (the new iterate, which becomes y in its own place), d/2
+    and the two halves; while G works, the same with y; while the proximal map works, 2 (the
+    gradient step made in y's place, G(A y − g)), the move's half and d + d/2 at most (its
+    dual at full precision beside the stored one), then one more for the new iterate, made
+    from the stored dual once the full one is freed (`_tv_prox_stored`). At the paper's size
+    (d = 3) that is 7 images in the proximal map and 3 beside the operator's k-space (about 3
+    images there). Everything that needs y or x after y's gradient step (the restart test,
+    ‖y_new − y‖ for the gain for both momenta y_new can take, the new move) is summed before
+    A works, with y = the step + G(A y − g) / L (`_moves`), so y's memory is free
     then. The vectors are C-contiguous: the in-place kernels see them through flat views."""
     x = np.ascontiguousarray(start.pop())
     if support is not None:
@@ -896,7 +904,11 @@ def _fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray]
     Ax = forward(x)
     if callable(lam):  # λ from the start's residual ‖A x − g‖ (the automatic λ's rule)
         lam = float(lam(residual(Ax)))
-    y, Ay = x.copy(), Ax  # y's memory takes the gradient step (x is kept for the momentum)
+    # y's memory takes the gradient step; x itself is not kept: x = y − β q b, with b the last
+    # move x − x_prev as int16 and β q its scale (`_store_move`), which is how y was made
+    y, Ay = x, Ax
+    del x
+    move: tuple[np.ndarray, float] = (np.zeros(y.size, dtype=np.int16), 0.0)  # the start: x = y
     # G(A y − g) of the last y, kept as 16-bit fixed point with its quantum (`_store_gradient`), and ‖y − last y‖
     G_prev: tuple[np.ndarray, float] | None = None
     dy = 0.0
@@ -904,10 +916,11 @@ def _fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray]
     def objective(Ax_: np.ndarray, x_: np.ndarray) -> float:
         return 0.5 * residual(Ax_) ** 2 + (lam * _tv_norm(x_) if lam > 0 else 0.0)
 
-    J_prev = objective(Ax, x)  # the restart test's
+    J_prev = objective(Ax, y)  # the restart test's
     steps: deque[float] = deque(maxlen=_WINDOW)  # ‖x_k − x_{k−1}‖ / ‖x_k‖ of the last iterations
     stored = None  # the proximal map's dual between calls, in half the bytes (`_store_dual`)
     change, it, stop_reason = float("nan"), 0, "iterations"
+    xn = y  # for max_iter = 0, which the callers never ask
     for it in range(1, max_iter + 1):
         Gy = G(np.subtract(Ay, g, dtype=Ay.dtype))  # the residual in the working dtype (B's input)
         if G_prev is not None and dy > 0:  # the gain of BA along the last move of y: a lower bound of ‖BA‖
@@ -916,15 +929,16 @@ def _fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray]
                 L = _MARGIN * gain
         G_prev = None
         v = y  # the gradient step y − G(A y − g) / L, in y's place (y = v + Gy / L from here on)
-        del y
+        del y, xn
         _axpy(v.ravel(), Gy.ravel(), -1.0 / L)
         box: list[np.ndarray | None] = [stored]  # handed over: freed inside once restored
         stored = None
         xn, stored = _tv_prox_stored(v, lam / L, positivity, support, box, poll)  # None at λ = 0 (no dual)
         # a = x_new − y, b = x_new − x: the restart test ⟨a, b⟩ < 0 and ‖y_new − y‖ = ‖a + β b‖
-        # for β = 0 and `_MOMENTUM`, now, so that y (v) is free while A works
-        ab, aa, cc, bb, nn = _moves(xn.ravel(), v.ravel(), Gy.ravel(), 1.0 / L, x.ravel(), _MOMENTUM)
-        del v
+        # for β = 0 and `_MOMENTUM`, now, so that y (v) is free while A works; b kept as int16
+        ab, aa, cc, bb, nn, b_max = _moves(xn.ravel(), v.ravel(), Gy.ravel(), 1.0 / L, move[0], move[1], _MOMENTUM)
+        b_new = _store_move(xn.ravel(), v.ravel(), Gy.ravel(), 1.0 / L, move, b_max)
+        del v, move
         G_prev = _store_gradient(Gy)  # for the next gain, in half (float64: a quarter) of the bytes
         del Gy
         Axn = forward(xn)
@@ -932,10 +946,8 @@ def _fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray]
         # constant momentum, restarted (β = 0) when J rises or the momentum points uphill
         beta = 0.0 if J > J_prev or ab < 0 else _MOMENTUM
         dy = math.sqrt(cc if beta else aa)
-        y = x  # y_new = x_new + β (x_new − x), in x's place (x is done)
-        _extrapolate(y.ravel(), xn.ravel(), beta)
         Ay = Axn + beta * (Axn - Ax)
-        x, Ax = xn, Axn
+        Ax = Axn
         J_prev = J
         steps.append(math.sqrt(bb / nn) if nn > 0 else (0.0 if bb == 0 else math.inf))
         if len(steps) == _WINDOW:
@@ -950,7 +962,14 @@ def _fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray]
         if elapsed >= time_limit and it < max_iter:
             stop_reason = "time limit"
             break
-    return x, it, stop_reason, float(change), Ax, L, lam
+        if it == max_iter:
+            break
+        # y_new = x_new + β b in x_new's place (the result is x_new itself: made only when going on)
+        move = (b_new[0], beta * b_new[1])
+        del b_new
+        _extrapolate_fixed(xn.ravel(), move[0], move[1])
+        y = xn  # noqa: F841 (read at the loop's top: ruff does not follow the loop past the del there)
+    return xn, it, stop_reason, float(change), Ax, L, lam
 
 
 class _GeometryMemo:
@@ -1128,34 +1147,62 @@ def _axpy(y: np.ndarray, x: np.ndarray, s: float) -> None:
         y[i] += s * x[i]
 
 
-@numba.njit(parallel=True, cache=True)
-def _extrapolate(x: np.ndarray, xn: np.ndarray, beta: float) -> None:
-    """In place, x ← xn + β (xn − x) (flat arrays): FISTA's next y in the old iterate's place."""
-    for i in numba.prange(x.size):
-        x[i] = xn[i] + beta * (xn[i] - x[i])
+def _store_move(xn: np.ndarray, v: np.ndarray, gy: np.ndarray, inv_l: float, move: tuple[np.ndarray, float],
+                b_max: float) -> tuple[np.ndarray, float]:
+    """The move b = x_new − x (flat arrays; x = v + inv_l gy − β q b_last as `_moves`) as
+    16-bit fixed point: (round(b / q), q) with q = ``b_max`` / 32767 (``b_max`` = max |b|, from
+    `_moves`). y = x_new + β q round(b / q) then differs from the exact extrapolation by at
+    most β q / 2 a voxel, and x = y − β q round(b / q) is exact (to the working precision's
+    rounding), which is all the solver needs of x."""
+    quantum = b_max / _DUAL_SCALE if b_max > 0 else 0.0
+    out = np.empty(xn.shape, dtype=np.int16)
+    _quantise_move(xn, v, gy, inv_l, move[0], move[1], 1.0 / quantum if quantum > 0 else 0.0, out)
+    return out, quantum
 
 
 @numba.njit(parallel=True, cache=True)
-def _moves(xn: np.ndarray, v: np.ndarray, gy: np.ndarray, inv_l: float, x: np.ndarray,
-           beta: float) -> tuple[float, float, float, float, float]:
-    """With y = v + inv_l gy (the gradient step v = y − gy / L undone), a = xn − y and
-    b = xn − x (flat arrays): (⟨a, b⟩, ‖a‖², ‖a + β b‖², ‖b‖², ‖xn‖²), summed in float64."""
+def _quantise_move(xn: np.ndarray, v: np.ndarray, gy: np.ndarray, inv_l: float, b_last: np.ndarray,
+                   scale_last: float, mult: float, out: np.ndarray) -> None:
+    """The move's fixed point: out = round(clip((x_new − x) · mult, ±32767)), with
+    x = v + inv_l gy − scale_last b_last (flat arrays)."""
+    for i in numba.prange(xn.size):
+        x = np.float64(v[i]) + inv_l * np.float64(gy[i]) - scale_last * np.float64(b_last[i])
+        out[i] = math.floor(min(max((np.float64(xn[i]) - x) * mult, -32767.0), 32767.0) + 0.5)
+
+
+@numba.njit(parallel=True, cache=True)
+def _extrapolate_fixed(xn: np.ndarray, b: np.ndarray, scale: float) -> None:
+    """In place, xn ← xn + scale b (flat arrays, b int16): FISTA's next y = x_new + β q b in
+    the new iterate's place."""
+    for i in numba.prange(xn.size):
+        xn[i] = xn[i] + scale * b[i]
+
+
+@numba.njit(parallel=True, cache=True)
+def _moves(xn: np.ndarray, v: np.ndarray, gy: np.ndarray, inv_l: float, b_last: np.ndarray, scale_last: float,
+           beta: float) -> tuple[float, float, float, float, float, float]:
+    """With y = v + inv_l gy (the gradient step v = y − gy / L undone) and x = y − scale_last
+    b_last (y's extrapolation undone: `_store_move`), a = xn − y and b = xn − x (flat
+    arrays): (⟨a, b⟩, ‖a‖², ‖a + β b‖², ‖b‖², ‖xn‖², max |b|), summed in float64."""
     ab = 0.0
     aa = 0.0
     cc = 0.0
     bb = 0.0
     nn = 0.0
+    top = 0.0
     for i in numba.prange(xn.size):
         xi = np.float64(xn[i])
-        a = xi - (np.float64(v[i]) + inv_l * np.float64(gy[i]))
-        b = xi - np.float64(x[i])
+        yi = np.float64(v[i]) + inv_l * np.float64(gy[i])
+        a = xi - yi
+        b = xi - (yi - scale_last * np.float64(b_last[i]))
         c = a + beta * b
         ab += a * b
         aa += a * a
         cc += c * c
         bb += b * b
         nn += xi * xi
-    return ab, aa, cc, bb, nn
+        top = max(top, abs(b))
+    return ab, aa, cc, bb, nn, top
 
 
 class _Reporter:

@@ -286,3 +286,30 @@ def test_the_last_gradient_waits_as_16_bits_and_its_gain_stays_a_lower_bound(dty
     values, quantum = tv._store_gradient(zeros)
     assert not values.any() and tv._gain_lower_bound(zeros + 1, (values, quantum)) == pytest.approx(
         np.sqrt(10) - 0.5 * np.sqrt(10) * (1 + 1e-6))
+
+
+def test_the_last_move_waits_as_16_bits_and_x_is_read_back_from_y():
+    """`_moves` / `_store_move` / `_extrapolate_fixed` (FISTA keeps y and the last move b =
+    x − x_prev as int16, not x): the sums against numpy in float64 (x = y − β q b_last, y =
+    v + gy / L), the move within half a quantum of x_new − x, and y = x_new + β q round(b / q)
+    read back as y − β q round(b / q) = x_new to float32's rounding."""
+    rng = np.random.default_rng(7)
+    n, inv_l, beta = 4000, 0.37, 0.94
+    xn, v, gy = (rng.standard_normal(n).astype(np.float32) for _ in range(3))
+    b_last = rng.integers(-32767, 32768, n).astype(np.int16)
+    scale_last = 2e-5
+    y = v.astype(np.float64) + inv_l * gy.astype(np.float64)
+    x = y - scale_last * b_last
+    a, b = xn - y, xn - x
+    ab, aa, cc, bb, nn, top = tv._moves(xn, v, gy, inv_l, b_last, scale_last, beta)
+    want = (a @ b, a @ a, (a + beta * b) @ (a + beta * b), b @ b, xn.astype(np.float64) @ xn, np.abs(b).max())
+    np.testing.assert_allclose((ab, aa, cc, bb, nn, top), want, rtol=1e-9)
+    values, quantum = tv._store_move(xn, v, gy, inv_l, (b_last, scale_last), top)
+    assert values.dtype == np.int16 and quantum == pytest.approx(top / 32767, rel=1e-12)
+    assert np.max(np.abs(values * quantum - b)) <= 0.5 * quantum * (1 + 1e-6)
+    y_new = xn.copy()
+    tv._extrapolate_fixed(y_new, values, beta * quantum)
+    np.testing.assert_allclose(y_new - beta * quantum * values.astype(np.float64), xn, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(y_new, xn + beta * b, rtol=0, atol=beta * quantum * 0.5 + 1e-6)
+    values, quantum = tv._store_move(xn, v, gy, inv_l, (b_last, scale_last), 0.0)  # no move: zeros, q = 0
+    assert quantum == 0.0 and not values.any()
