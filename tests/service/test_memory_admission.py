@@ -96,6 +96,20 @@ def test_the_worker_refuses_a_job_over_the_configured_limit(tmp_path):
     assert run_reconstruction(spec)["shape"] == [128, 96, 96]
 
 
+# the tv probes' warm-up: a small input of the same kind (imports), then the kernels a job worker
+# warms before it takes a job (a transform this small runs in numpy and would load none of them;
+# compiling or loading them may peak high); not on the measured input itself, whose freed arrays
+# the allocator would keep and hide from the measured peak
+TV_WARM_UP = r"""
+ax_s = centred_axis(12, dx)
+k = np.arange(20)
+small = PointDataset(alines=rng.standard_normal((20, 32)), positions=np.stack([ax_s[k % 12], ax_s[k // 12]], 1),
+                     dt=2e-8, c=1500.0, grid=(ax_s, ax_s), weights=None)
+reconstruct(small, "tv", iterations=1)
+from service.recon.warmup import warm_up
+warm_up(["float32"], ("ner", "nedner", "tv"))
+"""
+
 TV_PEAK_SCRIPT = r"""
 import json, sys
 import numpy as np
@@ -109,19 +123,7 @@ idx = rng.choice(n * n, n_pts, replace=False)
 pos = np.stack([ax[idx % n], ax[idx // n]], 1)
 ds = PointDataset(alines=rng.standard_normal((n_pts, n_t)), positions=pos, dt=2e-8, c=1500.0, grid=(ax, ax),
                   weights=None)
-# warm-up on a small input of the same kind (imports), then the kernels a job worker warms
-# before it takes a job (a transform this small runs in numpy and would load none of them;
-# compiling or loading them may peak high); not on ds itself, whose freed arrays the allocator
-# would keep and hide from the measured peak
-ax_s = centred_axis(12, dx)
-k = np.arange(20)
-small = PointDataset(alines=rng.standard_normal((20, 32)), positions=np.stack([ax_s[k % 12], ax_s[k // 12]], 1),
-                     dt=2e-8, c=1500.0, grid=(ax_s, ax_s), weights=None)
-reconstruct(small, "tv", iterations=1)
-from service.recon.warmup import warm_up
-warm_up(["float32"], ("ner", "nedner", "tv"))
-
-""" + MEASURE.replace("RUN", 'reconstruct(ds, "tv", iterations=2)')
+""" + TV_WARM_UP + MEASURE.replace("RUN", 'reconstruct(ds, "tv", iterations=2)')
 
 
 @needs_recon
@@ -324,16 +326,8 @@ write_dataset(folder + "/upload.h5", PointDataset(alines=alines, positions=pos, 
                                                   weights=None))
 meta = import_dataset(folder + "/upload.h5", folder, "dataset", dt=None, dx=None, dy=None, c=None, key=None)
 ds = read_dataset(folder + "/dataset.h5")
-# warm-up on a small input of the same kind, then the kernels a job worker warms (as TV_PEAK_SCRIPT)
-ax_s = centred_axis(12, dx)
-k = np.arange(20)
-small = PointDataset(alines=rng.standard_normal((20, 32)), positions=np.stack([ax_s[k % 12], ax_s[k // 12]], 1),
-                     dt=2e-8, c=1500.0, grid=(ax_s, ax_s), weights=None)
-reconstruct(small, "tv", iterations=1)
-from service.recon.warmup import warm_up
-warm_up(["float32"], ("ner", "nedner", "tv"))
 print(json.dumps(meta))
-""" + MEASURE.replace("RUN", 'img = reconstruct(ds, "tv", iterations=2)\nprint(json.dumps(img.params["record_n_t"]))')
+""" + TV_WARM_UP + MEASURE.replace("RUN", 'img = reconstruct(ds, "tv", iterations=2)\nprint(json.dumps(img.params["record_n_t"]))')
 
 
 @needs_recon
