@@ -12,7 +12,7 @@ from driver.physics.resample import resample, resample_adjoint, resampled_length
 from service.metrics import correlation_coefficient
 from service.recon.operator import PlanarOperator
 from service.recon.tv import reconstruct_tv
-from service.recon.tv_grid import data_band, data_extent, noise_sigma, tv_grid
+from service.recon.tv_grid import RecordFacts, data_band, data_extent, noise_sigma, record_facts, tv_grid
 
 C, DX = 1500.0, 60e-6
 rng = np.random.default_rng(47)
@@ -185,3 +185,36 @@ def test_tv_cuts_the_records_noise_after_its_last_echo_and_keeps_a_given_depth()
     assert correlation_coefficient(cut.p0, truth(cut)) >= correlation_coefficient(whole.p0, truth(whole)) - 0.01
     deep = reconstruct_tv(noisy, dt, C, positions=pos, grid=(x,), n_z=300, max_iter=2)
     assert deep.params["record_n_t"] == 300 and deep.params["extent_reason"] == "image" and deep.p0.shape[0] == 300
+
+
+def test_record_facts_give_the_grid_the_data_give_and_read_sigma_from_a_sample_of_a_large_record():
+    """`record_facts` (what a server stores at a dataset's import, for its admission) lead
+    `tv_grid` to the grid the data themselves lead it to, for A-lines and for time-first grid
+    data; with a given depth that keeps more of the record to the same kept record and image,
+    and an operator at least as long (the band of the signal's samples, which the longer,
+    noisier record can only narrow); a record of more than 2 × 4 million samples has σ
+    read from every k-th A-line, within 0.5 % of the whole record's, and the same extent. Facts
+    of another record length are refused; a stored dict comes back as it went."""
+    n_t, dt = 600, 8e-9
+    t = np.arange(n_t)
+    echo = np.where((t > 150) & (t < 230), np.sin(t / 3.0), 0.0)  # the echoes end at sample 230
+    local = np.random.default_rng(11)
+    alines = echo + 0.02 * local.standard_normal((300, n_t))
+    grid = np.moveaxis(alines.reshape(15, 20, n_t), -1, 0).copy()  # (n_t, n_y, n_x), the same record
+    for data, axis in ((alines, 1), (grid, 0)):
+        facts = record_facts(data, dt, axis)
+        assert facts.n_t == n_t and 230 < facts.signal_n_t < 300 and facts.sigma == noise_sigma(data, axis)
+        assert tv_grid(n_t, dt, C, facts=facts) == tv_grid(n_t, dt, C, data=data, time_axis=axis)
+        for given in ({"n_z": 400}, {"dz": 2 * C * dt}):  # a depth that keeps more than the signal's samples
+            sized = tv_grid(n_t, dt, C, facts=facts, **given)
+            chosen = tv_grid(n_t, dt, C, data=data, time_axis=axis, **given)
+            assert (sized.record_n_t, sized.dz, sized.n_z) == (chosen.record_n_t, chosen.dz, chosen.n_z)
+            assert sized.n_t >= chosen.n_t  # the signal's band, at least the longer record's: never smaller
+        assert RecordFacts.from_dict(facts.as_dict()) == facts
+    with pytest.raises(ValueError, match="600 samples, not 601"):
+        tv_grid(n_t + 1, dt, C, facts=record_facts(alines, dt, 1))
+    big = (echo + 0.02 * local.standard_normal((15000, n_t))).astype(np.float32)  # 9 million samples
+    facts = record_facts(big, dt, 1)
+    whole = noise_sigma(big, 1)
+    assert abs(facts.sigma / whole - 1) < 0.005
+    assert facts.signal_n_t == data_extent(big, 1, whole)
