@@ -1,4 +1,4 @@
-"""``tv``: model-based reconstruction, ½‖A p0 − g‖²_W + λ TV(p0) with p0 ≥ 0, solved by
+"""``tv``: model-based reconstruction, ½‖A p0 − g‖² + λ TV(p0) with p0 ≥ 0, solved by
 NER-preconditioned FISTA on the exact planar model (kernel:
 :func:`service.recon.tv.reconstruct_tv`; Arridge et al., PMB 61 (2016) 8908)."""
 from __future__ import annotations
@@ -533,7 +533,7 @@ def warm_up(dtypes: Sequence[str]) -> None:
 
 METHOD = register(Method(
     "tv", "model-based: TV + positivity on the exact model (iterative; sparse, noisy scans)", False, Options, run,
-    "½‖A p0 − g‖²_W + λ TV(p0), p0 ≥ 0, NER-preconditioned FISTA (Arridge et al., PMB 61 (2016) 8908)",
+    "½‖A p0 − g‖² + λ TV(p0), p0 ≥ 0, NER-preconditioned FISTA (Arridge et al., PMB 61 (2016) 8908)",
     peak_memory, order=50, work=work, iterative=True, time_limited=True, warm_up=warm_up,
     kernel_modules=("driver.physics.nufft_kernels", "service.recon.tv"), warm_in_background=True,
     memory_calibration=MEMORY_CALIBRATION, holds_input=True))
