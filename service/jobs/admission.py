@@ -105,11 +105,13 @@ def _facts(record: dict) -> dict:
     """What a stored dataset's record says of its data beyond their shape: ``record_facts``
     (what the record holds above its noise, ``service.recon.tv_grid.RecordFacts``, stored at
     import) and a declared ``bandwidth`` (Hz), where it has them."""
+    from service.recon.methods.tv import BANDWIDTH_KEY
+
     out = {}
     if isinstance(record.get("record_facts"), dict):
         out["record_facts"] = record["record_facts"]
-    if record.get("sensor_bandwidth_hz") is not None:
-        out["bandwidth"] = record["sensor_bandwidth_hz"]
+    if record.get(BANDWIDTH_KEY) is not None:
+        out["bandwidth"] = record[BANDWIDTH_KEY]
     return out
 
 

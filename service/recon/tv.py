@@ -937,7 +937,7 @@ def _fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray]
         # a = x_new − y, b = x_new − x: the restart test ⟨a, b⟩ < 0 and ‖y_new − y‖ = ‖a + β b‖
         # for β = 0 and `_MOMENTUM`, now, so that y (v) is free while A works; b kept as int16
         ab, aa, cc, bb, nn, b_max = _moves(xn.ravel(), v.ravel(), Gy.ravel(), 1.0 / L, move[0], move[1], _MOMENTUM)
-        b_new = _store_move(xn.ravel(), v.ravel(), Gy.ravel(), 1.0 / L, move, b_max)
+        b_new = _store_move(xn.ravel(), v.ravel(), Gy.ravel(), 1.0 / L, move[0], move[1], b_max)
         del v, move
         G_prev = _store_gradient(Gy)  # for the next gain, in half (float64: a quarter) of the bytes
         del Gy
@@ -1147,16 +1147,16 @@ def _axpy(y: np.ndarray, x: np.ndarray, s: float) -> None:
         y[i] += s * x[i]
 
 
-def _store_move(xn: np.ndarray, v: np.ndarray, gy: np.ndarray, inv_l: float, move: tuple[np.ndarray, float],
-                b_max: float) -> tuple[np.ndarray, float]:
-    """The move b = x_new − x (flat arrays; x = v + inv_l gy − β q b_last as `_moves`) as
+def _store_move(xn: np.ndarray, v: np.ndarray, gy: np.ndarray, inv_l: float, b_last: np.ndarray,
+                scale_last: float, b_max: float) -> tuple[np.ndarray, float]:
+    """The move b = x_new − x (flat arrays; x = v + inv_l gy − scale_last b_last as `_moves`) as
     16-bit fixed point: (round(b / q), q) with q = ``b_max`` / 32767 (``b_max`` = max |b|, from
     `_moves`). y = x_new + β q round(b / q) then differs from the exact extrapolation by at
     most β q / 2 a voxel, and x = y − β q round(b / q) is exact (to the working precision's
     rounding), which is all the solver needs of x."""
     quantum = b_max / _DUAL_SCALE if b_max > 0 else 0.0
     out = np.empty(xn.shape, dtype=np.int16)
-    _quantise_move(xn, v, gy, inv_l, move[0], move[1], 1.0 / quantum if quantum > 0 else 0.0, out)
+    _quantise_move(xn, v, gy, inv_l, b_last, scale_last, 1.0 / quantum if quantum > 0 else 0.0, out)
     return out, quantum
 
 

@@ -195,8 +195,8 @@ class RecordFacts(NamedTuple):
         Samples kept after the cut past the last echo (`data_extent`, margin included); None:
         the signal lasts to the record's end (or no sample shows signal: noise alone).
     band : float or None
-        The band above the noise floor of those samples (`data_band`), Hz; None: up to the
-        record's Nyquist frequency.
+        The band above the noise floor of those samples (`data_band`), Hz, as `tv_grid` keeps
+        it; None: their own sampling is the coarsest that keeps it (up to Nyquist).
     sigma : float
         The noise's standard deviation per sample (`noise_sigma`), in the data's unit.
 
@@ -241,9 +241,9 @@ class RecordFacts(NamedTuple):
 def record_facts(data: npt.ArrayLike, dt: float, time_axis: int) -> RecordFacts:
     """The facts `tv_grid` reads off a record, without the caller's options: its noise σ
     (`noise_sigma`, of every k-th A-line when the record holds more than 2 × 4 million
-    samples), the samples kept after its last echo (`data_extent`) and the band of those
-    samples above the noise floor (`data_band`), all in blocks (a server computes them at
-    import, beside the data). `tv_grid` given these ``facts`` instead
+    samples), and the cut after its last echo (`data_extent`) and the band of the samples kept
+    above the noise floor (`data_band`) of `tv_grid`'s default grid, all in blocks (a server
+    computes them at import, beside the data). `tv_grid` given these ``facts`` instead
     of the data picks the grid it picks from the data, except where a depth the caller gives
     keeps more of the record than the signal does: there the band is the one of the signal's
     samples, at least as wide as that of the longer, noisier record (an estimate that errs
@@ -293,12 +293,8 @@ def record_facts(data: npt.ArrayLike, dt: float, time_axis: int) -> RecordFacts:
     # differences in float64, which for the largest uploads would not fit beside the data
     stride = max(1, math.ceil(lines.shape[1] * (n_t // 2) / _FACTS_SIGMA_SAMPLES))
     sigma = noise_sigma(lines[:, ::stride], 0)
-    kept = data_extent(a, time_axis, sigma)
-    if kept is not None:
-        kept = max(kept, min(n_t, _MIN_KEPT))
-        kept = None if kept >= n_t else kept
-    head = a[(slice(None),) * time_axis + (slice(0, n_t if kept is None else kept),)]  # a view
-    return RecordFacts(n_t, kept, data_band(head, dt, time_axis, sigma), sigma)
+    chosen = tv_grid(n_t, dt, data=a, time_axis=time_axis, sigma=sigma)  # the default grid: its cut and band
+    return RecordFacts(n_t, chosen.record_n_t if chosen.cut else None, chosen.band, sigma)
 
 
 def data_band(data: npt.ArrayLike, dt: float, time_axis: int, sigma: float) -> float | None:

@@ -304,12 +304,12 @@ def test_the_last_move_waits_as_16_bits_and_x_is_read_back_from_y():
     ab, aa, cc, bb, nn, top = tv._moves(xn, v, gy, inv_l, b_last, scale_last, beta)
     want = (a @ b, a @ a, (a + beta * b) @ (a + beta * b), b @ b, xn.astype(np.float64) @ xn, np.abs(b).max())
     np.testing.assert_allclose((ab, aa, cc, bb, nn, top), want, rtol=1e-9)
-    values, quantum = tv._store_move(xn, v, gy, inv_l, (b_last, scale_last), top)
+    values, quantum = tv._store_move(xn, v, gy, inv_l, b_last, scale_last, top)
     assert values.dtype == np.int16 and quantum == pytest.approx(top / 32767, rel=1e-12)
     assert np.max(np.abs(values * quantum - b)) <= 0.5 * quantum * (1 + 1e-6)
     y_new = xn.copy()
     tv._extrapolate_fixed(y_new, values, beta * quantum)
     np.testing.assert_allclose(y_new - beta * quantum * values.astype(np.float64), xn, rtol=0, atol=1e-6)
     np.testing.assert_allclose(y_new, xn + beta * b, rtol=0, atol=beta * quantum * 0.5 + 1e-6)
-    values, quantum = tv._store_move(xn, v, gy, inv_l, (b_last, scale_last), 0.0)  # no move: zeros, q = 0
+    values, quantum = tv._store_move(xn, v, gy, inv_l, b_last, scale_last, 0.0)  # no move: zeros, q = 0
     assert quantum == 0.0 and not values.any()

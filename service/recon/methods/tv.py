@@ -521,7 +521,7 @@ def warm_up(dtypes: Sequence[str]) -> None:
         tv._apply_weight(tv._ner_weight(v.shape, dx, C_DEFAULT * dt), v)  # the preconditioner's kernel
         flat = v.ravel()  # the solver's in-place vector kernels
         tv._axpy(flat, flat, 0.5)
-        move = tv._store_move(flat, flat, flat, 1.0, (np.zeros(flat.size, dtype=np.int16), 0.0), 1.0)
+        move = tv._store_move(flat, flat, flat, 1.0, np.zeros(flat.size, dtype=np.int16), 0.0, 1.0)
         tv._extrapolate_fixed(flat, move[0], 0.5)
         tv._difference_norm(flat, flat)
         tv._gain_lower_bound(flat, tv._store_gradient(v))  # the last gradient's 16-bit wait
