@@ -23,8 +23,12 @@ supersampled 2x). The admission estimate is the server's
 (`service.jobs.admission.estimate_memory` of the job as for a stored dataset, whose record facts
 the import found: `service.recon.tv_grid.record_facts`) over that peak. ``--scale 0.5`` runs the
 same case at half the size in every dimension (113², 512 samples, 437 points) for a quick look.
+``--rule`` adds, per row, what the stopping rule's threshold buys at this size (issue 47 item 2):
+a 300-iteration solve at the row's λ and a run to the rule at ``tol`` = 2e-3 (the default is
+5e-3), with their wall times, iterations, CC with the true p0 and relative distances ‖x − x₃₀₀‖ /
+‖x₃₀₀‖ (about 5 x the row's time more).
 
-    .venv/bin/python benchmarks/bench_tv_paper.py [--scale 1] [--snr 30] [--declared 22e6]
+    .venv/bin/python benchmarks/bench_tv_paper.py [--scale 1] [--snr 30] [--declared 22e6] [--rule]
 """
 from __future__ import annotations
 
@@ -84,7 +88,7 @@ def _peak() -> int:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
 
 
-def _row(label: str, scale: float, snr: float, bandwidth, whole: bool, repeat: int, queue) -> None:
+def _row(label: str, scale: float, snr: float, bandwidth, whole: bool, repeat: int, queue, rule: bool = False) -> None:
     from driver.physics import ball_p0
     from service.jobs.admission import estimate_memory
     from service.metrics import correlation_coefficient
@@ -117,11 +121,24 @@ def _row(label: str, scale: float, snr: float, bandwidth, whole: bool, repeat: i
     peak = _peak() - base
     p = rec.params
     truth = ball_p0(case["balls"], rec.z, rec.x, rec.y, supersample=2)
-    queue.put(dict(label=label, ner=best, tv=wall, iterations=p["iterations"], pairs=p["operator_pairs"],
-                   converged=p["converged"], stop=p["stop_reason"], peak=peak / rec.p0.nbytes,
-                   cc=correlation_coefficient(rec.p0, truth), shape=rec.p0.shape, dz=float(rec.z[1]),
-                   op_n_t=p["operator_n_t"], band=p["band"], reason=p["band_reason"], lam=p["lam_factor"],
-                   record=p["record_n_t"], n_t=n_t, admission=estimate / peak))
+    result = dict(label=label, ner=best, tv=wall, iterations=p["iterations"], pairs=p["operator_pairs"],
+                  converged=p["converged"], stop=p["stop_reason"], peak=peak / rec.p0.nbytes,
+                  cc=correlation_coefficient(rec.p0, truth), shape=rec.p0.shape, dz=float(rec.z[1]),
+                  op_n_t=p["operator_n_t"], band=p["band"], reason=p["band_reason"], lam=p["lam_factor"],
+                  record=p["record_n_t"], n_t=n_t, admission=estimate / peak)
+    if rule:  # the rule's threshold at this size: a 300-iteration solve and tol 2e-3, at the row's λ
+        runs = {}
+        for name, opts in (("300 iterations", dict(max_iter=300, tol=0.0)), ("tol 2e-3", dict(max_iter=300, tol=2e-3))):
+            t = time.perf_counter()
+            r = reconstruct_tv(case["alines"], DT, C, positions=pos, weights=case["weights"], grid=case["grid"],
+                               dtype=np.float32, bandwidth=bandwidth, whole_record=whole, lam=p["lam"], **opts)
+            runs[name] = (time.perf_counter() - t, r)
+        long = runs["300 iterations"][1].p0
+        size = float(np.linalg.norm(long))
+        result["rule"] = [(name, s_, r.params["iterations"], correlation_coefficient(r.p0, truth),
+                           float(np.linalg.norm(r.p0 - long)) / size)
+                          for name, (s_, r) in [("tol 5e-3 (the row)", (wall, rec)), *runs.items()]]
+    queue.put(result)
 
 
 def main(argv=None) -> None:
@@ -131,6 +148,7 @@ def main(argv=None) -> None:
     ap.add_argument("--repeat", type=int, default=3, help="NER runs (best of)")
     ap.add_argument("--declared", type=float, default=None, help="also a row with this sensor bandwidth, Hz")
     ap.add_argument("--rows", nargs="+", default=["defaults", "today"], choices=["defaults", "today", "declared"])
+    ap.add_argument("--rule", action="store_true", help="also a 300-iteration solve and tol 2e-3 per row (slow)")
     args = ap.parse_args(argv)
     rows = [r for r in args.rows]
     if args.declared and "declared" not in rows:
@@ -140,13 +158,14 @@ def main(argv=None) -> None:
           "(n_z x n_y x n_x, dz) | record kept | operator samples, band | admission estimate / peak |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     ctx = mp.get_context("spawn")
+    rules: list[tuple] = []
     for row in rows:
         bandwidth = {"defaults": None, "today": 1 / (2 * DT), "declared": args.declared}[row]
         label = {"defaults": "defaults", "today": "today's grid (dz = c·dt)",
                  "declared": f"{(args.declared or 0) / 1e6:g} MHz sensor declared"}[row]
         queue = ctx.Queue()
         proc = ctx.Process(target=_row, args=(label, args.scale, args.snr, bandwidth, row == "today", args.repeat,
-                                              queue))
+                                              queue, args.rule))
         proc.start()
         r = queue.get()
         proc.join()
@@ -155,6 +174,12 @@ def main(argv=None) -> None:
               f"{r['pairs']:g} | {r['converged']} ({r['stop']}) | {r['peak']:.1f} | {r['cc']:.4f} | "
               f"{' x '.join(map(str, r['shape']))}, {r['dz'] * 1e6:.1f} µm | {r['record']} of {r['n_t']} | "
               f"{r['op_n_t']}, {band} | {r['admission']:.2f} |", flush=True)
+        rules.extend((r["label"], *run) for run in r.get("rule", []))
+    if rules:
+        print("\n| grid | run (the row's λ) | tv s | iterations | CC (true p0) | distance to the 300-iteration image |")
+        print("|---|---|---|---|---|---|")
+        for label, name, wall, its, cc, distance in rules:
+            print(f"| {label} | {name} | {wall:.1f} | {its} | {cc:.4f} | {distance:.4f} |")
 
 
 if __name__ == "__main__":

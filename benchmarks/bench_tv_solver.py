@@ -13,11 +13,16 @@ dt = pitch / c) with seeded white noise ``--snr`` dB below the signal, this prin
 - the automatic λ over the image's noise level and the warm start's discrepancy D₀ that
   sets it (`service.recon.tv`, module doc);
 - with ``--sweep``, tv's CC at λ ×1/8 … ×8 of the automatic one, the best factor and the CC
-  lost at the automatic λ (issue 19, item 3: ≤ 0.01; docs/results.md's table).
+  lost at the automatic λ (issue 19, item 3: ≤ 0.01; docs/results.md's table);
+- with ``--rule``, what the stopping rule's threshold buys (issue 47 item 2): a 300-iteration
+  solve at the automatic λ (and its distance to a 1000-iteration one), then for each ``tol``
+  in `RULE_TOLS` (5e-3 is the default) the iterations and pairs to the rule, the relative
+  distance ‖x − x₃₀₀‖ / ‖x₃₀₀‖ and the CC with the true p0, all at that λ.
 
     .venv/bin/python benchmarks/bench_tv_solver.py                   # 64x96 (2-D), 24x40x40 (3-D), 30 dB
     .venv/bin/python benchmarks/bench_tv_solver.py --snr 20 30 40 --debias
     .venv/bin/python benchmarks/bench_tv_solver.py --dims 3 --points 48 80 160 --snr 20 30 40 --sweep
+    .venv/bin/python benchmarks/bench_tv_solver.py --rule --points 160 53     # the rule's threshold
     .venv/bin/python benchmarks/bench_tv_solver.py --dims 3 --kinds blobs vessels-flipped --points 48 160 \
         --snr 20 30 40 --seed 7 --poi 10 --sweep    # cases the automatic λ's calibration never saw
 
@@ -36,6 +41,7 @@ DT = PITCH / C
 
 
 SWEEP = (1 / 8, 1 / 4, 1 / 2, 1.0, 2.0, 4.0, 8.0)
+RULE_TOLS = (5e-3, 2e-3, 1e-3, 5e-4, 2e-4)  # the stopping rule's thresholds of --rule (5e-3: tv's default)
 
 
 def _blobs(shape, seed: int) -> np.ndarray:
@@ -96,7 +102,7 @@ def _case(kind: str, dims: int, snr_db: float, points: int = 160, seed: int = 0,
 
 
 def run(kind: str, dims: int, snr_db: float, debias: bool, points: int = 160, sweep: bool = False, seed: int = 0,
-        poi: float = 12.0) -> str:
+        poi: float = 12.0, rule: bool = False) -> str:
     from service.metrics import correlation_coefficient
     from service.recon import reconstruct_points
     from service.recon.tv import reconstruct_tv
@@ -129,6 +135,21 @@ def run(kind: str, dims: int, snr_db: float, debias: bool, points: int = 160, sw
         best = max(ccs, key=lambda f: ccs[f])
         row += (f"  λ sweep {' '.join(f'x{f:g} {cc:.4f}' for f, cc in ccs.items())}: best x{best:g},"
                 f" lost at the automatic λ {ccs[best] - ccs[1.0]:.4f}")
+    if rule:
+        def solve(**opts):
+            return reconstruct_tv(alines, DT, C, positions=pos, lam=p["lam"], **kw, **opts)
+
+        long = solve(max_iter=300, tol=0.0).p0
+        longer = solve(max_iter=1000, tol=0.0).p0
+        size = float(np.linalg.norm(long))
+        row += (f"\n    300 iterations: CC {correlation_coefficient(long, p0):.4f},"
+                f" {np.linalg.norm(long - longer) / np.linalg.norm(longer):.4f} from 1000 iterations")
+        for tol in RULE_TOLS:
+            r = solve(tol=tol, max_iter=300)
+            q = r.params
+            row += (f"\n    tol {tol:g}: iterations {q['iterations']:3d} pairs {q['operator_pairs']:5.1f}"
+                    f" ({q['stop_reason']})  distance to the 300-iteration image {np.linalg.norm(r.p0 - long) / size:.4f}"
+                    f"  CC {correlation_coefficient(r.p0, p0):.4f}")
     return row
 
 
@@ -145,12 +166,15 @@ def main(argv=None) -> None:
     ap.add_argument("--points", type=int, nargs="+", default=[160],
                     help="3-D: sensors of the equi-steradian mask, of the 1600 lattice points")
     ap.add_argument("--sweep", action="store_true", help="also the λ sweep x1/8 .. x8 of the automatic λ")
+    ap.add_argument("--rule", action="store_true",
+                    help="also the stopping rule's thresholds against a 300-iteration solve (slow)")
     args = ap.parse_args(argv)
     for dims in args.dims:
         for kind in args.kinds:
             for snr in args.snr:
                 for points in (args.points if dims == 3 else [0]):
-                    print(run(kind, dims, snr, args.debias, points, args.sweep, args.seed, args.poi), flush=True)
+                    print(run(kind, dims, snr, args.debias, points, args.sweep, args.seed, args.poi, args.rule),
+                          flush=True)
 
 
 if __name__ == "__main__":
