@@ -85,7 +85,10 @@ iterations while the image was still changing: on 3 % equi-steradian masks in 3-
 with the true p0 rose by another 0.02-0.10 on the way to the minimiser (0.872 → 0.939 on the
 vessel tree at 30 dB), because J is flat along the directions the sparse data leave to TV.
 On 30 cases (docs/results.md, "When tv has converged") the rule on the image stops within
-0.007 CC of the CC after 100 iterations, after 29-65 iterations (48 on average).
+0.007 CC of the CC after 100 iterations, after 29-65 iterations (48 on average). It stops
+farther from the minimiser as the case grows: at the paper's size (226² lattice, 776 samples kept,
+1653 points) after 60 iterations with CC 0.964 against 0.991 after 300 at the same λ (tol 2e-3:
+230 iterations, 0.991; docs/performance.md, "2026-11-26, morning").
 
 Memory: the TV part works in place (`_tv_prox`'s compiled sweeps step the dual in place;
 `_tv_norm` needs no work array), the dual waits between iterations in half the working
