@@ -26,7 +26,7 @@ same case at half the size in every dimension (113², 512 samples, 437 points) f
 ``--rule`` adds, per row, what the stopping rule's threshold buys at this size (issue 47 item 2):
 a 300-iteration solve at the row's λ and a run to the rule at ``tol`` = 2e-3 (the default is
 5e-3), with their wall times, iterations, CC with the true p0 and relative distances ‖x − x₃₀₀‖ /
-‖x₃₀₀‖ (about 5 x the row's time more).
+‖x₃₀₀‖ (5-8 x the row's time more).
 
     .venv/bin/python benchmarks/bench_tv_paper.py [--scale 1] [--snr 30] [--declared 22e6] [--rule]
 """
