@@ -192,10 +192,20 @@ class JobStore:
         return True
 
     def _spend_reserve(self) -> bool:
-        """Give the reserve's bytes back to the disk; False when there is none to give."""
+        """Give the reserve's bytes back to the disk. True when a write is worth trying once
+        more: this store gave them up now, or another store on the same database gave them up
+        before (the server's API and each worker open their own, and share the one reserve
+        file: when a worker met the full disk first, the API's cancel found the file gone, and
+        was refused while the bytes it had held lay free); this store then counts the reserve
+        as spent too (`problems`, and the free bytes the server reports). False when it keeps
+        no reserve (``reserve_bytes`` 0)."""
         with self._reserve_lock:
-            if self.reserve_bytes <= 0 or not self.reserve_path.exists():
+            if self.reserve_bytes <= 0:
                 return False
+            if not self.reserve_path.exists():  # given up by another store (or never written)
+                if self.reserve_spent is None:
+                    self.reserve_spent = time.time()
+                return True
             self.reserve_path.unlink(missing_ok=True)
             self.reserve_spent = time.time()
         log.warning("job store: the disk is full; its reserve of %d bytes was given up for job states",

@@ -17,6 +17,7 @@ mount, with the reason. Holds the issue's time bound (30 s): ``serial``.
 """
 from __future__ import annotations
 
+import errno
 import io
 import os
 import subprocess
@@ -49,14 +50,41 @@ def small_disk(tmp_path):
 
 
 def _fill(folder) -> None:
-    """Write a file until the disk is full."""
-    with open(folder / "filler.bin", "wb") as f:
+    """Take every free byte of the disk, as another program that filled it once would, without
+    taking what the server frees afterwards. A loop of writes until one fails took more: the
+    server may meet the full disk first (the scan's next A-line) and give up its job store's
+    reserve, and the loop then took the freed reserve too, so that the cancel below found no
+    room (seen in loaded runs). Here: all but a slack of 4 MiB in one allocation (the server's
+    writes meanwhile fit the slack), then the slack; a step retried after a write of the
+    server's came in between (ENOSPC) never asks for more than it measured first, so a reserve
+    freed meanwhile stays free. A write loop only where the system cannot allocate."""
+    fd = os.open(folder / "filler.bin", os.O_WRONLY | os.O_CREAT, 0o600)
+
+    def free() -> int:
+        st = os.statvfs(folder)
+        return st.f_bavail * st.f_frsize
+
+    try:
+        for slack in (4 << 20, 0):
+            want = free() - slack
+            for _ in range(1000):  # bounded: each retry follows a write of the server's
+                if want <= 0:
+                    break
+                try:
+                    os.posix_fallocate(fd, 0, os.fstat(fd).st_size + want)
+                    break
+                except OSError as exc:
+                    if exc.errno != errno.ENOSPC:
+                        raise
+                    want = min(want, free() - slack)
+    except OSError:  # no fallocate on this file system: write until the disk is full
         try:
             while True:
-                f.write(b"\0" * (1 << 20))
-                f.flush()
+                os.write(fd, b"\0" * (1 << 20))
         except OSError:
             pass
+    finally:
+        os.close(fd)
 
 
 def _npy(shape, seed: int) -> bytes:
@@ -170,3 +198,35 @@ def test_a_full_disk_settles_every_job_and_the_server_works_again_once_freed(tmp
     finally:
         srv.stop()
         sim.stop()
+
+
+def test_a_reserve_another_store_gave_up_counts_as_spent_here_too(small_disk):
+    """The server's API and each worker open the job database with a store of their own and
+    share one reserve file. When a worker meets the full disk first and gives the reserve up,
+    the API's next write on a full disk finds the file gone: it counts the reserve as spent
+    (``/api/health``'s problem, the free bytes it reports) and tries the write once more,
+    into whatever the worker's bytes left free. (A loaded run saw a cancel refused with 503
+    while those bytes lay free: the API store gave up at once.) Once space is back, the
+    reserve is written again."""
+    import sqlite3
+
+    from service.jobs.store import JobStore
+
+    db = small_disk / "jobs.sqlite"
+    api, worker = JobStore(db, reserve_bytes=4 << 20), JobStore(db, reserve_bytes=4 << 20)
+    job, _ = api.create_job("recon", {"method": "ner"})
+    big = {"note": "x" * (512 << 10)}  # a write that needs new pages
+    _fill(small_disk)
+    worker.update_progress(job["id"], big)  # the full disk: the worker gives the reserve up, then writes
+    assert worker.reserve_spent is not None and not worker.reserve_path.exists()
+    assert api.reserve_spent is None and api.problems() == []  # the API has not met the full disk yet
+    _fill(small_disk)  # full again, the reserve's bytes taken too
+    with pytest.raises(sqlite3.OperationalError, match="full"):
+        api.update_progress(job["id"], {"note": "y" * (512 << 10)})
+    assert api.reserve_spent is not None and "reserve" in api.problems()[0], api.problems()
+    os.unlink(small_disk / "filler.bin")
+    api.update_progress(job["id"], {"note": "z"})
+    assert api.restore_reserve() and api.reserve_path.stat().st_size == 4 << 20
+    assert api.get(job["id"])["progress"]["note"] == "z"
+    api.close()
+    worker.close()
