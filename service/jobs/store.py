@@ -147,6 +147,7 @@ class JobStore:
         self.reserve_spent: float | None = None  # when the reserve was given up (time.time()), None: kept
         self._reserve_look = 0.0  # time.monotonic() of the last look at writing it again
         self._reserve_lock = threading.Lock()  # spending and writing it again never cross
+        self._reserve_seen = False  # the reserve file was in place once (written here or by another store)
         self._lock = threading.RLock()
         self._db = sqlite3.connect(str(self.path), check_same_thread=False, timeout=30.0,
                                    isolation_level=None)
@@ -158,7 +159,7 @@ class JobStore:
             self._db.execute("PRAGMA journal_mode=WAL")
             self._db.execute("PRAGMA synchronous=NORMAL")
             self._db.executescript(_SCHEMA)
-        self._write_reserve()
+        self._reserve_seen = self._write_reserve() and self.reserve_bytes > 0
 
     def close(self) -> None:
         with self._lock:
@@ -197,13 +198,16 @@ class JobStore:
         before (the server's API and each worker open their own, and share the one reserve
         file: when a worker met the full disk first, the API's cancel found the file gone, and
         was refused while the bytes it had held lay free); this store then counts the reserve
-        as spent too (`problems`, and the free bytes the server reports). False when it keeps
-        no reserve (``reserve_bytes`` 0)."""
+        as spent too (`problems`, and the free bytes the server reports). False when there is
+        none to give: ``reserve_bytes`` 0, or a reserve that was never in place (a disk too
+        small for it at start-up)."""
         with self._reserve_lock:
             if self.reserve_bytes <= 0:
                 return False
-            if not self.reserve_path.exists():  # given up by another store (or never written)
-                if self.reserve_spent is None:
+            if not self.reserve_path.exists():
+                if not self._reserve_seen:  # never written: nothing was given up
+                    return False
+                if self.reserve_spent is None:  # given up by another store on this database
                     self.reserve_spent = time.time()
                 return True
             self.reserve_path.unlink(missing_ok=True)
@@ -235,6 +239,7 @@ class JobStore:
             if room and self.reserve_spent is not None and self._write_reserve():
                 log.info("job store: the disk has room again; its reserve is back")
                 self.reserve_spent = None
+                self._reserve_seen = True
             return self.reserve_spent is None
 
     def _write(self, call):
