@@ -159,7 +159,7 @@ class JobStore:
             self._db.execute("PRAGMA journal_mode=WAL")
             self._db.execute("PRAGMA synchronous=NORMAL")
             self._db.executescript(_SCHEMA)
-        self._reserve_seen = self._write_reserve() and self.reserve_bytes > 0
+        self._reserve_seen = self._write_reserve()
 
     def close(self) -> None:
         with self._lock:
@@ -217,9 +217,15 @@ class JobStore:
         return True
 
     def _after_write(self) -> None:
-        """After a write: a spent reserve is written again once the disk has room for twice it
-        (looked at most every few seconds)."""
-        if self.reserve_spent is None or time.monotonic() - self._reserve_look < _RESERVE_RETRY_S:
+        """After a write: a spent reserve is written again once the disk has room for twice it;
+        a reserve this store could not write at start-up counts as in place once another store
+        on the database has written it (each looked at most every few seconds)."""
+        if time.monotonic() - self._reserve_look < _RESERVE_RETRY_S:
+            return
+        if self.reserve_spent is None:
+            if not self._reserve_seen:
+                self._reserve_look = time.monotonic()
+                self._reserve_seen = self.reserve_path.exists()
             return
         self.restore_reserve()
 

@@ -17,16 +17,15 @@ mount, with the reason. Holds the issue's time bound (30 s): ``serial``.
 """
 from __future__ import annotations
 
-import errno
 import io
 import os
-import subprocess
 import time
 
 import numpy as np
 import pytest
 
 from tests.service.service_servers import Server, needs_recon, wait_job
+from tests.service.small_disks import fill, tmpfs
 from tests.service.test_scans import make_plan, start_scan, wait_points
 from tests.waits import HANG_S
 
@@ -37,54 +36,8 @@ SETTLE_S = 30.0
 
 @pytest.fixture
 def small_disk(tmp_path):
-    folder = tmp_path / "tmpfs"
-    folder.mkdir()
-    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64m", "tmpfs", str(folder)], capture_output=True,
-                       text=True)
-    if r.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs here: {r.stderr.strip() or r.returncode}")
-    try:
+    with tmpfs(tmp_path / "tmpfs", "64m") as folder:
         yield folder
-    finally:
-        subprocess.run(["umount", "-l", str(folder)], capture_output=True)
-
-
-def _fill(folder) -> None:
-    """Take every free byte of the disk, as another program that filled it once would, without
-    taking what the server frees afterwards. A loop of writes until one fails took more: the
-    server may meet the full disk first (the scan's next A-line) and give up its job store's
-    reserve, and the loop then took the freed reserve too, so that the cancel below found no
-    room (seen in loaded runs). Here: all but a slack of 4 MiB in one allocation (the server's
-    writes meanwhile fit the slack), then the slack; a step retried after a write of the
-    server's came in between (ENOSPC) never asks for more than it measured first, so a reserve
-    freed meanwhile stays free. A write loop only where the system cannot allocate."""
-    fd = os.open(folder / "filler.bin", os.O_WRONLY | os.O_CREAT, 0o600)
-
-    def free() -> int:
-        st = os.statvfs(folder)
-        return st.f_bavail * st.f_frsize
-
-    try:
-        for slack in (4 << 20, 0):
-            want = free() - slack
-            for _ in range(1000):  # bounded: each retry follows a write of the server's
-                if want <= 0:
-                    break
-                try:
-                    os.posix_fallocate(fd, 0, os.fstat(fd).st_size + want)
-                    break
-                except OSError as exc:
-                    if exc.errno != errno.ENOSPC:
-                        raise
-                    want = min(want, free() - slack)
-    except OSError:  # no fallocate on this file system: write until the disk is full
-        try:
-            while True:
-                os.write(fd, b"\0" * (1 << 20))
-        except OSError:
-            pass
-    finally:
-        os.close(fd)
 
 
 def _npy(shape, seed: int) -> bytes:
@@ -153,7 +106,11 @@ def test_a_full_disk_settles_every_job_and_the_server_works_again_once_freed(tmp
             big = _upload(c, (1024, 64, 64), 2)  # its speed-of-sound search: about 6 s
             tv = _start(c, small, "tv", {"iterations": 20000, "tol": 0, "time_limit": 600})
             ner = _start(c, big, "ner", {"sound_speed": "auto"})
-            queued = _start(c, small, "ner", {})  # these two wait for one of the 2 workers
+            # these two wait for one of the 2 workers. The one that runs needs room for a result
+            # (17 MB) that what the server frees on the full disk (its reserve, a failed job's
+            # files: 6 MB seen) cannot give: the small dataset's result fitted there once, and
+            # that job rightly succeeded
+            queued = _start(c, big, "ner", {})
             cancelled = _start(c, small, "ner", {"upsample": 2})
             _wait_stage(c, tv, "iteration")
             _wait_stage(c, ner, "autofocus")
@@ -161,7 +118,7 @@ def test_a_full_disk_settles_every_job_and_the_server_works_again_once_freed(tmp
             wait_points(c, scan, 3)
             _wait_stage(c, ner, "autofocus")  # still searching: every job is under way when the disk fills
             t_fill = time.monotonic()
-            _fill(small_disk)
+            fill(small_disk)
             # at once, on the full disk: a cancel is recorded
             r = c.post(f"/api/jobs/{cancelled}/cancel")
             assert r.status_code == 200 and r.json()["state"] == "cancelled", r.text
@@ -207,26 +164,68 @@ def test_a_reserve_another_store_gave_up_counts_as_spent_here_too(small_disk):
     (``/api/health``'s problem, the free bytes it reports) and tries the write once more,
     into whatever the worker's bytes left free. (A loaded run saw a cancel refused with 503
     while those bytes lay free: the API store gave up at once.) Once space is back, the
-    reserve is written again."""
+    reserve is written again. Here the disk is filled again before the API writes, so its
+    second try fails too and the write is refused: that the second try lands where the
+    worker's bytes lie free needs the two stores' writes interleaved, which
+    `test_a_full_disk_settles_every_job_and_the_server_works_again_once_freed` meets on a
+    real server (its cancel)."""
     import sqlite3
 
     from service.jobs.store import JobStore
 
     db = small_disk / "jobs.sqlite"
     api, worker = JobStore(db, reserve_bytes=4 << 20), JobStore(db, reserve_bytes=4 << 20)
-    job, _ = api.create_job("recon", {"method": "ner"})
-    big = {"note": "x" * (512 << 10)}  # a write that needs new pages
-    _fill(small_disk)
-    worker.update_progress(job["id"], big)  # the full disk: the worker gives the reserve up, then writes
-    assert worker.reserve_spent is not None and not worker.reserve_path.exists()
-    assert api.reserve_spent is None and api.problems() == []  # the API has not met the full disk yet
-    _fill(small_disk)  # full again, the reserve's bytes taken too
-    with pytest.raises(sqlite3.OperationalError, match="full"):
-        api.update_progress(job["id"], {"note": "y" * (512 << 10)})
-    assert api.reserve_spent is not None and "reserve" in api.problems()[0], api.problems()
-    os.unlink(small_disk / "filler.bin")
-    api.update_progress(job["id"], {"note": "z"})
-    assert api.restore_reserve() and api.reserve_path.stat().st_size == 4 << 20
-    assert api.get(job["id"])["progress"]["note"] == "z"
-    api.close()
-    worker.close()
+    try:
+        job, _ = api.create_job("recon", {"method": "ner"})
+        big = {"note": "x" * (512 << 10)}  # a write that needs new pages
+        fill(small_disk)
+        worker.update_progress(job["id"], big)  # the full disk: the worker gives the reserve up, then writes
+        assert worker.reserve_spent is not None and not worker.reserve_path.exists()
+        assert api.reserve_spent is None and api.problems() == []  # the API has not met the full disk yet
+        fill(small_disk)  # full again, the reserve's bytes taken too
+        with pytest.raises(sqlite3.OperationalError, match="full"):
+            api.update_progress(job["id"], {"note": "y" * (512 << 10)})
+        assert api.reserve_spent is not None and "reserve" in api.problems()[0], api.problems()
+        os.unlink(small_disk / "filler.bin")
+        api.update_progress(job["id"], {"note": "z"})
+        assert api.restore_reserve() and api.reserve_path.stat().st_size == 4 << 20
+        assert api.get(job["id"])["progress"]["note"] == "z"
+    finally:
+        api.close()
+        worker.close()
+
+
+def test_a_reserve_another_store_wrote_counts_as_in_place_for_a_store_that_could_not(small_disk):
+    """A store that could not write the reserve at start-up (the disk had less room than it)
+    learns from its next write that another store on the database has written it since; when
+    that one gives it up on a full disk, this store counts the reserve as spent and tries its
+    write once more, as a store that wrote the reserve itself does (before, it refused at once
+    and ``/api/health`` missed the problem)."""
+    import sqlite3
+
+    from service.jobs.store import JobStore
+
+    db, reserve = small_disk / "jobs.sqlite", 4 << 20
+    blocker = small_disk / "blocker.bin"
+    st = os.statvfs(small_disk)
+    with open(blocker, "wb") as f:  # leave 3 MiB: less than the reserve
+        os.posix_fallocate(f.fileno(), 0, st.f_bavail * st.f_frsize - (3 << 20))
+    api = JobStore(db, reserve_bytes=reserve)
+    worker = None
+    try:
+        assert not api.reserve_path.exists()
+        os.unlink(blocker)
+        worker = JobStore(db, reserve_bytes=reserve)
+        assert worker.reserve_path.stat().st_size == reserve
+        job, _ = api.create_job("recon", {"method": "ner"})  # the API's write: it sees the reserve now
+        fill(small_disk)
+        worker.update_progress(job["id"], {"note": "x" * (512 << 10)})  # the worker gives the reserve up
+        assert worker.reserve_spent is not None and not worker.reserve_path.exists()
+        fill(small_disk)
+        with pytest.raises(sqlite3.OperationalError, match="full"):
+            api.update_progress(job["id"], {"note": "y" * (512 << 10)})
+        assert api.reserve_spent is not None and "reserve" in api.problems()[0], api.problems()
+    finally:
+        api.close()
+        if worker is not None:
+            worker.close()

@@ -6,7 +6,6 @@ tmpfs (skipped where mounting is not permitted)."""
 from __future__ import annotations
 
 import os
-import subprocess
 import time
 
 import h5py
@@ -14,6 +13,7 @@ import numpy as np
 import pytest
 
 from tests.service.service_servers import Server, needs_recon, wait_job
+from tests.service.small_disks import fill, tmpfs
 from tests.service.test_scans import N, make_plan, phantom, start_scan, wait_points
 from tests.waits import HANG_S
 
@@ -109,27 +109,8 @@ def _upload_npy(c) -> str:
 
 @pytest.fixture
 def small_disk(tmp_path):
-    folder = tmp_path / "tmpfs"
-    folder.mkdir()
-    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=4m", "tmpfs", str(folder)],
-                       capture_output=True, text=True)
-    if r.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs here: {r.stderr.strip()}")
-    try:
+    with tmpfs(tmp_path / "tmpfs", "4m") as folder:
         yield folder
-    finally:
-        subprocess.run(["umount", "-l", str(folder)], capture_output=True)
-
-
-def fill(folder) -> None:
-    """Write a file until the disk is full."""
-    with open(folder / "filler.bin", "wb") as f:
-        try:
-            while True:
-                f.write(b"\0" * 65536)
-                f.flush()
-        except OSError:
-            pass
 
 
 @pytest.mark.timeout(300)
