@@ -59,7 +59,10 @@ def _blobs(shape, seed: int) -> np.ndarray:
     return p0
 
 
-def _case(kind: str, dims: int, snr_db: float, points: int = 160, seed: int = 0, poi: float = 12.0):
+def _case(kind: str, dims: int, snr_db: float, points: int = 160, seed: int = 0, poi: float = 12.0,
+          lateral: float = 1.0):
+    """Phantom, A-lines, sensor positions and tv's keywords of one case: ``points`` sensors of
+    the 3-D mask (2-D: of the line; 0: 24), lateral pitch ``lateral`` × 50 µm (depth 50 µm)."""
     from driver.physics import Ball, ball_p0
     from driver.physics.forward import forward_grid
     from service.experiments.phantoms import vessel_phantom
@@ -71,7 +74,8 @@ def _case(kind: str, dims: int, snr_db: float, points: int = 160, seed: int = 0,
     else:
         n_z, n = 24, 40
         shape = (n_z, n, n)
-    x = (np.arange(n) - (n - 1) / 2) * PITCH
+    px = PITCH * lateral
+    x = (np.arange(n) - (n - 1) / 2) * px
     z = np.arange(n_z) * PITCH
     if kind == "vessels":
         p0 = vessel_phantom(shape)
@@ -83,18 +87,18 @@ def _case(kind: str, dims: int, snr_db: float, points: int = 160, seed: int = 0,
         p0 = ball_p0([Ball(-12 * PITCH, 0, 30 * PITCH, 8 * PITCH), Ball(14 * PITCH, 0, 22 * PITCH, 5 * PITCH, 0.7),
                       Ball(2 * PITCH, 0, 45 * PITCH, 4 * PITCH, 0.5)], z, x, supersample=2)
     else:
-        p0 = ball_p0([Ball(0.0, 0.0, 12 * PITCH, 4 * PITCH), Ball(7 * PITCH, -5 * PITCH, 16 * PITCH, 3 * PITCH, 0.7),
-                      Ball(-8 * PITCH, 4 * PITCH, 9 * PITCH, 2.5 * PITCH, 0.5)], z, x, x, supersample=2)
-    n_t = int(np.hypot(n_z, n if dims == 2 else n / np.sqrt(2))) + 8
-    clean = forward_grid(p0, PITCH, PITCH, DT, n_t, C)
+        p0 = ball_p0([Ball(0.0, 0.0, 12 * PITCH, 4 * px), Ball(7 * px, -5 * px, 16 * PITCH, 3 * px, 0.7),
+                      Ball(-8 * px, 4 * px, 9 * PITCH, 2.5 * px, 0.5)], z, x, x, supersample=2)
+    n_t = int(np.hypot(n_z, lateral * (n if dims == 2 else n / np.sqrt(2)))) + 8
+    clean = forward_grid(p0, px, PITCH, DT, n_t, C)
     rng = np.random.default_rng(seed)
     g = clean + rng.standard_normal(clean.shape) * float(np.sqrt(np.mean(clean**2))) / 10 ** (snr_db / 20)
     if dims == 2:
-        mask = equiangular_mask(Lattice(n, 1, PITCH), n_z * PITCH / 2, 24)
+        mask = equiangular_mask(Lattice(n, 1, px), n_z * PITCH / 2, points or 24)
         idx = np.asarray(mask.indices)[:, 0]
         alines, pos, grid = g[:, idx].T, np.asarray(mask.positions, float)[:, :1], (x,)
     else:
-        mask = equisteradian_mask(Lattice(n, n, PITCH), poi * PITCH, points)
+        mask = equisteradian_mask(Lattice(n, n, px), poi * PITCH, points)
         ix, iy = np.asarray(mask.indices).T
         alines, pos, grid = g[:, iy, ix].T, np.asarray(mask.positions, float)[:, :2], (x, x)
     kw = dict(weights=np.asarray(mask.weights, float), grid=grid, n_z=n_z, dz=PITCH)
