@@ -88,7 +88,10 @@ On 30 cases (docs/results.md, "When tv has converged") the rule on the image sto
 0.007 CC of the CC after 100 iterations, after 29-65 iterations (48 on average). It stops
 farther from the minimiser as the case grows: at the paper's size (226² lattice, 776 samples kept,
 1653 points) after 60 iterations with CC 0.964 against 0.991 after 300 at the same λ (tol 2e-3:
-230 iterations, 0.991; docs/performance.md, "2026-11-26, morning").
+230 iterations, 0.991; docs/performance.md, "2026-11-26, morning"). A second part on the path of
+the run's second half (its changes summed below 40 tol) was measured and not built: it needs a
+new automatic λ that no rule of s and D₀ found serves both sparse vessel trees and the paper's
+balls, and at the paper's full size it too stopped short (docs/performance.md, "2026-11-26, later").
 
 Memory: the TV part works in place (`_tv_prox`'s compiled sweeps step the dual in place;
 `_tv_norm` needs no work array), the dual waits between iterations in half the working
