@@ -91,7 +91,7 @@ def present_rule() -> tuple[float, float, float]:
     """(a, knee, p) of tv's automatic λ as it stands."""
     import service.recon.tv as tv
 
-    return (tv._LAM_SCALE, getattr(tv, "_LAM_KNEE", 1.0), getattr(tv, "_LAM_POWER", 0.0))
+    return (tv._LAM_SCALE, tv._LAM_KNEE, tv._LAM_POWER)
 
 
 def report(rows: list[dict]) -> None:

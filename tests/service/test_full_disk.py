@@ -107,9 +107,9 @@ def test_a_full_disk_settles_every_job_and_the_server_works_again_once_freed(tmp
             tv = _start(c, small, "tv", {"iterations": 20000, "tol": 0, "time_limit": 600})
             ner = _start(c, big, "ner", {"sound_speed": "auto"})
             # these two wait for one of the 2 workers. The one that runs needs room for a result
-            # (17 MB) that what the server frees on the full disk (its reserve, a failed job's
-            # files: 6 MB seen) cannot give: the small dataset's result fitted there once, and
-            # that job rightly succeeded
+            # (17 MB) that what the server frees on the full disk cannot give (6 MB seen free after
+            # the fill: its 2 MiB reserve and more, which files not traced): the small dataset's
+            # result fitted there once, and that job rightly succeeded
             queued = _start(c, big, "ner", {})
             cancelled = _start(c, small, "ner", {"upsample": 2})
             _wait_stage(c, tv, "iteration")
@@ -198,9 +198,11 @@ def test_a_reserve_another_store_gave_up_counts_as_spent_here_too(small_disk):
 def test_a_reserve_another_store_wrote_counts_as_in_place_for_a_store_that_could_not(small_disk):
     """A store that could not write the reserve at start-up (the disk had less room than it)
     learns from its next write that another store on the database has written it since; when
-    that one gives it up on a full disk, this store counts the reserve as spent and tries its
-    write once more, as a store that wrote the reserve itself does (before, it refused at once
-    and ``/api/health`` missed the problem)."""
+    that one gives it up on a full disk, this store counts the reserve as spent (``problems``,
+    what ``/api/health`` lists), as a store that wrote the reserve itself does; before, it
+    refused at once and ``/api/health`` missed the problem. The disk here stays full, so the
+    write is refused after its second try (whose success needs the stores' writes interleaved,
+    as in the test above)."""
     import sqlite3
 
     from service.jobs.store import JobStore
