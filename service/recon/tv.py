@@ -88,10 +88,31 @@ On 30 cases (docs/results.md, "When tv has converged") the rule on the image sto
 0.007 CC of the CC after 100 iterations, after 29-65 iterations (48 on average). It stops
 farther from the minimiser as the case grows: at the paper's size (226² lattice, 776 samples kept,
 1653 points) after 60 iterations with CC 0.964 against 0.991 after 300 at the same λ (tol 2e-3:
-230 iterations, 0.991; docs/performance.md, "2026-11-26, morning"). A second part on the path of
+230 iterations, 0.991; docs/performance.md, "2026-11-26, morning"; with the continuation below,
+66 iterations and 0.980). A second part on the path of
 the run's second half (its changes summed below 40 tol) was measured and not built: it needs a
 new automatic λ that no rule of s and D₀ found serves both sparse vessel trees and the paper's
 balls, and at the paper's full size it too stopped short (docs/performance.md, "2026-11-26, later").
+
+Continuation (``continuation=True``, the default; ``params`` ``lam_start_factor`` and
+``continuation_iterations``): iteration k takes its proximal step with λ_k = λ · max(1, D₀ ·
+0.9^(k−1)) (`_Continuation`, `_CONTINUATION_RATE`), from λ D₀ down to λ, and the restart test
+compares J at λ_k; the stopping rule's window holds iterations at λ itself only. D₀ =
+‖A x₀ − g‖ / (σ̂ √N) is the warm start's discrepancy (the automatic λ's, computed for a given λ
+too; at least 1, and capped so that λ is reached within half of ``max_iter``). What sets the
+numbers: the warm start's residual is D₀ noise norms, so its undersampling artefacts stand
+about D₀ times above the noise that λ is scaled to; the directions the data leave to TV move
+by about λ_k / L a step (docs/performance.md, "why tv's iterations resist"), so a weight of
+that order clears them D₀ times faster, while the directions the data see, which converge
+fast, restore what the strong weight flattened as λ_k falls. λ_k falls by 0.9 an iteration
+(halves every 6.6 iterations, within the momentum's memory 1 / (1 − β) ≈ 17): 0.85 was also
+measured, and start factors of 4-64 times λ, on the test cases and the paper's scan at half
+size. Measured (docs/performance.md, "2026-11-26, evening"; iterations and CC with the true p0
+at the stopping rule, without → with): 3-D balls at 3.3 % of a 40 × 40 lattice 66 → 58,
+0.983 → 0.987; 3-D vessels there 72 → 66, 0.946 → 0.948; the 10 % masks 46-50 → 41-45, CC
+within 0.001; the 2-D lines −0.002 to +0.003 (28-40 → 29-39 iterations); the paper's scan
+(`benchmarks/bench_tv_paper.py`) 60 → 66 iterations, 0.964 → 0.980, at half its size 79 → 71,
+0.975 → 0.983.
 
 Memory: the TV part works in place (`_tv_prox`'s compiled sweeps step the dual in place;
 `_tv_norm` needs no work array), the dual waits between iterations in half the working
@@ -179,6 +200,7 @@ _LAM_KNEE = 9.5
 _LAM_POWER = 0.25
 _MOMENTUM = 0.94  # the momentum β between restarts (constant: module doc)
 _WINDOW = 3  # the stopping rule's window of iterations
+_CONTINUATION_RATE = 0.9  # λ_k / λ_{k−1} while λ continues down to λ (module doc, "Continuation")
 #: inner (dual, no operator) iterations of the TV + positivity proximal map, warm-started from
 #: the last call's dual. 3, 5, 10 and 20 gave the same result on the vessels experiment (48 x
 #: 96², 981 sensors: CC 0.9838-0.9839, 21 iterations, converged); at 256 x 128² (533-sensor
@@ -227,6 +249,7 @@ def reconstruct_tv(
     debias: bool = False,
     bandwidth: float | None = None,
     whole_record: bool = False,
+    continuation: bool = True,
     progress: Progress | None = None,
 ) -> Reconstruction:
     """Model-based reconstruction: ½‖A p0 − g‖² + λ TV(p0), p0 ≥ 0 (module doc).
@@ -288,6 +311,10 @@ def reconstruct_tv(
     whole_record : bool, optional
         Keep the whole record instead of cutting it after its last echo (module doc,
         "Grid"; `service.recon.tv_grid.data_extent`). Default False.
+    continuation : bool, optional
+        Start the TV weight at λ · D₀ and lower it to λ (module doc, "Continuation"; default
+        True); False steps at λ from the first iteration (the solver until 2026-11-26, kept
+        for comparisons: the typed options of the API, CLI and web page keep the default).
     progress : callable, optional
         ``progress(fraction, stage)`` (the pipeline's contract), called
         with increasing fractions during the warm start (stage "warm start"), after each
@@ -304,7 +331,9 @@ def reconstruct_tv(
         start's grid; ``params`` add ``lam``, ``lam_auto``, ``lam_factor`` (λ over
         ``image_noise``; None for a given λ), ``lam_note`` (only when the automatic λ is 0:
         why — noiseless data), ``warm_discrepancy`` (D₀, module doc),
-        ``noise_sigma`` (σ̂, Pa), ``image_noise``, ``noise_share``, ``iterations``, ``residual``
+        ``noise_sigma`` (σ̂, Pa), ``image_noise``, ``noise_share``, ``lam_start_factor`` (the
+        continuation's λ₀ / λ, 1 without one), ``continuation_iterations`` (iterations with λ_k >
+        λ), ``iterations``, ``residual``
         (‖A p0 − g‖ / ‖g‖), ``norm_A`` (‖P AᵀA‖, the step's L), ``converged`` (the stopping
         rule ``tol`` was met), ``stop_reason`` ("converged", "iterations": ``max_iter`` reached,
         "time limit"), ``iterate_change`` (the rule's last value), ``operator_pairs``,
@@ -457,9 +486,10 @@ def reconstruct_tv(
 
     first = [x]  # handed over: _fista reuses its memory, and this frame keeps no reference
     del x
+    schedule = _Continuation(sigma * math.sqrt(g.size)) if continuation else None
     x, it, stop_reason, change, Ax, L, lam = _fista(forward, B, g, first, rule if lam is None else lam, L,
                                                     positivity, max_iter, tol, started, time_limit, report,
-                                                    residual, poll=report.poll)
+                                                    residual, poll=report.poll, continuation=schedule)
     debiased = False
     if debias and stop_reason != "time limit" and np.any(x > 0):
         support = x > _SUPPORT_FRACTION * float(np.max(x))
@@ -476,6 +506,8 @@ def reconstruct_tv(
                   whole_record=bool(whole_record))
     params.update(method="tv", warm_start=warm_params["method"], lam=float(lam), lam_auto=bool(auto),
                   lam_factor=rule.factor if auto else None, warm_discrepancy=rule.warm_discrepancy,
+                  lam_start_factor=schedule.start_factor if schedule else 1.0,
+                  continuation_iterations=schedule.iterations if schedule else 0,
                   noise_sigma=sigma, image_noise=image_noise, noise_share=noise_share, iterations=it,
                   max_iter=max_iter, tol=tol, dtype=rdtype.name,
                   residual=float(np.linalg.norm(res) / max(gw_norm, 1e-300)),
@@ -868,7 +900,7 @@ def _fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray]
            start: list[np.ndarray], lam: float | Callable[[float], float], L: float, positivity: bool,
            max_iter: int, tol: float, started: float, time_limit: float, report: _Reporter | None,
            residual: Callable[[np.ndarray], float], support: np.ndarray | None = None,
-           poll: Callable[[], None] | None = None,
+           poll: Callable[[], None] | None = None, continuation: _Continuation | None = None,
            ) -> tuple[np.ndarray, int, str, float, np.ndarray, float, float]:
     """Accelerated proximal gradient (FISTA, Beck & Teboulle 2009) on J(p) = ½‖A p − g‖² +
     λ TV(p) (p >= 0 with ``positivity``; p = 0 off ``support`` when given), preconditioned:
@@ -883,7 +915,9 @@ def _fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray]
     ("converged"); else ``max_iter`` iterations ("iterations") or the time limit ("time
     limit"). L rises to `_MARGIN` × the gain of BA along the last move of y (free: a
     lower bound of ‖BA‖) when that exceeds it. ``lam`` is λ, or a rule λ(‖A x₀ − g‖) of the
-    start's residual (the automatic λ: free, A x₀ is the first forward). Returns (x,
+    start's residual (the automatic λ: free, A x₀ is the first forward). With ``continuation``
+    the proximal step and the restart test take λ_k = λ · ``continuation.factor(k)``, started
+    from the same residual, and the stopping rule waits for λ itself (`_Continuation`). Returns (x,
     iterations, stop reason, the rule's last value, A x, L, λ). ``forward(v)`` = A v in the
     data's shape; ``start`` is a list holding the first x, which is taken out of it (its
     memory is reused: the caller keeps no reference).
@@ -908,8 +942,11 @@ def _fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray]
         x = np.where(support, x, 0).astype(x.dtype)
     iterations = span(report, 0.1, 1.0)
     Ax = forward(x)
+    r0 = residual(Ax)
     if callable(lam):  # λ from the start's residual ‖A x − g‖ (the automatic λ's rule)
-        lam = float(lam(residual(Ax)))
+        lam = float(lam(r0))
+    if continuation is not None:  # λ_k from λ D₀ down to λ (`_Continuation`)
+        continuation.start(r0, lam, max_iter)
     # y's memory takes the gradient step; x itself is not kept: x = y − β q b, with b the last
     # move x − x_prev as int16 and β q its scale (`_store_move`), which is how y was made
     y, Ay = x, Ax
@@ -919,15 +956,16 @@ def _fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray]
     G_prev: tuple[np.ndarray, float] | None = None
     dy = 0.0
 
-    def objective(Ax_: np.ndarray, x_: np.ndarray) -> float:
-        return 0.5 * residual(Ax_) ** 2 + (lam * _tv_norm(x_) if lam > 0 else 0.0)
+    def parts(Ax_: np.ndarray, x_: np.ndarray) -> tuple[float, float]:  # J's data term and TV(x)
+        return 0.5 * residual(Ax_) ** 2, (_tv_norm(x_) if lam > 0 else 0.0)
 
-    J_prev = objective(Ax, y)  # the restart test's
+    J_prev = parts(Ax, y)  # the restart test's, at each iteration's λ_k
     steps: deque[float] = deque(maxlen=_WINDOW)  # ‖x_k − x_{k−1}‖ / ‖x_k‖ of the last iterations
     stored = None  # the proximal map's dual between calls, in half the bytes (`_store_dual`)
     change, it, stop_reason = float("nan"), 0, "iterations"
     xn = y  # for max_iter = 0, which the callers never ask
     for it in range(1, max_iter + 1):
+        lam_k = lam * continuation.factor(it) if continuation is not None else lam
         Gy = G(np.subtract(Ay, g, dtype=Ay.dtype))  # the residual in the working dtype (B's input)
         if G_prev is not None and dy > 0:  # the gain of BA along the last move of y: a lower bound of ‖BA‖
             gain = _gain_lower_bound(Gy.ravel(), G_prev) / dy
@@ -939,7 +977,7 @@ def _fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray]
         _axpy(v.ravel(), Gy.ravel(), -1.0 / L)
         box: list[np.ndarray | None] = [stored]  # handed over: freed inside once restored
         stored = None
-        xn, stored = _tv_prox_stored(v, lam / L, positivity, support, box, poll)  # None at λ = 0 (no dual)
+        xn, stored = _tv_prox_stored(v, lam_k / L, positivity, support, box, poll)  # None at λ = 0 (no dual)
         # a = x_new − y, b = x_new − x: the restart test ⟨a, b⟩ < 0 and ‖y_new − y‖ = ‖a + β b‖
         # for β = 0 and `_MOMENTUM`, now, so that y (v) is free while A works; b kept as int16
         ab, aa, cc, bb, nn, b_max = _moves(xn.ravel(), v.ravel(), Gy.ravel(), 1.0 / L, move[0], move[1], _MOMENTUM)
@@ -948,9 +986,9 @@ def _fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray]
         G_prev = _store_gradient(Gy)  # for the next gain, in half (float64: a quarter) of the bytes
         del Gy
         Axn = forward(xn)
-        J = objective(Axn, xn)
-        # constant momentum, restarted (β = 0) when J rises or the momentum points uphill
-        beta = 0.0 if J > J_prev or ab < 0 else _MOMENTUM
+        J = parts(Axn, xn)
+        # constant momentum, restarted (β = 0) when J (at this iteration's λ_k) rises or the momentum points uphill
+        beta = 0.0 if J[0] + lam_k * J[1] > J_prev[0] + lam_k * J_prev[1] or ab < 0 else _MOMENTUM
         dy = math.sqrt(cc if beta else aa)
         Ay = Axn + beta * (Axn - Ax)
         Ax = Axn
@@ -962,7 +1000,8 @@ def _fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray]
         if iterations is not None:
             # the stage "iteration k/N" carries the stopping rule's value (its window so far) and tol
             iterations(max(it / max_iter, elapsed / time_limit), IterationStage(it, max_iter, max(steps), tol))
-        if 0.0 <= change < tol:
+        # the rule's window holds iterations at λ itself only (none of the continuation's)
+        if 0.0 <= change < tol and (continuation is None or it - continuation.iterations >= _WINDOW):
             stop_reason = "converged"
             break
         if elapsed >= time_limit and it < max_iter:
@@ -1043,6 +1082,33 @@ class _DiscrepancyRule:
         if math.isfinite(d0):
             self.warm_discrepancy, self.factor = d0, _LAM_SCALE * max(1.0, (d0 / _LAM_KNEE) ** _LAM_POWER)
         return self.image_noise * self.factor
+
+
+class _Continuation:
+    """λ continuation (module doc, "Continuation"): iteration k proximal-steps with λ_k = λ ·
+    max(1, f₀ · `_CONTINUATION_RATE` ** (k − 1)), from f₀ = D₀ = ‖A x₀ − g‖ / (σ̂ √N) (the
+    warm start's discrepancy in noise norms, at least 1) down to λ, in at most half of
+    ``max_iter`` iterations (f₀ is capped there). ``start(r₀, λ, max_iter)`` sets ``start_factor``
+    (f₀) and ``iterations`` (how many iterations have λ_k > λ); without a noise estimate (σ̂ =
+    0) or at λ = 0 there is none (f₀ = 1)."""
+
+    def __init__(self, noise_norm: float):
+        self.noise_norm = noise_norm
+        self.start_factor, self.iterations = 1.0, 0
+
+    def start(self, start_residual: float, lam: float, max_iter: int) -> None:
+        d0 = start_residual / self.noise_norm if self.noise_norm > 0 else 1.0
+        if not (lam > 0 and math.isfinite(d0) and d0 > 1):
+            self.start_factor, self.iterations = 1.0, 0
+            return
+        # in logs: the cap r^−(max_iter // 2) overflows a float for the largest max_iter
+        self.start_factor = math.exp(min(math.log(d0), (max_iter // 2) * -math.log(_CONTINUATION_RATE)))
+        # iterations k with f₀ r^(k−1) > 1
+        self.iterations = (math.ceil(math.log(self.start_factor) / -math.log(_CONTINUATION_RATE))
+                           if self.start_factor > 1 else 0)
+
+    def factor(self, k: int) -> float:
+        return max(1.0, self.start_factor * _CONTINUATION_RATE ** (k - 1))
 
 
 #: the fixed-point scale of a float32 dual between calls (`_store_dual`)
