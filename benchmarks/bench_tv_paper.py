@@ -23,12 +23,13 @@ supersampled 2x). The admission estimate is the server's
 (`service.jobs.admission.estimate_memory` of the job as for a stored dataset, whose record facts
 the import found: `service.recon.tv_grid.record_facts`) over that peak. ``--scale 0.5`` runs the
 same case at half the size in every dimension (113², 512 samples, 437 points) for a quick look.
-``--rule`` adds, per row, what the stopping rule's threshold buys at this size (issue 47 item 2):
+``--no-continuation`` runs tv without its λ continuation (the solver until 2026-11-26), to
+compare. ``--rule`` adds, per row, what the stopping rule's threshold buys at this size (issue 47 item 2):
 a 300-iteration solve at the row's λ and a run to the rule at ``tol`` = 2e-3 (the default is
 5e-3), with their wall times, iterations, CC with the true p0 and relative distances ‖x − x₃₀₀‖ /
 ‖x₃₀₀‖ (5-8 x the row's time more).
 
-    .venv/bin/python benchmarks/bench_tv_paper.py [--scale 1] [--snr 30] [--declared 22e6] [--rule]
+    .venv/bin/python benchmarks/bench_tv_paper.py [--scale 1] [--snr 30] [--declared 22e6] [--rule] [--no-continuation]
 """
 from __future__ import annotations
 
@@ -88,7 +89,8 @@ def _peak() -> int:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
 
 
-def _row(label: str, scale: float, snr: float, bandwidth, whole: bool, repeat: int, queue, rule: bool = False) -> None:
+def _row(label: str, scale: float, snr: float, bandwidth, whole: bool, repeat: int, queue, rule: bool = False,
+         continuation: bool = True) -> None:
     from driver.physics import ball_p0
     from service.jobs.admission import estimate_memory
     from service.metrics import correlation_coefficient
@@ -116,7 +118,7 @@ def _row(label: str, scale: float, snr: float, bandwidth, whole: bool, repeat: i
     _reset_peak()
     t = time.perf_counter()
     rec = reconstruct_tv(case["alines"], DT, C, positions=pos, weights=case["weights"], grid=case["grid"],
-                         dtype=np.float32, bandwidth=bandwidth, whole_record=whole)
+                         dtype=np.float32, bandwidth=bandwidth, whole_record=whole, continuation=continuation)
     wall = time.perf_counter() - t
     peak = _peak() - base
     p = rec.params
@@ -131,7 +133,8 @@ def _row(label: str, scale: float, snr: float, bandwidth, whole: bool, repeat: i
         for name, opts in (("300 iterations", dict(max_iter=300, tol=0.0)), ("tol 2e-3", dict(max_iter=300, tol=2e-3))):
             t = time.perf_counter()
             r = reconstruct_tv(case["alines"], DT, C, positions=pos, weights=case["weights"], grid=case["grid"],
-                               dtype=np.float32, bandwidth=bandwidth, whole_record=whole, lam=p["lam"], **opts)
+                               dtype=np.float32, bandwidth=bandwidth, whole_record=whole, lam=p["lam"],
+                               continuation=continuation, **opts)
             runs[name] = (time.perf_counter() - t, r)
         long = runs["300 iterations"][1].p0
         size = float(np.linalg.norm(long))
@@ -149,6 +152,8 @@ def main(argv=None) -> None:
     ap.add_argument("--declared", type=float, default=None, help="also a row with this sensor bandwidth, Hz")
     ap.add_argument("--rows", nargs="+", default=["defaults", "today"], choices=["defaults", "today", "declared"])
     ap.add_argument("--rule", action="store_true", help="also a 300-iteration solve and tol 2e-3 per row (slow)")
+    ap.add_argument("--no-continuation", action="store_true",
+                    help="tv without λ continuation (continuation=False: the solver until 2026-11-26), to compare")
     args = ap.parse_args(argv)
     rows = [r for r in args.rows]
     if args.declared and "declared" not in rows:
@@ -163,9 +168,10 @@ def main(argv=None) -> None:
         bandwidth = {"defaults": None, "today": 1 / (2 * DT), "declared": args.declared}[row]
         label = {"defaults": "defaults", "today": "today's grid (dz = c·dt)",
                  "declared": f"{(args.declared or 0) / 1e6:g} MHz sensor declared"}[row]
+        label += ", without λ continuation" if args.no_continuation else ""
         queue = ctx.Queue()
         proc = ctx.Process(target=_row, args=(label, args.scale, args.snr, bandwidth, row == "today", args.repeat,
-                                              queue, args.rule))
+                                              queue, args.rule, not args.no_continuation))
         proc.start()
         r = queue.get()
         proc.join()

@@ -1000,7 +1000,8 @@ def _fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray]
         if iterations is not None:
             # the stage "iteration k/N" carries the stopping rule's value (its window so far) and tol
             # (tol unknown while λ still falls: the rule cannot stop the run there)
-            waiting = continuation is not None and it - continuation.iterations < _WINDOW and tol > 0
+            waiting = (continuation is not None and continuation.iterations > 0
+                       and it - continuation.iterations < _WINDOW and tol > 0)
             iterations(max(it / max_iter, elapsed / time_limit),
                        IterationStage(it, max_iter, max(steps), None if waiting else tol))
         # the rule's window holds iterations at λ itself only (none of the continuation's)
