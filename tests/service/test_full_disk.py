@@ -119,16 +119,23 @@ def test_a_full_disk_settles_every_job_and_the_server_works_again_once_freed(tmp
             _wait_stage(c, ner, "autofocus")  # still searching: every job is under way when the disk fills
             t_fill = time.monotonic()
             fill(small_disk)
-            # at once, on the full disk: a cancel is recorded
+            # at once, on the full disk: a cancel is recorded. The job waits behind the two workers, but
+            # the fill fails the autofocus NER at once (its result cannot fit), the queued NER fails before
+            # it starts, and the worker they free may start this job before the cancel arrives (seen once
+            # in a suite's run): then the cancel is a request to a running job, which ends cancelled or,
+            # its result not fitting either, failed with the disk's reason
             r = c.post(f"/api/jobs/{cancelled}/cancel")
-            assert r.status_code == 200 and r.json()["state"] == "cancelled", r.text
+            assert r.status_code == 200 and r.json()["state"] in ("cancelled", "running"), r.text
+            cancelled_queued = r.json()["state"] == "cancelled"
             settled = _settle(c, {scan: "scan", tv: "recon", ner: "recon", queued: "recon", cancelled: "recon"},
                               t_fill)
             for jid, (after, job) in settled.items():
                 print(f"full disk: {job['kind']} job {jid[:8]} {job['state']} {after:.1f} s after the fill: "
                       f"{job['error'] or job['progress'].get('reason')}")
             assert all(after <= SETTLE_S for after, _ in settled.values()), settled
-            assert settled[cancelled][1]["state"] == "cancelled", settled[cancelled]
+            late = settled[cancelled][1]
+            assert late["state"] == "cancelled" or (not cancelled_queued and late["state"] == "failed"
+                                                    and late["error"].startswith("disk full: ")), late
             for jid in (tv, ner, queued):
                 job = settled[jid][1]
                 assert job["state"] == "failed" and job["error"].startswith("disk full: "), job
