@@ -111,8 +111,8 @@ def report(rows: list[dict]) -> None:
             print(f"    {r['case'][1:]}: D0 {r['D0']:.1f}, lost {l:.4f}, best at x{2 ** (int(best) / 2):.2f}")
     if not fit:
         return
-    found = sorted((float(losses(fit, a, knee, p).max()), float(losses(fit, a, knee, p).mean()), a, knee, p)
-                   for a in AS for knee in KNEES for p in POWERS)
+    found = sorted((float(loss.max()), float(loss.mean()), a, knee, p)
+                   for a in AS for knee in KNEES for p in POWERS for loss in (losses(fit, a, knee, p),))
     print("the ten rules of least worst-case loss on fit (worst, mean; on unseen):")
     for worst, mean, a, knee, p in found[:10]:
         seen = losses(unseen, a, knee, p) if unseen else np.zeros(1)

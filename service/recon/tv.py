@@ -1001,11 +1001,11 @@ def _fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray]
             # the stage "iteration k/N" carries the stopping rule's value (its window so far) and tol
             # (tol unknown while λ still falls: the rule cannot stop the run there)
             waiting = (continuation is not None and continuation.iterations > 0
-                       and it - continuation.iterations < _WINDOW and tol > 0)
+                       and not continuation.window_at_lambda(it) and tol > 0)
             iterations(max(it / max_iter, elapsed / time_limit),
                        IterationStage(it, max_iter, max(steps), None if waiting else tol))
         # the rule's window holds iterations at λ itself only (none of the continuation's)
-        if 0.0 <= change < tol and (continuation is None or it - continuation.iterations >= _WINDOW):
+        if 0.0 <= change < tol and (continuation is None or continuation.window_at_lambda(it)):
             stop_reason = "converged"
             break
         if elapsed >= time_limit and it < max_iter:
@@ -1113,6 +1113,10 @@ class _Continuation:
 
     def factor(self, k: int) -> float:
         return max(1.0, self.start_factor * _CONTINUATION_RATE ** (k - 1))
+
+    def window_at_lambda(self, k: int) -> bool:
+        """Whether the stopping rule's window at iteration k holds iterations at λ only."""
+        return k - self.iterations >= _WINDOW
 
 
 #: the fixed-point scale of a float32 dual between calls (`_store_dual`)
