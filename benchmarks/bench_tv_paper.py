@@ -19,17 +19,20 @@ Each row runs in a fresh process: NER float32 of random data on the full 226 x 2
 (the same grid, best of ``--repeat``), then tv; tv's peak is the process's VmHWM above its
 RSS before tv (reset after NER, `/proc/self/clear_refs`), over the image's bytes (n_z n_y n_x
 float32). The CC is against the analytic balls sampled on tv's own grid (`ball_p0`,
-supersampled 2x). The admission estimate is the server's
+supersampled 2x), tv's and (after tv, for scale) NEDNER's of the same A-lines on that grid,
+clipped at 0: the kind of image tv starts from. The admission estimate is the server's
 (`service.jobs.admission.estimate_memory` of the job as for a stored dataset, whose record facts
 the import found: `service.recon.tv_grid.record_facts`) over that peak. ``--scale 0.5`` runs the
 same case at half the size in every dimension (113², 512 samples, 437 points) for a quick look.
 ``--no-continuation`` runs tv without its λ continuation (the solver until 2026-11-26), to
-compare. ``--rule`` adds, per row, what the stopping rule's threshold buys at this size (issue 47 item 2):
+compare. ``--max-iter K`` caps tv's iterations at K (stop "iterations"; the continuation then
+reaches λ within K / 2): the image a budget of K + 3 pairs buys in a fresh process, e.g. K = 17 for
+the 20 pairs that issue 47's 120x NER allows at a pair's 5.9 NERs. ``--rule`` adds, per row, what the stopping rule's threshold buys at this size (issue 47 item 2):
 a 300-iteration solve at the row's λ and a run to the rule at ``tol`` = 2e-3 (the default is
 5e-3), with their wall times, iterations, CC with the true p0 and relative distances ‖x − x₃₀₀‖ /
 ‖x₃₀₀‖ (5-8 x the row's time more).
 
-    .venv/bin/python benchmarks/bench_tv_paper.py [--scale 1] [--snr 30] [--declared 22e6] [--rule] [--no-continuation]
+    .venv/bin/python benchmarks/bench_tv_paper.py [--scale 1] [--snr 30] [--declared 22e6] [--rule] [--no-continuation] [--max-iter K]
 """
 from __future__ import annotations
 
@@ -90,11 +93,11 @@ def _peak() -> int:
 
 
 def _row(label: str, scale: float, snr: float, bandwidth, whole: bool, repeat: int, queue, rule: bool = False,
-         continuation: bool = True) -> None:
+         continuation: bool = True, max_iter: int | None = None) -> None:
     from driver.physics import ball_p0
     from service.jobs.admission import estimate_memory
     from service.metrics import correlation_coefficient
-    from service.recon import reconstruct_grid
+    from service.recon import reconstruct_grid, reconstruct_points
     from service.recon.tv import reconstruct_tv
     from service.recon.tv_grid import record_facts
 
@@ -118,7 +121,8 @@ def _row(label: str, scale: float, snr: float, bandwidth, whole: bool, repeat: i
     _reset_peak()
     t = time.perf_counter()
     rec = reconstruct_tv(case["alines"], DT, C, positions=pos, weights=case["weights"], grid=case["grid"],
-                         dtype=np.float32, bandwidth=bandwidth, whole_record=whole, continuation=continuation)
+                         dtype=np.float32, bandwidth=bandwidth, whole_record=whole, continuation=continuation,
+                         **({} if max_iter is None else {"max_iter": max_iter}))
     wall = time.perf_counter() - t
     peak = _peak() - base
     p = rec.params
@@ -128,6 +132,11 @@ def _row(label: str, scale: float, snr: float, bandwidth, whole: bool, repeat: i
                   cc=correlation_coefficient(rec.p0, truth), shape=rec.p0.shape, dz=float(rec.z[1]),
                   op_n_t=p["operator_n_t"], band=p["band"], reason=p["band_reason"], lam=p["lam_factor"],
                   record=p["record_n_t"], n_t=n_t, admission=estimate / peak)
+    # what tv starts from: NEDNER float32 of the same A-lines on tv's grid, clipped at 0 (its warm start's kind)
+    nedner = reconstruct_points(case["alines"], pos, DT, C, weights=case["weights"], grid=case["grid"],
+                                dtype=np.float32, dz=float(rec.z[1]), n_z=len(rec.z))
+    result["nedner_cc"] = correlation_coefficient(np.maximum(nedner.p0, 0), truth)
+    del nedner
     if rule:  # the rule's threshold at this size: a 300-iteration solve and tol 2e-3, at the row's λ
         runs = {}
         for name, opts in (("300 iterations", dict(max_iter=300, tol=0.0)), ("tol 2e-3", dict(max_iter=300, tol=2e-3))):
@@ -154,14 +163,17 @@ def main(argv=None) -> None:
     ap.add_argument("--rule", action="store_true", help="also a 300-iteration solve and tol 2e-3 per row (slow)")
     ap.add_argument("--no-continuation", action="store_true",
                     help="tv without λ continuation (continuation=False: the solver until 2026-11-26), to compare")
+    ap.add_argument("--max-iter", type=int, default=None,
+                    help="cap tv's iterations (its max_iter): what a budget of pairs buys, e.g. 17 = 20 pairs")
     args = ap.parse_args(argv)
     rows = [r for r in args.rows]
     if args.declared and "declared" not in rows:
         rows.append("declared")
     print(f"paper case x{args.scale:g}: {args.snr:g} dB, float32; NER float32 of the same lattice in the same process")
     print("| grid | tv s | NER s | tv / NER | iterations | pairs | converged | peak / image | CC (true p0) | image "
-          "(n_z x n_y x n_x, dz) | record kept | operator samples, band | admission estimate / peak |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+          "(n_z x n_y x n_x, dz) | record kept | operator samples, band | admission estimate / peak | "
+          "NEDNER CC (clipped) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     ctx = mp.get_context("spawn")
     rules: list[tuple] = []
     for row in rows:
@@ -169,9 +181,10 @@ def main(argv=None) -> None:
         label = {"defaults": "defaults", "today": "today's grid (dz = c·dt)",
                  "declared": f"{(args.declared or 0) / 1e6:g} MHz sensor declared"}[row]
         label += ", without λ continuation" if args.no_continuation else ""
+        label += f", max_iter {args.max_iter}" if args.max_iter is not None else ""
         queue = ctx.Queue()
         proc = ctx.Process(target=_row, args=(label, args.scale, args.snr, bandwidth, row == "today", args.repeat,
-                                              queue, args.rule, not args.no_continuation))
+                                              queue, args.rule, not args.no_continuation, args.max_iter))
         proc.start()
         r = queue.get()
         proc.join()
@@ -179,7 +192,7 @@ def main(argv=None) -> None:
         print(f"| {r['label']} | {r['tv']:.1f} | {r['ner']:.3f} | {r['tv'] / r['ner']:.0f} | {r['iterations']} | "
               f"{r['pairs']:g} | {r['converged']} ({r['stop']}) | {r['peak']:.1f} | {r['cc']:.4f} | "
               f"{' x '.join(map(str, r['shape']))}, {r['dz'] * 1e6:.1f} µm | {r['record']} of {r['n_t']} | "
-              f"{r['op_n_t']}, {band} | {r['admission']:.2f} |", flush=True)
+              f"{r['op_n_t']}, {band} | {r['admission']:.2f} | {r['nedner_cc']:.4f} |", flush=True)
         rules.extend((r["label"], *run) for run in r.get("rule", []))
     if rules:
         print("\n| grid | run (the row's λ) | tv s | iterations | CC (true p0) | distance to the 300-iteration image |")
