@@ -27,12 +27,14 @@ same case at half the size in every dimension (113², 512 samples, 437 points) f
 ``--no-continuation`` runs tv without its λ continuation (the solver until 2026-11-26), to
 compare. ``--max-iter K`` caps tv's iterations at K (stop "iterations"; the continuation then
 reaches λ within K / 2): the image a budget of K + 3 pairs buys in a fresh process, e.g. K = 17 for
-the 20 pairs that issue 47's 120x NER allows at a pair's 5.9 NERs. ``--rule`` adds, per row, what the stopping rule's threshold buys at this size (issue 47 item 2):
-a 300-iteration solve at the row's λ and a run to the rule at ``tol`` = 2e-3 (the default is
-5e-3), with their wall times, iterations, CC with the true p0 and relative distances ‖x − x₃₀₀‖ /
-‖x₃₀₀‖ (5-8 x the row's time more).
+the 20 pairs that issue 47's 120x NER allows at a pair's 5.9 NERs. ``--rule`` adds, per row,
+what the stopping rule's threshold buys at this size (issue 47 item 2): a 300-iteration solve
+at the row's λ and a run to the rule at ``tol`` = 2e-3 (the default is 5e-3), with their wall
+times, iterations, CC with the true p0 and relative distances ‖x − x₃₀₀‖ / ‖x₃₀₀‖ (5-8 x the
+row's time more).
 
-    .venv/bin/python benchmarks/bench_tv_paper.py [--scale 1] [--snr 30] [--declared 22e6] [--rule] [--no-continuation] [--max-iter K]
+    .venv/bin/python benchmarks/bench_tv_paper.py [--scale 1] [--snr 30] [--declared 22e6] [--rule]
+        [--no-continuation] [--max-iter K]
 """
 from __future__ import annotations
 
