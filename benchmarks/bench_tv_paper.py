@@ -54,7 +54,7 @@ C, DT, PITCH = 1500.0, 8e-9, 60e-6
 def paper_case(scale: float = 1.0, snr_db: float = 30.0, seed: int = 1, sensor_band: float | None = None) -> dict:
     """The scan above (``scale`` < 1 shrinks the lattice, the record, the depth and the balls;
     ``sensor_band``: the A-lines low-passed as the simulated scanner's sensor does, a 2nd-order
-    Butterworth of that −3 dB frequency in Hz (`driver.simulator`), before the noise)."""
+    Butterworth of that −3 dB frequency in Hz (`driver.simulator.sensor_response`), before the noise)."""
     from driver.physics import Ball, ball_alines
     from driver.physics.axes import centred_axis
     from service.plans import Lattice, equisteradian_mask
@@ -69,9 +69,9 @@ def paper_case(scale: float = 1.0, snr_db: float = 30.0, seed: int = 1, sensor_b
              Ball(-0.9e-3 * scale, 0.6e-3 * scale, 0.8 * depth, 0.15e-3 * scale, 0.5)]
     clean = ball_alines(pos, balls, DT, n_t, C)
     if sensor_band:
-        from scipy.signal import butter, sosfilt
+        from driver.simulator import sensor_response
 
-        clean = sosfilt(butter(2, sensor_band, fs=1 / DT, output="sos"), clean, axis=1)
+        clean = sensor_response(clean, sensor_band, DT)
     noise = np.random.default_rng(seed).standard_normal(clean.shape)
     alines = clean + noise * float(np.sqrt(np.mean(clean**2))) / 10 ** (snr_db / 20)
     x = centred_axis(n, PITCH)

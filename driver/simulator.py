@@ -62,7 +62,7 @@ from driver.plan import DevicePlan, image_size_limit, parse_plan_image
 if TYPE_CHECKING:
     from driver.sources import PressureFn, Source
 
-__all__ = ["FIRMWARE_VERSION", "INITIAL_WINDOW", "BLOCK", "SimConfig", "SimulatedScanner"]
+__all__ = ["FIRMWARE_VERSION", "INITIAL_WINDOW", "BLOCK", "SimConfig", "SimulatedScanner", "sensor_response"]
 
 FIRMWARE_VERSION = "1.0"
 INITIAL_WINDOW = 8
@@ -653,10 +653,7 @@ class SimulatedScanner:
         sens = 1 + cfg.sensitivity_variation * m2
         v = p * (sens * dc)[:, None]
         if cfg.bandwidth:
-            from scipy.signal import butter, sosfilt
-
-            fc = min(cfg.bandwidth, 0.45 / plan.dt)
-            v = sosfilt(butter(2, fc, fs=1 / plan.dt, output="sos"), v, axis=1)
+            v = sensor_response(v, cfg.bandwidth, plan.dt)
         digest = int.from_bytes(hashlib.sha256(plan.plan_id.encode()).digest()[:4], "little")
         rng = np.random.default_rng([cfg.seed, digest, bi])
         if cfg.snr:  # white noise per pulse; averaging N pulses divides its std by sqrt(N)
@@ -901,6 +898,39 @@ class SimulatedScanner:
                 src = self.config.source  # set in __init__
                 f.attrs["source"] = src.describe() if src is not None else ""
             os.replace(tmp, path)
+
+
+def sensor_response(alines: np.ndarray, bandwidth: float, dt: float) -> np.ndarray:
+    """The simulated FP sensor's frequency response: a causal 2nd-order Butterworth low-pass
+    at ``bandwidth`` (−3 dB; clamped to 0.45 of the sampling rate), applied along time.
+
+    Parameters
+    ----------
+    alines : ndarray, shape ``(..., n_t)``
+        Samples, time last (any unit: the filter is linear).
+    bandwidth : float
+        The sensor's −3 dB frequency, Hz.
+    dt : float
+        Sample interval, s.
+
+    Returns
+    -------
+    ndarray, shape ``(..., n_t)``, float64
+
+    Raises
+    ------
+    ValueError
+        ``bandwidth`` or ``dt`` not finite and > 0.
+
+    Source: ``scipy.signal.butter`` (second-order sections) and ``sosfilt``; the module doc's
+    signal model.
+    """
+    if not (np.isfinite(bandwidth) and bandwidth > 0 and np.isfinite(dt) and dt > 0):
+        raise ValueError(f"bandwidth and dt must be finite and > 0, got {bandwidth!r} Hz, {dt!r} s")
+    from scipy.signal import butter, sosfilt
+
+    fc = min(bandwidth, 0.45 / dt)
+    return sosfilt(butter(2, fc, fs=1 / dt, output="sos"), alines, axis=-1)
 
 
 def _handlers() -> dict:

@@ -1000,8 +1000,7 @@ def _fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray]
         if iterations is not None:
             # the stage "iteration k/N" carries the stopping rule's value (its window so far) and tol
             # (tol unknown while λ still falls: the rule cannot stop the run there)
-            waiting = (continuation is not None and continuation.iterations > 0
-                       and not continuation.window_at_lambda(it) and tol > 0)
+            waiting = continuation is not None and not continuation.window_at_lambda(it) and tol > 0
             iterations(max(it / max_iter, elapsed / time_limit),
                        IterationStage(it, max_iter, max(steps), None if waiting else tol))
         # the rule's window holds iterations at λ itself only (none of the continuation's)
@@ -1115,8 +1114,9 @@ class _Continuation:
         return max(1.0, self.start_factor * _CONTINUATION_RATE ** (k - 1))
 
     def window_at_lambda(self, k: int) -> bool:
-        """Whether the stopping rule's window at iteration k holds iterations at λ only."""
-        return k - self.iterations >= _WINDOW
+        """Whether the stopping rule's window at iteration k holds iterations at λ only (always,
+        where λ does not fall)."""
+        return self.iterations == 0 or k - self.iterations >= _WINDOW
 
 
 #: the fixed-point scale of a float32 dual between calls (`_store_dual`)

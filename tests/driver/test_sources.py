@@ -80,6 +80,14 @@ def test_noise_at_snr_and_bandwidth(tmp_path):
     assert np.array_equal(again.alines, scan.alines)
 
 
+def test_the_sensor_response_refuses_a_band_or_interval_that_is_not_positive():
+    from driver.simulator import sensor_response
+
+    for bandwidth, dt in ((0.0, 8e-9), (-1e6, 8e-9), (float("nan"), 8e-9), (20e6, 0.0), (20e6, float("inf"))):
+        with pytest.raises(ValueError, match="finite and > 0"):
+            sensor_response(np.ones((2, 16)), bandwidth, dt)
+
+
 def test_default_phantom_has_balls_and_a_curved_tube():
     balls = default_phantom()
     tube = [b for b in balls if b.radius == pytest.approx(0.1e-3)]
