@@ -1,4 +1,4 @@
-"""tv at the paper's size (issue 47, "Done when"): wall time over one NER, iterations, operator
+"""tv at the paper's size (issues 47 and 59): wall time over one NER, iterations, operator
 pairs, converged, peak memory over the image and CC with the true p0, per grid.
 
 The case: the paper's scan — a 226 x 226 lattice of 60 µm, 1024 samples of 8 ns, c = 1500 m/s,
@@ -6,10 +6,11 @@ the equi-steradian mask of `service.plans.equisteradian_mask` asked for 1625 poi
 a point of interest 3.6 mm deep (1653 points) — of three uniform balls near that point (radii
 0.30, 0.20 and 0.15 mm at 3.6, 4.32 and 2.88 mm; amplitudes 1, 0.7, 0.5), exact A-lines
 (`driver.physics.ball_alines`: the N-waves averaged over each sample) with seeded white noise
-``--snr`` dB below the signal's RMS; tv in float32 at its defaults but for the grid. Rows:
+``--snr`` dB below the signal's RMS (``--noise peak``: below its peak, k-Wave's ``addNoise(...,
+'peak')``); tv in float32 at its defaults but for the grid. Rows:
 
-- ``defaults``: the grid tv picks (`service.recon.tv_grid`: the record cut after its last echo,
-  the data's band above their noise);
+- ``defaults``: the grid tv picks (`service.recon.tv_grid`: the band the 60 µm pitch resolves,
+  12.5 MHz, on an isotropic grid down to the last echo, the record kept for it);
 - ``today's grid``: dz = c·dt at the record's own sampling over the whole record (``bandwidth`` =
   the Nyquist frequency, ``whole_record``);
 - ``22 MHz sensor`` (with ``--declared 22e6``): the same data with a sensor bandwidth declared
@@ -29,14 +30,14 @@ compare. ``--max-iter K`` caps tv's iterations at K (stop "iterations"; the cont
 reaches λ within K / 2): the image a budget of K + 3 pairs buys in a fresh process, e.g. K = 17 for
 the 20 pairs that issue 47's 120x NER allows at a pair's 5.9 NERs. ``--sensor-band F`` puts the
 A-lines behind the simulated scanner's sensor model (a 2nd-order Butterworth at F Hz, before the
-noise) without declaring it: tv's band rule reads the band from the data, as on a real scan, and
+noise) without declaring it, as on a real scan (tv's band is the pitch's unless declared), and
 the CC is still with the balls themselves. ``--rule`` adds, per row,
 what the stopping rule's threshold buys at this size (issue 47 item 2): a 300-iteration solve
 at the row's λ and a run to the rule at ``tol`` = 2e-3 (the default is 5e-3), with their wall
 times, iterations, CC with the true p0 and relative distances ‖x − x₃₀₀‖ / ‖x₃₀₀‖ (5-8 x the
 row's time more).
 
-    .venv/bin/python benchmarks/bench_tv_paper.py [--scale 1] [--snr 30] [--declared 22e6] [--rule]
+    .venv/bin/python benchmarks/bench_tv_paper.py [--scale 1] [--snr 30] [--noise rms|peak] [--declared 22e6] [--rule]
         [--no-continuation] [--max-iter K] [--sensor-band 20e6]
 """
 from __future__ import annotations
@@ -51,10 +52,13 @@ import numpy as np
 C, DT, PITCH = 1500.0, 8e-9, 60e-6
 
 
-def paper_case(scale: float = 1.0, snr_db: float = 30.0, seed: int = 1, sensor_band: float | None = None) -> dict:
+def paper_case(scale: float = 1.0, snr_db: float = 30.0, seed: int = 1, sensor_band: float | None = None,
+               noise: str = "rms") -> dict:
     """The scan above (``scale`` < 1 shrinks the lattice, the record, the depth and the balls;
     ``sensor_band``: the A-lines low-passed as the simulated scanner's sensor does, a 2nd-order
-    Butterworth of that −3 dB frequency in Hz (`driver.simulator.sensor_response`), before the noise)."""
+    Butterworth of that −3 dB frequency in Hz (`driver.simulator.sensor_response`), before the noise;
+    ``noise``: ``"rms"`` (``snr_db`` below the A-lines' RMS) or ``"peak"`` (below their peak, k-Wave's
+    ``addNoise(..., 'peak')``))."""
     from driver.physics import Ball, ball_alines
     from driver.physics.axes import centred_axis
     from service.plans import Lattice, equisteradian_mask
@@ -72,8 +76,9 @@ def paper_case(scale: float = 1.0, snr_db: float = 30.0, seed: int = 1, sensor_b
         from driver.simulator import sensor_response
 
         clean = sensor_response(clean, sensor_band, DT)
-    noise = np.random.default_rng(seed).standard_normal(clean.shape)
-    alines = clean + noise * float(np.sqrt(np.mean(clean**2))) / 10 ** (snr_db / 20)
+    white = np.random.default_rng(seed).standard_normal(clean.shape)
+    level = float(np.max(np.abs(clean))) if noise == "peak" else float(np.sqrt(np.mean(clean**2)))
+    alines = clean + white * level / 10 ** (snr_db / 20)
     x = centred_axis(n, PITCH)
     return dict(alines=alines, positions=pos, weights=np.asarray(mask.weights, float), grid=(x, x), balls=balls,
                 n=n, n_t=n_t)
@@ -104,7 +109,8 @@ def _peak() -> int:
 
 
 def _row(label: str, scale: float, snr: float, bandwidth, whole: bool, repeat: int, queue, rule: bool = False,
-         continuation: bool = True, max_iter: int | None = None, sensor_band: float | None = None) -> None:
+         continuation: bool = True, max_iter: int | None = None, sensor_band: float | None = None,
+         noise: str = "rms") -> None:
     from driver.physics import ball_p0
     from service.jobs.admission import estimate_memory
     from service.metrics import correlation_coefficient
@@ -112,7 +118,7 @@ def _row(label: str, scale: float, snr: float, bandwidth, whole: bool, repeat: i
     from service.recon.tv import reconstruct_tv
     from service.recon.tv_grid import record_facts
 
-    case = paper_case(scale, snr, sensor_band=sensor_band)
+    case = paper_case(scale, snr, sensor_band=sensor_band, noise=noise)
     n, n_t = case["n"], case["n_t"]
     data = np.random.default_rng(2).standard_normal((n_t, n, n)).astype(np.float32)
     reconstruct_grid(data[:32, :16, :16], PITCH, DT, C, dtype=np.float32)  # compiled kernels
@@ -168,6 +174,8 @@ def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scale", type=float, default=1.0)
     ap.add_argument("--snr", type=float, default=30.0)
+    ap.add_argument("--noise", choices=["rms", "peak"], default="rms",
+                    help="the SNR below the A-lines' RMS (default) or their peak (k-Wave's addNoise 'peak')")
     ap.add_argument("--repeat", type=int, default=3, help="NER runs (best of)")
     ap.add_argument("--declared", type=float, default=None, help="also a row with this sensor bandwidth, Hz")
     ap.add_argument("--rows", nargs="+", default=["defaults", "today"], choices=["defaults", "today", "declared"])
@@ -183,7 +191,8 @@ def main(argv=None) -> None:
     rows = [r for r in args.rows]
     if args.declared and "declared" not in rows:
         rows.append("declared")
-    print(f"paper case x{args.scale:g}: {args.snr:g} dB, float32; NER float32 of the same lattice in the same process")
+    print(f"paper case x{args.scale:g}: {args.snr:g} dB below the A-lines' {args.noise}, float32; NER float32 of the "
+          "same lattice in the same process")
     print("| grid | tv s | NER s | tv / NER | iterations | pairs | converged | peak / image | CC (true p0) | image "
           "(n_z x n_y x n_x, dz) | record kept | operator samples, band | admission estimate / peak | "
           "NEDNER CC (clipped) |")
@@ -200,7 +209,7 @@ def main(argv=None) -> None:
         queue = ctx.Queue()
         proc = ctx.Process(target=_row, args=(label, args.scale, args.snr, bandwidth, row == "today", args.repeat,
                                               queue, args.rule, not args.no_continuation, args.max_iter,
-                                              args.sensor_band))
+                                              args.sensor_band, args.noise))
         proc.start()
         r = queue.get()
         proc.join()

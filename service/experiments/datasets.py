@@ -152,10 +152,13 @@ def load_dense(path: str | Path, key: str | None = None) -> DenseDataset:
                         dy=ds.dy, source=path.name, meta=meta, p0=p0, dz=dz)
 
 
-def add_noise(data: np.ndarray, snr_db: float | None, seed: int = 0) -> np.ndarray:
-    """White Gaussian noise at ``snr_db`` dB below the data's mean power (paper §6: 30 dB).
+def add_noise(data: np.ndarray, snr_db: float | None, seed: int = 0, reference: str = "rms") -> np.ndarray:
+    """White Gaussian noise at ``snr_db`` dB below the data's mean power (paper §6: 30 dB), or
+    below its peak.
 
-    ``sigma = rms(data) / 10^(snr_db/20)``.
+    ``sigma = rms(data) / 10^(snr_db/20)`` (``reference="rms"``), or ``sigma = max|data| /
+    10^(snr_db/20)`` (``reference="peak"``: k-Wave's ``addNoise(signal, snr, 'peak')``, usual for
+    impulsive signals, whose RMS is far below their peak).
 
     Parameters
     ----------
@@ -165,6 +168,8 @@ def add_noise(data: np.ndarray, snr_db: float | None, seed: int = 0) -> np.ndarr
         Signal-to-noise ratio in dB; None returns ``data`` unchanged (the same object).
     seed : int, optional
         Seed of the noise (``numpy.random.default_rng``).
+    reference : {"rms", "peak"}, optional
+        What the SNR is relative to (default the RMS).
 
     Returns
     -------
@@ -174,12 +179,18 @@ def add_noise(data: np.ndarray, snr_db: float | None, seed: int = 0) -> np.ndarr
     Raises
     ------
     ValueError
-        A non-finite SNR.
+        A non-finite SNR, an unknown ``reference``.
+
+    References
+    ----------
+    .. [1] k-Wave's ``addNoise`` (B. Treeby, B. Cox, J. Biomed. Opt. 15 (2010) 021314).
     """
     if snr_db is None:
         return data
     if not np.isfinite(snr_db):
         raise ValueError(f"snr_db must be finite, got {snr_db}")
-    rms = float(np.sqrt(np.mean(np.square(data))))
+    if reference not in ("rms", "peak"):
+        raise ValueError(f"reference must be 'rms' or 'peak', got {reference!r}")
+    level = float(np.max(np.abs(data))) if reference == "peak" else float(np.sqrt(np.mean(np.square(data))))
     rng = np.random.default_rng(seed)
-    return data + rng.standard_normal(data.shape) * rms / 10 ** (snr_db / 20)
+    return data + rng.standard_normal(data.shape) * level / 10 ** (snr_db / 20)

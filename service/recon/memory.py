@@ -20,7 +20,7 @@ import numpy.typing as npt
 
 from driver.physics.fast_lengths import fast_dct1_rows, fast_lateral
 
-__all__ = ["KWAVE_STEP_BYTES", "TEMPORAL_STEPS", "planar_peak", "kwave_peak",
+__all__ = ["KWAVE_STEP_BYTES", "TEMPORAL_STEPS", "planar_peak", "kwave_peak", "band_columns",
            "model_based_peak", "padded_lateral", "OPERATOR_BATCH", "OPERATOR_CHUNK", "tv_memory"]
 
 #: the bound of k-Wave's time-depth step buffers and other work arrays beside
@@ -186,7 +186,8 @@ def kwave_peak(n_t: int, n_x: int, n_y: int = 1, *, dtype: npt.DTypeLike = np.fl
 
 def model_based_peak(n_t: int, n_x: int, n_y: int = 1, *, n_z: int | None = None, dtype: npt.DTypeLike = np.float64,
                      n_points: int | None = None, dx: float | None = None, dt: float | None = None,
-                     c: float | None = None, dz: float | None = None, **_: Any) -> int:
+                     c: float | None = None, dz: float | None = None, warm_rows: int | None = None,
+                     band: float | None = None, **_: Any) -> int:
     """Estimated peak memory in bytes of the model-based solve (``service.recon.tv``): the larger
     of its warm start (a planar inversion on the unpadded grid with regular-grid steps, 10 %
     above the count) and the solve itself (:func:`tv_memory`) on the operator's padded grid.
@@ -207,6 +208,11 @@ def model_based_peak(n_t: int, n_x: int, n_y: int = 1, *, n_z: int | None = None
         Pitch (m), sample interval (s), sound speed (m/s), depth spacing (m; default c·dt): the
         operator's own padding rule (``driver.physics.grid_sizes.pad_sizes``); without them the
         worst usual case dx = c·dt (the record reaches n_t pitches laterally).
+    warm_rows : int, optional
+        The depth rows the warm start works on (default ``n_z``; more where the kept record
+        reaches deeper than the image: no sample may fold back through its depth period).
+    band : float, optional
+        The operator's band limit, Hz (with ``dx`` and ``c``; `band_columns`).
 
     Returns
     -------
@@ -220,7 +226,7 @@ def model_based_peak(n_t: int, n_x: int, n_y: int = 1, *, n_z: int | None = None
     True
     """
     n_z = n_t if n_z is None else n_z
-    warm = _planar_count(n_t, n_x, n_y, n_z=n_z, upsample=1, dtype=dtype, temporal="regular", points=False,
+    warm = _planar_count(n_t, n_x, n_y, n_z=max(n_z, warm_rows or 0), upsample=1, dtype=dtype, temporal="regular", points=False,
                          n_points=None, square=None, pad=False)
     n_data = n_t * (n_points or n_x * n_y)
     if dx and dt and c:  # the operator's own padding rule
@@ -229,7 +235,25 @@ def model_based_peak(n_t: int, n_x: int, n_y: int = 1, *, n_z: int | None = None
         pad = pad_sizes((n_z, n_y, n_x), dx, dz or c * dt, dt, n_t, c, 0.0)
     else:  # the worst usual case dx = c dt (lateral reach of the record = n_t pitches)
         pad = (max(n_z, n_t), n_y + n_t if n_y > 1 else 1, n_x + n_t)
-    return max(int(warm * 1.1), tv_memory((n_z, n_y, n_x), pad, n_data, n_t, dtype))
+    kept = band_columns(pad, dx, c, band) if dx and c and band else None
+    return max(int(warm * 1.1), tv_memory((n_z, n_y, n_x), pad, n_data, n_t, dtype, kept_columns=kept))
+
+
+def band_columns(padded_shape: tuple[int, ...], dx: float, c: float, band: float) -> int:
+    """The half-spectrum columns of a padded grid ``(N_z, N_y, N_x)`` at pitch ``dx`` (m) whose
+    lateral wavenumber lies within a band (Hz) at sound speed ``c`` (m/s): |k_lat| <= 2π band / c,
+    the columns a band-limited `service.recon.operator.PlanarOperator` works on.
+
+    Examples
+    --------
+    >>> from service.recon.memory import band_columns
+    >>> band_columns((80, 64, 64), 60e-6, 1500.0, 12.5e6), 64 * 33  # the disc within the square
+    (1634, 2112)
+    """
+    _, ny2, nx2 = padded_shape
+    kx = 2 * np.pi * np.fft.rfftfreq(nx2, dx)
+    ky = 2 * np.pi * np.fft.fftfreq(ny2, dx)
+    return int(np.count_nonzero(ky[:, None] ** 2 + kx[None, :] ** 2 <= (2 * np.pi * band / c) ** 2))
 
 
 def padded_lateral(n_y: int, n_x: int, square: bool | None = None) -> tuple[int, int]:
@@ -271,7 +295,7 @@ OPERATOR_CHUNK = 1 << 22
 
 
 def tv_memory(image_shape: tuple[int, ...], padded_shape: tuple[int, ...], n_data: int, n_t: int,
-              dtype: npt.DTypeLike = np.float64) -> int:
+              dtype: npt.DTypeLike = np.float64, kept_columns: int | None = None) -> int:
     """Estimated peak bytes of the model-based reconstruction (`service.recon.tv`).
 
     The larger of two phases (`service.recon.tv._fista`). While the operator works: the
@@ -308,6 +332,9 @@ def tv_memory(image_shape: tuple[int, ...], padded_shape: tuple[int, ...], n_dat
     n_t : int
         Samples per A-line.
     dtype : float32 or float64, optional
+    kept_columns : int, optional
+        The half-spectrum columns a band-limited operator works on (`band_columns`; default
+        all of them): the depth and temporal steps skip the columns above the band.
 
     Returns
     -------
@@ -329,7 +356,7 @@ def tv_memory(image_shape: tuple[int, ...], padded_shape: tuple[int, ...], n_dat
     n_img = int(np.prod(image_shape))
     d = sum(1 for n in image_shape if n > 1)
     nz2, ny2, nx2 = padded_shape
-    cols = ny2 * (nx2 // 2 + 1)
+    cols = ny2 * (nx2 // 2 + 1) if kept_columns is None else max(1, int(kept_columns))
     fine = grid_length(n_t)
     chunk = min(cols, max(1, OPERATOR_CHUNK // max(nz2, fine)))
     operator = 2 * b * (cols * max(image_shape[0], n_t) + chunk * (fine + max(nz2, n_t))

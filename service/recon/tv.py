@@ -52,21 +52,21 @@ applications every step; here J(x) = ½‖Ax − g‖² + λ TV(x) is exact and 
 computed anyway. Warm start: the NER (grid) / NEDNER (points) image in the working dtype,
 clipped to >= 0.
 
-Grid (issue 47; `service.recon.tv_grid`): the record is cut after its last echo above the
-noise (``whole_record`` keeps it all): the model stays exact on the samples kept, the
-operator's record, depth and lateral padding shrink (the paper's scan: 776 of 1024 samples,
-tv 2.2x faster), and what is dropped besides noise is the far sensors' silence about shallow
-voxels, which left the image unchanged after 150 iterations where it was measured. The
-operator works at the band the data carry above their noise floor (or a sensor bandwidth the
-caller declares, ``bandwidth``), not at the record's own sampling: the data are low-passed and
-resampled exactly to the fewest samples whose band reaches it (`driver.physics.resample`),
-the operator is band-limited there in k-space (`PlanarOperator` ``band``), and the default
-depth grid is dz = c dt', n_z = those samples (a given dz or n_z is kept, the other then c dt
-or n_t as before, and the kept record reaches its last row). Data whose band reaches the
-record's Nyquist frequency and whose signal lasts to its end keep today's grid exactly.
-``params`` record ``record_n_t``, ``extent_reason``, ``whole_record``, ``operator_dt``,
-``operator_n_t``, ``band`` (Hz or None) and ``band_reason``; σ̂, the noise image and the
-residuals are those of the kept, resampled data.
+Grid (issues 47 and 59; `service.recon.tv_grid`): the operator works at the band the lateral
+pitch resolves, c / (2 pitch) (or a sensor bandwidth the caller declares, ``bandwidth``), not at
+the record's own sampling: the data are low-passed and resampled exactly to the fewest samples
+whose band reaches it (`driver.physics.resample`), the operator is band-limited there in
+k-space (`PlanarOperator` ``band``), and the default depth grid is isotropic (dz = the pitch)
+down to the depth of the record's last echo above the noise. The record is kept until the
+farthest sensor hears the image's last row (3-D; a line keeps its whole record): after that the
+model predicts silence, so the cut drops only noise and shortens the operator's record and
+lateral padding. A given dz or n_z is kept, the other then c dt or n_t as before;
+``whole_record`` keeps the whole record and images its whole depth. The band no longer comes
+from the data: read per A-line, it fell far below what the coherent image uses on sparse noisy
+scans (k-Wave's vessel tree at 4 % of the points, 20 dB below the peak: 0.79 MHz and CC 0.36,
+against 0.96 now; docs/results.md, "tv's quality gate"). ``params`` record ``record_n_t``,
+``extent_reason``, ``whole_record``, ``operator_dt``, ``operator_n_t``, ``band`` (Hz or None) and
+``band_reason``; σ̂, the noise image and the residuals are those of the kept, resampled data.
 
 Stopping rule (``tol``, default `DEFAULT_TOL` = 5e-3; ``max_iter`` default
 `DEFAULT_MAX_ITER` = 100): the image's relative change per iteration, ‖x_k − x_{k−1}‖ /
@@ -289,9 +289,9 @@ def reconstruct_tv(
         NUFFT tolerance.
     dz, n_z, t0 : optional
         Depth spacing (m), depth samples and time of sample 0 (s). With neither dz nor n_z
-        given, the operator's grid (`service.recon.tv_grid.tv_grid`: c dt' and n_t' at the
-        data's band; c dt and n_t when the data fill the band up to Nyquist); a given one is
-        kept and the other follows the record's own rule (c dt, n_t).
+        given, `service.recon.tv_grid.tv_grid`'s: dz = c / (2 f_c) at the operator's band f_c
+        (the pitch, or a declared band; c dt at full band), down to the last echo's depth; a
+        given one is kept and the other follows the record's own rule (c dt, n_t).
     periodic : bool, optional
         Model the grid as laterally periodic (no zero padding; `PlanarOperator`), as NER
         itself does: several times cheaper for large volumes, but sources near an edge wrap
@@ -307,10 +307,10 @@ def reconstruct_tv(
         `_DEBIAS_ITER` more operator pairs). Default False.
     bandwidth : float, optional
         A sensor bandwidth the caller declares, Hz, in [1e3, 1e12]: the operator works at that
-        band instead of the one read off the data (module doc, "Grid").
+        band instead of the one the lateral pitch resolves (module doc, "Grid").
     whole_record : bool, optional
-        Keep the whole record instead of cutting it after its last echo (module doc,
-        "Grid"; `service.recon.tv_grid.data_extent`). Default False.
+        Keep the whole record and, with neither dz nor n_z given, image its whole depth
+        (module doc, "Grid"; `service.recon.tv_grid.tv_grid`). Default False.
     continuation : bool, optional
         Start the TV weight at λ · D₀ and lower it to λ (module doc, "Continuation"; default
         True); False steps at λ from the first iteration (the solver until 2026-11-26, kept
@@ -339,10 +339,10 @@ def reconstruct_tv(
         "time limit"), ``iterate_change`` (the rule's last value), ``operator_pairs``,
         ``geometry_kept`` (‖BA‖ and the noise image were kept from a run on this geometry),
         ``solver``, ``debias``, ``time_limit``, ``solve_s``; and the grid: ``dt`` (the
-        record's), ``record_n_t`` (the record's samples kept: its end holds no more signal
-        than noise), ``extent_reason`` ("data", "image", "record"), ``operator_dt``,
-        ``operator_n_t``, ``band`` (Hz, None: Nyquist), ``band_reason`` ("data", "declared",
-        "nyquist"), ``bandwidth`` (as declared).
+        record's), ``record_n_t`` (the record's samples kept: after them the model predicts
+        silence), ``extent_reason`` ("image", "record"), ``operator_dt``, ``operator_n_t``,
+        ``band`` (Hz, None: Nyquist), ``band_reason`` ("lateral", "declared", "nyquist"),
+        ``bandwidth`` (as declared).
 
     Raises
     ------
@@ -406,8 +406,9 @@ def reconstruct_tv(
     g = np.asarray(checks.finite_array("data" if positions is None else "alines", data, (2, 3)), dtype=np.float64)
     if g.shape[time_axis] < 2:
         raise ValueError(f"data need at least 2 time samples, got shape {g.shape}")
+    pitch, reach = _lateral_extent(g, dx, positions, grid)
     g, chosen = _working_record(g, dt, c, time_axis, bandwidth=bandwidth, dz=dz, n_z=n_z, t0=t0,
-                                whole_record=bool(whole_record))
+                                whole_record=bool(whole_record), pitch=pitch, reach=reach)
     dt_op = chosen.dt
     common: dict[str, Any] = dict(dtype=rdtype, dz=chosen.dz, n_z=chosen.n_z, t0=t0, eps=eps, positivity=positivity,
                   memory_limit=memory_limit, progress=span(report, 0.0, 0.05, "warm start"))
@@ -430,7 +431,9 @@ def reconstruct_tv(
     shape = warm.p0.shape
     op = PlanarOperator(shape, dx, dz_used, dt_op, n_t, c, positions=pos, t0=t0, eps=eps, dtype=rdtype,
                          periodic=periodic, checkpoint=report.poll, band=chosen.band)
-    checks.check_memory(memory.tv_memory(shape, op.padded_shape, g.size, n_t, rdtype), memory_limit)
+    kept_columns = None if chosen.band is None else memory.band_columns(op.padded_shape, dx, c, chosen.band)
+    checks.check_memory(memory.tv_memory(shape, op.padded_shape, g.size, n_t, rdtype, kept_columns=kept_columns),
+                        memory_limit)
     # B = P Aᵀ: the exact adjoint, NER's k-space weight P = k_z / |k| (symmetric, positive definite)
     P = _ner_weight(shape, dx, dz_used)
 
@@ -526,12 +529,48 @@ def reconstruct_tv(
     return Reconstruction(p0, z_axis, x_axis, y_axis, params)
 
 
+def _lateral_extent(g: np.ndarray, dx: float | None, positions: np.ndarray | None,
+                    grid: np.ndarray | Sequence[npt.ArrayLike] | None) -> tuple[float | None, float | None]:
+    """(pitch, reach) of tv's image for `service.recon.tv_grid.tv_grid`: its lateral pitch (m;
+    None where the warm start will refuse the positions or grid) and the largest lateral distance
+    between a sensor and a corner of its lateral extent (m; None in 2-D: a 2-D wave does not end
+    when its front has passed, its tail ∝ 1/t² lasts to the record's end, so a line keeps its
+    whole record; in 3-D, Huygens' principle: silence after the last front). Grid data ``(n_t, n_x)`` /
+    ``(n_t, n_y, n_x)`` with ``dx``; A-lines with ``positions`` on ``grid`` (default: the
+    positions' lattice, as `service.recon.planar.reconstruct_points` makes it)."""
+    from service.recon.planar import _default_grid  # the warm start's own default lattice
+
+    if positions is None:
+        if dx is None or not (math.isfinite(dx) and dx > 0):
+            return None, None
+        sides = [(n - 1) * dx for n in g.shape[1:]]
+        return float(dx), (math.hypot(*sides) if len(sides) == 2 else None)
+    try:
+        pos = np.asarray(positions, dtype=np.float64).reshape(len(g), -1)
+        if grid is None:
+            axes, pitch = _default_grid(pos)
+        else:
+            axes = (np.asarray(grid, dtype=np.float64),) if isinstance(grid, np.ndarray) and grid.ndim == 1 else \
+                tuple(np.asarray(a, dtype=np.float64).ravel() for a in grid)
+            pitch = float(axes[0][1] - axes[0][0])
+    except (ValueError, IndexError, TypeError):  # the warm start refuses them, naming the problem
+        return None, None
+    if len(axes) != pos.shape[1] or not (math.isfinite(pitch) and pitch > 0):
+        return None, None
+    if pos.shape[1] == 1:  # a line: 2-D waves ring on (a tail ∝ 1/t² after the last front), keep it all
+        return pitch, None
+    far = np.zeros(len(pos))
+    for a, ax in enumerate(axes):  # per axis, the farther of the extent's two ends
+        far += np.maximum(np.abs(pos[:, a] - float(ax.min())), np.abs(pos[:, a] - float(ax.max()))) ** 2
+    return pitch, float(np.sqrt(far.max())) if len(far) else None
+
+
 def _working_record(g: np.ndarray, dt: float, c: float, time_axis: int, **grid: Any) -> tuple[np.ndarray, TvGrid]:
     """The record tv works on and its grid (`service.recon.tv_grid.tv_grid` with ``grid``'s
-    keywords): ``g`` cut after its last echo (unless ``whole_record``) and resampled to the
-    band, time along ``time_axis``."""
+    keywords): ``g`` cut where the model of the image predicts silence (unless ``whole_record``)
+    and resampled to the band, time along ``time_axis``."""
     chosen = tv_grid(g.shape[time_axis], dt, c, data=g, time_axis=time_axis, **grid)
-    if chosen.cut:  # after the last echo the record holds no more signal than noise (module doc)
+    if chosen.cut:  # after it the model of the image predicts silence at every sensor (module doc)
         g = np.ascontiguousarray(g[: chosen.record_n_t] if time_axis == 0 else g[:, : chosen.record_n_t])
     if chosen.resampled:
         g = resample(g, chosen.n_t, axis=time_axis)

@@ -1,61 +1,50 @@
-"""The grid the model-based method works on: the record's extent and the data's band above their
-noise floor, the operator's time sampling and tv's default image depth grid (issue 47, item 1).
+"""The grid the model-based method works on: the operator's band and time sampling, the image's
+depth grid and the record kept for it (issues 47 and 59).
 
 The planar model maps each k-space component of p0 to one temporal frequency, f = c |k| / 2π
-(DESIGN §3.1), so a band of the data is a ball |k| <= 2π f_c / c of the image's k-space. tv
-(`service.recon.tv`) therefore works at the band the data carry above their noise floor, not
-at the sampling the scanner happened to use:
+(DESIGN §3.1), so a band f_c of the data is a ball |k| <= 2π f_c / c of the image's k-space. tv
+(`service.recon.tv`) adds hundreds of sensors' views coherently, so what its image can use is
+set by the scan's geometry, not by what one A-line shows above its noise:
 
-- **the band f_c** (`data_band`): the data's cosine-series coefficients (the DCT-I of each
-  A-line, the basis `driver.physics.resample` cuts in) against the noise's: white noise of
-  σ per sample gives each coefficient the mean square 2 (n - 2) σ² (the two end ones
-  (4 n - 6) σ²; σ from `noise_sigma`). f_c is the lowest frequency above which the data's
-  energy is at most twice the noise's, i.e. above which the data hold no more signal than
-  noise — Wiener's cut, the low-pass that minimises the expected squared error of the
-  filtered data keeps exactly the frequencies where the signal's power exceeds the
-  noise's; summed over the band above (not bin by bin) so that no smoothing window is
-  needed. Scanned from the top, the first band that fails ends the scan, so a chance
-  excess of noise near Nyquist errs towards keeping more. A sensor bandwidth the caller
-  declares (``bandwidth``) replaces the estimate. This is the data's floor, not what tv can
-  make of them: tv adds the sensors' views coherently and TV knows the image is sparse, so it
-  draws on a band below the noise as well (k-Wave's balls-and-yarn data, 11 % of the points,
-  30 dB: the cut falls at 7.5 MHz, tv's CC 0.977 against 0.980 at the full 62.5 MHz and at
-  12.5 MHz, k-Wave's own grid limit; the same comparison between the data's NEDNER image and
-  that of the noise alone, in k-space shells, cut at 8.4 MHz — no Wiener-type cut reaches
-  12.5 MHz there, docs/performance.md);
-- **the record's extent** (`data_extent`): the record is cut after the last sample that shows
-  signal — an echo above σ √(2 ln (100 N)) at any sensor (the universal threshold of
-  Donoho & Johnstone for 100 N samples), or energy summed over the A-lines from that sample
-  on above the noise's by 5 of its standard deviations — and a margin of 2 % of the
-  record; ``whole_record`` keeps it all. The model stays exact (the operator simply has
-  fewer samples), and a source at depth z is heard only at t >= z / c, so the image's
-  default depth ends where the kept record does. What the cut drops is noise and one piece
-  of information: the far sensors' silence about shallow voxels they would hear late.
-  Measured on the paper's scan at half size (113², 512 samples, 30 dB; the same λ), after
-  150 iterations the cut record's image and the whole record's have the same CC with the
-  true balls (0.9845 both); at the stopping rule's earlier stop they differ by where the
-  rule stops (docs/performance.md). It shortens the operator's record, its depth and its
-  lateral padding (which grows with c t_last, `service.recon.operator`): the paper's scan
-  (three balls 2.9-4.3 mm deep, heard by the farthest sensors until sample 755 of 1024)
-  keeps 776 samples, and a pair works on 801 × 384² points instead of 1025 × 450²: tv took
-  425 s instead of 934 s there. An image depth the caller gives is always reached: the cut
-  never falls before its last row's sample;
+- **the band f_c**: c / (2 pitch), the band the lateral sampling resolves (its lateral Nyquist
+  wavenumber π / pitch), so that the default grid is isotropic (dz = the pitch); a sensor
+  bandwidth the scan declares (``bandwidth``) replaces it, lower or higher; at or above the
+  record's Nyquist frequency there is no band. Anchors: k-Wave's own grid limit c / (2 dx) (its
+  simulations carry nothing above it) and the paper's resolution argument (the pitch sets the
+  lateral band). The band depends on the pitch alone, so the cut record and the whole record,
+  and data at any noise level, get the same band. Until 2026-11-26 the band was read off the
+  data per A-line (Wiener's cut of each sensor's spectrum against its noise): one A-line's SNR
+  is far below the coherent image's, and on k-Wave's vessel tree at 4 % of the points and 20 dB
+  below the peak that cut fell to 0.79 MHz (6 operator samples) and tv's CC with p0 to 0.36,
+  where the whole band gives 0.95 (docs/results.md, "tv's quality gate"). A band above the
+  pitch's, drawn from the coherent image's evidence (the warm start's k-space shells against
+  the noise image's), was not built: without a declared band the isotropic grid kept nearly
+  all of the image at the paper's size (CC 0.977 against 0.980 at the full band) at a fifth of
+  a pair's cost;
+- **the image's depth grid**: dz = c / (2 f_c) (c dt without a band), down to the depth c t_e of
+  the record's last echo above the noise (`data_extent`: the last sample where any A-line, or
+  the energy of all of them from there on, beats the noise; a margin of 2 % of the record) —
+  a source deeper than that would be heard later; ``whole_record`` images the whole record's
+  depth. A dz or n_z the caller gives is kept, and the other then follows the record's own
+  rule (dz = c dt, n_z = n_t), as before;
+- **the record kept**: every sample on which the model of that image draws — until the
+  farthest sensor hears the image's last row, sqrt(z_last² + ρ²) / c with ρ the largest lateral
+  distance between a sensor and a column of the image (``reach``), and the margin (for the
+  band-limited operator's spread and the voxels' size). After it the model predicts silence
+  at every sensor in 3-D (Huygens' principle), so the samples there are the noise's alone and
+  dropping them changes nothing the image can use; a line's record is kept whole, since a 2-D
+  wave rings on after its front (a tail ∝ 1/t²). The cut shortens the operator's record and its
+  lateral padding (which grows with c t_last, `service.recon.operator`); on the paper's scan
+  (ρ up to 16 mm) nothing is cut;
 - **the operator's sampling**: M samples on the kept record's interval,
   `driver.physics.resample.resampled_length` (its kept band reaches f_c), the data low-passed
   and resampled to them exactly (`driver.physics.resample.resample`), the operator
-  band-limited to f_c in k-space (`service.recon.operator.PlanarOperator` ``band``);
-- **the image's depth grid**: dz = c dt' and n_z = M when the caller sets neither, as every
-  planar method's default dz = c dt and n_z = n_t (the depth Nyquist wavenumber then equals
-  the band's); a dz or n_z the caller gives is kept, and the other then follows that rule at
-  the record's own sampling (dz = c dt, n_z = n_t), so that a caller who fixes one of them
-  gets the grid it had before.
+  band-limited to f_c in k-space (`service.recon.operator.PlanarOperator` ``band``).
 
-Data whose band reaches the record's Nyquist frequency and whose signal lasts to the record's
-end keep today's grid exactly (no cut, no resampling, no band limit). Pure numpy (scipy's DCT
-is imported on first use; no numba), so that a server can size a tv job from it: `tv_grid`
-without data gives the grid of a whole, full-band record, the largest tv may choose; given
-the `RecordFacts` a server stores with a dataset when it imports it (`record_facts`: σ, the
-samples up to the last echo, their band), the grid tv will choose for those data.
+Pure numpy (no numba), so that a server can size a tv job from it: `tv_grid` without data
+gives the grid of the whole record; given the `RecordFacts` a server stores with a dataset when
+it imports it (`record_facts`: σ and the samples up to the last echo), the grid tv will choose
+for those data.
 """
 from __future__ import annotations
 
@@ -68,7 +57,7 @@ import numpy.typing as npt
 from driver.constants import C_DEFAULT
 from driver.physics.resample import resampled_length
 
-__all__ = ["TvGrid", "RecordFacts", "noise_sigma", "data_band", "data_extent", "record_facts", "tv_grid"]
+__all__ = ["TvGrid", "RecordFacts", "noise_sigma", "data_extent", "record_facts", "tv_grid"]
 
 
 def noise_sigma(data: npt.ArrayLike, time_axis: int) -> float:
@@ -142,16 +131,15 @@ class TvGrid(NamedTuple):
     n_z : int
         Depth samples of the image.
     reason : str
-        What set the band: ``"data"`` (the data's band above their noise floor),
-        ``"declared"`` (the caller's sensor bandwidth), ``"nyquist"`` (the data are full band,
-        or were not looked at).
+        What set the band: ``"lateral"`` (what the lateral pitch resolves, c / (2 pitch)),
+        ``"declared"`` (the caller's sensor bandwidth), ``"nyquist"`` (the record's own
+        sampling is the coarsest that keeps the band, or no pitch was given).
     record_n_t : int
-        Samples of the record kept, from its first (`data_extent`); the record's own n_t when
-        nothing is cut. The operator's ``n_t`` samples span the kept record's interval.
+        Samples of the record kept, from its first; the record's own n_t when nothing is cut.
+        The operator's ``n_t`` samples span the kept record's interval.
     extent_reason : str
-        What set the kept record: ``"data"`` (the data hold no more signal than noise after
-        it), ``"image"`` (the depth the caller gave reaches further), ``"record"`` (nothing
-        cut: the signal lasts to the record's end, or the data were not looked at).
+        What set the kept record: ``"image"`` (the farthest sensor has heard the image's last
+        row: the model predicts silence after it), ``"record"`` (nothing cut).
 
     Examples
     --------
@@ -192,24 +180,21 @@ class RecordFacts(NamedTuple):
     n_t : int
         Samples per A-line of the record.
     signal_n_t : int or None
-        Samples kept after the cut past the last echo (`data_extent`, margin included); None:
-        the signal lasts to the record's end (or no sample shows signal: noise alone).
-    band : float or None
-        The band above the noise floor of those samples (`data_band`), Hz, as `tv_grid` keeps
-        it; None: their own sampling is the coarsest that keeps it (up to Nyquist).
+        Samples up to the last echo (`data_extent`, margin included): they set tv's default
+        image depth; None: the signal lasts to the record's end (or no sample shows signal:
+        noise alone).
     sigma : float
         The noise's standard deviation per sample (`noise_sigma`), in the data's unit.
 
     Examples
     --------
     >>> from service.recon.tv_grid import RecordFacts
-    >>> RecordFacts.from_dict(RecordFacts(1024, 776, None, 0.01).as_dict())
-    RecordFacts(n_t=1024, signal_n_t=776, band=None, sigma=0.01)
+    >>> RecordFacts.from_dict(RecordFacts(1024, 776, 0.01).as_dict())
+    RecordFacts(n_t=1024, signal_n_t=776, sigma=0.01)
     """
 
     n_t: int
     signal_n_t: int | None
-    band: float | None
     sigma: float
 
     def as_dict(self) -> dict:
@@ -218,36 +203,30 @@ class RecordFacts(NamedTuple):
 
     @classmethod
     def from_dict(cls, d: dict) -> RecordFacts:
-        """The facts from :meth:`as_dict`'s dict.
+        """The facts from :meth:`as_dict`'s dict (other keys, such as the ``band`` that records
+        stored before 2026-11-26 carry, are ignored).
 
         Raises
         ------
         ValueError
             A field missing or out of range (n_t < 2, a kept length outside [1, n_t), a
-            non-positive band, a negative σ).
+            negative σ).
         """
         try:
-            n_t, kept, band, sigma = int(d["n_t"]), d["signal_n_t"], d["band"], float(d["sigma"])
+            n_t, kept, sigma = int(d["n_t"]), d["signal_n_t"], float(d["sigma"])
             kept = None if kept is None else int(kept)
-            band = None if band is None else float(band)
         except (KeyError, TypeError, ValueError):
-            raise ValueError(f"record facts need n_t, signal_n_t, band and sigma, got {d!r}") from None
-        if n_t < 2 or (kept is not None and not 1 <= kept < n_t) or (band is not None and not (
-                math.isfinite(band) and band > 0)) or not (math.isfinite(sigma) and sigma >= 0):
+            raise ValueError(f"record facts need n_t, signal_n_t and sigma, got {d!r}") from None
+        if n_t < 2 or (kept is not None and not 1 <= kept < n_t) or not (math.isfinite(sigma) and sigma >= 0):
             raise ValueError(f"record facts out of range: {d!r}")
-        return cls(n_t, kept, band, sigma)
+        return cls(n_t, kept, sigma)
 
 
 def record_facts(data: npt.ArrayLike, dt: float, time_axis: int) -> RecordFacts:
-    """The facts `tv_grid` reads off a record, without the caller's options: its noise σ
-    (`noise_sigma`, of every k-th A-line when the record holds more than 2 × 4 million
-    samples), and the cut after its last echo (`data_extent`) and the band of the samples kept
-    above the noise floor (`data_band`) of `tv_grid`'s default grid, all in blocks (a server
-    computes them at import, beside the data). `tv_grid` given these ``facts`` instead
-    of the data picks the grid it picks from the data, except where a depth the caller gives
-    keeps more of the record than the signal does: there the band is the one of the signal's
-    samples, at least as wide as that of the longer, noisier record (an estimate that errs
-    towards the larger grid).
+    """The facts `tv_grid` reads off a record: its noise σ (`noise_sigma`, of every k-th A-line
+    when the record holds more than 2 × 4 million samples) and the samples up to its last echo
+    (`data_extent`), in blocks (a server computes them at import, beside the data). `tv_grid`
+    given these ``facts`` instead of the data picks the grid it picks from the data.
 
     Parameters
     ----------
@@ -279,7 +258,8 @@ def record_facts(data: npt.ArrayLike, dt: float, time_axis: int) -> RecordFacts:
     >>> facts = record_facts(data, 1e-8, time_axis=1)
     >>> facts.signal_n_t
     320
-    >>> tv_grid(1000, 1e-8, 1500.0, facts=facts) == tv_grid(1000, 1e-8, 1500.0, data=data, time_axis=1)
+    >>> kw = dict(pitch=60e-6, reach=3e-3)
+    >>> tv_grid(1000, 1e-8, 1500.0, facts=facts, **kw) == tv_grid(1000, 1e-8, 1500.0, data=data, time_axis=1, **kw)
     True
     """
     if not (np.isfinite(dt) and dt > 0):
@@ -293,83 +273,8 @@ def record_facts(data: npt.ArrayLike, dt: float, time_axis: int) -> RecordFacts:
     # differences in float64, which for the largest uploads would not fit beside the data
     stride = max(1, math.ceil(lines.shape[1] * (n_t // 2) / _FACTS_SIGMA_SAMPLES))
     sigma = noise_sigma(lines[:, ::stride], 0)
-    chosen = tv_grid(n_t, dt, data=a, time_axis=time_axis, sigma=sigma)  # the default grid: its cut and band
-    return RecordFacts(n_t, chosen.record_n_t if chosen.cut else None, chosen.band, sigma)
-
-
-def data_band(data: npt.ArrayLike, dt: float, time_axis: int, sigma: float) -> float | None:
-    """The data's band above their noise floor, Hz (module doc): the lowest frequency above
-    which the data's energy is at most twice the noise's.
-
-    Parameters
-    ----------
-    data : array_like
-        Samples, any shape, time along ``time_axis`` (A-lines ``(n, n_t)`` with 1; grid data
-        ``(n_t, ...)`` with 0).
-    dt : float
-        Sample interval, s.
-    time_axis : int
-        The time axis.
-    sigma : float
-        The noise's standard deviation per sample, in the data's unit
-        (`service.recon.tv.noise_sigma`).
-
-    Returns
-    -------
-    float or None
-        f_c = (K - 1) / (2 (n_t - 1) dt) for the first K coefficients kept, Hz; None when the
-        whole band up to Nyquist holds signal, when no band holds more signal than noise (noise
-        alone: nothing to read a band from), or without a noise estimate (σ <= 0).
-
-    Raises
-    ------
-    ValueError
-        dt not finite and > 0.
-
-    Examples
-    --------
-    Two cosines of 2 and 5 MHz in white noise, 512 samples at 10 ns (Nyquist 50 MHz):
-
-    >>> import numpy as np
-    >>> from service.recon.tv_grid import data_band
-    >>> t = np.arange(512) * 1e-8
-    >>> rng = np.random.default_rng(0)
-    >>> g = np.cos(2e6 * 2 * np.pi * t) + np.cos(5e6 * 2 * np.pi * t) + 0.01 * rng.standard_normal((16, 512))
-    >>> f = data_band(g, 1e-8, 1, sigma=0.01)
-    >>> bool(5e6 <= f < 6e6)
-    True
-    >>> data_band(rng.standard_normal((16, 512)), 1e-8, 1, sigma=1.0) is None  # noise alone
-    True
-    """
-    import scipy.fft
-
-    if not (np.isfinite(dt) and dt > 0):
-        raise ValueError(f"dt must be finite and > 0, got {dt!r}")
-    g = np.moveaxis(np.asarray(data), time_axis, -1)
-    n = g.shape[-1]
-    if n < 3 or not sigma > 0:
-        return None
-    g = g.reshape(-1, n)
-    power = np.zeros(n)
-    for a in range(0, len(g), 256):  # the coefficients' mean square over the A-lines, in blocks
-        y = scipy.fft.dct(np.asarray(g[a : a + 256], dtype=np.float64), type=1, axis=1, workers=-1)
-        power += np.einsum("ij,ij->j", y, y)
-    power /= len(g)
-    # each coefficient's mean square under white noise of σ: σ² Σ_j D_kj² (D the DCT-I), i.e.
-    # 2 (n - 2) σ² inside and (4 n - 6) σ² at k = 0 and k = n - 1
-    noise = np.full(n, 2.0 * (n - 2))
-    noise[[0, -1]] = 4.0 * n - 6.0
-    noise *= float(sigma) ** 2
-    tail = np.cumsum(power[::-1])[::-1]  # tail[k] = Σ_{j >= k} power[j]
-    noise_tail = np.cumsum(noise[::-1])[::-1]
-    signal_free = tail <= 2.0 * noise_tail  # the band from k up holds no more signal than noise
-    if signal_free[0] or not signal_free[-1]:  # no signal above the noise anywhere, or up to Nyquist
-        return None
-    # scanned from the top: the first k (going down) whose band holds signal ends the band
-    k_keep = int(np.flatnonzero(~signal_free)[-1]) + 1  # the terms 0..k_keep - 1 are kept
-    if k_keep >= n - 1:
-        return None
-    return max(k_keep - 1, 1) / (2.0 * (n - 1) * float(dt))
+    end = data_extent(a, time_axis, sigma)
+    return RecordFacts(n_t, None if end is None else int(end), sigma)
 
 
 def data_extent(data: npt.ArrayLike, time_axis: int, sigma: float) -> int | None:
@@ -466,9 +371,9 @@ _EXTENT_MARGIN_MIN = 4
 def tv_grid(n_t: int, dt: float, c: float = C_DEFAULT, *, data: npt.ArrayLike | None = None, time_axis: int = 0,
             sigma: float | None = None, bandwidth: float | None = None, dz: float | None = None,
             n_z: int | None = None, t0: float = 0.0, whole_record: bool = False,
-            facts: RecordFacts | None = None) -> TvGrid:
-    """The grid tv works on (module doc): the record's kept extent, the operator's samples and
-    band, and the image's depth grid.
+            facts: RecordFacts | None = None, pitch: float | None = None, reach: float | None = None) -> TvGrid:
+    """The grid tv works on (module doc): the operator's band and samples, the image's depth
+    grid and the record kept for it.
 
     Parameters
     ----------
@@ -479,28 +384,33 @@ def tv_grid(n_t: int, dt: float, c: float = C_DEFAULT, *, data: npt.ArrayLike | 
     c : float, optional
         Sound speed, m/s.
     data : array_like, optional
-        The record, time along ``time_axis``: its extent (`data_extent`) and its band above
-        the noise floor (`data_band`, of the kept record) set the grid. None (and no
-        ``bandwidth``): the whole record at full band, today's grid dz = c dt.
+        The record, time along ``time_axis``: the end of its signal (`data_extent`) sets the
+        default image depth. None (and no ``facts``): the whole record's depth.
     time_axis : int, optional
         The time axis of ``data`` (0 for grid data ``(n_t, ...)``, 1 for A-lines ``(n, n_t)``).
     sigma : float, optional
-        The data's noise σ per sample (default `service.recon.tv.noise_sigma` of ``data``).
+        The data's noise σ per sample (default `noise_sigma` of ``data``).
     bandwidth : float, optional
-        A sensor bandwidth the caller declares, Hz: the band instead of the data's estimate.
+        A sensor bandwidth the caller declares, Hz: the band, whatever the lateral pitch.
     dz, n_z : optional
-        The image's depth spacing (m) and samples, kept as given; with neither given c dt' and
-        M, with one given the other c dt or n_t (the record's own rule). The kept record
-        always reaches the depth of the image's last row.
+        The image's depth spacing (m) and rows, kept as given; with neither given the band's
+        c / (2 f_c) (c dt at full band) down to the signal's end, with one given the other
+        c dt or n_t (the record's own rule).
     t0 : float, optional
-        Time of sample 0, s (where the image's last row is heard).
+        Time of sample 0, s.
     whole_record : bool, optional
-        Keep the whole record (no cut after the last echo, `data_extent`): the samples after
-        it are noise, but they also say that the far sensors hear nothing of the image's
-        shallow voxels (module doc).
+        Keep the whole record, and with the default depth image all of it (the signal's end not
+        read).
     facts : RecordFacts, optional
         Without ``data``: what the record was found to hold (`record_facts`), read instead of
         the data (a server sizing a job from a stored dataset's record).
+    pitch : float, optional
+        The image's lateral pitch, m: without a declared ``bandwidth`` the band is c / (2 pitch),
+        what the lateral sampling resolves (an isotropic grid). None: the record's Nyquist.
+    reach : float, optional
+        The largest lateral distance between a sensor and a column of the image, m: the record
+        is kept until the farthest sensor has heard the image's last row (`_kept_record`).
+        None: the whole record is kept.
 
     Returns
     -------
@@ -509,29 +419,33 @@ def tv_grid(n_t: int, dt: float, c: float = C_DEFAULT, *, data: npt.ArrayLike | 
     Raises
     ------
     ValueError
-        n_t < 2, non-positive dt, c or bandwidth; ``facts`` of another record length.
+        n_t < 2, non-positive dt, c, bandwidth or pitch, a negative reach; ``facts`` of another
+        record length.
 
     Examples
     --------
     >>> from service.recon.tv_grid import tv_grid
-    >>> g = tv_grid(1024, 8e-9, 1500.0)  # nothing known of the data: the full band
+    >>> g = tv_grid(1024, 8e-9, 1500.0)  # nothing known of the sensors: the full band
     >>> g.n_t, g.band, round(g.dz * 1e6, 3), g.n_z, g.reason
     (1024, None, 12.0, 1024, 'nyquist')
-    >>> g = tv_grid(1024, 8e-9, 1500.0, bandwidth=20e6)  # a 20 MHz sensor
+    >>> g = tv_grid(1024, 8e-9, 1500.0, pitch=60e-6)  # a 60 µm lattice: 12.5 MHz, dz = 60 µm
     >>> g.n_t, g.band, round(g.dz * 1e6, 2), g.n_z, g.reason
-    (330, 20000000.0, 37.31, 330, 'declared')
+    (207, 12500000.0, 60.0, 205, 'lateral')
+    >>> g = tv_grid(1024, 8e-9, 1500.0, bandwidth=20e6, pitch=60e-6)  # a 20 MHz sensor declared
+    >>> g.n_t, g.band, round(g.dz * 1e6, 2), g.n_z, g.reason
+    (330, 20000000.0, 37.5, 328, 'declared')
 
-    A record whose signal ends at sample 600 of 1024 (64 A-lines): the rest is cut, and the
-    default image ends where the kept record does:
+    A record whose signal ends at sample 600 of 1024 (64 A-lines): the default image ends there,
+    and the record is kept until a sensor 3 mm to the side hears its last row:
 
     >>> import numpy as np
     >>> t = np.arange(1024)
     >>> data = np.where((t > 500) & (t < 600), 1.0, 0.0) + 0.01 * np.random.default_rng(0).standard_normal((64, 1024))
-    >>> g = tv_grid(1024, 8e-9, 1500.0, data=data, time_axis=1, sigma=0.01)
-    >>> g.record_n_t, g.extent_reason, g.n_z == g.n_t  # 600 and the margin, 2 % of the record
-    (621, 'data', True)
-    >>> tv_grid(1024, 8e-9, 1500.0, data=data, time_axis=1, sigma=0.01, n_z=900).record_n_t  # a deeper image: reached
-    900
+    >>> g = tv_grid(1024, 8e-9, 1500.0, data=data, time_axis=1, sigma=0.01, pitch=60e-6, reach=3e-3)
+    >>> round((g.n_z - 1) * g.dz * 1e3, 2), g.record_n_t, g.extent_reason  # 620 samples: 7.4 mm deep
+    (7.44, 698, 'image')
+    >>> tv_grid(1024, 8e-9, 1500.0, data=data, time_axis=1, sigma=0.01, pitch=60e-6).record_n_t  # no reach: all
+    1024
     """
     if int(n_t) != n_t or n_t < 2:
         raise ValueError(f"n_t must be an integer >= 2, got {n_t!r}")
@@ -541,38 +455,54 @@ def tv_grid(n_t: int, dt: float, c: float = C_DEFAULT, *, data: npt.ArrayLike | 
     n_t = int(n_t)
     if bandwidth is not None and not (np.isfinite(bandwidth) and bandwidth > 0):
         raise ValueError(f"bandwidth must be finite and > 0 Hz, got {bandwidth!r}")
-    if data is not None and sigma is None:
-        sigma = noise_sigma(data, time_axis)
-    if data is None and facts is not None:
-        if facts.n_t != n_t:
-            raise ValueError(f"the record facts are of a record of {facts.n_t} samples, not {n_t}")
-        extent = facts.signal_n_t
-    else:
-        extent = None if data is None or sigma is None or whole_record else data_extent(data, time_axis, float(sigma))
-    kept, extent_reason = (n_t, "record") if whole_record else _kept_record(n_t, dt, c, extent, dz, n_z, t0)
+    if pitch is not None and not (np.isfinite(pitch) and pitch > 0):
+        raise ValueError(f"pitch must be finite and > 0 m, got {pitch!r}")
+    if reach is not None and not (np.isfinite(reach) and reach >= 0):
+        raise ValueError(f"reach must be finite and >= 0 m, got {reach!r}")
+    if data is None and facts is not None and facts.n_t != n_t:
+        raise ValueError(f"the record facts are of a record of {facts.n_t} samples, not {n_t}")
+    # the band: a declared sensor band, else what the lateral pitch resolves (module doc)
     band, reason = None, "nyquist"
     if bandwidth is not None:
         band, reason = float(bandwidth), "declared"
-    elif data is not None:
-        assert sigma is not None  # set above
-        head = np.asarray(data)[(slice(None),) * time_axis + (slice(0, kept),)]  # the kept record: a view
-        band = data_band(head, dt, time_axis, float(sigma))
-        reason = "nyquist" if band is None else "data"
-    elif facts is not None:  # the band of the signal's samples: at least that of a longer record (`record_facts`)
-        band = facts.band
-        reason = "nyquist" if band is None else "data"
-    m = kept if band is None else resampled_length(kept, dt, band)
-    if m >= kept:  # the record's own rate is the coarsest that keeps the band
-        band, m, reason = None, kept, "nyquist"
-    dt_m = dt if m == kept else (kept - 1) * dt / (m - 1)
-    if dz is None and n_z is None:  # the image's depth grid follows the operator's sampling
-        dz_out, n_z_out = c * dt_m, m
+    elif pitch is not None:
+        band, reason = float(c) / (2.0 * float(pitch)), "lateral"
+    if band is not None and band >= 0.5 / dt * (1 - 1e-9):  # at or above the record's Nyquist frequency
+        band, reason = None, "nyquist"
+    # the image's depth grid: at the band's own spacing down to the signal's end, or as given
+    if dz is None and n_z is None:
+        dz_out = float(c) / (2.0 * band) if band is not None else float(c) * dt
+        end = n_t if whole_record else _signal_end(n_t, data, time_axis, sigma, facts)
+        deepest = float(c) * (float(t0) + (end - 1) * dt)  # heard by the sensor straight above at the end
+        n_z_out = max(2, int(math.floor(deepest / dz_out * (1 + 1e-9))) + 1)
     else:  # a caller who sets either keeps today's rule for the other (dz = c dt, n_z = n_t)
         dz_out = c * dt if dz is None else float(dz)
         n_z_out = n_t if n_z is None else int(n_z)
     if not math.isfinite(dz_out) or dz_out <= 0:
         raise ValueError(f"dz must be finite and > 0 m, got {dz!r}")
+    if whole_record or reach is None:
+        kept, extent_reason = n_t, "record"
+    else:
+        kept, extent_reason = _kept_record(n_t, dt, float(c), (n_z_out - 1) * dz_out + dz_out, float(reach)
+                                           + (pitch or 0.0), float(t0))
+    m = kept if band is None else resampled_length(kept, dt, band)
+    if m >= kept:  # the record's own rate is the coarsest that keeps the band
+        band, m, reason = None, kept, "nyquist"
+    dt_m = dt if m == kept else (kept - 1) * dt / (m - 1)
     return TvGrid(m, dt_m, band, dz_out, n_z_out, reason, kept, extent_reason)
+
+
+def _signal_end(n_t: int, data: npt.ArrayLike | None, time_axis: int, sigma: float | None,
+                facts: RecordFacts | None) -> int:
+    """Samples up to the record's last echo above its noise (`data_extent`, or the stored
+    ``facts``): the whole record when nothing is known or the signal lasts to its end."""
+    if data is not None:
+        if sigma is None:
+            sigma = noise_sigma(data, time_axis)
+        extent = data_extent(data, time_axis, float(sigma))
+    else:
+        extent = None if facts is None else facts.signal_n_t
+    return n_t if extent is None else min(n_t, max(int(extent), _MIN_KEPT))
 
 
 #: the fewest samples a cut record keeps
@@ -582,20 +512,21 @@ _MIN_KEPT = 8
 _FACTS_SIGMA_SAMPLES = 1 << 22
 
 
-def _kept_record(n_t: int, dt: float, c: float, extent: int | None, dz: float | None, n_z: int | None,
-                 t0: float) -> tuple[int, str]:
-    """(samples kept, why) for `tv_grid`: the data's extent (`data_extent`; None: the whole
-    record), but never before the sample that hears the last row of an image depth the caller
-    gives."""
-    kept = n_t if extent is None else max(extent, min(n_t, _MIN_KEPT))
-    if kept >= n_t:  # the signal lasts to the end (or the record is shorter than the fewest kept)
+#: the fewest samples a cut record keeps
+_MIN_KEPT = 8
+#: `record_facts` reads σ from at most this many sample differences (a few MB; the median of
+#: 4 million white-noise differences is within 0.1 % of σ)
+_FACTS_SIGMA_SAMPLES = 1 << 22
+
+
+def _kept_record(n_t: int, dt: float, c: float, depth: float, reach: float, t0: float) -> tuple[int, str]:
+    """(samples kept, why) for `tv_grid`: every sample on which the model of the image draws —
+    until the farthest sensor (``reach`` to the side, m) hears a source ``depth`` deep (m),
+    sqrt(depth² + reach²) / c, and the margin (`_EXTENT_MARGIN`: the band-limited operator's
+    spread and the voxels' own size); after it the model predicts silence at every sensor, so
+    the samples there are the noise's alone and dropping them loses nothing."""
+    last = (math.hypot(depth, reach) / c - t0) / dt  # the sample that hears the farthest voxel
+    margin = max(_EXTENT_MARGIN_MIN, math.ceil(_EXTENT_MARGIN * n_t))
+    if not last + margin < n_t - 1:
         return n_t, "record"
-    if dz is None and n_z is None:
-        return kept, "data"
-    last_row = ((n_t if n_z is None else int(n_z)) - 1) * (c * dt if dz is None else float(dz))
-    reach = (last_row / c - float(t0)) / dt  # the sample that hears it (NaN or inf: a dz tv_grid refuses)
-    if not reach < n_t - 1:
-        return n_t, "record"
-    if reach >= kept - 1:
-        return int(math.ceil(reach)) + 1, "image"
-    return kept, "data"
+    return max(_MIN_KEPT, int(math.ceil(last)) + 1 + margin), "image"

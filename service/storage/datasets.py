@@ -369,7 +369,7 @@ def import_dataset(src: str | os.PathLike, dest_dir: str | os.PathLike, fmt: str
 
 def _record_facts(ds: GridDataset | PointDataset) -> dict:
     """``record_facts`` of a dataset's record (``service.recon.tv_grid.record_facts``: its noise
-    σ, the samples up to its last echo, their band above the noise; in blocks, without a float64
+    σ and the samples up to its last echo; in blocks, without a float64
     copy of the data) and the sensor bandwidth its metadata declares, for the stored record."""
     from service.recon.methods.tv import BANDWIDTH_KEY, declared_bandwidth
     from service.recon.tv_grid import record_facts

@@ -332,10 +332,11 @@ print(json.dumps(meta))
 
 @needs_recon
 def test_tv_admission_sizes_the_record_cut_after_its_last_echo(tmp_path):
-    """Issue 47: tv cuts the record after its last echo, and the stored dataset's record says
-    where (``record_facts``, found at import): the admission estimate of a tv job on a record
-    whose echoes end at about a third of it is within 25 % of the measured peak of the real
-    run (above it), and well below the whole record's estimate, which it used to be."""
+    """Issues 47 and 59: tv's default image ends at the record's last echo, and the stored
+    dataset's record says where (``record_facts``, found at import); tv keeps the record until the
+    farthest sensor hears that image's last row. The admission estimate of a tv job on a record
+    whose echoes end at about a third of it is within 25 % of the measured peak of the real run
+    (above it), and below the whole record's estimate, which it used to be."""
     from service.jobs.admission import input_shape
 
     n, n_t, n_pts, dx, depth = 48, 384, 200, 1e-4, 1.2e-3
@@ -345,7 +346,7 @@ def test_tv_admission_sizes_the_record_cut_after_its_last_echo(tmp_path):
     lines = r.stdout.strip().splitlines()
     meta, kept, m = json.loads(lines[-3]), json.loads(lines[-2]), json.loads(lines[-1])
     facts = meta["record_facts"]
-    assert facts["n_t"] == n_t and facts["signal_n_t"] == kept < n_t / 2  # what tv itself kept
+    assert facts["n_t"] == n_t and facts["signal_n_t"] < n_t / 2 and facts["signal_n_t"] < kept < n_t
     shape = input_shape(meta)
     params = {"method": "tv", "dtype": "float32"}
     estimate = estimate_memory(shape, params)
@@ -354,4 +355,4 @@ def test_tv_admission_sizes_the_record_cut_after_its_last_echo(tmp_path):
     print("tv on a cut record, estimate / measured peak:", round(estimate / used, 3), "(whole record's estimate:",
           round(whole / used, 3), ")")
     assert 0 < used < estimate <= 1.25 * used, (used, estimate)
-    assert estimate < whole / 2
+    assert estimate < whole

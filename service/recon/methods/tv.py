@@ -3,6 +3,7 @@ NER-preconditioned FISTA on the exact planar model (kernel:
 :func:`service.recon.tv.reconstruct_tv`; Arridge et al., PMB 61 (2016) 8908)."""
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -49,13 +50,12 @@ class Options(DepthOptions, MethodOptions, NufftOptions):
     dtype : {"float32", "float64"}
         Working and output precision (default ``"float32"``).
     n_z : int or None
-        Output depth samples, 2..65536 (None: with dz None too, the samples the operator works
-        at over the record kept up to its last echo, those samples themselves for data whose
-        band reaches Nyquist; ``service.recon.tv_grid``; else n_t).
+        Output depth samples, 2..65536 (None: with dz None too, down to the depth of the
+        record's last echo above the noise; ``service.recon.tv_grid``; else n_t).
     dz : float or None
-        Output depth spacing in m, [1e-9, 0.1] (None: with n_z None too, c dt' at the
-        operator's sampling dt', which follows the data's band above their noise floor, c dt
-        at full band; else c dt).
+        Output depth spacing in m, [1e-9, 0.1] (None: with n_z None too, the lateral pitch (an
+        isotropic grid at the band c / (2 pitch) the pitch resolves, or c / (2 f) at a declared
+        sensor band f), c dt where that band reaches the record's Nyquist frequency; else c dt).
     positivity : bool
         Constrain p0 >= 0 (default True).
     lam : float or None
@@ -68,8 +68,9 @@ class Options(DepthOptions, MethodOptions, NufftOptions):
     debias : bool
         Refit the amplitudes by least squares on the support after the solve (default False).
     whole_record : bool
-        Keep the whole record instead of cutting it after its last echo (default False;
-        ``service.recon.tv_grid``).
+        Keep the whole record, and by default image its whole depth (default False: the image
+        ends at the last echo and the record is kept until the farthest sensor hears its last
+        row; ``service.recon.tv_grid``).
 
     Examples
     --------
@@ -101,8 +102,9 @@ class Options(DepthOptions, MethodOptions, NufftOptions):
     debias: Flag("debias") = Field(False, description="refit the amplitudes by least squares on the "  # type: ignore[valid-type]
                                    "support after the solve")
     whole_record: Flag("whole_record") = Field(  # type: ignore[valid-type]
-        False, description="keep the whole record: by default tv cuts it after the last echo above the noise (a "
-        "shorter, cheaper operator), which also drops the far sensors' silence about shallow voxels")
+        False, description="keep the whole record and image its whole depth: by default the image ends at the "
+        "last echo above the noise and the record is kept until the farthest sensor hears that depth (3-D; a "
+        "line keeps its whole record), after which the model predicts silence")
 
 
 def run(ds: PointDataset, c: float, opts: dict, step: Progress) -> Reconstruction:
@@ -253,7 +255,7 @@ def grid(n_t: int, dt: float, c: float, *, dz: float | None = None, n_z: int | N
         (``service.recon.tv_grid.RecordFacts.as_dict``); one that does not fit the record is
         ignored (the whole record is sized).
     whole_record : bool, optional
-        tv's option: no cut after the last echo.
+        tv's option: the whole record and its depth.
 
     Returns
     -------
@@ -273,7 +275,7 @@ def grid(n_t: int, dt: float, c: float, *, dz: float | None = None, n_z: int | N
     (6e-05, 256)
     >>> dz, n_z = grid(1024, 8e-9, 1500.0, bandwidth=20e6)  # a 20 MHz sensor: a coarser grid
     >>> round(dz * 1e6, 2), n_z
-    (37.31, 330)
+    (37.5, 328)
     """
     from service.recon.planar import _depth_axis  # the depth axis's own checks (range, reach)
 
@@ -284,9 +286,12 @@ def grid(n_t: int, dt: float, c: float, *, dz: float | None = None, n_z: int | N
 
 
 def _chosen_grid(n_t: int, dt: float, c: float, *, dz: float | None, n_z: int | None, t0: float | None,
-                 bandwidth: float | None, record_facts: dict | None, whole_record: bool) -> TvGrid:
+                 bandwidth: float | None, record_facts: dict | None, whole_record: bool,
+                 dx: float | None = None, n_x: int = 1, n_y: int = 1) -> TvGrid:
     """The grid tv picks (`service.recon.tv_grid.tv_grid`) for a record known by its stored facts
-    (`grid`'s parameters)."""
+    (`grid`'s parameters; ``dx`` the lateral pitch in m of the ``n_x`` × ``n_y`` lattice: the
+    band it resolves, and its diagonal as the sensors' reach, the most any mask on it needs; a
+    line keeps its whole record, as `service.recon.tv` keeps it)."""
     from service.recon.tv_grid import RecordFacts, tv_grid
 
     facts = None
@@ -297,8 +302,10 @@ def _chosen_grid(n_t: int, dt: float, c: float, *, dz: float | None, n_z: int | 
             facts = None
         if facts is not None and facts.n_t != int(n_t):  # not this record's: size the whole record
             facts = None
+    pitch = float(dx) if dx and math.isfinite(float(dx)) and float(dx) > 0 else None
+    reach = None if pitch is None or int(n_y) <= 1 else math.hypot((int(n_x) - 1) * pitch, (int(n_y) - 1) * pitch)
     return tv_grid(int(n_t), float(dt), float(c), bandwidth=bandwidth, dz=dz, n_z=n_z, t0=float(t0 or 0.0),
-                   whole_record=bool(whole_record), facts=facts)
+                   whole_record=bool(whole_record), facts=facts, pitch=pitch, reach=reach)
 
 
 def check_depth(n_t: int, dt: float, c: float, dz: float, n_z: int, t0: float = 0.0) -> None:
@@ -389,8 +396,6 @@ def work(n_t: int, n_x: int, n_y: int = 1, *, dtype: Any = "float32", n_points: 
     >>> 30 < s < 600  # measured: 0.57 s a pair there
     True
     """
-    import math
-
     from service.recon.limits import DEFAULT_MAX_ITER, DEFAULT_TIME_LIMIT
     from service.recon.methods import FLOAT64_WORK, planar_work
     from service.recon.methods.nedner import WORK_RATE as WARM_RATE
@@ -402,7 +407,8 @@ def work(n_t: int, n_x: int, n_y: int = 1, *, dtype: Any = "float32", n_points: 
     dz, n_z = grid(n_t, dt, c, dz=o.get("dz"), n_z=o.get("n_z"), t0=t0 or 0.0)  # the depth axis's checks
     check_depth(n_t, dt, c, dz, n_z, t0 or 0.0)
     chosen = _chosen_grid(n_t, dt, c, dz=o.get("dz"), n_z=o.get("n_z"), t0=t0, bandwidth=bandwidth,
-                          record_facts=record_facts, whole_record=bool(o.get("whole_record")))
+                          record_facts=record_facts, whole_record=bool(o.get("whole_record")), dx=dx, n_x=n_x,
+                          n_y=n_y)
     from driver.physics.grid_sizes import pad_sizes
 
     points = math.prod(pad_sizes((chosen.n_z, n_y, n_x), dx, chosen.dz, chosen.dt, chosen.n_t, c, t0 or 0.0))
@@ -420,7 +426,7 @@ def peak_memory(n_t: int, n_x: int, n_y: int = 1, *, n_z: int | None = None, dty
     """The peak memory of tv in bytes on the grid it will choose
     (``service.recon.memory.model_based_peak`` of the operator's samples and tv's image; the
     memory admission, ``service.jobs.admission.estimate_memory``): with a stored dataset's
-    ``record_facts`` the record cut after its last echo and resampled to its band as tv cuts
+    ``record_facts`` the image down to the last echo and the record kept for it, resampled to the band, as tv cuts
     and resamples it (``service.recon.tv_grid``), else the whole, full-band record (the
     largest grid tv may choose).
 
@@ -453,28 +459,27 @@ def peak_memory(n_t: int, n_x: int, n_y: int = 1, *, n_z: int | None = None, dty
 
     >>> from service.recon.methods.tv import peak_memory
     >>> kw = dict(dx=6e-5, dt=8e-9, c=1500.0, n_points=400)
-    >>> facts = {"n_t": 768, "signal_n_t": 256, "band": None, "sigma": 0.01}
-    >>> peak_memory(768, 96, 96, record_facts=facts, **kw) < peak_memory(768, 96, 96, **kw) / 2
+    >>> facts = {"n_t": 768, "signal_n_t": 256, "sigma": 0.01}
+    >>> peak_memory(768, 96, 96, record_facts=facts, **kw) < peak_memory(768, 96, 96, **kw)
     True
     >>> peak_memory(768, 96, 96, record_facts=facts, options={"whole_record": True}, **kw) == peak_memory(
     ...     768, 96, 96, **kw)
     True
     """
-    import math
-
     from service.recon.memory import model_based_peak
 
     o = dict(options or {})
     if not (dx and dt and c):
         return model_based_peak(n_t, n_x, n_y, n_z=n_z, dtype=dtype, n_points=n_points)
     chosen = _chosen_grid(n_t, dt, c, dz=o.get("dz") or dz, n_z=o.get("n_z"), t0=t0, bandwidth=bandwidth,
-                          record_facts=record_facts, whole_record=bool(o.get("whole_record")))
+                          record_facts=record_facts, whole_record=bool(o.get("whole_record")), dx=dx, n_x=n_x,
+                          n_y=n_y)
     # the rows the NEDNER warm start works on: no sample of the kept record may fold back through
     # the depth period (``service.jobs.admission.working_depth_rows``'s rule on the kept record)
     reach = c * (float(t0 or 0.0) + (chosen.n_t - 1) * chosen.dt) / chosen.dz
     rows = max(chosen.n_z, int(reach) + 2) if math.isfinite(reach) else chosen.n_z
-    return model_based_peak(chosen.n_t, n_x, n_y, n_z=rows, dtype=dtype, n_points=n_points, dx=dx,
-                            dt=chosen.dt, c=c, dz=chosen.dz)
+    return model_based_peak(chosen.n_t, n_x, n_y, n_z=chosen.n_z, dtype=dtype, n_points=n_points, dx=dx,
+                            dt=chosen.dt, c=c, dz=chosen.dz, warm_rows=rows, band=chosen.band)
 
 
 #: the memory admission's margin on tv's model (``service.recon.memory.model_based_peak``, itself
