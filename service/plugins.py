@@ -30,7 +30,7 @@ from collections.abc import Callable
 from importlib import metadata
 from typing import Any
 
-__all__ = ["GROUPS", "DISTRIBUTION", "entry_points", "load_group", "failures"]
+__all__ = ["GROUPS", "DISTRIBUTION", "entry_points", "load_group", "failures", "put_in_order"]
 
 #: the entry-point groups: methods (``service.recon.methods.Method``), formats
 #: (``service.formats.Format``)
@@ -121,6 +121,34 @@ def load_group(group: str, kind: type, register: Callable[[Any], Any]) -> list[s
             continue
         done.append(ep.name)
     return done
+
+
+def put_in_order(registry: dict[str, Any], name: str, obj: Any, position: Callable[[Any], int]) -> None:
+    """Put ``obj`` into ``registry`` under ``name`` (replacing one of that name) and keep the
+    registry in list order: by ``position(obj)``, entries of one position in registration order
+    (the methods' ``Method.order``, the formats' ``Format.rank``).
+
+    Parameters
+    ----------
+    registry : dict
+        Name -> object, in list order.
+    name : str
+    obj : object
+    position : callable
+        ``position(obj) -> int``, smaller first.
+
+    Examples
+    --------
+    >>> from service.plugins import put_in_order
+    >>> reg = {"b": 20, "d": 40}
+    >>> put_in_order(reg, "c", 30, lambda v: v)
+    >>> list(reg)
+    ['b', 'c', 'd']
+    """
+    registry[name] = obj
+    ordered = sorted(registry.items(), key=lambda item: position(item[1]))
+    registry.clear()
+    registry.update(ordered)
 
 
 def _report(group: str, ep: metadata.EntryPoint, exc: BaseException) -> None:

@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, BinaryIO
 
 from driver.hdf5_checks import HDF5_SIGNATURE
+from service.plugins import put_in_order
 from service.recon.dataset import MAX_ELEMENTS
 
 if TYPE_CHECKING:
@@ -210,10 +211,7 @@ def register(fmt: Format) -> Format:
         raise ValueError(f"container must be 'hdf5', 'file' or 'any', got {fmt.container!r}")
     if (fmt.export_from is None) != (fmt.export is None):
         raise ValueError(f"format {fmt.name!r}: export_from and export go together")
-    FORMATS[fmt.name] = fmt
-    ordered = sorted(FORMATS.values(), key=lambda f: f.rank)
-    FORMATS.clear()
-    FORMATS.update((f.name, f) for f in ordered)
+    put_in_order(FORMATS, fmt.name, fmt, lambda f: f.rank)
     return fmt
 
 

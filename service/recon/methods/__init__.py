@@ -32,7 +32,7 @@ from typing import Any
 
 from pydantic import BaseModel, ValidationError
 
-from service.plugins import load_group
+from service.plugins import load_group, put_in_order
 from service.recon.methods.options import MethodOptions
 
 __all__ = ["Method", "METHODS", "register", "get", "option_schemas", "option_fields", "docs_table",
@@ -452,10 +452,7 @@ def register(method: Method) -> Method:
             if mine[name] != theirs[name]:
                 raise ValueError(f"method {method.name!r}: option {name} differs from method {other.name!r}'s "
                                  f"({mine[name]} vs {theirs[name]}): one rule per option name")
-    METHODS[method.name] = method
-    ordered = sorted(METHODS.values(), key=lambda m: m.order)
-    METHODS.clear()
-    METHODS.update((m.name, m) for m in ordered)
+    put_in_order(METHODS, method.name, method, lambda m: m.order)
     return method
 
 
