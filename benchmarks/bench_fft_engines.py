@@ -41,7 +41,7 @@ def _cases(scale: float):
     def r(shape, dtype=np.float32):
         return rng.standard_normal(shape).astype(dtype)
 
-    b = lambda n: max(1, int(n * scale))  # noqa: E731
+    b = lambda n: max(1, int(n * scale))
     return [
         ("y c2c 450 (operator, complex64)", lambda: c((b(128), 450, 226)), lambda a: scipy.fft.fft(a, axis=1, workers=-1)),
         ("x r2c 450 (operator, float32)", lambda: r((b(128), 226, 450)), lambda a: scipy.fft.rfft(a, axis=2, workers=-1)),

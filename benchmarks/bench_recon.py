@@ -163,26 +163,26 @@ def _run(method, n_t, n_y, n_x, repeat, queue):
     y = centred_axis(n_y, PITCH)
     note = ""
     if method == "ner64":
-        fn = lambda: reconstruct_grid(data, PITCH, DT, C)  # noqa: E731
-        warm = lambda: reconstruct_grid(data[:32, :16, :16], PITCH, DT, C)  # noqa: E731
+        fn = lambda: reconstruct_grid(data, PITCH, DT, C)
+        warm = lambda: reconstruct_grid(data[:32, :16, :16], PITCH, DT, C)
     elif method == "ner32":
         d32 = data.astype(np.float32)
-        fn = lambda: reconstruct_grid(d32, PITCH, DT, C, dtype=np.float32)  # noqa: E731
-        warm = lambda: reconstruct_grid(d32[:32, :16, :16], PITCH, DT, C, dtype=np.float32)  # noqa: E731
+        fn = lambda: reconstruct_grid(d32, PITCH, DT, C, dtype=np.float32)
+        warm = lambda: reconstruct_grid(d32[:32, :16, :16], PITCH, DT, C, dtype=np.float32)
     elif method == "linear":
-        fn = lambda: reconstruct_grid(data, PITCH, DT, C, method="linear")  # noqa: E731
-        warm = lambda: reconstruct_grid(data[:32, :16, :16], PITCH, DT, C, method="linear")  # noqa: E731
+        fn = lambda: reconstruct_grid(data, PITCH, DT, C, method="linear")
+        warm = lambda: reconstruct_grid(data[:32, :16, :16], PITCH, DT, C, method="linear")
     elif method == "nedner":
         pos, w, kind = _mask_positions(n_y, n_x)
         al = rng.standard_normal((len(pos), n_t))
         grid = (x, y)
         note = f"{len(pos)} sensors ({kind})"
-        fn = lambda: reconstruct_points(al, pos, DT, C, weights=w, grid=grid)  # noqa: E731
-        warm = lambda: reconstruct_points(al[:50, :32], pos[:50], DT, C, grid=grid)  # noqa: E731
+        fn = lambda: reconstruct_points(al, pos, DT, C, weights=w, grid=grid)
+        warm = lambda: reconstruct_points(al[:50, :32], pos[:50], DT, C, grid=grid)
     else:
         interp = "*nearest" if method == "kwave_nearest" else "*linear"
-        fn = lambda: kspace_plane_recon(data, PITCH, PITCH, DT, C, interp=interp)  # noqa: E731
-        warm = lambda: kspace_plane_recon(data[:16, :8, :8], PITCH, PITCH, DT, C, interp=interp)  # noqa: E731
+        fn = lambda: kspace_plane_recon(data, PITCH, PITCH, DT, C, interp=interp)
+        warm = lambda: kspace_plane_recon(data[:16, :8, :8], PITCH, PITCH, DT, C, interp=interp)
     warm()
     t = _best(fn, repeat)
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024 - base
@@ -322,7 +322,7 @@ def _vs_kwave_python(repeat) -> None:
             fn = getattr(importlib.import_module(mod), "kspacePlaneRecon", None)
         except ImportError:
             continue
-        except Exception as exc:  # noqa: BLE001 - k-wave-python downloads its simulation binaries on import
+        except Exception as exc:  # k-wave-python downloads its simulation binaries on import
             why = f"not importable here ({type(exc).__name__}: {exc}; it fetches its binaries on first import)"
             break
         if fn is not None:

@@ -112,7 +112,7 @@ def run(kind: str, dims: int, snr_db: float, debias: bool, points: int = 160, sw
     from service.recon.tv import reconstruct_tv
 
     p0, alines, pos, kw = _case(kind, dims, snr_db, points, seed, poi)
-    amp = lambda img: float(np.vdot(img, p0) / np.vdot(p0, p0))  # noqa: E731
+    amp = lambda img: float(np.vdot(img, p0) / np.vdot(p0, p0))
     reconstruct_tv(alines, DT, C, positions=pos, max_iter=2, **kw)  # compile
     t = time.perf_counter()
     ned = reconstruct_points(alines, pos, DT, C, **kw).p0

@@ -534,7 +534,7 @@ class ScanFile:
             if renamed:  # the file is in place and valid (resumable); just close it
                 try:
                     f.close()
-                except Exception:  # noqa: BLE001 - already failing; keep the first error
+                except Exception:  # already failing; keep the first error
                     pass
             tmp.unlink(missing_ok=True)
             _release_lock(path, lock_fd)
@@ -603,10 +603,6 @@ class ScanFile:
     def n_completed(self) -> int:
         """Points complete at every wavelength."""
         return int(self.completed().sum())
-
-    def n_completed_alines(self) -> int:
-        """A-lines complete (at most n_points · n_wavelengths)."""
-        return int(self._done[:, :self.n_points].sum())
 
     # -- writing --------------------------------------------------------------------------
     def append(self, point_index: int, samples: np.ndarray, meta: dict) -> bool:

@@ -373,7 +373,7 @@ class SimulatedScanner:
                 self._retransmit(now)
                 if self._out:
                     self._write(now)
-            except Exception as exc:  # noqa: BLE001  (a firmware bug must not kill the device)
+            except Exception as exc:  # a firmware bug must not kill the device
                 self.stats["internal_errors"] += 1
                 self._push_error(-310, f"System error; {type(exc).__name__}: {exc}"[:200])
                 self._abort()
@@ -446,7 +446,7 @@ class SimulatedScanner:
                 self._push_error(err.code, err.message)
                 wire = encode_frame(FrameType.ERR, f'{err.code},"{err.message}"'.encode(),
                                     ack=frame.seq)
-            except Exception as exc:  # noqa: BLE001  (a firmware bug must not kill the device)
+            except Exception as exc:  # a firmware bug must not kill the device
                 msg = f"System error; {type(exc).__name__}: {exc}"[:200].replace('"', "'")
                 self._push_error(-310, msg)
                 wire = encode_frame(FrameType.ERR, f'-310,"{msg}"'.encode(), ack=frame.seq)

@@ -434,6 +434,9 @@ def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = No
     step = span(checked, 0.0, 1.0)
     step(0.0)
     result = spec.run(dataset, c, opts, step)
+    # the record names the method that ran by its registered name (a method may run another's
+    # kernels: the result, volume.h5 and every export say which method the user asked for)
+    result.params["method"] = spec.name
     result.params.update(wavelength_params(dataset))  # which excitation wavelength (storage.datasets)
     result.p0_unit = p0_unit(dataset)  # Pa for a calibrated scan, else a.u.
     step(1.0)

@@ -190,11 +190,6 @@ class Settings(BaseSettings):
         """The SQLite file: ``db_path`` or ``<data_dir>/jobs.sqlite``."""
         return self.db_path if self.db_path is not None else self.data_dir / "jobs.sqlite"
 
-    @property
-    def loopback_only(self) -> bool:
-        """True when the server is bound to loopback only (no token needed on reads)."""
-        return is_loopback(self.host)
-
     def redact(self, text: str) -> str:
         """``text`` with the data directory's path replaced by ``<data>``, so error
         messages that reach clients never show the server's file system layout. Only whole

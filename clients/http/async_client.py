@@ -8,33 +8,33 @@ over one ``httpx.AsyncClient``: the same endpoints, requests and answers as the 
 from __future__ import annotations
 
 import asyncio
-import time
-from collections.abc import AsyncGenerator, Awaitable, Callable
-from pathlib import Path
+from collections.abc import AsyncGenerator
 from typing import Any, TypeVar
 
 import httpx
 
-from .calls import Call, Download, Request, field_of, to_dict
+from .calls import Call, Download
+from .core import (
+    CHUNK_BYTES,
+    Flow,
+    Follow,
+    Send,
+    Sleep,
+    Step,
+    Stream,
+    call_flow,
+    events_request,
+    request_args,
+    wait_flow,
+)
 from .endpoints.datasets import AsyncDatasets
 from .endpoints.jobs import AsyncJobs
 from .endpoints.plans import AsyncPlans
 from .endpoints.reconstructions import AsyncReconstructions
 from .endpoints.scans import AsyncScans
 from .endpoints.server import AsyncServer
-from .errors import ApiError, ServerUnavailable, WaitTimeout
-from .transport import Connection, Resume, raise_for
-from .waiting import (
-    TERMINAL_STATES,
-    ProgressCallback,
-    finish,
-    keep_sse,
-    parse_event,
-    past,
-    progress_of,
-    read_timeout,
-    report_snapshot,
-)
+from .transport import Connection, raise_for
+from .waiting import ProgressCallback, parse_event
 
 __all__ = ["AsyncClient"]
 
@@ -99,51 +99,58 @@ class AsyncClient(Connection, AsyncServer, AsyncPlans, AsyncScans, AsyncDatasets
     async def __aexit__(self, *exc: object) -> None:
         await self.aclose()
 
-    # -- transport: every endpoint method ends here
+    # -- the I/O of the flows (clients.http.core): every endpoint method ends here
     async def _call(self, call: Call[T] | Download[T]) -> T:
-        if isinstance(call, Download):
-            return call.finish(*(await self._download(call.request, call.dest)))
-        return call.read(await self._send(call.request))
+        return await self._run(call_flow(call, self.base_url))
 
-    async def _send(self, req: Request) -> httpx.Response:
-        try:
-            if req.upload is None:
-                r = await self._http.request(req.method, req.path, json=req.json, params=req.params,
-                                             headers=req.headers, data=req.form)
-            else:
-                with open(req.upload, "rb") as fh:  # streamed from the file, not read into memory
-                    r = await self._http.request(req.method, req.path, params=req.params, headers=req.headers,
-                                                 data=req.form,
-                                                 files={"file": (req.upload.name, fh, "application/octet-stream")})
-        except httpx.TransportError as exc:
-            raise self.unavailable(exc) from None
-        raise_for(r)
-        return r
-
-    async def _download(self, req: Request, dest: Path) -> tuple[Path, str]:
-        dest.parent.mkdir(parents=True, exist_ok=True)
-        state = Resume(dest)
-        for _attempt in range(2):
+    async def _run(self, flow: Flow[T]) -> T:
+        """Run ``flow``'s steps (:mod:`clients.http.core`) with ``asyncio`` I/O; its result."""
+        answer: Any = None
+        error: BaseException | None = None
+        while True:
             try:
-                async with self._http.stream(req.method, req.path, params=req.params,
-                                             headers=state.headers()) as r:
-                    if r.status_code == 416:  # what we hold no longer fits: start over
-                        state.discard()
-                        continue
-                    if r.status_code >= 400:
-                        await r.aread()
-                        raise_for(r)
-                    content_type = r.headers.get("content-type", "")
-                    with state.open(r) as fh:
-                        async for chunk in r.aiter_bytes(1 << 20):
-                            fh.write(chunk)
-                return state.done(), content_type
-            except httpx.TransportError as exc:  # keep the part: the next call resumes it
-                raise self.unavailable(exc) from None
-            except BaseException:
-                state.discard()
-                raise
-        raise ApiError(416, "the server refused every byte range of the download")
+                step = flow.throw(error) if error is not None else flow.send(answer)
+            except StopIteration as done:
+                return done.value
+            answer, error = None, None
+            try:
+                answer = await self._do(step)
+            except BaseException as exc:  # the flow decides (ServerUnavailable, resume, poll)
+                error = exc
+
+    async def _do(self, step: Step) -> Any:
+        if isinstance(step, Send):
+            with request_args(step.request) as args:
+                return await self._http.request(**args)
+        if isinstance(step, Stream):
+            req = step.request
+            async with self._http.stream(req.method, req.path, params=req.params, headers=step.headers) as r:
+                if step.refused(r):
+                    return r.status_code, ""
+                if r.status_code >= 400:
+                    await r.aread()
+                    raise_for(r)
+                with step.open(r) as fh:
+                    async for chunk in r.aiter_bytes(CHUNK_BYTES):
+                        fh.write(chunk)
+                return r.status_code, r.headers.get("content-type", "")
+        if isinstance(step, Follow):
+            stream = self.events(step.job_id, last_event_id=step.last_id, read_timeout=step.read_timeout)
+            try:
+                async for event in stream:
+                    progress, stop = step.seen(*event)
+                    if progress is not None and step.on_progress is not None:
+                        await _report(step.on_progress, progress)
+                    if stop:
+                        break
+            finally:
+                await stream.aclose()
+            return None
+        if isinstance(step, Sleep):
+            await asyncio.sleep(step.seconds)
+            return None
+        await _report(step.on_progress, step.progress)
+        return None
 
     # -- events and waiting
     async def events(self, job_id: str, *, last_event_id: str | None = None,
@@ -166,11 +173,9 @@ class AsyncClient(Connection, AsyncServer, AsyncPlans, AsyncScans, AsyncDatasets
         """
         from httpx_sse import aconnect_sse
 
-        headers = {"Last-Event-ID": last_event_id} if last_event_id else {}
-        timeout = httpx.Timeout(self.timeout, read=read_timeout)
         try:
-            async with aconnect_sse(self._http, "GET", f"/api/jobs/{job_id}/events",
-                                    headers=headers, timeout=timeout) as source:
+            async with aconnect_sse(self._http, **events_request(job_id, last_event_id, self.timeout,
+                                                                 read_timeout)) as source:
                 if source.response.status_code >= 400:
                     await source.response.aread()
                     raise_for(source.response)
@@ -179,31 +184,6 @@ class AsyncClient(Connection, AsyncServer, AsyncPlans, AsyncScans, AsyncDatasets
                     yield event, data, sse.id or None
         except httpx.TransportError as exc:
             raise self.unavailable(exc) from None
-
-    async def _follow_events(self, job_id: str, last_id: str | None, deadline: float | None,
-                             report: Callable[[dict], Awaitable[None]]) -> tuple[int, str | None, bool]:
-        """See :meth:`Client._follow_events` (``report`` is awaited)."""
-        n_events = 0
-        stream = self.events(job_id, last_event_id=last_id, read_timeout=read_timeout(deadline))
-        try:
-            async for event, data, eid in stream:
-                n_events += 1
-                last_id = eid or last_id
-                if event == "progress":
-                    await report(progress_of(data))
-                if data.get("state") in TERMINAL_STATES or past(deadline):
-                    break
-        except ServerUnavailable:
-            pass  # dropped or idle stream: the caller's get_job tells which
-        except ApiError as exc:
-            if exc.status_code == 404:
-                await self.get_job(job_id)  # NotFound propagates for an unknown job
-            return n_events, last_id, keep_sse(exc)
-        except Exception:  # a malformed stream: poll instead
-            return n_events, last_id, False
-        finally:
-            await stream.aclose()
-        return n_events, last_id, True
 
     async def wait(self, job_id: str, *, on_progress: ProgressCallback | None = None,
                    timeout: float | None = None, poll_interval: float = 0.5,
@@ -226,28 +206,12 @@ class AsyncClient(Connection, AsyncServer, AsyncPlans, AsyncScans, AsyncDatasets
         JobFailed, JobCancelled, WaitTimeout, ApiError, ServerUnavailable
             As :meth:`Client.wait`.
         """
-        deadline = None if timeout is None else time.monotonic() + timeout
-        last_id: str | None = None
-        use_sse = True
+        return await self._run(wait_flow(job_id, self.base_url, on_progress=on_progress, timeout=timeout,
+                                         poll_interval=poll_interval, raise_on_failure=raise_on_failure))
 
-        async def report(progress: dict) -> None:
-            if on_progress is not None:
-                res = on_progress(progress)
-                if asyncio.iscoroutine(res):
-                    await res
 
-        job = await self.get_job(job_id)
-        while True:
-            if report_snapshot(job, use_sse):
-                await report(to_dict(field_of(job, "progress")))
-            if field_of(job, "state") in TERMINAL_STATES:
-                return finish(job) if raise_on_failure else job
-            if deadline is not None and time.monotonic() > deadline:
-                raise WaitTimeout(f"job {job_id} still {field_of(job, 'state')} after {timeout} s")
-            if use_sse:
-                n_events, last_id, use_sse = await self._follow_events(job_id, last_id, deadline, report)
-                if n_events == 0:
-                    await asyncio.sleep(poll_interval)
-            else:
-                await asyncio.sleep(poll_interval)
-            job = await self.get_job(job_id)
+async def _report(on_progress: ProgressCallback, progress: dict) -> None:
+    """Call ``on_progress(progress)``, awaiting it when it is a coroutine function's."""
+    res = on_progress(progress)
+    if asyncio.iscoroutine(res):
+        await res

@@ -5,8 +5,8 @@ arguments that returns a :class:`Call` (a :class:`Request` and ``read(response) 
 or a :class:`Download` (a request whose body is saved to a file, then ``finish(path) ->
 result``). The builders live with their endpoint group in :mod:`clients.http.endpoints`,
 beside the two thin methods that run them: ``Client``'s (``self._call(call)``, blocking) and
-``AsyncClient``'s (``await self._call(call)``). Only :mod:`clients.http.sync` and
-:mod:`clients.http.asynchronous` send anything.
+``AsyncClient``'s (``await self._call(call)``), which run :func:`clients.http.core.call_flow`.
+Only :mod:`clients.http.client` and :mod:`clients.http.async_client` send anything.
 
 The response helpers here (:func:`as_model`, :func:`field_of`, :func:`to_dict`,
 :func:`read_job_id`) are shared by every group.
@@ -141,7 +141,7 @@ class Download(Generic[T]):
 
 class SyncCaller:
     """What an endpoint group's blocking methods call: ``self._call(call) -> result``
-    (implemented by :class:`clients.http.sync.Client`).
+    (implemented by :class:`clients.http.client.Client`).
 
     Attributes
     ----------
@@ -161,7 +161,7 @@ class SyncCaller:
 
 class AsyncCaller:
     """What an endpoint group's coroutine methods await: ``await self._call(call) -> result``
-    (implemented by :class:`clients.http.asynchronous.AsyncClient`).
+    (implemented by :class:`clients.http.async_client.AsyncClient`).
 
     Attributes
     ----------

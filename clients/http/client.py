@@ -31,31 +31,32 @@ from __future__ import annotations
 
 import time
 from collections.abc import Generator
-from pathlib import Path
 from typing import Any, TypeVar
 
 import httpx
 
-from .calls import Call, Download, Request, field_of, to_dict
+from .calls import Call, Download
+from .core import (
+    CHUNK_BYTES,
+    Flow,
+    Follow,
+    Send,
+    Sleep,
+    Step,
+    Stream,
+    call_flow,
+    events_request,
+    request_args,
+    wait_flow,
+)
 from .endpoints.datasets import Datasets
 from .endpoints.jobs import Jobs
 from .endpoints.plans import Plans
 from .endpoints.reconstructions import Reconstructions
 from .endpoints.scans import Scans
 from .endpoints.server import Server
-from .errors import ApiError, ServerUnavailable, WaitTimeout
-from .transport import Connection, Resume, raise_for
-from .waiting import (
-    TERMINAL_STATES,
-    ProgressCallback,
-    finish,
-    keep_sse,
-    parse_event,
-    past,
-    progress_of,
-    read_timeout,
-    report_snapshot,
-)
+from .transport import Connection, raise_for
+from .waiting import ProgressCallback, parse_event
 
 __all__ = ["Client"]
 
@@ -153,50 +154,58 @@ class Client(Connection, Server, Plans, Scans, Datasets, Reconstructions, Jobs):
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    # -- transport: every endpoint method ends here
+    # -- the I/O of the flows (clients.http.core): every endpoint method ends here
     def _call(self, call: Call[T] | Download[T]) -> T:
-        if isinstance(call, Download):
-            return call.finish(*(self._download(call.request, call.dest)))
-        return call.read(self._send(call.request))
+        return self._run(call_flow(call, self.base_url))
 
-    def _send(self, req: Request) -> httpx.Response:
-        try:
-            if req.upload is None:
-                r = self._http.request(req.method, req.path, json=req.json, params=req.params,
-                                       headers=req.headers, data=req.form)
-            else:
-                with open(req.upload, "rb") as fh:  # streamed from the file, not read into memory
-                    r = self._http.request(req.method, req.path, params=req.params, headers=req.headers,
-                                           data=req.form,
-                                           files={"file": (req.upload.name, fh, "application/octet-stream")})
-        except httpx.TransportError as exc:
-            raise self.unavailable(exc) from None
-        raise_for(r)
-        return r
-
-    def _download(self, req: Request, dest: Path) -> tuple[Path, str]:
-        dest.parent.mkdir(parents=True, exist_ok=True)
-        state = Resume(dest)
-        for _attempt in range(2):
+    def _run(self, flow: Flow[T]) -> T:
+        """Run ``flow``'s steps (:mod:`clients.http.core`) with blocking I/O; its result."""
+        answer: Any = None
+        error: BaseException | None = None
+        while True:
             try:
-                with self._http.stream(req.method, req.path, params=req.params, headers=state.headers()) as r:
-                    if r.status_code == 416:  # what we hold no longer fits: start over
-                        state.discard()
-                        continue
-                    if r.status_code >= 400:
-                        r.read()
-                        raise_for(r)
-                    content_type = r.headers.get("content-type", "")
-                    with state.open(r) as fh:
-                        for chunk in r.iter_bytes(1 << 20):
-                            fh.write(chunk)
-                return state.done(), content_type
-            except httpx.TransportError as exc:  # keep the part: the next call resumes it
-                raise self.unavailable(exc) from None
-            except BaseException:
-                state.discard()
-                raise
-        raise ApiError(416, "the server refused every byte range of the download")
+                step = flow.throw(error) if error is not None else flow.send(answer)
+            except StopIteration as done:
+                return done.value
+            answer, error = None, None
+            try:
+                answer = self._do(step)
+            except BaseException as exc:  # the flow decides (ServerUnavailable, resume, poll)
+                error = exc
+
+    def _do(self, step: Step) -> Any:
+        if isinstance(step, Send):
+            with request_args(step.request) as args:
+                return self._http.request(**args)
+        if isinstance(step, Stream):
+            req = step.request
+            with self._http.stream(req.method, req.path, params=req.params, headers=step.headers) as r:
+                if step.refused(r):
+                    return r.status_code, ""
+                if r.status_code >= 400:
+                    r.read()
+                    raise_for(r)
+                with step.open(r) as fh:
+                    for chunk in r.iter_bytes(CHUNK_BYTES):
+                        fh.write(chunk)
+                return r.status_code, r.headers.get("content-type", "")
+        if isinstance(step, Follow):
+            stream = self.events(step.job_id, last_event_id=step.last_id, read_timeout=step.read_timeout)
+            try:
+                for event in stream:
+                    progress, stop = step.seen(*event)
+                    if progress is not None and step.on_progress is not None:
+                        step.on_progress(progress)
+                    if stop:
+                        break
+            finally:
+                stream.close()
+            return None
+        if isinstance(step, Sleep):
+            time.sleep(step.seconds)
+            return None
+        step.on_progress(step.progress)
+        return None
 
     # -- events and waiting
     def events(self, job_id: str, *, last_event_id: str | None = None,
@@ -229,11 +238,9 @@ class Client(Connection, Server, Plans, Scans, Datasets, Reconstructions, Jobs):
         """
         from httpx_sse import connect_sse
 
-        headers = {"Last-Event-ID": last_event_id} if last_event_id else {}
-        timeout = httpx.Timeout(self.timeout, read=read_timeout)
         try:
-            with connect_sse(self._http, "GET", f"/api/jobs/{job_id}/events",
-                             headers=headers, timeout=timeout) as source:
+            with connect_sse(self._http, **events_request(job_id, last_event_id, self.timeout,
+                                                          read_timeout)) as source:
                 if source.response.status_code >= 400:
                     source.response.read()
                     raise_for(source.response)
@@ -242,32 +249,6 @@ class Client(Connection, Server, Plans, Scans, Datasets, Reconstructions, Jobs):
                     yield event, data, sse.id or None
         except httpx.TransportError as exc:
             raise self.unavailable(exc) from None
-
-    def _follow_events(self, job_id: str, last_id: str | None, deadline: float | None,
-                       on_progress: ProgressCallback | None) -> tuple[int, str | None, bool]:
-        """Read the job's event stream until it ends, drops, the job ends or the deadline
-        passes; returns ``(events read, last event id, whether to keep using SSE)``."""
-        n_events = 0
-        stream = self.events(job_id, last_event_id=last_id, read_timeout=read_timeout(deadline))
-        try:
-            for event, data, eid in stream:
-                n_events += 1
-                last_id = eid or last_id
-                if event == "progress" and on_progress is not None:
-                    on_progress(progress_of(data))
-                if data.get("state") in TERMINAL_STATES or past(deadline):
-                    break
-        except ServerUnavailable:
-            pass  # dropped or idle stream: the caller's get_job tells which
-        except ApiError as exc:
-            if exc.status_code == 404:
-                self.get_job(job_id)  # NotFound propagates for an unknown job
-            return n_events, last_id, keep_sse(exc)
-        except Exception:  # a malformed stream: poll instead
-            return n_events, last_id, False
-        finally:
-            stream.close()
-        return n_events, last_id, True
 
     def wait(self, job_id: str, *, on_progress: ProgressCallback | None = None,
              timeout: float | None = None, poll_interval: float = 0.5, raise_on_failure: bool = True) -> Any:
@@ -305,21 +286,5 @@ class Client(Connection, Server, Plans, Scans, Datasets, Reconstructions, Jobs):
         ApiError, ServerUnavailable
             As every endpoint.
         """
-        deadline = None if timeout is None else time.monotonic() + timeout
-        last_id: str | None = None
-        use_sse = True
-        job = self.get_job(job_id)
-        while True:
-            if on_progress is not None and report_snapshot(job, use_sse):
-                on_progress(to_dict(field_of(job, "progress")))
-            if field_of(job, "state") in TERMINAL_STATES:
-                return finish(job) if raise_on_failure else job
-            if deadline is not None and time.monotonic() > deadline:
-                raise WaitTimeout(f"job {job_id} still {field_of(job, 'state')} after {timeout} s")
-            if use_sse:
-                n_events, last_id, use_sse = self._follow_events(job_id, last_id, deadline, on_progress)
-                if n_events == 0:
-                    time.sleep(poll_interval)
-            else:
-                time.sleep(poll_interval)
-            job = self.get_job(job_id)
+        return self._run(wait_flow(job_id, self.base_url, on_progress=on_progress, timeout=timeout,
+                                   poll_interval=poll_interval, raise_on_failure=raise_on_failure))

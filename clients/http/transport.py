@@ -1,8 +1,9 @@
 """What both clients share on the wire: the connection settings, the error of a 4xx/5xx
 answer, resumable downloads and the OME-Zarr zip's unpacking.
 
-:class:`clients.http.sync.Client` and :class:`clients.http.asynchronous.AsyncClient` send with
-``httpx`` (blocking or ``asyncio``); everything here is the same for both. Downloads go to
+:class:`clients.http.client.Client` and :class:`clients.http.async_client.AsyncClient` send with
+``httpx`` (blocking or ``asyncio``) what :mod:`clients.http.core`'s flows ask for; everything
+here is the same for both. Downloads go to
 ``<dest>.part`` and are renamed into place when complete; one cut off by a network failure
 resumes where it stopped on the next call (HTTP ``Range`` with ``If-Range``, RFC 9110
 §14.2 / §13.1.5, so a changed file is fetched whole).

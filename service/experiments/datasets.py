@@ -73,11 +73,6 @@ class DenseDataset(GridDataset):
             n_z = self.n_t // 2
         return max(int(minimum), min(n_z, self.n_t))
 
-    @property
-    def lateral_shape(self) -> tuple[int, ...]:
-        """``(n_x,)`` or ``(n_y, n_x)``."""
-        return self.data.shape[1:]
-
     def crop(self, *, n_t: int | None = None, lateral: int | None = None) -> DenseDataset:
         """A copy keeping the first ``n_t`` samples and the central ``lateral`` points
         per lateral axis (the ground truth is cropped laterally to match)."""

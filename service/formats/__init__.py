@@ -25,39 +25,24 @@ name           module      content                                             r
 ``png``        png         PNG picture → bytes                                 refused as data
 ``ome-tiff``   ome_tiff    p0 volume as OME-TIFF (from a result)               export
 ``ome-zarr``   ngff        p0 volume as OME-Zarr, NGFF 0.5 (from a result)     export (a folder)
+``npz``        npz         p0 volume and axes as NumPy .npz (from a result)    export
 =============  ==========  ==================================================  =====================
 
 Exports: a format with ``export_from`` and ``export`` writes files of another (``result`` and
-``fpscan`` export themselves, ``ipasc`` a scan file, ``ome-tiff`` / ``ome-zarr`` a result):
+``fpscan`` export themselves, ``ipasc`` a scan file, ``ome-tiff`` / ``ome-zarr`` / ``npz`` a result):
 :func:`export_formats`, :func:`export_file` (the one dispatch of ``fpscan export``, ``GET
 /api/jobs/{id}/export/{format}``, the HTTP client's ``export`` and the web page's downloads).
 
-Adding a format: a module here with ``sniff``, ``load`` (and ``write``; its load options as a
-typed model of ``service.formats.load_options``, ``Format.options``), or an ``export``, and a
-``FORMAT = Format(...)``, and its test — nothing else: every public module of this
-package that declares a ``FORMAT`` is registered when the package is imported (after the
-built-in ones of :data:`BUILTIN`, in module-name order: :func:`_discover`), and the CLI
-help, the API's choices, the web page and the HTTP client follow from the registry.
+Adding a format: a module with ``sniff``, ``load`` (and ``write``; its load options as a
+typed model of ``service.formats.load_options``, ``Format.options``), or an ``export``, that
+declares a ``FORMAT = Format(...)``, an entry point naming it in the group ``fpscan.formats`` of
+its distribution's ``pyproject.toml`` (fpscan's own, or another package's: a plugin), and its
+test — nothing else: the registry loads every entry point of the group when this package is
+imported (``service.plugins.load_group``), and the CLI help, the API's choices, the web page
+and the HTTP client follow from the registry (docs/plugins.md).
 """
 from __future__ import annotations
 
-import importlib
-import pkgutil
-
-from service.formats import (
-    dataset,
-    ipasc,
-    kwave_hdf5,
-    kwave_mat,
-    ngff,
-    npy,
-    ome_tiff,
-    plan,
-    png,
-    result,
-    scan,
-    unmix,
-)
 from service.formats._registry import (
     FORMATS,
     HEAD_BYTES,
@@ -75,33 +60,10 @@ from service.formats._registry import (
     sniff,
     unregister,
 )
+from service.plugins import load_group
 
-__all__ = ["FORMATS", "BUILTIN", "HEAD_BYTES", "MAX_BYTES", "Format", "Source", "describe", "detect", "export_file",
+__all__ = ["FORMATS", "HEAD_BYTES", "MAX_BYTES", "Format", "Source", "describe", "detect", "export_file",
            "export_formats", "load", "names", "open_source", "register", "sniff", "unregister", "upload_formats"]
-
-#: the formats fpscan knows, in the order of the lists of choices
-BUILTIN = (npy.FORMAT, kwave_hdf5.FORMAT, kwave_mat.FORMAT, scan.FORMAT, ipasc.FORMAT, dataset.FORMAT, result.FORMAT,
-           unmix.FORMAT, plan.FORMAT, png.FORMAT, ome_tiff.FORMAT, ngff.FORMAT)
-for _fmt in BUILTIN:
-    register(_fmt)
-
-
-def _discover() -> list[Format]:
-    """Register the ``FORMAT`` of every other public module of this package (a format
-    added as one file), in module-name order; returns them. A module without ``FORMAT``
-    (``untrusted``: the hostile-file checks) is no format."""
-    found = []
-    for info in sorted(pkgutil.iter_modules(__path__), key=lambda m: m.name):
-        if info.name.startswith("_"):
-            continue
-        fmt = getattr(importlib.import_module(f"{__name__}.{info.name}"), "FORMAT", None)
-        if isinstance(fmt, Format) and fmt.name not in FORMATS:
-            found.append(register(fmt))
-    return found
-
-
-_discover()
-
 
 def upload_formats() -> list[dict]:
     """The formats ``POST /api/datasets`` accepts, in order (``GET /api/datasets/formats``: the
@@ -115,3 +77,7 @@ def upload_formats() -> list[dict]:
     """
     return [{"name": f.name, "title": f.title, "wavelengths": f.wavelengths}
             for f in FORMATS.values() if f.upload]
+
+
+# every format, fpscan's own and the plugins' (last: a plugin may import this package's names)
+load_group("fpscan.formats", Format, register)

@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, BinaryIO
 
 from driver.hdf5_checks import HDF5_SIGNATURE
+from service.plugins import put_in_order
 from service.recon.dataset import MAX_ELEMENTS
 
 if TYPE_CHECKING:
@@ -147,6 +148,10 @@ class Format:
         gives when the content is detected as this format.
     order : int
         Sniffing order, lowest first; the catch-all (any HDF5 array: ``kwave-hdf5``) last.
+    rank : int
+        Position in the lists of choices (:func:`names`, :func:`export_formats`), smallest
+        first, formats of one rank in registration order; fpscan's own are 10..130, the
+        default (1000) puts a plugin's after them.
     noun : str
         The format in a message (``"a NumPy .npy array"``; default ``"a <name> file"``).
     """
@@ -169,6 +174,7 @@ class Format:
     refuse: str | None = None
     order: int = 50
     noun: str = ""
+    rank: int = 1000
 
     @property
     def what(self) -> str:
@@ -176,7 +182,7 @@ class Format:
         return self.noun or f"a {self.name} file"
 
 
-#: name -> format, every registered format (:func:`register`)
+#: name -> format, every registered format (:func:`register`), in list order (:attr:`Format.rank`)
 FORMATS: dict[str, Format] = {}
 
 
@@ -205,7 +211,7 @@ def register(fmt: Format) -> Format:
         raise ValueError(f"container must be 'hdf5', 'file' or 'any', got {fmt.container!r}")
     if (fmt.export_from is None) != (fmt.export is None):
         raise ValueError(f"format {fmt.name!r}: export_from and export go together")
-    FORMATS[fmt.name] = fmt
+    put_in_order(FORMATS, fmt.name, fmt, lambda f: f.rank)
     return fmt
 
 
@@ -221,7 +227,7 @@ def unregister(name: str) -> None:
 
 
 def names(*, input: bool | None = None, upload: bool | None = None) -> tuple[str, ...]:
-    """The registered formats' names in registration order, those with the given flags.
+    """The registered formats' names in list order (:attr:`Format.rank`), those with the given flags.
 
     Parameters
     ----------
@@ -432,8 +438,8 @@ def load(path: str | os.PathLike, kind: str | None = None, *, max_bytes: int = M
 
     A file HDF5 would open as an SWMR reader (a writer has it open: HDF5 can block on its
     damaged metadata for ever) is read in a spawned child process with a time limit
-    (``service.formats.untrusted.read_bounded``; there only the package's format modules are
-    registered, and the content must be picklable) unless ``bounded`` is False.
+    (``service.formats.untrusted.read_bounded``; there only the formats of the ``fpscan.formats``
+    entry points are registered, and the content must be picklable) unless ``bounded`` is False.
 
     Parameters
     ----------
@@ -501,7 +507,7 @@ def load(path: str | os.PathLike, kind: str | None = None, *, max_bytes: int = M
 
 
 def export_formats(source: str | None = None) -> tuple[str, ...]:
-    """The names of the export formats (:attr:`Format.export_from` set), in registration order.
+    """The names of the export formats (:attr:`Format.export_from` set), in list order.
 
     Parameters
     ----------

@@ -152,5 +152,5 @@ def load(source: Source, **_: Any) -> GridDataset | PointDataset:
         raise ValueError(f"not a canonical dataset file ({exc})") from None
 
 
-FORMAT = Format(name="dataset", title="fpscan dataset (the server's stored upload)", container="hdf5",
+FORMAT = Format(rank=60, name="dataset", title="fpscan dataset (the server's stored upload)", container="hdf5",
                 sniff=sniff, load=load, write=write, input=True, order=20, noun="an fpscan dataset file")

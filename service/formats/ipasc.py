@@ -564,6 +564,6 @@ def _dataset(source: Source, wavelength_index: int) -> PointDataset:
                         if wl is not None and np.size(wl) > wavelength_index else None)
 
 
-FORMAT = Format(name="ipasc", title="IPASC HDF5", container="hdf5", sniff=sniff, load=load, write=export_scan,
+FORMAT = Format(rank=50, name="ipasc", title="IPASC HDF5", container="hdf5", sniff=sniff, load=load, write=export_scan,
                 input=True, upload=True, wavelengths=True, order=50, noun="an IPASC file", options=WavelengthChoice,
                 export_from="fpscan", export=export_scan, suffix="_ipasc.h5", media_type="application/x-hdf5")

@@ -158,5 +158,5 @@ def load(source: Source, *, key: str | None = None, dt: float | None = None, dx:
                        c=positive("c", c if c is not None else C_DEFAULT), source="kwave-hdf5", meta=meta)
 
 
-FORMAT = Format(name="kwave-hdf5", title="HDF5, k-Wave layout", container="hdf5", sniff=sniff, load=load,
+FORMAT = Format(rank=20, name="kwave-hdf5", title="HDF5, k-Wave layout", container="hdf5", sniff=sniff, load=load,
                 input=True, upload=True, order=90, noun="an HDF5 array in k-Wave layout", options=KwaveOptions)

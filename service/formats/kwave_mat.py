@@ -429,6 +429,6 @@ def load(source: Source, *, key: str | None = None, dt: float | None = None, dx:
                        c=positive("c", c if c is not None else C_DEFAULT), source="kwave-mat", meta=meta)
 
 
-FORMAT = Format(name="kwave-mat", title="k-Wave MAT-file (MATLAB/Octave save: v5, v7, v7.3)", container="any",
+FORMAT = Format(rank=30, name="kwave-mat", title="k-Wave MAT-file (MATLAB/Octave save: v5, v7, v7.3)", container="any",
                 sniff=sniff, load=load, input=True, upload=True, order=20, noun="a k-Wave MAT-file",
                 options=KwaveOptions)

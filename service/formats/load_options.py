@@ -40,7 +40,7 @@ def _positive(name: str) -> Any:
     return BeforeValidator(check)
 
 
-def Positive(name: str) -> Any:  # noqa: N802 -- a type, as the methods' Flag(...)
+def Positive(name: str) -> Any:  # a type, as the methods' Flag(...)
     """``float > 0 | None`` checked by :func:`_positive` (the field's type in a model).
 
     Parameters

@@ -136,6 +136,6 @@ def export_ome_zarr(result_path: str | os.PathLike, out_path: str | os.PathLike)
     return out_path
 
 
-FORMAT = Format(name="ome-zarr", title="OME-Zarr, NGFF 0.5 (napari; voxel sizes in µm)", container="file",
+FORMAT = Format(rank=120, name="ome-zarr", title="OME-Zarr, NGFF 0.5 (napari; voxel sizes in µm)", container="file",
                 export_from="result", export=export_ome_zarr, suffix=".ome.zarr", media_type="application/zip",
                 folder=True, noun="an OME-Zarr image")

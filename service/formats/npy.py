@@ -107,6 +107,6 @@ def load(source: Source, *, dt: float | None = None, dx: float | None = None, dy
                        source="npy")
 
 
-FORMAT = Format(name="npy", title="NumPy array, k-Wave layout (n_t, n_y, n_x) or (n_t, n_x)",
+FORMAT = Format(rank=10, name="npy", title="NumPy array, k-Wave layout (n_t, n_y, n_x) or (n_t, n_x)",
                 container="file", sniff=sniff, load=load, input=True, upload=True, order=10,
                 noun="a NumPy .npy array", options=GridSpacing)

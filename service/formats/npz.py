@@ -2,7 +2,8 @@
 plain arrays (``np.load``) and no HDF5 reader (an export of a result ``volume.h5``; no reader
 here).
 
-Added as one file (issue 48.3): the registry registers it on import, and ``fpscan export
+Added as one file and its entry point in pyproject.toml (issues 48.3, 62.5): the registry
+registers it on import (``service.plugins``), and ``fpscan export
 --format npz``, ``GET /api/jobs/{id}/export/npz``, ``Client.export(job, "npz", ...)`` and the
 web page's downloads follow from :data:`FORMAT`.
 """
@@ -66,6 +67,6 @@ def export_npz(result_path: str | os.PathLike, out_path: str | os.PathLike) -> P
     return Path(out_path)
 
 
-FORMAT = Format(name="npz", title="NumPy .npz (p0, z, y, x in m)", container="file", export_from="result",
+FORMAT = Format(rank=130, name="npz", title="NumPy .npz (p0, z, y, x in m)", container="file", export_from="result",
                 export=export_npz, suffix=".npz", media_type="application/octet-stream",
                 noun="a NumPy .npz archive")

@@ -61,6 +61,6 @@ def export_ome_tiff(result_path: str | os.PathLike, out_path: str | os.PathLike)
     return Path(out_path)
 
 
-FORMAT = Format(name="ome-tiff", title="OME-TIFF (ImageJ/Fiji, napari; voxel sizes in µm)", container="file",
+FORMAT = Format(rank=110, name="ome-tiff", title="OME-TIFF (ImageJ/Fiji, napari; voxel sizes in µm)", container="file",
                 export_from="result", export=export_ome_tiff, suffix=".ome.tif", media_type="image/tiff",
                 noun="an OME-TIFF image")

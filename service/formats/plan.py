@@ -127,7 +127,7 @@ def load(source: Source, **_: Any) -> dict:
     return load_plan(plan)
 
 
-FORMAT = Format(name="plan", title="fpscan plan (JSON)", container="file", sniff=sniff, load=load, order=20,
+FORMAT = Format(rank=90, name="plan", title="fpscan plan (JSON)", container="file", sniff=sniff, load=load, order=20,
                 noun="a plan (JSON)",
                 refuse="this is a plan (JSON), not data to reconstruct: scan it first (`fpscan scan --plan ...`) "
                        "and reconstruct the scan file")

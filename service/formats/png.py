@@ -45,5 +45,5 @@ def load(source: Source, **_: Any) -> bytes:
     return source.fh.read()
 
 
-FORMAT = Format(name="png", title="PNG picture", container="file", sniff=sniff, load=load, order=30,
+FORMAT = Format(rank=100, name="png", title="PNG picture", container="file", sniff=sniff, load=load, order=30,
                 noun="a PNG picture", refuse="this is a PNG picture, not data to reconstruct")

@@ -583,7 +583,7 @@ def read_slice(path: str | os.PathLike, index: Any) -> tuple[np.ndarray, np.ndar
     return img, z, x, y
 
 
-FORMAT = Format(name="result", title="fpscan reconstruction result (volume.h5)", container="hdf5",
+FORMAT = Format(rank=70, name="result", title="fpscan reconstruction result (volume.h5)", container="hdf5",
                 sniff=sniff, load=load, write=write_volume, order=30, noun="a reconstruction result",
                 export_from="result", export=copy_replaced, suffix=".h5", media_type="application/x-hdf5",
                 refuse="this is a reconstruction result (a p0 volume), not data to reconstruct: open it with "

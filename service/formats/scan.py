@@ -116,6 +116,6 @@ def _dataset(scan: ScanData, wavelength_index: int, allow_empty: bool) -> PointD
         wavelengths=wavelengths)
 
 
-FORMAT = Format(name="fpscan", title="fpscan scan file", container="hdf5", sniff=sniff, load=load,
+FORMAT = Format(rank=40, name="fpscan", title="fpscan scan file", container="hdf5", sniff=sniff, load=load,
                 input=True, upload=True, wavelengths=True, order=10, noun="a scan file", options=WavelengthChoice,
                 export_from="fpscan", export=copy_replaced, suffix=".h5", media_type="application/x-hdf5")

@@ -158,6 +158,6 @@ def read_unmix(path: str | os.PathLike) -> dict:
     return load_as(path, "unmix")[1]
 
 
-FORMAT = Format(name="unmix", title="fpscan unmixing result (unmix.h5)", container="hdf5", sniff=sniff,
+FORMAT = Format(rank=80, name="unmix", title="fpscan unmixing result (unmix.h5)", container="hdf5", sniff=sniff,
                 load=load, write=write, order=40, noun="an unmixing result",
                 refuse="this is an unmixing result (sO2 and THb maps), not data to reconstruct: open it with h5py")

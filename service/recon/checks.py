@@ -115,7 +115,7 @@ def finite_array(name: str, a: Any, ndims: tuple[int, ...]) -> np.ndarray:
 # HTTP schema states the same bounds (``service.api.models.ReconParams``).
 
 # the ranges: service.recon.limits (import-free, read by the methods' option models too)
-from service.recon.limits import (  # noqa: E402
+from service.recon.limits import (
     BANDWIDTH_RANGE,
     DZ_RANGE,
     EPS_RANGE,

@@ -52,7 +52,7 @@ PLANES = ("xy", "xz", "yz")
 AXES_KEY = "fpscan:axes"
 
 __all__ = ["PLANES", "AXES_KEY", "mip", "to_uint8", "render_png", "render_mip", "render_mips",
-           "render_slice", "render_result_slice", "render_lateral", "render_points", "render_lattice",
+           "render_result_slice", "render_lateral", "render_points", "render_lattice",
            "png_axes", "render_so2", "so2_rgb"]
 
 
@@ -737,47 +737,6 @@ def render_mips(p0: np.ndarray, z: Any, x: Any, y: Any = None, *, title_prefix: 
             opts["title"] = title_prefix + (f"MIP {plane}" if np.ndim(p0) == 3 else "p0 (x, z)")
         out[plane] = render_mip(p0, z, x, y, plane, **opts)
     return out
-
-
-def render_slice(p0: np.ndarray, z: Any, x: Any, y: Any, index: int, **options: Any) -> bytes:
-    """PNG of the depth slice ``p0[index]`` (x to the right, y downwards) of a 3-D volume.
-
-    Grey levels default to the slice's own maximum.
-
-    Parameters
-    ----------
-    p0 : ndarray, shape (n_z, n_y, n_x)
-        The volume, row 0 at the sensor plane.
-    z : array_like, shape (n_z,)
-        Depth of each slice in m.
-    x : array_like, shape (n_x,)
-        Lateral x in m.
-    y : array_like, shape (n_y,)
-        Lateral y in m.
-    index : int
-        The slice, in ``[0, n_z)``.
-    **options
-        Passed to :func:`render_png` (through :func:`render_lateral`).
-
-    Returns
-    -------
-    bytes
-        The PNG file's bytes.
-
-    Raises
-    ------
-    ValueError
-        A 2-D image, an index that is not an integer or out of range, or shapes that do not
-        match.
-    """
-    z, x, y = _coords(p0, z, x, y)
-    if np.ndim(p0) != 3:
-        raise ValueError("depth slices need a 3-D volume (n_z, n_y, n_x)")
-    if isinstance(index, bool) or not isinstance(index, (int, np.integer)):
-        raise ValueError(f"index must be an integer, got {index!r}")
-    if not 0 <= index < len(z):
-        raise ValueError(f"index {index} out of range [0, {len(z)})")
-    return render_lateral(np.asarray(p0)[index], x, y, float(z[index]), **options)
 
 
 def render_result_slice(path: Any, index: int, **options: Any) -> bytes:

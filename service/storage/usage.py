@@ -353,7 +353,7 @@ class DiskUsage:
             while not self._stop.wait(period_s):
                 try:
                     self.reconcile(walk)
-                except Exception:  # noqa: BLE001 -- a failed check leaves the counters as they are
+                except Exception:  # a failed check leaves the counters as they are
                     log.exception("disk usage walk failed")
 
         self._stop.clear()

@@ -257,7 +257,7 @@ def test_server_dying_mid_wait_raises_server_unavailable(tmp_path):
                 def waiter():
                     try:
                         outcome["job"] = api.wait(job_id, timeout=HANG_S)
-                    except Exception as exc:  # noqa: BLE001 - the outcome is the test
+                    except Exception as exc:  # the outcome is the test
                         outcome["error"] = exc
 
                 t = threading.Thread(target=waiter)

@@ -115,7 +115,7 @@ def gaussian_p0(shape, centre):
 def field_3d(r, t):
     """Free-space pressure at distance r (m) and time t (s) of p0 = exp(-r²/2σ²), p_t = 0 in 3-D:
     r p(r, t) = ½ [(r - ct) f(r - ct) + (r + ct) f(r + ct)] (d'Alembert for r p, f even)."""
-    f = lambda s: np.exp(-s**2 / (2 * SIGMA**2))  # noqa: E731
+    f = lambda s: np.exp(-s**2 / (2 * SIGMA**2))
     return ((r - C * t) * f(r - C * t) + (r + C * t) * f(r + C * t)) / (2 * r)
 
 

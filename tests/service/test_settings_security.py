@@ -14,7 +14,7 @@ import pytest
 
 from clients.processes import free_port
 from service.jobs.store import JobStore
-from service.settings import Settings
+from service.settings import Settings, is_loopback
 from tests.service.service_servers import Server, needs_recon, wait_job
 from tests.waits import HANG_S
 
@@ -39,8 +39,8 @@ def test_settings_file_environment_and_overrides(tmp_path, monkeypatch):
     (tmp_path / "bad.json").write_text("{nope")
     with pytest.raises(ValueError, match="not valid"):
         Settings.load(tmp_path / "bad.json")
-    assert Settings(host="127.0.0.1").loopback_only and Settings(host="::1").loopback_only
-    assert not Settings(host="0.0.0.0").loopback_only and not Settings(host="192.168.1.5").loopback_only
+    assert is_loopback("127.0.0.1") and is_loopback("::1") and is_loopback("localhost")
+    assert not is_loopback("0.0.0.0") and not is_loopback("192.168.1.5")
 
 
 def test_beyond_loopback_everything_needs_the_token_and_web_page_is_served(tmp_path):

@@ -14,8 +14,8 @@ def build_plan(n_x: int = 6, n_y: int = 5, n_t: int = 48, wavelengths=(7.5e-7,),
     ``n_y == 1`` gives a 2-D (line) plan with positions ``(n, 1)``."""
     idx = [[i, j] for j in range(n_y) for i in range(n_x)]
     idx = idx[:len(idx) - drop]
-    x = lambda i: (i - (n_x - 1) / 2) * PITCH  # noqa: E731
-    y = lambda j: (j - (n_y - 1) / 2) * PITCH  # noqa: E731
+    x = lambda i: (i - (n_x - 1) / 2) * PITCH
+    y = lambda j: (j - (n_y - 1) / 2) * PITCH
     pos = [[x(i)] if n_y == 1 else [x(i), y(j)] for i, j in idx]
     plan = {
         "format": "fpscan-plan/1",

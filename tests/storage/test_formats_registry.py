@@ -155,32 +155,3 @@ def test_a_file_is_opened_once_per_load(make_scan, tmp_path, monkeypatch):
         # the same data as one load per wavelength (a load each)
         for k, d in enumerate(every):
             np.testing.assert_array_equal(d.alines, load_dataset(path, wavelength=k).alines)
-
-
-def test_a_format_module_is_registered_by_being_there(tmp_path, monkeypatch):
-    """A new format is one file: a module beside the others that declares ``FORMAT`` is
-    found and registered by the package (``service.formats._discover``), after the
-    built-in ones, without a line anywhere else; a module without ``FORMAT`` is not."""
-    import sys
-
-    (tmp_path / "toy_lines.py").write_text(
-        "from service.formats._registry import Format\n"
-        "FORMAT = Format(name='toy-lines', title='toy lines', container='file',\n"
-        "                sniff=lambda s: s.head.startswith(b'TOY-LINES'), load=lambda s, **_: s.fh.read(),\n"
-        "                input=True, upload=True)\n")
-    (tmp_path / "helpers_only.py").write_text("X = 1\n")
-    monkeypatch.setattr(formats, "__path__", [*formats.__path__, str(tmp_path)])
-    try:
-        found = formats._discover()
-        assert [f.name for f in found] == ["toy-lines"]
-        assert list(formats.FORMATS)[-1] == "toy-lines" and "toy-lines" in formats.names(input=True, upload=True)
-        assert "toy-lines" in [f["name"] for f in formats.upload_formats()]
-        path = tmp_path / "a.lines"
-        path.write_bytes(b"TOY-LINES 1 2 3")
-        assert formats.detect(path) == "toy-lines"
-        assert formats._discover() == []  # registered once
-    finally:
-        formats.unregister("toy-lines")
-        for name in ("service.formats.toy_lines", "service.formats.helpers_only"):
-            sys.modules.pop(name, None)
-    assert "toy-lines" not in formats.FORMATS

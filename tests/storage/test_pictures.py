@@ -160,7 +160,7 @@ def test_large_plan_preview_has_the_same_orientation():
     n, hole = 140, 100
     idx = [[i, j] for j in range(n) for i in range(n) if not (i >= hole and j >= hole)]
     assert len(idx) > PREVIEW_DETAIL_POINTS
-    c = lambda i: (i - (n - 1) / 2) * PITCH  # noqa: E731
+    c = lambda i: (i - (n - 1) / 2) * PITCH
     plan = {"format": "fpscan-plan/1", "lattice": {"n_x": n, "n_y": n, "pitch": PITCH},
             "mask": {"kind": "points", "params": {}},
             "points": {"indices": idx, "positions": [[c(i), c(j)] for i, j in idx],

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from PIL import Image as PILImage
 
-from service.storage.render import mip, render_mip, render_mips, render_slice, to_uint8
+from service.storage.render import mip, render_lateral, render_mip, render_mips, render_result_slice, to_uint8
 from service.storage.results import read_result, write_reconstruction, write_volume
 
 
@@ -150,7 +150,7 @@ def test_raw_png_pixels_are_the_scaled_mip():
         expected = np.floor(np.clip(m / m.max(), 0, 1) * 255 + 0.5).astype(np.uint8)
         # every plane: row 0 of the array is the first PNG row (y and depth down)
         np.testing.assert_array_equal(px, expected)
-    px = _png(render_slice(p0, z, x, y, 3, annotate=False, vmin=0.0, vmax=0.5))
+    px = _png(render_lateral(p0[3], x, y, float(z[3]), annotate=False, vmin=0.0, vmax=0.5))
     np.testing.assert_array_equal(px, np.floor(np.clip(p0[3] / 0.5, 0, 1) * 255 + 0.5))
     rgb = _png(render_mip(p0, z, x, y, "xy", annotate=False, cmap="viridis"))
     assert rgb.shape == (5, 6, 3)
@@ -165,11 +165,11 @@ def test_annotated_pngs(tmp_path):
         img = _png(data)
         assert img.ndim in (2, 3) and img.shape[0] > 100 and img.shape[1] > 300
     assert set(render_mips(p0[:, 0, :], z, x)) == {"xz"}
-    _png(render_slice(p0, z, x, y, 0, cmap="magma"))
-    with pytest.raises(ValueError, match="3-D"):
-        render_slice(p0[:, 0, :], z, x, None, 0)
-    with pytest.raises(ValueError, match="out of range"):
-        render_slice(p0, z, x, y, 40)
+    _png(render_lateral(p0[0], x, y, float(z[0]), cmap="magma"))
+    path = write_volume(tmp_path / "r.h5", p0, z, x, y, method="ner", params={}, input_id="t")
+    assert _png(render_result_slice(path, 0, annotate=False)).shape == p0.shape[1:]
+    with pytest.raises(ValueError, match=r"index must be an integer in \[0, 40\)"):
+        render_result_slice(path, 40)
     with pytest.raises(ValueError, match="colormap"):
         render_mip(p0, z, x, y, "xy", cmap="no-such-map")
     with pytest.raises(ValueError, match="y coordinates"):

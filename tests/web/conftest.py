@@ -59,13 +59,13 @@ def browser(download_dir):
     opts.set_capability("goog:loggingPrefs", {"browser": "ALL"})
     try:
         drv = webdriver.Chrome(options=opts, service=Service(executable_path=driver_path))
-    except Exception as exc:  # noqa: BLE001 - the browser cannot start here
+    except Exception as exc:  # the browser cannot start here
         shutil.rmtree(profile, ignore_errors=True)
         pytest.skip(f"headless Chromium could not start: {exc}")
     try:
         drv.execute_cdp_cmd("Browser.setDownloadBehavior",
                             {"behavior": "allow", "downloadPath": str(download_dir)})
-    except Exception:  # noqa: BLE001 - older drivers: the prefs above do it
+    except Exception:  # older drivers: the prefs above do it
         pass
     drv.set_page_load_timeout(HANG_S)  # hang guards (tests.waits), not speed expectations
     drv.set_script_timeout(HANG_S)
@@ -98,5 +98,5 @@ def _evidence_on_failure(request):
         drv.save_screenshot(str(stem.with_suffix(".png")))
         lines = [f"{e.get('level')} {e.get('message')}" for e in drv.get_log("browser")]
         stem.with_suffix(".log").write_text("\n".join(lines) + "\n")
-    except Exception:  # noqa: BLE001 - evidence is best effort
+    except Exception:  # evidence is best effort
         pass

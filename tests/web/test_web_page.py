@@ -165,7 +165,7 @@ def shot(browser, screenshots: Path, name: str) -> None:
             "format": "png", "captureBeyondViewport": True,
             "clip": {"x": 0, "y": 0, "width": size[0], "height": size[1], "scale": 1}})
         (screenshots / f"{name}.png").write_bytes(base64.b64decode(shot_["data"]))
-    except Exception:  # noqa: BLE001 - fall back to the viewport
+    except Exception:  # fall back to the viewport
         browser.save_screenshot(str(screenshots / f"{name}.png"))
 
 

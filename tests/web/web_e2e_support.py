@@ -30,7 +30,7 @@ def wait_for(predicate, what: str, interval: float = 0.1):
             value = predicate()
             if value:
                 return value
-        except Exception as exc:  # noqa: BLE001 - reported below
+        except Exception as exc:  # reported below
             last_exc = exc
         time.sleep(interval)
     raise AssertionError(f"timed out after {timeout} s waiting for {what}" + (f" (last error: {last_exc!r})" if last_exc else ""))

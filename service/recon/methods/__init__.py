@@ -3,9 +3,11 @@
 Each module of this package (``ner``, ``nedner``, ``interp``, ``kwave``, ``tv``, and
 whatever comes next) defines its typed options model (a :class:`~.options.MethodOptions`
 with each option's type, range, unit and default), its ``run`` (calling the kernels of
-:mod:`service.recon`: ``planar``, ``kwave``, ``tv``), its peak-memory model and calls
-:func:`register`. The package imports every module in it (but ``options`` and private
-ones) on first import, so a new method is one new file here: the dispatch
+:mod:`service.recon`: ``planar``, ``kwave``, ``tv``) and its peak-memory model in a
+:class:`Method` (``METHOD``), which is named by an entry point of the group ``fpscan.methods`` (fpscan's own in its
+``pyproject.toml``; another package's in its own: a plugin, docs/plugins.md). The package
+registers every entry point's method on first import (``service.plugins.load_group``), so a
+new method is one new file and its entry point: the dispatch
 (:func:`service.pipeline.reconstruct`), the HTTP request model
 (``service.api.models.ReconParams``, the union of the methods' options), ``GET
 /api/reconstructions/methods`` (each option's JSON schema: the web page's fields), the
@@ -24,14 +26,13 @@ flags from it); the kernels load when a method runs.
 """
 from __future__ import annotations
 
-import importlib
-import pkgutil
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 from pydantic import BaseModel, ValidationError
 
+from service.plugins import load_group, put_in_order
 from service.recon.methods.options import MethodOptions
 
 __all__ = ["Method", "METHODS", "register", "get", "option_schemas", "option_fields", "docs_table",
@@ -451,10 +452,7 @@ def register(method: Method) -> Method:
             if mine[name] != theirs[name]:
                 raise ValueError(f"method {method.name!r}: option {name} differs from method {other.name!r}'s "
                                  f"({mine[name]} vs {theirs[name]}): one rule per option name")
-    METHODS[method.name] = method
-    ordered = sorted(METHODS.values(), key=lambda m: m.order)
-    METHODS.clear()
-    METHODS.update((m.name, m) for m in ordered)
+    put_in_order(METHODS, method.name, method, lambda m: m.order)
     return method
 
 
@@ -728,11 +726,6 @@ def default_text(name: str, *, code: bool = False) -> str:
     return f"{first} ({rest})" if rest else first
 
 
-def _discover() -> None:
-    """Import every method module of this package (they register themselves)."""
-    for info in sorted(pkgutil.iter_modules(__path__), key=lambda i: i.name):
-        if info.name != "options" and not info.name.startswith("_"):
-            importlib.import_module(f"{__name__}.{info.name}")
-
-
-_discover()
+# every method, fpscan's own and the plugins' (service.plugins; at the end: a method module
+# imports this package's names)
+load_group("fpscan.methods", Method, register)

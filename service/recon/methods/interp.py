@@ -6,11 +6,11 @@ from __future__ import annotations
 from collections.abc import Callable
 from functools import partial
 
-from service.recon.methods import Method, peak_model, planar_work, register
+from service.recon.methods import Method, peak_model, planar_work
 from service.recon.methods.ner import run_grid
 from service.recon.methods.options import DepthOptions, MethodOptions, PositivityOption, UpsampleOption
 
-__all__ = ["Options", "KINDS", "WORK_RATES", "TEMPORAL_STEPS", "METHODS"]
+__all__ = ["Options", "KINDS", "WORK_RATES", "TEMPORAL_STEPS", "METHODS", "LINEAR", "NEAREST", "CUBIC"]
 
 
 class Options(DepthOptions, PositivityOption, UpsampleOption, MethodOptions):
@@ -67,7 +67,9 @@ WORK_RATES = {"linear": 3e-9, "nearest": 3e-9, "cubic": 4e-8}
 _run: Callable = run_grid
 #: each method's temporal step in the memory model (``service.recon.memory.planar_peak``)
 TEMPORAL_STEPS = {"linear": "regular", "nearest": "regular", "cubic": "pchip"}
-METHODS = [register(Method(name, title, True, Options, partial(_run, name), source,
-                           peak_model("planar_peak", temporal=TEMPORAL_STEPS[name]),
-                           order=30 + k, work=planar_work(WORK_RATES[name])))
+#: the three methods, in :data:`KINDS`' order (each named by an entry point of ``fpscan.methods``)
+METHODS = [Method(name, title, True, Options, partial(_run, name), source,
+                  peak_model("planar_peak", temporal=TEMPORAL_STEPS[name]),
+                  order=30 + k, work=planar_work(WORK_RATES[name]))
            for k, (name, (title, source)) in enumerate(KINDS.items())]
+LINEAR, NEAREST, CUBIC = METHODS

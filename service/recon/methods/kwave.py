@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal
 from pydantic import BeforeValidator, Field
 
 from service.recon.limits import KWAVE_INTERPS
-from service.recon.methods import Method, peak_model, planar_work, register
+from service.recon.methods import Method, peak_model, planar_work
 from service.recon.methods.options import MethodOptions, PositivityOption
 
 if TYPE_CHECKING:
@@ -234,7 +234,7 @@ def warm_up(dtypes: Sequence[str]) -> None:
             kspace_line_recon(data[:, 0, :], dx, dt, C_DEFAULT, interp=interp, dtype=d)
 
 
-METHOD = register(Method("kwave", "k-Wave compatible (kspaceLineRecon / kspacePlaneRecon)", True, Options, run,
-                         "k-Wave kspaceLineRecon / kspacePlaneRecon (reference/KWAVE_RECON_NOTES.md)",
-                         peak_model("kwave_peak"), order=40, work=work, warm_up=warm_up,
-                         kernel_modules=("service.recon.kwave",)))
+METHOD = Method("kwave", "k-Wave compatible (kspaceLineRecon / kspacePlaneRecon)", True, Options, run,
+                "k-Wave kspaceLineRecon / kspacePlaneRecon (reference/KWAVE_RECON_NOTES.md)",
+                peak_model("kwave_peak"), order=40, work=work, warm_up=warm_up,
+                kernel_modules=("service.recon.kwave",))

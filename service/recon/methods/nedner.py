@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
-from service.recon.methods import Method, peak_model, planar_work, register
+from service.recon.methods import Method, peak_model, planar_work
 from service.recon.methods.options import (
     DepthOptions,
     MethodOptions,
@@ -146,8 +146,8 @@ def warm_up(dtypes: Sequence[str]) -> None:
                            grid=grid, dtype=d)
 
 
-METHOD = register(Method("nedner", "NEDNER-NUFFT (any sensor mask)", False, Options, run,
-                         "paper §3.2: temporal NUFFT + type-1 NUFFT over the sensor positions",
-                         peak_model("planar_peak", temporal="nufft", points=True), order=10,
-                         work=planar_work(WORK_RATE), default_for=("points",), warm_up=warm_up,
-                         kernel_modules=("driver.physics.nufft_kernels",)))
+METHOD = Method("nedner", "NEDNER-NUFFT (any sensor mask)", False, Options, run,
+                "paper §3.2: temporal NUFFT + type-1 NUFFT over the sensor positions",
+                peak_model("planar_peak", temporal="nufft", points=True), order=10,
+                work=planar_work(WORK_RATE), default_for=("points",), warm_up=warm_up,
+                kernel_modules=("driver.physics.nufft_kernels",))

@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
-from service.recon.methods import Method, peak_model, planar_work, register
+from service.recon.methods import Method, peak_model, planar_work
 from service.recon.methods.options import (
     DepthOptions,
     MethodOptions,
@@ -198,7 +198,7 @@ def warm_up(dtypes: Sequence[str]) -> None:
         reconstruct_grid(np.tile(data[:, 0, :], (1, n)), dx, dt, dtype=d)  # a line of n * n sensors
 
 
-METHOD = register(Method("ner", "NER-NUFFT (full regular grid)", True, Options, run,
-                         "paper §3.1: temporal NUFFT, lateral FFT", peak_model("planar_peak", temporal="nufft"),
-                         order=20, work=planar_work(WORK_RATE), default_for=("grid",), warm_up=warm_up,
-                         kernel_modules=("driver.physics.nufft_kernels",)))
+METHOD = Method("ner", "NER-NUFFT (full regular grid)", True, Options, run,
+                "paper §3.1: temporal NUFFT, lateral FFT", peak_model("planar_peak", temporal="nufft"),
+                order=20, work=planar_work(WORK_RATE), default_for=("grid",), warm_up=warm_up,
+                kernel_modules=("driver.physics.nufft_kernels",))

@@ -194,7 +194,7 @@ Dz = Annotated[Annotated[float, Field(ge=DZ_RANGE[0], le=DZ_RANGE[1])] | None,
 Dtype = Annotated[Literal["float32", "float64"] | None, BeforeValidator(check_dtype_name)]
 
 
-def Flag(name: str) -> Any:  # noqa: N802  (a type, named as one)
+def Flag(name: str) -> Any:  # a type, named as one
     """A true/false option named ``name`` (:func:`check_flag`).
 
     Parameters

@@ -18,7 +18,7 @@ from service.recon.limits import (
     TIME_LIMIT_MAX,
     TOL_RANGE,
 )
-from service.recon.methods import Method, register
+from service.recon.methods import Method
 from service.recon.methods.options import DepthOptions, Flag, MethodOptions, NufftOptions, kernel_rule
 
 if TYPE_CHECKING:
@@ -537,9 +537,9 @@ def warm_up(dtypes: Sequence[str]) -> None:
     forward_grid(np.ones((4, 6, 6)), dx, C_DEFAULT * dt, dt, 32)
 
 
-METHOD = register(Method(
+METHOD = Method(
     "tv", "model-based: TV + positivity on the exact model (iterative; sparse, noisy scans)", False, Options, run,
     "½‖A p0 − g‖² + λ TV(p0), p0 ≥ 0, NER-preconditioned FISTA (Arridge et al., PMB 61 (2016) 8908)",
     peak_memory, order=50, work=work, iterative=True, time_limited=True, warm_up=warm_up,
     kernel_modules=("driver.physics.nufft_kernels", "service.recon.tv"), warm_in_background=True,
-    memory_calibration=MEMORY_CALIBRATION, holds_input=True))
+    memory_calibration=MEMORY_CALIBRATION, holds_input=True)

@@ -1,0 +1,388 @@
+"""The one client core: what sending, downloading (with its retry) and waiting on a job do,
+written once, with no I/O (issue 62.6; the model is httpx's one request model with only the
+I/O differing between ``Client`` and ``AsyncClient``).
+
+Each operation is a *flow*: a generator that yields the I/O it needs as a :data:`Step`
+(:class:`Send` a request, :class:`Stream` a body into a file, :class:`Follow` a job's event
+stream, :class:`Sleep`, :class:`Report` a progress update) and receives the step's answer,
+or has the step's exception thrown into it; its return value is the operation's result.
+:class:`clients.http.client.Client` runs the steps with blocking httpx calls,
+:class:`clients.http.async_client.AsyncClient` with ``await`` s: that is all they differ in.
+
+- :func:`call_flow`: an endpoint's :class:`~clients.http.calls.Call` (one request; a
+  transport failure is ``ServerUnavailable``, a 4xx/5xx its ``ApiError``) or
+  :class:`~clients.http.calls.Download` (:func:`download_flow`).
+- :func:`download_flow`: a resumable download to ``<dest>.part`` (``Range`` + ``If-Range``,
+  RFC 9110 §14.2 / §13.1.5: :class:`~clients.http.transport.Resume`), renamed into place when
+  complete; a 416 starts over once; a cut connection keeps the part for the next call.
+- :func:`wait_flow`: a job's end, following its Server-Sent Events (reconnecting with
+  ``Last-Event-ID``), polling where the stream is unavailable (:mod:`clients.http.waiting`).
+"""
+from __future__ import annotations
+
+import time
+from collections.abc import Generator, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO, Any, TypeVar
+
+import httpx
+
+from .calls import Call, Download, Request, field_of, to_dict
+from .endpoints.jobs import _build_get_job
+from .errors import ApiError, ServerUnavailable, WaitTimeout
+from .transport import Resume, raise_for
+from .waiting import (
+    TERMINAL_STATES,
+    ProgressCallback,
+    finish,
+    keep_sse,
+    past,
+    progress_of,
+    read_timeout,
+    report_snapshot,
+)
+
+__all__ = ["Send", "Stream", "Follow", "Sleep", "Report", "Step", "Flow", "call_flow", "download_flow", "wait_flow",
+           "request_args", "events_request", "CHUNK_BYTES"]
+
+T = TypeVar("T")
+
+#: bytes per chunk written while a download's body streams in
+CHUNK_BYTES = 1 << 20
+
+
+@dataclass(frozen=True)
+class Send:
+    """Send ``request`` (the client's ``httpx`` ``request(**args)``, :func:`request_args`);
+    answer: the ``httpx.Response``, read.
+
+    Attributes
+    ----------
+    request : Request
+    """
+
+    request: Request
+
+
+@dataclass
+class Stream:
+    """Send ``request`` with ``headers`` and stream the answer: a 416 is answered as is
+    (nothing written), a 4xx/5xx is read and raised (:func:`~clients.http.transport.raise_for`),
+    any other body is written in chunks of :data:`CHUNK_BYTES` into ``open(response)``;
+    answer: ``(status code, Content-Type)``.
+
+    Attributes
+    ----------
+    request : Request
+    headers : dict
+        ``Range`` / ``If-Range`` for what is already held.
+    resume : Resume
+        The partial file (``resume.open(response)`` gives the file to write).
+    """
+
+    request: Request
+    headers: dict[str, str]
+    resume: Resume
+
+    def refused(self, response: httpx.Response) -> bool:
+        """True for a 416 (what is held no longer fits: the flow starts over)."""
+        return response.status_code == 416
+
+    def open(self, response: httpx.Response) -> IO[bytes]:
+        """The file the body goes into (appended on 206)."""
+        return self.resume.open(response)
+
+
+@dataclass
+class Follow:
+    """Read the job's event stream (the client's ``events``) from ``last_id``, counting the
+    events (:meth:`seen`) and reporting each progress event, until it ends, drops, the job
+    ends or the deadline passes (:meth:`seen` says stop); answer: None. Exceptions of the
+    stream are thrown into the flow, which decides (:func:`wait_flow`).
+
+    Attributes
+    ----------
+    job_id : str
+    last_id : str or None
+        The last event id seen (``Last-Event-ID`` of the next stream).
+    deadline : float or None
+        ``time.monotonic()`` s.
+    on_progress : callable or None
+        The wait's ``on_progress``.
+    n_events : int
+        Events read from this stream.
+    """
+
+    job_id: str
+    last_id: str | None
+    deadline: float | None
+    on_progress: ProgressCallback | None
+    n_events: int = 0
+
+    @property
+    def read_timeout(self) -> float:
+        """Seconds without a byte before the stream counts as dropped (:func:`~clients.http.waiting.read_timeout`)."""
+        return read_timeout(self.deadline)
+
+    def seen(self, event: str, data: dict, event_id: str | None) -> tuple[dict | None, bool]:
+        """Count one event; returns ``(progress to report or None, whether to stop reading)``."""
+        self.n_events += 1
+        self.last_id = event_id or self.last_id
+        progress = progress_of(data) if event == "progress" and self.on_progress is not None else None
+        return progress, data.get("state") in TERMINAL_STATES or past(self.deadline)
+
+
+@dataclass(frozen=True)
+class Sleep:
+    """Wait ``seconds`` (``time.sleep`` / ``asyncio.sleep``); answer: None.
+
+    Attributes
+    ----------
+    seconds : float
+    """
+
+    seconds: float
+
+
+@dataclass(frozen=True)
+class Report:
+    """Call ``on_progress(progress)`` (a coroutine function's result awaited by the async
+    client); answer: None.
+
+    Attributes
+    ----------
+    on_progress : callable
+    progress : dict
+    """
+
+    on_progress: ProgressCallback
+    progress: dict
+
+
+#: the I/O a flow asks for
+Step = Send | Stream | Follow | Sleep | Report
+#: an operation: yields steps, receives their answers, returns the result
+Flow = Generator[Step, Any, T]
+
+
+@contextmanager
+def request_args(req: Request) -> Iterator[dict[str, Any]]:
+    """The keywords of ``httpx`` ``request(...)`` for ``req``, its upload file open (streamed
+    from the file, not read into memory) while the ``with`` block runs.
+
+    Parameters
+    ----------
+    req : Request
+
+    Returns
+    -------
+    contextlib.AbstractContextManager of dict
+        ``method``, ``url``, ``params``, ``headers``, ``data`` and ``json`` or ``files``.
+
+    Examples
+    --------
+    >>> from clients.http.calls import Request
+    >>> from clients.http.core import request_args
+    >>> with request_args(Request("POST", "/api/plans", json={"a": 1})) as args:
+    ...     sorted(args), args["json"]
+    (['data', 'headers', 'json', 'method', 'params', 'url'], {'a': 1})
+    """
+    args: dict[str, Any] = {"method": req.method, "url": req.path, "params": req.params, "headers": req.headers,
+                            "data": req.form}
+    if req.upload is None:
+        yield {**args, "json": req.json}
+        return
+    with open(req.upload, "rb") as fh:
+        yield {**args, "files": {"file": (req.upload.name, fh, "application/octet-stream")}}
+
+
+def events_request(job_id: str, last_event_id: str | None, timeout: float,
+                   read_timeout: float) -> dict[str, Any]:
+    """The keywords of ``httpx_sse`` ``connect_sse`` / ``aconnect_sse`` for a job's event
+    stream (``GET /api/jobs/{job_id}/events``, from ``last_event_id``).
+
+    Parameters
+    ----------
+    job_id : str
+    last_event_id : str or None
+    timeout : float
+        s, per request.
+    read_timeout : float
+        s without a byte before the stream counts as dropped.
+
+    Returns
+    -------
+    dict
+
+    Examples
+    --------
+    >>> from clients.http.core import events_request
+    >>> args = events_request("j1", "7", 30.0, 20.0)
+    >>> args["url"], args["headers"], args["timeout"].read
+    ('/api/jobs/j1/events', {'Last-Event-ID': '7'}, 20.0)
+    """
+    return {"method": "GET", "url": f"/api/jobs/{job_id}/events",
+            "headers": {"Last-Event-ID": last_event_id} if last_event_id else {},
+            "timeout": httpx.Timeout(timeout, read=read_timeout)}
+
+
+def call_flow(call: Call[T] | Download[T], base_url: str) -> Flow[T]:
+    """An endpoint's call: one request read by ``call.read``, or a download finished by
+    ``call.finish``.
+
+    Parameters
+    ----------
+    call : Call or Download
+    base_url : str
+        The server, named by ``ServerUnavailable``.
+
+    Returns
+    -------
+    generator
+        The flow (module docstring); its result is the endpoint's.
+
+    Raises
+    ------
+    ServerUnavailable
+        The server cannot be reached.
+    ApiError
+        A 4xx/5xx answer (its subclass by status).
+
+    Examples
+    --------
+    Run with a stand-in for the network (a client sends instead):
+
+    >>> import httpx
+    >>> from clients.http.calls import Call, Request, read_json
+    >>> from clients.http.core import call_flow
+    >>> flow = call_flow(Call(Request("GET", "/api/health"), read_json), "http://h")
+    >>> step = next(flow)
+    >>> step.request.path
+    '/api/health'
+    >>> try:
+    ...     flow.send(httpx.Response(200, json={"status": "ok"}, request=httpx.Request("GET", "http://h/api/health")))
+    ... except StopIteration as done:
+    ...     print(done.value)
+    {'status': 'ok'}
+    """
+    if isinstance(call, Download):
+        got, content_type = yield from download_flow(call.request, call.dest, base_url)
+        return call.finish(got, content_type)
+    response = yield from _send(call.request, base_url)
+    return call.read(response)
+
+
+def _send(req: Request, base_url: str) -> Flow[httpx.Response]:
+    try:
+        response = yield Send(req)
+    except httpx.TransportError as exc:
+        raise _unavailable(base_url, exc) from None
+    raise_for(response)
+    return response
+
+
+def _unavailable(base_url: str, exc: Exception) -> ServerUnavailable:
+    return ServerUnavailable(base_url, str(exc) or type(exc).__name__)
+
+
+def download_flow(req: Request, dest: Path, base_url: str) -> Flow[tuple[Path, str]]:
+    """Save the body of ``req`` at ``dest`` (module docstring: resumable, renamed into place).
+
+    Parameters
+    ----------
+    req : Request
+    dest : pathlib.Path
+        The file (its folder is made).
+    base_url : str
+        The server, named by ``ServerUnavailable``.
+
+    Returns
+    -------
+    generator
+        The flow; its result ``(dest, Content-Type)``.
+
+    Raises
+    ------
+    ServerUnavailable
+        The connection failed (the part is kept: the next call resumes it).
+    ApiError
+        A 4xx/5xx answer (the part is discarded), or 416 twice.
+    """
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    state = Resume(dest)
+    for _attempt in range(2):
+        try:
+            status, content_type = yield Stream(req, state.headers(), state)
+        except httpx.TransportError as exc:  # keep the part: the next call resumes it
+            raise _unavailable(base_url, exc) from None
+        except BaseException:
+            state.discard()
+            raise
+        if status == 416:  # what we hold no longer fits: start over
+            state.discard()
+            continue
+        return state.done(), content_type
+    raise ApiError(416, "the server refused every byte range of the download")
+
+
+def wait_flow(job_id: str, base_url: str, *, on_progress: ProgressCallback | None = None,
+              timeout: float | None = None, poll_interval: float = 0.5,
+              raise_on_failure: bool = True) -> Flow[Any]:
+    """Wait for the end of job ``job_id``: ``Client.wait`` / ``AsyncClient.wait`` (their
+    docstrings say what it does; the rules are :mod:`clients.http.waiting`'s).
+
+    Parameters
+    ----------
+    job_id : str
+    base_url : str
+        The server, named by ``ServerUnavailable``.
+    on_progress, timeout, poll_interval, raise_on_failure
+        As ``Client.wait``.
+
+    Returns
+    -------
+    generator
+        The flow; its result the job's final record.
+
+    Raises
+    ------
+    JobFailed, JobCancelled, WaitTimeout, ApiError, ServerUnavailable
+        As ``Client.wait``.
+    """
+    deadline = None if timeout is None else time.monotonic() + timeout
+    last_id: str | None = None
+    use_sse = True
+    job = yield from call_flow(_build_get_job(job_id), base_url)
+    while True:
+        if on_progress is not None and report_snapshot(job, use_sse):
+            yield Report(on_progress, to_dict(field_of(job, "progress")))
+        if field_of(job, "state") in TERMINAL_STATES:
+            return finish(job) if raise_on_failure else job
+        if deadline is not None and time.monotonic() > deadline:
+            raise WaitTimeout(f"job {job_id} still {field_of(job, 'state')} after {timeout} s")
+        if use_sse:
+            follow = Follow(job_id, last_id, deadline, on_progress)
+            use_sse = yield from _follow(follow, base_url)
+            last_id = follow.last_id
+            if follow.n_events == 0:
+                yield Sleep(poll_interval)
+        else:
+            yield Sleep(poll_interval)
+        job = yield from call_flow(_build_get_job(job_id), base_url)
+
+
+def _follow(follow: Follow, base_url: str) -> Flow[bool]:
+    """Read one event stream (:class:`Follow`); returns whether to keep using SSE."""
+    try:
+        yield follow
+    except ServerUnavailable:
+        pass  # dropped or idle stream: the caller's get_job tells which
+    except ApiError as exc:
+        if exc.status_code == 404:
+            yield from call_flow(_build_get_job(follow.job_id), base_url)  # NotFound propagates for an unknown job
+        return keep_sse(exc)
+    except Exception:  # a malformed stream: poll instead
+        return False
+    return True
