@@ -12,6 +12,7 @@ from service.api.context import Context, ctx, read_access, reason, require_token
 from service.api.jobs import get_job_or_404, job_view
 from service.api.models import ID_PATTERN, Error, Job, MethodInfo, MethodOption, Plane, ReconRequest
 from service.formats.result import VOLUME_FILE, mip_file
+from service.jobs import lifecycle
 from service.jobs.admission import (
     admit,
     admit_work,
@@ -233,10 +234,13 @@ def start_reconstruction(body: ReconRequest, response: Response, c: Context = De
                   "scan_job_id": body.scan_job_id, "dataset_id": body.dataset_id, "memory_estimate": mem,
                   "work_estimate_s": float(f"{work:.4g}"), "result_bytes": needed,
                   "wavelength": body.wavelength, **extra}
-    try:
-        job, _created = c.store.create_job("recon", job_params, idempotency_key=idempotency_key, memory_bytes=mem)
+    try:  # its inputs looked up again with the job's creation, no deletion between (issue 60.4)
+        job, _created = lifecycle.create_job(c.store, "recon", job_params, idempotency_key=idempotency_key,
+                                             memory_bytes=mem)
     except IdempotencyConflict as exc:
         raise HTTPException(409, str(exc)) from None
+    except lifecycle.NotFound as exc:
+        raise HTTPException(404, f"{exc} (deleted meanwhile)") from None
     if c.queue is not None:
         c.queue.wake()
     response.headers["Location"] = f"/api/jobs/{job['id']}"
