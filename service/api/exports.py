@@ -9,11 +9,25 @@ is served as it is; another format is written by its exporter (``service.formats
 beside the job's files once and then served from there (a result never changes; a scan's export
 is written anew on every request, since the scan may have grown). A folder export (OME-Zarr) is
 served zipped. Exports run in FastAPI's thread pool, off the event loop.
+
+Single flight (issue 60.7): one export file is built by one request at a time
+(:func:`_one_build`, a lock per output path). Requests that come while it is built wait
+for that build and serve its file: 20 concurrent first requests of a volume's OME-TIFF
+build it once, and every response carries the same bytes (one OME UUID), so a download
+resumed with ``Range`` never mixes two builds. A scan's export, written anew per request,
+is written once for the requests that came while it was being written.
+
+Acknowledged means stored (issue 60.4): a build ends under ``service.jobs.lifecycle.guard``
+with a look at the job; one deleted meanwhile has what the build wrote removed (404), so an
+export never leaves a file behind a deleted job.
 """
 from __future__ import annotations
 
+import contextlib
 import shutil
+import threading
 import uuid
+from collections.abc import Iterator
 from pathlib import Path
 
 from fastapi import APIRouter, Depends, HTTPException, Query
@@ -25,6 +39,7 @@ from service.api.jobs import get_job_or_404
 from service.api.models import ID_PATTERN, FormatInfo
 from service.formats import FORMATS, export_file, export_formats
 from service.formats.result import VOLUME_FILE
+from service.jobs import lifecycle
 
 __all__ = ["router", "list_formats", "export", "job_export_source", "EXPORTS_DIR"]
 
@@ -110,13 +125,72 @@ def export(job_id: str = PathParam(pattern=ID_PATTERN, description="a scan or re
         return FileResponse(src, media_type=fmt.media_type, filename=name)
     if source == "result":  # a result never changes: its exports are kept beside it
         out = src.with_name(f"volume{fmt.suffix}" + (".zip" if fmt.folder else ""))
-        if not out.exists():
-            _write_export(c, src, out, format, arcname=f"{job_id}{fmt.suffix}")
     else:  # a scan may grow: written anew
         out = Path(c.settings.data_dir) / EXPORTS_DIR / (f"{job_id}{fmt.suffix}" + (".zip" if fmt.folder else ""))
-        _write_export(c, src, out, format, arcname=f"{job_id}{fmt.suffix}", replace=True)
+    with _one_build(out) as built_meanwhile:
+        if not (out.exists() if source == "result" else built_meanwhile):
+            try:
+                _write_export(c, src, out, format, arcname=f"{job_id}{fmt.suffix}", replace=source != "result")
+            except OSError:
+                with lifecycle.guard(c.store):
+                    if c.store.get(job_id) is None:  # deleted under the build (its folder removed)
+                        _discard(c, out, job)
+                        raise HTTPException(404, f"job {job_id} was deleted while its export was made") from None
+                raise
+            with lifecycle.guard(c.store):  # no deletion between the look and the file kept
+                if c.store.get(job_id) is None:
+                    _discard(c, out, job)
+                    raise HTTPException(404, f"job {job_id} was deleted while its export was made")
     return FileResponse(out, media_type="application/zip" if fmt.folder else fmt.media_type,
                         filename=name + (".zip" if fmt.folder else ""))
+
+
+class _Flight:
+    """One export file's build lock, its waiters and how many builds it has seen."""
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.users = 0
+        self.builds = 0
+
+
+_FLIGHTS: dict[Path, _Flight] = {}
+_FLIGHTS_LOCK = threading.Lock()
+
+
+@contextlib.contextmanager
+def _one_build(out: Path) -> Iterator[bool]:
+    """Hold the build of ``out`` (one request at a time, per path; the entry goes with its
+    last user). Yields whether a build of it ended while this request waited (its file
+    is then the one to serve); the block's end counts as a build."""
+    with _FLIGHTS_LOCK:
+        flight = _FLIGHTS.setdefault(out, _Flight())
+        flight.users += 1
+        seen = flight.builds
+    try:
+        with flight.lock:
+            yield flight.builds != seen
+            flight.builds += 1
+    finally:
+        with _FLIGHTS_LOCK:
+            flight.users -= 1
+            if flight.users == 0:
+                del _FLIGHTS[out]
+
+
+def _discard(c: Context, out: Path, job: dict) -> None:
+    """Remove what a build wrote for a job deleted meanwhile: ``out`` (counted out of
+    health's disk-usage counters, which the build counted it in) and the job's files the
+    build's folder re-made (``service.jobs.lifecycle.job_files``)."""
+    from service.storage.usage import usage_for
+
+    if out.exists():
+        usage_for(c.settings.data_dir).add_path(out, removed=True)
+    for path in (out, *lifecycle.job_files(job, c.settings.data_dir)):
+        if path.is_dir() and not path.is_symlink():
+            shutil.rmtree(path, ignore_errors=True)
+        else:
+            path.unlink(missing_ok=True)
 
 
 def _write_export(c: Context, src: Path, out: Path, format: str, *, arcname: str, replace: bool = False) -> None:

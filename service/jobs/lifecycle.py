@@ -8,7 +8,7 @@ The rules, one place for the API, the queue and the tests:
   of an active scan, a dataset an active reconstruction reads. Such a request raises
   :class:`InUse` (HTTP 409) naming the job that holds it.
 - Deleting a job removes its database row and events and its files: a scan job's scan
-  file and IPASC export, a reconstruction's result folder(s) (every attempt).
+  file and exports, a reconstruction's result folder(s) (every attempt).
 - Retention (:func:`apply_retention`): keep the newest ``keep_results`` finished
   reconstructions and/or at most ``keep_bytes`` bytes of result files; the oldest
   finished go first, whole (row and files). Scan files are never removed by retention
@@ -34,8 +34,8 @@ So a 201 names a dataset that exists when it is sent, and a deletion that raced 
 first (the upload then stored or found another) or comes after it.
 
 Layout of the data folder (``settings.data_dir``): ``scans/<job>.h5``,
-``exports/<job>.ipasc.h5``, ``results/<job>.<attempt>/``, ``datasets/<id>/``,
-``jobs.sqlite``.
+``exports/<job><suffix>`` (a scan's exports: ``_ipasc.h5``, ...), ``results/<job>.<attempt>/``,
+``datasets/<id>/``, ``jobs.sqlite``.
 """
 from __future__ import annotations
 
@@ -241,8 +241,8 @@ def _remove(path: Path) -> None:
 def job_files(job: dict, data_dir: str | os.PathLike) -> list[Path]:
     """The files and folders that belong to ``job`` (existing ones only).
 
-    A scan job's scan file and IPASC export; a reconstruction's result folder(s) of every
-    attempt and their progress files.
+    A scan job's scan file and its exports (``exports/<job><suffix>``); a reconstruction's
+    result folder(s) of every attempt (its exports inside) and their progress files.
 
     Parameters
     ----------
@@ -264,7 +264,9 @@ def job_files(job: dict, data_dir: str | os.PathLike) -> list[Path]:
         if scan_path:
             out.append(Path(scan_path))
         out.append(data / "scans" / f"{jid}.h5")
-        out.append(data / "exports" / f"{jid}.ipasc.h5")
+        exports = data / "exports"
+        if exports.is_dir():  # every export written of it (<job><suffix>: _ipasc.h5, .h5, ...)
+            out += [p for p in exports.iterdir() if p.name.startswith((f"{jid}.", f"{jid}_"))]
     else:
         if job.get("result_path"):
             out.append(Path(job["result_path"]))
