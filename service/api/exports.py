@@ -35,6 +35,7 @@ from fastapi import Path as PathParam
 from fastapi.responses import FileResponse
 
 from service.api.context import Context, ctx, read_access
+from service.api.files import HeldFileResponse
 from service.api.jobs import get_job_or_404
 from service.api.models import ID_PATTERN, FormatInfo
 from service.formats import FORMATS, export_file, export_formats
@@ -121,8 +122,9 @@ def export(job_id: str = PathParam(pattern=ID_PATTERN, description="a scan or re
         raise HTTPException(404, f"a {job['kind']} job exports {', '.join(offered)}; no export format {format!r}")
     fmt = FORMATS[format]
     name = f"{job_id}{'' if wavelength is None else f'-wavelength_{wavelength}'}{fmt.suffix}"
+    gone = f"job {job_id} was deleted meanwhile"
     if format == source:  # the file itself
-        return FileResponse(src, media_type=fmt.media_type, filename=name)
+        return HeldFileResponse(src, gone=gone, media_type=fmt.media_type, filename=name)
     if source == "result":  # a result never changes: its exports are kept beside it
         out = src.with_name(f"volume{fmt.suffix}" + (".zip" if fmt.folder else ""))
     else:  # a scan may grow: written anew
@@ -141,8 +143,9 @@ def export(job_id: str = PathParam(pattern=ID_PATTERN, description="a scan or re
                 if c.store.get(job_id) is None:
                     _discard(c, out, job)
                     raise HTTPException(404, f"job {job_id} was deleted while its export was made")
-    return FileResponse(out, media_type="application/zip" if fmt.folder else fmt.media_type,
-                        filename=name + (".zip" if fmt.folder else ""))
+        # opened before another build may replace it: each answer serves the file of its build
+        return HeldFileResponse(out, gone=gone, media_type="application/zip" if fmt.folder else fmt.media_type,
+                                filename=name + (".zip" if fmt.folder else ""))
 
 
 class _Flight:

@@ -9,6 +9,7 @@ from fastapi import Path as PathParam
 from fastapi.responses import FileResponse
 
 from service.api.context import Context, ctx, read_access, reason, require_token
+from service.api.files import HeldFileResponse
 from service.api.jobs import get_job_or_404, job_view
 from service.api.models import ID_PATTERN, Error, Job, MethodInfo, MethodOption, Plane, ReconRequest
 from service.formats.result import VOLUME_FILE, mip_file
@@ -419,8 +420,8 @@ def volume(job_id: str = JobId, wavelength: int | None = WavelengthQuery, c: Con
     multi-wavelength input). ``?wavelength=k``: wavelength ``k``'s volume of a job over
     every wavelength (``wavelength='all'`` or unmix). Supports ``Range``."""
     path = volume_dir(c, job_id, wavelength) / VOLUME_FILE
-    return FileResponse(path, media_type="application/x-hdf5",
-                        filename=f"{job_id}.h5" if wavelength is None else f"{job_id}-wavelength_{wavelength}.h5")
+    return HeldFileResponse(path, gone=f"reconstruction {job_id} was deleted meanwhile", media_type="application/x-hdf5",
+                            filename=f"{job_id}.h5" if wavelength is None else f"{job_id}-wavelength_{wavelength}.h5")
 
 
 @router.get("/{job_id}/unmix.h5", dependencies=[Depends(read_access)], response_class=FileResponse,
@@ -434,7 +435,8 @@ def unmix_h5(job_id: str = JobId, c: Context = Depends(ctx)):
     path = result_dir(c, job_id) / "unmix.h5"
     if not path.exists():
         raise HTTPException(404, f"reconstruction {job_id} was not unmixed (ask with 'unmix')")
-    return FileResponse(path, media_type="application/x-hdf5", filename=f"{job_id}-unmix.h5")
+    return HeldFileResponse(path, gone=f"reconstruction {job_id} was deleted meanwhile",
+                            media_type="application/x-hdf5", filename=f"{job_id}-unmix.h5")
 
 
 @router.get("/{job_id}/so2.png", dependencies=[Depends(read_access)], response_class=Response,

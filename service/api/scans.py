@@ -10,6 +10,7 @@ from fastapi import Path as PathParam
 from fastapi.responses import FileResponse
 
 from service.api.context import Context, ctx, read_access, require_token
+from service.api.files import HeldFileResponse
 from service.api.jobs import get_job_or_404, job_view
 from service.api.models import ID_PATTERN, Job, Plane, PreviewInfo, Scanner, ScanRequest
 from service.jobs import lifecycle
@@ -138,7 +139,9 @@ def scan_file_path(c: Context, job_id: str) -> Path:
                        206: {"description": "partial content (HTTP Range)"}})
 def scan_file(job_id: str = JobId, c: Context = Depends(ctx)):
     """The scan file (HDF5, ``driver.scanfile`` layout); supports ``Range``."""
-    return FileResponse(scan_file_path(c, job_id), media_type="application/x-hdf5", filename=f"{job_id}.h5")
+    # the file as it is now (a running scan's grows): its size when opened, those bytes
+    return HeldFileResponse(scan_file_path(c, job_id), gone=f"scan {job_id} was deleted meanwhile",
+                            media_type="application/x-hdf5", filename=f"{job_id}.h5")
 
 
 @router.get("/api/scans/{job_id}/preview", response_model=PreviewInfo, dependencies=[Depends(read_access)])

@@ -27,11 +27,12 @@ import httpx
 import numpy as np
 import pytest
 
-from tests.service.service_servers import TOKEN, Server
+from tests.service.service_servers import TOKEN, Server, needs_recon, wait_job
 from tests.waits import HANG_S
 
 RACES = 200
 JOB_RACES = 100
+DOWNLOAD_RACES = 60
 
 
 def npy_bytes(offset: int = 0) -> bytes:
@@ -184,3 +185,78 @@ def test_a_reconstruction_and_the_deletion_of_its_dataset_never_both_succeed(cop
         rm.close()
     print(f"{JOB_RACES} races (reconstruction, deletion): {outcomes}; both acknowledged: {len(both)}")
     assert not both, f"{len(both)} of {JOB_RACES} races queued a job and deleted its dataset: {both[:5]}"
+
+
+def clone_jobs(data_dir, job_id: str, n: int) -> list[str]:
+    """``n`` more succeeded copies of the reconstruction ``job_id`` (its row through the
+    store's own calls, its result folder copied; the server stopped)."""
+    from service.jobs.store import JobStore
+
+    store = JobStore(data_dir / "jobs.sqlite")
+    try:
+        job = store.get(job_id)
+        ids = []
+        for _ in range(n):
+            new, _ = store.create_job("recon", job["params"])
+            store.claim(new["id"], "test", 10.0)
+            folder = data_dir / "results" / f"{new['id']}.1"
+            shutil.copytree(job["result_path"], folder)
+            assert store.set_state(new["id"], "succeeded", result_path=str(folder), only_from=("running",))
+            ids.append(new["id"])
+        return ids
+    finally:
+        store.close()
+
+
+@needs_recon
+@pytest.mark.timeout(300)
+def test_a_download_racing_the_deletion_of_its_job_is_whole_or_404_never_500(tmp_path):
+    """Results and exports (issue 60.4): ``GET`` of a volume or an export racing ``DELETE``
+    of its job is answered with the whole file as it was (200) or 404, never a 500 (the
+    file is opened by the route: ``service.api.files.HeldFileResponse``)."""
+    data = tmp_path / "data"
+    srv = Server(data).start()
+    try:
+        with srv.client() as api:
+            r = api.post("/api/datasets", **upload_form(2))
+            r = api.post("/api/reconstructions", json={"dataset_id": r.json()["dataset_id"], "method": "ner"})
+            job = wait_job(api, r.json()["id"])
+            assert job["state"] == "succeeded", job
+            volume = api.get(f"/api/reconstructions/{job['id']}/volume.h5").content
+    finally:
+        srv.stop()
+    jobs = clone_jobs(data, job["id"], DOWNLOAD_RACES)
+    srv.start()
+    rng = random.Random(62)
+    get = http.client.HTTPConnection("127.0.0.1", srv.port, timeout=HANG_S)
+    rm = http.client.HTTPConnection("127.0.0.1", srv.port, timeout=HANG_S)
+    auth = {"Authorization": f"Bearer {TOKEN}"}
+    outcomes: dict[int, int] = {}
+    try:
+        for i, jid in enumerate(jobs):
+            path = (f"/api/reconstructions/{jid}/volume.h5" if i % 2 else f"/api/jobs/{jid}/export/result")
+            sends = [(get, "GET", path), (rm, "DELETE", f"/api/jobs/{jid}")]
+            if rng.random() < 0.5:
+                sends.reverse()
+            for k, (conn, method, url) in enumerate(sends):
+                conn.request(method, url, headers=auth)
+                if k == 0:
+                    select.select([], [], [], rng.random() * 2e-3)
+            got = get.getresponse()
+            body = got.read()
+            rm_status, _ = answer(rm)
+            assert rm_status == 200, rm_status
+            outcomes[got.status] = outcomes.get(got.status, 0) + 1
+            assert got.status in (200, 404), (i, got.status, body[:200])
+            if got.status == 200:
+                assert body == volume, (i, len(body), len(volume))
+            else:
+                detail = json.loads(body)["detail"]
+                assert "deleted meanwhile" in detail or detail.startswith(("no job", "no recon job")), detail
+        left = [p.name for p in (data / "results").iterdir() if p.name.split(".")[0] in jobs]
+        assert not left, left  # nothing of a deleted job is left
+    finally:
+        get.close()
+        rm.close()
+        srv.stop()
+    print(f"{DOWNLOAD_RACES} races (download, deletion): {outcomes}")
