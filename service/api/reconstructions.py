@@ -28,7 +28,7 @@ from service.pipeline import METHODS, default_method, method_options
 from service.recon.methods import get as method_named
 
 __all__ = [
-    "router", "JobId", "IdemKey", "list_methods", "start_reconstruction", "WavelengthQuery", "result_dir",
+    "router", "JobId", "IdemKey", "list_methods", "start_reconstruction", "queue_wait", "WavelengthQuery", "result_dir",
     "volume_dir", "volume", "unmix_h5", "so2_png", "mip_png", "slice_png",
 ]
 
