@@ -129,8 +129,8 @@ def export(job_id: str = PathParam(pattern=ID_PATTERN, description="a scan or re
         out = src.with_name(f"volume{fmt.suffix}" + (".zip" if fmt.folder else ""))
     else:  # a scan may grow: written anew
         out = Path(c.settings.data_dir) / EXPORTS_DIR / (f"{job_id}{fmt.suffix}" + (".zip" if fmt.folder else ""))
-    with _one_build(out) as built_meanwhile:
-        if not (out.exists() if source == "result" else built_meanwhile):
+    with _one_build(out) as turn:
+        if not (out.exists() if source == "result" else turn.built_meanwhile):
             try:
                 _write_export(c, src, out, format, arcname=f"{job_id}{fmt.suffix}", replace=source != "result")
             except OSError:
@@ -143,13 +143,14 @@ def export(job_id: str = PathParam(pattern=ID_PATTERN, description="a scan or re
                 if c.store.get(job_id) is None:
                     _discard(c, out, job)
                     raise HTTPException(404, f"job {job_id} was deleted while its export was made")
+            turn.built()
         # opened before another build may replace it: each answer serves the file of its build
         return HeldFileResponse(out, gone=gone, media_type="application/zip" if fmt.folder else fmt.media_type,
                                 filename=name + (".zip" if fmt.folder else ""))
 
 
 class _Flight:
-    """One export file's build lock, its waiters and how many builds it has seen."""
+    """One export file's build lock, its users (waiting or building) and its builds so far."""
 
     def __init__(self) -> None:
         self.lock = threading.Lock()
@@ -157,23 +158,37 @@ class _Flight:
         self.builds = 0
 
 
+class _Turn:
+    """A request's turn at an export file (:func:`_one_build`): whether a build of it ended
+    while the request waited, and :meth:`built` to count the build it made."""
+
+    def __init__(self, flight: _Flight, seen: int) -> None:
+        self._flight, self._seen = flight, seen
+
+    @property
+    def built_meanwhile(self) -> bool:
+        return self._flight.builds != self._seen
+
+    def built(self) -> None:
+        self._flight.builds += 1
+
+
 _FLIGHTS: dict[Path, _Flight] = {}
 _FLIGHTS_LOCK = threading.Lock()
 
 
 @contextlib.contextmanager
-def _one_build(out: Path) -> Iterator[bool]:
-    """Hold the build of ``out`` (one request at a time, per path; the entry goes with its
-    last user). Yields whether a build of it ended while this request waited (its file
-    is then the one to serve); the block's end counts as a build."""
+def _one_build(out: Path) -> Iterator[_Turn]:
+    """Hold the build of ``out``: one request at a time per path, in turn (the entry goes
+    with its last user). The turn says whether a build ended while the request waited (its
+    file is then the one to serve)."""
     with _FLIGHTS_LOCK:
         flight = _FLIGHTS.setdefault(out, _Flight())
         flight.users += 1
         seen = flight.builds
     try:
         with flight.lock:
-            yield flight.builds != seen
-            flight.builds += 1
+            yield _Turn(flight, seen)
     finally:
         with _FLIGHTS_LOCK:
             flight.users -= 1
