@@ -152,6 +152,14 @@ class Attempt(_Response):
         Seconds it ran.
     reason : str or None
         Why it was cut off, one line.
+
+    Examples
+    --------
+    >>> from clients.http.models import Attempt
+    >>> a = Attempt.model_validate({"attempt": 1, "started": 100.0, "ended": 102.5, "run_s": 2.5,
+    ...                             "reason": "the worker process died"})
+    >>> a.run_s, a.reason
+    (2.5, 'the worker process died')
     """
 
     attempt: int | None = None
