@@ -105,6 +105,9 @@ class Settings(BaseSettings):
     uploads_per_client: int | None = Field(None, ge=1, le=1024, description="uploads (and plan requests) one client "
                                            "address may have in progress or waiting; more get 429 while the "
                                            "server's slots are not all taken by others; None = import_workers")
+    queued_per_client: int | None = Field(100, ge=1, le=1_000_000, description="reconstructions one client "
+                                          "address may have queued (not yet running); another is refused with 429 "
+                                          "saying the cap, the queue's length and its estimated wait; None = no cap")
     work_limit_s: float = Field(8 * 3600.0, gt=0, le=30 * 86400, description="most work one reconstruction may "
                                 "ask for, in seconds on 2 cores by its method's estimate "
                                 "(service.jobs.admission.estimate_work); more is refused with 422")

@@ -12,7 +12,7 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
-__all__ = ["Plan", "PlanPreview", "JobProgress", "Timings", "Job", "Scanner", "PreviewInfo", "MODELS"]
+__all__ = ["Plan", "PlanPreview", "JobProgress", "Attempt", "Timings", "Job", "Scanner", "PreviewInfo", "MODELS"]
 
 
 class _Response(BaseModel):
@@ -139,8 +139,39 @@ class JobProgress(_Response):
                                "full disk), one line; cleared when it resumes")
 
 
+class Attempt(_Response):
+    """An attempt of a job that was cut off and re-queued (a dead worker, a shutdown, a restart).
+
+    Attributes
+    ----------
+    attempt : int or None
+        Its number (1 for the first run).
+    started, ended : float or None
+        UNIX times it started and was cut off, s.
+    run_s : float or None
+        Seconds it ran.
+    reason : str or None
+        Why it was cut off, one line.
+
+    Examples
+    --------
+    >>> from clients.http.models import Attempt
+    >>> a = Attempt.model_validate({"attempt": 1, "started": 100.0, "ended": 102.5, "run_s": 2.5,
+    ...                             "reason": "the worker process died"})
+    >>> a.run_s, a.reason
+    (2.5, 'the worker process died')
+    """
+
+    attempt: int | None = None
+    started: float | None = None
+    ended: float | None = None
+    run_s: float | None = None
+    reason: str | None = None
+
+
 class Timings(_Response):
-    """UNIX times of a job's creation, start and end (s), and its queue/run durations (s).
+    """UNIX times of a job's creation, start and end (s), and its queue/run durations (s):
+    those of its current attempt (a job re-queued after its run was cut off starts them anew).
 
     Attributes
     ----------
@@ -148,6 +179,8 @@ class Timings(_Response):
         UNIX times, s.
     queued_s, run_s : float or None
         Durations, s.
+    earlier_attempts : list of Attempt
+        The attempts cut off before the current one, oldest first.
 
     Examples
     --------
@@ -162,6 +195,7 @@ class Timings(_Response):
     finished: float | None = None
     queued_s: float | None = None
     run_s: float | None = None
+    earlier_attempts: list[Attempt] = Field(default_factory=list)
 
 
 class Job(_Response):
@@ -266,5 +300,5 @@ class PreviewInfo(_Response):
 
 
 MODELS: dict[str, type[BaseModel]] = {
-    m.__name__: m for m in (Plan, PlanPreview, JobProgress, Timings, Job, Scanner, PreviewInfo)
+    m.__name__: m for m in (Plan, PlanPreview, JobProgress, Attempt, Timings, Job, Scanner, PreviewInfo)
 }

@@ -452,6 +452,9 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True, 
                   responses=ERROR_RESPONSES,
                   description="Planar Fabry-Perot photoacoustic scanning: plans, scans, reconstructions as jobs.")
     _add_error_handlers(app)
+    from service.api.json_depth import JsonDepthLimit
+
+    app.add_middleware(JsonDepthLimit)  # inside UploadLimit: a body within its size limit, then its nesting
     app.add_middleware(UploadLimit, limit=settings.upload_limit, json_limit=settings.json_limit, slots=slots,
                        body_timeout_s=settings.body_timeout_s, request_json_limit=settings.request_json_limit,
                        min_rate=settings.body_min_rate, rate_window_s=settings.body_rate_window_s)

@@ -20,6 +20,10 @@ Datasets never pile up:
   dataset (format, ``dt``, ``dx``, ``dy``, ``c``, ``key``, the wavelength index) is its
   key; the same file with the same options uploaded again answers (201, as any upload)
   with the stored dataset's id and ``deduplicated: true``, storing nothing.
+- Acknowledged means stored (issue 60.4): the dataset a 201 names (found or new) is found
+  or stored under ``service.jobs.lifecycle.guard``, the lock deletions take, and held
+  (``lifecycle.hold_dataset``) until the 201 has been sent (a background task of the
+  response releases it): a ``DELETE`` of it meanwhile waits, and retention passes it by.
 - Listed (``GET /api/datasets``: size on disk, content hash, the jobs that read it) and
   deletable (``DELETE /api/datasets/{id}``, 409 while a queued/running/paused job reads it).
 - Covered by retention (``service.jobs.lifecycle.apply_dataset_retention``, applied after
@@ -35,12 +39,11 @@ import inspect
 import json
 import logging
 import shutil
-import threading
 import uuid
 from pathlib import Path
 from typing import Any
 
-from fastapi import APIRouter, Depends, File, Form, HTTPException, UploadFile
+from fastapi import APIRouter, BackgroundTasks, Depends, File, Form, HTTPException, UploadFile
 from fastapi import Path as PathParam
 
 from driver.constants import C_DEFAULT
@@ -57,10 +60,7 @@ from service.storage.datasets import import_dataset
 from service.storage.usage import usage_for
 
 log = logging.getLogger("fpscan.api")
-#: serialises "is this content stored already?" with storing it (two identical uploads at once)
 __all__ = ["router", "list_datasets", "list_formats", "upload_dataset", "delete_dataset"]
-
-_DEDUP_LOCK = threading.Lock()
 
 router = APIRouter(prefix="/api/datasets", tags=["datasets"])
 
@@ -91,7 +91,8 @@ def upload_dataset(file: UploadFile = File(..., description="the data file"),
                    sound_speed: str | None = Form(None, max_length=40, description=_SPEED),
                    c: str | None = Form(None, max_length=40, description="deprecated name of sound_speed"),
                    force: bool = Form(False, description=_FORCE),
-                   cx: Context = Depends(ctx), **options: Any) -> Dataset:
+                   cx: Context = Depends(ctx), sent: BackgroundTasks = None,  # type: ignore[assignment]
+                   **options: Any) -> Dataset:
     """Upload a dataset for reconstruction → 201 ``{dataset_id, ...}``; the same file with
     the same options again → 201 with the stored one (``deduplicated: true``, nothing new
     stored: 201 as for any upload, so clients need not tell the cases apart). At most
@@ -113,8 +114,11 @@ def upload_dataset(file: UploadFile = File(..., description="the data file"),
     except ValueError as exc:
         raise HTTPException(422, str(exc)) from None
     with cx.slots["uploads"].turn():
-        return _store_upload(file, format, dt=given.get("dt"), dx=given.get("dx"), dy=given.get("dy"), c=q["c"],
-                             key=given.get("key"), force=force, wavelength=given.get("wavelength"), cx=cx)
+        out = _store_upload(file, format, dt=given.get("dt"), dx=given.get("dx"), dy=given.get("dy"), c=q["c"],
+                            key=given.get("key"), force=force, wavelength=given.get("wavelength"), cx=cx)
+    # held since it was found or stored: released once the 201 naming it has been sent
+    sent.add_task(lifecycle.release_dataset, cx.store, out.dataset_id)
+    return out
 
 
 #: the formats' load options (``service.formats.load_options``): the upload's generated fields
@@ -169,10 +173,12 @@ def _dedup_key(sha256: str, format: str, **options: object) -> str:
 
 def _stored(cx: Context, dedup_key: str, sha256: str) -> Dataset | None:
     """The oldest stored dataset of ``dedup_key`` whose file is there, as a deduplicated
-    answer; None when there is none."""
+    answer, held (``lifecycle.hold_dataset``); None when there is none. Called under
+    ``lifecycle.guard``: no deletion falls between the look and the hold."""
     for dataset_id in cx.store.find_datasets(dedup_key):
         meta = cx.store.get_dataset(dataset_id)
         if meta is not None and (Path(cx.settings.data_dir) / "datasets" / dataset_id / meta["path"]).is_file():
+            lifecycle.hold_dataset(cx.store, dataset_id)
             return Dataset(dataset_id=dataset_id, format=meta["format"], layout=meta["layout"], shape=meta["shape"],
                            dt=meta["dt"], wavelength_nm=meta.get("wavelength_nm"), deduplicated=True,
                            content_sha256=sha256)
@@ -214,11 +220,15 @@ def _store_upload(file: UploadFile, format: str, *, dt, dx, dy, c, key, force: b
         sha256 = digest.hexdigest()
         dedup_key = _dedup_key(sha256, format, dt=dt, dx=dx, dy=dy, c=c, key=key, wavelength=wavelength,
                                force=bool(force))
-        with _DEDUP_LOCK:
+        with lifecycle.guard(cx.store):  # found and held with no deletion between
             found = _stored(cx, dedup_key, sha256)
         if found is not None:
-            shutil.rmtree(dest, ignore_errors=True)
-            cx.store.touch_dataset(found.dataset_id)  # asked for again: retention by age counts from now
+            try:
+                shutil.rmtree(dest, ignore_errors=True)
+                cx.store.touch_dataset(found.dataset_id)  # asked for again: retention by age counts from now
+            except BaseException:
+                lifecycle.release_dataset(cx.store, found.dataset_id)
+                raise
             log.info("upload deduplicated: dataset=%s bytes=%d", found.dataset_id, size)
             return found
         try:
@@ -239,7 +249,7 @@ def _store_upload(file: UploadFile, format: str, *, dt, dx, dy, c, key, force: b
         src.unlink(missing_ok=True)
         meta.update({"format": format, "name": _display_name(file.filename), "content_sha256": sha256,
                      "dedup_key": dedup_key})
-        with _DEDUP_LOCK:  # an identical upload may have been stored meanwhile: keep that one
+        with lifecycle.guard(cx.store):  # an identical upload may have been stored meanwhile: keep that one
             found = _stored(cx, dedup_key, sha256)
             if found is None:
                 stored = Path(cx.settings.data_dir) / "datasets" / dataset_id
@@ -247,6 +257,7 @@ def _store_upload(file: UploadFile, format: str, *, dt, dx, dy, c, key, force: b
                 dest.rename(stored)
                 dest = stored
                 cx.store.put_dataset(dataset_id, meta)
+                lifecycle.hold_dataset(cx.store, dataset_id)  # until its 201 is sent (retention passes it by)
                 usage_for(cx.settings.data_dir).add_path(stored)  # /api/health's counters
     except BaseException:
         shutil.rmtree(dest, ignore_errors=True)

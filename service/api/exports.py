@@ -9,11 +9,25 @@ is served as it is; another format is written by its exporter (``service.formats
 beside the job's files once and then served from there (a result never changes; a scan's export
 is written anew on every request, since the scan may have grown). A folder export (OME-Zarr) is
 served zipped. Exports run in FastAPI's thread pool, off the event loop.
+
+Single flight (issue 60.7): one export file is built by one request at a time
+(:func:`_one_build`, a lock per output path). Requests that come while it is built wait
+for that build and serve its file: 20 concurrent first requests of a volume's OME-TIFF
+build it once, and every response carries the same bytes (one OME UUID), so a download
+resumed with ``Range`` never mixes two builds. A scan's export, written anew per request,
+is written once for the requests that came while it was being written.
+
+Acknowledged means stored (issue 60.4): a build ends under ``service.jobs.lifecycle.guard``
+with a look at the job; one deleted meanwhile has what the build wrote removed (404), so an
+export never leaves a file behind a deleted job.
 """
 from __future__ import annotations
 
+import contextlib
 import shutil
+import threading
 import uuid
+from collections.abc import Iterator
 from pathlib import Path
 
 from fastapi import APIRouter, Depends, HTTPException, Query
@@ -21,10 +35,12 @@ from fastapi import Path as PathParam
 from fastapi.responses import FileResponse
 
 from service.api.context import Context, ctx, read_access
+from service.api.files import HeldFileResponse
 from service.api.jobs import get_job_or_404
 from service.api.models import ID_PATTERN, FormatInfo
 from service.formats import FORMATS, export_file, export_formats
 from service.formats.result import VOLUME_FILE
+from service.jobs import lifecycle
 
 __all__ = ["router", "list_formats", "export", "job_export_source", "EXPORTS_DIR"]
 
@@ -106,17 +122,93 @@ def export(job_id: str = PathParam(pattern=ID_PATTERN, description="a scan or re
         raise HTTPException(404, f"a {job['kind']} job exports {', '.join(offered)}; no export format {format!r}")
     fmt = FORMATS[format]
     name = f"{job_id}{'' if wavelength is None else f'-wavelength_{wavelength}'}{fmt.suffix}"
+    gone = f"job {job_id} was deleted meanwhile"
     if format == source:  # the file itself
-        return FileResponse(src, media_type=fmt.media_type, filename=name)
+        return HeldFileResponse(src, gone=gone, media_type=fmt.media_type, filename=name)
     if source == "result":  # a result never changes: its exports are kept beside it
         out = src.with_name(f"volume{fmt.suffix}" + (".zip" if fmt.folder else ""))
-        if not out.exists():
-            _write_export(c, src, out, format, arcname=f"{job_id}{fmt.suffix}")
     else:  # a scan may grow: written anew
         out = Path(c.settings.data_dir) / EXPORTS_DIR / (f"{job_id}{fmt.suffix}" + (".zip" if fmt.folder else ""))
-        _write_export(c, src, out, format, arcname=f"{job_id}{fmt.suffix}", replace=True)
-    return FileResponse(out, media_type="application/zip" if fmt.folder else fmt.media_type,
-                        filename=name + (".zip" if fmt.folder else ""))
+    with _one_build(out) as turn:
+        if not (out.exists() if source == "result" else turn.built_meanwhile):
+            try:
+                _write_export(c, src, out, format, arcname=f"{job_id}{fmt.suffix}", replace=source != "result")
+            except OSError:
+                with lifecycle.guard(c.store):
+                    if c.store.get(job_id) is None:  # deleted under the build (its folder removed)
+                        _discard(c, out, job)
+                        raise HTTPException(404, f"job {job_id} was deleted while its export was made") from None
+                raise
+            with lifecycle.guard(c.store):  # no deletion between the look and the file kept
+                if c.store.get(job_id) is None:
+                    _discard(c, out, job)
+                    raise HTTPException(404, f"job {job_id} was deleted while its export was made")
+            turn.built()
+        # opened before another build may replace it: each answer serves the file of its build
+        return HeldFileResponse(out, gone=gone, media_type="application/zip" if fmt.folder else fmt.media_type,
+                                filename=name + (".zip" if fmt.folder else ""))
+
+
+class _Flight:
+    """One export file's build lock, its users (waiting or building) and its builds so far."""
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.users = 0
+        self.builds = 0
+
+
+class _Turn:
+    """A request's turn at an export file (:func:`_one_build`): whether a build of it ended
+    while the request waited, and :meth:`built` to count the build it made."""
+
+    def __init__(self, flight: _Flight, seen: int) -> None:
+        self._flight, self._seen = flight, seen
+
+    @property
+    def built_meanwhile(self) -> bool:
+        return self._flight.builds != self._seen
+
+    def built(self) -> None:
+        self._flight.builds += 1
+
+
+_FLIGHTS: dict[Path, _Flight] = {}
+_FLIGHTS_LOCK = threading.Lock()
+
+
+@contextlib.contextmanager
+def _one_build(out: Path) -> Iterator[_Turn]:
+    """Hold the build of ``out``: one request at a time per path, in turn (the entry goes
+    with its last user). The turn says whether a build ended while the request waited (its
+    file is then the one to serve)."""
+    with _FLIGHTS_LOCK:
+        flight = _FLIGHTS.setdefault(out, _Flight())
+        flight.users += 1
+        seen = flight.builds
+    try:
+        with flight.lock:
+            yield _Turn(flight, seen)
+    finally:
+        with _FLIGHTS_LOCK:
+            flight.users -= 1
+            if flight.users == 0:
+                del _FLIGHTS[out]
+
+
+def _discard(c: Context, out: Path, job: dict) -> None:
+    """Remove what a build wrote for a job deleted meanwhile: ``out`` (counted out of
+    health's disk-usage counters, which the build counted it in) and the job's files the
+    build's folder re-made (``service.jobs.lifecycle.job_files``)."""
+    from service.storage.usage import usage_for
+
+    if out.exists():
+        usage_for(c.settings.data_dir).add_path(out, removed=True)
+    for path in (out, *lifecycle.job_files(job, c.settings.data_dir)):
+        if path.is_dir() and not path.is_symlink():
+            shutil.rmtree(path, ignore_errors=True)
+        else:
+            path.unlink(missing_ok=True)
 
 
 def _write_export(c: Context, src: Path, out: Path, format: str, *, arcname: str, replace: bool = False) -> None:

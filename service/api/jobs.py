@@ -130,11 +130,14 @@ def job_view(job: dict) -> Job:
         The API's model, with its timings (``queued_s``, ``run_s``) and links
         (:func:`job_links`).
     """
-    params = person_names({k: v for k, v in job["params"].items() if k not in ("input", "scan_path")})
+    # no file system path, nor the submitting client's address (it caps the client's queue)
+    params = person_names({k: v for k, v in job["params"].items() if k not in ("input", "scan_path", "client")})
     created, started, finished = job["created"], job["started"], job["finished"]
+    earlier = [{**a, "run_s": (a["ended"] - a["started"]) if a.get("started") else None}
+               for a in job.get("earlier_attempts") or []]
     timings = {"created": created, "started": started, "finished": finished,
                "queued_s": (started - created) if started else None,
-               "run_s": (finished - started) if (finished and started) else None}
+               "run_s": (finished - started) if (finished and started) else None, "earlier_attempts": earlier}
     return Job(id=job["id"], kind=job["kind"], state=job["state"], progress=job["progress"], timings=timings,
                params=params, links=job_links(job), attempts=job["attempts"], error=job["error"])
 

@@ -34,8 +34,8 @@ __all__ = [
     "JobState", "JobKind", "ReconMethod", "Plane", "DATASET_FORMATS", "DatasetFormat", "ID_PATTERN", "LatticeIndex",
     "Error", "DiskUse", "Health", "AuthInfo", "Deleted", "Retention", "MAX_LATTICE_POINTS", "Pitch", "Lattice",
     "PlanDocument", "PlanCreate", "MethodOption", "DatasetFormatInfo", "FormatInfo", "MethodInfo", "MaskKindInfo", "Plan",
-    "PlanPreview", "JobProgress", "Timings", "Job", "ScanRequest", "Scanner", "PreviewInfo", "Dataset", "DatasetInfo",
-    "ReconParams", "UnmixOptions", "ReconRequest",
+    "PlanPreview", "JobProgress", "Attempt", "Timings", "Job", "ScanRequest", "Scanner", "PreviewInfo", "Dataset",
+    "DatasetInfo", "ReconParams", "UnmixOptions", "ReconRequest",
 ]
 
 
@@ -574,21 +574,51 @@ class JobProgress(BaseModel):
     model_config = ConfigDict(extra="allow")
 
 
+class Attempt(BaseModel):
+    """An attempt of a job that was cut off and re-queued (a dead worker, a shutdown, a restart).
+
+    Attributes
+    ----------
+    attempt : int
+        Its number (1 for the first run).
+    started : float or None
+        UNIX time it started, s.
+    ended : float
+        UNIX time it was cut off, s.
+    run_s : float or None
+        Seconds it ran.
+    reason : str or None
+        Why it was cut off, one line.
+    """
+
+    attempt: int
+    started: float | None = None
+    ended: float
+    run_s: float | None = None
+    reason: str | None = None
+
+
 class Timings(BaseModel):
     """When a job was created, started and finished (UNIX times, s) and how long it waited and ran.
+
+    The times of the current (or last) attempt: a job re-queued after its run was cut off
+    starts its timing anew, and the attempts before it are listed in ``earlier_attempts``.
 
     Attributes
     ----------
     created : float
         UNIX time the job was submitted, s.
     started : float or None
-        UNIX time it started, s; null until then.
+        UNIX time its current attempt started, s; null until then (again null while it waits
+        after a cut-off attempt).
     finished : float or None
         UNIX time it ended, s; null until then.
     queued_s : float or None
         Seconds from created to started; null until it started.
     run_s : float or None
-        Seconds from started to finished; null until it ended.
+        Seconds from started to finished (the attempt that ended it); null until it ended.
+    earlier_attempts : list of Attempt
+        The attempts cut off before the current one, oldest first (empty for most jobs).
     """
 
     created: float
@@ -596,6 +626,7 @@ class Timings(BaseModel):
     finished: float | None = None
     queued_s: float | None = None
     run_s: float | None = None
+    earlier_attempts: list[Attempt] = Field(default_factory=list)
 
 
 class Job(BaseModel):

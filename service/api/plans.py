@@ -233,6 +233,8 @@ def parse_plan_request(raw: bytes, content_type: str | None):
             value = json.loads(raw)
         except (json.JSONDecodeError, UnicodeDecodeError) as exc:
             raise ValueError(f"malformed JSON: {getattr(exc, 'msg', None) or exc}") from None
+        except RecursionError:  # the door (service.api.json_depth) refuses such a body before it comes here
+            raise ValueError("JSON nested too deep") from None
     try:
         return _plan_request_adapter().validate_python(value)
     except ValidationError as exc:

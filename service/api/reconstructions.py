@@ -4,14 +4,16 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from fastapi import APIRouter, Depends, Header, HTTPException, Query, Response
+from fastapi import APIRouter, Depends, Header, HTTPException, Query, Request, Response
 from fastapi import Path as PathParam
 from fastapi.responses import FileResponse
 
 from service.api.context import Context, ctx, read_access, reason, require_token
+from service.api.files import HeldFileResponse
 from service.api.jobs import get_job_or_404, job_view
 from service.api.models import ID_PATTERN, Error, Job, MethodInfo, MethodOption, Plane, ReconRequest
 from service.formats.result import VOLUME_FILE, mip_file
+from service.jobs import lifecycle
 from service.jobs.admission import (
     admit,
     admit_work,
@@ -20,13 +22,13 @@ from service.jobs.admission import (
     estimate_work,
     input_shape,
 )
-from service.jobs.store import IdempotencyConflict
+from service.jobs.store import IdempotencyConflict, QueueFull
 from service.names import person_names
 from service.pipeline import METHODS, default_method, method_options
 from service.recon.methods import get as method_named
 
 __all__ = [
-    "router", "JobId", "IdemKey", "list_methods", "start_reconstruction", "WavelengthQuery", "result_dir",
+    "router", "JobId", "IdemKey", "list_methods", "start_reconstruction", "queue_wait", "WavelengthQuery", "result_dir",
     "volume_dir", "volume", "unmix_h5", "so2_png", "mip_png", "slice_png",
 ]
 
@@ -191,13 +193,17 @@ def list_methods() -> list[MethodInfo]:
 @router.post("", status_code=202, response_model=Job, dependencies=[Depends(require_token)],
              responses={409: {"description": "Idempotency-Key reused with other parameters, or no scan file"},
                         404: {"description": "unknown scan job or dataset"},
+                        429: {"description": "the client has queued_per_client reconstructions queued (the reason "
+                                            "says the cap, the queue's length and its estimated wait)"},
                         507: {"model": Error, "description": "the result does not fit the free disk"}})
-def start_reconstruction(body: ReconRequest, response: Response, c: Context = Depends(ctx),
+def start_reconstruction(body: ReconRequest, response: Response, request: Request, c: Context = Depends(ctx),
                          idempotency_key: str | None = IdemKey) -> Job:
     """Queue a reconstruction → 202, ``Location: /api/jobs/{id}``. Refused with 422 when
     it can never fit in the memory limit, when its work estimate is over the server's work
     limit (the reason says both), or when its method refuses the input's options (tv: an
-    image deeper than the record can hear); 507 when its result does not fit the free disk."""
+    image deeper than the record can hear); 507 when its result does not fit the free disk;
+    429 (``Retry-After``) while the client's address has ``queued_per_client`` reconstructions
+    queued, saying the cap, the queue's length and its estimated wait."""
     body = _with_method(c, _full_scan_job_id(c, body))
     extra: dict = {}
     if body.unmix is not None and body.wavelength is not None:
@@ -232,15 +238,68 @@ def start_reconstruction(body: ReconRequest, response: Response, c: Context = De
                   "shape": person_names(shape),
                   "scan_job_id": body.scan_job_id, "dataset_id": body.dataset_id, "memory_estimate": mem,
                   "work_estimate_s": float(f"{work:.4g}"), "result_bytes": needed,
-                  "wavelength": body.wavelength, **extra}
-    try:
-        job, _created = c.store.create_job("recon", job_params, idempotency_key=idempotency_key, memory_bytes=mem)
+                  "wavelength": body.wavelength, **extra,
+                  "client": (request.scope.get("client") or ("?", 0))[0]}  # whose queue it counts in
+    try:  # its inputs looked up again with the job's creation, no deletion between (issue 60.4)
+        job, _created = lifecycle.create_job(c.store, "recon", job_params, idempotency_key=idempotency_key,
+                                             memory_bytes=mem, max_queued=c.settings.queued_per_client)
+    except QueueFull as exc:
+        wait, first = queue_wait(c, exc.client)
+        raise HTTPException(
+            429, f"this client has {exc.queued} reconstructions queued, the most one client may have (queued_per_client "
+                 f"= {exc.limit}); the queue holds {wait['queued']} queued and {wait['running']} running, an estimated "
+                 f"{wait['wait_s']:.0f} s of work before a new one would start; retry when one of yours has started "
+                 f"(in about {first:.0f} s)",
+            headers={"Retry-After": str(max(1, min(int(first + 0.999), 86400)))}) from None
     except IdempotencyConflict as exc:
         raise HTTPException(409, str(exc)) from None
+    except lifecycle.NotFound as exc:
+        raise HTTPException(404, f"{exc} (deleted meanwhile)") from None
     if c.queue is not None:
         c.queue.wake()
     response.headers["Location"] = f"/api/jobs/{job['id']}"
     return job_view(job)
+
+
+def queue_wait(c: Context, client: str | None = None) -> tuple[dict, float]:
+    """The reconstruction queue's length and estimated wait, from the jobs' work estimates
+    (``params["work_estimate_s"]``, s on 2 cores: ``service.jobs.admission.estimate_work``).
+
+    The work ahead of a new job is the queued jobs' estimates plus what is left of the
+    running ones' (estimate less time run, at least 0), shared by the local workers
+    (``workers``; the estimate assumes one job per worker at a time).
+
+    Parameters
+    ----------
+    c : Context
+        The app's context.
+    client : str or None, optional
+        A client's address: also say when its oldest queued job is estimated to start.
+
+    Returns
+    -------
+    tuple of (dict, float)
+        ``{"queued", "running", "wait_s"}`` (counts; s until a job queued now would start)
+        and the s until ``client``'s oldest queued job starts (``wait_s`` when it has none).
+    """
+    import time
+
+    now = time.time()
+    queued = c.store.queued("recon")
+    running = c.store.list(state="running", kind="recon", limit=1_000_000)
+    workers = max(1, int(c.settings.workers))
+
+    def work(job: dict) -> float:
+        return max(0.0, float(job["params"].get("work_estimate_s") or 0.0))
+
+    ahead = sum(max(0.0, work(j) - (now - float(j["started"] or now))) for j in running)
+    first = None
+    for job in queued:  # oldest first
+        if first is None and client is not None and job["params"].get("client") == client:
+            first = ahead / workers
+        ahead += work(job)
+    wait = ahead / workers
+    return {"queued": len(queued), "running": len(running), "wait_s": wait}, (wait if first is None else first)
 
 
 def _work(c: Context, shape: dict, params: dict, body: ReconRequest, extra: dict) -> float:
@@ -361,8 +420,8 @@ def volume(job_id: str = JobId, wavelength: int | None = WavelengthQuery, c: Con
     multi-wavelength input). ``?wavelength=k``: wavelength ``k``'s volume of a job over
     every wavelength (``wavelength='all'`` or unmix). Supports ``Range``."""
     path = volume_dir(c, job_id, wavelength) / VOLUME_FILE
-    return FileResponse(path, media_type="application/x-hdf5",
-                        filename=f"{job_id}.h5" if wavelength is None else f"{job_id}-wavelength_{wavelength}.h5")
+    return HeldFileResponse(path, gone=f"reconstruction {job_id} was deleted meanwhile", media_type="application/x-hdf5",
+                            filename=f"{job_id}.h5" if wavelength is None else f"{job_id}-wavelength_{wavelength}.h5")
 
 
 @router.get("/{job_id}/unmix.h5", dependencies=[Depends(read_access)], response_class=FileResponse,
@@ -376,7 +435,8 @@ def unmix_h5(job_id: str = JobId, c: Context = Depends(ctx)):
     path = result_dir(c, job_id) / "unmix.h5"
     if not path.exists():
         raise HTTPException(404, f"reconstruction {job_id} was not unmixed (ask with 'unmix')")
-    return FileResponse(path, media_type="application/x-hdf5", filename=f"{job_id}-unmix.h5")
+    return HeldFileResponse(path, gone=f"reconstruction {job_id} was deleted meanwhile",
+                            media_type="application/x-hdf5", filename=f"{job_id}-unmix.h5")
 
 
 @router.get("/{job_id}/so2.png", dependencies=[Depends(read_access)], response_class=Response,

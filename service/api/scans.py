@@ -10,8 +10,10 @@ from fastapi import Path as PathParam
 from fastapi.responses import FileResponse
 
 from service.api.context import Context, ctx, read_access, require_token
+from service.api.files import HeldFileResponse
 from service.api.jobs import get_job_or_404, job_view
 from service.api.models import ID_PATTERN, Job, Plane, PreviewInfo, Scanner, ScanRequest
+from service.jobs import lifecycle
 from service.jobs.store import TERMINAL, IdempotencyConflict
 
 __all__ = [
@@ -60,10 +62,12 @@ def start_scan(body: ScanRequest, response: Response, c: Context = Depends(ctx),
     params: dict[str, Any] = {"plan_id": body.plan_id, "scanner_id": body.scanner_id}
     if body.preview_wavelength:
         params["preview_wavelength"] = body.preview_wavelength
-    try:
-        job, created = c.store.create_job("scan", params, idempotency_key=idempotency_key)
+    try:  # the plan looked up again with the job's creation, no deletion between (issue 60.4)
+        job, created = lifecycle.create_job(c.store, "scan", params, idempotency_key=idempotency_key)
     except IdempotencyConflict as exc:
         raise HTTPException(409, str(exc)) from None
+    except lifecycle.NotFound as exc:
+        raise HTTPException(404, f"{exc} (deleted meanwhile)") from None
     if created:
         scan_path = Path(c.settings.data_dir) / "scans" / f"{job['id']}.h5"
         c.store.update_params(job["id"], {"scan_path": str(scan_path)})
@@ -135,7 +139,9 @@ def scan_file_path(c: Context, job_id: str) -> Path:
                        206: {"description": "partial content (HTTP Range)"}})
 def scan_file(job_id: str = JobId, c: Context = Depends(ctx)):
     """The scan file (HDF5, ``driver.scanfile`` layout); supports ``Range``."""
-    return FileResponse(scan_file_path(c, job_id), media_type="application/x-hdf5", filename=f"{job_id}.h5")
+    # the file as it is now (a running scan's grows): its size when opened, those bytes
+    return HeldFileResponse(scan_file_path(c, job_id), gone=f"scan {job_id} was deleted meanwhile",
+                            media_type="application/x-hdf5", filename=f"{job_id}.h5")
 
 
 @router.get("/api/scans/{job_id}/preview", response_model=PreviewInfo, dependencies=[Depends(read_access)])

@@ -8,7 +8,7 @@ The rules, one place for the API, the queue and the tests:
   of an active scan, a dataset an active reconstruction reads. Such a request raises
   :class:`InUse` (HTTP 409) naming the job that holds it.
 - Deleting a job removes its database row and events and its files: a scan job's scan
-  file and IPASC export, a reconstruction's result folder(s) (every attempt).
+  file and exports, a reconstruction's result folder(s) (every attempt).
 - Retention (:func:`apply_retention`): keep the newest ``keep_results`` finished
   reconstructions and/or at most ``keep_bytes`` bytes of result files; the oldest
   finished go first, whole (row and files). Scan files are never removed by retention
@@ -23,16 +23,30 @@ The rules, one place for the API, the queue and the tests:
   ``retention_datasets_max_age_s``); a dataset a queued, running or paused job reads is
   never removed.
 
+Acknowledged means stored (issue 60.4): deleting and acknowledging a reference are
+serialised (:func:`guard`, one lock per store): a deletion checks its users and removes
+the row under it, and whatever answers with a plan, job or dataset that must go on
+existing (a job created on its inputs, a dataset an upload is answered with) checks and
+records it under it too. A dataset an upload is answered with is also *held*
+(:func:`hold_dataset`) until that answer has been sent: a deletion of it waits for the
+release (:data:`HOLD_WAIT_S` at most, then :class:`InUse`), and retention passes it by.
+So a 201 names a dataset that exists when it is sent, and a deletion that raced it came
+first (the upload then stored or found another) or comes after it.
+
 Layout of the data folder (``settings.data_dir``): ``scans/<job>.h5``,
-``exports/<job>.ipasc.h5``, ``results/<job>.<attempt>/``, ``datasets/<id>/``,
-``jobs.sqlite``.
+``exports/<job><suffix>`` (a scan's exports: ``_ipasc.h5``, ...), ``results/<job>.<attempt>/``,
+``datasets/<id>/``, ``jobs.sqlite``.
 """
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import shutil
-from collections.abc import Generator
+import threading
+import time
+import weakref
+from collections.abc import Generator, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -40,7 +54,8 @@ from service.jobs.store import ACTIVE, JobStore
 from service.storage.usage import tree_bytes, usage_for
 
 __all__ = [
-    "RETENTION_KEY", "InUse", "NotFound", "job_files", "job_dataset_ids", "delete_job", "delete_plan",
+    "RETENTION_KEY", "HOLD_WAIT_S", "HOLD_STALE_S", "InUse", "NotFound", "guard", "hold_dataset",
+    "release_dataset", "create_job", "job_files", "job_dataset_ids", "delete_job", "delete_plan",
     "delete_dataset", "list_datasets", "apply_dataset_retention", "default_retention", "get_retention",
     "set_retention", "apply_retention", "DISK_PARTS", "DISK_WALK_STEP", "disk_usage", "disk_usage_steps",
 ]
@@ -77,6 +92,140 @@ class NotFound(KeyError):
         return str(self.args[0]) if self.args else "not found"
 
 
+#: longest a deletion waits for the answer of an upload that holds its dataset, s
+HOLD_WAIT_S = 10.0
+#: a hold older than this is dropped (its answer was never sent: a release that never came), s
+HOLD_STALE_S = 60.0
+
+
+class _References:
+    """One store's lock for deleting and acknowledging, and the datasets held by answers
+    being sent (id -> the ``time.monotonic()`` of each hold)."""
+
+    def __init__(self) -> None:
+        self.lock = threading.RLock()
+        self.released = threading.Condition(self.lock)
+        self.holds: dict[str, list[float]] = {}
+
+    def held(self, dataset_id: str) -> bool:
+        now = time.monotonic()
+        fresh = [t for t in self.holds.get(dataset_id, []) if now - t < HOLD_STALE_S]
+        if fresh:
+            self.holds[dataset_id] = fresh
+        else:
+            self.holds.pop(dataset_id, None)
+        return bool(fresh)
+
+
+_REFERENCES: weakref.WeakKeyDictionary[JobStore, _References] = weakref.WeakKeyDictionary()
+_REFERENCES_LOCK = threading.Lock()
+
+
+def _refs(store: JobStore) -> _References:
+    with _REFERENCES_LOCK:
+        refs = _REFERENCES.get(store)
+        if refs is None:
+            refs = _REFERENCES[store] = _References()
+        return refs
+
+
+@contextlib.contextmanager
+def guard(store: JobStore) -> Iterator[None]:
+    """Hold off every deletion of ``store``'s plans, jobs and datasets for the block: check
+    a reference and acknowledge it inside (re-entrant; keep it short: no file is written
+    under it but a rename).
+
+    Parameters
+    ----------
+    store : JobStore
+        The job store (one lock per store object).
+
+    Yields
+    ------
+    None
+    """
+    with _refs(store).lock:
+        yield
+
+
+def hold_dataset(store: JobStore, dataset_id: str) -> None:
+    """Keep ``dataset_id`` from deletion until :func:`release_dataset` (an upload's answer
+    naming it is being sent; call it under :func:`guard`, where the dataset was found).
+    Holds count; one older than :data:`HOLD_STALE_S` is dropped.
+
+    Parameters
+    ----------
+    store : JobStore
+        The job store.
+    dataset_id : str
+        The dataset.
+    """
+    refs = _refs(store)
+    with refs.lock:
+        refs.holds.setdefault(dataset_id, []).append(time.monotonic())
+
+
+def release_dataset(store: JobStore, dataset_id: str) -> None:
+    """Release one hold of :func:`hold_dataset` (the answer was sent, or failed); a
+    deletion waiting for it goes on.
+
+    Parameters
+    ----------
+    store : JobStore
+        The job store.
+    dataset_id : str
+        The dataset.
+    """
+    refs = _refs(store)
+    with refs.lock:
+        held = refs.holds.get(dataset_id)
+        if held:
+            held.pop(0)
+            if not held:
+                del refs.holds[dataset_id]
+        refs.released.notify_all()
+
+
+def create_job(store: JobStore, kind: str, params: dict, **kwargs: Any) -> tuple[dict, bool]:
+    """Create a job whose inputs exist, under :func:`guard`: its datasets
+    (:func:`job_dataset_ids`), its scan job (``params["scan_job_id"]``) and its plan
+    (``params["plan_id"]`` of a scan) are looked up and the job created in one step, so no
+    deletion falls between them (and a deletion after it sees the job among the users).
+
+    Parameters
+    ----------
+    store : JobStore
+        The job store.
+    kind : {"scan", "recon"}
+        The job's kind.
+    params : dict
+        Its parameters, as stored.
+    **kwargs
+        ``JobStore.create_job``'s options (``idempotency_key``, ``memory_bytes``, ...).
+
+    Returns
+    -------
+    tuple of (dict, bool)
+        ``JobStore.create_job``'s ``(job, created)``.
+
+    Raises
+    ------
+    NotFound
+        An input is gone (deleted since the request was checked).
+    service.jobs.store.IdempotencyConflict
+        As ``JobStore.create_job``.
+    """
+    with guard(store):
+        for dataset_id in sorted(job_dataset_ids({"kind": kind, "params": params})):
+            if store.get_dataset(dataset_id) is None:
+                raise NotFound(f"no dataset {dataset_id}")
+        if kind == "recon" and params.get("scan_job_id") and store.get(params["scan_job_id"]) is None:
+            raise NotFound(f"no scan job {params['scan_job_id']}")
+        if kind == "scan" and params.get("plan_id") and store.get_plan_summary(params["plan_id"]) is None:
+            raise NotFound(f"no plan {params['plan_id']}")
+        return store.create_job(kind, params, **kwargs)
+
+
 def _tree_bytes(path: Path) -> int:
     """Bytes of the files under ``path`` (a file or a folder; 0 if missing)."""
     return tree_bytes(path)
@@ -92,8 +241,8 @@ def _remove(path: Path) -> None:
 def job_files(job: dict, data_dir: str | os.PathLike) -> list[Path]:
     """The files and folders that belong to ``job`` (existing ones only).
 
-    A scan job's scan file and IPASC export; a reconstruction's result folder(s) of every
-    attempt and their progress files.
+    A scan job's scan file and its exports (``exports/<job><suffix>``); a reconstruction's
+    result folder(s) of every attempt (its exports inside) and their progress files.
 
     Parameters
     ----------
@@ -115,7 +264,9 @@ def job_files(job: dict, data_dir: str | os.PathLike) -> list[Path]:
         if scan_path:
             out.append(Path(scan_path))
         out.append(data / "scans" / f"{jid}.h5")
-        out.append(data / "exports" / f"{jid}.ipasc.h5")
+        exports = data / "exports"
+        if exports.is_dir():  # every export written of it (<job><suffix>: _ipasc.h5, .h5, ...)
+            out += [p for p in exports.iterdir() if p.name.startswith((f"{jid}.", f"{jid}_"))]
     else:
         if job.get("result_path"):
             out.append(Path(job["result_path"]))
@@ -195,19 +346,20 @@ def delete_job(store: JobStore, data_dir: str | os.PathLike, job_id: str) -> dic
     InUse
         If the job is active, or an active reconstruction reads this scan.
     """
-    job = store.get(job_id)
-    if job is None:
-        raise NotFound(f"no job {job_id}")
-    if job["state"] in ACTIVE:
-        raise InUse(f"job {job_id} is {job['state']}: cancel it first")
-    users = _users(store, scan_job=job_id) if job["kind"] == "scan" else []
-    if users:
-        raise InUse(f"scan job {job_id} is read by {users[0]['state']} reconstruction {users[0]['id']}")
-    files = job_files(job, data_dir)
-    sizes = [_tree_bytes(p) for p in files]
-    freed = sum(sizes)
-    if not store.delete_job(job_id):  # it became active again (resumed) in the meantime
-        raise InUse(f"job {job_id} is active: cancel it first")
+    with guard(store):  # no reconstruction of this scan is created between the check and the deletion
+        job = store.get(job_id)
+        if job is None:
+            raise NotFound(f"no job {job_id}")
+        if job["state"] in ACTIVE:
+            raise InUse(f"job {job_id} is {job['state']}: cancel it first")
+        users = _users(store, scan_job=job_id) if job["kind"] == "scan" else []
+        if users:
+            raise InUse(f"scan job {job_id} is read by {users[0]['state']} reconstruction {users[0]['id']}")
+        files = job_files(job, data_dir)
+        sizes = [_tree_bytes(p) for p in files]
+        freed = sum(sizes)
+        if not store.delete_job(job_id):  # it became active again (resumed) in the meantime
+            raise InUse(f"job {job_id} is active: cancel it first")
     usage = usage_for(data_dir)
     for p, n in zip(files, sizes, strict=True):
         _remove(p)
@@ -238,17 +390,23 @@ def delete_plan(store: JobStore, plan_id: str) -> dict:
     InUse
         If an active scan uses it.
     """
-    if store.get_plan(plan_id) is None:
-        raise NotFound(f"no plan {plan_id}")
-    users = _users(store, plan=plan_id)
-    if users:
-        raise InUse(f"plan {plan_id} is used by {users[0]['state']} scan job {users[0]['id']}")
-    store.delete_plan(plan_id)
+    with guard(store):  # no scan of this plan is created between the check and the deletion
+        if store.get_plan_summary(plan_id) is None:
+            raise NotFound(f"no plan {plan_id}")
+        users = _users(store, plan=plan_id)
+        if users:
+            raise InUse(f"plan {plan_id} is used by {users[0]['state']} scan job {users[0]['id']}")
+        store.delete_plan(plan_id)
     return {"id": plan_id, "bytes_freed": 0}
 
 
-def delete_dataset(store: JobStore, data_dir: str | os.PathLike, dataset_id: str) -> dict:
+def delete_dataset(store: JobStore, data_dir: str | os.PathLike, dataset_id: str, *,
+                   wait_s: float = HOLD_WAIT_S) -> dict:
     """Delete an uploaded dataset and its folder.
+
+    Under :func:`guard`: a dataset held by an upload's answer (:func:`hold_dataset`) is
+    deleted once that answer has been sent (waiting ``wait_s`` at most), so an upload
+    answered with it is never answered with a dataset already gone.
 
     Parameters
     ----------
@@ -258,6 +416,9 @@ def delete_dataset(store: JobStore, data_dir: str | os.PathLike, dataset_id: str
         The data folder (``settings.data_dir``).
     dataset_id : str
         The dataset.
+    wait_s : float, optional
+        Longest wait for a hold's release, s; default :data:`HOLD_WAIT_S` (0: none, as
+        retention does).
 
     Returns
     -------
@@ -269,16 +430,28 @@ def delete_dataset(store: JobStore, data_dir: str | os.PathLike, dataset_id: str
     NotFound
         If there is no such dataset.
     InUse
-        If an active reconstruction reads it.
+        If an active reconstruction reads it, or an upload's answer still holds it after
+        ``wait_s``.
     """
-    if store.get_dataset(dataset_id) is None:
-        raise NotFound(f"no dataset {dataset_id}")
-    users = _users(store, dataset=dataset_id)
-    if users:
-        raise InUse(f"dataset {dataset_id} is read by {users[0]['state']} reconstruction {users[0]['id']}")
+    refs = _refs(store)
+    deadline = time.monotonic() + wait_s
+    with refs.lock:
+        while True:
+            if store.get_dataset(dataset_id) is None:
+                raise NotFound(f"no dataset {dataset_id}")
+            users = _users(store, dataset=dataset_id)
+            if users:
+                raise InUse(f"dataset {dataset_id} is read by {users[0]['state']} reconstruction {users[0]['id']}")
+            left = deadline - time.monotonic()
+            if not refs.held(dataset_id):
+                break
+            if left <= 0:
+                raise InUse(f"dataset {dataset_id} was just given to an upload (deduplicated), whose answer is "
+                            "still being sent; retry")
+            refs.released.wait(min(left, 1.0))
+        store.delete_dataset(dataset_id)
     folder = Path(data_dir) / "datasets" / dataset_id
     freed = _tree_bytes(folder)
-    store.delete_dataset(dataset_id)
     _remove(folder)
     usage_for(data_dir).add_path(folder, removed=True, nbytes=freed)  # /api/health's counters
     log.info("deleted dataset=%s bytes=%d", dataset_id, freed)
@@ -372,8 +545,8 @@ def apply_dataset_retention(store: JobStore, settings: Any, policy: dict | None 
             total -= r["size_bytes"]
     deleted = []
     for did in victims:
-        try:
-            delete_dataset(store, settings.data_dir, did)
+        try:  # one an upload's answer holds is kept (it was just asked for)
+            delete_dataset(store, settings.data_dir, did, wait_s=0.0)
             deleted.append(did)
         except (InUse, NotFound) as exc:
             log.info("retention kept dataset=%s: %s", did, exc)

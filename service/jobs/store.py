@@ -6,6 +6,16 @@ One SQLite file in WAL mode (https://sqlite.org/wal.html). Every job row holds i
 A per-job ``events`` table keeps the progress/state events with a sequence number, so the
 Server-Sent Events stream can honour ``Last-Event-ID``.
 
+A job re-queued after its run was cut off (a dead worker, a shutdown, a restart) starts its
+timing anew: its ``started`` is cleared and set again when the next attempt starts, and the
+cut-off attempt is kept in ``earlier_attempts`` (JSON list of ``{"attempt", "started",
+"ended", "reason"}``), so ``run_s`` counts the attempt that ended the job (issue 60.8).
+
+A job may carry the address of the client that submitted it (``params["client"]``);
+:meth:`JobStore.create_job` refuses a new one (:class:`QueueFull`) while that client
+already has ``max_queued`` jobs of the kind queued, counted in the transaction that would
+insert it.
+
 Thread-safe: one connection guarded by a lock (statements are short).
 All times are UNIX seconds (float).
 
@@ -34,7 +44,8 @@ from typing import Any, overload
 from service.disk import is_disk_full
 from service.names import person_names
 
-__all__ = ["STATES", "TERMINAL", "ACTIVE", "KINDS", "DB_RESERVE_BYTES", "IdempotencyConflict", "Jobs", "JobStore"]
+__all__ = ["STATES", "TERMINAL", "ACTIVE", "KINDS", "DB_RESERVE_BYTES", "IdempotencyConflict", "QueueFull", "Jobs",
+           "JobStore"]
 
 log = logging.getLogger("fpscan.store")
 
@@ -68,7 +79,8 @@ CREATE TABLE IF NOT EXISTS jobs (
     error TEXT,
     memory_bytes INTEGER NOT NULL DEFAULT 0,
     cancel_requested INTEGER NOT NULL DEFAULT 0,
-    control TEXT
+    control TEXT,
+    earlier_attempts TEXT NOT NULL DEFAULT '[]'
 );
 CREATE INDEX IF NOT EXISTS jobs_state ON jobs(state, kind, created);
 CREATE TABLE IF NOT EXISTS events (
@@ -98,7 +110,21 @@ CREATE TABLE IF NOT EXISTS config (
 
 _JOB_COLUMNS = ("id", "kind", "state", "params", "progress", "idempotency_key", "created", "started",
                 "finished", "lease_owner", "lease_until", "heartbeat", "attempts", "result_path",
-                "error", "memory_bytes", "cancel_requested", "control")
+                "error", "memory_bytes", "cancel_requested", "control", "earlier_attempts")
+#: columns added after the first release, with their definitions (added to an older database at open)
+_ADDED_COLUMNS = {"earlier_attempts": "TEXT NOT NULL DEFAULT '[]'"}
+
+
+def _cut_attempt(db: sqlite3.Connection, job_id: str, reason: str) -> None:
+    """Record a running job's current attempt as cut off (``earlier_attempts``: its number,
+    start, end now and ``reason``) and clear ``started`` for the next one; inside a
+    transaction."""
+    row = db.execute("SELECT attempts, started, earlier_attempts FROM jobs WHERE id = ?", (job_id,)).fetchone()
+    if row is None:
+        return
+    earlier = json.loads(row["earlier_attempts"] or "[]")
+    earlier.append({"attempt": row["attempts"], "started": row["started"], "ended": time.time(), "reason": reason})
+    db.execute("UPDATE jobs SET earlier_attempts = ?, started = NULL WHERE id = ?", (json.dumps(earlier), job_id))
 
 
 class IdempotencyConflict(ValueError):
@@ -111,6 +137,32 @@ class IdempotencyConflict(ValueError):
     args : tuple
         The message.
     """
+
+
+class QueueFull(ValueError):
+    """A client already has as many jobs queued as it may (``max_queued`` of
+    :meth:`JobStore.create_job`).
+
+    A ``ValueError``.
+
+    Parameters
+    ----------
+    client : str
+        The client's address.
+    queued : int
+        Its jobs of the kind queued now.
+    limit : int
+        The most it may have.
+
+    Attributes
+    ----------
+    client, queued, limit
+        As given.
+    """
+
+    def __init__(self, client: str, queued: int, limit: int) -> None:
+        super().__init__(f"client {client} has {queued} jobs queued, the most it may have ({limit})")
+        self.client, self.queued, self.limit = client, queued, limit
 
 
 Jobs = list[dict[str, Any]]  # (``list`` is a method name inside JobStore)
@@ -159,6 +211,10 @@ class JobStore:
             self._db.execute("PRAGMA journal_mode=WAL")
             self._db.execute("PRAGMA synchronous=NORMAL")
             self._db.executescript(_SCHEMA)
+            have = {r["name"] for r in self._db.execute("PRAGMA table_info(jobs)").fetchall()}
+            for column, definition in _ADDED_COLUMNS.items():  # a database of an earlier version
+                if column not in have:
+                    self._db.execute(f"ALTER TABLE jobs ADD COLUMN {column} {definition}")
         self._reserve_seen = self._write_reserve()
 
     def close(self) -> None:
@@ -322,6 +378,7 @@ class JobStore:
         job["progress"] = json.loads(job["progress"])
         job["control"] = job["control"]
         job["cancel_requested"] = bool(job["cancel_requested"])
+        job["earlier_attempts"] = json.loads(job.get("earlier_attempts") or "[]")
         return job
 
     def _event(self, db: sqlite3.Connection, job_id: str, event: str, data: dict) -> int:
@@ -333,10 +390,14 @@ class JobStore:
 
     # -- jobs ----------------------------------------------------------------------
     def create_job(self, kind: str, params: dict, *, idempotency_key: str | None = None,
-                   memory_bytes: int = 0, progress: dict | None = None) -> tuple[dict, bool]:
+                   memory_bytes: int = 0, progress: dict | None = None,
+                   max_queued: int | None = None) -> tuple[dict, bool]:
         """Insert a queued job; returns ``(job, created)``. With an ``idempotency_key``
         already used by a job of the same kind and parameters, returns that job and
-        ``created=False``; with different ones raises :class:`IdempotencyConflict`."""
+        ``created=False``; with different ones raises :class:`IdempotencyConflict`. With
+        ``max_queued`` and ``params["client"]``, raises :class:`QueueFull` while that client
+        has ``max_queued`` jobs of ``kind`` queued (a repeated idempotent request is answered
+        all the same)."""
         if kind not in KINDS:
             raise ValueError(f"unknown job kind {kind!r}")
         job_id = uuid.uuid4().hex
@@ -348,12 +409,19 @@ class JobStore:
                 row = db.execute("SELECT * FROM jobs WHERE idempotency_key = ?", (idempotency_key,)).fetchone()
                 if row is not None:
                     old = self._row(row)
-                    asked = json.loads(json.dumps(params))
+                    # the same request from another address of the client is the same request
+                    asked = {k: v for k, v in json.loads(json.dumps(params)).items() if k != "client"}
                     before = person_names(old["params"])  # a job an older server stored with c
                     if old["kind"] != kind or {k: before.get(k) for k in asked} != person_names(asked):
                         raise IdempotencyConflict(
                             "Idempotency-Key already used for a different request")
                     return old, False
+            client = params.get("client")
+            if max_queued is not None and client is not None:
+                queued = db.execute("SELECT COUNT(*) FROM jobs WHERE state = 'queued' AND kind = ? AND"
+                                    " json_extract(params, '$.client') = ?", (kind, client)).fetchone()[0]
+                if queued >= max_queued:
+                    raise QueueFull(str(client), int(queued), int(max_queued))
             db.execute(
                 "INSERT INTO jobs (id, kind, state, params, progress, idempotency_key, created, memory_bytes)"
                 " VALUES (?, ?, 'queued', ?, ?, ?, ?, ?)",
@@ -511,14 +579,15 @@ class JobStore:
     def requeue(self, job_id: str, reason: str, *, count_attempt: bool = True) -> bool:
         """A running job back to ``queued`` (its worker died or the server is shutting
         down); ``count_attempt=False`` gives the attempt back (a shutdown is not the job's
-        fault). Returns False if the job was not running."""
+        fault). The attempt cut off goes to ``earlier_attempts`` and ``started`` is
+        cleared: the next attempt's timing starts anew. Returns False if the job was not
+        running."""
         def work(db):
-            cur = db.execute(
-                "UPDATE jobs SET state = 'queued', lease_owner = NULL, lease_until = NULL,"
-                " attempts = MAX(attempts - ?, 0) WHERE id = ? AND state = 'running'",
-                (0 if count_attempt else 1, job_id))
-            if cur.rowcount != 1:
+            if db.execute("SELECT 1 FROM jobs WHERE id = ? AND state = 'running'", (job_id,)).fetchone() is None:
                 return False
+            _cut_attempt(db, job_id, reason)
+            db.execute("UPDATE jobs SET state = 'queued', lease_owner = NULL, lease_until = NULL,"
+                       " attempts = MAX(attempts - ?, 0) WHERE id = ?", (0 if count_attempt else 1, job_id))
             self._event(db, job_id, "state", {"state": "queued", "reason": reason})
             return True
 
@@ -551,6 +620,7 @@ class JobStore:
                         self._event(db, row["id"], "state", {"state": "failed"})
                         out["failed"].append(row["id"])
                     else:
+                        _cut_attempt(db, row["id"], "server restarted")
                         db.execute("UPDATE jobs SET state = 'queued', lease_owner = NULL, lease_until = NULL"
                                    " WHERE id = ?", (row["id"],))
                         self._event(db, row["id"], "state", {"state": "queued", "reason": "server restarted"})

@@ -151,6 +151,10 @@ def test_delete_retention_and_restart(tmp_path):
                                         "scan_path": str(data / "scans" / "held.h5")})
     (data / "scans").mkdir(exist_ok=True)
     (data / "scans" / "held.h5").write_bytes(b"scan bytes")
+    (data / "exports").mkdir(exist_ok=True)  # its exports as GET /api/jobs/{id}/export/{format} names them
+    exported = [data / "exports" / f"{scan['id']}_ipasc.h5", data / "exports" / f"{scan['id']}.h5"]
+    for path in exported:
+        path.write_bytes(b"export bytes")
     store.set_state(scan["id"], "paused")
     store.close()
 
@@ -177,6 +181,7 @@ def test_delete_retention_and_restart(tmp_path):
             assert api.post(f"/api/jobs/{scan['id']}/cancel").status_code == 200
             assert api.delete(f"/api/jobs/{scan['id']}").status_code == 200
             assert not (data / "scans" / "held.h5").exists()
+            assert not any(p.exists() for p in exported), exported  # its exports went with it
             assert api.delete(f"/api/plans/{plan_id}").status_code == 200
             assert api.get(f"/api/plans/{plan_id}").status_code == 404 and _rows(db, "plans", "id", plan_id) == 0
 

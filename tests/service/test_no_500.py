@@ -201,3 +201,144 @@ def test_the_command_line_says_one_line_for_an_absurd_number(tmp_path, argv):
     assert "Traceback" not in r.stderr, r.stderr
     errors = [line for line in r.stderr.splitlines() if "error:" in line]
     assert len(errors) == 1 and "out of range" in errors[0], r.stderr
+
+
+# -- nesting and headers (issue 60.5) ------------------------------------------------------
+
+#: every route that reads a JSON body, with a body it takes whose one value the tests nest
+JSON_ROUTES = [("POST", "/api/plans", lambda deep: {"kind": "full", "lattice": {"n_x": 4, "n_y": 4, "pitch": deep}}),
+               ("POST", "/api/plans/preview", lambda deep: {"kind": "full", "lattice": deep}),
+               ("POST", "/api/reconstructions", lambda deep: {"dataset_id": "0" * 32, "params": {"lam": deep}}),
+               ("POST", "/api/scans", lambda deep: {"plan_id": deep, "scanner_id": "sim"}),
+               ("PUT", "/api/retention", lambda deep: {"keep_results": deep})]
+
+
+def nested(depth: int, kind: str) -> str:
+    """A JSON text ``depth`` arrays or objects deep (``"mixed"``: alternating), built
+    without recursion (``json.dumps`` recurses)."""
+    opens, closes = [], []
+    for i in range(depth):
+        use = kind if kind != "mixed" else ("array" if i % 2 else "object")
+        opens.append("[" if use == "array" else '{"a": ')
+        closes.append("]" if use == "array" else "}")
+    return "".join(opens) + "1" + "".join(reversed(closes))
+
+
+def body_with(make, value: str) -> bytes:
+    """The request body ``make`` builds, with ``value`` (a JSON text) as its nested value."""
+    return json.dumps(make("@@")).replace('"@@"', value).encode()
+
+
+def deep_text(depth: int) -> bytes:
+    """A JSON text ``depth`` arrays deep."""
+    return nested(depth, "array").encode()
+
+
+@pytest.mark.parametrize("method,path,make", JSON_ROUTES, ids=[f"{m} {p}" for m, p, _ in JSON_ROUTES])
+def test_json_nested_beyond_the_bound_is_refused_at_the_door(fuzz_target, method, path, make):
+    """Issue 60.5: a JSON body nested deeper than 64 gets 422 naming the depth and the
+    bound, on every route that reads JSON, and the connection is kept; 2000 deep (a
+    RecursionError in the parser before) and 100 000 deep (over the body limits of the
+    small routes: 413) get no 5xx; at the bound the request is answered by the route."""
+    conn = KeptAlive(fuzz_target[0].port)  # its own: the module's may have idled past keep_alive_s
+    try:
+        _nested_at_the_door(conn, method, path, make)
+    finally:
+        conn.close()
+
+
+def _nested_at_the_door(conn: KeptAlive, method: str, path: str, make) -> None:
+    from service.api.json_depth import MAX_JSON_DEPTH, json_depth
+
+    own = json_depth(body_with(make, "1"))  # the request's own levels around the nested value
+    for depth in (MAX_JSON_DEPTH + 1, 2000):
+        for kind in ("array", "object", "mixed"):
+            body = body_with(make, nested(depth - own, kind))
+            assert json_depth(body) == depth
+            for ctype in ("application/json", "application/vnd.fpscan+json; charset=utf-8", None):
+                headers = {"Content-Type": ctype} if ctype else {}
+                conn.conn.request(method, path, body=body, headers={"Authorization": f"Bearer {TOKEN}", **headers})
+                r = conn.conn.getresponse()
+                detail = json.loads(r.read())["detail"]
+                assert r.status == 422, (depth, kind, ctype, r.status, detail)
+                assert f"at most {MAX_JSON_DEPTH} levels" in detail and "nested" in detail, detail
+                assert conn.conn.sock is conn.sock, "the refusal dropped the connection"
+    # the bound itself passes the door: the route answers it (a 4xx of its own, never the door's)
+    body = body_with(make, nested(MAX_JSON_DEPTH - own, "array"))
+    conn.conn.request(method, path, body=body, headers={"Authorization": f"Bearer {TOKEN}",
+                                                        "Content-Type": "application/json"})
+    r = conn.conn.getresponse()
+    answer = r.read().decode()
+    assert r.status < 500 and "levels of arrays" not in answer, (r.status, answer)
+    # far beyond: still a 4xx (413 where the body is over the route's limit)
+    _check(conn.send(method, path, deep_text(100_000), {"Content-Type": "application/json"}), (path, 100_000))
+
+
+def test_json_depth_counts_brackets_outside_strings_only():
+    from service.api.json_depth import json_depth
+
+    for depth in (0, 1, 2, 64, 65, 3000):
+        for kind in ("array", "object", "mixed"):
+            assert json_depth(nested(depth, kind).encode()) == depth, (depth, kind)
+    assert json_depth(json.dumps({"a": "[[[{{{", "b": ['\\"[[', "]]]"]}).encode()) == 2
+    assert json_depth(b'"unterminated [[[') == 3  # counted all the same: the parser refuses it next
+
+
+HEADER_NAMES = ["Content-Type", "Accept", "Accept-Encoding", "Range", "If-Range", "Idempotency-Key", "Origin",
+                "Cookie", "X-Forwarded-For", "Transfer-Encoding", "Expect", "Authorization", "Host",
+                "Content-Encoding", "Cache-Control", "If-None-Match"]
+HEADER_VALUES = st.one_of(
+    st.sampled_from(["", " ", "application/json", "application/json; charset=utf-16", "application/x+json",
+                     "text/plain", "multipart/form-data", "multipart/form-data; boundary=", "*/*", "gzip, br;q=2",
+                     "bytes=0-", "bytes=-0", "bytes=99999999999999999999999-", "bytes=5-1", "bytes=0-1,2-3,4-5",
+                     "chunked", "gzip", "identity", "100-continue", "Bearer", f"Bearer {TOKEN}x", "127.0.0.1",
+                     "[::1]:99999", "a" * 4000, "\u00ff\u00fe", "1" * 40, "null", "W/\"x\"", "max-age=-1"]),
+    st.text(alphabet=st.characters(min_codepoint=0x20, max_codepoint=0xFF, blacklist_characters="\x7f"),
+            max_size=60))
+
+
+@pytest.mark.timeout(600)
+def test_odd_headers_never_get_a_5xx(fuzz_target):
+    """Issue 60.5: requests to every kind of route (JSON bodies, reads, a ranged file, an
+    event stream's head) with odd values of the headers a client can send are answered
+    below 500, and a 4xx keeps the connection."""
+    srv, dataset_id, _ = fuzz_target
+    routes = [("POST", "/api/reconstructions", json.dumps({"dataset_id": dataset_id, "method": "ner",
+                                                           "params": {"upsample": 1}}).encode()),
+              ("POST", "/api/plans/preview", json.dumps({"kind": "full", "lattice": {"n_x": 4, "n_y": 4,
+                                                                                    "pitch": 1e-4}}).encode()),
+              ("PUT", "/api/retention", b"{}"),
+              ("GET", "/api/jobs", b""), ("GET", "/api/datasets", b""), ("GET", "/api/formats", b""),
+              ("GET", "/openapi.json", b""), ("DELETE", f"/api/datasets/{'f' * 32}", b"")]
+    conn = KeptAlive(srv.port)
+
+    @settings(max_examples=120, deadline=None, derandomize=True, database=None,
+              suppress_health_check=list(HealthCheck))
+    @given(route=st.sampled_from(routes),
+           headers=st.dictionaries(st.sampled_from(HEADER_NAMES), HEADER_VALUES, max_size=3))
+    def run(route, headers):
+        method, path, body = route
+        # a body's length is always said truly (a Content-Length larger than the body is a
+        # slow client, answered by the body timeout, not a parser's case)
+        headers = {k: v for k, v in headers.items() if k not in ("Transfer-Encoding", "Expect")}
+        sent = {"Authorization": f"Bearer {TOKEN}", **headers, "Content-Length": str(len(body))}
+        try:
+            conn.conn.putrequest(method, path, skip_host="Host" in headers, skip_accept_encoding=True)
+            for k, v in sent.items():
+                conn.conn.putheader(k, v.encode("latin-1"))
+            conn.conn.endheaders(body)
+            r = conn.conn.getresponse()
+            r.read()
+        except (http.client.HTTPException, OSError) as exc:
+            raise AssertionError(f"no answer to {method} {path} {headers}: {exc!r}") from None
+        assert r.status < 500, (r.status, method, path, headers)
+        if conn.conn.sock is not conn.sock:  # a 4xx that closes (431, 400 on a broken head) is fine
+            conn.dropped += 1
+            conn.conn.close()
+            conn.conn.connect()
+            conn.sock = conn.conn.sock
+
+    try:
+        run()
+    finally:
+        conn.close()

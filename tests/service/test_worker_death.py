@@ -108,12 +108,21 @@ def test_a_killed_worker_process_requeues_its_reconstruction(tmp_path):
             assert job["state"] == "running", job  # caught mid-reconstruction (else the test proves nothing)
             workers = recon_workers(srv)
             assert len(workers) == 1, workers
+            killed_at = time.time()  # the second attempt starts after it (the first before)
             workers[0].kill()
             assert not wait_gone(workers)
             assert api.get("/api/health").status_code == 200
             done = wait_job(api, jid)
             assert done["state"] == "succeeded" and done["attempts"] == 2, done
             assert api.get(f"/api/reconstructions/{jid}/volume.h5").status_code == 200
+            # the second attempt's timing starts anew; the first is recorded (issue 60.8)
+            timings = done["timings"]
+            assert timings["started"] > killed_at > job["timings"]["started"], (timings, killed_at)
+            assert timings["run_s"] == pytest.approx(timings["finished"] - timings["started"])
+            [first] = timings["earlier_attempts"]
+            assert first["attempt"] == 1 and first["started"] == job["timings"]["started"], first
+            assert first["started"] < first["ended"] <= timings["started"], (first, timings)
+            assert first["reason"] == "the worker process died" and first["run_s"] > 0, first
             assert recon_workers(srv) and recon_workers(srv)[0].pid != workers[0].pid
         assert srv.proc.poll() is None  # the server itself never stopped
     finally:
