@@ -167,10 +167,49 @@ def client_errors(run: Callable[..., int]) -> Callable[..., int]:
         try:
             return run(args)
         except FpscanClientError as exc:
-            print(f"fpscan {args.command}: error: {exc}", file=sys.stderr)
+            print(f"fpscan {args.command}: error: {exc}{unreachable_hint(args, exc)}", file=sys.stderr)
             return 2 if isinstance(exc, ApiError) and exc.status_code in (400, 404, 422) else 1
 
     return wrapper
+
+
+def remember_job(args, job_id: str | None) -> None:
+    """Note on ``args`` the job a command has had accepted by the server, so that a server
+    that goes away afterwards is reported with the command that reattaches to it
+    (:func:`unreachable_hint`)."""
+    args.submitted_job = job_id
+
+
+def unreachable_hint(args, exc: Exception) -> str:
+    """What an unreachable server (``clients.http.ServerUnavailable``) leaves behind, and the
+    command that reattaches: the job a command had accepted (``remember_job``) or names
+    (``job_id``) survives in the server's job store (a reconstruction runs again when the
+    server restarts, a scan waits there paused); "" for any other error.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed command line (``server``, and ``submitted_job`` or ``job_id`` where known).
+    exc : Exception
+        The client's error.
+
+    Returns
+    -------
+    str
+        Text to append to the one-line error (starting with ". "), or "".
+    """
+    from clients.http import ServerUnavailable
+
+    if not isinstance(exc, ServerUnavailable):
+        return ""
+    job = getattr(args, "submitted_job", None) or getattr(args, "job_id", None)
+    server = getattr(args, "server", None) or "URL"
+    if not job:
+        return (f". Is `fpscan serve` running at {server}? Jobs it accepted before are kept in its job store "
+                f"(its data folder) and go on when it is started again")
+    return (f". Job {job} is kept in the server's job store (its data folder): when the server runs again a "
+            f"reconstruction is run again and a scan waits, paused; reattach with `fpscan jobs wait {job} "
+            f"--server {server}` (a paused scan: `fpscan jobs resume {job} --server {server}` first)")
 
 
 def _fmt_eta(seconds: float | None) -> str:
