@@ -51,6 +51,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable, Sequence
+from contextvars import ContextVar
 from functools import partial
 from typing import TYPE_CHECKING, Any
 
@@ -322,7 +323,8 @@ def method_options(method: str, options: dict) -> dict:
 
 
 def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = None,
-                should_stop: ShouldStop | None = None, force: bool = False, **options: Any) -> Reconstruction:
+                should_stop: ShouldStop | None = None, force: bool = False, quiet: bool = False,
+                **options: Any) -> Reconstruction:
     """Reconstruct p0 from ``dataset`` with ``method`` (a key of :data:`METHODS`).
 
     Parameters
@@ -341,6 +343,9 @@ def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = No
         Accept a ``c`` (or ``c_range``) outside ``driver.constants.C_PLAUSIBLE`` (m/s; a medium other than tissue
         or water); without it such a value is a ValueError naming the likely unit mistake
         (``driver.units.ImplausibleValue``).
+    quiet : bool, optional
+        No progress bar in a Jupyter notebook. Without ``progress`` a call in a notebook shows
+        one in the cell's output (``service.notebook``); elsewhere nothing is shown either way.
     **options
         The method's options (module docstring; ``c`` in m/s); ``None`` = default; each is
         checked by its rule (:func:`method_options`) before any work, and an option the
@@ -398,6 +403,13 @@ def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = No
     ...
     service.pipeline.Cancelled: reconstruction cancelled
     """
+    if progress is None and not quiet and not _BAR_SHOWN.get():
+        from service.notebook import notebook_bar
+
+        bar = notebook_bar(method)
+        if bar is not None:  # a Jupyter notebook: one bar for this call, none for the calls inside it
+            return _with_bar(bar, partial(reconstruct, dataset, method, progress=bar, should_stop=should_stop,
+                                          force=force, quiet=True, **options), method)
     spec = _methods.get(method)
     given = method_options(method, options)
     # every option of the method, defaults filled (None: derived from the data), and c
@@ -439,6 +451,27 @@ def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = No
     result.p0_unit = p0_unit(dataset)  # Pa for a calibrated scan, else a.u.
     _shift_lateral(result, dataset.lateral_shift)
     step(1.0)
+    return result
+
+
+#: whether a notebook bar is showing this thread's reconstruction (the calls inside it show none)
+_BAR_SHOWN: ContextVar[bool] = ContextVar("fpscan_notebook_bar", default=False)
+
+
+def _with_bar(bar: Any, call: Callable[[], Reconstruction], method: str) -> Reconstruction:
+    """``call()`` under a notebook bar (``service.notebook.NotebookBar``), which ends on how the
+    reconstruction ended (an iterative method's outcome, else "done") or where it stopped."""
+    from service.progress import outcome
+
+    token = _BAR_SHOWN.set(True)
+    try:
+        result = call()
+    except BaseException:
+        bar.close()
+        raise
+    finally:
+        _BAR_SHOWN.reset(token)
+    bar.close(outcome(result.params, method) or "done")
     return result
 
 

@@ -117,6 +117,8 @@ def progress_file(path: str | None) -> Progress:
         seconds = eta(fraction, stage)
         if seconds is not None:
             fields["eta_s"] = round(seconds, 1)
+            if eta.bound_s is not None:  # an iterative method's: an estimate, bounded by its iteration limit
+                fields.update(eta_max_s=round(eta.bound_s, 1), eta_basis=eta.basis)
         known = set(fields)
         fields.update(dict.fromkeys(before - known))  # cleared, not left stale in the merged progress
         before = known
