@@ -33,7 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ALINE_HEADER", "META_KEYS", "ALine", "pack_aline", "unpack_aline"]
+__all__ = ["ALINE_HEADER", "META_KEYS", "ALine", "pack_aline", "unpack_aline", "quantise"]
 
 ALINE_HEADER = struct.Struct("<IIIIQdddddffIId")
 META_KEYS = ("run_id", "boot_id", "point_index", "pulse_number", "timestamp_s",
@@ -157,3 +157,34 @@ def unpack_aline(payload: bytes) -> ALine:
     samples = np.frombuffer(payload, dtype="<i2", offset=ALINE_HEADER.size).astype(np.int16)
     return ALine(run_id, boot_id, k, pulse, ts, bias, dt, scale, offset, dc, energy, samples,
                  w, wavelength)
+
+
+def quantise(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The scanner's int16 digitisation of A-lines (docs/protocol.md §5): per A-line
+    ``scale = max|v|/32767`` (1 for an all-zero A-line), ``offset = 0``,
+    ``sample = round(v/scale)``; the simulated scanner sends exactly these.
+
+    Parameters
+    ----------
+    values : ndarray, shape ``(n, n_t)``
+        The signal (Pa·V, or Pa), float64.
+
+    Returns
+    -------
+    samples : ndarray of int16, shape ``(n, n_t)``
+    scale : ndarray of float64, shape ``(n,)``
+        Signal per count: ``value = sample·scale``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from driver.aline import quantise
+    >>> samples, scale = quantise(np.array([[0.0, 0.5, -1.0], [0.0, 0.0, 0.0]]))
+    >>> samples.tolist(), scale.tolist()
+    ([[0, 16384, -32767], [0, 0, 0]], [3.051850947599719e-05, 1.0])
+    """
+    v = np.asarray(values, dtype=np.float64)
+    peak = np.abs(v).max(axis=1)
+    scale = np.where(peak > 0, peak / 32767.0, 1.0)
+    samples = np.clip(np.rint(v / scale[:, None]), -32767, 32767).astype(np.int16)
+    return samples, scale

@@ -8,14 +8,15 @@ reference files in ``shared/data`` carry — our lateral x is k-Wave's z (``dz_m
 and k-Wave's y (``dy_m``) in 2-D, and our y is k-Wave's y (``dy_m``); in other files
 ``dx_m`` and ``dy_m`` are our x and y. The one owner of that rule, for the upload reader
 (``service.storage.datasets``) and the simulator's replay source (``driver.sources``).
-Pure Python.
+The sensor coordinates a file may give follow the same naming
+(:func:`sensor_coordinate_names`). Pure Python.
 """
 from __future__ import annotations
 
 from collections.abc import Mapping
 from typing import Any
 
-__all__ = ["attribute", "is_kwave_named", "lateral_spacings"]
+__all__ = ["attribute", "is_kwave_named", "lateral_spacings", "sensor_coordinate_names"]
 
 
 def attribute(data_attrs: Mapping[str, Any], file_attrs: Mapping[str, Any], name: str) -> Any:
@@ -93,3 +94,38 @@ def lateral_spacings(data_attrs: Mapping[str, Any], file_attrs: Mapping[str, Any
     if is_kwave_named(data_attrs, file_attrs):
         return (get("dz_m"), get("dy_m")) if ndim == 3 else (get("dy_m"), None)
     return get("dx_m"), get("dy_m") if ndim == 3 else None
+
+
+def sensor_coordinate_names(kwave_named: bool, ndim: int) -> tuple[str, str | None]:
+    """The names of the 1-D datasets that give our lateral x and y sensor coordinates (m), in
+    a file of k-Wave's naming or ours: k-Wave's ``sensor_z_m`` (our x) and ``sensor_y_m``
+    (our y) in 3-D, ``sensor_y_m`` (our x) in 2-D; ours ``sensor_x_m`` and ``sensor_y_m``.
+
+    Parameters
+    ----------
+    kwave_named : bool
+        Whether the file uses k-Wave's axis names (:func:`is_kwave_named`).
+    ndim : int
+        The data's dimensions: 2 for ``(n_t, n_x)``, 3 for ``(n_t, n_y, n_x)``.
+
+    Returns
+    -------
+    x_name, y_name : str, str or None
+        The dataset names; ``y_name`` None for 2-D data.
+
+    Raises
+    ------
+    ValueError
+        ``ndim`` is neither 2 nor 3.
+
+    Examples
+    --------
+    >>> from driver.kwave_layout import sensor_coordinate_names
+    >>> sensor_coordinate_names(True, 3), sensor_coordinate_names(True, 2), sensor_coordinate_names(False, 3)
+    (('sensor_z_m', 'sensor_y_m'), ('sensor_y_m', None), ('sensor_x_m', 'sensor_y_m'))
+    """
+    if ndim not in (2, 3):
+        raise ValueError(f"k-Wave layout data are (t, x) or (t, y, x), got {ndim} dimensions")
+    if kwave_named:
+        return ("sensor_z_m", "sensor_y_m") if ndim == 3 else ("sensor_y_m", None)
+    return ("sensor_x_m", "sensor_y_m") if ndim == 3 else ("sensor_x_m", None)

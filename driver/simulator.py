@@ -54,7 +54,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from driver import commands as scpi
-from driver.aline import pack_aline
+from driver.aline import pack_aline, quantise
 from driver.faults import FaultSpec, damage
 from driver.framing import Deframer, FrameType, encode_frame
 from driver.plan import DevicePlan, image_size_limit, parse_plan_image
@@ -659,9 +659,7 @@ class SimulatedScanner:
         if cfg.snr:  # white noise per pulse; averaging N pulses divides its std by sqrt(N)
             sigma = dc * self._peak / cfg.snr / np.sqrt(plan.averages)
             v = v + rng.standard_normal(v.shape) * sigma[:, None]
-        peak = np.abs(v).max(axis=1)
-        scale = np.where(peak > 0, peak / 32767.0, 1.0)
-        samples = np.clip(np.rint(v / scale[:, None]), -32767, 32767).astype(np.int16)
+        samples, scale = quantise(v)
         energy = cfg.pulse_energy * (1 + 0.02 * rng.standard_normal(len(ks)))
         bias = cfg.bias_wavelength + 0.5e-9 * m1
         return {"samples": samples, "scale": scale, "dc": dc, "energy": energy, "bias": bias}

@@ -12,7 +12,9 @@ command line, the server and the web page use:
   ``plan_from_spec``, ``load_plan``, ``weight_ratio``, ``preview_png``;
 - datasets (:mod:`service.storage.datasets`): ``load_dataset`` (any supported file,
   :mod:`service.formats`), ``load_wavelengths``; the input model ``GridDataset``,
-  ``PointDataset`` (:mod:`service.recon.dataset`);
+  ``PointDataset`` (:mod:`service.recon.dataset`); ``subsample(dataset, mask_or_plan)``: the
+  A-lines a sensor mask picks out of dense data (a sparse scan from a dense one or a k-Wave
+  simulation, equal to the replay scan's; :mod:`service.subsample`);
 - reconstruction (:mod:`service.pipeline`, the one dispatch): ``reconstruct(dataset,
   method, **options)`` for every method of ``METHODS`` (``nedner``, ``ner``, ``linear``,
   ``nearest``, ``cubic``, ``kwave``, ``tv``), ``Reconstruction``, ``Cancelled``;
@@ -97,6 +99,7 @@ _EXPORTS: dict[str, str] = {
     **dict.fromkeys(["GridDataset", "PointDataset"], "service.recon.dataset"),
     **dict.fromkeys(["reconstruct", "METHODS", "Cancelled"], "service.pipeline"),
     "Reconstruction": "service.recon.reconstruction",
+    "subsample": "service.subsample",
     # scan files
     **dict.fromkeys(["read_scan", "ScanFile", "ScanData", "pressure_unit"], "driver.scanfile"),
     # results and exports
@@ -137,7 +140,7 @@ __all__ = [
     "load_dataset", "load_plan", "load_wavelengths", "lorentz", "make_mask", "make_plan", "mip",
     "mips", "plan_from_spec", "points_mask", "poisson_mask", "pressure_unit", "preview_png",
     "random_mask", "read_result", "read_scan", "reconstruct", "render_mip", "render_mips",
-    "render_so2", "roi_mask", "sharpness_vs_diameter", "side_lobe_level", "so2_map", "subgrid_mask",
+    "render_so2", "roi_mask", "sharpness_vs_diameter", "side_lobe_level", "so2_map", "subgrid_mask", "subsample",
     "tenenbaum_sharpness", "thb_map", "unmix", "weight_ratio", "write_result", "write_volume",
 ]
 
@@ -210,6 +213,7 @@ if TYPE_CHECKING:
     from service.storage.datasets import load_dataset, load_wavelengths
     from service.storage.render import render_mip, render_mips, render_so2
     from service.storage.results import ResultVolume, read_result, write_result, write_volume
+    from service.subsample import subsample
 
     __version__: str
 

@@ -17,9 +17,11 @@ Examples
 """
 from __future__ import annotations
 
+import re
+from collections.abc import Mapping
 from typing import Any
 
-__all__ = ["PERSON_NAMES", "person_names", "code_names"]
+__all__ = ["PERSON_NAMES", "person_names", "code_names", "renamed_words"]
 
 #: code name → the name a person reads (HTTP fields, stored job parameters, CLI flags)
 PERSON_NAMES: dict[str, str] = {"c": "sound_speed", "c_range": "sound_speed_range",
@@ -68,3 +70,35 @@ def code_names(obj: Any) -> Any:
         A copy of ``obj`` (new dicts and lists) with the person's names renamed to the code's.
     """
     return _renamed(obj, _CODE_NAMES)
+
+
+def renamed_words(text: str, names: Mapping[str, str]) -> str:
+    """``text`` (an error message naming options) with each option name of ``names`` that
+    stands as a word of its own (not part of a longer name, not followed by ``=`` or a quote)
+    replaced by the caller's word for it: the JSON field over HTTP (:data:`PERSON_NAMES`:
+    ``c`` → ``sound_speed``), the flag on the command line (``lam`` → ``--lambda``).
+
+    Parameters
+    ----------
+    text : str
+        The message.
+    names : Mapping[str, str]
+        Option name → the word to show.
+
+    Returns
+    -------
+    str
+        The message reworded.
+
+    Examples
+    --------
+    >>> renamed_words("method 'ner' takes no option lam (its options: c, eps, n_z)", {"c": "sound_speed"})
+    "method 'ner' takes no option lam (its options: sound_speed, eps, n_z)"
+    >>> renamed_words("c_range needs c='auto', got c=None", {"c": "--sound-speed", "c_range": "--sound-speed-range"})
+    "--sound-speed-range needs c='auto', got c=None"
+    """
+    if not names:
+        return text
+    words = "|".join(re.escape(n) for n in sorted(names, key=len, reverse=True))
+    pattern = re.compile(rf"(?<![\w'\"=.-])({words})(?![\w'\"=-])")
+    return pattern.sub(lambda m: names[m.group(1)], text)

@@ -51,6 +51,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable, Sequence
+from contextvars import ContextVar
 from functools import partial
 from typing import TYPE_CHECKING, Any
 
@@ -66,6 +67,7 @@ __all__ = ["METHODS", "OPTIONS", "DEFAULT_DTYPE", "DTYPES", "KWAVE_INTERPS", "Me
            "reconstruct"]
 
 if TYPE_CHECKING:
+    from service.plans import Mask, Plan
     from service.recon.dataset import GridDataset, PointDataset
     from service.recon.reconstruction import Reconstruction
 
@@ -321,7 +323,8 @@ def method_options(method: str, options: dict) -> dict:
 
 
 def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = None,
-                should_stop: ShouldStop | None = None, force: bool = False, **options: Any) -> Reconstruction:
+                should_stop: ShouldStop | None = None, force: bool = False, quiet: bool = False,
+                **options: Any) -> Reconstruction:
     """Reconstruct p0 from ``dataset`` with ``method`` (a key of :data:`METHODS`).
 
     Parameters
@@ -340,6 +343,9 @@ def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = No
         Accept a ``c`` (or ``c_range``) outside ``driver.constants.C_PLAUSIBLE`` (m/s; a medium other than tissue
         or water); without it such a value is a ValueError naming the likely unit mistake
         (``driver.units.ImplausibleValue``).
+    quiet : bool, optional
+        No progress bar in a Jupyter notebook. Without ``progress`` a call in a notebook shows
+        one in the cell's output (``service.notebook``); elsewhere nothing is shown either way.
     **options
         The method's options (module docstring; ``c`` in m/s); ``None`` = default; each is
         checked by its rule (:func:`method_options`) before any work, and an option the
@@ -397,6 +403,13 @@ def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = No
     ...
     service.pipeline.Cancelled: reconstruction cancelled
     """
+    if progress is None and not quiet and not _BAR_SHOWN.get():
+        from service.notebook import notebook_bar
+
+        bar = notebook_bar(method)
+        if bar is not None:  # a Jupyter notebook: one bar for this call, none for the calls inside it
+            return _with_bar(bar, partial(reconstruct, dataset, method, progress=bar, should_stop=should_stop,
+                                          force=force, quiet=True, **options), method)
     spec = _methods.get(method)
     given = method_options(method, options)
     # every option of the method, defaults filled (None: derived from the data), and c
@@ -439,8 +452,67 @@ def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = No
     result.params["method"] = spec.name
     result.params.update(wavelength_params(dataset))  # which excitation wavelength (storage.datasets)
     result.p0_unit = p0_unit(dataset)  # Pa for a calibrated scan, else a.u.
+    _shift_lateral(result, dataset.lateral_shift)
     step(1.0)
     return result
+
+
+#: whether a notebook bar is showing this thread's reconstruction (the calls inside it show none)
+_BAR_SHOWN: ContextVar[bool] = ContextVar("fpscan_notebook_bar", default=False)
+
+
+def _with_bar(bar: Any, call: Callable[[], Reconstruction], method: str) -> Reconstruction:
+    """``call()`` under a notebook bar (``service.notebook.NotebookBar``), which ends on how the
+    reconstruction ended (an iterative method's outcome, else "done") or where it stopped."""
+    from service.progress import outcome
+
+    token = _BAR_SHOWN.set(True)
+    try:
+        result = call()
+    except BaseException:
+        bar.close()
+        raise
+    finally:
+        _BAR_SHOWN.reset(token)
+    bar.close(outcome(result.params, method) or "done")
+    return result
+
+
+def _load_inputs(paths: list, format: str | None, unmixing: bool, wavelength: int | str | None,
+                 wavelengths: Sequence[float] | None, load: dict, plan: Plan | Mask | None) -> tuple[Any, list]:
+    """:func:`run_file`'s inputs read: ``(wavelengths, datasets)``, unmixing's (one per wavelength,
+    ``service.spectral.load_wavelength_datasets``) or one file's (``wavelengths`` None), sampled
+    by ``plan`` (``service.subsample``) where given."""
+    if unmixing:
+        if plan is not None:
+            raise ValueError("a plan samples one dense input: not with unmix")
+        from service.spectral import load_wavelength_datasets
+
+        return load_wavelength_datasets(paths, format, wavelengths=wavelengths, **load)
+    from service.storage.datasets import load_wavelengths
+
+    if len(paths) != 1:
+        raise ValueError(f"one input file, got {len(paths)} (several only to unmix, one per wavelength)")
+    datasets = load_wavelengths(paths[0], format, wavelength=wavelength, **load)
+    if plan is not None:
+        from service.subsample import subsample
+
+        datasets = [subsample(ds, plan) for ds in datasets]
+    return None, datasets
+
+
+def _shift_lateral(result: Reconstruction, shift: tuple[float, ...] | None) -> None:
+    """Put the image on the data's own lateral coordinates: add ``shift`` ((x,) or (x, y), m;
+    ``dataset.lateral_shift``: the file's sensor coordinates or k-Wave's grid origin minus the
+    centred axes the methods reconstruct on) to ``result.x``/``result.y``, recorded as
+    ``params["lateral_shift_m"]``. The image itself is unchanged (the inversion is
+    shift-invariant); nothing happens where ``shift`` is None or zero."""
+    if not shift or not any(shift):
+        return
+    result.x = np.asarray(result.x, dtype=np.float64) + float(shift[0])
+    if result.y is not None and len(shift) > 1:
+        result.y = np.asarray(result.y, dtype=np.float64) + float(shift[1])
+    result.params["lateral_shift_m"] = [float(v) for v in shift]
 
 
 def run_file(inputs: str | os.PathLike | Sequence[str | os.PathLike],
@@ -448,7 +520,8 @@ def run_file(inputs: str | os.PathLike | Sequence[str | os.PathLike],
              method: str | None = None, *, format: str | None = None, wavelength: int | str | None = None,
              wavelengths: Sequence[float] | None = None, unmix: dict | None = None, load: dict | None = None,
              input_id: str = "", progress: Progress | None = None, should_stop: ShouldStop | None = None,
-             on_loaded: Callable[[Dataset, str], Any] | None = None, **options: Any) -> dict:
+             on_loaded: Callable[[Dataset, str], Any] | None = None, plan: Plan | Mask | None = None,
+             **options: Any) -> dict:
     """Read a file, reconstruct it and write its result folder: the one orchestration of the job
     worker (``service.jobs.work``), ``fpscan recon`` and ``fpscan unmix`` (locally), so that a
     file gives the same folder whoever runs it.
@@ -496,6 +569,9 @@ def run_file(inputs: str | os.PathLike | Sequence[str | os.PathLike],
         ``on_loaded(dataset, method)`` after loading, before any reconstruction (the first
         wavelength's dataset and the method chosen): the server's memory admission raises
         there to refuse the work; the command line says what it reconstructs.
+    plan : service.plans.Plan or service.plans.Mask, optional
+        Dense input sampled by this plan's (or mask's) sensor points before reconstructing
+        (``service.subsample.subsample``: a replay scan's A-lines); not with ``unmix``.
     **options
         The method's options, as :func:`reconstruct` (``c`` in m/s or ``"auto"``, ``force``, ...).
 
@@ -537,21 +613,13 @@ def run_file(inputs: str | os.PathLike | Sequence[str | os.PathLike],
     import time
 
     from service.progress import outcome
-    from service.storage.datasets import load_wavelengths
 
     paths = [inputs] if isinstance(inputs, str | os.PathLike) else list(inputs)
     load = {k: v for k, v in (load or {}).items() if v is not None}
     t0 = time.perf_counter()
     if progress is not None:
         progress(0.0, "loading")
-    if unmix is not None:
-        from service.spectral import load_wavelength_datasets
-
-        wl, datasets = load_wavelength_datasets(paths, format, wavelengths=wavelengths, **load)
-    else:
-        if len(paths) != 1:
-            raise ValueError(f"one input file, got {len(paths)} (several only to unmix, one per wavelength)")
-        datasets = load_wavelengths(paths[0], format, wavelength=wavelength, **load)
+    wl, datasets = _load_inputs(paths, format, unmix is not None, wavelength, wavelengths, load, plan)
     method = method or default_method(datasets[0])
     if on_loaded is not None:
         on_loaded(datasets[0], method)

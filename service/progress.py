@@ -237,6 +237,9 @@ class IterationStage(str):
         The rule's tolerance; None (or a value that is not finite) while unknown.
     rule_name : str, optional
         The stopping rule's name (default ``"image change"``).
+    armed : bool, optional
+        Whether the rule can stop the work now (default True; tv: False while its λ still
+        falls, when the tolerance is known but not yet applied).
     text : str, optional
         The text itself (default ``"iteration k/n"``); :meth:`__add__` passes the text with
         its suffix.
@@ -249,6 +252,8 @@ class IterationStage(str):
         The rule's value and tolerance (None while unknown).
     rule_name : str
         The rule's name.
+    armed : bool
+        As given.
 
     Examples
     --------
@@ -264,21 +269,24 @@ class IterationStage(str):
     rule: float | None
     tol: float | None
     rule_name: str
+    armed: bool
 
     def __new__(cls, k: int, n: int, rule: float | None = None, tol: float | None = None, *,
-                rule_name: str = "image change", text: str | None = None) -> IterationStage:
+                rule_name: str = "image change", text: str | None = None, armed: bool = True) -> IterationStage:
         self = super().__new__(cls, text if text is not None else f"iteration {int(k)}/{int(n)}")
         self.k, self.n = int(k), int(n)
         self.rule = float(rule) if rule is not None and math.isfinite(float(rule)) else None
         self.tol = float(tol) if tol is not None and math.isfinite(float(tol)) else None
-        self.rule_name = rule_name
+        self.rule_name, self.armed = rule_name, bool(armed)
         return self
 
     def __add__(self, other: str) -> IterationStage:
-        return IterationStage(self.k, self.n, self.rule, self.tol, rule_name=self.rule_name, text=str(self) + other)
+        return IterationStage(self.k, self.n, self.rule, self.tol, rule_name=self.rule_name, text=str(self) + other,
+                              armed=self.armed)
 
     def __getnewargs_ex__(self) -> tuple[tuple, dict]:
-        return (self.k, self.n, self.rule, self.tol), {"rule_name": self.rule_name, "text": str(self)}
+        return (self.k, self.n, self.rule, self.tol), {"rule_name": self.rule_name, "text": str(self),
+                                                       "armed": self.armed}
 
 
 _ITERATION = re.compile(r"iteration (\d+)/(\d+)")
@@ -309,7 +317,8 @@ def parse_iteration(stage: Any) -> IterationStage | None:
 def iteration_fields(stage: Any) -> dict[str, Any]:
     """The job progress fields of an iteration stage: ``iteration`` (k), ``iterations_max``
     (n), ``stop_rule`` (its name), ``stop_value`` (the rule's value, None while unknown),
-    ``stop_tol`` (the tolerance); ``{}`` for any other stage.
+    ``stop_tol`` (the tolerance), ``stop_armed`` (whether the rule can stop the work yet);
+    ``{}`` for any other stage.
 
     Parameters
     ----------
@@ -325,7 +334,7 @@ def iteration_fields(stage: Any) -> dict[str, Any]:
     if it is None:
         return {}
     return {"iteration": it.k, "iterations_max": it.n, "stop_rule": it.rule_name, "stop_value": it.rule,
-            "stop_tol": it.tol}
+            "stop_tol": it.tol, "stop_armed": it.armed}
 
 
 def describe_iteration(fields: Mapping[str, Any]) -> str | None:
@@ -336,8 +345,8 @@ def describe_iteration(fields: Mapping[str, Any]) -> str | None:
     Parameters
     ----------
     fields : Mapping of str to object
-        ``iteration``, ``iterations_max`` and optionally ``stop_rule``, ``stop_value`` and
-        ``stop_tol``.
+        ``iteration``, ``iterations_max`` and optionally ``stop_rule``, ``stop_value``,
+        ``stop_tol`` and ``stop_armed`` (False: "once λ has settled").
 
     Returns
     -------
@@ -353,7 +362,8 @@ def describe_iteration(fields: Mapping[str, Any]) -> str | None:
     if value is not None:
         text += f", {fields.get('stop_rule') or 'stopping rule'} {value:.2g}"
         if tol is not None:
-            text += f" (stops below {tol:.2g})" if tol > 0 else " (tol 0: no early stop)"
+            later = "" if fields.get("stop_armed", True) else " once λ has settled"
+            text += f" (stops below {tol:.2g}{later})" if tol > 0 else " (tol 0: no early stop)"
     return text
 
 
@@ -391,11 +401,16 @@ class Eta:
     """The time left of a piece of work from its progress reports, in s (or None):
     ``eta(fraction, stage)`` at each report.
 
-    - In an iteration stage (:func:`parse_iteration`): (n − k) × the measured time per
-      iteration, an exponential moving average (weight ``smoothing``) of the time between
-      iteration reports, shown once ``settle`` intervals are measured (the first
-      iteration carries set-up work). It counts to the iteration limit n: the stopping
-      rule may end the work sooner.
+    - In an iteration stage (:func:`parse_iteration`): the iterations expected until the
+      stopping rule ends the work × the measured time per iteration (an exponential moving
+      average, weight ``smoothing``, of the time between iteration reports, shown once
+      ``settle`` intervals are measured: the first iteration carries set-up work). The
+      iterations expected come from the rate at which the rule's value falls: a straight
+      line fitted to log(value) over the last iterations (a geometric fall, as a
+      convergent solver's image change shows), extended to the tolerance; where the value
+      does not fall (or no value or tolerance is known) they are the n − k left to the
+      iteration limit. An estimate: :attr:`bound_s` is the time to the limit, which it
+      never exceeds.
     - In :data:`SETUP_STAGES`: None (the iterations are not measured yet).
     - In any other stage: the fraction's rate since the stage began,
       ``(elapsed in stage) × (1 − f) / (f − f at the stage's start)``.
@@ -424,6 +439,11 @@ class Eta:
         As given.
     clock : callable
         As given.
+    bound_s : float or None
+        In an iteration stage, the time to the iteration limit (n − k iterations), s: the
+        bound of the estimate; None otherwise.
+    basis : str or None
+        What the last iteration estimate counts to: ``"stopping rule"`` or ``"iteration limit"``.
 
     Raises
     ------
@@ -441,6 +461,16 @@ class Eta:
     None
     14.0
     12.0
+
+    An image change falling tenfold every 4 iterations reaches the tolerance 1e-3 at
+    iteration 12, long before the limit of 100:
+
+    >>> t, eta = [0.0], Eta(clock=lambda: t[0])
+    >>> for k in range(1, 7):
+    ...     t[0] = 2.0 * k
+    ...     left = eta(k / 100, IterationStage(k, 100, rule=10 ** (-k / 4), tol=1e-3))
+    >>> round(left), eta.basis, round(eta.bound_s)  # 6 iterations of 2 s; at most 94 of them
+    (12, 'stopping rule', 188)
     """
 
     def __init__(self, *, smoothing: float = 0.3, settle: int = 2, clock: Callable[[], float] = time.monotonic):
@@ -454,6 +484,9 @@ class Eta:
         self._per_iteration: float | None = None
         self._intervals = 0
         self._shown: tuple[float, float] | None = None  # (estimate, when)
+        self._rule: list[tuple[int, float]] = []  # (k, log of the rule's value): the recent fall
+        self.bound_s: float | None = None
+        self.basis: str | None = None
 
     def __call__(self, fraction: float, stage: Any) -> float | None:
         now = self.clock()
@@ -461,7 +494,9 @@ class Eta:
         if kind != self._kind:
             self._kind, self._t0, self._f0 = kind, now, float(fraction)
             self._last_k, self._per_iteration, self._intervals, self._shown = None, None, 0, None
+            self._rule = []
         it = parse_iteration(stage)
+        self.bound_s = None
         if it is not None:
             raw = self._iterations(it, now)
         elif kind in SETUP_STAGES:
@@ -485,9 +520,34 @@ class Eta:
             self._intervals += 1
         if self._last_k is None or it.k > self._last_k:
             self._last_k, self._last_k_at = it.k, now
+        if it.rule is not None and it.rule > 0 and (not self._rule or it.k > self._rule[-1][0]):
+            self._rule = [*self._rule[-(_FIT - 1):], (it.k, math.log(it.rule))]
         if self._per_iteration is None or self._intervals < self.settle:
             return None
-        return max(it.n - it.k, 0) * self._per_iteration
+        cap = max(it.n - it.k, 0)
+        self.bound_s = cap * self._per_iteration
+        left = self._to_rule(it)
+        self.basis = "iteration limit" if left is None or left >= cap else "stopping rule"
+        return (cap if left is None else min(left, cap)) * self._per_iteration
+
+    def _to_rule(self, it: IterationStage) -> float | None:
+        """Iterations until the rule's value, falling as fitted, is below the tolerance; None
+        where that cannot be told (no tolerance, too few values, a value that does not fall)."""
+        if it.tol is None or it.tol <= 0 or len(self._rule) < 3:
+            return None
+        ks = [float(k) for k, _ in self._rule]
+        vs = [v for _, v in self._rule]
+        k_mean, v_mean = sum(ks) / len(ks), sum(vs) / len(vs)
+        sxx = sum((k - k_mean) ** 2 for k in ks)
+        slope = sum((k - k_mean) * (v - v_mean) for k, v in zip(ks, vs, strict=True)) / sxx
+        if not slope < 0:
+            return None
+        now = v_mean + slope * (it.k - k_mean)  # the fitted log value at k
+        return max((math.log(it.tol) - now) / slope, 1.0)
+
+
+#: iterations of the rule's value the ETA's fit of its fall looks back over
+_FIT = 8
 
 
 def outcome(params: Mapping[str, Any], method: str | None = None) -> str | None:

@@ -194,7 +194,8 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:  # `fpscan jobs list | head`: the reader has what it wanted
         return closed_pipe()
     except RefusedInput as exc:  # a unit mistake or a refused option is a usage error, like a bad flag
-        print(f"fpscan {args.command}: error: {in_flags(str(exc))}", file=sys.stderr)
+        options = type(exc).__name__ == "OptionError"  # service.recon.checks: it names options
+        print(f"fpscan {args.command}: error: {in_flags(str(exc), options=options)}", file=sys.stderr)
         return 2
     except ImportError as exc:  # a command run on an install without its extra
         extra = missing_extra(exc)
@@ -213,21 +214,40 @@ def main(argv: list[str] | None = None) -> int:
     return int(code or 0)
 
 
-def in_flags(message: str) -> str:
-    """A reason worded for every caller (``driver.units``: "force a value outside the range")
-    in the command line's own terms: the flag that does it, ``--force``.
+def in_flags(message: str, *, options: bool = False) -> str:
+    """A reason worded for every caller (``driver.units``: "force a value outside the range";
+    a loader's "give key") in the command line's own terms: the flag that does it
+    (``--force``, ``--key``); with ``options`` (a refused reconstruction option,
+    ``service.recon.checks.OptionError``) every option it names as its flag (``lam`` →
+    ``--lambda``, ``c`` → ``--sound-speed``: ``clients.cli.recon_options.option_flags``).
 
     Parameters
     ----------
     message : str
         An error message.
+    options : bool, optional
+        Whether the message names reconstruction options by their library names.
 
     Returns
     -------
     str
-        The message with "force a value outside the range" replaced by the flag's wording.
+        The message in the flags' words.
     """
-    return message.replace("force a value outside the range", "give --force for a value outside the range")
+    import re
+
+    message = message.replace("force a value outside the range", "give --force for a value outside the range")
+    message = re.sub(r"\bgive (key|dt|dx|dy)\b", r"give --\1", message)
+    message = re.sub(r"given \((key|dt|dx|dy)\)", r"given (--\1)", message)
+    message = re.sub(r"^(key|dt|dx|dy) is neither given", r"--\1 is neither given", message)
+    message = re.sub(r"\b(needs|and) (dt|dx|dy) \(", r"\1 --\2 (", message)
+    if options:
+        try:
+            from clients.cli.recon_options import option_flags
+            from service.names import renamed_words
+        except ImportError:  # pragma: no cover -- a client-only install: the names as they are
+            return message
+        message = renamed_words(message, option_flags())
+    return message
 
 
 #: the exit status after stdout's reader went away: a process killed by SIGPIPE, as shells report it

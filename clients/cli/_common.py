@@ -167,10 +167,55 @@ def client_errors(run: Callable[..., int]) -> Callable[..., int]:
         try:
             return run(args)
         except FpscanClientError as exc:
-            print(f"fpscan {args.command}: error: {exc}", file=sys.stderr)
+            print(f"fpscan {args.command}: error: {exc}{unreachable_hint(args, exc)}", file=sys.stderr)
             return 2 if isinstance(exc, ApiError) and exc.status_code in (400, 404, 422) else 1
 
     return wrapper
+
+
+def remember_job(args, job_id: str | None) -> None:
+    """Note on ``args`` the job a command has had accepted by the server, so that a server
+    that goes away afterwards is reported with the command that reattaches to it
+    (:func:`unreachable_hint`)."""
+    args.submitted_job = job_id
+
+
+def unreachable_hint(args, exc: Exception) -> str:
+    """What an unreachable server (``clients.http.ServerUnavailable``) leaves behind, and the
+    command that reattaches: the job a command had accepted (``remember_job``) or names
+    (``job_id``) survives in the server's job store (a reconstruction runs again when the
+    server restarts, a scan waits there paused); "" for any other error.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed command line (``server``, and ``submitted_job`` or ``job_id`` where known).
+    exc : Exception
+        The client's error.
+
+    Returns
+    -------
+    str
+        Text to append to the one-line error (starting with ". "), or "".
+    """
+    from clients.http import ServerUnavailable
+
+    if not isinstance(exc, ServerUnavailable):
+        return ""
+    job = getattr(args, "submitted_job", None) or getattr(args, "job_id", None)
+    server = getattr(args, "server", None) or "URL"
+    if not job:
+        return (f". Is `fpscan serve` running at {server}? Jobs it accepted before are kept in its job store "
+                f"(its data folder) and go on when it is started again")
+    return (f". Job {job} is kept in the server's job store (its data folder): when the server runs again a "
+            f"reconstruction is run again and a scan waits, paused; reattach with `fpscan jobs wait {job} "
+            f"--server {server}` (a paused scan: `fpscan jobs resume {job} --server {server}` first)")
+
+
+def _complete(progress: dict) -> bool:
+    """Whether a progress report says its work is all done: fraction 1, or every point."""
+    total = progress.get("points_total")
+    return float(progress.get("fraction") or 0.0) >= 1.0 or bool(total and progress.get("points_done") == total)
 
 
 def _fmt_eta(seconds: float | None) -> str:
@@ -215,7 +260,12 @@ def describe_progress(progress: dict, *, with_fraction: bool = True) -> str:
     if rate:
         parts.append(f"{rate:.0f} points/s")
     if progress.get("eta_s") is not None and progress.get("stage") not in ("done", "aborted"):
-        parts.append(f"ETA {_fmt_eta(progress.get('eta_s'))}")
+        bound = progress.get("eta_max_s")
+        if bound is not None and float(bound) > float(progress["eta_s"]) + 0.5:  # an estimate, and its bound
+            parts.append(f"ETA ~{_fmt_eta(progress.get('eta_s'))} (estimate: stopping rule; "
+                         f"at most {_fmt_eta(bound)} at the iteration limit)")
+        else:
+            parts.append(f"ETA {_fmt_eta(progress.get('eta_s'))}")
     frac = progress.get("fraction")
     if with_fraction and frac is not None and not total:
         parts.append(f"{100 * float(frac):.0f}%")
@@ -301,7 +351,7 @@ class ProgressBar:
         bar = self._progress = Progress(
             TextColumn("[bold]{task.description}"), BarColumn(),
             TextColumn("{task.percentage:>5.1f}%"), TextColumn("{task.fields[info]}"),
-            TimeElapsedColumn(), console=Console(file=self.stream), transient=False,
+            TextColumn("elapsed"), TimeElapsedColumn(), console=Console(file=self.stream), transient=False,
         )
         bar.__enter__()
         self._task = bar.add_task(self.label, total=1.0, info="")
@@ -318,6 +368,8 @@ class ProgressBar:
         now = time.monotonic()
         if progress.get("eta_s") is None and frac is not None:
             progress["eta_s"] = self._eta(float(frac), progress.get("stage"))
+            if progress["eta_s"] is not None and self._eta.bound_s is not None:
+                progress["eta_max_s"] = self._eta.bound_s
         if self._progress is not None and self._task is not None:
             self._progress.update(self._task, info=describe_progress(progress, with_fraction=False),
                                   completed=None if frac is None else float(frac))
@@ -362,14 +414,18 @@ class ProgressBar:
             pass
 
     def _tick(self) -> None:
-        """Off a terminal: repeat the latest progress every ``period`` s when no report came."""
+        """Off a terminal: repeat the latest progress every ``period`` s when no report came,
+        unless it is complete (100 %, or every point done): a state that cannot change is
+        said once, however long the job's wrap-up takes (a scan's final live preview)."""
         while not self._stop.wait(self.period):
             with self._lock:
                 now = time.monotonic()
-                if self._latest is not None and now - self._printed_at >= self.period:
+                if self._latest is not None and now - self._printed_at >= self.period and \
+                        not _complete(self._latest):
                     latest = dict(self._latest)
-                    if latest.get("eta_s") is not None:  # the time since the last report has passed
-                        latest["eta_s"] = max(float(latest["eta_s"]) - (now - self._latest_at), 0.0)
+                    for key in ("eta_s", "eta_max_s"):  # the time since the last report has passed
+                        if latest.get(key) is not None:
+                            latest[key] = max(float(latest[key]) - (now - self._latest_at), 0.0)
                     self._print(latest, now)
 
     def __exit__(self, *exc) -> None:

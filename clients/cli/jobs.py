@@ -1,6 +1,6 @@
-"""`fpscan jobs`: list, inspect, wait on and cancel the server's jobs (scans and
+"""`fpscan jobs`: list, get, wait on, resume, cancel and delete the server's jobs (scans and
 reconstructions) over HTTP (``GET /api/jobs``, ``GET /api/jobs/{id}``, the SSE stream,
-``POST /api/jobs/{id}/cancel``, ``DELETE /api/jobs/{id}``)."""
+``POST /api/scans/{id}/resume``, ``POST /api/jobs/{id}/cancel``, ``DELETE /api/jobs/{id}``)."""
 from __future__ import annotations
 
 from clients.cli._common import add_progress_option, add_server_options, client_errors, delete_each
@@ -8,7 +8,7 @@ from clients.cli._common import add_progress_option, add_server_options, client_
 __all__ = ["COMMAND", "HELP", "STATES", "KINDS", "add_arguments", "run"]
 
 COMMAND = "jobs"
-HELP = "list, show, wait on, cancel or delete the server's jobs (scans, reconstructions)"
+HELP = "list, get, wait on, resume (a paused scan), cancel or delete the server's jobs (scans, reconstructions)"
 
 STATES = ("queued", "running", "paused", "succeeded", "failed", "cancelled")
 KINDS = ("scan", "recon")
@@ -39,6 +39,12 @@ def add_arguments(parser):
     p.add_argument("job_id")
     p.add_argument("--timeout", type=float, default=None, metavar="S", help="give up after S seconds")
     add_progress_option(p)
+    add_server_options(p, required=True)
+    p = sub.add_parser("resume", help="resume a paused scan",
+                       description="Resume a paused scan job (paused by `pause`, or by a restart of the server: "
+                                   "FPSCAN_RESUME_SCANS) from its first missing point; follow it with "
+                                   "`fpscan jobs wait ID`.")
+    p.add_argument("job_id")
     add_server_options(p, required=True)
     p = sub.add_parser("cancel", help="cancel a job", description="Cancel a job (cooperative).")
     p.add_argument("job_id")
@@ -83,7 +89,7 @@ def run(args) -> int:
     """
     import json
 
-    from clients.cli._common import ProgressBar, make_client
+    from clients.cli._common import ProgressBar, full_job_id, make_client
     from clients.http import field_of, to_dict
 
     with make_client(args) as api:
@@ -109,6 +115,12 @@ def run(args) -> int:
             return 0
         if args.action == "delete":
             delete_each(args.job_ids, api.delete_job, what=lambda gone: f"{gone.get('kind')}, ")
+            return 0
+        if args.action == "resume":
+            job_id = full_job_id(api, args.job_id)
+            api.resume_scan(job_id)
+            job = api.get_job(job_id)
+            print(f"{job_id}: {field_of(job, 'state')} (follow it: fpscan jobs wait {job_id[:12]})")
             return 0
         if args.action == "cancel":
             api.cancel_job(args.job_id)

@@ -6,6 +6,10 @@ job worker's call) and written with ``service.storage.results.write_result`` (th
 worker's result folder): ``volume.h5`` (``/p0`` ``(n_z, n_y, n_x)``, ``/z``, ``/y``,
 ``/x`` in m) and ``mip_{xy,xz,yz}.png``. The same input and options give the same volume
 locally and on the server (default precision float32 on both).
+With ``--plan PLAN.json`` dense input (a k-Wave sensor plane or line, a full-lattice scan) is
+first sampled by the plan's sensor mask (``service.subsample``: a replay scan's A-lines, with
+the plan's weights); with ``--server`` the plan is stored there and the job samples the
+uploaded dataset (``plan_id``).
 With ``--server`` the file is uploaded (``POST /api/datasets``), reconstructed as a job
 (``POST /api/reconstructions``; or ``--scan-job`` reuses a scan job's file) and the
 volume and MIPs are downloaded into ``--out``.
@@ -56,7 +60,9 @@ def add_arguments(parser):
     except ImportError:  # no service package: the server checks the method
         METHODS = {}
 
-    parser.add_argument("input", nargs="?", help="scan file (HDF5), IPASC file, k-Wave HDF5 or .npy array")
+    parser.add_argument("input", nargs="?", help="scan file (HDF5), IPASC file, k-Wave HDF5, k-Wave MAT-file (.mat: "
+                                                 "MAT v5/v7/v7.3, as MATLAB or Octave save it) or .npy array; the "
+                                                 "format is told from the content (--format lists them)")
     add_format_option(parser)
     methods = "; ".join(f"{m.name}: {m.title}" for m in METHODS.values())
     parser.add_argument("--method", choices=list(METHODS) or None, default=None,
@@ -78,6 +84,12 @@ def add_arguments(parser):
                              "default: the first, index 0, recorded in the volume's params)")
     parser.add_argument("--scan-job", default=None, metavar="JOB_ID",
                         help="with --server: reconstruct this scan job's file (no INPUT)")
+    parser.add_argument("--plan", default=None, metavar="PLAN.json",
+                        help="a sparse scan out of dense INPUT (a k-Wave sensor plane or line, or a full-lattice "
+                             "scan): reconstruct the A-lines this plan's sensor mask picks out of it, with its "
+                             "weights, as a replay scan of INPUT records them (fpscan.subsample); the plan's pitch "
+                             "and dt must be the data's and its lattice centred on the data's grid. With --server "
+                             "the plan is stored there and the job samples the uploaded dataset")
     add_server_options(parser)
     add_progress_option(parser)
 
@@ -205,6 +217,8 @@ def run(args) -> int:
     check_input_files(args, [args.input] if args.input else [],
                       "give a scan file or dataset (or --server with --scan-job)")
     check_options_early(args.method, _params(args))
+    if args.plan and args.scan_job:
+        raise UsageError("--plan samples dense INPUT data; a scan job's file is already a scan: not with --scan-job")
     if args.out:  # before the work, not after it (the default folder sits beside the input)
         from clients.cli._common import check_out_writable
 
@@ -251,10 +265,16 @@ def _local(args, fmt: str) -> int:
 
     load = {"dt": args.dt, "dx": args.dx, "dy": args.dy, "key": args.key, "force": args.force,
             "c": None if args.c == "auto" else args.c}
+    plan = _read_plan(args.plan) if args.plan else None
+    from service.subsample import MaskMismatch
+
     with ProgressBar(f"recon {args.method or ''}".rstrip(), quiet=args.quiet) as bar:
-        summary = run_file(args.input, lambda m: _default_out(args, m), args.method, format=fmt,
-                           wavelength=args.wavelength, load=load, input_id=Path(args.input).name,
-                           progress=bar.report, on_loaded=loaded, **_params(args))
+        try:
+            summary = run_file(args.input, lambda m: _default_out(args, m), args.method, format=fmt,
+                               wavelength=args.wavelength, load=load, input_id=Path(args.input).name,
+                               progress=bar.report, on_loaded=loaded, plan=plan, **_params(args))
+        except MaskMismatch as exc:
+            raise UsageError(f"--plan {args.plan} cannot sample {args.input}: {exc}") from None
         ended = summary.get("outcome")
         if ended:  # an iterative method: the bar ends on how it ended, not on its last stage
             bar.finish(_head(ended))
@@ -273,6 +293,17 @@ def _local(args, fmt: str) -> int:
     if ended:
         print(ended)  # the last line: converged or not, iterations, λ, residual against the noise
     return 0
+
+
+def _read_plan(path: str):
+    """``--plan``: the plan file, read and checked (``fpscan.load_plan``); a UsageError naming
+    the flag for a file that is missing or not a plan."""
+    from service.formats.plan import read_plan
+
+    try:
+        return read_plan(path)
+    except (OSError, ValueError) as exc:
+        raise UsageError(f"--plan {path}: {exc}") from None
 
 
 def _head(ended: str) -> str:
@@ -323,9 +354,13 @@ def _remote(args, fmt: str | None) -> int:
                 fields["force"] = True
             if fields["sound_speed"] == "auto":  # a search, not the data's speed: it goes with the reconstruction
                 fields["sound_speed"] = None
+            plan_id = _store_plan(api, args.plan) if args.plan else None
             dataset_id = api.upload_dataset(args.input, fmt, **fields)
             job_id = api.start_reconstruction(dataset_id=dataset_id, method=args.method,
-                                              params=http_params(_params(args)))
+                                              params=http_params(_params(args)), plan_id=plan_id)
+        from clients.cli._common import remember_job
+
+        remember_job(args, job_id)
         with ProgressBar(f"recon {job_id[:8]}", quiet=args.quiet) as bar:
             job = api.wait(job_id, on_progress=bar)
             from clients.http import field_of
@@ -346,6 +381,20 @@ def _remote(args, fmt: str | None) -> int:
                 _download(api, job_id, out / f"wavelength_{k}", k)
                 print(f"{out}/wavelength_{k}/volume.h5  job {job_id}  method {method}{_nm(row)}")
     return 0
+
+
+def _store_plan(api, path: str) -> str:
+    """``--plan`` with ``--server``: the plan file stored on the server (under its own id)."""
+    import json
+
+    from clients.http import field_of
+
+    try:
+        with open(path, encoding="utf-8") as fh:
+            doc = json.load(fh)
+    except (OSError, ValueError) as exc:
+        raise UsageError(f"--plan {path}: {exc}") from None
+    return str(field_of(api.create_plan(doc), "id"))
 
 
 def _download(api, job_id: str, folder, wavelength: int | None) -> list[str]:

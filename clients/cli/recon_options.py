@@ -20,7 +20,8 @@ TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (`fpscan 
 if TYPE_CHECKING:
     from typing import Any
 
-__all__ = ["add_speed_flags", "add_load_flags", "add_option_flags", "option_names", "option_params", "http_params"]
+__all__ = ["add_speed_flags", "add_load_flags", "add_option_flags", "option_names", "option_params", "http_params",
+           "option_flags"]
 
 
 def _registry() -> Any:
@@ -150,6 +151,29 @@ def add_option_flags(group) -> None:
             metavar = name.upper() if schema.get("type") in ("number", "integer") else None
             group.add_argument(flag, dest=name, default=None, help=said.replace("%", "%%"),
                                **({"metavar": metavar} if metavar else {}), **_value_type(name, schema, flag))
+
+
+def option_flags() -> dict[str, str]:
+    """Each reconstruction and load option's name (the library's, ``lam``) → the flag that
+    gives it (``--lambda``), the speed of sound's ``c``/``sound_speed`` → ``--sound-speed``: how
+    the command line words an error that names options (``clients.cli.in_flags``).
+
+    Returns
+    -------
+    dict
+        Empty without the service package (a client-only install).
+    """
+    methods = _registry()
+    if methods is None:
+        return {}
+    out = {"c": "--sound-speed", "sound_speed": "--sound-speed", "c_range": "--sound-speed-range",
+           "sound_speed_range": "--sound-speed-range"}
+    for m in methods.METHODS.values():
+        for o in methods.option_schemas(m):
+            out.setdefault(o["name"], o["schema"].get("flag") or "--" + o["name"].replace("_", "-"))
+    for name in ("key", "dt", "dx", "dy"):
+        out[name] = "--" + name
+    return out
 
 
 def option_names() -> list[str]:

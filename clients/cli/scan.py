@@ -239,6 +239,9 @@ def _remote(args) -> int:
                 raise UsageError(f"the server has scanners {', '.join(ids) or '(none)'}: choose one with --scanner")
             scanner = ids[0]
         job_id = api.start_scan(plan_id, scanner, **extra)
+        from clients.cli._common import remember_job
+
+        remember_job(args, job_id)
         with ProgressBar(f"scan {job_id[:8]}", quiet=args.quiet) as bar:
             job = api.wait(job_id, on_progress=bar)
         progress = field_of(job, "progress")

@@ -166,6 +166,9 @@ def _remote(args) -> int:
             ids = [api.upload_dataset(p, fmt, **fields) for p, fmt in zip(args.inputs, formats, strict=True)]
             job_id = api.start_unmix(dataset_ids=ids, wavelengths=args.wavelengths, method=method,
                                      params=http_params(_params(args)), **unmix)
+        from clients.cli._common import remember_job
+
+        remember_job(args, job_id)
         with ProgressBar(f"unmix {job_id[:8]}", quiet=args.quiet) as bar:
             job = api.wait(job_id, on_progress=bar)
         out = _default_out(args)

@@ -1037,13 +1037,14 @@ function jobProgressText(j) {
  * The same words as the CLI (service.progress: describe_iteration, outcome). */
 
 /** "iteration 7/100, image change 0.021 (stops below 0.005)" from a job's progress fields
- *  (iteration, iterations_max, stop_rule, stop_value, stop_tol); null without them. */
+ *  (iteration, iterations_max, stop_rule, stop_value, stop_tol, stop_armed); null without them. */
 function iterationText(p) {
   if (p.iteration === undefined || p.iteration === null || !p.iterations_max) return null;
   let t = `iteration ${p.iteration}/${p.iterations_max}`;
   if (typeof p.stop_value === "number") {
     t += `, ${p.stop_rule || "stopping rule"} ${fmtNum(p.stop_value, 2)}`;
-    if (typeof p.stop_tol === "number") t += p.stop_tol > 0 ? ` (stops below ${fmtNum(p.stop_tol, 2)})` : " (tol 0: no early stop)";
+    const later = p.stop_armed === false ? " once λ has settled" : "";
+    if (typeof p.stop_tol === "number") t += p.stop_tol > 0 ? ` (stops below ${fmtNum(p.stop_tol, 2)}${later})` : " (tol 0: no early stop)";
   }
   return t;
 }

@@ -955,12 +955,15 @@ class ReconRequest(_Request):
         (one volume per wavelength); absent: the first. Not with unmix.
     unmix : UnmixOptions or None
         Unmix HbO2/Hb after reconstructing every wavelength.
+    plan_id : str or None
+        With dataset_id (dense data): reconstruct the A-lines this stored plan's sensor mask
+        picks out of it (``service.subsample``: what a replay scan of the data records).
 
     Raises
     ------
     pydantic.ValidationError
         (a ValueError; 422 over HTTP) Not exactly one of scan_job_id, dataset_id and
-        dataset_ids; dataset_ids without unmix; a field out of its range.
+        dataset_ids; dataset_ids without unmix; plan_id without dataset_id; a field out of its range.
     """
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False, json_schema_extra={
@@ -989,6 +992,10 @@ class ReconRequest(_Request):
                           "volume.h5?wavelength=k). Absent: the first (index 0), recorded in the result's params "
                           "(wavelength_index, wavelength_nm). Not with unmix (it uses every wavelength)")
     unmix: UnmixOptions | None = Field(None, description="unmix HbO2/Hb after reconstructing every wavelength")
+    plan_id: str | None = Field(None, pattern=ID_PATTERN, description=(
+        "with dataset_id (dense data: a sensor plane or line, or a full-lattice scan): reconstruct the A-lines "
+        "this stored plan's sensor mask picks out of it, as a replay scan of the data records them "
+        "(fpscan.subsample); the plan's lattice pitch and dt must be the data's, its lattice centred on the data's grid"))
 
     @model_validator(mode="after")
     def _exactly_one_input(self) -> ReconRequest:
@@ -997,4 +1004,6 @@ class ReconRequest(_Request):
             raise ValueError("give exactly one of scan_job_id or dataset_id (or dataset_ids with unmix)")
         if self.dataset_ids is not None and self.unmix is None:
             raise ValueError("dataset_ids (one dataset per wavelength) need unmix")
+        if self.plan_id is not None and (self.dataset_id is None or self.unmix is not None):
+            raise ValueError("plan_id samples an uploaded dataset: it needs dataset_id (and no unmix)")
         return self

@@ -23,7 +23,7 @@ from service.jobs.admission import (
     input_shape,
 )
 from service.jobs.store import IdempotencyConflict, QueueFull
-from service.names import person_names
+from service.names import PERSON_NAMES, person_names, renamed_words
 from service.pipeline import METHODS, default_method, method_options
 from service.recon.methods import get as method_named
 
@@ -58,6 +58,8 @@ def _with_method(c: Context, body: ReconRequest) -> ReconRequest:
     if body.method is not None:
         return body
     kind = "points"
+    if body.plan_id is not None:  # a sensor mask's points
+        return body.model_copy(update={"method": default_method(kind)})
     ds_id = body.dataset_id if body.dataset_id is not None else next(iter(body.dataset_ids or ()), None)
     if ds_id is not None:
         meta = c.store.get_dataset(ds_id)
@@ -117,8 +119,8 @@ def _input_for(c: Context, body: ReconRequest) -> tuple[dict, dict, str]:
     assert method is not None  # resolved by _with_method
     try:
         method_options(method, body.params.model_dump())
-    except ValueError as exc:
-        raise HTTPException(422, str(exc)) from None
+    except ValueError as exc:  # worded in the request's JSON fields (sound_speed, not the code's c)
+        raise HTTPException(422, renamed_words(str(exc), PERSON_NAMES)) from None
     needs_grid = METHODS[method].needs_grid
     if body.scan_job_id is not None:
         job = c.store.get(body.scan_job_id)
@@ -148,10 +150,44 @@ def _input_for(c: Context, body: ReconRequest) -> tuple[dict, dict, str]:
     path = str(Path(c.settings.data_dir) / "datasets" / dataset_id / meta["path"])
     # a stored dataset holds one wavelength's data (of a multi-wavelength file: the one chosen at upload)
     ds_spec = _with_wavelength({"kind": "dataset", "path": path}, body.wavelength, [None], f"dataset {dataset_id}")
+    if body.plan_id is not None:
+        return _sampled(c, body, meta, ds_spec, needs_grid)
     if meta["layout"] != "grid" and needs_grid and not meta.get("full_lattice"):
         raise HTTPException(422, f"method {body.method!r} needs a full regular grid; this dataset needs "
                                  f"{default_method('points')!r}")
     return ds_spec, input_shape(meta), f"dataset:{body.dataset_id}"
+
+
+def _sampled(c: Context, body: ReconRequest, meta: dict, spec: dict, needs_grid: bool) -> tuple[dict, dict, str]:
+    """The input of a dataset sampled by a stored plan (``service.subsample``): 404 for an
+    unknown plan, 422 where the plan cannot sample the dataset (its record: dense, the pitch,
+    dt and lattice that fit) or the method needs a full grid the mask does not give."""
+    from pydantic import ValidationError
+
+    from service.plans import Plan
+    from service.subsample import check_fit
+
+    found = c.store.get_plan(str(body.plan_id))
+    if found is None:
+        raise HTTPException(404, f"no plan {body.plan_id}")
+    doc = found[0]
+    lat = doc["lattice"]
+    if needs_grid and len(doc["points"]["indices"]) != lat["n_x"] * lat.get("n_y", 1):
+        raise HTTPException(422, f"method {body.method!r} needs every lattice point; plan {body.plan_id} is a sensor "
+                                 f"mask: use {default_method('points')!r}")
+    shape = list(meta["shape"])
+    if meta["layout"] != "grid":
+        if not meta.get("full_lattice"):
+            raise HTTPException(422, f"plan_id samples dense data (every point of a grid); dataset "
+                                     f"{body.dataset_id} is a sensor mask's points")
+        n_y, n_x = int(meta.get("n_y") or 1), int(meta["n_x"])
+        shape = [shape[1], n_x] if n_y == 1 else [shape[1], n_y, n_x]
+    try:
+        check_fit(shape, (meta.get("dx"),), float(meta["dt"]), Plan.from_dict(doc))
+    except (ValueError, ValidationError) as exc:
+        raise HTTPException(422, f"plan {body.plan_id} cannot sample dataset {body.dataset_id}: {reason(exc)}") \
+            from None
+    return {**spec, "plan_id": str(body.plan_id)}, input_shape(doc), f"dataset:{body.dataset_id}+plan:{body.plan_id}"
 
 
 def _with_wavelength(spec: dict, wavelength: int | str | None, wavelengths: list, what: str) -> dict:

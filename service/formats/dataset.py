@@ -51,7 +51,8 @@ def write(path: str | os.PathLike, ds: GridDataset | PointDataset) -> None:
     Both: attribute ``format``, ``layout``, ``source``; ``wavelengths_m`` when known, and
     ``wavelength_index`` (into the source file's wavelengths) when it was chosen from a
     multi-wavelength file; ``p0_unit`` (``"Pa"`` for calibrated pressure, else ``"a.u."``:
-    :func:`service.recon.dataset.p0_unit`).
+    :func:`service.recon.dataset.p0_unit`); ``lateral_shift_m`` (m) when the data carry one
+    (:class:`service.recon.dataset.GridDataset`'s ``lateral_shift``).
 
     Parameters
     ----------
@@ -73,6 +74,8 @@ def write(path: str | os.PathLike, ds: GridDataset | PointDataset) -> None:
         if (ds.meta or {}).get("wavelength_index") is not None:
             f.attrs["wavelength_index"] = int(ds.meta["wavelength_index"])
         f.attrs["p0_unit"] = p0_unit(ds)
+        if ds.lateral_shift is not None:
+            f.attrs["lateral_shift_m"] = np.asarray(ds.lateral_shift, dtype=np.float64)
         if isinstance(ds, GridDataset):
             f.create_dataset("data", data=ds.data)
             f.attrs["dx"] = float(ds.dx)
@@ -130,11 +133,13 @@ def load(source: Source, **_: Any) -> GridDataset | PointDataset:
                                 if "wavelength_index" in f.attrs else {})
         if text(f.attrs.get("p0_unit", "a.u.")) == "Pa":
             meta["p0_unit"] = "Pa"
+        ls = f.attrs.get("lateral_shift_m")
+        shift = tuple(float(v) for v in np.ravel(ls)) if ls is not None and np.size(ls) else None
         if layout == "grid":
             data = f["data"][()]
             dy = float(f.attrs["dy"]) if "dy" in f.attrs and data.ndim == 3 else None
             return GridDataset(data=data, dx=float(f.attrs["dx"]), dt=dt, c=c, dy=dy, t0=t0,
-                               source=origin, wavelengths=wavelengths, meta=meta)
+                               source=origin, wavelengths=wavelengths, meta=meta, lateral_shift=shift)
         if layout != "points":
             raise ValueError(f"unknown dataset layout {layout!r}")
         gx = f["grid_x"][()]
@@ -147,7 +152,7 @@ def load(source: Source, **_: Any) -> GridDataset | PointDataset:
         return PointDataset(alines=f["alines"][()], positions=f["positions"][()],
                             weights=f["weights"][()] if "weights" in f else None, dt=dt, c=c,
                             grid=grid, t0=t0, source=origin, indices=indices, lattice=lattice,
-                            wavelengths=wavelengths, meta=meta)
+                            wavelengths=wavelengths, meta=meta, lateral_shift=shift)
     except (KeyError, TypeError) as exc:
         raise ValueError(f"not a canonical dataset file ({exc})") from None
 

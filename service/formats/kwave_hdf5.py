@@ -8,6 +8,12 @@ depth axis x, so their lateral spacings are ``dy_m`` (our y, or our x in 2-D) an
 (our x); other files use ``dx_m``/``dy_m`` for our x/y (the rule's one owner:
 :mod:`driver.kwave_layout`, shared with the simulator's replay). ``dt_s`` and
 ``c_m_per_s`` give dt and c. The catch-all of HDF5 files: sniffed last.
+
+Lateral coordinates (``GridDataset.lateral_shift``): where the file gives its sensor
+coordinates (1-D datasets ``sensor_z_m``/``sensor_y_m`` in a k-Wave file, ``sensor_x_m``/
+``sensor_y_m`` in others: :func:`driver.kwave_layout.sensor_coordinate_names`) they are
+the grid (unless that axis's spacing is given as an option: it wins); otherwise a k-Wave file follows ``kWaveGrid``'s ``(i - floor(N/2))·dx``, any other
+the centred ``(i - (N - 1)/2)·dx``.
 """
 from __future__ import annotations
 
@@ -20,7 +26,7 @@ from driver import kwave_layout
 from driver.constants import C_DEFAULT
 from service.formats._registry import Format, Source
 from service.formats.load_options import KwaveOptions
-from service.recon.dataset import MAX_ELEMENTS, GridDataset, grid_array, positive
+from service.recon.dataset import MAX_ELEMENTS, GridDataset, grid_array, lateral_shift_of, positive
 
 __all__ = ["FORMAT", "sniff", "load", "find_array"]
 
@@ -141,6 +147,7 @@ def load(source: Source, *, key: str | None = None, dt: float | None = None, dx:
 
     kwave = kwave_layout.is_kwave_named(da, fa)
     lat_x, lat_y = kwave_layout.lateral_spacings(da, fa, data.ndim)
+    given = (dx is not None, dy is not None)  # a spacing given explicitly wins over the file's coordinates
     dt = dt if dt is not None else get("dt_s")
     dx = dx if dx is not None else lat_x
     if dt is None:
@@ -154,8 +161,25 @@ def load(source: Source, *, key: str | None = None, dt: float | None = None, dx:
         dy = None
     c = c if c is not None else get("c_m_per_s")
     meta = {"key": name, "kwave_naming": kwave, **(_ground_truth(f, data, dx) if ground_truth else {})}
+    spacings = (dx,) if dy is None else (dx, dy)
+    coords = tuple(None if g else v for g, v in zip(given, _coordinates(f, kwave, data.ndim), strict=False))
+    shift = lateral_shift_of(data.shape, spacings, coords, kwave_grid=kwave)
     return GridDataset(data=data, dx=dx, dy=dy, dt=positive("dt", dt),
-                       c=positive("c", c if c is not None else C_DEFAULT), source="kwave-hdf5", meta=meta)
+                       c=positive("c", c if c is not None else C_DEFAULT), source="kwave-hdf5", meta=meta,
+                       lateral_shift=shift)
+
+
+def _coordinates(f: h5py.File, kwave: bool, ndim: int) -> tuple[np.ndarray | None, ...]:
+    """The file's sensor coordinates ``(x,)`` / ``(x, y)`` (m; None where it gives none):
+    the 1-D datasets :func:`driver.kwave_layout.sensor_coordinate_names` names."""
+    out: list[np.ndarray | None] = []
+    for n in kwave_layout.sensor_coordinate_names(kwave, ndim):
+        obj = f.get(n) if n else None
+        if isinstance(obj, h5py.Dataset) and obj.ndim == 1 and obj.size <= 1 << 20:
+            out.append(np.asarray(obj[()], dtype=np.float64))
+        else:
+            out.append(None)
+    return tuple(out)
 
 
 FORMAT = Format(rank=20, name="kwave-hdf5", title="HDF5, k-Wave layout", container="hdf5", sniff=sniff, load=load,

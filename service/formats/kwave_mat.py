@@ -40,6 +40,11 @@ What is read (names as k-Wave's examples save them; options first, then the file
 - the sound speed (m/s): the option, else ``c0``, ``c``, ``sound_speed`` or a scalar
   ``medium.sound_speed``, else 1500.
 
+- the lateral coordinates (``GridDataset.lateral_shift``): ``kgrid.z_vec``/``kgrid.y_vec``
+  (3-D; ``kgrid.y_vec`` in 2-D) of a saved ``struct(kgrid)`` where their lengths match the
+  data's, else k-Wave's own ``kWaveGrid`` convention ``(i - floor(N/2))·dx`` (a k-Wave user's
+  overlays on ``kgrid`` line up).
+
 A saved ``kWaveGrid`` object (a MATLAB class instance) is opaque outside MATLAB: save its
 ``dt``, ``dx``, ... as plain variables, or ``kgrid = struct(kgrid)``. Sample 0 is at t = 0
 (k-Wave's ``kgrid.t_array``).
@@ -57,7 +62,7 @@ from driver import kwave_layout
 from driver.constants import C_DEFAULT
 from service.formats._registry import Format, Source
 from service.formats.load_options import KwaveOptions
-from service.recon.dataset import MAX_ELEMENTS, GridDataset, grid_array, positive
+from service.recon.dataset import MAX_ELEMENTS, GridDataset, grid_array, lateral_shift_of, positive
 
 __all__ = ["FORMAT", "sniff", "load", "V5_TEXT", "V73_TEXT", "read_variables"]
 
@@ -425,8 +430,21 @@ def load(source: Source, *, key: str | None = None, dt: float | None = None, dx:
                             "mat_version": "7.3" if source.h5 is not None else "5"}
     if ground_truth:
         meta.update(_ground_truth(variables, data, spacing["dx"] if spacing["dx"] is not None else dx))
+    vecs = ("kgrid.z_vec", "kgrid.y_vec") if data.ndim == 3 else ("kgrid.y_vec",)
+    coords = tuple(_vector(_get(variables, v), n) for v, n in zip(vecs, (data.shape[-1], data.shape[1]), strict=False))
+    shift = lateral_shift_of(data.shape, (dx,) if dy is None else (dx, dy), coords, kwave_grid=True)
     return GridDataset(data=data, dx=dx, dy=dy, dt=positive("dt", dt),
-                       c=positive("c", c if c is not None else C_DEFAULT), source="kwave-mat", meta=meta)
+                       c=positive("c", c if c is not None else C_DEFAULT), source="kwave-mat", meta=meta,
+                       lateral_shift=shift)
+
+
+def _vector(value: Any, n: int) -> np.ndarray | None:
+    """A saved ``kgrid`` coordinate vector (m) of ``n`` real numbers, else None (the grid is
+    then k-Wave's own convention)."""
+    if value is None:
+        return None
+    a = np.asarray(value)
+    return a.astype(np.float64).reshape(-1) if a.dtype.kind in "iuf" and a.size == n else None
 
 
 FORMAT = Format(rank=30, name="kwave-mat", title="k-Wave MAT-file (MATLAB/Octave save: v5, v7, v7.3)", container="any",

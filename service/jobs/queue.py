@@ -268,6 +268,17 @@ class ReconQueue:
     def _launch(self, job: dict) -> tuple[str, Callable[[], None]]:
         return f"recon-{job['id'][:8]}", lambda: self._run(job)
 
+    def _extras(self, job: dict) -> dict:
+        """The worker spec's parts some jobs have: a multi-wavelength unmixing job's
+        (``unmix``, ``inputs``, ``wavelengths``: service.spectral) and a dense dataset sampled by
+        a stored plan's mask (``plan``, its JSON: service.subsample; None where it is gone)."""
+        out = {key: job["params"][key] for key in ("unmix", "inputs", "wavelengths")
+               if job["params"].get(key) is not None}
+        plan_id = (job["params"]["input"] or {}).get("plan_id")
+        if plan_id is not None:
+            out["plan"] = self.store.get_plan_text(plan_id)
+        return out
+
     def _run(self, job: dict) -> None:
         jid = job["id"]
         # one folder per attempt: a worker orphaned by a server crash may still finish the
@@ -285,9 +296,7 @@ class ReconQueue:
                 "progress_path": str(progress_path), "memory_limit": int(self.settings.memory_limit),
                 "memory_estimate": job["params"].get("memory_estimate"),  # made once, at submission
                 "cancel_path": str(cancel_path)}
-        for key in ("unmix", "inputs", "wavelengths"):  # a multi-wavelength unmixing job (service.spectral)
-            if job["params"].get(key) is not None:
-                spec[key] = job["params"][key]
+        spec.update(self._extras(job))
         needed = int(job["params"].get("result_bytes") or 0)
         self._progress(jid, {"fraction": 0.0, "stage": "starting"})
         log.info("recon start job=%s attempt=%s method=%s", jid, job["attempts"], spec["params"]["method"])

@@ -117,6 +117,8 @@ def progress_file(path: str | None) -> Progress:
         seconds = eta(fraction, stage)
         if seconds is not None:
             fields["eta_s"] = round(seconds, 1)
+            if eta.bound_s is not None:  # an iterative method's: an estimate, bounded by its iteration limit
+                fields.update(eta_max_s=round(eta.bound_s, 1), eta_basis=eta.basis)
         known = set(fields)
         fields.update(dict.fromkeys(before - known))  # cleared, not left stale in the merged progress
         before = known
@@ -433,7 +435,20 @@ def _run_reconstruction(spec: dict) -> dict:
                         wavelength=None if unmix is not None else spec["input"].get("wavelength"),
                         wavelengths=spec.get("wavelengths"), unmix=None if unmix is None else dict(unmix),
                         input_id=spec.get("input_id", ""), progress=progress_file(progress),
+                        plan=_plan(spec),
                         should_stop=(lambda: os.path.exists(cancel)) if cancel else None, on_loaded=admit, **params)
+
+
+def _plan(spec: dict) -> Any:
+    """The plan a job samples its dense dataset with (``spec["plan"]``, its JSON), or None
+    for a job without one; ValueError where the job has one and the store no longer does."""
+    if "plan" not in spec:
+        return None
+    if spec["plan"] is None:
+        raise ValueError(f"the plan {spec['input'].get('plan_id')} this job samples its dataset with is gone")
+    from service.plans import Plan
+
+    return Plan.from_json(spec["plan"])
 
 
 def worker_pid() -> int:

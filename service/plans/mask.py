@@ -448,6 +448,20 @@ class Mask:
     rings: np.ndarray | None = None
     design: dict = field(default_factory=dict)
 
+    def __repr__(self) -> str:
+        """One line: the kind, points obtained of the lattice's, the lattice and the weight
+        ratio (never the arrays).
+
+        Examples
+        --------
+        >>> from service.plans import Lattice, full_mask
+        >>> full_mask(Lattice(3, 3, 1e-4))
+        Mask(full: 9 of 9 points on 3x3 at 100 µm, weight ratio 1)
+        """
+        lat = self.lattice
+        return (f"Mask({self.kind}: {self.obtained_points} of {lat.n_x * lat.n_y} points on {lat.n_x}x{lat.n_y} at "
+                f"{lat.pitch * 1e6:.4g} µm, weight ratio {self.weight_ratio:.4g})")
+
     @property
     def positions(self) -> np.ndarray:
         """``(n, 2)`` positions (x, y) in m (y = 0 on a line lattice)."""

@@ -11,7 +11,10 @@ excitation ``wavelengths`` (m) it was acquired at; one read from a multi-wavelen
 records ``meta["wavelength_index"]`` and the file's ``meta["wavelengths"]``.
 
 Lateral grids are centred on the optical axis (docs/architecture.md):
-``x_i = (i - (n_x - 1)/2)·dx``.
+``x_i = (i - (n_x - 1)/2)·dx``; a dataset whose file gives its own sensor coordinates, or
+follows k-Wave's ``kWaveGrid`` (``(i - floor(N/2))·dx``), carries the difference as
+``lateral_shift`` (m), which :func:`service.pipeline.reconstruct` adds to the image's
+lateral coordinates (docs/file-formats.md "Lateral coordinates").
 """
 from __future__ import annotations
 
@@ -25,7 +28,7 @@ from driver.physics.axes import centred_axis
 
 __all__ = ["GridDataset", "PointDataset", "Dataset", "MAX_ELEMENTS", "ALL_WAVELENGTHS", "check_wavelength",
            "check_wavelength_index", "file_wavelengths", "wavelength_params", "p0_unit", "positive",
-           "grid_array", "lattice_axes", "dataset_nbytes"]
+           "grid_array", "lattice_axes", "dataset_nbytes", "lateral_shift_of"]
 
 MAX_ELEMENTS = 2 ** 31
 #: ``wavelength="all"``: every wavelength of a multi-wavelength file, one dataset (one volume) each
@@ -153,7 +156,7 @@ class GridDataset:
 
     Parameters
     ----------
-    data, dx, dt, c, dy, t0, source, meta, wavelengths
+    data, dx, dt, c, dy, t0, source, meta, wavelengths, lateral_shift
         As the attributes below.
 
     Attributes
@@ -176,6 +179,10 @@ class GridDataset:
         Anything else (``p0_unit``, ``wavelength_index``, ...).
     wavelengths : tuple of float or None
         Excitation wavelength(s) of these data, m.
+    lateral_shift : tuple of float or None
+        ``(x,)`` or ``(x, y)``, m: the data's own lateral coordinates minus the centred ones of
+        :meth:`axes` (the file's sensor coordinates, or k-Wave's ``kWaveGrid`` origin); the
+        reconstruction's ``x``/``y`` are shifted by it. None: the centred convention.
     kind : str
         ``"grid"``.
     ndim : int
@@ -202,8 +209,25 @@ class GridDataset:
     source: str = ""
     meta: dict = field(default_factory=dict)
     wavelengths: tuple[float, ...] | None = None
+    lateral_shift: tuple[float, ...] | None = None
 
     kind = "grid"
+
+    def __repr__(self) -> str:
+        """One line: the source, shape and axes, spacings, dt and c (never the array).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from service.recon.dataset import GridDataset
+        >>> GridDataset(np.zeros((64, 3, 4), np.float32), dx=1e-4, dt=2e-8, c=1500.0)
+        GridDataset((64, 3, 4) float32 (n_t, n_y, n_x), dx 100 µm, dy 100 µm, dt 20 ns, c 1500 m/s)
+        """
+        axes = "(n_t, n_x)" if self.data.ndim == 2 else "(n_t, n_y, n_x)"
+        dy = f", dy {(self.dy or self.dx) * 1e6:.4g} µm" if self.data.ndim == 3 else ""
+        src = f"{self.source}: " if self.source else ""
+        return (f"GridDataset({src}{tuple(self.data.shape)} {self.data.dtype} {axes}, dx {self.dx * 1e6:.4g} µm{dy}, "
+                f"dt {self.dt * 1e9:.4g} ns, c {self.c:g} m/s)")
 
     @property
     def ndim(self) -> int:
@@ -257,7 +281,7 @@ class GridDataset:
             positions = np.stack([xx.ravel(), yy.ravel()], axis=1)
         return PointDataset(alines=alines, positions=positions, weights=None, dt=self.dt, c=self.c,
                             grid=axes, t0=self.t0, source=self.source, meta=dict(self.meta),
-                            wavelengths=self.wavelengths)
+                            wavelengths=self.wavelengths, lateral_shift=self.lateral_shift)
 
 
 @dataclass
@@ -267,7 +291,7 @@ class PointDataset:
 
     Parameters
     ----------
-    alines, positions, weights, dt, c, grid, t0, source, meta, indices, lattice, wavelengths
+    alines, positions, weights, dt, c, grid, t0, source, meta, indices, lattice, wavelengths, lateral_shift
         As the attributes below.
 
     Attributes
@@ -296,6 +320,9 @@ class PointDataset:
         ``{"n_x", "n_y", "pitch"}`` (pitch in m) of that lattice.
     wavelengths : tuple of float or None
         Excitation wavelength(s), m.
+    lateral_shift : tuple of float or None
+        ``(x,)`` or ``(x, y)``, m, added to the reconstruction's lateral coordinates (as
+        :class:`GridDataset`'s; ``positions`` and ``grid`` stay in the centred frame).
     kind : str
         ``"points"``.
     ndim : int
@@ -335,8 +362,30 @@ class PointDataset:
     indices: np.ndarray | None = None
     lattice: dict | None = None
     wavelengths: tuple[float, ...] | None = None
+    lateral_shift: tuple[float, ...] | None = None
 
     kind = "points"
+
+    def __repr__(self) -> str:
+        """One line: the source, points × samples, the lattice, weights, dt and c (never the arrays).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from service.recon.dataset import PointDataset
+        >>> PointDataset(alines=np.ones((3, 64)), positions=np.array([[-1e-4], [0.0], [1e-4]]),
+        ...              weights=None, dt=2e-8, c=1500.0, grid=(np.array([-1e-4, 0.0, 1e-4]),),
+        ...              indices=np.array([[0, 0], [1, 0], [2, 0]]), lattice={"n_x": 3, "n_y": 1, "pitch": 1e-4})
+        PointDataset(3 points x 64 samples float64, lattice 3x1 at 100 µm, Voronoi weights, dt 20 ns, c 1500 m/s)
+        """
+        n, n_t = self.alines.shape
+        lat = self.lattice
+        where = (f", lattice {lat['n_x']}x{lat.get('n_y', 1)} at {float(lat['pitch']) * 1e6:.4g} µm"
+                 if lat else "")
+        weights = "weighted" if self.weights is not None else "Voronoi weights"
+        src = f"{self.source}: " if self.source else ""
+        return (f"PointDataset({src}{n} points x {n_t} samples {self.alines.dtype}{where}, {weights}, "
+                f"dt {self.dt * 1e9:.4g} ns, c {self.c:g} m/s)")
 
     @property
     def ndim(self) -> int:
@@ -402,7 +451,7 @@ class PointDataset:
         pitch = float(self.lattice["pitch"])
         return GridDataset(data=data[:, 0, :] if n_y == 1 else data, dx=pitch, dt=self.dt, c=self.c,
                            dy=None if n_y == 1 else pitch, t0=self.t0, source=self.source,
-                           meta=dict(self.meta), wavelengths=self.wavelengths)
+                           meta=dict(self.meta), wavelengths=self.wavelengths, lateral_shift=self.lateral_shift)
 
 
 Dataset = GridDataset | PointDataset
@@ -539,6 +588,78 @@ def lattice_axes(lattice: dict) -> tuple[np.ndarray, np.ndarray]:
     """
     pitch = float(lattice["pitch"])
     return centred_axis(int(lattice["n_x"]), pitch), centred_axis(int(lattice.get("n_y", 1)), pitch)
+
+
+def lateral_shift_of(shape: tuple[int, ...], spacings: tuple[float, ...], coordinates: tuple[Any, ...] = (),
+                     *, kwave_grid: bool = False) -> tuple[float, ...] | None:
+    """The ``lateral_shift`` of grid data (:class:`GridDataset`): its own lateral coordinates
+    minus the centred ones, ``(i - (n - 1)/2)·d``.
+
+    Per lateral axis (x, then y): the coordinates the file gives, checked to be a regular
+    grid at the spacing; else, for k-Wave's grid (``kwave_grid``), ``kWaveGrid``'s own
+    ``(i - floor(n/2))·d`` (``x_vec``/``y_vec``: a shift of -d/2 on an even axis, none on an
+    odd one); else the centred axis (no shift).
+
+    Parameters
+    ----------
+    shape : tuple of int
+        The data's shape, ``(n_t, n_x)`` or ``(n_t, n_y, n_x)``.
+    spacings : tuple of float
+        ``(dx,)`` or ``(dx, dy)``, m.
+    coordinates : tuple of array_like or None, optional
+        ``(x,)`` or ``(x, y)``: each axis's sensor coordinates, m, shape ``(n,)``, or None
+        where the file gives none.
+    kwave_grid : bool, optional
+        Whether an axis without coordinates follows k-Wave's ``kWaveGrid``.
+
+    Returns
+    -------
+    tuple of float or None
+        ``(sx,)`` or ``(sx, sy)``, m; None when every shift is 0.
+
+    Raises
+    ------
+    ValueError
+        Coordinates of the wrong length, not increasing at the spacing (to 1e-6 of it), or
+        not finite, naming the axis.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from service.recon.dataset import lateral_shift_of
+    >>> [round(v * 1e6, 6) for v in lateral_shift_of((10, 4, 4), (1e-4, 1e-4), kwave_grid=True)]  # µm
+    [-50.0, -50.0]
+    >>> lateral_shift_of((10, 3), (1e-4,), kwave_grid=True) is None  # odd: the same
+    True
+    >>> [round(v * 1e6, 6) for v in lateral_shift_of((10, 3), (1e-4,), (np.array([0.0, 1e-4, 2e-4]),))]  # µm
+    [100.0]
+    >>> lateral_shift_of((10, 3), (1e-4,), (np.array([0.0, 2e-4, 4e-4]),))
+    Traceback (most recent call last):
+    ...
+    ValueError: the sensor x coordinates are not a regular grid at the spacing 0.0001 m (steps 0.0002 to 0.0002 m)
+    """
+    sizes = (shape[-1],) if len(shape) == 2 else (shape[-1], shape[1])
+    out = []
+    for k, n in enumerate(sizes):
+        d = float(spacings[k])
+        given = coordinates[k] if k < len(coordinates) else None
+        centred0 = -(n - 1) / 2.0 * d
+        if given is not None:
+            c = np.asarray(given, dtype=np.float64).reshape(-1)
+            name = "xy"[k]
+            if c.size != n:
+                raise ValueError(f"the file's {c.size} sensor {name} coordinates do not match the data's {n} "
+                                 f"sensors along {name}")
+            steps = np.diff(c)
+            if not np.isfinite(c).all() or (steps.size and np.abs(steps - d).max() > 1e-6 * d):
+                raise ValueError(f"the sensor {name} coordinates are not a regular grid at the spacing {d:g} m "
+                                 f"(steps {steps.min():g} to {steps.max():g} m)")
+            out.append(float(np.mean(c - centred_axis(n, d))))
+        elif kwave_grid:
+            out.append(-(n // 2) * d - centred0)
+        else:
+            out.append(0.0)
+    return tuple(out) if any(out) else None
 
 
 def check_wavelength_index(index: int, wavelengths: Any, what: str) -> None:

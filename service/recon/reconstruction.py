@@ -53,6 +53,26 @@ class Reconstruction:
     params: dict = field(default_factory=dict)
     p0_unit: str = "a.u."
 
+    def __repr__(self) -> str:
+        """One line: the method, p0's shape, axes, unit and peak, and each axis's extent
+        (never the arrays).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from service.recon import Reconstruction
+        >>> Reconstruction(p0=np.ones((4, 3)), z=np.arange(4) * 1e-4, x=np.array([-1e-4, 0.0, 1e-4]),
+        ...                params={"method": "ner"})
+        Reconstruction(ner: p0 (4, 3) float64 (n_z, n_x) a.u., max 1, z 0 to 0.3 mm, x -0.1 to 0.1 mm)
+        """
+        axes = "(n_z, n_x)" if self.p0.ndim == 2 else "(n_z, n_y, n_x)"
+        method = self.params.get("method")
+        peak = f", max {float(np.max(self.p0)):.4g}" if self.p0.size else ""
+        extents = [(name, v) for name, v in (("z", self.z), ("y", self.y), ("x", self.x)) if v is not None and len(v)]
+        span = "".join(f", {name} {float(v[0]) * 1e3:.4g} to {float(v[-1]) * 1e3:.4g} mm" for name, v in extents)
+        return (f"Reconstruction({method + ': ' if method else ''}p0 {tuple(self.p0.shape)} {self.p0.dtype} {axes} "
+                f"{self.p0_unit}{peak}{span})")
+
     @property
     def ndim(self) -> int:
         """2 for a line-sensor (x, z) image, 3 for a plane-sensor volume."""

@@ -1037,11 +1037,11 @@ def _fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray]
             change = max(steps)
         elapsed = time.monotonic() - started
         if iterations is not None:
-            # the stage "iteration k/N" carries the stopping rule's value (its window so far) and tol
-            # (tol unknown while λ still falls: the rule cannot stop the run there)
+            # the stage "iteration k/N" carries the stopping rule's value (its window so far) and tol,
+            # not yet armed while λ still falls (the rule cannot stop the run there)
             waiting = continuation is not None and not continuation.window_at_lambda(it) and tol > 0
             iterations(max(it / max_iter, elapsed / time_limit),
-                       IterationStage(it, max_iter, max(steps), None if waiting else tol))
+                       IterationStage(it, max_iter, max(steps), tol, armed=not waiting))
         # the rule's window holds iterations at λ itself only (none of the continuation's)
         if 0.0 <= change < tol and (continuation is None or continuation.window_at_lambda(it)):
             stop_reason = "converged"

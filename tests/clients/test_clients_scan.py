@@ -236,7 +236,9 @@ def test_progress_bar_on_a_terminal(slow_scanner):
 def test_server_dying_mid_wait_raises_server_unavailable(tmp_path):
     """SIGKILL the server while the client waits on a running scan: wait() ends with
     ServerUnavailable (no hang), and the job survives in the SQLite file for the next
-    server (which reports it as paused, resumable)."""
+    server (which reports it as paused, resumable). The command line against the dead server
+    says what survives and the commands that reattach; `fpscan jobs resume` then `jobs wait`
+    finish the scan on the next server."""
     import os
     import signal
     import threading
@@ -267,10 +269,21 @@ def test_server_dying_mid_wait_raises_server_unavailable(tmp_path):
                 t.join(timeout=HANG_S)
                 assert not t.is_alive()
                 assert isinstance(outcome.get("error"), ServerUnavailable), outcome
+        # the command line against the server that is gone: what survives and how to reattach (issue 61.5)
+        gone = fpscan("jobs", "wait", job_id, "--server", url)
+        assert gone.returncode == 1 and "Traceback" not in gone.stderr, gone.stderr
+        assert f"Job {job_id} is kept in the server's job store" in gone.stderr, gone.stderr
+        assert f"fpscan jobs wait {job_id} --server {url}" in gone.stderr, gone.stderr
+        assert f"fpscan jobs resume {job_id} --server {url}" in gone.stderr, gone.stderr
         with fpscan_server(data, token=TOKEN, devices={"slow": device}) as (url, _srv):
             with Client(url, token=TOKEN) as api:
                 job = api.get_job(job_id)
                 assert job.state == "paused"
+            resumed = fpscan("jobs", "resume", job_id[:12], "--server", url)
+            assert resumed.returncode == 0, resumed.stderr
+            assert f"{job_id}: " in resumed.stdout and f"fpscan jobs wait {job_id[:12]}" in resumed.stdout
+            waited = fpscan("jobs", "wait", job_id, "--server", url, "--quiet")
+            assert waited.returncode == 0 and f"{job_id}: succeeded" in waited.stdout, waited.stderr
 
 
 def test_cli_cancel_of_a_running_scan(slow_scanner):

@@ -67,6 +67,25 @@ def test_progress_lines_repeat_every_period_between_reports():
     assert len(etas) == len(lines) and etas == sorted(etas, reverse=True), lines
 
 
+def test_a_complete_state_is_said_once():
+    """Issue 61.2: a scan at every point done (its job still wrapping up: the final live
+    preview) is one line, not one every period; a witness bar beside it, same period, shows
+    that several periods passed (its unfinished line came again three times)."""
+    from clients.cli._common import ProgressBar
+
+    done_log, witness_log = _Log(), _Log()
+    with ProgressBar("scan", stream=done_log, period=0.05) as done, \
+            ProgressBar("recon", stream=witness_log, period=0.05) as witness:
+        done({"stage": "scanning", "fraction": 1.0, "points_done": 1013, "points_total": 1013})
+        witness({"stage": "reconstructing", "fraction": 0.5})
+        deadline = time.monotonic() + HANG_S
+        while witness_log.getvalue().count("\n") < 4 and time.monotonic() < deadline:
+            time.sleep(0.01)
+    assert witness_log.getvalue().count("\n") >= 4
+    lines = done_log.getvalue().splitlines()
+    assert lines == ["scan: scanning  100%  1013/1013 points"], lines
+
+
 def test_progress_period_from_the_environment(monkeypatch):
     from clients.cli._common import PROGRESS_PERIOD_S, progress_period
 
@@ -115,7 +134,8 @@ def test_wait_joining_a_running_job_reports_stages_in_order(server, tmp_path):
 
 
 def test_eta_of_iterations_moves_at_most_twofold_and_follows_the_measured_rate():
-    """``service.progress.Eta`` fed as a tv solve reports (a clock of the test's own): no
+    """``service.progress.Eta`` fed as a tv solve reports (a clock of the test's own) whose
+    stopping rule does not fall (so the iteration limit is what ends it): no
     estimate in the set-up stages nor before two iterations are measured; then (n - k) times
     the measured time per iteration at a steady rate (the oracle), never more than 2x away
     from the previous estimate counted down by the time since (iterations 2x and 0.25x as
@@ -132,7 +152,7 @@ def test_eta_of_iterations_moves_at_most_twofold_and_follows_the_measured_rate()
     shown: list[tuple[int, float, float]] = []  # (k, when, estimate)
     for k, step in enumerate(steps, start=1):
         now[0] += step
-        e = eta(0.1 + 0.9 * k / n, IterationStage(k, n, rule=1.0 / k, tol=5e-3))
+        e = eta(0.1 + 0.9 * k / n, IterationStage(k, n, rule=0.5, tol=5e-3))
         if k < 3:
             assert e is None, k  # the first interval carries set-up work: two measured first
             continue
@@ -145,6 +165,34 @@ def test_eta_of_iterations_moves_at_most_twofold_and_follows_the_measured_rate()
     assert shown[10][2] == pytest.approx((n - shown[10][0]) * 1.0)  # steady 1 s per iteration
     k, _, last = shown[-1]
     assert last == pytest.approx((n - k) * 1.0, rel=0.05)  # the rate after the slow stretch, measured again
+
+
+def test_eta_of_iterations_is_the_time_to_the_stopping_rule_bounded_by_the_limit():
+    """Issue 61.6: an image change falling geometrically (tenfold every 5 iterations) reaches
+    the tolerance at an iteration the oracle computes (log(tol/value)/log(q)); the ETA is that
+    many iterations x the measured time per iteration, labelled an estimate, with the time to
+    the iteration limit as its bound; the line shows the tolerance (also while λ falls)."""
+    import math
+
+    from clients.cli._common import describe_progress
+    from service.progress import Eta, IterationStage, iteration_fields
+
+    now, n, tol, q = [0.0], 100, 1e-3, 10 ** (-1 / 5)
+    eta = Eta(clock=lambda: now[0])
+    for k in range(1, 11):
+        now[0] += 2.0  # 2 s per iteration
+        stage = IterationStage(k, n, rule=0.5 * q ** k, tol=tol)
+        e = eta(k / n, stage)
+    to_rule = math.log(tol / (0.5 * q ** 10)) / math.log(q)  # 3.5 iterations after iteration 10
+    assert e == pytest.approx(to_rule * 2.0, rel=1e-6) and eta.basis == "stopping rule"
+    assert eta.bound_s == pytest.approx((n - 10) * 2.0)
+    line = describe_progress({"stage": str(stage), **iteration_fields(stage), "eta_s": e, "eta_max_s": eta.bound_s})
+    assert "image change 0.005 (stops below 0.001)" in line, line
+    assert "ETA ~00:07 (estimate: stopping rule; at most 03:00 at the iteration limit)" in line, line
+    waiting = IterationStage(3, n, rule=0.2, tol=tol, armed=False)  # tv while λ still falls
+    fields = iteration_fields(waiting)
+    assert fields["stop_tol"] == tol and fields["stop_armed"] is False
+    assert "(stops below 0.001 once λ has settled)" in describe_progress({"stage": str(waiting), **fields})
 
 
 def test_a_local_tv_run_ends_on_its_outcome(tmp_path):

@@ -29,10 +29,13 @@ pytestmark = pytest.mark.skipif(not (has_command("serve") and has_command("sim")
                                 reason="`fpscan serve`/`fpscan sim` not available")
 
 
-def tour_blocks(text: str) -> list[tuple[str, str]]:
-    """The code blocks of the README's "A five-minute tour", in order: ``("sh", text)`` for an
-    indented block, ``("python", text)`` for a fenced python block."""
-    section = text[text.index("## A five-minute tour"):text.index("## Configuration")]
+TOUR, SPARSE, AFTER = "## A five-minute tour", "## A sparse scan out of dense data", "## Configuration"
+
+
+def tour_blocks(text: str, start: str = TOUR, end: str = SPARSE) -> list[tuple[str, str]]:
+    """The code blocks of a README section (default "A five-minute tour"), in order: ``("sh", text)``
+    for an indented block, ``("python", text)`` for a fenced python block."""
+    section = text[text.index(start):text.index(end)]
     lines = section.splitlines()
     blocks: list[tuple[str, str]] = []
     i = 0
@@ -51,6 +54,23 @@ def tour_blocks(text: str) -> list[tuple[str, str]]:
         else:
             i += 1
     return blocks
+
+
+def checkout(tmp_path):
+    """A checkout's stand-in for the README's ``CHECKOUT``: a folder whose ``.venv`` is this
+    interpreter's environment; the tour itself runs in another, empty folder."""
+    root = tmp_path / "checkout"
+    root.mkdir()
+    (root / ".venv").symlink_to(sys.prefix, target_is_directory=True)
+    fresh = tmp_path / "fresh"
+    fresh.mkdir()
+    return root, fresh
+
+
+def with_checkout(script: str, root) -> str:
+    """The README's ``CHECKOUT=~/fpscan`` line pointed at ``root``."""
+    assert script.count("CHECKOUT=~/fpscan ") == 1
+    return script.replace("CHECKOUT=~/fpscan ", f"CHECKOUT={root} ")
 
 
 def tour_script(blocks: list[tuple[str, str]], port: int) -> str:
@@ -82,9 +102,9 @@ def test_the_readme_states_tvs_own_defaults():
 @pytest.mark.skipif(not (shutil.which("curl") and shutil.which("jq")), reason="the curl section needs curl and jq")
 def test_the_five_minute_tour_runs_as_written(tmp_path):
     blocks = tour_blocks(README.read_text(encoding="utf-8"))
-    script = tour_script(blocks, free_port())
-    (tmp_path / ".venv").symlink_to(sys.prefix, target_is_directory=True)  # `source .venv/bin/activate`
-    proc = subprocess.Popen(["bash", "-c", script], cwd=tmp_path, env=clean_env(), stdout=subprocess.PIPE,
+    root, fresh = checkout(tmp_path)
+    script = with_checkout(tour_script(blocks, free_port()), root)
+    proc = subprocess.Popen(["bash", "-c", script], cwd=fresh, env=clean_env(), stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True, start_new_session=True)
     try:
         out, _ = proc.communicate(timeout=HANG_S)
@@ -94,6 +114,7 @@ def test_the_five_minute_tour_runs_as_written(tmp_path):
         except ProcessLookupError:
             pass
         proc.wait()
+    tmp_path = fresh
     logs = "".join(f"\n--- {p.name}\n{p.read_text(errors='replace')[-3000:]}" for p in
                    (tmp_path / "serve.log", tmp_path / "sim.log") if p.exists())
     assert proc.returncode == 0, out[-6000:] + logs
@@ -107,3 +128,31 @@ def test_the_five_minute_tour_runs_as_written(tmp_path):
     with h5py.File(tmp_path / "scan-nedner/volume.h5", "r") as a, h5py.File(tmp_path / "remote-nedner/volume.h5") as b:
         np.testing.assert_array_equal(a["p0"][...], b["p0"][...])  # "both give the same volume"
     assert "Broken pipe" not in out and "Traceback" not in out, out[-6000:]
+
+
+def test_the_sparse_from_dense_section_runs_as_written(tmp_path, shared_data):
+    """"A sparse scan out of dense data": its commands and its Python, after the tour's first two
+    lines (``CHECKOUT``, the activated venv), in a fresh folder; its volumes are the library's."""
+    import fpscan
+
+    text = README.read_text(encoding="utf-8")
+    blocks = tour_blocks(text, SPARSE, AFTER)
+    assert [k for k, _ in blocks] == ["sh", "python"], blocks
+    first = tour_blocks(text)[0][1].splitlines()
+    head = "\n".join(line for line in first if line.startswith(("CHECKOUT=", "source ")))
+    root, fresh = checkout(tmp_path)
+    parts = ["set -e", head, blocks[0][1], f"python - <<'FPSCAN_README_PY'\n{blocks[1][1]}\nFPSCAN_README_PY"]
+    env = {**clean_env(), "FPSCAN_SHARED": str(shared_data.parent)}
+    r = subprocess.run(["bash", "-c", with_checkout("\n".join(parts) + "\n", root)], cwd=fresh, env=env,
+                       capture_output=True, text=True, timeout=HANG_S)
+    assert r.returncode == 0, r.stdout[-4000:] + r.stderr[-4000:]
+    assert "Traceback" not in r.stderr
+    sparse = fpscan.subsample(fpscan.load_dataset(shared_data / "kwave3d_balls_yarn.h5"),
+                              fpscan.load_plan(fresh / "sparse_plan.json"))
+    assert sparse.alines.shape[0] == 976
+    want = fpscan.reconstruct(sparse, "nedner")
+    got = fpscan.read_result(fresh / "kwave-sparse" / "volume.h5")
+    np.testing.assert_array_equal(got.p0, want.p0)
+    np.testing.assert_allclose(got.x, want.x, atol=1e-15)
+    assert (fresh / "kwave-dense" / "volume.h5").exists()
+    assert "PointDataset" in r.stdout and "976" in r.stdout, r.stdout

@@ -163,13 +163,14 @@ def test_lambda_continues_from_the_warm_starts_discrepancy_down_to_lambda():
     assert given["lam_start_factor"] == pytest.approx(f0, rel=1e-9) and given["continuation_iterations"] == n
     off = _tv(case, continuation=False, max_iter=5, tol=0.0).params
     assert off["lam_start_factor"] == 1.0 and off["continuation_iterations"] == 0
-    # the progress says so: no tolerance while λ still falls (the rule cannot stop the run there)
+    # the progress says so: the tolerance throughout, the rule not armed while λ still falls (it
+    # cannot stop the run there; issue 61.6: the line shows the tolerance, "once λ has settled")
     stages: list = []
     _tv(case, progress=lambda f, stage: stages.append(stage))  # the default run again, watched
-    tols = {s.k: s.tol for s in stages if isinstance(s, IterationStage)}
-    assert sorted(tols) == list(range(1, p["iterations"] + 1)), sorted(tols)
-    assert all(tols[k] is None for k in range(1, n + 3)), tols
-    assert all(tols[k] == p["tol"] for k in range(n + 3, p["iterations"] + 1)), tols
+    seen = {s.k: (s.tol, s.armed) for s in stages if isinstance(s, IterationStage)}
+    assert sorted(seen) == list(range(1, p["iterations"] + 1)), sorted(seen)
+    assert all(seen[k] == (p["tol"], False) for k in range(1, n + 3)), seen
+    assert all(seen[k] == (p["tol"], True) for k in range(n + 3, p["iterations"] + 1)), seen
 
 
 def test_continuation_stops_nearer_the_minimiser_on_a_sparse_3d_mask():

@@ -110,13 +110,14 @@ def test_every_option_boundary_is_judged_alike_by_library_cli_and_http(server, t
             if name in ("dtype", "interp"):  # argparse's own choices: named, not reworded
                 assert name in http.json()["detail"] and name in lib and f"--{name}" in err, (case, err)
                 continue
-            # the kernel rule's own words at every door (the range named); the command line
-            # names its own flag where the rule says "force" (clients.cli.in_flags)
+            # the kernel rule at every door (the range named), in each door's words: the command
+            # line's flags (clients.cli.in_flags), the request's JSON fields (issue 61.7)
             from clients.cli import in_flags
+            from service.names import PERSON_NAMES, renamed_words
 
             rule = lib.split(", got")[0].removeprefix(f"{name}: ")
-            assert rule in http.json()["detail"], (case, lib, http.json()["detail"])
-            assert in_flags(rule) in err, (case, lib, err)
+            assert renamed_words(rule, PERSON_NAMES) in http.json()["detail"], (case, lib, http.json()["detail"])
+            assert in_flags(rule, options=True) in err, (case, lib, err)
     assert {n for _, n, _ in seen} == {b[1] for b in BOUNDS}
     # the ranges are the kernel's: eps as the issue names it
     assert "eps must be in [1e-14, 1e-1]" in _library("ner", {"eps": 5e-15})
@@ -139,8 +140,14 @@ def test_an_option_the_method_does_not_take_is_refused_naming_its_options(
     code = _cli(["recon", str(npy), "--dt", repr(DT), "--dx", repr(DX), "--quiet", "--out", str(tmp_path / "o"),
                  "--method", method, flag, str(value)])
     err = capsys.readouterr().err
-    assert code == 2 and f"takes no option {option}" in err and its in err, (code, err)
+    # each door in its own words (issue 61.7): the command line's flags, the request's JSON fields
+    from clients.cli import in_flags
+    from service.names import PERSON_NAMES, renamed_words
+
+    assert code == 2 and f"takes no option {flag}" in err and in_flags(its, options=True) in err, (code, err)
     with shared_server.client() as api:
         r = api.post("/api/reconstructions", json={"dataset_id": "0" * 32, "method": method,
                                                    "params": {option: value}})
-    assert r.status_code == 422 and f"takes no option {option}" in r.json()["detail"], r.text
+    detail = r.json()["detail"]
+    assert r.status_code == 422 and f"takes no option {option}" in detail, r.text
+    assert renamed_words(its, PERSON_NAMES) in detail, r.text

@@ -40,7 +40,7 @@ def _input(body: dict[str, Any], scan_job_id: str | None, dataset_id: str | None
 
 def _build_start_reconstruction(scan_job_id: str | None, dataset_id: str | None, method: str | None,
                                params: Mapping | None, wavelength: int | str | None,
-                               idempotency_key: str | None) -> Call[str | None]:
+                               idempotency_key: str | None, plan_id: str | None = None) -> Call[str | None]:
     """``POST /api/reconstructions`` (:meth:`Reconstructions.start_reconstruction`); both or
     neither input is a ValueError."""
     body: dict[str, Any] = {"params": dict(params or {})}
@@ -48,6 +48,8 @@ def _build_start_reconstruction(scan_job_id: str | None, dataset_id: str | None,
         body["method"] = method
     if wavelength is not None:
         body["wavelength"] = wavelength
+    if plan_id is not None:
+        body["plan_id"] = plan_id
     body = _input(body, scan_job_id, dataset_id)
     return Call(Request("POST", "/api/reconstructions", json=body, headers=idempotency(idempotency_key)),
                 read_job_id)
@@ -137,7 +139,7 @@ class Reconstructions(SyncCaller):
     def start_reconstruction(self, *, scan_job_id: str | None = None, dataset_id: str | None = None,
                              method: str | None = None, params: Mapping | None = None,
                              wavelength: int | str | None = None,
-                             idempotency_key: str | None = None) -> str | None:
+                             idempotency_key: str | None = None, plan_id: str | None = None) -> str | None:
         """``POST /api/reconstructions``: start a reconstruction job.
 
         Parameters
@@ -162,6 +164,9 @@ class Reconstructions(SyncCaller):
             volume's params.
         idempotency_key : str, optional
             Same key -> same job (default: a fresh random key).
+        plan_id : str, optional
+            With ``dataset_id`` (dense data): reconstruct the A-lines this stored plan's sensor
+            mask picks out of it (``fpscan.subsample``: what a replay scan of the data records).
 
         Returns
         -------
@@ -178,7 +183,7 @@ class Reconstructions(SyncCaller):
             The server cannot be reached.
         """
         return self._call(_build_start_reconstruction(scan_job_id, dataset_id, method, params, wavelength,
-                                                     idempotency_key))
+                                                     idempotency_key, plan_id))
 
     def start_unmix(self, *, scan_job_id: str | None = None, dataset_ids: Sequence[str] | None = None,
                     wavelengths: Sequence[float] | None = None, method: str | None = None,
@@ -377,10 +382,10 @@ class AsyncReconstructions(AsyncCaller):
     async def start_reconstruction(self, *, scan_job_id: str | None = None, dataset_id: str | None = None,
                                    method: str | None = None, params: Mapping | None = None,
                                    wavelength: int | str | None = None,
-                                   idempotency_key: str | None = None) -> str | None:
+                                   idempotency_key: str | None = None, plan_id: str | None = None) -> str | None:
         """As :meth:`Reconstructions.start_reconstruction`, awaited."""
         return await self._call(_build_start_reconstruction(scan_job_id, dataset_id, method, params, wavelength,
-                                                           idempotency_key))
+                                                           idempotency_key, plan_id))
 
     async def start_unmix(self, *, scan_job_id: str | None = None, dataset_ids: Sequence[str] | None = None,
                           wavelengths: Sequence[float] | None = None, method: str | None = None,

@@ -1,0 +1,48 @@
+"""Words the user typed (issue 61.7): the command line's errors name its flags (``--lambda``,
+``--key``, ``--sound-speed``), not the library's keywords; its help lists every input format and
+every action as it is spelled. Oracle: the flags argparse declares (``fpscan recon --help``)."""
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import scipy.io
+
+from tests.clients.clients_servers import clean_env
+
+
+def fpscan(*args):
+    return subprocess.run([sys.executable, "-m", "clients", *map(str, args)], capture_output=True, text=True,
+                          timeout=120, env=clean_env())
+
+
+def test_refused_options_and_missing_inputs_name_the_flags(tmp_path):
+    np.save(tmp_path / "line.npy", np.zeros((64, 8)))
+    helps = fpscan("recon", "--help").stdout
+    r = fpscan("recon", tmp_path / "line.npy", "--dt", "10ns", "--dx", "100um", "--method", "nedner",
+               "--lambda", "0.1")
+    assert r.returncode == 2, r.stderr
+    assert "takes no option --lambda (its options: --sound-speed, --eps," in r.stderr, r.stderr
+    named = r.stderr.partition("(its options: ")[2].partition(")")[0].split(", ")
+    assert named and all(flag in helps for flag in named), named  # each a flag the command has
+    r = fpscan("recon", tmp_path / "line.npy", "--dt", "10ns", "--dx", "100um", "--method", "ner", "--eps", "1")
+    assert r.returncode == 2 and "error: --eps must be in" in r.stderr, r.stderr
+    r = fpscan("recon", tmp_path / "line.npy", "--dx", "100um")
+    assert r.returncode == 2 and "needs --dt (s) and --dx (m)" in r.stderr, r.stderr
+    scipy.io.savemat(tmp_path / "other.mat", {"p0_true": np.zeros((8, 8)), "rf": np.zeros((8, 40)), "rf2": np.ones((8, 40)), "dt": 1e-8, "dx": 1e-4})
+    r = fpscan("recon", tmp_path / "other.mat")
+    assert r.returncode == 2 and r.stderr.rstrip().endswith("give --key"), r.stderr
+    assert "Traceback" not in r.stderr
+
+
+def test_help_lists_every_input_format_and_action_as_spelled():
+    top = fpscan("--help").stdout
+    assert "list, get, wait on, resume (a paused scan), cancel or delete" in " ".join(top.split())
+    assert "show" not in top.split("jobs", 1)[1].split("\n\n")[0]
+    jobs = fpscan("jobs", "--help").stdout
+    for action in ("list", "get", "wait", "resume", "cancel", "delete"):
+        assert action in jobs, action
+    recon = " ".join(fpscan("recon", "--help").stdout.split())
+    assert "(.mat:" in recon and "v7.3" in recon and ".npy" in recon and "IPASC" in recon
+    assert "kwave-mat" in recon  # --format's choices
