@@ -256,17 +256,19 @@ def gate(row: dict) -> list[str]:
 
 
 def format_row(r: dict) -> str:
-    """One markdown row of the table."""
+    """One markdown row of the table (a row without a reference run shows "-" there)."""
     band = "Nyquist" if r["band"] is None else f"{r['band'] / 1e6:.2f} MHz"
-    seen = f"{r['seen']:.0%} ({r['ref_seen']:.0%}, {r['ner_seen']:.0%})" if "seen" in r else ""
+    ref = f"{r['ref']:.4f}" if "ref" in r else "-"
+    ref_seen = f"{r['ref_seen']:.0%}" if "ref_seen" in r else "-"
+    seen = f"{r['seen']:.0%} ({ref_seen}, {r['ner_seen']:.0%})" if "seen" in r else ""
     rule = f" | {r['cc300']:.4f}" if "cc300" in r else ""
     if "sweep" in r:
         rule += " | " + " ".join(f"{r['sweep'][k]:.4f}" for k in sorted(r["sweep"], key=int))
     fails = gate(r)
-    return (f"| {r['case']} | {r['mask']} % ({r['points']}) | {r['noise']} | {r['tv']:.4f} | {r['ref']:.4f} | "
+    return (f"| {r['case']} | {r['mask']} % ({r['points']}) | {r['noise']} | {r['tv']:.4f} | {ref} | "
             f"{r['ner']:.4f} | {seen} | {r['amp']:.2f} | {band} ({r['band_reason']}) | "
             f"{' x '.join(map(str, r['grid']))}, {r['dz'] * 1e6:.1f} µm | {r['record']} of {r['n_t']} "
-            f"({r['extent']}) | {r['pairs']:g} ({r['ref_pairs']:g}) | {r['iterations']} | {r['converged']} | "
+            f"({r['extent']}) | {r['pairs']:g} ({r.get('ref_pairs', '-')}) | {r['iterations']} | {r['converged']} | "
             f"{r['lam_factor']:.2f} | {r['tv_s']:.1f}{rule} | {'pass' if not fails else '; '.join(fails)} |")
 
 

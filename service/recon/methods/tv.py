@@ -232,7 +232,7 @@ DEBIAS_ITERATIONS = 10
 
 def grid(n_t: int, dt: float, c: float, *, dz: float | None = None, n_z: int | None = None,
          t0: float = 0.0, bandwidth: float | None = None, record_facts: dict | None = None,
-         whole_record: bool = False) -> tuple[float, int]:
+         whole_record: bool = False, dx: float | None = None, n_x: int = 1, n_y: int = 1) -> tuple[float, int]:
     """The image grid of tv for a record: ``(dz, n_z)`` (m, rows) as tv chooses it
     (``service.recon.tv_grid.tv_grid``: from a stored dataset's ``record_facts``, else the
     whole, full-band record's or a declared ``bandwidth``'s in Hz, the largest it can pick), the
@@ -256,6 +256,11 @@ def grid(n_t: int, dt: float, c: float, *, dz: float | None = None, n_z: int | N
         ignored (the whole record is sized).
     whole_record : bool, optional
         tv's option: the whole record and its depth.
+    dx : float, optional
+        The lateral pitch of the ``n_x`` × ``n_y`` lattice, m: the band it resolves (without it,
+        the record's own band: the finest grid tv may choose).
+    n_x, n_y : int, optional
+        The lattice (the sensors' reach: its diagonal).
 
     Returns
     -------
@@ -276,11 +281,14 @@ def grid(n_t: int, dt: float, c: float, *, dz: float | None = None, n_z: int | N
     >>> dz, n_z = grid(1024, 8e-9, 1500.0, bandwidth=20e6)  # a 20 MHz sensor: a coarser grid
     >>> round(dz * 1e6, 2), n_z
     (37.5, 328)
+    >>> dz, n_z = grid(1024, 8e-9, 1500.0, dx=60e-6, n_x=226, n_y=226)  # the band 60 µm resolves: isotropic
+    >>> round(dz * 1e6, 2), n_z
+    (60.0, 205)
     """
     from service.recon.planar import _depth_axis  # the depth axis's own checks (range, reach)
 
     chosen = _chosen_grid(n_t, dt, c, dz=dz, n_z=n_z, t0=t0, bandwidth=bandwidth, record_facts=record_facts,
-                          whole_record=whole_record)
+                          whole_record=whole_record, dx=dx, n_x=n_x, n_y=n_y)
     _depth_axis(int(n_t), float(dt), float(c), chosen.dz, chosen.n_z, float(t0 or 0.0))
     return float(chosen.dz), int(chosen.n_z)
 
