@@ -95,6 +95,14 @@ class Settings(BaseSettings):
                                 "bytes: a longer head is refused with 431 before the app sees it")
     keep_alive_s: float = Field(5.0, gt=0, le=3600, description="an idle kept-alive connection is closed after "
                                 "this long, s")
+    send_timeout_s: float = Field(30.0, gt=0, le=3600, description="a response's bytes may wait this long for "
+                                  "a reader that takes fewer than send_min_rate bytes/s of them (its socket full): "
+                                  "then the connection is closed and the bytes dropped, s")
+    send_min_rate: int = Field(1024, ge=0, description="slowest a reader may take a response's waiting bytes, "
+                               "bytes/s averaged over send_timeout_s; 0 = any progress")
+    events_keepalive_s: float = Field(15.0, gt=0, le=3600, description="an event stream (GET "
+                                      "/api/jobs/{id}/events) sends a keep-alive comment after this long without "
+                                      "an event, s")
     shutdown_grace_s: float = Field(5.0, gt=0, le=3600, description="on shutdown, connections still open "
                                     "(event streams included) are closed after this long, s")
     connections_per_address: int = Field(64, ge=1, le=100_000, description="most open connections of one client "

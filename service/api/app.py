@@ -27,7 +27,7 @@ from starlette.staticfiles import StaticFiles
 
 from driver.acquire import software_version
 from service.api.context import Context, Slots, capped, ctx, default_slots, read_access, validation_reason
-from service.api.logcaps import shown
+from service.api.logcaps import RefusalLog, shown
 from service.api.models import AuthInfo, Error, Health
 from service.disk import is_disk_full
 from service.settings import Settings
@@ -38,7 +38,7 @@ if TYPE_CHECKING:
 __all__ = [
     "VERSION", "PROCESS_START", "ERROR_RESPONSES", "allowed_methods", "UploadLimit", "MIN_BODY_RATE",
     "ShortIds", "warm_routes", "freeze_startup_objects", "create_app",
-    "internal_error", "InternalErrors", "health_problems",
+    "internal_error", "InternalErrors", "client_gone", "health_problems",
 ]
 
 log = logging.getLogger("fpscan.api")
@@ -195,9 +195,11 @@ class UploadLimit:
             limit = self.upload_limit + 1_000_000
         else:
             limit = self.json_limit if key in self.PLAN_ROUTES else self.request_json_limit
+        if not _has_body(scope):  # a GET, an event stream: nothing to time (its answer may last hours)
+            return await self.app(scope, receive, send)
         slots = self.slots.get(self.ADMITTED.get(key, ""))
         if slots is None:
-            return await self._limited(scope, receive, send, limit)
+            return await self._limited(scope, receive, send, limit, self.min_rate)
         client = (scope.get("client") or ("?", 0))[0]
         if not slots.enter(client):
             resp = JSONResponse({"detail": slots.busy_reason(client)}, 429,  # its body is never read: close
@@ -221,7 +223,7 @@ class UploadLimit:
 
         async def refuse(resp: JSONResponse) -> None:
             nonlocal sent_refusal
-            if not sent_refusal:
+            if not sent_refusal and not status["code"]:  # once, and only before an answer started
                 sent_refusal = True
                 await resp(scope, receive, send)
 
@@ -308,6 +310,12 @@ class _BodyWatch:
 def _too_large(limit: int) -> JSONResponse:
     return JSONResponse({"detail": f"request body larger than the limit of {limit} bytes"}, 413,
                         headers={"Connection": "close"})  # the rest of its body is never read
+
+
+def _has_body(scope) -> bool:
+    """Whether the request declares a body (``Content-Length`` above 0, or ``Transfer-Encoding``)."""
+    headers = dict(scope.get("headers") or [])
+    return b"transfer-encoding" in headers or _declared_length(scope) > 0
 
 
 def _declared_length(scope) -> int:
@@ -637,6 +645,10 @@ class InternalErrors:
     next request. An error after the answer started is logged and the connection closed
     (there is no way to tell the client).
 
+    A client gone (its disconnect received, its connection reset, a send to a closed
+    connection: :func:`client_gone`) is no internal error: it is logged at most one line per
+    client address per interval (``service.api.logcaps.RefusalLog``), and nothing is answered.
+
     Parameters
     ----------
     app : ASGI application
@@ -646,15 +658,26 @@ class InternalErrors:
     ----------
     app : ASGI application
         As given.
+    gone : RefusalLog
+        The rate-limited log of clients gone mid-request.
     """
 
     def __init__(self, app):
         self.app = app
+        self.gone = RefusalLog(log)
 
     async def __call__(self, scope, receive, send):
         if scope["type"] != "http":
             return await self.app(scope, receive, send)
         started = False
+        disconnected = False
+
+        async def tracked_receive():
+            nonlocal disconnected
+            message = await receive()
+            if message["type"] == "http.disconnect":
+                disconnected = True
+            return message
 
         async def tracked_send(message):
             nonlocal started
@@ -663,11 +686,40 @@ class InternalErrors:
             await send(message)
 
         try:
-            await self.app(scope, receive, tracked_send)
+            await self.app(scope, tracked_receive, tracked_send)
         except Exception as exc:
+            if disconnected or client_gone(exc):
+                client = (scope.get("client") or ("?", 0))[0]
+                self.gone.refused(client, "client gone client=%s method=%s path=%s: %s", client,
+                                  shown(scope.get("method"), 16), shown(scope.get("path", "")),
+                                  shown(type(exc).__name__, 60))
+                return
             if started:
                 raise
             await internal_error(scope, exc)(scope, receive, send)
+
+
+def client_gone(exc: BaseException) -> bool:
+    """Whether ``exc`` says the client went away: a connection reset or broken pipe, a stream
+    whose other end closed (anyio), Starlette's ``ClientDisconnect``, or a group of only those.
+
+    Parameters
+    ----------
+    exc : BaseException
+        The error a request's handling raised.
+
+    Returns
+    -------
+    bool
+        True for a client gone; False for anything else (an internal error).
+    """
+    import anyio
+    from starlette.requests import ClientDisconnect
+
+    if isinstance(exc, BaseExceptionGroup):
+        return all(client_gone(e) for e in exc.exceptions)
+    return isinstance(exc, (ConnectionError, anyio.ClosedResourceError, anyio.BrokenResourceError,
+                            ClientDisconnect))
 
 
 def _add_health_routes(app: FastAPI, settings: Settings) -> Callable[[Context], Awaitable[Health]]:
