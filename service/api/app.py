@@ -104,9 +104,9 @@ def allowed_methods(app, scope) -> list[str]:
     return sorted(methods)
 
 
-#: Slowest body (bytes/s, averaged over ``Settings.body_rate_window_s``) an upload or plan
-#: request may send (``Settings.body_min_rate``, whose default this is): a trickle would
-#: hold an upload or plan slot for hours.
+#: Slowest body (bytes/s, averaged over ``Settings.body_rate_window_s``) a request may
+#: send (``Settings.body_min_rate``, whose default this is): a trickle would hold an upload
+#: or plan slot, or a connection, for hours.
 MIN_BODY_RATE = 100 * 1024
 
 
@@ -120,9 +120,11 @@ class UploadLimit:
       (JSON parsed and validated on the event loop before a route sees it: a body must stay
       as small as its schema can need, kilobytes).
     - **Time** (408, ``Connection: close``): a body that sends nothing for
-      ``body_timeout_s``, and an upload or plan body that arrives slower than ``min_rate``
-      bytes/s averaged over ``rate_window_s`` (after its first window), so a slow client
-      cannot hold a slot for long (nginx's ``client_body_timeout`` with a minimum rate).
+      ``body_timeout_s``, and any body that arrives slower than ``min_rate`` bytes/s
+      averaged over ``rate_window_s`` (after its first window), so a slow client cannot hold
+      a slot or a connection for long (nginx's ``client_body_timeout`` with a minimum rate).
+      A request without a body (no ``Content-Length`` above 0, no ``Transfer-Encoding``: a
+      GET, an event stream) is not timed here: its answer may last as long as its job.
     - **Slots** (``slots``, :func:`~service.api.context.default_slots`): uploads and plan
       requests (``ADMITTED``) are counted in, per client address first, before their body
       is read, and refused with 429 when too many are in progress (the form parser spools
@@ -147,7 +149,7 @@ class UploadLimit:
         The largest body of any other request in bytes (at most the plan limit); default
         None: the plan limit.
     min_rate : float, optional
-        The slowest upload or plan body in bytes/s; default :data:`MIN_BODY_RATE` (100 KiB/s).
+        The slowest body in bytes/s; default :data:`MIN_BODY_RATE` (100 KiB/s).
     rate_window_s : float, optional
         Seconds the rate is averaged over; default 10.
 

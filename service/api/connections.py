@@ -4,22 +4,35 @@
 The server is uvicorn with its ``httptools`` HTTP protocol; :func:`server_config` gives it
 this module's subclass of that protocol (:class:`GuardedHttp`) and the settings' timeouts:
 
-- **Connections per address.** :class:`ConnectionGuard` counts the open connections of each
-  client address. A new one is refused at accept time (answered ``503`` with the reason,
-  ``Connection: close``, before anything of it is read) when its address already holds
-  ``connections_per_address``, or when the server holds ``max_connections`` in all and the
-  address holds its :data:`CONNECTION_ALLOWANCE` already (below that allowance an address is
-  refused only near the process's open-file limit): one client cannot take the file handles
-  that every other client needs (1000 idle sockets under a 1024-handle limit made every
-  other request fail with a connection reset before this).
-- **A request head within a few seconds.** A connection that has not sent a complete
-  request head (request line and headers) ``header_timeout_s`` after it was accepted, or
-  after the first byte of its next request, is closed, token or not (nginx's
-  ``client_header_timeout``); idle kept-alive connections close after ``keep_alive_s``
-  (uvicorn's ``timeout_keep_alive``).
+- **Strangers share a budget; the token holder always gets in.** :class:`ConnectionGuard`
+  counts the open connections of strangers (connections that have not shown the token) by
+  client address and in all. A new connection within the strangers' budget (at most
+  ``connections_per_address`` of one address; beyond ``max_connections`` strangers' in all,
+  only an address's :data:`CONNECTION_ALLOWANCE`) is taken as a stranger's. Beyond it, the
+  connection is taken **on probation** (a pool of its own, bounded: half of what the
+  open-file limit leaves beyond ``max_connections``): its first request head must come within
+  :data:`PROBATION_HEAD_S` and carry the token, else it is answered ``503`` and closed. A
+  connection whose request head carries the valid token leaves the strangers' numbers for
+  good: only the open-file limit (less :data:`FD_HEADROOM`) bounds such connections, so
+  strangers holding their whole budget, from the token holder's own address or any other,
+  never refuse the token holder. Without a token configured every connection is a
+  stranger's. A connection beyond every pool is refused at accept time (``503`` with the
+  reason, ``Connection: close``, before anything of it is read).
+- **A deadline in every phase** (:class:`GuardedHttp`, one timer per connection, token or
+  not): a request head within ``header_timeout_s`` of the connection's start or of the first
+  byte of its next request (nginx's ``client_header_timeout``); the unread rest of a body its
+  answer went out before (the one-byte body) within ``body_rate_window_s`` plus its bytes at
+  ``body_min_rate``; a response's bytes waiting on a reader that takes fewer than
+  ``send_min_rate`` bytes/s of them over ``send_timeout_s`` (nginx's ``send_timeout``); an
+  idle kept-alive connection after ``keep_alive_s`` (uvicorn's ``timeout_keep_alive``). A
+  missed deadline closes the connection with a reset, its unsent bytes dropped and their
+  memory returned (nginx's ``reset_timedout_connection``); a body the app reads is timed by
+  ``service.api.app.UploadLimit`` (408).
 - **A bounded head.** A request line and headers of more than ``max_head_bytes`` are
   refused with ``431`` before they reach the app (uvicorn's ``httptools`` protocol has no
   such bound; its ``h11`` one has ``h11_max_incomplete_event_size``).
+- **A client gone is not an error.** A response written to a connection that has closed is
+  dropped (the request sees a disconnect), never a traceback.
 
 Refusals are logged at most one line per client address per interval, fields capped
 (:mod:`service.api.logcaps`).

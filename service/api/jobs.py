@@ -17,7 +17,7 @@ from service.names import person_names
 
 __all__ = [
     "router", "JobId", "job_links", "job_view", "get_job_or_404", "list_jobs", "get_job", "cancel_job",
-    "delete_job", "job_events", "last_event_seq", "EventWakeups", "POLL_S", "EVENTS_PAGE", "LAST_EVENT_MAX",
+    "delete_job", "job_events", "last_event_seq", "EventWakeups", "POLL_S", "STREAM_READERS", "EVENTS_PAGE", "LAST_EVENT_MAX",
 ]
 
 router = APIRouter(prefix="/api/jobs", tags=["jobs"])
@@ -27,6 +27,8 @@ JobId = Path(pattern=ID_PATTERN, description="job id")
 #: how often an events stream looks at the store when no listener wakes it (an app run
 #: without its lifespan, as in some tests), s
 POLL_S = 0.2
+#: threads the events streams' store reads may take at once
+STREAM_READERS = 2
 
 
 class EventWakeups:
@@ -47,6 +49,9 @@ class EventWakeups:
     def __init__(self, loop: asyncio.AbstractEventLoop):
         self._loop = loop
         self._waiting: dict[str, set[asyncio.Event]] = {}
+        #: the streams' store reads share these few threads: a thousand streams opening at
+        #: once queue here, not in front of the routes' threads and the store's lock
+        self.reads = anyio.CapacityLimiter(STREAM_READERS)
 
     def notify(self, job_id: str) -> None:
         """A committed event of ``job_id`` (any thread): wake its streams."""
@@ -239,7 +244,8 @@ async def job_events(job_id: str = JobId, c: Context = Depends(ctx),
         with wakeups.watch(job_id) if wakeups is not None else contextlib.nullcontext(asyncio.Event()) as woken:
             while True:
                 woken.clear()  # an event committed from here on wakes the wait below
-                events, state = await anyio.to_thread.run_sync(_events_and_state, c.store, job_id, after)
+                events, state = await anyio.to_thread.run_sync(_events_and_state, c.store, job_id, after,
+                                                               limiter=getattr(wakeups, "reads", None))
                 for ev in events:
                     after = ev["seq"]
                     yield ServerSentEvent(data=ev["data"], event=ev["event"], id=str(ev["seq"]))
