@@ -101,6 +101,11 @@ class Settings(BaseSettings):
                                   "then the connection is closed and the bytes dropped, s")
     send_min_rate: int = Field(1024, ge=0, description="slowest a reader may take a response's waiting bytes, "
                                "bytes/s averaged over send_timeout_s; 0 = any progress")
+    send_buffer_bytes: int | None = Field(64 * 1024, ge=4096, le=64 * 2**20, description="the kernel's send "
+                                          "buffer of each connection (SO_SNDBUF; the kernel doubles it): bounds the "
+                                          "memory a reader that does not read holds in the kernel (autotuned, it "
+                                          "grows to 4 MiB each, and thousands put every socket of the machine "
+                                          "under memory pressure); None = the system's autotuning")
     events_keepalive_s: float = Field(15.0, gt=0, le=3600, description="an event stream (GET "
                                       "/api/jobs/{id}/events) sends a keep-alive comment after this long without "
                                       "an event, s")

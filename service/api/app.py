@@ -481,6 +481,7 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True, 
     for module in (plans, scans, datasets, reconstructions, jobs, exports, retention):
         app.include_router(module.router)
     _state_security_in_openapi(app, settings)
+    _render_openapi_once(app)
     _mount_web_page(app, settings)
     return app
 
@@ -817,6 +818,25 @@ def _state_security_in_openapi(app: FastAPI, settings: Settings) -> None:
         return schema
 
     app.openapi = openapi  # type: ignore[method-assign]
+
+
+def _render_openapi_once(app: FastAPI) -> None:
+    """Serve ``/openapi.json`` as bytes rendered once: the schema (some 100 kB of JSON) does
+    not change while the server runs, and FastAPI's own route serialises it on the event loop
+    at every request (a few ms each: strangers pipelining it held the loop for seconds)."""
+    from starlette.responses import Response
+    from starlette.routing import Route
+
+    rendered: list[bytes] = []
+
+    async def openapi(request: Request) -> Response:
+        if not rendered:
+            rendered.append(bytes(JSONResponse(app.openapi()).body))
+        return Response(rendered[0], media_type="application/json")
+
+    for i, route in enumerate(app.router.routes):
+        if isinstance(route, Route) and route.path == app.openapi_url:
+            app.router.routes[i] = Route(route.path, openapi, include_in_schema=False)
 
 
 def _mount_web_page(app: FastAPI, settings: Settings) -> None:

@@ -53,7 +53,7 @@ from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol
 from service.api.logcaps import RefusalLog, install_log_caps, shown
 from service.settings import Settings
 
-__all__ = ["CONNECTION_ALLOWANCE", "PROBATION_HEAD_S", "FD_HEADROOM", "open_file_limit", "ConnectionGuard", "GuardedHttp",
+__all__ = ["CONNECTION_ALLOWANCE", "PROBATION_HEAD_S", "FD_HEADROOM", "BURST_CONNECTIONS", "return_memory", "open_file_limit", "ConnectionGuard", "GuardedHttp",
            "guarded_protocol", "server_config"]
 
 log = logging.getLogger("fpscan.connections")
@@ -84,6 +84,34 @@ def open_file_limit() -> int | None:
     except (ImportError, OSError, ValueError):
         return None
     return None if soft == resource.RLIM_INFINITY or soft <= 0 else int(soft)
+
+
+#: connections closed in a burst before the heap's free memory is given back (:func:`return_memory`)
+BURST_CONNECTIONS = 256
+
+
+def return_memory() -> bool:
+    """Free what thousands of closed connections left and give the heap's free pages back to
+    the system: their protocol, request and task objects refer to each other (only the
+    cyclic collector frees them, and its next full pass may be far off), and glibc keeps
+    freed pages (``malloc_trim`` returns them); without this the process's RSS stays at its
+    peak. Where there is no glibc, only the collection.
+
+    Returns
+    -------
+    bool
+        Whether memory was given back (glibc's answer); False where there is no glibc.
+    """
+    import ctypes
+    import ctypes.util
+    import gc
+
+    gc.collect()
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        return bool(libc.malloc_trim(0))
+    except (OSError, AttributeError, TypeError):
+        return False
 
 
 class ConnectionGuard:
@@ -148,6 +176,8 @@ class ConnectionGuard:
         self._open: dict[str, int] = {}  # strangers' connections by address
         self.total = self.strangers = self.on_probation = self.trusted = 0
         self.refused_count = 0
+        self._peak = 0  # most connections at once since memory was last returned
+        self._closed = 0  # connections closed since then
 
     @classmethod
     def from_settings(cls, settings: Settings) -> ConnectionGuard:
@@ -175,6 +205,7 @@ class ConnectionGuard:
             self._open[address] = mine + 1
             self.strangers += 1
             self.total += 1
+            self._peak = max(self._peak, self.total)
             return None
 
     def admit_on_probation(self) -> str | None:
@@ -191,6 +222,7 @@ class ConnectionGuard:
                 return why
             self.on_probation += 1
             self.total += 1
+            self._peak = max(self._peak, self.total)
             return None
 
     def trust(self, address: str, pool: str) -> None:
@@ -206,6 +238,17 @@ class ConnectionGuard:
         with self._lock:
             self._leave(address, pool)
             self.total = max(0, self.total - 1)
+
+    def burst_over(self) -> bool:
+        """Count a closed connection; True once a burst is over (at least
+        :data:`BURST_CONNECTIONS` closed since the last True, and at most a quarter of the
+        most held meanwhile still open): the time to return the heap's free memory."""
+        with self._lock:
+            self._closed += 1
+            if self._closed < BURST_CONNECTIONS or self.total > self._peak // 4:
+                return False
+            self._closed, self._peak = 0, self.total
+            return True
 
     def _leave(self, address: str, pool: str) -> None:
         if pool == "stranger":
@@ -259,6 +302,8 @@ class GuardedHttp(HttpToolsProtocol):
         The body's rules (``Settings``).
     send_timeout_s, send_min_rate : float
         The reader's rule (``Settings``).
+    send_buffer_bytes : int or None
+        The kernel's send buffer of each connection (``SO_SNDBUF``; None: autotuned).
     token_value : callable or None
         Returns the configured token (None: no token; every connection stays a stranger).
     refusals : RefusalLog
@@ -273,6 +318,7 @@ class GuardedHttp(HttpToolsProtocol):
     body_rate_window_s: float = 10.0
     send_timeout_s: float = 30.0
     send_min_rate: float = 1024.0
+    send_buffer_bytes: int | None = 64 * 1024
     token_value: Callable[[], str | None] | None = None
     refusals: RefusalLog
 
@@ -288,9 +334,14 @@ class GuardedHttp(HttpToolsProtocol):
         self._body_left = 0
         self._write_left = 0
         # every byte the kernel does not take at once pauses the writer (uvicorn's flow
-        # control) until all are taken: a reader's pace is seen, and timed, from the first one
+        # control) until all are taken: a reader's pace is seen, and timed, from the first one;
+        # the kernel takes at most twice send_buffer_bytes of it
         with contextlib.suppress(AttributeError, NotImplementedError, ValueError):
             transport.set_write_buffer_limits(high=0, low=0)
+        if self.send_buffer_bytes:
+            with contextlib.suppress(AttributeError, OSError, TypeError):
+                transport.get_extra_info("socket").setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF,
+                                                              self.send_buffer_bytes)
         why = self.guard.admit(self._address)
         if why is None:
             self._pool = "stranger"
@@ -309,6 +360,8 @@ class GuardedHttp(HttpToolsProtocol):
         if pool is not None:
             self.guard.release(self._address, pool)
         super().connection_lost(exc)
+        if self.guard.burst_over():
+            self.loop.call_soon(return_memory)
 
     def data_received(self, data: bytes) -> None:
         if self._closed_by_us:
@@ -361,7 +414,6 @@ class GuardedHttp(HttpToolsProtocol):
         elif self._pool == "probation":
             raise _NoToken()
         self._in_body, self._body_left = True, self._declared_length()
-        self._body_t0 = self.loop.time()
         cycle = self.cycle
         super().on_headers_complete()
         if self.cycle is not cycle:
@@ -412,7 +464,27 @@ class GuardedHttp(HttpToolsProtocol):
         self._close_now("connection closed client=%s: the reader took %d of its response's %d waiting bytes in %g s",
                         self._address, max(taken, 0), self._write_left, self.send_timeout_s)
 
+    def timeout_keep_alive_handler(self) -> None:
+        """Idle past ``keep_alive_s``: closed; with a reset when the kernel still holds bytes
+        of its answers that the reader never took (a FIN would wait behind them)."""
+        if self._unsent() > 0:
+            self._close_now("connection closed client=%s: idle %g s with %d bytes of its answers unread",
+                            self._address, float(self.timeout_keep_alive), self._unsent())
+        else:
+            super().timeout_keep_alive_handler()
+
     # -- helpers -----------------------------------------------------------------------
+    def _unsent(self) -> int:
+        """Bytes of this connection's answers the kernel still holds (Linux ``SIOCOUTQ``; 0 elsewhere)."""
+        try:
+            import fcntl
+            import termios
+
+            fd = self.transport.get_extra_info("socket").fileno()
+            return struct.unpack("i", fcntl.ioctl(fd, termios.TIOCOUTQ, b"\0\0\0\0"))[0]
+        except (AttributeError, ImportError, OSError, TypeError, ValueError):
+            return 0
+
     def _token_expected(self) -> bool:
         try:
             return self.token_value is not None and self.token_value() is not None
@@ -565,6 +637,7 @@ def guarded_protocol(settings: Settings, guard: ConnectionGuard | None = None) -
         "body_rate_window_s": float(settings.body_rate_window_s),
         "send_timeout_s": float(settings.send_timeout_s),
         "send_min_rate": float(settings.send_min_rate),
+        "send_buffer_bytes": settings.send_buffer_bytes,
         "token_value": staticmethod(token_value) if token_value is not None else None,
         "refusals": RefusalLog(log),
     })

@@ -209,6 +209,21 @@ def test_refusals_are_one_line_per_address_per_interval_with_a_count(caplog):
     assert "999 more refusals from 10.0.0.1" in caplog.records[-1].getMessage()
     record = logging.LogRecord("x", logging.ERROR, __file__, 1, "%s", ("y" * 10_000,), None)
     assert CappedRecords(limit=2000).filter(record) and len(record.getMessage()) < 2100
+    # a traceback counts against the same cap (issue 60.3): 300 frames and a 30 kB message, one record
+    def deep(n: int) -> None:
+        if n == 0:
+            raise RuntimeError("z" * 30_000)
+        deep(n - 1)
+
+    try:
+        deep(300)
+    except RuntimeError:
+        record = logging.LogRecord("x", logging.ERROR, __file__, 1, "internal error ref=%s", ("ab12",), sys.exc_info())
+    whole = len(logging.Formatter().format(logging.makeLogRecord(record.__dict__)))
+    assert CappedRecords(limit=2000).filter(record) and record.exc_info is None
+    written = logging.Formatter().format(record)
+    assert whole > 30_000 and len(written) < 2100, (whole, len(written))
+    assert written.startswith("internal error ref=ab12\nTraceback") and "characters)" in written
 
 
 def _partial_head(port: int, source: str) -> socket.socket:
