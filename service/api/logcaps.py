@@ -77,6 +77,7 @@ class Thinning:
 
     @property
     def keys(self) -> int:
+        """Keys remembered now."""
         return len(self._seen)
 
     def let_through(self, key: Hashable, interval_s: float, most_keys: int) -> tuple[bool, int]:
