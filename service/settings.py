@@ -79,8 +79,9 @@ class Settings(BaseSettings):
     body_timeout_s: float = Field(30.0, gt=0, le=3600, description="a request whose body sends nothing for "
                                   "this long is refused with 408")
     body_min_rate: int = Field(100 * 1024, ge=0, description="slowest a request body may arrive, bytes/s averaged "
-                               "over body_rate_window_s (after its first window): an upload or plan body slower "
-                               "than this is refused with 408; 0 = no floor")
+                               "over body_rate_window_s (after its first window): a body slower than this is "
+                               "refused with 408 (the unread rest of one answered already closes the connection); "
+                               "0 = no floor")
     body_rate_window_s: float = Field(10.0, gt=0, le=3600, description="the window body_min_rate is averaged over, s")
     json_limit: int = Field(64 * 2**20, gt=0, description="largest plan request body (POST /api/plans, "
                             "/api/plans/preview), bytes: parsed in the plan worker; the plan JSON of the largest "
@@ -95,13 +96,28 @@ class Settings(BaseSettings):
                                 "bytes: a longer head is refused with 431 before the app sees it")
     keep_alive_s: float = Field(5.0, gt=0, le=3600, description="an idle kept-alive connection is closed after "
                                 "this long, s")
+    send_timeout_s: float = Field(30.0, gt=0, le=3600, description="a response's bytes may wait this long for "
+                                  "a reader that takes fewer than send_min_rate bytes/s of them (its socket full): "
+                                  "then the connection is closed and the bytes dropped, s")
+    send_min_rate: int = Field(1024, ge=0, description="slowest a reader may take a response's waiting bytes, "
+                               "bytes/s averaged over send_timeout_s; 0 = any progress")
+    send_buffer_bytes: int | None = Field(64 * 1024, ge=4096, le=64 * 2**20, description="the kernel's send "
+                                          "buffer of each connection (SO_SNDBUF; the kernel doubles it): bounds the "
+                                          "memory a reader that does not read holds in the kernel (autotuned, it "
+                                          "grows to 4 MiB each, and thousands put every socket of the machine "
+                                          "under memory pressure); None = the system's autotuning")
+    events_keepalive_s: float = Field(15.0, gt=0, le=3600, description="an event stream (GET "
+                                      "/api/jobs/{id}/events) sends a keep-alive comment after this long without "
+                                      "an event, s")
     shutdown_grace_s: float = Field(5.0, gt=0, le=3600, description="on shutdown, connections still open "
                                     "(event streams included) are closed after this long, s")
     connections_per_address: int = Field(64, ge=1, le=100_000, description="most open connections of one client "
-                                         "address; more are refused at accept time (503)")
-    max_connections: int | None = Field(None, ge=1, le=1_000_000, description="open connections in all beyond "
-                                        "which a client address gets only its allowance of 4 (refused: 503); "
-                                        "None = half the process's open-file limit")
+                                         "address that have not shown the token; more must show it in their first "
+                                         "request head (else 503)")
+    max_connections: int | None = Field(None, ge=1, le=1_000_000, description="open connections without the "
+                                        "token in all beyond which a client address gets only its allowance of 4 "
+                                        "(more must show the token in their first request head, else 503); None = "
+                                        "half the process's open-file limit")
     uploads_per_client: int | None = Field(None, ge=1, le=1024, description="uploads (and plan requests) one client "
                                            "address may have in progress or waiting; more get 429 while the "
                                            "server's slots are not all taken by others; None = import_workers")

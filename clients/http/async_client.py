@@ -180,6 +180,8 @@ class AsyncClient(Connection, AsyncServer, AsyncPlans, AsyncScans, AsyncDatasets
                     await source.response.aread()
                     raise_for(source.response)
                 async for sse in source.aiter_sse():
+                    if not sse.data:  # a keep-alive comment: no event (SSE spec; httpx_sse hands it on)
+                        continue
                     event, data = parse_event(sse.event, sse.data)
                     yield event, data, sse.id or None
         except httpx.TransportError as exc:

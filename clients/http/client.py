@@ -221,7 +221,9 @@ class Client(Connection, Server, Plans, Scans, Datasets, Reconstructions, Jobs):
         last_event_id : str, optional
             Resume after this event (``Last-Event-ID``).
         read_timeout : float, optional
-            s without a byte before the stream counts as dropped (the server pings every 15 s).
+            s without a byte before the stream counts as dropped (the server sends a keep-alive
+            comment after 15 s without an event, ``FPSCAN_EVENTS_KEEPALIVE_S``; comments are not
+            yielded).
 
         Yields
         ------
@@ -245,6 +247,8 @@ class Client(Connection, Server, Plans, Scans, Datasets, Reconstructions, Jobs):
                     source.response.read()
                     raise_for(source.response)
                 for sse in source.iter_sse():
+                    if not sse.data:  # a keep-alive comment: no event (SSE spec; httpx_sse hands it on)
+                        continue
                     event, data = parse_event(sse.event, sse.data)
                     yield event, data, sse.id or None
         except httpx.TransportError as exc:

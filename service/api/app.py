@@ -27,7 +27,7 @@ from starlette.staticfiles import StaticFiles
 
 from driver.acquire import software_version
 from service.api.context import Context, Slots, capped, ctx, default_slots, read_access, validation_reason
-from service.api.logcaps import shown
+from service.api.logcaps import RefusalLog, shown
 from service.api.models import AuthInfo, Error, Health
 from service.disk import is_disk_full
 from service.settings import Settings
@@ -38,7 +38,7 @@ if TYPE_CHECKING:
 __all__ = [
     "VERSION", "PROCESS_START", "ERROR_RESPONSES", "allowed_methods", "UploadLimit", "MIN_BODY_RATE",
     "ShortIds", "warm_routes", "freeze_startup_objects", "create_app",
-    "internal_error", "InternalErrors", "health_problems",
+    "internal_error", "InternalErrors", "client_gone", "health_problems",
 ]
 
 log = logging.getLogger("fpscan.api")
@@ -104,9 +104,9 @@ def allowed_methods(app, scope) -> list[str]:
     return sorted(methods)
 
 
-#: Slowest body (bytes/s, averaged over ``Settings.body_rate_window_s``) an upload or plan
-#: request may send (``Settings.body_min_rate``, whose default this is): a trickle would
-#: hold an upload or plan slot for hours.
+#: Slowest body (bytes/s, averaged over ``Settings.body_rate_window_s``) a request may
+#: send (``Settings.body_min_rate``, whose default this is): a trickle would hold an upload
+#: or plan slot, or a connection, for hours.
 MIN_BODY_RATE = 100 * 1024
 
 
@@ -120,9 +120,11 @@ class UploadLimit:
       (JSON parsed and validated on the event loop before a route sees it: a body must stay
       as small as its schema can need, kilobytes).
     - **Time** (408, ``Connection: close``): a body that sends nothing for
-      ``body_timeout_s``, and an upload or plan body that arrives slower than ``min_rate``
-      bytes/s averaged over ``rate_window_s`` (after its first window), so a slow client
-      cannot hold a slot for long (nginx's ``client_body_timeout`` with a minimum rate).
+      ``body_timeout_s``, and any body that arrives slower than ``min_rate`` bytes/s
+      averaged over ``rate_window_s`` (after its first window), so a slow client cannot hold
+      a slot or a connection for long (nginx's ``client_body_timeout`` with a minimum rate).
+      A request without a body (no ``Content-Length`` above 0, no ``Transfer-Encoding``: a
+      GET, an event stream) is not timed here: its answer may last as long as its job.
     - **Slots** (``slots``, :func:`~service.api.context.default_slots`): uploads and plan
       requests (``ADMITTED``) are counted in, per client address first, before their body
       is read, and refused with 429 when too many are in progress (the form parser spools
@@ -147,7 +149,7 @@ class UploadLimit:
         The largest body of any other request in bytes (at most the plan limit); default
         None: the plan limit.
     min_rate : float, optional
-        The slowest upload or plan body in bytes/s; default :data:`MIN_BODY_RATE` (100 KiB/s).
+        The slowest body in bytes/s; default :data:`MIN_BODY_RATE` (100 KiB/s).
     rate_window_s : float, optional
         Seconds the rate is averaged over; default 10.
 
@@ -195,9 +197,11 @@ class UploadLimit:
             limit = self.upload_limit + 1_000_000
         else:
             limit = self.json_limit if key in self.PLAN_ROUTES else self.request_json_limit
+        if not _has_body(scope):  # a GET, an event stream: nothing to time (its answer may last hours)
+            return await self.app(scope, receive, send)
         slots = self.slots.get(self.ADMITTED.get(key, ""))
         if slots is None:
-            return await self._limited(scope, receive, send, limit)
+            return await self._limited(scope, receive, send, limit, self.min_rate)
         client = (scope.get("client") or ("?", 0))[0]
         if not slots.enter(client):
             resp = JSONResponse({"detail": slots.busy_reason(client)}, 429,  # its body is never read: close
@@ -221,7 +225,7 @@ class UploadLimit:
 
         async def refuse(resp: JSONResponse) -> None:
             nonlocal sent_refusal
-            if not sent_refusal:
+            if not sent_refusal and not status["code"]:  # once, and only before an answer started
                 sent_refusal = True
                 await resp(scope, receive, send)
 
@@ -308,6 +312,12 @@ class _BodyWatch:
 def _too_large(limit: int) -> JSONResponse:
     return JSONResponse({"detail": f"request body larger than the limit of {limit} bytes"}, 413,
                         headers={"Connection": "close"})  # the rest of its body is never read
+
+
+def _has_body(scope) -> bool:
+    """Whether the request declares a body (``Content-Length`` above 0, or ``Transfer-Encoding``)."""
+    headers = dict(scope.get("headers") or [])
+    return b"transfer-encoding" in headers or _declared_length(scope) > 0
 
 
 def _declared_length(scope) -> int:
@@ -474,6 +484,7 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True, 
     for module in (plans, scans, datasets, reconstructions, jobs, exports, retention):
         app.include_router(module.router)
     _state_security_in_openapi(app, settings)
+    _render_openapi_once(app)
     _mount_web_page(app, settings)
     return app
 
@@ -640,6 +651,10 @@ class InternalErrors:
     next request. An error after the answer started is logged and the connection closed
     (there is no way to tell the client).
 
+    A client gone (its disconnect received, its connection reset, a send to a closed
+    connection: :func:`client_gone`) is no internal error: it is logged at most one line per
+    client address per interval (``service.api.logcaps.RefusalLog``), and nothing is answered.
+
     Parameters
     ----------
     app : ASGI application
@@ -649,15 +664,26 @@ class InternalErrors:
     ----------
     app : ASGI application
         As given.
+    gone : RefusalLog
+        The rate-limited log of clients gone mid-request.
     """
 
     def __init__(self, app):
         self.app = app
+        self.gone = RefusalLog(log)
 
     async def __call__(self, scope, receive, send):
         if scope["type"] != "http":
             return await self.app(scope, receive, send)
         started = False
+        disconnected = False
+
+        async def tracked_receive():
+            nonlocal disconnected
+            message = await receive()
+            if message["type"] == "http.disconnect":
+                disconnected = True
+            return message
 
         async def tracked_send(message):
             nonlocal started
@@ -666,11 +692,40 @@ class InternalErrors:
             await send(message)
 
         try:
-            await self.app(scope, receive, tracked_send)
+            await self.app(scope, tracked_receive, tracked_send)
         except Exception as exc:
+            if disconnected or client_gone(exc):
+                client = (scope.get("client") or ("?", 0))[0]
+                self.gone.refused(client, "client gone client=%s method=%s path=%s: %s", client,
+                                  shown(scope.get("method"), 16), shown(scope.get("path", "")),
+                                  shown(type(exc).__name__, 60))
+                return
             if started:
                 raise
             await internal_error(scope, exc)(scope, receive, send)
+
+
+def client_gone(exc: BaseException) -> bool:
+    """Whether ``exc`` says the client went away: a connection reset or broken pipe, a stream
+    whose other end closed (anyio), Starlette's ``ClientDisconnect``, or a group of only those.
+
+    Parameters
+    ----------
+    exc : BaseException
+        The error a request's handling raised.
+
+    Returns
+    -------
+    bool
+        True for a client gone; False for anything else (an internal error).
+    """
+    import anyio
+    from starlette.requests import ClientDisconnect
+
+    if isinstance(exc, BaseExceptionGroup):
+        return all(client_gone(e) for e in exc.exceptions)
+    return isinstance(exc, (ConnectionError, anyio.ClosedResourceError, anyio.BrokenResourceError,
+                            ClientDisconnect))
 
 
 def _add_health_routes(app: FastAPI, settings: Settings) -> Callable[[Context], Awaitable[Health]]:
@@ -766,6 +821,25 @@ def _state_security_in_openapi(app: FastAPI, settings: Settings) -> None:
         return schema
 
     app.openapi = openapi  # type: ignore[method-assign]
+
+
+def _render_openapi_once(app: FastAPI) -> None:
+    """Serve ``/openapi.json`` as bytes rendered once: the schema (some 100 kB of JSON) does
+    not change while the server runs, and FastAPI's own route serialises it on the event loop
+    at every request (a few ms each: strangers pipelining it held the loop for seconds)."""
+    from starlette.responses import Response
+    from starlette.routing import Route
+
+    rendered: list[bytes] = []
+
+    async def openapi(request: Request) -> Response:
+        if not rendered:
+            rendered.append(bytes(JSONResponse(app.openapi()).body))
+        return Response(rendered[0], media_type="application/json")
+
+    for i, route in enumerate(app.router.routes):
+        if isinstance(route, Route) and route.path == app.openapi_url:
+            app.router.routes[i] = Route(route.path, openapi, include_in_schema=False)
 
 
 def _mount_web_page(app: FastAPI, settings: Settings) -> None:

@@ -6,7 +6,7 @@ import contextlib
 from collections.abc import Iterator
 
 import anyio
-from fastapi import APIRouter, Depends, Header, HTTPException, Path, Query, Request, Response
+from fastapi import APIRouter, Depends, Header, HTTPException, Path, Query, Response
 from sse_starlette.sse import EventSourceResponse, ServerSentEvent
 
 from service.api.context import Context, ctx, read_access, require_token
@@ -17,22 +17,26 @@ from service.names import person_names
 
 __all__ = [
     "router", "JobId", "job_links", "job_view", "get_job_or_404", "list_jobs", "get_job", "cancel_job",
-    "delete_job", "job_events", "EventWakeups", "POLL_S",
+    "delete_job", "job_events", "last_event_seq", "EventWakeups", "POLL_S", "STREAM_READERS", "EVENTS_PAGE", "LAST_EVENT_MAX",
 ]
 
 router = APIRouter(prefix="/api/jobs", tags=["jobs"])
 
 JobId = Path(pattern=ID_PATTERN, description="job id")
 
-#: how often an events stream looks at the store when nothing woke it (s): the pace for
-#: events another process committed, and of noticing a client gone
+#: how often an events stream looks at the store when no listener wakes it (an app run
+#: without its lifespan, as in some tests), s
 POLL_S = 0.2
+#: threads the events streams' store reads may take at once
+STREAM_READERS = 2
 
 
 class EventWakeups:
-    """Wakes a job's events streams as soon as the job store commits an event of that job
-    (:meth:`service.jobs.store.JobStore.add_listener`), rather than at their next poll
-    (:data:`POLL_S`): a client waiting on a job hears that it finished when it does.
+    """The one store watcher every events stream waits on: it wakes a job's streams as soon
+    as the job store commits an event of that job, or deletes the job
+    (:meth:`service.jobs.store.JobStore.add_listener`); streams never poll, so a thousand
+    open ones cost nothing between events, and a client waiting on a job hears that it
+    finished when it does.
 
     :meth:`notify` may be called from any thread; :meth:`watch` runs in the loop's thread.
 
@@ -45,6 +49,9 @@ class EventWakeups:
     def __init__(self, loop: asyncio.AbstractEventLoop):
         self._loop = loop
         self._waiting: dict[str, set[asyncio.Event]] = {}
+        #: the streams' store reads share these few threads: a thousand streams opening at
+        #: once queue here, not in front of the routes' threads and the store's lock
+        self.reads = anyio.CapacityLimiter(STREAM_READERS)
 
     def notify(self, job_id: str) -> None:
         """A committed event of ``job_id`` (any thread): wake its streams."""
@@ -220,43 +227,84 @@ def delete_job(job_id: str = JobId, c: Context = Depends(ctx)) -> Deleted:
 @router.get("/{job_id}/events", dependencies=[Depends(read_access)],
             responses={200: {"content": {"text/event-stream": {}},
                              "description": "SSE stream: `event: state|progress`, `id:` sequence, JSON data"}})
-async def job_events(request: Request, job_id: str = JobId, c: Context = Depends(ctx),
-                     last_event_id: str | None = Header(None, alias="Last-Event-ID", max_length=32)):
+async def job_events(job_id: str = JobId, c: Context = Depends(ctx),
+                     last_event_id: str | None = Header(None, alias="Last-Event-ID")):
     """Server-Sent Events of the job's state changes and progress. Every event has an
-    increasing ``id``; reconnecting with ``Last-Event-ID: n`` replays the events after n.
-    The stream ends after the job reaches a final state."""
+    increasing ``id``; reconnecting with ``Last-Event-ID: n`` replays the events after n (an
+    id that is not one of ours, :func:`last_event_seq`, replays them all). A keep-alive
+    comment comes after ``events_keepalive_s`` (15 s) without an event; the stream lasts as
+    long as the job and ends after its final state."""
     job = await anyio.to_thread.run_sync(c.store.get, job_id)
     if job is None:
         raise HTTPException(404, f"no job {job_id}")
-    try:
-        after = int(last_event_id) if last_event_id not in (None, "") else 0
-    except ValueError:
-        raise HTTPException(400, "Last-Event-ID must be an integer") from None
-    if after < 0:
-        raise HTTPException(400, "Last-Event-ID must be >= 0")
+    after = last_event_seq(last_event_id)
 
     async def stream():
+        # woken by the store's one listener (EventWakeups) at each committed event of this
+        # job, never by a clock; a client gone cancels it (the response's disconnect watch)
         nonlocal after
         wakeups = c.wakeups
         with wakeups.watch(job_id) if wakeups is not None else contextlib.nullcontext(asyncio.Event()) as woken:
             while True:
-                if await request.is_disconnected():
-                    return
                 woken.clear()  # an event committed from here on wakes the wait below
-                events = await anyio.to_thread.run_sync(c.store.events_after, job_id, after)
+                events, state = await anyio.to_thread.run_sync(_events_and_state, c.store, job_id, after,
+                                                               limiter=getattr(wakeups, "reads", None))
                 for ev in events:
                     after = ev["seq"]
                     yield ServerSentEvent(data=ev["data"], event=ev["event"], id=str(ev["seq"]))
-                if not events:
-                    current = await anyio.to_thread.run_sync(c.store.get, job_id)
-                    if current is None or current["state"] in TERMINAL:
-                        rest = await anyio.to_thread.run_sync(c.store.events_after, job_id, after)
-                        for ev in rest:
-                            after = ev["seq"]
-                            yield ServerSentEvent(data=ev["data"], event=ev["event"], id=str(ev["seq"]))
-                        if not rest:
-                            return
-                    with contextlib.suppress(TimeoutError):
-                        await asyncio.wait_for(woken.wait(), POLL_S)
+                if state is None or state in TERMINAL:
+                    if len(events) < EVENTS_PAGE:  # every event up to the final state is sent
+                        return
+                    continue
+                if len(events) < EVENTS_PAGE:
+                    if wakeups is None:  # no listener (an app without its lifespan): look again soon
+                        with contextlib.suppress(TimeoutError):
+                            await asyncio.wait_for(woken.wait(), POLL_S)
+                    else:
+                        await woken.wait()
 
-    return EventSourceResponse(stream(), ping=15)
+    return EventSourceResponse(stream(), ping=c.settings.events_keepalive_s)
+
+
+#: events read from the store at once for a stream
+EVENTS_PAGE = 500
+
+
+def _events_and_state(store, job_id: str, after: int) -> tuple[list[dict], str | None]:
+    """The job's state, then its events after ``after`` (so a final state read here has its
+    event among them); state None: the job is gone."""
+    job = store.get(job_id)
+    return store.events_after(job_id, after, EVENTS_PAGE), (None if job is None else job["state"])
+
+
+#: the largest event id a stream resumes after (SQLite's INTEGER range)
+LAST_EVENT_MAX = 2**63 - 1
+
+
+def last_event_seq(header: str | None) -> int:
+    """The event sequence number a ``Last-Event-ID`` header resumes after.
+
+    The SSE specification makes the id an opaque string; ours are decimal integers from 1. An
+    id that is not one (absent, empty, letters, a sign, beyond SQLite's 64-bit range) resumes
+    from the beginning: the client gets every event, never an error.
+
+    Parameters
+    ----------
+    header : str or None
+        The header's value.
+
+    Returns
+    -------
+    int
+        The sequence number, in ``[0, 2**63 - 1]``; 0 (from the beginning) for any other text.
+
+    Examples
+    --------
+    >>> last_event_seq("12"), last_event_seq("99999999999999999999999999"), last_event_seq("abc")
+    (12, 0, 0)
+    """
+    text = (header or "").strip()
+    if not text or len(text) > 19 or not (text.isascii() and text.isdigit()):
+        return 0
+    value = int(text)
+    return value if value <= LAST_EVENT_MAX else 0

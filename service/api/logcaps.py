@@ -10,18 +10,20 @@ in 1.1 s). Here, as Jupyter Server truncates its request log:
 - :class:`RefusalLog`: refusals are logged at most one line per client address per
   ``interval_s`` (the first at once; the next line says how many were not written since);
 - :class:`CappedRecords`: a logging filter for the server's log handlers that cuts any record
-  to :data:`RECORD_MAX` characters (a backstop for whatever else quotes a request: a
-  library's message, an exception's text) and writes a message that uvicorn's connection
+  to :data:`RECORD_MAX` characters, its traceback included (a backstop for whatever else
+  quotes a request: a library's message, an exception's text) and writes a message that uvicorn's connection
   logger repeats (its "Invalid HTTP request received." comes once per bad request) at most
-  once per ``interval_s``, with the count of those left out.
+  once per ``interval_s``, with the count of those left out;
+- :class:`Thinning`: the one rate limit both use (one pass per key per interval).
 """
 from __future__ import annotations
 
 import logging
 import threading
 import time
+from collections.abc import Hashable
 
-__all__ = ["FIELD_MAX", "RECORD_MAX", "REPEAT_INTERVAL_S", "shown", "RefusalLog", "CappedRecords",
+__all__ = ["FIELD_MAX", "RECORD_MAX", "REPEAT_INTERVAL_S", "shown", "Thinning", "RefusalLog", "CappedRecords",
            "install_log_caps"]
 
 #: characters of a client's field (a path, a header) a log line carries
@@ -58,6 +60,57 @@ def shown(text: object, limit: int = FIELD_MAX) -> str:
     return s if len(s) <= limit else f"{s[:limit]}... ({len(s)} characters)"
 
 
+class Thinning:
+    """At most one pass per key per interval: the rate limit :class:`RefusalLog` (per client
+    address) and :class:`CappedRecords` (per repeated message) share. Thread-safe; the table
+    of keys is bounded (the oldest entries go first).
+
+    Attributes
+    ----------
+    keys : int
+        Keys remembered now.
+    """
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._seen: dict[Hashable, tuple[float, int]] = {}  # key -> (time of its last pass, left out since)
+
+    @property
+    def keys(self) -> int:
+        """Keys remembered now."""
+        return len(self._seen)
+
+    def let_through(self, key: Hashable, interval_s: float, most_keys: int) -> tuple[bool, int]:
+        """Whether ``key`` passes now, and how many of its were left out since its last pass.
+
+        Parameters
+        ----------
+        key : hashable
+            What is thinned (an address, a message).
+        interval_s : float
+            Seconds between two passes of one key.
+        most_keys : int
+            Keys remembered at most.
+
+        Returns
+        -------
+        tuple of (bool, int)
+            ``(passes, left_out)``: ``left_out`` counts the key's attempts not passed since its
+            last pass (0 when it does not pass: it is counted instead).
+        """
+        now = time.monotonic()
+        with self._lock:
+            last, skipped = self._seen.get(key, (-float("inf"), 0))
+            if now - last < interval_s:
+                self._seen[key] = (last, skipped + 1)
+                return False, 0
+            self._seen.pop(key, None)
+            self._seen[key] = (now, 0)
+            while len(self._seen) > most_keys:
+                self._seen.pop(next(iter(self._seen)))
+        return True, skipped
+
+
 class RefusalLog:
     """Log refusals of requests at most one line per client address per ``interval_s``
     (s): the first refusal from an address is logged at once, later ones in the interval
@@ -88,8 +141,7 @@ class RefusalLog:
         self.logger = logger
         self.interval_s = float(interval_s)
         self.max_addresses = int(max_addresses)
-        self._lock = threading.Lock()
-        self._seen: dict[str, tuple[float, int]] = {}  # address -> (time of its last line, refusals left out)
+        self._thinning = Thinning()
 
     def refused(self, address: str | None, message: str, *args: object, level: int = logging.INFO) -> bool:
         """Log a refusal from ``address``, unless one was logged for it less than ``interval_s`` ago.
@@ -114,24 +166,17 @@ class RefusalLog:
             Whether a line was written.
         """
         key = address or "?"
-        now = time.monotonic()
-        with self._lock:
-            last, skipped = self._seen.get(key, (-float("inf"), 0))
-            if now - last < self.interval_s:
-                self._seen[key] = (last, skipped + 1)
-                return False
-            self._seen.pop(key, None)
-            self._seen[key] = (now, 0)
-            while len(self._seen) > self.max_addresses:
-                self._seen.pop(next(iter(self._seen)))
+        passes, skipped = self._thinning.let_through(key, self.interval_s, self.max_addresses)
+        if not passes:
+            return False
         suffix = f" (and {skipped} more refusals from {key} not logged since)" if skipped else ""
         self.logger.log(level, message + "%s", *args, suffix)
         return True
 
 
 class CappedRecords(logging.Filter):
-    """A handler filter: each record's message cut to ``limit`` characters (its length
-    said), and a message repeated by one of ``repeat_loggers`` written at most once per
+    """A handler filter: each record's message, with the traceback it carries (``exc_info``,
+    ``stack_info``: folded into the message), cut to ``limit`` characters (its length said), and a message repeated by one of ``repeat_loggers`` written at most once per
     ``interval_s`` (the next one says how many were left out). Records of level ERROR and
     above always pass (cut, never dropped).
 
@@ -166,8 +211,7 @@ class CappedRecords(logging.Filter):
         self.limit = int(limit)
         self.interval_s = float(interval_s)
         self.max_messages = int(max_messages)
-        self._lock = threading.Lock()
-        self._repeats: dict[tuple[str, str], tuple[float, int]] = {}
+        self._thinning = Thinning()
 
     def filter(self, record: logging.LogRecord) -> bool:
         try:
@@ -175,28 +219,41 @@ class CappedRecords(logging.Filter):
         except Exception:  # noqa: BLE001 -- a record that cannot format itself is passed on as it is
             return True
         if record.levelno < logging.ERROR and record.name in self.repeat_loggers:
-            key = (record.name, message[:FIELD_MAX])
-            now = time.monotonic()
-            with self._lock:
-                last, skipped = self._repeats.get(key, (-float("inf"), 0))
-                if now - last < self.interval_s:
-                    self._repeats[key] = (last, skipped + 1)
-                    return False
-                self._repeats.pop(key, None)
-                self._repeats[key] = (now, 0)
-                while len(self._repeats) > self.max_messages:
-                    self._repeats.pop(next(iter(self._repeats)))
+            passes, skipped = self._thinning.let_through((record.name, message[:FIELD_MAX]), self.interval_s,
+                                                         self.max_messages)
+            if not passes:
+                return False
             if skipped:
                 message = f"{message} (repeated {skipped} more times, not logged)"
+        changed = message != record.getMessage()
+        trace = _traceback_of(record)
+        if trace:  # a traceback counts against the same cap: it becomes part of the message
+            message = f"{message}\n{trace}"
+            record.exc_info, record.exc_text, record.stack_info = None, None, None
+            changed = True
         if len(message) > self.limit:
             message = shown(message, self.limit)
-        if message != record.getMessage():
+            changed = True
+        if changed:
             record.msg, record.args = message, None
             if hasattr(record, "message_json"):  # `fpscan serve`'s JSON lines carry it made already
                 import json
 
                 record.message_json = json.dumps(message)
         return True
+
+
+def _traceback_of(record: logging.LogRecord) -> str:
+    """The traceback and stack a record carries (``exc_info``, ``stack_info``), as a handler
+    would write them after its message; ``""`` when it carries none."""
+    parts = []
+    if record.exc_info:
+        parts.append(logging.Formatter().formatException(record.exc_info))
+    elif record.exc_text:
+        parts.append(record.exc_text)
+    if record.stack_info:
+        parts.append(record.stack_info)
+    return "\n".join(parts)
 
 
 def install_log_caps(limit: int = RECORD_MAX, interval_s: float = REPEAT_INTERVAL_S) -> CappedRecords:

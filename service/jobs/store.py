@@ -325,9 +325,9 @@ class JobStore:
     # -- helpers -----------------------------------------------------------------
     def add_listener(self, fn: Callable[[str], None]) -> None:
         """Call ``fn(job_id)`` after each committed transaction that recorded an event of
-        that job (a state change, progress), in the thread that made the change, outside the
-        store's lock; an exception of ``fn`` is logged and ignored. The events endpoint
-        wakes its streams with it instead of waiting for its next poll."""
+        that job (a state change, progress) or deleted it, in the thread that made the change,
+        outside the store's lock; an exception of ``fn`` is logged and ignored. The events
+        endpoint's streams wait on it (they never poll)."""
         self._listeners.append(fn)
 
     def remove_listener(self, fn: Callable[[str], None]) -> None:
@@ -752,6 +752,7 @@ class JobStore:
             if db.execute(sql, args).rowcount != 1:
                 return False
             db.execute("DELETE FROM events WHERE job_id = ?", (job_id,))
+            self._touched.append(job_id)  # its listeners hear of it (an events stream ends)
             return True
         return self._tx(work)
 
