@@ -538,7 +538,7 @@ def _lateral_extent(g: np.ndarray, dx: float | None, positions: np.ndarray | Non
     whole record; in 3-D, Huygens' principle: silence after the last front). Grid data ``(n_t, n_x)`` /
     ``(n_t, n_y, n_x)`` with ``dx``; A-lines with ``positions`` on ``grid`` (default: the
     positions' lattice, as `service.recon.planar.reconstruct_points` makes it)."""
-    from service.recon.planar import _default_grid  # the warm start's own default lattice
+    from service.recon.planar import _check_grid, _default_grid  # the warm start's own lattice and grid rules
 
     if positions is None:
         if dx is None or not (math.isfinite(dx) and dx > 0):
@@ -550,12 +550,11 @@ def _lateral_extent(g: np.ndarray, dx: float | None, positions: np.ndarray | Non
         if grid is None:
             axes, pitch = _default_grid(pos)
         else:
-            axes = (np.asarray(grid, dtype=np.float64),) if isinstance(grid, np.ndarray) and grid.ndim == 1 else \
-                tuple(np.asarray(a, dtype=np.float64).ravel() for a in grid)
+            axes = _check_grid(grid, pos.shape[1])
             pitch = float(axes[0][1] - axes[0][0])
     except (ValueError, IndexError, TypeError):  # the warm start refuses them, naming the problem
         return None, None
-    if len(axes) != pos.shape[1] or not (math.isfinite(pitch) and pitch > 0):
+    if not (math.isfinite(pitch) and pitch > 0):
         return None, None
     if pos.shape[1] == 1:  # a line: 2-D waves ring on (a tail ∝ 1/t² after the last front), keep it all
         return pitch, None
