@@ -191,7 +191,7 @@ def run_row(name: str, percent: int, noise: str, rule: bool = False, case: dict 
     ix = np.asarray(mask.indices)
     alines = (data[:, ix[:, 0]] if two_d else data[:, ix[:, 1], ix[:, 0]]).T
     axes = (centred_axis(shape[-1], dx),) if two_d else (centred_axis(shape[1], dx), centred_axis(shape[0], dx))
-    pos = np.asarray(mask.positions, float)
+    pos = np.asarray(mask.positions, float)[:, : 1 if two_d else 2]  # a line's sensors: x alone
     scan = PointDataset(alines=alines, positions=pos, dt=dt, c=c, weights=np.asarray(mask.weights, float),
                         grid=axes)
     grid_opts = {} if case["p0"] is None else {"dz": case["dz"], "n_z": case["p0"].shape[0]}

@@ -244,6 +244,22 @@ def band_columns(padded_shape: tuple[int, ...], dx: float, c: float, band: float
     lateral wavenumber lies within a band (Hz) at sound speed ``c`` (m/s): |k_lat| <= 2π band / c,
     the columns a band-limited `service.recon.operator.PlanarOperator` works on.
 
+    Parameters
+    ----------
+    padded_shape : tuple of int
+        The operator's working grid ``(N_z, N_y, N_x)`` (``N_y = 1`` in 2-D).
+    dx : float
+        Lateral pitch, m.
+    c : float
+        Sound speed, m/s.
+    band : float
+        The band limit, Hz.
+
+    Returns
+    -------
+    int
+        Columns of the ``N_y × (N_x // 2 + 1)`` half spectrum within the band.
+
     Examples
     --------
     >>> from service.recon.memory import band_columns

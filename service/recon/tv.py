@@ -66,7 +66,10 @@ from the data: read per A-line, it fell far below what the coherent image uses o
 scans (k-Wave's vessel tree at 4 % of the points, 20 dB below the peak: 0.79 MHz and CC 0.36,
 against 0.96 now; docs/results.md, "tv's quality gate"). ``params`` record ``record_n_t``,
 ``extent_reason``, ``whole_record``, ``operator_dt``, ``operator_n_t``, ``band`` (Hz or None) and
-``band_reason``; σ̂, the noise image and the residuals are those of the kept, resampled data.
+``band_reason``; the noise image and the residuals are those of the kept, resampled data, and σ̂
+that of the record as sampled, scaled to the resampled rate (white noise resampled from K to M
+samples keeps √((M − 1) / (K − 1)) of its σ; the Haar estimate on the resampled record itself, whose
+signal is no longer smooth at its sample scale, read 7-48 % high on k-Wave's data).
 
 Stopping rule (``tol``, default `DEFAULT_TOL` = 5e-3; ``max_iter`` default
 `DEFAULT_MAX_ITER` = 100): the image's relative change per iteration, ‖x_k − x_{k−1}‖ /
@@ -407,7 +410,11 @@ def reconstruct_tv(
     if g.shape[time_axis] < 2:
         raise ValueError(f"data need at least 2 time samples, got shape {g.shape}")
     pitch, reach = _lateral_extent(g, dx, positions, grid)
-    g, chosen = _working_record(g, dt, c, time_axis, bandwidth=bandwidth, dz=dz, n_z=n_z, t0=t0,
+    # σ̂ of the record as sampled (Haar differences need a signal smooth at the sample scale, which the record
+    # resampled to its band is not: there they read 7-48 % high on k-Wave's data); resampling white noise of σ
+    # from K to M samples leaves σ √((M − 1) / (K − 1)) per sample (the DCT-I terms kept)
+    record_sigma = noise_sigma(g, time_axis)
+    g, chosen = _working_record(g, dt, c, time_axis, sigma=record_sigma, bandwidth=bandwidth, dz=dz, n_z=n_z, t0=t0,
                                 whole_record=bool(whole_record), pitch=pitch, reach=reach)
     dt_op = chosen.dt
     common: dict[str, Any] = dict(dtype=rdtype, dz=chosen.dz, n_z=chosen.n_z, t0=t0, eps=eps, positivity=positivity,
@@ -448,7 +455,7 @@ def reconstruct_tv(
         return op.matvec(v.ravel()).reshape(g.shape)
 
     gw_norm = float(np.linalg.norm(g))
-    sigma = noise_sigma(g, time_axis)  # at the operator's rate (the band's noise)
+    sigma = record_sigma * math.sqrt((chosen.n_t - 1) / (chosen.record_n_t - 1))  # at the operator's rate
     noise_share = sigma * math.sqrt(g.size) / max(gw_norm, 1e-300)
     report(0.06, "norm estimate")  # the operator's set-up and the first adjoint: no longer the warm start
 
@@ -538,7 +545,7 @@ def _lateral_extent(g: np.ndarray, dx: float | None, positions: np.ndarray | Non
     whole record; in 3-D, Huygens' principle: silence after the last front). Grid data ``(n_t, n_x)`` /
     ``(n_t, n_y, n_x)`` with ``dx``; A-lines with ``positions`` on ``grid`` (default: the
     positions' lattice, as `service.recon.planar.reconstruct_points` makes it)."""
-    from service.recon.planar import _default_grid  # the warm start's own default lattice
+    from service.recon.planar import _check_grid, _default_grid  # the warm start's own lattice and grid rules
 
     if positions is None:
         if dx is None or not (math.isfinite(dx) and dx > 0):
@@ -550,12 +557,11 @@ def _lateral_extent(g: np.ndarray, dx: float | None, positions: np.ndarray | Non
         if grid is None:
             axes, pitch = _default_grid(pos)
         else:
-            axes = (np.asarray(grid, dtype=np.float64),) if isinstance(grid, np.ndarray) and grid.ndim == 1 else \
-                tuple(np.asarray(a, dtype=np.float64).ravel() for a in grid)
+            axes = _check_grid(grid, pos.shape[1])
             pitch = float(axes[0][1] - axes[0][0])
     except (ValueError, IndexError, TypeError):  # the warm start refuses them, naming the problem
         return None, None
-    if len(axes) != pos.shape[1] or not (math.isfinite(pitch) and pitch > 0):
+    if not (math.isfinite(pitch) and pitch > 0):
         return None, None
     if pos.shape[1] == 1:  # a line: 2-D waves ring on (a tail ∝ 1/t² after the last front), keep it all
         return pitch, None

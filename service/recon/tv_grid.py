@@ -290,7 +290,7 @@ def data_extent(data: npt.ArrayLike, time_axis: int, sigma: float) -> int | None
     - signal spread over many samples, each below that threshold: the data's energy from the
       sample on, summed over the A-lines, above the noise's by more than `_EXTENT_Z` = 5
       standard deviations of the noise's energy there (m samples of white noise: mean m σ²,
-      standard deviation σ² √(2 m)) — a test of the tail, as `data_band`'s, but against the
+      standard deviation σ² √(2 m)) — a test of the tail, against the
       noise's spread rather than twice its mean, because a weak echo in time is short beside
       the long noise after it (a 2-D source's 1/√t tail, a few far sensors' last echoes);
 

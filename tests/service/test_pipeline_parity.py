@@ -174,8 +174,8 @@ def test_local_worker_and_http_give_one_volume(name, method, inputs, remote, tmp
         for name, value in options.items():
             assert used.get(name) == value, (name, used)
     n_t = N_T
-    if method == "tv":  # tv's depth grid follows the data's band (service.recon.tv_grid): n_t' <= n_t rows
-        n_t = json.loads(local_attrs["params"])["operator_n_t"]
+    if method == "tv":  # tv's depth grid: down to the last echo at the pitch's band (service.recon.tv_grid)
+        n_t = json.loads(local_attrs["params"])["n_z"]
         assert n_t <= N_T
     assert local_p0.shape[0] == n_t and local_p0.ndim == 3
     assert np.abs(local_p0).max() > 0
