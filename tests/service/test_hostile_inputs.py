@@ -75,9 +75,12 @@ class HealthWatch:
 
 def _names(detail: str, reason: str) -> bool:
     """Whether a 422's reason names ``reason`` (a parameter: ``sound_speed`` may be written
-    "sound speed")."""
-    detail, reason = detail.lower().replace("_", " "), reason.lower().replace("_", " ")
-    return reason in detail
+    "sound speed"), or the name a person reads for it over HTTP (``service.names.PERSON_NAMES``:
+    ``c_range`` → ``sound_speed_range``, issue 61 item 7)."""
+    from service.names import PERSON_NAMES
+
+    detail = detail.lower().replace("_", " ")
+    return any(name.lower().replace("_", " ") in detail for name in (reason, PERSON_NAMES.get(reason, reason)))
 
 
 def test_rows_cover_every_mask_parameter():
