@@ -297,8 +297,10 @@ def main(argv=None) -> int:
     todo = [(c, m, n, args.rule, args.sweep) for n in args.noise for m in args.masks for c in args.cases]
     done = []
     if args.json and args.json.is_file():  # rows measured before (the same options): printed, not run again
+        asked = {t[:3] for t in todo}
         done = [r for r in map(json.loads, args.json.read_text().splitlines())
-                if ("cc300" in r) == args.rule and ("sweep" in r) == args.sweep]
+                if ("cc300" in r) == args.rule and ("sweep" in r) == args.sweep
+                and (r["case"], r["mask"], r["noise"]) in asked]
         keys = {(r["case"], r["mask"], r["noise"]) for r in done}
         todo = [t for t in todo if t[:3] not in keys]
     print(HEADER + (" 300 it CC |" if args.rule else "") + (" CC at λ x 1/8 ... 8 |" if args.sweep else ""))
