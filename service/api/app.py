@@ -207,10 +207,26 @@ class UploadLimit:
             resp = JSONResponse({"detail": slots.busy_reason(client)}, 429,  # its body is never read: close
                                 headers={"Retry-After": str(slots.retry_after_s), "Connection": "close"})
             return await resp(scope, receive, send)
+        left = False
+
+        def leave_once() -> None:
+            nonlocal left
+            if not left:
+                left = True
+                slots.leave(client)
+
+        async def send_then_leave(message) -> None:
+            # The slot is free once the answer's last byte goes out: uvicorn reads a kept-alive
+            # client's next request right then, before this app returns (its background tasks,
+            # the upload's file clean-up), and that request must find the slot free.
+            if message["type"] == "http.response.body" and not message.get("more_body", False):
+                leave_once()
+            await send(message)
+
         try:
-            return await self._limited(scope, receive, send, limit, self.min_rate)
+            return await self._limited(scope, receive, send_then_leave, limit, self.min_rate)
         finally:
-            slots.leave(client)
+            leave_once()  # a request that ended without an answer
 
     async def _limited(self, scope, receive, send, limit: int, min_rate: float = 0.0):
         """Pass the request on, refusing a body over ``limit`` bytes (413), one that stalls

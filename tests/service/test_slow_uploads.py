@@ -93,6 +93,7 @@ def test_trickling_uploads_are_cut_off_and_take_no_one_elses_slots(tmp_path):
             t.start()
         started.wait()  # every trickler has sent its head
         statuses: list[int] = []
+        refusals: list[str] = []
         lock = threading.Lock()
 
         def upload(seeds) -> None:
@@ -102,6 +103,8 @@ def test_trickling_uploads_are_cut_off_and_take_no_one_elses_slots(tmp_path):
                                files={"file": (f"v{seed}.npy", _npy(seed))})
                     with lock:
                         statuses.append(r.status_code)
+                        if r.status_code != 201:
+                            refusals.append(r.text)
 
         valid = [threading.Thread(target=upload, args=(range(k, VALID, 2),)) for k in range(2)]
         for t in valid:
@@ -112,7 +115,7 @@ def test_trickling_uploads_are_cut_off_and_take_no_one_elses_slots(tmp_path):
         print(f"uploads: {TRICKLERS} trickling at {TRICKLE // 1024} KiB/s from 127.0.0.2 answered "
               f"{codes.count(408)} x 408, {codes.count(429)} x 429; {VALID} valid ones from 127.0.0.1: "
               f"{statuses.count(201)} x 201, {statuses.count(429)} x 429")
-        assert statuses == [201] * VALID, statuses
+        assert statuses == [201] * VALID, (statuses, refusals)
         assert sorted(set(codes)) <= [408, 429] and codes.count(408) >= 1, answers
         assert all("slower than" in a for a in answers if a.startswith("HTTP/1.1 408")), answers
         assert all("from this client" in a for a in answers if a.startswith("HTTP/1.1 429")), answers
