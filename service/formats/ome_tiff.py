@@ -10,9 +10,43 @@ import numpy as np
 
 from service.disk import file_replaced
 from service.formats._registry import Format
-from service.formats.result import read_result, volume_description, voxel_sizes_um
+from service.formats.result import ResultVolume, read_result, volume_description, voxel_sizes_um
 
-__all__ = ["FORMAT", "export_ome_tiff"]
+__all__ = ["FORMAT", "export_ome_tiff", "plane_positions_um"]
+
+
+def _um(v: float) -> float:
+    """Metres to µm, without the last bits of rounding noise."""
+    return float(f"{float(v) * 1e6:.12g}")
+
+
+def plane_positions_um(r: ResultVolume) -> dict[str, list]:
+    """The OME ``Plane`` positions of a volume's OME-TIFF, in µm: one entry per TIFF plane.
+
+    3-D ``(n_z, n_y, n_x)``: ``n_z`` planes at ``PositionX = x[0]``, ``PositionY = y[0]``,
+    ``PositionZ = z[k]``; 2-D ``(n_z, n_x)`` (depth as the image's Y): one plane at
+    ``PositionX = x[0]``, ``PositionY = z[0]``. Each with its unit ``"µm"``.
+
+    Parameters
+    ----------
+    r : ResultVolume
+        The volume (``x``, ``y``, ``z`` in m).
+
+    Returns
+    -------
+    dict of str to list
+        tifffile's per-plane ``Plane`` metadata: ``PositionX``, ``PositionXUnit``, ...
+    """
+    if r.p0.ndim == 3 and r.y is not None:
+        n = int(r.p0.shape[0])
+        pos = {"X": [_um(r.x[0])] * n, "Y": [_um(r.y[0])] * n, "Z": [_um(v) for v in r.z]}
+    else:
+        pos = {"X": [_um(r.x[0])], "Y": [_um(r.z[0])]}
+    out: dict[str, list] = {}
+    for a, values in pos.items():
+        out[f"Position{a}"] = values
+        out[f"Position{a}Unit"] = ["µm"] * len(values)
+    return out
 
 
 def export_ome_tiff(result_path: str | os.PathLike, out_path: str | os.PathLike) -> Path:
@@ -24,8 +58,12 @@ def export_ome_tiff(result_path: str | os.PathLike, out_path: str | os.PathLike)
     spacings (a single sample counts as 1 µm); float32 data, the array order of the result
     file (TIFF row 0 = the first, smallest y, drawn at the top by ImageJ and napari as in
     fpscan's pictures: :data:`service.formats.result.ORIENTATION`). The p0 unit and the orientation are in the
-    image's OME ``Description`` (``p0 unit: Pa`` or ``p0 unit: a.u.``). Written to a
-    temporary sibling, then renamed.
+    image's OME ``Description`` (``p0 unit: Pa`` or ``p0 unit: a.u.``). The image's
+    coordinates, the same as the result file's ``/x``, ``/y``, ``/z`` and the OME-Zarr
+    ``translation``: every OME ``Plane`` gives its position in µm, ``PositionX``/``PositionY``
+    the first voxel's centre (``x[0]``, ``y[0]``; 2-D: ``x[0]`` and the first depth ``z[0]``)
+    and, 3-D, ``PositionZ`` the plane's depth ``z[k]``. Written to a temporary sibling, then
+    renamed.
 
     Parameters
     ----------
@@ -55,6 +93,7 @@ def export_ome_tiff(result_path: str | os.PathLike, out_path: str | os.PathLike)
     for a, step in zip(axes, steps):
         meta[f"PhysicalSize{a}"] = step
         meta[f"PhysicalSize{a}Unit"] = "µm"
+    meta["Plane"] = plane_positions_um(r)
     with file_replaced(out_path) as tmp:
         tifffile.imwrite(tmp, np.ascontiguousarray(r.p0, dtype=np.float32), ome=True,
                          photometric="minisblack", metadata=meta)

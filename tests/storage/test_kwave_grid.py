@@ -89,3 +89,72 @@ def test_coordinates_that_are_not_the_grid_are_refused(tmp_path):
         assert "sensor x coordinates are not a regular grid" in str(exc)
     else:
         raise AssertionError("coordinates off the grid were accepted")
+
+
+def _ome_planes(path) -> list[dict]:
+    """The OME ``Plane`` elements of an OME-TIFF, read with tifffile (an independent reader)."""
+    import tifffile
+
+    with tifffile.TiffFile(path) as tif:
+        planes = tifffile.xml2dict(tif.ome_metadata)["OME"]["Image"]["Pixels"]["Plane"]
+    return planes if isinstance(planes, list) else [planes]
+
+
+def test_over_http_an_upload_keeps_its_coordinates_and_the_ome_tiff_its_origin(shared_data, tmp_path):
+    """A k-Wave file uploaded over HTTP reconstructs on the file's own ``sensor_*_m`` grid, the
+    same as the local load; the job's OME-TIFF export starts at the volume's first coordinates."""
+    from clients.http import Client
+    from tests.service.service_servers import Server
+
+    src = shared_data / "kwave3d_balls_yarn.h5"
+    small = tmp_path / "balls.h5"  # the first 256 samples (the brightest ball is 95 deep): a quick job
+    with h5py.File(src) as f, h5py.File(small, "w") as g:
+        g.attrs.update(dict(f.attrs))
+        g.attrs["Nt"] = 256
+        for name in ("sensor_y_m", "sensor_z_m", "sensor_yz_index"):
+            g[name] = f[name][()]
+        clean = g.create_group("sensor_data").create_dataset("clean", data=f["sensor_data/clean"][:256])
+        clean.attrs.update(dict(f["sensor_data/clean"].attrs))
+        y_file, z_file = f["sensor_y_m"][()], f["sensor_z_m"][()]
+    local = reconstruct(load_dataset(small), "ner")
+    np.testing.assert_allclose(local.x, z_file, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(local.y, y_file, rtol=0, atol=1e-12)
+    srv = Server(tmp_path / "data").start()
+    try:
+        with Client(srv.url, token=srv.token) as api:
+            ds_id = api.upload_dataset(small, "kwave-hdf5")
+            job = api.start_reconstruction(dataset_id=ds_id, method="ner")
+            api.wait(job, timeout=240)
+            api.download_volume(job, tmp_path / "http.h5")
+            tif = api.export(job, "ome-tiff", tmp_path / "p0.ome.tif")
+    finally:
+        srv.stop()
+    vol = read_result(tmp_path / "http.h5")
+    np.testing.assert_allclose(vol.x, local.x, rtol=0, atol=1e-12)  # the file's sensor_z_m
+    np.testing.assert_allclose(vol.y, local.y, rtol=0, atol=1e-12)  # the file's sensor_y_m
+    np.testing.assert_allclose(vol.z, local.z, rtol=0, atol=1e-12)
+    planes = _ome_planes(tif)
+    assert len(planes) == vol.p0.shape[0], len(planes)
+    assert {p[f"Position{a}Unit"] for p in planes for a in "XYZ"} == {"µm"}
+    for k, p in enumerate(planes):
+        assert p["TheZ"] == k
+        np.testing.assert_allclose([p["PositionX"], p["PositionY"], p["PositionZ"]],
+                                   [vol.x[0] * 1e6, vol.y[0] * 1e6, vol.z[k] * 1e6], rtol=0, atol=1e-6)
+    np.testing.assert_allclose([planes[0]["PositionX"], planes[0]["PositionY"]],
+                               [z_file[0] * 1e6, y_file[0] * 1e6], rtol=0, atol=1e-6)  # µm
+
+
+def test_a_2d_ome_tiff_starts_at_its_first_lateral_and_depth_coordinates(tmp_path):
+    """2-D (depth as the image's Y): one plane at ``x[0]`` and the first depth ``z[0]``."""
+    rng = np.random.default_rng(5)
+    line = rng.standard_normal((8, 40))  # (sensor, time), k-Wave's own layout
+    y_vec = np.arange(8) * 1e-4 + 7e-4
+    scipy.io.savemat(tmp_path / "b.mat", {"sensor_data": line, "Nt": 40.0,
+                                          "kgrid": {"dt": 1e-8, "dx": 1e-4, "dy": 1e-4, "y_vec": y_vec}})
+    rec = reconstruct(load_dataset(tmp_path / "b.mat"), "ner", n_z=8)
+    write_result(tmp_path / "r", rec, input_id="line")
+    vol = read_result(tmp_path / "r" / "volume.h5")
+    (plane,) = _ome_planes(export_file(tmp_path / "r" / "volume.h5", tmp_path / "p0.ome.tif", "ome-tiff"))
+    np.testing.assert_allclose([plane["PositionX"], plane["PositionY"]], [y_vec[0] * 1e6, vol.z[0] * 1e6],
+                               rtol=0, atol=1e-6)
+    assert "PositionZ" not in plane and plane["PositionXUnit"] == plane["PositionYUnit"] == "µm"
