@@ -12,12 +12,19 @@ deletion it is serialised before may remove the dataset, so a deletion's answer 
 read while the upload's cannot means the deletion came first, and the upload must then not
 name the deleted dataset. Every dataset a 201 names and the test did not delete must have
 its folder on disk.
+
+The other acknowledge-then-delete pairs race 200 times each as well: a reconstruction
+against the deletion of its dataset, a download or an export against the deletion of its
+job, a scan against the deletion of its plan (``lifecycle.create_job`` against
+``lifecycle.delete_plan``), and a plan stored again (same content, same id) against its
+deletion. Each test prints how many races ended each way.
 """
 from __future__ import annotations
 
 import http.client
 import io
 import json
+import os
 import random
 import select
 import shutil
@@ -31,8 +38,9 @@ from tests.service.service_servers import TOKEN, Server, needs_recon, wait_job
 from tests.waits import HANG_S
 
 RACES = 200
-JOB_RACES = 100
-DOWNLOAD_RACES = 60
+JOB_RACES = 200
+DOWNLOAD_RACES = 200
+PLAN_RACES = 200
 
 
 def npy_bytes(offset: int = 0) -> bytes:
@@ -260,3 +268,126 @@ def test_a_download_racing_the_deletion_of_its_job_is_whole_or_404_never_500(tmp
         rm.close()
         srv.stop()
     print(f"{DOWNLOAD_RACES} races (download, deletion): {outcomes}")
+
+
+PLAN = {"lattice": {"n_x": 4, "n_y": 4, "pitch": 1e-4}, "points": [[0, 0], [1, 1], [2, 2]],
+        "acquisition": {"n_t": 64, "dt": 2e-8, "prf": 100.0}}
+
+
+@pytest.fixture(scope="module")
+def stuck_scanner(tmp_path_factory):
+    """A server whose one scanner is a pseudo-terminal nobody answers: a scan queued on it
+    stays active (queued behind the first, which waits on the silent device), so a scan's
+    202 and its plan's deletion can never both be right."""
+    master, slave = os.openpty()
+    srv = Server(tmp_path_factory.mktemp("plans") / "data", devices={"mute": os.ttyname(slave)}).start()
+    yield srv
+    srv.stop()
+    os.close(master)
+    os.close(slave)
+
+
+def _race(rng: random.Random, sends: list) -> bool:
+    """Send ``sends`` (connection, method, path, body, headers), in a random order a random
+    fraction of a millisecond apart; whether the second one's answer (``sends[1]``) could be
+    read alone before the first's."""
+    order = list(sends)
+    if rng.random() < 0.5:
+        order.reverse()
+    for k, (conn, method, path, payload, headers) in enumerate(order):
+        conn.request(method, path, body=payload, headers=headers)
+        if k == 0:
+            select.select([], [], [], rng.random() * 2e-3)
+    readable, _, _ = select.select([sends[0][0].sock, sends[1][0].sock], [], [], HANG_S)
+    return sends[1][0].sock in readable and sends[0][0].sock not in readable
+
+
+@pytest.mark.timeout(300)
+def test_a_scan_and_the_deletion_of_its_plan_never_both_succeed(stuck_scanner):
+    """The plan's acknowledge-then-delete pair (``service.jobs.lifecycle.create_job`` against
+    ``delete_plan``): ``POST /api/scans`` (202: the scan will read the plan) racing
+    ``DELETE /api/plans/{id}``. Either the scan came first (202, its job exists and is
+    active, and the deletion is refused with 409 naming it) or the deletion did (200, and the
+    scan is refused with 404 naming the plan), never both."""
+    srv = stuck_scanner
+    rng = random.Random(63)
+    auth = {"Authorization": f"Bearer {TOKEN}"}
+    scan = http.client.HTTPConnection("127.0.0.1", srv.port, timeout=HANG_S)
+    rm = http.client.HTTPConnection("127.0.0.1", srv.port, timeout=HANG_S)
+    outcomes: dict[tuple[int, int], int] = {}
+    both = []
+    try:
+        with srv.client() as api:
+            # a first scan, of another plan, holds the mute scanner for the whole test
+            other = api.post("/api/plans", json={**PLAN, "points": [[3, 3]]}).json()["id"]
+            blocker = api.post("/api/scans", json={"plan_id": other, "scanner_id": "mute"}).json()["id"]
+            for i in range(PLAN_RACES):
+                r = api.post("/api/plans", json=PLAN)  # (again: same content, same id)
+                assert r.status_code == 201, r.text
+                plan_id = r.json()["id"]
+                body = json.dumps({"plan_id": plan_id, "scanner_id": "mute"})
+                _race(rng, [(scan, "POST", "/api/scans", body, {**auth, "Content-Type": "application/json"}),
+                            (rm, "DELETE", f"/api/plans/{plan_id}", None, auth)])
+                scan_status, scan_body = answer(scan)
+                rm_status, rm_body = answer(rm)
+                key = (scan_status, rm_status)
+                outcomes[key] = outcomes.get(key, 0) + 1
+                plan_there = api.get(f"/api/plans/{plan_id}").status_code == 200
+                if scan_status == 202:
+                    job = api.get(f"/api/jobs/{scan_body['id']}").json()
+                    if rm_status == 200 or not plan_there:
+                        both.append((i, key, job["state"], plan_there))
+                    else:
+                        assert rm_status == 409 and scan_body["id"] in rm_body["detail"], (i, rm_body)
+                        assert job["state"] in ("queued", "running", "paused"), job
+                    assert api.post(f"/api/jobs/{scan_body['id']}/cancel").status_code == 200
+                    wait_job(api, scan_body["id"])  # cancelled: the plan is free for the next race
+                else:
+                    assert key == (404, 200), (i, scan_body, rm_body)
+                    assert "no plan" in scan_body["detail"] and not plan_there, (i, scan_body, plan_there)
+            api.post(f"/api/jobs/{blocker}/cancel")
+    finally:
+        scan.close()
+        rm.close()
+    print(f"{PLAN_RACES} races (scan, plan deletion): {outcomes}; both acknowledged: {len(both)}")
+    assert not both, f"{len(both)} of {PLAN_RACES} races queued a scan and deleted its plan: {both[:5]}"
+
+
+@pytest.mark.timeout(300)
+def test_a_plan_answered_201_is_not_deleted_before_its_answer(stuck_scanner):
+    """Plans are stored by content (same plan, same id): ``POST /api/plans`` of a stored
+    plan racing ``DELETE /api/plans/{id}``. A deletion whose answer could be read before the
+    201's came first, so the plan the 201 names must exist afterwards (stored again); one
+    answered after the 201 may remove it."""
+    srv = stuck_scanner
+    rng = random.Random(64)
+    auth = {"Authorization": f"Bearer {TOKEN}"}
+    plan = {**PLAN, "points": [[1, 2], [2, 1]]}
+    post = http.client.HTTPConnection("127.0.0.1", srv.port, timeout=HANG_S)
+    rm = http.client.HTTPConnection("127.0.0.1", srv.port, timeout=HANG_S)
+    seen = {"deletion answered first": 0, "plan answered first": 0, "plan there afterwards": 0,
+            "plan gone afterwards": 0}
+    lost = []
+    try:
+        with srv.client() as api:
+            for i in range(PLAN_RACES):
+                r = api.post("/api/plans", json=plan)
+                assert r.status_code == 201, r.text
+                plan_id = r.json()["id"]
+                deletion_alone_first = _race(
+                    rng, [(post, "POST", "/api/plans", json.dumps(plan), {**auth, "Content-Type": "application/json"}),
+                          (rm, "DELETE", f"/api/plans/{plan_id}", None, auth)])
+                post_status, post_body = answer(post)
+                rm_status, rm_body = answer(rm)
+                assert post_status == 201 and post_body["id"] == plan_id, (post_status, post_body)
+                assert rm_status == 200, (rm_status, rm_body)
+                there = api.get(f"/api/plans/{plan_id}").status_code == 200
+                seen["deletion answered first" if deletion_alone_first else "plan answered first"] += 1
+                seen["plan there afterwards" if there else "plan gone afterwards"] += 1
+                if deletion_alone_first and not there:
+                    lost.append(i)
+    finally:
+        post.close()
+        rm.close()
+    print(f"{PLAN_RACES} races (plan, plan deletion): {seen}; acknowledged then lost: {len(lost)}")
+    assert not lost, f"{len(lost)} of {PLAN_RACES} plans answered 201 were deleted before the answer: {lost[:5]}"
