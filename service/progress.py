@@ -509,6 +509,8 @@ class Eta:
         if self._shown is not None:
             base = max(self._shown[0] - (now - self._shown[1]), 1.0)
             raw = min(max(raw, base / 2), 2 * base)
+        if self.bound_s is not None:  # the smoothing's floor never lifts it past the iteration limit
+            raw = min(raw, self.bound_s)
         self._shown = (raw, now)
         return raw
 

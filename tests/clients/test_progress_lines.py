@@ -167,6 +167,24 @@ def test_eta_of_iterations_moves_at_most_twofold_and_follows_the_measured_rate()
     assert last == pytest.approx((n - k) * 1.0, rel=0.05)  # the rate after the slow stretch, measured again
 
 
+def test_eta_of_fast_iterations_never_exceeds_the_time_to_the_iteration_limit():
+    """Iterations of 10 ms near the limit: the smoothing's floor (half of at least a second)
+    never lifts the estimate above :attr:`Eta.bound_s`, the time the iterations left can take
+    (a server tv job showed ``eta_s`` 0.5 beside ``eta_max_s`` 0.3)."""
+    from service.progress import Eta, IterationStage
+
+    now, n = [0.0], 20
+    eta = Eta(clock=lambda: now[0])
+    seen = 0
+    for k in range(1, n + 1):
+        now[0] += 0.01
+        e = eta(k / n, IterationStage(k, n, rule=0.5, tol=5e-3))
+        if e is not None:
+            seen += 1
+            assert 0 <= e <= eta.bound_s == pytest.approx((n - k) * 0.01), (k, e, eta.bound_s)
+    assert seen == n - 2
+
+
 def test_eta_of_iterations_is_the_time_to_the_stopping_rule_bounded_by_the_limit():
     """Issue 61.6: an image change falling geometrically (tenfold every 5 iterations) reaches
     the tolerance at an iteration the oracle computes (log(tol/value)/log(q)); the ETA is that

@@ -231,6 +231,14 @@ def test_tv_job_progress_names_the_iteration_and_bad_options_are_422(shared_api)
     stages = [e["data"]["stage"] for e in events if e["event"] == "progress"]
     its = [s for s in stages if s.startswith("iteration ")]
     assert its and all(re.fullmatch(rf"iteration \d+/{max_iter}", s) for s in its), stages
+    # the events carry the stopping rule's tolerance and the ETA to it, bounded by the limit (issue 61.6)
+    from service.recon.methods.tv import DEFAULT_TOL
+
+    fields = [e["data"] for e in events if e["event"] == "progress" and e["data"].get("iteration")]
+    assert fields and all(f["stop_tol"] == DEFAULT_TOL and isinstance(f["stop_armed"], bool) for f in fields), fields
+    timed = [f for f in fields if f.get("eta_s") is not None]
+    assert timed and all(f["eta_max_s"] >= f["eta_s"] >= 0 and f["eta_basis"] for f in timed), [
+        {k: f.get(k) for k in ("iteration", "eta_s", "eta_max_s", "eta_basis", "stop_value")} for f in timed]
     vol, attrs = download_volume(api, job_id)
     assert attrs["method"] == "tv"
     assert vol["p0"].shape == (16, n, n) and vol["p0"].min() >= 0  # positivity: on by default for tv
