@@ -59,19 +59,19 @@ def _curl(srv: Server, job_id: str) -> subprocess.Popen:
                              f"{srv.url}/api/jobs/{job_id}/events"], stdout=subprocess.PIPE, text=True)
 
 
-def _sync_client(srv: Server, job_id: str, out: dict) -> None:
+def _sync_client(srv: Server, job_id: str, out: dict, read_timeout: float = HANG_S) -> None:
     from clients.http import Client
 
     with Client(srv.url, token=srv.token) as c:
-        out["sync"] = list(c.events(job_id, read_timeout=HANG_S))
+        out["sync"] = list(c.events(job_id, read_timeout=read_timeout))
 
 
-def _async_client(srv: Server, job_id: str, out: dict) -> None:
+def _async_client(srv: Server, job_id: str, out: dict, read_timeout: float = HANG_S) -> None:
     from clients.http import AsyncClient
 
     async def main():
         async with AsyncClient(srv.url, token=srv.token) as c:
-            out["async"] = [e async for e in c.events(job_id, read_timeout=HANG_S)]
+            out["async"] = [e async for e in c.events(job_id, read_timeout=read_timeout)]
 
     asyncio.run(main())
 
