@@ -45,4 +45,13 @@ def test_help_lists_every_input_format_and_action_as_spelled():
         assert action in jobs, action
     recon = " ".join(fpscan("recon", "--help").stdout.split())
     assert "(.mat:" in recon and "v7.3" in recon and ".npy" in recon and "IPASC" in recon
-    assert "kwave-mat" in recon  # --format's choices
+    # every format the registry reads, by its name, in --format's choices and in the HTTP docs
+    from pathlib import Path
+
+    from service.formats import upload_formats
+
+    choices = recon.split("--format {", 1)[1].split("}", 1)[0].split(",")
+    api_doc = (Path(__file__).parents[2] / "docs" / "api.md").read_text()
+    for fmt in upload_formats():
+        assert fmt["name"] in choices, (fmt["name"], choices)
+        assert f"`{fmt['name']}`" in api_doc, fmt["name"]

@@ -1,5 +1,5 @@
 """A sparse scan out of dense data (issue 61.3): ``fpscan.subsample`` (the library),
-``fpscan recon FILE --plan PLAN.json`` (the command line) and a reconstruction of a dataset with
+``fpscan recon FILE --plan PLAN.json`` (the command line, locally and with ``--server``) and a reconstruction of a dataset with
 a ``plan_id`` (HTTP) give the replay scan's point data and image to the last bit.
 
 Oracle: the replay scan itself: the simulated scanner (``driver.simulator`` with
@@ -111,5 +111,12 @@ def test_over_http_a_dataset_and_a_plan_equal_the_replay_scan(replayed, server):
             other = api.create_plan({"kind": "full", "lattice": {"n_x": 8, "n_y": 8, "pitch": 1e-4},
                                      "acquisition": {"n_t": 100, "dt": 8e-9}}).id
             api.start_reconstruction(dataset_id=ds_id, plan_id=other, method="nedner")
+    # the command line's --plan with --server: the plan stored there, the upload sampled by the job
+    r = subprocess.run([sys.executable, "-m", "clients", "recon", str(replayed["kwave"]), "--plan",
+                        str(replayed["plan_path"]), "--server", server.url, "--token", server.token,
+                        "--method", "nedner", "--out", str(tmp / "cli-server"), "--quiet"],
+                       capture_output=True, text=True, timeout=240)
+    assert r.returncode == 0, r.stderr
     want = fpscan.reconstruct(fpscan.load_dataset(replayed["scan"]), "nedner")
     np.testing.assert_array_equal(fpscan.read_result(tmp / "http.h5").p0, want.p0)
+    np.testing.assert_array_equal(fpscan.read_result(tmp / "cli-server" / "volume.h5").p0, want.p0)
