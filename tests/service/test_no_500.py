@@ -342,3 +342,92 @@ def test_odd_headers_never_get_a_5xx(fuzz_target):
         run()
     finally:
         conn.close()
+
+
+# -- Last-Event-ID (issue 60.5) -----------------------------------------------------------
+
+#: what a client (or a proxy, or a fuzzer) may send as ``Last-Event-ID``: our ids, ids beyond
+#: SQLite's 64-bit range, signs, exponents, spaces, letters, any Latin-1 text
+EVENT_IDS = st.one_of(
+    st.integers(min_value=-2**70, max_value=2**70).map(str),
+    st.integers(min_value=0, max_value=12).map(str),
+    st.builds(lambda sign, digits, pad: f"{pad}{sign}{digits}{pad}", st.sampled_from(["", "+", "-", "0", "00"]),
+              st.text(alphabet="0123456789", min_size=1, max_size=40), st.sampled_from(["", " ", "\t"])),
+    st.sampled_from(["", "1e3", "0x10", "1_000", "1.0", "NaN", "inf", "١٢", "１２", "9" * 19, "9" * 20,
+                     str(2**63 - 1), str(2**63), "-0", "null", "a" * 4000, "1 2"]),
+    st.text(alphabet=st.characters(min_codepoint=0x20, max_codepoint=0xFF, blacklist_characters="\x7f"),
+            max_size=60),
+)
+
+
+def _expected_after(value: str) -> int:
+    """The oracle: the id a stream resumes after, written from the SSE specification's rule
+    (an opaque string; ours are decimal integers), not from the server's code."""
+    text = value.strip(" \t")
+    if text and all(ch in "0123456789" for ch in text) and int(text) <= 2**63 - 1:
+        return int(text)
+    return 0
+
+
+@PROPERTY
+@given(value=EVENT_IDS)
+def test_last_event_id_parses_to_a_bounded_sequence_or_the_beginning(value):
+    from service.api.jobs import LAST_EVENT_MAX, last_event_seq
+
+    got = last_event_seq(value)
+    assert 0 <= got <= LAST_EVENT_MAX
+    assert got == _expected_after(value), (value, got)
+
+
+def _event_ids(body: bytes) -> list[int]:
+    return [int(line[3:].strip()) for line in body.decode().splitlines() if line.startswith("id:")]
+
+
+@pytest.mark.timeout(600)
+def test_odd_last_event_ids_never_get_a_5xx_and_nonsense_replays_from_the_beginning(fuzz_target):
+    """Issue 60.5: the event stream of a finished job, asked with any ``Last-Event-ID`` over
+    one kept-alive connection, answers 200 with the events after a valid id, and every
+    event for nonsense (beyond 2**63 - 1, signs, letters, any Latin-1 text); never a 5xx, and
+    the connection is kept."""
+    from tests.service.service_servers import wait_job
+
+    srv, dataset_id, _ = fuzz_target
+    with srv.client() as c:
+        r = c.post("/api/reconstructions", json={"dataset_id": dataset_id, "method": "ner", "params": {"upsample": 1}})
+        assert r.status_code == 202, r.text
+        job_id = r.json()["id"]
+        c.post(f"/api/jobs/{job_id}/cancel")
+        wait_job(c, job_id)  # finished (cancelled or not): its stream ends after its events
+    conn = KeptAlive(srv.port)
+    path = f"/api/jobs/{job_id}/events"
+
+    def stream(value: str | None) -> tuple[int, list[int]]:
+        conn.conn.putrequest("GET", path, skip_accept_encoding=True)
+        conn.conn.putheader("Authorization", f"Bearer {TOKEN}")
+        if value is not None:
+            conn.conn.putheader("Last-Event-ID", value.encode())  # UTF-8: obs-text bytes beyond Latin-1
+        conn.conn.endheaders()
+        r = conn.conn.getresponse()
+        body = r.read()
+        assert conn.conn.sock is conn.sock, ("the stream's connection was dropped", value)
+        return r.status, _event_ids(body) if r.status == 200 else []
+
+    status, every = stream(None)
+    assert status == 200 and every and every == sorted(every), every
+    seen = {"from the beginning": 0, "resumed": 0}
+
+    @settings(max_examples=150, deadline=None, derandomize=True, database=None,
+              suppress_health_check=list(HealthCheck))
+    @given(value=EVENT_IDS)
+    def run(value):
+        status, ids = stream(value)
+        assert status == 200, (status, value)
+        after = _expected_after(value)
+        assert ids == [i for i in every if i > after], (value, ids, every)
+        seen["resumed" if after else "from the beginning"] += 1
+
+    try:
+        run()
+    finally:
+        conn.close()
+    print(f"Last-Event-ID: {sum(seen.values())} values, {seen}; the job's events: {every}")
