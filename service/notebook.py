@@ -8,6 +8,11 @@ the stage (an iterative method's stopping rule against its tolerance, ``service.
 the percentage and the time left, and a plain-text form for consoles and saved notebooks. It
 ends on how the work ended. Outside a notebook, with a callback, or with ``quiet=True``
 nothing is shown. IPython is imported only inside a notebook, where it is already loaded.
+
+The HTTP client's waits (``Client.wait``, ``AsyncClient.wait``) draw the same bar from the
+progress the server sends (``clients.http.notebook``): the client never imports ``service``
+(the import contracts in ``pyproject.toml``), so it has its own copy of the drawing; a change
+to the bar's look is made in both.
 """
 from __future__ import annotations
 

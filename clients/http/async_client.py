@@ -189,15 +189,18 @@ class AsyncClient(Connection, AsyncServer, AsyncPlans, AsyncScans, AsyncDatasets
 
     async def wait(self, job_id: str, *, on_progress: ProgressCallback | None = None,
                    timeout: float | None = None, poll_interval: float = 0.5,
-                   raise_on_failure: bool = True) -> Any:
-        """Await the end of a job; see :meth:`Client.wait` (same behaviour and errors).
+                   raise_on_failure: bool = True, quiet: bool = False) -> Any:
+        """Await the end of a job; see :meth:`Client.wait` (same behaviour and errors; in a
+        Jupyter notebook, without ``on_progress`` and unless ``quiet``, one progress bar in the
+        cell's output, ending on the job's final state).
 
         Parameters
         ----------
-        job_id, timeout, poll_interval, raise_on_failure
+        job_id, timeout, poll_interval, raise_on_failure, quiet
             As :meth:`Client.wait`.
         on_progress : callable, optional
-            A plain function or a coroutine function, called with each progress dict.
+            A plain function or a coroutine function, called with each progress dict; given,
+            no notebook bar.
 
         Returns
         -------
@@ -209,7 +212,7 @@ class AsyncClient(Connection, AsyncServer, AsyncPlans, AsyncScans, AsyncDatasets
             As :meth:`Client.wait`.
         """
         return await self._run(wait_flow(job_id, self.base_url, on_progress=on_progress, timeout=timeout,
-                                         poll_interval=poll_interval, raise_on_failure=raise_on_failure))
+                                         poll_interval=poll_interval, raise_on_failure=raise_on_failure, quiet=quiet))
 
 
 async def _report(on_progress: ProgressCallback, progress: dict) -> None:

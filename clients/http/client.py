@@ -255,7 +255,8 @@ class Client(Connection, Server, Plans, Scans, Datasets, Reconstructions, Jobs):
             raise self.unavailable(exc) from None
 
     def wait(self, job_id: str, *, on_progress: ProgressCallback | None = None,
-             timeout: float | None = None, poll_interval: float = 0.5, raise_on_failure: bool = True) -> Any:
+             timeout: float | None = None, poll_interval: float = 0.5, raise_on_failure: bool = True,
+             quiet: bool = False) -> Any:
         """Block until a job ends; return its final Job.
 
         Listens to the SSE stream (reconnecting with ``Last-Event-ID`` when it drops), calling
@@ -264,17 +265,24 @@ class Client(Connection, Server, Plans, Scans, Datasets, Reconstructions, Jobs):
         with the job's final progress; falls back to polling ``GET /api/jobs/{id}`` every
         ``poll_interval`` s when the stream is not available.
 
+        In a Jupyter notebook, without ``on_progress`` and unless ``quiet``, the cell's output
+        shows one progress bar, updated in place and ending on the job's final state
+        (``succeeded``, ``failed: why``, ``cancelled``; :mod:`clients.http.notebook`).
+        Elsewhere nothing is shown.
+
         Parameters
         ----------
         job_id : str
         on_progress : callable, optional
-            ``on_progress(progress: dict)``.
+            ``on_progress(progress: dict)``; given, no notebook bar.
         timeout : float, optional
             s; None: no limit.
         poll_interval : float, optional
             s between polls (default 0.5).
         raise_on_failure : bool, optional
             Raise for a job that failed or was cancelled (default True); False returns it.
+        quiet : bool, optional
+            True: no notebook bar (default False).
 
         Returns
         -------
@@ -291,4 +299,4 @@ class Client(Connection, Server, Plans, Scans, Datasets, Reconstructions, Jobs):
             As every endpoint.
         """
         return self._run(wait_flow(job_id, self.base_url, on_progress=on_progress, timeout=timeout,
-                                   poll_interval=poll_interval, raise_on_failure=raise_on_failure))
+                                   poll_interval=poll_interval, raise_on_failure=raise_on_failure, quiet=quiet))

@@ -32,6 +32,7 @@ import httpx
 from .calls import Call, Download, Request, field_of, to_dict
 from .endpoints.jobs import _build_get_job
 from .errors import ApiError, ServerUnavailable, WaitTimeout
+from .notebook import job_bar
 from .transport import Resume, raise_for
 from .waiting import (
     TERMINAL_STATES,
@@ -329,16 +330,18 @@ def download_flow(req: Request, dest: Path, base_url: str) -> Flow[tuple[Path, s
 
 def wait_flow(job_id: str, base_url: str, *, on_progress: ProgressCallback | None = None,
               timeout: float | None = None, poll_interval: float = 0.5,
-              raise_on_failure: bool = True) -> Flow[Any]:
+              raise_on_failure: bool = True, quiet: bool = False) -> Flow[Any]:
     """Wait for the end of job ``job_id``: ``Client.wait`` / ``AsyncClient.wait`` (their
-    docstrings say what it does; the rules are :mod:`clients.http.waiting`'s).
+    docstrings say what it does; the rules are :mod:`clients.http.waiting`'s). In a Jupyter
+    kernel, without ``on_progress`` and not ``quiet``, the job's progress is one notebook bar
+    (:mod:`clients.http.notebook`) that ends on the job's final state.
 
     Parameters
     ----------
     job_id : str
     base_url : str
         The server, named by ``ServerUnavailable``.
-    on_progress, timeout, poll_interval, raise_on_failure
+    on_progress, timeout, poll_interval, raise_on_failure, quiet
         As ``Client.wait``.
 
     Returns
@@ -352,9 +355,24 @@ def wait_flow(job_id: str, base_url: str, *, on_progress: ProgressCallback | Non
         As ``Client.wait``.
     """
     deadline = None if timeout is None else time.monotonic() + timeout
+    job = yield from call_flow(_build_get_job(job_id), base_url)
+    bar = job_bar(job, on_progress=on_progress, quiet=quiet)
+    if bar is None:
+        return (yield from _wait(job, job_id, base_url, on_progress, deadline, timeout, poll_interval,
+                                 raise_on_failure))
+    final: Any = None
+    try:
+        final = yield from _wait(job, job_id, base_url, bar, deadline, timeout, poll_interval, False)
+    finally:
+        bar.close(final)
+    return finish(final) if raise_on_failure else final
+
+
+def _wait(job: Any, job_id: str, base_url: str, on_progress: ProgressCallback | None, deadline: float | None,
+          timeout: float | None, poll_interval: float, raise_on_failure: bool) -> Flow[Any]:
+    """:func:`wait_flow` from the job's first record ``job``."""
     last_id: str | None = None
     use_sse = True
-    job = yield from call_flow(_build_get_job(job_id), base_url)
     while True:
         if on_progress is not None and report_snapshot(job, use_sse):
             yield Report(on_progress, to_dict(field_of(job, "progress")))
