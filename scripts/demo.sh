@@ -6,7 +6,7 @@ cd "$(dirname "$0")/.."
 python3 -m venv .venv
 .venv/bin/python -m pip install -q --upgrade pip
 .venv/bin/python -m pip install -q -e '.[server]'
-# set-up: the reconstruction's numba kernels compiled into numba's cache once (loaded in
+# set-up: the numba kernels of the methods quick to compile (all but tv) into numba's cache once (loaded in
 # well under a second by every later process: the server's workers, its live preview, the CLI)
-.venv/bin/fpscan warmup > /dev/null
+.venv/bin/fpscan warmup --quick > /dev/null
 exec .venv/bin/fpscan demo --out demo-output "$@"

@@ -20,10 +20,14 @@ def add_arguments(parser):
     """
     parser.add_argument("--dtype", choices=["float32", "float64", "both"], default="both",
                         help="precision(s) to compile for (default both)")
+    parser.add_argument("--quick", action="store_true",
+                        help="only the methods that are quick to compile (every one but those a server's workers "
+                             "compile in the background, after their first job can start: tv); the others compile "
+                             "on their first run (scripts/demo.sh's set-up)")
 
 
 def run(args) -> int:
-    """Run the tiny reconstructions; print the time taken and the cache directories.
+    """Run the tiny reconstructions; print the methods warmed, the time taken and the cache directories.
 
     Parameters
     ----------
@@ -34,9 +38,15 @@ def run(args) -> int:
     -------
     int
         0.
+
+    Raises
+    ------
+    ValueError
+        From :func:`service.recon.warmup.warm_up` (not for the choices argparse allows).
     """
     from service.recon.warmup import DTYPES, warm_up
 
-    got = warm_up(DTYPES if args.dtype == "both" else (args.dtype,))
-    print(f"compiled kernels in {got['seconds']:.1f} s; numba cache: {', '.join(got['cache_dirs']) or '(none)'}")
+    got = warm_up(DTYPES if args.dtype == "both" else (args.dtype,), background=False if args.quick else None)
+    print(f"compiled the kernels of {', '.join(got['methods']) or 'no method'} in {got['seconds']:.1f} s; "
+          f"numba cache: {', '.join(got['cache_dirs']) or '(none)'}")
     return 0

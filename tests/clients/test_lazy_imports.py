@@ -164,6 +164,14 @@ def test_warmup_command_options_and_bad_dtype(capsys):
     with pytest.raises(SystemExit) as exit_:
         main(["warmup", "--help"])
     assert exit_.value.code == 0 and "--dtype" in capsys.readouterr().out
+    # --quick (scripts/demo.sh's set-up): the methods a job worker warms before its first job, not tv
+    from service.recon.methods import METHODS
+
+    assert main(["warmup", "--quick", "--dtype", "float32"]) == 0
+    said = capsys.readouterr().out
+    quick = [m.name for m in METHODS.values() if m.warm_up and not m.warm_in_background]
+    assert said.startswith(f"compiled the kernels of {', '.join(quick)} in "), said
+    assert "tv" not in said.split(" in ")[0], said
     with pytest.raises(SystemExit) as exit_:
         main(["warmup", "--dtype", "float16"])  # argparse's choices: a usage error
     assert exit_.value.code == 2 and "invalid choice" in capsys.readouterr().err
