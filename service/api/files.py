@@ -65,7 +65,7 @@ class HeldFileResponse(FileResponse):
 
     def __init__(self, path: str | os.PathLike, *, gone: str, **kwargs: Any) -> None:
         try:
-            self._held = open(path, "rb")  # noqa: SIM115 -- closed once the answer is sent
+            self._held = open(path, "rb")  # closed once the answer is sent
         except (FileNotFoundError, IsADirectoryError, NotADirectoryError):
             raise HTTPException(404, gone) from None
         stat_result = os.fstat(self._held.fileno())

@@ -216,7 +216,7 @@ class CappedRecords(logging.Filter):
     def filter(self, record: logging.LogRecord) -> bool:
         try:
             message = record.getMessage()
-        except Exception:  # noqa: BLE001 -- a record that cannot format itself is passed on as it is
+        except Exception:  # a record that cannot format itself is passed on as it is
             return True
         if record.levelno < logging.ERROR and record.name in self.repeat_loggers:
             passes, skipped = self._thinning.let_through((record.name, message[:FIELD_MAX]), self.interval_s,

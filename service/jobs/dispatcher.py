@@ -218,7 +218,7 @@ class Dispatcher(Loop):
             if self._orphaned is not None:
                 try:
                     self._orphaned(job_id, exc)
-                except Exception:  # noqa: BLE001 -- logged; the restart's recovery is the last resort
+                except Exception:  # logged; the restart's recovery is the last resort
                     self._log.exception("%s: job=%s could not be ended", self.name, job_id)
         finally:
             self.wake()  # its memory, its scanner are free again

@@ -84,7 +84,7 @@ def start_worker(increment: int = 0, parent: int | None = None, warm: bool = Fal
             from service.jobs.work import warm_up
 
             warm_up(full=True, rest_in_background=True)
-        except Exception:  # noqa: BLE001 -- a warm-up must never stop the worker
+        except Exception:  # a warm-up must never stop the worker
             import logging
 
             logging.getLogger("fpscan.worker").exception("worker warm-up failed")

@@ -411,7 +411,7 @@ class ReconQueue:
         if future is not None:
             try:
                 future.result()
-            except BaseException:  # noqa: BLE001 -- the job has ended; how its worker stopped does not matter
+            except BaseException:  # the job has ended; how its worker stopped does not matter
                 pass
         shutil.rmtree(out_dir, ignore_errors=True)
 

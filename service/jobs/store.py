@@ -359,7 +359,7 @@ class JobStore:
             for listener in list(self._listeners):
                 try:
                     listener(job_id)
-                except Exception:  # noqa: BLE001 -- a listener never undoes a committed change
+                except Exception:  # a listener never undoes a committed change
                     log.exception("job event listener failed")
         return out
 

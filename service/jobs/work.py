@@ -593,7 +593,7 @@ def _warm_rest() -> None:
                 # just as one arrives (the first job after start-up usually comes at once)
                 JOB_GATE.wait_quiet(WARM_QUIET_S, since=started)
                 compile_kernels(dtypes=[dtype], methods=[name])
-    except Exception:  # noqa: BLE001 -- a warm-up must never stop the worker
+    except Exception:  # a warm-up must never stop the worker
         import logging
 
         logging.getLogger("fpscan.worker").exception("worker warm-up (the background methods) failed")

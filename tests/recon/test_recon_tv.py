@@ -74,7 +74,7 @@ def _tv_2d(t, **kw):
 
 def test_tv_on_32_equiangular_sensors_beats_nedner_and_full_data(tree_2d):
     t = tree_2d
-    cc = lambda img: correlation_coefficient(img, t["p0"], t["roi"])  # noqa: E731
+    cc = lambda img: correlation_coefficient(img, t["p0"], t["roi"])
     tv = _tv_2d(t)
     cc_tv = cc(tv.p0)
     nedner = reconstruct_points(t["g"][:, t["idx"]].T, t["pos"], t["dt"], C, weights=t["w"], grid=(t["x"],),

@@ -21,7 +21,7 @@ rng = np.random.default_rng(47)
 def test_resampling_is_exact_on_its_band_and_its_transpose_is_the_adjoint():
     t = np.linspace(0.0, 1.0, 97)  # a record of 97 samples on [0, 1]
     terms = [(0.0, 0.3), (4.5, 1.0), (11.0, -0.7)]  # cosines of 4.5 and 11 periods: DCT-I terms 9 and 22
-    series = lambda tt: sum(a * np.cos(2 * np.pi * f * tt) for f, a in terms)  # noqa: E731
+    series = lambda tt: sum(a * np.cos(2 * np.pi * f * tt) for f, a in terms)
     for m in (24, 40, 97, 150):  # every term kept (k <= m - 2), down- and up-sampled
         np.testing.assert_allclose(resample(series(t), m), series(np.linspace(0, 1, m)), atol=1e-12)
     low = resample(series(t), 20)  # terms up to k = 18: the 11-period cosine is cut, exactly

@@ -57,7 +57,7 @@ def test_kwave_files_without_coordinates_follow_kwavegrid(tmp_path):
     with h5py.File(ours, "w") as f:
         f["sensor_data"] = data
         f.attrs.update({"dt_s": 1e-8, "dx_m": 1e-4, "dy_m": 1e-4})
-    kwave_vec = lambda n, d: (np.arange(n) - n // 2) * d  # noqa: E731  (kWaveGrid.x_vec)
+    kwave_vec = lambda n, d: (np.arange(n) - n // 2) * d  # kWaveGrid.x_vec
     rec = reconstruct(load_dataset(kw), "ner", n_z=8)
     np.testing.assert_allclose(rec.x, kwave_vec(5, 1e-4), atol=1e-15)
     np.testing.assert_allclose(rec.y, kwave_vec(6, 1e-4), atol=1e-15)
