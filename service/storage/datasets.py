@@ -285,7 +285,8 @@ def load_wavelengths(path: str | os.PathLike, format: str | None = None, *, wave
 HDF5_KEY_CHARS = set("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_-/.")
 
 
-def import_dataset(src: str | os.PathLike, dest_dir: str | os.PathLike, fmt: str, *, dt, dx, dy, c, key,
+def import_dataset(src: str | os.PathLike, dest_dir: str | os.PathLike, fmt: str, *, dt: float | None,
+                   dx: float | None, dy: float | None, c: float | None, key: str | None,
                    max_bytes: int | None = None, force: bool = False, wavelength: int | None = None) -> dict:
     """Validate and convert an uploaded file into ``dest_dir/dataset.h5``.
 

@@ -17,9 +17,12 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from PIL import Image, ImageDraw, ImageFont
 
 __all__ = ["Frame", "frame_layout", "draw_frame", "colour_lut", "tick_values", "tick_labels", "power_in_label"]
 
@@ -235,7 +238,7 @@ def colour_lut(cmap: Any, n: int = 256) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=8)
-def _font(size_px: int):
+def _font(size_px: int) -> ImageFont.FreeTypeFont:
     """DejaVu Sans (the font file matplotlib ships and draws with) at ``size_px``."""
     import os
 
@@ -246,11 +249,11 @@ def _font(size_px: int):
                               size_px)
 
 
-def _text_width(draw, text: str, font) -> float:
+def _text_width(draw: ImageDraw.ImageDraw, text: str, font: ImageFont.FreeTypeFont) -> float:
     return float(draw.textlength(text, font=font)) if text else 0.0
 
 
-def _vertical_text(canvas, text: str, font, centre: tuple[float, float], right_edge: float | None = None,
+def _vertical_text(canvas: Image.Image, text: str, font: ImageFont.FreeTypeFont, centre: tuple[float, float], right_edge: float | None = None,
                    left_edge: float | None = None) -> None:
     """``text`` rotated 90° (read bottom to top), centred vertically on ``centre[1]``, with its
     right (or left) edge at ``right_edge`` (``left_edge``); horizontally centred on

@@ -42,9 +42,16 @@ from __future__ import annotations
 
 import io
 import json
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colorbar import Colorbar
+    from matplotlib.colors import Colormap
+    from matplotlib.figure import Figure
 
 from service.metrics.projections import mip
 
@@ -338,7 +345,7 @@ FIGURE_WIDTH_IN, FIGURE_DPI = 4.0, 150
 FONT_PT, TICK_PT = 12.0, 11.0
 
 
-def _figure(width_mm: float, height_mm: float, *, dpi: int = FIGURE_DPI):
+def _figure(width_mm: float, height_mm: float, *, dpi: int = FIGURE_DPI) -> tuple[Figure, Axes]:
     """A figure sized for a plot ``width_mm`` × ``height_mm`` at equal aspect."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -380,7 +387,7 @@ def _colourbar_scale(label: str, lo: float, hi: float) -> tuple[float, str]:
     return divisor, label
 
 
-def _fit_title(fig, ax, title: str) -> int:
+def _fit_title(fig: Figure, ax: Axes, title: str) -> int:
     """Set ``title`` on ``ax`` at FONT_PT (centred over the plot, as every picture's), each
     line wrapped at spaces so that it stays inside the figure (the mask preview's
     "equisteradian: 1653 of 1625 requested points on 226×226" was cut at both sides); returns
@@ -390,7 +397,7 @@ def _fit_title(fig, ax, title: str) -> int:
     box = ax.get_position()
     centre = (box.x0 + box.x1) / 2  # figure fraction
     room_px = 2 * min(centre, 1 - centre) * fig.get_size_inches()[0] * fig.dpi * 0.97
-    renderer = fig.canvas.get_renderer()
+    renderer = fig.canvas.get_renderer()  # type: ignore[attr-defined]  # Agg canvas (_figure)
     text = ax.set_title(title, fontsize=FONT_PT)
     for chars in range(max(len(line) for line in title.split("\n")), 8, -1):
         if text.get_window_extent(renderer).width <= room_px:
@@ -399,7 +406,7 @@ def _fit_title(fig, ax, title: str) -> int:
     return text.get_text().count("\n") + 1
 
 
-def _finish(fig, ax, mappable, *, hlabel: str, vlabel: str | None, title: str | None,
+def _finish(fig: Figure, ax: Axes, mappable: ScalarMappable, *, hlabel: str, vlabel: str | None, title: str | None,
             colorbar_label: str) -> bytes:
     """Labels, title (wrapped to fit: :func:`_fit_title`) and colour bar (its units chosen so
     no factor sits beside it: :func:`_colourbar_scale`) of every picture; the PNG with its
@@ -439,14 +446,14 @@ def _finish(fig, ax, mappable, *, hlabel: str, vlabel: str | None, title: str | 
     return _with_text_chunk(buf.getvalue(), AXES_KEY, json.dumps(geometry))
 
 
-def _readable_text(ax, cb) -> None:
+def _readable_text(ax: Axes, cb: Colorbar) -> None:
     """Text sizes of a picture shown at about half its pixel width (FONT_PT, TICK_PT)."""
-    ax.xaxis.label.set_size(FONT_PT)
-    ax.yaxis.label.set_size(FONT_PT)
-    ax.title.set_size(FONT_PT)
+    ax.xaxis.label.set_fontsize(FONT_PT)
+    ax.yaxis.label.set_fontsize(FONT_PT)
+    ax.title.set_fontsize(FONT_PT)
     ax.tick_params(labelsize=TICK_PT)
     cb.ax.tick_params(labelsize=TICK_PT)
-    cb.ax.yaxis.label.set_size(FONT_PT)
+    cb.ax.yaxis.label.set_fontsize(FONT_PT)
 
 
 def _with_text_chunk(png: bytes, key: str, text: str) -> bytes:
@@ -637,7 +644,7 @@ def render_lattice(indices: np.ndarray, values: np.ndarray, n_x: int, n_y: int, 
                    colorbar_label=colorbar_label)
 
 
-def _colormap(name: str):
+def _colormap(name: str) -> Colormap:
     import matplotlib
     try:
         return matplotlib.colormaps[name]
