@@ -339,7 +339,8 @@ def aline_order(n_points: int, n_wavelengths: int, order: str,
     raise ValueError(f"wavelength order must be one of {WAVELENGTH_ORDERS}, got {order!r}")
 
 
-def aline_index(k, w, n_points: int, n_wavelengths: int, order: str):
+def aline_index(k: int | np.ndarray, w: int | np.ndarray, n_points: int, n_wavelengths: int,
+                order: str) -> int | np.ndarray:
     """Inverse of :func:`aline_order`: the acquisition index of point ``k`` at wavelength
     ``w`` (ints or int arrays). Raises ``ValueError`` for an unknown ``order``.
 

@@ -34,6 +34,8 @@ TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (`fpscan 
 if TYPE_CHECKING:
     from typing import Any
 
+    import pint
+
 __all__ = [
     "KINDS", "PITCH_RANGE", "DT_RANGE", "MAGNITUDE_MAX", "RefusedInput", "ImplausibleValue", "parse_quantity",
     "suggest_unit", "check_speeds", "check_plausible",
@@ -81,7 +83,7 @@ class ImplausibleValue(RefusedInput):
 
 
 @functools.cache
-def _registry():
+def _registry() -> pint.UnitRegistry:
     from decimal import Decimal
 
     import pint
