@@ -56,9 +56,12 @@ def add_arguments(parser):
     """
     METHODS: dict
     try:
-        from service.recon.methods import METHODS
+        from service.recon.methods import METHODS, default_for
     except ImportError:  # no service package: the server checks the method
         METHODS = {}
+    # the registry's defaults (Method.default_for), named in the help when it is there
+    defaults = (f"{default_for('grid')} for grid data, {default_for('points')} for sensor points"
+                if METHODS else "the server's for the data")
 
     parser.add_argument("input", nargs="?", help="scan file (HDF5), IPASC file, k-Wave HDF5, k-Wave MAT-file (.mat: "
                                                  "MAT v5/v7/v7.3, as MATLAB or Octave save it) or .npy array; the "
@@ -67,7 +70,7 @@ def add_arguments(parser):
     methods = "; ".join(f"{m.name}: {m.title}" for m in METHODS.values())
     parser.add_argument("--method", choices=list(METHODS) or None, default=None,
                         help="reconstruction method (default: the pipeline's, service.pipeline.default_method: "
-                             f"ner for grid data, nedner for sensor points; locally and on the server). {methods}. "
+                             f"{defaults}; locally and on the server). {methods}. "
                              "Grid methods need every lattice point.")
     parser.add_argument("--out", default=None, metavar="DIR",
                         help="output folder (default: <input>-<method>/ or recon-<job>/)")

@@ -166,8 +166,12 @@ def option_flags() -> dict[str, str]:
     methods = _registry()
     if methods is None:
         return {}
-    out = {"c": "--sound-speed", "sound_speed": "--sound-speed", "c_range": "--sound-speed-range",
-           "sound_speed_range": "--sound-speed-range"}
+    from service.names import PERSON_NAMES  # the one c <-> sound_speed table
+
+    out = {}
+    for code in ("c", "c_range"):  # add_speed_flags's dests; each flag is the person's name
+        person = PERSON_NAMES[code]
+        out[code] = out[person] = "--" + person.replace("_", "-")
     for m in methods.METHODS.values():
         for o in methods.option_schemas(m):
             out.setdefault(o["name"], o["schema"].get("flag") or "--" + o["name"].replace("_", "-"))
@@ -227,7 +231,10 @@ def http_params(params: dict) -> dict:
     -------
     dict
         A copy with ``c`` renamed ``sound_speed`` and ``c_range`` ``sound_speed_range`` (the
-        server takes ``c`` / ``c_range`` too, deprecated); other keys as they are.
+        server takes ``c`` / ``c_range`` too, deprecated); other keys as they are. The names
+        are :data:`service.names.PERSON_NAMES` (standard library only: a client-only install
+        has it too).
     """
-    names = {"c": "sound_speed", "c_range": "sound_speed_range"}
-    return {names.get(k, k): v for k, v in params.items()}
+    from service.names import PERSON_NAMES
+
+    return {PERSON_NAMES.get(k, k): v for k, v in params.items()}

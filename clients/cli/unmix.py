@@ -44,8 +44,12 @@ def add_arguments(parser):
     from clients.cli.recon import add_format_option
 
     add_format_option(parser)
-    parser.add_argument("--method", default=None,
-                        help="reconstruction method (default: nedner for scans, ner for grids)")
+    try:  # the registry's defaults (Method.default_for); a client-only install: the server's
+        from service.recon.methods import default_for
+        defaults = f"{default_for('points')} for scans, {default_for('grid')} for grids"
+    except ImportError:
+        defaults = "the server's for the data"
+    parser.add_argument("--method", default=None, help=f"reconstruction method (default: {defaults})")
     parser.add_argument("--out", default=None, metavar="DIR", help="output folder (default: <input>-unmix/)")
     from clients.cli.recon_options import add_load_flags, add_option_flags, add_speed_flags
 

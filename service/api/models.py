@@ -984,7 +984,8 @@ class ReconRequest(_Request):
         None, max_length=16, description="excitation wavelength of each of dataset_ids, m")
     method: ReconMethod | None = Field(  # type: ignore[valid-type]
         None, description="reconstruction method; absent or null: the default for the input "
-                          "(service.pipeline.default_method: ner for grid data, nedner for sensor points)")
+                          f"(service.pipeline.default_method: {_methods.default_for('grid')} for grid data, "
+                          f"{_methods.default_for('points')} for sensor points)")
     params: ReconParams = Field(default_factory=ReconParams)
     wavelength: Annotated[int, Field(ge=0, le=15)] | Literal["all"] | None = Field(
         None, description="excitation wavelength of a multi-wavelength input: an index into its wavelengths, or "

@@ -140,6 +140,9 @@ class Reconstructions(SyncCaller):
                              method: str | None = None, params: Mapping | None = None,
                              wavelength: int | str | None = None,
                              idempotency_key: str | None = None, plan_id: str | None = None) -> str | None:
+        # The defaults below (ner, nedner) are typed by hand: clients.http never imports service (an
+        # import contract), so it cannot read the registry's Method.default_for; the server's own
+        # word is GET /api/reconstructions/methods (each method's default_for, :meth:`methods`).
         """``POST /api/reconstructions``: start a reconstruction job.
 
         Parameters
