@@ -88,6 +88,9 @@ def open_file_limit() -> int | None:
 
 #: connections closed in a burst before the heap's free memory is given back (:func:`return_memory`)
 BURST_CONNECTIONS = 256
+#: seconds without a close after a burst's last ones before their memory is given back too
+#: (a burst's tail: fewer than :data:`BURST_CONNECTIONS` closed after its last return)
+BURST_TAIL_S = 1.0
 
 
 def return_memory() -> bool:
@@ -112,6 +115,24 @@ def return_memory() -> bool:
         return bool(libc.malloc_trim(0))
     except (OSError, AttributeError, TypeError):
         return False
+
+
+_TAIL_TIMERS: dict[int, Any] = {}
+
+
+def _return_tail(loop: Any, guard: ConnectionGuard) -> None:
+    """Return the memory of a burst's tail :data:`BURST_TAIL_S` after its last close (one
+    timer per guard, pushed back by each close)."""
+    timer = _TAIL_TIMERS.pop(id(guard), None)
+    if timer is not None:
+        timer.cancel()
+
+    def fire() -> None:
+        _TAIL_TIMERS.pop(id(guard), None)
+        guard.tail_returned()
+        return_memory()
+
+    _TAIL_TIMERS[id(guard)] = loop.call_later(BURST_TAIL_S, fire)
 
 
 class ConnectionGuard:
@@ -178,6 +199,7 @@ class ConnectionGuard:
         self.refused_count = 0
         self._peak = 0  # most connections at once since memory was last returned
         self._closed = 0  # connections closed since then
+        self._in_burst = False  # memory was returned amid a burst, and its tail may follow
 
     @classmethod
     def from_settings(cls, settings: Settings) -> ConnectionGuard:
@@ -247,8 +269,19 @@ class ConnectionGuard:
             self._closed += 1
             if self._closed < BURST_CONNECTIONS or self.total > self._peak // 4:
                 return False
-            self._closed, self._peak = 0, self.total
+            self._closed, self._peak, self._in_burst = 0, self.total, True
             return True
+
+    def tail_due(self) -> bool:
+        """Whether connections closed since a burst's last :meth:`burst_over` (its tail):
+        their memory is to be returned once closes stop (:meth:`tail_returned`)."""
+        with self._lock:
+            return self._in_burst and self._closed > 0
+
+    def tail_returned(self) -> None:
+        """The memory of a burst's tail was returned: the burst is over."""
+        with self._lock:
+            self._closed, self._peak, self._in_burst = 0, self.total, False
 
     def _leave(self, address: str, pool: str) -> None:
         if pool == "stranger":
@@ -362,6 +395,8 @@ class GuardedHttp(HttpToolsProtocol):
         super().connection_lost(exc)
         if self.guard.burst_over():
             self.loop.call_soon(return_memory)
+        elif self.guard.tail_due():  # once closes stop, the rest of the burst's memory too
+            _return_tail(self.loop, self.guard)
 
     def data_received(self, data: bytes) -> None:
         if self._closed_by_us:
