@@ -8,6 +8,13 @@ from __future__ import annotations
 
 import functools
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    import os
+    from collections.abc import Callable
+
+    from driver.host import Scanner, ScanProgress, ScanResult
 
 __all__ = ["software_version", "acquire"]
 
@@ -52,8 +59,9 @@ def software_version() -> str:
         return "0+unknown"
 
 
-def acquire(port: str, plan, out, *, progress=None, scanner=None, durable: str = "process",
-            **scanner_options):
+def acquire(port: str, plan: dict | str | os.PathLike, out: str | os.PathLike, *,
+            progress: Callable[[ScanProgress], None] | None = None, scanner: Scanner | None = None,
+            durable: str = "process", **scanner_options: Any) -> ScanResult:
     """Scan ``plan`` (dict or plan JSON path) on ``port`` into the scan file ``out``.
 
     If ``out`` exists it must be a scan file of the same plan; the scan resumes from its
@@ -104,7 +112,7 @@ def acquire(port: str, plan, out, *, progress=None, scanner=None, durable: str =
     plan = load_plan(plan)
     out = Path(out)
     own = scanner is None
-    sc = Scanner(port, **scanner_options) if own else scanner
+    sc = Scanner(port, **scanner_options) if scanner is None else scanner
     try:
         instrument = sc.identify()
         resume = out.exists()

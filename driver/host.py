@@ -29,15 +29,21 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from driver import commands as cmd
-from driver.aline import unpack_aline
+from driver.aline import ALine, unpack_aline
 from driver.commands import MAX_CHUNK
 from driver.framing import PROTOCOL_VERSION, Deframer, Frame, FrameType, encode_frame
 from driver.plan import aline_index, aline_order, load_plan, plan_image, wavelength_order
 from driver.transport import READER_MODES, TransportError, open_reader
+
+if TYPE_CHECKING:
+    import os
+
+    import serial
 
 __all__ = [
     "DriverError", "DeviceTimeout", "DeviceError", "InterlockOpen", "DeviceStatus", "ScanProgress", "ScanResult",
@@ -335,7 +341,7 @@ class Scanner:
     def __enter__(self) -> Scanner:
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.close()
 
     def _write(self, data: bytes) -> None:
@@ -499,7 +505,7 @@ class Scanner:
             out.append((code, msg.strip('"')))
         return out
 
-    def upload_plan(self, plan) -> str:
+    def upload_plan(self, plan: dict | str | os.PathLike) -> str:
         """Upload a plan (dict or path) in chunks; verify its SHA-256 and ``PLAN:ID?``.
 
         Aborts a run the device still has (and clears a FAULT whose interlock closed)
@@ -567,7 +573,7 @@ class Scanner:
             self.query(_CONTROL_COMMANDS[what])
 
     # ------------------------------------------------------------------ scanning
-    def scan(self, plan, sink, *, progress: Callable[[ScanProgress], None] | None = None,
+    def scan(self, plan: dict | str | os.PathLike, sink: Any, *, progress: Callable[[ScanProgress], None] | None = None,
              progress_interval: float = 0.25, upload: bool = True) -> ScanResult:
         """Acquire every A-line (point × wavelength) of ``plan`` not yet complete in ``sink``.
 
@@ -621,7 +627,7 @@ _CONTROL_COMMANDS = {"pause": cmd.SCAN_PAUSE, "resume": cmd.SCAN_RESUME,
                      "abort": cmd.SCAN_ABORT}
 
 
-def _open_port(port: str, baudrate: int, lock_timeout: float):
+def _open_port(port: str, baudrate: int, lock_timeout: float) -> serial.SerialBase:
     """``serial.serial_for_url`` with an exclusive lock, retrying a held lock (a host that
     just died may hold it for a moment through its reader process)."""
     import serial
@@ -670,9 +676,9 @@ class ScanSession:
         The sink's record does not match the plan's shape, or the sink is for another plan.
     """
 
-    def __init__(self, scanner: Scanner, plan: dict, sink, *,
+    def __init__(self, scanner: Scanner, plan: dict, sink: Any, *,
                  progress: Callable[[ScanProgress], None] | None = None,
-                 progress_interval: float = 0.25):
+                 progress_interval: float = 0.25) -> None:
         self.sc = scanner
         self.plan = plan
         self.sink = sink
@@ -815,7 +821,7 @@ class ScanSession:
                                now - self.t_start, self.done, self.done_s.size))
 
     # ------------------------------------------------------------------ receiving
-    def on_aline(self, fr) -> None:
+    def on_aline(self, fr: Frame) -> None:
         """One ALINE frame from the dispatch: sequence bookkeeping, then the sink."""
         run = self.current
         if run is None:  # overtook the SCAN:STAR reply: keep it for the run
@@ -838,7 +844,7 @@ class ScanSession:
         self.counters["alines"] += 1
         self._store(a, run.last_rx)
 
-    def _store(self, a, t_rx: float) -> None:
+    def _store(self, a: ALine, t_rx: float) -> None:
         k, w = a.point_index, a.wavelength_index
         if not (0 <= k < self.n and 0 <= w < self.n_w) or a.samples.size != self.n_t:
             self.sc.faults["bad_alines"] += 1

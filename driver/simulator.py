@@ -49,17 +49,19 @@ import tty
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from driver import commands as scpi
 from driver.aline import pack_aline, quantise
 from driver.faults import FaultSpec, damage
-from driver.framing import Deframer, FrameType, encode_frame
+from driver.framing import Deframer, Frame, FrameType, encode_frame
 from driver.plan import DevicePlan, image_size_limit, parse_plan_image
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     from driver.sources import PressureFn, Source
 
 __all__ = ["FIRMWARE_VERSION", "INITIAL_WINDOW", "BLOCK", "SimConfig", "SimulatedScanner", "sensor_response"]
@@ -143,7 +145,7 @@ class SimConfig:
     serial: str = "SIM0001"
     precompute: bool = False  #: generate all A-lines of a plan at PLAN:END
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         """Raises ``ValueError`` naming the first setting out of range."""
         checks = [
             ("prf", self.prf >= 0, ">= 0 Hz"),
@@ -221,7 +223,7 @@ class SimulatedScanner:
         A setting out of range (from :class:`SimConfig`).
     """
 
-    def __init__(self, config: SimConfig | None = None, **kwargs):
+    def __init__(self, config: SimConfig | None = None, **kwargs: Any) -> None:
         self.config = config or SimConfig(**kwargs)
         if self.config.source is None:
             from driver.sources import BallSource, default_phantom
@@ -267,10 +269,10 @@ class SimulatedScanner:
             except OSError:
                 pass
 
-    def __enter__(self):
+    def __enter__(self) -> SimulatedScanner:
         return self.start()
 
-    def __exit__(self, *exc):
+    def __exit__(self, *exc: object) -> None:
         self.stop()
 
     def hold(self) -> _Held:
@@ -431,7 +433,7 @@ class SimulatedScanner:
         self._out += wire
 
     # ------------------------------------------------------------------ frames
-    def _on_frame(self, frame) -> None:
+    def _on_frame(self, frame: Frame) -> None:
         t = frame.type
         if t == FrameType.CMD:
             key = (frame.seq, frame.payload)
@@ -624,21 +626,20 @@ class SimulatedScanner:
     def _block(self, bi: int) -> Future:
         """Future of block ``bi``'s A-lines (generated in the helper thread), prefetching
         the next block and forgetting old ones."""
-        plan = self._loaded_plan()
+        plan, pressure = self._loaded_plan(), self._pressure
+        assert pressure is not None  # set with the plan (PLAN:END)
         got = self._blocks.get(bi)
         if got is None:
-            got = self._blocks[bi] = self._pool.submit(self._generate, plan,
-                                                       self._pressure, bi)
+            got = self._blocks[bi] = self._pool.submit(self._generate, plan, pressure, bi)
         n_blocks = math.ceil(plan.n_alines / BLOCK)
         if bi + 1 < n_blocks and bi + 1 not in self._blocks:
-            self._blocks[bi + 1] = self._pool.submit(self._generate, plan,
-                                                     self._pressure, bi + 1)
+            self._blocks[bi + 1] = self._pool.submit(self._generate, plan, pressure, bi + 1)
         if not self.config.precompute:
             for old in [b for b in self._blocks if b < bi - 1 or b > bi + 2]:
                 del self._blocks[old]
         return got
 
-    def _generate(self, plan: DevicePlan, pressure, bi: int) -> dict:
+    def _generate(self, plan: DevicePlan, pressure: PressureFn, bi: int) -> dict:
         """A-lines [bi·BLOCK, (bi+1)·BLOCK) in acquisition order as int16 with their
         metadata."""
         cfg = self.config
@@ -679,42 +680,42 @@ class SimulatedScanner:
             raise _Error(-113, f"Undefined header; {cmd.header}")
         return handler(self, cmd) or b""
 
-    def _cmd_idn(self, cmd):
+    def _cmd_idn(self, cmd: scpi.Command) -> bytes:
         return f"fpscan,FP-SIM,{self.config.serial},{FIRMWARE_VERSION}".encode()
 
-    def _cmd_rst(self, cmd):
+    def _cmd_rst(self, cmd: scpi.Command) -> bytes:
         self._abort()
         return b""
 
-    def _cmd_cls(self, cmd):
+    def _cmd_cls(self, cmd: scpi.Command) -> None:
         self._errors.clear()
 
-    def _cmd_opc(self, cmd):
+    def _cmd_opc(self, cmd: scpi.Command) -> bytes:
         return b"1"
 
-    def _cmd_err(self, cmd):
+    def _cmd_err(self, cmd: scpi.Command) -> bytes:
         if not self._errors:
             return b'0,"No error"'
         code, msg = self._errors.popleft()
         return f'{code},"{msg}"'.encode()
 
-    def _cmd_prot(self, cmd):
+    def _cmd_prot(self, cmd: scpi.Command) -> bytes:
         from driver.framing import PROTOCOL_VERSION
 
         return str(PROTOCOL_VERSION).encode()
 
-    def _cmd_boot(self, cmd):
+    def _cmd_boot(self, cmd: scpi.Command) -> bytes:
         return str(self._boot_id).encode()
 
-    def _cmd_lim(self, cmd):
+    def _cmd_lim(self, cmd: scpi.Command) -> bytes:
         c = self.config
         return f"{c.max_points},{c.max_samples},{c.max_window},{scpi.MAX_CHUNK}".encode()
 
-    def _require_idle(self):
+    def _require_idle(self) -> None:
         if self._state in ("RUNNING", "PAUSED"):
             raise _Error(-221, "Settings conflict; scan running (SCAN:ABOR first)")
 
-    def _cmd_plan_begin(self, cmd):
+    def _cmd_plan_begin(self, cmd: scpi.Command) -> None:
         self._require_idle()
         n = scpi.int_arg(cmd, 0)
         limit = image_size_limit(self.config.max_points)
@@ -727,7 +728,7 @@ class SimulatedScanner:
         self._plan_expected = n
         self._plan_hash = ""
 
-    def _cmd_plan_data(self, cmd):
+    def _cmd_plan_data(self, cmd: scpi.Command) -> None:
         self._require_idle()
         if self._plan_expected == 0:
             raise _Error(-200, "Execution error; PLAN:DATA without PLAN:BEG")
@@ -749,7 +750,7 @@ class SimulatedScanner:
                                "already received")
         self._plan_image += block[overlap:]
 
-    def _cmd_plan_end(self, cmd):
+    def _cmd_plan_end(self, cmd: scpi.Command) -> None:
         self._require_idle()
         if self._plan_expected == 0:
             raise _Error(-200, "Execution error; PLAN:END without PLAN:BEG")
@@ -797,16 +798,16 @@ class SimulatedScanner:
         else:
             self._blocks[0] = self._pool.submit(self._generate, plan, pressure, 0)
 
-    def _cmd_plan_id(self, cmd):
+    def _cmd_plan_id(self, cmd: scpi.Command) -> bytes:
         return (self._plan.plan_id if self._plan else "NONE").encode()
 
-    def _cmd_plan_hash(self, cmd):
+    def _cmd_plan_hash(self, cmd: scpi.Command) -> bytes:
         return (self._plan_hash or "NONE").encode()
 
-    def _cmd_plan_points(self, cmd):
+    def _cmd_plan_points(self, cmd: scpi.Command) -> bytes:
         return str(self._plan.n_points if self._plan else 0).encode()
 
-    def _cmd_scan_start(self, cmd):
+    def _cmd_scan_start(self, cmd: scpi.Command) -> bytes:
         self._require_idle()
         if self._state == "FAULT" or self._interlock_until:
             raise _Error(101, "Laser interlock open")
@@ -829,13 +830,13 @@ class SimulatedScanner:
         self._last_tick = 0
         return f"{self._run_id},{self._next_seq}".encode()
 
-    def _cmd_scan_pause(self, cmd):
+    def _cmd_scan_pause(self, cmd: scpi.Command) -> None:
         if self._state == "RUNNING":
             self._state = "PAUSED"
         elif self._state != "PAUSED":
             raise _Error(-221, "Settings conflict; no scan running")
 
-    def _cmd_scan_resume(self, cmd):
+    def _cmd_scan_resume(self, cmd: scpi.Command) -> None:
         if self._state == "PAUSED":
             self._state = "RUNNING"
             self._clock0 = self._last_fire = time.monotonic()
@@ -844,26 +845,26 @@ class SimulatedScanner:
         elif self._state != "RUNNING":
             raise _Error(-221, "Settings conflict; no paused scan")
 
-    def _abort(self):
+    def _abort(self) -> None:
         if self._state != "FAULT" or not self._interlock_until:
             self._state = "IDLE"
         self._unacked.clear()
         self._resend.clear()
         self._resend_set.clear()
 
-    def _cmd_scan_abort(self, cmd):
+    def _cmd_scan_abort(self, cmd: scpi.Command) -> None:
         self._abort()
 
-    def _cmd_scan_status(self, cmd):
+    def _cmd_scan_status(self, cmd: scpi.Command) -> bytes:
         n = self._plan.n_alines if self._plan else 0
         return (f"{self._state},{self._boot_id},{self._run_id},{self._next_k},{n},"
                 f"{self._next_seq},{len(self._unacked)}").encode()
 
-    def _cmd_interlock(self, cmd):
+    def _cmd_interlock(self, cmd: scpi.Command) -> bytes:
         return b"1" if self._interlock_until else b"0"
 
     # ------------------------------------------------------------------ record
-    def write_record(self, path) -> None:
+    def write_record(self, path: str | os.PathLike) -> None:
         """Write the ground truth — every A-line as last sent, per plan — to HDF5.
 
         Layout: group ``/plans/<plan_id>`` with ``samples`` int16
@@ -931,7 +932,7 @@ def sensor_response(alines: np.ndarray, bandwidth: float, dt: float) -> np.ndarr
     return sosfilt(butter(2, fc, fs=1 / dt, output="sos"), alines, axis=-1)
 
 
-def _handlers() -> dict:
+def _handlers() -> dict[str, Callable[[SimulatedScanner, scpi.Command], bytes | None]]:
     """Command dispatch on the canonical long header of each command of driver.commands."""
     c, s = scpi, SimulatedScanner
     table = {

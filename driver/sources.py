@@ -129,7 +129,7 @@ class BallSource:
     gruneisen: float = 0.2
     fluence: float = 100.0
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if self.so2 is None:
             self._amplitudes = np.array([[b.amplitude for b in self.balls]], dtype=np.float64)
             return
@@ -177,7 +177,7 @@ class BallSource:
         balls_at = [[dataclasses.replace(b, amplitude=float(a)) for b, a in zip(self.balls, row)]
                     for row in self._amplitudes]
 
-        def pressure(ks, ws=None):
+        def pressure(ks: np.ndarray, ws: np.ndarray | None = None) -> np.ndarray:
             ks = np.asarray(ks)
             ws = np.zeros(len(ks), np.int64) if ws is None else np.asarray(ws)
             out = np.zeros((len(ks), n_t))
@@ -195,7 +195,7 @@ class BallSource:
 
 
 def _ball_pressure(p: np.ndarray, balls: list, dt: float, n_t: int, c: float,
-                   ball_alines) -> np.ndarray:
+                   ball_alines: Callable[..., np.ndarray]) -> np.ndarray:
     """Sum of the balls' waves at positions ``p`` ``(n, 2)``: ``(n, n_t)`` Pa; each ball
     only where its wave is (samples of (r - R)/c … (r + R)/c)."""
     out = np.zeros((len(p), n_t))
@@ -231,7 +231,7 @@ class VolumeSource:
     path: Path
     c: float = C_DEFAULT
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         from driver.scanfile import open_checked
 
         self.path = Path(self.path)
@@ -258,7 +258,7 @@ class VolumeSource:
         chunk = 4096
         cache: dict[int, np.ndarray] = {}
 
-        def pressure(ks, ws=None):
+        def pressure(ks: np.ndarray, ws: np.ndarray | None = None) -> np.ndarray:
             # the same A-line at every wavelength; one forward model evaluation per 4096 plan points (it costs a k-space
             # transform of the volume each time), cached
             out = np.empty((len(ks), plan.n_t))
@@ -303,7 +303,7 @@ class ReplaySource:
     path: Path
     dataset: str = "sensor_data/clean"
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         from driver.scanfile import open_checked
 
         self.path = Path(self.path)
@@ -353,7 +353,7 @@ class ReplaySource:
                              f"replay grid {n_x}x{n_y}")
         idx = plan.indices.astype(np.intp) + np.array([int(off_x), int(off_y)])
 
-        def pressure(ks, ws=None):  # the same A-line at every wavelength
+        def pressure(ks: np.ndarray, ws: np.ndarray | None = None) -> np.ndarray:  # the same A-line at every wavelength
             return self.alines[idx[ks, 1], idx[ks, 0], :plan.n_t].astype(np.float64)
 
         return pressure

@@ -61,7 +61,7 @@ class DirectReader:
         Its name in error messages (default the port's own ``port`` attribute).
     """
 
-    def __init__(self, ser, port: str = "") -> None:
+    def __init__(self, ser: serial.SerialBase, port: str = "") -> None:
         self._ser = ser
         self._port = port or getattr(ser, "port", "")
 
@@ -88,13 +88,13 @@ class _QueueProtocol(Protocol):
     def __init__(self, q: queue.SimpleQueue) -> None:
         self._q = q
 
-    def connection_made(self, transport) -> None:
+    def connection_made(self, transport: ReaderThread) -> None:
         pass
 
     def data_received(self, data: bytes) -> None:
         self._q.put(bytes(data))
 
-    def connection_lost(self, exc) -> None:
+    def connection_lost(self, exc: BaseException | None) -> None:
         if exc is not None:
             self._q.put(exc)
 
@@ -110,7 +110,7 @@ class ThreadReader:
         Its name in error messages (default the port's own ``port`` attribute).
     """
 
-    def __init__(self, ser, port: str = "") -> None:
+    def __init__(self, ser: serial.SerialBase, port: str = "") -> None:
         self._port = port or getattr(ser, "port", "")
         self._q: queue.SimpleQueue = queue.SimpleQueue()
         self._thread = ReaderThread(ser, lambda: _QueueProtocol(self._q))
@@ -156,7 +156,7 @@ class RelayReader:
         The relay process did not start reading within :data:`RELAY_START_TIMEOUT` s.
     """
 
-    def __init__(self, ser, fd: int, port: str = "") -> None:
+    def __init__(self, ser: serial.SerialBase, fd: int, port: str = "") -> None:
         import fcntl
 
         self._ser = ser
@@ -224,7 +224,8 @@ class RelayReader:
         self._stop()
 
 
-def open_reader(ser, mode: str = "process", port: str = ""):
+def open_reader(ser: serial.SerialBase, mode: str = "process",
+                port: str = "") -> RelayReader | ThreadReader | DirectReader:
     """The reader for an open pyserial port ``ser`` (module docstring).
 
     ``mode``: ``"process"``, ``"thread"`` or ``"direct"``; ports without a descriptor
