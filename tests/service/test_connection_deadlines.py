@@ -11,8 +11,9 @@ with its deadlines shortened by settings, and the attacks that held connections 
   reader that keeps reading gets every byte;
 - **idle**: a kept-alive connection with nothing to say is closed after ``keep_alive_s``;
 - **logs**: 500 readers that pipeline requests and reset the connection without reading
-  (the issue's 2000, scaled to the suite's time, with its bound scaled alike: 100 KB per
-  2000) add at most 25 KB of log, and no traceback.
+  (with the issue's bound scaled alike: 100 KB per 2000) add at most 25 KB of log, and no
+  traceback; ``test_i60_slow_read_log.py`` makes the issue's attack at its size (2000 readers,
+  30 pipelined requests each, a default server).
 
 A socket's end is the event each test waits for (the server's own table of connections, or
 the client's read), never a clock; the deadlines' lengths are checked against the time taken
