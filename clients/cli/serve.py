@@ -3,7 +3,10 @@ from __future__ import annotations
 
 from clients.cli._common import UsageError
 
-__all__ = ["COMMAND", "HELP", "add_arguments", "parse_devices", "run"]
+__all__ = ["COMMAND", "HELP", "add_arguments", "parse_devices", "run", "use_malloc"]
+
+#: set in the environment of the server process that :func:`use_malloc` started
+_REEXEC_MARK = "FPSCAN_SERVE_MALLOC"
 
 COMMAND = "serve"
 HELP = "run the fpscan HTTP service (job queue, scans, reconstructions, web page)"
@@ -68,8 +71,48 @@ def parse_devices(items: list[str]) -> dict[str, str]:
     return out
 
 
+def use_malloc() -> None:
+    """Restart this process (the same command line, the same pid: ``os.execv``) with Python's
+    allocator on the C library's ``malloc`` (``PYTHONMALLOC=malloc``) unless ``PYTHONMALLOC`` is
+    set already; in the restarted process, take the setting out of the environment again so that
+    the job workers it spawns keep Python's default allocator (their work is numpy's).
+
+    Why (issue 60.1, docs/performance.md): after a burst of thousands of connections Python's
+    small-object allocator (pymalloc) keeps most of the burst's 1-MiB arenas, since a few
+    long-lived objects made during the burst pin each one: 5000 slow readers left the server at
+    1.6-1.8x its resident memory before them, with the same live objects. With ``malloc`` the
+    freed memory goes back to the C allocator, which ``malloc_trim`` returns to the system
+    (``service.api.connections``): within 10 % of the baseline after 20 000 readers.
+
+    Only on POSIX (``os.execv`` replaces the process in place there); a ``PYTHONMALLOC`` the
+    user set is kept.
+
+    Raises
+    ------
+    OSError
+        From ``os.execv`` where the interpreter cannot be started again (not expected: it is
+        the running one).
+    """
+    import os
+    import sys
+
+    if os.environ.pop(_REEXEC_MARK, None) is not None:  # the restarted server: children get the default
+        os.environ.pop("PYTHONMALLOC", None)
+        return
+    if os.name != "posix" or "PYTHONMALLOC" in os.environ or not getattr(sys, "orig_argv", None):
+        return
+    os.environ["PYTHONMALLOC"] = "malloc"
+    os.environ[_REEXEC_MARK] = "1"
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os.execv(sys.executable, [sys.executable, *sys.orig_argv[1:]])
+
+
 def run(args) -> int:
     """Run this sub-command with the parsed ``args``; return the exit status.
+
+    The server process runs on the C library's allocator (:func:`use_malloc`: it restarts
+    itself in place once, before anything else).
 
     Parameters
     ----------
@@ -82,6 +125,7 @@ def run(args) -> int:
         The exit status: 0 after the server stopped; 1 when the port or the data folder is already in
         use.
     """
+    use_malloc()
     import importlib.resources
     import json
     import logging

@@ -1,8 +1,8 @@
 """A slow reader's memory is returned (issue 60.1): RSS goes back to within 10 % of its
 baseline after thousands of slow readers are gone.
 
-A real ``fpscan serve`` (``send_timeout_s`` 2 s) run with the C library's allocator
-(``PYTHONMALLOC=malloc``): Python's own small-object allocator keeps every 1-MiB arena that
+A real ``fpscan serve`` (``send_timeout_s`` 2 s), which runs itself on the C library's allocator
+(``PYTHONMALLOC=malloc``, ``clients.cli.serve.use_malloc``; checked in its environment): Python's own small-object allocator keeps every 1-MiB arena that
 one long-lived object still occupies, so after a burst of 5000 connections its RSS stays
 about 60 MB over the baseline with the same live objects (``docs/performance.md``, issue 60);
 with the C allocator, the server's own return of memory after a burst and its tail
@@ -45,10 +45,12 @@ def _held(proc: psutil.Process) -> int:
 
 @pytest.mark.timeout(600)
 def test_rss_returns_within_10_percent_after_5000_slow_readers(tmp_path):
-    srv = Server(tmp_path / "data", env={"PYTHONMALLOC": "malloc", "FPSCAN_SEND_TIMEOUT_S": str(SEND_S)}).start()
+    srv = Server(tmp_path / "data", env={"FPSCAN_SEND_TIMEOUT_S": str(SEND_S)}).start()
     socks: list[socket.socket] = []
     try:
         proc = psutil.Process(srv.service.pid)
+        # fpscan serve restarted itself on the C allocator (clients.cli.serve.use_malloc): its exec's environment
+        assert proc.environ().get("PYTHONMALLOC") == "malloc", proc.environ().get("PYTHONMALLOC")
         with srv.client() as c:  # warm: the schema built, every route's first call made
             for _ in range(20):
                 for path in ("/api/health", "/openapi.json", "/api/jobs"):
