@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import importlib
 from pathlib import Path
+from typing import Any
 
 from .datasets import DenseDataset, add_noise, load_dense
 from .result import ExperimentResult, write_experiment
@@ -28,7 +29,7 @@ EXPERIMENTS = {
 
 
 def run_experiment(name: str, out_dir: str | Path | None = None, *, data: str | Path | DenseDataset | None = None,
-                   small: bool = False, **options) -> tuple[ExperimentResult, list[Path]]:
+                   small: bool = False, **options: Any) -> tuple[ExperimentResult, list[Path]]:
     """Run experiment ``name`` and (if ``out_dir``) write its table and plots.
 
     Parameters

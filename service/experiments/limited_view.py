@@ -20,7 +20,10 @@ sharpness equiangular 23001 (above every equispaced), interpolated 21474.
 from __future__ import annotations
 
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -38,6 +41,9 @@ from service.recon.dataset import GridDataset, PointDataset
 from .datasets import DenseDataset, add_noise
 from .phantoms import tree_phantom, tree_roi
 from .result import ExperimentResult, setup_matplotlib
+
+if TYPE_CHECKING:
+    from service.plans import Lattice
 
 __all__ = ["NAME", "PAPER", "resample_depth", "simulate_tree", "run", "plot"]
 
@@ -68,7 +74,7 @@ def resample_depth(img: np.ndarray, z: np.ndarray, z_new: np.ndarray) -> np.ndar
     return img[j] * (1 - f) + img[j + 1] * f
 
 
-def _normalised(img: np.ndarray, rect) -> np.ndarray:
+def _normalised(img: np.ndarray, rect: tuple[slice, ...]) -> np.ndarray:
     peak = float(np.max(np.abs(img[rect])))
     return img / peak if peak > 0 else img
 
@@ -112,7 +118,7 @@ def run(
     *,
     small: bool = False,
     n_sensors: int = 32,
-    intervals=None,
+    intervals: Iterable[int] | None = None,
     snr_db: float | None = 30.0,
     seed: int = 0,
     roi: tuple[tuple[float, float], float] | None = None,
@@ -227,7 +233,7 @@ class _Scorer:
             return np.nan
         return correlation_coefficient(resample_depth(img, self.z, self.z_truth), self.truth, self.truth_mask)
 
-    def __call__(self, img: np.ndarray, **row) -> dict:
+    def __call__(self, img: np.ndarray, **row: Any) -> dict:
         """``row`` with ``cc``, ``sharpness``, ``sharpness_rel`` and ``cc_vs_phantom`` added."""
         sh = tenenbaum_sharpness(_normalised(img, self.rect), self.mask)
         row.update(
@@ -274,7 +280,7 @@ class _Line:
         return PointDataset(alines=self.g[:, idx].T, positions=positions, weights=weights, dt=self.dt, c=self.c,
                             grid=(self.x,))
 
-    def reconstruct(self, data: GridDataset | PointDataset, method: str, **params) -> np.ndarray:
+    def reconstruct(self, data: GridDataset | PointDataset, method: str, **params: Any) -> np.ndarray:
         """p0 ``(n_z, n_x)`` of ``data`` by ``method`` on this line's grid (float64)."""
         return reconstruct(data, method, n_z=self.n_z, dtype="float64", **params).p0
 
@@ -288,14 +294,14 @@ class _Table:
     images: dict[str, np.ndarray | None] = field(default_factory=dict)
     sensors: dict[str, np.ndarray] = field(default_factory=dict)
 
-    def add(self, key: str, img: np.ndarray, sensor_x: np.ndarray, t0: float, **row) -> None:
+    def add(self, key: str, img: np.ndarray, sensor_x: np.ndarray, t0: float, **row: Any) -> None:
         """Score ``img`` (reconstructed since ``t0``, ``time.perf_counter`` s) as ``row``."""
         self.rows.append(self.score(img, **row, time_s=time.perf_counter() - t0))
         self.images[key] = img
         self.sensors[key] = sensor_x
 
 
-def _run_equispaced(table: _Table, line: _Line, lattice, intervals, n_sensors: int) -> None:
+def _run_equispaced(table: _Table, line: _Line, lattice: Lattice, intervals: Iterable[int], n_sensors: int) -> None:
     """``n_sensors`` equispaced sensors at each interval that fits, NEDNER-NUFFT."""
     from service.plans import subgrid_mask
 
@@ -312,7 +318,7 @@ def _run_equispaced(table: _Table, line: _Line, lattice, intervals, n_sensors: i
                   n_sensors=len(idx))
 
 
-def _run_equiangular(table: _Table, line: _Line, lattice, poi: tuple[float, float], n_sensors: int, *,
+def _run_equiangular(table: _Table, line: _Line, lattice: Lattice, poi: tuple[float, float], n_sensors: int, *,
                      model_based: bool, tv_iterations: int | None) -> float:
     """``n_sensors`` equiangular sensors around ``poi`` ``(z, x)`` m: NEDNER-NUFFT, ``tv``
     (``model_based``) and interpolated to every line point + NER. Returns the mask's
@@ -375,7 +381,7 @@ def _summary(rows: list[dict], weight_ratio: float) -> dict:
     return summary
 
 
-def plot(result: ExperimentResult, out_dir) -> list:
+def plot(result: ExperimentResult, out_dir: str | Path) -> list:
     """Plot the §6 comparison into ``out_dir``.
 
     ``limited-view-2d_cc.png`` (CC and sharpness vs interval, equiangular as lines) and

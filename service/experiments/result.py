@@ -7,9 +7,13 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+    from types import ModuleType
 
 __all__ = ["ExperimentResult", "setup_matplotlib", "write_experiment"]
 
@@ -57,7 +61,7 @@ class ExperimentResult:
                           "table": self.table, "curves": self.curves})
 
 
-def setup_matplotlib():
+def setup_matplotlib() -> ModuleType:
     """Import pyplot with the non-interactive Agg backend."""
     import matplotlib
 
@@ -67,7 +71,8 @@ def setup_matplotlib():
     return plt
 
 
-def write_experiment(result: ExperimentResult, out_dir: str | Path, plot=None) -> list[Path]:
+def write_experiment(result: ExperimentResult, out_dir: str | Path,
+                     plot: Callable[[ExperimentResult, Path], list[Path]] | None = None) -> list[Path]:
     """Write ``<name>.json``, ``<name>.csv`` and the plots into ``out_dir`` (created).
 
     Parameters
@@ -113,7 +118,7 @@ def write_experiment(result: ExperimentResult, out_dir: str | Path, plot=None) -
     return paths
 
 
-def _fmt(v):
+def _fmt(v: Any) -> Any:
     v = _jsonable(v)
     if v is None:
         return ""

@@ -20,6 +20,7 @@ at the 4 % threshold. Paper: at 7.2 mm (0.531 × aperture) CC 0.960 (equi-sterad
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -93,7 +94,7 @@ def run(
     *,
     small: bool = False,
     fraction: float = 1625 / 226**2,
-    intervals=(2, 3, 4, 5),
+    intervals: Sequence[int] = (2, 3, 4, 5),
     n_side: int | None = None,
     poi_depth: float | None = None,
     n_diameters: int = 40,
@@ -168,16 +169,17 @@ def run(
     n_disc = int(disc.sum())
     counts = np.unique(np.geomspace(10, n_disc, 40).astype(int))
 
-    arrangements = []
+    # (name, interval (NaN: not a sub-grid), i_x, i_y, positions, weights, method)
+    arrangements: list[tuple[str, float, np.ndarray, np.ndarray, np.ndarray, np.ndarray, str]] = []
     lattice = Lattice(n, n, d)
     es = equisteradian_mask(lattice, poi_depth, round(fraction * n * n))
     idx = np.asarray(es.indices)
     es_run = (idx[:, 0], idx[:, 1], np.asarray(es.positions, float), np.asarray(es.weights, float))
     arrangements.append(("equi-steradian", np.nan, *es_run, "nedner"))
-    for s in intervals:
-        sub = subgrid_mask(lattice, int(s), n_side)
+    for interval in intervals:
+        sub = subgrid_mask(lattice, int(interval), n_side)
         idx = np.asarray(sub.indices)
-        arrangements.append(("equispaced", int(s), idx[:, 0], idx[:, 1], np.asarray(sub.positions, float),
+        arrangements.append(("equispaced", int(interval), idx[:, 0], idx[:, 1], np.asarray(sub.positions, float),
                              np.asarray(sub.weights, float), "nedner"))
     if model_based:  # the same equi-steradian A-lines, model-based (TV + positivity, automatic λ)
         arrangements.append(("equi-steradian-tv", np.nan, *es_run, "tv"))
@@ -185,7 +187,7 @@ def run(
     if data.p0 is not None and data.p0.ndim == 3 and data.p0.shape[1:] == (n, n):
         truth = mip(data.p0, "xy")  # the xy-MIP does not depend on the depth sampling
 
-    def vs_truth(m):
+    def vs_truth(m: np.ndarray) -> float:
         return correlation_coefficient(m, truth, disc_roi) if truth is not None else np.nan
 
     rows, mips_, curves = [], {"full": ref}, {"diameter_m": diameters, "pixels": counts}
@@ -254,7 +256,7 @@ def _versus_grids(es_row: dict, rows: list[dict], curves: dict, band: np.ndarray
     return out
 
 
-def plot(result: ExperimentResult, out_dir) -> list[Path]:
+def plot(result: ExperimentResult, out_dir: str | Path) -> list[Path]:
     """Plot the §7 comparison into ``out_dir``.
 
     ``sparse-masks-3d_curves.png`` (CC vs pixels, CC vs diameter, sharpness vs diameter) and

@@ -195,7 +195,7 @@ def run(data: DenseDataset | None = None, *, small: bool = False, fraction: floa
     return ExperimentResult(NAME, params, rows, summary, images={"mips": mips, "x": x, "z": ds.dx * np.arange(n_z)})
 
 
-def plot(result: ExperimentResult, out_dir) -> list[Path]:
+def plot(result: ExperimentResult, out_dir: str | Path) -> list[Path]:
     """Plot ``vessels_mips.png``: depth MIPs (top row, x-y) and lateral MIPs (bottom row, x-z) of
     the true p0 and each method's reconstruction.
 
