@@ -9,6 +9,7 @@ interest (paper §5.2), normalised to the covered area.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -223,7 +224,8 @@ def check_depth(r0: float, lattice: Lattice) -> float:
     return r0
 
 
-def _finish(kind, params, lattice, pos_design, poi, depth, power, requested, ring_of, design) -> Mask:
+def _finish(kind: str, params: dict, lattice: Lattice, pos_design: np.ndarray, poi: tuple[float, float], depth: float,
+            power: int, requested: int, ring_of: np.ndarray | None, design: dict) -> Mask:
     idx = lattice.snap(pos_design)
     _, first = np.unique(idx, axis=0, return_index=True)
     keep = np.sort(first)
@@ -235,7 +237,7 @@ def _finish(kind, params, lattice, pos_design, poi, depth, power, requested, rin
                 requested_points=requested, poi=poi, depth=depth, rings=rings, design=design)
 
 
-def equisteradian_mask(lattice: Lattice, depth: float, n_points: int, poi=None) -> Mask:
+def equisteradian_mask(lattice: Lattice, depth: float, n_points: int, poi: float | Sequence[float] | None = None) -> Mask:
     """Equi-steradian mask (3-D) around a point of interest (DESIGN §4, paper appendix).
 
     ρ_max is the distance from poi to the nearest lattice edge (outermost lattice points), so
@@ -308,7 +310,7 @@ def equisteradian_mask(lattice: Lattice, depth: float, n_points: int, poi=None) 
     return _finish("equisteradian", params, lattice, pos, (xc, yc), r0, 3, n, np.concatenate(ring_of), design)
 
 
-def equiangular_mask(lattice: Lattice, depth: float, n_points: int, poi=None) -> Mask:
+def equiangular_mask(lattice: Lattice, depth: float, n_points: int, poi: float | Sequence[float] | None = None) -> Mask:
     """Equiangular mask (2-D) around a point of interest (DESIGN §4, paper §5.1).
 
     θ_max = atan(ρ_max/r0), ρ_max the distance from x_c to the nearer end of the line; sensors

@@ -3,11 +3,16 @@ random, Poisson-disc and user point lists (DESIGN §4). Weights: clipped Voronoi
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
 from .lattice import Lattice
 from .mask import Mask, check_count, check_positive, check_seed, default_weights
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
 
 __all__ = ["full_mask", "subgrid_mask", "hexagonal_mask", "random_mask", "poisson_mask", "points_mask"]
 
@@ -20,7 +25,7 @@ def _unique_rows(idx: np.ndarray) -> np.ndarray:
     return idx[np.sort(first)]
 
 
-def _build(kind, params, lattice, idx, requested, **extra) -> Mask:
+def _build(kind: str, params: dict, lattice: Lattice, idx: ArrayLike, requested: int, **extra: Any) -> Mask:
     idx = np.ascontiguousarray(idx, dtype=np.int64)
     if idx.shape[0] == 0:
         raise ValueError(f"{kind} mask: no lattice point selected")
@@ -71,7 +76,7 @@ def _centred_run(n_lattice: int, interval: int, count: int | None, axis: str) ->
     return start + interval * np.arange(count)
 
 
-def subgrid_mask(lattice: Lattice, interval: int, n_per_side=None) -> Mask:
+def subgrid_mask(lattice: Lattice, interval: int, n_per_side: int | Sequence[int] | None = None) -> Mask:
     """Equispaced sub-grid: every ``interval``-th lattice point, centred on the lattice.
 
     Centred half a pitch off centre when the parities of lattice and sub-grid differ. Weight
@@ -114,9 +119,9 @@ def subgrid_mask(lattice: Lattice, interval: int, n_per_side=None) -> Mask:
     """
     interval = check_count("interval", interval)
     if n_per_side is None or np.ndim(n_per_side) == 0:
-        nx = ny = n_per_side
+        nx = ny = cast("int | None", n_per_side)  # one count (or None) for both axes
     else:
-        vals = list(n_per_side)
+        vals = list(cast("Sequence[int]", n_per_side))
         if len(vals) != 2:
             raise ValueError(f"n_per_side must be an int or (n_x, n_y), got {n_per_side!r}")
         nx, ny = vals
@@ -230,7 +235,7 @@ def random_mask(lattice: Lattice, n_points: int, seed: int = 0) -> Mask:
     return _build("random", {"n_points": n, "seed": seed}, lattice, idx, n)
 
 
-def poisson_mask(lattice: Lattice, min_distance: float, seed: int = 0, n_points=None) -> Mask:
+def poisson_mask(lattice: Lattice, min_distance: float, seed: int = 0, n_points: int | None = None) -> Mask:
     """Poisson-disc mask: seeded random lattice points no closer than ``min_distance``.
 
     Lattice points are visited in a seeded random order, each kept if no kept point lies
@@ -316,7 +321,7 @@ def poisson_mask(lattice: Lattice, min_distance: float, seed: int = 0, n_points=
     return _build("poisson", params, lattice, idx, limit if n_points is not None else idx.shape[0])
 
 
-def points_mask(lattice: Lattice, points=None, indices=None) -> Mask:
+def points_mask(lattice: Lattice, points: ArrayLike | None = None, indices: ArrayLike | None = None) -> Mask:
     """A user's points, snapped to the lattice, or lattice indices directly.
 
     Points that snap to the same lattice point are merged (obtained < requested says so);

@@ -51,6 +51,7 @@ from typing import TYPE_CHECKING, Any
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 if TYPE_CHECKING:
+    from .lattice import Lattice
     from .mask import Mask
 
 __all__ = ["KINDS", "MaskKind", "MaskParams", "make_mask", "resolve_kind", "kind_fields",
@@ -172,7 +173,7 @@ class EquispacedParams(MaskParams):
         None, title="Points per side", description="points per side (n, or n_x n_y); default as many as fit")
 
     @model_validator(mode="after")
-    def _counts(self):
+    def _counts(self) -> EquispacedParams:
         n = self.n_per_side
         for v in (n if isinstance(n, tuple) else (n,)):
             if v is not None and v < 1:
@@ -218,7 +219,7 @@ class PointsParams(MaskParams):
                                                   examples=[[[0, 0], [4, 4], [8, 2]]])
 
     @model_validator(mode="after")
-    def _one(self):
+    def _one(self) -> PointsParams:
         if (self.points is None) == (self.indices is None):
             raise ValueError("give exactly one of points (m) or indices")
         return self
@@ -485,7 +486,7 @@ def kind_fields(kind: str) -> list[dict]:
     return out
 
 
-def make_mask(kind: str, lattice, **params) -> Mask:
+def make_mask(kind: str, lattice: Lattice | dict, **params: Any) -> Mask:
     """Make a sensor mask of a named kind, its parameters checked by the kind's model.
 
     Parameters

@@ -3,15 +3,19 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from driver.physics.axes import centred_axis, centred_index, centred_positions
 
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
+
 __all__ = ["Lattice"]
 
 
-def _check_length(name: str, value) -> float:
+def _check_length(name: str, value: Any) -> float:
     if isinstance(value, str):  # text with a unit ("60um"): the one unit parser
         from driver.units import parse_quantity
 
@@ -89,7 +93,7 @@ class Lattice:
     n_y: int
     pitch: float
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         for name in ("n_x", "n_y"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or int(v) < 1:
@@ -142,7 +146,7 @@ class Lattice:
             return self.n_x * self.pitch
         return self.n_x * self.n_y * self.pitch**2
 
-    def positions(self, indices) -> np.ndarray:
+    def positions(self, indices: ArrayLike) -> np.ndarray:
         """Positions of lattice indices.
 
         Parameters
@@ -184,7 +188,7 @@ class Lattice:
         out[:, 1] = centred_positions(idx[:, 1], self.n_y, self.pitch)
         return out
 
-    def snap(self, positions) -> np.ndarray:
+    def snap(self, positions: ArrayLike) -> np.ndarray:
         """Nearest lattice indices of positions.
 
         Ties (a position exactly half-way between two lattice points) are broken away from the

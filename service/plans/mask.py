@@ -2,7 +2,9 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -61,7 +63,7 @@ def shortfall(kind: str, requested: int | None, obtained: int, pitch: float | No
     return f"{obtained} of {requested} points asked: {why}"
 
 
-def check_positive(name: str, value, unit: str = "m") -> float:
+def check_positive(name: str, value: Any, unit: str = "m") -> float:
     """``value`` as a finite float > 0.
 
     Parameters
@@ -104,7 +106,7 @@ def check_positive(name: str, value, unit: str = "m") -> float:
     return v
 
 
-def check_count(name: str, value, maximum: int | None = None, minimum: int = 1) -> int:
+def check_count(name: str, value: Any, maximum: int | None = None, minimum: int = 1) -> int:
     """``value`` as an int in ``[minimum, maximum]``.
 
     Parameters
@@ -153,7 +155,7 @@ def check_count(name: str, value, maximum: int | None = None, minimum: int = 1) 
     return v
 
 
-def check_seed(value) -> int:
+def check_seed(value: Any) -> int:
     """A random seed: an integer in [0, 2**64).
 
     Parameters
@@ -186,7 +188,7 @@ def check_seed(value) -> int:
     return seed
 
 
-def check_poi(lattice: Lattice, poi) -> tuple[float, float]:
+def check_poi(lattice: Lattice, poi: Any) -> tuple[float, float]:
     """The point of interest's lateral position ``(x, y)`` in m.
 
     Parameters
@@ -241,7 +243,7 @@ def check_poi(lattice: Lattice, poi) -> tuple[float, float]:
     return (xy[0], xy[1])
 
 
-def default_weights(lattice: Lattice, positions: np.ndarray, **options) -> np.ndarray:
+def default_weights(lattice: Lattice, positions: np.ndarray, **options: Any) -> np.ndarray:
     """Clipped Voronoi areas (DESIGN §3.3) of mask positions: the default quadrature weights.
 
     Exactly ``voronoi_weights(positions, pitch)`` — the weights
@@ -283,7 +285,7 @@ def default_weights(lattice: Lattice, positions: np.ndarray, **options) -> np.nd
     return voronoi_weights(pos, lattice.pitch, **options)
 
 
-def distance_law_weights(lattice: Lattice, positions: np.ndarray, poi, depth: float,
+def distance_law_weights(lattice: Lattice, positions: np.ndarray, poi: Sequence[float], depth: float,
                          power: int) -> np.ndarray:
     """Weights ∝ r**power, r the distance of each sensor from the point of interest.
 
@@ -334,7 +336,7 @@ def distance_law_weights(lattice: Lattice, positions: np.ndarray, poi, depth: fl
     return h * (area / h.sum())
 
 
-def weight_ratio(positions: np.ndarray, weights: np.ndarray, centre=(0.0, 0.0)) -> float:
+def weight_ratio(positions: np.ndarray, weights: np.ndarray, centre: Sequence[float] = (0.0, 0.0)) -> float:
     """Outer/inner weight ratio of a mask.
 
     The mean weight of the sensor(s) farthest from ``centre`` (lateral distance) over that of

@@ -3,14 +3,23 @@ nearest-neighbour (greedy, to shorten galvo travel), or as given (the mask's own
 e.g. a user's point list)."""
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from numpy.typing import ArrayLike
+
+    from .mask import Mask
 
 __all__ = ["ORDERS", "auto_order", "serpentine_order", "ring_order", "nearest_neighbour_order", "scan_order"]
 
 ORDERS = ("serpentine", "rings", "nearest", "given")
 
 
-def serpentine_order(indices) -> np.ndarray:
+def serpentine_order(indices: ArrayLike) -> np.ndarray:
     """Boustrophedon scan order of lattice indices.
 
     Rows of equal i_y are visited in increasing i_y, x increasing on even-numbered occupied
@@ -38,7 +47,8 @@ def serpentine_order(indices) -> np.ndarray:
     return np.lexsort((x_key, row_rank))
 
 
-def ring_order(positions, rings=None, centre=(0.0, 0.0), ring_width: float | None = None) -> np.ndarray:
+def ring_order(positions: ArrayLike, rings: ArrayLike | None = None, centre: Sequence[float] = (0.0, 0.0),
+               ring_width: float | None = None) -> np.ndarray:
     """Scan order ring by ring outward, the azimuth direction alternating from ring to ring.
 
     Azimuth increases on even-numbered rings and decreases on odd ones. Points on a line
@@ -91,7 +101,7 @@ def ring_order(positions, rings=None, centre=(0.0, 0.0), ring_width: float | Non
     return np.lexsort((az_key, rank))
 
 
-def nearest_neighbour_order(positions, start: int = 0) -> np.ndarray:
+def nearest_neighbour_order(positions: ArrayLike, start: int = 0) -> np.ndarray:
     """Greedy nearest-neighbour tour: always move to the closest unvisited point.
 
     Ties go to the lowest index. O(n log n) typical with a k-d tree rebuilt as points are used
@@ -165,7 +175,7 @@ def nearest_neighbour_order(positions, start: int = 0) -> np.ndarray:
     return order
 
 
-def auto_order(mask) -> str:
+def auto_order(mask: Mask) -> str:
     """What ``order="auto"`` means for a mask.
 
     Parameters
@@ -193,7 +203,7 @@ def auto_order(mask) -> str:
     return "given" if mask.kind == "points" else "serpentine"
 
 
-def scan_order(mask, order: str = "auto") -> np.ndarray:
+def scan_order(mask: Mask, order: str = "auto") -> np.ndarray:
     """The permutation putting a mask's points in scan order.
 
     Parameters

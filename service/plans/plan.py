@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
@@ -36,6 +36,9 @@ from .kinds import make_mask, resolve_kind
 from .lattice import Lattice
 from .mask import Mask, weight_ratio
 from .ordering import ORDERS, auto_order, scan_order
+
+if TYPE_CHECKING:
+    import h5py
 
 __all__ = ["PLAN_FORMAT", "Plan", "Acquisition", "make_plan", "plan_from_spec", "canonical_json", "content_id",
            "ORDER_NAMES", "LatticeSpec", "MaskSpec", "Points", "check_plausible_request"]
@@ -119,7 +122,7 @@ class LatticeSpec(_Strict):
 
     @field_validator("pitch")
     @classmethod
-    def _pitch(cls, v):
+    def _pitch(cls, v: float) -> float:
         return _finite("pitch", v)
 
 
@@ -251,11 +254,11 @@ class Acquisition(_Strict):
 
     @field_validator("wavelengths")
     @classmethod
-    def _wl(cls, v):
+    def _wl(cls, v: Any) -> list[float]:
         return check_wavelengths(v)
 
     @model_validator(mode="after")
-    def _contract(self):
+    def _contract(self) -> Acquisition:
         check_acquisition(self.model_dump())  # the plan contract's limits (NaN kept: not mode="json")
         return self
 
@@ -320,7 +323,7 @@ class Plan(_Strict):
     acquisition: Acquisition
 
     @model_validator(mode="after")
-    def _consistent(self, info: ValidationInfo):
+    def _consistent(self, info: ValidationInfo) -> Plan:
         n = len(self.points.indices)
         if self.mask.obtained_points != n:
             raise ValueError(f"mask.obtained_points = {self.mask.obtained_points} but the plan has {n} points")
@@ -498,7 +501,7 @@ class Plan(_Strict):
         return cls.model_validate(d)
 
     @classmethod
-    def from_json(cls, text_or_path) -> Plan:
+    def from_json(cls, text_or_path: str | Path) -> Plan:
         """Read a plan from JSON text or a file path; validates it (including the id).
 
         Parameters
@@ -541,7 +544,7 @@ class Plan(_Strict):
         return cls.from_dict(d)
 
     # -- HDF5 ---------------------------------------------------------------------------
-    def to_hdf5(self, group) -> None:
+    def to_hdf5(self, group: h5py.Group) -> None:
         """Write the plan into an h5py group.
 
         Attributes ``format``, ``id``, ``order``, ``lattice``, ``mask``, ``acquisition`` (the last
@@ -573,7 +576,7 @@ class Plan(_Strict):
         group.create_dataset("weights", data=self.weights_array())
 
     @classmethod
-    def from_hdf5(cls, group) -> Plan:
+    def from_hdf5(cls, group: h5py.Group) -> Plan:
         """Read a plan written by ``to_hdf5``; validates it (including the id).
 
         Parameters
@@ -601,7 +604,7 @@ class Plan(_Strict):
         True
         """
 
-        def _s(v):
+        def _s(v: bytes | str) -> str:
             return v.decode("utf-8") if isinstance(v, bytes) else str(v)
 
         try:
@@ -623,7 +626,7 @@ class Plan(_Strict):
         return cls.from_dict(d)
 
 
-def _json_safe(obj):
+def _json_safe(obj: Any) -> Any:
     if isinstance(obj, dict):
         return {str(k): _json_safe(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple, np.ndarray)):
@@ -639,7 +642,8 @@ def _json_safe(obj):
     raise ValueError(f"parameter value {obj!r} is not JSON-serialisable")
 
 
-def check_plausible_request(mask, kind, lattice, params, acquisition, *, force: bool = False) -> None:
+def check_plausible_request(mask: Mask | None, kind: str | None, lattice: dict | Lattice | None, params: dict | None,
+                            acquisition: Acquisition | dict | None, *, force: bool = False) -> None:
     """The plausibility rules of ``driver.units.check_plausible`` on a plan request.
 
     Judged: the lattice pitch, dt, the PRF against the recording, the sound speed (unless
@@ -697,7 +701,7 @@ def check_plausible_request(mask, kind, lattice, params, acquisition, *, force: 
     depth = params.get("depth") if isinstance(params, dict) and poi else None
     num = (int, float)
 
-    def value(v):
+    def value(v: Any) -> float | None:
         return float(v) if isinstance(v, num) and not isinstance(v, bool) else None
 
     n_t = acq.get("n_t")
@@ -707,9 +711,9 @@ def check_plausible_request(mask, kind, lattice, params, acquisition, *, force: 
                     depth=value(depth), force=force)
 
 
-def make_plan(mask: Mask | str | None = None, *, kind: str | None = None, lattice=None,
+def make_plan(mask: Mask | str | None = None, *, kind: str | None = None, lattice: Lattice | dict | None = None,
               params: dict | None = None, order: str = "auto",
-              acquisition: Acquisition | dict | None = None, force: bool = False, **settings) -> Plan:
+              acquisition: Acquisition | dict | None = None, force: bool = False, **settings: Any) -> Plan:
     """A plan: a mask's points put in scan order, with acquisition settings.
 
     The mask is either given (``make_plan(mask)``) or made here from a kind name

@@ -4,13 +4,18 @@ fpscan (``service.storage.render.render_points``: mm axes, equal aspect, y down 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from .mask import Mask
+    from .plan import Plan
 
 __all__ = ["preview_png"]
 
 
-def preview_png(mask_or_plan, path: str | Path | None = None) -> bytes:
+def preview_png(mask_or_plan: Mask | Plan, path: str | Path | None = None) -> bytes:
     r"""Render a ``Mask`` or ``Plan`` as a PNG picture.
 
     Axes in mm (x right, y down; a line lattice shows x only); the lattice outline is drawn,
