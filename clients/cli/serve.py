@@ -180,9 +180,11 @@ def run(args) -> int:
 
     executor = None
     if settings.executor == "local":  # the pool's workers spawn and warm up while the app loads
-        from service.jobs.executors import make_executor
+        from typing import cast
 
-        executor = make_executor(settings)
+        from service.jobs.executors import LocalExecutor, make_executor
+
+        executor = cast(LocalExecutor, make_executor(settings))  # executor "local": a LocalExecutor
         executor.start_workers()
     try:
         import uvicorn  # after the workers' spawn: they warm up while the server loads (0.2 s sooner)

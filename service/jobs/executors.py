@@ -19,8 +19,13 @@ import multiprocessing
 import os
 import threading
 import time
-from concurrent.futures import ProcessPoolExecutor
+from collections.abc import Callable
+from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
+from typing import TYPE_CHECKING, Any, cast
+
+if TYPE_CHECKING:
+    from service.settings import Settings
 
 __all__ = [
     "lower_priority", "start_worker", "stop_pool", "LocalExecutor", "WorkerDied", "DaskExecutor",
@@ -169,14 +174,14 @@ class LocalExecutor:
             self._starts = [self._pool.submit(worker_pid) for _ in range(self.workers)]
         return self._starts
 
-    def submit(self, fn, *args):
+    def submit(self, fn: Callable[..., Any], *args: Any) -> _LocalFuture:
         try:
             return _LocalFuture(self, self._pool.submit(fn, *args))
         except BrokenProcessPool:
             self._pool = self._new_pool()
             return _LocalFuture(self, self._pool.submit(fn, *args))
 
-    def run(self, fn, *args):
+    def run(self, fn: Callable[..., Any], *args: Any) -> Any:
         return self.submit(fn, *args).result()
 
     def close(self) -> None:
@@ -200,11 +205,11 @@ class _LocalFuture:
     """A pool future whose ``result`` turns a dead worker into ``RuntimeError`` (and
     gives the executor a fresh pool for the next job)."""
 
-    def __init__(self, executor: LocalExecutor, future):
+    def __init__(self, executor: LocalExecutor, future: Future[Any]) -> None:
         self._executor = executor
         self._future = future
 
-    def result(self, timeout: float | None = None):
+    def result(self, timeout: float | None = None) -> Any:
         try:
             return self._future.result(timeout)
         except BrokenProcessPool:
@@ -242,10 +247,10 @@ class DaskExecutor:
         self.address = address
         self._client = Client(address, set_as_default=False, timeout="20s")
 
-    def submit(self, fn, *args):
+    def submit(self, fn: Callable[..., Any], *args: Any) -> _DaskFuture:
         return _DaskFuture(self._client.submit(fn, *args, pure=False))
 
-    def run(self, fn, *args):
+    def run(self, fn: Callable[..., Any], *args: Any) -> Any:
         return self.submit(fn, *args).result()
 
     def close(self) -> None:
@@ -255,14 +260,14 @@ class DaskExecutor:
 class _DaskFuture:
     """A dask future behind the same ``result(timeout)`` as the local one."""
 
-    def __init__(self, future):
+    def __init__(self, future: Any) -> None:  # a distributed.Future
         self._future = future
 
-    def result(self, timeout: float | None = None):
+    def result(self, timeout: float | None = None) -> Any:
         return self._future.result(timeout=timeout)  # raises the builtin TimeoutError
 
 
-def make_executor(settings):
+def make_executor(settings: Settings) -> LocalExecutor | DaskExecutor:
     """The executor the settings ask for.
 
     Parameters
@@ -278,5 +283,5 @@ def make_executor(settings):
         ``"dask"``, else a :class:`LocalExecutor`.
     """
     if settings.executor == "dask":
-        return DaskExecutor(settings.dask_scheduler)
+        return DaskExecutor(cast(str, settings.dask_scheduler))  # Settings requires one with executor dask
     return LocalExecutor(settings.workers, nice=settings.worker_nice, warm=settings.warm_up)

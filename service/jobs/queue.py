@@ -40,10 +40,11 @@ import time
 import uuid
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, Protocol
 
 from service.disk import is_disk_full
 from service.jobs.dispatcher import SKIP, START, WAIT, Dispatcher, Loop, Verdict
-from service.jobs.executors import WorkerDied
+from service.jobs.executors import DaskExecutor, LocalExecutor, WorkerDied
 from service.jobs.lifecycle import apply_retention
 from service.jobs.store import JobStore
 from service.jobs.work import ProgressLog, run_reconstruction
@@ -56,7 +57,16 @@ __all__ = [
     "INCOMING", "DISK_LOOK_S", "RESERVE_LOOK_S", "DiskFull", "disk_full_reason", "remove_debris", "ReconQueue",
 ]
 
+if TYPE_CHECKING:
+    from service.settings import Settings
+
 log = logging.getLogger("fpscan.jobs")
+
+
+class _Future(Protocol):
+    """What an executor's ``submit`` returns (``service.jobs.executors``)."""
+
+    def result(self, timeout: float | None = None) -> Any: ...
 
 
 #: the data folder's staging area of uploads: ``incoming/<dataset id>/`` until the upload is
@@ -186,7 +196,7 @@ class ReconQueue:
         ``<data_dir>/results``, created if missing: one folder ``<job id>.<attempt>`` a result.
     """
 
-    def __init__(self, store: JobStore, executor, settings):
+    def __init__(self, store: JobStore, executor: LocalExecutor | DaskExecutor, settings: Settings) -> None:
         self.store = store
         self.executor = executor
         self.settings = settings
@@ -364,7 +374,7 @@ class ReconQueue:
         except Exception:
             log.exception("retention failed after job=%s", jid)
 
-    def _wait(self, jid: str, future, progress_path: Path, cancel_path: Path, needed: int = 0):
+    def _wait(self, jid: str, future: _Future, progress_path: Path, cancel_path: Path, needed: int = 0) -> dict:
         """The job's result; meanwhile renew its lease, turn the worker's stage reports
         (:func:`service.jobs.work.report_stage`, read with :class:`ProgressLog`) into
         progress events, the last ones once the worker has returned, and, once the job's
@@ -406,7 +416,7 @@ class ReconQueue:
         except OSError:  # best effort: the job then ends when its step returns
             pass
 
-    def _drain(self, future, out_dir: Path) -> None:
+    def _drain(self, future: _Future | None, out_dir: Path) -> None:
         """Wait for a worker told to stop (a job already ended), then remove its folder."""
         if future is not None:
             try:
@@ -423,7 +433,7 @@ class ReconQueue:
         except sqlite3.Error as exc:
             log.warning("recon job=%s progress not written: %s", jid, exc)
 
-    def _record(self, jid: str, write) -> None:
+    def _record(self, jid: str, write: Callable[[], object]) -> None:
         """``write()`` a job's state change, retried every second while the job database
         cannot write (its disk full beyond its reserve), said by :meth:`problems`
         meanwhile, until it is written or the server stops (a restart recovers the job)."""

@@ -31,12 +31,13 @@ from typing import TYPE_CHECKING
 
 from service.disk import is_disk_full
 from service.jobs.dispatcher import SKIP, START, Dispatcher, Loop, Verdict
-from service.jobs.preview import PreviewManager
+from service.jobs.preview import PreviewManager, PreviewState
 from service.jobs.store import TERMINAL, JobStore
 from service.storage.usage import usage_for
 
 if TYPE_CHECKING:
-    from driver.host import Scanner, ScanProgress
+    from driver.host import Scanner, ScanProgress, ScanResult
+    from service.settings import Settings
 
 log = logging.getLogger("fpscan.scans")
 
@@ -109,7 +110,7 @@ class ScanManager:
         When the scanner driver (``driver.acquire``) cannot be imported: no scanning.
     """
 
-    def __init__(self, store: JobStore, settings):
+    def __init__(self, store: JobStore, settings: Settings) -> None:
         import driver.acquire  # noqa: F401  (ImportError: no driver → no scanning)
 
         self.store = store
@@ -183,7 +184,7 @@ class ScanManager:
             out.append(f"scan {jid}: {why}")
         return out
 
-    def preview(self, job_id: str):
+    def preview(self, job_id: str) -> PreviewState | None:
         return self.previews.get(job_id)
 
     def _run_of(self, job_id: str) -> _Run | None:
@@ -388,7 +389,7 @@ class ScanManager:
 
         return check
 
-    def _acquire_or_interrupt(self, jid: str, run_acquire):
+    def _acquire_or_interrupt(self, jid: str, run_acquire: Callable[[], ScanResult]) -> ScanResult | None:
         """``run_acquire()``'s result; None when the scan stopped: a bad plan or file fails
         the job, a lost device or a disk error pauses it (``_interrupt``: resumable)."""
         from driver.host import DriverError
@@ -408,7 +409,7 @@ class ScanManager:
             self._interrupt(jid, f"device lost: {self.settings.redact(str(exc))}; resume when it is back")
         return None
 
-    def _connect(self, jid: str, port: str, resumed: bool):
+    def _connect(self, jid: str, port: str, resumed: bool) -> Scanner | None:
         """An open ``driver.host.Scanner`` on ``port``, or None: the job failed (nothing
         acquired yet) or, with points on disk, paused until the device is back."""
         from driver.host import DriverError, Scanner

@@ -39,7 +39,7 @@ import time
 import uuid
 from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import Any, overload
+from typing import Any, TypeVar, overload
 
 from service.disk import is_disk_full
 from service.names import person_names
@@ -48,6 +48,8 @@ __all__ = ["STATES", "TERMINAL", "ACTIVE", "KINDS", "DB_RESERVE_BYTES", "Idempot
            "JobStore"]
 
 log = logging.getLogger("fpscan.store")
+
+_T = TypeVar("_T")
 
 #: bytes of the reserve file kept beside the database for job states on a full disk (SQLite's
 #: WAL grows by 4 MiB at most between checkpoints; each state or progress event adds a row)
@@ -304,7 +306,7 @@ class JobStore:
                 self._reserve_seen = True
             return self.reserve_spent is None
 
-    def _write(self, call):
+    def _write(self, call: Callable[[], _T]) -> _T:
         """``call()`` (a write); on a full disk the reserve is given up and ``call`` tried once more."""
         try:
             out = call()
@@ -335,10 +337,10 @@ class JobStore:
         if fn in self._listeners:
             self._listeners.remove(fn)
 
-    def _tx(self, fn):
+    def _tx(self, fn: Callable[[sqlite3.Connection], _T]) -> _T:
         return self._write(lambda: self._tx_once(fn))
 
-    def _tx_once(self, fn):
+    def _tx_once(self, fn: Callable[[sqlite3.Connection], _T]) -> _T:
         with self._lock:
             self._cache.clear()
             self._touched = []
@@ -404,7 +406,7 @@ class JobStore:
         now = time.time()
         progress = progress or {"fraction": 0.0, "stage": "queued"}
 
-        def work(db):
+        def work(db: sqlite3.Connection) -> tuple[dict[str, Any], bool]:
             if idempotency_key is not None:
                 row = db.execute("SELECT * FROM jobs WHERE idempotency_key = ?", (idempotency_key,)).fetchone()
                 if row is not None:
@@ -481,7 +483,7 @@ class JobStore:
             raise ValueError(f"unknown state {state!r}")
         now = time.time()
 
-        def work(db):
+        def work(db: sqlite3.Connection) -> bool:
             row = db.execute("SELECT state, progress FROM jobs WHERE id = ?", (job_id,)).fetchone()
             if row is None or (only_from is not None and row["state"] not in set(only_from)):
                 return False
@@ -514,7 +516,7 @@ class JobStore:
 
     def update_progress(self, job_id: str, progress: dict, *, event: bool = True) -> None:
         """Merge ``progress`` into the job's progress and (optionally) emit an event."""
-        def work(db):
+        def work(db: sqlite3.Connection) -> None:
             row = db.execute("SELECT progress FROM jobs WHERE id = ?", (job_id,)).fetchone()
             if row is None:
                 return
@@ -528,7 +530,7 @@ class JobStore:
 
     def update_params(self, job_id: str, params: dict) -> None:
         """Merge ``params`` into the job's parameters (e.g. the scan file name)."""
-        def work(db):
+        def work(db: sqlite3.Connection) -> None:
             row = db.execute("SELECT params FROM jobs WHERE id = ?", (job_id,)).fetchone()
             if row is not None:
                 merged = {**json.loads(row["params"]), **params}
@@ -537,7 +539,7 @@ class JobStore:
 
     def request_cancel(self, job_id: str) -> dict | None:
         """Flag a job for cooperative cancel; a queued or paused job is cancelled at once."""
-        def work(db):
+        def work(db: sqlite3.Connection) -> str | None:
             row = db.execute("SELECT state FROM jobs WHERE id = ?", (job_id,)).fetchone()
             if row is None:
                 return None
@@ -559,7 +561,7 @@ class JobStore:
         not queued (someone else took it or it was cancelled)."""
         now = time.time()
 
-        def work(db):
+        def work(db: sqlite3.Connection) -> dict[str, Any] | None:
             cur = db.execute(
                 "UPDATE jobs SET state = 'running', lease_owner = ?, lease_until = ?, heartbeat = ?,"
                 " attempts = attempts + 1, started = COALESCE(started, ?) WHERE id = ? AND state = 'queued'",
@@ -582,7 +584,7 @@ class JobStore:
         fault). The attempt cut off goes to ``earlier_attempts`` and ``started`` is
         cleared: the next attempt's timing starts anew. Returns False if the job was not
         running."""
-        def work(db):
+        def work(db: sqlite3.Connection) -> bool:
             if db.execute("SELECT 1 FROM jobs WHERE id = ? AND state = 'running'", (job_id,)).fetchone() is None:
                 return False
             _cut_attempt(db, job_id, reason)
@@ -595,7 +597,7 @@ class JobStore:
 
     def heartbeat(self, job_id: str, owner: str, lease_s: float) -> None:
         now = time.time()
-        def write():
+        def write() -> None:
             with self._lock:
                 self._cache.pop(job_id, None)
                 self._db.execute("UPDATE jobs SET heartbeat = ?, lease_until = ? WHERE id = ? AND lease_owner = ?",
@@ -608,7 +610,7 @@ class JobStore:
         scans become ``paused`` (resumable from their scan file). Returns the ids."""
         out: dict[str, list[str]] = {"requeued": [], "failed": [], "paused": []}
 
-        def work(db):
+        def work(db: sqlite3.Connection) -> None:
             rows = db.execute("SELECT id, kind, attempts FROM jobs WHERE state = 'running'"
                               " AND (lease_owner IS NULL OR lease_owner != ?)", (owner,)).fetchall()
             for row in rows:
@@ -661,7 +663,7 @@ class JobStore:
 
     def put_plan_text(self, plan_id: str, text: str, summary: dict) -> None:
         """Store a plan already serialized (``text``: its JSON), as :meth:`put_plan` does."""
-        def write():
+        def write() -> None:
             with self._lock:
                 self._db.execute("INSERT OR IGNORE INTO plans (id, body, summary, created) VALUES (?, ?, ?, ?)",
                                  (plan_id, text, json.dumps(summary), time.time()))
@@ -690,7 +692,7 @@ class JobStore:
         return [json.loads(r["summary"]) for r in rows]
 
     def put_dataset(self, dataset_id: str, meta: dict) -> None:
-        def write():
+        def write() -> None:
             with self._lock:
                 self._db.execute("INSERT INTO datasets (id, meta, created) VALUES (?, ?, ?)",
                                  (dataset_id, json.dumps(meta), time.time()))
@@ -710,7 +712,7 @@ class JobStore:
     def touch_dataset(self, dataset_id: str) -> None:
         """Record that ``dataset_id`` was asked for again (its meta's ``last_used``, UNIX s):
         retention by age counts from then."""
-        def write():
+        def write() -> None:
             with self._lock:
                 self._db.execute("UPDATE datasets SET meta = json_set(meta, '$.last_used', ?) WHERE id = ?",
                                  (time.time(), dataset_id))
@@ -742,7 +744,7 @@ class JobStore:
     def delete_job(self, job_id: str, *, only_terminal: bool = True) -> bool:
         """Remove a job's row and its events; with ``only_terminal`` only when it is in a
         final state. Returns whether a row was removed."""
-        def work(db):
+        def work(db: sqlite3.Connection) -> bool:
             sql = "DELETE FROM jobs WHERE id = ?"
             args: tuple = (job_id,)
             if only_terminal:
@@ -757,13 +759,13 @@ class JobStore:
         return self._tx(work)
 
     def delete_plan(self, plan_id: str) -> bool:
-        def write():
+        def write() -> bool:
             with self._lock:
                 return self._db.execute("DELETE FROM plans WHERE id = ?", (plan_id,)).rowcount == 1
         return bool(self._write(write))
 
     def delete_dataset(self, dataset_id: str) -> bool:
-        def write():
+        def write() -> bool:
             with self._lock:
                 return self._db.execute("DELETE FROM datasets WHERE id = ?", (dataset_id,)).rowcount == 1
         return bool(self._write(write))
@@ -775,7 +777,7 @@ class JobStore:
         return None if row is None else json.loads(row["value"])
 
     def set_config(self, key: str, value: Any) -> None:
-        def write():
+        def write() -> None:
             with self._lock:
                 self._db.execute("INSERT INTO config (key, value) VALUES (?, ?) ON CONFLICT(key) DO UPDATE"
                                  " SET value = excluded.value", (key, json.dumps(value)))

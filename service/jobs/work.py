@@ -32,6 +32,7 @@ import math
 import os
 import threading
 import time
+from collections.abc import Iterator
 from typing import Any
 
 from driver.constants import C_DEFAULT
@@ -233,7 +234,7 @@ ADDRESS_SPACE_BASE = 6 * 2**30
 
 
 @contextlib.contextmanager
-def address_space_limit(limit: int | None):
+def address_space_limit(limit: int | None) -> Iterator[None]:
     """Context manager: bound the process's address space while inside.
 
     The soft ``RLIMIT_AS`` is set to ``limit + ADDRESS_SPACE_BASE`` (at most the hard
@@ -274,7 +275,7 @@ def address_space_limit(limit: int | None):
 
 
 @contextlib.contextmanager
-def memory_bounded(limit: int | None):
+def memory_bounded(limit: int | None) -> Iterator[None]:
     """Context manager: :func:`address_space_limit`, with a MemoryError turned into a ValueError.
 
     Parameters
@@ -327,7 +328,7 @@ class JobGate:
         self.waited = threading.Event()
 
     @contextlib.contextmanager
-    def busy(self):
+    def busy(self) -> Iterator[None]:
         with self._lock:
             self._jobs += 1
             self._idle.clear()
