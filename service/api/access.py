@@ -28,6 +28,7 @@ import logging
 from urllib.parse import urlsplit
 
 from fastapi.responses import JSONResponse
+from starlette.types import ASGIApp, Receive, Scope, Send
 
 from service.api.logcaps import RefusalLog, shown
 from service.settings import Settings, is_loopback
@@ -160,7 +161,7 @@ def token_matches(authorization: str | None, expected: str) -> str | None:
     return None
 
 
-def _header(scope, name: bytes) -> str | None:
+def _header(scope: Scope, name: bytes) -> str | None:
     for key, value in scope.get("headers") or ():
         if key == name:
             return value.decode("latin-1")
@@ -194,12 +195,12 @@ class AccessGate:
         The rate-limited log of refusals.
     """
 
-    def __init__(self, app, settings: Settings):
+    def __init__(self, app: ASGIApp, settings: Settings) -> None:
         self.app = app
         self.settings = settings
         self.refusals = RefusalLog(log)  # one line per client address per interval, fields capped
 
-    async def __call__(self, scope, receive, send):
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] not in ("http", "websocket"):
             return await self.app(scope, receive, send)
         refusal = self.refusal(scope)
@@ -216,7 +217,7 @@ class AccessGate:
             return await JSONResponse({"detail": detail}, status, headers=headers)(scope, receive, send)
         return await self.app(scope, receive, send)
 
-    def refusal(self, scope) -> tuple[int, str] | None:
+    def refusal(self, scope: Scope) -> tuple[int, str] | None:
         """The refusal of a request, from its headers.
 
         Parameters

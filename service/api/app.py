@@ -15,7 +15,7 @@ import sqlite3
 import time
 import uuid
 from collections import deque
-from collections.abc import Awaitable, Callable, MutableMapping
+from collections.abc import AsyncIterator, Awaitable, Callable, Iterable, MutableMapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -23,7 +23,9 @@ from fastapi import Depends, FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.routing import BaseRoute
 from starlette.staticfiles import StaticFiles
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from driver.acquire import software_version
 from service.api.context import Context, Slots, capped, ctx, default_slots, read_access, validation_reason
@@ -34,6 +36,7 @@ from service.settings import Settings
 
 if TYPE_CHECKING:
     from service.jobs.store import JobStore
+    from service.storage.usage import DiskUsage
 
 __all__ = [
     "VERSION", "PROCESS_START", "ERROR_RESPONSES", "allowed_methods", "UploadLimit", "MIN_BODY_RATE",
@@ -63,7 +66,7 @@ ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
 }
 
 
-def allowed_methods(app, scope) -> list[str]:
+def allowed_methods(app: FastAPI, scope: Scope) -> list[str]:
     """The HTTP methods the routes matching ``scope``'s path take, for a 405's ``Allow`` header.
 
     RFC 9110 §15.5.6; included routers are walked too.
@@ -85,20 +88,21 @@ def allowed_methods(app, scope) -> list[str]:
     methods: set[str] = set()
     probe = {**scope, "method": "GET"}
 
-    def walk(routes) -> None:
+    def walk(routes: Iterable[BaseRoute]) -> None:
         for route in routes:
             inner = getattr(route, "original_router", None)  # an included router (FastAPI wraps them)
             if inner is not None:
                 walk(inner.routes)
                 continue
-            if not getattr(route, "methods", None):
+            route_methods = getattr(route, "methods", None)
+            if not route_methods:
                 continue
             try:
                 match, _ = route.matches(probe)
             except Exception:  # a route type that cannot judge this scope: not ours
                 continue
             if match != Match.NONE:
-                methods.update(route.methods)
+                methods.update(route_methods)
 
     walk(app.router.routes)
     return sorted(methods)
@@ -177,9 +181,9 @@ class UploadLimit:
     #: the routes whose JSON body may be up to ``json_limit`` (parsed in the plan worker)
     PLAN_ROUTES = frozenset({("POST", "/api/plans"), ("POST", "/api/plans/preview")})
 
-    def __init__(self, app, limit: int, json_limit: int | None = None, slots: dict[str, Slots] | None = None,
+    def __init__(self, app: ASGIApp, limit: int, json_limit: int | None = None, slots: dict[str, Slots] | None = None,
                  body_timeout_s: float = 30.0, request_json_limit: int | None = None,
-                 min_rate: float = MIN_BODY_RATE, rate_window_s: float = 10.0):
+                 min_rate: float = MIN_BODY_RATE, rate_window_s: float = 10.0) -> None:
         self.app = app
         self.body_timeout_s = body_timeout_s
         self.upload_limit = limit
@@ -189,7 +193,7 @@ class UploadLimit:
         self.rate_window_s = float(rate_window_s)
         self.slots = slots or {}
 
-    async def __call__(self, scope, receive, send):
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
             return await self.app(scope, receive, send)
         key = (scope.get("method", ""), scope.get("path", "").rstrip("/"))
@@ -215,7 +219,7 @@ class UploadLimit:
                 left = True
                 slots.leave(client)
 
-        async def send_then_leave(message) -> None:
+        async def send_then_leave(message: Message) -> None:
             # The slot is free once the answer's last byte goes out: uvicorn reads a kept-alive
             # client's next request right then, before this app returns (its background tasks,
             # the upload's file clean-up), and that request must find the slot free.
@@ -228,7 +232,7 @@ class UploadLimit:
         finally:
             leave_once()  # a request that ended without an answer
 
-    async def _limited(self, scope, receive, send, limit: int, min_rate: float = 0.0):
+    async def _limited(self, scope: Scope, receive: Receive, send: Send, limit: int, min_rate: float = 0.0) -> None:
         """Pass the request on, refusing a body over ``limit`` bytes (413), one that stalls
         ``body_timeout_s`` s or, with ``min_rate`` (bytes/s), arrives slower than that over
         ``rate_window_s`` (408): :class:`_BodyWatch`."""
@@ -245,7 +249,7 @@ class UploadLimit:
                 sent_refusal = True
                 await resp(scope, receive, send)
 
-        async def logging_send(message):
+        async def logging_send(message: Message) -> None:
             if watch.refusal is not None:
                 # the body was refused: whatever the route made of the cut-off body (a
                 # form parser answers 400), the client gets the refusal
@@ -271,7 +275,7 @@ class _BodyWatch:
     arriving that long (else 408). A refusal sets :attr:`refusal` (the answer) and raises
     ``_Refused``; once the body is complete, ``receive`` is the server's own."""
 
-    def __init__(self, receive, limit: int, idle_s: float, min_rate: float, window: float) -> None:
+    def __init__(self, receive: Receive, limit: int, idle_s: float, min_rate: float, window: float) -> None:
         self._receive = receive
         self.limit, self.idle_s, self.min_rate, self.window = limit, idle_s, min_rate, window
         self.refusal: JSONResponse | None = None
@@ -293,7 +297,7 @@ class _BodyWatch:
         self.refusal = resp
         return _Refused()
 
-    async def receive(self):
+    async def receive(self) -> Message:
         if self.done:
             return await self._receive()
         last = time.perf_counter()
@@ -330,13 +334,13 @@ def _too_large(limit: int) -> JSONResponse:
                         headers={"Connection": "close"})  # the rest of its body is never read
 
 
-def _has_body(scope) -> bool:
+def _has_body(scope: Scope) -> bool:
     """Whether the request declares a body (``Content-Length`` above 0, or ``Transfer-Encoding``)."""
     headers = dict(scope.get("headers") or [])
     return b"transfer-encoding" in headers or _declared_length(scope) > 0
 
 
-def _declared_length(scope) -> int:
+def _declared_length(scope: Scope) -> int:
     """The request's ``Content-Length`` (0 when absent or not a number)."""
     try:
         return int(dict(scope.get("headers") or []).get(b"content-length", b"0"))
@@ -375,10 +379,10 @@ class ShortIds:
 
     PATH = re.compile(r"^/api/(jobs|scans|reconstructions)/([0-9a-fA-F]{4,31})(/.*)?$")
 
-    def __init__(self, app):
+    def __init__(self, app: ASGIApp) -> None:
         self.app = app
 
-    async def __call__(self, scope, receive, send):
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] == "http":
             m = self.PATH.match(scope.get("path", ""))
             ctx_ = getattr(getattr(scope.get("app"), "state", None), "ctx", None)
@@ -505,12 +509,13 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True, 
     return app
 
 
-def _lifespan(settings: Settings, slots: dict[str, Slots], start_workers: bool, given_executor: Any = None):
+def _lifespan(settings: Settings, slots: dict[str, Slots], start_workers: bool,
+              given_executor: Any = None) -> Callable[[FastAPI], contextlib.AbstractAsyncContextManager[None]]:
     """``create_app``'s lifespan: the job store and context, then (``start_workers``) the
     queue, its executor and the scan manager; the route warm-up; on shutdown all stopped."""
 
     @contextlib.asynccontextmanager
-    async def lifespan(app: FastAPI):
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         from service.jobs.store import JobStore
 
         Path(settings.data_dir).mkdir(parents=True, exist_ok=True)
@@ -535,7 +540,7 @@ def _lifespan(settings: Settings, slots: dict[str, Slots], start_workers: bool, 
     return lifespan
 
 
-async def _count_disk_usage(settings: Settings):
+async def _count_disk_usage(settings: Settings) -> DiskUsage:
     """The data folder's disk-use counters (``service.storage.usage``) set by one walk
     before the server answers (in a thread: start-up only), then checked by a walk every
     ``disk_walk_period_s`` in a thread of their own; returns them."""
@@ -609,11 +614,11 @@ def _add_error_handlers(app: FastAPI) -> None:
     own status (405 with the path's ``Allow``), 503 for a full disk, 500 with a reference."""
 
     @app.exception_handler(RequestValidationError)
-    async def _validation(request: Request, exc: RequestValidationError):
+    async def _validation(request: Request, exc: RequestValidationError) -> JSONResponse:
         return JSONResponse({"detail": validation_reason(exc)}, status_code=422)
 
     @app.exception_handler(StarletteHTTPException)
-    async def _http(request: Request, exc: StarletteHTTPException):
+    async def _http(request: Request, exc: StarletteHTTPException) -> JSONResponse:
         detail = capped(exc.detail if isinstance(exc.detail, str) else str(exc.detail))
         headers = getattr(exc, "headers", None)
         if exc.status_code == 405:  # Allow: every method of the path (Starlette names only the first route's)
@@ -624,7 +629,7 @@ def _add_error_handlers(app: FastAPI) -> None:
 
     @app.exception_handler(OSError)
     @app.exception_handler(sqlite3.Error)
-    async def _storage(request: Request, exc: Exception):
+    async def _storage(request: Request, exc: Exception) -> JSONResponse:
         # handled here, not by the catch-all below (Starlette re-raises from that one and
         # the server then drops the client's kept-alive connection)
         if is_disk_full(exc):  # the server's condition, not a bug: say so, and how to fix it
@@ -635,11 +640,11 @@ def _add_error_handlers(app: FastAPI) -> None:
         return await _internal(request, exc)
 
     @app.exception_handler(Exception)
-    async def _internal(request: Request, exc: Exception):
+    async def _internal(request: Request, exc: Exception) -> JSONResponse:
         return internal_error(request.scope, exc)
 
 
-def internal_error(scope, exc: BaseException) -> JSONResponse:
+def internal_error(scope: Scope, exc: BaseException) -> JSONResponse:
     """The 500 of an unexpected error: logged with a reference, the client told only the reference.
 
     Parameters
@@ -684,24 +689,24 @@ class InternalErrors:
         The rate-limited log of clients gone mid-request.
     """
 
-    def __init__(self, app):
+    def __init__(self, app: ASGIApp) -> None:
         self.app = app
         self.gone = RefusalLog(log)
 
-    async def __call__(self, scope, receive, send):
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
             return await self.app(scope, receive, send)
         started = False
         disconnected = False
 
-        async def tracked_receive():
+        async def tracked_receive() -> Message:
             nonlocal disconnected
             message = await receive()
             if message["type"] == "http.disconnect":
                 disconnected = True
             return message
 
-        async def tracked_send(message):
+        async def tracked_send(message: Message) -> None:
             nonlocal started
             if message["type"] == "http.response.start":
                 started = True

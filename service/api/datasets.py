@@ -193,8 +193,8 @@ def _admission(cx: Context) -> DiskAdmission:
     return adm
 
 
-def _store_upload(file: UploadFile, format: str, *, dt, dx, dy, c, key, force: bool, wavelength: int | None,
-                  cx: Context) -> Dataset:
+def _store_upload(file: UploadFile, format: str, *, dt: float | None, dx: float | None, dy: float | None,
+                  c: float | None, key: str | None, force: bool, wavelength: int | None, cx: Context) -> Dataset:
     dataset_id = uuid.uuid4().hex
     # staged outside datasets/ until stored (one rename): datasets/ changes only when a
     # dataset is added, and /api/health's disk usage is re-walked only then

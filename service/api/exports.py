@@ -110,7 +110,7 @@ WavelengthQuery = Query(None, ge=0, le=15, description="a reconstruction's volum
 def export(job_id: str = PathParam(pattern=ID_PATTERN, description="a scan or reconstruction job's id"),
            format: str = PathParam(pattern=r"^[a-z0-9][a-z0-9-]{0,39}$", description="an export format's name "
                                    "(GET /api/formats: those with export_from)"),
-           wavelength: int | None = WavelengthQuery, c: Context = Depends(ctx)):
+           wavelength: int | None = WavelengthQuery, c: Context = Depends(ctx)) -> HeldFileResponse:
     """The job's file (a scan file, or a reconstruction's p0 volume) in the export ``format``
     (``service.formats``: the job's ``export_<format>`` links name them; e.g. ``ipasc`` of a
     scan, ``ome-tiff`` and ``ome-zarr`` of a volume, the file itself as ``fpscan`` / ``result``);

@@ -21,6 +21,7 @@ from typing import Any
 import anyio
 from fastapi import HTTPException
 from starlette.responses import FileResponse
+from starlette.types import Receive, Scope, Send
 
 __all__ = ["HeldFileResponse"]
 
@@ -71,7 +72,7 @@ class HeldFileResponse(FileResponse):
         stat_result = os.fstat(self._held.fileno())
         super().__init__(Path(path), stat_result=stat_result, **kwargs)
 
-    async def __call__(self, scope, receive, send) -> None:
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         extensions = {k: v for k, v in (scope.get("extensions") or {}).items() if k != "http.response.pathsend"}
         try:  # never a send of the path: the bytes are those of the file held
             await super().__call__({**scope, "extensions": extensions}, receive, send)

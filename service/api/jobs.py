@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-from collections.abc import Iterator
+from collections.abc import AsyncIterator, Iterator
 
 import anyio
 from fastapi import APIRouter, Depends, Header, HTTPException, Path, Query, Response
@@ -12,7 +12,7 @@ from sse_starlette.sse import EventSourceResponse, ServerSentEvent
 from service.api.context import Context, ctx, read_access, require_token
 from service.api.models import ID_PATTERN, Deleted, Job, JobKind, JobState
 from service.jobs import lifecycle
-from service.jobs.store import TERMINAL
+from service.jobs.store import TERMINAL, JobStore
 from service.names import person_names
 
 __all__ = [
@@ -185,7 +185,7 @@ def list_jobs(c: Context = Depends(ctx), state: JobState | None = Query(None), k
 
 
 @router.get("/{job_id}", response_model=Job, dependencies=[Depends(read_access)])
-async def get_job(job_id: str = JobId, c: Context = Depends(ctx)):
+async def get_job(job_id: str = JobId, c: Context = Depends(ctx)) -> Response:
     """One job: state, progress, timings, parameters, links, error."""
     job = c.store.peek(job_id)  # in-memory fast path; the database in a worker thread
     if job is None:
@@ -228,7 +228,7 @@ def delete_job(job_id: str = JobId, c: Context = Depends(ctx)) -> Deleted:
             responses={200: {"content": {"text/event-stream": {}},
                              "description": "SSE stream: `event: state|progress`, `id:` sequence, JSON data"}})
 async def job_events(job_id: str = JobId, c: Context = Depends(ctx),
-                     last_event_id: str | None = Header(None, alias="Last-Event-ID")):
+                     last_event_id: str | None = Header(None, alias="Last-Event-ID")) -> EventSourceResponse:
     """Server-Sent Events of the job's state changes and progress. Every event has an
     increasing ``id``; reconnecting with ``Last-Event-ID: n`` replays the events after n (an
     id that is not one of ours, :func:`last_event_seq`, replays them all). A keep-alive
@@ -239,7 +239,7 @@ async def job_events(job_id: str = JobId, c: Context = Depends(ctx),
         raise HTTPException(404, f"no job {job_id}")
     after = last_event_seq(last_event_id)
 
-    async def stream():
+    async def stream() -> AsyncIterator[ServerSentEvent]:
         # woken by the store's one listener (EventWakeups) at each committed event of this
         # job, never by a clock; a client gone cancels it (the response's disconnect watch)
         nonlocal after
@@ -270,7 +270,7 @@ async def job_events(job_id: str = JobId, c: Context = Depends(ctx),
 EVENTS_PAGE = 500
 
 
-def _events_and_state(store, job_id: str, after: int) -> tuple[list[dict], str | None]:
+def _events_and_state(store: JobStore, job_id: str, after: int) -> tuple[list[dict], str | None]:
     """The job's state, then its events after ``after`` (so a final state read here has its
     event among them); state None: the job is gone."""
     job = store.get(job_id)

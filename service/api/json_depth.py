@@ -22,6 +22,7 @@ import re
 
 import numpy as np
 from starlette.responses import JSONResponse
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 __all__ = ["MAX_JSON_DEPTH", "json_depth", "is_json_body", "JsonDepthLimit"]
 
@@ -109,10 +110,10 @@ class JsonDepthLimit:
         The application it wraps.
     """
 
-    def __init__(self, app) -> None:
+    def __init__(self, app: ASGIApp) -> None:
         self.app = app
 
-    async def __call__(self, scope, receive, send):
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http" or scope.get("method") in ("GET", "HEAD", "OPTIONS", "DELETE") \
                 or not is_json_body(scope.get("headers") or []):
             return await self.app(scope, receive, send)
@@ -120,7 +121,7 @@ class JsonDepthLimit:
         refusal: list[JSONResponse] = []
         done = False
 
-        async def watched_receive():
+        async def watched_receive() -> Message:
             nonlocal done
             message = await receive()
             if done or message["type"] != "http.request":
@@ -138,7 +139,7 @@ class JsonDepthLimit:
 
         sent = False
 
-        async def guarded_send(message):
+        async def guarded_send(message: Message) -> None:
             nonlocal sent
             if refusal:
                 if not sent:
@@ -155,5 +156,5 @@ class JsonDepthLimit:
                 await refusal[0](scope, _no_body, send)
 
 
-async def _no_body():
+async def _no_body() -> Message:
     return {"type": "http.request", "body": b"", "more_body": False}

@@ -26,6 +26,8 @@ from collections import deque
 from collections.abc import Awaitable, Callable
 from typing import Any
 
+from starlette.types import ASGIApp, Receive, Scope, Send
+
 from service.settings import Settings
 
 __all__ = ["STARTS_PER_ITERATION", "HEALTH_PATH", "RequestTurns", "HealthLane"]
@@ -65,7 +67,7 @@ class RequestTurns:
         If ``per_iteration`` is below 1.
     """
 
-    def __init__(self, app, per_iteration: int = STARTS_PER_ITERATION):
+    def __init__(self, app: ASGIApp, per_iteration: int = STARTS_PER_ITERATION) -> None:
         if per_iteration < 1:
             raise ValueError(f"per_iteration must be >= 1, got {per_iteration}")
         self.app = app
@@ -75,7 +77,7 @@ class RequestTurns:
         self._tick_due = False  # a call of _next_iteration is scheduled
         self._loop: asyncio.AbstractEventLoop | None = None  # the loop the counts are of
 
-    async def __call__(self, scope, receive, send):
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] == "http":
             await self.turn()
         return await self.app(scope, receive, send)
@@ -141,14 +143,14 @@ class HealthLane:
         ``gate(scope) -> (status, reason) or None``, the access gate's rules.
     """
 
-    def __init__(self, app, settings: Settings, document: Callable[[Any], Awaitable[Any]]):
+    def __init__(self, app: ASGIApp, settings: Settings, document: Callable[[Any], Awaitable[Any]]) -> None:
         from service.api.access import AccessGate
 
         self.app = app
         self.document = document
         self.gate = AccessGate(app, settings).refusal
 
-    async def __call__(self, scope, receive, send):
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if (scope["type"] != "http" or scope.get("path") != HEALTH_PATH or scope.get("method") != "GET"
                 or self.gate(scope) is not None):
             return await self.app(scope, receive, send)

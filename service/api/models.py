@@ -7,6 +7,7 @@ Contract: docs/api.md.
 """
 from __future__ import annotations
 
+from collections.abc import Iterable
 from typing import TYPE_CHECKING, Annotated, Any, Literal, Union
 
 from pydantic import (
@@ -39,7 +40,7 @@ __all__ = [
 ]
 
 
-def _one_of(values) -> Any:
+def _one_of(values: Iterable[str]) -> Any:
     """A string type accepting only ``values`` (listed as the schema's ``enum``), so
     that the vocabularies stay those of their owner (``service.pipeline``)."""
     allowed = tuple(values)

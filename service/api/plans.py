@@ -13,8 +13,8 @@ import functools
 import gzip
 import json
 import threading
-from collections.abc import Iterator
-from typing import Any
+from collections.abc import Callable, Iterator
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import anyio
 import numpy as np
@@ -24,6 +24,9 @@ from pydantic import TypeAdapter, ValidationError
 from service.api.context import Context, ctx, read_access, reason, require_token, validation_reason
 from service.api.models import ID_PATTERN, Deleted, MaskKindInfo, Plan, PlanCreate, PlanDocument, PlanPreview
 from service.jobs import lifecycle
+
+if TYPE_CHECKING:
+    from service.jobs.executors import LocalExecutor
 
 __all__ = [
     "router", "MAX_POINTS", "PREVIEW_DETAIL_POINTS", "build_plan", "expected_scan_time", "summary",
@@ -35,6 +38,8 @@ __all__ = [
 
 router = APIRouter(prefix="/api/plans", tags=["plans"])
 
+_T = TypeVar("_T")
+
 #: Most points a plan made over HTTP may have: building, hashing and drawing a plan costs
 #: time linear in its points; beyond this a request is refused (422) before that work.
 MAX_POINTS = 1 << 18
@@ -42,7 +47,7 @@ MAX_POINTS = 1 << 18
 PREVIEW_DETAIL_POINTS = 1 << 14
 
 
-def build_plan(req) -> dict:
+def build_plan(req: Any) -> dict:  # a PlanCreate variant (models built at import)
     """The plan JSON for a plan request.
 
     A plan JSON is checked (``driver.plan`` via ``service.plans.Plan``) and kept as it is, so
@@ -200,7 +205,7 @@ def _plan_request_adapter() -> TypeAdapter:
     return TypeAdapter(PlanCreate)
 
 
-def parse_plan_request(raw: bytes, content_type: str | None):
+def parse_plan_request(raw: bytes, content_type: str | None) -> Any:  # a PlanCreate variant
     """The ``PlanCreate`` variant of a request body, read as FastAPI reads a JSON body.
 
     Parameters
@@ -350,7 +355,7 @@ _EXECUTOR_LOCK = threading.Lock()
 PLAN_WORKER_NICE = 8
 
 
-def plan_executor(c: Context):
+def plan_executor(c: Context) -> LocalExecutor:
     """The service's plan worker: one spawned process at a lower CPU priority.
 
     Made on first use (at start-up) and kept in ``c.extras["plan_executor"]``; it warms up in
@@ -386,7 +391,7 @@ def plan_executor(c: Context):
         return ex
 
 
-def _in_plan_worker(c: Context, fn, *args, admit: bool = False):
+def _in_plan_worker(c: Context, fn: Callable[..., _T], *args: Any, admit: bool = False) -> _T:
     """``fn(*args)`` in the plan worker (blocking: call it from a worker thread), within a
     turn of ``c.slots["plans"]``. ``admit``: count the request in first, 429 when the plan
     slots are full (reads such as ``preview.png``, which ``UploadLimit`` does not count: a

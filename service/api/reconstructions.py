@@ -450,7 +450,8 @@ def volume_dir(c: Context, job_id: str, wavelength: int | None) -> Path:
             responses={200: {"content": {"application/x-hdf5": {}}, "description": "p0 volume (HDF5)"},
                        206: {"description": "partial content (HTTP Range)"},
                        404: {"description": "no volume at that wavelength"}})
-def volume(job_id: str = JobId, wavelength: int | None = WavelengthQuery, c: Context = Depends(ctx)):
+def volume(job_id: str = JobId, wavelength: int | None = WavelengthQuery,
+           c: Context = Depends(ctx)) -> HeldFileResponse:
     """The result volume: ``/p0`` ``(n_z, n_y, n_x)``, ``/z``, ``/x``, ``/y`` (m), attributes
     ``method``, ``params`` (with ``wavelength_index``/``wavelength_nm`` for a
     multi-wavelength input). ``?wavelength=k``: wavelength ``k``'s volume of a job over
@@ -464,7 +465,7 @@ def volume(job_id: str = JobId, wavelength: int | None = WavelengthQuery, c: Con
             responses={200: {"content": {"application/x-hdf5": {}},
                              "description": "HbO2, Hb, THb, sO2 and mask volumes (HDF5, fpscan-unmix/1)"},
                        404: {"description": "the job did not unmix"}})
-def unmix_h5(job_id: str = JobId, c: Context = Depends(ctx)):
+def unmix_h5(job_id: str = JobId, c: Context = Depends(ctx)) -> HeldFileResponse:
     """The unmixing of a multi-wavelength job: ``/hbo2``, ``/hb``, ``/thb``, ``/so2`` (NaN
     where masked), ``/mask``, ``/z``, ``/x``, ``/y`` (m), ``/wavelengths_m``
     (``service.spectral``). Supports ``Range``."""
@@ -478,7 +479,7 @@ def unmix_h5(job_id: str = JobId, c: Context = Depends(ctx)):
 @router.get("/{job_id}/so2.png", dependencies=[Depends(read_access)], response_class=Response,
             responses={200: {"content": {"image/png": {}}, "description": "sO2 map (colour), THb (brightness), background black"},
                        404: {"description": "the job did not unmix"}})
-def so2_png(job_id: str = JobId, c: Context = Depends(ctx)):
+def so2_png(job_id: str = JobId, c: Context = Depends(ctx)) -> Response:
     """The sO2 picture: at each (x, y) the sO2 of the voxel of largest THb along depth,
     colour bar 0..100 %, brightness from THb, background black (``service.spectral.render_so2_png``)."""
     path = result_dir(c, job_id) / "so2.png"
@@ -490,7 +491,7 @@ def so2_png(job_id: str = JobId, c: Context = Depends(ctx)):
 @router.get("/{job_id}/mip/{plane}.png", dependencies=[Depends(read_access)], response_class=Response,
             responses={200: {"content": {"image/png": {}}, "description": "MIP"}})
 def mip_png(plane: Plane, job_id: str = JobId, wavelength: int | None = WavelengthQuery,
-            c: Context = Depends(ctx)):
+            c: Context = Depends(ctx)) -> Response:
     """Maximum-intensity projection: ``xy`` (over z), ``xz`` (over y), ``yz`` (over x);
     ``?wavelength=k`` as for the volume."""
     path = volume_dir(c, job_id, wavelength) / mip_file(plane)
@@ -502,7 +503,7 @@ def mip_png(plane: Plane, job_id: str = JobId, wavelength: int | None = Waveleng
 @router.get("/{job_id}/slice.png", dependencies=[Depends(read_access)], response_class=Response,
             responses={200: {"content": {"image/png": {}}, "description": "depth slice z = index·dz"}})
 def slice_png(job_id: str = JobId, index: int = Query(0, ge=0, le=1_000_000, description="depth index"),
-              c: Context = Depends(ctx)):
+              c: Context = Depends(ctx)) -> Response:
     """The lateral slice at depth index ``index`` of a 3-D result (2-D: the image row),
     drawn like every picture (``service.storage.render``): axes in mm, y down, the depth
     in mm in the title, a colour bar in p0 units."""

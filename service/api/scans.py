@@ -3,7 +3,7 @@ resume, abort, download the scan file (HTTP Range) and its IPASC export, live pr
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from fastapi import APIRouter, Depends, Header, HTTPException, Response
 from fastapi import Path as PathParam
@@ -16,6 +16,9 @@ from service.api.models import ID_PATTERN, Job, Plane, PreviewInfo, Scanner, Sca
 from service.jobs import lifecycle
 from service.jobs.store import TERMINAL, IdempotencyConflict
 
+if TYPE_CHECKING:
+    from service.jobs.scans import ScanManager
+
 __all__ = [
     "router", "JobId", "list_scanners", "start_scan", "pause_scan", "resume_scan", "abort_scan", "scan_file_path",
     "scan_file",
@@ -27,7 +30,7 @@ router = APIRouter(tags=["scans"])
 JobId = PathParam(pattern=ID_PATTERN, description="scan job id")
 
 
-def _scans(c: Context):
+def _scans(c: Context) -> ScanManager:
     if c.scans is None:
         raise HTTPException(409, "scanning is not available on this server (no driver)")
     return c.scans
@@ -137,7 +140,7 @@ def scan_file_path(c: Context, job_id: str) -> Path:
 @router.get("/api/scans/{job_id}/file", dependencies=[Depends(read_access)], response_class=FileResponse,
             responses={200: {"content": {"application/x-hdf5": {}}, "description": "the scan file (HDF5)"},
                        206: {"description": "partial content (HTTP Range)"}})
-def scan_file(job_id: str = JobId, c: Context = Depends(ctx)):
+def scan_file(job_id: str = JobId, c: Context = Depends(ctx)) -> HeldFileResponse:
     """The scan file (HDF5, ``driver.scanfile`` layout); supports ``Range``."""
     # the file as it is now (a running scan's grows): its size when opened, those bytes
     return HeldFileResponse(scan_file_path(c, job_id), gone=f"scan {job_id} was deleted meanwhile",
@@ -157,7 +160,7 @@ def scan_preview(job_id: str = JobId, c: Context = Depends(ctx)) -> PreviewInfo:
 
 @router.get("/api/scans/{job_id}/preview/{plane}.png", dependencies=[Depends(read_access)], response_class=Response,
             responses={200: {"content": {"image/png": {}}, "description": "live preview MIP"}})
-def scan_preview_png(plane: Plane, job_id: str = JobId, c: Context = Depends(ctx)):
+def scan_preview_png(plane: Plane, job_id: str = JobId, c: Context = Depends(ctx)) -> Response:
     """The live preview's MIP on ``plane`` (``X-Preview-Version`` header)."""
     get_job_or_404(c, job_id, "scan")
     state = _scans(c).preview(job_id)
