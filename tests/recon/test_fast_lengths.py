@@ -142,11 +142,11 @@ def test_model_based_preconditioner_lengths_are_fast():
     """tv's preconditioner P (its DCT-II on every axis of the image, each iteration) runs on
     the image zero-padded to fast real lengths: at the paper's 1024 × 226² its transforms took
     2.08 s on axes of 226 = 2·113, against 0.57 s at 1024 × 240²."""
-    from service.recon import tv
+    from service.recon.tv import preconditioner
 
     for n in LATERAL:
         for shape in ((n, n), (3, 2, n), (2, n, 3)):
-            P = tv._ner_weight(shape, DX, C * DT)
+            P = preconditioner._ner_weight(shape, DX, C * DT)
             assert all(is_fast(m) and m >= k for m, k in zip(P.shape, shape)), (shape, P.shape)
     for n_z in range(50, 1101, 9):
-        assert is_fast(tv._ner_weight((n_z, 4), DX, C * DT).shape[0]), n_z
+        assert is_fast(preconditioner._ner_weight((n_z, 4), DX, C * DT).shape[0]), n_z

@@ -114,7 +114,7 @@ def test_the_record_is_kept_until_the_farthest_sensor_hears_the_images_last_row(
     at every sensor: the forward model (`forward_points`) of a source at the image's deepest row,
     at the lateral corner farthest from a sensor, has passed that sensor before the kept record
     ends (and not long before). A line's sources ring on (2-D waves have a tail ∝ 1/t²):
-    tv keeps a line's whole record (`service.recon.tv._lateral_extent` gives no reach there)."""
+    tv keeps a line's whole record (`service.recon.tv.problem._lateral_extent` gives no reach there)."""
     n_t, dt = 900, 10e-9
     x = (np.arange(24) - 11.5) * DX  # the image's lateral axes (x and y)
     pos = np.array([[x[0], x[0]], [x[3], x[2]]])  # two sensors at one corner of the image

@@ -502,8 +502,9 @@ MEMORY_CALIBRATION = 1.05
 
 def warm_up(dtypes: Sequence[str]) -> None:
     """Compile (or load from numba's cache) the model-based operator's and solver's kernels
-    (``service.recon.operator``, ``service.recon.tv``, ``driver.physics.forward``; the first
-    imports pylops and pyproximal: seconds) on a 4 x 6 x 6 image in each precision.
+    (``service.recon.operator``; ``service.recon.tv``'s ``prox``, ``stores``, ``fista`` and
+    ``preconditioner``; ``driver.physics.forward``; the first imports pylops and pyproximal:
+    seconds) on a 4 x 6 x 6 image in each precision.
 
     Parameters
     ----------
@@ -521,27 +522,27 @@ def warm_up(dtypes: Sequence[str]) -> None:
 
     from driver.constants import C_DEFAULT
     from driver.physics.forward import forward_grid
-    from service.recon import tv
     from service.recon.operator import PlanarOperator
+    from service.recon.tv import fista, preconditioner, prox, stores
 
     dx, dt = 1e-4, 2e-8
     for d in dtypes:  # the model-based operator runs its transforms in the working precision
         op = PlanarOperator((4, 6, 6), dx, C_DEFAULT * dt, dt, 32, dtype=d)
         op.adjoint(op.forward(np.ones((4, 6, 6))))
         v = np.ones((4, 6, 6), dtype=d)  # the TV part's compiled sweeps (2-D images run as 3-D views)
-        tv._tv_prox(v, 0.1, True, None, None)
-        tv._tv_prox_stored(v, 0.1, True, None, [tv._tv_prox_stored(v, 0.1, True, None, [None])[1]])  # stored dual
-        tv._tv_norm(v)
-        tv._apply_weight(tv._ner_weight(v.shape, dx, C_DEFAULT * dt), v)  # the preconditioner's kernel
+        prox._tv_prox(v, 0.1, True, None, None)
+        prox._tv_prox_stored(v, 0.1, True, None, [prox._tv_prox_stored(v, 0.1, True, None, [None])[1]])  # stored dual
+        prox._tv_norm(v)
+        preconditioner._apply_weight(preconditioner._ner_weight(v.shape, dx, C_DEFAULT * dt), v)  # P's kernel
         flat = v.ravel()  # the solver's in-place vector kernels
-        tv._axpy(flat, flat, 0.5)
-        move = tv._store_move(flat, flat, flat, 1.0, np.zeros(flat.size, dtype=np.int16), 0.0, 1.0)
-        tv._extrapolate_fixed(flat, move[0], 0.5)
-        tv._difference_norm(flat, flat)
-        tv._gain_lower_bound(flat, tv._store_gradient(v))  # the last gradient's 16-bit wait
-        tv._moves(flat, flat, flat, 1.0, move[0], 0.5, 0.5)
+        fista._axpy(flat, flat, 0.5)
+        move = stores._store_move(flat, flat, flat, 1.0, np.zeros(flat.size, dtype=np.int16), 0.0, 1.0)
+        stores._extrapolate_fixed(flat, move[0], 0.5)
+        fista._difference_norm(flat, flat)
+        stores._gain_lower_bound(flat, stores._store_gradient(v))  # the last gradient's 16-bit wait
+        fista._moves(flat, flat, flat, 1.0, move[0], 0.5, 0.5)
         dual = np.zeros((3, 4, 6, 6), dtype=d)  # the dual's wait between iterations
-        tv._restore_dual(tv._store_dual(dual), dual.dtype)
+        stores._restore_dual(stores._store_dual(dual), dual.dtype)
     forward_grid(np.ones((4, 6, 6)), dx, C_DEFAULT * dt, dt, 32)
 
 
@@ -549,5 +550,6 @@ METHOD = Method(
     "tv", "model-based: TV + positivity on the exact model (iterative; sparse, noisy scans)", False, Options, run,
     "½‖A p0 − g‖² + λ TV(p0), p0 ≥ 0, NER-preconditioned FISTA (Arridge et al., PMB 61 (2016) 8908)",
     peak_memory, order=50, work=work, iterative=True, time_limited=True, warm_up=warm_up,
-    kernel_modules=("driver.physics.nufft_kernels", "service.recon.tv"), warm_in_background=True,
+    kernel_modules=("driver.physics.nufft_kernels", "service.recon.tv.prox", "service.recon.tv.stores",
+                    "service.recon.tv.fista", "service.recon.tv.preconditioner"), warm_in_background=True,
     memory_calibration=MEMORY_CALIBRATION, holds_input=True)

@@ -1,0 +1,286 @@
+"""Model-based reconstruction: total variation + positivity on the exact planar model.
+
+Solves (DESIGN §3; Arridge, Beard, Betcke, Cox, Huynh, Lucka, Ogunlade, Zhang,
+"Accelerated high-resolution photoacoustic tomography via compressed sensing",
+Phys. Med. Biol. 61 (2016) 8908)::
+
+    p0 = argmin_{p >= 0}  J(p) = ½ ‖A p − g‖² + λ TV(p)
+
+with A the exact planar forward model (`service.recon.operator.PlanarOperator`, free space,
+sensors on the grid or at arbitrary positions), every A-line weighted equally (each carries
+white noise of the same σ: the maximum-likelihood data term) and TV(p) = Σ_voxels |∇p|₂ the
+isotropic total variation with forward differences in voxel units (J in Pa², so λ is in Pa).
+Positivity is on by default (``positivity=False`` drops it). `reconstruct_tv` is the
+algorithm; each of its parts is a module of this package:
+
+- ``problem``: the record the grid can resolve and the warm start on it. The operator works at
+  the band the lateral pitch resolves, c / (2 pitch) (or a declared ``bandwidth``), on the
+  record cut where the model predicts silence and resampled to the fewest samples whose band
+  reaches it; the default depth grid is isotropic (`service.recon.tv_grid`). The warm start is
+  NER (grid data) / NEDNER (A-lines), clipped to >= 0. Then A and B = P Aᵀ.
+- ``preconditioner``: P = k_z / |k|, NER's k-space weight, which inverts AᵀA's symbol |k| /
+  k_z for a full planar aperture.
+- ``geometry``: the step 1 / L, L ≈ 1.1 ‖P AᵀA‖ from two seeded power iterations, and the
+  image's noise level; kept for the last few geometries (``params["geometry_kept"]``).
+- ``lam``: the automatic λ (``lam=None``) = 0.6 s · max(1, (D₀ / 9.5)^0.25), s the image's
+  noise level ‖P Aᵀ n̂‖_rms and D₀ = ‖A x₀ − g‖ / (σ̂ √N) the warm start's discrepancy; and
+  the continuation (``continuation=True``): λ_k = λ · max(1, D₀ · 0.9^(k−1)).
+- ``fista``: the solver loop, accelerated proximal gradient (FISTA) preconditioned by P,
+  with a constant momentum 0.94 restarted when J rises or the momentum points uphill; L rises
+  where the iterates show a larger gain; ``debias=True`` refits the amplitudes at λ = 0 on tv's
+  support.
+- ``prox``: the proximal map of λ TV + positivity, gradient projection on the dual (Chambolle
+  2005), warm-started from the previous iteration's dual, in compiled sweeps that work in place.
+- ``stopping``: the image's relative change per iteration below ``tol`` in each of the last 3
+  iterations at λ itself ("converged"); else ``max_iter`` ("iterations") or the time limit.
+- ``stores``: the dual, the last gradient and the last move wait between iterations as 16-bit
+  fixed point, so the solver holds about 1 image, the dual's d/2 and two halves while the
+  operator works (`service.recon.memory.tv_memory`).
+- ``progress``: increasing fractions and stages, polled inside long steps so a cancel acts.
+- ``result``: the result's ``params``.
+
+Why each rule and number is what it is (the measurements on the test cases, k-Wave's vessel
+tree and the paper's scan, and the rules measured and not built): docs/tv-measurements.md.
+"""
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+
+import numpy as np
+import numpy.typing as npt
+
+from driver.constants import C_DEFAULT
+from service.progress import Progress, span
+from service.recon import checks
+from service.recon import limits as _limits
+from service.recon.reconstruction import Reconstruction
+from service.recon.tv.fista import _MARGIN, _debias, _fista
+from service.recon.tv.geometry import _geometry_numbers
+from service.recon.tv.lam import _LAM_KNEE as _LAM_KNEE  # the automatic λ's constants, read by tests and
+from service.recon.tv.lam import _LAM_POWER as _LAM_POWER  # benchmarks from here
+from service.recon.tv.lam import _LAM_SCALE as _LAM_SCALE
+from service.recon.tv.lam import _Continuation, _DiscrepancyRule
+from service.recon.tv.problem import _check_tv_options, _Model, _record, _start_image, _warm_start
+from service.recon.tv.progress import _final_stage, _reporter
+from service.recon.tv.result import _params
+from service.recon.tv_grid import TvGrid, noise_sigma, tv_grid
+
+__all__ = ["DEFAULT_MAX_ITER", "DEFAULT_TOL", "DEFAULT_TIME_LIMIT", "TvGrid", "noise_sigma", "reconstruct_tv", "tv_grid"]
+
+DEFAULT_MAX_ITER = _limits.DEFAULT_MAX_ITER
+#: the stopping rule: the image's relative change per iteration below this in each of the last 3
+DEFAULT_TOL = _limits.DEFAULT_TOL
+#: default wall-time limit of one model-based reconstruction, s (``service.recon.limits``; the
+#: server's setting ``time_limit_s`` caps it there)
+DEFAULT_TIME_LIMIT = _limits.DEFAULT_TIME_LIMIT
+
+
+def reconstruct_tv(
+    data: np.ndarray,
+    dt: float,
+    c: float = C_DEFAULT,
+    *,
+    dx: float | None = None,
+    positions: np.ndarray | None = None,
+    weights: np.ndarray | None = None,
+    grid: np.ndarray | Sequence[npt.ArrayLike] | None = None,
+    lam: float | None = None,
+    positivity: bool = True,
+    max_iter: int = DEFAULT_MAX_ITER,
+    tol: float = DEFAULT_TOL,
+    dtype: npt.DTypeLike = np.float64,
+    eps: float = 1e-6,
+    dz: float | None = None,
+    n_z: int | None = None,
+    t0: float = 0.0,
+    periodic: bool = False,
+    memory_limit: int | None = None,
+    time_limit: float = DEFAULT_TIME_LIMIT,
+    debias: bool = False,
+    bandwidth: float | None = None,
+    whole_record: bool = False,
+    continuation: bool = True,
+    progress: Progress | None = None,
+) -> Reconstruction:
+    """Model-based reconstruction: ½‖A p0 − g‖² + λ TV(p0), p0 ≥ 0 (package doc).
+
+    Parameters
+    ----------
+    data : array_like
+        Grid data ``(n_t, n_x)`` / ``(n_t, n_y, n_x)`` (time first) with ``dx``, or A-lines
+        ``(n_points, n_t)`` with ``positions``; Pa (or the instrument's unit).
+    dt : float
+        Sample interval, s.
+    c : float, optional
+        Sound speed, m/s (default ``driver.constants.C_DEFAULT``).
+    dx : float, optional
+        Lateral pitch in m (grid data; needed without ``positions``).
+    positions : ndarray, optional
+        Sensor positions ``(n_points, 1)`` x / ``(n_points, 2)`` (x, y) in m (A-lines).
+    weights, grid : optional
+        As `reconstruct_points` (weights ``(n_points,)``, default: clipped Voronoi areas,
+        used by the NEDNER warm start only: the data term weighs every A-line equally; grid:
+        default the positions' lattice; its x and y pitch must be equal).
+    lam : float, optional
+        TV weight λ (>= 0) in the data's unit; None (default): 0.6 × the image's noise
+        level ‖P Aᵀ n̂‖_rms, raised where the warm start's discrepancy shows undersampling
+        artefacts (package doc; `service.recon.tv.lam`).
+    positivity : bool, optional
+        Constrain p0 >= 0 (default True).
+    max_iter : int, optional
+        Iterations at most (>= 1).
+    tol : float, optional
+        The stopping rule's threshold (>= 0; `service.recon.tv.stopping`): stop when the image's relative
+        change per iteration, ‖x_k − x_{k−1}‖ / ‖x_k‖, has been below ``tol`` in each of the
+        last 3 iterations (0: run ``max_iter``).
+    dtype : float32 or float64, optional
+        Precision of the solver's vectors and of the output.
+    eps : float, optional
+        NUFFT tolerance.
+    dz, n_z, t0 : optional
+        Depth spacing (m), depth samples and time of sample 0 (s). With neither dz nor n_z
+        given, `service.recon.tv_grid.tv_grid`'s: dz = c / (2 f_c) at the operator's band f_c
+        (the pitch, or a declared band; c dt at full band), down to the last echo's depth; a
+        given one is kept and the other follows the record's own rule (c dt, n_t).
+    periodic : bool, optional
+        Model the grid as laterally periodic (no zero padding; `PlanarOperator`), as NER
+        itself does: several times cheaper for large volumes, but sources near an edge wrap
+        around to the far sensors.
+    memory_limit : int, optional
+        Bytes (default: available now).
+    time_limit : float, optional
+        Wall-time limit in s, in (0, 1 week] (default ``DEFAULT_TIME_LIMIT``, an hour): when
+        it is reached the solver stops after the current iteration and says so in
+        ``params`` (``converged`` false, ``stop_reason`` "time limit").
+    debias : bool, optional
+        After the solve, refit the amplitudes by least squares on tv's support
+        (`service.recon.tv.fista`: 10 more operator pairs). Default False.
+    bandwidth : float, optional
+        A sensor bandwidth the caller declares, Hz, in [1e3, 1e12]: the operator works at that
+        band instead of the one the lateral pitch resolves (`service.recon.tv.problem`).
+    whole_record : bool, optional
+        Keep the whole record and, with neither dz nor n_z given, image its whole depth
+        (`service.recon.tv.problem`; `service.recon.tv_grid.tv_grid`). Default False.
+    continuation : bool, optional
+        Start the TV weight at λ · D₀ and lower it to λ (`service.recon.tv.lam`; default
+        True); False steps at λ from the first iteration (the solver until 2026-11-26, kept
+        for comparisons: the typed options of the API, CLI and web page keep the default).
+    progress : callable, optional
+        ``progress(fraction, stage)`` (the pipeline's contract), called
+        with increasing fractions during the warm start (stage "warm start"), after each
+        step of the norm estimate ("norm estimate") and every iteration ("iteration
+        k/max_iter"), and again with the same fraction at most every 0.2 s inside long steps
+        (the operator's checkpoints: `PlanarOperator` ``checkpoint``); it may raise to cancel
+        (the pipeline's ``should_stop`` does), so a cancel acts within about a second even
+        when one iteration takes minutes.
+
+    Returns
+    -------
+    Reconstruction
+        p0 ``(n_z, n_x)`` / ``(n_z, n_y, n_x)`` with ``z``, ``x``, ``y`` (m) on the warm
+        start's grid; ``params`` add ``lam``, ``lam_auto``, ``lam_factor`` (λ over
+        ``image_noise``; None for a given λ), ``lam_note`` (only when the automatic λ is 0:
+        why — noiseless data), ``warm_discrepancy`` (D₀, `service.recon.tv.lam`),
+        ``noise_sigma`` (σ̂, Pa), ``image_noise``, ``noise_share``, ``lam_start_factor`` (the
+        continuation's λ₀ / λ, 1 without one), ``continuation_iterations`` (iterations with λ_k >
+        λ), ``iterations``, ``residual``
+        (‖A p0 − g‖ / ‖g‖), ``norm_A`` (‖P AᵀA‖, the step's L), ``converged`` (the stopping
+        rule ``tol`` was met), ``stop_reason`` ("converged", "iterations": ``max_iter`` reached,
+        "time limit"), ``iterate_change`` (the rule's last value), ``operator_pairs``,
+        ``geometry_kept`` (‖BA‖ and the noise image were kept from a run on this geometry),
+        ``solver``, ``debias``, ``time_limit``, ``solve_s``; and the grid: ``dt`` (the
+        record's), ``record_n_t`` (the record's samples kept: after them the model predicts
+        silence), ``extent_reason`` ("image", "record"), ``operator_dt``, ``operator_n_t``,
+        ``band`` (Hz, None: Nyquist), ``band_reason`` ("lateral", "declared", "nyquist"),
+        ``bandwidth`` (as declared).
+
+    Raises
+    ------
+    ValueError
+        Naming the problem: negative or non-finite λ, iterations < 1, NaN/inf data, grid
+        data without ``dx``, weights of the wrong length, unequal x/y pitch, anything
+        `reconstruct_grid` / `reconstruct_points` reject, estimated memory above the limit
+        (an out-of-range option is a ``service.recon.checks.OptionError``).
+
+    References
+    ----------
+    .. [1] S. Arridge, P. Beard, M. Betcke, B. Cox, N. Huynh, F. Lucka, O. Ogunlade, E. Zhang,
+       "Accelerated high-resolution photoacoustic tomography via compressed sensing", Phys.
+       Med. Biol. 61 (2016) 8908.
+    .. [2] A. Beck, M. Teboulle, "A fast iterative shrinkage-thresholding algorithm for linear
+       inverse problems", SIAM J. Imaging Sci. 2 (2009) 183; "Fast gradient-based algorithms
+       for constrained total variation image denoising and deblurring problems", IEEE Trans.
+       Image Process. 18 (2009) 2419.
+    .. [3] B. O'Donoghue, E. Candès, "Adaptive restart for accelerated gradient schemes",
+       Found. Comput. Math. 15 (2015) 715.
+    .. [4] D. L. Donoho, I. M. Johnstone, "Ideal spatial adaptation by wavelet shrinkage",
+       Biometrika 81 (1994) 425 (the noise level of the automatic λ).
+
+    Examples
+    --------
+    A 3 x 3 block (the exact forward model, `driver.physics.forward`) on a 16-sensor line:
+
+    >>> import numpy as np
+    >>> from driver.physics.forward import forward_grid
+    >>> from service.recon.tv import reconstruct_tv
+    >>> p0 = np.zeros((12, 16))  # (n_z, n_x), pitch 0.1 mm
+    >>> p0[5:8, 7:10] = 1.0
+    >>> g = forward_grid(p0, dx=1e-4, dz=1e-4, dt=1e-4 / 1500, n_t=24, c=1500.0)  # (n_t, n_x)
+    >>> r = reconstruct_tv(g, 1e-4 / 1500, 1500.0, dx=1e-4, n_z=12, max_iter=10)
+    >>> r.p0.shape, r.p0.dtype, bool(r.p0.min() >= 0), r.params["iterations"], r.params["lam_auto"]
+    ((12, 16), dtype('float64'), True, 10, True)
+    >>> bool(np.corrcoef(r.p0.ravel(), p0.ravel())[0, 1] > 0.95)  # close to the true p0
+    True
+    >>> reconstruct_tv(g, 1e-4 / 1500, 1500.0)  # grid data without their pitch
+    Traceback (most recent call last):
+    ...
+    ValueError: grid data need dx (or give positions for A-lines)
+    >>> reconstruct_tv(g, 1e-4 / 1500, 1500.0, dx=1e-4, lam=-1)
+    Traceback (most recent call last):
+    ...
+    service.recon.checks.OptionError: lam (the TV weight λ) must be in [0, 1e+30], got -1
+    """
+    lam, max_iter, tol, time_limit = _check_tv_options(lam, max_iter, tol, time_limit)
+    bandwidth = None if bandwidth is None else checks.check_bandwidth(bandwidth)
+    rdtype = checks.check_dtype(dtype)
+    started = time.monotonic()
+    report = _reporter(progress)
+    if positions is None and dx is None:
+        raise ValueError("grid data need dx (or give positions for A-lines)")
+    # the record at the band and on the grid the data can resolve, and the warm start on it
+    record = _record(data, dt, c, dx, positions, grid, bandwidth=bandwidth, dz=dz, n_z=n_z, t0=t0,
+                     whole_record=bool(whole_record))
+    warm, pos = _warm_start(record, c, dx, positions, weights, grid, dtype=rdtype, t0=t0, eps=eps,
+                            positivity=positivity, memory_limit=memory_limit,
+                            progress=span(report, 0.0, 0.05, "warm start"))
+    report(0.05, "warm start")
+    # A, and B = P Aᵀ: the exact adjoint with NER's k-space weight P = k_z / |k|
+    model = _Model(record, warm, c, pos, t0=t0, eps=eps, dtype=rdtype, periodic=periodic, checkpoint=report.poll,
+                   memory_limit=memory_limit)
+    report(0.06, "norm estimate")  # the operator's set-up and the first adjoint: no longer the warm start
+    # the step 1 / L, L ≈ ‖BA‖, and the noise image's RMS (per unit σ): the geometry's, kept per geometry
+    gain, noise_rms, geometry_kept = _geometry_numbers(model, span(report, 0.05, 0.1, "norm estimate"))
+    L = _MARGIN * gain
+    if not L > 0:
+        raise ValueError("no sensor sees the image within the record (‖A‖ = 0): nothing to reconstruct")
+    report(0.1, "norm estimate")
+    # λ: given, or the rule of the image's noise level and the warm start's discrepancy; continued from λ D₀
+    rule = _DiscrepancyRule(record.sigma * noise_rms, record.noise_norm)
+    schedule = _Continuation(record.noise_norm) if continuation else None
+    first = [_start_image(warm, rdtype, positivity)]  # handed over: _fista reuses its memory
+    axes, warm_params = (warm.z, warm.x, warm.y), warm.params
+    del warm  # its float64 image: the solver's x is a copy (float32) or that image itself
+    solved = _fista(model.forward, model.B, record.g, first, rule if lam is None else lam, L, positivity, max_iter,
+                    tol, started, time_limit, report, model.residual, poll=report.poll, continuation=schedule)
+    debiased = bool(debias and solved.stop_reason != "time limit" and np.any(solved.x > 0))
+    if debiased:  # the amplitudes refit at λ = 0 on tv's support, from tv's image (handed over)
+        box = [solved]
+        del solved
+        solved = _debias(model.forward, model.B, record.g, box, started, time_limit, model.residual, report.poll)
+    params = _params(warm_params, record, model, solved, rule, schedule,
+                     dict(dt=dt, bandwidth=bandwidth, whole_record=whole_record, max_iter=max_iter, tol=tol,
+                          dtype=rdtype, positivity=positivity, periodic=periodic, time_limit=time_limit),
+                     lam_auto=lam is None, geometry_kept=geometry_kept, debiased=debiased, started=started)
+    report(1.0, _final_stage(solved.stop_reason, solved.iterations))
+    return Reconstruction(solved.x.astype(rdtype, copy=False), *axes, params)

@@ -1,0 +1,115 @@
+"""tv's geometry numbers: the step's ‖BA‖ estimate and the noise image's RMS, kept per geometry.
+
+Both depend on the geometry alone (the operator, the preconditioner P and the seeded starts):
+‖BA‖ (B = P Aᵀ) from `_POWER_STEPS` power iterations from a seeded white image
+(`_gain_estimate`; the solver raises its L where the iterates show more), and the RMS of the
+noise image B n̂ of one seeded white-noise record n̂ of unit σ, whose product with σ̂ is the
+image's noise level of the automatic λ (`service.recon.tv.lam`). `_geometry_numbers` keeps
+them for the last `_GEOMETRY_KEPT` geometries (`_GeometryMemo`), so a repeated scan plan
+spends no operator pairs on them and gets the numbers a fresh process computes. Why two
+power iterations: docs/tv-measurements.md, "Solver".
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import TYPE_CHECKING
+
+import numpy as np
+import numpy.typing as npt
+
+if TYPE_CHECKING:
+    from service.progress import Span
+    from service.recon.operator import PlanarOperator
+    from service.recon.tv.problem import _Model
+
+__all__: list[str] = []
+
+_POWER_STEPS = 2  # power iterations for the first step 1 / ‖BA‖ (the solver raises L where it sees more)
+
+
+def _geometry_numbers(model: _Model, progress: Span) -> tuple[float, float, bool]:
+    """(‖BA‖ estimate, the noise image's RMS per unit σ, whether both were kept from an earlier
+    run on this geometry) of ``model`` (module doc); ``progress(fraction)`` after each power
+    iteration."""
+    key = _geometry_key(model.op, model.shape, model.dx, model.dz, model.pos, model.dtype, model.g.shape)
+    kept = _GEOMETRY.get(key)
+    geometry_kept = kept is not None
+    if kept is None:
+        start = np.random.default_rng(0).standard_normal(model.shape).astype(model.dtype)
+        gain = _gain_estimate(lambda v: model.B(model.forward(v)), start, _POWER_STEPS,
+                              step=lambda k, n: progress(k / n))
+        del start
+        noise_image = model.B(np.random.default_rng(0).standard_normal(model.g.shape)).ravel()
+        noise_rms = math.sqrt(float(np.einsum("i,i->", noise_image, noise_image, dtype=np.float64))
+                              / noise_image.size)  # accumulated in float64
+        del noise_image
+        kept = (gain, noise_rms)
+        _GEOMETRY.put(key, kept)
+    gain, noise_rms = kept
+    return gain, noise_rms, geometry_kept
+
+
+def _gain_estimate(apply: Callable[[np.ndarray], np.ndarray], start: np.ndarray, steps: int,
+                   step: Callable[[int, int], None] | None = None) -> float:
+    """Largest gain ‖BA v‖ / ‖v‖ of ``apply`` (= B A, B the NER/NEDNER of a residual) by
+    ``steps`` power iterations from ``start`` (an image; not modified)."""
+    v = start / np.linalg.norm(start)
+    gain = 0.0
+    for k in range(steps):
+        u = np.asarray(apply(v), dtype=v.dtype).reshape(v.shape)
+        gain = float(np.linalg.norm(u))
+        if gain == 0.0:
+            return 0.0
+        v = np.divide(u, gain, out=u)
+        if step is not None:
+            step(k + 1, steps)
+    return gain
+
+
+class _GeometryMemo:
+    """The last few geometries' ‖BA‖ estimate and noise-image RMS (`reconstruct_tv`): numbers
+    of the operator, the preconditioner and the seeded starts alone, so a repeated scan plan
+    (the same mask, grid, sampling and band) skips the 2.5 operator pairs that make them, and
+    its result is the one a fresh process computes. At most `_GEOMETRY_KEPT` entries (a few
+    floats each), the oldest dropped first; safe across threads."""
+
+    def __init__(self, size: int) -> None:
+        import threading
+
+        self._size, self._lock = size, threading.Lock()
+        self._items: dict[tuple, tuple[float, float]] = {}
+
+    def get(self, key: tuple) -> tuple[float, float] | None:
+        with self._lock:
+            value = self._items.pop(key, None)
+            if value is not None:
+                self._items[key] = value  # most recent last
+            return value
+
+    def put(self, key: tuple, value: tuple[float, float]) -> None:
+        with self._lock:
+            self._items.pop(key, None)
+            self._items[key] = value
+            while len(self._items) > self._size:
+                self._items.pop(next(iter(self._items)))
+
+    def clear(self) -> None:
+        with self._lock:
+            self._items.clear()
+
+
+#: geometries kept (`_GeometryMemo`): a lab alternates between a few scan plans
+_GEOMETRY_KEPT = 8
+_GEOMETRY = _GeometryMemo(_GEOMETRY_KEPT)
+
+
+def _geometry_key(op: PlanarOperator, shape: tuple[int, ...], dx: float, dz: float, pos: np.ndarray | None,
+                  rdtype: npt.DTypeLike, data_shape: tuple[int, ...]) -> tuple:
+    """What ‖BA‖ and the noise image depend on: the operator's grid, sampling, band, sensors
+    (their bytes' digest), precision and the data's shape (the noise record's)."""
+    import hashlib
+
+    where = None if pos is None else hashlib.sha256(np.ascontiguousarray(pos, dtype=np.float64).tobytes()).hexdigest()
+    return (tuple(shape), float(dx), float(dz), float(op.dt), int(op.n_t), float(op.c), float(op.t0), float(op.eps),
+            op.band, bool(op.periodic), op.padded_shape, np.dtype(rdtype).name, tuple(data_shape), where)

@@ -1,0 +1,59 @@
+"""tv's record of a run: the result's ``params`` (`reconstruct_tv`'s Returns list them).
+
+The warm start's params, then the grid (the record's ``dt``, the operator's sampling and band,
+the record kept) and the solve: λ and how it was set (`service.recon.tv.lam`), the noise
+levels, the stopping rule's outcome (`service.recon.tv.stopping`), the operator pairs used
+and the wall time.
+"""
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+import numpy as np
+
+from service.recon.tv.fista import _MARGIN, _Solved
+from service.recon.tv.lam import _Continuation, _DiscrepancyRule
+from service.recon.tv.problem import _Model, _Record
+
+__all__: list[str] = []
+
+
+def _params(warm_params: dict[str, Any], record: _Record, model: _Model, solved: _Solved, rule: _DiscrepancyRule,
+            schedule: _Continuation | None, options: dict[str, Any], *, lam_auto: bool, geometry_kept: bool,
+            debiased: bool, started: float) -> dict[str, Any]:
+    """The result's params: ``warm_params`` updated with the grid of ``record`` and the solve
+    (``solved``, the automatic λ's ``rule``, the continuation's ``schedule``, the operator pairs of
+    ``model``); ``options`` the run's ``dt``, ``bandwidth``, ``whole_record``, ``max_iter``,
+    ``tol``, ``dtype``, ``positivity``, ``periodic`` and ``time_limit``; ``started`` its
+    `time.monotonic` start."""
+    chosen, o = record.grid, options
+    x, it, stop_reason, change, Ax, L, lam = solved
+    gw_norm = float(np.linalg.norm(record.g))
+    res = Ax - record.g
+    params = dict(warm_params)
+    params.update(dt=o["dt"], operator_dt=chosen.dt, operator_n_t=record.n_t, band=chosen.band,
+                  band_reason=chosen.reason, bandwidth=o["bandwidth"], record_n_t=chosen.record_n_t,
+                  extent_reason=chosen.extent_reason, whole_record=bool(o["whole_record"]))
+    params.update(method="tv", warm_start=warm_params["method"], lam=float(lam), lam_auto=bool(lam_auto),
+                  lam_factor=rule.factor if lam_auto else None, warm_discrepancy=rule.warm_discrepancy,
+                  lam_start_factor=schedule.start_factor if schedule else 1.0,
+                  continuation_iterations=schedule.iterations if schedule else 0,
+                  noise_sigma=record.sigma, image_noise=rule.image_noise,
+                  noise_share=record.noise_norm / max(gw_norm, 1e-300), iterations=it,
+                  max_iter=o["max_iter"], tol=o["tol"], dtype=o["dtype"].name,
+                  residual=float(np.linalg.norm(res) / max(gw_norm, 1e-300)),
+                  norm_A=L / _MARGIN, positivity=bool(o["positivity"]), weights_mean_one=False,
+                  data_weights="equal", periodic=bool(o["periodic"]),
+                  solver="FISTA preconditioned by " + ("NER" if model.pos is None else "NEDNER"),
+                  iterate_change=change if math.isfinite(change) else None,
+                  operator_pairs=model.operator_pairs, geometry_kept=geometry_kept, debias=debiased,
+                  converged=stop_reason == "converged", stop_reason=stop_reason,
+                  time_limit=o["time_limit"], solve_s=time.monotonic() - started)
+    if lam_auto and lam == 0:  # said, not silent: on noiseless data the automatic λ has nothing to scale
+        params["lam_note"] = ("the data show no noise (σ̂ = 0: the finest wavelet coefficients along time vanish), "
+                              "so the automatic λ is 0, a least-squares fit"
+                              + (" with positivity" if o["positivity"] else "")
+                              + "; set λ (--lambda; lam over HTTP) for a TV weight")
+    return params

@@ -1,0 +1,149 @@
+"""tv's 16-bit stores: what waits between two iterations at half its bytes or less.
+
+The solver (`service.recon.tv.fista`) keeps three vectors between iterations in fixed point
+(package doc, "Memory"):
+
+- the proximal map's dual (|components| <= 1): int16 with the quantum 1 / 32767 for a
+  float32 solver, float32 for a float64 one (`_store_dual`, `_restore_dual`);
+- the last preconditioned gradient G(A y − g), which only the next gain test reads:
+  int16 with the quantum max|·| / 32767 (`_store_gradient`; `_gain_lower_bound` subtracts
+  what the rounding can add, so the test stays a lower bound of ‖BA‖);
+- the last move b = x − x_prev, from which y = x + β b was made: int16 with the quantum
+  max|b| / 32767 (`_store_move`); x is read back as y − β q round(b / q), exactly, so only y,
+  the extrapolation point, carries the rounding (`_extrapolate_fixed`).
+
+The compiled loops here are numba kernels (``cache=True``: ``fpscan warmup`` fills their
+cache; `service.recon.methods.tv`'s ``kernel_modules``). Measurements:
+docs/tv-measurements.md, "Memory".
+"""
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+import numpy.typing as npt
+
+__all__: list[str] = []
+
+#: the fixed-point scale of a float32 dual between calls (`_store_dual`)
+_DUAL_SCALE = 32767.0
+
+
+def _store_dual(dual: np.ndarray) -> np.ndarray:
+    """The proximal map's dual (C-contiguous, |components| <= 1) at half the working
+    precision's bytes, for the wait between iterations (`_fista`): float32 -> int16 fixed
+    point, round(q · 32767) (error <= 1.5e-5, where float16 kept 2⁻¹¹ near 1); float64 ->
+    float32. By compiled parallel loops: numpy's float16 casts took 0.06-0.08 s a call on
+    the three images of a 512 × 128² volume, 3 s of tv's 30 s there."""
+    if dual.dtype == np.float32:
+        out = np.empty(dual.shape, dtype=np.int16)
+        _quantise(dual.reshape(-1), out.reshape(-1), _DUAL_SCALE)
+    else:
+        out = np.empty(dual.shape, dtype=np.float32)
+        _cast(dual.reshape(-1), out.reshape(-1))
+    return out
+
+
+def _store_gradient(g: np.ndarray) -> tuple[np.ndarray, float]:
+    """A preconditioned gradient G(A y − g) kept for the next iteration's gain (`_fista`) as
+    16-bit fixed point: (round(g / q), q) with the quantum q = max |g| / 32767, so that each
+    value is off by at most q / 2 (`_gain_lower_bound` subtracts that)."""
+    flat = g.reshape(-1)
+    top = _max_abs(flat)
+    quantum = top / _DUAL_SCALE if top > 0 else 1.0
+    out = np.empty(flat.shape, dtype=np.int16)
+    _quantise(flat, out, 1.0 / quantum)
+    return out, quantum
+
+
+def _gain_lower_bound(g: np.ndarray, stored: tuple[np.ndarray, float]) -> float:
+    """‖g − g_prev‖ from below, with g_prev kept by `_store_gradient`: the distance to the
+    fixed-point values less the largest their rounding can move it, q √N / 2 (‖e‖ for
+    |e_i| <= q / 2; with 1e-6 of it for the float64 sums), so that the solver's L rises only
+    where ‖BA‖ really exceeds it."""
+    values, quantum = stored
+    measured = _difference_norm_fixed(g, values, quantum)
+    return max(0.0, measured - 0.5 * quantum * math.sqrt(g.size) * (1.0 + 1e-6))
+
+
+@numba.njit(parallel=True, cache=True)
+def _max_abs(a: np.ndarray) -> float:
+    """The largest |a_i| of a flat array (0 for an empty one), in float64."""
+    top = 0.0
+    for i in numba.prange(a.size):
+        top = max(top, abs(np.float64(a[i])))
+    return top
+
+
+@numba.njit(parallel=True, cache=True)
+def _difference_norm_fixed(a: np.ndarray, s: np.ndarray, quantum: float) -> float:
+    """‖a − s · quantum‖₂ of a flat array and fixed-point values ``s``, summed in float64."""
+    total = 0.0
+    for i in numba.prange(a.size):
+        d = np.float64(a[i]) - np.float64(s[i]) * quantum
+        total += d * d
+    return math.sqrt(total)
+
+
+def _restore_dual(stored: np.ndarray, dtype: npt.DTypeLike) -> np.ndarray:
+    """`_store_dual` undone: a new array of ``dtype`` (float32 from int16, float64 from float32)."""
+    out = np.empty(stored.shape, dtype=dtype)
+    if stored.dtype == np.int16:
+        _dequantise(stored.reshape(-1), out.reshape(-1), 1.0 / _DUAL_SCALE)
+    else:
+        _cast(stored.reshape(-1), out.reshape(-1))
+    return out
+
+
+@numba.njit(parallel=True, cache=True)
+def _quantise(q: np.ndarray, out: np.ndarray, scale: float) -> None:
+    """Fixed point: out = round(clip(q · scale, -32767, 32767)) (flat arrays; ``out`` int16)."""
+    for i in numba.prange(q.size):
+        out[i] = math.floor(min(max(q[i] * scale, -32767.0), 32767.0) + 0.5)
+
+
+@numba.njit(parallel=True, cache=True)
+def _dequantise(s: np.ndarray, out: np.ndarray, inv_scale: float) -> None:
+    """Fixed point undone: out = s · inv_scale (flat arrays)."""
+    for i in numba.prange(s.size):
+        out[i] = s[i] * inv_scale
+
+
+@numba.njit(parallel=True, cache=True)
+def _cast(src: np.ndarray, out: np.ndarray) -> None:
+    """A parallel copy: out = src, converted to ``out``'s dtype (flat arrays)."""
+    for i in numba.prange(src.size):
+        out[i] = src[i]
+
+
+
+def _store_move(xn: np.ndarray, v: np.ndarray, gy: np.ndarray, inv_l: float, b_last: np.ndarray,
+                scale_last: float, b_max: float) -> tuple[np.ndarray, float]:
+    """The move b = x_new − x (flat arrays; x = v + inv_l gy − scale_last b_last as `_moves`) as
+    16-bit fixed point: (round(b / q), q) with q = ``b_max`` / 32767 (``b_max`` = max |b|, from
+    `_moves`). y = x_new + β q round(b / q) then differs from the exact extrapolation by at
+    most β q / 2 a voxel, and x = y − β q round(b / q) is exact (to the working precision's
+    rounding), which is all the solver needs of x."""
+    quantum = b_max / _DUAL_SCALE if b_max > 0 else 0.0
+    out = np.empty(xn.shape, dtype=np.int16)
+    _quantise_move(xn, v, gy, inv_l, b_last, scale_last, 1.0 / quantum if quantum > 0 else 0.0, out)
+    return out, quantum
+
+
+@numba.njit(parallel=True, cache=True)
+def _quantise_move(xn: np.ndarray, v: np.ndarray, gy: np.ndarray, inv_l: float, b_last: np.ndarray,
+                   scale_last: float, mult: float, out: np.ndarray) -> None:
+    """The move's fixed point: out = round(clip((x_new − x) · mult, ±32767)), with
+    x = v + inv_l gy − scale_last b_last (flat arrays)."""
+    for i in numba.prange(xn.size):
+        x = np.float64(v[i]) + inv_l * np.float64(gy[i]) - scale_last * np.float64(b_last[i])
+        out[i] = math.floor(min(max((np.float64(xn[i]) - x) * mult, -32767.0), 32767.0) + 0.5)
+
+
+@numba.njit(parallel=True, cache=True)
+def _extrapolate_fixed(xn: np.ndarray, b: np.ndarray, scale: float) -> None:
+    """In place, xn ← xn + scale b (flat arrays, b int16): FISTA's next y = x_new + β q b in
+    the new iterate's place."""
+    for i in numba.prange(xn.size):
+        xn[i] = xn[i] + scale * b[i]
