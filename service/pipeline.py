@@ -479,7 +479,8 @@ def _with_bar(bar: Any, call: Callable[[], Reconstruction], method: str) -> Reco
 
 
 def _load_inputs(paths: list, format: str | None, unmixing: bool, wavelength: int | str | None,
-                 wavelengths: Sequence[float] | None, load: dict, plan: Plan | Mask | None) -> tuple[Any, list]:
+                 wavelengths: Sequence[float] | None, load: dict,
+                 plan: Plan | Mask | dict | None) -> tuple[Any, list]:
     """:func:`run_file`'s inputs read: ``(wavelengths, datasets)``, unmixing's (one per wavelength,
     ``service.spectral.load_wavelength_datasets``) or one file's (``wavelengths`` None), sampled
     by ``plan`` (``service.subsample``) where given."""
@@ -520,7 +521,7 @@ def run_file(inputs: str | os.PathLike | Sequence[str | os.PathLike],
              method: str | None = None, *, format: str | None = None, wavelength: int | str | None = None,
              wavelengths: Sequence[float] | None = None, unmix: dict | None = None, load: dict | None = None,
              input_id: str = "", progress: Progress | None = None, should_stop: ShouldStop | None = None,
-             on_loaded: Callable[[Dataset, str], Any] | None = None, plan: Plan | Mask | None = None,
+             on_loaded: Callable[[Dataset, str], Any] | None = None, plan: Plan | Mask | dict | None = None,
              **options: Any) -> dict:
     """Read a file, reconstruct it and write its result folder: the one orchestration of the job
     worker (``service.jobs.work``), ``fpscan recon`` and ``fpscan unmix`` (locally), so that a
@@ -569,8 +570,8 @@ def run_file(inputs: str | os.PathLike | Sequence[str | os.PathLike],
         ``on_loaded(dataset, method)`` after loading, before any reconstruction (the first
         wavelength's dataset and the method chosen): the server's memory admission raises
         there to refuse the work; the command line says what it reconstructs.
-    plan : service.plans.Plan or service.plans.Mask, optional
-        Dense input sampled by this plan's (or mask's) sensor points before reconstructing
+    plan : service.plans.Plan, service.plans.Mask or dict, optional
+        Dense input sampled by this plan's (or mask's, or plan document's: ``fpscan.load_plan``) sensor points before reconstructing
         (``service.subsample.subsample``: a replay scan's A-lines); not with ``unmix``.
     **options
         The method's options, as :func:`reconstruct` (``c`` in m/s or ``"auto"``, ``force``, ...).

@@ -24,11 +24,17 @@ import os
 import re
 import sys
 
+TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (`fpscan --help` starts faster)
+if TYPE_CHECKING:
+    from collections.abc import Collection, Iterator, Sequence
+    from types import ModuleType
+    from typing import Any
+
 __all__ = ["build_parser", "NEGATIVE_QUANTITY", "allow_negative_quantities", "main", "reason", "in_flags",
            "CLOSED_PIPE", "closed_pipe"]
 
 
-def _subcommand_modules():
+def _subcommand_modules() -> Iterator[ModuleType]:
     # the package's own .py files (not pkgutil.iter_modules, which imports inspect: a
     # quarter of the start-up of ``fpscan --version``)
     names = sorted({n[:-3] for d in __path__ for n in os.listdir(d) if n.endswith(".py")})
@@ -44,10 +50,12 @@ class _VersionAction(argparse.Action):
     """``--version``: looks the installed version up only when asked (``importlib.metadata``
     is slower to import than the rest of the command line)."""
 
-    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
+    def __init__(self, option_strings: Sequence[str], dest: str = argparse.SUPPRESS, default: Any = argparse.SUPPRESS,
+                 help: str | None = None) -> None:
         super().__init__(option_strings, dest=dest, default=default, nargs=0, help=help)
 
-    def __call__(self, parser, namespace, values, option_string=None):
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
+                 values: str | Sequence[Any] | None, option_string: str | None = None) -> None:
         from driver.acquire import software_version
 
         print(f"fpscan {software_version()}")
@@ -59,7 +67,8 @@ class _HelpFormatter(argparse.HelpFormatter):
     rule (``$COLUMNS``, else the terminal on stdout, else 80 columns) without importing
     shutil, whose archive modules were a tenth of ``fpscan --help``."""
 
-    def __init__(self, prog, indent_increment=2, max_help_position=24, width=None):
+    def __init__(self, prog: str, indent_increment: int = 2, max_help_position: int = 24,
+                 width: int | None = None) -> None:
         if width is None:
             try:
                 width = int(os.environ["COLUMNS"])
@@ -85,7 +94,7 @@ def _top_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def build_parser(commands=None) -> argparse.ArgumentParser:
+def build_parser(commands: Collection[str] | None = None) -> argparse.ArgumentParser:
     """The ``fpscan`` argument parser with one sub-command per module of this package.
 
     ``commands``: the names of the sub-commands whose parsers are built, with their options
@@ -106,7 +115,7 @@ def build_parser(commands=None) -> argparse.ArgumentParser:
     parser = _top_parser()
     building = False
 
-    def sub_parser(**kwargs):
+    def sub_parser(**kwargs: Any) -> argparse.ArgumentParser | None:
         # argparse's parser of one sub-command; only a named one is built (each costs about
         # 2 ms, mostly gettext look-ups: 13 of them were most of ``fpscan --help``)
         return argparse.ArgumentParser(formatter_class=_HelpFormatter, **kwargs) if building else None

@@ -2,6 +2,7 @@
 bars for scans (points/s, ETA) and reconstructions (stages), and one-line errors."""
 from __future__ import annotations
 
+import argparse
 import functools
 import os
 import sys
@@ -10,9 +11,12 @@ import time
 TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (`fpscan --help` starts faster)
 if TYPE_CHECKING:
     import threading
-    from collections.abc import Callable
+    from collections.abc import Callable, Sequence
+    from typing import Any, TextIO
 
     from rich.progress import Progress, TaskID
+
+    from clients.http import Client
 
 try:  # the base of refused input (a unit mistake, an option outside its rule): exit 2
     from driver.units import RefusedInput
@@ -26,7 +30,7 @@ class UsageError(RefusedInput):
     prints it on one line and exits 2, like argparse's own usage errors."""
 
 
-def wrong_file(path, wanted: str) -> str | None:
+def wrong_file(path: str | os.PathLike, wanted: str) -> str | None:
     """``"<path>: this is a scan file, not <wanted>"`` when ``path`` is a file of another
     format, named by the registry of formats (``service.formats.describe``: the one
     format sniffer); None when it is that format (``"plan"``), of no known format or not
@@ -41,7 +45,7 @@ def wrong_file(path, wanted: str) -> str | None:
     return f"{path}: this is {what}, not {wanted}" if what else None
 
 
-def check_input_files(args, paths: list[str], missing: str) -> None:
+def check_input_files(args: argparse.Namespace, paths: list[str], missing: str) -> None:
     """Refuse a local-input or ``--scan-job`` choice that cannot run (``fpscan recon``, ``fpscan unmix``).
 
     Parameters
@@ -74,7 +78,7 @@ def check_input_files(args, paths: list[str], missing: str) -> None:
             raise UsageError(f"no such file: {p}")
 
 
-def add_server_options(parser, *, required: bool = False) -> None:
+def add_server_options(parser: argparse._ActionsContainer, *, required: bool = False) -> None:
     """``--server URL`` (default ``$FPSCAN_SERVER``) and ``--token`` (default
     ``$FPSCAN_TOKEN``)."""
     parser.add_argument(
@@ -121,7 +125,7 @@ def missing_extra(exc: BaseException) -> str | None:
     return EXTRA_OF_MODULE.get(name.split(".")[0])
 
 
-def needs_extra(args, extra: str, detail: str = "") -> int:
+def needs_extra(args: argparse.Namespace, extra: str, detail: str = "") -> int:
     """Say in one line on stderr that ``fpscan <command>`` (as asked) needs the ``extra``
     install (``pip install 'fpscan[<extra>]'``); return 2 (a usage error: the command
     cannot run on this install)."""
@@ -140,11 +144,11 @@ def speed(value: str) -> float | str:
     return quantity("speed", "c")(value)
 
 
-def add_progress_option(parser) -> None:
+def add_progress_option(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
 
 
-def make_client(args, *, timeout: float = 60.0):
+def make_client(args: argparse.Namespace, *, timeout: float = 60.0) -> Client:
     """A :class:`clients.http.Client` from ``--server``/``--token``."""
     from clients.http import Client
 
@@ -161,7 +165,7 @@ def client_errors(run: Callable[..., int]) -> Callable[..., int]:
     access (401/403), load (429) and failures stay 1."""
 
     @functools.wraps(run)
-    def wrapper(args) -> int:
+    def wrapper(args: argparse.Namespace) -> int:
         from clients.http import ApiError, FpscanClientError
 
         try:
@@ -173,14 +177,14 @@ def client_errors(run: Callable[..., int]) -> Callable[..., int]:
     return wrapper
 
 
-def remember_job(args, job_id: str | None) -> None:
+def remember_job(args: argparse.Namespace, job_id: str | None) -> None:
     """Note on ``args`` the job a command has had accepted by the server, so that a server
     that goes away afterwards is reported with the command that reattaches to it
     (:func:`unreachable_hint`)."""
     args.submitted_job = job_id
 
 
-def unreachable_hint(args, exc: Exception) -> str:
+def unreachable_hint(args: argparse.Namespace, exc: Exception) -> str:
     """What an unreachable server (``clients.http.ServerUnavailable``) leaves behind, and the
     command that reattaches: the job a command had accepted (``remember_job``) or names
     (``job_id``) survives in the server's job store (a reconstruction runs again when the
@@ -294,7 +298,7 @@ def progress_period() -> float:
     return period
 
 
-def _stage_kind(stage) -> str:
+def _stage_kind(stage: object) -> str:
     """A stage without its counter (``"iteration 3/50"`` -> ``"iteration"``): the step that
     starts a new progress line (``service.progress.stage_kind``)."""
     from service.progress import stage_kind
@@ -314,7 +318,8 @@ class ProgressBar:
     time per iteration, moving at most 2x between updates). :meth:`finish` ends the bar
     with the outcome (``"converged after 37 iterations"``) rather than the last stage."""
 
-    def __init__(self, label: str, *, quiet: bool = False, stream=None, period: float | None = None):
+    def __init__(self, label: str, *, quiet: bool = False, stream: TextIO | None = None,
+                 period: float | None = None) -> None:
         self.label = label
         self.quiet = quiet
         self.stream = stream or sys.stderr
@@ -428,7 +433,7 @@ class ProgressBar:
                             latest[key] = max(float(latest[key]) - (now - self._latest_at), 0.0)
                     self._print(latest, now)
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: Any) -> None:
         self._stop.set()
         if self._ticker is not None:
             self._ticker.join(timeout=5)
@@ -469,7 +474,7 @@ def format_bytes(n: float) -> str:
     return f"{n:.1f} TiB"  # pragma: no cover - the loop returns at GiB
 
 
-def check_out_writable(path, flag: str = "--out") -> None:
+def check_out_writable(path: str | os.PathLike, flag: str = "--out") -> None:
     """Refuse, before any work, an output ``path`` (a result folder or a file) that cannot be
     written: its parent folder is created if missing and must take a new entry (tried with a
     temporary folder there, removed at once: permissions alone do not say it, e.g. for root
@@ -485,7 +490,7 @@ def check_out_writable(path, flag: str = "--out") -> None:
         raise UsageError(f"{flag} {path}: cannot write in {parent} ({exc.strerror or exc})") from None
 
 
-def full_job_id(api, job_id: str) -> str:
+def full_job_id(api: Client, job_id: str) -> str:
     """The full id of the job ``job_id`` names (a unique prefix, as ``fpscan jobs list``
     shows ids, works wherever a job id does: the server resolves it in a job's path, this
     for an id sent in a request's body, e.g. ``--scan-job``). Raises the client's errors
@@ -495,7 +500,8 @@ def full_job_id(api, job_id: str) -> str:
     return str(field_of(api.get_job(job_id), "id"))
 
 
-def delete_each(ids, delete, what=lambda gone: "") -> int:
+def delete_each(ids: Sequence[str], delete: Callable[[str], dict],
+                what: Callable[[dict], str] = lambda gone: "") -> int:
     """``delete(id)`` for each id in ``ids`` (a dataset or job deletion of the HTTP client,
     answering a dict with ``bytes_freed``), one line each ("ID: deleted (WHAT N MiB freed)",
     ``what(answer)`` naming the kind) and a total when there were several. Returns the bytes

@@ -7,6 +7,8 @@ stderr; 1 any other failure, the server's state included (a dataset an active
 reconstruction reads: 409; server unreachable, server error)."""
 from __future__ import annotations
 
+import argparse
+
 from clients.cli._common import add_server_options, client_errors, delete_each, format_bytes
 
 __all__ = ["COMMAND", "HELP", "add_arguments", "run", "full_ids"]
@@ -15,7 +17,7 @@ COMMAND = "datasets"
 HELP = "list or delete the datasets uploaded to the server (size on disk, content hash, jobs that read them)"
 
 
-def add_arguments(parser):
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser).
 
     Parameters
@@ -42,7 +44,7 @@ def add_arguments(parser):
 
 
 @client_errors
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     """Run this sub-command with the parsed ``args``; return the exit status.
 
     Parameters

@@ -22,6 +22,7 @@ named in ``report.json``), 1 with a one-line reason when a step failed.
 """
 from __future__ import annotations
 
+import argparse
 import time
 
 from clients.cli._common import UsageError
@@ -31,6 +32,9 @@ __all__ = ["COMMAND", "HELP", "DEFAULTS", "add_arguments", "run", "Demo"]
 
 TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (`fpscan --help` starts faster)
 if TYPE_CHECKING:
+    from typing import Any
+
+    from clients.http import Client
     from clients.processes import Process
 
 COMMAND = "demo"
@@ -51,7 +55,7 @@ DEFAULTS = {
 }
 
 
-def add_arguments(parser):
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser).
     Lengths and times take units (``100um``, ``12ns``, ``3mm``; bare numbers are SI:
     ``clients.cli._common.quantity``); a unit mistake is refused by ``fpscan plan``'s
@@ -86,7 +90,7 @@ def add_arguments(parser):
                      "fpscan recon (which takes --dtype float64).")
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     """Run this sub-command with the parsed ``args``; return the exit status.
 
     Parameters
@@ -136,7 +140,7 @@ class Demo:
         The simulator and server processes started (:mod:`clients.processes`).
     """
 
-    def __init__(self, args):
+    def __init__(self, args: argparse.Namespace) -> None:
         import time
         from pathlib import Path
 
@@ -229,7 +233,7 @@ class Demo:
         self.say(f"simulated scanner on {device}")
         return device
 
-    def _start_server(self, device: str):
+    def _start_server(self, device: str) -> Client:
         import secrets
 
         from clients.http import Client
@@ -290,6 +294,7 @@ class Demo:
         for plan_name, method, recon_name in specs:
             t_asked = time.perf_counter()
             job_id = api.start_scan(field_of(plans[plan_name], "id"), "sim")
+            assert job_id is not None  # a 202 names its job (clients.http.calls.read_job_id)
             with ProgressBar(f"scan {plan_name}", quiet=a.quiet) as bar:
                 job = api.wait(job_id, on_progress=bar, timeout=600)
             waited_s = time.perf_counter() - t_asked
@@ -343,7 +348,7 @@ class Demo:
         self.report["reconstructions"] = recons
         self._figures()
 
-    def _create_plan(self, api, body: dict):
+    def _create_plan(self, api: Client, body: dict) -> Any:  # the Plan model or its dict
         """``POST /api/plans`` with a mask kind and its parameters (every kind is planned
         by the server's ``service.plans``, the same builder as ``fpscan plan``)."""
         return api.create_plan(body)
@@ -372,7 +377,7 @@ class Demo:
                 return float(np.corrcoef(np.ravel(image), np.ravel(reference))[0, 1])
 
         # The region of interest: the phantom's bounding box (±3.4 mm, 1.0–5.2 mm deep).
-        def roi_of(z, y, x):
+        def roi_of(z: np.ndarray, y: np.ndarray, x: np.ndarray) -> np.ndarray:
             zz, yy, xx = np.meshgrid(z, y, x, indexing="ij")
             return (np.abs(xx) <= 3.4e-3) & (np.abs(yy) <= 3.4e-3) & (zz >= 1.0e-3) & (zz <= 5.2e-3)
 

@@ -13,9 +13,14 @@ fpscan scan file covering its whole lattice) instead of the built-in simulation;
 """
 from __future__ import annotations
 
+import argparse
 import math
 
 from clients.cli._common import UsageError
+
+TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (`fpscan --help` starts faster)
+if TYPE_CHECKING:
+    from service.experiments import ExperimentResult
 
 __all__ = ["COMMAND", "HELP", "NAMES", "add_arguments", "run"]
 
@@ -26,7 +31,7 @@ HELP = ("run the paper's experiments (limited-view-2d, sparse-masks-3d, nufft-vs
 NAMES = ("limited-view-2d", "sparse-masks-3d", "nufft-vs-interpolation", "vessels")
 
 
-def add_arguments(parser):
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser).
 
     Parameters
@@ -53,7 +58,7 @@ def add_arguments(parser):
                      f"and errors); fpscan recon and the server default to {default_dtype()} (--dtype).")
 
 
-def _headline(result) -> str:
+def _headline(result: ExperimentResult) -> str:
     s = result.summary
     name = result.name
     if name == "limited-view-2d":
@@ -78,7 +83,7 @@ def _headline(result) -> str:
         " [paper: NUFFT 23 µm vs FFT 62 µm]"
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     """Run this sub-command with the parsed ``args``; return the exit status.
 
     Parameters

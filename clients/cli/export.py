@@ -11,6 +11,8 @@ first), a folder export (OME-Zarr) unpacked.
 """
 from __future__ import annotations
 
+import argparse
+
 from clients.cli._common import UsageError, add_server_options, client_errors
 
 __all__ = ["COMMAND", "HELP", "add_arguments", "run"]
@@ -32,7 +34,7 @@ def _formats() -> tuple[dict, str]:
                            if f.export_from)
 
 
-def add_arguments(parser):
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser).
 
     Parameters
@@ -66,7 +68,7 @@ def _default_export(source: str) -> str:
 
 
 @client_errors
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     """Run this sub-command with the parsed ``args``; return the exit status.
 
     Parameters
@@ -113,7 +115,7 @@ def run(args) -> int:
     return 0
 
 
-def _remote(args) -> int:
+def _remote(args: argparse.Namespace) -> int:
     """``--server``: the job's export downloaded (its default export without ``--format``)."""
     from pathlib import Path
 

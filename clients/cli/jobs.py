@@ -3,6 +3,8 @@ reconstructions) over HTTP (``GET /api/jobs``, ``GET /api/jobs/{id}``, the SSE s
 ``POST /api/scans/{id}/resume``, ``POST /api/jobs/{id}/cancel``, ``DELETE /api/jobs/{id}``)."""
 from __future__ import annotations
 
+import argparse
+
 from clients.cli._common import add_progress_option, add_server_options, client_errors, delete_each
 
 __all__ = ["COMMAND", "HELP", "STATES", "KINDS", "add_arguments", "run"]
@@ -14,7 +16,7 @@ STATES = ("queued", "running", "paused", "succeeded", "failed", "cancelled")
 KINDS = ("scan", "recon")
 
 
-def add_arguments(parser):
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser).
 
     Parameters
@@ -58,7 +60,7 @@ def add_arguments(parser):
     add_server_options(p, required=True)
 
 
-def _what(job) -> str:
+def _what(job: object) -> str:  # a Job model or its dict
     """What a job works on: ``plan 1a2b3c4d on fp1`` for a scan, ``nedner of scan 5e6f7a8b``
     (or ``of dataset ...``) for a reconstruction."""
     from clients.http import field_of, to_dict
@@ -72,7 +74,7 @@ def _what(job) -> str:
 
 
 @client_errors
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     """Run this sub-command with the parsed ``args``; return the exit status.
 
     Parameters

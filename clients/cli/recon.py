@@ -35,6 +35,14 @@ from clients.cli._common import (
     client_errors,
 )
 
+TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (`fpscan --help` starts faster)
+if TYPE_CHECKING:
+    import os
+    from pathlib import Path
+
+    from clients.http import Client
+    from service.recon.dataset import GridDataset, PointDataset
+
 __all__ = ["COMMAND", "HELP", "add_arguments", "check_options_early", "run", "add_format_option"]
 
 COMMAND = "recon"
@@ -42,7 +50,7 @@ HELP = "reconstruct p0 (NEDNER/NER/...) from a scan file or dataset, locally or 
 
 
 
-def add_arguments(parser):
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser).
 
     INPUT, ``--format``, ``--method`` (the registry's methods), ``--out``, the load options'
@@ -97,7 +105,7 @@ def add_arguments(parser):
     add_progress_option(parser)
 
 
-def add_format_option(parser) -> None:
+def add_format_option(parser: argparse.ArgumentParser) -> None:
     """``--format``: the input formats of the registry (``service.formats``: names and
     titles in the help); on a client-only install any name (the server checks it).
 
@@ -129,7 +137,7 @@ def _wavelength(text: str) -> int | str:
     raise argparse.ArgumentTypeError(f"must be an index >= 0 into the scan's wavelengths or 'all', got {text!r}")
 
 
-def _sniff_format(path) -> str:
+def _sniff_format(path: str | os.PathLike) -> str:
     """The input's format from its content (``service.storage.datasets.detect_format``).
     Where that reader's dependencies (h5py: the driver extra) are missing, a
     ``ModuleNotFoundError`` that says to give ``--format``."""
@@ -179,14 +187,14 @@ def check_options_early(method: str | None, params: dict) -> None:
         return
 
 
-def _params(args) -> dict:
+def _params(args: argparse.Namespace) -> dict:
     from clients.cli.recon_options import option_params
 
     return option_params(args)
 
 
 @client_errors
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     """Run this sub-command with the parsed ``args``: locally, or with ``--server`` as a job
     whose volume and MIPs are downloaded (module docstring).
 
@@ -233,7 +241,7 @@ def run(args) -> int:
     return _local(args, args.format or _sniff_format(args.input))
 
 
-def _default_out(args, method: str):
+def _default_out(args: argparse.Namespace, method: str) -> Path:
     from pathlib import Path
 
     if args.out:
@@ -244,7 +252,7 @@ def _default_out(args, method: str):
     return p.with_name(f"{p.stem}-{method}")
 
 
-def _local(args, fmt: str) -> int:
+def _local(args: argparse.Namespace, fmt: str) -> int:
     """Reconstruct here: :func:`service.pipeline.run_file`, the job worker's orchestration (so the
     same file gives the same folder); this command says what it does and prints the result."""
     import sys
@@ -257,7 +265,7 @@ def _local(args, fmt: str) -> int:
     say = (lambda msg: None) if args.quiet else (lambda msg: print(f"recon: {msg}", file=sys.stderr, flush=True))
     say(f"importing {args.input} ({fmt})")
 
-    def loaded(ds, method: str) -> None:
+    def loaded(ds: GridDataset | PointDataset, method: str) -> None:
         every = file_wavelengths(ds)
         if every.size > 1 and args.wavelength is None:  # the documented default, said
             say(f"the input has {every.size} wavelengths ({', '.join(f'{w * 1e9:g} nm' for w in every)}): "
@@ -298,7 +306,7 @@ def _local(args, fmt: str) -> int:
     return 0
 
 
-def _read_plan(path: str):
+def _read_plan(path: str) -> dict:
     """``--plan``: the plan file, read and checked (``fpscan.load_plan``); a UsageError naming
     the flag for a file that is missing or not a plan."""
     from service.formats.plan import read_plan
@@ -314,7 +322,7 @@ def _head(ended: str) -> str:
     return ended.partition(": ")[2].partition(" (")[0].partition(";")[0]
 
 
-def _outcome_of(job, method: str | None) -> str | None:
+def _outcome_of(job: object, method: str | None) -> str | None:  # a Job model or its dict
     """:func:`service.progress.outcome` of a finished job's result (``params.result.params_used``);
     None for a method without iterations, or on a client-only install."""
     from clients.http import field_of
@@ -333,7 +341,7 @@ def _nm(params: dict) -> str:
     return f"  wavelength {w:g} nm" if w is not None else ""
 
 
-def _remote(args, fmt: str | None) -> int:
+def _remote(args: argparse.Namespace, fmt: str | None) -> int:
     from clients.cli._common import ProgressBar, make_client
     from clients.cli.recon_options import http_params
 
@@ -358,9 +366,11 @@ def _remote(args, fmt: str | None) -> int:
             if fields["sound_speed"] == "auto":  # a search, not the data's speed: it goes with the reconstruction
                 fields["sound_speed"] = None
             plan_id = _store_plan(api, args.plan) if args.plan else None
+            assert fmt is not None  # run gives one whenever there is no --scan-job
             dataset_id = api.upload_dataset(args.input, fmt, **fields)
             job_id = api.start_reconstruction(dataset_id=dataset_id, method=args.method,
                                               params=http_params(_params(args)), plan_id=plan_id)
+        assert job_id is not None  # a 202 names its job (clients.http.calls.read_job_id)
         from clients.cli._common import remember_job
 
         remember_job(args, job_id)
@@ -386,7 +396,7 @@ def _remote(args, fmt: str | None) -> int:
     return 0
 
 
-def _store_plan(api, path: str) -> str:
+def _store_plan(api: Client, path: str) -> str:
     """``--plan`` with ``--server``: the plan file stored on the server (under its own id)."""
     import json
 
@@ -400,7 +410,7 @@ def _store_plan(api, path: str) -> str:
     return str(field_of(api.create_plan(doc), "id"))
 
 
-def _download(api, job_id: str, folder, wavelength: int | None) -> list[str]:
+def _download(api: Client, job_id: str, folder: Path, wavelength: int | None) -> list[str]:
     """Download a result volume and its MIPs (at ``wavelength`` of an all-wavelength job)
     into ``folder``; returns the MIP planes (a 2-D result has only xz)."""
     api.download_volume(job_id, folder / "volume.h5", wavelength=wavelength)

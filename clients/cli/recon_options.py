@@ -121,7 +121,7 @@ def _value_type(name: str, schema: dict, flag: str) -> dict:
     return {"type": int if schema.get("type") == "integer" else float}
 
 
-def add_option_flags(group) -> None:
+def add_option_flags(group: argparse._ArgumentGroup) -> None:
     """One flag per option of the registered methods on ``group`` (module docstring).
 
     A flag already on ``group`` is not added again; without the service package (a
@@ -192,7 +192,7 @@ def option_names() -> list[str]:
     return [] if methods is None else list(methods.option_fields())
 
 
-def option_params(args) -> dict:
+def option_params(args: argparse.Namespace) -> dict:
     """The options given on the command line: the ``params`` of
     ``service.pipeline.reconstruct`` and of ``POST /api/reconstructions``.
 

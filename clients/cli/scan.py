@@ -13,7 +13,17 @@ resume). Rates count only the points this run acquired.
 """
 from __future__ import annotations
 
+import argparse
+
 from clients.cli._common import UsageError, add_server_options, client_errors
+
+TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (`fpscan --help` starts faster)
+if TYPE_CHECKING:
+    import os
+    from pathlib import Path
+    from typing import Any
+
+    from driver.host import ScanProgress
 
 __all__ = ["COMMAND", "HELP", "add_arguments", "preview_index", "run"]
 
@@ -21,7 +31,7 @@ COMMAND = "scan"
 HELP = "acquire a plan from the scanner (or simulator) into a scan file, resuming a partial one"
 
 
-def add_arguments(parser):
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Declare ``fpscan scan``'s options on ``parser`` (local device or server job).
 
     Parameters
@@ -50,7 +60,7 @@ def add_arguments(parser):
     parser.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
 
 
-def _points_on_disk(path) -> int:
+def _points_on_disk(path: str | os.PathLike) -> int:
     """Completed points already in the scan file ``path`` (0 if there is none yet)."""
     from driver.scanfile import completed_count
 
@@ -102,7 +112,7 @@ def preview_index(wavelengths: list, wanted: float) -> int:
 
 
 @client_errors
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     """Acquire locally (``--device``) or as a server job (``--server``); exit status.
 
     Parameters
@@ -143,7 +153,7 @@ def run(args) -> int:
     t0 = time.monotonic()
     try:
         with ProgressBar("scan", quiet=args.quiet) as bar:
-            def progress(p):
+            def progress(p: ScanProgress) -> None:
                 last.update(done=p.points_done, total=p.n_points)
                 bar({"stage": p.state, "points_done": p.points_done, "points_total": p.n_points,
                      "rate_per_s": p.rate,
@@ -187,7 +197,7 @@ def _bad_plan(exc: ValueError) -> int:
     return 2
 
 
-def _plan_json(source) -> dict:
+def _plan_json(source: Path) -> dict:
     """The JSON of the plan file ``source`` (a plan, or a plan request the server builds),
     as the server is sent it. Raises ValueError: a file that is not JSON text is named by
     registry of formats (``service.formats.plan.read_plan``: "this is a scan file, not a
@@ -206,7 +216,7 @@ def _plan_json(source) -> dict:
         raise ValueError(f"{source} is not valid JSON: {exc}") from None
 
 
-def _remote(args) -> int:
+def _remote(args: argparse.Namespace) -> int:
     """The scan as a server job: upload the plan JSON (or take a plan id), start the scan,
     follow it with a progress bar, download the scan file to ``--out``."""
     from pathlib import Path
@@ -228,7 +238,7 @@ def _remote(args) -> int:
         else:
             created = api.get_plan(args.plan)
             plan_id = field_of(created, "id")
-        extra = {}
+        extra: dict[str, Any] = {}
         if args.preview_wavelength is not None:
             wavelengths = (field_of(created, "acquisition") or {}).get("wavelengths") or []
             extra["preview_wavelength"] = preview_index(wavelengths, args.preview_wavelength)
@@ -239,6 +249,7 @@ def _remote(args) -> int:
                 raise UsageError(f"the server has scanners {', '.join(ids) or '(none)'}: choose one with --scanner")
             scanner = ids[0]
         job_id = api.start_scan(plan_id, scanner, **extra)
+        assert job_id is not None  # a 202 names its job (clients.http.calls.read_job_id)
         from clients.cli._common import remember_job
 
         remember_job(args, job_id)

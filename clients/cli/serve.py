@@ -1,7 +1,13 @@
 """`fpscan serve`: run the HTTP service (FastAPI on uvicorn)."""
 from __future__ import annotations
 
+import argparse
+
 from clients.cli._common import UsageError
+
+TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (`fpscan --help` starts faster)
+if TYPE_CHECKING:
+    from typing import Any
 
 __all__ = ["COMMAND", "HELP", "add_arguments", "parse_devices", "run", "use_malloc"]
 
@@ -12,7 +18,7 @@ COMMAND = "serve"
 HELP = "run the fpscan HTTP service (job queue, scans, reconstructions, web page)"
 
 
-def add_arguments(parser):
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser).
 
     Parameters
@@ -108,7 +114,7 @@ def use_malloc() -> None:
     os.execv(sys.executable, [sys.executable, *sys.orig_argv[1:]])
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     """Run this sub-command with the parsed ``args``; return the exit status.
 
     The server process runs on the C library's allocator (:func:`use_malloc`: it restarts
@@ -212,7 +218,7 @@ def _install_json_messages() -> None:
 
     old = logging.getLogRecordFactory()
 
-    def factory(*a, **kw):
+    def factory(*a: Any, **kw: Any) -> logging.LogRecord:
         record = old(*a, **kw)
         try:
             record.message_json = json.dumps(record.getMessage())

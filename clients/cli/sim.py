@@ -6,8 +6,16 @@ the ground-truth record (``--record``) and exits 0.
 """
 from __future__ import annotations
 
+import argparse
+
 from clients.cli._common import UsageError
 from driver.constants import C_DEFAULT, C_PLAUSIBLE
+
+TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (`fpscan --help` starts faster)
+if TYPE_CHECKING:
+    from types import FrameType
+
+    from driver.sources import BallSource, ReplaySource, VolumeSource
 
 __all__ = ["COMMAND", "HELP", "add_arguments", "make_source", "run"]
 
@@ -15,7 +23,7 @@ COMMAND = "sim"
 HELP = "run the simulated FP scanner on a pseudo-terminal (prints its device path first)"
 
 
-def add_arguments(parser):
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser).
     Frequencies, times and the sound speed take units (``500Hz``, ``2 MHz``, ``5ms``,
     ``1.54 km/s``; bare numbers are SI: ``clients.cli._common.quantity``).
@@ -67,7 +75,8 @@ def add_arguments(parser):
 
 
 def make_source(kind_and_file: list[str], *, dataset: str = "sensor_data/clean",
-                sound_speed: float = C_DEFAULT, so2: list[float] | None = None):
+                sound_speed: float = C_DEFAULT,
+                so2: list[float] | None = None) -> BallSource | VolumeSource | ReplaySource:
     """The source named on the command line. Raises ValueError for a bad choice.
 
     Parameters
@@ -119,7 +128,7 @@ def make_source(kind_and_file: list[str], *, dataset: str = "sensor_data/clean",
     raise UsageError(f"unknown source {kind!r} (balls, volume FILE, replay FILE)")
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     """Run this sub-command with the parsed ``args``; return the exit status.
 
     Parameters
@@ -154,7 +163,7 @@ def run(args) -> int:
         seed=args.seed, record=args.record)
     stop = threading.Event()
 
-    def on_signal(signum, frame):
+    def on_signal(signum: int, frame: FrameType | None) -> None:
         stop.set()
 
     signal.signal(signal.SIGTERM, on_signal)

@@ -14,6 +14,8 @@ files are downloaded.
 """
 from __future__ import annotations
 
+import argparse
+
 from clients.cli._common import (
     UsageError,
     add_progress_option,
@@ -23,13 +25,19 @@ from clients.cli._common import (
     quantity,
 )
 
+TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (`fpscan --help` starts faster)
+if TYPE_CHECKING:
+    from pathlib import Path
+
+    from service.recon.dataset import GridDataset, PointDataset
+
 __all__ = ["COMMAND", "HELP", "add_arguments", "run"]
 
 COMMAND = "unmix"
 HELP = "reconstruct every wavelength and unmix HbO2/Hb into THb and sO2 (masked)"
 
 
-def add_arguments(parser):
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser).
 
     Parameters
@@ -68,13 +76,13 @@ def add_arguments(parser):
     add_progress_option(parser)
 
 
-def _params(args) -> dict:
+def _params(args: argparse.Namespace) -> dict:
     from clients.cli.recon_options import option_params
 
     return option_params(args)
 
 
-def _default_out(args):
+def _default_out(args: argparse.Namespace) -> Path:
     from pathlib import Path
 
     if args.out:
@@ -86,7 +94,7 @@ def _default_out(args):
 
 
 @client_errors
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     """Run this sub-command with the parsed ``args``; return the exit status.
 
     Parameters
@@ -124,7 +132,7 @@ def run(args) -> int:
     return _local(args)
 
 
-def _local(args) -> int:
+def _local(args: argparse.Namespace) -> int:
     """Unmix here: :func:`service.pipeline.run_file` with ``unmix``, the job worker's
     orchestration; this command says what it does and prints the result."""
     import sys
@@ -134,7 +142,7 @@ def _local(args) -> int:
     out = _default_out(args)
     say = (lambda msg: None) if args.quiet else (lambda msg: print(f"unmix: {msg}", file=sys.stderr, flush=True))
 
-    def loaded(ds, method: str) -> None:
+    def loaded(ds: GridDataset | PointDataset, method: str) -> None:
         say(f"{len(args.inputs) if len(args.inputs) > 1 else 'every'} wavelength(s) of {', '.join(args.inputs)}, "
             f"method {method}")
 
@@ -151,7 +159,7 @@ def _local(args) -> int:
     return 0
 
 
-def _remote(args) -> int:
+def _remote(args: argparse.Namespace) -> int:
     from clients.cli._common import ProgressBar, make_client
     from clients.cli.recon import _sniff_format
     from clients.cli.recon_options import http_params
@@ -170,6 +178,7 @@ def _remote(args) -> int:
             ids = [api.upload_dataset(p, fmt, **fields) for p, fmt in zip(args.inputs, formats, strict=True)]
             job_id = api.start_unmix(dataset_ids=ids, wavelengths=args.wavelengths, method=method,
                                      params=http_params(_params(args)), **unmix)
+        assert job_id is not None  # a 202 names its job (clients.http.calls.read_job_id)
         from clients.cli._common import remember_job
 
         remember_job(args, job_id)

@@ -4,13 +4,15 @@ loads compiled code instead of compiling it (see ``service.recon.warmup``: where
 lives, ``NUMBA_CACHE_DIR`` on a read-only install)."""
 from __future__ import annotations
 
+import argparse
+
 __all__ = ["COMMAND", "HELP", "add_arguments", "run"]
 
 COMMAND = "warmup"
 HELP = "compile the reconstruction's kernels into numba's cache (run once after installing)"
 
 
-def add_arguments(parser):
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser).
 
     Parameters
@@ -26,7 +28,7 @@ def add_arguments(parser):
                              "on their first run (scripts/demo.sh's set-up)")
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     """Run the tiny reconstructions; print the methods warmed, the time taken and the cache directories.
 
     Parameters
