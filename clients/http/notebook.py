@@ -24,7 +24,7 @@ from typing import Any
 
 from .calls import field_of, to_dict
 
-__all__ = ["in_notebook", "JobBar", "job_bar", "REDRAW_S"]
+__all__ = ["in_notebook", "describe", "JobBar", "job_bar", "REDRAW_S"]
 
 #: the shortest time between two redraws of a bar, s (the job's end is always drawn)
 REDRAW_S = 0.2
