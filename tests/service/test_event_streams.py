@@ -188,10 +188,13 @@ def test_a_thousand_open_streams_keep_health_fast_and_their_disconnects_log_noth
                 assert time.monotonic() < deadline, "streams still held after their clients left"
                 time.sleep(0.1)
             assert c.get("/api/health").status_code == 200
-        added = srv.log.read_text()[log0:]
+        # the resumed scan's live preview logs its refresh on its own schedule (a few points after
+        # the resume, whenever its worker gets to them): that line is the scan's, not a disconnect's
+        added = [line for line in srv.log.read_text()[log0:].splitlines()
+                 if '"logger": "fpscan.preview"' not in line]
         assert p99 <= 0.100, health[-10:]
         assert max(jobs) <= 0.250, jobs
-        assert added == "", added[-3000:]
+        assert added == [], added[-20:]
     finally:
         for s in streams:
             s.close()
