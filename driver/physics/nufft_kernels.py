@@ -326,7 +326,9 @@ def interp_kernel(U: np.ndarray, gvals: np.ndarray, gptr: np.ndarray, order: np.
         base, wts64, t, ar, ai = tap_arrays(nkz, w)
         nj = group_taps(gvals[g], kz, qw, c, dt, t0, h, kind, w, hc, shift, inversion, base, wts64, t, ar, ai)
         wts = np.empty(wts64.shape, U.real.dtype)
-        wts[:] = wts64
+        for a in range(wts64.shape[0]):  # element by element: a slice assignment compiles numpy's shape
+            for e in range(wts64.shape[1]):  # check and its error text, 12 of this kernel's 16 s
+                wts[a, e] = wts64[a, e]
         for ci in range(gptr[g], gptr[g + 1]):
             col = order[ci]
             u = U[col]
