@@ -378,8 +378,19 @@ class Demo:
 
         # The region of interest: the phantom's bounding box (±3.4 mm, 1.0–5.2 mm deep).
         def roi_of(z: np.ndarray, y: np.ndarray, x: np.ndarray) -> np.ndarray:
-            zz, yy, xx = np.meshgrid(z, y, x, indexing="ij")
+            zz, yy, xx = np.meshgrid(z, y, x, indexing="ij", sparse=True)
             return (np.abs(xx) <= 3.4e-3) & (np.abs(yy) <= 3.4e-3) & (zz >= 1.0e-3) & (zz <= 5.2e-3)
+
+        # the phantom on each grid, sampled once (0.5 s at 320 x 96²); grids equal to 1 nm are one
+        # (the sparse and the dense volumes' coordinates differ in their last bits)
+        phantoms: list[tuple[tuple[np.ndarray, ...], np.ndarray]] = []
+
+        def phantom_on(grid: tuple[np.ndarray, ...]) -> np.ndarray:
+            for known, p0 in phantoms:
+                if all(a.shape == b.shape and np.allclose(a, b, rtol=0.0, atol=1e-9) for a, b in zip(known, grid)):
+                    return p0
+            phantoms.append((grid, ball_p0(default_phantom(), *grid)))
+            return phantoms[-1][1]
 
         vols, rois = {}, {}
         for name, r in recons.items():
@@ -398,7 +409,7 @@ class Demo:
                 continue
             rois[name] = roi = roi_of(z, y, x)
             if with_phantom:
-                phantom = ball_p0(default_phantom(), z, x, y)
+                phantom = phantom_on((z, x, y))
                 r["cc_phantom"] = float(cc(p0, phantom))
                 r["cc_phantom_roi"] = float(cc(p0, phantom, roi))
                 r["cc_phantom_mip_xy"] = float(cc(mip(p0, "xy"), mip(phantom, "xy")))

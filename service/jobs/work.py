@@ -37,6 +37,7 @@ from typing import Any
 
 from driver.constants import C_DEFAULT
 from service.progress import Progress
+from service.recon.limits import DEFAULT_DTYPE
 
 __all__ = [
     "INPUT_FORMATS", "report_stage", "progress_file", "ProgressLog", "check_memory_limit", "ADDRESS_SPACE_BASE",
@@ -473,11 +474,14 @@ def warm_up(full: bool = False, rest_in_background: bool = False) -> dict:
 
     The warm-ups of the methods that are quick to warm (``Method.warm_in_background`` false:
     the planar inversions and the k-Wave modes, ~0.4 s from numba's cache; a first k-Wave job
-    that loaded its own kernels took 3x its library time) and the writer come first; with
-    ``rest_in_background`` the others (the model-based operator with its pylops import:
-    seconds) warm in a daemon thread after this returns, step by step while no job runs (:data:`JOB_GATE`), so
-    the worker takes its first job that much sooner and runs it at full speed (a job that
-    needs them meanwhile compiles or waits for them under numba's lock).
+    that loaded its own kernels took 3x its library time) in the default precision
+    (``service.recon.limits.DEFAULT_DTYPE``) and the writer come first; with
+    ``rest_in_background`` the others (the quick methods in the other precision, 10 s of
+    compilation where numba's cache lacks them, as after ``fpscan warmup --quick --dtype float32``;
+    then the model-based operator with its pylops import: seconds) warm in a daemon thread
+    after this returns, step by step while no job runs (:data:`JOB_GATE`), so the worker takes
+    its first job that much sooner and runs it at full speed (a job that needs them meanwhile
+    compiles or waits for them under numba's lock).
 
     Parameters
     ----------
@@ -485,8 +489,9 @@ def warm_up(full: bool = False, rest_in_background: bool = False) -> dict:
         Also compile the kernels, run a tiny job and write its result; default False (the
         imports only).
     rest_in_background : bool, optional
-        With ``full``, warm :data:`WARM_LATER` in a background thread rather than before
-        returning; default False.
+        With ``full``, take the steps after the first (the other precision, the methods that
+        warm in the background) in a background thread rather than before returning; default
+        False.
 
     Returns
     -------
@@ -508,7 +513,7 @@ def warm_up(full: bool = False, rest_in_background: bool = False) -> dict:
         from service.recon.warmup import warm_up as compile_kernels
         from service.storage.results import write_result
 
-        compile_kernels(background=False)
+        compile_kernels(dtypes=[DEFAULT_DTYPE], background=False)
         data = np.zeros((32, 4, 4), dtype=np.float32)
         data[5, 1:3, 1:3] = 1.0
         rec = reconstruct(GridDataset(data=data, dx=1e-4, dt=2e-8, c=C_DEFAULT, dy=1e-4), default_method("grid"))
@@ -519,7 +524,8 @@ def warm_up(full: bool = False, rest_in_background: bool = False) -> dict:
 
             threading.Thread(target=_warm_rest, name="warm-up-rest", daemon=True).start()
         else:
-            compile_kernels(background=True)
+            for methods, dtypes in _later_steps():
+                compile_kernels(dtypes=dtypes, methods=methods)
         warm_heap()  # last: no warm-up step takes its pages (the background one runs in its own arena)
     return {"pid": os.getpid(), "seconds": time.perf_counter() - t0}
 
@@ -578,23 +584,34 @@ def warm_heap() -> bool:
     return True
 
 
+def _later_steps() -> list[tuple[list[str], list[str]]]:
+    """The warm-up steps that come after a worker's first job can start, in order, as
+    ``(methods, dtypes)``: the quick methods in the precisions other than the default
+    (``DEFAULT_DTYPE`` is warmed first: what a job gets unless it asks otherwise), then each
+    method that warms in the background (``Method.warm_in_background``) in each precision."""
+    from service.recon.methods import METHODS
+    from service.recon.warmup import DTYPES
+
+    quick = [m.name for m in METHODS.values() if m.warm_up is not None and not m.warm_in_background]
+    steps = [([name], [dtype]) for dtype in DTYPES if dtype != DEFAULT_DTYPE for name in quick]
+    return steps + [([m.name], [dtype]) for m in METHODS.values() if m.warm_in_background and m.warm_up is not None
+                    for dtype in DTYPES]
+
+
 def _warm_rest() -> None:
-    """The methods' warm-ups :func:`warm_up` leaves to the background (``Method.warm_in_background``),
-    one method and precision at a time, each step only while no job runs (:data:`JOB_GATE`); a
+    """The warm-ups :func:`warm_up` leaves to the background (:func:`_later_steps`), one method
+    and precision at a time, each step only while no job runs (:data:`JOB_GATE`); a
     failure is logged (a job then compiles what it needs itself)."""
     try:
-        from service.recon.methods import METHODS
-        from service.recon.warmup import DTYPES
         from service.recon.warmup import warm_up as compile_kernels
 
         started = time.monotonic()
-        for name in [m.name for m in METHODS.values() if m.warm_in_background]:
-            for dtype in DTYPES:  # small steps, each once the worker has had no job for a while:
-                # the warm-up must not take CPU (and the GIL) from a job, nor start a step
-                # just as one arrives (the first job after start-up usually comes at once)
-                JOB_GATE.wait_quiet(WARM_QUIET_S, since=started)
-                compile_kernels(dtypes=[dtype], methods=[name])
+        for methods, dtypes in _later_steps():  # small steps, each once the worker has had no job for a
+            # while: the warm-up must not take CPU (and the GIL) from a job, nor start a step just as one
+            # arrives (the first job after start-up usually comes at once)
+            JOB_GATE.wait_quiet(WARM_QUIET_S, since=started)
+            compile_kernels(dtypes=dtypes, methods=methods)
     except Exception:  # a warm-up must never stop the worker
         import logging
 
-        logging.getLogger("fpscan.worker").exception("worker warm-up (the background methods) failed")
+        logging.getLogger("fpscan.worker").exception("worker warm-up (its background steps) failed")
