@@ -381,18 +381,8 @@ class Demo:
             zz, yy, xx = np.meshgrid(z, y, x, indexing="ij", sparse=True)
             return (np.abs(xx) <= 3.4e-3) & (np.abs(yy) <= 3.4e-3) & (zz >= 1.0e-3) & (zz <= 5.2e-3)
 
-        # the phantom on each grid, sampled once (0.5 s at 320 x 96²); grids equal to 1 nm are one
-        # (the sparse and the dense volumes' coordinates differ in their last bits)
-        phantoms: list[tuple[tuple[np.ndarray, ...], np.ndarray]] = []
-
-        def phantom_on(grid: tuple[np.ndarray, ...]) -> np.ndarray:
-            for known, p0 in phantoms:
-                if all(a.shape == b.shape and np.allclose(a, b, rtol=0.0, atol=1e-9) for a, b in zip(known, grid)):
-                    return p0
-            phantoms.append((grid, ball_p0(default_phantom(), *grid)))
-            return phantoms[-1][1]
-
         vols, rois = {}, {}
+        phantoms: list[tuple[tuple[np.ndarray, ...], np.ndarray]] = []
         for name, r in recons.items():
             vol = read_result(self.out / r["volume"])  # the result format's reader (service.formats.result)
             p0, z, x, y = np.asarray(vol.p0, dtype=np.float64), vol.z, vol.x, vol.y
@@ -409,7 +399,7 @@ class Demo:
                 continue
             rois[name] = roi = roi_of(z, y, x)
             if with_phantom:
-                phantom = phantom_on((z, x, y))
+                phantom = _phantom_on((z, x, y), phantoms, lambda *g: ball_p0(default_phantom(), *g))
                 r["cc_phantom"] = float(cc(p0, phantom))
                 r["cc_phantom_roi"] = float(cc(p0, phantom, roi))
                 r["cc_phantom_mip_xy"] = float(cc(mip(p0, "xy"), mip(phantom, "xy")))
@@ -426,3 +416,17 @@ class Demo:
             self.report["scan_time_saved_at_50_Hz_s"] = (scans["full"]["scan_time_at_50_Hz_s"]
                                                        - scans["equisteradian"]["scan_time_at_50_Hz_s"])
 
+
+
+def _phantom_on(grid: tuple[Any, ...], known: list, sample: Any) -> Any:
+    """The phantom sampled on ``grid`` = (z, x, y), m, by ``sample(z, x, y)`` (p0 in Pa,
+    ``(n_z, n_y, n_x)``), once per grid (the demo's: 0.5 s at 320 × 96²); ``known`` holds the
+    ``(grid, p0)`` pairs sampled so far. Grids equal to 1 nm are one (the sparse and the dense
+    volumes' coordinates differ in their last bits)."""
+    import numpy as np
+
+    for seen, p0 in known:
+        if all(a.shape == b.shape and np.allclose(a, b, rtol=0.0, atol=1e-9) for a, b in zip(seen, grid)):
+            return p0
+    known.append((grid, sample(*grid)))
+    return known[-1][1]
