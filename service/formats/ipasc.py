@@ -40,7 +40,7 @@ from h5py import h5d, h5g, h5s, h5t
 
 from driver.constants import C_DEFAULT
 from driver.physics.axes import centred_axis
-from driver.scanfile import read_scan
+from driver.scanfile import ScanData, read_scan
 from service.formats._registry import Format, Source
 from service.formats.load_options import WavelengthChoice
 from service.recon.dataset import PointDataset, check_wavelength_index
@@ -146,112 +146,13 @@ def export_scan(scan_path: str | os.PathLike, out_path: str | os.PathLike, *,
     scan = read_scan(scan_path).completed_only(every_wavelength=True)
     if scan.n_points == 0:
         raise ValueError("the scan has no completed points (at every wavelength) to export")
-    n, n_t = scan.n_points, scan.n_t
-    pos = np.asarray(scan.positions, dtype=np.float64)
-    xy = np.zeros((n, 2))
-    xy[:, :pos.shape[1]] = pos
-    c, dt = float(scan.sound_speed), float(scan.dt)
-    meta = scan.meta
     out_path = Path(out_path)
     out_path.parent.mkdir(parents=True, exist_ok=True)
     # unique per call: concurrent exports to the same target never share a temporary
     tmp = out_path.with_name(f".{out_path.name}.{os.getpid()}.{_uuid.uuid4().hex[:12]}.tmp")
-    str_dt = h5py.string_dtype("utf-8")
     try:
         with h5py.File(tmp, "w") as f:
-            f.create_dataset("binary_time_series_data",
-                             data=np.moveaxis(scan.pressure_all.astype(dtype), 0, -1)[..., None])
-            m = f.create_group("meta_data")
-
-            def put(group: h5py.Group, name: str, value: str | float | np.ndarray | None) -> None:
-                if value is None:
-                    value = "None"
-                if isinstance(value, str):
-                    group.create_dataset(name, data=value, dtype=str_dt)
-                else:
-                    group.create_dataset(name, data=value)
-
-            # binary data [detectors, samples, wavelengths, measurements]
-            n_wl, n_meas = scan.n_wavelengths, 1
-            fs = 1.0 / dt
-            put(m, "uuid", data_uuid or str(_uuid.uuid4()))
-            put(m, "encoding", "raw")
-            # "none", not "None": PACFISH reads the string "None" back as a missing value
-            put(m, "compression", "none")
-            put(m, "data_type", dtype.name)
-            put(m, "dimensionality", "time")
-            put(m, "sizes", np.array([n, n_t, n_wl, n_meas], dtype=np.int64))
-            put(m, "ad_sampling_rate", fs)
-            put(m, "speed_of_sound", c)
-            put(m, "acquisition_wavelengths",
-                np.asarray(scan.wavelengths, dtype=np.float64) if len(scan.wavelengths) else None)
-            # one pose per measurement as a (2, 3) block [[x, y, z] m, [rx, ry, rz] rad]
-            # (the reference pose: detector positions are absolute). A (1, 6) array would
-            # be squeezed to (6,) by PACFISH's reader and then fail its own 2-D check.
-            put(m, "measurement_spatial_poses", np.zeros((2 * n_meas, 3)))
-            put(m, "measurement_timestamps",
-                np.full(n_meas, float(meta["timestamp_s"].min())))
-            put(m, "pulse_energy", scan.meta_all["pulse_energy_j"].mean(axis=1))
-            put(m, "measurements_per_image", n_meas)
-            put(m, "scanning_method", "composite_scan")
-            put(m, "photoacoustic_imaging_device_reference", _instrument_id(scan.instrument))
-            # acquisition chain as recorded: the pressure is DC-normalised, no further gain,
-            # no time-gain compensation, no frequency filter (pass band [0, Nyquist] Hz)
-            put(m, "time_gain_compensation", np.ones(n_t))
-            put(m, "overall_gain", 1.0)
-            put(m, "element_dependent_gain", np.ones(n))
-            put(m, "frequency_domain_filter", np.array([0.0, fs / 2.0]))
-            # not measured by the scanner: NaN K unless the instrument reports it
-            put(m, "temperature_control", np.full(
-                n_meas, float(scan.instrument.get("temperature_k", float("nan")))))
-            put(m, "acoustic_coupling_agent",
-                str(scan.instrument.get("acoustic_coupling_agent", "water")))
-            roi = m.create_group("regions_of_interest")
-            put(roi, "scanned_volume", _field_of_view(xy, c, dt, n_t))
-            # fpscan extras (not IPASC tags)
-            put(m, "fpscan_plan_json", json.dumps(scan.plan, sort_keys=True,
-                                                  separators=(",", ":")))
-            put(m, "fpscan_plan_id", scan.plan_id)
-            put(m, "fpscan_software_version", scan.software_version)
-            put(m, "fpscan_pressure", "(sample*scale + offset)/dc_level per A-line")
-            put(m, "fpscan_dt_s", dt)
-            put(m, "fpscan_weights", np.asarray(scan.weights, dtype=np.float64))
-            put(m, "fpscan_lattice_indices", np.asarray(scan.indices, dtype=np.int64))
-            put(m, "fpscan_spatial_dimensions", int(pos.shape[1]) + 1)
-            # per A-line: (n,) for one wavelength, (n_wavelengths, n) for several
-            for key in ("point_index", "timestamp_s", "bias_wavelength_m", "dc_level",
-                        "pulse_energy_j", "pulse_number", "boot_id", "run_id",
-                        "excitation_wavelength_m"):
-                put(m, f"fpscan_{key}", np.asarray(meta[key] if n_wl == 1
-                                                   else scan.meta_all[key]))
-
-            dev = f.create_group("meta_data_device")
-            g = dev.create_group("general")
-            put(g, "unique_identifier", _instrument_id(scan.instrument))
-            put(g, "field_of_view", _field_of_view(xy, c, dt, n_t))
-            put(g, "num_detectors", n)
-            put(g, "num_illuminators", 0)
-            dev.create_group("illuminators")
-            dets = dev.create_group("detectors")
-            # the FP interrogation spot: a point-like element (radius 0 m unless the
-            # instrument reports its spot radius), modelled flat in frequency up to Nyquist
-            # and omnidirectional over the half space it faces -- documented assumptions,
-            # the same model the reconstruction uses
-            spot = float(scan.instrument.get("spot_radius_m") or 0.0)
-            frequency_response = np.array([[0.0, fs / 2.0], [1.0, 1.0]])
-            angular_response = np.array([[0.0, math.pi / 2.0], [1.0, 1.0]])
-            w = _SmallDatasets()
-            orientation = np.array([0.0, 0.0, 1.0])
-            for i in range(n):
-                gid = h5g.create(dets.id, str(i).zfill(DETECTOR_ID_WIDTH).encode())
-                w.string(gid, "detection_element",
-                         f"FP interrogation spot at scan point {int(meta['point_index'][i])}")
-                w.vector(gid, "detector_position", np.array([xy[i, 0], xy[i, 1], 0.0]))
-                w.vector(gid, "detector_orientation", orientation)
-                w.string(gid, "detector_geometry_type", "CIRCULAR")
-                w.scalar(gid, "detector_geometry", spot)
-                w.matrix(gid, "frequency_response", frequency_response)
-                w.matrix(gid, "angular_response", angular_response)
+            _write_ipasc(f, scan, dtype, data_uuid)
         os.replace(tmp, out_path)
     except BaseException:
         tmp.unlink(missing_ok=True)
@@ -261,6 +162,141 @@ def export_scan(scan_path: str | os.PathLike, out_path: str | os.PathLike, *,
 
 #: aliases used by callers
 write_ipasc = export_scan
+
+#: the HDF5 type of every string tag (variable-length UTF-8)
+_UTF8 = h5py.string_dtype("utf-8")
+
+
+def _put(group: h5py.Group, name: str, value: str | float | np.ndarray | None) -> None:
+    """Write one tag as a dataset of ``group``: a string as variable-length UTF-8, None as
+    the string ``"None"`` (IPASC's missing value), anything else as its numpy array."""
+    if value is None:
+        value = "None"
+    if isinstance(value, str):
+        group.create_dataset(name, data=value, dtype=_UTF8)
+    else:
+        group.create_dataset(name, data=value)
+
+
+def _write_ipasc(f: h5py.File, scan: ScanData, dtype: np.dtype, data_uuid: str | None) -> None:
+    """Write the completed scan ``scan`` into the new, empty file ``f`` in the order an export
+    always has: the binary data ``[detectors, samples, wavelengths, measurements]`` as
+    ``dtype``, ``/meta_data`` (the IPASC tags, then fpscan's extras) and
+    ``/meta_data_device``. Detectors lie at the scan points' ``(x, y)`` (y = 0 m for a line
+    scan) on z = 0."""
+    pos = np.asarray(scan.positions, dtype=np.float64)
+    xy = np.zeros((scan.n_points, 2))
+    xy[:, :pos.shape[1]] = pos
+    f.create_dataset("binary_time_series_data",
+                     data=np.moveaxis(scan.pressure_all.astype(dtype), 0, -1)[..., None])
+    m = f.create_group("meta_data")
+    _put_acquisition(m, scan, dtype, data_uuid)
+    roi = m.create_group("regions_of_interest")
+    _put(roi, "scanned_volume", _field_of_view(xy, float(scan.sound_speed), float(scan.dt), scan.n_t))
+    _put_fpscan_extras(m, scan, int(pos.shape[1]) + 1)
+    _put_device(f.create_group("meta_data_device"), scan, xy)
+
+
+def _put_acquisition(m: h5py.Group, scan: ScanData, dtype: np.dtype, data_uuid: str | None) -> None:
+    """The IPASC acquisition tags of ``/meta_data``: the binary data's description (one
+    measurement per wavelength set, a ``composite_scan``), sampling rate (Hz), sound speed
+    (m/s), wavelengths (m), pose, timestamps (s), pulse energies (J) and the acquisition
+    chain as recorded (no gain, no time-gain compensation, no filter)."""
+    n, n_t, meta = scan.n_points, scan.n_t, scan.meta
+    c, dt = float(scan.sound_speed), float(scan.dt)
+    # binary data [detectors, samples, wavelengths, measurements]
+    n_wl, n_meas = scan.n_wavelengths, 1
+    fs = 1.0 / dt
+    _put(m, "uuid", data_uuid or str(_uuid.uuid4()))
+    _put(m, "encoding", "raw")
+    # "none", not "None": PACFISH reads the string "None" back as a missing value
+    _put(m, "compression", "none")
+    _put(m, "data_type", dtype.name)
+    _put(m, "dimensionality", "time")
+    _put(m, "sizes", np.array([n, n_t, n_wl, n_meas], dtype=np.int64))
+    _put(m, "ad_sampling_rate", fs)
+    _put(m, "speed_of_sound", c)
+    _put(m, "acquisition_wavelengths",
+         np.asarray(scan.wavelengths, dtype=np.float64) if len(scan.wavelengths) else None)
+    # one pose per measurement as a (2, 3) block [[x, y, z] m, [rx, ry, rz] rad]
+    # (the reference pose: detector positions are absolute). A (1, 6) array would
+    # be squeezed to (6,) by PACFISH's reader and then fail its own 2-D check.
+    _put(m, "measurement_spatial_poses", np.zeros((2 * n_meas, 3)))
+    _put(m, "measurement_timestamps", np.full(n_meas, float(meta["timestamp_s"].min())))
+    _put(m, "pulse_energy", scan.meta_all["pulse_energy_j"].mean(axis=1))
+    _put(m, "measurements_per_image", n_meas)
+    _put(m, "scanning_method", "composite_scan")
+    _put(m, "photoacoustic_imaging_device_reference", _instrument_id(scan.instrument))
+    # acquisition chain as recorded: the pressure is DC-normalised, no further gain,
+    # no time-gain compensation, no frequency filter (pass band [0, Nyquist] Hz)
+    _put(m, "time_gain_compensation", np.ones(n_t))
+    _put(m, "overall_gain", 1.0)
+    _put(m, "element_dependent_gain", np.ones(n))
+    _put(m, "frequency_domain_filter", np.array([0.0, fs / 2.0]))
+    # not measured by the scanner: NaN K unless the instrument reports it
+    _put(m, "temperature_control", np.full(
+        n_meas, float(scan.instrument.get("temperature_k", float("nan")))))
+    _put(m, "acoustic_coupling_agent", str(scan.instrument.get("acoustic_coupling_agent", "water")))
+
+
+def _put_fpscan_extras(m: h5py.Group, scan: ScanData, spatial_dimensions: int) -> None:
+    """Write fpscan's own ``/meta_data/fpscan_*`` datasets (not IPASC tags; :func:`read_ipasc`
+    uses them): the plan, software version, the pressure's definition, the exact dt (s),
+    area weights, lattice indices, ``spatial_dimensions`` (2 for a line scan, 3 for an area)
+    and the per-A-line metadata, ``(n,)`` for one wavelength, ``(n_wavelengths, n)`` for
+    several."""
+    _put(m, "fpscan_plan_json", json.dumps(scan.plan, sort_keys=True, separators=(",", ":")))
+    _put(m, "fpscan_plan_id", scan.plan_id)
+    _put(m, "fpscan_software_version", scan.software_version)
+    _put(m, "fpscan_pressure", "(sample*scale + offset)/dc_level per A-line")
+    _put(m, "fpscan_dt_s", float(scan.dt))
+    _put(m, "fpscan_weights", np.asarray(scan.weights, dtype=np.float64))
+    _put(m, "fpscan_lattice_indices", np.asarray(scan.indices, dtype=np.int64))
+    _put(m, "fpscan_spatial_dimensions", spatial_dimensions)
+    for key in ("point_index", "timestamp_s", "bias_wavelength_m", "dc_level",
+                "pulse_energy_j", "pulse_number", "boot_id", "run_id",
+                "excitation_wavelength_m"):
+        _put(m, f"fpscan_{key}", np.asarray(scan.meta[key] if scan.n_wavelengths == 1
+                                            else scan.meta_all[key]))
+
+
+def _put_device(dev: h5py.Group, scan: ScanData, xy: np.ndarray) -> None:
+    """``/meta_data_device``: the general tags (the instrument, the field of view in m,
+    one detector per scan point at ``xy`` ``(n, 2)`` m, no illuminators) and one group per
+    detector, named by its zero-padded index."""
+    n_t, c, dt = scan.n_t, float(scan.sound_speed), float(scan.dt)
+    g = dev.create_group("general")
+    _put(g, "unique_identifier", _instrument_id(scan.instrument))
+    _put(g, "field_of_view", _field_of_view(xy, c, dt, n_t))
+    _put(g, "num_detectors", scan.n_points)
+    _put(g, "num_illuminators", 0)
+    dev.create_group("illuminators")
+    _put_detectors(dev.create_group("detectors"), scan, xy, fs=1.0 / dt)
+
+
+def _put_detectors(dets: h5py.Group, scan: ScanData, xy: np.ndarray, fs: float) -> None:
+    """One group per detector under ``dets``: the FP interrogation spot at scan point i, at
+    ``[x, y, 0]`` m facing +z, with its geometry, frequency response (flat up to the
+    Nyquist frequency ``fs``/2 Hz) and angular response (flat over the half space)."""
+    # the FP interrogation spot: a point-like element (radius 0 m unless the
+    # instrument reports its spot radius), modelled flat in frequency up to Nyquist
+    # and omnidirectional over the half space it faces -- documented assumptions,
+    # the same model the reconstruction uses
+    spot = float(scan.instrument.get("spot_radius_m") or 0.0)
+    frequency_response = np.array([[0.0, fs / 2.0], [1.0, 1.0]])
+    angular_response = np.array([[0.0, math.pi / 2.0], [1.0, 1.0]])
+    w = _SmallDatasets()
+    orientation = np.array([0.0, 0.0, 1.0])
+    point_index = scan.meta["point_index"]
+    for i in range(scan.n_points):
+        gid = h5g.create(dets.id, str(i).zfill(DETECTOR_ID_WIDTH).encode())
+        w.string(gid, "detection_element", f"FP interrogation spot at scan point {int(point_index[i])}")
+        w.vector(gid, "detector_position", np.array([xy[i, 0], xy[i, 1], 0.0]))
+        w.vector(gid, "detector_orientation", orientation)
+        w.string(gid, "detector_geometry_type", "CIRCULAR")
+        w.scalar(gid, "detector_geometry", spot)
+        w.matrix(gid, "frequency_response", frequency_response)
+        w.matrix(gid, "angular_response", angular_response)
 
 
 def _value(ds: h5py.Dataset) -> Any:
