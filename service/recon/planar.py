@@ -37,7 +37,7 @@ from driver.physics.axes import centred_axis, node_indices
 from driver.physics.fast_lengths import fast_dct1_rows, fast_lateral, fast_length
 from driver.physics.lateral import irfft_lateral
 from driver.physics.nufft_plans import lateral_plan
-from service.progress import Fraction, Span, rising
+from service.progress import Fraction, Rising, Span, rising
 from service.progress import span as span_of
 from service.recon import checks, memory
 from service.recon.reconstruction import Reconstruction
@@ -219,7 +219,7 @@ def _reuse(space: np.ndarray | None, shape: tuple[int, ...], dtype: npt.DTypeLik
     undefined), or None where ``space`` is None or too small (the step then makes its own).
     Every step of a reconstruction writes its result into memory an earlier step has
     already written, so that a call faults in fresh pages for two large arrays (this buffer
-    and the fine temporal grid), not up to seven (docs/performance.md, 2026-11-25)."""
+    and the fine temporal grid), not up to seven (CHANGELOG.md, 2026-11-25)."""
     need = int(np.prod(shape)) * np.dtype(dtype).itemsize
     if space is None or space.nbytes < need or not space.flags.c_contiguous:
         return None
@@ -542,6 +542,75 @@ def _type1(strengths: np.ndarray, pos: np.ndarray, axes: tuple[np.ndarray, ...],
     return A
 
 
+def _output_grid(pos: np.ndarray, grid: np.ndarray | Sequence[npt.ArrayLike] | None,
+                 ) -> tuple[tuple[np.ndarray, ...], list[float]]:
+    """The output lateral grid of `reconstruct_points` and its steps (m): ``grid`` checked,
+    or by default the smallest regular grid at the positions' lattice pitch covering them
+    (`_default_grid`). Raises ValueError when a position ``pos`` ``(n_points, d)`` m lies
+    more than half a step outside the grid along an axis."""
+    if grid is None:
+        axes, pitch = _default_grid(pos)
+        steps = [float(g[1] - g[0]) if len(g) > 1 else pitch for g in axes]
+    else:
+        axes = _check_grid(grid, pos.shape[1])
+        steps = [float(g[1] - g[0]) for g in axes]
+    for a, g in enumerate(axes):
+        lo, hi = g[0] - steps[a] / 2, g[-1] + steps[a] / 2
+        if np.any(pos[:, a] < lo - 1e-9 * abs(lo)) or np.any(pos[:, a] > hi + 1e-9 * abs(hi)):
+            raise ValueError(f"positions lie outside the output grid along {'xy'[a]}")
+    return axes, steps
+
+
+def _area_weights(weights: np.ndarray | None, pos: np.ndarray) -> np.ndarray:
+    """The area weights h_m ``(n_points,)`` (m in 2-D, m² in 3-D) of the positions ``pos``
+    ``(n_points, d)`` m: ``weights`` checked (finite, that shape, >= 0: else ValueError), or
+    by default the clipped Voronoi areas (`voronoi_weights`, DESIGN §3.3)."""
+    if weights is None:
+        from driver.physics.weights import voronoi_weights  # on use (start-up time)
+
+        return voronoi_weights(pos)
+    n_points = pos.shape[0]
+    h = checks.finite_array("weights", weights, (1,)).astype(np.float64)
+    if h.shape != (n_points,):
+        raise ValueError(f"weights must have shape ({n_points},), got {h.shape}")
+    if np.any(h < 0):
+        raise ValueError("weights must be >= 0")
+    return h
+
+
+def _lateral_spectrum(al: np.ndarray, h: np.ndarray, pos: np.ndarray, axes: tuple[np.ndarray, ...],
+                      steps: list[float], shape: tuple[int, int], eps: float, rdtype: np.dtype, space: np.ndarray,
+                      kernel: Rising | None) -> np.ndarray:
+    """The lateral step of `reconstruct_points` (paper eq. (3)): the A-lines ``al``
+    ``(n_points, n_t)`` at ``pos``, weighted by ``h`` over the grid's cell area, to the half
+    spectrum ``(n_t, n_y, n_x // 2 + 1)`` complex of the ``shape`` = ``(n_y, n_x)`` transform
+    grid. When every position is a node of the grid (lattice masks) the type-1 sum is the FFT
+    of the zero-filled grid, exactly and at FFT speed (written into ``space``); otherwise the
+    type-1 NUFFT (`_type1`). ``kernel`` is told the first 30 % of the reconstruction's
+    progress; the weighted copy of the A-lines is freed as soon as it is consumed."""
+    d = pos.shape[1]
+    n_t = al.shape[1]
+    n_y, n_x = shape
+    dx = steps[0]
+    dy = steps[1] if d == 2 else 1.0
+    cell = dx * (dy if d == 2 else 1.0)
+    weighted = (al * (h / cell)[:, None]).T  # (n_t, n_points)
+    on_grid = node_indices(pos, axes, steps)
+    if on_grid is not None:
+        filled = np.zeros((n_t, n_y, n_x), dtype=rdtype)
+        filled[:, on_grid[1], on_grid[0]] = weighted
+        del weighted
+        A = fft_engine.rfft2(filled, axes=(1, 2), out=_reuse(space, (n_t, n_y, n_x // 2 + 1), space.dtype))
+        del filled
+        if kernel is not None:
+            kernel(0.3)
+        return A
+    A = _type1(np.ascontiguousarray(weighted, dtype=space.dtype), pos, axes, dx, dy, n_y, n_x, eps, rdtype,
+               span_of(kernel, 0.0, 0.3))
+    del weighted
+    return A[:, :, : n_x // 2 + 1]
+
+
 def reconstruct_points(
     alines: np.ndarray,
     positions: np.ndarray,
@@ -637,26 +706,8 @@ def reconstruct_points(
     d = pos.shape[1]
     dt, c, eps, rdtype, upsample, t0 = _check_options(dt, c, method, eps, dtype, upsample, t0)
     dz, n_z, n_work = _depth_axis(n_t, dt, c, dz, n_z, t0)
-    if grid is None:
-        axes, pitch = _default_grid(pos)
-        steps = [float(g[1] - g[0]) if len(g) > 1 else pitch for g in axes]
-    else:
-        axes = _check_grid(grid, d)
-        steps = [float(g[1] - g[0]) for g in axes]
-    for a, g in enumerate(axes):
-        lo, hi = g[0] - steps[a] / 2, g[-1] + steps[a] / 2
-        if np.any(pos[:, a] < lo - 1e-9 * abs(lo)) or np.any(pos[:, a] > hi + 1e-9 * abs(hi)):
-            raise ValueError(f"positions lie outside the output grid along {'xy'[a]}")
-    if weights is None:
-        from driver.physics.weights import voronoi_weights  # on use (start-up time)
-
-        h = voronoi_weights(pos)
-    else:
-        h = checks.finite_array("weights", weights, (1,)).astype(np.float64)
-        if h.shape != (n_points,):
-            raise ValueError(f"weights must have shape ({n_points},), got {h.shape}")
-        if np.any(h < 0):
-            raise ValueError("weights must be >= 0")
+    axes, steps = _output_grid(pos, grid)
+    h = _area_weights(weights, pos)
     n_x_out = len(axes[0])
     n_y_out = len(axes[1]) if d == 2 else 1
     square = d == 2 and abs(steps[1] - steps[0]) <= 1e-9 * steps[0]
@@ -668,26 +719,9 @@ def reconstruct_points(
                            n_points=n_points),
         memory_limit,
     )
-    cell = dx * (dy if d == 2 else 1.0)
-    weighted = (al * (h / cell)[:, None]).T  # (n_t, n_points)
-    on_grid = node_indices(pos, axes, steps)
     kernel = rising(progress)  # strictly increasing fractions, each step through its span
     space = _workspace(n_t, n_work, n_y * (n_x // 2 + 1), rdtype)
-    if on_grid is not None:
-        # every sensor on a node of the output grid (lattice masks): the type-1 sum is the
-        # FFT of the zero-filled grid, exactly and at FFT speed
-        filled = np.zeros((n_t, n_y, n_x), dtype=rdtype)
-        filled[:, on_grid[1], on_grid[0]] = weighted
-        del weighted
-        A = fft_engine.rfft2(filled, axes=(1, 2), out=_reuse(space, (n_t, n_y, n_x // 2 + 1), space.dtype))
-        del filled
-        if kernel is not None:
-            kernel(0.3)
-    else:
-        A = _type1(np.ascontiguousarray(weighted, dtype=space.dtype), pos, axes, dx, dy, n_y, n_x, eps, rdtype,
-                   span_of(kernel, 0.0, 0.3))
-        del weighted
-        A = A[:, :, : n_x // 2 + 1]
+    A = _lateral_spectrum(al, h, pos, axes, steps, (n_y, n_x), eps, rdtype, space, kernel)
     p0 = _invert(A, n_x, dx, dy, dt, c, n_work, dz, float(t0), method, eps, rdtype, upsample,
                  (n_z, n_y_out * upsample if d == 2 else 1, n_x_out * upsample), progress=span_of(kernel, 0.3, 1.0),
                  space=space)
