@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from driver.physics import fft_engine
-from service.recon import kspace_line_recon, kspace_plane_recon, kwave, reconstruct_grid
+from service.recon import kspace_line_recon, kspace_plane_recon, kwave_dft, reconstruct_grid
 from tests.recon import kwave_transcription as literal
 
 INTERP = {"starlinear": "*linear", "nearest": "nearest", "cubic": "cubic"}
@@ -54,10 +54,11 @@ def test_ner_agrees_with_kwave_where_interpolation_is_accurate(kwave2d):
     assert cc > 0.8
 
 
-# up to kwave.MATRIX_MAX_N time samples the real-even transforms run as matrix products; above it by
-# the prime-factor algorithm where 2 N - 1 has a coprime split (kwave.PFA_MAX_SUM), else as FFTs
-_BY_PFA = kwave.MATRIX_MAX_N + 9  # 817 = 19·43
-_BY_FFT = next(n for n in range(kwave.MATRIX_MAX_N + 1, 2 * kwave.MATRIX_MAX_N) if kwave._coprime_split(2 * n - 1) is None)
+# up to kwave_dft.MATRIX_MAX_N time samples the real-even transforms run as matrix products; above it by
+# the prime-factor algorithm where 2 N - 1 has a coprime split (kwave_dft.PFA_MAX_SUM), else as FFTs
+_BY_PFA = kwave_dft.MATRIX_MAX_N + 9  # 817 = 19·43
+_BY_FFT = next(n for n in range(kwave_dft.MATRIX_MAX_N + 1, 2 * kwave_dft.MATRIX_MAX_N)
+               if kwave_dft._coprime_split(2 * n - 1) is None)
 
 
 @pytest.mark.parametrize("interp", ["*nearest", "*linear", "cubic"])
@@ -68,10 +69,11 @@ def test_kspace_recon_matches_literal_kwave_transcription(shape, interp):
     algorithm's numbers at odd and even sizes, 2-D and 3-D, with its time and depth
     transforms as matrix products, by the prime-factor algorithm (817 = 19·43; 2047 = 23·89,
     k-Wave's 1024 samples) and as FFTs (a prime 2 N - 1), and its lateral real DFT as a
-    matrix product (37 and 74 = 2·37 columns, `kwave.product_length`) or an FFT (the stored
+    matrix product (37 and 74 = 2·37 columns, `kwave_dft.product_length`) or an FFT (the stored
     k-Wave data are 2-D with an even sensor count and 3519 samples only)."""
-    assert kwave._coprime_split(2 * _BY_PFA - 1) == (19, 43) and kwave.product_length(shape[-1]) == (shape[-1] in (37, 74))
-    if kwave.product_length(shape[-1]):  # large enough for the product (small arrays run in numpy.fft)
+    assert kwave_dft._coprime_split(2 * _BY_PFA - 1) == (19, 43)
+    assert kwave_dft.product_length(shape[-1]) == (shape[-1] in (37, 74))
+    if kwave_dft.product_length(shape[-1]):  # large enough for the product (small arrays run in numpy.fft)
         assert np.prod(shape) > fft_engine.SMALL_ELEMENTS
     p = np.random.default_rng(5).standard_normal(shape)
     if len(shape) == 3:
@@ -106,7 +108,7 @@ def test_kspace_plane_recon_float32_matches_float64(n_t, n_x):
 @pytest.mark.parametrize("parts", [1, 2, 3, 5])
 @pytest.mark.parametrize(("k", "m", "step_rows"), [(38, 37, 4), (228, 226, 7), (12, 12, 3), (20, 11, 1000)])
 def test_rows_product_written_over_its_input_equals_the_product(monkeypatch, parts, k, m, step_rows):
-    """`kwave._rows_over` (the lateral inverse's rows written over the spectrum) gives
+    """`kwave_dft._rows_over` (the lateral inverse's rows written over the spectrum) gives
     ``X @ C`` as computed into fresh memory, for row splits over 1-5 threads whose heads
     reach into the previous thread's rows, blocks of a few rows or all of them, and output
     rows as long as the input's (m = k) or much shorter."""
@@ -117,10 +119,10 @@ def test_rows_product_written_over_its_input_equals_the_product(monkeypatch, par
     X = rng.standard_normal((n_rows, k))
     C = rng.standard_normal((k, m))
     want = X @ C
-    monkeypatch.setattr(kwave, "_OVER_BYTES", step_rows * k * X.itemsize)
+    monkeypatch.setattr(kwave_dft, "_OVER_BYTES", step_rows * k * X.itemsize)
     out = X.reshape(-1)[: n_rows * m].reshape(n_rows, m)
     cuts = [n_rows * i // parts for i in range(parts + 1)]
     with ThreadPoolExecutor(parts) as pool:
-        kwave._rows_over(pool, C, X, out, cuts)
+        kwave_dft._rows_over(pool, C, X, out, cuts)
     assert np.shares_memory(out, X)
     np.testing.assert_allclose(out, want, rtol=0, atol=1e-12 * np.abs(want).max())

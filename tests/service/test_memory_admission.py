@@ -291,7 +291,7 @@ def test_kwave_admission_estimate_covers_the_measured_peak_closely(n_t, n_y, n_x
     spectrum, the time-depth step's buffers, the input) covers the peak of a real run in a
     fresh process and stays within 1.3x of it at a size where the spectrum dominates
     (before: 2.4 spectra + the image, about twice the peak)."""
-    from service.recon.kwave import product_length
+    from service.recon.kwave_dft import product_length
 
     assert product_length(n_x) == (n_x == 226)
     r = subprocess.run([sys.executable, "-c", KWAVE_PEAK_SCRIPT, str(n_t), str(n_y), str(n_x), dtype, interp],
