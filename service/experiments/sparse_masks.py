@@ -21,8 +21,9 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -134,107 +135,209 @@ def run(
     ------
     ValueError for 2-D data or a non-square lattice.
     """
-    from service.plans import Lattice, equisteradian_mask, subgrid_mask
-
     if data is None:
         data = simulate_yarn(small=small, snr_db=snr_db)
-    if data.ndim != 3:
-        raise ValueError(f"{NAME} needs 3-D planar data (n_t, n_y, n_x); got shape {data.data.shape}")
-    g = data.data
-    n_t, n_y, n_x = g.shape
-    if n_y != n_x:
-        raise ValueError(f"{NAME} needs a square lattice, got {n_y} × {n_x}")
-    n = n_x
-    d, dt, c = data.dx, data.dt, data.c
+    n = _square_side(data)
+    d = data.dx
     side = n * d
     n_z = data.depth_rows(4)
     x = centred_axis(n, d)
-    if n_side is None:
-        n_side = max(2, round(41 * n / 226))
-    while n_side > 2 and (n_side - 1) * max(intervals) + 1 > n:
-        n_side -= 1
+    n_side = _fitting_side(n, intervals, n_side)
     if poi_depth is None:
         poi_depth = POI_DEPTH_RATIO * side
 
     t0 = time.perf_counter()
     full = reconstruct(data, "ner", n_z=n_z, dtype="float64")
     t_full = time.perf_counter() - t0
-    ref = mip(full.p0, "xy")
-    axes = (x, x)
-    eval_d = EVAL_DIAMETER_RATIO * side
-    disc_d = DISC_RATIO * side
-    diameters = np.linspace(0.05, 1.0, n_diameters) * side * np.sqrt(2)
-    disc = disc_mask(axes, disc_d)
-    disc_roi = roi_mask(ref, axes=axes, diameter=disc_d, threshold=0.04)
-    n_disc = int(disc.sum())
-    counts = np.unique(np.geomspace(10, n_disc, 40).astype(int))
-
-    # (name, interval (NaN: not a sub-grid), i_x, i_y, positions, weights, method)
-    arrangements: list[tuple[str, float, np.ndarray, np.ndarray, np.ndarray, np.ndarray, str]] = []
-    lattice = Lattice(n, n, d)
-    es = equisteradian_mask(lattice, poi_depth, round(fraction * n * n))
-    idx = np.asarray(es.indices)
-    es_run = (idx[:, 0], idx[:, 1], np.asarray(es.positions, float), np.asarray(es.weights, float))
-    arrangements.append(("equi-steradian", np.nan, *es_run, "nedner"))
-    for interval in intervals:
-        sub = subgrid_mask(lattice, int(interval), n_side)
-        idx = np.asarray(sub.indices)
-        arrangements.append(("equispaced", int(interval), idx[:, 0], idx[:, 1], np.asarray(sub.positions, float),
-                             np.asarray(sub.weights, float), "nedner"))
-    if model_based:  # the same equi-steradian A-lines, model-based (TV + positivity, automatic λ)
-        arrangements.append(("equi-steradian-tv", np.nan, *es_run, "tv"))
-    truth = None
-    if data.p0 is not None and data.p0.ndim == 3 and data.p0.shape[1:] == (n, n):
-        truth = mip(data.p0, "xy")  # the xy-MIP does not depend on the depth sampling
-
-    def vs_truth(m: np.ndarray) -> float:
-        return correlation_coefficient(m, truth, disc_roi) if truth is not None else np.nan
-
-    rows, mips_, curves = [], {"full": ref}, {"diameter_m": diameters, "pixels": counts}
-    rows.append({"arrangement": "full", "interval": 1, "n_points": n * n, "fraction": 1.0,
-                 "cc_eval_diameter": 1.0, "cc_disc": 1.0,
-                 "sharpness_eval_diameter": float(sharpness_vs_diameter(ref / ref.max(), ref, [eval_d], axes=axes)[0]),
-                 "cc_vs_phantom": vs_truth(ref), "time_s": t_full})
-    masks = {}
-    for name, s, ix, iy, pos, w, method in arrangements:
+    score = _Scoring.of(mip(full.p0, "xy"), data.p0, x, side, n_diameters)
+    arrangements, weight_ratio = _arrangements(n, d, poi_depth, round(fraction * n * n), intervals, n_side,
+                                               model_based)
+    rows = [score.full_row(n * n, t_full)]
+    mips_, masks = {"full": score.ref}, {}
+    curves = {"diameter_m": score.diameters, "pixels": score.counts}
+    for arrangement in arrangements:
         t0 = time.perf_counter()
-        opts: dict[str, Any] = {"iterations": tv_iterations} if method == "tv" else {}
-        img = reconstruct(PointDataset(alines=g[:, iy, ix].T, positions=pos, weights=w, dt=dt, c=c, grid=(x, x)),
-                          method, n_z=n_z, dtype="float64", **opts).p0
+        img = _reconstruct(data, arrangement, x, n_z, tv_iterations)
         elapsed = time.perf_counter() - t0
         m = mip(img, "xy")
         m = m / m.max()
-        key = name if name != "equispaced" else f"interval {s}"
+        key = arrangement.name if arrangement.name != "equispaced" else f"interval {arrangement.interval}"
         mips_[key] = m
-        masks[key] = pos
-        curves[f"cc_vs_pixels[{key}]"] = cc_vs_pixels(m, ref, counts, region=disc)
-        curves[f"cc_vs_diameter[{key}]"] = cc_vs_diameter(m, ref, diameters, axes=axes, threshold=0.04)
-        curves[f"sharpness_vs_diameter[{key}]"] = sharpness_vs_diameter(m, ref, diameters, axes=axes, threshold=0.04)
-        rows.append({
-            "arrangement": name, "interval": s, "n_points": len(ix), "fraction": len(ix) / (n * n),
-            "cc_eval_diameter": float(cc_vs_diameter(m, ref, [eval_d], axes=axes, threshold=0.04)[0]),
-            "cc_disc": correlation_coefficient(m, ref, disc_roi),
-            "sharpness_eval_diameter": float(sharpness_vs_diameter(m, ref, [eval_d], axes=axes, threshold=0.04)[0]),
-            "cc_vs_phantom": vs_truth(m), "time_s": elapsed,
-        })
+        masks[key] = arrangement.positions
+        curves.update(score.curves(m, key))
+        n_points = len(arrangement.ix)
+        rows.append({"arrangement": arrangement.name, "interval": arrangement.interval, "n_points": n_points,
+                     "fraction": n_points / (n * n), **score.measures(m), "time_s": elapsed})
+    summary = _summary(rows, curves, score, side, weight_ratio, model_based)
+    params = {"source": data.source, "n_lattice": n, "pitch_m": d, "n_t": data.data.shape[0], "dt_s": data.dt,
+              "sound_speed": data.c, "n_z": n_z, "poi_depth_m": poi_depth, "fraction_requested": fraction,
+              "n_side": n_side, "intervals": list(intervals), "threshold": 0.04, "disc_diameter_m": score.disc_d,
+              "eval_diameter_m": score.eval_d, "small": small, "reference": "xy-MIP of NER from every lattice point",
+              "snr_db": data.meta.get("snr_db") if data.source == "yarn phantom (built in)" else None,
+              "tv_iterations": tv_iterations if model_based else None}
+    return ExperimentResult(NAME, params, rows, summary, curves=curves,
+                            images={"mips": mips_, "masks": masks, "x": x, "disc_d": score.disc_d,
+                                    "eval_d": score.eval_d})
+
+
+def _square_side(data: DenseDataset) -> int:
+    """The side n of the dataset's square lattice: ``data.data`` must be ``(n_t, n, n)``
+    (ValueError for 2-D data or a non-square lattice)."""
+    if data.ndim != 3:
+        raise ValueError(f"{NAME} needs 3-D planar data (n_t, n_y, n_x); got shape {data.data.shape}")
+    _n_t, n_y, n_x = data.data.shape
+    if n_y != n_x:
+        raise ValueError(f"{NAME} needs a square lattice, got {n_y} × {n_x}")
+    return n_x
+
+
+def _fitting_side(n: int, intervals: Sequence[int], n_side: int | None) -> int:
+    """The equispaced sub-grids' points per side: ``n_side``, by default 41 on 226 scaled
+    to the lattice side ``n`` (at least 2), reduced until the largest interval's sub-grid
+    fits on the lattice (down to 2)."""
+    if n_side is None:
+        n_side = max(2, round(41 * n / 226))
+    while n_side > 2 and (n_side - 1) * max(intervals) + 1 > n:
+        n_side -= 1
+    return n_side
+
+
+class _Arrangement(NamedTuple):
+    """One sensor arrangement compared with the full lattice: its ``name``, sub-grid
+    ``interval`` (NaN: not a sub-grid), the lattice columns ``ix`` and rows ``iy``
+    ``(n_points,)`` of its A-lines, their ``positions`` ``(n_points, 2)`` (x, y) m and area
+    ``weights`` ``(n_points,)`` m², and the reconstruction ``method``."""
+
+    name: str
+    interval: float
+    ix: np.ndarray
+    iy: np.ndarray
+    positions: np.ndarray
+    weights: np.ndarray
+    method: str
+
+
+def _arrangements(n: int, d: float, poi_depth: float, n_points: int, intervals: Sequence[int], n_side: int,
+                  model_based: bool) -> tuple[list[_Arrangement], float]:
+    """The arrangements on the ``n`` × ``n`` lattice of pitch ``d`` m, in the table's order:
+    the equi-steradian mask of ``n_points`` around the lattice centre at ``poi_depth`` m
+    (NEDNER), the ``n_side`` × ``n_side`` sub-grid of each interval (NEDNER) and, with
+    ``model_based``, the equi-steradian A-lines again with ``tv``; and the equi-steradian
+    mask's weight ratio (outer/inner, `service.plans.weight_ratio`)."""
+    from service.plans import Lattice, equisteradian_mask, subgrid_mask
+
+    lattice = Lattice(n, n, d)
+    es = equisteradian_mask(lattice, poi_depth, n_points)
+    idx = np.asarray(es.indices)
+    es_run = (idx[:, 0], idx[:, 1], np.asarray(es.positions, float), np.asarray(es.weights, float))
+    out = [_Arrangement("equi-steradian", np.nan, *es_run, "nedner")]
+    for interval in intervals:
+        sub = subgrid_mask(lattice, int(interval), n_side)
+        idx = np.asarray(sub.indices)
+        out.append(_Arrangement("equispaced", int(interval), idx[:, 0], idx[:, 1], np.asarray(sub.positions, float),
+                                np.asarray(sub.weights, float), "nedner"))
+    if model_based:  # the same equi-steradian A-lines, model-based (TV + positivity, automatic λ)
+        out.append(_Arrangement("equi-steradian-tv", np.nan, *es_run, "tv"))
+    return out, es.weight_ratio
+
+
+def _reconstruct(data: DenseDataset, arrangement: _Arrangement, x: np.ndarray, n_z: int,
+                 tv_iterations: int | None) -> np.ndarray:
+    """p0 ``(n_z, n, n)`` (float64) reconstructed on the lattice (axis ``x`` m both ways)
+    from the arrangement's A-lines of the dense data, with its positions, weights and
+    method (``tv`` capped at ``tv_iterations``)."""
+    opts: dict[str, Any] = {"iterations": tv_iterations} if arrangement.method == "tv" else {}
+    points = PointDataset(alines=data.data[:, arrangement.iy, arrangement.ix].T, positions=arrangement.positions,
+                          weights=arrangement.weights, dt=data.dt, c=data.c, grid=(x, x))
+    return reconstruct(points, arrangement.method, n_z=n_z, dtype="float64", **opts).p0
+
+
+@dataclass(frozen=True)
+class _Scoring:
+    """The measures an xy-MIP is scored with: against ``ref`` (the full NER reconstruction's
+    xy-MIP) on the lattice ``axes`` (x, y) m, CC and Tenenbaum sharpness at ``eval_d`` m
+    and along ``diameters`` m (4 % threshold), CC vs the brightest ``counts`` pixels within
+    the ``disc`` (diameter ``disc_d`` m), CC over its 4 %-pixels (``disc_roi``), and CC
+    there with the true p0's xy-MIP ``truth`` (None: unknown)."""
+
+    ref: np.ndarray
+    axes: tuple[np.ndarray, np.ndarray]
+    eval_d: float
+    disc_d: float
+    diameters: Any  # (n_diameters,) float64 m, passed on as the metrics' Sequence[float]
+    counts: np.ndarray
+    disc: np.ndarray
+    disc_roi: np.ndarray
+    truth: np.ndarray | None
+
+    @classmethod
+    def of(cls, ref: np.ndarray, p0: np.ndarray | None, x: np.ndarray, side: float, n_diameters: int) -> _Scoring:
+        """The scoring against ``ref`` ``(n, n)`` on the square lattice of axis ``x``
+        ``(n,)`` m and side ``side`` m, along ``n_diameters`` ROI diameters; the truth is the
+        xy-MIP of ``p0`` ``(n_z, n, n)`` when it lies on the lattice."""
+        n = len(x)
+        axes = (x, x)
+        disc_d = DISC_RATIO * side
+        disc = disc_mask(axes, disc_d)
+        truth = None
+        if p0 is not None and p0.ndim == 3 and p0.shape[1:] == (n, n):
+            truth = mip(p0, "xy")  # the xy-MIP does not depend on the depth sampling
+        return cls(ref=ref, axes=axes, eval_d=EVAL_DIAMETER_RATIO * side, disc_d=disc_d,
+                   diameters=np.linspace(0.05, 1.0, n_diameters) * side * np.sqrt(2),
+                   counts=np.unique(np.geomspace(10, int(disc.sum()), 40).astype(int)), disc=disc,
+                   disc_roi=roi_mask(ref, axes=axes, diameter=disc_d, threshold=0.04), truth=truth)
+
+    def vs_truth(self, m: np.ndarray) -> float:
+        """CC of the xy-MIP ``m`` with the truth's over ``disc_roi``; NaN without a truth."""
+        return correlation_coefficient(m, self.truth, self.disc_roi) if self.truth is not None else np.nan
+
+    def full_row(self, n_points: int, time_s: float) -> dict:
+        """The table row of the reference itself (``n_points`` lattice points, reconstructed
+        in ``time_s`` s)."""
+        ref = self.ref
+        return {"arrangement": "full", "interval": 1, "n_points": n_points, "fraction": 1.0,
+                "cc_eval_diameter": 1.0, "cc_disc": 1.0,
+                "sharpness_eval_diameter": float(sharpness_vs_diameter(ref / ref.max(), ref, [self.eval_d],
+                                                                       axes=self.axes)[0]),
+                "cc_vs_phantom": self.vs_truth(ref), "time_s": time_s}
+
+    def curves(self, m: np.ndarray, key: str) -> dict[str, np.ndarray]:
+        """The curves of the normalised xy-MIP ``m`` (arrangement ``key``): CC vs pixels, CC
+        and sharpness vs diameter."""
+        ref, axes, diameters = self.ref, self.axes, self.diameters
+        return {f"cc_vs_pixels[{key}]": cc_vs_pixels(m, ref, self.counts, region=self.disc),
+                f"cc_vs_diameter[{key}]": cc_vs_diameter(m, ref, diameters, axes=axes, threshold=0.04),
+                f"sharpness_vs_diameter[{key}]": sharpness_vs_diameter(m, ref, diameters, axes=axes, threshold=0.04)}
+
+    def measures(self, m: np.ndarray) -> dict[str, float]:
+        """The table's measures of the normalised xy-MIP ``m``: CC and sharpness at the
+        evaluation diameter, CC over the disc's 4 %-pixels and with the truth."""
+        ref, axes, eval_d = self.ref, self.axes, self.eval_d
+        return {"cc_eval_diameter": float(cc_vs_diameter(m, ref, [eval_d], axes=axes, threshold=0.04)[0]),
+                "cc_disc": correlation_coefficient(m, ref, self.disc_roi),
+                "sharpness_eval_diameter": float(sharpness_vs_diameter(m, ref, [eval_d], axes=axes,
+                                                                       threshold=0.04)[0]),
+                "cc_vs_phantom": self.vs_truth(m)}
+
+
+def _summary(rows: list[dict], curves: dict, score: _Scoring, side: float, weight_ratio: float,
+             model_based: bool) -> dict:
+    """The headline numbers: the equi-steradian CC at the evaluation diameter (and its
+    ``tv`` row's with ``model_based``), the mask's weight ratio, every row's CC with the
+    phantom, and the comparison with each equispaced grid (`_versus_grids`) within the
+    paper's 2..8 mm band scaled to the lattice side ``side`` m."""
     es_row = rows[1]
+    diameters = score.diameters
     band = (diameters >= 2 / 13.56 * side) & (diameters <= 8 / 13.56 * side)
-    summary = {"cc_equisteradian": es_row["cc_eval_diameter"], "eval_diameter_m": eval_d,
-               "weight_ratio_equisteradian": es.weight_ratio,  # outer/inner, service.plans.weight_ratio
+    summary = {"cc_equisteradian": es_row["cc_eval_diameter"], "eval_diameter_m": score.eval_d,
+               "weight_ratio_equisteradian": weight_ratio,  # outer/inner, service.plans.weight_ratio
                "paper": PAPER}
     if model_based:
         summary["cc_equisteradian_tv"] = rows[-1]["cc_eval_diameter"]
     summary["cc_vs_phantom"] = {r["arrangement"] if r["arrangement"] != "equispaced" else f"interval_{r['interval']}":
                                 r["cc_vs_phantom"] for r in rows}
     summary.update(_versus_grids(es_row, rows, curves, band))
-    params = {"source": data.source, "n_lattice": n, "pitch_m": d, "n_t": n_t, "dt_s": dt, "sound_speed": c,
-              "n_z": n_z, "poi_depth_m": poi_depth, "fraction_requested": fraction, "n_side": n_side,
-              "intervals": list(intervals), "threshold": 0.04, "disc_diameter_m": disc_d,
-              "eval_diameter_m": eval_d, "small": small, "reference": "xy-MIP of NER from every lattice point",
-              "snr_db": data.meta.get("snr_db") if data.source == "yarn phantom (built in)" else None,
-              "tv_iterations": tv_iterations if model_based else None}
-    return ExperimentResult(NAME, params, rows, summary, curves=curves,
-                            images={"mips": mips_, "masks": masks, "x": x, "disc_d": disc_d, "eval_d": eval_d})
+    return summary
 
 
 def _versus_grids(es_row: dict, rows: list[dict], curves: dict, band: np.ndarray) -> dict:
