@@ -27,7 +27,7 @@ this module's subclass of that protocol (:class:`GuardedHttp`) and the settings'
   idle kept-alive connection after ``keep_alive_s`` (uvicorn's ``timeout_keep_alive``). A
   missed deadline closes the connection with a reset, its unsent bytes dropped and their
   memory returned (nginx's ``reset_timedout_connection``); a body the app reads is timed by
-  ``service.api.app.UploadLimit`` (408).
+  ``service.api.upload_limit.UploadLimit`` (408).
 - **A bounded head.** A request line and headers of more than ``max_head_bytes`` are
   refused with ``431`` before they reach the app (uvicorn's ``httptools`` protocol has no
   such bound; its ``h11`` one has ``h11_max_incomplete_event_size``).
@@ -319,7 +319,7 @@ class GuardedHttp(HttpToolsProtocol):
     its unsent bytes dropped): its request **head** (``header_timeout_s``; a connection on
     probation :data:`PROBATION_HEAD_S`), the rest of a **body** its answer left unread
     (``body_rate_window_s`` plus its remaining bytes at ``body_min_rate``, else
-    ``body_timeout_s``; a body the app reads is timed by ``service.api.app.UploadLimit``,
+    ``body_timeout_s``; a body the app reads is timed by ``service.api.upload_limit.UploadLimit``,
     which answers 408), a **response** the reader does not take (``send_timeout_s`` for
     ``send_min_rate`` bytes/s of it) and **idle** keep-alive (uvicorn's ``timeout_keep_alive``).
 

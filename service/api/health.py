@@ -1,0 +1,102 @@
+"""``GET /api/health`` (liveness, disk use, what keeps jobs from running) and ``GET /api/auth``
+(whether the server needs a token)."""
+from __future__ import annotations
+
+from collections.abc import Awaitable, Callable
+
+from fastapi import Depends, FastAPI, Request
+
+from service.api.context import Context, ctx, read_access
+from service.api.models import AuthInfo, Health
+from service.settings import Settings
+
+__all__ = ["add_health_routes", "health_problems"]
+
+
+def add_health_routes(app: FastAPI, settings: Settings) -> Callable[[Context], Awaitable[Health]]:
+    """Add ``GET /api/health`` and ``GET /api/auth`` to the app.
+
+    Parameters
+    ----------
+    app : FastAPI
+        The application (its ``version`` is health's ``version``).
+    settings : Settings
+        The service's settings (the executor, the data folder, the token).
+
+    Returns
+    -------
+    callable
+        Health's document: an awaitable of :class:`~service.api.models.Health`, given the
+        app's context, which ``service.api.lanes.HealthLane`` answers with ahead of the other
+        requests.
+    """
+    from service.storage.usage import usage_for
+
+    usage = usage_for(settings.data_dir, settings.database)
+    version = app.version  # service.api.app.VERSION
+
+    async def health_document(c: Context) -> Health:
+        return Health(version=version, executor=settings.executor,
+                      jobs_running=c.queue.running() if c.queue is not None else 0,
+                      disk=usage.snapshot(), problems=health_problems(c))
+
+    @app.get("/api/health", response_model=Health, tags=["health"], dependencies=[Depends(read_access)])
+    async def health(c: Context = Depends(ctx)) -> Health:
+        """Liveness: ``{"status": "ok", "version", "executor", "jobs_running", "disk",
+        "problems"}``; ``disk``: bytes the data folder uses by part (scans, results, datasets,
+        exports, other) and the free bytes of its file system; ``problems``: what keeps jobs
+        from running now, one line each (a full disk, a lost device). Answered on the event
+        loop without a server thread, ahead of the other requests waiting for their turn
+        (``service.api.lanes``), in time independent of the data folder: the bytes are
+        counters kept as files are written and removed (``service.storage.usage``, checked
+        by a walk in a thread of its own), a stored change shows in the next answer, a scan
+        file's growth within a second."""
+        return await health_document(c)
+
+    @app.get("/api/auth", response_model=AuthInfo, tags=["health"])
+    def auth(request: Request) -> AuthInfo:
+        """Whether this server needs a bearer token, and whether the request carried the
+        right one (needs no token itself: the web page asks it first, to show its login view
+        before any other request)."""
+        from service.api.access import token_matches
+
+        expected = settings.token_value()
+        return AuthInfo(token_required=expected is not None,
+                        authenticated=expected is None
+                        or token_matches(request.headers.get("authorization"), expected) is None)
+
+    return health_document
+
+
+def health_problems(c: Context) -> list[str]:
+    """What keeps jobs from running now, one line each, for ``/api/health``.
+
+    Parameters
+    ----------
+    c : Context
+        The app's context (settings, store, queue, scans).
+
+    Returns
+    -------
+    list of str
+        The data folder's disk below the reserve (``disk_reserve_bytes``), the job database's
+        reserve in use, reconstructions waiting for disk space (``service.jobs.queue``) and
+        interrupted scans (``service.jobs.scans``); empty when nothing is wrong.
+    """
+    from service.storage.usage import usage_for
+
+    out: list[str] = []
+    settings = c.settings
+    free = usage_for(settings.data_dir).snapshot().get("free_bytes")
+    if free is not None and c.store.reserve_spent is not None:  # those bytes are the job database's
+        free = max(0, free - c.store.reserve_bytes)
+    if free is not None and free < settings.disk_reserve_bytes:
+        out.append(f"the data folder's disk is full: {free} bytes free, below the reserve of "
+                   f"{settings.disk_reserve_bytes} (disk_reserve_bytes); reconstructions that do not fit fail or wait, "
+                   "scans pause: free space")
+    out += c.store.problems()
+    if c.queue is not None:
+        out += c.queue.problems()
+    if c.scans is not None:
+        out += c.scans.problems()
+    return out
