@@ -1,0 +1,66 @@
+"""The job store's datasets: each imported dataset's metadata (JSON) under its id.
+
+A dataset's ``dedup_key`` finds an upload already stored (:meth:`DatasetRecords.find_datasets`)
+and its ``last_used`` (:meth:`DatasetRecords.touch_dataset`) is where retention by age counts
+from.
+"""
+from __future__ import annotations
+
+import json
+import time
+
+from service.jobs.store.base import StoreBase
+from service.jobs.store.schema import Jobs
+
+__all__ = ["DatasetRecords"]
+
+
+class DatasetRecords(StoreBase):
+    """The datasets of :class:`service.jobs.store.JobStore` (module docstring).
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        As for :class:`service.jobs.store.base.StoreBase`.
+    reserve_bytes : int, optional
+        As for :class:`service.jobs.store.base.StoreBase`.
+    """
+
+    def put_dataset(self, dataset_id: str, meta: dict) -> None:
+        def write() -> None:
+            with self._lock:
+                self._db.execute("INSERT INTO datasets (id, meta, created) VALUES (?, ?, ?)",
+                                 (dataset_id, json.dumps(meta), time.time()))
+        self._write(write)
+
+    def get_dataset(self, dataset_id: str) -> dict | None:
+        with self._lock:
+            row = self._db.execute("SELECT meta FROM datasets WHERE id = ?", (dataset_id,)).fetchone()
+        return None if row is None else json.loads(row["meta"])
+
+    def list_datasets(self) -> Jobs:
+        """Every stored dataset as ``{"id", "meta", "created"}``, oldest first."""
+        with self._lock:
+            rows = self._db.execute("SELECT id, meta, created FROM datasets ORDER BY created, id").fetchall()
+        return [{"id": r["id"], "meta": json.loads(r["meta"]), "created": r["created"]} for r in rows]
+
+    def touch_dataset(self, dataset_id: str) -> None:
+        """Record that ``dataset_id`` was asked for again (its meta's ``last_used``, UNIX s):
+        retention by age counts from then."""
+        def write() -> None:
+            with self._lock:
+                self._db.execute("UPDATE datasets SET meta = json_set(meta, '$.last_used', ?) WHERE id = ?",
+                                 (time.time(), dataset_id))
+        self._write(write)
+
+    def find_datasets(self, dedup_key: str) -> list[str]:
+        """The ids of the datasets stored under ``dedup_key`` (their meta's), oldest first."""
+        with self._lock:
+            rows = self._db.execute("SELECT id FROM datasets WHERE json_extract(meta, '$.dedup_key') = ? "
+                                    "ORDER BY created, id", (dedup_key,)).fetchall()
+        return [str(r["id"]) for r in rows]
+    def delete_dataset(self, dataset_id: str) -> bool:
+        def write() -> bool:
+            with self._lock:
+                return self._db.execute("DELETE FROM datasets WHERE id = ?", (dataset_id,)).rowcount == 1
+        return bool(self._write(write))
