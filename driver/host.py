@@ -37,7 +37,8 @@ from driver import commands as cmd
 from driver.aline import ALine, unpack_aline
 from driver.commands import MAX_CHUNK
 from driver.framing import PROTOCOL_VERSION, Deframer, Frame, FrameType, encode_frame
-from driver.plan import aline_index, aline_order, load_plan, plan_image, wavelength_order
+from driver.plan import aline_index, aline_order, load_plan, wavelength_order
+from driver.plan_image import plan_image
 from driver.transport import READER_MODES, TransportError, open_reader
 
 if TYPE_CHECKING:

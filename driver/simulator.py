@@ -57,7 +57,7 @@ from driver import commands as scpi
 from driver.aline import pack_aline, quantise
 from driver.faults import FaultSpec, damage
 from driver.framing import Deframer, Frame, FrameType, encode_frame
-from driver.plan import DevicePlan, image_size_limit, parse_plan_image
+from driver.plan_image import DevicePlan, image_size_limit, parse_plan_image
 
 if TYPE_CHECKING:
     from collections.abc import Callable

@@ -29,7 +29,7 @@ import numpy as np
 
 from driver.constants import C_DEFAULT
 from driver.kwave_layout import lateral_spacings
-from driver.plan import DevicePlan
+from driver.plan_image import DevicePlan
 
 __all__ = ["PressureFn", "Source", "SOURCE_MAX_BYTES", "default_phantom", "BallSource", "VolumeSource", "ReplaySource"]
 

@@ -10,7 +10,8 @@ from hypothesis import strategies as st
 from driver.aline import ALINE_HEADER, pack_aline, unpack_aline
 from driver.commands import ScpiError, block, canonical_header, parse_command
 from driver.framing import PROTOCOL_VERSION, Deframer, FrameError, FrameType, decode_frame, encode_frame
-from driver.plan import load_plan, parse_plan_image, plan_id_of, plan_image
+from driver.plan import load_plan, plan_id_of
+from driver.plan_image import parse_plan_image, plan_image
 from tests.driver.driver_helpers import grid_plan
 
 

@@ -335,7 +335,7 @@ def test_scan_survives_the_relay_process_dying(tmp_path):
 
 def test_plan_upload_over_a_noisy_link_and_chunk_rules(tmp_path):
     from driver.commands import block
-    from driver.plan import plan_image
+    from driver.plan_image import plan_image
 
     plan = grid_plan(40, 27, n_t=8)  # 1080 points: a 4.4 kB plan image
     with make_sim(tmp_path, faults=FaultSpec.parse("corrupt=2e-3"), seed=9) as sim:

@@ -18,7 +18,8 @@ from driver.faults import FaultSpec
 from driver.host import Scanner
 from driver.physics import ball_alines
 from driver.physics.spectra import absorption
-from driver.plan import aline_order, check_plan, load_plan, plan_id_of, plan_image
+from driver.plan import aline_order, check_plan, load_plan, plan_id_of
+from driver.plan_image import plan_image
 from driver.scanfile import FORMAT_1, ScanFile, read_scan
 from driver.simulator import SimConfig, SimulatedScanner
 from driver.sources import BallSource

@@ -39,7 +39,7 @@ def test_kwave_naming_read_alike_by_the_upload_reader_and_the_replay_source(tmp_
     the depth spacing does not."""
     import dataclasses
 
-    from driver.plan import DevicePlan
+    from driver.plan_image import DevicePlan
     from driver.sources import ReplaySource
 
     path = tmp_path / "kwave_named.h5"
