@@ -254,16 +254,40 @@ class Demo:
 
     # -- the main job
     def _pipeline(self) -> None:
-        from clients.cli._common import ProgressBar
-        from clients.http import field_of, to_dict
-
         a = self.args
         device = self._start_simulator()
         api = self._start_server(device)
+        plans = self._create_plans(api)
+        # the server's default methods (GET /api/reconstructions/methods: default_for): the sparse
+        # mask's (NEDNER) and the full lattice's (NER, the dense reference)
+        defaults = {kind: next(m["name"] for m in api.methods() if kind in (m.get("default_for") or []))
+                    for kind in ("points", "grid")}
+        self.sparse, self.dense = defaults["points"], f"{defaults['grid']}_dense"
+        specs = [("equisteradian", defaults["points"], self.sparse)]
+        if "full" in plans:
+            specs.append(("full", defaults["grid"], self.dense))
+        scans: dict = {}
+        recon_jobs: dict = {}
+        for plan_name, method, recon_name in specs:
+            job_id, scans[plan_name] = self._scan(api, plan_name, plans[plan_name])
+            # reconstruct in the executor while the next scan runs
+            recon_jobs[recon_name] = (method, api.start_reconstruction(
+                scan_job_id=job_id, method=method,
+                params={"n_z": min(DEFAULTS["n_z"], a.n_t)}))  # the default precision (float32)
+        self.report["scans"] = scans
+        self.report["reconstructions"] = self._collect_reconstructions(api, recon_jobs)
+        self._figures()
+
+    def _create_plans(self, api: Client) -> dict[str, Any]:
+        """Create the equi-steradian plan around the point of interest (its mask preview
+        saved as ``mask_preview.png``) and, unless ``--no-dense``, the full-lattice plan;
+        report and say them. Returns the plans by name (``equisteradian``, ``full``)."""
+        from clients.http import field_of
+
+        a = self.args
         settings = self.report["settings"]
         acquisition = dict(settings["acquisition"])
         lattice = settings["lattice"]
-
         sparse = self._create_plan(api, {
             "kind": "equisteradian", "lattice": lattice,
             "params": {"depth": a.poi_depth, "n_points": a.points, "poi": [0.0, 0.0]},
@@ -280,61 +304,71 @@ class Demo:
             for name, p in plans.items()
         }
         self.say("plans: " + ", ".join(f"{n} {field_of(p, 'n_points')} points" for n, p in plans.items()))
+        return plans
 
-        scans: dict = {}
-        recon_jobs: dict = {}
-        # the server's default methods (GET /api/reconstructions/methods: default_for): the sparse
-        # mask's (NEDNER) and the full lattice's (NER, the dense reference)
-        defaults = {kind: next(m["name"] for m in api.methods() if kind in (m.get("default_for") or []))
-                    for kind in ("points", "grid")}
-        self.sparse, self.dense = defaults["points"], f"{defaults['grid']}_dense"
-        specs = [("equisteradian", defaults["points"], self.sparse)]
-        if "full" in plans:
-            specs.append(("full", defaults["grid"], self.dense))
-        for plan_name, method, recon_name in specs:
-            t_asked = time.perf_counter()
-            job_id = api.start_scan(field_of(plans[plan_name], "id"), "sim")
-            assert job_id is not None  # a 202 names its job (clients.http.calls.read_job_id)
-            with ProgressBar(f"scan {plan_name}", quiet=a.quiet) as bar:
-                job = api.wait(job_id, on_progress=bar, timeout=600)
-            waited_s = time.perf_counter() - t_asked
-            scan_file = api.download_scan(job_id, self.out / f"scan_{plan_name}.h5")
-            if plan_name == "equisteradian":
-                # the scan in the community's format, and the service's live preview of it
-                api.export(job_id, "ipasc", self.out / f"scan_{plan_name}_ipasc.h5")
-                preview = to_dict(api.scan_preview(job_id)) or {}
-                if preview.get("version"):
-                    api.download_scan_preview(job_id, "xy", self.out / "live_preview_xy.png")
-                    self.report["live_preview"] = {"points_used": preview.get("points_used"),
-                                                   "file": "live_preview_xy.png"}
-            timings = to_dict(field_of(job, "timings")) or {}
-            progress = to_dict(field_of(job, "progress")) or {}
-            n = field_of(plans[plan_name], "n_points")
-            # the acquisition as the scan job itself timed it: first to last A-line of this
-            # run (not the job's queueing, connecting or final live-preview refresh)
-            acq_s = progress.get("acquisition_s")
-            scans[plan_name] = {
-                "job_id": job_id, "points": n, "file": scan_file.name,
-                "acquisition_s": acq_s,
-                "points_per_s": (n / acq_s) if acq_s else None,
-                "job_run_s": timings.get("run_s"),  # the scan job from start to end on the server
-                "waited_s": round(waited_s, 3),  # what the demo waited: request to finished job
-                "note": "simulated scanner, unthrottled (PRF 0): acquisition_s is the simulator's speed; "
-                        "scan_time_at_50_Hz_s is what a 50 Hz laser would take",
-                # what the same plan takes on a scanner whose laser fires at 50 Hz
-                "scan_time_at_50_Hz_s": n / 50.0,
-            }
-            self.say(f"scanned {plan_name}: {n} points, acquisition {acq_s or float('nan'):.2f} s "
-                     f"(waited {waited_s:.2f} s)")
-            # reconstruct in the executor while the next scan runs
-            recon_jobs[recon_name] = (method, api.start_reconstruction(
-                scan_job_id=job_id, method=method,
-                params={"n_z": min(DEFAULTS["n_z"], a.n_t)}))  # the default precision (float32)
-        self.report["scans"] = scans
+    def _scan(self, api: Client, plan_name: str, plan: Any) -> tuple[str, dict]:
+        """Scan ``plan`` with the simulated scanner through the service, showing its progress,
+        and download the scan file (``scan_<plan_name>.h5``; for the equi-steradian plan also
+        its IPASC export and live preview, `_sparse_extras`). Returns the scan job's id and its
+        record for ``report.json`` (points, acquisition time s and rate /s as the job timed
+        them, the demo's wait s, and the time at a 50 Hz laser s)."""
+        from clients.cli._common import ProgressBar
+        from clients.http import field_of, to_dict
+
+        t_asked = time.perf_counter()
+        job_id = api.start_scan(field_of(plan, "id"), "sim")
+        assert job_id is not None  # a 202 names its job (clients.http.calls.read_job_id)
+        with ProgressBar(f"scan {plan_name}", quiet=self.args.quiet) as bar:
+            job = api.wait(job_id, on_progress=bar, timeout=600)
+        waited_s = time.perf_counter() - t_asked
+        scan_file = api.download_scan(job_id, self.out / f"scan_{plan_name}.h5")
+        if plan_name == "equisteradian":
+            self._sparse_extras(api, job_id, plan_name)
+        timings = to_dict(field_of(job, "timings")) or {}
+        progress = to_dict(field_of(job, "progress")) or {}
+        n = field_of(plan, "n_points")
+        # the acquisition as the scan job itself timed it: first to last A-line of this
+        # run (not the job's queueing, connecting or final live-preview refresh)
+        acq_s = progress.get("acquisition_s")
+        record = {
+            "job_id": job_id, "points": n, "file": scan_file.name,
+            "acquisition_s": acq_s,
+            "points_per_s": (n / acq_s) if acq_s else None,
+            "job_run_s": timings.get("run_s"),  # the scan job from start to end on the server
+            "waited_s": round(waited_s, 3),  # what the demo waited: request to finished job
+            "note": "simulated scanner, unthrottled (PRF 0): acquisition_s is the simulator's speed; "
+                    "scan_time_at_50_Hz_s is what a 50 Hz laser would take",
+            # what the same plan takes on a scanner whose laser fires at 50 Hz
+            "scan_time_at_50_Hz_s": n / 50.0,
+        }
+        self.say(f"scanned {plan_name}: {n} points, acquisition {acq_s or float('nan'):.2f} s "
+                 f"(waited {waited_s:.2f} s)")
+        return job_id, record
+
+    def _sparse_extras(self, api: Client, job_id: str, plan_name: str) -> None:
+        """The sparse scan in the community's format (``scan_<plan_name>_ipasc.h5``) and the
+        service's live preview of it (``live_preview_xy.png``, reported when the service
+        made one)."""
+        from clients.http import to_dict
+
+        api.export(job_id, "ipasc", self.out / f"scan_{plan_name}_ipasc.h5")
+        preview = to_dict(api.scan_preview(job_id)) or {}
+        if preview.get("version"):
+            api.download_scan_preview(job_id, "xy", self.out / "live_preview_xy.png")
+            self.report["live_preview"] = {"points_used": preview.get("points_used"),
+                                           "file": "live_preview_xy.png"}
+
+    def _collect_reconstructions(self, api: Client, recon_jobs: dict) -> dict:
+        """Wait for each reconstruction job of ``recon_jobs`` (name: (method, job id)),
+        showing its progress, and download its volume (``<name>_volume.h5``) and xy, xz, yz
+        MIPs (``<name>_mip_<plane>.png``). Returns each one's record for ``report.json``
+        (files, reconstruction time s as the job timed it, points used)."""
+        from clients.cli._common import ProgressBar
+        from clients.http import field_of, to_dict
 
         recons: dict = {}
         for recon_name, (method, job_id) in recon_jobs.items():
-            with ProgressBar(f"reconstruct {recon_name}", quiet=a.quiet) as bar:
+            with ProgressBar(f"reconstruct {recon_name}", quiet=self.args.quiet) as bar:
                 job = api.wait(job_id, on_progress=bar, timeout=600)
             volume = api.download_volume(job_id, self.out / f"{recon_name}_volume.h5")
             mips = {}
@@ -345,8 +379,7 @@ class Demo:
             recons[recon_name] = {"job_id": job_id, "method": method, "volume": volume.name, "mips": mips,
                                   "reconstruction_s": timings.get("run_s"),
                                   "points_used": progress.get("points_done")}
-        self.report["reconstructions"] = recons
-        self._figures()
+        return recons
 
     def _create_plan(self, api: Client, body: dict) -> Any:  # the Plan model or its dict
         """``POST /api/plans`` with a mask kind and its parameters (every kind is planned
