@@ -424,8 +424,11 @@ class ScanManager:
             return None
 
     def _acquire(self, job: dict, run: _Run) -> None:
+        """Acquire the scan of ``job`` on its scanner into its scan file (a resumed scan
+        continues the file): the job ends ``succeeded``, ``cancelled`` or ``failed``, or is
+        paused (``_interrupt``) when its plan's rest does not fit the disk, the device is
+        lost or the file cannot be written."""
         from driver.acquire import acquire
-        from driver.host import DriverError
 
         jid = job["id"]
         port = self.settings.devices[run.scanner_id]
@@ -445,46 +448,16 @@ class ScanManager:
         if scanner is None:
             return
         try:
-            try:
-                ident = scanner.identify()
-                self._identity[run.scanner_id] = " ".join(str(v) for v in ident.values()) \
-                    if isinstance(ident, dict) else str(ident)
-            except DriverError:
-                pass
+            self._note_identity(run.scanner_id, scanner)
             with run.lock:
                 pending = list(run.pending)
             self.previews.track(jid, str(scan_path),
                                 wavelength_index=int(job["params"].get("preview_wavelength", 0)))
-            last = {"t": 0.0}
-            room = self._room_watch(plan, scan_path)
-
-            def progress(p: ScanProgress) -> None:
-                now = time.monotonic()
-                room(p)
-                if run.scanner is None or run.pending:
-                    with run.lock:  # scanning now: controls go straight to the driver
-                        run.scanner = scanner
-                        todo, run.pending = run.pending, []
-                    for what in todo:
-                        getattr(scanner, what)()
-                self.previews.note_progress(jid, p.alines_done)
-                if now - last["t"] < 0.5 and p.state not in ("done", "aborted"):
-                    return
-                last["t"] = now
-                eta = p.eta_s if math.isfinite(p.eta_s) else None
-                stage = {"running": "acquiring"}.get(p.state, p.state)
-                self.store.update_progress(jid, {
-                    "fraction": p.alines_done / max(p.n_alines, 1), "stage": stage,
-                    "points_done": p.points_done, "points_total": p.n_points,
-                    "alines_done": p.alines_done, "alines_total": p.n_alines,
-                    "rate_per_s": p.rate, "eta_s": eta, "faults_recovered": p.faults_recovered})
-                self.store.heartbeat(jid, self.owner, 60.0)
-
+            progress = self._progress_reporter(jid, run, scanner, self._room_watch(plan, scan_path))
             self.store.update_progress(jid, {"stage": "resuming" if resumed else "acquiring"})
-            for what in pending:  # controls that came before the port was open
-                if what == "abort":
-                    self.store.set_state(jid, "cancelled", only_from=("running", "paused"))
-                    return
+            if "abort" in pending:  # a control that came before the port was open
+                self.store.set_state(jid, "cancelled", only_from=("running", "paused"))
+                return
             result = self._acquire_or_interrupt(jid, lambda: acquire(port, plan, scan_path, progress=progress,
                                                                       scanner=scanner))
             if result is None:
@@ -496,6 +469,56 @@ class ScanManager:
                 scanner.close()
             except Exception:
                 pass
+        self._finish(jid, result)
+
+    def _note_identity(self, scanner_id: str, scanner: Scanner) -> None:
+        """Keep what the scanner says it is (``identify``; :meth:`scanners` shows it); a
+        scanner that does not say is left as it was."""
+        from driver.host import DriverError
+
+        try:
+            ident = scanner.identify()
+            self._identity[scanner_id] = " ".join(str(v) for v in ident.values()) \
+                if isinstance(ident, dict) else str(ident)
+        except DriverError:
+            pass
+
+    def _progress_reporter(self, jid: str, run: _Run, scanner: Scanner,
+                           room: Callable[[ScanProgress], None]) -> Callable[[ScanProgress], None]:
+        """The scan's progress callback: ``room`` checks the disk; the first report hands the
+        controls to the open scanner (the ones asked before are sent then); the live preview
+        hears of each report; the job store gets the progress and a heartbeat at most every
+        0.5 s, and the last report."""
+        last = {"t": 0.0}
+
+        def progress(p: ScanProgress) -> None:
+            now = time.monotonic()
+            room(p)
+            if run.scanner is None or run.pending:
+                with run.lock:  # scanning now: controls go straight to the driver
+                    run.scanner = scanner
+                    todo, run.pending = run.pending, []
+                for what in todo:
+                    getattr(scanner, what)()
+            self.previews.note_progress(jid, p.alines_done)
+            if now - last["t"] < 0.5 and p.state not in ("done", "aborted"):
+                return
+            last["t"] = now
+            eta = p.eta_s if math.isfinite(p.eta_s) else None
+            stage = {"running": "acquiring"}.get(p.state, p.state)
+            self.store.update_progress(jid, {
+                "fraction": p.alines_done / max(p.n_alines, 1), "stage": stage,
+                "points_done": p.points_done, "points_total": p.n_points,
+                "alines_done": p.alines_done, "alines_total": p.n_alines,
+                "rate_per_s": p.rate, "eta_s": eta, "faults_recovered": p.faults_recovered})
+            self.store.heartbeat(jid, self.owner, 60.0)
+
+        return progress
+
+    def _finish(self, jid: str, result: ScanResult) -> None:
+        """The job's final state from the acquisition's ``result``: ``cancelled`` when it was
+        aborted or a cancel was asked, ``succeeded`` when every point is on disk, else
+        ``failed``; the final progress with it."""
         final = {"fraction": result.points_done / max(result.n_points, 1), "points_done": result.points_done,
                  "points_total": result.n_points, "faults_recovered": sum(result.faults.values())
                  if isinstance(result.faults, dict) else None,
