@@ -464,7 +464,7 @@ _BAR_SHOWN: ContextVar[bool] = ContextVar("fpscan_notebook_bar", default=False)
 def _with_bar(bar: Any, call: Callable[[], Reconstruction], method: str) -> Reconstruction:
     """``call()`` under a notebook bar (``service.notebook.NotebookBar``), which ends on how the
     reconstruction ended (an iterative method's outcome, else "done") or where it stopped."""
-    from service.progress import outcome
+    from service.recon.methods import outcome
 
     token = _BAR_SHOWN.set(True)
     try:
@@ -613,7 +613,7 @@ def run_file(inputs: str | os.PathLike | Sequence[str | os.PathLike],
     """
     import time
 
-    from service.progress import outcome
+    from service.recon.methods import outcome
 
     paths = [inputs] if isinstance(inputs, str | os.PathLike) else list(inputs)
     load = {k: v for k, v in (load or {}).items() if v is not None}

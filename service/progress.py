@@ -42,12 +42,13 @@ from __future__ import annotations
 import math
 import re
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import asdict, dataclass
 from typing import Any, overload
 
 __all__ = ["Progress", "Fraction", "Span", "span", "Rising", "rising", "DEFAULT_STAGE", "IterationStage",
            "parse_iteration", "iteration_fields", "describe_iteration", "SETUP_STAGES", "stage_kind", "Eta",
-           "outcome"]
+           "Shown", "outcome"]
 
 #: ``progress(fraction, stage)``: fraction in [0, 1] (non-decreasing), stage text
 Progress = Callable[[float, str], None]
@@ -240,6 +241,9 @@ class IterationStage(str):
     armed : bool, optional
         Whether the rule can stop the work now (default True; tv: False while its λ still
         falls, when the tolerance is known but not yet applied).
+    waits_for : str, optional
+        What the rule waits for while not armed, in words its method declares
+        (``service.recon.methods.Method.stop_waits_for``; tv: ``"λ has settled"``); default "".
     text : str, optional
         The text itself (default ``"iteration k/n"``); :meth:`__add__` passes the text with
         its suffix.
@@ -253,6 +257,8 @@ class IterationStage(str):
     rule_name : str
         The rule's name.
     armed : bool
+        As given.
+    waits_for : str
         As given.
 
     Examples
@@ -270,23 +276,31 @@ class IterationStage(str):
     tol: float | None
     rule_name: str
     armed: bool
+    waits_for: str
 
     def __new__(cls, k: int, n: int, rule: float | None = None, tol: float | None = None, *,
-                rule_name: str = "image change", text: str | None = None, armed: bool = True) -> IterationStage:
+                rule_name: str = "image change", text: str | None = None, armed: bool = True,
+                waits_for: str = "") -> IterationStage:
         self = super().__new__(cls, text if text is not None else f"iteration {int(k)}/{int(n)}")
         self.k, self.n = int(k), int(n)
         self.rule = float(rule) if rule is not None and math.isfinite(float(rule)) else None
         self.tol = float(tol) if tol is not None and math.isfinite(float(tol)) else None
-        self.rule_name, self.armed = rule_name, bool(armed)
+        self.rule_name, self.armed, self.waits_for = rule_name, bool(armed), str(waits_for)
         return self
 
     def __add__(self, other: str) -> IterationStage:
         return IterationStage(self.k, self.n, self.rule, self.tol, rule_name=self.rule_name, text=str(self) + other,
-                              armed=self.armed)
+                              armed=self.armed, waits_for=self.waits_for)
 
     def __getnewargs_ex__(self) -> tuple[tuple, dict]:
         return (self.k, self.n, self.rule, self.tol), {"rule_name": self.rule_name, "text": str(self),
-                                                       "armed": self.armed}
+                                                       "armed": self.armed, "waits_for": self.waits_for}
+
+    def waiting_for(self, words: str) -> IterationStage:
+        """The same stage with ``waits_for`` = ``words`` (what its method declares its rule waits
+        for: ``service.recon.methods.Method.stop_waits_for``)."""
+        return IterationStage(self.k, self.n, self.rule, self.tol, rule_name=self.rule_name, text=str(self),
+                              armed=self.armed, waits_for=words)
 
 
 _ITERATION = re.compile(r"iteration (\d+)/(\d+)")
@@ -317,8 +331,9 @@ def parse_iteration(stage: Any) -> IterationStage | None:
 def iteration_fields(stage: Any) -> dict[str, Any]:
     """The job progress fields of an iteration stage: ``iteration`` (k), ``iterations_max``
     (n), ``stop_rule`` (its name), ``stop_value`` (the rule's value, None while unknown),
-    ``stop_tol`` (the tolerance), ``stop_armed`` (whether the rule can stop the work yet);
-    ``{}`` for any other stage.
+    ``stop_tol`` (the tolerance), ``stop_armed`` (whether the rule can stop the work yet) and,
+    while it cannot and the stage says what it waits for, ``stop_waits_for`` (the method's
+    words: tv's ``"λ has settled"``); ``{}`` for any other stage.
 
     Parameters
     ----------
@@ -328,13 +343,16 @@ def iteration_fields(stage: Any) -> dict[str, Any]:
     Returns
     -------
     dict of str to object
-        The five fields above, or an empty dict when ``stage`` is no iteration stage.
+        The fields above, or an empty dict when ``stage`` is no iteration stage.
     """
     it = parse_iteration(stage)
     if it is None:
         return {}
-    return {"iteration": it.k, "iterations_max": it.n, "stop_rule": it.rule_name, "stop_value": it.rule,
-            "stop_tol": it.tol, "stop_armed": it.armed}
+    fields: dict[str, Any] = {"iteration": it.k, "iterations_max": it.n, "stop_rule": it.rule_name,
+                              "stop_value": it.rule, "stop_tol": it.tol, "stop_armed": it.armed}
+    if not it.armed and it.waits_for:
+        fields["stop_waits_for"] = it.waits_for
+    return fields
 
 
 def describe_iteration(fields: Mapping[str, Any]) -> str | None:
@@ -346,7 +364,8 @@ def describe_iteration(fields: Mapping[str, Any]) -> str | None:
     ----------
     fields : Mapping of str to object
         ``iteration``, ``iterations_max`` and optionally ``stop_rule``, ``stop_value``,
-        ``stop_tol`` and ``stop_armed`` (False: "once λ has settled").
+        ``stop_tol``, ``stop_armed`` and ``stop_waits_for`` (``stop_armed`` False: "once"
+        and what the rule waits for, the method's words: tv's "once λ has settled").
 
     Returns
     -------
@@ -362,7 +381,7 @@ def describe_iteration(fields: Mapping[str, Any]) -> str | None:
     if value is not None:
         text += f", {fields.get('stop_rule') or 'stopping rule'} {value:.2g}"
         if tol is not None:
-            later = "" if fields.get("stop_armed", True) else " once λ has settled"
+            later = "" if fields.get("stop_armed", True) else f" once {fields.get('stop_waits_for') or 'armed'}"
             text += f" (stops below {tol:.2g}{later})" if tol > 0 else " (tol 0: no early stop)"
     return text
 
@@ -552,24 +571,119 @@ class Eta:
 _FIT = 8
 
 
-def outcome(params: Mapping[str, Any], method: str | None = None) -> str | None:
+@dataclass(frozen=True)
+class Shown:
+    """One field of a result's parameters that a method declares for its summary
+    (``service.recon.methods.Method.summary``): :func:`outcome` (the CLI's last line, the
+    notebook bar's) writes ``"<label> <value>"``, the web page a row ``title`` with the value
+    (``clients/web/app.js``, ``shownText``: the same words, from ``GET
+    /api/reconstructions/methods``).
+
+    Parameters
+    ----------
+    key : str
+        The parameter shown (``"lam"``).
+    label : str
+        The word before the value in the line (``"λ"``).
+    title : str, optional
+        The web page's row heading (default ``label``).
+    id : str, optional
+        The web page's row: the element ``summary-<id>`` (default ``key``).
+    format : {"number", "percent"}, optional
+        ``"number"``: three significant digits (``0.0123``); ``"percent"``: a share as a
+        percentage with two (``3.1 %``, ``0.042 %``).
+    flag : str, optional
+        A boolean parameter whose word follows the value in parentheses (``"lam_auto"``).
+    words : (str, str), optional
+        The flag's words for false and true (default ``("no", "yes")``).
+    note : str, optional
+        A text parameter appended as ``": <note>"`` when the flag is true and the value 0.
+    suffix : str, optional
+        Text after the value (and the flag's words): ``" of the data"``.
+    also : tuple of (str, str), optional
+        Further parameters (key, label) in the same format, each appended as
+        ``", <label> <value>"`` when present.
+
+    Attributes
+    ----------
+    key, label, title, id, format, flag, words, note, suffix, also
+        As given.
+
+    Examples
+    --------
+    >>> lam = Shown("lam", "λ", flag="lam_auto", words=("given", "automatic"), note="lam_note")
+    >>> lam.text({"lam": 0.0123, "lam_auto": True}), lam.text({"lam": 0.0, "lam_auto": True, "lam_note": "no noise"})
+    ('λ 0.0123 (automatic)', 'λ 0 (automatic): no noise')
+    >>> Shown("residual", "residual", format="percent", suffix=" of the data", also=(("noise_share", "noise"),)).text(
+    ...     {"residual": 0.031, "noise_share": 0.00042})
+    'residual 3.1 % of the data, noise 0.042 %'
+    >>> lam.text({}) is None
+    True
+    """
+
+    key: str
+    label: str
+    title: str = ""
+    id: str = ""
+    format: str = "number"
+    flag: str = ""
+    words: tuple[str, str] = ("no", "yes")
+    note: str = ""
+    suffix: str = ""
+    also: tuple[tuple[str, str], ...] = ()
+
+    def _format(self, value: Any) -> str:
+        return _percent(value) if self.format == "percent" else f"{value:.3g}"
+
+    def value_text(self, params: Mapping[str, Any]) -> str | None:
+        """The value in words (``"0.0123 (automatic)"``); None when ``params`` lacks it."""
+        value = params.get(self.key)
+        if value is None:
+            return None
+        text = self._format(value)
+        if self.flag:
+            on = bool(params.get(self.flag))
+            text += f" ({self.words[on]})"
+            if on and value == 0 and self.note and params.get(self.note):
+                text += f": {params[self.note]}"
+        text += self.suffix
+        for key, label in self.also:
+            if params.get(key) is not None:
+                text += f", {label} {self._format(params[key])}"
+        return text
+
+    def text(self, params: Mapping[str, Any]) -> str | None:
+        """``"<label> <value>"`` (:meth:`value_text`); None when ``params`` lacks the value."""
+        value = self.value_text(params)
+        return None if value is None else f"{self.label} {value}"
+
+    def as_dict(self) -> dict[str, Any]:
+        """The declaration as JSON for the web page (``title`` and ``id`` filled in)."""
+        return {**asdict(self), "title": self.title or self.label, "id": self.id or self.key,
+                "words": list(self.words), "also": [list(a) for a in self.also]}
+
+
+def outcome(params: Mapping[str, Any], method: str | None = None, shown: Sequence[Shown] = ()) -> str | None:
     """One line on how an iterative reconstruction ended, from its ``params`` (a
     ``Reconstruction``'s, or a result's ``params_used``): converged or not (and why it
-    stopped), the iterations, the stopping rule against its tolerance, λ and whether it was
-    automatic (with the reason when it is 0), and the residual against the data's noise
-    level. None for a method without iterations. The web page writes the same
-    (``clients/web/app.js``, ``outcomeText``).
+    stopped), the iterations, the stopping rule against its tolerance, then each field the
+    method declares (``shown``; tv's: λ and whether it was automatic, with the reason when it
+    is 0, and the residual against the data's noise level). None for a method without
+    iterations. The web page writes the same (``clients/web/app.js``, ``outcomeOf``);
+    ``service.recon.methods.outcome`` passes the method's own ``shown``.
 
     Parameters
     ----------
     params : Mapping of str to object
         The reconstruction's parameters: ``iterations``, ``converged``, and optionally
-        ``method``, ``max_iter``, ``stop_reason``, ``iterate_change``, ``tol``, ``lam``,
-        ``lam_auto``, ``lam_note``, ``residual`` and ``noise_share`` (shares of the data's
-        norm).
+        ``method``, ``max_iter``, ``stop_reason``, ``iterate_change``, ``tol`` and the
+        declared fields' (tv: ``lam``, ``lam_auto``, ``lam_note``, ``residual`` and
+        ``noise_share``, shares of the data's norm).
     method : str, optional
         The name the line starts with (default ``params["method"]``, else
         ``"reconstruction"``).
+    shown : sequence of Shown, optional
+        The fields the method declares for its summary (``Method.summary``), in order.
 
     Returns
     -------
@@ -579,10 +693,10 @@ def outcome(params: Mapping[str, Any], method: str | None = None) -> str | None:
 
     Examples
     --------
+    >>> lam = Shown("lam", "λ", flag="lam_auto", words=("given", "automatic"), note="lam_note")
     >>> outcome({"method": "tv", "converged": True, "stop_reason": "converged", "iterations": 37,
-    ...          "max_iter": 100, "iterate_change": 0.0041, "tol": 0.005, "lam": 0.0123, "lam_auto": True,
-    ...          "residual": 0.031, "noise_share": 0.030})
-    'tv: converged after 37 iterations (image change 0.0041 < 0.005); λ 0.0123 (automatic); residual 3.1 % of the data, noise 3.0 %'
+    ...          "max_iter": 100, "iterate_change": 0.0041, "tol": 0.005, "lam": 0.0123, "lam_auto": True}, shown=[lam])
+    'tv: converged after 37 iterations (image change 0.0041 < 0.005); λ 0.0123 (automatic)'
     >>> outcome({"method": "ner"}) is None
     True
     """
@@ -601,17 +715,10 @@ def outcome(params: Mapping[str, Any], method: str | None = None) -> str | None:
     else:
         head = f"not converged: stopped at the iteration limit, {n}{f' of {limit}' if limit else ''} iterations{rule}"
     parts = [f"{name}: {head}"]
-    lam = params.get("lam")
-    if lam is not None:
-        auto = bool(params.get("lam_auto"))
-        text = f"λ {lam:.3g} ({'automatic' if auto else 'given'})"
-        if auto and lam == 0 and params.get("lam_note"):
-            text += f": {params['lam_note']}"
-        parts.append(text)
-    residual, noise = params.get("residual"), params.get("noise_share")
-    if residual is not None:
-        parts.append(f"residual {_percent(residual)} of the data"
-                     + (f", noise {_percent(noise)}" if noise is not None else ""))
+    for field in shown:
+        text = field.text(params)
+        if text is not None:
+            parts.append(text)
     return "; ".join(parts)
 
 

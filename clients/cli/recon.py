@@ -329,7 +329,7 @@ def _outcome_of(job: object, method: str | None) -> str | None:  # a Job model o
 
     used = ((field_of(job, "params") or {}).get("result") or {}).get("params_used") or {}
     try:
-        from service.progress import outcome
+        from service.recon.methods import outcome
     except ImportError:  # pragma: no cover -- a client-only install
         return None
     return outcome(used, method)

@@ -1037,13 +1037,14 @@ function jobProgressText(j) {
  * The same words as the CLI (service.progress: describe_iteration, outcome). */
 
 /** "iteration 7/100, image change 0.021 (stops below 0.005)" from a job's progress fields
- *  (iteration, iterations_max, stop_rule, stop_value, stop_tol, stop_armed); null without them. */
+ *  (iteration, iterations_max, stop_rule, stop_value, stop_tol, stop_armed, stop_waits_for: what
+ *  the method's rule waits for while not armed, in its own words); null without them. */
 function iterationText(p) {
   if (p.iteration === undefined || p.iteration === null || !p.iterations_max) return null;
   let t = `iteration ${p.iteration}/${p.iterations_max}`;
   if (typeof p.stop_value === "number") {
     t += `, ${p.stop_rule || "stopping rule"} ${fmtNum(p.stop_value, 2)}`;
-    const later = p.stop_armed === false ? " once λ has settled" : "";
+    const later = p.stop_armed === false ? ` once ${p.stop_waits_for || "armed"}` : "";
     if (typeof p.stop_tol === "number") t += p.stop_tol > 0 ? ` (stops below ${fmtNum(p.stop_tol, 2)}${later})` : " (tol 0: no early stop)";
   }
   return t;
@@ -1060,9 +1061,29 @@ function pctText(x) {
   return (Math.abs(v) >= 1 ? v.toFixed(1) : String(Number(v.toPrecision(2)))) + " %";
 }
 
+/** A field the method declares for its summary (GET /api/reconstructions/methods: summary;
+ *  service.progress.Shown) in words, from params_used: "0.0123 (automatic)",
+ *  "3.1 % of the data, noise 3.0 %"; null without its value. */
+function shownText(f, used) {
+  const value = used[f.key];
+  if (typeof value !== "number") return null;
+  const fmt = (v) => (f.format === "percent" ? pctText(v) : fmtNum(v));
+  let t = fmt(value);
+  if (f.flag) {
+    const on = !!used[f.flag];
+    t += ` (${f.words[on ? 1 : 0]})`;
+    if (on && value === 0 && f.note && used[f.note]) t += `: ${used[f.note]}`;
+  }
+  t += f.suffix || "";
+  for (const [key, label] of f.also || []) {
+    if (typeof used[key] === "number") t += `, ${label} ${fmt(used[key])}`;
+  }
+  return t;
+}
+
 /** How an iterative reconstruction ended, from its params_used (null for another method):
- *  {head: "converged after 37 iterations (image change 0.0041 < 0.005)", converged,
- *   lambda: "0.0123 (automatic)", residual: "3.1 % of the data, noise 3.0 %"}. */
+ *  {head: "converged after 37 iterations (image change 0.0041 < 0.005)", converged}; the
+ *  fields its method declares follow it (shownText). */
 function outcomeOf(used) {
   if (!used || used.iterations === undefined || used.iterations === null || used.converged === undefined) return null;
   const n = used.iterations;
@@ -1074,16 +1095,24 @@ function outcomeOf(used) {
   if (used.converged) head = `converged after ${n} iterations${rule}`;
   else if (used.stop_reason === "time limit") head = `not converged: stopped at the time limit after ${n} iterations${rule}`;
   else head = `not converged: stopped at the iteration limit, ${n}${used.max_iter ? " of " + used.max_iter : ""} iterations${rule}`;
-  let lambda = null;
-  if (typeof used.lam === "number") {
-    lambda = `${fmtNum(used.lam)} (${used.lam_auto ? "automatic" : "given"})`;
-    if (used.lam_auto && used.lam === 0 && used.lam_note) lambda += `: ${used.lam_note}`;
+  return { head, converged: !!used.converged };
+}
+
+/** The summary's rows of the fields the method declares (summary-<id>, before the grid's row),
+ *  each filled with its value in words (shownText) once the method has an outcome. */
+function renderDeclared(declared, used, o) {
+  for (const old of document.querySelectorAll("#result-summary .summary-declared")) old.remove();
+  const before = $("summary-grid").previousElementSibling;
+  for (const f of declared) {
+    const dt = document.createElement("dt");
+    dt.textContent = f.title;
+    dt.className = "summary-declared";
+    const dd = document.createElement("dd");
+    dd.id = "summary-" + f.id;
+    dd.className = "summary-declared";
+    before.before(dt, dd);
+    setStat(dd.id, o ? shownText(f, used) : null);
   }
-  let residual = null;
-  if (typeof used.residual === "number") {
-    residual = `${pctText(used.residual)} of the data` + (typeof used.noise_share === "number" ? `, noise ${pctText(used.noise_share)}` : "");
-  }
-  return { head, converged: !!used.converged, lambda, residual };
 }
 
 /** The running job's progress on its own page: bar, %, iteration (or stage), time left. */
@@ -1103,7 +1132,8 @@ function showResultProgress(job) {
     : (job.state === "running" ? "estimating…" : "–");
 }
 
-/** The result's summary, first on its page: method, outcome, λ, residual, grid, time. */
+/** The result's summary, first on its page: method, outcome, the method's declared fields (tv: λ,
+ *  residual), grid, time. */
 function renderSummary(job) {
   const done = job.state === "succeeded" && job.kind !== "scan";
   $("result-summary").hidden = !done;
@@ -1116,8 +1146,7 @@ function renderSummary(job) {
   const o = outcomeOf(used);
   setStat("summary-outcome", o ? o.head : null);
   $("summary-outcome").className = o ? (o.converged ? "outcome-converged" : "outcome-open") : "";
-  setStat("summary-lambda", o ? o.lambda : null);
-  setStat("summary-residual", o ? o.residual : null);
+  renderDeclared((METHODS && METHODS[method] && METHODS[method].summary) || [], used, o);
   let grid = null;
   if (r.shape) {
     const axes = r.shape.length === 3 ? ["z", "y", "x"] : ["z", "x"];
@@ -1607,7 +1636,7 @@ async function cancelResultJob() {
  * form gets one field per option of any method, built from each option's value schema
  * (type, minimum/maximum, enum, unit, default); choosing a method shows only the options
  * it takes, starting from its own defaults. The speed of sound has its own field. */
-let METHODS = null; // name -> {name, title, needs_grid, options: [{name, description, default, value_schema}], source}
+let METHODS = null; // name -> {name, title, needs_grid, options: [{name, description, default, value_schema}], source, summary: [{key, label, title, id, format, flag, words, note, suffix, also}]}
 const RECON_OWN_FIELDS = new Set(["sound_speed"]); // fields of the form itself, not generated
 
 function methodOption(method, option) {

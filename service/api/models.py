@@ -444,6 +444,9 @@ class MethodInfo(BaseModel):
         Reports progress between steps; a cancel ends it within a step (default true).
     default_for : list of str
         The inputs it is the default method for: 'grid' (a full lattice), 'points' (any mask).
+    summary : list of dict
+        The fields of its result it shows after its outcome (``Method.summary``, each a
+        ``service.progress.Shown`` as JSON); empty for most methods.
     """
 
     name: str
@@ -457,6 +460,10 @@ class MethodInfo(BaseModel):
     cancellable: bool = Field(True, description="reports progress between steps; a cancel ends it within a step")
     default_for: list[str] = Field(default_factory=list, description="the inputs it is the default method for: "
                                                                      "'grid' (a full lattice), 'points' (any mask)")
+    summary: list[dict[str, Any]] = Field(
+        default_factory=list, description="the fields of its result's params_used it shows after its outcome, in order "
+        "(service.progress.Shown: key, label, title, id, format, flag, words, note, suffix, also): the web page's "
+        "summary rows")
 
 
 class MaskKindInfo(BaseModel):

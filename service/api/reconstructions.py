@@ -220,7 +220,7 @@ def list_methods() -> list[MethodInfo]:
                          default=None, value_schema=speed_schema())
     return [MethodInfo(name=m.name, title=m.title, needs_grid=m.needs_grid, source=m.source, iterative=m.iterative,
                        time_limited=m.time_limited, cancellable=m.cancellable, default_for=list(m.default_for),
-                       options=[speed, *(MethodOption(name=o["name"], description=o["description"],
+                       summary=[f.as_dict() for f in m.summary], options=[speed, *(MethodOption(name=o["name"], description=o["description"],
                                                       default=o["default"], value_schema=o["schema"])
                                          for o in option_schemas(m))])
             for m in METHODS.values()]

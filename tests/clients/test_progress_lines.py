@@ -207,7 +207,10 @@ def test_eta_of_iterations_is_the_time_to_the_stopping_rule_bounded_by_the_limit
     line = describe_progress({"stage": str(stage), **iteration_fields(stage), "eta_s": e, "eta_max_s": eta.bound_s})
     assert "image change 0.005 (stops below 0.001)" in line, line
     assert "ETA ~00:07 (estimate: stopping rule; at most 03:00 at the iteration limit)" in line, line
-    waiting = IterationStage(3, n, rule=0.2, tol=tol, armed=False)  # tv while λ still falls
+    from service.recon.methods import get
+
+    waiting = IterationStage(3, n, rule=0.2, tol=tol, armed=False,  # tv while λ still falls: its words
+                             waits_for=get("tv").stop_waits_for)
     fields = iteration_fields(waiting)
     assert fields["stop_tol"] == tol and fields["stop_armed"] is False
     assert "(stops below 0.001 once λ has settled)" in describe_progress({"stage": str(waiting), **fields})

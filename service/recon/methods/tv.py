@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 from pydantic import BeforeValidator, Field
 
+from service.progress import IterationStage, Shown
 from service.recon.limits import (
     DEFAULT_MAX_ITER,
     DEFAULT_TIME_LIMIT,
@@ -28,7 +29,7 @@ if TYPE_CHECKING:
     from service.recon.tv_grid import TvGrid
 
 __all__ = ["Options", "run", "declared_bandwidth", "BANDWIDTH_KEY", "PAIR_RATE", "SETUP_PAIRS", "grid",
-           "check_depth", "work", "peak_memory", "MEMORY_CALIBRATION", "warm_up", "METHOD"]
+           "check_depth", "work", "peak_memory", "MEMORY_CALIBRATION", "warm_up", "SUMMARY", "STOP_WAITS_FOR", "METHOD"]
 
 Lam = Annotated[Annotated[float, Field(ge=LAM_RANGE[0], le=LAM_RANGE[1])] | None,
                 BeforeValidator(kernel_rule("check_lam"))]
@@ -173,7 +174,7 @@ def run(ds: PointDataset, c: float, opts: dict, step: Progress) -> Reconstructio
     iterations = opts.pop("iterations", None) or DEFAULT_MAX_ITER
     positivity = bool(opts.pop("positivity", True))
     return reconstruct_tv(ds.alines, ds.dt, c, positions=ds.positions, weights=ds.weights, grid=ds.grid,
-                          t0=ds.t0, max_iter=iterations, positivity=positivity, progress=step,
+                          t0=ds.t0, max_iter=iterations, positivity=positivity, progress=_saying_why(step),
                           bandwidth=declared_bandwidth(ds.meta), **opts)
 
 
@@ -546,10 +547,34 @@ def warm_up(dtypes: Sequence[str]) -> None:
     forward_grid(np.ones((4, 6, 6)), dx, C_DEFAULT * dt, dt, 32)
 
 
+#: what tv's result summary shows after its outcome (``Method.summary``): λ, given or automatic
+#: (with the reason when the automatic λ is 0), and the residual against the data's noise
+SUMMARY = (
+    Shown("lam", "λ", title="λ (TV weight)", id="lambda", flag="lam_auto", words=("given", "automatic"),
+          note="lam_note"),
+    Shown("residual", "residual", title="Residual", format="percent", suffix=" of the data",
+          also=(("noise_share", "noise"),)),
+)
+
+#: what tv's stopping rule waits for while λ still falls (``Method.stop_waits_for``): the
+#: progress line then reads "(stops below 0.005 once λ has settled)"
+STOP_WAITS_FOR = "λ has settled"
+
+
+def _saying_why(step: Progress) -> Progress:
+    """``step`` with :data:`STOP_WAITS_FOR` on each iteration stage whose rule is not armed yet."""
+    def report(fraction: float, stage: str) -> None:
+        if isinstance(stage, IterationStage) and not stage.armed:
+            stage = stage.waiting_for(STOP_WAITS_FOR)
+        step(fraction, stage)
+
+    return report
+
+
 METHOD = Method(
     "tv", "model-based: TV + positivity on the exact model (iterative; sparse, noisy scans)", False, Options, run,
     "½‖A p0 − g‖² + λ TV(p0), p0 ≥ 0, NER-preconditioned FISTA (Arridge et al., PMB 61 (2016) 8908)",
     peak_memory, order=50, work=work, iterative=True, time_limited=True, warm_up=warm_up,
     kernel_modules=("driver.physics.nufft_kernels", "service.recon.tv.prox", "service.recon.tv.stores",
                     "service.recon.tv.fista", "service.recon.tv.preconditioner"), warm_in_background=True,
-    memory_calibration=MEMORY_CALIBRATION, holds_input=True)
+    memory_calibration=MEMORY_CALIBRATION, holds_input=True, summary=SUMMARY, stop_waits_for=STOP_WAITS_FOR)

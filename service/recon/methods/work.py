@@ -1,0 +1,189 @@
+"""The methods' work and memory estimators: the peak-memory model of a method
+(:func:`peak_model`, :func:`estimate_peak_memory`) and the planar methods' work estimate in
+seconds on the reference 2 cores (:func:`transform_units`, :func:`planar_work`,
+:data:`FLOAT64_WORK`, :data:`PLANAR_WORK_RATE`), which a :class:`~.registry.Method` names as
+its ``peak_memory`` and ``work`` hooks (the admission, ``service.jobs.admission``).
+
+Importing this module needs no numpy: the models of ``service.recon.memory`` load on a call.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+__all__ = ["peak_model", "estimate_peak_memory", "FLOAT64_WORK", "PLANAR_WORK_RATE", "transform_units",
+           "planar_work"]
+
+
+def peak_model(model: str, **fixed: Any) -> Callable[..., int]:
+    """A method's peak-memory model: the model ``model`` of ``service.recon.memory`` with the
+    keywords ``fixed`` (what the method's kernels do), imported on the first call (this package
+    loads without numpy).
+
+    Parameters
+    ----------
+    model : str
+        A model of ``service.recon.memory``: ``"planar_peak"``, ``"kwave_peak"``,
+        ``"model_based_peak"``.
+    **fixed
+        Its keywords for this method (``temporal="nufft"``, ``points=True``, ...).
+
+    Returns
+    -------
+    callable
+        ``peak(n_t, n_x, n_y=1, **kw) -> int``: bytes at the peak of a reconstruction of
+        ``n_t`` time samples on ``n_y`` x ``n_x`` sensors; the keywords (``n_z``, ``upsample``,
+        ``dtype``, ``n_points``, ``dx`` m, ``dt`` s, ``c`` m/s, ``dz`` m) as the model's.
+
+    Raises
+    ------
+    AttributeError
+        From the returned ``peak``: no such model.
+
+    Examples
+    --------
+    >>> from service.recon.memory import planar_peak
+    >>> from service.recon.methods import peak_model
+    >>> peak = peak_model("planar_peak", temporal="nufft")
+    >>> peak(64, 8, dtype="float32") == planar_peak(64, 8, dtype="float32", temporal="nufft")
+    True
+    >>> peak(256, 64, 64) > peak(64, 8)  # bytes grow with the input
+    True
+    """
+    def peak(n_t: int, n_x: int, n_y: int = 1, **kw: Any) -> int:
+        from service.recon import memory
+
+        return int(getattr(memory, model)(n_t, n_x, n_y, **{**kw, **fixed}))
+
+    return peak
+
+
+def estimate_peak_memory(n_t: int, n_x: int, n_y: int = 1, *, method: str | None = None, **kw: Any) -> int:
+    """Estimated peak memory in bytes of a reconstruction by ``method``: the method's own model
+    (``service.recon.methods.get(method).memory``).
+
+    Parameters
+    ----------
+    n_t : int
+        Samples per A-line.
+    n_x, n_y : int
+        Lateral grid (``n_y = 1`` in 2-D).
+    method : str, optional
+        A registered method (``service.recon.methods.METHODS``); None: the default for a
+        full lattice (``service.recon.methods.default_for("grid")``).
+    **kw
+        The model's keywords: ``n_z`` (output depth samples), ``upsample``, ``dtype``
+        (float32/float64), ``n_points`` (sensors of point data), ``dx`` (m), ``dt`` (s), ``c``
+        (m/s), ``dz`` (m), ``square`` (dy = dx; None unknown).
+
+    Returns
+    -------
+    int
+        Bytes at the peak.
+
+    Raises
+    ------
+    service.recon.checks.OptionError
+        An unknown method.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from service.recon import estimate_peak_memory
+    >>> est = estimate_peak_memory(256, 64, 64)  # (n_t, n_y, n_x) = (256, 64, 64), float64 NER
+    >>> est > 256 * 64 * 64 * 8  # more than the input
+    True
+    >>> estimate_peak_memory(256, 64, 64, dtype=np.float32) < est
+    True
+    """
+    from service.recon.methods import default_for, get  # the registry (it names this module's models)
+
+    return get(method or default_for("grid")).memory(n_t, n_x, n_y, **kw)
+
+
+#: the work estimates' reference: seconds on 2 cores of the machine they were measured on
+#: (AMD EPYC Zen 4, AVX-512, shared with other work: load average 4-6); float64 costs this
+#: factor more than float32 (measured 1.1-2.4, planar methods at 256 x 128^2 to 512 x 226^2)
+FLOAT64_WORK = 1.6
+
+
+
+#: seconds per :func:`transform_units` unit of a planar method that states none (float32)
+PLANAR_WORK_RATE = 3e-9
+
+
+def transform_units(n_t: int, n_x: int, n_y: int = 1, *, n_z: int | None = None, upsample: int = 1) -> float:
+    """The work unit of the planar methods: ``N log2 N`` for the transform grid they work on,
+    ``N`` = the working depth rows (at least ``n_t``, at a fast DCT-I length) times the
+    lateral transform sizes (``service.recon.memory.padded_lateral``), an upsampled inverse
+    counted as ``1 + (u² - 1) / 4`` such grids (measured: upsample 2 costs 1.1-3x upsample 1).
+
+    Parameters
+    ----------
+    n_t : int
+        Samples per A-line.
+    n_x, n_y : int
+        Lateral grid (``n_y = 1`` in 2-D).
+    n_z : int, optional
+        Working depth rows (default ``n_t``).
+    upsample : int, optional
+        Lateral upsampling factor.
+
+    Returns
+    -------
+    float
+        ``N log2 N`` (dimensionless).
+
+    Examples
+    --------
+    >>> from service.recon.methods import transform_units
+    >>> transform_units(256, 128, 128) > transform_units(256, 64, 64) > 0
+    True
+    """
+    import math
+
+    from driver.physics.fast_lengths import fast_dct1_rows
+    from service.recon.memory import padded_lateral
+
+    rows = fast_dct1_rows(max(int(n_z or n_t), int(n_t), 2))
+    p_y, p_x = padded_lateral(int(n_y), int(n_x))
+    u = int(upsample or 1)
+    n = rows * p_y * p_x * (1 + (u * u - 1) / 4)
+    return n * math.log2(max(n, 2.0))
+
+
+def planar_work(rate: float, per_point_sample: float = 0.0) -> Callable[..., float]:
+    """A planar method's work estimate: ``rate`` seconds per :func:`transform_units` unit
+    (float32; float64 :data:`FLOAT64_WORK` times that), plus ``per_point_sample`` seconds per
+    sensor point and sample (NEDNER's type-1 NUFFT over the points).
+
+    Parameters
+    ----------
+    rate : float
+        Seconds per unit, measured on the reference machine (each method's module).
+    per_point_sample : float, optional
+        Seconds per sensor point and time sample.
+
+    Returns
+    -------
+    callable
+        ``work(n_t, n_x, n_y=1, *, n_z, upsample, dtype, n_points, **_) -> float`` seconds.
+
+    Examples
+    --------
+    >>> from service.recon.methods import planar_work
+    >>> work = planar_work(2e-9)
+    >>> 0.05 < work(256, 128, 128, dtype="float32") < 1.0  # s: NER measured 0.14-0.17 s there
+    True
+    >>> work(256, 128, 128, dtype="float64") > work(256, 128, 128, dtype="float32")
+    True
+    """
+    def work(n_t: int, n_x: int, n_y: int = 1, *, n_z: int | None = None, upsample: int = 1,
+             dtype: Any = "float32", n_points: int | None = None, **_: Any) -> float:
+        seconds = rate * transform_units(n_t, n_x, n_y, n_z=n_z, upsample=upsample)
+        seconds += per_point_sample * float(n_points or 0) * float(n_t)
+        return seconds * (FLOAT64_WORK if str(dtype) == "float64" else 1.0)
+
+    return work
+
+
