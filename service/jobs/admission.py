@@ -199,7 +199,6 @@ def estimate_memory(shape: dict, params: dict) -> int:
     n_t = int(shape["n_t"])
     n_x = int(shape["n_x"])
     n_y = int(shape.get("n_y", 1))
-    up = int(params.get("upsample", 1) or 1)
     rows = working_depth_rows(shape, params)
     from service.recon.methods import get as method_named
 
@@ -212,7 +211,7 @@ def estimate_memory(shape: dict, params: dict) -> int:
     # the method's own peak-memory model (service.recon.methods: its module's peak_memory hook)
     method = method_named(params.get("method") or _default_method(shape))
     value = method.memory(
-        n_t, n_x, n_y, n_z=rows, upsample=up, dtype=params.get("dtype") or "float32",
+        n_t, n_x, n_y, n_z=rows, upsample=method.upsample(params), dtype=params.get("dtype") or "float32",
         n_points=shape.get("n_points"), dx=geometry.get("dx"), dt=geometry.get("dt"), c=geometry.get("c"),
         dz=geometry.get("dz"), t0=shape.get("t0"), options=params, record_facts=shape.get("record_facts"),
         bandwidth=shape.get("bandwidth"))
@@ -227,7 +226,8 @@ def estimate_memory(shape: dict, params: dict) -> int:
 
 def estimate_result_bytes(shape: dict, params: dict, volumes: int = 1) -> int:
     """Bytes a reconstruction's result folder takes on disk: ``volumes`` images of ``n_z``
-    rows (default ``n_t``; k-Wave's modes: ``n_t``) by the lateral grid times ``upsample`` in
+    rows (default ``n_t``; k-Wave's modes: ``n_t``) by the lateral grid times the method's
+    upsampling (``service.recon.methods.Method.upsample``: its ``upsample`` option, 1 without) in
     the working precision (``volume.h5``, chunked and uncompressed), 2 % for the HDF5 file's
     own structure and 1 MiB per volume for its pictures (MIPs: PNG). The queue holds a job
     whose result does not fit the free disk and ends a running one whose result no longer
@@ -255,9 +255,10 @@ def estimate_result_bytes(shape: dict, params: dict, volumes: int = 1) -> int:
     """
     from service.recon.methods import get as method_named
 
-    takes_depth = "n_z" in method_named(params.get("method") or _default_method(shape)).options
+    method = method_named(params.get("method") or _default_method(shape))
+    takes_depth = "n_z" in method.options
     n_z = int(params.get("n_z") or shape["n_t"]) if takes_depth else int(shape["n_t"])  # else n_t rows (k-Wave)
-    up = int(params.get("upsample", 1) or 1)
+    up = method.upsample(params)  # the method's lateral upsampling (1 where it takes no upsample)
     n_y = int(shape.get("n_y", 1))
     voxels = n_z * int(shape["n_x"]) * up * (n_y * up if n_y > 1 else 1)
     itemsize = 8 if (params.get("dtype") or "float32") == "float64" else 4
@@ -309,7 +310,7 @@ def estimate_work(shape: dict, params: dict) -> float:
     c = params.get("c")
     c = max(params.get("c_range") or C_AUTOFOCUS_RANGE) if c == "auto" else c
     name = params.get("method") or _default_method(shape)
-    common = dict(upsample=int(params.get("upsample", 1) or 1), dtype=params.get("dtype") or "float32",
+    common = dict(upsample=method_named(name).upsample(params), dtype=params.get("dtype") or "float32",
                   n_points=shape.get("n_points"), dx=shape.get("dx"), dt=shape.get("dt"),
                   c=float(c or shape.get("c") or C_DEFAULT), t0=shape.get("t0"),
                   record_facts=shape.get("record_facts"), bandwidth=shape.get("bandwidth"))
