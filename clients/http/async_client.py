@@ -16,6 +16,7 @@ import httpx
 from .calls import Call, Download
 from .core import (
     CHUNK_BYTES,
+    Driver,
     Flow,
     Follow,
     Send,
@@ -25,6 +26,7 @@ from .core import (
     call_flow,
     events_request,
     request_args,
+    sse_event,
     wait_flow,
 )
 from .endpoints.datasets import AsyncDatasets
@@ -34,7 +36,7 @@ from .endpoints.reconstructions import AsyncReconstructions
 from .endpoints.scans import AsyncScans
 from .endpoints.server import AsyncServer
 from .transport import Connection, raise_for
-from .waiting import ProgressCallback, parse_event
+from .waiting import ProgressCallback
 
 __all__ = ["AsyncClient"]
 
@@ -105,18 +107,13 @@ class AsyncClient(Connection, AsyncServer, AsyncPlans, AsyncScans, AsyncDatasets
 
     async def _run(self, flow: Flow[T]) -> T:
         """Run ``flow``'s steps (:mod:`clients.http.core`) with ``asyncio`` I/O; its result."""
-        answer: Any = None
-        error: BaseException | None = None
-        while True:
+        run = Driver(flow)
+        for step in run:
             try:
-                step = flow.throw(error) if error is not None else flow.send(answer)
-            except StopIteration as done:
-                return done.value
-            answer, error = None, None
-            try:
-                answer = await self._do(step)
+                run.answer = await self._do(step)
             except BaseException as exc:  # the flow decides (ServerUnavailable, resume, poll)
-                error = exc
+                run.error = exc
+        return run.result
 
     async def _do(self, step: Step) -> Any:
         if isinstance(step, Send):
@@ -138,9 +135,9 @@ class AsyncClient(Connection, AsyncServer, AsyncPlans, AsyncScans, AsyncDatasets
             stream = self.events(step.job_id, last_event_id=step.last_id, read_timeout=step.read_timeout)
             try:
                 async for event in stream:
-                    progress, stop = step.seen(*event)
-                    if progress is not None and step.on_progress is not None:
-                        await _report(step.on_progress, progress)
+                    report, stop = step.seen(*event)
+                    if report is not None:
+                        await self._do(report)
                     if stop:
                         break
             finally:
@@ -149,7 +146,9 @@ class AsyncClient(Connection, AsyncServer, AsyncPlans, AsyncScans, AsyncDatasets
         if isinstance(step, Sleep):
             await asyncio.sleep(step.seconds)
             return None
-        await _report(step.on_progress, step.progress)
+        res = step.call()
+        if asyncio.iscoroutine(res):  # a coroutine function's on_progress
+            await res
         return None
 
     # -- events and waiting
@@ -180,10 +179,8 @@ class AsyncClient(Connection, AsyncServer, AsyncPlans, AsyncScans, AsyncDatasets
                     await source.response.aread()
                     raise_for(source.response)
                 async for sse in source.aiter_sse():
-                    if not sse.data:  # a keep-alive comment: no event (SSE spec; httpx_sse hands it on)
-                        continue
-                    event, data = parse_event(sse.event, sse.data)
-                    yield event, data, sse.id or None
+                    if (event := sse_event(sse)) is not None:
+                        yield event
         except httpx.TransportError as exc:
             raise self.unavailable(exc) from None
 
@@ -213,10 +210,3 @@ class AsyncClient(Connection, AsyncServer, AsyncPlans, AsyncScans, AsyncDatasets
         """
         return await self._run(wait_flow(job_id, self.base_url, on_progress=on_progress, timeout=timeout,
                                          poll_interval=poll_interval, raise_on_failure=raise_on_failure, quiet=quiet))
-
-
-async def _report(on_progress: ProgressCallback, progress: dict) -> None:
-    """Call ``on_progress(progress)``, awaiting it when it is a coroutine function's."""
-    res = on_progress(progress)
-    if asyncio.iscoroutine(res):
-        await res

@@ -38,6 +38,7 @@ import httpx
 from .calls import Call, Download
 from .core import (
     CHUNK_BYTES,
+    Driver,
     Flow,
     Follow,
     Send,
@@ -47,6 +48,7 @@ from .core import (
     call_flow,
     events_request,
     request_args,
+    sse_event,
     wait_flow,
 )
 from .endpoints.datasets import Datasets
@@ -56,7 +58,7 @@ from .endpoints.reconstructions import Reconstructions
 from .endpoints.scans import Scans
 from .endpoints.server import Server
 from .transport import Connection, raise_for
-from .waiting import ProgressCallback, parse_event
+from .waiting import ProgressCallback
 
 __all__ = ["Client"]
 
@@ -160,18 +162,13 @@ class Client(Connection, Server, Plans, Scans, Datasets, Reconstructions, Jobs):
 
     def _run(self, flow: Flow[T]) -> T:
         """Run ``flow``'s steps (:mod:`clients.http.core`) with blocking I/O; its result."""
-        answer: Any = None
-        error: BaseException | None = None
-        while True:
+        run = Driver(flow)
+        for step in run:
             try:
-                step = flow.throw(error) if error is not None else flow.send(answer)
-            except StopIteration as done:
-                return done.value
-            answer, error = None, None
-            try:
-                answer = self._do(step)
+                run.answer = self._do(step)
             except BaseException as exc:  # the flow decides (ServerUnavailable, resume, poll)
-                error = exc
+                run.error = exc
+        return run.result
 
     def _do(self, step: Step) -> Any:
         if isinstance(step, Send):
@@ -193,9 +190,9 @@ class Client(Connection, Server, Plans, Scans, Datasets, Reconstructions, Jobs):
             stream = self.events(step.job_id, last_event_id=step.last_id, read_timeout=step.read_timeout)
             try:
                 for event in stream:
-                    progress, stop = step.seen(*event)
-                    if progress is not None and step.on_progress is not None:
-                        step.on_progress(progress)
+                    report, stop = step.seen(*event)
+                    if report is not None:
+                        self._do(report)
                     if stop:
                         break
             finally:
@@ -204,7 +201,7 @@ class Client(Connection, Server, Plans, Scans, Datasets, Reconstructions, Jobs):
         if isinstance(step, Sleep):
             time.sleep(step.seconds)
             return None
-        step.on_progress(step.progress)
+        step.call()
         return None
 
     # -- events and waiting
@@ -247,10 +244,8 @@ class Client(Connection, Server, Plans, Scans, Datasets, Reconstructions, Jobs):
                     source.response.read()
                     raise_for(source.response)
                 for sse in source.iter_sse():
-                    if not sse.data:  # a keep-alive comment: no event (SSE spec; httpx_sse hands it on)
-                        continue
-                    event, data = parse_event(sse.event, sse.data)
-                    yield event, data, sse.id or None
+                    if (event := sse_event(sse)) is not None:
+                        yield event
         except httpx.TransportError as exc:
             raise self.unavailable(exc) from None
 

@@ -6,8 +6,11 @@ Each operation is a *flow*: a generator that yields the I/O it needs as a :data:
 (:class:`Send` a request, :class:`Stream` a body into a file, :class:`Follow` a job's event
 stream, :class:`Sleep`, :class:`Report` a progress update) and receives the step's answer,
 or has the step's exception thrown into it; its return value is the operation's result.
-:class:`clients.http.client.Client` runs the steps with blocking httpx calls,
+:class:`Driver` steps a flow (answers in, exceptions thrown back, the result out);
+:class:`clients.http.client.Client` does each step's I/O with blocking httpx calls,
 :class:`clients.http.async_client.AsyncClient` with ``await`` s: that is all they differ in.
+What the I/O decides is here too: the :class:`Stream` step's 416 and file, the
+:class:`Follow` step's stop and progress :class:`Report` per event, :func:`sse_event`.
 
 - :func:`call_flow`: an endpoint's :class:`~clients.http.calls.Call` (one request; a
   transport failure is ``ServerUnavailable``, a 4xx/5xx its ``ApiError``) or
@@ -25,7 +28,7 @@ from collections.abc import Generator, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, Any, TypeVar
+from typing import IO, TYPE_CHECKING, Any, Generic, TypeVar, cast
 
 import httpx
 
@@ -39,14 +42,18 @@ from .waiting import (
     ProgressCallback,
     finish,
     keep_sse,
+    parse_event,
     past,
     progress_of,
     read_timeout,
     report_snapshot,
 )
 
-__all__ = ["Send", "Stream", "Follow", "Sleep", "Report", "Step", "Flow", "call_flow", "download_flow", "wait_flow",
-           "request_args", "events_request", "CHUNK_BYTES"]
+if TYPE_CHECKING:
+    from httpx_sse import ServerSentEvent
+
+__all__ = ["Send", "Stream", "Follow", "Sleep", "Report", "Step", "Flow", "Driver", "call_flow", "download_flow",
+           "wait_flow", "request_args", "events_request", "sse_event", "CHUNK_BYTES"]
 
 T = TypeVar("T")
 
@@ -127,12 +134,15 @@ class Follow:
         """Seconds without a byte before the stream counts as dropped (:func:`~clients.http.waiting.read_timeout`)."""
         return read_timeout(self.deadline)
 
-    def seen(self, event: str, data: dict, event_id: str | None) -> tuple[dict | None, bool]:
-        """Count one event; returns ``(progress to report or None, whether to stop reading)``."""
+    def seen(self, event: str, data: dict, event_id: str | None) -> tuple[Report | None, bool]:
+        """Count one event; returns ``(the Report step of its progress or None, whether to
+        stop reading)``: the client does the report (:meth:`Report.call`) before reading on."""
         self.n_events += 1
         self.last_id = event_id or self.last_id
-        progress = progress_of(data) if event == "progress" and self.on_progress is not None else None
-        return progress, data.get("state") in TERMINAL_STATES or past(self.deadline)
+        report = None
+        if event == "progress" and self.on_progress is not None:
+            report = Report(self.on_progress, progress_of(data))
+        return report, data.get("state") in TERMINAL_STATES or past(self.deadline)
 
 
 @dataclass(frozen=True)
@@ -161,11 +171,67 @@ class Report:
     on_progress: ProgressCallback
     progress: dict
 
+    def call(self) -> Any:
+        """``on_progress(progress)``: its result (a coroutine, for a coroutine function's, which
+        the async client awaits)."""
+        return self.on_progress(self.progress)
+
 
 #: the I/O a flow asks for
 Step = Send | Stream | Follow | Sleep | Report
 #: an operation: yields steps, receives their answers, returns the result
 Flow = Generator[Step, Any, T]
+
+
+class Driver(Generic[T]):
+    """How a client runs a flow, written once: iterating gives the flow's steps; after each,
+    the client sets ``answer`` (the step's result) or ``error`` (its exception, thrown into
+    the flow, which decides); when the flow returns, ``result`` holds its value. A client's
+    ``_run`` is this loop with its own I/O (``self._do(step)``, blocking or awaited).
+
+    Parameters
+    ----------
+    flow : generator
+        A :data:`Flow`.
+
+    Attributes
+    ----------
+    answer : any
+        The last step's answer (None until set).
+    error : BaseException or None
+        The last step's exception.
+    result : any
+        The flow's return value, once it has returned.
+
+    Examples
+    --------
+    >>> from clients.http.core import Driver, Sleep
+    >>> def flow():
+    ...     slept = yield Sleep(0.5)
+    ...     return f"slept {slept} s"
+    >>> run = Driver(flow())
+    >>> for step in run:
+    ...     run.answer = step.seconds  # the client's I/O would go here
+    >>> run.result
+    'slept 0.5 s'
+    """
+
+    def __init__(self, flow: Flow[T]) -> None:
+        self.flow = flow
+        self.answer: Any = None
+        self.error: BaseException | None = None
+        self.result: T = cast(T, None)
+
+    def __iter__(self) -> Iterator[Step]:
+        while True:
+            answer, error = self.answer, self.error
+            self.answer, self.error = None, None
+            try:
+                step = self.flow.throw(error) if error is not None else self.flow.send(answer)
+            except StopIteration as done:
+                self.result = done.value
+                return
+            yield step
 
 
 @contextmanager
@@ -227,6 +293,32 @@ def events_request(job_id: str, last_event_id: str | None, timeout: float,
     return {"method": "GET", "url": f"/api/jobs/{job_id}/events",
             "headers": {"Last-Event-ID": last_event_id} if last_event_id else {},
             "timeout": httpx.Timeout(timeout, read=read_timeout)}
+
+
+def sse_event(sse: ServerSentEvent) -> tuple[str, dict, str | None] | None:
+    """What ``events`` yields for one received Server-Sent Event: ``(event, data, id)``
+    (:func:`~clients.http.waiting.parse_event`), or None for a keep-alive comment (no event,
+    SSE spec; ``httpx_sse`` hands it on with an empty ``data``).
+
+    Parameters
+    ----------
+    sse : httpx_sse.ServerSentEvent
+
+    Returns
+    -------
+    tuple of (str, dict, str or None) or None
+
+    Examples
+    --------
+    >>> from httpx_sse import ServerSentEvent
+    >>> from clients.http.core import sse_event
+    >>> sse_event(ServerSentEvent("progress", '{"fraction": 0.5}', "3")), sse_event(ServerSentEvent(data=""))
+    (('progress', {'fraction': 0.5}, '3'), None)
+    """
+    if not sse.data:
+        return None
+    event, data = parse_event(sse.event, sse.data)
+    return event, data, sse.id or None
 
 
 def call_flow(call: Call[T] | Download[T], base_url: str) -> Flow[T]:
