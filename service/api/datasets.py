@@ -65,10 +65,10 @@ __all__ = ["router", "list_datasets", "list_formats", "upload_dataset", "delete_
 router = APIRouter(prefix="/api/datasets", tags=["datasets"])
 
 @router.get("", response_model=list[DatasetInfo], dependencies=[Depends(read_access)])
-def list_datasets(cx: Context = Depends(ctx)) -> list[DatasetInfo]:
+def list_datasets(context: Context = Depends(ctx)) -> list[DatasetInfo]:
     """The stored datasets, oldest first: name, format, size on disk, upload time,
     content hash and the jobs that read them (``in_use``: an active one does)."""
-    return [DatasetInfo(**d) for d in lifecycle.list_datasets(cx.store, cx.settings.data_dir)]
+    return [DatasetInfo(**d) for d in lifecycle.list_datasets(context.store, context.settings.data_dir)]
 
 
 @router.get("/formats", response_model=list[DatasetFormatInfo], dependencies=[Depends(read_access)])
@@ -91,7 +91,7 @@ def upload_dataset(file: UploadFile = File(..., description="the data file"),
                    sound_speed: str | None = Form(None, max_length=40, description=_SPEED),
                    c: str | None = Form(None, max_length=40, description="deprecated name of sound_speed"),
                    force: bool = Form(False, description=_FORCE),
-                   cx: Context = Depends(ctx), sent: BackgroundTasks = None,  # type: ignore[assignment]
+                   context: Context = Depends(ctx), sent: BackgroundTasks = None,  # type: ignore[assignment]
                    **options: Any) -> Dataset:
     """Upload a dataset for reconstruction → 201 ``{dataset_id, ...}``; the same file with
     the same options again → 201 with the stored one (``deduplicated: true``, nothing new
@@ -113,11 +113,11 @@ def upload_dataset(file: UploadFile = File(..., description="the data file"),
         check_load_options(format, {k: v for k, v in given.items() if k != "wavelength"})
     except ValueError as exc:
         raise HTTPException(422, str(exc)) from None
-    with cx.slots["uploads"].turn():
+    with context.slots["uploads"].turn():
         out = _store_upload(file, format, dt=given.get("dt"), dx=given.get("dx"), dy=given.get("dy"), c=q["c"],
-                            key=given.get("key"), force=force, wavelength=given.get("wavelength"), cx=cx)
+                            key=given.get("key"), force=force, wavelength=given.get("wavelength"), context=context)
     # held since it was found or stored: released once the 201 naming it has been sent
-    sent.add_task(lifecycle.release_dataset, cx.store, out.dataset_id)
+    sent.add_task(lifecycle.release_dataset, context.store, out.dataset_id)
     return out
 
 
@@ -171,40 +171,40 @@ def _dedup_key(sha256: str, format: str, **options: object) -> str:
                           .encode()).hexdigest()
 
 
-def _stored(cx: Context, dedup_key: str, sha256: str) -> Dataset | None:
+def _stored(context: Context, dedup_key: str, sha256: str) -> Dataset | None:
     """The oldest stored dataset of ``dedup_key`` whose file is there, as a deduplicated
     answer, held (``lifecycle.hold_dataset``); None when there is none. Called under
     ``lifecycle.guard``: no deletion falls between the look and the hold."""
-    for dataset_id in cx.store.find_datasets(dedup_key):
-        meta = cx.store.get_dataset(dataset_id)
-        if meta is not None and (Path(cx.settings.data_dir) / "datasets" / dataset_id / meta["path"]).is_file():
-            lifecycle.hold_dataset(cx.store, dataset_id)
+    for dataset_id in context.store.find_datasets(dedup_key):
+        meta = context.store.get_dataset(dataset_id)
+        if meta is not None and (Path(context.settings.data_dir) / "datasets" / dataset_id / meta["path"]).is_file():
+            lifecycle.hold_dataset(context.store, dataset_id)
             return Dataset(dataset_id=dataset_id, format=meta["format"], layout=meta["layout"], shape=meta["shape"],
                            dt=meta["dt"], wavelength_nm=meta.get("wavelength_nm"), deduplicated=True,
                            content_sha256=sha256)
     return None
 
 
-def _admission(cx: Context) -> DiskAdmission:
-    adm = cx.extras.get("disk_admission")
+def _admission(context: Context) -> DiskAdmission:
+    adm = context.extras.get("disk_admission")
     if adm is None:
-        adm = cx.extras.setdefault("disk_admission", DiskAdmission(cx.settings.data_dir,
-                                                                   cx.settings.disk_reserve_bytes))
+        adm = context.extras.setdefault("disk_admission", DiskAdmission(context.settings.data_dir,
+                                                                   context.settings.disk_reserve_bytes))
     return adm
 
 
 def _store_upload(file: UploadFile, format: str, *, dt: float | None, dx: float | None, dy: float | None,
-                  c: float | None, key: str | None, force: bool, wavelength: int | None, cx: Context) -> Dataset:
+                  c: float | None, key: str | None, force: bool, wavelength: int | None, context: Context) -> Dataset:
     dataset_id = uuid.uuid4().hex
     # staged outside datasets/ until stored (one rename): datasets/ changes only when a
     # dataset is added, and /api/health's disk usage is re-walked only then
-    dest = Path(cx.settings.data_dir) / INCOMING / dataset_id
+    dest = Path(context.settings.data_dir) / INCOMING / dataset_id
     dest.mkdir(parents=True)
     src = dest / "upload.bin"
-    limit = cx.settings.upload_limit
+    limit = context.settings.upload_limit
     size = 0
     digest = hashlib.sha256()
-    admission = _admission(cx)
+    admission = _admission(context)
     try:
         # the body's copy is admitted too (its size is known: the form parser has spooled it)
         refused = admission.reserve(dataset_id, int(file.size or 0))
@@ -220,14 +220,14 @@ def _store_upload(file: UploadFile, format: str, *, dt: float | None, dx: float 
         sha256 = digest.hexdigest()
         dedup_key = _dedup_key(sha256, format, dt=dt, dx=dx, dy=dy, c=c, key=key, wavelength=wavelength,
                                force=bool(force))
-        with lifecycle.guard(cx.store):  # found and held with no deletion between
-            found = _stored(cx, dedup_key, sha256)
+        with lifecycle.guard(context.store):  # found and held with no deletion between
+            found = _stored(context, dedup_key, sha256)
         if found is not None:
             try:
                 shutil.rmtree(dest, ignore_errors=True)
-                cx.store.touch_dataset(found.dataset_id)  # asked for again: retention by age counts from now
+                context.store.touch_dataset(found.dataset_id)  # asked for again: retention by age counts from now
             except BaseException:
-                lifecycle.release_dataset(cx.store, found.dataset_id)
+                lifecycle.release_dataset(context.store, found.dataset_id)
                 raise
             log.info("upload deduplicated: dataset=%s bytes=%d", found.dataset_id, size)
             return found
@@ -237,28 +237,28 @@ def _store_upload(file: UploadFile, format: str, *, dt: float | None, dx: float 
             # in service.storage, so the child does not import the web stack)
             meta = run_bounded(import_dataset, src, dest, format, dt=dt, dx=dx, dy=dy, c=c, key=key, force=force,
                                wavelength=wavelength,
-                               max_bytes=hdf5_limit(limit, cx.settings.memory_limit),
-                               timeout=cx.settings.import_timeout_s, what="the upload",
-                               memory_bytes=cx.settings.memory_limit + 2 * 2**30,
+                               max_bytes=hdf5_limit(limit, context.settings.memory_limit),
+                               timeout=context.settings.import_timeout_s, what="the upload",
+                               memory_bytes=context.settings.memory_limit + 2 * 2**30,
                                admit=lambda nbytes: admission.reserve(dataset_id, nbytes))
         except ValueError as exc:
             msg = reason(exc).replace(str(src.resolve()), "the upload").replace(str(src), "the upload")
-            raise HTTPException(422, cx.settings.redact(msg)) from None
+            raise HTTPException(422, context.settings.redact(msg)) from None
         except NotAdmitted as exc:
             raise HTTPException(507, str(exc)) from None
         src.unlink(missing_ok=True)
         meta.update({"format": format, "name": _display_name(file.filename), "content_sha256": sha256,
                      "dedup_key": dedup_key})
-        with lifecycle.guard(cx.store):  # an identical upload may have been stored meanwhile: keep that one
-            found = _stored(cx, dedup_key, sha256)
+        with lifecycle.guard(context.store):  # an identical upload may have been stored meanwhile: keep that one
+            found = _stored(context, dedup_key, sha256)
             if found is None:
-                stored = Path(cx.settings.data_dir) / "datasets" / dataset_id
+                stored = Path(context.settings.data_dir) / "datasets" / dataset_id
                 stored.parent.mkdir(exist_ok=True)
                 dest.rename(stored)
                 dest = stored
-                cx.store.put_dataset(dataset_id, meta)
-                lifecycle.hold_dataset(cx.store, dataset_id)  # until its 201 is sent (retention passes it by)
-                usage_for(cx.settings.data_dir).add_path(stored)  # /api/health's counters
+                context.store.put_dataset(dataset_id, meta)
+                lifecycle.hold_dataset(context.store, dataset_id)  # until its 201 is sent (retention passes it by)
+                usage_for(context.settings.data_dir).add_path(stored)  # /api/health's counters
     except BaseException:
         shutil.rmtree(dest, ignore_errors=True)
         raise
@@ -268,7 +268,7 @@ def _store_upload(file: UploadFile, format: str, *, dt: float | None, dx: float 
         shutil.rmtree(dest, ignore_errors=True)
         return found
     try:
-        lifecycle.apply_dataset_retention(cx.store, cx.settings)
+        lifecycle.apply_dataset_retention(context.store, context.settings)
     except Exception:  # retention must not fail the upload that was stored
         log.exception("dataset retention failed after upload=%s", dataset_id)
     return Dataset(dataset_id=dataset_id, format=format, layout=meta["layout"], shape=meta["shape"], dt=meta["dt"],
@@ -277,11 +277,11 @@ def _store_upload(file: UploadFile, format: str, *, dt: float | None, dx: float 
 
 @router.delete("/{dataset_id}", response_model=Deleted, dependencies=[Depends(require_token)],
                responses={409: {"description": "an active reconstruction reads the dataset"}})
-def delete_dataset(dataset_id: str = PathParam(pattern=ID_PATTERN), cx: Context = Depends(ctx)) -> Deleted:
+def delete_dataset(dataset_id: str = PathParam(pattern=ID_PATTERN), context: Context = Depends(ctx)) -> Deleted:
     """Delete an uploaded dataset and its files; 409 while a queued or running
     reconstruction reads it."""
     try:
-        return Deleted(kind="dataset", **lifecycle.delete_dataset(cx.store, cx.settings.data_dir, dataset_id))
+        return Deleted(kind="dataset", **lifecycle.delete_dataset(context.store, context.settings.data_dir, dataset_id))
     except lifecycle.NotFound as exc:
         raise HTTPException(404, str(exc)) from None
     except lifecycle.InUse as exc:

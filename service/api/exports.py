@@ -59,12 +59,12 @@ def list_formats() -> list[FormatInfo]:
     return [FormatInfo.of(f) for f in FORMATS.values()]
 
 
-def job_export_source(c: Context, job: dict, wavelength: int | None = None) -> tuple[str, Path]:
+def job_export_source(context: Context, job: dict, wavelength: int | None = None) -> tuple[str, Path]:
     """The file a job exports, and its format.
 
     Parameters
     ----------
-    c : Context
+    context : Context
         The app's context.
     job : dict
         The stored job (``id``, ``kind``, ...).
@@ -90,10 +90,10 @@ def job_export_source(c: Context, job: dict, wavelength: int | None = None) -> t
                                      "wavelength it holds")
         from service.api.scans import scan_file_path
 
-        return "fpscan", scan_file_path(c, job["id"])
+        return "fpscan", scan_file_path(context, job["id"])
     from service.api.reconstructions import volume_dir
 
-    return "result", volume_dir(c, job["id"], wavelength) / VOLUME_FILE
+    return "result", volume_dir(context, job["id"], wavelength) / VOLUME_FILE
 
 
 WavelengthQuery = Query(None, ge=0, le=15, description="a reconstruction's volume at wavelength k (a job over "
@@ -110,13 +110,13 @@ WavelengthQuery = Query(None, ge=0, le=15, description="a reconstruction's volum
 def export(job_id: str = PathParam(pattern=ID_PATTERN, description="a scan or reconstruction job's id"),
            format: str = PathParam(pattern=r"^[a-z0-9][a-z0-9-]{0,39}$", description="an export format's name "
                                    "(GET /api/formats: those with export_from)"),
-           wavelength: int | None = WavelengthQuery, c: Context = Depends(ctx)) -> HeldFileResponse:
+           wavelength: int | None = WavelengthQuery, context: Context = Depends(ctx)) -> HeldFileResponse:
     """The job's file (a scan file, or a reconstruction's p0 volume) in the export ``format``
     (``service.formats``: the job's ``export_<format>`` links name them; e.g. ``ipasc`` of a
     scan, ``ome-tiff`` and ``ome-zarr`` of a volume, the file itself as ``fpscan`` / ``result``);
     a folder export (OME-Zarr) as a zip of one folder ``<job_id><suffix>``. Supports ``Range``."""
-    job = get_job_or_404(c, job_id)
-    source, src = job_export_source(c, job, wavelength)
+    job = get_job_or_404(context, job_id)
+    source, src = job_export_source(context, job, wavelength)
     offered = export_formats(source)
     if format not in offered:
         raise HTTPException(404, f"a {job['kind']} job exports {', '.join(offered)}; no export format {format!r}")
@@ -128,20 +128,20 @@ def export(job_id: str = PathParam(pattern=ID_PATTERN, description="a scan or re
     if source == "result":  # a result never changes: its exports are kept beside it
         out = src.with_name(f"volume{fmt.suffix}" + (".zip" if fmt.folder else ""))
     else:  # a scan may grow: written anew
-        out = Path(c.settings.data_dir) / EXPORTS_DIR / (f"{job_id}{fmt.suffix}" + (".zip" if fmt.folder else ""))
+        out = Path(context.settings.data_dir) / EXPORTS_DIR / (f"{job_id}{fmt.suffix}" + (".zip" if fmt.folder else ""))
     with _one_build(out) as turn:
         if not (out.exists() if source == "result" else turn.built_meanwhile):
             try:
-                _write_export(c, src, out, format, arcname=f"{job_id}{fmt.suffix}", replace=source != "result")
+                _write_export(context, src, out, format, arcname=f"{job_id}{fmt.suffix}", replace=source != "result")
             except OSError:
-                with lifecycle.guard(c.store):
-                    if c.store.get(job_id) is None:  # deleted under the build (its folder removed)
-                        _discard(c, out, job)
+                with lifecycle.guard(context.store):
+                    if context.store.get(job_id) is None:  # deleted under the build (its folder removed)
+                        _discard(context, out, job)
                         raise HTTPException(404, f"job {job_id} was deleted while its export was made") from None
                 raise
-            with lifecycle.guard(c.store):  # no deletion between the look and the file kept
-                if c.store.get(job_id) is None:
-                    _discard(c, out, job)
+            with lifecycle.guard(context.store):  # no deletion between the look and the file kept
+                if context.store.get(job_id) is None:
+                    _discard(context, out, job)
                     raise HTTPException(404, f"job {job_id} was deleted while its export was made")
             turn.built()
         # opened before another build may replace it: each answer serves the file of its build
@@ -196,28 +196,28 @@ def _one_build(out: Path) -> Iterator[_Turn]:
                 del _FLIGHTS[out]
 
 
-def _discard(c: Context, out: Path, job: dict) -> None:
+def _discard(context: Context, out: Path, job: dict) -> None:
     """Remove what a build wrote for a job deleted meanwhile: ``out`` (counted out of
     health's disk-usage counters, which the build counted it in) and the job's files the
     build's folder re-made (``service.jobs.lifecycle.job_files``)."""
     from service.storage.usage import usage_for
 
     if out.exists():
-        usage_for(c.settings.data_dir).add_path(out, removed=True)
-    for path in (out, *lifecycle.job_files(job, c.settings.data_dir)):
+        usage_for(context.settings.data_dir).add_path(out, removed=True)
+    for path in (out, *lifecycle.job_files(job, context.settings.data_dir)):
         if path.is_dir() and not path.is_symlink():
             shutil.rmtree(path, ignore_errors=True)
         else:
             path.unlink(missing_ok=True)
 
 
-def _write_export(c: Context, src: Path, out: Path, format: str, *, arcname: str, replace: bool = False) -> None:
+def _write_export(context: Context, src: Path, out: Path, format: str, *, arcname: str, replace: bool = False) -> None:
     """Write the export ``format`` of ``src`` at ``out`` (a folder export zipped into ``out``),
     counted in health's disk-usage counters; 409 with the exporter's reason."""
     from service.storage.results import zip_folder
     from service.storage.usage import usage_for
 
-    usage = usage_for(c.settings.data_dir)
+    usage = usage_for(context.settings.data_dir)
     if replace and out.exists():
         usage.add_path(out, removed=True)
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -35,13 +35,13 @@ def add_health_routes(app: FastAPI, settings: Settings) -> Callable[[Context], A
     usage = usage_for(settings.data_dir, settings.database)
     version = app.version  # service.api.app.VERSION
 
-    async def health_document(c: Context) -> Health:
+    async def health_document(context: Context) -> Health:
         return Health(version=version, executor=settings.executor,
-                      jobs_running=c.queue.running() if c.queue is not None else 0,
-                      disk=usage.snapshot(), problems=health_problems(c))
+                      jobs_running=context.queue.running() if context.queue is not None else 0,
+                      disk=usage.snapshot(), problems=health_problems(context))
 
     @app.get("/api/health", response_model=Health, tags=["health"], dependencies=[Depends(read_access)])
-    async def health(c: Context = Depends(ctx)) -> Health:
+    async def health(context: Context = Depends(ctx)) -> Health:
         """Liveness: ``{"status": "ok", "version", "executor", "jobs_running", "disk",
         "problems"}``; ``disk``: bytes the data folder uses by part (scans, results, datasets,
         exports, other) and the free bytes of its file system; ``problems``: what keeps jobs
@@ -51,7 +51,7 @@ def add_health_routes(app: FastAPI, settings: Settings) -> Callable[[Context], A
         counters kept as files are written and removed (``service.storage.usage``, checked
         by a walk in a thread of its own), a stored change shows in the next answer, a scan
         file's growth within a second."""
-        return await health_document(c)
+        return await health_document(context)
 
     @app.get("/api/auth", response_model=AuthInfo, tags=["health"])
     def auth(request: Request) -> AuthInfo:
@@ -68,12 +68,12 @@ def add_health_routes(app: FastAPI, settings: Settings) -> Callable[[Context], A
     return health_document
 
 
-def health_problems(c: Context) -> list[str]:
+def health_problems(context: Context) -> list[str]:
     """What keeps jobs from running now, one line each, for ``/api/health``.
 
     Parameters
     ----------
-    c : Context
+    context : Context
         The app's context (settings, store, queue, scans).
 
     Returns
@@ -86,17 +86,17 @@ def health_problems(c: Context) -> list[str]:
     from service.storage.usage import usage_for
 
     out: list[str] = []
-    settings = c.settings
+    settings = context.settings
     free = usage_for(settings.data_dir).snapshot().get("free_bytes")
-    if free is not None and c.store.reserve_spent is not None:  # those bytes are the job database's
-        free = max(0, free - c.store.reserve_bytes)
+    if free is not None and context.store.reserve_spent is not None:  # those bytes are the job database's
+        free = max(0, free - context.store.reserve_bytes)
     if free is not None and free < settings.disk_reserve_bytes:
         out.append(f"the data folder's disk is full: {free} bytes free, below the reserve of "
                    f"{settings.disk_reserve_bytes} (disk_reserve_bytes); reconstructions that do not fit fail or wait, "
                    "scans pause: free space")
-    out += c.store.problems()
-    if c.queue is not None:
-        out += c.queue.problems()
-    if c.scans is not None:
-        out += c.scans.problems()
+    out += context.store.problems()
+    if context.queue is not None:
+        out += context.queue.problems()
+    if context.scans is not None:
+        out += context.scans.problems()
     return out

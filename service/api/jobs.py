@@ -149,12 +149,12 @@ def job_view(job: dict) -> Job:
                params=params, links=job_links(job), attempts=job["attempts"], error=job["error"])
 
 
-def get_job_or_404(c: Context, job_id: str, kind: str | None = None) -> dict:
+def get_job_or_404(context: Context, job_id: str, kind: str | None = None) -> dict:
     """The stored job ``job_id`` (of ``kind`` if given).
 
     Parameters
     ----------
-    c : Context
+    context : Context
         The app's context.
     job_id : str
         The job.
@@ -171,25 +171,25 @@ def get_job_or_404(c: Context, job_id: str, kind: str | None = None) -> dict:
     fastapi.HTTPException
         404 when there is no such job (of that kind).
     """
-    job = c.store.get(job_id)
+    job = context.store.get(job_id)
     if job is None or (kind is not None and job["kind"] != kind):
         raise HTTPException(404, f"no {kind or ''} job {job_id}".replace("  ", " "))
     return job
 
 
 @router.get("", response_model=list[Job], dependencies=[Depends(read_access)])
-def list_jobs(c: Context = Depends(ctx), state: JobState | None = Query(None), kind: JobKind | None = Query(None),
+def list_jobs(context: Context = Depends(ctx), state: JobState | None = Query(None), kind: JobKind | None = Query(None),
               limit: int = Query(200, ge=1, le=1000)) -> list[Job]:
     """Jobs, newest first, optionally filtered by state and kind."""
-    return [job_view(j) for j in c.store.list(state=state, kind=kind, limit=limit)]
+    return [job_view(j) for j in context.store.list(state=state, kind=kind, limit=limit)]
 
 
 @router.get("/{job_id}", response_model=Job, dependencies=[Depends(read_access)])
-async def get_job(job_id: str = JobId, c: Context = Depends(ctx)) -> Response:
+async def get_job(job_id: str = JobId, context: Context = Depends(ctx)) -> Response:
     """One job: state, progress, timings, parameters, links, error."""
-    job = c.store.peek(job_id)  # in-memory fast path; the database in a worker thread
+    job = context.store.peek(job_id)  # in-memory fast path; the database in a worker thread
     if job is None:
-        job = await anyio.to_thread.run_sync(c.store.get, job_id)
+        job = await anyio.to_thread.run_sync(context.store.get, job_id)
     if job is None:
         raise HTTPException(404, f"no job {job_id}")
     # serialised once here (the model already validates it): the hot polling path
@@ -197,27 +197,27 @@ async def get_job(job_id: str = JobId, c: Context = Depends(ctx)) -> Response:
 
 
 @router.post("/{job_id}/cancel", response_model=Job, dependencies=[Depends(require_token)])
-def cancel_job(job_id: str = JobId, c: Context = Depends(ctx)) -> Job:
+def cancel_job(job_id: str = JobId, context: Context = Depends(ctx)) -> Job:
     """Cooperative cancel: a queued or paused job ends at once; a running one at its next
     check (a scan after the current A-line, a reconstruction when its step returns)."""
-    job = get_job_or_404(c, job_id)
+    job = get_job_or_404(context, job_id)
     if job["state"] in TERMINAL:
         raise HTTPException(409, f"job {job_id} already {job['state']}")
-    c.store.request_cancel(job_id)
-    if job["kind"] == "scan" and c.scans is not None:
-        c.scans.cancel(job_id)
-    return job_view(get_job_or_404(c, job_id))
+    context.store.request_cancel(job_id)
+    if job["kind"] == "scan" and context.scans is not None:
+        context.scans.cancel(job_id)
+    return job_view(get_job_or_404(context, job_id))
 
 
 @router.delete("/{job_id}", response_model=Deleted, dependencies=[Depends(require_token)],
                responses={409: {"description": "the job is active, or an active job reads its scan"}})
-def delete_job(job_id: str = JobId, c: Context = Depends(ctx)) -> Deleted:
+def delete_job(job_id: str = JobId, context: Context = Depends(ctx)) -> Deleted:
     """Delete a finished job with its files (a scan's scan file and IPASC export, a
     reconstruction's volume and pictures) and its events. 409 while the job is queued,
     running or paused (cancel it first) or while an active reconstruction reads this
     scan."""
     try:
-        return Deleted(**lifecycle.delete_job(c.store, c.settings.data_dir, job_id))
+        return Deleted(**lifecycle.delete_job(context.store, context.settings.data_dir, job_id))
     except lifecycle.NotFound as exc:
         raise HTTPException(404, str(exc)) from None
     except lifecycle.InUse as exc:
@@ -227,14 +227,14 @@ def delete_job(job_id: str = JobId, c: Context = Depends(ctx)) -> Deleted:
 @router.get("/{job_id}/events", dependencies=[Depends(read_access)],
             responses={200: {"content": {"text/event-stream": {}},
                              "description": "SSE stream: `event: state|progress`, `id:` sequence, JSON data"}})
-async def job_events(job_id: str = JobId, c: Context = Depends(ctx),
+async def job_events(job_id: str = JobId, context: Context = Depends(ctx),
                      last_event_id: str | None = Header(None, alias="Last-Event-ID")) -> EventSourceResponse:
     """Server-Sent Events of the job's state changes and progress. Every event has an
     increasing ``id``; reconnecting with ``Last-Event-ID: n`` replays the events after n (an
     id that is not one of ours, :func:`last_event_seq`, replays them all). A keep-alive
     comment comes after ``events_keepalive_s`` (15 s) without an event; the stream lasts as
     long as the job and ends after its final state."""
-    job = await anyio.to_thread.run_sync(c.store.get, job_id)
+    job = await anyio.to_thread.run_sync(context.store.get, job_id)
     if job is None:
         raise HTTPException(404, f"no job {job_id}")
     after = last_event_seq(last_event_id)
@@ -243,11 +243,11 @@ async def job_events(job_id: str = JobId, c: Context = Depends(ctx),
         # woken by the store's one listener (EventWakeups) at each committed event of this
         # job, never by a clock; a client gone cancels it (the response's disconnect watch)
         nonlocal after
-        wakeups = c.wakeups
+        wakeups = context.wakeups
         with wakeups.watch(job_id) if wakeups is not None else contextlib.nullcontext(asyncio.Event()) as woken:
             while True:
                 woken.clear()  # an event committed from here on wakes the wait below
-                events, state = await anyio.to_thread.run_sync(_events_and_state, c.store, job_id, after,
+                events, state = await anyio.to_thread.run_sync(_events_and_state, context.store, job_id, after,
                                                                limiter=getattr(wakeups, "reads", None))
                 for ev in events:
                     after = ev["seq"]
@@ -263,7 +263,7 @@ async def job_events(job_id: str = JobId, c: Context = Depends(ctx),
                     else:
                         await woken.wait()
 
-    return EventSourceResponse(stream(), ping=c.settings.events_keepalive_s)
+    return EventSourceResponse(stream(), ping=context.settings.events_keepalive_s)
 
 
 #: events read from the store at once for a stream

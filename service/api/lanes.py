@@ -131,7 +131,7 @@ class HealthLane:
     settings : Settings
         The service's settings (the access rules).
     document : callable
-        ``document(ctx)``: an awaitable of the ``Health`` model, given the app's ``Context``.
+        ``document(context)``: an awaitable of the ``Health`` model, given the app's ``Context``.
 
     Attributes
     ----------
@@ -154,10 +154,10 @@ class HealthLane:
         if (scope["type"] != "http" or scope.get("path") != HEALTH_PATH or scope.get("method") != "GET"
                 or self.gate(scope) is not None):
             return await self.app(scope, receive, send)
-        ctx = getattr(getattr(scope.get("app"), "state", None), "ctx", None)
-        if ctx is None:  # not started (no lifespan): the route answers
+        context = getattr(getattr(scope.get("app"), "state", None), "ctx", None)
+        if context is None:  # not started (no lifespan): the route answers
             return await self.app(scope, receive, send)
-        body = (await self.document(ctx)).model_dump_json().encode()
+        body = (await self.document(context)).model_dump_json().encode()
         await send({"type": "http.response.start", "status": 200,
                     "headers": [(b"content-type", b"application/json"),
                                 (b"content-length", str(len(body)).encode())]})

@@ -355,15 +355,15 @@ _EXECUTOR_LOCK = threading.Lock()
 PLAN_WORKER_NICE = 8
 
 
-def plan_executor(c: Context) -> LocalExecutor:
+def plan_executor(context: Context) -> LocalExecutor:
     """The service's plan worker: one spawned process at a lower CPU priority.
 
-    Made on first use (at start-up) and kept in ``c.extras["plan_executor"]``; it warms up in
+    Made on first use (at start-up) and kept in ``context.extras["plan_executor"]``; it warms up in
     the background; closed with the app.
 
     Parameters
     ----------
-    c : Context
+    context : Context
         The app's context.
 
     Returns
@@ -384,48 +384,48 @@ def plan_executor(c: Context) -> LocalExecutor:
                                        initargs=(PLAN_WORKER_NICE, os.getpid()))
 
     with _EXECUTOR_LOCK:
-        ex = c.extras.get("plan_executor")
+        ex = context.extras.get("plan_executor")
         if ex is None:
-            ex = c.extras["plan_executor"] = PlanWorker(1)
+            ex = context.extras["plan_executor"] = PlanWorker(1)
             ex.submit(warm_up)  # in the background; the first request queues behind it
         return ex
 
 
-def _in_plan_worker(c: Context, fn: Callable[..., _T], *args: Any, admit: bool = False) -> _T:
+def _in_plan_worker(context: Context, fn: Callable[..., _T], *args: Any, admit: bool = False) -> _T:
     """``fn(*args)`` in the plan worker (blocking: call it from a worker thread), within a
-    turn of ``c.slots["plans"]``. ``admit``: count the request in first, 429 when the plan
+    turn of ``context.slots["plans"]``. ``admit``: count the request in first, 429 when the plan
     slots are full (reads such as ``preview.png``, which ``UploadLimit`` does not count: a
     burst of them must not queue without bound, each holding a server thread). A worker that
     died is answered 503."""
-    slots = c.slots["plans"]
+    slots = context.slots["plans"]
     if admit:
         if not slots.enter():
             raise HTTPException(429, slots.busy_reason(), headers={"Retry-After": str(slots.retry_after_s)})
         try:
-            return _in_plan_worker(c, fn, *args)
+            return _in_plan_worker(context, fn, *args)
         finally:
             slots.leave()
     from service.jobs.executors import WorkerDied
 
-    with _plan_turn(c):
+    with _plan_turn(context):
         try:
-            return plan_executor(c).run(fn, *args)
+            return plan_executor(context).run(fn, *args)
         except WorkerDied:
             raise HTTPException(503, "the plan worker process died (out of memory?); retry",
                                 headers={"Retry-After": "5"}) from None
 
 
 @contextlib.contextmanager
-def _plan_turn(c: Context) -> Iterator[None]:
-    """Plan work within the service's bounds: a turn of ``c.slots["plans"]`` (the request
+def _plan_turn(context: Context) -> Iterator[None]:
+    """Plan work within the service's bounds: a turn of ``context.slots["plans"]`` (the request
     was counted in, or refused with 429, before its body was read: ``UploadLimit``)."""
-    with c.slots["plans"].turn():
+    with context.slots["plans"].turn():
         yield
 
 
-async def _plan_request(request: Request, c: Context, preview: bool) -> dict:
+async def _plan_request(request: Request, context: Context, preview: bool) -> dict:
     raw = await request.body()  # I/O only: parsing and checking happen in the plan worker
-    out = await anyio.to_thread.run_sync(_in_plan_worker, c, plan_work, raw, request.headers.get("content-type"),
+    out = await anyio.to_thread.run_sync(_in_plan_worker, context, plan_work, raw, request.headers.get("content-type"),
                                          preview)
     if out["status"] >= 400:
         raise HTTPException(out["status"], out["detail"])
@@ -438,11 +438,11 @@ async def _plan_request(request: Request, c: Context, preview: bool) -> dict:
 # (left out of the schema) answer; the typed routes after them document the body
 # (PlanCreate) in the OpenAPI schema and, if ever reached, answer the same way.
 @router.post("", status_code=201, include_in_schema=False, dependencies=[Depends(require_token)])
-async def create_plan_raw(request: Request, c: Context = Depends(ctx)) -> Response:
+async def create_plan_raw(request: Request, context: Context = Depends(ctx)) -> Response:
     """``POST /api/plans`` (documented by :func:`create_plan`): build in the plan worker, store, 201."""
-    out = await _plan_request(request, c, preview=False)
+    out = await _plan_request(request, context, preview=False)
     s = out["summary"]
-    await anyio.to_thread.run_sync(c.store.put_plan_text, s["id"], out["text"], s)
+    await anyio.to_thread.run_sync(context.store.put_plan_text, s["id"], out["text"], s)
     SERVED.put(s["id"], out["gzip"])
     # pydantic's JSON: a non-finite number (an unbounded scan time) is null, as in every answer
     return Response(Plan(**s).model_dump_json(), 201, media_type="application/json",
@@ -450,9 +450,9 @@ async def create_plan_raw(request: Request, c: Context = Depends(ctx)) -> Respon
 
 
 @router.post("/preview", include_in_schema=False, dependencies=[Depends(require_token)])
-async def preview_plan_raw(request: Request, c: Context = Depends(ctx)) -> Response:
+async def preview_plan_raw(request: Request, context: Context = Depends(ctx)) -> Response:
     """``POST /api/plans/preview`` (documented by :func:`preview_plan`): build and draw in the plan worker."""
-    out = await _plan_request(request, c, preview=True)
+    out = await _plan_request(request, context, preview=True)
     s = out["summary"]
     return Response(PlanPreview(points=s["n_points"], weight_ratio=s["weight_ratio"],
                                 expected_scan_time_s=s["expected_scan_time_s"],
@@ -464,24 +464,24 @@ async def preview_plan_raw(request: Request, c: Context = Depends(ctx)) -> Respo
 async def create_plan(
     request: Request,
     body: PlanCreate,  # a union built from service.plans.kinds.KINDS
-    c: Context = Depends(ctx),
+    context: Context = Depends(ctx),
 ) -> Response:
     """Create (or find, same content → same id) a plan from a mask kind and its params, a
     point list, or a plan JSON made by ``fpscan plan`` (kept with its id); ``Location``
     names it. The work runs in the plan worker process."""
-    return await create_plan_raw(request, c)
+    return await create_plan_raw(request, context)
 
 
 @router.post("/preview", response_model=PlanPreview, dependencies=[Depends(require_token)])
 async def preview_plan(
     request: Request,
     body: PlanCreate,  # a union built from service.plans.kinds.KINDS
-    c: Context = Depends(ctx),
+    context: Context = Depends(ctx),
 ) -> Response:
     """The plan a request would give, without saving it. Does the work of a plan, so it
     needs the token like the mutating routes (and, like them, 429 when too many plan
     requests are in progress)."""
-    return await preview_plan_raw(request, c)
+    return await preview_plan_raw(request, context)
 
 
 @router.get("/kinds", response_model=list[MaskKindInfo], dependencies=[Depends(read_access)])
@@ -497,17 +497,17 @@ def list_mask_kinds() -> list[MaskKindInfo]:
 
 
 @router.get("", response_model=list[Plan], dependencies=[Depends(read_access)])
-def list_plans(c: Context = Depends(ctx)) -> list[Plan]:
+def list_plans(context: Context = Depends(ctx)) -> list[Plan]:
     """All stored plans, as summaries."""
-    return [Plan(**s) for s in c.store.list_plans()]
+    return [Plan(**s) for s in context.store.list_plans()]
 
 
-def plan_or_404(c: Context, plan_id: str) -> dict:
+def plan_or_404(context: Context, plan_id: str) -> dict:
     """The stored plan dict ``plan_id``.
 
     Parameters
     ----------
-    c : Context
+    context : Context
         The app's context.
     plan_id : str
         The plan's id.
@@ -522,16 +522,16 @@ def plan_or_404(c: Context, plan_id: str) -> dict:
     fastapi.HTTPException
         404 when there is no such plan.
     """
-    found = c.store.get_plan(plan_id)
+    found = context.store.get_plan(plan_id)
     if found is None:
         raise HTTPException(404, f"no plan {plan_id}")
     return found[0]
 
 
 @router.get("/{plan_id}", response_model=Plan, dependencies=[Depends(read_access)])
-def get_plan(plan_id: str = Path(pattern=ID_PATTERN), c: Context = Depends(ctx)) -> Plan:
+def get_plan(plan_id: str = Path(pattern=ID_PATTERN), context: Context = Depends(ctx)) -> Plan:
     """One plan's summary (stored with the plan: its points are not read)."""
-    found = c.store.get_plan_summary(plan_id)
+    found = context.store.get_plan_summary(plan_id)
     if found is None:
         raise HTTPException(404, f"no plan {plan_id}")
     return Plan(**found)
@@ -539,10 +539,10 @@ def get_plan(plan_id: str = Path(pattern=ID_PATTERN), c: Context = Depends(ctx))
 
 @router.delete("/{plan_id}", response_model=Deleted, dependencies=[Depends(require_token)],
                responses={409: {"description": "an active scan job uses the plan"}})
-def delete_plan(plan_id: str = Path(pattern=ID_PATTERN), c: Context = Depends(ctx)) -> Deleted:
+def delete_plan(plan_id: str = Path(pattern=ID_PATTERN), context: Context = Depends(ctx)) -> Deleted:
     """Delete a stored plan; 409 while a queued, running or paused scan uses it."""
     try:
-        return Deleted(kind="plan", **lifecycle.delete_plan(c.store, plan_id))
+        return Deleted(kind="plan", **lifecycle.delete_plan(context.store, plan_id))
     except lifecycle.NotFound as exc:
         raise HTTPException(404, str(exc)) from None
     except lifecycle.InUse as exc:
@@ -585,20 +585,21 @@ def accepts_encoding(header: str, coding: str) -> bool:
 
 @router.get("/{plan_id}/plan.json", dependencies=[Depends(read_access)],
             responses={200: {"content": {"application/json": {}}, "description": "the full plan JSON"}})
-def get_plan_json(request: Request, plan_id: str = Path(pattern=ID_PATTERN), c: Context = Depends(ctx)) -> Response:
+def get_plan_json(request: Request, plan_id: str = Path(pattern=ID_PATTERN),
+                  context: Context = Depends(ctx)) -> Response:
     """The full plan (docs/architecture.md, ``fpscan-plan/1``), served as stored at its
     creation (never parsed or serialized again): gzip-compressed (``Content-Encoding:
     gzip``) to clients that accept it, as plain JSON to others."""
     accepts_gzip = accepts_encoding(request.headers.get("accept-encoding", ""), "gzip")
     packed = SERVED.get(plan_id) if accepts_gzip else None
-    if packed is not None and c.store.get_plan_summary(plan_id) is not None:
+    if packed is not None and context.store.get_plan_summary(plan_id) is not None:
         return Response(packed, media_type="application/json",
                         headers={"Content-Encoding": "gzip", "Vary": "Accept-Encoding"})
-    text = c.store.get_plan_text(plan_id)
+    text = context.store.get_plan_text(plan_id)
     if text is None:
         raise HTTPException(404, f"no plan {plan_id}")
     if accepts_gzip:  # compressed once, in the plan worker, then kept
-        packed = _in_plan_worker(c, gzip_text, text, admit=True)
+        packed = _in_plan_worker(context, gzip_text, text, admit=True)
         SERVED.put(plan_id, packed)
         return Response(packed, media_type="application/json",
                         headers={"Content-Encoding": "gzip", "Vary": "Accept-Encoding"})
@@ -607,10 +608,11 @@ def get_plan_json(request: Request, plan_id: str = Path(pattern=ID_PATTERN), c: 
 
 @router.get("/{plan_id}/preview.png", dependencies=[Depends(read_access)], response_class=Response,
             responses={200: {"content": {"image/png": {}}, "description": "mask preview"}})
-async def plan_preview_png(plan_id: str = Path(pattern=ID_PATTERN), c: Context = Depends(ctx)) -> Response:
+async def plan_preview_png(plan_id: str = Path(pattern=ID_PATTERN), context: Context = Depends(ctx)) -> Response:
     """The plan's sensor-mask preview (PNG), drawn in the plan worker process."""
-    text = await anyio.to_thread.run_sync(c.store.get_plan_text, plan_id)
+    text = await anyio.to_thread.run_sync(context.store.get_plan_text, plan_id)
     if text is None:
         raise HTTPException(404, f"no plan {plan_id}")
-    png = await anyio.to_thread.run_sync(functools.partial(_in_plan_worker, c, preview_png_of_text, text, admit=True))
+    png = await anyio.to_thread.run_sync(functools.partial(_in_plan_worker, context, preview_png_of_text, text,
+                                                           admit=True))
     return Response(png, media_type="image/png")

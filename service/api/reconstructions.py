@@ -39,19 +39,19 @@ IdemKey = Header(None, alias="Idempotency-Key", min_length=1, max_length=200,
                  description="same key → same job (1-200 characters; an empty key is refused)")
 
 
-def _full_scan_job_id(c: Context, body: ReconRequest) -> ReconRequest:
+def _full_scan_job_id(context: Context, body: ReconRequest) -> ReconRequest:
     """``body`` with a short ``scan_job_id`` (a unique prefix) replaced by the full id;
     409 when the prefix is ambiguous."""
     sid = body.scan_job_id
     if sid is None or len(sid) >= 32:
         return body
-    found = c.store.resolve(sid)
+    found = context.store.resolve(sid)
     if len(found) > 1:
         raise HTTPException(409, f"scan_job_id {sid!r} matches several jobs: give more characters")
     return body.model_copy(update={"scan_job_id": found[0]}) if found else body
 
 
-def _with_method(c: Context, body: ReconRequest) -> ReconRequest:
+def _with_method(context: Context, body: ReconRequest) -> ReconRequest:
     """``body`` with its ``method`` resolved: as given, or the default for the input
     (``service.pipeline.default_method`` of a stored dataset's layout; a scan file loads as
     sensor points). An unknown dataset is left to the input checks (404)."""
@@ -62,7 +62,7 @@ def _with_method(c: Context, body: ReconRequest) -> ReconRequest:
         return body.model_copy(update={"method": default_method(kind)})
     ds_id = body.dataset_id if body.dataset_id is not None else next(iter(body.dataset_ids or ()), None)
     if ds_id is not None:
-        meta = c.store.get_dataset(ds_id)
+        meta = context.store.get_dataset(ds_id)
         kind = meta["layout"] if meta is not None else "points"
     return body.model_copy(update={"method": default_method(kind)})
 
@@ -79,7 +79,7 @@ def _check_unmix_wavelengths(wavelengths: list) -> None:
         raise HTTPException(422, str(exc)) from None
 
 
-def _unmix_inputs(c: Context, body: ReconRequest) -> tuple[dict, dict, str]:
+def _unmix_inputs(context: Context, body: ReconRequest) -> tuple[dict, dict, str]:
     """Job parameters (``inputs``/``wavelengths``), memory-estimate shape and input id of
     an unmixing request; raises HTTPException."""
     if body.dataset_ids is not None:
@@ -93,15 +93,15 @@ def _unmix_inputs(c: Context, body: ReconRequest) -> tuple[dict, dict, str]:
         shape: dict = {}
         for ds_id in body.dataset_ids:
             one = body.model_copy(update={"dataset_id": ds_id, "dataset_ids": None, "unmix": None})
-            spec, shape, _ = _input_for(c, one)
+            spec, shape, _ = _input_for(context, one)
             inputs.append(spec)
         return {"inputs": inputs, "wavelengths": list(body.wavelengths)}, shape, \
             "datasets:" + ",".join(body.dataset_ids)
     if body.scan_job_id is None:
         raise HTTPException(422, "unmixing needs scan_job_id (a multi-wavelength scan) or dataset_ids")
-    spec, shape, input_id = _input_for(c, body.model_copy(update={"unmix": None}))
-    job = c.store.get(body.scan_job_id)
-    found = c.store.get_plan(job["params"]["plan_id"]) if job is not None else None
+    spec, shape, input_id = _input_for(context, body.model_copy(update={"unmix": None}))
+    job = context.store.get(body.scan_job_id)
+    found = context.store.get_plan(job["params"]["plan_id"]) if job is not None else None
     if found is None:  # _input_for has checked both; the store may have changed since
         raise HTTPException(404, f"the plan of scan job {body.scan_job_id} is gone")
     plan = found[0]
@@ -109,7 +109,7 @@ def _unmix_inputs(c: Context, body: ReconRequest) -> tuple[dict, dict, str]:
     return {"input": spec, "wavelengths": None}, shape, input_id  # shape: input_shape of the plan, its wavelengths
 
 
-def _input_for(c: Context, body: ReconRequest) -> tuple[dict, dict, str]:
+def _input_for(context: Context, body: ReconRequest) -> tuple[dict, dict, str]:
     """``(input spec, shape for the memory estimate, input id)``; raises HTTPException."""
     if body.dataset_ids is not None and body.unmix is None:
         raise HTTPException(422, "dataset_ids (one dataset per wavelength) need unmix")
@@ -123,13 +123,13 @@ def _input_for(c: Context, body: ReconRequest) -> tuple[dict, dict, str]:
         raise HTTPException(422, renamed_words(str(exc), PERSON_NAMES)) from None
     needs_grid = METHODS[method].needs_grid
     if body.scan_job_id is not None:
-        job = c.store.get(body.scan_job_id)
+        job = context.store.get(body.scan_job_id)
         if job is None or job["kind"] != "scan":
             raise HTTPException(404, f"no scan job {body.scan_job_id}")
         scan_path = job["params"].get("scan_path")
         if not scan_path or not Path(scan_path).exists():
             raise HTTPException(409, f"scan job {body.scan_job_id} has no scan file yet")
-        found = c.store.get_plan(job["params"]["plan_id"])
+        found = context.store.get_plan(job["params"]["plan_id"])
         if found is None:
             raise HTTPException(404, f"the plan of scan job {body.scan_job_id} is gone")
         plan = found[0]
@@ -144,21 +144,21 @@ def _input_for(c: Context, body: ReconRequest) -> tuple[dict, dict, str]:
         return spec, shape, f"scan:{body.scan_job_id}"
     dataset_id = body.dataset_id
     assert dataset_id is not None  # exactly one of the two, checked above
-    meta = c.store.get_dataset(dataset_id)
+    meta = context.store.get_dataset(dataset_id)
     if meta is None:
         raise HTTPException(404, f"no dataset {dataset_id}")
-    path = str(Path(c.settings.data_dir) / "datasets" / dataset_id / meta["path"])
+    path = str(Path(context.settings.data_dir) / "datasets" / dataset_id / meta["path"])
     # a stored dataset holds one wavelength's data (of a multi-wavelength file: the one chosen at upload)
     ds_spec = _with_wavelength({"kind": "dataset", "path": path}, body.wavelength, [None], f"dataset {dataset_id}")
     if body.plan_id is not None:
-        return _sampled(c, body, meta, ds_spec, needs_grid)
+        return _sampled(context, body, meta, ds_spec, needs_grid)
     if meta["layout"] != "grid" and needs_grid and not meta.get("full_lattice"):
         raise HTTPException(422, f"method {body.method!r} needs a full regular grid; this dataset needs "
                                  f"{default_method('points')!r}")
     return ds_spec, input_shape(meta), f"dataset:{body.dataset_id}"
 
 
-def _sampled(c: Context, body: ReconRequest, meta: dict, spec: dict, needs_grid: bool) -> tuple[dict, dict, str]:
+def _sampled(context: Context, body: ReconRequest, meta: dict, spec: dict, needs_grid: bool) -> tuple[dict, dict, str]:
     """The input of a dataset sampled by a stored plan (``service.subsample``): 404 for an
     unknown plan, 422 where the plan cannot sample the dataset (its record: dense, the pitch,
     dt and lattice that fit) or the method needs a full grid the mask does not give."""
@@ -167,7 +167,7 @@ def _sampled(c: Context, body: ReconRequest, meta: dict, spec: dict, needs_grid:
     from service.plans import Plan
     from service.subsample import check_fit
 
-    found = c.store.get_plan(str(body.plan_id))
+    found = context.store.get_plan(str(body.plan_id))
     if found is None:
         raise HTTPException(404, f"no plan {body.plan_id}")
     doc = found[0]
@@ -232,7 +232,7 @@ def list_methods() -> list[MethodInfo]:
                         429: {"description": "the client has queued_per_client reconstructions queued (the reason "
                                             "says the cap, the queue's length and its estimated wait)"},
                         507: {"model": Error, "description": "the result does not fit the free disk"}})
-def start_reconstruction(body: ReconRequest, response: Response, request: Request, c: Context = Depends(ctx),
+def start_reconstruction(body: ReconRequest, response: Response, request: Request, context: Context = Depends(ctx),
                          idempotency_key: str | None = IdemKey) -> Job:
     """Queue a reconstruction → 202, ``Location: /api/jobs/{id}``. Refused with 422 when
     it can never fit in the memory limit, when its work estimate is over the server's work
@@ -240,32 +240,32 @@ def start_reconstruction(body: ReconRequest, response: Response, request: Reques
     image deeper than the record can hear); 507 when its result does not fit the free disk;
     429 (``Retry-After``) while the client's address has ``queued_per_client`` reconstructions
     queued, saying the cap, the queue's length and its estimated wait."""
-    body = _with_method(c, _full_scan_job_id(c, body))
+    body = _with_method(context, _full_scan_job_id(context, body))
     extra: dict = {}
     if body.unmix is not None and body.wavelength is not None:
         raise HTTPException(422, "unmix reconstructs every wavelength: leave wavelength out")
     if body.unmix is not None:
-        extra, shape, input_id = _unmix_inputs(c, body)
+        extra, shape, input_id = _unmix_inputs(context, body)
         spec = extra.pop("input", None) or extra["inputs"][0]
         extra["unmix"] = body.unmix.model_dump()
     else:
-        spec, shape, input_id = _input_for(c, body)
+        spec, shape, input_id = _input_for(context, body)
     params = body.params.model_dump()
     try:
         mem = estimate_memory(shape, {**params, "method": body.method})
-        work = _work(c, shape, params, body, extra)
+        work = _work(context, shape, params, body, extra)
         if body.unmix is not None:  # every wavelength's volume is held for the unmixing (float32, x3 temporaries)
             n_w = len(extra.get("inputs") or []) or int(shape.get("n_wavelengths", 2))
             mem += 3 * n_w * 4 * int(shape["n_t"]) * int(shape["n_x"]) * int(shape.get("n_y", 1))
         elif body.wavelength == "all":  # every wavelength's volume is held until written (up to float64)
             mem += int(shape.get("n_wavelengths", 1)) * 8 * int(shape["n_t"]) * int(shape["n_x"]) * \
                 int(shape.get("n_y", 1))
-        admit(mem, c.settings.memory_limit)
-        admit_work(work, c.settings.work_limit_s)
+        admit(mem, context.settings.memory_limit)
+        admit_work(work, context.settings.work_limit_s)
     except ValueError as exc:  # AdmissionError, or the method's refusal of options the input cannot carry
         raise HTTPException(422, reason(exc)) from None
     needed = _result_bytes(shape, params, body, extra)
-    free = _free_bytes(c)
+    free = _free_bytes(context)
     if free is not None and free < needed:
         raise HTTPException(507, f"no room for the result on the data folder's disk: {free} bytes free (beyond "
                                  f"the reserve), {needed} needed; free space, then retry")
@@ -277,10 +277,10 @@ def start_reconstruction(body: ReconRequest, response: Response, request: Reques
                   "wavelength": body.wavelength, **extra,
                   "client": (request.scope.get("client") or ("?", 0))[0]}  # whose queue it counts in
     try:  # its inputs looked up again with the job's creation, no deletion between (issue 60.4)
-        job, _created = lifecycle.create_job(c.store, "recon", job_params, idempotency_key=idempotency_key,
-                                             memory_bytes=mem, max_queued=c.settings.queued_per_client)
+        job, _created = lifecycle.create_job(context.store, "recon", job_params, idempotency_key=idempotency_key,
+                                             memory_bytes=mem, max_queued=context.settings.queued_per_client)
     except QueueFull as exc:
-        wait, first = queue_wait(c, exc.client)
+        wait, first = queue_wait(context, exc.client)
         raise HTTPException(
             429, f"this client has {exc.queued} reconstructions queued, the most one client may have (queued_per_client "
                  f"= {exc.limit}); the queue holds {wait['queued']} queued and {wait['running']} running, an estimated "
@@ -291,13 +291,13 @@ def start_reconstruction(body: ReconRequest, response: Response, request: Reques
         raise HTTPException(409, str(exc)) from None
     except lifecycle.NotFound as exc:
         raise HTTPException(404, f"{exc} (deleted meanwhile)") from None
-    if c.queue is not None:
-        c.queue.wake()
+    if context.queue is not None:
+        context.queue.wake()
     response.headers["Location"] = f"/api/jobs/{job['id']}"
     return job_view(job)
 
 
-def queue_wait(c: Context, client: str | None = None) -> tuple[dict, float]:
+def queue_wait(context: Context, client: str | None = None) -> tuple[dict, float]:
     """The reconstruction queue's length and estimated wait, from the jobs' work estimates
     (``params["work_estimate_s"]``, s on 2 cores: ``service.jobs.admission.estimate_work``).
 
@@ -307,7 +307,7 @@ def queue_wait(c: Context, client: str | None = None) -> tuple[dict, float]:
 
     Parameters
     ----------
-    c : Context
+    context : Context
         The app's context.
     client : str or None, optional
         A client's address: also say when its oldest queued job is estimated to start.
@@ -321,9 +321,9 @@ def queue_wait(c: Context, client: str | None = None) -> tuple[dict, float]:
     import time
 
     now = time.time()
-    queued = c.store.queued("recon")
-    running = c.store.list(state="running", kind="recon", limit=1_000_000)
-    workers = max(1, int(c.settings.workers))
+    queued = context.store.queued("recon")
+    running = context.store.list(state="running", kind="recon", limit=1_000_000)
+    workers = max(1, int(context.settings.workers))
 
     def work(job: dict) -> float:
         return max(0.0, float(job["params"].get("work_estimate_s") or 0.0))
@@ -338,13 +338,13 @@ def queue_wait(c: Context, client: str | None = None) -> tuple[dict, float]:
     return {"queued": len(queued), "running": len(running), "wait_s": wait}, (wait if first is None else first)
 
 
-def _work(c: Context, shape: dict, params: dict, body: ReconRequest, extra: dict) -> float:
+def _work(context: Context, shape: dict, params: dict, body: ReconRequest, extra: dict) -> float:
     """The job's work in seconds on 2 cores (``service.jobs.admission.estimate_work``) with
     a time-limited method's time limit as the worker will cap it (the server's ``time_limit_s``), times the
     wavelengths it reconstructs (``wavelength: "all"``, unmixing)."""
     asked = {**params, "method": body.method}
     if body.method is not None and method_named(body.method).time_limited:
-        cap = float(c.settings.time_limit_s)
+        cap = float(context.settings.time_limit_s)
         asked["time_limit"] = min(float(params.get("time_limit") or cap), cap)
     seconds = estimate_work(shape, asked)
     if body.unmix is not None:
@@ -354,18 +354,18 @@ def _work(c: Context, shape: dict, params: dict, body: ReconRequest, extra: dict
     return seconds
 
 
-def _free_bytes(c: Context) -> int | None:
+def _free_bytes(context: Context) -> int | None:
     """Free bytes of the data folder's disk for a result (None when unknown): less the
     reserve an upload must leave (``disk_reserve_bytes``) and the job database's reserve
     while it is spent."""
     import shutil
 
     try:
-        free = shutil.disk_usage(c.settings.data_dir).free
+        free = shutil.disk_usage(context.settings.data_dir).free
     except OSError:
         return None
-    spent = c.store.reserve_bytes if c.store.reserve_spent is not None else 0
-    return max(0, free - int(c.settings.disk_reserve_bytes) - spent)
+    spent = context.store.reserve_bytes if context.store.reserve_spent is not None else 0
+    return max(0, free - int(context.settings.disk_reserve_bytes) - spent)
 
 
 def _result_bytes(shape: dict, params: dict, body: ReconRequest, extra: dict) -> int:
@@ -379,12 +379,12 @@ def _result_bytes(shape: dict, params: dict, body: ReconRequest, extra: dict) ->
     return estimate_result_bytes(shape, {**params, "method": body.method}, volumes)
 
 
-def result_dir(c: Context, job_id: str) -> Path:
+def result_dir(context: Context, job_id: str) -> Path:
     """The result folder of the succeeded reconstruction ``job_id``.
 
     Parameters
     ----------
-    c : Context
+    context : Context
         The app's context.
     job_id : str
         The reconstruction job.
@@ -399,7 +399,7 @@ def result_dir(c: Context, job_id: str) -> Path:
     fastapi.HTTPException
         404 for no such reconstruction job; 409 while it has no result (not ``succeeded``).
     """
-    job = get_job_or_404(c, job_id, "recon")
+    job = get_job_or_404(context, job_id, "recon")
     if job["state"] != "succeeded" or not job["result_path"]:
         raise HTTPException(409, f"reconstruction {job_id} is {job['state']}, no result yet")
     return Path(job["result_path"])
@@ -409,12 +409,12 @@ WavelengthQuery = Query(None, ge=0, le=15, description="the volume of wavelength
                                                        "'all' or unmix (default: the first)")
 
 
-def volume_dir(c: Context, job_id: str, wavelength: int | None) -> Path:
+def volume_dir(context: Context, job_id: str, wavelength: int | None) -> Path:
     """The folder of the job's volume at ``wavelength``.
 
     Parameters
     ----------
-    c : Context
+    context : Context
         The app's context.
     job_id : str
         The reconstruction job.
@@ -433,12 +433,12 @@ def volume_dir(c: Context, job_id: str, wavelength: int | None) -> Path:
         404 naming the wavelengths the job has when it has no volume at ``wavelength``;
         404 / 409 from :func:`result_dir`.
     """
-    folder = result_dir(c, job_id)
+    folder = result_dir(context, job_id)
     if wavelength is None:
         return folder
     if (folder / f"wavelength_{wavelength}").is_dir():
         return folder / f"wavelength_{wavelength}"
-    job = get_job_or_404(c, job_id, "recon")
+    job = get_job_or_404(context, job_id, "recon")
     have = sorted(int(p.name.split("_", 1)[1]) for p in folder.glob("wavelength_*") if p.name[11:].isdigit())
     if not have and wavelength == int(job["params"].get("wavelength") or 0):  # a job of one wavelength
         return folder
@@ -451,12 +451,12 @@ def volume_dir(c: Context, job_id: str, wavelength: int | None) -> Path:
                        206: {"description": "partial content (HTTP Range)"},
                        404: {"description": "no volume at that wavelength"}})
 def volume(job_id: str = JobId, wavelength: int | None = WavelengthQuery,
-           c: Context = Depends(ctx)) -> HeldFileResponse:
+           context: Context = Depends(ctx)) -> HeldFileResponse:
     """The result volume: ``/p0`` ``(n_z, n_y, n_x)``, ``/z``, ``/x``, ``/y`` (m), attributes
     ``method``, ``params`` (with ``wavelength_index``/``wavelength_nm`` for a
     multi-wavelength input). ``?wavelength=k``: wavelength ``k``'s volume of a job over
     every wavelength (``wavelength='all'`` or unmix). Supports ``Range``."""
-    path = volume_dir(c, job_id, wavelength) / VOLUME_FILE
+    path = volume_dir(context, job_id, wavelength) / VOLUME_FILE
     return HeldFileResponse(path, gone=f"reconstruction {job_id} was deleted meanwhile", media_type="application/x-hdf5",
                             filename=f"{job_id}.h5" if wavelength is None else f"{job_id}-wavelength_{wavelength}.h5")
 
@@ -465,11 +465,11 @@ def volume(job_id: str = JobId, wavelength: int | None = WavelengthQuery,
             responses={200: {"content": {"application/x-hdf5": {}},
                              "description": "HbO2, Hb, THb, sO2 and mask volumes (HDF5, fpscan-unmix/1)"},
                        404: {"description": "the job did not unmix"}})
-def unmix_h5(job_id: str = JobId, c: Context = Depends(ctx)) -> HeldFileResponse:
+def unmix_h5(job_id: str = JobId, context: Context = Depends(ctx)) -> HeldFileResponse:
     """The unmixing of a multi-wavelength job: ``/hbo2``, ``/hb``, ``/thb``, ``/so2`` (NaN
     where masked), ``/mask``, ``/z``, ``/x``, ``/y`` (m), ``/wavelengths_m``
     (``service.spectral``). Supports ``Range``."""
-    path = result_dir(c, job_id) / "unmix.h5"
+    path = result_dir(context, job_id) / "unmix.h5"
     if not path.exists():
         raise HTTPException(404, f"reconstruction {job_id} was not unmixed (ask with 'unmix')")
     return HeldFileResponse(path, gone=f"reconstruction {job_id} was deleted meanwhile",
@@ -479,10 +479,10 @@ def unmix_h5(job_id: str = JobId, c: Context = Depends(ctx)) -> HeldFileResponse
 @router.get("/{job_id}/so2.png", dependencies=[Depends(read_access)], response_class=Response,
             responses={200: {"content": {"image/png": {}}, "description": "sO2 map (colour), THb (brightness), background black"},
                        404: {"description": "the job did not unmix"}})
-def so2_png(job_id: str = JobId, c: Context = Depends(ctx)) -> Response:
+def so2_png(job_id: str = JobId, context: Context = Depends(ctx)) -> Response:
     """The sO2 picture: at each (x, y) the sO2 of the voxel of largest THb along depth,
     colour bar 0..100 %, brightness from THb, background black (``service.spectral.render_so2_png``)."""
-    path = result_dir(c, job_id) / "so2.png"
+    path = result_dir(context, job_id) / "so2.png"
     if not path.exists():
         raise HTTPException(404, f"reconstruction {job_id} was not unmixed (ask with 'unmix')")
     return Response(path.read_bytes(), media_type="image/png")
@@ -491,10 +491,10 @@ def so2_png(job_id: str = JobId, c: Context = Depends(ctx)) -> Response:
 @router.get("/{job_id}/mip/{plane}.png", dependencies=[Depends(read_access)], response_class=Response,
             responses={200: {"content": {"image/png": {}}, "description": "MIP"}})
 def mip_png(plane: Plane, job_id: str = JobId, wavelength: int | None = WavelengthQuery,
-            c: Context = Depends(ctx)) -> Response:
+            context: Context = Depends(ctx)) -> Response:
     """Maximum-intensity projection: ``xy`` (over z), ``xz`` (over y), ``yz`` (over x);
     ``?wavelength=k`` as for the volume."""
-    path = volume_dir(c, job_id, wavelength) / mip_file(plane)
+    path = volume_dir(context, job_id, wavelength) / mip_file(plane)
     if not path.exists():
         raise HTTPException(404, f"a 2-D image has no {plane} MIP")
     return Response(path.read_bytes(), media_type="image/png")
@@ -503,14 +503,14 @@ def mip_png(plane: Plane, job_id: str = JobId, wavelength: int | None = Waveleng
 @router.get("/{job_id}/slice.png", dependencies=[Depends(read_access)], response_class=Response,
             responses={200: {"content": {"image/png": {}}, "description": "depth slice z = index·dz"}})
 def slice_png(job_id: str = JobId, index: int = Query(0, ge=0, le=1_000_000, description="depth index"),
-              c: Context = Depends(ctx)) -> Response:
+              context: Context = Depends(ctx)) -> Response:
     """The lateral slice at depth index ``index`` of a 3-D result (2-D: the image row),
     drawn like every picture (``service.storage.render``): axes in mm, y down, the depth
     in mm in the title, a colour bar in p0 units."""
     from service.storage.render import render_result_slice
 
     try:
-        png = render_result_slice(result_dir(c, job_id) / VOLUME_FILE, index)
+        png = render_result_slice(result_dir(context, job_id) / VOLUME_FILE, index)
     except ValueError as exc:
         raise HTTPException(422, str(exc)) from None
     return Response(png, media_type="image/png")

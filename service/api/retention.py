@@ -14,18 +14,18 @@ router = APIRouter(prefix="/api/retention", tags=["storage"])
 
 
 @router.get("", response_model=Retention, dependencies=[Depends(read_access)])
-def get_retention(c: Context = Depends(ctx)) -> Retention:
+def get_retention(context: Context = Depends(ctx)) -> Retention:
     """The retention policy in force (the stored one, else the service settings')."""
-    return Retention(**lifecycle.get_retention(c.store, c.settings))
+    return Retention(**lifecycle.get_retention(context.store, context.settings))
 
 
 @router.put("", response_model=Retention, dependencies=[Depends(require_token)])
-def put_retention(body: Retention, c: Context = Depends(ctx)) -> Retention:
+def put_retention(body: Retention, context: Context = Depends(ctx)) -> Retention:
     """Set the retention policy and apply it at once; it stays in force across
     restarts."""
     try:
-        policy = lifecycle.set_retention(c.store, body.model_dump())
+        policy = lifecycle.set_retention(context.store, body.model_dump())
     except ValueError as exc:
         raise HTTPException(422, str(exc)) from None
-    lifecycle.apply_retention(c.store, c.settings)
+    lifecycle.apply_retention(context.store, context.settings)
     return Retention(**policy)

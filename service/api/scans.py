@@ -30,33 +30,33 @@ router = APIRouter(tags=["scans"])
 JobId = PathParam(pattern=ID_PATTERN, description="scan job id")
 
 
-def _scans(c: Context) -> ScanManager:
-    if c.scans is None:
+def _scans(context: Context) -> ScanManager:
+    if context.scans is None:
         raise HTTPException(409, "scanning is not available on this server (no driver)")
-    return c.scans
+    return context.scans
 
 
 @router.get("/api/scanners", response_model=list[Scanner], dependencies=[Depends(read_access)], tags=["scanners"])
-def list_scanners(c: Context = Depends(ctx)) -> list[Scanner]:
+def list_scanners(context: Context = Depends(ctx)) -> list[Scanner]:
     """The configured serial devices and their status (idle, busy with a job)."""
-    if c.scans is None:
-        return [Scanner(id=k, port=v, status="unknown") for k, v in c.settings.devices.items()]
-    return [Scanner(**s) for s in c.scans.scanners()]
+    if context.scans is None:
+        return [Scanner(id=k, port=v, status="unknown") for k, v in context.settings.devices.items()]
+    return [Scanner(**s) for s in context.scans.scanners()]
 
 
 @router.post("/api/scans", status_code=202, response_model=Job, dependencies=[Depends(require_token)],
              responses={404: {"description": "unknown plan or scanner"},
                         409: {"description": "Idempotency-Key reused with other parameters"}})
-def start_scan(body: ScanRequest, response: Response, c: Context = Depends(ctx),
+def start_scan(body: ScanRequest, response: Response, context: Context = Depends(ctx),
                idempotency_key: str | None = Header(None, alias="Idempotency-Key", min_length=1,
                                                     max_length=200)) -> Job:
     """Queue a scan of a plan on a scanner → 202, ``Location: /api/jobs/{id}``. The scan
     starts when the scanner is free; it owns the serial port while it runs."""
-    mgr = _scans(c)
-    found = c.store.get_plan(body.plan_id)
+    mgr = _scans(context)
+    found = context.store.get_plan(body.plan_id)
     if found is None:
         raise HTTPException(404, f"no plan {body.plan_id}")
-    if body.scanner_id not in c.settings.devices:
+    if body.scanner_id not in context.settings.devices:
         raise HTTPException(404, f"no scanner {body.scanner_id}")
     n_w = len(found[0]["acquisition"]["wavelengths"])
     if body.preview_wavelength >= n_w:
@@ -66,56 +66,56 @@ def start_scan(body: ScanRequest, response: Response, c: Context = Depends(ctx),
     if body.preview_wavelength:
         params["preview_wavelength"] = body.preview_wavelength
     try:  # the plan looked up again with the job's creation, no deletion between (issue 60.4)
-        job, created = lifecycle.create_job(c.store, "scan", params, idempotency_key=idempotency_key)
+        job, created = lifecycle.create_job(context.store, "scan", params, idempotency_key=idempotency_key)
     except IdempotencyConflict as exc:
         raise HTTPException(409, str(exc)) from None
     except lifecycle.NotFound as exc:
         raise HTTPException(404, f"{exc} (deleted meanwhile)") from None
     if created:
-        scan_path = Path(c.settings.data_dir) / "scans" / f"{job['id']}.h5"
-        c.store.update_params(job["id"], {"scan_path": str(scan_path)})
+        scan_path = Path(context.settings.data_dir) / "scans" / f"{job['id']}.h5"
+        context.store.update_params(job["id"], {"scan_path": str(scan_path)})
         mgr.wake()
     response.headers["Location"] = f"/api/jobs/{job['id']}"
-    return job_view(get_job_or_404(c, job["id"]))
+    return job_view(get_job_or_404(context, job["id"]))
 
 
-def _control(c: Context, job_id: str, action: str) -> Job:
-    mgr = _scans(c)
-    job = get_job_or_404(c, job_id, "scan")
+def _control(context: Context, job_id: str, action: str) -> Job:
+    mgr = _scans(context)
+    job = get_job_or_404(context, job_id, "scan")
     if job["state"] in TERMINAL:
         raise HTTPException(409, f"scan {job_id} already {job['state']}")
     try:
         getattr(mgr, action)(job_id)
     except ValueError as exc:
         raise HTTPException(409, str(exc)) from None
-    return job_view(get_job_or_404(c, job_id))
+    return job_view(get_job_or_404(context, job_id))
 
 
 @router.post("/api/scans/{job_id}/pause", response_model=Job, dependencies=[Depends(require_token)])
-def pause_scan(job_id: str = JobId, c: Context = Depends(ctx)) -> Job:
+def pause_scan(job_id: str = JobId, context: Context = Depends(ctx)) -> Job:
     """Pause a running scan after the current A-line (state ``paused``)."""
-    return _control(c, job_id, "pause")
+    return _control(context, job_id, "pause")
 
 
 @router.post("/api/scans/{job_id}/resume", response_model=Job, dependencies=[Depends(require_token)])
-def resume_scan(job_id: str = JobId, c: Context = Depends(ctx)) -> Job:
+def resume_scan(job_id: str = JobId, context: Context = Depends(ctx)) -> Job:
     """Resume a paused scan, also one interrupted by a server restart: it continues from
     its scan file's record of completed points."""
-    return _control(c, job_id, "resume")
+    return _control(context, job_id, "resume")
 
 
 @router.post("/api/scans/{job_id}/abort", response_model=Job, dependencies=[Depends(require_token)])
-def abort_scan(job_id: str = JobId, c: Context = Depends(ctx)) -> Job:
+def abort_scan(job_id: str = JobId, context: Context = Depends(ctx)) -> Job:
     """Abort a scan (state ``cancelled``); the scan file keeps the points acquired."""
-    return _control(c, job_id, "abort")
+    return _control(context, job_id, "abort")
 
 
-def scan_file_path(c: Context, job_id: str) -> Path:
+def scan_file_path(context: Context, job_id: str) -> Path:
     """The scan file of the scan job ``job_id``.
 
     Parameters
     ----------
-    c : Context
+    context : Context
         The app's context.
     job_id : str
         The scan job.
@@ -130,7 +130,7 @@ def scan_file_path(c: Context, job_id: str) -> Path:
     fastapi.HTTPException
         404 for no such scan job, 409 while it has no scan file.
     """
-    job = get_job_or_404(c, job_id, "scan")
+    job = get_job_or_404(context, job_id, "scan")
     path = job["params"].get("scan_path")
     if not path or not Path(path).exists():
         raise HTTPException(409, f"scan {job_id} has no scan file yet")
@@ -140,18 +140,18 @@ def scan_file_path(c: Context, job_id: str) -> Path:
 @router.get("/api/scans/{job_id}/file", dependencies=[Depends(read_access)], response_class=FileResponse,
             responses={200: {"content": {"application/x-hdf5": {}}, "description": "the scan file (HDF5)"},
                        206: {"description": "partial content (HTTP Range)"}})
-def scan_file(job_id: str = JobId, c: Context = Depends(ctx)) -> HeldFileResponse:
+def scan_file(job_id: str = JobId, context: Context = Depends(ctx)) -> HeldFileResponse:
     """The scan file (HDF5, ``driver.scanfile`` layout); supports ``Range``."""
     # the file as it is now (a running scan's grows): its size when opened, those bytes
-    return HeldFileResponse(scan_file_path(c, job_id), gone=f"scan {job_id} was deleted meanwhile",
+    return HeldFileResponse(scan_file_path(context, job_id), gone=f"scan {job_id} was deleted meanwhile",
                             media_type="application/x-hdf5", filename=f"{job_id}.h5")
 
 
 @router.get("/api/scans/{job_id}/preview", response_model=PreviewInfo, dependencies=[Depends(read_access)])
-def scan_preview(job_id: str = JobId, c: Context = Depends(ctx)) -> PreviewInfo:
+def scan_preview(job_id: str = JobId, context: Context = Depends(ctx)) -> PreviewInfo:
     """The live preview's state: ``version`` grows with every refresh (0 = none yet)."""
-    get_job_or_404(c, job_id, "scan")
-    state = _scans(c).preview(job_id)
+    get_job_or_404(context, job_id, "scan")
+    state = _scans(context).preview(job_id)
     if state is None:
         return PreviewInfo(version=0, points_used=0, updated=None)
     return PreviewInfo(version=state.version, points_used=state.points_used, updated=state.updated,
@@ -160,10 +160,10 @@ def scan_preview(job_id: str = JobId, c: Context = Depends(ctx)) -> PreviewInfo:
 
 @router.get("/api/scans/{job_id}/preview/{plane}.png", dependencies=[Depends(read_access)], response_class=Response,
             responses={200: {"content": {"image/png": {}}, "description": "live preview MIP"}})
-def scan_preview_png(plane: Plane, job_id: str = JobId, c: Context = Depends(ctx)) -> Response:
+def scan_preview_png(plane: Plane, job_id: str = JobId, context: Context = Depends(ctx)) -> Response:
     """The live preview's MIP on ``plane`` (``X-Preview-Version`` header)."""
-    get_job_or_404(c, job_id, "scan")
-    state = _scans(c).preview(job_id)
+    get_job_or_404(context, job_id, "scan")
+    state = _scans(context).preview(job_id)
     if state is None or plane not in state.planes:
         raise HTTPException(404, f"no live preview of scan {job_id} yet")
     return Response(state.png(plane), media_type="image/png", headers={"X-Preview-Version": str(state.version)})

@@ -39,11 +39,11 @@ class ShortIds:
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] == "http":
             m = self.PATH.match(scope.get("path", ""))
-            ctx_ = getattr(getattr(scope.get("app"), "state", None), "ctx", None)
-            if m and ctx_ is not None:
+            context = getattr(getattr(scope.get("app"), "state", None), "ctx", None)
+            if m and context is not None:
                 import anyio
 
-                found = await anyio.to_thread.run_sync(ctx_.store.resolve, m.group(2))
+                found = await anyio.to_thread.run_sync(context.store.resolve, m.group(2))
                 if len(found) > 1:
                     resp = JSONResponse({"detail": f"job id prefix {m.group(2)!r} matches several jobs "
                                                    f"({', '.join(found)}, ...): give more characters"}, 409)
