@@ -1,0 +1,205 @@
+"""Sphinx configuration of fpscan's documentation site (``bash scripts/docs.sh``).
+
+The site: the user guide (README.md and the pages in docs/, through myst-parser), the API
+reference (autodoc + autosummary + numpydoc over the public modules, `reference/index.rst`),
+the HTTP reference (rendered from the OpenAPI schema of ``service.api.app.create_app``, written
+at build time) and a gallery of examples (sphinx-gallery, ``examples/`` at the repository root).
+Built with warnings as errors (``sphinx-build -W --keep-going``).
+"""
+from __future__ import annotations
+
+import json
+import os
+import sys
+from pathlib import Path
+from typing import Any
+
+DOCS = Path(__file__).resolve().parent
+ROOT = DOCS.parent
+sys.path.insert(0, str(ROOT))
+os.environ.setdefault("MPLBACKEND", "Agg")
+
+import fpscan  # after the path is set
+
+project = "fpscan"
+author = "the fpscan authors"
+copyright = "2026, the fpscan authors"
+release = version = fpscan.__version__
+
+extensions = [
+    "sphinx.ext.autodoc",
+    "sphinx.ext.autosummary",
+    "sphinx.ext.mathjax",
+    "sphinx.ext.viewcode",
+    "numpydoc",
+    "myst_parser",
+    "sphinx_gallery.gen_gallery",
+    "sphinxcontrib.openapi",
+]
+
+source_suffix = {".rst": "restructuredtext", ".md": "markdown"}
+templates_path = ["_templates"]
+# notebook.ipynb runs in tests/public_api/test_notebook.py; results/ holds the experiments' files
+exclude_patterns = ["_build", "_generated", "notebook.ipynb", "results/**", "README.md",
+                    "auto_examples/*.ipynb", "auto_examples/*.py", "auto_examples/*.zip",
+                    "auto_examples/*.md5", "auto_examples/*.json"]
+
+html_theme = "pydata_sphinx_theme"
+html_title = f"fpscan {release}"
+html_theme_options = {
+    "navigation_depth": 2,
+    "show_toc_level": 2,
+    "secondary_sidebar_items": ["page-toc"],
+}
+html_sidebars: dict[str, list[str]] = {"readme": [], "index": []}
+html_show_sourcelink = False
+
+# --- myst: the existing markdown pages as they are --------------------------------------
+myst_enable_extensions = ["colon_fence", "deflist", "dollarmath"]
+myst_heading_anchors = 3
+# The pages link to files beside them that are not pages (CHANGELOG.md, ../shared/..., *.py, *.json):
+# they stay plain links.
+suppress_warnings = ["myst.xref_missing", "myst.header",
+                    # a page's example JSON with placeholders (architecture.md: [[ix, iy], ...])
+                    "misc.highlighting_failure"]
+
+# --- API reference: autodoc + autosummary + numpydoc -----------------------------------------
+autosummary_generate = True
+autosummary_ignore_module_all = False  # a module's members are its __all__
+autodoc_default_options = {"members": True, "show-inheritance": True}
+autodoc_member_order = "bysource"
+autodoc_typehints = "none"  # the docstrings give types and shapes (numpydoc)
+autodoc_inherit_docstrings = False
+numpydoc_show_class_members = False
+numpydoc_show_inherited_class_members = False
+numpydoc_class_members_toctree = False
+numpydoc_validation_checks: set[str] = set()
+numpydoc_xref_param_type = False
+
+# |t|, |w|, |k| (absolute values in the docstrings) are text, not substitutions
+rst_prolog = "\n".join(f".. |{name}| replace:: \\|{name}\\|" for name in ("t", "w", "k", "k_lat", "x", "z", "g"))
+
+#: the modules the reference documents (``reference/index.rst``'s autosummary lists)
+REFERENCE_MODULES = [line.strip() for line in (DOCS / "reference" / "index.rst").read_text().splitlines()
+                     if line.startswith("   ") and line.strip().startswith(("clients.", "service.", "driver."))]
+
+
+def home(obj: Any, name: str, default: str) -> str:
+    """The reference module that documents ``obj`` (named ``name`` there): of the documented
+    modules that export it, the nearest to where it is defined (the longest one that prefixes
+    its ``__module__``), else ``default``."""
+    import importlib
+
+    defined = getattr(obj, "__module__", None) or ""
+    homes = [m for m in REFERENCE_MODULES if (defined == m or defined.startswith(m + "."))
+             and name in getattr(importlib.import_module(m), "__all__", ())
+             and getattr(importlib.import_module(m), name, None) is obj]
+    return max(homes, key=len) if homes else default
+
+
+def skip_reexport(app: Any, what: str, name: str, obj: Any, skip: bool, options: Any) -> bool | None:
+    """Document a name once: a module's re-export of an object that another documented module
+    owns (``home``) is left to that module's page (no duplicate object descriptions)."""
+    page = getattr(app.env, "temp_data", {}).get("autodoc:module")
+    if what == "module" and page and page in REFERENCE_MODULES and home(obj, name, page) != page:
+        return True
+    return None
+
+
+#: docstring text that reST misreads, rewritten for the page only (the source docstrings need
+#: the fix; the report of issue 62 lists them): (object's name, text, replacement)
+DOCSTRING_FIXES = [
+    # '*nearest', '*linear' (k-Wave's option names) and shape (*S, 3) read as emphasis
+    ("", "'*nearest'", "'\\*nearest'"),
+    ("", "'*linear'", "'\\*linear'"),
+    ("", "'*cubic'", "'\\*cubic'"),
+    ("", "(*S, 3)", "(\\*S, 3)"),
+]
+
+
+def widen_first_column(lines: list[str]) -> None:
+    """Widen the first column of the simple tables in ``lines`` by one character when a cell
+    overflows it (service.formats: ``kwave-hdf5`` is one character wider than its column)."""
+    borders = [i for i, line in enumerate(lines) if line.startswith("=") and set(line) <= {"=", " "}]
+    if len(borders) < 2:
+        return
+    width = len(lines[borders[0]].split(" ")[0])
+    table = range(borders[0], borders[-1] + 1)
+    if all(len(lines[i]) <= width or lines[i][width] == " " for i in table):
+        return
+    for i in table:
+        line = lines[i]
+        at = width if len(line) <= width or line[width] == " " else width + 1
+        lines[i] = line[:at] + ("=" if i in borders else " ") + line[at:]
+
+
+def fix_docstring(app: Any, what: str, name: str, obj: Any, options: Any, lines: list[str]) -> None:
+    """Apply `DOCSTRING_FIXES` to ``name``'s docstring lines (and `widen_first_column` to the
+    table of service.formats)."""
+    if name == "service.formats":
+        widen_first_column(lines)
+    for owner, text, new in DOCSTRING_FIXES:
+        if owner and name != owner:
+            continue
+        for i, line in enumerate(lines):
+            if text in line:
+                lines[i] = line.replace(text, new)
+
+
+# --- the HTTP reference: the OpenAPI schema, written at build time ---------------------------
+GENERATED = DOCS / "_generated"
+
+
+def write_openapi(_app: Any = None) -> Path:
+    """Write the service's OpenAPI schema to ``docs/_generated/openapi.json`` and return its path."""
+    from service.api.app import create_app
+
+    GENERATED.mkdir(exist_ok=True)
+    path = GENERATED / "openapi.json"
+    schema = create_app(start_workers=False).openapi()
+    path.write_text(json.dumps(schema, indent=1, sort_keys=False))
+    return path
+
+
+def write_fpscan_names(_app: Any = None) -> Path:
+    """Write the table of :mod:`fpscan`'s names (``docs/_generated/fpscan_names.inc``): an
+    autosummary of each name at the module that owns it (``fpscan._EXPORTS``, ``fpscan._RENAMED``)."""
+    GENERATED.mkdir(exist_ok=True)
+    import importlib
+
+    targets = {name: (module, name) for name, module in fpscan._EXPORTS.items()}
+    targets.update(fpscan._RENAMED)
+    owners = {}
+    for name, (module, attr) in targets.items():
+        obj = getattr(importlib.import_module(module), attr)
+        owners[name] = f"{home(obj, attr, module)}.{attr}"
+    lines = [".. autosummary::", ""]
+    lines += [f"   {owners[name]}" for name in sorted(owners, key=str.lower)]
+    path = GENERATED / "fpscan_names.inc"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+# --- the gallery ---------------------------------------------------------------------------
+sphinx_gallery_conf = {
+    "examples_dirs": str(ROOT / "examples"),
+    "gallery_dirs": "auto_examples",
+    "filename_pattern": r"/plot_",
+    "download_all_examples": False,
+    "remove_config_comments": True,
+    "within_subsection_order": "FileNameSortKey",
+    "image_scrapers": ("matplotlib",),
+    "reset_modules": ("matplotlib",),
+    "abort_on_example_error": False,
+    "only_warn_on_example_error": False,
+    "show_memory": False,
+    "plot_gallery": os.environ.get("FPSCAN_DOCS_GALLERY", "True"),
+}
+
+
+def setup(app: Any) -> None:
+    """Write the generated pages' inputs (the OpenAPI schema, fpscan's names) before the pages are read."""
+    app.connect("builder-inited", write_openapi)
+    app.connect("builder-inited", write_fpscan_names)
+    app.connect("autodoc-skip-member", skip_reexport)
+    app.connect("autodoc-process-docstring", fix_docstring, priority=400)
