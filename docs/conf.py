@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import sys
 from pathlib import Path
 from typing import Any
@@ -107,13 +108,11 @@ def skip_reexport(app: Any, what: str, name: str, obj: Any, skip: bool, options:
 
 
 #: docstring text that reST misreads, rewritten for the page only (the source docstrings need
-#: the fix; the report of issue 62 lists them): (object's name, text, replacement)
+#: the fix; the report of issue 62 lists them): regular expression → replacement. k-Wave's option
+#: names '*nearest', '*linear', '*cubic' and the shape (*S, 3) read as emphasis (not in ``literals``).
 DOCSTRING_FIXES = [
-    # '*nearest', '*linear' (k-Wave's option names) and shape (*S, 3) read as emphasis
-    ("", "'*nearest'", "'\\*nearest'"),
-    ("", "'*linear'", "'\\*linear'"),
-    ("", "'*cubic'", "'\\*cubic'"),
-    ("", "(*S, 3)", "(\\*S, 3)"),
+    (re.compile(r"(?<!``)'\*(nearest|linear|cubic)'"), r"'\\*\1'"),
+    (re.compile(r"(?<!``)\(\*S, 3\)"), r"(\\*S, 3)"),
 ]
 
 
@@ -138,12 +137,8 @@ def fix_docstring(app: Any, what: str, name: str, obj: Any, options: Any, lines:
     table of service.formats)."""
     if name == "service.formats":
         widen_first_column(lines)
-    for owner, text, new in DOCSTRING_FIXES:
-        if owner and name != owner:
-            continue
-        for i, line in enumerate(lines):
-            if text in line:
-                lines[i] = line.replace(text, new)
+    for pattern, new in DOCSTRING_FIXES:
+        lines[:] = [pattern.sub(new, line) for line in lines]
 
 
 # --- the HTTP reference: the OpenAPI schema, written at build time ---------------------------
