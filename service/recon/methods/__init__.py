@@ -40,6 +40,7 @@ from service.recon.methods.registry import (
     Method,
     default_for,
     describe_error,
+    estimate_peak_memory,
     get,
     outcome,
     register,
@@ -48,7 +49,6 @@ from service.recon.methods.render import default_text, docs_table, option_fields
 from service.recon.methods.work import (
     FLOAT64_WORK,
     PLANAR_WORK_RATE,
-    estimate_peak_memory,
     peak_model,
     planar_work,
     transform_units,

@@ -18,7 +18,8 @@ from service.progress import outcome as outcome_line
 from service.recon.methods.options import MethodOptions
 from service.recon.methods.work import PLANAR_WORK_RATE, peak_model, planar_work
 
-__all__ = ["Method", "Runner", "METHODS", "register", "get", "default_for", "INPUT_KINDS", "describe_error", "outcome"]
+__all__ = ["Method", "Runner", "METHODS", "register", "get", "default_for", "INPUT_KINDS", "describe_error", "outcome",
+           "estimate_peak_memory"]
 
 #: ``run(dataset, c, options, progress)`` -> ``Reconstruction`` (the package's docstring)
 Runner = Callable[..., Any]
@@ -403,3 +404,44 @@ def outcome(params: dict, method: str | None = None) -> str | None:
     """
     spec = METHODS.get(str(method or params.get("method") or ""))
     return outcome_line(params, method, spec.summary if spec is not None else ())
+
+
+def estimate_peak_memory(n_t: int, n_x: int, n_y: int = 1, *, method: str | None = None, **kw: Any) -> int:
+    """Estimated peak memory in bytes of a reconstruction by ``method``: the method's own model
+    (``service.recon.methods.get(method).memory``).
+
+    Parameters
+    ----------
+    n_t : int
+        Samples per A-line.
+    n_x, n_y : int
+        Lateral grid (``n_y = 1`` in 2-D).
+    method : str, optional
+        A registered method (``service.recon.methods.METHODS``); None: the default for a
+        full lattice (``service.recon.methods.default_for("grid")``).
+    **kw
+        The model's keywords: ``n_z`` (output depth samples), ``upsample``, ``dtype``
+        (float32/float64), ``n_points`` (sensors of point data), ``dx`` (m), ``dt`` (s), ``c``
+        (m/s), ``dz`` (m), ``square`` (dy = dx; None unknown).
+
+    Returns
+    -------
+    int
+        Bytes at the peak.
+
+    Raises
+    ------
+    service.recon.checks.OptionError
+        An unknown method.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from service.recon import estimate_peak_memory
+    >>> est = estimate_peak_memory(256, 64, 64)  # (n_t, n_y, n_x) = (256, 64, 64), float64 NER
+    >>> est > 256 * 64 * 64 * 8  # more than the input
+    True
+    >>> estimate_peak_memory(256, 64, 64, dtype=np.float32) < est
+    True
+    """
+    return get(method or default_for("grid")).memory(n_t, n_x, n_y, **kw)

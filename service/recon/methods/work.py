@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-__all__ = ["peak_model", "estimate_peak_memory", "FLOAT64_WORK", "PLANAR_WORK_RATE", "transform_units",
+__all__ = ["peak_model", "FLOAT64_WORK", "PLANAR_WORK_RATE", "transform_units",
            "planar_work"]
 
 
@@ -56,49 +56,6 @@ def peak_model(model: str, **fixed: Any) -> Callable[..., int]:
         return int(getattr(memory, model)(n_t, n_x, n_y, **{**kw, **fixed}))
 
     return peak
-
-
-def estimate_peak_memory(n_t: int, n_x: int, n_y: int = 1, *, method: str | None = None, **kw: Any) -> int:
-    """Estimated peak memory in bytes of a reconstruction by ``method``: the method's own model
-    (``service.recon.methods.get(method).memory``).
-
-    Parameters
-    ----------
-    n_t : int
-        Samples per A-line.
-    n_x, n_y : int
-        Lateral grid (``n_y = 1`` in 2-D).
-    method : str, optional
-        A registered method (``service.recon.methods.METHODS``); None: the default for a
-        full lattice (``service.recon.methods.default_for("grid")``).
-    **kw
-        The model's keywords: ``n_z`` (output depth samples), ``upsample``, ``dtype``
-        (float32/float64), ``n_points`` (sensors of point data), ``dx`` (m), ``dt`` (s), ``c``
-        (m/s), ``dz`` (m), ``square`` (dy = dx; None unknown).
-
-    Returns
-    -------
-    int
-        Bytes at the peak.
-
-    Raises
-    ------
-    service.recon.checks.OptionError
-        An unknown method.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from service.recon import estimate_peak_memory
-    >>> est = estimate_peak_memory(256, 64, 64)  # (n_t, n_y, n_x) = (256, 64, 64), float64 NER
-    >>> est > 256 * 64 * 64 * 8  # more than the input
-    True
-    >>> estimate_peak_memory(256, 64, 64, dtype=np.float32) < est
-    True
-    """
-    from service.recon.methods import default_for, get  # the registry (it names this module's models)
-
-    return get(method or default_for("grid")).memory(n_t, n_x, n_y, **kw)
 
 
 #: the work estimates' reference: seconds on 2 cores of the machine they were measured on
