@@ -1,5 +1,5 @@
 """The methods' work and memory estimators: the peak-memory model of a method
-(:func:`peak_model`, :func:`estimate_peak_memory`) and the planar methods' work estimate in
+(:func:`peak_model`; the registry's ``estimate_peak_memory`` asks a method for its own) and the planar methods' work estimate in
 seconds on the reference 2 cores (:func:`transform_units`, :func:`planar_work`,
 :data:`FLOAT64_WORK`, :data:`PLANAR_WORK_RATE`), which a :class:`~.registry.Method` names as
 its ``peak_memory`` and ``work`` hooks (the admission, ``service.jobs.admission``).
