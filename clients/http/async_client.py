@@ -122,15 +122,13 @@ class AsyncClient(Connection, AsyncServer, AsyncPlans, AsyncScans, AsyncDatasets
         if isinstance(step, Stream):
             req = step.request
             async with self._http.stream(req.method, req.path, params=req.params, headers=step.headers) as r:
-                if step.refused(r):
-                    return r.status_code, ""
-                if r.status_code >= 400:
+                if not step.saves(r):  # a 4xx/5xx: its detail for the flow
                     await r.aread()
-                    raise_for(r)
+                    return r
                 with step.open(r) as fh:
                     async for chunk in r.aiter_bytes(CHUNK_BYTES):
                         fh.write(chunk)
-                return r.status_code, r.headers.get("content-type", "")
+                return r
         if isinstance(step, Follow):
             stream = self.events(step.job_id, last_event_id=step.last_id, read_timeout=step.read_timeout)
             try:

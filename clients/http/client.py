@@ -177,15 +177,13 @@ class Client(Connection, Server, Plans, Scans, Datasets, Reconstructions, Jobs):
         if isinstance(step, Stream):
             req = step.request
             with self._http.stream(req.method, req.path, params=req.params, headers=step.headers) as r:
-                if step.refused(r):
-                    return r.status_code, ""
-                if r.status_code >= 400:
+                if not step.saves(r):  # a 4xx/5xx: its detail for the flow
                     r.read()
-                    raise_for(r)
+                    return r
                 with step.open(r) as fh:
                     for chunk in r.iter_bytes(CHUNK_BYTES):
                         fh.write(chunk)
-                return r.status_code, r.headers.get("content-type", "")
+                return r
         if isinstance(step, Follow):
             stream = self.events(step.job_id, last_event_id=step.last_id, read_timeout=step.read_timeout)
             try:

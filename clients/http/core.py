@@ -76,10 +76,10 @@ class Send:
 
 @dataclass
 class Stream:
-    """Send ``request`` with ``headers`` and stream the answer: a 416 is answered as is
-    (nothing written), a 4xx/5xx is read and raised (:func:`~clients.http.transport.raise_for`),
-    any other body is written in chunks of :data:`CHUNK_BYTES` into ``open(response)``;
-    answer: ``(status code, Content-Type)``.
+    """Send ``request`` with ``headers`` and stream the answer: a body to save
+    (:meth:`saves`) is written in chunks of :data:`CHUNK_BYTES` into ``open(response)``, a
+    4xx/5xx (a 416 too) is read whole; answer: the ``httpx.Response`` (the flow decides:
+    a 416 starts over, another 4xx/5xx is raised, :func:`download_flow`).
 
     Attributes
     ----------
@@ -94,9 +94,9 @@ class Stream:
     headers: dict[str, str]
     resume: Resume
 
-    def refused(self, response: httpx.Response) -> bool:
-        """True for a 416 (what is held no longer fits: the flow starts over)."""
-        return response.status_code == 416
+    def saves(self, response: httpx.Response) -> bool:
+        """True for a body to save (a 1xx-3xx answer), False for a 4xx/5xx."""
+        return response.status_code < 400
 
     def open(self, response: httpx.Response) -> IO[bytes]:
         """The file the body goes into (appended on 206)."""
@@ -407,16 +407,18 @@ def download_flow(req: Request, dest: Path, base_url: str) -> Flow[tuple[Path, s
     state = Resume(dest)
     for _attempt in range(2):
         try:
-            status, content_type = yield Stream(req, state.headers(), state)
+            response = yield Stream(req, state.headers(), state)
         except httpx.TransportError as exc:  # keep the part: the next call resumes it
             raise _unavailable(base_url, exc) from None
         except BaseException:
             state.discard()
             raise
-        if status == 416:  # what we hold no longer fits: start over
+        if response.status_code >= 400:  # a 416: what we hold no longer fits: start over
             state.discard()
-            continue
-        return state.done(), content_type
+            if response.status_code == 416:
+                continue
+            raise_for(response)
+        return state.done(), response.headers.get("content-type", "")
     raise ApiError(416, "the server refused every byte range of the download")
 
 
