@@ -26,7 +26,7 @@ command line, the server and the web page use:
   every format of ``export_formats()`` (a scan file: ``"ipasc"``; a result volume:
   ``"ome-tiff"``, ``"ome-zarr"``, ...), ``export_ome_tiff``, ``export_ome_zarr``, ``export_ipasc``
   (a scan file to IPASC HDF5);
-- pictures (:mod:`service.storage.render`): ``render_mip``, ``render_mips``, ``render_so2``;
+- pictures (:mod:`service.pictures.render`): ``render_mip``, ``render_mips``, ``render_so2``;
 - spectral unmixing: ``unmix``, ``so2_map``, ``thb_map``;
 - metrics (:mod:`service.metrics`): ``correlation_coefficient``, ``mip``, ``mips``,
   ``fit_edge_spread``, ``fit_lorentz``, ``edge_spread``, ``lorentz``, ``side_lobe_level``,
@@ -108,7 +108,7 @@ _EXPORTS: dict[str, str] = {
     "export_ome_tiff": "service.formats.ome_tiff",
     "export_ome_zarr": "service.formats.ngff",
     # pictures, spectral unmixing
-    **dict.fromkeys(["render_mip", "render_mips", "render_so2"], "service.storage.render"),
+    **dict.fromkeys(["render_mip", "render_mips", "render_so2"], "service.pictures.render"),
     "unmix": "service.recon.unmix",
     **dict.fromkeys(["so2_map", "thb_map"], "service.spectral"),
     # metrics
@@ -185,6 +185,7 @@ if TYPE_CHECKING:
         side_lobe_level,
         tenenbaum_sharpness,
     )
+    from service.pictures.render import render_mip, render_mips, render_so2
     from service.pipeline import METHODS, Cancelled, reconstruct
     from service.plans import (
         MASK_KINDS,
@@ -211,7 +212,6 @@ if TYPE_CHECKING:
     from service.recon.unmix import unmix
     from service.spectral import so2_map, thb_map
     from service.storage.datasets import load_dataset, load_wavelengths
-    from service.storage.render import render_mip, render_mips, render_so2
     from service.storage.results import ResultVolume, read_result, write_result, write_volume
     from service.subsample import subsample
 

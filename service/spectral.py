@@ -11,7 +11,7 @@ reconstruction dispatch and the pure unmixing (:mod:`service.recon.unmix`).
 - :func:`thb_map`: the THb of the same voxels (the picture's brightness).
 - :func:`write_unmix`: ``unmix.h5`` and ``so2.png`` (sO2 as colour 0..100 % with a colour
   bar, brightness from THb, the background below the THb threshold black:
-  ``service.storage.render.render_so2``) into a result folder.
+  ``service.pictures.render.render_so2``) into a result folder.
 
 ``unmix.h5`` layout: ``/hbo2``, ``/hb``, ``/thb`` (float32, units in the attribute
 ``concentration_units``), ``/so2`` (float32, NaN where masked), ``/mask`` (uint8, 1 =
@@ -248,7 +248,7 @@ def thb_map(u: Unmixed) -> np.ndarray:
 def render_so2_png(u: Unmixed, z: Any, x: Any, y: Any = None) -> bytes:
     """PNG of :func:`so2_map` through the one rendering path.
 
-    :func:`service.storage.render.render_so2`: mm axes, row 0 at the top, colour bar; sO2 as
+    :func:`service.pictures.render.render_so2`: mm axes, row 0 at the top, colour bar; sO2 as
     colour (``RdYlBu_r`` over 0 % blue .. 100 % red), brightness from THb (:func:`thb_map`),
     black (:data:`MASK_COLOUR`) where THb is below the unmixing's ``threshold`` (default 0.1)
     of its maximum or sO2 is unknown.
@@ -267,7 +267,7 @@ def render_so2_png(u: Unmixed, z: Any, x: Any, y: Any = None) -> bytes:
     bytes
         The PNG file's bytes.
     """
-    from service.storage.render import render_so2
+    from service.pictures.render import render_so2
 
     threshold = float((u.params or {}).get("threshold", 0.1))
     if u.so2.ndim == 2:

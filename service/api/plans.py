@@ -156,7 +156,7 @@ def summary(plan: dict) -> Plan:
 
 
 def preview_png(plan: dict) -> bytes:
-    """The mask preview PNG, drawn by the one renderer (``service.storage.render``: x
+    """The mask preview PNG, drawn by the one renderer (``service.pictures.render``: x
     right, y down, axes in mm at equal aspect, colour bar, ``fpscan:axes`` chunk): points
     as coloured markers (``service.plans.preview_png``) up to ``PREVIEW_DETAIL_POINTS``
     points; beyond that (markers cost time linear in the points) and for a plan the plan
@@ -181,7 +181,7 @@ def preview_png(plan: dict) -> bytes:
             return plans_preview(PlanModel.model_validate(plan))
         except (ImportError, ValueError):
             pass
-    from service.storage.render import render_lattice
+    from service.pictures.render import render_lattice
 
     lat, mask = plan["lattice"], plan.get("mask", {})
     n_x, n_y, pitch = int(lat["n_x"]), int(lat.get("n_y", 1)), float(lat["pitch"])

@@ -505,9 +505,9 @@ def mip_png(plane: Plane, job_id: str = JobId, wavelength: int | None = Waveleng
 def slice_png(job_id: str = JobId, index: int = Query(0, ge=0, le=1_000_000, description="depth index"),
               context: Context = Depends(ctx)) -> Response:
     """The lateral slice at depth index ``index`` of a 3-D result (2-D: the image row),
-    drawn like every picture (``service.storage.render``): axes in mm, y down, the depth
+    drawn like every picture (``service.pictures.render``): axes in mm, y down, the depth
     in mm in the title, a colour bar in p0 units."""
-    from service.storage.render import render_result_slice
+    from service.pictures.render import render_result_slice
 
     try:
         png = render_result_slice(result_dir(context, job_id) / VOLUME_FILE, index)

@@ -40,7 +40,7 @@ log = logging.getLogger("fpscan.preview")
 class PreviewState:
     """One refresh of a scan's live preview.
 
-    :meth:`png` draws a plane on first request (``service.storage.render``, the pictures a
+    :meth:`png` draws a plane on first request (``service.pictures.render``, the pictures a
     result has) and keeps it.
 
     Attributes
@@ -109,7 +109,7 @@ class PreviewState:
 def render_preview_png(img: np.ndarray, plane: str, axes: tuple, points: int, *, p0_unit: str = "a.u.") -> bytes:
     """A live-preview MIP drawn like a result's MIP.
 
-    ``service.storage.render``: mm axes, equal aspect, row 0 at the top (y down / depth
+    ``service.pictures.render``: mm axes, equal aspect, row 0 at the top (y down / depth
     down), colour bar; the title names the points used.
 
     Parameters
@@ -134,9 +134,9 @@ def render_preview_png(img: np.ndarray, plane: str, axes: tuple, points: int, *,
     Raises
     ------
     ValueError
-        If ``img``'s shape does not match the axes (:func:`service.storage.render.render_png`).
+        If ``img``'s shape does not match the axes (:func:`service.pictures.render.render_png`).
     """
-    from service.storage.render import render_png
+    from service.pictures.render import render_png
 
     z, x, y = axes
     h, hlabel = (y, "y") if plane == "yz" else (x, "x")

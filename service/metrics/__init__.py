@@ -12,7 +12,7 @@
 
 Pure numpy/scipy; no I/O. The names load on first use (PEP 562): the sharpness and the
 fits import scipy.ndimage and scipy.optimize (about 1.2 s of a fresh interpreter), which the
-MIP pictures of every result (`service.storage.render`) do not need.
+MIP pictures of every result (`service.pictures.render`) do not need.
 """
 from __future__ import annotations
 

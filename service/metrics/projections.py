@@ -1,5 +1,5 @@
 """Maximum-intensity projections (MIPs) of a reconstructed volume: the one ``mip`` of
-fpscan (the pictures of ``service.storage.render`` draw it too).
+fpscan (the pictures of ``service.pictures.render`` draw it too).
 
 Volumes are ``(n_z, n_y, n_x)`` (DESIGN §3): the xy-MIP projects along z (axis 0),
 the xz-MIP along y (axis 1), the yz-MIP along x (axis 2). A 2-D image ``(n_z, n_x)`` has

@@ -1,6 +1,6 @@
 """Preview PNG of a mask or plan: points on the lattice, weight as colour, the point of
 interest marked, counts and weight ratio in the caption; drawn by the one picture path of
-fpscan (``service.storage.render.render_points``: mm axes, equal aspect, y down as in every picture)."""
+fpscan (``service.pictures.render.render_points``: mm axes, equal aspect, y down as in every picture)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -51,7 +51,7 @@ def preview_png(mask_or_plan: Mask | Plan, path: str | Path | None = None) -> by
     ...
     ValueError: preview_png needs a Mask or a Plan, got str
     """
-    from service.storage.render import render_points
+    from service.pictures.render import render_points
 
     from .mask import Mask, weight_ratio
     from .plan import Plan

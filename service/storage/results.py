@@ -61,7 +61,7 @@ def write_result(out_dir: str | os.PathLike, rec: Any, *, input_id: str) -> dict
     """Write the result folder of a reconstruction, as every caller writes it.
 
     The job worker and ``fpscan recon`` both call this: its MIP pictures ``mip_{xy,xz,yz}``
-    (``mip_xz`` only in 2-D; :func:`service.storage.render.render_mips`) are drawn here, the
+    (``mip_xz`` only in 2-D; :func:`service.pictures.render.render_mips`) are drawn here, the
     folder (``volume.h5`` and the PNGs, renamed into place, an existing ``out_dir`` replaced)
     is written by its format, :func:`service.formats.result.write_folder`.
 
@@ -91,7 +91,7 @@ def write_result(out_dir: str | os.PathLike, rec: Any, *, input_id: str) -> dict
     """
     from concurrent.futures import ThreadPoolExecutor
 
-    from service.storage.render import render_mips
+    from service.pictures.render import render_mips
 
     with ThreadPoolExecutor(1, thread_name_prefix="mip-pictures") as pool:
         pngs = pool.submit(render_mips, np.asarray(rec.p0), rec.z, rec.x, getattr(rec, "y", None),

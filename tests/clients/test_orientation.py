@@ -46,7 +46,7 @@ def _png_quadrant(png: bytes) -> str:
     """Where the brightest pixels lie inside the plotting area of an annotated PNG."""
     from PIL import Image
 
-    from service.storage.render import png_axes
+    from service.pictures.render import png_axes
 
     g = png_axes(png)
     grey = np.asarray(Image.open(io.BytesIO(png)).convert("L"), dtype=np.float64)

@@ -84,7 +84,7 @@ def test_so2_picture_masks_the_noisy_background_and_colours_the_vessels():
     the old map painted at full saturation) renders black; the vessels render in colour,
     the oxygenated one red, the deoxygenated one blue, in their own quadrants (row 0 at the
     top, as every picture)."""
-    from service.storage.render import png_axes, render_so2, so2_rgb
+    from service.pictures.render import png_axes, render_so2, so2_rgb
 
     rng = np.random.default_rng(3)
     n_y, n_x = 40, 50

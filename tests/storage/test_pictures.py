@@ -12,7 +12,7 @@ import pytest
 from PIL import Image as PILImage
 
 from driver.scanfile import ScanFile
-from service.storage.render import png_axes
+from service.pictures.render import png_axes
 from tests.storage.storage_helpers import PITCH, build_plan
 from tests.waits import HANG_S
 
@@ -68,7 +68,7 @@ def test_one_orientation_and_mm_axes_in_every_picture(tmp_path):
     pytest.importorskip("service.recon")
     from service.jobs.preview import PreviewState, render_preview
     from service.jobs.work import run_reconstruction
-    from service.storage.render import render_result_slice
+    from service.pictures.render import render_result_slice
 
     scan = _ball_scan(tmp_path / "ball.h5")
     bx, by, bz = (BALL[k] * 1e3 for k in ("x", "y", "z"))
@@ -205,7 +205,7 @@ def test_mask_preview_titles_fit_and_weights_carry_no_factor(large):
     plan = make_plan(kind="equisteradian", lattice={"n_x": 226, "n_y": 226, "pitch": 60e-6},
                      params={"depth": 3.6e-3, "n_points": 1625}, acquisition={"n_t": N_T, "dt": DT})
     if large:  # the lattice drawing the API uses for plans above PREVIEW_DETAIL_POINTS, as it calls it
-        from service.storage.render import render_lattice
+        from service.pictures.render import render_lattice
 
         d = plan.model_dump(mode="json")
         png = render_lattice(np.asarray(d["points"]["indices"]), np.asarray(d["points"]["weights"]) * 1e12, 226, 226,
@@ -226,10 +226,10 @@ def test_mask_preview_titles_fit_and_weights_carry_no_factor(large):
 
 def test_colour_bar_powers_sit_in_the_unit():
     """p0 of 3e6 a.u.: the annotated MIP has nothing above its colour bar (the power went
-    into the label, ``p0 (×10⁶ a.u.)``: ``service.storage.frame.power_in_label``), while the
+    into the label, ``p0 (×10⁶ a.u.)``: ``service.pictures.frame.power_in_label``), while the
     same picture of p0 up to 3 has the same (empty) band."""
-    from service.storage.frame import power_in_label
-    from service.storage.render import render_mip
+    from service.pictures.frame import power_in_label
+    from service.pictures.render import render_mip
 
     assert power_in_label("p0 (a.u.)", "1e6") == "p0 (×10⁶ a.u.)"
     assert power_in_label("p0 (Pa)", "1e\u22124") == "p0 (×10⁻⁴ Pa)"

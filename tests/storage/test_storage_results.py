@@ -1,4 +1,4 @@
-"""Result files (service.storage.results) and their PNG renderings (service.storage.render)."""
+"""Result files (service.storage.results) and their PNG renderings (service.pictures.render)."""
 from __future__ import annotations
 
 import io
@@ -10,7 +10,14 @@ import numpy as np
 import pytest
 from PIL import Image as PILImage
 
-from service.storage.render import mip, render_lateral, render_mip, render_mips, render_result_slice, to_uint8
+from service.pictures.render import (
+    mip,
+    render_lateral,
+    render_mip,
+    render_mips,
+    render_result_slice,
+    to_uint8,
+)
 from service.storage.results import read_result, write_reconstruction, write_volume
 
 
@@ -179,13 +186,13 @@ def test_annotated_pngs(tmp_path):
 
 
 def test_annotated_png_shows_the_colormapped_samples_in_its_frame():
-    """An annotated picture (the Pillow frame of service.storage.frame): 600 px wide; inside
+    """An annotated picture (the Pillow frame of service.pictures.frame): 600 px wide; inside
     the plotting area its ``fpscan:axes`` chunk names, the centre of every sample's cell has
     matplotlib's colour of that sample (viridis over [vmin, vmax], row 0 at the top); text and
     ticks left of the area (the y axis) and right of it (the colour bar and its label)."""
     import matplotlib
 
-    from service.storage.render import png_axes, render_png
+    from service.pictures.render import png_axes, render_png
 
     rng = np.random.default_rng(5)
     img = rng.random((6, 9))
@@ -217,7 +224,7 @@ def test_the_result_folder_is_written_by_its_format(tmp_path):
     from types import SimpleNamespace
 
     from service.formats.result import VOLUME_FILE, mip_file, read_result, write_folder
-    from service.storage.render import render_mips
+    from service.pictures.render import render_mips
     from service.storage.results import write_result
 
     z, x, y = np.arange(6) * 1e-5, np.arange(5) * 1e-4, np.arange(4) * 1e-4
