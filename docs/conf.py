@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import json
 import os
-import re
 import sys
 from pathlib import Path
 from typing import Any
@@ -107,40 +106,6 @@ def skip_reexport(app: Any, what: str, name: str, obj: Any, skip: bool, options:
     return None
 
 
-#: docstring text that reST misreads, rewritten for the page only (the source docstrings need
-#: the fix; the report of issue 62 lists them): regular expression → replacement. k-Wave's option
-#: names '*nearest', '*linear', '*cubic' and the shape (*S, 3) read as emphasis (not in ``literals``).
-DOCSTRING_FIXES = [
-    (re.compile(r"(?<!``)'\*(nearest|linear|cubic)'"), r"'\\*\1'"),
-    (re.compile(r"(?<!``)\(\*S, 3\)"), r"(\\*S, 3)"),
-]
-
-
-def widen_first_column(lines: list[str]) -> None:
-    """Widen the first column of the simple tables in ``lines`` by one character when a cell
-    overflows it (service.formats: ``kwave-hdf5`` is one character wider than its column)."""
-    borders = [i for i, line in enumerate(lines) if line.startswith("=") and set(line) <= {"=", " "}]
-    if len(borders) < 2:
-        return
-    width = len(lines[borders[0]].split(" ")[0])
-    table = range(borders[0], borders[-1] + 1)
-    if all(len(lines[i]) <= width or lines[i][width] == " " for i in table):
-        return
-    for i in table:
-        line = lines[i]
-        at = width if len(line) <= width or line[width] == " " else width + 1
-        lines[i] = line[:at] + ("=" if i in borders else " ") + line[at:]
-
-
-def fix_docstring(app: Any, what: str, name: str, obj: Any, options: Any, lines: list[str]) -> None:
-    """Apply `DOCSTRING_FIXES` to ``name``'s docstring lines (and `widen_first_column` to the
-    table of service.formats)."""
-    if name == "service.formats":
-        widen_first_column(lines)
-    for pattern, new in DOCSTRING_FIXES:
-        lines[:] = [pattern.sub(new, line) for line in lines]
-
-
 # --- the HTTP reference: the OpenAPI schema, written at build time ---------------------------
 GENERATED = DOCS / "_generated"
 
@@ -197,4 +162,3 @@ def setup(app: Any) -> None:
     app.connect("builder-inited", write_openapi)
     app.connect("builder-inited", write_fpscan_names)
     app.connect("autodoc-skip-member", skip_reexport)
-    app.connect("autodoc-process-docstring", fix_docstring, priority=400)

@@ -12,6 +12,9 @@ python3 -m venv .venv
 .venv/bin/python -m pip install -q -e '.[docs]'
 unset PYTHONDONTWRITEBYTECODE
 export MPLBACKEND=Agg
+# the pages the build generates (autosummary's stubs, the OpenAPI schema), made afresh: a module
+# renamed since the last build leaves no stale page behind
+rm -rf docs/reference/generated docs/_generated
 # -E: every page read again, so that every warning of every page is seen (and fails the build)
 .venv/bin/python -m sphinx -W --keep-going -E -b html "$@" docs docs/_build/html
 echo "docs: $(cd docs/_build/html && find . -name '*.html' -not -path './_*' | wc -l) pages in docs/_build/html (index.html)"

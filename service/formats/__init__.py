@@ -10,23 +10,23 @@ reconstruction's ``--format``, ``POST /api/datasets``'s ``format``, ``GET
 opened and checked (:func:`open_source`: opened once, the hostile-HDF5 checks of
 ``service.formats.untrusted`` applied to every format).
 
-=============  ==========  ==================================================  =====================
-name           module      content                                             role
-=============  ==========  ==================================================  =====================
-``npy``        npy         NumPy array in k-Wave layout → GridDataset          input, upload
-``fpscan``     scan        fpscan scan file → PointDataset                     input, upload
-``dataset``    dataset     canonical dataset (``fpscan-dataset/1``)            input (server's own)
-``result``     result      reconstruction result ``volume.h5`` → ResultVolume  output
-``unmix``      unmix       unmixing result ``unmix.h5`` → dict                 output
-``ipasc``      ipasc       IPASC HDF5 → PointDataset                           input, upload
-``kwave-hdf5`` kwave_hdf5  HDF5 array in k-Wave layout → GridDataset           input, upload
-``kwave-mat``  kwave_mat   k-Wave MAT-file (MAT v5, v7.3) → GridDataset         input, upload
-``plan``       plan        plan JSON → plan dict                               refused as data
-``png``        png         PNG picture → bytes                                 refused as data
-``ome-tiff``   ome_tiff    p0 volume as OME-TIFF (from a result)               export
-``ome-zarr``   ngff        p0 volume as OME-Zarr, NGFF 0.5 (from a result)     export (a folder)
-``npz``        npz         p0 volume and axes as NumPy .npz (from a result)    export
-=============  ==========  ==================================================  =====================
+==============  ==========  ==================================================  =====================
+name            module      content                                             role
+==============  ==========  ==================================================  =====================
+``npy``         npy         NumPy array in k-Wave layout → GridDataset          input, upload
+``fpscan``      scan        fpscan scan file → PointDataset                     input, upload
+``dataset``     dataset     canonical dataset (``fpscan-dataset/1``)            input (server's own)
+``result``      result      reconstruction result ``volume.h5`` → ResultVolume  output
+``unmix``       unmix       unmixing result ``unmix.h5`` → dict                 output
+``ipasc``       ipasc       IPASC HDF5 → PointDataset                           input, upload
+``kwave-hdf5``  kwave_hdf5  HDF5 array in k-Wave layout → GridDataset           input, upload
+``kwave-mat``   kwave_mat   k-Wave MAT-file (MAT v5, v7.3) → GridDataset         input, upload
+``plan``        plan        plan JSON → plan dict                               refused as data
+``png``         png         PNG picture → bytes                                 refused as data
+``ome-tiff``    ome_tiff    p0 volume as OME-TIFF (from a result)               export
+``ome-zarr``    ngff        p0 volume as OME-Zarr, NGFF 0.5 (from a result)     export (a folder)
+``npz``         npz         p0 volume and axes as NumPy .npz (from a result)    export
+==============  ==========  ==================================================  =====================
 
 Exports: a format with ``export_from`` and ``export`` writes files of another (``result`` and
 ``fpscan`` export themselves, ``ipasc`` a scan file, ``ome-tiff`` / ``ome-zarr`` / ``npz`` a result):

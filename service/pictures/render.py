@@ -256,7 +256,7 @@ def so2_rgb(so2: np.ndarray, thb: np.ndarray, *, threshold: float = 0.1, cmap: s
 
     Returns
     -------
-    ndarray, shape (*S, 3)
+    ndarray, shape ``(*S, 3)``
         Float RGB colours in [0, 1].
 
     Raises

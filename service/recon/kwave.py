@@ -6,8 +6,8 @@ Transcribed from the algorithm as documented in `shared/reference/KWAVE_RECON_NO
 zero the evanescent part |ω| < c |k_lat|, interpolate along ω onto ω' = c |k| (k the grid
 with the mirrored length in depth), zero out-of-range queries, inverse FFT, keep the
 positive-depth half and scale by 4/c; optional positivity. Interpolation as Octave 7.3
-does it: '*linear'/'linear', '*nearest'/'nearest' (ties go to the upper node) and
-'cubic'/'*cubic' = pchip along ω (Fritsch-Carlson slopes).
+does it: ``'*linear'``/``'linear'``, ``'*nearest'``/``'nearest'`` (ties go to the upper node) and
+``'cubic'``/``'*cubic'`` = pchip along ω (Fritsch-Carlson slopes).
 
 Output grid: (N_t, N_y) / (N_t, N_y, N_z), row i at depth i c dt (row 0 = the sensor
 plane), columns at the sensor positions.
@@ -295,7 +295,7 @@ def kspace_line_recon(p: npt.ArrayLike, dy: float, dt: float, c: float, data_ord
     data_order : {"ty", "yt"}, optional
         Axis order of ``p``.
     interp : str, optional
-        '*nearest' (k-Wave's default), 'nearest', '*linear', 'linear', 'cubic' (Octave: pchip
+        ``'*nearest'`` (k-Wave's default), ``'nearest'``, ``'*linear'``, ``'linear'``, ``'cubic'`` (Octave: pchip
         along ω).
     pos_cond : bool, optional
         Clip negative values to 0 (k-Wave's PosCond).
