@@ -61,7 +61,8 @@ def describe(progress: Mapping[str, Any]) -> str:
     ----------
     progress : Mapping of str to object
         A job's progress fields (``stage``; ``iteration``, ``iterations_max``, ``stop_rule``,
-        ``stop_value``, ``stop_tol``, ``stop_armed`` while a method iterates).
+        ``stop_value``, ``stop_tol``, ``stop_armed`` and ``stop_waits_for`` while a method
+        iterates).
 
     Returns
     -------
@@ -75,6 +76,9 @@ def describe(progress: Mapping[str, Any]) -> str:
     >>> describe({"stage": "iteration 7/100", "iteration": 7, "iterations_max": 100,
     ...           "stop_rule": "image change", "stop_value": 0.021, "stop_tol": 0.005})
     'iteration 7/100, image change 0.021 (stops below 0.005)'
+    >>> describe({"stage": "iteration 3/100", "iteration": 3, "iterations_max": 100, "stop_rule": "image change",
+    ...           "stop_value": 0.2, "stop_tol": 0.005, "stop_armed": False, "stop_waits_for": "λ has settled"})
+    'iteration 3/100, image change 0.2 (stops below 0.005 once λ has settled)'
     """
     k, n = progress.get("iteration"), progress.get("iterations_max")
     if k is None or n is None:
@@ -84,7 +88,8 @@ def describe(progress: Mapping[str, Any]) -> str:
     if value is not None:
         text += f", {progress.get('stop_rule') or 'stopping rule'} {value:.2g}"
         if tol is not None:
-            later = "" if progress.get("stop_armed", True) else " once λ has settled"
+            # what the rule waits for in its method's words (tv: "λ has settled"), as the server's line
+            later = "" if progress.get("stop_armed", True) else f" once {progress.get('stop_waits_for') or 'armed'}"
             text += f" (stops below {tol:.2g}{later})" if tol > 0 else " (tol 0: no early stop)"
     return text
 
