@@ -15,12 +15,7 @@ __all__ = ["ServiceConfig"]
 class ServiceConfig(StoreBase):
     """The configuration values of :class:`service.jobs.store.JobStore` (module docstring).
 
-    Parameters
-    ----------
-    path : str or pathlib.Path
-        As for :class:`service.jobs.store.base.StoreBase`.
-    reserve_bytes : int, optional
-        As for :class:`service.jobs.store.base.StoreBase`.
+    A mixin of :class:`service.jobs.store.JobStore`: made as :class:`~service.jobs.store.base.StoreBase` is.
     """
 
     def get_config(self, key: str) -> Any:

@@ -18,12 +18,7 @@ __all__ = ["DatasetRecords"]
 class DatasetRecords(StoreBase):
     """The datasets of :class:`service.jobs.store.JobStore` (module docstring).
 
-    Parameters
-    ----------
-    path : str or pathlib.Path
-        As for :class:`service.jobs.store.base.StoreBase`.
-    reserve_bytes : int, optional
-        As for :class:`service.jobs.store.base.StoreBase`.
+    A mixin of :class:`service.jobs.store.JobStore`: made as :class:`~service.jobs.store.base.StoreBase` is.
     """
 
     def put_dataset(self, dataset_id: str, meta: dict) -> None:

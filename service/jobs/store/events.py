@@ -21,12 +21,7 @@ __all__ = ["EventLog"]
 class EventLog(StoreBase):
     """The events part of :class:`service.jobs.store.JobStore` (module docstring).
 
-    Parameters
-    ----------
-    path : str or pathlib.Path
-        As for :class:`service.jobs.store.base.StoreBase`.
-    reserve_bytes : int, optional
-        As for :class:`service.jobs.store.base.StoreBase`.
+    A mixin of :class:`service.jobs.store.JobStore`: made as :class:`~service.jobs.store.base.StoreBase` is.
     """
 
     def add_listener(self, fn: Callable[[str], None]) -> None:

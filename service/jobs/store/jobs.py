@@ -65,12 +65,7 @@ class QueueFull(ValueError):
 class JobRecords(EventLog):
     """The job rows of :class:`service.jobs.store.JobStore` (module docstring).
 
-    Parameters
-    ----------
-    path : str or pathlib.Path
-        As for :class:`service.jobs.store.base.StoreBase`.
-    reserve_bytes : int, optional
-        As for :class:`service.jobs.store.base.StoreBase`.
+    A mixin of :class:`service.jobs.store.JobStore`: made as :class:`~service.jobs.store.base.StoreBase` is.
     """
 
     @staticmethod

@@ -17,12 +17,7 @@ __all__ = ["PlanRecords"]
 class PlanRecords(StoreBase):
     """The plans of :class:`service.jobs.store.JobStore` (module docstring).
 
-    Parameters
-    ----------
-    path : str or pathlib.Path
-        As for :class:`service.jobs.store.base.StoreBase`.
-    reserve_bytes : int, optional
-        As for :class:`service.jobs.store.base.StoreBase`.
+    A mixin of :class:`service.jobs.store.JobStore`: made as :class:`~service.jobs.store.base.StoreBase` is.
     """
 
     def put_plan(self, plan_id: str, body: dict, summary: dict) -> None:

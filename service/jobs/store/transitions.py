@@ -35,12 +35,7 @@ def _cut_attempt(db: sqlite3.Connection, job_id: str, reason: str) -> None:
 class JobTransitions(JobRecords):
     """The state transitions of :class:`service.jobs.store.JobStore` (module docstring).
 
-    Parameters
-    ----------
-    path : str or pathlib.Path
-        As for :class:`service.jobs.store.base.StoreBase`.
-    reserve_bytes : int, optional
-        As for :class:`service.jobs.store.base.StoreBase`.
+    A mixin of :class:`service.jobs.store.JobStore`: made as :class:`~service.jobs.store.base.StoreBase` is.
     """
 
     def set_state(self, job_id: str, state: str, *, error: str | None = None,
