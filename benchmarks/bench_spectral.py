@@ -78,7 +78,7 @@ def main() -> None:
     args = ap.parse_args()
 
     from driver.physics import Ball, ball_alines
-    from service.storage.datasets import GridDataset, load_dataset
+    from service.storage.loader import GridDataset, load_dataset
 
     path = SHARED / "kwave3d_balls_yarn.h5"
     if not args.skip_kwave and path.is_file():

@@ -68,7 +68,7 @@ def _library_child(method_paths: list[str]) -> None:
     from service.jobs.work import run_reconstruction
     from service.pipeline import reconstruct
     from service.recon.dataset import GridDataset
-    from service.storage.datasets import write_dataset
+    from service.storage.loader import write_dataset
     from service.storage.results import write_result
 
     method, path = method_paths

@@ -16,7 +16,7 @@ Masks (``--masks``): equi-steradian (3-D) / equiangular (2-D) masks of 4 % and 1
 lattice centre at the depth of p0's centroid (the paper's case: its balls' 3.6 mm × scale). Noise
 (``--noise``): white, seeded, relative to the peak (k-Wave's ``addNoise(..., 'peak')``: σ =
 max|clean| / 10^(SNR/20)) at 20, 30 and 40 dB, and relative to the RMS at 30 dB
-(`service.experiments.datasets.add_noise`), over the dense record; the sparse scan is its mask's
+(`service.experiments.dense.add_noise`), over the dense record; the sparse scan is its mask's
 A-lines of it.
 
 Per row:
@@ -78,8 +78,8 @@ VESSEL_GATED = ((11, "peak30"), (4, "peak20"))
 
 def noisy(clean: np.ndarray, noise: str, seed: int = 0) -> np.ndarray:
     """``clean`` plus seeded white noise named as ``peak20`` (σ = max|clean| / 10^(20/20)) or
-    ``rms30`` (σ = rms(clean) / 10^(30/20), `service.experiments.datasets.add_noise`)."""
-    from service.experiments.datasets import add_noise
+    ``rms30`` (σ = rms(clean) / 10^(30/20), `service.experiments.dense.add_noise`)."""
+    from service.experiments.dense import add_noise
 
     kind, snr = noise[:-2], float(noise[-2:])
     return add_noise(clean, snr, seed=seed, reference=kind)

@@ -10,7 +10,7 @@ command line, the server and the web page use:
   ``random_mask``, ``poisson_mask``, ``points_mask``, ``equiangular_mask``,
   ``equisteradian_mask``), ``MASK_KINDS``, ``Plan``, ``Acquisition``, ``make_plan``,
   ``plan_from_spec``, ``load_plan``, ``weight_ratio``, ``preview_png``;
-- datasets (:mod:`service.storage.datasets`): ``load_dataset`` (any supported file,
+- datasets (:mod:`service.storage.loader`): ``load_dataset`` (any supported file,
   :mod:`service.formats`), ``load_wavelengths``; the input model ``GridDataset``,
   ``PointDataset`` (:mod:`service.recon.dataset`); ``subsample(dataset, mask_or_plan)``: the
   A-lines a sensor mask picks out of dense data (a sparse scan from a dense one or a k-Wave
@@ -95,7 +95,7 @@ _EXPORTS: dict[str, str] = {
                      "MASK_KINDS", "Plan", "Acquisition", "make_plan", "plan_from_spec", "weight_ratio",
                      "preview_png"], "service.plans"),
     # datasets and the one reconstruction dispatch
-    **dict.fromkeys(["load_dataset", "load_wavelengths"], "service.storage.datasets"),
+    **dict.fromkeys(["load_dataset", "load_wavelengths"], "service.storage.loader"),
     **dict.fromkeys(["GridDataset", "PointDataset"], "service.recon.dataset"),
     **dict.fromkeys(["reconstruct", "METHODS", "Cancelled"], "service.pipeline"),
     "Reconstruction": "service.recon.reconstruction",
@@ -211,7 +211,7 @@ if TYPE_CHECKING:
     from service.recon.reconstruction import Reconstruction
     from service.recon.unmix import unmix
     from service.spectral import so2_map, thb_map
-    from service.storage.datasets import load_dataset, load_wavelengths
+    from service.storage.loader import load_dataset, load_wavelengths
     from service.storage.results import ResultVolume, read_result, write_result, write_volume
     from service.subsample import subsample
 

@@ -284,7 +284,7 @@ def autofocus(dataset: Any, reconstruct: Callable[..., Any], *, c_range: Any = C
     Parameters
     ----------
     dataset : GridDataset or PointDataset
-        A grid or point dataset (:mod:`service.storage.datasets`: ``data`` ``(n_t, ...)``
+        A grid or point dataset (:mod:`service.storage.loader`: ``data`` ``(n_t, ...)``
         / ``alines`` ``(n, n_t)``, ``dt`` s, ``t0`` s).
     reconstruct : callable
         ``reconstruct(dataset, c=..., dz=..., n_z=..., dtype="float32", **options)`` → an

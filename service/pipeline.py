@@ -4,7 +4,7 @@ Everything that reconstructs calls :func:`reconstruct` — the job worker
 (:mod:`service.jobs.work`), ``fpscan recon`` without ``--server``, the live preview
 (:mod:`service.jobs.preview`) and the experiments (:mod:`service.experiments`) — so the same
 input and options give the same volume locally and on the server. Inputs are the
-datasets of :mod:`service.recon.dataset` (read any file with ``service.storage.datasets.load_dataset``).
+datasets of :mod:`service.recon.dataset` (read any file with ``service.storage.loader.load_dataset``).
 
 The method vocabulary is :data:`METHODS` (name → :class:`Method`), the registry of
 :mod:`service.recon.methods`: one module per method with its typed options model (type,
@@ -356,7 +356,7 @@ def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = No
     Reconstruction
         ``p0`` ``(n_z, n_y, n_x)`` / ``(n_z, n_x)`` with ``z``, ``x``, ``y`` (m), ``params``
         (everything used) and ``p0_unit`` (``"Pa"`` for a calibrated scan, else ``"a.u."``:
-        ``service.storage.datasets.p0_unit``).
+        ``service.storage.loader.p0_unit``).
 
     Raises
     ------
@@ -450,7 +450,7 @@ def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = No
     # the record names the method that ran by its registered name (a method may run another's
     # kernels: the result, volume.h5 and every export say which method the user asked for)
     result.params["method"] = spec.name
-    result.params.update(wavelength_params(dataset))  # which excitation wavelength (storage.datasets)
+    result.params.update(wavelength_params(dataset))  # which excitation wavelength (storage.loader)
     result.p0_unit = p0_unit(dataset)  # Pa for a calibrated scan, else a.u.
     _shift_lateral(result, dataset.lateral_shift)
     step(1.0)
@@ -490,7 +490,7 @@ def _load_inputs(paths: list, format: str | None, unmixing: bool, wavelength: in
         from service.spectral import load_wavelength_datasets
 
         return load_wavelength_datasets(paths, format, wavelengths=wavelengths, **load)
-    from service.storage.datasets import load_wavelengths
+    from service.storage.loader import load_wavelengths
 
     if len(paths) != 1:
         raise ValueError(f"one input file, got {len(paths)} (several only to unmix, one per wavelength)")
@@ -530,7 +530,7 @@ def run_file(inputs: str | os.PathLike | Sequence[str | os.PathLike],
     Three shapes of work, by the arguments:
 
     - one volume (default): the file read at ``wavelength`` (an index; None: the first) with
-      ``service.storage.datasets.load_wavelengths``, reconstructed by :func:`reconstruct`,
+      ``service.storage.loader.load_wavelengths``, reconstructed by :func:`reconstruct`,
       written by ``service.storage.results.write_result`` (``volume.h5`` + MIPs);
     - every wavelength (``wavelength="all"``): one volume each, same method and options
       (``service.spectral.reconstruct_wavelengths``), written by

@@ -324,7 +324,7 @@ def load_wavelength_datasets(paths: Sequence[str | os.PathLike], format: str | N
     ----------
     paths : sequence of str or os.PathLike
         One multi-wavelength scan file (each wavelength's completed A-lines), or one file per
-        wavelength (any format of :func:`service.storage.datasets.load_dataset`).
+        wavelength (any format of :func:`service.storage.loader.load_dataset`).
     format : str, optional
         The input format's name; None: detected.
     wavelengths : sequence of float, optional
@@ -345,7 +345,7 @@ def load_wavelength_datasets(paths: Sequence[str | os.PathLike], format: str | N
     FileNotFoundError
         A file that does not exist.
     """
-    from service.storage import datasets as dsm
+    from service.storage import loader as dsm
 
     load = {k: v for k, v in load.items() if v is not None}
     paths = list(paths)

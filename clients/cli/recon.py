@@ -1,6 +1,6 @@
 """`fpscan recon`: reconstruct p0 from a scan file or dataset, locally or on a server.
 
-Locally (no ``--server``) the input is read with ``service.storage.datasets.load_dataset``
+Locally (no ``--server``) the input is read with ``service.storage.loader.load_dataset``
 (as the service reads uploads), reconstructed with ``service.pipeline.reconstruct`` (the
 job worker's call) and written with ``service.storage.results.write_result`` (the job
 worker's result folder): ``volume.h5`` (``/p0`` ``(n_z, n_y, n_x)``, ``/z``, ``/y``,
@@ -117,7 +117,7 @@ def add_format_option(parser: argparse.ArgumentParser) -> None:
     """
     try:
         from service.formats import FORMATS
-        from service.storage.datasets import input_formats
+        from service.storage.loader import input_formats
     except ImportError:  # client-only install: the server checks the format
         choices, described = None, ""
     else:
@@ -138,11 +138,11 @@ def _wavelength(text: str) -> int | str:
 
 
 def _sniff_format(path: str | os.PathLike) -> str:
-    """The input's format from its content (``service.storage.datasets.detect_format``).
+    """The input's format from its content (``service.storage.loader.detect_format``).
     Where that reader's dependencies (h5py: the driver extra) are missing, a
     ``ModuleNotFoundError`` that says to give ``--format``."""
     try:
-        from service.storage.datasets import detect_format
+        from service.storage.loader import detect_format
     except ModuleNotFoundError as exc:
         raise ModuleNotFoundError(f"no module {exc.name} to tell the file's format: give --format",
                                   name=exc.name) from None

@@ -229,7 +229,7 @@ def _start_workers(context: Context, store: JobStore, settings: Settings, execut
 
     plan_executor(context)  # the plan worker starts loading now, not at the first plan request
     try:
-        from service.jobs.scans import ScanManager
+        from service.jobs.scan_manager import ScanManager
 
         context.scans = ScanManager(store, settings)
         context.scans.start()

@@ -162,7 +162,7 @@ class Context:
         The job store.
     queue : service.jobs.queue.ReconQueue or None
         The reconstruction queue (None when the app runs without workers).
-    scans : service.jobs.scans.ScanManager or None
+    scans : service.jobs.scan_manager.ScanManager or None
         The scan manager (None without workers or without a scanner driver).
     wakeups : service.api.jobs.EventWakeups or None
         The store's events wake the job streams through it.
@@ -175,7 +175,7 @@ class Context:
     settings: Settings
     store: JobStore
     queue: Any = None          # service.jobs.queue.ReconQueue
-    scans: Any = None          # service.jobs.scans.ScanManager
+    scans: Any = None          # service.jobs.scan_manager.ScanManager
     wakeups: Any = None        # service.api.jobs.EventWakeups: the store's events wake the job streams
     extras: dict = field(default_factory=dict)
     slots: dict[str, Slots] = field(default_factory=dict)  # default_slots(settings)

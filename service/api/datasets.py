@@ -11,8 +11,8 @@ reconstructed from its completed points) and ``ipasc``.
 
 The upload is stored under a server-chosen id (``<data_dir>/datasets/<id>/``); the client's
 file name is never used as a path (it is kept, cleaned, as the dataset's display name). Every
-upload is read with ``service.storage.datasets.load_dataset`` and kept as the canonical
-dataset file (``service.storage.datasets.write_dataset``), which the job worker reads.
+upload is read with ``service.storage.loader.load_dataset`` and kept as the canonical
+dataset file (``service.storage.loader.write_dataset``), which the job worker reads.
 
 Datasets never pile up:
 
@@ -56,7 +56,7 @@ from service.formats.untrusted import DiskAdmission, NotAdmitted, hdf5_limit, ru
 from service.jobs import lifecycle
 from service.jobs.queue import INCOMING
 from service.recon.methods.options import SpeedOptions, plausible_speeds
-from service.storage.datasets import import_dataset
+from service.storage.loader import import_dataset
 from service.storage.usage import usage_for
 
 log = logging.getLogger("fpscan.api")

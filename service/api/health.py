@@ -81,7 +81,7 @@ def health_problems(context: Context) -> list[str]:
     list of str
         The data folder's disk below the reserve (``disk_reserve_bytes``), the job database's
         reserve in use, reconstructions waiting for disk space (``service.jobs.queue``) and
-        interrupted scans (``service.jobs.scans``); empty when nothing is wrong.
+        interrupted scans (``service.jobs.scan_manager``); empty when nothing is wrong.
     """
     from service.storage.usage import usage_for
 

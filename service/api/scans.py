@@ -17,7 +17,7 @@ from service.jobs import lifecycle
 from service.jobs.store import TERMINAL, IdempotencyConflict
 
 if TYPE_CHECKING:
-    from service.jobs.scans import ScanManager
+    from service.jobs.scan_manager import ScanManager
 
 __all__ = [
     "router", "JobId", "list_scanners", "start_scan", "pause_scan", "resume_scan", "abort_scan", "scan_file_path",

@@ -16,7 +16,7 @@ import importlib
 from pathlib import Path
 from typing import Any
 
-from .datasets import DenseDataset, add_noise, load_dense
+from .dense import DenseDataset, add_noise, load_dense
 from .result import ExperimentResult, write_experiment
 
 #: experiment name -> module implementing ``run(data=None, *, small=False, ...)`` and ``plot``.

@@ -38,7 +38,7 @@ from service.metrics import (
 from service.pipeline import reconstruct
 from service.recon.dataset import GridDataset, PointDataset
 
-from .datasets import DenseDataset, add_noise
+from .dense import DenseDataset, add_noise
 from .phantoms import tree_phantom, tree_roi
 from .result import ExperimentResult, setup_matplotlib
 

@@ -35,7 +35,7 @@ from driver.physics.axes import centred_axis
 from service.metrics import fit_edge_spread, fit_lorentz, side_lobe_level
 from service.pipeline import reconstruct
 
-from .datasets import DenseDataset
+from .dense import DenseDataset
 from .phantoms import layer_phantom
 from .result import ExperimentResult, setup_matplotlib
 

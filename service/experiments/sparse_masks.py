@@ -41,7 +41,7 @@ from service.metrics import (
 from service.pipeline import reconstruct
 from service.recon.dataset import PointDataset
 
-from .datasets import DenseDataset, add_noise
+from .dense import DenseDataset, add_noise
 from .phantoms import yarn_phantom
 from .result import ExperimentResult, setup_matplotlib
 

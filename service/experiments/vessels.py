@@ -31,7 +31,7 @@ from driver.physics.axes import centred_axis
 from service.metrics import correlation_coefficient
 from service.pipeline import reconstruct
 
-from .datasets import DenseDataset
+from .dense import DenseDataset
 from .phantoms import vessel_phantom, vessel_tree
 from .result import ExperimentResult, setup_matplotlib
 

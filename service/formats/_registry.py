@@ -144,7 +144,7 @@ class Format:
         May hold several excitation wavelengths: its ``load`` takes ``wavelength_index``
         (one of them) and ``all_wavelengths`` (a list, one per wavelength).
     refuse : str or None
-        Not data to reconstruct: the reason :func:`service.storage.datasets.load_dataset`
+        Not data to reconstruct: the reason :func:`service.storage.loader.load_dataset`
         gives when the content is detected as this format.
     order : int
         Sniffing order, lowest first; the catch-all (any HDF5 array: ``kwave-hdf5``) last.

@@ -1,7 +1,7 @@
 """The canonical dataset file (format ``fpscan-dataset/1``), in which the server keeps
 every upload: it stores a :class:`GridDataset` or a :class:`PointDataset` exactly (dtype
 included), so a reconstruction of it equals one of the original file. Written by
-:func:`write` (``service.storage.datasets.import_dataset``), read by :func:`load`.
+:func:`write` (``service.storage.loader.import_dataset``), read by :func:`load`.
 """
 from __future__ import annotations
 

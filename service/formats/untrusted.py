@@ -161,7 +161,7 @@ def _child(conn: Any, fn: Callable, args: tuple, kwargs: dict) -> None:
 
 
 #: what the fork server imports once, so that a reading child starts without imports
-CHILD_PRELOAD = ["service.formats.untrusted", "service.formats", "service.storage.datasets", "driver.scanfile"]
+CHILD_PRELOAD = ["service.formats.untrusted", "service.formats", "service.storage.loader", "driver.scanfile"]
 
 
 def _child_context() -> Any:

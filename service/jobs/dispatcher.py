@@ -1,5 +1,5 @@
 """The one dispatch loop of the job runners: reconstructions (:mod:`service.jobs.queue`),
-scans (:mod:`service.jobs.scans`) and the live previews of scans (:mod:`service.jobs.preview`).
+scans (:mod:`service.jobs.scan_manager`) and the live previews of scans (:mod:`service.jobs.preview`).
 
 :class:`Loop` is a background thread that calls its ``tick`` when woken (:meth:`Loop.wake`)
 and at the latest every ``period`` seconds, logs whatever a tick raises and carries on, and

@@ -209,13 +209,13 @@ def render_preview(scan_path: str, *, wavelength_index: int = 0, eps: float = 1e
     FileNotFoundError
         If the scan file does not exist.
     ValueError
-        If it is not a readable scan file (:func:`service.storage.datasets.load_scan`).
+        If it is not a readable scan file (:func:`service.storage.loader.load_scan`).
     """
     from dataclasses import replace
 
     from service.metrics.projections import mip
     from service.pipeline import default_method, reconstruct
-    from service.storage.datasets import load_scan
+    from service.storage.loader import load_scan
 
     t0 = time.perf_counter()
     ds = load_scan(scan_path, allow_empty=True, wavelength_index=wavelength_index)

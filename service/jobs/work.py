@@ -2,7 +2,7 @@
 
 ``run_reconstruction(spec)`` runs :func:`service.pipeline.run_file` (the one orchestration,
 the same call ``fpscan recon`` and ``fpscan unmix`` make locally: the input read with
-``service.storage.datasets``, reconstructed with :func:`service.pipeline.reconstruct`, the
+``service.storage.loader``, reconstructed with :func:`service.pipeline.reconstruct`, the
 result folder written with ``service.storage.results.write_result``) with the worker's own
 parts (memory admission and bounds, progress and cancel files):
 
@@ -13,7 +13,7 @@ parts (memory admission and bounds, progress and cancel files):
 
 Inputs (``spec["input"]``):
 - ``{"kind": "dataset", "path": <dataset.h5>}``: the canonical dataset file
-  (:func:`service.storage.datasets.write_dataset`) of an upload;
+  (:func:`service.storage.loader.write_dataset`) of an upload;
 - ``{"kind": "scan", "path": <scan.h5>}``: a scan file; its completed points are used
   (a full lattice also with the grid methods).
 

@@ -2,7 +2,7 @@
 and :class:`PointDataset` (A-lines at sensor points), with their validation.
 
 The file formats that produce them live in :mod:`service.formats` (one module per format,
-one registry); :func:`service.storage.datasets.load_dataset` is the one loader of a file
+one registry); :func:`service.storage.loader.load_dataset` is the one loader of a file
 for reconstruction, :func:`service.pipeline.reconstruct` the one dispatch that consumes
 them. A point dataset that covers its whole lattice turns into grid data with
 :meth:`PointDataset.to_grid` (so grid methods work on a full-lattice scan everywhere);

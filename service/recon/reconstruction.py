@@ -32,7 +32,7 @@ class Reconstruction:
         Every parameter the reconstruction used (JSON-serialisable).
     p0_unit : str
         ``"Pa"`` when the input was calibrated pressure (a scan whose instrument records its
-        volts-to-pascal calibration), else ``"a.u."`` (``service.storage.datasets.p0_unit``;
+        volts-to-pascal calibration), else ``"a.u."`` (``service.storage.loader.p0_unit``;
         set by ``service.pipeline.reconstruct``).
     ndim : int
         2 for a line-sensor (x, z) image, 3 for a plane-sensor volume.

@@ -172,7 +172,7 @@ class TvGrid(NamedTuple):
 class RecordFacts(NamedTuple):
     """What a record holds above its noise (`record_facts`): the facts `tv_grid` reads off the
     data, kept where the data are not at hand — a server stores them with a dataset when it
-    imports it (``service.storage.datasets.import_dataset``), so that its admission sizes a tv
+    imports it (``service.storage.loader.import_dataset``), so that its admission sizes a tv
     job on the grid tv will choose (``service.recon.methods.tv``).
 
     Attributes

@@ -30,7 +30,7 @@ def _p0(path):
 
 def test_grid_without_method_same_method_and_volume_locally_and_over_http(server, tmp_path):
     from service.pipeline import default_method
-    from service.storage.datasets import load_dataset
+    from service.storage.loader import load_dataset
 
     rng = np.random.default_rng(12)
     data = rng.standard_normal((48, 10, 12)).astype(np.float32)  # (n_t, n_y, n_x): grid data

@@ -18,7 +18,7 @@ from service.experiments import (
     run_experiment,
     sparse_masks,
 )
-from service.experiments.datasets import add_noise
+from service.experiments.dense import add_noise
 from tests.json_keys import all_keys
 
 

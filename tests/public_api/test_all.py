@@ -47,7 +47,7 @@ def _defined_functions_and_classes(module_name: str) -> list[str]:
 def test_the_walk_finds_the_packages_modules():
     assert {"driver.physics.balls", "service.metrics.roi", "clients.http.client", "clients.cli.recon",
             "service.api.app", "driver"} <= set(MODULES)
-    assert {"service.storage.datasets", "service.formats.ipasc", "service.recon.tv"} <= set(MODULES)
+    assert {"service.storage.loader", "service.formats.ipasc", "service.recon.tv"} <= set(MODULES)
     assert not any(m.startswith(tuple(p.removesuffix(".py").replace("/", ".") for p in PENDING)) for m in MODULES)
     assert not any(part.startswith("_") for m in MODULES for part in m.split("."))
 

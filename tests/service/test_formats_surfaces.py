@@ -7,7 +7,7 @@ from __future__ import annotations
 import argparse
 
 from service import formats
-from service.storage.datasets import input_formats
+from service.storage.loader import input_formats
 
 
 def test_every_surface_offers_the_registrys_formats(shared_api, tmp_path):

@@ -313,7 +313,7 @@ from driver.physics import Ball, ball_alines
 from driver.physics.axes import centred_axis
 from service.pipeline import reconstruct
 from service.recon.dataset import PointDataset
-from service.storage.datasets import import_dataset, read_dataset, write_dataset
+from service.storage.loader import import_dataset, read_dataset, write_dataset
 n, n_t, n_pts, dx, depth, folder = (int(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3]), float(sys.argv[4]),
                                     float(sys.argv[5]), sys.argv[6])
 rng = np.random.default_rng(0)

@@ -141,7 +141,7 @@ def test_local_worker_and_http_give_one_volume(name, method, inputs, remote, tmp
     # the job worker, on the scan file itself (a scan job's input)
     spec_input = {"kind": "scan", "path": str(path)} if name.startswith("scan") else None
     if spec_input is None:  # the canonical dataset file an upload becomes
-        from service.storage.datasets import import_dataset
+        from service.storage.loader import import_dataset
 
         folder = tmp_path / "ds"
         folder.mkdir()

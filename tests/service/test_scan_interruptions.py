@@ -206,7 +206,7 @@ def test_a_resume_clears_a_cancel_asked_while_the_scan_was_stuck(tmp_path):
     """A cancel asked while a scan was stuck ``running`` (it could not stop then) must not
     end the resumed run ``cancelled`` after it acquired every point (real SQLite store,
     real ScanManager controls; nothing is started)."""
-    from service.jobs.scans import ScanManager
+    from service.jobs.scan_manager import ScanManager
     from service.jobs.store import JobStore
     from service.settings import Settings
 

@@ -17,7 +17,7 @@ from driver.physics.axes import centred_axis
 from driver.scanfile import read_scan
 from service.pipeline import reconstruct
 from service.recon import reconstruct_points
-from service.storage.datasets import load_dataset, load_wavelengths
+from service.storage.loader import load_dataset, load_wavelengths
 from tests.spectral.test_unmix_scan import PITCH, N, _scan
 
 WAVELENGTHS = [750e-9, 850e-9]

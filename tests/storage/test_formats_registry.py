@@ -13,7 +13,7 @@ import pytest
 from service import formats
 from service.formats import Format, Source
 from service.recon.dataset import GridDataset
-from service.storage.datasets import detect_format, input_formats, load_dataset, load_wavelengths
+from service.storage.loader import detect_format, input_formats, load_dataset, load_wavelengths
 from tests.storage.storage_helpers import build_plan
 
 TOY_MAGIC = b"TOY-GRID/1"

@@ -15,7 +15,7 @@ import scipy.io
 
 from service.formats import export_file
 from service.pipeline import reconstruct
-from service.storage.datasets import load_dataset
+from service.storage.loader import load_dataset
 from service.storage.results import read_result, write_result
 
 

@@ -18,7 +18,7 @@ import scipy.io
 from service import formats
 from service.pipeline import reconstruct
 from service.recon import kspace_line_recon
-from service.storage.datasets import detect_format, load_dataset
+from service.storage.loader import detect_format, load_dataset
 from tests.storage.mat_files import MAT73_HEADER, write_mat5, write_mat73
 
 

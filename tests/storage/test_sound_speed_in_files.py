@@ -20,7 +20,7 @@ from service.formats.unmix import UNMIX_FORMAT
 from service.recon.dataset import GridDataset, PointDataset
 from service.recon.unmix import unmix
 from service.spectral import read_unmix, write_unmix
-from service.storage.datasets import load_dataset
+from service.storage.loader import load_dataset
 from tests.json_keys import all_keys
 from tests.storage.storage_helpers import build_plan
 

@@ -1,4 +1,4 @@
-"""Dataset import (service.storage.datasets): the real k-Wave files, NumPy arrays, our scan
+"""Dataset import (service.storage.loader): the real k-Wave files, NumPy arrays, our scan
 files and IPASC files, and bad input."""
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 from driver.scanfile import read_scan
 from service.formats.ipasc import export_scan
 from service.recon.dataset import GridDataset, PointDataset
-from service.storage.datasets import detect_format, load_dataset
+from service.storage.loader import detect_format, load_dataset
 from tests.storage.storage_helpers import build_plan
 
 

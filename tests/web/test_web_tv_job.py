@@ -86,7 +86,7 @@ def test_kwave_mat_uploaded_from_the_page_reconstructs_as_the_library_does(brows
     read as k-Wave's (sensor, time) layout with the file's dt and dx; each NER volume equals
     the library's of the same file."""
     from service.pipeline import reconstruct
-    from service.storage.datasets import load_dataset
+    from service.storage.loader import load_dataset
 
     open_page(browser, server)
     submit_token_if_asked(browser, TOKEN)

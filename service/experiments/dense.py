@@ -2,10 +2,10 @@
 
 A dense dataset is what the paper's experiments start from (§6: the full 1024-point
 line; §7: the 226 × 226 scan): A-lines on every lattice point, from which sensor masks
-pick their points. It is the grid dataset of :mod:`service.storage.datasets` with an
+pick their points. It is the grid dataset of :mod:`service.storage.loader` with an
 optional ground truth. Built-in phantoms are simulated with the exact planar forward
 model (:func:`service.recon.forward_grid`); ``load_dense`` reads a file with
-:func:`service.storage.datasets.load_dataset`: the k-Wave reference data
+:func:`service.storage.loader.load_dataset`: the k-Wave reference data
 (``sensor_data/clean`` with ``axes`` "t, y" or "t, y, z"; attributes ``dt_s``,
 ``dx_m``/``dy_m``/``dz_m``, ``c_m_per_s``, see ``data/README.md``) or a full-lattice scan.
 """
@@ -18,7 +18,7 @@ import numpy as np
 
 from service import formats
 from service.recon.dataset import GridDataset, PointDataset
-from service.storage.datasets import input_formats
+from service.storage.loader import input_formats
 
 __all__ = ["DenseDataset", "load_dense", "add_noise"]
 
