@@ -1,25 +1,26 @@
 """The client's own view of the API responses it parses (pydantic; no server imports).
 
-These mirror the response models of ``docs/api.md`` (the server's ``service.api.models``)
-but are lenient, so a client keeps working against a slightly newer or older server:
-unknown fields are kept (``extra="allow"``), states and kinds are plain strings, and
-fields a server may omit have defaults. A response that does not fit is returned as the
-raw JSON (see :func:`clients.http.calls.as_model`). Units are SI (m, s, Hz).
+They subclass the response models of ``docs/api.md`` as ``wire.models`` defines their
+fields once (the server's ``service.api.models`` narrow the same ones) and stay lenient,
+so a client keeps working against a slightly newer or older server: unknown fields are
+kept (``extra="allow"``), states and kinds are plain strings, and fields a server may omit
+have defaults. A response that does not fit is returned as the raw JSON (see
+:func:`clients.http.calls.as_model`). Units are SI (m, s, Hz).
 """
 from __future__ import annotations
 
-from typing import Any
-
 from pydantic import BaseModel, ConfigDict, Field
+
+from wire import models as wire
 
 __all__ = ["Plan", "PlanPreview", "JobProgress", "Attempt", "Timings", "Job", "Scanner", "PreviewInfo", "MODELS"]
 
 
-class _Response(BaseModel):
-    model_config = ConfigDict(extra="allow")
+#: unknown fields are kept (a newer server's)
+_LENIENT = ConfigDict(extra="allow")
 
 
-class Plan(_Response):
+class Plan(wire.Plan):
     """Summary of a stored plan (``GET /api/plans/{id}``).
 
     Attributes
@@ -53,19 +54,10 @@ class Plan(_Response):
     (9, None, 'serpentine')
     """
 
-    id: str
-    kind: str
-    n_points: int
-    requested_points: int | None = None
-    shortfall: str | None = None  # why the plan has fewer points than asked
-    weight_ratio: float | None = None
-    expected_scan_time_s: float | None = None
-    lattice: dict[str, Any] = Field(default_factory=dict)
-    acquisition: dict[str, Any] = Field(default_factory=dict)
-    links: dict[str, str] = Field(default_factory=dict)
+    model_config = _LENIENT
 
 
-class PlanPreview(_Response):
+class PlanPreview(wire.PlanPreview):
     """A mask preview computed without storing a plan (``POST /api/plans/preview``).
 
     Attributes
@@ -86,13 +78,10 @@ class PlanPreview(_Response):
     PlanPreview(points=53, weight_ratio=2.83, expected_scan_time_s=None, preview_png_base64=None)
     """
 
-    points: int
-    weight_ratio: float | None = None
-    expected_scan_time_s: float | None = None
-    preview_png_base64: str | None = None
+    model_config = _LENIENT
 
 
-class JobProgress(_Response):
+class JobProgress(wire.JobProgress):
     """A job's progress (the ``progress`` of a :class:`Job`).
 
     Attributes
@@ -126,20 +115,10 @@ class JobProgress(_Response):
     'queued'
     """
 
-    fraction: float = 0.0
-    stage: str = "queued"
-    points_done: int | None = None
-    points_total: int | None = None
-    alines_done: int | None = None
-    alines_total: int | None = None
-    rate_per_s: float | None = None
-    eta_s: float | None = None
-    faults_recovered: int | None = None
-    reason: str | None = Field(None, description="why a job is paused with stage interrupted (lost device, "
-                               "full disk), one line; cleared when it resumes")
+    model_config = _LENIENT
 
 
-class Attempt(_Response):
+class Attempt(wire.Attempt):
     """An attempt of a job that was cut off and re-queued (a dead worker, a shutdown, a restart).
 
     Attributes
@@ -162,14 +141,10 @@ class Attempt(_Response):
     (2.5, 'the worker process died')
     """
 
-    attempt: int | None = None
-    started: float | None = None
-    ended: float | None = None
-    run_s: float | None = None
-    reason: str | None = None
+    model_config = _LENIENT
 
 
-class Timings(_Response):
+class Timings(wire.Timings):
     """UNIX times of a job's creation, start and end (s), and its queue/run durations (s):
     those of its current attempt (a job re-queued after its run was cut off starts them anew).
 
@@ -190,15 +165,12 @@ class Timings(_Response):
     (1.5, None)
     """
 
-    created: float | None = None
-    started: float | None = None
-    finished: float | None = None
-    queued_s: float | None = None
-    run_s: float | None = None
+    model_config = _LENIENT
+
     earlier_attempts: list[Attempt] = Field(default_factory=list)
 
 
-class Job(_Response):
+class Job(wire.Job):
     """A job (``GET /api/jobs/{id}``).
 
     Attributes
@@ -228,18 +200,13 @@ class Job(_Response):
     ('running', 0.25, None)
     """
 
-    id: str
-    kind: str
-    state: str
+    model_config = _LENIENT
+
     progress: JobProgress = Field(default_factory=JobProgress)
     timings: Timings = Field(default_factory=Timings)
-    params: dict[str, Any] = Field(default_factory=dict)
-    links: dict[str, str] = Field(default_factory=dict)
-    attempts: int = 0
-    error: str | None = None
 
 
-class Scanner(_Response):
+class Scanner(wire.Scanner):
     """A configured scanner (``GET /api/scanners``).
 
     Attributes
@@ -261,14 +228,10 @@ class Scanner(_Response):
     Scanner(id='sim', port=None, status='idle', job_id=None, identity=None)
     """
 
-    id: str
-    port: str | None = None
-    status: str = "unknown"
-    job_id: str | None = None
-    identity: str | None = None
+    model_config = _LENIENT
 
 
-class PreviewInfo(_Response):
+class PreviewInfo(wire.PreviewInfo):
     """The live preview's state during a scan.
 
     Attributes
@@ -277,12 +240,12 @@ class PreviewInfo(_Response):
         Increases with every refresh.
     points_used : int
         Scan points in the current preview.
+    wavelength_index : int or None
+        The wavelength it shows (index into the plan's wavelengths).
     updated : float or None
         UNIX time of the last refresh, s.
     refresh_s : float or None
         Refresh interval, s.
-    wavelength_index : int or None
-        The wavelength it shows (index into the plan's wavelengths).
 
     Examples
     --------
@@ -292,11 +255,7 @@ class PreviewInfo(_Response):
     (3, 120, None)
     """
 
-    version: int
-    points_used: int
-    updated: float | None = None
-    refresh_s: float | None = None
-    wavelength_index: int | None = None
+    model_config = _LENIENT
 
 
 MODELS: dict[str, type[BaseModel]] = {

@@ -1,8 +1,11 @@
 """Request and response models of the HTTP API (pydantic; the plan request is derived from
 the mask kinds declared in ``service.plans.kinds``).
 
-The Python client imports these. Units are SI (m, s, m/s, Hz, bytes). Request models
-refuse unknown fields, NaN and infinities (``ValueError`` → HTTP 422 with the reason).
+The response models of plans, jobs, scanners and previews subclass ``wire.models`` (their
+fields defined once, shared with the client's lenient ``clients.http.models``) and narrow
+what the server guarantees (literal states and kinds, required fields). Units are SI (m, s,
+m/s, Hz, bytes). Request models refuse unknown fields, NaN and infinities (``ValueError`` →
+HTTP 422 with the reason).
 Contract: docs/api.md.
 """
 from __future__ import annotations
@@ -30,6 +33,7 @@ from service.plans.plan import ORDER_NAMES, Acquisition
 from service.plans.plan import Plan as PlanJson
 from service.recon import methods as _methods
 from service.recon.methods.options import SpeedOptions, plausible_speeds
+from wire import models as wire
 
 __all__ = [
     "JobState", "JobKind", "ReconMethod", "Plane", "DATASET_FORMATS", "DatasetFormat", "ID_PATTERN", "LatticeIndex",
@@ -493,7 +497,7 @@ class MaskKindInfo(BaseModel):
     params_schema: dict[str, Any]
 
 
-class Plan(BaseModel):
+class Plan(wire.Plan):
     """A stored plan's summary (``POST /api/plans``, ``GET /api/plans``, ``GET /api/plans/{id}``).
 
     Attributes
@@ -522,21 +526,11 @@ class Plan(BaseModel):
         Name -> API path: ``self``, ``preview`` (the mask preview PNG).
     """
 
-    id: str
-    kind: str
-    n_points: int
-    requested_points: int | None = None
-    shortfall: str | None = Field(None, description="why the plan has fewer points than asked (under 90 %), "
-                                  "one line; null when it has about as many")
-    weight_ratio: float | None = None
-    expected_scan_time_s: float | None = Field(None, description="points × averages × wavelengths / PRF, s; "
-                                               "null when the plan sets no PRF (unthrottled)")
     lattice: dict[str, Any]
     acquisition: dict[str, Any]
-    links: dict[str, str] = Field(default_factory=dict)
 
 
-class PlanPreview(BaseModel):
+class PlanPreview(wire.PlanPreview):
     """``POST /api/plans/preview``: a plan built and drawn, not stored.
 
     Attributes
@@ -551,38 +545,19 @@ class PlanPreview(BaseModel):
         The mask preview PNG, base64-encoded.
     """
 
-    points: int
-    weight_ratio: float | None = None
-    expected_scan_time_s: float | None = Field(None, description="points × averages × wavelengths / PRF, s; "
-                                               "null when the plan sets no PRF (unthrottled)")
     preview_png_base64: str
 
 
 # -- jobs ----------------------------------------------------------------------------
-class JobProgress(BaseModel):
+class JobProgress(wire.JobProgress):
     """A job's progress on the wire (the ``progress`` of a :class:`Job`; the callback type of
     the library is ``service.progress.Progress``). Each field's unit is in its description,
     which the OpenAPI document (``/openapi.json``) serves."""
 
-    fraction: float = Field(0.0, description="share of the job done, in [0, 1]")
-    stage: str = Field("queued", description="what the job is doing: queued; a scan: connecting, acquiring, "
-                       "paused, interrupted, done; a reconstruction: its method's stages")
-    points_done: int | None = Field(None, description="scan: points measured at every wavelength; "
-                                    "a finished reconstruction: the sensor points it used")
-    points_total: int | None = Field(None, description="scan: points in the plan")
-    alines_done: int | None = Field(None, description="scan: A-lines on disk (points x wavelengths)")
-    alines_total: int | None = Field(None, description="scan: A-lines planned (points x wavelengths)")
-    rate_per_s: float | None = Field(None, description="scan: A-lines landed per second, 1/s")
-    eta_s: float | None = Field(None, description="estimated time to completion, s")
-    faults_recovered: int | None = Field(None, description="scan: link faults recovered so far (bad frames, "
-                                         "NAKs, timeouts, resets)")
-    reason: str | None = Field(None, description="why a job is paused with stage interrupted (lost device, "
-                               "full disk), one line; cleared when it resumes")
-
     model_config = ConfigDict(extra="allow")
 
 
-class Attempt(BaseModel):
+class Attempt(wire.Attempt):
     """An attempt of a job that was cut off and re-queued (a dead worker, a shutdown, a restart).
 
     Attributes
@@ -600,13 +575,10 @@ class Attempt(BaseModel):
     """
 
     attempt: int
-    started: float | None = None
     ended: float
-    run_s: float | None = None
-    reason: str | None = None
 
 
-class Timings(BaseModel):
+class Timings(wire.Timings):
     """When a job was created, started and finished (UNIX times, s) and how long it waited and ran.
 
     The times of the current (or last) attempt: a job re-queued after its run was cut off
@@ -630,14 +602,10 @@ class Timings(BaseModel):
     """
 
     created: float
-    started: float | None = None
-    finished: float | None = None
-    queued_s: float | None = None
-    run_s: float | None = None
     earlier_attempts: list[Attempt] = Field(default_factory=list)
 
 
-class Job(BaseModel):
+class Job(wire.Job):
     """A scan or reconstruction job as ``GET /api/jobs/{id}`` shows it.
 
     Attributes
@@ -665,15 +633,12 @@ class Job(BaseModel):
         Why it failed, one line; null otherwise.
     """
 
-    id: str
     kind: JobKind
     state: JobState
     progress: JobProgress
     timings: Timings
     params: dict[str, Any]
     links: dict[str, str]
-    attempts: int = 0
-    error: str | None = None
 
 
 # -- scans ---------------------------------------------------------------------------
@@ -697,7 +662,7 @@ class ScanRequest(_Request):
                                     "the wavelength the live preview shows (default the first)")
 
 
-class Scanner(BaseModel):
+class Scanner(wire.Scanner):
     """One scanner the server is configured with, and what it is doing.
 
     Attributes
@@ -716,14 +681,11 @@ class Scanner(BaseModel):
         until then.
     """
 
-    id: str
     port: str
     status: Literal["idle", "busy", "unreachable", "unknown"]
-    job_id: str | None = None
-    identity: str | None = None
 
 
-class PreviewInfo(BaseModel):
+class PreviewInfo(wire.PreviewInfo):
     """A scan's live preview state (``GET /api/scans/{id}/preview``).
 
     Attributes
@@ -740,11 +702,8 @@ class PreviewInfo(BaseModel):
         How long the last refresh took, s.
     """
 
-    version: int
-    points_used: int
-    wavelength_index: int = Field(0, description="the excitation wavelength shown (index into the plan's)")
-    updated: float | None = Field(None, description="UNIX time of the last refresh")
-    refresh_s: float | None = Field(None, description="how long the last refresh took, s")
+    wavelength_index: int = Field(
+        0, description=wire.PreviewInfo.model_fields["wavelength_index"].description)
 
 
 # -- datasets and reconstructions ----------------------------------------------------
