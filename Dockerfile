@@ -36,6 +36,7 @@ COPY service ./service
 COPY driver ./driver
 COPY clients ./clients
 COPY fpscan ./fpscan
+COPY wire ./wire
 RUN /opt/fpscan/bin/python -m pip install --no-cache-dir --no-deps ".[server]"
 # ship the compiled (numba) reconstruction kernels warm: every method once, float32 and
 # float64, so that a fresh worker only loads them (numba's cache beside the installed
