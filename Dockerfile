@@ -43,7 +43,7 @@ RUN /opt/fpscan/bin/python -m pip install --no-cache-dir --no-deps ".[server]"
 # modules; a host whose CPU differs from the build machine's recompiles on first use);
 # run outside /src so that the installed modules, not the sources, are imported
 WORKDIR /tmp
-RUN /opt/fpscan/bin/python -c "import numpy as np; from service.pipeline import METHODS, reconstruct; from service.storage.datasets import GridDataset; d = np.zeros((32, 4, 4)); d[5] = 1; [reconstruct(GridDataset(data=d, dx=1e-4, dt=2e-8, c=1500.0, dy=1e-4), m, dtype=t) for m in METHODS if m != 'tv' for t in ('float32', 'float64')]"
+RUN /opt/fpscan/bin/python -c "import numpy as np; from service.pipeline import METHODS, reconstruct; from service.storage.loader import GridDataset; d = np.zeros((32, 4, 4)); d[5] = 1; [reconstruct(GridDataset(data=d, dx=1e-4, dt=2e-8, c=1500.0, dy=1e-4), m, dtype=t) for m in METHODS if m != 'tv' for t in ('float32', 'float64')]"
 
 # ---- runtime stage: slim, no compiler, non-root, tini as init ----------------------
 FROM python:3.11-slim@sha256:9c900dea9e8fb7e16277c179b555cc72d29a352dbc33cff48ad5a0412fd5bfc7

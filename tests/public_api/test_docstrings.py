@@ -104,7 +104,7 @@ def test_the_section_reader_sees_sections():
 # -- every public module of service, driver, clients and fpscan (issue 48.5) -----------------
 
 #: the packages whose public modules the coverage test reads
-PACKAGES = ("service", "driver", "clients", "fpscan")
+PACKAGES = ("service", "driver", "clients", "fpscan", "wire")
 #: the share of public definitions with their numpy sections that issue 48.5 asks for
 COVERAGE = 0.90
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import grimp
 
-PACKAGES = ("fpscan", "clients", "service", "driver")
+PACKAGES = ("fpscan", "clients", "service", "driver", "wire")
 
 
 def strongly_connected(adjacent: dict[str, set[str]]) -> list[list[str]]:
