@@ -10,7 +10,7 @@ from __future__ import annotations
 from typing import Final
 
 __all__ = ["BANDWIDTH_RANGE", "EPS_RANGE", "UPSAMPLE_RANGE", "N_Z_RANGE", "DZ_RANGE", "LAM_RANGE", "ITERATIONS_RANGE",
-           "TIME_LIMIT_MAX", "TOL_RANGE", "DEFAULT_TOL", "DEFAULT_DTYPE", "DTYPES", "KWAVE_INTERPS", "DEFAULT_EPS", "DEFAULT_MAX_ITER",
+           "TIME_LIMIT_MAX", "TOL_RANGE", "DEFAULT_TOL", "DEFAULT_DTYPE", "DTYPES", "DEVICES", "DEFAULT_DEVICE", "KWAVE_INTERPS", "DEFAULT_EPS", "DEFAULT_MAX_ITER",
            "DEFAULT_TIME_LIMIT"]
 
 #: NUFFT tolerance, inclusive
@@ -40,6 +40,10 @@ DEFAULT_TOL = 5e-3
 DEFAULT_DTYPE: Final = "float32"
 #: the precisions a reconstruction may work in
 DTYPES = ("float32", "float64")
+#: where a reconstruction runs (`service.recon.device`): the GPU where one fits, the CPU, the GPU
+DEVICES = ("auto", "cpu", "cuda")
+#: the default device: the GPU where CuPy sees one and the job fits it, else the CPU
+DEFAULT_DEVICE: Final = "auto"
 #: k-Wave's interpolation modes (``kspaceLineRecon`` / ``kspacePlaneRecon``)
 KWAVE_INTERPS = ("*nearest", "nearest", "*linear", "linear", "*cubic", "cubic")
 #: NUFFT tolerance used when none is asked for

@@ -165,6 +165,11 @@ class PlanarOperator(pylops.LinearOperator):
         with |k_lat| beyond it are skipped whole. With f_c at most the Nyquist frequency
         1 / (2 dt) the samples carry no aliased energy, so data resampled to dt by an ideal
         low-pass (`driver.physics.resample`) are this model's data (`service.recon.tv_grid`).
+    device : {"auto", "cpu", "cuda"}, optional
+        Where `forward` and `adjoint` run (`service.recon.device.choose`; default ``"auto"``):
+        on a GPU (`service.recon.gpu.OperatorPair`, sensors on the grid or on its nodes) the
+        arrays are copied there and back; the lock that keeps one job per GPU is the caller's
+        (`service.recon.device.run`).
 
     Attributes
     ----------
@@ -176,6 +181,8 @@ class PlanarOperator(pylops.LinearOperator):
         The working grid ``(N_z, N_y, N_x)`` (= the image shape when ``periodic``).
     dtype : numpy.dtype
         As given.
+    device : str
+        ``"cpu"`` or ``"cuda"``: where the pair runs.
     shape : tuple of int
         ``(prod(oshape), prod(ishape))``, the matrix shape pylops sees.
 
@@ -183,7 +190,8 @@ class PlanarOperator(pylops.LinearOperator):
     ------
     ValueError
         Naming the problem: bad shape, non-positive dx/dz/dt/c/band, n_t < 1, t0 < 0, eps outside
-        its range, positions of the wrong shape, non-finite or duplicated, bad dtype;
+        its range, positions of the wrong shape, non-finite or duplicated, bad dtype, a bad
+        device or ``device="cuda"`` where the GPU cannot run it (`service.recon.device.Unsuited`);
         `forward`/`adjoint` raise it for arrays of the wrong shape or with NaN/inf.
 
     References
@@ -220,7 +228,7 @@ class PlanarOperator(pylops.LinearOperator):
     def __init__(self, shape: Sequence[int], dx: float, dz: float, dt: float, n_t: int, c: float = C_DEFAULT, *,
                  positions: npt.ArrayLike | None = None, t0: float = 0.0, eps: float = 1e-6, periodic: bool = False,
                  dtype: npt.DTypeLike = np.float64, checkpoint: Callable[[], None] | None = None,
-                 chunk_elements: int = _CHUNK, band: float | None = None) -> None:
+                 chunk_elements: int = _CHUNK, band: float | None = None, device: str = "auto") -> None:
         shape = tuple(int(s) for s in shape)
         if len(shape) not in (2, 3) or min(shape) < 1 or shape[0] < 2:
             raise ValueError(f"shape must be (n_z, n_x) or (n_z, n_y, n_x) with n_z >= 2, got {shape}")
@@ -264,6 +272,17 @@ class PlanarOperator(pylops.LinearOperator):
         self._ctype = np.dtype(np.complex64 if rdtype == np.float32 else np.complex128)
         super().__init__(dtype=rdtype, dims=shape, dimsd=oshape, explicit=False, name="PlanarOperator")
         self._setup()
+        self._pair: Any = None
+        self.device = "cpu"
+        if device != "cpu":
+            from service.recon import device as devices
+            from service.recon import gpu
+
+            off = None if self.positions is None or self._nodes is not None else (
+                "the operator's sensors are off the nodes of the image's lateral grid (its lateral NUFFTs run on the CPU)")
+            if devices.choose(device, gpu.operator_peak(self), off) == "cuda":
+                self._pair = gpu.OperatorPair(self, devices.cupy_module())
+                self.device = "cuda"
 
     # -- shapes ------------------------------------------------------------------
     @property
@@ -503,6 +522,8 @@ class PlanarOperator(pylops.LinearOperator):
         return out
 
     def _apply_forward(self, p0: np.ndarray) -> np.ndarray:
+        if self._pair is not None:
+            return self._pair.xp.asnumpy(self._pair.forward(p0))
         n_z2, n_y2, n_x2 = self.padded_shape
         n_z = self._vol[0]
         # the image's k-space Y and the data's T share one array (`_kspace`): a chunk's columns
@@ -554,6 +575,8 @@ class PlanarOperator(pylops.LinearOperator):
         return full
 
     def _apply_adjoint(self, data: np.ndarray) -> np.ndarray:
+        if self._pair is not None:
+            return self._pair.xp.asnumpy(self._pair.adjoint(data))
         n_z2, n_y2, n_x2 = self.padded_shape
         n_z, n_y, n_x = self._vol
         # the data's k-space A and the image's K (its rows only) share one array (`_kspace`),

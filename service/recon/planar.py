@@ -26,7 +26,9 @@ FFT by a type-1 NUFFT (finufft) from the sensor positions, batched over time sam
 """
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from types import ModuleType
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -40,6 +42,7 @@ from driver.physics.nufft_plans import lateral_plan
 from service.progress import Fraction, Rising, Span, rising
 from service.progress import span as span_of
 from service.recon import checks, memory
+from service.recon import device as devices
 from service.recon.reconstruction import Reconstruction
 
 __all__ = ["GRID_METHODS", "transform_lengths", "reconstruct_grid", "reconstruct_points"]
@@ -144,12 +147,13 @@ def _check_options(dt: float, c: float, method: str, eps: float, dtype: npt.DTyp
     return dt, c, checks.check_eps(eps), checks.check_dtype(dtype), int(upsample), float(t0)
 
 
-def _pad_spectrum(K: np.ndarray, n_y: int, n_x: int, u: int, ups_y: bool) -> np.ndarray:
+def _pad_spectrum(K: np.ndarray, n_y: int, n_x: int, u: int, ups_y: bool, xp: ModuleType = np) -> np.ndarray:
     """Zero-pad an rfft2 spectrum (.., n_y, n_x//2+1) to (.., n_y*u, n_x*u//2+1),
-    splitting Nyquist bins so that the result is the trigonometric interpolant."""
+    splitting Nyquist bins so that the result is the trigonometric interpolant (``xp``: the
+    array module of K, numpy or cupy)."""
     ny2 = n_y * u if ups_y else n_y
     nx2 = n_x * u
-    out = np.zeros(K.shape[:-2] + (ny2, nx2 // 2 + 1), dtype=K.dtype)
+    out = xp.zeros(K.shape[:-2] + (ny2, nx2 // 2 + 1), dtype=K.dtype)
     nxr = n_x // 2 + 1
     if ups_y:
         pos = (n_y + 1) // 2  # indices 0..pos-1 are k >= 0 (excluding Nyquist for even n_y)
@@ -287,6 +291,21 @@ def _invert(A: np.ndarray, n_x: int, dx: float, dy: float, dt: float, c: float, 
     return p0.astype(rdtype, copy=False)
 
 
+def _on_device(device: str, method: str, n_t: int, n_cols: int, n_work: int, n_out: int, eps: float,
+               rdtype: np.dtype, data_elements: int, on_gpu: Callable[[], np.ndarray],
+               on_cpu: Callable[[], np.ndarray]) -> tuple[np.ndarray, dict[str, Any]]:
+    """Run an inversion where ``device`` says (`service.recon.device.run`): the GPU path
+    covers NER's temporal step only; its memory is `service.recon.gpu.inversion_peak`. Returns
+    the image and the params that say which device ran."""
+    if device == "cpu":
+        return on_cpu(), {"device": "cpu"}
+    from service.recon import gpu
+
+    unsupported = None if method == "ner" else f"the temporal step {method!r} runs on the CPU only (the GPU's is NER's)"
+    return devices.run(device, gpu.inversion_peak(n_t, n_cols, n_work, n_out, eps, rdtype, data_elements),
+                       on_gpu, on_cpu, unsupported)
+
+
 def reconstruct_grid(
     data: np.ndarray,
     dx: float,
@@ -304,6 +323,7 @@ def reconstruct_grid(
     dy: float | None = None,
     memory_limit: int | None = None,
     progress: Fraction | None = None,
+    device: str = "auto",
 ) -> Reconstruction:
     """Reconstruct p0 from data on a regular sensor line or plane (NER-NUFFT by default).
 
@@ -347,6 +367,9 @@ def reconstruct_grid(
     progress : callable, optional
         ``progress(fraction)`` called with increasing fractions in (0, 1] as the steps
         (lateral FFT, temporal step in chunks, depth transform, inverse lateral FFT) finish.
+    device : {"auto", "cpu", "cuda"}, optional
+        Where it runs (`service.recon.device`): ``"auto"`` (default) the GPU where CuPy sees
+        one and the request fits it (method ``"ner"`` only), else the CPU.
 
     Returns
     -------
@@ -354,14 +377,17 @@ def reconstruct_grid(
         p0 of shape ``(n_z, n_x u)`` or ``(n_z, n_y u, n_x u)`` (u = upsample), row 0 at
         z = 0, lateral coordinates centred on the optical axis. ``params["depth_rows"]`` is K
         of the module docstring: at least the depth the last sample reaches, rounded up to a
-        fast FFT length.
+        fast FFT length; ``params["device"]`` the device that ran (``"cpu"``/``"cuda"``).
 
     Raises
     ------
     ValueError
         Naming the problem: NaN/inf, wrong ndim/shape, non-positive dx/dt/c/dz, unknown
         method, eps outside [1e-14, 1e-1], bad dtype/upsample/n_z, t0 < 0, or an estimated
-        peak memory above the limit.
+        peak memory above the limit; ``device="cuda"`` without a GPU, for another method
+        than ``"ner"`` or beyond the GPU's free memory.
+    service.recon.device.GpuError
+        The GPU failed during a ``device="cuda"`` run (``"auto"`` falls back to the CPU).
 
     References
     ----------
@@ -413,14 +439,29 @@ def reconstruct_grid(
         memory_limit,
     )
     vol = data.astype(rdtype, copy=False).reshape(n_t, n_y, n_x)
-    space = _workspace(n_t, n_work, n_yp * (n_xp // 2 + 1), rdtype)
-    A = fft_engine.rfft2(vol, s=(n_yp, n_xp), axes=(1, 2), out=_reuse(space, (n_t, n_yp, n_xp // 2 + 1), space.dtype))
     kernel = rising(progress)  # strictly increasing fractions, each step through its span
-    if kernel is not None:
-        kernel(0.1)
-    p0 = _invert(A, n_xp, dx, dy, dt, c, n_work, dz, float(t0), method, eps, rdtype, upsample,
-                 (n_z, n_y * upsample if n_y > 1 else 1, n_x * upsample), progress=span_of(kernel, 0.1, 1.0),
-                 space=space)
+    keep = (n_z, n_y * upsample if n_y > 1 else 1, n_x * upsample)
+
+    def on_cpu() -> np.ndarray:
+        space = _workspace(n_t, n_work, n_yp * (n_xp // 2 + 1), rdtype)
+        A = fft_engine.rfft2(vol, s=(n_yp, n_xp), axes=(1, 2),
+                             out=_reuse(space, (n_t, n_yp, n_xp // 2 + 1), space.dtype))
+        if kernel is not None:
+            kernel(0.1)
+        return _invert(A, n_xp, dx, dy, dt, c, n_work, dz, float(t0), method, eps, rdtype, upsample, keep,
+                       progress=span_of(kernel, 0.1, 1.0), space=space)
+
+    def on_gpu() -> np.ndarray:
+        from service.recon import gpu
+
+        xp = devices.cupy_module()
+        A = xp.fft.rfft2(xp.asarray(vol), s=(n_yp, n_xp), axes=(1, 2))
+        if kernel is not None:
+            kernel(0.1)
+        return xp.asnumpy(gpu.invert(xp, A, n_xp, dx, dy, dt, c, n_work, dz, float(t0), eps, rdtype, upsample, keep))
+
+    p0, ran = _on_device(device, method, n_t, n_yp * (n_xp // 2 + 1), n_work, int(np.prod(keep)), eps, rdtype,
+                         vol.size, on_gpu, on_cpu)
     if positivity:
         np.maximum(p0, 0, out=p0)
     x = centred_axis(n_x, dx)[0] + np.arange(n_x * upsample) * (dx / upsample)
@@ -428,7 +469,7 @@ def reconstruct_grid(
     params = dict(method=method, dx=dx, dy=None if is2d else dy, dt=dt, c=c, eps=eps,
                   dtype=rdtype.name, dz=dz, n_z=n_z, upsample=upsample, positivity=bool(positivity),
                   t0=float(t0), n_t=n_t, data_shape=list(data.shape), depth_rows=n_work,
-                  lateral_transform=[n_yp, n_xp])
+                  lateral_transform=[n_yp, n_xp], **ran)
     return Reconstruction(p0[:, 0, :] if is2d else p0, np.arange(n_z) * dz, x, y, params)
 
 
@@ -629,6 +670,7 @@ def reconstruct_points(
     t0: float = 0.0,
     memory_limit: int | None = None,
     progress: Fraction | None = None,
+    device: str = "auto",
 ) -> Reconstruction:
     """NEDNER-NUFFT: reconstruct p0 from A-lines at arbitrary lateral positions.
 
@@ -664,6 +706,9 @@ def reconstruct_points(
         As `reconstruct_grid`.
     progress : callable, optional
         As `reconstruct_grid` (the type-1 NUFFT reports in chunks of time samples).
+    device : {"auto", "cpu", "cuda"}, optional
+        As `reconstruct_grid`; on the GPU the lateral step still runs here (finufft, or the
+        zero-filled grid's FFT for lattice positions) and its spectrum is copied there.
 
     Returns
     -------
@@ -721,10 +766,25 @@ def reconstruct_points(
     )
     kernel = rising(progress)  # strictly increasing fractions, each step through its span
     space = _workspace(n_t, n_work, n_y * (n_x // 2 + 1), rdtype)
-    A = _lateral_spectrum(al, h, pos, axes, steps, (n_y, n_x), eps, rdtype, space, kernel)
-    p0 = _invert(A, n_x, dx, dy, dt, c, n_work, dz, float(t0), method, eps, rdtype, upsample,
-                 (n_z, n_y_out * upsample if d == 2 else 1, n_x_out * upsample), progress=span_of(kernel, 0.3, 1.0),
-                 space=space)
+    keep = (n_z, n_y_out * upsample if d == 2 else 1, n_x_out * upsample)
+
+    def spectrum() -> np.ndarray:
+        return _lateral_spectrum(al, h, pos, axes, steps, (n_y, n_x), eps, rdtype, space, kernel)
+
+    def on_cpu() -> np.ndarray:
+        return _invert(spectrum(), n_x, dx, dy, dt, c, n_work, dz, float(t0), method, eps, rdtype, upsample, keep,
+                       progress=span_of(kernel, 0.3, 1.0), space=space)
+
+    def on_gpu() -> np.ndarray:
+        from service.recon import gpu
+
+        xp = devices.cupy_module()
+        A = xp.asarray(spectrum())
+        return xp.asnumpy(gpu.invert(xp, A, n_x, dx, dy, dt, c, n_work, dz, float(t0), eps, rdtype, upsample, keep))
+
+    p0, ran = _on_device(device, method, n_t, n_y * (n_x // 2 + 1), n_work, int(np.prod(keep)), eps, rdtype, 0,
+                         on_gpu, on_cpu)
+    del space
     if positivity:
         np.maximum(p0, 0, out=p0)
     x = axes[0][0] + np.arange(n_x_out * upsample) * (dx / upsample)
@@ -733,5 +793,5 @@ def reconstruct_points(
                   dtype=rdtype.name, dz=dz, n_z=n_z, upsample=upsample, positivity=bool(positivity),
                   t0=float(t0), n_t=n_t, n_points=n_points, depth_rows=n_work, lateral_transform=[n_y, n_x],
                   dx=dx, dy=dy if d == 2 else None,
-                  weights="voronoi" if weights is None else "given")
+                  weights="voronoi" if weights is None else "given", **ran)
     return Reconstruction(p0[:, 0, :] if d == 1 else p0, np.arange(n_z) * dz, x, y, params)

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING
 from service.recon.methods import Method, peak_model, planar_work
 from service.recon.methods.options import (
     DepthOptions,
+    DeviceOption,
     MethodOptions,
     NufftOptions,
     PositivityOption,
@@ -21,7 +22,7 @@ if TYPE_CHECKING:
 __all__ = ["Options", "run", "WORK_RATE", "warm_up", "METHOD"]
 
 
-class Options(DepthOptions, PositivityOption, UpsampleOption, MethodOptions, NufftOptions):
+class Options(DeviceOption, DepthOptions, PositivityOption, UpsampleOption, MethodOptions, NufftOptions):
     """Options of ``nedner`` (the fields of its mix-ins; SI units).
 
     Attributes

@@ -26,7 +26,9 @@ from pydantic import AliasChoices, BaseModel, BeforeValidator, ConfigDict, Field
 
 from driver.constants import C_AUTOFOCUS_LIMITS, C_AUTOFOCUS_RANGE, C_DEFAULT, C_LIMITS, C_PLAUSIBLE
 from service.recon.limits import (
+    DEFAULT_DEVICE,
     DEFAULT_DTYPE,
+    DEVICES,
     DEFAULT_EPS,
     DTYPES,
     DZ_RANGE,
@@ -36,7 +38,8 @@ from service.recon.limits import (
 )
 
 __all__ = ["SpeedOptions", "plausible_speeds", "speed_schema", "MethodOptions", "NufftOptions", "UpsampleOption", "PositivityOption", "DepthOptions", "Eps",
-           "Upsample", "NZ", "Dz", "Dtype", "Flag", "kernel_rule", "check_flag", "check_dtype_name"]
+           "Upsample", "NZ", "Dz", "Dtype", "Flag", "kernel_rule", "check_flag", "check_dtype_name", "Device",
+           "DeviceOption", "check_device_name"]
 
 
 def kernel_rule(name: str) -> Callable[[Any], Any]:
@@ -441,6 +444,65 @@ class PositivityOption(BaseModel):
     """
 
     positivity: Flag("positivity") = Field(False, description="clip negative p0 to 0")  # type: ignore[valid-type]
+
+
+def check_device_name(value: Any) -> Any:
+    """The rule of ``device``: one of ``"auto"``, ``"cpu"``, ``"cuda"``
+    (`service.recon.device.DEVICES`).
+
+    Parameters
+    ----------
+    value : str or None
+
+    Returns
+    -------
+    str or None
+        ``value`` (None: the default).
+
+    Raises
+    ------
+    service.recon.checks.OptionError
+        Anything else.
+
+    Examples
+    --------
+    >>> from service.recon.methods.options import check_device_name
+    >>> check_device_name("cuda")
+    'cuda'
+    >>> check_device_name("tpu")
+    Traceback (most recent call last):
+    ...
+    service.recon.checks.OptionError: device must be one of auto, cpu, cuda, got 'tpu'
+    """
+    if value is None or (isinstance(value, str) and value in DEVICES):
+        return value
+    from service.recon.checks import OptionError
+
+    shown = repr(value) if len(repr(value)) <= 64 else repr(value)[:60] + "...'"
+    raise OptionError(f"device must be one of {', '.join(DEVICES)}, got {shown}")
+
+
+#: where a reconstruction runs (`service.recon.device`)
+Device = Annotated[Literal["auto", "cpu", "cuda"] | None, BeforeValidator(check_device_name)]
+
+
+class DeviceOption(BaseModel):
+    """Mix-in: where the method runs, ``"auto"`` (default: the GPU where CuPy sees one and the
+    job fits it, else the CPU), ``"cpu"`` or ``"cuda"`` (`service.recon.device`).
+
+    Attributes
+    ----------
+    device : {"auto", "cpu", "cuda"}
+        Default ``"auto"``; the result's ``params["device"]`` says which ran.
+
+    Examples
+    --------
+    >>> from service.recon.methods.options import DeviceOption
+    >>> DeviceOption().device, DeviceOption(device="cpu").device
+    ('auto', 'cpu')
+    """
+
+    device: Device = Field(DEFAULT_DEVICE, description="where it runs: auto (the GPU where one fits), cpu or cuda")
 
 
 class DepthOptions(BaseModel):

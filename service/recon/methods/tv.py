@@ -20,7 +20,7 @@ from service.recon.limits import (
     TOL_RANGE,
 )
 from service.recon.methods import Method
-from service.recon.methods.options import DepthOptions, Flag, MethodOptions, NufftOptions, kernel_rule
+from service.recon.methods.options import DepthOptions, DeviceOption, Flag, MethodOptions, NufftOptions, kernel_rule
 
 if TYPE_CHECKING:
     from service.progress import Progress
@@ -41,7 +41,7 @@ TimeLimit = Annotated[Annotated[float, Field(gt=0, le=TIME_LIMIT_MAX)] | None,
                       BeforeValidator(kernel_rule("check_time_limit"))]
 
 
-class Options(DepthOptions, MethodOptions, NufftOptions):
+class Options(DeviceOption, DepthOptions, MethodOptions, NufftOptions):
     """Options of ``tv`` (SI units; λ in the data's units).
 
     Attributes

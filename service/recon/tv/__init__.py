@@ -53,6 +53,7 @@ import numpy.typing as npt
 from driver.constants import C_DEFAULT
 from service.progress import Progress, span
 from service.recon import checks
+from service.recon import device as devices
 from service.recon import limits as _limits
 from service.recon.reconstruction import Reconstruction
 from service.recon.tv.fista import _MARGIN, _debias, _fista
@@ -61,8 +62,8 @@ from service.recon.tv.lam import _LAM_KNEE as _LAM_KNEE  # the automatic λ's co
 from service.recon.tv.lam import _LAM_POWER as _LAM_POWER  # benchmarks from here
 from service.recon.tv.lam import _LAM_SCALE as _LAM_SCALE
 from service.recon.tv.lam import _Continuation, _DiscrepancyRule
-from service.recon.tv.problem import _check_tv_options, _Model, _record, _start_image, _warm_start
-from service.recon.tv.progress import _final_stage, _reporter
+from service.recon.tv.problem import _check_tv_options, _Model, _record, _Record, _start_image, _warm_start
+from service.recon.tv.progress import _final_stage, _Reporter, _reporter
 from service.recon.tv.result import _params
 from service.recon.tv_grid import TvGrid, noise_sigma, tv_grid
 
@@ -102,6 +103,7 @@ def reconstruct_tv(
     whole_record: bool = False,
     continuation: bool = True,
     progress: Progress | None = None,
+    device: str = "auto",
 ) -> Reconstruction:
     """Model-based reconstruction: ½‖A p0 − g‖² + λ TV(p0), p0 ≥ 0 (package doc).
 
@@ -248,16 +250,40 @@ def reconstruct_tv(
     report = _reporter(progress)
     if positions is None and dx is None:
         raise ValueError("grid data need dx (or give positions for A-lines)")
-    # the record at the band and on the grid the data can resolve, and the warm start on it
+    device = devices.check_device(device)
+    # the record at the band and on the grid the data can resolve
     record = _record(data, dt, c, dx, positions, grid, bandwidth=bandwidth, dz=dz, n_z=n_z, t0=t0,
                      whole_record=bool(whole_record))
+    settings = dict(c=c, dx=dx, positions=positions, weights=weights, grid=grid, lam=lam, positivity=positivity,
+                    max_iter=max_iter, tol=tol, rdtype=rdtype, eps=eps, t0=t0, periodic=periodic,
+                    memory_limit=memory_limit, time_limit=time_limit, debias=debias, bandwidth=bandwidth,
+                    whole_record=whole_record, continuation=continuation, dt=dt, report=report, started=started)
+    if device == "cpu":
+        result = _solve(record, "cpu", **settings)
+        result.params["device"] = "cpu"
+        return result
+    # the GPU's lock is held from the warm start to the last iteration (`service.recon.device.run`)
+    result, ran = devices.run(device, 0, lambda: _solve(record, "cuda", **settings),
+                              lambda: _solve(record, "cpu", **settings), poll=report.poll)
+    result.params.update(ran)
+    return result
+
+
+def _solve(record: _Record, dev: str, *, c: float, dx: float | None, positions: np.ndarray | None,
+           weights: np.ndarray | None, grid: np.ndarray | Sequence[npt.ArrayLike] | None, lam: float | None, positivity: bool, max_iter: int, tol: float,
+           rdtype: np.dtype, eps: float, t0: float, periodic: bool, memory_limit: int | None, time_limit: float,
+           debias: bool, bandwidth: float | None, whole_record: bool, continuation: bool, dt: float,
+           report: _Reporter, started: float) -> Reconstruction:
+    """`reconstruct_tv` on ``record`` from the warm start on, its operator pair on ``dev``
+    (``"cpu"`` or ``"cuda"``; the warm start runs there too); the caller adds the device's facts
+    to the params."""
     warm, pos = _warm_start(record, c, dx, positions, weights, grid, dtype=rdtype, t0=t0, eps=eps,
                             positivity=positivity, memory_limit=memory_limit,
-                            progress=span(report, 0.0, 0.05, "warm start"))
+                            progress=span(report, 0.0, 0.05, "warm start"), device=dev)
     report(0.05, "warm start")
     # A, and B = P Aᵀ: the exact adjoint with NER's k-space weight P = k_z / |k|
     model = _Model(record, warm, c, pos, t0=t0, eps=eps, dtype=rdtype, periodic=periodic, checkpoint=report.poll,
-                   memory_limit=memory_limit)
+                   memory_limit=memory_limit, device=dev)
     report(0.06, "norm estimate")  # the operator's set-up and the first adjoint: no longer the warm start
     # the step 1 / L, L ≈ ‖BA‖, and the noise image's RMS (per unit σ): the geometry's, kept per geometry
     gain, noise_rms, geometry_kept = _geometry_numbers(model, span(report, 0.05, 0.1, "norm estimate"))

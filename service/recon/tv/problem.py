@@ -174,11 +174,12 @@ class _Model:
     k_z / |k|, symmetric positive definite), ``residual(Ax)`` = ‖A x − g‖, ``operator_pairs``
     the (forward + adjoint applications) / 2 so far. Made after the memory check
     (`service.recon.memory.tv_memory`; raises ValueError above ``memory_limit``); ``checkpoint``
-    is the operator's (a cancel's poll)."""
+    is the operator's (a cancel's poll); ``device`` the operator's (``"cuda"``: A, Aᵀ and P run on
+    the GPU, the solver's vectors stay here)."""
 
     def __init__(self, record: _Record, warm: Reconstruction, c: float, pos: np.ndarray | None, *, t0: float,
                  eps: float, dtype: np.dtype, periodic: bool, checkpoint: Callable[[], None] | None,
-                 memory_limit: int | None) -> None:
+                 memory_limit: int | None, device: str = "cpu") -> None:
         from service.recon.operator import PlanarOperator
 
         band, n_t = record.grid.band, record.n_t
@@ -187,7 +188,7 @@ class _Model:
         self.dx: float = warm.params["dx"]
         self.dz: float = warm.params["dz"]
         self.op = PlanarOperator(self.shape, self.dx, self.dz, record.grid.dt, n_t, c, positions=pos, t0=t0, eps=eps,
-                                 dtype=dtype, periodic=periodic, checkpoint=checkpoint, band=band)
+                                 dtype=dtype, periodic=periodic, checkpoint=checkpoint, band=band, device=device)
         kept_columns = None if band is None else memory.band_columns(self.op.padded_shape, self.dx, c, band)
         checks.check_memory(memory.tv_memory(self.shape, self.op.padded_shape, self.g.size, n_t, dtype,
                                              kept_columns=kept_columns), memory_limit)
@@ -196,6 +197,12 @@ class _Model:
 
     def B(self, r: np.ndarray) -> np.ndarray:
         self.applied[1] += 1
+        pair = self.op._pair
+        if pair is not None:  # on the GPU: Aᵀ and P there, one copy back
+            from service.recon.gpu import apply_ner_weight
+
+            image = pair.adjoint(pair.xp.asarray(r.astype(self.dtype, copy=False)).reshape(self.op.oshape))
+            return pair.xp.asnumpy(apply_ner_weight(pair.xp, self.P, image))
         return _apply_weight(self.P, self.op.rmatvec(r.astype(self.dtype, copy=False).ravel()).reshape(self.shape))
 
     def forward(self, v: np.ndarray) -> np.ndarray:

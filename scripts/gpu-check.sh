@@ -1,0 +1,30 @@
+#!/usr/bin/env bash
+# The device checks of issue 63, as one script for a GPU machine (the device tool's lease is 15
+# minutes): the GPU tests (tests/gpu: NER, NEDNER, the operator pair and tv on the GPU against the
+# CPU, the fallback and the memory rules), the GPU path's NumPy tests, then benchmarks/bench_gpu.py
+# on the paper's scan and the CLI / HTTP checks (scripts/gpu_check_service.py).
+#
+#   bash scripts/gpu-check.sh [quick|full]     (results in $OUT, default /tmp/gpu-check)
+#
+# quick: the tests and bench_gpu at half the paper's size without the one-core rows (about 3
+# minutes); full: bench_gpu at the paper's size with every row, then the CLI and HTTP checks.
+# Python packages the machine lacks travel as wheels in .whl/ (README "GPU"), installed first.
+set -u
+mode=${1:-quick}
+OUT=${OUT:-/tmp/gpu-check}
+mkdir -p "$OUT"
+export PYTHONUNBUFFERED=1
+if [ -d .whl ] && ls .whl/*.whl >/dev/null 2>&1; then
+  python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl \
+    && export PYTHONPATH=/tmp/site || echo "wheel install failed"
+fi
+export PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}"
+nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader
+python3 -c "import numpy, scipy, numba, cupy, finufft, pylops; print('numpy', numpy.__version__, 'scipy', scipy.__version__, 'numba', numba.__version__, 'cupy', cupy.__version__, 'finufft', finufft.__version__, 'cores', __import__('os').cpu_count())"
+if [ "$mode" = quick ]; then
+  timeout 150 python3 -m pytest -q -p no:cacheprovider tests/gpu 2>&1 | tee "$OUT/pytest.log" | tail -25
+  timeout 150 python3 benchmarks/bench_gpu.py --scale 0.5 --one-core none --repeat 2 --json "$OUT/bench_half.json" 2>&1 | tee "$OUT/bench_half.log"
+else
+  timeout 420 python3 benchmarks/bench_gpu.py --scale 1 --repeat 5 --json "$OUT/bench.json" 2>&1 | tee "$OUT/bench.log"
+  timeout 150 python3 scripts/gpu_check_service.py --device cuda --out "$OUT/service" 2>&1 | tee "$OUT/service.log" | tail -30
+fi
