@@ -16,28 +16,45 @@
 # two independent public Dockerfiles (docker.io/library and its public.ecr.aws mirror);
 # it was not pulled from the machine this file was written on. To move to a newer patch
 # release, take the digest from `docker buildx imagetools inspect python:3.11-slim` and
-# replace it in both FROM lines.
+# replace it in the ARG BASE line.
+#
+# The CUDA variant (the GPU path of issue 63: NER, NEDNER and tv on an NVIDIA GPU through
+# CuPy, README "GPU"): the same two stages on NVIDIA's CUDA runtime image, with the `cuda`
+# extra (CuPy) beside the server's,
+#   docker build -t fpscan:cuda \
+#     --build-arg BASE=nvidia/cuda:12.6.3-runtime-ubuntu24.04 --build-arg EXTRAS=server,cuda .
+#   docker run -d --gpus all -p 8000:8000 -e FPSCAN_TOKEN=... -v fpscan-data:/data fpscan:cuda
+# A base without Python (NVIDIA's images) gets Ubuntu's python3 in both stages. The `cuda` extra
+# is CuPy for CUDA 12 drivers (cupy-cuda12x); pin the CUDA base by digest as above for a
+# reproducible build. The default build (no build arguments) is the CPU image, without CuPy.
+ARG BASE=python:3.11-slim@sha256:9c900dea9e8fb7e16277c179b555cc72d29a352dbc33cff48ad5a0412fd5bfc7
 
 # ---- build stage: compile wheels (cobs has a C extension) into a venv --------------
-FROM python:3.11-slim@sha256:9c900dea9e8fb7e16277c179b555cc72d29a352dbc33cff48ad5a0412fd5bfc7 AS build
+FROM ${BASE} AS build
+# the extras of pyproject.toml installed: `server` (the CPU image), `server,cuda` (with CuPy)
+ARG EXTRAS=server
 # hadolint ignore=DL3008
 RUN apt-get update \
  && apt-get install -y --no-install-recommends gcc libc6-dev \
+ && if ! command -v python3 >/dev/null 2>&1; then \
+      apt-get install -y --no-install-recommends python3 python3-dev python3-venv; \
+    fi \
  && rm -rf /var/lib/apt/lists/*
 ENV PIP_NO_CACHE_DIR=1 PIP_DISABLE_PIP_VERSION_CHECK=1
-RUN python -m venv /opt/fpscan
+RUN python3 -m venv /opt/fpscan
 WORKDIR /src
 # dependencies first, in their own layer: a change of the source reuses it
 COPY pyproject.toml README.md ./
-# (the base, driver and server requirements of pyproject.toml, without fpscan itself)
-RUN /opt/fpscan/bin/python -c "import tomllib; p = tomllib.load(open('pyproject.toml', 'rb'))['project']; o = p['optional-dependencies']; print('\n'.join(r for r in p['dependencies'] + o['driver'] + o['server'] if not r.startswith('fpscan')))" > requirements.txt \
+# (the base requirements of pyproject.toml and those of the EXTRAS and of the extras they name
+# — server names driver —, in pyproject.toml's order, without fpscan itself)
+RUN /opt/fpscan/bin/python -c "import os, tomllib; p = tomllib.load(open('pyproject.toml', 'rb'))['project']; o = p['optional-dependencies']; e = [x.strip() for x in os.environ['EXTRAS'].split(',')]; e += [x for n in e for r in o[n] if r.startswith('fpscan[') for x in r[7:-1].split(',')]; print('\n'.join(dict.fromkeys(r for r in p['dependencies'] + [r for n in o if n in e for r in o[n]] if not r.startswith('fpscan'))))" > requirements.txt \
  && /opt/fpscan/bin/python -m pip install --no-cache-dir -r requirements.txt
 COPY service ./service
 COPY driver ./driver
 COPY clients ./clients
 COPY fpscan ./fpscan
 COPY wire ./wire
-RUN /opt/fpscan/bin/python -m pip install --no-cache-dir --no-deps ".[server]"
+RUN /opt/fpscan/bin/python -m pip install --no-cache-dir --no-deps ".[${EXTRAS}]"
 # ship the compiled (numba) reconstruction kernels warm: every method once, float32 and
 # float64, so that a fresh worker only loads them (numba's cache beside the installed
 # modules; a host whose CPU differs from the build machine's recompiles on first use);
@@ -46,10 +63,14 @@ WORKDIR /tmp
 RUN /opt/fpscan/bin/python -c "import numpy as np; from service.pipeline import METHODS, reconstruct; from service.storage.loader import GridDataset; d = np.zeros((32, 4, 4)); d[5] = 1; [reconstruct(GridDataset(data=d, dx=1e-4, dt=2e-8, c=1500.0, dy=1e-4), m, dtype=t) for m in METHODS if m != 'tv' for t in ('float32', 'float64')]"
 
 # ---- runtime stage: slim, no compiler, non-root, tini as init ----------------------
-FROM python:3.11-slim@sha256:9c900dea9e8fb7e16277c179b555cc72d29a352dbc33cff48ad5a0412fd5bfc7
+# (the venv's python links to the base's interpreter: python3 from apt where the base has none)
+FROM ${BASE}
 # hadolint ignore=DL3008
 RUN apt-get update \
  && apt-get install -y --no-install-recommends tini \
+ && if ! command -v python3 >/dev/null 2>&1; then \
+      apt-get install -y --no-install-recommends python3; \
+    fi \
  && rm -rf /var/lib/apt/lists/* \
  && useradd --create-home --uid 10001 --user-group fpscan \
  && usermod --append --groups dialout fpscan \

@@ -16,11 +16,13 @@ equi-steradian mask of 1653 points around a point of interest 3.6 mm deep, three
 
 The one-core rows run in a child process pinned to core 0 (``taskset``/``sched_setaffinity``,
 numba and OpenMP at one thread; pocketfft still starts ``os.cpu_count()`` threads on that core).
-``--one-core none`` skips them, ``ner`` runs NER only. The GPU's peak is the largest ``used_bytes``
+``--one-core none`` skips them, ``ner`` runs NER only; ``--one-core-scale`` runs them (and the same
+rows on every core, for the ratio) at another size, e.g. 0.5 where one core would take minutes
+for tv at the paper's size. The GPU's peak is the largest ``used_bytes``
 of CuPy's memory pool seen at any allocation (an allocator hook), per step.
 
     python benchmarks/bench_gpu.py [--scale 1] [--snr 30] [--noise rms|peak] [--repeat 5]
-        [--one-core all|ner|none] [--json FILE]
+        [--one-core all|ner|none] [--one-core-scale S] [--one-core-timeout SECONDS] [--json FILE]
 """
 from __future__ import annotations
 
@@ -37,7 +39,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench_tv_paper import C, DT, PITCH, paper_case  # noqa: E402
+from bench_tv_paper import DT, PITCH, C, paper_case
 
 
 def _best(fn, repeat: int, sync=None) -> float:
@@ -56,13 +58,46 @@ def _ner_data(case: dict) -> np.ndarray:
     return np.random.default_rng(2).standard_normal((n_t, n, n)).astype(np.float32)
 
 
-def _tv(case: dict, device: str, **kw) -> tuple[float, object]:
-    from service.recon.tv import reconstruct_tv
+_SPENT = {"operator": 0.0, "warm start": 0.0}
 
-    t = time.perf_counter()
-    rec = reconstruct_tv(case["alines"], DT, C, positions=case["positions"], weights=case["weights"],
-                         grid=case["grid"], dtype=np.float32, device=device, **kw)
-    return time.perf_counter() - t, rec
+
+def _timed(fn, key: str, sync=None):
+    """``fn`` timed into ``_SPENT[key]`` (synchronised with the GPU after each call when ``sync``)."""
+    def wrapper(*args, **kwargs):
+        t = time.perf_counter()
+        out = fn(*args, **kwargs)
+        if sync is not None:
+            sync()
+        _SPENT[key] += time.perf_counter() - t
+        return out
+    return wrapper
+
+
+def _tv(case: dict, device: str, **kw) -> tuple[float, object]:
+    """tv on ``case``; also the time in its operator pairs (A and B = P Aᵀ, `_Model.forward` / `_Model.B`) and
+    its warm start, in ``rec.params["bench_spent"]`` (an instrumentation of this benchmark only)."""
+    import service.recon.tv as tv_package
+    from service.recon.tv import problem, reconstruct_tv
+
+    sync = None
+    if device != "cpu":
+        import cupy
+
+        sync = cupy.cuda.get_current_stream().synchronize
+    saved = problem._Model.forward, problem._Model.B, tv_package._warm_start
+    problem._Model.forward = _timed(saved[0], "operator", sync)
+    problem._Model.B = _timed(saved[1], "operator", sync)
+    tv_package._warm_start = _timed(saved[2], "warm start")
+    _SPENT.update(operator=0.0, **{"warm start": 0.0})
+    try:
+        t = time.perf_counter()
+        rec = reconstruct_tv(case["alines"], DT, C, positions=case["positions"], weights=case["weights"],
+                             grid=case["grid"], dtype=np.float32, device=device, **kw)
+        wall = time.perf_counter() - t
+    finally:
+        problem._Model.forward, problem._Model.B, tv_package._warm_start = saved
+    rec.params["bench_spent"] = dict(_SPENT)
+    return wall, rec
 
 
 def _cpu_rows(case: dict, repeat: int, with_tv: bool) -> dict:
@@ -80,18 +115,23 @@ def _cpu_rows(case: dict, repeat: int, with_tv: bool) -> dict:
                        device="cpu")
         wall, rec = _tv(case, "cpu")
         out.update(tv=wall, tv_params={k: rec.params[k] for k in ("lam", "iterations", "operator_pairs",
-                                                                     "converged", "stop_reason")},
+                                                                     "converged", "stop_reason", "bench_spent")},
                    tv_image=rec)
     return out
 
 
 def _one_core(args: argparse.Namespace) -> dict:
-    """The CPU rows in a child pinned to core 0, one numba/OpenMP thread."""
+    """The CPU rows at ``--one-core-scale`` in a child pinned to core 0, one numba/OpenMP thread
+    (at most ``--one-core-timeout`` seconds)."""
     env = dict(os.environ, NUMBA_NUM_THREADS="1", OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1",
                MKL_NUM_THREADS="1", FPSCAN_NO_GPU="1")
-    cmd = [sys.executable, __file__, "--child", "--scale", str(args.scale), "--snr", str(args.snr),
+    cmd = [sys.executable, __file__, "--child", "--scale", str(args.one_core_scale), "--snr", str(args.snr),
            "--noise", args.noise, "--repeat", str(max(1, args.repeat // 2)), "--one-core", args.one_core]
-    child = subprocess.run(cmd, env=env, capture_output=True, text=True, preexec_fn=lambda: os.sched_setaffinity(0, {0}))
+    try:
+        child = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=args.one_core_timeout,
+                               preexec_fn=lambda: os.sched_setaffinity(0, {0}))
+    except subprocess.TimeoutExpired:
+        return {"error": f"the one-core child ran past {args.one_core_timeout:g} s"}
     if child.returncode != 0:
         return {"error": child.stderr[-2000:]}
     return json.loads(child.stdout.strip().splitlines()[-1])
@@ -104,6 +144,9 @@ def main(argv=None) -> None:
     parser.add_argument("--noise", choices=("rms", "peak"), default="rms")
     parser.add_argument("--repeat", type=int, default=5)
     parser.add_argument("--one-core", choices=("all", "ner", "none"), default="all")
+    parser.add_argument("--one-core-scale", type=float, default=None,
+                        help="the one-core rows' scale (default --scale); the all-core CPU rows run there too")
+    parser.add_argument("--one-core-timeout", type=float, default=600.0)
     parser.add_argument("--json", default=None)
     parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
@@ -144,7 +187,7 @@ def main(argv=None) -> None:
     peak[0] = 0
     r["ner_gpu"] = _best(lambda: reconstruct_grid(data, PITCH, DT, C, dtype=np.float32, device="cuda"), args.repeat)
     r["ner_gpu_peak"] = peak[0]
-    n_t, n = data.shape[0], case["n"]
+    n = case["n"]
     n_yp, n_xp = fast_lateral(n, n, square=True)
     p = ner_gpu.params
     d_data = cupy.asarray(data)
@@ -156,7 +199,6 @@ def main(argv=None) -> None:
 
     on_device()
     r["ner_gpu_device"] = _best(on_device, args.repeat, sync)
-    del d_data
     # NEDNER of the scan's A-lines
     kw = dict(weights=case["weights"], grid=case["grid"], dtype=np.float32)
     nedner_gpu = reconstruct_points(case["alines"], case["positions"], DT, C, device="cuda", **kw)
@@ -185,7 +227,9 @@ def main(argv=None) -> None:
     r["tv_gpu"], rec = _tv(case, "cuda")
     r["tv_gpu_peak"] = peak[0]
     r["tv_gpu_params"] = {k: rec.params[k] for k in ("lam", "iterations", "operator_pairs", "converged",
-                                                      "stop_reason", "device")}
+                                                      "stop_reason", "device", "bench_spent", "shape")
+                          if k in rec.params}
+    r["tv_gpu_params"]["image"] = list(rec.p0.shape)
     truth = ball_p0(case["balls"], rec.z, rec.x, rec.y, supersample=2)
     r["tv_gpu_cc_balls"] = correlation_coefficient(rec.p0, truth)
     # the GPU at the CPU's λ (the rest the defaults: the same rule, the same continuation), against the CPU's image
@@ -197,10 +241,19 @@ def main(argv=None) -> None:
     r["tv_rel_diff"] = float(np.linalg.norm(same.p0 - cpu_rec.p0) / np.linalg.norm(cpu_rec.p0))
     del cpu["tv_image"], cpu_rec, same
     print(f"tv rows done at {time.perf_counter() - started:.1f} s", flush=True)
+    if args.json:
+        Path(args.json).write_text(json.dumps(r, indent=1, default=float))
 
     if args.one_core != "none":
-        one = _one_core(args)
-        r["one_core"] = one
+        if args.one_core_scale is None or args.one_core_scale == args.scale:
+            args.one_core_scale = args.scale
+            r["all_core"] = {"ner": r["ner_cpu"], "tv": r["tv_cpu"]}
+        else:  # the CPU's scaling at another size: every core there too
+            rows = _cpu_rows(paper_case(args.one_core_scale, args.snr, noise=args.noise), args.repeat,
+                             args.one_core == "all")
+            r["all_core"] = {"ner": rows["ner"], "tv": rows.get("tv")}
+        r["one_core_scale"] = args.one_core_scale
+        r["one_core"] = _one_core(args)
     r["wall"] = time.perf_counter() - started
     _print(r)
     if args.json:
@@ -220,10 +273,11 @@ def _print(r: dict) -> None:
         ratio = (lambda a, b: "–" if a is None or b is None else f"{a / b:.1f}×")
         print(f"| {name} | {f(g)} | {f(c)} | {f(c1)} | {ratio(c, g)} | {ratio(c1, c)} |")
 
-    row("NER f32, warm, host to host", r["ner_gpu"], r["ner_cpu"], one.get("ner"))
+    same = r.get("one_core_scale", r["scale"]) == r["scale"]
+    row("NER f32, warm, host to host", r["ner_gpu"], r["ner_cpu"], one.get("ner") if same else None)
     row("NER f32, warm, data on the GPU", r["ner_gpu_device"], None, None)
     row("NEDNER f32 (lateral step on the host)", r["nedner_gpu"], r["nedner_cpu"], None)
-    row("tv to its rule, set-up included", r["tv_gpu"], r["tv_cpu"], one.get("tv"))
+    row("tv to its rule, set-up included", r["tv_gpu"], r["tv_cpu"], one.get("tv") if same else None)
     print(f"\nGPU vs CPU: NER max |Δ| / max = {r['ner_rel_diff']:.2e}; NEDNER {r['nedner_rel_diff']:.2e}; "
           f"tv at the CPU's λ: {r['tv_same_iterations']} iterations (CPU {cp_['iterations']}), "
           f"CC {r['tv_cc_gpu_cpu']:.6f}, "
@@ -232,7 +286,19 @@ def _print(r: dict) -> None:
           f"(converged {gp['converged']}), CC with the balls {r['tv_gpu_cc_balls']:.4f}; "
           f"tv CPU: {cp_['iterations']} iterations, {cp_['operator_pairs']:.1f} pairs, {cp_['stop_reason']}, "
           f"CC {r['tv_cpu_cc_balls']:.4f}")
+    gs, cs = gp.get("bench_spent", {}), cp_.get("bench_spent", {})
+    print(f"tv's time: GPU {r['tv_gpu']:.2f} s = warm start {gs.get('warm start', 0):.2f} s + operator pairs "
+          f"{gs.get('operator', 0):.2f} s + the rest (set-up, solver steps, proximal map) "
+          f"{r['tv_gpu'] - gs.get('warm start', 0) - gs.get('operator', 0):.2f} s; CPU {r['tv_cpu']:.2f} s = "
+          f"{cs.get('warm start', 0):.2f} + {cs.get('operator', 0):.2f} + "
+          f"{r['tv_cpu'] - cs.get('warm start', 0) - cs.get('operator', 0):.2f} s; image {gp.get('image')}")
     print(f"GPU peak memory: NER {r['ner_gpu_peak'] / 2**30:.2f} GiB, tv {r['tv_gpu_peak'] / 2**30:.2f} GiB")
+    if one and not same and "error" not in one:
+        a = r["all_core"]
+        print(f"CPU scaling at x{r['one_core_scale']:g}: NER {a['ner'] * 1e3:.1f} ms on {r['cores']} cores, "
+              f"{one['ner'] * 1e3:.1f} ms on 1 ({one['ner'] / a['ner']:.1f}×)" + (
+                  f"; tv {a['tv']:.2f} s on {r['cores']} cores, {one['tv']:.2f} s on 1 ({one['tv'] / a['tv']:.1f}×)"
+                  if a.get("tv") and one.get("tv") else ""))
     if "error" in one:
         print("one-core child failed:", one["error"])
 

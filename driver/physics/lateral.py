@@ -8,11 +8,13 @@ reconstruction ends with this transform over its whole volume, so it has one own
 """
 from __future__ import annotations
 
+from types import ModuleType
+
 import numpy as np
 
 from driver.physics import fft_engine
 
-__all__ = ["irfft_lateral"]
+__all__ = ["irfft_lateral", "pad_spectrum"]
 
 
 def irfft_lateral(K: np.ndarray, shape: tuple[int, ...], axes: tuple[int, ...] = (1, 2),
@@ -78,3 +80,45 @@ def irfft_lateral(K: np.ndarray, shape: tuple[int, ...], axes: tuple[int, ...] =
         if k < n:  # the rows kept: the real pass transforms those only
             K = K[(slice(None),) * (ax % K.ndim) + (slice(0, k),)]
     return fft_engine.irfft(K, shape[-1], axes[-1], overwrite_x=overwrite, out=out, keep=keep[-1])
+
+
+def pad_spectrum(K: np.ndarray, n_y: int, n_x: int, u: int, ups_y: bool, xp: ModuleType = np) -> np.ndarray:
+    """Zero-pad an rfft2 spectrum to the one of a grid ``u`` times finer, splitting Nyquist bins,
+    so that its inverse is the trigonometric interpolant (the reconstructions' ``upsample``).
+
+    Parameters
+    ----------
+    K : array ``(..., n_y, n_x // 2 + 1)`` complex
+        The half spectrum (``n_y`` = 1 for a line).
+    n_y, n_x : int
+        The transform's lengths.
+    u : int
+        The factor, >= 1.
+    ups_y : bool
+        Refine y too (False for a line).
+    xp : module
+        K's array module (``numpy``, or ``cupy`` on the GPU path).
+
+    Returns
+    -------
+    array ``(..., n_y u, n_x u // 2 + 1)`` (``n_y`` kept without ``ups_y``), K's dtype.
+    """
+    ny2 = n_y * u if ups_y else n_y
+    nx2 = n_x * u
+    out = xp.zeros(K.shape[:-2] + (ny2, nx2 // 2 + 1), dtype=K.dtype)
+    nxr = n_x // 2 + 1
+    if ups_y:
+        pos = (n_y + 1) // 2  # indices 0..pos-1 are k >= 0 (excluding Nyquist for even n_y)
+        neg = n_y // 2 - (1 if n_y % 2 == 0 else 0)
+        out[..., :pos, :nxr] = K[..., :pos, :]
+        if neg:
+            out[..., ny2 - neg :, :nxr] = K[..., n_y - neg :, :]
+        if n_y % 2 == 0:
+            half = 0.5 * K[..., n_y // 2, :]
+            out[..., n_y // 2, :nxr] = half
+            out[..., ny2 - n_y // 2, :nxr] = half
+    else:
+        out[..., :nxr] = K
+    if n_x % 2 == 0:
+        out[..., n_x // 2] *= 0.5
+    return out

@@ -157,7 +157,7 @@ def spread(xp: ModuleType, B: Any, tp: Taps) -> Any:
     complex -> ``(n_cols, L)`` spread fine-grid values (input of :func:`from_fine_grid`).
 
     Each tap adds w e B at +θ and w ē B at -θ; the sums are scatter-adds (NumPy:
-    ``bincount`` in float64; CuPy: ``cupyx.scatter_add``, atomic, in the working precision).
+    ``bincount`` in float64; CuPy: ``cupy.add.at``, atomic, in the working precision).
 
     Parameters
     ----------
@@ -188,13 +188,11 @@ def spread(xp: ModuleType, B: Any, tp: Taps) -> Any:
 
 def _scatter_add(xp: ModuleType, flat: Any, index: Any, values: Any) -> None:
     """flat[index] += values, repeated indices summed (NumPy: one ``bincount`` in float64;
-    CuPy: ``cupyx.scatter_add``)."""
+    CuPy: ``cupy.add.at``, atomic adds)."""
     if xp is np:
         flat += np.bincount(index.ravel(), weights=values.ravel(), minlength=flat.size).astype(flat.dtype)
         return
-    import cupyx  # only on a GPU
-
-    cupyx.scatter_add(flat, index.ravel(), values.ravel().astype(flat.dtype))
+    xp.add.at(flat, index.ravel(), values.ravel().astype(flat.dtype))
 
 
 def _scale(xp: ModuleType, grid: TemporalGrid, t0_is_zero: bool, rdtype: Any) -> Any:

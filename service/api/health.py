@@ -2,15 +2,48 @@
 (whether the server needs a token)."""
 from __future__ import annotations
 
+import os
+import threading
 from collections.abc import Awaitable, Callable
 
 from fastapi import Depends, FastAPI, Request
 
 from service.api.context import Context, ctx, read_access
-from service.api.models import AuthInfo, Health
+from service.api.models import AuthInfo, ComputeDevice, Health
 from service.settings import Settings
 
-__all__ = ["add_health_routes", "health_problems"]
+__all__ = ["add_health_routes", "health_problems", "DeviceList"]
+
+
+class DeviceList:
+    """The devices reconstructions can run on: the CPU at once, the CUDA GPUs once a child
+    process has listed them (`service.recon.device.probe_devices`, started in a thread here, so
+    that the server's own process never loads CUDA).
+
+    Attributes
+    ----------
+    gpus : list of dict
+        ``index``, ``name``, ``memory_total`` per GPU ([] until listed, or without one).
+    listed : threading.Event
+        Set once the child answered.
+    """
+
+    def __init__(self) -> None:
+        self.gpus: list[dict] = []
+        self.listed = threading.Event()
+        threading.Thread(target=self._probe, name="fpscan-device-probe", daemon=True).start()
+
+    def _probe(self) -> None:
+        from service.recon.device import probe_devices
+
+        self.gpus = probe_devices()
+        self.listed.set()
+
+    def entries(self) -> list[ComputeDevice]:
+        """The CPU, then each GPU listed so far."""
+        cpu = ComputeDevice(kind="cpu", name="cpu", cores=os.cpu_count())
+        return [cpu, *(ComputeDevice(kind="cuda", name=str(g["name"]), memory_total=int(g["memory_total"]))
+                       for g in self.gpus)]
 
 
 def add_health_routes(app: FastAPI, settings: Settings) -> Callable[[Context], Awaitable[Health]]:
@@ -34,16 +67,19 @@ def add_health_routes(app: FastAPI, settings: Settings) -> Callable[[Context], A
 
     usage = usage_for(settings.data_dir, settings.database)
     version = app.version  # service.api.app.VERSION
+    devices = DeviceList()
+    app.state.devices = devices
 
     async def health_document(context: Context) -> Health:
         return Health(version=version, executor=settings.executor,
                       jobs_running=context.queue.running() if context.queue is not None else 0,
-                      disk=usage.snapshot(), problems=health_problems(context))
+                      disk=usage.snapshot(), problems=health_problems(context), devices=devices.entries())
 
     @app.get("/api/health", response_model=Health, tags=["health"], dependencies=[Depends(read_access)])
     async def health(context: Context = Depends(ctx)) -> Health:
         """Liveness: ``{"status": "ok", "version", "executor", "jobs_running", "disk",
-        "problems"}``; ``disk``: bytes the data folder uses by part (scans, results, datasets,
+        "problems", "devices"}``; ``devices``: the CPU and each CUDA GPU found at the start (what
+        ``device`` can ask for); ``disk``: bytes the data folder uses by part (scans, results, datasets,
         exports, other) and the free bytes of its file system; ``problems``: what keeps jobs
         from running now, one line each (a full disk, a lost device). Answered on the event
         loop without a server thread, ahead of the other requests waiting for their turn

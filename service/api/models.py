@@ -116,6 +116,27 @@ class DiskUse(BaseModel):
     free_bytes: int | None = None
 
 
+class ComputeDevice(BaseModel):
+    """A device reconstructions can run on (``GET /api/health``'s ``devices``).
+
+    Attributes
+    ----------
+    kind : {"cpu", "cuda"}
+        The CPU (the worker processes' cores) or a CUDA GPU (`service.recon.device`).
+    name : str
+        The GPU's name, or ``"cpu"``.
+    cores : int or None
+        The CPU's cores (null for a GPU).
+    memory_total : int or None
+        A GPU's memory in bytes (null for the CPU).
+    """
+
+    kind: Literal["cpu", "cuda"]
+    name: str
+    cores: int | None = None
+    memory_total: int | None = None
+
+
 class Health(BaseModel):
     """``GET /api/health``: the server is alive, what it runs and what keeps jobs from running.
 
@@ -134,6 +155,9 @@ class Health(BaseModel):
     problems : list of str
         What keeps jobs from running now (e.g. a scan paused by a full disk or a lost
         device), one line each.
+    devices : list of ComputeDevice
+        What reconstructions can run on: the CPU, then each CUDA GPU the server found at its
+        start (asked in a child process; listed once it answered).
     """
 
     status: Literal["ok"] = "ok"
@@ -143,6 +167,8 @@ class Health(BaseModel):
     disk: DiskUse | None = None
     problems: list[str] = Field(default_factory=list, description="what keeps jobs from running now "
                                 "(e.g. a scan paused by a full disk or a lost device), one line each")
+    devices: list[ComputeDevice] = Field(default_factory=list, description="what reconstructions can run on: the CPU, "
+                                         "then each CUDA GPU found at the server's start")
 
 
 class AuthInfo(BaseModel):

@@ -16,6 +16,7 @@ from service.formats.result import VOLUME_FILE, mip_file
 from service.jobs import lifecycle
 from service.jobs.admission import (
     admit,
+    admit_device,
     admit_work,
     estimate_memory,
     estimate_result_bytes,
@@ -236,8 +237,9 @@ def start_reconstruction(body: ReconRequest, response: Response, request: Reques
                          idempotency_key: str | None = IdemKey) -> Job:
     """Queue a reconstruction → 202, ``Location: /api/jobs/{id}``. Refused with 422 when
     it can never fit in the memory limit, when its work estimate is over the server's work
-    limit (the reason says both), or when its method refuses the input's options (tv: an
-    image deeper than the record can hear); 507 when its result does not fit the free disk;
+    limit (the reason says both), when its method refuses the input's options (tv: an
+    image deeper than the record can hear), or when it asks for ``device: "cuda"`` where the
+    server has no GPU or the job's GPU path needs more than the GPU's memory; 507 when its result does not fit the free disk;
     429 (``Retry-After``) while the client's address has ``queued_per_client`` reconstructions
     queued, saying the cap, the queue's length and its estimated wait."""
     body = _with_method(context, _full_scan_job_id(context, body))
@@ -262,6 +264,10 @@ def start_reconstruction(body: ReconRequest, response: Response, request: Reques
                 int(shape.get("n_y", 1))
         admit(mem, context.settings.memory_limit)
         admit_work(work, context.settings.work_limit_s)
+        devices = getattr(request.app.state, "devices", None)
+        if devices is not None and params.get("device") == "cuda":
+            devices.listed.wait(timeout=120)  # the server's first seconds: its GPUs are being listed
+        admit_device(shape, {**params, "method": body.method}, devices.gpus if devices is not None else [])
     except ValueError as exc:  # AdmissionError, or the method's refusal of options the input cannot carry
         raise HTTPException(422, reason(exc)) from None
     needed = _result_bytes(shape, params, body, extra)

@@ -19,7 +19,7 @@ from typing import Any
 
 from driver.constants import C_AUTOFOCUS_RANGE, C_DEFAULT
 
-__all__ = ["MAX_DEPTH_ROWS", "AUTOFOCUS_EVALUATIONS", "AdmissionError", "admit", "estimate_memory",
+__all__ = ["MAX_DEPTH_ROWS", "AUTOFOCUS_EVALUATIONS", "AdmissionError", "admit", "admit_device", "estimate_gpu_memory", "estimate_memory",
            "estimate_work", "admit_work", "estimate_result_bytes", "input_shape", "working_depth_rows"]
 
 
@@ -222,6 +222,76 @@ def estimate_memory(shape: dict, params: dict) -> int:
     work = 8 if (params.get("dtype") or "float32") == "float64" else 4
     loaded = 0 if itemsize == work and not method.holds_input else itemsize
     return int(factor * value) + n_t * int(shape.get("n_points", n_x * n_y)) * loaded
+
+
+def estimate_gpu_memory(shape: dict, params: dict) -> int | None:
+    """GPU memory (bytes) of a reconstruction's GPU path, for the methods whose whole peak the
+    GPU path models (`service.recon.gpu.inversion_peak`: NER and NEDNER); None for the others
+    (tv's operator is sized on the GPU when it is made, `service.recon.gpu.operator_peak`, and
+    sends an ``"auto"`` job to the CPU, or fails a ``"cuda"`` one with the reason).
+
+    Parameters
+    ----------
+    shape, params : dict
+        As :func:`estimate_memory`.
+
+    Returns
+    -------
+    int or None
+        Bytes.
+
+    Raises
+    ------
+    AdmissionError
+        A depth grid that can never be made (:func:`working_depth_rows`).
+    """
+    method = params.get("method") or _default_method(shape)
+    if method not in ("ner", "nedner"):
+        return None
+    from driver.physics.fast_lengths import fast_lateral
+    from service.recon import gpu
+
+    n_t, n_x, n_y = int(shape["n_t"]), int(shape["n_x"]), int(shape.get("n_y", 1))
+    n_yp, n_xp = fast_lateral(n_y, n_x, square=True)
+    rows = working_depth_rows(shape, params)
+    upsample = int(params.get("upsample") or 1)
+    n_out = int(params.get("n_z") or n_t) * n_x * upsample * (n_y * upsample if n_y > 1 else 1)
+    data = n_t * n_x * n_y if method == "ner" else 0
+    return gpu.inversion_peak(n_t, n_yp * (n_xp // 2 + 1), rows, n_out, float(params.get("eps") or 1e-6),
+                              params.get("dtype") or "float32", data)
+
+
+def admit_device(shape: dict, params: dict, gpus: list[dict]) -> None:
+    """Refuse a job that asks for ``device: "cuda"`` where it can never run: the server has no
+    GPU, or the job's GPU path needs more than the largest GPU's memory (`estimate_gpu_memory`;
+    the free memory is checked again when the job runs, `service.recon.device.choose`).
+    ``"auto"`` and ``"cpu"`` jobs always pass (the CPU takes what the GPU cannot).
+
+    Parameters
+    ----------
+    shape, params : dict
+        As :func:`estimate_memory` (``params["device"]``: ``"auto"``, ``"cpu"`` or ``"cuda"``).
+    gpus : list of dict
+        The server's GPUs (``name``, ``memory_total`` in bytes; `service.recon.device.probe_devices`).
+
+    Raises
+    ------
+    AdmissionError
+        The reason.
+    """
+    if params.get("device") != "cuda":
+        return
+    if not gpus:
+        raise AdmissionError("device 'cuda' was asked, but this server has no CUDA GPU (GET /api/health lists its "
+                             "devices); ask for 'auto' or 'cpu'")
+    need = estimate_gpu_memory(shape, params)
+    largest = max(gpus, key=lambda g: int(g["memory_total"]))
+    from service.recon.device import GPU_MEMORY_SHARE
+
+    if need is not None and need > GPU_MEMORY_SHARE * int(largest["memory_total"]):
+        raise AdmissionError(f"the GPU path needs about {need / 2**30:.2f} GiB of GPU memory, more than the server's "
+                             f"GPU ({largest['name']}, {int(largest['memory_total']) / 2**30:.2f} GiB) has; ask for "
+                             "'auto' or 'cpu'")
 
 
 def estimate_result_bytes(shape: dict, params: dict, volumes: int = 1) -> int:

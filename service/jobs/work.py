@@ -432,13 +432,32 @@ def _run_reconstruction(spec: dict) -> dict:
         if limit and unmix is None:
             check_memory_limit(ds, {**params, "method": chosen}, int(limit), spec.get("memory_estimate"))
 
-    with memory_bounded(limit):
-        return run_file([i["path"] for i in inputs], spec["out_dir"], method, format=INPUT_FORMATS[kinds.pop()],
-                        wavelength=None if unmix is not None else spec["input"].get("wavelength"),
-                        wavelengths=spec.get("wavelengths"), unmix=None if unmix is None else dict(unmix),
-                        input_id=spec.get("input_id", ""), progress=progress_file(progress),
-                        plan=_plan(spec),
-                        should_stop=(lambda: os.path.exists(cancel)) if cancel else None, on_loaded=admit, **params)
+    # a job that may run on a GPU: CUDA reserves virtual memory far beyond any address-space bound
+    # (the memory admission still applies), and the GPU's memory goes back to the driver after it
+    on_gpu = params.get("device") in ("auto", "cuda") and bool(_gpus())
+    try:
+        with memory_bounded(None if on_gpu else limit):
+            return run_file([i["path"] for i in inputs], spec["out_dir"], method,
+                            format=INPUT_FORMATS[kinds.pop()],
+                            wavelength=None if unmix is not None else spec["input"].get("wavelength"),
+                            wavelengths=spec.get("wavelengths"), unmix=None if unmix is None else dict(unmix),
+                            input_id=spec.get("input_id", ""), progress=progress_file(progress),
+                            plan=_plan(spec),
+                            should_stop=(lambda: os.path.exists(cancel)) if cancel else None, on_loaded=admit,
+                            **params)
+    finally:
+        if on_gpu:
+            from service.recon.device import release
+
+            release()
+
+
+def _gpus() -> list[dict]:
+    """The CUDA devices of this worker (`service.recon.device.cuda_devices`; CuPy is loaded on the
+    first GPU-capable job)."""
+    from service.recon.device import cuda_devices
+
+    return cuda_devices()
 
 
 def _plan(spec: dict) -> Any:

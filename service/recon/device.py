@@ -30,7 +30,8 @@ from typing import Any, TypeVar
 
 from service.recon.limits import DEFAULT_DEVICE, DEVICES
 
-__all__ = ["DEVICES", "DEFAULT_DEVICE", "Unsuited", "GpuError", "check_device", "cupy_module", "cuda_devices", "choose",
+__all__ = ["DEVICES", "DEFAULT_DEVICE", "Unsuited", "GpuError", "check_device", "cupy_module", "gpu_module", "cuda_devices",
+           "probe_devices", "choose",
            "is_gpu_error", "gpu_lock", "run", "release"]
 
 #: share of the GPU's free memory a job may plan to use (cuFFT's work areas and the memory
@@ -95,10 +96,29 @@ def cupy_module() -> ModuleType | None:
 
                 if cupy.cuda.runtime.getDeviceCount() > 0:
                     mod = cupy
-            except Exception:  # noqa: BLE001 (no CuPy, no driver, no device: all mean "no GPU")
+            except Exception:
                 mod = None
         _CUPY.append(mod)
     return _CUPY[0]
+
+
+def gpu_module() -> ModuleType:
+    """CuPy, for code that runs on the GPU :func:`choose` picked.
+
+    Returns
+    -------
+    module
+        ``cupy``.
+
+    Raises
+    ------
+    Unsuited
+        No GPU is visible (CuPy missing, no driver or device).
+    """
+    cp = cupy_module()
+    if cp is None:
+        raise Unsuited("no CUDA GPU is visible here (CuPy not installed, no driver or no device)")
+    return cp
 
 
 def cuda_devices() -> list[dict[str, Any]]:
@@ -123,9 +143,43 @@ def cuda_devices() -> list[dict[str, Any]]:
             name = props["name"]
             out.append(dict(index=index, name=name.decode() if isinstance(name, bytes) else str(name),
                             memory_total=int(total), memory_free=int(free + pooled)))
-    except Exception:  # noqa: BLE001 (a device that cannot be queried is not offered)
+    except Exception:
         return []
     return out
+
+
+_PROBE = ("import json; from service.recon.device import cuda_devices; "
+          "print(json.dumps([{k: d[k] for k in ('index', 'name', 'memory_total')} for d in cuda_devices()]))")
+
+
+def probe_devices(timeout: float = 120.0) -> list[dict[str, Any]]:
+    """The CUDA devices, asked in a child process (so that the caller — the HTTP server's
+    process — never loads CUDA or holds a GPU context); [] without a GPU, CuPy or an answer
+    within ``timeout`` seconds.
+
+    Parameters
+    ----------
+    timeout : float
+        Seconds to wait for the child.
+
+    Returns
+    -------
+    list of dict
+        ``index``, ``name``, ``memory_total`` (bytes) per device.
+    """
+    import json
+    import subprocess
+    import sys
+
+    if os.environ.get("FPSCAN_NO_GPU", "") in ("1", "true", "yes"):
+        return []
+    try:
+        done = subprocess.run([sys.executable, "-c", _PROBE], capture_output=True, text=True, timeout=timeout,
+                              cwd=os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
+        found = json.loads(done.stdout.strip().splitlines()[-1]) if done.returncode == 0 and done.stdout.strip() else []
+    except (OSError, subprocess.SubprocessError, ValueError):
+        return []
+    return [d for d in found if isinstance(d, dict)]
 
 
 def choose(device: str, need_bytes: int, unsupported: str | None = None) -> str:

@@ -22,16 +22,13 @@ The choice of device and its rules: `service.recon.device`.
 from __future__ import annotations
 
 from types import ModuleType
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from driver.physics import nufft
 from driver.physics import temporal_xp as txp
-
-if TYPE_CHECKING:
-    from service.recon.operator import PlanarOperator
-    from service.recon.tv.preconditioner import _NerWeight
+from driver.physics.lateral import pad_spectrum
 
 __all__ = ["clear_cache", "inversion_peak", "operator_peak", "invert", "OperatorPair", "apply_ner_weight"]
 
@@ -80,14 +77,14 @@ def inversion_peak(n_t: int, n_cols: int, n_work: int, n_out: int, eps: float, r
     return int(1.25 * (cplx + r * (data_elements + n_out)))
 
 
-def operator_peak(op: PlanarOperator) -> int:
+def operator_peak(op: Any) -> int:
     """GPU bytes the operator pair on ``op``'s working grid holds at its peak: its taps
     (both directions), the k-space of the image and of the data, the fine temporal grid, the
     depth step's DCT-I and the scatter-add's real view; 25 % on top.
 
     Parameters
     ----------
-    op : PlanarOperator
+    op : service.recon.operator.PlanarOperator
 
     Returns
     -------
@@ -147,8 +144,6 @@ def invert(xp: ModuleType, A: Any, n_x: int, dx: float, dy: float, dt: float, c:
     -------
     array ``keep`` of ``rdtype``.
     """
-    from service.recon.planar import _pad_spectrum
-
     n_t, n_y, n_xr = A.shape
     rdtype = np.dtype(rdtype)
     ctype = np.result_type(rdtype, np.complex64)
@@ -173,7 +168,7 @@ def invert(xp: ModuleType, A: Any, n_x: int, dx: float, dy: float, dt: float, c:
     del F
     ups_y = n_y > 1
     if upsample > 1:
-        K = _pad_spectrum(K, n_y, n_x, upsample, ups_y, xp=xp)
+        K = pad_spectrum(K, n_y, n_x, upsample, ups_y, xp=xp)
     shape = ((n_y * upsample) if ups_y else n_y, n_x * upsample)
     p0 = xp.fft.irfft2(K, s=shape, axes=(1, 2))[:, : keep[1], : keep[2]]
     if upsample > 1:
@@ -187,7 +182,7 @@ class OperatorPair:
 
     Parameters
     ----------
-    op : PlanarOperator
+    op : service.recon.operator.PlanarOperator
         Planned (its ``_setup`` ran); sensors on its grid or on nodes of it.
     xp : module
         ``cupy`` (or ``numpy``).
@@ -198,7 +193,7 @@ class OperatorPair:
         Sensors off the working grid's nodes (the lateral NUFFT pair runs on the CPU only).
     """
 
-    def __init__(self, op: PlanarOperator, xp: ModuleType) -> None:
+    def __init__(self, op: Any, xp: ModuleType) -> None:
         if op.positions is not None and op._nodes is None:
             raise ValueError("the GPU operator needs the sensors on nodes of the image's lateral grid "
                              "(a scan plan's lattice); these are off it")
@@ -317,7 +312,7 @@ class OperatorPair:
         return xp.ascontiguousarray(p.astype(rd, copy=False))
 
 
-def apply_ner_weight(xp: ModuleType, P: _NerWeight, x: Any) -> Any:
+def apply_ner_weight(xp: ModuleType, P: Any, x: Any) -> Any:
     """`service.recon.tv.preconditioner._apply_weight` on ``xp``: NER's k-space weight k_z / |k|
     on the orthonormal DCT-II of ``x`` zero-padded to ``P.shape``, cropped back (a new array of
     x's dtype; ``x`` is not modified).
@@ -326,7 +321,8 @@ def apply_ner_weight(xp: ModuleType, P: _NerWeight, x: Any) -> Any:
     ----------
     xp : module
         ``cupy`` (its ``cupyx.scipy.fft``) or ``numpy`` (``scipy.fft``).
-    P : _NerWeight
+    P : service.recon.tv.preconditioner._NerWeight
+        The weight's axes (``kz``, ``lat2``, ``shape``).
     x : array ``(n_z, n_x)`` or ``(n_z, n_y, n_x)``
 
     Returns

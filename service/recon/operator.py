@@ -281,7 +281,7 @@ class PlanarOperator(pylops.LinearOperator):
             off = None if self.positions is None or self._nodes is not None else (
                 "the operator's sensors are off the nodes of the image's lateral grid (its lateral NUFFTs run on the CPU)")
             if devices.choose(device, gpu.operator_peak(self), off) == "cuda":
-                self._pair = gpu.OperatorPair(self, devices.cupy_module())
+                self._pair = gpu.OperatorPair(self, devices.gpu_module())
                 self.device = "cuda"
 
     # -- shapes ------------------------------------------------------------------

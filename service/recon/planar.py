@@ -27,7 +27,6 @@ FFT by a type-1 NUFFT (finufft) from the sensor positions, batched over time sam
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from types import ModuleType
 from typing import Any
 
 import numpy as np
@@ -37,7 +36,7 @@ from driver.constants import C_DEFAULT
 from driver.physics import fft_engine, nufft
 from driver.physics.axes import centred_axis, node_indices
 from driver.physics.fast_lengths import fast_dct1_rows, fast_lateral, fast_length
-from driver.physics.lateral import irfft_lateral
+from driver.physics.lateral import irfft_lateral, pad_spectrum
 from driver.physics.nufft_plans import lateral_plan
 from service.progress import Fraction, Rising, Span, rising
 from service.progress import span as span_of
@@ -145,31 +144,6 @@ def _check_options(dt: float, c: float, method: str, eps: float, dtype: npt.DTyp
     if not np.isfinite(t0) or t0 < 0:
         raise ValueError(f"t0 must be finite and >= 0 s, got {t0!r}")
     return dt, c, checks.check_eps(eps), checks.check_dtype(dtype), int(upsample), float(t0)
-
-
-def _pad_spectrum(K: np.ndarray, n_y: int, n_x: int, u: int, ups_y: bool, xp: ModuleType = np) -> np.ndarray:
-    """Zero-pad an rfft2 spectrum (.., n_y, n_x//2+1) to (.., n_y*u, n_x*u//2+1),
-    splitting Nyquist bins so that the result is the trigonometric interpolant (``xp``: the
-    array module of K, numpy or cupy)."""
-    ny2 = n_y * u if ups_y else n_y
-    nx2 = n_x * u
-    out = xp.zeros(K.shape[:-2] + (ny2, nx2 // 2 + 1), dtype=K.dtype)
-    nxr = n_x // 2 + 1
-    if ups_y:
-        pos = (n_y + 1) // 2  # indices 0..pos-1 are k >= 0 (excluding Nyquist for even n_y)
-        neg = n_y // 2 - (1 if n_y % 2 == 0 else 0)
-        out[..., :pos, :nxr] = K[..., :pos, :]
-        if neg:
-            out[..., ny2 - neg :, :nxr] = K[..., n_y - neg :, :]
-        if n_y % 2 == 0:
-            half = 0.5 * K[..., n_y // 2, :]
-            out[..., n_y // 2, :nxr] = half
-            out[..., ny2 - n_y // 2, :nxr] = half
-    else:
-        out[..., :nxr] = K
-    if n_x % 2 == 0:
-        out[..., n_x // 2] *= 0.5
-    return out
 
 
 def _cubic_columns(A_cols: np.ndarray, n_t: int, klat2: np.ndarray, kz: np.ndarray, qw: np.ndarray, c: float,
@@ -281,7 +255,7 @@ def _invert(A: np.ndarray, n_x: int, dx: float, dy: float, dt: float, c: float, 
         progress(0.85)
     ups_y = n_y > 1
     if upsample > 1:
-        K = _pad_spectrum(K, n_y, n_x, upsample, ups_y)
+        K = pad_spectrum(K, n_y, n_x, upsample, ups_y)
     shape = ((n_y * upsample) if ups_y else n_y, n_x * upsample)
     p0 = irfft_lateral(K[: keep[0]], shape, out=_reuse(space, keep, rdtype), keep=keep[1:])
     if upsample > 1:
@@ -454,7 +428,7 @@ def reconstruct_grid(
     def on_gpu() -> np.ndarray:
         from service.recon import gpu
 
-        xp = devices.cupy_module()
+        xp = devices.gpu_module()
         A = xp.fft.rfft2(xp.asarray(vol), s=(n_yp, n_xp), axes=(1, 2))
         if kernel is not None:
             kernel(0.1)
@@ -778,13 +752,12 @@ def reconstruct_points(
     def on_gpu() -> np.ndarray:
         from service.recon import gpu
 
-        xp = devices.cupy_module()
+        xp = devices.gpu_module()
         A = xp.asarray(spectrum())
         return xp.asnumpy(gpu.invert(xp, A, n_x, dx, dy, dt, c, n_work, dz, float(t0), eps, rdtype, upsample, keep))
 
     p0, ran = _on_device(device, method, n_t, n_y * (n_x // 2 + 1), n_work, int(np.prod(keep)), eps, rdtype, 0,
                          on_gpu, on_cpu)
-    del space
     if positivity:
         np.maximum(p0, 0, out=p0)
     x = axes[0][0] + np.arange(n_x_out * upsample) * (dx / upsample)

@@ -1,24 +1,58 @@
 """The Docker image, tested without a Docker engine: lint (hadolint), structure, and the
 image's own install and start commands run outside Docker (wheel built from exactly what
-the Dockerfile copies; the start command and the HEALTHCHECK run against it)."""
+the Dockerfile copies; the start command and the HEALTHCHECK run against it). The structure
+and install tests read the Dockerfile as the default build sees it (its build arguments at
+their defaults: the CPU image); the CUDA variant's build arguments have tests of their own."""
 from __future__ import annotations
 
 import os
+import shlex
 import shutil
 import signal
 import subprocess
 import sys
 import time
+import tomllib
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
 
 from clients.processes import free_port
-from tests.clients.dockerfile_reader import env_of, parse
+from tests.clients.dockerfile_reader import Instruction, env_of, parse
 from tests.waits import HANG_S
 
 ROOT = Path(__file__).resolve().parents[2]
 DOCKERFILE = ROOT / "Dockerfile"
+
+
+def _build_args(ins: list[Instruction]) -> dict[str, str]:
+    """The build arguments (``ARG NAME=default``) and their defaults."""
+    out: dict[str, str] = {}
+    for i in ins:
+        if i.keyword == "ARG":
+            name, sep, default = i.args.partition("=")
+            if sep:
+                out[name.strip()] = default.strip().strip('"')
+    return out
+
+
+def _with_args(ins: list[Instruction], values: dict[str, str] | None = None) -> list[Instruction]:
+    """The instructions as a build with these build arguments (the rest at their defaults) sees
+    them: every ``${NAME}`` of a build argument replaced by its value."""
+    args = {**_build_args(ins), **(values or {})}
+
+    def sub(text: str) -> str:
+        for name, value in args.items():
+            text = text.replace("${" + name + "}", value)
+        return text
+
+    return [replace(i, args=sub(i.args)) for i in ins]
+
+
+def _default_build() -> list[Instruction]:
+    """The Dockerfile as ``docker build .`` (no build arguments) sees it."""
+    return _with_args(parse(DOCKERFILE))
 
 
 def _hadolint() -> str | None:
@@ -35,7 +69,7 @@ def test_hadolint_passes():
 
 
 def test_dockerfile_structure():
-    ins = parse(DOCKERFILE)
+    ins = _default_build()
     froms = [i for i in ins if i.keyword == "FROM"]
     assert len(froms) >= 2, "multi-stage build expected"
     assert "slim" in froms[-1].args and " AS " not in froms[-1].args.upper()
@@ -68,6 +102,79 @@ def test_dockerfile_structure():
     assert "FPSCAN_TOKEN_FILE" in " ".join(cmd)
 
 
+
+CUDA_ARGS = {"BASE": "nvidia/cuda:12.6.3-runtime-ubuntu24.04", "EXTRAS": "server,cuda"}
+
+
+def _requirements(extras: str, tmp_path: Path) -> list[str]:
+    """What the build stage's requirements step writes for these EXTRAS (its own command, run
+    here on the project's pyproject.toml)."""
+    run = next(i.args for i in parse(DOCKERFILE) if i.keyword == "RUN" and "> requirements.txt" in i.args)
+    argv = shlex.split(run.split("> requirements.txt")[0])
+    assert argv[0] == "/opt/fpscan/bin/python" and argv[1] == "-c"
+    work = tmp_path / extras.replace(",", "_")
+    work.mkdir()
+    shutil.copy2(ROOT / "pyproject.toml", work / "pyproject.toml")
+    res = subprocess.run([sys.executable, "-c", argv[2]], cwd=work, env={**os.environ, "EXTRAS": extras},
+                         capture_output=True, text=True, timeout=60)
+    assert res.returncode == 0, res.stderr
+    return res.stdout.splitlines()
+
+
+def _project() -> dict:
+    with open(ROOT / "pyproject.toml", "rb") as f:
+        return tomllib.load(f)["project"]
+
+
+def test_build_args_default_to_the_cpu_image(tmp_path):
+    ins = parse(DOCKERFILE)
+    args = _build_args(ins)
+    assert set(args) >= {"BASE", "EXTRAS"}
+    # BASE is declared before the first FROM (a global build argument) and names both stages' image
+    assert any(i.keyword == "ARG" and i.args.startswith("BASE=") and i.stage == -1 for i in ins)
+    froms = [i for i in ins if i.keyword == "FROM"]
+    assert all(f.args.split()[0] == "${BASE}" for f in froms)
+    assert args["BASE"].startswith("python:3.11-slim@sha256:")
+    # EXTRAS belongs to the build stage (its RUNs see it) and defaults to the server alone
+    assert any(i.keyword == "ARG" and i.args.startswith("EXTRAS=") and i.stage == 0 for i in ins)
+    assert args["EXTRAS"] == "server"
+    pip_runs = [i.args for i in ins if i.keyword == "RUN" and i.stage == 0 and "pip install" in i.args]
+    assert pip_runs[-1].rstrip().endswith(' ".[${EXTRAS}]"')
+    # the default build's requirements: the base, driver and server ones, exactly, and no CuPy
+    p = _project()
+    o = p["optional-dependencies"]
+    expected = [r for r in p["dependencies"] + o["driver"] + o["server"] if not r.startswith("fpscan")]
+    reqs = _requirements(args["EXTRAS"], tmp_path)
+    assert reqs == list(dict.fromkeys(expected))
+    assert not any("cupy" in r for r in reqs)
+    # the CPU install never needs CuPy: only the cuda extra names it
+    assert [r for r in o["cuda"] if r.startswith("cupy")] == ["cupy-cuda12x>=13.0"]
+    needs = p["dependencies"] + [r for name, reqs in o.items() if name != "cuda" for r in reqs]
+    assert not any("cupy" in r or "fpscan[cuda" in r or ",cuda" in r for r in needs)
+
+
+def test_cuda_variant_by_build_args(tmp_path):
+    ins = _with_args(parse(DOCKERFILE), CUDA_ARGS)
+    froms = [i for i in ins if i.keyword == "FROM"]
+    assert [f.args.split()[0] for f in froms] == [CUDA_ARGS["BASE"]] * len(froms)
+    build, final = froms[0].stage, froms[-1].stage
+    pip_runs = [i.args for i in ins if i.keyword == "RUN" and i.stage == build and "pip install" in i.args]
+    assert pip_runs[-1].rstrip().endswith(' ".[server,cuda]"')
+    # the requirements step takes CuPy with the server's requirements
+    reqs = _requirements(CUDA_ARGS["EXTRAS"], tmp_path)
+    assert "cupy-cuda12x>=13.0" in reqs
+    assert set(_requirements("server", tmp_path)) < set(reqs)
+    # NVIDIA's runtime image has no Python: both stages take Ubuntu's python3 where the base has
+    # none (the build stage with its headers and venv), the runtime stage still without a compiler
+    runs = {stage: " ".join(i.args for i in ins if i.keyword == "RUN" and i.stage == stage) for stage in (build, final)}
+    assert "command -v python3" in runs[build] and "python3-venv" in runs[build] and "python3-dev" in runs[build]
+    assert "command -v python3" in runs[final] and " python3;" in runs[final]
+    assert "-dev" not in runs[final] and "gcc" not in runs[final]
+    # the venv is made with python3 (Ubuntu has no `python`); the image runs the venv's python
+    assert any(i.keyword == "RUN" and i.args.startswith("python3 -m venv /opt/fpscan") for i in ins)
+    assert env_of(ins, final)["PATH"].startswith("/opt/fpscan/bin:")
+
+
 def _has_serve() -> bool:
     res = subprocess.run([sys.executable, "-m", "clients", "serve", "--help"], capture_output=True, timeout=60)
     return res.returncode == 0
@@ -78,7 +185,7 @@ def image_install(tmp_path_factory):
     """The build stage's COPY + pip install, outside Docker: a wheel built from only the
     copied paths (minus .dockerignore'd caches), installed into its own prefix."""
     tmp = tmp_path_factory.mktemp("image")
-    ins = parse(DOCKERFILE)
+    ins = _default_build()
     src = tmp / "src"
     src.mkdir()
     build_stage = 0

@@ -28,8 +28,8 @@ from driver.constants import C_AUTOFOCUS_LIMITS, C_AUTOFOCUS_RANGE, C_DEFAULT, C
 from service.recon.limits import (
     DEFAULT_DEVICE,
     DEFAULT_DTYPE,
-    DEVICES,
     DEFAULT_EPS,
+    DEVICES,
     DTYPES,
     DZ_RANGE,
     EPS_RANGE,

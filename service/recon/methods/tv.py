@@ -20,7 +20,14 @@ from service.recon.limits import (
     TOL_RANGE,
 )
 from service.recon.methods import Method
-from service.recon.methods.options import DepthOptions, DeviceOption, Flag, MethodOptions, NufftOptions, kernel_rule
+from service.recon.methods.options import (
+    DepthOptions,
+    DeviceOption,
+    Flag,
+    MethodOptions,
+    NufftOptions,
+    kernel_rule,
+)
 
 if TYPE_CHECKING:
     from service.progress import Progress

@@ -62,7 +62,7 @@ from service.recon.tv.lam import _LAM_KNEE as _LAM_KNEE  # the automatic λ's co
 from service.recon.tv.lam import _LAM_POWER as _LAM_POWER  # benchmarks from here
 from service.recon.tv.lam import _LAM_SCALE as _LAM_SCALE
 from service.recon.tv.lam import _Continuation, _DiscrepancyRule
-from service.recon.tv.problem import _check_tv_options, _Model, _record, _Record, _start_image, _warm_start
+from service.recon.tv.problem import _check_tv_options, _Model, _Record, _record, _start_image, _warm_start
 from service.recon.tv.progress import _final_stage, _Reporter, _reporter
 from service.recon.tv.result import _params
 from service.recon.tv_grid import TvGrid, noise_sigma, tv_grid
@@ -254,17 +254,19 @@ def reconstruct_tv(
     # the record at the band and on the grid the data can resolve
     record = _record(data, dt, c, dx, positions, grid, bandwidth=bandwidth, dz=dz, n_z=n_z, t0=t0,
                      whole_record=bool(whole_record))
-    settings = dict(c=c, dx=dx, positions=positions, weights=weights, grid=grid, lam=lam, positivity=positivity,
-                    max_iter=max_iter, tol=tol, rdtype=rdtype, eps=eps, t0=t0, periodic=periodic,
-                    memory_limit=memory_limit, time_limit=time_limit, debias=debias, bandwidth=bandwidth,
-                    whole_record=whole_record, continuation=continuation, dt=dt, report=report, started=started)
+    def solve(dev: str) -> Reconstruction:
+        return _solve(record, dev, c=c, dx=dx, positions=positions, weights=weights, grid=grid, lam=lam,
+                      positivity=positivity, max_iter=max_iter, tol=tol, rdtype=rdtype, eps=eps, t0=t0,
+                      periodic=periodic, memory_limit=memory_limit, time_limit=time_limit, debias=debias,
+                      bandwidth=bandwidth, whole_record=whole_record, continuation=continuation, dt=dt,
+                      report=report, started=started)
+
     if device == "cpu":
-        result = _solve(record, "cpu", **settings)
+        result = solve("cpu")
         result.params["device"] = "cpu"
         return result
     # the GPU's lock is held from the warm start to the last iteration (`service.recon.device.run`)
-    result, ran = devices.run(device, 0, lambda: _solve(record, "cuda", **settings),
-                              lambda: _solve(record, "cpu", **settings), poll=report.poll)
+    result, ran = devices.run(device, 0, lambda: solve("cuda"), lambda: solve("cpu"), poll=report.poll)
     result.params.update(ran)
     return result
 
@@ -294,16 +296,18 @@ def _solve(record: _Record, dev: str, *, c: float, dx: float | None, positions: 
     # λ: given, or the rule of the image's noise level and the warm start's discrepancy; continued from λ D₀
     rule = _DiscrepancyRule(record.sigma * noise_rms, record.noise_norm)
     schedule = _Continuation(record.noise_norm) if continuation else None
-    first = [_start_image(warm, rdtype, positivity)]  # handed over: _fista reuses its memory
+    first = [model.xp.asarray(_start_image(warm, rdtype, positivity))]  # handed over: _fista reuses its memory
     axes, warm_params = (warm.z, warm.x, warm.y), warm.params
     del warm  # its float64 image: the solver's x is a copy (float32) or that image itself
-    solved = _fista(model.forward, model.B, record.g, first, rule if lam is None else lam, L, positivity, max_iter,
+    solved = _fista(model.forward, model.B, model.g_dev, first, rule if lam is None else lam, L, positivity, max_iter,
                     tol, started, time_limit, report, model.residual, poll=report.poll, continuation=schedule)
-    debiased = bool(debias and solved.stop_reason != "time limit" and np.any(solved.x > 0))
+    debiased = bool(debias and solved.stop_reason != "time limit" and bool((solved.x > 0).any()))
     if debiased:  # the amplitudes refit at λ = 0 on tv's support, from tv's image (handed over)
         box = [solved]
         del solved
-        solved = _debias(model.forward, model.B, record.g, box, started, time_limit, model.residual, report.poll)
+        solved = _debias(model.forward, model.B, model.g_dev, box, started, time_limit, model.residual, report.poll)
+    if model.xp is not np:  # a GPU run: the image and A x back here
+        solved = solved._replace(x=model.xp.asnumpy(solved.x), Ax=model.xp.asnumpy(solved.Ax))
     params = _params(warm_params, record, model, solved, rule, schedule,
                      dict(dt=dt, bandwidth=bandwidth, whole_record=whole_record, max_iter=max_iter, tol=tol,
                           dtype=rdtype, positivity=positivity, periodic=periodic, time_limit=time_limit),

@@ -17,7 +17,9 @@ at λ = 0 on tv's support. The measurements behind these choices: docs/tv-measur
 "Solver" and "Memory".
 
 The in-place vector loops here are numba kernels (``cache=True``; `service.recon.methods.tv`'s
-``kernel_modules``).
+``kernel_modules``); the loop reaches them, and the other whole-image work, through the kernel set
+of its arrays' type (`service.recon.tv.kernels`: CuPy's on a GPU), so that the CPU and the GPU run
+one loop.
 """
 from __future__ import annotations
 
@@ -30,6 +32,7 @@ import numba
 import numpy as np
 
 from service.progress import span
+from service.recon.tv.kernels import Kernels, array_kernels, array_module
 from service.recon.tv.lam import _Continuation
 from service.recon.tv.progress import _Reporter
 from service.recon.tv.prox import _tv_norm, _tv_prox_stored
@@ -63,7 +66,7 @@ def _fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray]
            max_iter: int, tol: float, started: float, time_limit: float, report: _Reporter | None,
            residual: Callable[[np.ndarray], float], support: np.ndarray | None = None,
            poll: Callable[[], None] | None = None, continuation: _Continuation | None = None,
-           ) -> _Solved:
+           kernels: Kernels | None = None) -> _Solved:
     """Accelerated proximal gradient (FISTA, Beck & Teboulle 2009) on J(p) = ½‖A p − g‖² +
     λ TV(p) (p >= 0 with ``positivity``; p = 0 off ``support`` when given), preconditioned:
     the step is G(A y − g) / L with G = B = P Aᵀ of a residual (module doc); the proximal
@@ -80,8 +83,9 @@ def _fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray]
     start's residual (the automatic λ: free, A x₀ is the first forward). With ``continuation``
     the proximal step and the restart test take λ_k = λ · ``continuation.factor(k)``, started
     from the same residual, and the stopping rule waits for λ itself
-    (`service.recon.tv.lam._Continuation`). Returns `_Solved` (x, iterations, stop reason, the
-    rule's last value, A x, L, λ). ``forward(v)`` = A v in the
+    (`service.recon.tv.lam._Continuation`). ``kernels``: the whole-image kernel set
+    (`service.recon.tv.kernels`; default the one for the start's array type). Returns `_Solved`
+    (x, iterations, stop reason, the rule's last value, A x, L, λ). ``forward(v)`` = A v in the
     data's shape; ``start`` is a list holding the first x, which is taken out of it (its
     memory is reused: the caller keeps no reference).
 
@@ -100,9 +104,10 @@ def _fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray]
     ‖y_new − y‖ for the gain for both momenta y_new can take, the new move) is summed before
     A works, with y = the step + G(A y − g) / L (`_moves`), so y's memory is free
     then. The vectors are C-contiguous: the in-place kernels see them through flat views."""
-    x = np.ascontiguousarray(start.pop())
+    k = kernels or _kernels_for(start[0])  # the compiled loops for NumPy arrays, CuPy's for a GPU run
+    x = k.contiguous(start.pop())
     if support is not None:
-        x = np.where(support, x, 0).astype(x.dtype)
+        x = k.masked(x, support)
     iterations = span(report, 0.1, 1.0)
     Ax = forward(x)
     r0 = residual(Ax)
@@ -114,13 +119,13 @@ def _fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray]
     # move x − x_prev as int16 and β q its scale (`_store_move`), which is how y was made
     y, Ay = x, Ax
     del x
-    move: tuple[np.ndarray, float] = (np.zeros(y.size, dtype=np.int16), 0.0)  # the start: x = y
+    move: tuple[np.ndarray, float] = (k.zeros_move(y.size), 0.0)  # the start: x = y
     # G(A y − g) of the last y, kept as 16-bit fixed point with its quantum (`_store_gradient`), and ‖y − last y‖
     G_prev: tuple[np.ndarray, float] | None = None
     dy = 0.0
 
     def parts(Ax_: np.ndarray, x_: np.ndarray) -> tuple[float, float]:  # J's data term and TV(x)
-        return 0.5 * residual(Ax_) ** 2, (_tv_norm(x_) if lam > 0 else 0.0)
+        return 0.5 * residual(Ax_) ** 2, (k.tv_norm(x_) if lam > 0 else 0.0)
 
     J_prev = parts(Ax, y)  # the restart test's, at each iteration's λ_k
     # the stopping rule, whose window holds iterations at λ itself only (none of the continuation's)
@@ -130,24 +135,24 @@ def _fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray]
     xn = y  # for max_iter = 0, which the callers never ask
     for it in range(1, max_iter + 1):
         lam_k = lam * continuation.factor(it) if continuation is not None else lam
-        Gy = G(np.subtract(Ay, g, dtype=Ay.dtype))  # the residual in the working dtype (B's input)
+        Gy = G(k.subtract(Ay, g))  # the residual in the working dtype (B's input)
         if G_prev is not None and dy > 0:  # the gain of BA along the last move of y: a lower bound of ‖BA‖
-            gain = _gain_lower_bound(Gy.ravel(), G_prev) / dy
+            gain = k.gain_lower_bound(Gy.ravel(), G_prev) / dy
             if _MARGIN * gain > L:  # the step was too long for what the iterates excite
                 L = _MARGIN * gain
         G_prev = None
         v = y  # the gradient step y − G(A y − g) / L, in y's place (y = v + Gy / L from here on)
         del y, xn
-        _axpy(v.ravel(), Gy.ravel(), -1.0 / L)
+        k.axpy(v.ravel(), Gy.ravel(), -1.0 / L)
         box: list[np.ndarray | None] = [stored]  # handed over: freed inside once restored
         stored = None
-        xn, stored = _tv_prox_stored(v, lam_k / L, positivity, support, box, poll)  # None at λ = 0 (no dual)
+        xn, stored = k.tv_prox_stored(v, lam_k / L, positivity, support, box, poll)  # None at λ = 0 (no dual)
         # a = x_new − y, b = x_new − x: the restart test ⟨a, b⟩ < 0 and ‖y_new − y‖ = ‖a + β b‖
         # for β = 0 and `_MOMENTUM`, now, so that y (v) is free while A works; b kept as int16
-        ab, aa, cc, bb, nn, b_max = _moves(xn.ravel(), v.ravel(), Gy.ravel(), 1.0 / L, move[0], move[1], _MOMENTUM)
-        b_new = _store_move(xn.ravel(), v.ravel(), Gy.ravel(), 1.0 / L, move[0], move[1], b_max)
+        ab, aa, cc, bb, nn, b_max = k.moves(xn.ravel(), v.ravel(), Gy.ravel(), 1.0 / L, move[0], move[1], _MOMENTUM)
+        b_new = k.store_move(xn.ravel(), v.ravel(), Gy.ravel(), 1.0 / L, move[0], move[1], b_max)
         del v, move
-        G_prev = _store_gradient(Gy)  # for the next gain, in half (float64: a quarter) of the bytes
+        G_prev = k.store_gradient(Gy)  # for the next gain, in half (float64: a quarter) of the bytes
         del Gy
         Axn = forward(xn)
         J = parts(Axn, xn)
@@ -168,7 +173,7 @@ def _fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray]
         # y_new = x_new + β b in x_new's place (the result is x_new itself: made only when going on)
         move = (b_new[0], beta * b_new[1])
         del b_new
-        _extrapolate_fixed(xn.ravel(), move[0], move[1])
+        k.extrapolate_fixed(xn.ravel(), move[0], move[1])
         y = xn  # noqa: F841 (read at the loop's top: ruff does not follow the loop past the del there)
     return _Solved(xn, it, stop_reason, float(stopping.change), Ax, L, lam)
 
@@ -182,7 +187,7 @@ def _debias(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray
     (its image's memory is reused: the caller keeps no reference); the other arguments are
     `_fista`'s. Returns tv's `_Solved` with the refit's image, A x and L."""
     x, it, stop_reason, change, Ax, L, lam = box.pop()
-    support = x > _SUPPORT_FRACTION * float(np.max(x))
+    support = x > _SUPPORT_FRACTION * float(x.max())
     start = [x]
     del x
     refit = _fista(forward, G, g, start, 0.0, L, True, _DEBIAS_ITER, 0.0, started, time_limit, None, residual,
@@ -232,3 +237,17 @@ def _moves(xn: np.ndarray, v: np.ndarray, gy: np.ndarray, inv_l: float, b_last: 
         nn += xi * xi
         top = max(top, abs(b))
     return ab, aa, cc, bb, nn, top
+
+
+#: the CPU's kernel set (`service.recon.tv.kernels`): the numba kernels here and in
+#: `service.recon.tv.prox` / `service.recon.tv.stores`
+_COMPILED = Kernels("cpu", np.ascontiguousarray, lambda n: np.zeros(n, dtype=np.int16),
+                    lambda a, b: np.subtract(a, b, dtype=a.dtype), _axpy, _moves, _store_move, _extrapolate_fixed,
+                    _store_gradient, _gain_lower_bound, _tv_norm, _tv_prox_stored,
+                    lambda x, support: np.where(support, x, 0).astype(x.dtype))
+
+
+def _kernels_for(x: np.ndarray) -> Kernels:
+    """The kernel set for ``x``'s array type: the compiled one for a NumPy array, the array
+    expressions on CuPy for a GPU run's (`service.recon.tv.kernels.array_kernels`)."""
+    return _COMPILED if isinstance(x, np.ndarray) else array_kernels(array_module(x))

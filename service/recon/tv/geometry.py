@@ -41,8 +41,12 @@ def _geometry_numbers(model: _Model, progress: Span) -> tuple[float, float, bool
                               step=lambda k, n: progress(k / n))
         del start
         noise_image = model.B(np.random.default_rng(0).standard_normal(model.g.shape)).ravel()
-        noise_rms = math.sqrt(float(np.einsum("i,i->", noise_image, noise_image, dtype=np.float64))
-                              / noise_image.size)  # accumulated in float64
+        if isinstance(noise_image, np.ndarray):
+            total = float(np.einsum("i,i->", noise_image, noise_image, dtype=np.float64))  # accumulated in float64
+        else:  # a GPU run's image (CuPy)
+            wide = noise_image.astype(np.float64)
+            total = float(wide @ wide)
+        noise_rms = math.sqrt(total / noise_image.size)
         del noise_image
         kept = (gain, noise_rms)
         _GEOMETRY.put(key, kept)
@@ -57,11 +61,16 @@ def _gain_estimate(apply: Callable[[np.ndarray], np.ndarray], start: np.ndarray,
     v = start / np.linalg.norm(start)
     gain = 0.0
     for k in range(steps):
-        u = np.asarray(apply(v), dtype=v.dtype).reshape(v.shape)
-        gain = float(np.linalg.norm(u))
+        u = apply(v)
+        if isinstance(u, np.ndarray):
+            u = np.asarray(u, dtype=v.dtype).reshape(v.shape)
+            gain = float(np.linalg.norm(u))
+        else:  # a GPU run's image (CuPy)
+            u = u.astype(v.dtype, copy=False).reshape(v.shape)
+            gain = float((u.astype(np.float64) ** 2).sum() ** 0.5)
         if gain == 0.0:
             return 0.0
-        v = np.divide(u, gain, out=u)
+        v = np.divide(u, gain, out=u) if isinstance(u, np.ndarray) else u / gain
         if step is not None:
             step(k + 1, steps)
     return gain

@@ -175,7 +175,8 @@ class _Model:
     the (forward + adjoint applications) / 2 so far. Made after the memory check
     (`service.recon.memory.tv_memory`; raises ValueError above ``memory_limit``); ``checkpoint``
     is the operator's (a cancel's poll); ``device`` the operator's (``"cuda"``: A, Aᵀ and P run on
-    the GPU, the solver's vectors stay here)."""
+    the GPU, and ``forward``, ``B`` and ``residual`` take and give arrays there, ``g_dev`` the data
+    there; ``xp`` is the solver's array module)."""
 
     def __init__(self, record: _Record, warm: Reconstruction, c: float, pos: np.ndarray | None, *, t0: float,
                  eps: float, dtype: np.dtype, periodic: bool, checkpoint: Callable[[], None] | None,
@@ -194,22 +195,32 @@ class _Model:
                                              kept_columns=kept_columns), memory_limit)
         self.P = _ner_weight(self.shape, self.dx, self.dz)
         self.applied = [0, 0]  # forward, adjoint applications: params' operator_pairs is their mean
+        pair = self.op._pair
+        #: the solver's array module and the data in it: on a GPU the solver's images and the
+        #: data stay there (the kernels: `service.recon.tv.kernels`)
+        self.xp = np if pair is None else pair.xp
+        self.g_dev = self.g if pair is None else pair.xp.asarray(self.g)
 
     def B(self, r: np.ndarray) -> np.ndarray:
         self.applied[1] += 1
         pair = self.op._pair
-        if pair is not None:  # on the GPU: Aᵀ and P there, one copy back
+        if pair is not None:  # on the GPU: Aᵀ and P there, the image stays there
             from service.recon.gpu import apply_ner_weight
 
-            image = pair.adjoint(pair.xp.asarray(r.astype(self.dtype, copy=False)).reshape(self.op.oshape))
-            return pair.xp.asnumpy(apply_ner_weight(pair.xp, self.P, image))
+            image = pair.adjoint(pair.xp.asarray(r, dtype=self.dtype).reshape(self.op.oshape))
+            return apply_ner_weight(pair.xp, self.P, image)
         return _apply_weight(self.P, self.op.rmatvec(r.astype(self.dtype, copy=False).ravel()).reshape(self.shape))
 
     def forward(self, v: np.ndarray) -> np.ndarray:
         self.applied[0] += 1
+        pair = self.op._pair
+        if pair is not None:
+            return pair.forward(pair.xp.asarray(v).reshape(self.shape)).reshape(self.g.shape)
         return self.op.matvec(v.ravel()).reshape(self.g.shape)
 
     def residual(self, Ax: np.ndarray) -> float:
+        if self.xp is not np:
+            return float(self.xp.linalg.norm(Ax - self.g_dev))
         return float(np.linalg.norm(Ax - self.g))
 
     @property
