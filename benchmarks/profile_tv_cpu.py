@@ -19,7 +19,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench_tv_paper import C, DT, paper_case  # noqa: E402
+from bench_tv_paper import DT, C, paper_case
 
 
 def main(argv=None) -> None:
