@@ -4,12 +4,13 @@
 # CPU, the fallback and the memory rules), the GPU path's NumPy tests, then benchmarks/bench_gpu.py
 # on the paper's scan and the CLI / HTTP checks (scripts/gpu_check_service.py).
 #
-#   bash scripts/gpu-check.sh [quick|full|service|profile]     (results in $OUT, default /tmp/gpu-check)
+#   bash scripts/gpu-check.sh [quick|full|service|profile|scaling]     (results in $OUT, default /tmp/gpu-check)
 #
 # quick: the tests and bench_gpu at half the paper's size without the one-core rows (about 2
 # minutes); full: the tests, bench_gpu at the paper's size (the one-core rows at half of it), then
 # the CLI and HTTP checks (at most 9 minutes: the steps' timeouts); service: the CLI and HTTP
-# checks alone; profile: a profile of tv on the CPU (benchmarks/profile_tv_cpu.py).
+# checks alone; profile: a profile of tv on the CPU (benchmarks/profile_tv_cpu.py); scaling: how
+# NER's CPU parts scale with cores (benchmarks/bench_cpu_scaling.py).
 # Python packages the machine lacks travel as wheels in .whl/ (README "GPU"), installed first.
 set -u
 mode=${1:-quick}
@@ -43,6 +44,8 @@ if [ "$mode" = service ]; then
     | tee "$OUT/service.log" | tail -30
 elif [ "$mode" = profile ]; then
   timeout 150 python3 benchmarks/profile_tv_cpu.py --scale 0.5 2>&1 | tee "$OUT/profile.log" | tail -40
+elif [ "$mode" = scaling ]; then
+  timeout 200 python3 benchmarks/bench_cpu_scaling.py --repeat 3 2>&1 | tee "$OUT/scaling.log" | tail -12
 elif [ "$mode" = quick ]; then
   timeout 150 python3 -m pytest -q -p no:cacheprovider tests/gpu 2>&1 | tee "$OUT/pytest.log" | tail -25
   timeout 150 python3 benchmarks/bench_gpu.py --scale 0.5 --one-core none --repeat 2 --json "$OUT/bench_half.json" 2>&1 | tee "$OUT/bench_half.log"
