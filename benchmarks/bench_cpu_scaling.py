@@ -78,7 +78,7 @@ def main(argv=None) -> None:
         _triad(a, b, c, 0.5)
         rows["triad"].append(_best(lambda: _triad(a, b, c, 0.5), args.repeat))
         scipy.fft.fft(U[:64], axis=-1, workers=k)  # planned
-        rows["temporal FFT"].append(_best(lambda: scipy.fft.fft(U, axis=-1, workers=k), args.repeat))
+        rows["temporal FFT"].append(_best(lambda k=k: scipy.fft.fft(U, axis=-1, workers=k), args.repeat))
         nufft.evaluate(U[:64], grid, klat2[:64], kz, qw, 1500.0, 8e-9, 0.0, inversion=True)
         rows["interp"].append(_best(lambda: nufft.evaluate(U, grid, klat2, kz, qw, 1500.0, 8e-9, 0.0, inversion=True,
                                                            groups=groups), args.repeat))
