@@ -252,7 +252,8 @@ def method_options(method: str, options: dict) -> dict:
     method's options: an option that would do nothing is never silently dropped); a value
     outside its rule; ``c="auto"`` for a method whose own reconstruction cannot run the
     search (it takes no ``dz``, ``n_z``: ``kwave``); a ``c_range`` without ``c="auto"`` or
-    outside :func:`service.autofocus.check_c_range`. ``force`` (:func:`reconstruct`'s flag, not a
+    outside :func:`service.autofocus.check_c_range`; ``device="cuda"`` where no CUDA GPU is
+    visible (`service.recon.device.Unsuited`). ``force`` (:func:`reconstruct`'s flag, not a
     method's option) passes and is left out. Returns a new dict of the given values as
     checked (e.g. ``upsample`` an int).
 
@@ -286,7 +287,7 @@ def method_options(method: str, options: dict) -> dict:
     Traceback (most recent call last):
     ...
     service.recon.checks.OptionError: method 'ner' takes no option lam (its options: c, eps, dtype, upsample,
-    positivity, n_z, dz)
+    positivity, n_z, dz, device)
     >>> method_options("ner", {"c_range": (1450.0, 1600.0)})
     Traceback (most recent call last):
     ...
@@ -317,6 +318,10 @@ def method_options(method: str, options: dict) -> dict:
 
         check_c_range(options["c_range"])
     out = {k: getattr(checked, k) for k in given}
+    if out.get("device") == "cuda":  # refused at the door where no GPU is visible, as the server's admission does
+        from service.recon.device import choose
+
+        choose("cuda", 0)
     if options.get("c") is not None:
         out["c"] = options["c"]
     return out

@@ -37,7 +37,7 @@ from wire import models as wire
 
 __all__ = [
     "JobState", "JobKind", "ReconMethod", "Plane", "DATASET_FORMATS", "DatasetFormat", "ID_PATTERN", "LatticeIndex",
-    "Error", "DiskUse", "Health", "AuthInfo", "Deleted", "Retention", "MAX_LATTICE_POINTS", "Pitch", "Lattice",
+    "Error", "DiskUse", "ComputeDevice", "Health", "AuthInfo", "Deleted", "Retention", "MAX_LATTICE_POINTS", "Pitch", "Lattice",
     "PlanDocument", "PlanCreate", "MethodOption", "DatasetFormatInfo", "FormatInfo", "MethodInfo", "MaskKindInfo", "Plan",
     "PlanPreview", "JobProgress", "Attempt", "Timings", "Job", "ScanRequest", "Scanner", "PreviewInfo", "Dataset",
     "DatasetInfo", "ReconParams", "UnmixOptions", "ReconRequest",

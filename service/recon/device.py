@@ -28,6 +28,7 @@ from collections.abc import Callable, Iterator
 from types import ModuleType
 from typing import Any, TypeVar
 
+from driver.units import RefusedInput
 from service.recon.limits import DEFAULT_DEVICE, DEVICES
 
 __all__ = ["DEVICES", "DEFAULT_DEVICE", "Unsuited", "GpuError", "check_device", "cupy_module", "gpu_module", "cuda_devices",
@@ -43,10 +44,11 @@ _CUPY: list[ModuleType | None] = []  # [] not looked for yet; [None] none usable
 _HELD = [0]  # how deep this process holds the GPU's lock (a warm start inside a tv run takes it again)
 
 
-class Unsuited(ValueError):
+class Unsuited(RefusedInput):
     """``device="cuda"`` cannot run this request here: no GPU, a request the GPU path does not
-    cover, or more memory than the GPU has free (the message says which). Raised inside a GPU
-    run that ``"auto"`` chose, it sends the request to the CPU (:func:`run`)."""
+    cover, or more memory than the GPU has free (the message says which). A ValueError and a
+    refused input (CLI exit 2, HTTP 422). Raised inside a GPU run that ``"auto"`` chose, it
+    sends the request to the CPU (:func:`run`)."""
 
 
 class GpuError(RuntimeError):

@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 
 from service.pipeline import Cancelled, reconstruct
+from service.recon import device
 from service.recon import methods as registry
 from service.recon.dataset import GridDataset
 from tests.service.service_servers import needs_recon
@@ -64,6 +65,8 @@ def _cases() -> list[tuple[str, str, object, bool]]:
         schema = next(o["schema"] for o in registry.option_schemas(method) if o["name"] == name)
         inside, outside = _boundaries(schema)
         assert inside and outside, (name, schema)  # every option states its range or choices
+        if name == "device" and not device.cuda_devices():  # "cuda" is refused where no GPU is visible
+            inside, outside = [v for v in inside if v != "cuda"], [*outside, "cuda"]
         out += [(method.name, name, v, True) for v in inside] + [(method.name, name, v, False) for v in outside]
     return out
 

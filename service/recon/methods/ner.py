@@ -45,7 +45,7 @@ class Options(DeviceOption, DepthOptions, PositivityOption, UpsampleOption, Meth
     >>> from pydantic import ValidationError
     >>> from service.recon.methods.ner import Options
     >>> Options().model_dump()
-    {'eps': 1e-06, 'dtype': 'float32', 'upsample': 1, 'positivity': False, 'n_z': None, 'dz': None}
+    {'eps': 1e-06, 'dtype': 'float32', 'upsample': 1, 'positivity': False, 'n_z': None, 'dz': None, 'device': 'auto'}
     >>> try:
     ...     Options(eps=5e-15)
     ... except ValidationError as exc:

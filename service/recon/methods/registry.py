@@ -109,9 +109,9 @@ class Method:
     >>> from service.recon.methods import get
     >>> m = get("nedner")
     >>> m.name, m.needs_grid, m.options
-    ('nedner', False, ('c', 'eps', 'dtype', 'upsample', 'positivity', 'n_z', 'dz'))
+    ('nedner', False, ('c', 'eps', 'dtype', 'upsample', 'positivity', 'n_z', 'dz', 'device'))
     >>> m.defaults
-    {'eps': 1e-06, 'dtype': 'float32', 'upsample': 1, 'positivity': False}
+    {'eps': 1e-06, 'dtype': 'float32', 'upsample': 1, 'positivity': False, 'device': 'auto'}
     >>> m.check({"upsample": 2, "dz": "2e-5"}).dz  # m
     2e-05
     >>> m.check({"eps": 5e-15})
@@ -162,7 +162,7 @@ class Method:
         --------
         >>> from service.recon.methods import get
         >>> get("ner").check({"upsample": 2.0, "positivity": None}).model_dump()
-        {'eps': 1e-06, 'dtype': 'float32', 'upsample': 2, 'positivity': False, 'n_z': None, 'dz': None}
+        {'eps': 1e-06, 'dtype': 'float32', 'upsample': 2, 'positivity': False, 'n_z': None, 'dz': None, 'device': 'auto'}
         >>> get("ner").check({"lam": 0.1})
         Traceback (most recent call last):
         ...

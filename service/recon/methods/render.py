@@ -71,7 +71,7 @@ def option_schemas(method: Method | type[BaseModel]) -> list[dict[str, Any]]:
     >>> eps = option_schemas(get("ner"))[0]
     >>> eps["name"], eps["default"], eps["schema"]
     ('eps', 1e-06, {'maximum': 0.1, 'minimum': 1e-14, 'type': 'number', 'unit': '1'})
-    >>> dz = option_schemas(get("ner"))[-1]
+    >>> dz = option_schemas(get("ner"))[-2]
     >>> dz["default"], dz["schema"]["unit"], dz["schema"]["quantity"]  # None: derived (c dt)
     (None, 'm', 'length')
     """

@@ -19,7 +19,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-__all__: list[str] = []
+__all__ = ["Kernels", "array_kernels", "array_module"]
 
 
 class Kernels(NamedTuple):
