@@ -144,7 +144,7 @@ def warm_up(dtypes: Sequence[str]) -> None:
         pos = rng.uniform(0.0, (n - 1) * dx, (30, 2))
         grid = (np.arange(n) * dx, np.arange(n) * dx)
         reconstruct_points(rng.standard_normal((30, 32)).astype(d), pos, dt, weights=np.full(30, dx * dx),
-                           grid=grid, dtype=d)
+                           grid=grid, dtype=d, device="cpu")
 
 
 METHOD = Method("nedner", "NEDNER-NUFFT (any sensor mask)", False, Options, run,

@@ -195,8 +195,8 @@ def warm_up(dtypes: Sequence[str]) -> None:
     for d in dtypes:
         data = np.zeros((32, n, n), dtype=d)
         data[5, 3, 3] = 1.0
-        reconstruct_grid(data, dx, dt, dtype=d)
-        reconstruct_grid(np.tile(data[:, 0, :], (1, n)), dx, dt, dtype=d)  # a line of n * n sensors
+        reconstruct_grid(data, dx, dt, dtype=d, device="cpu")
+        reconstruct_grid(np.tile(data[:, 0, :], (1, n)), dx, dt, dtype=d, device="cpu")  # a line of n * n sensors
 
 
 METHOD = Method("ner", "NER-NUFFT (full regular grid)", True, Options, run,

@@ -535,7 +535,7 @@ def warm_up(dtypes: Sequence[str]) -> None:
 
     dx, dt = 1e-4, 2e-8
     for d in dtypes:  # the model-based operator runs its transforms in the working precision
-        op = PlanarOperator((4, 6, 6), dx, C_DEFAULT * dt, dt, 32, dtype=d)
+        op = PlanarOperator((4, 6, 6), dx, C_DEFAULT * dt, dt, 32, dtype=d, device="cpu")
         op.adjoint(op.forward(np.ones((4, 6, 6))))
         v = np.ones((4, 6, 6), dtype=d)  # the TV part's compiled sweeps (2-D images run as 3-D views)
         prox._tv_prox(v, 0.1, True, None, None)
