@@ -154,3 +154,31 @@ def test_the_gpu_lock_admits_one_process_and_nests_in_one() -> None:
         holder.wait(timeout=60)
     with device.gpu_lock(0, wait=False) as held, device.gpu_lock(0, wait=False) as again:
         assert held and again  # a warm start inside a tv run takes it again
+
+
+def test_tvs_model_on_the_gpu_branch_gives_the_cpu_branchs_products() -> None:
+    """tv's `_Model` with its operator pair on ``xp`` (the GPU branch: A, Aᵀ and P there) against
+    the compiled CPU branch, on NumPy: the same forward, B = P Aᵀ and residual."""
+    from driver.physics.forward import forward_points
+    from service.recon.tv.problem import _Model, _record, _warm_start
+
+    rng = np.random.default_rng(6)
+    p0 = np.zeros((10, 14, 16))
+    p0[4:6, 6:9, 7:10] = 1.0
+    positions = _lattice(rng, 14, 16, 1e-4, 0.4)
+    axes = ((np.arange(16) - 7.5) * 1e-4, (np.arange(14) - 6.5) * 1e-4)
+    al = forward_points(p0, positions=positions, dx=1e-4, dz=1e-4, dt=6e-8, n_t=40, c=C)
+    record = _record(al, 6e-8, C, None, positions, axes, bandwidth=None, dz=1e-4, n_z=10, t0=0.0,
+                     whole_record=True)
+    warm, centred = _warm_start(record, C, None, positions, None, axes, dtype=np.float32, t0=0.0, eps=1e-6,
+                                positivity=True, memory_limit=None, progress=None, device="cpu")
+    models = [_Model(record, warm, C, centred, t0=0.0, eps=1e-6, dtype=np.dtype(np.float32), periodic=False,
+                     checkpoint=None, memory_limit=None, device="cpu") for _ in range(2)]
+    on_xp = models[1]
+    on_xp.op._pair = gpu.OperatorPair(on_xp.op, np)  # the GPU branch, its arrays NumPy's
+    x = rng.standard_normal(warm.p0.shape).astype(np.float32)
+    r = rng.standard_normal(record.g.shape).astype(np.float32)
+    assert _rel(on_xp.forward(x), models[0].forward(x)) <= 2e-6
+    assert _rel(on_xp.B(r), models[0].B(r)) <= 2e-6
+    Ax = models[0].forward(x)
+    assert on_xp.residual(Ax) == pytest.approx(models[0].residual(Ax), rel=1e-6)
