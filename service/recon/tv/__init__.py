@@ -176,6 +176,12 @@ def reconstruct_tv(
         (the operator's checkpoints: `PlanarOperator` ``checkpoint``); it may raise to cancel
         (the pipeline's ``should_stop`` does), so a cancel acts within about a second even
         when one iteration takes minutes.
+    device : {"auto", "cpu", "cuda"}, optional
+        Where it runs (`service.recon.device`; default ``"auto"``: the GPU where CuPy sees one,
+        no other job holds it and the operator fits it). On the GPU the warm start, the operator
+        pair, the preconditioner and the solver's steps all run there (`service.recon.gpu`,
+        `service.recon.tv.kernels`); the operator needs the sensors on the image's lateral grid
+        nodes (a scan plan's lattice).
 
     Returns
     -------
@@ -195,7 +201,8 @@ def reconstruct_tv(
         record's), ``record_n_t`` (the record's samples kept: after them the model predicts
         silence), ``extent_reason`` ("image", "record"), ``operator_dt``, ``operator_n_t``,
         ``band`` (Hz, None: Nyquist), ``band_reason`` ("lateral", "declared", "nyquist"),
-        ``bandwidth`` (as declared).
+        ``bandwidth`` (as declared); ``device`` (``"cpu"``/``"cuda"``), with ``device_name`` and
+        ``device_fallback`` as `service.recon.device.run` gives them.
 
     Raises
     ------
@@ -203,7 +210,10 @@ def reconstruct_tv(
         Naming the problem: negative or non-finite λ, iterations < 1, NaN/inf data, grid
         data without ``dx``, weights of the wrong length, unequal x/y pitch, anything
         `reconstruct_grid` / `reconstruct_points` reject, estimated memory above the limit
-        (an out-of-range option is a ``service.recon.checks.OptionError``).
+        (an out-of-range option is a ``service.recon.checks.OptionError``); ``device="cuda"``
+        where the GPU cannot run it (`service.recon.device.Unsuited`).
+    service.recon.device.GpuError
+        The GPU failed during a ``device="cuda"`` run (``"auto"`` reruns on the CPU).
 
     References
     ----------
@@ -254,6 +264,7 @@ def reconstruct_tv(
     # the record at the band and on the grid the data can resolve
     record = _record(data, dt, c, dx, positions, grid, bandwidth=bandwidth, dz=dz, n_z=n_z, t0=t0,
                      whole_record=bool(whole_record))
+
     def solve(dev: str) -> Reconstruction:
         return _solve(record, dev, c=c, dx=dx, positions=positions, weights=weights, grid=grid, lam=lam,
                       positivity=positivity, max_iter=max_iter, tol=tol, rdtype=rdtype, eps=eps, t0=t0,
@@ -272,8 +283,8 @@ def reconstruct_tv(
 
 
 def _solve(record: _Record, dev: str, *, c: float, dx: float | None, positions: np.ndarray | None,
-           weights: np.ndarray | None, grid: np.ndarray | Sequence[npt.ArrayLike] | None, lam: float | None, positivity: bool, max_iter: int, tol: float,
-           rdtype: np.dtype, eps: float, t0: float, periodic: bool, memory_limit: int | None, time_limit: float,
+           weights: np.ndarray | None, grid: np.ndarray | Sequence[npt.ArrayLike] | None, lam: float | None,
+           positivity: bool, max_iter: int, tol: float, rdtype: np.dtype, eps: float, t0: float, periodic: bool, memory_limit: int | None, time_limit: float,
            debias: bool, bandwidth: float | None, whole_record: bool, continuation: bool, dt: float,
            report: _Reporter, started: float) -> Reconstruction:
     """`reconstruct_tv` on ``record`` from the warm start on, its operator pair on ``dev``
@@ -299,8 +310,9 @@ def _solve(record: _Record, dev: str, *, c: float, dx: float | None, positions: 
     first = [model.xp.asarray(_start_image(warm, rdtype, positivity))]  # handed over: _fista reuses its memory
     axes, warm_params = (warm.z, warm.x, warm.y), warm.params
     del warm  # its float64 image: the solver's x is a copy (float32) or that image itself
-    solved = _fista(model.forward, model.B, model.g_dev, first, rule if lam is None else lam, L, positivity, max_iter,
-                    tol, started, time_limit, report, model.residual, poll=report.poll, continuation=schedule)
+    solved = _fista(model.forward, model.B, model.g_dev, first, rule if lam is None else lam, L, positivity,
+                    max_iter, tol, started, time_limit, report, model.residual, poll=report.poll,
+                    continuation=schedule)
     debiased = bool(debias and solved.stop_reason != "time limit" and bool((solved.x > 0).any()))
     if debiased:  # the amplitudes refit at λ = 0 on tv's support, from tv's image (handed over)
         box = [solved]
