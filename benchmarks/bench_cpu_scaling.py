@@ -20,25 +20,22 @@ from __future__ import annotations
 
 import argparse
 import os
-import time
+import sys
+from pathlib import Path
 
 import numba
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bench_gpu import _best  # best of ``repeat`` calls, in s
 
 
 @numba.njit(parallel=True, cache=True)
 def _triad(a: np.ndarray, b: np.ndarray, c: np.ndarray, s: float) -> None:
     for i in numba.prange(a.size):
         a[i] = b[i] + s * c[i]
-
-
-def _best(fn, repeat: int) -> float:
-    best = np.inf
-    for _ in range(repeat):
-        t = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t)
-    return best
 
 
 def main(argv=None) -> None:
