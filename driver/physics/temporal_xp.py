@@ -3,9 +3,10 @@
 The same transform as `driver.physics.nufft` (its module doc has the formulas: the even-extended
 series' transform E(ω) = Σ_n a_n 2 cos(ω t_n) at ω = c |k| of every k-space column, as a 1-D
 type-2 NUFFT with FINUFFT's "exponential of semicircle" kernel, and its adjoint), written once
-with the operations NumPy and CuPy share (``xp``: the array module, ``numpy`` or ``cupy``), so
-that the GPU path (`service.recon.gpu`) and the CPU's small-transform path run the same
-arithmetic and cannot drift. The taps are computed on ``xp`` per column group (columns of equal
+with the operations NumPy and CuPy share (``xp``: the array module, ``numpy`` or ``cupy``): the
+GPU path (`service.recon.gpu`) runs it on CuPy, and the tests run the same code on NumPy against
+the CPU's compiled kernels (`tests/recon/test_gpu_path_on_numpy.py`: 1e-12 in float64), so a
+change to either shows there. The taps are computed on ``xp`` per column group (columns of equal
 |k_lat|² share them, `driver.physics.nufft.group_columns`) in float64 with the polynomials of
 `driver.physics.nufft.kernel_polynomials`; the sums run one tap at a time over every column and
 kz together (memory: a few (n_cols, n_kz) arrays, never (n_cols, n_kz, w)).
