@@ -11,7 +11,16 @@
 # the CLI and HTTP checks (at most 9 minutes: the steps' timeouts); service: the CLI and HTTP
 # checks alone; profile: a profile of tv on the CPU (benchmarks/profile_tv_cpu.py); scaling: how
 # NER's CPU parts scale with cores (benchmarks/bench_cpu_scaling.py).
-# Python packages the machine lacks travel as wheels in .whl/ (README "GPU"), installed first.
+# Python packages the machine lacks travel as wheels in .whl/ (README "GPU"), installed first. The
+# device tool's H100/H200 image (Python 3.12, numpy, scipy, numba, h5py, CuPy) lacked these; fill
+# .whl/ (git ignores it) before the first call:
+#   python3 -m pip download --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
+#     --platform manylinux_2_28_x86_64 --platform manylinux_2_17_x86_64 --platform manylinux2014_x86_64 \
+#     --platform manylinux1_x86_64 --platform any -d .whl finufft pylops pyproximal pydantic pydantic_core \
+#     pydantic-settings annotated-types typing-inspection fastapi starlette uvicorn python-multipart \
+#     sse-starlette python-dotenv distributed dask partd locket tblib zict tornado pyserial cobs pint \
+#     flexcache flexparser platformdirs httpx-sse httptools websockets opentelemetry-api sniffio watchfiles
+# (the versions this project's .venv holds: `.venv/bin/pip freeze`).
 set -u
 mode=${1:-quick}
 OUT=${OUT:-/tmp/gpu-check}
