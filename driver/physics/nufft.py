@@ -38,6 +38,7 @@ import functools
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from types import ModuleType
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -48,7 +49,7 @@ from driver.physics.grid_sizes import KINDS, grid_length, kernel_params
 __all__ = [
     "KINDS", "TemporalGrid", "kernel_params", "es_kernel", "kernel_polynomials", "grid_length", "make_grid",
     "transpose", "gather_columns", "scatter_columns", "to_fine_grid", "from_fine_grid", "group_columns",
-    "evaluate", "spread",
+    "evaluate", "spread", "group_tap_arrays",
 ]
 
 _KIND_CODE = {"nufft": 0, "linear": 1, "nearest": 2}
@@ -559,32 +560,8 @@ def _interp_small(U: np.ndarray, gvals: np.ndarray, gptr: np.ndarray, order: np.
     taps (`nufft_kernels.group_taps`, per column group, float64) and the same sums, every
     column and kz at once. Memory: (n_cols, n_kz, w) weights, bounded by the caller's
     size test."""
-    L, w, h = grid.L, grid.w, 2.0 * np.pi / grid.L
-    om = c * np.sqrt(gvals[:, None] + kz[None, :] ** 2)  # (n_groups, n_kz)
-    th = om * dt
-    sc = np.broadcast_to(qw, om.shape)
-    if inversion:
-        # k_z / omega (1/c at omega = 0); zero from the first kz above the temporal Nyquist on
-        sc = sc * np.where(om > 0.0, kz / np.where(om > 0.0, om, 1.0), 1.0 / c)
-        sc = sc * np.logical_and.accumulate(th <= np.pi * (1.0 + 1e-12), axis=1)
-    s = th / h
-    if grid.kind == "nufft":
-        b = np.ceil(s - 0.5 * w)
-        t = 2.0 * (b - s + 0.5 * w) - 1.0
-        wts = np.empty((w,) + s.shape)
-        for k in range(w):  # the tap polynomials by Horner's rule (`kernel_polynomials`)
-            row = np.full(s.shape, grid.horner[k, 0])
-            for d in range(1, grid.horner.shape[1]):
-                row = row * t + grid.horner[k, d]
-            wts[k] = row
-    elif grid.kind == "linear":
-        b = np.floor(s)
-        wts = np.stack([1.0 - (s - b), s - b])
-    else:
-        b = np.floor(s + 0.5)
-        wts = np.ones((1,) + s.shape)
-    ph = grid.shift * th + om * t0
-    ar, ai = sc * np.cos(ph), sc * np.sin(ph)
+    L, w = grid.L, grid.w
+    b, wts, ar, ai = group_tap_arrays(np, grid, gvals, kz, qw, c, dt, t0, inversion)
     group = np.empty(len(order), np.int64)  # each column's group
     group[order] = np.repeat(np.arange(len(gvals)), np.diff(gptr))
     idx = (b.astype(np.int64)[group][:, :, None] + np.arange(w)) % L  # (n_cols, n_kz, w)
@@ -593,6 +570,77 @@ def _interp_small(U: np.ndarray, gvals: np.ndarray, gptr: np.ndarray, order: np.
     p1 = (wc * U[rows, idx]).sum(axis=-1)  # S(+θ) and S(-θ)
     p2 = (wc * U[rows, (L - idx) % L]).sum(axis=-1)
     out[...] = ar[group] * (p1 + p2) - 1j * ai[group] * (p1 - p2)
+
+
+def group_tap_arrays(xp: ModuleType, grid: TemporalGrid, gvals: Any, kz: Any, qw: Any, c: float, dt: float,
+                     t0: float, inversion: bool) -> tuple[Any, Any, Any, Any]:
+    """The taps of every column group at every kz as whole arrays on ``xp`` (``numpy``, or
+    ``cupy`` for `driver.physics.temporal_xp`): the formulas of the compiled
+    `nufft_kernels.group_taps`, in float64, for `_interp_small` and the GPU path alike.
+
+    Parameters
+    ----------
+    xp : module
+        ``numpy`` or ``cupy``; the arrays below are of it.
+    grid : TemporalGrid
+        Any kind (`make_grid`).
+    gvals : array ``(n_groups,)``
+        |k_lat|² of each column group, rad²/m².
+    kz, qw : array ``(n_kz,)``
+        Depth wavenumbers in rad/m (ascending for an inversion) and their weights.
+    c, dt, t0 : float
+        Sound speed (m/s), sample interval and time of sample 0 (s).
+    inversion : bool
+        Multiply by k_z/ω (1/c at ω = 0) and zero from the first kz above the temporal Nyquist
+        π/dt on; else by ``qw`` only.
+
+    Returns
+    -------
+    base : array ``(n_groups, n_kz)`` float64
+        The first tap's fine-grid index, before wrapping modulo ``grid.L``.
+    weights : array ``(w, n_groups, n_kz)`` float64
+        The taps' weights (nufft: the polynomials of `kernel_polynomials`; linear: the
+        fractions; nearest: ones).
+    ar, ai : array ``(n_groups, n_kz)`` float64
+        The weight times cos / sin of φ = shift θ + ω t0, the +θ evaluation's phase.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from driver.physics.nufft import group_tap_arrays, make_grid
+    >>> grid = make_grid(32, "nufft", 1e-10)
+    >>> base, weights, ar, ai = group_tap_arrays(np, grid, np.zeros(1), np.array([0.0, 1e4]), np.ones(2),
+    ...                                          1500.0, 1e-8, 0.0, False)
+    >>> base.shape, weights.shape, bool(np.allclose(ar**2 + ai**2, 1.0))  # |qw e^{iφ}| = qw = 1
+    ((1, 2), (11, 1, 2), True)
+    """
+    w, h = grid.w, 2.0 * np.pi / grid.L
+    om = c * xp.sqrt(gvals[:, None] + kz[None, :] ** 2)  # (n_groups, n_kz) rad/s
+    th = om * dt
+    sc = xp.broadcast_to(qw, om.shape)
+    if inversion:
+        # k_z / omega (1/c at omega = 0); zero from the first kz above the temporal Nyquist on
+        positive = om > 0.0
+        sc = sc * xp.where(positive, kz / xp.where(positive, om, 1.0), 1.0 / c)
+        sc = sc * (xp.cumprod((th <= np.pi * (1.0 + 1e-12)).astype(np.int8), axis=1) > 0)
+    s = th / h
+    if grid.kind == "nufft":
+        b = xp.ceil(s - 0.5 * w)
+        t = 2.0 * (b - s + 0.5 * w) - 1.0
+        wts = xp.empty((w,) + s.shape)
+        for k in range(w):  # the tap polynomials by Horner's rule (`kernel_polynomials`)
+            row = xp.full(s.shape, float(grid.horner[k, 0]))
+            for d in range(1, grid.horner.shape[1]):
+                row = row * t + float(grid.horner[k, d])
+            wts[k] = row
+    elif grid.kind == "linear":
+        b = xp.floor(s)
+        wts = xp.stack([1.0 - (s - b), s - b])
+    else:
+        b = xp.floor(s + 0.5)
+        wts = xp.ones((1,) + s.shape)
+    ph = grid.shift * th + om * t0
+    return b, wts, sc * xp.cos(ph), sc * xp.sin(ph)
 
 
 def _group_chunks(n_groups: int, n_chunks: int, work: int,

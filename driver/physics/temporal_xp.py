@@ -23,7 +23,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from driver.physics.nufft import TemporalGrid, group_columns
+from driver.physics.nufft import TemporalGrid, group_columns, group_tap_arrays
 
 __all__ = ["Taps", "taps", "evaluate", "spread", "to_fine_grid", "from_fine_grid", "dct1"]
 
@@ -57,8 +57,8 @@ def taps(xp: ModuleType, grid: TemporalGrid, klat2: np.ndarray, kz: np.ndarray, 
          dt: float, t0: float, inversion: bool, real_dtype: Any) -> Taps:
     """The taps of `evaluate` / `spread` for columns of |k_lat|² ``klat2``, on ``xp``.
 
-    The formulas of `driver.physics.nufft_kernels.group_taps` (the compiled kernels' taps),
-    in float64, the weights and phases then cast to ``real_dtype``'s precision.
+    `driver.physics.nufft.group_tap_arrays` per column group (the compiled kernels' formulas,
+    in float64), the weights and phases then cast to ``real_dtype``'s precision.
 
     Parameters
     ----------
@@ -95,32 +95,13 @@ def taps(xp: ModuleType, grid: TemporalGrid, klat2: np.ndarray, kz: np.ndarray, 
     gvals_h, gptr, order = group_columns(klat2)
     group_h = np.empty(len(order), np.int64)
     group_h[order] = np.repeat(np.arange(len(gvals_h)), np.diff(gptr))
-    L, w = grid.L, grid.w
-    gvals, kzd, qwd = xp.asarray(gvals_h), xp.asarray(kz_h), xp.asarray(np.asarray(qw, np.float64))
-    om = c * xp.sqrt(gvals[:, None] + kzd[None, :] ** 2)  # (n_groups, n_kz) rad/s
-    th = om * dt
-    sc = xp.broadcast_to(qwd, om.shape)
-    if inversion:
-        positive = om > 0.0
-        sc = sc * xp.where(positive, kzd / xp.where(positive, om, 1.0), 1.0 / c)
-        below = (th <= np.pi * (1.0 + 1e-12)).astype(np.int8)
-        sc = sc * (xp.cumprod(below, axis=1) > 0)  # zero from the first kz above the Nyquist on
-    s = th / (2.0 * np.pi / L)
-    base = xp.ceil(s - 0.5 * w)
-    t = 2.0 * (base - s + 0.5 * w) - 1.0
-    horner = xp.asarray(grid.horner)
+    base, weights, ar, ai = group_tap_arrays(xp, grid, xp.asarray(gvals_h), xp.asarray(kz_h),
+                                              xp.asarray(np.asarray(qw, np.float64)), c, dt, t0, inversion)
     rdtype = np.dtype(real_dtype)
-    weights = xp.empty((w,) + s.shape, dtype=rdtype)
-    for k in range(w):  # the tap polynomials by Horner's rule (`nufft.kernel_polynomials`)
-        row = xp.full(s.shape, float(grid.horner[k, 0]))
-        for d in range(1, horner.shape[1]):
-            row = row * t + float(grid.horner[k, d])
-        weights[k] = row
-    ph = grid.shift * th + om * t0
-    ctype = np.result_type(rdtype, np.complex64)
-    phase = (sc * xp.cos(ph) + 1j * (sc * xp.sin(ph))).astype(ctype)
+    phase = (ar + 1j * ai).astype(np.result_type(rdtype, np.complex64))
+    del ar, ai
     group = xp.asarray(group_h)
-    return Taps(base.astype(np.int64)[group], weights, phase, group, L)
+    return Taps(base.astype(np.int64)[group], weights.astype(rdtype), phase, group, grid.L)
 
 
 def evaluate(xp: ModuleType, U: Any, tp: Taps) -> Any:

@@ -169,12 +169,13 @@ def probe_devices(timeout: float = 120.0) -> list[dict[str, Any]]:
     list of dict
         ``index``, ``name``, ``memory_total`` (bytes) per device.
     """
+    import importlib.util
     import json
     import subprocess
     import sys
 
-    if os.environ.get("FPSCAN_NO_GPU", "") in ("1", "true", "yes"):
-        return []
+    if os.environ.get("FPSCAN_NO_GPU", "") in ("1", "true", "yes") or importlib.util.find_spec("cupy") is None:
+        return []  # no child where CuPy is not even installed (a CPU install)
     try:
         done = subprocess.run([sys.executable, "-c", _PROBE], capture_output=True, text=True, timeout=timeout,
                               cwd=os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))

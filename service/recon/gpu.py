@@ -30,7 +30,7 @@ from driver.physics import nufft
 from driver.physics import temporal_xp as txp
 from driver.physics.lateral import pad_spectrum
 
-__all__ = ["clear_cache", "inversion_peak", "operator_peak", "invert", "OperatorPair", "apply_ner_weight"]
+__all__ = ["clear_cache", "inversion_peak", "operator_peak", "invert", "OperatorPair"]
 
 _TAPS: dict[tuple, txp.Taps] = {}  # the last inversions' taps on the GPU (NER applied again: no set-up)
 _CACHE_SIZE = 2
@@ -101,7 +101,7 @@ def operator_peak(op: Any) -> int:
     return int(1.25 * (taps + work + 2 * vol))
 
 
-def _cached_taps(xp: ModuleType, key: tuple, make: Any) -> txp.Taps:
+def _cached_taps(key: tuple, make: Any) -> txp.Taps:
     """The taps of ``key`` from the cache, made by ``make()`` on a miss."""
     tp = _TAPS.get(key)
     if tp is None:
@@ -158,7 +158,7 @@ def invert(xp: ModuleType, A: Any, n_x: int, dx: float, dy: float, dt: float, c:
         qw = np.full(n_work, c * c * dt * dk / np.pi)
         return txp.taps(xp, grid, klat2, kz, qw, c, dt, t0, True, rdtype)
 
-    tp = _cached_taps(xp, (xp.__name__, "invert", n_t, n_y, n_x, dx, dy, dt, c, n_work, dz, t0, eps, rdtype.name),
+    tp = _cached_taps((xp.__name__, "invert", n_t, n_y, n_x, dx, dy, dt, c, n_work, dz, t0, eps, rdtype.name),
                       make)
     U = txp.to_fine_grid(xp, A.reshape(n_t, n_y * n_xr).T.astype(ctype, copy=False), grid, t0 == 0)
     F = txp.evaluate(xp, U, tp)  # (n_cols, n_work)
@@ -310,33 +310,3 @@ class OperatorPair:
         p = self._inverse(K.reshape(n_z, n_y2, n_x2 // 2 + 1))
         p = p[:, 0, :] if op.is2d else p
         return xp.ascontiguousarray(p.astype(rd, copy=False))
-
-
-def apply_ner_weight(xp: ModuleType, P: Any, x: Any) -> Any:
-    """`service.recon.tv.preconditioner._apply_weight` on ``xp``: NER's k-space weight k_z / |k|
-    on the orthonormal DCT-II of ``x`` zero-padded to ``P.shape``, cropped back (a new array of
-    x's dtype; ``x`` is not modified).
-
-    Parameters
-    ----------
-    xp : module
-        ``cupy`` (its ``cupyx.scipy.fft``) or ``numpy`` (``scipy.fft``).
-    P : service.recon.tv.preconditioner._NerWeight
-        The weight's axes (``kz``, ``lat2``, ``shape``).
-    x : array ``(n_z, n_x)`` or ``(n_z, n_y, n_x)``
-
-    Returns
-    -------
-    array of x's shape and dtype.
-    """
-    if xp is np:
-        import scipy.fft as sfft
-    else:
-        import cupyx.scipy.fft as sfft
-    pad = [(0, N - n) for N, n in zip(P.shape, x.shape)]
-    c = sfft.dctn(xp.pad(x, pad), type=2, norm="ortho")
-    kz = xp.asarray(P.kz)[:, None, None]
-    weight = kz / xp.sqrt(kz * kz + xp.asarray(P.lat2)[None])
-    c = c.reshape(P.shape[0], P.lat2.shape[0], P.shape[-1]) * weight.astype(c.dtype)
-    c = sfft.idctn(c.reshape(P.shape), type=2, norm="ortho")
-    return xp.ascontiguousarray(c[tuple(slice(0, n) for n in x.shape)].astype(x.dtype, copy=False))

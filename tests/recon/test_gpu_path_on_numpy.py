@@ -17,7 +17,7 @@ from driver.physics.fast_lengths import fast_lateral
 from service.recon import device, gpu
 from service.recon.operator import PlanarOperator
 from service.recon.planar import reconstruct_grid
-from service.recon.tv.preconditioner import _apply_weight, _ner_weight
+from service.recon.tv.preconditioner import _apply_weight, _apply_weight_on, _ner_weight
 
 C = 1500.0
 
@@ -114,7 +114,7 @@ def test_ner_weight_matches_the_preconditioner(shape: tuple) -> None:
     rng = np.random.default_rng(4)
     P = _ner_weight(shape, 1e-4, 6e-5)
     x = rng.standard_normal(shape).astype(np.float32)
-    got = gpu.apply_ner_weight(np, P, x)
+    got = _apply_weight_on(np, P, x)
     assert got.dtype == np.float32
     assert _rel(got, _apply_weight(P, x.copy())) <= 2e-6
 

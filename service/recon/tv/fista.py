@@ -241,7 +241,7 @@ def _moves(xn: np.ndarray, v: np.ndarray, gy: np.ndarray, inv_l: float, b_last: 
 
 #: the CPU's kernel set (`service.recon.tv.kernels`): the numba kernels here and in
 #: `service.recon.tv.prox` / `service.recon.tv.stores`
-_COMPILED = Kernels("cpu", np.ascontiguousarray, lambda n: np.zeros(n, dtype=np.int16),
+_COMPILED = Kernels(np.ascontiguousarray, lambda n: np.zeros(n, dtype=np.int16),
                     lambda a, b: np.subtract(a, b, dtype=a.dtype), _axpy, _moves, _store_move, _extrapolate_fixed,
                     _store_gradient, _gain_lower_bound, _tv_norm, _tv_prox_stored,
                     lambda x, support: np.where(support, x, 0).astype(x.dtype))

@@ -26,7 +26,6 @@ class Kernels(NamedTuple):
     """The whole-image operations of tv's solver (module doc), each as the compiled set's
     function of the same name documents it (flat views where that one takes them)."""
 
-    name: str
     contiguous: Callable[[Any], Any]
     zeros_move: Callable[[int], Any]
     subtract: Callable[[Any, Any], Any]
@@ -210,7 +209,7 @@ def array_kernels(xp: ModuleType) -> Kernels:
     Kernels
     """
     k = _ArrayKernels(xp)
-    return Kernels(xp.__name__, xp.ascontiguousarray, lambda n: xp.zeros(n, dtype=np.int16),
+    return Kernels(xp.ascontiguousarray, lambda n: xp.zeros(n, dtype=np.int16),
                    lambda a, b: xp.subtract(a, b, dtype=a.dtype), k.axpy, k.moves, k.store_move,
                    k.extrapolate_fixed, k.store_gradient, k.gain_lower_bound, k.tv_norm, k.tv_prox_stored,
                    lambda x, support: xp.where(support, x, 0).astype(x.dtype))

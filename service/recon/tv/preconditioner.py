@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import NamedTuple
+from types import ModuleType
+from typing import Any, NamedTuple
 
 import numba
 import numpy as np
@@ -79,7 +80,11 @@ def _apply_weight(P: _NerWeight, x: np.ndarray) -> np.ndarray:
     """P x: the multiplier ``P`` (`_ner_weight`, on the padded grid ``P.shape``) on the
     orthonormal DCT-II of ``x`` zero-padded to that grid (all axes), cropped back; ``x`` is
     overwritten and returned, in its dtype (the transform runs in place when no axis is
-    padded)."""
+    padded). A GPU run's image (CuPy) takes `_apply_weight_on` (a new array there)."""
+    if not isinstance(x, np.ndarray):
+        from service.recon.tv.kernels import array_module
+
+        return _apply_weight_on(array_module(x), P, x)
     pad = [(0, N - n) for N, n in zip(P.shape, x.shape)]
     padded = any(after for _, after in pad)
     c = scipy.fft.dctn(np.pad(x, pad) if padded else x, type=2, norm="ortho", workers=-1, overwrite_x=True)
@@ -90,3 +95,34 @@ def _apply_weight(P: _NerWeight, x: np.ndarray) -> np.ndarray:
         return c
     x[...] = c[tuple(slice(0, n) for n in x.shape)]
     return x
+
+
+def _apply_weight_on(xp: ModuleType, P: _NerWeight, x: Any) -> Any:
+    """`_apply_weight` on ``xp`` (a GPU run's arrays; the tests run it on NumPy): NER's k-space weight k_z / |k|
+    on the orthonormal DCT-II of ``x`` zero-padded to ``P.shape``, cropped back (a new array of
+    x's dtype; ``x`` is not modified).
+
+    Parameters
+    ----------
+    xp : module
+        ``cupy`` (its ``cupyx.scipy.fft``) or ``numpy`` (``scipy.fft``).
+    P : _NerWeight
+        The weight's axes (``kz``, ``lat2``, ``shape``).
+    x : array ``(n_z, n_x)`` or ``(n_z, n_y, n_x)``
+
+    Returns
+    -------
+    array of x's shape and dtype.
+    """
+    sfft: Any = scipy.fft
+    if xp is not np:
+        import cupyx.scipy.fft  # a GPU run's only
+
+        sfft = cupyx.scipy.fft
+    pad = [(0, N - n) for N, n in zip(P.shape, x.shape)]
+    c = sfft.dctn(xp.pad(x, pad), type=2, norm="ortho")
+    kz = xp.asarray(P.kz)[:, None, None]
+    weight = kz / xp.sqrt(kz * kz + xp.asarray(P.lat2)[None])
+    c = c.reshape(P.shape[0], P.lat2.shape[0], P.shape[-1]) * weight.astype(c.dtype)
+    c = sfft.idctn(c.reshape(P.shape), type=2, norm="ortho")
+    return xp.ascontiguousarray(c[tuple(slice(0, n) for n in x.shape)].astype(x.dtype, copy=False))

@@ -205,10 +205,7 @@ class _Model:
         self.applied[1] += 1
         pair = self.op._pair
         if pair is not None:  # on the GPU: Aᵀ and P there, the image stays there
-            from service.recon.gpu import apply_ner_weight
-
-            image = pair.adjoint(pair.xp.asarray(r, dtype=self.dtype).reshape(self.op.oshape))
-            return apply_ner_weight(pair.xp, self.P, image)
+            return _apply_weight(self.P, pair.adjoint(pair.xp.asarray(r, dtype=self.dtype).reshape(self.op.oshape)))
         return _apply_weight(self.P, self.op.rmatvec(r.astype(self.dtype, copy=False).ravel()).reshape(self.shape))
 
     def forward(self, v: np.ndarray) -> np.ndarray:
