@@ -14,7 +14,7 @@ Cases (``--cases``):
 Masks (``--masks``): equi-steradian (3-D) / equiangular (2-D) masks of 4 % and 11 % of the lattice
 (`service.plans.equisteradian_mask` / `equiangular_mask`) around a point of interest under the
 lattice centre at the depth of p0's centroid (the paper's case: its balls' 3.6 mm × scale). Noise
-(``--noise``): white, seeded, relative to the peak (k-Wave's ``addNoise(..., 'peak')``: σ =
+(``--noise``): white, seeded (``--seed``, default 0), relative to the peak (k-Wave's ``addNoise(..., 'peak')``: σ =
 max|clean| / 10^(SNR/20)) at 20, 30 and 40 dB, and relative to the RMS at 30 dB
 (`service.experiments.dense.add_noise`), over the dense record; the sparse scan is its mask's
 A-lines of it.
@@ -35,7 +35,8 @@ Per row:
 - tv's band and why, its image grid, the record kept, operator pairs, iterations, λ / image noise,
   converged;
 - with ``--rule``: tv's CC after 300 iterations at its own λ and grid (``tol`` 0; issue 59 item 6);
-- with ``--sweep``: tv's CC at λ × 2^k, k = -3..3, each to the stopping rule (issue 59 item 3).
+- with ``--sweep``: tv's CC at λ × 2^k, k = -3..3, each to the stopping rule (issue 59 item 3), and
+  on the vessel tree the thin segments seen at each.
 
 The gate (issue 59 item 4): tv >= ref − 0.005 on every row; tv >= NER wherever ref >= NER; on
 the vessel tree at 11 % / 30 dB peak and at 4 % / 20 dB peak, seen >= 95 % and amp >= 0.85; with
@@ -45,7 +46,8 @@ tv's <= 0.01. Rows run in ``--jobs`` processes, the strongest noise and the spar
 ``tests/recon/test_tv_quality_gate.py`` runs the CI subset (vessels and balls, 4 %, 20 dB peak).
 
     .venv/bin/python benchmarks/bench_tv_matrix.py [--cases vessels balls points paper]
-        [--masks 4 11] [--noise peak20 peak30 peak40 rms30] [--rule] [--sweep] [--jobs 2] [--json out.jsonl]
+        [--masks 4 11] [--noise peak20 peak30 peak40 rms30] [--rule] [--sweep] [--seed 0] [--jobs 2]
+        [--json out.jsonl]
 """
 from __future__ import annotations
 
@@ -171,9 +173,9 @@ def amplitude(image: np.ndarray, p0: np.ndarray) -> float:
 
 
 def run_row(name: str, percent: int, noise: str, rule: bool = False, case: dict | None = None,
-            sweep: bool = False, reference: bool = True) -> dict:
+            sweep: bool = False, reference: bool = True, seed: int = 0) -> dict:
     """One row of the matrix (module doc): a dict of figures (without ``reference``: no ref run,
-    the CI subset's row)."""
+    the CI subset's row; ``seed``: the noise's)."""
     from driver.physics import ball_p0
     from driver.physics.axes import centred_axis
     from service.metrics import correlation_coefficient
@@ -183,7 +185,7 @@ def run_row(name: str, percent: int, noise: str, rule: bool = False, case: dict 
     from service.recon.methods.tv import BANDWIDTH_KEY
 
     case = load_case(name) if case is None else case
-    data = noisy(case["clean"], noise)
+    data = noisy(case["clean"], noise, seed)
     mask = make_mask(case, percent)
     dt, dx, c = case["dt"], case["dx"], case["c"]
     two_d = data.ndim == 2
@@ -206,7 +208,7 @@ def run_row(name: str, percent: int, noise: str, rule: bool = False, case: dict 
     dense = GridDataset(data=data, dt=dt, c=c, dx=dx)
     ner_opts = grid_opts or {"dz": float(tv.z[1] - tv.z[0]), "n_z": len(tv.z)}
     ner = reconstruct_grid(dense.data, dx, dt, c, dtype=np.float32, **ner_opts).p0
-    row = dict(case=name, mask=percent, points=len(pos), noise=noise,
+    row = dict(case=name, mask=percent, points=len(pos), noise=noise, seed=seed,
                tv=correlation_coefficient(tv.p0, truth), ner=correlation_coefficient(np.maximum(ner, 0), truth),
                amp=amplitude(tv.p0, truth), band=p["band"], band_reason=p["band_reason"], grid=list(tv.p0.shape),
                dz=float(tv.z[1] - tv.z[0]), record=p["record_n_t"], n_t=int(data.shape[0]),
@@ -229,10 +231,14 @@ def run_row(name: str, percent: int, noise: str, rule: bool = False, case: dict 
         long = reconstruct(scan, "tv", dtype="float32", lam=p["lam"], max_iter=300, tol=0.0, **grid_opts)
         row["cc300"] = correlation_coefficient(long.p0, truth)
     if sweep:  # the automatic λ against λ x 2^k, k = -3..3 (issue 59 item 3), each to the stopping rule
-        row["sweep"] = {}
+        row["sweep"], seen = {}, {}
         for k in range(-3, 4):
             r = tv if k == 0 else reconstruct(scan, "tv", dtype="float32", lam=p["lam"] * 2.0**k, **grid_opts)
             row["sweep"][k] = correlation_coefficient(r.p0, truth)
+            if lines is not None:
+                seen[k], _ = thin_segments_seen(r.p0, lines, case["radius_voxels"])
+        if seen:
+            row["sweep_seen"] = seen
     return row
 
 
@@ -264,6 +270,8 @@ def format_row(r: dict) -> str:
     rule = f" | {r['cc300']:.4f}" if "cc300" in r else ""
     if "sweep" in r:
         rule += " | " + " ".join(f"{r['sweep'][k]:.4f}" for k in sorted(r["sweep"], key=int))
+        if "sweep_seen" in r:  # the vessel tree's thin segments seen at each λ
+            rule += " (seen " + " ".join(f"{r['sweep_seen'][k]:.0%}" for k in sorted(r["sweep_seen"], key=int)) + ")"
     fails = gate(r)
     return (f"| {r['case']} | {r['mask']} % ({r['points']}) | {r['noise']} | {r['tv']:.4f} | {ref} | "
             f"{r['ner']:.4f} | {seen} | {r['amp']:.2f} | {band} ({r['band_reason']}) | "
@@ -277,8 +285,8 @@ HEADER = ("| case | mask | noise | tv CC | ref CC | NER CC | thin seen (ref, NER
 
 
 def _worker(args: tuple) -> dict:
-    name, percent, noise, rule, sweep = args
-    return run_row(name, percent, noise, rule, sweep=sweep)
+    name, percent, noise, rule, sweep, seed = args
+    return run_row(name, percent, noise, rule, sweep=sweep, seed=seed)
 
 
 def main(argv=None) -> int:
@@ -289,18 +297,19 @@ def main(argv=None) -> int:
     ap.add_argument("--rule", action="store_true", help="also a 300-iteration solve at tv's λ per row (slow)")
     ap.add_argument("--sweep", action="store_true",
                     help="also tv at λ x 2^k, k = -3..3, per row: the automatic λ's loss (slow)")
+    ap.add_argument("--seed", type=int, default=0, help="the noise's seed")
     ap.add_argument("--jobs", type=int, default=2, help="rows in parallel (processes)")
     ap.add_argument("--json", type=Path, default=None,
                     help="append each row as a JSON line; rows already there are printed, not run again")
     args = ap.parse_args(argv)
     # every case first at the strongest noise and the sparser mask: the rows that decide the gate soonest
-    todo = [(c, m, n, args.rule, args.sweep) for n in args.noise for m in args.masks for c in args.cases]
+    todo = [(c, m, n, args.rule, args.sweep, args.seed) for n in args.noise for m in args.masks for c in args.cases]
     done = []
     if args.json and args.json.is_file():  # rows measured before (the same options): printed, not run again
         asked = {t[:3] for t in todo}
         done = [r for r in map(json.loads, args.json.read_text().splitlines())
                 if ("cc300" in r) == args.rule and ("sweep" in r) == args.sweep
-                and (r["case"], r["mask"], r["noise"]) in asked]
+                and r.get("seed", 0) == args.seed and (r["case"], r["mask"], r["noise"]) in asked]
         keys = {(r["case"], r["mask"], r["noise"]) for r in done}
         todo = [t for t in todo if t[:3] not in keys]
     print(HEADER + (" 300 it CC |" if args.rule else "") + (" CC at λ x 1/8 ... 8 |" if args.sweep else ""))
