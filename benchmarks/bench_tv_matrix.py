@@ -46,7 +46,7 @@ tv's <= 0.01. Rows run in ``--jobs`` processes, the strongest noise and the spar
 ``tests/recon/test_tv_quality_gate.py`` runs the CI subset (vessels and balls, 4 %, 20 dB peak).
 
     .venv/bin/python benchmarks/bench_tv_matrix.py [--cases vessels balls points paper]
-        [--masks 4 11] [--noise peak20 peak30 peak40 rms30] [--rule] [--sweep] [--seed 0] [--jobs 2]
+        [--masks 4 11] [--noise peak20 peak30 peak40 rms30] [--rule] [--sweep] [--seed 0] [--no-reference] [--jobs 2]
         [--json out.jsonl]
 """
 from __future__ import annotations
@@ -228,7 +228,7 @@ def run_row(name: str, percent: int, noise: str, rule: bool = False, case: dict 
         if lines is not None:
             row["ref_seen"], _ = thin_segments_seen(ref.p0, lines, case["radius_voxels"])
     if rule:
-        long = reconstruct(scan, "tv", dtype="float32", lam=p["lam"], max_iter=300, tol=0.0, **grid_opts)
+        long = reconstruct(scan, "tv", dtype="float32", lam=p["lam"], iterations=300, tol=0.0, **grid_opts)
         row["cc300"] = correlation_coefficient(long.p0, truth)
     if sweep:  # the automatic λ against λ x 2^k, k = -3..3 (issue 59 item 3), each to the stopping rule
         row["sweep"], seen = {}, {}
@@ -285,8 +285,8 @@ HEADER = ("| case | mask | noise | tv CC | ref CC | NER CC | thin seen (ref, NER
 
 
 def _worker(args: tuple) -> dict:
-    name, percent, noise, rule, sweep, seed = args
-    return run_row(name, percent, noise, rule, sweep=sweep, seed=seed)
+    name, percent, noise, rule, sweep, seed, reference = args
+    return run_row(name, percent, noise, rule, sweep=sweep, seed=seed, reference=reference)
 
 
 def main(argv=None) -> int:
@@ -297,19 +297,21 @@ def main(argv=None) -> int:
     ap.add_argument("--rule", action="store_true", help="also a 300-iteration solve at tv's λ per row (slow)")
     ap.add_argument("--sweep", action="store_true",
                     help="also tv at λ x 2^k, k = -3..3, per row: the automatic λ's loss (slow)")
+    ap.add_argument("--no-reference", action="store_true",
+                    help="skip the reference run (the whole record at full band), e.g. beside --rule")
     ap.add_argument("--seed", type=int, default=0, help="the noise's seed")
     ap.add_argument("--jobs", type=int, default=2, help="rows in parallel (processes)")
     ap.add_argument("--json", type=Path, default=None,
                     help="append each row as a JSON line; rows already there are printed, not run again")
     args = ap.parse_args(argv)
     # every case first at the strongest noise and the sparser mask: the rows that decide the gate soonest
-    todo = [(c, m, n, args.rule, args.sweep, args.seed) for n in args.noise for m in args.masks for c in args.cases]
+    todo = [(c, m, n, args.rule, args.sweep, args.seed, not args.no_reference) for n in args.noise for m in args.masks for c in args.cases]
     done = []
     if args.json and args.json.is_file():  # rows measured before (the same options): printed, not run again
         asked = {t[:3] for t in todo}
         done = [r for r in map(json.loads, args.json.read_text().splitlines())
                 if ("cc300" in r) == args.rule and ("sweep" in r) == args.sweep
-                and r.get("seed", 0) == args.seed and (r["case"], r["mask"], r["noise"]) in asked]
+                and r.get("seed", 0) == args.seed and ("ref" in r) != args.no_reference and (r["case"], r["mask"], r["noise"]) in asked]
         keys = {(r["case"], r["mask"], r["noise"]) for r in done}
         todo = [t for t in todo if t[:3] not in keys]
     print(HEADER + (" 300 it CC |" if args.rule else "") + (" CC at λ x 1/8 ... 8 |" if args.sweep else ""))

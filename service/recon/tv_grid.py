@@ -512,13 +512,6 @@ _MIN_KEPT = 8
 _FACTS_SIGMA_SAMPLES = 1 << 22
 
 
-#: the fewest samples a cut record keeps
-_MIN_KEPT = 8
-#: `record_facts` reads σ from at most this many sample differences (a few MB; the median of
-#: 4 million white-noise differences is within 0.1 % of σ)
-_FACTS_SIGMA_SAMPLES = 1 << 22
-
-
 def _kept_record(n_t: int, dt: float, c: float, depth: float, reach: float, t0: float) -> tuple[int, str]:
     """(samples kept, why) for `tv_grid`: every sample on which the model of the image draws —
     until the farthest sensor (``reach`` to the side, m) hears a source ``depth`` deep (m),
