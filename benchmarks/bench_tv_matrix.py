@@ -34,7 +34,8 @@ Per row:
   **amp**: the least-squares amplitude of tv's image on the structures (p0 > 10 % of its max);
 - tv's band and why, its image grid, the record kept, operator pairs, iterations, λ / image noise,
   converged;
-- with ``--rule``: tv's CC after 300 iterations at its own λ and grid (``tol`` 0; issue 59 item 6);
+- with ``--rule``: tv's CC after 300 iterations (``--rule-iterations``) at its own λ and grid (``tol`` 0;
+  issue 59 item 6);
 - with ``--sweep``: tv's CC at λ × 2^k, k = -3..3, each to the stopping rule (issue 59 item 3), and
   on the vessel tree the thin segments seen at each.
 
@@ -43,11 +44,18 @@ the vessel tree at 11 % / 30 dB peak and at 4 % / 20 dB peak, seen >= 95 % and a
 ``--rule``, the 300-iteration image's CC − tv's <= 0.015; with ``--sweep``, the sweep's best CC −
 tv's <= 0.01. Rows run in ``--jobs`` processes, the strongest noise and the sparser mask first;
 ``--json`` keeps them, so that an interrupted table resumes where it stopped.
+
+Probes beside the defaults (each row records them; none is a default): ``--tol`` runs tv and ref to
+that stopping threshold; ``--declared HZ`` declares a sensor band for tv's run (the dataset's
+``sensor_bandwidth_hz``); ``--ref-lam tv`` runs the reference at tv's λ instead of its own rule's, so
+that the band and the record alone differ from tv's run. A reference at its own rule's λ shows that
+λ against tv's in the ref column.
+
 ``tests/recon/test_tv_quality_gate.py`` runs the CI subset (vessels and balls, 4 %, 20 dB peak).
 
     .venv/bin/python benchmarks/bench_tv_matrix.py [--cases vessels balls points paper]
-        [--masks 4 11] [--noise peak20 peak30 peak40 rms30] [--rule] [--sweep] [--seed 0] [--no-reference] [--jobs 2]
-        [--json out.jsonl]
+        [--masks 4 11] [--noise peak20 peak30 peak40 rms30] [--rule [--rule-iterations 300]] [--sweep] [--seed 0]
+        [--no-reference] [--tol T] [--declared HZ] [--ref-lam rule|tv] [--jobs 2] [--json out.jsonl]
 """
 from __future__ import annotations
 
@@ -76,6 +84,8 @@ GATE_LAM = 0.01
 SEEN_CNR = 3.0
 #: rows where the vessel tree's thin segments and amplitude are gated: (mask %, noise)
 VESSEL_GATED = ((11, "peak30"), (4, "peak20"))
+#: the probes beside tv's defaults (module doc): None / "rule" / 300 are the table's own runs
+PROBE_DEFAULTS = {"tol": None, "declared": None, "ref_lam": "rule", "rule_iterations": 300}
 
 
 def noisy(clean: np.ndarray, noise: str, seed: int = 0) -> np.ndarray:
@@ -173,9 +183,10 @@ def amplitude(image: np.ndarray, p0: np.ndarray) -> float:
 
 
 def run_row(name: str, percent: int, noise: str, rule: bool = False, case: dict | None = None,
-            sweep: bool = False, reference: bool = True, seed: int = 0) -> dict:
+            sweep: bool = False, reference: bool = True, seed: int = 0, probe: dict | None = None) -> dict:
     """One row of the matrix (module doc): a dict of figures (without ``reference``: no ref run,
-    the CI subset's row; ``seed``: the noise's)."""
+    the CI subset's row; ``seed``: the noise's; ``probe``: the probes' options, `PROBE_DEFAULTS`
+    and the module doc)."""
     from driver.physics import ball_p0
     from driver.physics.axes import centred_axis
     from service.metrics import correlation_coefficient
@@ -184,6 +195,7 @@ def run_row(name: str, percent: int, noise: str, rule: bool = False, case: dict 
     from service.recon.dataset import GridDataset, PointDataset
     from service.recon.methods.tv import BANDWIDTH_KEY
 
+    probe = {**PROBE_DEFAULTS, **(probe or {})}
     case = load_case(name) if case is None else case
     data = noisy(case["clean"], noise, seed)
     mask = make_mask(case, percent)
@@ -194,11 +206,13 @@ def run_row(name: str, percent: int, noise: str, rule: bool = False, case: dict 
     alines = (data[:, ix[:, 0]] if two_d else data[:, ix[:, 1], ix[:, 0]]).T
     axes = (centred_axis(shape[-1], dx),) if two_d else (centred_axis(shape[1], dx), centred_axis(shape[0], dx))
     pos = np.asarray(mask.positions, float)[:, : 1 if two_d else 2]  # a line's sensors: x alone
+    declared = {} if probe["declared"] is None else {BANDWIDTH_KEY: probe["declared"]}
     scan = PointDataset(alines=alines, positions=pos, dt=dt, c=c, weights=np.asarray(mask.weights, float),
-                        grid=axes)
+                        grid=axes, meta=declared)
     grid_opts = {} if case["p0"] is None else {"dz": case["dz"], "n_z": case["p0"].shape[0]}
+    tol = {} if probe["tol"] is None else {"tol": probe["tol"]}
     t = time.perf_counter()
-    tv = reconstruct(scan, "tv", dtype="float32", **grid_opts)
+    tv = reconstruct(scan, "tv", dtype="float32", **grid_opts, **tol)
     tv_s = time.perf_counter() - t
     p = tv.params
     if case["p0"] is None:
@@ -213,7 +227,7 @@ def run_row(name: str, percent: int, noise: str, rule: bool = False, case: dict 
                amp=amplitude(tv.p0, truth), band=p["band"], band_reason=p["band_reason"], grid=list(tv.p0.shape),
                dz=float(tv.z[1] - tv.z[0]), record=p["record_n_t"], n_t=int(data.shape[0]),
                extent=p["extent_reason"], pairs=p["operator_pairs"], iterations=p["iterations"],
-               converged=p["converged"], lam=p["lam"], lam_factor=p["lam_factor"], tv_s=tv_s)
+               converged=p["converged"], lam=p["lam"], lam_factor=p["lam_factor"], tv_s=tv_s, **probe)
     lines = case.get("centre_lines")
     if lines is not None:
         row["seen"], row["thin"] = thin_segments_seen(tv.p0, lines, case["radius_voxels"])
@@ -221,19 +235,22 @@ def run_row(name: str, percent: int, noise: str, rule: bool = False, case: dict 
     if reference:
         full_band = PointDataset(alines=alines, positions=pos, dt=dt, c=c, weights=scan.weights, grid=axes,
                                  meta={BANDWIDTH_KEY: 0.5 / dt})  # the record's Nyquist frequency declared
-        ref = reconstruct(full_band, "tv", dtype="float32", whole_record=True, **grid_opts)
+        ref_lam = {"lam": p["lam"]} if probe["ref_lam"] == "tv" else {}
+        ref = reconstruct(full_band, "tv", dtype="float32", whole_record=True, **grid_opts, **tol, **ref_lam)
         ref_truth = truth if case["p0"] is not None else ball_p0(case["balls"], ref.z, ref.x, ref.y, supersample=2)
         row.update(ref=correlation_coefficient(ref.p0, ref_truth), ref_pairs=ref.params["operator_pairs"],
-                   ref_converged=ref.params["converged"])
+                   ref_converged=ref.params["converged"], ref_lam_value=ref.params["lam"],
+                   ref_iterations=ref.params["iterations"], ref_grid=list(ref.p0.shape))
         if lines is not None:
             row["ref_seen"], _ = thin_segments_seen(ref.p0, lines, case["radius_voxels"])
     if rule:
-        long = reconstruct(scan, "tv", dtype="float32", lam=p["lam"], iterations=300, tol=0.0, **grid_opts)
-        row["cc300"] = correlation_coefficient(long.p0, truth)
+        long = reconstruct(scan, "tv", dtype="float32", lam=p["lam"], iterations=probe["rule_iterations"], tol=0.0,
+                           **grid_opts)
+        row["cc300"] = correlation_coefficient(long.p0, truth)  # named for the default's 300 iterations
     if sweep:  # the automatic λ against λ x 2^k, k = -3..3 (issue 59 item 3), each to the stopping rule
         row["sweep"], seen = {}, {}
         for k in range(-3, 4):
-            r = tv if k == 0 else reconstruct(scan, "tv", dtype="float32", lam=p["lam"] * 2.0**k, **grid_opts)
+            r = tv if k == 0 else reconstruct(scan, "tv", dtype="float32", lam=p["lam"] * 2.0**k, **grid_opts, **tol)
             row["sweep"][k] = correlation_coefficient(r.p0, truth)
             if lines is not None:
                 seen[k], _ = thin_segments_seen(r.p0, lines, case["radius_voxels"])
@@ -255,7 +272,7 @@ def gate(row: dict) -> list[str]:
         if not row["amp"] >= GATE_AMP:
             fails.append(f"amplitude {row['amp']:.2f} < {GATE_AMP}")
     if "cc300" in row and row["cc300"] - row["tv"] > GATE_RULE:
-        fails.append(f"300 iterations {row['cc300']:.4f} - tv {row['tv']:.4f} > {GATE_RULE}")
+        fails.append(f"{row.get('rule_iterations', 300)} iterations {row['cc300']:.4f} - tv {row['tv']:.4f} > {GATE_RULE}")
     if "sweep" in row and max(row["sweep"].values()) - row["tv"] > GATE_LAM:
         fails.append(f"the sweep's best {max(row['sweep'].values()):.4f} - tv {row['tv']:.4f} > {GATE_LAM}")
     return fails
@@ -265,6 +282,8 @@ def format_row(r: dict) -> str:
     """One markdown row of the table (a row without a reference run shows "-" there)."""
     band = "Nyquist" if r["band"] is None else f"{r['band'] / 1e6:.2f} MHz"
     ref = f"{r['ref']:.4f}" if "ref" in r else "-"
+    if "ref_lam_value" in r and r.get("ref_lam", "rule") == "rule":  # its own rule's λ, against tv's
+        ref += f" (λ x {r['ref_lam_value'] / r['lam']:.1f})"
     ref_seen = f"{r['ref_seen']:.0%}" if "ref_seen" in r else "-"
     seen = f"{r['seen']:.0%} ({ref_seen}, {r['ner_seen']:.0%})" if "seen" in r else ""
     rule = f" | {r['cc300']:.4f}" if "cc300" in r else ""
@@ -285,8 +304,8 @@ HEADER = ("| case | mask | noise | tv CC | ref CC | NER CC | thin seen (ref, NER
 
 
 def _worker(args: tuple) -> dict:
-    name, percent, noise, rule, sweep, seed, reference = args
-    return run_row(name, percent, noise, rule, sweep=sweep, seed=seed, reference=reference)
+    name, percent, noise, rule, sweep, seed, reference, probe = args
+    return run_row(name, percent, noise, rule, sweep=sweep, seed=seed, reference=reference, probe=probe)
 
 
 def main(argv=None) -> int:
@@ -300,21 +319,32 @@ def main(argv=None) -> int:
     ap.add_argument("--no-reference", action="store_true",
                     help="skip the reference run (the whole record at full band), e.g. beside --rule")
     ap.add_argument("--seed", type=int, default=0, help="the noise's seed")
+    ap.add_argument("--rule-iterations", type=int, default=300, help="--rule's long run: its iterations")
+    ap.add_argument("--tol", type=float, default=None, help="probe: tv's and ref's stopping threshold")
+    ap.add_argument("--declared", type=float, default=None, help="probe: a sensor band (Hz) declared for tv's run")
+    ap.add_argument("--ref-lam", choices=("rule", "tv"), default="rule",
+                    help="probe: the reference at its own λ rule (the gate's) or at tv's λ")
     ap.add_argument("--jobs", type=int, default=2, help="rows in parallel (processes)")
     ap.add_argument("--json", type=Path, default=None,
                     help="append each row as a JSON line; rows already there are printed, not run again")
     args = ap.parse_args(argv)
     # every case first at the strongest noise and the sparser mask: the rows that decide the gate soonest
-    todo = [(c, m, n, args.rule, args.sweep, args.seed, not args.no_reference) for n in args.noise for m in args.masks for c in args.cases]
+    probe = {"tol": args.tol, "declared": args.declared, "ref_lam": args.ref_lam, "rule_iterations": args.rule_iterations}
+    todo = [(c, m, n, args.rule, args.sweep, args.seed, not args.no_reference, probe)
+            for n in args.noise for m in args.masks for c in args.cases]
     done = []
     if args.json and args.json.is_file():  # rows measured before (the same options): printed, not run again
         asked = {t[:3] for t in todo}
         done = [r for r in map(json.loads, args.json.read_text().splitlines())
                 if ("cc300" in r) == args.rule and ("sweep" in r) == args.sweep
-                and r.get("seed", 0) == args.seed and ("ref" in r) != args.no_reference and (r["case"], r["mask"], r["noise"]) in asked]
+                and r.get("seed", 0) == args.seed and ("ref" in r) != args.no_reference and (r["case"], r["mask"], r["noise"]) in asked
+                and all(r.get(k, PROBE_DEFAULTS[k]) == v for k, v in probe.items())]
         keys = {(r["case"], r["mask"], r["noise"]) for r in done}
         todo = [t for t in todo if t[:3] not in keys]
-    print(HEADER + (" 300 it CC |" if args.rule else "") + (" CC at λ x 1/8 ... 8 |" if args.sweep else ""))
+    probes = [f"{k} {v}" for k, v in probe.items() if v != PROBE_DEFAULTS[k]]
+    if probes:  # every row of this table ran with these (the module doc's probes)
+        print("probes: " + ", ".join(probes) + "\n")
+    print(HEADER + (f" {args.rule_iterations} it CC |" if args.rule else "") + (" CC at λ x 1/8 ... 8 |" if args.sweep else ""))
     print("|" + "---|" * (17 + args.rule + args.sweep))
     rows = list(done)
     for r in done:
