@@ -7,14 +7,29 @@ cd "$(dirname "$0")/.."
 python3 -m venv .venv
 .venv/bin/python -m pip install -q --upgrade pip
 .venv/bin/python -m pip install -q -e '.[test]'
+# numba's cache of the reconstruction's kernels filled once (`fpscan warmup`: every method, both
+# precisions; ~100 s of one core on a fresh clone), beside the set-up steps and the guard rails:
+# without it the first tests that reconstruct compiled the same kernels at once in several
+# processes (the parallel part, the long files first: 18:26 and 1917 s of CPU cold, 16:56 and
+# 1668 s warm; the guard rails alone take ~45 s).
+warm_log=$(mktemp)
+.venv/bin/fpscan warmup >"$warm_log" 2>&1 &
+warm_pid=$!
+trap 'kill "$warm_pid" 2>/dev/null || true; rm -f "$warm_log"' EXIT
 if [ -x scripts/test-setup.d ] || [ -d scripts/test-setup.d ]; then
   for step in scripts/test-setup.d/*.sh; do [ -e "$step" ] && bash "$step"; done
 fi
 bash scripts/lint.sh
+# a failed warm-up only costs time (the tests compile what they need, and say what fails)
+wait "$warm_pid" || echo "fpscan warmup failed; the tests compile the kernels themselves:" >&2
+cat "$warm_log" >&2
 # Two parts: the tests in parallel on FPSCAN_TEST_WORKERS processes (default 2, one per core of
 # the reference machine; 0 runs them in this process), a test file's tests on one worker
-# (they share its servers and browser; the 25 slowest are listed); then, alone, the tests marked `serial`, which hold a
-# time bound an issue sets (health p99, cancel latency) that a neighbour's load would blur.
+# (they share its servers and browser; the 25 slowest are listed), the files marked `long` first,
+# longest first (tests/conftest.py; xdist's own order, most tests first, ran the one-test two-minute
+# stream file last, beside an idle core: 18:45 against 16:56 warm); then, alone, the tests marked
+# `serial`, which hold a time bound an issue sets (health p99, cancel latency) that a neighbour's
+# load would blur.
 # Arguments go to both parts (a part that selects no test counts as passed).
 # Bytecode caches on (a caller's PYTHONDONTWRITEBYTECODE=1 made every pytest process parse and
 # assertion-rewrite ~450 modules again: collection took 13.7 s of CPU instead of 6.5 s).
@@ -35,9 +50,9 @@ case "$workers" in
 esac
 set +e
 if [ -n "$threads" ]; then
-  NUMBA_NUM_THREADS="$threads" .venv/bin/python -m pytest -n "$workers" --dist loadfile -m "not serial" --durations=25 "$@"
+  NUMBA_NUM_THREADS="$threads" .venv/bin/python -m pytest -n "$workers" --dist loadfile --no-loadscope-reorder -m "not serial" --durations=25 "$@"
 else
-  .venv/bin/python -m pytest -n "$workers" --dist loadfile -m "not serial" --durations=25 "$@"
+  .venv/bin/python -m pytest -n "$workers" --dist loadfile --no-loadscope-reorder -m "not serial" --durations=25 "$@"
 fi
 parallel=$?
 .venv/bin/python -m pytest -p no:xdist -m serial "$@"

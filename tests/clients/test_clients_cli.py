@@ -14,6 +14,8 @@ import pytest
 from tests.clients.clients_servers import clean_env, free_port
 from tests.waits import HANG_S
 
+pytestmark = pytest.mark.long(65)
+
 TOKEN = "cli-test-token"
 
 

@@ -17,8 +17,9 @@ from tests.waits import HANG_S
 TOKEN = "scan-test-token"
 N, PITCH = 16, 4e-4
 
-pytestmark = pytest.mark.skipif(not (has_command("serve") and has_command("sim")),
-                                reason="`fpscan serve`/`fpscan sim` not available yet")
+pytestmark = [pytest.mark.skipif(not (has_command("serve") and has_command("sim")),
+                                 reason="`fpscan serve`/`fpscan sim` not available yet"),
+              pytest.mark.long(90)]
 
 
 def fpscan(*args, timeout=HANG_S):

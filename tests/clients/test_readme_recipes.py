@@ -25,8 +25,9 @@ from tests.waits import HANG_S
 
 README = REPO_ROOT / "README.md"
 
-pytestmark = pytest.mark.skipif(not (has_command("serve") and has_command("sim")),
-                                reason="`fpscan serve`/`fpscan sim` not available")
+pytestmark = [pytest.mark.skipif(not (has_command("serve") and has_command("sim")),
+                                 reason="`fpscan serve`/`fpscan sim` not available"),
+              pytest.mark.long(70)]
 
 
 TOUR, SPARSE, AFTER = "## A five-minute tour", "## A sparse scan out of dense data", "## Configuration"

@@ -29,7 +29,8 @@ from tests.waits import HANG_S
 TOKEN = "down-test-token"
 
 pytestmark = [pytest.mark.timeout(600),
-              pytest.mark.skipif(not has_command("serve"), reason="`fpscan serve` not available yet")]
+              pytest.mark.skipif(not has_command("serve"), reason="`fpscan serve` not available yet"),
+              pytest.mark.long(30)]
 
 
 def _recon_cmd(path, url, *extra):

@@ -14,6 +14,8 @@ import pytest
 from driver.physics.forward import forward_grid, forward_points
 from service.recon.operator import PlanarOperator
 
+pytestmark = pytest.mark.long(50)
+
 C, DT = 1500.0, 20e-9
 DZ = C * DT
 DX = 40e-6

@@ -16,6 +16,8 @@ from service.plans import Lattice, equiangular_mask, equisteradian_mask, subgrid
 from service.recon import reconstruct_grid, reconstruct_points
 from service.recon.tv import noise_sigma, reconstruct_tv
 
+pytestmark = pytest.mark.long(40)
+
 C, DT = 1500.0, 20e-9
 DZ = C * DT
 

@@ -30,6 +30,8 @@ from service.progress import IterationStage
 from service.recon import reconstruct_points
 from service.recon.tv import reconstruct_tv
 
+pytestmark = pytest.mark.long(85)
+
 C, DX = 1500.0, 50e-6
 DT = DX / C
 N_Z, N_X, N_SENSORS = 64, 96, 24

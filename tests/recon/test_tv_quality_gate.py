@@ -11,6 +11,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.long(85)
+
 BENCH = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_tv_matrix.py"
 
 

@@ -37,6 +37,8 @@ import pytest
 from tests.service.service_servers import TOKEN, Server, needs_recon, wait_job
 from tests.waits import HANG_S
 
+pytestmark = pytest.mark.long(50)
+
 RACES = 200
 JOB_RACES = 200
 DOWNLOAD_RACES = 200

@@ -13,6 +13,8 @@ import pytest
 from service.jobs.admission import AdmissionError, estimate_memory, working_depth_rows
 from tests.service.service_servers import needs_recon
 
+pytestmark = pytest.mark.long(60)
+
 # the probes' common part: reset the peak RSS (VmHWM) to the RSS after the warm-up, then
 # RUN (the measured call) and print the RSS before it and the peak during it
 MEASURE = r"""

@@ -19,7 +19,7 @@ from tests.waits import HANG_S
 
 driver_sim = pytest.importorskip("driver.simulator")
 
-pytestmark = needs_recon
+pytestmark = [needs_recon, pytest.mark.long(37)]
 
 
 def new_sim(seed: int = 3):

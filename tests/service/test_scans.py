@@ -18,7 +18,7 @@ from tests.waits import HANG_S
 
 driver_sim = pytest.importorskip("driver.simulator")
 
-pytestmark = needs_recon
+pytestmark = [needs_recon, pytest.mark.long(65)]
 
 N, PITCH, N_T, DT = 20, 1e-4, 128, 2e-8
 

@@ -24,7 +24,7 @@ from tests.waits import HANG_S
 
 driver_sim = pytest.importorskip("driver.simulator")
 
-pytestmark = needs_recon
+pytestmark = [needs_recon, pytest.mark.long(130)]
 
 SIDE, PRF = 11, 1.0  # 121 points at 1 Hz: a scan of about two minutes
 DEFAULT_BODY_TIMEOUT_S = 30.0  # service.settings.Settings.body_timeout_s

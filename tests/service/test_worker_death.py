@@ -20,6 +20,8 @@ import pytest
 from tests.service.service_servers import Server, needs_recon, wait_gone, wait_job
 from tests.waits import HANG_S
 
+pytestmark = pytest.mark.long(90)
+
 TRIALS = int(os.environ.get("FPSCAN_KILL_TRIALS", "5"))
 N, N_T = 32, 256
 JOB_PARAMS = {"upsample": 1}

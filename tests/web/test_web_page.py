@@ -33,7 +33,8 @@ DEPTH_MM = 3.6
 N_POINTS = 120
 PRF_HZ = 25.0  # simulator and plan: ~5 s for the ~130-point scan, time for several live previews
 
-pytestmark = pytest.mark.timeout(600)  # the suite's: waits end on events (tests.waits)
+pytestmark = [pytest.mark.timeout(600),  # the suite's: waits end on events (tests.waits)
+              pytest.mark.long(80)]
 
 
 # ----------------------------------------------------------------------------- fixtures
