@@ -19,33 +19,24 @@ def shared_data() -> Path:
     return path
 
 
-def _file_seconds(items: list[pytest.Item]) -> dict[str, float]:
-    """Each test file's ``long`` mark (its measured wall time in s), 0 where it has none."""
-    seconds: dict[str, float] = {}
-    for item in items:
-        mark = item.get_closest_marker("long")
-        seconds[item.nodeid.split("::")[0]] = float(mark.args[0]) if mark else 0.0
-    return seconds
+
+def _seconds(tests: list[pytest.Item]) -> float:
+    """A test file's ``long`` mark (its measured wall time in s), 0 where it has none."""
+    mark = tests[0].get_closest_marker("long")
+    return float(mark.args[0]) if mark else 0.0
 
 
-def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     """Order the test files longest first (marked ``long``, by their seconds), then by their
-    number of tests (pytest-xdist's own order); a file's tests keep their order.
+    number of tests (pytest-xdist's own order), then as collected; a file's tests keep their order.
 
     scripts/test.sh hands the files to its workers in this order (``--dist loadfile
     --no-loadscope-reorder``): a long file started last would run on alone while the other
     workers sit idle (the two-minute stream test, which mostly waits, ran last and left a core
     idle for most of its 130 s), so the longest start first, as in longest-processing-time-first
     scheduling."""
-    seconds = _file_seconds(items)
-    counts: dict[str, int] = {}
+    files: dict[str, list[pytest.Item]] = {}
     for item in items:
-        path = item.nodeid.split("::")[0]
-        counts[path] = counts.get(path, 0) + 1
-    rank = {path: i for i, path in enumerate(counts)}  # collection order breaks ties
-
-    def key(item: pytest.Item) -> tuple[float, int, int]:
-        path = item.nodeid.split("::")[0]
-        return -seconds[path], -counts[path], rank[path]
-
-    items.sort(key=key)  # stable: a file's tests keep their order
+        files.setdefault(item.nodeid.split("::")[0], []).append(item)
+    ordered = sorted(files.values(), key=lambda tests: (-_seconds(tests), -len(tests)))  # stable
+    items[:] = [item for tests in ordered for item in tests]
