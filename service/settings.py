@@ -73,7 +73,9 @@ class Settings(BaseSettings):
                              "event loop); raise it (e.g. 10) to favour other programs on a shared machine")
     warm_up: bool = Field(True, description="compile the reconstruction kernels (a tiny NER and NEDNER), "
                           "import the writer and draw a picture in each local worker at start-up, in the "
-                          "background (health answers at once; the first job waits for its worker's warm-up)")
+                          "background (health answers at once; the first job waits for its worker's warm-up), "
+                          "and start the plan and live-preview workers, warmed; false: no warm-up, and those two "
+                          "workers start at their first use")
     memory_limit: int = Field(8 * 2**30, gt=0, description="bytes available to reconstructions at once")
     upload_limit: int = Field(2 * 2**30, gt=0, description="largest accepted upload, bytes")
     body_timeout_s: float = Field(30.0, gt=0, le=3600, description="a request whose body sends nothing for "

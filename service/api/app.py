@@ -227,7 +227,8 @@ def _start_workers(context: Context, store: JobStore, settings: Settings, execut
     context.queue.start()
     from service.api.plans import plan_executor
 
-    plan_executor(context)  # the plan worker starts loading now, not at the first plan request
+    if settings.warm_up:
+        plan_executor(context)  # the plan worker starts loading now, not at the first plan request
     try:
         from service.jobs.scan_manager import ScanManager
 

@@ -270,22 +270,28 @@ class PreviewManager:
 
     A refresh runs every ``interval`` s for each tracked scan that has new points
     (:meth:`track`, :meth:`note_progress`, :meth:`untrack`); :meth:`get` gives a scan's
-    latest :class:`PreviewState`. :meth:`start` starts the worker (warming it up) and the
-    loop, :meth:`stop` ends both.
+    latest :class:`PreviewState`. :meth:`start` starts the loop and, with ``warm``, the worker
+    (warming it up; without, the worker starts at the first refresh); :meth:`stop` ends both.
 
     Parameters
     ----------
     interval : float
         Seconds between two refreshes.
+    warm : bool, optional
+        Start and warm the worker at :meth:`start` (:func:`warm_up`); default True
+        (``Settings.warm_up``).
 
     Attributes
     ----------
     interval : float
         As given.
+    warm : bool
+        As given.
     """
 
-    def __init__(self, interval: float):
+    def __init__(self, interval: float, warm: bool = True):
         self.interval = float(interval)
+        self.warm = bool(warm)
         self._pool: ProcessPoolExecutor | None = None
         self._states: dict[str, PreviewState] = {}
         self._active: dict[str, dict] = {}  # job_id -> {"path", "last_points"}
@@ -300,8 +306,9 @@ class PreviewManager:
                                    initargs=(5, os.getpid()))
 
     def start(self) -> None:
-        self._pool = self._new_pool()
-        self._pool.submit(warm_up)  # in the background; a refresh queues behind it
+        self._pool = self._new_pool()  # its process starts with the first task
+        if self.warm:
+            self._pool.submit(warm_up)  # in the background; a refresh queues behind it
         self._loop.start()
 
     def stop(self) -> None:

@@ -118,7 +118,7 @@ class ScanManager:
         self.owner = f"scan-{uuid.uuid4().hex[:12]}"
         self.scans_dir = Path(settings.data_dir) / "scans"
         self.scans_dir.mkdir(parents=True, exist_ok=True)
-        self.previews = PreviewManager(settings.preview_interval_s)
+        self.previews = PreviewManager(settings.preview_interval_s, warm=settings.warm_up)
         self._runs: dict[str, _Run] = {}     # scanner_id -> active run
         self._problems: dict[str, str] = {}  # job id -> why it is interrupted (full disk, ...)
         self._free_at_interrupt: dict[str, int] = {}  # job id -> free bytes when a full disk stopped it

@@ -9,7 +9,13 @@ from pathlib import Path
 from clients.processes import clean_env, free_port, service, simulator
 from tests.waits import HANG_S
 
-__all__ = ["clean_env", "fpscan_server", "fpscan_sim", "free_port", "has_command"]
+__all__ = ["QUIET", "clean_env", "fpscan_server", "fpscan_sim", "free_port", "has_command"]
+
+#: the test servers' settings: no warm-up (``Settings.warm_up``). A warming server compiled or loaded
+#: every method's kernels in both precisions in the background, 9.7 s of CPU against 1.9 s, on the
+#: 2-core machine the other test worker shares; a job loads what it needs itself, and the plan and
+#: live-preview workers start at their first use. The README's recipes and the demo keep the defaults.
+QUIET = {"FPSCAN_WARM_UP": "false"}
 
 
 def has_command(name: str) -> bool:
@@ -20,9 +26,10 @@ def has_command(name: str) -> bool:
 
 @contextlib.contextmanager
 def fpscan_server(data_dir: Path, *, token: str | None = None, devices: dict | None = None,
-                  timeout: float = HANG_S):
-    """Yield ``(url, process)`` of a running ``fpscan serve``."""
-    with service(data_dir, token=token, devices=devices, timeout=timeout) as srv:
+                  timeout: float = HANG_S, env: dict | None = None):
+    """Yield ``(url, process)`` of a running ``fpscan serve``. ``env`` adds ``FPSCAN_*`` settings to
+    :data:`QUIET`."""
+    with service(data_dir, token=token, devices=devices, timeout=timeout, env={**QUIET, **(env or {})}) as srv:
         yield srv.url, srv
 
 

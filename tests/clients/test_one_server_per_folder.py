@@ -11,12 +11,11 @@ import pytest
 
 from clients.http import Client
 from clients.processes import start_service
-from tests.clients.clients_servers import clean_env, fpscan_sim, free_port, has_command
+from tests.clients.clients_servers import QUIET, clean_env, fpscan_sim, free_port, has_command
 from tests.waits import HANG_S
 
 TOKEN = "one-server-token"
 N, PITCH = 16, 2e-4
-QUIET = {"FPSCAN_WARM_UP": "false"}  # no kernels to compile: these servers reconstruct nothing
 
 pytestmark = pytest.mark.skipif(not (has_command("serve") and has_command("sim")),
                                 reason="`fpscan serve`/`fpscan sim` not available")

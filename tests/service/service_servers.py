@@ -10,6 +10,7 @@ import httpx
 import pytest
 
 from clients.processes import Service, start_service
+from tests.clients.clients_servers import QUIET
 from tests.waits import HANG_S
 
 REPO = Path(__file__).resolve().parents[2]
@@ -48,10 +49,8 @@ class Server:
         return httpx.Client(base_url=self.url, headers=self.headers(), timeout=timeout)
 
     def start(self, timeout: float = HANG_S) -> Server:
-        # no kernel warm-up in the workers (Settings.warm_up): most test servers run no
-        # reconstruction, and the 2-core test machine is shared; test_worker_priority turns it on
-        env = {"FPSCAN_HEARTBEAT_S": "0.5", "FPSCAN_PREVIEW_INTERVAL_S": "1.0", "OMP_NUM_THREADS": "1",
-               "FPSCAN_WARM_UP": "false"}
+        # no warm-up (QUIET); test_worker_priority turns it on
+        env = {"FPSCAN_HEARTBEAT_S": "0.5", "FPSCAN_PREVIEW_INTERVAL_S": "1.0", "OMP_NUM_THREADS": "1", **QUIET}
         env.update(self.extra_env)
         self.service = start_service(self.data_dir, token=self.token, devices=self.devices, env=env,
                                      log_path=self.log, web=False, timeout=timeout)

@@ -57,6 +57,34 @@ def test_a_server_starts_its_workers_at_the_configured_priority(tmp_path):
         srv.stop()
 
 
+def spawned_at(srv: Server, increment: int) -> list:
+    """The server's spawned workers at the server's priority + ``increment``."""
+    base = priority(srv.proc.pid)
+    return [p for p in srv.workers() if "spawn_main" in " ".join(p.cmdline()) and p.nice() == base + increment]
+
+
+@pytest.mark.timeout(120)
+def test_with_the_warm_up_off_the_plan_and_preview_workers_start_at_their_first_use(tmp_path):
+    """``FPSCAN_WARM_UP=false``: a healthy server has started neither its plan worker (+8)
+    nor its live-preview worker (+5), nothing being warmed (each was 1.2-2.4 s of CPU at every
+    start); the first plan request starts the plan worker and is answered."""
+    from service.api.plans import PLAN_WORKER_NICE
+
+    srv = Server(tmp_path / "data", env={"FPSCAN_WARM_UP": "false"}).start()
+    try:
+        with srv.client() as api:
+            assert api.get("/api/health").status_code == 200
+            assert spawned_at(srv, PLAN_WORKER_NICE) == [] and spawned_at(srv, 5) == []
+            r = api.post("/api/plans", json={"lattice": {"n_x": 4, "n_y": 4, "pitch": 1e-4},
+                                             "points": [[0, 0], [1, 2], [3, 3]]})
+            assert r.status_code == 201, r.text
+            assert r.json()["n_points"] == 3
+            assert len(spawned_at(srv, PLAN_WORKER_NICE)) == 1
+            assert spawned_at(srv, 5) == []
+    finally:
+        srv.stop()
+
+
 @pytest.mark.timeout(300)
 def test_a_warming_server_is_healthy_and_runs_the_first_job(tmp_path):
     """With the warm-up on (the default), health answers while the worker warms, and a
@@ -82,6 +110,10 @@ def test_a_warming_server_is_healthy_and_runs_the_first_job(tmp_path):
             assert done["state"] == "succeeded", done
             timings = done["params"]["result"]["timings"]
             assert timings["reconstruct_s"] > 0 and timings["write_s"] > 0
+        from service.api.plans import PLAN_WORKER_NICE
+
+        # the plan and live-preview workers were started (and warmed) with the server
+        assert len(spawned_at(srv, PLAN_WORKER_NICE)) == 1 and len(spawned_at(srv, 5)) == 1
     finally:
         srv.stop()
 

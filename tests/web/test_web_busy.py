@@ -23,10 +23,11 @@ def base(tmp_path_factory):
     if not has_subcommand("serve"):
         pytest.skip("this build has no `fpscan serve`")
     from clients.processes import start_service
+    from tests.clients.clients_servers import QUIET
 
     data = tmp_path_factory.mktemp("busy")
     # stalled bodies keep their slots until the test lets them go (not until a body timeout)
-    srv = start_service(data, token=None, devices={}, env={"FPSCAN_BODY_TIMEOUT_S": "600"},
+    srv = start_service(data, token=None, devices={}, env={**QUIET, "FPSCAN_BODY_TIMEOUT_S": "600"},
                         log_path=data / "serve.log", timeout=HANG_S)
     try:
         yield srv.url, srv.port

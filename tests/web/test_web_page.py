@@ -21,6 +21,7 @@ from pathlib import Path
 import pytest
 
 from clients.processes import Service, simulator, start_service
+from tests.clients.clients_servers import QUIET
 from tests.waits import HANG_S
 from tests.web.web_e2e_support import REPO_ROOT, has_subcommand, open_page, preview_settled, wait_for
 
@@ -55,7 +56,7 @@ def start_server(data: Path, devices: dict, token: str | None) -> Service:
     ``data/serve.log``."""
     if not has_subcommand("serve"):
         pytest.skip("this build has no `fpscan serve`")
-    return start_service(data, token=token, devices=devices, env={"FPSCAN_PREVIEW_INTERVAL_S": "0.5"},
+    return start_service(data, token=token, devices=devices, env={**QUIET, "FPSCAN_PREVIEW_INTERVAL_S": "0.5"},
                          log_path=data / "serve.log", timeout=HANG_S)
 
 

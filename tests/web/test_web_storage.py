@@ -31,9 +31,10 @@ def base(tmp_path_factory):
     if not has_subcommand("serve"):
         pytest.skip("this build has no `fpscan serve`")
     from clients.processes import start_service
+    from tests.clients.clients_servers import QUIET
 
     data = tmp_path_factory.mktemp("storage")
-    srv = start_service(data, token=None, devices={}, log_path=data / "serve.log", timeout=60)
+    srv = start_service(data, token=None, devices={}, env=QUIET, log_path=data / "serve.log", timeout=60)
     try:
         yield srv.url, data
     finally:
