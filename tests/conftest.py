@@ -19,7 +19,6 @@ def shared_data() -> Path:
     return path
 
 
-
 def _seconds(tests: list[pytest.Item]) -> float:
     """A test file's ``long`` mark (its measured wall time in s), 0 where it has none."""
     mark = tests[0].get_closest_marker("long")

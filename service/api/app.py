@@ -226,9 +226,10 @@ def _start_workers(context: Context, store: JobStore, settings: Settings, execut
     apply_retention(store, settings)  # a policy tightened while the server was down
     context.queue.start()
     from service.api.plans import plan_executor
+    from service.api.plans import warm_up as warm_plan_worker
 
-    if settings.warm_up:
-        plan_executor(context)  # the plan worker starts loading now, not at the first plan request
+    if settings.warm_up:  # the plan worker loads now, in the background, not at the first plan request
+        plan_executor(context).submit(warm_plan_worker)  # the first request queues behind it
     try:
         from service.jobs.scan_manager import ScanManager
 

@@ -359,8 +359,8 @@ def plan_executor(context: Context) -> LocalExecutor:
     """The service's plan worker: one spawned process at a lower CPU priority.
 
     Made on first use and kept in ``context.extras["plan_executor"]``; closed with the app. With
-    ``Settings.warm_up`` it is made at start-up and warms up in the background (:func:`warm_up`);
-    without, its process starts at the first plan request.
+    ``Settings.warm_up`` the app makes it at start-up and warms it up in the background
+    (:func:`warm_up`); without, its process starts at the first plan request.
 
     Parameters
     ----------
@@ -388,8 +388,6 @@ def plan_executor(context: Context) -> LocalExecutor:
         ex = context.extras.get("plan_executor")
         if ex is None:
             ex = context.extras["plan_executor"] = PlanWorker(1)
-            if context.settings.warm_up:
-                ex.submit(warm_up)  # in the background; the first request queues behind it
         return ex
 
 

@@ -36,6 +36,21 @@ def test_local_workers_run_at_the_configured_increment(nice):
         ex.close()
 
 
+def spawned_at(srv: Server, increment: int) -> list:
+    """The server's spawned workers at the server's priority + ``increment``."""
+    base = priority(srv.proc.pid)
+    return [p for p in srv.workers() if "spawn_main" in " ".join(p.cmdline()) and p.nice() == base + increment]
+
+
+def wait_spawned_at(srv: Server, increment: int) -> list:
+    """:func:`spawned_at` once it finds any (a worker sets its own priority as it starts), or []
+    after ``HANG_S``."""
+    deadline = time.monotonic() + HANG_S
+    while not (found := spawned_at(srv, increment)) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    return found
+
+
 @pytest.mark.timeout(120)
 def test_a_server_starts_its_workers_at_the_configured_priority(tmp_path):
     """A real server with ``FPSCAN_WORKER_NICE=3``: its reconstruction worker is started
@@ -43,24 +58,13 @@ def test_a_server_starts_its_workers_at_the_configured_priority(tmp_path):
     srv = Server(tmp_path / "data", env={"FPSCAN_WORKER_NICE": "3", "FPSCAN_WARM_UP": "false"}).start()
     try:
         base = priority(srv.proc.pid)
-        deadline = time.monotonic() + HANG_S
-        found: list = []
-        while time.monotonic() < deadline and not found:
-            spawned = [p for p in srv.workers() if "spawn_main" in " ".join(p.cmdline())]
-            found = [p for p in spawned if p.nice() == base + 3]
-            time.sleep(0.1)
+        found = wait_spawned_at(srv, 3)
         assert found, [(p.pid, p.nice()) for p in srv.workers()]
         assert not [p for p in srv.workers() if p.nice() >= base + 10]
         with srv.client() as api:
             assert api.get("/api/health").status_code == 200
     finally:
         srv.stop()
-
-
-def spawned_at(srv: Server, increment: int) -> list:
-    """The server's spawned workers at the server's priority + ``increment``."""
-    base = priority(srv.proc.pid)
-    return [p for p in srv.workers() if "spawn_main" in " ".join(p.cmdline()) and p.nice() == base + increment]
 
 
 @pytest.mark.timeout(120)
@@ -113,7 +117,7 @@ def test_a_warming_server_is_healthy_and_runs_the_first_job(tmp_path):
         from service.api.plans import PLAN_WORKER_NICE
 
         # the plan and live-preview workers were started (and warmed) with the server
-        assert len(spawned_at(srv, PLAN_WORKER_NICE)) == 1 and len(spawned_at(srv, 5)) == 1
+        assert len(wait_spawned_at(srv, PLAN_WORKER_NICE)) == 1 and len(wait_spawned_at(srv, 5)) == 1
     finally:
         srv.stop()
 
