@@ -128,35 +128,6 @@ def test_import_service_recon_loads_no_transform_library():
     assert got["shape"] == [[32, 8, 8], [64, 48, 48]]
 
 
-CACHED = r'''
-import json
-import numpy as np
-from service.recon import reconstruct_grid
-from driver.physics import nufft_kernels
-data = np.zeros((32, 64, 64), dtype=np.float32)  # above the small-transform size: the compiled kernels run
-data[3, 2, 2] = 1.0
-reconstruct_grid(data, 1e-4, 2e-8, dtype="float32")
-stats = {name: getattr(nufft_kernels, name).stats for name in ("place_columns", "scatter_columns", "interp_kernel")}
-print(json.dumps({name: [sum(s.cache_hits.values()), sum(s.cache_misses.values())] for name, s in stats.items()}))
-'''
-
-
-def test_compiled_kernels_survive_the_interpreter(tmp_path):
-    """numba's cache (``cache=True``) written by one interpreter is loaded, not compiled
-    again, by the next one (here in a fresh ``NUMBA_CACHE_DIR``)."""
-    import os
-
-    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba")}
-    run = [sys.executable, "-c", CACHED]
-    first = subprocess.run(run, capture_output=True, text=True, timeout=600, env=env)
-    assert first.returncode == 0, first.stderr[-3000:]
-    assert all(misses > 0 for _, misses in json.loads(first.stdout.splitlines()[-1]).values())
-    second = subprocess.run(run, capture_output=True, text=True, timeout=600, env=env)
-    assert second.returncode == 0, second.stderr[-3000:]
-    got = json.loads(second.stdout.splitlines()[-1])
-    assert all(hits > 0 and misses == 0 for hits, misses in got.values()), got
-
-
 def test_warmup_command_options_and_bad_dtype(capsys):
     from clients.cli import main
     from service.recon.warmup import warm_up
