@@ -166,11 +166,14 @@ def client_errors(run: Callable[..., int]) -> Callable[..., int]:
 
     @functools.wraps(run)
     def wrapper(args: argparse.Namespace) -> int:
-        from clients.http import ApiError, FpscanClientError
-
         try:
             return run(args)
-        except FpscanClientError as exc:
+        except Exception as exc:
+            # imported here: a command that ran locally never loads the HTTP client (httpx: 0.2 s)
+            from clients.http import ApiError, FpscanClientError
+
+            if not isinstance(exc, FpscanClientError):
+                raise
             print(f"fpscan {args.command}: error: {exc}{unreachable_hint(args, exc)}", file=sys.stderr)
             return 2 if isinstance(exc, ApiError) and exc.status_code in (400, 404, 422) else 1
 

@@ -242,3 +242,27 @@ def test_a_small_reconstruction_and_its_result_load_no_scipy():
     assert "volume.h5" in got["files"] and any(f.endswith(".png") for f in got["files"]), got["files"]
     loaded = [m for m in got["modules"] if m.split(".")[0] in ("scipy", "numba")]
     assert loaded == [], loaded
+
+
+LOCAL_RECON = r'''
+import json, os, sys, tempfile
+import numpy as np
+from clients.cli import main
+with tempfile.TemporaryDirectory() as tmp:
+    data = np.zeros((32, 8, 8), dtype=np.float32)
+    data[5, 4, 4] = 1.0
+    np.save(os.path.join(tmp, "a.npy"), data)
+    code = main(["recon", os.path.join(tmp, "a.npy"), "--dt", "2e-8", "--dx", "1e-4", "--out",
+                 os.path.join(tmp, "out"), "--quiet"])
+print(json.dumps({"code": code, "modules": sorted(sys.modules)}))
+'''
+
+
+def test_a_local_command_loads_no_http_client():
+    """``fpscan recon`` of a local file never loads the HTTP client (``clients.http`` and httpx,
+    0.2 s of every local command's start): the commands' error handler
+    (``clients.cli._common.client_errors``) imports it only when an error reaches it."""
+    got = _fresh(LOCAL_RECON)
+    assert got["code"] == 0
+    loaded = [m for m in got["modules"] if m.split(".")[0] in ("httpx", "httpcore") or m.startswith("clients.http")]
+    assert loaded == [], loaded
