@@ -26,11 +26,14 @@ cat "$warm_log" >&2
 # Two parts: the tests in parallel on FPSCAN_TEST_WORKERS processes (default 2, one per core of
 # the reference machine; 0 runs them in this process), a test file's tests on one worker
 # (they share its servers and browser; the 25 slowest are listed), the files marked `long` first,
-# longest first (tests/conftest.py; xdist's own order, most tests first, ran the one-test two-minute
-# stream file last, beside an idle core: 18:45 against 16:56 warm); then, alone, the tests marked
-# `serial`, which hold a time bound an issue sets (health p99, cancel latency) that a neighbour's
-# load would blur.
-# Arguments go to both parts (a part that selects no test counts as passed).
+# longest first (tests/conftest.py; xdist's own order, most tests first, ran a long file last,
+# beside an idle core: 18:45 against 16:56 warm); then, alone, the tests marked `serial`, which
+# hold a time bound an issue sets (health p99, cancel latency) that a neighbour's load would blur.
+# Beside the parallel part, in a lane of their own, the tests marked `waits`: they mostly wait on a
+# real clock (the two-minute stream at 1 Hz, the serial link's PRF and timeouts: ~170 s of wall
+# time, ~30 s of CPU), which on a test worker held it and its core idle; their output follows the
+# parallel part's.
+# Arguments go to every part (a part that selects no test counts as passed).
 # Bytecode caches on (a caller's PYTHONDONTWRITEBYTECODE=1 made every pytest process parse and
 # assertion-rewrite ~450 modules again: collection took 13.7 s of CPU instead of 6.5 s).
 unset PYTHONDONTWRITEBYTECODE
@@ -49,16 +52,27 @@ case "$workers" in
      fi ;;
 esac
 set +e
+lane_log=$(mktemp)
+NUMBA_NUM_THREADS=1 .venv/bin/python -m pytest -p no:xdist -p no:cacheprovider -m "waits and not serial" "$@" \
+  >"$lane_log" 2>&1 &
+lane_pid=$!
+trap 'kill "$warm_pid" "$lane_pid" 2>/dev/null || true; rm -f "$warm_log" "$lane_log"' EXIT
 if [ -n "$threads" ]; then
-  NUMBA_NUM_THREADS="$threads" .venv/bin/python -m pytest -n "$workers" --dist loadfile --no-loadscope-reorder -m "not serial" --durations=25 "$@"
+  NUMBA_NUM_THREADS="$threads" .venv/bin/python -m pytest -n "$workers" --dist loadfile --no-loadscope-reorder -m "not serial and not waits" --durations=25 "$@"
 else
-  .venv/bin/python -m pytest -n "$workers" --dist loadfile --no-loadscope-reorder -m "not serial" --durations=25 "$@"
+  .venv/bin/python -m pytest -n "$workers" --dist loadfile --no-loadscope-reorder -m "not serial and not waits" --durations=25 "$@"
 fi
 parallel=$?
+wait "$lane_pid"
+lane=$?
+echo "--- the tests marked waits, run beside the parallel part:"
+cat "$lane_log"
 .venv/bin/python -m pytest -p no:xdist -m serial "$@"
 alone=$?
 set -e
 [ "$parallel" -eq 5 ] && parallel=0  # 5: no test selected
+[ "$lane" -eq 5 ] && lane=0
 [ "$alone" -eq 5 ] && alone=0
 if [ "$parallel" -ne 0 ]; then exit "$parallel"; fi
+if [ "$lane" -ne 0 ]; then exit "$lane"; fi
 exit "$alone"

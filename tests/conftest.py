@@ -31,8 +31,7 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
 
     scripts/test.sh hands the files to its workers in this order (``--dist loadfile
     --no-loadscope-reorder``): a long file started last would run on alone while the other
-    workers sit idle (the two-minute stream test, which mostly waits, ran last and left a core
-    idle for most of its 130 s), so the longest start first, as in longest-processing-time-first
+    workers sit idle, so the longest start first, as in longest-processing-time-first
     scheduling."""
     files: dict[str, list[pytest.Item]] = {}
     for item in items:

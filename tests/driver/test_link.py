@@ -18,7 +18,8 @@ from driver.sources import BallSource, ReplaySource
 from tests.driver.driver_helpers import grid_plan, read_record, small_phantom
 from tests.waits import HANG_S
 
-pytestmark = pytest.mark.timeout(120)
+# mostly real time on a pty (PRF pacing, link timeouts): run in scripts/test.sh's `waits` lane
+pytestmark = [pytest.mark.timeout(120), pytest.mark.waits]
 
 
 def make_sim(tmp_path, **kw) -> SimulatedScanner:

@@ -6,8 +6,9 @@ async client (each at its default read timeout, 30 s) follow the stream at once 
 scan's start to its final state; the server's log holds no error and no traceback.
 
 `tests/service/test_event_streams.py` holds the same check scaled down (a 4 s scan against a
-2 s watchdog) beside the other stream tests; this file holds the two-minute form alone, so
-that the test worker that runs it waits on the scan and nothing else.
+2 s watchdog) beside the other stream tests; this file holds the two-minute form, marked
+``waits``: scripts/test.sh runs it in a lane of its own beside the parallel part, where it
+would hold a test worker (and its core) idle for two minutes.
 """
 from __future__ import annotations
 
@@ -24,7 +25,7 @@ from tests.waits import HANG_S
 
 driver_sim = pytest.importorskip("driver.simulator")
 
-pytestmark = [needs_recon, pytest.mark.long(130)]
+pytestmark = [needs_recon, pytest.mark.waits]
 
 SIDE, PRF = 11, 1.0  # 121 points at 1 Hz: a scan of about two minutes
 DEFAULT_BODY_TIMEOUT_S = 30.0  # service.settings.Settings.body_timeout_s
