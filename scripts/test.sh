@@ -23,7 +23,7 @@ bash scripts/lint.sh
 # a failed warm-up only costs time (the tests compile what they need, and say what fails)
 wait "$warm_pid" || echo "fpscan warmup failed; the tests compile the kernels themselves:" >&2
 cat "$warm_log" >&2
-# Two parts: the tests in parallel on FPSCAN_TEST_WORKERS processes (default 2, one per core of
+# Three parts: the tests in parallel on FPSCAN_TEST_WORKERS processes (default 2, one per core of
 # the reference machine; 0 runs them in this process), a test file's tests on one worker
 # (they share its servers and browser; the 25 slowest are listed), the files marked `long` first,
 # longest first (tests/conftest.py; xdist's own order, most tests first, ran a long file last,

@@ -7,8 +7,8 @@ scan's start to its final state; the server's log holds no error and no tracebac
 
 `tests/service/test_event_streams.py` holds the same check scaled down (a 4 s scan against a
 2 s watchdog) beside the other stream tests; this file holds the two-minute form, marked
-``waits``: scripts/test.sh runs it in a lane of its own beside the parallel part, where it
-would hold a test worker (and its core) idle for two minutes.
+``waits``: scripts/test.sh runs it in a lane of its own beside the parallel part (on a test
+worker it held that worker and its core idle for two minutes).
 """
 from __future__ import annotations
 
