@@ -350,8 +350,8 @@ _EXECUTOR_LOCK = threading.Lock()
 
 
 #: CPU priority (``nice`` increment) of the plan worker: below the server's threads, beside
-#: the live-preview worker (+5); the reconstruction workers run at ``Settings.worker_nice``
-#: (default 0, the server's own priority).
+#: the live-preview worker (``service.jobs.preview.PREVIEW_WORKER_NICE``, +5); the reconstruction
+#: workers run at ``Settings.worker_nice`` (default 0, the server's own priority).
 PLAN_WORKER_NICE = 8
 
 

@@ -31,6 +31,7 @@ from service.jobs.dispatcher import Loop
 
 __all__ = [
     "PreviewState", "render_preview_png", "preview_grid", "render_preview", "warm_up", "PreviewManager",
+    "PREVIEW_WORKER_NICE",
 ]
 
 log = logging.getLogger("fpscan.preview")
@@ -265,6 +266,12 @@ def warm_up() -> float:
     return time.perf_counter() - t0
 
 
+#: CPU priority (``nice`` increment) of the live-preview worker: below the server's threads and the
+#: reconstruction workers (``Settings.worker_nice``, default 0), above the plan worker
+#: (``service.api.plans.PLAN_WORKER_NICE``).
+PREVIEW_WORKER_NICE = 5
+
+
 class PreviewManager:
     """Refreshes the previews of running scans, in one spawned worker process.
 
@@ -303,7 +310,7 @@ class PreviewManager:
         from service.jobs.executors import lower_priority
 
         return ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"), initializer=lower_priority,
-                                   initargs=(5, os.getpid()))
+                                   initargs=(PREVIEW_WORKER_NICE, os.getpid()))
 
     def start(self) -> None:
         self._pool = self._new_pool()  # its process starts with the first task

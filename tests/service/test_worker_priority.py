@@ -73,18 +73,19 @@ def test_with_the_warm_up_off_the_plan_and_preview_workers_start_at_their_first_
     nor its live-preview worker (+5), nothing being warmed (each was 1.2-2.4 s of CPU at every
     start); the first plan request starts the plan worker and is answered."""
     from service.api.plans import PLAN_WORKER_NICE
+    from service.jobs.preview import PREVIEW_WORKER_NICE
 
     srv = Server(tmp_path / "data", env={"FPSCAN_WARM_UP": "false"}).start()
     try:
         with srv.client() as api:
             assert api.get("/api/health").status_code == 200
-            assert spawned_at(srv, PLAN_WORKER_NICE) == [] and spawned_at(srv, 5) == []
+            assert spawned_at(srv, PLAN_WORKER_NICE) == [] and spawned_at(srv, PREVIEW_WORKER_NICE) == []
             r = api.post("/api/plans", json={"lattice": {"n_x": 4, "n_y": 4, "pitch": 1e-4},
                                              "points": [[0, 0], [1, 2], [3, 3]]})
             assert r.status_code == 201, r.text
             assert r.json()["n_points"] == 3
             assert len(spawned_at(srv, PLAN_WORKER_NICE)) == 1
-            assert spawned_at(srv, 5) == []
+            assert spawned_at(srv, PREVIEW_WORKER_NICE) == []
     finally:
         srv.stop()
 
@@ -115,9 +116,11 @@ def test_a_warming_server_is_healthy_and_runs_the_first_job(tmp_path):
             timings = done["params"]["result"]["timings"]
             assert timings["reconstruct_s"] > 0 and timings["write_s"] > 0
         from service.api.plans import PLAN_WORKER_NICE
+        from service.jobs.preview import PREVIEW_WORKER_NICE
 
         # the plan and live-preview workers were started (and warmed) with the server
-        assert len(wait_spawned_at(srv, PLAN_WORKER_NICE)) == 1 and len(wait_spawned_at(srv, 5)) == 1
+        assert len(wait_spawned_at(srv, PLAN_WORKER_NICE)) == 1
+        assert len(wait_spawned_at(srv, PREVIEW_WORKER_NICE)) == 1
     finally:
         srv.stop()
 
