@@ -53,14 +53,13 @@ COPY service ./service
 COPY driver ./driver
 COPY clients ./clients
 COPY fpscan ./fpscan
-COPY wire ./wire
 RUN /opt/fpscan/bin/python -m pip install --no-cache-dir --no-deps ".[${EXTRAS}]"
 # ship the compiled (numba) reconstruction kernels warm: every method once, float32 and
 # float64, so that a fresh worker only loads them (numba's cache beside the installed
 # modules; a host whose CPU differs from the build machine's recompiles on first use);
 # run outside /src so that the installed modules, not the sources, are imported
 WORKDIR /tmp
-RUN /opt/fpscan/bin/python -c "import numpy as np; from service.pipeline import METHODS, reconstruct; from service.storage.loader import GridDataset; d = np.zeros((32, 4, 4)); d[5] = 1; [reconstruct(GridDataset(data=d, dx=1e-4, dt=2e-8, c=1500.0, dy=1e-4), m, dtype=t) for m in METHODS if m != 'tv' for t in ('float32', 'float64')]"
+RUN /opt/fpscan/bin/python -c "import numpy as np; from fpscan.service.pipeline import METHODS, reconstruct; from fpscan.service.storage.loader import GridDataset; d = np.zeros((32, 4, 4)); d[5] = 1; [reconstruct(GridDataset(data=d, dx=1e-4, dt=2e-8, c=1500.0, dy=1e-4), m, dtype=t) for m in METHODS if m != 'tv' for t in ('float32', 'float64')]"
 
 # ---- runtime stage: slim, no compiler, non-root, tini as init ----------------------
 # (the venv's python links to the base's interpreter: python3 from apt where the base has none)

@@ -25,10 +25,10 @@ import time
 import tty
 from pathlib import Path
 
-from driver.aline import ALINE_HEADER
-from driver.framing import HEADER, FrameType, encode_frame
-from driver.physics.axes import centred_positions
-from driver.plan import plan_id_of
+from fpscan.driver.aline import ALINE_HEADER
+from fpscan.driver.framing import HEADER, FrameType, encode_frame
+from fpscan.driver.plan import plan_id_of
+from fpscan.physics.axes import centred_positions
 
 
 def raw_pty_rate(seconds: float = 2.0) -> float:
@@ -69,7 +69,7 @@ def raw_pty_rate(seconds: float = 2.0) -> float:
 
 
 def _run_sim(cfg, conn) -> None:
-    from driver.simulator import SimulatedScanner
+    from fpscan.driver.simulator import SimulatedScanner
 
     with SimulatedScanner(cfg) as sim:
         conn.send(sim.path)
@@ -102,11 +102,11 @@ def main() -> int:
 
     import psutil
 
-    from driver.host import Scanner
-    from driver.physics import Ball
-    from driver.scanfile import ScanFile, read_scan
-    from driver.simulator import SimConfig
-    from driver.sources import BallSource
+    from fpscan.driver.host import Scanner
+    from fpscan.driver.scanfile import ScanFile, read_scan
+    from fpscan.driver.simulator import SimConfig
+    from fpscan.driver.sources import BallSource
+    from fpscan.physics import Ball
 
     plan = grid_plan(args.side, args.n_t)
     n = len(plan["points"]["indices"])
@@ -146,7 +146,7 @@ def main() -> int:
                 print(f"[{reader} reader] plan upload + A-line precomputation: "
                       f"{time.perf_counter() - t:.1f} s")
                 procs = {"simulator": psutil.Process(proc.pid), "host": psutil.Process()}
-                relay = getattr(sc._reader, "process", None)  # driver.transport.RelayReader
+                relay = getattr(sc._reader, "process", None)  # fpscan.driver.transport.RelayReader
                 if relay is not None:
                     procs["relay"] = psutil.Process(relay.pid)
                 cpu0 = {k: sum(p.cpu_times()[:2]) for k, p in procs.items()}

@@ -7,7 +7,7 @@ thread count k in ``--threads``, best of ``--repeat``:
 - ``triad``: a = b + s c over three float32 arrays of the temporal fine grid's size, a numba
   ``prange`` loop at k threads: the memory bandwidth the cores share (a STREAM triad);
 - ``temporal FFT``: ``scipy.fft.fft`` of the fine temporal grid (n_cols × L complex64), workers=k;
-- ``interp``: NER's temporal NUFFT evaluation (`driver.physics.nufft.evaluate`, the compiled
+- ``interp``: NER's temporal NUFFT evaluation (`fpscan.physics.nufft.evaluate`, the compiled
   kernel) at k numba threads;
 - ``NER``: the whole `reconstruct_grid` float32 at k numba threads (its FFTs always ask for every
   core: ``workers=-1``), for reference.
@@ -46,9 +46,9 @@ def main(argv=None) -> None:
     args = parser.parse_args(argv)
     import scipy.fft
 
-    from driver.physics import nufft
-    from driver.physics.fast_lengths import fast_lateral
-    from service.recon import reconstruct_grid
+    from fpscan.physics import nufft
+    from fpscan.physics.fast_lengths import fast_lateral
+    from fpscan.service.recon import reconstruct_grid
 
     cores = numba.config.NUMBA_NUM_THREADS
     threads = args.threads or [k for k in (1, 2, 4, 8, 16, 32) if k <= cores]

@@ -9,7 +9,7 @@ equi-steradian mask of 1653 points around a point of interest 3.6 mm deep, three
 - NER float32 of random data on the full lattice (as bench_tv_paper), warm (plans, taps and
   compiled kernels ready), best of ``--repeat``: on the GPU host to host (the data copied there,
   the image back) and on the device (data already there, synchronised), and on the CPU;
-- NEDNER float32 of the scan's A-lines (the lateral step on the host, `service.recon.planar`);
+- NEDNER float32 of the scan's A-lines (the lateral step on the host, `fpscan.service.recon.planar`);
 - tv float32 at its defaults (its grid, band, λ rule and stopping rule), set-up included: on the
   GPU, and on the CPU; then the GPU again at the CPU's λ (the rest its defaults), whose iterations
   and image are compared with the CPU's (CC), and both images' CC with the true balls.
@@ -76,8 +76,8 @@ def _timed(fn, key: str, sync=None):
 def _tv(case: dict, device: str, **kw) -> tuple[float, object]:
     """tv on ``case``; also the time in its operator pairs (A and B = P Aᵀ, `_Model.forward` / `_Model.B`) and
     its warm start, in ``rec.params["bench_spent"]`` (an instrumentation of this benchmark only)."""
-    import service.recon.tv as tv_package
-    from service.recon.tv import problem, reconstruct_tv
+    import fpscan.service.recon.tv as tv_package
+    from fpscan.service.recon.tv import problem, reconstruct_tv
 
     sync = None
     if device != "cpu":
@@ -102,8 +102,8 @@ def _tv(case: dict, device: str, **kw) -> tuple[float, object]:
 
 def _cpu_rows(case: dict, repeat: int, with_tv: bool) -> dict:
     """NER (and tv) on the CPU: the warm-up compiles numba's kernels (or loads their cache)."""
-    from service.recon import reconstruct_grid
-    from service.recon.tv import reconstruct_tv
+    from fpscan.service.recon import reconstruct_grid
+    from fpscan.service.recon.tv import reconstruct_tv
 
     data = _ner_data(case)
     reconstruct_grid(data[:32, :16, :16], PITCH, DT, C, dtype=np.float32, device="cpu")
@@ -159,10 +159,10 @@ def main(argv=None) -> None:
 
     import cupy
 
-    from driver.physics import ball_p0
-    from driver.physics.fast_lengths import fast_lateral
-    from service.metrics import correlation_coefficient
-    from service.recon import device, gpu, reconstruct_grid, reconstruct_points
+    from fpscan.physics import ball_p0
+    from fpscan.physics.fast_lengths import fast_lateral
+    from fpscan.service.metrics import correlation_coefficient
+    from fpscan.service.recon import device, gpu, reconstruct_grid, reconstruct_points
 
     gpus = device.cuda_devices()
     if not gpus:

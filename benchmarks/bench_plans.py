@@ -30,8 +30,8 @@ def main(argv=None) -> int:
     ap.add_argument("--repeat", type=int, default=5)
     args = ap.parse_args(argv)
 
-    from service.plans import Lattice, equisteradian_mask, make_plan
-    from service.plans.mask import default_weights
+    from fpscan.service.plans import Lattice, equisteradian_mask, make_plan
+    from fpscan.service.plans.mask import default_weights
 
     lattice = Lattice(226, 226, 60e-6)
     equisteradian_mask(lattice, 3.6e-3, 1625)  # warm-up (imports, caches)

@@ -41,7 +41,7 @@ import time
 
 import numpy as np
 
-from driver.physics.axes import centred_axis
+from fpscan.physics.axes import centred_axis
 
 C, DT, PITCH = 1500.0, 8e-9, 60e-6
 
@@ -98,7 +98,7 @@ def _peak() -> int:
 
 def _run_model(method, n_t, n_y, n_x, repeat, queue, max_iter=None):
     """The operator pair / tv, as ratios to one NER of the same size (same process)."""
-    from service.recon import PlanarOperator, reconstruct_grid, reconstruct_tv
+    from fpscan.service.recon import PlanarOperator, reconstruct_grid, reconstruct_tv
 
     rng = np.random.default_rng(1)
     data = rng.standard_normal((n_t, n_y, n_x))
@@ -113,7 +113,7 @@ def _run_model(method, n_t, n_y, n_x, repeat, queue, max_iter=None):
         t = _best(lambda: op.adjoint(op.forward(p0)), repeat)
         note = f"padded grid {op.padded_shape}"
     else:
-        from driver.physics import Ball, ball_alines
+        from fpscan.physics import Ball, ball_alines
 
         pos, w, kind = _mask_positions(n_y, n_x)
         x = centred_axis(n_x, PITCH)
@@ -139,7 +139,7 @@ def _run_model(method, n_t, n_y, n_x, repeat, queue, max_iter=None):
 
 def _mask_positions(n_y, n_x):
     try:
-        from service.plans import Lattice, equisteradian_mask
+        from fpscan.service.plans import Lattice, equisteradian_mask
 
         lat = Lattice(n_x, n_y, PITCH)
         depth = 3.6e-3 * n_x / 226
@@ -154,7 +154,7 @@ def _mask_positions(n_y, n_x):
 
 
 def _run(method, n_t, n_y, n_x, repeat, queue):
-    from service.recon import kspace_plane_recon, reconstruct_grid, reconstruct_points
+    from fpscan.service.recon import kspace_plane_recon, reconstruct_grid, reconstruct_points
 
     base = _rss()
     rng = np.random.default_rng(1)
@@ -240,8 +240,8 @@ def _table(sizes, methods, repeat, tv_iterations=None):
 def _kwave2d(path, repeat, queue):
     import scipy.fft
 
-    from service.formats import load
-    from service.recon import reconstruct_grid
+    from fpscan.service.formats import load
+    from fpscan.service.recon import reconstruct_grid
 
     ds = load(path, "kwave-hdf5", key="sensor_data/clean")[1]  # the k-Wave format's reader and spacing rule
     data, dx, dt, c = ds.data.astype(np.float64), ds.dx, ds.dt, ds.c
@@ -260,7 +260,7 @@ def _cold_start() -> None:
     import sys
 
     code = ("import time; t0 = time.perf_counter()\n"
-            "import numpy as np\nfrom service.recon import reconstruct_grid, reconstruct_points\n"
+            "import numpy as np\nfrom fpscan.service.recon import reconstruct_grid, reconstruct_points\n"
             "t1 = time.perf_counter()\nreconstruct_grid(np.ones((16, 4, 4)), 1e-4, 1e-8)\n"
             "reconstruct_points(np.ones((5, 16)), np.random.default_rng(0).uniform(-1e-3, 1e-3, (5, 2)), 1e-8)\n"
             "t2 = time.perf_counter()\nprint(t1 - t0, t2 - t1)")
@@ -274,14 +274,14 @@ def _cold_start() -> None:
 
 
 def _writer(repeat) -> None:
-    """The result writer (service.storage.results) on a noisy and a mostly-zero volume,
+    """The result writer (fpscan.service.storage.results) on a noisy and a mostly-zero volume,
     beside fixed HDF5 layouts of the same data (the measurements behind storage_layout)."""
     import tempfile
     from pathlib import Path
 
     import h5py
 
-    from service.storage.results import storage_layout, write_volume
+    from fpscan.service.storage.results import storage_layout, write_volume
 
     rng = np.random.default_rng(0)
     n_z, n_y, n_x = 512, 128, 144
@@ -330,7 +330,7 @@ def _vs_kwave_python(repeat) -> None:
     if fn is None:
         print(f"\nk-wave-python is {why}: comparison skipped")
         return
-    from service.recon import kspace_plane_recon
+    from fpscan.service.recon import kspace_plane_recon
 
     data = np.random.default_rng(1).standard_normal((512, 113, 113))
     ours = _best(lambda: kspace_plane_recon(data, PITCH, PITCH, DT, C), repeat)

@@ -31,7 +31,7 @@ from pathlib import Path
 import httpx
 import numpy as np
 
-from clients.processes import start_service
+from fpscan.clients.processes import start_service
 
 TOKEN = "bench-token"
 
@@ -201,7 +201,7 @@ def main() -> int:
     if args.quick:
         args.size, args.n_t, args.seconds, args.points = 64, 256, 2.0, 200
 
-    from driver.simulator import SimulatedScanner
+    from fpscan.driver.simulator import SimulatedScanner
 
     out = {}
     with tempfile.TemporaryDirectory() as tmp:

@@ -29,7 +29,7 @@ from pathlib import Path
 import httpx
 import psutil
 
-from clients.processes import start_service
+from fpscan.clients.processes import start_service
 
 TOKEN = "bench-token"
 

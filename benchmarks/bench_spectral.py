@@ -5,7 +5,7 @@
    simulated ball phantom (128 × 128 sensors, 1024 samples, c = 1480 m/s): the search
    time as a ratio to ONE reconstruction of the same data with the same method (target
    ≤ 4×), and the c found.
-2. Unmixing (closed-form NNLS, :func:`service.recon.unmix.unmix`) of a 226 × 226 × 512
+2. Unmixing (closed-form NNLS, :func:`fpscan.service.recon.unmix.unmix`) of a 226 × 226 × 512
    two-wavelength float32 volume: time per voxel, and the speed-up over calling
    ``scipy.optimize.nnls`` voxel by voxel (measured on 20 000 voxels).
 
@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from driver.physics.axes import centred_axis
+from fpscan.physics.axes import centred_axis
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
@@ -33,7 +33,7 @@ def _timed(f, *args, **kwargs):
 
 
 def bench_autofocus(name: str, ds, c_true: float) -> None:
-    from service import pipeline
+    from fpscan.service import pipeline
 
     method = pipeline.default_method(ds)
     pipeline.reconstruct(ds, method, c=1500.0)  # warm-up (compilation, FFT plans)
@@ -50,8 +50,8 @@ def bench_autofocus(name: str, ds, c_true: float) -> None:
 def bench_unmix() -> None:
     from scipy.optimize import nnls
 
-    from driver.physics import spectra
-    from service.recon.unmix import endmember_matrix, unmix
+    from fpscan.physics import spectra
+    from fpscan.service.recon.unmix import endmember_matrix, unmix
 
     w = [750e-9, 850e-9]
     shape = (512, 226, 226)
@@ -77,8 +77,8 @@ def main() -> None:
     ap.add_argument("--side", type=int, default=128, help="simulated sensor grid side")
     args = ap.parse_args()
 
-    from driver.physics import Ball, ball_alines
-    from service.storage.loader import GridDataset, load_dataset
+    from fpscan.physics import Ball, ball_alines
+    from fpscan.service.storage.loader import GridDataset, load_dataset
 
     path = SHARED / "kwave3d_balls_yarn.h5"
     if not args.skip_kwave and path.is_file():

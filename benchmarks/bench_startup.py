@@ -6,12 +6,12 @@ run interleaved, ``--repeat`` rounds, and the table shows each one's median and 
 
 - ``fpscan --version`` and ``fpscan --help`` (target <= 1.5x ``python -c pass``: no numpy,
   h5py or service code is imported);
-- ``import service.recon`` (target <= 2x ``import numpy``: scipy.fft, numba, finufft and
+- ``import fpscan.service.recon`` (target <= 2x ``import numpy``: scipy.fft, numba, finufft and
   pylops load when a method needs them);
 - the first tiny reconstruction (NER of a 32 x 8 x 8 grid + NEDNER of 40 scattered A-lines,
   float32, imports included) with numba's cache cold (a fresh, empty ``NUMBA_CACHE_DIR``)
   and warm (a second fresh interpreter on the cache the cold run wrote; target <= 3x
-  ``import numpy``). Transforms this small run in numpy (`driver.physics.fft_engine`): no
+  ``import numpy``). Transforms this small run in numpy (`fpscan.physics.fft_engine`): no
   kernel compiles or loads, so both rows are the same work (before that path: 10.8 s cold,
   1.74 s warm).
 
@@ -34,7 +34,7 @@ from pathlib import Path
 
 TINY_RECON = """
 import numpy as np
-from service.recon import reconstruct_grid, reconstruct_points
+from fpscan.service.recon import reconstruct_grid, reconstruct_points
 data = np.zeros((32, 8, 8), dtype=np.float32)
 data[5, 4, 4] = 1.0
 reconstruct_grid(data, 1e-4, 2e-8, dtype="float32")
@@ -50,7 +50,7 @@ def _cli(*args: str) -> list[str]:
     script = Path(sys.executable).with_name("fpscan")
     if script.exists():
         return [sys.executable, str(script), *args]
-    return [sys.executable, "-c", f"import sys; from clients.cli import main; sys.exit(main({list(args)!r}))"]
+    return [sys.executable, "-c", f"import sys; from fpscan.clients.cli import main; sys.exit(main({list(args)!r}))"]
 
 
 def _run(cmd: list[str], env: dict[str, str]) -> float:
@@ -74,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
         "import numpy": [py, "-c", "import numpy"],
         "fpscan --version": _cli("--version"),
         "fpscan --help": _cli("--help"),
-        "import service.recon": [py, "-c", "import service.recon"],
+        "import fpscan.service.recon": [py, "-c", "import fpscan.service.recon"],
         "tiny NER+NEDNER, cold cache": [py, "-c", TINY_RECON],
         "tiny NER+NEDNER, warm cache": [py, "-c", TINY_RECON],
     }

@@ -6,14 +6,14 @@ Columns, per method and lateral size (n_t fixed by ``--n-t``; float32; one synth
 per size, content irrelevant to timing):
 
 - ``lib cold``: a fresh interpreter's import of the pipeline + its first reconstruction
-  (numba's on-disk cache as it is); ``lib``: a warm ``service.pipeline.reconstruct`` in that
+  (numba's on-disk cache as it is); ``lib``: a warm ``fpscan.service.pipeline.reconstruct`` in that
   process (median of ``--repeat``);
-- ``worker``: ``service.jobs.work.run_reconstruction`` in the same process (what a pool worker
+- ``worker``: ``fpscan.service.jobs.work.run_reconstruction`` in the same process (what a pool worker
   runs: load the canonical dataset file, reconstruct, write the result folder), over ``lib``;
-- ``write``: ``service.storage.results.write_result`` (volume.h5 + MIP PNGs) of that
+- ``write``: ``fpscan.service.storage.results.write_result`` (volume.h5 + MIP PNGs) of that
   reconstruction in the same process, over ``lib`` (target <= 0.3);
 - ``http``: one job over HTTP, submit to ``succeeded`` (the end of the job's events stream, as
-  ``clients.http.Client.wait`` waits), on a server whose
+  ``fpscan.clients.http.Client.wait`` waits), on a server whose
   worker is warm, over ``lib`` (target <= 1.3); the library call and the job alternate
   (lib, http, lib, http, ...: ``--repeat`` rounds, medians), so both see the same load;
 - ``job recon`` / ``job write``: the job's own timings (``params.result.timings``);
@@ -65,11 +65,11 @@ def _library_child(method_paths: list[str]) -> None:
     one line of JSON per command read from stdin (``METHOD PATH``): a warm library call, the
     worker's ``run_reconstruction`` and ``write_result`` of the same data, each timed."""
     t0 = time.perf_counter()
-    from service.jobs.work import run_reconstruction
-    from service.pipeline import reconstruct
-    from service.recon.dataset import GridDataset
-    from service.storage.loader import write_dataset
-    from service.storage.results import write_result
+    from fpscan.service.jobs.work import run_reconstruction
+    from fpscan.service.pipeline import reconstruct
+    from fpscan.service.recon.dataset import GridDataset
+    from fpscan.service.storage.loader import write_dataset
+    from fpscan.service.storage.results import write_result
 
     method, path = method_paths
     ds = GridDataset(data=np.load(path), dx=DX, dt=DT, c=C, dy=DX)
@@ -129,7 +129,7 @@ class Library:
 
 
 def cli(method: str, path: Path, out: Path) -> float:
-    from clients.processes import fpscan_argv
+    from fpscan.clients.processes import fpscan_argv
 
     argv = fpscan_argv("recon", str(path), "--format", "npy", "--dt", str(DT), "--dx", str(DX), "--c", str(C),
                        "--method", method, "--dtype", "float32", "--out", str(out), "--quiet")
@@ -151,7 +151,7 @@ def job(c, ds: str, method: str) -> tuple[float, dict]:
     r = c.post("/api/reconstructions", json={"dataset_id": ds, "method": method, "params": {"dtype": "float32"}})
     r.raise_for_status()
     jid = r.json()["id"]
-    # as a client waits (clients.http.Client.wait): the job's events stream, which ends
+    # as a client waits (fpscan.clients.http.Client.wait): the job's events stream, which ends
     # after the job's final state
     with c.stream("GET", f"/api/jobs/{jid}/events") as events:
         for _ in events.iter_lines():
@@ -224,7 +224,7 @@ def _measure(args: argparse.Namespace, tmp: Path, paths: list[Path], lib: Librar
     ``--repeat`` rounds of (library call + worker function + writer, HTTP job)."""
     import httpx
 
-    from clients.processes import start_service
+    from fpscan.clients.processes import start_service
 
     extra["lib_cold_s"] = lib.cold_s
     # references for the start-up: a bare interpreter, numpy, and the web framework every FastAPI

@@ -1,6 +1,6 @@
 """The automatic λ's calibration (issue 47 item 4): tv's CC with the true p0 over a λ sweep on
 the calibration cases, and the rule λ = a · s · max(1, (D₀ / knee)^p) that loses least in the
-worst case (`service.recon.tv`, module doc: s the image's noise level, D₀ the warm start's
+worst case (`fpscan.service.recon.tv`, module doc: s the image's noise level, D₀ the warm start's
 discrepancy).
 
 Cases (`bench_tv_solver._case`: 24 × 40 × 40 voxels of 50 µm, or 64 × 96 pixels in 2-D, exact
@@ -56,8 +56,8 @@ def cases() -> list[tuple]:
 
 def sweep(case: tuple) -> dict:
     """One case's sweep (module doc)."""
-    from service.metrics import correlation_coefficient
-    from service.recon.tv import reconstruct_tv
+    from fpscan.service.metrics import correlation_coefficient
+    from fpscan.service.recon.tv import reconstruct_tv
 
     which, kind, dims, snr, points, seed, lateral = case
     p0, alines, pos, kw = _case(kind, dims, snr, points, seed, lateral=lateral)
@@ -89,7 +89,7 @@ def losses(rows: list[dict], a: float, knee: float, power: float) -> np.ndarray:
 
 def present_rule() -> tuple[float, float, float]:
     """(a, knee, p) of tv's automatic λ as it stands."""
-    import service.recon.tv as tv
+    import fpscan.service.recon.tv as tv
 
     return (tv._LAM_SCALE, tv._LAM_KNEE, tv._LAM_POWER)
 

@@ -12,16 +12,16 @@ Cases (``--cases``):
   0.5: a 113² lattice of 60 µm, 512 samples of 8 ns, three balls 1.4-2.2 mm deep), exact A-lines.
 
 Masks (``--masks``): equi-steradian (3-D) / equiangular (2-D) masks of 4 % and 11 % of the lattice
-(`service.plans.equisteradian_mask` / `equiangular_mask`) around a point of interest under the
+(`fpscan.service.plans.equisteradian_mask` / `equiangular_mask`) around a point of interest under the
 lattice centre at the depth of p0's centroid (the paper's case: its balls' 3.6 mm × scale). Noise
 (``--noise``): white, seeded (``--seed``, default 0), relative to the peak (k-Wave's ``addNoise(..., 'peak')``: σ =
 max|clean| / 10^(SNR/20)) at 20, 30 and 40 dB, and relative to the RMS at 30 dB
-(`service.experiments.dense.add_noise`), over the dense record; the sparse scan is its mask's
+(`fpscan.service.experiments.dense.add_noise`), over the dense record; the sparse scan is its mask's
 A-lines of it.
 
 Per row:
 
-- **tv**: `service.pipeline.reconstruct` (the one dispatch the CLI and the server call) with
+- **tv**: `fpscan.service.pipeline.reconstruct` (the one dispatch the CLI and the server call) with
   method ``tv`` at its defaults, float32; on the k-Wave cases with ``dz`` and ``n_z`` of the
   phantom's grid (as a user comparing with p0 would), on the paper's case at its own default
   grid (CC with the balls sampled on that grid);
@@ -90,8 +90,8 @@ PROBE_DEFAULTS = {"tol": None, "declared": None, "ref_lam": "rule", "rule_iterat
 
 def noisy(clean: np.ndarray, noise: str, seed: int = 0) -> np.ndarray:
     """``clean`` plus seeded white noise named as ``peak20`` (σ = max|clean| / 10^(20/20)) or
-    ``rms30`` (σ = rms(clean) / 10^(30/20), `service.experiments.dense.add_noise`)."""
-    from service.experiments.dense import add_noise
+    ``rms30`` (σ = rms(clean) / 10^(30/20), `fpscan.service.experiments.dense.add_noise`)."""
+    from fpscan.service.experiments.dense import add_noise
 
     kind, snr = noise[:-2], float(noise[-2:])
     return add_noise(clean, snr, seed=seed, reference=kind)
@@ -120,8 +120,8 @@ def _paper_case() -> dict:
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from bench_tv_paper import DT, PITCH, C, paper_case
 
-    from driver.physics import ball_alines
-    from driver.physics.axes import centred_axis
+    from fpscan.physics import ball_alines
+    from fpscan.physics.axes import centred_axis
 
     case = paper_case(0.5, math.inf)  # the balls; the A-lines of every lattice point made here
     n, n_t = case["n"], case["n_t"]
@@ -136,7 +136,7 @@ def _paper_case() -> dict:
 def make_mask(case: dict, percent: int):
     """The case's 4 % / 11 % mask: equi-steradian (3-D) or equiangular (2-D) around the point of
     interest under the lattice centre at the depth of p0's centroid."""
-    from service.plans import Lattice, equiangular_mask, equisteradian_mask
+    from fpscan.service.plans import Lattice, equiangular_mask, equisteradian_mask
 
     clean = case["clean"]
     if case.get("poi_depth") is not None:
@@ -187,13 +187,13 @@ def run_row(name: str, percent: int, noise: str, rule: bool = False, case: dict 
     """One row of the matrix (module doc): a dict of figures (without ``reference``: no ref run,
     the CI subset's row; ``seed``: the noise's; ``probe``: the probes' options, `PROBE_DEFAULTS`
     and the module doc)."""
-    from driver.physics import ball_p0
-    from driver.physics.axes import centred_axis
-    from service.metrics import correlation_coefficient
-    from service.pipeline import reconstruct
-    from service.recon import reconstruct_grid
-    from service.recon.dataset import GridDataset, PointDataset
-    from service.recon.methods.tv import BANDWIDTH_KEY
+    from fpscan.physics import ball_p0
+    from fpscan.physics.axes import centred_axis
+    from fpscan.service.metrics import correlation_coefficient
+    from fpscan.service.pipeline import reconstruct
+    from fpscan.service.recon import reconstruct_grid
+    from fpscan.service.recon.dataset import GridDataset, PointDataset
+    from fpscan.service.recon.methods.tv import BANDWIDTH_KEY
 
     probe = {**PROBE_DEFAULTS, **(probe or {})}
     case = load_case(name) if case is None else case

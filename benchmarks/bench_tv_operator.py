@@ -46,7 +46,7 @@ float32 pair from 0.95-1.02 to 0.84-0.90 s and the float64 one from 1.56-1.64 to
 
 At 128 x 128² the padded lateral area alone is 1.56x NER's (160² half spectrum against
 128²), so two transforms cost at least ~3.1 NERs at NER's own cost per element; the
-exact free-space model cannot pad less (`service.recon.operator`, Padding). At the
+exact free-space model cannot pad less (`fpscan.service.recon.operator`, Padding). At the
 paper's 1024 samples the reach is 205 pitches and the working grid 450 x 450: expect
 about 7x.
 """
@@ -77,8 +77,8 @@ def _row(label: str, ref: str, t_ref, t_pair) -> str:
 
 
 def bench(n_t: int, n_y: int, n_x: int, dtype, repeat: int, n_points: int | None) -> list[str]:
-    from service.recon.operator import PlanarOperator
-    from service.recon.planar import reconstruct_grid, reconstruct_points
+    from fpscan.service.recon.operator import PlanarOperator
+    from fpscan.service.recon.planar import reconstruct_grid, reconstruct_points
 
     rng = np.random.default_rng(0)
     data = rng.standard_normal((n_t, n_y, n_x)).astype(dtype)

@@ -2,14 +2,14 @@
 pairs, converged, peak memory over the image and CC with the true p0, per grid.
 
 The case: the paper's scan — a 226 x 226 lattice of 60 µm, 1024 samples of 8 ns, c = 1500 m/s,
-the equi-steradian mask of `service.plans.equisteradian_mask` asked for 1625 points around
+the equi-steradian mask of `fpscan.service.plans.equisteradian_mask` asked for 1625 points around
 a point of interest 3.6 mm deep (1653 points) — of three uniform balls near that point (radii
 0.30, 0.20 and 0.15 mm at 3.6, 4.32 and 2.88 mm; amplitudes 1, 0.7, 0.5), exact A-lines
-(`driver.physics.ball_alines`: the N-waves averaged over each sample) with seeded white noise
+(`fpscan.physics.ball_alines`: the N-waves averaged over each sample) with seeded white noise
 ``--snr`` dB below the signal's RMS (``--noise peak``: below its peak, k-Wave's ``addNoise(...,
 'peak')``); tv in float32 at its defaults but for the grid. Rows:
 
-- ``defaults``: the grid tv picks (`service.recon.tv_grid`: the band the 60 µm pitch resolves,
+- ``defaults``: the grid tv picks (`fpscan.service.recon.tv_grid`: the band the 60 µm pitch resolves,
   12.5 MHz, on an isotropic grid down to the last echo, the record kept for it);
 - ``today's grid``: dz = c·dt at the record's own sampling over the whole record (``bandwidth`` =
   the Nyquist frequency, ``whole_record``);
@@ -22,8 +22,8 @@ RSS before tv (reset after NER, `/proc/self/clear_refs`), over the image's bytes
 float32). The CC is against the analytic balls sampled on tv's own grid (`ball_p0`,
 supersampled 2x), tv's and (after tv, for scale) NEDNER's of the same A-lines on that grid,
 clipped at 0: the kind of image tv starts from. The admission estimate is the server's
-(`service.jobs.admission.estimate_memory` of the job as for a stored dataset, whose record facts
-the import found: `service.recon.tv_grid.record_facts`) over that peak. ``--scale 0.5`` runs the
+(`fpscan.service.jobs.admission.estimate_memory` of the job as for a stored dataset, whose record facts
+the import found: `fpscan.service.recon.tv_grid.record_facts`) over that peak. ``--scale 0.5`` runs the
 same case at half the size in every dimension (113², 512 samples, 437 points) for a quick look.
 ``--no-continuation`` runs tv without its λ continuation (the solver until 2026-11-26), to
 compare. ``--max-iter K`` caps tv's iterations at K (stop "iterations"; the continuation then
@@ -56,12 +56,12 @@ def paper_case(scale: float = 1.0, snr_db: float = 30.0, seed: int = 1, sensor_b
                noise: str = "rms") -> dict:
     """The scan above (``scale`` < 1 shrinks the lattice, the record, the depth and the balls;
     ``sensor_band``: the A-lines low-passed as the simulated scanner's sensor does, a 2nd-order
-    Butterworth of that −3 dB frequency in Hz (`driver.simulator.sensor_response`), before the noise;
+    Butterworth of that −3 dB frequency in Hz (`fpscan.driver.simulator.sensor_response`), before the noise;
     ``noise``: ``"rms"`` (``snr_db`` below the A-lines' RMS) or ``"peak"`` (below their peak, k-Wave's
     ``addNoise(..., 'peak')``))."""
-    from driver.physics import Ball, ball_alines
-    from driver.physics.axes import centred_axis
-    from service.plans import Lattice, equisteradian_mask
+    from fpscan.physics import Ball, ball_alines
+    from fpscan.physics.axes import centred_axis
+    from fpscan.service.plans import Lattice, equisteradian_mask
 
     n = int(round(226 * scale))
     n_t = int(round(1024 * scale))
@@ -73,7 +73,7 @@ def paper_case(scale: float = 1.0, snr_db: float = 30.0, seed: int = 1, sensor_b
              Ball(-0.9e-3 * scale, 0.6e-3 * scale, 0.8 * depth, 0.15e-3 * scale, 0.5)]
     clean = ball_alines(pos, balls, DT, n_t, C)
     if sensor_band:
-        from driver.simulator import sensor_response
+        from fpscan.driver.simulator import sensor_response
 
         clean = sensor_response(clean, sensor_band, DT)
     white = np.random.default_rng(seed).standard_normal(clean.shape)
@@ -111,12 +111,12 @@ def _peak() -> int:
 def _row(label: str, scale: float, snr: float, bandwidth, whole: bool, repeat: int, queue, rule: bool = False,
          continuation: bool = True, max_iter: int | None = None, sensor_band: float | None = None,
          noise: str = "rms") -> None:
-    from driver.physics import ball_p0
-    from service.jobs.admission import estimate_memory
-    from service.metrics import correlation_coefficient
-    from service.recon import reconstruct_grid, reconstruct_points
-    from service.recon.tv import reconstruct_tv
-    from service.recon.tv_grid import record_facts
+    from fpscan.physics import ball_p0
+    from fpscan.service.jobs.admission import estimate_memory
+    from fpscan.service.metrics import correlation_coefficient
+    from fpscan.service.recon import reconstruct_grid, reconstruct_points
+    from fpscan.service.recon.tv import reconstruct_tv
+    from fpscan.service.recon.tv_grid import record_facts
 
     case = paper_case(scale, snr, sensor_band=sensor_band, noise=noise)
     n, n_t = case["n"], case["n_t"]
@@ -129,7 +129,7 @@ def _row(label: str, scale: float, snr: float, bandwidth, whole: bool, repeat: i
         best = min(best, time.perf_counter() - t)
     del data
     pos = case["positions"]
-    # the admission's estimate of this job (service.jobs.admission, as for a stored dataset: its record facts)
+    # the admission's estimate of this job (fpscan.service.jobs.admission, as for a stored dataset: its record facts)
     shape = {"n_t": n_t, "n_x": n, "n_y": n, "n_points": len(pos), "dt": DT, "c": C, "dx": PITCH, "t0": 0.0,
              "record_facts": record_facts(case["alines"], DT, 1).as_dict(), "bandwidth": bandwidth}
     estimate = estimate_memory(shape, {"method": "tv", "dtype": "float32", "whole_record": whole})

@@ -1,6 +1,6 @@
 """The model-based solver against one NEDNER of the same data (issue 19, item 2).
 
-For vessel (`service.experiments.phantoms.vessel_phantom`) and ball phantoms, 2-D (a line of
+For vessel (`fpscan.service.experiments.phantoms.vessel_phantom`) and ball phantoms, 2-D (a line of
 ``n_x`` sensors, 24 of them used, equiangular about the image's centre) and 3-D (a lattice,
 an equi-steradian mask of about 10 %), exact grid data (`forward_grid`, pitch = dz = 50 µm,
 dt = pitch / c) with seeded white noise ``--snr`` dB below the signal, this prints per case:
@@ -11,7 +11,7 @@ dt = pitch / c) with seeded white noise ``--snr`` dB below the signal, this prin
 - CC with the true p0 of NEDNER and tv, and their least-squares amplitudes (argmin_a
   ‖img − a p0‖), with ``--debias`` also tv's after the least-squares refit;
 - the automatic λ over the image's noise level and the warm start's discrepancy D₀ that
-  sets it (`service.recon.tv`, module doc);
+  sets it (`fpscan.service.recon.tv`, module doc);
 - with ``--sweep``, tv's CC at λ ×1/8 … ×8 of the automatic one, the best factor and the CC
   lost at the automatic λ (issue 19, item 3: ≤ 0.01; docs/results.md's table);
 - with ``--rule``, what the stopping rule's threshold buys (issue 47 item 2): a 300-iteration
@@ -63,10 +63,10 @@ def _case(kind: str, dims: int, snr_db: float, points: int = 160, seed: int = 0,
           lateral: float = 1.0):
     """Phantom, A-lines, sensor positions and tv's keywords of one case: ``points`` sensors of
     the 3-D mask (2-D: of the line; 0: 24), lateral pitch ``lateral`` × 50 µm (depth 50 µm)."""
-    from driver.physics import Ball, ball_p0
-    from driver.physics.forward import forward_grid
-    from service.experiments.phantoms import vessel_phantom
-    from service.plans import Lattice, equiangular_mask, equisteradian_mask
+    from fpscan.physics import Ball, ball_p0
+    from fpscan.physics.forward import forward_grid
+    from fpscan.service.experiments.phantoms import vessel_phantom
+    from fpscan.service.plans import Lattice, equiangular_mask, equisteradian_mask
 
     if dims == 2:
         n_z, n = 64, 96
@@ -107,9 +107,9 @@ def _case(kind: str, dims: int, snr_db: float, points: int = 160, seed: int = 0,
 
 def run(kind: str, dims: int, snr_db: float, debias: bool, points: int = 160, sweep: bool = False, seed: int = 0,
         poi: float = 12.0, rule: bool = False) -> str:
-    from service.metrics import correlation_coefficient
-    from service.recon import reconstruct_points
-    from service.recon.tv import reconstruct_tv
+    from fpscan.service.metrics import correlation_coefficient
+    from fpscan.service.recon import reconstruct_points
+    from fpscan.service.recon.tv import reconstruct_tv
 
     p0, alines, pos, kw = _case(kind, dims, snr_db, points, seed, poi)
     amp = lambda img: float(np.vdot(img, p0) / np.vdot(p0, p0))

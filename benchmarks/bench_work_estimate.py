@@ -1,8 +1,8 @@
 """The work admission's estimates against measured run times (issue 50.7), as ratios.
 
-For each method and size, the library call (``service.pipeline.reconstruct``, the worker's
+For each method and size, the library call (``fpscan.service.pipeline.reconstruct``, the worker's
 call) is timed (best of ``--repeat``, after one warm-up call) and divided by the method's work
-estimate (``service.jobs.admission.estimate_work``: seconds on the reference 2 cores). A ratio
+estimate (``fpscan.service.jobs.admission.estimate_work``: seconds on the reference 2 cores). A ratio
 of 1 is an exact estimate; above 1 the estimate is short, below 1 generous. tv runs a fixed
 number of iterations (``tol = 0``) on a 15 % mask, so its estimate (which counts the
 iterations asked for) is compared like for like. The load average is printed beside: the
@@ -18,9 +18,9 @@ import time
 
 import numpy as np
 
-from service.jobs.admission import estimate_work, input_shape
-from service.pipeline import reconstruct
-from service.recon.dataset import GridDataset
+from fpscan.service.jobs.admission import estimate_work, input_shape
+from fpscan.service.pipeline import reconstruct
+from fpscan.service.recon.dataset import GridDataset
 
 CASES = [  # (method, (n_t, n_y, n_x), options)
     ("ner", (256, 64, 64), {}), ("ner", (512, 128, 128), {}), ("ner", (256, 128, 128), {"upsample": 2}),

@@ -27,7 +27,7 @@ def main(argv=None) -> None:
     parser.add_argument("--scale", type=float, default=0.5)
     parser.add_argument("--top", type=int, default=25)
     args = parser.parse_args(argv)
-    from service.recon.tv import reconstruct_tv
+    from fpscan.service.recon.tv import reconstruct_tv
 
     case = paper_case(args.scale)
     kw = dict(positions=case["positions"], weights=case["weights"], grid=case["grid"], dtype=np.float32,

@@ -1,5 +1,5 @@
 import sys
 
-from clients.cli import main
+from fpscan.clients.cli import main
 
 sys.exit(main())

@@ -53,9 +53,9 @@ def fpscan_argv(*args: str) -> list[str]:
     Returns
     -------
     list of str
-        ``[sys.executable, "-m", "clients", *args]``.
+        ``[sys.executable, "-m", "fpscan", *args]``.
     """
-    return [sys.executable, "-m", "clients", *args]
+    return [sys.executable, "-m", "fpscan", *args]
 
 
 def clean_env(**extra: str) -> dict[str, str]:

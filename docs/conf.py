@@ -2,7 +2,7 @@
 
 The site: the user guide (README.md and the pages in docs/, through myst-parser), the API
 reference (autodoc + autosummary + numpydoc over the public modules, `reference/index.rst`),
-the HTTP reference (rendered from the OpenAPI schema of ``service.api.app.create_app``, written
+the HTTP reference (rendered from the OpenAPI schema of ``fpscan.service.api.app.create_app``, written
 at build time) and a gallery of examples (sphinx-gallery, ``examples/`` at the repository root).
 Built with warnings as errors (``sphinx-build -W --keep-going``).
 """
@@ -81,7 +81,7 @@ rst_prolog = "\n".join(f".. |{name}| replace:: \\|{name}\\|" for name in ("t", "
 
 #: the modules the reference documents (``reference/index.rst``'s autosummary lists)
 REFERENCE_MODULES = [line.strip() for line in (DOCS / "reference" / "index.rst").read_text().splitlines()
-                     if line.startswith("   ") and line.strip().startswith(("clients.", "service.", "driver."))]
+                     if line.startswith("   ") and line.strip().startswith("fpscan.")]
 
 
 def home(obj: Any, name: str, default: str) -> str:
@@ -112,7 +112,7 @@ GENERATED = DOCS / "_generated"
 
 def write_openapi(_app: Any = None) -> Path:
     """Write the service's OpenAPI schema to ``docs/_generated/openapi.json`` and return its path."""
-    from service.api.app import create_app
+    from fpscan.service.api.app import create_app
 
     GENERATED.mkdir(exist_ok=True)
     path = GENERATED / "openapi.json"

@@ -12,8 +12,8 @@ Modules (protocol: docs/protocol.md):
 - `simulator` — the simulated FP scanner on a pty; `sources` — its A-line sources;
   `faults` — its seeded fault injection.
 
-Keep this file free of heavy imports: `driver.physics` is imported by
-`service.recon` and must stay numpy/scipy/finufft only.
+Keep this file free of heavy imports: `fpscan.physics` is imported by
+`fpscan.service.recon` and must stay numpy/scipy/finufft only.
 """
 
 __all__: list[str] = []  # the package's API is its modules

@@ -2,7 +2,7 @@
 
 :func:`acquire` opens the scanner, creates the scan file (or reopens it to resume an
 interrupted scan: only the points not yet complete are acquired) and runs
-:meth:`driver.host.Scanner.scan`. Used by ``fpscan scan`` and the service's scan jobs.
+:meth:`fpscan.driver.host.Scanner.scan`. Used by ``fpscan scan`` and the service's scan jobs.
 """
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ if TYPE_CHECKING:
     import os
     from collections.abc import Callable
 
-    from driver.host import Scanner, ScanProgress, ScanResult
+    from fpscan.driver.host import Scanner, ScanProgress, ScanResult
 
 __all__ = ["software_version", "acquire"]
 
@@ -65,49 +65,49 @@ def acquire(port: str, plan: dict | str | os.PathLike, out: str | os.PathLike, *
     """Scan ``plan`` (dict or plan JSON path) on ``port`` into the scan file ``out``.
 
     If ``out`` exists it must be a scan file of the same plan; the scan resumes from its
-    record of completed points. ``scanner``: an already open :class:`~driver.host.Scanner`
+    record of completed points. ``scanner``: an already open :class:`~fpscan.driver.host.Scanner`
     (e.g. one whose ``pause``/``abort`` another thread holds); otherwise one is opened with
-    ``scanner_options`` and closed at the end. Returns :class:`~driver.host.ScanResult`.
+    ``scanner_options`` and closed at the end. Returns :class:`~fpscan.driver.host.ScanResult`.
 
-    Raises ``ValueError`` (bad plan, file of another plan), :class:`~driver.host.DriverError`
+    Raises ``ValueError`` (bad plan, file of another plan), :class:`~fpscan.driver.host.DriverError`
     and its subclasses (link failures), ``OSError`` (file system).
 
     Parameters
     ----------
     port : str
-        The scanner's serial port (or the simulator's address), as :class:`~driver.host.Scanner`
+        The scanner's serial port (or the simulator's address), as :class:`~fpscan.driver.host.Scanner`
         takes it; unused when ``scanner`` is given.
     plan : dict or str or Path
-        The plan, or the path of its JSON file (:func:`driver.plan.load_plan`).
+        The plan, or the path of its JSON file (:func:`fpscan.driver.plan.load_plan`).
     out : str or Path
         The scan file (HDF5) to create, or to resume when it exists.
     progress : callable, optional
-        Called with each :class:`~driver.host.ScanProgress` (from the scanning thread).
+        Called with each :class:`~fpscan.driver.host.ScanProgress` (from the scanning thread).
     scanner : Scanner, optional
         An already open scanner; it is left open at the end.
     durable : str, optional
         The scan file's durability policy, ``"process"`` (default) or ``"fsync"``
-        (`driver.scanfile`).
+        (`fpscan.driver.scanfile`).
     **scanner_options
-        Passed to :class:`~driver.host.Scanner` when this call opens it.
+        Passed to :class:`~fpscan.driver.host.Scanner` when this call opens it.
 
     Returns
     -------
     ScanResult
-        The outcome of the scan (:class:`~driver.host.ScanResult`).
+        The outcome of the scan (:class:`~fpscan.driver.host.ScanResult`).
 
     Raises
     ------
     ValueError
         A bad plan, or an existing ``out`` of another plan.
     DriverError
-        Link or device failures (:class:`~driver.host.DriverError` and its subclasses).
+        Link or device failures (:class:`~fpscan.driver.host.DriverError` and its subclasses).
     OSError
         File system errors.
     """
-    from driver.host import Scanner
-    from driver.plan import load_plan
-    from driver.scanfile import ScanFile
+    from fpscan.driver.host import Scanner
+    from fpscan.driver.plan import load_plan
+    from fpscan.driver.scanfile import ScanFile
 
     plan = load_plan(plan)
     out = Path(out)

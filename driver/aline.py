@@ -178,7 +178,7 @@ def quantise(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     Examples
     --------
     >>> import numpy as np
-    >>> from driver.aline import quantise
+    >>> from fpscan.driver.aline import quantise
     >>> samples, scale = quantise(np.array([[0.0, 0.5, -1.0], [0.0, 0.0, 0.0]]))
     >>> samples.tolist(), scale.tolist()
     ([[0, 16384, -32767], [0, 0, 0]], [3.051850947599719e-05, 1.0])

@@ -1,7 +1,7 @@
 """HDF5 files from users, checked before anything is read: the one vetting step every HDF5
 file fpscan opens from user input goes through (the registry of formats,
-``service.formats.open_source``; the simulator's replay and volume sources,
-``driver.sources``, through ``driver.scanfile.open_checked``). Imports no HDF5 library until
+``fpscan.service.formats.open_source``; the simulator's replay and volume sources,
+``fpscan.driver.sources``, through ``fpscan.driver.scanfile.open_checked``). Imports no HDF5 library until
 a check runs.
 
 HDF5 is a container that can point elsewhere and promise more than it holds. Before an
@@ -68,7 +68,7 @@ def is_hdf5(path: str | os.PathLike) -> bool:
 def check_hdf5_file(f: Any, *, max_bytes: int) -> None:
     """Refuse an HDF5 file already open (``h5py.File``, read-only) that points outside itself
     or declares more than it may hold (module docstring). Reads no data: the registry of
-    formats (:mod:`service.formats`) opens a file once and checks it here before any format
+    formats (:mod:`fpscan.service.formats`) opens a file once and checks it here before any format
     reads it.
 
     Parameters

@@ -4,15 +4,15 @@
 (``serial.serial_for_url``) with an exclusive lock, and implements the host side of the
 protocol: commands with retransmission and a reply timeout, chunked plan upload with hash
 verification, and :meth:`Scanner.scan`, which streams A-lines into a sink (a
-:class:`driver.scanfile.ScanFile`, or anything with its ``completed()`` / ``append()``)
+:class:`fpscan.driver.scanfile.ScanFile`, or anything with its ``completed()`` / ``append()``)
 under a credit window, NAKs gaps, and recovers from CRC errors, lost bytes, stalls and
 device resets, resuming from the sink's record of completed points, which is the truth.
 
 Layers (the pyserial ``serial.threaded`` split): a transport reader
-(:mod:`driver.transport`) moves bytes off the port; :class:`Scanner` deframes them and
+(:mod:`fpscan.driver.transport`) moves bytes off the port; :class:`Scanner` deframes them and
 dispatches frames (replies to its commands, events, A-lines); a :class:`ScanSession`
 holds one scan's receive state and record. Command strings come from
-:mod:`driver.commands`.
+:mod:`fpscan.driver.commands`.
 
 Threading: one thread runs :meth:`Scanner.scan`; :meth:`pause`, :meth:`resume` and
 :meth:`abort` may be called from any other thread (they queue a request the scan loop
@@ -33,13 +33,13 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from driver import commands as cmd
-from driver.aline import ALine, unpack_aline
-from driver.commands import MAX_CHUNK
-from driver.framing import PROTOCOL_VERSION, Deframer, Frame, FrameType, encode_frame
-from driver.plan import aline_index, aline_order, load_plan, wavelength_order
-from driver.plan_image import plan_image
-from driver.transport import READER_MODES, TransportError, open_reader
+from fpscan.driver import commands as cmd
+from fpscan.driver.aline import ALine, unpack_aline
+from fpscan.driver.commands import MAX_CHUNK
+from fpscan.driver.framing import PROTOCOL_VERSION, Deframer, Frame, FrameType, encode_frame
+from fpscan.driver.plan import aline_index, aline_order, load_plan, wavelength_order
+from fpscan.driver.plan_image import plan_image
+from fpscan.driver.transport import READER_MODES, TransportError, open_reader
 
 if TYPE_CHECKING:
     import os
@@ -154,7 +154,7 @@ class DeviceStatus:
 class ScanProgress:
     """What a scan's progress callback receives (about every ``progress_interval`` s): a record
     of the run, not a fraction (the fraction-and-stage callback of the reconstructions is
-    ``service.progress.Progress``; the service turns this record into the job's progress).
+    ``fpscan.service.progress.Progress``; the service turns this record into the job's progress).
 
     Attributes
     ----------
@@ -260,8 +260,8 @@ class Scanner:
     baudrate : int, optional
         The serial port's baud rate (default 115200).
     reader : str, optional
-        How a local tty is drained (:mod:`driver.transport`): ``"process"``
-        (default: the relay process :mod:`driver.relay`, immune to the interpreter lock),
+        How a local tty is drained (:mod:`fpscan.driver.transport`): ``"process"``
+        (default: the relay process :mod:`fpscan.driver.relay`, immune to the interpreter lock),
         ``"thread"`` (pyserial's ``ReaderThread``) or ``"direct"`` (read in the calling
         thread). URL transports are always read directly.
     lock_timeout : float, optional
@@ -650,7 +650,7 @@ class ScanSession:
 
     It owns the record of what is complete per (wavelength, point) (read from the sink at
     the start, updated as A-lines land), starts runs at the first missing A-line in
-    acquisition order (``driver.plan.aline_order``), accepts A-line frames from the
+    acquisition order (``fpscan.driver.plan.aline_order``), accepts A-line frames from the
     scanner's dispatch (:meth:`on_aline`: sequence bookkeeping, duplicates, stale runs),
     acknowledges and NAKs them under the credit window, polls a silent device, recovers
     from resets, and reports progress. The :class:`Scanner` it runs on provides the link
@@ -661,7 +661,7 @@ class ScanSession:
     scanner : Scanner
         The open link the session runs on.
     plan : dict
-        The checked plan (:func:`driver.plan.load_plan`).
+        The checked plan (:func:`fpscan.driver.plan.load_plan`).
     sink : object
         The scan file API: ``completed_by_wavelength()`` (bool ``(n_wavelengths, n_points)``)
         or ``completed()`` (bool ``(n_points,)``, one wavelength), ``append(k, samples, meta)``

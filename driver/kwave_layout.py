@@ -7,7 +7,7 @@ Sensor data in k-Wave layout are time first, ``(n_t, n_x)`` (k-Wave ``'ty'``) or
 reference files in ``shared/data`` carry — our lateral x is k-Wave's z (``dz_m``) in 3-D
 and k-Wave's y (``dy_m``) in 2-D, and our y is k-Wave's y (``dy_m``); in other files
 ``dx_m`` and ``dy_m`` are our x and y. The one owner of that rule, for the upload reader
-(``service.storage.loader``) and the simulator's replay source (``driver.sources``).
+(``fpscan.service.storage.loader``) and the simulator's replay source (``fpscan.driver.sources``).
 The sensor coordinates a file may give follow the same naming
 (:func:`sensor_coordinate_names`). Pure Python.
 """
@@ -120,7 +120,7 @@ def sensor_coordinate_names(kwave_named: bool, ndim: int) -> tuple[str, str | No
 
     Examples
     --------
-    >>> from driver.kwave_layout import sensor_coordinate_names
+    >>> from fpscan.driver.kwave_layout import sensor_coordinate_names
     >>> sensor_coordinate_names(True, 3), sensor_coordinate_names(True, 2), sensor_coordinate_names(False, 3)
     (('sensor_z_m', 'sensor_y_m'), ('sensor_y_m', None), ('sensor_x_m', 'sensor_y_m'))
     """

@@ -3,7 +3,7 @@
 The plan JSON (``fpscan-plan/1``, docs/architecture.md) is read with plain :mod:`json`;
 ``driver`` never imports ``service``. Point index k is the k-th entry of ``points``. The
 binary plan image the host uploads to the device (docs/protocol.md §4) is built and parsed
-by :mod:`driver.plan_image`.
+by :mod:`fpscan.driver.plan_image`.
 
 Acquisition order (docs/protocol.md §4.1): the device acquires ``n_points·n_wavelengths``
 A-lines; A-line index s is point k at wavelength w with ``s = k·n_wavelengths + w``
@@ -23,8 +23,8 @@ from typing import Any, Final
 
 import numpy as np
 
-from driver.constants import C_LIMITS
-from driver.physics.axes import centred_positions
+from fpscan.constants import C_LIMITS
+from fpscan.physics.axes import centred_positions
 
 __all__ = [
     "MAX_WAVELENGTHS", "WAVELENGTH_ORDERS",
@@ -47,7 +47,7 @@ WAVELENGTH_RANGE = (400e-9, 2000e-9)
 #: of one) can make a reader allocate (a 4096² lattice).
 MAX_LATTICE_POINTS = 1 << 24
 #: The acquisition limits of the plan contract (``check_acquisition``), the one set: the
-#: scanner side, the scan file, ``service.plans.Acquisition`` and ``POST /api/plans`` (its
+#: scanner side, the scan file, ``fpscan.service.plans.Acquisition`` and ``POST /api/plans`` (its
 #: OpenAPI schema states these numbers) all apply them. Samples per A-line (inclusive):
 N_T_RANGE = (8, 65536)
 MIN_N_T, MAX_N_T = N_T_RANGE
@@ -84,7 +84,7 @@ def canonical_json(obj: Any) -> str:
 
     Examples
     --------
-    >>> from driver.plan import canonical_json
+    >>> from fpscan.driver.plan import canonical_json
     >>> canonical_json({"b": 1, "a": [1.0, 2]})
     '{"a":[1.0,2],"b":1}'
     >>> canonical_json({"dt": float("nan")})
@@ -171,7 +171,7 @@ def check_wavelengths(wavelengths: Any) -> list[float]:
         Not a list or tuple, empty, a value that is not a finite number > 0, or a repeat.
     ImplausibleValue
         A wavelength outside ``WAVELENGTH_RANGE``, with the likely unit mistake
-        (:class:`driver.units.ImplausibleValue`, a ``ValueError``).
+        (:class:`fpscan.driver.units.ImplausibleValue`, a ``ValueError``).
     """
     if isinstance(wavelengths, (str, bytes)) or not isinstance(wavelengths, (list, tuple)):
         raise ValueError(f"wavelengths must be a list of wavelengths in m, got {wavelengths!r}")
@@ -182,7 +182,7 @@ def check_wavelengths(wavelengths: Any) -> list[float]:
     for w in wavelengths:
         v = _number("wavelength", w, unit="m")
         if not lo <= v <= hi:
-            from driver.units import ImplausibleValue, suggest_unit
+            from fpscan.driver.units import ImplausibleValue, suggest_unit
 
             raise ImplausibleValue(f"wavelengths must lie within {lo * 1e9:g} nm to {hi * 1e9:g} nm, "
                                    f"got {v:g} m ({v * 1e9:g} nm){suggest_unit(v, lo, hi, 'm')} "
@@ -199,7 +199,7 @@ def check_acquisition(acq: Any) -> dict:
     ``dt`` (s, > 0, at most ``MAX_DT`` = 1 ms), optional ``averages`` (int, 1 to
     ``MAX_AVERAGES`` = 4096), ``wavelengths`` (m, see ``check_wavelengths``; at most
     ``MAX_WAVELENGTHS`` = 16), ``prf`` (Hz, 0 to ``MAX_PRF`` = 100 kHz; 0 = as fast as
-    possible), ``sound_speed`` (m/s, ``driver.constants.C_LIMITS``: above 100, at most 10 000),
+    possible), ``sound_speed`` (m/s, ``fpscan.constants.C_LIMITS``: above 100, at most 10 000),
     ``wavelength_order`` (``wavelength_order``). The service's ``Acquisition`` model calls
     this, so the library, the API and the scanner side accept the same plans.
 
@@ -501,7 +501,7 @@ def load_plan(source: Any) -> dict:
     not UTF-8 JSON text: "not a plan: ..."; invalid JSON; everything ``check_plan``
     rejects); ``OSError`` if the file cannot be read. What another kind of file is (a scan
     file, a result ...) is named by the registry of formats above the driver
-    (``service.formats.describe``: the CLI's "this is a scan file, not a plan").
+    (``fpscan.service.formats.describe``: the CLI's "this is a scan file, not a plan").
 
     Parameters
     ----------

@@ -1,5 +1,5 @@
 """The plan image: the binary form of a plan that the host uploads to the device (docs/protocol.md
-§4), built from the plan JSON (:mod:`driver.plan`, the contract) and parsed on the device side.
+§4), built from the plan JSON (:mod:`fpscan.driver.plan`, the contract) and parsed on the device side.
 
 Little-endian:
 
@@ -27,7 +27,7 @@ offset field            type   meaning
 ====== ================ ====== =================================================
 
 A-line index s of the acquisition is point k at wavelength w in the image's ``order``
-(:func:`driver.plan.aline_order`, docs/protocol.md §4.1).
+(:func:`fpscan.driver.plan.aline_order`, docs/protocol.md §4.1).
 """
 from __future__ import annotations
 
@@ -36,8 +36,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from driver.constants import C_DEFAULT
-from driver.plan import (
+from fpscan.constants import C_DEFAULT
+from fpscan.driver.plan import (
     MAX_WAVELENGTHS,
     WAVELENGTH_ORDERS,
     aline_order,

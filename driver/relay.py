@@ -3,7 +3,7 @@
 A tty hands its reader at most ~4 KiB per wake-up, so at full A-line rates it must be
 read every few hundred microseconds; a Python thread competing for the interpreter lock
 with the thread that decodes A-lines and writes the scan file cannot promise that. The
-host therefore starts ``python -m driver.relay FD`` with the open tty descriptor: it does
+host therefore starts ``python -m fpscan.driver.relay FD`` with the open tty descriptor: it does
 nothing but copy bytes from the tty to its stdout, a pipe the host enlarges to 1 MiB and
 reads in large blocks. Its first byte out is a frame delimiter (0x00, which the deframer
 skips) that says it is reading: the host waits for it before it sends a command, so the

@@ -83,9 +83,9 @@ import h5py
 import numpy as np
 from h5py import h5d, h5p, h5s, h5t
 
-from driver.constants import C_DEFAULT
-from driver.hdf5_checks import HDF5_SIGNATURE, check_hdf5_file
-from driver.plan import canonical_json, check_plan, wavelength_order
+from fpscan.constants import C_DEFAULT
+from fpscan.driver.hdf5_checks import HDF5_SIGNATURE, check_hdf5_file
+from fpscan.driver.plan import canonical_json, check_plan, wavelength_order
 
 __all__ = [
     "FORMAT", "FORMAT_1", "META_KEYS", "META_DTYPE", "META_CHUNK", "COMPLETED_CHUNK", "DURABLE_POLICIES",
@@ -96,10 +96,10 @@ FORMAT = "fpscan-scan/2"
 #: the single-wavelength layout of fpscan ≤ 0.x, still read by read_scan
 FORMAT_1 = "fpscan-scan/1"
 #: the ``format`` attribute's prefix of every scan-file version (detection:
-#: ``service.formats.scan.sniff``; a version this module does not read is refused by it)
+#: ``fpscan.service.formats.scan.sniff``; a version this module does not read is refused by it)
 FORMAT_FAMILY = "fpscan-scan/"
 #: the speed of sound's root attribute (m/s): the name a person reads (as the plan's
-#: ``acquisition.sound_speed`` and ``service.names``); files of an older fpscan say
+#: ``acquisition.sound_speed`` and ``fpscan.service.names``); files of an older fpscan say
 #: ``sound_speed_m_per_s`` (:data:`_SPEED_BEFORE`), still read
 _SPEED = "sound_speed"
 _SPEED_BEFORE = "sound_speed_m_per_s"
@@ -140,7 +140,7 @@ class _PlanArrays:
 
 
 def _check_plan(plan: Any) -> _PlanArrays:
-    """Validate a plan dict with ``driver.plan.check_plan`` (docs/architecture.md "Plan
+    """Validate a plan dict with ``fpscan.driver.plan.check_plan`` (docs/architecture.md "Plan
     JSON"; ValueError names the fault) and return its arrays."""
     check_plan(plan)
     acq, pts = plan["acquisition"], plan["points"]
@@ -355,7 +355,7 @@ def _make_dataset(parent: h5py.Group, name: str, shape: tuple, dtype: np.dtype,
 
 @contextmanager
 def open_checked(path: str | os.PathLike, *, max_bytes: int) -> Iterator[Any]:
-    """An HDF5 file opened read-only (``driver.scanfile.open_readonly``: without SWMR unless a
+    """An HDF5 file opened read-only (``fpscan.driver.scanfile.open_readonly``: without SWMR unless a
     writer has it) and checked (:func:`check_hdf5_file`) before the caller reads anything;
     closed on leaving.
 
@@ -1009,7 +1009,7 @@ def read_open_scan(f: h5py.File, path: str | os.PathLike, *, dtype: Any = np.flo
                    wavelength_index: int = 0) -> ScanData:
     """:func:`read_scan` of a scan file already open (``open_readonly``), ``path`` its
     name (for messages and ``ScanData.path``): so a caller that opened the file once (the
-    registry of formats, ``service.formats``) reads it without opening it again. The speed
+    registry of formats, ``fpscan.service.formats``) reads it without opening it again. The speed
     of sound is the attribute ``sound_speed``, or ``sound_speed_m_per_s`` in a file an older
     fpscan wrote. Raises ValueError (not a scan file, wavelength index out of range).
 

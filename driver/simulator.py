@@ -8,7 +8,7 @@ tests exercise the same serial code path as hardware.
 
 Signal model, per plan point k at lattice point (i_x, i_y) (all deterministic given the seed):
 
-* pressure p_k(t) in Pa from the source (:mod:`driver.sources`);
+* pressure p_k(t) in Pa from the source (:mod:`fpscan.driver.sources`);
 * DC level d_k = ``dc_level``·(1 + ``dc_variation``·m_1(i_x, i_y)) in V and sensitivity
   s_k = 1 + ``sensitivity_variation``·m_2(i_x, i_y), with smooth maps m_1, m_2 ∈ [−1, 1];
 * FP output v_k = s_k·d_k·p_k (Pa·V), low-passed by a 2nd-order Butterworth filter at
@@ -18,9 +18,9 @@ Signal model, per plan point k at lattice point (i_x, i_y) (all deterministic gi
 * int16 quantisation: scale = max|v_k|/32767, offset = 0, sample = round(v_k/scale).
 
 Wavelengths: a plan with N excitation wavelengths is acquired as N·n_points A-lines in
-the plan's order (``per_point`` or ``per_pass``, :func:`driver.plan.aline_order`); the
+the plan's order (``per_point`` or ``per_pass``, :func:`fpscan.driver.plan.aline_order`); the
 source renders each A-line at its wavelength (wavelength-dependent phantoms:
-:class:`driver.sources.BallSource` with ``so2``). Fault positions (stall, reset, interlock
+:class:`fpscan.driver.sources.BallSource` with ``so2``). Fault positions (stall, reset, interlock
 at K) count A-lines in acquisition order (= points for one wavelength).
 
 Timing: with ``prf`` > 0 the laser fires on a clock of period 1/prf started by SCAN:STAR;
@@ -31,7 +31,7 @@ longer of the two when both do (they run in parallel). So N points at one wavele
 take N·averages/prf s; ``prf`` = 0 is unthrottled.
 ``byte_rate`` limits the device's output bytes/s (a UART-like link).
 
-Faults (:mod:`driver.faults`) are seeded by ``seed``. The ground truth (every A-line as
+Faults (:mod:`fpscan.driver.faults`) are seeded by ``seed``. The ground truth (every A-line as
 sent) can be recorded to HDF5 (:meth:`SimulatedScanner.write_record`).
 """
 from __future__ import annotations
@@ -53,16 +53,16 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from driver import commands as scpi
-from driver.aline import pack_aline, quantise
-from driver.faults import FaultSpec, damage
-from driver.framing import Deframer, Frame, FrameType, encode_frame
-from driver.plan_image import DevicePlan, image_size_limit, parse_plan_image
+from fpscan.driver import commands as scpi
+from fpscan.driver.aline import pack_aline, quantise
+from fpscan.driver.faults import FaultSpec, damage
+from fpscan.driver.framing import Deframer, Frame, FrameType, encode_frame
+from fpscan.driver.plan_image import DevicePlan, image_size_limit, parse_plan_image
 
 if TYPE_CHECKING:
     from collections.abc import Callable
 
-    from driver.sources import PressureFn, Source
+    from fpscan.driver.sources import PressureFn, Source
 
 __all__ = ["FIRMWARE_VERSION", "INITIAL_WINDOW", "BLOCK", "SimConfig", "SimulatedScanner", "sensor_response"]
 
@@ -80,7 +80,7 @@ class SimConfig:
     Attributes
     ----------
     source : Source or None
-        A :mod:`driver.sources` source; None = ``BallSource(default_phantom())``.
+        A :mod:`fpscan.driver.sources` source; None = ``BallSource(default_phantom())``.
     prf : float
         Laser pulse repetition frequency, Hz (0 = unthrottled).
     tuning_delay : float
@@ -100,7 +100,7 @@ class SimConfig:
     byte_rate : float or None
         Output byte-rate limit, bytes/s, at least 100 (None = none).
     faults : FaultSpec
-        Injected link and device faults (:mod:`driver.faults`).
+        Injected link and device faults (:mod:`fpscan.driver.faults`).
     seed : int
         Seed of the noise, the maps and the faults.
     record : Path or None
@@ -123,7 +123,7 @@ class SimConfig:
         Generate all A-lines of a plan at ``PLAN:END``.
     """
 
-    source: Source | None = None  #: a driver.sources source; None = BallSource(default_phantom())
+    source: Source | None = None  #: a fpscan.driver.sources source; None = BallSource(default_phantom())
     prf: float = 50.0  #: laser pulse repetition frequency, Hz (0 = unthrottled)
     tuning_delay: float = 0.0  #: bias-wavelength tuning time per point, s
     laser_tuning_delay: float = 0.0  #: excitation-wavelength tuning time, s
@@ -226,7 +226,7 @@ class SimulatedScanner:
     def __init__(self, config: SimConfig | None = None, **kwargs: Any) -> None:
         self.config = config or SimConfig(**kwargs)
         if self.config.source is None:
-            from driver.sources import BallSource, default_phantom
+            from fpscan.driver.sources import BallSource, default_phantom
 
             self.config.source = BallSource(default_phantom())
         self._master, self._slave = pty.openpty()
@@ -700,7 +700,7 @@ class SimulatedScanner:
         return f'{code},"{msg}"'.encode()
 
     def _cmd_prot(self, cmd: scpi.Command) -> bytes:
-        from driver.framing import PROTOCOL_VERSION
+        from fpscan.driver.framing import PROTOCOL_VERSION
 
         return str(PROTOCOL_VERSION).encode()
 
@@ -933,7 +933,7 @@ def sensor_response(alines: np.ndarray, bandwidth: float, dt: float) -> np.ndarr
 
 
 def _handlers() -> dict[str, Callable[[SimulatedScanner, scpi.Command], bytes | None]]:
-    """Command dispatch on the canonical long header of each command of driver.commands."""
+    """Command dispatch on the canonical long header of each command of fpscan.driver.commands."""
     c, s = scpi, SimulatedScanner
     table = {
         c.IDN: s._cmd_idn, c.RESET: s._cmd_rst, c.CLEAR: s._cmd_cls, c.OPC: s._cmd_opc,

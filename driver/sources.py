@@ -7,13 +7,13 @@ float64 in Pa for point indices ``ks`` of that plan at excitation wavelength ind
 A-line). Sources:
 
 * :class:`BallSource` — analytic balls: exact N-shaped waves averaged over each sample
-  interval (``driver.physics.ball_alines``; DESIGN §5). With ``so2`` given, each ball is
+  interval (``fpscan.physics.ball_alines``; DESIGN §5). With ``so2`` given, each ball is
   blood-like tissue, a mixture of HbO2 and Hb at that oxygen saturation, and its
   amplitude follows its absorption at each wavelength: p0 = Γ·Φ·μa(λ) with μa from
-  Prahl's molar extinction table (``driver.physics.spectra``). Without, balls have the
+  Prahl's molar extinction table (``fpscan.physics.spectra``). Without, balls have the
   same amplitude at every wavelength, as do the other sources.
 * :class:`VolumeSource` — any p0 volume (HDF5 ``p0`` ``(n_z, n_y, n_x)``) through the exact
-  planar forward model ``driver.physics.forward.forward_points``.
+  planar forward model ``fpscan.physics.forward.forward_points``.
 * :class:`ReplaySource` — a recorded dense dataset in k-Wave layout (``sensor_data/clean``
   ``(t, y, z)`` with ``sensor_yz_index``); plan point (i_x, i_y) replays
   ``data[:, i_y, i_x]`` — the paper's way of picking a sensor mask out of dense data.
@@ -27,14 +27,14 @@ from typing import Protocol
 
 import numpy as np
 
-from driver.constants import C_DEFAULT
-from driver.kwave_layout import lateral_spacings
-from driver.plan_image import DevicePlan
+from fpscan.constants import C_DEFAULT
+from fpscan.driver.kwave_layout import lateral_spacings
+from fpscan.driver.plan_image import DevicePlan
 
 __all__ = ["PressureFn", "Source", "SOURCE_MAX_BYTES", "default_phantom", "BallSource", "VolumeSource", "ReplaySource"]
 
 #: the most bytes one dataset of a volume or replay file may declare (the service's bound on any
-#: input, ``service.formats.MAX_BYTES``); the file is vetted (``driver.hdf5_checks``) before it is read
+#: input, ``fpscan.service.formats.MAX_BYTES``); the file is vetted (``fpscan.driver.hdf5_checks``) before it is read
 SOURCE_MAX_BYTES = 1 << 34
 
 PressureFn = Callable[..., np.ndarray]  # pressure(ks, ws=None) -> (len(ks), n_t)
@@ -69,14 +69,14 @@ def default_phantom() -> list:
 
     Sized for a 226 × 226 lattice at 60 µm (13.5 mm aperture): balls of radius 0.15–0.3 mm
     at depths 1.5–4.5 mm, and a tube of radius 0.1 mm bending through depth 2.5–3.5 mm.
-    Returns a list of ``driver.physics.Ball`` (m, Pa).
+    Returns a list of ``fpscan.physics.Ball`` (m, Pa).
 
     Returns
     -------
     list of Ball
         The balls: positions and radii in m, amplitudes in Pa.
     """
-    from driver.physics import Ball
+    from fpscan.physics import Ball
 
     balls = [Ball(0.0, 0.0, 3.6e-3, 0.3e-3, 1.0),
              Ball(-2.5e-3, 1.5e-3, 1.5e-3, 0.2e-3, 1.0),
@@ -95,14 +95,14 @@ def default_phantom() -> list:
 
 @dataclass
 class BallSource:
-    """Analytic balls (``driver.physics.Ball``) in a medium of sound speed ``c`` (m/s).
+    """Analytic balls (``fpscan.physics.Ball``) in a medium of sound speed ``c`` (m/s).
 
     Spectral phantom (optional): ``so2`` — one oxygen saturation (0..1) per ball;
     ``thb`` — total haemoglobin per ball (or one for all), mol/m³ (default whole blood,
-    ``driver.physics.spectra.BLOOD_THB`` ≈ 2.33 mol/m³); ``gruneisen`` Γ (dimensionless)
+    ``fpscan.physics.spectra.BLOOD_THB`` ≈ 2.33 mol/m³); ``gruneisen`` Γ (dimensionless)
     and ``fluence`` Φ (J/m², the same everywhere). Ball i then has the initial pressure
     p0_i(λ) = Γ·Φ·μa_i(λ), μa_i(λ) = ln 10 · thb_i · (so2_i·ε_HbO2(λ) + (1 − so2_i)·ε_Hb(λ))
-    (Prahl's table, ``driver.physics.spectra.absorption``), and its ``amplitude`` is not
+    (Prahl's table, ``fpscan.physics.spectra.absorption``), and its ``amplitude`` is not
     used. Raises ``ValueError`` (at construction) for so2/thb of the wrong length or out of
     range, and (in :meth:`prepare`) for wavelengths outside the table.
 
@@ -111,7 +111,7 @@ class BallSource:
     balls : list of Ball
         The balls (positions and radii in m, amplitudes in Pa).
     c : float
-        Sound speed, m/s (default ``driver.constants.C_DEFAULT``).
+        Sound speed, m/s (default ``fpscan.constants.C_DEFAULT``).
     so2 : sequence of float or None
         Oxygen saturation per ball, 0..1 (None: no spectral phantom; the amplitudes are used).
     thb : float or sequence of float or None
@@ -133,7 +133,7 @@ class BallSource:
         if self.so2 is None:
             self._amplitudes = np.array([[b.amplitude for b in self.balls]], dtype=np.float64)
             return
-        from driver.physics import spectra
+        from fpscan.physics import spectra
 
         so2 = np.asarray(self.so2, dtype=np.float64)
         thb = np.asarray(spectra.BLOOD_THB if self.thb is None else self.thb, dtype=np.float64)
@@ -151,7 +151,7 @@ class BallSource:
         """Ball amplitudes ``(n_wavelengths, n_balls)`` in Pa at ``wavelengths`` (m)."""
         if self.so2 is None:
             return np.repeat(self._amplitudes, max(1, len(wavelengths)), axis=0)
-        from driver.physics import spectra
+        from fpscan.physics import spectra
 
         mu_a = spectra.absorption(np.asarray(wavelengths, dtype=np.float64), self._so2,
                                   self._thb)
@@ -166,7 +166,7 @@ class BallSource:
     def prepare(self, plan: DevicePlan) -> PressureFn:
         import dataclasses
 
-        from driver.physics import ball_alines
+        from fpscan.physics import ball_alines
 
         pos = plan.positions()
         dt, n_t, c = plan.dt, plan.n_t, self.c
@@ -218,21 +218,21 @@ class VolumeSource:
     attributes ``dx_m`` (lateral voxel, m) and optionally ``dz_m`` (depth voxel, default
     ``dx_m``); the lateral grid is centred on the optical axis.
     Raises ``ValueError`` if the file lacks them, or is refused as hostile
-    (``driver.scanfile.open_checked``: external links or storage, declared sizes beyond what it stores).
+    (``fpscan.driver.scanfile.open_checked``: external links or storage, declared sizes beyond what it stores).
 
     Attributes
     ----------
     path : Path
         The HDF5 file.
     c : float
-        Sound speed, m/s (default ``driver.constants.C_DEFAULT``).
+        Sound speed, m/s (default ``fpscan.constants.C_DEFAULT``).
     """
 
     path: Path
     c: float = C_DEFAULT
 
     def __post_init__(self) -> None:
-        from driver.scanfile import open_checked
+        from fpscan.driver.scanfile import open_checked
 
         self.path = Path(self.path)
         with open_checked(self.path, max_bytes=SOURCE_MAX_BYTES) as f:
@@ -252,7 +252,7 @@ class VolumeSource:
         return float(np.abs(self.p0).max()) or 1.0
 
     def prepare(self, plan: DevicePlan) -> PressureFn:
-        from driver.physics.forward import forward_points
+        from fpscan.physics.forward import forward_points
 
         pos = plan.positions()
         chunk = 4096
@@ -286,11 +286,11 @@ class ReplaySource:
     optional ``sensor_yz_index`` ``(n_y, n_x, 2)`` must map (i_y, i_x) to itself (the
     dataset is a regular grid). A plan replays if its dt equals ``dt_s`` (relative 1e-6),
     its n_t ≤ the stored n_t, its pitch equals the stored lateral x spacing (if given:
-    ``dz_m`` in a k-Wave-named file, else ``dx_m``; :mod:`driver.kwave_layout`) and its lattice sits
+    ``dz_m`` in a k-Wave-named file, else ``dx_m``; :mod:`fpscan.driver.kwave_layout`) and its lattice sits
     centred on the stored grid (both centred on the optical axis, so plan point (i_x, i_y)
     replays grid point (i_x + (N_x − n_x)/2, i_y + (N_y − n_y)/2)); otherwise ``prepare``
     raises ``ValueError`` with the reason; a file refused as hostile
-    (``driver.scanfile.open_checked``) raises ``ValueError`` at construction.
+    (``fpscan.driver.scanfile.open_checked``) raises ``ValueError`` at construction.
 
     Attributes
     ----------
@@ -304,7 +304,7 @@ class ReplaySource:
     dataset: str = "sensor_data/clean"
 
     def __post_init__(self) -> None:
-        from driver.scanfile import open_checked
+        from fpscan.driver.scanfile import open_checked
 
         self.path = Path(self.path)
         with open_checked(self.path, max_bytes=SOURCE_MAX_BYTES) as f:

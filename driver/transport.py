@@ -1,7 +1,7 @@
 """Transport readers of the host driver: how received bytes get off the serial port.
 
 The split follows pyserial's ``serial.threaded`` model: a *reader* only moves bytes off
-the port, and the protocol (:class:`driver.host.Scanner`, which deframes and dispatches
+the port, and the protocol (:class:`fpscan.driver.host.Scanner`, which deframes and dispatches
 them) consumes what it delivered. Every reader offers the same two calls:
 
 - ``read() -> bytes``: the bytes received since the last call, waiting at most ~20 ms
@@ -11,7 +11,7 @@ them) consumes what it delivered. Every reader offers the same two calls:
 Readers (``open_reader(ser, mode)``):
 
 - :class:`RelayReader` (``"process"``, the default for local ttys): the relay process
-  :mod:`driver.relay` drains the tty into a 1 MiB pipe, immune to this interpreter's lock;
+  :mod:`fpscan.driver.relay` drains the tty into a 1 MiB pipe, immune to this interpreter's lock;
   if the relay ends, the port is read directly from then on.
 - :class:`ThreadReader` (``"thread"``): pyserial's :class:`serial.threaded.ReaderThread`
   with a protocol that queues what it receives.
@@ -138,7 +138,7 @@ class ThreadReader:
 
 
 class RelayReader:
-    """The relay process (:mod:`driver.relay`) drains the tty descriptor ``fd`` into a
+    """The relay process (:mod:`fpscan.driver.relay`) drains the tty descriptor ``fd`` into a
     pipe; :meth:`read` reads that pipe. Raises ``OSError`` if the relay cannot start.
 
     Parameters
@@ -163,7 +163,7 @@ class RelayReader:
         self._port = port or getattr(ser, "port", "")
         root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
         proc = subprocess.Popen(
-            [sys.executable, "-m", "driver.relay", str(fd), str(os.getpid())],
+            [sys.executable, "-m", "fpscan.driver.relay", str(fd), str(os.getpid())],
             pass_fds=(fd,), stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, bufsize=0,
             cwd=root)
         assert proc.stdout is not None  # stdout=PIPE
@@ -178,11 +178,11 @@ class RelayReader:
         self._wait_ready(RELAY_START_TIMEOUT)
 
     def _wait_ready(self, timeout: float) -> None:
-        """Wait for the relay's first byte (``driver.relay.READY``): until then nobody reads
+        """Wait for the relay's first byte (``fpscan.driver.relay.READY``): until then nobody reads
         the tty, and a reply that waited for the relay to start would look like a lost
         command (a retransmission counted as a link fault). Raises ``OSError`` (after
         ending the relay) if it does not come within ``timeout`` s."""
-        from driver.relay import READY
+        from fpscan.driver.relay import READY
 
         first = b""
         try:

@@ -28,7 +28,7 @@ import functools
 import math
 import re
 
-from driver.constants import C_DEFAULT, C_LIMITS, C_PLAUSIBLE
+from fpscan.constants import C_DEFAULT, C_LIMITS, C_PLAUSIBLE
 
 TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (`fpscan --help` imports this module)
 if TYPE_CHECKING:
@@ -62,7 +62,7 @@ _QUANTITY = re.compile(r"^\s*([+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?)\s*([A-Z
 class RefusedInput(ValueError):
     """Input refused by a rule the caller can fix (a value out of range, a unit mistake, an
     option the method does not take): a usage error -- the CLI exits 2, the API answers
-    422. Subclasses: :class:`ImplausibleValue`, ``service.recon.checks.OptionError``.
+    422. Subclasses: :class:`ImplausibleValue`, ``fpscan.service.recon.checks.OptionError``.
 
     Parameters
     ----------
@@ -246,9 +246,9 @@ _SI_OF_UNITS = {_LENGTH_UNITS: "m", _TIME_UNITS: "s"}
 
 
 def check_speeds(*, c: Any = None, c_range: Any = None, force: bool = False) -> None:
-    """The speed-of-sound rule for reconstruction options (``service.pipeline.reconstruct``,
+    """The speed-of-sound rule for reconstruction options (``fpscan.service.pipeline.reconstruct``,
     the API's ``ReconParams``): a numeric ``c`` (m/s) and each end of the autofocus search
-    interval ``c_range`` within ``driver.constants.C_PLAUSIBLE`` (1000–2000 m/s) unless
+    interval ``c_range`` within ``fpscan.constants.C_PLAUSIBLE`` (1000–2000 m/s) unless
     ``force``; forced, a numeric ``c`` stays within ``C_LIMITS`` (above 100, at most 10 000
     m/s). ``"auto"``, None and non-numbers pass (their own checks name them). Raises
     :class:`ImplausibleValue` naming ``c`` or ``c_range`` and the likely unit mistake, or

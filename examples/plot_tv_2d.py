@@ -8,7 +8,7 @@ and tv from an equiangular mask of 11 % of them, pictures side by side.
 
 The data: the k-Wave simulation ``kwave2d_points.h5`` of the shared folder (point targets; a
 line of 1024 sensors at 50 µm, 3519 samples of 10 ns) when it is there, else discs simulated
-with fpscan's exact planar forward model (``service.recon.forward_grid``) on 256 sensors. tv
+with fpscan's exact planar forward model (``fpscan.service.recon.forward_grid``) on 256 sensors. tv
 is the slow one: its first run in a fresh environment also compiles its kernels (numba).
 """
 
@@ -35,7 +35,7 @@ if kwave_file.is_file():
     dz = float(dense.dx)
     source = "k-Wave kwave2d_points.h5"
 else:
-    from service.recon import forward_grid
+    from fpscan.service.recon import forward_grid
 
     n_x, n_z, dx, dt, n_t = 256, 96, 50e-6, 10e-9, 1200
     z, x = np.meshgrid(np.arange(n_z) * dx, (np.arange(n_x) - (n_x - 1) / 2) * dx, indexing="ij")

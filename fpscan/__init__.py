@@ -5,35 +5,35 @@ flat namespace.
 name comes from the package that owns it, so ``fpscan.X`` is exactly the object the
 command line, the server and the web page use:
 
-- plans and sensor masks (:mod:`service.plans`): ``Lattice``, ``Mask``, ``make_mask`` and
+- plans and sensor masks (:mod:`fpscan.service.plans`): ``Lattice``, ``Mask``, ``make_mask`` and
   the per-kind functions (``full_mask``, ``subgrid_mask``, ``hexagonal_mask``,
   ``random_mask``, ``poisson_mask``, ``points_mask``, ``equiangular_mask``,
   ``equisteradian_mask``), ``MASK_KINDS``, ``Plan``, ``Acquisition``, ``make_plan``,
   ``plan_from_spec``, ``load_plan``, ``weight_ratio``, ``preview_png``;
-- datasets (:mod:`service.storage.loader`): ``load_dataset`` (any supported file,
-  :mod:`service.formats`), ``load_wavelengths``; the input model ``GridDataset``,
-  ``PointDataset`` (:mod:`service.recon.dataset`); ``subsample(dataset, mask_or_plan)``: the
+- datasets (:mod:`fpscan.service.storage.loader`): ``load_dataset`` (any supported file,
+  :mod:`fpscan.service.formats`), ``load_wavelengths``; the input model ``GridDataset``,
+  ``PointDataset`` (:mod:`fpscan.service.recon.dataset`); ``subsample(dataset, mask_or_plan)``: the
   A-lines a sensor mask picks out of dense data (a sparse scan from a dense one or a k-Wave
-  simulation, equal to the replay scan's; :mod:`service.subsample`);
-- reconstruction (:mod:`service.pipeline`, the one dispatch): ``reconstruct(dataset,
+  simulation, equal to the replay scan's; :mod:`fpscan.service.subsample`);
+- reconstruction (:mod:`fpscan.service.pipeline`, the one dispatch): ``reconstruct(dataset,
   method, **options)`` for every method of ``METHODS`` (``nedner``, ``ner``, ``linear``,
   ``nearest``, ``cubic``, ``kwave``, ``tv``), ``Reconstruction``, ``Cancelled``;
-- scan files (:mod:`driver.scanfile`): ``read_scan``, ``ScanFile``, ``ScanData``,
+- scan files (:mod:`fpscan.driver.scanfile`): ``read_scan``, ``ScanFile``, ``ScanData``,
   ``pressure_unit``;
-- results (:mod:`service.storage.results`): ``write_result`` (``volume.h5`` + MIP PNGs),
+- results (:mod:`fpscan.service.storage.results`): ``write_result`` (``volume.h5`` + MIP PNGs),
   ``write_volume``, ``read_result``, ``ResultVolume``;
-- export (:mod:`service.formats`, one module per format): ``export_file(src, out, format)`` for
+- export (:mod:`fpscan.service.formats`, one module per format): ``export_file(src, out, format)`` for
   every format of ``export_formats()`` (a scan file: ``"ipasc"``; a result volume:
   ``"ome-tiff"``, ``"ome-zarr"``, ...), ``export_ome_tiff``, ``export_ome_zarr``, ``export_ipasc``
   (a scan file to IPASC HDF5);
-- pictures (:mod:`service.pictures.render`): ``render_mip``, ``render_mips``, ``render_so2``;
+- pictures (:mod:`fpscan.service.pictures.render`): ``render_mip``, ``render_mips``, ``render_so2``;
 - spectral unmixing: ``unmix``, ``so2_map``, ``thb_map``;
-- metrics (:mod:`service.metrics`): ``correlation_coefficient``, ``mip``, ``mips``,
+- metrics (:mod:`fpscan.service.metrics`): ``correlation_coefficient``, ``mip``, ``mips``,
   ``fit_edge_spread``, ``fit_lorentz``, ``edge_spread``, ``lorentz``, ``side_lobe_level``,
   ``tenenbaum_sharpness``, ``cc_vs_diameter``, ``cc_vs_pixels``, ``sharpness_vs_diameter``,
   ``roi_mask``, ``disc_mask``, ``bounding_box``, ``EdgeFit``, ``LorentzFit``;
-- phantoms (:mod:`driver.physics`): ``Ball``, ``ball_alines``, ``ball_p0``;
-- the HTTP client (:mod:`clients.http`): ``Client``, ``AsyncClient``, ``ApiError`` and its
+- phantoms (:mod:`fpscan.physics`): ``Ball``, ``ball_alines``, ``ball_p0``;
+- the HTTP client (:mod:`fpscan.clients.http`): ``Client``, ``AsyncClient``, ``ApiError`` and its
   subclasses;
 - ``__version__``.
 
@@ -93,39 +93,39 @@ _EXPORTS: dict[str, str] = {
     **dict.fromkeys(["Lattice", "Mask", "make_mask", "full_mask", "subgrid_mask", "hexagonal_mask",
                      "random_mask", "poisson_mask", "points_mask", "equiangular_mask", "equisteradian_mask",
                      "MASK_KINDS", "Plan", "Acquisition", "make_plan", "plan_from_spec", "weight_ratio",
-                     "preview_png"], "service.plans"),
+                     "preview_png"], "fpscan.service.plans"),
     # datasets and the one reconstruction dispatch
-    **dict.fromkeys(["load_dataset", "load_wavelengths"], "service.storage.loader"),
-    **dict.fromkeys(["GridDataset", "PointDataset"], "service.recon.dataset"),
-    **dict.fromkeys(["reconstruct", "METHODS", "Cancelled"], "service.pipeline"),
-    "Reconstruction": "service.recon.reconstruction",
-    "subsample": "service.subsample",
+    **dict.fromkeys(["load_dataset", "load_wavelengths"], "fpscan.service.storage.loader"),
+    **dict.fromkeys(["GridDataset", "PointDataset"], "fpscan.service.recon.dataset"),
+    **dict.fromkeys(["reconstruct", "METHODS", "Cancelled"], "fpscan.service.pipeline"),
+    "Reconstruction": "fpscan.service.recon.reconstruction",
+    "subsample": "fpscan.service.subsample",
     # scan files
-    **dict.fromkeys(["read_scan", "ScanFile", "ScanData", "pressure_unit"], "driver.scanfile"),
+    **dict.fromkeys(["read_scan", "ScanFile", "ScanData", "pressure_unit"], "fpscan.driver.scanfile"),
     # results and exports
-    **dict.fromkeys(["write_result", "write_volume", "read_result", "ResultVolume"], "service.storage.results"),
-    **dict.fromkeys(["export_file", "export_formats"], "service.formats"),
-    "export_ome_tiff": "service.formats.ome_tiff",
-    "export_ome_zarr": "service.formats.ngff",
+    **dict.fromkeys(["write_result", "write_volume", "read_result", "ResultVolume"], "fpscan.service.storage.results"),
+    **dict.fromkeys(["export_file", "export_formats"], "fpscan.service.formats"),
+    "export_ome_tiff": "fpscan.service.formats.ome_tiff",
+    "export_ome_zarr": "fpscan.service.formats.ngff",
     # pictures, spectral unmixing
-    **dict.fromkeys(["render_mip", "render_mips", "render_so2"], "service.pictures.render"),
-    "unmix": "service.recon.unmix",
-    **dict.fromkeys(["so2_map", "thb_map"], "service.spectral"),
+    **dict.fromkeys(["render_mip", "render_mips", "render_so2"], "fpscan.service.pictures.render"),
+    "unmix": "fpscan.service.recon.unmix",
+    **dict.fromkeys(["so2_map", "thb_map"], "fpscan.service.spectral"),
     # metrics
     **dict.fromkeys(["correlation_coefficient", "mip", "mips", "fit_edge_spread", "fit_lorentz",
                      "edge_spread", "lorentz", "side_lobe_level", "tenenbaum_sharpness", "cc_vs_diameter",
                      "cc_vs_pixels", "sharpness_vs_diameter", "roi_mask", "disc_mask", "bounding_box",
-                     "EdgeFit", "LorentzFit"], "service.metrics"),
+                     "EdgeFit", "LorentzFit"], "fpscan.service.metrics"),
     # phantoms
-    **dict.fromkeys(["Ball", "ball_alines", "ball_p0"], "driver.physics"),
+    **dict.fromkeys(["Ball", "ball_alines", "ball_p0"], "fpscan.physics"),
     # the HTTP client
     **dict.fromkeys(["Client", "AsyncClient", "ApiError", "AuthError", "Conflict", "NotFound",
                      "FpscanClientError", "JobFailed", "JobCancelled", "JobError", "ServerUnavailable",
-                     "WaitTimeout"], "clients.http"),
+                     "WaitTimeout"], "fpscan.clients.http"),
 }
 #: a public name that differs from its owner's
-_RENAMED = {"export_ipasc": ("service.formats.ipasc", "export_scan"),
-            "load_plan": ("service.formats.plan", "read_plan")}
+_RENAMED = {"export_ipasc": ("fpscan.service.formats.ipasc", "export_scan"),
+            "load_plan": ("fpscan.service.formats.plan", "read_plan")}
 
 #: the public names (tests check them against _EXPORTS and _RENAMED)
 __all__ = [
@@ -145,7 +145,7 @@ __all__ = [
 ]
 
 if TYPE_CHECKING:
-    from clients.http import (
+    from fpscan.clients.http import (
         ApiError,
         AsyncClient,
         AuthError,
@@ -159,14 +159,14 @@ if TYPE_CHECKING:
         ServerUnavailable,
         WaitTimeout,
     )
-    from driver.physics import Ball, ball_alines, ball_p0
-    from driver.scanfile import ScanData, ScanFile, pressure_unit, read_scan
-    from service.formats import export_file, export_formats
-    from service.formats.ipasc import export_scan as export_ipasc
-    from service.formats.ngff import export_ome_zarr
-    from service.formats.ome_tiff import export_ome_tiff
-    from service.formats.plan import read_plan as load_plan
-    from service.metrics import (
+    from fpscan.driver.scanfile import ScanData, ScanFile, pressure_unit, read_scan
+    from fpscan.physics import Ball, ball_alines, ball_p0
+    from fpscan.service.formats import export_file, export_formats
+    from fpscan.service.formats.ipasc import export_scan as export_ipasc
+    from fpscan.service.formats.ngff import export_ome_zarr
+    from fpscan.service.formats.ome_tiff import export_ome_tiff
+    from fpscan.service.formats.plan import read_plan as load_plan
+    from fpscan.service.metrics import (
         EdgeFit,
         LorentzFit,
         bounding_box,
@@ -185,9 +185,9 @@ if TYPE_CHECKING:
         side_lobe_level,
         tenenbaum_sharpness,
     )
-    from service.pictures.render import render_mip, render_mips, render_so2
-    from service.pipeline import METHODS, Cancelled, reconstruct
-    from service.plans import (
+    from fpscan.service.pictures.render import render_mip, render_mips, render_so2
+    from fpscan.service.pipeline import METHODS, Cancelled, reconstruct
+    from fpscan.service.plans import (
         MASK_KINDS,
         Acquisition,
         Lattice,
@@ -207,13 +207,13 @@ if TYPE_CHECKING:
         subgrid_mask,
         weight_ratio,
     )
-    from service.recon.dataset import GridDataset, PointDataset
-    from service.recon.reconstruction import Reconstruction
-    from service.recon.unmix import unmix
-    from service.spectral import so2_map, thb_map
-    from service.storage.loader import load_dataset, load_wavelengths
-    from service.storage.results import ResultVolume, read_result, write_result, write_volume
-    from service.subsample import subsample
+    from fpscan.service.recon.dataset import GridDataset, PointDataset
+    from fpscan.service.recon.reconstruction import Reconstruction
+    from fpscan.service.recon.unmix import unmix
+    from fpscan.service.spectral import so2_map, thb_map
+    from fpscan.service.storage.loader import load_dataset, load_wavelengths
+    from fpscan.service.storage.results import ResultVolume, read_result, write_result, write_volume
+    from fpscan.service.subsample import subsample
 
     __version__: str
 

@@ -20,7 +20,7 @@ import h5py
 import httpx
 import numpy as np
 
-FPSCAN = [sys.executable, "-c", "import sys; from clients.cli import main; sys.exit(main())"]
+FPSCAN = [sys.executable, "-c", "import sys; from fpscan.clients.cli import main; sys.exit(main())"]
 
 
 def _recon(npy: Path, out: Path, device: str, *extra: str) -> dict:

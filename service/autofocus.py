@@ -1,12 +1,12 @@
 """Sound-speed autofocus: the c that maximises the Tenenbaum sharpness of the image.
 
 A wrong speed of sound defocuses a planar reconstruction: every point source turns into
-an arc. fpscan picks c within a search interval (default ``driver.constants.C_AUTOFOCUS_RANGE``, 1450-1600 m/s)
+an arc. fpscan picks c within a search interval (default ``fpscan.constants.C_AUTOFOCUS_RANGE``, 1450-1600 m/s)
 as the maximiser of a focus function, as the paper (Appendix "Quality measures") uses
 the Tenenbaum sharpness to judge images:
 
 - **Focus function** (:func:`focus_sharpness`): the Tenenbaum sharpness
-  (:func:`service.metrics.sharpness.tenenbaum_sharpness`, Sobel gradient energy) of the
+  (:func:`fpscan.service.metrics.sharpness.tenenbaum_sharpness`, Sobel gradient energy) of the
   maximum-intensity projection of p0 along depth (the xy-MIP of a volume; of a 2-D
   image, its lateral profile), divided by the projection's mean square. Projecting
   along depth leaves out the depth axis, whose scale itself changes with c (z = c·t:
@@ -36,8 +36,8 @@ from typing import Any
 
 import numpy as np
 
-from driver.constants import C_AUTOFOCUS_LIMITS, C_AUTOFOCUS_RANGE
-from service.progress import Fraction, Progress, span
+from fpscan.constants import C_AUTOFOCUS_LIMITS, C_AUTOFOCUS_RANGE
+from fpscan.service.progress import Fraction, Progress, span
 
 __all__ = [
     "MAX_DECIMATION", "Autofocus", "check_c_range", "focus_sharpness", "choose_decimation", "search",
@@ -109,7 +109,7 @@ def check_c_range(c_range: Any) -> tuple[float, float]:
     ------
     ValueError
         Not two numbers; not finite; not c_min < c_max; not both within
-        ``driver.constants.C_AUTOFOCUS_LIMITS``.
+        ``fpscan.constants.C_AUTOFOCUS_LIMITS``.
     """
     try:
         lo, hi = (float(v) for v in c_range)
@@ -139,8 +139,8 @@ def focus_sharpness(p0: np.ndarray) -> float:
     ValueError
         Another shape (or an empty array); NaN or inf in ``p0``.
     """
-    from service.metrics.projections import mip
-    from service.metrics.sharpness import tenenbaum_sharpness
+    from fpscan.service.metrics.projections import mip
+    from fpscan.service.metrics.sharpness import tenenbaum_sharpness
 
     p = np.asarray(p0)
     if p.ndim not in (2, 3) or p.size == 0:
@@ -206,7 +206,7 @@ def search(sharpness_at: Callable[[float], float], c_range: tuple[float, float] 
         ``sharpness_at(c) -> float``: the focus value at speed ``c`` (m/s); called once per c.
     c_range : tuple of float, optional
         ``(c_min, c_max)`` in m/s (:func:`check_c_range`); default
-        ``driver.constants.C_AUTOFOCUS_RANGE``.
+        ``fpscan.constants.C_AUTOFOCUS_RANGE``.
     n_coarse : int, optional
         Evenly spaced speeds sampled first, ends included; at least 3; default 7.
     xtol : float, optional
@@ -284,14 +284,14 @@ def autofocus(dataset: Any, reconstruct: Callable[..., Any], *, c_range: Any = C
     Parameters
     ----------
     dataset : GridDataset or PointDataset
-        A grid or point dataset (:mod:`service.storage.loader`: ``data`` ``(n_t, ...)``
+        A grid or point dataset (:mod:`fpscan.service.storage.loader`: ``data`` ``(n_t, ...)``
         / ``alines`` ``(n, n_t)``, ``dt`` s, ``t0`` s).
     reconstruct : callable
         ``reconstruct(dataset, c=..., dz=..., n_z=..., dtype="float32", **options)`` → an
         object with ``p0`` (the pipeline's dispatch bound to a method, its ``should_stop``
         included: a cancelled reconstruction ends the search).
     c_range : tuple of float, optional
-        ``(c_min, c_max)`` in m/s; default ``driver.constants.C_AUTOFOCUS_RANGE``.
+        ``(c_min, c_max)`` in m/s; default ``fpscan.constants.C_AUTOFOCUS_RANGE``.
     n_coarse : int, optional
         See :func:`search`; default 7.
     xtol : float, optional
@@ -360,8 +360,8 @@ def focus_then_reconstruct(dataset: Any, method: str, reconstruct: Callable[...,
     full data at the chosen c.
 
     The search reconstructs with ``method`` (a direct method of the dispatch; an iterative
-    one, ``Method.iterative`` of ``service.recon.methods``, searches with the input's default
-    direct method instead, ``service.recon.methods.default_for``), lateral upsampling 1,
+    one, ``Method.iterative`` of ``fpscan.service.recon.methods``, searches with the input's default
+    direct method instead, ``fpscan.service.recon.methods.default_for``), lateral upsampling 1,
     float32. Progress: the search reports stage ``"autofocus"`` over [0, 0.5], the final
     reconstruction the rest.
 
@@ -372,10 +372,10 @@ def focus_then_reconstruct(dataset: Any, method: str, reconstruct: Callable[...,
     method : str
         The reconstruction method's name.
     reconstruct : callable
-        The dispatch (``service.pipeline.reconstruct``):
+        The dispatch (``fpscan.service.pipeline.reconstruct``):
         ``reconstruct(dataset, method, progress=..., should_stop=..., c=..., **options)``.
     c_range : tuple of float, optional
-        ``(c_min, c_max)`` in m/s; None (default): ``driver.constants.C_AUTOFOCUS_RANGE``.
+        ``(c_min, c_max)`` in m/s; None (default): ``fpscan.constants.C_AUTOFOCUS_RANGE``.
     progress : Progress, optional
         Receives the stages and fractions above.
     should_stop : callable, optional
@@ -401,7 +401,7 @@ def focus_then_reconstruct(dataset: Any, method: str, reconstruct: Callable[...,
         A bad ``c_range``; what the dispatch raises.
     """
     rng = check_c_range(C_AUTOFOCUS_RANGE if c_range is None else c_range)
-    from service.recon.methods import METHODS, default_for
+    from fpscan.service.recon.methods import METHODS, default_for
 
     search_method = method
     if method in METHODS and METHODS[method].iterative:

@@ -122,7 +122,7 @@ def lock_data_folder(data_dir: str | os.PathLike) -> DataFolderLock:
     Examples
     --------
     >>> import tempfile
-    >>> from service.data_lock import lock_data_folder
+    >>> from fpscan.service.data_lock import lock_data_folder
     >>> folder = tempfile.mkdtemp()
     >>> with lock_data_folder(folder) as lock:
     ...     lock.held

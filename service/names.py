@@ -1,4 +1,4 @@
-"""The names a person reads for the quantities code names otherwise (``driver.constants``:
+"""The names a person reads for the quantities code names otherwise (``fpscan.constants``:
 the speed of sound is ``c`` in code, ``sound_speed`` over HTTP, on the command line and in
 files).
 

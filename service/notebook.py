@@ -1,16 +1,16 @@
 """The progress bar of library calls in a Jupyter notebook.
 
-:func:`service.pipeline.reconstruct` called without a ``progress`` callback in a Jupyter
+:func:`fpscan.service.pipeline.reconstruct` called without a ``progress`` callback in a Jupyter
 kernel (IPython's ``ZMQInteractiveShell``) shows one bar in the cell's output, updated in
 place (IPython's ``display(..., display_id=True)`` and ``update``, the mechanism tqdm's and
 rich's notebook bars build on, here without ipywidgets): an HTML ``<progress>`` element with
-the stage (an iterative method's stopping rule against its tolerance, ``service.progress``),
+the stage (an iterative method's stopping rule against its tolerance, ``fpscan.service.progress``),
 the percentage and the time left, and a plain-text form for consoles and saved notebooks. It
 ends on how the work ended. Outside a notebook, with a callback, or with ``quiet=True``
 nothing is shown. IPython is imported only inside a notebook, where it is already loaded.
 
 The HTTP client's waits (``Client.wait``, ``AsyncClient.wait``) draw the same bar from the
-progress the server sends (``clients.http.notebook``): the client never imports ``service``
+progress the server sends (``fpscan.clients.http.notebook``): the client never imports ``service``
 (the import contracts in ``pyproject.toml``), so it has its own copy of the drawing; a change
 to the bar's look is made in both.
 """
@@ -21,7 +21,7 @@ import sys
 import time
 from typing import Any
 
-from service.progress import Eta, describe_iteration, iteration_fields, parse_iteration
+from fpscan.service.progress import Eta, describe_iteration, iteration_fields, parse_iteration
 
 __all__ = ["in_notebook", "NotebookBar", "notebook_bar"]
 
@@ -46,7 +46,7 @@ def in_notebook() -> bool:
 
 
 class NotebookBar:
-    """One progress bar in a notebook cell's output, a ``service.progress.Progress``:
+    """One progress bar in a notebook cell's output, a ``fpscan.service.progress.Progress``:
     ``bar(fraction, stage)`` redraws it (at most every :data:`REDRAW_S` s), :meth:`close`
     draws its end.
 

@@ -1,13 +1,13 @@
 """The one reconstruction dispatch: a dataset + a method name + options → a `Reconstruction`.
 
 Everything that reconstructs calls :func:`reconstruct` — the job worker
-(:mod:`service.jobs.work`), ``fpscan recon`` without ``--server``, the live preview
-(:mod:`service.jobs.preview`) and the experiments (:mod:`service.experiments`) — so the same
+(:mod:`fpscan.service.jobs.work`), ``fpscan recon`` without ``--server``, the live preview
+(:mod:`fpscan.service.jobs.preview`) and the experiments (:mod:`fpscan.service.experiments`) — so the same
 input and options give the same volume locally and on the server. Inputs are the
-datasets of :mod:`service.recon.dataset` (read any file with ``service.storage.loader.load_dataset``).
+datasets of :mod:`fpscan.service.recon.dataset` (read any file with ``fpscan.service.storage.loader.load_dataset``).
 
 The method vocabulary is :data:`METHODS` (name → :class:`Method`), the registry of
-:mod:`service.recon.methods`: one module per method with its typed options model (type,
+:mod:`fpscan.service.recon.methods`: one module per method with its typed options model (type,
 range, unit, default of each option), whether it needs data on a full regular grid, its
 peak-memory model and its ``run``. A point dataset covering its whole lattice (a
 full-lattice scan) is turned into grid data for the grid methods; grid data are turned
@@ -18,7 +18,7 @@ the web page's fields and the docs table follow from the registry.
 Options (SI units; ``None`` means "the default"):
 
 - ``c``: speed of sound in m/s (default: the dataset's), or ``"auto"``: the speed that
-  focuses best (:mod:`service.autofocus`, Tenenbaum sharpness; ``c_range`` the search
+  focuses best (:mod:`fpscan.service.autofocus`, Tenenbaum sharpness; ``c_range`` the search
   interval in m/s, default 1450-1600); the chosen c, the sharpness curve and the search
   time land in ``params["autofocus"]``;
 - ``dtype``: ``"float32"`` or ``"float64"``, the working and output precision, default
@@ -29,8 +29,8 @@ Options (SI units; ``None`` means "the default"):
 - ``interp``: k-Wave's interpolation (``kwave``): ``"*nearest"`` (k-Wave's default),
   ``"nearest"``, ``"*linear"``, ``"linear"``, ``"*cubic"``, ``"cubic"``.
 
-A ``c`` (and each end of ``c_range``) outside ``driver.constants.C_PLAUSIBLE`` (m/s) is refused as a likely unit
-mistake (``driver.units.check_speeds``, the rule of the CLI, the API and the web form)
+A ``c`` (and each end of ``c_range``) outside ``fpscan.constants.C_PLAUSIBLE`` (m/s) is refused as a likely unit
+mistake (``fpscan.driver.units.check_speeds``, the rule of the CLI, the API and the web form)
 unless :func:`reconstruct` is called with ``force=True`` (another medium).
 
 Contracts shared with the callers (docs/architecture.md): ``progress(fraction, stage)``
@@ -41,7 +41,7 @@ step may repeat its fraction so that a cancel is heard: ``tv`` does every 0.2 s 
 
 Examples
 --------
->>> from service.pipeline import METHODS, OPTIONS
+>>> from fpscan.service.pipeline import METHODS, OPTIONS
 >>> list(METHODS)[:2], {"linear", "nearest", "cubic", "kwave", "tv"} <= set(METHODS)  # the default first
 (['nedner', 'ner'], True)
 >>> OPTIONS["eps"]
@@ -57,26 +57,26 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from service.progress import Progress, span
-from service.recon import methods as _methods
-from service.recon.limits import DEFAULT_DTYPE, DTYPES, KWAVE_INTERPS
-from service.recon.methods import Method
+from fpscan.service.progress import Progress, span
+from fpscan.service.recon import methods as _methods
+from fpscan.service.recon.limits import DEFAULT_DTYPE, DTYPES, KWAVE_INTERPS
+from fpscan.service.recon.methods import Method
 
 __all__ = ["METHODS", "OPTIONS", "DEFAULT_DTYPE", "DTYPES", "KWAVE_INTERPS", "Method", "register", "Cancelled", "run_file",
            "Progress", "ShouldStop", "default_method", "option_rules", "check_option_values", "method_options",
            "reconstruct"]
 
 if TYPE_CHECKING:
-    from service.plans import Mask, Plan
-    from service.recon.dataset import GridDataset, PointDataset
-    from service.recon.reconstruction import Reconstruction
+    from fpscan.service.plans import Mask, Plan
+    from fpscan.service.recon.dataset import GridDataset, PointDataset
+    from fpscan.service.recon.reconstruction import Reconstruction
 
     Dataset = GridDataset | PointDataset
 
 ShouldStop = Callable[[], bool]
 Runner = Callable[..., "Reconstruction"]
 
-#: the method registry (:mod:`service.recon.methods`: one module per method) -- the one list
+#: the method registry (:mod:`fpscan.service.recon.methods`: one module per method) -- the one list
 METHODS: dict[str, Method] = _methods.METHODS
 register = _methods.register
 
@@ -84,7 +84,7 @@ register = _methods.register
 def _options() -> dict[str, str]:
     """Every option a method may take, with its meaning, range, unit and default (from the
     methods' option models; ``c`` and ``c_range`` are the pipeline's own)."""
-    from service.recon.methods.options import SpeedOptions
+    from fpscan.service.recon.methods.options import SpeedOptions
 
     speed = SpeedOptions.model_fields
     out = {"c": speed["c"].description or "", "c_range": speed["c_range"].description or ""}
@@ -118,8 +118,8 @@ class Cancelled(Exception):
     Examples
     --------
     >>> import numpy as np
-    >>> from service.pipeline import Cancelled, reconstruct
-    >>> from service.recon.dataset import GridDataset
+    >>> from fpscan.service.pipeline import Cancelled, reconstruct
+    >>> from fpscan.service.recon.dataset import GridDataset
     >>> ds = GridDataset(np.zeros((64, 8)), dx=1e-4, dt=1e-4 / 1500, c=1500.0)
     >>> try:
     ...     reconstruct(ds, "ner", should_stop=lambda: True)
@@ -134,7 +134,7 @@ class Cancelled(Exception):
 def default_method(dataset: Dataset | str) -> str:
     """The method used when none is asked for -- the one rule for ``fpscan recon``/``unmix``
     (locally and with ``--server``), the API (a request without ``method``) and the job
-    worker: the registry's default for the input (``service.recon.methods.default_for``: NER for
+    worker: the registry's default for the input (``fpscan.service.recon.methods.default_for``: NER for
     grid data, NEDNER for sensor points, any mask).
 
     ``dataset``: a dataset (its ``kind``) or the kind itself, ``"grid"`` or ``"points"``
@@ -143,7 +143,7 @@ def default_method(dataset: Dataset | str) -> str:
     Parameters
     ----------
     dataset : GridDataset, PointDataset or str
-        A dataset of :mod:`service.recon.dataset`, or its kind (``"grid"`` / ``"points"``).
+        A dataset of :mod:`fpscan.service.recon.dataset`, or its kind (``"grid"`` / ``"points"``).
 
     Returns
     -------
@@ -153,22 +153,22 @@ def default_method(dataset: Dataset | str) -> str:
     Examples
     --------
     >>> import numpy as np
-    >>> from service.pipeline import default_method
-    >>> from service.recon.dataset import GridDataset
+    >>> from fpscan.service.pipeline import default_method
+    >>> from fpscan.service.recon.dataset import GridDataset
     >>> ds = GridDataset(np.zeros((64, 8)), dx=1e-4, dt=1e-4 / 1500, c=1500.0)
     >>> default_method(ds), default_method(ds.to_points())
     ('ner', 'nedner')
     >>> default_method("grid"), default_method("points")
     ('ner', 'nedner')
     """
-    from service.recon.methods import default_for
+    from fpscan.service.recon.methods import default_for
 
     kind = dataset if isinstance(dataset, str) else getattr(dataset, "kind", None)
     return default_for("grid" if kind == "grid" else "points")
 
 
 def _dtype(value: Any) -> np.dtype:
-    from service.recon.methods.options import check_dtype_name
+    from fpscan.service.recon.methods.options import check_dtype_name
 
     return np.dtype(check_dtype_name(DEFAULT_DTYPE if value is None else value))
 
@@ -184,23 +184,23 @@ def _field_rule(name: str) -> Callable[[Any], Any]:
 
 
 def option_rules() -> dict[str, Callable[[Any], Any]]:
-    """Each option's rule (value -> checked value, or ``service.recon.checks.OptionError``
+    """Each option's rule (value -> checked value, or ``fpscan.service.recon.checks.OptionError``
     naming the option and its range): the option's field in the methods' models
-    (:mod:`service.recon.methods`), which applies the kernel's own function
-    (``service.recon.checks``), so every door -- :func:`reconstruct`, ``fpscan recon`` /
+    (:mod:`fpscan.service.recon.methods`), which applies the kernel's own function
+    (``fpscan.service.recon.checks``), so every door -- :func:`reconstruct`, ``fpscan recon`` /
     ``unmix`` and ``POST /api/reconstructions`` -- refuses what the kernel would, before any
     work. ``c`` and ``c_range`` have their own rules (:func:`reconstruct`,
-    ``driver.units.check_speeds``, ``service.autofocus.check_c_range``).
+    ``fpscan.driver.units.check_speeds``, ``fpscan.service.autofocus.check_c_range``).
 
     Returns
     -------
     dict
         Option name -> ``rule(value)``, returning the checked value (SI units; e.g. an int
-        ``upsample``, a float ``eps``) or raising ``service.recon.checks.OptionError``.
+        ``upsample``, a float ``eps``) or raising ``fpscan.service.recon.checks.OptionError``.
 
     Examples
     --------
-    >>> from service.pipeline import option_rules
+    >>> from fpscan.service.pipeline import option_rules
     >>> rules = option_rules()
     >>> {"debias", "dtype", "dz", "eps", "interp", "iterations", "lam", "n_z", "positivity", "time_limit",
     ...  "tol", "upsample"} <= set(rules)
@@ -210,14 +210,14 @@ def option_rules() -> dict[str, Callable[[Any], Any]]:
     >>> rules["eps"](5e-15)
     Traceback (most recent call last):
     ...
-    service.recon.checks.OptionError: eps must be in [1e-14, 1e-1], got 5e-15
+    fpscan.service.recon.checks.OptionError: eps must be in [1e-14, 1e-1], got 5e-15
     """
     return {name: _field_rule(name) for name in _methods.option_fields()}
 
 
 def check_option_values(options: dict) -> None:
     """Apply :func:`option_rules` to every option given (``None``: the default, passes);
-    raises ``service.recon.checks.OptionError`` (a ValueError) naming the first refused.
+    raises ``fpscan.service.recon.checks.OptionError`` (a ValueError) naming the first refused.
 
     Parameters
     ----------
@@ -226,17 +226,17 @@ def check_option_values(options: dict) -> None:
 
     Raises
     ------
-    service.recon.checks.OptionError
+    fpscan.service.recon.checks.OptionError
         The first value its rule refuses.
 
     Examples
     --------
-    >>> from service.pipeline import check_option_values
+    >>> from fpscan.service.pipeline import check_option_values
     >>> check_option_values({"eps": 1e-8, "upsample": None, "c": 1500.0})  # all pass
     >>> check_option_values({"n_z": 1})
     Traceback (most recent call last):
     ...
-    service.recon.checks.OptionError: n_z must be an integer in 2..65536, got 1
+    fpscan.service.recon.checks.OptionError: n_z must be an integer in 2..65536, got 1
     """
     rules = option_rules()
     for name, value in options.items():
@@ -246,14 +246,14 @@ def check_option_values(options: dict) -> None:
 
 def method_options(method: str, options: dict) -> dict:
     """The options ``method`` takes, from ``options``, each checked by the method's options
-    model (:mod:`service.recon.methods`); ``None`` values (the defaults) are left out.
+    model (:mod:`fpscan.service.recon.methods`); ``None`` values (the defaults) are left out.
     Raises ValueError naming the problem: an unknown method; a name that is no option at
     all (:data:`OPTIONS`); an option ``method`` does not take (``OptionError`` naming the
     method's options: an option that would do nothing is never silently dropped); a value
     outside its rule; ``c="auto"`` for a method whose own reconstruction cannot run the
     search (it takes no ``dz``, ``n_z``: ``kwave``); a ``c_range`` without ``c="auto"`` or
-    outside :func:`service.autofocus.check_c_range`; ``device="cuda"`` where no CUDA GPU is
-    visible (`service.recon.device.Unsuited`). ``force`` (:func:`reconstruct`'s flag, not a
+    outside :func:`fpscan.service.autofocus.check_c_range`; ``device="cuda"`` where no CUDA GPU is
+    visible (`fpscan.service.recon.device.Unsuited`). ``force`` (:func:`reconstruct`'s flag, not a
     method's option) passes and is left out. Returns a new dict of the given values as
     checked (e.g. ``upsample`` an int).
 
@@ -272,28 +272,28 @@ def method_options(method: str, options: dict) -> dict:
 
     Raises
     ------
-    service.recon.checks.OptionError
+    fpscan.service.recon.checks.OptionError
         An unknown method or option name, an option ``method`` does not take, a value
         outside its rule, a ``c_range`` without ``c="auto"``.
     ValueError
-        A ``c_range`` that ``service.autofocus.check_c_range`` refuses.
+        A ``c_range`` that ``fpscan.service.autofocus.check_c_range`` refuses.
 
     Examples
     --------
-    >>> from service.pipeline import method_options
+    >>> from fpscan.service.pipeline import method_options
     >>> method_options("nedner", {"upsample": 2.0, "eps": None, "c": 1480.0})
     {'upsample': 2, 'c': 1480.0}
     >>> method_options("ner", {"lam": 0.1})
     Traceback (most recent call last):
     ...
-    service.recon.checks.OptionError: method 'ner' takes no option lam (its options: c, eps, dtype, upsample,
+    fpscan.service.recon.checks.OptionError: method 'ner' takes no option lam (its options: c, eps, dtype, upsample,
     positivity, n_z, dz, device)
     >>> method_options("ner", {"c_range": (1450.0, 1600.0)})
     Traceback (most recent call last):
     ...
-    service.recon.checks.OptionError: c_range is the autofocus search interval: it needs c='auto', got c=None
+    fpscan.service.recon.checks.OptionError: c_range is the autofocus search interval: it needs c='auto', got c=None
     """
-    from service.recon.checks import OptionError
+    from fpscan.service.recon.checks import OptionError
 
     spec = _methods.get(method)
     unknown = sorted(set(options) - set(OPTIONS) - {"force"})  # force: reconstruct's own flag
@@ -314,12 +314,12 @@ def method_options(method: str, options: dict) -> dict:
     if options.get("c_range") is not None:  # never silently unused
         if options.get("c") != "auto":
             raise OptionError(f"c_range is the autofocus search interval: it needs c='auto', got c={options.get('c')!r}")
-        from service.autofocus import check_c_range
+        from fpscan.service.autofocus import check_c_range
 
         check_c_range(options["c_range"])
     out = {k: getattr(checked, k) for k in given}
     if out.get("device") == "cuda":  # refused at the door where no GPU is visible, as the server's admission does
-        from service.recon.device import choose
+        from fpscan.service.recon.device import choose
 
         choose("cuda", 0)
     if options.get("c") is not None:
@@ -335,7 +335,7 @@ def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = No
     Parameters
     ----------
     dataset : GridDataset or PointDataset
-        `service.recon.dataset.GridDataset` (``data`` ``(n_t, n_y, n_x)`` / ``(n_t, n_x)``,
+        `fpscan.service.recon.dataset.GridDataset` (``data`` ``(n_t, n_y, n_x)`` / ``(n_t, n_x)``,
         time first, pitch in m, ``dt`` in s) or `PointDataset` (``alines`` ``(n, n_t)`` at
         ``positions`` ``(n, 1)`` / ``(n, 2)`` in m).
     method : str
@@ -345,12 +345,12 @@ def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = No
     should_stop : callable, optional
         ``should_stop() -> bool``, polled between steps.
     force : bool, optional
-        Accept a ``c`` (or ``c_range``) outside ``driver.constants.C_PLAUSIBLE`` (m/s; a medium other than tissue
+        Accept a ``c`` (or ``c_range``) outside ``fpscan.constants.C_PLAUSIBLE`` (m/s; a medium other than tissue
         or water); without it such a value is a ValueError naming the likely unit mistake
-        (``driver.units.ImplausibleValue``).
+        (``fpscan.driver.units.ImplausibleValue``).
     quiet : bool, optional
         No progress bar in a Jupyter notebook. Without ``progress`` a call in a notebook shows
-        one in the cell's output (``service.notebook``); elsewhere nothing is shown either way.
+        one in the cell's output (``fpscan.service.notebook``); elsewhere nothing is shown either way.
     **options
         The method's options (module docstring; ``c`` in m/s); ``None`` = default; each is
         checked by its rule (:func:`method_options`) before any work, and an option the
@@ -361,14 +361,14 @@ def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = No
     Reconstruction
         ``p0`` ``(n_z, n_y, n_x)`` / ``(n_z, n_x)`` with ``z``, ``x``, ``y`` (m), ``params``
         (everything used) and ``p0_unit`` (``"Pa"`` for a calibrated scan, else ``"a.u."``:
-        ``service.storage.loader.p0_unit``).
+        ``fpscan.service.storage.loader.p0_unit``).
 
     Raises
     ------
     ValueError
         Naming the problem (unknown method or option name, an option the method does not
         take, a grid method on a sensor mask, no A-lines, bad values -- an option outside
-        its rule is ``service.recon.checks.OptionError`` -- an implausible ``c`` without
+        its rule is ``fpscan.service.recon.checks.OptionError`` -- an implausible ``c`` without
         ``force``).
     Cancelled
         When ``should_stop()`` returned True.
@@ -378,8 +378,8 @@ def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = No
     A laterally uniform layer at depth row 10 on an 8-sensor line (dz = c dt = 0.1 mm):
 
     >>> import numpy as np
-    >>> from service.pipeline import reconstruct
-    >>> from service.recon.dataset import GridDataset
+    >>> from fpscan.service.pipeline import reconstruct
+    >>> from fpscan.service.recon.dataset import GridDataset
     >>> g = np.zeros((64, 8))  # (n_t, n_x)
     >>> g[10] = 0.5
     >>> ds = GridDataset(g, dx=1e-4, dt=1e-4 / 1500, c=1500.0)
@@ -398,18 +398,18 @@ def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = No
     >>> reconstruct(ds, "ner", eps=5e-15)
     Traceback (most recent call last):
     ...
-    service.recon.checks.OptionError: eps must be in [1e-14, 1e-1], got 5e-15
+    fpscan.service.recon.checks.OptionError: eps must be in [1e-14, 1e-1], got 5e-15
     >>> reconstruct(ds, "ner", c=1.5)
     Traceback (most recent call last):
     ...
-    driver.units.ImplausibleValue: c: sound speed 1.5 m/s is implausible for tissue or water ...
+    fpscan.driver.units.ImplausibleValue: c: sound speed 1.5 m/s is implausible for tissue or water ...
     >>> reconstruct(ds, "ner", should_stop=lambda: True)
     Traceback (most recent call last):
     ...
-    service.pipeline.Cancelled: reconstruction cancelled
+    fpscan.service.pipeline.Cancelled: reconstruction cancelled
     """
     if progress is None and not quiet and not _BAR_SHOWN.get():
-        from service.notebook import notebook_bar
+        from fpscan.service.notebook import notebook_bar
 
         bar = notebook_bar(method)
         if bar is not None:  # a Jupyter notebook: one bar for this call, none for the calls inside it
@@ -419,13 +419,13 @@ def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = No
     given = method_options(method, options)
     # every option of the method, defaults filled (None: derived from the data), and c
     opts = {**spec.check({k: v for k, v in given.items() if k != "c"}).model_dump(), "c": given.get("c")}
-    from driver.units import check_speeds
+    from fpscan.driver.units import check_speeds
 
     check_speeds(c=opts.get("c"), c_range=options.get("c_range"), force=force)
     if isinstance(opts.get("c"), str):
         if opts["c"] != "auto":
             raise ValueError(f"c must be a speed of sound in m/s or 'auto', got {opts['c']!r}")
-        from service.autofocus import focus_then_reconstruct
+        from fpscan.service.autofocus import focus_then_reconstruct
 
         rest = {k: v for k, v in options.items() if k not in ("c", "c_range")}
         # the speeds tried lie within c_range, checked above
@@ -435,7 +435,7 @@ def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = No
     opts["dtype"] = _dtype(opts.get("dtype"))
     c = opts.pop("c", None)
     c = float(dataset.c if c is None else c)
-    from service.recon.dataset import GridDataset, PointDataset, p0_unit, wavelength_params
+    from fpscan.service.recon.dataset import GridDataset, PointDataset, p0_unit, wavelength_params
 
     if spec.needs_grid and isinstance(dataset, PointDataset):
         dataset = dataset.to_grid()
@@ -467,9 +467,9 @@ _BAR_SHOWN: ContextVar[bool] = ContextVar("fpscan_notebook_bar", default=False)
 
 
 def _with_bar(bar: Any, call: Callable[[], Reconstruction], method: str) -> Reconstruction:
-    """``call()`` under a notebook bar (``service.notebook.NotebookBar``), which ends on how the
+    """``call()`` under a notebook bar (``fpscan.service.notebook.NotebookBar``), which ends on how the
     reconstruction ended (an iterative method's outcome, else "done") or where it stopped."""
-    from service.recon.methods import outcome
+    from fpscan.service.recon.methods import outcome
 
     token = _BAR_SHOWN.set(True)
     try:
@@ -487,21 +487,21 @@ def _load_inputs(paths: list, format: str | None, unmixing: bool, wavelength: in
                  wavelengths: Sequence[float] | None, load: dict,
                  plan: Plan | Mask | dict | None) -> tuple[Any, list]:
     """:func:`run_file`'s inputs read: ``(wavelengths, datasets)``, unmixing's (one per wavelength,
-    ``service.spectral.load_wavelength_datasets``) or one file's (``wavelengths`` None), sampled
-    by ``plan`` (``service.subsample``) where given."""
+    ``fpscan.service.spectral.load_wavelength_datasets``) or one file's (``wavelengths`` None), sampled
+    by ``plan`` (``fpscan.service.subsample``) where given."""
     if unmixing:
         if plan is not None:
             raise ValueError("a plan samples one dense input: not with unmix")
-        from service.spectral import load_wavelength_datasets
+        from fpscan.service.spectral import load_wavelength_datasets
 
         return load_wavelength_datasets(paths, format, wavelengths=wavelengths, **load)
-    from service.storage.loader import load_wavelengths
+    from fpscan.service.storage.loader import load_wavelengths
 
     if len(paths) != 1:
         raise ValueError(f"one input file, got {len(paths)} (several only to unmix, one per wavelength)")
     datasets = load_wavelengths(paths[0], format, wavelength=wavelength, **load)
     if plan is not None:
-        from service.subsample import subsample
+        from fpscan.service.subsample import subsample
 
         datasets = [subsample(ds, plan) for ds in datasets]
     return None, datasets
@@ -529,20 +529,20 @@ def run_file(inputs: str | os.PathLike | Sequence[str | os.PathLike],
              on_loaded: Callable[[Dataset, str], Any] | None = None, plan: Plan | Mask | dict | None = None,
              **options: Any) -> dict:
     """Read a file, reconstruct it and write its result folder: the one orchestration of the job
-    worker (``service.jobs.work``), ``fpscan recon`` and ``fpscan unmix`` (locally), so that a
+    worker (``fpscan.service.jobs.work``), ``fpscan recon`` and ``fpscan unmix`` (locally), so that a
     file gives the same folder whoever runs it.
 
     Three shapes of work, by the arguments:
 
     - one volume (default): the file read at ``wavelength`` (an index; None: the first) with
-      ``service.storage.loader.load_wavelengths``, reconstructed by :func:`reconstruct`,
-      written by ``service.storage.results.write_result`` (``volume.h5`` + MIPs);
+      ``fpscan.service.storage.loader.load_wavelengths``, reconstructed by :func:`reconstruct`,
+      written by ``fpscan.service.storage.results.write_result`` (``volume.h5`` + MIPs);
     - every wavelength (``wavelength="all"``): one volume each, same method and options
-      (``service.spectral.reconstruct_wavelengths``), written by
-      ``service.spectral.write_wavelength_results`` (the first at the top, ``wavelength_<k>/``);
+      (``fpscan.service.spectral.reconstruct_wavelengths``), written by
+      ``fpscan.service.spectral.write_wavelength_results`` (the first at the top, ``wavelength_<k>/``);
     - unmixing (``unmix`` given: ``threshold``, ``fluence``): every wavelength of one
       multi-wavelength scan file, or of one file per wavelength (``inputs`` a list, with
-      ``wavelengths``), reconstructed and unmixed (``service.spectral.reconstruct_and_unmix``:
+      ``wavelengths``), reconstructed and unmixed (``fpscan.service.spectral.reconstruct_and_unmix``:
       ``unmix.h5``, ``so2.png`` and one folder per wavelength).
 
     Parameters
@@ -555,7 +555,7 @@ def run_file(inputs: str | os.PathLike | Sequence[str | os.PathLike],
     method : str, optional
         A key of :data:`METHODS`; None: :func:`default_method` of the data as loaded.
     format : str, optional
-        The inputs' format (``service.formats``); None: detected from the content.
+        The inputs' format (``fpscan.service.formats``); None: detected from the content.
     wavelength : int or "all", optional
         Of a multi-wavelength file (not with ``unmix``).
     wavelengths : sequence of float, optional
@@ -575,9 +575,9 @@ def run_file(inputs: str | os.PathLike | Sequence[str | os.PathLike],
         ``on_loaded(dataset, method)`` after loading, before any reconstruction (the first
         wavelength's dataset and the method chosen): the server's memory admission raises
         there to refuse the work; the command line says what it reconstructs.
-    plan : service.plans.Plan, service.plans.Mask or dict, optional
+    plan : fpscan.service.plans.Plan, fpscan.service.plans.Mask or dict, optional
         Dense input sampled by this plan's (or mask's, or plan document's: ``fpscan.load_plan``) sensor points before reconstructing
-        (``service.subsample.subsample``: a replay scan's A-lines); not with ``unmix``.
+        (``fpscan.service.subsample.subsample``: a replay scan's A-lines); not with ``unmix``.
     **options
         The method's options, as :func:`reconstruct` (``c`` in m/s or ``"auto"``, ``force``, ...).
 
@@ -587,7 +587,7 @@ def run_file(inputs: str | os.PathLike | Sequence[str | os.PathLike],
         ``method``, ``shape``, ``max``, ``planes``, ``params_used``, ``c`` (m/s), ``timings``
         (``load_s``, ``reconstruct_s``, ``write_s``; unmixing also ``unmix_s``), and where they
         apply ``autofocus``, ``points_used``, ``outcome`` (an iterative method's one line on
-        how it ended, ``service.progress.outcome``), ``wavelengths`` (a row per wavelength:
+        how it ended, ``fpscan.service.progress.outcome``), ``wavelengths`` (a row per wavelength:
         ``index``, ``nm``, ``shape``, ``max``), ``unmix``, ``so2_median``, ``masked_fraction``.
 
     Raises
@@ -607,7 +607,7 @@ def run_file(inputs: str | os.PathLike | Sequence[str | os.PathLike],
     >>> import tempfile
     >>> from pathlib import Path
     >>> import numpy as np
-    >>> from service.pipeline import run_file
+    >>> from fpscan.service.pipeline import run_file
     >>> tmp = Path(tempfile.mkdtemp())
     >>> g = np.zeros((64, 8))
     >>> g[10] = 0.5
@@ -618,7 +618,7 @@ def run_file(inputs: str | os.PathLike | Sequence[str | os.PathLike],
     """
     import time
 
-    from service.recon.methods import outcome
+    from fpscan.service.recon.methods import outcome
 
     paths = [inputs] if isinstance(inputs, str | os.PathLike) else list(inputs)
     load = {k: v for k, v in (load or {}).items() if v is not None}
@@ -634,7 +634,7 @@ def run_file(inputs: str | os.PathLike | Sequence[str | os.PathLike],
     t1 = time.perf_counter()
     run = span(progress, 0.2, 0.95 if unmix is not None else 0.9)
     if unmix is not None:
-        from service.spectral import reconstruct_and_unmix
+        from fpscan.service.spectral import reconstruct_and_unmix
 
         summary = reconstruct_and_unmix(out_dir, datasets, wl, method, input_id=input_id,
                                         threshold=float(unmix.get("threshold", 0.1)), fluence=unmix.get("fluence"),
@@ -644,7 +644,7 @@ def run_file(inputs: str | os.PathLike | Sequence[str | os.PathLike],
         first = summary["params"]
     else:
         if wavelength == "all":
-            from service.spectral import reconstruct_wavelengths, write_wavelength_results
+            from fpscan.service.spectral import reconstruct_wavelengths, write_wavelength_results
 
             recons = reconstruct_wavelengths(datasets, method, reconstruct=reconstruct, progress=run,
                                              should_stop=should_stop, **options)
@@ -656,7 +656,7 @@ def run_file(inputs: str | os.PathLike | Sequence[str | os.PathLike],
         if wavelength == "all":
             summary = write_wavelength_results(out_dir, recons, input_id=input_id)
         else:
-            from service.storage.results import write_result
+            from fpscan.service.storage.results import write_result
 
             summary = write_result(out_dir, recons[0], input_id=input_id)
         summary["timings"] = {"load_s": t1 - t0, "reconstruct_s": t2 - t1, "write_s": time.perf_counter() - t2}

@@ -2,16 +2,16 @@
 
 Every method and format, fpscan's own included, is registered the one way: its distribution
 declares it in an entry-point group (:data:`GROUPS`), and the registry loads the group when it
-is first imported (``service.recon.methods`` the group ``fpscan.methods``,
-``service.formats`` the group ``fpscan.formats``). fpscan declares its built-ins in its own
+is first imported (``fpscan.service.recon.methods`` the group ``fpscan.methods``,
+``fpscan.service.formats`` the group ``fpscan.formats``). fpscan declares its built-ins in its own
 ``pyproject.toml``; another package adds one by declaring it in its own (the model: xarray's
 ``xarray.backends`` entry points for its ``BackendEntrypoint`` s)::
 
     [project.entry-points."fpscan.methods"]
-    toy = "fpscan_toy:METHOD"      # a service.recon.methods.Method named "toy"
+    toy = "fpscan_toy:METHOD"      # a fpscan.service.recon.methods.Method named "toy"
 
     [project.entry-points."fpscan.formats"]
-    toy-text = "fpscan_toy:FORMAT"  # a service.formats.Format named "toy-text"
+    toy-text = "fpscan_toy:FORMAT"  # a fpscan.service.formats.Format named "toy-text"
 
 An entry point's name is the method's or format's name; it points at the object (a ``Method``
 or a ``Format``), which the registry registers. fpscan's own are loaded first, then those of
@@ -32,8 +32,8 @@ from typing import Any
 
 __all__ = ["GROUPS", "DISTRIBUTION", "entry_points", "load_group", "failures", "put_in_order"]
 
-#: the entry-point groups: methods (``service.recon.methods.Method``), formats
-#: (``service.formats.Format``)
+#: the entry-point groups: methods (``fpscan.service.recon.methods.Method``), formats
+#: (``fpscan.service.formats.Format``)
 GROUPS = ("fpscan.methods", "fpscan.formats")
 #: the distribution that declares the built-ins
 DISTRIBUTION = "fpscan"
@@ -64,11 +64,11 @@ def entry_points(group: str) -> list[metadata.EntryPoint]:
 
     Examples
     --------
-    >>> from service.plugins import entry_points
+    >>> from fpscan.service.plugins import entry_points
     >>> sorted(ep.name for ep in entry_points("fpscan.methods") if ep.dist.name == "fpscan")
     ['cubic', 'kwave', 'linear', 'nearest', 'nedner', 'ner', 'tv']
     >>> next(ep for ep in entry_points("fpscan.formats") if ep.name == "npy").value
-    'service.formats.npy:FORMAT'
+    'fpscan.service.formats.npy:FORMAT'
     """
     found = list(metadata.entry_points(group=group))
 
@@ -139,7 +139,7 @@ def put_in_order(registry: dict[str, Any], name: str, obj: Any, position: Callab
 
     Examples
     --------
-    >>> from service.plugins import put_in_order
+    >>> from fpscan.service.plugins import put_in_order
     >>> reg = {"b": 20, "d": 40}
     >>> put_in_order(reg, "c", 30, lambda v: v)
     >>> list(reg)
@@ -173,8 +173,8 @@ def failures() -> dict[str, str]:
 
     Examples
     --------
-    >>> import service.formats, service.recon.methods
-    >>> from service.plugins import failures
+    >>> import fpscan.service.formats, fpscan.service.recon.methods
+    >>> from fpscan.service.plugins import failures
     >>> failures()  # fpscan's own load
     {}
     """

@@ -5,13 +5,13 @@ over one piece of work (a step may repeat its fraction, e.g. so that a cancel ra
 callback is heard), ``stage`` a short text for a person (``"reconstructing"``,
 ``"iteration 3/50"``, ``"autofocus"``). Everything that reports progress to the job's
 progress file, the SSE events or the CLI's progress bar takes this shape
-(:func:`service.pipeline.reconstruct`, :func:`service.spectral.reconstruct_wavelengths`,
-:func:`service.autofocus.focus_then_reconstruct`, ``reconstruct_tv``).
+(:func:`fpscan.service.pipeline.reconstruct`, :func:`fpscan.service.spectral.reconstruct_wavelengths`,
+:func:`fpscan.service.autofocus.focus_then_reconstruct`, ``reconstruct_tv``).
 
 A part of a larger piece of work reports through :func:`span`, which maps its own [0, 1]
 onto ``[lo, hi]`` of the outer callback. The callable :func:`span` returns also takes the
-kernels' one-argument form ``progress(fraction)`` (``service.recon.planar``,
-``service.recon.kwave``, ``driver.physics.nufft``, ``service.autofocus.autofocus``), then
+kernels' one-argument form ``progress(fraction)`` (``fpscan.service.recon.planar``,
+``fpscan.service.recon.kwave``, ``fpscan.physics.nufft``, ``fpscan.service.autofocus.autofocus``), then
 reporting the span's ``stage``: it is the one adapter between the kernels and a
 :data:`Progress`. Inside a kernel, :func:`rising` turns the kernel's own one-argument
 callback into a :data:`Progress` that passes on only rising fractions (the kernels promise
@@ -243,7 +243,7 @@ class IterationStage(str):
         falls, when the tolerance is known but not yet applied).
     waits_for : str, optional
         What the rule waits for while not armed, in words its method declares
-        (``service.recon.methods.Method.stop_waits_for``; tv: ``"λ has settled"``); default "".
+        (``fpscan.service.recon.methods.Method.stop_waits_for``; tv: ``"λ has settled"``); default "".
     text : str, optional
         The text itself (default ``"iteration k/n"``); :meth:`__add__` passes the text with
         its suffix.
@@ -298,7 +298,7 @@ class IterationStage(str):
 
     def waiting_for(self, words: str) -> IterationStage:
         """The same stage with ``waits_for`` = ``words`` (what its method declares its rule waits
-        for: ``service.recon.methods.Method.stop_waits_for``)."""
+        for: ``fpscan.service.recon.methods.Method.stop_waits_for``)."""
         return IterationStage(self.k, self.n, self.rule, self.tol, rule_name=self.rule_name, text=str(self),
                               armed=self.armed, waits_for=words)
 
@@ -574,7 +574,7 @@ _FIT = 8
 @dataclass(frozen=True)
 class Shown:
     """One field of a result's parameters that a method declares for its summary
-    (``service.recon.methods.Method.summary``): :func:`outcome` (the CLI's last line, the
+    (``fpscan.service.recon.methods.Method.summary``): :func:`outcome` (the CLI's last line, the
     notebook bar's) writes ``"<label> <value>"``, the web page a row ``title`` with the value
     (``clients/web/app.js``, ``shownText``: the same words, from ``GET
     /api/reconstructions/methods``).
@@ -670,7 +670,7 @@ def outcome(params: Mapping[str, Any], method: str | None = None, shown: Sequenc
     method declares (``shown``; tv's: λ and whether it was automatic, with the reason when it
     is 0, and the residual against the data's noise level). None for a method without
     iterations. The web page writes the same (``clients/web/app.js``, ``outcomeOf``);
-    ``service.recon.methods.outcome`` passes the method's own ``shown``.
+    ``fpscan.service.recon.methods.outcome`` passes the method's own ``shown``.
 
     Parameters
     ----------

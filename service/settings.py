@@ -128,7 +128,7 @@ class Settings(BaseSettings):
                                           "saying the cap, the queue's length and its estimated wait; None = no cap")
     work_limit_s: float = Field(8 * 3600.0, gt=0, le=30 * 86400, description="most work one reconstruction may "
                                 "ask for, in seconds on 2 cores by its method's estimate "
-                                "(service.jobs.admission.estimate_work); more is refused with 422")
+                                "(fpscan.service.jobs.admission.estimate_work); more is refused with 422")
     import_timeout_s: float = Field(60.0, gt=0, le=3600, description="longest time an upload's import may "
                                     "take before it is refused (damaged files can block the HDF5 library)")
     import_workers: int = Field(2, ge=1, le=64, description="uploads imported at once (each in a child process "

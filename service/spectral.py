@@ -1,5 +1,5 @@
 """Multi-wavelength reconstruction and spectral unmixing (issue 16), on top of the one
-reconstruction dispatch and the pure unmixing (:mod:`service.recon.unmix`).
+reconstruction dispatch and the pure unmixing (:mod:`fpscan.service.recon.unmix`).
 
 - :func:`reconstruct_wavelengths`: one volume per excitation wavelength, the same method
   and options for all (``c="auto"``: the sound speed is found once, on the first
@@ -11,7 +11,7 @@ reconstruction dispatch and the pure unmixing (:mod:`service.recon.unmix`).
 - :func:`thb_map`: the THb of the same voxels (the picture's brightness).
 - :func:`write_unmix`: ``unmix.h5`` and ``so2.png`` (sO2 as colour 0..100 % with a colour
   bar, brightness from THb, the background below the THb threshold black:
-  ``service.pictures.render.render_so2``) into a result folder.
+  ``fpscan.service.pictures.render.render_so2``) into a result folder.
 
 ``unmix.h5`` layout: ``/hbo2``, ``/hb``, ``/thb`` (float32, units in the attribute
 ``concentration_units``), ``/so2`` (float32, NaN where masked), ``/mask`` (uint8, 1 =
@@ -28,9 +28,9 @@ from typing import Any
 
 import numpy as np
 
-from service.formats.unmix import UNMIX_FORMAT, read_unmix
-from service.progress import Progress, span
-from service.recon.unmix import Unmixed, endmember_matrix, too_few_wavelengths, unmix
+from fpscan.service.formats.unmix import UNMIX_FORMAT, read_unmix
+from fpscan.service.progress import Progress, span
+from fpscan.service.recon.unmix import Unmixed, endmember_matrix, too_few_wavelengths, unmix
 
 __all__ = [
     "UNMIX_FORMAT", "MASK_COLOUR", "dataset_wavelengths", "reconstruct_wavelengths",
@@ -49,7 +49,7 @@ def dataset_wavelengths(dataset: Any) -> np.ndarray:
     Parameters
     ----------
     dataset : object
-        A loaded dataset (``service.recon.dataset.Dataset`` or anything with a
+        A loaded dataset (``fpscan.service.recon.dataset.Dataset`` or anything with a
         ``wavelengths`` attribute or a ``meta`` dict).
 
     Returns
@@ -76,7 +76,7 @@ def reconstruct_wavelengths(datasets: Sequence[Any], method: str, *, reconstruct
     datasets : sequence of Dataset
         One dataset per wavelength (same sensors and grid).
     method : str
-        The reconstruction method's name (``service.recon.methods``).
+        The reconstruction method's name (``fpscan.service.recon.methods``).
     reconstruct : callable
         The dispatch ``reconstruct(dataset, method, progress=..., should_stop=..., **options)``
         -> ``Reconstruction``.
@@ -121,7 +121,7 @@ def write_wavelength_results(out_dir: str | os.PathLike, recons: Sequence[Any], 
 
     ``volume.h5`` + MIPs of the first wavelength at the top (as any reconstruction result, so
     a viewer of one volume shows it) and ``wavelength_<k>/`` (``volume.h5`` + MIPs) for each
-    reconstruction ``k`` (:func:`service.storage.results.write_result`; the unmixing job and
+    reconstruction ``k`` (:func:`fpscan.service.storage.results.write_result`; the unmixing job and
     ``wavelength="all"`` share this layout).
 
     Parameters
@@ -147,7 +147,7 @@ def write_wavelength_results(out_dir: str | os.PathLike, recons: Sequence[Any], 
     ValueError
         No reconstructions, or a count of wavelengths that differs from the reconstructions.
     """
-    from service.storage.results import write_result
+    from fpscan.service.storage.results import write_result
 
     if len(recons) == 0:
         raise ValueError("no wavelengths to write")
@@ -169,7 +169,7 @@ def write_wavelength_results(out_dir: str | os.PathLike, recons: Sequence[Any], 
 
 def unmix_reconstructions(recons: Sequence[Any], wavelengths: Any, **kwargs: Any) -> Unmixed:
     """Unmix per-wavelength reconstructions (``p0`` on one grid) into HbO2/Hb, THb and sO2
-    (:func:`service.recon.unmix.unmix`).
+    (:func:`fpscan.service.recon.unmix.unmix`).
 
     Parameters
     ----------
@@ -178,7 +178,7 @@ def unmix_reconstructions(recons: Sequence[Any], wavelengths: Any, **kwargs: Any
     wavelengths : array_like, shape ``(n_w,)``
         The excitation wavelengths, m, one per reconstruction.
     **kwargs
-        ``fluence``, ``gruneisen``, ``threshold`` for :func:`service.recon.unmix.unmix`.
+        ``fluence``, ``gruneisen``, ``threshold`` for :func:`fpscan.service.recon.unmix.unmix`.
 
     Returns
     -------
@@ -189,7 +189,7 @@ def unmix_reconstructions(recons: Sequence[Any], wavelengths: Any, **kwargs: Any
     ------
     ValueError
         A single wavelength, mismatched grids, a count of wavelengths that differs from the
-        volumes, or what :func:`service.recon.unmix.unmix` refuses.
+        volumes, or what :func:`fpscan.service.recon.unmix.unmix` refuses.
     """
     w = np.asarray(wavelengths, dtype=np.float64).reshape(-1)
     if len(recons) != w.size:
@@ -248,7 +248,7 @@ def thb_map(u: Unmixed) -> np.ndarray:
 def render_so2_png(u: Unmixed, z: Any, x: Any, y: Any = None) -> bytes:
     """PNG of :func:`so2_map` through the one rendering path.
 
-    :func:`service.pictures.render.render_so2`: mm axes, row 0 at the top, colour bar; sO2 as
+    :func:`fpscan.service.pictures.render.render_so2`: mm axes, row 0 at the top, colour bar; sO2 as
     colour (``RdYlBu_r`` over 0 % blue .. 100 % red), brightness from THb (:func:`thb_map`),
     black (:data:`MASK_COLOUR`) where THb is below the unmixing's ``threshold`` (default 0.1)
     of its maximum or sO2 is unknown.
@@ -267,7 +267,7 @@ def render_so2_png(u: Unmixed, z: Any, x: Any, y: Any = None) -> bytes:
     bytes
         The PNG file's bytes.
     """
-    from service.pictures.render import render_so2
+    from fpscan.service.pictures.render import render_so2
 
     threshold = float((u.params or {}).get("threshold", 0.1))
     if u.so2.ndim == 2:
@@ -303,7 +303,7 @@ def write_unmix(out_dir: str | os.PathLike, u: Unmixed, z: Any, x: Any, y: Any =
         ``so2_median`` (the median sO2 inside the mask, None when all is masked),
         ``masked_fraction``, ``thb_max`` and ``wavelengths_m``.
     """
-    from service.formats.unmix import write
+    from fpscan.service.formats.unmix import write
 
     out = Path(out_dir)
     write(out / "unmix.h5", u, z, x, y, input_id=input_id, extra=extra)
@@ -324,7 +324,7 @@ def load_wavelength_datasets(paths: Sequence[str | os.PathLike], format: str | N
     ----------
     paths : sequence of str or os.PathLike
         One multi-wavelength scan file (each wavelength's completed A-lines), or one file per
-        wavelength (any format of :func:`service.storage.loader.load_dataset`).
+        wavelength (any format of :func:`fpscan.service.storage.loader.load_dataset`).
     format : str, optional
         The input format's name; None: detected.
     wavelengths : sequence of float, optional
@@ -345,7 +345,7 @@ def load_wavelength_datasets(paths: Sequence[str | os.PathLike], format: str | N
     FileNotFoundError
         A file that does not exist.
     """
-    from service.storage import loader as dsm
+    from fpscan.service.storage import loader as dsm
 
     load = {k: v for k, v in load.items() if v is not None}
     paths = list(paths)
@@ -401,7 +401,7 @@ def reconstruct_and_unmix(out_dir: str | os.PathLike, datasets: Sequence[Any], w
     threshold : float, optional
         Fraction in [0, 1) of the largest THb below which a voxel is masked (default 0.1).
     fluence : ndarray or float, optional
-        Fluence Φ, J/m² (:func:`service.recon.unmix.unmix`); None: the same unknown
+        Fluence Φ, J/m² (:func:`fpscan.service.recon.unmix.unmix`); None: the same unknown
         fluence everywhere.
     gruneisen : float, optional
         The Grüneisen parameter Γ, used with ``fluence`` (default 1).
@@ -410,7 +410,7 @@ def reconstruct_and_unmix(out_dir: str | os.PathLike, datasets: Sequence[Any], w
     should_stop : callable, optional
         ``should_stop()`` -> True to cancel.
     reconstruct : callable
-        The dispatch ``service.pipeline.reconstruct``, which calls this through ``run_file``.
+        The dispatch ``fpscan.service.pipeline.reconstruct``, which calls this through ``run_file``.
     **options
         The method's options.
 
@@ -426,7 +426,7 @@ def reconstruct_and_unmix(out_dir: str | os.PathLike, datasets: Sequence[Any], w
     ------
     ValueError
         Before any reconstruction: fewer than two wavelengths or datasets, repeats,
-        wavelengths outside 400-1000 nm (:func:`service.recon.unmix.endmember_matrix`), counts
+        wavelengths outside 400-1000 nm (:func:`fpscan.service.recon.unmix.endmember_matrix`), counts
         that differ; and whatever the reconstruction or unmixing raises.
     """
     import time

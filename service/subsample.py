@@ -6,7 +6,7 @@ It is the replay scan without the scanner (docs/protocol.md Appendix B: ``fpscan
 lattice centred on the data's grid at the same pitch; plan point (i_x, i_y) is grid point
 (i_x + (N_x − n_x)/2, i_y + (N_y − n_y)/2); a plan's dt must be the data's and its n_t at most
 the data's samples, which are cut to it), the scanner's int16 digitisation
-(:func:`driver.aline.quantise`) and the scan file's reading (``sample·scale``), so that the
+(:func:`fpscan.driver.aline.quantise`) and the scan file's reading (``sample·scale``), so that the
 point data, and every reconstruction of them, equal the replay scan's to the last bit.
 """
 from __future__ import annotations
@@ -15,10 +15,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from service.recon.dataset import GridDataset, PointDataset, lattice_axes
+from fpscan.service.recon.dataset import GridDataset, PointDataset, lattice_axes
 
 if TYPE_CHECKING:
-    from service.plans import Mask, Plan
+    from fpscan.service.plans import Mask, Plan
 
 __all__ = ["subsample", "check_fit", "MaskMismatch"]
 
@@ -49,9 +49,9 @@ def _offsets(data_shape: tuple[int, ...], n_x: int, n_y: int) -> tuple[int, int]
 
 
 def _mask_or_plan(mask: Mask | Plan | dict) -> Mask | Plan:
-    """A plan document (``fpscan.load_plan``'s dict) as a :class:`service.plans.Plan` (validated)."""
+    """A plan document (``fpscan.load_plan``'s dict) as a :class:`fpscan.service.plans.Plan` (validated)."""
     if isinstance(mask, dict):
-        from service.plans import Plan
+        from fpscan.service.plans import Plan
 
         return Plan.from_dict(mask)
     return mask
@@ -70,7 +70,7 @@ def check_fit(data_shape: tuple[int, ...] | list[int], spacings: tuple[float | N
         ``(dx, dy)`` of the data, m (None: not known, not checked).
     dt : float
         The data's sample interval, s.
-    mask : service.plans.Mask, service.plans.Plan or dict
+    mask : fpscan.service.plans.Mask, fpscan.service.plans.Plan or dict
         The mask, a plan, or a plan document.
 
     Returns
@@ -85,7 +85,7 @@ def check_fit(data_shape: tuple[int, ...] | list[int], spacings: tuple[float | N
         (a ValueError) A line lattice on plane data or the reverse, a pitch or a plan's dt that differs (1e-6
         relative), a lattice that does not sit centred on the grid, a plan's n_t beyond the data's.
     """
-    from service.plans import Plan
+    from fpscan.service.plans import Plan
 
     mask = _mask_or_plan(mask)
     shape = tuple(int(n) for n in data_shape)
@@ -115,7 +115,7 @@ def subsample(dataset: GridDataset | PointDataset, mask: Mask | Plan | dict, *, 
     dataset : GridDataset or PointDataset
         Dense data: ``(n_t, n_y, n_x)`` / ``(n_t, n_x)`` grid data (a k-Wave file), or a scan of
         every lattice point.
-    mask : service.plans.Mask, service.plans.Plan or dict
+    mask : fpscan.service.plans.Mask, fpscan.service.plans.Plan or dict
         The sensor mask, or a scan plan (or its document, as ``fpscan.load_plan`` reads it) (its points in scan order; its dt must be the data's,
         to 1e-6, and its n_t at most the data's samples: the A-lines are cut to n_t). Its
         lattice pitch must be the data's spacing (to 1e-6) and its lattice centred on the
@@ -154,10 +154,10 @@ def subsample(dataset: GridDataset | PointDataset, mask: Mask | Plan | dict, *, 
     >>> fpscan.subsample(dense, fpscan.make_mask("full", fpscan.Lattice(7, 7, 1e-4)))
     Traceback (most recent call last):
     ...
-    service.subsample.MaskMismatch: the mask's lattice 7x7 does not sit centred on the data's grid 8x8 (both are centred on the optical axis: each side must be smaller by an even number)
+    fpscan.service.subsample.MaskMismatch: the mask's lattice 7x7 does not sit centred on the data's grid 8x8 (both are centred on the optical axis: each side must be smaller by an even number)
     """
-    from driver.aline import quantise as digitise
-    from service.plans import Plan
+    from fpscan.driver.aline import quantise as digitise
+    from fpscan.service.plans import Plan
 
     mask = _mask_or_plan(mask)
     grid = _grid(dataset)

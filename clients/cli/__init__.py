@@ -56,7 +56,7 @@ class _VersionAction(argparse.Action):
 
     def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
                  values: str | Sequence[Any] | None, option_string: str | None = None) -> None:
-        from driver.acquire import software_version
+        from fpscan.driver.acquire import software_version
 
         print(f"fpscan {software_version()}")
         parser.exit()
@@ -182,7 +182,7 @@ def main(argv: list[str] | None = None) -> int:
     -------
     int
         The exit status: the sub-command's (0 when it returns None); 2 for refused input
-        (``ValueError``, :class:`driver.units.RefusedInput`) or a missing extra; 1 when the
+        (``ValueError``, :class:`fpscan.driver.units.RefusedInput`) or a missing extra; 1 when the
         work failed (``OSError``, ``RuntimeError``); 130 when interrupted; :data:`CLOSED_PIPE`
         when stdout's reader went away. argparse's own errors and ``--help``/``--version``
         exit through ``SystemExit``.
@@ -194,8 +194,8 @@ def main(argv: list[str] | None = None) -> int:
         _top_parser().parse_args(argv)  # prints the version and exits; no subcommand is imported
     parser = build_parser(() if command is None else (command,))
     args = parser.parse_args(argv)
-    from clients.cli._common import missing_extra, needs_extra
-    from driver.units import RefusedInput
+    from fpscan.clients.cli._common import missing_extra, needs_extra
+    from fpscan.driver.units import RefusedInput
 
     try:
         code = args._run(args)
@@ -203,7 +203,7 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:  # `fpscan jobs list | head`: the reader has what it wanted
         return closed_pipe()
     except RefusedInput as exc:  # a unit mistake or a refused option is a usage error, like a bad flag
-        options = type(exc).__name__ == "OptionError"  # service.recon.checks: it names options
+        options = type(exc).__name__ == "OptionError"  # fpscan.service.recon.checks: it names options
         print(f"fpscan {args.command}: error: {in_flags(str(exc), options=options)}", file=sys.stderr)
         return 2
     except ImportError as exc:  # a command run on an install without its extra
@@ -224,11 +224,11 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def in_flags(message: str, *, options: bool = False) -> str:
-    """A reason worded for every caller (``driver.units``: "force a value outside the range";
+    """A reason worded for every caller (``fpscan.driver.units``: "force a value outside the range";
     a loader's "give key") in the command line's own terms: the flag that does it
     (``--force``, ``--key``); with ``options`` (a refused reconstruction option,
-    ``service.recon.checks.OptionError``) every option it names as its flag (``lam`` →
-    ``--lambda``, ``c`` → ``--sound-speed``: ``clients.cli.recon_options.option_flags``).
+    ``fpscan.service.recon.checks.OptionError``) every option it names as its flag (``lam`` →
+    ``--lambda``, ``c`` → ``--sound-speed``: ``fpscan.clients.cli.recon_options.option_flags``).
 
     Parameters
     ----------
@@ -251,8 +251,8 @@ def in_flags(message: str, *, options: bool = False) -> str:
     message = re.sub(r"\b(needs|and) (dt|dx|dy) \(", r"\1 --\2 (", message)
     if options:
         try:
-            from clients.cli.recon_options import option_flags
-            from service.names import renamed_words
+            from fpscan.clients.cli.recon_options import option_flags
+            from fpscan.service.names import renamed_words
         except ImportError:  # pragma: no cover -- a client-only install: the names as they are
             return message
         message = renamed_words(message, option_flags())

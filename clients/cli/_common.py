@@ -16,11 +16,11 @@ if TYPE_CHECKING:
 
     from rich.progress import Progress, TaskID
 
-    from clients.http import Client
+    from fpscan.clients.http import Client
 
 try:  # the base of refused input (a unit mistake, an option outside its rule): exit 2
-    from driver.units import RefusedInput
-except ImportError:  # pragma: no cover -- driver.units is part of every install
+    from fpscan.driver.units import RefusedInput
+except ImportError:  # pragma: no cover -- fpscan.driver.units is part of every install
     RefusedInput = ValueError  # type: ignore[misc,assignment]
 
 
@@ -32,14 +32,14 @@ class UsageError(RefusedInput):
 
 def wrong_file(path: str | os.PathLike, wanted: str) -> str | None:
     """``"<path>: this is a scan file, not <wanted>"`` when ``path`` is a file of another
-    format, named by the registry of formats (``service.formats.describe``: the one
+    format, named by the registry of formats (``fpscan.service.formats.describe``: the one
     format sniffer); None when it is that format (``"plan"``), of no known format or not
     a file (the caller's own reason stands)."""
     from pathlib import Path
 
     if not isinstance(path, (str, os.PathLike)) or not Path(path).is_file():
         return None
-    from service.formats import describe
+    from fpscan.service.formats import describe
 
     what = describe(path, unless=("plan",))
     return f"{path}: this is {what}, not {wanted}" if what else None
@@ -95,12 +95,12 @@ def add_server_options(parser: argparse._ActionsContainer, *, required: bool = F
 
 def default_dtype() -> str:
     """The reconstruction precision used when none is asked for:
-    ``service.recon.limits.DEFAULT_DTYPE`` (the same for ``fpscan recon``, the server and the
+    ``fpscan.service.recon.limits.DEFAULT_DTYPE`` (the same for ``fpscan recon``, the server and the
     web page; read from the module that owns it, which imports nothing heavy: ``fpscan serve``
     spawns its workers that much sooner); on a client-only install (no ``service`` package)
     ``"float32"``, the value the server states in its ``ReconParams`` schema."""
     try:
-        from service.recon.limits import DEFAULT_DTYPE
+        from fpscan.service.recon.limits import DEFAULT_DTYPE
     except ImportError:
         return "float32"
     return DEFAULT_DTYPE
@@ -149,8 +149,8 @@ def add_progress_option(parser: argparse.ArgumentParser) -> None:
 
 
 def make_client(args: argparse.Namespace, *, timeout: float = 60.0) -> Client:
-    """A :class:`clients.http.Client` from ``--server``/``--token``."""
-    from clients.http import Client
+    """A :class:`fpscan.clients.http.Client` from ``--server``/``--token``."""
+    from fpscan.clients.http import Client
 
     if not getattr(args, "server", None):
         raise ValueError("no server given: pass --server URL or set FPSCAN_SERVER")
@@ -161,7 +161,7 @@ def make_client(args: argparse.Namespace, *, timeout: float = 60.0) -> Client:
 def client_errors(run: Callable[..., int]) -> Callable[..., int]:
     """Decorator for ``run(args)``: client exceptions become one line on stderr, exit 1 --
     or 2 when the server refused the request as given (HTTP 400, 404 an unknown id, or 422:
-    the usage error of the local checks, ``clients.cli.main``); the server's state (409),
+    the usage error of the local checks, ``fpscan.clients.cli.main``); the server's state (409),
     access (401/403), load (429) and failures stay 1."""
 
     @functools.wraps(run)
@@ -170,7 +170,7 @@ def client_errors(run: Callable[..., int]) -> Callable[..., int]:
             return run(args)
         except Exception as exc:
             # imported here: a command that ran locally never loads the HTTP client (httpx: 0.2 s)
-            from clients.http import ApiError, FpscanClientError
+            from fpscan.clients.http import ApiError, FpscanClientError
 
             if not isinstance(exc, FpscanClientError):
                 raise
@@ -188,7 +188,7 @@ def remember_job(args: argparse.Namespace, job_id: str | None) -> None:
 
 
 def unreachable_hint(args: argparse.Namespace, exc: Exception) -> str:
-    """What an unreachable server (``clients.http.ServerUnavailable``) leaves behind, and the
+    """What an unreachable server (``fpscan.clients.http.ServerUnavailable``) leaves behind, and the
     command that reattaches: the job a command had accepted (``remember_job``) or names
     (``job_id``) survives in the server's job store (a reconstruction runs again when the
     server restarts, a scan waits there paused); "" for any other error.
@@ -205,7 +205,7 @@ def unreachable_hint(args: argparse.Namespace, exc: Exception) -> str:
     str
         Text to append to the one-line error (starting with ". "), or "".
     """
-    from clients.http import ServerUnavailable
+    from fpscan.clients.http import ServerUnavailable
 
     if not isinstance(exc, ServerUnavailable):
         return ""
@@ -236,12 +236,12 @@ def _fmt_eta(seconds: float | None) -> str:
 
 def _iteration_detail(progress: dict) -> str:
     """An iterative method's stopping rule against its tolerance (``image change 0.021
-    (stops below 0.005)``) from the progress fields of ``service.progress.iteration_fields``;
+    (stops below 0.005)``) from the progress fields of ``fpscan.service.progress.iteration_fields``;
     "" without them or on a client-only install."""
     if progress.get("stop_value") is None:
         return ""
     try:
-        from service.progress import describe_iteration
+        from fpscan.service.progress import describe_iteration
     except ImportError:  # pragma: no cover -- a client-only install: the iteration count says enough
         return ""
     text = describe_iteration(progress) or ""
@@ -303,8 +303,8 @@ def progress_period() -> float:
 
 def _stage_kind(stage: object) -> str:
     """A stage without its counter (``"iteration 3/50"`` -> ``"iteration"``): the step that
-    starts a new progress line (``service.progress.stage_kind``)."""
-    from service.progress import stage_kind
+    starts a new progress line (``fpscan.service.progress.stage_kind``)."""
+    from fpscan.service.progress import stage_kind
 
     return stage_kind(stage)
 
@@ -317,7 +317,7 @@ class ProgressBar:
     terminal it prints a line (stage, %, points, ETA) when the stage changes and at least
     every ``period`` s (default :func:`progress_period`) while the job runs, even between
     reports; ``quiet`` draws nothing. The ETA is the server's (``eta_s``) or estimated here
-    by the one model of ``service.progress.Eta`` (an iterative method's from its measured
+    by the one model of ``fpscan.service.progress.Eta`` (an iterative method's from its measured
     time per iteration, moving at most 2x between updates). :meth:`finish` ends the bar
     with the outcome (``"converged after 37 iterations"``) rather than the last stage."""
 
@@ -331,7 +331,7 @@ class ProgressBar:
         self._task: TaskID | None = None
         self._last_stage: str | None = None
         self._printed: tuple[float, str | None] = (0.0, None)  # the last line's fraction and stage
-        from service.progress import Eta
+        from fpscan.service.progress import Eta
 
         self._eta = Eta()
         self._latest: dict | None = None
@@ -394,10 +394,10 @@ class ProgressBar:
                 self._print(progress, now)
 
     def report(self, fraction: float, stage: str) -> None:
-        """The bar as a ``service.progress.Progress``: ``report(fraction, stage)`` (a local
+        """The bar as a ``fpscan.service.progress.Progress``: ``report(fraction, stage)`` (a local
         reconstruction's callback) shows as the job progress ``{"fraction", "stage"}``, with
-        an iterative method's iteration fields (``service.progress.iteration_fields``)."""
-        from service.progress import IterationStage, iteration_fields
+        an iterative method's iteration fields (``fpscan.service.progress.iteration_fields``)."""
+        from fpscan.service.progress import IterationStage, iteration_fields
 
         fields = iteration_fields(stage) if isinstance(stage, IterationStage) else {}
         self({"fraction": fraction, "stage": str(stage), **fields})
@@ -447,10 +447,10 @@ class ProgressBar:
 def quantity(kind: str, name: str) -> Callable[[str], float]:
     """An ``argparse`` ``type=`` for a length/time/frequency/speed: a bare number is SI,
     text may carry a unit (``60um``, ``3.6 mm``, ``8ns``, ``500 Hz``;
-    ``driver.units.parse_quantity``). A bad value is a usage error (exit 2) naming it."""
+    ``fpscan.driver.units.parse_quantity``). A bad value is a usage error (exit 2) naming it."""
     import argparse
 
-    from driver.units import parse_quantity
+    from fpscan.driver.units import parse_quantity
 
     def parse(text: str) -> float:
         try:
@@ -498,7 +498,7 @@ def full_job_id(api: Client, job_id: str) -> str:
     shows ids, works wherever a job id does: the server resolves it in a job's path, this
     for an id sent in a request's body, e.g. ``--scan-job``). Raises the client's errors
     (``NotFound``; ``Conflict`` naming the matches of an ambiguous prefix)."""
-    from clients.http import field_of
+    from fpscan.clients.http import field_of
 
     return str(field_of(api.get_job(job_id), "id"))
 

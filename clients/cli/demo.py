@@ -3,10 +3,10 @@
 What it runs, all on this machine and all through the real code paths:
 
 1. the simulated FP scanner (``fpscan sim --source balls --prf 0``) on a pseudo-terminal,
-   with its built-in phantom (balls and a curved tube, ``driver.sources.default_phantom``);
+   with its built-in phantom (balls and a curved tube, ``fpscan.driver.sources.default_phantom``);
 2. the service (``fpscan serve``: SQLite job store, local process-pool executor) on
    127.0.0.1 with a random bearer token, the simulator configured as scanner ``sim``;
-3. over HTTP (:class:`clients.http.Client`): an equi-steradian plan around the phantom's
+3. over HTTP (:class:`fpscan.clients.http.Client`): an equi-steradian plan around the phantom's
    centre and a dense full-lattice plan; both scanned over the serial protocol through the
    service; the sparse scan reconstructed with the server's default method for a sensor
    mask (NEDNER), the dense one with its default for a full lattice (NER);
@@ -25,8 +25,8 @@ from __future__ import annotations
 import argparse
 import time
 
-from clients.cli._common import UsageError
-from driver.constants import C_DEFAULT
+from fpscan.clients.cli._common import UsageError
+from fpscan.constants import C_DEFAULT
 
 __all__ = ["COMMAND", "HELP", "DEFAULTS", "add_arguments", "run", "Demo"]
 
@@ -34,13 +34,13 @@ TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (`fpscan 
 if TYPE_CHECKING:
     from typing import Any
 
-    from clients.http import Client
-    from clients.processes import Process
+    from fpscan.clients.http import Client
+    from fpscan.clients.processes import Process
 
 COMMAND = "demo"
 HELP = "run the end-to-end demo: simulated scanner, equi-steradian plan, scan, NEDNER reconstruction"
 
-# Demo geometry: the phantom (driver.sources.default_phantom) spans about ±3 mm
+# Demo geometry: the phantom (fpscan.driver.sources.default_phantom) spans about ±3 mm
 # laterally and 1.5–4.8 mm in depth; a 96 × 96 lattice at 100 µm (9.6 mm) covers it.
 # 512 samples at 12 ns reach 9.2 mm of travel (the farthest ball from a corner sensor);
 # the images keep the first 320 depth rows (c·dt = 18 µm each: 5.8 mm).
@@ -58,15 +58,15 @@ DEFAULTS = {
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser).
     Lengths and times take units (``100um``, ``12ns``, ``3mm``; bare numbers are SI:
-    ``clients.cli._common.quantity``); a unit mistake is refused by ``fpscan plan``'s
-    rules (``driver.units.check_plausible``, exit 2) before anything starts.
+    ``fpscan.clients.cli._common.quantity``); a unit mistake is refused by ``fpscan plan``'s
+    rules (``fpscan.driver.units.check_plausible``, exit 2) before anything starts.
 
     Parameters
     ----------
     parser : argparse.ArgumentParser
         The sub-command's parser, changed in place.
     """
-    from clients.cli._common import quantity
+    from fpscan.clients.cli._common import quantity
 
     parser.add_argument("--out", default="demo-output", help="output folder (default: demo-output)")
     parser.add_argument("--lattice", type=int, default=DEFAULTS["lattice"], metavar="N",
@@ -84,7 +84,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="skip the dense full-lattice reference scan")
     parser.add_argument("--seed", type=int, default=1, help="simulator noise seed (default %(default)s)")
     parser.add_argument("--quiet", "-q", action="store_true", help="no progress bars")
-    from clients.cli._common import default_dtype
+    from fpscan.clients.cli._common import default_dtype
 
     parser.epilog = (f"Precision: reconstructions are {default_dtype()}, the default of the server and of "
                      "fpscan recon (which takes --dtype float64).")
@@ -102,17 +102,17 @@ def run(args: argparse.Namespace) -> int:
     -------
     int
         The exit status: 0 on success. Errors of the client become exit 1, or 2 when the server refused
-        the request as given (``clients.cli._common.client_errors``); other refused input and
-        failures raise (:func:`clients.cli.main` reports them and sets the status).
+        the request as given (``fpscan.clients.cli._common.client_errors``); other refused input and
+        failures raise (:func:`fpscan.clients.cli.main` reports them and sets the status).
     """
-    from clients.cli._common import client_errors
+    from fpscan.clients.cli._common import client_errors
 
     return client_errors(lambda a: Demo(a).run())(args)
 
 
 # --------------------------------------------------------------------------- processes
 def _has_subcommand(name: str) -> bool:
-    from clients.cli import _subcommand_modules
+    from fpscan.clients.cli import _subcommand_modules
 
     return any(m.COMMAND == name for m in _subcommand_modules())
 
@@ -137,7 +137,7 @@ class Demo:
     report : dict
         What ``report.json`` holds (``format``, ``skipped`` steps, the steps' results).
     procs : list of Process
-        The simulator and server processes started (:mod:`clients.processes`).
+        The simulator and server processes started (:mod:`fpscan.clients.processes`).
     """
 
     def __init__(self, args: argparse.Namespace) -> None:
@@ -167,7 +167,7 @@ class Demo:
         import time
 
         a = self.args
-        from driver.units import check_plausible
+        from fpscan.driver.units import check_plausible
 
         # fpscan plan's unit rules (a pitch of 100 m, dt 12 s, a depth of 3 m): exit 2
         check_plausible(pitch=a.pitch, dt=a.dt, n_t=a.n_t, sound_speed=C_DEFAULT, depth=a.poi_depth)
@@ -225,7 +225,7 @@ class Demo:
 
     # -- processes
     def _start_simulator(self) -> str:
-        from clients.processes import start_simulator
+        from fpscan.clients.processes import start_simulator
 
         device, proc = start_simulator("--source", "balls", "--prf", "0", "--seed", str(self.args.seed),
                                        log_path=self.out / "logs" / "simulator.log", timeout=60)
@@ -236,8 +236,8 @@ class Demo:
     def _start_server(self, device: str) -> Client:
         import secrets
 
-        from clients.http import Client
-        from clients.processes import start_service
+        from fpscan.clients.http import Client
+        from fpscan.clients.processes import start_service
 
         token = secrets.token_urlsafe(16)
         srv = start_service((self.out / "server-data").resolve(), token=token, devices={"sim": device},
@@ -282,7 +282,7 @@ class Demo:
         """Create the equi-steradian plan around the point of interest (its mask preview
         saved as ``mask_preview.png``) and, unless ``--no-dense``, the full-lattice plan;
         report and say them. Returns the plans by name (``equisteradian``, ``full``)."""
-        from clients.http import field_of
+        from fpscan.clients.http import field_of
 
         a = self.args
         settings = self.report["settings"]
@@ -312,12 +312,12 @@ class Demo:
         its IPASC export and live preview, `_sparse_extras`). Returns the scan job's id and its
         record for ``report.json`` (points, acquisition time s and rate /s as the job timed
         them, the demo's wait s, and the time at a 50 Hz laser s)."""
-        from clients.cli._common import ProgressBar
-        from clients.http import field_of, to_dict
+        from fpscan.clients.cli._common import ProgressBar
+        from fpscan.clients.http import field_of, to_dict
 
         t_asked = time.perf_counter()
         job_id = api.start_scan(field_of(plan, "id"), "sim")
-        assert job_id is not None  # a 202 names its job (clients.http.calls.read_job_id)
+        assert job_id is not None  # a 202 names its job (fpscan.clients.http.calls.read_job_id)
         with ProgressBar(f"scan {plan_name}", quiet=self.args.quiet) as bar:
             job = api.wait(job_id, on_progress=bar, timeout=600)
         waited_s = time.perf_counter() - t_asked
@@ -349,7 +349,7 @@ class Demo:
         """The sparse scan in the community's format (``scan_<plan_name>_ipasc.h5``) and the
         service's live preview of it (``live_preview_xy.png``, reported when the service
         made one)."""
-        from clients.http import to_dict
+        from fpscan.clients.http import to_dict
 
         api.export(job_id, "ipasc", self.out / f"scan_{plan_name}_ipasc.h5")
         preview = to_dict(api.scan_preview(job_id)) or {}
@@ -363,8 +363,8 @@ class Demo:
         showing its progress, and download its volume (``<name>_volume.h5``) and xy, xz, yz
         MIPs (``<name>_mip_<plane>.png``). Returns each one's record for ``report.json``
         (files, reconstruction time s as the job timed it, points used)."""
-        from clients.cli._common import ProgressBar
-        from clients.http import field_of, to_dict
+        from fpscan.clients.cli._common import ProgressBar
+        from fpscan.clients.http import field_of, to_dict
 
         recons: dict = {}
         for recon_name, (method, job_id) in recon_jobs.items():
@@ -383,7 +383,7 @@ class Demo:
 
     def _create_plan(self, api: Client, body: dict) -> Any:  # the Plan model or its dict
         """``POST /api/plans`` with a mask kind and its parameters (every kind is planned
-        by the server's ``service.plans``, the same builder as ``fpscan plan``)."""
+        by the server's ``fpscan.service.plans``, the same builder as ``fpscan plan``)."""
         return api.create_plan(body)
 
     # -- figures of merit
@@ -392,19 +392,19 @@ class Demo:
 
         import numpy as np
 
-        from service.formats.result import read_result
-        from service.metrics.projections import mip
+        from fpscan.service.formats.result import read_result
+        from fpscan.service.metrics.projections import mip
 
         recons = self.report["reconstructions"]
         try:
-            from driver.physics import ball_p0
-            from driver.sources import default_phantom
+            from fpscan.driver.sources import default_phantom
+            from fpscan.physics import ball_p0
             with_phantom = True
         except ImportError as exc:
             self.skip("correlation with the phantom", f"driver phantom not available ({exc})")
             with_phantom = False
         try:
-            from service.metrics.correlation import correlation_coefficient as cc
+            from fpscan.service.metrics.correlation import correlation_coefficient as cc
         except ImportError:
             def cc(image: np.ndarray, reference: np.ndarray, mask: np.ndarray | None = None) -> float:
                 return float(np.corrcoef(np.ravel(image), np.ravel(reference))[0, 1])
@@ -417,7 +417,7 @@ class Demo:
         vols, rois = {}, {}
         phantoms: list[tuple[tuple[np.ndarray, ...], np.ndarray]] = []
         for name, r in recons.items():
-            vol = read_result(self.out / r["volume"])  # the result format's reader (service.formats.result)
+            vol = read_result(self.out / r["volume"])  # the result format's reader (fpscan.service.formats.result)
             p0, z, x, y = np.asarray(vol.p0, dtype=np.float64), vol.z, vol.x, vol.y
             r["shape"] = list(p0.shape)
             meta = {}

@@ -1,7 +1,7 @@
 """`fpscan evaluate`: run the paper's experiments and write plots (PNG) and tables
 (JSON + CSV).
 
-Experiments (``service.experiments``): ``limited-view-2d`` (paper §6),
+Experiments (``fpscan.service.experiments``): ``limited-view-2d`` (paper §6),
 ``sparse-masks-3d`` (§7), ``nufft-vs-interpolation`` (§4), ``vessels`` (a thin vessel
 tree from a sparse, noisy 3-D scan: NER, NEDNER, tv; built-in phantom only), or ``all``. ``--data`` gives
 a dense dataset (HDF5 with ``sensor_data/clean``, e.g. the k-Wave reference files, or an
@@ -16,11 +16,11 @@ from __future__ import annotations
 import argparse
 import math
 
-from clients.cli._common import UsageError
+from fpscan.clients.cli._common import UsageError
 
 TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (`fpscan --help` starts faster)
 if TYPE_CHECKING:
-    from service.experiments import ExperimentResult
+    from fpscan.service.experiments import ExperimentResult
 
 __all__ = ["COMMAND", "HELP", "NAMES", "add_arguments", "run"]
 
@@ -52,7 +52,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-model-based", dest="model_based", action="store_false",
                         help="leave out the model-based (tv) rows of limited-view-2d and sparse-masks-3d "
                              "(iterative: minutes in 2-D, far longer for the full-size 3-D case on a small machine)")
-    from clients.cli._common import default_dtype
+    from fpscan.clients.cli._common import default_dtype
 
     parser.epilog = ("Precision: every reconstruction of the experiments is float64 (they measure resolution "
                      f"and errors); fpscan recon and the server default to {default_dtype()} (--dtype).")
@@ -94,19 +94,19 @@ def run(args: argparse.Namespace) -> int:
     Returns
     -------
     int
-        The exit status: 0 on success (refused input and failures raise: :func:`clients.cli.main`
+        The exit status: 0 on success (refused input and failures raise: :func:`fpscan.clients.cli.main`
         reports them and sets the status).
     """
     from pathlib import Path
 
-    from service.experiments import run_experiment
+    from fpscan.service.experiments import run_experiment
 
     if args.dataset is not None and args.data is None:
         raise UsageError("--dataset names a dataset inside --data FILE; give --data")
     names = NAMES if args.experiment == "all" else (args.experiment,)
     data = None
     if args.data is not None:
-        from service.experiments import load_dense
+        from fpscan.service.experiments import load_dense
 
         data = load_dense(args.data, key=args.dataset)  # ValueError with the reason for a missing or unusable file
     out = Path(args.out)

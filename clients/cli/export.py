@@ -1,11 +1,11 @@
 """`fpscan export`: a scan file or a reconstruction result in another format, locally or from a
 server's job.
 
-The export formats are the registry's (``service.formats.export_formats``: IPASC from a scan
+The export formats are the registry's (``fpscan.service.formats.export_formats``: IPASC from a scan
 file, OME-TIFF and OME-Zarr from a result ``volume.h5``, the files themselves, and whatever
 format module is added): ``--format`` names one; without it, the file's (or the job's) first
 export that is not the file itself. Locally the file's format is detected from its content and
-written by ``service.formats.export_file``; with ``--server`` the job's export is downloaded
+written by ``fpscan.service.formats.export_file``; with ``--server`` the job's export is downloaded
 (``GET /api/jobs/{job_id}/export/{format}``: the job's ``export_<format>`` links, its default
 first), a folder export (OME-Zarr) unpacked.
 """
@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import argparse
 
-from clients.cli._common import UsageError, add_server_options, client_errors
+from fpscan.clients.cli._common import UsageError, add_server_options, client_errors
 
 __all__ = ["COMMAND", "HELP", "add_arguments", "run"]
 
@@ -26,7 +26,7 @@ def _formats() -> tuple[dict, str]:
     """The registry's export formats (name -> Format) and their help text; none on a
     client-only install (the server checks the name)."""
     try:
-        from service.formats import FORMATS, export_formats
+        from fpscan.service.formats import FORMATS, export_formats
     except ImportError:
         return {}, ""
     fmts = {n: FORMATS[n] for n in export_formats()}
@@ -59,7 +59,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def _default_export(source: str) -> str:
     """The export of a file of format ``source`` without ``--format``: its first export
     (registration order) other than the file itself. Raises UsageError when it has none."""
-    from service.formats import FORMATS, export_formats
+    from fpscan.service.formats import FORMATS, export_formats
 
     others = [n for n in export_formats(source) if n != source]
     if not others:
@@ -80,8 +80,8 @@ def run(args: argparse.Namespace) -> int:
     -------
     int
         The exit status: 0 on success. Errors of the client become exit 1, or 2 when the server refused
-        the request as given (``clients.cli._common.client_errors``); other refused input and
-        failures raise (:func:`clients.cli.main` reports them and sets the status).
+        the request as given (``fpscan.clients.cli._common.client_errors``); other refused input and
+        failures raise (:func:`fpscan.clients.cli.main` reports them and sets the status).
     """
     if args.server:
         return _remote(args)
@@ -91,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError("no file given (or use --server URL --job JOB_ID)")
     from pathlib import Path
 
-    from service.formats import FORMATS, detect, export_file, export_formats
+    from fpscan.service.formats import FORMATS, detect, export_file, export_formats
 
     src = Path(args.scan)
     if not src.is_file():
@@ -119,8 +119,8 @@ def _remote(args: argparse.Namespace) -> int:
     """``--server``: the job's export downloaded (its default export without ``--format``)."""
     from pathlib import Path
 
-    from clients.cli._common import full_job_id, make_client
-    from clients.http import field_of
+    from fpscan.clients.cli._common import full_job_id, make_client
+    from fpscan.clients.http import field_of
 
     if not args.job:
         raise UsageError("with --server give the job: --job JOB_ID")

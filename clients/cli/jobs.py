@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from clients.cli._common import add_progress_option, add_server_options, client_errors, delete_each
+from fpscan.clients.cli._common import add_progress_option, add_server_options, client_errors, delete_each
 
 __all__ = ["COMMAND", "HELP", "STATES", "KINDS", "add_arguments", "run"]
 
@@ -63,7 +63,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def _what(job: object) -> str:  # a Job model or its dict
     """What a job works on: ``plan 1a2b3c4d on fp1`` for a scan, ``nedner of scan 5e6f7a8b``
     (or ``of dataset ...``) for a reconstruction."""
-    from clients.http import field_of, to_dict
+    from fpscan.clients.http import field_of, to_dict
 
     p = to_dict(field_of(job, "params")) or {}
     if field_of(job, "kind") == "scan":
@@ -86,13 +86,13 @@ def run(args: argparse.Namespace) -> int:
     -------
     int
         The exit status: 0 on success. Errors of the client become exit 1, or 2 when the server refused
-        the request as given (``clients.cli._common.client_errors``); other refused input and
-        failures raise (:func:`clients.cli.main` reports them and sets the status).
+        the request as given (``fpscan.clients.cli._common.client_errors``); other refused input and
+        failures raise (:func:`fpscan.clients.cli.main` reports them and sets the status).
     """
     import json
 
-    from clients.cli._common import ProgressBar, full_job_id, make_client
-    from clients.http import field_of, to_dict
+    from fpscan.clients.cli._common import ProgressBar, full_job_id, make_client
+    from fpscan.clients.http import field_of, to_dict
 
     with make_client(args) as api:
         if args.action == "list":

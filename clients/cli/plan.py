@@ -1,7 +1,7 @@
 """`fpscan plan <kind> [kind options] [--out plan.json] [--server URL] [--preview mask.png]`.
 
 One subcommand per mask kind, with one flag per parameter, all generated from the
-kind's parameter model in ``service.plans.kinds`` (defaults, units and help included):
+kind's parameter model in ``fpscan.service.plans.kinds`` (defaults, units and help included):
 adding a kind there adds it here. Prints the point count (obtained of requested), the
 outer/inner weight ratio and the expected scan time. Locally the plan JSON ("Plan JSON"
 of docs/architecture.md) goes to ``--out``; with ``--server`` the plan is created on
@@ -13,8 +13,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from clients.cli._common import UsageError, add_server_options, client_errors, needs_extra
-from driver.constants import C_PLAUSIBLE
+from fpscan.clients.cli._common import UsageError, add_server_options, client_errors, needs_extra
+from fpscan.constants import C_PLAUSIBLE
 
 TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (`fpscan --help` starts faster)
 if TYPE_CHECKING:
@@ -48,7 +48,7 @@ _UNIT_KINDS = {"m": "length", "s": "time", "Hz": "frequency", "m/s": "speed"}
 def parse_value(text: str, unit: str | None) -> float:
     """One number from the command line in the parameter's SI ``unit``: a bare number is
     SI, text may carry a unit (``60um``, ``3.6mm``, ``8ns``, ``500Hz``;
-    ``driver.units.parse_quantity``). A bad value is a usage error (exit 2) naming it.
+    ``fpscan.driver.units.parse_quantity``). A bad value is a usage error (exit 2) naming it.
 
     Parameters
     ----------
@@ -73,7 +73,7 @@ def parse_value(text: str, unit: str | None) -> float:
     kind = _UNIT_KINDS.get(unit or "")
     if kind is None:
         return float(text)
-    from driver.units import parse_quantity
+    from fpscan.driver.units import parse_quantity
 
     try:
         return parse_quantity(text, kind, name=kind)
@@ -95,7 +95,9 @@ def _json_value(text: str) -> object:
         try:
             source = raw.decode("utf-8")
         except UnicodeDecodeError:
-            from clients.cli._common import wrong_file  # names a scan file, a result, a NumPy array ...
+            from fpscan.clients.cli._common import (
+                wrong_file,  # names a scan file, a result, a NumPy array ...
+            )
 
             raise argparse.ArgumentTypeError(wrong_file(text, "a JSON list of pairs")
                                              or f"{text}: this is not UTF-8 text, not a JSON list of pairs") from None
@@ -106,7 +108,7 @@ def _json_value(text: str) -> object:
 
 
 def _add_field(group: argparse._ArgumentGroup, f: dict) -> None:
-    """One argparse option from a parameter descriptor (``service.plans.kinds.kind_fields``)."""
+    """One argparse option from a parameter descriptor (``fpscan.service.plans.kinds.kind_fields``)."""
     unit = f["unit"]
     number = int if f["integer"] else (lambda s, u=unit: parse_value(s, u))
     desc = f["description"] or f["title"]
@@ -126,7 +128,7 @@ def _add_field(group: argparse._ArgumentGroup, f: dict) -> None:
 
 
 def _common_options() -> argparse.ArgumentParser:
-    from service.plans.plan import ORDER_NAMES, Acquisition
+    from fpscan.service.plans.plan import ORDER_NAMES, Acquisition
 
     acq = Acquisition()
     common = argparse.ArgumentParser(add_help=False)
@@ -166,7 +168,7 @@ def _common_options() -> argparse.ArgumentParser:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Declare ``fpscan plan``'s options on ``parser``: one sub-parser per mask kind
     (aliases included) with one flag per parameter of its model, plus the common options.
-    Where the planner (``service.plans``: numpy, scipy; the ``fpscan[driver]`` extra) is not
+    Where the planner (``fpscan.service.plans``: numpy, scipy; the ``fpscan[driver]`` extra) is not
     installed, e.g. a client-only install, the command is declared but says so when run.
 
     Parameters
@@ -175,7 +177,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         The sub-command's parser, changed in place.
     """
     try:
-        from service.plans.kinds import KINDS, kind_fields
+        from fpscan.service.plans.kinds import KINDS, kind_fields
 
         common = _common_options()
     except ImportError as exc:
@@ -212,7 +214,7 @@ def mask_params(args: argparse.Namespace) -> dict:
     UsageError
         A required parameter's flag is missing (a ``ValueError``).
     """
-    from service.plans.kinds import kind_fields
+    from fpscan.service.plans.kinds import kind_fields
 
     params: dict = {}
     for f in kind_fields(args.mask):
@@ -280,7 +282,7 @@ def run(args: argparse.Namespace) -> int:
     int
         The exit status: 0 on success; 2 without the planner installed (the ``fpscan[driver]``
         extra). Errors of the client become exit 1, or 2 when the server refused the request as given
-        (``clients.cli._common.client_errors``).
+        (``fpscan.clients.cli._common.client_errors``).
     """
     if getattr(args, "_planner_missing", None):
         return needs_extra(args, "driver", args._planner_missing)
@@ -289,7 +291,7 @@ def run(args: argparse.Namespace) -> int:
     body = request_body(args)
     if args.server:
         return _remote(args, body)
-    from service.plans import make_plan, preview_png
+    from fpscan.service.plans import make_plan, preview_png
 
     plan = make_plan(kind=body["kind"], lattice=body["lattice"], params=body["params"],
                      order=body["order"], acquisition=body["acquisition"], force=args.force)
@@ -299,7 +301,7 @@ def run(args: argparse.Namespace) -> int:
     lat = plan.lattice
     print(f"plan {plan.id}: {plan.mask.kind} on {lat.n_x}x{lat.n_y} at {lat.pitch:g} m")
     print(f"points: {plan.mask.obtained_points} (requested {plan.mask.requested_points})")
-    from service.plans.mask import shortfall
+    from fpscan.service.plans.mask import shortfall
 
     why = shortfall(plan.mask.kind, plan.mask.requested_points, plan.mask.obtained_points, lat.pitch)
     if why:
@@ -315,8 +317,8 @@ def run(args: argparse.Namespace) -> int:
 def _remote(args: argparse.Namespace, body: dict) -> int:
     import json
 
-    from clients.cli._common import make_client
-    from clients.http import field_of
+    from fpscan.clients.cli._common import make_client
+    from fpscan.clients.http import field_of
 
     with make_client(args) as api:
         plan = api.create_plan(body)

@@ -1,13 +1,13 @@
 """`fpscan recon`: reconstruct p0 from a scan file or dataset, locally or on a server.
 
-Locally (no ``--server``) the input is read with ``service.storage.loader.load_dataset``
-(as the service reads uploads), reconstructed with ``service.pipeline.reconstruct`` (the
-job worker's call) and written with ``service.storage.results.write_result`` (the job
+Locally (no ``--server``) the input is read with ``fpscan.service.storage.loader.load_dataset``
+(as the service reads uploads), reconstructed with ``fpscan.service.pipeline.reconstruct`` (the
+job worker's call) and written with ``fpscan.service.storage.results.write_result`` (the job
 worker's result folder): ``volume.h5`` (``/p0`` ``(n_z, n_y, n_x)``, ``/z``, ``/y``,
 ``/x`` in m) and ``mip_{xy,xz,yz}.png``. The same input and options give the same volume
 locally and on the server (default precision float32 on both).
 With ``--plan PLAN.json`` dense input (a k-Wave sensor plane or line, a full-lattice scan) is
-first sampled by the plan's sensor mask (``service.subsample``: a replay scan's A-lines, with
+first sampled by the plan's sensor mask (``fpscan.service.subsample``: a replay scan's A-lines, with
 the plan's weights); with ``--server`` the plan is stored there and the job samples the
 uploaded dataset (``plan_id``).
 With ``--server`` the file is uploaded (``POST /api/datasets``), reconstructed as a job
@@ -19,7 +19,7 @@ into its excitation wavelengths; default the first, index 0: said on stderr and 
 in the volume's params as ``wavelength_index`` and ``wavelength_nm``) or at every
 wavelength with ``--wavelength all``: the same method and options for each, ``--out``
 then holds the first wavelength's ``volume.h5`` + MIPs and ``wavelength_<k>/`` for each
-(the layout of ``fpscan unmix``; ``service.spectral.write_wavelength_results``). With
+(the layout of ``fpscan unmix``; ``fpscan.service.spectral.write_wavelength_results``). With
 ``--server`` an uploaded file is stored at the one wavelength chosen (``--wavelength K``);
 ``all`` needs ``--scan-job``.
 """
@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import argparse
 
-from clients.cli._common import (
+from fpscan.clients.cli._common import (
     UsageError,
     add_progress_option,
     add_server_options,
@@ -40,8 +40,8 @@ if TYPE_CHECKING:
     import os
     from pathlib import Path
 
-    from clients.http import Client
-    from service.recon.dataset import GridDataset, PointDataset
+    from fpscan.clients.http import Client
+    from fpscan.service.recon.dataset import GridDataset, PointDataset
 
 __all__ = ["COMMAND", "HELP", "add_arguments", "check_options_early", "run", "add_format_option"]
 
@@ -54,7 +54,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser).
 
     INPUT, ``--format``, ``--method`` (the registry's methods), ``--out``, the load options'
-    flags, the speed-of-sound flags, every method's options (``clients.cli.recon_options``),
+    flags, the speed-of-sound flags, every method's options (``fpscan.clients.cli.recon_options``),
     ``--wavelength``, ``--scan-job``, the server and progress options.
 
     Parameters
@@ -64,7 +64,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """
     METHODS: dict
     try:
-        from service.recon.methods import METHODS, default_for
+        from fpscan.service.recon.methods import METHODS, default_for
     except ImportError:  # no service package: the server checks the method
         METHODS = {}
     # the registry's defaults (Method.default_for), named in the help when it is there
@@ -77,17 +77,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_format_option(parser)
     methods = "; ".join(f"{m.name}: {m.title}" for m in METHODS.values())
     parser.add_argument("--method", choices=list(METHODS) or None, default=None,
-                        help="reconstruction method (default: the pipeline's, service.pipeline.default_method: "
+                        help="reconstruction method (default: the pipeline's, fpscan.service.pipeline.default_method: "
                              f"{defaults}; locally and on the server). {methods}. "
                              "Grid methods need every lattice point.")
     parser.add_argument("--out", default=None, metavar="DIR",
                         help="output folder (default: <input>-<method>/ or recon-<job>/)")
     g = parser.add_argument_group("the input's load options (each format's own; SI units) and speed of sound")
-    from clients.cli.recon_options import add_load_flags, add_option_flags, add_speed_flags
+    from fpscan.clients.cli.recon_options import add_load_flags, add_option_flags, add_speed_flags
 
-    add_load_flags(g)  # generated from the formats' load options (service.formats.load_options)
+    add_load_flags(g)  # generated from the formats' load options (fpscan.service.formats.load_options)
     add_speed_flags(g)
-    # every method's options, generated from the registry (service.recon.methods)
+    # every method's options, generated from the registry (fpscan.service.recon.methods)
     add_option_flags(parser.add_argument_group("reconstruction options (the methods that take each are named)"))
     parser.add_argument("--wavelength", type=_wavelength, default=None, metavar="K|all",
                         help="excitation wavelength of a multi-wavelength scan: an index into its wavelengths, or "
@@ -106,7 +106,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def add_format_option(parser: argparse.ArgumentParser) -> None:
-    """``--format``: the input formats of the registry (``service.formats``: names and
+    """``--format``: the input formats of the registry (``fpscan.service.formats``: names and
     titles in the help); on a client-only install any name (the server checks it).
 
     Parameters
@@ -116,8 +116,8 @@ def add_format_option(parser: argparse.ArgumentParser) -> None:
         (from the file's content).
     """
     try:
-        from service.formats import FORMATS
-        from service.storage.loader import input_formats
+        from fpscan.service.formats import FORMATS
+        from fpscan.service.storage.loader import input_formats
     except ImportError:  # client-only install: the server checks the format
         choices, described = None, ""
     else:
@@ -138,11 +138,11 @@ def _wavelength(text: str) -> int | str:
 
 
 def _sniff_format(path: str | os.PathLike) -> str:
-    """The input's format from its content (``service.storage.loader.detect_format``).
+    """The input's format from its content (``fpscan.service.storage.loader.detect_format``).
     Where that reader's dependencies (h5py: the driver extra) are missing, a
     ``ModuleNotFoundError`` that says to give ``--format``."""
     try:
-        from service.storage.loader import detect_format
+        from fpscan.service.storage.loader import detect_format
     except ModuleNotFoundError as exc:
         raise ModuleNotFoundError(f"no module {exc.name} to tell the file's format: give --format",
                                   name=exc.name) from None
@@ -156,8 +156,8 @@ def _sniff_format(path: str | os.PathLike) -> str:
 def check_options_early(method: str | None, params: dict) -> None:
     """Check the options by the kernel's own rules before any file is read.
 
-    With a method, ``service.pipeline.method_options``; without ``--method`` (the method is
-    the input's default), the values' rules only (``service.pipeline.check_option_values``).
+    With a method, ``fpscan.service.pipeline.method_options``; without ``--method`` (the method is
+    the input's default), the values' rules only (``fpscan.service.pipeline.check_option_values``).
     On a client-only install (no ``service``, or a rule whose check needs numpy) nothing is
     checked here: the server applies the same rules (422, exit 2).
 
@@ -166,16 +166,16 @@ def check_options_early(method: str | None, params: dict) -> None:
     method : str or None
         ``--method``; None: not given.
     params : dict
-        The options given (``clients.cli.recon_options.option_params``).
+        The options given (``fpscan.clients.cli.recon_options.option_params``).
 
     Raises
     ------
-    service.recon.checks.OptionError
+    fpscan.service.recon.checks.OptionError
         (a ValueError; a usage error, exit 2) A refused option, naming its range, or the
         method's options for one the method does not take.
     """
     try:
-        from service.pipeline import check_option_values, method_options
+        from fpscan.service.pipeline import check_option_values, method_options
     except ImportError:
         return
     try:
@@ -188,7 +188,7 @@ def check_options_early(method: str | None, params: dict) -> None:
 
 
 def _params(args: argparse.Namespace) -> dict:
-    from clients.cli.recon_options import option_params
+    from fpscan.clients.cli.recon_options import option_params
 
     return option_params(args)
 
@@ -198,8 +198,8 @@ def run(args: argparse.Namespace) -> int:
     """Run this sub-command with the parsed ``args``: locally, or with ``--server`` as a job
     whose volume and MIPs are downloaded (module docstring).
 
-    Client errors (``clients.http.FpscanClientError``) are one line on stderr and exit 1,
-    or 2 for a request the server refused as given (``clients.cli._common.client_errors``).
+    Client errors (``fpscan.clients.http.FpscanClientError``) are one line on stderr and exit 1,
+    or 2 for a request the server refused as given (``fpscan.clients.cli._common.client_errors``).
 
     Parameters
     ----------
@@ -217,7 +217,7 @@ def run(args: argparse.Namespace) -> int:
         (exit 2) No INPUT and no ``--scan-job``, both, an INPUT that is no file,
         ``--scan-job`` without ``--server``, an ``--out`` that cannot be written,
         ``--wavelength all`` with ``--server`` without ``--scan-job``.
-    service.recon.checks.OptionError
+    fpscan.service.recon.checks.OptionError
         A refused option (:func:`check_options_early`).
     ValueError
         An input whose format cannot be told from its content, or that cannot be loaded.
@@ -231,10 +231,10 @@ def run(args: argparse.Namespace) -> int:
     if args.plan and args.scan_job:
         raise UsageError("--plan samples dense INPUT data; a scan job's file is already a scan: not with --scan-job")
     if args.out:  # before the work, not after it (the default folder sits beside the input)
-        from clients.cli._common import check_out_writable
+        from fpscan.clients.cli._common import check_out_writable
 
         check_out_writable(args.out)
-    # no --method: the pipeline's default for the loaded data (service.pipeline.default_method),
+    # no --method: the pipeline's default for the loaded data (fpscan.service.pipeline.default_method),
     # resolved where the data is read: here locally, by the server with --server
     if args.server:
         return _remote(args, None if args.scan_job else (args.format or _sniff_format(args.input)))
@@ -253,14 +253,14 @@ def _default_out(args: argparse.Namespace, method: str) -> Path:
 
 
 def _local(args: argparse.Namespace, fmt: str) -> int:
-    """Reconstruct here: :func:`service.pipeline.run_file`, the job worker's orchestration (so the
+    """Reconstruct here: :func:`fpscan.service.pipeline.run_file`, the job worker's orchestration (so the
     same file gives the same folder); this command says what it does and prints the result."""
     import sys
     from pathlib import Path
 
-    from clients.cli._common import ProgressBar
-    from service.pipeline import run_file
-    from service.recon.dataset import GridDataset, file_wavelengths
+    from fpscan.clients.cli._common import ProgressBar
+    from fpscan.service.pipeline import run_file
+    from fpscan.service.recon.dataset import GridDataset, file_wavelengths
 
     say = (lambda msg: None) if args.quiet else (lambda msg: print(f"recon: {msg}", file=sys.stderr, flush=True))
     say(f"importing {args.input} ({fmt})")
@@ -277,7 +277,7 @@ def _local(args: argparse.Namespace, fmt: str) -> int:
     load = {"dt": args.dt, "dx": args.dx, "dy": args.dy, "key": args.key, "force": args.force,
             "c": None if args.c == "auto" else args.c}
     plan = _read_plan(args.plan) if args.plan else None
-    from service.subsample import MaskMismatch
+    from fpscan.service.subsample import MaskMismatch
 
     with ProgressBar(f"recon {args.method or ''}".rstrip(), quiet=args.quiet) as bar:
         try:
@@ -309,7 +309,7 @@ def _local(args: argparse.Namespace, fmt: str) -> int:
 def _read_plan(path: str) -> dict:
     """``--plan``: the plan file, read and checked (``fpscan.load_plan``); a UsageError naming
     the flag for a file that is missing or not a plan."""
-    from service.formats.plan import read_plan
+    from fpscan.service.formats.plan import read_plan
 
     try:
         return read_plan(path)
@@ -323,13 +323,13 @@ def _head(ended: str) -> str:
 
 
 def _outcome_of(job: object, method: str | None) -> str | None:  # a Job model or its dict
-    """:func:`service.progress.outcome` of a finished job's result (``params.result.params_used``);
+    """:func:`fpscan.service.progress.outcome` of a finished job's result (``params.result.params_used``);
     None for a method without iterations, or on a client-only install."""
-    from clients.http import field_of
+    from fpscan.clients.http import field_of
 
     used = ((field_of(job, "params") or {}).get("result") or {}).get("params_used") or {}
     try:
-        from service.recon.methods import outcome
+        from fpscan.service.recon.methods import outcome
     except ImportError:  # pragma: no cover -- a client-only install
         return None
     return outcome(used, method)
@@ -342,12 +342,12 @@ def _nm(params: dict) -> str:
 
 
 def _remote(args: argparse.Namespace, fmt: str | None) -> int:
-    from clients.cli._common import ProgressBar, make_client
-    from clients.cli.recon_options import http_params
+    from fpscan.clients.cli._common import ProgressBar, make_client
+    from fpscan.clients.cli.recon_options import http_params
 
     with make_client(args, timeout=300) as api:
         if args.scan_job:
-            from clients.cli._common import full_job_id
+            from fpscan.clients.cli._common import full_job_id
 
             job_id = api.start_reconstruction(scan_job_id=full_job_id(api, args.scan_job), method=args.method,
                                               params=http_params(_params(args)), wavelength=args.wavelength)
@@ -355,7 +355,7 @@ def _remote(args: argparse.Namespace, fmt: str | None) -> int:
             if args.wavelength == "all":
                 raise UsageError("--wavelength all with --server needs --scan-job: an uploaded file is stored at "
                                  "one wavelength (--wavelength K); reconstruct locally or upload once per wavelength")
-            from driver.units import check_plausible
+            from fpscan.driver.units import check_plausible
 
             check_plausible(dt=args.dt, dx=args.dx, dy=args.dy, sound_speed=None if args.c == "auto" else args.c,
                             force=args.force)
@@ -370,13 +370,13 @@ def _remote(args: argparse.Namespace, fmt: str | None) -> int:
             dataset_id = api.upload_dataset(args.input, fmt, **fields)
             job_id = api.start_reconstruction(dataset_id=dataset_id, method=args.method,
                                               params=http_params(_params(args)), plan_id=plan_id)
-        assert job_id is not None  # a 202 names its job (clients.http.calls.read_job_id)
-        from clients.cli._common import remember_job
+        assert job_id is not None  # a 202 names its job (fpscan.clients.http.calls.read_job_id)
+        from fpscan.clients.cli._common import remember_job
 
         remember_job(args, job_id)
         with ProgressBar(f"recon {job_id[:8]}", quiet=args.quiet) as bar:
             job = api.wait(job_id, on_progress=bar)
-            from clients.http import field_of
+            from fpscan.clients.http import field_of
 
             method = (field_of(job, "params") or {}).get("method") or args.method  # as the server resolved it
             ended = _outcome_of(job, method)
@@ -400,7 +400,7 @@ def _store_plan(api: Client, path: str) -> str:
     """``--plan`` with ``--server``: the plan file stored on the server (under its own id)."""
     import json
 
-    from clients.http import field_of
+    from fpscan.clients.http import field_of
 
     try:
         with open(path, encoding="utf-8") as fh:
@@ -420,7 +420,7 @@ def _download(api: Client, job_id: str, folder: Path, wavelength: int | None) ->
             api.download_mip(job_id, plane, folder / f"mip_{plane}.png", wavelength=wavelength)
             planes.append(plane)
         except Exception as exc:  # a 2-D result has only the xz MIP
-            from clients.http import ApiError, NotFound
+            from fpscan.clients.http import ApiError, NotFound
 
             if not isinstance(exc, (NotFound, ApiError)) or plane == "xz":
                 raise

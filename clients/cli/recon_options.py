@@ -1,5 +1,5 @@
 """The reconstruction options of ``fpscan recon`` and ``fpscan unmix``, as flags generated
-from the method registry (``service.recon.methods``: each method's typed options model).
+from the method registry (``fpscan.service.recon.methods``: each method's typed options model).
 
 One flag per option of any method: ``--name-with-dashes`` (or the field's ``flag``, e.g.
 ``--lambda``), its type from the field's JSON schema (a number, an integer, a choice,
@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import argparse
 
-from clients.cli._common import quantity, speed
-from driver.constants import C_AUTOFOCUS_RANGE, C_DEFAULT, C_PLAUSIBLE
+from fpscan.clients.cli._common import quantity, speed
+from fpscan.constants import C_AUTOFOCUS_RANGE, C_DEFAULT, C_PLAUSIBLE
 
 TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (`fpscan --help` starts faster)
 if TYPE_CHECKING:
@@ -26,18 +26,18 @@ __all__ = ["add_speed_flags", "add_load_flags", "add_option_flags", "option_name
 
 def _registry() -> Any:
     try:
-        from service.recon import methods
+        from fpscan.service.recon import methods
     except ImportError:  # no service package at all: the server checks the options
         return None
     return methods
 
 
 def _speed_fields() -> dict[str, str]:
-    """The registry's speed option (``service.recon.methods.options.SpeedOptions``): each
+    """The registry's speed option (``fpscan.service.recon.methods.options.SpeedOptions``): each
     field's flag and description; without the service package (a client-only install) the
-    same words from ``driver.constants``."""
+    same words from ``fpscan.constants``."""
     try:
-        from service.recon.methods.options import SpeedOptions
+        from fpscan.service.recon.methods.options import SpeedOptions
     except ImportError:
         return {"c": f"speed of sound, m/s; default: the input's, else {C_DEFAULT:g}",
                 "c_range": f"autofocus search interval (c_min, c_max), m/s (default {C_AUTOFOCUS_RANGE[0]:g}-"
@@ -83,7 +83,7 @@ _LOAD_FALLBACK: list[dict[str, Any]] = [
 
 
 def add_load_flags(group: Any, *, skip: tuple[str, ...] = ("wavelength",)) -> None:
-    """One flag per load option of the registered file formats (``service.formats.load_options``:
+    """One flag per load option of the registered file formats (``fpscan.service.formats.load_options``:
     ``--dt``, ``--dx``, ``--dy``, ``--key``), with the formats that take each in its help; a value
     the chosen format does not take is refused when the file is loaded.
 
@@ -95,7 +95,7 @@ def add_load_flags(group: Any, *, skip: tuple[str, ...] = ("wavelength",)) -> No
         Options the command declares itself (``--wavelength``: an index or ``all``).
     """
     try:
-        from service.formats.load_options import load_option_schemas
+        from fpscan.service.formats.load_options import load_option_schemas
     except ImportError:  # client-only install: the server checks the options
         options = _LOAD_FALLBACK
     else:
@@ -156,7 +156,7 @@ def add_option_flags(group: argparse._ArgumentGroup) -> None:
 def option_flags() -> dict[str, str]:
     """Each reconstruction and load option's name (the library's, ``lam``) → the flag that
     gives it (``--lambda``), the speed of sound's ``c``/``sound_speed`` → ``--sound-speed``: how
-    the command line words an error that names options (``clients.cli.in_flags``).
+    the command line words an error that names options (``fpscan.clients.cli.in_flags``).
 
     Returns
     -------
@@ -166,7 +166,7 @@ def option_flags() -> dict[str, str]:
     methods = _registry()
     if methods is None:
         return {}
-    from service.names import PERSON_NAMES  # the one c <-> sound_speed table
+    from fpscan.service.names import PERSON_NAMES  # the one c <-> sound_speed table
 
     out = {}
     for code in ("c", "c_range"):  # add_speed_flags's dests; each flag is the person's name
@@ -194,7 +194,7 @@ def option_names() -> list[str]:
 
 def option_params(args: argparse.Namespace) -> dict:
     """The options given on the command line: the ``params`` of
-    ``service.pipeline.reconstruct`` and of ``POST /api/reconstructions``.
+    ``fpscan.service.pipeline.reconstruct`` and of ``POST /api/reconstructions``.
 
     Parameters
     ----------
@@ -232,9 +232,9 @@ def http_params(params: dict) -> dict:
     dict
         A copy with ``c`` renamed ``sound_speed`` and ``c_range`` ``sound_speed_range`` (the
         server takes ``c`` / ``c_range`` too, deprecated); other keys as they are. The names
-        are :data:`service.names.PERSON_NAMES` (standard library only: a client-only install
+        are :data:`fpscan.service.names.PERSON_NAMES` (standard library only: a client-only install
         has it too).
     """
-    from service.names import PERSON_NAMES
+    from fpscan.service.names import PERSON_NAMES
 
     return {PERSON_NAMES.get(k, k): v for k, v in params.items()}

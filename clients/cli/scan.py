@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import argparse
 
-from clients.cli._common import UsageError, add_server_options, client_errors
+from fpscan.clients.cli._common import UsageError, add_server_options, client_errors
 
 TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (`fpscan --help` starts faster)
 if TYPE_CHECKING:
@@ -23,7 +23,7 @@ if TYPE_CHECKING:
     from pathlib import Path
     from typing import Any
 
-    from driver.host import ScanProgress
+    from fpscan.driver.host import ScanProgress
 
 __all__ = ["COMMAND", "HELP", "add_arguments", "preview_index", "run"]
 
@@ -62,7 +62,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _points_on_disk(path: str | os.PathLike) -> int:
     """Completed points already in the scan file ``path`` (0 if there is none yet)."""
-    from driver.scanfile import completed_count
+    from fpscan.driver.scanfile import completed_count
 
     try:
         return completed_count(path)
@@ -78,7 +78,7 @@ def _same_command() -> str:
 
 
 def _wavelength_arg(text: str) -> float:
-    from clients.cli.plan import parse_value
+    from fpscan.clients.cli.plan import parse_value
 
     return parse_value(text, "m")
 
@@ -126,12 +126,12 @@ def run(args: argparse.Namespace) -> int:
         The exit status of a local scan: 0 when the scan is complete; 1 incomplete (aborted or
         stopped); 2 a ``--plan`` that is no plan; 130 interrupted (the same command resumes).
         Errors of the client become exit 1, or 2 when the server refused the request as given
-        (``clients.cli._common.client_errors``).
+        (``fpscan.clients.cli._common.client_errors``).
     """
     import sys
     import time
 
-    from clients.cli._common import ProgressBar
+    from fpscan.clients.cli._common import ProgressBar
 
     if args.server and not args.device:  # --device wins over $FPSCAN_SERVER
         return _remote(args)
@@ -139,8 +139,8 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError("a local scan needs --device and --out (or use --server URL)")
     if args.preview_wavelength is not None:
         raise UsageError("--preview-wavelength is for a scan on a server (--server): a local scan has no live preview")
-    from driver.acquire import acquire
-    from service.formats.plan import read_plan
+    from fpscan.driver.acquire import acquire
+    from fpscan.service.formats.plan import read_plan
 
     if args.window < 1 or args.timeout <= 0:
         raise UsageError("--window must be >= 1 and --timeout > 0")
@@ -200,7 +200,7 @@ def _bad_plan(exc: ValueError) -> int:
 def _plan_json(source: Path) -> dict:
     """The JSON of the plan file ``source`` (a plan, or a plan request the server builds),
     as the server is sent it. Raises ValueError: a file that is not JSON text is named by
-    registry of formats (``service.formats.plan.read_plan``: "this is a scan file, not a
+    registry of formats (``fpscan.service.formats.plan.read_plan``: "this is a scan file, not a
     plan"), bad JSON with its position."""
     import json
 
@@ -208,7 +208,7 @@ def _plan_json(source: Path) -> dict:
     try:
         return json.loads(raw.decode("utf-8"))
     except UnicodeDecodeError:
-        from service.formats.plan import read_plan
+        from fpscan.service.formats.plan import read_plan
 
         read_plan(source)  # raises, naming the kind of file (scan, result, IPASC, NumPy, PNG)
         raise ValueError(f"{source}: not a plan: the file is not UTF-8 JSON text") from None
@@ -221,8 +221,8 @@ def _remote(args: argparse.Namespace) -> int:
     follow it with a progress bar, download the scan file to ``--out``."""
     from pathlib import Path
 
-    from clients.cli._common import ProgressBar, make_client
-    from clients.http import field_of
+    from fpscan.clients.cli._common import ProgressBar, make_client
+    from fpscan.clients.http import field_of
 
     source = Path(args.plan)
     try:
@@ -249,8 +249,8 @@ def _remote(args: argparse.Namespace) -> int:
                 raise UsageError(f"the server has scanners {', '.join(ids) or '(none)'}: choose one with --scanner")
             scanner = ids[0]
         job_id = api.start_scan(plan_id, scanner, **extra)
-        assert job_id is not None  # a 202 names its job (clients.http.calls.read_job_id)
-        from clients.cli._common import remember_job
+        assert job_id is not None  # a 202 names its job (fpscan.clients.http.calls.read_job_id)
+        from fpscan.clients.cli._common import remember_job
 
         remember_job(args, job_id)
         with ProgressBar(f"scan {job_id[:8]}", quiet=args.quiet) as bar:

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import argparse
 
-from clients.cli._common import UsageError
+from fpscan.clients.cli._common import UsageError
 
 TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (`fpscan --help` starts faster)
 if TYPE_CHECKING:
@@ -44,7 +44,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--settings", default=None, help="settings file (JSON or TOML)")
     parser.add_argument("--no-web", action="store_true", help="do not serve the web page")
     parser.add_argument("--log-level", default=None, help="uvicorn/app log level (default info)")
-    from clients.cli._common import default_dtype
+    from fpscan.clients.cli._common import default_dtype
 
     parser.epilog = (f"Precision: reconstructions are {default_dtype()} unless a request's params.dtype asks for "
                      "float64, the same default as fpscan recon locally and the web page.")
@@ -88,7 +88,7 @@ def use_malloc() -> None:
     long-lived objects made during the burst pin each one: 5000 slow readers left the server at
     1.6-1.8x its resident memory before them, with the same live objects. With ``malloc`` the
     freed memory goes back to the C allocator, which ``malloc_trim`` returns to the system
-    (``service.api.connections``): within 10 % of the baseline after 20 000 readers.
+    (``fpscan.service.api.connections``): within 10 % of the baseline after 20 000 readers.
 
     Only on POSIX (``os.execv`` replaces the process in place there); a ``PYTHONMALLOC`` the
     user set is kept.
@@ -139,7 +139,7 @@ def run(args: argparse.Namespace) -> int:
 
     from pydantic import ValidationError
 
-    from service.settings import Settings, is_loopback
+    from fpscan.service.settings import Settings, is_loopback
 
     overrides = {}
     for name in ("host", "port", "data_dir", "token", "executor", "dask_scheduler", "workers", "log_level"):
@@ -154,7 +154,7 @@ def run(args: argparse.Namespace) -> int:
         overrides["memory_limit"] = int(args.memory_limit * 2**30)
     if not args.no_web:
         try:
-            overrides["web_root"] = str(importlib.resources.files("clients.web"))
+            overrides["web_root"] = str(importlib.resources.files("fpscan.clients.web"))
         except ModuleNotFoundError:
             pass
     try:
@@ -169,7 +169,7 @@ def run(args: argparse.Namespace) -> int:
 
     # one server per data folder, on a free port: both refused in one line before anything
     # reads the job store (its start-up recovery would pause a live server's running scan)
-    from service.data_lock import DataFolderInUse, PortInUse, check_port, lock_data_folder
+    from fpscan.service.data_lock import DataFolderInUse, PortInUse, check_port, lock_data_folder
 
     try:
         check_port(settings.host, settings.port)
@@ -188,18 +188,18 @@ def run(args: argparse.Namespace) -> int:
     if settings.executor == "local":  # the pool's workers spawn and warm up while the app loads
         from typing import cast
 
-        from service.jobs.executors import LocalExecutor, make_executor
+        from fpscan.service.jobs.executors import LocalExecutor, make_executor
 
         executor = cast(LocalExecutor, make_executor(settings))  # executor "local": a LocalExecutor
         executor.start_workers()
     try:
         import uvicorn  # after the workers' spawn: they warm up while the server loads (0.2 s sooner)
 
-        from service.api.app import create_app
-        from service.api.connections import server_config
+        from fpscan.service.api.app import create_app
+        from fpscan.service.api.connections import server_config
 
         app = create_app(settings, executor=executor)
-        # timeouts, connection limits and capped logs: service.api.connections
+        # timeouts, connection limits and capped logs: fpscan.service.api.connections
         server = uvicorn.Server(server_config(app, settings))
         print(json.dumps({"event": "serving", "host": settings.host, "port": settings.port,
                           "data_dir": str(settings.data_dir)}), file=sys.stderr, flush=True)

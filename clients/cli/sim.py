@@ -8,14 +8,14 @@ from __future__ import annotations
 
 import argparse
 
-from clients.cli._common import UsageError
-from driver.constants import C_DEFAULT, C_PLAUSIBLE
+from fpscan.clients.cli._common import UsageError
+from fpscan.constants import C_DEFAULT, C_PLAUSIBLE
 
 TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (`fpscan --help` starts faster)
 if TYPE_CHECKING:
     from types import FrameType
 
-    from driver.sources import BallSource, ReplaySource, VolumeSource
+    from fpscan.driver.sources import BallSource, ReplaySource, VolumeSource
 
 __all__ = ["COMMAND", "HELP", "add_arguments", "make_source", "run"]
 
@@ -26,14 +26,14 @@ HELP = "run the simulated FP scanner on a pseudo-terminal (prints its device pat
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser).
     Frequencies, times and the sound speed take units (``500Hz``, ``2 MHz``, ``5ms``,
-    ``1.54 km/s``; bare numbers are SI: ``clients.cli._common.quantity``).
+    ``1.54 km/s``; bare numbers are SI: ``fpscan.clients.cli._common.quantity``).
 
     Parameters
     ----------
     parser : argparse.ArgumentParser
         The sub-command's parser, changed in place.
     """
-    from clients.cli._common import quantity
+    from fpscan.clients.cli._common import quantity
 
     parser.add_argument("--source", nargs="+", default=["balls"], metavar="ARG",
                         help="A-line source: 'balls' (default: built-in phantom of balls and "
@@ -93,7 +93,7 @@ def make_source(kind_and_file: list[str], *, dataset: str = "sensor_data/clean",
     Returns
     -------
     BallSource, VolumeSource or ReplaySource
-        The :mod:`driver.sources` source.
+        The :mod:`fpscan.driver.sources` source.
 
     Raises
     ------
@@ -103,7 +103,7 @@ def make_source(kind_and_file: list[str], *, dataset: str = "sensor_data/clean",
     ValueError
         A source that refuses its file or settings.
     """
-    from driver.sources import BallSource, ReplaySource, VolumeSource, default_phantom
+    from fpscan.driver.sources import BallSource, ReplaySource, VolumeSource, default_phantom
 
     kind, rest = kind_and_file[0].lower(), kind_and_file[1:]
     if so2 is not None and kind != "balls":
@@ -139,16 +139,16 @@ def run(args: argparse.Namespace) -> int:
     Returns
     -------
     int
-        The exit status: 0 on success (refused input and failures raise: :func:`clients.cli.main`
+        The exit status: 0 on success (refused input and failures raise: :func:`fpscan.clients.cli.main`
         reports them and sets the status).
     """
     import signal
     import sys
     import threading
 
-    from driver.faults import FaultSpec
-    from driver.simulator import SimConfig, SimulatedScanner
-    from driver.units import check_plausible
+    from fpscan.driver.faults import FaultSpec
+    from fpscan.driver.simulator import SimConfig, SimulatedScanner
+    from fpscan.driver.units import check_plausible
 
     # the unit rules of fpscan plan (a sound speed of 1.5 is km/s typed as m/s): exit 2
     check_plausible(sound_speed=args.sound_speed, force=args.force)

@@ -3,9 +3,9 @@
 Input: one multi-wavelength scan file (every A-line at every wavelength), or one file
 per wavelength (any format ``fpscan recon`` reads) with ``--wavelengths`` in m.
 Locally (no ``--server``) the job worker's orchestration runs here
-(``service.pipeline.run_file``): each wavelength is reconstructed with the one dispatch
-(``service.pipeline.reconstruct``, the same method and options for all; ``--sound-speed auto``
-finds the sound speed once) and unmixed (``service.recon.unmix``: NNLS per voxel, same
+(``fpscan.service.pipeline.run_file``): each wavelength is reconstructed with the one dispatch
+(``fpscan.service.pipeline.reconstruct``, the same method and options for all; ``--sound-speed auto``
+finds the sound speed once) and unmixed (``fpscan.service.recon.unmix``: NNLS per voxel, same
 fluence at every wavelength unless ``--fluence`` is given). ``--out`` receives
 ``unmix.h5`` (``/hbo2``, ``/hb``, ``/thb``, ``/so2``, ``/mask``), ``so2.png`` and one
 result folder per wavelength (``wavelength_<k>/volume.h5`` + MIPs). With ``--server``
@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import argparse
 
-from clients.cli._common import (
+from fpscan.clients.cli._common import (
     UsageError,
     add_progress_option,
     add_server_options,
@@ -29,7 +29,7 @@ TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (`fpscan 
 if TYPE_CHECKING:
     from pathlib import Path
 
-    from service.recon.dataset import GridDataset, PointDataset
+    from fpscan.service.recon.dataset import GridDataset, PointDataset
 
 __all__ = ["COMMAND", "HELP", "add_arguments", "run"]
 
@@ -49,17 +49,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="a multi-wavelength scan file, or one file per wavelength (with --wavelengths)")
     parser.add_argument("--wavelengths", type=quantity("length", "wavelength"), nargs="+", default=None,
                         metavar="M", help="excitation wavelength of each INPUT, e.g. 750nm 850nm (bare numbers: m)")
-    from clients.cli.recon import add_format_option
+    from fpscan.clients.cli.recon import add_format_option
 
     add_format_option(parser)
     try:  # the registry's defaults (Method.default_for); a client-only install: the server's
-        from service.recon.methods import default_for
+        from fpscan.service.recon.methods import default_for
         defaults = f"{default_for('points')} for scans, {default_for('grid')} for grids"
     except ImportError:
         defaults = "the server's for the data"
     parser.add_argument("--method", default=None, help=f"reconstruction method (default: {defaults})")
     parser.add_argument("--out", default=None, metavar="DIR", help="output folder (default: <input>-unmix/)")
-    from clients.cli.recon_options import add_load_flags, add_option_flags, add_speed_flags
+    from fpscan.clients.cli.recon_options import add_load_flags, add_option_flags, add_speed_flags
 
     add_speed_flags(parser, what=", found once for every wavelength")
     parser.add_argument("--threshold", type=float, default=0.1,
@@ -67,8 +67,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fluence", type=float, nargs="+", default=None, metavar="J_PER_M2",
                         help="fluence at each wavelength, J/m² (default: assumed equal at every wavelength)")
     g = parser.add_argument_group("the inputs' load options (each format's own; SI units)")
-    add_load_flags(g)  # generated from the formats' load options (service.formats.load_options)
-    # every method's options, generated from the registry (service.recon.methods), as fpscan recon's
+    add_load_flags(g)  # generated from the formats' load options (fpscan.service.formats.load_options)
+    # every method's options, generated from the registry (fpscan.service.recon.methods), as fpscan recon's
     add_option_flags(parser.add_argument_group("reconstruction options (the methods that take each are named)"))
     parser.add_argument("--scan-job", default=None, metavar="JOB_ID",
                         help="with --server: unmix this (multi-wavelength) scan job's file (no INPUT)")
@@ -77,7 +77,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _params(args: argparse.Namespace) -> dict:
-    from clients.cli.recon_options import option_params
+    from fpscan.clients.cli.recon_options import option_params
 
     return option_params(args)
 
@@ -106,25 +106,25 @@ def run(args: argparse.Namespace) -> int:
     -------
     int
         The exit status: 0 on success. Errors of the client become exit 1, or 2 when the server refused
-        the request as given (``clients.cli._common.client_errors``); other refused input and
-        failures raise (:func:`clients.cli.main` reports them and sets the status).
+        the request as given (``fpscan.clients.cli._common.client_errors``); other refused input and
+        failures raise (:func:`fpscan.clients.cli.main` reports them and sets the status).
     """
     check_input_files(args, args.inputs or [], "give a multi-wavelength scan file or one file per wavelength")
     if not args.scan_job:
         if len(args.inputs) > 1 and (args.wavelengths is None or len(args.wavelengths) != len(args.inputs)):
             raise UsageError(f"{len(args.inputs)} inputs need --wavelengths with {len(args.inputs)} values (m)")
-    from clients.cli.recon import check_options_early
+    from fpscan.clients.cli.recon import check_options_early
 
     check_options_early(args.method, _params(args))
     if args.wavelengths is not None:  # unmixing's own rule (range naming the likely unit: 750 -> 750 nm): exit 2
         try:
-            from service.recon.unmix import endmember_matrix
+            from fpscan.service.recon.unmix import endmember_matrix
         except ImportError:  # a client-only install: the server checks them (422)
             pass
         else:
             endmember_matrix(list(args.wavelengths))
     if args.out:  # before the work, not after it
-        from clients.cli._common import check_out_writable
+        from fpscan.clients.cli._common import check_out_writable
 
         check_out_writable(args.out)
     if args.server:
@@ -133,11 +133,11 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _local(args: argparse.Namespace) -> int:
-    """Unmix here: :func:`service.pipeline.run_file` with ``unmix``, the job worker's
+    """Unmix here: :func:`fpscan.service.pipeline.run_file` with ``unmix``, the job worker's
     orchestration; this command says what it does and prints the result."""
     import sys
 
-    from service.pipeline import run_file
+    from fpscan.service.pipeline import run_file
 
     out = _default_out(args)
     say = (lambda msg: None) if args.quiet else (lambda msg: print(f"unmix: {msg}", file=sys.stderr, flush=True))
@@ -160,17 +160,17 @@ def _local(args: argparse.Namespace) -> int:
 
 
 def _remote(args: argparse.Namespace) -> int:
-    from clients.cli._common import ProgressBar, make_client
-    from clients.cli.recon import _sniff_format
-    from clients.cli.recon_options import http_params
-    from clients.http import field_of
+    from fpscan.clients.cli._common import ProgressBar, make_client
+    from fpscan.clients.cli.recon import _sniff_format
+    from fpscan.clients.cli.recon_options import http_params
+    from fpscan.clients.http import field_of
 
     formats = [args.format or _sniff_format(p) for p in args.inputs]
-    method = args.method  # None: the server applies service.pipeline.default_method, as _local does
+    method = args.method  # None: the server applies fpscan.service.pipeline.default_method, as _local does
     with make_client(args, timeout=300) as api:
         unmix = {"threshold": args.threshold, "fluence": args.fluence}
         if args.scan_job:
-            from clients.cli._common import full_job_id
+            from fpscan.clients.cli._common import full_job_id
 
             job_id = api.start_unmix(scan_job_id=full_job_id(api, args.scan_job), method=method, params=http_params(_params(args)), **unmix)
         else:
@@ -178,8 +178,8 @@ def _remote(args: argparse.Namespace) -> int:
             ids = [api.upload_dataset(p, fmt, **fields) for p, fmt in zip(args.inputs, formats, strict=True)]
             job_id = api.start_unmix(dataset_ids=ids, wavelengths=args.wavelengths, method=method,
                                      params=http_params(_params(args)), **unmix)
-        assert job_id is not None  # a 202 names its job (clients.http.calls.read_job_id)
-        from clients.cli._common import remember_job
+        assert job_id is not None  # a 202 names its job (fpscan.clients.http.calls.read_job_id)
+        from fpscan.clients.cli._common import remember_job
 
         remember_job(args, job_id)
         with ProgressBar(f"unmix {job_id[:8]}", quiet=args.quiet) as bar:

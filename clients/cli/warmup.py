@@ -1,6 +1,6 @@
 """`fpscan warmup`: compile the reconstruction's kernels into numba's cache, so that the
 first reconstruction of every later interpreter (``fpscan recon``, the server's workers)
-loads compiled code instead of compiling it (see ``service.recon.warmup``: where the cache
+loads compiled code instead of compiling it (see ``fpscan.service.recon.warmup``: where the cache
 lives, ``NUMBA_CACHE_DIR`` on a read-only install)."""
 from __future__ import annotations
 
@@ -44,9 +44,9 @@ def run(args: argparse.Namespace) -> int:
     Raises
     ------
     ValueError
-        From :func:`service.recon.warmup.warm_up` (not for the choices argparse allows).
+        From :func:`fpscan.service.recon.warmup.warm_up` (not for the choices argparse allows).
     """
-    from service.recon.warmup import DTYPES, warm_up
+    from fpscan.service.recon.warmup import DTYPES, warm_up
 
     got = warm_up(DTYPES if args.dtype == "both" else (args.dtype,), background=False if args.quick else None)
     print(f"compiled the kernels of {', '.join(got['methods']) or 'no method'} in {got['seconds']:.1f} s; "

@@ -1,9 +1,9 @@
 """The fpscan HTTP client: :class:`Client` (blocking) and :class:`AsyncClient`
 (asyncio), both over httpx, and the exceptions they raise. See ``docs/api.md``."""
-from .async_client import AsyncClient
-from .calls import field_of, to_dict
-from .client import Client
-from .errors import (
+from fpscan.clients.http.async_client import AsyncClient
+from fpscan.clients.http.calls import field_of, to_dict
+from fpscan.clients.http.client import Client
+from fpscan.clients.http.errors import (
     ApiError,
     AuthError,
     Conflict,
@@ -15,7 +15,7 @@ from .errors import (
     ServerUnavailable,
     WaitTimeout,
 )
-from .waiting import TERMINAL_STATES
+from fpscan.clients.http.waiting import TERMINAL_STATES
 
 __all__ = [
     "AsyncClient", "Client", "TERMINAL_STATES", "field_of", "to_dict",

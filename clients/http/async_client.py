@@ -1,9 +1,9 @@
 """The asyncio client of the fpscan HTTP API (``docs/api.md``): :class:`AsyncClient`.
 
-:class:`AsyncClient` is the asyncio mixins of every endpoint group (:mod:`clients.http.endpoints`)
+:class:`AsyncClient` is the asyncio mixins of every endpoint group (:mod:`fpscan.clients.http.endpoints`)
 over one ``httpx.AsyncClient``: the same endpoints, requests and answers as the blocking
-:class:`clients.http.client.Client`, as coroutines; waiting on a job follows the same rules
-(:mod:`clients.http.waiting`).
+:class:`fpscan.clients.http.client.Client`, as coroutines; waiting on a job follows the same rules
+(:mod:`fpscan.clients.http.waiting`).
 """
 from __future__ import annotations
 
@@ -13,8 +13,8 @@ from typing import Any, TypeVar
 
 import httpx
 
-from .calls import Call, Download
-from .core import (
+from fpscan.clients.http.calls import Call, Download
+from fpscan.clients.http.core import (
     CHUNK_BYTES,
     Driver,
     Flow,
@@ -29,14 +29,14 @@ from .core import (
     sse_event,
     wait_flow,
 )
-from .endpoints.datasets import AsyncDatasets
-from .endpoints.jobs import AsyncJobs
-from .endpoints.plans import AsyncPlans
-from .endpoints.reconstructions import AsyncReconstructions
-from .endpoints.scans import AsyncScans
-from .endpoints.server import AsyncServer
-from .transport import Connection, raise_for
-from .waiting import ProgressCallback
+from fpscan.clients.http.endpoints.datasets import AsyncDatasets
+from fpscan.clients.http.endpoints.jobs import AsyncJobs
+from fpscan.clients.http.endpoints.plans import AsyncPlans
+from fpscan.clients.http.endpoints.reconstructions import AsyncReconstructions
+from fpscan.clients.http.endpoints.scans import AsyncScans
+from fpscan.clients.http.endpoints.server import AsyncServer
+from fpscan.clients.http.transport import Connection, raise_for
+from fpscan.clients.http.waiting import ProgressCallback
 
 __all__ = ["AsyncClient"]
 
@@ -71,7 +71,7 @@ class AsyncClient(Connection, AsyncServer, AsyncPlans, AsyncScans, AsyncDatasets
     Examples
     --------
     >>> import asyncio
-    >>> from clients.http import AsyncClient, ServerUnavailable
+    >>> from fpscan.clients.http import AsyncClient, ServerUnavailable
     >>> async def health(url):
     ...     async with AsyncClient(url, token="", timeout=2) as api:
     ...         try:
@@ -101,12 +101,12 @@ class AsyncClient(Connection, AsyncServer, AsyncPlans, AsyncScans, AsyncDatasets
     async def __aexit__(self, *exc: object) -> None:
         await self.aclose()
 
-    # -- the I/O of the flows (clients.http.core): every endpoint method ends here
+    # -- the I/O of the flows (fpscan.clients.http.core): every endpoint method ends here
     async def _call(self, call: Call[T] | Download[T]) -> T:
         return await self._run(call_flow(call, self.base_url))
 
     async def _run(self, flow: Flow[T]) -> T:
-        """Run ``flow``'s steps (:mod:`clients.http.core`) with ``asyncio`` I/O; its result."""
+        """Run ``flow``'s steps (:mod:`fpscan.clients.http.core`) with ``asyncio`` I/O; its result."""
         run = Driver(flow)
         for step in run:
             try:

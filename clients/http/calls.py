@@ -3,10 +3,10 @@
 Every endpoint of the client is a *request builder*, a plain function of the endpoint's
 arguments that returns a :class:`Call` (a :class:`Request` and ``read(response) -> result``)
 or a :class:`Download` (a request whose body is saved to a file, then ``finish(path) ->
-result``). The builders live with their endpoint group in :mod:`clients.http.endpoints`,
+result``). The builders live with their endpoint group in :mod:`fpscan.clients.http.endpoints`,
 beside the two thin methods that run them: ``Client``'s (``self._call(call)``, blocking) and
-``AsyncClient``'s (``await self._call(call)``), which run :func:`clients.http.core.call_flow`.
-Only :mod:`clients.http.client` and :mod:`clients.http.async_client` send anything.
+``AsyncClient``'s (``await self._call(call)``), which run :func:`fpscan.clients.http.core.call_flow`.
+Only :mod:`fpscan.clients.http.client` and :mod:`fpscan.clients.http.async_client` send anything.
 
 The response helpers here (:func:`as_model`, :func:`field_of`, :func:`to_dict`,
 :func:`read_job_id`) are shared by every group.
@@ -21,7 +21,7 @@ from typing import Any, Generic, TypeVar
 
 import httpx
 
-from .models import MODELS
+from fpscan.clients.http.models import MODELS
 
 __all__ = ["Request", "Call", "Download", "MIP_PLANES", "as_model", "field_of", "to_dict", "read_job_id",
            "idempotency", "jsonable", "check_plane", "read_json", "read_model", "read_models", "SyncCaller",
@@ -61,7 +61,7 @@ class Request:
 
     Examples
     --------
-    >>> from clients.http.calls import Request
+    >>> from fpscan.clients.http.calls import Request
     >>> Request("GET", "/api/jobs", params={"state": "running"}).params
     {'state': 'running'}
     """
@@ -89,11 +89,11 @@ class Call(Generic[T]):
     request : Request
     read : callable
         ``read(response: httpx.Response) -> result``, called with a 2xx answer only (a 4xx/5xx
-        is raised as :class:`~clients.http.errors.ApiError` before).
+        is raised as :class:`~fpscan.clients.http.errors.ApiError` before).
 
     Examples
     --------
-    >>> from clients.http.calls import Call, Request, read_json
+    >>> from fpscan.clients.http.calls import Call, Request, read_json
     >>> call = Call(Request("GET", "/api/health"), read_json)
     >>> call.request.path
     '/api/health'
@@ -128,7 +128,7 @@ class Download(Generic[T]):
     Examples
     --------
     >>> from pathlib import Path
-    >>> from clients.http.calls import Download, Request
+    >>> from fpscan.clients.http.calls import Download, Request
     >>> d = Download(Request("GET", "/api/scans/j1/file"), Path("scan.h5"))
     >>> d.finish(d.dest, "application/x-hdf5")
     PosixPath('scan.h5')
@@ -141,7 +141,7 @@ class Download(Generic[T]):
 
 class SyncCaller:
     """What an endpoint group's blocking methods call: ``self._call(call) -> result``
-    (implemented by :class:`clients.http.client.Client`).
+    (implemented by :class:`fpscan.clients.http.client.Client`).
 
     Attributes
     ----------
@@ -150,7 +150,7 @@ class SyncCaller:
 
     Examples
     --------
-    >>> from clients.http.calls import SyncCaller
+    >>> from fpscan.clients.http.calls import SyncCaller
     >>> hasattr(SyncCaller, "_call")
     True
     """
@@ -161,7 +161,7 @@ class SyncCaller:
 
 class AsyncCaller:
     """What an endpoint group's coroutine methods await: ``await self._call(call) -> result``
-    (implemented by :class:`clients.http.async_client.AsyncClient`).
+    (implemented by :class:`fpscan.clients.http.async_client.AsyncClient`).
 
     Attributes
     ----------
@@ -170,7 +170,7 @@ class AsyncCaller:
 
     Examples
     --------
-    >>> from clients.http.calls import AsyncCaller
+    >>> from fpscan.clients.http.calls import AsyncCaller
     >>> hasattr(AsyncCaller, "_call")
     True
     """
@@ -180,12 +180,12 @@ class AsyncCaller:
 
 
 def as_model(name: str, data: Any) -> Any:
-    """A response parsed into ``clients.http.models.<name>`` when it fits, else returned as is.
+    """A response parsed into ``fpscan.clients.http.models.<name>`` when it fits, else returned as is.
 
     Parameters
     ----------
     name : str
-        A model name of ``clients.http.models.MODELS`` (``"Job"``, ``"Plan"``, ...).
+        A model name of ``fpscan.clients.http.models.MODELS`` (``"Job"``, ``"Plan"``, ...).
     data : any
         The decoded JSON response.
 
@@ -197,7 +197,7 @@ def as_model(name: str, data: Any) -> Any:
 
     Examples
     --------
-    >>> from clients.http.calls import as_model
+    >>> from fpscan.clients.http.calls import as_model
     >>> job = as_model("Job", {"id": "j1", "kind": "scan", "state": "running", "new_field": 1})
     >>> type(job).__name__, job.state, job.new_field  # unknown fields are kept
     ('Job', 'running', 1)
@@ -231,8 +231,8 @@ def field_of(obj: Any, name: str, default: Any = None) -> Any:
 
     Examples
     --------
-    >>> from clients.http import field_of
-    >>> from clients.http.models import Job
+    >>> from fpscan.clients.http import field_of
+    >>> from fpscan.clients.http.models import Job
     >>> field_of(Job(id="j1", kind="scan", state="queued"), "state"), field_of({"state": "running"}, "state")
     ('queued', 'running')
     >>> field_of(None, "state", "unknown")
@@ -259,8 +259,8 @@ def to_dict(obj: Any) -> Any:
 
     Examples
     --------
-    >>> from clients.http import to_dict
-    >>> from clients.http.models import Job
+    >>> from fpscan.clients.http import to_dict
+    >>> from fpscan.clients.http.models import Job
     >>> d = to_dict(Job(id="j1", kind="scan", state="queued"))
     >>> type(d).__name__, d["state"], d["progress"]["fraction"]
     ('dict', 'queued', 0.0)
@@ -285,7 +285,7 @@ def jsonable(body: Any) -> Any:
 
     Examples
     --------
-    >>> from clients.http.calls import jsonable
+    >>> from fpscan.clients.http.calls import jsonable
     >>> jsonable({"a": 1})
     {'a': 1}
     """
@@ -306,7 +306,7 @@ def read_json(response: httpx.Response) -> Any:
     Examples
     --------
     >>> import httpx
-    >>> from clients.http.calls import read_json
+    >>> from fpscan.clients.http.calls import read_json
     >>> read_json(httpx.Response(200, json={"status": "ok"}))
     {'status': 'ok'}
     """
@@ -319,7 +319,7 @@ def read_model(name: str, *, empty_ok: bool = False) -> Callable[[httpx.Response
     Parameters
     ----------
     name : str
-        A model of ``clients.http.models.MODELS``.
+        A model of ``fpscan.clients.http.models.MODELS``.
     empty_ok : bool, optional
         An empty body reads as None (the answers of pause, resume, abort and cancel).
 
@@ -331,7 +331,7 @@ def read_model(name: str, *, empty_ok: bool = False) -> Callable[[httpx.Response
     Examples
     --------
     >>> import httpx
-    >>> from clients.http.calls import read_model
+    >>> from fpscan.clients.http.calls import read_model
     >>> read_model("Job")(httpx.Response(200, json={"id": "j1", "kind": "scan", "state": "queued"})).state
     'queued'
     >>> read_model("Job", empty_ok=True)(httpx.Response(200)) is None
@@ -351,7 +351,7 @@ def read_models(name: str) -> Callable[[httpx.Response], Any]:
     Parameters
     ----------
     name : str
-        A model of ``clients.http.models.MODELS``.
+        A model of ``fpscan.clients.http.models.MODELS``.
 
     Returns
     -------
@@ -361,7 +361,7 @@ def read_models(name: str) -> Callable[[httpx.Response], Any]:
     Examples
     --------
     >>> import httpx
-    >>> from clients.http.calls import read_models
+    >>> from fpscan.clients.http.calls import read_models
     >>> jobs = read_models("Job")(httpx.Response(200, json={"items": [{"id": "a", "kind": "scan",
     ...                                                                 "state": "queued"}]}))
     >>> [j.id for j in jobs]
@@ -390,7 +390,7 @@ def read_job_id(response: httpx.Response) -> str | None:
     Examples
     --------
     >>> import httpx
-    >>> from clients.http.calls import read_job_id
+    >>> from fpscan.clients.http.calls import read_job_id
     >>> read_job_id(httpx.Response(202, json={"id": "j1"}))
     'j1'
     >>> read_job_id(httpx.Response(202, headers={"location": "/api/jobs/j2"}))
@@ -423,7 +423,7 @@ def idempotency(key: str | None) -> dict[str, str]:
 
     Examples
     --------
-    >>> from clients.http.calls import idempotency
+    >>> from fpscan.clients.http.calls import idempotency
     >>> idempotency("k1")
     {'Idempotency-Key': 'k1'}
     >>> len(idempotency(None)["Idempotency-Key"])
@@ -446,7 +446,7 @@ def check_plane(plane: str) -> None:
 
     Examples
     --------
-    >>> from clients.http.calls import check_plane
+    >>> from fpscan.clients.http.calls import check_plane
     >>> check_plane("xy")
     >>> check_plane("zz")
     Traceback (most recent call last):

@@ -1,26 +1,26 @@
 """The blocking client of the fpscan HTTP API (``docs/api.md``): :class:`Client`.
 
-:class:`Client` is the blocking mixins of every endpoint group (:mod:`clients.http.endpoints`:
+:class:`Client` is the blocking mixins of every endpoint group (:mod:`fpscan.clients.http.endpoints`:
 each endpoint a request builder and a thin method) over one ``httpx.Client``: :meth:`Client._call`
-sends a :class:`~clients.http.calls.Call` or saves a :class:`~clients.http.calls.Download`.
+sends a :class:`~fpscan.clients.http.calls.Call` or saves a :class:`~fpscan.clients.http.calls.Download`.
 Waiting on jobs (:meth:`Client.events`, :meth:`Client.wait`) listens to the Server-Sent Events
 stream ``/api/jobs/{id}/events`` (reconnecting with ``Last-Event-ID``; falling back to polling
 when the stream is unavailable) and reports progress through a callback
-(:mod:`clients.http.waiting`). :class:`clients.http.async_client.AsyncClient` is the same over
+(:mod:`fpscan.clients.http.waiting`). :class:`fpscan.clients.http.async_client.AsyncClient` is the same over
 ``asyncio``.
 
-Responses are parsed into the client's lenient pydantic models (``clients.http.models``) when
+Responses are parsed into the client's lenient pydantic models (``fpscan.clients.http.models``) when
 they fit, else returned as plain ``dict``.
 
-Errors: :class:`~clients.http.errors.ServerUnavailable` when the server cannot be reached,
-:class:`~clients.http.errors.ApiError` (and its subclasses ``AuthError``, ``NotFound``,
+Errors: :class:`~fpscan.clients.http.errors.ServerUnavailable` when the server cannot be reached,
+:class:`~fpscan.clients.http.errors.ApiError` (and its subclasses ``AuthError``, ``NotFound``,
 ``Conflict``) carrying the server's ``detail`` for every 4xx/5xx,
-:class:`~clients.http.errors.JobFailed` / ``JobCancelled`` / ``WaitTimeout`` from
+:class:`~fpscan.clients.http.errors.JobFailed` / ``JobCancelled`` / ``WaitTimeout`` from
 :meth:`Client.wait`.
 
 Example::
 
-    from clients.http import Client
+    from fpscan.clients.http import Client
     with Client("http://127.0.0.1:8000", token="s3cret") as api:
         plan = api.create_plan({...})
         job = api.start_scan(plan_id, "sim")
@@ -35,8 +35,8 @@ from typing import Any, TypeVar
 
 import httpx
 
-from .calls import Call, Download
-from .core import (
+from fpscan.clients.http.calls import Call, Download
+from fpscan.clients.http.core import (
     CHUNK_BYTES,
     Driver,
     Flow,
@@ -51,14 +51,14 @@ from .core import (
     sse_event,
     wait_flow,
 )
-from .endpoints.datasets import Datasets
-from .endpoints.jobs import Jobs
-from .endpoints.plans import Plans
-from .endpoints.reconstructions import Reconstructions
-from .endpoints.scans import Scans
-from .endpoints.server import Server
-from .transport import Connection, raise_for
-from .waiting import ProgressCallback
+from fpscan.clients.http.endpoints.datasets import Datasets
+from fpscan.clients.http.endpoints.jobs import Jobs
+from fpscan.clients.http.endpoints.plans import Plans
+from fpscan.clients.http.endpoints.reconstructions import Reconstructions
+from fpscan.clients.http.endpoints.scans import Scans
+from fpscan.clients.http.endpoints.server import Server
+from fpscan.clients.http.transport import Connection, raise_for
+from fpscan.clients.http.waiting import ProgressCallback
 
 __all__ = ["Client"]
 
@@ -110,7 +110,7 @@ class Client(Connection, Server, Plans, Scans, Datasets, Reconstructions, Jobs):
     --------
     Creating a client opens no connection:
 
-    >>> from clients.http import Client, ServerUnavailable
+    >>> from fpscan.clients.http import Client, ServerUnavailable
     >>> api = Client("http://127.0.0.1:8000/", token="s3cret")
     >>> api.base_url, api.token
     ('http://127.0.0.1:8000', 's3cret')
@@ -127,7 +127,7 @@ class Client(Connection, Server, Plans, Scans, Datasets, Reconstructions, Jobs):
     ...     api.health()
     Traceback (most recent call last):
     ...
-    clients.http.errors.ServerUnavailable: cannot reach fpscan server at http://127.0.0.1:9: ...
+    fpscan.clients.http.errors.ServerUnavailable: cannot reach fpscan server at http://127.0.0.1:9: ...
 
     A session against a running server (``fpscan serve``; needs one, so not run here):
 
@@ -156,12 +156,12 @@ class Client(Connection, Server, Plans, Scans, Datasets, Reconstructions, Jobs):
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    # -- the I/O of the flows (clients.http.core): every endpoint method ends here
+    # -- the I/O of the flows (fpscan.clients.http.core): every endpoint method ends here
     def _call(self, call: Call[T] | Download[T]) -> T:
         return self._run(call_flow(call, self.base_url))
 
     def _run(self, flow: Flow[T]) -> T:
-        """Run ``flow``'s steps (:mod:`clients.http.core`) with blocking I/O; its result."""
+        """Run ``flow``'s steps (:mod:`fpscan.clients.http.core`) with blocking I/O; its result."""
         run = Driver(flow)
         for step in run:
             try:
@@ -260,7 +260,7 @@ class Client(Connection, Server, Plans, Scans, Datasets, Reconstructions, Jobs):
 
         In a Jupyter notebook, without ``on_progress`` and unless ``quiet``, the cell's output
         shows one progress bar, updated in place and ending on the job's final state
-        (``succeeded``, ``failed: why``, ``cancelled``; :mod:`clients.http.notebook`).
+        (``succeeded``, ``failed: why``, ``cancelled``; :mod:`fpscan.clients.http.notebook`).
         Elsewhere nothing is shown.
 
         Parameters

@@ -7,19 +7,19 @@ Each operation is a *flow*: a generator that yields the I/O it needs as a :data:
 stream, :class:`Sleep`, :class:`Report` a progress update) and receives the step's answer,
 or has the step's exception thrown into it; its return value is the operation's result.
 :class:`Driver` steps a flow (answers in, exceptions thrown back, the result out);
-:class:`clients.http.client.Client` does each step's I/O with blocking httpx calls,
-:class:`clients.http.async_client.AsyncClient` with ``await`` s: that is all they differ in.
+:class:`fpscan.clients.http.client.Client` does each step's I/O with blocking httpx calls,
+:class:`fpscan.clients.http.async_client.AsyncClient` with ``await`` s: that is all they differ in.
 What the I/O decides is here too: the :class:`Stream` step's 416 and file, the
 :class:`Follow` step's stop and progress :class:`Report` per event, :func:`sse_event`.
 
-- :func:`call_flow`: an endpoint's :class:`~clients.http.calls.Call` (one request; a
+- :func:`call_flow`: an endpoint's :class:`~fpscan.clients.http.calls.Call` (one request; a
   transport failure is ``ServerUnavailable``, a 4xx/5xx its ``ApiError``) or
-  :class:`~clients.http.calls.Download` (:func:`download_flow`).
+  :class:`~fpscan.clients.http.calls.Download` (:func:`download_flow`).
 - :func:`download_flow`: a resumable download to ``<dest>.part`` (``Range`` + ``If-Range``,
-  RFC 9110 §14.2 / §13.1.5: :class:`~clients.http.transport.Resume`), renamed into place when
+  RFC 9110 §14.2 / §13.1.5: :class:`~fpscan.clients.http.transport.Resume`), renamed into place when
   complete; a 416 starts over once; a cut connection keeps the part for the next call.
 - :func:`wait_flow`: a job's end, following its Server-Sent Events (reconnecting with
-  ``Last-Event-ID``), polling where the stream is unavailable (:mod:`clients.http.waiting`).
+  ``Last-Event-ID``), polling where the stream is unavailable (:mod:`fpscan.clients.http.waiting`).
 """
 from __future__ import annotations
 
@@ -32,12 +32,12 @@ from typing import IO, TYPE_CHECKING, Any, Generic, TypeVar, cast
 
 import httpx
 
-from .calls import Call, Download, Request, field_of, to_dict
-from .endpoints.jobs import _build_get_job
-from .errors import ApiError, ServerUnavailable, WaitTimeout
-from .notebook import job_bar
-from .transport import Resume, raise_for
-from .waiting import (
+from fpscan.clients.http.calls import Call, Download, Request, field_of, to_dict
+from fpscan.clients.http.endpoints.jobs import _build_get_job
+from fpscan.clients.http.errors import ApiError, ServerUnavailable, WaitTimeout
+from fpscan.clients.http.notebook import job_bar
+from fpscan.clients.http.transport import Resume, raise_for
+from fpscan.clients.http.waiting import (
     TERMINAL_STATES,
     ProgressCallback,
     finish,
@@ -131,7 +131,7 @@ class Follow:
 
     @property
     def read_timeout(self) -> float:
-        """Seconds without a byte before the stream counts as dropped (:func:`~clients.http.waiting.read_timeout`)."""
+        """Seconds without a byte before the stream counts as dropped (:func:`~fpscan.clients.http.waiting.read_timeout`)."""
         return read_timeout(self.deadline)
 
     def seen(self, event: str, data: dict, event_id: str | None) -> tuple[Report | None, bool]:
@@ -205,7 +205,7 @@ class Driver(Generic[T]):
 
     Examples
     --------
-    >>> from clients.http.core import Driver, Sleep
+    >>> from fpscan.clients.http.core import Driver, Sleep
     >>> def flow():
     ...     slept = yield Sleep(0.5)
     ...     return f"slept {slept} s"
@@ -250,8 +250,8 @@ def request_args(req: Request) -> Iterator[dict[str, Any]]:
 
     Examples
     --------
-    >>> from clients.http.calls import Request
-    >>> from clients.http.core import request_args
+    >>> from fpscan.clients.http.calls import Request
+    >>> from fpscan.clients.http.core import request_args
     >>> with request_args(Request("POST", "/api/plans", json={"a": 1})) as args:
     ...     sorted(args), args["json"]
     (['data', 'headers', 'json', 'method', 'params', 'url'], {'a': 1})
@@ -285,7 +285,7 @@ def events_request(job_id: str, last_event_id: str | None, timeout: float,
 
     Examples
     --------
-    >>> from clients.http.core import events_request
+    >>> from fpscan.clients.http.core import events_request
     >>> args = events_request("j1", "7", 30.0, 20.0)
     >>> args["url"], args["headers"], args["timeout"].read
     ('/api/jobs/j1/events', {'Last-Event-ID': '7'}, 20.0)
@@ -297,7 +297,7 @@ def events_request(job_id: str, last_event_id: str | None, timeout: float,
 
 def sse_event(sse: ServerSentEvent) -> tuple[str, dict, str | None] | None:
     """What ``events`` yields for one received Server-Sent Event: ``(event, data, id)``
-    (:func:`~clients.http.waiting.parse_event`), or None for a keep-alive comment (no event,
+    (:func:`~fpscan.clients.http.waiting.parse_event`), or None for a keep-alive comment (no event,
     SSE spec; ``httpx_sse`` hands it on with an empty ``data``).
 
     Parameters
@@ -311,7 +311,7 @@ def sse_event(sse: ServerSentEvent) -> tuple[str, dict, str | None] | None:
     Examples
     --------
     >>> from httpx_sse import ServerSentEvent
-    >>> from clients.http.core import sse_event
+    >>> from fpscan.clients.http.core import sse_event
     >>> sse_event(ServerSentEvent("progress", '{"fraction": 0.5}', "3")), sse_event(ServerSentEvent(data=""))
     (('progress', {'fraction': 0.5}, '3'), None)
     """
@@ -348,8 +348,8 @@ def call_flow(call: Call[T] | Download[T], base_url: str) -> Flow[T]:
     Run with a stand-in for the network (a client sends instead):
 
     >>> import httpx
-    >>> from clients.http.calls import Call, Request, read_json
-    >>> from clients.http.core import call_flow
+    >>> from fpscan.clients.http.calls import Call, Request, read_json
+    >>> from fpscan.clients.http.core import call_flow
     >>> flow = call_flow(Call(Request("GET", "/api/health"), read_json), "http://h")
     >>> step = next(flow)
     >>> step.request.path
@@ -426,9 +426,9 @@ def wait_flow(job_id: str, base_url: str, *, on_progress: ProgressCallback | Non
               timeout: float | None = None, poll_interval: float = 0.5,
               raise_on_failure: bool = True, quiet: bool = False) -> Flow[Any]:
     """Wait for the end of job ``job_id``: ``Client.wait`` / ``AsyncClient.wait`` (their
-    docstrings say what it does; the rules are :mod:`clients.http.waiting`'s). In a Jupyter
+    docstrings say what it does; the rules are :mod:`fpscan.clients.http.waiting`'s). In a Jupyter
     kernel, without ``on_progress`` and not ``quiet``, the job's progress is one notebook bar
-    (:mod:`clients.http.notebook`) that ends on the job's final state.
+    (:mod:`fpscan.clients.http.notebook`) that ends on the job's final state.
 
     Parameters
     ----------

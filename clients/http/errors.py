@@ -26,7 +26,7 @@ class FpscanClientError(Exception):
 
     Examples
     --------
-    >>> from clients.http import FpscanClientError, NotFound, ServerUnavailable, WaitTimeout
+    >>> from fpscan.clients.http import FpscanClientError, NotFound, ServerUnavailable, WaitTimeout
     >>> all(issubclass(e, FpscanClientError) for e in (NotFound, ServerUnavailable, WaitTimeout))
     True
     >>> issubclass(FpscanClientError, Exception)
@@ -51,7 +51,7 @@ class ServerUnavailable(FpscanClientError):
 
     Examples
     --------
-    >>> from clients.http import ServerUnavailable
+    >>> from fpscan.clients.http import ServerUnavailable
     >>> exc = ServerUnavailable("http://127.0.0.1:8000", "connection refused")
     >>> print(exc)
     cannot reach fpscan server at http://127.0.0.1:8000: connection refused
@@ -82,7 +82,7 @@ def format_detail(detail: Any) -> str:
 
     Examples
     --------
-    >>> from clients.http.errors import format_detail
+    >>> from fpscan.clients.http.errors import format_detail
     >>> format_detail([{"loc": ["body", "params", "eps"], "msg": "Input should be greater than or equal to 1e-14"}])
     'params.eps: Input should be greater than or equal to 1e-14'
     >>> format_detail(None)
@@ -127,7 +127,7 @@ class ApiError(FpscanClientError):
 
     Examples
     --------
-    >>> from clients.http import ApiError
+    >>> from fpscan.clients.http import ApiError
     >>> exc = ApiError(422, [{"loc": ["body", "eps"], "msg": "must be in [1e-14, 1e-1]"}], method="POST")
     >>> print(exc)
     HTTP 422: eps: must be in [1e-14, 1e-1]
@@ -154,8 +154,8 @@ class AuthError(ApiError):
 
     Examples
     --------
-    >>> from clients.http import ApiError, AuthError
-    >>> from clients.http.errors import error_for_status
+    >>> from fpscan.clients.http import ApiError, AuthError
+    >>> from fpscan.clients.http.errors import error_for_status
     >>> exc = error_for_status(401, "missing bearer token")
     >>> type(exc).__name__, isinstance(exc, ApiError)
     ('AuthError', True)
@@ -172,7 +172,7 @@ class NotFound(ApiError):
 
     Examples
     --------
-    >>> from clients.http.errors import error_for_status
+    >>> from fpscan.clients.http.errors import error_for_status
     >>> exc = error_for_status(404, "no such job abc", method="GET", url="http://127.0.0.1:8000/api/jobs/abc")
     >>> type(exc).__name__, str(exc)
     ('NotFound', 'HTTP 404: no such job abc')
@@ -189,7 +189,7 @@ class Conflict(ApiError):
 
     Examples
     --------
-    >>> from clients.http.errors import error_for_status
+    >>> from fpscan.clients.http.errors import error_for_status
     >>> exc = error_for_status(409, "the scan is not running")
     >>> type(exc).__name__, exc.detail
     ('Conflict', 'the scan is not running')
@@ -212,7 +212,7 @@ class JobError(FpscanClientError):
 
     Examples
     --------
-    >>> from clients.http import JobCancelled, JobError, JobFailed
+    >>> from fpscan.clients.http import JobCancelled, JobError, JobFailed
     >>> issubclass(JobFailed, JobError), issubclass(JobCancelled, JobError)
     (True, True)
     >>> JobError({"id": "j1", "state": "cancelled"}, "job j1 was cancelled").job["state"]
@@ -234,7 +234,7 @@ class JobFailed(JobError):
 
     Examples
     --------
-    >>> from clients.http import JobFailed
+    >>> from fpscan.clients.http import JobFailed
     >>> exc = JobFailed({"id": "j1", "state": "failed", "error": "out of memory"}, "job j1 failed: out of memory")
     >>> print(exc)
     job j1 failed: out of memory
@@ -253,7 +253,7 @@ class JobCancelled(JobError):
 
     Examples
     --------
-    >>> from clients.http import JobCancelled
+    >>> from fpscan.clients.http import JobCancelled
     >>> exc = JobCancelled({"id": "j1", "state": "cancelled"}, "job j1 was cancelled")
     >>> print(exc)
     job j1 was cancelled
@@ -272,7 +272,7 @@ class WaitTimeout(FpscanClientError, TimeoutError):
 
     Examples
     --------
-    >>> from clients.http import FpscanClientError, WaitTimeout
+    >>> from fpscan.clients.http import FpscanClientError, WaitTimeout
     >>> issubclass(WaitTimeout, TimeoutError), issubclass(WaitTimeout, FpscanClientError)
     (True, True)
     >>> print(WaitTimeout("job j1 still running after 5 s"))
@@ -300,7 +300,7 @@ def error_for_status(status_code: int, detail: Any, *, method: str = "", url: st
 
     Examples
     --------
-    >>> from clients.http.errors import error_for_status
+    >>> from fpscan.clients.http.errors import error_for_status
     >>> type(error_for_status(403, "wrong token")).__name__
     'AuthError'
     >>> print(error_for_status(500, None))

@@ -1,17 +1,17 @@
 """The client's own view of the API responses it parses (pydantic; no server imports).
 
-They subclass the response models of ``docs/api.md`` as ``wire.models`` defines their
-fields once (the server's ``service.api.models`` narrow the same ones) and stay lenient,
+They subclass the response models of ``docs/api.md`` as ``fpscan.wire.models`` defines their
+fields once (the server's ``fpscan.service.api.models`` narrow the same ones) and stay lenient,
 so a client keeps working against a slightly newer or older server: unknown fields are
 kept (``extra="allow"``), states and kinds are plain strings, and fields a server may omit
 have defaults. A response that does not fit is returned as the raw JSON (see
-:func:`clients.http.calls.as_model`). Units are SI (m, s, Hz).
+:func:`fpscan.clients.http.calls.as_model`). Units are SI (m, s, Hz).
 """
 from __future__ import annotations
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from wire import models as wire
+from fpscan.wire import models as wire
 
 __all__ = ["Plan", "PlanPreview", "JobProgress", "Attempt", "Timings", "Job", "Scanner", "PreviewInfo", "MODELS"]
 
@@ -48,7 +48,7 @@ class Plan(wire.Plan):
 
     Examples
     --------
-    >>> from clients.http.models import Plan
+    >>> from fpscan.clients.http.models import Plan
     >>> plan = Plan.model_validate({"id": "abc", "kind": "full", "n_points": 9, "order": "serpentine"})
     >>> plan.n_points, plan.weight_ratio, plan.order  # a field this client does not know is kept
     (9, None, 'serpentine')
@@ -73,7 +73,7 @@ class PlanPreview(wire.PlanPreview):
 
     Examples
     --------
-    >>> from clients.http.models import PlanPreview
+    >>> from fpscan.clients.http.models import PlanPreview
     >>> PlanPreview.model_validate({"points": 53, "weight_ratio": 2.83})
     PlanPreview(points=53, weight_ratio=2.83, expected_scan_time_s=None, preview_png_base64=None)
     """
@@ -107,7 +107,7 @@ class JobProgress(wire.JobProgress):
 
     Examples
     --------
-    >>> from clients.http.models import JobProgress
+    >>> from fpscan.clients.http.models import JobProgress
     >>> p = JobProgress.model_validate({"fraction": 0.5, "stage": "acquiring", "points_done": 800, "eta_s": 16.0})
     >>> p.fraction, p.stage, p.points_total
     (0.5, 'acquiring', None)
@@ -134,7 +134,7 @@ class Attempt(wire.Attempt):
 
     Examples
     --------
-    >>> from clients.http.models import Attempt
+    >>> from fpscan.clients.http.models import Attempt
     >>> a = Attempt.model_validate({"attempt": 1, "started": 100.0, "ended": 102.5, "run_s": 2.5,
     ...                             "reason": "the worker process died"})
     >>> a.run_s, a.reason
@@ -159,7 +159,7 @@ class Timings(wire.Timings):
 
     Examples
     --------
-    >>> from clients.http.models import Timings
+    >>> from fpscan.clients.http.models import Timings
     >>> t = Timings.model_validate({"created": 100.0, "started": 101.5, "queued_s": 1.5})
     >>> t.queued_s, t.finished
     (1.5, None)
@@ -193,7 +193,7 @@ class Job(wire.Job):
 
     Examples
     --------
-    >>> from clients.http.models import Job
+    >>> from fpscan.clients.http.models import Job
     >>> job = Job.model_validate({"id": "j1", "kind": "scan", "state": "running",
     ...                           "progress": {"fraction": 0.25, "stage": "acquiring"}})
     >>> job.state, job.progress.fraction, job.error
@@ -223,7 +223,7 @@ class Scanner(wire.Scanner):
 
     Examples
     --------
-    >>> from clients.http.models import Scanner
+    >>> from fpscan.clients.http.models import Scanner
     >>> Scanner.model_validate({"id": "sim", "status": "idle"})
     Scanner(id='sim', port=None, status='idle', job_id=None, identity=None)
     """
@@ -249,7 +249,7 @@ class PreviewInfo(wire.PreviewInfo):
 
     Examples
     --------
-    >>> from clients.http.models import PreviewInfo
+    >>> from fpscan.clients.http.models import PreviewInfo
     >>> info = PreviewInfo.model_validate({"version": 3, "points_used": 120, "updated": 1700000000.0})
     >>> info.version, info.points_used, info.wavelength_index
     (3, 120, None)

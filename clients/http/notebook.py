@@ -1,9 +1,9 @@
 """A job's progress bar in a Jupyter notebook, for the HTTP client's waits.
 
-:meth:`clients.http.Client.wait` and :meth:`clients.http.AsyncClient.wait` called without an
+:meth:`fpscan.clients.http.Client.wait` and :meth:`fpscan.clients.http.AsyncClient.wait` called without an
 ``on_progress`` callback in a Jupyter kernel (IPython's ``ZMQInteractiveShell``) show one bar
 in the cell's output, updated in place (IPython's ``display(..., display_id=True)`` and
-``update``, as ``service.notebook``'s bar of the library's ``reconstruct``, and drawn the same
+``update``, as ``fpscan.service.notebook``'s bar of the library's ``reconstruct``, and drawn the same
 way: an HTML ``<progress>`` element and a plain-text form for consoles and saved notebooks).
 It shows what the server sends in the job's progress (``stage``, an iterative method's
 ``iteration``/``iterations_max``/``stop_value``/``stop_tol``, ``fraction`` and ``eta_s``) and
@@ -12,7 +12,7 @@ wait stopped. Outside a notebook, with a callback, or with ``quiet=True`` nothin
 IPython is imported only inside a notebook, where it is already loaded.
 
 The HTTP client never imports ``service`` (the import contracts in ``pyproject.toml``), so
-this module reads the job's progress fields itself rather than ``service.progress``'s.
+this module reads the job's progress fields itself rather than ``fpscan.service.progress``'s.
 """
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ import time
 from collections.abc import Mapping
 from typing import Any
 
-from .calls import field_of, to_dict
+from fpscan.clients.http.calls import field_of, to_dict
 
 __all__ = ["in_notebook", "describe", "JobBar", "job_bar", "REDRAW_S"]
 
@@ -41,7 +41,7 @@ def in_notebook() -> bool:
 
     Examples
     --------
-    >>> from clients.http.notebook import in_notebook
+    >>> from fpscan.clients.http.notebook import in_notebook
     >>> in_notebook()
     False
     """
@@ -70,7 +70,7 @@ def describe(progress: Mapping[str, Any]) -> str:
 
     Examples
     --------
-    >>> from clients.http.notebook import describe
+    >>> from fpscan.clients.http.notebook import describe
     >>> describe({"stage": "acquiring"})
     'acquiring'
     >>> describe({"stage": "iteration 7/100", "iteration": 7, "iterations_max": 100,
@@ -189,7 +189,7 @@ def job_bar(job: Any, *, on_progress: Any = None, quiet: bool = False) -> JobBar
 
     Examples
     --------
-    >>> from clients.http.notebook import job_bar
+    >>> from fpscan.clients.http.notebook import job_bar
     >>> job_bar({"id": "j1", "state": "running"}) is None  # not a notebook
     True
     """

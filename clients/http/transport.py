@@ -1,8 +1,8 @@
 """What both clients share on the wire: the connection settings, the error of a 4xx/5xx
 answer, resumable downloads and the OME-Zarr zip's unpacking.
 
-:class:`clients.http.client.Client` and :class:`clients.http.async_client.AsyncClient` send with
-``httpx`` (blocking or ``asyncio``) what :mod:`clients.http.core`'s flows ask for; everything
+:class:`fpscan.clients.http.client.Client` and :class:`fpscan.clients.http.async_client.AsyncClient` send with
+``httpx`` (blocking or ``asyncio``) what :mod:`fpscan.clients.http.core`'s flows ask for; everything
 here is the same for both. Downloads go to
 ``<dest>.part`` and are renamed into place when complete; one cut off by a network failure
 resumes where it stopped on the next call (HTTP ``Range`` with ``If-Range``, RFC 9110
@@ -19,7 +19,7 @@ from typing import IO, Any
 
 import httpx
 
-from .errors import ServerUnavailable, error_for_status
+from fpscan.clients.http.errors import ServerUnavailable, error_for_status
 
 __all__ = ["Connection", "raise_for", "Resume", "unzip_folder"]
 
@@ -52,7 +52,7 @@ class Connection:
 
     Examples
     --------
-    >>> from clients.http.transport import Connection
+    >>> from fpscan.clients.http.transport import Connection
     >>> c = Connection("http://127.0.0.1:8000/", token="s3cret")
     >>> c.base_url, c.headers()["Authorization"]
     ('http://127.0.0.1:8000', 'Bearer s3cret')
@@ -105,7 +105,7 @@ def _detail(response: httpx.Response) -> Any:
 
 
 def raise_for(response: httpx.Response) -> None:
-    """Raise the :class:`~clients.http.errors.ApiError` of a 4xx/5xx answer (its subclass by
+    """Raise the :class:`~fpscan.clients.http.errors.ApiError` of a 4xx/5xx answer (its subclass by
     status), carrying the server's ``detail`` verbatim; nothing for a 1xx-3xx.
 
     Parameters
@@ -121,12 +121,12 @@ def raise_for(response: httpx.Response) -> None:
     Examples
     --------
     >>> import httpx
-    >>> from clients.http.transport import raise_for
+    >>> from fpscan.clients.http.transport import raise_for
     >>> r = httpx.Response(404, json={"detail": "no job j1"}, request=httpx.Request("GET", "http://h/api/jobs/j1"))
     >>> raise_for(r)
     Traceback (most recent call last):
     ...
-    clients.http.errors.NotFound: HTTP 404: no job j1
+    fpscan.clients.http.errors.NotFound: HTTP 404: no job j1
     """
     if response.status_code >= 400:
         raise error_for_status(response.status_code, _detail(response), method=response.request.method,
@@ -152,7 +152,7 @@ class Resume:
     Examples
     --------
     >>> from pathlib import Path
-    >>> from clients.http.transport import Resume
+    >>> from fpscan.clients.http.transport import Resume
     >>> r = Resume(Path("/tmp/none/scan.h5"))
     >>> r.part.name, r.headers()  # nothing held yet: ask for everything
     ('scan.h5.part', {})
@@ -237,7 +237,7 @@ def unzip_folder(zipped: Path, dest: Path) -> Path:
     --------
     >>> import tempfile, zipfile
     >>> from pathlib import Path
-    >>> from clients.http.transport import unzip_folder
+    >>> from fpscan.clients.http.transport import unzip_folder
     >>> tmp = Path(tempfile.mkdtemp())
     >>> with zipfile.ZipFile(tmp / "v.zip", "w") as z:
     ...     z.writestr("volume.ome.zarr/zarr.json", "{}")

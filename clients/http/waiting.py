@@ -11,8 +11,8 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from .calls import field_of
-from .errors import ApiError, JobCancelled, JobFailed
+from fpscan.clients.http.calls import field_of
+from fpscan.clients.http.errors import ApiError, JobCancelled, JobFailed
 
 __all__ = ["TERMINAL_STATES", "ProgressCallback", "read_timeout", "past", "report_snapshot", "keep_sse",
            "parse_event", "progress_of", "finish"]
@@ -38,7 +38,7 @@ def read_timeout(deadline: float | None) -> float:
 
     Examples
     --------
-    >>> from clients.http.waiting import read_timeout
+    >>> from fpscan.clients.http.waiting import read_timeout
     >>> read_timeout(None)
     20.0
     """
@@ -60,7 +60,7 @@ def past(deadline: float | None) -> bool:
 
     Examples
     --------
-    >>> from clients.http.waiting import past
+    >>> from fpscan.clients.http.waiting import past
     >>> past(None), past(0.0)
     (False, True)
     """
@@ -88,7 +88,7 @@ def report_snapshot(job: Any, use_sse: bool) -> bool:
 
     Examples
     --------
-    >>> from clients.http.waiting import report_snapshot
+    >>> from fpscan.clients.http.waiting import report_snapshot
     >>> running = {"state": "running", "progress": {"fraction": 0.5, "stage": "iteration 3/100"}}
     >>> report_snapshot(running, use_sse=True), report_snapshot(running, use_sse=False)
     (False, True)
@@ -120,8 +120,8 @@ def keep_sse(exc: ApiError) -> bool:
 
     Examples
     --------
-    >>> from clients.http import ApiError
-    >>> from clients.http.waiting import keep_sse
+    >>> from fpscan.clients.http import ApiError
+    >>> from fpscan.clients.http.waiting import keep_sse
     >>> keep_sse(ApiError(501, "no events here"))
     False
     """
@@ -147,7 +147,7 @@ def parse_event(name: str | None, payload: str) -> tuple[str, dict]:
 
     Examples
     --------
-    >>> from clients.http.waiting import parse_event
+    >>> from fpscan.clients.http.waiting import parse_event
     >>> parse_event("progress", '{"fraction": 0.5}'), parse_event(None, "hello")
     (('progress', {'fraction': 0.5}), ('message', {'message': 'hello'}))
     """
@@ -173,7 +173,7 @@ def progress_of(data: dict) -> dict:
 
     Examples
     --------
-    >>> from clients.http.waiting import progress_of
+    >>> from fpscan.clients.http.waiting import progress_of
     >>> progress_of({"progress": {"fraction": 1.0}}), progress_of({"fraction": 0.2})
     ({'fraction': 1.0}, {'fraction': 0.2})
     """
@@ -201,13 +201,13 @@ def finish(job: Any) -> Any:
 
     Examples
     --------
-    >>> from clients.http.waiting import finish
+    >>> from fpscan.clients.http.waiting import finish
     >>> finish({"id": "j1", "state": "succeeded"})["state"]
     'succeeded'
     >>> finish({"id": "j1", "state": "failed", "error": "disk full"})
     Traceback (most recent call last):
     ...
-    clients.http.errors.JobFailed: job j1 failed: disk full
+    fpscan.clients.http.errors.JobFailed: job j1 failed: disk full
     """
     state = field_of(job, "state")
     if state == "failed":

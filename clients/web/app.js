@@ -456,7 +456,7 @@ function route() {
 /* ------------------------------------------------------------------ Plan view */
 
 /* Mask kinds and their parameters come from the server (GET /api/plans/kinds, derived
- * from the parameter models in service.plans.kinds): one entry per kind with a label, a
+ * from the parameter models in fpscan.service.plans.kinds): one entry per kind with a label, a
  * description and one descriptor per parameter {name, title, description, widget
  * (number | integer | numbers | pairs), integer, required, scalar, default, example, unit,
  * display_unit}. The form shows each length in its display unit; the API gets SI units. */
@@ -599,7 +599,7 @@ function planBodyCommon() {
       wavelengths: wl,
       sound_speed: numberField("acq-c", "Sound speed"),
     },
-    force: $("acq-force").checked, // a sound speed outside the plausible range (driver.units' rule)
+    force: $("acq-force").checked, // a sound speed outside the plausible range (fpscan.driver.units' rule)
   };
 }
 
@@ -607,7 +607,7 @@ let previewTimer = null;
 let previewAbort = null;
 let previewSeq = 0;
 /** A preview refused with 429 is asked again after the server's Retry-After for busy
- *  slots (service.api.context.Slots.retry_after_s, 5 s). */
+ *  slots (fpscan.service.api.context.Slots.retry_after_s, 5 s). */
 const PREVIEW_RETRY_MS = 5000;
 
 /** Preview the form after `delay` ms. The preview panel is aria-busy from now until the
@@ -1034,7 +1034,7 @@ function jobProgressText(j) {
 }
 
 /* ------------------------------------------------------------------ iterative methods
- * The same words as the CLI (service.progress: describe_iteration, outcome). */
+ * The same words as the CLI (fpscan.service.progress: describe_iteration, outcome). */
 
 /** "iteration 7/100, image change 0.021 (stops below 0.005)" from a job's progress fields
  *  (iteration, iterations_max, stop_rule, stop_value, stop_tol, stop_armed, stop_waits_for: what
@@ -1062,7 +1062,7 @@ function pctText(x) {
 }
 
 /** A field the method declares for its summary (GET /api/reconstructions/methods: summary;
- *  service.progress.Shown) in words, from params_used: "0.0123 (automatic)",
+ *  fpscan.service.progress.Shown) in words, from params_used: "0.0123 (automatic)",
  *  "3.1 % of the data, noise 3.0 %"; null without its value. */
 function shownText(f, used) {
   const value = used[f.key];
@@ -1632,7 +1632,7 @@ async function cancelResultJob() {
 }
 
 /* Reconstruction methods come from the server (GET /api/reconstructions/methods, i.e.
- * the registry service.recon.methods): both method choices list them, and the reconstruct
+ * the registry fpscan.service.recon.methods): both method choices list them, and the reconstruct
  * form gets one field per option of any method, built from each option's value schema
  * (type, minimum/maximum, enum, unit, default); choosing a method shows only the options
  * it takes, starting from its own defaults. The speed of sound has its own field. */
@@ -1729,7 +1729,7 @@ async function buildMethodSelects() {
     sel.value = preferred in METHODS ? preferred : list[0].name;
   }
   // the "another medium" labels: the plausible speeds of the registry's one speed option
-  // (sound_speed's value schema; service.recon.methods.options.SpeedOptions)
+  // (sound_speed's value schema; fpscan.service.recon.methods.options.SpeedOptions)
   const speed = ((list[0] || {}).options || []).find((o) => o.name === "sound_speed");
   const number = speed && (speed.value_schema.anyOf || []).find((s) => s.type === "number");
   if (number) {
@@ -1738,7 +1738,7 @@ async function buildMethodSelects() {
   renderReconOptions();
 }
 
-/* File formats come from the server (GET /api/formats, i.e. the registry service.formats):
+/* File formats come from the server (GET /api/formats, i.e. the registry fpscan.service.formats):
  * the upload form lists those an upload may have, in the server's order, the first chosen;
  * a job's downloads offer every export format (exportsOf). */
 let FORMATS = null; // name -> the server's FormatInfo
@@ -1761,7 +1761,7 @@ async function buildFormatSelect() {
 }
 
 /** Whether the chosen upload format declares the load option ``name`` (GET /api/formats: its
- *  ``options``, the format's own typed model, service.formats.load_options). */
+ *  ``options``, the format's own typed model, fpscan.service.formats.load_options). */
 function takesLoadOption(name) {
   const f = (FORMATS || {})[$("upload-format").value];
   return !!f && (f.options || []).some((o) => o.name === name);
@@ -1820,7 +1820,7 @@ async function startRecon(ev) {
   try {
     const c = speedField("recon-c");
     if (c !== undefined) params.sound_speed = c; // the HTTP name (c: its deprecated alias)
-    if ($("recon-force").checked) params.force = true; // c outside the plausible range (driver.units' rule)
+    if ($("recon-force").checked) params.force = true; // c outside the plausible range (fpscan.driver.units' rule)
   } catch (err) { showError(err); return; }
   const body = { scan_job_id: resultJob, method: $("recon-method").value, params };
   if ($("recon-unmix").checked) body.unmix = {}; // every wavelength: no wavelength choice

@@ -1,7 +1,7 @@
 """Who may talk to the service, decided before any work is done for a request.
 
 :class:`AccessGate` (the outermost ASGI middleware but for health's lane,
-``service.api.lanes.HealthLane``, which applies its rules first) answers a request from
+``fpscan.service.api.lanes.HealthLane``, which applies its rules first) answers a request from
 its headers alone, before a slot is counted, a turn or a thread taken or a byte of the
 body read:
 
@@ -30,8 +30,8 @@ from urllib.parse import urlsplit
 from fastapi.responses import JSONResponse
 from starlette.types import ASGIApp, Receive, Scope, Send
 
-from service.api.logcaps import RefusalLog, shown
-from service.settings import Settings, is_loopback
+from fpscan.service.api.logcaps import RefusalLog, shown
+from fpscan.service.settings import Settings, is_loopback
 
 __all__ = [
     "STATE_CHANGING", "PUBLIC_API_PATHS", "WILDCARD_BINDS", "host_name", "host_allowed", "same_origin",
@@ -175,7 +175,7 @@ class AccessGate:
     body is read for a refusal, and the refusal closes the connection (401 with
     ``WWW-Authenticate: Bearer``, 403, or 503 when the token file cannot be read). Refusals
     are logged at most one line per client address per interval, each field capped
-    (``service.api.logcaps``).
+    (``fpscan.service.api.logcaps``).
 
     Parameters
     ----------

@@ -2,12 +2,12 @@
 
 Wires the job store (SQLite, WAL), restart recovery, the executor (local process pool or
 dask.distributed), the reconstruction queue, the scan manager, the routes (docs/api.md;
-health in :mod:`service.api.health`), error handling (every error is
-``{"detail": "<reason>"}``; internals stay in the log: :mod:`service.api.errors`), the
-middlewares (each in its module: :mod:`service.api.upload_limit`,
-:mod:`service.api.json_depth`, :mod:`service.api.short_ids`, :mod:`service.api.access`,
-:mod:`service.api.lanes`, :mod:`service.api.internal_errors`), the OpenAPI schema
-(:mod:`service.api.openapi`) and the static web page (``settings.web_root``).
+health in :mod:`fpscan.service.api.health`), error handling (every error is
+``{"detail": "<reason>"}``; internals stay in the log: :mod:`fpscan.service.api.errors`), the
+middlewares (each in its module: :mod:`fpscan.service.api.upload_limit`,
+:mod:`fpscan.service.api.json_depth`, :mod:`fpscan.service.api.short_ids`, :mod:`fpscan.service.api.access`,
+:mod:`fpscan.service.api.lanes`, :mod:`fpscan.service.api.internal_errors`), the OpenAPI schema
+(:mod:`fpscan.service.api.openapi`) and the static web page (``settings.web_root``).
 """
 from __future__ import annotations
 
@@ -22,19 +22,19 @@ from typing import TYPE_CHECKING, Any
 from fastapi import FastAPI
 from starlette.staticfiles import StaticFiles
 
-from driver.acquire import software_version
-from service.api.context import Context, Slots, default_slots
-from service.api.errors import ERROR_RESPONSES, add_error_handlers
-from service.api.health import add_health_routes
-from service.api.internal_errors import InternalErrors
-from service.api.openapi import render_openapi_once, state_security_in_openapi
-from service.api.short_ids import ShortIds
-from service.api.upload_limit import UploadLimit
-from service.settings import Settings
+from fpscan.driver.acquire import software_version
+from fpscan.service.api.context import Context, Slots, default_slots
+from fpscan.service.api.errors import ERROR_RESPONSES, add_error_handlers
+from fpscan.service.api.health import add_health_routes
+from fpscan.service.api.internal_errors import InternalErrors
+from fpscan.service.api.openapi import render_openapi_once, state_security_in_openapi
+from fpscan.service.api.short_ids import ShortIds
+from fpscan.service.api.upload_limit import UploadLimit
+from fpscan.service.settings import Settings
 
 if TYPE_CHECKING:
-    from service.jobs.store import JobStore
-    from service.storage.usage import DiskUsage
+    from fpscan.service.jobs.store import JobStore
+    from fpscan.service.storage.usage import DiskUsage
 
 __all__ = ["VERSION", "PROCESS_START", "warm_routes", "freeze_startup_objects", "create_app"]
 
@@ -114,7 +114,7 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True, 
         The reconstruction executor the queue uses (``fpscan serve`` starts the local pool's
         workers before it imports this module, so they warm up while the server loads;
         closed with the app); default None: made from ``settings`` at start-up
-        (:func:`service.jobs.executors.make_executor`).
+        (:func:`fpscan.service.jobs.executors.make_executor`).
 
     Returns
     -------
@@ -127,20 +127,20 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True, 
                   responses=ERROR_RESPONSES,
                   description="Planar Fabry-Perot photoacoustic scanning: plans, scans, reconstructions as jobs.")
     add_error_handlers(app)
-    from service.api.json_depth import JsonDepthLimit
+    from fpscan.service.api.json_depth import JsonDepthLimit
 
     app.add_middleware(JsonDepthLimit)  # inside UploadLimit: a body within its size limit, then its nesting
     app.add_middleware(UploadLimit, limit=settings.upload_limit, json_limit=settings.json_limit, slots=slots,
                        body_timeout_s=settings.body_timeout_s, request_json_limit=settings.request_json_limit,
                        min_rate=settings.body_min_rate, rate_window_s=settings.body_rate_window_s)
     app.add_middleware(ShortIds)
-    from service.api.access import AccessGate
-    from service.api.lanes import HealthLane, RequestTurns
+    from fpscan.service.api.access import AccessGate
+    from fpscan.service.api.lanes import HealthLane, RequestTurns
 
     app.add_middleware(RequestTurns)  # requests start a few per loop iteration (health's lane)
     app.add_middleware(AccessGate, settings=settings)  # before any slot, thread, turn or body byte
 
-    from service.api import datasets, exports, jobs, plans, reconstructions, retention, scans
+    from fpscan.service.api import datasets, exports, jobs, plans, reconstructions, retention, scans
 
     health_document = add_health_routes(app, settings)
     # outermost: health answered ahead of the queue, after the gate's own rules
@@ -161,13 +161,13 @@ def _lifespan(settings: Settings, slots: dict[str, Slots], start_workers: bool,
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        from service.jobs.store import JobStore
+        from fpscan.service.jobs.store import JobStore
 
         Path(settings.data_dir).mkdir(parents=True, exist_ok=True)
         settings.token_value()  # an unreadable or empty token_file stops the start here
         store = JobStore(settings.database, reserve_bytes=settings.db_reserve_bytes)
         context = Context(settings=settings, store=store, slots=slots)
-        from service.api.jobs import EventWakeups
+        from fpscan.service.api.jobs import EventWakeups
 
         context.wakeups = EventWakeups(asyncio.get_running_loop())
         store.add_listener(context.wakeups.notify)
@@ -186,11 +186,11 @@ def _lifespan(settings: Settings, slots: dict[str, Slots], start_workers: bool,
 
 
 async def _count_disk_usage(settings: Settings) -> DiskUsage:
-    """The data folder's disk-use counters (``service.storage.usage``) set by one walk
+    """The data folder's disk-use counters (``fpscan.service.storage.usage``) set by one walk
     before the server answers (in a thread: start-up only), then checked by a walk every
     ``disk_walk_period_s`` in a thread of their own; returns them."""
-    from service.jobs.lifecycle import disk_usage
-    from service.storage.usage import usage_for
+    from fpscan.service.jobs.lifecycle import disk_usage
+    from fpscan.service.storage.usage import usage_for
 
     usage = usage_for(settings.data_dir, settings.database)
     await asyncio.to_thread(usage.reconcile, disk_usage)
@@ -202,8 +202,8 @@ def _start_workers(context: Context, store: JobStore, settings: Settings, execut
     """Start the reconstruction queue (after crash recovery, debris removal and the
     retention policy) on ``executor`` (default: made from the settings), the plan worker and
     the scan manager; returns the executor."""
-    from service.jobs.executors import make_executor
-    from service.jobs.queue import ReconQueue
+    from fpscan.service.jobs.executors import make_executor
+    from fpscan.service.jobs.queue import ReconQueue
 
     if executor is None:
         executor = make_executor(settings)
@@ -211,7 +211,7 @@ def _start_workers(context: Context, store: JobStore, settings: Settings, execut
         context.extras["worker_starts"] = executor.start_workers()  # in the background
     context.queue = ReconQueue(store, executor, settings)
     recovered = store.recover(context.queue.owner, settings.max_attempts)
-    from service.jobs.queue import remove_debris
+    from fpscan.service.jobs.queue import remove_debris
 
     debris = remove_debris(settings.data_dir, PROCESS_START)
     if debris:
@@ -221,17 +221,17 @@ def _start_workers(context: Context, store: JobStore, settings: Settings, execut
             store.set_state(jid, "queued", only_from=("paused",), progress={"stage": "resuming", "reason": None})
     log.info("startup recovered=%s executor=%s resume_scans=%s", recovered, settings.executor,
              settings.resume_scans)
-    from service.jobs.lifecycle import apply_retention
+    from fpscan.service.jobs.lifecycle import apply_retention
 
     apply_retention(store, settings)  # a policy tightened while the server was down
     context.queue.start()
-    from service.api.plans import plan_executor
-    from service.api.plans import warm_up as warm_plan_worker
+    from fpscan.service.api.plans import plan_executor
+    from fpscan.service.api.plans import warm_up as warm_plan_worker
 
     if settings.warm_up:  # the plan worker loads now, in the background, not at the first plan request
         plan_executor(context).submit(warm_plan_worker)  # the first request queues behind it
     try:
-        from service.jobs.scan_manager import ScanManager
+        from fpscan.service.jobs.scan_manager import ScanManager
 
         context.scans = ScanManager(store, settings)
         context.scans.start()

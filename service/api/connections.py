@@ -27,7 +27,7 @@ this module's subclass of that protocol (:class:`GuardedHttp`) and the settings'
   idle kept-alive connection after ``keep_alive_s`` (uvicorn's ``timeout_keep_alive``). A
   missed deadline closes the connection with a reset, its unsent bytes dropped and their
   memory returned (nginx's ``reset_timedout_connection``); a body the app reads is timed by
-  ``service.api.upload_limit.UploadLimit`` (408).
+  ``fpscan.service.api.upload_limit.UploadLimit`` (408).
 - **A bounded head.** A request line and headers of more than ``max_head_bytes`` are
   refused with ``431`` before they reach the app (uvicorn's ``httptools`` protocol has no
   such bound; its ``h11`` one has ``h11_max_incomplete_event_size``).
@@ -35,7 +35,7 @@ this module's subclass of that protocol (:class:`GuardedHttp`) and the settings'
   dropped (the request sees a disconnect), never a traceback.
 
 Refusals are logged at most one line per client address per interval, fields capped
-(:mod:`service.api.logcaps`).
+(:mod:`fpscan.service.api.logcaps`).
 """
 from __future__ import annotations
 
@@ -50,8 +50,8 @@ from typing import Any
 import httptools
 from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol
 
-from service.api.logcaps import RefusalLog, install_log_caps, shown
-from service.settings import Settings
+from fpscan.service.api.logcaps import RefusalLog, install_log_caps, shown
+from fpscan.service.settings import Settings
 
 __all__ = ["CONNECTION_ALLOWANCE", "PROBATION_HEAD_S", "FD_HEADROOM", "BURST_CONNECTIONS", "return_memory", "open_file_limit", "ConnectionGuard", "GuardedHttp",
            "guarded_protocol", "server_config"]
@@ -319,7 +319,7 @@ class GuardedHttp(HttpToolsProtocol):
     its unsent bytes dropped): its request **head** (``header_timeout_s``; a connection on
     probation :data:`PROBATION_HEAD_S`), the rest of a **body** its answer left unread
     (``body_rate_window_s`` plus its remaining bytes at ``body_min_rate``, else
-    ``body_timeout_s``; a body the app reads is timed by ``service.api.upload_limit.UploadLimit``,
+    ``body_timeout_s``; a body the app reads is timed by ``fpscan.service.api.upload_limit.UploadLimit``,
     which answers 408), a **response** the reader does not take (``send_timeout_s`` for
     ``send_min_rate`` bytes/s of it) and **idle** keep-alive (uvicorn's ``timeout_keep_alive``).
 
@@ -535,7 +535,7 @@ class GuardedHttp(HttpToolsProtocol):
             return False
         if expected is None:
             return False
-        from service.api.access import token_matches
+        from fpscan.service.api.access import token_matches
 
         given = next((v.decode("latin-1") for k, v in self.headers if k == b"authorization"), None)
         return token_matches(given, expected) is None
@@ -685,7 +685,7 @@ def server_config(app: Any, settings: Settings) -> Any:
     upgrades: the service has no WebSocket route), the keep-alive timeout
     (``settings.keep_alive_s``), the graceful-shutdown bound (``settings.shutdown_grace_s``:
     open connections, SSE streams included, are closed after it), no access log; then every
-    log handler is capped (:func:`service.api.logcaps.install_log_caps`).
+    log handler is capped (:func:`fpscan.service.api.logcaps.install_log_caps`).
 
     Parameters
     ----------

@@ -14,8 +14,8 @@ from fastapi import Depends, HTTPException, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
-from service.jobs.store import JobStore
-from service.settings import Settings
+from fpscan.service.jobs.store import JobStore
+from fpscan.service.settings import Settings
 
 __all__ = ["bearer", "Slots", "default_slots", "Context", "ctx", "require_token", "read_access", "DETAIL_MAX", "capped",
            "reason", "validation_reason"]
@@ -160,11 +160,11 @@ class Context:
         The service's settings.
     store : JobStore
         The job store.
-    queue : service.jobs.queue.ReconQueue or None
+    queue : fpscan.service.jobs.queue.ReconQueue or None
         The reconstruction queue (None when the app runs without workers).
-    scans : service.jobs.scan_manager.ScanManager or None
+    scans : fpscan.service.jobs.scan_manager.ScanManager or None
         The scan manager (None without workers or without a scanner driver).
-    wakeups : service.api.jobs.EventWakeups or None
+    wakeups : fpscan.service.api.jobs.EventWakeups or None
         The store's events wake the job streams through it.
     extras : dict
         Other shared objects, by name.
@@ -174,9 +174,9 @@ class Context:
 
     settings: Settings
     store: JobStore
-    queue: Any = None          # service.jobs.queue.ReconQueue
-    scans: Any = None          # service.jobs.scan_manager.ScanManager
-    wakeups: Any = None        # service.api.jobs.EventWakeups: the store's events wake the job streams
+    queue: Any = None          # fpscan.service.jobs.queue.ReconQueue
+    scans: Any = None          # fpscan.service.jobs.scan_manager.ScanManager
+    wakeups: Any = None        # fpscan.service.api.jobs.EventWakeups: the store's events wake the job streams
     extras: dict = field(default_factory=dict)
     slots: dict[str, Slots] = field(default_factory=dict)  # default_slots(settings)
 
@@ -230,7 +230,7 @@ async def require_token(request: Request, creds: HTTPAuthorizationCredentials | 
 async def read_access(request: Request, creds: HTTPAuthorizationCredentials | None = Depends(bearer)) -> None:
     """FastAPI dependency of the reading routes: the bearer token whenever one is configured.
 
-    On a loopback bind too (``service.api.access.AccessGate`` has already refused a request
+    On a loopback bind too (``fpscan.service.api.access.AccessGate`` has already refused a request
     without it, before anything was reserved; this is the route's own check).
 
     Parameters

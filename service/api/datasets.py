@@ -1,18 +1,18 @@
 """Dataset upload: ``POST /api/datasets`` (multipart ``file`` + ``format`` + spacings).
 
-Formats: those of the registry marked ``upload`` (``service.formats``; listed by
+Formats: those of the registry marked ``upload`` (``fpscan.service.formats``; listed by
 ``GET /api/datasets/formats``, each module documenting its layout): ``npy`` (a NumPy array
 in k-Wave layout, time first, with form fields ``dt`` (s), ``dx`` (m), optional ``dy``
-(m, default dx) and ``sound_speed`` (m/s, default 1500; outside ``driver.constants.C_PLAUSIBLE``
+(m, default dx) and ``sound_speed`` (m/s, default 1500; outside ``fpscan.constants.C_PLAUSIBLE``
 only with ``force``, the registry's ``SpeedOptions``:
-``driver.units.check_plausible``, as everywhere)), ``kwave-hdf5`` (such an array in HDF5
+``fpscan.driver.units.check_plausible``, as everywhere)), ``kwave-hdf5`` (such an array in HDF5
 at ``key``; spacings from the form or the file's attributes), ``fpscan`` (our scan file,
 reconstructed from its completed points) and ``ipasc``.
 
 The upload is stored under a server-chosen id (``<data_dir>/datasets/<id>/``); the client's
 file name is never used as a path (it is kept, cleaned, as the dataset's display name). Every
-upload is read with ``service.storage.loader.load_dataset`` and kept as the canonical
-dataset file (``service.storage.loader.write_dataset``), which the job worker reads.
+upload is read with ``fpscan.service.storage.loader.load_dataset`` and kept as the canonical
+dataset file (``fpscan.service.storage.loader.write_dataset``), which the job worker reads.
 
 Datasets never pile up:
 
@@ -21,16 +21,16 @@ Datasets never pile up:
   key; the same file with the same options uploaded again answers (201, as any upload)
   with the stored dataset's id and ``deduplicated: true``, storing nothing.
 - Acknowledged means stored (issue 60.4): the dataset a 201 names (found or new) is found
-  or stored under ``service.jobs.lifecycle.guard``, the lock deletions take, and held
+  or stored under ``fpscan.service.jobs.lifecycle.guard``, the lock deletions take, and held
   (``lifecycle.hold_dataset``) until the 201 has been sent (a background task of the
   response releases it): a ``DELETE`` of it meanwhile waits, and retention passes it by.
 - Listed (``GET /api/datasets``: size on disk, content hash, the jobs that read it) and
   deletable (``DELETE /api/datasets/{id}``, 409 while a queued/running/paused job reads it).
-- Covered by retention (``service.jobs.lifecycle.apply_dataset_retention``, applied after
+- Covered by retention (``fpscan.service.jobs.lifecycle.apply_dataset_retention``, applied after
   each new upload too).
 - Admitted against the disk: the decoded dataset's bytes must fit the free space less
   ``disk_reserve_bytes`` less what imports in flight reserved
-  (``service.formats.untrusted.DiskAdmission``), else 507 before it is written.
+  (``fpscan.service.formats.untrusted.DiskAdmission``), else 507 before it is written.
 """
 from __future__ import annotations
 
@@ -46,18 +46,25 @@ from typing import Any
 from fastapi import APIRouter, BackgroundTasks, Depends, File, Form, HTTPException, UploadFile
 from fastapi import Path as PathParam
 
-from driver.constants import C_DEFAULT
-from driver.units import parse_quantity
-from service.api.context import Context, ctx, read_access, reason, require_token
-from service.api.models import ID_PATTERN, Dataset, DatasetFormat, DatasetFormatInfo, DatasetInfo, Deleted
-from service.formats import upload_formats
-from service.formats.load_options import check_load_options, load_option_schemas
-from service.formats.untrusted import DiskAdmission, NotAdmitted, hdf5_limit, run_bounded
-from service.jobs import lifecycle
-from service.jobs.queue import INCOMING
-from service.recon.methods.options import SpeedOptions, plausible_speeds
-from service.storage.loader import import_dataset
-from service.storage.usage import usage_for
+from fpscan.constants import C_DEFAULT
+from fpscan.driver.units import parse_quantity
+from fpscan.service.api.context import Context, ctx, read_access, reason, require_token
+from fpscan.service.api.models import (
+    ID_PATTERN,
+    Dataset,
+    DatasetFormat,
+    DatasetFormatInfo,
+    DatasetInfo,
+    Deleted,
+)
+from fpscan.service.formats import upload_formats
+from fpscan.service.formats.load_options import check_load_options, load_option_schemas
+from fpscan.service.formats.untrusted import DiskAdmission, NotAdmitted, hdf5_limit, run_bounded
+from fpscan.service.jobs import lifecycle
+from fpscan.service.jobs.queue import INCOMING
+from fpscan.service.recon.methods.options import SpeedOptions, plausible_speeds
+from fpscan.service.storage.loader import import_dataset
+from fpscan.service.storage.usage import usage_for
 
 log = logging.getLogger("fpscan.api")
 __all__ = ["router", "list_datasets", "list_formats", "upload_dataset", "delete_dataset"]
@@ -73,14 +80,14 @@ def list_datasets(context: Context = Depends(ctx)) -> list[DatasetInfo]:
 
 @router.get("/formats", response_model=list[DatasetFormatInfo], dependencies=[Depends(read_access)])
 def list_formats() -> list[DatasetFormatInfo]:
-    """The formats an upload may have (the registry ``service.formats``, in its order):
+    """The formats an upload may have (the registry ``fpscan.service.formats``, in its order):
     name (the ``format`` field), title and whether it may hold several wavelengths. The
     web page builds its format choices from this."""
     return [DatasetFormatInfo(**f) for f in upload_formats()]
 
 
 #: the upload's speed fields, in the words of the registry's one speed option
-#: (``service.recon.methods.options.SpeedOptions``: unit, bounds, default)
+#: (``fpscan.service.recon.methods.options.SpeedOptions``: unit, bounds, default)
 _SPEED = (f"speed of sound, m/s (or 1.5 km/s; {plausible_speeds()} unless force; default: the file's, else "
           f"{C_DEFAULT:g})")
 _FORCE = SpeedOptions.model_fields["force"].description
@@ -106,7 +113,7 @@ def upload_dataset(file: UploadFile = File(..., description="the data file"),
         raise HTTPException(422, "give the speed of sound once: sound_speed (c is its deprecated name)")
     c = c if sound_speed is None else sound_speed
     quantities = _LOAD_QUANTITIES
-    try:  # numbers typed with units, as everywhere (driver.units.parse_quantity)
+    try:  # numbers typed with units, as everywhere (fpscan.driver.units.parse_quantity)
         q = {name: None if text is None or not str(text).strip() else parse_quantity(text, kind, name=name)
              for name, text, kind in [*((n, options.get(n), k) for n, k in quantities.items()), ("c", c, "speed")]}
         given = {**options, **{n: q[n] for n in quantities}}
@@ -121,15 +128,15 @@ def upload_dataset(file: UploadFile = File(..., description="the data file"),
     return out
 
 
-#: the formats' load options (``service.formats.load_options``): the upload's generated fields
+#: the formats' load options (``fpscan.service.formats.load_options``): the upload's generated fields
 _LOAD_OPTIONS = load_option_schemas()
-#: those whose values may be text with a unit: name -> kind of ``driver.units.parse_quantity``
+#: those whose values may be text with a unit: name -> kind of ``fpscan.driver.units.parse_quantity``
 _LOAD_QUANTITIES = {o["name"]: o["schema"]["quantity"] for o in _LOAD_OPTIONS if o["schema"].get("quantity")}
 
 
 def _form_field(option: dict[str, Any]) -> inspect.Parameter:
     """The upload's form field of one load option: text with a unit for a quantity (parsed by
-    ``driver.units.parse_quantity``), an integer within its bounds, or bounded text."""
+    ``fpscan.driver.units.parse_quantity``), an integer within its bounds, or bounded text."""
     schema, who = option["schema"], ", ".join(option["formats"])
     said = f"{option['description']} ({who})"
     default: Any
@@ -234,7 +241,7 @@ def _store_upload(file: UploadFile, format: str, *, dt: float | None, dx: float 
         try:
             # in a child process with a time and memory bound: the HDF5 library can block
             # (holding the GIL) or expand a small file into gigabytes (import_dataset lives
-            # in service.storage, so the child does not import the web stack)
+            # in fpscan.service.storage, so the child does not import the web stack)
             meta = run_bounded(import_dataset, src, dest, format, dt=dt, dx=dx, dy=dy, c=c, key=key, force=force,
                                wavelength=wavelength,
                                max_bytes=hdf5_limit(limit, context.settings.memory_limit),

@@ -14,17 +14,17 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.routing import BaseRoute
 from starlette.types import Scope
 
-from service.api.context import capped, validation_reason
-from service.api.internal_errors import internal_error
-from service.api.logcaps import shown
-from service.api.models import Error
-from service.disk import is_disk_full
+from fpscan.service.api.context import capped, validation_reason
+from fpscan.service.api.internal_errors import internal_error
+from fpscan.service.api.logcaps import shown
+from fpscan.service.api.models import Error
+from fpscan.service.disk import is_disk_full
 
 __all__ = ["ERROR_RESPONSES", "allowed_methods", "add_error_handlers"]
 
 log = logging.getLogger("fpscan.api")
 
-#: The error answers every route may give (``{"detail": reason}``, :class:`~service.api.models.Error`),
+#: The error answers every route may give (``{"detail": reason}``, :class:`~fpscan.service.api.models.Error`),
 #: by status, as the OpenAPI schema documents them.
 ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
     400: {"model": Error, "description": "bad request"},
@@ -87,10 +87,10 @@ def allowed_methods(app: FastAPI, scope: Scope) -> list[str]:
 def add_error_handlers(app: FastAPI) -> None:
     """Make every error answer ``{"detail": reason}``.
 
-    422 for invalid values (:func:`~service.api.context.validation_reason`), the HTTP
+    422 for invalid values (:func:`~fpscan.service.api.context.validation_reason`), the HTTP
     error's own status (405 with the path's ``Allow``: :func:`allowed_methods`), 503 with
     ``Retry-After`` for a full disk (an ``OSError`` or ``sqlite3.Error`` that says so), 500
-    with a reference for anything else (:func:`~service.api.internal_errors.internal_error`).
+    with a reference for anything else (:func:`~fpscan.service.api.internal_errors.internal_error`).
 
     Parameters
     ----------

@@ -1,11 +1,11 @@
 """Files in and out: the registry of formats (``GET /api/formats``) and a job's file exported in
 any of them (``GET /api/jobs/{job_id}/export/{format}``): one route for every export format,
-found in the registry (:func:`service.formats.export_formats`), so that a format added as one
+found in the registry (:func:`fpscan.service.formats.export_formats`), so that a format added as one
 module appears here, in the job's links, the HTTP client and the web page with no other edit.
 
 A scan job exports its scan file (format ``fpscan``), a reconstruction its result volume
 (``result``; ``?wavelength=k``: wavelength k's of a job over every wavelength). The file itself
-is served as it is; another format is written by its exporter (``service.formats.export_file``)
+is served as it is; another format is written by its exporter (``fpscan.service.formats.export_file``)
 beside the job's files once and then served from there (a result never changes; a scan's export
 is written anew on every request, since the scan may have grown). A folder export (OME-Zarr) is
 served zipped. Exports run in FastAPI's thread pool, off the event loop.
@@ -17,7 +17,7 @@ build it once, and every response carries the same bytes (one OME UUID), so a do
 resumed with ``Range`` never mixes two builds. A scan's export, written anew per request,
 is written once for the requests that came while it was being written.
 
-Acknowledged means stored (issue 60.4): a build ends under ``service.jobs.lifecycle.guard``
+Acknowledged means stored (issue 60.4): a build ends under ``fpscan.service.jobs.lifecycle.guard``
 with a look at the job; one deleted meanwhile has what the build wrote removed (404), so an
 export never leaves a file behind a deleted job.
 """
@@ -34,13 +34,13 @@ from fastapi import APIRouter, Depends, HTTPException, Query
 from fastapi import Path as PathParam
 from fastapi.responses import FileResponse
 
-from service.api.context import Context, ctx, read_access
-from service.api.files import HeldFileResponse
-from service.api.jobs import get_job_or_404
-from service.api.models import ID_PATTERN, FormatInfo
-from service.formats import FORMATS, export_file, export_formats
-from service.formats.result import VOLUME_FILE
-from service.jobs import lifecycle
+from fpscan.service.api.context import Context, ctx, read_access
+from fpscan.service.api.files import HeldFileResponse
+from fpscan.service.api.jobs import get_job_or_404
+from fpscan.service.api.models import ID_PATTERN, FormatInfo
+from fpscan.service.formats import FORMATS, export_file, export_formats
+from fpscan.service.formats.result import VOLUME_FILE
+from fpscan.service.jobs import lifecycle
 
 __all__ = ["router", "list_formats", "export", "job_export_source", "EXPORTS_DIR"]
 
@@ -88,10 +88,10 @@ def job_export_source(context: Context, job: dict, wavelength: int | None = None
         if wavelength is not None:
             raise HTTPException(422, "wavelength applies to a reconstruction's volume; a scan exports every "
                                      "wavelength it holds")
-        from service.api.scans import scan_file_path
+        from fpscan.service.api.scans import scan_file_path
 
         return "fpscan", scan_file_path(context, job["id"])
-    from service.api.reconstructions import volume_dir
+    from fpscan.service.api.reconstructions import volume_dir
 
     return "result", volume_dir(context, job["id"], wavelength) / VOLUME_FILE
 
@@ -112,7 +112,7 @@ def export(job_id: str = PathParam(pattern=ID_PATTERN, description="a scan or re
                                    "(GET /api/formats: those with export_from)"),
            wavelength: int | None = WavelengthQuery, context: Context = Depends(ctx)) -> HeldFileResponse:
     """The job's file (a scan file, or a reconstruction's p0 volume) in the export ``format``
-    (``service.formats``: the job's ``export_<format>`` links name them; e.g. ``ipasc`` of a
+    (``fpscan.service.formats``: the job's ``export_<format>`` links name them; e.g. ``ipasc`` of a
     scan, ``ome-tiff`` and ``ome-zarr`` of a volume, the file itself as ``fpscan`` / ``result``);
     a folder export (OME-Zarr) as a zip of one folder ``<job_id><suffix>``. Supports ``Range``."""
     job = get_job_or_404(context, job_id)
@@ -199,8 +199,8 @@ def _one_build(out: Path) -> Iterator[_Turn]:
 def _discard(context: Context, out: Path, job: dict) -> None:
     """Remove what a build wrote for a job deleted meanwhile: ``out`` (counted out of
     health's disk-usage counters, which the build counted it in) and the job's files the
-    build's folder re-made (``service.jobs.lifecycle.job_files``)."""
-    from service.storage.usage import usage_for
+    build's folder re-made (``fpscan.service.jobs.lifecycle.job_files``)."""
+    from fpscan.service.storage.usage import usage_for
 
     if out.exists():
         usage_for(context.settings.data_dir).add_path(out, removed=True)
@@ -214,8 +214,8 @@ def _discard(context: Context, out: Path, job: dict) -> None:
 def _write_export(context: Context, src: Path, out: Path, format: str, *, arcname: str, replace: bool = False) -> None:
     """Write the export ``format`` of ``src`` at ``out`` (a folder export zipped into ``out``),
     counted in health's disk-usage counters; 409 with the exporter's reason."""
-    from service.storage.results import zip_folder
-    from service.storage.usage import usage_for
+    from fpscan.service.storage.results import zip_folder
+    from fpscan.service.storage.usage import usage_for
 
     usage = usage_for(context.settings.data_dir)
     if replace and out.exists():

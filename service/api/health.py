@@ -8,16 +8,16 @@ from collections.abc import Awaitable, Callable
 
 from fastapi import Depends, FastAPI, Request
 
-from service.api.context import Context, ctx, read_access
-from service.api.models import AuthInfo, ComputeDevice, Health
-from service.settings import Settings
+from fpscan.service.api.context import Context, ctx, read_access
+from fpscan.service.api.models import AuthInfo, ComputeDevice, Health
+from fpscan.service.settings import Settings
 
 __all__ = ["add_health_routes", "health_problems", "DeviceList"]
 
 
 class DeviceList:
     """The devices reconstructions can run on: the CPU at once, the CUDA GPUs once a child
-    process has listed them (`service.recon.device.probe_devices`, started in a thread here, so
+    process has listed them (`fpscan.service.recon.device.probe_devices`, started in a thread here, so
     that the server's own process never loads CUDA).
 
     Attributes
@@ -34,7 +34,7 @@ class DeviceList:
         threading.Thread(target=self._probe, name="fpscan-device-probe", daemon=True).start()
 
     def _probe(self) -> None:
-        from service.recon.device import probe_devices
+        from fpscan.service.recon.device import probe_devices
 
         self.gpus = probe_devices()
         self.listed.set()
@@ -59,14 +59,14 @@ def add_health_routes(app: FastAPI, settings: Settings) -> Callable[[Context], A
     Returns
     -------
     callable
-        Health's document: an awaitable of :class:`~service.api.models.Health`, given the
-        app's context, which ``service.api.lanes.HealthLane`` answers with ahead of the other
+        Health's document: an awaitable of :class:`~fpscan.service.api.models.Health`, given the
+        app's context, which ``fpscan.service.api.lanes.HealthLane`` answers with ahead of the other
         requests.
     """
-    from service.storage.usage import usage_for
+    from fpscan.service.storage.usage import usage_for
 
     usage = usage_for(settings.data_dir, settings.database)
-    version = app.version  # service.api.app.VERSION
+    version = app.version  # fpscan.service.api.app.VERSION
     devices = DeviceList()
     app.state.devices = devices
 
@@ -83,8 +83,8 @@ def add_health_routes(app: FastAPI, settings: Settings) -> Callable[[Context], A
         exports, other) and the free bytes of its file system; ``problems``: what keeps jobs
         from running now, one line each (a full disk, a lost device). Answered on the event
         loop without a server thread, ahead of the other requests waiting for their turn
-        (``service.api.lanes``), in time independent of the data folder: the bytes are
-        counters kept as files are written and removed (``service.storage.usage``, checked
+        (``fpscan.service.api.lanes``), in time independent of the data folder: the bytes are
+        counters kept as files are written and removed (``fpscan.service.storage.usage``, checked
         by a walk in a thread of its own), a stored change shows in the next answer, a scan
         file's growth within a second."""
         return await health_document(context)
@@ -94,7 +94,7 @@ def add_health_routes(app: FastAPI, settings: Settings) -> Callable[[Context], A
         """Whether this server needs a bearer token, and whether the request carried the
         right one (needs no token itself: the web page asks it first, to show its login view
         before any other request)."""
-        from service.api.access import token_matches
+        from fpscan.service.api.access import token_matches
 
         expected = settings.token_value()
         return AuthInfo(token_required=expected is not None,
@@ -116,10 +116,10 @@ def health_problems(context: Context) -> list[str]:
     -------
     list of str
         The data folder's disk below the reserve (``disk_reserve_bytes``), the job database's
-        reserve in use, reconstructions waiting for disk space (``service.jobs.queue``) and
-        interrupted scans (``service.jobs.scan_manager``); empty when nothing is wrong.
+        reserve in use, reconstructions waiting for disk space (``fpscan.service.jobs.queue``) and
+        interrupted scans (``fpscan.service.jobs.scan_manager``); empty when nothing is wrong.
     """
-    from service.storage.usage import usage_for
+    from fpscan.service.storage.usage import usage_for
 
     out: list[str] = []
     settings = context.settings

@@ -9,7 +9,7 @@ import uuid
 from fastapi.responses import JSONResponse
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from service.api.logcaps import RefusalLog, shown
+from fpscan.service.api.logcaps import RefusalLog, shown
 
 __all__ = ["internal_error", "InternalErrors", "client_gone"]
 
@@ -46,7 +46,7 @@ class InternalErrors:
 
     A client gone (its disconnect received, its connection reset, a send to a closed
     connection: :func:`client_gone`) is no internal error: it is logged at most one line per
-    client address per interval (``service.api.logcaps.RefusalLog``), and nothing is answered.
+    client address per interval (``fpscan.service.api.logcaps.RefusalLog``), and nothing is answered.
 
     Parameters
     ----------

@@ -9,11 +9,11 @@ import anyio
 from fastapi import APIRouter, Depends, Header, HTTPException, Path, Query, Response
 from sse_starlette.sse import EventSourceResponse, ServerSentEvent
 
-from service.api.context import Context, ctx, read_access, require_token
-from service.api.models import ID_PATTERN, Deleted, Job, JobKind, JobState
-from service.jobs import lifecycle
-from service.jobs.store import TERMINAL, JobStore
-from service.names import person_names
+from fpscan.service.api.context import Context, ctx, read_access, require_token
+from fpscan.service.api.models import ID_PATTERN, Deleted, Job, JobKind, JobState
+from fpscan.service.jobs import lifecycle
+from fpscan.service.jobs.store import TERMINAL, JobStore
+from fpscan.service.names import person_names
 
 __all__ = [
     "router", "JobId", "job_links", "job_view", "get_job_or_404", "list_jobs", "get_job", "cancel_job",
@@ -34,7 +34,7 @@ STREAM_READERS = 2
 class EventWakeups:
     """The one store watcher every events stream waits on: it wakes a job's streams as soon
     as the job store commits an event of that job, or deletes the job
-    (:meth:`service.jobs.store.JobStore.add_listener`); streams never poll, so a thousand
+    (:meth:`fpscan.service.jobs.store.JobStore.add_listener`); streams never poll, so a thousand
     open ones cost nothing between events, and a client waiting on a job hears that it
     finished when it does.
 
@@ -112,8 +112,8 @@ def job_links(job: dict) -> dict[str, str]:
         for plane in planes:
             links[f"mip_{plane}"] = f"/api/reconstructions/{jid}/mip/{plane}.png"
         source = "result"
-    if source is not None:  # every export format of the job's file (service.formats: GET /api/formats)
-        from service.formats import export_formats
+    if source is not None:  # every export format of the job's file (fpscan.service.formats: GET /api/formats)
+        from fpscan.service.formats import export_formats
 
         for name in export_formats(source):
             links[f"export_{name}"] = f"/api/jobs/{jid}/export/{name}"
@@ -124,7 +124,7 @@ def job_view(job: dict) -> Job:
     """The public view of a stored job.
 
     No file system paths; parameters named as a person reads them (``sound_speed``, also for
-    a job an older server stored with ``c``: :func:`service.names.person_names`).
+    a job an older server stored with ``c``: :func:`fpscan.service.names.person_names`).
 
     Parameters
     ----------

@@ -102,7 +102,7 @@ class JsonDepthLimit:
     The body passes through as it arrives; its parts are kept until it is complete and
     counted before the last part is handed on, so no route parses a refused body. The
     refusal replaces whatever the route answered to the cut-off read (as the body limits of
-    ``service.api.upload_limit.UploadLimit`` do). The connection is kept (the body was read whole).
+    ``fpscan.service.api.upload_limit.UploadLimit`` do). The connection is kept (the body was read whole).
 
     Parameters
     ----------

@@ -15,7 +15,7 @@ for its turn behind all of them (p99 0.3-0.9 s). Two ASGI middlewares give it a 
   thread, a body, a child process) are not held back.
 - :class:`HealthLane`: ``GET /api/health`` is answered before that queue, from
   ``document`` (in-memory figures and the cached disk usage: well under a millisecond),
-  after the same access rules as every other request (:class:`~service.api.access.AccessGate`:
+  after the same access rules as every other request (:class:`~fpscan.service.api.access.AccessGate`:
   Host, then the bearer token when one is configured; a refused health request goes on to
   the gate, which refuses it with its reason and logs it).
 """
@@ -28,7 +28,7 @@ from typing import Any
 
 from starlette.types import ASGIApp, Receive, Scope, Send
 
-from service.settings import Settings
+from fpscan.service.settings import Settings
 
 __all__ = ["STARTS_PER_ITERATION", "HEALTH_PATH", "RequestTurns", "HealthLane"]
 
@@ -120,7 +120,7 @@ class HealthLane:
     """ASGI middleware: answer ``GET /api/health`` at once, ahead of the :class:`RequestTurns` queue.
 
     The request first passes the access gate's rules (``gate(scope)`` is
-    :meth:`service.api.access.AccessGate.refusal` of the app's settings); a request they
+    :meth:`fpscan.service.api.access.AccessGate.refusal` of the app's settings); a request they
     refuse, and every other request, goes on to ``app`` (so does health before the app has
     started and has no context).
 
@@ -144,7 +144,7 @@ class HealthLane:
     """
 
     def __init__(self, app: ASGIApp, settings: Settings, document: Callable[[Any], Awaitable[Any]]) -> None:
-        from service.api.access import AccessGate
+        from fpscan.service.api.access import AccessGate
 
         self.app = app
         self.document = document

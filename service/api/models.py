@@ -1,8 +1,8 @@
 """Request and response models of the HTTP API (pydantic; the plan request is derived from
-the mask kinds declared in ``service.plans.kinds``).
+the mask kinds declared in ``fpscan.service.plans.kinds``).
 
-The response models of plans, jobs, scanners and previews subclass ``wire.models`` (their
-fields defined once, shared with the client's lenient ``clients.http.models``) and narrow
+The response models of plans, jobs, scanners and previews subclass ``fpscan.wire.models`` (their
+fields defined once, shared with the client's lenient ``fpscan.clients.http.models``) and narrow
 what the server guarantees (literal states and kinds, required fields). Units are SI (m, s,
 m/s, Hz, bytes). Request models refuse unknown fields, NaN and infinities (``ValueError`` →
 HTTP 422 with the reason).
@@ -26,14 +26,14 @@ from pydantic import (
     model_validator,
 )
 
-from service.formats import upload_formats
-from service.pipeline import METHODS
-from service.plans.kinds import KINDS, MaskKind, resolve_kind
-from service.plans.plan import ORDER_NAMES, Acquisition
-from service.plans.plan import Plan as PlanJson
-from service.recon import methods as _methods
-from service.recon.methods.options import SpeedOptions, plausible_speeds
-from wire import models as wire
+from fpscan.service.formats import upload_formats
+from fpscan.service.pipeline import METHODS
+from fpscan.service.plans.kinds import KINDS, MaskKind, resolve_kind
+from fpscan.service.plans.plan import ORDER_NAMES, Acquisition
+from fpscan.service.plans.plan import Plan as PlanJson
+from fpscan.service.recon import methods as _methods
+from fpscan.service.recon.methods.options import SpeedOptions, plausible_speeds
+from fpscan.wire import models as wire
 
 __all__ = [
     "JobState", "JobKind", "ReconMethod", "Plane", "DATASET_FORMATS", "DatasetFormat", "ID_PATTERN", "LatticeIndex",
@@ -46,7 +46,7 @@ __all__ = [
 
 def _one_of(values: Iterable[str]) -> Any:
     """A string type accepting only ``values`` (listed as the schema's ``enum``), so
-    that the vocabularies stay those of their owner (``service.pipeline``)."""
+    that the vocabularies stay those of their owner (``fpscan.service.pipeline``)."""
     allowed = tuple(values)
 
     def check(v: str) -> str:
@@ -61,7 +61,7 @@ JobState = Literal["queued", "running", "paused", "succeeded", "failed", "cancel
 JobKind = Literal["scan", "recon"]
 ReconMethod = _one_of(METHODS)
 Plane = Literal["xy", "xz", "yz"]
-#: the formats ``POST /api/datasets`` accepts: the registry's (``service.formats``, ``upload``)
+#: the formats ``POST /api/datasets`` accepts: the registry's (``fpscan.service.formats``, ``upload``)
 DATASET_FORMATS = tuple(f["name"] for f in upload_formats())
 DatasetFormat = Literal[DATASET_FORMATS]  # type: ignore[valid-type]  # a Literal of the registry's names
 
@@ -122,7 +122,7 @@ class ComputeDevice(BaseModel):
     Attributes
     ----------
     kind : {"cpu", "cuda"}
-        The CPU (the worker processes' cores) or a CUDA GPU (`service.recon.device`).
+        The CPU (the worker processes' cores) or a CUDA GPU (`fpscan.service.recon.device`).
     name : str
         The GPU's name, or ``"cpu"``.
     cores : int or None
@@ -243,8 +243,8 @@ MAX_LATTICE_POINTS = 1 << 18
 
 def _pitch(v: Any) -> Any:
     """Before-validator of a pitch: text with a unit ("60um") → m; then the plausible
-    range of ``driver.units`` (a pitch of 60 means 60 m: 422 naming µm)."""
-    from driver.units import check_plausible, parse_quantity
+    range of ``fpscan.driver.units`` (a pitch of 60 means 60 m: 422 naming µm)."""
+    from fpscan.driver.units import check_plausible, parse_quantity
 
     if isinstance(v, str):
         v = parse_quantity(v, "length", name="pitch")
@@ -313,13 +313,13 @@ class _PlanCreate(_Request):
     @classmethod
     def _units_first(cls, data: Any) -> Any:
         """Acquisition text with a unit ("8 ns", "500Hz", "1.5 km/s") → SI numbers, then the
-        plausibility rules of ``driver.units`` on the raw values (dt, PRF, sound speed, the
+        plausibility rules of ``fpscan.driver.units`` on the raw values (dt, PRF, sound speed, the
         depth of the point of interest), so that a unit mistake (dt 8 s, depth 3.6 m) is
         named before the range checks of ``Acquisition`` and the kind's parameter model."""
         if not isinstance(data, dict):
             return data
-        from driver.units import parse_quantity
-        from service.plans import check_plausible_request
+        from fpscan.driver.units import parse_quantity
+        from fpscan.service.plans import check_plausible_request
 
         acq = data.get("acquisition")
         if isinstance(acq, dict):
@@ -369,13 +369,13 @@ class PlanDocument(PlanJson):
     id : str
         The plan's content hash.
     lattice, mask, points, order, acquisition
-        As in ``service.plans.plan.Plan`` (the points in scan order).
+        As in ``fpscan.service.plans.plan.Plan`` (the points in scan order).
     """
 
 
 #: The body of ``POST /api/plans`` and ``/api/plans/preview``: one variant per mask kind
 #: (keyed on ``kind``; ``params`` is that kind's parameter model from
-#: ``service.plans.kinds``), or a whole plan JSON (keyed on ``format``).
+#: ``fpscan.service.plans.kinds``), or a whole plan JSON (keyed on ``format``).
 PlanCreate: Any = Annotated[
     Union[tuple(Annotated[_plan_create(k), Tag(k.name)] for k in KINDS.values())  # noqa: UP007
           + (Annotated[PlanDocument, Tag("plan")],)],
@@ -387,7 +387,7 @@ PlanCreate: Any = Annotated[
 
 class MethodOption(BaseModel):
     """One option of a reconstruction method (its field in the method's options model,
-    ``service.recon.methods``), or a file format's load option (:class:`FormatInfo`).
+    ``fpscan.service.recon.methods``), or a file format's load option (:class:`FormatInfo`).
 
     Attributes
     ----------
@@ -412,7 +412,7 @@ class MethodOption(BaseModel):
 
 class DatasetFormatInfo(BaseModel):
     """One format ``POST /api/datasets`` accepts, as ``GET /api/datasets/formats`` lists it
-    (the registry ``service.formats``; the web page's and the HTTP client's choices)."""
+    (the registry ``fpscan.service.formats``; the web page's and the HTTP client's choices)."""
 
     name: str = Field(description="the value of the upload's format field")
     title: str = Field(description="what a person reads")
@@ -421,7 +421,7 @@ class DatasetFormatInfo(BaseModel):
 
 
 class FormatInfo(BaseModel):
-    """One file format of the server's registry (``service.formats``), as ``GET /api/formats``
+    """One file format of the server's registry (``fpscan.service.formats``), as ``GET /api/formats``
     lists it: what it reads and what it exports."""
 
     name: str = Field(description="the format's name (an upload's format field, --format, an export's name)")
@@ -439,8 +439,8 @@ class FormatInfo(BaseModel):
 
     @classmethod
     def of(cls, fmt: Any) -> FormatInfo:
-        """The public view of a registered ``service.formats.Format``."""
-        from service.recon.methods import option_schemas
+        """The public view of a registered ``fpscan.service.formats.Format``."""
+        from fpscan.service.recon.methods import option_schemas
 
         options = [MethodOption(name=o["name"], description=o["description"], default=o["default"],
                                 value_schema=o["schema"]) for o in option_schemas(fmt.options)] if fmt.options else []
@@ -451,7 +451,7 @@ class FormatInfo(BaseModel):
 
 class MethodInfo(BaseModel):
     """One reconstruction method as ``GET /api/reconstructions/methods`` lists it
-    (``service.pipeline.METHODS``; the web page's method choices are built from these).
+    (``fpscan.service.pipeline.METHODS``; the web page's method choices are built from these).
 
     Attributes
     ----------
@@ -476,7 +476,7 @@ class MethodInfo(BaseModel):
         The inputs it is the default method for: 'grid' (a full lattice), 'points' (any mask).
     summary : list of dict
         The fields of its result it shows after its outcome (``Method.summary``, each a
-        ``service.progress.Shown`` as JSON); empty for most methods.
+        ``fpscan.service.progress.Shown`` as JSON); empty for most methods.
     """
 
     name: str
@@ -492,7 +492,7 @@ class MethodInfo(BaseModel):
                                                                      "'grid' (a full lattice), 'points' (any mask)")
     summary: list[dict[str, Any]] = Field(
         default_factory=list, description="the fields of its result's params_used it shows after its outcome, in order "
-        "(service.progress.Shown: key, label, title, id, format, flag, words, note, suffix, also): the web page's "
+        "(fpscan.service.progress.Shown: key, label, title, id, format, flag, words, note, suffix, also): the web page's "
         "summary rows")
 
 
@@ -510,7 +510,7 @@ class MaskKindInfo(BaseModel):
     aliases : list of str
         Other names the kind is accepted by.
     fields : list of dict
-        Its parameters as plain descriptors (``service.plans.kinds.kind_fields``).
+        Its parameters as plain descriptors (``fpscan.service.plans.kinds.kind_fields``).
     params_schema : dict
         The JSON schema of its parameter model (a plan request's ``params``).
     """
@@ -540,13 +540,13 @@ class Plan(wire.Plan):
         Why the plan has fewer points than asked (under 90 %), one line; null when it has
         about as many.
     weight_ratio : float or None
-        The mask's outer/inner weight ratio (``service.plans.mask.weight_ratio``).
+        The mask's outer/inner weight ratio (``fpscan.service.plans.mask.weight_ratio``).
     expected_scan_time_s : float or None
         Points × averages × wavelengths / PRF, s; null when the plan sets no PRF (unthrottled).
     lattice : dict
         The plan's lattice (``n_x``, ``n_y``, ``pitch`` in m).
     acquisition : dict
-        The plan's acquisition settings (``service.plans.plan.Acquisition``: ``n_t``, ``dt``
+        The plan's acquisition settings (``fpscan.service.plans.plan.Acquisition``: ``n_t``, ``dt``
         in s, ``prf`` in Hz, ...).
     links : dict of str to str
         Name -> API path: ``self``, ``preview`` (the mask preview PNG).
@@ -564,7 +564,7 @@ class PlanPreview(wire.PlanPreview):
     points : int
         Points in the plan.
     weight_ratio : float or None
-        The mask's outer/inner weight ratio (``service.plans.mask.weight_ratio``).
+        The mask's outer/inner weight ratio (``fpscan.service.plans.mask.weight_ratio``).
     expected_scan_time_s : float or None
         Points × averages × wavelengths / PRF, s; null when the plan sets no PRF (unthrottled).
     preview_png_base64 : str
@@ -577,7 +577,7 @@ class PlanPreview(wire.PlanPreview):
 # -- jobs ----------------------------------------------------------------------------
 class JobProgress(wire.JobProgress):
     """A job's progress on the wire (the ``progress`` of a :class:`Job`; the callback type of
-    the library is ``service.progress.Progress``). Each field's unit is in its description,
+    the library is ``fpscan.service.progress.Progress``). Each field's unit is in its description,
     which the OpenAPI document (``/openapi.json``) serves."""
 
     model_config = ConfigDict(extra="allow")
@@ -817,7 +817,7 @@ class DatasetInfo(BaseModel):
 class _ReconParamsBase(SpeedOptions, _Request):
     """Reconstruction options: the speed of sound (every method's: ``c`` as ``sound_speed``,
     ``c_range`` as ``sound_speed_range``, ``force``; the registry's one typed model,
-    ``service.recon.methods.options.SpeedOptions``); the methods' own options are added from
+    ``fpscan.service.recon.methods.options.SpeedOptions``); the methods' own options are added from
     the registry (:func:`_method_option_fields`)."""
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)  # _Request's (SpeedOptions states none)
@@ -827,8 +827,8 @@ class _ReconParamsBase(SpeedOptions, _Request):
     def _units(cls, value: Any, info: Any) -> Any:
         """Numbers typed with a unit (``"30um"``, ``"600s"``, ``"1.5 km/s"``) for the speed
         of sound and every option whose field names a ``quantity``: to SI by the one parser
-        (``driver.units.parse_quantity``); numbers are SI already."""
-        from driver.units import parse_quantity
+        (``fpscan.driver.units.parse_quantity``); numbers are SI already."""
+        from fpscan.driver.units import parse_quantity
 
         name = info.field_name
         kind = _OPTION_QUANTITIES.get(name)
@@ -849,10 +849,10 @@ class _ReconParamsBase(SpeedOptions, _Request):
 
     @model_validator(mode="after")
     def _plausible_speed(self) -> _ReconParamsBase:
-        """The speed-of-sound rule of the library and the CLI (``driver.units.check_speeds``):
+        """The speed-of-sound rule of the library and the CLI (``fpscan.driver.units.check_speeds``):
         422 naming the likely unit mistake unless ``force``; forced, c stays within
-        ``driver.constants.C_LIMITS``."""
-        from driver.units import check_speeds
+        ``fpscan.constants.C_LIMITS``."""
+        from fpscan.driver.units import check_speeds
 
         check_speeds(c=getattr(self, "c", None), c_range=getattr(self, "c_range", None), force=self.force)
         return self
@@ -868,7 +868,7 @@ def _not_null(name: str, default: Any) -> Any:
 
 
 def _method_option_fields() -> dict[str, Any]:
-    """``ReconParams``' fields from the method registry (``service.recon.methods``): each
+    """``ReconParams``' fields from the method registry (``fpscan.service.recon.methods``): each
     option with its own type and rule (the kernel's, so a bad value is a 422 naming its
     range), default null (the chosen method's default); an option every method takes with
     one default (``dtype``) has that default and may not be null."""
@@ -894,7 +894,7 @@ def _method_option_fields() -> dict[str, Any]:
 #: the speed option's fields' extras (``SpeedOptions``: ``unit``, ``quantity``, ``shown``)
 _SPEED_EXTRAS = {name: f.json_schema_extra for name, f in SpeedOptions.model_fields.items()
                  if isinstance(f.json_schema_extra, dict)}
-#: options whose values may be text with a unit: name -> kind of ``driver.units.parse_quantity``
+#: options whose values may be text with a unit: name -> kind of ``fpscan.driver.units.parse_quantity``
 #: (the speed of sound's and the methods')
 _OPTION_QUANTITIES = {**{name: str(e["quantity"]) for name, e in _SPEED_EXTRAS.items() if "quantity" in e},
                       **{o["name"]: o["schema"]["quantity"] for m in METHODS.values()
@@ -904,7 +904,7 @@ _SHOWN = {name: str(e["shown"]) for name, e in _SPEED_EXTRAS.items() if "shown" 
 
 #: Reconstruction options (``null`` = the method's default): the speed of sound
 #: (``sound_speed``, also accepted as ``c``), ``sound_speed_range``, ``force`` and the union
-#: of the methods' options (``service.recon.methods``: one module per method; which method
+#: of the methods' options (``fpscan.service.recon.methods``: one module per method; which method
 #: takes which option: ``GET /api/reconstructions/methods``, docs/methods.md). An option the
 #: method does not take is refused (422 naming the method's options). Lengths and times may
 #: be text with a unit (``"30um"``, ``"600s"``).
@@ -916,7 +916,7 @@ else:
 
 
 class UnmixOptions(_Request):
-    """Spectral unmixing into HbO2 and Hb (``service.recon.unmix``: NNLS per voxel)."""
+    """Spectral unmixing into HbO2 and Hb (``fpscan.service.recon.unmix``: NNLS per voxel)."""
 
     threshold: float = Field(0.1, ge=0, lt=1, description="mask voxels whose THb is below this fraction of the maximum")
     fluence: list[Annotated[float, Field(gt=0, allow_inf_nan=False)]] | None = Field(
@@ -940,7 +940,7 @@ class ReconRequest(_Request):
         Excitation wavelength of each of dataset_ids, m.
     method : str or None
         Reconstruction method; absent or null: the default for the input
-        (``service.pipeline.default_method``).
+        (``fpscan.service.pipeline.default_method``).
     params : ReconParams
         Reconstruction options (null: the method's default).
     wavelength : int or "all" or None
@@ -950,7 +950,7 @@ class ReconRequest(_Request):
         Unmix HbO2/Hb after reconstructing every wavelength.
     plan_id : str or None
         With dataset_id (dense data): reconstruct the A-lines this stored plan's sensor mask
-        picks out of it (``service.subsample``: what a replay scan of the data records).
+        picks out of it (``fpscan.service.subsample``: what a replay scan of the data records).
 
     Raises
     ------
@@ -977,7 +977,7 @@ class ReconRequest(_Request):
         None, max_length=16, description="excitation wavelength of each of dataset_ids, m")
     method: ReconMethod | None = Field(  # type: ignore[valid-type]
         None, description="reconstruction method; absent or null: the default for the input "
-                          f"(service.pipeline.default_method: {_methods.default_for('grid')} for grid data, "
+                          f"(fpscan.service.pipeline.default_method: {_methods.default_for('grid')} for grid data, "
                           f"{_methods.default_for('points')} for sensor points)")
     params: ReconParams = Field(default_factory=ReconParams)
     wavelength: Annotated[int, Field(ge=0, le=15)] | Literal["all"] | None = Field(

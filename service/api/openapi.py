@@ -5,7 +5,7 @@ from __future__ import annotations
 from fastapi import FastAPI, Request
 from fastapi.responses import JSONResponse
 
-from service.settings import Settings
+from fpscan.service.settings import Settings
 
 __all__ = ["state_security_in_openapi", "render_openapi_once"]
 

@@ -1,8 +1,8 @@
 """Plan routes: create (mask parameters or a point list), preview, list, get, preview PNG.
 
 A plan is the JSON of docs/architecture.md (``fpscan-plan/1``); its id is the content hash
-of ``driver.plan``. Every plan, a user point list (lattice indices) included, is built by
-``service.plans.make_plan``.
+of ``fpscan.driver.plan``. Every plan, a user point list (lattice indices) included, is built by
+``fpscan.service.plans.make_plan``.
 """
 from __future__ import annotations
 
@@ -21,12 +21,20 @@ import numpy as np
 from fastapi import APIRouter, Depends, HTTPException, Path, Request, Response
 from pydantic import TypeAdapter, ValidationError
 
-from service.api.context import Context, ctx, read_access, reason, require_token, validation_reason
-from service.api.models import ID_PATTERN, Deleted, MaskKindInfo, Plan, PlanCreate, PlanDocument, PlanPreview
-from service.jobs import lifecycle
+from fpscan.service.api.context import Context, ctx, read_access, reason, require_token, validation_reason
+from fpscan.service.api.models import (
+    ID_PATTERN,
+    Deleted,
+    MaskKindInfo,
+    Plan,
+    PlanCreate,
+    PlanDocument,
+    PlanPreview,
+)
+from fpscan.service.jobs import lifecycle
 
 if TYPE_CHECKING:
-    from service.jobs.executors import LocalExecutor
+    from fpscan.service.jobs.executors import LocalExecutor
 
 __all__ = [
     "router", "MAX_POINTS", "PREVIEW_DETAIL_POINTS", "build_plan", "expected_scan_time", "summary",
@@ -50,8 +58,8 @@ PREVIEW_DETAIL_POINTS = 1 << 14
 def build_plan(req: Any) -> dict:  # a PlanCreate variant (models built at import)
     """The plan JSON for a plan request.
 
-    A plan JSON is checked (``driver.plan`` via ``service.plans.Plan``) and kept as it is, so
-    it keeps its id; anything else is built by ``service.plans.make_plan``, the one plan
+    A plan JSON is checked (``fpscan.driver.plan`` via ``fpscan.service.plans.Plan``) and kept as it is, so
+    it keeps its id; anything else is built by ``fpscan.service.plans.make_plan``, the one plan
     builder (a user point list is the mask kind ``points``).
 
     Parameters
@@ -71,10 +79,10 @@ def build_plan(req: Any) -> dict:  # a PlanCreate variant (models built at impor
         as points and params or as neither, bad mask parameters, or more than
         :data:`MAX_POINTS` points.
     """
-    from service.plans import check_plausible_request, make_mask, make_plan
+    from fpscan.service.plans import check_plausible_request, make_mask, make_plan
 
     if isinstance(req, PlanDocument):
-        from driver.units import check_plausible
+        from fpscan.driver.units import check_plausible
 
         # the unit rules of a plan request (a pitch of 60 m, dt 8 s); a document states no
         # force, so its sound speed (which make_plan may have forced) is not judged here
@@ -142,7 +150,7 @@ def summary(plan: dict) -> Plan:
     """
     mask = plan.get("mask", {})
     pid = plan["id"]
-    from service.plans.mask import shortfall
+    from fpscan.service.plans.mask import shortfall
 
     n = len(plan["points"]["indices"])
     return Plan(id=pid, kind=mask.get("kind", "points"), n_points=n,
@@ -156,9 +164,9 @@ def summary(plan: dict) -> Plan:
 
 
 def preview_png(plan: dict) -> bytes:
-    """The mask preview PNG, drawn by the one renderer (``service.pictures.render``: x
+    """The mask preview PNG, drawn by the one renderer (``fpscan.service.pictures.render``: x
     right, y down, axes in mm at equal aspect, colour bar, ``fpscan:axes`` chunk): points
-    as coloured markers (``service.plans.preview_png``) up to ``PREVIEW_DETAIL_POINTS``
+    as coloured markers (``fpscan.service.plans.preview_png``) up to ``PREVIEW_DETAIL_POINTS``
     points; beyond that (markers cost time linear in the points) and for a plan the plan
     model cannot read, the mask as an image on its lattice (``render_lattice``: one cell
     per lattice point, coloured by weight).
@@ -175,13 +183,13 @@ def preview_png(plan: dict) -> bytes:
     """
     if len(plan["points"]["indices"]) <= PREVIEW_DETAIL_POINTS:
         try:
-            from service.plans import Plan as PlanModel
-            from service.plans import preview_png as plans_preview
+            from fpscan.service.plans import Plan as PlanModel
+            from fpscan.service.plans import preview_png as plans_preview
 
             return plans_preview(PlanModel.model_validate(plan))
         except (ImportError, ValueError):
             pass
-    from service.pictures.render import render_lattice
+    from fpscan.service.pictures.render import render_lattice
 
     lat, mask = plan["lattice"], plan.get("mask", {})
     n_x, n_y, pitch = int(lat["n_x"]), int(lat.get("n_y", 1)), float(lat["pitch"])
@@ -238,7 +246,7 @@ def parse_plan_request(raw: bytes, content_type: str | None) -> Any:  # a PlanCr
             value = json.loads(raw)
         except (json.JSONDecodeError, UnicodeDecodeError) as exc:
             raise ValueError(f"malformed JSON: {getattr(exc, 'msg', None) or exc}") from None
-        except RecursionError:  # the door (service.api.json_depth) refuses such a body before it comes here
+        except RecursionError:  # the door (fpscan.service.api.json_depth) refuses such a body before it comes here
             raise ValueError("JSON nested too deep") from None
     try:
         return _plan_request_adapter().validate_python(value)
@@ -350,7 +358,7 @@ _EXECUTOR_LOCK = threading.Lock()
 
 
 #: CPU priority (``nice`` increment) of the plan worker: below the server's threads, beside
-#: the live-preview worker (``service.jobs.preview.PREVIEW_WORKER_NICE``, +5); the reconstruction
+#: the live-preview worker (``fpscan.service.jobs.preview.PREVIEW_WORKER_NICE``, +5); the reconstruction
 #: workers run at ``Settings.worker_nice`` (default 0, the server's own priority).
 PLAN_WORKER_NICE = 8
 
@@ -370,14 +378,14 @@ def plan_executor(context: Context) -> LocalExecutor:
     Returns
     -------
     LocalExecutor
-        A one-worker ``service.jobs.executors.LocalExecutor`` at priority increment
+        A one-worker ``fpscan.service.jobs.executors.LocalExecutor`` at priority increment
         :data:`PLAN_WORKER_NICE`, which replaces a worker that died.
     """
     import multiprocessing
     import os
     from concurrent.futures import ProcessPoolExecutor
 
-    from service.jobs.executors import LocalExecutor, lower_priority
+    from fpscan.service.jobs.executors import LocalExecutor, lower_priority
 
     class PlanWorker(LocalExecutor):
         def _new_pool(self) -> ProcessPoolExecutor:
@@ -405,7 +413,7 @@ def _in_plan_worker(context: Context, fn: Callable[..., _T], *args: Any, admit: 
             return _in_plan_worker(context, fn, *args)
         finally:
             slots.leave()
-    from service.jobs.executors import WorkerDied
+    from fpscan.service.jobs.executors import WorkerDied
 
     with _plan_turn(context):
         try:
@@ -463,7 +471,7 @@ async def preview_plan_raw(request: Request, context: Context = Depends(ctx)) ->
 @router.post("", status_code=201, response_model=Plan, dependencies=[Depends(require_token)])
 async def create_plan(
     request: Request,
-    body: PlanCreate,  # a union built from service.plans.kinds.KINDS
+    body: PlanCreate,  # a union built from fpscan.service.plans.kinds.KINDS
     context: Context = Depends(ctx),
 ) -> Response:
     """Create (or find, same content → same id) a plan from a mask kind and its params, a
@@ -475,7 +483,7 @@ async def create_plan(
 @router.post("/preview", response_model=PlanPreview, dependencies=[Depends(require_token)])
 async def preview_plan(
     request: Request,
-    body: PlanCreate,  # a union built from service.plans.kinds.KINDS
+    body: PlanCreate,  # a union built from fpscan.service.plans.kinds.KINDS
     context: Context = Depends(ctx),
 ) -> Response:
     """The plan a request would give, without saving it. Does the work of a plan, so it
@@ -486,10 +494,10 @@ async def preview_plan(
 
 @router.get("/kinds", response_model=list[MaskKindInfo], dependencies=[Depends(read_access)])
 def list_mask_kinds() -> list[MaskKindInfo]:
-    """The mask kinds and their parameters (``service.plans.kinds``): name, label, aliases,
+    """The mask kinds and their parameters (``fpscan.service.plans.kinds``): name, label, aliases,
     one descriptor per parameter (SI unit, default, bounds) and the parameter model's JSON
     schema. The web page builds its plan form from this."""
-    from service.plans.kinds import KINDS, kind_fields
+    from fpscan.service.plans.kinds import KINDS, kind_fields
 
     return [MaskKindInfo(kind=k.name, label=k.label, description=k.description, aliases=list(k.aliases),
                          fields=kind_fields(k.name), params_schema=k.params.model_json_schema())

@@ -8,13 +8,13 @@ from fastapi import APIRouter, Depends, Header, HTTPException, Query, Request, R
 from fastapi import Path as PathParam
 from fastapi.responses import FileResponse
 
-from service.api.context import Context, ctx, read_access, reason, require_token
-from service.api.files import HeldFileResponse
-from service.api.jobs import get_job_or_404, job_view
-from service.api.models import ID_PATTERN, Error, Job, MethodInfo, MethodOption, Plane, ReconRequest
-from service.formats.result import VOLUME_FILE, mip_file
-from service.jobs import lifecycle
-from service.jobs.admission import (
+from fpscan.service.api.context import Context, ctx, read_access, reason, require_token
+from fpscan.service.api.files import HeldFileResponse
+from fpscan.service.api.jobs import get_job_or_404, job_view
+from fpscan.service.api.models import ID_PATTERN, Error, Job, MethodInfo, MethodOption, Plane, ReconRequest
+from fpscan.service.formats.result import VOLUME_FILE, mip_file
+from fpscan.service.jobs import lifecycle
+from fpscan.service.jobs.admission import (
     admit,
     admit_device,
     admit_work,
@@ -23,10 +23,10 @@ from service.jobs.admission import (
     estimate_work,
     input_shape,
 )
-from service.jobs.store import IdempotencyConflict, QueueFull
-from service.names import PERSON_NAMES, person_names, renamed_words
-from service.pipeline import METHODS, default_method, method_options
-from service.recon.methods import get as method_named
+from fpscan.service.jobs.store import IdempotencyConflict, QueueFull
+from fpscan.service.names import PERSON_NAMES, person_names, renamed_words
+from fpscan.service.pipeline import METHODS, default_method, method_options
+from fpscan.service.recon.methods import get as method_named
 
 __all__ = [
     "router", "JobId", "IdemKey", "list_methods", "start_reconstruction", "queue_wait", "WavelengthQuery", "result_dir",
@@ -54,7 +54,7 @@ def _full_scan_job_id(context: Context, body: ReconRequest) -> ReconRequest:
 
 def _with_method(context: Context, body: ReconRequest) -> ReconRequest:
     """``body`` with its ``method`` resolved: as given, or the default for the input
-    (``service.pipeline.default_method`` of a stored dataset's layout; a scan file loads as
+    (``fpscan.service.pipeline.default_method`` of a stored dataset's layout; a scan file loads as
     sensor points). An unknown dataset is left to the input checks (404)."""
     if body.method is not None:
         return body
@@ -71,8 +71,8 @@ def _with_method(context: Context, body: ReconRequest) -> ReconRequest:
 def _check_unmix_wavelengths(wavelengths: list) -> None:
     """422 unless HbO2 and Hb can be unmixed at ``wavelengths`` (m): at least two,
     distinct, excitation wavelengths (400-2000 nm) within the extinction table
-    (:func:`service.recon.unmix.endmember_matrix`)."""
-    from service.recon.unmix import endmember_matrix
+    (:func:`fpscan.service.recon.unmix.endmember_matrix`)."""
+    from fpscan.service.recon.unmix import endmember_matrix
 
     try:
         endmember_matrix(wavelengths)
@@ -160,13 +160,13 @@ def _input_for(context: Context, body: ReconRequest) -> tuple[dict, dict, str]:
 
 
 def _sampled(context: Context, body: ReconRequest, meta: dict, spec: dict, needs_grid: bool) -> tuple[dict, dict, str]:
-    """The input of a dataset sampled by a stored plan (``service.subsample``): 404 for an
+    """The input of a dataset sampled by a stored plan (``fpscan.service.subsample``): 404 for an
     unknown plan, 422 where the plan cannot sample the dataset (its record: dense, the pitch,
     dt and lattice that fit) or the method needs a full grid the mask does not give."""
     from pydantic import ValidationError
 
-    from service.plans import Plan
-    from service.subsample import check_fit
+    from fpscan.service.plans import Plan
+    from fpscan.service.subsample import check_fit
 
     found = context.store.get_plan(str(body.plan_id))
     if found is None:
@@ -192,7 +192,7 @@ def _sampled(context: Context, body: ReconRequest, meta: dict, spec: dict, needs
 
 
 def _with_wavelength(spec: dict, wavelength: int | str | None, wavelengths: list, what: str) -> dict:
-    """The job input ``spec`` with the request's ``wavelength`` (``service.jobs.work``:
+    """The job input ``spec`` with the request's ``wavelength`` (``fpscan.service.jobs.work``:
     an index, or ``"all"``); 422 for an index outside the input's ``wavelengths`` (m;
     ``[None]``: one wavelength, unknown), naming them."""
     if wavelength is None:
@@ -208,14 +208,14 @@ def _with_wavelength(spec: dict, wavelength: int | str | None, wavelengths: list
 
 @router.get("/methods", response_model=list[MethodInfo], dependencies=[Depends(read_access)])
 def list_methods() -> list[MethodInfo]:
-    """The reconstruction methods (the registry ``service.recon.methods``, in its order):
+    """The reconstruction methods (the registry ``fpscan.service.recon.methods``, in its order):
     name, title, whether they need a full regular grid, whether iterative, time-limited and
     cancellable, the inputs each is the default for, the options each takes (the speed
     of sound ``sound_speed`` first, then its options model's fields, each with this
     method's default and its JSON schema: type, range, unit) and the algorithm's source.
     The web page builds its method choices and option fields from this."""
-    from service.recon.methods import option_schemas
-    from service.recon.methods.options import SpeedOptions, speed_schema
+    from fpscan.service.recon.methods import option_schemas
+    from fpscan.service.recon.methods.options import SpeedOptions, speed_schema
 
     speed = MethodOption(name="sound_speed", description=SpeedOptions.model_fields["c"].description or "",
                          default=None, value_schema=speed_schema())
@@ -275,7 +275,7 @@ def start_reconstruction(body: ReconRequest, response: Response, request: Reques
     if free is not None and free < needed:
         raise HTTPException(507, f"no room for the result on the data folder's disk: {free} bytes free (beyond "
                                  f"the reserve), {needed} needed; free space, then retry")
-    # stored as a person reads them (sound_speed, not the code's c: service.names)
+    # stored as a person reads them (sound_speed, not the code's c: fpscan.service.names)
     job_params = {"method": body.method, "params": person_names(params), "input": spec, "input_id": input_id,
                   "shape": person_names(shape),
                   "scan_job_id": body.scan_job_id, "dataset_id": body.dataset_id, "memory_estimate": mem,
@@ -305,7 +305,7 @@ def start_reconstruction(body: ReconRequest, response: Response, request: Reques
 
 def queue_wait(context: Context, client: str | None = None) -> tuple[dict, float]:
     """The reconstruction queue's length and estimated wait, from the jobs' work estimates
-    (``params["work_estimate_s"]``, s on 2 cores: ``service.jobs.admission.estimate_work``).
+    (``params["work_estimate_s"]``, s on 2 cores: ``fpscan.service.jobs.admission.estimate_work``).
 
     The work ahead of a new job is the queued jobs' estimates plus what is left of the
     running ones' (estimate less time run, at least 0), shared by the local workers
@@ -345,7 +345,7 @@ def queue_wait(context: Context, client: str | None = None) -> tuple[dict, float
 
 
 def _work(context: Context, shape: dict, params: dict, body: ReconRequest, extra: dict) -> float:
-    """The job's work in seconds on 2 cores (``service.jobs.admission.estimate_work``) with
+    """The job's work in seconds on 2 cores (``fpscan.service.jobs.admission.estimate_work``) with
     a time-limited method's time limit as the worker will cap it (the server's ``time_limit_s``), times the
     wavelengths it reconstructs (``wavelength: "all"``, unmixing)."""
     asked = {**params, "method": body.method}
@@ -375,7 +375,7 @@ def _free_bytes(context: Context) -> int | None:
 
 
 def _result_bytes(shape: dict, params: dict, body: ReconRequest, extra: dict) -> int:
-    """Bytes the job's result needs on disk (``service.jobs.admission.estimate_result_bytes``):
+    """Bytes the job's result needs on disk (``fpscan.service.jobs.admission.estimate_result_bytes``):
     a volume per wavelength it reconstructs, and the unmixing's maps."""
     volumes = 1
     if body.unmix is not None:
@@ -474,7 +474,7 @@ def volume(job_id: str = JobId, wavelength: int | None = WavelengthQuery,
 def unmix_h5(job_id: str = JobId, context: Context = Depends(ctx)) -> HeldFileResponse:
     """The unmixing of a multi-wavelength job: ``/hbo2``, ``/hb``, ``/thb``, ``/so2`` (NaN
     where masked), ``/mask``, ``/z``, ``/x``, ``/y`` (m), ``/wavelengths_m``
-    (``service.spectral``). Supports ``Range``."""
+    (``fpscan.service.spectral``). Supports ``Range``."""
     path = result_dir(context, job_id) / "unmix.h5"
     if not path.exists():
         raise HTTPException(404, f"reconstruction {job_id} was not unmixed (ask with 'unmix')")
@@ -487,7 +487,7 @@ def unmix_h5(job_id: str = JobId, context: Context = Depends(ctx)) -> HeldFileRe
                        404: {"description": "the job did not unmix"}})
 def so2_png(job_id: str = JobId, context: Context = Depends(ctx)) -> Response:
     """The sO2 picture: at each (x, y) the sO2 of the voxel of largest THb along depth,
-    colour bar 0..100 %, brightness from THb, background black (``service.spectral.render_so2_png``)."""
+    colour bar 0..100 %, brightness from THb, background black (``fpscan.service.spectral.render_so2_png``)."""
     path = result_dir(context, job_id) / "so2.png"
     if not path.exists():
         raise HTTPException(404, f"reconstruction {job_id} was not unmixed (ask with 'unmix')")
@@ -511,9 +511,9 @@ def mip_png(plane: Plane, job_id: str = JobId, wavelength: int | None = Waveleng
 def slice_png(job_id: str = JobId, index: int = Query(0, ge=0, le=1_000_000, description="depth index"),
               context: Context = Depends(ctx)) -> Response:
     """The lateral slice at depth index ``index`` of a 3-D result (2-D: the image row),
-    drawn like every picture (``service.pictures.render``): axes in mm, y down, the depth
+    drawn like every picture (``fpscan.service.pictures.render``): axes in mm, y down, the depth
     in mm in the title, a colour bar in p0 units."""
-    from service.pictures.render import render_result_slice
+    from fpscan.service.pictures.render import render_result_slice
 
     try:
         png = render_result_slice(result_dir(context, job_id) / VOLUME_FILE, index)

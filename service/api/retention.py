@@ -1,12 +1,12 @@
 """Retention routes: ``GET``/``PUT /api/retention`` (the policy of
-``service.jobs.lifecycle``, stored in the job database so a restart keeps it)."""
+``fpscan.service.jobs.lifecycle``, stored in the job database so a restart keeps it)."""
 from __future__ import annotations
 
 from fastapi import APIRouter, Depends, HTTPException
 
-from service.api.context import Context, ctx, read_access, require_token
-from service.api.models import Retention
-from service.jobs import lifecycle
+from fpscan.service.api.context import Context, ctx, read_access, require_token
+from fpscan.service.api.models import Retention
+from fpscan.service.jobs import lifecycle
 
 __all__ = ["router", "get_retention", "put_retention"]
 

@@ -9,15 +9,15 @@ from fastapi import APIRouter, Depends, Header, HTTPException, Response
 from fastapi import Path as PathParam
 from fastapi.responses import FileResponse
 
-from service.api.context import Context, ctx, read_access, require_token
-from service.api.files import HeldFileResponse
-from service.api.jobs import get_job_or_404, job_view
-from service.api.models import ID_PATTERN, Job, Plane, PreviewInfo, Scanner, ScanRequest
-from service.jobs import lifecycle
-from service.jobs.store import TERMINAL, IdempotencyConflict
+from fpscan.service.api.context import Context, ctx, read_access, require_token
+from fpscan.service.api.files import HeldFileResponse
+from fpscan.service.api.jobs import get_job_or_404, job_view
+from fpscan.service.api.models import ID_PATTERN, Job, Plane, PreviewInfo, Scanner, ScanRequest
+from fpscan.service.jobs import lifecycle
+from fpscan.service.jobs.store import TERMINAL, IdempotencyConflict
 
 if TYPE_CHECKING:
-    from service.jobs.scan_manager import ScanManager
+    from fpscan.service.jobs.scan_manager import ScanManager
 
 __all__ = [
     "router", "JobId", "list_scanners", "start_scan", "pause_scan", "resume_scan", "abort_scan", "scan_file_path",
@@ -141,7 +141,7 @@ def scan_file_path(context: Context, job_id: str) -> Path:
             responses={200: {"content": {"application/x-hdf5": {}}, "description": "the scan file (HDF5)"},
                        206: {"description": "partial content (HTTP Range)"}})
 def scan_file(job_id: str = JobId, context: Context = Depends(ctx)) -> HeldFileResponse:
-    """The scan file (HDF5, ``driver.scanfile`` layout); supports ``Range``."""
+    """The scan file (HDF5, ``fpscan.driver.scanfile`` layout); supports ``Range``."""
     # the file as it is now (a running scan's grows): its size when opened, those bytes
     return HeldFileResponse(scan_file_path(context, job_id), gone=f"scan {job_id} was deleted meanwhile",
                             media_type="application/x-hdf5", filename=f"{job_id}.h5")

@@ -11,8 +11,8 @@ from collections import deque
 from fastapi.responses import JSONResponse
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from service.api.context import Slots
-from service.api.logcaps import shown
+from fpscan.service.api.context import Slots
+from fpscan.service.api.logcaps import shown
 
 __all__ = ["MIN_BODY_RATE", "UploadLimit"]
 
@@ -39,7 +39,7 @@ class UploadLimit:
       a slot or a connection for long (nginx's ``client_body_timeout`` with a minimum rate).
       A request without a body (no ``Content-Length`` above 0, no ``Transfer-Encoding``: a
       GET, an event stream) is not timed here: its answer may last as long as its job.
-    - **Slots** (``slots``, :func:`~service.api.context.default_slots`): uploads and plan
+    - **Slots** (``slots``, :func:`~fpscan.service.api.context.default_slots`): uploads and plan
       requests (``ADMITTED``) are counted in, per client address first, before their body
       is read, and refused with 429 when too many are in progress (the form parser spools
       every upload to a temporary file, and a JSON body is parsed, before the route runs);

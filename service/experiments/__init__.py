@@ -7,8 +7,8 @@
   NER on every point, NEDNER and tv on an equi-steradian mask)
 
 ``run_experiment(name, out_dir, data=path, small=...)`` runs one and writes
-``<name>.json``, ``<name>.csv`` and its PNG plots. Built on :mod:`service.recon`,
-:mod:`service.plans` and :mod:`service.metrics`.
+``<name>.json``, ``<name>.csv`` and its PNG plots. Built on :mod:`fpscan.service.recon`,
+:mod:`fpscan.service.plans` and :mod:`fpscan.service.metrics`.
 """
 from __future__ import annotations
 
@@ -16,15 +16,15 @@ import importlib
 from pathlib import Path
 from typing import Any
 
-from .dense import DenseDataset, add_noise, load_dense
-from .result import ExperimentResult, write_experiment
+from fpscan.service.experiments.dense import DenseDataset, add_noise, load_dense
+from fpscan.service.experiments.result import ExperimentResult, write_experiment
 
 #: experiment name -> module implementing ``run(data=None, *, small=False, ...)`` and ``plot``.
 EXPERIMENTS = {
-    "limited-view-2d": "service.experiments.limited_view",
-    "sparse-masks-3d": "service.experiments.sparse_masks",
-    "nufft-vs-interpolation": "service.experiments.nufft_vs_interp",
-    "vessels": "service.experiments.vessels",
+    "limited-view-2d": "fpscan.service.experiments.limited_view",
+    "sparse-masks-3d": "fpscan.service.experiments.sparse_masks",
+    "nufft-vs-interpolation": "fpscan.service.experiments.nufft_vs_interp",
+    "vessels": "fpscan.service.experiments.vessels",
 }
 
 

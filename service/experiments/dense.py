@@ -2,10 +2,10 @@
 
 A dense dataset is what the paper's experiments start from (§6: the full 1024-point
 line; §7: the 226 × 226 scan): A-lines on every lattice point, from which sensor masks
-pick their points. It is the grid dataset of :mod:`service.storage.loader` with an
+pick their points. It is the grid dataset of :mod:`fpscan.service.storage.loader` with an
 optional ground truth. Built-in phantoms are simulated with the exact planar forward
-model (:func:`service.recon.forward_grid`); ``load_dense`` reads a file with
-:func:`service.storage.loader.load_dataset`: the k-Wave reference data
+model (:func:`fpscan.service.recon.forward_grid`); ``load_dense`` reads a file with
+:func:`fpscan.service.storage.loader.load_dataset`: the k-Wave reference data
 (``sensor_data/clean`` with ``axes`` "t, y" or "t, y, z"; attributes ``dt_s``,
 ``dx_m``/``dy_m``/``dz_m``, ``c_m_per_s``, see ``data/README.md``) or a full-lattice scan.
 """
@@ -16,9 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from service import formats
-from service.recon.dataset import GridDataset, PointDataset
-from service.storage.loader import input_formats
+from fpscan.service import formats
+from fpscan.service.recon.dataset import GridDataset, PointDataset
+from fpscan.service.storage.loader import input_formats
 
 __all__ = ["DenseDataset", "load_dense", "add_noise"]
 
@@ -93,7 +93,7 @@ class DenseDataset(GridDataset):
 
 
 def load_dense(path: str | Path, key: str | None = None) -> DenseDataset:
-    """Read a dense dataset through the registry of formats (:func:`service.formats.load`).
+    """Read a dense dataset through the registry of formats (:func:`fpscan.service.formats.load`).
 
     The k-Wave reference files' layout (or any HDF5 array in k-Wave layout), or an fpscan scan
     file covering its whole lattice. The data must be ``(n_t, n_lateral)`` or

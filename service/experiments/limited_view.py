@@ -1,14 +1,14 @@
 """Experiment ``limited-view-2d`` (paper §6): 32 sensors on a 1024-point line.
 
 A tree phantom (crown of discs, vertical trunk) is simulated with the exact planar
-forward model (:func:`service.recon.forward_grid`) plus white noise 30 dB below the
+forward model (:func:`fpscan.service.recon.forward_grid`) plus white noise 30 dB below the
 signal power. The reference (model standard) is the NER reconstruction from all line
 points. 32 sensors are then placed
 
-- equispaced (centred, :func:`service.plans.subgrid_mask`) with intervals 1..32
+- equispaced (centred, :func:`fpscan.service.plans.subgrid_mask`) with intervals 1..32
   lattice points, reconstructed with NEDNER-NUFFT (weights = interval · pitch);
 - equiangular around the point of interest (the ROI centre), NEDNER-NUFFT with the
-  mask's r²-weights (:func:`service.plans.equiangular_mask`);
+  mask's r²-weights (:func:`fpscan.service.plans.equiangular_mask`);
 - equiangular, linearly interpolated to every line point, then NER (the
   "conventional" route).
 
@@ -27,23 +27,22 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from driver.constants import C_DEFAULT
-from driver.physics.axes import centred_axis
-from service.metrics import (
+from fpscan.constants import C_DEFAULT
+from fpscan.physics.axes import centred_axis
+from fpscan.service.experiments.dense import DenseDataset, add_noise
+from fpscan.service.experiments.phantoms import tree_phantom, tree_roi
+from fpscan.service.experiments.result import ExperimentResult, setup_matplotlib
+from fpscan.service.metrics import (
     bounding_box,
     correlation_coefficient,
     disc_mask,
     tenenbaum_sharpness,
 )
-from service.pipeline import reconstruct
-from service.recon.dataset import GridDataset, PointDataset
-
-from .dense import DenseDataset, add_noise
-from .phantoms import tree_phantom, tree_roi
-from .result import ExperimentResult, setup_matplotlib
+from fpscan.service.pipeline import reconstruct
+from fpscan.service.recon.dataset import GridDataset, PointDataset
 
 if TYPE_CHECKING:
-    from service.plans import Lattice
+    from fpscan.service.plans import Lattice
 
 __all__ = ["NAME", "PAPER", "resample_depth", "simulate_tree", "run", "plot"]
 
@@ -83,7 +82,7 @@ def simulate_tree(*, small: bool, snr_db: float | None, seed: int = 0) -> DenseD
     """The built-in §6 dataset: the tree phantom, its forward model and optional noise.
 
     The phantom on ``(256, 1024)`` (small: ``(64, 256)``) pixels of 50 µm, dt = dx/c, n_t =
-    n_x + n_z samples (`service.recon.forward_grid`).
+    n_x + n_z samples (`fpscan.service.recon.forward_grid`).
 
     Parameters
     ----------
@@ -100,7 +99,7 @@ def simulate_tree(*, small: bool, snr_db: float | None, seed: int = 0) -> DenseD
         ``data`` ``(n_t, n_x)`` with noise, ``p0`` the phantom (dz = dx), ``meta['clean']`` the
         clean data (and ``snr_db``, ``seed``).
     """
-    from service.recon import forward_grid
+    from fpscan.service.recon import forward_grid
 
     n_z, n_x = (64, 256) if small else (256, 1024)
     dx, c = 50e-6, C_DEFAULT
@@ -178,7 +177,7 @@ def run(
     table = _Table(_scorer(data, ref, z, x, roi))
     table.rows.append(table.score(ref, arrangement="full", interval=1, n_sensors=n_x, time_s=t_ref))
     table.images["reference"] = ref
-    from service.plans import Lattice
+    from fpscan.service.plans import Lattice
 
     lattice = Lattice(n_x, 1, dx)
     line = _Line(g=g, x=x, dx=dx, dt=dt, c=c, n_z=n_z)
@@ -303,7 +302,7 @@ class _Table:
 
 def _run_equispaced(table: _Table, line: _Line, lattice: Lattice, intervals: Iterable[int], n_sensors: int) -> None:
     """``n_sensors`` equispaced sensors at each interval that fits, NEDNER-NUFFT."""
-    from service.plans import subgrid_mask
+    from fpscan.service.plans import subgrid_mask
 
     for s in intervals:
         s = int(s)
@@ -323,7 +322,7 @@ def _run_equiangular(table: _Table, line: _Line, lattice: Lattice, poi: tuple[fl
     """``n_sensors`` equiangular sensors around ``poi`` ``(z, x)`` m: NEDNER-NUFFT, ``tv``
     (``model_based``) and interpolated to every line point + NER. Returns the mask's
     outer/inner weight ratio."""
-    from service.plans import equiangular_mask
+    from fpscan.service.plans import equiangular_mask
 
     zc, xc = poi
     mask_eq = equiangular_mask(lattice, zc, n_sensors, poi=(xc, 0.0))
@@ -343,7 +342,7 @@ def _run_equiangular(table: _Table, line: _Line, lattice: Lattice, poi: tuple[fl
     filled = _interpolated_to_line(pos[:, 0], line.g[:, idx], line.x)
     img = line.reconstruct(GridDataset(data=filled, dx=line.dx, dt=line.dt, c=line.c), "ner")
     table.add("equiangular-interpolated", img, pos[:, 0], t0, arrangement="equiangular-interpolated", **row)
-    return mask_eq.weight_ratio  # outer/inner (service.plans.weight_ratio), as every plan states it
+    return mask_eq.weight_ratio  # outer/inner (fpscan.service.plans.weight_ratio), as every plan states it
 
 
 def _interpolated_to_line(sensor_x: np.ndarray, alines: np.ndarray, x: np.ndarray) -> np.ndarray:

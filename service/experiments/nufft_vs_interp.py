@@ -30,14 +30,13 @@ from typing import Any
 
 import numpy as np
 
-from driver.constants import C_DEFAULT
-from driver.physics.axes import centred_axis
-from service.metrics import fit_edge_spread, fit_lorentz, side_lobe_level
-from service.pipeline import reconstruct
-
-from .dense import DenseDataset
-from .phantoms import layer_phantom
-from .result import ExperimentResult, setup_matplotlib
+from fpscan.constants import C_DEFAULT
+from fpscan.physics.axes import centred_axis
+from fpscan.service.experiments.dense import DenseDataset
+from fpscan.service.experiments.phantoms import layer_phantom
+from fpscan.service.experiments.result import ExperimentResult, setup_matplotlib
+from fpscan.service.metrics import fit_edge_spread, fit_lorentz, side_lobe_level
+from fpscan.service.pipeline import reconstruct
 
 __all__ = ["NAME", "METHODS", "PAPER", "simulate_layer", "depth_sweep", "run", "plot"]
 
@@ -72,7 +71,7 @@ def simulate_layer(*, small: bool, depth: float | None = None) -> DenseDataset:
     ValueError
         The layer is outside the recorded window.
     """
-    from service.recon import forward_grid
+    from fpscan.service.recon import forward_grid
 
     n_x, n_t, dx, dt, c = (128, 256, 70e-6, 8e-9, C_DEFAULT) if small else (256, 512, 70e-6, 8e-9, C_DEFAULT)
     dz = c * dt
@@ -102,7 +101,7 @@ def _timed(fn: Callable[[], np.ndarray], repeats: int) -> tuple[np.ndarray, floa
 
 def _reconstruct(method: str, data: DenseDataset, n_z: int) -> np.ndarray:
     """p0 rows ``0..n_z-1`` (spacing c·dt) of a float64 reconstruction on the default
-    n_t-row grid (:func:`service.pipeline.reconstruct`): the pipeline's ``method`` or, for
+    n_t-row grid (:func:`fpscan.service.pipeline.reconstruct`): the pipeline's ``method`` or, for
     ``"kwave-<interp>"``, its ``kwave`` method (k-Wave's kspaceLineRecon /
     kspacePlaneRecon) with that interpolation (``'*linear'`` for ``kwave-linear``)."""
     if method.startswith("kwave-"):

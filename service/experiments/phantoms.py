@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from driver.physics.axes import centred_axis
+from fpscan.physics.axes import centred_axis
 
 __all__ = ["tree_phantom", "tree_roi", "yarn_geometry", "yarn_phantom", "layer_phantom", "vessel_tree", "vessel_phantom"]
 

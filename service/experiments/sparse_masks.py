@@ -5,10 +5,10 @@ points of 60 µm through the exact forward model; or any dense file, e.g. the k-
 3-D data), the full NER reconstruction's xy-MIP is the model standard. Sensor masks
 picking ~3 % of the points are compared with it:
 
-- equi-steradian (:func:`service.plans.equisteradian_mask`, ``fraction`` of the lattice,
+- equi-steradian (:func:`fpscan.service.plans.equisteradian_mask`, ``fraction`` of the lattice,
   point of interest at the lattice centre at depth 0.53 × half the aperture — 3.6 mm
   for the paper's 13.56 mm), NEDNER-NUFFT with its r³-weights;
-- equispaced ``m × m`` sub-grids (:func:`service.plans.subgrid_mask`; 41 × 41 on
+- equispaced ``m × m`` sub-grids (:func:`fpscan.service.plans.subgrid_mask`; 41 × 41 on
   226 × 226, scaled to the lattice) with intervals 2..5, NEDNER-NUFFT with weights
   interval² · pitch².
 
@@ -27,9 +27,12 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from driver.constants import C_DEFAULT
-from driver.physics.axes import centred_axis
-from service.metrics import (
+from fpscan.constants import C_DEFAULT
+from fpscan.physics.axes import centred_axis
+from fpscan.service.experiments.dense import DenseDataset, add_noise
+from fpscan.service.experiments.phantoms import yarn_phantom
+from fpscan.service.experiments.result import ExperimentResult, setup_matplotlib
+from fpscan.service.metrics import (
     cc_vs_diameter,
     cc_vs_pixels,
     correlation_coefficient,
@@ -38,12 +41,8 @@ from service.metrics import (
     roi_mask,
     sharpness_vs_diameter,
 )
-from service.pipeline import reconstruct
-from service.recon.dataset import PointDataset
-
-from .dense import DenseDataset, add_noise
-from .phantoms import yarn_phantom
-from .result import ExperimentResult, setup_matplotlib
+from fpscan.service.pipeline import reconstruct
+from fpscan.service.recon.dataset import PointDataset
 
 __all__ = [
     "NAME", "PAPER", "POI_DEPTH_RATIO", "EVAL_DIAMETER_RATIO", "DISC_RATIO", "simulate_yarn", "run", "plot",
@@ -78,7 +77,7 @@ def simulate_yarn(*, small: bool, snr_db: float | None = None, seed: int = 0) ->
     DenseDataset
         ``data`` ``(n_t, n, n)``, ``p0`` the yarn ``(n_z, n, n)`` (z, y, x) with dz = the pitch.
     """
-    from service.recon import forward_grid
+    from fpscan.service.recon import forward_grid
 
     n, d, dt, c = (64, 60e-6, 8e-9, C_DEFAULT) if small else (226, 60e-6, 8e-9, C_DEFAULT)
     half = n * d / 2
@@ -223,8 +222,8 @@ def _arrangements(n: int, d: float, poi_depth: float, n_points: int, intervals: 
     the equi-steradian mask of ``n_points`` around the lattice centre at ``poi_depth`` m
     (NEDNER), the ``n_side`` × ``n_side`` sub-grid of each interval (NEDNER) and, with
     ``model_based``, the equi-steradian A-lines again with ``tv``; and the equi-steradian
-    mask's weight ratio (outer/inner, `service.plans.weight_ratio`)."""
-    from service.plans import Lattice, equisteradian_mask, subgrid_mask
+    mask's weight ratio (outer/inner, `fpscan.service.plans.weight_ratio`)."""
+    from fpscan.service.plans import Lattice, equisteradian_mask, subgrid_mask
 
     lattice = Lattice(n, n, d)
     es = equisteradian_mask(lattice, poi_depth, n_points)
@@ -330,7 +329,7 @@ def _summary(rows: list[dict], curves: dict, score: _Scoring, side: float, weigh
     diameters = score.diameters
     band = (diameters >= 2 / 13.56 * side) & (diameters <= 8 / 13.56 * side)
     summary = {"cc_equisteradian": es_row["cc_eval_diameter"], "eval_diameter_m": score.eval_d,
-               "weight_ratio_equisteradian": weight_ratio,  # outer/inner, service.plans.weight_ratio
+               "weight_ratio_equisteradian": weight_ratio,  # outer/inner, fpscan.service.plans.weight_ratio
                "paper": PAPER}
     if model_based:
         summary["cc_equisteradian_tv"] = rows[-1]["cc_eval_diameter"]

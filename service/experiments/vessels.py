@@ -3,13 +3,13 @@
 FP scanners image vasculature, so this is the model-based method's main case. The vessel
 phantom (:func:`.phantoms.vessel_phantom`: a trunk forking three times, tubes 4, 3, 2 and
 1 voxels wide, mostly parallel to the sensor plane) on a cubic grid of 50 µm voxels is
-simulated with the exact forward model (`service.recon.forward_grid`, every lattice
+simulated with the exact forward model (`fpscan.service.recon.forward_grid`, every lattice
 point), white noise ``snr_db`` below the data's RMS is added, and p0 is reconstructed by
-the one dispatch (:func:`service.pipeline.reconstruct`) with
+the one dispatch (:func:`fpscan.service.pipeline.reconstruct`) with
 
 - ``ner``: every lattice point (full data, the reference a dense scan gives);
 - ``nedner``: an equi-steradian mask of ``fraction`` of the lattice around a point of
-  interest at the tree's depth (:func:`service.plans.equisteradian_mask`, its area weights);
+  interest at the tree's depth (:func:`fpscan.service.plans.equisteradian_mask`, its area weights);
 - ``tv``: the same sparse A-lines, default settings (automatic λ, its stopping rule).
 
 Measured per method against the true p0: CC over the volume, the least-squares amplitude
@@ -26,14 +26,13 @@ from pathlib import Path
 
 import numpy as np
 
-from driver.constants import C_DEFAULT
-from driver.physics.axes import centred_axis
-from service.metrics import correlation_coefficient
-from service.pipeline import reconstruct
-
-from .dense import DenseDataset
-from .phantoms import vessel_phantom, vessel_tree
-from .result import ExperimentResult, setup_matplotlib
+from fpscan.constants import C_DEFAULT
+from fpscan.physics.axes import centred_axis
+from fpscan.service.experiments.dense import DenseDataset
+from fpscan.service.experiments.phantoms import vessel_phantom, vessel_tree
+from fpscan.service.experiments.result import ExperimentResult, setup_matplotlib
+from fpscan.service.metrics import correlation_coefficient
+from fpscan.service.pipeline import reconstruct
 
 __all__ = ["NAME", "METHODS", "simulate_vessels", "branch_contrasts", "run", "plot"]
 
@@ -62,7 +61,7 @@ def simulate_vessels(*, small: bool, snr_db: float = 30.0, seed: int = 0) -> Den
     DenseDataset
         ``data`` ``(n_t, n_x, n_x)`` with noise, ``p0`` (z, y, x) the truth (dz = dx).
     """
-    from service.recon import forward_grid
+    from fpscan.service.recon import forward_grid
 
     n_z, n_x = (24, 40) if small else (48, 96)
     dx = 50e-6
@@ -154,8 +153,8 @@ def run(data: DenseDataset | None = None, *, small: bool = False, fraction: floa
     ValueError
         ``data`` given, or ``fraction`` outside (0, 1].
     """
-    from service.plans import Lattice, equisteradian_mask
-    from service.recon.dataset import GridDataset, PointDataset
+    from fpscan.service.plans import Lattice, equisteradian_mask
+    from fpscan.service.recon.dataset import GridDataset, PointDataset
 
     if data is not None:
         raise ValueError("the vessels experiment runs on its built-in phantom (its oracle); --data is not taken")

@@ -8,7 +8,7 @@ name or from the content (:func:`load`), the lists of choices (:func:`names`: th
 reconstruction's ``--format``, ``POST /api/datasets``'s ``format``, ``GET
 /api/datasets/formats`` for the web page and the HTTP client) and the one place a file is
 opened and checked (:func:`open_source`: opened once, the hostile-HDF5 checks of
-``service.formats.untrusted`` applied to every format).
+``fpscan.service.formats.untrusted`` applied to every format).
 
 ==============  ==========  ==================================================  =====================
 name            module      content                                             role
@@ -34,16 +34,16 @@ Exports: a format with ``export_from`` and ``export`` writes files of another (`
 /api/jobs/{id}/export/{format}``, the HTTP client's ``export`` and the web page's downloads).
 
 Adding a format: a module with ``sniff``, ``load`` (and ``write``; its load options as a
-typed model of ``service.formats.load_options``, ``Format.options``), or an ``export``, that
+typed model of ``fpscan.service.formats.load_options``, ``Format.options``), or an ``export``, that
 declares a ``FORMAT = Format(...)``, an entry point naming it in the group ``fpscan.formats`` of
 its distribution's ``pyproject.toml`` (fpscan's own, or another package's: a plugin), and its
 test — nothing else: the registry loads every entry point of the group when this package is
-imported (``service.plugins.load_group``), and the CLI help, the API's choices, the web page
+imported (``fpscan.service.plugins.load_group``), and the CLI help, the API's choices, the web page
 and the HTTP client follow from the registry (docs/plugins.md).
 """
 from __future__ import annotations
 
-from service.formats._registry import (
+from fpscan.service.formats._registry import (
     FORMATS,
     HEAD_BYTES,
     MAX_BYTES,
@@ -60,7 +60,7 @@ from service.formats._registry import (
     sniff,
     unregister,
 )
-from service.plugins import load_group
+from fpscan.service.plugins import load_group
 
 __all__ = ["FORMATS", "HEAD_BYTES", "MAX_BYTES", "Format", "Source", "describe", "detect", "export_file",
            "export_formats", "load", "names", "open_source", "register", "sniff", "unregister", "upload_formats"]

@@ -1,15 +1,15 @@
-"""The registry of file formats (:mod:`service.formats`): what a format declares
+"""The registry of file formats (:mod:`fpscan.service.formats`): what a format declares
 (:class:`Format`), the one place a file is opened and checked (:func:`open_source`), and
 detection and loading by name or from the content.
 
 A file is opened once per load: :func:`open_source` reads its first :data:`HEAD_BYTES`
-bytes and, for an HDF5 file, opens it once read-only (``driver.scanfile.open_readonly``:
+bytes and, for an HDF5 file, opens it once read-only (``fpscan.driver.scanfile.open_readonly``:
 SWMR only for a file a writer has open) and checks it there
-(``service.formats.untrusted.check_hdf5_file``: no external links, external storage or
+(``fpscan.service.formats.untrusted.check_hdf5_file``: no external links, external storage or
 virtual datasets, no dataset declaring more than ``max_bytes`` or more than it stores)
 before any format's ``sniff`` or ``load`` sees it; a file HDF5 would open as an SWMR
 reader (a writer has it open) is detected and loaded in a bounded child process
-(``service.formats.untrusted.read_bounded``). Those protections so hold for every format,
+(``fpscan.service.formats.untrusted.read_bounded``). Those protections so hold for every format,
 the registered ones and any added later, not per reader.
 """
 from __future__ import annotations
@@ -21,9 +21,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, BinaryIO
 
-from driver.hdf5_checks import HDF5_SIGNATURE
-from service.plugins import put_in_order
-from service.recon.dataset import MAX_ELEMENTS
+from fpscan.driver.hdf5_checks import HDF5_SIGNATURE
+from fpscan.service.plugins import put_in_order
+from fpscan.service.recon.dataset import MAX_ELEMENTS
 
 if TYPE_CHECKING:
     from pydantic import BaseModel
@@ -63,7 +63,7 @@ class Source:
         Its first :data:`HEAD_BYTES` bytes (fewer for a shorter file).
     h5 : h5py.File or None
         The read-only ``h5py.File`` (HDF5 files, already checked by
-        ``service.formats.untrusted.check_hdf5_file``), else None.
+        ``fpscan.service.formats.untrusted.check_hdf5_file``), else None.
     fh : BinaryIO or None
         The open binary file positioned at 0 (other files), else None.
     """
@@ -89,7 +89,7 @@ class Source:
 
 @dataclass(frozen=True)
 class Format:
-    """One file format: one module of :mod:`service.formats` declares it, the registry
+    """One file format: one module of :mod:`fpscan.service.formats` declares it, the registry
     (:func:`register`) serves it.
 
     Attributes
@@ -144,7 +144,7 @@ class Format:
         May hold several excitation wavelengths: its ``load`` takes ``wavelength_index``
         (one of them) and ``all_wavelengths`` (a list, one per wavelength).
     refuse : str or None
-        Not data to reconstruct: the reason :func:`service.storage.loader.load_dataset`
+        Not data to reconstruct: the reason :func:`fpscan.service.storage.loader.load_dataset`
         gives when the content is detected as this format.
     order : int
         Sniffing order, lowest first; the catch-all (any HDF5 array: ``kwave-hdf5``) last.
@@ -288,8 +288,8 @@ def open_source(path: str | os.PathLike, container: str | None = None, *,
         Not the container asked for (with a hint for a MATLAB MAT-file); an HDF5 file that
         is unreadable (truncated or corrupt) or refused by ``check_hdf5_file``.
     """
-    from driver.scanfile import open_readonly
-    from service.formats.untrusted import check_hdf5_file
+    from fpscan.driver.scanfile import open_readonly
+    from fpscan.service.formats.untrusted import check_hdf5_file
 
     path = Path(path)
     if not path.is_file():
@@ -315,7 +315,7 @@ def open_source(path: str | os.PathLike, container: str | None = None, *,
 
 def _open_behind_user_block(path: Path) -> Any:
     """An HDF5 file whose superblock sits behind a 512-byte user block (a MATLAB v7.3
-    MAT-file), opened read-only without SWMR: ``driver.scanfile.open_readonly`` checks a
+    MAT-file), opened read-only without SWMR: ``fpscan.driver.scanfile.open_readonly`` checks a
     superblock at 0 only, and these files come from MATLAB, never from a writer fpscan
     reads while it writes (a file flagged as open for writing is refused by HDF5 itself,
     which is what a plain open does: no SWMR retries). Raises OSError."""
@@ -379,7 +379,7 @@ def detect(path: str | os.PathLike, *, max_bytes: int = MAX_BYTES, bounded: bool
         No file ``path``.
     """
     if bounded:
-        from service.formats.untrusted import read_bounded
+        from fpscan.service.formats.untrusted import read_bounded
 
         return read_bounded(detect, path, max_bytes=max_bytes, bounded=False)
     with open_source(path, max_bytes=max_bytes) as src:
@@ -415,7 +415,7 @@ def describe(path: str | os.PathLike, *, unless: tuple[str, ...] = (), max_bytes
     try:
         name = detect(path, max_bytes=max_bytes)
     except (ValueError, OSError):
-        from service.formats.untrusted import is_hdf5
+        from fpscan.service.formats.untrusted import is_hdf5
 
         try:
             return "an HDF5 file" if is_hdf5(path) else None
@@ -438,7 +438,7 @@ def load(path: str | os.PathLike, kind: str | None = None, *, max_bytes: int = M
 
     A file HDF5 would open as an SWMR reader (a writer has it open: HDF5 can block on its
     damaged metadata for ever) is read in a spawned child process with a time limit
-    (``service.formats.untrusted.read_bounded``; there only the formats of the ``fpscan.formats``
+    (``fpscan.service.formats.untrusted.read_bounded``; there only the formats of the ``fpscan.formats``
     entry points are registered, and the content must be picklable) unless ``bounded`` is False.
 
     Parameters
@@ -480,7 +480,7 @@ def load(path: str | os.PathLike, kind: str | None = None, *, max_bytes: int = M
         No file ``path``.
     """
     if bounded:
-        from service.formats.untrusted import read_bounded
+        from fpscan.service.formats.untrusted import read_bounded
 
         return read_bounded(load, path, kind, max_bytes=max_bytes, choices=choices, bounded=False, **options)
     fmt = _get(kind, choices) if kind is not None else None

@@ -1,7 +1,7 @@
 """The canonical dataset file (format ``fpscan-dataset/1``), in which the server keeps
 every upload: it stores a :class:`GridDataset` or a :class:`PointDataset` exactly (dtype
 included), so a reconstruction of it equals one of the original file. Written by
-:func:`write` (``service.storage.loader.import_dataset``), read by :func:`load`.
+:func:`write` (``fpscan.service.storage.loader.import_dataset``), read by :func:`load`.
 """
 from __future__ import annotations
 
@@ -11,14 +11,14 @@ from typing import Any
 import h5py
 import numpy as np
 
-from service.formats._registry import Format, Source
-from service.names import PERSON_NAMES
-from service.recon.dataset import GridDataset, PointDataset, p0_unit
+from fpscan.service.formats._registry import Format, Source
+from fpscan.service.names import PERSON_NAMES
+from fpscan.service.recon.dataset import GridDataset, PointDataset, p0_unit
 
 __all__ = ["FORMAT", "DATASET_FORMAT", "sniff", "load", "write"]
 
 DATASET_FORMAT = "fpscan-dataset/1"
-#: the speed of sound's attribute (m/s), as a person reads it (:mod:`service.names`); files
+#: the speed of sound's attribute (m/s), as a person reads it (:mod:`fpscan.service.names`); files
 #: written before it say ``c``, still read
 _SPEED = PERSON_NAMES["c"]
 
@@ -30,7 +30,7 @@ def sniff(source: Source) -> bool:
     Parameters
     ----------
     source : Source
-        The opened file (:class:`service.formats.Source`).
+        The opened file (:class:`fpscan.service.formats.Source`).
 
     Returns
     -------
@@ -51,8 +51,8 @@ def write(path: str | os.PathLike, ds: GridDataset | PointDataset) -> None:
     Both: attribute ``format``, ``layout``, ``source``; ``wavelengths_m`` when known, and
     ``wavelength_index`` (into the source file's wavelengths) when it was chosen from a
     multi-wavelength file; ``p0_unit`` (``"Pa"`` for calibrated pressure, else ``"a.u."``:
-    :func:`service.recon.dataset.p0_unit`); ``lateral_shift_m`` (m) when the data carry one
-    (:class:`service.recon.dataset.GridDataset`'s ``lateral_shift``).
+    :func:`fpscan.service.recon.dataset.p0_unit`); ``lateral_shift_m`` (m) when the data carry one
+    (:class:`fpscan.service.recon.dataset.GridDataset`'s ``lateral_shift``).
 
     Parameters
     ----------

@@ -14,13 +14,13 @@ implementation PACFISH, ``pacfish.iohandler``) is an HDF5 file with
 Mapping of an fpscan scan (docs/file-formats.md has the full table): every *completed*
 scan point is one detection element at ``[x, y, 0]`` m facing +z; one wavelength; one
 measurement (the scan is a ``composite_scan``: its points were acquired one after the
-other). The binary data is the DC-normalised pressure (``driver.scanfile``). Things IPASC
+other). The binary data is the DC-normalised pressure (``fpscan.driver.scanfile``). Things IPASC
 has no tag for (area weights, lattice indices, the plan, per-A-line metadata) go into
 extra ``/meta_data/fpscan_*`` datasets, which :func:`read_ipasc` uses when present and
 other readers ignore.
 
-In the registry of formats (``service.formats``) this module is the ``ipasc`` format:
-:func:`sniff`, :func:`load` (→ :class:`service.recon.dataset.PointDataset`; it may hold
+In the registry of formats (``fpscan.service.formats``) this module is the ``ipasc`` format:
+:func:`sniff`, :func:`load` (→ :class:`fpscan.service.recon.dataset.PointDataset`; it may hold
 several excitation wavelengths: ``wavelength_index`` chooses one, default the first) and
 :func:`export_scan`, its writer.
 """
@@ -38,12 +38,12 @@ import numpy as np
 import numpy.typing as npt
 from h5py import h5d, h5g, h5s, h5t
 
-from driver.constants import C_DEFAULT
-from driver.physics.axes import centred_axis
-from driver.scanfile import ScanData, read_scan
-from service.formats._registry import Format, Source
-from service.formats.load_options import WavelengthChoice
-from service.recon.dataset import PointDataset, check_wavelength_index
+from fpscan.constants import C_DEFAULT
+from fpscan.driver.scanfile import ScanData, read_scan
+from fpscan.physics.axes import centred_axis
+from fpscan.service.formats._registry import Format, Source
+from fpscan.service.formats.load_options import WavelengthChoice
+from fpscan.service.recon.dataset import PointDataset, check_wavelength_index
 
 __all__ = ["DETECTOR_ID_WIDTH", "FORMAT", "export_scan", "import_ipasc", "load", "read_ipasc",
            "read_open_ipasc", "sniff", "write_ipasc"]
@@ -367,7 +367,7 @@ def read_ipasc(path: str | os.PathLike, *, wavelength_index: int = 0,
 def read_open_ipasc(f: h5py.File, *, wavelength_index: int = 0, measurement_index: int = 0) -> dict:
     """:func:`read_ipasc` of an IPASC file already open.
 
-    The registry of formats (``service.formats``) opens a file once and reads it here.
+    The registry of formats (``fpscan.service.formats``) opens a file once and reads it here.
 
     Parameters
     ----------

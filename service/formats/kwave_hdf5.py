@@ -6,12 +6,12 @@ Spacings: options first, then file attributes. k-Wave files (a ``kwave_DataOrder
 attribute on the array or ``kwave_commit`` on the file, as in ``shared/data``) name the
 depth axis x, so their lateral spacings are ``dy_m`` (our y, or our x in 2-D) and ``dz_m``
 (our x); other files use ``dx_m``/``dy_m`` for our x/y (the rule's one owner:
-:mod:`driver.kwave_layout`, shared with the simulator's replay). ``dt_s`` and
+:mod:`fpscan.driver.kwave_layout`, shared with the simulator's replay). ``dt_s`` and
 ``c_m_per_s`` give dt and c. The catch-all of HDF5 files: sniffed last.
 
 Lateral coordinates (``GridDataset.lateral_shift``): where the file gives its sensor
 coordinates (1-D datasets ``sensor_z_m``/``sensor_y_m`` in a k-Wave file, ``sensor_x_m``/
-``sensor_y_m`` in others: :func:`driver.kwave_layout.sensor_coordinate_names`) they are
+``sensor_y_m`` in others: :func:`fpscan.driver.kwave_layout.sensor_coordinate_names`) they are
 the grid (unless that axis's spacing is given as an option: it wins); otherwise a k-Wave file follows ``kWaveGrid``'s ``(i - floor(N/2))·dx``, any other
 the centred ``(i - (N - 1)/2)·dx``.
 """
@@ -22,11 +22,11 @@ from typing import Any
 import h5py
 import numpy as np
 
-from driver import kwave_layout
-from driver.constants import C_DEFAULT
-from service.formats._registry import Format, Source
-from service.formats.load_options import KwaveOptions
-from service.recon.dataset import MAX_ELEMENTS, GridDataset, grid_array, lateral_shift_of, positive
+from fpscan.constants import C_DEFAULT
+from fpscan.driver import kwave_layout
+from fpscan.service.formats._registry import Format, Source
+from fpscan.service.formats.load_options import KwaveOptions
+from fpscan.service.recon.dataset import MAX_ELEMENTS, GridDataset, grid_array, lateral_shift_of, positive
 
 __all__ = ["FORMAT", "sniff", "load", "find_array"]
 
@@ -39,7 +39,7 @@ def sniff(source: Source) -> bool:
     Parameters
     ----------
     source : Source
-        The opened HDF5 file (:class:`service.formats.Source`).
+        The opened HDF5 file (:class:`fpscan.service.formats.Source`).
 
     Returns
     -------
@@ -171,7 +171,7 @@ def load(source: Source, *, key: str | None = None, dt: float | None = None, dx:
 
 def _coordinates(f: h5py.File, kwave: bool, ndim: int) -> tuple[np.ndarray | None, ...]:
     """The file's sensor coordinates ``(x,)`` / ``(x, y)`` (m; None where it gives none):
-    the 1-D datasets :func:`driver.kwave_layout.sensor_coordinate_names` names."""
+    the 1-D datasets :func:`fpscan.driver.kwave_layout.sensor_coordinate_names` names."""
     out: list[np.ndarray | None] = []
     for n in kwave_layout.sensor_coordinate_names(kwave, ndim):
         obj = f.get(n) if n else None

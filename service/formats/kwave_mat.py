@@ -1,5 +1,5 @@
 """k-Wave MAT-files: ``sensor_data`` as a k-Wave user saves it with MATLAB's or Octave's
-``save`` → :class:`service.recon.dataset.GridDataset`.
+``save`` → :class:`fpscan.service.recon.dataset.GridDataset`.
 
 Two containers, one format (sniffed from the content, never the suffix):
 
@@ -7,11 +7,11 @@ Two containers, one format (sniffed from the content, never the suffix):
   writes both): a 128-byte text header (``MATLAB 5.0 MAT-file``), then one data element
   per variable. Read with ``scipy.io.loadmat`` after this module has inflated every
   compressed element itself, bounded: at most ``max_bytes`` decoded in all and at most
-  ``service.formats.untrusted.MAX_RATIO`` times the bytes stored (+ 1 MiB), the rule every
+  ``fpscan.service.formats.untrusted.MAX_RATIO`` times the bytes stored (+ 1 MiB), the rule every
   HDF5 input obeys, so a zlib bomb is refused before a byte of it is decoded past that.
 - **MAT v7.3** (``save -v7.3``): HDF5 behind a 512-byte text header (``MATLAB 7.3
   MAT-file``). The registry opens it past the header and checks it like every HDF5 input
-  (``service.formats.untrusted.check_hdf5_file``: no external links or storage, no virtual
+  (``fpscan.service.formats.untrusted.check_hdf5_file``: no external links or storage, no virtual
   datasets, no dataset declaring more than it stores or than ``max_bytes``); here it is
   read with h5py as MATLAB lays it out: each variable a dataset (or a group for a
   struct) with a ``MATLAB_class`` attribute, stored transposed (HDF5's row-major shape is
@@ -35,7 +35,7 @@ What is read (names as k-Wave's examples save them; options first, then the file
 - ``dt`` (s): the option, else ``kgrid.dt`` or a variable ``dt``.
 - the lateral spacings (m): the options, else ``kgrid.dy`` / ``kgrid.dz`` or variables
   ``dy`` / ``dz``, k-Wave's naming (depth is k-Wave's x: our x is k-Wave's y in 2-D and
-  its z in 3-D; the rule's one owner is :mod:`driver.kwave_layout`), else a variable
+  its z in 3-D; the rule's one owner is :mod:`fpscan.driver.kwave_layout`), else a variable
   ``dx`` for every lateral axis (a grid of equal spacings, as ``kWaveGrid(Nx, dx, Ny, dx)``).
 - the sound speed (m/s): the option, else ``c0``, ``c``, ``sound_speed`` or a scalar
   ``medium.sound_speed``, else 1500.
@@ -58,11 +58,11 @@ from typing import Any, BinaryIO
 
 import numpy as np
 
-from driver import kwave_layout
-from driver.constants import C_DEFAULT
-from service.formats._registry import Format, Source
-from service.formats.load_options import KwaveOptions
-from service.recon.dataset import MAX_ELEMENTS, GridDataset, grid_array, lateral_shift_of, positive
+from fpscan.constants import C_DEFAULT
+from fpscan.driver import kwave_layout
+from fpscan.service.formats._registry import Format, Source
+from fpscan.service.formats.load_options import KwaveOptions
+from fpscan.service.recon.dataset import MAX_ELEMENTS, GridDataset, grid_array, lateral_shift_of, positive
 
 __all__ = ["FORMAT", "sniff", "load", "V5_TEXT", "V73_TEXT", "read_variables"]
 
@@ -85,7 +85,7 @@ def sniff(source: Source) -> bool:
     Parameters
     ----------
     source : Source
-        The opened file (MAT v5) or HDF5 file (MAT v7.3) (:class:`service.formats.Source`).
+        The opened file (MAT v5) or HDF5 file (MAT v7.3) (:class:`fpscan.service.formats.Source`).
 
     Returns
     -------
@@ -103,7 +103,7 @@ def _inflated_v5(fh: BinaryIO, max_bytes: int) -> bytes:
     """The MAT v5 file open in ``fh`` with every compressed element inflated (header and
     elements as an uncompressed v5 file), decoding at most ``max_bytes`` in all and at most
     ``MAX_RATIO`` times the bytes stored (+ ``SMALL_BYTES``). Raises ValueError."""
-    from service.formats.untrusted import MAX_RATIO, SMALL_BYTES
+    from fpscan.service.formats.untrusted import MAX_RATIO, SMALL_BYTES
 
     fh.seek(0)
     header = fh.read(128)

@@ -1,8 +1,8 @@
 """The load options a file format declares (``Format.options``): typed pydantic models, as the
-methods' options are (``service.recon.methods.options``), from which the surfaces are generated —
+methods' options are (``fpscan.service.recon.methods.options``), from which the surfaces are generated —
 the upload form of ``POST /api/datasets`` (its fields), ``GET /api/formats`` (each format's
 options with their value schema: the web page shows the fields the chosen format takes), the
-flags of ``fpscan recon`` / ``unmix`` (``clients.cli.recon_options.add_load_flags``) — and every
+flags of ``fpscan recon`` / ``unmix`` (``fpscan.clients.cli.recon_options.add_load_flags``) — and every
 door refuses an option the chosen format does not take (:func:`check_load_options`).
 
 The mix-ins: :class:`GridSpacing` (``dt``, ``dx``, ``dy``: a k-Wave style array's sampling),
@@ -10,7 +10,7 @@ The mix-ins: :class:`GridSpacing` (``dt``, ``dx``, ``dy``: a k-Wave style array'
 :class:`WavelengthChoice` (``wavelength``: one excitation wavelength of a multi-wavelength
 file). A format module declares ``options=`` with one of them or a model combining several.
 Field metadata as the methods' (``unit``, ``quantity``: text with a unit accepted). The speed of
-sound is every input's (``service.recon.methods.options.SpeedOptions``), not a load option.
+sound is every input's (``fpscan.service.recon.methods.options.SpeedOptions``), not a load option.
 """
 from __future__ import annotations
 
@@ -28,12 +28,12 @@ WAVELENGTH_MAX = 1023
 
 
 def _positive(name: str) -> Any:
-    """The rule of ``service.recon.checks.positive`` as a before-validator (None passes): the
+    """The rule of ``fpscan.service.recon.checks.positive`` as a before-validator (None passes): the
     words every door already uses (``dt must be a finite number > 0, got -1``)."""
     def check(value: Any) -> Any:
         if value is None:
             return None
-        from service.recon.checks import positive
+        from fpscan.service.recon.checks import positive
 
         return positive(name, value)
 
@@ -66,7 +66,7 @@ class LoadOptions(BaseModel):
 
     Examples
     --------
-    >>> from service.formats.load_options import LoadOptions
+    >>> from fpscan.service.formats.load_options import LoadOptions
     >>> LoadOptions.model_validate({}).model_dump()
     {}
     """
@@ -96,7 +96,7 @@ class GridSpacing(LoadOptions):
 
     Examples
     --------
-    >>> from service.formats.load_options import GridSpacing
+    >>> from fpscan.service.formats.load_options import GridSpacing
     >>> GridSpacing(dt=2e-8, dx=1e-4).dy is None
     True
     """
@@ -124,7 +124,7 @@ class ArrayKey(LoadOptions):
 
     Examples
     --------
-    >>> from service.formats.load_options import ArrayKey
+    >>> from fpscan.service.formats.load_options import ArrayKey
     >>> ArrayKey(key="sensor_data/noisy").key
     'sensor_data/noisy'
     """
@@ -144,7 +144,7 @@ class WavelengthChoice(LoadOptions):
 
     Examples
     --------
-    >>> from service.formats.load_options import WavelengthChoice
+    >>> from fpscan.service.formats.load_options import WavelengthChoice
     >>> WavelengthChoice(wavelength=1).wavelength
     1
     """
@@ -164,7 +164,7 @@ class KwaveOptions(GridSpacing, ArrayKey):
 
     Examples
     --------
-    >>> from service.formats.load_options import KwaveOptions
+    >>> from fpscan.service.formats.load_options import KwaveOptions
     >>> list(KwaveOptions.model_fields)
     ['key', 'dt', 'dx', 'dy']
     """
@@ -181,11 +181,11 @@ def load_option_fields() -> dict[str, Any]:
 
     Examples
     --------
-    >>> from service.formats.load_options import load_option_fields
+    >>> from fpscan.service.formats.load_options import load_option_fields
     >>> {"dt", "dx", "dy", "key", "wavelength"} <= set(load_option_fields())
     True
     """
-    from service.formats._registry import FORMATS
+    from fpscan.service.formats._registry import FORMATS
 
     out: dict[str, Any] = {}
     for fmt in FORMATS.values():
@@ -198,7 +198,7 @@ def load_option_fields() -> dict[str, Any]:
 def load_option_schemas() -> list[dict[str, Any]]:
     """Every load option of the registered formats as the surfaces read them: per option ``name``,
     ``description``, ``schema`` (its value's JSON schema with ``unit`` and ``quantity``, as
-    ``service.recon.methods.option_schemas`` gives a method's) and ``formats`` (the names of the
+    ``fpscan.service.recon.methods.option_schemas`` gives a method's) and ``formats`` (the names of the
     formats that take it), in registration order.
 
     Returns
@@ -208,13 +208,13 @@ def load_option_schemas() -> list[dict[str, Any]]:
 
     Examples
     --------
-    >>> from service.formats.load_options import load_option_schemas
+    >>> from fpscan.service.formats.load_options import load_option_schemas
     >>> dt = next(o for o in load_option_schemas() if o["name"] == "dt")
     >>> dt["schema"]["unit"], "npy" in dt["formats"]
     ('s', True)
     """
-    from service.formats._registry import FORMATS
-    from service.recon.methods import option_schemas
+    from fpscan.service.formats._registry import FORMATS
+    from fpscan.service.recon.methods import option_schemas
 
     out: dict[str, dict[str, Any]] = {}
     for fmt in FORMATS.values():
@@ -250,7 +250,7 @@ def check_load_options(format: str, options: dict[str, Any]) -> dict[str, Any]:
 
     Examples
     --------
-    >>> from service.formats.load_options import check_load_options
+    >>> from fpscan.service.formats.load_options import check_load_options
     >>> check_load_options("npy", {"dt": 2e-8, "key": None})
     {'dt': 2e-08}
     >>> check_load_options("npy", {"key": "sensor_data"})
@@ -258,7 +258,7 @@ def check_load_options(format: str, options: dict[str, Any]) -> dict[str, Any]:
     ...
     ValueError: format npy takes no option key (its options: dt, dx, dy)
     """
-    from service.formats._registry import FORMATS
+    from fpscan.service.formats._registry import FORMATS
 
     fmt = FORMATS.get(format)
     if fmt is None:

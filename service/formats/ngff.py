@@ -10,9 +10,9 @@ from typing import Any
 
 import numpy as np
 
-from service.disk import folder_replaced
-from service.formats._registry import Format
-from service.formats.result import ORIENTATION, read_result, volume_description, voxel_sizes_um
+from fpscan.service.disk import folder_replaced
+from fpscan.service.formats._registry import Format
+from fpscan.service.formats.result import ORIENTATION, read_result, volume_description, voxel_sizes_um
 
 __all__ = ["FORMAT", "export_ome_zarr", "pyramid_factors", "PYRAMID_TOP", "PYRAMID_MIN", "ZARR_CHUNK"]
 
@@ -76,7 +76,7 @@ def export_ome_zarr(result_path: str | os.PathLike, out_path: str | os.PathLike)
     position of its first voxel's centre in µm (level 0: the first sample's position, the
     centred lateral axes and the depth from the sensor plane). The array order of the result
     file: row 0 = the smallest y, displayed at the top by napari as in fpscan's pictures
-    (:data:`service.formats.result.ORIENTATION`). The group's ``fpscan`` attribute holds ``p0_unit`` (``"Pa"`` or
+    (:data:`fpscan.service.formats.result.ORIENTATION`). The group's ``fpscan`` attribute holds ``p0_unit`` (``"Pa"`` or
     ``"a.u."``), ``orientation``, ``method``, ``input_id``, ``description`` and ``axes``.
     Written to a temporary sibling folder, then renamed over ``out_path`` (an existing
     export there is replaced).
@@ -84,7 +84,7 @@ def export_ome_zarr(result_path: str | os.PathLike, out_path: str | os.PathLike)
     Parameters
     ----------
     result_path : str or os.PathLike
-        A reconstruction result ``volume.h5`` (``service.formats.result``).
+        A reconstruction result ``volume.h5`` (``fpscan.service.formats.result``).
     out_path : str or os.PathLike
         The OME-Zarr folder to write.
 

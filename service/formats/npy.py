@@ -1,7 +1,7 @@
 """NumPy ``.npy``: an array in k-Wave layout, time first — ``(n_t, n_y, n_x)`` or
 ``(n_t, n_x)`` — read without pickles (``allow_pickle=False``); ``dt`` and ``dx`` are
 required options (the file holds no spacings), ``dy`` defaults to ``dx``, ``c`` to
-1500 m/s. → :class:`service.recon.dataset.GridDataset`.
+1500 m/s. → :class:`fpscan.service.recon.dataset.GridDataset`.
 """
 from __future__ import annotations
 
@@ -10,10 +10,10 @@ from typing import Any, BinaryIO
 
 import numpy as np
 
-from driver.constants import C_DEFAULT
-from service.formats._registry import Format, Source
-from service.formats.load_options import GridSpacing
-from service.recon.dataset import GridDataset, grid_array, positive
+from fpscan.constants import C_DEFAULT
+from fpscan.service.formats._registry import Format, Source
+from fpscan.service.formats.load_options import GridSpacing
+from fpscan.service.recon.dataset import GridDataset, grid_array, positive
 
 __all__ = ["FORMAT", "sniff", "load"]
 

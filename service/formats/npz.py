@@ -3,7 +3,7 @@ plain arrays (``np.load``) and no HDF5 reader (an export of a result ``volume.h5
 here).
 
 Added as one file and its entry point in pyproject.toml (issues 48.3, 62.5): the registry
-registers it on import (``service.plugins``), and ``fpscan export
+registers it on import (``fpscan.service.plugins``), and ``fpscan export
 --format npz``, ``GET /api/jobs/{id}/export/npz``, ``Client.export(job, "npz", ...)`` and the
 web page's downloads follow from :data:`FORMAT`.
 """
@@ -15,9 +15,9 @@ from typing import Any
 
 import numpy as np
 
-from service.disk import file_replaced
-from service.formats._registry import Format
-from service.formats.result import read_result
+from fpscan.service.disk import file_replaced
+from fpscan.service.formats._registry import Format
+from fpscan.service.formats.result import read_result
 
 __all__ = ["FORMAT", "export_npz"]
 
@@ -28,7 +28,7 @@ def export_npz(result_path: str | os.PathLike, out_path: str | os.PathLike) -> P
     Parameters
     ----------
     result_path : str or os.PathLike
-        A reconstruction result ``volume.h5`` (``service.formats.result``).
+        A reconstruction result ``volume.h5`` (``fpscan.service.formats.result``).
     out_path : str or os.PathLike
         The ``.npz`` file to write (a temporary sibling, then renamed into place).
 

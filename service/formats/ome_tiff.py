@@ -8,9 +8,9 @@ from typing import Any
 
 import numpy as np
 
-from service.disk import file_replaced
-from service.formats._registry import Format
-from service.formats.result import ResultVolume, read_result, volume_description, voxel_sizes_um
+from fpscan.service.disk import file_replaced
+from fpscan.service.formats._registry import Format
+from fpscan.service.formats.result import ResultVolume, read_result, volume_description, voxel_sizes_um
 
 __all__ = ["FORMAT", "export_ome_tiff", "plane_positions_um"]
 
@@ -57,7 +57,7 @@ def export_ome_tiff(result_path: str | os.PathLike, out_path: str | os.PathLike)
     depth z is the TIFF's Y). ``PhysicalSizeX``/``Y``/``Z`` in µm from the coordinate
     spacings (a single sample counts as 1 µm); float32 data, the array order of the result
     file (TIFF row 0 = the first, smallest y, drawn at the top by ImageJ and napari as in
-    fpscan's pictures: :data:`service.formats.result.ORIENTATION`). The p0 unit and the orientation are in the
+    fpscan's pictures: :data:`fpscan.service.formats.result.ORIENTATION`). The p0 unit and the orientation are in the
     image's OME ``Description`` (``p0 unit: Pa`` or ``p0 unit: a.u.``). The image's
     coordinates, the same as the result file's ``/x``, ``/y``, ``/z`` and the OME-Zarr
     ``translation``: every OME ``Plane`` gives its position in µm, ``PositionX``/``PositionY``
@@ -68,7 +68,7 @@ def export_ome_tiff(result_path: str | os.PathLike, out_path: str | os.PathLike)
     Parameters
     ----------
     result_path : str or os.PathLike
-        A reconstruction result ``volume.h5`` (``service.formats.result``).
+        A reconstruction result ``volume.h5`` (``fpscan.service.formats.result``).
     out_path : str or os.PathLike
         The TIFF file to write.
 

@@ -1,8 +1,8 @@
-"""Plan (JSON text, :mod:`driver.plan`): what the scanner acquires → the checked plan
-dict (``driver.plan.load_plan``). Not data to reconstruct: scan it first.
+"""Plan (JSON text, :mod:`fpscan.driver.plan`): what the scanner acquires → the checked plan
+dict (``fpscan.driver.plan.load_plan``). Not data to reconstruct: scan it first.
 
 :func:`read_plan` is the plan loader of the library (``fpscan.load_plan``) and the CLI:
-``driver.plan.load_plan`` with a file of another format named by the registry ("this is
+``fpscan.driver.plan.load_plan`` with a file of another format named by the registry ("this is
 a scan file, not a plan": :func:`not_a_plan`).
 """
 from __future__ import annotations
@@ -12,7 +12,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from service.formats._registry import Format, Source, describe
+from fpscan.service.formats._registry import Format, Source, describe
 
 __all__ = ["FORMAT", "sniff", "load", "read_plan", "not_a_plan"]
 
@@ -21,7 +21,7 @@ def not_a_plan(source: Any) -> str | None:
     """The message for a file of another format given as a plan.
 
     ``"<source>: this is a scan file, not a plan (...)"`` when ``source`` names a file of
-    another format (:func:`service.formats.describe`).
+    another format (:func:`fpscan.service.formats.describe`).
 
     Parameters
     ----------
@@ -43,7 +43,7 @@ def not_a_plan(source: Any) -> str | None:
 
 def read_plan(source: Any) -> dict:
     """Read and check a plan: a path to plan JSON, a JSON string or a parsed dict
-    (``driver.plan.load_plan``).
+    (``fpscan.driver.plan.load_plan``).
 
     Parameters
     ----------
@@ -70,7 +70,7 @@ def read_plan(source: Any) -> dict:
     ...
     ValueError: plan is not valid JSON: Expecting property name enclosed in double quotes: line 1 column 2 (char 1)
     """
-    from driver.plan import load_plan
+    from fpscan.driver.plan import load_plan
 
     try:
         return load_plan(source)
@@ -87,7 +87,7 @@ def sniff(source: Source) -> bool:
     Parameters
     ----------
     source : Source
-        The opened file (:class:`service.formats.Source`).
+        The opened file (:class:`fpscan.service.formats.Source`).
 
     Returns
     -------
@@ -98,7 +98,7 @@ def sniff(source: Source) -> bool:
 
 
 def load(source: Source, **_: Any) -> dict:
-    """The plan, checked (``driver.plan.load_plan``).
+    """The plan, checked (``fpscan.driver.plan.load_plan``).
 
     Parameters
     ----------
@@ -115,9 +115,9 @@ def load(source: Source, **_: Any) -> dict:
     Raises
     ------
     ValueError
-        Naming the first problem: not UTF-8 JSON, or what ``driver.plan.check_plan`` refuses.
+        Naming the first problem: not UTF-8 JSON, or what ``fpscan.driver.plan.check_plan`` refuses.
     """
-    from driver.plan import load_plan
+    from fpscan.driver.plan import load_plan
 
     assert source.fh is not None
     try:

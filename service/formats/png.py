@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from service.formats._registry import Format, Source
+from fpscan.service.formats._registry import Format, Source
 
 __all__ = ["FORMAT", "sniff", "load"]
 
@@ -16,7 +16,7 @@ def sniff(source: Source) -> bool:
     Parameters
     ----------
     source : Source
-        The opened file (:class:`service.formats.Source`).
+        The opened file (:class:`fpscan.service.formats.Source`).
 
     Returns
     -------

@@ -1,17 +1,17 @@
 """Reconstruction result file (``volume.h5``, ``format`` ``fpscan-result/1``; layout:
-:mod:`service.storage.results` and docs/file-formats.md): the p0 volume ``/p0``
+:mod:`fpscan.service.storage.results` and docs/file-formats.md): the p0 volume ``/p0``
 ``(n_z, n_y, n_x)`` or ``(n_z, n_x)`` with its coordinates ``/z``, ``/y``, ``/x`` (m).
 Written by :func:`write_volume` (atomically), read by :func:`load` → :class:`ResultVolume`.
 An output, not data to reconstruct.
 
-The parameters in the file name the speed of sound as a person reads it (:mod:`service.names`:
+The parameters in the file name the speed of sound as a person reads it (:mod:`fpscan.service.names`:
 ``sound_speed``, and the autofocus record's ``sound_speed_range``, ``sound_speed_values``),
 whatever the code called them (``c``, ``c_range``, ``c_values``); :func:`load` reads a file
 an older fpscan wrote with ``c`` under those names too.
 
 The result folder is this format's too: :data:`VOLUME_FILE` and one :func:`mip_file` per
 MIP plane, written as a whole by :func:`write_folder` (the MIP pictures drawn by the
-caller: ``service.storage.results.write_result`` renders them).
+caller: ``fpscan.service.storage.results.write_result`` renders them).
 """
 from __future__ import annotations
 
@@ -28,13 +28,13 @@ import h5py
 import numpy as np
 import numpy.typing as npt
 
-from driver.scanfile import PRESSURE_UNITS
-from service.disk import copy_replaced
-from service.formats._registry import Format, Source
-from service.names import person_names
+from fpscan.driver.scanfile import PRESSURE_UNITS
+from fpscan.service.disk import copy_replaced
+from fpscan.service.formats._registry import Format, Source
+from fpscan.service.names import person_names
 
 if TYPE_CHECKING:
-    from service.recon.reconstruction import Reconstruction
+    from fpscan.service.recon.reconstruction import Reconstruction
 
 __all__ = ["FORMAT", "RESULT_FORMAT", "ORIENTATION", "P0_UNITS", "COMPRESS_BELOW", "ResultVolume", "sniff",
            "load", "read_result", "read_slice", "write_volume", "params_json", "storage_layout", "VOLUME_FILE",
@@ -168,7 +168,7 @@ def write_volume(path: str | os.PathLike, p0: np.ndarray, z: np.ndarray, x: np.n
         The reconstruction method's name (non-empty).
     params : dict
         Every parameter of the reconstruction, JSON-serialisable; stored with the person's
-        names (``c`` -> ``sound_speed``, nested too: :func:`service.names.person_names`).
+        names (``c`` -> ``sound_speed``, nested too: :func:`fpscan.service.names.person_names`).
     input_id : str
         The input's id.
     software_version : str, optional
@@ -226,7 +226,7 @@ def write_volume(path: str | os.PathLike, p0: np.ndarray, z: np.ndarray, x: np.n
     all_json = params_json(stored)
     each = {str(k): params_json({"v": v})[5:-1] for k, v in stored.items()}
     if software_version is None:
-        from driver.acquire import software_version as installed_version
+        from fpscan.driver.acquire import software_version as installed_version
 
         software_version = installed_version()
 
@@ -288,7 +288,7 @@ def mip_file(plane: str) -> str:
 
 def write_reconstruction(path: str | os.PathLike, rec: Reconstruction, *, input_id: str,
                          method: str | None = None, software_version: str | None = None) -> Path:
-    """Write a ``service.recon.Reconstruction`` as a result file (:func:`write_volume`).
+    """Write a ``fpscan.service.recon.Reconstruction`` as a result file (:func:`write_volume`).
 
     Parameters
     ----------
@@ -358,7 +358,7 @@ def write_folder(out_dir: str | os.PathLike, rec: Reconstruction, *, input_id: s
     """
     import time
 
-    from service.disk import folder_replaced
+    from fpscan.service.disk import folder_replaced
 
     out_dir = Path(out_dir)
     tmp = out_dir.with_name(out_dir.name + f".tmp-{os.getpid()}-{time.monotonic_ns()}")
@@ -426,7 +426,7 @@ def sniff(source: Source) -> bool:
     Parameters
     ----------
     source : Source
-        The opened HDF5 file (:class:`service.formats.Source`).
+        The opened HDF5 file (:class:`fpscan.service.formats.Source`).
 
     Returns
     -------
@@ -539,7 +539,7 @@ def read_result(path: str | os.PathLike) -> ResultVolume:
     ValueError
         Not a result file.
     """
-    from service.formats._registry import load as load_as
+    from fpscan.service.formats._registry import load as load_as
 
     return load_as(path, "result")[1]
 
@@ -567,7 +567,7 @@ def read_slice(path: str | os.PathLike, index: Any) -> tuple[np.ndarray, np.ndar
     FileNotFoundError
         No file at ``path``.
     """
-    from service.formats._registry import open_source
+    from fpscan.service.formats._registry import open_source
 
     with open_source(path, "hdf5", name="result") as src:
         f = src.h5

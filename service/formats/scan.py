@@ -1,9 +1,9 @@
-"""fpscan scan file (:mod:`driver.scanfile`, ``fpscan-scan/1`` and ``/2``): its
+"""fpscan scan file (:mod:`fpscan.driver.scanfile`, ``fpscan-scan/1`` and ``/2``): its
 *completed* points, the DC-normalised pressure, the plan's positions, weights and lattice
-→ :class:`service.recon.dataset.PointDataset`. May hold several excitation wavelengths
+→ :class:`fpscan.service.recon.dataset.PointDataset`. May hold several excitation wavelengths
 (``wavelength_index`` chooses one; default the first).
 
-A thin registry entry: the layout has one owner, :mod:`driver.scanfile`, which writes it
+A thin registry entry: the layout has one owner, :mod:`fpscan.driver.scanfile`, which writes it
 while acquiring (``ScanFile``), reopens it to resume (``ScanFile.open_append``) and reads
 it (``read_open_scan``, on the file the registry opened once); here only the detection by
 its ``format`` attribute and the mapping of the read scan to point data.
@@ -14,32 +14,32 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from service.disk import copy_replaced
-from service.formats._registry import Format, Source
-from service.formats.load_options import WavelengthChoice
-from service.recon.dataset import PointDataset, check_wavelength_index, lattice_axes
+from fpscan.service.disk import copy_replaced
+from fpscan.service.formats._registry import Format, Source
+from fpscan.service.formats.load_options import WavelengthChoice
+from fpscan.service.recon.dataset import PointDataset, check_wavelength_index, lattice_axes
 
 if TYPE_CHECKING:
-    from driver.scanfile import ScanData
+    from fpscan.driver.scanfile import ScanData
 
 __all__ = ["FORMAT", "sniff", "load"]
 
 
 def sniff(source: Source) -> bool:
     """True for an HDF5 file whose ``format`` attribute is ``fpscan-scan/<version>``
-    (``driver.scanfile.FORMAT_FAMILY``).
+    (``fpscan.driver.scanfile.FORMAT_FAMILY``).
 
     Parameters
     ----------
     source : Source
-        The opened HDF5 file (:class:`service.formats.Source`).
+        The opened HDF5 file (:class:`fpscan.service.formats.Source`).
 
     Returns
     -------
     bool
         Whether this format reads it.
     """
-    from driver.scanfile import FORMAT_FAMILY
+    from fpscan.driver.scanfile import FORMAT_FAMILY
 
     return source.attr("format").startswith(FORMAT_FAMILY)
 
@@ -75,7 +75,7 @@ def load(source: Source, *, allow_empty: bool = False, wavelength_index: int = 0
         No point is complete (unless ``allow_empty``), the plan is invalid, or the wavelength
         index is out of range (naming the scan's wavelengths).
     """
-    from driver.scanfile import read_open_scan
+    from fpscan.driver.scanfile import read_open_scan
 
     scan = read_open_scan(source.h5, source.path)
     if all_wavelengths:
@@ -84,9 +84,9 @@ def load(source: Source, *, allow_empty: bool = False, wavelength_index: int = 0
 
 
 def _dataset(scan: ScanData, wavelength_index: int, allow_empty: bool) -> PointDataset:
-    """One wavelength's completed points of the scan read (``driver.scanfile.ScanData``)."""
-    from driver.plan import check_plan
-    from driver.scanfile import pressure_unit
+    """One wavelength's completed points of the scan read (``fpscan.driver.scanfile.ScanData``)."""
+    from fpscan.driver.plan import check_plan
+    from fpscan.driver.scanfile import pressure_unit
 
     check_wavelength_index(wavelength_index, scan.wavelengths, "scan")
     scan = scan.at_wavelength(wavelength_index).completed_only() if wavelength_index else scan.completed_only()

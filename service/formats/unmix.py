@@ -1,8 +1,8 @@
 """Unmixing result file (``unmix.h5``, ``format`` ``fpscan-unmix/1``; written by
-:func:`write`, with its sO2 picture by :func:`service.spectral.write_unmix`): the maps ``hbo2``, ``hb``, ``thb``,
+:func:`write`, with its sO2 picture by :func:`fpscan.service.spectral.write_unmix`): the maps ``hbo2``, ``hb``, ``thb``,
 ``so2`` and ``mask`` ``(n_z, n_y, n_x)``/``(n_z, n_x)``, the coordinates ``z``, ``y``,
 ``x`` (m) and ``wavelengths_m`` → a dict. An output, not data to reconstruct. Its
-parameters name the speed of sound ``sound_speed`` (:mod:`service.names`), as the result
+parameters name the speed of sound ``sound_speed`` (:mod:`fpscan.service.names`), as the result
 volume's do; a file an older fpscan wrote with ``c`` reads the same.
 """
 from __future__ import annotations
@@ -12,13 +12,13 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from service.formats._registry import Format, Source
-from service.names import person_names
+from fpscan.service.formats._registry import Format, Source
+from fpscan.service.names import person_names
 
 if TYPE_CHECKING:
     import numpy.typing as npt
 
-    from service.recon.unmix import Unmixed
+    from fpscan.service.recon.unmix import Unmixed
 
 __all__ = ["FORMAT", "UNMIX_FORMAT", "sniff", "load", "write", "read_unmix"]
 
@@ -31,7 +31,7 @@ def sniff(source: Source) -> bool:
     Parameters
     ----------
     source : Source
-        The opened HDF5 file (:class:`service.formats.Source`).
+        The opened HDF5 file (:class:`fpscan.service.formats.Source`).
 
     Returns
     -------
@@ -79,14 +79,14 @@ def write(path: str | os.PathLike, u: Unmixed, z: npt.ArrayLike, x: npt.ArrayLik
     """Write an unmixing result as ``path`` (via a temporary sibling, renamed).
 
     ``extra`` is recorded beside ``u.params``; both are stored with the person's names (``c``
-    -> ``sound_speed``: :func:`service.names.person_names`).
+    -> ``sound_speed``: :func:`fpscan.service.names.person_names`).
 
     Parameters
     ----------
     path : str or os.PathLike
         The file to write (``unmix.h5``).
     u : Unmixed
-        A ``service.recon.unmix.Unmixed``: maps ``(n_z, [n_y,] n_x)``, mask, wavelengths (m),
+        A ``fpscan.service.recon.unmix.Unmixed``: maps ``(n_z, [n_y,] n_x)``, mask, wavelengths (m),
         params.
     z, x : array_like
         The depth and x coordinates, m.
@@ -110,7 +110,7 @@ def write(path: str | os.PathLike, u: Unmixed, z: npt.ArrayLike, x: npt.ArrayLik
     import h5py
     import numpy as np
 
-    from service.formats.result import params_json
+    from fpscan.service.formats.result import params_json
 
     path = Path(path)
     # the result files' one canonical parameter JSON (ValueError before anything is written)
@@ -153,7 +153,7 @@ def read_unmix(path: str | os.PathLike) -> dict:
     FileNotFoundError
         No file at ``path``.
     """
-    from service.formats._registry import load as load_as
+    from fpscan.service.formats._registry import load as load_as
 
     return load_as(path, "unmix")[1]
 

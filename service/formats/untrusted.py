@@ -2,9 +2,9 @@
 in bounded time.
 
 HDF5 files are checked before anything is read by the one vetting step of
-:mod:`driver.hdf5_checks` (no external links, external storage or virtual datasets, no
+:mod:`fpscan.driver.hdf5_checks` (no external links, external storage or virtual datasets, no
 dataset declaring more than ``max_bytes`` or more than it stores; re-exported here):
-:func:`check_hdf5_file` on a file open, ``driver.scanfile.open_checked`` to open and check one.
+:func:`check_hdf5_file` on a file open, ``fpscan.driver.scanfile.open_checked`` to open and check one.
 
 How much an import may *write* is admitted separately (:func:`request_admission`: the
 service checks the decoded bytes against the free disk less what imports in flight have
@@ -28,7 +28,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from driver.hdf5_checks import HDF5_SIGNATURE, MAX_RATIO, SMALL_BYTES, check_hdf5_file, is_hdf5
+from fpscan.driver.hdf5_checks import HDF5_SIGNATURE, MAX_RATIO, SMALL_BYTES, check_hdf5_file, is_hdf5
 
 __all__ = ["HDF5_SIGNATURE", "SMALL_BYTES", "MAX_RATIO", "STARTUP_S", "CHILD_NICE", "CHILD_PRELOAD", "READ_TIMEOUT_S", "is_hdf5", "check_hdf5_file", "NotAdmitted", "request_admission", "DiskAdmission", "run_bounded", "writer_flagged", "read_bounded", "hdf5_limit"]
 
@@ -150,7 +150,7 @@ def _child(conn: Any, fn: Callable, args: tuple, kwargs: dict) -> None:
     except MemoryError:
         conn.put(("value", "the file needs more memory than the limit allows"))
     except OSError as exc:
-        from service.disk import is_disk_full
+        from fpscan.service.disk import is_disk_full
 
         if is_disk_full(exc):  # not the file's fault
             conn.put(("nospace", str(exc)))
@@ -161,7 +161,7 @@ def _child(conn: Any, fn: Callable, args: tuple, kwargs: dict) -> None:
 
 
 #: what the fork server imports once, so that a reading child starts without imports
-CHILD_PRELOAD = ["service.formats.untrusted", "service.formats", "service.storage.loader", "driver.scanfile"]
+CHILD_PRELOAD = ["fpscan.service.formats.untrusted", "fpscan.service.formats", "fpscan.service.storage.loader", "fpscan.driver.scanfile"]
 
 
 def _child_context() -> Any:
@@ -319,7 +319,7 @@ def writer_flagged(path: str | os.PathLike) -> bool:
     """True for an HDF5 file whose superblock says a writer has (or had, if killed) it open for
     SWMR writing.
 
-    ``driver.scanfile.open_readonly`` opens such a file as an SWMR reader, which HDF5 can
+    ``fpscan.driver.scanfile.open_readonly`` opens such a file as an SWMR reader, which HDF5 can
     block in for ever on damaged metadata.
 
     Parameters
@@ -333,7 +333,7 @@ def writer_flagged(path: str | os.PathLike) -> bool:
         False for anything else, a file that is not HDF5 or a damaged superblock included
         (those are refused by the readers).
     """
-    from driver.scanfile import _superblock_open_for_write
+    from fpscan.driver.scanfile import _superblock_open_for_write
 
     try:
         return is_hdf5(path) and _superblock_open_for_write(Path(path))

@@ -6,10 +6,10 @@ a ``ValueError``: 422 over HTTP, exit 2 on the command line). The input's shape 
 :func:`input_shape`, the one place it is built (a plan, a stored dataset's record or a
 loaded dataset). The API estimates once, before a job is queued, and stores the figure
 with the job; the worker admits that figure against the configured limit (and estimates
-from the dataset as loaded only for a job that carries none, ``service.jobs.work``); the
-queue (``service.jobs.queue``) starts a job only while the running jobs' estimates plus
-its own fit. The methods' own peak models are ``service.recon.memory``'s (each method's
-``peak_memory``, ``service.recon.methods``), with the method's admission class (its
+from the dataset as loaded only for a job that carries none, ``fpscan.service.jobs.work``); the
+queue (``fpscan.service.jobs.queue``) starts a job only while the running jobs' estimates plus
+its own fit. The methods' own peak models are ``fpscan.service.recon.memory``'s (each method's
+``peak_memory``, ``fpscan.service.recon.methods``), with the method's admission class (its
 ``memory_calibration`` margin, whether it ``holds_input``).
 """
 from __future__ import annotations
@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from driver.constants import C_AUTOFOCUS_RANGE, C_DEFAULT
+from fpscan.constants import C_AUTOFOCUS_RANGE, C_DEFAULT
 
 __all__ = ["MAX_DEPTH_ROWS", "AUTOFOCUS_EVALUATIONS", "AdmissionError", "admit", "admit_device", "estimate_gpu_memory", "estimate_memory",
            "estimate_work", "admit_work", "estimate_result_bytes", "input_shape", "working_depth_rows"]
@@ -51,8 +51,8 @@ def input_shape(source: Any) -> dict:
         - a plan document (``{"lattice", "acquisition", "points", ...}``: a scan's input, one
           A-line per plan point);
         - a stored dataset's record (``{"layout": "grid" | "points", "shape", "dt", "c", "dx",
-          ...}``, ``service.jobs.store``);
-        - a loaded `service.recon.dataset.GridDataset` / `PointDataset`.
+          ...}``, ``fpscan.service.jobs.store``);
+        - a loaded `fpscan.service.recon.dataset.GridDataset` / `PointDataset`.
 
     Returns
     -------
@@ -70,7 +70,7 @@ def input_shape(source: Any) -> dict:
     ValueError
         ``source`` is none of these.
     """
-    from service.recon.dataset import GridDataset, PointDataset
+    from fpscan.service.recon.dataset import GridDataset, PointDataset
 
     if isinstance(source, GridDataset):
         d = source.data
@@ -103,9 +103,9 @@ def input_shape(source: Any) -> dict:
 
 def _facts(record: dict) -> dict:
     """What a stored dataset's record says of its data beyond their shape: ``record_facts``
-    (what the record holds above its noise, ``service.recon.tv_grid.RecordFacts``, stored at
+    (what the record holds above its noise, ``fpscan.service.recon.tv_grid.RecordFacts``, stored at
     import) and a declared ``bandwidth`` (Hz), where it has them."""
-    from service.recon.methods.tv import BANDWIDTH_KEY
+    from fpscan.service.recon.methods.tv import BANDWIDTH_KEY
 
     out = {}
     if isinstance(record.get("record_facts"), dict):
@@ -117,7 +117,7 @@ def _facts(record: dict) -> dict:
 
 def working_depth_rows(shape: dict, params: dict) -> int:
     """The depth rows the reconstruction works on: ``max(n_z, ceil(c·t_last/dz) + 1)``
-    (``service.recon.planar``: no recorded signal may fold back through the depth
+    (``fpscan.service.recon.planar``: no recorded signal may fold back through the depth
     period), with ``n_z`` default ``n_t``, ``dz`` default ``c·dt``.
 
     Parameters
@@ -158,8 +158,8 @@ def working_depth_rows(shape: dict, params: dict) -> int:
 
 def _default_method(shape: dict) -> str:
     """The registry's default method for an input of this shape (points when it has
-    ``n_points``, else a grid): ``service.recon.methods.default_for``."""
-    from service.recon.methods import default_for
+    ``n_points``, else a grid): ``fpscan.service.recon.methods.default_for``."""
+    from fpscan.service.recon.methods import default_for
 
     return default_for("points" if shape.get("n_points") else "grid")
 
@@ -171,8 +171,8 @@ def estimate_memory(shape: dict, params: dict) -> int:
     The method's peak-memory model of the working depth rows (:func:`working_depth_rows`)
     times the method's ``memory_calibration``, plus the input as loaded (unless it is in the
     working precision and the method does not ``holds_input``). The peak model is the
-    method's (``service.recon.methods``, its ``peak_memory``: a model of
-    ``service.recon.memory``).
+    method's (``fpscan.service.recon.methods``, its ``peak_memory``: a model of
+    ``fpscan.service.recon.memory``).
 
     Parameters
     ----------
@@ -200,7 +200,7 @@ def estimate_memory(shape: dict, params: dict) -> int:
     n_x = int(shape["n_x"])
     n_y = int(shape.get("n_y", 1))
     rows = working_depth_rows(shape, params)
-    from service.recon.methods import get as method_named
+    from fpscan.service.recon.methods import get as method_named
 
     geometry: dict[str, float | None] = {}
     if shape.get("dx") and shape.get("dt"):  # the model-based operator's padding depends on them
@@ -208,7 +208,7 @@ def estimate_memory(shape: dict, params: dict) -> int:
         c = max(params.get("c_range") or C_AUTOFOCUS_RANGE) if c == "auto" else c
         geometry = {"dx": float(shape["dx"]), "dt": float(shape["dt"]), "c": float(c or shape.get("c") or C_DEFAULT),
                     "dz": float(params["dz"]) if params.get("dz") else None}
-    # the method's own peak-memory model (service.recon.methods: its module's peak_memory hook)
+    # the method's own peak-memory model (fpscan.service.recon.methods: its module's peak_memory hook)
     method = method_named(params.get("method") or _default_method(shape))
     value = method.memory(
         n_t, n_x, n_y, n_z=rows, upsample=method.upsample(params), dtype=params.get("dtype") or "float32",
@@ -226,8 +226,8 @@ def estimate_memory(shape: dict, params: dict) -> int:
 
 def estimate_gpu_memory(shape: dict, params: dict) -> int | None:
     """GPU memory (bytes) of a reconstruction's GPU path, for the methods whose whole peak the
-    GPU path models (`service.recon.gpu.inversion_peak`: NER and NEDNER); None for the others
-    (tv's operator is sized on the GPU when it is made, `service.recon.gpu.operator_peak`, and
+    GPU path models (`fpscan.service.recon.gpu.inversion_peak`: NER and NEDNER); None for the others
+    (tv's operator is sized on the GPU when it is made, `fpscan.service.recon.gpu.operator_peak`, and
     sends an ``"auto"`` job to the CPU, or fails a ``"cuda"`` one with the reason).
 
     Parameters
@@ -248,8 +248,8 @@ def estimate_gpu_memory(shape: dict, params: dict) -> int | None:
     method = params.get("method") or _default_method(shape)
     if method not in ("ner", "nedner"):
         return None
-    from driver.physics.fast_lengths import fast_lateral
-    from service.recon import gpu
+    from fpscan.physics.fast_lengths import fast_lateral
+    from fpscan.service.recon import gpu
 
     n_t, n_x, n_y = int(shape["n_t"]), int(shape["n_x"]), int(shape.get("n_y", 1))
     n_yp, n_xp = fast_lateral(n_y, n_x, square=True)
@@ -264,7 +264,7 @@ def estimate_gpu_memory(shape: dict, params: dict) -> int | None:
 def admit_device(shape: dict, params: dict, gpus: list[dict]) -> None:
     """Refuse a job that asks for ``device: "cuda"`` where it can never run: the server has no
     GPU, or the job's GPU path needs more than the largest GPU's memory (`estimate_gpu_memory`;
-    the free memory is checked again when the job runs, `service.recon.device.choose`).
+    the free memory is checked again when the job runs, `fpscan.service.recon.device.choose`).
     ``"auto"`` and ``"cpu"`` jobs always pass (the CPU takes what the GPU cannot).
 
     Parameters
@@ -272,7 +272,7 @@ def admit_device(shape: dict, params: dict, gpus: list[dict]) -> None:
     shape, params : dict
         As :func:`estimate_memory` (``params["device"]``: ``"auto"``, ``"cpu"`` or ``"cuda"``).
     gpus : list of dict
-        The server's GPUs (``name``, ``memory_total`` in bytes; `service.recon.device.probe_devices`).
+        The server's GPUs (``name``, ``memory_total`` in bytes; `fpscan.service.recon.device.probe_devices`).
 
     Raises
     ------
@@ -286,7 +286,7 @@ def admit_device(shape: dict, params: dict, gpus: list[dict]) -> None:
                              "devices); ask for 'auto' or 'cpu'")
     need = estimate_gpu_memory(shape, params)
     largest = max(gpus, key=lambda g: int(g["memory_total"]))
-    from service.recon.device import GPU_MEMORY_SHARE
+    from fpscan.service.recon.device import GPU_MEMORY_SHARE
 
     if need is not None and need > GPU_MEMORY_SHARE * int(largest["memory_total"]):
         raise AdmissionError(f"the GPU path needs about {need / 2**30:.2f} GiB of GPU memory, more than the server's "
@@ -297,11 +297,11 @@ def admit_device(shape: dict, params: dict, gpus: list[dict]) -> None:
 def estimate_result_bytes(shape: dict, params: dict, volumes: int = 1) -> int:
     """Bytes a reconstruction's result folder takes on disk: ``volumes`` images of ``n_z``
     rows (default ``n_t``; k-Wave's modes: ``n_t``) by the lateral grid times the method's
-    upsampling (``service.recon.methods.Method.upsample``: its ``upsample`` option, 1 without) in
+    upsampling (``fpscan.service.recon.methods.Method.upsample``: its ``upsample`` option, 1 without) in
     the working precision (``volume.h5``, chunked and uncompressed), 2 % for the HDF5 file's
     own structure and 1 MiB per volume for its pictures (MIPs: PNG). The queue holds a job
     whose result does not fit the free disk and ends a running one whose result no longer
-    does (``service.jobs.queue``).
+    does (``fpscan.service.jobs.queue``).
 
     Parameters
     ----------
@@ -319,11 +319,11 @@ def estimate_result_bytes(shape: dict, params: dict, volumes: int = 1) -> int:
 
     Examples
     --------
-    >>> from service.jobs.admission import estimate_result_bytes
+    >>> from fpscan.service.jobs.admission import estimate_result_bytes
     >>> estimate_result_bytes({"n_t": 256, "n_x": 128, "n_y": 128}, {"method": "ner"})  # float32
     18161336
     """
-    from service.recon.methods import get as method_named
+    from fpscan.service.recon.methods import get as method_named
 
     method = method_named(params.get("method") or _default_method(shape))
     takes_depth = "n_z" in method.options
@@ -336,16 +336,16 @@ def estimate_result_bytes(shape: dict, params: dict, volumes: int = 1) -> int:
 
 
 #: reconstructions an autofocus search (``sound_speed: "auto"``) makes besides the final one, at
-#: most (``service.autofocus``: a coarse scan of 7, then up to 8 refinements)
+#: most (``fpscan.service.autofocus``: a coarse scan of 7, then up to 8 refinements)
 AUTOFOCUS_EVALUATIONS = 15
 
 
 def estimate_work(shape: dict, params: dict) -> float:
     """The work of a reconstruction with the options actually used, in seconds on the
-    reference 2 cores (``service.recon.methods.FLOAT64_WORK``) -- the one work rule, applied
+    reference 2 cores (``fpscan.service.recon.methods.FLOAT64_WORK``) -- the one work rule, applied
     with :func:`admit_work` before a job is queued.
 
-    The method's own estimate (``service.recon.methods``: its ``work`` hook; the planar
+    The method's own estimate (``fpscan.service.recon.methods``: its ``work`` hook; the planar
     methods' ``transform_units`` of their transform grid times their measured rate, tv's
     operator pairs on its padded grid, its iterations' share capped by ``time_limit``), on
     the working depth rows (:func:`working_depth_rows`), plus an autofocus search's
@@ -371,11 +371,11 @@ def estimate_work(shape: dict, params: dict) -> float:
     AdmissionError
         A depth grid that can never be made (:func:`working_depth_rows`).
     ValueError
-        The method's refusal (``service.recon.checks.OptionError``).
+        The method's refusal (``fpscan.service.recon.checks.OptionError``).
     """
     n_t, n_x, n_y = int(shape["n_t"]), int(shape["n_x"]), int(shape.get("n_y", 1))
     rows = working_depth_rows(shape, params)
-    from service.recon.methods import get as method_named
+    from fpscan.service.recon.methods import get as method_named
 
     c = params.get("c")
     c = max(params.get("c_range") or C_AUTOFOCUS_RANGE) if c == "auto" else c

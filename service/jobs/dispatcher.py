@@ -1,5 +1,5 @@
-"""The one dispatch loop of the job runners: reconstructions (:mod:`service.jobs.queue`),
-scans (:mod:`service.jobs.scan_manager`) and the live previews of scans (:mod:`service.jobs.preview`).
+"""The one dispatch loop of the job runners: reconstructions (:mod:`fpscan.service.jobs.queue`),
+scans (:mod:`fpscan.service.jobs.scan_manager`) and the live previews of scans (:mod:`fpscan.service.jobs.preview`).
 
 :class:`Loop` is a background thread that calls its ``tick`` when woken (:meth:`Loop.wake`)
 and at the latest every ``period`` seconds, logs whatever a tick raises and carries on, and
@@ -9,7 +9,7 @@ ends on :meth:`Loop.stop` (no tick runs once the stop is asked).
 store, oldest first. For each queued job its runner's ``admit(job, running)`` (``running``:
 the dispatcher's job threads alive now, the ones it started in this tick included) answers
 
-- :data:`START`: lease the job (:meth:`service.jobs.store.JobStore.claim`, ``lease_s``) and
+- :data:`START`: lease the job (:meth:`fpscan.service.jobs.store.JobStore.claim`, ``lease_s``) and
   run it in a thread of its own: ``launch(job)`` (called in the dispatcher's thread, right
   after the claim) gives the thread's name and body;
 - :data:`SKIP`: leave it queued and look at the next one (a scan whose scanner is busy);
@@ -24,7 +24,7 @@ Examples
 --------
 >>> import tempfile, threading
 >>> from pathlib import Path
->>> from service.jobs.store import JobStore
+>>> from fpscan.service.jobs.store import JobStore
 >>> store = JobStore(Path(tempfile.mkdtemp()) / "jobs.sqlite")
 >>> job, _ = store.create_job("recon", {"method": "ner"})
 >>> ran = threading.Event()
@@ -49,7 +49,7 @@ import time
 from collections.abc import Callable
 from typing import Any, Literal
 
-from service.jobs.store import JobStore
+from fpscan.service.jobs.store import JobStore
 
 __all__ = ["START", "SKIP", "WAIT", "Verdict", "Loop", "Dispatcher"]
 

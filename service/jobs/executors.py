@@ -25,7 +25,7 @@ from concurrent.futures.process import BrokenProcessPool
 from typing import TYPE_CHECKING, Any, cast
 
 if TYPE_CHECKING:
-    from service.settings import Settings
+    from fpscan.service.settings import Settings
 
 __all__ = [
     "lower_priority", "start_worker", "stop_pool", "LocalExecutor", "WorkerDied", "DaskExecutor",
@@ -69,7 +69,7 @@ def lower_priority(increment: int = 10, parent: int | None = None) -> None:
 def start_worker(increment: int = 0, parent: int | None = None, warm: bool = False) -> None:
     """Reconstruction worker initializer: lower the priority, then optionally warm up.
 
-    With ``warm``, :func:`service.jobs.work.warm_up` runs (imports, numba kernels, the result
+    With ``warm``, :func:`fpscan.service.jobs.work.warm_up` runs (imports, numba kernels, the result
     writer and its pictures; the k-Wave and model-based kernels in the background), so the
     first job costs what a later one costs. A failing warm-up is logged and ignored (the job
     then pays the cost itself).
@@ -86,7 +86,7 @@ def start_worker(increment: int = 0, parent: int | None = None, warm: bool = Fal
     lower_priority(increment, parent)
     if warm:
         try:
-            from service.jobs.work import warm_up
+            from fpscan.service.jobs.work import warm_up
 
             warm_up(full=True, rest_in_background=True)
         except Exception:  # a warm-up must never stop the worker
@@ -168,7 +168,7 @@ class LocalExecutor:
         list of concurrent.futures.Future
             One future per worker, returned at once; each one's result is the worker's pid.
         """
-        from service.jobs.work import worker_pid
+        from fpscan.service.jobs.work import worker_pid
 
         if self._starts is None:
             self._starts = [self._pool.submit(worker_pid) for _ in range(self.workers)]
@@ -272,7 +272,7 @@ def make_executor(settings: Settings) -> LocalExecutor | DaskExecutor:
 
     Parameters
     ----------
-    settings : service.settings.Settings
+    settings : fpscan.service.settings.Settings
         Reads ``executor`` (``"dask"`` or ``"local"``), ``dask_scheduler``, ``workers``,
         ``worker_nice`` and ``warm_up``.
 

@@ -50,8 +50,8 @@ from collections.abc import Generator, Iterator
 from pathlib import Path
 from typing import Any
 
-from service.jobs.store import ACTIVE, JobStore
-from service.storage.usage import tree_bytes, usage_for
+from fpscan.service.jobs.store import ACTIVE, JobStore
+from fpscan.service.storage.usage import tree_bytes, usage_for
 
 __all__ = [
     "RETENTION_KEY", "HOLD_WAIT_S", "HOLD_STALE_S", "InUse", "NotFound", "guard", "hold_dataset",
@@ -212,7 +212,7 @@ def create_job(store: JobStore, kind: str, params: dict, **kwargs: Any) -> tuple
     ------
     NotFound
         An input is gone (deleted since the request was checked).
-    service.jobs.store.IdempotencyConflict
+    fpscan.service.jobs.store.IdempotencyConflict
         As ``JobStore.create_job``.
     """
     with guard(store):
@@ -511,7 +511,7 @@ def apply_dataset_retention(store: JobStore, settings: Any, policy: dict | None 
     ----------
     store : JobStore
         The job store.
-    settings : service.settings.Settings
+    settings : fpscan.service.settings.Settings
         The service settings: ``data_dir`` and the ``retention_*`` defaults.
     policy : dict or None, optional
         The policy (:func:`get_retention`'s dict); default None: the one in force.
@@ -561,7 +561,7 @@ def default_retention(settings: Any) -> dict:
 
     Parameters
     ----------
-    settings : service.settings.Settings
+    settings : fpscan.service.settings.Settings
         The service settings (a missing ``retention_*`` attribute counts as no limit).
 
     Returns
@@ -584,7 +584,7 @@ def get_retention(store: JobStore, settings: Any) -> dict:
     ----------
     store : JobStore
         The job store.
-    settings : service.settings.Settings
+    settings : fpscan.service.settings.Settings
         The service settings (:func:`default_retention`; they fill keys the stored policy lacks).
 
     Returns
@@ -649,7 +649,7 @@ def apply_retention(store: JobStore, settings: Any) -> list[str]:
     ----------
     store : JobStore
         The job store.
-    settings : service.settings.Settings
+    settings : fpscan.service.settings.Settings
         The service settings: ``data_dir`` and the ``retention_*`` defaults.
 
     Returns
@@ -704,7 +704,7 @@ def disk_usage(data_dir: str | os.PathLike) -> dict:
     """Bytes the store uses, by part, and the free space of its file system.
 
     One walk of the data folder (:func:`disk_usage_steps` run to its end): the check of
-    ``/api/health``'s counters (``service.storage.usage.DiskUsage.reconcile``, in a thread
+    ``/api/health``'s counters (``fpscan.service.storage.usage.DiskUsage.reconcile``, in a thread
     of its own).
 
     Parameters

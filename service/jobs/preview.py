@@ -1,7 +1,7 @@
 """Live preview of a running scan: a NEDNER reconstruction of the points acquired so far,
 refreshed every few seconds, rendered as MIP PNGs with a version counter.
 
-The reconstruction (``service.pipeline.reconstruct`` with ``nedner``: temporal NUFFT +
+The reconstruction (``fpscan.service.pipeline.reconstruct`` with ``nedner``: temporal NUFFT +
 type-1 NUFFT over the positions, paper §3.2) works on any subset of the sensor mask, so
 the user watches the image form. Weights are the clipped Voronoi areas of the subset
 (``voronoi_weights``, the default of ``reconstruct_points``), not the plan's weights for
@@ -11,7 +11,7 @@ the whole mask. The output grid is the plan's lattice, thinned for speed
 :func:`render_preview` runs in a separate process (a one-worker ``spawn`` pool owned by
 :class:`PreviewManager`): the scan file is read as an SWMR reader there, and the server's
 event loop and serial threads never wait for it. The refreshes run on the jobs' one loop
-(:class:`service.jobs.dispatcher.Loop`), every ``interval`` seconds.
+(:class:`fpscan.service.jobs.dispatcher.Loop`), every ``interval`` seconds.
 """
 from __future__ import annotations
 
@@ -26,8 +26,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from driver.constants import C_DEFAULT
-from service.jobs.dispatcher import Loop
+from fpscan.constants import C_DEFAULT
+from fpscan.service.jobs.dispatcher import Loop
 
 __all__ = [
     "PreviewState", "render_preview_png", "preview_grid", "render_preview", "warm_up", "PreviewManager",
@@ -41,7 +41,7 @@ log = logging.getLogger("fpscan.preview")
 class PreviewState:
     """One refresh of a scan's live preview.
 
-    :meth:`png` draws a plane on first request (``service.pictures.render``, the pictures a
+    :meth:`png` draws a plane on first request (``fpscan.service.pictures.render``, the pictures a
     result has) and keeps it.
 
     Attributes
@@ -110,7 +110,7 @@ class PreviewState:
 def render_preview_png(img: np.ndarray, plane: str, axes: tuple, points: int, *, p0_unit: str = "a.u.") -> bytes:
     """A live-preview MIP drawn like a result's MIP.
 
-    ``service.pictures.render``: mm axes, equal aspect, row 0 at the top (y down / depth
+    ``fpscan.service.pictures.render``: mm axes, equal aspect, row 0 at the top (y down / depth
     down), colour bar; the title names the points used.
 
     Parameters
@@ -135,9 +135,9 @@ def render_preview_png(img: np.ndarray, plane: str, axes: tuple, points: int, *,
     Raises
     ------
     ValueError
-        If ``img``'s shape does not match the axes (:func:`service.pictures.render.render_png`).
+        If ``img``'s shape does not match the axes (:func:`fpscan.service.pictures.render.render_png`).
     """
-    from service.pictures.render import render_png
+    from fpscan.service.pictures.render import render_png
 
     z, x, y = axes
     h, hlabel = (y, "y") if plane == "yz" else (x, "x")
@@ -169,7 +169,7 @@ def preview_grid(axis: np.ndarray, max_points: int) -> np.ndarray:
     step = max(1, -(-n // max_points))
     if step == 1 or n < 2:
         return axis
-    from driver.physics.axes import centred_axis
+    from fpscan.physics.axes import centred_axis
 
     return centred_axis(-(-n // step), float(axis[1] - axis[0]) * step)
 
@@ -200,7 +200,7 @@ def render_preview(scan_path: str, *, wavelength_index: int = 0, eps: float = 1e
     -------
     dict
         ``{"points_used": n, "mips": {plane: 2-D array}, "axes": (z, x, y), "seconds": s,
-        "p0_unit": "Pa" | "a.u."}`` (MIPs by ``service.metrics.mip``, coordinates in m,
+        "p0_unit": "Pa" | "a.u."}`` (MIPs by ``fpscan.service.metrics.mip``, coordinates in m,
         ``seconds`` the time taken; drawn by :func:`render_preview_png` when asked for).
         When fewer than 2 points are complete, ``mips`` is empty, ``axes`` is ``()`` and
         there is no ``p0_unit``.
@@ -210,13 +210,13 @@ def render_preview(scan_path: str, *, wavelength_index: int = 0, eps: float = 1e
     FileNotFoundError
         If the scan file does not exist.
     ValueError
-        If it is not a readable scan file (:func:`service.storage.loader.load_scan`).
+        If it is not a readable scan file (:func:`fpscan.service.storage.loader.load_scan`).
     """
     from dataclasses import replace
 
-    from service.metrics.projections import mip
-    from service.pipeline import default_method, reconstruct
-    from service.storage.loader import load_scan
+    from fpscan.service.metrics.projections import mip
+    from fpscan.service.pipeline import default_method, reconstruct
+    from fpscan.service.storage.loader import load_scan
 
     t0 = time.perf_counter()
     ds = load_scan(scan_path, allow_empty=True, wavelength_index=wavelength_index)
@@ -242,7 +242,7 @@ def render_preview(scan_path: str, *, wavelength_index: int = 0, eps: float = 1e
 def warm_up() -> float:
     """Import the reconstruction in a fresh worker and compile (or load from numba's cache)
     the kernels of the preview's method (``default_method("points")``: NEDNER) in float32, with
-    the method's own warm-up (``service.recon.warmup.warm_up``; a tiny run alone stays on the
+    the method's own warm-up (``fpscan.service.recon.warmup.warm_up``; a tiny run alone stays on the
     numpy path of small transforms and compiled nothing), then run a tiny preview's dispatch.
 
     So the first live preview of a scan is not slowed by start-up (on a fresh install without
@@ -253,9 +253,9 @@ def warm_up() -> float:
     float
         Seconds the warm-up took.
     """
-    from service.pipeline import default_method, reconstruct
-    from service.recon.dataset import GridDataset
-    from service.recon.warmup import warm_up as warm_kernels
+    from fpscan.service.pipeline import default_method, reconstruct
+    from fpscan.service.recon.dataset import GridDataset
+    from fpscan.service.recon.warmup import warm_up as warm_kernels
 
     t0 = time.perf_counter()
     warm_kernels(["float32"], [default_method("points")])
@@ -268,7 +268,7 @@ def warm_up() -> float:
 
 #: CPU priority (``nice`` increment) of the live-preview worker: below the server's threads and the
 #: reconstruction workers (``Settings.worker_nice``, default 0), above the plan worker
-#: (``service.api.plans.PLAN_WORKER_NICE``).
+#: (``fpscan.service.api.plans.PLAN_WORKER_NICE``).
 PREVIEW_WORKER_NICE = 5
 
 
@@ -307,7 +307,7 @@ class PreviewManager:
 
     @staticmethod
     def _new_pool() -> ProcessPoolExecutor:
-        from service.jobs.executors import lower_priority
+        from fpscan.service.jobs.executors import lower_priority
 
         return ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"), initializer=lower_priority,
                                    initargs=(PREVIEW_WORKER_NICE, os.getpid()))
@@ -321,7 +321,7 @@ class PreviewManager:
     def stop(self) -> None:
         self._loop.stop(timeout=5)
         if self._pool is not None:
-            from service.jobs.executors import stop_pool
+            from fpscan.service.jobs.executors import stop_pool
 
             stop_pool(self._pool)
 

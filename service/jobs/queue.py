@@ -5,17 +5,17 @@ event loop).
 Memory admission (DESIGN §7): each job carries its peak-memory estimate (bytes); a job is
 started only while the sum of the running jobs' estimates plus its own stays within
 ``settings.memory_limit`` (the first job in line always may start when nothing runs).
-Jobs that can never fit are refused before they are queued (``service.jobs.admission``).
+Jobs that can never fit are refused before they are queued (``fpscan.service.jobs.admission``).
 
 Cancel is cooperative: the job thread creates the job's cancel file, the worker's
 ``should_stop`` sees it between steps of the reconstruction and stops
-(``service.pipeline.Cancelled``); a result that was finished anyway is discarded. The job
+(``fpscan.service.pipeline.Cancelled``); a result that was finished anyway is discarded. The job
 ends ``cancelled``. Lease and heartbeat: the running thread renews the job's lease every
 ``settings.heartbeat_s``; after a restart, :meth:`JobStore.recover` re-queues jobs whose
 owner is gone.
 
 A full disk fails a job, never strands it (issue 50.2). Each job carries the bytes its
-result needs (``params["result_bytes"]``, ``service.jobs.admission.estimate_result_bytes``):
+result needs (``params["result_bytes"]``, ``fpscan.service.jobs.admission.estimate_result_bytes``):
 
 - a queued job whose result does not fit the free disk (less ``disk_reserve_bytes``, as for
   an upload) when its turn comes ends ``failed`` with "disk full: N bytes free, M needed"
@@ -42,29 +42,29 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
-from service.disk import is_disk_full
-from service.jobs.dispatcher import SKIP, START, WAIT, Dispatcher, Loop, Verdict
-from service.jobs.executors import DaskExecutor, LocalExecutor, WorkerDied
-from service.jobs.lifecycle import apply_retention
-from service.jobs.store import JobStore
-from service.jobs.work import ProgressLog, run_reconstruction
-from service.names import code_names, person_names
-from service.pipeline import Cancelled
-from service.recon.methods import get as method_named
-from service.storage.usage import usage_for
+from fpscan.service.disk import is_disk_full
+from fpscan.service.jobs.dispatcher import SKIP, START, WAIT, Dispatcher, Loop, Verdict
+from fpscan.service.jobs.executors import DaskExecutor, LocalExecutor, WorkerDied
+from fpscan.service.jobs.lifecycle import apply_retention
+from fpscan.service.jobs.store import JobStore
+from fpscan.service.jobs.work import ProgressLog, run_reconstruction
+from fpscan.service.names import code_names, person_names
+from fpscan.service.pipeline import Cancelled
+from fpscan.service.recon.methods import get as method_named
+from fpscan.service.storage.usage import usage_for
 
 __all__ = [
     "INCOMING", "DISK_LOOK_S", "RESERVE_LOOK_S", "DiskFull", "disk_full_reason", "remove_debris", "ReconQueue",
 ]
 
 if TYPE_CHECKING:
-    from service.settings import Settings
+    from fpscan.service.settings import Settings
 
 log = logging.getLogger("fpscan.jobs")
 
 
 class _Future(Protocol):
-    """What an executor's ``submit`` returns (``service.jobs.executors``)."""
+    """What an executor's ``submit`` returns (``fpscan.service.jobs.executors``)."""
 
     def result(self, timeout: float | None = None) -> Any: ...
 
@@ -164,7 +164,7 @@ def disk_full_reason(free: int | None, needed: int, reserve: int = 0) -> str:
 
 
 class ReconQueue:
-    """Background dispatcher of ``recon`` jobs (a :class:`service.jobs.dispatcher.Dispatcher`
+    """Background dispatcher of ``recon`` jobs (a :class:`fpscan.service.jobs.dispatcher.Dispatcher`
     admitting them under the memory limit, FIFO, and the free disk; module docstring).
 
     :meth:`start` starts the dispatcher and the watch of the job database's reserve,
@@ -176,7 +176,7 @@ class ReconQueue:
         The job database the jobs are taken from and their states written to.
     executor : object
         Runs a job's ``run_reconstruction(spec)``: its ``submit`` returns a future
-        (``service.jobs.executors``; a dead worker raises ``WorkerDied``).
+        (``fpscan.service.jobs.executors``; a dead worker raises ``WorkerDied``).
     settings : object
         The server's settings: ``data_dir``, ``memory_limit`` (bytes), ``workers``,
         ``executor`` (``"local"``: at most ``workers`` jobs run), ``heartbeat_s`` (s),
@@ -280,8 +280,8 @@ class ReconQueue:
 
     def _extras(self, job: dict) -> dict:
         """The worker spec's parts some jobs have: a multi-wavelength unmixing job's
-        (``unmix``, ``inputs``, ``wavelengths``: service.spectral) and a dense dataset sampled by
-        a stored plan's mask (``plan``, its JSON: service.subsample; None where it is gone)."""
+        (``unmix``, ``inputs``, ``wavelengths``: fpscan.service.spectral) and a dense dataset sampled by
+        a stored plan's mask (``plan``, its JSON: fpscan.service.subsample; None where it is gone)."""
         out = {key: job["params"][key] for key in ("unmix", "inputs", "wavelengths")
                if job["params"].get(key) is not None}
         plan_id = (job["params"]["input"] or {}).get("plan_id")
@@ -376,7 +376,7 @@ class ReconQueue:
 
     def _wait(self, jid: str, future: _Future, progress_path: Path, cancel_path: Path, needed: int = 0) -> dict:
         """The job's result; meanwhile renew its lease, turn the worker's stage reports
-        (:func:`service.jobs.work.report_stage`, read with :class:`ProgressLog`) into
+        (:func:`fpscan.service.jobs.work.report_stage`, read with :class:`ProgressLog`) into
         progress events, the last ones once the worker has returned, and, once the job's
         cancellation is requested, create ``cancel_path`` (the worker's ``should_stop``).
         Until the worker writes, look at the free disk every :data:`DISK_LOOK_S`: raise

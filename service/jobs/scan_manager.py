@@ -2,14 +2,14 @@
 
 A scan job owns its serial port exclusively while it runs (DESIGN §7). The
 :class:`ScanManager` starts queued scan jobs when their scanner is free; each runs
-``driver.acquire.acquire`` in its own thread (serial I/O never touches the event loop),
+``fpscan.driver.acquire.acquire`` in its own thread (serial I/O never touches the event loop),
 writing the job's scan file (``<data_dir>/scans/<job_id>.h5``, a server-chosen name).
 Progress (points done, rate, ETA, faults recovered) goes to the job store (and so to the
-SSE stream) about twice a second; the live preview (:mod:`service.jobs.preview`) follows the
+SSE stream) about twice a second; the live preview (:mod:`fpscan.service.jobs.preview`) follows the
 scan file. The queued scans are started by the jobs' one dispatcher
-(:class:`service.jobs.dispatcher.Dispatcher`): a scan starts when its scanner is free.
+(:class:`fpscan.service.jobs.dispatcher.Dispatcher`): a scan starts when its scanner is free.
 
-Controls: ``pause``/``resume``/``abort`` call the open ``driver.host.Scanner`` from the
+Controls: ``pause``/``resume``/``abort`` call the open ``fpscan.driver.host.Scanner`` from the
 request thread (the driver queues them for its scan loop). A scan interrupted by a server
 restart is ``paused`` (stage ``interrupted``); ``resume`` re-queues it and the driver
 continues from the scan file's record of completed points, so no A-line is lost or
@@ -29,15 +29,15 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from service.disk import is_disk_full
-from service.jobs.dispatcher import SKIP, START, Dispatcher, Loop, Verdict
-from service.jobs.preview import PreviewManager, PreviewState
-from service.jobs.store import TERMINAL, JobStore
-from service.storage.usage import usage_for
+from fpscan.service.disk import is_disk_full
+from fpscan.service.jobs.dispatcher import SKIP, START, Dispatcher, Loop, Verdict
+from fpscan.service.jobs.preview import PreviewManager, PreviewState
+from fpscan.service.jobs.store import TERMINAL, JobStore
+from fpscan.service.storage.usage import usage_for
 
 if TYPE_CHECKING:
-    from driver.host import Scanner, ScanProgress, ScanResult
-    from service.settings import Settings
+    from fpscan.driver.host import Scanner, ScanProgress, ScanResult
+    from fpscan.service.settings import Settings
 
 log = logging.getLogger("fpscan.scans")
 
@@ -87,7 +87,7 @@ class ScanManager:
     ----------
     store : JobStore
         The job store.
-    settings : service.settings.Settings
+    settings : fpscan.service.settings.Settings
         The service settings: ``devices`` (scanner id -> serial port), ``data_dir``,
         ``preview_interval_s``, ...
 
@@ -95,7 +95,7 @@ class ScanManager:
     ----------
     store : JobStore
         As given.
-    settings : service.settings.Settings
+    settings : fpscan.service.settings.Settings
         As given.
     owner : str
         This manager's lease owner name in the store (``scan-<hex>``).
@@ -107,11 +107,11 @@ class ScanManager:
     Raises
     ------
     ImportError
-        When the scanner driver (``driver.acquire``) cannot be imported: no scanning.
+        When the scanner driver (``fpscan.driver.acquire``) cannot be imported: no scanning.
     """
 
     def __init__(self, store: JobStore, settings: Settings) -> None:
-        import driver.acquire  # noqa: F401  (ImportError: no driver → no scanning)
+        import fpscan.driver.acquire  # noqa: F401  (ImportError: no driver → no scanning)
 
         self.store = store
         self.settings = settings
@@ -196,7 +196,7 @@ class ScanManager:
 
     # -- controls (called from request threads) -------------------------------------
     def _send(self, run: _Run, what: str) -> None:
-        from driver.host import DriverError
+        from fpscan.driver.host import DriverError
 
         with run.lock:
             if run.scanner is None or run.pending:
@@ -392,7 +392,7 @@ class ScanManager:
     def _acquire_or_interrupt(self, jid: str, run_acquire: Callable[[], ScanResult]) -> ScanResult | None:
         """``run_acquire()``'s result; None when the scan stopped: a bad plan or file fails
         the job, a lost device or a disk error pauses it (``_interrupt``: resumable)."""
-        from driver.host import DriverError
+        from fpscan.driver.host import DriverError
 
         try:
             return run_acquire()
@@ -410,9 +410,9 @@ class ScanManager:
         return None
 
     def _connect(self, jid: str, port: str, resumed: bool) -> Scanner | None:
-        """An open ``driver.host.Scanner`` on ``port``, or None: the job failed (nothing
+        """An open ``fpscan.driver.host.Scanner`` on ``port``, or None: the job failed (nothing
         acquired yet) or, with points on disk, paused until the device is back."""
-        from driver.host import DriverError, Scanner
+        from fpscan.driver.host import DriverError, Scanner
 
         try:
             return Scanner(port)
@@ -428,7 +428,7 @@ class ScanManager:
         continues the file): the job ends ``succeeded``, ``cancelled`` or ``failed``, or is
         paused (``_interrupt``) when its plan's rest does not fit the disk, the device is
         lost or the file cannot be written."""
-        from driver.acquire import acquire
+        from fpscan.driver.acquire import acquire
 
         jid = job["id"]
         port = self.settings.devices[run.scanner_id]
@@ -474,7 +474,7 @@ class ScanManager:
     def _note_identity(self, scanner_id: str, scanner: Scanner) -> None:
         """Keep what the scanner says it is (``identify``; :meth:`scanners` shows it); a
         scanner that does not say is left as it was."""
-        from driver.host import DriverError
+        from fpscan.driver.host import DriverError
 
         try:
             ident = scanner.identify()

@@ -1,9 +1,9 @@
 """The reconstruction job body: runs inside an executor worker (process pool or dask).
 
-``run_reconstruction(spec)`` runs :func:`service.pipeline.run_file` (the one orchestration,
+``run_reconstruction(spec)`` runs :func:`fpscan.service.pipeline.run_file` (the one orchestration,
 the same call ``fpscan recon`` and ``fpscan unmix`` make locally: the input read with
-``service.storage.loader``, reconstructed with :func:`service.pipeline.reconstruct`, the
-result folder written with ``service.storage.results.write_result``) with the worker's own
+``fpscan.service.storage.loader``, reconstructed with :func:`fpscan.service.pipeline.reconstruct`, the
+result folder written with ``fpscan.service.storage.results.write_result``) with the worker's own
 parts (memory admission and bounds, progress and cancel files):
 
 - ``volume.h5``: ``/p0`` (``(n_z, n_y, n_x)`` or ``(n_z, n_x)``, Pa relative to the
@@ -13,7 +13,7 @@ parts (memory admission and bounds, progress and cancel files):
 
 Inputs (``spec["input"]``):
 - ``{"kind": "dataset", "path": <dataset.h5>}``: the canonical dataset file
-  (:func:`service.storage.loader.write_dataset`) of an upload;
+  (:func:`fpscan.service.storage.loader.write_dataset`) of an upload;
 - ``{"kind": "scan", "path": <scan.h5>}``: a scan file; its completed points are used
   (a full lattice also with the grid methods).
 
@@ -21,7 +21,7 @@ Either may add ``"wavelength"``: an index into a multi-wavelength file's excitat
 wavelengths (default: the first, recorded in the result's params as ``wavelength_index``
 and ``wavelength_nm``), or ``"all"``: every wavelength reconstructed with the same method
 and options, written as the unmixing job writes them (``volume.h5`` + MIPs of the first
-at the top, ``wavelength_<k>/`` for each; :func:`service.spectral.write_wavelength_results`).
+at the top, ``wavelength_<k>/`` for each; :func:`fpscan.service.spectral.write_wavelength_results`).
 
 Everything here is a plain function of picklable arguments so dask can ship it.
 """
@@ -35,9 +35,9 @@ import time
 from collections.abc import Iterator
 from typing import Any
 
-from driver.constants import C_DEFAULT
-from service.progress import Progress
-from service.recon.limits import DEFAULT_DTYPE
+from fpscan.constants import C_DEFAULT
+from fpscan.service.progress import Progress
+from fpscan.service.recon.limits import DEFAULT_DTYPE
 
 __all__ = [
     "INPUT_FORMATS", "report_stage", "progress_file", "ProgressLog", "check_memory_limit", "ADDRESS_SPACE_BASE",
@@ -85,12 +85,12 @@ def report_stage(path: str | None, stage: str, fraction: float, **fields: Any) -
 
 
 def progress_file(path: str | None) -> Progress:
-    """The :data:`service.progress.Progress` that writes to the job's progress file ``path``.
+    """The :data:`fpscan.service.progress.Progress` that writes to the job's progress file ``path``.
 
     Each report goes through :func:`report_stage`; a report equal to the previous one is not
     written again. Each line also carries, where known, the time left ``eta_s``
-    (``service.progress.Eta``) and an iterative method's iteration, its limit and its
-    stopping rule's value and tolerance (``service.progress.iteration_fields`` of an
+    (``fpscan.service.progress.Eta``) and an iterative method's iteration, its limit and its
+    stopping rule's value and tolerance (``fpscan.service.progress.iteration_fields`` of an
     ``IterationStage``); a field a line no longer knows is written as null, since the job's
     progress merges the lines.
 
@@ -104,7 +104,7 @@ def progress_file(path: str | None) -> Progress:
     Progress
         The callback ``progress(fraction, stage)``.
     """
-    from service.progress import Eta, IterationStage, iteration_fields
+    from fpscan.service.progress import Eta, IterationStage, iteration_fields
 
     last: tuple[float, str] | None = None
     eta = Eta()
@@ -216,15 +216,15 @@ def check_memory_limit(ds: Any, params: dict, limit: int, estimate: int | None =
         The memory limit in bytes.
     estimate : int or None, optional
         The job's own figure in bytes, made once when it was submitted
-        (``service.jobs.admission``); default None (a job that carries none): estimated here
+        (``fpscan.service.jobs.admission``); default None (a job that carries none): estimated here
         from the dataset as loaded (``input_shape``).
 
     Raises
     ------
-    service.jobs.admission.AdmissionError
+    fpscan.service.jobs.admission.AdmissionError
         A ``ValueError`` with the reason, if the job needs more than ``limit``.
     """
-    from service.jobs.admission import admit, estimate_memory, input_shape
+    from fpscan.service.jobs.admission import admit, estimate_memory, input_shape
 
     admit(estimate_memory(input_shape(ds), params) if estimate is None else int(estimate), limit)
 
@@ -385,9 +385,9 @@ def run_reconstruction(spec: dict) -> dict:
     spec : dict
         ``input`` (module docstring; or ``inputs``, a list of them, for unmixing with
         ``unmix``), ``params`` (``method`` and the options of
-        :func:`service.pipeline.reconstruct`), ``out_dir``, ``input_id``; optional
+        :func:`fpscan.service.pipeline.reconstruct`), ``out_dir``, ``input_id``; optional
         ``progress_path`` (stages ``loading``, ``reconstructing``, ``writing`` are reported
-        there), ``cancel_path`` (the reconstruction stops with ``service.pipeline.Cancelled``
+        there), ``cancel_path`` (the reconstruction stops with ``fpscan.service.pipeline.Cancelled``
         once that file exists), ``memory_limit`` (bytes: admission checked again on the
         loaded input, address space bounded while it runs), ``memory_estimate`` (bytes, the
         figure made at submission) and ``wavelengths``.
@@ -396,14 +396,14 @@ def run_reconstruction(spec: dict) -> dict:
     -------
     dict
         ``{"shape", "max", "planes", "timings", "points_used", "outcome"}`` (``outcome``: an
-        iterative method's one line on how it ended, ``service.progress.outcome``).
+        iterative method's one line on how it ended, ``fpscan.service.progress.outcome``).
 
     Raises
     ------
     ValueError
         For inputs of unknown or mixed kinds, inputs the method cannot use, or a job that
         exceeds the memory limit.
-    service.pipeline.Cancelled
+    fpscan.service.pipeline.Cancelled
         When the cancel file appears.
     """
     with JOB_GATE.busy():
@@ -411,11 +411,11 @@ def run_reconstruction(spec: dict) -> dict:
 
 
 def _run_reconstruction(spec: dict) -> dict:
-    """The job's work: :func:`service.pipeline.run_file` (the one orchestration, ``fpscan recon``'s
+    """The job's work: :func:`fpscan.service.pipeline.run_file` (the one orchestration, ``fpscan recon``'s
     and ``fpscan unmix``'s too) with the worker's own parts: the input files of the spec, the
     memory admission on the loaded data and the bounded address space, the progress file and the
     cancel file."""
-    from service.pipeline import run_file
+    from fpscan.service.pipeline import run_file
 
     progress = spec.get("progress_path")
     cancel = spec.get("cancel_path")
@@ -447,15 +447,15 @@ def _run_reconstruction(spec: dict) -> dict:
                             **params)
     finally:
         if on_gpu:
-            from service.recon.device import release
+            from fpscan.service.recon.device import release
 
             release()
 
 
 def _gpus() -> list[dict]:
-    """The CUDA devices of this worker (`service.recon.device.cuda_devices`; CuPy is loaded on the
+    """The CUDA devices of this worker (`fpscan.service.recon.device.cuda_devices`; CuPy is loaded on the
     first GPU-capable job)."""
-    from service.recon.device import cuda_devices
+    from fpscan.service.recon.device import cuda_devices
 
     return cuda_devices()
 
@@ -467,7 +467,7 @@ def _plan(spec: dict) -> Any:
         return None
     if spec["plan"] is None:
         raise ValueError(f"the plan {spec['input'].get('plan_id')} this job samples its dataset with is gone")
-    from service.plans import Plan
+    from fpscan.service.plans import Plan
 
     return Plan.from_json(spec["plan"])
 
@@ -486,7 +486,7 @@ def worker_pid() -> int:
 def warm_up(full: bool = False, rest_in_background: bool = False) -> dict:
     """Make a fresh worker ready for its first job: import the reconstruction and the
     result writer; with ``full`` also compile (or load from numba's cache) every numba
-    kernel a job uses, in float32 and float64 (:func:`service.recon.warmup.warm_up`, the
+    kernel a job uses, in float32 and float64 (:func:`fpscan.service.recon.warmup.warm_up`, the
     one warm-up ``fpscan warmup`` runs too), run one tiny job's dispatch and write its result
     folder (h5py and the fonts of the MIP pictures) into a temporary folder, and last give the
     heap written pages for the first job's arrays (:func:`warm_heap`).
@@ -494,7 +494,7 @@ def warm_up(full: bool = False, rest_in_background: bool = False) -> dict:
     The warm-ups of the methods that are quick to warm (``Method.warm_in_background`` false:
     the planar inversions and the k-Wave modes, ~0.4 s from numba's cache; a first k-Wave job
     that loaded its own kernels took 3x its library time) in the default precision
-    (``service.recon.limits.DEFAULT_DTYPE``) and the writer come first; with
+    (``fpscan.service.recon.limits.DEFAULT_DTYPE``) and the writer come first; with
     ``rest_in_background`` the others (the quick methods in the other precision, 10 s of
     compilation where numba's cache lacks them, as after ``fpscan warmup --quick --dtype float32``;
     then the model-based operator with its pylops import: seconds) warm in a daemon thread
@@ -519,7 +519,7 @@ def warm_up(full: bool = False, rest_in_background: bool = False) -> dict:
     """
     import h5py  # noqa: F401
 
-    from service import recon  # noqa: F401
+    from fpscan.service import recon  # noqa: F401
 
     t0 = time.perf_counter()
     if full:
@@ -527,10 +527,10 @@ def warm_up(full: bool = False, rest_in_background: bool = False) -> dict:
 
         import numpy as np
 
-        from service.pipeline import default_method, reconstruct
-        from service.recon.dataset import GridDataset
-        from service.recon.warmup import warm_up as compile_kernels
-        from service.storage.results import write_result
+        from fpscan.service.pipeline import default_method, reconstruct
+        from fpscan.service.recon.dataset import GridDataset
+        from fpscan.service.recon.warmup import warm_up as compile_kernels
+        from fpscan.service.storage.results import write_result
 
         compile_kernels(dtypes=[DEFAULT_DTYPE], background=False)
         data = np.zeros((32, 4, 4), dtype=np.float32)
@@ -608,8 +608,8 @@ def _later_steps() -> list[tuple[list[str], list[str]]]:
     ``(methods, dtypes)``: the quick methods in the precisions other than the default
     (``DEFAULT_DTYPE`` is warmed first: what a job gets unless it asks otherwise), then each
     method that warms in the background (``Method.warm_in_background``) in each precision."""
-    from service.recon.methods import METHODS
-    from service.recon.warmup import DTYPES
+    from fpscan.service.recon.methods import METHODS
+    from fpscan.service.recon.warmup import DTYPES
 
     quick = [m.name for m in METHODS.values() if m.warm_up is not None and not m.warm_in_background]
     steps = [([name], [dtype]) for dtype in DTYPES if dtype != DEFAULT_DTYPE for name in quick]
@@ -622,7 +622,7 @@ def _warm_rest() -> None:
     and precision at a time, each step only while no job runs (:data:`JOB_GATE`); a
     failure is logged (a job then compiles what it needs itself)."""
     try:
-        from service.recon.warmup import warm_up as compile_kernels
+        from fpscan.service.recon.warmup import warm_up as compile_kernels
 
         started = time.monotonic()
         for methods, dtypes in _later_steps():  # small steps, each once the worker has had no job for a

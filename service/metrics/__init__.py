@@ -12,7 +12,7 @@
 
 Pure numpy/scipy; no I/O. The names load on first use (PEP 562): the sharpness and the
 fits import scipy.ndimage and scipy.optimize (about 1.2 s of a fresh interpreter), which the
-MIP pictures of every result (`service.pictures.render`) do not need.
+MIP pictures of every result (`fpscan.service.pictures.render`) do not need.
 """
 from __future__ import annotations
 
@@ -26,10 +26,10 @@ _LAZY = {"correlation_coefficient": "correlation", "cc_vs_diameter": "curves", "
          "tenenbaum_sharpness": "sharpness"}
 
 if TYPE_CHECKING:
-    from .correlation import correlation_coefficient
-    from .curves import cc_vs_diameter, cc_vs_pixels, sharpness_vs_diameter
-    from .projections import mip, mips
-    from .resolution import (
+    from fpscan.service.metrics.correlation import correlation_coefficient
+    from fpscan.service.metrics.curves import cc_vs_diameter, cc_vs_pixels, sharpness_vs_diameter
+    from fpscan.service.metrics.projections import mip, mips
+    from fpscan.service.metrics.resolution import (
         EdgeFit,
         LorentzFit,
         edge_spread,
@@ -38,8 +38,8 @@ if TYPE_CHECKING:
         lorentz,
         side_lobe_level,
     )
-    from .roi import bounding_box, disc_mask, roi_mask
-    from .sharpness import tenenbaum_sharpness
+    from fpscan.service.metrics.roi import bounding_box, disc_mask, roi_mask
+    from fpscan.service.metrics.sharpness import tenenbaum_sharpness
 
 __all__ = [
     "EdgeFit",

@@ -20,7 +20,7 @@ def correlation_coefficient(image: np.ndarray, reference: np.ndarray, mask: np.n
         xy-MIP ``(n_y, n_x)``); values in any (common or not) unit — the measure is
         invariant to affine maps ``a*U + b`` with ``a > 0``.
     mask : ndarray of bool, same shape, optional
-        Region of interest (see :func:`service.metrics.roi_mask`); default all pixels.
+        Region of interest (see :func:`fpscan.service.metrics.roi_mask`); default all pixels.
 
     Returns
     -------
@@ -41,7 +41,7 @@ def correlation_coefficient(image: np.ndarray, reference: np.ndarray, mask: np.n
     Examples
     --------
     >>> import numpy as np
-    >>> from service.metrics import correlation_coefficient
+    >>> from fpscan.service.metrics import correlation_coefficient
     >>> ref = np.outer(np.hanning(5), np.hanning(5))
     >>> correlation_coefficient(2 * ref + 1, ref)  # invariant to a*U + b, a > 0
     1.0

@@ -15,9 +15,9 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from .correlation import correlation_coefficient
-from .roi import _axes_for, roi_mask
-from .sharpness import tenenbaum_sharpness
+from fpscan.service.metrics.correlation import correlation_coefficient
+from fpscan.service.metrics.roi import _axes_for, roi_mask
+from fpscan.service.metrics.sharpness import tenenbaum_sharpness
 
 __all__ = ["cc_vs_pixels", "cc_vs_diameter", "sharpness_vs_diameter"]
 
@@ -41,7 +41,7 @@ def cc_vs_pixels(
     counts : sequence of int
         Numbers of pixels of interest, each in ``[2, region.sum()]``.
     region : ndarray of bool, optional
-        The confining disc (see :func:`service.metrics.disc_mask`); default all pixels.
+        The confining disc (see :func:`fpscan.service.metrics.disc_mask`); default all pixels.
 
     Returns
     -------
@@ -62,7 +62,7 @@ def cc_vs_pixels(
     Examples
     --------
     >>> import numpy as np
-    >>> from service.metrics import cc_vs_pixels
+    >>> from fpscan.service.metrics import cc_vs_pixels
     >>> ref = np.outer(np.hanning(9), np.hanning(9))
     >>> cc_vs_pixels(2 * ref, ref, [4, 25]).tolist()
     [1.0, 1.0]
@@ -152,7 +152,7 @@ def cc_vs_diameter(
     Examples
     --------
     >>> import numpy as np
-    >>> from service.metrics import cc_vs_diameter
+    >>> from fpscan.service.metrics import cc_vs_diameter
     >>> ref = np.outer(np.hanning(9), np.hanning(9))
     >>> cc_vs_diameter(2 * ref + 1, ref, [0.5, 5.0]).tolist()  # 0.5 px holds 1 pixel: NaN
     [nan, 1.0]
@@ -199,7 +199,7 @@ def sharpness_vs_diameter(
     Examples
     --------
     >>> import numpy as np
-    >>> from service.metrics import sharpness_vs_diameter
+    >>> from fpscan.service.metrics import sharpness_vs_diameter
     >>> ref = np.outer(np.hanning(9), np.hanning(9))
     >>> sharpness_vs_diameter(ref, ref, [0.5, 5.0]).round(3).tolist()
     [nan, 2.724]

@@ -1,5 +1,5 @@
 """Maximum-intensity projections (MIPs) of a reconstructed volume: the one ``mip`` of
-fpscan (the pictures of ``service.pictures.render`` draw it too).
+fpscan (the pictures of ``fpscan.service.pictures.render`` draw it too).
 
 Volumes are ``(n_z, n_y, n_x)`` (DESIGN §3): the xy-MIP projects along z (axis 0),
 the xz-MIP along y (axis 1), the yz-MIP along x (axis 2). A 2-D image ``(n_z, n_x)`` has
@@ -41,7 +41,7 @@ def mip(volume: np.ndarray, plane: str = "xy", *, absolute: bool = False) -> np.
     Examples
     --------
     >>> import numpy as np
-    >>> from service.metrics import mip
+    >>> from fpscan.service.metrics import mip
     >>> volume = np.arange(24.0).reshape(2, 3, 4)  # (n_z, n_y, n_x)
     >>> mip(volume, "xy")  # max over z
     array([[12., 13., 14., 15.],
@@ -88,7 +88,7 @@ def mips(volume: np.ndarray, *, absolute: bool = False) -> dict[str, np.ndarray]
     Examples
     --------
     >>> import numpy as np
-    >>> from service.metrics import mips
+    >>> from fpscan.service.metrics import mips
     >>> {plane: m.shape for plane, m in mips(np.zeros((2, 3, 4))).items()}
     {'xy': (3, 4), 'xz': (2, 4), 'yz': (2, 3)}
     """

@@ -56,7 +56,7 @@ def lorentz(z: np.ndarray, a0: float, z0: float, w: float, baseline: float = 0.0
     Examples
     --------
     >>> import numpy as np
-    >>> from service.metrics import lorentz
+    >>> from fpscan.service.metrics import lorentz
     >>> lorentz(np.array([0.0, 1.0]), a0=np.pi, z0=0.0, w=2.0)  # peak 2 a0/(pi w) = 1, half at w/2
     array([1. , 0.5])
     """
@@ -92,7 +92,7 @@ def edge_spread(x: np.ndarray, i0: float, a0: float, x0: float, w: float) -> np.
     Examples
     --------
     >>> import numpy as np
-    >>> from service.metrics import edge_spread
+    >>> from fpscan.service.metrics import edge_spread
     >>> edge_spread(np.array([-1e9, 0.0, 1e9]), i0=0.1, a0=1.0, x0=0.0, w=1e-4)
     array([0.1, 0.6, 1.1])
     """
@@ -115,7 +115,7 @@ class LorentzFit:
 
     Examples
     --------
-    >>> from service.metrics import LorentzFit
+    >>> from fpscan.service.metrics import LorentzFit
     >>> LorentzFit(2e-4, 1e-4, 1.0, 3183.1, 0.0, 0.0).to_dict()["fwhm"]
     0.0002
     """
@@ -144,7 +144,7 @@ class EdgeFit:
 
     Examples
     --------
-    >>> from service.metrics import EdgeFit
+    >>> from fpscan.service.metrics import EdgeFit
     >>> EdgeFit(1e-4, 2e-4, 0.1, 1.0, 0.0).to_dict()["edge"]
     0.0002
     """
@@ -242,7 +242,7 @@ def fit_lorentz(
     Examples
     --------
     >>> import numpy as np
-    >>> from service.metrics import fit_lorentz, lorentz
+    >>> from fpscan.service.metrics import fit_lorentz, lorentz
     >>> z = np.linspace(-5e-4, 5e-4, 41)  # depth, m
     >>> fit = fit_lorentz(z, lorentz(z, a0=1.0, z0=1e-4, w=2e-4))
     >>> print(f"FWHM {fit.fwhm * 1e6:.1f} um at {fit.center * 1e6:.1f} um")
@@ -323,7 +323,7 @@ def fit_edge_spread(x: np.ndarray, profile: np.ndarray, *, window: int | None = 
     Examples
     --------
     >>> import numpy as np
-    >>> from service.metrics import edge_spread, fit_edge_spread
+    >>> from fpscan.service.metrics import edge_spread, fit_edge_spread
     >>> x = np.linspace(-1e-3, 1e-3, 41)  # m
     >>> fit = fit_edge_spread(x, edge_spread(x, i0=0.1, a0=1.0, x0=2e-4, w=1e-4))
     >>> print(f"FWHM {fit.fwhm * 1e6:.1f} um, edge at {fit.edge * 1e6:.1f} um")
@@ -392,7 +392,7 @@ def side_lobe_level(profile: np.ndarray) -> float:
     Examples
     --------
     >>> import numpy as np
-    >>> from service.metrics import side_lobe_level
+    >>> from fpscan.service.metrics import side_lobe_level
     >>> side_lobe_level(np.array([0.3, 0.0, 1.0, 0.0, 0.3]))  # 20 log10(0.3): -10.5 dB
     0.3
     """

@@ -58,7 +58,7 @@ def disc_mask(axes: Sequence[np.ndarray], diameter: float, center: Sequence[floa
     Examples
     --------
     >>> import numpy as np
-    >>> from service.metrics import disc_mask
+    >>> from fpscan.service.metrics import disc_mask
     >>> x = np.arange(5) * 1e-4  # pixel centres, m
     >>> disc_mask((x, x), 3e-4).astype(int)  # diameter 0.3 mm around the centre
     array([[0, 0, 0, 0, 0],
@@ -125,7 +125,7 @@ def roi_mask(
     Examples
     --------
     >>> import numpy as np
-    >>> from service.metrics import roi_mask
+    >>> from fpscan.service.metrics import roi_mask
     >>> ref = np.outer(np.hanning(7), np.hanning(7))
     >>> int(roi_mask(ref, threshold=0.5).sum())  # the 3 x 3 pixels at >= half the peak
     9
@@ -169,7 +169,7 @@ def bounding_box(mask: np.ndarray) -> tuple[slice, ...]:
     Examples
     --------
     >>> import numpy as np
-    >>> from service.metrics import bounding_box
+    >>> from fpscan.service.metrics import bounding_box
     >>> mask = np.zeros((4, 6), bool)
     >>> mask[1, 2] = mask[2, 4] = True
     >>> bounding_box(mask)

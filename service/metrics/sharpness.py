@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
-from .roi import bounding_box
+from fpscan.service.metrics.roi import bounding_box
 
 __all__ = ["tenenbaum_sharpness"]
 
@@ -26,7 +26,7 @@ def tenenbaum_sharpness(image: np.ndarray, mask: np.ndarray | None = None) -> fl
         the image, so compare images of a common scale).
     mask : ndarray of bool, same shape, optional
         Region of interest; the sharpness is computed on its bounding rectangle
-        (:func:`service.metrics.bounding_box`). Default: the whole image.
+        (:func:`fpscan.service.metrics.bounding_box`). Default: the whole image.
 
     Returns
     -------
@@ -46,7 +46,7 @@ def tenenbaum_sharpness(image: np.ndarray, mask: np.ndarray | None = None) -> fl
     Examples
     --------
     >>> import numpy as np
-    >>> from service.metrics import tenenbaum_sharpness
+    >>> from fpscan.service.metrics import tenenbaum_sharpness
     >>> tenenbaum_sharpness(np.zeros((4, 4)))  # a constant image has no edges
     0.0
     >>> img = np.outer(np.hanning(5), np.hanning(5))

@@ -1,11 +1,11 @@
 """The frame of an image picture drawn with Pillow: the same layout, fonts and information as
-the matplotlib figures of :mod:`service.pictures.render` (axes in mm at equal aspect, ticks and
+the matplotlib figures of :mod:`fpscan.service.pictures.render` (axes in mm at equal aspect, ticks and
 tick labels, axis labels, title, a colour bar with its ticks and label), at a fraction of their
 cost (~10 ms against ~200 ms a picture: a matplotlib figure builds and lays out dozens of
 artists for three small images; issue 20, a result's pictures cost a fraction of its
 reconstruction).
 
-Used by :func:`service.pictures.render.render_png` for every annotated raster picture (result
+Used by :func:`fpscan.service.pictures.render.render_png` for every annotated raster picture (result
 MIPs, depth slices, the live preview). Sizes follow the matplotlib figures: 600 px wide at
 150 dpi (``FIGURE_WIDTH_IN``, ``FIGURE_DPI``), the same margins in inches, the colour bar's
 fraction and pad of ``Figure.colorbar(fraction=0.046, pad=0.04)``, DejaVu Sans (matplotlib's

@@ -1,7 +1,7 @@
 """The ONE rendering path for every picture fpscan draws: result MIPs, the live preview
 of a running scan, depth slices and the mask preview of a plan. Axes in mm with equal
 aspect (a millimetre is as long across as down), a colour bar in p0 units (or the mask's
-weight): image pictures drawn with Pillow in the frame of :mod:`service.pictures.frame` (the
+weight): image pictures drawn with Pillow in the frame of :mod:`fpscan.service.pictures.frame` (the
 layout, fonts and ticks of the matplotlib figures, ~20 ms a picture), the mask's points, its
 lattice and the sO2 map with matplotlib on an Agg canvas (no pyplot state: thread-safe); or raw
 pixels (one pixel per sample, Pillow) in the same orientation.
@@ -53,7 +53,7 @@ if TYPE_CHECKING:
     from matplotlib.colors import Colormap
     from matplotlib.figure import Figure
 
-from service.metrics.projections import mip
+from fpscan.service.metrics.projections import mip
 
 PLANES = ("xy", "xz", "yz")
 AXES_KEY = "fpscan:axes"
@@ -108,7 +108,7 @@ def render_png(img: np.ndarray, h: np.ndarray, v: np.ndarray, *, hlabel: str, vl
                colorbar_label: str = "p0 (a.u.)", bad_colour: Any = None) -> bytes:
     """PNG of a 2-D array ``img``: row i at vertical coordinate ``v[i]``, column j at ``h[j]``.
 
-    ``annotate=True``: a figure (:mod:`service.pictures.frame`; a greyscale PNG when every
+    ``annotate=True``: a figure (:mod:`fpscan.service.pictures.frame`; a greyscale PNG when every
     colour is grey) with axes in mm (equal aspect), labels, title, a colour bar labelled
     ``colorbar_label`` and the ``fpscan:axes`` chunk. ``annotate=False``: exactly one pixel
     per sample in the same orientation (the first PNG row is ``v[0]`` when ``depth_down``,
@@ -192,7 +192,7 @@ def render_png(img: np.ndarray, h: np.ndarray, v: np.ndarray, *, hlabel: str, vl
                    colorbar_label=colorbar_label)
 
 
-#: draw annotated raster pictures with :mod:`service.pictures.frame` (Pillow, ~10 ms a picture)
+#: draw annotated raster pictures with :mod:`fpscan.service.pictures.frame` (Pillow, ~10 ms a picture)
 #: rather than a matplotlib figure (~200 ms); the same layout, fonts, ticks, colour bar and
 #: ``fpscan:axes`` chunk
 _FAST_FRAME = True
@@ -201,11 +201,11 @@ _FAST_FRAME = True
 def _render_framed(img: np.ndarray, colormap: Any, lo: float, hi: float, edges_mm: tuple[float, float, float, float],
                    *, depth_down: bool, hlabel: str, vlabel: str, title: str | None, colorbar_label: str,
                    bad_colour: Any) -> bytes:
-    """:func:`render_png`'s annotated picture drawn by :func:`service.pictures.frame.draw_frame`:
+    """:func:`render_png`'s annotated picture drawn by :func:`fpscan.service.pictures.frame.draw_frame`:
     the colours matplotlib's ``imshow`` gives (``colormap``'s 256 colours over ``[lo, hi]``,
     clipped; NaN at ``lo`` or in ``bad_colour``), ``edges_mm`` ``(h0, h1, v0, v1)``: the mm at
     the first and last sample's outer edges; with the ``fpscan:axes`` chunk."""
-    from service.pictures.frame import colour_lut, draw_frame, frame_layout
+    from fpscan.service.pictures.frame import colour_lut, draw_frame, frame_layout
 
     shown = np.asarray(img, dtype=np.float64)
     bad = ~np.isfinite(shown)
@@ -366,11 +366,11 @@ _LARGER_UNIT = {"µm²": ("mm²", 1e6), "µm": ("mm", 1e3)}
 def _colourbar_scale(label: str, lo: float, hi: float) -> tuple[float, str]:
     """The divisor of a colour bar's tick values and its label: ``µm²`` / ``µm`` become ``mm²``
     / ``mm`` for values of 10⁴ and more (no factor on a weight), and any power of ten still
-    left (values outside [1e-3, 1e4), as ``service.pictures.frame.tick_labels``) goes into the
+    left (values outside [1e-3, 1e4), as ``fpscan.service.pictures.frame.tick_labels``) goes into the
     label's unit (``"p0 (×10⁶ a.u.)"``), never beside the bar where it met the title."""
     import math
 
-    from service.pictures.frame import power_in_label
+    from fpscan.service.pictures.frame import power_in_label
 
     big = max(abs(lo), abs(hi))
     divisor = 1.0
@@ -754,7 +754,7 @@ def render_result_slice(path: Any, index: int, **options: Any) -> bytes:
     Parameters
     ----------
     path : str or os.PathLike
-        The result file (``service.storage.results``).
+        The result file (``fpscan.service.storage.results``).
     index : int
         The depth row, in ``[0, n_z)``.
     **options
@@ -772,7 +772,7 @@ def render_result_slice(path: Any, index: int, **options: Any) -> bytes:
     OSError
         If the file cannot be read (FileNotFoundError if it is missing).
     """
-    from service.formats.result import read_slice
+    from fpscan.service.formats.result import read_slice
 
     img, z, x, y = read_slice(path, index)
     if img.ndim == 1:  # a 2-D result: the row at this depth

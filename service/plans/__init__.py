@@ -7,9 +7,9 @@ Where the scanner measures and with what weight each A-line enters the reconstru
 - Masks (``Mask``: ``indices`` (n, 2), ``positions`` (n, 2) in m, ``weights`` (n,) in m²
   (m on a line), requested/obtained points, ``weight_ratio``): ``make_mask(kind, lattice,
   **params)`` (kinds and their parameter models declared once in ``KINDS``,
-  ``service.plans.kinds``) or the per-kind functions — full, subgrid (kind ``equispaced``), hexagonal, random, poisson,
+  ``fpscan.service.plans.kinds``) or the per-kind functions — full, subgrid (kind ``equispaced``), hexagonal, random, poisson,
   points, and the paper's ``equiangular_mask`` (2-D) / ``equisteradian_mask`` (3-D).
-  Default weights: clipped Voronoi areas (``driver.physics.weights.voronoi_weights``);
+  Default weights: clipped Voronoi areas (``fpscan.physics.weights.voronoi_weights``);
   equiangular / equi-steradian: r² / r³ about the point of interest (paper §5.2).
 - ``Plan``: an ordered mask plus acquisition settings with its content hash as id, in the
   JSON of docs/architecture.md ("Plan JSON") and in HDF5; ``make_plan`` /
@@ -46,13 +46,25 @@ _EXPORTS = {
 }
 
 if TYPE_CHECKING:
-    from .angular import equiangular_mask, equisteradian_mask, equisteradian_rings
-    from .grids import full_mask, hexagonal_mask, points_mask, poisson_mask, random_mask, subgrid_mask
-    from .kinds import KINDS, MASK_KINDS, kind_fields, make_mask, resolve_kind
-    from .lattice import Lattice
-    from .mask import Mask, distance_law_weights, weight_ratio
-    from .ordering import nearest_neighbour_order, ring_order, scan_order, serpentine_order
-    from .plan import (
+    from fpscan.service.plans.angular import equiangular_mask, equisteradian_mask, equisteradian_rings
+    from fpscan.service.plans.grids import (
+        full_mask,
+        hexagonal_mask,
+        points_mask,
+        poisson_mask,
+        random_mask,
+        subgrid_mask,
+    )
+    from fpscan.service.plans.kinds import KINDS, MASK_KINDS, kind_fields, make_mask, resolve_kind
+    from fpscan.service.plans.lattice import Lattice
+    from fpscan.service.plans.mask import Mask, distance_law_weights, weight_ratio
+    from fpscan.service.plans.ordering import (
+        nearest_neighbour_order,
+        ring_order,
+        scan_order,
+        serpentine_order,
+    )
+    from fpscan.service.plans.plan import (
         PLAN_FORMAT,
         Acquisition,
         Plan,
@@ -62,7 +74,7 @@ if TYPE_CHECKING:
         make_plan,
         plan_from_spec,
     )
-    from .preview import preview_png
+    from fpscan.service.plans.preview import preview_png
 
 
 def __getattr__(name: str) -> Any:

@@ -14,8 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .lattice import Lattice
-from .mask import Mask, check_count, check_poi, check_positive, distance_law_weights
+from fpscan.service.plans.lattice import Lattice
+from fpscan.service.plans.mask import Mask, check_count, check_poi, check_positive, distance_law_weights
 
 __all__ = ["equiangular_mask", "equisteradian_mask", "equisteradian_rings", "Ring", "check_depth"]
 
@@ -61,7 +61,7 @@ class Ring:
     Examples
     --------
     >>> import numpy as np
-    >>> from service.plans import equisteradian_rings
+    >>> from fpscan.service.plans import equisteradian_rings
     >>> ring = equisteradian_rings(2e-3, 2e-3, 50)[1]  # the first ring around the centre point
     >>> ring.count
     4
@@ -85,7 +85,7 @@ class Ring:
 
         Examples
         --------
-        >>> from service.plans.angular import Ring
+        >>> from fpscan.service.plans.angular import Ring
         >>> Ring(theta=0.5, theta_lo=0.4, theta_hi=0.6, count=2, phi0=0.0).azimuths().round(4)
         array([0.    , 3.1416])
         """
@@ -139,7 +139,7 @@ def equisteradian_rings(depth: float, rho_max: float, n_points: int) -> list[Rin
     Examples
     --------
     >>> import numpy as np
-    >>> from service.plans import equisteradian_rings
+    >>> from fpscan.service.plans import equisteradian_rings
     >>> rings = equisteradian_rings(2e-3, 2e-3, 50)  # r0 = rho_max: a 45° aperture
     >>> [r.count for r in rings], sum(r.count for r in rings)
     ([1, 4, 8, 8, 16, 16], 53)
@@ -208,8 +208,8 @@ def check_depth(r0: float, lattice: Lattice) -> float:
 
     Examples
     --------
-    >>> from service.plans import Lattice
-    >>> from service.plans.angular import check_depth
+    >>> from fpscan.service.plans import Lattice
+    >>> from fpscan.service.plans.angular import check_depth
     >>> check_depth(2e-3, Lattice(41, 41, 1e-4))
     0.002
     >>> check_depth(5e-5, Lattice(41, 41, 1e-4))
@@ -276,7 +276,7 @@ def equisteradian_mask(lattice: Lattice, depth: float, n_points: int, poi: float
 
     Examples
     --------
-    >>> from service.plans import Lattice, equisteradian_mask
+    >>> from fpscan.service.plans import Lattice, equisteradian_mask
     >>> m = equisteradian_mask(Lattice(41, 41, 1e-4), depth=2e-3, n_points=50)
     >>> m.obtained_points, int(m.rings.max()), m.design["ring_count"]
     (53, 5, [1, 4, 8, 8, 16, 16])
@@ -347,7 +347,7 @@ def equiangular_mask(lattice: Lattice, depth: float, n_points: int, poi: float |
 
     Examples
     --------
-    >>> from service.plans import Lattice, equiangular_mask
+    >>> from fpscan.service.plans import Lattice, equiangular_mask
     >>> m = equiangular_mask(Lattice(101, 1, 1e-4), depth=2e-3, n_points=11)
     >>> m.indices[:, 0]  # denser under the point of interest, sparser towards the ends
     array([  0,  22,  33,  40,  45,  50,  55,  60,  67,  78, 100])

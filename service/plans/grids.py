@@ -8,8 +8,8 @@ from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
-from .lattice import Lattice
-from .mask import Mask, check_count, check_positive, check_seed, default_weights
+from fpscan.service.plans.lattice import Lattice
+from fpscan.service.plans.mask import Mask, check_count, check_positive, check_seed, default_weights
 
 if TYPE_CHECKING:
     from numpy.typing import ArrayLike
@@ -51,7 +51,7 @@ def full_mask(lattice: Lattice) -> Mask:
 
     Examples
     --------
-    >>> from service.plans import Lattice, full_mask
+    >>> from fpscan.service.plans import Lattice, full_mask
     >>> m = full_mask(Lattice(4, 1, 1e-4))
     >>> m.obtained_points, m.weights  # m on a line lattice
     (4, array([0.0001, 0.0001, 0.0001, 0.0001]))
@@ -108,7 +108,7 @@ def subgrid_mask(lattice: Lattice, interval: int, n_per_side: int | Sequence[int
 
     Examples
     --------
-    >>> from service.plans import Lattice, subgrid_mask
+    >>> from fpscan.service.plans import Lattice, subgrid_mask
     >>> m = subgrid_mask(Lattice(41, 41, 1e-4), 5)
     >>> m.obtained_points, float(m.weights[0])  # 9 x 9 points, (0.5 mm)² each
     (81, 2.5e-07)
@@ -163,7 +163,7 @@ def hexagonal_mask(lattice: Lattice, spacing: float) -> Mask:
 
     Examples
     --------
-    >>> from service.plans import Lattice, hexagonal_mask
+    >>> from fpscan.service.plans import Lattice, hexagonal_mask
     >>> hexagonal_mask(Lattice(41, 41, 1e-4), 5e-4).obtained_points
     77
     >>> hexagonal_mask(Lattice(41, 41, 1e-4), 5e-5)
@@ -218,7 +218,7 @@ def random_mask(lattice: Lattice, n_points: int, seed: int = 0) -> Mask:
 
     Examples
     --------
-    >>> from service.plans import Lattice, random_mask
+    >>> from fpscan.service.plans import Lattice, random_mask
     >>> m = random_mask(Lattice(41, 41, 1e-4), 20, seed=1)
     >>> m.obtained_points, m.params
     (20, {'n_points': 20, 'seed': 1})
@@ -267,7 +267,7 @@ def poisson_mask(lattice: Lattice, min_distance: float, seed: int = 0, n_points:
     Examples
     --------
     >>> from scipy.spatial.distance import pdist
-    >>> from service.plans import Lattice, poisson_mask
+    >>> from fpscan.service.plans import Lattice, poisson_mask
     >>> m = poisson_mask(Lattice(41, 41, 1e-4), 4e-4, seed=0)
     >>> m.obtained_points, bool(pdist(m.positions).min() > 4e-4 * (1 - 1e-9))
     (78, True)
@@ -350,7 +350,7 @@ def points_mask(lattice: Lattice, points: ArrayLike | None = None, indices: Arra
 
     Examples
     --------
-    >>> from service.plans import Lattice, points_mask
+    >>> from fpscan.service.plans import Lattice, points_mask
     >>> m = points_mask(Lattice(101, 1, 1e-4), points=[0.0, 1e-4, 1.04e-4])  # x in m
     >>> m.indices.tolist(), m.requested_points  # the last two snap to one point
     ([[50, 0], [51, 0]], 3)

@@ -3,7 +3,7 @@
 ``KINDS`` maps each kind's name to its ``MaskKind``: the parameter model, the mask function
 (first argument: the lattice), a label, and accepted aliases. Everything else derives from
 it: ``make_mask`` (validation of parameters), the HTTP API's request schema
-(``service.api.models``: a union keyed on ``kind``, so OpenAPI lists each kind's
+(``fpscan.service.api.models``: a union keyed on ``kind``, so OpenAPI lists each kind's
 parameters), the ``/api/plans/kinds`` endpoint the web page builds its form from, and the
 ``fpscan plan <kind>`` subcommands and flags (``clients/cli/plan.py``). Adding a kind means
 adding its model and its entry here (plus its mask function).
@@ -16,7 +16,7 @@ Range checks that guarantee bounded work belong to the mask functions.
 The parameter models' docstrings are each kind's one-line description (``MaskKind.description``,
 shown by ``fpscan plan --help`` and ``/api/plans/kinds``), so their examples are here:
 
->>> from service.plans.kinds import (EquiangularParams, EquispacedParams, EquisteradianParams,
+>>> from fpscan.service.plans.kinds import (EquiangularParams, EquispacedParams, EquisteradianParams,
 ...     FullParams, HexagonalParams, PoissonParams, PointsParams, RandomParams)
 >>> FullParams().mask_kwargs()
 {}
@@ -51,8 +51,8 @@ from typing import TYPE_CHECKING, Any
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 if TYPE_CHECKING:
-    from .lattice import Lattice
-    from .mask import Mask
+    from fpscan.service.plans.lattice import Lattice
+    from fpscan.service.plans.mask import Mask
 
 __all__ = ["KINDS", "MaskKind", "MaskParams", "make_mask", "resolve_kind", "kind_fields",
            "field_units", "length", "FullParams", "EquispacedParams", "HexagonalParams", "RandomParams",
@@ -78,7 +78,7 @@ def length(description: str, *, display_unit: str = "mm", **constraints: Any) ->
 
     Examples
     --------
-    >>> from service.plans.kinds import length
+    >>> from fpscan.service.plans.kinds import length
     >>> f = length("depth of the point of interest, m", gt=0)
     >>> f.json_schema_extra
     {'unit': 'm', 'display_unit': 'mm'}
@@ -108,7 +108,7 @@ class MaskParams(BaseModel):
 
     Examples
     --------
-    >>> from service.plans.kinds import EquisteradianParams, MaskParams
+    >>> from fpscan.service.plans.kinds import EquisteradianParams, MaskParams
     >>> issubclass(EquisteradianParams, MaskParams)
     True
     >>> EquisteradianParams(depth="3.6 mm", n_points=1625).mask_kwargs()  # unset poi left out
@@ -121,7 +121,7 @@ class MaskParams(BaseModel):
     @classmethod
     def _units(cls, data: Any) -> Any:
         """Lengths typed with a unit (``"3.6mm"``, ``"-2 mm"``) -> m, by the one unit parser
-        (``driver.units.parse_quantity``), for every field that declares a unit
+        (``fpscan.driver.units.parse_quantity``), for every field that declares a unit
         (``field_units``): a number, or each of a point of interest's 1-2 numbers. Bare
         numbers are SI and pass unchanged; a bad text is a ValueError naming the field."""
         if not isinstance(data, dict):
@@ -153,7 +153,7 @@ class MaskParams(BaseModel):
 
         Examples
         --------
-        >>> from service.plans.kinds import PoissonParams
+        >>> from fpscan.service.plans.kinds import PoissonParams
         >>> PoissonParams(min_distance="240um").mask_kwargs()
         {'min_distance': 0.00024, 'seed': 0}
         """
@@ -272,7 +272,7 @@ class MaskKind:
         Other names the kind is accepted under.
     poi_depth : bool
         The kind's ``depth`` parameter is the depth of a point of interest (m), judged by the
-        plausibility rules (``service.plans.plan.check_plausible_request``).
+        plausibility rules (``fpscan.service.plans.plan.check_plausible_request``).
     function : callable
         The mask function ``function(lattice, **params) -> Mask``.
     description : str
@@ -280,7 +280,7 @@ class MaskKind:
 
     Examples
     --------
-    >>> from service.plans import KINDS
+    >>> from fpscan.service.plans import KINDS
     >>> k = KINDS["equisteradian"]
     >>> k.function.__name__, k.poi_depth
     ('equisteradian_mask', True)
@@ -351,7 +351,7 @@ def resolve_kind(kind: Any) -> MaskKind:
 
     Examples
     --------
-    >>> from service.plans import resolve_kind
+    >>> from fpscan.service.plans import resolve_kind
     >>> resolve_kind("Hex").name, resolve_kind("grid").name
     ('hexagonal', 'equispaced')
     >>> resolve_kind("spiral")
@@ -368,7 +368,7 @@ def resolve_kind(kind: Any) -> MaskKind:
 
 
 def _parse_unit(text: str, kind: str, name: str) -> float:
-    from driver.units import parse_quantity
+    from fpscan.driver.units import parse_quantity
 
     return parse_quantity(text, kind, name=name)
 
@@ -388,7 +388,7 @@ def field_units(model: type[BaseModel]) -> dict[str, str]:
 
     Examples
     --------
-    >>> from service.plans.kinds import EquisteradianParams, RandomParams, field_units
+    >>> from fpscan.service.plans.kinds import EquisteradianParams, RandomParams, field_units
     >>> field_units(EquisteradianParams)
     {'depth': 'm', 'poi': 'm'}
     >>> field_units(RandomParams)
@@ -458,7 +458,7 @@ def kind_fields(kind: str) -> list[dict]:
 
     Examples
     --------
-    >>> from service.plans import kind_fields
+    >>> from fpscan.service.plans import kind_fields
     >>> [f["name"] for f in kind_fields("poisson")]
     ['min_distance', 'seed', 'n_points']
     >>> f = kind_fields("hexagonal")[0]
@@ -511,7 +511,7 @@ def make_mask(kind: str, lattice: Lattice | dict, **params: Any) -> Mask:
 
     Examples
     --------
-    >>> from service.plans import Lattice, make_mask
+    >>> from fpscan.service.plans import Lattice, make_mask
     >>> make_mask("subgrid", {"n_x": 9, "n_y": 9, "pitch": 1e-4}, interval=4).obtained_points
     9
     >>> make_mask("equisteradian", Lattice(41, 41, 1e-4), depth="2mm", n_points=50).obtained_points
@@ -521,7 +521,7 @@ def make_mask(kind: str, lattice: Lattice | dict, **params: Any) -> Mask:
     ...
     ValueError: mask 'random' needs parameter(s): n_points
     """
-    from .lattice import Lattice
+    from fpscan.service.plans.lattice import Lattice
 
     if not isinstance(lattice, Lattice):
         if isinstance(lattice, dict):

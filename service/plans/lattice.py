@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from driver.physics.axes import centred_axis, centred_index, centred_positions
+from fpscan.physics.axes import centred_axis, centred_index, centred_positions
 
 if TYPE_CHECKING:
     from numpy.typing import ArrayLike
@@ -17,7 +17,7 @@ __all__ = ["Lattice"]
 
 def _check_length(name: str, value: Any) -> float:
     if isinstance(value, str):  # text with a unit ("60um"): the one unit parser
-        from driver.units import parse_quantity
+        from fpscan.driver.units import parse_quantity
 
         value = parse_quantity(value, "length", name=name)
     try:
@@ -43,7 +43,7 @@ class Lattice:
         Number of lattice points along x and y, >= 1 each (``n_y = 1``: a line scanner).
     pitch : float or str
         Distance between neighbouring points, m (> 0, finite); a text with a unit
-        (``"60um"``) is parsed by ``driver.units.parse_quantity``.
+        (``"60um"``) is parsed by ``fpscan.driver.units.parse_quantity``.
 
     Attributes
     ----------
@@ -72,7 +72,7 @@ class Lattice:
 
     Examples
     --------
-    >>> from service.plans import Lattice
+    >>> from fpscan.service.plans import Lattice
     >>> lat = Lattice(5, 3, 1e-4)  # 5 x 3 points, 0.1 mm apart
     >>> lat.n_points, lat.is_line
     (15, False)
@@ -166,7 +166,7 @@ class Lattice:
 
         Examples
         --------
-        >>> from service.plans import Lattice
+        >>> from fpscan.service.plans import Lattice
         >>> Lattice(5, 3, 1e-4).positions([[2, 1]])
         array([[0., 0.]])
         >>> Lattice(5, 3, 1e-4).positions([[5, 0]])
@@ -212,7 +212,7 @@ class Lattice:
 
         Examples
         --------
-        >>> from service.plans import Lattice
+        >>> from fpscan.service.plans import Lattice
         >>> lat = Lattice(5, 3, 1e-4)
         >>> lat.snap([[0.5e-4, 0.0], [-0.5e-4, 0.0]])  # ties go away from the centre
         array([[3, 1],
@@ -263,7 +263,7 @@ class Lattice:
 
         Examples
         --------
-        >>> from service.plans import Lattice
+        >>> from fpscan.service.plans import Lattice
         >>> Lattice(5, 3, 1e-4).contains(2e-4, 1e-4), Lattice(5, 3, 1e-4).contains(3e-4)
         (True, False)
         """
@@ -281,7 +281,7 @@ class Lattice:
 
         Examples
         --------
-        >>> from service.plans import Lattice
+        >>> from fpscan.service.plans import Lattice
         >>> Lattice(5, 3, 1e-4).to_dict()
         {'n_x': 5, 'n_y': 3, 'pitch': 0.0001}
         """

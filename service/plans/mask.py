@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from .lattice import Lattice
+from fpscan.service.plans.lattice import Lattice
 
 __all__ = ["Mask", "weight_ratio", "distance_law_weights", "default_weights", "check_poi",
            "check_positive", "check_count", "check_seed", "shortfall"]
@@ -41,7 +41,7 @@ def shortfall(kind: str, requested: int | None, obtained: int, pitch: float | No
 
     Examples
     --------
-    >>> from service.plans.mask import shortfall
+    >>> from fpscan.service.plans.mask import shortfall
     >>> print(shortfall("poisson", 100, 50))
     50 of 100 points asked: the minimum distance leaves room for no more on this lattice;
     ask a smaller min_distance
@@ -87,7 +87,7 @@ def check_positive(name: str, value: Any, unit: str = "m") -> float:
 
     Examples
     --------
-    >>> from service.plans.mask import check_positive
+    >>> from fpscan.service.plans.mask import check_positive
     >>> check_positive("pitch", "6e-5")
     6e-05
     >>> check_positive("pitch", 0)
@@ -131,7 +131,7 @@ def check_count(name: str, value: Any, maximum: int | None = None, minimum: int 
 
     Examples
     --------
-    >>> from service.plans.mask import check_count
+    >>> from fpscan.service.plans.mask import check_count
     >>> check_count("n_points", 12.0)
     12
     >>> check_count("n_points", 20, maximum=15)
@@ -174,7 +174,7 @@ def check_seed(value: Any) -> int:
 
     Examples
     --------
-    >>> from service.plans.mask import check_seed
+    >>> from fpscan.service.plans.mask import check_seed
     >>> check_seed(7)
     7
     >>> check_seed(-1)
@@ -210,8 +210,8 @@ def check_poi(lattice: Lattice, poi: Any) -> tuple[float, float]:
 
     Examples
     --------
-    >>> from service.plans import Lattice
-    >>> from service.plans.mask import check_poi
+    >>> from fpscan.service.plans import Lattice
+    >>> from fpscan.service.plans.mask import check_poi
     >>> lat = Lattice(41, 41, 1e-4)  # 4 mm across
     >>> check_poi(lat, None), check_poi(lat, 1e-3), check_poi(lat, (1e-3, -1e-3))
     ((0.0, 0.0), (0.001, 0.0), (0.001, -0.001))
@@ -247,7 +247,7 @@ def default_weights(lattice: Lattice, positions: np.ndarray, **options: Any) -> 
     """Clipped Voronoi areas (DESIGN §3.3) of mask positions: the default quadrature weights.
 
     Exactly ``voronoi_weights(positions, pitch)`` — the weights
-    ``service.recon.reconstruct_points`` uses by default, so an equispaced sub-grid gets
+    ``fpscan.service.recon.reconstruct_points`` uses by default, so an equispaced sub-grid gets
     (interval·pitch)² everywhere, edges included.
 
     Parameters
@@ -257,7 +257,7 @@ def default_weights(lattice: Lattice, positions: np.ndarray, **options: Any) -> 
     positions : ndarray, shape ``(n, 2)``
         Mask positions (x, y), m (y ignored on a line lattice).
     **options
-        Passed to ``driver.physics.weights.voronoi_weights`` (e.g. ``samples_per_cell``).
+        Passed to ``fpscan.physics.weights.voronoi_weights`` (e.g. ``samples_per_cell``).
 
     Returns
     -------
@@ -272,14 +272,14 @@ def default_weights(lattice: Lattice, positions: np.ndarray, **options: Any) -> 
     Examples
     --------
     >>> import numpy as np
-    >>> from service.plans import Lattice, full_mask
-    >>> from service.plans.mask import default_weights
+    >>> from fpscan.service.plans import Lattice, full_mask
+    >>> from fpscan.service.plans.mask import default_weights
     >>> lat = Lattice(3, 3, 1e-4)
     >>> w = default_weights(lat, full_mask(lat).positions)
     >>> w.shape, bool(np.allclose(w, 1e-8))  # pitch² each
     ((9,), True)
     """
-    from driver.physics.weights import voronoi_weights  # scipy on use: the plan models import this module
+    from fpscan.physics.weights import voronoi_weights  # scipy on use: the plan models import this module
 
     pos = positions[:, :1] if lattice.is_line else positions
     return voronoi_weights(pos, lattice.pitch, **options)
@@ -320,8 +320,8 @@ def distance_law_weights(lattice: Lattice, positions: np.ndarray, poi: Sequence[
     Examples
     --------
     >>> import numpy as np
-    >>> from service.plans import Lattice
-    >>> from service.plans.mask import distance_law_weights
+    >>> from fpscan.service.plans import Lattice
+    >>> from fpscan.service.plans.mask import distance_law_weights
     >>> line = Lattice(101, 1, 1e-4)
     >>> w = distance_law_weights(line, np.array([[0.0, 0.0], [2e-3, 0.0]]), (0.0, 0.0), 2e-3, 2)
     >>> round(float(w[1] / w[0]), 6)  # r² = 2 depth² against depth²
@@ -365,7 +365,7 @@ def weight_ratio(positions: np.ndarray, weights: np.ndarray, centre: Sequence[fl
     Examples
     --------
     >>> import numpy as np
-    >>> from service.plans import weight_ratio
+    >>> from fpscan.service.plans import weight_ratio
     >>> weight_ratio(np.array([[0.0, 0.0], [1e-3, 0.0]]), np.array([1.0, 4.0]))
     4.0
     >>> weight_ratio(np.zeros((1, 2)), np.ones(1))
@@ -429,13 +429,13 @@ class Mask:
 
     Examples
     --------
-    >>> from service.plans import Lattice, full_mask
+    >>> from fpscan.service.plans import Lattice, full_mask
     >>> m = full_mask(Lattice(3, 3, 1e-4))
     >>> m.obtained_points, m.indices.shape, m.weights.shape
     (9, (9, 2), (9,))
     >>> round(m.covered_area, 12), m.weight_ratio  # m², 0.3 mm x 0.3 mm; equal weights
     (9e-08, 1.0)
-    >>> m.recon_positions().shape  # (x, y) in m, as service.recon takes them
+    >>> m.recon_positions().shape  # (x, y) in m, as fpscan.service.recon takes them
     (9, 2)
     """
 
@@ -456,7 +456,7 @@ class Mask:
 
         Examples
         --------
-        >>> from service.plans import Lattice, full_mask
+        >>> from fpscan.service.plans import Lattice, full_mask
         >>> full_mask(Lattice(3, 3, 1e-4))
         Mask(full: 9 of 9 points on 3x3 at 100 µm, weight ratio 1)
         """
@@ -493,7 +493,7 @@ class Mask:
         return float(self.weights.sum())
 
     def recon_positions(self) -> np.ndarray:
-        """The positions in the form ``service.recon`` takes them.
+        """The positions in the form ``fpscan.service.recon`` takes them.
 
         Returns
         -------
@@ -502,7 +502,7 @@ class Mask:
 
         Examples
         --------
-        >>> from service.plans import Lattice, full_mask
+        >>> from fpscan.service.plans import Lattice, full_mask
         >>> full_mask(Lattice(3, 1, 1e-4)).recon_positions().shape
         (3, 1)
         """

@@ -12,7 +12,7 @@ if TYPE_CHECKING:
 
     from numpy.typing import ArrayLike
 
-    from .mask import Mask
+    from fpscan.service.plans.mask import Mask
 
 __all__ = ["ORDERS", "auto_order", "serpentine_order", "ring_order", "nearest_neighbour_order", "scan_order"]
 
@@ -37,7 +37,7 @@ def serpentine_order(indices: ArrayLike) -> np.ndarray:
 
     Examples
     --------
-    >>> from service.plans import serpentine_order
+    >>> from fpscan.service.plans import serpentine_order
     >>> serpentine_order([[0, 0], [1, 0], [2, 0], [0, 1], [1, 1], [2, 1]])
     array([0, 1, 2, 5, 4, 3])
     """
@@ -74,7 +74,7 @@ def ring_order(positions: ArrayLike, rings: ArrayLike | None = None, centre: Seq
     Examples
     --------
     >>> import numpy as np
-    >>> from service.plans import ring_order
+    >>> from fpscan.service.plans import ring_order
     >>> pos = np.array([[0, 0], [1e-4, 0], [0, 1e-4], [-1e-4, 0], [0, -1e-4], [2e-4, 0]])
     >>> ring_order(pos, ring_width=1e-4)  # centre, ring 1 clockwise from -90°, then ring 2
     array([0, 4, 3, 2, 1, 5])
@@ -127,7 +127,7 @@ def nearest_neighbour_order(positions: ArrayLike, start: int = 0) -> np.ndarray:
     Examples
     --------
     >>> import numpy as np
-    >>> from service.plans import nearest_neighbour_order
+    >>> from fpscan.service.plans import nearest_neighbour_order
     >>> nearest_neighbour_order(np.array([[0.0], [3e-4], [1e-4], [2e-4]]))
     array([0, 2, 3, 1])
     >>> nearest_neighbour_order(np.zeros((2, 2)), start=2)
@@ -191,8 +191,8 @@ def auto_order(mask: Mask) -> str:
 
     Examples
     --------
-    >>> from service.plans import Lattice, equisteradian_mask, full_mask
-    >>> from service.plans.ordering import auto_order
+    >>> from fpscan.service.plans import Lattice, equisteradian_mask, full_mask
+    >>> from fpscan.service.plans.ordering import auto_order
     >>> auto_order(equisteradian_mask(Lattice(41, 41, 1e-4), 2e-3, 50))
     'rings'
     >>> auto_order(full_mask(Lattice(3, 3, 1e-4)))
@@ -228,7 +228,7 @@ def scan_order(mask: Mask, order: str = "auto") -> np.ndarray:
 
     Examples
     --------
-    >>> from service.plans import Lattice, full_mask, scan_order
+    >>> from fpscan.service.plans import Lattice, full_mask, scan_order
     >>> m = full_mask(Lattice(3, 2, 1e-4))
     >>> m.indices[scan_order(m)].tolist()  # serpentine
     [[0, 0], [1, 0], [2, 0], [2, 1], [1, 1], [0, 1]]

@@ -2,7 +2,7 @@
 
 The JSON form is fixed by docs/architecture.md ("Plan JSON", format ``fpscan-plan/1``).
 The plan contract itself — canonical JSON, the content hash (the id) and the checks every
-plan must pass — is owned by ``driver.plan`` (the lowest layer: the scanner side reads the
+plan must pass — is owned by ``fpscan.driver.plan`` (the lowest layer: the scanner side reads the
 same JSON without importing ``service``); this module builds plans (``make_plan``: the one
 plan builder for every mask kind, user point lists included) and gives them a typed model.
 """
@@ -16,8 +16,8 @@ from typing import TYPE_CHECKING, Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
-from driver.constants import C_DEFAULT, C_LIMITS
-from driver.plan import (
+from fpscan.constants import C_DEFAULT, C_LIMITS
+from fpscan.driver.plan import (
     MAX_AVERAGES,
     MAX_DT,
     MAX_N_T,
@@ -31,11 +31,10 @@ from driver.plan import (
     check_wavelengths,
     plan_id_of,
 )
-
-from .kinds import make_mask, resolve_kind
-from .lattice import Lattice
-from .mask import Mask, weight_ratio
-from .ordering import ORDERS, auto_order, scan_order
+from fpscan.service.plans.kinds import make_mask, resolve_kind
+from fpscan.service.plans.lattice import Lattice
+from fpscan.service.plans.mask import Mask, weight_ratio
+from fpscan.service.plans.ordering import ORDERS, auto_order, scan_order
 
 if TYPE_CHECKING:
     import h5py
@@ -49,7 +48,7 @@ ORDER_NAMES = ("auto", *ORDERS)
 
 
 def content_id(plan_dict: dict) -> str:
-    """The plan's content hash (its id): ``driver.plan.plan_id_of``.
+    """The plan's content hash (its id): ``fpscan.driver.plan.plan_id_of``.
 
     Parameters
     ----------
@@ -68,7 +67,7 @@ def content_id(plan_dict: dict) -> str:
 
     Examples
     --------
-    >>> from service.plans import content_id, make_plan
+    >>> from fpscan.service.plans import content_id, make_plan
     >>> plan = make_plan("full", lattice={"n_x": 3, "n_y": 1, "pitch": 1e-4})
     >>> content_id(plan.to_dict()) == plan.id
     True
@@ -105,7 +104,7 @@ class LatticeSpec(_Strict):
 
     Examples
     --------
-    >>> from service.plans.plan import LatticeSpec
+    >>> from fpscan.service.plans.plan import LatticeSpec
     >>> LatticeSpec(n_x=226, n_y=226, pitch=6e-5)
     LatticeSpec(n_x=226, n_y=226, pitch=6e-05)
     >>> LatticeSpec(n_x=0, n_y=1, pitch=1e-4)
@@ -142,7 +141,7 @@ class MaskSpec(_Strict):
 
     Examples
     --------
-    >>> from service.plans import make_plan
+    >>> from fpscan.service.plans import make_plan
     >>> plan = make_plan("equispaced", lattice={"n_x": 9, "n_y": 9, "pitch": 1e-4}, params={"interval": 4})
     >>> plan.mask
     MaskSpec(kind='equispaced', params={'interval': 4, 'n_per_side': [3, 3]}, requested_points=9, obtained_points=9, weight_ratio=1.0)
@@ -161,7 +160,7 @@ class Points(_Strict):
     """The plan's points in scan order.
 
     Their checks (shapes, lattice membership, finite positions, weights) are the plan
-    contract's, ``driver.plan.check_plan``, run by :class:`Plan`.
+    contract's, ``fpscan.driver.plan.check_plan``, run by :class:`Plan`.
 
     Attributes
     ----------
@@ -174,7 +173,7 @@ class Points(_Strict):
 
     Examples
     --------
-    >>> from service.plans import make_plan
+    >>> from fpscan.service.plans import make_plan
     >>> plan = make_plan("full", lattice={"n_x": 3, "n_y": 1, "pitch": 1e-4})
     >>> plan.points.indices
     [(0, 0), (1, 0), (2, 0)]
@@ -190,9 +189,9 @@ class Points(_Strict):
 class Acquisition(_Strict):
     """Acquisition settings of a plan.
 
-    The limits are the plan contract's, checked by ``driver.plan.check_acquisition`` (the
+    The limits are the plan contract's, checked by ``fpscan.driver.plan.check_acquisition`` (the
     scanner side's check: one set of limits for the library, the API and the scanner); the
-    JSON schema states the same numbers (``driver.plan``'s constants).
+    JSON schema states the same numbers (``fpscan.driver.plan``'s constants).
 
     Attributes
     ----------
@@ -219,7 +218,7 @@ class Acquisition(_Strict):
 
     Examples
     --------
-    >>> from service.plans import Acquisition
+    >>> from fpscan.service.plans import Acquisition
     >>> Acquisition(n_t=2048, dt=4e-9, wavelengths=[5.32e-7, 7.5e-7])
     Acquisition(n_t=2048, dt=4e-09, averages=1, wavelengths=[5.32e-07, 7.5e-07], prf=50.0, sound_speed=1500.0, wavelength_order=None)
     >>> Acquisition(dt=-1)
@@ -299,7 +298,7 @@ class Plan(_Strict):
 
     Examples
     --------
-    >>> from service.plans import Plan, make_plan
+    >>> from fpscan.service.plans import Plan, make_plan
     >>> plan = make_plan("equispaced", lattice={"n_x": 9, "n_y": 9, "pitch": 1e-4}, params={"interval": 4})
     >>> plan.n_points, plan.order, plan.expected_scan_time_s  # 9 points at 50 Hz
     (9, 'serpentine', 0.18)
@@ -359,7 +358,7 @@ class Plan(_Strict):
 
         Examples
         --------
-        >>> from service.plans import make_plan
+        >>> from fpscan.service.plans import make_plan
         >>> make_plan("full", lattice={"n_x": 3, "n_y": 1, "pitch": 1e-4}).indices_array().tolist()
         [[0, 0], [1, 0], [2, 0]]
         """
@@ -375,7 +374,7 @@ class Plan(_Strict):
 
         Examples
         --------
-        >>> from service.plans import make_plan
+        >>> from fpscan.service.plans import make_plan
         >>> make_plan("full", lattice={"n_x": 3, "n_y": 1, "pitch": 1e-4}).positions_array().shape
         (3, 2)
         """
@@ -391,14 +390,14 @@ class Plan(_Strict):
 
         Examples
         --------
-        >>> from service.plans import make_plan
+        >>> from fpscan.service.plans import make_plan
         >>> make_plan("full", lattice={"n_x": 3, "n_y": 3, "pitch": 1e-4}).weights_array().shape
         (9,)
         """
         return np.asarray(self.points.weights, dtype=np.float64)
 
     def recon_positions(self) -> np.ndarray:
-        """The positions in the form ``service.recon`` takes them.
+        """The positions in the form ``fpscan.service.recon`` takes them.
 
         Returns
         -------
@@ -407,7 +406,7 @@ class Plan(_Strict):
 
         Examples
         --------
-        >>> from service.plans import make_plan
+        >>> from fpscan.service.plans import make_plan
         >>> make_plan("full", lattice={"n_x": 3, "n_y": 1, "pitch": 1e-4}).recon_positions().ravel().tolist()
         [-0.0001, 0.0, 0.0001]
         """
@@ -433,7 +432,7 @@ class Plan(_Strict):
 
         Examples
         --------
-        >>> from service.plans import make_plan
+        >>> from fpscan.service.plans import make_plan
         >>> d = make_plan("full", lattice={"n_x": 3, "n_y": 1, "pitch": 1e-4}).to_dict()
         >>> sorted(d)
         ['acquisition', 'format', 'id', 'lattice', 'mask', 'order', 'points']
@@ -456,7 +455,7 @@ class Plan(_Strict):
 
         Examples
         --------
-        >>> from service.plans import make_plan
+        >>> from fpscan.service.plans import make_plan
         >>> text = make_plan("full", lattice={"n_x": 3, "n_y": 1, "pitch": 1e-4}).to_json()
         >>> text[:30]
         '{"acquisition":{"averages":1,"'
@@ -487,7 +486,7 @@ class Plan(_Strict):
 
         Examples
         --------
-        >>> from service.plans import Plan, make_plan
+        >>> from fpscan.service.plans import Plan, make_plan
         >>> plan = make_plan("full", lattice={"n_x": 3, "n_y": 1, "pitch": 1e-4})
         >>> Plan.from_dict(plan.to_dict()) == plan
         True
@@ -522,7 +521,7 @@ class Plan(_Strict):
 
         Examples
         --------
-        >>> from service.plans import Plan, make_plan
+        >>> from fpscan.service.plans import Plan, make_plan
         >>> plan = make_plan("full", lattice={"n_x": 3, "n_y": 1, "pitch": 1e-4})
         >>> Plan.from_json(plan.to_json(indent=2)).id == plan.id
         True
@@ -559,7 +558,7 @@ class Plan(_Strict):
         Examples
         --------
         >>> import h5py
-        >>> from service.plans import make_plan
+        >>> from fpscan.service.plans import make_plan
         >>> plan = make_plan("full", lattice={"n_x": 3, "n_y": 1, "pitch": 1e-4})
         >>> with h5py.File("plan.h5", "w", driver="core", backing_store=False) as f:  # in memory
         ...     plan.to_hdf5(f.create_group("plan"))
@@ -596,7 +595,7 @@ class Plan(_Strict):
         Examples
         --------
         >>> import h5py
-        >>> from service.plans import Plan, make_plan
+        >>> from fpscan.service.plans import Plan, make_plan
         >>> plan = make_plan("full", lattice={"n_x": 3, "n_y": 1, "pitch": 1e-4})
         >>> with h5py.File("plan.h5", "w", driver="core", backing_store=False) as f:
         ...     plan.to_hdf5(f.create_group("plan"))
@@ -644,7 +643,7 @@ def _json_safe(obj: Any) -> Any:
 
 def check_plausible_request(mask: Mask | None, kind: str | None, lattice: dict | Lattice | None, params: dict | None,
                             acquisition: Acquisition | dict | None, *, force: bool = False) -> None:
-    """The plausibility rules of ``driver.units.check_plausible`` on a plan request.
+    """The plausibility rules of ``fpscan.driver.units.check_plausible`` on a plan request.
 
     Judged: the lattice pitch, dt, the PRF against the recording, the sound speed (unless
     ``force``) and the depth of the point of interest of the equiangular/equi-steradian kinds.
@@ -668,19 +667,19 @@ def check_plausible_request(mask: Mask | None, kind: str | None, lattice: dict |
 
     Raises
     ------
-    driver.units.ImplausibleValue
+    fpscan.driver.units.ImplausibleValue
         (a ValueError) naming the implausible value and the likely unit mistake.
 
     Examples
     --------
-    >>> from service.plans import check_plausible_request
+    >>> from fpscan.service.plans import check_plausible_request
     >>> check_plausible_request(None, "full", {"n_x": 9, "n_y": 9, "pitch": 6e-5}, {}, {"dt": 8e-9})
     >>> check_plausible_request(None, "full", {"n_x": 9, "n_y": 9, "pitch": 60}, {}, {})
     Traceback (most recent call last):
     ...
-    driver.units.ImplausibleValue: pitch 60 m is implausible for a planar FP scanner ... did you mean 60 µm (60um)? ...
+    fpscan.driver.units.ImplausibleValue: pitch 60 m is implausible for a planar FP scanner ... did you mean 60 µm (60um)? ...
     """
-    from driver.units import check_plausible
+    from fpscan.driver.units import check_plausible
 
     if acquisition is None:
         acquisition = {}
@@ -719,9 +718,9 @@ def make_plan(mask: Mask | str | None = None, *, kind: str | None = None, lattic
     The mask is either given (``make_plan(mask)``) or made here from a kind name
     (``make_plan("equisteradian", lattice=..., params={...})`` or
     ``make_plan(kind=..., lattice=..., params=...)``, see ``make_mask``).
-    ``mask.weight_ratio`` is ``service.plans.weight_ratio`` (outer/inner, paper §6) for every
+    ``mask.weight_ratio`` is ``fpscan.service.plans.weight_ratio`` (outer/inner, paper §6) for every
     kind, point lists included. Values a person types are checked for plausibility first
-    (``driver.units.check_plausible``: pitch, dt, the point of interest's depth, the PRF
+    (``fpscan.driver.units.check_plausible``: pitch, dt, the point of interest's depth, the PRF
     against the recording, the sound speed unless ``force``).
 
     Parameters
@@ -754,7 +753,7 @@ def make_plan(mask: Mask | str | None = None, *, kind: str | None = None, lattic
     ------
     ValueError
         An unknown order (naming it), bad settings or bad mask parameters;
-        ``driver.units.ImplausibleValue`` (a ValueError) names a likely unit mistake.
+        ``fpscan.driver.units.ImplausibleValue`` (a ValueError) names a likely unit mistake.
 
     References
     ----------
@@ -763,7 +762,7 @@ def make_plan(mask: Mask | str | None = None, *, kind: str | None = None, lattic
 
     Examples
     --------
-    >>> from service.plans import Lattice, make_plan
+    >>> from fpscan.service.plans import Lattice, make_plan
     >>> plan = make_plan("equisteradian", lattice=Lattice(41, 41, 1e-4),
     ...                  params={"depth": 2e-3, "n_points": 50}, n_t=512, prf=100)
     >>> plan.n_points, plan.order, plan.acquisition.n_t
@@ -850,7 +849,7 @@ def plan_from_spec(spec: dict) -> Plan:
 
     Examples
     --------
-    >>> from service.plans import plan_from_spec
+    >>> from fpscan.service.plans import plan_from_spec
     >>> plan = plan_from_spec({"lattice": {"n_x": 9, "n_y": 1, "pitch": 1e-4}, "mask": {"kind": "full"},
     ...                        "acquisition": {"n_t": 256, "prf": 100}})
     >>> plan.n_points, plan.recon_positions().shape, plan.expected_scan_time_s  # x in m; s

@@ -1,6 +1,6 @@
 """Preview PNG of a mask or plan: points on the lattice, weight as colour, the point of
 interest marked, counts and weight ratio in the caption; drawn by the one picture path of
-fpscan (``service.pictures.render.render_points``: mm axes, equal aspect, y down as in every picture)."""
+fpscan (``fpscan.service.pictures.render.render_points``: mm axes, equal aspect, y down as in every picture)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -9,8 +9,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from .mask import Mask
-    from .plan import Plan
+    from fpscan.service.plans.mask import Mask
+    from fpscan.service.plans.plan import Plan
 
 __all__ = ["preview_png"]
 
@@ -42,7 +42,7 @@ def preview_png(mask_or_plan: Mask | Plan, path: str | Path | None = None) -> by
 
     Examples
     --------
-    >>> from service.plans import Lattice, full_mask, preview_png
+    >>> from fpscan.service.plans import Lattice, full_mask, preview_png
     >>> png = preview_png(full_mask(Lattice(5, 5, 1e-4)))
     >>> png[:8]  # the PNG signature
     b'\x89PNG\r\n\x1a\n'
@@ -51,10 +51,9 @@ def preview_png(mask_or_plan: Mask | Plan, path: str | Path | None = None) -> by
     ...
     ValueError: preview_png needs a Mask or a Plan, got str
     """
-    from service.pictures.render import render_points
-
-    from .mask import Mask, weight_ratio
-    from .plan import Plan
+    from fpscan.service.pictures.render import render_points
+    from fpscan.service.plans.mask import Mask, weight_ratio
+    from fpscan.service.plans.plan import Plan
 
     if isinstance(mask_or_plan, Mask):
         lat = mask_or_plan.lattice

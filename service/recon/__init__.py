@@ -6,16 +6,16 @@
 - `kspace_line_recon`, `kspace_plane_recon`: drop-in equivalents of k-Wave's
   kspaceLineRecon / kspacePlaneRecon.
 - `forward_grid`, `forward_points`: the exact planar forward model (from
-  `driver.physics`, the physics module the simulator shares).
+  `fpscan.physics`, the physics module the simulator shares).
 - `PlanarOperator`: the forward model and its true adjoint as a pylops LinearOperator.
 - `reconstruct_tv`: model-based reconstruction (TV + positivity, NER-preconditioned FISTA).
 - `voronoi_weights`: default area weights for non-equispaced sensors (from
-  `driver.physics.weights`, which owns them).
+  `fpscan.physics.weights`, which owns them).
 - `estimate_peak_memory`: bytes a reconstruction needs at its peak (admission control).
 
 Importing the package imports nothing heavy: every name is imported on first use
 (PEP 562; `Reconstruction` and `estimate_peak_memory` with numpy, and
-`service.recon.methods`, the method registry, loads without numpy), so scipy.fft, numba and
+`fpscan.service.recon.methods`, the method registry, loads without numpy), so scipy.fft, numba and
 finufft load with the grid/points reconstruction, scipy.interpolate with the k-Wave
 ``*cubic`` mode, pylops/pyproximal (which take longer to import than everything else together)
 with the model-based part, the plans package with `voronoi_weights`. A process that
@@ -25,7 +25,7 @@ for them.
 numba compiles the kernels on their first call and caches them (``cache=True``) in
 ``__pycache__`` beside their modules, or under ``NUMBA_CACHE_DIR`` where that is set;
 where the package directory is not writable numba falls back to a user cache directory
-of its own. Any first call fills the cache, ``fpscan warmup`` (`service.recon.warmup`) for
+of its own. Any first call fills the cache, ``fpscan warmup`` (`fpscan.service.recon.warmup`) for
 every kernel and precision at once, so the first reconstruction in a fresh interpreter
 loads compiled code.
 """
@@ -37,23 +37,23 @@ __all__ = ["Reconstruction", "GRID_METHODS", "reconstruct_grid", "reconstruct_po
            "kspace_plane_recon", "forward_grid", "forward_points", "voronoi_weights",
            "estimate_peak_memory", "PlanarOperator", "reconstruct_tv"]
 
-_LAZY = {"Reconstruction": "service.recon.reconstruction", "estimate_peak_memory": "service.recon.methods",
-         "GRID_METHODS": "service.recon.planar", "reconstruct_grid": "service.recon.planar",
-         "reconstruct_points": "service.recon.planar", "PlanarOperator": "service.recon.operator",
-         "reconstruct_tv": "service.recon.tv",
-         "voronoi_weights": "driver.physics.weights", "kspace_line_recon": "service.recon.kwave",
-         "kspace_plane_recon": "service.recon.kwave", "forward_grid": "driver.physics.forward",
-         "forward_points": "driver.physics.forward"}
+_LAZY = {"Reconstruction": "fpscan.service.recon.reconstruction", "estimate_peak_memory": "fpscan.service.recon.methods",
+         "GRID_METHODS": "fpscan.service.recon.planar", "reconstruct_grid": "fpscan.service.recon.planar",
+         "reconstruct_points": "fpscan.service.recon.planar", "PlanarOperator": "fpscan.service.recon.operator",
+         "reconstruct_tv": "fpscan.service.recon.tv",
+         "voronoi_weights": "fpscan.physics.weights", "kspace_line_recon": "fpscan.service.recon.kwave",
+         "kspace_plane_recon": "fpscan.service.recon.kwave", "forward_grid": "fpscan.physics.forward",
+         "forward_points": "fpscan.physics.forward"}
 
 if TYPE_CHECKING:
-    from driver.physics.forward import forward_grid, forward_points
-    from driver.physics.weights import voronoi_weights
-    from service.recon.kwave import kspace_line_recon, kspace_plane_recon
-    from service.recon.methods import estimate_peak_memory
-    from service.recon.operator import PlanarOperator
-    from service.recon.planar import GRID_METHODS, reconstruct_grid, reconstruct_points
-    from service.recon.reconstruction import Reconstruction
-    from service.recon.tv import reconstruct_tv
+    from fpscan.physics.forward import forward_grid, forward_points
+    from fpscan.physics.weights import voronoi_weights
+    from fpscan.service.recon.kwave import kspace_line_recon, kspace_plane_recon
+    from fpscan.service.recon.methods import estimate_peak_memory
+    from fpscan.service.recon.operator import PlanarOperator
+    from fpscan.service.recon.planar import GRID_METHODS, reconstruct_grid, reconstruct_points
+    from fpscan.service.recon.reconstruction import Reconstruction
+    from fpscan.service.recon.tv import reconstruct_tv
 
 
 def __getattr__(name: str) -> Any:
@@ -66,4 +66,4 @@ def __getattr__(name: str) -> Any:
         value = getattr(importlib.import_module(_LAZY[name]), name)
         globals()[name] = value
         return value
-    raise AttributeError(f"module 'service.recon' has no attribute {name!r}")
+    raise AttributeError(f"module 'fpscan.service.recon' has no attribute {name!r}")

@@ -1,7 +1,7 @@
 """The option and input rules shared by the reconstructions: each option's range and its
 refusal in words (``check_eps``, ``check_dz``, ...), the inputs' checks (``positive``,
 ``finite_array``) and the memory check against a limit (``check_memory``; the peak-memory
-models themselves are ``service.recon.memory``'s)."""
+models themselves are ``fpscan.service.recon.memory``'s)."""
 from __future__ import annotations
 
 import os
@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from driver.units import RefusedInput
+from fpscan.driver.units import RefusedInput
 
 __all__ = [
     "positive", "finite_array", "EPS_RANGE", "UPSAMPLE_RANGE", "N_Z_RANGE", "DZ_RANGE", "LAM_RANGE",
@@ -40,7 +40,7 @@ def positive(name: str, value: Any) -> float:
 
     Examples
     --------
-    >>> from service.recon.checks import positive
+    >>> from fpscan.service.recon.checks import positive
     >>> positive("dx", "1e-4")  # m
     0.0001
     >>> positive("dt", -1)
@@ -82,7 +82,7 @@ def finite_array(name: str, a: Any, ndims: tuple[int, ...]) -> np.ndarray:
     Examples
     --------
     >>> import numpy as np
-    >>> from service.recon.checks import finite_array
+    >>> from fpscan.service.recon.checks import finite_array
     >>> finite_array("data", [[1, 2], [3, 4]], (2,)).shape
     (2, 2)
     >>> finite_array("data", [[1, np.nan]], (2,))
@@ -110,12 +110,12 @@ def finite_array(name: str, a: Any, ndims: tuple[int, ...]) -> np.ndarray:
 
 
 # -- the reconstruction options' rules: one owner each ----------------------------------
-# The kernels (``planar``, ``tv``) apply these; ``service.pipeline.check_options`` applies
+# The kernels (``planar``, ``tv``) apply these; ``fpscan.service.pipeline.check_options`` applies
 # the same functions at every door (library, CLI, HTTP) before a job is queued, and the
-# HTTP schema states the same bounds (``service.api.models.ReconParams``).
+# HTTP schema states the same bounds (``fpscan.service.api.models.ReconParams``).
 
-# the ranges: service.recon.limits (import-free, read by the methods' option models too)
-from service.recon.limits import (
+# the ranges: fpscan.service.recon.limits (import-free, read by the methods' option models too)
+from fpscan.service.recon.limits import (
     BANDWIDTH_RANGE,
     DZ_RANGE,
     EPS_RANGE,
@@ -132,7 +132,7 @@ class OptionError(RefusedInput):
     """A reconstruction option refused by its rule.
 
     A value outside its range, or an option the chosen method does not take: the caller's
-    input, a usage error (CLI exit 2, HTTP 422). A ``driver.units.RefusedInput``, hence a
+    input, a usage error (CLI exit 2, HTTP 422). A ``fpscan.driver.units.RefusedInput``, hence a
     ``ValueError``.
 
     Attributes
@@ -142,7 +142,7 @@ class OptionError(RefusedInput):
 
     Examples
     --------
-    >>> from service.recon.checks import OptionError, check_eps
+    >>> from fpscan.service.recon.checks import OptionError, check_eps
     >>> issubclass(OptionError, ValueError)
     True
     >>> try:
@@ -189,13 +189,13 @@ def check_eps(eps: Any) -> float:
 
     Examples
     --------
-    >>> from service.recon.checks import check_eps
+    >>> from fpscan.service.recon.checks import check_eps
     >>> check_eps(1e-6)
     1e-06
     >>> check_eps(5e-15)
     Traceback (most recent call last):
     ...
-    service.recon.checks.OptionError: eps must be in [1e-14, 1e-1], got 5e-15
+    fpscan.service.recon.checks.OptionError: eps must be in [1e-14, 1e-1], got 5e-15
     """
     e = _number("eps", eps, "a number")
     if not (EPS_RANGE[0] <= e <= EPS_RANGE[1]):
@@ -222,13 +222,13 @@ def check_upsample(upsample: Any) -> int:
 
     Examples
     --------
-    >>> from service.recon.checks import check_upsample
+    >>> from fpscan.service.recon.checks import check_upsample
     >>> check_upsample(2.0)
     2
     >>> check_upsample(9)
     Traceback (most recent call last):
     ...
-    service.recon.checks.OptionError: upsample must be an integer in 1..8, got 9
+    fpscan.service.recon.checks.OptionError: upsample must be an integer in 1..8, got 9
     """
     return _integer("upsample", upsample, *UPSAMPLE_RANGE)
 
@@ -252,13 +252,13 @@ def check_n_z(n_z: Any) -> int:
 
     Examples
     --------
-    >>> from service.recon.checks import check_n_z
+    >>> from fpscan.service.recon.checks import check_n_z
     >>> check_n_z("128")
     128
     >>> check_n_z(1)
     Traceback (most recent call last):
     ...
-    service.recon.checks.OptionError: n_z must be an integer in 2..65536, got 1
+    fpscan.service.recon.checks.OptionError: n_z must be an integer in 2..65536, got 1
     """
     return _integer("n_z", n_z, *N_Z_RANGE)
 
@@ -283,13 +283,13 @@ def check_dz(dz: Any) -> float:
 
     Examples
     --------
-    >>> from service.recon.checks import check_dz
+    >>> from fpscan.service.recon.checks import check_dz
     >>> check_dz(5e-5)
     5e-05
     >>> check_dz(1.0)
     Traceback (most recent call last):
     ...
-    service.recon.checks.OptionError: dz must be in [1e-09, 0.1] m, got 1.0
+    fpscan.service.recon.checks.OptionError: dz must be in [1e-09, 0.1] m, got 1.0
     """
     v = _number("dz", dz, "a depth spacing in m")
     if not np.isfinite(v) or not DZ_RANGE[0] <= v <= DZ_RANGE[1]:
@@ -303,7 +303,7 @@ def check_lam(lam: Any) -> float:
     Parameters
     ----------
     lam : float
-        Weight of the total-variation term of ½‖A p0 − g‖² + λ TV(p0) (`service.recon.tv`:
+        Weight of the total-variation term of ½‖A p0 − g‖² + λ TV(p0) (`fpscan.service.recon.tv`:
         TV with forward differences in voxel units, J in Pa², so λ is in Pa).
 
     Returns
@@ -317,13 +317,13 @@ def check_lam(lam: Any) -> float:
 
     Examples
     --------
-    >>> from service.recon.checks import check_lam
+    >>> from fpscan.service.recon.checks import check_lam
     >>> check_lam(0)
     0.0
     >>> check_lam(-1)
     Traceback (most recent call last):
     ...
-    service.recon.checks.OptionError: lam (the TV weight λ) must be in [0, 1e+30], got -1
+    fpscan.service.recon.checks.OptionError: lam (the TV weight λ) must be in [0, 1e+30], got -1
     """
     v = _number("lam (the TV weight λ)", lam, "a number >= 0")
     if not np.isfinite(v) or not LAM_RANGE[0] <= v <= LAM_RANGE[1]:
@@ -334,7 +334,7 @@ def check_lam(lam: Any) -> float:
 def check_bandwidth(bandwidth: Any) -> float:
     """A sensor bandwidth the caller declares, Hz: a finite number in ``BANDWIDTH_RANGE``
     ([1e3, 1e12]); tv works at that band instead of the one it reads off the data
-    (`service.recon.tv_grid`).
+    (`fpscan.service.recon.tv_grid`).
 
     Parameters
     ----------
@@ -352,13 +352,13 @@ def check_bandwidth(bandwidth: Any) -> float:
 
     Examples
     --------
-    >>> from service.recon.checks import check_bandwidth
+    >>> from fpscan.service.recon.checks import check_bandwidth
     >>> check_bandwidth("2e7")  # Hz
     20000000.0
     >>> check_bandwidth(0)
     Traceback (most recent call last):
     ...
-    service.recon.checks.OptionError: bandwidth (the sensor's band, Hz) must be in [1e+03, 1e+12], got 0
+    fpscan.service.recon.checks.OptionError: bandwidth (the sensor's band, Hz) must be in [1e+03, 1e+12], got 0
     """
     v = _number("bandwidth (the sensor's band, Hz)", bandwidth, "a number > 0")
     if not np.isfinite(v) or not BANDWIDTH_RANGE[0] <= v <= BANDWIDTH_RANGE[1]:
@@ -374,7 +374,7 @@ def check_tol(tol: Any) -> float:
     ----------
     tol : float
         Stop when the image's relative change per iteration, ‖x_k − x_{k−1}‖ / ‖x_k‖, has
-        stayed below ``tol`` for the last 3 iterations (`service.recon.tv`); 0: run every
+        stayed below ``tol`` for the last 3 iterations (`fpscan.service.recon.tv`); 0: run every
         iteration.
 
     Returns
@@ -388,13 +388,13 @@ def check_tol(tol: Any) -> float:
 
     Examples
     --------
-    >>> from service.recon.checks import check_tol
+    >>> from fpscan.service.recon.checks import check_tol
     >>> check_tol(0.01)
     0.01
     >>> check_tol(1)
     Traceback (most recent call last):
     ...
-    service.recon.checks.OptionError: tol (the stopping threshold) must be in [0, 0.5], got 1
+    fpscan.service.recon.checks.OptionError: tol (the stopping threshold) must be in [0, 0.5], got 1
     """
     v = _number("tol (the stopping threshold)", tol, "a number in [0, 0.5]")
     if not np.isfinite(v) or not TOL_RANGE[0] <= v <= TOL_RANGE[1]:
@@ -420,13 +420,13 @@ def check_iterations(iterations: Any) -> int:
 
     Examples
     --------
-    >>> from service.recon.checks import check_iterations
+    >>> from fpscan.service.recon.checks import check_iterations
     >>> check_iterations(200)
     200
     >>> check_iterations(0)
     Traceback (most recent call last):
     ...
-    service.recon.checks.OptionError: iterations must be an integer in 1..100000, got 0
+    fpscan.service.recon.checks.OptionError: iterations must be an integer in 1..100000, got 0
     """
     return _integer("iterations", iterations, *ITERATIONS_RANGE)
 
@@ -451,13 +451,13 @@ def check_time_limit(seconds: Any) -> float:
 
     Examples
     --------
-    >>> from service.recon.checks import check_time_limit
+    >>> from fpscan.service.recon.checks import check_time_limit
     >>> check_time_limit(60)
     60.0
     >>> check_time_limit(0)
     Traceback (most recent call last):
     ...
-    service.recon.checks.OptionError: time_limit must be in (0, 604800] s, got 0
+    fpscan.service.recon.checks.OptionError: time_limit must be in (0, 604800] s, got 0
     """
     v = _number("time_limit", seconds, "a number of seconds")
     if not np.isfinite(v) or not 0 < v <= TIME_LIMIT_MAX:
@@ -484,13 +484,13 @@ def check_dtype(dtype: Any) -> np.dtype:
 
     Examples
     --------
-    >>> from service.recon.checks import check_dtype
+    >>> from fpscan.service.recon.checks import check_dtype
     >>> check_dtype("float32")
     dtype('float32')
     >>> check_dtype("int16")
     Traceback (most recent call last):
     ...
-    service.recon.checks.OptionError: dtype must be float32 or float64, got int16
+    fpscan.service.recon.checks.OptionError: dtype must be float32 or float64, got int16
     """
     if isinstance(dtype, str) and len(dtype) > 32:  # no dtype name is longer; NumPy's parser is not fed text
         raise OptionError(f"dtype must be float32 or float64, got {dtype[:32]!r}...")
@@ -515,7 +515,7 @@ def available_memory() -> int:
 
     Examples
     --------
-    >>> from service.recon.checks import available_memory
+    >>> from fpscan.service.recon.checks import available_memory
     >>> available_memory() > 0
     True
     """
@@ -546,7 +546,7 @@ def check_memory(needed: int, memory_limit: int | None) -> None:
 
     Examples
     --------
-    >>> from service.recon.checks import check_memory
+    >>> from fpscan.service.recon.checks import check_memory
     >>> check_memory(2**20, 2**30)
     >>> check_memory(2**31, 2**30)
     Traceback (most recent call last):

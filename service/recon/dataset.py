@@ -1,9 +1,9 @@
 """The input of every reconstruction: :class:`GridDataset` (data on a regular sensor grid)
 and :class:`PointDataset` (A-lines at sensor points), with their validation.
 
-The file formats that produce them live in :mod:`service.formats` (one module per format,
-one registry); :func:`service.storage.loader.load_dataset` is the one loader of a file
-for reconstruction, :func:`service.pipeline.reconstruct` the one dispatch that consumes
+The file formats that produce them live in :mod:`fpscan.service.formats` (one module per format,
+one registry); :func:`fpscan.service.storage.loader.load_dataset` is the one loader of a file
+for reconstruction, :func:`fpscan.service.pipeline.reconstruct` the one dispatch that consumes
 them. A point dataset that covers its whole lattice turns into grid data with
 :meth:`PointDataset.to_grid` (so grid methods work on a full-lattice scan everywhere);
 grid data into point data with :meth:`GridDataset.to_points`. A dataset may carry the
@@ -13,7 +13,7 @@ records ``meta["wavelength_index"]`` and the file's ``meta["wavelengths"]``.
 Lateral grids are centred on the optical axis (docs/architecture.md):
 ``x_i = (i - (n_x - 1)/2)·dx``; a dataset whose file gives its own sensor coordinates, or
 follows k-Wave's ``kWaveGrid`` (``(i - floor(N/2))·dx``), carries the difference as
-``lateral_shift`` (m), which :func:`service.pipeline.reconstruct` adds to the image's
+``lateral_shift`` (m), which :func:`fpscan.service.pipeline.reconstruct` adds to the image's
 lateral coordinates (docs/file-formats.md "Lateral coordinates").
 """
 from __future__ import annotations
@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from driver.physics.axes import centred_axis
+from fpscan.physics.axes import centred_axis
 
 __all__ = ["GridDataset", "PointDataset", "Dataset", "MAX_ELEMENTS", "ALL_WAVELENGTHS", "check_wavelength",
            "check_wavelength_index", "file_wavelengths", "wavelength_params", "p0_unit", "positive",
@@ -58,7 +58,7 @@ def check_wavelength(wavelength: Any, *, allow_all: bool = True) -> int | str | 
 
     Examples
     --------
-    >>> from service.recon.dataset import check_wavelength
+    >>> from fpscan.service.recon.dataset import check_wavelength
     >>> check_wavelength(None), check_wavelength("2"), check_wavelength("All"), check_wavelength(1)
     (None, 2, 'all', 1)
     >>> check_wavelength(-1)
@@ -102,7 +102,7 @@ def file_wavelengths(ds: GridDataset | PointDataset) -> np.ndarray:
     Examples
     --------
     >>> import numpy as np
-    >>> from service.recon.dataset import GridDataset, file_wavelengths
+    >>> from fpscan.service.recon.dataset import GridDataset, file_wavelengths
     >>> ds = GridDataset(np.zeros((64, 4)), dx=1e-4, dt=2e-8, c=1500.0, wavelengths=(7.5e-7,),
     ...                  meta={"wavelength_index": 1, "wavelengths": [5.32e-7, 7.5e-7]})
     >>> file_wavelengths(ds)  # m
@@ -133,7 +133,7 @@ def wavelength_params(ds: GridDataset | PointDataset) -> dict:
     Examples
     --------
     >>> import numpy as np
-    >>> from service.recon.dataset import GridDataset, wavelength_params
+    >>> from fpscan.service.recon.dataset import GridDataset, wavelength_params
     >>> ds = GridDataset(np.zeros((64, 4)), dx=1e-4, dt=2e-8, c=1500.0, wavelengths=(7.5e-7,),
     ...                  meta={"wavelength_index": 1, "wavelengths": [5.32e-7, 7.5e-7]})
     >>> wavelength_params(ds)
@@ -191,7 +191,7 @@ class GridDataset:
     Examples
     --------
     >>> import numpy as np
-    >>> from service.recon.dataset import GridDataset
+    >>> from fpscan.service.recon.dataset import GridDataset
     >>> ds = GridDataset(np.zeros((64, 3, 4), np.float32), dx=1e-4, dt=2e-8, c=1500.0)
     >>> ds.ndim, [a.round(6).tolist() for a in ds.axes()]  # (x, y) in m, centred
     (3, [[-0.00015, -5e-05, 5e-05, 0.00015], [-0.0001, 0.0, 0.0001]])
@@ -219,7 +219,7 @@ class GridDataset:
         Examples
         --------
         >>> import numpy as np
-        >>> from service.recon.dataset import GridDataset
+        >>> from fpscan.service.recon.dataset import GridDataset
         >>> GridDataset(np.zeros((64, 3, 4), np.float32), dx=1e-4, dt=2e-8, c=1500.0)
         GridDataset((64, 3, 4) float32 (n_t, n_y, n_x), dx 100 µm, dy 100 µm, dt 20 ns, c 1500 m/s)
         """
@@ -245,7 +245,7 @@ class GridDataset:
         Examples
         --------
         >>> import numpy as np
-        >>> from service.recon.dataset import GridDataset
+        >>> from fpscan.service.recon.dataset import GridDataset
         >>> [a.shape for a in GridDataset(np.zeros((8, 3, 4)), 1e-4, 2e-8, 1500.0).axes()]
         [(4,), (3,)]
         """
@@ -267,7 +267,7 @@ class GridDataset:
         Examples
         --------
         >>> import numpy as np
-        >>> from service.recon.dataset import GridDataset
+        >>> from fpscan.service.recon.dataset import GridDataset
         >>> pts = GridDataset(np.zeros((8, 5)), 1e-4, 2e-8, 1500.0).to_points()
         >>> pts.alines.shape, pts.positions.shape, pts.weights
         ((5, 8), (5, 1), None)
@@ -338,7 +338,7 @@ class PointDataset:
     Examples
     --------
     >>> import numpy as np
-    >>> from service.recon.dataset import PointDataset
+    >>> from fpscan.service.recon.dataset import PointDataset
     >>> ds = PointDataset(alines=np.ones((3, 64)), positions=np.array([[-1e-4], [0.0], [1e-4]]),
     ...                   weights=None, dt=2e-8, c=1500.0, grid=(np.array([-1e-4, 0.0, 1e-4]),),
     ...                   indices=np.array([[0, 0], [1, 0], [2, 0]]),
@@ -372,7 +372,7 @@ class PointDataset:
         Examples
         --------
         >>> import numpy as np
-        >>> from service.recon.dataset import PointDataset
+        >>> from fpscan.service.recon.dataset import PointDataset
         >>> PointDataset(alines=np.ones((3, 64)), positions=np.array([[-1e-4], [0.0], [1e-4]]),
         ...              weights=None, dt=2e-8, c=1500.0, grid=(np.array([-1e-4, 0.0, 1e-4]),),
         ...              indices=np.array([[0, 0], [1, 0], [2, 0]]), lattice={"n_x": 3, "n_y": 1, "pitch": 1e-4})
@@ -426,7 +426,7 @@ class PointDataset:
         Examples
         --------
         >>> import numpy as np
-        >>> from service.recon.dataset import PointDataset
+        >>> from fpscan.service.recon.dataset import PointDataset
         >>> ds = PointDataset(alines=np.ones((2, 8)), positions=np.array([[-5e-5], [5e-5]]), weights=None,
         ...                   dt=2e-8, c=1500.0, grid=(np.array([-5e-5, 5e-5]),),
         ...                   indices=np.array([[0, 0], [1, 0]]), lattice={"n_x": 3, "n_y": 1, "pitch": 1e-4})
@@ -469,12 +469,12 @@ def p0_unit(ds: GridDataset | PointDataset) -> str:
     str
         ``"Pa"`` when the dataset is calibrated pressure (``meta["p0_unit"]``, from a scan
         whose instrument states its volts-to-pascal calibration:
-        ``driver.scanfile.pressure_unit``), else ``"a.u."``.
+        ``fpscan.driver.scanfile.pressure_unit``), else ``"a.u."``.
 
     Examples
     --------
     >>> import numpy as np
-    >>> from service.recon.dataset import GridDataset, p0_unit
+    >>> from fpscan.service.recon.dataset import GridDataset, p0_unit
     >>> p0_unit(GridDataset(np.zeros((4, 4)), 1e-4, 1e-8, 1500.0))
     'a.u.'
     >>> p0_unit(GridDataset(np.zeros((4, 4)), 1e-4, 1e-8, 1500.0, meta={"p0_unit": "Pa"}))
@@ -503,7 +503,7 @@ def positive(name: str, v: Any) -> float:
 
     Examples
     --------
-    >>> from service.recon.dataset import positive
+    >>> from fpscan.service.recon.dataset import positive
     >>> positive("c", "1500")  # m/s
     1500.0
     >>> positive("c", 0)
@@ -542,7 +542,7 @@ def grid_array(a: np.ndarray) -> np.ndarray:
     Examples
     --------
     >>> import numpy as np
-    >>> from service.recon.dataset import grid_array
+    >>> from fpscan.service.recon.dataset import grid_array
     >>> grid_array(np.zeros((4, 3), np.int16)).dtype, grid_array(np.zeros((4, 3))).dtype
     (dtype('float32'), dtype('float64'))
     >>> grid_array(np.zeros(4))
@@ -577,11 +577,11 @@ def lattice_axes(lattice: dict) -> tuple[np.ndarray, np.ndarray]:
     -------
     tuple of ndarray
         ``(x, y)``, shapes ``(n_x,)`` and ``(n_y,)``, m, centred on the optical axis
-        (:func:`driver.physics.axes.centred_axis`).
+        (:func:`fpscan.physics.axes.centred_axis`).
 
     Examples
     --------
-    >>> from service.recon.dataset import lattice_axes
+    >>> from fpscan.service.recon.dataset import lattice_axes
     >>> x, y = lattice_axes({"n_x": 3, "n_y": 2, "pitch": 1e-4})
     >>> x.round(6).tolist(), y.round(6).tolist()
     ([-0.0001, 0.0, 0.0001], [-5e-05, 5e-05])
@@ -626,7 +626,7 @@ def lateral_shift_of(shape: tuple[int, ...], spacings: tuple[float, ...], coordi
     Examples
     --------
     >>> import numpy as np
-    >>> from service.recon.dataset import lateral_shift_of
+    >>> from fpscan.service.recon.dataset import lateral_shift_of
     >>> [round(v * 1e6, 6) for v in lateral_shift_of((10, 4, 4), (1e-4, 1e-4), kwave_grid=True)]  # µm
     [-50.0, -50.0]
     >>> lateral_shift_of((10, 3), (1e-4,), kwave_grid=True) is None  # odd: the same
@@ -681,7 +681,7 @@ def check_wavelength_index(index: int, wavelengths: Any, what: str) -> None:
 
     Examples
     --------
-    >>> from service.recon.dataset import check_wavelength_index
+    >>> from fpscan.service.recon.dataset import check_wavelength_index
     >>> check_wavelength_index(1, [7.5e-7, 8.5e-7], "scan")
     >>> check_wavelength_index(2, [7.5e-7, 8.5e-7], "scan")
     Traceback (most recent call last):
@@ -711,7 +711,7 @@ def dataset_nbytes(ds: GridDataset | PointDataset) -> int:
     Examples
     --------
     >>> import numpy as np
-    >>> from service.recon.dataset import GridDataset, dataset_nbytes
+    >>> from fpscan.service.recon.dataset import GridDataset, dataset_nbytes
     >>> ds = GridDataset(np.zeros((64, 3, 4), np.float32), dx=1e-4, dt=2e-8, c=1500.0)
     >>> dataset_nbytes(ds)  # 64 x 3 x 4 float32
     3072

@@ -1,7 +1,7 @@
 """Where a reconstruction runs: the ``device`` option (``"auto"``, ``"cpu"``, ``"cuda"``).
 
-``"cuda"`` runs the GPU path (`service.recon.gpu`: CuPy, cuFFT, the array-namespace temporal
-step of `driver.physics.temporal_xp`) on the first CUDA device CuPy sees; ``"cpu"`` the CPU
+``"cuda"`` runs the GPU path (`fpscan.service.recon.gpu`: CuPy, cuFFT, the array-namespace temporal
+step of `fpscan.physics.temporal_xp`) on the first CUDA device CuPy sees; ``"cpu"`` the CPU
 kernels; ``"auto"`` (the default) the GPU when CuPy is installed and sees one, the method's GPU
 path covers the request, the job fits the GPU's free memory and no other fpscan job holds the
 GPU, else the CPU. CuPy is imported here only when a request is not ``"cpu"`` (and never by
@@ -28,8 +28,8 @@ from collections.abc import Callable, Iterator
 from types import ModuleType
 from typing import Any, TypeVar
 
-from driver.units import RefusedInput
-from service.recon.limits import DEFAULT_DEVICE, DEVICES
+from fpscan.driver.units import RefusedInput
+from fpscan.service.recon.limits import DEFAULT_DEVICE, DEVICES
 
 __all__ = ["DEVICES", "DEFAULT_DEVICE", "Unsuited", "GpuError", "check_device", "cupy_module", "gpu_module", "cuda_devices",
            "probe_devices", "choose",
@@ -75,7 +75,7 @@ def check_device(device: Any) -> str:
 
     Examples
     --------
-    >>> from service.recon.device import check_device
+    >>> from fpscan.service.recon.device import check_device
     >>> check_device(None), check_device("cuda")
     ('auto', 'cuda')
     """
@@ -150,7 +150,7 @@ def cuda_devices() -> list[dict[str, Any]]:
     return out
 
 
-_PROBE = ("import json; from service.recon.device import cuda_devices; "
+_PROBE = ("import json; from fpscan.service.recon.device import cuda_devices; "
           "print(json.dumps([{k: d[k] for k in ('index', 'name', 'memory_total')} for d in cuda_devices()]))")
 
 
@@ -212,7 +212,7 @@ def choose(device: str, need_bytes: int, unsupported: str | None = None) -> str:
 
     Examples
     --------
-    >>> from service.recon.device import choose
+    >>> from fpscan.service.recon.device import choose
     >>> choose("cpu", 1 << 40)
     'cpu'
     """
@@ -297,7 +297,7 @@ def release() -> None:
     job; a GPU failure too); nothing without CuPy."""
     if not _CUPY or _CUPY[0] is None:
         return
-    from service.recon import gpu
+    from fpscan.service.recon import gpu
 
     gpu.clear_cache()
     cp = _CUPY[0]

@@ -1,23 +1,23 @@
 """The GPU path of the planar kernels: NER / NEDNER's inversion and the operator pair on CuPy.
 
 The same discretisation as the CPU kernels — the transform lengths, depth rows, temporal grid
-and kernel taps are planned by the same functions (`service.recon.planar`,
-`driver.physics.grid_sizes.pad_sizes`, `driver.physics.nufft.make_grid`) — with every array
+and kernel taps are planned by the same functions (`fpscan.service.recon.planar`,
+`fpscan.physics.grid_sizes.pad_sizes`, `fpscan.physics.nufft.make_grid`) — with every array
 step written on an array namespace ``xp`` (``cupy`` on a GPU; ``numpy`` in the tests, which
 compare this path with the CPU kernels on machines without a GPU):
 
 - the lateral FFTs are ``xp.fft`` (cuFFT on a GPU);
-- the temporal NUFFT is `driver.physics.temporal_xp` (fpscan's own kernel taps, one gather or
+- the temporal NUFFT is `fpscan.physics.temporal_xp` (fpscan's own kernel taps, one gather or
   scatter-add per tap; cufinufft's type-2 transforms need one point set per plan, and here
   every |k_lat| group has its own);
-- the depth DCT-I is the FFT of the even extension (`driver.physics.temporal_xp.dct1`).
+- the depth DCT-I is the FFT of the even extension (`fpscan.physics.temporal_xp.dct1`).
 
 NEDNER's lateral type-1 NUFFT from off-lattice sensors stays on the host (finufft,
-`service.recon.planar._lateral_spectrum`); its spectrum is copied to the GPU. The operator pair
-(`service.recon.operator.PlanarOperator` with ``device="cuda"``) covers sensors on the image's
+`fpscan.service.recon.planar._lateral_spectrum`); its spectrum is copied to the GPU. The operator pair
+(`fpscan.service.recon.operator.PlanarOperator` with ``device="cuda"``) covers sensors on the image's
 lateral grid and sensors on its nodes (a scan plan's lattice), not off-lattice sensors.
 
-The choice of device and its rules: `service.recon.device`.
+The choice of device and its rules: `fpscan.service.recon.device`.
 """
 from __future__ import annotations
 
@@ -26,9 +26,9 @@ from typing import Any
 
 import numpy as np
 
-from driver.physics import nufft
-from driver.physics import temporal_xp as txp
-from driver.physics.lateral import pad_spectrum
+from fpscan.physics import nufft
+from fpscan.physics import temporal_xp as txp
+from fpscan.physics.lateral import pad_spectrum
 
 __all__ = ["clear_cache", "inversion_peak", "operator_peak", "invert", "OperatorPair"]
 
@@ -84,7 +84,7 @@ def operator_peak(op: Any) -> int:
 
     Parameters
     ----------
-    op : service.recon.operator.PlanarOperator
+    op : fpscan.service.recon.operator.PlanarOperator
 
     Returns
     -------
@@ -114,7 +114,7 @@ def _cached_taps(key: tuple, make: Any) -> txp.Taps:
 
 def invert(xp: ModuleType, A: Any, n_x: int, dx: float, dy: float, dt: float, c: float, n_work: int,
            dz: float, t0: float, eps: float, rdtype: Any, upsample: int, keep: tuple[int, int, int]) -> Any:
-    """`service.recon.planar._invert` (method ``ner``) on ``xp``: the lateral half spectrum ``A``
+    """`fpscan.service.recon.planar._invert` (method ``ner``) on ``xp``: the lateral half spectrum ``A``
     ``(n_t, n_y, n_x // 2 + 1)`` complex -> p0 ``keep`` = (rows, y, x) of ``(n_work, n_y u,
     n_x u)``, in ``rdtype``.
 
@@ -177,12 +177,12 @@ def invert(xp: ModuleType, A: Any, n_x: int, dx: float, dy: float, dt: float, c:
 
 
 class OperatorPair:
-    """The planar operator pair of a `service.recon.operator.PlanarOperator` on ``xp``: its
+    """The planar operator pair of a `fpscan.service.recon.operator.PlanarOperator` on ``xp``: its
     working grid, band and sensors, its forward and adjoint, with the taps made once.
 
     Parameters
     ----------
-    op : service.recon.operator.PlanarOperator
+    op : fpscan.service.recon.operator.PlanarOperator
         Planned (its ``_setup`` ran); sensors on its grid or on nodes of it.
     xp : module
         ``cupy`` (or ``numpy``).

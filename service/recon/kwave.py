@@ -16,7 +16,7 @@ The numbers are k-Wave's, computed on the symmetries k-Wave leaves unused (real 
 lateral rfft; the mirrored series is even: one half of the ω and k_z axes, each column's
 mapping in one compiled loop), which makes it a few times faster and its peak memory a
 few times the input instead of ~15 times. The data stay time first, as the lateral FFT
-leaves them (no transpose). The transforms run in `service.recon.kwave_dft`, the DFT
+leaves them (no transpose). The transforms run in `fpscan.service.recon.kwave_dft`, the DFT
 engine of these modes: the time and depth transforms of the even series as real matrix
 products (BLAS beats the FFT at k-Wave's odd lengths) or by the prime-factor algorithm, else
 FFTs (`kwave_dft.even_transforms`); the lateral real DFT as a matrix product at lengths
@@ -34,10 +34,10 @@ import numpy as np
 import numpy.typing as npt
 import scipy.fft
 
-from driver.physics.nufft import group_columns
-from service.progress import Fraction, rising, span
-from service.recon import checks
-from service.recon.kwave_dft import even_transforms, lateral_forward, lateral_inverse
+from fpscan.physics.nufft import group_columns
+from fpscan.service.progress import Fraction, rising, span
+from fpscan.service.recon import checks
+from fpscan.service.recon.kwave_dft import even_transforms, lateral_forward, lateral_inverse
 
 __all__ = ["transform_lengths", "kspace_line_recon", "kspace_plane_recon"]
 
@@ -170,7 +170,7 @@ def transform_lengths(data_shape: Sequence[int]) -> dict[str, tuple[int, ...]]:
     these lengths through fast ones (Bluestein's chirp-z: two FFTs at a fast length
     >= 3 N_t - 2) would cost about what pocketfft's own handling costs: 0.75x, 1.06x, 1.08x
     of it at N_t = 256, 1024, 3519 (per-point FFT timings, issue 20). Up to
-    `service.recon.kwave_dft.MATRIX_MAX_N` samples the temporal and depth DFTs run as
+    `fpscan.service.recon.kwave_dft.MATRIX_MAX_N` samples the temporal and depth DFTs run as
     matrix products instead (faster than any FFT of these lengths there), above it by the
     prime-factor algorithm where 2 N_t - 1 has a coprime split (`kwave_dft.PFA_MAX_SUM`),
     and the lateral real DFT as a product at lengths `kwave_dft.product_length` names; the
@@ -200,7 +200,7 @@ def transform_lengths(data_shape: Sequence[int]) -> dict[str, tuple[int, ...]]:
 
     Examples
     --------
-    >>> from service.recon.kwave import transform_lengths
+    >>> from fpscan.service.recon.kwave import transform_lengths
     >>> transform_lengths((40, 32))
     {'lateral': (32,), 'temporal': (79,), 'depth': (79,)}
     >>> transform_lengths((40,))
@@ -325,8 +325,8 @@ def kspace_line_recon(p: npt.ArrayLike, dy: float, dt: float, c: float, data_ord
     Examples
     --------
     >>> import numpy as np
-    >>> from driver.physics.forward import forward_grid
-    >>> from service.recon.kwave import kspace_line_recon
+    >>> from fpscan.physics.forward import forward_grid
+    >>> from fpscan.service.recon.kwave import kspace_line_recon
     >>> p0 = np.zeros((16, 32))  # a point source at depth row 8, pitch 0.1 mm
     >>> p0[8, 16] = 1.0
     >>> data = forward_grid(p0, dx=1e-4, dz=1e-4, dt=1e-4 / 1500, n_t=40, c=1500.0)  # (N_t, N_y)
@@ -378,8 +378,8 @@ def kspace_plane_recon(p: npt.ArrayLike, dy: float, dz: float, dt: float, c: flo
     Examples
     --------
     >>> import numpy as np
-    >>> from driver.physics.forward import forward_grid
-    >>> from service.recon.kwave import kspace_plane_recon
+    >>> from fpscan.physics.forward import forward_grid
+    >>> from fpscan.service.recon.kwave import kspace_plane_recon
     >>> p0 = np.zeros((8, 8, 8))  # (n_z, n_y, n_x), a point source in the middle
     >>> p0[4, 4, 4] = 1.0
     >>> data = forward_grid(p0, 1e-4, 1e-4, 1e-4 / 1500, 24, 1500.0)  # (N_t, N_y, N_z)

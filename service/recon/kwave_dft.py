@@ -1,8 +1,8 @@
-"""The DFT engine of k-Wave's modes (`service.recon.kwave`): the transforms of k-Wave's
+"""The DFT engine of k-Wave's modes (`fpscan.service.recon.kwave`): the transforms of k-Wave's
 `kspaceLineRecon` / `kspacePlaneRecon` at k-Wave's own lengths, as real matrix products
 (BLAS, in threads of our own) where those beat the FFT.
 
-What `service.recon.kwave` takes from here, and nothing of k-Wave's algorithm itself (the
+What `fpscan.service.recon.kwave` takes from here, and nothing of k-Wave's algorithm itself (the
 grids, the scaling, the k-space mapping, its interpolation and numba kernel stay there):
 
 - `lateral_forward` / `lateral_inverse`: the lateral real DFT of the data (time first) and
@@ -34,10 +34,10 @@ import numpy as np
 import numpy.typing as npt
 import scipy.fft
 
-from driver.physics import fft_engine
-from driver.physics.fast_lengths import largest_prime_factor
-from driver.physics.lateral import irfft_lateral
-from service.progress import Fraction
+from fpscan.physics import fft_engine
+from fpscan.physics.fast_lengths import largest_prime_factor
+from fpscan.physics.lateral import irfft_lateral
+from fpscan.service.progress import Fraction
 
 if TYPE_CHECKING:
     from concurrent.futures import Executor
@@ -280,13 +280,13 @@ def product_length(n: int) -> bool:
     Returns
     -------
     bool
-        True where `lateral_forward` / `lateral_inverse` (k-Wave's modes, `service.recon.kwave`)
+        True where `lateral_forward` / `lateral_inverse` (k-Wave's modes, `fpscan.service.recon.kwave`)
         take that axis's real DFT and its inverse as matrix products (for arrays above
-        `driver.physics.fft_engine.SMALL_ELEMENTS`).
+        `fpscan.physics.fft_engine.SMALL_ELEMENTS`).
 
     Examples
     --------
-    >>> from service.recon.kwave_dft import product_length
+    >>> from fpscan.service.recon.kwave_dft import product_length
     >>> product_length(226), product_length(240), product_length(518)
     (True, False, False)
     """
@@ -336,7 +336,7 @@ def lateral_forward(p: np.ndarray, lat_axes: tuple[int, ...]) -> np.ndarray:
     Examples
     --------
     >>> import numpy as np, scipy.fft
-    >>> from service.recon.kwave_dft import lateral_forward
+    >>> from fpscan.service.recon.kwave_dft import lateral_forward
     >>> p = np.random.default_rng(0).standard_normal((300, 226))  # 226 = 2·113: a product
     >>> A = lateral_forward(p, (1,))
     >>> A.shape, A.dtype, np.allclose(A, scipy.fft.rfft(p, axis=1))
@@ -362,7 +362,7 @@ def lateral_forward(p: np.ndarray, lat_axes: tuple[int, ...]) -> np.ndarray:
 
 
 def lateral_inverse(A: np.ndarray, lat_shape: tuple[int, ...], lat_axes: tuple[int, ...]) -> np.ndarray:
-    """The inverse of `lateral_forward`: `driver.physics.lateral.irfft_lateral` (``A``
+    """The inverse of `lateral_forward`: `fpscan.physics.lateral.irfft_lateral` (``A``
     consumed), the real axis as a matrix product where `product_length` says so (a large
     array only); the image is written over ``A``'s own memory (a view of it is returned).
 
@@ -383,7 +383,7 @@ def lateral_inverse(A: np.ndarray, lat_shape: tuple[int, ...], lat_axes: tuple[i
     Examples
     --------
     >>> import numpy as np
-    >>> from service.recon.kwave_dft import lateral_forward, lateral_inverse
+    >>> from fpscan.service.recon.kwave_dft import lateral_forward, lateral_inverse
     >>> p = np.random.default_rng(0).standard_normal((300, 226))
     >>> back = lateral_inverse(lateral_forward(p, (1,)), (226,), (1,))
     >>> back.shape, np.allclose(back, p)
@@ -490,7 +490,7 @@ def even_transforms(a: np.ndarray, mapping: ColumnMapping, scale: float, dtype: 
     (N = 40) and by the prime-factor algorithm (N = 409: M = 817 = 19·43):
 
     >>> import numpy as np
-    >>> from service.recon.kwave_dft import even_transforms
+    >>> from fpscan.service.recon.kwave_dft import even_transforms
     >>> def identity(P, c0, c1, out): out[:] = P
     >>> for n in (40, 409):
     ...     a = np.random.default_rng(n).standard_normal((n, 6)) + 0j

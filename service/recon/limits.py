@@ -1,7 +1,7 @@
 """The reconstruction options' ranges and vocabularies: plain numbers, no imports.
 
-One owner for each bound: the kernels' rules (:mod:`service.recon.checks`) and the typed
-option models of the methods (:mod:`service.recon.methods`) both read them, so the schema
+One owner for each bound: the kernels' rules (:mod:`fpscan.service.recon.checks`) and the typed
+option models of the methods (:mod:`fpscan.service.recon.methods`) both read them, so the schema
 a client sees states the range the kernel enforces. This module imports only ``typing`` (the
 method registry loads without numpy, for the command line of a client-only install).
 """
@@ -40,7 +40,7 @@ DEFAULT_TOL = 5e-3
 DEFAULT_DTYPE: Final = "float32"
 #: the precisions a reconstruction may work in
 DTYPES = ("float32", "float64")
-#: where a reconstruction runs (`service.recon.device`): the GPU where one fits, the CPU, the GPU
+#: where a reconstruction runs (`fpscan.service.recon.device`): the GPU where one fits, the CPU, the GPU
 DEVICES = ("auto", "cpu", "cuda")
 #: the default device: the GPU where CuPy sees one and the job fits it, else the CPU
 DEFAULT_DEVICE: Final = "auto"

@@ -1,13 +1,13 @@
 """The peak-memory models of the reconstructions (admission control): bytes a method needs at
 its peak, counted phase by phase from the arrays its kernels hold alive.
 
-Each method declares its model (``service.recon.methods``: ``Method.peak_memory``) from the
+Each method declares its model (``fpscan.service.recon.methods``: ``Method.peak_memory``) from the
 models here, named for what the kernels do, not for the methods: :func:`planar_peak` (the
-planar inversions of ``service.recon.planar``: the temporal step on a NUFFT grid, on the
+planar inversions of ``fpscan.service.recon.planar``: the temporal step on a NUFFT grid, on the
 regular grid or by pchip, a type-1 NUFFT over the sensor points or not),
-:func:`kwave_peak` (``service.recon.kwave``'s k-Wave modes) and :func:`model_based_peak`
-(the model-based solve of ``service.recon.tv`` on the free-space operator,
-:func:`tv_memory`). ``service.recon.methods.estimate_peak_memory`` asks the registry for a
+:func:`kwave_peak` (``fpscan.service.recon.kwave``'s k-Wave modes) and :func:`model_based_peak`
+(the model-based solve of ``fpscan.service.recon.tv`` on the free-space operator,
+:func:`tv_memory`). ``fpscan.service.recon.methods.estimate_peak_memory`` asks the registry for a
 method's model by name. The kernels check their own inputs against the same models before they allocate.
 Measured against fresh processes' peaks in tests/service/test_memory_admission.py.
 """
@@ -18,14 +18,14 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from driver.physics.fast_lengths import fast_dct1_rows, fast_lateral
+from fpscan.physics.fast_lengths import fast_dct1_rows, fast_lateral
 
 __all__ = ["KWAVE_STEP_BYTES", "TEMPORAL_STEPS", "planar_peak", "kwave_peak", "band_columns",
            "model_based_peak", "padded_lateral", "OPERATOR_BATCH", "OPERATOR_CHUNK", "tv_memory"]
 
 #: the bound of k-Wave's time-depth step buffers and other work arrays beside
 #: the input and the spectrum: the prime-factor stages' per-thread work arrays, the chunks' spectra,
-#: the pchip mapping's arrays (`service.recon.kwave._CUBIC_BYTES` each). Measured as a fresh
+#: the pchip mapping's arrays (`fpscan.service.recon.kwave._CUBIC_BYTES` each). Measured as a fresh
 #: process's resident peak (VmHWM) beyond input + spectrum: 122-127 MiB at 1024 x 100 x 226,
 #: 1024 x 226² and 2048 x 60 x 226 in float64, any interpolation; lower elsewhere
 KWAVE_STEP_BYTES = 160 << 20
@@ -52,14 +52,14 @@ def _planar_count(n_t: int, n_x: int, n_y: int, *, n_z: int | None, upsample: in
     cols = n_y * (n_x // 2 + 1)
     spectrum = n_t * cols * cb
     if temporal == "nufft":
-        from driver.physics.grid_sizes import grid_length
+        from fpscan.physics.grid_sizes import grid_length
 
         fine = cols * grid_length(n_t, "nufft", 1e-6) * cb  # make_grid's L, without loading the kernels
     else:
         fine = cols * (2 * n_t - 1) * cb
     kimage = n_z * cols * cb
     # the lateral spectrum's memory, which the evaluated spectrum F and the image reuse
-    # (`service.recon.planar._workspace`); K is transposed into the fine grid's memory
+    # (`fpscan.service.recon.planar._workspace`); K is transposed into the fine grid's memory
     space = max(spectrum, kimage)
     u_y = upsample if n_y > 1 else 1
     padded = n_z * n_y * u_y * (n_x * upsample // 2 + 1) * cb if upsample > 1 else kimage
@@ -70,7 +70,7 @@ def _planar_count(n_t: int, n_x: int, n_y: int, *, n_z: int | None, upsample: in
         plane = n_t * n_y * n_x * cb
         alive += plane
         front = plane + (n_points or 0) * n_t * (8 + cb)
-        # the Voronoi raster of weights not given (driver.physics.weights: ~1024 samples per cell within
+        # the Voronoi raster of weights not given (fpscan.physics.weights: ~1024 samples per cell within
         # 2^20, ~80 bytes each; measured 82 MiB (tracemalloc) from 500 to 3000 sensors since its
         # steps free their arrays as they end, 98 MiB before)
         front = max(front, 80 * min(1024 * max(n_points or 0, 768), 1 << 20) if n_points else 0)
@@ -93,15 +93,15 @@ def _planar_count(n_t: int, n_x: int, n_y: int, *, n_z: int | None, upsample: in
 def planar_peak(n_t: int, n_x: int, n_y: int = 1, *, n_z: int | None = None, upsample: int = 1,
                 dtype: npt.DTypeLike = np.float64, temporal: str = "nufft", points: bool = False,
                 n_points: int | None = None, square: bool | None = None, **_: Any) -> int:
-    """Estimated peak memory in bytes of a planar inversion (``service.recon.planar``).
+    """Estimated peak memory in bytes of a planar inversion (``fpscan.service.recon.planar``).
 
     Counted phase by phase, the arrays alive in each (b: the real itemsize, complex 2b): the
     lateral spectrum A (n_t x n_y x (n_x/2+1); with ``points``, the type-1 output is the full
     plane n_t x n_y x n_x, of which A is a view), alive to the end; the temporal fine grid U
     (columns x L), the evaluated spectrum F and its transposed k-space image K (depth rows x
-    columns), F and the image in A's memory and K in U's (``service.recon.planar._workspace``);
+    columns), F and the image in A's memory and K in U's (``fpscan.service.recon.planar._workspace``);
     K zero-padded for ``upsample`` u (u² times larger); the inverse lateral FFT, in place on
-    the padded K (``driver.physics.lateral.irfft_lateral``), beside its output (depth rows x
+    the padded K (``fpscan.physics.lateral.irfft_lateral``), beside its output (depth rows x
     n_y u x n_x u of the grid asked for: the padding is not written). The peak is the largest
     phase, plus the input (measured within ±25 % for NER/NEDNER at upsample 1-8,
     tests/service/test_memory_admission.py).
@@ -112,7 +112,7 @@ def planar_peak(n_t: int, n_x: int, n_y: int = 1, *, n_z: int | None = None, ups
         Samples per A-line.
     n_x, n_y : int
         Lateral grid (``n_y = 1`` in 2-D), zero-padded to the fast transform lengths of
-        ``driver.physics.fast_lengths.fast_lateral`` (e.g. 226 -> 240), which are counted.
+        ``fpscan.physics.fast_lengths.fast_lateral`` (e.g. 226 -> 240), which are counted.
     n_z : int, optional
         Output depth samples (default n_t).
     upsample : int, optional
@@ -126,7 +126,7 @@ def planar_peak(n_t: int, n_x: int, n_y: int = 1, *, n_z: int | None = None, ups
         of a full lattice.
     n_points : int, optional
         Sensors, with ``points`` (their weighted A-lines and, for weights not given, the
-        Voronoi raster of ``driver.physics.weights``).
+        Voronoi raster of ``fpscan.physics.weights``).
     square : bool or None, optional
         dy = dx, which may give both axes one transform length; None: unknown, the larger of
         the two.
@@ -143,7 +143,7 @@ def planar_peak(n_t: int, n_x: int, n_y: int = 1, *, n_z: int | None = None, ups
 
     Examples
     --------
-    >>> from service.recon.memory import planar_peak
+    >>> from fpscan.service.recon.memory import planar_peak
     >>> grid = planar_peak(256, 64, 64, dtype="float32")
     >>> planar_peak(256, 64, 64, dtype="float32", points=True, n_points=500) > grid  # the type-1 plane
     True
@@ -153,7 +153,7 @@ def planar_peak(n_t: int, n_x: int, n_y: int = 1, *, n_z: int | None = None, ups
 
 
 def kwave_peak(n_t: int, n_x: int, n_y: int = 1, *, dtype: npt.DTypeLike = np.float64, **_: Any) -> int:
-    """Estimated peak memory in bytes of k-Wave's modes (``service.recon.kwave``): their lateral
+    """Estimated peak memory in bytes of k-Wave's modes (``fpscan.service.recon.kwave``): their lateral
     half spectrum (n_t x n_y x (n_x/2+1), unpadded), over which the image is written, and the
     time-depth step's per-chunk buffers (:data:`KWAVE_STEP_BYTES`, or a fifth of the spectrum
     where that step runs as FFTs of the mirrored series), plus the input.
@@ -174,7 +174,7 @@ def kwave_peak(n_t: int, n_x: int, n_y: int = 1, *, dtype: npt.DTypeLike = np.fl
 
     Examples
     --------
-    >>> from service.recon.memory import KWAVE_STEP_BYTES, kwave_peak
+    >>> from fpscan.service.recon.memory import KWAVE_STEP_BYTES, kwave_peak
     >>> kwave_peak(256, 64, 64) > KWAVE_STEP_BYTES
     True
     """
@@ -188,7 +188,7 @@ def model_based_peak(n_t: int, n_x: int, n_y: int = 1, *, n_z: int | None = None
                      n_points: int | None = None, dx: float | None = None, dt: float | None = None,
                      c: float | None = None, dz: float | None = None, warm_rows: int | None = None,
                      band: float | None = None, **_: Any) -> int:
-    """Estimated peak memory in bytes of the model-based solve (``service.recon.tv``): the larger
+    """Estimated peak memory in bytes of the model-based solve (``fpscan.service.recon.tv``): the larger
     of its warm start (a planar inversion on the unpadded grid with regular-grid steps, 10 %
     above the count) and the solve itself (:func:`tv_memory`) on the operator's padded grid.
 
@@ -206,7 +206,7 @@ def model_based_peak(n_t: int, n_x: int, n_y: int = 1, *, n_z: int | None = None
         Sensors (default every lattice point).
     dx, dt, c, dz : float, optional
         Pitch (m), sample interval (s), sound speed (m/s), depth spacing (m; default c·dt): the
-        operator's own padding rule (``driver.physics.grid_sizes.pad_sizes``); without them the
+        operator's own padding rule (``fpscan.physics.grid_sizes.pad_sizes``); without them the
         worst usual case dx = c·dt (the record reaches n_t pitches laterally).
     warm_rows : int, optional
         The depth rows the warm start works on (default ``n_z``; more where the kept record
@@ -221,7 +221,7 @@ def model_based_peak(n_t: int, n_x: int, n_y: int = 1, *, n_z: int | None = None
 
     Examples
     --------
-    >>> from service.recon.memory import model_based_peak, planar_peak
+    >>> from fpscan.service.recon.memory import model_based_peak, planar_peak
     >>> model_based_peak(256, 64, 64, dtype="float32") > planar_peak(256, 64, 64, dtype="float32")
     True
     """
@@ -230,7 +230,7 @@ def model_based_peak(n_t: int, n_x: int, n_y: int = 1, *, n_z: int | None = None
                          n_points=None, square=None, pad=False)
     n_data = n_t * (n_points or n_x * n_y)
     if dx and dt and c:  # the operator's own padding rule
-        from driver.physics.grid_sizes import pad_sizes
+        from fpscan.physics.grid_sizes import pad_sizes
 
         pad = pad_sizes((n_z, n_y, n_x), dx, dz or c * dt, dt, n_t, c, 0.0)
     else:  # the worst usual case dx = c dt (lateral reach of the record = n_t pitches)
@@ -242,7 +242,7 @@ def model_based_peak(n_t: int, n_x: int, n_y: int = 1, *, n_z: int | None = None
 def band_columns(padded_shape: tuple[int, ...], dx: float, c: float, band: float) -> int:
     """The half-spectrum columns of a padded grid ``(N_z, N_y, N_x)`` at pitch ``dx`` (m) whose
     lateral wavenumber lies within a band (Hz) at sound speed ``c`` (m/s): |k_lat| <= 2π band / c,
-    the columns a band-limited `service.recon.operator.PlanarOperator` works on.
+    the columns a band-limited `fpscan.service.recon.operator.PlanarOperator` works on.
 
     Parameters
     ----------
@@ -262,7 +262,7 @@ def band_columns(padded_shape: tuple[int, ...], dx: float, c: float, band: float
 
     Examples
     --------
-    >>> from service.recon.memory import band_columns
+    >>> from fpscan.service.recon.memory import band_columns
     >>> band_columns((80, 64, 64), 60e-6, 1500.0, 12.5e6), 64 * 33  # the disc within the square
     (1634, 2112)
     """
@@ -280,7 +280,7 @@ def padded_lateral(n_y: int, n_x: int, square: bool | None = None) -> tuple[int,
     n_y, n_x : int
         The lateral grid (``n_y = 1`` in 2-D).
     square : bool or None, optional
-        dy = dx (``driver.physics.fast_lengths.fast_lateral``); None (pitches unknown): the
+        dy = dx (``fpscan.physics.fast_lengths.fast_lateral``); None (pitches unknown): the
         larger of the square and non-square choices, axis by axis.
 
     Returns
@@ -290,7 +290,7 @@ def padded_lateral(n_y: int, n_x: int, square: bool | None = None) -> tuple[int,
 
     Examples
     --------
-    >>> from service.recon.memory import padded_lateral
+    >>> from fpscan.service.recon.memory import padded_lateral
     >>> padded_lateral(226, 226)
     (240, 240)
     >>> padded_lateral(1, 226)
@@ -302,7 +302,7 @@ def padded_lateral(n_y: int, n_x: int, square: bool | None = None) -> tuple[int,
     return max(ay, by), max(ax, bx)
 
 
-#: the planar operator's working sizes (`service.recon.operator`), here beside the memory
+#: the planar operator's working sizes (`fpscan.service.recon.operator`), here beside the memory
 #: model that counts them: time samples per batch of the lateral NUFFTs of point data, and
 #: elements (complex) of a chunk's working arrays per row (its k-space columns run in
 #: chunks of about this many elements, whole |k_lat| groups)
@@ -312,23 +312,23 @@ OPERATOR_CHUNK = 1 << 22
 
 def tv_memory(image_shape: tuple[int, ...], padded_shape: tuple[int, ...], n_data: int, n_t: int,
               dtype: npt.DTypeLike = np.float64, kept_columns: int | None = None) -> int:
-    """Estimated peak bytes of the model-based reconstruction (`service.recon.tv`).
+    """Estimated peak bytes of the model-based reconstruction (`fpscan.service.recon.tv`).
 
-    The larger of two phases (`service.recon.tv.fista._fista`). While the operator works: the
+    The larger of two phases (`fpscan.service.recon.tv.fista._fista`). While the operator works: the
     solver's image-sized vector in ``dtype`` (y or the new iterate; the adjoint writes its
     output over its k-space, where the system can release the rest), the last preconditioned
-    gradient and the last move in int16 (`service.recon.tv.stores._store_gradient`, ``_store_move``)
+    gradient and the last move in int16 (`fpscan.service.recon.tv.stores._store_gradient`, ``_store_move``)
     and the TV proximal map's dual (d vectors) at half those bytes
-    (`service.recon.tv.stores._store_dual`), beside the operator's working arrays in its working
+    (`fpscan.service.recon.tv.stores._store_dual`), beside the operator's working arrays in its working
     precision (complex64 for float32, complex128 for float64;
-    `service.recon.operator.PlanarOperator`): the image's and the data's k-space in one array,
+    `fpscan.service.recon.operator.PlanarOperator`): the image's and the data's k-space in one array,
     max(n_z, n_t) per padded half-spectrum column, beside one chunk of columns in the depth and temporal
     steps (about `OPERATOR_CHUNK` elements per row; the temporal fine grid L,
-    `driver.physics.grid_sizes.grid_length`, beside the depth N_z or the time n_t, whichever is
+    `fpscan.physics.grid_sizes.grid_length`, beside the depth N_z or the time n_t, whichever is
     longer: the steps hold two of them at a time) and one batch of full lateral spectra of
     the point NUFFTs. While the proximal map works: 2 + d + d/2 vectors (the gradient step,
     the preconditioned gradient, the dual at full precision beside the stored one,
-    `service.recon.tv.prox._tv_prox_stored`) and the move in int16. The
+    `fpscan.service.recon.tv.prox._tv_prox_stored`) and the move in int16. The
     preconditioner P is computed where it is applied, on the image padded to fast lengths
     after the operator's arrays are freed. Both phases add the data-sized vectors (the data
     in float64, A x, A y and a residual in ``dtype``), and the estimate 10 % (allocator, FFT
@@ -359,14 +359,14 @@ def tv_memory(image_shape: tuple[int, ...], padded_shape: tuple[int, ...], n_dat
 
     Examples
     --------
-    >>> from service.recon.memory import tv_memory
+    >>> from fpscan.service.recon.memory import tv_memory
     >>> small = tv_memory((32, 64, 64), (128, 128, 128), 256 * 4096, 256)
     >>> tv_memory((64, 64, 64), (128, 128, 128), 256 * 4096, 256) > small  # deeper image
     True
     >>> tv_memory((32, 64, 64), (128, 128, 128), 256 * 4096, 256, "float32") < small
     True
     """
-    from driver.physics.grid_sizes import grid_length
+    from fpscan.physics.grid_sizes import grid_length
 
     b = np.dtype(dtype).itemsize
     n_img = int(np.prod(image_shape))

@@ -1,6 +1,6 @@
 """The planar photoacoustic operator pair: p0 on a grid -> sensor data, and its adjoint.
 
-`PlanarOperator` wraps the exact planar forward model of `driver.physics.forward`
+`PlanarOperator` wraps the exact planar forward model of `fpscan.physics.forward`
 (DESIGN §3) as a linear operator A with its true adjoint Aᴴ (= Aᵀ, everything is real),
 for 2-D (line sensor, p0 of shape (n_z, n_x)) and 3-D (plane sensor, (n_z, n_y, n_x)),
 with the sensors either on the image's lateral grid or at arbitrary lateral positions.
@@ -26,7 +26,7 @@ NUFFT Σ_n a_n 2 cos(c |k| t_n) times dz Δk / 4π; the DCT-I in depth with both
 halved; the inverse lateral DFT; crop to the image. ⟨A x, y⟩ = ⟨x, Aᴴ y⟩ holds to the
 NUFFT tolerance (dot test ~1e-12 at eps = 1e-12 in float64, ~1e-6 in float32).
 
-Padding (`driver.physics.grid_sizes.pad_sizes`)
+Padding (`fpscan.physics.grid_sizes.pad_sizes`)
 ---------------------------------------------
 The trigonometric model is periodic: laterally with period N dx, in depth (DCT-I) with
 period 2 (N_z - 1) dz about the sensor plane. The data are exact free-space data of the
@@ -45,7 +45,7 @@ sensor is heard from time sqrt(z² + r²) / c on, never earlier (causality, in 2
 
 Both get a margin of half a sample and two lateral pitches (depth: one pitch) and are
 rounded up to fast FFT lengths
-(`driver.physics.fast_lengths`: the DCT-I's 2 (N_z - 1) and x's real FFT 5-smooth, y's
+(`fpscan.physics.fast_lengths`: the DCT-I's 2 (N_z - 1) and x's real FFT 5-smooth, y's
 complex FFT 7-smooth; N_y = N_x where that pads at most 15 % more, so that columns of
 equal |k_lat| share their temporal taps). Beyond that no padding reaches a sensor in the
 record, hence the model is exact for it: tests/recon/test_recon_operator.py compares a
@@ -62,7 +62,7 @@ Cost
 ----
 Everything that does not depend on the vector is made once per operator: the |k_lat|
 groups of the temporal step, its fine grid, and the lateral NUFFT plans (point sensors;
-`driver.physics.nufft_plans`). The transforms run in the working precision (float32:
+`fpscan.physics.nufft_plans`). The transforms run in the working precision (float32:
 complex64 and single-precision lateral NUFFTs at tolerance max(eps, 2e-5), oversampling
 1.25; float64: complex128). The lateral FFTs skip what is known to be zero or cropped:
 the forward transforms only the image's n_z rows (the padding rows are zero) and the
@@ -74,7 +74,7 @@ NUFFT at all: the point forward is the inverse lateral DFT read at their nodes (
 that hold sensors only) and its adjoint the DFT of the data placed on their nodes — exact,
 and without the NUFFT's oversampled grid (the tv solver at 256 × 128², 533 sensors, float32:
 41 → 35 s). The temporal step gathers and scatters its chunks of columns in place
-(`driver.physics.nufft.gather_columns` / `scatter_columns`: no copies of the chosen
+(`fpscan.physics.nufft.gather_columns` / `scatter_columns`: no copies of the chosen
 columns; the same run 35 → 28 s), and a step's input and output k-space (image and data)
 share one array, since a chunk reads its columns of the one whole before it writes them in
 the other (tv at 512 × 128², 533 sensors, float32: peak 19.3 → 15.7 times the volume); the
@@ -96,12 +96,12 @@ import numpy.typing as npt
 import pylops
 import scipy.fft
 
-from driver.constants import C_DEFAULT
-from driver.physics import fft_engine, nufft
-from driver.physics.axes import centred_axis, centred_index, node_indices
-from driver.physics.grid_sizes import pad_sizes
-from driver.physics.nufft_plans import lateral_plan
-from service.recon import checks, memory
+from fpscan.constants import C_DEFAULT
+from fpscan.physics import fft_engine, nufft
+from fpscan.physics.axes import centred_axis, centred_index, node_indices
+from fpscan.physics.grid_sizes import pad_sizes
+from fpscan.physics.nufft_plans import lateral_plan
+from fpscan.service.recon import checks, memory
 
 __all__ = ["PlanarOperator"]
 
@@ -150,11 +150,11 @@ class PlanarOperator(pylops.LinearOperator):
         ``checkpoint()``, called between the steps of `forward` and `adjoint` and inside
         their long steps (after each chunk of k-space columns, each batch of the point
         NUFFTs, each block of the lateral FFTs); it may raise to abandon the application (a
-        cancelled job: `service.recon.tv`). Settable later as the attribute ``checkpoint``.
+        cancelled job: `fpscan.service.recon.tv`). Settable later as the attribute ``checkpoint``.
     chunk_elements : int, optional
         The depth and temporal steps run on chunks of k-space columns of about this many
         elements per row of their largest array (default
-        `service.recon.memory.OPERATOR_CHUNK`, 2²³; the memory model counts one chunk); the
+        `fpscan.service.recon.memory.OPERATOR_CHUNK`, 2²³; the memory model counts one chunk); the
         result does not depend on it.
     band : float, optional
         A temporal band limit f_c in Hz (None, the default: none). The model's data are then
@@ -164,12 +164,12 @@ class PlanarOperator(pylops.LinearOperator):
         step (and after it in the adjoint: the pair stays each other's transpose). Columns
         with |k_lat| beyond it are skipped whole. With f_c at most the Nyquist frequency
         1 / (2 dt) the samples carry no aliased energy, so data resampled to dt by an ideal
-        low-pass (`driver.physics.resample`) are this model's data (`service.recon.tv_grid`).
+        low-pass (`fpscan.physics.resample`) are this model's data (`fpscan.service.recon.tv_grid`).
     device : {"auto", "cpu", "cuda"}, optional
-        Where `forward` and `adjoint` run (`service.recon.device.choose`; default ``"auto"``):
-        on a GPU (`service.recon.gpu.OperatorPair`, sensors on the grid or on its nodes) the
+        Where `forward` and `adjoint` run (`fpscan.service.recon.device.choose`; default ``"auto"``):
+        on a GPU (`fpscan.service.recon.gpu.OperatorPair`, sensors on the grid or on its nodes) the
         arrays are copied there and back; the lock that keeps one job per GPU is the caller's
-        (`service.recon.device.run`).
+        (`fpscan.service.recon.device.run`).
 
     Attributes
     ----------
@@ -191,7 +191,7 @@ class PlanarOperator(pylops.LinearOperator):
     ValueError
         Naming the problem: bad shape, non-positive dx/dz/dt/c/band, n_t < 1, t0 < 0, eps outside
         its range, positions of the wrong shape, non-finite or duplicated, bad dtype, a bad
-        device or ``device="cuda"`` where the GPU cannot run it (`service.recon.device.Unsuited`);
+        device or ``device="cuda"`` where the GPU cannot run it (`fpscan.service.recon.device.Unsuited`);
         `forward`/`adjoint` raise it for arrays of the wrong shape or with NaN/inf.
 
     References
@@ -205,8 +205,8 @@ class PlanarOperator(pylops.LinearOperator):
     Examples
     --------
     >>> import numpy as np
-    >>> from driver.physics.forward import forward_grid
-    >>> from service.recon import PlanarOperator
+    >>> from fpscan.physics.forward import forward_grid
+    >>> from fpscan.service.recon import PlanarOperator
     >>> kw = dict(dx=1e-4, dz=1e-4, dt=1e-4 / 1500, n_t=40, c=1500.0)
     >>> op = PlanarOperator((16, 32), **kw)
     >>> op.ishape, op.oshape, op.shape  # p0 (n_z, n_x) -> data (n_t, n_x)
@@ -275,8 +275,8 @@ class PlanarOperator(pylops.LinearOperator):
         self._pair: Any = None
         self.device = "cpu"
         if device != "cpu":
-            from service.recon import device as devices
-            from service.recon import gpu
+            from fpscan.service.recon import device as devices
+            from fpscan.service.recon import gpu
 
             off = None if self.positions is None or self._nodes is not None else (
                 "the operator's sensors are off the nodes of the image's lateral grid (its lateral NUFFTs run on the CPU)")
@@ -298,7 +298,7 @@ class PlanarOperator(pylops.LinearOperator):
     def transform_lengths(self) -> dict[str, tuple[int, ...]]:
         """The FFT lengths `forward` and `adjoint` run on the working grid `padded_shape`.
 
-        Without ``periodic`` they are fast lengths (`driver.physics.fast_lengths`); a periodic
+        Without ``periodic`` they are fast lengths (`fpscan.physics.fast_lengths`); a periodic
         operator keeps the image's own grid.
 
         Returns
@@ -309,7 +309,7 @@ class PlanarOperator(pylops.LinearOperator):
 
         Examples
         --------
-        >>> from service.recon import PlanarOperator
+        >>> from fpscan.service.recon import PlanarOperator
         >>> PlanarOperator((16, 32), 1e-4, 1e-4, 1e-4 / 1500, 40, 1500.0).transform_lengths()
         {'lateral': (80,), 'depth': (60,), 'temporal': (80,)}
         """
@@ -370,7 +370,7 @@ class PlanarOperator(pylops.LinearOperator):
             if not self.is2d:
                 coords = (2 * np.pi * centred_index(pos[:, 1], n_y2, self.dx) / n_y2,) + coords
                 modes = (n_y2, n_x2)
-            # single precision honours about 2e-5 at oversampling 1.25 (service.recon.planar._type1);
+            # single precision honours about 2e-5 at oversampling 1.25 (fpscan.service.recon.planar._type1);
             # both directions share tolerance and oversampling, so they stay each other's adjoint
             tol = max(self.eps, 2e-5) if self._ctype == np.complex64 else max(self.eps, 1e-14)
             opts: dict[str, Any] = dict(eps=tol, dtype=self._ctype, upsampfac=1.25 if tol >= 1e-9 else 2.0)
@@ -404,7 +404,7 @@ class PlanarOperator(pylops.LinearOperator):
         Examples
         --------
         >>> import numpy as np
-        >>> from service.recon import PlanarOperator
+        >>> from fpscan.service.recon import PlanarOperator
         >>> op = PlanarOperator((16, 32), 1e-4, 1e-4, 1e-4 / 1500, 40, 1500.0)
         >>> op.forward(np.zeros((16, 32))).shape
         (40, 32)
@@ -436,7 +436,7 @@ class PlanarOperator(pylops.LinearOperator):
         Examples
         --------
         >>> import numpy as np
-        >>> from service.recon import PlanarOperator
+        >>> from fpscan.service.recon import PlanarOperator
         >>> op = PlanarOperator((16, 32), 1e-4, 1e-4, 1e-4 / 1500, 40, 1500.0)
         >>> op.adjoint(np.ones(op.oshape)).shape
         (16, 32)
@@ -738,7 +738,7 @@ def _release_after(pages: mmap.mmap, nbytes: int) -> None:
 
 def _lattice_nodes(pos: np.ndarray, padded_shape: tuple[int, ...],
                    dx: float) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """Where every sensor sits on a node of the working grid (`driver.physics.axes.node_indices`;
+    """Where every sensor sits on a node of the working grid (`fpscan.physics.axes.node_indices`;
     the scanner's lattice, the image's lateral grid, is one): (the node rows that hold sensors,
     each sensor's place among them, each sensor's column), so that the lateral point
     transforms are exact DFTs on those rows; else None (the lateral NUFFTs)."""
@@ -774,7 +774,7 @@ def _conj_reflected(src: np.ndarray, i_lo: int, i_hi: int, n_x: int, out: np.nda
 
 
 def _column_chunks(klat2: np.ndarray, row: int, elements: int) -> list[tuple[np.ndarray, np.ndarray, tuple]]:
-    """The k-space columns in chunks of whole |k_lat| groups (`driver.physics.nufft.group_columns`:
+    """The k-space columns in chunks of whole |k_lat| groups (`fpscan.physics.nufft.group_columns`:
     columns of one group share their temporal taps), each about ``elements`` / ``row``
     columns: a list of (column indices (sorted), their |k_lat|², their groups)."""
     gvals, gptr, order = nufft.group_columns(klat2)

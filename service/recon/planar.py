@@ -18,7 +18,7 @@ through the depth period 2 (K - 1) dz) and cropped to the n_z requested. The lat
 DFT/IDFT pair makes every dx, dy factor cancel; the constant makes a laterally uniform
 layer come back exactly (g = p0(c t)/2).
 
-Methods (the temporal step, `driver.physics.nufft`): ``ner`` evaluates E at the
+Methods (the temporal step, `fpscan.physics.nufft`): ``ner`` evaluates E at the
 non-equispaced ω with a type-2 NUFFT (error ~ eps); ``linear``, ``nearest`` interpolate E
 from the regular DFT grid of the mirrored series (k-Wave style); ``cubic`` interpolates it
 with pchip (Octave's interp2 'cubic'). NEDNER (`reconstruct_points`) replaces the lateral
@@ -32,24 +32,24 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from driver.constants import C_DEFAULT
-from driver.physics import fft_engine, nufft
-from driver.physics.axes import centred_axis, node_indices
-from driver.physics.fast_lengths import fast_dct1_rows, fast_lateral, fast_length
-from driver.physics.lateral import irfft_lateral, pad_spectrum
-from driver.physics.nufft_plans import lateral_plan
-from service.progress import Fraction, Rising, Span, rising
-from service.progress import span as span_of
-from service.recon import checks, memory
-from service.recon import device as devices
-from service.recon.reconstruction import Reconstruction
+from fpscan.constants import C_DEFAULT
+from fpscan.physics import fft_engine, nufft
+from fpscan.physics.axes import centred_axis, node_indices
+from fpscan.physics.fast_lengths import fast_dct1_rows, fast_lateral, fast_length
+from fpscan.physics.lateral import irfft_lateral, pad_spectrum
+from fpscan.physics.nufft_plans import lateral_plan
+from fpscan.service.progress import Fraction, Rising, Span, rising
+from fpscan.service.progress import span as span_of
+from fpscan.service.recon import checks, memory
+from fpscan.service.recon import device as devices
+from fpscan.service.recon.reconstruction import Reconstruction
 
 __all__ = ["GRID_METHODS", "transform_lengths", "reconstruct_grid", "reconstruct_points"]
 
-#: the methods `reconstruct_grid` runs (the method registry is `service.recon.methods`)
+#: the methods `reconstruct_grid` runs (the method registry is `fpscan.service.recon.methods`)
 GRID_METHODS = ("ner", "linear", "nearest", "cubic")
 _KIND = {"ner": "nufft", "linear": "linear", "nearest": "nearest"}
-#: the temporal step of each grid method in the memory model (`service.recon.memory.planar_peak`)
+#: the temporal step of each grid method in the memory model (`fpscan.service.recon.memory.planar_peak`)
 _TEMPORAL_STEP = {"ner": "nufft", "linear": "regular", "nearest": "regular", "cubic": "pchip"}
 
 
@@ -73,7 +73,7 @@ def _depth_axis(n_t: int, dt: float, c: float, dz: float | None, n_z: int | None
 def _temporal_length(n_t: int, method: str, eps: float) -> int:
     """Length of the temporal FFT ``method`` runs on series of n_t samples: the NUFFT's
     oversampled grid (ner) or the refined DFT grid of the mirrored series (linear,
-    nearest: `driver.physics.nufft.make_grid`; cubic: `_cubic_columns`)."""
+    nearest: `fpscan.physics.nufft.make_grid`; cubic: `_cubic_columns`)."""
     if method == "cubic":
         return fast_length(2 * n_t - 1)
     return nufft.grid_length(n_t, _KIND[method], eps)
@@ -114,7 +114,7 @@ def transform_lengths(data_shape: Sequence[int], dt: float = 1.0, c: float = 1.0
 
     Examples
     --------
-    >>> from service.recon.planar import transform_lengths
+    >>> from fpscan.service.recon.planar import transform_lengths
     >>> transform_lengths((40, 32), dt=1e-4 / 1500, c=1500.0)
     {'lateral': (32,), 'temporal': (80,), 'depth': (80,), 'output': (32,)}
     >>> transform_lengths((256, 226, 226))["lateral"]  # padded to a fast length
@@ -210,10 +210,10 @@ def _invert(A: np.ndarray, n_x: int, dx: float, dy: float, dt: float, c: float, 
     """Lateral spectrum A (n_t, n_y, n_x//2+1) -> p0 (n_z, n_y*u, n_x*u) (see module doc),
     of which the leading ``keep`` (rows, y, x) are returned: the grid asked for inside the
     padded transform grid, C-contiguous (the inverse lateral FFT runs on the kept depth
-    rows only and writes the kept samples only, `driver.physics.lateral.irfft_lateral`).
-    (The forward model's true adjoint is `service.recon.operator.PlanarOperator.adjoint`.)
+    rows only and writes the kept samples only, `fpscan.physics.lateral.irfft_lateral`).
+    (The forward model's true adjoint is `fpscan.service.recon.operator.PlanarOperator.adjoint`.)
 
-    ``progress`` (optional: the caller's :func:`service.progress.span` over this step) is
+    ``progress`` (optional: the caller's :func:`fpscan.service.progress.span` over this step) is
     called as the steps finish, with fractions in proportion to each step's typical share of
     the run time. ``space`` (optional: `_workspace`, whose memory may hold A) is reused for
     the depth spectrum and the image; A is then overwritten. The fine temporal grid's
@@ -268,12 +268,12 @@ def _invert(A: np.ndarray, n_x: int, dx: float, dy: float, dt: float, c: float, 
 def _on_device(device: str, method: str, n_t: int, n_cols: int, n_work: int, n_out: int, eps: float,
                rdtype: np.dtype, data_elements: int, on_gpu: Callable[[], np.ndarray],
                on_cpu: Callable[[], np.ndarray]) -> tuple[np.ndarray, dict[str, Any]]:
-    """Run an inversion where ``device`` says (`service.recon.device.run`): the GPU path
-    covers NER's temporal step only; its memory is `service.recon.gpu.inversion_peak`. Returns
+    """Run an inversion where ``device`` says (`fpscan.service.recon.device.run`): the GPU path
+    covers NER's temporal step only; its memory is `fpscan.service.recon.gpu.inversion_peak`. Returns
     the image and the params that say which device ran."""
     if device == "cpu":
         return on_cpu(), {"device": "cpu"}
-    from service.recon import gpu
+    from fpscan.service.recon import gpu
 
     unsupported = None if method == "ner" else f"the temporal step {method!r} runs on the CPU only (the GPU's is NER's)"
     return devices.run(device, gpu.inversion_peak(n_t, n_cols, n_work, n_out, eps, rdtype, data_elements),
@@ -342,7 +342,7 @@ def reconstruct_grid(
         ``progress(fraction)`` called with increasing fractions in (0, 1] as the steps
         (lateral FFT, temporal step in chunks, depth transform, inverse lateral FFT) finish.
     device : {"auto", "cpu", "cuda"}, optional
-        Where it runs (`service.recon.device`): ``"auto"`` (default) the GPU where CuPy sees
+        Where it runs (`fpscan.service.recon.device`): ``"auto"`` (default) the GPU where CuPy sees
         one and the request fits it (method ``"ner"`` only), else the CPU.
 
     Returns
@@ -360,7 +360,7 @@ def reconstruct_grid(
         method, eps outside [1e-14, 1e-1], bad dtype/upsample/n_z, t0 < 0, or an estimated
         peak memory above the limit; ``device="cuda"`` without a GPU, for another method
         than ``"ner"`` or beyond the GPU's free memory.
-    service.recon.device.GpuError
+    fpscan.service.recon.device.GpuError
         The GPU failed during a ``device="cuda"`` run (``"auto"`` falls back to the CPU).
 
     References
@@ -378,16 +378,16 @@ def reconstruct_grid(
     A laterally uniform layer comes back exactly: data g = p0(c t) / 2 at every sensor.
 
     >>> import numpy as np
-    >>> from service.recon.planar import reconstruct_grid
+    >>> from fpscan.service.recon.planar import reconstruct_grid
     >>> g = np.zeros((64, 8))  # (n_t, n_x)
     >>> g[10] = 0.5
     >>> r = reconstruct_grid(g, dx=1e-4, dt=1e-4 / 1500, c=1500.0)  # dz = c dt = 0.1 mm
     >>> r.p0.shape, r.p0.dtype, int(r.p0[:, 4].argmax()), round(float(r.p0[10, 4]), 4)
     ((64, 8), dtype('float64'), 10, 1.0)
 
-    A point source (the exact forward model, `driver.physics.forward`) at depth row 8:
+    A point source (the exact forward model, `fpscan.physics.forward`) at depth row 8:
 
-    >>> from driver.physics.forward import forward_grid
+    >>> from fpscan.physics.forward import forward_grid
     >>> p0 = np.zeros((16, 32))
     >>> p0[8, 16] = 1.0
     >>> data = forward_grid(p0, dx=1e-4, dz=1e-4, dt=1e-4 / 1500, n_t=40, c=1500.0)
@@ -426,7 +426,7 @@ def reconstruct_grid(
                        progress=span_of(kernel, 0.1, 1.0), space=space)
 
     def on_gpu() -> np.ndarray:
-        from service.recon import gpu
+        from fpscan.service.recon import gpu
 
         xp = devices.gpu_module()
         A = xp.fft.rfft2(xp.asarray(vol), s=(n_yp, n_xp), axes=(1, 2))
@@ -473,7 +473,7 @@ def _check_positions(positions: np.ndarray, n_points: int) -> np.ndarray:
 
 
 def _default_grid(pos: np.ndarray) -> tuple[tuple[np.ndarray, ...], float]:
-    from driver.physics.weights import infer_pitch  # on use: importing the plans package costs start-up time
+    from fpscan.physics.weights import infer_pitch  # on use: importing the plans package costs start-up time
 
     pitch = infer_pitch(pos) if len(pos) > 1 else None
     if pitch is None:
@@ -514,7 +514,7 @@ def _type1(strengths: np.ndarray, pos: np.ndarray, axes: tuple[np.ndarray, ...],
     """Lateral type-1 NUFFT (finufft) of the weighted A-lines ``strengths`` (n_t, n_points)
     onto the (n_y, n_x) transform grid's wavenumbers: (n_t, n_y, n_x) complex, with the
     y-Nyquist row split band-limited (see below). Paper eq. (3). ``progress`` (optional: the
-    caller's :func:`service.progress.span` over this step) is called as the chunks finish."""
+    caller's :func:`fpscan.service.progress.span` over this step) is called as the chunks finish."""
     n_t = strengths.shape[0]
     d = pos.shape[1]
     ctype = strengths.dtype
@@ -528,7 +528,7 @@ def _type1(strengths: np.ndarray, pos: np.ndarray, axes: tuple[np.ndarray, ...],
     upsampfac = 1.25 if eps_nu >= 1e-9 else 2.0
     # the batched type-1 transforms in a few chunks of time samples (each transform is
     # independent of the others), so that progress is reported through this step too
-    # planned once per mask and chunk size (driver.physics.nufft_plans): the live preview,
+    # planned once per mask and chunk size (fpscan.physics.nufft_plans): the live preview,
     # repeated jobs on one plan and the model-based iterations only execute
     A = np.empty((n_t, n_y, n_x), dtype=ctype)
     n_chunks = min(4, n_t)
@@ -581,7 +581,7 @@ def _area_weights(weights: np.ndarray | None, pos: np.ndarray) -> np.ndarray:
     ``(n_points, d)`` m: ``weights`` checked (finite, that shape, >= 0: else ValueError), or
     by default the clipped Voronoi areas (`voronoi_weights`, DESIGN §3.3)."""
     if weights is None:
-        from driver.physics.weights import voronoi_weights  # on use (start-up time)
+        from fpscan.physics.weights import voronoi_weights  # on use (start-up time)
 
         return voronoi_weights(pos)
     n_points = pos.shape[0]
@@ -706,8 +706,8 @@ def reconstruct_points(
     Every other sensor of a line, a point source at depth row 8 below x = 0.05 mm:
 
     >>> import numpy as np
-    >>> from driver.physics.forward import forward_points
-    >>> from service.recon.planar import reconstruct_points
+    >>> from fpscan.physics.forward import forward_points
+    >>> from fpscan.service.recon.planar import reconstruct_points
     >>> p0 = np.zeros((16, 32))  # (n_z, n_x), pitch 0.1 mm
     >>> p0[8, 16] = 1.0
     >>> x = (np.arange(32) - 15.5) * 1e-4  # the image's lateral axis, m
@@ -750,7 +750,7 @@ def reconstruct_points(
                        progress=span_of(kernel, 0.3, 1.0), space=space)
 
     def on_gpu() -> np.ndarray:
-        from service.recon import gpu
+        from fpscan.service.recon import gpu
 
         xp = devices.gpu_module()
         A = xp.asarray(spectrum())

@@ -32,15 +32,15 @@ class Reconstruction:
         Every parameter the reconstruction used (JSON-serialisable).
     p0_unit : str
         ``"Pa"`` when the input was calibrated pressure (a scan whose instrument records its
-        volts-to-pascal calibration), else ``"a.u."`` (``service.storage.loader.p0_unit``;
-        set by ``service.pipeline.reconstruct``).
+        volts-to-pascal calibration), else ``"a.u."`` (``fpscan.service.storage.loader.p0_unit``;
+        set by ``fpscan.service.pipeline.reconstruct``).
     ndim : int
         2 for a line-sensor (x, z) image, 3 for a plane-sensor volume.
 
     Examples
     --------
     >>> import numpy as np
-    >>> from service.recon import Reconstruction
+    >>> from fpscan.service.recon import Reconstruction
     >>> r = Reconstruction(p0=np.zeros((4, 3)), z=np.arange(4) * 1e-4, x=np.array([-1e-4, 0.0, 1e-4]))
     >>> r.ndim, r.y, r.p0_unit
     (2, None, 'a.u.')
@@ -60,7 +60,7 @@ class Reconstruction:
         Examples
         --------
         >>> import numpy as np
-        >>> from service.recon import Reconstruction
+        >>> from fpscan.service.recon import Reconstruction
         >>> Reconstruction(p0=np.ones((4, 3)), z=np.arange(4) * 1e-4, x=np.array([-1e-4, 0.0, 1e-4]),
         ...                params={"method": "ner"})
         Reconstruction(ner: p0 (4, 3) float64 (n_z, n_x) a.u., max 1, z 0 to 0.3 mm, x -0.1 to 0.1 mm)

@@ -3,7 +3,7 @@ depth grid and the record kept for it (issues 47 and 59).
 
 The planar model maps each k-space component of p0 to one temporal frequency, f = c |k| / 2π
 (DESIGN §3.1), so a band f_c of the data is a ball |k| <= 2π f_c / c of the image's k-space. tv
-(`service.recon.tv`) adds hundreds of sensors' views coherently, so what its image can use is
+(`fpscan.service.recon.tv`) adds hundreds of sensors' views coherently, so what its image can use is
 set by the scan's geometry, not by what one A-line shows above its noise:
 
 - **the band f_c**: c / (2 pitch), the band the lateral sampling resolves (its lateral Nyquist
@@ -35,12 +35,12 @@ set by the scan's geometry, not by what one A-line shows above its noise:
   at every sensor in 3-D (Huygens' principle), so the samples there are the noise's alone and
   dropping them changes nothing the image can use; a line's record is kept whole, since a 2-D
   wave rings on after its front (a tail ∝ 1/t²). The cut shortens the operator's record and its
-  lateral padding (which grows with c t_last, `service.recon.operator`); on the paper's scan
+  lateral padding (which grows with c t_last, `fpscan.service.recon.operator`); on the paper's scan
   (ρ up to 16 mm) nothing is cut;
 - **the operator's sampling**: M samples on the kept record's interval,
-  `driver.physics.resample.resampled_length` (its kept band reaches f_c), the data low-passed
-  and resampled to them exactly (`driver.physics.resample.resample`), the operator
-  band-limited to f_c in k-space (`service.recon.operator.PlanarOperator` ``band``).
+  `fpscan.physics.resample.resampled_length` (its kept band reaches f_c), the data low-passed
+  and resampled to them exactly (`fpscan.physics.resample.resample`), the operator
+  band-limited to f_c in k-space (`fpscan.service.recon.operator.PlanarOperator` ``band``).
 
 Pure numpy (no numba), so that a server can size a tv job from it: `tv_grid` without data
 gives the grid of the whole record; given the `RecordFacts` a server stores with a dataset when
@@ -55,8 +55,8 @@ from typing import NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from driver.constants import C_DEFAULT
-from driver.physics.resample import resampled_length
+from fpscan.constants import C_DEFAULT
+from fpscan.physics.resample import resampled_length
 
 __all__ = ["TvGrid", "RecordFacts", "noise_sigma", "data_extent", "record_facts", "tv_grid"]
 
@@ -91,7 +91,7 @@ def noise_sigma(data: npt.ArrayLike, time_axis: int) -> float:
     Seeded white noise of σ = 0.01 Pa on 8 A-lines of 512 samples, with and without a step:
 
     >>> import numpy as np
-    >>> from service.recon.tv_grid import noise_sigma
+    >>> from fpscan.service.recon.tv_grid import noise_sigma
     >>> noise = np.random.default_rng(0).normal(0.0, 0.01, (8, 512))  # (n, n_t)
     >>> round(noise_sigma(noise, time_axis=1), 4), round(noise_sigma(noise.T, time_axis=0), 4)
     (0.0101, 0.0101)
@@ -144,7 +144,7 @@ class TvGrid(NamedTuple):
 
     Examples
     --------
-    >>> from service.recon.tv_grid import tv_grid
+    >>> from fpscan.service.recon.tv_grid import tv_grid
     >>> grid = tv_grid(1024, 8e-9, 1500.0, bandwidth=20e6)  # (n_t, dt, c): a 20 MHz sensor
     >>> grid.n_t, grid.resampled, grid.reason, grid.record_n_t, grid.extent_reason
     (330, True, 'declared', 1024, 'record')
@@ -173,8 +173,8 @@ class TvGrid(NamedTuple):
 class RecordFacts(NamedTuple):
     """What a record holds above its noise (`record_facts`): the facts `tv_grid` reads off the
     data, kept where the data are not at hand — a server stores them with a dataset when it
-    imports it (``service.storage.loader.import_dataset``), so that its admission sizes a tv
-    job on the grid tv will choose (``service.recon.methods.tv``).
+    imports it (``fpscan.service.storage.loader.import_dataset``), so that its admission sizes a tv
+    job on the grid tv will choose (``fpscan.service.recon.methods.tv``).
 
     Attributes
     ----------
@@ -189,7 +189,7 @@ class RecordFacts(NamedTuple):
 
     Examples
     --------
-    >>> from service.recon.tv_grid import RecordFacts
+    >>> from fpscan.service.recon.tv_grid import RecordFacts
     >>> RecordFacts.from_dict(RecordFacts(1024, 776, 0.01).as_dict())
     RecordFacts(n_t=1024, signal_n_t=776, sigma=0.01)
     """
@@ -253,7 +253,7 @@ def record_facts(data: npt.ArrayLike, dt: float, time_axis: int) -> RecordFacts:
     Pulses that end by sample 300 of 1000 on 64 A-lines of white noise:
 
     >>> import numpy as np
-    >>> from service.recon.tv_grid import record_facts, tv_grid
+    >>> from fpscan.service.recon.tv_grid import record_facts, tv_grid
     >>> t = np.arange(1000)
     >>> data = np.where((t > 200) & (t < 300), 1.0, 0.0) + 0.01 * np.random.default_rng(0).standard_normal((64, 1000))
     >>> facts = record_facts(data, 1e-8, time_axis=1)
@@ -328,7 +328,7 @@ def data_extent(data: npt.ArrayLike, time_axis: int, sigma: float) -> int | None
     samples):
 
     >>> import numpy as np
-    >>> from service.recon.tv_grid import data_extent
+    >>> from fpscan.service.recon.tv_grid import data_extent
     >>> rng = np.random.default_rng(0)
     >>> t = np.arange(1000)
     >>> g = np.where((t > 200) & (t < 300), 1.0, 0.0) + 0.01 * rng.standard_normal((64, 1000))
@@ -425,7 +425,7 @@ def tv_grid(n_t: int, dt: float, c: float = C_DEFAULT, *, data: npt.ArrayLike | 
 
     Examples
     --------
-    >>> from service.recon.tv_grid import tv_grid
+    >>> from fpscan.service.recon.tv_grid import tv_grid
     >>> g = tv_grid(1024, 8e-9, 1500.0)  # nothing known of the sensors: the full band
     >>> g.n_t, g.band, round(g.dz * 1e6, 3), g.n_z, g.reason
     (1024, None, 12.0, 1024, 'nyquist')

@@ -1,7 +1,7 @@
 """Linear spectral unmixing of per-wavelength p0 volumes into HbO2 and Hb (sO2, THb).
 
 Model (one voxel, wavelengths λ_1..λ_n; Beer-Lambert absorption, Prahl's spectra from
-:mod:`driver.physics.spectra`):
+:mod:`fpscan.physics.spectra`):
 
     p0(λ) = Γ · Φ(λ) · μa(λ),    μa(λ) = ln(10) · (ε_HbO2(λ) · C_HbO2 + ε_Hb(λ) · C_Hb)
 
@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from driver.physics import spectra
+from fpscan.physics import spectra
 
 __all__ = ["CHUNK", "Unmixed", "too_few_wavelengths", "endmember_matrix", "nnls2", "unmix"]
 
@@ -73,7 +73,7 @@ class Unmixed:
     Examples
     --------
     >>> import numpy as np
-    >>> from service.recon.unmix import endmember_matrix, unmix
+    >>> from fpscan.service.recon.unmix import endmember_matrix, unmix
     >>> w = np.array([7.5e-7, 8.0e-7, 8.5e-7])  # m
     >>> vol = np.einsum("w,zx->wzx", np.log(10) * endmember_matrix(w) @ [0.7, 0.3], np.ones((2, 4)))
     >>> u = unmix(vol, w)  # p0 of blood at sO2 = 0.7, (n_wavelengths, n_z, n_x)
@@ -105,7 +105,7 @@ def too_few_wavelengths(wavelengths: npt.ArrayLike | None) -> ValueError:
 
     Examples
     --------
-    >>> from service.recon.unmix import too_few_wavelengths
+    >>> from fpscan.service.recon.unmix import too_few_wavelengths
     >>> print(too_few_wavelengths([7.5e-7]))
     unmixing into HbO2 and Hb needs at least two wavelengths; this dataset has 1 (750 nm)
     >>> print(too_few_wavelengths(None))
@@ -134,18 +134,18 @@ def endmember_matrix(wavelengths: npt.ArrayLike) -> np.ndarray:
     ------
     ValueError
         Fewer than two wavelengths (an empty list included), repeats, a wavelength that is
-        no excitation wavelength (``driver.plan.check_wavelengths``: 400-2000 nm), one outside
+        no excitation wavelength (``fpscan.driver.plan.check_wavelengths``: 400-2000 nm), one outside
         Prahl's table (250-1000 nm) or spectra that cannot be told apart at these wavelengths
         (condition number > 1e6).
 
     References
     ----------
     .. [1] S. Prahl, "Optical absorption of hemoglobin", Oregon Medical Laser Center (1999),
-       omlc.org/spectra/hemoglobin (``driver.physics.spectra``).
+       omlc.org/spectra/hemoglobin (``fpscan.physics.spectra``).
 
     Examples
     --------
-    >>> from service.recon.unmix import endmember_matrix
+    >>> from fpscan.service.recon.unmix import endmember_matrix
     >>> endmember_matrix([7.5e-7, 8.5e-7]).round(1)  # HbO2 below Hb at 750 nm, above at 850 nm
     array([[ 51.8, 140.5],
            [105.8,  69.1]])
@@ -154,7 +154,7 @@ def endmember_matrix(wavelengths: npt.ArrayLike) -> np.ndarray:
     ...
     ValueError: unmixing needs distinct wavelengths, got [7.5e-07, 7.5e-07] m
     """
-    from driver.plan import check_wavelengths
+    from fpscan.driver.plan import check_wavelengths
 
     try:
         w = np.asarray(wavelengths, dtype=np.float64).reshape(-1)
@@ -207,7 +207,7 @@ def nnls2(A: np.ndarray, Y: np.ndarray, *, chunk: int = CHUNK) -> np.ndarray:
     --------
     >>> import numpy as np
     >>> from scipy.optimize import nnls
-    >>> from service.recon.unmix import nnls2
+    >>> from fpscan.service.recon.unmix import nnls2
     >>> A = np.array([[1.0, 0.0], [0.0, 1.0], [1.0, 1.0]])
     >>> Y = np.array([[1.0, -1.0], [2.0, 1.0], [3.0, 0.0]])
     >>> nnls2(A, Y)  # the second column's x0 is clamped at 0
@@ -257,7 +257,7 @@ def unmix(volumes: np.ndarray, wavelengths: npt.ArrayLike, *, fluence: np.ndarra
         ``(n_z, n_x)``).
     wavelengths : array_like, shape ``(n_wavelengths,)``
         Excitation wavelengths in m (≥ 2, distinct, in 400-1000 nm: an excitation
-        wavelength, ``driver.plan.check_wavelengths``, within Prahl's table).
+        wavelength, ``fpscan.driver.plan.check_wavelengths``, within Prahl's table).
     fluence : ndarray or float, optional
         Fluence Φ in J/m², ``(n_wavelengths,)`` or broadcastable to ``volumes``; None = the
         same unknown fluence everywhere (module docstring).
@@ -286,7 +286,7 @@ def unmix(volumes: np.ndarray, wavelengths: npt.ArrayLike, *, fluence: np.ndarra
     Examples
     --------
     >>> import numpy as np
-    >>> from service.recon.unmix import endmember_matrix, unmix
+    >>> from fpscan.service.recon.unmix import endmember_matrix, unmix
     >>> w = np.array([7.5e-7, 8.5e-7])  # m
     >>> mu_a = np.log(10) * endmember_matrix(w) @ [0.9, 0.1]  # C_HbO2, C_Hb in mol/m³
     >>> vol = mu_a[:, None] * np.ones((2, 5))  # (n_wavelengths, n_x): Γ Φ = 1

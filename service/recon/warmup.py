@@ -1,6 +1,6 @@
 """Fill numba's cache of the reconstruction's compiled kernels (``fpscan warmup``).
 
-Every numba kernel of the reconstruction (``driver.physics.nufft_kernels``, ``service.recon.kwave``)
+Every numba kernel of the reconstruction (``fpscan.physics.nufft_kernels``, ``fpscan.service.recon.kwave``)
 is ``@numba.njit(cache=True)``: the first call in any interpreter compiles it for the
 argument types it gets and writes the machine code to numba's cache; later interpreters
 load it instead of compiling (seconds saved on the first reconstruction). Where the cache
@@ -11,7 +11,7 @@ run ``fpscan warmup`` as the user who reconstructs, or set ``NUMBA_CACHE_DIR`` t
 directory for both the warm-up and the reconstructions. The cache of a kernel is kept until
 its source file changes (numba checks the file's time stamp and size).
 
-:func:`warm_up` runs each method's own warm-up (``service.recon.methods``: ``Method.warm_up``)
+:func:`warm_up` runs each method's own warm-up (``fpscan.service.recon.methods``: ``Method.warm_up``)
 once on tiny data in each precision, so that every kernel is compiled for every argument type a
 reconstruction passes it.
 """
@@ -29,7 +29,7 @@ DTYPES = ("float32", "float64")
 def _methods(names: Iterable[str] | None, background: bool | None) -> list[Any]:
     """The registered methods called ``names`` (None: all) that have a warm-up, those whose
     ``warm_in_background`` is ``background`` (None: either), in list order."""
-    from service.recon.methods import METHODS, get
+    from fpscan.service.recon.methods import METHODS, get
 
     chosen = list(METHODS.values()) if names is None else [get(str(n)) for n in names]
     return [m for m in chosen if m.warm_up is not None
@@ -48,10 +48,10 @@ def warm_up(dtypes: Iterable[str] = DTYPES, methods: Iterable[str] | None = None
     dtypes : iterable of str, optional
         ``"float32"`` and/or ``"float64"``; default both.
     methods : iterable of str, optional
-        Method names (``service.recon.methods.METHODS``); default every registered one.
+        Method names (``fpscan.service.recon.methods.METHODS``); default every registered one.
     background : bool or None, optional
         Only the methods whose ``warm_in_background`` is this (a job worker warms the quick
-        ones before its first job and the slow ones beside it: ``service.jobs.work.warm_up``);
+        ones before its first job and the slow ones beside it: ``fpscan.service.jobs.work.warm_up``);
         None: both.
 
     Returns
@@ -64,11 +64,11 @@ def warm_up(dtypes: Iterable[str] = DTYPES, methods: Iterable[str] | None = None
     Raises
     ------
     ValueError
-        An unknown dtype or method (``service.recon.checks.OptionError``).
+        An unknown dtype or method (``fpscan.service.recon.checks.OptionError``).
 
     Examples
     --------
-    >>> from service.recon.warmup import warm_up
+    >>> from fpscan.service.recon.warmup import warm_up
     >>> sorted(warm_up(["float32"]))  # doctest: +SKIP
     ['cache_dirs', 'methods', 'seconds']
     >>> warm_up(["float16"])  # refused before anything runs
@@ -109,11 +109,11 @@ def cache_dirs(methods: Iterable[str] | None = None) -> list[str]:
     Raises
     ------
     ValueError
-        An unknown method (``service.recon.checks.OptionError``).
+        An unknown method (``fpscan.service.recon.checks.OptionError``).
 
     Examples
     --------
-    >>> from service.recon.warmup import cache_dirs
+    >>> from fpscan.service.recon.warmup import cache_dirs
     >>> dirs = cache_dirs()
     >>> dirs == sorted(dirs) and all(isinstance(d, str) for d in dirs)
     True
@@ -122,7 +122,7 @@ def cache_dirs(methods: Iterable[str] | None = None) -> list[str]:
 
     import numba
 
-    from service.recon.methods import METHODS, get
+    from fpscan.service.recon.methods import METHODS, get
 
     chosen = list(METHODS.values()) if methods is None else [get(str(n)) for n in methods]
     names: list[str] = []

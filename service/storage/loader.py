@@ -1,11 +1,11 @@
 """Dataset import for reconstruction: one uniform object from any supported input.
 
 The input model (:class:`GridDataset`, :class:`PointDataset`, their validation) lives in
-:mod:`service.recon.dataset`; the formats (one module each: ``npy``, ``kwave-hdf5``,
-``fpscan``, ``ipasc``, ``dataset``, ...) and their detection in :mod:`service.formats`.
+:mod:`fpscan.service.recon.dataset`; the formats (one module each: ``npy``, ``kwave-hdf5``,
+``fpscan``, ``ipasc``, ``dataset``, ...) and their detection in :mod:`fpscan.service.formats`.
 This module is the one loader of a file for reconstruction on top of them.
 
-Inputs (``format``; ``None`` = detect from the content; ``service.formats.names(input=True)``):
+Inputs (``format``; ``None`` = detect from the content; ``fpscan.service.formats.names(input=True)``):
 the fpscan scan file (its completed points → :class:`PointDataset`), an IPASC file
 (→ :class:`PointDataset`), an HDF5 array in k-Wave layout (→ :class:`GridDataset`;
 spacings from the arguments, then the file), a NumPy ``.npy`` array (``dt`` and ``dx``
@@ -15,7 +15,7 @@ layout.
 
 Every reader of a file for reconstruction calls :func:`load_dataset` (the job worker, the
 local ``fpscan recon``, the live preview, the experiments) and hands the result to
-:func:`service.pipeline.reconstruct`.
+:func:`fpscan.service.pipeline.reconstruct`.
 
 Multi-wavelength files (an fpscan scan or an IPASC file with several excitation
 wavelengths) hold one data set per wavelength; a dataset is one of them, chosen with
@@ -33,10 +33,10 @@ import os
 from pathlib import Path
 from typing import Any
 
-from service import formats
-from service.formats.dataset import DATASET_FORMAT
-from service.formats.dataset import write as write_dataset
-from service.recon.dataset import (
+from fpscan.service import formats
+from fpscan.service.formats.dataset import DATASET_FORMAT
+from fpscan.service.formats.dataset import write as write_dataset
+from fpscan.service.recon.dataset import (
     ALL_WAVELENGTHS,
     MAX_ELEMENTS,
     Dataset,
@@ -63,7 +63,7 @@ def input_formats() -> tuple[str, ...]:
     Returns
     -------
     tuple of str
-        The input formats of ``service.formats``, in registration order: the choices of
+        The input formats of ``fpscan.service.formats``, in registration order: the choices of
         :func:`load_dataset`'s ``format`` and ``fpscan recon --format``.
     """
     return formats.names(input=True)
@@ -72,7 +72,7 @@ def input_formats() -> tuple[str, ...]:
 def detect_format(path: str | os.PathLike) -> str:
     """The input format of a file, from its content.
 
-    Detection is ``service.formats.detect``'s: the file is opened once, HDF5 checked, a
+    Detection is ``fpscan.service.formats.detect``'s: the file is opened once, HDF5 checked, a
     file a writer has open read in a bounded child.
 
     Parameters
@@ -104,11 +104,11 @@ def load_dataset(path: str | os.PathLike, format: str | None = None, *, dt: floa
     """Import a file for reconstruction (module docstring).
 
     An HDF5 file is checked first, by the registry for every format
-    (``service.formats.open_source`` with ``service.formats.untrusted.check_hdf5_file``: no
+    (``fpscan.service.formats.open_source`` with ``fpscan.service.formats.untrusted.check_hdf5_file``: no
     external storage, external links or virtual datasets, no dataset declaring more than
     ``max_bytes`` or more than it stores). A file HDF5 would open as an SWMR reader (a
     writer has it open) is read in a child process with a time limit (the registry's
-    ``service.formats.untrusted.read_bounded``: HDF5 can block on its damaged metadata for
+    ``fpscan.service.formats.untrusted.read_bounded``: HDF5 can block on its damaged metadata for
     ever).
 
     Parameters
@@ -146,7 +146,7 @@ def load_dataset(path: str | os.PathLike, format: str | None = None, *, dt: floa
     ValueError
         Naming the fault: an unknown ``format``, ``"all"`` as ``wavelength``, an index out of
         range (naming the file's wavelengths), an implausible explicit ``dt``, ``dx``, ``dy``
-        or ``c`` (``driver.units.check_plausible``: a unit mistake such as ``dt=20`` for 20 ns
+        or ``c`` (``fpscan.driver.units.check_plausible``: a unit mistake such as ``dt=20`` for 20 ns
         is named), an unsafe or unreadable file.
     FileNotFoundError
         If ``path`` does not exist.
@@ -161,14 +161,14 @@ def _load(path: str | os.PathLike, format: str | None, *, dt: float | None, dx: 
     """:func:`load_dataset`'s checks and the registry's load; ``which``:
     ``wavelength_index`` (one dataset) or ``all_wavelengths=True`` (a list). The load options
     given (``dt``, ``dx``, ``dy``, ``key``) must be the format's own
-    (``service.formats.load_options.check_load_options``: a ValueError naming the ones it takes)."""
-    from driver.units import check_plausible
+    (``fpscan.service.formats.load_options.check_load_options``: a ValueError naming the ones it takes)."""
+    from fpscan.driver.units import check_plausible
 
     num = (int, float)
     check_plausible(dt=dt if isinstance(dt, num) else None, dx=dx if isinstance(dx, num) else None,
                     dy=dy if isinstance(dy, num) else None,
                     sound_speed=c if isinstance(c, num) else None, force=force)
-    from service.formats.load_options import check_load_options
+    from fpscan.service.formats.load_options import check_load_options
 
     choices = input_formats()
     if format is not None and format not in choices:
@@ -192,7 +192,7 @@ def load_scan(path: str | os.PathLike, *, allow_empty: bool = False, wavelength_
     """The completed points of the service's own scan file, as point data.
 
     The file may still be being written; it is read in this process
-    (``service.formats.scan.load``: the live preview).
+    (``fpscan.service.formats.scan.load``: the live preview).
 
     Parameters
     ----------
@@ -221,7 +221,7 @@ def load_scan(path: str | os.PathLike, *, allow_empty: bool = False, wavelength_
 
 
 def read_dataset(path: str | os.PathLike) -> GridDataset | PointDataset:
-    """Read a canonical dataset file (``service.formats.dataset``).
+    """Read a canonical dataset file (``fpscan.service.formats.dataset``).
 
     Parameters
     ----------
@@ -292,9 +292,9 @@ def import_dataset(src: str | os.PathLike, dest_dir: str | os.PathLike, fmt: str
 
     The file is read with :func:`load_dataset` (every input format) and written with
     :func:`write_dataset`. Run by ``POST /api/datasets`` in a bounded child process
-    (``service.formats.untrusted.run_bounded``). Before the dataset file is written its
+    (``fpscan.service.formats.untrusted.run_bounded``). Before the dataset file is written its
     bytes (:func:`dataset_nbytes`) are admitted
-    (``service.formats.untrusted.request_admission``: the service's free-disk admission).
+    (``fpscan.service.formats.untrusted.request_admission``: the service's free-disk admission).
 
     Parameters
     ----------
@@ -313,10 +313,10 @@ def import_dataset(src: str | os.PathLike, dest_dir: str | os.PathLike, fmt: str
     key : str or None
         The HDF5 dataset path of the data (at most 200 characters of ``[A-Za-z0-9_-/.]``).
     max_bytes : int or None, optional
-        Largest declared dataset of an HDF5 file in bytes (``driver.hdf5_checks.check_hdf5_file``,
+        Largest declared dataset of an HDF5 file in bytes (``fpscan.driver.hdf5_checks.check_hdf5_file``,
         run before anything is read); default None: ``MAX_ELEMENTS * 8``.
     force : bool, optional
-        Accept a ``c`` outside ``driver.constants.C_PLAUSIBLE`` (m/s; as :func:`load_dataset`);
+        Accept a ``c`` outside ``fpscan.constants.C_PLAUSIBLE`` (m/s; as :func:`load_dataset`);
         default False.
     wavelength : int or None, optional
         Which excitation wavelength of a multi-wavelength file to store (an index; None: the
@@ -328,7 +328,7 @@ def import_dataset(src: str | os.PathLike, dest_dir: str | os.PathLike, fmt: str
         The dataset's metadata, which the API stores in the job store: ``layout``
         (``"grid"`` or ``"points"``), ``shape``, ``dx``, ``dt``, ``c``, ``t0``, ``path``
         (``"dataset.h5"``), the wavelength's params and ``record_facts`` (what the record holds
-        above its noise, ``service.recon.tv_grid.record_facts``: the memory admission sizes a tv
+        above its noise, ``fpscan.service.recon.tv_grid.record_facts``: the memory admission sizes a tv
         job on the grid tv will choose from them), with ``sensor_bandwidth_hz`` where the file
         declares one; for points also ``n_x``, ``n_y`` and ``full_lattice``.
 
@@ -338,7 +338,7 @@ def import_dataset(src: str | os.PathLike, dest_dir: str | os.PathLike, fmt: str
         With the reason: a bad ``key``, a ``dt``, ``dx``, ``dy`` or ``c`` that is not a
         positive finite number, a file that is not a readable dataset of ``fmt``, a point
         dataset with no A-lines, or what :func:`load_dataset` raises.
-    service.formats.untrusted.NotAdmitted
+    fpscan.service.formats.untrusted.NotAdmitted
         When the disk cannot take the dataset.
     """
     if key is not None and (not key or len(key) > 200 or not set(key) <= HDF5_KEY_CHARS):
@@ -354,7 +354,7 @@ def import_dataset(src: str | os.PathLike, dest_dir: str | os.PathLike, fmt: str
     dest_dir = Path(dest_dir)
     if isinstance(ds, PointDataset) and ds.alines.shape[0] == 0:
         raise ValueError("the dataset holds no A-lines")
-    from service.formats.untrusted import request_admission
+    from fpscan.service.formats.untrusted import request_admission
 
     request_admission(dataset_nbytes(ds))  # the service's disk admission, before a byte is written
     write_dataset(dest_dir / "dataset.h5", ds)
@@ -369,11 +369,11 @@ def import_dataset(src: str | os.PathLike, dest_dir: str | os.PathLike, fmt: str
 
 
 def _record_facts(ds: GridDataset | PointDataset) -> dict:
-    """``record_facts`` of a dataset's record (``service.recon.tv_grid.record_facts``: its noise
+    """``record_facts`` of a dataset's record (``fpscan.service.recon.tv_grid.record_facts``: its noise
     σ and the samples up to its last echo; in blocks, without a float64
     copy of the data) and the sensor bandwidth its metadata declares, for the stored record."""
-    from service.recon.methods.tv import BANDWIDTH_KEY, declared_bandwidth
-    from service.recon.tv_grid import record_facts
+    from fpscan.service.recon.methods.tv import BANDWIDTH_KEY, declared_bandwidth
+    from fpscan.service.recon.tv_grid import record_facts
 
     data, time_axis = (ds.data, 0) if isinstance(ds, GridDataset) else (ds.alines, 1)
     out: dict[str, Any] = {}

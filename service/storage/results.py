@@ -20,15 +20,15 @@ for a calibrated scan, else ``"a.u."``; also ``/p0``'s ``units`` attribute) and
 ``orientation`` (:data:`ORIENTATION`: row 0 of ``/p0``'s y axis is the smallest y, shown
 at the top by napari, ImageJ and ``imshow``, as in fpscan's own pictures).
 
-Exports are formats of the registry (``service.formats.export_file``, one module each:
-OME-TIFF ``service.formats.ome_tiff``, OME-Zarr ``service.formats.ngff``, ...); a folder export is
+Exports are formats of the registry (``fpscan.service.formats.export_file``, one module each:
+OME-TIFF ``fpscan.service.formats.ome_tiff``, OME-Zarr ``fpscan.service.formats.ngff``, ...); a folder export is
 served zipped (:func:`zip_folder`).
 
 The file is written to a temporary sibling, fsynced, then renamed over ``path``
 (``os.replace``), so a reader sees either the old file or the complete new one. The
 format -- its reader and detection (``ResultVolume``, :func:`read_result`), its writers
 (:func:`write_volume`, :func:`write_reconstruction`, the folder's ``write_folder``) and
-its file names -- lives in :mod:`service.formats.result`; storage keeps what is not the
+its file names -- lives in :mod:`fpscan.service.formats.result`; storage keeps what is not the
 format: drawing the MIPs (:func:`write_result`) and zipping.
 """
 from __future__ import annotations
@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from service.formats.result import (
+from fpscan.service.formats.result import (
     COMPRESS_BELOW,
     ORIENTATION,
     P0_UNITS,
@@ -52,7 +52,7 @@ from service.formats.result import (
     write_reconstruction,
     write_volume,
 )
-from service.formats.result import RESULT_FORMAT as FORMAT
+from fpscan.service.formats.result import RESULT_FORMAT as FORMAT
 
 __all__ = ["FORMAT", "ORIENTATION", "P0_UNITS", "ResultVolume", "read_result", "params_json", "storage_layout",
            "write_volume", "write_reconstruction", "write_result", "zip_folder", "COMPRESS_BELOW"]
@@ -61,9 +61,9 @@ def write_result(out_dir: str | os.PathLike, rec: Any, *, input_id: str) -> dict
     """Write the result folder of a reconstruction, as every caller writes it.
 
     The job worker and ``fpscan recon`` both call this: its MIP pictures ``mip_{xy,xz,yz}``
-    (``mip_xz`` only in 2-D; :func:`service.pictures.render.render_mips`) are drawn here, the
+    (``mip_xz`` only in 2-D; :func:`fpscan.service.pictures.render.render_mips`) are drawn here, the
     folder (``volume.h5`` and the PNGs, renamed into place, an existing ``out_dir`` replaced)
-    is written by its format, :func:`service.formats.result.write_folder`.
+    is written by its format, :func:`fpscan.service.formats.result.write_folder`.
 
     The pictures are drawn in a thread while the volume is written and flushed to disk
     (``os.fsync``, which releases the GIL: most of a large result's write time).
@@ -91,7 +91,7 @@ def write_result(out_dir: str | os.PathLike, rec: Any, *, input_id: str) -> dict
     """
     from concurrent.futures import ThreadPoolExecutor
 
-    from service.pictures.render import render_mips
+    from fpscan.service.pictures.render import render_mips
 
     with ThreadPoolExecutor(1, thread_name_prefix="mip-pictures") as pool:
         pngs = pool.submit(render_mips, np.asarray(rec.p0), rec.z, rec.x, getattr(rec, "y", None),

@@ -7,9 +7,9 @@ time linear in the files: health's p99 was 42 ms at 1860 files, 0.9-3.3 s at 9-1
 :class:`DiskUsage` answers from counters instead, in time independent of the folder:
 
 - **Counters**, kept by whoever writes or removes a part's files, in the server process:
-  a finished reconstruction adds its result folder (``service.jobs.queue``), an upload its
+  a finished reconstruction adds its result folder (``fpscan.service.jobs.queue``), an upload its
   dataset folder, an export its file (the routes), a deletion or retention takes off what it
-  freed (``service.jobs.lifecycle``). :meth:`DiskUsage.add_path` measures a file or folder
+  freed (``fpscan.service.jobs.lifecycle``). :meth:`DiskUsage.add_path` measures a file or folder
   where it was written (a few ``lstat`` calls, in the writer's thread).
 - **Growing files** (a scan file while its scan runs): :meth:`DiskUsage.growing` registers
   the file, whose size is read when an answer is made (one ``stat``); :meth:`DiskUsage.grown`
@@ -17,7 +17,7 @@ time linear in the files: health's p99 was 42 ms at 1860 files, 0.9-3.3 s at 9-1
 - **The job database** (``jobs.sqlite`` and its WAL files) is ``stat``-ed when an answer is
   made; the free bytes come from ``statvfs``.
 - **A walk checks the counters** (:meth:`DiskUsage.reconcile`, from
-  :func:`service.jobs.lifecycle.disk_usage`): at start-up before the server answers, then
+  :func:`fpscan.service.jobs.lifecycle.disk_usage`): at start-up before the server answers, then
   every ``period_s`` in a thread of its own (:meth:`DiskUsage.start_walks`), never per
   request. A counter that disagrees with the walk by more than :data:`DRIFT_BYTES` is logged
   and set to the walk's figure (changes made while the walk ran are kept on top of it).
@@ -297,7 +297,7 @@ class DiskUsage:
         ----------
         walk : callable
             ``walk(data_dir) -> dict``, the bytes by part as
-            :func:`service.jobs.lifecycle.disk_usage` returns them (``"scans_bytes"``, ...).
+            :func:`fpscan.service.jobs.lifecycle.disk_usage` returns them (``"scans_bytes"``, ...).
 
         Returns
         -------

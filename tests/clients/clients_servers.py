@@ -1,12 +1,12 @@
 """Real fpscan processes for the client/CLI tests, through the product's own starter
-(``clients.processes``): the service (``fpscan serve`` on 127.0.0.1, its own SQLite file)
+(``fpscan.clients.processes``): the service (``fpscan serve`` on 127.0.0.1, its own SQLite file)
 and the simulated scanner (``fpscan sim`` on a pty)."""
 from __future__ import annotations
 
 import contextlib
 from pathlib import Path
 
-from clients.processes import clean_env, free_port, service, simulator
+from fpscan.clients.processes import clean_env, free_port, service, simulator
 from tests.waits import HANG_S
 
 __all__ = ["QUIET", "clean_env", "fpscan_server", "fpscan_sim", "free_port", "has_command"]
@@ -19,7 +19,7 @@ QUIET = {"FPSCAN_WARM_UP": "false"}
 
 
 def has_command(name: str) -> bool:
-    from clients.cli import _subcommand_modules
+    from fpscan.clients.cli import _subcommand_modules
 
     return any(m.COMMAND == name for m in _subcommand_modules())
 

@@ -13,7 +13,7 @@ from tests.clients.clients_servers import clean_env
 
 
 def fpscan(*args):
-    return subprocess.run([sys.executable, "-m", "clients", *map(str, args)], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "fpscan", *map(str, args)], capture_output=True, text=True,
                           timeout=120, env=clean_env())
 
 
@@ -48,7 +48,7 @@ def test_help_lists_every_input_format_and_action_as_spelled():
     # every format the registry reads, by its name, in --format's choices and in the HTTP docs
     from pathlib import Path
 
-    from service.formats import upload_formats
+    from fpscan.service.formats import upload_formats
 
     choices = recon.split("--format {", 1)[1].split("}", 1)[0].split(",")
     api_doc = (Path(__file__).parents[2] / "docs" / "api.md").read_text()

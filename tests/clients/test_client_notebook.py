@@ -59,7 +59,7 @@ def test_client_waits_draw_one_bar_in_a_notebook_and_none_when_quiet(server, tmp
     upload = _dataset(tmp_path / "small.h5")
     code = [
         # 0: a dataset on the server
-        f"from clients.http import AsyncClient, Client\n"
+        f"from fpscan.clients.http import AsyncClient, Client\n"
         f"api = Client({server!r}, token={TOKEN!r})\n"
         f"ds = api.upload_dataset({str(upload)!r}, 'kwave-hdf5')",
         # 1: a wait without a callback: one bar, ending on the job's final state
@@ -76,7 +76,7 @@ def test_client_waits_draw_one_bar_in_a_notebook_and_none_when_quiet(server, tmp
         "    job4 = await aapi.start_reconstruction(dataset_id=ds, method='ner')\n"
         "    final4 = await aapi.wait(job4, timeout=240)",
         # 5: a failed job's end
-        "from clients.http.notebook import JobBar\n"
+        "from fpscan.clients.http.notebook import JobBar\n"
         "bar = JobBar({'id': 'abcdef1234', 'kind': 'scan', 'state': 'running',\n"
         "              'progress': {'fraction': 0.4, 'stage': 'acquiring'}})\n"
         "bar({'fraction': 0.5, 'stage': 'acquiring', 'eta_s': 3.0})\n"
@@ -108,8 +108,8 @@ def test_client_waits_draw_one_bar_in_a_notebook_and_none_when_quiet(server, tmp
 
 def test_no_bar_outside_a_notebook(server, tmp_path, capsys):
     """In a script (no Jupyter kernel) a wait without a callback prints nothing."""
-    from clients.http import Client
-    from clients.http.notebook import in_notebook
+    from fpscan.clients.http import Client
+    from fpscan.clients.http.notebook import in_notebook
 
     assert not in_notebook()
     with Client(server, token=TOKEN) as api:

@@ -20,7 +20,7 @@ TOKEN = "cli-test-token"
 
 
 def fpscan(*args, env=None, timeout=HANG_S, cwd=None):
-    return subprocess.run([sys.executable, "-m", "clients", *map(str, args)], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "fpscan", *map(str, args)], capture_output=True, text=True,
                           timeout=timeout, env=env or clean_env(), cwd=cwd)
 
 
@@ -37,11 +37,11 @@ def test_help_everywhere(command):
 
 def test_every_reconstructing_command_states_its_precision():
     """``--help`` of each command that reconstructs says in which precision: the one default
-    (``service.pipeline.DEFAULT_DTYPE``) for recon, unmix, demo and serve; float64 for evaluate."""
+    (``fpscan.service.pipeline.DEFAULT_DTYPE``) for recon, unmix, demo and serve; float64 for evaluate."""
     import argparse
 
-    from clients.cli import build_parser
-    from service.pipeline import DEFAULT_DTYPE
+    from fpscan.clients.cli import build_parser
+    from fpscan.service.pipeline import DEFAULT_DTYPE
 
     sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction)).choices
     text = {name: " ".join(sub[name].format_help().split())
@@ -90,7 +90,7 @@ def test_bad_local_inputs_are_one_line_errors(tmp_path):
 @pytest.mark.parametrize("command", ["recon", "unmix"])
 def test_input_or_scan_job_refusals_agree(command, tmp_path):
     """recon and unmix refuse the same impossible input choices with the same one-line
-    reason (clients.cli._common.check_input_files), exit 2, before touching any server."""
+    reason (fpscan.clients.cli._common.check_input_files), exit 2, before touching any server."""
     url = f"http://127.0.0.1:{free_port()}"  # nobody listens: a refusal must come first
     (tmp_path / "a.h5").write_bytes(b"x")
     _one_line_error(fpscan(command, "--scan-job", "abc"), "--scan-job needs --server", code=2)
@@ -197,7 +197,7 @@ def test_cli_messages_and_ids_a_lab_meets(server, tmp_path):
     implausible sound speed names the flag that accepts it (--force); a reader that closes
     the pipe (`fpscan jobs list | head`) gets no error line (exit 141, as `ls | head`); a
     dataset id prefix works as a job id prefix does, and `--ids` lists full ids for scripts."""
-    from clients.http import Client
+    from fpscan.clients.http import Client
 
     env = clean_env(FPSCAN_TOKEN=TOKEN)
     data = tmp_path / "d.npy"
@@ -216,7 +216,7 @@ def test_cli_messages_and_ids_a_lab_meets(server, tmp_path):
     assert res.returncode == 0 and res.stdout.startswith(f"{ds}: deleted"), (res.stdout, res.stderr)
     res = fpscan("datasets", "delete", "feedfacefeed", "--server", server, env=env)
     assert res.returncode == 2 and "no dataset id starts with 'feedfacefeed'" in res.stderr, res.stderr
-    closed = subprocess.Popen([sys.executable, "-m", "clients", "jobs", "list", "--server", server], env=env,
+    closed = subprocess.Popen([sys.executable, "-m", "fpscan", "jobs", "list", "--server", server], env=env,
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     closed.stdout.close()  # the reader is gone before the command writes a byte
     _, err = closed.communicate(timeout=HANG_S)

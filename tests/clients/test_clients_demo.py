@@ -1,6 +1,6 @@
 """`fpscan demo` run as a user runs it (a subprocess, small settings to stay quick): every
 promised file exists and opens (h5py, Pillow), and report.json's figures hold up against
-an independent check (the phantom's p0 from driver.physics on the volume's own grid)."""
+an independent check (the phantom's p0 from fpscan.physics on the volume's own grid)."""
 from __future__ import annotations
 
 import json
@@ -18,7 +18,7 @@ def demo(tmp_path_factory):
     if not (has_command("serve") and has_command("sim")):
         pytest.skip("`fpscan serve`/`fpscan sim` not available yet")
     out = tmp_path_factory.mktemp("demo") / "demo-output"
-    res = subprocess.run([sys.executable, "-m", "clients", "demo", "--out", str(out), "--quiet",
+    res = subprocess.run([sys.executable, "-m", "fpscan", "demo", "--out", str(out), "--quiet",
                           "--lattice", "64", "--pitch", "125e-6", "--points", "400", "--n-t", "384",
                           "--dt", "16e-9"],
                          capture_output=True, text=True, timeout=300, env=clean_env())
@@ -59,11 +59,11 @@ def test_demo_files_open(demo):
     import h5py
     from PIL import Image
 
-    from driver.physics import ball_p0
-    from driver.sources import default_phantom
+    from fpscan.driver.sources import default_phantom
+    from fpscan.physics import ball_p0
 
     out, report, _res = demo
-    from driver.scanfile import read_scan
+    from fpscan.driver.scanfile import read_scan
 
     for name in ("equisteradian", "full"):
         scan = read_scan(out / f"scan_{name}.h5")

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from clients.processes import free_port
+from fpscan.clients.processes import free_port
 from tests.clients.dockerfile_reader import Instruction, env_of, parse
 from tests.waits import HANG_S
 
@@ -176,7 +176,7 @@ def test_cuda_variant_by_build_args(tmp_path):
 
 
 def _has_serve() -> bool:
-    res = subprocess.run([sys.executable, "-m", "clients", "serve", "--help"], capture_output=True, timeout=60)
+    res = subprocess.run([sys.executable, "-m", "fpscan", "serve", "--help"], capture_output=True, timeout=60)
     return res.returncode == 0
 
 
@@ -224,12 +224,37 @@ def image_install(tmp_path_factory):
 
 
 def test_installed_wheel_is_used(image_install):
-    res = subprocess.run([sys.executable, "-c", "import service, clients, driver, fpscan; "
-                          "print(service.__file__, clients.__file__, fpscan.__file__, fpscan.reconstruct.__module__)"],
-                         env=image_install["env"], cwd=image_install["cwd"], capture_output=True, text=True, timeout=60)
+    """One import root: the wheel puts ``fpscan`` and its dist-info into site-packages and nothing
+    else (the scanner driver, the server, the clients, the wire models and the numerical core are
+    its subpackages); the repository's folder names are not importable from the install; the
+    library, the CLI and a reconstruction run from it."""
+    site, env, cwd = image_install["site"], image_install["env"], image_install["cwd"]
+    top = sorted(p.name for p in site.iterdir() if p.name != "bin")  # bin: the console script
+    assert len(top) == 2 and top[0] == "fpscan" and top[1].startswith("fpscan-") and top[1].endswith(".dist-info"), top
+    top_level = site / top[1] / "top_level.txt"
+    assert not top_level.exists() or top_level.read_text().split() == ["fpscan"]
+    res = subprocess.run([sys.executable, "-c", "import fpscan.service, fpscan.clients, fpscan.driver, fpscan.physics, "
+                          "fpscan.wire, fpscan; print(fpscan.service.__file__, fpscan.clients.__file__, "
+                          "fpscan.driver.__file__, fpscan.physics.__file__, fpscan.wire.__file__, fpscan.__file__, "
+                          "fpscan.reconstruct.__module__)"],
+                         env=env, cwd=cwd, capture_output=True, text=True, timeout=60)
     assert res.returncode == 0, res.stderr
     *files, dispatch = res.stdout.split()
-    assert all(p.startswith(str(image_install["site"])) for p in files) and dispatch == "service.pipeline"
+    assert all(p.startswith(str(site)) for p in files) and dispatch == "fpscan.service.pipeline"
+    for old_name in ("service", "driver", "clients", "wire"):
+        res = subprocess.run([sys.executable, "-c", f"import {old_name}"], env=env, cwd=cwd,
+                             capture_output=True, text=True, timeout=60)
+        assert res.returncode != 0 and f"No module named '{old_name}'" in res.stderr, (old_name, res.stderr)
+    # a reconstruction (NER of one point source) and the command line, from the install
+    code = ("import numpy as np, fpscan; d = np.zeros((64, 8, 8)); d[20, 4, 4] = 1.0; "
+            "ds = fpscan.GridDataset(data=d, dx=1e-4, dy=1e-4, dt=2e-8, c=1500.0); "
+            "r = fpscan.reconstruct(ds, 'ner'); print(r.p0.shape, np.isfinite(r.p0).all(), r.p0.max() > 0)")
+    res = subprocess.run([sys.executable, "-c", code], env=env, cwd=cwd, capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.split() == ["(64,", "8,", "8)", "True", "True"], res.stdout
+    res = subprocess.run([str(site / "bin" / "fpscan"), "--version"], env=env, cwd=cwd, capture_output=True,
+                         text=True, timeout=60)
+    assert res.returncode == 0 and res.stdout.startswith("fpscan "), res.stderr
 
 
 def _start_command(ins) -> list[str]:

@@ -10,7 +10,7 @@ import httpx
 import numpy as np
 import pytest
 
-from clients.http import (
+from fpscan.clients.http import (
     ApiError,
     AsyncClient,
     AuthError,
@@ -100,7 +100,7 @@ def test_invalid_plan_is_a_422_naming_the_field(api):
 def test_plan_round_trip_and_preview_png(api, tmp_path):
     from PIL import Image
 
-    from clients.http.models import Plan
+    from fpscan.clients.http.models import Plan
 
     body = _points_body()
     plan = api.create_plan(body)
@@ -162,7 +162,7 @@ def test_bad_arguments_are_value_errors(api, tmp_path):
 
 def _grid_data():
     """A small 3-D dataset (n_t, n_y, n_x) from the exact ball model on a 16x16 grid."""
-    phys = pytest.importorskip("driver.physics")
+    phys = pytest.importorskip("fpscan.physics")
     n, dx, dt, n_t = 16, 1e-4, 4e-8, 96
     x = (np.arange(n) - (n - 1) / 2) * dx
     yy, xx = np.meshgrid(x, x, indexing="ij")
@@ -172,9 +172,9 @@ def _grid_data():
 
 
 def test_reconstruction_job_with_progress_and_downloads(api, tmp_path):
-    recon = pytest.importorskip("service.recon")
+    recon = pytest.importorskip("fpscan.service.recon")
     if not hasattr(recon, "reconstruct_grid"):
-        pytest.skip("service.recon.reconstruct_grid not available yet")
+        pytest.skip("fpscan.service.recon.reconstruct_grid not available yet")
     import h5py
     from PIL import Image
 
@@ -207,9 +207,9 @@ def test_reconstruction_job_with_progress_and_downloads(api, tmp_path):
 
 
 def test_async_wait_with_coroutine_callback(api, server, tmp_path):
-    recon = pytest.importorskip("service.recon")
+    recon = pytest.importorskip("fpscan.service.recon")
     if not hasattr(recon, "reconstruct_grid"):
-        pytest.skip("service.recon.reconstruct_grid not available yet")
+        pytest.skip("fpscan.service.recon.reconstruct_grid not available yet")
     import h5py
 
     data, dx, dt = _grid_data()
@@ -239,9 +239,9 @@ def test_async_wait_with_coroutine_callback(api, server, tmp_path):
 def test_interrupted_download_resumes_with_range(api, server, tmp_path):
     """A `.part` left by a cut-off download is completed with a Range request (only the
     rest is fetched), and thrown away when the file changed (If-Range mismatch)."""
-    recon = pytest.importorskip("service.recon")
+    recon = pytest.importorskip("fpscan.service.recon")
     if not hasattr(recon, "reconstruct_grid"):
-        pytest.skip("service.recon.reconstruct_grid not available yet")
+        pytest.skip("fpscan.service.recon.reconstruct_grid not available yet")
     data, dx, dt = _grid_data()
     np.save(tmp_path / "r.npy", data)
     dataset_id = api.upload_dataset(tmp_path / "r.npy", "npy", dt=dt, dx=dx)
@@ -325,9 +325,9 @@ def test_client_covers_every_api_route(server):
 
 
 def test_slice_png(api, tmp_path):
-    recon = pytest.importorskip("service.recon")
+    recon = pytest.importorskip("fpscan.service.recon")
     if not hasattr(recon, "reconstruct_grid"):
-        pytest.skip("service.recon.reconstruct_grid not available yet")
+        pytest.skip("fpscan.service.recon.reconstruct_grid not available yet")
     from PIL import Image
 
     data, dx, dt = _grid_data()
@@ -360,8 +360,8 @@ sys.meta_path.insert(0, Block())
 
 CLIENT_ONLY = BLOCKER + r'''
 import json
-from clients.http import Client
-from clients.http import models
+from fpscan.clients.http import Client
+from fpscan.clients.http import models
 url, token, body = sys.argv[1], sys.argv[2], json.loads(sys.argv[3])
 with Client(url, token=token) as api:
     plan = api.create_plan(body)
@@ -372,7 +372,7 @@ print(json.dumps({"id": plan.id, "n_points": plan.n_points, "jobs": len(jobs)}))
 '''
 
 CLI = BLOCKER + r'''
-from clients.cli import main
+from fpscan.clients.cli import main
 sys.exit(main(sys.argv[1:]))
 '''
 
@@ -387,7 +387,7 @@ def _client_only(*args, script=CLI, env=None):
 
 def test_client_runs_without_the_server_stack(server, tmp_path):
     """On the base install (every package of the extras refuses to import): the HTTP client
-    creates and reads a plan (its own models, ``clients.http.models``); ``fpscan --version``,
+    creates and reads a plan (its own models, ``fpscan.clients.http.models``); ``fpscan --version``,
     ``--help`` (every command's too) and ``fpscan jobs list --server`` work; an unreachable
     server and a command that needs the driver extra are one-line reasons (exit 1, exit 2),
     never an ImportError."""
@@ -429,9 +429,9 @@ def test_client_runs_without_the_server_stack(server, tmp_path):
 
 
 def test_client_models_mirror_the_servers_schema(server):
-    """The client's own response models (``clients.http.models``) have exactly the fields
+    """The client's own response models (``fpscan.clients.http.models``) have exactly the fields
     of the server's response schemas of the same name in the live OpenAPI document."""
-    from clients.http.models import MODELS
+    from fpscan.clients.http.models import MODELS
 
     schemas = httpx.get(server + "/openapi.json").json()["components"]["schemas"]
     for name, model in MODELS.items():

@@ -10,7 +10,7 @@ import sys
 import numpy as np
 import pytest
 
-from clients.http import Client, JobFailed
+from fpscan.clients.http import Client, JobFailed
 from tests.clients.clients_servers import clean_env, fpscan_server, fpscan_sim, has_command
 from tests.waits import HANG_S
 
@@ -23,7 +23,7 @@ pytestmark = [pytest.mark.skipif(not (has_command("serve") and has_command("sim"
 
 
 def fpscan(*args, timeout=HANG_S):
-    return subprocess.run([sys.executable, "-m", "clients", *map(str, args)], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "fpscan", *map(str, args)], capture_output=True, text=True,
                           timeout=timeout, env=clean_env(FPSCAN_TOKEN=TOKEN))
 
 
@@ -56,7 +56,7 @@ def test_jobs_wait_on_finished_scan(scanned):
 
 
 def test_scan_file_holds_every_point(scanned):
-    from driver.scanfile import read_scan
+    from fpscan.driver.scanfile import read_scan
 
     scan = read_scan(scanned["scan"])
     assert scan.completed.all() and len(scan.completed) == N * N
@@ -94,7 +94,7 @@ def test_recon_of_scan_local_equals_server(scanned):
 def test_plan_and_scan_with_server_options(scanned):
     """`fpscan plan --out` then `fpscan scan --server --plan FILE`: the server stores the
     file under its own id and scans it as a job; `fpscan plan --server` creates a plan there."""
-    from driver.scanfile import read_scan
+    from fpscan.driver.scanfile import read_scan
 
     tmp, url = scanned["tmp"], scanned["url"]
     local = fpscan("plan", "equispaced", "--interval", "3", "--n-x", N, "--pitch", PITCH, "--n-t", 128,
@@ -158,7 +158,7 @@ def slow_scanner(tmp_path_factory):
 def test_pause_resume_and_live_preview(slow_scanner):
     from PIL import Image
 
-    from driver.scanfile import read_scan
+    from fpscan.driver.scanfile import read_scan
 
     api, plan, tmp = slow_scanner
     job_id = api.start_scan(plan.id, "slow")
@@ -180,7 +180,7 @@ def test_pause_resume_and_live_preview(slow_scanner):
 
 
 def test_abort_ends_cancelled(slow_scanner):
-    from clients.http import JobCancelled
+    from fpscan.clients.http import JobCancelled
 
     api, plan, _tmp = slow_scanner
     job_id = api.start_scan(plan.id, "slow")
@@ -204,7 +204,7 @@ def test_progress_bar_on_a_terminal(slow_scanner):
     job_id = api.start_scan(plan.id, "slow")
     master, slave = pty.openpty()
     env = clean_env(FPSCAN_TOKEN=TOKEN, COLUMNS="160", TERM="xterm")
-    proc = subprocess.Popen([sys.executable, "-m", "clients", "jobs", "wait", job_id,
+    proc = subprocess.Popen([sys.executable, "-m", "fpscan", "jobs", "wait", job_id,
                              "--server", api.base_url], stdin=slave, stdout=slave, stderr=slave, env=env)
     os.close(slave)
     out = b""
@@ -244,7 +244,7 @@ def test_server_dying_mid_wait_raises_server_unavailable(tmp_path):
     import signal
     import threading
 
-    from clients.http import ServerUnavailable
+    from fpscan.clients.http import ServerUnavailable
 
     data = tmp_path / "data"
     data.mkdir()

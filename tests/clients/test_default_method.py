@@ -1,5 +1,5 @@
 """One default method: a grid dataset reconstructed without ``--method`` / ``method`` gets
-the same method (``service.pipeline.default_method``: ner for grid data) and the same
+the same method (``fpscan.service.pipeline.default_method``: ner for grid data) and the same
 volume locally (``fpscan recon``), with ``fpscan recon --server`` and through a bare API
 request without ``method``.
 
@@ -12,7 +12,7 @@ import h5py
 import numpy as np
 import pytest
 
-from clients.http import Client
+from fpscan.clients.http import Client
 from tests.clients.clients_servers import clean_env, has_command
 from tests.clients.test_clients_cli import fpscan
 from tests.waits import HANG_S
@@ -29,8 +29,8 @@ def _p0(path):
 
 
 def test_grid_without_method_same_method_and_volume_locally_and_over_http(server, tmp_path):
-    from service.pipeline import default_method
-    from service.storage.loader import load_dataset
+    from fpscan.service.pipeline import default_method
+    from fpscan.service.storage.loader import load_dataset
 
     rng = np.random.default_rng(12)
     data = rng.standard_normal((48, 10, 12)).astype(np.float32)  # (n_t, n_y, n_x): grid data

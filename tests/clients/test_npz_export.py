@@ -40,7 +40,7 @@ def _check(npz, want):
 
 def test_npz_export_everywhere_from_one_file(server, tmp_path):
     import fpscan
-    from clients.http import field_of
+    from fpscan.clients.http import field_of
 
     rng = np.random.default_rng(3)
     data = rng.standard_normal((N_T, N, N)).astype(np.float32)
@@ -54,10 +54,10 @@ def test_npz_export_everywhere_from_one_file(server, tmp_path):
     assert "npz" in fpscan.export_formats()
     _check(fpscan.export_file(volume, tmp_path / "lib.npz", "npz"), want)
     # the CLI: its help names the format, a local export writes it
-    helped = subprocess.run([sys.executable, "-m", "clients", "export", "--help"], capture_output=True, text=True,
+    helped = subprocess.run([sys.executable, "-m", "fpscan", "export", "--help"], capture_output=True, text=True,
                             timeout=120)
     assert helped.returncode == 0 and "npz" in helped.stdout, helped.stdout
-    done = subprocess.run([sys.executable, "-m", "clients", "export", str(volume), "--format", "npz",
+    done = subprocess.run([sys.executable, "-m", "fpscan", "export", str(volume), "--format", "npz",
                            "-o", str(tmp_path / "cli.npz")], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     _check(tmp_path / "cli.npz", want)
@@ -76,7 +76,7 @@ def test_npz_export_everywhere_from_one_file(server, tmp_path):
     assert got == tmp_path / "served.npz"
     _check(got, _expect(tmp_path / "served.h5"))
     # fpscan export from the server's job
-    done = subprocess.run([sys.executable, "-m", "clients", "export", "--server", server, "--token", TOKEN,
+    done = subprocess.run([sys.executable, "-m", "fpscan", "export", "--server", server, "--token", TOKEN,
                            "--job", job, "--format", "npz", "-o", str(tmp_path / "remote.npz")],
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr

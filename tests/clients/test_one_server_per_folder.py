@@ -1,4 +1,4 @@
-"""One server per data folder, a taken port refused in one line (``service.data_lock``
+"""One server per data folder, a taken port refused in one line (``fpscan.service.data_lock``
 behind ``fpscan serve``). Real processes: a simulator on a pty, ``fpscan serve`` on
 127.0.0.1, a second ``fpscan serve`` as a user would start it by mistake."""
 from __future__ import annotations
@@ -9,8 +9,8 @@ import sys
 
 import pytest
 
-from clients.http import Client
-from clients.processes import start_service
+from fpscan.clients.http import Client
+from fpscan.clients.processes import start_service
 from tests.clients.clients_servers import QUIET, clean_env, fpscan_sim, free_port, has_command
 from tests.waits import HANG_S
 
@@ -23,7 +23,7 @@ pytestmark = pytest.mark.skipif(not (has_command("serve") and has_command("sim")
 
 def _serve(data_dir, port: int) -> subprocess.CompletedProcess:
     """``fpscan serve`` in the foreground (it must exit by itself)."""
-    return subprocess.run([sys.executable, "-m", "clients", "serve", "--host", "127.0.0.1", "--port", str(port),
+    return subprocess.run([sys.executable, "-m", "fpscan", "serve", "--host", "127.0.0.1", "--port", str(port),
                            "--data-dir", str(data_dir), "--no-web"], capture_output=True, text=True,
                           timeout=HANG_S, env=clean_env(FPSCAN_TOKEN=TOKEN, **QUIET))
 
@@ -60,7 +60,7 @@ def test_a_second_server_on_a_live_folder_is_refused_and_the_lock_dies_with_its_
                 assert done.state == "succeeded"
                 events = list(api.events(job))  # the whole record, until the stream closes
                 assert not any("server restarted" in str(body) for _, body, _ in events), events
-                from driver.scanfile import read_scan
+                from fpscan.driver.scanfile import read_scan
 
                 scan = read_scan(api.download_scan(job, tmp_path / "scan.h5"))
                 assert scan.completed.all() and len(scan.completed) == N * N

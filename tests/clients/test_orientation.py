@@ -46,7 +46,7 @@ def _png_quadrant(png: bytes) -> str:
     """Where the brightest pixels lie inside the plotting area of an annotated PNG."""
     from PIL import Image
 
-    from service.pictures.render import png_axes
+    from fpscan.service.pictures.render import png_axes
 
     g = png_axes(png)
     grey = np.asarray(Image.open(io.BytesIO(png)).convert("L"), dtype=np.float64)
@@ -105,7 +105,7 @@ def test_one_orientation_in_every_path(server, tmp_path):
     import tifffile
 
     import fpscan
-    from clients.http import field_of
+    from fpscan.clients.http import field_of
 
     data = _data(tmp_path)
     seen: dict[str, str] = {}
@@ -118,7 +118,7 @@ def test_one_orientation_in_every_path(server, tmp_path):
     seen["local PNG MIP xy"] = _png_quadrant((tmp_path / "local" / "mip_xy.png").read_bytes())
     seen_xz["local PNG MIP xz"] = _png_quadrant((tmp_path / "local" / "mip_xz.png").read_bytes())
     for fmt, name in (("ome-tiff", "p0.ome.tif"), ("ome-zarr", "p0.ome.zarr")):
-        done = subprocess.run([sys.executable, "-m", "clients", "export", str(tmp_path / "local" / "volume.h5"),
+        done = subprocess.run([sys.executable, "-m", "fpscan", "export", str(tmp_path / "local" / "volume.h5"),
                                "--format", fmt, "-o", str(tmp_path / name)],
                               capture_output=True, text=True, timeout=120)
         assert done.returncode == 0, done.stderr
@@ -187,7 +187,7 @@ def test_p0_unit_is_pa_for_a_calibrated_scan(tmp_path):
     import tifffile
 
     import fpscan
-    from driver.scanfile import ScanFile
+    from fpscan.driver.scanfile import ScanFile
     from tests.storage.storage_helpers import build_plan
 
     plan = build_plan(8, 8, 64)
@@ -249,7 +249,7 @@ def test_ome_zarr_zip_holds_one_folder(server, tmp_path):
     assert again.content == r.content
     # fpscan export from the server's job: the unpacked folder, opened by ome-zarr's Reader
     out = tmp_path / "cli.ome.zarr"
-    done = subprocess.run([sys.executable, "-m", "clients", "export", "--server", server, "--token", TOKEN,
+    done = subprocess.run([sys.executable, "-m", "fpscan", "export", "--server", server, "--token", TOKEN,
                            "--job", job, "--format", "ome-zarr", "-o", str(out)],
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 0 and done.stdout.strip() == str(out), done.stderr

@@ -28,7 +28,7 @@ def test_recon_progress_lines_off_a_terminal(tmp_path):
     rng = np.random.default_rng(0)
     np.save(tmp_path / "in.npy", rng.standard_normal((64, 16)).astype(np.float32))
     res = subprocess.run(
-        [sys.executable, "-m", "clients", "recon", str(tmp_path / "in.npy"), "--dt", "20ns", "--dx", "30um",
+        [sys.executable, "-m", "fpscan", "recon", str(tmp_path / "in.npy"), "--dt", "20ns", "--dx", "30um",
          "--method", "tv", "--iterations", "8", "--n-z", "16", "--out", str(tmp_path / "out")],
         capture_output=True, text=True, timeout=300, env=clean_env(FPSCAN_PROGRESS_PERIOD="0"))
     assert res.returncode == 0, res.stderr
@@ -53,7 +53,7 @@ class _Log(io.StringIO):
 def test_progress_lines_repeat_every_period_between_reports():
     """One report, then silence (a long step): the line comes again every period, so a log
     shows the job is alive; the ETA it had counts down, never up."""
-    from clients.cli._common import ProgressBar
+    from fpscan.clients.cli._common import ProgressBar
 
     log = _Log()
     with ProgressBar("recon tv", stream=log, period=0.05) as bar:
@@ -71,7 +71,7 @@ def test_a_complete_state_is_said_once():
     """Issue 61.2: a scan at every point done (its job still wrapping up: the final live
     preview) is one line, not one every period; a witness bar beside it, same period, shows
     that several periods passed (its unfinished line came again three times)."""
-    from clients.cli._common import ProgressBar
+    from fpscan.clients.cli._common import ProgressBar
 
     done_log, witness_log = _Log(), _Log()
     with ProgressBar("scan", stream=done_log, period=0.05) as done, \
@@ -87,7 +87,7 @@ def test_a_complete_state_is_said_once():
 
 
 def test_progress_period_from_the_environment(monkeypatch):
-    from clients.cli._common import PROGRESS_PERIOD_S, progress_period
+    from fpscan.clients.cli._common import PROGRESS_PERIOD_S, progress_period
 
     monkeypatch.delenv("FPSCAN_PROGRESS_PERIOD", raising=False)
     assert progress_period() == PROGRESS_PERIOD_S
@@ -103,7 +103,7 @@ def test_wait_joining_a_running_job_reports_stages_in_order(server, tmp_path):
     """``Client.wait`` started while a tv job iterates: the first progress it reports is the
     job's first stage, never the current one before the earlier ones (the demo's stale
     ``writing 90%`` before ``starting 0%``); fractions never go back."""
-    from clients.http import Client
+    from fpscan.clients.http import Client
 
     rng = np.random.default_rng(1)
     np.save(tmp_path / "in.npy", rng.standard_normal((128, 24)).astype(np.float32))
@@ -134,13 +134,13 @@ def test_wait_joining_a_running_job_reports_stages_in_order(server, tmp_path):
 
 
 def test_eta_of_iterations_moves_at_most_twofold_and_follows_the_measured_rate():
-    """``service.progress.Eta`` fed as a tv solve reports (a clock of the test's own) whose
+    """``fpscan.service.progress.Eta`` fed as a tv solve reports (a clock of the test's own) whose
     stopping rule does not fall (so the iteration limit is what ends it): no
     estimate in the set-up stages nor before two iterations are measured; then (n - k) times
     the measured time per iteration at a steady rate (the oracle), never more than 2x away
     from the previous estimate counted down by the time since (iterations 2x and 0.25x as
     long as before, a 10x slower stretch), and back on the new rate's figure after it."""
-    from service.progress import Eta, IterationStage
+    from fpscan.service.progress import Eta, IterationStage
 
     now = [0.0]
     eta = Eta(clock=lambda: now[0])
@@ -171,7 +171,7 @@ def test_eta_of_fast_iterations_never_exceeds_the_time_to_the_iteration_limit():
     """Iterations of 10 ms near the limit: the smoothing's floor (half of at least a second)
     never lifts the estimate above :attr:`Eta.bound_s`, the time the iterations left can take
     (a server tv job showed ``eta_s`` 0.5 beside ``eta_max_s`` 0.3)."""
-    from service.progress import Eta, IterationStage
+    from fpscan.service.progress import Eta, IterationStage
 
     now, n = [0.0], 20
     eta = Eta(clock=lambda: now[0])
@@ -192,8 +192,8 @@ def test_eta_of_iterations_is_the_time_to_the_stopping_rule_bounded_by_the_limit
     the iteration limit as its bound; the line shows the tolerance (also while λ falls)."""
     import math
 
-    from clients.cli._common import describe_progress
-    from service.progress import Eta, IterationStage, iteration_fields
+    from fpscan.clients.cli._common import describe_progress
+    from fpscan.service.progress import Eta, IterationStage, iteration_fields
 
     now, n, tol, q = [0.0], 100, 1e-3, 10 ** (-1 / 5)
     eta = Eta(clock=lambda: now[0])
@@ -207,7 +207,7 @@ def test_eta_of_iterations_is_the_time_to_the_stopping_rule_bounded_by_the_limit
     line = describe_progress({"stage": str(stage), **iteration_fields(stage), "eta_s": e, "eta_max_s": eta.bound_s})
     assert "image change 0.005 (stops below 0.001)" in line, line
     assert "ETA ~00:07 (estimate: stopping rule; at most 03:00 at the iteration limit)" in line, line
-    from service.recon.methods import get
+    from fpscan.service.recon.methods import get
 
     waiting = IterationStage(3, n, rule=0.2, tol=tol, armed=False,  # tv while λ still falls: its words
                              waits_for=get("tv").stop_waits_for)
@@ -221,7 +221,7 @@ def test_a_local_tv_run_ends_on_its_outcome(tmp_path):
     ended (not "reconstructing"), and the last line on stdout says converged or not, the
     iterations, λ = 0 with its reason (the data show no noise) and the residual against the
     noise; the ETA appears only once iterations are measured, never in the set-up stages."""
-    from driver.physics.balls import Ball, ball_alines
+    from fpscan.physics.balls import Ball, ball_alines
 
     n, n_t, pitch, dt = 16, 96, 1e-4, 2e-8
     x = (np.arange(n) - (n - 1) / 2) * pitch
@@ -229,7 +229,7 @@ def test_a_local_tv_run_ends_on_its_outcome(tmp_path):
                          dt, n_t, 1500.0)
     np.save(tmp_path / "clean.npy", alines.T.astype(np.float32))
     res = subprocess.run(
-        [sys.executable, "-m", "clients", "recon", str(tmp_path / "clean.npy"), "--dt", "20ns", "--dx", "100um",
+        [sys.executable, "-m", "fpscan", "recon", str(tmp_path / "clean.npy"), "--dt", "20ns", "--dx", "100um",
          "--method", "tv", "--iterations", "30", "--n-z", "32", "--out", str(tmp_path / "out")],
         capture_output=True, text=True, timeout=HANG_S, env=clean_env(FPSCAN_PROGRESS_PERIOD="0"))
     assert res.returncode == 0, res.stderr

@@ -6,7 +6,7 @@ the server listens on a free port instead of 8000 (the suite runs beside other s
 Oracles: each command's exit status (``set -e``: the first failing line fails the test), the
 files the tour says it makes, and what the README states about them: the local and the
 server's reconstruction of the same scan are the same volume; tv's defaults are the method's
-own (``service.recon.methods``)."""
+own (``fpscan.service.recon.methods``)."""
 from __future__ import annotations
 
 import os
@@ -92,7 +92,7 @@ def test_the_tour_parses_into_its_blocks():
 
 def test_the_readme_states_tvs_own_defaults():
     """What the README says of tv's options is what the method's options model holds."""
-    from service.recon.methods import METHODS
+    from fpscan.service.recon.methods import METHODS
 
     text = " ".join(README.read_text(encoding="utf-8").split())
     said = re.search(r"`--iterations` \(default (\d+)", text)

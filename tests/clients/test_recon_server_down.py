@@ -22,7 +22,7 @@ import time
 import numpy as np
 import pytest
 
-from clients.http import Client
+from fpscan.clients.http import Client
 from tests.clients.clients_servers import clean_env, fpscan_server, has_command
 from tests.waits import HANG_S
 
@@ -34,7 +34,7 @@ pytestmark = [pytest.mark.timeout(600),
 
 
 def _recon_cmd(path, url, *extra):
-    return [sys.executable, "-m", "clients", "recon", str(path), "--format", "npy", "--dt", "2e-8",
+    return [sys.executable, "-m", "fpscan", "recon", str(path), "--format", "npy", "--dt", "2e-8",
             "--dx", "1e-4", "--server", url, "--quiet", *extra]
 
 
@@ -93,6 +93,6 @@ def test_recon_against_a_server_that_is_down_says_what_survives_and_how_to_reatt
     with fpscan_server(data, token=TOKEN) as (url2, _srv2):
         with Client(url2, token=TOKEN) as api:
             api.cancel_job(first)  # the busy job again: the command's job is next
-        again = subprocess.run([sys.executable, "-m", "clients", "jobs", "wait", mine.id, "--server", url2,
+        again = subprocess.run([sys.executable, "-m", "fpscan", "jobs", "wait", mine.id, "--server", url2,
                                 "--quiet"], capture_output=True, text=True, timeout=HANG_S, env=_env())
     assert again.returncode == 0 and f"{mine.id}: succeeded" in again.stdout, (again.stdout, again.stderr)

@@ -36,7 +36,7 @@ def grid_plan(n_x: int, n_y: int, pitch: float = 6e-5, *, n_t: int = 256, dt: fl
 
 def small_phantom():
     """Three balls under a small lattice (m, Pa)."""
-    from driver.physics import Ball
+    from fpscan.physics import Ball
 
     return [Ball(0.0, 0.0, 1.0e-3, 0.15e-3, 1.0), Ball(0.3e-3, -0.2e-3, 0.6e-3, 0.1e-3, 0.7),
             Ball(-0.4e-3, 0.3e-3, 1.4e-3, 0.2e-3, 1.2)]

@@ -1,11 +1,11 @@
-"""The one centred-axis convention (driver.physics.axes): x_i = (i - (n - 1)/2)·d, its
+"""The one centred-axis convention (fpscan.physics.axes): x_i = (i - (n - 1)/2)·d, its
 lattice-index form and its inverse, against the formula written out by hand."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from driver.physics.axes import centred_axis, centred_index, centred_positions
+from fpscan.physics.axes import centred_axis, centred_index, centred_positions
 
 
 @pytest.mark.parametrize("n", [1, 2, 5, 6, 226])

@@ -12,13 +12,13 @@ import time
 import numpy as np
 import pytest
 
-from clients.processes import start_simulator
-from driver.scanfile import read_scan
+from fpscan.clients.processes import start_simulator
+from fpscan.driver.scanfile import read_scan
 from tests.driver.driver_helpers import grid_plan, read_record
 from tests.waits import HANG_S
 
 pytestmark = pytest.mark.timeout(120)
-FPSCAN = [sys.executable, "-m", "clients"]
+FPSCAN = [sys.executable, "-m", "fpscan"]
 
 
 def completed_count(path) -> int:
@@ -37,7 +37,7 @@ def test_sigkill_host_mid_scan_then_resume(tmp_path):
     plan_path = tmp_path / "plan.json"
     plan_path.write_text(json.dumps(plan))
     record = tmp_path / "truth.h5"
-    # the simulator started as the demo and the service tests start it (clients.processes)
+    # the simulator started as the demo and the service tests start it (fpscan.clients.processes)
     dev, sim = start_simulator("--prf", "400", "--seed", "5", "--snr", "50", "--record", str(record),
                                log_path=tmp_path / "sim.log", timeout=HANG_S)
     try:
@@ -50,14 +50,14 @@ def test_sigkill_host_mid_scan_then_resume(tmp_path):
             time.sleep(0.05)
         host.send_signal(signal.SIGKILL)
         host.wait(timeout=10)
-        # its reader process (driver.relay) follows it within a moment, freeing the port
+        # its reader process (fpscan.driver.relay) follows it within a moment, freeing the port
         import psutil
 
         def relays():
             out = []
             for p in psutil.process_iter(["cmdline"]):
                 cmd = p.info["cmdline"] or []
-                if "driver.relay" in cmd and str(host.pid) in cmd:
+                if "fpscan.driver.relay" in cmd and str(host.pid) in cmd:
                     out.append(p)
             return out
 
@@ -114,7 +114,7 @@ def test_ctrl_c_leaves_the_device_idle(tmp_path):
     import re
     import threading
 
-    from driver.host import Scanner
+    from fpscan.driver.host import Scanner
 
     plan = grid_plan(30, 30, n_t=128)  # 900 points at 50 Hz: 18 s if never stopped
     plan_path = tmp_path / "plan.json"

@@ -7,11 +7,11 @@ import time
 
 import pytest
 
-from driver.faults import FaultSpec
-from driver.host import Scanner
-from driver.scanfile import ScanFile
-from driver.simulator import SimConfig, SimulatedScanner
-from driver.sources import BallSource
+from fpscan.driver.faults import FaultSpec
+from fpscan.driver.host import Scanner
+from fpscan.driver.scanfile import ScanFile
+from fpscan.driver.simulator import SimConfig, SimulatedScanner
+from fpscan.driver.sources import BallSource
 from tests.driver.driver_helpers import grid_plan, small_phantom
 
 pytestmark = pytest.mark.timeout(120)
@@ -89,13 +89,13 @@ def test_cli_scan_reports_the_faults_it_met(tmp_path, faults):
     import subprocess
     import sys
 
-    from clients.processes import simulator
+    from fpscan.clients.processes import simulator
 
     plan_path = tmp_path / "plan.json"
     plan_path.write_text(json.dumps(grid_plan(12, 10, n_t=128)))
     extra = ["--faults", faults] if faults else []
     with simulator("--prf", "0", "--seed", "6", *extra, log_path=tmp_path / "sim.log", timeout=30) as (dev, _):
-        res = subprocess.run([sys.executable, "-m", "clients", "scan", "--device", dev, "--plan", str(plan_path),
+        res = subprocess.run([sys.executable, "-m", "fpscan", "scan", "--device", dev, "--plan", str(plan_path),
                               "--out", str(tmp_path / "scan.h5"), "-q"], capture_output=True, text=True, timeout=90)
     assert res.returncode == 0, res.stderr
     found = re.search(r"(\d+) link faults recovered", res.stdout)

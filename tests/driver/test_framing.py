@@ -7,11 +7,18 @@ from cobs import cobs
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from driver.aline import ALINE_HEADER, pack_aline, unpack_aline
-from driver.commands import ScpiError, block, canonical_header, parse_command
-from driver.framing import PROTOCOL_VERSION, Deframer, FrameError, FrameType, decode_frame, encode_frame
-from driver.plan import load_plan, plan_id_of
-from driver.plan_image import parse_plan_image, plan_image
+from fpscan.driver.aline import ALINE_HEADER, pack_aline, unpack_aline
+from fpscan.driver.commands import ScpiError, block, canonical_header, parse_command
+from fpscan.driver.framing import (
+    PROTOCOL_VERSION,
+    Deframer,
+    FrameError,
+    FrameType,
+    decode_frame,
+    encode_frame,
+)
+from fpscan.driver.plan import load_plan, plan_id_of
+from fpscan.driver.plan_image import parse_plan_image, plan_image
 from tests.driver.driver_helpers import grid_plan
 
 

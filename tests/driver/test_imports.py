@@ -8,10 +8,10 @@ import pytest
 
 
 @pytest.mark.parametrize("module, heavy", [
-    ("driver.physics", ("numba", "finufft")),          # Ball & co.: numpy only
-    ("driver.physics.nufft", ("finufft",)),            # not the forward model
-    ("service.plans", ("numba", "finufft")),           # weights without the reconstruction
-    ("driver.host", ("numba", "finufft", "scipy")),    # the link needs no physics
+    ("fpscan.physics", ("numba", "finufft")),          # Ball & co.: numpy only
+    ("fpscan.physics.nufft", ("finufft",)),            # not the forward model
+    ("fpscan.service.plans", ("numba", "finufft")),           # weights without the reconstruction
+    ("fpscan.driver.host", ("numba", "finufft", "scipy")),    # the link needs no physics
 ])
 def test_import_does_not_load_heavy_modules(module, heavy):
     code = (f"import sys, {module}; "

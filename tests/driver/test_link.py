@@ -1,5 +1,5 @@
 """The scanner link end to end: host driver ↔ simulated FP scanner on a real pty, real
-scan files (driver.scanfile), ground truth from the simulator's own HDF5 record."""
+scan files (fpscan.driver.scanfile), ground truth from the simulator's own HDF5 record."""
 from __future__ import annotations
 
 import os
@@ -9,12 +9,12 @@ import time
 import numpy as np
 import pytest
 
-from driver.acquire import acquire
-from driver.faults import FaultSpec
-from driver.host import DeviceError, DriverError, InterlockOpen, Scanner
-from driver.scanfile import ScanFile, read_scan
-from driver.simulator import SimConfig, SimulatedScanner
-from driver.sources import BallSource, ReplaySource
+from fpscan.driver.acquire import acquire
+from fpscan.driver.faults import FaultSpec
+from fpscan.driver.host import DeviceError, DriverError, InterlockOpen, Scanner
+from fpscan.driver.scanfile import ScanFile, read_scan
+from fpscan.driver.simulator import SimConfig, SimulatedScanner
+from fpscan.driver.sources import BallSource, ReplaySource
 from tests.driver.driver_helpers import grid_plan, read_record, small_phantom
 from tests.waits import HANG_S
 
@@ -142,7 +142,7 @@ def test_interlock_stops_scan_with_clear_error(tmp_path):
 def test_replay_kwave_data_within_quantisation(tmp_path, shared_data):
     import h5py
 
-    from driver.plan import plan_id_of
+    from fpscan.driver.plan import plan_id_of
 
     path = shared_data / "kwave3d_balls_yarn.h5"
     with h5py.File(path) as f:
@@ -254,7 +254,7 @@ def test_device_survives_random_commands_and_frames(tmp_path):
 
     from cobs import cobs
 
-    from driver.framing import HEADER, FrameType, encode_frame
+    from fpscan.driver.framing import HEADER, FrameType, encode_frame
 
     rng = np.random.default_rng(4)
     words = ["*IDN?", "*RST", "SCAN:STAR", "SCAN:STAT?", "PLAN:DATA", "PLAN:BEG", "PLAN:END",
@@ -335,8 +335,8 @@ def test_scan_survives_the_relay_process_dying(tmp_path):
 
 
 def test_plan_upload_over_a_noisy_link_and_chunk_rules(tmp_path):
-    from driver.commands import block
-    from driver.plan_image import plan_image
+    from fpscan.driver.commands import block
+    from fpscan.driver.plan_image import plan_image
 
     plan = grid_plan(40, 27, n_t=8)  # 1080 points: a 4.4 kB plan image
     with make_sim(tmp_path, faults=FaultSpec.parse("corrupt=2e-3"), seed=9) as sim:
@@ -422,7 +422,7 @@ def test_interlock_that_closes_again_lets_a_rerun_finish(tmp_path):
 def test_device_running_without_progress_times_out(tmp_path):
     # the laser fires every 20 s: the device answers but delivers nothing; the host gives
     # up after max(3 response timeouts, 10 silences) instead of waiting forever
-    from driver.host import DeviceTimeout
+    from fpscan.driver.host import DeviceTimeout
 
     plan = grid_plan(4, 4, n_t=64)
     with make_sim(tmp_path, prf=0.05) as sim:

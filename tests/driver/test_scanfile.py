@@ -1,4 +1,4 @@
-"""Scan file (driver.scanfile): real HDF5 files, a SIGKILLed writer process, a SWMR reader
+"""Scan file (fpscan.driver.scanfile): real HDF5 files, a SIGKILLed writer process, a SWMR reader
 in another process, and bad input."""
 from __future__ import annotations
 
@@ -17,8 +17,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from driver.plan import plan_id_of
-from driver.scanfile import META_KEYS, ScanFile, _clear_status_flags, _lookup3, read_scan
+from fpscan.driver.plan import plan_id_of
+from fpscan.driver.scanfile import META_KEYS, ScanFile, _clear_status_flags, _lookup3, read_scan
 from tests.waits import HANG_S
 
 REPO = Path(__file__).resolve().parents[2]
@@ -195,7 +195,7 @@ WRITER = textwrap.dedent("""
     import sys, time
     import numpy as np
     from tests.driver.test_scanfile import aline, meta, make_plan, INSTRUMENT
-    from driver.scanfile import ScanFile
+    from fpscan.driver.scanfile import ScanFile
     path, n, n_t, delay = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), float(sys.argv[4])
     import os
     plan = make_plan(n, n_t)
@@ -272,7 +272,7 @@ READER = textwrap.dedent("""
     import sys, time
     import numpy as np
     from tests.driver.test_scanfile import aline
-    from driver.scanfile import read_scan
+    from fpscan.driver.scanfile import read_scan
     path, n_t = sys.argv[1], int(sys.argv[2])
     last, reads, seen = -1, 0, []
     read_scan(path)

@@ -1,5 +1,5 @@
 """The simulator's sources and signal model, checked through the serial link against the
-physics module (driver.physics, an independent implementation of the exact forward
+physics module (fpscan.physics, an independent implementation of the exact forward
 models) and against statistics of the injected noise."""
 from __future__ import annotations
 
@@ -7,12 +7,12 @@ import h5py
 import numpy as np
 import pytest
 
-from driver.acquire import acquire
-from driver.physics import ball_alines
-from driver.physics.forward import forward_points
-from driver.scanfile import read_scan
-from driver.simulator import SimConfig, SimulatedScanner
-from driver.sources import BallSource, VolumeSource, default_phantom
+from fpscan.driver.acquire import acquire
+from fpscan.driver.scanfile import read_scan
+from fpscan.driver.simulator import SimConfig, SimulatedScanner
+from fpscan.driver.sources import BallSource, VolumeSource, default_phantom
+from fpscan.physics import ball_alines
+from fpscan.physics.forward import forward_points
 from tests.driver.driver_helpers import grid_plan, small_phantom
 
 pytestmark = pytest.mark.timeout(120)
@@ -81,7 +81,7 @@ def test_noise_at_snr_and_bandwidth(tmp_path):
 
 
 def test_the_sensor_response_refuses_a_band_or_interval_that_is_not_positive():
-    from driver.simulator import sensor_response
+    from fpscan.driver.simulator import sensor_response
 
     for bandwidth, dt in ((0.0, 8e-9), (-1e6, 8e-9), (float("nan"), 8e-9), (20e6, 0.0), (20e6, float("inf"))):
         with pytest.raises(ValueError, match="finite and > 0"):
@@ -113,7 +113,7 @@ def test_averaging_pulses_reduces_noise_by_sqrt_n(tmp_path):
 def test_volume_and_replay_files_go_through_the_hdf5_vetting(tmp_path, source):
     # a file that points at another one (an external link), and one whose dataset declares far more
     # than it stores: both refused before anything is read, as every HDF5 input of the service
-    from driver.sources import ReplaySource
+    from fpscan.driver.sources import ReplaySource
 
     secret = tmp_path / "secret.h5"
     with h5py.File(secret, "w") as f:

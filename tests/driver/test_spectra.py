@@ -1,4 +1,4 @@
-"""driver.physics.spectra: Prahl's haemoglobin table, interpolation, μa, bad input."""
+"""fpscan.physics.spectra: Prahl's haemoglobin table, interpolation, μa, bad input."""
 from __future__ import annotations
 
 import math
@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from driver.physics import spectra
+from fpscan.physics import spectra
 
 
 def test_table_rows_as_published():
@@ -64,7 +64,7 @@ def test_bad_wavelengths(bad, match):
 
 
 def test_outside_table_but_valid_excitation():
-    from driver.plan import check_wavelengths
+    from fpscan.driver.plan import check_wavelengths
     assert check_wavelengths([1064e-9]) == [1064e-9]  # a plan may ask for it ...
     with pytest.raises(ValueError, match="250-1000 nm"):
         spectra.molar_extinction([750e-9, 1064e-9])

@@ -14,15 +14,15 @@ import h5py
 import numpy as np
 import pytest
 
-from driver.faults import FaultSpec
-from driver.host import Scanner
-from driver.physics import ball_alines
-from driver.physics.spectra import absorption
-from driver.plan import aline_order, check_plan, load_plan, plan_id_of
-from driver.plan_image import plan_image
-from driver.scanfile import FORMAT_1, ScanFile, read_scan
-from driver.simulator import SimConfig, SimulatedScanner
-from driver.sources import BallSource
+from fpscan.driver.faults import FaultSpec
+from fpscan.driver.host import Scanner
+from fpscan.driver.plan import aline_order, check_plan, load_plan, plan_id_of
+from fpscan.driver.plan_image import plan_image
+from fpscan.driver.scanfile import FORMAT_1, ScanFile, read_scan
+from fpscan.driver.simulator import SimConfig, SimulatedScanner
+from fpscan.driver.sources import BallSource
+from fpscan.physics import ball_alines
+from fpscan.physics.spectra import absorption
 from tests.driver.driver_helpers import grid_plan, read_record, small_phantom
 from tests.waits import HANG_S
 
@@ -136,7 +136,7 @@ def test_sigkill_two_wavelength_scan_then_resume(tmp_path):
             return 0
 
     with spectral_sim(tmp_path, prf=400.0, seed=2, snr=50.0) as sim:
-        cmd = [sys.executable, "-m", "clients", "scan", "--device", sim.path, "--plan",
+        cmd = [sys.executable, "-m", "fpscan", "scan", "--device", sim.path, "--plan",
                str(plan_path), "--out", str(out), "-q"]
         host = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         deadline = time.monotonic() + HANG_S
@@ -221,12 +221,12 @@ def test_bad_wavelength_order_is_refused():
 
 
 def test_plan_builder_and_cli_carry_the_wavelength_order(tmp_path):
-    from service.plans import Lattice, make_plan
+    from fpscan.service.plans import Lattice, make_plan
 
     plain = make_plan("full", lattice=Lattice(3, 3, 1e-4), wavelengths=WAVELENGTHS).to_dict()
     assert "wavelength_order" not in plain["acquisition"]  # absent = per point; ids unchanged
     out = tmp_path / "plan.json"
-    r = subprocess.run([sys.executable, "-m", "clients", "plan", "full", "--n-x", "3",
+    r = subprocess.run([sys.executable, "-m", "fpscan", "plan", "full", "--n-x", "3",
                         "--pitch", "1e-4", "--wavelength", "7.6e-7", "--wavelength", "8.5e-7",
                         "--wavelength-order", "per_pass", "--out", str(out)],
                        capture_output=True, text=True, timeout=60)

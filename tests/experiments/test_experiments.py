@@ -9,16 +9,16 @@ import json
 import numpy as np
 import pytest
 
-from clients.cli import main as fpscan
-from driver.constants import C_DEFAULT
-from service.experiments import (
+from fpscan.clients.cli import main as fpscan
+from fpscan.constants import C_DEFAULT
+from fpscan.service.experiments import (
     limited_view,
     load_dense,
     nufft_vs_interp,
     run_experiment,
     sparse_masks,
 )
-from service.experiments.dense import add_noise
+from fpscan.service.experiments.dense import add_noise
 from tests.json_keys import all_keys
 
 
@@ -263,9 +263,9 @@ def test_load_dense_reads_attributes_and_rejects_bad_files(tmp_path):
 
 
 def test_load_dense_from_a_full_lattice_scan_file(tmp_path):
-    from driver.physics import Ball, ball_alines
-    from driver.scanfile import META_KEYS, ScanFile
-    from service.plans import Lattice, full_mask, make_plan
+    from fpscan.driver.scanfile import META_KEYS, ScanFile
+    from fpscan.physics import Ball, ball_alines
+    from fpscan.service.plans import Lattice, full_mask, make_plan
 
     lattice = Lattice(6, 5, 60e-6)
     plan = make_plan(full_mask(lattice), n_t=64, dt=8e-9).to_dict()

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import pytest
 
-from service.recon import device
+from fpscan.service.recon import device
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:

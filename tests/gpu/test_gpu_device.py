@@ -6,11 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from driver.physics.forward import forward_points
-from service.recon import device
-from service.recon.operator import PlanarOperator
-from service.recon.planar import reconstruct_grid, reconstruct_points
-from service.recon.tv import reconstruct_tv
+from fpscan.physics.forward import forward_points
+from fpscan.service.recon import device
+from fpscan.service.recon.operator import PlanarOperator
+from fpscan.service.recon.planar import reconstruct_grid, reconstruct_points
+from fpscan.service.recon.tv import reconstruct_tv
 
 C, DT, DX = 1500.0, 2e-8, 6e-5
 

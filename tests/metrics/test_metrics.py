@@ -1,4 +1,4 @@
-"""service.metrics against analytic cases and direct computations."""
+"""fpscan.service.metrics against analytic cases and direct computations."""
 from __future__ import annotations
 
 import numpy as np
@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from service.metrics import (
+from fpscan.service.metrics import (
     bounding_box,
     cc_vs_diameter,
     cc_vs_pixels,

@@ -6,8 +6,8 @@ import json
 
 import pytest
 
-from clients.cli import main
-from service.plans import Plan
+from fpscan.clients.cli import main
+from fpscan.service.plans import Plan
 
 
 def test_plan_equisteradian_in_process(tmp_path, capsys):
@@ -48,7 +48,7 @@ def test_plan_line_and_points(tmp_path, capsys):
 
 @pytest.mark.parametrize(
     "args, match, code",
-    [  # refused input -- implausible values (driver.units), missing flags, values out of range -- is a usage
+    [  # refused input -- implausible values (fpscan.driver.units), missing flags, values out of range -- is a usage
        # error: exit 2, as argparse's own (issue 22.6: it was 1 or 2)
         (["equisteradian", "--depth=-1e-3", "--n-points", "10"], "depth", 2),
         (["equisteradian", "--depth", "1e-3"], "--n-points", 2),

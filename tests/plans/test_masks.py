@@ -9,8 +9,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial import cKDTree
 
-from driver.physics.weights import voronoi_weights
-from service.plans import (
+from fpscan.physics.weights import voronoi_weights
+from fpscan.service.plans import (
     Lattice,
     equiangular_mask,
     equisteradian_mask,

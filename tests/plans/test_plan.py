@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from service.plans import (
+from fpscan.service.plans import (
     Lattice,
     Plan,
     make_mask,
@@ -112,7 +112,7 @@ def test_any_real_change_changes_the_id(es_plan, change):
         (lambda d: d["points"]["indices"].__setitem__(0, [64, 0]), "outside"),
         (lambda d: d["points"]["positions"].__setitem__(0, [1.0, 1.0]), "lattice positions"),
         (lambda d: d["points"]["weights"].__setitem__(0, -1.0), "weights"),
-        (lambda d: d["points"]["weights"].pop(), r"weights must be \(\d+,\)"),  # driver.plan.check_plan
+        (lambda d: d["points"]["weights"].pop(), r"weights must be \(\d+,\)"),  # fpscan.driver.plan.check_plan
         (lambda d: d["acquisition"].__setitem__("dt", 0.0), "dt"),
         (lambda d: d.__setitem__("extra", 1), "extra"),
     ],
@@ -271,12 +271,12 @@ def test_make_plan_from_kind_as_the_http_layer_calls_it():
 
 
 def test_driver_reads_the_plan_json_without_service(es_plan, tmp_path):
-    """The contract with the scanner side: driver.plan parses our JSON and gets our id."""
-    driver_plan = pytest.importorskip("driver.plan")
+    """The contract with the scanner side: fpscan.driver.plan parses our JSON and gets our id."""
+    driver_plan = pytest.importorskip("fpscan.driver.plan")
     load_plan = getattr(driver_plan, "load_plan", None)
     plan_id_of = getattr(driver_plan, "plan_id_of", None)
     if load_plan is None or plan_id_of is None:
-        pytest.skip("driver.plan has no load_plan/plan_id_of")
+        pytest.skip("fpscan.driver.plan has no load_plan/plan_id_of")
     path = tmp_path / "plan.json"
     es_plan.to_json(path)
     d = load_plan(str(path))

@@ -1,4 +1,4 @@
-"""The plan contract has one owner (driver.plan) and one builder (service.plans.make_plan):
+"""The plan contract has one owner (fpscan.driver.plan) and one builder (fpscan.service.plans.make_plan):
 point lists are ordered and validated like every mask; one weight-ratio definition."""
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import json
 import numpy as np
 import pytest
 
-from driver.plan import canonical_json, check_plan, load_plan, plan_id_of
-from service.plans import Lattice, make_plan, weight_ratio
+from fpscan.driver.plan import canonical_json, check_plan, load_plan, plan_id_of
+from fpscan.service.plans import Lattice, make_plan, weight_ratio
 
 
 def test_weight_ratio_is_outer_over_inner_by_hand():

@@ -1,5 +1,5 @@
-"""One set of plan limits: the scanner side (``driver.plan.load_plan``, the contract's
-owner), the service's model (``service.plans.Plan``) and ``POST /api/plans`` (a real
+"""One set of plan limits: the scanner side (``fpscan.driver.plan.load_plan``, the contract's
+owner), the service's model (``fpscan.service.plans.Plan``) and ``POST /api/plans`` (a real
 server) refuse the same hostile acquisition values, each naming the field, and accept the
 same plan with every acquisition setting at its limit.
 
@@ -14,8 +14,8 @@ import json
 
 import pytest
 
-from driver.plan import load_plan
-from service.plans import Plan, make_plan
+from fpscan.driver.plan import load_plan
+from fpscan.service.plans import Plan, make_plan
 from tests.service.service_servers import Server
 
 AT_LIMIT = {"n_t": 65536, "averages": 4096, "prf": 1e5, "sound_speed": 10000.0,

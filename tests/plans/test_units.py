@@ -9,9 +9,9 @@ import json
 import numpy as np
 import pytest
 
-from clients.cli import main
-from driver.units import ImplausibleValue, check_plausible, parse_quantity
-from service.plans import make_plan
+from fpscan.clients.cli import main
+from fpscan.driver.units import ImplausibleValue, check_plausible, parse_quantity
+from fpscan.service.plans import make_plan
 
 BASE = ["plan", "equisteradian", "--n-x", "40", "--n-points", "60"]
 
@@ -81,8 +81,8 @@ def test_a_depth_below_one_pitch_is_refused_and_a_shortfall_is_explained():
     for depth in (1e-300, 5.9e-5):
         with pytest.raises(ValueError, match="below one lattice pitch"):
             make_plan(kind="equisteradian", lattice=lattice, params={"depth": depth, "n_points": 200})
-    from service.plans import make_mask
-    from service.plans.lattice import Lattice
+    from fpscan.service.plans import make_mask
+    from fpscan.service.plans.lattice import Lattice
 
     short = make_mask("equisteradian", Lattice(64, 64, 6e-5), depth=6e-5, n_points=2000)
     assert short.obtained_points < 0.9 * 2000  # points closer than the pitch merge: said why
@@ -140,11 +140,11 @@ def test_library_rules():
 
 
 def test_recon_sound_speed_rule_cli_and_library(tmp_path, capsys):
-    """One speed-of-sound rule (driver.units.check_speeds): ``fpscan recon --c`` outside
+    """One speed-of-sound rule (fpscan.driver.units.check_speeds): ``fpscan recon --c`` outside
     1000-2000 m/s exits 2 naming the likely unit unless ``--force``; the library's
     ``reconstruct(c=...)`` raises ValueError the same way unless ``force=True``."""
-    from service.pipeline import reconstruct
-    from service.recon.dataset import GridDataset
+    from fpscan.service.pipeline import reconstruct
+    from fpscan.service.recon.dataset import GridDataset
 
     x = tmp_path / "x.npy"
     np.save(x, np.zeros((16, 4, 4), dtype=np.float32))
@@ -175,7 +175,7 @@ def test_sim_demo_unmix_take_units_and_name_unit_mistakes(tmp_path, capsys):
     ``plan``/``recon`` do (the suffix form is the SI number) and refuse a unit mistake
     with exit 2 naming the unit, before anything starts (a bad --source / --lattice after
     the check would exit 1, a missed check would start the simulator or the demo)."""
-    from clients.cli import build_parser
+    from fpscan.clients.cli import build_parser
 
     parse = build_parser().parse_args
     sim = parse(["sim", "--prf", "500Hz", "--bandwidth", "20 MHz", "--tuning-delay", "2ms",

@@ -1,10 +1,10 @@
-"""Clipped Voronoi weights (driver.physics.weights) against exact oracles."""
+"""Clipped Voronoi weights (fpscan.physics.weights) against exact oracles."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from driver.physics.weights import infer_pitch, voronoi_weights
+from fpscan.physics.weights import infer_pitch, voronoi_weights
 
 PITCH = 60e-6
 

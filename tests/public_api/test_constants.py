@@ -1,4 +1,4 @@
-"""Issue 21.4: each physical default is stated once, in ``driver.constants``. The oracle is
+"""Issue 21.4: each physical default is stated once, in ``fpscan.constants``. The oracle is
 the source itself: no other module of the product spells the default speed of sound or an
 end of the autofocus interval as a number (an AST walk, so comments and prose don't count),
 and the values the library, the CLI and the HTTP model offer are the constants."""
@@ -9,10 +9,10 @@ from pathlib import Path
 
 import pytest
 
-from driver import constants
+from fpscan import constants
 
 ROOT = Path(__file__).resolve().parents[2]
-PACKAGES = ("driver", "service", "clients")
+PACKAGES = ("driver", "service", "clients", "fpscan")  # fpscan/: the package root, physics, wire (its links to the three folders are not followed)
 SPELLED_ONCE = {constants.C_DEFAULT, *constants.C_AUTOFOCUS_RANGE}
 
 
@@ -27,17 +27,17 @@ def _numbers(path: Path):
 def test_the_speed_of_sound_defaults_are_spelled_only_in_the_constants_module():
     found = [f"{p.relative_to(ROOT)}:{line}: {value!r}"
              for pkg in PACKAGES for p in sorted((ROOT / pkg).rglob("*.py"))
-             if p != ROOT / "driver" / "constants.py" for line, value in _numbers(p)]
-    assert not found, "use driver.constants instead of:\n" + "\n".join(found)
+             if p != ROOT / "fpscan" / "constants.py" for line, value in _numbers(p)]
+    assert not found, "use fpscan.constants instead of:\n" + "\n".join(found)
 
 
 def test_the_library_the_plan_contract_and_the_http_model_take_the_constants():
     import inspect
 
-    from service.api.models import ReconParams
-    from service.autofocus import autofocus
-    from service.plans.plan import Acquisition
-    from service.recon.planar import reconstruct_grid, reconstruct_points
+    from fpscan.service.api.models import ReconParams
+    from fpscan.service.autofocus import autofocus
+    from fpscan.service.plans.plan import Acquisition
+    from fpscan.service.recon.planar import reconstruct_grid, reconstruct_points
 
     assert all(inspect.signature(f).parameters["c"].default == constants.C_DEFAULT
                for f in (reconstruct_grid, reconstruct_points))
@@ -58,8 +58,8 @@ def test_the_library_the_plan_contract_and_the_http_model_take_the_constants():
 def test_a_forced_speed_stays_within_the_limits_in_the_library_as_over_http(c, force, ok):
     from pydantic import ValidationError
 
-    from driver.units import RefusedInput, check_speeds
-    from service.api.models import ReconParams
+    from fpscan.driver.units import RefusedInput, check_speeds
+    from fpscan.service.api.models import ReconParams
 
     if ok:
         check_speeds(c=c, force=force)

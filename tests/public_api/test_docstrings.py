@@ -1,7 +1,7 @@
 """numpy-style docstrings (issues 21.5 and 48.5).
 
-The modules of :data:`MODULES` (``driver.physics``, ``service.metrics``, ``service.plans``,
-``service.recon``, ``clients.http``, ...): every public function and class has the sections
+The modules of :data:`MODULES` (``fpscan.physics``, ``fpscan.service.metrics``, ``fpscan.service.plans``,
+``fpscan.service.recon``, ``fpscan.clients.http``, ...): every public function and class has the sections
 that apply (Parameters with shapes and SI units, Returns, Examples; Attributes for classes).
 Every example of every module (found on disk, :func:`example_modules`) runs here as a
 doctest. Every public module of ``service``, ``driver``, ``clients`` and ``fpscan`` (found on
@@ -15,24 +15,24 @@ import inspect
 import pytest
 
 MODULES = [
-    "driver.physics.axes", "driver.physics.balls", "driver.physics.fast_lengths", "driver.physics.fft_engine",
-    "driver.physics.forward",
-    "driver.physics.lateral",
-    "driver.physics.nufft", "driver.physics.nufft_plans", "driver.physics.spectra", "driver.physics.weights",
-    "service.metrics.correlation", "service.metrics.curves", "service.metrics.projections",
-    "service.metrics.resolution", "service.metrics.roi", "service.metrics.sharpness",
-    "service.plans.angular", "service.plans.grids", "service.plans.kinds", "service.plans.lattice",
-    "service.plans.mask", "service.plans.ordering", "service.plans.plan", "service.plans.preview",
-    "service.recon.checks", "service.recon.memory", "service.recon.dataset", "service.recon.kwave", "service.recon.operator",
-    "service.recon.planar", "service.recon.reconstruction", "service.recon.unmix", "service.recon.warmup",
-    "service.recon.methods.registry", "service.recon.methods.render", "service.recon.methods.work",
-    "service.recon.methods.options", "service.recon.methods.ner",
-    "service.recon.methods.nedner", "service.recon.methods.interp", "service.recon.methods.kwave",
-    "service.recon.methods.tv", "service.recon.tv", "service.pipeline",
-    "clients.http.client", "clients.http.async_client", "clients.http.calls", "clients.http.transport",
-    "clients.http.waiting", "clients.http.errors", "clients.http.models", "clients.http.endpoints.server",
-    "clients.http.endpoints.plans", "clients.http.endpoints.scans", "clients.http.endpoints.datasets",
-    "clients.http.endpoints.reconstructions", "clients.http.endpoints.jobs",
+    "fpscan.physics.axes", "fpscan.physics.balls", "fpscan.physics.fast_lengths", "fpscan.physics.fft_engine",
+    "fpscan.physics.forward",
+    "fpscan.physics.lateral",
+    "fpscan.physics.nufft", "fpscan.physics.nufft_plans", "fpscan.physics.spectra", "fpscan.physics.weights",
+    "fpscan.service.metrics.correlation", "fpscan.service.metrics.curves", "fpscan.service.metrics.projections",
+    "fpscan.service.metrics.resolution", "fpscan.service.metrics.roi", "fpscan.service.metrics.sharpness",
+    "fpscan.service.plans.angular", "fpscan.service.plans.grids", "fpscan.service.plans.kinds", "fpscan.service.plans.lattice",
+    "fpscan.service.plans.mask", "fpscan.service.plans.ordering", "fpscan.service.plans.plan", "fpscan.service.plans.preview",
+    "fpscan.service.recon.checks", "fpscan.service.recon.memory", "fpscan.service.recon.dataset", "fpscan.service.recon.kwave", "fpscan.service.recon.operator",
+    "fpscan.service.recon.planar", "fpscan.service.recon.reconstruction", "fpscan.service.recon.unmix", "fpscan.service.recon.warmup",
+    "fpscan.service.recon.methods.registry", "fpscan.service.recon.methods.render", "fpscan.service.recon.methods.work",
+    "fpscan.service.recon.methods.options", "fpscan.service.recon.methods.ner",
+    "fpscan.service.recon.methods.nedner", "fpscan.service.recon.methods.interp", "fpscan.service.recon.methods.kwave",
+    "fpscan.service.recon.methods.tv", "fpscan.service.recon.tv", "fpscan.service.pipeline",
+    "fpscan.clients.http.client", "fpscan.clients.http.async_client", "fpscan.clients.http.calls", "fpscan.clients.http.transport",
+    "fpscan.clients.http.waiting", "fpscan.clients.http.errors", "fpscan.clients.http.models", "fpscan.clients.http.endpoints.server",
+    "fpscan.clients.http.endpoints.plans", "fpscan.clients.http.endpoints.scans", "fpscan.clients.http.endpoints.datasets",
+    "fpscan.clients.http.endpoints.reconstructions", "fpscan.clients.http.endpoints.jobs",
 ]
 
 #: Public classes whose docstring is text a user reads elsewhere, not a numpy docstring: a mask
@@ -40,7 +40,7 @@ MODULES = [
 #: ``fpscan plan --help`` and ``/api/plans/kinds``). Their examples live in the module docstring
 #: (counted by ``test_examples_run``).
 SERVED_DOCSTRINGS = {
-    "service.plans.kinds": {"FullParams", "EquispacedParams", "HexagonalParams", "RandomParams",
+    "fpscan.service.plans.kinds": {"FullParams", "EquispacedParams", "HexagonalParams", "RandomParams",
                             "PoissonParams", "PointsParams", "EquiangularParams", "EquisteradianParams"},
 }
 
@@ -104,7 +104,7 @@ def test_the_section_reader_sees_sections():
 # -- every public module of service, driver, clients and fpscan (issue 48.5) -----------------
 
 #: the packages whose public modules the coverage test reads
-PACKAGES = ("service", "driver", "clients", "fpscan", "wire")
+PACKAGES = ("fpscan",)
 #: the share of public definitions with their numpy sections that issue 48.5 asks for
 COVERAGE = 0.90
 
@@ -128,16 +128,14 @@ def example_modules() -> list[str]:
     """Every module of :data:`PACKAGES` whose source holds a doctest prompt (``>>>``), found on
     disk (private modules included, ``__main__`` modules not: importing one runs it): a module
     that gains examples is in, and each of :data:`MODULES` is in whether or not it has any."""
-    from pathlib import Path
+    from tests.source_tree import module_files
 
-    root = Path(__file__).resolve().parents[2]
     found = set(MODULES)
     for package in PACKAGES:
-        for path in sorted((root / package).rglob("*.py")):
+        for name, path in module_files(package):
             if path.name == "__main__.py" or ">>>" not in path.read_text(encoding="utf-8"):
                 continue
-            parts = path.relative_to(root).with_suffix("").parts
-            found.add(".".join(parts[:-1] if parts[-1] == "__init__" else parts))
+            found.add(name)
     return sorted(found)
 
 
@@ -191,11 +189,11 @@ def _route_handlers() -> set[int]:
     description in the OpenAPI document (``/docs``), text a client reads, not a numpy docstring."""
     import pkgutil
 
-    import service.api
+    import fpscan.service.api
 
     ids = set()
-    for info in pkgutil.iter_modules(service.api.__path__):
-        router = getattr(importlib.import_module(f"service.api.{info.name}"), "router", None)
+    for info in pkgutil.iter_modules(fpscan.service.api.__path__):
+        router = getattr(importlib.import_module(f"fpscan.service.api.{info.name}"), "router", None)
         ids |= {id(getattr(route, "endpoint", None)) for route in getattr(router, "routes", ())}
     return ids
 
@@ -215,7 +213,7 @@ def documented(obj) -> bool:
 
 def _counted_in(obj, module_name: str) -> bool:
     """A definition counts in the module that defines it, or, when that module is private
-    (``service.formats._registry``), in the public module that exports it."""
+    (``fpscan.service.formats._registry``), in the public module that exports it."""
     home = getattr(obj, "__module__", None) or ""
     return home == module_name or (any(p.startswith("_") for p in home.split("."))
                                    and home.startswith(module_name + "."))

@@ -11,7 +11,7 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[2]
 
-IMPORTS = "import fpscan, service, service.recon, service.pipeline, clients.cli"
+IMPORTS = "import fpscan, service, fpscan.service.recon, fpscan.service.pipeline, fpscan.clients.cli"
 
 
 def test_imports_leave_cupy_out(tmp_path):
@@ -31,7 +31,7 @@ def test_imports_leave_cupy_out(tmp_path):
 
 
 def test_check_device_refuses_an_unknown_device():
-    from service.recon.device import DEVICES, check_device
+    from fpscan.service.recon.device import DEVICES, check_device
 
     assert check_device(None) == "auto"
     assert [check_device(d) for d in DEVICES] == list(DEVICES)

@@ -51,7 +51,7 @@ def test_no_bar_outside_a_notebook(capsys):
     import numpy as np
 
     import fpscan
-    from service.notebook import in_notebook
+    from fpscan.service.notebook import in_notebook
 
     assert not in_notebook()
     fpscan.reconstruct(fpscan.GridDataset(np.zeros((32, 8)), dx=1e-4, dt=1e-8, c=1500.0), "ner")

@@ -4,14 +4,14 @@ Step by step as `shared/reference/KWAVE_RECON_NOTES.md` describes them: mirror t
 2 N_t - 1 samples, complex fftn with (i)fftshift, sf, evanescent zeroing, interpolation
 along ω on the full mirrored grid (column by column, numpy), ifftn, keep the positive
 depths, 4/c. No use of the symmetries, so it is an independent check of
-`service.recon.kwave` at sizes (odd lateral sizes, 3-D) the stored k-Wave data lack."""
+`fpscan.service.recon.kwave` at sizes (odd lateral sizes, 3-D) the stored k-Wave data lack."""
 from __future__ import annotations
 
 import numpy as np
 import scipy.fft
 import scipy.interpolate
 
-from driver.physics.nufft import group_columns
+from fpscan.physics.nufft import group_columns
 
 
 def kvec(n: int, d: float) -> np.ndarray:

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 import scipy.fft
 
-from driver.physics import nufft
-from driver.physics.fast_lengths import fast_dct1_rows, fast_length, largest_prime_factor
-from service.recon import kwave, planar
-from service.recon.operator import PlanarOperator
+from fpscan.physics import nufft
+from fpscan.physics.fast_lengths import fast_dct1_rows, fast_length, largest_prime_factor
+from fpscan.service.recon import kwave, planar
+from fpscan.service.recon.operator import PlanarOperator
 
 C, DT, DX = 1500.0, 25e-9, 60e-6
 N_T = range(50, 1101)
@@ -142,7 +142,7 @@ def test_model_based_preconditioner_lengths_are_fast():
     """tv's preconditioner P (its DCT-II on every axis of the image, each iteration) runs on
     the image zero-padded to fast real lengths: at the paper's 1024 × 226² its transforms took
     2.08 s on axes of 226 = 2·113, against 0.57 s at 1024 × 240²."""
-    from service.recon.tv import preconditioner
+    from fpscan.service.recon.tv import preconditioner
 
     for n in LATERAL:
         for shape in ((n, n), (3, 2, n), (2, n, 3)):

@@ -1,4 +1,4 @@
-"""The FFT engine (`driver.physics.fft_engine`): numpy.fft for small arrays and scipy.fft
+"""The FFT engine (`fpscan.physics.fft_engine`): numpy.fft for small arrays and scipy.fft
 for the rest give the same transforms, against scipy.fft's own functions (the oracle) and,
 for the DCT-I, against its defining cosine sum."""
 from __future__ import annotations
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import scipy.fft
 
-from driver.physics import fft_engine
+from fpscan.physics import fft_engine
 
 rng = np.random.default_rng(5)
 

@@ -1,6 +1,6 @@
 """The GPU path's code on NumPy against the CPU kernels (issue 63): CI has no GPU, so the
-array-namespace steps that run on CuPy there (`driver.physics.temporal_xp`,
-`service.recon.gpu`) run here with ``xp = numpy`` and must give the CPU kernels' results; and
+array-namespace steps that run on CuPy there (`fpscan.physics.temporal_xp`,
+`fpscan.service.recon.gpu`) run here with ``xp = numpy`` and must give the CPU kernels' results; and
 the device rules where there is no GPU."""
 from __future__ import annotations
 
@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 import scipy.fft
 
-from driver.physics import nufft
-from driver.physics import temporal_xp as txp
-from driver.physics.fast_lengths import fast_lateral
-from service.recon import device, gpu
-from service.recon.operator import PlanarOperator
-from service.recon.planar import reconstruct_grid
-from service.recon.tv.preconditioner import _apply_weight, _apply_weight_on, _ner_weight
+from fpscan.physics import nufft
+from fpscan.physics import temporal_xp as txp
+from fpscan.physics.fast_lengths import fast_lateral
+from fpscan.service.recon import device, gpu
+from fpscan.service.recon.operator import PlanarOperator
+from fpscan.service.recon.planar import reconstruct_grid
+from fpscan.service.recon.tv.preconditioner import _apply_weight, _apply_weight_on, _ner_weight
 
 C = 1500.0
 
@@ -133,7 +133,7 @@ def test_without_a_gpu_auto_runs_on_the_cpu_and_cuda_is_refused() -> None:
 
 _HOLDER = """
 import sys, time
-from service.recon import device
+from fpscan.service.recon import device
 with device.gpu_lock(0) as held:
     print("held", held, flush=True)
     sys.stdin.readline()
@@ -159,8 +159,8 @@ def test_the_gpu_lock_admits_one_process_and_nests_in_one() -> None:
 def test_tvs_model_on_the_gpu_branch_gives_the_cpu_branchs_products() -> None:
     """tv's `_Model` with its operator pair on ``xp`` (the GPU branch: A, Aᵀ and P there) against
     the compiled CPU branch, on NumPy: the same forward, B = P Aᵀ and residual."""
-    from driver.physics.forward import forward_points
-    from service.recon.tv.problem import _Model, _record, _warm_start
+    from fpscan.physics.forward import forward_points
+    from fpscan.service.recon.tv.problem import _Model, _record, _warm_start
 
     rng = np.random.default_rng(6)
     p0 = np.zeros((10, 14, 16))

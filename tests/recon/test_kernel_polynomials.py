@@ -7,8 +7,8 @@ import sys
 import numpy as np
 import pytest
 
-from driver.physics import nufft_kernels
-from driver.physics.nufft import kernel_params, kernel_polynomials, make_grid
+from fpscan.physics import nufft_kernels
+from fpscan.physics.nufft import kernel_params, kernel_polynomials, make_grid
 
 
 @pytest.mark.parametrize("eps", [1e-2, 1e-4, 1e-6, 1e-9, 1e-12, 1e-14])
@@ -64,9 +64,9 @@ def test_compiled_taps_match_the_kernel_formula_and_numpy_trigonometry(eps, inve
 _KERNEL_RUN = r"""
 import hashlib, json
 import numpy as np
-from driver.physics import nufft, nufft_kernels
-from driver.physics.nufft_kernels import interp_kernel, spread_kernel
-from service.recon import reconstruct_grid
+from fpscan.physics import nufft, nufft_kernels
+from fpscan.physics.nufft_kernels import interp_kernel, spread_kernel
+from fpscan.service.recon import reconstruct_grid
 n_t, n, dx, dt, c = 256, 32, 60e-6, 8e-9, 1500.0
 grid = nufft.make_grid(n_t, "nufft", 1e-6)
 kx, ky = 2 * np.pi * np.fft.rfftfreq(n, dx), 2 * np.pi * np.fft.fftfreq(n, dx)

@@ -1,4 +1,4 @@
-"""The compiled kernels' OpenMP threads sleep as soon as a kernel ends (`driver.physics.threads`):
+"""The compiled kernels' OpenMP threads sleep as soon as a kernel ends (`fpscan.physics.threads`):
 measured as the CPU time the process's other threads use while the main thread sleeps
 right after a parallel kernel (libgomp's default spin: about 8 ms of it a kernel)."""
 from __future__ import annotations
@@ -13,7 +13,7 @@ import pytest
 _AFTER_KERNEL = r"""
 import json, os, threading, time
 import numpy as np
-from driver.physics.nufft import transpose   # imports driver.physics first
+from fpscan.physics.nufft import transpose   # imports fpscan.physics first
 F = np.ones((512, 1024))
 out = np.empty((1024, 512))
 

@@ -1,4 +1,4 @@
-"""The in-place inverse lateral FFT (`driver.physics.lateral.irfft_lateral`) against scipy's
+"""The in-place inverse lateral FFT (`fpscan.physics.lateral.irfft_lateral`) against scipy's
 own ``irfftn`` (the oracle: the same transform, computed with its copy), and the temporal
 interpolation's refusal of an inversion at descending kz."""
 from __future__ import annotations
@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import scipy.fft
 
-from driver.physics import nufft
-from driver.physics.lateral import irfft_lateral
+from fpscan.physics import nufft
+from fpscan.physics.lateral import irfft_lateral
 
 # every test twice: small transforms in numpy, and everything in scipy.fft + numba (conftest)
 pytestmark = pytest.mark.usefixtures("engine")

@@ -1,9 +1,9 @@
-"""driver.physics.nufft_plans: planned lateral NUFFTs reused per sensor mask."""
+"""fpscan.physics.nufft_plans: planned lateral NUFFTs reused per sensor mask."""
 import numpy as np
 import pytest
 
-from driver.physics import nufft_plans
-from driver.physics.nufft_plans import lateral_plan
+from fpscan.physics import nufft_plans
+from fpscan.physics.nufft_plans import lateral_plan
 
 
 def _direct_type1(coords, strengths, modes, isign):

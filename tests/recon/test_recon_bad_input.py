@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from service.recon import (
+from fpscan.service.recon import (
     estimate_peak_memory,
     forward_grid,
     kspace_line_recon,
@@ -135,7 +135,7 @@ def test_a_single_nan_or_inf_anywhere_is_found_in_every_precision(dtype, bad, wh
     """`checks.finite_array` sums in the array's own precision: one NaN or ±inf anywhere,
     in float16, float32 or float64, is refused; finite values whose sum overflows that
     precision (float16's 65504, float32's 3.4e38) pass; integers pass unsummed."""
-    from service.recon.checks import finite_array
+    from fpscan.service.recon.checks import finite_array
 
     data = np.random.default_rng(1).standard_normal((40, 5, 6)).astype(dtype)
     data.reshape(-1)[where] = bad

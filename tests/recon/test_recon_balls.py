@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from driver.physics import Ball, ball_alines, ball_p0
-from service.recon import reconstruct_grid
+from fpscan.physics import Ball, ball_alines, ball_p0
+from fpscan.service.recon import reconstruct_grid
 from tests.recon import recon_oracle as oracle
 
 C, DT, DX = 1500.0, 20e-9, 100e-6

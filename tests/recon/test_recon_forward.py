@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from driver.physics import Ball, ball_alines, ball_p0
-from driver.physics.forward import forward_grid, forward_points
-from service.recon import reconstruct_grid
+from fpscan.physics import Ball, ball_alines, ball_p0
+from fpscan.physics.forward import forward_grid, forward_points
+from fpscan.service.recon import reconstruct_grid
 
 C, DT = 1500.0, 20e-9
 DZ = C * DT

@@ -5,8 +5,8 @@ import h5py
 import numpy as np
 import pytest
 
-from driver.physics import fft_engine
-from service.recon import kspace_line_recon, kspace_plane_recon, kwave_dft, reconstruct_grid
+from fpscan.physics import fft_engine
+from fpscan.service.recon import kspace_line_recon, kspace_plane_recon, kwave_dft, reconstruct_grid
 from tests.recon import kwave_transcription as literal
 
 INTERP = {"starlinear": "*linear", "nearest": "nearest", "cubic": "cubic"}

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from driver.physics import nufft
-from service.recon import reconstruct_grid
+from fpscan.physics import nufft
+from fpscan.service.recon import reconstruct_grid
 from tests.recon import recon_oracle as oracle
 
 C, DT, DX = 1500.0, 25e-9, 60e-6

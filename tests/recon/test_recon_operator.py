@@ -11,8 +11,8 @@ import numpy as np
 import pylops
 import pytest
 
-from driver.physics.forward import forward_grid, forward_points
-from service.recon.operator import PlanarOperator
+from fpscan.physics.forward import forward_grid, forward_points
+from fpscan.service.recon.operator import PlanarOperator
 
 pytestmark = pytest.mark.long(50)
 
@@ -205,7 +205,7 @@ def test_padding_reaches_exactly_as_far_as_the_record():
     reach c·t_last (the exactness rule), and no smaller fast length would: the padding
     is the smallest fast grid the rule allows (fast: largest prime factor <= 7, the DCT's
     2 (N_z - 1) and x's real FFT <= 5)."""
-    from driver.physics.fast_lengths import largest_prime_factor
+    from fpscan.physics.fast_lengths import largest_prime_factor
 
     for n_t, lat, dx in ((64, (40,), DX), (200, (33, 33), 60e-6), (150, (20, 31), 25e-6), (90, (48, 48), 100e-6)):
         shape = (n_t,) + lat
@@ -335,7 +335,7 @@ ADJOINT_PEAK_SCRIPT = r"""
 import json
 import mmap
 import numpy as np
-from service.recon.operator import PlanarOperator
+from fpscan.service.recon.operator import PlanarOperator
 
 def rss():
     with open("/proc/self/status") as fh:

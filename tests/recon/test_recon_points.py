@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from service.recon import reconstruct_grid, reconstruct_points, voronoi_weights
+from fpscan.service.recon import reconstruct_grid, reconstruct_points, voronoi_weights
 from tests.recon import recon_oracle as oracle
 
 C, DT, DX = 1500.0, 25e-9, 60e-6

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from service.recon import kspace_line_recon, kspace_plane_recon, reconstruct_grid, reconstruct_points
+from fpscan.service.recon import kspace_line_recon, kspace_plane_recon, reconstruct_grid, reconstruct_points
 
 
 def _data(shape, seed=0):

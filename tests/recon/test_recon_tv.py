@@ -9,12 +9,12 @@ import itertools
 import numpy as np
 import pytest
 
-from driver.physics import Ball, ball_p0
-from driver.physics.forward import forward_grid
-from service.metrics import correlation_coefficient, disc_mask
-from service.plans import Lattice, equiangular_mask, equisteradian_mask, subgrid_mask
-from service.recon import reconstruct_grid, reconstruct_points
-from service.recon.tv import noise_sigma, reconstruct_tv
+from fpscan.physics import Ball, ball_p0
+from fpscan.physics.forward import forward_grid
+from fpscan.service.metrics import correlation_coefficient, disc_mask
+from fpscan.service.plans import Lattice, equiangular_mask, equisteradian_mask, subgrid_mask
+from fpscan.service.recon import reconstruct_grid, reconstruct_points
+from fpscan.service.recon.tv import noise_sigma, reconstruct_tv
 
 pytestmark = pytest.mark.long(40)
 
@@ -50,8 +50,8 @@ def tree_2d():
     with the true p0. The record (n_t = 640 samples of dx/c) reaches every sensor's
     farthest phantom point (≤ √(511.5² + 115²) ≈ 524 pixels away); the half-length record
     instead of n_x + n_z halves the model-based operator's padded grid."""
-    from driver.physics.axes import centred_axis as lateral_axis
-    from service.experiments.phantoms import tree_phantom, tree_roi
+    from fpscan.physics.axes import centred_axis as lateral_axis
+    from fpscan.service.experiments.phantoms import tree_phantom, tree_roi
 
     n_z, n_x, dx = 128, 1024, 50e-6
     n_t = n_x // 2 + n_z
@@ -148,7 +148,7 @@ def test_automatic_lambda_is_within_0_01_cc_of_the_best_of_a_sweep(tree_2d):
 def test_automatic_lambda_is_within_0_01_cc_of_the_best_of_a_sweep_3d(balls_3d):
     """Issue 19 item 3 on a 3 % equi-steradian mask (53 of 1600 sensors), where the image's
     noise level alone was too weak (CC 0.953 against 0.979 at the best λ of a sweep): the
-    warm start's discrepancy raises it (service.recon.tv, module doc)."""
+    warm start's discrepancy raises it (fpscan.service.recon.tv, module doc)."""
     b = balls_3d
     auto = b.get("auto") or _tv_3d(b)
     lam = auto.params["lam"]
@@ -163,8 +163,8 @@ def test_the_automatic_lambda_reads_the_warm_starts_discrepancy(balls_3d):
     """D₀ = ‖A x₀ − g‖ / (σ̂ √N) of the NEDNER warm start (p0 >= 0), A the direct-sum forward
     model (`forward_points`), is what tv records and raises λ by; on this 3 % mask the warm
     start misses the data by far more than the noise, so λ is several image noise levels."""
-    from driver.physics.forward import forward_points
-    from service.recon.tv import _LAM_KNEE, _LAM_POWER, _LAM_SCALE
+    from fpscan.physics.forward import forward_points
+    from fpscan.service.recon.tv import _LAM_KNEE, _LAM_POWER, _LAM_SCALE
 
     b = balls_3d
     # at the record's own band (declared): the oracle's model is the direct sum at the record's sampling (the 2 DZ
@@ -183,7 +183,7 @@ def test_the_automatic_lambda_reads_the_warm_starts_discrepancy(balls_3d):
 
 
 def test_memory_estimate_admits_by_method():
-    from service.recon import estimate_peak_memory
+    from fpscan.service.recon import estimate_peak_memory
 
     tv = estimate_peak_memory(1024, 226, 226, method="tv", n_points=1653, dtype=np.float32)
     ner = estimate_peak_memory(1024, 226, 226, method="nedner", n_points=1653, dtype=np.float32)

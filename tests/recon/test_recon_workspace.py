@@ -1,5 +1,5 @@
 """NER's work arrays share memory: each step writes its result into memory an earlier step has
-already written (`service.recon.planar._reuse`), so that a reconstruction's peak is its fine
+already written (`fpscan.service.recon.planar._reuse`), so that a reconstruction's peak is its fine
 temporal grid and one spectrum, not those and two more arrays of the spectrum's size."""
 from __future__ import annotations
 
@@ -12,14 +12,14 @@ import numpy as np
 import pytest
 import scipy.fft
 
-from driver.physics import fft_engine
-from service.recon import reconstruct_grid, reconstruct_points
+from fpscan.physics import fft_engine
+from fpscan.service.recon import reconstruct_grid, reconstruct_points
 
 PEAK_SCRIPT = r"""
 import json, sys
 import numpy as np
-from driver.physics import nufft
-from service.recon import reconstruct_grid
+from fpscan.physics import nufft
+from fpscan.service.recon import reconstruct_grid
 
 def rss():
     with open("/proc/self/status") as fh:
@@ -90,7 +90,7 @@ def test_the_inverse_lateral_fft_keeps_the_grid_asked_for(shape, keep, slab_plan
     for) against scipy.fft.irfftn's whole image cut the same way, written over the
     spectrum's own memory, a slab of planes at a time (one plane a slab: each slab's output
     overlaps spectrum planes it has just read)."""
-    from driver.physics.lateral import irfft_lateral
+    from fpscan.physics.lateral import irfft_lateral
 
     monkeypatch.setattr(fft_engine, "SMALL_ELEMENTS", 0)  # scipy.fft and its slabs, at any size
     image = np.random.default_rng(6).standard_normal(shape)

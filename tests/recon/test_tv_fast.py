@@ -21,7 +21,7 @@ import tracemalloc
 import numpy as np
 import pytest
 
-from service.recon.tv import fista, geometry, preconditioner, prox, stores
+from fpscan.service.recon.tv import fista, geometry, preconditioner, prox, stores
 from tests.recon.test_recon_tv_solver import _case, _tv
 
 
@@ -207,7 +207,7 @@ def test_preconditioner_runs_on_fast_lengths_and_is_the_padded_dense_map(shape):
     orthonormal DCT-II of the padded grid, both built here from their formulas as dense
     matrices: symmetric and positive definite on the image. A grid already at fast lengths is
     not padded."""
-    from driver.physics.fast_lengths import fast_length
+    from fpscan.physics.fast_lengths import fast_length
 
     dx, dz = 60e-6, 12e-6
     P = preconditioner._ner_weight(shape, dx, dz)

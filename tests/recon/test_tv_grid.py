@@ -1,18 +1,18 @@
 """tv's grid (issues 47 and 59): the band-limited resampling and its transpose, the band-limited
 operator (dot test; its forward against `forward_points` at the new rate, and against the data
-resampled by `driver.physics.resample`), the band the lateral pitch resolves, the record kept
+resampled by `fpscan.physics.resample`), the band the lateral pitch resolves, the record kept
 for what the image draws on, and tv honouring a given dz / n_z and recording its grid."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from driver.physics.forward import forward_points
-from driver.physics.resample import resample, resample_adjoint, resampled_length
-from service.metrics import correlation_coefficient
-from service.recon.operator import PlanarOperator
-from service.recon.tv import reconstruct_tv
-from service.recon.tv_grid import RecordFacts, data_extent, noise_sigma, record_facts, tv_grid
+from fpscan.physics.forward import forward_points
+from fpscan.physics.resample import resample, resample_adjoint, resampled_length
+from fpscan.service.metrics import correlation_coefficient
+from fpscan.service.recon.operator import PlanarOperator
+from fpscan.service.recon.tv import reconstruct_tv
+from fpscan.service.recon.tv_grid import RecordFacts, data_extent, noise_sigma, record_facts, tv_grid
 
 C, DX = 1500.0, 60e-6
 rng = np.random.default_rng(47)
@@ -114,7 +114,7 @@ def test_the_record_is_kept_until_the_farthest_sensor_hears_the_images_last_row(
     at every sensor: the forward model (`forward_points`) of a source at the image's deepest row,
     at the lateral corner farthest from a sensor, has passed that sensor before the kept record
     ends (and not long before). A line's sources ring on (2-D waves have a tail ∝ 1/t²):
-    tv keeps a line's whole record (`service.recon.tv.problem._lateral_extent` gives no reach there)."""
+    tv keeps a line's whole record (`fpscan.service.recon.tv.problem._lateral_extent` gives no reach there)."""
     n_t, dt = 900, 10e-9
     x = (np.arange(24) - 11.5) * DX  # the image's lateral axes (x and y)
     pos = np.array([[x[0], x[0]], [x[3], x[2]]])  # two sensors at one corner of the image

@@ -1,4 +1,4 @@
-"""tv's array-expression kernels (the GPU run's, `service.recon.tv.kernels`) on NumPy against the
+"""tv's array-expression kernels (the GPU run's, `fpscan.service.recon.tv.kernels`) on NumPy against the
 compiled ones the CPU runs (issue 63): each kernel, then the whole solver loop with each set."""
 from __future__ import annotations
 
@@ -7,11 +7,11 @@ import time
 import numpy as np
 import pytest
 
-from driver.physics.forward import forward_points
-from service.recon.tv import fista, prox, stores
-from service.recon.tv.geometry import _geometry_numbers
-from service.recon.tv.kernels import array_kernels
-from service.recon.tv.problem import _Model, _record, _start_image, _warm_start
+from fpscan.physics.forward import forward_points
+from fpscan.service.recon.tv import fista, prox, stores
+from fpscan.service.recon.tv.geometry import _geometry_numbers
+from fpscan.service.recon.tv.kernels import array_kernels
+from fpscan.service.recon.tv.problem import _Model, _record, _start_image, _warm_start
 
 XK = array_kernels(np)
 

@@ -1,6 +1,6 @@
 """The hostile-input suite as data (issue 14): one row per case — the upload or request,
 the expected status and a fragment of the reason. Files are built with h5py/numpy here,
-from a real scan file written by ``driver.scanfile``."""
+from a real scan file written by ``fpscan.driver.scanfile``."""
 from __future__ import annotations
 
 import json
@@ -11,8 +11,8 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from driver.plan import plan_id_of
-from driver.scanfile import ScanFile
+from fpscan.driver.plan import plan_id_of
+from fpscan.driver.scanfile import ScanFile
 
 PITCH = 1e-4
 
@@ -88,7 +88,7 @@ def writer_flagged_corrupt(folder: Path) -> Path:
     superblock checksum valid: what a killed SWMR writer leaves), with 256 bytes of noise
     over its root group's metadata at 10 %: opened as an SWMR reader, HDF5 retries that
     metadata for ever while holding the GIL (read_scan did not return in 20 s)."""
-    from driver.scanfile import _lookup3  # HDF5's superblock checksum
+    from fpscan.driver.scanfile import _lookup3  # HDF5's superblock checksum
 
     src = bytearray(scan_file(folder).read_bytes())
     assert src[8] in (2, 3), "a version 2/3 superblock (libver latest)"
@@ -335,7 +335,7 @@ def plan_document() -> dict:
 
 #: (case, value) of a plan document that are legal (201): the optional weight ratio
 #: unset, prf 0 or tiny (as for requests), the planner's record (mask.kind, order: labels
-#: the contract does not check, ``driver.plan.check_plan``), a first index (0, 0) (the
+#: the contract does not check, ``fpscan.driver.plan.check_plan``), a first index (0, 0) (the
 #: document's own first point), tiny positive weights (a point that counts for little).
 DOC_LEGAL = {("mask.weight_ratio", None), ("mask.kind", "x"), ("order", "x"), ("points.indices[0]", 0),
              *(("acquisition.prf", v) for v in (0, 1e-12, 5e-324)),
@@ -452,7 +452,7 @@ def _new_option_cases(names: set[str]) -> list[tuple[str, dict, int, str]]:
     must give it as a 404 or a 422 naming the option, never a 5xx or a hang."""
     from pydantic import ValidationError
 
-    from service.recon.methods import METHODS
+    from fpscan.service.recon.methods import METHODS
 
     out = []
     for name in sorted(names):
@@ -473,7 +473,7 @@ def recon_cases() -> list[tuple[str, dict, int, str]]:
     path trick for the ids): ``(case id, request body, expected status, reason fragment)``:
     422 with a reason naming the option, or 404 (valid, but no such dataset or scan job)
     for the legal values (an id "x")."""
-    from service.api.models import ReconParams
+    from fpscan.service.api.models import ReconParams
 
     assert set(RECON_PARAMS) <= set(ReconParams.model_fields), "an option listed here is gone from the API"
     out = []

@@ -9,7 +9,7 @@ from pathlib import Path
 import httpx
 import pytest
 
-from clients.processes import Service, start_service
+from fpscan.clients.processes import Service, start_service
 from tests.clients.clients_servers import QUIET
 from tests.waits import HANG_S
 
@@ -18,7 +18,7 @@ TOKEN = "test-token-123"
 
 
 class Server:
-    """One ``fpscan serve`` subprocess (``clients.processes.start_service``) with fast
+    """One ``fpscan serve`` subprocess (``fpscan.clients.processes.start_service``) with fast
     heartbeats and previews. ``env`` adds ``FPSCAN_*`` settings."""
 
     def __init__(self, data_dir: Path, *, token: str | None = TOKEN, devices: dict | None = None,
@@ -88,13 +88,13 @@ def wait_job(client: httpx.Client, job_id: str, states=("succeeded", "failed", "
 
 def has_recon() -> bool:
     try:
-        from service.recon import reconstruct_grid, reconstruct_points  # noqa: F401
+        from fpscan.service.recon import reconstruct_grid, reconstruct_points  # noqa: F401
     except ImportError:
         return False
     return True
 
 
-needs_recon = pytest.mark.skipif(not has_recon(), reason="service.recon not available")
+needs_recon = pytest.mark.skipif(not has_recon(), reason="fpscan.service.recon not available")
 
 
 

@@ -58,7 +58,7 @@ def upload_form(offset: int = 0) -> dict:
 def clone_datasets(data_dir, dataset_id: str, n: int) -> list[str]:
     """``n`` more stored copies of ``dataset_id`` (folder and row; the server stopped),
     newer than it, oldest first."""
-    from service.jobs.store import JobStore
+    from fpscan.service.jobs.store import JobStore
 
     store = JobStore(data_dir / "jobs.sqlite")
     try:
@@ -200,7 +200,7 @@ def test_a_reconstruction_and_the_deletion_of_its_dataset_never_both_succeed(cop
 def clone_jobs(data_dir, job_id: str, n: int) -> list[str]:
     """``n`` more succeeded copies of the reconstruction ``job_id`` (its row through the
     store's own calls, its result folder copied; the server stopped)."""
-    from service.jobs.store import JobStore
+    from fpscan.service.jobs.store import JobStore
 
     store = JobStore(data_dir / "jobs.sqlite")
     try:
@@ -223,7 +223,7 @@ def clone_jobs(data_dir, job_id: str, n: int) -> list[str]:
 def test_a_download_racing_the_deletion_of_its_job_is_whole_or_404_never_500(tmp_path):
     """Results and exports (issue 60.4): ``GET`` of a volume or an export racing ``DELETE``
     of its job is answered with the whole file as it was (200) or 404, never a 500 (the
-    file is opened by the route: ``service.api.files.HeldFileResponse``)."""
+    file is opened by the route: ``fpscan.service.api.files.HeldFileResponse``)."""
     data = tmp_path / "data"
     srv = Server(data).start()
     try:
@@ -306,7 +306,7 @@ def _race(rng: random.Random, sends: list) -> bool:
 
 @pytest.mark.timeout(300)
 def test_a_scan_and_the_deletion_of_its_plan_never_both_succeed(stuck_scanner):
-    """The plan's acknowledge-then-delete pair (``service.jobs.lifecycle.create_job`` against
+    """The plan's acknowledge-then-delete pair (``fpscan.service.jobs.lifecycle.create_job`` against
     ``delete_plan``): ``POST /api/scans`` (202: the scan will read the plan) racing
     ``DELETE /api/plans/{id}``. Either the scan came first (202, its job exists and is
     active, and the deletion is refused with 409 naming it) or the deletion did (200, and the

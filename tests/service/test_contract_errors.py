@@ -9,7 +9,7 @@ import io
 import numpy as np
 import pytest
 
-from service.settings import Settings
+from fpscan.service.settings import Settings
 from tests.service.service_servers import Server
 
 

@@ -14,8 +14,8 @@ import time
 import numpy as np
 import pytest
 
-from clients.http import Client, Conflict, NotFound
-from service.jobs.store import JobStore
+from fpscan.clients.http import Client, Conflict, NotFound
+from fpscan.service.jobs.store import JobStore
 from tests.service.service_servers import Server
 from tests.waits import HANG_S
 
@@ -42,7 +42,7 @@ def _on_disk(server) -> tuple[int, int]:
 
 
 def _cli(server, *args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "clients", "datasets", *args, "--server", server.url,
+    return subprocess.run([sys.executable, "-m", "fpscan", "datasets", *args, "--server", server.url,
                            "--token", server.token], capture_output=True, text=True, timeout=HANG_S)
 
 

@@ -1,5 +1,5 @@
-"""/api/health's disk usage from counters (``service.storage.usage.DiskUsage``, issue 50.5) on
-a real folder, checked against the service's own walk (``service.jobs.lifecycle.disk_usage``):
+"""/api/health's disk usage from counters (``fpscan.service.storage.usage.DiskUsage``, issue 50.5) on
+a real folder, checked against the service's own walk (``fpscan.service.jobs.lifecycle.disk_usage``):
 an answer never walks the folder (files written behind the counters' back show only after
 the next checking walk), what a writer counts shows at once, a growing file's size is read
 live, a checking walk corrects a counter that drifted and keeps the changes made while it
@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import logging
 
-from service.jobs.lifecycle import delete_dataset, disk_usage
-from service.jobs.store import JobStore
-from service.storage.usage import DiskUsage
+from fpscan.service.jobs.lifecycle import delete_dataset, disk_usage
+from fpscan.service.jobs.store import JobStore
+from fpscan.service.storage.usage import DiskUsage
 
 PARTS = ("scans", "results", "datasets", "exports", "other")
 
@@ -76,7 +76,7 @@ def test_a_checking_walk_corrects_drift_and_keeps_changes_made_while_it_ran(tmp_
 
 
 def test_deleting_a_dataset_takes_its_bytes_off(tmp_path):
-    from service.storage.usage import usage_for
+    from fpscan.service.storage.usage import usage_for
 
     data = tmp_path / "data"
     store = JobStore(data / "jobs.sqlite", reserve_bytes=0)

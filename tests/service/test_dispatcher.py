@@ -1,4 +1,4 @@
-"""The jobs' one dispatcher (service.jobs.dispatcher), the loop the reconstruction queue, the
+"""The jobs' one dispatcher (fpscan.service.jobs.dispatcher), the loop the reconstruction queue, the
 scan runner and the live preview share: FIFO with a held head, passing over a busy slot, a job
 another server claimed, a failing round or job body logged and survived, no round after a
 stop. Against a real SQLite job store; every wait is for an event (a state, a thread)."""
@@ -10,9 +10,9 @@ import threading
 
 import pytest
 
-from service.jobs import dispatcher as dispatcher_module
-from service.jobs.dispatcher import SKIP, START, WAIT, Dispatcher, Loop
-from service.jobs.store import JobStore
+from fpscan.service.jobs import dispatcher as dispatcher_module
+from fpscan.service.jobs.dispatcher import SKIP, START, WAIT, Dispatcher, Loop
+from fpscan.service.jobs.store import JobStore
 from tests.waits import HANG_S
 
 #: so long that only an explicit wake (or a direct ``dispatch()``) makes a round

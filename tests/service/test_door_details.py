@@ -15,9 +15,9 @@ import time
 import numpy as np
 import pytest
 
-from service.api.access import host_allowed
-from service.api.plans import accepts_encoding
-from service.settings import Settings
+from fpscan.service.api.access import host_allowed
+from fpscan.service.api.plans import accepts_encoding
+from fpscan.service.settings import Settings
 from tests.service.service_servers import Server
 from tests.waits import HANG_S
 

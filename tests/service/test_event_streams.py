@@ -28,7 +28,7 @@ from tests.service.test_recon_jobs import sse_events
 from tests.service.test_scans import make_plan, phantom, start_scan, wait_points
 from tests.waits import HANG_S
 
-driver_sim = pytest.importorskip("driver.simulator")
+driver_sim = pytest.importorskip("fpscan.driver.simulator")
 
 pytestmark = needs_recon
 
@@ -38,7 +38,7 @@ SIDE, PRF = 8, 16.0  # 64 points at 16 Hz: a scan of about 4 s
 
 @pytest.fixture(scope="module")
 def sim(tmp_path_factory):
-    from driver.sources import BallSource
+    from fpscan.driver.sources import BallSource
 
     s = driver_sim.SimulatedScanner(source=BallSource(phantom()), prf=PRF, seed=3,
                                     record=tmp_path_factory.mktemp("sim") / "truth.h5").start()
@@ -60,14 +60,14 @@ def _curl(srv: Server, job_id: str) -> subprocess.Popen:
 
 
 def _sync_client(srv: Server, job_id: str, out: dict, read_timeout: float = HANG_S) -> None:
-    from clients.http import Client
+    from fpscan.clients.http import Client
 
     with Client(srv.url, token=srv.token) as c:
         out["sync"] = list(c.events(job_id, read_timeout=read_timeout))
 
 
 def _async_client(srv: Server, job_id: str, out: dict, read_timeout: float = HANG_S) -> None:
-    from clients.http import AsyncClient
+    from fpscan.clients.http import AsyncClient
 
     async def main():
         async with AsyncClient(srv.url, token=srv.token) as c:

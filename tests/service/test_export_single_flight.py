@@ -78,7 +78,7 @@ def test_concurrent_first_exports_wait_for_one_build_and_serve_the_same_bytes(tm
 def test_requests_that_wait_for_a_build_serve_it_and_later_ones_build_anew(tmp_path):
     """The single flight of a scan's export (written anew per request): the requests that
     came while it was written serve that build; one that comes after builds again."""
-    from service.api.exports import _FLIGHTS, _one_build
+    from fpscan.service.api.exports import _FLIGHTS, _one_build
 
     out = tmp_path / "x_ipasc.h5"
     building, release = threading.Event(), threading.Event()

@@ -1,4 +1,4 @@
-"""The registry of formats (service.formats) is the one list every surface offers: the
+"""The registry of formats (fpscan.service.formats) is the one list every surface offers: the
 upload's ``format`` field (OpenAPI schema and its refusal), ``GET /api/datasets/formats``
 (the web page's and the HTTP client's choices; tests/web check the page) and
 ``fpscan recon``/``fpscan unmix --format``."""
@@ -6,13 +6,13 @@ from __future__ import annotations
 
 import argparse
 
-from service import formats
-from service.storage.loader import input_formats
+from fpscan.service import formats
+from fpscan.service.storage.loader import input_formats
 
 
 def test_every_surface_offers_the_registrys_formats(shared_api, tmp_path):
-    from clients.cli import recon as cli_recon
-    from clients.cli import unmix as cli_unmix
+    from fpscan.clients.cli import recon as cli_recon
+    from fpscan.clients.cli import unmix as cli_unmix
 
     uploads = [f.name for f in formats.FORMATS.values() if f.upload]
     assert uploads == ["npy", "kwave-hdf5", "kwave-mat", "fpscan", "ipasc"]  # what users may upload

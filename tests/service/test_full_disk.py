@@ -29,7 +29,7 @@ from tests.service.small_disks import fill, tmpfs
 from tests.service.test_scans import make_plan, start_scan, wait_points
 from tests.waits import HANG_S
 
-driver_sim = pytest.importorskip("driver.simulator")
+driver_sim = pytest.importorskip("fpscan.driver.simulator")
 
 SETTLE_S = 30.0
 
@@ -91,7 +91,7 @@ def _settle(c, job_ids: dict, t_fill: float) -> dict:
 @needs_recon
 @pytest.mark.timeout(600)
 def test_a_full_disk_settles_every_job_and_the_server_works_again_once_freed(tmp_path, small_disk):
-    from driver.sources import BallSource
+    from fpscan.driver.sources import BallSource
     from tests.service.test_scans import phantom
 
     sim = driver_sim.SimulatedScanner(source=BallSource(phantom()), prf=100.0, seed=3).start()
@@ -183,7 +183,7 @@ def test_a_reserve_another_store_gave_up_counts_as_spent_here_too(small_disk):
     real server (its cancel)."""
     import sqlite3
 
-    from service.jobs.store import JobStore
+    from fpscan.service.jobs.store import JobStore
 
     db = small_disk / "jobs.sqlite"
     api, worker = JobStore(db, reserve_bytes=4 << 20), JobStore(db, reserve_bytes=4 << 20)
@@ -217,7 +217,7 @@ def test_a_reserve_another_store_wrote_counts_as_in_place_for_a_store_that_could
     as in the test above)."""
     import sqlite3
 
-    from service.jobs.store import JobStore
+    from fpscan.service.jobs.store import JobStore
 
     db, reserve = small_disk / "jobs.sqlite", 4 << 20
     blocker = small_disk / "blocker.bin"

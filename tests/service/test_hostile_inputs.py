@@ -75,9 +75,9 @@ class HealthWatch:
 
 def _names(detail: str, reason: str) -> bool:
     """Whether a 422's reason names ``reason`` (a parameter: ``sound_speed`` may be written
-    "sound speed"), or the name a person reads for it over HTTP (``service.names.PERSON_NAMES``:
+    "sound speed"), or the name a person reads for it over HTTP (``fpscan.service.names.PERSON_NAMES``:
     ``c_range`` → ``sound_speed_range``, issue 61 item 7)."""
-    from service.names import PERSON_NAMES
+    from fpscan.service.names import PERSON_NAMES
 
     detail = detail.lower().replace("_", " ")
     return any(name.lower().replace("_", " ") in detail for name in (reason, PERSON_NAMES.get(reason, reason)))
@@ -86,8 +86,8 @@ def _names(detail: str, reason: str) -> bool:
 def test_rows_cover_every_mask_parameter():
     """The plan rows try every parameter of every mask kind (from the kinds' parameter
     models: a new parameter without rows fails here), and the fields of a plan request."""
-    from service.api.models import _PlanCreate
-    from service.plans.kinds import KINDS
+    from fpscan.service.api.models import _PlanCreate
+    from fpscan.service.plans.kinds import KINDS
     from tests.service.hostile_cases import PLAN_BASE, mask_parameters_covered
 
     declared = {(k.name, p) for k in KINDS.values() for p in k.params.model_fields}
@@ -313,7 +313,7 @@ def _read_all(sock) -> str:
 
 
 def test_slots_count_running_plus_waiting_then_refuse():
-    from service.api.context import Slots
+    from fpscan.service.api.context import Slots
 
     slots = Slots("things", running=1, waiting=1, retry_after_s=3)
     assert slots.enter() and slots.enter()
@@ -387,7 +387,7 @@ def test_cli_refuses_hostile_files_with_the_reason(files, make, fragment):
     env = {**os.environ, "FPSCAN_IMPORT_TIMEOUT_S": "3"}
     for cmd in (["recon", str(path), "--out", str(files / "out"), "--quiet"],
                 ["export", str(path), "--out", str(files / "x.h5")]):
-        r = subprocess.run([sys.executable, "-m", "clients", *cmd], capture_output=True, text=True,
+        r = subprocess.run([sys.executable, "-m", "fpscan", *cmd], capture_output=True, text=True,
                            timeout=120, env=env)
         assert r.returncode != 0, (cmd, r.stdout, r.stderr)
         # export reads scan files only: its reason may be the format's, except for the

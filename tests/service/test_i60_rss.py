@@ -2,11 +2,11 @@
 baseline after thousands of slow readers are gone.
 
 A real ``fpscan serve`` (``send_timeout_s`` 2 s), which runs itself on the C library's allocator
-(``PYTHONMALLOC=malloc``, ``clients.cli.serve.use_malloc``; checked in its environment): Python's own small-object allocator keeps every 1-MiB arena that
+(``PYTHONMALLOC=malloc``, ``fpscan.clients.cli.serve.use_malloc``; checked in its environment): Python's own small-object allocator keeps every 1-MiB arena that
 one long-lived object still occupies, so after a burst of 5000 connections its RSS stays
 about 60 MB over the baseline with the same live objects (``docs/performance.md``, issue 60);
 with the C allocator, the server's own return of memory after a burst and its tail
-(``service.api.connections.return_memory``: a full collection and ``malloc_trim``) gives the
+(``fpscan.service.api.connections.return_memory``: a full collection and ``malloc_trim``) gives the
 pages back.
 
 5000 slow readers (``SO_RCVBUF`` 1024, 4 pipelined ``GET /openapi.json``, never read; 50
@@ -49,7 +49,7 @@ def test_rss_returns_within_10_percent_after_5000_slow_readers(tmp_path):
     socks: list[socket.socket] = []
     try:
         proc = psutil.Process(srv.service.pid)
-        # fpscan serve restarted itself on the C allocator (clients.cli.serve.use_malloc): its exec's environment
+        # fpscan serve restarted itself on the C allocator (fpscan.clients.cli.serve.use_malloc): its exec's environment
         assert proc.environ().get("PYTHONMALLOC") == "malloc", proc.environ().get("PYTHONMALLOC")
         with srv.client() as c:  # warm: the schema built, every route's first call made
             for _ in range(20):

@@ -1,5 +1,5 @@
 """A job's events stream hears of a committed event at once (`JobStore.add_listener` ->
-`service.api.jobs.EventWakeups`), not at its next poll: a real SQLite file, a real event
+`fpscan.service.api.jobs.EventWakeups`), not at its next poll: a real SQLite file, a real event
 loop, the change committed from another thread as the job threads do."""
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import threading
 
 import pytest
 
-from service.api.jobs import EventWakeups
-from service.jobs.store import JobStore
+from fpscan.service.api.jobs import EventWakeups
+from fpscan.service.jobs.store import JobStore
 
 
 def test_listeners_hear_committed_events_only(tmp_path):

@@ -145,8 +145,8 @@ def test_a_foreign_host_is_refused_with_a_token(lab_server, host, allowed):
 @pytest.fixture(scope="module")
 def open_server(tmp_path_factory):
     """A server with no token (loopback only), a simulated scanner ``sim``."""
-    driver_sim = pytest.importorskip("driver.simulator")
-    from driver.sources import BallSource
+    driver_sim = pytest.importorskip("fpscan.driver.simulator")
+    from fpscan.driver.sources import BallSource
     from tests.service.test_scans import phantom
 
     sim = driver_sim.SimulatedScanner(source=BallSource(phantom()), prf=50.0, seed=3).start()
@@ -248,7 +248,7 @@ def test_the_plan_body_is_refused_with_the_reason_as_before(lab_server):
 
 def test_fpscan_serve_allowed_host_flag(tmp_path):
     """``fpscan serve --allowed-host NAME`` (repeatable): those names are answered, others not."""
-    from clients.processes import Service, clean_env, fpscan_argv, free_port
+    from fpscan.clients.processes import Service, clean_env, fpscan_argv, free_port
 
     port = free_port()
     argv = fpscan_argv("serve", "--host", "127.0.0.1", "--port", str(port), "--no-web", "--token", TOKEN,

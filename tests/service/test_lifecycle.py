@@ -15,8 +15,8 @@ import httpx
 import numpy as np
 import pytest
 
-from service.jobs import lifecycle
-from service.jobs.store import JobStore
+from fpscan.service.jobs import lifecycle
+from fpscan.service.jobs.store import JobStore
 from tests.service.service_servers import Server, needs_recon, wait_job
 from tests.waits import HANG_S
 
@@ -44,7 +44,7 @@ def _recon(api, ds: str) -> str:
 
 
 def _cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "clients", *args], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "fpscan", *args], capture_output=True, text=True,
                           timeout=HANG_S)
 
 

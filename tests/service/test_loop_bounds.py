@@ -76,7 +76,7 @@ def _history(data_dir, files: int = 20_000) -> None:
 @pytest.mark.serial
 @pytest.mark.timeout(600)
 def test_health_p99_with_20000_files_and_50_clients(tmp_path):
-    from service.jobs.store import JobStore
+    from fpscan.service.jobs.store import JobStore
 
     data = tmp_path / "data"
     _history(data)

@@ -10,7 +10,7 @@ import sys
 import numpy as np
 import pytest
 
-from service.jobs.admission import AdmissionError, estimate_memory, working_depth_rows
+from fpscan.service.jobs.admission import AdmissionError, estimate_memory, working_depth_rows
 from tests.service.service_servers import needs_recon
 
 pytestmark = pytest.mark.long(60)
@@ -35,8 +35,8 @@ print(json.dumps({"base": base, "peak": status("VmHWM")}))
 PEAK_SCRIPT = r"""
 import json, sys
 import numpy as np
-from service.pipeline import reconstruct
-from service.recon.dataset import GridDataset
+from fpscan.service.pipeline import reconstruct
+from fpscan.service.recon.dataset import GridDataset
 n, n_t, up, dz = int(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3]), float(sys.argv[4])
 params = {"upsample": up, "dtype": "float32"}
 if dz > 0:
@@ -83,7 +83,7 @@ def test_depth_rows_follow_dz_and_absurd_dz_is_refused():
 def test_the_worker_refuses_a_job_over_the_configured_limit(tmp_path):
     import h5py
 
-    from service.jobs.work import run_reconstruction
+    from fpscan.service.jobs.work import run_reconstruction
 
     path = tmp_path / "dataset.h5"
     with h5py.File(path, "w") as f:
@@ -108,16 +108,16 @@ k = np.arange(20)
 small = PointDataset(alines=rng.standard_normal((20, 32)), positions=np.stack([ax_s[k % 12], ax_s[k // 12]], 1),
                      dt=2e-8, c=1500.0, grid=(ax_s, ax_s), weights=None)
 reconstruct(small, "tv", iterations=1)
-from service.recon.warmup import warm_up
+from fpscan.service.recon.warmup import warm_up
 warm_up(["float32"], ("ner", "nedner", "tv"))
 """
 
 TV_PEAK_SCRIPT = r"""
 import json, sys
 import numpy as np
-from driver.physics.axes import centred_axis
-from service.pipeline import reconstruct
-from service.recon.dataset import PointDataset
+from fpscan.physics.axes import centred_axis
+from fpscan.service.pipeline import reconstruct
+from fpscan.service.recon.dataset import PointDataset
 n, n_t, n_pts, dx = int(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3]), float(sys.argv[4])
 rng = np.random.default_rng(0)
 ax = centred_axis(n, dx)
@@ -154,9 +154,9 @@ def test_tv_admission_uses_the_pitch_and_covers_the_measured_peak():
 UPSAMPLE_SCRIPT = r"""
 import json, sys
 import numpy as np
-from driver.physics.axes import centred_axis
-from service.pipeline import reconstruct
-from service.recon.dataset import GridDataset, PointDataset
+from fpscan.physics.axes import centred_axis
+from fpscan.service.pipeline import reconstruct
+from fpscan.service.recon.dataset import GridDataset, PointDataset
 method, n, n_t = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
 
 
@@ -195,7 +195,7 @@ print(json.dumps(out))
 @needs_recon
 @pytest.mark.parametrize("method", ["ner", "nedner"])
 def test_admission_is_within_25_percent_of_the_measured_peak_at_every_upsample(method):
-    """Issue 22.4: the admission estimate (``service.jobs.admission.estimate_memory``, the rule
+    """Issue 22.4: the admission estimate (``fpscan.service.jobs.admission.estimate_memory``, the rule
     the API and the worker apply) is within ±25 % of the measured peak of a real
     reconstruction, for NER and NEDNER (sensors off the lattice: the type-1 NUFFT and the
     Voronoi weights) at upsample 1, 2, 4 and 8 (upsample 8 peaked at 1.30x the estimate
@@ -222,10 +222,10 @@ def test_one_input_shape_for_a_plan_a_stored_record_and_a_loaded_dataset(tmp_pat
     """`input_shape` is the one place the estimate's shape is built: a scan's plan, the
     record the store keeps of an uploaded dataset and the dataset as the worker loads it
     describe the same input alike, so the estimate made at submission is the worker's."""
-    from driver.physics.axes import centred_axis
-    from service.jobs.admission import input_shape
-    from service.plans import make_plan
-    from service.recon.dataset import GridDataset, PointDataset
+    from fpscan.physics.axes import centred_axis
+    from fpscan.service.jobs.admission import input_shape
+    from fpscan.service.plans import make_plan
+    from fpscan.service.recon.dataset import GridDataset, PointDataset
 
     plan = make_plan("full", lattice={"n_x": 12, "n_y": 10, "pitch": 1e-4},
                      acquisition={"n_t": 64, "dt": 2e-8, "sound_speed": 1500.0}).to_dict()
@@ -253,7 +253,7 @@ def test_the_worker_admits_the_jobs_own_estimate(tmp_path):
     (here one over the limit, though the loaded input is tiny) rather than estimating again."""
     import h5py
 
-    from service.jobs.work import run_reconstruction
+    from fpscan.service.jobs.work import run_reconstruction
 
     path = tmp_path / "dataset.h5"
     with h5py.File(path, "w") as f:
@@ -270,8 +270,8 @@ def test_the_worker_admits_the_jobs_own_estimate(tmp_path):
 KWAVE_PEAK_SCRIPT = r"""
 import json, sys
 import numpy as np
-from service.pipeline import reconstruct
-from service.recon.dataset import GridDataset
+from fpscan.service.pipeline import reconstruct
+from fpscan.service.recon.dataset import GridDataset
 n_t, n_y, n_x, dtype, interp = int(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3]), sys.argv[4], sys.argv[5]
 params = {"dtype": dtype, "interp": interp}
 data = np.random.default_rng(0).standard_normal((n_t, n_y, n_x)).astype(dtype)
@@ -293,7 +293,7 @@ def test_kwave_admission_estimate_covers_the_measured_peak_closely(n_t, n_y, n_x
     spectrum, the time-depth step's buffers, the input) covers the peak of a real run in a
     fresh process and stays within 1.3x of it at a size where the spectrum dominates
     (before: 2.4 spectra + the image, about twice the peak)."""
-    from service.recon.kwave_dft import product_length
+    from fpscan.service.recon.kwave_dft import product_length
 
     assert product_length(n_x) == (n_x == 226)
     r = subprocess.run([sys.executable, "-c", KWAVE_PEAK_SCRIPT, str(n_t), str(n_y), str(n_x), dtype, interp],
@@ -311,11 +311,11 @@ def test_kwave_admission_estimate_covers_the_measured_peak_closely(n_t, n_y, n_x
 CUT_PEAK_SCRIPT = r"""
 import json, sys
 import numpy as np
-from driver.physics import Ball, ball_alines
-from driver.physics.axes import centred_axis
-from service.pipeline import reconstruct
-from service.recon.dataset import PointDataset
-from service.storage.loader import import_dataset, read_dataset, write_dataset
+from fpscan.physics import Ball, ball_alines
+from fpscan.physics.axes import centred_axis
+from fpscan.service.pipeline import reconstruct
+from fpscan.service.recon.dataset import PointDataset
+from fpscan.service.storage.loader import import_dataset, read_dataset, write_dataset
 n, n_t, n_pts, dx, depth, folder = (int(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3]), float(sys.argv[4]),
                                     float(sys.argv[5]), sys.argv[6])
 rng = np.random.default_rng(0)
@@ -339,7 +339,7 @@ def test_tv_admission_sizes_the_record_cut_after_its_last_echo(tmp_path):
     farthest sensor hears that image's last row. The admission estimate of a tv job on a record
     whose echoes end at about a third of it is within 25 % of the measured peak of the real run
     (above it), and below the whole record's estimate, which it used to be."""
-    from service.jobs.admission import input_shape
+    from fpscan.service.jobs.admission import input_shape
 
     n, n_t, n_pts, dx, depth = 48, 384, 200, 1e-4, 1.2e-3
     r = subprocess.run([sys.executable, "-c", CUT_PEAK_SCRIPT, str(n), str(n_t), str(n_pts), str(dx), str(depth),

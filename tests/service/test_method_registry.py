@@ -1,7 +1,7 @@
-"""The method registry (``service.recon.methods``, issue 21.1): every option of every
+"""The method registry (``fpscan.service.recon.methods``, issue 21.1): every option of every
 method, with the boundary values its own schema states (just inside, just outside each
 range; each choice and one that is none), is judged alike by the library
-(``service.pipeline.reconstruct``), the CLI (``fpscan recon`` on a real file) and HTTP
+(``fpscan.service.pipeline.reconstruct``), the CLI (``fpscan recon`` on a real file) and HTTP
 (``POST /api/reconstructions`` on a real uvicorn server). The cases are generated from the
 registry, so an option added in a method's file is covered here without an edit; the
 expected verdict comes from the stated range, not from the code that enforces it.
@@ -19,10 +19,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from service.pipeline import Cancelled, reconstruct
-from service.recon import device
-from service.recon import methods as registry
-from service.recon.dataset import GridDataset
+from fpscan.service.pipeline import Cancelled, reconstruct
+from fpscan.service.recon import device
+from fpscan.service.recon import methods as registry
+from fpscan.service.recon.dataset import GridDataset
 from tests.service.service_servers import needs_recon
 
 REPO = Path(__file__).resolve().parents[2]
@@ -111,7 +111,7 @@ def _cli_args(options: dict) -> list[str] | None:
 
 
 def _cli(argv: list[str]) -> int:
-    from clients.cli import main
+    from fpscan.clients.cli import main
 
     try:
         return main(argv)
@@ -121,10 +121,10 @@ def _cli(argv: list[str]) -> int:
 
 def _cli_door(argv: list[str]) -> int:
     """``fpscan recon``'s checks without the run: its parser (argparse's own refusals, exit
-    2) and its early option check (``clients.cli.recon.check_options_early``: exit 2)."""
+    2) and its early option check (``fpscan.clients.cli.recon.check_options_early``: exit 2)."""
     import argparse
 
-    from clients.cli import recon as cli_recon
+    from fpscan.clients.cli import recon as cli_recon
 
     parser = argparse.ArgumentParser()
     cli_recon.add_arguments(parser)
@@ -200,8 +200,8 @@ def test_the_generated_surfaces_name_every_option_of_the_registry(shared_api):
     options, the same ranges."""
     import argparse
 
-    from clients.cli import recon as cli_recon
-    from clients.cli import unmix as cli_unmix
+    from fpscan.clients.cli import recon as cli_recon
+    from fpscan.clients.cli import unmix as cli_unmix
 
     openapi = shared_api.get("/openapi.json").json()
     props = openapi["components"]["schemas"]["ReconParams"]["properties"]

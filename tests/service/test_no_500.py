@@ -3,9 +3,9 @@ reaches, beside the schema fuzzing of ``test_openapi_fuzz.py`` (schemathesis).
 
 - The library's parsers, given hostile values (numbers with unit text and exponents up to
   ±10⁹, ``"(1,2"`` and ``"f4,f4,..."`` for a dtype, huge integers, lists, objects): the
-  quantity parser (``driver.units.parse_quantity``), every method's options model
-  (``service.recon.methods``) and the option check of the dispatch
-  (``service.pipeline.method_options``) answer a value or a ``ValueError``, never another
+  quantity parser (``fpscan.driver.units.parse_quantity``), every method's options model
+  (``fpscan.service.recon.methods``) and the option check of the dispatch
+  (``fpscan.service.pipeline.method_options``) answer a value or a ``ValueError``, never another
   exception.
 - A real ``fpscan serve``, over one kept-alive connection: reconstruction requests with such
   options, plan previews with such lengths, times and speeds, and uploads with such spacings
@@ -26,7 +26,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from clients.processes import clean_env, fpscan_argv
+from fpscan.clients.processes import clean_env, fpscan_argv
 from tests.service.service_servers import TOKEN
 
 UNITS = ["", "m", "um", "µm", "mm", "km", "nm", "Ym", "ym", "ns", "us", "s", "ms", "Hz", "kHz", "MHz", "m/s",
@@ -57,7 +57,7 @@ PROPERTY = settings(max_examples=150, deadline=None, derandomize=True, database=
 @given(text=st.one_of(HOSTILE_TEXT, st.text(max_size=60)), kind=st.sampled_from(["length", "time", "frequency",
                                                                                  "speed"]))
 def test_the_quantity_parser_answers_a_number_or_a_reason(text, kind):
-    from driver.units import parse_quantity
+    from fpscan.driver.units import parse_quantity
 
     try:
         value = parse_quantity(text, kind, name="x")
@@ -69,8 +69,8 @@ def test_the_quantity_parser_answers_a_number_or_a_reason(text, kind):
 @PROPERTY
 @given(data=st.data())
 def test_every_method_s_options_are_checked_to_a_value_or_a_reason(data):
-    from service.pipeline import method_options
-    from service.recon.methods import METHODS
+    from fpscan.service.pipeline import method_options
+    from fpscan.service.recon.methods import METHODS
 
     method = data.draw(st.sampled_from(sorted(METHODS)))
     names = sorted(METHODS[method].options_model.model_fields) + ["c", "c_range", "lam", "interp"]
@@ -135,7 +135,7 @@ def _check(answer: tuple[int, bool], what: object) -> None:
 @pytest.mark.timeout(600)
 def test_reconstruction_requests_never_get_a_5xx(fuzz_target):
     _, dataset_id, conn = fuzz_target
-    from service.recon.methods import METHODS, option_fields
+    from fpscan.service.recon.methods import METHODS, option_fields
 
     names = sorted(option_fields()) + ["sound_speed", "sound_speed_range", "force", "c"]
 
@@ -153,7 +153,7 @@ def test_reconstruction_requests_never_get_a_5xx(fuzz_target):
 @pytest.mark.timeout(600)
 def test_plan_requests_never_get_a_5xx(fuzz_target):
     _, _, conn = fuzz_target
-    from service.plans.kinds import KINDS
+    from fpscan.service.plans.kinds import KINDS
 
     @PROPERTY
     @given(kind=st.sampled_from(sorted(KINDS)), pitch=HOSTILE,
@@ -248,7 +248,7 @@ def test_json_nested_beyond_the_bound_is_refused_at_the_door(fuzz_target, method
 
 
 def _nested_at_the_door(conn: KeptAlive, method: str, path: str, make) -> None:
-    from service.api.json_depth import MAX_JSON_DEPTH, json_depth
+    from fpscan.service.api.json_depth import MAX_JSON_DEPTH, json_depth
 
     own = json_depth(body_with(make, "1"))  # the request's own levels around the nested value
     for depth in (MAX_JSON_DEPTH + 1, 2000):
@@ -275,7 +275,7 @@ def _nested_at_the_door(conn: KeptAlive, method: str, path: str, make) -> None:
 
 
 def test_json_depth_counts_brackets_outside_strings_only():
-    from service.api.json_depth import json_depth
+    from fpscan.service.api.json_depth import json_depth
 
     for depth in (0, 1, 2, 64, 65, 3000):
         for kind in ("array", "object", "mixed"):
@@ -372,7 +372,7 @@ def _expected_after(value: str) -> int:
 @PROPERTY
 @given(value=EVENT_IDS)
 def test_last_event_id_parses_to_a_bounded_sequence_or_the_beginning(value):
-    from service.api.jobs import LAST_EVENT_MAX, last_event_seq
+    from fpscan.service.api.jobs import LAST_EVENT_MAX, last_event_seq
 
     got = last_event_seq(value)
     assert 0 <= got <= LAST_EVENT_MAX

@@ -1,8 +1,8 @@
 """One rule per reconstruction option, enforced at every door (issue 22.4, 23.4): each
 option's boundary values, just inside and just outside, fed to the library
-(``service.pipeline.reconstruct``), the CLI (``fpscan recon``) and HTTP
+(``fpscan.service.pipeline.reconstruct``), the CLI (``fpscan recon``) and HTTP
 (``POST /api/reconstructions`` on a real server): all three accept or refuse alike, and
-refuse with the kernel rule's own words (``service.recon.checks``). An option the chosen
+refuse with the kernel rule's own words (``fpscan.service.recon.checks``). An option the chosen
 method does not take is refused the same way, naming the method's options."""
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ import io
 import numpy as np
 import pytest
 
-from service.pipeline import Cancelled, reconstruct
-from service.recon.dataset import GridDataset
+from fpscan.service.pipeline import Cancelled, reconstruct
+from fpscan.service.recon.dataset import GridDataset
 from tests.service.service_servers import needs_recon
 
 DT, DX, C = 2e-8, 1e-4, 1500.0
@@ -59,7 +59,7 @@ def _library(method: str, options: dict) -> str | None:
 
 def _cli(argv: list[str]) -> int:
     """``fpscan`` in this process: its exit status (argparse's own refusals included)."""
-    from clients.cli import main
+    from fpscan.clients.cli import main
 
     try:
         return main(argv)
@@ -111,9 +111,9 @@ def test_every_option_boundary_is_judged_alike_by_library_cli_and_http(server, t
                 assert name in http.json()["detail"] and name in lib and f"--{name}" in err, (case, err)
                 continue
             # the kernel rule at every door (the range named), in each door's words: the command
-            # line's flags (clients.cli.in_flags), the request's JSON fields (issue 61.7)
-            from clients.cli import in_flags
-            from service.names import PERSON_NAMES, renamed_words
+            # line's flags (fpscan.clients.cli.in_flags), the request's JSON fields (issue 61.7)
+            from fpscan.clients.cli import in_flags
+            from fpscan.service.names import PERSON_NAMES, renamed_words
 
             rule = lib.split(", got")[0].removeprefix(f"{name}: ")
             assert renamed_words(rule, PERSON_NAMES) in http.json()["detail"], (case, lib, http.json()["detail"])
@@ -130,7 +130,7 @@ def test_every_option_boundary_is_judged_alike_by_library_cli_and_http(server, t
 ])
 def test_an_option_the_method_does_not_take_is_refused_naming_its_options(
         shared_server, tmp_path, capsys, method, option, flag, value):
-    from service.pipeline import METHODS
+    from fpscan.service.pipeline import METHODS
 
     its = ", ".join(METHODS[method].options)
     lib = _library(method, {option: value})
@@ -141,8 +141,8 @@ def test_an_option_the_method_does_not_take_is_refused_naming_its_options(
                  "--method", method, flag, str(value)])
     err = capsys.readouterr().err
     # each door in its own words (issue 61.7): the command line's flags, the request's JSON fields
-    from clients.cli import in_flags
-    from service.names import PERSON_NAMES, renamed_words
+    from fpscan.clients.cli import in_flags
+    from fpscan.service.names import PERSON_NAMES, renamed_words
 
     assert code == 2 and f"takes no option {flag}" in err and in_flags(its, options=True) in err, (code, err)
     with shared_server.client() as api:

@@ -1,7 +1,7 @@
-"""The one dispatch (`service.pipeline`): its method vocabulary is the one every surface
+"""The one dispatch (`fpscan.service.pipeline`): its method vocabulary is the one every surface
 offers (API schema, CLI, web page, docs), its contracts (progress, should_stop →
 Cancelled, one default dtype, options) hold, and the k-Wave mode equals k-Wave's
-functions called directly (the independent transcriptions in `service.recon.kwave`,
+functions called directly (the independent transcriptions in `fpscan.service.recon.kwave`,
 themselves checked against k-Wave's data in tests/recon)."""
 from __future__ import annotations
 
@@ -11,18 +11,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from service.pipeline import DEFAULT_DTYPE, METHODS, OPTIONS, Cancelled, reconstruct
-from service.recon.dataset import GridDataset, PointDataset
+from fpscan.service.pipeline import DEFAULT_DTYPE, METHODS, OPTIONS, Cancelled, reconstruct
+from fpscan.service.recon.dataset import GridDataset, PointDataset
 
 REPO = Path(__file__).resolve().parents[2]
 
 
 def test_every_surface_offers_the_one_vocabulary(shared_api):
-    from clients.cli import recon as cli_recon
+    from fpscan.clients.cli import recon as cli_recon
 
     openapi = shared_api.get("/openapi.json").json()
     schema = openapi["components"]["schemas"]["ReconRequest"]
-    method = schema["properties"]["method"]  # optional: absent or null = service.pipeline.default_method
+    method = schema["properties"]["method"]  # optional: absent or null = fpscan.service.pipeline.default_method
     assert [b.get("enum") for b in method["anyOf"]] == [list(METHODS), None]
     assert "method" not in schema.get("required", [])
     # the listing the web page builds its method choices from (tests/web check the page)
@@ -80,7 +80,7 @@ def test_progress_cancel_and_default_dtype(method):
 
 
 def test_kwave_mode_is_kwaves_functions():
-    from service.recon import kspace_line_recon, kspace_plane_recon
+    from fpscan.service.recon import kspace_line_recon, kspace_plane_recon
 
     d3, d2 = _grid(3), _grid(2)
     a = reconstruct(d3, "kwave", interp="*linear", dtype="float64", positivity=True)
@@ -132,8 +132,8 @@ def test_a_methods_own_defaults_apply_unless_given():
     registration (one rule per option name), and so is a model that is no MethodOptions."""
     from pydantic import Field
 
-    from service.pipeline import Method, register
-    from service.recon.methods import MethodOptions
+    from fpscan.service.pipeline import Method, register
+    from fpscan.service.recon.methods import MethodOptions
 
     tv = next((m for m in METHODS.values() if m.defaults.get("positivity")), None)
     if tv is None:

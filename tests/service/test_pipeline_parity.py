@@ -1,7 +1,7 @@
 """One input, one method, one volume: the same scan files (sparse mask and full lattice)
 and the same k-Wave file reconstructed locally (``fpscan recon``, in process), through the
-job worker (``service.jobs.work.run_reconstruction``) and over HTTP (upload + job on a
-real uvicorn server) give identical volumes, for every method of ``service.pipeline``.
+job worker (``fpscan.service.jobs.work.run_reconstruction``) and over HTTP (upload + job on a
+real uvicorn server) give identical volumes, for every method of ``fpscan.service.pipeline``.
 
 Oracles: the three paths against each other — bit-identical locally vs the worker (same
 process), within 1e-6 of the peak over HTTP (the server's worker process runs with other
@@ -18,12 +18,12 @@ import h5py
 import numpy as np
 import pytest
 
-from clients.cli import build_parser
-from clients.cli import main as fpscan_main
-from driver.plan import plan_id_of
-from driver.scanfile import META_KEYS, ScanFile
-from service.jobs.work import run_reconstruction
-from service.pipeline import METHODS
+from fpscan.clients.cli import build_parser
+from fpscan.clients.cli import main as fpscan_main
+from fpscan.driver.plan import plan_id_of
+from fpscan.driver.scanfile import META_KEYS, ScanFile
+from fpscan.service.jobs.work import run_reconstruction
+from fpscan.service.pipeline import METHODS
 from tests.service.service_servers import Server, needs_recon, wait_job
 
 pytestmark = needs_recon
@@ -66,7 +66,7 @@ def _plan(indices) -> dict:
 
 
 def _scan(path, indices) -> None:
-    from driver.physics import Ball, ball_alines
+    from fpscan.physics import Ball, ball_alines
 
     plan = _plan(indices)
     pos = np.asarray(plan["points"]["positions"], float)
@@ -141,7 +141,7 @@ def test_local_worker_and_http_give_one_volume(name, method, inputs, remote, tmp
     # the job worker, on the scan file itself (a scan job's input)
     spec_input = {"kind": "scan", "path": str(path)} if name.startswith("scan") else None
     if spec_input is None:  # the canonical dataset file an upload becomes
-        from service.storage.loader import import_dataset
+        from fpscan.service.storage.loader import import_dataset
 
         folder = tmp_path / "ds"
         folder.mkdir()
@@ -174,7 +174,7 @@ def test_local_worker_and_http_give_one_volume(name, method, inputs, remote, tmp
         for name, value in options.items():
             assert used.get(name) == value, (name, used)
     n_t = N_T
-    if method == "tv":  # tv's depth grid: down to the last echo at the pitch's band (service.recon.tv_grid)
+    if method == "tv":  # tv's depth grid: down to the last echo at the pitch's band (fpscan.service.recon.tv_grid)
         n_t = json.loads(local_attrs["params"])["n_z"]
         assert n_t <= N_T
     assert local_p0.shape[0] == n_t and local_p0.ndim == 3

@@ -7,8 +7,8 @@ import argparse
 import numpy as np
 import pytest
 
-from service.pipeline import Cancelled, reconstruct
-from service.recon.dataset import PointDataset
+from fpscan.service.pipeline import Cancelled, reconstruct
+from fpscan.service.recon.dataset import PointDataset
 
 C, DT = 1500.0, 20e-9
 DZ = C * DT
@@ -55,8 +55,8 @@ def test_dispatch_rejects_bad_tv_input(opts, match):
 def test_api_model_and_cli_take_lambda_and_iterations():
     from pydantic import ValidationError
 
-    from clients.cli import recon as cli_recon
-    from service.api.models import ReconRequest
+    from fpscan.clients.cli import recon as cli_recon
+    from fpscan.service.api.models import ReconRequest
 
     req = ReconRequest.model_validate({"dataset_id": "x", "method": "tv", "params": {"lam": 0.1, "iterations": 5}})
     assert req.params.lam == 0.1 and req.params.iterations == 5

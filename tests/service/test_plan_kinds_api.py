@@ -8,7 +8,7 @@ import json
 
 import pytest
 
-from clients.cli import build_parser, main
+from fpscan.clients.cli import build_parser, main
 
 LATTICE = {"n_x": 8, "n_y": 8, "pitch": 1e-4}
 

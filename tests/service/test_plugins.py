@@ -6,7 +6,7 @@ no network, nothing inside fpscan touched), declares a method ``toy`` (NEDNER's 
 registered under another name) and an export format ``toy-text``. A second one declares a
 method whose module does not exist. With that folder on ``PYTHONPATH``:
 
-- the library (``service.recon.methods.METHODS``, ``fpscan.export_formats``) and the CLI's help
+- the library (``fpscan.service.recon.methods.METHODS``, ``fpscan.export_formats``) and the CLI's help
   offer both, and the broken plugin is reported once, by name, on stderr;
 - a real ``fpscan serve`` (uvicorn on 127.0.0.1) starts and lists both in ``GET
   /api/reconstructions/methods`` and ``GET /api/formats``; a job run with ``toy`` records
@@ -37,7 +37,7 @@ METHOD_PY = '''
 """A third-party method: NEDNER's algorithm under the name ``toy``."""
 from dataclasses import replace
 
-from service.recon.methods.nedner import METHOD as NEDNER
+from fpscan.service.recon.methods.nedner import METHOD as NEDNER
 
 METHOD = replace(NEDNER, name="toy", title="toy (NEDNER under another name)", order=900, default_for=())
 '''
@@ -46,7 +46,7 @@ FORMAT_PY = '''
 """A third-party export format: a result's method and p0 shape as text."""
 from pathlib import Path
 
-from service.formats import Format
+from fpscan.service.formats import Format
 
 
 def export(src, out):
@@ -101,8 +101,8 @@ def _env(site) -> dict:
 LIBRARY = r'''
 import json
 import fpscan
-from service import plugins
-from service.recon.methods import METHODS, Method, register
+from fpscan.service import plugins
+from fpscan.service.recon.methods import METHODS, Method, register
 plugins.load_group("fpscan.methods", Method, register)  # loading again reports nothing again
 print(json.dumps({"methods": list(METHODS), "exports": list(fpscan.export_formats()),
                   "failures": plugins.failures()}))
@@ -120,7 +120,7 @@ def test_a_plugin_reaches_the_library_and_the_cli_and_a_broken_one_is_reported_o
     assert out.stderr.count("'broken'") == 1, out.stderr
 
     for command, word in (("recon", "toy"), ("export", "toy-text")):
-        helped = subprocess.run([sys.executable, "-m", "clients", command, "--help"], capture_output=True, text=True,
+        helped = subprocess.run([sys.executable, "-m", "fpscan", command, "--help"], capture_output=True, text=True,
                                 timeout=120, env=_env(site))
         assert helped.returncode == 0, helped.stderr
         assert word in helped.stdout, helped.stdout

@@ -43,7 +43,7 @@ def test_progress_events_strictly_increase_through_reconstruction(tmp_path):
 
 
 def test_the_progress_file_keeps_every_stage_in_order_and_waits_for_a_torn_line(tmp_path):
-    from service.jobs.work import ProgressLog, progress_file
+    from fpscan.service.jobs.work import ProgressLog, progress_file
 
     path = tmp_path / ".job.1.progress"
     log = ProgressLog(path, most=4)

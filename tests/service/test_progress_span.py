@@ -1,4 +1,4 @@
-"""The one progress shape (`service.progress`): ``progress(fraction, stage)`` and
+"""The one progress shape (`fpscan.service.progress`): ``progress(fraction, stage)`` and
 ``span(progress, lo, hi)``, which maps a part's [0, 1] onto [lo, hi] of the outer callback
 -- nested spans compose, fractions are clamped, fraction 1 lands on ``hi`` exactly, a
 kernel's one-argument ``progress(fraction)`` reports the span's stage, and no callback
@@ -11,8 +11,8 @@ import doctest
 import numpy as np
 import pytest
 
-from service import progress as progress_module
-from service.progress import DEFAULT_STAGE, Span, rising, span
+from fpscan.service import progress as progress_module
+from fpscan.service.progress import DEFAULT_STAGE, Span, rising, span
 
 
 def _recorder():
@@ -134,14 +134,14 @@ def test_module_examples_run():
 
 
 def _grid(seed=0):
-    from service.recon.dataset import GridDataset
+    from fpscan.service.recon.dataset import GridDataset
 
     rng = np.random.default_rng(seed)
     return GridDataset(data=rng.standard_normal((24, 7)), dx=1e-4, dt=2e-8, c=1500.0)
 
 
 def test_autofocus_reports_its_search_then_the_reconstruction():
-    from service.pipeline import reconstruct
+    from fpscan.service.pipeline import reconstruct
 
     seen, outer = _recorder()
     reconstruct(_grid(), "ner", c="auto", progress=span(outer, 0.2, 0.9))
@@ -156,8 +156,8 @@ def test_autofocus_reports_its_search_then_the_reconstruction():
 
 
 def test_wavelengths_share_the_range_and_name_themselves():
-    from service.pipeline import reconstruct
-    from service.spectral import reconstruct_wavelengths
+    from fpscan.service.pipeline import reconstruct
+    from fpscan.service.spectral import reconstruct_wavelengths
 
     seen, outer = _recorder()
     reconstruct_wavelengths([_grid(1), _grid(2), _grid(3)], "ner", reconstruct=reconstruct, progress=outer)

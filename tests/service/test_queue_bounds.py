@@ -13,7 +13,7 @@ import httpx
 import numpy as np
 import pytest
 
-from service.jobs.store import JobStore, QueueFull
+from fpscan.service.jobs.store import JobStore, QueueFull
 from tests.service.service_servers import Server, needs_recon, wait_job
 from tests.waits import HANG_S
 
@@ -21,7 +21,7 @@ CAP = 3
 
 
 def test_a_requeued_job_starts_its_timing_anew_and_keeps_the_earlier_attempt(tmp_path):
-    from service.api.jobs import job_view
+    from fpscan.service.api.jobs import job_view
 
     store = JobStore(tmp_path / "jobs.sqlite")
     job, _ = store.create_job("recon", {"method": "ner"})

@@ -20,7 +20,7 @@ N, PITCH, N_T, DT, C = 24, 1e-4, 128, 2e-8, 1500.0
 
 
 def ball_dataset():
-    from driver.physics.balls import Ball, ball_alines
+    from fpscan.physics.balls import Ball, ball_alines
 
     x = (np.arange(N) - (N - 1) / 2) * PITCH
     yy, xx = np.meshgrid(x, x, indexing="ij")
@@ -74,8 +74,8 @@ def download_volume(c, job_id):
 
 def test_ner_and_nedner_jobs_match_direct_call_and_phantom(shared_server, shared_api):
     api = shared_api
-    from driver.physics.balls import ball_p0
-    from service.recon import reconstruct_grid
+    from fpscan.physics.balls import ball_p0
+    from fpscan.service.recon import reconstruct_grid
 
     data, balls, x = ball_dataset()
     ds = upload(api, data)
@@ -177,7 +177,7 @@ def test_dask_localcluster_gives_the_local_pool_result(tmp_path, shared_api):
 def test_kwave_hdf5_upload_2d_ner_matches_kwave_and_direct_call(shared_api, shared_data):
     """Real k-Wave data (shared/data/kwave2d_points.h5) uploaded as kwave-hdf5: the 2-D NER
     job equals the direct call and agrees with k-Wave's own kspaceLineRecon output."""
-    from service.recon import reconstruct_grid
+    from fpscan.service.recon import reconstruct_grid
 
     path = shared_data / "kwave2d_points.h5"
     r = shared_api.post("/api/datasets", data={"format": "kwave-hdf5"},
@@ -207,7 +207,7 @@ def test_tv_job_progress_names_the_iteration_and_bad_options_are_422(shared_api)
     """Model-based ``tv`` over HTTP: the job's SSE progress shows the solver's iterations
     ("iteration k/N"), and bad options are 422 naming them. (Its volume equals the local
     and worker ones: tests/service/test_pipeline_parity.py.)"""
-    from driver.physics.balls import Ball, ball_alines
+    from fpscan.physics.balls import Ball, ball_alines
 
     # small: the server reads every line of the worker's progress file, also after the
     # worker has returned, so a solve that ends between two of its reads shows its iterations
@@ -232,7 +232,7 @@ def test_tv_job_progress_names_the_iteration_and_bad_options_are_422(shared_api)
     its = [s for s in stages if s.startswith("iteration ")]
     assert its and all(re.fullmatch(rf"iteration \d+/{max_iter}", s) for s in its), stages
     # the events carry the stopping rule's tolerance and the ETA to it, bounded by the limit (issue 61.6)
-    from service.recon.methods.tv import DEFAULT_TOL
+    from fpscan.service.recon.methods.tv import DEFAULT_TOL
 
     fields = [e["data"] for e in events if e["event"] == "progress" and e["data"].get("iteration")]
     assert fields and all(f["stop_tol"] == DEFAULT_TOL and isinstance(f["stop_armed"], bool) for f in fields), fields

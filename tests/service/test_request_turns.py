@@ -1,4 +1,4 @@
-"""Requests start a few per event-loop iteration, in arrival order (``service.api.lanes.RequestTurns``,
+"""Requests start a few per event-loop iteration, in arrival order (``fpscan.service.api.lanes.RequestTurns``,
 health's lane under load, issue 22.3), on a real asyncio event loop: the loop's iterations
 are counted by a callback of the test's own that re-schedules itself once per iteration."""
 from __future__ import annotations
@@ -7,7 +7,7 @@ import asyncio
 
 import pytest
 
-from service.api.lanes import RequestTurns
+from fpscan.service.api.lanes import RequestTurns
 
 
 def _loop_run(loop: str, coro) -> None:

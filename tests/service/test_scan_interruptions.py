@@ -17,13 +17,13 @@ from tests.service.small_disks import fill, tmpfs
 from tests.service.test_scans import N, make_plan, phantom, start_scan, wait_points
 from tests.waits import HANG_S
 
-driver_sim = pytest.importorskip("driver.simulator")
+driver_sim = pytest.importorskip("fpscan.driver.simulator")
 
 pytestmark = [needs_recon, pytest.mark.long(37)]
 
 
 def new_sim(seed: int = 3):
-    from driver.sources import BallSource
+    from fpscan.driver.sources import BallSource
 
     return driver_sim.SimulatedScanner(source=BallSource(phantom()), prf=100.0, seed=seed).start()
 
@@ -44,7 +44,7 @@ def truth(sims, folder, plan_id: str) -> np.ndarray:
 
 
 def check_file(c, job_id, expected: np.ndarray, folder) -> None:
-    from driver.scanfile import read_scan
+    from fpscan.driver.scanfile import read_scan
 
     path = folder / f"{job_id}.h5"
     path.write_bytes(c.get(f"/api/scans/{job_id}/file").content)
@@ -206,9 +206,9 @@ def test_a_resume_clears_a_cancel_asked_while_the_scan_was_stuck(tmp_path):
     """A cancel asked while a scan was stuck ``running`` (it could not stop then) must not
     end the resumed run ``cancelled`` after it acquired every point (real SQLite store,
     real ScanManager controls; nothing is started)."""
-    from service.jobs.scan_manager import ScanManager
-    from service.jobs.store import JobStore
-    from service.settings import Settings
+    from fpscan.service.jobs.scan_manager import ScanManager
+    from fpscan.service.jobs.store import JobStore
+    from fpscan.service.settings import Settings
 
     settings = Settings(data_dir=tmp_path / "data")
     store = JobStore(tmp_path / "jobs.sqlite")

@@ -14,12 +14,12 @@ WAVELENGTHS = [7.6e-7, 8.5e-7]
 
 
 def test_preview_shows_the_chosen_wavelength(tmp_path):
-    from driver.physics import Ball
-    from driver.scanfile import read_scan
-    from driver.simulator import SimulatedScanner
-    from driver.sources import BallSource
-    from service.jobs.preview import render_preview, render_preview_png
-    from service.spectral import read_unmix
+    from fpscan.driver.scanfile import read_scan
+    from fpscan.driver.simulator import SimulatedScanner
+    from fpscan.driver.sources import BallSource
+    from fpscan.physics import Ball
+    from fpscan.service.jobs.preview import render_preview, render_preview_png
+    from fpscan.service.spectral import read_unmix
 
     # sO2 0.3 vs 1.0: at 760 nm the first ball is the brighter, at 850 nm the second
     balls = [Ball(3e-4, -2e-4, 1.0e-3, 1.5e-4, 1.0), Ball(-4e-4, 3e-4, 1.4e-3, 1.5e-4, 1.0)]

@@ -16,7 +16,7 @@ import pytest
 from tests.service.service_servers import Server, needs_recon, wait_gone, wait_job
 from tests.waits import HANG_S
 
-driver_sim = pytest.importorskip("driver.simulator")
+driver_sim = pytest.importorskip("fpscan.driver.simulator")
 
 pytestmark = [needs_recon, pytest.mark.long(65)]
 
@@ -24,7 +24,7 @@ N, PITCH, N_T, DT = 20, 1e-4, 128, 2e-8
 
 
 def phantom():
-    from driver.physics import Ball
+    from fpscan.physics import Ball
 
     return [Ball(x=3e-4, y=-2e-4, z=1.0e-3, radius=1.5e-4, amplitude=1.0),
             Ball(x=-4e-4, y=3e-4, z=1.6e-3, radius=1.5e-4, amplitude=0.8)]
@@ -32,7 +32,7 @@ def phantom():
 
 @pytest.fixture
 def sim(tmp_path):
-    from driver.sources import BallSource
+    from fpscan.driver.sources import BallSource
 
     s = driver_sim.SimulatedScanner(source=BallSource(phantom()), prf=100.0, seed=3,
                                     record=tmp_path / "truth.h5").start()
@@ -76,7 +76,7 @@ def wait_points(c, job_id, at_least, timeout=HANG_S) -> dict:
 
 def check_scan_file(c, job_id, sim, tmp_path, n_points):
     """Every point complete, none lost; each A-line is exactly what the device sent."""
-    from driver.scanfile import read_scan
+    from fpscan.driver.scanfile import read_scan
 
     r = c.get(f"/api/scans/{job_id}/file")
     assert r.status_code == 200
@@ -93,7 +93,7 @@ def check_scan_file(c, job_id, sim, tmp_path, n_points):
 
 
 def test_scan_preview_sse_then_nedner_matches_phantom(scan_server, sim, tmp_path):
-    from driver.physics.balls import ball_p0
+    from fpscan.physics.balls import ball_p0
 
     with scan_server.client() as c:
         scanners = c.get("/api/scanners").json()
@@ -231,8 +231,8 @@ def test_pause_resume_and_abort(scan_server, sim, tmp_path):
 
 def test_sigkill_mid_scan_and_mid_recon_then_restart(tmp_path):
     """With link faults injected too (corrupted and dropped bytes, a device reset)."""
-    from driver.faults import FaultSpec
-    from driver.sources import BallSource
+    from fpscan.driver.faults import FaultSpec
+    from fpscan.driver.sources import BallSource
 
     sim = driver_sim.SimulatedScanner(source=BallSource(phantom()), prf=100.0, seed=5,
                                       faults=FaultSpec.parse("corrupt=0.0005,drop=0.0005,reset=300")).start()

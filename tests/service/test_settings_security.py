@@ -12,9 +12,9 @@ import httpx
 import numpy as np
 import pytest
 
-from clients.processes import free_port
-from service.jobs.store import JobStore
-from service.settings import Settings, is_loopback
+from fpscan.clients.processes import free_port
+from fpscan.service.jobs.store import JobStore
+from fpscan.service.settings import Settings, is_loopback
 from tests.service.service_servers import Server, needs_recon, wait_job
 from tests.waits import HANG_S
 
@@ -46,7 +46,7 @@ def test_settings_file_environment_and_overrides(tmp_path, monkeypatch):
 def test_beyond_loopback_everything_needs_the_token_and_web_page_is_served(tmp_path):
     import uvicorn
 
-    from service.api.app import create_app
+    from fpscan.service.api.app import create_app
 
     web = tmp_path / "web"
     web.mkdir()
@@ -114,7 +114,7 @@ def _npy(a) -> bytes:
 
 @needs_recon
 def test_memory_admission_queues_what_does_not_fit_now(tmp_path):
-    from service.jobs.admission import estimate_memory
+    from fpscan.service.jobs.admission import estimate_memory
 
     shape = (256, 48, 48)
     est = estimate_memory({"n_t": shape[0], "n_x": shape[2], "n_y": shape[1]},
@@ -153,7 +153,7 @@ def test_fpscan_serve_refuses_bad_settings_with_one_line(argv, env, reason, tmp_
 
     full_env = {k: v for k, v in os.environ.items() if not k.startswith("FPSCAN_")}
     full_env.update({"FPSCAN_DATA_DIR": str(tmp_path), **env})
-    p = subprocess.run([sys.executable, "-m", "clients", "serve", "--port", "0", *argv], cwd=REPO, env=full_env,
+    p = subprocess.run([sys.executable, "-m", "fpscan", "serve", "--port", "0", *argv], cwd=REPO, env=full_env,
                        capture_output=True, text=True, timeout=HANG_S)
     assert p.returncode == 2  # refused settings: a usage error (issue 22.6)
     assert reason in p.stderr and len(p.stderr.strip().splitlines()) == 1, p.stderr

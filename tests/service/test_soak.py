@@ -22,7 +22,7 @@ from tests.service.hostile_cases import signature_then_noise, truncated
 from tests.service.service_servers import Server, needs_recon, wait_job
 from tests.service.test_scans import make_plan, start_scan, wait_points
 
-driver_sim = pytest.importorskip("driver.simulator")
+driver_sim = pytest.importorskip("fpscan.driver.simulator")
 
 FULL = os.environ.get("FPSCAN_SOAK") == "full"
 CLIENTS, REQUESTS = (50, 2000) if FULL else (20, 200)
@@ -60,7 +60,7 @@ def _serial_if_full(test):
 @pytest.mark.slow
 @pytest.mark.timeout(600)
 def test_soak_mixed_requests_during_a_scan_and_a_reconstruction(tmp_path):
-    from driver.sources import BallSource
+    from fpscan.driver.sources import BallSource
     from tests.service.test_scans import phantom
 
     files = tmp_path / "files"

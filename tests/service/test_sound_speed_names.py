@@ -11,9 +11,9 @@ import sqlite3
 
 import numpy as np
 
-import service.names
-from service.jobs.store import JobStore
-from service.names import code_names, person_names
+import fpscan.service.names
+from fpscan.service.jobs.store import JobStore
+from fpscan.service.names import code_names, person_names
 from tests.json_keys import all_keys
 from tests.service.service_servers import Server, needs_recon, wait_job
 
@@ -36,7 +36,7 @@ def _stored(srv: Server, job_id: str) -> dict:
 
 
 def test_names_module_examples_and_round_trip():
-    assert doctest.testmod(service.names).failed == 0
+    assert doctest.testmod(fpscan.service.names).failed == 0
     tree = {"params": {"c": "auto", "c_range": [1450.0, 1600.0], "dz": 3e-5},
             "result": {"c": 1490.0, "autofocus": {"c": 1490.0, "c_values": [1450.0, 1490.0]}}}
     assert code_names(person_names(tree)) == tree

@@ -9,9 +9,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from clients.cli import main as fpscan_main
-from driver.plan import check_wavelengths
-from service.recon.unmix import unmix
+from fpscan.clients.cli import main as fpscan_main
+from fpscan.driver.plan import check_wavelengths
+from fpscan.service.recon.unmix import unmix
 
 LATTICE = {"n_x": 4, "n_y": 4, "pitch": 1e-4}
 BAD = [  # (wavelengths in m, words the reason must hold)
@@ -89,7 +89,7 @@ def test_api_unmix(shared_api, wavelengths, reason):
     ({"c": "fast"}, "auto"),
 ])
 def test_api_autofocus_options(shared_api, params, reason):
-    from service.pipeline import method_options
+    from fpscan.service.pipeline import method_options
 
     r = shared_api.post("/api/reconstructions", json={"dataset_id": "d0", "method": "ner", "params": params})
     assert r.status_code == 422, r.text

@@ -1,10 +1,10 @@
 """The speed of sound is one typed option of the registry (issue 48.4):
-``service.recon.methods.options.SpeedOptions`` (unit, bounds, default) and every surface reads
+``fpscan.service.recon.methods.options.SpeedOptions`` (unit, bounds, default) and every surface reads
 it — the HTTP request model, ``GET /api/reconstructions/methods`` (the web page's fields and
 labels), the upload form, ``fpscan recon``'s flags; no source file of the product types the
 plausible range again.
 
-Oracles: ``driver.constants`` (the numbers), the served OpenAPI document and method list of a
+Oracles: ``fpscan.constants`` (the numbers), the served OpenAPI document and method list of a
 real server, ``fpscan recon --help`` as a user runs it, and the source tree itself."""
 from __future__ import annotations
 
@@ -13,9 +13,9 @@ import subprocess
 import sys
 from pathlib import Path
 
-from clients.processes import clean_env
-from driver.constants import C_AUTOFOCUS_RANGE, C_LIMITS, C_PLAUSIBLE
-from service.recon.methods.options import SpeedOptions, plausible_speeds, speed_schema
+from fpscan.clients.processes import clean_env
+from fpscan.constants import C_AUTOFOCUS_RANGE, C_LIMITS, C_PLAUSIBLE
+from fpscan.service.recon.methods.options import SpeedOptions, plausible_speeds, speed_schema
 
 REPO = Path(__file__).resolve().parents[2]
 PLAUSIBLE = f"{C_PLAUSIBLE[0]:g}-{C_PLAUSIBLE[1]:g}"
@@ -46,7 +46,7 @@ def test_every_surface_reads_the_one_option(shared_api):
     upload = next(s for name, s in schemas.items() if name.startswith("Body_upload_dataset"))
     assert PLAUSIBLE in upload["properties"]["sound_speed"]["description"]
     assert upload["properties"]["force"]["description"] == SpeedOptions.model_fields["force"].description
-    helped = subprocess.run([sys.executable, "-m", "clients", "recon", "--help"], capture_output=True, text=True,
+    helped = subprocess.run([sys.executable, "-m", "fpscan", "recon", "--help"], capture_output=True, text=True,
                             timeout=120, env=clean_env(COLUMNS="400"))
     assert helped.returncode == 0, helped.stderr
     force = next(line for line in helped.stdout.splitlines() if line.strip().startswith("--force"))

@@ -28,8 +28,8 @@ from pathlib import Path
 import httpx
 import pytest
 
-from clients.processes import Service, clean_env, free_port
-from service.api.connections import FD_HEADROOM, ConnectionGuard
+from fpscan.clients.processes import Service, clean_env, free_port
+from fpscan.service.api.connections import FD_HEADROOM, ConnectionGuard
 from tests.service.service_servers import TOKEN, Server
 from tests.waits import HANG_S
 
@@ -46,7 +46,7 @@ def _serve_with_file_limit(data_dir: Path, log_path: Path, env: dict) -> Service
     boot = ("import resource, runpy, sys; "
             f"resource.setrlimit(resource.RLIMIT_NOFILE, ({FILES}, {FILES})); "
             f"sys.argv = ['fpscan', 'serve', '--host', '127.0.0.1', '--port', '{port}', '--no-web']; "
-            "runpy.run_module('clients', run_name='__main__', alter_sys=True)")
+            "runpy.run_module('fpscan', run_name='__main__', alter_sys=True)")
     full_env = clean_env(FPSCAN_DATA_DIR=str(data_dir), FPSCAN_TOKEN=TOKEN, PYTHONUNBUFFERED="1",
                          FPSCAN_WARM_UP="false", OMP_NUM_THREADS="1", **env)
     srv = Service([sys.executable, "-c", boot], port=port, token=TOKEN, data_dir=data_dir, log_path=log_path,
@@ -161,7 +161,7 @@ def test_refused_requests_with_long_paths_add_little_log(limited_server):
 def test_the_guard_s_rule():
     """Per address at most ``per_address``; beyond ``max_connections`` in all only an
     address's allowance; never beyond the hard limit; a release makes room again."""
-    from service.api.connections import ConnectionGuard
+    from fpscan.service.api.connections import ConnectionGuard
 
     guard = ConnectionGuard(per_address=3, max_connections=5, allowance=1, hard_limit=7, probation_limit=1)
     answers = [guard.admit("a") for _ in range(4)]
@@ -192,7 +192,7 @@ def test_the_guard_s_rule():
 def test_refusals_are_one_line_per_address_per_interval_with_a_count(caplog):
     import logging
 
-    from service.api.logcaps import CappedRecords, RefusalLog, shown
+    from fpscan.service.api.logcaps import CappedRecords, RefusalLog, shown
 
     log = logging.getLogger("fpscan.test-refusals")
     refusals = RefusalLog(log, interval_s=3600)

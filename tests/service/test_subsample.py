@@ -2,8 +2,8 @@
 ``fpscan recon FILE --plan PLAN.json`` (the command line, locally and with ``--server``) and a reconstruction of a dataset with
 a ``plan_id`` (HTTP) give the replay scan's point data and image to the last bit.
 
-Oracle: the replay scan itself: the simulated scanner (``driver.simulator`` with
-``driver.sources.ReplaySource``, docs/protocol.md Appendix B) on a real pty, scanned by the host
+Oracle: the replay scan itself: the simulated scanner (``fpscan.driver.simulator`` with
+``fpscan.driver.sources.ReplaySource``, docs/protocol.md Appendix B) on a real pty, scanned by the host
 driver into a scan file, read and reconstructed as every scan is."""
 from __future__ import annotations
 
@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 
 import fpscan
-from driver.acquire import acquire
-from driver.simulator import SimConfig, SimulatedScanner
-from driver.sources import ReplaySource
+from fpscan.driver.acquire import acquire
+from fpscan.driver.simulator import SimConfig, SimulatedScanner
+from fpscan.driver.sources import ReplaySource
 
 pytestmark = pytest.mark.timeout(300)
 
@@ -77,7 +77,7 @@ def test_masks_that_do_not_fit_are_refused_with_the_reason(replayed):
 
 def test_the_command_line_with_a_plan_equals_the_replay_scan(replayed):
     tmp = replayed["tmp"]
-    cli = [sys.executable, "-m", "clients", "recon"]
+    cli = [sys.executable, "-m", "fpscan", "recon"]
     for src, out in ((replayed["kwave"], "from-dense"), (replayed["scan"], "from-scan")):
         extra = ["--plan", str(replayed["plan_path"])] if out == "from-dense" else []
         r = subprocess.run([*cli, str(src), *extra, "--method", "nedner", "--out", str(tmp / out), "--quiet"],
@@ -112,7 +112,7 @@ def test_over_http_a_dataset_and_a_plan_equal_the_replay_scan(replayed, server):
                                      "acquisition": {"n_t": 100, "dt": 8e-9}}).id
             api.start_reconstruction(dataset_id=ds_id, plan_id=other, method="nedner")
     # the command line's --plan with --server: the plan stored there, the upload sampled by the job
-    r = subprocess.run([sys.executable, "-m", "clients", "recon", str(replayed["kwave"]), "--plan",
+    r = subprocess.run([sys.executable, "-m", "fpscan", "recon", str(replayed["kwave"]), "--plan",
                         str(replayed["plan_path"]), "--server", server.url, "--token", server.token,
                         "--method", "nedner", "--out", str(tmp / "cli-server"), "--quiet"],
                        capture_output=True, text=True, timeout=240)

@@ -13,9 +13,9 @@ import h5py
 import numpy as np
 import pytest
 
-from service.pipeline import Cancelled, reconstruct
-from service.recon.dataset import GridDataset
-from service.recon.tv import progress as tv_progress
+from fpscan.service.pipeline import Cancelled, reconstruct
+from fpscan.service.recon.dataset import GridDataset
+from fpscan.service.recon.tv import progress as tv_progress
 from tests.service.service_servers import Server, needs_recon, wait_job
 
 DT, DX, C = 2e-8, 1e-4, 1500.0
@@ -59,7 +59,7 @@ def test_the_library_stops_at_the_time_limit_and_says_so():
 def test_a_cancel_is_heard_inside_an_iteration(monkeypatch):
     """Inside an iteration the solver polls ``should_stop`` again (the operator's
     checkpoints, the proximal map's inner steps: at most every ``_POLL_S`` seconds of
-    ``service.recon.tv.progress``, here set to 0 so the count does not depend on the
+    ``fpscan.service.recon.tv.progress``, here set to 0 so the count does not depend on the
     machine's speed): a cancel requested just
     after iteration 1 began is heard before iteration 1 ends, not at its end. Before the
     polls (issue 22.4), one iteration of a 512 x 64² job took minutes and a cancel waited

@@ -23,20 +23,20 @@ from tests.service.test_event_streams import _async_client, _curl, _sync_client
 from tests.service.test_scans import make_plan, phantom, start_scan
 from tests.waits import HANG_S
 
-driver_sim = pytest.importorskip("driver.simulator")
+driver_sim = pytest.importorskip("fpscan.driver.simulator")
 
 pytestmark = [needs_recon, pytest.mark.waits]
 
 SIDE, PRF = 11, 1.0  # 121 points at 1 Hz: a scan of about two minutes
-DEFAULT_BODY_TIMEOUT_S = 30.0  # service.settings.Settings.body_timeout_s
-DEFAULT_READ_TIMEOUT_S = 30.0  # clients.http.Client.events' read_timeout
+DEFAULT_BODY_TIMEOUT_S = 30.0  # fpscan.service.settings.Settings.body_timeout_s
+DEFAULT_READ_TIMEOUT_S = 30.0  # fpscan.clients.http.Client.events' read_timeout
 
 
 @pytest.mark.timeout(600)
 @pytest.mark.skipif(shutil.which("curl") is None, reason="needs curl")
 def test_a_two_minute_scan_streams_to_its_end_at_the_default_settings(tmp_path):
-    from driver.sources import BallSource
-    from service.settings import Settings
+    from fpscan.driver.sources import BallSource
+    from fpscan.service.settings import Settings
 
     assert Settings.model_fields["body_timeout_s"].default == DEFAULT_BODY_TIMEOUT_S
     sim = driver_sim.SimulatedScanner(source=BallSource(phantom()), prf=PRF, seed=3,

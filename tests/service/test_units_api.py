@@ -1,4 +1,4 @@
-"""The unit rules of driver.units through the HTTP API: the same implausible values as the
+"""The unit rules of fpscan.driver.units through the HTTP API: the same implausible values as the
 CLI tests (tests/plans/test_units.py) are a 422 whose reason names the likely unit; text
 with a unit is accepted and gives the plan the SI numbers give."""
 from __future__ import annotations
@@ -76,7 +76,7 @@ def test_recon_sound_speed_rule_422_and_force(shared_server, shared_api, tmp_pat
                                                       "params": {"c": 2500, "force": True}})
     assert r.status_code == 202, r.text
 
-    cli = subprocess.run([sys.executable, "-m", "clients", "recon", str(x), "--server", shared_server.url,
+    cli = subprocess.run([sys.executable, "-m", "fpscan", "recon", str(x), "--server", shared_server.url,
                           "--token", shared_server.token, "--dt", "20ns", "--dx", "100um", "--c", "2500",
                           "--force", "--method", "ner", "-q", "--out", str(tmp_path / "r")],
                          capture_output=True, text=True, timeout=HANG_S)

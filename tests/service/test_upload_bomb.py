@@ -14,7 +14,7 @@ import h5py
 import numpy as np
 import pytest
 
-from service.formats.untrusted import MAX_RATIO, DiskAdmission
+from fpscan.service.formats.untrusted import MAX_RATIO, DiskAdmission
 from tests.service.hostile_cases import gzip_fill_bomb
 from tests.service.service_servers import Server
 
@@ -66,7 +66,7 @@ def test_the_issue_bomb_is_refused_over_http_and_nothing_large_is_written(bomb_s
 
 @pytest.mark.parametrize("fmt", ["kwave-hdf5", "fpscan", "ipasc", "dataset", None])
 def test_the_issue_bomb_is_refused_by_load_dataset_for_every_format(tmp_path, fmt):
-    from service.storage.loader import load_dataset
+    from fpscan.service.storage.loader import load_dataset
 
     bomb = gzip_fill_bomb(BOMB_SHAPE)(tmp_path)
     with pytest.raises(ValueError, match="never written"):
@@ -75,7 +75,7 @@ def test_the_issue_bomb_is_refused_by_load_dataset_for_every_format(tmp_path, fm
 
 def test_a_file_of_unwritten_chunks_beside_real_data_is_refused(tmp_path):
     """One written chunk does not earn the rest: the unwritten ones are named."""
-    from service.storage.loader import load_dataset
+    from fpscan.service.storage.loader import load_dataset
 
     path = tmp_path / "partly.h5"
     with h5py.File(path, "w") as f:
@@ -87,7 +87,7 @@ def test_a_file_of_unwritten_chunks_beside_real_data_is_refused(tmp_path):
 
 
 def test_over_compressed_written_data_is_refused_by_its_ratio(tmp_path):
-    from service.storage.loader import load_dataset
+    from fpscan.service.storage.loader import load_dataset
     from tests.service.hostile_cases import gzip_zeros
 
     path = gzip_zeros(tmp_path)
@@ -98,7 +98,7 @@ def test_over_compressed_written_data_is_refused_by_its_ratio(tmp_path):
 def test_real_gzip_kwave_files_still_load(shared_data, tmp_path):
     """The k-Wave reference files (gzip 6 + shuffle, 1.1-1.8:1) load as before, and a
     k-Wave-like file that is mostly (90 %) exact zeros, gzip-compressed, loads too."""
-    from service.storage.loader import load_dataset
+    from fpscan.service.storage.loader import load_dataset
 
     d3 = load_dataset(shared_data / "kwave3d_balls_yarn.h5", "kwave-hdf5")
     with h5py.File(shared_data / "kwave3d_balls_yarn.h5", "r") as f:
@@ -132,8 +132,8 @@ def test_an_upload_that_does_not_fit_the_disk_gets_507_before_it_is_written(full
 def test_the_import_asks_before_writing_the_decoded_dataset(tmp_path):
     """The import child asks the parent (``run_bounded(admit=...)``) with the decoded bytes
     before it writes the dataset file; refused, nothing is written and the reason comes back."""
-    from service.formats.untrusted import NotAdmitted, run_bounded
-    from service.storage.loader import import_dataset
+    from fpscan.service.formats.untrusted import NotAdmitted, run_bounded
+    from fpscan.service.storage.loader import import_dataset
 
     src = tmp_path / "int8.npy"  # 16 kB of int8 on the wire, 64 kB of float32 decoded
     np.save(src, np.random.default_rng(3).integers(-100, 100, (64, 16, 16), dtype=np.int8))
@@ -172,7 +172,7 @@ def test_the_reading_child_runs_below_the_servers_priority():
     """Files are vetted and imported in a child at the caller's priority + CHILD_NICE
     (issue 22.3: a burst of uploads must not take the CPU from the server's event loop);
     the child reports its own niceness (``os.nice(0)``)."""
-    from service.formats.untrusted import CHILD_NICE, run_bounded
+    from fpscan.service.formats.untrusted import CHILD_NICE, run_bounded
 
     mine = os.nice(0)
     assert run_bounded(os.nice, 0, timeout=60) == min(mine + CHILD_NICE, 19)

@@ -18,18 +18,18 @@ import io
 import numpy as np
 import pytest
 
-from service.jobs.admission import AdmissionError, admit_work, estimate_work, input_shape
-from service.pipeline import reconstruct
-from service.recon.checks import OptionError
-from service.recon.dataset import GridDataset
+from fpscan.service.jobs.admission import AdmissionError, admit_work, estimate_work, input_shape
+from fpscan.service.pipeline import reconstruct
+from fpscan.service.recon.checks import OptionError
+from fpscan.service.recon.dataset import GridDataset
 from tests.service.service_servers import Server
 
 N_T, N, DT, DX = 64, 12, 2e-8, 1e-4
 
 
 def test_every_method_estimates_its_work_and_tv_follows_its_grid():
-    from service.recon.methods import METHODS
-    from service.recon.methods.tv import grid as tv_grid_of
+    from fpscan.service.recon.methods import METHODS
+    from fpscan.service.recon.methods.tv import grid as tv_grid_of
 
     shape = {"n_t": 512, "n_x": 128, "n_y": 128, "dt": 8e-9, "c": 1500.0, "dx": 6e-5, "t0": 0.0,
              "n_points": 1653}
@@ -37,7 +37,7 @@ def test_every_method_estimates_its_work_and_tv_follows_its_grid():
     assert all(0 < s < 3600 for s in seconds.values()), seconds
     assert seconds["tv"] > 20 * seconds["nedner"], seconds  # iterations of operator pairs against one inversion
     # tv's work follows the grid its warm start makes of the options: the default grid (isotropic at
-    # the band the 60 µm pitch resolves, `service.recon.methods.tv.grid`) asked for explicitly is the
+    # the band the 60 µm pitch resolves, `fpscan.service.recon.methods.tv.grid`) asked for explicitly is the
     # same work; the same depth in half the rows is less
     dz, n_z = tv_grid_of(512, 8e-9, 1500.0, dx=6e-5, n_x=128, n_y=128)
     assert (dz, n_z) == (6e-5, 103)
@@ -62,7 +62,7 @@ def test_the_work_refusal_says_the_estimate_and_the_limit():
 
 
 def test_kwave_refuses_a_record_not_starting_at_zero_in_the_worker_s_words():
-    from service.recon.methods.kwave import check_start
+    from fpscan.service.recon.methods.kwave import check_start
 
     ds = GridDataset(np.zeros((32, 4, 4)), dx=DX, dt=DT, c=1500.0, dy=DX, t0=1e-6)
     with pytest.raises(ValueError) as worker:

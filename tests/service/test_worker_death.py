@@ -132,7 +132,7 @@ def test_a_killed_worker_process_requeues_its_reconstruction(tmp_path):
 
 
 def test_start_up_removes_only_the_crash_debris_older_than_the_process(tmp_path):
-    from service.jobs.queue import remove_debris
+    from fpscan.service.jobs.queue import remove_debris
 
     data = tmp_path / "data"
     results, datasets = data / "results", data / "datasets"

@@ -8,9 +8,9 @@ import time
 
 import pytest
 
-from service.jobs.executors import LocalExecutor
-from service.jobs.work import worker_pid
-from service.settings import Settings
+from fpscan.service.jobs.executors import LocalExecutor
+from fpscan.service.jobs.work import worker_pid
+from fpscan.service.settings import Settings
 from tests.service.service_servers import Server
 from tests.waits import HANG_S
 
@@ -72,8 +72,8 @@ def test_with_the_warm_up_off_the_plan_and_preview_workers_start_at_their_first_
     """``FPSCAN_WARM_UP=false``: a healthy server has started neither its plan worker (+8)
     nor its live-preview worker (+5), nothing being warmed (each was 1.2-2.4 s of CPU at every
     start); the first plan request starts the plan worker and is answered."""
-    from service.api.plans import PLAN_WORKER_NICE
-    from service.jobs.preview import PREVIEW_WORKER_NICE
+    from fpscan.service.api.plans import PLAN_WORKER_NICE
+    from fpscan.service.jobs.preview import PREVIEW_WORKER_NICE
 
     srv = Server(tmp_path / "data", env={"FPSCAN_WARM_UP": "false"}).start()
     try:
@@ -115,8 +115,8 @@ def test_a_warming_server_is_healthy_and_runs_the_first_job(tmp_path):
             assert done["state"] == "succeeded", done
             timings = done["params"]["result"]["timings"]
             assert timings["reconstruct_s"] > 0 and timings["write_s"] > 0
-        from service.api.plans import PLAN_WORKER_NICE
-        from service.jobs.preview import PREVIEW_WORKER_NICE
+        from fpscan.service.api.plans import PLAN_WORKER_NICE
+        from fpscan.service.jobs.preview import PREVIEW_WORKER_NICE
 
         # the plan and live-preview workers were started (and warmed) with the server
         assert len(wait_spawned_at(srv, PLAN_WORKER_NICE)) == 1
@@ -127,17 +127,17 @@ def test_a_warming_server_is_healthy_and_runs_the_first_job(tmp_path):
 
 GATED_WARM_UP = r"""
 import sys, threading
-from service.jobs import work
+from fpscan.service.jobs import work
 
 with work.JOB_GATE.busy():  # a job is running in this worker
     rest = threading.Thread(target=work._warm_rest, daemon=True)
     rest.start()
     assert work.JOB_GATE.waited.wait(HANG_S), "the background warm-up never reached its gate"
     # it yielded before its first step: nothing of the model is loaded
-    before = sorted(m for m in ("service.recon.operator", "pylops") if m in sys.modules)
+    before = sorted(m for m in ("fpscan.service.recon.operator", "pylops") if m in sys.modules)
     assert rest.is_alive()
 rest.join(HANG_S)
-after = sorted(m for m in ("service.recon.operator", "pylops") if m in sys.modules)
+after = sorted(m for m in ("fpscan.service.recon.operator", "pylops") if m in sys.modules)
 print(repr((before, after, rest.is_alive())))
 """
 
@@ -155,7 +155,7 @@ def test_the_background_warm_up_waits_while_a_job_runs():
     assert out.returncode == 0, out.stderr[-2000:]
     before, after, alive = ast.literal_eval(out.stdout.strip().splitlines()[-1])
     assert before == []
-    assert after == ["pylops", "service.recon.operator"]
+    assert after == ["pylops", "fpscan.service.recon.operator"]
     assert not alive
 
 
@@ -166,7 +166,7 @@ def test_the_gate_stays_shut_for_a_quiet_period_after_each_job():
     import threading
     import time
 
-    from service.jobs.work import JobGate
+    from fpscan.service.jobs.work import JobGate
 
     gate, quiet, returned = JobGate(), 0.3, []
     with gate.busy():
@@ -185,7 +185,7 @@ def test_the_gate_stays_shut_for_a_quiet_period_after_each_job():
 WARM_HEAP = """
 import resource
 import numpy as np
-from service.jobs.work import HEAP_WARM_BYTES, warm_heap
+from fpscan.service.jobs.work import HEAP_WARM_BYTES, warm_heap
 assert 3 * (16 << 20) <= HEAP_WARM_BYTES
 if not warm_heap():
     print(repr(None))

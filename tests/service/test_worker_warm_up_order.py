@@ -12,9 +12,9 @@ from tests.waits import HANG_S
 
 WORKER = r"""
 import threading
-from driver.physics import nufft_kernels
-from service.jobs import work
-from service.recon.limits import DEFAULT_DTYPE
+from fpscan.physics import nufft_kernels
+from fpscan.service.jobs import work
+from fpscan.service.recon.limits import DEFAULT_DTYPE
 
 def signatures():
     return sorted({str(sig[0].dtype) for sig in nufft_kernels.interp_kernel.overloads})

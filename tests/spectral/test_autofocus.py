@@ -1,4 +1,4 @@
-"""Sound-speed autofocus (service.autofocus): simulated data at c = 1480 m/s and the
+"""Sound-speed autofocus (fpscan.service.autofocus): simulated data at c = 1480 m/s and the
 k-Wave 3-D reference data (c = 1500 m/s) searched from the default interval."""
 from __future__ import annotations
 
@@ -6,11 +6,11 @@ import h5py
 import numpy as np
 import pytest
 
-from driver.constants import C_AUTOFOCUS_RANGE
-from driver.physics import Ball, ball_alines
-from service import autofocus as af
-from service.recon import reconstruct_grid
-from service.recon.dataset import GridDataset
+from fpscan.constants import C_AUTOFOCUS_RANGE
+from fpscan.physics import Ball, ball_alines
+from fpscan.service import autofocus as af
+from fpscan.service.recon import reconstruct_grid
+from fpscan.service.recon.dataset import GridDataset
 
 
 def _recon(ds, c, dtype="float32", **opts):

@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from clients.cli import main as fpscan_main
-from driver.physics import Ball, ball_alines
-from service.storage.results import read_result
+from fpscan.clients.cli import main as fpscan_main
+from fpscan.physics import Ball, ball_alines
+from fpscan.service.storage.results import read_result
 
 N, DX, DT, NT, C_TRUE = 32, 80e-6, 16e-9, 192, 1480.0
 

@@ -1,8 +1,8 @@
 """Plain per-wavelength reconstruction of a multi-wavelength scan (issue 16): a
 two-wavelength scan file reconstructed at each wavelength (library, ``fpscan recon
 --wavelength K|all``, HTTP ``wavelength``) gives the volume that NEDNER
-(``service.recon.reconstruct_points``) makes of that wavelength's own A-lines, read
-straight from the file with ``driver.scanfile.read_scan``; the wavelength is recorded in
+(``fpscan.service.recon.reconstruct_points``) makes of that wavelength's own A-lines, read
+straight from the file with ``fpscan.driver.scanfile.read_scan``; the wavelength is recorded in
 nm; a bad choice is a ValueError / exit status / 422 naming it."""
 from __future__ import annotations
 
@@ -12,12 +12,12 @@ import h5py
 import numpy as np
 import pytest
 
-from clients.cli import main as fpscan_main
-from driver.physics.axes import centred_axis
-from driver.scanfile import read_scan
-from service.pipeline import reconstruct
-from service.recon import reconstruct_points
-from service.storage.loader import load_dataset, load_wavelengths
+from fpscan.clients.cli import main as fpscan_main
+from fpscan.driver.scanfile import read_scan
+from fpscan.physics.axes import centred_axis
+from fpscan.service.pipeline import reconstruct
+from fpscan.service.recon import reconstruct_points
+from fpscan.service.storage.loader import load_dataset, load_wavelengths
 from tests.spectral.test_unmix_scan import PITCH, N, _scan
 
 WAVELENGTHS = [750e-9, 850e-9]
@@ -105,9 +105,9 @@ def test_http_wavelength_one_all_and_bad(tmp_path, capsys):
     """A two-wavelength scan job (real uvicorn, pty simulator); reconstructions at
     wavelength 1 and 'all' (the latter by ``fpscan recon --server --scan-job --wavelength
     all``) equal NEDNER of the downloaded file's own A-lines; bad choices are 422s."""
-    from driver.physics import Ball
-    from driver.simulator import SimulatedScanner
-    from driver.sources import BallSource
+    from fpscan.driver.simulator import SimulatedScanner
+    from fpscan.driver.sources import BallSource
+    from fpscan.physics import Ball
     from tests.service.service_servers import TOKEN, Server, has_recon, wait_job
 
     if not has_recon():

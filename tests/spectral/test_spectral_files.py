@@ -1,4 +1,4 @@
-"""service.spectral: unmix.h5 round trip and the masked sO2 picture."""
+"""fpscan.service.spectral: unmix.h5 round trip and the masked sO2 picture."""
 from __future__ import annotations
 
 import io
@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from driver.physics import spectra
-from service.recon.unmix import unmix
-from service.spectral import MASK_COLOUR, read_unmix, so2_map, unmix_reconstructions, write_unmix
+from fpscan.physics import spectra
+from fpscan.service.recon.unmix import unmix
+from fpscan.service.spectral import MASK_COLOUR, read_unmix, so2_map, unmix_reconstructions, write_unmix
 
 
 def _phantom():
@@ -84,7 +84,7 @@ def test_so2_picture_masks_the_noisy_background_and_colours_the_vessels():
     the old map painted at full saturation) renders black; the vessels render in colour,
     the oxygenated one red, the deoxygenated one blue, in their own quadrants (row 0 at the
     top, as every picture)."""
-    from service.pictures.render import png_axes, render_so2, so2_rgb
+    from fpscan.service.pictures.render import png_axes, render_so2, so2_rgb
 
     rng = np.random.default_rng(3)
     n_y, n_x = 40, 50

@@ -1,4 +1,4 @@
-"""Spectral unmixing (service.recon.unmix): the closed-form NNLS against scipy's, and
+"""Spectral unmixing (fpscan.service.recon.unmix): the closed-form NNLS against scipy's, and
 sO2 of simulated structures recovered through forward model -> reconstruction -> unmixing."""
 from __future__ import annotations
 
@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from scipy.optimize import nnls
 
-from driver.physics import Ball, ball_alines, spectra
-from service.recon import reconstruct_grid
-from service.recon.unmix import endmember_matrix, nnls2, unmix
+from fpscan.physics import Ball, ball_alines, spectra
+from fpscan.service.recon import reconstruct_grid
+from fpscan.service.recon.unmix import endmember_matrix, nnls2, unmix
 
 
 @pytest.mark.parametrize("wavelengths", [[750e-9, 850e-9], [700e-9, 760e-9, 800e-9, 900e-9], [532e-9, 560e-9]])

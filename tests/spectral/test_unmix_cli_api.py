@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from clients.cli import main as fpscan_main
-from driver.physics import Ball, ball_alines, spectra
-from service.spectral import read_unmix
+from fpscan.clients.cli import main as fpscan_main
+from fpscan.physics import Ball, ball_alines, spectra
+from fpscan.service.spectral import read_unmix
 from tests.service.service_servers import Server, needs_recon, wait_job
 
 N, DX, DT, NT, C = 40, 80e-6, 20e-9, 200, 1500.0
@@ -72,7 +72,7 @@ def test_cli_unmix_two_files(npy_files, tmp_path, capsys):
 @pytest.mark.slow
 @needs_recon
 def test_http_unmix_and_autofocus(npy_files, tmp_path):
-    from clients.http import Client
+    from fpscan.clients.http import Client
 
     srv = Server(tmp_path / "data").start()
     try:

@@ -1,4 +1,4 @@
-"""`fpscan unmix` on a two-wavelength scan file (driver.scanfile, n_wavelengths = 2):
+"""`fpscan unmix` on a two-wavelength scan file (fpscan.driver.scanfile, n_wavelengths = 2):
 every point at 750 and 850 nm, int16 A-lines of two balls of known sO2 (0.6 and 0.95,
 exact ball waves, the simulator's HbO2/Hb absorption) → one reconstruction per wavelength
 → NNLS unmixing; sO2 in each ball's interior within 0.05. A single-wavelength scan file
@@ -8,11 +8,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from clients.cli import main as fpscan_main
-from driver.physics import Ball, ball_alines, spectra
-from driver.plan import plan_id_of
-from driver.scanfile import META_KEYS, ScanFile
-from service.spectral import read_unmix
+from fpscan.clients.cli import main as fpscan_main
+from fpscan.driver.plan import plan_id_of
+from fpscan.driver.scanfile import META_KEYS, ScanFile
+from fpscan.physics import Ball, ball_alines, spectra
+from fpscan.service.spectral import read_unmix
 
 PITCH, N, NT, DT, C = 80e-6, 40, 200, 20e-9, 1500.0
 TRUTH = [(Ball(-0.6e-3, 0.0, 1.5e-3, 250e-6), 0.6), (Ball(0.7e-3, 0.2e-3, 1.9e-3, 250e-6), 0.95)]
@@ -63,5 +63,5 @@ def test_single_wavelength_scan_file_is_refused(tmp_path, capsys):
     assert rc == 2 and "needs at least two wavelengths" in err and "has 1 (750 nm)" in err
     assert not (tmp_path / "out").exists()
     with pytest.raises(ValueError, match="at least two wavelengths"):
-        from service.spectral import load_wavelength_datasets
+        from fpscan.service.spectral import load_wavelength_datasets
         load_wavelength_datasets([scan])

@@ -1,9 +1,9 @@
-"""Fixtures for the storage tests: real scan files written with driver.scanfile."""
+"""Fixtures for the storage tests: real scan files written with fpscan.driver.scanfile."""
 from __future__ import annotations
 
 import pytest
 
-from driver.scanfile import ScanFile
+from fpscan.driver.scanfile import ScanFile
 from tests.storage.storage_helpers import meta, samples
 
 

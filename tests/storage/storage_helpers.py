@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from driver.plan import plan_id_of
+from fpscan.driver.plan import plan_id_of
 
 PITCH = 1e-4
 

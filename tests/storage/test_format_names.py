@@ -1,5 +1,5 @@
 """One format sniffer: a file given where another kind was wanted is named by the registry
-of formats (``service.formats.describe``), the driver gives its plain reason, and the CLI
+of formats (``fpscan.service.formats.describe``), the driver gives its plain reason, and the CLI
 says what the file is ("this is a scan file, not a plan")."""
 from __future__ import annotations
 
@@ -9,10 +9,10 @@ import h5py
 import numpy as np
 import pytest
 
-import driver.plan
-from clients.cli import main
-from service.formats import describe
-from service.storage.results import write_volume
+import fpscan.driver.plan
+from fpscan.clients.cli import main
+from fpscan.service.formats import describe
+from fpscan.service.storage.results import write_volume
 from tests.storage.storage_helpers import build_plan
 
 
@@ -55,18 +55,18 @@ def test_describe_names_each_file_by_its_content(tmp_path, make_scan):
 
 def test_the_driver_gives_a_plain_reason_and_has_no_sniffer(tmp_path, make_scan):
     f = _files(tmp_path, make_scan)
-    assert not hasattr(driver.plan, "file_kind")
+    assert not hasattr(fpscan.driver.plan, "file_kind")
     for kind in ("scan", "result", "npy", "png"):
         with pytest.raises(ValueError, match="not a plan: the file is not UTF-8 JSON text") as err:
-            driver.plan.load_plan(str(f[kind]))
+            fpscan.driver.plan.load_plan(str(f[kind]))
         assert "scan file" not in str(err.value) and "result" not in str(err.value)
 
 
 def test_the_library_plan_loader_names_the_file(tmp_path, make_scan):
-    """fpscan.load_plan (service.formats.plan.read_plan: the driver's loader plus the
+    """fpscan.load_plan (fpscan.service.formats.plan.read_plan: the driver's loader plus the
     registry's name for a file of another format)."""
     import fpscan
-    from service.formats.plan import read_plan
+    from fpscan.service.formats.plan import read_plan
 
     f = _files(tmp_path, make_scan)
     assert fpscan.load_plan is read_plan
@@ -74,7 +74,7 @@ def test_the_library_plan_loader_names_the_file(tmp_path, make_scan):
         fpscan.load_plan(f["scan"])
     with pytest.raises(ValueError, match="not a plan: the file is not UTF-8 JSON text"):
         fpscan.load_plan(f["junk"])
-    assert fpscan.load_plan(f["plan"]) == driver.plan.load_plan(str(f["plan"]))
+    assert fpscan.load_plan(f["plan"]) == fpscan.driver.plan.load_plan(str(f["plan"]))
     assert fpscan.load_plan(f["plan"].read_text())["id"] == json.loads(f["plan"].read_text())["id"]
 
 
@@ -102,8 +102,8 @@ def test_unknown_bytes_keep_the_plain_reason(tmp_path, make_scan, capsys):
 
 def test_the_scan_layout_has_one_reader():
     """The scan file's layout (its datasets ``aline_meta``, ``completed``, ``plan_json`` and
-    the ``fpscan-scan/`` format names) is spelled in driver.scanfile alone: the registry's
-    entry (service.formats.scan) and every other module go through it."""
+    the ``fpscan-scan/`` format names) is spelled in fpscan.driver.scanfile alone: the registry's
+    entry (fpscan.service.formats.scan) and every other module go through it."""
     from pathlib import Path
 
     root = Path(__file__).resolve().parents[2]
@@ -119,6 +119,6 @@ def test_the_scan_layout_has_one_reader():
 def test_plan_module_examples_run():
     import doctest
 
-    import service.formats.plan
+    import fpscan.service.formats.plan
 
-    assert doctest.testmod(service.formats.plan).failed == 0
+    assert doctest.testmod(fpscan.service.formats.plan).failed == 0

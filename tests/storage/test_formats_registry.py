@@ -1,4 +1,4 @@
-"""The registry of file formats (service.formats): a format added in one place (a module
+"""The registry of file formats (fpscan.service.formats): a format added in one place (a module
 with ``sniff``/``load`` and a ``Format``, registered) is detected and loaded by every reader
 of files — the library's loader, the CLI's ``--format`` and its reconstruction — and the
 hostile-file checks and the single open hold for it as for the built-in formats."""
@@ -10,10 +10,10 @@ import h5py
 import numpy as np
 import pytest
 
-from service import formats
-from service.formats import Format, Source
-from service.recon.dataset import GridDataset
-from service.storage.loader import detect_format, input_formats, load_dataset, load_wavelengths
+from fpscan.service import formats
+from fpscan.service.formats import Format, Source
+from fpscan.service.recon.dataset import GridDataset
+from fpscan.service.storage.loader import detect_format, input_formats, load_dataset, load_wavelengths
 from tests.storage.storage_helpers import build_plan
 
 TOY_MAGIC = b"TOY-GRID/1"
@@ -74,7 +74,7 @@ def test_a_registered_format_is_detected_loaded_and_listed(toy, tmp_path):
 def test_a_registered_format_reaches_the_cli(toy, tmp_path, capsys):
     """``fpscan recon`` on the toy file: detected, reconstructed (the CLI has no line for
     the format), and ``--format toy`` is a valid choice."""
-    from clients.cli import main
+    from fpscan.clients.cli import main
 
     path, data = _toy_file(tmp_path)
     assert main(["recon", str(path), "--method", "ner", "-q", "--out", str(tmp_path / "r")]) == 0
@@ -126,7 +126,7 @@ def test_hdf5_checks_hold_for_every_format(tmp_path):
 def test_a_file_is_opened_once_per_load(make_scan, tmp_path, monkeypatch):
     """Detecting, checking and reading a scan file (an IPASC file at its second
     wavelength, every wavelength of a two-wavelength scan) opens the HDF5 file once."""
-    from service.formats.ipasc import export_scan
+    from fpscan.service.formats.ipasc import export_scan
     from tests.storage.test_storage_ipasc_wavelengths import WAVELENGTHS, two_wavelength_scan
 
     scan = make_scan("scan.h5", build_plan(3, 3, 16))

@@ -13,10 +13,10 @@ import h5py
 import numpy as np
 import scipy.io
 
-from service.formats import export_file
-from service.pipeline import reconstruct
-from service.storage.loader import load_dataset
-from service.storage.results import read_result, write_result
+from fpscan.service.formats import export_file
+from fpscan.service.pipeline import reconstruct
+from fpscan.service.storage.loader import load_dataset
+from fpscan.service.storage.results import read_result, write_result
 
 
 def test_brightest_voxel_sits_at_the_files_sensor_coordinates(shared_data, tmp_path):
@@ -103,7 +103,7 @@ def _ome_planes(path) -> list[dict]:
 def test_over_http_an_upload_keeps_its_coordinates_and_the_ome_tiff_its_origin(shared_data, tmp_path):
     """A k-Wave file uploaded over HTTP reconstructs on the file's own ``sensor_*_m`` grid, the
     same as the local load; the job's OME-TIFF export starts at the volume's first coordinates."""
-    from clients.http import Client
+    from fpscan.clients.http import Client
     from tests.service.service_servers import Server
 
     src = shared_data / "kwave3d_balls_yarn.h5"

@@ -1,9 +1,9 @@
-"""k-Wave MAT-files as an input format (``service.formats.kwave_mat``).
+"""k-Wave MAT-files as an input format (``fpscan.service.formats.kwave_mat``).
 
 Oracles: real k-Wave output (``shared/data/kwave_mat``: a ``kspaceFirstOrder2D`` run saved
 by Octave as MAT v5, compressed and not, with its p0), the same arrays written as MATLAB
 v7.3 lays them out (``tests.storage.mat_files``), k-Wave's own ``kspaceLineRecon``
-(transcribed in ``service.recon``, checked against Octave's output in tests/recon), and
+(transcribed in ``fpscan.service.recon``, checked against Octave's output in tests/recon), and
 arrays built here in k-Wave's layouts."""
 from __future__ import annotations
 
@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 import scipy.io
 
-from service import formats
-from service.pipeline import reconstruct
-from service.recon import kspace_line_recon
-from service.storage.loader import detect_format, load_dataset
+from fpscan.service import formats
+from fpscan.service.pipeline import reconstruct
+from fpscan.service.recon import kspace_line_recon
+from fpscan.service.storage.loader import detect_format, load_dataset
 from tests.storage.mat_files import MAT73_HEADER, write_mat5, write_mat73
 
 

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from PIL import Image as PILImage
 
-from driver.scanfile import ScanFile
-from service.pictures.render import png_axes
+from fpscan.driver.scanfile import ScanFile
+from fpscan.service.pictures.render import png_axes
 from tests.storage.storage_helpers import PITCH, build_plan
 from tests.waits import HANG_S
 
@@ -38,7 +38,7 @@ def _spot_mm(png: bytes) -> tuple[float, float]:
 
 
 def _ball_scan(path) -> str:
-    from driver.physics.balls import Ball, ball_alines
+    from fpscan.physics.balls import Ball, ball_alines
 
     plan = build_plan(N, N, N_T)  # dt = DT, c = C
     assert plan["acquisition"]["dt"] == DT and plan["acquisition"]["sound_speed"] == C
@@ -65,10 +65,10 @@ def _assert_at(png: bytes, expected: tuple[float, float], what: str, tol_mm: flo
 
 
 def test_one_orientation_and_mm_axes_in_every_picture(tmp_path):
-    pytest.importorskip("service.recon")
-    from service.jobs.preview import PreviewState, render_preview
-    from service.jobs.work import run_reconstruction
-    from service.pictures.render import render_result_slice
+    pytest.importorskip("fpscan.service.recon")
+    from fpscan.service.jobs.preview import PreviewState, render_preview
+    from fpscan.service.jobs.work import run_reconstruction
+    from fpscan.service.pictures.render import render_result_slice
 
     scan = _ball_scan(tmp_path / "ball.h5")
     bx, by, bz = (BALL[k] * 1e3 for k in ("x", "y", "z"))
@@ -110,7 +110,7 @@ def test_one_orientation_and_mm_axes_in_every_picture(tmp_path):
     import h5py
     import tifffile
 
-    done = subprocess.run([sys.executable, "-m", "clients", "export", str(out / "volume.h5"),
+    done = subprocess.run([sys.executable, "-m", "fpscan", "export", str(out / "volume.h5"),
                            "-o", str(tmp_path / "p0.ome.tif")], capture_output=True, text=True, timeout=HANG_S)
     assert done.returncode == 0, done.stderr
     with h5py.File(out / "volume.h5", "r") as f:
@@ -130,7 +130,7 @@ def test_one_orientation_and_mm_axes_in_every_picture(tmp_path):
 def test_mask_preview_has_the_same_orientation(tmp_path):
     """The plan preview draws points the same way: a mask of points in the +x, +y corner
     appears in that corner (y down, as every picture)."""
-    from service.plans import make_plan, preview_png
+    from fpscan.service.plans import make_plan, preview_png
 
     idx = [[20, 18], [21, 18], [20, 19], [21, 19]]  # x = 0.85-0.95 mm, y = 0.65-0.75 mm
     plan = make_plan(kind="points", lattice={"n_x": N, "n_y": N, "pitch": PITCH},
@@ -154,8 +154,8 @@ def test_large_plan_preview_has_the_same_orientation():
     for the README's 226 x 226 plan) is drawn as an image on its lattice by the same
     renderer: mm axes at equal aspect, y down, the axes chunk. A 140 x 140 lattice missing
     its +x, +y corner (40 x 40 points): the unscanned pixels sit in that corner."""
-    from driver.plan import plan_id_of
-    from service.api.plans import PREVIEW_DETAIL_POINTS, preview_png
+    from fpscan.driver.plan import plan_id_of
+    from fpscan.service.api.plans import PREVIEW_DETAIL_POINTS, preview_png
 
     n, hole = 140, 100
     idx = [[i, j] for j in range(n) for i in range(n) if not (i >= hole and j >= hole)]
@@ -199,13 +199,13 @@ def test_mask_preview_titles_fit_and_weights_carry_no_factor(large):
     it was cut at both sides), in the markers' and the lattice's drawing alike; its weights
     (up to 0.3 mm²) are drawn in mm², so no power of ten sits beside the colour bar (no ink
     between the title and the bar's top)."""
-    from service.plans import make_plan
-    from service.plans import preview_png as marker_preview
+    from fpscan.service.plans import make_plan
+    from fpscan.service.plans import preview_png as marker_preview
 
     plan = make_plan(kind="equisteradian", lattice={"n_x": 226, "n_y": 226, "pitch": 60e-6},
                      params={"depth": 3.6e-3, "n_points": 1625}, acquisition={"n_t": N_T, "dt": DT})
     if large:  # the lattice drawing the API uses for plans above PREVIEW_DETAIL_POINTS, as it calls it
-        from service.pictures.render import render_lattice
+        from fpscan.service.pictures.render import render_lattice
 
         d = plan.model_dump(mode="json")
         png = render_lattice(np.asarray(d["points"]["indices"]), np.asarray(d["points"]["weights"]) * 1e12, 226, 226,
@@ -226,10 +226,10 @@ def test_mask_preview_titles_fit_and_weights_carry_no_factor(large):
 
 def test_colour_bar_powers_sit_in_the_unit():
     """p0 of 3e6 a.u.: the annotated MIP has nothing above its colour bar (the power went
-    into the label, ``p0 (×10⁶ a.u.)``: ``service.pictures.frame.power_in_label``), while the
+    into the label, ``p0 (×10⁶ a.u.)``: ``fpscan.service.pictures.frame.power_in_label``), while the
     same picture of p0 up to 3 has the same (empty) band."""
-    from service.pictures.frame import power_in_label
-    from service.pictures.render import render_mip
+    from fpscan.service.pictures.frame import power_in_label
+    from fpscan.service.pictures.render import render_mip
 
     assert power_in_label("p0 (a.u.)", "1e6") == "p0 (×10⁶ a.u.)"
     assert power_in_label("p0 (Pa)", "1e\u22124") == "p0 (×10⁻⁴ Pa)"

@@ -1,5 +1,5 @@
 """Every file fpscan writes names the speed of sound as a person reads it (``sound_speed``,
-``sound_speed_range``, ``sound_speed_values``: service.names), and every reader still
+``sound_speed_range``, ``sound_speed_values``: fpscan.service.names), and every reader still
 loads a file an older fpscan wrote with the older name (``c``; the scan file's
 ``sound_speed_m_per_s``) to the same numbers. Real files: written by the code under test,
 and the older ones made with h5py directly, attribute by attribute, as that fpscan did."""
@@ -12,15 +12,15 @@ import h5py
 import numpy as np
 import pytest
 
-from driver.scanfile import read_scan
-from service.formats.dataset import DATASET_FORMAT
-from service.formats.dataset import write as write_dataset
-from service.formats.result import RESULT_FORMAT, read_result, write_reconstruction
-from service.formats.unmix import UNMIX_FORMAT
-from service.recon.dataset import GridDataset, PointDataset
-from service.recon.unmix import unmix
-from service.spectral import read_unmix, write_unmix
-from service.storage.loader import load_dataset
+from fpscan.driver.scanfile import read_scan
+from fpscan.service.formats.dataset import DATASET_FORMAT
+from fpscan.service.formats.dataset import write as write_dataset
+from fpscan.service.formats.result import RESULT_FORMAT, read_result, write_reconstruction
+from fpscan.service.formats.unmix import UNMIX_FORMAT
+from fpscan.service.recon.dataset import GridDataset, PointDataset
+from fpscan.service.recon.unmix import unmix
+from fpscan.service.spectral import read_unmix, write_unmix
+from fpscan.service.storage.loader import load_dataset
 from tests.json_keys import all_keys
 from tests.storage.storage_helpers import build_plan
 

@@ -1,4 +1,4 @@
-"""Dataset import (service.storage.loader): the real k-Wave files, NumPy arrays, our scan
+"""Dataset import (fpscan.service.storage.loader): the real k-Wave files, NumPy arrays, our scan
 files and IPASC files, and bad input."""
 from __future__ import annotations
 
@@ -6,10 +6,10 @@ import h5py
 import numpy as np
 import pytest
 
-from driver.scanfile import read_scan
-from service.formats.ipasc import export_scan
-from service.recon.dataset import GridDataset, PointDataset
-from service.storage.loader import detect_format, load_dataset
+from fpscan.driver.scanfile import read_scan
+from fpscan.service.formats.ipasc import export_scan
+from fpscan.service.recon.dataset import GridDataset, PointDataset
+from fpscan.service.storage.loader import detect_format, load_dataset
 from tests.storage.storage_helpers import build_plan
 
 
@@ -35,12 +35,12 @@ def test_kwave_reference_files(shared_data):
 def test_kwave_naming_read_alike_by_the_upload_reader_and_the_replay_source(tmp_path):
     """k-Wave names depth x: in a k-Wave-named file our lateral x spacing is dz_m, here
     unlike the depth spacing dx_m. The upload reader and the simulator's replay source
-    (driver.sources) take the same pitch from it: a plan at that pitch replays, one at
+    (fpscan.driver.sources) take the same pitch from it: a plan at that pitch replays, one at
     the depth spacing does not."""
     import dataclasses
 
-    from driver.plan_image import DevicePlan
-    from driver.sources import ReplaySource
+    from fpscan.driver.plan_image import DevicePlan
+    from fpscan.driver.sources import ReplaySource
 
     path = tmp_path / "kwave_named.h5"
     data = np.random.default_rng(2).standard_normal((16, 6, 8))

@@ -1,4 +1,4 @@
-"""IPASC export/import (service.formats.ipasc) against the scan file and against PACFISH,
+"""IPASC export/import (fpscan.service.formats.ipasc) against the scan file and against PACFISH,
 the IPASC reference implementation, reading our export and writing a foreign file."""
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ import h5py
 import numpy as np
 import pytest
 
-from driver.scanfile import read_scan
-from service.formats.ipasc import export_scan, read_ipasc
+from fpscan.driver.scanfile import read_scan
+from fpscan.service.formats.ipasc import export_scan, read_ipasc
 from tests.storage.storage_helpers import assert_pacfish_checks_pass, build_plan
 
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from driver.scanfile import ScanFile, read_scan
-from service.formats.ipasc import export_scan, read_ipasc
+from fpscan.driver.scanfile import ScanFile, read_scan
+from fpscan.service.formats.ipasc import export_scan, read_ipasc
 from tests.storage.storage_helpers import assert_pacfish_checks_pass, build_plan, meta, samples
 
 WAVELENGTHS = (7.6e-7, 8.5e-7)

@@ -1,4 +1,4 @@
-"""Result files (service.storage.results) and their PNG renderings (service.pictures.render)."""
+"""Result files (fpscan.service.storage.results) and their PNG renderings (fpscan.service.pictures.render)."""
 from __future__ import annotations
 
 import io
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from PIL import Image as PILImage
 
-from service.pictures.render import (
+from fpscan.service.pictures.render import (
     mip,
     render_lateral,
     render_mip,
@@ -18,7 +18,7 @@ from service.pictures.render import (
     render_result_slice,
     to_uint8,
 )
-from service.storage.results import read_result, write_reconstruction, write_volume
+from fpscan.service.storage.results import read_result, write_reconstruction, write_volume
 
 
 def volume(n_z=7, n_y=5, n_x=6, dtype=np.float32):
@@ -72,7 +72,7 @@ def test_volumes_are_compressed_only_where_it_pays(tmp_path):
     assert sizes["noisy"][:2] == (None, None) and sizes["noisy"][2] == 1.0
 
 
-class _Rec:  # the shape of service.recon.Reconstruction (duck-typed; not our code under test)
+class _Rec:  # the shape of fpscan.service.recon.Reconstruction (duck-typed; not our code under test)
     def __init__(self, p0, z, x, y, params):
         self.p0, self.z, self.x, self.y, self.params = p0, z, x, y, params
 
@@ -186,13 +186,13 @@ def test_annotated_pngs(tmp_path):
 
 
 def test_annotated_png_shows_the_colormapped_samples_in_its_frame():
-    """An annotated picture (the Pillow frame of service.pictures.frame): 600 px wide; inside
+    """An annotated picture (the Pillow frame of fpscan.service.pictures.frame): 600 px wide; inside
     the plotting area its ``fpscan:axes`` chunk names, the centre of every sample's cell has
     matplotlib's colour of that sample (viridis over [vmin, vmax], row 0 at the top); text and
     ticks left of the area (the y axis) and right of it (the colour bar and its label)."""
     import matplotlib
 
-    from service.pictures.render import png_axes, render_png
+    from fpscan.service.pictures.render import png_axes, render_png
 
     rng = np.random.default_rng(5)
     img = rng.random((6, 9))
@@ -217,15 +217,15 @@ def test_annotated_png_shows_the_colormapped_samples_in_its_frame():
 
 
 def test_the_result_folder_is_written_by_its_format(tmp_path):
-    """The result folder (volume.h5 + MIP PNGs) has one owner, service.formats.result: its
+    """The result folder (volume.h5 + MIP PNGs) has one owner, fpscan.service.formats.result: its
     file names and its writer (write_folder); storage draws the MIPs and calls it. The
     folder read back through the format is the reconstruction, the pictures are
     render_mips' bytes, and a second write replaces the folder whole."""
     from types import SimpleNamespace
 
-    from service.formats.result import VOLUME_FILE, mip_file, read_result, write_folder
-    from service.pictures.render import render_mips
-    from service.storage.results import write_result
+    from fpscan.service.formats.result import VOLUME_FILE, mip_file, read_result, write_folder
+    from fpscan.service.pictures.render import render_mips
+    from fpscan.service.storage.results import write_result
 
     z, x, y = np.arange(6) * 1e-5, np.arange(5) * 1e-4, np.arange(4) * 1e-4
     p0 = np.random.default_rng(1).standard_normal((6, 4, 5)).astype(np.float32)
@@ -281,8 +281,8 @@ def test_ome_zarr_export_is_ngff_05_with_a_pyramid_the_reader_opens_without_a_wa
     from ome_zarr.io import parse_url
     from ome_zarr.reader import Reader
 
-    from service.formats import export_file
-    from service.formats.ngff import PYRAMID_TOP, ZARR_CHUNK
+    from fpscan.service.formats import export_file
+    from fpscan.service.formats.ngff import PYRAMID_TOP, ZARR_CHUNK
 
     rng = np.random.default_rng(2)
     p0 = rng.random((520, 16, 64)).astype(np.float32)  # depth 520 > PYRAMID_TOP: one level below

@@ -1,5 +1,5 @@
 """A file of the wrong kind is named as what it is: the one plan loader
-(``driver.plan.load_plan``) and the one dataset loader (``service.storage.loader``),
+(``fpscan.driver.plan.load_plan``) and the one dataset loader (``fpscan.service.storage.loader``),
 through the CLI as a person meets them."""
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import json
 import numpy as np
 import pytest
 
-from clients.cli import main
-from service.storage.results import write_volume
+from fpscan.clients.cli import main
+from fpscan.service.storage.results import write_volume
 from tests.storage.storage_helpers import build_plan
 
 
@@ -53,6 +53,6 @@ def test_recon_with_a_result_or_a_plan_as_input(tmp_path, capsys):
         assert main(["recon", str(wrong), "-q", "--out", str(tmp_path / "r")]) == 2
         assert kind in capsys.readouterr().err
     with pytest.raises(ValueError, match="this is a reconstruction result"):
-        from service.storage.loader import load_dataset
+        from fpscan.service.storage.loader import load_dataset
 
         load_dataset(tmp_path / "volume.h5")

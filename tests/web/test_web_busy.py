@@ -14,7 +14,7 @@ from tests.web.web_e2e_support import has_subcommand, open_page, preview_settled
 
 httpx = pytest.importorskip("httpx")
 
-#: the service's plan-request slots: 1 running + 8 waiting (service.api.context.default_slots)
+#: the service's plan-request slots: 1 running + 8 waiting (fpscan.service.api.context.default_slots)
 PLAN_SLOTS = 9
 
 
@@ -22,7 +22,7 @@ PLAN_SLOTS = 9
 def base(tmp_path_factory):
     if not has_subcommand("serve"):
         pytest.skip("this build has no `fpscan serve`")
-    from clients.processes import start_service
+    from fpscan.clients.processes import start_service
     from tests.clients.clients_servers import QUIET
 
     data = tmp_path_factory.mktemp("busy")

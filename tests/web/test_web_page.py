@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 
-from clients.processes import Service, simulator, start_service
+from fpscan.clients.processes import Service, simulator, start_service
 from tests.clients.clients_servers import QUIET
 from tests.waits import HANG_S
 from tests.web.web_e2e_support import REPO_ROOT, has_subcommand, open_page, preview_settled, wait_for
@@ -580,7 +580,7 @@ def test_unmix_result_shows_so2_map_and_autofocus_curve(browser, server, api, sc
     result view shows the masked sO2 picture the server rendered (same pixels) and the
     autofocus curve (one SVG point per evaluated c, the chosen c as in the job)."""
     np = pytest.importorskip("numpy")
-    from driver.physics import Ball, ball_alines, spectra
+    from fpscan.physics import Ball, ball_alines, spectra
 
     n, dx, dt, n_t, wls = 24, 100e-6, 20e-9, 120, [750e-9, 850e-9]
     x = (np.arange(n) - (n - 1) / 2) * dx

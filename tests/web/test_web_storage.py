@@ -30,7 +30,7 @@ def _npy(seed: int, n_t: int) -> bytes:
 def base(tmp_path_factory):
     if not has_subcommand("serve"):
         pytest.skip("this build has no `fpscan serve`")
-    from clients.processes import start_service
+    from fpscan.clients.processes import start_service
     from tests.clients.clients_servers import QUIET
 
     data = tmp_path_factory.mktemp("storage")

@@ -85,8 +85,8 @@ def test_kwave_mat_uploaded_from_the_page_reconstructs_as_the_library_does(brows
     """Octave's MAT v5 and the v7.3 of the same arrays, uploaded from the page: detected and
     read as k-Wave's (sensor, time) layout with the file's dt and dx; each NER volume equals
     the library's of the same file."""
-    from service.pipeline import reconstruct
-    from service.storage.loader import load_dataset
+    from fpscan.service.pipeline import reconstruct
+    from fpscan.service.storage.loader import load_dataset
 
     open_page(browser, server)
     submit_token_if_asked(browser, TOKEN)

@@ -52,7 +52,7 @@ def preview_settled(browser) -> bool:
 
 
 def has_subcommand(name: str) -> bool:
-    """Whether this build has ``fpscan <name>`` (its module in ``clients.cli``)."""
+    """Whether this build has ``fpscan <name>`` (its module in ``fpscan.clients.cli``)."""
     import importlib.util
 
-    return importlib.util.find_spec(f"clients.cli.{name}") is not None
+    return importlib.util.find_spec(f"fpscan.clients.cli.{name}") is not None

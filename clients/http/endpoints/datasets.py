@@ -8,7 +8,7 @@ from typing import Any
 
 import httpx
 
-from ..calls import AsyncCaller, Call, Request, SyncCaller, read_json
+from fpscan.clients.http.calls import AsyncCaller, Call, Request, SyncCaller, read_json
 
 __all__ = ["Datasets", "AsyncDatasets"]
 
@@ -48,7 +48,7 @@ def _build_delete_dataset(dataset_id: str) -> Call[Any]:
 
 
 class Datasets(SyncCaller):
-    """The dataset endpoints of :class:`clients.http.Client` (blocking).
+    """The dataset endpoints of :class:`fpscan.clients.http.Client` (blocking).
 
     Attributes
     ----------
@@ -57,8 +57,8 @@ class Datasets(SyncCaller):
 
     Examples
     --------
-    >>> from clients.http import Client
-    >>> from clients.http.endpoints.datasets import Datasets
+    >>> from fpscan.clients.http import Client
+    >>> from fpscan.clients.http.endpoints.datasets import Datasets
     >>> issubclass(Client, Datasets)
     True
     """
@@ -176,7 +176,7 @@ class Datasets(SyncCaller):
 
 
 class AsyncDatasets(AsyncCaller):
-    """The dataset endpoints of :class:`clients.http.AsyncClient`: :class:`Datasets`' methods as
+    """The dataset endpoints of :class:`fpscan.clients.http.AsyncClient`: :class:`Datasets`' methods as
     coroutines.
 
     Attributes
@@ -186,8 +186,8 @@ class AsyncDatasets(AsyncCaller):
 
     Examples
     --------
-    >>> from clients.http import AsyncClient
-    >>> from clients.http.endpoints.datasets import AsyncDatasets
+    >>> from fpscan.clients.http import AsyncClient
+    >>> from fpscan.clients.http.endpoints.datasets import AsyncDatasets
     >>> issubclass(AsyncClient, AsyncDatasets)
     True
     """

@@ -1,14 +1,23 @@
 """Jobs: ``/api/jobs`` (list, one job, cancel, delete, its file exported in a registered format).
 Following a job's events and waiting for its end are the clients' own
-(:meth:`clients.http.Client.events`, ``wait``): they send many requests."""
+(:meth:`fpscan.clients.http.Client.events`, ``wait``): they send many requests."""
 from __future__ import annotations
 
 import os
 from pathlib import Path
 from typing import Any
 
-from ..calls import AsyncCaller, Call, Download, Request, SyncCaller, read_json, read_model, read_models
-from ..transport import unzip_folder
+from fpscan.clients.http.calls import (
+    AsyncCaller,
+    Call,
+    Download,
+    Request,
+    SyncCaller,
+    read_json,
+    read_model,
+    read_models,
+)
+from fpscan.clients.http.transport import unzip_folder
 
 __all__ = ["Jobs", "AsyncJobs"]
 
@@ -60,7 +69,7 @@ def _build_export(job_id: str, format: str, dest: str | os.PathLike, wavelength:
 
 
 class Jobs(SyncCaller):
-    """The job endpoints of :class:`clients.http.Client` (blocking).
+    """The job endpoints of :class:`fpscan.clients.http.Client` (blocking).
 
     Attributes
     ----------
@@ -69,8 +78,8 @@ class Jobs(SyncCaller):
 
     Examples
     --------
-    >>> from clients.http import Client
-    >>> from clients.http.endpoints.jobs import Jobs
+    >>> from fpscan.clients.http import Client
+    >>> from fpscan.clients.http.endpoints.jobs import Jobs
     >>> issubclass(Client, Jobs)
     True
     """
@@ -203,7 +212,7 @@ class Jobs(SyncCaller):
 
 
 class AsyncJobs(AsyncCaller):
-    """The job endpoints of :class:`clients.http.AsyncClient`: :class:`Jobs`' methods as coroutines.
+    """The job endpoints of :class:`fpscan.clients.http.AsyncClient`: :class:`Jobs`' methods as coroutines.
 
     Attributes
     ----------
@@ -212,8 +221,8 @@ class AsyncJobs(AsyncCaller):
 
     Examples
     --------
-    >>> from clients.http import AsyncClient
-    >>> from clients.http.endpoints.jobs import AsyncJobs
+    >>> from fpscan.clients.http import AsyncClient
+    >>> from fpscan.clients.http.endpoints.jobs import AsyncJobs
     >>> issubclass(AsyncClient, AsyncJobs)
     True
     """

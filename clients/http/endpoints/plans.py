@@ -7,7 +7,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from ..calls import (
+from fpscan.clients.http.calls import (
     AsyncCaller,
     Call,
     Download,
@@ -63,7 +63,7 @@ def _build_delete_plan(plan_id: str) -> Call[Any]:
 
 
 class Plans(SyncCaller):
-    """The plan endpoints of :class:`clients.http.Client` (blocking).
+    """The plan endpoints of :class:`fpscan.clients.http.Client` (blocking).
 
     Attributes
     ----------
@@ -72,8 +72,8 @@ class Plans(SyncCaller):
 
     Examples
     --------
-    >>> from clients.http import Client
-    >>> from clients.http.endpoints.plans import Plans
+    >>> from fpscan.clients.http import Client
+    >>> from fpscan.clients.http.endpoints.plans import Plans
     >>> issubclass(Client, Plans)
     True
     """
@@ -84,7 +84,7 @@ class Plans(SyncCaller):
         Parameters
         ----------
         body : Mapping or pydantic model
-            The body of ``service.api.models`` ``PlanCreate``: ``lattice`` (``n_x``, ``n_y``,
+            The body of ``fpscan.service.api.models`` ``PlanCreate``: ``lattice`` (``n_x``, ``n_y``,
             ``pitch`` in m), ``mask`` (``kind``, ``params`` in SI units), optional ``order`` and
             ``acquisition``; or a whole plan JSON (``fpscan-plan/1``).
 
@@ -245,7 +245,7 @@ class Plans(SyncCaller):
 
 
 class AsyncPlans(AsyncCaller):
-    """The plan endpoints of :class:`clients.http.AsyncClient`: :class:`Plans`' methods as coroutines.
+    """The plan endpoints of :class:`fpscan.clients.http.AsyncClient`: :class:`Plans`' methods as coroutines.
 
     Attributes
     ----------
@@ -254,8 +254,8 @@ class AsyncPlans(AsyncCaller):
 
     Examples
     --------
-    >>> from clients.http import AsyncClient
-    >>> from clients.http.endpoints.plans import AsyncPlans
+    >>> from fpscan.clients.http import AsyncClient
+    >>> from fpscan.clients.http.endpoints.plans import AsyncPlans
     >>> issubclass(AsyncClient, AsyncPlans)
     True
     """

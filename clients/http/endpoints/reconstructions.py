@@ -1,6 +1,6 @@
 """Reconstructions: ``/api/reconstructions`` (the methods, start a reconstruction or an unmixing,
 and the results: volume, MIPs, depth slices, unmixed maps; a result's exports are a job's:
-:meth:`clients.http.Client.export`)."""
+:meth:`fpscan.clients.http.Client.export`)."""
 from __future__ import annotations
 
 import os
@@ -8,7 +8,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from ..calls import (
+from fpscan.clients.http.calls import (
     AsyncCaller,
     Call,
     Download,
@@ -101,7 +101,7 @@ def _build_download_mip(job_id: str, plane: str, dest: str | os.PathLike,
 
 
 class Reconstructions(SyncCaller):
-    """The reconstruction endpoints of :class:`clients.http.Client` (blocking).
+    """The reconstruction endpoints of :class:`fpscan.clients.http.Client` (blocking).
 
     Attributes
     ----------
@@ -110,8 +110,8 @@ class Reconstructions(SyncCaller):
 
     Examples
     --------
-    >>> from clients.http import Client
-    >>> from clients.http.endpoints.reconstructions import Reconstructions
+    >>> from fpscan.clients.http import Client
+    >>> from fpscan.clients.http.endpoints.reconstructions import Reconstructions
     >>> issubclass(Client, Reconstructions)
     True
     """
@@ -140,7 +140,7 @@ class Reconstructions(SyncCaller):
                              method: str | None = None, params: Mapping | None = None,
                              wavelength: int | str | None = None,
                              idempotency_key: str | None = None, plan_id: str | None = None) -> str | None:
-        # The defaults below (ner, nedner) are typed by hand: clients.http never imports service (an
+        # The defaults below (ner, nedner) are typed by hand: fpscan.clients.http never imports service (an
         # import contract), so it cannot read the registry's Method.default_for; the server's own
         # word is GET /api/reconstructions/methods (each method's default_for, :meth:`methods`).
         """``POST /api/reconstructions``: start a reconstruction job.
@@ -152,7 +152,7 @@ class Reconstructions(SyncCaller):
         dataset_id : str, optional
             An uploaded dataset.
         method : str, optional
-            One of the ``service.recon`` methods (``ner``, ``nedner``, ``linear``, ...,
+            One of the ``fpscan.service.recon`` methods (``ner``, ``nedner``, ``linear``, ...,
             :meth:`methods`); None: the server's default for the data (ner for grid data, nedner
             for sensor points).
         params : Mapping, optional
@@ -196,7 +196,7 @@ class Reconstructions(SyncCaller):
 
         Every wavelength is reconstructed (same ``method`` and ``params``;
         ``params["sound_speed"]`` may be ``"auto"``) and unmixed into HbO2/Hb, THb and sO2
-        (``service.recon.unmix``).
+        (``fpscan.service.recon.unmix``).
 
         Parameters
         ----------
@@ -362,7 +362,7 @@ class Reconstructions(SyncCaller):
 
 
 class AsyncReconstructions(AsyncCaller):
-    """The reconstruction endpoints of :class:`clients.http.AsyncClient`: :class:`Reconstructions`'
+    """The reconstruction endpoints of :class:`fpscan.clients.http.AsyncClient`: :class:`Reconstructions`'
     methods as coroutines.
 
     Attributes
@@ -372,8 +372,8 @@ class AsyncReconstructions(AsyncCaller):
 
     Examples
     --------
-    >>> from clients.http import AsyncClient
-    >>> from clients.http.endpoints.reconstructions import AsyncReconstructions
+    >>> from fpscan.clients.http import AsyncClient
+    >>> from fpscan.clients.http.endpoints.reconstructions import AsyncReconstructions
     >>> issubclass(AsyncClient, AsyncReconstructions)
     True
     """

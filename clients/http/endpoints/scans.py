@@ -1,12 +1,12 @@
 """Scanners and scans: ``/api/scanners`` and ``/api/scans`` (start, pause, resume, abort, the
-scan file, the live preview; a scan's exports are a job's: :meth:`clients.http.Client.export`)."""
+scan file, the live preview; a scan's exports are a job's: :meth:`fpscan.clients.http.Client.export`)."""
 from __future__ import annotations
 
 import os
 from pathlib import Path
 from typing import Any
 
-from ..calls import (
+from fpscan.clients.http.calls import (
     AsyncCaller,
     Call,
     Download,
@@ -56,7 +56,7 @@ def _build_download_scan_preview(job_id: str, plane: str, dest: str | os.PathLik
 
 
 class Scans(SyncCaller):
-    """The scanner and scan endpoints of :class:`clients.http.Client` (blocking).
+    """The scanner and scan endpoints of :class:`fpscan.clients.http.Client` (blocking).
 
     Attributes
     ----------
@@ -65,8 +65,8 @@ class Scans(SyncCaller):
 
     Examples
     --------
-    >>> from clients.http import Client
-    >>> from clients.http.endpoints.scans import Scans
+    >>> from fpscan.clients.http import Client
+    >>> from fpscan.clients.http.endpoints.scans import Scans
     >>> issubclass(Client, Scans)
     True
     """
@@ -255,7 +255,7 @@ class Scans(SyncCaller):
 
 
 class AsyncScans(AsyncCaller):
-    """The scanner and scan endpoints of :class:`clients.http.AsyncClient`: :class:`Scans`'
+    """The scanner and scan endpoints of :class:`fpscan.clients.http.AsyncClient`: :class:`Scans`'
     methods as coroutines.
 
     Attributes
@@ -265,8 +265,8 @@ class AsyncScans(AsyncCaller):
 
     Examples
     --------
-    >>> from clients.http import AsyncClient
-    >>> from clients.http.endpoints.scans import AsyncScans
+    >>> from fpscan.clients.http import AsyncClient
+    >>> from fpscan.clients.http.endpoints.scans import AsyncScans
     >>> issubclass(AsyncClient, AsyncScans)
     True
     """

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from ..calls import AsyncCaller, Call, Request, SyncCaller, read_json
+from fpscan.clients.http.calls import AsyncCaller, Call, Request, SyncCaller, read_json
 
 __all__ = ["Server", "AsyncServer"]
 
@@ -27,7 +27,7 @@ def _build_retention(policy: dict[str, Any]) -> Call[Any]:
 
 
 class Server(SyncCaller):
-    """The server's own endpoints on :class:`clients.http.Client` (blocking).
+    """The server's own endpoints on :class:`fpscan.clients.http.Client` (blocking).
 
     Attributes
     ----------
@@ -36,8 +36,8 @@ class Server(SyncCaller):
 
     Examples
     --------
-    >>> from clients.http import Client
-    >>> from clients.http.endpoints.server import Server
+    >>> from fpscan.clients.http import Client
+    >>> from fpscan.clients.http.endpoints.server import Server
     >>> issubclass(Client, Server)
     True
     """
@@ -100,7 +100,7 @@ class Server(SyncCaller):
 
 
 class AsyncServer(AsyncCaller):
-    """The server's own endpoints on :class:`clients.http.AsyncClient`: :class:`Server`'s methods
+    """The server's own endpoints on :class:`fpscan.clients.http.AsyncClient`: :class:`Server`'s methods
     as coroutines.
 
     Attributes
@@ -110,8 +110,8 @@ class AsyncServer(AsyncCaller):
 
     Examples
     --------
-    >>> from clients.http import AsyncClient
-    >>> from clients.http.endpoints.server import AsyncServer
+    >>> from fpscan.clients.http import AsyncClient
+    >>> from fpscan.clients.http.endpoints.server import AsyncServer
     >>> issubclass(AsyncClient, AsyncServer)
     True
     """

@@ -27,25 +27,25 @@ recorded while the rest of the server refuses new work; the reserve is written a
 the disk has room (:meth:`JobStore.problems` says while it is spent).
 
 The store is one class composed of one part per record kind, over one connection and lock
-(:class:`service.jobs.store.base.StoreBase`, the transactions):
+(:class:`fpscan.service.jobs.store.base.StoreBase`, the transactions):
 
-- :mod:`service.jobs.store.jobs`: the job rows (create, read, list, delete);
-- :mod:`service.jobs.store.transitions`: their state changes, leases and restart recovery;
-- :mod:`service.jobs.store.events`: the jobs' events and the listeners that hear of them;
-- :mod:`service.jobs.store.plans`, :mod:`service.jobs.store.datasets`: plans and datasets;
-- :mod:`service.jobs.store.config`: the service config (key -> JSON value);
-- :mod:`service.jobs.store.reserve`: the full disk's reserve;
-- :mod:`service.jobs.store.schema`: the tables, the job states and kinds.
+- :mod:`fpscan.service.jobs.store.jobs`: the job rows (create, read, list, delete);
+- :mod:`fpscan.service.jobs.store.transitions`: their state changes, leases and restart recovery;
+- :mod:`fpscan.service.jobs.store.events`: the jobs' events and the listeners that hear of them;
+- :mod:`fpscan.service.jobs.store.plans`, :mod:`fpscan.service.jobs.store.datasets`: plans and datasets;
+- :mod:`fpscan.service.jobs.store.config`: the service config (key -> JSON value);
+- :mod:`fpscan.service.jobs.store.reserve`: the full disk's reserve;
+- :mod:`fpscan.service.jobs.store.schema`: the tables, the job states and kinds.
 """
 from __future__ import annotations
 
-from service.jobs.store.config import ServiceConfig
-from service.jobs.store.datasets import DatasetRecords
-from service.jobs.store.jobs import IdempotencyConflict, QueueFull
-from service.jobs.store.plans import PlanRecords
-from service.jobs.store.reserve import DB_RESERVE_BYTES
-from service.jobs.store.schema import ACTIVE, KINDS, STATES, TERMINAL, Jobs
-from service.jobs.store.transitions import JobTransitions
+from fpscan.service.jobs.store.config import ServiceConfig
+from fpscan.service.jobs.store.datasets import DatasetRecords
+from fpscan.service.jobs.store.jobs import IdempotencyConflict, QueueFull
+from fpscan.service.jobs.store.plans import PlanRecords
+from fpscan.service.jobs.store.reserve import DB_RESERVE_BYTES
+from fpscan.service.jobs.store.schema import ACTIVE, KINDS, STATES, TERMINAL, Jobs
+from fpscan.service.jobs.store.transitions import JobTransitions
 
 __all__ = ["STATES", "TERMINAL", "ACTIVE", "KINDS", "DB_RESERVE_BYTES", "IdempotencyConflict", "QueueFull", "Jobs",
            "JobStore"]

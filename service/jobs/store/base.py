@@ -1,9 +1,9 @@
 """The job store's connection: one SQLite file in WAL mode, one lock, and its transactions.
 
-Every record kind of :class:`service.jobs.store.JobStore` (jobs, their events, plans,
+Every record kind of :class:`fpscan.service.jobs.store.JobStore` (jobs, their events, plans,
 datasets, the service config) reads and writes through :class:`StoreBase`: one connection
 guarded by one lock (statements are short); a write goes through the full-disk reserve
-(:class:`service.jobs.store.reserve.DiskReserve`), and a transaction (:meth:`StoreBase._tx`,
+(:class:`fpscan.service.jobs.store.reserve.DiskReserve`), and a transaction (:meth:`StoreBase._tx`,
 ``BEGIN IMMEDIATE``) is all or nothing: its listeners hear of the jobs it recorded events of
 only once it is committed.
 """
@@ -16,8 +16,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TypeVar
 
-from service.jobs.store.reserve import DB_RESERVE_BYTES, DiskReserve
-from service.jobs.store.schema import apply_schema
+from fpscan.service.jobs.store.reserve import DB_RESERVE_BYTES, DiskReserve
+from fpscan.service.jobs.store.schema import apply_schema
 
 __all__ = ["StoreBase"]
 
@@ -35,7 +35,7 @@ class StoreBase(DiskReserve):
         The database file (parent folders are created).
     reserve_bytes : int, optional
         The reserve kept beside it for a full disk (0: none); default
-        :data:`service.jobs.store.reserve.DB_RESERVE_BYTES` (8 MiB).
+        :data:`fpscan.service.jobs.store.reserve.DB_RESERVE_BYTES` (8 MiB).
 
     Attributes
     ----------

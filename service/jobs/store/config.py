@@ -1,21 +1,21 @@
 """The job store's service config: configuration values the server keeps (key -> JSON value).
 
-:mod:`service.jobs.lifecycle` owns the rules that use them.
+:mod:`fpscan.service.jobs.lifecycle` owns the rules that use them.
 """
 from __future__ import annotations
 
 import json
 from typing import Any
 
-from service.jobs.store.base import StoreBase
+from fpscan.service.jobs.store.base import StoreBase
 
 __all__ = ["ServiceConfig"]
 
 
 class ServiceConfig(StoreBase):
-    """The configuration values of :class:`service.jobs.store.JobStore` (module docstring).
+    """The configuration values of :class:`fpscan.service.jobs.store.JobStore` (module docstring).
 
-    A mixin of :class:`service.jobs.store.JobStore`: made as :class:`~service.jobs.store.base.StoreBase` is.
+    A mixin of :class:`fpscan.service.jobs.store.JobStore`: made as :class:`~fpscan.service.jobs.store.base.StoreBase` is.
     """
 
     def get_config(self, key: str) -> Any:

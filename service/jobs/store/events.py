@@ -12,16 +12,16 @@ import sqlite3
 import time
 from collections.abc import Callable
 
-from service.jobs.store.base import StoreBase
-from service.jobs.store.schema import Jobs
+from fpscan.service.jobs.store.base import StoreBase
+from fpscan.service.jobs.store.schema import Jobs
 
 __all__ = ["EventLog"]
 
 
 class EventLog(StoreBase):
-    """The events part of :class:`service.jobs.store.JobStore` (module docstring).
+    """The events part of :class:`fpscan.service.jobs.store.JobStore` (module docstring).
 
-    A mixin of :class:`service.jobs.store.JobStore`: made as :class:`~service.jobs.store.base.StoreBase` is.
+    A mixin of :class:`fpscan.service.jobs.store.JobStore`: made as :class:`~fpscan.service.jobs.store.base.StoreBase` is.
     """
 
     def add_listener(self, fn: Callable[[str], None]) -> None:

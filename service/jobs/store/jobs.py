@@ -2,7 +2,7 @@
 
 A job row holds its kind (``scan``/``recon``), state, progress (JSON), parameters (JSON),
 the unique ``Idempotency-Key``, lease owner/expiry and heartbeat, attempts, result path and
-error; its state changes are :mod:`service.jobs.store.transitions`'. A job may carry the
+error; its state changes are :mod:`fpscan.service.jobs.store.transitions`'. A job may carry the
 address of the client that submitted it (``params["client"]``): :meth:`JobRecords.create_job`
 refuses a new one (:class:`QueueFull`) while that client already has ``max_queued`` jobs of
 the kind queued, counted in the transaction that would insert it. Read jobs are cached in
@@ -17,9 +17,9 @@ import time
 import uuid
 from typing import Any, overload
 
-from service.jobs.store.events import EventLog
-from service.jobs.store.schema import ACTIVE, KINDS, TERMINAL, Jobs
-from service.names import person_names
+from fpscan.service.jobs.store.events import EventLog
+from fpscan.service.jobs.store.schema import ACTIVE, KINDS, TERMINAL, Jobs
+from fpscan.service.names import person_names
 
 __all__ = ["IdempotencyConflict", "QueueFull", "JobRecords"]
 
@@ -63,9 +63,9 @@ class QueueFull(ValueError):
 
 
 class JobRecords(EventLog):
-    """The job rows of :class:`service.jobs.store.JobStore` (module docstring).
+    """The job rows of :class:`fpscan.service.jobs.store.JobStore` (module docstring).
 
-    A mixin of :class:`service.jobs.store.JobStore`: made as :class:`~service.jobs.store.base.StoreBase` is.
+    A mixin of :class:`fpscan.service.jobs.store.JobStore`: made as :class:`~fpscan.service.jobs.store.base.StoreBase` is.
     """
 
     @staticmethod

@@ -8,16 +8,16 @@ from __future__ import annotations
 import json
 import time
 
-from service.jobs.store.base import StoreBase
-from service.jobs.store.schema import Jobs
+from fpscan.service.jobs.store.base import StoreBase
+from fpscan.service.jobs.store.schema import Jobs
 
 __all__ = ["PlanRecords"]
 
 
 class PlanRecords(StoreBase):
-    """The plans of :class:`service.jobs.store.JobStore` (module docstring).
+    """The plans of :class:`fpscan.service.jobs.store.JobStore` (module docstring).
 
-    A mixin of :class:`service.jobs.store.JobStore`: made as :class:`~service.jobs.store.base.StoreBase` is.
+    A mixin of :class:`fpscan.service.jobs.store.JobStore`: made as :class:`~fpscan.service.jobs.store.base.StoreBase` is.
     """
 
     def put_plan(self, plan_id: str, body: dict, summary: dict) -> None:

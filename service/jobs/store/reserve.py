@@ -19,7 +19,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TypeVar
 
-from service.disk import is_disk_full
+from fpscan.service.disk import is_disk_full
 
 __all__ = ["DB_RESERVE_BYTES", "DiskReserve"]
 
@@ -35,7 +35,7 @@ _RESERVE_RETRY_S = 5.0
 
 
 class DiskReserve:
-    """The reserve part of :class:`service.jobs.store.JobStore` (module docstring): every write
+    """The reserve part of :class:`fpscan.service.jobs.store.JobStore` (module docstring): every write
     of the store goes through :meth:`_write`.
 
     Attributes

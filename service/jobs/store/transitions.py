@@ -1,6 +1,6 @@
 """The job store's state transitions: a job's state, progress, lease and cancel request.
 
-Each change is one transaction that records the job's event (:mod:`service.jobs.store.events`).
+Each change is one transaction that records the job's event (:mod:`fpscan.service.jobs.store.events`).
 A job re-queued after its run was cut off (a dead worker, a shutdown, a restart) starts its
 timing anew: its ``started`` is cleared and set again when the next attempt starts, and the
 cut-off attempt is kept in ``earlier_attempts`` (JSON list of ``{"attempt", "started",
@@ -14,8 +14,8 @@ import time
 from collections.abc import Iterable
 from typing import Any
 
-from service.jobs.store.jobs import JobRecords
-from service.jobs.store.schema import STATES, TERMINAL
+from fpscan.service.jobs.store.jobs import JobRecords
+from fpscan.service.jobs.store.schema import STATES, TERMINAL
 
 __all__ = ["JobTransitions"]
 
@@ -33,9 +33,9 @@ def _cut_attempt(db: sqlite3.Connection, job_id: str, reason: str) -> None:
 
 
 class JobTransitions(JobRecords):
-    """The state transitions of :class:`service.jobs.store.JobStore` (module docstring).
+    """The state transitions of :class:`fpscan.service.jobs.store.JobStore` (module docstring).
 
-    A mixin of :class:`service.jobs.store.JobStore`: made as :class:`~service.jobs.store.base.StoreBase` is.
+    A mixin of :class:`fpscan.service.jobs.store.JobStore`: made as :class:`~fpscan.service.jobs.store.base.StoreBase` is.
     """
 
     def set_state(self, job_id: str, state: str, *, error: str | None = None,

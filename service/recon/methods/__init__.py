@@ -3,13 +3,13 @@
 Each module of this package (``ner``, ``nedner``, ``interp``, ``kwave``, ``tv``, and
 whatever comes next) defines its typed options model (a :class:`~.options.MethodOptions`
 with each option's type, range, unit and default), its ``run`` (calling the kernels of
-:mod:`service.recon`: ``planar``, ``kwave``, ``tv``) and its peak-memory model in a
+:mod:`fpscan.service.recon`: ``planar``, ``kwave``, ``tv``) and its peak-memory model in a
 :class:`Method` (``METHOD``), which is named by an entry point of the group ``fpscan.methods`` (fpscan's own in its
 ``pyproject.toml``; another package's in its own: a plugin, docs/plugins.md). The package
-registers every entry point's method on first import (``service.plugins.load_group``), so a
+registers every entry point's method on first import (``fpscan.service.plugins.load_group``), so a
 new method is one new file and its entry point: the dispatch
-(:func:`service.pipeline.reconstruct`), the HTTP request model
-(``service.api.models.ReconParams``, the union of the methods' options), ``GET
+(:func:`fpscan.service.pipeline.reconstruct`), the HTTP request model
+(``fpscan.service.api.models.ReconParams``, the union of the methods' options), ``GET
 /api/reconstructions/methods`` (each option's JSON schema: the web page's fields), the
 flags of ``fpscan recon`` / ``unmix``, the docs table (:func:`docs_table`) and what a
 result's summary and a running job's progress line show of it (:attr:`Method.summary`,
@@ -20,21 +20,21 @@ The package is three modules: :mod:`.registry` (the :class:`Method` record, :dat
 estimators: :func:`planar_work`, :func:`peak_model`, ...) and :mod:`.render` (the options'
 schemas and words: :func:`option_schemas`, :func:`docs_table`, ...); it re-exports their names.
 
-``run(dataset, c, options, progress)``: ``dataset`` a ``service.recon.dataset.GridDataset``
+``run(dataset, c, options, progress)``: ``dataset`` a ``fpscan.service.recon.dataset.GridDataset``
 when the method ``needs_grid``, else a ``PointDataset`` (the pipeline converts); ``c`` in
 m/s; ``options`` the validated options as a dict (every field, defaults filled; ``dtype``
 a NumPy dtype; ``None`` for "derived from the data", e.g. ``n_z``); ``progress`` a
-``service.progress.Span``: ``progress(fraction, stage)`` or a kernel's ``progress(fraction)``
-(stage "reconstructing"), fractions in [0, 1]. Returns a ``service.recon.reconstruction.Reconstruction``.
+``fpscan.service.progress.Span``: ``progress(fraction, stage)`` or a kernel's ``progress(fraction)``
+(stage "reconstructing"), fractions in [0, 1]. Returns a ``fpscan.service.recon.reconstruction.Reconstruction``.
 
 Importing this package needs no numpy (the command line of a client-only install builds its
 flags from it); the kernels load when a method runs.
 """
 from __future__ import annotations
 
-from service.plugins import load_group
-from service.recon.methods.options import MethodOptions
-from service.recon.methods.registry import (
+from fpscan.service.plugins import load_group
+from fpscan.service.recon.methods.options import MethodOptions
+from fpscan.service.recon.methods.registry import (
     INPUT_KINDS,
     METHODS,
     Method,
@@ -45,8 +45,14 @@ from service.recon.methods.registry import (
     outcome,
     register,
 )
-from service.recon.methods.render import default_text, docs_table, option_fields, option_schemas, range_text
-from service.recon.methods.work import (
+from fpscan.service.recon.methods.render import (
+    default_text,
+    docs_table,
+    option_fields,
+    option_schemas,
+    range_text,
+)
+from fpscan.service.recon.methods.work import (
     FLOAT64_WORK,
     PLANAR_WORK_RATE,
     peak_model,
@@ -59,6 +65,6 @@ __all__ = ["Method", "METHODS", "register", "get", "option_schemas", "option_fie
            "transform_units", "planar_work", "MethodOptions", "default_text", "describe_error", "range_text",
            "outcome"]
 
-# every method, fpscan's own and the plugins' (service.plugins; at the end: a method module
+# every method, fpscan's own and the plugins' (fpscan.service.plugins; at the end: a method module
 # imports this package's names)
 load_group("fpscan.methods", Method, register)

@@ -1,14 +1,14 @@
 """``linear``, ``nearest``, ``cubic``: FFT on the regular frequency grid + interpolation onto
 the k-space image (k-Wave style; one algorithm, the interpolation its parameter; kernel:
-:func:`service.recon.planar.reconstruct_grid`). For comparison with NER-NUFFT."""
+:func:`fpscan.service.recon.planar.reconstruct_grid`). For comparison with NER-NUFFT."""
 from __future__ import annotations
 
 from collections.abc import Callable
 from functools import partial
 
-from service.recon.methods import Method, peak_model, planar_work
-from service.recon.methods.ner import run_grid
-from service.recon.methods.options import DepthOptions, MethodOptions, PositivityOption, UpsampleOption
+from fpscan.service.recon.methods import Method, peak_model, planar_work
+from fpscan.service.recon.methods.ner import run_grid
+from fpscan.service.recon.methods.options import DepthOptions, MethodOptions, PositivityOption, UpsampleOption
 
 __all__ = ["Options", "KINDS", "WORK_RATES", "TEMPORAL_STEPS", "METHODS", "LINEAR", "NEAREST", "CUBIC"]
 
@@ -37,8 +37,8 @@ class Options(DepthOptions, PositivityOption, UpsampleOption, MethodOptions):
     Examples
     --------
     >>> from pydantic import ValidationError
-    >>> from service.recon.methods import METHODS
-    >>> from service.recon.methods.interp import Options
+    >>> from fpscan.service.recon.methods import METHODS
+    >>> from fpscan.service.recon.methods.interp import Options
     >>> [m for m in METHODS if METHODS[m].options_model is Options]
     ['linear', 'nearest', 'cubic']
     >>> Options(n_z=32).n_z
@@ -65,7 +65,7 @@ KINDS = {
 WORK_RATES = {"linear": 3e-9, "nearest": 3e-9, "cubic": 4e-8}
 
 _run: Callable = run_grid
-#: each method's temporal step in the memory model (``service.recon.memory.planar_peak``)
+#: each method's temporal step in the memory model (``fpscan.service.recon.memory.planar_peak``)
 TEMPORAL_STEPS = {"linear": "regular", "nearest": "regular", "cubic": "pchip"}
 #: the three methods, in :data:`KINDS`' order (each named by an entry point of ``fpscan.methods``)
 METHODS = [Method(name, title, True, Options, partial(_run, name), source,

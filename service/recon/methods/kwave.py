@@ -1,5 +1,5 @@
 """``kwave``: k-Wave's ``kspaceLineRecon`` / ``kspacePlaneRecon`` (kernels:
-:mod:`service.recon.kwave`, transcriptions checked against k-Wave's data; notes in
+:mod:`fpscan.service.recon.kwave`, transcriptions checked against k-Wave's data; notes in
 reference/KWAVE_RECON_NOTES.md)."""
 from __future__ import annotations
 
@@ -8,13 +8,13 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 from pydantic import BeforeValidator, Field
 
-from service.recon.limits import KWAVE_INTERPS
-from service.recon.methods import Method, peak_model, planar_work
-from service.recon.methods.options import MethodOptions, PositivityOption
+from fpscan.service.recon.limits import KWAVE_INTERPS
+from fpscan.service.recon.methods import Method, peak_model, planar_work
+from fpscan.service.recon.methods.options import MethodOptions, PositivityOption
 
 if TYPE_CHECKING:
-    from service.recon.dataset import GridDataset
-    from service.recon.reconstruction import Reconstruction
+    from fpscan.service.recon.dataset import GridDataset
+    from fpscan.service.recon.reconstruction import Reconstruction
 
 __all__ = ["Options", "run", "check_start", "WORK_RATE", "work", "warm_up", "METHOD"]
 
@@ -22,7 +22,7 @@ __all__ = ["Options", "run", "check_start", "WORK_RATE", "work", "warm_up", "MET
 def _check_interp(value: Any) -> Any:
     if value is None or value in KWAVE_INTERPS:
         return value
-    from service.recon.checks import OptionError
+    from fpscan.service.recon.checks import OptionError
 
     raise OptionError(f"interp must be one of {', '.join(KWAVE_INTERPS)}, got {value!r}")
 
@@ -47,7 +47,7 @@ class Options(PositivityOption, MethodOptions):
     Examples
     --------
     >>> from pydantic import ValidationError
-    >>> from service.recon.methods.kwave import Options
+    >>> from fpscan.service.recon.methods.kwave import Options
     >>> Options().interp, Options(interp="cubic").interp
     ('*nearest', 'cubic')
     >>> try:
@@ -86,7 +86,7 @@ def run(ds: GridDataset, c: float, opts: dict, step: Callable[[float], None]) ->
     Raises
     ------
     ValueError
-        ``ds.t0`` is not 0, or what the kernels (:mod:`service.recon.kwave`) refuse.
+        ``ds.t0`` is not 0, or what the kernels (:mod:`fpscan.service.recon.kwave`) refuse.
 
     References
     ----------
@@ -97,8 +97,8 @@ def run(ds: GridDataset, c: float, opts: dict, step: Callable[[float], None]) ->
     Examples
     --------
     >>> import numpy as np
-    >>> from service.recon.dataset import GridDataset
-    >>> from service.recon.methods.kwave import Options, run
+    >>> from fpscan.service.recon.dataset import GridDataset
+    >>> from fpscan.service.recon.methods.kwave import Options, run
     >>> g = np.zeros((64, 8))  # (n_t, n_x): a uniform layer at depth row 10
     >>> g[10] = 0.5
     >>> opts = {**Options().model_dump(), "dtype": np.dtype("float32")}
@@ -112,9 +112,9 @@ def run(ds: GridDataset, c: float, opts: dict, step: Callable[[float], None]) ->
     """
     import numpy as np
 
-    from driver.physics.axes import centred_axis
-    from service.recon import kspace_line_recon, kspace_plane_recon
-    from service.recon.reconstruction import Reconstruction
+    from fpscan.physics.axes import centred_axis
+    from fpscan.service.recon import kspace_line_recon, kspace_plane_recon
+    from fpscan.service.recon.reconstruction import Reconstruction
 
     interp = opts.get("interp") or "*nearest"
     check_start(ds.t0)
@@ -154,7 +154,7 @@ def check_start(t0: float | None) -> None:
 
     Examples
     --------
-    >>> from service.recon.methods.kwave import check_start
+    >>> from fpscan.service.recon.methods.kwave import check_start
     >>> check_start(0.0)
     >>> check_start(1e-6)
     Traceback (most recent call last):
@@ -197,7 +197,7 @@ def work(n_t: int, n_x: int, n_y: int = 1, *, t0: float | None = None, **kw: Any
 
     Examples
     --------
-    >>> from service.recon.methods.kwave import work
+    >>> from fpscan.service.recon.methods.kwave import work
     >>> 0 < work(256, 128, 128, dtype="float32") < 1.0
     True
     """
@@ -215,15 +215,15 @@ def warm_up(dtypes: Sequence[str]) -> None:
 
     Examples
     --------
-    >>> from service.recon.methods import get
-    >>> from service.recon.methods.kwave import warm_up
+    >>> from fpscan.service.recon.methods import get
+    >>> from fpscan.service.recon.methods.kwave import warm_up
     >>> get("kwave").warm_up is warm_up
     True
     """
     import numpy as np
 
-    from driver.constants import C_DEFAULT
-    from service.recon.kwave import kspace_line_recon, kspace_plane_recon
+    from fpscan.constants import C_DEFAULT
+    from fpscan.service.recon.kwave import kspace_line_recon, kspace_plane_recon
 
     dx, dt = 1e-4, 2e-8
     for d in dtypes:
@@ -237,4 +237,4 @@ def warm_up(dtypes: Sequence[str]) -> None:
 METHOD = Method("kwave", "k-Wave compatible (kspaceLineRecon / kspacePlaneRecon)", True, Options, run,
                 "k-Wave kspaceLineRecon / kspacePlaneRecon (reference/KWAVE_RECON_NOTES.md)",
                 peak_model("kwave_peak"), order=40, work=work, warm_up=warm_up,
-                kernel_modules=("service.recon.kwave",))
+                kernel_modules=("fpscan.service.recon.kwave",))

@@ -1,12 +1,12 @@
 """``nedner``: NEDNER-NUFFT for any sensor mask (paper §3.2): a temporal NUFFT and a type-1
-NUFFT over the sensor positions (kernel: :func:`service.recon.planar.reconstruct_points`)."""
+NUFFT over the sensor positions (kernel: :func:`fpscan.service.recon.planar.reconstruct_points`)."""
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
-from service.recon.methods import Method, peak_model, planar_work
-from service.recon.methods.options import (
+from fpscan.service.recon.methods import Method, peak_model, planar_work
+from fpscan.service.recon.methods.options import (
     DepthOptions,
     DeviceOption,
     MethodOptions,
@@ -16,8 +16,8 @@ from service.recon.methods.options import (
 )
 
 if TYPE_CHECKING:
-    from service.recon.dataset import PointDataset
-    from service.recon.reconstruction import Reconstruction
+    from fpscan.service.recon.dataset import PointDataset
+    from fpscan.service.recon.reconstruction import Reconstruction
 
 __all__ = ["Options", "run", "WORK_RATE", "warm_up", "METHOD"]
 
@@ -43,7 +43,7 @@ class Options(DeviceOption, DepthOptions, PositivityOption, UpsampleOption, Meth
     Examples
     --------
     >>> from pydantic import ValidationError
-    >>> from service.recon.methods.nedner import Options
+    >>> from fpscan.service.recon.methods.nedner import Options
     >>> Options(upsample=2, dz="5e-5").upsample, Options(upsample=2, dz="5e-5").dz  # dz in m
     (2, 5e-05)
     >>> try:
@@ -80,7 +80,7 @@ def run(ds: PointDataset, c: float, opts: dict, step: Callable[[float], None]) -
     Raises
     ------
     ValueError
-        No A-lines, or what ``service.recon.planar.reconstruct_points`` refuses.
+        No A-lines, or what ``fpscan.service.recon.planar.reconstruct_points`` refuses.
 
     References
     ----------
@@ -93,8 +93,8 @@ def run(ds: PointDataset, c: float, opts: dict, step: Callable[[float], None]) -
     A uniform layer at depth row 10, every point of an 8-sensor line a sensor:
 
     >>> import numpy as np
-    >>> from service.recon.dataset import GridDataset
-    >>> from service.recon.methods.nedner import Options, run
+    >>> from fpscan.service.recon.dataset import GridDataset
+    >>> from fpscan.service.recon.methods.nedner import Options, run
     >>> g = np.zeros((64, 8))  # (n_t, n_x)
     >>> g[10] = 0.5
     >>> ds = GridDataset(g, dx=1e-4, dt=1e-4 / 1500, c=1500.0).to_points()
@@ -104,7 +104,7 @@ def run(ds: PointDataset, c: float, opts: dict, step: Callable[[float], None]) -
     >>> r.p0.shape, r.p0.dtype, int(r.p0[:, 4].argmax()), r.params["method"]
     ((64, 8), dtype('float32'), 10, 'nedner')
     """
-    from service.recon import reconstruct_points
+    from fpscan.service.recon import reconstruct_points
 
     if ds.alines.shape[0] == 0:
         raise ValueError("the input has no A-lines to reconstruct")
@@ -129,14 +129,14 @@ def warm_up(dtypes: Sequence[str]) -> None:
 
     Examples
     --------
-    >>> from service.recon.methods import get
-    >>> from service.recon.methods.nedner import warm_up
+    >>> from fpscan.service.recon.methods import get
+    >>> from fpscan.service.recon.methods.nedner import warm_up
     >>> get("nedner").warm_up is warm_up
     True
     """
     import numpy as np
 
-    from service.recon.planar import reconstruct_points
+    from fpscan.service.recon.planar import reconstruct_points
 
     n, dx, dt = 64, 1e-4, 2e-8
     rng = np.random.default_rng(0)
@@ -151,4 +151,4 @@ METHOD = Method("nedner", "NEDNER-NUFFT (any sensor mask)", False, Options, run,
                 "paper §3.2: temporal NUFFT + type-1 NUFFT over the sensor positions",
                 peak_model("planar_peak", temporal="nufft", points=True), order=10,
                 work=planar_work(WORK_RATE), default_for=("points",), warm_up=warm_up,
-                kernel_modules=("driver.physics.nufft_kernels",))
+                kernel_modules=("fpscan.physics.nufft_kernels",))

@@ -1,12 +1,12 @@
 """``ner``: NER-NUFFT on a full regular grid (paper §3.1): a temporal NUFFT and a lateral
-FFT (kernel: :func:`service.recon.planar.reconstruct_grid`)."""
+FFT (kernel: :func:`fpscan.service.recon.planar.reconstruct_grid`)."""
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
-from service.recon.methods import Method, peak_model, planar_work
-from service.recon.methods.options import (
+from fpscan.service.recon.methods import Method, peak_model, planar_work
+from fpscan.service.recon.methods.options import (
     DepthOptions,
     DeviceOption,
     MethodOptions,
@@ -16,8 +16,8 @@ from service.recon.methods.options import (
 )
 
 if TYPE_CHECKING:
-    from service.recon.dataset import GridDataset
-    from service.recon.reconstruction import Reconstruction
+    from fpscan.service.recon.dataset import GridDataset
+    from fpscan.service.recon.reconstruction import Reconstruction
 
 __all__ = ["Options", "run", "run_grid", "WORK_RATE", "warm_up", "METHOD"]
 
@@ -43,7 +43,7 @@ class Options(DeviceOption, DepthOptions, PositivityOption, UpsampleOption, Meth
     Examples
     --------
     >>> from pydantic import ValidationError
-    >>> from service.recon.methods.ner import Options
+    >>> from fpscan.service.recon.methods.ner import Options
     >>> Options().model_dump()
     {'eps': 1e-06, 'dtype': 'float32', 'upsample': 1, 'positivity': False, 'n_z': None, 'dz': None, 'device': 'auto'}
     >>> try:
@@ -55,7 +55,7 @@ class Options(DeviceOption, DepthOptions, PositivityOption, UpsampleOption, Meth
 
 
 def run_grid(name: str, ds: GridDataset, c: float, opts: dict, step: Callable[[float], None]) -> Reconstruction:
-    """``service.recon.planar.reconstruct_grid`` with ``method=name`` on grid data
+    """``fpscan.service.recon.planar.reconstruct_grid`` with ``method=name`` on grid data
     ``ds.data`` ``(n_t, n_y, n_x)`` or ``(n_t, n_x)``, ``c`` in m/s, the validated options.
 
     Parameters
@@ -100,8 +100,8 @@ def run_grid(name: str, ds: GridDataset, c: float, opts: dict, step: Callable[[f
     A laterally uniform layer at depth row 10 (data g = p0(c t) / 2 at every sensor):
 
     >>> import numpy as np
-    >>> from service.recon.dataset import GridDataset
-    >>> from service.recon.methods.ner import Options, run_grid
+    >>> from fpscan.service.recon.dataset import GridDataset
+    >>> from fpscan.service.recon.methods.ner import Options, run_grid
     >>> g = np.zeros((64, 8))  # (n_t, n_x)
     >>> g[10] = 0.5
     >>> ds = GridDataset(g, dx=1e-4, dt=1e-4 / 1500, c=1500.0)  # dz = c dt = 0.1 mm
@@ -112,7 +112,7 @@ def run_grid(name: str, ds: GridDataset, c: float, opts: dict, step: Callable[[f
     >>> r.params["method"]
     'linear'
     """
-    from service.recon import reconstruct_grid
+    from fpscan.service.recon import reconstruct_grid
 
     dy = ds.dy if ds.data.ndim == 3 else None
     return reconstruct_grid(ds.data, ds.dx, ds.dt, c, method=name, dy=dy, t0=ds.t0, progress=step, **opts)
@@ -140,7 +140,7 @@ def run(ds: GridDataset, c: float, opts: dict, step: Callable[[float], None]) ->
     Raises
     ------
     ValueError
-        What ``service.recon.planar.reconstruct_grid`` refuses.
+        What ``fpscan.service.recon.planar.reconstruct_grid`` refuses.
 
     References
     ----------
@@ -151,8 +151,8 @@ def run(ds: GridDataset, c: float, opts: dict, step: Callable[[float], None]) ->
     Examples
     --------
     >>> import numpy as np
-    >>> from service.recon.dataset import GridDataset
-    >>> from service.recon.methods.ner import Options, run
+    >>> from fpscan.service.recon.dataset import GridDataset
+    >>> from fpscan.service.recon.methods.ner import Options, run
     >>> g = np.zeros((64, 8))  # (n_t, n_x): a uniform layer at depth row 10
     >>> g[10] = 0.5
     >>> ds = GridDataset(g, dx=1e-4, dt=1e-4 / 1500, c=1500.0)
@@ -172,7 +172,7 @@ WORK_RATE = 3e-9
 
 def warm_up(dtypes: Sequence[str]) -> None:
     """Compile (or load from numba's cache) NER's kernels: one tiny grid and one line of
-    sensors in each precision, laterally above ``driver.physics.fft_engine.SMALL_ELEMENTS``
+    sensors in each precision, laterally above ``fpscan.physics.fft_engine.SMALL_ELEMENTS``
     (a smaller transform runs in numpy and would compile nothing).
 
     Parameters
@@ -182,14 +182,14 @@ def warm_up(dtypes: Sequence[str]) -> None:
 
     Examples
     --------
-    >>> from service.recon.methods import get
-    >>> from service.recon.methods.ner import warm_up
+    >>> from fpscan.service.recon.methods import get
+    >>> from fpscan.service.recon.methods.ner import warm_up
     >>> get("ner").warm_up is warm_up
     True
     """
     import numpy as np
 
-    from service.recon.planar import reconstruct_grid
+    from fpscan.service.recon.planar import reconstruct_grid
 
     n, dx, dt = 64, 1e-4, 2e-8
     for d in dtypes:
@@ -202,4 +202,4 @@ def warm_up(dtypes: Sequence[str]) -> None:
 METHOD = Method("ner", "NER-NUFFT (full regular grid)", True, Options, run,
                 "paper §3.1: temporal NUFFT, lateral FFT", peak_model("planar_peak", temporal="nufft"),
                 order=20, work=planar_work(WORK_RATE), default_for=("grid",), warm_up=warm_up,
-                kernel_modules=("driver.physics.nufft_kernels",))
+                kernel_modules=("fpscan.physics.nufft_kernels",))

@@ -2,12 +2,12 @@
 unit and default, each refused by the kernel's own rule.
 
 A method's options model (:class:`MethodOptions` and the mix-ins below) is what every door
-checks a request with: :func:`service.pipeline.reconstruct`, ``fpscan recon`` / ``unmix``
+checks a request with: :func:`fpscan.service.pipeline.reconstruct`, ``fpscan recon`` / ``unmix``
 (their flags are generated from these fields) and ``POST /api/reconstructions`` (its
 ``ReconParams`` is the union of the methods' fields). Each bounded field runs the kernel's
-rule (:mod:`service.recon.checks`) before its type and range, so every door refuses a value
+rule (:mod:`fpscan.service.recon.checks`) before its type and range, so every door refuses a value
 with the kernel's words (``eps must be in [1e-14, 1e-1], got 5e-15``); the ranges are
-those of :mod:`service.recon.limits`, stated in the JSON schema (``minimum``/``maximum``).
+those of :mod:`fpscan.service.recon.limits`, stated in the JSON schema (``minimum``/``maximum``).
 
 Field metadata (``json_schema_extra``) read by the generated surfaces: ``unit`` (SI unit
 of the value, shown by the CLI, the web page and the docs table), ``quantity`` (``length``
@@ -24,8 +24,8 @@ from typing import Annotated, Any, Literal
 
 from pydantic import AliasChoices, BaseModel, BeforeValidator, ConfigDict, Field, model_validator
 
-from driver.constants import C_AUTOFOCUS_LIMITS, C_AUTOFOCUS_RANGE, C_DEFAULT, C_LIMITS, C_PLAUSIBLE
-from service.recon.limits import (
+from fpscan.constants import C_AUTOFOCUS_LIMITS, C_AUTOFOCUS_RANGE, C_DEFAULT, C_LIMITS, C_PLAUSIBLE
+from fpscan.service.recon.limits import (
     DEFAULT_DEVICE,
     DEFAULT_DTYPE,
     DEFAULT_EPS,
@@ -43,14 +43,14 @@ __all__ = ["SpeedOptions", "plausible_speeds", "speed_schema", "MethodOptions", 
 
 
 def kernel_rule(name: str) -> Callable[[Any], Any]:
-    """The rule ``service.recon.checks.<name>`` as a before-validator: ``None`` (the
+    """The rule ``fpscan.service.recon.checks.<name>`` as a before-validator: ``None`` (the
     default) passes, anything else is checked (``OptionError``, a ValueError naming the
     option and its range) and converted (a float, an int).
 
     Parameters
     ----------
     name : str
-        A rule of :mod:`service.recon.checks` (``"check_eps"``, ``"check_upsample"``,
+        A rule of :mod:`fpscan.service.recon.checks` (``"check_eps"``, ``"check_upsample"``,
         ``"check_n_z"``, ``"check_dz"``, ``"check_lam"``, ``"check_iterations"``,
         ``"check_time_limit"``).
 
@@ -58,29 +58,29 @@ def kernel_rule(name: str) -> Callable[[Any], Any]:
     -------
     callable
         ``apply(value)``: ``None`` unchanged, else the rule's checked value (SI units); its
-        ``__name__`` is ``name``. ``service.recon.checks`` is imported on the first call.
+        ``__name__`` is ``name``. ``fpscan.service.recon.checks`` is imported on the first call.
 
     Raises
     ------
-    service.recon.checks.OptionError
+    fpscan.service.recon.checks.OptionError
         From ``apply``: the value is outside the rule (the message names the option and its
         range).
 
     Examples
     --------
-    >>> from service.recon.methods.options import kernel_rule
+    >>> from fpscan.service.recon.methods.options import kernel_rule
     >>> eps = kernel_rule("check_eps")
     >>> eps(None) is None, eps("1e-3"), kernel_rule("check_upsample")(2.0)
     (True, 0.001, 2)
     >>> eps(5e-15)
     Traceback (most recent call last):
     ...
-    service.recon.checks.OptionError: eps must be in [1e-14, 1e-1], got 5e-15
+    fpscan.service.recon.checks.OptionError: eps must be in [1e-14, 1e-1], got 5e-15
     """
     def apply(value: Any) -> Any:
         if value is None:
             return None
-        from service.recon import checks
+        from fpscan.service.recon import checks
 
         return getattr(checks, name)(value)
 
@@ -104,20 +104,20 @@ def check_flag(name: str) -> Callable[[Any], Any]:
 
     Raises
     ------
-    service.recon.checks.OptionError
+    fpscan.service.recon.checks.OptionError
         From ``apply``: anything but ``None``, a bool or the integers 0 and 1.
 
     Examples
     --------
     >>> import numpy as np
-    >>> from service.recon.methods.options import check_flag
+    >>> from fpscan.service.recon.methods.options import check_flag
     >>> rule = check_flag("positivity")
     >>> rule(1), rule(np.bool_(False)), rule(None)
     (True, False, None)
     >>> rule("yes")
     Traceback (most recent call last):
     ...
-    service.recon.checks.OptionError: positivity must be true or false, got 'yes'
+    fpscan.service.recon.checks.OptionError: positivity must be true or false, got 'yes'
     """
     def apply(value: Any) -> Any:
         if value is None or isinstance(value, bool):
@@ -126,7 +126,7 @@ def check_flag(name: str) -> Callable[[Any], Any]:
             return bool(value)
         if isinstance(value, int) and value in (0, 1):
             return bool(value)
-        from service.recon.checks import OptionError
+        from fpscan.service.recon.checks import OptionError
 
         raise OptionError(f"{name} must be true or false, got {value!r}")
 
@@ -134,7 +134,7 @@ def check_flag(name: str) -> Callable[[Any], Any]:
 
 
 def check_dtype_name(value: Any) -> Any:
-    """The rule of ``dtype``: one of :data:`service.recon.limits.DTYPES`, given as its name
+    """The rule of ``dtype``: one of :data:`fpscan.service.recon.limits.DTYPES`, given as its name
     or as a NumPy dtype / scalar type (``np.float64``), returned as the name.
 
     Parameters
@@ -149,23 +149,23 @@ def check_dtype_name(value: Any) -> Any:
 
     Raises
     ------
-    service.recon.checks.OptionError
+    fpscan.service.recon.checks.OptionError
         Any other dtype, or something that names none.
 
     Examples
     --------
     >>> import numpy as np
-    >>> from service.recon.methods.options import check_dtype_name
+    >>> from fpscan.service.recon.methods.options import check_dtype_name
     >>> check_dtype_name(np.float64), check_dtype_name(np.dtype("float32")), check_dtype_name("float32")
     ('float64', 'float32', 'float32')
     >>> check_dtype_name("int8")
     Traceback (most recent call last):
     ...
-    service.recon.checks.OptionError: dtype must be one of float32, float64, got 'int8'
+    fpscan.service.recon.checks.OptionError: dtype must be one of float32, float64, got 'int8'
     """
     if value is None or (isinstance(value, str) and value in DTYPES):
         return value
-    from service.recon.checks import OptionError
+    from fpscan.service.recon.checks import OptionError
 
     name = None
     if not isinstance(value, (str, bytes)):  # text is checked as text: NumPy's dtype parser is never
@@ -214,7 +214,7 @@ def Flag(name: str) -> Any:  # a type, named as one
     Examples
     --------
     >>> from pydantic import TypeAdapter, ValidationError
-    >>> from service.recon.methods.options import Flag
+    >>> from fpscan.service.recon.methods.options import Flag
     >>> debias = TypeAdapter(Flag("debias"))
     >>> debias.validate_python(0), debias.validate_python(True)
     (False, True)
@@ -228,7 +228,7 @@ def Flag(name: str) -> Any:  # a type, named as one
 
 
 def plausible_speeds(sep: str = "-") -> str:
-    """The speeds of sound accepted without ``force`` (``driver.constants.C_PLAUSIBLE``, tissue
+    """The speeds of sound accepted without ``force`` (``fpscan.constants.C_PLAUSIBLE``, tissue
     and water) as text for a message, a help line or a form label.
 
     Parameters
@@ -243,7 +243,7 @@ def plausible_speeds(sep: str = "-") -> str:
 
     Examples
     --------
-    >>> from service.recon.methods.options import plausible_speeds
+    >>> from fpscan.service.recon.methods.options import plausible_speeds
     >>> plausible_speeds(), plausible_speeds(" to ")
     ('1000-2000', '1000 to 2000')
     """
@@ -256,20 +256,20 @@ AutofocusSpeed = Annotated[float, Field(ge=C_AUTOFOCUS_LIMITS[0], le=C_AUTOFOCUS
 
 class SpeedOptions(BaseModel):
     """The speed of sound, every method's option, as one typed model: its unit, bounds and default,
-    the autofocus interval and ``force``. The HTTP request model (``service.api.models``:
+    the autofocus interval and ``force``. The HTTP request model (``fpscan.service.api.models``:
     ``ReconParams`` inherits these fields), ``GET /api/reconstructions/methods`` (its value schema,
     :func:`speed_schema`, from which the web page's fields and labels are built), the upload form
     (``POST /api/datasets``), the flags of ``fpscan recon`` / ``unmix``
-    (``clients.cli.recon_options.add_speed_flags``) and every message about a speed read it; the
-    numbers are ``driver.constants``' (``C_PLAUSIBLE`` without ``force``, ``C_LIMITS`` with it,
+    (``fpscan.clients.cli.recon_options.add_speed_flags``) and every message about a speed read it; the
+    numbers are ``fpscan.constants``' (``C_PLAUSIBLE`` without ``force``, ``C_LIMITS`` with it,
     ``C_AUTOFOCUS_RANGE`` the search's default). ``c`` in code, ``sound_speed`` where a person
-    reads it (``c`` accepted, deprecated); the check is ``driver.units.check_speeds``.
+    reads it (``c`` accepted, deprecated); the check is ``fpscan.driver.units.check_speeds``.
 
     Attributes
     ----------
     c : float, "auto" or None
         Speed of sound in m/s; ``"auto"``: the speed of sharpest focus searched within
-        ``c_range``; None: the input's (else ``driver.constants.C_DEFAULT``).
+        ``c_range``; None: the input's (else ``fpscan.constants.C_DEFAULT``).
     c_range : tuple of float or None
         The autofocus search interval (c_min, c_max) in m/s, each within ``C_AUTOFOCUS_LIMITS``;
         None: ``C_AUTOFOCUS_RANGE``.
@@ -278,7 +278,7 @@ class SpeedOptions(BaseModel):
 
     Examples
     --------
-    >>> from service.recon.methods.options import SpeedOptions
+    >>> from fpscan.service.recon.methods.options import SpeedOptions
     >>> SpeedOptions.model_validate({"sound_speed": 1480}).c
     1480.0
     >>> SpeedOptions.model_fields["c"].json_schema_extra["unit"]
@@ -300,7 +300,7 @@ class SpeedOptions(BaseModel):
                            "shown": "sound_speed_range"})
     force: bool = Field(False, description=f"accept a sound_speed (or sound_speed_range) outside {plausible_speeds()} "
                                            "m/s (a medium other than tissue or water); without it such a value is "
-                                           "refused as a likely unit mistake (driver.units.check_speeds)")
+                                           "refused as a likely unit mistake (fpscan.driver.units.check_speeds)")
 
 
 def speed_schema() -> dict:
@@ -315,7 +315,7 @@ def speed_schema() -> dict:
 
     Examples
     --------
-    >>> from service.recon.methods.options import speed_schema
+    >>> from fpscan.service.recon.methods.options import speed_schema
     >>> s = speed_schema()
     >>> s["anyOf"][0]["minimum"], s["anyOf"][0]["maximum"], s["unit"]
     (1000.0, 2000.0, 'm/s')
@@ -327,7 +327,7 @@ def speed_schema() -> dict:
 
 class MethodOptions(BaseModel):
     """The options every method takes (but ``c``, the speed of sound, which
-    :func:`service.pipeline.reconstruct` owns: a number, the dataset's, or ``"auto"``).
+    :func:`fpscan.service.pipeline.reconstruct` owns: a number, the dataset's, or ``"auto"``).
     Unknown names, NaN and infinities are refused.
 
     A frozen pydantic model; a value ``None`` (JSON null) is dropped before validation, so
@@ -336,14 +336,14 @@ class MethodOptions(BaseModel):
     Attributes
     ----------
     dtype : {"float32", "float64"}
-        Working and output precision (default ``service.recon.limits.DEFAULT_DTYPE``,
+        Working and output precision (default ``fpscan.service.recon.limits.DEFAULT_DTYPE``,
         ``"float32"``); a NumPy dtype or scalar type is accepted and stored as its name.
 
     Examples
     --------
     >>> import numpy as np
     >>> from pydantic import ValidationError
-    >>> from service.recon.methods.options import MethodOptions
+    >>> from fpscan.service.recon.methods.options import MethodOptions
     >>> MethodOptions().dtype, MethodOptions(dtype=np.float64).dtype
     ('float32', 'float64')
     >>> MethodOptions.model_validate({"dtype": None}).dtype  # null: the default
@@ -377,12 +377,12 @@ class NufftOptions(BaseModel):
     ----------
     eps : float
         NUFFT tolerance (relative accuracy, dimensionless) in ``EPS_RANGE`` = [1e-14, 1e-1],
-        default ``DEFAULT_EPS`` = 1e-6 (rule: ``service.recon.checks.check_eps``).
+        default ``DEFAULT_EPS`` = 1e-6 (rule: ``fpscan.service.recon.checks.check_eps``).
 
     Examples
     --------
     >>> from pydantic import ValidationError
-    >>> from service.recon.methods.options import NufftOptions
+    >>> from fpscan.service.recon.methods.options import NufftOptions
     >>> NufftOptions().eps, NufftOptions(eps="1e-8").eps
     (1e-06, 1e-08)
     >>> try:
@@ -403,12 +403,12 @@ class UpsampleOption(BaseModel):
     ----------
     upsample : int
         Lateral upsampling factor of the output grid in ``UPSAMPLE_RANGE`` = 1..8
-        (dimensionless), default 1 (rule: ``service.recon.checks.check_upsample``).
+        (dimensionless), default 1 (rule: ``fpscan.service.recon.checks.check_upsample``).
 
     Examples
     --------
     >>> from pydantic import ValidationError
-    >>> from service.recon.methods.options import UpsampleOption
+    >>> from fpscan.service.recon.methods.options import UpsampleOption
     >>> UpsampleOption().upsample, UpsampleOption(upsample=8).upsample
     (1, 8)
     >>> try:
@@ -433,7 +433,7 @@ class PositivityOption(BaseModel):
     Examples
     --------
     >>> from pydantic import ValidationError
-    >>> from service.recon.methods.options import PositivityOption
+    >>> from fpscan.service.recon.methods.options import PositivityOption
     >>> PositivityOption().positivity, PositivityOption(positivity=1).positivity
     (False, True)
     >>> try:
@@ -448,7 +448,7 @@ class PositivityOption(BaseModel):
 
 def check_device_name(value: Any) -> Any:
     """The rule of ``device``: one of ``"auto"``, ``"cpu"``, ``"cuda"``
-    (`service.recon.device.DEVICES`).
+    (`fpscan.service.recon.device.DEVICES`).
 
     Parameters
     ----------
@@ -461,34 +461,34 @@ def check_device_name(value: Any) -> Any:
 
     Raises
     ------
-    service.recon.checks.OptionError
+    fpscan.service.recon.checks.OptionError
         Anything else.
 
     Examples
     --------
-    >>> from service.recon.methods.options import check_device_name
+    >>> from fpscan.service.recon.methods.options import check_device_name
     >>> check_device_name("cuda")
     'cuda'
     >>> check_device_name("tpu")
     Traceback (most recent call last):
     ...
-    service.recon.checks.OptionError: device must be one of auto, cpu, cuda, got 'tpu'
+    fpscan.service.recon.checks.OptionError: device must be one of auto, cpu, cuda, got 'tpu'
     """
     if value is None or (isinstance(value, str) and value in DEVICES):
         return value
-    from service.recon.checks import OptionError
+    from fpscan.service.recon.checks import OptionError
 
     shown = repr(value) if len(repr(value)) <= 64 else repr(value)[:60] + "...'"
     raise OptionError(f"device must be one of {', '.join(DEVICES)}, got {shown}")
 
 
-#: where a reconstruction runs (`service.recon.device`)
+#: where a reconstruction runs (`fpscan.service.recon.device`)
 Device = Annotated[Literal["auto", "cpu", "cuda"] | None, BeforeValidator(check_device_name)]
 
 
 class DeviceOption(BaseModel):
     """Mix-in: where the method runs, ``"auto"`` (default: the GPU where CuPy sees one and the
-    job fits it, else the CPU), ``"cpu"`` or ``"cuda"`` (`service.recon.device`).
+    job fits it, else the CPU), ``"cpu"`` or ``"cuda"`` (`fpscan.service.recon.device`).
 
     Attributes
     ----------
@@ -497,7 +497,7 @@ class DeviceOption(BaseModel):
 
     Examples
     --------
-    >>> from service.recon.methods.options import DeviceOption
+    >>> from fpscan.service.recon.methods.options import DeviceOption
     >>> DeviceOption().device, DeviceOption(device="cpu").device
     ('auto', 'cpu')
     """
@@ -518,7 +518,7 @@ class DepthOptions(BaseModel):
     Examples
     --------
     >>> from pydantic import ValidationError
-    >>> from service.recon.methods.options import DepthOptions
+    >>> from fpscan.service.recon.methods.options import DepthOptions
     >>> DepthOptions().n_z is None, DepthOptions(n_z=64, dz="2e-5").dz  # m
     (True, 2e-05)
     >>> for bad in ({"n_z": 1}, {"dz": 1.0}):

@@ -1,5 +1,5 @@
 """The method registry: the :class:`Method` record, the vocabulary :data:`METHODS`,
-:func:`register`, :func:`get` and :func:`default_for` (the package ``service.recon.methods``
+:func:`register`, :func:`get` and :func:`default_for` (the package ``fpscan.service.recon.methods``
 re-exports them and fills :data:`METHODS` from the entry points of ``fpscan.methods``).
 
 Importing this module needs no numpy.
@@ -12,11 +12,11 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from service.plugins import put_in_order
-from service.progress import Shown
-from service.progress import outcome as outcome_line
-from service.recon.methods.options import MethodOptions
-from service.recon.methods.work import PLANAR_WORK_RATE, peak_model, planar_work
+from fpscan.service.plugins import put_in_order
+from fpscan.service.progress import Shown
+from fpscan.service.progress import outcome as outcome_line
+from fpscan.service.recon.methods.options import MethodOptions
+from fpscan.service.recon.methods.work import PLANAR_WORK_RATE, peak_model, planar_work
 
 __all__ = ["Method", "Runner", "METHODS", "register", "get", "default_for", "INPUT_KINDS", "describe_error", "outcome",
            "estimate_peak_memory"]
@@ -52,16 +52,16 @@ class Method:
     peak_memory : callable or None
         ``peak_memory(n_t, n_x, n_y, *, n_z, upsample, dtype, n_points, dx, dt, c, dz, t0,
         options, record_facts, bandwidth, **_)`` ->
-        bytes at its peak (the memory admission, ``service.jobs.admission``; a model of
-        ``service.recon.memory``, :func:`peak_model`); None (default): NER's,
-        ``service.recon.memory.planar_peak``.
+        bytes at its peak (the memory admission, ``fpscan.service.jobs.admission``; a model of
+        ``fpscan.service.recon.memory``, :func:`peak_model`); None (default): NER's,
+        ``fpscan.service.recon.memory.planar_peak``.
     order : int
         Position in lists (smaller first).
     work : callable or None
         ``work(n_t, n_x, n_y, *, n_z, upsample, dtype, n_points, dx, dt, c, t0, options,
         record_facts, bandwidth, **_)`` ->
         seconds on the reference 2 cores (:data:`FLOAT64_WORK`; the work admission,
-        ``service.jobs.admission.estimate_work``); it may raise ``OptionError`` for options
+        ``fpscan.service.jobs.admission.estimate_work``); it may raise ``OptionError`` for options
         the input cannot carry (tv: an image deeper than the record can hear). None
         (default): :func:`planar_work` at :data:`PLANAR_WORK_RATE`.
     iterative : bool
@@ -78,27 +78,27 @@ class Method:
         sensor mask); :func:`default_for`.
     warm_up : callable or None
         ``warm_up(dtypes)``: compile (or load from numba's cache) its kernels on tiny data in
-        each dtype name of ``dtypes`` (``service.recon.warmup.warm_up``, ``fpscan warmup``, a job
+        each dtype name of ``dtypes`` (``fpscan.service.recon.warmup.warm_up``, ``fpscan warmup``, a job
         worker before its first job); None: nothing of its own to warm.
     kernel_modules : tuple of str
-        The modules holding its numba kernels (``service.recon.warmup.cache_dirs``).
+        The modules holding its numba kernels (``fpscan.service.recon.warmup.cache_dirs``).
     warm_in_background : bool
         Its warm-up is slow (pylops' import: seconds): a job worker runs it in the background
-        after it is ready for jobs (``service.jobs.work.warm_up``).
+        after it is ready for jobs (``fpscan.service.jobs.work.warm_up``).
     memory_calibration : float
         Its admission class: the factor the memory admission applies to :attr:`peak_memory`
-        (``service.jobs.admission.estimate_memory``; 1 for a model measured within its margin).
+        (``fpscan.service.jobs.admission.estimate_memory``; 1 for a model measured within its margin).
     holds_input : bool
         It keeps the input as loaded beside its working copy (the memory admission counts it even
         in the working precision).
-    summary : tuple of service.progress.Shown
+    summary : tuple of fpscan.service.progress.Shown
         The fields of its result's parameters it shows after its outcome, in order: the CLI's
         and the notebook's line (:func:`outcome`) and the web page's summary rows (``GET
         /api/reconstructions/methods``); tv: λ ("(automatic)" / "(given)") and the residual.
     stop_waits_for : str
         What its stopping rule waits for while it is not armed (an ``IterationStage`` with
         ``armed=False``), in words the progress line ends on after "once" (tv: ``"λ has
-        settled"``; ``service.progress.describe_iteration``); "" for none.
+        settled"``; ``fpscan.service.progress.describe_iteration``); "" for none.
     options : tuple of str
         The option names it takes: ``c`` and its model's fields.
     defaults : dict
@@ -106,7 +106,7 @@ class Method:
 
     Examples
     --------
-    >>> from service.recon.methods import get
+    >>> from fpscan.service.recon.methods import get
     >>> m = get("nedner")
     >>> m.name, m.needs_grid, m.options
     ('nedner', False, ('c', 'eps', 'dtype', 'upsample', 'positivity', 'n_z', 'dz', 'device'))
@@ -117,7 +117,7 @@ class Method:
     >>> m.check({"eps": 5e-15})
     Traceback (most recent call last):
     ...
-    service.recon.checks.OptionError: eps must be in [1e-14, 1e-1], got 5e-15
+    fpscan.service.recon.checks.OptionError: eps must be in [1e-14, 1e-1], got 5e-15
     >>> m.memory(64, 8) > 0  # bytes
     True
     """
@@ -155,23 +155,23 @@ class Method:
 
     def check(self, options: dict) -> MethodOptions:
         """``options`` (names of its model; ``None`` = the default) validated by its model;
-        raises ``service.recon.checks.OptionError`` (a ValueError) with the first refusal,
+        raises ``fpscan.service.recon.checks.OptionError`` (a ValueError) with the first refusal,
         in the kernel rule's words (``eps must be in [1e-14, 1e-1], got 5e-15``).
 
         Examples
         --------
-        >>> from service.recon.methods import get
+        >>> from fpscan.service.recon.methods import get
         >>> get("ner").check({"upsample": 2.0, "positivity": None}).model_dump()
         {'eps': 1e-06, 'dtype': 'float32', 'upsample': 2, 'positivity': False, 'n_z': None, 'dz': None, 'device': 'auto'}
         >>> get("ner").check({"lam": 0.1})
         Traceback (most recent call last):
         ...
-        service.recon.checks.OptionError: unknown option lam
+        fpscan.service.recon.checks.OptionError: unknown option lam
         """
         try:
             return self.options_model.model_validate(options)
         except ValidationError as exc:
-            from service.recon.checks import OptionError
+            from fpscan.service.recon.checks import OptionError
 
             raise OptionError(describe_error(exc)) from None
 
@@ -181,7 +181,7 @@ class Method:
 
         Examples
         --------
-        >>> from service.recon.methods import get
+        >>> from fpscan.service.recon.methods import get
         >>> get("ner").upsample({"upsample": 2}), get("kwave").upsample({"upsample": 2}), get("ner").upsample({})
         (2, 1, 1)
         """
@@ -213,7 +213,7 @@ def describe_error(exc: ValidationError) -> str:
     Examples
     --------
     >>> from pydantic import BaseModel, ValidationError
-    >>> from service.recon.methods import describe_error, get
+    >>> from fpscan.service.recon.methods import describe_error, get
     >>> for bad in ({"upsample": 9}, {"frobnicate": 1}):
     ...     try:
     ...         get("ner").options_model.model_validate(bad)
@@ -260,7 +260,7 @@ def register(method: Method) -> Method:
     A toy method (then removed, leaving the registry as it was):
 
     >>> from pydantic import Field
-    >>> from service.recon.methods import METHODS, Method, MethodOptions, register
+    >>> from fpscan.service.recon.methods import METHODS, Method, MethodOptions, register
     >>> class ToyOptions(MethodOptions):
     ...     pass
     >>> toy = register(Method("toy", "a toy", False, ToyOptions, run=print, order=1000))
@@ -307,22 +307,22 @@ def get(name: str) -> Method:
 
     Raises
     ------
-    service.recon.checks.OptionError
+    fpscan.service.recon.checks.OptionError
         No method of that name; the message lists the methods.
 
     Examples
     --------
-    >>> from service.recon.methods import get
+    >>> from fpscan.service.recon.methods import get
     >>> get("kwave").title
     'k-Wave compatible (kspaceLineRecon / kspacePlaneRecon)'
     >>> get("fbp")
     Traceback (most recent call last):
     ...
-    service.recon.checks.OptionError: method must be one of nedner, ner, ..., got 'fbp'
+    fpscan.service.recon.checks.OptionError: method must be one of nedner, ner, ..., got 'fbp'
     """
     spec = METHODS.get(name)
     if spec is None:
-        from service.recon.checks import OptionError
+        from fpscan.service.recon.checks import OptionError
 
         raise OptionError(f"method must be one of {', '.join(METHODS)}, got {name!r}")
     return spec
@@ -354,7 +354,7 @@ def default_for(kind: str) -> str:
 
     Examples
     --------
-    >>> from service.recon.methods import default_for
+    >>> from fpscan.service.recon.methods import default_for
     >>> default_for("grid"), default_for("points")
     ('ner', 'nedner')
     """
@@ -375,7 +375,7 @@ def _rules(model: type[MethodOptions]) -> dict[str, str]:
 
 
 def outcome(params: dict, method: str | None = None) -> str | None:
-    """One line on how an iterative reconstruction ended (:func:`service.progress.outcome`),
+    """One line on how an iterative reconstruction ended (:func:`fpscan.service.progress.outcome`),
     with the fields its method declares (:attr:`Method.summary`).
 
     Parameters
@@ -394,7 +394,7 @@ def outcome(params: dict, method: str | None = None) -> str | None:
 
     Examples
     --------
-    >>> from service.recon.methods import outcome
+    >>> from fpscan.service.recon.methods import outcome
     >>> outcome({"method": "tv", "converged": True, "stop_reason": "converged", "iterations": 37,
     ...          "max_iter": 100, "iterate_change": 0.0041, "tol": 0.005, "lam": 0.0123, "lam_auto": True,
     ...          "residual": 0.031, "noise_share": 0.030})
@@ -408,7 +408,7 @@ def outcome(params: dict, method: str | None = None) -> str | None:
 
 def estimate_peak_memory(n_t: int, n_x: int, n_y: int = 1, *, method: str | None = None, **kw: Any) -> int:
     """Estimated peak memory in bytes of a reconstruction by ``method``: the method's own model
-    (``service.recon.methods.get(method).memory``).
+    (``fpscan.service.recon.methods.get(method).memory``).
 
     Parameters
     ----------
@@ -417,8 +417,8 @@ def estimate_peak_memory(n_t: int, n_x: int, n_y: int = 1, *, method: str | None
     n_x, n_y : int
         Lateral grid (``n_y = 1`` in 2-D).
     method : str, optional
-        A registered method (``service.recon.methods.METHODS``); None: the default for a
-        full lattice (``service.recon.methods.default_for("grid")``).
+        A registered method (``fpscan.service.recon.methods.METHODS``); None: the default for a
+        full lattice (``fpscan.service.recon.methods.default_for("grid")``).
     **kw
         The model's keywords: ``n_z`` (output depth samples), ``upsample``, ``dtype``
         (float32/float64), ``n_points`` (sensors of point data), ``dx`` (m), ``dt`` (s), ``c``
@@ -431,13 +431,13 @@ def estimate_peak_memory(n_t: int, n_x: int, n_y: int = 1, *, method: str | None
 
     Raises
     ------
-    service.recon.checks.OptionError
+    fpscan.service.recon.checks.OptionError
         An unknown method.
 
     Examples
     --------
     >>> import numpy as np
-    >>> from service.recon import estimate_peak_memory
+    >>> from fpscan.service.recon import estimate_peak_memory
     >>> est = estimate_peak_memory(256, 64, 64)  # (n_t, n_y, n_x) = (256, 64, 64), float64 NER
     >>> est > 256 * 64 * 64 * 8  # more than the input
     True

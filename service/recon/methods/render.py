@@ -12,7 +12,7 @@ from typing import Any
 
 from pydantic import BaseModel
 
-from service.recon.methods.registry import METHODS, Method
+from fpscan.service.recon.methods.registry import METHODS, Method
 
 __all__ = ["option_fields", "option_schemas", "range_text", "docs_table", "default_text"]
 
@@ -30,7 +30,7 @@ def option_fields() -> dict[str, Any]:
 
     Examples
     --------
-    >>> from service.recon.methods import option_fields
+    >>> from fpscan.service.recon.methods import option_fields
     >>> fields = option_fields()
     >>> list(fields)[:6]  # the first method's (nedner) first, then each later method's new ones
     ['eps', 'dtype', 'upsample', 'positivity', 'n_z', 'dz']
@@ -65,7 +65,7 @@ def option_schemas(method: Method | type[BaseModel]) -> list[dict[str, Any]]:
 
     Examples
     --------
-    >>> from service.recon.methods import get, option_schemas
+    >>> from fpscan.service.recon.methods import get, option_schemas
     >>> [o["name"] for o in option_schemas(get("kwave"))]
     ['dtype', 'positivity', 'interp']
     >>> eps = option_schemas(get("ner"))[0]
@@ -103,7 +103,7 @@ def range_text(schema: dict) -> str:
 
     Examples
     --------
-    >>> from service.recon.methods import range_text
+    >>> from fpscan.service.recon.methods import range_text
     >>> range_text({"type": "number", "minimum": 1e-14, "maximum": 0.1})
     '[1e-14, 0.1]'
     >>> range_text({"type": "number", "exclusiveMinimum": 0, "maximum": 604800})  # s
@@ -134,7 +134,7 @@ def docs_table() -> str:
 
     Examples
     --------
-    >>> from service.recon.methods import docs_table
+    >>> from fpscan.service.recon.methods import docs_table
     >>> table = docs_table().splitlines()
     >>> table[0]
     '| method | input | options | source |'
@@ -183,7 +183,7 @@ def default_text(name: str, *, code: bool = False) -> str:
 
     Examples
     --------
-    >>> from service.recon.methods import default_text
+    >>> from fpscan.service.recon.methods import default_text
     >>> default_text("eps"), default_text("n_z"), default_text("dz")
     ('1e-06', 'n_t', 'c·dt')
     >>> default_text("positivity")  # doctest: +ELLIPSIS

@@ -1,6 +1,6 @@
 """``tv``: model-based reconstruction, ½‖A p0 − g‖² + λ TV(p0) with p0 ≥ 0, solved by
 NER-preconditioned FISTA on the exact planar model (kernel:
-:func:`service.recon.tv.reconstruct_tv`; Arridge et al., PMB 61 (2016) 8908)."""
+:func:`fpscan.service.recon.tv.reconstruct_tv`; Arridge et al., PMB 61 (2016) 8908)."""
 from __future__ import annotations
 
 import math
@@ -9,8 +9,8 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 from pydantic import BeforeValidator, Field
 
-from service.progress import IterationStage, Shown
-from service.recon.limits import (
+from fpscan.service.progress import IterationStage, Shown
+from fpscan.service.recon.limits import (
     DEFAULT_MAX_ITER,
     DEFAULT_TIME_LIMIT,
     DEFAULT_TOL,
@@ -19,8 +19,8 @@ from service.recon.limits import (
     TIME_LIMIT_MAX,
     TOL_RANGE,
 )
-from service.recon.methods import Method
-from service.recon.methods.options import (
+from fpscan.service.recon.methods import Method
+from fpscan.service.recon.methods.options import (
     DepthOptions,
     DeviceOption,
     Flag,
@@ -30,10 +30,10 @@ from service.recon.methods.options import (
 )
 
 if TYPE_CHECKING:
-    from service.progress import Progress
-    from service.recon.dataset import PointDataset
-    from service.recon.reconstruction import Reconstruction
-    from service.recon.tv_grid import TvGrid
+    from fpscan.service.progress import Progress
+    from fpscan.service.recon.dataset import PointDataset
+    from fpscan.service.recon.reconstruction import Reconstruction
+    from fpscan.service.recon.tv_grid import TvGrid
 
 __all__ = ["Options", "run", "declared_bandwidth", "BANDWIDTH_KEY", "PAIR_RATE", "SETUP_PAIRS", "grid",
            "check_depth", "work", "peak_memory", "MEMORY_CALIBRATION", "warm_up", "SUMMARY", "STOP_WAITS_FOR", "METHOD"]
@@ -59,7 +59,7 @@ class Options(DeviceOption, DepthOptions, MethodOptions, NufftOptions):
         Working and output precision (default ``"float32"``).
     n_z : int or None
         Output depth samples, 2..65536 (None: with dz None too, down to the depth of the
-        record's last echo above the noise; ``service.recon.tv_grid``; else n_t).
+        record's last echo above the noise; ``fpscan.service.recon.tv_grid``; else n_t).
     dz : float or None
         Output depth spacing in m, [1e-9, 0.1] (None: with n_z None too, the lateral pitch (an
         isotropic grid at the band c / (2 pitch) the pitch resolves, or c / (2 f) at a declared
@@ -68,7 +68,7 @@ class Options(DeviceOption, DepthOptions, MethodOptions, NufftOptions):
         Constrain p0 >= 0 (default True).
     lam : float or None
         TV weight λ >= 0 in the data's units (Pa for data in Pa); None (default): from the
-        estimated noise level (``service.recon.tv``).
+        estimated noise level (``fpscan.service.recon.tv``).
     iterations : int
         Maximum iterations of the solver (default ``DEFAULT_MAX_ITER``).
     time_limit : float
@@ -78,12 +78,12 @@ class Options(DeviceOption, DepthOptions, MethodOptions, NufftOptions):
     whole_record : bool
         Keep the whole record, and by default image its whole depth (default False: the image
         ends at the last echo and the record is kept until the farthest sensor hears its last
-        row; ``service.recon.tv_grid``).
+        row; ``fpscan.service.recon.tv_grid``).
 
     Examples
     --------
     >>> from pydantic import ValidationError
-    >>> from service.recon.methods.tv import Options
+    >>> from fpscan.service.recon.methods.tv import Options
     >>> o = Options(lam=0.01, time_limit="60")
     >>> o.lam, o.time_limit, o.positivity, "upsample" in Options.model_fields  # time_limit in s
     (0.01, 60.0, True, False)
@@ -137,7 +137,7 @@ def run(ds: PointDataset, c: float, opts: dict, step: Progress) -> Reconstructio
     -------
     Reconstruction
         p0 ``(n_z, n_x)`` / ``(n_z, n_y, n_x)`` on the warm start's grid, axes in m;
-        ``params`` as ``service.recon.tv.reconstruct_tv``'s (``lam``, ``iterations``,
+        ``params`` as ``fpscan.service.recon.tv.reconstruct_tv``'s (``lam``, ``iterations``,
         ``stop_reason``, ...).
 
     Raises
@@ -155,12 +155,12 @@ def run(ds: PointDataset, c: float, opts: dict, step: Progress) -> Reconstructio
 
     Examples
     --------
-    A 3 x 3 block (the exact forward model, `driver.physics.forward`) seen by 16 sensors:
+    A 3 x 3 block (the exact forward model, `fpscan.physics.forward`) seen by 16 sensors:
 
     >>> import numpy as np
-    >>> from driver.physics.forward import forward_grid
-    >>> from service.recon.dataset import GridDataset
-    >>> from service.recon.methods.tv import Options, run
+    >>> from fpscan.physics.forward import forward_grid
+    >>> from fpscan.service.recon.dataset import GridDataset
+    >>> from fpscan.service.recon.methods.tv import Options, run
     >>> p0 = np.zeros((12, 16))  # (n_z, n_x), pitch 0.1 mm
     >>> p0[5:8, 7:10] = 1.0
     >>> g = forward_grid(p0, dx=1e-4, dz=1e-4, dt=1e-4 / 1500, n_t=24, c=1500.0)
@@ -173,7 +173,7 @@ def run(ds: PointDataset, c: float, opts: dict, step: Progress) -> Reconstructio
     >>> stages[0], stages[-1]
     ('warm start', 'iteration 5/5')
     """
-    from service.recon import reconstruct_tv
+    from fpscan.service.recon import reconstruct_tv
 
     if ds.alines.shape[0] == 0:
         raise ValueError("the input has no A-lines to reconstruct")
@@ -192,7 +192,7 @@ BANDWIDTH_KEY = "sensor_bandwidth_hz"
 def declared_bandwidth(meta: dict | None) -> float | None:
     """The sensor bandwidth a dataset's metadata declares (``meta["sensor_bandwidth_hz"]``,
     Hz), which tv then works at instead of the band it reads off the data
-    (``service.recon.tv_grid``); None when it declares none.
+    (``fpscan.service.recon.tv_grid``); None when it declares none.
 
     Parameters
     ----------
@@ -208,18 +208,18 @@ def declared_bandwidth(meta: dict | None) -> float | None:
     ------
     ValueError
         A declared value that is not a number in [1e3, 1e12] Hz
-        (``service.recon.checks.check_bandwidth``).
+        (``fpscan.service.recon.checks.check_bandwidth``).
 
     Examples
     --------
-    >>> from service.recon.methods.tv import declared_bandwidth
+    >>> from fpscan.service.recon.methods.tv import declared_bandwidth
     >>> declared_bandwidth({"sensor_bandwidth_hz": 2.2e7}), declared_bandwidth({})
     (22000000.0, None)
     """
     value = (meta or {}).get(BANDWIDTH_KEY)
     if value is None:
         return None
-    from service.recon.checks import check_bandwidth
+    from fpscan.service.recon.checks import check_bandwidth
 
     return check_bandwidth(value)
 
@@ -234,7 +234,7 @@ PAIR_RATE = 3.5e-9
 #: adjoint, the first residual (measured: 6 pairs for 3 iterations) and the set-up's other
 #: steps, the equivalent of 2 more
 SETUP_PAIRS = 5.0
-#: the debias refit's iterations (``service.recon.tv``)
+#: the debias refit's iterations (``fpscan.service.recon.tv``)
 DEBIAS_ITERATIONS = 10
 
 
@@ -242,7 +242,7 @@ def grid(n_t: int, dt: float, c: float, *, dz: float | None = None, n_z: int | N
          t0: float = 0.0, bandwidth: float | None = None, record_facts: dict | None = None,
          whole_record: bool = False, dx: float | None = None, n_x: int = 1, n_y: int = 1) -> tuple[float, int]:
     """The image grid of tv for a record: ``(dz, n_z)`` (m, rows) as tv chooses it
-    (``service.recon.tv_grid.tv_grid``: from a stored dataset's ``record_facts``, else the
+    (``fpscan.service.recon.tv_grid.tv_grid``: from a stored dataset's ``record_facts``, else the
     whole, full-band record's or a declared ``bandwidth``'s in Hz, the largest it can pick), the
     grid the work estimate and the depth rule read.
 
@@ -260,7 +260,7 @@ def grid(n_t: int, dt: float, c: float, *, dz: float | None = None, n_z: int | N
         A declared sensor bandwidth, Hz.
     record_facts : dict, optional
         What the record holds above its noise, as a stored dataset's record keeps it
-        (``service.recon.tv_grid.RecordFacts.as_dict``); one that does not fit the record is
+        (``fpscan.service.recon.tv_grid.RecordFacts.as_dict``); one that does not fit the record is
         ignored (the whole record is sized).
     whole_record : bool, optional
         tv's option: the whole record and its depth.
@@ -283,7 +283,7 @@ def grid(n_t: int, dt: float, c: float, *, dz: float | None = None, n_z: int | N
 
     Examples
     --------
-    >>> from service.recon.methods.tv import grid
+    >>> from fpscan.service.recon.methods.tv import grid
     >>> grid(256, 4e-8, 1500.0)  # c dt, n_t
     (6e-05, 256)
     >>> dz, n_z = grid(1024, 8e-9, 1500.0, bandwidth=20e6)  # a 20 MHz sensor: a coarser grid
@@ -293,7 +293,7 @@ def grid(n_t: int, dt: float, c: float, *, dz: float | None = None, n_z: int | N
     >>> round(dz * 1e6, 2), n_z
     (60.0, 205)
     """
-    from service.recon.planar import _depth_axis  # the depth axis's own checks (range, reach)
+    from fpscan.service.recon.planar import _depth_axis  # the depth axis's own checks (range, reach)
 
     chosen = _chosen_grid(n_t, dt, c, dz=dz, n_z=n_z, t0=t0, bandwidth=bandwidth, record_facts=record_facts,
                           whole_record=whole_record, dx=dx, n_x=n_x, n_y=n_y)
@@ -304,11 +304,11 @@ def grid(n_t: int, dt: float, c: float, *, dz: float | None = None, n_z: int | N
 def _chosen_grid(n_t: int, dt: float, c: float, *, dz: float | None, n_z: int | None, t0: float | None,
                  bandwidth: float | None, record_facts: dict | None, whole_record: bool,
                  dx: float | None = None, n_x: int = 1, n_y: int = 1) -> TvGrid:
-    """The grid tv picks (`service.recon.tv_grid.tv_grid`) for a record known by its stored facts
+    """The grid tv picks (`fpscan.service.recon.tv_grid.tv_grid`) for a record known by its stored facts
     (`grid`'s parameters; ``dx`` the lateral pitch in m of the ``n_x`` × ``n_y`` lattice: the
     band it resolves, and its diagonal as the sensors' reach, the most any mask on it needs; a
-    line keeps its whole record, as `service.recon.tv` keeps it)."""
-    from service.recon.tv_grid import RecordFacts, tv_grid
+    line keeps its whole record, as `fpscan.service.recon.tv` keeps it)."""
+    from fpscan.service.recon.tv_grid import RecordFacts, tv_grid
 
     facts = None
     if record_facts is not None:
@@ -343,22 +343,22 @@ def check_depth(n_t: int, dt: float, c: float, dz: float, n_z: int, t0: float = 
 
     Raises
     ------
-    service.recon.checks.OptionError
+    fpscan.service.recon.checks.OptionError
         The image is deeper than the record; the message names both and the most rows.
 
     Examples
     --------
-    >>> from service.recon.methods.tv import check_depth
+    >>> from fpscan.service.recon.methods.tv import check_depth
     >>> check_depth(256, 4e-8, 1500.0, 6e-5, 256)  # the default grid reaches the last sample
     >>> check_depth(256, 4e-8, 1500.0, 0.1, 256)
     Traceback (most recent call last):
     ...
-    service.recon.checks.OptionError: tv's image would reach 25.5 m deep (n_z = 256 rows of dz = 0.1 m), deeper ...
+    fpscan.service.recon.checks.OptionError: tv's image would reach 25.5 m deep (n_z = 256 rows of dz = 0.1 m), deeper ...
     """
     reach = float(c) * (float(t0 or 0.0) + (int(n_t) - 1) * float(dt))
     depth = (int(n_z) - 1) * float(dz)
     if depth > reach * (1 + 1e-9) + 1e-15:
-        from service.recon.checks import OptionError
+        from fpscan.service.recon.checks import OptionError
 
         most = int(reach / float(dz) * (1 + 1e-9)) + 1
         fix = f"at this dz use n_z <= {most}, or a smaller dz" if most >= 2 else "use a smaller dz"
@@ -375,7 +375,7 @@ def work(n_t: int, n_x: int, n_y: int = 1, *, dtype: Any = "float32", n_points: 
     (:data:`PAIR_RATE`: one per iteration up to ``iterations``, the debias refit's, and
     :data:`SETUP_PAIRS`), the iterations' share capped by ``time_limit`` (s; the solver stops
     there), plus the NEDNER warm start. The grid is :func:`grid`'s, padded as the operator
-    pads it (``driver.physics.grid_sizes.pad_sizes``); an image deeper than the record is
+    pads it (``fpscan.physics.grid_sizes.pad_sizes``); an image deeper than the record is
     refused (:func:`check_depth`).
 
     Parameters
@@ -402,19 +402,19 @@ def work(n_t: int, n_x: int, n_y: int = 1, *, dtype: Any = "float32", n_points: 
 
     Raises
     ------
-    service.recon.checks.OptionError
+    fpscan.service.recon.checks.OptionError
         An image deeper than the record; ``ValueError`` for a grid the depth axis refuses.
 
     Examples
     --------
-    >>> from service.recon.methods.tv import work
+    >>> from fpscan.service.recon.methods.tv import work
     >>> s = work(256, 64, 64, n_points=600, dx=1e-4, dt=3.3e-8, c=1500.0, options={"iterations": 100})
     >>> 30 < s < 600  # measured: 0.57 s a pair there
     True
     """
-    from service.recon.limits import DEFAULT_MAX_ITER, DEFAULT_TIME_LIMIT
-    from service.recon.methods import FLOAT64_WORK, planar_work
-    from service.recon.methods.nedner import WORK_RATE as WARM_RATE
+    from fpscan.service.recon.limits import DEFAULT_MAX_ITER, DEFAULT_TIME_LIMIT
+    from fpscan.service.recon.methods import FLOAT64_WORK, planar_work
+    from fpscan.service.recon.methods.nedner import WORK_RATE as WARM_RATE
 
     o = dict(options or {})
     warm = planar_work(WARM_RATE)(n_t, n_x, n_y, n_points=n_points, dtype="float64")
@@ -425,7 +425,7 @@ def work(n_t: int, n_x: int, n_y: int = 1, *, dtype: Any = "float32", n_points: 
     chosen = _chosen_grid(n_t, dt, c, dz=o.get("dz"), n_z=o.get("n_z"), t0=t0, bandwidth=bandwidth,
                           record_facts=record_facts, whole_record=bool(o.get("whole_record")), dx=dx, n_x=n_x,
                           n_y=n_y)
-    from driver.physics.grid_sizes import pad_sizes
+    from fpscan.physics.grid_sizes import pad_sizes
 
     points = math.prod(pad_sizes((chosen.n_z, n_y, n_x), dx, chosen.dz, chosen.dt, chosen.n_t, c, t0 or 0.0))
     pair = PAIR_RATE * points * math.log2(max(points, 2)) * (FLOAT64_WORK if str(dtype) == "float64" else 1.0)
@@ -440,10 +440,10 @@ def peak_memory(n_t: int, n_x: int, n_y: int = 1, *, n_z: int | None = None, dty
                 options: dict | None = None, record_facts: dict | None = None, bandwidth: float | None = None,
                 **_: Any) -> int:
     """The peak memory of tv in bytes on the grid it will choose
-    (``service.recon.memory.model_based_peak`` of the operator's samples and tv's image; the
-    memory admission, ``service.jobs.admission.estimate_memory``): with a stored dataset's
+    (``fpscan.service.recon.memory.model_based_peak`` of the operator's samples and tv's image; the
+    memory admission, ``fpscan.service.jobs.admission.estimate_memory``): with a stored dataset's
     ``record_facts`` the image down to the last echo and the record kept for it, resampled to the band, as tv cuts
-    and resamples it (``service.recon.tv_grid``), else the whole, full-band record (the
+    and resamples it (``fpscan.service.recon.tv_grid``), else the whole, full-band record (the
     largest grid tv may choose).
 
     Parameters
@@ -473,7 +473,7 @@ def peak_memory(n_t: int, n_x: int, n_y: int = 1, *, n_z: int | None = None, dty
     --------
     A record whose echoes end at a third of it (stored facts) needs less than the whole:
 
-    >>> from service.recon.methods.tv import peak_memory
+    >>> from fpscan.service.recon.methods.tv import peak_memory
     >>> kw = dict(dx=6e-5, dt=8e-9, c=1500.0, n_points=400)
     >>> facts = {"n_t": 768, "signal_n_t": 256, "sigma": 0.01}
     >>> peak_memory(768, 96, 96, record_facts=facts, **kw) < peak_memory(768, 96, 96, **kw)
@@ -482,7 +482,7 @@ def peak_memory(n_t: int, n_x: int, n_y: int = 1, *, n_z: int | None = None, dty
     ...     768, 96, 96, **kw)
     True
     """
-    from service.recon.memory import model_based_peak
+    from fpscan.service.recon.memory import model_based_peak
 
     o = dict(options or {})
     if not (dx and dt and c):
@@ -491,14 +491,14 @@ def peak_memory(n_t: int, n_x: int, n_y: int = 1, *, n_z: int | None = None, dty
                           record_facts=record_facts, whole_record=bool(o.get("whole_record")), dx=dx, n_x=n_x,
                           n_y=n_y)
     # the rows the NEDNER warm start works on: no sample of the kept record may fold back through
-    # the depth period (``service.jobs.admission.working_depth_rows``'s rule on the kept record)
+    # the depth period (``fpscan.service.jobs.admission.working_depth_rows``'s rule on the kept record)
     reach = c * (float(t0 or 0.0) + (chosen.n_t - 1) * chosen.dt) / chosen.dz
     rows = max(chosen.n_z, int(reach) + 2) if math.isfinite(reach) else chosen.n_z
     return model_based_peak(chosen.n_t, n_x, n_y, n_z=chosen.n_z, dtype=dtype, n_points=n_points, dx=dx,
                             dt=chosen.dt, c=c, dz=chosen.dz, warm_rows=rows, band=chosen.band)
 
 
-#: the memory admission's margin on tv's model (``service.recon.memory.model_based_peak``, itself
+#: the memory admission's margin on tv's model (``fpscan.service.recon.memory.model_based_peak``, itself
 #: calibrated): a 48² x 256, 100-sensor run peaked at about 1/1.08 of it, the paper's scan at
 #: 1/1.12 (cut record) and 1/1.20 (whole) (tests/service/test_memory_admission.py, measured after
 #: a warm-up on a smaller input; benchmarks/bench_tv_paper.py; 1.15
@@ -510,8 +510,8 @@ MEMORY_CALIBRATION = 1.05
 
 def warm_up(dtypes: Sequence[str]) -> None:
     """Compile (or load from numba's cache) the model-based operator's and solver's kernels
-    (``service.recon.operator``; ``service.recon.tv``'s ``prox``, ``stores``, ``fista`` and
-    ``preconditioner``; ``driver.physics.forward``; the first imports pylops and pyproximal:
+    (``fpscan.service.recon.operator``; ``fpscan.service.recon.tv``'s ``prox``, ``stores``, ``fista`` and
+    ``preconditioner``; ``fpscan.physics.forward``; the first imports pylops and pyproximal:
     seconds) on a 4 x 6 x 6 image in each precision.
 
     Parameters
@@ -521,17 +521,17 @@ def warm_up(dtypes: Sequence[str]) -> None:
 
     Examples
     --------
-    >>> from service.recon.methods import get
-    >>> from service.recon.methods.tv import warm_up
+    >>> from fpscan.service.recon.methods import get
+    >>> from fpscan.service.recon.methods.tv import warm_up
     >>> get("tv").warm_up is warm_up
     True
     """
     import numpy as np
 
-    from driver.constants import C_DEFAULT
-    from driver.physics.forward import forward_grid
-    from service.recon.operator import PlanarOperator
-    from service.recon.tv import fista, preconditioner, prox, stores
+    from fpscan.constants import C_DEFAULT
+    from fpscan.physics.forward import forward_grid
+    from fpscan.service.recon.operator import PlanarOperator
+    from fpscan.service.recon.tv import fista, preconditioner, prox, stores
 
     dx, dt = 1e-4, 2e-8
     for d in dtypes:  # the model-based operator runs its transforms in the working precision
@@ -582,6 +582,6 @@ METHOD = Method(
     "tv", "model-based: TV + positivity on the exact model (iterative; sparse, noisy scans)", False, Options, run,
     "½‖A p0 − g‖² + λ TV(p0), p0 ≥ 0, NER-preconditioned FISTA (Arridge et al., PMB 61 (2016) 8908)",
     peak_memory, order=50, work=work, iterative=True, time_limited=True, warm_up=warm_up,
-    kernel_modules=("driver.physics.nufft_kernels", "service.recon.tv.prox", "service.recon.tv.stores",
-                    "service.recon.tv.fista", "service.recon.tv.preconditioner"), warm_in_background=True,
+    kernel_modules=("fpscan.physics.nufft_kernels", "fpscan.service.recon.tv.prox", "fpscan.service.recon.tv.stores",
+                    "fpscan.service.recon.tv.fista", "fpscan.service.recon.tv.preconditioner"), warm_in_background=True,
     memory_calibration=MEMORY_CALIBRATION, holds_input=True, summary=SUMMARY, stop_waits_for=STOP_WAITS_FOR)

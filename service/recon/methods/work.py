@@ -2,9 +2,9 @@
 (:func:`peak_model`; the registry's ``estimate_peak_memory`` asks a method for its own) and the planar methods' work estimate in
 seconds on the reference 2 cores (:func:`transform_units`, :func:`planar_work`,
 :data:`FLOAT64_WORK`, :data:`PLANAR_WORK_RATE`), which a :class:`~.registry.Method` names as
-its ``peak_memory`` and ``work`` hooks (the admission, ``service.jobs.admission``).
+its ``peak_memory`` and ``work`` hooks (the admission, ``fpscan.service.jobs.admission``).
 
-Importing this module needs no numpy: the models of ``service.recon.memory`` load on a call.
+Importing this module needs no numpy: the models of ``fpscan.service.recon.memory`` load on a call.
 """
 from __future__ import annotations
 
@@ -16,14 +16,14 @@ __all__ = ["peak_model", "FLOAT64_WORK", "PLANAR_WORK_RATE", "transform_units",
 
 
 def peak_model(model: str, **fixed: Any) -> Callable[..., int]:
-    """A method's peak-memory model: the model ``model`` of ``service.recon.memory`` with the
+    """A method's peak-memory model: the model ``model`` of ``fpscan.service.recon.memory`` with the
     keywords ``fixed`` (what the method's kernels do), imported on the first call (this package
     loads without numpy).
 
     Parameters
     ----------
     model : str
-        A model of ``service.recon.memory``: ``"planar_peak"``, ``"kwave_peak"``,
+        A model of ``fpscan.service.recon.memory``: ``"planar_peak"``, ``"kwave_peak"``,
         ``"model_based_peak"``.
     **fixed
         Its keywords for this method (``temporal="nufft"``, ``points=True``, ...).
@@ -42,8 +42,8 @@ def peak_model(model: str, **fixed: Any) -> Callable[..., int]:
 
     Examples
     --------
-    >>> from service.recon.memory import planar_peak
-    >>> from service.recon.methods import peak_model
+    >>> from fpscan.service.recon.memory import planar_peak
+    >>> from fpscan.service.recon.methods import peak_model
     >>> peak = peak_model("planar_peak", temporal="nufft")
     >>> peak(64, 8, dtype="float32") == planar_peak(64, 8, dtype="float32", temporal="nufft")
     True
@@ -51,7 +51,7 @@ def peak_model(model: str, **fixed: Any) -> Callable[..., int]:
     True
     """
     def peak(n_t: int, n_x: int, n_y: int = 1, **kw: Any) -> int:
-        from service.recon import memory
+        from fpscan.service.recon import memory
 
         return int(getattr(memory, model)(n_t, n_x, n_y, **{**kw, **fixed}))
 
@@ -72,7 +72,7 @@ PLANAR_WORK_RATE = 3e-9
 def transform_units(n_t: int, n_x: int, n_y: int = 1, *, n_z: int | None = None, upsample: int = 1) -> float:
     """The work unit of the planar methods: ``N log2 N`` for the transform grid they work on,
     ``N`` = the working depth rows (at least ``n_t``, at a fast DCT-I length) times the
-    lateral transform sizes (``service.recon.memory.padded_lateral``), an upsampled inverse
+    lateral transform sizes (``fpscan.service.recon.memory.padded_lateral``), an upsampled inverse
     counted as ``1 + (u² - 1) / 4`` such grids (measured: upsample 2 costs 1.1-3x upsample 1).
 
     Parameters
@@ -93,14 +93,14 @@ def transform_units(n_t: int, n_x: int, n_y: int = 1, *, n_z: int | None = None,
 
     Examples
     --------
-    >>> from service.recon.methods import transform_units
+    >>> from fpscan.service.recon.methods import transform_units
     >>> transform_units(256, 128, 128) > transform_units(256, 64, 64) > 0
     True
     """
     import math
 
-    from driver.physics.fast_lengths import fast_dct1_rows
-    from service.recon.memory import padded_lateral
+    from fpscan.physics.fast_lengths import fast_dct1_rows
+    from fpscan.service.recon.memory import padded_lateral
 
     rows = fast_dct1_rows(max(int(n_z or n_t), int(n_t), 2))
     p_y, p_x = padded_lateral(int(n_y), int(n_x))
@@ -128,7 +128,7 @@ def planar_work(rate: float, per_point_sample: float = 0.0) -> Callable[..., flo
 
     Examples
     --------
-    >>> from service.recon.methods import planar_work
+    >>> from fpscan.service.recon.methods import planar_work
     >>> work = planar_work(2e-9)
     >>> 0.05 < work(256, 128, 128, dtype="float32") < 1.0  # s: NER measured 0.14-0.17 s there
     True

@@ -6,7 +6,7 @@ Phys. Med. Biol. 61 (2016) 8908)::
 
     p0 = argmin_{p >= 0}  J(p) = ½ ‖A p − g‖² + λ TV(p)
 
-with A the exact planar forward model (`service.recon.operator.PlanarOperator`, free space,
+with A the exact planar forward model (`fpscan.service.recon.operator.PlanarOperator`, free space,
 sensors on the grid or at arbitrary positions), every A-line weighted equally (each carries
 white noise of the same σ: the maximum-likelihood data term) and TV(p) = Σ_voxels |∇p|₂ the
 isotropic total variation with forward differences in voxel units (J in Pa², so λ is in Pa).
@@ -16,7 +16,7 @@ algorithm; each of its parts is a module of this package:
 - ``problem``: the record the grid can resolve and the warm start on it. The operator works at
   the band the lateral pitch resolves, c / (2 pitch) (or a declared ``bandwidth``), on the
   record cut where the model predicts silence and resampled to the fewest samples whose band
-  reaches it; the default depth grid is isotropic (`service.recon.tv_grid`). The warm start is
+  reaches it; the default depth grid is isotropic (`fpscan.service.recon.tv_grid`). The warm start is
   NER (grid data) / NEDNER (A-lines), clipped to >= 0. Then A and B = P Aᵀ.
 - ``preconditioner``: P = k_z / |k|, NER's k-space weight, which inverts AᵀA's symbol |k| /
   k_z for a full planar aperture.
@@ -35,7 +35,7 @@ algorithm; each of its parts is a module of this package:
   iterations at λ itself ("converged"); else ``max_iter`` ("iterations") or the time limit.
 - ``stores``: the dual, the last gradient and the last move wait between iterations as 16-bit
   fixed point, so the solver holds about 1 image, the dual's d/2 and two halves while the
-  operator works (`service.recon.memory.tv_memory`).
+  operator works (`fpscan.service.recon.memory.tv_memory`).
 - ``progress``: increasing fractions and stages, polled inside long steps so a cancel acts.
 - ``result``: the result's ``params``.
 
@@ -50,29 +50,38 @@ from collections.abc import Sequence
 import numpy as np
 import numpy.typing as npt
 
-from driver.constants import C_DEFAULT
-from service.progress import Progress, span
-from service.recon import checks
-from service.recon import device as devices
-from service.recon import limits as _limits
-from service.recon.reconstruction import Reconstruction
-from service.recon.tv.fista import _MARGIN, _debias, _fista
-from service.recon.tv.geometry import _geometry_numbers
-from service.recon.tv.lam import _LAM_KNEE as _LAM_KNEE  # the automatic λ's constants, read by tests and
-from service.recon.tv.lam import _LAM_POWER as _LAM_POWER  # benchmarks from here
-from service.recon.tv.lam import _LAM_SCALE as _LAM_SCALE
-from service.recon.tv.lam import _Continuation, _DiscrepancyRule
-from service.recon.tv.problem import _check_tv_options, _Model, _Record, _record, _start_image, _warm_start
-from service.recon.tv.progress import _final_stage, _Reporter, _reporter
-from service.recon.tv.result import _params
-from service.recon.tv_grid import TvGrid, noise_sigma, tv_grid
+from fpscan.constants import C_DEFAULT
+from fpscan.service.progress import Progress, span
+from fpscan.service.recon import checks
+from fpscan.service.recon import device as devices
+from fpscan.service.recon import limits as _limits
+from fpscan.service.recon.reconstruction import Reconstruction
+from fpscan.service.recon.tv.fista import _MARGIN, _debias, _fista
+from fpscan.service.recon.tv.geometry import _geometry_numbers
+from fpscan.service.recon.tv.lam import (
+    _LAM_KNEE as _LAM_KNEE,  # the automatic λ's constants, read by tests and
+)
+from fpscan.service.recon.tv.lam import _LAM_POWER as _LAM_POWER  # benchmarks from here
+from fpscan.service.recon.tv.lam import _LAM_SCALE as _LAM_SCALE
+from fpscan.service.recon.tv.lam import _Continuation, _DiscrepancyRule
+from fpscan.service.recon.tv.problem import (
+    _check_tv_options,
+    _Model,
+    _Record,
+    _record,
+    _start_image,
+    _warm_start,
+)
+from fpscan.service.recon.tv.progress import _final_stage, _Reporter, _reporter
+from fpscan.service.recon.tv.result import _params
+from fpscan.service.recon.tv_grid import TvGrid, noise_sigma, tv_grid
 
 __all__ = ["DEFAULT_MAX_ITER", "DEFAULT_TOL", "DEFAULT_TIME_LIMIT", "TvGrid", "noise_sigma", "reconstruct_tv", "tv_grid"]
 
 DEFAULT_MAX_ITER = _limits.DEFAULT_MAX_ITER
 #: the stopping rule: the image's relative change per iteration below this in each of the last 3
 DEFAULT_TOL = _limits.DEFAULT_TOL
-#: default wall-time limit of one model-based reconstruction, s (``service.recon.limits``; the
+#: default wall-time limit of one model-based reconstruction, s (``fpscan.service.recon.limits``; the
 #: server's setting ``time_limit_s`` caps it there)
 DEFAULT_TIME_LIMIT = _limits.DEFAULT_TIME_LIMIT
 
@@ -115,7 +124,7 @@ def reconstruct_tv(
     dt : float
         Sample interval, s.
     c : float, optional
-        Sound speed, m/s (default ``driver.constants.C_DEFAULT``).
+        Sound speed, m/s (default ``fpscan.constants.C_DEFAULT``).
     dx : float, optional
         Lateral pitch in m (grid data; needed without ``positions``).
     positions : ndarray, optional
@@ -127,13 +136,13 @@ def reconstruct_tv(
     lam : float, optional
         TV weight λ (>= 0) in the data's unit; None (default): 0.6 × the image's noise
         level ‖P Aᵀ n̂‖_rms, raised where the warm start's discrepancy shows undersampling
-        artefacts (package doc; `service.recon.tv.lam`).
+        artefacts (package doc; `fpscan.service.recon.tv.lam`).
     positivity : bool, optional
         Constrain p0 >= 0 (default True).
     max_iter : int, optional
         Iterations at most (>= 1).
     tol : float, optional
-        The stopping rule's threshold (>= 0; `service.recon.tv.stopping`): stop when the image's relative
+        The stopping rule's threshold (>= 0; `fpscan.service.recon.tv.stopping`): stop when the image's relative
         change per iteration, ‖x_k − x_{k−1}‖ / ‖x_k‖, has been below ``tol`` in each of the
         last 3 iterations (0: run ``max_iter``).
     dtype : float32 or float64, optional
@@ -142,7 +151,7 @@ def reconstruct_tv(
         NUFFT tolerance.
     dz, n_z, t0 : optional
         Depth spacing (m), depth samples and time of sample 0 (s). With neither dz nor n_z
-        given, `service.recon.tv_grid.tv_grid`'s: dz = c / (2 f_c) at the operator's band f_c
+        given, `fpscan.service.recon.tv_grid.tv_grid`'s: dz = c / (2 f_c) at the operator's band f_c
         (the pitch, or a declared band; c dt at full band), down to the last echo's depth; a
         given one is kept and the other follows the record's own rule (c dt, n_t).
     periodic : bool, optional
@@ -157,15 +166,15 @@ def reconstruct_tv(
         ``params`` (``converged`` false, ``stop_reason`` "time limit").
     debias : bool, optional
         After the solve, refit the amplitudes by least squares on tv's support
-        (`service.recon.tv.fista`: 10 more operator pairs). Default False.
+        (`fpscan.service.recon.tv.fista`: 10 more operator pairs). Default False.
     bandwidth : float, optional
         A sensor bandwidth the caller declares, Hz, in [1e3, 1e12]: the operator works at that
-        band instead of the one the lateral pitch resolves (`service.recon.tv.problem`).
+        band instead of the one the lateral pitch resolves (`fpscan.service.recon.tv.problem`).
     whole_record : bool, optional
         Keep the whole record and, with neither dz nor n_z given, image its whole depth
-        (`service.recon.tv.problem`; `service.recon.tv_grid.tv_grid`). Default False.
+        (`fpscan.service.recon.tv.problem`; `fpscan.service.recon.tv_grid.tv_grid`). Default False.
     continuation : bool, optional
-        Start the TV weight at λ · D₀ and lower it to λ (`service.recon.tv.lam`; default
+        Start the TV weight at λ · D₀ and lower it to λ (`fpscan.service.recon.tv.lam`; default
         True); False steps at λ from the first iteration (the solver until 2026-11-26, kept
         for comparisons: the typed options of the API, CLI and web page keep the default).
     progress : callable, optional
@@ -177,10 +186,10 @@ def reconstruct_tv(
         (the pipeline's ``should_stop`` does), so a cancel acts within about a second even
         when one iteration takes minutes.
     device : {"auto", "cpu", "cuda"}, optional
-        Where it runs (`service.recon.device`; default ``"auto"``: the GPU where CuPy sees one,
+        Where it runs (`fpscan.service.recon.device`; default ``"auto"``: the GPU where CuPy sees one,
         no other job holds it and the operator fits it). On the GPU the warm start, the operator
-        pair, the preconditioner and the solver's steps all run there (`service.recon.gpu`,
-        `service.recon.tv.kernels`); the operator needs the sensors on the image's lateral grid
+        pair, the preconditioner and the solver's steps all run there (`fpscan.service.recon.gpu`,
+        `fpscan.service.recon.tv.kernels`); the operator needs the sensors on the image's lateral grid
         nodes (a scan plan's lattice).
 
     Returns
@@ -189,7 +198,7 @@ def reconstruct_tv(
         p0 ``(n_z, n_x)`` / ``(n_z, n_y, n_x)`` with ``z``, ``x``, ``y`` (m) on the warm
         start's grid; ``params`` add ``lam``, ``lam_auto``, ``lam_factor`` (λ over
         ``image_noise``; None for a given λ), ``lam_note`` (only when the automatic λ is 0:
-        why — noiseless data), ``warm_discrepancy`` (D₀, `service.recon.tv.lam`),
+        why — noiseless data), ``warm_discrepancy`` (D₀, `fpscan.service.recon.tv.lam`),
         ``noise_sigma`` (σ̂, Pa), ``image_noise``, ``noise_share``, ``lam_start_factor`` (the
         continuation's λ₀ / λ, 1 without one), ``continuation_iterations`` (iterations with λ_k >
         λ), ``iterations``, ``residual``
@@ -202,7 +211,7 @@ def reconstruct_tv(
         silence), ``extent_reason`` ("image", "record"), ``operator_dt``, ``operator_n_t``,
         ``band`` (Hz, None: Nyquist), ``band_reason`` ("lateral", "declared", "nyquist"),
         ``bandwidth`` (as declared); ``device`` (``"cpu"``/``"cuda"``), with ``device_name`` and
-        ``device_fallback`` as `service.recon.device.run` gives them.
+        ``device_fallback`` as `fpscan.service.recon.device.run` gives them.
 
     Raises
     ------
@@ -210,9 +219,9 @@ def reconstruct_tv(
         Naming the problem: negative or non-finite λ, iterations < 1, NaN/inf data, grid
         data without ``dx``, weights of the wrong length, unequal x/y pitch, anything
         `reconstruct_grid` / `reconstruct_points` reject, estimated memory above the limit
-        (an out-of-range option is a ``service.recon.checks.OptionError``); ``device="cuda"``
-        where the GPU cannot run it (`service.recon.device.Unsuited`).
-    service.recon.device.GpuError
+        (an out-of-range option is a ``fpscan.service.recon.checks.OptionError``); ``device="cuda"``
+        where the GPU cannot run it (`fpscan.service.recon.device.Unsuited`).
+    fpscan.service.recon.device.GpuError
         The GPU failed during a ``device="cuda"`` run (``"auto"`` reruns on the CPU).
 
     References
@@ -231,11 +240,11 @@ def reconstruct_tv(
 
     Examples
     --------
-    A 3 x 3 block (the exact forward model, `driver.physics.forward`) on a 16-sensor line:
+    A 3 x 3 block (the exact forward model, `fpscan.physics.forward`) on a 16-sensor line:
 
     >>> import numpy as np
-    >>> from driver.physics.forward import forward_grid
-    >>> from service.recon.tv import reconstruct_tv
+    >>> from fpscan.physics.forward import forward_grid
+    >>> from fpscan.service.recon.tv import reconstruct_tv
     >>> p0 = np.zeros((12, 16))  # (n_z, n_x), pitch 0.1 mm
     >>> p0[5:8, 7:10] = 1.0
     >>> g = forward_grid(p0, dx=1e-4, dz=1e-4, dt=1e-4 / 1500, n_t=24, c=1500.0)  # (n_t, n_x)
@@ -251,7 +260,7 @@ def reconstruct_tv(
     >>> reconstruct_tv(g, 1e-4 / 1500, 1500.0, dx=1e-4, lam=-1)
     Traceback (most recent call last):
     ...
-    service.recon.checks.OptionError: lam (the TV weight λ) must be in [0, 1e+30], got -1
+    fpscan.service.recon.checks.OptionError: lam (the TV weight λ) must be in [0, 1e+30], got -1
     """
     lam, max_iter, tol, time_limit = _check_tv_options(lam, max_iter, tol, time_limit)
     bandwidth = None if bandwidth is None else checks.check_bandwidth(bandwidth)
@@ -276,7 +285,7 @@ def reconstruct_tv(
         result = solve("cpu")
         result.params["device"] = "cpu"
         return result
-    # the GPU's lock is held from the warm start to the last iteration (`service.recon.device.run`)
+    # the GPU's lock is held from the warm start to the last iteration (`fpscan.service.recon.device.run`)
     result, ran = devices.run(device, 0, lambda: solve("cuda"), lambda: solve("cpu"), poll=report.poll)
     result.params.update(ran)
     return result

@@ -2,23 +2,23 @@
 
 Accelerated proximal gradient (FISTA, Beck & Teboulle 2009) on J(p) = ½‖A p − g‖² + λ TV(p),
 p >= 0, preconditioned by NER: each iteration takes one forward A (of the new iterate; A y
-follows by linearity) and one B = P Aᵀ of the residual (`service.recon.tv.preconditioner`),
+follows by linearity) and one B = P Aᵀ of the residual (`fpscan.service.recon.tv.preconditioner`),
 steps along B(A y − g) with step 1 / L, and applies the proximal map of λ_k TV + positivity
-(`service.recon.tv.prox`). L starts at `_MARGIN` ‖BA‖ (`service.recon.tv.geometry`) and is
+(`fpscan.service.recon.tv.prox`). L starts at `_MARGIN` ‖BA‖ (`fpscan.service.recon.tv.geometry`) and is
 raised to `_MARGIN` × the gain of BA along the last move of the iterates whenever that
 exceeds it (free: those products are computed anyway). Momentum: a constant β =
 `_MOMENTUM` (y_{k+1} = x_{k+1} + β (x_{k+1} − x_k)), set to 0 for one step (a restart) when J
 rises or the momentum points uphill (O'Donoghue & Candès 2015): Nesterov's constant scheme
 for a strongly convex objective, with the restarts standing in for the unknown condition
 number. J(x) is exact and free (A x is computed anyway). The stopping rule:
-`service.recon.tv.stopping`; λ and its continuation: `service.recon.tv.lam`; what waits
-between iterations in 16 bits: `service.recon.tv.stores`. `_debias` refits the amplitudes
+`fpscan.service.recon.tv.stopping`; λ and its continuation: `fpscan.service.recon.tv.lam`; what waits
+between iterations in 16 bits: `fpscan.service.recon.tv.stores`. `_debias` refits the amplitudes
 at λ = 0 on tv's support. The measurements behind these choices: docs/tv-measurements.md,
 "Solver" and "Memory".
 
-The in-place vector loops here are numba kernels (``cache=True``; `service.recon.methods.tv`'s
+The in-place vector loops here are numba kernels (``cache=True``; `fpscan.service.recon.methods.tv`'s
 ``kernel_modules``); the loop reaches them, and the other whole-image work, through the kernel set
-of its arrays' type (`service.recon.tv.kernels`: CuPy's on a GPU), so that the CPU and the GPU run
+of its arrays' type (`fpscan.service.recon.tv.kernels`: CuPy's on a GPU), so that the CPU and the GPU run
 one loop.
 """
 from __future__ import annotations
@@ -31,13 +31,13 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from service.progress import span
-from service.recon.tv.kernels import Kernels, array_kernels, array_module
-from service.recon.tv.lam import _Continuation
-from service.recon.tv.progress import _Reporter
-from service.recon.tv.prox import _tv_norm, _tv_prox_stored
-from service.recon.tv.stopping import _StoppingRule
-from service.recon.tv.stores import _extrapolate_fixed, _gain_lower_bound, _store_gradient, _store_move
+from fpscan.service.progress import span
+from fpscan.service.recon.tv.kernels import Kernels, array_kernels, array_module
+from fpscan.service.recon.tv.lam import _Continuation
+from fpscan.service.recon.tv.progress import _Reporter
+from fpscan.service.recon.tv.prox import _tv_norm, _tv_prox_stored
+from fpscan.service.recon.tv.stopping import _StoppingRule
+from fpscan.service.recon.tv.stores import _extrapolate_fixed, _gain_lower_bound, _store_gradient, _store_move
 
 __all__: list[str] = []
 
@@ -70,12 +70,12 @@ def _fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray]
     """Accelerated proximal gradient (FISTA, Beck & Teboulle 2009) on J(p) = ½‖A p − g‖² +
     λ TV(p) (p >= 0 with ``positivity``; p = 0 off ``support`` when given), preconditioned:
     the step is G(A y − g) / L with G = B = P Aᵀ of a residual (module doc); the proximal
-    map `service.recon.tv.prox._tv_prox`.
+    map `fpscan.service.recon.tv.prox._tv_prox`.
 
     One forward A (of the new iterate; A y follows by linearity) and one G per iteration.
     ``residual(Ax)`` = ‖A x − g‖, so J(x_k) is exact and free; ``poll`` as `_tv_prox`. Momentum:
     the constant `_MOMENTUM` (module doc), 0 for one step (a restart, O'Donoghue & Candès 2015)
-    when J rises or the momentum points uphill. Stopping rule (`service.recon.tv.stopping`): the
+    when J rises or the momentum points uphill. Stopping rule (`fpscan.service.recon.tv.stopping`): the
     iterate's relative change ‖x_k − x_{k−1}‖ / ‖x_k‖ below ``tol`` in each of the last 3
     iterations ("converged"); else ``max_iter`` iterations ("iterations") or the time limit
     ("time limit"). L rises to `_MARGIN` × the gain of BA along the last move of y (free: a
@@ -83,8 +83,8 @@ def _fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray]
     start's residual (the automatic λ: free, A x₀ is the first forward). With ``continuation``
     the proximal step and the restart test take λ_k = λ · ``continuation.factor(k)``, started
     from the same residual, and the stopping rule waits for λ itself
-    (`service.recon.tv.lam._Continuation`). ``kernels``: the whole-image kernel set
-    (`service.recon.tv.kernels`; default the one for the start's array type). Returns `_Solved`
+    (`fpscan.service.recon.tv.lam._Continuation`). ``kernels``: the whole-image kernel set
+    (`fpscan.service.recon.tv.kernels`; default the one for the start's array type). Returns `_Solved`
     (x, iterations, stop reason, the rule's last value, A x, L, λ). ``forward(v)`` = A v in the
     data's shape; ``start`` is a list holding the first x, which is taken out of it (its
     memory is reused: the caller keeps no reference).
@@ -239,8 +239,8 @@ def _moves(xn: np.ndarray, v: np.ndarray, gy: np.ndarray, inv_l: float, b_last: 
     return ab, aa, cc, bb, nn, top
 
 
-#: the CPU's kernel set (`service.recon.tv.kernels`): the numba kernels here and in
-#: `service.recon.tv.prox` / `service.recon.tv.stores`
+#: the CPU's kernel set (`fpscan.service.recon.tv.kernels`): the numba kernels here and in
+#: `fpscan.service.recon.tv.prox` / `fpscan.service.recon.tv.stores`
 _COMPILED = Kernels(np.ascontiguousarray, lambda n: np.zeros(n, dtype=np.int16),
                     lambda a, b: np.subtract(a, b, dtype=a.dtype), _axpy, _moves, _store_move, _extrapolate_fixed,
                     _store_gradient, _gain_lower_bound, _tv_norm, _tv_prox_stored,
@@ -249,5 +249,5 @@ _COMPILED = Kernels(np.ascontiguousarray, lambda n: np.zeros(n, dtype=np.int16),
 
 def _kernels_for(x: np.ndarray) -> Kernels:
     """The kernel set for ``x``'s array type: the compiled one for a NumPy array, the array
-    expressions on CuPy for a GPU run's (`service.recon.tv.kernels.array_kernels`)."""
+    expressions on CuPy for a GPU run's (`fpscan.service.recon.tv.kernels.array_kernels`)."""
     return _COMPILED if isinstance(x, np.ndarray) else array_kernels(array_module(x))

@@ -4,7 +4,7 @@ Both depend on the geometry alone (the operator, the preconditioner P and the se
 ‖BA‖ (B = P Aᵀ) from `_POWER_STEPS` power iterations from a seeded white image
 (`_gain_estimate`; the solver raises its L where the iterates show more), and the RMS of the
 noise image B n̂ of one seeded white-noise record n̂ of unit σ, whose product with σ̂ is the
-image's noise level of the automatic λ (`service.recon.tv.lam`). `_geometry_numbers` keeps
+image's noise level of the automatic λ (`fpscan.service.recon.tv.lam`). `_geometry_numbers` keeps
 them for the last `_GEOMETRY_KEPT` geometries (`_GeometryMemo`), so a repeated scan plan
 spends no operator pairs on them and gets the numbers a fresh process computes. Why two
 power iterations: docs/tv-measurements.md, "Solver".
@@ -19,9 +19,9 @@ import numpy as np
 import numpy.typing as npt
 
 if TYPE_CHECKING:
-    from service.progress import Span
-    from service.recon.operator import PlanarOperator
-    from service.recon.tv.problem import _Model
+    from fpscan.service.progress import Span
+    from fpscan.service.recon.operator import PlanarOperator
+    from fpscan.service.recon.tv.problem import _Model
 
 __all__: list[str] = []
 

@@ -1,11 +1,11 @@
 """tv's vector kernels, one set per array namespace: the compiled loops on the CPU, CuPy on a GPU.
 
-The solver's loop (`service.recon.tv.fista._fista`: the steps, the momentum and its restarts,
+The solver's loop (`fpscan.service.recon.tv.fista._fista`: the steps, the momentum and its restarts,
 the step's L, the λ continuation and the stopping rule) is written once; the work it does on
 whole images goes through a :class:`Kernels` set chosen by the start image's array type
-(`service.recon.tv.fista._kernels_for`). On NumPy arrays that is the numba kernels of
-`service.recon.tv.prox`, `service.recon.tv.stores` and `service.recon.tv.fista` (their
-memory-saving sweeps, `service.recon.tv.fista._COMPILED`); on CuPy arrays the same arithmetic as array expressions (:func:`array_kernels`, also run on NumPy by
+(`fpscan.service.recon.tv.fista._kernels_for`). On NumPy arrays that is the numba kernels of
+`fpscan.service.recon.tv.prox`, `fpscan.service.recon.tv.stores` and `fpscan.service.recon.tv.fista` (their
+memory-saving sweeps, `fpscan.service.recon.tv.fista._COMPILED`); on CuPy arrays the same arithmetic as array expressions (:func:`array_kernels`, also run on NumPy by
 the tests, which compare it with the compiled set): the proximal map's dual gradient projection
 as a primal step and a dual step over the whole volume (the compiled sweep does the same sums
 plane by plane), the 16-bit stores with the same rounding, every sum in float64.
@@ -50,7 +50,7 @@ def array_module(x: Any) -> ModuleType:
 
 
 # -- the array-expression set --------------------------------------------------------------
-_SCALE = 32767.0  # `service.recon.tv.stores._DUAL_SCALE`
+_SCALE = 32767.0  # `fpscan.service.recon.tv.stores._DUAL_SCALE`
 
 
 def _quantise(xp: ModuleType, q: Any, scale: float) -> Any:
@@ -164,7 +164,7 @@ class _ArrayKernels:
                        poll: Callable[[], None] | None = None) -> tuple[Any, Any]:
         """`prox._tv_prox_stored`: `_PROX_ITER` dual gradient-projection steps, each a primal step
         and a dual step over the whole volume, the dual kept in 16 bits between calls."""
-        from service.recon.tv.prox import _PROX_ITER
+        from fpscan.service.recon.tv.prox import _PROX_ITER
 
         xp = self.xp
         old = stored.pop()

@@ -4,7 +4,7 @@ the continuation from a stronger weight down to λ.
 Automatic λ (``lam=None``): λ = `_LAM_SCALE` s · max(1, (D₀ / `_LAM_KNEE`) ** `_LAM_POWER`)
 (`_DiscrepancyRule`). s = ‖P Aᵀ n̂‖_rms is the image's noise level, the RMS of the
 preconditioned adjoint of one seeded white-noise record n̂ of the estimated noise level σ̂
-(`service.recon.tv_grid.noise_sigma`); with P AᵀA ≈ c I the problem is TV denoising of the
+(`fpscan.service.recon.tv_grid.noise_sigma`); with P AᵀA ≈ c I the problem is TV denoising of the
 least-squares image with weight λ / c, and a weight of the order of the image's noise level
 is the classical choice (c cancels). D₀ = ‖A x₀ − g‖ / (σ̂ √N) is the warm start's
 discrepancy in units of the noise's norm (free: the solver's first forward): on sparse masks
@@ -15,7 +15,7 @@ Continuation (``continuation=True``): iteration k takes its proximal step with �
 max(1, D₀ · `_CONTINUATION_RATE` ** (k − 1)) (`_Continuation`), from λ D₀ down to λ, D₀ at
 least 1 and capped so that λ is reached within half of ``max_iter``; the restart test
 compares J at λ_k, and the stopping rule's window holds iterations at λ itself only
-(`service.recon.tv.stopping`). The calibration of the scale, knee and power, and the
+(`fpscan.service.recon.tv.stopping`). The calibration of the scale, knee and power, and the
 continuation's measurements: docs/tv-measurements.md, "Automatic λ" and "Continuation".
 """
 from __future__ import annotations

@@ -1,10 +1,10 @@
 """tv's preconditioner: NER's k-space weight P = k_z / |k|, applied on the image's DCT-II.
 
-For a full planar aperture AᵀA has the symbol |k| / k_z (`service.recon.planar`: F = const ·
+For a full planar aperture AᵀA has the symbol |k| / k_z (`fpscan.service.recon.planar`: F = const ·
 (k_z/ω) E against the adjoint's E), so P = k_z / |k| inverts it. `_ner_weight` keeps P as its
 axes on the orthonormal DCT-II grid of the image zero-padded to fast lengths (symmetric and
 positive definite), and `_apply_weight` applies it voxel by voxel in a numba kernel
-(``cache=True``; `service.recon.methods.tv`'s ``kernel_modules``): no image of its own.
+(``cache=True``; `fpscan.service.recon.methods.tv`'s ``kernel_modules``): no image of its own.
 """
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ import numba
 import numpy as np
 import scipy.fft
 
-from driver.physics.fast_lengths import fast_real_shape
+from fpscan.physics.fast_lengths import fast_real_shape
 
 __all__: list[str] = []
 
@@ -34,7 +34,7 @@ class _NerWeight(NamedTuple):
 
 def _ner_weight(shape: Sequence[int], dx: float, dz: float) -> _NerWeight:
     """NER's k-space weight k_z / |k| on the orthonormal DCT-II grid of the image zero-padded
-    to fast lengths (`driver.physics.fast_lengths.fast_real_shape`: on axes of 226 = 2·113 the
+    to fast lengths (`fpscan.physics.fast_lengths.fast_real_shape`: on axes of 226 = 2·113 the
     DCT-II and its inverse took 2.08 s at 1024 × 226², against 0.57 s at 1024 × 240², float32;
     mirror boundaries at the padded grid's ends; k_i = π j / (N_i d_i), depth shifted by
     half a bin so that the weight is > 0 everywhere), in (0, 1]: the inverse of AᵀA's symbol
@@ -82,7 +82,7 @@ def _apply_weight(P: _NerWeight, x: np.ndarray) -> np.ndarray:
     overwritten and returned, in its dtype (the transform runs in place when no axis is
     padded). A GPU run's image (CuPy) takes `_apply_weight_on` (a new array there)."""
     if not isinstance(x, np.ndarray):
-        from service.recon.tv.kernels import array_module
+        from fpscan.service.recon.tv.kernels import array_module
 
         return _apply_weight_on(array_module(x), P, x)
     pad = [(0, N - n) for N, n in zip(P.shape, x.shape)]

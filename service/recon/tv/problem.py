@@ -1,15 +1,15 @@
 """tv's problem: the options, the record it works on, the warm start, and the model A, B = P Aᵀ.
 
-- `_check_tv_options`: the model-based options by their rules (``service.recon.checks``).
+- `_check_tv_options`: the model-based options by their rules (``fpscan.service.recon.checks``).
 - `_record`: the record at the band the lateral pitch resolves (or a declared one), cut where
   the model of the image predicts silence and resampled to the fewest samples whose band
-  reaches it, with the depth grid (`service.recon.tv_grid.tv_grid`); σ̂ from the record as
+  reaches it, with the depth grid (`fpscan.service.recon.tv_grid.tv_grid`); σ̂ from the record as
   sampled (`_Record`, package doc "Grid").
 - `_warm_start`: NER (grid data) or NEDNER (A-lines) on that record, and the sensors centred
   on its lateral grid; `_start_image` the solver's first iterate from it.
-- `_Model`: the exact planar forward model A (`service.recon.operator.PlanarOperator`, its
+- `_Model`: the exact planar forward model A (`fpscan.service.recon.operator.PlanarOperator`, its
   memory checked first) and B = P Aᵀ with NER's k-space weight P
-  (`service.recon.tv.preconditioner`), counting their applications.
+  (`fpscan.service.recon.tv.preconditioner`), counting their applications.
 """
 from __future__ import annotations
 
@@ -20,20 +20,20 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from driver.physics.resample import resample
-from service.recon import checks, memory
-from service.recon.tv.preconditioner import _apply_weight, _ner_weight
-from service.recon.tv_grid import TvGrid, noise_sigma, tv_grid
+from fpscan.physics.resample import resample
+from fpscan.service.recon import checks, memory
+from fpscan.service.recon.tv.preconditioner import _apply_weight, _ner_weight
+from fpscan.service.recon.tv_grid import TvGrid, noise_sigma, tv_grid
 
 if TYPE_CHECKING:
-    from service.recon.reconstruction import Reconstruction
+    from fpscan.service.recon.reconstruction import Reconstruction
 
 __all__: list[str] = []
 
 
 def _check_tv_options(lam: float | None, max_iter: int, tol: float,
                       time_limit: float) -> tuple[float | None, int, float, float]:
-    """The model-based options by their rules (``service.recon.checks``: one owner each)."""
+    """The model-based options by their rules (``fpscan.service.recon.checks``: one owner each)."""
     lam = None if lam is None else checks.check_lam(lam)
     max_iter = checks.check_iterations(max_iter)
     tol = checks.check_tol(tol)
@@ -43,7 +43,7 @@ def _check_tv_options(lam: float | None, max_iter: int, tol: float,
 class _Record(NamedTuple):
     """The record tv works on (`_record`): ``g`` float64, time along ``time_axis`` (0: grid
     data ``(n_t, n_x)`` / ``(n_t, n_y, n_x)``; 1: A-lines ``(n_points, n_t)``), cut and
-    resampled to ``grid`` (`service.recon.tv_grid.TvGrid`); ``sampled_sigma`` σ̂ of the record
+    resampled to ``grid`` (`fpscan.service.recon.tv_grid.TvGrid`); ``sampled_sigma`` σ̂ of the record
     as sampled (Pa)."""
 
     g: np.ndarray
@@ -71,10 +71,10 @@ class _Record(NamedTuple):
 def _record(data: npt.ArrayLike, dt: float, c: float, dx: float | None, positions: np.ndarray | None,
             grid: np.ndarray | Sequence[npt.ArrayLike] | None, **chosen: Any) -> _Record:
     """The record tv works on (`_Record`): ``data`` checked (finite, at least 2 time samples),
-    then `_working_record` on the grid `service.recon.tv_grid.tv_grid` chooses (``chosen``: its
+    then `_working_record` on the grid `fpscan.service.recon.tv_grid.tv_grid` chooses (``chosen``: its
     keywords ``bandwidth``, ``dz``, ``n_z``, ``t0``, ``whole_record``) for the image's lateral
     extent (`_lateral_extent`)."""
-    # the grid the data can resolve (`service.recon.tv_grid`): the operator's samples and band,
+    # the grid the data can resolve (`fpscan.service.recon.tv_grid`): the operator's samples and band,
     # the image's depth grid; the data low-passed and resampled to those samples
     time_axis = 0 if positions is None else 1
     g = np.asarray(checks.finite_array("data" if positions is None else "alines", data, (2, 3)), dtype=np.float64)
@@ -90,14 +90,17 @@ def _record(data: npt.ArrayLike, dt: float, c: float, dx: float | None, position
 
 def _lateral_extent(g: np.ndarray, dx: float | None, positions: np.ndarray | None,
                     grid: np.ndarray | Sequence[npt.ArrayLike] | None) -> tuple[float | None, float | None]:
-    """(pitch, reach) of tv's image for `service.recon.tv_grid.tv_grid`: its lateral pitch (m;
+    """(pitch, reach) of tv's image for `fpscan.service.recon.tv_grid.tv_grid`: its lateral pitch (m;
     None where the warm start will refuse the positions or grid) and the largest lateral distance
     between a sensor and a corner of its lateral extent (m; None in 2-D: a 2-D wave does not end
     when its front has passed, its tail ∝ 1/t² lasts to the record's end, so a line keeps its
     whole record; in 3-D, Huygens' principle: silence after the last front). Grid data ``(n_t, n_x)`` /
     ``(n_t, n_y, n_x)`` with ``dx``; A-lines with ``positions`` on ``grid`` (default: the
-    positions' lattice, as `service.recon.planar.reconstruct_points` makes it)."""
-    from service.recon.planar import _check_grid, _default_grid  # the warm start's own lattice and grid rules
+    positions' lattice, as `fpscan.service.recon.planar.reconstruct_points` makes it)."""
+    from fpscan.service.recon.planar import (  # the warm start's own lattice and grid rules
+        _check_grid,
+        _default_grid,
+    )
 
     if positions is None:
         if dx is None or not (math.isfinite(dx) and dx > 0):
@@ -124,7 +127,7 @@ def _lateral_extent(g: np.ndarray, dx: float | None, positions: np.ndarray | Non
 
 
 def _working_record(g: np.ndarray, dt: float, c: float, time_axis: int, **grid: Any) -> tuple[np.ndarray, TvGrid]:
-    """The record tv works on and its grid (`service.recon.tv_grid.tv_grid` with ``grid``'s
+    """The record tv works on and its grid (`fpscan.service.recon.tv_grid.tv_grid` with ``grid``'s
     keywords): ``g`` cut where the model of the image predicts silence (unless ``whole_record``)
     and resampled to the band, time along ``time_axis``."""
     chosen = tv_grid(g.shape[time_axis], dt, c, data=g, time_axis=time_axis, **grid)
@@ -142,7 +145,7 @@ def _warm_start(record: _Record, c: float, dx: float | None, positions: np.ndarr
     ``positions``, with ``weights`` and ``grid``) on the record's depth grid, ``common`` the
     planar methods' keywords — and the sensor positions centred on its lateral grid (None for
     grid data). Raises ValueError for unequal x and y pitch (tv's image needs one)."""
-    from service.recon.planar import reconstruct_grid, reconstruct_points
+    from fpscan.service.recon.planar import reconstruct_grid, reconstruct_points
 
     kw: dict[str, Any] = dict(dz=record.grid.dz, n_z=record.grid.n_z, **common)
     if positions is None:
@@ -173,7 +176,7 @@ class _Model:
     record's shape, ``B(r)`` = P Aᵀ r as an image (the exact adjoint, NER's k-space weight P =
     k_z / |k|, symmetric positive definite), ``residual(Ax)`` = ‖A x − g‖, ``operator_pairs``
     the (forward + adjoint applications) / 2 so far. Made after the memory check
-    (`service.recon.memory.tv_memory`; raises ValueError above ``memory_limit``); ``checkpoint``
+    (`fpscan.service.recon.memory.tv_memory`; raises ValueError above ``memory_limit``); ``checkpoint``
     is the operator's (a cancel's poll); ``device`` the operator's (``"cuda"``: A, Aᵀ and P run on
     the GPU, and ``forward``, ``B`` and ``residual`` take and give arrays there, ``g_dev`` the data
     there; ``xp`` is the solver's array module)."""
@@ -181,7 +184,7 @@ class _Model:
     def __init__(self, record: _Record, warm: Reconstruction, c: float, pos: np.ndarray | None, *, t0: float,
                  eps: float, dtype: np.dtype, periodic: bool, checkpoint: Callable[[], None] | None,
                  memory_limit: int | None, device: str = "cpu") -> None:
-        from service.recon.operator import PlanarOperator
+        from fpscan.service.recon.operator import PlanarOperator
 
         band, n_t = record.grid.band, record.n_t
         self.g, self.pos, self.dtype = record.g, pos, dtype
@@ -197,7 +200,7 @@ class _Model:
         self.applied = [0, 0]  # forward, adjoint applications: params' operator_pairs is their mean
         pair = self.op._pair
         #: the solver's array module and the data in it: on a GPU the solver's images and the
-        #: data stay there (the kernels: `service.recon.tv.kernels`)
+        #: data stay there (the kernels: `fpscan.service.recon.tv.kernels`)
         self.xp = np if pair is None else pair.xp
         self.g_dev = self.g if pair is None else pair.xp.asarray(self.g)
 

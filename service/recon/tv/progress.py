@@ -1,17 +1,17 @@
 """tv's progress: increasing fractions and stages, and the polls that let a cancel act.
 
 `_Reporter` passes increasing fractions on to the caller's ``progress(fraction, stage)``
-(the pipeline's contract, `service.progress`) and repeats the last one at most every
+(the pipeline's contract, `fpscan.service.progress`) and repeats the last one at most every
 `_POLL_S` seconds from inside long steps (the operator's checkpoints, the proximal map's
 inner steps), so that a ``progress`` that raises to cancel is heard within about a second
 even when one iteration takes minutes. The stages: "warm start", "norm estimate",
-"iteration k/max_iter" (`service.recon.tv.stopping`) and the last one, `_final_stage`.
+"iteration k/max_iter" (`fpscan.service.recon.tv.stopping`) and the last one, `_final_stage`.
 """
 from __future__ import annotations
 
 import time
 
-from service.progress import Progress
+from fpscan.service.progress import Progress
 
 __all__: list[str] = []
 

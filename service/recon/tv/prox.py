@@ -4,13 +4,13 @@ argmin_x ½‖x − v‖² + γ TV(x) over x >= 0 (and x = 0 off a support), TV(
 with forward differences in voxel units: gradient projection on the dual (Chambolle 2005;
 Beck & Teboulle 2009's GP), `_PROX_ITER` inner steps warm-started from the previous call's
 dual, no operator (`_tv_prox`; `_tv_prox_stored` keeps the dual between calls in
-`service.recon.tv.stores`'s fixed point). Each inner step is one compiled sweep over the
+`fpscan.service.recon.tv.stores`'s fixed point). Each inner step is one compiled sweep over the
 volume (`_prox_step`): the primal w lives a few planes at a time and the dual is stepped in
 place, so the map needs no work image beyond the dual itself (d images). `_tv_norm` is TV(x)
 without a work array.
 
 The sweeps are numba kernels (``cache=True``: ``fpscan warmup`` fills their cache;
-`service.recon.methods.tv`'s ``kernel_modules``). 2-D images run as 3-D views (n_z, 1, n_x).
+`fpscan.service.recon.methods.tv`'s ``kernel_modules``). 2-D images run as 3-D views (n_z, 1, n_x).
 """
 from __future__ import annotations
 
@@ -20,7 +20,7 @@ from collections.abc import Callable
 import numba
 import numpy as np
 
-from service.recon.tv.stores import _DUAL_SCALE, _restore_dual, _store_dual
+from fpscan.service.recon.tv.stores import _DUAL_SCALE, _restore_dual, _store_dual
 
 __all__: list[str] = []
 

@@ -1,8 +1,8 @@
 """tv's record of a run: the result's ``params`` (`reconstruct_tv`'s Returns list them).
 
 The warm start's params, then the grid (the record's ``dt``, the operator's sampling and band,
-the record kept) and the solve: λ and how it was set (`service.recon.tv.lam`), the noise
-levels, the stopping rule's outcome (`service.recon.tv.stopping`), the operator pairs used
+the record kept) and the solve: λ and how it was set (`fpscan.service.recon.tv.lam`), the noise
+levels, the stopping rule's outcome (`fpscan.service.recon.tv.stopping`), the operator pairs used
 and the wall time.
 """
 from __future__ import annotations
@@ -13,9 +13,9 @@ from typing import Any
 
 import numpy as np
 
-from service.recon.tv.fista import _MARGIN, _Solved
-from service.recon.tv.lam import _Continuation, _DiscrepancyRule
-from service.recon.tv.problem import _Model, _Record
+from fpscan.service.recon.tv.fista import _MARGIN, _Solved
+from fpscan.service.recon.tv.lam import _Continuation, _DiscrepancyRule
+from fpscan.service.recon.tv.problem import _Model, _Record
 
 __all__: list[str] = []
 

@@ -1,6 +1,6 @@
 """tv's 16-bit stores: what waits between two iterations at half its bytes or less.
 
-The solver (`service.recon.tv.fista`) keeps three vectors between iterations in fixed point
+The solver (`fpscan.service.recon.tv.fista`) keeps three vectors between iterations in fixed point
 (package doc, "Memory"):
 
 - the proximal map's dual (|components| <= 1): int16 with the quantum 1 / 32767 for a
@@ -13,7 +13,7 @@ The solver (`service.recon.tv.fista`) keeps three vectors between iterations in 
   the extrapolation point, carries the rounding (`_extrapolate_fixed`).
 
 The compiled loops here are numba kernels (``cache=True``: ``fpscan warmup`` fills their
-cache; `service.recon.methods.tv`'s ``kernel_modules``). Measurements:
+cache; `fpscan.service.recon.methods.tv`'s ``kernel_modules``). Measurements:
 docs/tv-measurements.md, "Memory".
 """
 from __future__ import annotations

@@ -25,7 +25,7 @@ def centred_axis(n: int, d: float) -> np.ndarray:
 
     Examples
     --------
-    >>> from driver.physics.axes import centred_axis
+    >>> from fpscan.physics.axes import centred_axis
     >>> centred_axis(4, 1e-4) * 1e6  # µm
     array([-150.,  -50.,   50.,  150.])
     """
@@ -48,7 +48,7 @@ def centred_positions(indices: npt.ArrayLike, n: int, d: float) -> np.ndarray:
 
     Examples
     --------
-    >>> from driver.physics.axes import centred_positions
+    >>> from fpscan.physics.axes import centred_positions
     >>> centred_positions([0, 3], 4, 1e-4) * 1e6  # µm
     array([-150.,  150.])
     """
@@ -73,7 +73,7 @@ def centred_index(x: npt.ArrayLike, n: int, d: float) -> np.ndarray:
     Examples
     --------
     >>> import numpy as np
-    >>> from driver.physics.axes import centred_index
+    >>> from fpscan.physics.axes import centred_index
     >>> centred_index(np.array([-1.5e-4, 0.0, 1.5e-4]), 4, 1e-4).round(12)
     array([0. , 1.5, 3. ])
     """
@@ -98,7 +98,7 @@ def node_indices(positions: npt.ArrayLike, axes: Sequence[np.ndarray], steps: Se
     Examples
     --------
     >>> import numpy as np
-    >>> from driver.physics.axes import centred_axis, node_indices
+    >>> from fpscan.physics.axes import centred_axis, node_indices
     >>> x = centred_axis(4, 1e-4)
     >>> node_indices(np.array([[-1.5e-4], [1.5e-4]]), (x,), (1e-4,))
     (array([0, 3]), array([0, 0]))

@@ -16,7 +16,7 @@ dt' = T / (M - 1): a DCT-I of length M. It is exact for a series that has no ter
 low-pass: the terms it drops are the band above (M - 2) / (2 T). `resample_adjoint` is its
 transpose (a DCT-I of length M, the coefficients zero-padded, a DCT-I of length N), so that
 a linear model evaluated at the new rate and this low-pass can be used as one operator
-(`service.recon.tv`).
+(`fpscan.service.recon.tv`).
 
 White noise of variance σ² per sample keeps its variance per sample at the new rate times
 (M - 1) / (N - 1) (the share of the band kept): its density per hertz is unchanged.
@@ -56,7 +56,7 @@ def resampled_length(n_t: int, dt: float, band: float) -> int:
 
     Examples
     --------
-    >>> from driver.physics.resample import resampled_length
+    >>> from fpscan.physics.resample import resampled_length
     >>> resampled_length(1024, 8e-9, 20e6)  # 8 ns -> about 24 ns: keeps up to 20 MHz
     330
     >>> resampled_length(1024, 8e-9, 1e9)  # above Nyquist: the record as it is
@@ -117,7 +117,7 @@ def resample(x: npt.ArrayLike, n_out: int, axis: int = -1) -> np.ndarray:
     A cosine of 3 periods over the record, at 41 samples and at 13: the same curve.
 
     >>> import numpy as np
-    >>> from driver.physics.resample import resample
+    >>> from fpscan.physics.resample import resample
     >>> t = np.linspace(0.0, 1.0, 41)
     >>> y = resample(np.cos(2 * np.pi * 3 * t), 13)
     >>> bool(np.allclose(y, np.cos(2 * np.pi * 3 * np.linspace(0.0, 1.0, 13))))
@@ -169,7 +169,7 @@ def resample_adjoint(x: npt.ArrayLike, n_in: int, axis: int = -1) -> np.ndarray:
     Examples
     --------
     >>> import numpy as np
-    >>> from driver.physics.resample import resample, resample_adjoint
+    >>> from fpscan.physics.resample import resample, resample_adjoint
     >>> rng = np.random.default_rng(0)
     >>> u, v = rng.standard_normal(50), rng.standard_normal(17)
     >>> bool(np.isclose(np.dot(resample(u, 17), v), np.dot(u, resample_adjoint(v, 50))))

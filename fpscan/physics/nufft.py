@@ -22,12 +22,12 @@ Two ways to evaluate S(theta) are offered (``kind``):
   Relative error ~ eps.
 - ``"linear"``, ``"nearest"`` (k-Wave style, FFT on the regular frequency grid): S on
   the DFT grid of the mirrored series (L = 2N - 1, what kspaceLineRecon's mirroring gives,
-  rounded up to a fast length: `driver.physics.fast_lengths`) and interpolated linearly /
+  rounded up to a fast length: `fpscan.physics.fast_lengths`) and interpolated linearly /
   by the nearest node (ties to the upper node).
 
-The interpolation runs in one compiled loop (numba, `driver.physics.nufft_kernels`) over
+The interpolation runs in one compiled loop (numba, `fpscan.physics.nufft_kernels`) over
 groups of columns that share ``|k_lat|^2`` (the taps depend on nothing else), so kernel
-values are computed once per group. A small transform (`driver.physics.fft_engine.is_small`:
+values are computed once per group. A small transform (`fpscan.physics.fft_engine.is_small`:
 a tiny image, a quick look) runs the same arithmetic in numpy instead, so that it needs
 neither numba nor scipy.fft (their imports and numba's cache load cost a fresh interpreter
 about 1.5 s, many times such a reconstruction).
@@ -43,8 +43,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from driver.physics import fft_engine
-from driver.physics.grid_sizes import KINDS, grid_length, kernel_params
+from fpscan.physics import fft_engine
+from fpscan.physics.grid_sizes import KINDS, grid_length, kernel_params
 
 __all__ = [
     "KINDS", "TemporalGrid", "kernel_params", "es_kernel", "kernel_polynomials", "grid_length", "make_grid",
@@ -57,7 +57,7 @@ _KIND_CODE = {"nufft": 0, "linear": 1, "nearest": 2}
 
 def _compiled() -> ModuleType:
     """The numba kernels (imported on first use: numba's import costs start-up time)."""
-    from driver.physics import nufft_kernels
+    from fpscan.physics import nufft_kernels
 
     return nufft_kernels
 
@@ -88,7 +88,7 @@ class TemporalGrid:
 
     Examples
     --------
-    >>> from driver.physics.nufft import make_grid
+    >>> from fpscan.physics.nufft import make_grid
     >>> grid = make_grid(100)
     >>> grid.L, grid.shift, grid.w, grid.phihat.shape
     (200, 50, 7, (100,))
@@ -129,7 +129,7 @@ def es_kernel(u: np.ndarray, beta: float) -> np.ndarray:
     Examples
     --------
     >>> import numpy as np
-    >>> from driver.physics.nufft import es_kernel
+    >>> from fpscan.physics.nufft import es_kernel
     >>> es_kernel(np.array([0.0, 1.0, 1.5]), beta=16.1)  # exp(-beta) at the edge, 0 beyond
     array([1.00000000e+00, 1.01826037e-07, 0.00000000e+00])
     """
@@ -171,7 +171,7 @@ def kernel_polynomials(w: int, beta: float) -> np.ndarray:
     peak.
 
     >>> import numpy as np
-    >>> from driver.physics.nufft import kernel_params, kernel_polynomials
+    >>> from fpscan.physics.nufft import kernel_params, kernel_polynomials
     >>> taps = kernel_polynomials(*kernel_params(1e-6))
     >>> taps.shape, round(float(np.polyval(taps[3], 0.0)), 9)
     ((7, 12), 1.0)
@@ -221,7 +221,7 @@ def make_grid(n_t: int, kind: str = "nufft", eps: float = 1e-6) -> TemporalGrid:
 
     Examples
     --------
-    >>> from driver.physics.nufft import make_grid
+    >>> from fpscan.physics.nufft import make_grid
     >>> make_grid(100) is make_grid(100)  # planned once
     True
     >>> make_grid(100, "linear").w
@@ -263,7 +263,7 @@ def gather_columns(A: np.ndarray, cols: np.ndarray, out: np.ndarray) -> None:
     Examples
     --------
     >>> import numpy as np
-    >>> from driver.physics.nufft import gather_columns
+    >>> from fpscan.physics.nufft import gather_columns
     >>> out = np.empty((2, 3))
     >>> gather_columns(np.arange(12.0).reshape(3, 4), np.array([3, 1]), out)
     >>> out
@@ -287,7 +287,7 @@ def scatter_columns(F: np.ndarray, cols: np.ndarray, out: np.ndarray) -> None:
     Examples
     --------
     >>> import numpy as np
-    >>> from driver.physics.nufft import scatter_columns
+    >>> from fpscan.physics.nufft import scatter_columns
     >>> out = np.zeros((3, 4))
     >>> scatter_columns(np.array([[3.0, 7.0, 11.0], [1.0, 5.0, 9.0]]), np.array([3, 1]), out)
     >>> out
@@ -310,7 +310,7 @@ def transpose(F: np.ndarray, out: np.ndarray) -> None:
     Examples
     --------
     >>> import numpy as np
-    >>> from driver.physics.nufft import transpose
+    >>> from fpscan.physics.nufft import transpose
     >>> out = np.empty((3, 2))
     >>> transpose(np.arange(6.0).reshape(2, 3), out)
     >>> out
@@ -330,7 +330,7 @@ def to_fine_grid(A: np.ndarray, grid: TemporalGrid, t0_is_zero: bool,
     -> (n_cols, L) values of S on the fine theta grid, one column per row.
 
     ``A`` is not modified. The t = 0 sample is halved when ``t0_is_zero``. A small transform
-    (`driver.physics.fft_engine.is_small` of the fine grid) runs in numpy, a larger one in the
+    (`fpscan.physics.fft_engine.is_small` of the fine grid) runs in numpy, a larger one in the
     compiled placement and scipy.fft.
 
     Parameters
@@ -349,7 +349,7 @@ def to_fine_grid(A: np.ndarray, grid: TemporalGrid, t0_is_zero: bool,
     Examples
     --------
     >>> import numpy as np
-    >>> from driver.physics.nufft import evaluate, from_fine_grid, make_grid, spread, to_fine_grid
+    >>> from fpscan.physics.nufft import evaluate, from_fine_grid, make_grid, spread, to_fine_grid
     >>> n_t, dt, c, t0 = 32, 1e-8, 1500.0, 1e-7  # samples, s, m/s, s
     >>> t = t0 + dt * np.arange(n_t)
     >>> kz = np.array([1e4, 5e4, 2e5])  # rad/m; one column with k_lat = 0: omega = c kz
@@ -392,7 +392,7 @@ def from_fine_grid(R: np.ndarray, grid: TemporalGrid, t0_is_zero: bool, overwrit
     With :func:`spread` it computes the forward model's g_n = Σ_l b_l 2 cos(ω_l t_n):
 
     >>> import numpy as np
-    >>> from driver.physics.nufft import evaluate, from_fine_grid, make_grid, spread, to_fine_grid
+    >>> from fpscan.physics.nufft import evaluate, from_fine_grid, make_grid, spread, to_fine_grid
     >>> n_t, dt, c, t0 = 32, 1e-8, 1500.0, 1e-7  # samples, s, m/s, s
     >>> t = t0 + dt * np.arange(n_t)
     >>> kz = np.array([1e4, 5e4, 2e5])  # rad/m; one column with k_lat = 0: omega = c kz
@@ -439,7 +439,7 @@ def group_columns(klat2: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray
     Examples
     --------
     >>> import numpy as np
-    >>> from driver.physics.nufft import group_columns
+    >>> from fpscan.physics.nufft import group_columns
     >>> values, ptr, order = group_columns(np.array([1.0, 4.0, 1.0, 0.0]))
     >>> values, ptr, order
     (array([0., 1., 4.]), array([0, 1, 3, 4]), array([3, 0, 2, 1]))
@@ -484,7 +484,7 @@ def evaluate(
     result into, not overlapping U (memory the caller has already written: no fresh pages to
     fault in); None: a new one.
     Returns (n_cols, n_kz) complex. A small transform (U and the result together at most
-    `driver.physics.fft_engine.SMALL_ELEMENTS`) runs in numpy (`_interp_small`: the same
+    `fpscan.physics.fft_engine.SMALL_ELEMENTS`) runs in numpy (`_interp_small`: the same
     taps and sums), a larger one in the compiled kernel.
 
     Parameters
@@ -519,7 +519,7 @@ def evaluate(
     direct sum:
 
     >>> import numpy as np
-    >>> from driver.physics.nufft import evaluate, from_fine_grid, make_grid, spread, to_fine_grid
+    >>> from fpscan.physics.nufft import evaluate, from_fine_grid, make_grid, spread, to_fine_grid
     >>> n_t, dt, c, t0 = 32, 1e-8, 1500.0, 1e-7  # samples, s, m/s, s
     >>> t = t0 + dt * np.arange(n_t)
     >>> kz = np.array([1e4, 5e4, 2e5])  # rad/m; one column with k_lat = 0: omega = c kz
@@ -575,7 +575,7 @@ def _interp_small(U: np.ndarray, gvals: np.ndarray, gptr: np.ndarray, order: np.
 def group_tap_arrays(xp: ModuleType, grid: TemporalGrid, gvals: Any, kz: Any, qw: Any, c: float, dt: float,
                      t0: float, inversion: bool) -> tuple[Any, Any, Any, Any]:
     """The taps of every column group at every kz as whole arrays on ``xp`` (``numpy``, or
-    ``cupy`` for `driver.physics.temporal_xp`): the formulas of the compiled
+    ``cupy`` for `fpscan.physics.temporal_xp`): the formulas of the compiled
     `nufft_kernels.group_taps`, in float64, for `_interp_small` and the GPU path alike.
 
     Parameters
@@ -607,7 +607,7 @@ def group_tap_arrays(xp: ModuleType, grid: TemporalGrid, gvals: Any, kz: Any, qw
     Examples
     --------
     >>> import numpy as np
-    >>> from driver.physics.nufft import group_tap_arrays, make_grid
+    >>> from fpscan.physics.nufft import group_tap_arrays, make_grid
     >>> grid = make_grid(32, "nufft", 1e-10)
     >>> base, weights, ar, ai = group_tap_arrays(np, grid, np.zeros(1), np.array([0.0, 1e4]), np.ones(2),
     ...                                          1500.0, 1e-8, 0.0, False)
@@ -697,7 +697,7 @@ def spread(
     The adjoint identity <evaluate(a), b> = <a, from_fine_grid(spread(b))>:
 
     >>> import numpy as np
-    >>> from driver.physics.nufft import evaluate, from_fine_grid, make_grid, spread, to_fine_grid
+    >>> from fpscan.physics.nufft import evaluate, from_fine_grid, make_grid, spread, to_fine_grid
     >>> n_t, dt, c, t0 = 32, 1e-8, 1500.0, 1e-7  # samples, s, m/s, s
     >>> t = t0 + dt * np.arange(n_t)
     >>> kz = np.array([1e4, 5e4, 2e5])  # rad/m; one column with k_lat = 0: omega = c kz

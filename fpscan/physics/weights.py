@@ -64,7 +64,7 @@ def infer_pitch(positions: npt.ArrayLike) -> float | None:
     Examples
     --------
     >>> import numpy as np
-    >>> from driver.physics.weights import infer_pitch
+    >>> from fpscan.physics.weights import infer_pitch
     >>> infer_pitch(np.array([[0.0], [2e-4], [5e-4]]))  # gaps of 2 and 3 pitches
     0.0001
     >>> infer_pitch(np.array([[0.0]])) is None
@@ -170,7 +170,7 @@ def voronoi_weights(positions: npt.ArrayLike, pitch: float | None = None, *, bou
     Examples
     --------
     >>> import numpy as np
-    >>> from driver.physics.weights import voronoi_weights
+    >>> from fpscan.physics.weights import voronoi_weights
     >>> voronoi_weights(np.array([[0.0], [1e-4], [3e-4]]))  # m: intervals between mid-points
     array([0.0001 , 0.00015, 0.00015])
     >>> grid = np.stack(np.meshgrid(np.arange(3) * 1e-4, np.arange(3) * 1e-4), -1).reshape(-1, 2)

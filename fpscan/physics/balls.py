@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from driver.constants import C_DEFAULT
+from fpscan.constants import C_DEFAULT
 
 __all__ = ["Ball", "ball_alines", "ball_p0"]
 
@@ -45,7 +45,7 @@ class Ball:
 
     Examples
     --------
-    >>> from driver.physics import Ball
+    >>> from fpscan.physics import Ball
     >>> Ball(x=0.0, y=0.0, z=1e-3, radius=1e-4)
     Ball(x=0.0, y=0.0, z=0.001, radius=0.0001, amplitude=1.0)
     >>> Ball(0.0, 0.0, 1e-3, radius=0.0)
@@ -131,7 +131,7 @@ def ball_alines(
     after (1 mm - 0.1 mm)/c = 600 ns, its negative half after the centre's 667 ns.
 
     >>> import numpy as np
-    >>> from driver.physics import Ball, ball_alines
+    >>> from fpscan.physics import Ball, ball_alines
     >>> a = ball_alines(np.array([[0.0, 0.0]]), Ball(0.0, 0.0, 1e-3, 1e-4), dt=10e-9, n_t=100, c=1500.0)
     >>> a.shape, int(a.argmax()), int(a.argmin())  # samples of 10 ns
     ((1, 100), 61, 72)
@@ -203,7 +203,7 @@ def ball_p0(
     Examples
     --------
     >>> import numpy as np
-    >>> from driver.physics import Ball, ball_p0
+    >>> from fpscan.physics import Ball, ball_p0
     >>> z = 0.8e-3 + np.arange(5) * 1e-4  # depth, m
     >>> x = np.arange(-2, 3) * 1e-4  # lateral, m
     >>> ball_p0(Ball(0.0, 0.0, 1e-3, 1e-4, amplitude=2.0), z, x)  # Pa, (n_z, n_x)

@@ -8,7 +8,7 @@ elements runs in numpy.fft, a larger one in scipy.fft with every core (``workers
 The choice depends on the array's size alone, so that the same data give the same
 result in every process (the library, the CLI and the job worker alike).
 
-`driver.physics.nufft` takes the same decision for its compiled kernels (:func:`is_small`).
+`fpscan.physics.nufft` takes the same decision for its compiled kernels (:func:`is_small`).
 """
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ import numpy.typing as npt
 __all__ = ["SMALL_ELEMENTS", "is_small", "fft", "ifft", "irfft", "rfft2", "dct1"]
 
 #: elements (of the transform's input) at or below which a transform is "small": runs in
-#: numpy, and the temporal step in numpy instead of numba (`driver.physics.nufft`).
+#: numpy, and the temporal step in numpy instead of numba (`fpscan.physics.nufft`).
 #: 2**16: a 2-D image of 256 columns x 128 samples, or a 3-D volume of 32 x 8 x 8.
 SMALL_ELEMENTS = 1 << 16
 
@@ -58,7 +58,7 @@ def is_small(n_elements: int) -> bool:
 
     Examples
     --------
-    >>> from driver.physics.fft_engine import is_small
+    >>> from fpscan.physics.fft_engine import is_small
     >>> is_small(32 * 8 * 8), is_small(256 * 128 * 128)
     (True, False)
     """
@@ -83,7 +83,7 @@ def fft(x: np.ndarray, axis: int = -1, overwrite_x: bool = False) -> np.ndarray:
     Examples
     --------
     >>> import numpy as np
-    >>> from driver.physics.fft_engine import fft
+    >>> from fpscan.physics.fft_engine import fft
     >>> fft(np.array([1.0, 0.0, 0.0, 0.0], dtype=np.complex64))
     array([1.+0.j, 1.+0.j, 1.+0.j, 1.+0.j], dtype=complex64)
     """
@@ -115,7 +115,7 @@ def ifft(x: np.ndarray, n: int, axis: int, overwrite_x: bool = False) -> np.ndar
     Examples
     --------
     >>> import numpy as np
-    >>> from driver.physics.fft_engine import ifft
+    >>> from fpscan.physics.fft_engine import ifft
     >>> ifft(np.ones(4, dtype=np.complex128), 4, 0)
     array([1.+0.j, 0.+0.j, 0.+0.j, 0.+0.j])
     """
@@ -164,7 +164,7 @@ def irfft(x: np.ndarray, n: int, axis: int, overwrite_x: bool = False, out: np.n
     Examples
     --------
     >>> import numpy as np
-    >>> from driver.physics.fft_engine import irfft
+    >>> from fpscan.physics.fft_engine import irfft
     >>> irfft(np.array([4.0, 0.0, 0.0], dtype=np.complex128), 4, 0)
     array([1., 1., 1., 1.])
     """
@@ -221,7 +221,7 @@ def rfft2(x: np.ndarray, s: tuple[int, int] | None = None, axes: tuple[int, int]
     Examples
     --------
     >>> import numpy as np
-    >>> from driver.physics.fft_engine import rfft2
+    >>> from fpscan.physics.fft_engine import rfft2
     >>> rfft2(np.ones((2, 3), dtype=np.float32), s=(2, 4)).shape
     (2, 3)
     """
@@ -271,7 +271,7 @@ def dct1(x: np.ndarray, axis: int = -1, overwrite_x: bool = False) -> np.ndarray
     Examples
     --------
     >>> import numpy as np
-    >>> from driver.physics.fft_engine import dct1
+    >>> from fpscan.physics.fft_engine import dct1
     >>> dct1(np.array([1.0, 2.0, 3.0]))  # (1 + 3 + 4, 1 - 3, 1 + 3 - 4)
     array([ 8., -2.,  0.])
     >>> dct1(np.array([1.0 + 1.0j, 0.0]))

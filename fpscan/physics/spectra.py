@@ -19,7 +19,7 @@ Units of this API (SI):
 Between table rows ε is linearly interpolated; a wavelength outside the table's range
 (250-1000 nm) raises ``ValueError`` (never extrapolated). Which excitation wavelengths a
 plan may ask for (400-2000 nm, no repeats) is the plan's rule,
-``driver.plan.check_wavelengths``.
+``fpscan.driver.plan.check_wavelengths``.
 """
 from __future__ import annotations
 
@@ -48,7 +48,7 @@ _CM1_PER_M_TO_SI = 0.1  # cm⁻¹/(mol/L) -> m²/mol
 
 @functools.cache
 def _table() -> tuple[np.ndarray, np.ndarray]:
-    text = resources.files("driver.physics").joinpath(_TABLE_FILE).read_text(encoding="utf-8")
+    text = resources.files("fpscan.physics").joinpath(_TABLE_FILE).read_text(encoding="utf-8")
     rows = _parse(text)
     wl = rows[:, 0] * 1e-9
     eps = rows[:, 1:3] * _CM1_PER_M_TO_SI
@@ -83,7 +83,7 @@ def extinction_table() -> tuple[np.ndarray, np.ndarray]:
 
     Examples
     --------
-    >>> from driver.physics.spectra import extinction_table
+    >>> from fpscan.physics.spectra import extinction_table
     >>> wavelengths, epsilon = extinction_table()
     >>> wavelengths.shape, epsilon.shape
     ((376,), (376, 2))
@@ -100,7 +100,7 @@ def table_range() -> tuple[float, float]:
 
     Examples
     --------
-    >>> from driver.physics.spectra import table_range
+    >>> from fpscan.physics.spectra import table_range
     >>> [round(w * 1e9) for w in table_range()]  # nm
     [250, 1000]
     """
@@ -127,7 +127,7 @@ def molar_extinction(wavelengths: float | Sequence[float] | np.ndarray) -> np.nd
     """Decadic molar extinction coefficients of HbO2 and Hb at the given wavelengths.
 
     Which wavelengths a plan may ask for (400-2000 nm, no repeats) is
-    ``driver.plan.check_wavelengths``.
+    ``fpscan.driver.plan.check_wavelengths``.
 
     Parameters
     ----------
@@ -151,7 +151,7 @@ def molar_extinction(wavelengths: float | Sequence[float] | np.ndarray) -> np.nd
 
     Examples
     --------
-    >>> from driver.physics.spectra import molar_extinction
+    >>> from fpscan.physics.spectra import molar_extinction
     >>> molar_extinction(800e-9).round(1)  # m²/mol, columns (HbO2, Hb)
     array([[81.6, 76.2]])
     >>> molar_extinction(1100e-9)
@@ -202,7 +202,7 @@ def absorption(wavelengths: float | Sequence[float] | np.ndarray,
     Examples
     --------
     >>> import numpy as np
-    >>> from driver.physics.spectra import BLOOD_THB, absorption
+    >>> from fpscan.physics.spectra import BLOOD_THB, absorption
     >>> absorption(800e-9, so2=0.5, thb=BLOOD_THB).round(1)  # whole blood, m⁻¹
     array([422.4])
     >>> absorption([750e-9, 850e-9], so2=np.array([0.0, 1.0]), thb=BLOOD_THB).shape

@@ -1,8 +1,8 @@
 """The sizes the transforms work on, chosen without loading them: the width of the temporal
-NUFFT's ES kernel for a tolerance and the fine-grid length L of a series (`driver.physics.nufft`
+NUFFT's ES kernel for a tolerance and the fine-grid length L of a series (`fpscan.physics.nufft`
 plans and runs the transform on it), and the zero-padded working grid of the free-space model
-(`driver.physics.forward`, `service.recon.operator`). Pure Python (``math`` and the
-fast-length rule): the memory model of a job (`service.recon.checks`) sizes its arrays from
+(`fpscan.physics.forward`, `fpscan.service.recon.operator`). Pure Python (``math`` and the
+fast-length rule): the memory model of a job (`fpscan.service.recon.checks`) sizes its arrays from
 here on the server's request path without loading numba or scipy.
 """
 from __future__ import annotations
@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-from driver.physics.fast_lengths import fast_dct1_rows, fast_length
+from fpscan.physics.fast_lengths import fast_dct1_rows, fast_length
 
 __all__ = ["KINDS", "kernel_params", "grid_length", "pad_sizes"]
 
@@ -44,7 +44,7 @@ def kernel_params(eps: float) -> tuple[int, float]:
 
     Examples
     --------
-    >>> from driver.physics.grid_sizes import kernel_params
+    >>> from fpscan.physics.grid_sizes import kernel_params
     >>> w, beta = kernel_params(1e-6)
     >>> w, round(beta, 2)
     (7, 16.1)
@@ -61,7 +61,7 @@ def grid_length(n_t: int, kind: str = "nufft", eps: float = 1e-6) -> int:
     """L, the fine-grid FFT length `make_grid` plans for series of ``n_t`` samples: the
     oversampled grid L >= 2 M (nufft, even) or the DFT grid of the mirrored series
     L >= 2 n_t - 1 (linear, nearest), rounded up to a fast length
-    (`driver.physics.fast_lengths`; S is sampled exactly on any grid of L >= n_t points,
+    (`fpscan.physics.fast_lengths`; S is sampled exactly on any grid of L >= n_t points,
     a finer one only interpolates better).
 
     Parameters
@@ -81,7 +81,7 @@ def grid_length(n_t: int, kind: str = "nufft", eps: float = 1e-6) -> int:
 
     Examples
     --------
-    >>> from driver.physics.grid_sizes import grid_length
+    >>> from fpscan.physics.grid_sizes import grid_length
     >>> grid_length(100), grid_length(100, "linear")  # 2 M = 200; 2 n_t - 1 = 199 -> fast 200
     (200, 200)
     """
@@ -100,7 +100,7 @@ def pad_sizes(shape: Sequence[int], dx: float, dz: float, dt: float, n_t: int, c
               extra_lateral: float = 0.0) -> tuple[int, int, int]:
     """Zero-padded working grid (N_z, N_y, N_x) >= shape of the free-space model: no periodic
     image reaches a sensor within the record. Every length is rounded up to a fast one
-    (`driver.physics.fast_lengths`; more padding only moves the periodic images further
+    (`fpscan.physics.fast_lengths`; more padding only moves the periodic images further
     away): the depth DCT-I's 2 (N_z - 1), y's complex and x's real FFT; N_y - n_y and
     N_x - n_x stay even so that the image sits centred; N_y = N_x (both real fast
     lengths) where that pads at most 15 % more.
@@ -140,7 +140,7 @@ def pad_sizes(shape: Sequence[int], dx: float, dz: float, dt: float, n_t: int, c
 
     Examples
     --------
-    >>> from driver.physics.grid_sizes import pad_sizes
+    >>> from fpscan.physics.grid_sizes import pad_sizes
     >>> pad_sizes((256, 128, 128), 60e-6, 12e-6, 8e-9, 256, 1500.0, 0.0)  # the record reaches 51 pitches
     (257, 192, 192)
     """
@@ -165,7 +165,7 @@ def pad_sizes(shape: Sequence[int], dx: float, dz: float, dt: float, n_t: int, c
     if n_y > 1 and (n_y - n_x) % 2 == 0:
         # one length for both axes when it pads little more (<= 15 %): k_x and k_y then take
         # the same values, so columns of equal |k_lat| group four- to eightfold and the
-        # temporal step computes its taps once per group (as `service.recon.planar`)
+        # temporal step computes its taps once per group (as `fpscan.service.recon.planar`)
         common = lateral(n_x, False, True, at_least=max(n_y2, n_x2))
         if common <= 1.15 * max(n_y2, n_x2):
             n_y2 = n_x2 = common

@@ -4,7 +4,7 @@
 (measured on a (1025, 240, 121) complex128 spectrum: 0.48 s, against 0.23 s for the same
 transform as an in-place ``ifft`` along y followed by ``irfft`` along x). Every
 reconstruction ends with this transform over its whole volume, so it has one owner here.
-(A small volume runs in numpy.fft: `driver.physics.fft_engine`.)
+(A small volume runs in numpy.fft: `fpscan.physics.fft_engine`.)
 """
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from types import ModuleType
 
 import numpy as np
 
-from driver.physics import fft_engine
+from fpscan.physics import fft_engine
 
 __all__ = ["irfft_lateral", "pad_spectrum"]
 
@@ -37,7 +37,7 @@ def irfft_lateral(K: np.ndarray, shape: tuple[int, ...], axes: tuple[int, ...] =
         ``K`` may be overwritten (default True: the complex passes run in place).
     out : ndarray, optional
         C-contiguous real array of the result's shape and dtype that the real pass writes
-        into, slab by slab of leading indices (`driver.physics.fft_engine.irfft`; axis 0
+        into, slab by slab of leading indices (`fpscan.physics.fft_engine.irfft`; axis 0
         must not be lateral); default a new array. It may start where ``K``'s own memory
         starts (with ``overwrite``, the image written over its spectrum): a slab is
         transformed whole before it is written, and a leading index of the result takes no
@@ -61,7 +61,7 @@ def irfft_lateral(K: np.ndarray, shape: tuple[int, ...], axes: tuple[int, ...] =
     Examples
     --------
     >>> import numpy as np, scipy.fft
-    >>> from driver.physics.lateral import irfft_lateral
+    >>> from fpscan.physics.lateral import irfft_lateral
     >>> K = scipy.fft.rfft2(np.arange(24.0).reshape(2, 3, 4), axes=(1, 2))
     >>> bool(np.allclose(irfft_lateral(K.copy(), (3, 4)), np.arange(24.0).reshape(2, 3, 4)))
     True
@@ -108,7 +108,7 @@ def pad_spectrum(K: np.ndarray, n_y: int, n_x: int, u: int, ups_y: bool, xp: Mod
     A line's spectrum, refined twice: its inverse is the samples with the midpoints between them.
 
     >>> import numpy as np
-    >>> from driver.physics.lateral import pad_spectrum
+    >>> from fpscan.physics.lateral import pad_spectrum
     >>> x = np.cos(2 * np.pi * np.arange(8) / 8)
     >>> K = np.fft.rfft(x)[None, :]  # (n_y = 1, n_x // 2 + 1)
     >>> fine = np.fft.irfft(pad_spectrum(K, 1, 8, 2, False)[0], 16) * 2

@@ -1,10 +1,10 @@
-"""The compiled (numba) kernels of the temporal step (`driver.physics.nufft`, which owns
+"""The compiled (numba) kernels of the temporal step (`fpscan.physics.nufft`, which owns
 the API, the grids and the small-transform path that needs no compiler).
 
 Every kernel is ``@numba.njit(cache=True)``: the first call in an interpreter compiles it for
 its argument types, or loads it from numba's cache (``fpscan warmup``,
-`service.recon.warmup`). Importing this module imports numba (about 0.3 s), so
-`driver.physics.nufft` imports it on the first transform too large for numpy alone.
+`fpscan.service.recon.warmup`). Importing this module imports numba (about 0.3 s), so
+`fpscan.physics.nufft` imports it on the first transform too large for numpy alone.
 """
 from __future__ import annotations
 
@@ -56,7 +56,7 @@ def place_columns(A: np.ndarray, cols: np.ndarray, scale: np.ndarray, shift: int
 
 @numba.njit(parallel=True, cache=True)
 def scatter_columns(F: np.ndarray, cols: np.ndarray, out: np.ndarray) -> None:
-    """out[j, cols[c]] = F[c, j] (distinct ``cols``), in cache-friendly tiles (`driver.physics.nufft.scatter_columns`).
+    """out[j, cols[c]] = F[c, j] (distinct ``cols``), in cache-friendly tiles (`fpscan.physics.nufft.scatter_columns`).
 
     Parameters
     ----------
@@ -285,9 +285,9 @@ def interp_kernel(U: np.ndarray, gvals: np.ndarray, gptr: np.ndarray, order: np.
     Parameters
     ----------
     U : ndarray ``(n_cols, L)`` complex64 or complex128
-        The fine-grid series (`driver.physics.nufft.to_fine_grid`).
+        The fine-grid series (`fpscan.physics.nufft.to_fine_grid`).
     gvals : ndarray ``(n_groups,)`` float64
-        |k_lat|² of each column group, rad²/m² (`driver.physics.nufft.group_columns`).
+        |k_lat|² of each column group, rad²/m² (`fpscan.physics.nufft.group_columns`).
     gptr : ndarray ``(n_groups + 1,)`` int64
         Group pointers: the columns of group g are ``order[gptr[g]:gptr[g + 1]]``.
     order : ndarray ``(n_cols,)`` int64
@@ -311,7 +311,7 @@ def interp_kernel(U: np.ndarray, gvals: np.ndarray, gptr: np.ndarray, order: np.
     w : int
         Taps per evaluation (kernel width).
     hc : ndarray ``(w, degree + 1)`` float64
-        The taps' polynomial coefficients (`driver.physics.nufft.kernel_polynomials`; nufft only).
+        The taps' polynomial coefficients (`fpscan.physics.nufft.kernel_polynomials`; nufft only).
     shift : int
         The centring offset of the fine grid (``TemporalGrid.shift``).
     inversion : bool
@@ -413,7 +413,7 @@ def spread_kernel(B: np.ndarray, gvals: np.ndarray, gptr: np.ndarray, order: np.
     B : ndarray ``(n_cols, n_kz)`` complex
         The coefficients.
     gvals : ndarray ``(n_groups,)`` float64
-        |k_lat|² of each column group, rad²/m² (`driver.physics.nufft.group_columns`).
+        |k_lat|² of each column group, rad²/m² (`fpscan.physics.nufft.group_columns`).
     gptr : ndarray ``(n_groups + 1,)`` int64
         Group pointers: the columns of group g are ``order[gptr[g]:gptr[g + 1]]``.
     order : ndarray ``(n_cols,)`` int64
@@ -437,7 +437,7 @@ def spread_kernel(B: np.ndarray, gvals: np.ndarray, gptr: np.ndarray, order: np.
     w : int
         Taps per evaluation (kernel width).
     hc : ndarray ``(w, degree + 1)`` float64
-        The taps' polynomial coefficients (`driver.physics.nufft.kernel_polynomials`; nufft only).
+        The taps' polynomial coefficients (`fpscan.physics.nufft.kernel_polynomials`; nufft only).
     shift : int
         The centring offset of the fine grid (``TemporalGrid.shift``).
     R : ndarray ``(n_cols, L)`` complex

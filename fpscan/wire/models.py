@@ -2,8 +2,8 @@
 of fpscan).
 
 Lenient: states and kinds are plain strings and fields a server may omit have defaults.
-The server's models (``service.api.models``) subclass these and narrow what it guarantees,
-so that its OpenAPI schema is theirs; the client's (``clients.http.models``) subclass them
+The server's models (``fpscan.service.api.models``) subclass these and narrow what it guarantees,
+so that its OpenAPI schema is theirs; the client's (``fpscan.clients.http.models``) subclass them
 keeping unknown fields (``extra="allow"``). A field's description is the one the OpenAPI
 schema shows. Units are SI (m, s, Hz, bytes); times are UNIX times in s.
 """

@@ -92,7 +92,7 @@ def lateral_plan(nufft_type: int, coords: tuple[np.ndarray, ...], n_modes: tuple
     the cached plan.
 
     >>> import numpy as np
-    >>> from driver.physics.nufft_plans import lateral_plan
+    >>> from fpscan.physics.nufft_plans import lateral_plan
     >>> x = np.array([0.0, 0.5, -2.0])  # rad
     >>> modes = np.array([[1, 2, 3, 4]], dtype=complex)  # (n_trans, n_x)
     >>> plan = lateral_plan(2, (x,), (4,), 1, eps=1e-12, isign=1, dtype=np.complex128)
@@ -139,7 +139,7 @@ def clear_plans() -> None:
     Examples
     --------
     >>> import numpy as np
-    >>> from driver.physics.nufft_plans import clear_plans, lateral_plan
+    >>> from fpscan.physics.nufft_plans import clear_plans, lateral_plan
     >>> x = np.array([0.0, 1.0])
     >>> plan = lateral_plan(2, (x,), (4,), 1, eps=1e-9, isign=1, dtype=np.complex128)
     >>> clear_plans()

@@ -1,5 +1,5 @@
 """Photoacoustic physics shared by the simulator (`driver`) and the reconstruction
-(`service.recon`): pure numpy/scipy/finufft/numba functions, no I/O.
+(`fpscan.service.recon`): pure numpy/scipy/finufft/numba functions, no I/O.
 
 - `balls`: exact pressure of uniform spheres ("balls") at point sensors: the N-shaped
   wave p = p0 (r - c t) / (2 r), averaged over each sample interval.
@@ -13,10 +13,10 @@
   here, first, so that it runs before any kernel loads OpenMP).
 
 Importing the package loads only `balls` (numpy): import the forward model
-(`driver.physics.forward`, finufft and numba) and `nufft` (numba) from their modules, so
+(`fpscan.physics.forward`, finufft and numba) and `nufft` (numba) from their modules, so
 that each user pays for what it uses.
 """
-from driver.physics import threads  # noqa: F401  (first: the OpenMP wait policy)
-from driver.physics.balls import Ball, ball_alines, ball_p0
+from fpscan.physics import threads  # noqa: F401  (first: the OpenMP wait policy)
+from fpscan.physics.balls import Ball, ball_alines, ball_p0
 
 __all__ = ["Ball", "ball_alines", "ball_p0"]

@@ -1,20 +1,20 @@
 """The temporal step of planar PAT on any array namespace: NumPy on the CPU, CuPy on a GPU.
 
-The same transform as `driver.physics.nufft` (its module doc has the formulas: the even-extended
+The same transform as `fpscan.physics.nufft` (its module doc has the formulas: the even-extended
 series' transform E(ω) = Σ_n a_n 2 cos(ω t_n) at ω = c |k| of every k-space column, as a 1-D
 type-2 NUFFT with FINUFFT's "exponential of semicircle" kernel, and its adjoint), written once
 with the operations NumPy and CuPy share (``xp``: the array module, ``numpy`` or ``cupy``): the
-GPU path (`service.recon.gpu`) runs it on CuPy, and the tests run the same code on NumPy against
+GPU path (`fpscan.service.recon.gpu`) runs it on CuPy, and the tests run the same code on NumPy against
 the CPU's compiled kernels (`tests/recon/test_gpu_path_on_numpy.py`: 1e-12 in float64), so a
 change to either shows there. The taps are computed on ``xp`` per column group (columns of equal
-|k_lat|² share them, `driver.physics.nufft.group_columns`) in float64 with the polynomials of
-`driver.physics.nufft.kernel_polynomials`; the sums run one tap at a time over every column and
+|k_lat|² share them, `fpscan.physics.nufft.group_columns`) in float64 with the polynomials of
+`fpscan.physics.nufft.kernel_polynomials`; the sums run one tap at a time over every column and
 kz together (memory: a few (n_cols, n_kz) arrays, never (n_cols, n_kz, w)).
 
 Only the ``"nufft"`` kind (NER) is here: the k-Wave-style interpolations stay on the CPU.
 
 Functions take and return arrays of ``xp``; shapes are (n_cols, ...) with one k-space column
-per row, as `driver.physics.nufft` orders them.
+per row, as `fpscan.physics.nufft` orders them.
 """
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from driver.physics.nufft import TemporalGrid, group_columns, group_tap_arrays
+from fpscan.physics.nufft import TemporalGrid, group_columns, group_tap_arrays
 
 __all__ = ["Taps", "taps", "evaluate", "spread", "to_fine_grid", "from_fine_grid", "dct1"]
 
@@ -57,7 +57,7 @@ def taps(xp: ModuleType, grid: TemporalGrid, klat2: np.ndarray, kz: np.ndarray, 
          dt: float, t0: float, inversion: bool, real_dtype: Any) -> Taps:
     """The taps of `evaluate` / `spread` for columns of |k_lat|² ``klat2``, on ``xp``.
 
-    `driver.physics.nufft.group_tap_arrays` per column group (the compiled kernels' formulas,
+    `fpscan.physics.nufft.group_tap_arrays` per column group (the compiled kernels' formulas,
     in float64), the weights and phases then cast to ``real_dtype``'s precision.
 
     Parameters
@@ -65,7 +65,7 @@ def taps(xp: ModuleType, grid: TemporalGrid, klat2: np.ndarray, kz: np.ndarray, 
     xp : module
         ``numpy`` or ``cupy``.
     grid : TemporalGrid
-        Of kind ``"nufft"`` (`driver.physics.nufft.make_grid`).
+        Of kind ``"nufft"`` (`fpscan.physics.nufft.make_grid`).
     klat2 : ndarray ``(n_cols,)``
         |k_lat|² per column, rad²/m² (host array).
     kz, qw : ndarray ``(n_kz,)``
@@ -105,7 +105,7 @@ def taps(xp: ModuleType, grid: TemporalGrid, klat2: np.ndarray, kz: np.ndarray, 
 
 
 def evaluate(xp: ModuleType, U: Any, tp: Taps) -> Any:
-    """E at every column's ω (`driver.physics.nufft.evaluate`): ``U`` ``(n_cols, L)`` from
+    """E at every column's ω (`fpscan.physics.nufft.evaluate`): ``U`` ``(n_cols, L)`` from
     :func:`to_fine_grid` -> ``(n_cols, n_kz)`` complex, weighted as ``tp`` says.
 
     Parameters
@@ -135,7 +135,7 @@ def evaluate(xp: ModuleType, U: Any, tp: Taps) -> Any:
 
 
 def spread(xp: ModuleType, B: Any, tp: Taps) -> Any:
-    """The adjoint of :func:`evaluate` (`driver.physics.nufft.spread`): ``B`` ``(n_cols, n_kz)``
+    """The adjoint of :func:`evaluate` (`fpscan.physics.nufft.spread`): ``B`` ``(n_cols, n_kz)``
     complex -> ``(n_cols, L)`` spread fine-grid values (input of :func:`from_fine_grid`).
 
     Each tap adds w e B at +θ and w ē B at -θ; the sums are scatter-adds (NumPy:
@@ -188,7 +188,7 @@ def _scale(xp: ModuleType, grid: TemporalGrid, t0_is_zero: bool, rdtype: Any) ->
 
 def to_fine_grid(xp: ModuleType, a: Any, grid: TemporalGrid, t0_is_zero: bool) -> Any:
     """``a`` ``(n_cols, n_t)`` (one series per row) -> ``(n_cols, L)`` values of S on the
-    fine θ grid (`driver.physics.nufft.to_fine_grid`, which takes its series as columns).
+    fine θ grid (`fpscan.physics.nufft.to_fine_grid`, which takes its series as columns).
 
     Parameters
     ----------
@@ -212,7 +212,7 @@ def to_fine_grid(xp: ModuleType, a: Any, grid: TemporalGrid, t0_is_zero: bool) -
 
 def from_fine_grid(xp: ModuleType, R: Any, grid: TemporalGrid, t0_is_zero: bool) -> Any:
     """The adjoint of :func:`to_fine_grid`: ``R`` ``(n_cols, L)`` -> ``(n_cols, n_t)``
-    (`driver.physics.nufft.from_fine_grid`).
+    (`fpscan.physics.nufft.from_fine_grid`).
 
     Parameters
     ----------

@@ -30,7 +30,7 @@ def largest_prime_factor(n: int) -> int:
 
     Examples
     --------
-    >>> from driver.physics.fast_lengths import largest_prime_factor
+    >>> from fpscan.physics.fast_lengths import largest_prime_factor
     >>> largest_prime_factor(2 * 3 * 7 * 13), largest_prime_factor(1)
     (13, 1)
     """
@@ -75,7 +75,7 @@ def fast_length(n: int, real: bool = False, even: bool = False) -> int:
 
     Examples
     --------
-    >>> from driver.physics.fast_lengths import fast_length
+    >>> from fpscan.physics.fast_lengths import fast_length
     >>> fast_length(97), fast_length(97, real=True)  # 98 = 2·7², 100 = 2²·5²
     (98, 100)
     """
@@ -103,7 +103,7 @@ def fast_dct1_rows(n: int) -> int:
 
     Examples
     --------
-    >>> from driver.physics.fast_lengths import fast_dct1_rows
+    >>> from fpscan.physics.fast_lengths import fast_dct1_rows
     >>> fast_dct1_rows(100)  # 2·(101 - 1) = 200 = 2³·5²
     101
     """
@@ -137,7 +137,7 @@ def fast_lateral(n_y: int, n_x: int, square: bool = False) -> tuple[int, int]:
 
     Examples
     --------
-    >>> from driver.physics.fast_lengths import fast_lateral
+    >>> from fpscan.physics.fast_lengths import fast_lateral
     >>> fast_lateral(226, 226, square=True)  # 240 = 2⁴·3·5
     (240, 240)
     >>> fast_lateral(100, 130, square=True)  # a common 135 would pad y by 35 %
@@ -160,7 +160,7 @@ def fast_real_shape(shape: tuple[int, ...]) -> tuple[int, ...]:
 
     The grid on which a multi-dimensional real transform of an array of ``shape`` runs when
     the array is zero-padded to it (the model-based solver's preconditioner,
-    `service.recon.tv`).
+    `fpscan.service.recon.tv`).
 
     Parameters
     ----------
@@ -176,7 +176,7 @@ def fast_real_shape(shape: tuple[int, ...]) -> tuple[int, ...]:
 
     Examples
     --------
-    >>> from driver.physics.fast_lengths import fast_real_shape
+    >>> from fpscan.physics.fast_lengths import fast_real_shape
     >>> fast_real_shape((1024, 226, 226))  # 226 = 2·113 -> 240 = 2⁴·3·5
     (1024, 240, 240)
     >>> fast_real_shape((97, 1, 64))

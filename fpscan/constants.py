@@ -11,7 +11,7 @@ file's ``sound_speed_m_per_s``). k-Wave's own files name it ``c_m_per_s`` and IP
 - :data:`C_DEFAULT`: the speed of sound when the input gives none, 1500 m/s (water near
   20 °C: 1482 m/s; soft tissue 1540 m/s; the value k-Wave's examples use).
 - :data:`C_PLAUSIBLE`: speeds accepted without ``force`` (tissue and water), m/s; a value
-  outside is most likely a unit mistake (``driver.units.check_plausible``).
+  outside is most likely a unit mistake (``fpscan.driver.units.check_plausible``).
 - :data:`C_LIMITS`: speeds accepted at all (with ``force``: another medium), m/s, lower
   bound exclusive, upper inclusive.
 - :data:`C_AUTOFOCUS_RANGE`: the default autofocus search interval, m/s (water at

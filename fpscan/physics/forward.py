@@ -11,7 +11,7 @@ no mirror image) is
 
     g(k_lat, t) = (Δk_z / 4π) Σ_l τ_l F(k_lat, k_z,l) 2 cos(c |k| t),   τ_0 = τ_last = 1/2,
 
-evaluated at the sample times by a type-1 NUFFT in time (`driver.physics.nufft`) and
+evaluated at the sample times by a type-1 NUFFT in time (`fpscan.physics.nufft`) and
 transformed back laterally (inverse FFT on the sensor grid, or a type-2 NUFFT at
 arbitrary sensor positions with finufft). It is the adjoint of the NER reconstruction's
 discrete operator with the inversion weight replaced by the quadrature weight above
@@ -27,12 +27,12 @@ import numpy as np
 import numpy.typing as npt
 import scipy.fft
 
-from driver.constants import C_DEFAULT
-from driver.physics import nufft
-from driver.physics.axes import centred_index
-from driver.physics.grid_sizes import pad_sizes
-from driver.physics.lateral import irfft_lateral
-from driver.physics.nufft_plans import lateral_plan
+from fpscan.constants import C_DEFAULT
+from fpscan.physics import nufft
+from fpscan.physics.axes import centred_index
+from fpscan.physics.grid_sizes import pad_sizes
+from fpscan.physics.lateral import irfft_lateral
+from fpscan.physics.nufft_plans import lateral_plan
 
 __all__ = ["forward_grid", "forward_points"]
 
@@ -130,7 +130,7 @@ def forward_grid(
     pixel of travel) reaches that column after 8 samples.
 
     >>> import numpy as np
-    >>> from driver.physics.forward import forward_grid
+    >>> from fpscan.physics.forward import forward_grid
     >>> p0 = np.zeros((16, 32))  # (n_z, n_x), Pa
     >>> p0[8, 16] = 1.0
     >>> data = forward_grid(p0, dx=1e-4, dz=1e-4, dt=1e-4 / 1500, n_t=40, c=1500.0)
@@ -199,7 +199,7 @@ def forward_points(
     16 of 32 at 0.1 mm).
 
     >>> import numpy as np
-    >>> from driver.physics.forward import forward_grid, forward_points
+    >>> from fpscan.physics.forward import forward_grid, forward_points
     >>> p0 = np.zeros((16, 32))
     >>> p0[8, 16] = 1.0
     >>> kw = dict(dx=1e-4, dz=1e-4, dt=1e-4 / 1500, n_t=40, c=1500.0)
