@@ -8,5 +8,5 @@ echo "guard rails: ruff" >&2
 .venv/bin/ruff check --no-cache .
 echo "guard rails: import contracts" >&2
 .venv/bin/lint-imports --no-cache
-echo "guard rails: mypy (fpscan, service, driver, clients, wire; disallow_untyped_defs)" >&2
+echo "guard rails: mypy (the package fpscan; disallow_untyped_defs)" >&2
 .venv/bin/mypy

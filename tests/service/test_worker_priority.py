@@ -155,7 +155,7 @@ def test_the_background_warm_up_waits_while_a_job_runs():
     assert out.returncode == 0, out.stderr[-2000:]
     before, after, alive = ast.literal_eval(out.stdout.strip().splitlines()[-1])
     assert before == []
-    assert after == ["pylops", "fpscan.service.recon.operator"]
+    assert after == sorted(["pylops", "fpscan.service.recon.operator"])
     assert not alive
 
 
