@@ -18,7 +18,7 @@
 # release, take the digest from `docker buildx imagetools inspect python:3.11-slim` and
 # replace it in the ARG BASE line.
 #
-# The CUDA variant (the GPU path of issue 63: NER, NEDNER and tv on an NVIDIA GPU through
+# The CUDA variant (the GPU path: NER, NEDNER and tv on an NVIDIA GPU through
 # CuPy, README "GPU"): the same two stages on NVIDIA's CUDA runtime image, with the `cuda`
 # extra (CuPy) beside the server's,
 #   docker build -t fpscan:cuda \

@@ -1,4 +1,4 @@
-"""Acquisition throughput over a real pty (DESIGN §8, issue 4).
+"""Acquisition throughput over a real pty.
 
 Measures, in one run:
 1. the raw pty byte rate: a thread writes 1 MiB blocks into the master side as fast as it

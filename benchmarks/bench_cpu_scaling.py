@@ -1,4 +1,4 @@
-"""How NER's CPU parts scale with cores (issue 63's one-core rows): the memory bandwidth's own
+"""How NER's CPU parts scale with cores (beside bench_gpu.py's one-core rows): the memory bandwidth's own
 scaling beside them, to tell a serial part from a bandwidth floor.
 
 At the paper's NER size (bench_gpu's: 1024 samples on the 240² transform grid, float32), for each

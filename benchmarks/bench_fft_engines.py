@@ -1,4 +1,4 @@
-"""FFT engines behind ``scipy.fft``'s backend interface at fpscan's lengths (issue 47, item 3).
+"""FFT engines behind ``scipy.fft``'s backend interface at fpscan's lengths.
 
 For each engine that imports here — pocketfft (scipy's own, the default), pyFFTW
 (``pyfftw.interfaces.scipy_fft``) and mkl_fft (``mkl_fft.interfaces.scipy_fft``) — this prints

@@ -1,4 +1,4 @@
-"""A new user's first run (issue 61, item 2), measured from a fresh clone, as ratios in one run.
+"""A new user's first run, measured from a fresh clone, as ratios in one run.
 
 Clones this repository's committed HEAD into a temporary folder (nothing of this checkout's
 ``.venv`` or numba cache comes along), then times, on that clone:
@@ -121,7 +121,7 @@ def main() -> None:
     for what, seconds, note in rows:
         print(f"{what:<46} {seconds:7.1f} s  {note}")
     print(f"demo log lines repeated: {repeats} (of {len(lines)})")
-    print(f"scripts/demo.sh after its install (warm-up + first demo): {warm_s + demo_s:.1f} s (issue 61.2: <= 40 s)")
+    print(f"scripts/demo.sh after its install (warm-up + first demo): {warm_s + demo_s:.1f} s (target <= 40 s)")
 
 
 if __name__ == "__main__":

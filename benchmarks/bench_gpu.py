@@ -1,4 +1,4 @@
-"""The GPU path on the paper's scan (issue 63): NER float32 and tv to its rule, on the GPU and on
+"""The GPU path on the paper's scan: NER float32 and tv to its rule, on the GPU and on
 the CPU (every core, and one core), in one run; the GPU-CPU differences, the GPU's peak memory,
 tv's pairs and stop.
 

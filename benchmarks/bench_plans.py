@@ -1,4 +1,4 @@
-"""Benchmark: sensor-mask generation with weights (issue 3).
+"""Benchmark: sensor-mask generation with weights.
 
 Prints the time to generate the paper's 226 x 226 equi-steradian mask (60 um pitch,
 point of interest 3.6 mm above the centre, 1625 points requested) with its weights, its

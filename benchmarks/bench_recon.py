@@ -15,20 +15,20 @@ Every method runs in a fresh process after a small warm-up run (numba compilatio
     .venv/bin/python benchmarks/bench_recon.py --cold-start --writer
     .venv/bin/python benchmarks/bench_recon.py --vs-kwave-python   # if k-wave-python is installed
 
-Targets (DESIGN §8, issue 15): NER <= 1.0x the fast-length FFT at every sweep size from
+Targets: NER <= 1.0x the fast-length FFT at every sweep size from
 n = 128 (float32 <= 0.7x); NEDNER <= 1.5x at 512x128x128, <= 0.9x at 1024x226x226;
 k-Wave modes <= 3x and <= 6x the input in peak memory; 2-D NER on the k-Wave tree <= 1.2x;
 cold start (imports + compiled code) <= 0.5 s; result writer >= 200 MB/s. The paper:
 154 s (226x226 NER), 134 s (1625-sensor NEDNER).
 
-The model-based part (issue 11, ``--methods pair pair-periodic tv``) prints ratios to one
+The model-based part (``--methods pair pair-periodic tv``) prints ratios to one
 NER (float64) of the same size in the same process instead: ``pair`` is one
 `PlanarOperator` forward + adjoint on the sensor grid (free-space model, zero-padded;
 ``pair-periodic`` without padding; target <= 2.5x), ``tv`` a `reconstruct_tv` of the
 equi-steradian mask (1653 points at 226 x 226) with its default stopping rule (float32):
 iterations, time / NER, tv's own peak memory above the RSS before it / the input volume
 (n_t x n_y x n_x float32; the process's peak is reset after the NER runs, /proc/self/clear_refs;
-issue 19: <= 10x). ``--tv-iterations N`` caps the iterations (for a quick estimate).
+target <= 10x). ``--tv-iterations N`` caps the iterations (for a quick estimate).
 """
 from __future__ import annotations
 
@@ -363,7 +363,7 @@ def main() -> None:
         if r is not None:
             shape, t, t_fft, t_fast = r
             print(f"\n2-D NER on the k-Wave tree {shape}: {t:.2f} s, mirrored 2-D FFT {t_fft:.3f} s, "
-                  f"ratio {t / t_fft:.2f}; at fast lengths {t_fast:.3f} s, ratio {t / t_fast:.2f} (issue 20: <= 1.5)")
+                  f"ratio {t / t_fft:.2f}; at fast lengths {t_fast:.3f} s, ratio {t / t_fast:.2f} (target <= 1.5)")
     if args.cold_start:
         _cold_start()
     if args.writer:

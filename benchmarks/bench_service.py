@@ -1,4 +1,4 @@
-"""Service benchmark (issue 5): status-endpoint latency under load, live-preview refresh.
+"""Service benchmark: status-endpoint latency under load, live-preview refresh.
 
 1. 50 concurrent clients poll ``GET /api/jobs/{id}``, each every ``--interval`` s, for
    ``--seconds``, first with the server idle, then while a ``--size``² × ``--n-t`` NER
@@ -6,7 +6,7 @@
    p50/p99 latency of both, and their ratio; then the same back to back (no pause: the
    saturation throughput). Target: p99 < 50 ms while a 226×226 reconstruction runs. Before
    the 50 clients, ``GET /api/health`` alone, every 20 ms from one client, while that
-   reconstruction runs (issue 20.1: p99 < 100 ms during a paper-size reconstruction).
+   reconstruction runs (target: p99 < 100 ms during a paper-size reconstruction).
 2. A ~``--points``-point equi-steradian scan of the simulated scanner (unthrottled, on a
    pty) through the server; the live preview's refresh time (NEDNER of the points so far
    + MIP PNGs, reported by ``GET /api/scans/{id}/preview``). Target < 2 s for ~1600 points.
@@ -57,7 +57,7 @@ async def _poll_async(url: str, job_id: str, clients: int, seconds: float, inter
                 await asyncio.sleep(interval - dt)
 
     limits = httpx.Limits(max_connections=clients, max_keepalive_connections=clients)
-    # every API route needs the token when one is configured (reads too: issue 22.2)
+    # every API route needs the token when one is configured (reads too)
     async with httpx.AsyncClient(base_url=url, limits=limits, timeout=30,
                                  headers={"Authorization": f"Bearer {TOKEN}"}) as client:
         await asyncio.gather(*(one(client, k) for k in range(clients)))
@@ -105,7 +105,7 @@ def _health_process(url: str, seconds: float, interval: float) -> list[float]:
 
 def health_poll(url: str, seconds: float, interval: float = 0.02) -> dict:
     """``GET /api/health`` every ``interval`` s for ``seconds`` from one client in a process
-    of its own (issue 20.1: p99 < 100 ms while a paper-size reconstruction runs)."""
+    of its own (target: p99 < 100 ms while a paper-size reconstruction runs)."""
     from concurrent.futures import ProcessPoolExecutor
 
     with ProcessPoolExecutor(1) as pool:
@@ -140,7 +140,7 @@ def status_benchmark(url: str, size: int, n_t: int, clients: int, seconds: float
         jobs = [c.post("/api/reconstructions", json=body).json()["id"] for _ in range(3)]
         while c.get(f"/api/jobs/{jobs[0]}").json()["state"] == "queued":
             time.sleep(0.05)
-        health = health_poll(url, seconds)  # issue 20.1: health alone while the reconstruction runs
+        health = health_poll(url, seconds)  # health alone while the reconstruction runs
         busy = poll(url, jobs[0], clients, seconds, interval)
         busy_saturated = poll(url, jobs[0], clients, seconds / 2, 0.0)
         states = [c.get(f"/api/jobs/{j}").json()["state"] for j in jobs]

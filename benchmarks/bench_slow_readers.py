@@ -1,4 +1,4 @@
-"""Slow readers benchmark (issue 60.1, 60.2): the server's memory before, during and after
+"""Slow readers benchmark: the server's memory before, during and after
 ``--readers`` connections that pipeline ``GET /openapi.json`` with ``SO_RCVBUF`` 1024 and
 never read, and a token holder's health latency meanwhile.
 
@@ -11,7 +11,7 @@ after the last was opened the server held none, and its RSS then (a second wave 
 the first's RSS shows memory reused, not leaked); the ratio of the final RSS to the baseline;
 the token holder's health latency (p50/p99/max) throughout.
 
-Run: ``.venv/bin/python benchmarks/bench_slow_readers.py --readers 5000`` (the issue's figure is
+Run: ``.venv/bin/python benchmarks/bench_slow_readers.py --readers 5000`` (the full check is
 20 000; the client needs as many file handles: ``ulimit -n``). Starts its own server
 (127.0.0.1, free port) and stops it.
 """

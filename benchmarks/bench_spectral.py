@@ -1,4 +1,4 @@
-"""Spectral benchmarks (issue 16): autofocus cost and unmixing throughput.
+"""Spectral benchmarks: autofocus cost and unmixing throughput.
 
 1. Sound-speed autofocus (``c="auto"``) on the k-Wave 3-D reference data
    (``../shared/data/kwave3d_balls_yarn.h5``, 96 × 96 sensors, 751 samples) and on a

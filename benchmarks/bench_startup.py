@@ -1,4 +1,4 @@
-"""Start-up speed a user feels (issue 20, item 2), as ratios measured in one run.
+"""Start-up speed a user feels, as ratios measured in one run.
 
 Each case is a fresh interpreter (wall time of the whole process, start to exit); the cases
 run interleaved, ``--repeat`` rounds, and the table shows each one's median and its ratio to

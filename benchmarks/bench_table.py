@@ -1,4 +1,4 @@
-"""One table (issue 20.1, 20.4): what a reconstruction costs through each door -- the library, the
+"""One table: what a reconstruction costs through each door -- the library, the
 job worker's own function, an HTTP job (submit -> succeeded) and the command line -- cold and warm,
 per method and size, as ratios measured in one run, with the machine's load average beside every row.
 
@@ -21,7 +21,7 @@ per size, content irrelevant to timing):
 - ``load``: 1-minute load average when the row was measured;
 - ``second job``: with ``--second-job`` every row is measured twice, the second time while
   another client keeps one more job running (the first method at the largest size, back to
-  back; the server then has 2 workers): issue 20.1's "under a second job's load".
+  back; the server then has 2 workers): the "under a second job's load" case.
 
 Then: start-up to a healthy ``/api/health`` (target <= 3 s), and the first job after start-up
 (the first method at the first size, submitted as soon as the server is healthy: it waits for

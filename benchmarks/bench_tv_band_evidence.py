@@ -1,4 +1,4 @@
-"""What the coherent image shows above the band tv works at (issue 59 item 1): the depth power
+"""What the coherent image shows above the band tv works at: the depth power
 spectrum of the full-band NEDNER image of a sparse scan against that of the same sensors' noise image.
 
 tv works at c / (2 pitch), the band the lateral sampling resolves (`fpscan.service.recon.tv_grid`), unless

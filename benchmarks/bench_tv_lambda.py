@@ -1,4 +1,4 @@
-"""The automatic λ's calibration (issue 47 item 4): tv's CC with the true p0 over a λ sweep on
+"""The automatic λ's calibration: tv's CC with the true p0 over a λ sweep on
 the calibration cases, and the rule λ = a · s · max(1, (D₀ / knee)^p) that loses least in the
 worst case (`fpscan.service.recon.tv`, module doc: s the image's noise level, D₀ the warm start's
 discrepancy).

@@ -1,4 +1,4 @@
-"""tv's quality gate on data nobody here wrote or tuned for (issue 59): one table, one row per
+"""tv's quality gate on data nobody here wrote or tuned for: one table, one row per
 case × sensor mask × noise, tv's default image against the references, and the gate.
 
 Cases (``--cases``):
@@ -34,12 +34,11 @@ Per row:
   **amp**: the least-squares amplitude of tv's image on the structures (p0 > 10 % of its max);
 - tv's band and why, its image grid, the record kept, operator pairs, iterations, λ / image noise,
   converged;
-- with ``--rule``: tv's CC after 300 iterations (``--rule-iterations``) at its own λ and grid (``tol`` 0;
-  issue 59 item 6);
-- with ``--sweep``: tv's CC at λ × 2^k, k = -3..3, each to the stopping rule (issue 59 item 3), and
+- with ``--rule``: tv's CC after 300 iterations (``--rule-iterations``) at its own λ and grid (``tol`` 0);
+- with ``--sweep``: tv's CC at λ × 2^k, k = -3..3, each to the stopping rule, and
   on the vessel tree the thin segments seen at each.
 
-The gate (issue 59 item 4): tv >= ref − 0.005 on every row; tv >= NER wherever ref >= NER; on
+The gate: tv >= ref − 0.005 on every row; tv >= NER wherever ref >= NER; on
 the vessel tree at 11 % / 30 dB peak and at 4 % / 20 dB peak, seen >= 95 % and amp >= 0.85; with
 ``--rule``, the 300-iteration image's CC − tv's <= 0.015; with ``--sweep``, the sweep's best CC −
 tv's <= 0.01. Rows run in ``--jobs`` processes, the strongest noise and the sparser mask first;
@@ -75,7 +74,7 @@ FILES = {"vessels": "kwave3d_vessel_tree.h5", "balls": "kwave3d_balls_yarn.h5", 
 CASES = ("vessels", "balls", "points", "paper")
 MASKS = (4, 11)
 NOISE = ("peak20", "peak30", "peak40", "rms30")
-#: the gate (issue 59 item 4)
+#: the gate (module doc)
 GATE_REF = 0.005
 GATE_SEEN, GATE_AMP = 0.95, 0.85
 GATE_RULE = 0.015
@@ -247,7 +246,7 @@ def run_row(name: str, percent: int, noise: str, rule: bool = False, case: dict 
         long = reconstruct(scan, "tv", dtype="float32", lam=p["lam"], iterations=probe["rule_iterations"], tol=0.0,
                            **grid_opts)
         row["cc300"] = correlation_coefficient(long.p0, truth)  # named for the default's 300 iterations
-    if sweep:  # the automatic λ against λ x 2^k, k = -3..3 (issue 59 item 3), each to the stopping rule
+    if sweep:  # the automatic λ against λ x 2^k, k = -3..3, each to the stopping rule
         row["sweep"], seen = {}, {}
         for k in range(-3, 4):
             r = tv if k == 0 else reconstruct(scan, "tv", dtype="float32", lam=p["lam"] * 2.0**k, **grid_opts, **tol)

@@ -1,4 +1,4 @@
-"""Cost of the model-based operator pair against one NER of the same image (issue 19, item 1).
+"""Cost of the model-based operator pair against one NER of the same image.
 
 For each size n_t x n_y x n_x (image n_z = n_t rows at dz = c·dt, pitch 60 µm, dt 8 ns,
 c 1500 m/s: the FP scanner's and the paper's sampling) and each working dtype this

@@ -1,4 +1,4 @@
-"""tv at the paper's size (issues 47 and 59): wall time over one NER, iterations, operator
+"""tv at the paper's size: wall time over one NER, iterations, operator
 pairs, converged, peak memory over the image and CC with the true p0, per grid.
 
 The case: the paper's scan — a 226 x 226 lattice of 60 µm, 1024 samples of 8 ns, c = 1500 m/s,
@@ -28,11 +28,11 @@ same case at half the size in every dimension (113², 512 samples, 437 points) f
 ``--no-continuation`` runs tv without its λ continuation (the solver until 2026-11-26), to
 compare. ``--max-iter K`` caps tv's iterations at K (stop "iterations"; the continuation then
 reaches λ within K / 2): the image a budget of K + 3 pairs buys in a fresh process, e.g. K = 17 for
-the 20 pairs that issue 47's 120x NER allows at a pair's 5.9 NERs. ``--sensor-band F`` puts the
+the 20 pairs that a budget of 120x NER allows at a pair's 5.9 NERs. ``--sensor-band F`` puts the
 A-lines behind the simulated scanner's sensor model (a 2nd-order Butterworth at F Hz, before the
 noise) without declaring it, as on a real scan (tv's band is the pitch's unless declared), and
 the CC is still with the balls themselves. ``--rule`` adds, per row,
-what the stopping rule's threshold buys at this size (issue 47 item 2): a 300-iteration solve
+what the stopping rule's threshold buys at this size: a 300-iteration solve
 at the row's λ and a run to the rule at ``tol`` = 2e-3 (the default is 5e-3), with their wall
 times, iterations, CC with the true p0 and relative distances ‖x − x₃₀₀‖ / ‖x₃₀₀‖ (5-8 x the
 row's time more).

@@ -1,4 +1,4 @@
-"""The model-based solver against one NEDNER of the same data (issue 19, item 2).
+"""The model-based solver against one NEDNER of the same data.
 
 For vessel (`fpscan.service.experiments.phantoms.vessel_phantom`) and ball phantoms, 2-D (a line of
 ``n_x`` sensors, 24 of them used, equiangular about the image's centre) and 3-D (a lattice,
@@ -13,8 +13,8 @@ dt = pitch / c) with seeded white noise ``--snr`` dB below the signal, this prin
 - the automatic λ over the image's noise level and the warm start's discrepancy D₀ that
   sets it (`fpscan.service.recon.tv`, module doc);
 - with ``--sweep``, tv's CC at λ ×1/8 … ×8 of the automatic one, the best factor and the CC
-  lost at the automatic λ (issue 19, item 3: ≤ 0.01; docs/results.md's table);
-- with ``--rule``, what the stopping rule's threshold buys (issue 47 item 2): a 300-iteration
+  lost at the automatic λ (target ≤ 0.01; docs/results.md's table);
+- with ``--rule``, what the stopping rule's threshold buys: a 300-iteration
   solve at the automatic λ (and its distance to a 1000-iteration one), then for each ``tol``
   in `RULE_TOLS` (5e-3 is the default) the iterations and pairs to the rule, the relative
   distance ‖x − x₃₀₀‖ / ‖x₃₀₀‖ and the CC with the true p0, all at that λ.

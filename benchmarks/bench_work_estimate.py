@@ -1,4 +1,4 @@
-"""The work admission's estimates against measured run times (issue 50.7), as ratios.
+"""The work admission's estimates against measured run times, as ratios.
 
 For each method and size, the library call (``fpscan.service.pipeline.reconstruct``, the worker's
 call) is timed (best of ``--repeat``, after one warm-up call) and divided by the method's work

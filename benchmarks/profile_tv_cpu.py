@@ -1,6 +1,6 @@
 """Where tv's time goes on the CPU: cProfile of one tv run on the paper's scan (bench_tv_paper's
 case, ``--scale``), float32, every core, the 25 functions with the most time of their own — to find
-what keeps tv from scaling with cores (issue 63's one-core rows: bench_gpu.py).
+what keeps tv from scaling with cores (bench_gpu.py's one-core rows).
 
     python benchmarks/profile_tv_cpu.py [--scale 0.5] [--top 25]
 """

@@ -134,7 +134,8 @@ def write_fpscan_names(_app: Any = None) -> Path:
         obj = getattr(importlib.import_module(module), attr)
         owners[name] = f"{home(obj, attr, module)}.{attr}"
     lines = [".. autosummary::", ""]
-    lines += [f"   {owners[name]}" for name in sorted(owners, key=str.lower)]
+    # relative to the page's module, fpscan (autosummary refuses a name that repeats it)
+    lines += [f"   {owners[name].removeprefix('fpscan.')}" for name in sorted(owners, key=str.lower)]
     path = GENERATED / "fpscan_names.inc"
     path.write_text("\n".join(lines) + "\n")
     return path

@@ -1,4 +1,4 @@
-"""Seeded fault injection for the simulated scanner (DESIGN §5).
+"""Seeded fault injection for the simulated scanner (docs/protocol.md Appendix B).
 
 A fault spec is a comma-separated list of ``key=value`` items (keys may repeat):
 

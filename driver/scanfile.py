@@ -1,4 +1,4 @@
-"""The scan file: one HDF5 file per acquisition, written as A-lines arrive (DESIGN §6).
+"""The scan file: one HDF5 file per acquisition, written as A-lines arrive.
 
 Layout (``format`` attribute ``fpscan-scan/2``; full description in docs/file-formats.md;
 ``fpscan-scan/1`` files, one wavelength without the first axis, are still read):

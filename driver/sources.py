@@ -7,11 +7,11 @@ float64 in Pa for point indices ``ks`` of that plan at excitation wavelength ind
 A-line). Sources:
 
 * :class:`BallSource` — analytic balls: exact N-shaped waves averaged over each sample
-  interval (``fpscan.physics.ball_alines``; DESIGN §5). With ``so2`` given, each ball is
-  blood-like tissue, a mixture of HbO2 and Hb at that oxygen saturation, and its
-  amplitude follows its absorption at each wavelength: p0 = Γ·Φ·μa(λ) with μa from
-  Prahl's molar extinction table (``fpscan.physics.spectra``). Without, balls have the
-  same amplitude at every wavelength, as do the other sources.
+  interval (``fpscan.physics.ball_alines``; docs/protocol.md Appendix B). With ``so2``
+  given, each ball is blood-like tissue, a mixture of HbO2 and Hb at that oxygen
+  saturation, and its amplitude follows its absorption at each wavelength:
+  p0 = Γ·Φ·μa(λ) with μa from Prahl's molar extinction table (``fpscan.physics.spectra``).
+  Without, balls have the same amplitude at every wavelength, as do the other sources.
 * :class:`VolumeSource` — any p0 volume (HDF5 ``p0`` ``(n_z, n_y, n_x)``) through the exact
   planar forward model ``fpscan.physics.forward.forward_points``.
 * :class:`ReplaySource` — a recorded dense dataset in k-Wave layout (``sensor_data/clean``

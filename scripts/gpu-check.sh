@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The device checks of issue 63, as one script for a GPU machine (the device tool's lease is 15
+# The GPU device checks, as one script for a GPU machine (the device tool's lease is 15
 # minutes): the GPU tests (tests/gpu: NER, NEDNER, the operator pair and tv on the GPU against the
 # CPU, the fallback and the memory rules), the GPU path's NumPy tests, then benchmarks/bench_gpu.py
 # on the paper's scan and the CLI / HTTP checks (scripts/gpu_check_service.py).

@@ -1,4 +1,4 @@
-"""The GPU path through fpscan's doors (issue 63): ``fpscan recon --device cuda`` locally, and a
+"""The GPU path through fpscan's doors: ``fpscan recon --device cuda`` locally, and a
 reconstruction job with ``device: "cuda"`` through a real server on loopback (``fpscan serve``,
 the CLI as its client), each on the same grid data; prints the device each result's params
 record, the GPU-CPU difference and what ``/api/health`` lists. Part of ``scripts/gpu-check.sh

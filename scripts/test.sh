@@ -28,7 +28,7 @@ cat "$warm_log" >&2
 # (they share its servers and browser; the 25 slowest are listed), the files marked `long` first,
 # longest first (tests/conftest.py; xdist's own order, most tests first, ran a long file last,
 # beside an idle core: 18:45 against 16:56 warm); then, alone, the tests marked `serial`, which
-# hold a time bound an issue sets (health p99, cancel latency) that a neighbour's load would blur.
+# hold a time bound (health p99, cancel latency; docs/performance.md) that a neighbour's load would blur.
 # Beside the parallel part, in a lane of their own, the tests marked `waits`: they mostly wait on a
 # real clock (the two-minute stream at 1 Hz, the serial link's PRF and timeouts: ~170 s of wall
 # time, ~30 s of CPU), which on a test worker held it and its core idle; their output follows the

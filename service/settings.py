@@ -146,8 +146,8 @@ class Settings(BaseSettings):
     time_limit_s: float = Field(3600.0, gt=0, le=7 * 86400, description="wall-time limit of one reconstruction by "
                                 "a time-limited (iterative) method, s: the default of its time_limit option and the "
                                 "most a request may ask; reached, the solver stops and says so (stop_reason 'time "
-                                "limit'). Environment: FPSCAN_TIME_LIMIT_S (FPSCAN_TV_TIME_LIMIT_S, its name before "
-                                "issue 48, is still read)",
+                                "limit'). Environment: FPSCAN_TIME_LIMIT_S (FPSCAN_TV_TIME_LIMIT_S, its former name, "
+                                "is still read)",
                                 validation_alias=AliasChoices("time_limit_s", "fpscan_time_limit_s", "tv_time_limit_s",
                                                               "fpscan_tv_time_limit_s"))
     resume_scans: bool = Field(False, description="resume scans interrupted by a restart at start-up "

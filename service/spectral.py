@@ -1,4 +1,4 @@
-"""Multi-wavelength reconstruction and spectral unmixing (issue 16), on top of the one
+"""Multi-wavelength reconstruction and spectral unmixing (docs/spectral.md), on top of the one
 reconstruction dispatch and the pure unmixing (:mod:`fpscan.service.recon.unmix`).
 
 - :func:`reconstruct_wavelengths`: one volume per excitation wavelength, the same method

@@ -1,5 +1,5 @@
 """How long a test waits for an event (a state, a message, a file) before it calls the
-wait a hang (issue 21.6: the suite holds on a loaded machine).
+wait a hang (the suite holds on a loaded machine).
 
 A test waits for the event itself, never for a fixed time or a count that depends on
 speed; the deadline below only guards against a hang, so it is generous: a loaded

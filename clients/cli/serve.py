@@ -83,7 +83,7 @@ def use_malloc() -> None:
     set already; in the restarted process, take the setting out of the environment again so that
     the job workers it spawns keep Python's default allocator (their work is numpy's).
 
-    Why (issue 60.1, docs/performance.md): after a burst of thousands of connections Python's
+    Why (docs/performance.md): after a burst of thousands of connections Python's
     small-object allocator (pymalloc) keeps most of the burst's 1-MiB arenas, since a few
     long-lived objects made during the burst pin each one: 5000 slow readers left the server at
     1.6-1.8x its resident memory before them, with the same live objects. With ``malloc`` the

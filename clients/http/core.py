@@ -1,5 +1,5 @@
 """The one client core: what sending, downloading (with its retry) and waiting on a job do,
-written once, with no I/O (issue 62.6; the model is httpx's one request model with only the
+written once, with no I/O (the model is httpx's one request model with only the
 I/O differing between ``Client`` and ``AsyncClient``).
 
 Each operation is a *flow*: a generator that yields the I/O it needs as a :data:`Step`

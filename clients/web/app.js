@@ -1330,7 +1330,7 @@ function resultOf(job) {
 }
 
 /** Depth spacing dz (m) of a result: the value the reconstruction used (depth row k lies
- *  at z = k·dz below the sensor plane, DESIGN §3); null when the job does not say. */
+ *  at z = k·dz below the sensor plane, docs/architecture.md); null when the job does not say. */
 function sliceSpacing(job) {
   const used = resultOf(job).params_used || {};
   return typeof used.dz === "number" && used.dz > 0 ? used.dz : null;

@@ -1,10 +1,10 @@
 """The exact planar forward model: p0 on a regular grid -> pressure on the plane z = 0.
 
 p solves p_tt = c^2 Δp with p(., 0) = p0, p_t(., 0) = 0 in a homogeneous medium
-(DESIGN §3). The grid function p0 (rows z_j = j dz, j = 0..n_z-1, row 0 on the sensor
-plane; lateral coordinates centred, x_i = (i - (n_x - 1)/2) dx) is taken as its
-band-limited (trigonometric) interpolant: a sum of plane waves exp(i k_lat·x) cos(k_z z)
-on the DFT lateral wavenumbers and the DCT-I depth wavenumbers
+(the paper §2, there with c = 1). The grid function p0 (rows z_j = j dz, j = 0..n_z-1,
+row 0 on the sensor plane; lateral coordinates centred, x_i = (i - (n_x - 1)/2) dx) is
+taken as its band-limited (trigonometric) interpolant: a sum of plane waves
+exp(i k_lat·x) cos(k_z z) on the DFT lateral wavenumbers and the DCT-I depth wavenumbers
 k_z,l = π l / ((n_z - 1) dz). Each mode evolves exactly as cos(c |k| t), so with
 F = DFT_x DCT-I_z(p0) dz the data of the half-space source (the physical source in z >= 0,
 no mirror image) is
@@ -122,7 +122,7 @@ def forward_grid(
     ----------
     .. [1] J. Schmid, T. Glatz, B. Zabihian, M. Liu, W. Drexler, O. Scherzer, "Computational
        Realization of a Non-Equidistant Grid Sampling in Photoacoustics with a Non-Uniform
-       FFT" (``reference/`` of the design), §3 (the planar forward model).
+       FFT", §2 (the planar forward problem).
 
     Examples
     --------

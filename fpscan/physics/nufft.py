@@ -3,7 +3,7 @@
 For every lateral wavenumber column (one lateral k per column, ``|k_lat|^2`` given) the
 reconstruction needs, at the non-equispaced temporal frequencies
 ``omega_l = c * sqrt(|k_lat|^2 + kz_l^2)``, the transform of the data extended evenly in
-time (DESIGN §3.1)::
+time (Xu, Feng & Wang 2002; the paper, eq. (1))::
 
     E(omega) = sum_n a_n * 2 cos(omega * t_n),   t_n = t0 + n dt
              = exp(-i omega t0) S(theta) + exp(+i omega t0) S(-theta),
@@ -475,7 +475,7 @@ def evaluate(
     U : (n_cols, L) from `to_fine_grid`. klat2 : (n_cols,) |k_lat|^2 in rad^2/m^2.
     kz : (n_kz,) depth wavenumbers in rad/m (ascending when inversion). qw : (n_kz,) weights per kz.
     inversion=True multiplies by qw * kz/omega (1/c at omega = 0) and zeroes omega above
-    the temporal Nyquist pi/dt (DESIGN §3.1); False multiplies by qw only.
+    the temporal Nyquist pi/dt; False multiplies by qw only.
     progress: optional callable(fraction in (0, 1]) called after each of up to ``n_chunks``
     chunks of column groups (fewer for small transforms).
     groups: `group_columns` (klat2) when the caller keeps it (an operator applied many

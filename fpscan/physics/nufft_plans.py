@@ -1,7 +1,7 @@
 """Lateral NUFFT plans made once per sensor mask and reused.
 
 The lateral transforms of NEDNER (type 1: A-lines at the sensor positions -> k-space,
-paper eq. (3)), of the planar operator's adjoint (type 1) and of the point forward model
+paper eq. (5)), of the planar operator's adjoint (type 1) and of the point forward model
 (type 2: k-space -> the sensor positions) see the same sensor positions call after call:
 the live preview refreshes, repeated jobs on one plan, and the model-based iterations.
 FINUFFT splits a transform into planning (kernel set-up, FFTW plan, sorting the points:

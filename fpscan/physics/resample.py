@@ -4,7 +4,7 @@ and sampled again on the same interval.
 A record of N samples g_n = g(t0 + n dt), n = 0..N-1, is the cosine series (the DCT-I: the
 record extended evenly about its first and its last sample, so that the extension has no
 jump at either end; at t0 = 0 it is also the physical even extension of planar PAT data,
-DESIGN §3.1)::
+as in `fpscan.physics.nufft`)::
 
     g(t) = (1 / (2 (N - 1))) [ y_0 + 2 Σ_{k=1}^{N-2} y_k cos(π k τ) + y_{N-1} cos(π (N - 1) τ) ],
     τ = (t - t0) / T,  T = (N - 1) dt,  y = DCT-I(g)

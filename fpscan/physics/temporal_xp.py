@@ -74,7 +74,7 @@ def taps(xp: ModuleType, grid: TemporalGrid, klat2: np.ndarray, kz: np.ndarray, 
         Sound speed (m/s), sample interval and time of sample 0 (s).
     inversion : bool
         Multiply by k_z/ω (1/c at ω = 0) and zero every kz from the first above the temporal
-        Nyquist π/dt on (the inversion's weight, DESIGN §3.1); else by ``qw`` only.
+        Nyquist π/dt on (the inversion's weight: the paper, eq. (1)); else by ``qw`` only.
     real_dtype : dtype
         float32 or float64: the precision of the weights and phases.
 

@@ -1,11 +1,11 @@
 """Quadrature weights for non-equispaced sensor positions: clipped Voronoi areas.
 
-The lateral integral of the inversion formula (DESIGN §3.1, paper eq. (3)) becomes
+The lateral integral of the inversion formula (the paper, eq. (5)) becomes
 ``Σ_m h_m g(x_m, t) e^{-i k·x_m}`` for sensors at arbitrary positions ``x_m``; ``h_m``
 is the area of the part of the measured plane that sensor ``m`` stands for. The default
-(DESIGN §3.3) is the sensor's Voronoi cell clipped to the region the sensors cover,
-computed by nearest-sensor labelling of a fine raster with ``scipy.spatial.cKDTree``
-(2-D plane) or exactly from interval mid-points (1-D line).
+is the sensor's Voronoi cell clipped to the region the sensors cover, computed by
+nearest-sensor labelling of a fine raster with ``scipy.spatial.cKDTree`` (2-D plane) or
+exactly from interval mid-points (1-D line).
 
 Depends on numpy and scipy only.
 """
@@ -117,7 +117,7 @@ def _weights_1d(x: np.ndarray, lo: float, hi: float, radius: np.ndarray) -> np.n
 
 def voronoi_weights(positions: npt.ArrayLike, pitch: float | None = None, *, bounds: npt.ArrayLike | None = None,
                     samples_per_cell: int = _SAMPLES_PER_CELL) -> np.ndarray:
-    """Clipped Voronoi areas of sensors on the sensor plane (DESIGN §3.3).
+    """Clipped Voronoi areas of sensors on the sensor plane.
 
     The covered region is the bounding box of the sensors widened on every side by half the
     median nearest-neighbour distance ``d_med`` (intersected with ``bounds``); each sensor's
@@ -165,7 +165,7 @@ def voronoi_weights(positions: npt.ArrayLike, pitch: float | None = None, *, bou
     ----------
     .. [1] J. Schmid, T. Glatz, B. Zabihian, M. Liu, W. Drexler, O. Scherzer, "Computational
        Realization of a Non-Equidistant Grid Sampling in Photoacoustics with a Non-Uniform
-       FFT", eq. (3) (the weights h_m of the lateral sum).
+       FFT", eq. (5) (the weights h_m of the lateral sum).
 
     Examples
     --------

@@ -1,5 +1,5 @@
 """What a client's connection may hold of the server, decided before any request is read
-(issue 50.1: strangers hold no socket).
+(strangers hold no socket; docs/api.md, "Limits").
 
 The server is uvicorn with its ``httptools`` HTTP protocol; :func:`server_config` gives it
 this module's subclass of that protocol (:class:`GuardedHttp`) and the settings' timeouts:

@@ -20,7 +20,7 @@ Datasets never pile up:
   dataset (format, ``dt``, ``dx``, ``dy``, ``c``, ``key``, the wavelength index) is its
   key; the same file with the same options uploaded again answers (201, as any upload)
   with the stored dataset's id and ``deduplicated: true``, storing nothing.
-- Acknowledged means stored (issue 60.4): the dataset a 201 names (found or new) is found
+- Acknowledged means stored: the dataset a 201 names (found or new) is found
   or stored under ``fpscan.service.jobs.lifecycle.guard``, the lock deletions take, and held
   (``lifecycle.hold_dataset``) until the 201 has been sent (a background task of the
   response releases it): a ``DELETE`` of it meanwhile waits, and retention passes it by.

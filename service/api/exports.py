@@ -10,14 +10,14 @@ beside the job's files once and then served from there (a result never changes; 
 is written anew on every request, since the scan may have grown). A folder export (OME-Zarr) is
 served zipped. Exports run in FastAPI's thread pool, off the event loop.
 
-Single flight (issue 60.7): one export file is built by one request at a time
+Single flight: one export file is built by one request at a time
 (:func:`_one_build`, a lock per output path). Requests that come while it is built wait
 for that build and serve its file: 20 concurrent first requests of a volume's OME-TIFF
 build it once, and every response carries the same bytes (one OME UUID), so a download
 resumed with ``Range`` never mixes two builds. A scan's export, written anew per request,
 is written once for the requests that came while it was being written.
 
-Acknowledged means stored (issue 60.4): a build ends under ``fpscan.service.jobs.lifecycle.guard``
+Acknowledged means stored: a build ends under ``fpscan.service.jobs.lifecycle.guard``
 with a look at the job; one deleted meanwhile has what the build wrote removed (404), so an
 export never leaves a file behind a deleted job.
 """

@@ -282,7 +282,7 @@ def start_reconstruction(body: ReconRequest, response: Response, request: Reques
                   "work_estimate_s": float(f"{work:.4g}"), "result_bytes": needed,
                   "wavelength": body.wavelength, **extra,
                   "client": (request.scope.get("client") or ("?", 0))[0]}  # whose queue it counts in
-    try:  # its inputs looked up again with the job's creation, no deletion between (issue 60.4)
+    try:  # its inputs looked up again with the job's creation, no deletion between (lifecycle.guard)
         job, _created = lifecycle.create_job(context.store, "recon", job_params, idempotency_key=idempotency_key,
                                              memory_bytes=mem, max_queued=context.settings.queued_per_client)
     except QueueFull as exc:

@@ -65,7 +65,7 @@ def start_scan(body: ScanRequest, response: Response, context: Context = Depends
     params: dict[str, Any] = {"plan_id": body.plan_id, "scanner_id": body.scanner_id}
     if body.preview_wavelength:
         params["preview_wavelength"] = body.preview_wavelength
-    try:  # the plan looked up again with the job's creation, no deletion between (issue 60.4)
+    try:  # the plan looked up again with the job's creation, no deletion between (lifecycle.guard)
         job, created = lifecycle.create_job(context.store, "scan", params, idempotency_key=idempotency_key)
     except IdempotencyConflict as exc:
         raise HTTPException(409, str(exc)) from None

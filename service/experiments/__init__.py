@@ -3,7 +3,7 @@
 - ``limited-view-2d`` (:mod:`.limited_view`, paper §6)
 - ``sparse-masks-3d`` (:mod:`.sparse_masks`, paper §7)
 - ``nufft-vs-interpolation`` (:mod:`.nufft_vs_interp`, paper §4)
-- ``vessels`` (:mod:`.vessels`, issue 19: a thin vessel tree from a sparse, noisy 3-D scan;
+- ``vessels`` (:mod:`.vessels`: a thin vessel tree from a sparse, noisy 3-D scan;
   NER on every point, NEDNER and tv on an equi-steradian mask)
 
 ``run_experiment(name, out_dir, data=path, small=...)`` runs one and writes

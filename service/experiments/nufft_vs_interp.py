@@ -134,7 +134,7 @@ def depth_sweep(*, small: bool, methods: Sequence[str] = METHODS,
     """Peak amplitude and axial FWHM of the built-in layer against its depth, per method.
 
     The layer is placed at ``fractions`` of the recorded depth window n_t·c·dt (the
-    interpolation methods' gain error grows with depth; DESIGN §3.2).
+    interpolation methods' gain error grows with depth; docs/results.md, §4).
 
     Parameters
     ----------

@@ -8,9 +8,9 @@
   depth, blurred steps laterally), for axial line-spread and lateral edge-spread
   measurements, like the paper's 0.1 µm thin chrome USAF chart seen by a band-limited
   system.
-- :func:`vessel_phantom` (issue 19): a branching tree of tubes 1–4 voxels wide (a trunk
-  that forks three times), in 2-D and 3-D, the thin structures an FP scanner images;
-  :func:`vessel_tree` gives its centre lines and widths.
+- :func:`vessel_phantom` (the ``vessels`` experiment): a branching tree of tubes 1–4 voxels
+  wide (a trunk that forks three times), in 2-D and 3-D, the thin structures an FP scanner
+  images; :func:`vessel_tree` gives its centre lines and widths.
 
 Grids follow docs/architecture.md: ``z_j = j·dz`` (row 0 at the sensor plane),
 ``x_i = (i - (n_x - 1)/2)·dx``.

@@ -1,4 +1,4 @@
-"""Experiment ``vessels`` (issue 19): a thin vessel tree from a sparse, noisy 3-D scan.
+"""Experiment ``vessels`` (docs/results.md): a thin vessel tree from a sparse, noisy 3-D scan.
 
 FP scanners image vasculature, so this is the model-based method's main case. The vessel
 phantom (:func:`.phantoms.vessel_phantom`: a trunk forking three times, tubes 4, 3, 2 and

@@ -2,7 +2,7 @@
 plain arrays (``np.load``) and no HDF5 reader (an export of a result ``volume.h5``; no reader
 here).
 
-Added as one file and its entry point in pyproject.toml (issues 48.3, 62.5): the registry
+Added as one file and its entry point in pyproject.toml (docs/plugins.md): the registry
 registers it on import (``fpscan.service.plugins``), and ``fpscan export
 --format npz``, ``GET /api/jobs/{id}/export/npz``, ``Client.export(job, "npz", ...)`` and the
 web page's downloads follow from :data:`FORMAT`.

@@ -1,4 +1,4 @@
-"""Memory admission (DESIGN §7): the one rule that says whether a reconstruction fits.
+"""Memory admission (docs/api.md): the one rule that says whether a reconstruction fits.
 
 :func:`estimate_memory` is a job's peak memory (bytes) from the shape of its input and its
 options; :func:`admit` refuses an estimate over the memory limit (:class:`AdmissionError`,

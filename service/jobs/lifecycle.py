@@ -23,7 +23,7 @@ The rules, one place for the API, the queue and the tests:
   ``retention_datasets_max_age_s``); a dataset a queued, running or paused job reads is
   never removed.
 
-Acknowledged means stored (issue 60.4): deleting and acknowledging a reference are
+Acknowledged means stored: deleting and acknowledging a reference are
 serialised (:func:`guard`, one lock per store): a deletion checks its users and removes
 the row under it, and whatever answers with a plan, job or dataset that must go on
 existing (a job created on its inputs, a dataset an upload is answered with) checks and

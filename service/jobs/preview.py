@@ -246,7 +246,7 @@ def warm_up() -> float:
     numpy path of small transforms and compiled nothing), then run a tiny preview's dispatch.
 
     So the first live preview of a scan is not slowed by start-up (on a fresh install without
-    ``fpscan warmup`` it was the kernels' compilation: 45 s of a 0.64 s scan, issue 61.2).
+    ``fpscan warmup`` it was the kernels' compilation: 45 s of a 0.64 s scan).
 
     Returns
     -------

@@ -2,7 +2,7 @@
 the executor, one thread per running job (the thread blocks on the executor, never the
 event loop).
 
-Memory admission (DESIGN §7): each job carries its peak-memory estimate (bytes); a job is
+Memory admission (docs/api.md): each job carries its peak-memory estimate (bytes); a job is
 started only while the sum of the running jobs' estimates plus its own stays within
 ``settings.memory_limit`` (the first job in line always may start when nothing runs).
 Jobs that can never fit are refused before they are queued (``fpscan.service.jobs.admission``).
@@ -14,7 +14,7 @@ ends ``cancelled``. Lease and heartbeat: the running thread renews the job's lea
 ``settings.heartbeat_s``; after a restart, :meth:`JobStore.recover` re-queues jobs whose
 owner is gone.
 
-A full disk fails a job, never strands it (issue 50.2). Each job carries the bytes its
+A full disk fails a job, never strands it. Each job carries the bytes its
 result needs (``params["result_bytes"]``, ``fpscan.service.jobs.admission.estimate_result_bytes``):
 
 - a queued job whose result does not fit the free disk (less ``disk_reserve_bytes``, as for

@@ -1,6 +1,6 @@
 """Scan jobs: drive the configured scanners with the host driver, one thread per port.
 
-A scan job owns its serial port exclusively while it runs (DESIGN §7). The
+A scan job owns its serial port exclusively while it runs. The
 :class:`ScanManager` starts queued scan jobs when their scanner is free; each runs
 ``fpscan.driver.acquire.acquire`` in its own thread (serial I/O never touches the event loop),
 writing the job's scan file (``<data_dir>/scans/<job_id>.h5``, a server-chosen name).

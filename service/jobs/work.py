@@ -560,7 +560,7 @@ HEAP_WARM_BYTES = 64 << 20
 
 def warm_heap() -> bool:
     """Give the worker's heap pages it has already written, so that a first job's arrays reuse
-    them instead of faulting in fresh ones (issue 20.1: the first job after start-up).
+    them instead of faulting in fresh ones (the first job after start-up).
 
     A fresh process's C library (glibc) maps every allocation above 128 KiB to new pages,
     which the kernel hands out zeroed, one fault per page, on their first write; it raises that

@@ -36,7 +36,7 @@ def correlation_coefficient(image: np.ndarray, reference: np.ndarray, mask: np.n
     ----------
     .. [1] J. Schmid, T. Glatz, B. Zabihian, M. Liu, W. Drexler, O. Scherzer, "Computational
        Realization of a Non-Equidistant Grid Sampling in Photoacoustics with a Non-Uniform
-       FFT" (``reference/`` of the design), Appendix "Quality measures", eq. (A1).
+       FFT", Appendix "Quality measures", eq. (A1).
 
     Examples
     --------

@@ -57,7 +57,7 @@ def cc_vs_pixels(
     ----------
     .. [1] J. Schmid, T. Glatz, B. Zabihian, M. Liu, W. Drexler, O. Scherzer, "Computational
        Realization of a Non-Equidistant Grid Sampling in Photoacoustics with a Non-Uniform
-       FFT" (``reference/`` of the design), §7 (CC vs number of pixels of interest).
+       FFT", §7 (CC vs number of pixels of interest).
 
     Examples
     --------
@@ -147,7 +147,7 @@ def cc_vs_diameter(
     ----------
     .. [1] J. Schmid, T. Glatz, B. Zabihian, M. Liu, W. Drexler, O. Scherzer, "Computational
        Realization of a Non-Equidistant Grid Sampling in Photoacoustics with a Non-Uniform
-       FFT" (``reference/`` of the design), §7 (CC vs ROI diameter, pixels of interest at >= 4 %).
+       FFT", §7 (CC vs ROI diameter, pixels of interest at >= 4 %).
 
     Examples
     --------
@@ -194,7 +194,7 @@ def sharpness_vs_diameter(
     ----------
     .. [1] J. Schmid, T. Glatz, B. Zabihian, M. Liu, W. Drexler, O. Scherzer, "Computational
        Realization of a Non-Equidistant Grid Sampling in Photoacoustics with a Non-Uniform
-       FFT" (``reference/`` of the design), §7 (Tenenbaum sharpness on pixels of interest at >= 4 %).
+       FFT", §7 (Tenenbaum sharpness on pixels of interest at >= 4 %).
 
     Examples
     --------

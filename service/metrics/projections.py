@@ -1,9 +1,9 @@
 """Maximum-intensity projections (MIPs) of a reconstructed volume: the one ``mip`` of
 fpscan (the pictures of ``fpscan.service.pictures.render`` draw it too).
 
-Volumes are ``(n_z, n_y, n_x)`` (DESIGN §3): the xy-MIP projects along z (axis 0),
-the xz-MIP along y (axis 1), the yz-MIP along x (axis 2). A 2-D image ``(n_z, n_x)`` has
-only the xz plane: the image itself.
+Volumes are ``(n_z, n_y, n_x)`` (docs/file-formats.md, "Orientation"): the xy-MIP projects
+along z (axis 0), the xz-MIP along y (axis 1), the yz-MIP along x (axis 2). A 2-D image
+``(n_z, n_x)`` has only the xz plane: the image itself.
 """
 from __future__ import annotations
 

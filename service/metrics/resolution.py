@@ -51,7 +51,7 @@ def lorentz(z: np.ndarray, a0: float, z0: float, w: float, baseline: float = 0.0
     ----------
     .. [1] J. Schmid, T. Glatz, B. Zabihian, M. Liu, W. Drexler, O. Scherzer, "Computational
        Realization of a Non-Equidistant Grid Sampling in Photoacoustics with a Non-Uniform
-       FFT" (``reference/`` of the design), §4 (axial resolution).
+       FFT", §4 (axial resolution).
 
     Examples
     --------
@@ -87,7 +87,7 @@ def edge_spread(x: np.ndarray, i0: float, a0: float, x0: float, w: float) -> np.
     ----------
     .. [1] J. Schmid, T. Glatz, B. Zabihian, M. Liu, W. Drexler, O. Scherzer, "Computational
        Realization of a Non-Equidistant Grid Sampling in Photoacoustics with a Non-Uniform
-       FFT" (``reference/`` of the design), §4 (lateral resolution).
+       FFT", §4 (lateral resolution).
 
     Examples
     --------
@@ -237,7 +237,7 @@ def fit_lorentz(
     ----------
     .. [1] J. Schmid, T. Glatz, B. Zabihian, M. Liu, W. Drexler, O. Scherzer, "Computational
        Realization of a Non-Equidistant Grid Sampling in Photoacoustics with a Non-Uniform
-       FFT" (``reference/`` of the design), §4 (Lorentz fit over 8 samples around the maximum).
+       FFT", §4 (Lorentz fit over 8 samples around the maximum).
 
     Examples
     --------
@@ -318,7 +318,7 @@ def fit_edge_spread(x: np.ndarray, profile: np.ndarray, *, window: int | None = 
     ----------
     .. [1] J. Schmid, T. Glatz, B. Zabihian, M. Liu, W. Drexler, O. Scherzer, "Computational
        Realization of a Non-Equidistant Grid Sampling in Photoacoustics with a Non-Uniform
-       FFT" (``reference/`` of the design), §4 (edge-spread fit across a bar edge).
+       FFT", §4 (edge-spread fit across a bar edge).
 
     Examples
     --------

@@ -120,7 +120,7 @@ def roi_mask(
     ----------
     .. [1] J. Schmid, T. Glatz, B. Zabihian, M. Liu, W. Drexler, O. Scherzer, "Computational
        Realization of a Non-Equidistant Grid Sampling in Photoacoustics with a Non-Uniform
-       FFT" (``reference/`` of the design), §6 and §7 (pixels of interest: at least 4 % of the maximum).
+       FFT", §6 and §7 (pixels of interest: at least 4 % of the maximum).
 
     Examples
     --------

@@ -41,7 +41,7 @@ def tenenbaum_sharpness(image: np.ndarray, mask: np.ndarray | None = None) -> fl
     ----------
     .. [1] J. Schmid, T. Glatz, B. Zabihian, M. Liu, W. Drexler, O. Scherzer, "Computational
        Realization of a Non-Equidistant Grid Sampling in Photoacoustics with a Non-Uniform
-       FFT" (``reference/`` of the design), Appendix "Quality measures" (Tenenbaum sharpness, Sobel operator).
+       FFT", Appendix "Quality measures" (Tenenbaum sharpness, Sobel operator).
 
     Examples
     --------

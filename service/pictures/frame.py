@@ -2,8 +2,8 @@
 the matplotlib figures of :mod:`fpscan.service.pictures.render` (axes in mm at equal aspect, ticks and
 tick labels, axis labels, title, a colour bar with its ticks and label), at a fraction of their
 cost (~10 ms against ~200 ms a picture: a matplotlib figure builds and lays out dozens of
-artists for three small images; issue 20, a result's pictures cost a fraction of its
-reconstruction).
+artists for three small images), so that a result's pictures cost a fraction of its
+reconstruction.
 
 Used by :func:`fpscan.service.pictures.render.render_png` for every annotated raster picture (result
 MIPs, depth slices, the live preview). Sizes follow the matplotlib figures: 600 px wide at

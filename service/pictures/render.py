@@ -19,8 +19,9 @@ Annotated PNGs carry their geometry as a PNG text chunk ``fpscan:axes`` (JSON:
 ``extent_mm`` ``[left, right, bottom, top]``: the mm at those edges as the axes are
 drawn), so a client can map a pixel to mm.
 
-Images follow DESIGN §3: ``p0`` is ``(n_z, n_y, n_x)`` (3-D) or ``(n_z, n_x)`` (2-D), row 0
-at the sensor plane z = 0, with coordinate vectors ``z``, ``y``, ``x`` in m.
+Images follow docs/file-formats.md ("Orientation"): ``p0`` is ``(n_z, n_y, n_x)`` (3-D) or
+``(n_z, n_x)`` (2-D), row 0 at the sensor plane z = 0, with coordinate vectors ``z``, ``y``,
+``x`` in m.
 
 MIP planes (max over the named axis):
 

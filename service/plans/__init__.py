@@ -1,4 +1,4 @@
-"""Sensor masks, weights and scan plans (DESIGN §3.3, §4; issue 3).
+"""Sensor masks, weights and scan plans (the paper §5 and its appendix).
 
 Where the scanner measures and with what weight each A-line enters the reconstruction:
 

@@ -1,5 +1,5 @@
 """The paper's masks around a point of interest: equiangular (2-D) and equi-steradian
-(3-D), exactly as DESIGN §4 resolves the paper's §5.1 and appendix.
+(3-D), from the paper's §5.1 and appendix, its ambiguities resolved as the functions below state.
 
 Schmid et al., "Computational realization of a non-equidistant grid sampling in
 photoacoustics with a non-uniform FFT", §5 and Appendix "Algorithm for equi-steradian
@@ -97,7 +97,7 @@ def _ring_xy(rho: float, phis: np.ndarray) -> np.ndarray:
 
 
 def equisteradian_rings(depth: float, rho_max: float, n_points: int) -> list[Ring]:
-    """The equi-steradian ring design (DESIGN §4), before projection and snapping.
+    """The equi-steradian ring design (paper appendix), before projection and snapping.
 
     θ_max = atan(ρ_max / r0); Ω = 2π(1 − cos θ_max); ω = Ω/N. Ring 1: one point at θ = 0,
     band [0, θ_1] with 2π(1 − cos θ_1) = ω. Ring k: j_k points (power of two, starting at
@@ -238,7 +238,7 @@ def _finish(kind: str, params: dict, lattice: Lattice, pos_design: np.ndarray, p
 
 
 def equisteradian_mask(lattice: Lattice, depth: float, n_points: int, poi: float | Sequence[float] | None = None) -> Mask:
-    """Equi-steradian mask (3-D) around a point of interest (DESIGN §4, paper appendix).
+    """Equi-steradian mask (3-D) around a point of interest (paper appendix).
 
     ρ_max is the distance from poi to the nearest lattice edge (outermost lattice points), so
     the mask is a disc. The rings of ``equisteradian_rings`` are projected (ρ = r0·tan θ),
@@ -311,7 +311,7 @@ def equisteradian_mask(lattice: Lattice, depth: float, n_points: int, poi: float
 
 
 def equiangular_mask(lattice: Lattice, depth: float, n_points: int, poi: float | Sequence[float] | None = None) -> Mask:
-    """Equiangular mask (2-D) around a point of interest (DESIGN §4, paper §5.1).
+    """Equiangular mask (2-D) around a point of interest (paper §5.1).
 
     θ_max = atan(ρ_max/r0), ρ_max the distance from x_c to the nearer end of the line; sensors
     at θ_i = −θ_max + i·2θ_max/(N−1) (N = 1: θ = 0), x_i = x_c + r0·tan θ_i, snapped,

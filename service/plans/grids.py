@@ -1,5 +1,5 @@
 """Masks without a point of interest: full lattice, equispaced sub-grid, hexagonal,
-random, Poisson-disc and user point lists (DESIGN §4). Weights: clipped Voronoi areas."""
+random, Poisson-disc and user point lists. Weights: clipped Voronoi areas."""
 from __future__ import annotations
 
 import math

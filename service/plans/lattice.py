@@ -1,4 +1,4 @@
-"""The scanner lattice: the points an FP scanner can address (DESIGN §4)."""
+"""The scanner lattice: the points an FP scanner can address (docs/architecture.md, "Conventions")."""
 from __future__ import annotations
 
 import math

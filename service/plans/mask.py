@@ -244,7 +244,7 @@ def check_poi(lattice: Lattice, poi: Any) -> tuple[float, float]:
 
 
 def default_weights(lattice: Lattice, positions: np.ndarray, **options: Any) -> np.ndarray:
-    """Clipped Voronoi areas (DESIGN §3.3) of mask positions: the default quadrature weights.
+    """Clipped Voronoi areas of mask positions: the default quadrature weights.
 
     Exactly ``voronoi_weights(positions, pitch)`` — the weights
     ``fpscan.service.recon.reconstruct_points`` uses by default, so an equispaced sub-grid gets
@@ -315,7 +315,7 @@ def distance_law_weights(lattice: Lattice, positions: np.ndarray, poi: Sequence[
     ----------
     .. [1] J. Schmid, T. Glatz, B. Zabihian, M. Liu, W. Drexler, O. Scherzer, "Computational
        Realization of a Non-Equidistant Grid Sampling in Photoacoustics with a Non-Uniform
-       FFT" (``reference/`` of the design), §5.2.
+       FFT", §5.2.
 
     Examples
     --------

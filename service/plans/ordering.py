@@ -1,4 +1,4 @@
-"""Scan orderings of a mask's points (DESIGN §4): serpentine, ring by ring alternating,
+"""Scan orderings of a mask's points: serpentine, ring by ring alternating,
 nearest-neighbour (greedy, to shorten galvo travel), or as given (the mask's own order,
 e.g. a user's point list)."""
 from __future__ import annotations

@@ -118,7 +118,7 @@ def invert(xp: ModuleType, A: Any, n_x: int, dx: float, dy: float, dt: float, c:
     ``(n_t, n_y, n_x // 2 + 1)`` complex -> p0 ``keep`` = (rows, y, x) of ``(n_work, n_y u,
     n_x u)``, in ``rdtype``.
 
-    The temporal NUFFT evaluated at ω = c |k| with the inversion's weight (DESIGN §3.1), the
+    The temporal NUFFT evaluated at ω = c |k| with the inversion's weight (the paper, eq. (1)), the
     DCT-I in depth, the (upsampled) inverse lateral FFT, cropped.
 
     Parameters

@@ -169,7 +169,7 @@ def transform_lengths(data_shape: Sequence[int]) -> dict[str, tuple[int, ...]]:
     periodicity, so any other length changes the numbers beyond rounding. An exact DFT of
     these lengths through fast ones (Bluestein's chirp-z: two FFTs at a fast length
     >= 3 N_t - 2) would cost about what pocketfft's own handling costs: 0.75x, 1.06x, 1.08x
-    of it at N_t = 256, 1024, 3519 (per-point FFT timings, issue 20). Up to
+    of it at N_t = 256, 1024, 3519 (per-point FFT timings). Up to
     `fpscan.service.recon.kwave_dft.MATRIX_MAX_N` samples the temporal and depth DFTs run as
     matrix products instead (faster than any FFT of these lengths there), above it by the
     prime-factor algorithm where 2 N_t - 1 has a coprime split (`kwave_dft.PFA_MAX_SUM`),

@@ -1,12 +1,12 @@
 """The planar photoacoustic operator pair: p0 on a grid -> sensor data, and its adjoint.
 
 `PlanarOperator` wraps the exact planar forward model of `fpscan.physics.forward`
-(DESIGN §3) as a linear operator A with its true adjoint Aᴴ (= Aᵀ, everything is real),
-for 2-D (line sensor, p0 of shape (n_z, n_x)) and 3-D (plane sensor, (n_z, n_y, n_x)),
-with the sensors either on the image's lateral grid or at arbitrary lateral positions.
-It is a `pylops.LinearOperator` (``dims`` = `ishape`, ``dimsd`` = `oshape`), so every
-pylops/pyproximal solver runs on it; `forward` / `adjoint` take and return arrays of the
-natural shapes.
+(the wave problem of the paper §2) as a linear operator A with its true adjoint Aᴴ (= Aᵀ,
+everything is real), for 2-D (line sensor, p0 of shape (n_z, n_x)) and 3-D (plane sensor,
+(n_z, n_y, n_x)), with the sensors either on the image's lateral grid or at arbitrary
+lateral positions. It is a `pylops.LinearOperator` (``dims`` = `ishape`, ``dimsd`` =
+`oshape`), so every pylops/pyproximal solver runs on it; `forward` / `adjoint` take and
+return arrays of the natural shapes.
 
 The discrete sums (periodic case; the non-periodic default first zero-pads p0 to the
 working grid (N_z, N_y, N_x) = `padded_shape`, the one `forward_grid` / `forward_points`
@@ -159,7 +159,7 @@ class PlanarOperator(pylops.LinearOperator):
     band : float, optional
         A temporal band limit f_c in Hz (None, the default: none). The model's data are then
         those of the field low-passed at f_c, exactly: a k-space component of p0 sounds at
-        the one frequency c |k| / 2π (DESIGN §3.1), so the low-pass is the k-space ball
+        the one frequency c |k| / 2π (the paper, eq. (1)), so the low-pass is the k-space ball
         |k| <= 2π f_c / c, applied to the depth transform's coefficients before the temporal
         step (and after it in the adjoint: the pair stays each other's transpose). Columns
         with |k_lat| beyond it are skipped whole. With f_c at most the Nyquist frequency
@@ -198,7 +198,7 @@ class PlanarOperator(pylops.LinearOperator):
     ----------
     .. [1] J. Schmid, T. Glatz, B. Zabihian, M. Liu, W. Drexler, O. Scherzer, "Computational
        Realization of a Non-Equidistant Grid Sampling in Photoacoustics with a Non-Uniform
-       FFT", eqs. (1)-(3) (the planar model it transposes).
+       FFT", eqs. (1)-(5) (the planar model it transposes).
     .. [2] M. Ravasi, I. Vasconcelos, "PyLops -- A linear-operator Python library for
        scalable algebra and optimization", SoftwareX 11 (2020).
 

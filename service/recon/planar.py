@@ -1,8 +1,8 @@
 """Exact planar Fourier inversion: NER-NUFFT, NEDNER-NUFFT and FFT + interpolation.
 
-Implements DESIGN §3.1 (paper eqs. (1)-(3); Xu, Feng & Wang 2002; Haltmeier, Scherzer &
-Zangerl 2009) in this discrete form, for data g on a lateral grid (or at sensors x_m with
-area weights h_m) and samples t_n = t0 + n dt, n = 0..N_t-1::
+Implements the exact inversion formula (paper eqs. (1)-(5); Xu, Feng & Wang 2002;
+Haltmeier, Scherzer & Zangerl 2009) in this discrete form, for data g on a lateral grid (or
+at sensors x_m with area weights h_m) and samples t_n = t0 + n dt, n = 0..N_t-1::
 
     A(k_lat, n) = Σ_x g(x, t_n) e^{-i k_lat·x}          (grid: FFT)
                = Σ_m (h_m / ΔA) g_m(t_n) e^{-i k_lat·x_m} (sensors: type-1 NUFFT, ΔA = dx dy)
@@ -367,7 +367,7 @@ def reconstruct_grid(
     ----------
     .. [1] J. Schmid, T. Glatz, B. Zabihian, M. Liu, W. Drexler, O. Scherzer, "Computational
        Realization of a Non-Equidistant Grid Sampling in Photoacoustics with a Non-Uniform
-       FFT", eqs. (1)-(3) and §3.1 (NER).
+       FFT", eqs. (1)-(5) and §3.1 (NER).
     .. [2] M. Xu, D. Feng, L. V. Wang, "Exact frequency-domain reconstruction for
        thermoacoustic tomography: I. Planar geometry", IEEE Trans. Med. Imaging 21 (2002).
     .. [3] M. Haltmeier, O. Scherzer, G. Zangerl, "A reconstruction algorithm for
@@ -513,7 +513,7 @@ def _type1(strengths: np.ndarray, pos: np.ndarray, axes: tuple[np.ndarray, ...],
            n_x: int, eps: float, rdtype: np.dtype, progress: Span | None) -> np.ndarray:
     """Lateral type-1 NUFFT (finufft) of the weighted A-lines ``strengths`` (n_t, n_points)
     onto the (n_y, n_x) transform grid's wavenumbers: (n_t, n_y, n_x) complex, with the
-    y-Nyquist row split band-limited (see below). Paper eq. (3). ``progress`` (optional: the
+    y-Nyquist row split band-limited (see below). Paper eq. (5). ``progress`` (optional: the
     caller's :func:`fpscan.service.progress.span` over this step) is called as the chunks finish."""
     n_t = strengths.shape[0]
     d = pos.shape[1]
@@ -579,7 +579,7 @@ def _output_grid(pos: np.ndarray, grid: np.ndarray | Sequence[npt.ArrayLike] | N
 def _area_weights(weights: np.ndarray | None, pos: np.ndarray) -> np.ndarray:
     """The area weights h_m ``(n_points,)`` (m in 2-D, m² in 3-D) of the positions ``pos``
     ``(n_points, d)`` m: ``weights`` checked (finite, that shape, >= 0: else ValueError), or
-    by default the clipped Voronoi areas (`voronoi_weights`, DESIGN §3.3)."""
+    by default the clipped Voronoi areas (`voronoi_weights`)."""
     if weights is None:
         from fpscan.physics.weights import voronoi_weights  # on use (start-up time)
 
@@ -596,7 +596,7 @@ def _area_weights(weights: np.ndarray | None, pos: np.ndarray) -> np.ndarray:
 def _lateral_spectrum(al: np.ndarray, h: np.ndarray, pos: np.ndarray, axes: tuple[np.ndarray, ...],
                       steps: list[float], shape: tuple[int, int], eps: float, rdtype: np.dtype, space: np.ndarray,
                       kernel: Rising | None) -> np.ndarray:
-    """The lateral step of `reconstruct_points` (paper eq. (3)): the A-lines ``al``
+    """The lateral step of `reconstruct_points` (paper eq. (5)): the A-lines ``al``
     ``(n_points, n_t)`` at ``pos``, weighted by ``h`` over the grid's cell area, to the half
     spectrum ``(n_t, n_y, n_x // 2 + 1)`` complex of the ``shape`` = ``(n_y, n_x)`` transform
     grid. When every position is a node of the grid (lattice masks) the type-1 sum is the FFT
@@ -664,8 +664,8 @@ def reconstruct_points(
     c : float, optional
         Sound speed, m/s (default 1500).
     weights : ndarray, shape ``(n_points,)``, optional
-        Area weights h_m (m in 2-D, m² in 3-D), >= 0 (paper eq. (3)); default the clipped
-        Voronoi areas (`voronoi_weights`, DESIGN §3.3).
+        Area weights h_m (m in 2-D, m² in 3-D), >= 0 (paper eq. (5)); default the clipped
+        Voronoi areas (`voronoi_weights`).
     grid : tuple of ndarray, optional
         Output lateral grid, ``(x,)`` or ``(x, y)`` regular coordinate vectors in m; default
         the smallest regular grid at the positions' lattice pitch covering them. Positions
@@ -699,7 +699,7 @@ def reconstruct_points(
     ----------
     .. [1] J. Schmid, T. Glatz, B. Zabihian, M. Liu, W. Drexler, O. Scherzer, "Computational
        Realization of a Non-Equidistant Grid Sampling in Photoacoustics with a Non-Uniform
-       FFT", eq. (3) and §3.2 (NEDNER).
+       FFT", eq. (5) and §3.2 (NEDNER).
 
     Examples
     --------

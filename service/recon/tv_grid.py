@@ -1,8 +1,8 @@
 """The grid the model-based method works on: the operator's band and time sampling, the image's
-depth grid and the record kept for it (issues 47 and 59).
+depth grid and the record kept for it (docs/tv-measurements.md, "Grid").
 
 The planar model maps each k-space component of p0 to one temporal frequency, f = c |k| / 2π
-(DESIGN §3.1), so a band f_c of the data is a ball |k| <= 2π f_c / c of the image's k-space. tv
+(the paper, eq. (1)), so a band f_c of the data is a ball |k| <= 2π f_c / c of the image's k-space. tv
 (`fpscan.service.recon.tv`) adds hundreds of sensors' views coherently, so what its image can use is
 set by the scan's geometry, not by what one A-line shows above its noise:
 

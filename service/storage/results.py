@@ -1,4 +1,4 @@
-"""Result files: a reconstructed p0 volume in HDF5 (DESIGN §6), written atomically.
+"""Result files: a reconstructed p0 volume in HDF5, written atomically.
 
 Layout (``format`` attribute ``fpscan-result/1``; docs/file-formats.md):
 

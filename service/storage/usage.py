@@ -1,4 +1,4 @@
-"""The data folder's disk use by part, kept as counters (issue 50.5: health independent of
+"""The data folder's disk use by part, kept as counters (health's cost independent of
 history).
 
 ``/api/health`` reports the bytes of the data folder by part (``scans``, ``results``,

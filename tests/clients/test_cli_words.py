@@ -1,4 +1,4 @@
-"""Words the user typed (issue 61.7): the command line's errors name its flags (``--lambda``,
+"""Words the user typed: the command line's errors name its flags (``--lambda``,
 ``--key``, ``--sound-speed``), not the library's keywords; its help lists every input format and
 every action as it is spelled. Oracle: the flags argparse declares (``fpscan recon --help``)."""
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The HTTP client's notebook bar (issue 61.9): in a real Jupyter kernel (ipykernel, driven by
+"""The HTTP client's notebook bar: in a real Jupyter kernel (ipykernel, driven by
 nbclient as Jupyter runs a notebook) ``Client.wait`` and ``AsyncClient.wait`` on a real
 ``fpscan serve`` draw one progress bar in the cell's output, updated in place, that ends on the
 job's final state; ``quiet=True`` or a callback draws nothing, and neither does a script.

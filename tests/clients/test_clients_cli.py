@@ -74,7 +74,7 @@ def test_server_down_is_one_line_exit_1():
 
 
 def test_bad_local_inputs_are_one_line_errors(tmp_path):
-    # refused input is a usage error, exit 2, whichever command refuses it (issue 22.6)
+    # refused input is a usage error, exit 2, whichever command refuses it
     _one_line_error(fpscan("recon", tmp_path / "missing.h5"), "no such file", code=2)
     _one_line_error(fpscan("recon", "--scan-job", "x"), "--server", code=2)
     (tmp_path / "junk.h5").write_bytes(b"not hdf5")

@@ -270,7 +270,7 @@ def test_server_dying_mid_wait_raises_server_unavailable(tmp_path):
                 t.join(timeout=HANG_S)
                 assert not t.is_alive()
                 assert isinstance(outcome.get("error"), ServerUnavailable), outcome
-        # the command line against the server that is gone: what survives and how to reattach (issue 61.5)
+        # the command line against the server that is gone: what survives and how to reattach
         gone = fpscan("jobs", "wait", job_id, "--server", url)
         assert gone.returncode == 1 and "Traceback" not in gone.stderr, gone.stderr
         assert f"Job {job_id} is kept in the server's job store" in gone.stderr, gone.stderr

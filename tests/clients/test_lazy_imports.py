@@ -1,4 +1,4 @@
-"""The command line answers at once (issue 20): what a fresh interpreter imports for
+"""The command line answers at once: what a fresh interpreter imports for
 ``fpscan --version`` / ``--help``, ``import fpscan.service.recon`` and a first reconstruction."""
 from __future__ import annotations
 
@@ -207,7 +207,7 @@ print(json.dumps({"sizes": sizes, "modules": sorted(sys.modules)}))
 
 
 def test_admitting_a_job_loads_no_transform_library():
-    """Issue 20.1: the server admits a reconstruction (its memory model, on the request's path)
+    """The server admits a reconstruction (its memory model, on the request's path)
     without loading numba or scipy.fft: the first POST /api/reconstructions after start-up
     took 0.8-0.9 s while they loaded, against 6-50 ms once the model sized its grids from
     ``fpscan.physics.grid_sizes``."""

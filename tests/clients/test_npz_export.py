@@ -1,4 +1,4 @@
-"""The toy export format of issue 48.3, added as one file (``service/formats/npz.py``) and
+"""A toy export format, added as one file (``service/formats/npz.py``) and
 this test: with no other edit it is offered by the library (``fpscan.export_file``), the CLI
 (``fpscan export --format npz``, locally and from a server's job, and in its help), the HTTP
 API (``GET /api/formats``, the job's ``export_npz`` link, ``GET /api/jobs/{id}/export/npz``)

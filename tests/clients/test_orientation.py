@@ -1,4 +1,4 @@
-"""One orientation everywhere (issue 23): a ball in the +x, +y quadrant, shallow in depth,
+"""One orientation everywhere: a ball in the +x, +y quadrant, shallow in depth,
 reconstructed locally (``import fpscan``) and by a real ``fpscan serve`` on loopback, must
 appear in the same displayed quadrant in every path a user looks at it:
 

@@ -68,7 +68,7 @@ def test_progress_lines_repeat_every_period_between_reports():
 
 
 def test_a_complete_state_is_said_once():
-    """Issue 61.2: a scan at every point done (its job still wrapping up: the final live
+    """A scan at every point done (its job still wrapping up: the final live
     preview) is one line, not one every period; a witness bar beside it, same period, shows
     that several periods passed (its unfinished line came again three times)."""
     from fpscan.clients.cli._common import ProgressBar
@@ -186,7 +186,7 @@ def test_eta_of_fast_iterations_never_exceeds_the_time_to_the_iteration_limit():
 
 
 def test_eta_of_iterations_is_the_time_to_the_stopping_rule_bounded_by_the_limit():
-    """Issue 61.6: an image change falling geometrically (tenfold every 5 iterations) reaches
+    """An image change falling geometrically (tenfold every 5 iterations) reaches
     the tolerance at an iteration the oracle computes (log(tol/value)/log(q)); the ETA is that
     many iterations x the measured time per iteration, labelled an estimate, with the time to
     the iteration limit as its bound; the line shows the tolerance (also while λ falls)."""

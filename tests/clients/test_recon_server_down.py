@@ -1,4 +1,4 @@
-"""``fpscan recon --server`` against a server that is down (issue 61.5): the command ends in one
+"""``fpscan recon --server`` against a server that is down: the command ends in one
 line that says what survives and how to go on, never a bare "connection refused" or a traceback.
 
 - Before anything was sent (no server at the URL): it asks whether ``fpscan serve`` runs there and

@@ -36,7 +36,7 @@ def test_limited_view_small_writes_table_and_plots(tmp_path):
         assert p.stat().st_size > 0
     assert all(p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" for p in paths if p.suffix == ".png")
     table = json.loads((tmp_path / "limited-view-2d.json").read_text())
-    # the report names the speed of sound as a person reads it (issue 21.4), as every file does
+    # the report names the speed of sound as a person reads it, as every file does
     assert table["params"]["sound_speed"] == C_DEFAULT  # the tree is simulated at the default
     assert not {"c", "c_m_per_s", "sound_speed_m_per_s"} & all_keys(table), sorted(all_keys(table))
     rows = {(r["arrangement"], r["interval"]): r for r in table["table"]}
@@ -133,7 +133,7 @@ def test_nufft_vs_interpolation_small_against_the_true_layer(tmp_path):
     assert ner["axial_fwhm_um"] == pytest.approx(truth["axial_fwhm_um"], rel=0.05)
     assert ner["lateral_fwhm_um"] == pytest.approx(truth["lateral_fwhm_um"], rel=0.06)
     assert ner["peak"] == pytest.approx(1.0, abs=0.02)
-    # linear interpolation in ω loses gain with depth (DESIGN §3.2); NER does not
+    # linear interpolation in ω loses gain with depth (docs/results.md, §4); NER does not
     assert rows["linear"]["peak"] < ner["peak"]
     for r in rows.values():
         assert r["side_lobe"] >= 0
@@ -206,7 +206,7 @@ def test_fpscan_evaluate_cli(tmp_path, capsys, shared_data):
     assert "noisy30dB" in capsys.readouterr().err
 
 
-# ------------------------------------------------------------------ vessels (issue 19)
+# ------------------------------------------------------------------ vessels
 def test_vessels_small_tv_from_a_sparse_mask_beats_full_data_ner(tmp_path, capsys, shared_data):
     """The vessel tree from 10 % of the lattice with 30 dB noise: tv (converged by its rule)
     is closer to the true p0 than NEDNER on the same A-lines and than NER on every lattice

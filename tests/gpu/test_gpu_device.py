@@ -1,4 +1,4 @@
-"""The GPU path against the CPU kernels on the same data (issue 63): NER, NEDNER, the operator
+"""The GPU path against the CPU kernels on the same data: NER, NEDNER, the operator
 pair and tv, float32 on both, plus the device rules (fallback, lock, params). Runs only where
 CuPy sees a CUDA device (tests/gpu/conftest.py)."""
 from __future__ import annotations

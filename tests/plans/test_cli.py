@@ -49,7 +49,7 @@ def test_plan_line_and_points(tmp_path, capsys):
 @pytest.mark.parametrize(
     "args, match, code",
     [  # refused input -- implausible values (fpscan.driver.units), missing flags, values out of range -- is a usage
-       # error: exit 2, as argparse's own (issue 22.6: it was 1 or 2)
+       # error: exit 2, as argparse's own (it was 1 or 2)
         (["equisteradian", "--depth=-1e-3", "--n-points", "10"], "depth", 2),
         (["equisteradian", "--depth", "1e-3"], "--n-points", 2),
         (["equisteradian", "--depth", "1e-3", "--n-points", "10", "--poi", "1", "0"], "outside the lattice", 2),

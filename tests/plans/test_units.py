@@ -41,7 +41,7 @@ def test_cli_unit_mistakes_exit_2_naming_the_unit(tmp_path, capsys, flags, names
     (["--depth", "2mm", "--dt", "8ms"], ["did you mean 8 ns (8ns)"]),
 ])
 def test_every_plausibility_error_suggests_the_likely_unit(tmp_path, capsys, flags, names):
-    """Issue 23.2: the suggestion is the number typed, in the unit it most likely meant."""
+    """The suggestion is the number typed, in the unit it most likely meant."""
     assert main(BASE + flags + ["--out", str(tmp_path / "p.json")]) == 2
     err = capsys.readouterr().err
     for name in names:
@@ -63,7 +63,7 @@ def test_unmix_wavelengths_without_a_unit_suggest_nm(tmp_path, capsys):
 @pytest.mark.parametrize("poi", [["--poi=-0.4mm,0.4mm"], ["--poi", "-0.4mm", "0.4mm"], ["--poi", "-0.4mm,0.4mm"],
                                  ["--poi", "-400um", "400 um"], ["--poi", "-4e-4", "4e-4"]])
 def test_negative_points_of_interest_with_units(tmp_path, capsys, poi):
-    """Issue 23.2: a point of interest left of / below the axis, typed with units, negative
+    """A point of interest left of / below the axis, typed with units, negative
     first or second, space- or comma-separated: the same plan as SI numbers."""
     out = tmp_path / "p.json"
     assert main(BASE + ["--pitch", "60um", "--depth", "2mm", *poi, "--out", str(out)]) == 0, capsys.readouterr().err
@@ -74,7 +74,7 @@ def test_negative_points_of_interest_with_units(tmp_path, capsys, poi):
 
 
 def test_a_depth_below_one_pitch_is_refused_and_a_shortfall_is_explained():
-    """Issue 22.4: depth 1e-300 m with 200 points asked gave a 1-point plan; now a depth
+    """Depth 1e-300 m with 200 points asked gave a 1-point plan; now a depth
     below one pitch is refused naming why, and a plan with fewer points than asked says why
     (``Mask.shortfall``; the API's ``shortfall``, the CLI's note)."""
     lattice = {"n_x": 64, "n_y": 64, "pitch": 6e-5}

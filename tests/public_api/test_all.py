@@ -1,5 +1,5 @@
 """Every public module of ``driver``, ``service`` and ``clients`` declares its API in
-``__all__`` (issue 21.5): each name listed exists, none is private or listed twice, and
+``__all__``: each name listed exists, none is private or listed twice, and
 every public function and class the module defines (read from its source, not from the
 module) is listed -- a new public definition fails here until it is declared or made
 private."""
@@ -14,7 +14,7 @@ import pytest
 from tests.source_tree import module_files
 
 REPO = Path(__file__).resolve().parents[2]
-#: Paths exempt from the rule (none left: issue 21.1's rewrites declared theirs).
+#: Paths exempt from the rule (none left: the modules once exempt declare theirs).
 PENDING: dict[str, str] = {}
 
 

@@ -1,4 +1,4 @@
-"""Issue 21.4: each physical default is stated once, in ``fpscan.constants``. The oracle is
+"""Each physical default is stated once, in ``fpscan.constants``. The oracle is
 the source itself: no other module of the product spells the default speed of sound or an
 end of the autofocus interval as a number (an AST walk, so comments and prose don't count),
 and the values the library, the CLI and the HTTP model offer are the constants."""
@@ -43,7 +43,7 @@ def test_the_library_the_plan_contract_and_the_http_model_take_the_constants():
                for f in (reconstruct_grid, reconstruct_points))
     assert inspect.signature(autofocus).parameters["c_range"].default == constants.C_AUTOFOCUS_RANGE
     assert Acquisition.model_fields["sound_speed"].default == constants.C_DEFAULT
-    # the HTTP names of the speed of sound (issue 21.4): sound_speed / sound_speed_range (c / c_range accepted)
+    # the HTTP names of the speed of sound: sound_speed / sound_speed_range (c / c_range accepted)
     schema = ReconParams.model_json_schema()["properties"]["sound_speed_range"]
     ends = [item for item in schema["anyOf"] if item.get("type") == "array"][0]["prefixItems"]
     assert all((e["minimum"], e["maximum"]) == constants.C_AUTOFOCUS_LIMITS for e in ends)

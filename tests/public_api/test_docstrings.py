@@ -1,4 +1,4 @@
-"""numpy-style docstrings (issues 21.5 and 48.5).
+"""numpy-style docstrings.
 
 The modules of :data:`MODULES` (``fpscan.physics``, ``fpscan.service.metrics``, ``fpscan.service.plans``,
 ``fpscan.service.recon``, ``fpscan.clients.http``, ...): every public function and class has the sections
@@ -101,11 +101,11 @@ def test_the_section_reader_sees_sections():
     assert _sections("Parameters: none\n") == set()
 
 
-# -- every public module of service, driver, clients and fpscan (issue 48.5) -----------------
+# -- every public module of service, driver, clients and fpscan -----------------
 
 #: the packages whose public modules the coverage test reads
 PACKAGES = ("fpscan",)
-#: the share of public definitions with their numpy sections that issue 48.5 asks for
+#: the share of public definitions that must have their numpy sections
 COVERAGE = 0.90
 
 
@@ -141,7 +141,7 @@ def example_modules() -> list[str]:
 
 @pytest.mark.parametrize("module_name", example_modules())
 def test_examples_run(module_name):
-    """Every example runs (issue 62.7: found, not listed); the modules of :data:`MODULES` hold
+    """Every example runs (found on disk, not listed); the modules of :data:`MODULES` hold
     at least two per public definition."""
     module = importlib.import_module(module_name)
     result = doctest.testmod(module, optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE)

@@ -1,4 +1,4 @@
-"""No import circle anywhere (issue 21.3): not between sibling packages (import-linter's
+"""No import circle anywhere: not between sibling packages (import-linter's
 ``acyclic_siblings`` contract checks that in CI's lint step) and not between two modules of
 the same package either (e.g. ``fpscan.service.jobs.queue`` and ``fpscan.service.jobs.work`` once imported
 each other). The import graph is grimp's (import-linter's own engine), with the imports made

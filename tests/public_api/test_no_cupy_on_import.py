@@ -1,4 +1,4 @@
-"""CuPy is imported only when a job may run on the GPU (issue 63, item 3): importing the public
+"""CuPy is imported only when a job may run on the GPU: importing the public
 package, the service's library, the dispatch and the command line leaves it out, GPU or not."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The notebook example (issue 61.9): docs/notebook.ipynb runs in a real Jupyter kernel
+"""The notebook example: docs/notebook.ipynb runs in a real Jupyter kernel
 (ipykernel, driven by nbclient as Jupyter runs a notebook); its objects print as one line each;
 ``fpscan.reconstruct`` draws one progress bar in the cell's output and ends it on "done", and
 nothing with ``quiet=True``; the committed notebook holds the outputs of such a run."""

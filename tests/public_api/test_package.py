@@ -1,4 +1,4 @@
-"""The public package ``import fpscan`` (issue 23): one flat namespace, lazy, documented
+"""The public package ``import fpscan``: one flat namespace, lazy, documented
 with Examples that run."""
 from __future__ import annotations
 

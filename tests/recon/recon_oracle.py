@@ -1,4 +1,5 @@
-"""Direct-sum evaluation of DESIGN §3.1's discrete inversion formula: the independent
+"""Direct-sum evaluation of the discrete inversion formula (the paper's eq. (1), discretised
+by sums as in its Section 2 and written out by the functions below): the independent
 reference for the NUFFT-based reconstructions (O(N²) matrix sums, small sizes only).
 
 Lateral wavenumbers are the symmetric set k_j = 2π j/(n d), j = -n/2..n/2 (n even: both

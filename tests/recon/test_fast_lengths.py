@@ -1,4 +1,4 @@
-"""Fast lengths everywhere (issue 20, item 3): every FFT/DCT length a reconstruction or the
+"""Fast lengths everywhere: every FFT/DCT length a reconstruction or the
 model-based operator chooses has no prime factor above 7, for a range of sizes. The
 lengths come from the functions the methods themselves call (`transform_lengths`), and
 a small reconstruction checks that what runs is what they report. k-Wave's modes keep
@@ -121,7 +121,7 @@ def test_model_based_operator_padding_is_fast():
             assert all(is_fast(m) for m in lengths["lateral"] + lengths["depth"] + lengths["temporal"]), \
                 (n_y, n_x, lengths)
             assert (op.padded_shape[1] - n_y) % 2 == 0 and (op.padded_shape[2] - n_x) % 2 == 0
-    # the issue's examples: depth 263, 519, 1031 -> DCT lengths of 524, 1036, 2060 before
+    # depth 263, 519, 1031 -> DCT lengths of 524, 1036, 2060 before
     for n_z in (263, 519, 1031):
         op = PlanarOperator((n_z, 40), DX, C * DT, DT, n_z, C)
         assert is_fast(op.transform_lengths()["depth"][0])

@@ -1,4 +1,4 @@
-"""The GPU path's code on NumPy against the CPU kernels (issue 63): CI has no GPU, so the
+"""The GPU path's code on NumPy against the CPU kernels: CI has no GPU, so the
 array-namespace steps that run on CuPy there (`fpscan.physics.temporal_xp`,
 `fpscan.service.recon.gpu`) run here with ``xp = numpy`` and must give the CPU kernels' results; and
 the device rules where there is no GPU."""

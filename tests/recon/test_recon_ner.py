@@ -1,5 +1,5 @@
-"""NER-NUFFT and the FFT + interpolation modes against the direct-sum oracle of
-DESIGN §3.1 (tests/recon/recon_oracle.py), step by step and end to end."""
+"""NER-NUFFT and the FFT + interpolation modes against the direct-sum oracle of the
+paper's eq. (1) (tests/recon/recon_oracle.py), step by step and end to end."""
 from __future__ import annotations
 
 import numpy as np

@@ -133,8 +133,9 @@ def test_tv_3d_sparse_equisteradian_mask_reaches_full_data(balls_3d):
 
 @pytest.mark.slow
 def test_automatic_lambda_is_within_0_01_cc_of_the_best_of_a_sweep(tree_2d):
-    """Issue 19's criterion (was: the best within a factor 3; with the issue-19 solver the CC
-    curve is flat and its maximum moved to 9x: 0.976 at the automatic λ, 0.979 at 3x)."""
+    """The automatic λ's CC is within 0.01 of a sweep's best (was: the best within a factor 3;
+    with the current solver the CC curve is flat and its maximum moved to 9x: 0.976 at the
+    automatic λ, 0.979 at 3x)."""
     t = tree_2d
     auto = t.get("auto") or _tv_2d(t)
     lam = auto.params["lam"]
@@ -146,7 +147,7 @@ def test_automatic_lambda_is_within_0_01_cc_of_the_best_of_a_sweep(tree_2d):
 
 @pytest.mark.slow
 def test_automatic_lambda_is_within_0_01_cc_of_the_best_of_a_sweep_3d(balls_3d):
-    """Issue 19 item 3 on a 3 % equi-steradian mask (53 of 1600 sensors), where the image's
+    """The same on a 3 % equi-steradian mask (53 of 1600 sensors), where the image's
     noise level alone was too weak (CC 0.953 against 0.979 at the best λ of a sweep): the
     warm start's discrepancy raises it (fpscan.service.recon.tv, module doc)."""
     b = balls_3d

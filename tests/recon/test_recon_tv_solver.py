@@ -1,11 +1,11 @@
-"""The model-based solver of issue 19 (items 2 and 3) on small 2-D cases: 64 x 96 pixels of
+"""The model-based solver on small 2-D cases: 64 x 96 pixels of
 50 µm, 24 equiangular sensors on a 96-point line, exact grid data (`forward_grid`) with
 seeded white noise 20/30/40 dB below the signal; oracles the true p0 (CC, least-squares
 amplitude) and, for the branch contrast, the NEDNER image of the noise alone.
 
 - the default stopping rule (the image's change) is met, and the result is within 0.005 CC
   of a 150-iteration run, in 2-D and 3-D; within 30 operator pairs is not, nor within 0.5 %
-  (relative distance) of a 300-iteration run (strict xfails: issue 47 item 2, not met);
+  (relative distance) of a 300-iteration run (strict xfails: targets not met);
 - the automatic λ is within 0.01 CC of the best of a sweep ×1/8 … ×8 (default suite: blobs
   and vessels at 30 dB; 20 and 40 dB and the 3-D cases, 24 x 40 x 40 voxels on 10 % and
   3.3 % equi-steradian masks, are marked slow);
@@ -166,7 +166,7 @@ def test_lambda_continues_from_the_warm_starts_discrepancy_down_to_lambda():
     off = _tv(case, continuation=False, max_iter=5, tol=0.0).params
     assert off["lam_start_factor"] == 1.0 and off["continuation_iterations"] == 0
     # the progress says so: the tolerance throughout, the rule not armed while λ still falls (it
-    # cannot stop the run there; issue 61.6: the line shows the tolerance, "once λ has settled")
+    # cannot stop the run there: the line shows the tolerance, "once λ has settled")
     stages: list = []
     _tv(case, progress=lambda f, stage: stages.append(stage))  # the default run again, watched
     seen = {s.k: (s.tol, s.armed) for s in stages if isinstance(s, IterationStage)}
@@ -193,7 +193,7 @@ def test_continuation_stops_nearer_the_minimiser_on_a_sparse_3d_mask():
     assert _cc(on.p0, case) > _cc(off.p0, case)
 
 
-@pytest.mark.xfail(strict=True, reason="issues 19 item 2 and 47 item 2, not met: converged by the rule on the "
+@pytest.mark.xfail(strict=True, reason="target not met: converged by the rule on the "
                    "image, tv takes 29-39 iterations on 2-D lines (34.5 pairs here) and 41-66 on 3-D masks of 3-10 %; "
                    "at the paper's size 30 pairs buy CC 0.940 against 0.980 at the rule (bench_tv_paper.py "
                    "--max-iter 27)")
@@ -202,7 +202,7 @@ def test_the_default_rule_converges_within_30_operator_pairs():
     assert p["stop_reason"] == "converged" and p["operator_pairs"] <= 30, p
 
 
-@pytest.mark.xfail(strict=True, reason="issue 47 item 2, not met: at the rule's stop the image is 2.9 % (2-D "
+@pytest.mark.xfail(strict=True, reason="target not met: at the rule's stop the image is 2.9 % (2-D "
                    "vessels) to 8.7 % (2-D balls) from a long run at the same λ, and even tol = 2e-4 (74-247 "
                    "iterations, before λ continuation) stopped 0.8-1.9 % from it (bench_tv_solver.py --rule)")
 def test_the_rules_image_is_within_half_a_percent_of_a_300_iteration_run():
@@ -222,7 +222,7 @@ def test_the_rules_image_is_within_half_a_percent_of_a_300_iteration_run():
     pytest.param("vessels", 30, 3, 53, marks=pytest.mark.slow),
 ])
 def test_automatic_lambda_is_within_0_01_cc_of_the_best_of_a_sweep(kind, snr_db, dims, points):
-    """3-D at 10 % of the lattice's points and (vessels) at 3.3 %: issue 47 item 4; on the six
+    """3-D at 10 % of the lattice's points and (vessels) at 3.3 % as well; on the six
     3.3 % cases of `benchmarks/bench_tv_solver.py` (balls and vessels, 20/30/40 dB) the
     automatic λ loses at most 0.0051 CC (docs/results.md)."""
     case = _case(kind, snr_db, dims, points or 160)

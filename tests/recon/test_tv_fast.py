@@ -1,4 +1,4 @@
-"""The model-based solver's TV part and its set-up cost (issue 19): the compiled kernels
+"""The model-based solver's TV part and its set-up cost: the compiled kernels
 against independent oracles, their memory (numpy's allocations, traced), and the operator
 pairs spent before the first iteration.
 

@@ -1,4 +1,4 @@
-"""tv's grid (issues 47 and 59): the band-limited resampling and its transpose, the band-limited
+"""tv's grid: the band-limited resampling and its transpose, the band-limited
 operator (dot test; its forward against `forward_points` at the new rate, and against the data
 resampled by `fpscan.physics.resample`), the band the lateral pitch resolves, the record kept
 for what the image draws on, and tv honouring a given dz / n_z and recording its grid."""
@@ -79,7 +79,7 @@ def test_the_band_limited_operator_is_the_model_at_the_new_rate(shape):
 
 
 def test_the_band_is_what_the_lateral_pitch_resolves_and_the_same_for_any_record():
-    """Issue 59 item 1: without a declared band, tv's band is c / (2 pitch) (an isotropic grid: dz =
+    """Without a declared band, tv's band is c / (2 pitch) (an isotropic grid: dz =
     the pitch), whatever the data's noise or the record's length (a cut and the whole record
     give the same band); a declared sensor band replaces it, lower or higher; at or above the
     record's Nyquist frequency there is no band; a given dz or n_z is honoured."""
@@ -110,7 +110,7 @@ def test_the_band_is_what_the_lateral_pitch_resolves_and_the_same_for_any_record
 
 
 def test_the_record_is_kept_until_the_farthest_sensor_hears_the_images_last_row():
-    """Issue 59 item 2: in 3-D the record is cut only where the model of the image predicts silence
+    """In 3-D the record is cut only where the model of the image predicts silence
     at every sensor: the forward model (`forward_points`) of a source at the image's deepest row,
     at the lateral corner farthest from a sensor, has passed that sensor before the kept record
     ends (and not long before). A line's sources ring on (2-D waves have a tail ∝ 1/t²):

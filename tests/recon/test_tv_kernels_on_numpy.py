@@ -1,5 +1,5 @@
 """tv's array-expression kernels (the GPU run's, `fpscan.service.recon.tv.kernels`) on NumPy against the
-compiled ones the CPU runs (issue 63): each kernel, then the whole solver loop with each set."""
+compiled ones the CPU runs: each kernel, then the whole solver loop with each set."""
 from __future__ import annotations
 
 import time

@@ -1,4 +1,4 @@
-"""tv's quality gate on data nobody here wrote (issue 59 item 4), the CI subset of
+"""tv's quality gate on data nobody here wrote, the CI subset of
 `benchmarks/bench_tv_matrix.py`: k-Wave's vessel tree and balls + yarn (``../shared/data``), a 4 %
 equi-steradian mask, noise 20 dB below the peak (k-Wave's ``addNoise(..., 'peak')``). tv's default
 image (the one dispatch, float32, the phantom's depth grid) must beat full-data NER's CC with the
@@ -35,6 +35,6 @@ def test_tv_defaults_pass_the_quality_gate_on_kwave_data_at_4_percent_and_20_db_
     if case == "vessels":
         # the amplitude as the gate asks; thin vessels: the gate's 95 % sits above what tv's own reference (the
         # whole record at full band) sees here, 92 % (full-data NER: 99 %); tv saw 94 % (68 of 72), and the
-        # issue-47 grid 0 %: this holds the floor measured, not the issue's target (docs/results.md)
+        # an earlier tv grid 0 %: this holds the floor measured, not the gate's 95 % (docs/results.md)
         assert row["thin"] == 72 and row["amp"] >= bench.GATE_AMP, row
         assert row["seen"] >= 0.9, row

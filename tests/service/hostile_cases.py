@@ -1,4 +1,4 @@
-"""The hostile-input suite as data (issue 14): one row per case — the upload or request,
+"""The hostile-input suite as data: one row per case — the upload or request,
 the expected status and a fragment of the reason. Files are built with h5py/numpy here,
 from a real scan file written by ``fpscan.driver.scanfile``."""
 from __future__ import annotations
@@ -153,7 +153,7 @@ def fill_value_bomb(folder: Path) -> Path:
 
 def gzip_fill_bomb(shape: tuple[int, int] = (2**13, 2**13 - 1)):
     """A gzip-filtered chunked float32 dataset of ``shape`` that is never written (fill
-    value 0.5): a few kB that declare ``shape`` x 4 bytes (issue 22: 2**15 x (2**14 - 1),
+    value 0.5): a few kB that declare ``shape`` x 4 bytes (test_upload_bomb.py's: 2**15 x (2**14 - 1),
     2 GiB; the default here fits the hostile server's 256 MiB declared limit, so the
     unwritten-chunk check is what refuses it)."""
     def make(folder: Path) -> Path:
@@ -283,7 +283,7 @@ POINTS_BY_INDEX = {"indices": [[0, 0], [4, 5]]}
 #: first element): a parameter's default (null) or a valid seed; a zero or tiny Poisson
 #: distance on 32 x 32 (every lattice point: bounded by the lattice); a point of
 #: interest, a point or an index at (or a tiny offset from) the centre or the corner. (A tiny
-#: depth is refused: below one lattice pitch, issue 22.4.)
+#: depth is refused: below one lattice pitch.)
 LEGAL = {("random", "seed", 0), ("poisson", "seed", 0), ("poisson", "n_points", None),
          ("equispaced", "n_per_side", None), ("equiangular", "poi", None), ("equisteradian", "poi", None),
          *(("poisson", "min_distance", v) for v in (1e-12, 5e-324)),

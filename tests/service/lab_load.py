@@ -1,4 +1,4 @@
-"""Load of the lab-network tests (issue 22.3), run as scripts so that the load and the
+"""Load of the lab-network tests, run as scripts so that the load and the
 health poller each run in a process of their own (neither's GIL slows the other, and
 neither slows the test process):
 
@@ -8,7 +8,7 @@ neither slows the test process):
                                                           JSON list
     python -m tests.service.lab_load plans URL TOKEN   -> 4 clients make and read plans of
                                                           262 144 points; prints the statuses
-    python -m tests.service.lab_load mixed URL TOKEN SPEC -> the soak's clients (issue 14):
+    python -m tests.service.lab_load mixed URL TOKEN SPEC -> the soak's clients:
                                                           SPEC is a JSON file (see mixed_load);
                                                           prints [kind, status, latency] rows
     python -m tests.service.lab_load bodies URL TOKEN N DATASET -> 4 clients send the largest

@@ -1,4 +1,4 @@
-"""Acknowledged means stored (issue 60.4): an upload answered ``201 deduplicated: true``
+"""Acknowledged means stored: an upload answered ``201 deduplicated: true``
 names a dataset that exists when the answer is sent, and a deletion racing it either came
 first (the upload is answered with another stored copy) or comes after the answer.
 
@@ -221,7 +221,7 @@ def clone_jobs(data_dir, job_id: str, n: int) -> list[str]:
 @needs_recon
 @pytest.mark.timeout(300)
 def test_a_download_racing_the_deletion_of_its_job_is_whole_or_404_never_500(tmp_path):
-    """Results and exports (issue 60.4): ``GET`` of a volume or an export racing ``DELETE``
+    """Results and exports: ``GET`` of a volume or an export racing ``DELETE``
     of its job is answered with the whole file as it was (200) or 404, never a 500 (the
     file is opened by the route: ``fpscan.service.api.files.HeldFileResponse``)."""
     data = tmp_path / "data"

@@ -85,7 +85,7 @@ def test_token_guards_every_api_route_on_loopback_too(shared_server):
         assert r.status_code == 401 and "invalid" in r.json()["detail"]
         r = anon.post("/api/jobs/abc/cancel")
         assert r.status_code == 401
-        # reads need the token too (issue 22.2), on a loopback bind as well
+        # reads need the token too, on a loopback bind as well
         assert anon.get("/api/jobs").status_code == 401
         assert anon.get("/api/jobs", headers={"Authorization": f"Bearer {TOKEN}"}).status_code == 200
         assert anon.get("/api/auth").json() == {"token_required": True, "authenticated": False}

@@ -1,4 +1,4 @@
-"""Every connection has a deadline in every phase (issue 60.1, 60.3): a real ``fpscan serve``
+"""Every connection has a deadline in every phase: a real ``fpscan serve``
 with its deadlines shortened by settings, and the attacks that held connections before:
 
 - **head**: half a request head, on a new connection and on a kept-alive one after a full
@@ -11,8 +11,8 @@ with its deadlines shortened by settings, and the attacks that held connections 
   reader that keeps reading gets every byte;
 - **idle**: a kept-alive connection with nothing to say is closed after ``keep_alive_s``;
 - **logs**: 500 readers that pipeline requests and reset the connection without reading
-  (with the issue's bound scaled alike: 100 KB per 2000) add at most 25 KB of log, and no
-  traceback; ``test_i60_slow_read_log.py`` makes the issue's attack at its size (2000 readers,
+  (with the full-size bound scaled alike: 100 KB per 2000) add at most 25 KB of log, and no
+  traceback; ``test_i60_slow_read_log.py`` makes the attack at full size (2000 readers,
   30 pipelined requests each, a default server).
 
 A socket's end is the event each test waits for (the server's own table of connections, or

@@ -1,4 +1,4 @@
-"""Small API contract errors (issue 14) on a real server: one-line reasons without
+"""Small API contract errors on a real server: one-line reasons without
 pydantic URLs, empty Idempotency-Key, chunked oversized bodies, options that can never
 work refused up front, the memory limit refused before queueing, OpenAPI stating what
 the server enforces, and ``redact`` replacing whole path prefixes only."""

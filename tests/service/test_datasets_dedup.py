@@ -1,4 +1,4 @@
-"""Datasets never pile up (issue 23.3), on a real server with a real SQLite file: the same
+"""Datasets never pile up, on a real server with a real SQLite file: the same
 file uploaded twice is stored once (files and bytes on disk counted), datasets are listed
 (size on disk, content hash, the jobs that read them) and deleted over HTTP, with the
 Python client and with ``fpscan datasets``, and retention removes an old dataset no active

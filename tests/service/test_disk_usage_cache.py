@@ -1,4 +1,4 @@
-"""/api/health's disk usage from counters (``fpscan.service.storage.usage.DiskUsage``, issue 50.5) on
+"""/api/health's disk usage from counters (``fpscan.service.storage.usage.DiskUsage``) on
 a real folder, checked against the service's own walk (``fpscan.service.jobs.lifecycle.disk_usage``):
 an answer never walks the folder (files written behind the counters' back show only after
 the next checking walk), what a writer counts shows at once, a growing file's size is read

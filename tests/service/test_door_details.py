@@ -1,4 +1,4 @@
-"""The door's details (issues 22 and 23, found in review): plan reads that draw or compress
+"""The door's details (found in review): plan reads that draw or compress
 in the plan worker are counted in like plan requests (429 when the slots are full, never a
 queue without bound); ``allowed_hosts = ["*"]`` opens no door without a token; gzip only
 where the client accepts it; a dataset stored with ``force`` is not handed to an upload

@@ -1,5 +1,5 @@
 """Event streams live as long as their job, cost nothing between events, and take any
-``Last-Event-ID`` (issue 61.1; issue 60.5's event ids and 60.6): a real ``fpscan serve`` and
+``Last-Event-ID``: a real ``fpscan serve`` and
 a real simulated scanner on a pty.
 
 - A scan that outlives the body watchdog (``FPSCAN_BODY_TIMEOUT_S`` 2 s here, the scan ~4 s)

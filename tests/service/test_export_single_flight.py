@@ -1,4 +1,4 @@
-"""Exports are single-flight (issue 60.7): 20
+"""Exports are single-flight: 20
 concurrent first requests of one job's OME-TIFF wait for one build, and every response
 carries the same bytes, with one OME UUID (tifffile writes a new UUID per file, so two
 builds differ there), on a real server; then the job's deletion leaves none of its

@@ -1,4 +1,4 @@
-"""A full disk fails a job, never strands it (issue 50.2): a real ``fpscan serve`` whose whole
+"""A full disk fails a job, never strands it: a real ``fpscan serve`` whose whole
 data folder (job database included) lies on a 64 MiB tmpfs, filled while a scan, a tv
 reconstruction and an NER reconstruction (its speed of sound searched: seconds) run and two
 more reconstructions wait for a worker (one of them is cancelled on the full disk).
@@ -13,7 +13,7 @@ more reconstructions wait for a worker (one of them is cancelled on the full dis
   ``/api/health`` lists no problem.
 
 Needs ``mount -t tmpfs`` (root, or a container that allows it): skipped where it cannot
-mount, with the reason. Holds the issue's time bound (30 s): ``serial``.
+mount, with the reason. Holds a time bound (30 s): ``serial``.
 """
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""``GET /api/health`` answered by health's lane (``fpscan.service.api.lanes.HealthLane``, issue 22.3) on
+"""``GET /api/health`` answered by health's lane (``fpscan.service.api.lanes.HealthLane``) on
 a real server: the answer is the contract the OpenAPI schema states for the route, its disk
 figures are the data folder's (counted here with ``os.walk``), and whatever the lane does not
 answer (another method, a refused request) reaches the app and its rules as before."""

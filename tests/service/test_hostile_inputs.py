@@ -1,6 +1,6 @@
-"""Hostile inputs against a real server (issue 14): every row of ``hostile_cases`` is
+"""Hostile inputs against a real server: every row of ``hostile_cases`` is
 answered with its status and reason within ``ANSWER_BOUND_S`` (5 s), while ``/api/health``
-answers every poll within ``HEALTH_BOUND_S`` (1 s) throughout (the issue's bounds), and a
+answers every poll within ``HEALTH_BOUND_S`` (1 s) throughout, and a
 refused upload leaves nothing on disk; a flood of uploads is bounded (429 beyond the import
 slots), not queued without end."""
 from __future__ import annotations
@@ -16,7 +16,7 @@ from tests.service.service_servers import Server
 from tests.waits import HANG_S
 
 BY_NAME = {case.name: case for case in UPLOADS}
-#: The issue's bounds: each hostile case is answered within ANSWER_BOUND_S, and
+#: The bounds: each hostile case is answered within ANSWER_BOUND_S, and
 #: /api/health within HEALTH_BOUND_S throughout.
 ANSWER_BOUND_S = 5.0
 HEALTH_BOUND_S = 1.0
@@ -40,7 +40,7 @@ class HealthWatch:
         self._thread = threading.Thread(target=self._run, daemon=True)
 
     def _run(self) -> None:
-        from tests.service.service_servers import TOKEN  # every API route needs the token (issue 22.2)
+        from tests.service.service_servers import TOKEN  # every API route needs the token
 
         with httpx.Client(timeout=HEALTH_S, headers={"Authorization": f"Bearer {TOKEN}"}) as c:
             while not self._stop.is_set():
@@ -76,7 +76,7 @@ class HealthWatch:
 def _names(detail: str, reason: str) -> bool:
     """Whether a 422's reason names ``reason`` (a parameter: ``sound_speed`` may be written
     "sound speed"), or the name a person reads for it over HTTP (``fpscan.service.names.PERSON_NAMES``:
-    ``c_range`` → ``sound_speed_range``, issue 61 item 7)."""
+    ``c_range`` → ``sound_speed_range``)."""
     from fpscan.service.names import PERSON_NAMES
 
     detail = detail.lower().replace("_", " ")

@@ -1,10 +1,10 @@
-"""A slow reader's memory is returned (issue 60.1): RSS goes back to within 10 % of its
+"""A slow reader's memory is returned: RSS goes back to within 10 % of its
 baseline after thousands of slow readers are gone.
 
 A real ``fpscan serve`` (``send_timeout_s`` 2 s), which runs itself on the C library's allocator
 (``PYTHONMALLOC=malloc``, ``fpscan.clients.cli.serve.use_malloc``; checked in its environment): Python's own small-object allocator keeps every 1-MiB arena that
 one long-lived object still occupies, so after a burst of 5000 connections its RSS stays
-about 60 MB over the baseline with the same live objects (``docs/performance.md``, issue 60);
+about 60 MB over the baseline with the same live objects (``docs/performance.md``);
 with the C allocator, the server's own return of memory after a burst and its tail
 (``fpscan.service.api.connections.return_memory``: a full collection and ``malloc_trim``) gives the
 pages back.

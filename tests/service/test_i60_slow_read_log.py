@@ -1,7 +1,7 @@
-"""Logs stay bounded for anyone (issue 60.3), at the issue's size: 2000 slow-read disconnects
+"""Logs stay bounded for anyone, at full size: 2000 slow-read disconnects
 write at most 100 KB of log.
 
-The attack as the issue found it: a client with ``SO_RCVBUF`` 1024 pipelines 30
+The attack as it was found: a client with ``SO_RCVBUF`` 1024 pipelines 30
 ``GET /openapi.json`` (about 30 × 60 KB of answers it never reads), sees the first bytes of
 the answer come, and closes (with the answers unread, the kernel resets the connection).
 Before the fix each such connection logged an ``internal error`` record and uvicorn's

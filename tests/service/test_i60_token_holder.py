@@ -1,4 +1,4 @@
-"""The token holder always gets in (issue 60.2), at a realistic size: a real ``fpscan serve``
+"""The token holder always gets in, at a realistic size: a real ``fpscan serve``
 under a lab PC's open-file limit (1024; its default budget of strangers is then 64 per
 address and 512 in all) and its default settings otherwise (the head deadline raised, so
 that the strangers' partial heads stay until the test lets go).
@@ -12,7 +12,7 @@ that the strangers' partial heads stay until the test lets go).
   loopback addresses while a token holder asks for health: every request is answered 200
   within 1 s.
 
-Both hold the issue's 1-s bound, so both are ``serial``. Each prints the figures
+Both hold a 1-s bound, so both are ``serial``. Each prints the figures
 (requests, slowest, median, the strangers' churn).
 """
 from __future__ import annotations

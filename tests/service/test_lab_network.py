@@ -1,4 +1,4 @@
-"""Safe on a lab network (issue 22.2, 22.3): strangers cannot hold the door shut, a web page
+"""Safe on a lab network: strangers cannot hold the door shut, a web page
 on another site cannot change state, a foreign Host name is not answered, reads need the
 token, and health stays fast while the largest plans are made and read.
 
@@ -21,7 +21,7 @@ from tests.service import lab_load
 from tests.service.service_servers import TOKEN, Server
 from tests.waits import HANG_S
 
-#: issue 22.3: /api/health p99 while the largest plans are made and read by 4 clients
+#: /api/health p99 while the largest plans are made and read by 4 clients
 HEALTH_P99_BOUND_S = 0.100
 
 
@@ -160,7 +160,7 @@ def test_without_a_token_a_foreign_host_is_refused_and_reads_are_open(open_serve
     with open_server.client() as c:
         assert c.get("/api/jobs").status_code == 200
         assert c.get("/api/auth").json() == {"token_required": False, "authenticated": True}
-        r = c.get("/api/jobs", headers={"Host": "evil.example"})  # the issue's rebinding probe
+        r = c.get("/api/jobs", headers={"Host": "evil.example"})  # a DNS-rebinding probe
         assert r.status_code == 403 and "evil.example" in r.json()["detail"], r.text
         assert c.post("/api/plans/preview", headers={"Host": "evil.example"},
                       json={"lattice": {"n_x": 4, "n_y": 4, "pitch": 1e-4}, "points": [[0, 0]]}).status_code == 403
@@ -202,7 +202,7 @@ def test_cross_origin_form_post_cannot_abort_a_scan(open_server):
 @pytest.mark.serial
 @pytest.mark.timeout(300)
 def test_health_stays_fast_while_the_largest_plans_are_made_and_read(tmp_path):
-    """Issue 22.3's bound: 4 clients make and read plans of 262 144 points (a full 512 x 512
+    """The health bound under load: 4 clients make and read plans of 262 144 points (a full 512 x 512
     grid, then a point list of the same points: a 3 MB body; three clients re-read the
     16 MB plan.json meanwhile); /api/health, polled every 50 ms from another process,
     answers with p99 <= 100 ms."""

@@ -1,5 +1,5 @@
-"""No request holds the event loop, and health does not slow with history (issues 50.4 and
-50.5): ``/api/health``, polled every 20 ms by a process of its own (``lab_load health``),
+"""No request holds the event loop, and health does not slow with history:
+``/api/health``, polled every 20 ms by a process of its own (``lab_load health``),
 answers with p99 <= 100 ms
 
 - while 4 clients send the largest bodies the API takes (64 KiB reconstruction requests
@@ -8,7 +8,7 @@ answers with p99 <= 100 ms
   and health requests, each about every 0.2 s (``lab_load mixed``: about 250 requests a
   second, a lab's clients polling far faster than a person's).
 
-Both hold a time bound the issue sets: ``serial`` (alone, after the parallel part).
+Both hold a time bound: ``serial`` (alone, after the parallel part).
 """
 from __future__ import annotations
 

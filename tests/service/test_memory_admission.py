@@ -1,4 +1,4 @@
-"""The memory admission rule (issue 14): computed from the options actually used, it
+"""The memory admission rule: computed from the options actually used, it
 covers the measured peak of a real reconstruction; the worker applies it again against
 the configured limit (not the memory free now) and stops with the reason."""
 from __future__ import annotations
@@ -148,7 +148,7 @@ def test_tv_admission_uses_the_pitch_and_covers_the_measured_peak():
     m = json.loads(r.stdout.strip().splitlines()[-1])
     used = m["peak"] - m["base"]
     print("tv estimate / measured peak:", round(estimate / used, 3))
-    assert 0 < used < estimate <= 1.25 * used, (used, estimate)  # issue 22.4: within 25 % of the peak
+    assert 0 < used < estimate <= 1.25 * used, (used, estimate)  # within 25 % of the peak
 
 
 UPSAMPLE_SCRIPT = r"""
@@ -195,7 +195,7 @@ print(json.dumps(out))
 @needs_recon
 @pytest.mark.parametrize("method", ["ner", "nedner"])
 def test_admission_is_within_25_percent_of_the_measured_peak_at_every_upsample(method):
-    """Issue 22.4: the admission estimate (``fpscan.service.jobs.admission.estimate_memory``, the rule
+    """The admission estimate (``fpscan.service.jobs.admission.estimate_memory``, the rule
     the API and the worker apply) is within ±25 % of the measured peak of a real
     reconstruction, for NER and NEDNER (sensors off the lattice: the type-1 NUFFT and the
     Voronoi weights) at upsample 1, 2, 4 and 8 (upsample 8 peaked at 1.30x the estimate
@@ -334,7 +334,7 @@ print(json.dumps(meta))
 
 @needs_recon
 def test_tv_admission_sizes_the_record_cut_after_its_last_echo(tmp_path):
-    """Issues 47 and 59: tv's default image ends at the record's last echo, and the stored
+    """tv's default image ends at the record's last echo, and the stored
     dataset's record says where (``record_facts``, found at import); tv keeps the record until the
     farthest sensor hears that image's last row. The admission estimate of a tv job on a record
     whose echoes end at about a third of it is within 25 % of the measured peak of the real run

@@ -1,4 +1,4 @@
-"""The method registry (``fpscan.service.recon.methods``, issue 21.1): every option of every
+"""The method registry (``fpscan.service.recon.methods``): every option of every
 method, with the boundary values its own schema states (just inside, just outside each
 range; each choice and one that is none), is judged alike by the library
 (``fpscan.service.pipeline.reconstruct``), the CLI (``fpscan recon`` on a real file) and HTTP
@@ -8,7 +8,7 @@ expected verdict comes from the stated range, not from the code that enforces it
 
 Also: the surfaces generated from the registry (``ReconParams``, the methods endpoint's
 value schemas, the CLI flags, docs/methods.md) name the same options, and the speed of sound
-is ``sound_speed`` / ``--sound-speed`` with ``c`` / ``--c`` still accepted (issue 21.4).
+is ``sound_speed`` / ``--sound-speed`` with ``c`` / ``--c`` still accepted.
 """
 from __future__ import annotations
 
@@ -188,7 +188,7 @@ def test_every_registry_option_boundary_is_judged_alike_by_library_cli_and_http(
 
 @needs_recon
 def test_eps_below_the_kernel_range_is_a_422_naming_the_range(shared_api):
-    """The issue's case: ``eps = 5e-15`` is refused at the door with the kernel's range."""
+    """``eps = 5e-15`` is refused at the door with the kernel's range."""
     r = shared_api.post("/api/reconstructions", json={"dataset_id": "0" * 32, "method": "ner",
                                                       "params": {"eps": 5e-15}})
     assert r.status_code == 422 and "eps must be in [1e-14, 1e-1]" in r.json()["detail"], r.text

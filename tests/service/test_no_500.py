@@ -1,4 +1,4 @@
-"""No input reaches a 500 (issue 50.3): property tests (hypothesis) of every parser a request
+"""No input reaches a 500: property tests (hypothesis) of every parser a request
 reaches, beside the schema fuzzing of ``test_openapi_fuzz.py`` (schemathesis).
 
 - The library's parsers, given hostile values (numbers with unit text and exponents up to
@@ -203,7 +203,7 @@ def test_the_command_line_says_one_line_for_an_absurd_number(tmp_path, argv):
     assert len(errors) == 1 and "out of range" in errors[0], r.stderr
 
 
-# -- nesting and headers (issue 60.5) ------------------------------------------------------
+# -- nesting and headers ------------------------------------------------------
 
 #: every route that reads a JSON body, with a body it takes whose one value the tests nest
 JSON_ROUTES = [("POST", "/api/plans", lambda deep: {"kind": "full", "lattice": {"n_x": 4, "n_y": 4, "pitch": deep}}),
@@ -236,7 +236,7 @@ def deep_text(depth: int) -> bytes:
 
 @pytest.mark.parametrize("method,path,make", JSON_ROUTES, ids=[f"{m} {p}" for m, p, _ in JSON_ROUTES])
 def test_json_nested_beyond_the_bound_is_refused_at_the_door(fuzz_target, method, path, make):
-    """Issue 60.5: a JSON body nested deeper than 64 gets 422 naming the depth and the
+    """A JSON body nested deeper than 64 gets 422 naming the depth and the
     bound, on every route that reads JSON, and the connection is kept; 2000 deep (a
     RecursionError in the parser before) and 100 000 deep (over the body limits of the
     small routes: 413) get no 5xx; at the bound the request is answered by the route."""
@@ -299,7 +299,7 @@ HEADER_VALUES = st.one_of(
 
 @pytest.mark.timeout(600)
 def test_odd_headers_never_get_a_5xx(fuzz_target):
-    """Issue 60.5: requests to every kind of route (JSON bodies, reads, a ranged file, an
+    """Requests to every kind of route (JSON bodies, reads, a ranged file, an
     event stream's head) with odd values of the headers a client can send are answered
     below 500, and a 4xx keeps the connection."""
     srv, dataset_id, _ = fuzz_target
@@ -344,7 +344,7 @@ def test_odd_headers_never_get_a_5xx(fuzz_target):
         conn.close()
 
 
-# -- Last-Event-ID (issue 60.5) -----------------------------------------------------------
+# -- Last-Event-ID -----------------------------------------------------------
 
 #: what a client (or a proxy, or a fuzzer) may send as ``Last-Event-ID``: our ids, ids beyond
 #: SQLite's 64-bit range, signs, exponents, spaces, letters, any Latin-1 text
@@ -385,7 +385,7 @@ def _event_ids(body: bytes) -> list[int]:
 
 @pytest.mark.timeout(600)
 def test_odd_last_event_ids_never_get_a_5xx_and_nonsense_replays_from_the_beginning(fuzz_target):
-    """Issue 60.5: the event stream of a finished job, asked with any ``Last-Event-ID`` over
+    """The event stream of a finished job, asked with any ``Last-Event-ID`` over
     one kept-alive connection, answers 200 with the events after a valid id, and every
     event for nonsense (beyond 2**63 - 1, signs, letters, any Latin-1 text); never a 5xx, and
     the connection is kept."""

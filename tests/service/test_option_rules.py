@@ -1,4 +1,4 @@
-"""One rule per reconstruction option, enforced at every door (issue 22.4, 23.4): each
+"""One rule per reconstruction option, enforced at every door: each
 option's boundary values, just inside and just outside, fed to the library
 (``fpscan.service.pipeline.reconstruct``), the CLI (``fpscan recon``) and HTTP
 (``POST /api/reconstructions`` on a real server): all three accept or refuse alike, and
@@ -111,7 +111,7 @@ def test_every_option_boundary_is_judged_alike_by_library_cli_and_http(server, t
                 assert name in http.json()["detail"] and name in lib and f"--{name}" in err, (case, err)
                 continue
             # the kernel rule at every door (the range named), in each door's words: the command
-            # line's flags (fpscan.clients.cli.in_flags), the request's JSON fields (issue 61.7)
+            # line's flags (fpscan.clients.cli.in_flags), the request's JSON fields
             from fpscan.clients.cli import in_flags
             from fpscan.service.names import PERSON_NAMES, renamed_words
 
@@ -119,7 +119,7 @@ def test_every_option_boundary_is_judged_alike_by_library_cli_and_http(server, t
             assert renamed_words(rule, PERSON_NAMES) in http.json()["detail"], (case, lib, http.json()["detail"])
             assert in_flags(rule, options=True) in err, (case, lib, err)
     assert {n for _, n, _ in seen} == {b[1] for b in BOUNDS}
-    # the ranges are the kernel's: eps as the issue names it
+    # the ranges are the kernel's: eps below its range is refused naming the range
     assert "eps must be in [1e-14, 1e-1]" in _library("ner", {"eps": 5e-15})
 
 
@@ -140,7 +140,7 @@ def test_an_option_the_method_does_not_take_is_refused_naming_its_options(
     code = _cli(["recon", str(npy), "--dt", repr(DT), "--dx", repr(DX), "--quiet", "--out", str(tmp_path / "o"),
                  "--method", method, flag, str(value)])
     err = capsys.readouterr().err
-    # each door in its own words (issue 61.7): the command line's flags, the request's JSON fields
+    # each door in its own words: the command line's flags, the request's JSON fields
     from fpscan.clients.cli import in_flags
     from fpscan.service.names import PERSON_NAMES, renamed_words
 

@@ -102,7 +102,7 @@ def test_options_and_inputs_are_checked():
         reconstruct(ds, "ner", epsilon=1e-3)
     with pytest.raises(ValueError, match="dtype"):
         reconstruct(ds, "ner", dtype="int16")
-    # an option the method does not take is refused naming its options (issue 23.4: never silently unused)
+    # an option the method does not take is refused naming its options (never silently unused)
     with pytest.raises(ValueError, match=r"method 'linear' takes no option eps, interp \(its options: c, dtype"):
         reconstruct(ds, "linear", eps=1e-3, interp="linear")
     sparse = PointDataset(alines=ds.data.reshape(24, -1).T[::2], positions=ds.to_points().positions[::2],

@@ -1,4 +1,4 @@
-"""Plugins (issue 62.5) and the record of the method that ran (issue 62.1).
+"""Plugins and the record of the method that ran.
 
 A tiny third-party distribution, written here into a temporary ``sys.path`` folder as an
 installer would (its package and its ``.dist-info`` with ``METADATA`` and ``entry_points.txt``;

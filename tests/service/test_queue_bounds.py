@@ -1,4 +1,4 @@
-"""Bounded queues (issue 60.8): a client address may have ``queued_per_client``
+"""Bounded queues: a client address may have ``queued_per_client``
 reconstructions queued; the next is refused with 429 saying the cap, the queue's length and
 its estimated wait, while another address still gets in; an idempotent repeat is answered
 with its job. A re-queued job's timings restart, the cut-off attempt recorded (the store

@@ -231,7 +231,7 @@ def test_tv_job_progress_names_the_iteration_and_bad_options_are_422(shared_api)
     stages = [e["data"]["stage"] for e in events if e["event"] == "progress"]
     its = [s for s in stages if s.startswith("iteration ")]
     assert its and all(re.fullmatch(rf"iteration \d+/{max_iter}", s) for s in its), stages
-    # the events carry the stopping rule's tolerance and the ETA to it, bounded by the limit (issue 61.6)
+    # the events carry the stopping rule's tolerance and the ETA to it, bounded by the limit
     from fpscan.service.recon.methods.tv import DEFAULT_TOL
 
     fields = [e["data"] for e in events if e["event"] == "progress" and e["data"].get("iteration")]

@@ -1,5 +1,5 @@
 """Requests start a few per event-loop iteration, in arrival order (``fpscan.service.api.lanes.RequestTurns``,
-health's lane under load, issue 22.3), on a real asyncio event loop: the loop's iterations
+health's lane under load), on a real asyncio event loop: the loop's iterations
 are counted by a callback of the test's own that re-schedules itself once per iteration."""
 from __future__ import annotations
 

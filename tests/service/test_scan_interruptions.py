@@ -1,4 +1,4 @@
-"""A service scan that loses its device or its disk (issue 14): the job becomes
+"""A service scan that loses its device or its disk: the job becomes
 ``paused`` (stage ``interrupted``, with the reason), never ``failed`` with its points
 stranded nor ``running`` forever; ``/resume`` completes it, and every A-line in the scan
 file is bit for bit what a device sent. Real simulators on ptys, a real server, a real
@@ -189,8 +189,8 @@ def test_full_disk_under_the_job_store_too(tmp_path, small_disk):
             assert (r.status_code, "disk" in r.json()["detail"]) in ((503, True), (507, True)), r.text
             assert not list((small_disk / "data" / "datasets").glob("*"))
             os.unlink(small_disk / "filler.bin")
-            # with the space freed the scan, paused by the full disk, resumes by itself (issue
-            # 50.2) and health no longer says the disk (or database) is full
+            # with the space freed the scan, paused by the full disk, resumes by itself
+            # and health no longer says the disk (or database) is full
             final = wait_job(c, jid)
             assert final["state"] == "succeeded" and final["progress"]["reason"] is None, final
             assert c.get("/api/health").json()["problems"] == []

@@ -155,5 +155,5 @@ def test_fpscan_serve_refuses_bad_settings_with_one_line(argv, env, reason, tmp_
     full_env.update({"FPSCAN_DATA_DIR": str(tmp_path), **env})
     p = subprocess.run([sys.executable, "-m", "fpscan", "serve", "--port", "0", *argv], cwd=REPO, env=full_env,
                        capture_output=True, text=True, timeout=HANG_S)
-    assert p.returncode == 2  # refused settings: a usage error (issue 22.6)
+    assert p.returncode == 2  # refused settings: a usage error
     assert reason in p.stderr and len(p.stderr.strip().splitlines()) == 1, p.stderr

@@ -1,4 +1,4 @@
-"""Slow uploads lock out no one (issue 50.6): ten uploads from one address (127.0.0.2) that
+"""Slow uploads lock out no one: ten uploads from one address (127.0.0.2) that
 trickle their bodies in at 20 KiB/s, under the server's floor of 100 KiB/s averaged over
 ``FPSCAN_BODY_RATE_WINDOW_S`` (2 s here, 10 s by default), are cut off with 408 (those the
 server took) or refused at once with 429 (beyond that address's share: slots go per client

@@ -1,4 +1,4 @@
-"""Issue 22.6's smaller contracts on a real server: a method a path does not take is a
+"""Smaller contracts on a real server: a method a path does not take is a
 405 whose ``Allow`` names every method the path takes; the retention bound the schema
 states is the one the server enforces (no schema-valid value refused)."""
 from __future__ import annotations

@@ -1,9 +1,9 @@
-"""Soak (issue 14): mixed requests from concurrent clients — status reads, plan previews
+"""Soak: mixed requests from concurrent clients — status reads, plan previews
 with bad parameters, bad and good uploads, bad reconstruction requests — while a scan and
 a reconstruction run. No 5xx, no request left unanswered (client-side time-out), the p99
 latency of the status reads printed (not asserted: timings go to benchmarks).
 
-By default (CI) the issue's 200 requests from 20 clients; ``FPSCAN_SOAK=full`` runs a
+By default (CI) 200 requests from 20 clients; ``FPSCAN_SOAK=full`` runs a
 longer soak, 2000 requests from 50 clients (``FPSCAN_SOAK=full .venv/bin/python -m pytest
 tests/service/test_soak.py -s``)."""
 from __future__ import annotations
@@ -38,7 +38,7 @@ def _npy(n: int = 12, n_t: int = 64) -> bytes:
 
 def _check_health_latency(latencies: list[float]) -> None:
     """Print /api/health's p50/p99 as its poller saw it under the soak (a failed poll is
-    ``inf``); with ``FPSCAN_SOAK=full`` (50 clients) hold its p99 to issue 22.3's bound
+    ``inf``); with ``FPSCAN_SOAK=full`` (50 clients) hold its p99 to a bound
     (250 ms)."""
     assert latencies, "the health poller made no poll"
     assert np.isfinite(latencies).all(), "a health poll failed"

@@ -37,7 +37,7 @@ def test_cli_plan(tmp_path, capsys, wavelengths, reason):
     argv = ["plan", "full", "--n-x", "4", "--n-y", "4", "--pitch", "1e-4", "--out", str(out)]
     for w in wavelengths:
         argv += ["--wavelength", repr(w)]
-    assert fpscan_main(argv) == 2  # refused input: a usage error (issue 22.6)
+    assert fpscan_main(argv) == 2  # refused input: a usage error
     err = capsys.readouterr().err.strip()
     assert err.startswith("fpscan plan: error: wavelengths: ") and reason in err, err
     assert "pydantic" not in err and len(err.splitlines()) == 1, err

@@ -1,4 +1,4 @@
-"""The speed of sound is one typed option of the registry (issue 48.4):
+"""The speed of sound is one typed option of the registry:
 ``fpscan.service.recon.methods.options.SpeedOptions`` (unit, bounds, default) and every surface reads
 it — the HTTP request model, ``GET /api/reconstructions/methods`` (the web page's fields and
 labels), the upload form, ``fpscan recon``'s flags; no source file of the product types the

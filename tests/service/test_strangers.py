@@ -1,4 +1,4 @@
-"""Strangers hold nothing (issue 50.1): a real ``fpscan serve`` whose process may open only
+"""Strangers hold nothing: a real ``fpscan serve`` whose process may open only
 1024 files (``RLIMIT_NOFILE``, set in the child before it starts), as a lab PC's default.
 
 - 1000 sockets from one address (127.0.0.2) that connect and send nothing, or half a request
@@ -6,10 +6,10 @@
   probation pool's (taken beyond the strangers' budget for one head with the token, closed
   after ``PROBATION_HEAD_S``) for a second; the rest are refused at accept time with 503; a
   token holder's requests from another address (127.0.0.1) meanwhile all succeed; every
-  socket the server took is closed once its head is late (issue 60.1, 60.2).
+  socket the server took is closed once its head is late.
 - Strangers holding their whole budget (per address, from the token holder's own address,
   and in all) while more keep knocking: a token holder from that same address gets every
-  answer, each within 1 s (issue 60.2; ``serial``: the time bound).
+  answer, each within 1 s (``serial``: the time bound).
 - 1000 refused requests with a 60 kB path (431 before the app: the head is over
   ``max_head_bytes``) and 1000 with an 8 kB path (401 at the gate, no token) add less than
   1 MB to the server's log: refusals are logged one line per address per interval, each
@@ -209,7 +209,7 @@ def test_refusals_are_one_line_per_address_per_interval_with_a_count(caplog):
     assert "999 more refusals from 10.0.0.1" in caplog.records[-1].getMessage()
     record = logging.LogRecord("x", logging.ERROR, __file__, 1, "%s", ("y" * 10_000,), None)
     assert CappedRecords(limit=2000).filter(record) and len(record.getMessage()) < 2100
-    # a traceback counts against the same cap (issue 60.3): 300 frames and a 30 kB message, one record
+    # a traceback counts against the same cap: 300 frames and a 30 kB message, one record
     def deep(n: int) -> None:
         if n == 0:
             raise RuntimeError("z" * 30_000)

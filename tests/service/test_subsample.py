@@ -1,4 +1,4 @@
-"""A sparse scan out of dense data (issue 61.3): ``fpscan.subsample`` (the library),
+"""A sparse scan out of dense data: ``fpscan.subsample`` (the library),
 ``fpscan recon FILE --plan PLAN.json`` (the command line, locally and with ``--server``) and a reconstruction of a dataset with
 a ``plan_id`` (HTTP) give the replay scan's point data and image to the last bit.
 
@@ -49,7 +49,7 @@ def test_subsample_equals_the_replay_scan_to_the_last_bit(replayed):
     np.testing.assert_array_equal(sparse.weights, scan.weights)
     a, b = fpscan.reconstruct(sparse, "nedner"), fpscan.reconstruct(scan, "nedner")
     np.testing.assert_array_equal(a.p0, b.p0)
-    # the same image, placed on the file's own sensor coordinates (issue 61.4); the scan knows only its lattice
+    # the same image, placed on the file's own sensor coordinates; the scan knows only its lattice
     np.testing.assert_allclose(a.x - b.x, dense.lateral_shift[0], rtol=0, atol=1e-15)
     np.testing.assert_allclose(a.y - b.y, dense.lateral_shift[1], rtol=0, atol=1e-15)
     # unquantised: the file's own values at the mask's points
@@ -102,7 +102,7 @@ def test_over_http_a_dataset_and_a_plan_equal_the_replay_scan(replayed, server):
         job = api.start_reconstruction(dataset_id=ds_id, plan_id=plan_id, method="nedner")
         api.wait(job)
         api.download_volume(job, tmp / "http.h5")
-        # an option the method does not take, in the request's own field names (issue 61.7)
+        # an option the method does not take, in the request's own field names
         with pytest.raises(fpscan.ApiError, match=r"takes no option lam \(its options: sound_speed, eps,"):
             api.start_reconstruction(dataset_id=ds_id, plan_id=plan_id, method="nedner", params={"lam": 0.1})
         with pytest.raises(fpscan.NotFound, match="no plan"):

@@ -1,7 +1,7 @@
-"""The model-based ``tv`` cannot hold the worker indefinitely (issue 22.4): it has a
+"""The model-based ``tv`` cannot hold the worker indefinitely: it has a
 wall-time limit (the ``time_limit`` option; the server's ``time_limit_s`` setting is its
 default and cap) that stops the solver and says so honestly in the result's params, and a
-cancel acts within 2 s of the request (the bound the issue names; one iteration of the job
+cancel acts within 2 s of the request (one iteration of the job
 here takes well under a second), seen as the job's ``cancelled`` state event."""
 from __future__ import annotations
 
@@ -62,7 +62,7 @@ def test_a_cancel_is_heard_inside_an_iteration(monkeypatch):
     ``fpscan.service.recon.tv.progress``, here set to 0 so the count does not depend on the
     machine's speed): a cancel requested just
     after iteration 1 began is heard before iteration 1 ends, not at its end. Before the
-    polls (issue 22.4), one iteration of a 512 x 64² job took minutes and a cancel waited
+    polls, one iteration of a 512 x 64² job took minutes and a cancel waited
     for it."""
     monkeypatch.setattr(tv_progress, "_POLL_S", 0.0)
     ds = GridDataset(data=DATA.copy(), dx=DX, dt=DT, c=C, dy=DX)

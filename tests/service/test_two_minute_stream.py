@@ -1,5 +1,5 @@
-"""A job's event stream lasts the job, at the server's and the clients' default settings
-(issue 61.1's test): a real ``fpscan serve`` (body watchdog 30 s, a keep-alive comment after
+"""A job's event stream lasts the job, at the server's and the clients' default settings:
+a real ``fpscan serve`` (body watchdog 30 s, a keep-alive comment after
 15 s without an event) and a real simulated scanner on a pty scanning 121 points at 1 Hz,
 a job of about two minutes, four times the body watchdog. curl, the sync client and the
 async client (each at its default read timeout, 30 s) follow the stream at once from the

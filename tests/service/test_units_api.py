@@ -85,7 +85,7 @@ def test_recon_sound_speed_rule_422_and_force(shared_server, shared_api, tmp_pat
 
 
 def test_api_plan_lengths_take_units_and_a_depth_below_a_pitch_is_refused(shared_api):
-    """Issue 22.4: docs/api.md says plan lengths take units: "3.6mm" for the depth (and a
+    """docs/api.md says plan lengths take units: "3.6mm" for the depth (and a
     point of interest with units, negative included) gives the plan the SI numbers give;
     depth 1e-300 m (200 points asked gave a 1-point plan) is a 422 naming why."""
     si = shared_api.post("/api/plans", json={"lattice": LATTICE, "kind": "equisteradian",

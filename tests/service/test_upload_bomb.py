@@ -1,4 +1,4 @@
-"""Every stored byte is earned (issue 22.1): the compressed fill-value bomb of the issue
+"""Every stored byte is earned: a compressed fill-value bomb
 (a gzip-filtered, never-written 2**15 x (2**14 - 1) float32 dataset, fill value 0.5, a few
 kB declaring 2 GiB) is refused by the one check of untrusted files, over HTTP and in the
 library, before anything large is written; an upload whose decoded dataset does not fit
@@ -18,7 +18,7 @@ from fpscan.service.formats.untrusted import MAX_RATIO, DiskAdmission
 from tests.service.hostile_cases import gzip_fill_bomb
 from tests.service.service_servers import Server
 
-#: the issue's bomb: 2**15 x (2**14 - 1) float32 = 2 GiB - 128 KiB declared
+#: the bomb: 2**15 x (2**14 - 1) float32 = 2 GiB - 128 KiB declared
 BOMB_SHAPE = (2**15, 2**14 - 1)
 #: the hostile suite's bound on answering a hostile upload (tests/service/test_hostile_inputs.py)
 ANSWER_BOUND_S = 5.0
@@ -170,7 +170,7 @@ def test_two_imports_at_once_cannot_fill_the_disk(tmp_path):
 
 def test_the_reading_child_runs_below_the_servers_priority():
     """Files are vetted and imported in a child at the caller's priority + CHILD_NICE
-    (issue 22.3: a burst of uploads must not take the CPU from the server's event loop);
+    (a burst of uploads must not take the CPU from the server's event loop);
     the child reports its own niceness (``os.nice(0)``)."""
     from fpscan.service.formats.untrusted import CHILD_NICE, run_bounded
 

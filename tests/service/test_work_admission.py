@@ -1,10 +1,10 @@
-"""Work is admitted, not only memory (issue 50.7), and options that do not apply are refused
-at the door (issue 50.8).
+"""Work is admitted, not only memory, and options that do not apply are refused
+at the door.
 
 - Every method estimates its work (``Method.estimate_work``: seconds on the reference 2
   cores, from its grid); a request over the server's ``work_limit_s`` is refused with 422
   saying the estimate and the limit; tv's image may not be deeper than the record can hear
-  (the issue's ``dz = 0.1`` and ``n_z = 65536``, which took 23 minutes and 26 s an iteration).
+  (``dz = 0.1`` and ``n_z = 65536`` once took 23 minutes and 26 s an iteration).
 - ``kwave`` with ``sound_speed: "auto"`` is refused at the door with the words the worker
   (the library's ``reconstruct``) uses, not accepted and failed later.
 

@@ -1,8 +1,8 @@
-"""SIGTERM and SIGKILL of the server during a reconstruction (issue 14): after a restart
+"""SIGTERM and SIGKILL of the server during a reconstruction: after a restart
 on the same data folder every job succeeds (a shutdown re-queues its job, and does not
 count as an attempt); start-up removes the crash debris of the killed run.
 
-Trials per signal: 5 by default, 10 kills in all (``FPSCAN_KILL_TRIALS=10`` runs issue 14's
+Trials per signal: 5 by default, 10 kills in all (``FPSCAN_KILL_TRIALS=10`` runs
 10 per signal). A trial is a small job (32 x 32 x 256 NER) that still runs long enough to be
 caught mid-run (10 of 10 per signal); most of a trial is the restart and the new worker's
 imports (5-8 s on the 2-core machine): 10 + 10 trials took 143-157 s, a third of one
@@ -117,7 +117,7 @@ def test_a_killed_worker_process_requeues_its_reconstruction(tmp_path):
             done = wait_job(api, jid)
             assert done["state"] == "succeeded" and done["attempts"] == 2, done
             assert api.get(f"/api/reconstructions/{jid}/volume.h5").status_code == 200
-            # the second attempt's timing starts anew; the first is recorded (issue 60.8)
+            # the second attempt's timing starts anew; the first is recorded
             timings = done["timings"]
             assert timings["started"] > killed_at > job["timings"]["started"], (timings, killed_at)
             assert timings["run_s"] == pytest.approx(timings["finished"] - timings["started"])

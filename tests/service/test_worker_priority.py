@@ -1,4 +1,4 @@
-"""Worker priority is a setting (issue 20.1): ``Settings.worker_nice`` (default 0, the
+"""Worker priority is a setting: ``Settings.worker_nice`` (default 0, the
 server's own priority) is the CPU priority increment of the reconstruction workers, and
 the local pool starts its workers with the server (warming them up in the background)."""
 from __future__ import annotations
@@ -143,7 +143,7 @@ print(repr((before, after, rest.is_alive())))
 
 
 def test_the_background_warm_up_waits_while_a_job_runs():
-    """Issue 20.1: the worker's background warm-up (the model-based operator, pylops) takes no
+    """The worker's background warm-up (the model-based operator, pylops) takes no
     CPU from a job: each of its steps waits until no job runs, so the first job after start-up
     runs at full speed (in a fresh interpreter: nothing is loaded yet)."""
     import ast
@@ -202,7 +202,7 @@ else:
 
 
 def test_a_warmed_heap_serves_a_first_jobs_arrays_from_pages_already_written():
-    """Issue 20.1: after ``warm_heap`` (the last step of a worker's warm-up) arrays of a first
+    """After ``warm_heap`` (the last step of a worker's warm-up) arrays of a first
     job's size (below glibc's mmap threshold, within `HEAP_WARM_BYTES` together) reuse heap
     pages the warm-up wrote: (almost) no page faults, where a fresh process faults in each
     array's pages on its first write. In a fresh interpreter, so that no earlier allocation

@@ -1,4 +1,4 @@
-"""Issue 61.2: a server's worker is ready for its first job once the kernels of the default
+"""A server's worker is ready for its first job once the kernels of the default
 precision are loaded; the other precision and tv come after, in the background, while no job
 runs (so a set-up that compiled only float32, as ``scripts/demo.sh`` does, does not make the
 first job wait for float64's compilation)."""

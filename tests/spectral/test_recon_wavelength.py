@@ -1,4 +1,4 @@
-"""Plain per-wavelength reconstruction of a multi-wavelength scan (issue 16): a
+"""Plain per-wavelength reconstruction of a multi-wavelength scan: a
 two-wavelength scan file reconstructed at each wavelength (library, ``fpscan recon
 --wavelength K|all``, HTTP ``wavelength``) gives the volume that NEDNER
 (``fpscan.service.recon.reconstruct_points``) makes of that wavelength's own A-lines, read

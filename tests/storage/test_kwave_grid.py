@@ -1,4 +1,4 @@
-"""k-Wave's lateral grid (issue 61.4): where a file gives its sensor coordinates they are the
+"""k-Wave's lateral grid: where a file gives its sensor coordinates they are the
 image's grid; a k-Wave file without them follows ``kWaveGrid``'s ``(i - floor(N/2))·dx``; the
 result file and the exports carry the same coordinates.
 

@@ -26,7 +26,7 @@ def test_round_trip_equals_scan(tmp_path, make_scan):
     np.testing.assert_array_equal(r["indices"], np.array(plan["points"]["indices"])[done])
     assert r["plan"] == plan
     assert len(r["grid"]) == 2 and len(r["grid"][0]) == 6 and len(r["grid"][1]) == 5
-    # the raw layout is what the field list says
+    # the raw layout is the one docs/file-formats.md lists (IPASC export)
     with h5py.File(out, "r") as f:
         assert f["binary_time_series_data"].shape == (len(done), 48, 1, 1)
         m = f["meta_data"]

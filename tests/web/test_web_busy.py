@@ -1,4 +1,4 @@
-"""The plan view on a busy server (issue 21.6), in a real headless Chromium against a real
+"""The plan view on a busy server, in a real headless Chromium against a real
 ``fpscan serve``: a preview the server refuses with 429 (every plan-request slot taken,
 as by the previews of earlier keystrokes on a loaded machine) is asked again when the
 server says to (Retry-After), with the form's latest parameters and no new input, so the

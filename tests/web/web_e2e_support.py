@@ -21,7 +21,7 @@ CHROMIUM_FLAGS = [
 def wait_for(predicate, what: str, interval: float = 0.1):
     """Poll ``predicate`` until it returns a truthy value (the event ``what``); fail only
     after ``tests.waits.HANG_S`` s, a hang: a loaded machine makes a wait longer, never
-    a failure (issue 21.6)."""
+    a failure."""
     timeout = HANG_S
     deadline = time.monotonic() + timeout
     last_exc = None

@@ -9,7 +9,7 @@ Server-Sent Events stream can honour ``Last-Event-ID``.
 A job re-queued after its run was cut off (a dead worker, a shutdown, a restart) starts its
 timing anew: its ``started`` is cleared and set again when the next attempt starts, and the
 cut-off attempt is kept in ``earlier_attempts`` (JSON list of ``{"attempt", "started",
-"ended", "reason"}``), so ``run_s`` counts the attempt that ended the job (issue 60.8).
+"ended", "reason"}``), so ``run_s`` counts the attempt that ended the job.
 
 A job may carry the address of the client that submitted it (``params["client"]``);
 :meth:`JobStore.create_job` refuses a new one (:class:`QueueFull`) while that client

@@ -4,7 +4,7 @@ Each change is one transaction that records the job's event (:mod:`fpscan.servic
 A job re-queued after its run was cut off (a dead worker, a shutdown, a restart) starts its
 timing anew: its ``started`` is cleared and set again when the next attempt starts, and the
 cut-off attempt is kept in ``earlier_attempts`` (JSON list of ``{"attempt", "started",
-"ended", "reason"}``), so ``run_s`` counts the attempt that ended the job (issue 60.8).
+"ended", "reason"}``), so ``run_s`` counts the attempt that ended the job.
 """
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """Model-based reconstruction: total variation + positivity on the exact planar model.
 
-Solves (DESIGN §3; Arridge, Beard, Betcke, Cox, Huynh, Lucka, Ogunlade, Zhang,
+Solves (Arridge, Beard, Betcke, Cox, Huynh, Lucka, Ogunlade, Zhang,
 "Accelerated high-resolution photoacoustic tomography via compressed sensing",
 Phys. Med. Biol. 61 (2016) 8908)::
 

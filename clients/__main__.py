@@ -1,5 +1,0 @@
-import sys
-
-from fpscan.clients.cli import main
-
-sys.exit(main())

@@ -1,0 +1,53 @@
+"""The code and the docs cite what a reader can open: the paper, a published method, or the
+repository's own pages. No comment, docstring or page points at the project's issue tracker by
+number or at a design file that lives outside the repository. The oracle is the text itself, read
+from every source, page, test, benchmark and example in the repository (CHANGELOG.md, the release
+notes, excepted: a dated record of what was asked)."""
+from __future__ import annotations
+
+import re
+
+import pytest
+
+from tests.source_tree import REPO
+
+#: "issue" or "issues" followed by a number, as prose cites a tracker entry
+ISSUE = re.compile(r"\bissues?\s+\d", re.IGNORECASE)
+#: the design file outside the repository
+DESIGN = re.compile(r"\bDESIGN\b")
+FOLDERS = ("service", "driver", "clients", "fpscan", "tests", "benchmarks", "examples", "scripts", "docs")
+SUFFIXES = {".py", ".md", ".rst", ".html", ".js", ".css", ".sh", ".toml", ".ipynb"}
+SKIP_PARTS = {"__pycache__", "_build", "generated", "_generated", "auto_examples"}
+
+
+def _files() -> list:
+    found = [REPO / "README.md", REPO / "pyproject.toml", REPO / "Dockerfile"]
+    for folder in FOLDERS:
+        base = REPO / folder
+        found += [p for p in sorted(base.rglob("*")) if p.is_file() and p.suffix in SUFFIXES
+                  and not SKIP_PARTS & set(p.relative_to(REPO).parts)]
+    return [p for p in found if p.exists()]
+
+
+def _hits(text: str) -> list[tuple[int, str]]:
+    return [(k, line.strip()) for k, line in enumerate(text.splitlines(), 1)
+            if ISSUE.search(line) or DESIGN.search(line)]
+
+
+def test_the_patterns_tell_a_citation_from_prose():
+    """The oracle itself: a tracker number and the outside design file are caught; prose about
+    issues in general, or a method's design, is not."""
+    caught = "\n".join(["per the " + "issue" + " 21 rule", "see " + "DESIGN" + " §3", "Issues " + "19 and 47"])
+    fine = "\n".join(["an issue the user meets", "the design of the band", "issued 3 warnings"])
+    assert [k for k, _ in _hits(caught)] == [1, 2, 3]
+    assert _hits(fine) == []
+
+
+@pytest.mark.parametrize("folder", ("root", *FOLDERS))
+def test_nothing_cites_what_a_reader_cannot_open(folder):
+    files = [p for p in _files() if (p.parent == REPO if folder == "root" else p.relative_to(REPO).parts[0] == folder)]
+    bad = [f"{p.relative_to(REPO)}:{k}: {line[:120]}" for p in files
+           for k, line in _hits(p.read_text(encoding="utf-8", errors="replace"))]
+    # this file names the patterns it looks for
+    bad = [b for b in bad if not b.startswith("tests/public_api/test_citations.py")]
+    assert not bad, "cite the paper, a published method or the repository's docs instead of:\n" + "\n".join(bad)
