@@ -20,13 +20,16 @@ SUFFIXES = {".py", ".md", ".rst", ".html", ".js", ".css", ".sh", ".toml", ".ipyn
 SKIP_PARTS = {"__pycache__", "_build", "generated", "_generated", "auto_examples"}
 
 
-def _files() -> list:
-    found = [REPO / "README.md", REPO / "pyproject.toml", REPO / "Dockerfile"]
+def _files() -> dict[str, list]:
+    """The files read, by folder (``"root"``: the repository's top-level files)."""
+    found = {"root": [p for p in (REPO / "README.md", REPO / "pyproject.toml", REPO / "Dockerfile") if p.exists()]}
     for folder in FOLDERS:
-        base = REPO / folder
-        found += [p for p in sorted(base.rglob("*")) if p.is_file() and p.suffix in SUFFIXES
-                  and not SKIP_PARTS & set(p.relative_to(REPO).parts)]
-    return [p for p in found if p.exists()]
+        found[folder] = [p for p in sorted((REPO / folder).rglob("*")) if p.is_file() and p.suffix in SUFFIXES
+                         and not SKIP_PARTS & set(p.relative_to(REPO).parts)]
+    return found
+
+
+FILES = _files()
 
 
 def _hits(text: str) -> list[tuple[int, str]]:
@@ -45,8 +48,7 @@ def test_the_patterns_tell_a_citation_from_prose():
 
 @pytest.mark.parametrize("folder", ("root", *FOLDERS))
 def test_nothing_cites_what_a_reader_cannot_open(folder):
-    files = [p for p in _files() if (p.parent == REPO if folder == "root" else p.relative_to(REPO).parts[0] == folder)]
-    bad = [f"{p.relative_to(REPO)}:{k}: {line[:120]}" for p in files
+    bad = [f"{p.relative_to(REPO)}:{k}: {line[:120]}" for p in FILES[folder]
            for k, line in _hits(p.read_text(encoding="utf-8", errors="replace"))]
     # this file names the patterns it looks for
     bad = [b for b in bad if not b.startswith("tests/public_api/test_citations.py")]
