@@ -90,7 +90,7 @@ from fpscan.driver.plan import canonical_json, check_plan, wavelength_order
 __all__ = [
     "FORMAT", "FORMAT_1", "META_KEYS", "META_DTYPE", "META_CHUNK", "COMPLETED_CHUNK", "DURABLE_POLICIES",
     "open_readonly", "open_checked", "ScanFile", "ScanData", "PRESSURE_UNITS", "pressure_unit", "completed_count",
-    "read_scan", "read_open_scan", "FORMAT_FAMILY"]
+    "read_scan", "read_open_scan", "FORMAT_FAMILY", "superblock_open_for_write"]
 
 FORMAT = "fpscan-scan/2"
 #: the single-wavelength layout of fpscan ≤ 0.x, still read by read_scan
@@ -280,12 +280,35 @@ def _open_h5(path: Path, timeout: float, **kwargs: Any) -> h5py.File:
         time.sleep(0.02)
 
 
-def _superblock_open_for_write(path: Path) -> bool:
-    """Check the superblock before HDF5 sees the file: a version 2/3 superblock (what
-    ``libver='latest'`` writes) must have a valid checksum and a stored end-of-file
-    address within the file's size. Returns whether its file-consistency flags say a
-    writer has (or had, if killed) it open for SWMR writing. Raises ValueError for a
-    truncated or corrupt superblock. Other versions return False (HDF5 checks them)."""
+def superblock_open_for_write(path: str | os.PathLike) -> bool:
+    """Check an HDF5 file's superblock before HDF5 sees the file, and say whether a writer
+    has it open.
+
+    A version 2/3 superblock at offset 0 (what ``libver='latest'`` writes) must have a valid
+    checksum (HDF5's Jenkins lookup3) and a stored end-of-file address within the file's size.
+    Other superblock versions are left to HDF5's own checks.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file.
+
+    Returns
+    -------
+    bool
+        True when the superblock's file-consistency flags say a writer has (or had, if it was
+        killed) the file open for SWMR writing (:func:`open_readonly` then opens it as an SWMR
+        reader); False when they do not, and for superblock versions other than 2 and 3.
+
+    Raises
+    ------
+    ValueError
+        Not an HDF5 file with its signature at offset 0; a truncated or corrupt superblock (bad
+        checksum, an offset size other than 2, 4 or 8); a file shorter than its stored end.
+    OSError
+        The file cannot be read.
+    """
+    path = Path(path)
     with open(path, "rb") as fh:
         head = fh.read(12)
         if len(head) < 12 or head[:8] != HDF5_SIGNATURE:
@@ -332,7 +355,7 @@ def open_readonly(path: str | os.PathLike, timeout: float = 5.0) -> h5py.File:
         A corrupt or truncated superblock, or a file HDF5 cannot open.
     """
     path = Path(path)
-    live = _superblock_open_for_write(path)
+    live = superblock_open_for_write(path)
     kwargs: dict[str, Any] = {"libver": "latest", "swmr": True} if live else {}
     try:
         return _open_h5(path, timeout, mode="r", **kwargs)

@@ -43,7 +43,7 @@ and the HTTP client follow from the registry (docs/plugins.md).
 """
 from __future__ import annotations
 
-from fpscan.service.formats._registry import (
+from fpscan.service.formats.registry import (
     FORMATS,
     HEAD_BYTES,
     MAX_BYTES,

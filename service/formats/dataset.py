@@ -11,7 +11,7 @@ from typing import Any
 import h5py
 import numpy as np
 
-from fpscan.service.formats._registry import Format, Source
+from fpscan.service.formats.registry import Format, Source
 from fpscan.service.names import PERSON_NAMES
 from fpscan.service.recon.dataset import GridDataset, PointDataset, p0_unit
 

@@ -41,8 +41,8 @@ from h5py import h5d, h5g, h5s, h5t
 from fpscan.constants import C_DEFAULT
 from fpscan.driver.scanfile import ScanData, read_scan
 from fpscan.physics.axes import centred_axis
-from fpscan.service.formats._registry import Format, Source
 from fpscan.service.formats.load_options import WavelengthChoice
+from fpscan.service.formats.registry import Format, Source
 from fpscan.service.recon.dataset import PointDataset, check_wavelength_index
 
 __all__ = ["DETECTOR_ID_WIDTH", "FORMAT", "export_scan", "import_ipasc", "load", "read_ipasc",

@@ -60,8 +60,8 @@ import numpy as np
 
 from fpscan.constants import C_DEFAULT
 from fpscan.driver import kwave_layout
-from fpscan.service.formats._registry import Format, Source
 from fpscan.service.formats.load_options import KwaveOptions
+from fpscan.service.formats.registry import Format, Source
 from fpscan.service.recon.dataset import MAX_ELEMENTS, GridDataset, grid_array, lateral_shift_of, positive
 
 __all__ = ["FORMAT", "sniff", "load", "V5_TEXT", "V73_TEXT", "read_variables"]

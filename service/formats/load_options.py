@@ -185,7 +185,7 @@ def load_option_fields() -> dict[str, Any]:
     >>> {"dt", "dx", "dy", "key", "wavelength"} <= set(load_option_fields())
     True
     """
-    from fpscan.service.formats._registry import FORMATS
+    from fpscan.service.formats.registry import FORMATS
 
     out: dict[str, Any] = {}
     for fmt in FORMATS.values():
@@ -213,7 +213,7 @@ def load_option_schemas() -> list[dict[str, Any]]:
     >>> dt["schema"]["unit"], "npy" in dt["formats"]
     ('s', True)
     """
-    from fpscan.service.formats._registry import FORMATS
+    from fpscan.service.formats.registry import FORMATS
     from fpscan.service.recon.methods import option_schemas
 
     out: dict[str, dict[str, Any]] = {}
@@ -258,7 +258,7 @@ def check_load_options(format: str, options: dict[str, Any]) -> dict[str, Any]:
     ...
     ValueError: format npy takes no option key (its options: dt, dx, dy)
     """
-    from fpscan.service.formats._registry import FORMATS
+    from fpscan.service.formats.registry import FORMATS
 
     fmt = FORMATS.get(format)
     if fmt is None:

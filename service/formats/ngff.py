@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from fpscan.service.disk import folder_replaced
-from fpscan.service.formats._registry import Format
+from fpscan.service.formats.registry import Format
 from fpscan.service.formats.result import ORIENTATION, read_result, volume_description, voxel_sizes_um
 
 __all__ = ["FORMAT", "export_ome_zarr", "pyramid_factors", "PYRAMID_TOP", "PYRAMID_MIN", "ZARR_CHUNK"]

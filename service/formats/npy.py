@@ -11,8 +11,8 @@ from typing import Any, BinaryIO
 import numpy as np
 
 from fpscan.constants import C_DEFAULT
-from fpscan.service.formats._registry import Format, Source
 from fpscan.service.formats.load_options import GridSpacing
+from fpscan.service.formats.registry import Format, Source
 from fpscan.service.recon.dataset import GridDataset, grid_array, positive
 
 __all__ = ["FORMAT", "sniff", "load"]

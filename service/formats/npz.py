@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from fpscan.service.disk import file_replaced
-from fpscan.service.formats._registry import Format
+from fpscan.service.formats.registry import Format
 from fpscan.service.formats.result import read_result
 
 __all__ = ["FORMAT", "export_npz"]

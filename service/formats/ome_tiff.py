@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from fpscan.service.disk import file_replaced
-from fpscan.service.formats._registry import Format
+from fpscan.service.formats.registry import Format
 from fpscan.service.formats.result import ResultVolume, read_result, volume_description, voxel_sizes_um
 
 __all__ = ["FORMAT", "export_ome_tiff", "plane_positions_um"]

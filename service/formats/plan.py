@@ -12,7 +12,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from fpscan.service.formats._registry import Format, Source, describe
+from fpscan.service.formats.registry import Format, Source, describe
 
 __all__ = ["FORMAT", "sniff", "load", "read_plan", "not_a_plan"]
 

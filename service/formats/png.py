@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from fpscan.service.formats._registry import Format, Source
+from fpscan.service.formats.registry import Format, Source
 
 __all__ = ["FORMAT", "sniff", "load"]
 

@@ -30,7 +30,7 @@ import numpy.typing as npt
 
 from fpscan.driver.scanfile import PRESSURE_UNITS
 from fpscan.service.disk import copy_replaced
-from fpscan.service.formats._registry import Format, Source
+from fpscan.service.formats.registry import Format, Source
 from fpscan.service.names import person_names
 
 if TYPE_CHECKING:
@@ -539,7 +539,7 @@ def read_result(path: str | os.PathLike) -> ResultVolume:
     ValueError
         Not a result file.
     """
-    from fpscan.service.formats._registry import load as load_as
+    from fpscan.service.formats.registry import load as load_as
 
     return load_as(path, "result")[1]
 
@@ -567,7 +567,7 @@ def read_slice(path: str | os.PathLike, index: Any) -> tuple[np.ndarray, np.ndar
     FileNotFoundError
         No file at ``path``.
     """
-    from fpscan.service.formats._registry import open_source
+    from fpscan.service.formats.registry import open_source
 
     with open_source(path, "hdf5", name="result") as src:
         f = src.h5

@@ -15,8 +15,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from fpscan.service.disk import copy_replaced
-from fpscan.service.formats._registry import Format, Source
 from fpscan.service.formats.load_options import WavelengthChoice
+from fpscan.service.formats.registry import Format, Source
 from fpscan.service.recon.dataset import PointDataset, check_wavelength_index, lattice_axes
 
 if TYPE_CHECKING:

@@ -12,7 +12,7 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from fpscan.service.formats._registry import Format, Source
+from fpscan.service.formats.registry import Format, Source
 from fpscan.service.names import person_names
 
 if TYPE_CHECKING:
@@ -153,7 +153,7 @@ def read_unmix(path: str | os.PathLike) -> dict:
     FileNotFoundError
         No file at ``path``.
     """
-    from fpscan.service.formats._registry import load as load_as
+    from fpscan.service.formats.registry import load as load_as
 
     return load_as(path, "unmix")[1]
 

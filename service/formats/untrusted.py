@@ -333,10 +333,10 @@ def writer_flagged(path: str | os.PathLike) -> bool:
         False for anything else, a file that is not HDF5 or a damaged superblock included
         (those are refused by the readers).
     """
-    from fpscan.driver.scanfile import _superblock_open_for_write
+    from fpscan.driver.scanfile import superblock_open_for_write
 
     try:
-        return is_hdf5(path) and _superblock_open_for_write(Path(path))
+        return is_hdf5(path) and superblock_open_for_write(path)
     except (OSError, ValueError):
         return False
 

@@ -18,7 +18,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from fpscan.driver.plan import plan_id_of
-from fpscan.driver.scanfile import META_KEYS, ScanFile, _clear_status_flags, _lookup3, read_scan
+from fpscan.driver.scanfile import META_KEYS, ScanFile, read_scan, superblock_open_for_write
+from tests.hdf5_superblock import lookup3, set_status_flags
 from tests.waits import HANG_S
 
 REPO = Path(__file__).resolve().parents[2]
@@ -318,17 +319,26 @@ def test_swmr_reader_in_other_process_while_writing(tmp_path):
 
 
 def test_lookup3_known_vectors_and_superblock(tmp_path):
-    # test vectors from Bob Jenkins' lookup3.c (driver5)
-    assert _lookup3(b"") == 0xDEADBEEF
-    assert _lookup3(b"Four score and seven years ago") == 0x17770551
-    assert _lookup3(b"Four score and seven years ago", 1) == 0xCD628161
+    # test vectors from Bob Jenkins' lookup3.c (driver5), for the tests' own checksum
+    assert lookup3(b"") == 0xDEADBEEF
+    assert lookup3(b"Four score and seven years ago") == 0x17770551
+    assert lookup3(b"Four score and seven years ago", 1) == 0xCD628161
     path = tmp_path / "x.h5"
     with h5py.File(path, "w", libver="latest") as f:
         f["a"] = np.arange(3)
-    assert _clear_status_flags(path) is False  # checksum of HDF5's own superblock verified
+    assert superblock_open_for_write(path) is False  # checksum of HDF5's own superblock verified
+    src = bytearray(path.read_bytes())
+    set_status_flags(src)  # checksum by the tests' lookup3: the reader's agrees
+    flagged = tmp_path / "flagged.h5"
+    flagged.write_bytes(bytes(src))
+    assert superblock_open_for_write(flagged) is True
+    src[11] = 0  # flags changed, checksum not
+    flagged.write_bytes(bytes(src))
+    with pytest.raises(ValueError, match="corrupt or truncated HDF5 superblock"):
+        superblock_open_for_write(flagged)
     (tmp_path / "junk.h5").write_bytes(b"not hdf5 at all" * 10)
     with pytest.raises(ValueError, match="not an HDF5"):
-        _clear_status_flags(tmp_path / "junk.h5")
+        superblock_open_for_write(tmp_path / "junk.h5")
 
 
 def test_bad_input(tmp_path):

@@ -213,7 +213,7 @@ def documented(obj) -> bool:
 
 def _counted_in(obj, module_name: str) -> bool:
     """A definition counts in the module that defines it, or, when that module is private
-    (``fpscan.service.formats._registry``), in the public module that exports it."""
+    (a part of its dotted name starts with ``_``), in the public module that exports it."""
     home = getattr(obj, "__module__", None) or ""
     return home == module_name or (any(p.startswith("_") for p in home.split("."))
                                    and home.startswith(module_name + "."))

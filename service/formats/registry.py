@@ -2,6 +2,11 @@
 (:class:`Format`), the one place a file is opened and checked (:func:`open_source`), and
 detection and loading by name or from the content.
 
+A format's module, fpscan's own or a plugin's, builds its ``FORMAT = Format(...)`` from
+this module's :class:`Format` and reads the file through the :class:`Source` its ``sniff``
+and ``load`` are given; the package :mod:`fpscan.service.formats` re-exports every name of
+:data:`__all__`.
+
 A file is opened once per load: :func:`open_source` reads its first :data:`HEAD_BYTES`
 bytes and, for an HDF5 file, opens it once read-only (``fpscan.driver.scanfile.open_readonly``:
 SWMR only for a file a writer has open) and checks it there
