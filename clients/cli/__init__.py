@@ -30,13 +30,30 @@ if TYPE_CHECKING:
     from types import ModuleType
     from typing import Any
 
-__all__ = ["build_parser", "NEGATIVE_QUANTITY", "allow_negative_quantities", "main", "reason", "in_flags",
+__all__ = ["build_parser", "subcommand_modules", "NEGATIVE_QUANTITY", "allow_negative_quantities", "main", "reason", "in_flags",
            "CLOSED_PIPE", "closed_pipe"]
 
 
-def _subcommand_modules() -> Iterator[ModuleType]:
-    # the package's own .py files (not pkgutil.iter_modules, which imports inspect: a
-    # quarter of the start-up of ``fpscan --version``)
+def subcommand_modules() -> Iterator[ModuleType]:
+    """The sub-commands of ``fpscan``: every module of this package that defines ``COMMAND``
+    and ``run`` (package docstring), imported, in the order of their module names.
+
+    Found from the package's own ``.py`` files, not ``pkgutil.iter_modules`` (which imports
+    ``inspect``: a quarter of the start-up of ``fpscan --version``); modules whose names start
+    with ``_`` are skipped.
+
+    Returns
+    -------
+    iterator of types.ModuleType
+        The sub-commands' modules (``module.COMMAND`` the name, ``module.HELP`` the one-line
+        help, ``module.add_arguments`` and ``module.run``).
+
+    Raises
+    ------
+    ImportError
+        A module of the package cannot be imported.
+    """
+    # the package's own .py files (not pkgutil.iter_modules: see above)
     names = sorted({n[:-3] for d in __path__ for n in os.listdir(d) if n.endswith(".py")})
     for name in names:
         if name.startswith("_"):
@@ -123,7 +140,7 @@ def build_parser(commands: Collection[str] | None = None) -> argparse.ArgumentPa
     # argparse calls parser_class(**kwargs) (any callable; typeshed wants a class)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=sub_parser)  # type: ignore[call-overload]
     sub.required = True
-    for module in _subcommand_modules():
+    for module in subcommand_modules():
         building = commands is None or module.COMMAND in commands
         p = sub.add_parser(module.COMMAND, help=module.HELP, description=module.HELP)
         if building:
@@ -194,7 +211,7 @@ def main(argv: list[str] | None = None) -> int:
         _top_parser().parse_args(argv)  # prints the version and exits; no subcommand is imported
     parser = build_parser(() if command is None else (command,))
     args = parser.parse_args(argv)
-    from fpscan.clients.cli._common import missing_extra, needs_extra
+    from fpscan.clients.cli.common import missing_extra, needs_extra
     from fpscan.driver.units import RefusedInput
 
     try:

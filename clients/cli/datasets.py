@@ -1,7 +1,7 @@
 """`fpscan datasets`: list and delete the datasets uploaded to a server
 (``GET /api/datasets``, ``DELETE /api/datasets/{id}``).
 
-Exit codes (``fpscan.clients.cli._common.client_errors``, as every client command): 0 done; 2 the
+Exit codes (``fpscan.clients.cli.common.client_errors``, as every client command): 0 done; 2 the
 server refused the input (an unknown id: 404, a malformed id: 422), with its reason on
 stderr; 1 any other failure, the server's state included (a dataset an active
 reconstruction reads: 409; server unreachable, server error)."""
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import argparse
 
-from fpscan.clients.cli._common import add_server_options, client_errors, delete_each, format_bytes
+from fpscan.clients.cli.common import add_server_options, client_errors, delete_each, format_bytes
 
 __all__ = ["COMMAND", "HELP", "add_arguments", "run", "full_ids"]
 
@@ -56,13 +56,13 @@ def run(args: argparse.Namespace) -> int:
     -------
     int
         The exit status: 0 on success. Errors of the client become exit 1, or 2 when the server refused
-        the request as given (``fpscan.clients.cli._common.client_errors``); other refused input and
+        the request as given (``fpscan.clients.cli.common.client_errors``); other refused input and
         failures raise (:func:`fpscan.clients.cli.main` reports them and sets the status).
     """
     import json
     import time
 
-    from fpscan.clients.cli._common import make_client
+    from fpscan.clients.cli.common import make_client
 
     with make_client(args) as api:
         if args.action == "list":
@@ -113,7 +113,7 @@ def full_ids(given: list[str], known: list[str], what: str) -> list[str]:
         A prefix that matches several ids (naming them), or none (unless 32 characters or
         longer: then it is passed on as a full id).
     """
-    from fpscan.clients.cli._common import UsageError
+    from fpscan.clients.cli.common import UsageError
 
     out = []
     for g in given:

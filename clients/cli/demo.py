@@ -25,7 +25,7 @@ from __future__ import annotations
 import argparse
 import time
 
-from fpscan.clients.cli._common import UsageError
+from fpscan.clients.cli.common import UsageError
 from fpscan.constants import C_DEFAULT
 
 __all__ = ["COMMAND", "HELP", "DEFAULTS", "add_arguments", "run", "Demo"]
@@ -58,7 +58,7 @@ DEFAULTS = {
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser).
     Lengths and times take units (``100um``, ``12ns``, ``3mm``; bare numbers are SI:
-    ``fpscan.clients.cli._common.quantity``); a unit mistake is refused by ``fpscan plan``'s
+    ``fpscan.clients.cli.common.quantity``); a unit mistake is refused by ``fpscan plan``'s
     rules (``fpscan.driver.units.check_plausible``, exit 2) before anything starts.
 
     Parameters
@@ -66,7 +66,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser : argparse.ArgumentParser
         The sub-command's parser, changed in place.
     """
-    from fpscan.clients.cli._common import quantity
+    from fpscan.clients.cli.common import quantity
 
     parser.add_argument("--out", default="demo-output", help="output folder (default: demo-output)")
     parser.add_argument("--lattice", type=int, default=DEFAULTS["lattice"], metavar="N",
@@ -84,7 +84,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="skip the dense full-lattice reference scan")
     parser.add_argument("--seed", type=int, default=1, help="simulator noise seed (default %(default)s)")
     parser.add_argument("--quiet", "-q", action="store_true", help="no progress bars")
-    from fpscan.clients.cli._common import default_dtype
+    from fpscan.clients.cli.common import default_dtype
 
     parser.epilog = (f"Precision: reconstructions are {default_dtype()}, the default of the server and of "
                      "fpscan recon (which takes --dtype float64).")
@@ -102,19 +102,19 @@ def run(args: argparse.Namespace) -> int:
     -------
     int
         The exit status: 0 on success. Errors of the client become exit 1, or 2 when the server refused
-        the request as given (``fpscan.clients.cli._common.client_errors``); other refused input and
+        the request as given (``fpscan.clients.cli.common.client_errors``); other refused input and
         failures raise (:func:`fpscan.clients.cli.main` reports them and sets the status).
     """
-    from fpscan.clients.cli._common import client_errors
+    from fpscan.clients.cli.common import client_errors
 
     return client_errors(lambda a: Demo(a).run())(args)
 
 
 # --------------------------------------------------------------------------- processes
 def _has_subcommand(name: str) -> bool:
-    from fpscan.clients.cli import _subcommand_modules
+    from fpscan.clients.cli import subcommand_modules
 
-    return any(m.COMMAND == name for m in _subcommand_modules())
+    return any(m.COMMAND == name for m in subcommand_modules())
 
 
 # --------------------------------------------------------------------------- the demo
@@ -312,7 +312,7 @@ class Demo:
         its IPASC export and live preview, `_sparse_extras`). Returns the scan job's id and its
         record for ``report.json`` (points, acquisition time s and rate /s as the job timed
         them, the demo's wait s, and the time at a 50 Hz laser s)."""
-        from fpscan.clients.cli._common import ProgressBar
+        from fpscan.clients.cli.common import ProgressBar
         from fpscan.clients.http import field_of, to_dict
 
         t_asked = time.perf_counter()
@@ -363,7 +363,7 @@ class Demo:
         showing its progress, and download its volume (``<name>_volume.h5``) and xy, xz, yz
         MIPs (``<name>_mip_<plane>.png``). Returns each one's record for ``report.json``
         (files, reconstruction time s as the job timed it, points used)."""
-        from fpscan.clients.cli._common import ProgressBar
+        from fpscan.clients.cli.common import ProgressBar
         from fpscan.clients.http import field_of, to_dict
 
         recons: dict = {}

@@ -16,7 +16,7 @@ from __future__ import annotations
 import argparse
 import math
 
-from fpscan.clients.cli._common import UsageError
+from fpscan.clients.cli.common import UsageError
 
 TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (`fpscan --help` starts faster)
 if TYPE_CHECKING:
@@ -52,7 +52,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-model-based", dest="model_based", action="store_false",
                         help="leave out the model-based (tv) rows of limited-view-2d and sparse-masks-3d "
                              "(iterative: minutes in 2-D, far longer for the full-size 3-D case on a small machine)")
-    from fpscan.clients.cli._common import default_dtype
+    from fpscan.clients.cli.common import default_dtype
 
     parser.epilog = ("Precision: every reconstruction of the experiments is float64 (they measure resolution "
                      f"and errors); fpscan recon and the server default to {default_dtype()} (--dtype).")

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import argparse
 
-from fpscan.clients.cli._common import UsageError, add_server_options, client_errors
+from fpscan.clients.cli.common import UsageError, add_server_options, client_errors
 
 __all__ = ["COMMAND", "HELP", "add_arguments", "run"]
 
@@ -80,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
     -------
     int
         The exit status: 0 on success. Errors of the client become exit 1, or 2 when the server refused
-        the request as given (``fpscan.clients.cli._common.client_errors``); other refused input and
+        the request as given (``fpscan.clients.cli.common.client_errors``); other refused input and
         failures raise (:func:`fpscan.clients.cli.main` reports them and sets the status).
     """
     if args.server:
@@ -119,7 +119,7 @@ def _remote(args: argparse.Namespace) -> int:
     """``--server``: the job's export downloaded (its default export without ``--format``)."""
     from pathlib import Path
 
-    from fpscan.clients.cli._common import full_job_id, make_client
+    from fpscan.clients.cli.common import full_job_id, make_client
     from fpscan.clients.http import field_of
 
     if not args.job:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from fpscan.clients.cli._common import add_progress_option, add_server_options, client_errors, delete_each
+from fpscan.clients.cli.common import add_progress_option, add_server_options, client_errors, delete_each
 
 __all__ = ["COMMAND", "HELP", "STATES", "KINDS", "add_arguments", "run"]
 
@@ -86,12 +86,12 @@ def run(args: argparse.Namespace) -> int:
     -------
     int
         The exit status: 0 on success. Errors of the client become exit 1, or 2 when the server refused
-        the request as given (``fpscan.clients.cli._common.client_errors``); other refused input and
+        the request as given (``fpscan.clients.cli.common.client_errors``); other refused input and
         failures raise (:func:`fpscan.clients.cli.main` reports them and sets the status).
     """
     import json
 
-    from fpscan.clients.cli._common import ProgressBar, full_job_id, make_client
+    from fpscan.clients.cli.common import ProgressBar, full_job_id, make_client
     from fpscan.clients.http import field_of, to_dict
 
     with make_client(args) as api:

@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from fpscan.clients.cli._common import UsageError, add_server_options, client_errors, needs_extra
+from fpscan.clients.cli.common import UsageError, add_server_options, client_errors, needs_extra
 from fpscan.constants import C_PLAUSIBLE
 
 TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (`fpscan --help` starts faster)
@@ -95,7 +95,7 @@ def _json_value(text: str) -> object:
         try:
             source = raw.decode("utf-8")
         except UnicodeDecodeError:
-            from fpscan.clients.cli._common import (
+            from fpscan.clients.cli.common import (
                 wrong_file,  # names a scan file, a result, a NumPy array ...
             )
 
@@ -282,7 +282,7 @@ def run(args: argparse.Namespace) -> int:
     int
         The exit status: 0 on success; 2 without the planner installed (the ``fpscan[driver]``
         extra). Errors of the client become exit 1, or 2 when the server refused the request as given
-        (``fpscan.clients.cli._common.client_errors``).
+        (``fpscan.clients.cli.common.client_errors``).
     """
     if getattr(args, "_planner_missing", None):
         return needs_extra(args, "driver", args._planner_missing)
@@ -317,7 +317,7 @@ def run(args: argparse.Namespace) -> int:
 def _remote(args: argparse.Namespace, body: dict) -> int:
     import json
 
-    from fpscan.clients.cli._common import make_client
+    from fpscan.clients.cli.common import make_client
     from fpscan.clients.http import field_of
 
     with make_client(args) as api:

@@ -27,17 +27,17 @@ from __future__ import annotations
 
 import argparse
 
-from fpscan.clients.cli._common import (
+from fpscan.clients.cli.common import (
     UsageError,
     add_progress_option,
     add_server_options,
     check_input_files,
     client_errors,
+    sniff_format,
 )
 
 TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (`fpscan --help` starts faster)
 if TYPE_CHECKING:
-    import os
     from pathlib import Path
 
     from fpscan.clients.http import Client
@@ -137,22 +137,6 @@ def _wavelength(text: str) -> int | str:
     raise argparse.ArgumentTypeError(f"must be an index >= 0 into the scan's wavelengths or 'all', got {text!r}")
 
 
-def _sniff_format(path: str | os.PathLike) -> str:
-    """The input's format from its content (``fpscan.service.storage.loader.detect_format``).
-    Where that reader's dependencies (h5py: the driver extra) are missing, a
-    ``ModuleNotFoundError`` that says to give ``--format``."""
-    try:
-        from fpscan.service.storage.loader import detect_format
-    except ModuleNotFoundError as exc:
-        raise ModuleNotFoundError(f"no module {exc.name} to tell the file's format: give --format",
-                                  name=exc.name) from None
-
-    try:
-        return detect_format(path)
-    except ValueError as exc:
-        raise ValueError(f"{path}: {exc}") from None
-
-
 def check_options_early(method: str | None, params: dict) -> None:
     """Check the options by the kernel's own rules before any file is read.
 
@@ -199,7 +183,7 @@ def run(args: argparse.Namespace) -> int:
     whose volume and MIPs are downloaded (module docstring).
 
     Client errors (``fpscan.clients.http.FpscanClientError``) are one line on stderr and exit 1,
-    or 2 for a request the server refused as given (``fpscan.clients.cli._common.client_errors``).
+    or 2 for a request the server refused as given (``fpscan.clients.cli.common.client_errors``).
 
     Parameters
     ----------
@@ -231,14 +215,14 @@ def run(args: argparse.Namespace) -> int:
     if args.plan and args.scan_job:
         raise UsageError("--plan samples dense INPUT data; a scan job's file is already a scan: not with --scan-job")
     if args.out:  # before the work, not after it (the default folder sits beside the input)
-        from fpscan.clients.cli._common import check_out_writable
+        from fpscan.clients.cli.common import check_out_writable
 
         check_out_writable(args.out)
     # no --method: the pipeline's default for the loaded data (fpscan.service.pipeline.default_method),
     # resolved where the data is read: here locally, by the server with --server
     if args.server:
-        return _remote(args, None if args.scan_job else (args.format or _sniff_format(args.input)))
-    return _local(args, args.format or _sniff_format(args.input))
+        return _remote(args, None if args.scan_job else (args.format or sniff_format(args.input)))
+    return _local(args, args.format or sniff_format(args.input))
 
 
 def _default_out(args: argparse.Namespace, method: str) -> Path:
@@ -258,7 +242,7 @@ def _local(args: argparse.Namespace, fmt: str) -> int:
     import sys
     from pathlib import Path
 
-    from fpscan.clients.cli._common import ProgressBar
+    from fpscan.clients.cli.common import ProgressBar
     from fpscan.service.pipeline import run_file
     from fpscan.service.recon.dataset import GridDataset, file_wavelengths
 
@@ -342,12 +326,12 @@ def _nm(params: dict) -> str:
 
 
 def _remote(args: argparse.Namespace, fmt: str | None) -> int:
-    from fpscan.clients.cli._common import ProgressBar, make_client
+    from fpscan.clients.cli.common import ProgressBar, make_client
     from fpscan.clients.cli.recon_options import http_params
 
     with make_client(args, timeout=300) as api:
         if args.scan_job:
-            from fpscan.clients.cli._common import full_job_id
+            from fpscan.clients.cli.common import full_job_id
 
             job_id = api.start_reconstruction(scan_job_id=full_job_id(api, args.scan_job), method=args.method,
                                               params=http_params(_params(args)), wavelength=args.wavelength)
@@ -371,7 +355,7 @@ def _remote(args: argparse.Namespace, fmt: str | None) -> int:
             job_id = api.start_reconstruction(dataset_id=dataset_id, method=args.method,
                                               params=http_params(_params(args)), plan_id=plan_id)
         assert job_id is not None  # a 202 names its job (fpscan.clients.http.calls.read_job_id)
-        from fpscan.clients.cli._common import remember_job
+        from fpscan.clients.cli.common import remember_job
 
         remember_job(args, job_id)
         with ProgressBar(f"recon {job_id[:8]}", quiet=args.quiet) as bar:

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import argparse
 
-from fpscan.clients.cli._common import quantity, speed
+from fpscan.clients.cli.common import quantity, speed
 from fpscan.constants import C_AUTOFOCUS_RANGE, C_DEFAULT, C_PLAUSIBLE
 
 TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (`fpscan --help` starts faster)

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import argparse
 
-from fpscan.clients.cli._common import UsageError, add_server_options, client_errors
+from fpscan.clients.cli.common import UsageError, add_server_options, client_errors
 
 TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (`fpscan --help` starts faster)
 if TYPE_CHECKING:
@@ -126,12 +126,12 @@ def run(args: argparse.Namespace) -> int:
         The exit status of a local scan: 0 when the scan is complete; 1 incomplete (aborted or
         stopped); 2 a ``--plan`` that is no plan; 130 interrupted (the same command resumes).
         Errors of the client become exit 1, or 2 when the server refused the request as given
-        (``fpscan.clients.cli._common.client_errors``).
+        (``fpscan.clients.cli.common.client_errors``).
     """
     import sys
     import time
 
-    from fpscan.clients.cli._common import ProgressBar
+    from fpscan.clients.cli.common import ProgressBar
 
     if args.server and not args.device:  # --device wins over $FPSCAN_SERVER
         return _remote(args)
@@ -221,7 +221,7 @@ def _remote(args: argparse.Namespace) -> int:
     follow it with a progress bar, download the scan file to ``--out``."""
     from pathlib import Path
 
-    from fpscan.clients.cli._common import ProgressBar, make_client
+    from fpscan.clients.cli.common import ProgressBar, make_client
     from fpscan.clients.http import field_of
 
     source = Path(args.plan)
@@ -250,7 +250,7 @@ def _remote(args: argparse.Namespace) -> int:
             scanner = ids[0]
         job_id = api.start_scan(plan_id, scanner, **extra)
         assert job_id is not None  # a 202 names its job (fpscan.clients.http.calls.read_job_id)
-        from fpscan.clients.cli._common import remember_job
+        from fpscan.clients.cli.common import remember_job
 
         remember_job(args, job_id)
         with ProgressBar(f"scan {job_id[:8]}", quiet=args.quiet) as bar:

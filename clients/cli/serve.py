@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import argparse
 
-from fpscan.clients.cli._common import UsageError
+from fpscan.clients.cli.common import UsageError
 
 TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (`fpscan --help` starts faster)
 if TYPE_CHECKING:
@@ -44,7 +44,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--settings", default=None, help="settings file (JSON or TOML)")
     parser.add_argument("--no-web", action="store_true", help="do not serve the web page")
     parser.add_argument("--log-level", default=None, help="uvicorn/app log level (default info)")
-    from fpscan.clients.cli._common import default_dtype
+    from fpscan.clients.cli.common import default_dtype
 
     parser.epilog = (f"Precision: reconstructions are {default_dtype()} unless a request's params.dtype asks for "
                      "float64, the same default as fpscan recon locally and the web page.")

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import argparse
 
-from fpscan.clients.cli._common import UsageError
+from fpscan.clients.cli.common import UsageError
 from fpscan.constants import C_DEFAULT, C_PLAUSIBLE
 
 TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (`fpscan --help` starts faster)
@@ -26,14 +26,14 @@ HELP = "run the simulated FP scanner on a pseudo-terminal (prints its device pat
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Declare this sub-command's options on ``parser`` (an ``argparse`` sub-parser).
     Frequencies, times and the sound speed take units (``500Hz``, ``2 MHz``, ``5ms``,
-    ``1.54 km/s``; bare numbers are SI: ``fpscan.clients.cli._common.quantity``).
+    ``1.54 km/s``; bare numbers are SI: ``fpscan.clients.cli.common.quantity``).
 
     Parameters
     ----------
     parser : argparse.ArgumentParser
         The sub-command's parser, changed in place.
     """
-    from fpscan.clients.cli._common import quantity
+    from fpscan.clients.cli.common import quantity
 
     parser.add_argument("--source", nargs="+", default=["balls"], metavar="ARG",
                         help="A-line source: 'balls' (default: built-in phantom of balls and "

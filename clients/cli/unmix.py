@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import argparse
 
-from fpscan.clients.cli._common import (
+from fpscan.clients.cli.common import (
     UsageError,
     add_progress_option,
     add_server_options,
@@ -106,7 +106,7 @@ def run(args: argparse.Namespace) -> int:
     -------
     int
         The exit status: 0 on success. Errors of the client become exit 1, or 2 when the server refused
-        the request as given (``fpscan.clients.cli._common.client_errors``); other refused input and
+        the request as given (``fpscan.clients.cli.common.client_errors``); other refused input and
         failures raise (:func:`fpscan.clients.cli.main` reports them and sets the status).
     """
     check_input_files(args, args.inputs or [], "give a multi-wavelength scan file or one file per wavelength")
@@ -124,7 +124,7 @@ def run(args: argparse.Namespace) -> int:
         else:
             endmember_matrix(list(args.wavelengths))
     if args.out:  # before the work, not after it
-        from fpscan.clients.cli._common import check_out_writable
+        from fpscan.clients.cli.common import check_out_writable
 
         check_out_writable(args.out)
     if args.server:
@@ -160,17 +160,16 @@ def _local(args: argparse.Namespace) -> int:
 
 
 def _remote(args: argparse.Namespace) -> int:
-    from fpscan.clients.cli._common import ProgressBar, make_client
-    from fpscan.clients.cli.recon import _sniff_format
+    from fpscan.clients.cli.common import ProgressBar, make_client, sniff_format
     from fpscan.clients.cli.recon_options import http_params
     from fpscan.clients.http import field_of
 
-    formats = [args.format or _sniff_format(p) for p in args.inputs]
+    formats = [args.format or sniff_format(p) for p in args.inputs]
     method = args.method  # None: the server applies fpscan.service.pipeline.default_method, as _local does
     with make_client(args, timeout=300) as api:
         unmix = {"threshold": args.threshold, "fluence": args.fluence}
         if args.scan_job:
-            from fpscan.clients.cli._common import full_job_id
+            from fpscan.clients.cli.common import full_job_id
 
             job_id = api.start_unmix(scan_job_id=full_job_id(api, args.scan_job), method=method, params=http_params(_params(args)), **unmix)
         else:
@@ -179,7 +178,7 @@ def _remote(args: argparse.Namespace) -> int:
             job_id = api.start_unmix(dataset_ids=ids, wavelengths=args.wavelengths, method=method,
                                      params=http_params(_params(args)), **unmix)
         assert job_id is not None  # a 202 names its job (fpscan.clients.http.calls.read_job_id)
-        from fpscan.clients.cli._common import remember_job
+        from fpscan.clients.cli.common import remember_job
 
         remember_job(args, job_id)
         with ProgressBar(f"unmix {job_id[:8]}", quiet=args.quiet) as bar:

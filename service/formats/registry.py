@@ -47,7 +47,7 @@ MAX_BYTES = MAX_ELEMENTS * 8
 HDF5_OFFSETS = (0, 512)
 
 
-def hdf5_offset(head: bytes) -> int | None:
+def _hdf5_offset(head: bytes) -> int | None:
     """Where ``head`` (a file's first bytes) holds the HDF5 signature: 0, 512 (behind a
     user block: a MATLAB v7.3 MAT-file) or None (not HDF5)."""
     for offset in HDF5_OFFSETS:
@@ -81,8 +81,8 @@ class Source:
     @property
     def is_hdf5(self) -> bool:
         """True for an HDF5 file (signature at offset 0, or at 512 behind a user block:
-        :func:`hdf5_offset`)."""
-        return hdf5_offset(self.head) is not None
+        :data:`HDF5_OFFSETS`)."""
+        return _hdf5_offset(self.head) is not None
 
     def attr(self, name: str) -> str:
         """The HDF5 root attribute ``name`` as text (``""`` when absent or not HDF5)."""
@@ -272,7 +272,7 @@ def open_source(path: str | os.PathLike, container: str | None = None, *,
         The container a chosen format needs: ``"hdf5"``: a file without the HDF5 signature
         is refused, naming the format ``name``; ``"file"``: not opened as HDF5; None
         (default) or ``"any"``: from the signature (at 0, or at 512 behind a user block:
-        :func:`hdf5_offset`).
+        :data:`HDF5_OFFSETS`).
     max_bytes : int, optional
         The bound on any one HDF5 dataset's declared bytes (``check_hdf5_file``); default
         :data:`MAX_BYTES`.
@@ -302,7 +302,7 @@ def open_source(path: str | os.PathLike, container: str | None = None, *,
     with open(path, "rb") as fh:
         head = fh.read(HEAD_BYTES)
         fh.seek(0)
-        offset = hdf5_offset(head)
+        offset = _hdf5_offset(head)
         if container == "hdf5" and offset is None:
             raise ValueError(f"{'a ' + name if name else 'the'} file must be HDF5 (no HDF5 signature at the start)"
                              + _mat_hint(head))

@@ -19,9 +19,9 @@ QUIET = {"FPSCAN_WARM_UP": "false"}
 
 
 def has_command(name: str) -> bool:
-    from fpscan.clients.cli import _subcommand_modules
+    from fpscan.clients.cli import subcommand_modules
 
-    return any(m.COMMAND == name for m in _subcommand_modules())
+    return any(m.COMMAND == name for m in subcommand_modules())
 
 
 @contextlib.contextmanager

@@ -90,7 +90,7 @@ def test_bad_local_inputs_are_one_line_errors(tmp_path):
 @pytest.mark.parametrize("command", ["recon", "unmix"])
 def test_input_or_scan_job_refusals_agree(command, tmp_path):
     """recon and unmix refuse the same impossible input choices with the same one-line
-    reason (fpscan.clients.cli._common.check_input_files), exit 2, before touching any server."""
+    reason (fpscan.clients.cli.common.check_input_files), exit 2, before touching any server."""
     url = f"http://127.0.0.1:{free_port()}"  # nobody listens: a refusal must come first
     (tmp_path / "a.h5").write_bytes(b"x")
     _one_line_error(fpscan(command, "--scan-job", "abc"), "--scan-job needs --server", code=2)

@@ -42,9 +42,9 @@ def test_version_and_help_import_no_heavy_module(argv):
 
         assert got["stdout"] == f"fpscan {software_version()}\n"
     else:  # every subcommand is listed with its one-line help
-        from fpscan.clients.cli import _subcommand_modules
+        from fpscan.clients.cli import subcommand_modules
 
-        for module in _subcommand_modules():
+        for module in subcommand_modules():
             assert module.COMMAND in got["stdout"] and module.HELP.split()[0] in got["stdout"], module.COMMAND
 
 
@@ -261,7 +261,7 @@ print(json.dumps({"code": code, "modules": sorted(sys.modules)}))
 def test_a_local_command_loads_no_http_client():
     """``fpscan recon`` of a local file never loads the HTTP client (``fpscan.clients.http`` and httpx,
     0.2 s of every local command's start): the commands' error handler
-    (``fpscan.clients.cli._common.client_errors``) imports it only when an error reaches it."""
+    (``fpscan.clients.cli.common.client_errors``) imports it only when an error reaches it."""
     got = _fresh(LOCAL_RECON)
     assert got["code"] == 0
     loaded = [m for m in got["modules"] if m.split(".")[0] in ("httpx", "httpcore") or m.startswith("fpscan.clients.http")]

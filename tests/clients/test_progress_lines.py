@@ -53,7 +53,7 @@ class _Log(io.StringIO):
 def test_progress_lines_repeat_every_period_between_reports():
     """One report, then silence (a long step): the line comes again every period, so a log
     shows the job is alive; the ETA it had counts down, never up."""
-    from fpscan.clients.cli._common import ProgressBar
+    from fpscan.clients.cli.common import ProgressBar
 
     log = _Log()
     with ProgressBar("recon tv", stream=log, period=0.05) as bar:
@@ -71,7 +71,7 @@ def test_a_complete_state_is_said_once():
     """A scan at every point done (its job still wrapping up: the final live
     preview) is one line, not one every period; a witness bar beside it, same period, shows
     that several periods passed (its unfinished line came again three times)."""
-    from fpscan.clients.cli._common import ProgressBar
+    from fpscan.clients.cli.common import ProgressBar
 
     done_log, witness_log = _Log(), _Log()
     with ProgressBar("scan", stream=done_log, period=0.05) as done, \
@@ -87,7 +87,7 @@ def test_a_complete_state_is_said_once():
 
 
 def test_progress_period_from_the_environment(monkeypatch):
-    from fpscan.clients.cli._common import PROGRESS_PERIOD_S, progress_period
+    from fpscan.clients.cli.common import PROGRESS_PERIOD_S, progress_period
 
     monkeypatch.delenv("FPSCAN_PROGRESS_PERIOD", raising=False)
     assert progress_period() == PROGRESS_PERIOD_S
@@ -192,7 +192,7 @@ def test_eta_of_iterations_is_the_time_to_the_stopping_rule_bounded_by_the_limit
     the iteration limit as its bound; the line shows the tolerance (also while λ falls)."""
     import math
 
-    from fpscan.clients.cli._common import describe_progress
+    from fpscan.clients.cli.common import describe_progress
     from fpscan.service.progress import Eta, IterationStage, iteration_fields
 
     now, n, tol, q = [0.0], 100, 1e-3, 10 ** (-1 / 5)

@@ -1,5 +1,7 @@
-"""Helpers shared by the CLI subcommands: server URL/token options, the client, progress
-bars for scans (points/s, ETA) and reconstructions (stages), and one-line errors."""
+"""Helpers shared by the CLI subcommands (one module each in :mod:`fpscan.clients.cli`):
+server URL/token options and the client, input and output checks, flags with units,
+progress bars for scans (points/s, ETA) and reconstructions (stages), and one-line errors
+(:class:`UsageError`: exit 2; :func:`client_errors`: the client's errors as exit 1 or 2)."""
 from __future__ import annotations
 
 import argparse
@@ -23,18 +25,47 @@ try:  # the base of refused input (a unit mistake, an option outside its rule): 
 except ImportError:  # pragma: no cover -- fpscan.driver.units is part of every install
     RefusedInput = ValueError  # type: ignore[misc,assignment]
 
+__all__ = ["UsageError", "wrong_file", "check_input_files", "sniff_format", "add_server_options", "default_dtype",
+           "EXTRA_OF_MODULE", "missing_extra", "needs_extra", "speed", "add_progress_option", "make_client",
+           "client_errors", "remember_job", "unreachable_hint", "describe_progress", "PROGRESS_PERIOD_S",
+           "progress_period", "ProgressBar", "quantity", "format_bytes", "check_out_writable", "full_job_id",
+           "delete_each"]
+
 
 class UsageError(RefusedInput):
     """The command line itself is refused before any work: a flag missing or combined with
     one it excludes, a value out of range, a named file that does not exist. ``fpscan``
-    prints it on one line and exits 2, like argparse's own usage errors."""
+    prints it on one line and exits 2, like argparse's own usage errors.
+
+    A :class:`fpscan.driver.units.RefusedInput` (a ``ValueError``): :func:`fpscan.clients.cli.main`
+    reports every refused input alike.
+
+    Parameters
+    ----------
+    message : str
+        The reason, in the command line's terms (the flags by name).
+    """
 
 
 def wrong_file(path: str | os.PathLike, wanted: str) -> str | None:
-    """``"<path>: this is a scan file, not <wanted>"`` when ``path`` is a file of another
-    format, named by the registry of formats (``fpscan.service.formats.describe``: the one
-    format sniffer); None when it is that format (``"plan"``), of no known format or not
-    a file (the caller's own reason stands)."""
+    """Name what a file given as ``wanted`` is when it is a file of another format.
+
+    The format is named by the registry of formats (``fpscan.service.formats.describe``: the
+    one format sniffer).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file given (anything else gives None).
+    wanted : str
+        What the command wanted, as a noun (``"a plan"``).
+
+    Returns
+    -------
+    str or None
+        ``"<path>: this is a scan file, not <wanted>"``; None when it is a plan (``"plan"``),
+        of no known format or not a file (the caller's own reason stands).
+    """
     from pathlib import Path
 
     if not isinstance(path, (str, os.PathLike)) or not Path(path).is_file():
@@ -78,9 +109,53 @@ def check_input_files(args: argparse.Namespace, paths: list[str], missing: str) 
             raise UsageError(f"no such file: {p}")
 
 
+def sniff_format(path: str | os.PathLike) -> str:
+    """The input format of a file given to ``fpscan recon`` or ``fpscan unmix`` without
+    ``--format``, from its content (``fpscan.service.storage.loader.detect_format``).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The input file.
+
+    Returns
+    -------
+    str
+        The name of its input format (``"fpscan"``, ``"npy"``, ``"kwave-hdf5"``, ...).
+
+    Raises
+    ------
+    ModuleNotFoundError
+        The reader's dependencies are not installed (h5py: the driver extra); the message
+        says to give ``--format``.
+    ValueError
+        No input format fits, or the file is not data to reconstruct; the message starts
+        with ``path``.
+    """
+    try:
+        from fpscan.service.storage.loader import detect_format
+    except ModuleNotFoundError as exc:
+        raise ModuleNotFoundError(f"no module {exc.name} to tell the file's format: give --format",
+                                  name=exc.name) from None
+
+    try:
+        return detect_format(path)
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from None
+
+
 def add_server_options(parser: argparse._ActionsContainer, *, required: bool = False) -> None:
-    """``--server URL`` (default ``$FPSCAN_SERVER``) and ``--token`` (default
-    ``$FPSCAN_TOKEN``)."""
+    """Declare ``--server URL`` (default ``$FPSCAN_SERVER``) and ``--token`` (default
+    ``$FPSCAN_TOKEN``) on ``parser``.
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser or argument group
+        Where the options go.
+    required : bool, optional
+        ``--server`` must be given when ``$FPSCAN_SERVER`` is not set (a command that only
+        works against a server); default False (without it the command works locally).
+    """
     parser.add_argument(
         "--server", metavar="URL", default=os.environ.get("FPSCAN_SERVER") or None,
         required=required and not os.environ.get("FPSCAN_SERVER"),
@@ -94,11 +169,18 @@ def add_server_options(parser: argparse._ActionsContainer, *, required: bool = F
 
 
 def default_dtype() -> str:
-    """The reconstruction precision used when none is asked for:
-    ``fpscan.service.recon.limits.DEFAULT_DTYPE`` (the same for ``fpscan recon``, the server and the
-    web page; read from the module that owns it, which imports nothing heavy: ``fpscan serve``
-    spawns its workers that much sooner); on a client-only install (no ``service`` package)
-    ``"float32"``, the value the server states in its ``ReconParams`` schema."""
+    """The reconstruction precision used when none is asked for.
+
+    Read from the module that owns it, ``fpscan.service.recon.limits`` (the same for ``fpscan
+    recon``, the server and the web page), which imports nothing heavy: ``fpscan serve`` spawns
+    its workers that much sooner.
+
+    Returns
+    -------
+    str
+        ``fpscan.service.recon.limits.DEFAULT_DTYPE``; on a client-only install (no ``service``
+        package) ``"float32"``, the value the server states in its ``ReconParams`` schema.
+    """
     try:
         from fpscan.service.recon.limits import DEFAULT_DTYPE
     except ImportError:
@@ -116,9 +198,19 @@ EXTRA_OF_MODULE = {
 
 
 def missing_extra(exc: BaseException) -> str | None:
-    """The extra (``"driver"`` or ``"server"``) whose absence ``exc`` shows: a
-    ``ModuleNotFoundError`` (or ``ImportError`` naming its module) for one of the
-    optional dependencies in ``EXTRA_OF_MODULE``; None for any other error."""
+    """The extra whose absence an import error shows.
+
+    Parameters
+    ----------
+    exc : BaseException
+        The error: a ``ModuleNotFoundError`` (or an ``ImportError`` naming its module) for one
+        of the optional dependencies in :data:`EXTRA_OF_MODULE`, or anything else.
+
+    Returns
+    -------
+    str or None
+        ``"driver"`` or ``"server"``; None for any other error.
+    """
     name = getattr(exc, "name", None)
     if not isinstance(exc, ImportError) or not name:
         return None
@@ -127,8 +219,22 @@ def missing_extra(exc: BaseException) -> str | None:
 
 def needs_extra(args: argparse.Namespace, extra: str, detail: str = "") -> int:
     """Say in one line on stderr that ``fpscan <command>`` (as asked) needs the ``extra``
-    install (``pip install 'fpscan[<extra>]'``); return 2 (a usage error: the command
-    cannot run on this install)."""
+    install (``pip install 'fpscan[<extra>]'``).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed command line (its ``command`` names the sub-command).
+    extra : str
+        The extra's name (``"driver"``, ``"server"``).
+    detail : str, optional
+        What is missing, in parentheses after the reason (default none).
+
+    Returns
+    -------
+    int
+        2: a usage error (the command cannot run on this install).
+    """
     what = f" ({detail})" if detail else ""
     print(f"fpscan {getattr(args, 'command', '')}: error: this needs the fpscan[{extra}] extra, "
           f"not installed here{what}: pip install 'fpscan[{extra}]'", file=sys.stderr)
@@ -136,20 +242,60 @@ def needs_extra(args: argparse.Namespace, extra: str, detail: str = "") -> int:
 
 
 def speed(value: str) -> float | str:
-    """Type of a ``--c`` option: ``"auto"`` (autofocus) or a speed of sound, a bare number
-    in m/s or text with a unit (``1.5 mm/us``; :func:`quantity`). A bad value is a usage
-    error (exit 2) naming it."""
+    """An ``argparse`` ``type=`` for a speed-of-sound flag: ``"auto"`` (autofocus) or a speed.
+
+    Parameters
+    ----------
+    value : str
+        The flag's text: ``auto`` (any case), a bare number in m/s, or text with a unit
+        (``1.5 mm/us``; :func:`quantity`).
+
+    Returns
+    -------
+    float or str
+        The speed of sound in m/s, or ``"auto"``.
+
+    Raises
+    ------
+    argparse.ArgumentTypeError
+        A bad value (argparse reports it naming the flag: a usage error, exit 2).
+    """
     if value.strip().lower() == "auto":
         return "auto"
     return quantity("speed", "c")(value)
 
 
 def add_progress_option(parser: argparse.ArgumentParser) -> None:
+    """Declare ``--quiet`` / ``-q`` (no progress bar: :class:`ProgressBar`'s ``quiet``) on ``parser``.
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The sub-command's parser.
+    """
     parser.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
 
 
 def make_client(args: argparse.Namespace, *, timeout: float = 60.0) -> Client:
-    """A :class:`fpscan.clients.http.Client` from ``--server``/``--token``."""
+    """The HTTP client of the server the command line names.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed command line: ``server`` (the URL) and ``token`` (else ``$FPSCAN_TOKEN``).
+    timeout : float, optional
+        The client's time limit per request, s (default 60).
+
+    Returns
+    -------
+    fpscan.clients.http.Client
+        A new client (the caller closes it: ``with make_client(args) as api``).
+
+    Raises
+    ------
+    ValueError
+        No server given.
+    """
     from fpscan.clients.http import Client
 
     if not getattr(args, "server", None):
@@ -159,10 +305,23 @@ def make_client(args: argparse.Namespace, *, timeout: float = 60.0) -> Client:
 
 
 def client_errors(run: Callable[..., int]) -> Callable[..., int]:
-    """Decorator for ``run(args)``: client exceptions become one line on stderr, exit 1 --
-    or 2 when the server refused the request as given (HTTP 400, 404 an unknown id, or 422:
-    the usage error of the local checks, ``fpscan.clients.cli.main``); the server's state (409),
-    access (401/403), load (429) and failures stay 1."""
+    """Decorator for a sub-command's ``run(args)``: the HTTP client's errors become one line
+    on stderr and an exit status.
+
+    Parameters
+    ----------
+    run : callable
+        ``run(args) -> int``.
+
+    Returns
+    -------
+    callable
+        ``run`` wrapped: a ``fpscan.clients.http.FpscanClientError`` is printed (with
+        :func:`unreachable_hint`) and gives 2 when the server refused the request as given
+        (HTTP 400, 404 an unknown id, or 422: the usage error of the local checks,
+        ``fpscan.clients.cli.main``), 1 for the server's state (409), access (401/403), load
+        (429) and failures; any other exception passes through.
+    """
 
     @functools.wraps(run)
     def wrapper(args: argparse.Namespace) -> int:
@@ -183,7 +342,15 @@ def client_errors(run: Callable[..., int]) -> Callable[..., int]:
 def remember_job(args: argparse.Namespace, job_id: str | None) -> None:
     """Note on ``args`` the job a command has had accepted by the server, so that a server
     that goes away afterwards is reported with the command that reattaches to it
-    (:func:`unreachable_hint`)."""
+    (:func:`unreachable_hint`).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed command line; its ``submitted_job`` is set.
+    job_id : str or None
+        The job's id.
+    """
     args.submitted_job = job_id
 
 
@@ -249,9 +416,24 @@ def _iteration_detail(progress: dict) -> str:
 
 
 def describe_progress(progress: dict, *, with_fraction: bool = True) -> str:
-    """One line for a job's progress dict: stage, an iterative method's stopping rule
-    against its tolerance, points done/total, points/s, ETA (the server's, or the one
-    estimated here) and, without a point count, the percentage."""
+    """One line for a job's progress.
+
+    Parameters
+    ----------
+    progress : dict
+        A job's progress (``stage``, ``fraction``, ``points_done``, ``points_total``,
+        ``rate_per_s``, ``eta_s`` and ``eta_max_s`` in s, an iterative method's iteration
+        fields, ``faults_recovered``), any of them absent.
+    with_fraction : bool, optional
+        Show the percentage when there is no point count (default True).
+
+    Returns
+    -------
+    str
+        Stage, an iterative method's stopping rule against its tolerance, points done/total,
+        points/s, ETA (the server's, or the one estimated by :class:`ProgressBar`) and,
+        without a point count, the percentage; two spaces between the parts.
+    """
     parts = []
     stage = progress.get("stage")
     if stage:
@@ -287,8 +469,19 @@ PROGRESS_PERIOD_S = 5.0
 
 
 def progress_period() -> float:
-    """The period of progress lines off a terminal, s: ``$FPSCAN_PROGRESS_PERIOD`` (a number
-    >= 0) or :data:`PROGRESS_PERIOD_S`. Raises ValueError naming a bad value."""
+    """The period of progress lines off a terminal (:class:`ProgressBar`).
+
+    Returns
+    -------
+    float
+        Seconds: ``$FPSCAN_PROGRESS_PERIOD`` (a number >= 0; 0 a line for every report), or
+        :data:`PROGRESS_PERIOD_S` when it is unset or empty.
+
+    Raises
+    ------
+    ValueError
+        ``$FPSCAN_PROGRESS_PERIOD`` is not a number >= 0 (named in the message).
+    """
     text = os.environ.get("FPSCAN_PROGRESS_PERIOD", "").strip()
     if not text:
         return PROGRESS_PERIOD_S
@@ -319,7 +512,25 @@ class ProgressBar:
     reports; ``quiet`` draws nothing. The ETA is the server's (``eta_s``) or estimated here
     by the one model of ``fpscan.service.progress.Eta`` (an iterative method's from its measured
     time per iteration, moving at most 2x between updates). :meth:`finish` ends the bar
-    with the outcome (``"converged after 37 iterations"``) rather than the last stage."""
+    with the outcome (``"converged after 37 iterations"``) rather than the last stage.
+
+    Parameters
+    ----------
+    label : str
+        What the bar shows first (``"scan"``, ``"recon 1a2b3c4d"``).
+    quiet : bool, optional
+        Draw nothing (``--quiet``); default False.
+    stream : file-like, optional
+        Where to draw; default ``sys.stderr``.
+    period : float, optional
+        Off a terminal, the longest time between progress lines, s; default
+        :func:`progress_period`.
+
+    Attributes
+    ----------
+    label, quiet, stream, period
+        As given (``period`` resolved).
+    """
 
     def __init__(self, label: str, *, quiet: bool = False, stream: TextIO | None = None,
                  period: float | None = None) -> None:
@@ -445,9 +656,24 @@ class ProgressBar:
 
 
 def quantity(kind: str, name: str) -> Callable[[str], float]:
-    """An ``argparse`` ``type=`` for a length/time/frequency/speed: a bare number is SI,
-    text may carry a unit (``60um``, ``3.6 mm``, ``8ns``, ``500 Hz``;
-    ``fpscan.driver.units.parse_quantity``). A bad value is a usage error (exit 2) naming it."""
+    """An ``argparse`` ``type=`` for a length, time, frequency or speed.
+
+    Parameters
+    ----------
+    kind : str
+        The quantity: ``"length"``, ``"time"``, ``"frequency"`` or ``"speed"``
+        (``fpscan.driver.units.parse_quantity``).
+    name : str
+        The value's name in messages.
+
+    Returns
+    -------
+    callable
+        ``parse(text) -> float``: the value in SI units (m, s, Hz, m/s); a bare number is SI,
+        text may carry a unit (``60um``, ``3.6 mm``, ``8ns``, ``500 Hz``). A bad value raises
+        ``argparse.ArgumentTypeError`` naming it (a usage error, exit 2), as does a unit where
+        the driver extra (pint) is not installed.
+    """
     import argparse
 
     from fpscan.driver.units import parse_quantity
@@ -469,7 +695,18 @@ def quantity(kind: str, name: str) -> Callable[[str], float]:
 
 
 def format_bytes(n: float) -> str:
-    """Bytes with a binary prefix (``1.5 MiB``)."""
+    """A number of bytes with a binary prefix.
+
+    Parameters
+    ----------
+    n : float
+        Bytes.
+
+    Returns
+    -------
+    str
+        ``"512 B"``, ``"1.5 MiB"``, ... (GiB for anything larger).
+    """
     for unit in ("B", "KiB", "MiB", "GiB"):
         if abs(n) < 1024 or unit == "GiB":
             return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
@@ -481,7 +718,20 @@ def check_out_writable(path: str | os.PathLike, flag: str = "--out") -> None:
     """Refuse, before any work, an output ``path`` (a result folder or a file) that cannot be
     written: its parent folder is created if missing and must take a new entry (tried with a
     temporary folder there, removed at once: permissions alone do not say it, e.g. for root
-    in ``/proc``). Raises UsageError (exit 2) naming ``flag``, the folder and the reason."""
+    in ``/proc``).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The output the command will write.
+    flag : str, optional
+        The flag that named it, for the message (default ``"--out"``).
+
+    Raises
+    ------
+    UsageError
+        (exit 2) The folder cannot take the output: naming ``flag``, the folder and the reason.
+    """
     import tempfile
     from pathlib import Path
 
@@ -494,10 +744,28 @@ def check_out_writable(path: str | os.PathLike, flag: str = "--out") -> None:
 
 
 def full_job_id(api: Client, job_id: str) -> str:
-    """The full id of the job ``job_id`` names (a unique prefix, as ``fpscan jobs list``
-    shows ids, works wherever a job id does: the server resolves it in a job's path, this
-    for an id sent in a request's body, e.g. ``--scan-job``). Raises the client's errors
-    (``NotFound``; ``Conflict`` naming the matches of an ambiguous prefix)."""
+    """The full id of the job ``job_id`` names.
+
+    A unique prefix, as ``fpscan jobs list`` shows ids, works wherever a job id does: the
+    server resolves it in a job's path, this for an id sent in a request's body (``--scan-job``).
+
+    Parameters
+    ----------
+    api : fpscan.clients.http.Client
+        The server's client.
+    job_id : str
+        A job's id or a unique prefix of it.
+
+    Returns
+    -------
+    str
+        The job's full id.
+
+    Raises
+    ------
+    fpscan.clients.http.FpscanClientError
+        The client's errors: ``NotFound``; ``Conflict`` naming the matches of an ambiguous prefix.
+    """
     from fpscan.clients.http import field_of
 
     return str(field_of(api.get_job(job_id), "id"))
@@ -505,10 +773,29 @@ def full_job_id(api: Client, job_id: str) -> str:
 
 def delete_each(ids: Sequence[str], delete: Callable[[str], dict],
                 what: Callable[[dict], str] = lambda gone: "") -> int:
-    """``delete(id)`` for each id in ``ids`` (a dataset or job deletion of the HTTP client,
-    answering a dict with ``bytes_freed``), one line each ("ID: deleted (WHAT N MiB freed)",
-    ``what(answer)`` naming the kind) and a total when there were several. Returns the bytes
-    freed in all; a refused deletion raises the client's error (``client_errors`` reports it)."""
+    """Delete each of ``ids``, printing one line each on stdout ("ID: deleted (WHAT N MiB
+    freed)") and a total when there were several.
+
+    Parameters
+    ----------
+    ids : sequence of str
+        The ids to delete.
+    delete : callable
+        ``delete(id) -> dict``: a dataset or job deletion of the HTTP client, answering a dict
+        with ``bytes_freed``.
+    what : callable, optional
+        ``what(answer) -> str``: the kind, before the size (default none).
+
+    Returns
+    -------
+    int
+        The bytes freed in all.
+
+    Raises
+    ------
+    fpscan.clients.http.FpscanClientError
+        A refused deletion (:func:`client_errors` reports it); the ones before it are done.
+    """
     freed = 0
     for item in ids:
         gone = delete(item)
