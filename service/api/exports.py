@@ -11,8 +11,8 @@ is written anew on every request, since the scan may have grown). A folder expor
 served zipped. Exports run in FastAPI's thread pool, off the event loop.
 
 Single flight: one export file is built by one request at a time
-(:func:`_one_build`, a lock per output path). Requests that come while it is built wait
-for that build and serve its file: 20 concurrent first requests of a volume's OME-TIFF
+(``fpscan.service.api.single_flight.SingleFlight``, a lock per output path). Requests that
+come while it is built wait for that build and serve its file: 20 concurrent first requests of a volume's OME-TIFF
 build it once, and every response carries the same bytes (one OME UUID), so a download
 resumed with ``Range`` never mixes two builds. A scan's export, written anew per request,
 is written once for the requests that came while it was being written.
@@ -23,11 +23,8 @@ export never leaves a file behind a deleted job.
 """
 from __future__ import annotations
 
-import contextlib
 import shutil
-import threading
 import uuid
-from collections.abc import Iterator
 from pathlib import Path
 
 from fastapi import APIRouter, Depends, HTTPException, Query
@@ -38,6 +35,7 @@ from fpscan.service.api.context import Context, ctx, read_access
 from fpscan.service.api.files import HeldFileResponse
 from fpscan.service.api.jobs import get_job_or_404
 from fpscan.service.api.models import ID_PATTERN, FormatInfo
+from fpscan.service.api.single_flight import SingleFlight
 from fpscan.service.formats import FORMATS, export_file, export_formats
 from fpscan.service.formats.result import VOLUME_FILE
 from fpscan.service.jobs import lifecycle
@@ -129,7 +127,7 @@ def export(job_id: str = PathParam(pattern=ID_PATTERN, description="a scan or re
         out = src.with_name(f"volume{fmt.suffix}" + (".zip" if fmt.folder else ""))
     else:  # a scan may grow: written anew
         out = Path(context.settings.data_dir) / EXPORTS_DIR / (f"{job_id}{fmt.suffix}" + (".zip" if fmt.folder else ""))
-    with _one_build(out) as turn:
+    with _BUILDS.turn(out) as turn:
         if not (out.exists() if source == "result" else turn.built_meanwhile):
             try:
                 _write_export(context, src, out, format, arcname=f"{job_id}{fmt.suffix}", replace=source != "result")
@@ -149,51 +147,8 @@ def export(job_id: str = PathParam(pattern=ID_PATTERN, description="a scan or re
                                 filename=name + (".zip" if fmt.folder else ""))
 
 
-class _Flight:
-    """One export file's build lock, its users (waiting or building) and its builds so far."""
-
-    def __init__(self) -> None:
-        self.lock = threading.Lock()
-        self.users = 0
-        self.builds = 0
-
-
-class _Turn:
-    """A request's turn at an export file (:func:`_one_build`): whether a build of it ended
-    while the request waited, and :meth:`built` to count the build it made."""
-
-    def __init__(self, flight: _Flight, seen: int) -> None:
-        self._flight, self._seen = flight, seen
-
-    @property
-    def built_meanwhile(self) -> bool:
-        return self._flight.builds != self._seen
-
-    def built(self) -> None:
-        self._flight.builds += 1
-
-
-_FLIGHTS: dict[Path, _Flight] = {}
-_FLIGHTS_LOCK = threading.Lock()
-
-
-@contextlib.contextmanager
-def _one_build(out: Path) -> Iterator[_Turn]:
-    """Hold the build of ``out``: one request at a time per path, in turn (the entry goes
-    with its last user). The turn says whether a build ended while the request waited (its
-    file is then the one to serve)."""
-    with _FLIGHTS_LOCK:
-        flight = _FLIGHTS.setdefault(out, _Flight())
-        flight.users += 1
-        seen = flight.builds
-    try:
-        with flight.lock:
-            yield _Turn(flight, seen)
-    finally:
-        with _FLIGHTS_LOCK:
-            flight.users -= 1
-            if flight.users == 0:
-                del _FLIGHTS[out]
+#: the exports' builds: one at a time per output path
+_BUILDS = SingleFlight()
 
 
 def _discard(context: Context, out: Path, job: dict) -> None:

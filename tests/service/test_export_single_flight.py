@@ -76,23 +76,25 @@ def test_concurrent_first_exports_wait_for_one_build_and_serve_the_same_bytes(tm
 
 
 def test_requests_that_wait_for_a_build_serve_it_and_later_ones_build_anew(tmp_path):
-    """The single flight of a scan's export (written anew per request): the requests that
-    came while it was written serve that build; one that comes after builds again."""
-    from fpscan.service.api.exports import _FLIGHTS, _one_build
+    """The single flight of a scan's export (written anew per request), as the exports hold
+    it (``SingleFlight.turn``): the requests that came while it was written serve that build;
+    one that comes after builds again."""
+    from fpscan.service.api.single_flight import SingleFlight
 
+    flights = SingleFlight()
     out = tmp_path / "x_ipasc.h5"
     building, release = threading.Event(), threading.Event()
     seen: dict[str, bool] = {}
 
     def first() -> None:
-        with _one_build(out) as turn:
+        with flights.turn(out) as turn:
             seen["first"] = turn.built_meanwhile
             building.set()
             release.wait(60)
             turn.built()
 
     def waiter(name: str) -> None:
-        with _one_build(out) as turn:
+        with flights.turn(out) as turn:
             seen[name] = turn.built_meanwhile
 
     threads = [threading.Thread(target=first)]
@@ -102,10 +104,11 @@ def test_requests_that_wait_for_a_build_serve_it_and_later_ones_build_anew(tmp_p
     for t in threads[1:]:
         t.start()
     deadline = time.monotonic() + 60
-    while _FLIGHTS[out].users < 4 and time.monotonic() < deadline:  # every waiter is in line
+    while flights.users(out) < 4 and time.monotonic() < deadline:  # every waiter is in line
         time.sleep(0.01)
     release.set()
     for t in threads:
         t.join(60)
     waiter("later")
     assert seen == {"first": False, "w0": True, "w1": True, "w2": True, "later": False}, seen
+    assert flights.users(out) == 0  # the entry went with its last user
