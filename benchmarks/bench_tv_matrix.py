@@ -16,7 +16,7 @@ Masks (``--masks``): equi-steradian (3-D) / equiangular (2-D) masks of 4 % and 1
 lattice centre at the depth of p0's centroid (the paper's case: its balls' 3.6 mm × scale). Noise
 (``--noise``): white, seeded (``--seed``, default 0), relative to the peak (k-Wave's ``addNoise(..., 'peak')``: σ =
 max|clean| / 10^(SNR/20)) at 20, 30 and 40 dB, and relative to the RMS at 30 dB
-(`fpscan.service.experiments.dense.add_noise`), over the dense record; the sparse scan is its mask's
+(`fpscan.experiments.dense.add_noise`), over the dense record; the sparse scan is its mask's
 A-lines of it.
 
 Per row:
@@ -89,8 +89,8 @@ PROBE_DEFAULTS = {"tol": None, "declared": None, "ref_lam": "rule", "rule_iterat
 
 def noisy(clean: np.ndarray, noise: str, seed: int = 0) -> np.ndarray:
     """``clean`` plus seeded white noise named as ``peak20`` (σ = max|clean| / 10^(20/20)) or
-    ``rms30`` (σ = rms(clean) / 10^(30/20), `fpscan.service.experiments.dense.add_noise`)."""
-    from fpscan.service.experiments.dense import add_noise
+    ``rms30`` (σ = rms(clean) / 10^(30/20), `fpscan.experiments.dense.add_noise`)."""
+    from fpscan.experiments.dense import add_noise
 
     kind, snr = noise[:-2], float(noise[-2:])
     return add_noise(clean, snr, seed=seed, reference=kind)

@@ -1,6 +1,6 @@
 """The model-based solver against one NEDNER of the same data.
 
-For vessel (`fpscan.service.experiments.phantoms.vessel_phantom`) and ball phantoms, 2-D (a line of
+For vessel (`fpscan.experiments.phantoms.vessel_phantom`) and ball phantoms, 2-D (a line of
 ``n_x`` sensors, 24 of them used, equiangular about the image's centre) and 3-D (a lattice,
 an equi-steradian mask of about 10 %), exact grid data (`forward_grid`, pitch = dz = 50 µm,
 dt = pitch / c) with seeded white noise ``--snr`` dB below the signal, this prints per case:
@@ -63,9 +63,9 @@ def _case(kind: str, dims: int, snr_db: float, points: int = 160, seed: int = 0,
           lateral: float = 1.0):
     """Phantom, A-lines, sensor positions and tv's keywords of one case: ``points`` sensors of
     the 3-D mask (2-D: of the line; 0: 24), lateral pitch ``lateral`` × 50 µm (depth 50 µm)."""
+    from fpscan.experiments.phantoms import vessel_phantom
     from fpscan.physics import Ball, ball_p0
     from fpscan.physics.forward import forward_grid
-    from fpscan.service.experiments.phantoms import vessel_phantom
     from fpscan.service.plans import Lattice, equiangular_mask, equisteradian_mask
 
     if dims == 2:

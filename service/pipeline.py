@@ -2,7 +2,7 @@
 
 Everything that reconstructs calls :func:`reconstruct` — the job worker
 (:mod:`fpscan.service.jobs.work`), ``fpscan recon`` without ``--server``, the live preview
-(:mod:`fpscan.service.jobs.preview`) and the experiments (:mod:`fpscan.service.experiments`) — so the same
+(:mod:`fpscan.service.jobs.preview`) and the experiments (:mod:`fpscan.experiments`) — so the same
 input and options give the same volume locally and on the server. Inputs are the
 datasets of :mod:`fpscan.service.recon.dataset` (read any file with ``fpscan.service.storage.loader.load_dataset``).
 

@@ -1,7 +1,8 @@
 """`fpscan evaluate`: run the paper's experiments and write plots (PNG) and tables
 (JSON + CSV).
 
-Experiments (``fpscan.service.experiments``): ``limited-view-2d`` (paper §6),
+Experiments (``fpscan.experiments``, loaded only inside :func:`run`: this module's is the one
+import of the experiments the import contracts allow): ``limited-view-2d`` (paper §6),
 ``sparse-masks-3d`` (§7), ``nufft-vs-interpolation`` (§4), ``vessels`` (a thin vessel
 tree from a sparse, noisy 3-D scan: NER, NEDNER, tv; built-in phantom only), or ``all``. ``--data`` gives
 a dense dataset (HDF5 with ``sensor_data/clean``, e.g. the k-Wave reference files, or an
@@ -20,7 +21,7 @@ from fpscan.clients.cli.common import UsageError
 
 TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (`fpscan --help` starts faster)
 if TYPE_CHECKING:
-    from fpscan.service.experiments import ExperimentResult
+    from fpscan.experiments import ExperimentResult
 
 __all__ = ["COMMAND", "HELP", "NAMES", "add_arguments", "run"]
 
@@ -99,14 +100,14 @@ def run(args: argparse.Namespace) -> int:
     """
     from pathlib import Path
 
-    from fpscan.service.experiments import run_experiment
+    from fpscan.experiments import run_experiment
 
     if args.dataset is not None and args.data is None:
         raise UsageError("--dataset names a dataset inside --data FILE; give --data")
     names = NAMES if args.experiment == "all" else (args.experiment,)
     data = None
     if args.data is not None:
-        from fpscan.service.experiments import load_dense
+        from fpscan.experiments import load_dense
 
         data = load_dense(args.data, key=args.dataset)  # ValueError with the reason for a missing or unusable file
     out = Path(args.out)

@@ -225,18 +225,18 @@ def image_install(tmp_path_factory):
 
 def test_installed_wheel_is_used(image_install):
     """One import root: the wheel puts ``fpscan`` and its dist-info into site-packages and nothing
-    else (the scanner driver, the server, the clients, the wire models and the numerical core are
-    its subpackages); the repository's folder names are not importable from the install; the
-    library, the CLI and a reconstruction run from it."""
+    else (the scanner driver, the server, the clients, the wire models, the numerical core and the
+    paper's experiments are its subpackages); the repository's folder names are not importable from
+    the install; the library, the CLI and a reconstruction run from it."""
     site, env, cwd = image_install["site"], image_install["env"], image_install["cwd"]
     top = sorted(p.name for p in site.iterdir() if p.name != "bin")  # bin: the console script
     assert len(top) == 2 and top[0] == "fpscan" and top[1].startswith("fpscan-") and top[1].endswith(".dist-info"), top
     top_level = site / top[1] / "top_level.txt"
     assert not top_level.exists() or top_level.read_text().split() == ["fpscan"]
     res = subprocess.run([sys.executable, "-c", "import fpscan.service, fpscan.clients, fpscan.driver, fpscan.physics, "
-                          "fpscan.wire, fpscan; print(fpscan.service.__file__, fpscan.clients.__file__, "
-                          "fpscan.driver.__file__, fpscan.physics.__file__, fpscan.wire.__file__, fpscan.__file__, "
-                          "fpscan.reconstruct.__module__)"],
+                          "fpscan.wire, fpscan.experiments, fpscan; print(fpscan.service.__file__, fpscan.clients.__file__, "
+                          "fpscan.driver.__file__, fpscan.physics.__file__, fpscan.wire.__file__, "
+                          "fpscan.experiments.__file__, fpscan.__file__, fpscan.reconstruct.__module__)"],
                          env=env, cwd=cwd, capture_output=True, text=True, timeout=60)
     assert res.returncode == 0, res.stderr
     *files, dispatch = res.stdout.split()

@@ -9,7 +9,8 @@ import sys
 import pytest
 
 # loaded by the subcommands and the reconstruction, never by the answers that need none of them
-HEAVY = ("numpy", "h5py", "scipy", "numba", "finufft", "pydantic", "httpx", "fpscan.service", "matplotlib")
+HEAVY = ("numpy", "h5py", "scipy", "numba", "finufft", "pydantic", "httpx", "fpscan.service", "fpscan.experiments",
+         "matplotlib")
 
 
 def _fresh(code: str) -> dict:

@@ -11,14 +11,14 @@ import pytest
 
 from fpscan.clients.cli import main as fpscan
 from fpscan.constants import C_DEFAULT
-from fpscan.service.experiments import (
+from fpscan.experiments import (
     limited_view,
     load_dense,
     nufft_vs_interp,
     run_experiment,
     sparse_masks,
 )
-from fpscan.service.experiments.dense import add_noise
+from fpscan.experiments.dense import add_noise
 from tests.json_keys import all_keys
 
 

@@ -47,7 +47,8 @@ def _defined_functions_and_classes(module_name: str) -> list[str]:
 
 def test_the_walk_finds_the_packages_modules():
     assert {"fpscan.physics.balls", "fpscan.service.metrics.roi", "fpscan.clients.http.client", "fpscan.clients.cli.recon",
-            "fpscan.service.api.app", "fpscan.driver", "fpscan.physics", "fpscan.wire.models"} <= set(MODULES)
+            "fpscan.service.api.app", "fpscan.driver", "fpscan.physics", "fpscan.wire.models",
+            "fpscan.experiments", "fpscan.experiments.dense"} <= set(MODULES)
     assert {"fpscan.service.storage.loader", "fpscan.service.formats.ipasc", "fpscan.service.recon.tv"} <= set(MODULES)
     assert not any(m.startswith(tuple(p.removesuffix(".py").replace("/", ".") for p in PENDING)) for m in MODULES)
     assert not any(part.startswith("_") for m in MODULES for part in m.split("."))

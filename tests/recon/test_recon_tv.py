@@ -50,8 +50,8 @@ def tree_2d():
     with the true p0. The record (n_t = 640 samples of dx/c) reaches every sensor's
     farthest phantom point (≤ √(511.5² + 115²) ≈ 524 pixels away); the half-length record
     instead of n_x + n_z halves the model-based operator's padded grid."""
+    from fpscan.experiments.phantoms import tree_phantom, tree_roi
     from fpscan.physics.axes import centred_axis as lateral_axis
-    from fpscan.service.experiments.phantoms import tree_phantom, tree_roi
 
     n_z, n_x, dx = 128, 1024, 50e-6
     n_t = n_x // 2 + n_z

@@ -20,10 +20,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from fpscan.experiments.phantoms import VESSEL_WIDTHS, vessel_phantom, vessel_tree
+from fpscan.experiments.vessels import branch_contrasts
 from fpscan.physics import Ball, ball_p0
 from fpscan.physics.forward import forward_grid
-from fpscan.service.experiments.phantoms import VESSEL_WIDTHS, vessel_phantom, vessel_tree
-from fpscan.service.experiments.vessels import branch_contrasts
 from fpscan.service.metrics import correlation_coefficient
 from fpscan.service.plans import Lattice, equiangular_mask, equisteradian_mask
 from fpscan.service.progress import IterationStage
@@ -240,7 +240,7 @@ def test_every_vessel_branch_2_voxels_or_wider_keeps_its_contrast(snr_db, dims):
     case = _case("vessels", snr_db, dims)
     img = _tv(case).p0
     sigma = float(np.std(_nedner(case, case["noise"])))  # the noise σ of the image, by NEDNER
-    contrasts = branch_contrasts(img, case["p0"])  # the experiment's measure (fpscan.service.experiments.vessels)
+    contrasts = branch_contrasts(img, case["p0"])  # the experiment's measure (fpscan.experiments.vessels)
     assert len(contrasts) == 7  # the trunk (4), its two children (3) and four grandchildren (2)
     for c in contrasts:
         assert c["contrast"] >= 3 * sigma, (c, sigma)

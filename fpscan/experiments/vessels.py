@@ -27,10 +27,10 @@ from pathlib import Path
 import numpy as np
 
 from fpscan.constants import C_DEFAULT
+from fpscan.experiments.dense import DenseDataset
+from fpscan.experiments.phantoms import vessel_phantom, vessel_tree
+from fpscan.experiments.result import ExperimentResult, setup_matplotlib
 from fpscan.physics.axes import centred_axis
-from fpscan.service.experiments.dense import DenseDataset
-from fpscan.service.experiments.phantoms import vessel_phantom, vessel_tree
-from fpscan.service.experiments.result import ExperimentResult, setup_matplotlib
 from fpscan.service.metrics import correlation_coefficient
 from fpscan.service.pipeline import reconstruct
 

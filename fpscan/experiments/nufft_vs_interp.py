@@ -31,10 +31,10 @@ from typing import Any
 import numpy as np
 
 from fpscan.constants import C_DEFAULT
+from fpscan.experiments.dense import DenseDataset
+from fpscan.experiments.phantoms import layer_phantom
+from fpscan.experiments.result import ExperimentResult, setup_matplotlib
 from fpscan.physics.axes import centred_axis
-from fpscan.service.experiments.dense import DenseDataset
-from fpscan.service.experiments.phantoms import layer_phantom
-from fpscan.service.experiments.result import ExperimentResult, setup_matplotlib
 from fpscan.service.metrics import fit_edge_spread, fit_lorentz, side_lobe_level
 from fpscan.service.pipeline import reconstruct
 

@@ -28,10 +28,10 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from fpscan.constants import C_DEFAULT
+from fpscan.experiments.dense import DenseDataset, add_noise
+from fpscan.experiments.phantoms import yarn_phantom
+from fpscan.experiments.result import ExperimentResult, setup_matplotlib
 from fpscan.physics.axes import centred_axis
-from fpscan.service.experiments.dense import DenseDataset, add_noise
-from fpscan.service.experiments.phantoms import yarn_phantom
-from fpscan.service.experiments.result import ExperimentResult, setup_matplotlib
 from fpscan.service.metrics import (
     cc_vs_diameter,
     cc_vs_pixels,

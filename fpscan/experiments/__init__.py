@@ -9,6 +9,11 @@
 ``run_experiment(name, out_dir, data=path, small=...)`` runs one and writes
 ``<name>.json``, ``<name>.csv`` and its PNG plots. Built on :mod:`fpscan.service.recon`,
 :mod:`fpscan.service.plans` and :mod:`fpscan.service.metrics`.
+
+A package of its own beside the clients, outside the server's runtime package: it imports the
+library (``fpscan.service``'s library, ``fpscan.physics``, ``fpscan.constants``), and nothing of
+fpscan imports it but the ``fpscan evaluate`` command, inside its ``run`` (the import contracts in
+``pyproject.toml``; docs/architecture.md).
 """
 from __future__ import annotations
 
@@ -16,15 +21,15 @@ import importlib
 from pathlib import Path
 from typing import Any
 
-from fpscan.service.experiments.dense import DenseDataset, add_noise, load_dense
-from fpscan.service.experiments.result import ExperimentResult, write_experiment
+from fpscan.experiments.dense import DenseDataset, add_noise, load_dense
+from fpscan.experiments.result import ExperimentResult, write_experiment
 
 #: experiment name -> module implementing ``run(data=None, *, small=False, ...)`` and ``plot``.
 EXPERIMENTS = {
-    "limited-view-2d": "fpscan.service.experiments.limited_view",
-    "sparse-masks-3d": "fpscan.service.experiments.sparse_masks",
-    "nufft-vs-interpolation": "fpscan.service.experiments.nufft_vs_interp",
-    "vessels": "fpscan.service.experiments.vessels",
+    "limited-view-2d": "fpscan.experiments.limited_view",
+    "sparse-masks-3d": "fpscan.experiments.sparse_masks",
+    "nufft-vs-interpolation": "fpscan.experiments.nufft_vs_interp",
+    "vessels": "fpscan.experiments.vessels",
 }
 
 
