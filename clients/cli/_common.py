@@ -11,7 +11,7 @@ import time
 TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (`fpscan --help` starts faster)
 if TYPE_CHECKING:
     import threading
-    from collections.abc import Callable, Sequence
+    from collections.abc import Callable, Mapping, Sequence
     from typing import Any, TextIO
 
     from rich.progress import Progress, TaskID
@@ -503,8 +503,8 @@ def full_job_id(api: Client, job_id: str) -> str:
     return str(field_of(api.get_job(job_id), "id"))
 
 
-def delete_each(ids: Sequence[str], delete: Callable[[str], dict],
-                what: Callable[[dict], str] = lambda gone: "") -> int:
+def delete_each(ids: Sequence[str], delete: Callable[[str], Mapping[str, Any]],
+                what: Callable[[Mapping[str, Any]], str] = lambda gone: "") -> int:
     """``delete(id)`` for each id in ``ids`` (a dataset or job deletion of the HTTP client,
     answering a dict with ``bytes_freed``), one line each ("ID: deleted (WHAT N MiB freed)",
     ``what(answer)`` naming the kind) and a total when there were several. Returns the bytes
