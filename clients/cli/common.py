@@ -13,7 +13,7 @@ import time
 TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (`fpscan --help` starts faster)
 if TYPE_CHECKING:
     import threading
-    from collections.abc import Callable, Sequence
+    from collections.abc import Callable, Mapping, Sequence
     from typing import Any, TextIO
 
     from rich.progress import Progress, TaskID
@@ -771,8 +771,8 @@ def full_job_id(api: Client, job_id: str) -> str:
     return str(field_of(api.get_job(job_id), "id"))
 
 
-def delete_each(ids: Sequence[str], delete: Callable[[str], dict],
-                what: Callable[[dict], str] = lambda gone: "") -> int:
+def delete_each(ids: Sequence[str], delete: Callable[[str], Mapping[str, Any]],
+                what: Callable[[Mapping[str, Any]], str] = lambda gone: "") -> int:
     """Delete each of ``ids``, printing one line each on stdout ("ID: deleted (WHAT N MiB
     freed)") and a total when there were several.
 
@@ -781,8 +781,8 @@ def delete_each(ids: Sequence[str], delete: Callable[[str], dict],
     ids : sequence of str
         The ids to delete.
     delete : callable
-        ``delete(id) -> dict``: a dataset or job deletion of the HTTP client, answering a dict
-        with ``bytes_freed``.
+        ``delete(id) -> Mapping``: a dataset or job deletion of the HTTP client, answering a
+        mapping with ``bytes_freed``.
     what : callable, optional
         ``what(answer) -> str``: the kind, before the size (default none).
 

@@ -63,12 +63,13 @@ def run(args: argparse.Namespace) -> int:
     import time
 
     from fpscan.clients.cli.common import make_client
+    from fpscan.clients.http import to_dict
 
     with make_client(args) as api:
         if args.action == "list":
             rows = api.list_datasets()
             if args.json:
-                print(json.dumps(rows, indent=2))
+                print(json.dumps([to_dict(d) for d in rows], indent=2))
                 return 0
             if args.ids:
                 print("\n".join(d["dataset_id"] for d in rows))

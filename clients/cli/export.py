@@ -134,10 +134,10 @@ def _remote(args: argparse.Namespace) -> int:
         if not offered:
             raise UsageError(f"job {job_id} has nothing to export (yet)")
         # the job's file exported as itself, or its first other export (the local rule)
-        name = args.format or next((n for n in offered if fmts.get(n, {}).get("export_from") != n), offered[0])
+        name = args.format or next((n for n in offered if n not in fmts or fmts[n].export_from != n), offered[0])
         if name not in offered:
             raise UsageError(f"job {job_id} exports {', '.join(offered)}, not {name}")
-        out = Path(args.out or f"{job_id}{fmts.get(name, {}).get('suffix', '')}")
+        out = Path(args.out or f"{job_id}{fmts[name].suffix if name in fmts else ''}")
         api.export(job_id, name, out)
     print(out)
     return 0

@@ -1,7 +1,8 @@
 """The asyncio client of the fpscan HTTP API (``docs/api.md``): :class:`AsyncClient`.
 
-:class:`AsyncClient` is the asyncio mixins of every endpoint group (:mod:`fpscan.clients.http.endpoints`)
-over one ``httpx.AsyncClient``: the same endpoints, requests and answers as the blocking
+:class:`AsyncClient` is every endpoint group's class (:mod:`fpscan.clients.http.endpoints`: each endpoint
+declared once, made a coroutine method here by :class:`~fpscan.clients.http.calls.AsyncCaller`) over
+one ``httpx.AsyncClient``: the same endpoints, requests, answers and return types as the blocking
 :class:`fpscan.clients.http.client.Client`, as coroutines; waiting on a job follows the same rules
 (:mod:`fpscan.clients.http.waiting`).
 """
@@ -9,11 +10,11 @@ from __future__ import annotations
 
 import asyncio
 from collections.abc import AsyncGenerator
-from typing import Any, TypeVar
+from typing import TypeVar
 
 import httpx
 
-from fpscan.clients.http.calls import Call, Download
+from fpscan.clients.http.calls import AsyncCaller, Call, Download
 from fpscan.clients.http.core import (
     CHUNK_BYTES,
     Driver,
@@ -29,12 +30,13 @@ from fpscan.clients.http.core import (
     sse_event,
     wait_flow,
 )
-from fpscan.clients.http.endpoints.datasets import AsyncDatasets
-from fpscan.clients.http.endpoints.jobs import AsyncJobs
-from fpscan.clients.http.endpoints.plans import AsyncPlans
-from fpscan.clients.http.endpoints.reconstructions import AsyncReconstructions
-from fpscan.clients.http.endpoints.scans import AsyncScans
-from fpscan.clients.http.endpoints.server import AsyncServer
+from fpscan.clients.http.endpoints.datasets import Datasets
+from fpscan.clients.http.endpoints.jobs import Jobs
+from fpscan.clients.http.endpoints.plans import Plans
+from fpscan.clients.http.endpoints.reconstructions import Reconstructions
+from fpscan.clients.http.endpoints.scans import Scans
+from fpscan.clients.http.endpoints.server import Server
+from fpscan.clients.http.models import Job
 from fpscan.clients.http.transport import Connection, raise_for
 from fpscan.clients.http.waiting import ProgressCallback
 
@@ -43,8 +45,7 @@ __all__ = ["AsyncClient"]
 T = TypeVar("T")
 
 
-class AsyncClient(Connection, AsyncServer, AsyncPlans, AsyncScans, AsyncDatasets, AsyncReconstructions,
-                  AsyncJobs):
+class AsyncClient(AsyncCaller, Connection, Server, Plans, Scans, Datasets, Reconstructions, Jobs):
     """``asyncio`` client with the same methods as :class:`Client`.
 
     All endpoint methods are coroutines; :meth:`events` is an async iterator; ``wait``'s
@@ -115,7 +116,7 @@ class AsyncClient(Connection, AsyncServer, AsyncPlans, AsyncScans, AsyncDatasets
                 run.error = exc
         return run.result
 
-    async def _do(self, step: Step) -> Any:
+    async def _do(self, step: Step) -> httpx.Response | None:
         if isinstance(step, Send):
             with request_args(step.request) as args:
                 return await self._http.request(**args)
@@ -184,7 +185,7 @@ class AsyncClient(Connection, AsyncServer, AsyncPlans, AsyncScans, AsyncDatasets
 
     async def wait(self, job_id: str, *, on_progress: ProgressCallback | None = None,
                    timeout: float | None = None, poll_interval: float = 0.5,
-                   raise_on_failure: bool = True, quiet: bool = False) -> Any:
+                   raise_on_failure: bool = True, quiet: bool = False) -> Job:
         """Await the end of a job; see :meth:`Client.wait` (same behaviour and errors; in a
         Jupyter notebook, without ``on_progress`` and unless ``quiet``, one progress bar in the
         cell's output, ending on the job's final state).
@@ -199,7 +200,7 @@ class AsyncClient(Connection, AsyncServer, AsyncPlans, AsyncScans, AsyncDatasets
 
         Returns
         -------
-        Job or dict
+        Job
 
         Raises
         ------

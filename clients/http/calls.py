@@ -1,33 +1,43 @@
-"""What an endpoint is: one HTTP request and how its answer becomes the result (no I/O here).
+"""What an endpoint is: one declaration, one HTTP request and how its answer becomes the result
+(no I/O here).
 
-Every endpoint of the client is a *request builder*, a plain function of the endpoint's
-arguments that returns a :class:`Call` (a :class:`Request` and ``read(response) -> result``)
-or a :class:`Download` (a request whose body is saved to a file, then ``finish(path) ->
-result``). The builders live with their endpoint group in :mod:`fpscan.clients.http.endpoints`,
-beside the two thin methods that run them: ``Client``'s (``self._call(call)``, blocking) and
-``AsyncClient``'s (``await self._call(call)``), which run :func:`fpscan.clients.http.core.call_flow`.
-Only :mod:`fpscan.clients.http.client` and :mod:`fpscan.clients.http.async_client` send anything.
+Every endpoint of the API is declared once, as an :class:`Endpoint`: a *request builder* (a
+plain function of the endpoint's arguments, with the endpoint's docstring, that checks them
+and returns a :class:`Call`, a :class:`Request` and ``read(response) -> result``, or a
+:class:`Download`, a request whose body is saved to a file, then ``finish(path) -> result``)
+put in its group's class with :func:`endpoint` (:mod:`fpscan.clients.http.endpoints`). Both
+clients are made of the same group classes: :class:`SyncCaller` (the base of
+:class:`fpscan.clients.http.Client`) turns each declaration into a blocking method
+(``self._call(build(...))``), :class:`AsyncCaller` (the base of
+:class:`fpscan.clients.http.AsyncClient`) into a coroutine method (``await
+self._call(build(...))``), with the builder's parameters, docstring and the result type of its
+``Call[T]`` / ``Download[T]`` as the method's return annotation. Their ``_call`` runs
+:func:`fpscan.clients.http.core.call_flow`; only :mod:`fpscan.clients.http.client` and
+:mod:`fpscan.clients.http.async_client` send anything.
 
 The response helpers here (:func:`as_model`, :func:`field_of`, :func:`to_dict`,
-:func:`read_job_id`) are shared by every group.
+:func:`read_job_id`, ...) are shared by every group.
 """
 from __future__ import annotations
 
+import inspect
+import typing
 import uuid
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Coroutine, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Generic, TypeVar
+from typing import Any, Generic, ParamSpec, TypeVar, overload
 
 import httpx
+from pydantic import BaseModel, ValidationError
 
-from fpscan.clients.http.models import MODELS
-
-__all__ = ["Request", "Call", "Download", "MIP_PLANES", "as_model", "field_of", "to_dict", "read_job_id",
-           "idempotency", "jsonable", "check_plane", "read_json", "read_model", "read_models", "SyncCaller",
-           "AsyncCaller"]
+__all__ = ["Request", "Call", "Download", "Endpoint", "endpoint", "endpoints_of", "SyncCaller", "AsyncCaller",
+           "MIP_PLANES", "as_model", "field_of", "to_dict", "read_job_id", "idempotency", "jsonable", "check_plane",
+           "read_json", "read_model", "read_optional_model", "read_models"]
 
 T = TypeVar("T")
+P = ParamSpec("P")
+M = TypeVar("M", bound=BaseModel)
 
 #: the planes of a maximum-intensity projection (MIP) or a live preview picture
 MIP_PLANES = ("xy", "xz", "yz")
@@ -139,78 +149,293 @@ class Download(Generic[T]):
     finish: Callable[[Path, str], T] = _same  # type: ignore[assignment]
 
 
+class Endpoint(Generic[P, T]):
+    """One endpoint of the API, declared once: its request builder ``build`` (see the module
+    docstring). In a group class of :mod:`fpscan.clients.http.endpoints` it becomes a method of
+    both clients (:class:`SyncCaller`, :class:`AsyncCaller`), typed for each: on a
+    :class:`fpscan.clients.http.Client` it is ``(*args) -> T``, on an
+    :class:`fpscan.clients.http.AsyncClient` a coroutine function ``async (*args) -> T``.
+
+    Parameters
+    ----------
+    build : callable
+        ``build(*args, **kwargs) -> Call[T] | Download[T]``: the endpoint's arguments checked (a
+        ``ValueError`` before any request) and turned into its request; its docstring is the
+        methods'.
+
+    Attributes
+    ----------
+    build : callable
+        As given.
+    name : str
+        The methods' name (the attribute it is declared as).
+
+    Examples
+    --------
+    >>> from fpscan.clients.http.calls import Call, Endpoint, Request, read_json
+    >>> def health() -> Call[dict]:
+    ...     "``GET /api/health``."  # its docstring
+    ...     return Call(Request("GET", "/api/health"), read_json)
+    >>> ep = Endpoint(health)
+    >>> ep.name, ep.build().request.path, ep.result_type()
+    ('health', '/api/health', <class 'dict'>)
+    >>> ep.__doc__
+    '``GET /api/health``.'
+    """
+
+    def __init__(self, build: Callable[P, Call[T] | Download[T]]) -> None:
+        self.build = build
+        self.name: str = build.__name__
+        self.__doc__ = build.__doc__
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self.name = name
+
+    @overload
+    def __get__(self, obj: None, owner: type | None = None) -> Endpoint[P, T]: ...
+
+    @overload
+    def __get__(self, obj: AsyncCaller, owner: type | None = None) -> Callable[P, Coroutine[Any, Any, T]]: ...
+
+    @overload
+    def __get__(self, obj: SyncCaller, owner: type | None = None) -> Callable[P, T]: ...
+
+    def __get__(self, obj: object, owner: type | None = None) -> Any:
+        # The clients' methods are installed on their classes (SyncCaller, AsyncCaller); this
+        # typed view is what a type checker sees, and what a group class itself holds.
+        if obj is None:
+            return self
+        return self.method(isinstance(obj, AsyncCaller), type(obj)).__get__(obj, type(obj))
+
+    def result_type(self) -> Any:
+        """The type of the endpoint's result: ``T`` of its builder's ``Call[T]`` / ``Download[T]``
+        return annotation.
+
+        Returns
+        -------
+        type
+            E.g. ``Health``, ``list[Job]``, ``pathlib.Path``, ``str | None``.
+
+        Examples
+        --------
+        >>> from pathlib import Path
+        >>> from fpscan.clients.http.calls import Download, Endpoint, Request
+        >>> def scan_file(job_id: str) -> Download[Path]:
+        ...     return Download(Request("GET", f"/api/scans/{job_id}/file"), Path("scan.h5"))
+        >>> Endpoint(scan_file).result_type()
+        <class 'pathlib.Path'>
+        """
+        returned = typing.get_type_hints(self.build)["return"]
+        if typing.get_origin(returned) not in (Call, Download):  # Call[T] | Download[T]
+            returned = typing.get_args(returned)[0]
+        return typing.get_args(returned)[0]
+
+    def method(self, awaited: bool, owner: type) -> Callable[..., Any]:
+        """The method of a client class: blocking (``client._call(build(...))``) or a coroutine
+        function (``await client._call(build(...))``), with the builder's parameters after
+        ``self``, its docstring, and :meth:`result_type` as its return annotation.
+
+        Parameters
+        ----------
+        awaited : bool
+            A coroutine function (the asyncio client's).
+        owner : type
+            The client class (its module and qualified name are the method's).
+
+        Returns
+        -------
+        function
+
+        Examples
+        --------
+        >>> import inspect
+        >>> from fpscan.clients.http import AsyncClient
+        >>> from fpscan.clients.http.endpoints.jobs import Jobs
+        >>> get_job = Jobs.get_job.method(True, AsyncClient)
+        >>> inspect.iscoroutinefunction(get_job), str(inspect.signature(get_job))
+        (True, '(self, job_id: str) -> fpscan.clients.http.models.Job')
+        """
+        build = self.build
+        if awaited:
+            async def run_awaited(client: Any, /, *args: Any, **kwargs: Any) -> Any:
+                return await client._call(build(*args, **kwargs))
+            run: Callable[..., Any] = run_awaited
+        else:
+            def run_blocking(client: Any, /, *args: Any, **kwargs: Any) -> Any:
+                return client._call(build(*args, **kwargs))
+            run = run_blocking
+        sig = inspect.signature(build, eval_str=True)
+        result = self.result_type()
+        params = [inspect.Parameter("self", inspect.Parameter.POSITIONAL_OR_KEYWORD), *sig.parameters.values()]
+        run.__signature__ = sig.replace(parameters=params, return_annotation=result)  # type: ignore[attr-defined]
+        run.__annotations__ = {**{p.name: p.annotation for p in sig.parameters.values()
+                                  if p.annotation is not inspect.Parameter.empty}, "return": result}
+        run.__name__ = self.name
+        run.__qualname__ = f"{owner.__qualname__}.{self.name}"
+        run.__module__ = owner.__module__
+        run.__doc__ = build.__doc__
+        run.__endpoint__ = self  # type: ignore[attr-defined]
+        return run
+
+
+def endpoint(build: Callable[P, Call[T] | Download[T]]) -> Endpoint[P, T]:
+    """Declare an endpoint in a group class: ``@endpoint`` over its request builder (a function
+    without ``self``; see :class:`Endpoint`).
+
+    Parameters
+    ----------
+    build : callable
+        The request builder.
+
+    Returns
+    -------
+    Endpoint
+
+    Examples
+    --------
+    >>> from fpscan.clients.http.calls import Call, Request, endpoint, read_json
+    >>> class Server:
+    ...     @endpoint
+    ...     def auth() -> Call[dict]:
+    ...         "``GET /api/auth``."  # its docstring
+    ...         return Call(Request("GET", "/api/auth"), read_json)
+    >>> Server.auth.name, Server.auth.build().request.path
+    ('auth', '/api/auth')
+    """
+    return Endpoint(build)
+
+
+def endpoints_of(cls: type) -> dict[str, Endpoint[Any, Any]]:
+    """The endpoints a class offers: its declarations (:class:`Endpoint`) and the methods made
+    from them, by name (a method a subclass writes itself instead is not one).
+
+    Parameters
+    ----------
+    cls : type
+        A client class or a group class.
+
+    Returns
+    -------
+    dict of str to Endpoint
+
+    Examples
+    --------
+    >>> from fpscan.clients.http import AsyncClient, Client
+    >>> from fpscan.clients.http.calls import endpoints_of
+    >>> endpoints_of(Client) == endpoints_of(AsyncClient)
+    True
+    >>> endpoints_of(Client)["get_job"].build("j1").request.path
+    '/api/jobs/j1'
+    """
+    found: dict[str, Endpoint[Any, Any]] = {}
+    for name in dir(cls):
+        attr = inspect.getattr_static(cls, name)
+        declared = attr if isinstance(attr, Endpoint) else getattr(attr, "__endpoint__", None)
+        if isinstance(declared, Endpoint):
+            found[name] = declared
+    return found
+
+
+def _install(cls: type, awaited: bool) -> None:
+    """Put the method of each endpoint ``cls`` inherits from its group classes on ``cls``."""
+    for name, declared in endpoints_of(cls).items():
+        if isinstance(inspect.getattr_static(cls, name), Endpoint):
+            setattr(cls, name, declared.method(awaited, cls))
+
+
 class SyncCaller:
-    """What an endpoint group's blocking methods call: ``self._call(call) -> result``
+    """The base of the blocking client: each endpoint its class inherits from a group class
+    (:func:`endpoint`) becomes a method ``(*args) -> result`` that runs ``self._call(call)``
     (implemented by :class:`fpscan.clients.http.client.Client`).
 
     Attributes
     ----------
     None
-        A mixin: it declares ``_call`` only.
+        A base class: it declares ``_call`` only.
 
     Examples
     --------
+    >>> import inspect
+    >>> from fpscan.clients.http import Client
     >>> from fpscan.clients.http.calls import SyncCaller
-    >>> hasattr(SyncCaller, "_call")
-    True
+    >>> issubclass(Client, SyncCaller), inspect.iscoroutinefunction(Client.get_job)
+    (True, False)
     """
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        _install(cls, awaited=False)
 
     def _call(self, call: Call[T] | Download[T]) -> T:
         raise NotImplementedError
 
 
 class AsyncCaller:
-    """What an endpoint group's coroutine methods await: ``await self._call(call) -> result``
-    (implemented by :class:`fpscan.clients.http.async_client.AsyncClient`).
+    """The base of the asyncio client: each endpoint its class inherits from a group class
+    (:func:`endpoint`) becomes a coroutine method ``async (*args) -> result`` that awaits
+    ``self._call(call)`` (implemented by :class:`fpscan.clients.http.async_client.AsyncClient`).
 
     Attributes
     ----------
     None
-        A mixin: it declares ``_call`` only.
+        A base class: it declares ``_call`` only.
 
     Examples
     --------
+    >>> import inspect
+    >>> from fpscan.clients.http import AsyncClient
     >>> from fpscan.clients.http.calls import AsyncCaller
-    >>> hasattr(AsyncCaller, "_call")
-    True
+    >>> issubclass(AsyncClient, AsyncCaller), inspect.iscoroutinefunction(AsyncClient.get_job)
+    (True, True)
     """
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        _install(cls, awaited=True)
 
     async def _call(self, call: Call[T] | Download[T]) -> T:
         raise NotImplementedError
 
 
-def as_model(name: str, data: Any) -> Any:
-    """A response parsed into ``fpscan.clients.http.models.<name>`` when it fits, else returned as is.
+def as_model(model: type[M], data: Any) -> M:
+    """A response parsed into the client's model ``model`` (:mod:`fpscan.clients.http.models`);
+    one that does not fit (a server newer or older than this client) is kept unvalidated as
+    the same model, every field it has readable (``model_construct``).
 
     Parameters
     ----------
-    name : str
-        A model name of ``fpscan.clients.http.models.MODELS`` (``"Job"``, ``"Plan"``, ...).
+    model : type
+        A model of ``fpscan.clients.http.models`` (``Job``, ``Plan``, ...).
     data : any
         The decoded JSON response.
 
     Returns
     -------
-    pydantic.BaseModel or any
-        The model; ``data`` unchanged for an unknown name, a non-dict or a response that does
-        not fit (a server newer or older than this client).
+    pydantic.BaseModel
+        An instance of ``model``.
+
+    Raises
+    ------
+    pydantic.ValidationError
+        ``data`` is not a JSON object (a ``ValueError``).
 
     Examples
     --------
     >>> from fpscan.clients.http.calls import as_model
-    >>> job = as_model("Job", {"id": "j1", "kind": "scan", "state": "running", "new_field": 1})
+    >>> from fpscan.clients.http.models import Job
+    >>> job = as_model(Job, {"id": "j1", "kind": "scan", "state": "running", "new_field": 1})
     >>> type(job).__name__, job.state, job.new_field  # unknown fields are kept
     ('Job', 'running', 1)
-    >>> as_model("Job", {"id": "j1"})  # does not fit: the raw JSON
-    {'id': 'j1'}
+    >>> odd = as_model(Job, {"id": "j1"})  # does not fit: kept as it came
+    >>> type(odd).__name__, odd["id"], odd.get("state")
+    ('Job', 'j1', None)
     """
-    cls = MODELS.get(name)
-    if cls is None or not isinstance(data, dict):
-        return data
     try:
-        return cls.model_validate(data)
-    except ValueError:  # the server is newer/older than this client: keep the raw data
-        return data
+        return model.model_validate(data)
+    except ValidationError:
+        if not isinstance(data, dict):
+            raise
+        return model.model_construct(**data)  # the server is newer/older than this client: keep what it sent
 
 
 def field_of(obj: Any, name: str, default: Any = None) -> Any:
@@ -293,7 +518,8 @@ def jsonable(body: Any) -> Any:
 
 
 def read_json(response: httpx.Response) -> Any:
-    """The decoded JSON body (a :class:`Call`'s ``read`` for endpoints that answer plain JSON).
+    """The decoded JSON body (a :class:`Call`'s ``read`` for the answers typed as plain dicts:
+    the endpoint's ``Call[...]`` annotation says which, e.g. ``Call[AuthInfo]``).
 
     Parameters
     ----------
@@ -302,6 +528,7 @@ def read_json(response: httpx.Response) -> Any:
     Returns
     -------
     any
+        The JSON value.
 
     Examples
     --------
@@ -313,64 +540,99 @@ def read_json(response: httpx.Response) -> Any:
     return response.json()
 
 
-def read_model(name: str, *, empty_ok: bool = False) -> Callable[[httpx.Response], Any]:
-    """A ``read`` that parses the body into the model ``name`` (:func:`as_model`).
+def read_model(model: type[M]) -> Callable[[httpx.Response], M]:
+    """A ``read`` that parses the body into ``model`` (:func:`as_model`).
 
     Parameters
     ----------
-    name : str
-        A model of ``fpscan.clients.http.models.MODELS``.
-    empty_ok : bool, optional
-        An empty body reads as None (the answers of pause, resume, abort and cancel).
+    model : type
+        A model of ``fpscan.clients.http.models``.
 
     Returns
     -------
     callable
-        ``read(response) -> model or dict or None``.
+        ``read(response) -> model``.
 
     Examples
     --------
     >>> import httpx
     >>> from fpscan.clients.http.calls import read_model
-    >>> read_model("Job")(httpx.Response(200, json={"id": "j1", "kind": "scan", "state": "queued"})).state
+    >>> from fpscan.clients.http.models import Job
+    >>> read_model(Job)(httpx.Response(200, json={"id": "j1", "kind": "scan", "state": "queued"})).state
     'queued'
-    >>> read_model("Job", empty_ok=True)(httpx.Response(200)) is None
-    True
     """
-    def read(response: httpx.Response) -> Any:
-        if empty_ok and not response.content:
-            return None
-        return as_model(name, response.json())
+    def read(response: httpx.Response) -> M:
+        return as_model(model, response.json())
 
     return read
 
 
-def read_models(name: str) -> Callable[[httpx.Response], Any]:
-    """A ``read`` for a list answer (``[...]`` or ``{"items": [...]}``): each item as the model ``name``.
+def read_optional_model(model: type[M]) -> Callable[[httpx.Response], M | None]:
+    """A ``read`` like :func:`read_model` for which an empty body reads as None (the answers of
+    pause, resume, abort and cancel).
 
     Parameters
     ----------
-    name : str
-        A model of ``fpscan.clients.http.models.MODELS``.
+    model : type
+        A model of ``fpscan.clients.http.models``.
 
     Returns
     -------
     callable
-        ``read(response) -> list``; an answer that is not a list is returned as decoded.
+        ``read(response) -> model or None``.
+
+    Examples
+    --------
+    >>> import httpx
+    >>> from fpscan.clients.http.calls import read_optional_model
+    >>> from fpscan.clients.http.models import Job
+    >>> read_optional_model(Job)(httpx.Response(200)) is None
+    True
+    >>> read_optional_model(Job)(httpx.Response(200, json={"id": "j1", "kind": "scan", "state": "paused"})).state
+    'paused'
+    """
+    def read(response: httpx.Response) -> M | None:
+        if not response.content:
+            return None
+        return as_model(model, response.json())
+
+    return read
+
+
+def read_models(model: type[M]) -> Callable[[httpx.Response], list[M]]:
+    """A ``read`` for a list answer (``[...]`` or ``{"items": [...]}``): each item as ``model``.
+
+    Parameters
+    ----------
+    model : type
+        A model of ``fpscan.clients.http.models``.
+
+    Returns
+    -------
+    callable
+        ``read(response) -> list``.
+
+    Raises
+    ------
+    ValueError
+        (From ``read``) an answer that is not a list.
 
     Examples
     --------
     >>> import httpx
     >>> from fpscan.clients.http.calls import read_models
-    >>> jobs = read_models("Job")(httpx.Response(200, json={"items": [{"id": "a", "kind": "scan",
-    ...                                                                 "state": "queued"}]}))
+    >>> from fpscan.clients.http.models import Job
+    >>> jobs = read_models(Job)(httpx.Response(200, json={"items": [{"id": "a", "kind": "scan",
+    ...                                                              "state": "queued"}]}))
     >>> [j.id for j in jobs]
     ['a']
     """
-    def read(response: httpx.Response) -> Any:
+    def read(response: httpx.Response) -> list[M]:
         body = response.json()
-        items = body.get("items", body) if isinstance(body, dict) and "items" in body else body
-        return [as_model(name, item) for item in items] if isinstance(items, list) else items
+        items = body["items"] if isinstance(body, dict) and "items" in body else body
+        if not isinstance(items, list):
+            raise ValueError(f"expected a list of {model.__name__} from the server, got {type(items).__name__}")
+        return [as_model(model, item) for item in items]
 
     return read
 

@@ -1,16 +1,20 @@
 """The blocking client of the fpscan HTTP API (``docs/api.md``): :class:`Client`.
 
-:class:`Client` is the blocking mixins of every endpoint group (:mod:`fpscan.clients.http.endpoints`:
-each endpoint a request builder and a thin method) over one ``httpx.Client``: :meth:`Client._call`
-sends a :class:`~fpscan.clients.http.calls.Call` or saves a :class:`~fpscan.clients.http.calls.Download`.
+:class:`Client` is every endpoint group's class (:mod:`fpscan.clients.http.endpoints`: each endpoint
+declared once, made a blocking method here by :class:`~fpscan.clients.http.calls.SyncCaller`) over
+one ``httpx.Client``: :meth:`Client._call` sends a :class:`~fpscan.clients.http.calls.Call` or saves
+a :class:`~fpscan.clients.http.calls.Download`.
 Waiting on jobs (:meth:`Client.events`, :meth:`Client.wait`) listens to the Server-Sent Events
 stream ``/api/jobs/{id}/events`` (reconnecting with ``Last-Event-ID``; falling back to polling
 when the stream is unavailable) and reports progress through a callback
 (:mod:`fpscan.clients.http.waiting`). :class:`fpscan.clients.http.async_client.AsyncClient` is the same over
 ``asyncio``.
 
-Responses are parsed into the client's lenient pydantic models (``fpscan.clients.http.models``) when
-they fit, else returned as plain ``dict``.
+Every method's return type is precise: responses are parsed into the client's lenient pydantic
+models (``fpscan.clients.http.models``: ``Job``, ``Plan``, ``Health``, ``MethodInfo``, ...; an
+answer that does not fit is kept unvalidated as the same model; their fields read like a
+dict's too), a few into plain ``dict`` s typed as ``TypedDict`` s (``AuthInfo``, ``Deleted``,
+...), downloads return their ``pathlib.Path``.
 
 Errors: :class:`~fpscan.clients.http.errors.ServerUnavailable` when the server cannot be reached,
 :class:`~fpscan.clients.http.errors.ApiError` (and its subclasses ``AuthError``, ``NotFound``,
@@ -31,11 +35,11 @@ from __future__ import annotations
 
 import time
 from collections.abc import Generator
-from typing import Any, TypeVar
+from typing import TypeVar
 
 import httpx
 
-from fpscan.clients.http.calls import Call, Download
+from fpscan.clients.http.calls import Call, Download, SyncCaller
 from fpscan.clients.http.core import (
     CHUNK_BYTES,
     Driver,
@@ -57,6 +61,7 @@ from fpscan.clients.http.endpoints.plans import Plans
 from fpscan.clients.http.endpoints.reconstructions import Reconstructions
 from fpscan.clients.http.endpoints.scans import Scans
 from fpscan.clients.http.endpoints.server import Server
+from fpscan.clients.http.models import Job
 from fpscan.clients.http.transport import Connection, raise_for
 from fpscan.clients.http.waiting import ProgressCallback
 
@@ -65,7 +70,7 @@ __all__ = ["Client"]
 T = TypeVar("T")
 
 
-class Client(Connection, Server, Plans, Scans, Datasets, Reconstructions, Jobs):
+class Client(SyncCaller, Connection, Server, Plans, Scans, Datasets, Reconstructions, Jobs):
     """Blocking client of the fpscan HTTP API (``docs/api.md``).
 
     Every endpoint is a method (the same on :class:`AsyncClient`, there as coroutines):
@@ -170,7 +175,7 @@ class Client(Connection, Server, Plans, Scans, Datasets, Reconstructions, Jobs):
                 run.error = exc
         return run.result
 
-    def _do(self, step: Step) -> Any:
+    def _do(self, step: Step) -> httpx.Response | None:
         if isinstance(step, Send):
             with request_args(step.request) as args:
                 return self._http.request(**args)
@@ -249,7 +254,7 @@ class Client(Connection, Server, Plans, Scans, Datasets, Reconstructions, Jobs):
 
     def wait(self, job_id: str, *, on_progress: ProgressCallback | None = None,
              timeout: float | None = None, poll_interval: float = 0.5, raise_on_failure: bool = True,
-             quiet: bool = False) -> Any:
+             quiet: bool = False) -> Job:
         """Block until a job ends; return its final Job.
 
         Listens to the SSE stream (reconnecting with ``Last-Event-ID`` when it drops), calling
@@ -279,7 +284,7 @@ class Client(Connection, Server, Plans, Scans, Datasets, Reconstructions, Jobs):
 
         Returns
         -------
-        Job or dict
+        Job
             The job's final record.
 
         Raises

@@ -33,8 +33,9 @@ from typing import IO, TYPE_CHECKING, Any, Generic, TypeVar, cast
 import httpx
 
 from fpscan.clients.http.calls import Call, Download, Request, field_of, to_dict
-from fpscan.clients.http.endpoints.jobs import _build_get_job
+from fpscan.clients.http.endpoints.jobs import Jobs
 from fpscan.clients.http.errors import ApiError, ServerUnavailable, WaitTimeout
+from fpscan.clients.http.models import Job
 from fpscan.clients.http.notebook import job_bar
 from fpscan.clients.http.transport import Resume, raise_for
 from fpscan.clients.http.waiting import (
@@ -171,7 +172,7 @@ class Report:
     on_progress: ProgressCallback
     progress: dict
 
-    def call(self) -> Any:
+    def call(self) -> object:
         """``on_progress(progress)``: its result (a coroutine, for a coroutine function's, which
         the async client awaits)."""
         return self.on_progress(self.progress)
@@ -424,7 +425,7 @@ def download_flow(req: Request, dest: Path, base_url: str) -> Flow[tuple[Path, s
 
 def wait_flow(job_id: str, base_url: str, *, on_progress: ProgressCallback | None = None,
               timeout: float | None = None, poll_interval: float = 0.5,
-              raise_on_failure: bool = True, quiet: bool = False) -> Flow[Any]:
+              raise_on_failure: bool = True, quiet: bool = False) -> Flow[Job]:
     """Wait for the end of job ``job_id``: ``Client.wait`` / ``AsyncClient.wait`` (their
     docstrings say what it does; the rules are :mod:`fpscan.clients.http.waiting`'s). In a Jupyter
     kernel, without ``on_progress`` and not ``quiet``, the job's progress is one notebook bar
@@ -441,7 +442,7 @@ def wait_flow(job_id: str, base_url: str, *, on_progress: ProgressCallback | Non
     Returns
     -------
     generator
-        The flow; its result the job's final record.
+        The flow; its result the job's final record (a :class:`~fpscan.clients.http.models.Job`).
 
     Raises
     ------
@@ -449,12 +450,12 @@ def wait_flow(job_id: str, base_url: str, *, on_progress: ProgressCallback | Non
         As ``Client.wait``.
     """
     deadline = None if timeout is None else time.monotonic() + timeout
-    job = yield from call_flow(_build_get_job(job_id), base_url)
+    job = yield from call_flow(Jobs.get_job.build(job_id), base_url)
     bar = job_bar(job, on_progress=on_progress, quiet=quiet)
     if bar is None:
         return (yield from _wait(job, job_id, base_url, on_progress, deadline, timeout, poll_interval,
                                  raise_on_failure))
-    final: Any = None
+    final: Job | None = None
     try:
         final = yield from _wait(job, job_id, base_url, bar, deadline, timeout, poll_interval, False)
     finally:
@@ -462,8 +463,8 @@ def wait_flow(job_id: str, base_url: str, *, on_progress: ProgressCallback | Non
     return finish(final) if raise_on_failure else final
 
 
-def _wait(job: Any, job_id: str, base_url: str, on_progress: ProgressCallback | None, deadline: float | None,
-          timeout: float | None, poll_interval: float, raise_on_failure: bool) -> Flow[Any]:
+def _wait(job: Job, job_id: str, base_url: str, on_progress: ProgressCallback | None, deadline: float | None,
+          timeout: float | None, poll_interval: float, raise_on_failure: bool) -> Flow[Job]:
     """:func:`wait_flow` from the job's first record ``job``."""
     last_id: str | None = None
     use_sse = True
@@ -482,7 +483,7 @@ def _wait(job: Any, job_id: str, base_url: str, on_progress: ProgressCallback | 
                 yield Sleep(poll_interval)
         else:
             yield Sleep(poll_interval)
-        job = yield from call_flow(_build_get_job(job_id), base_url)
+        job = yield from call_flow(Jobs.get_job.build(job_id), base_url)
 
 
 def _follow(follow: Follow, base_url: str) -> Flow[bool]:
@@ -493,7 +494,7 @@ def _follow(follow: Follow, base_url: str) -> Flow[bool]:
         pass  # dropped or idle stream: the caller's get_job tells which
     except ApiError as exc:
         if exc.status_code == 404:
-            yield from call_flow(_build_get_job(follow.job_id), base_url)  # NotFound propagates for an unknown job
+            yield from call_flow(Jobs.get_job.build(follow.job_id), base_url)  # NotFound propagates for an unknown job
         return keep_sse(exc)
     except Exception:  # a malformed stream: poll instead
         return False

@@ -9,13 +9,15 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import Any, TypeVar
 
 from fpscan.clients.http.calls import field_of
 from fpscan.clients.http.errors import ApiError, JobCancelled, JobFailed
 
 __all__ = ["TERMINAL_STATES", "ProgressCallback", "read_timeout", "past", "report_snapshot", "keep_sse",
            "parse_event", "progress_of", "finish"]
+
+J = TypeVar("J")
 
 #: the states a job never leaves
 TERMINAL_STATES = frozenset({"succeeded", "failed", "cancelled"})
@@ -181,7 +183,7 @@ def progress_of(data: dict) -> dict:
     return prog if isinstance(prog, dict) else data
 
 
-def finish(job: Any) -> Any:
+def finish(job: J) -> J:
     """The job of an ended wait, raised for a failed or cancelled one.
 
     Parameters
@@ -192,7 +194,7 @@ def finish(job: Any) -> Any:
     Returns
     -------
     Job or dict
-        ``job`` (succeeded).
+        ``job`` itself (succeeded).
 
     Raises
     ------

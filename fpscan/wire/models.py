@@ -14,7 +14,9 @@ from typing import Any
 
 from pydantic import BaseModel, Field
 
-__all__ = ["Plan", "PlanPreview", "JobProgress", "Attempt", "Timings", "Job", "Scanner", "PreviewInfo"]
+__all__ = ["Plan", "PlanPreview", "JobProgress", "Attempt", "Timings", "Job", "Scanner", "PreviewInfo", "DiskUse",
+           "ComputeDevice", "Health", "MethodOption", "MethodInfo", "DatasetFormatInfo", "FormatInfo", "Dataset",
+           "DatasetInfo"]
 
 _SCAN_TIME = "points × averages × wavelengths / PRF, s; null when the plan sets no PRF (unthrottled)"
 
@@ -245,3 +247,295 @@ class PreviewInfo(BaseModel):
     wavelength_index: int | None = Field(None, description="the excitation wavelength shown (index into the plan's)")
     updated: float | None = Field(None, description="UNIX time of the last refresh")
     refresh_s: float | None = Field(None, description="how long the last refresh took, s")
+
+
+# -- the server itself ---------------------------------------------------------------
+class DiskUse(BaseModel):
+    """Bytes the data folder uses, by part, and the free space of its file system.
+
+    Attributes
+    ----------
+    total_bytes : int
+        The sum of the parts.
+    scans_bytes, results_bytes, datasets_bytes, exports_bytes : int
+        Scan files, reconstruction results, uploaded datasets, exports.
+    other_bytes : int
+        The job database, plans and anything else.
+    free_bytes : int or None
+        Free bytes of the data folder's file system; None when unknown.
+    """
+
+    total_bytes: int
+    scans_bytes: int
+    results_bytes: int
+    datasets_bytes: int
+    exports_bytes: int
+    other_bytes: int = Field(description="the job database, plans and anything else")
+    free_bytes: int | None = None
+
+
+class ComputeDevice(BaseModel):
+    """A device reconstructions can run on (the ``devices`` of :class:`Health`).
+
+    Attributes
+    ----------
+    kind : str
+        ``cpu`` or ``cuda``.
+    name : str
+        The GPU's name, or ``"cpu"``.
+    cores : int or None
+        The CPU's cores (None for a GPU).
+    memory_total : int or None
+        A GPU's memory, bytes (None for the CPU).
+    """
+
+    kind: str
+    name: str
+    cores: int | None = None
+    memory_total: int | None = None
+
+
+class Health(BaseModel):
+    """The server is alive, what it runs and what keeps jobs from running.
+
+    Attributes
+    ----------
+    status : str
+        ``"ok"``.
+    version : str
+        The server's version.
+    executor : str
+        Where reconstructions run (``"local"`` or ``"dask"``).
+    jobs_running : int
+        Reconstruction jobs running now (default 0).
+    disk : DiskUse or None
+        Bytes the data folder uses by part, and its free space.
+    problems : list of str
+        What keeps jobs from running now, one line each.
+    devices : sequence of ComputeDevice
+        What reconstructions can run on: the CPU, then each CUDA GPU.
+    """
+
+    status: str = "ok"
+    version: str
+    executor: str
+    jobs_running: int = 0
+    disk: DiskUse | None = None
+    problems: list[str] = Field(default_factory=list, description="what keeps jobs from running now "
+                                "(e.g. a scan paused by a full disk or a lost device), one line each")
+    #: a Sequence, so that each side narrows it to a list of its own ComputeDevice
+    devices: Sequence[ComputeDevice] = Field(default_factory=list, description="what reconstructions can run on: "
+                                             "the CPU, then each CUDA GPU found at the server's start")
+
+
+# -- reconstruction methods and file formats -----------------------------------------
+class MethodOption(BaseModel):
+    """One option of a reconstruction method, or a file format's load option.
+
+    Attributes
+    ----------
+    name : str
+        The option's name in the reconstruction options (``sound_speed``: the speed of sound).
+    description : str
+        What it is, for a person.
+    default : any
+        The method's default (None: derived from the data).
+    value_schema : dict
+        JSON schema of a value: ``type``, ``minimum``/``maximum``/``exclusiveMinimum`` or ``enum``,
+        ``unit`` (SI), ``quantity``.
+    """
+
+    name: str = Field(description="the option's name in ReconParams (sound_speed: the speed of sound)")
+    description: str
+    default: Any = Field(None, description="this method's default (null: derived from the data, e.g. n_z = n_t)")
+    value_schema: dict[str, Any] = Field(default_factory=dict, description="JSON schema of a value: type, "
+                                         "minimum/maximum/exclusiveMinimum or enum, and unit (SI), quantity "
+                                         "(length/time: text with a unit accepted); forms are built from it")
+
+
+class MethodInfo(BaseModel):
+    """One reconstruction method.
+
+    Attributes
+    ----------
+    name : str
+        The method's name (a reconstruction request's ``method``).
+    title : str
+        What a person reads.
+    needs_grid : bool
+        Needs data on a full regular grid (every lattice point).
+    options : sequence of MethodOption
+        The options it takes.
+    source : str
+        Where the algorithm comes from.
+    iterative : bool
+        An iterative solver (default False).
+    time_limited : bool
+        Takes ``time_limit`` (s) (default False).
+    cancellable : bool
+        A cancel ends it within a step (default True).
+    default_for : list of str
+        The inputs it is the default method for: ``grid``, ``points``.
+    summary : list of dict
+        The fields of its result it shows after its outcome.
+    """
+
+    name: str
+    title: str
+    needs_grid: bool = Field(description="needs data on a full regular grid (every lattice point)")
+    #: a Sequence, so that each side narrows it to a list of its own MethodOption
+    options: Sequence[MethodOption]
+    source: str
+    iterative: bool = Field(False, description="an iterative solver: sound_speed 'auto' searches with the input's "
+                                               "default direct method, then runs it once")
+    time_limited: bool = Field(False, description="takes time_limit (s), capped by the server's time_limit_s")
+    cancellable: bool = Field(True, description="reports progress between steps; a cancel ends it within a step")
+    default_for: list[str] = Field(default_factory=list, description="the inputs it is the default method for: "
+                                                                     "'grid' (a full lattice), 'points' (any mask)")
+    summary: list[dict[str, Any]] = Field(
+        default_factory=list, description="the fields of its result's params_used it shows after its outcome, in order "
+        "(fpscan.service.progress.Shown: key, label, title, id, format, flag, words, note, suffix, also): the web page's "
+        "summary rows")
+
+
+class DatasetFormatInfo(BaseModel):
+    """One format a dataset upload accepts.
+
+    Attributes
+    ----------
+    name : str
+        The value of the upload's ``format`` field.
+    title : str
+        What a person reads.
+    wavelengths : bool
+        May hold several excitation wavelengths.
+    """
+
+    name: str = Field(description="the value of the upload's format field")
+    title: str = Field(description="what a person reads")
+    wavelengths: bool = Field(description="may hold several excitation wavelengths (the upload's wavelength "
+                                          "chooses one)")
+
+
+class FormatInfo(BaseModel):
+    """One file format of the server's registry: what it reads and what it exports.
+
+    Attributes
+    ----------
+    name : str
+        The format's name (an upload's ``format``, an export's name).
+    title : str
+        What a person reads.
+    noun : str
+        The format in a sentence (``"a scan file"``).
+    input, upload, wavelengths : bool
+        A reconstruction input; accepted by an upload; may hold several wavelengths.
+    export_from : str or None
+        The format whose files it exports; None: no export.
+    suffix : str
+        The ending of an export's file name.
+    media_type : str
+        An export's ``Content-Type``.
+    folder : bool
+        An export that is a folder (served zipped).
+    options : sequence of MethodOption
+        Its load options (an upload's fields).
+    """
+
+    name: str = Field(description="the format's name (an upload's format field, --format, an export's name)")
+    title: str = Field(description="what a person reads")
+    noun: str = Field(description="the format in a sentence ('a scan file')")
+    input: bool = Field(description="a reconstruction input")
+    upload: bool = Field(description="accepted by POST /api/datasets")
+    wavelengths: bool = Field(description="may hold several excitation wavelengths")
+    export_from: str | None = Field(description="the format whose files it exports (a scan job's: fpscan; a "
+                                                "reconstruction's: result); null: no export")
+    suffix: str = Field(description="the ending of an export's file name")
+    media_type: str = Field(description="an export's Content-Type (a folder export is served as application/zip)")
+    folder: bool = Field(description="an export that is a folder (OME-Zarr), served zipped")
+    #: a Sequence, so that each side narrows it to a list of its own MethodOption
+    options: Sequence[MethodOption] = Field(default_factory=list, description="its load options (an upload's fields)")
+
+
+# -- datasets ------------------------------------------------------------------------
+class Dataset(BaseModel):
+    """An uploaded dataset as the upload stored it.
+
+    Attributes
+    ----------
+    dataset_id : str
+        Its id.
+    format : str
+        The format it was read as.
+    layout : str
+        ``grid``, ``points`` or ``scan``.
+    shape : list of int
+        The stored data's shape.
+    dt : float or None
+        Sample interval, s.
+    wavelength_nm : float or None
+        The excitation wavelength whose data it holds, nm.
+    deduplicated : bool
+        The same file with the same import options was stored before (default False).
+    content_sha256 : str or None
+        SHA-256 of the uploaded file's bytes.
+    """
+
+    dataset_id: str
+    format: str
+    layout: str
+    shape: list[int]
+    dt: float | None = None
+    wavelength_nm: float | None = Field(None, description="the excitation wavelength whose data the dataset holds "
+                                                          "(a scan or IPASC file that records it)")
+    deduplicated: bool = Field(False, description="the same file with the same import options was stored before: "
+                                                  "this is that dataset, nothing new was stored")
+    content_sha256: str | None = Field(None, description="SHA-256 of the uploaded file's bytes")
+
+
+class DatasetInfo(BaseModel):
+    """A stored dataset as the list of datasets shows it.
+
+    Attributes
+    ----------
+    dataset_id : str
+        Its id.
+    name : str or None
+        The uploaded file's name (display only).
+    format, layout : str or None
+        As in :class:`Dataset`.
+    shape : list of int or None
+        As in :class:`Dataset`.
+    dt, wavelength_nm : float or None
+        As in :class:`Dataset` (s, nm).
+    wavelength_index : int or None
+        The index of its wavelength among the uploaded file's.
+    content_sha256 : str or None
+        As in :class:`Dataset`.
+    size_bytes : int
+        Bytes of its files on disk.
+    created : float
+        UNIX time of the upload, s.
+    last_used : float or None
+        UNIX time of the upload or of the latest identical upload answered with it, s.
+    jobs : list of str
+        Ids of the reconstruction jobs that read it.
+    in_use : bool
+        A queued, running or paused job reads it (it cannot be deleted).
+    """
+
+    dataset_id: str
+    name: str | None = Field(None, description="the uploaded file's name (display only)")
+    format: str | None = None
+    layout: str | None = None
+    shape: list[int] | None = None
+    dt: float | None = None
+    wavelength_nm: float | None = None
+    wavelength_index: int | None = None
+    content_sha256: str | None = None
+    size_bytes: int = Field(description="bytes of its files on disk")
+    created: float = Field(description="UNIX time of the upload")
+    last_used: float | None = Field(None, description="UNIX time of the upload or of the latest identical upload "
+                                                      "answered with it (retention by age counts from it)")
+    jobs: list[str] = Field(default_factory=list, description="ids of the reconstruction jobs that read it")
+    in_use: bool = Field(False, description="a queued, running or paused job reads it (it cannot be deleted)")

@@ -1,9 +1,10 @@
 """Request and response models of the HTTP API (pydantic; the plan request is derived from
 the mask kinds declared in ``fpscan.service.plans.kinds``).
 
-The response models of plans, jobs, scanners and previews subclass ``fpscan.wire.models`` (their
-fields defined once, shared with the client's lenient ``fpscan.clients.http.models``) and narrow
-what the server guarantees (literal states and kinds, required fields). Units are SI (m, s,
+The response models of plans, jobs, scanners, previews, health, methods, formats and datasets
+subclass ``fpscan.wire.models`` (their fields defined once, shared with the client's lenient
+``fpscan.clients.http.models``) and narrow what the server guarantees (literal states and
+kinds, required fields). Units are SI (m, s,
 m/s, Hz, bytes). Request models refuse unknown fields, NaN and infinities (``ValueError`` →
 HTTP 422 with the reason).
 Contract: docs/api.md.
@@ -86,7 +87,7 @@ class Error(BaseModel):
     detail: str
 
 
-class DiskUse(BaseModel):
+class DiskUse(wire.DiskUse):
     """Bytes the data folder uses, by part, and the free space of its file system.
 
     Attributes
@@ -107,16 +108,8 @@ class DiskUse(BaseModel):
         Free bytes of the data folder's file system; null when unknown.
     """
 
-    total_bytes: int
-    scans_bytes: int
-    results_bytes: int
-    datasets_bytes: int
-    exports_bytes: int
-    other_bytes: int = Field(description="the job database, plans and anything else")
-    free_bytes: int | None = None
 
-
-class ComputeDevice(BaseModel):
+class ComputeDevice(wire.ComputeDevice):
     """A device reconstructions can run on (``GET /api/health``'s ``devices``).
 
     Attributes
@@ -132,12 +125,9 @@ class ComputeDevice(BaseModel):
     """
 
     kind: Literal["cpu", "cuda"]
-    name: str
-    cores: int | None = None
-    memory_total: int | None = None
 
 
-class Health(BaseModel):
+class Health(wire.Health):
     """``GET /api/health``: the server is alive, what it runs and what keeps jobs from running.
 
     Attributes
@@ -161,12 +151,7 @@ class Health(BaseModel):
     """
 
     status: Literal["ok"] = "ok"
-    version: str
-    executor: str
-    jobs_running: int = 0
     disk: DiskUse | None = None
-    problems: list[str] = Field(default_factory=list, description="what keeps jobs from running now "
-                                "(e.g. a scan paused by a full disk or a lost device), one line each")
     devices: list[ComputeDevice] = Field(default_factory=list, description="what reconstructions can run on: the CPU, "
                                          "then each CUDA GPU found at the server's start")
 
@@ -385,7 +370,7 @@ PlanCreate: Any = Annotated[
 ]
 
 
-class MethodOption(BaseModel):
+class MethodOption(wire.MethodOption):
     """One option of a reconstruction method (its field in the method's options model,
     ``fpscan.service.recon.methods``), or a file format's load option (:class:`FormatInfo`).
 
@@ -402,39 +387,16 @@ class MethodOption(BaseModel):
         (SI), quantity (length/time: text with a unit accepted); forms are built from it.
     """
 
-    name: str = Field(description="the option's name in ReconParams (sound_speed: the speed of sound)")
-    description: str
-    default: Any = Field(None, description="this method's default (null: derived from the data, e.g. n_z = n_t)")
-    value_schema: dict[str, Any] = Field(default_factory=dict, description="JSON schema of a value: type, "
-                                         "minimum/maximum/exclusiveMinimum or enum, and unit (SI), quantity "
-                                         "(length/time: text with a unit accepted); forms are built from it")
 
-
-class DatasetFormatInfo(BaseModel):
+class DatasetFormatInfo(wire.DatasetFormatInfo):
     """One format ``POST /api/datasets`` accepts, as ``GET /api/datasets/formats`` lists it
     (the registry ``fpscan.service.formats``; the web page's and the HTTP client's choices)."""
 
-    name: str = Field(description="the value of the upload's format field")
-    title: str = Field(description="what a person reads")
-    wavelengths: bool = Field(description="may hold several excitation wavelengths (the upload's wavelength "
-                                          "chooses one)")
 
-
-class FormatInfo(BaseModel):
+class FormatInfo(wire.FormatInfo):
     """One file format of the server's registry (``fpscan.service.formats``), as ``GET /api/formats``
     lists it: what it reads and what it exports."""
 
-    name: str = Field(description="the format's name (an upload's format field, --format, an export's name)")
-    title: str = Field(description="what a person reads")
-    noun: str = Field(description="the format in a sentence ('a scan file')")
-    input: bool = Field(description="a reconstruction input")
-    upload: bool = Field(description="accepted by POST /api/datasets")
-    wavelengths: bool = Field(description="may hold several excitation wavelengths")
-    export_from: str | None = Field(description="the format whose files it exports (a scan job's: fpscan; a "
-                                                "reconstruction's: result); null: no export")
-    suffix: str = Field(description="the ending of an export's file name")
-    media_type: str = Field(description="an export's Content-Type (a folder export is served as application/zip)")
-    folder: bool = Field(description="an export that is a folder (OME-Zarr), served zipped")
     options: list[MethodOption] = Field(default_factory=list, description="its load options (an upload's fields)")
 
     @classmethod
@@ -449,7 +411,7 @@ class FormatInfo(BaseModel):
                    media_type=fmt.media_type, folder=fmt.folder, options=options)
 
 
-class MethodInfo(BaseModel):
+class MethodInfo(wire.MethodInfo):
     """One reconstruction method as ``GET /api/reconstructions/methods`` lists it
     (``fpscan.service.pipeline.METHODS``; the web page's method choices are built from these).
 
@@ -479,21 +441,7 @@ class MethodInfo(BaseModel):
         ``fpscan.service.progress.Shown`` as JSON); empty for most methods.
     """
 
-    name: str
-    title: str
-    needs_grid: bool = Field(description="needs data on a full regular grid (every lattice point)")
     options: list[MethodOption]
-    source: str
-    iterative: bool = Field(False, description="an iterative solver: sound_speed 'auto' searches with the input's "
-                                               "default direct method, then runs it once")
-    time_limited: bool = Field(False, description="takes time_limit (s), capped by the server's time_limit_s")
-    cancellable: bool = Field(True, description="reports progress between steps; a cancel ends it within a step")
-    default_for: list[str] = Field(default_factory=list, description="the inputs it is the default method for: "
-                                                                     "'grid' (a full lattice), 'points' (any mask)")
-    summary: list[dict[str, Any]] = Field(
-        default_factory=list, description="the fields of its result's params_used it shows after its outcome, in order "
-        "(fpscan.service.progress.Shown: key, label, title, id, format, flag, words, note, suffix, also): the web page's "
-        "summary rows")
 
 
 class MaskKindInfo(BaseModel):
@@ -733,7 +681,7 @@ class PreviewInfo(wire.PreviewInfo):
 
 
 # -- datasets and reconstructions ----------------------------------------------------
-class Dataset(BaseModel):
+class Dataset(wire.Dataset):
     """An uploaded dataset as ``POST /api/datasets`` stored it.
 
     Attributes
@@ -759,19 +707,11 @@ class Dataset(BaseModel):
         SHA-256 of the uploaded file's bytes.
     """
 
-    dataset_id: str
     format: DatasetFormat
     layout: Literal["grid", "points", "scan"]
-    shape: list[int]
-    dt: float | None = None
-    wavelength_nm: float | None = Field(None, description="the excitation wavelength whose data the dataset holds "
-                                                          "(a scan or IPASC file that records it)")
-    deduplicated: bool = Field(False, description="the same file with the same import options was stored before: "
-                                                  "this is that dataset, nothing new was stored")
-    content_sha256: str | None = Field(None, description="SHA-256 of the uploaded file's bytes")
 
 
-class DatasetInfo(BaseModel):
+class DatasetInfo(wire.DatasetInfo):
     """A stored dataset in ``GET /api/datasets``.
 
     Attributes
@@ -796,22 +736,6 @@ class DatasetInfo(BaseModel):
     in_use : bool
         A queued, running or paused job reads it (it cannot be deleted).
     """
-
-    dataset_id: str
-    name: str | None = Field(None, description="the uploaded file's name (display only)")
-    format: str | None = None
-    layout: str | None = None
-    shape: list[int] | None = None
-    dt: float | None = None
-    wavelength_nm: float | None = None
-    wavelength_index: int | None = None
-    content_sha256: str | None = None
-    size_bytes: int = Field(description="bytes of its files on disk")
-    created: float = Field(description="UNIX time of the upload")
-    last_used: float | None = Field(None, description="UNIX time of the upload or of the latest identical upload "
-                                                      "answered with it (retention by age counts from it)")
-    jobs: list[str] = Field(default_factory=list, description="ids of the reconstruction jobs that read it")
-    in_use: bool = Field(False, description="a queued, running or paused job reads it (it cannot be deleted)")
 
 
 class _ReconParamsBase(SpeedOptions, _Request):

@@ -1,5 +1,5 @@
-"""Datasets: ``/api/datasets`` (upload a data file, list, delete) and the input formats the
-server reads (``/api/datasets/formats``)."""
+"""Datasets: ``/api/datasets`` (upload a data file, list, delete) and the file formats the
+server reads (``/api/datasets/formats``, ``/api/formats``)."""
 from __future__ import annotations
 
 import os
@@ -8,9 +8,10 @@ from typing import Any
 
 import httpx
 
-from fpscan.clients.http.calls import AsyncCaller, Call, Request, SyncCaller, read_json
+from fpscan.clients.http.calls import Call, Request, endpoint, read_json, read_models
+from fpscan.clients.http.models import DatasetFormatInfo, DatasetInfo, Deleted, FormatInfo
 
-__all__ = ["Datasets", "AsyncDatasets"]
+__all__ = ["Datasets"]
 
 
 def _dataset_id(response: httpx.Response) -> str:
@@ -18,42 +19,15 @@ def _dataset_id(response: httpx.Response) -> str:
     return str(body.get("dataset_id") or body.get("id"))
 
 
-def _build_upload_dataset(path: str | os.PathLike, format: str, fields: dict[str, Any]) -> Call[str]:
-    """``POST /api/datasets`` (:meth:`Datasets.upload_dataset`); a missing file is a ValueError."""
-    p = Path(path)
-    if not p.is_file():
-        raise ValueError(f"no such file: {p}")
-    form = {"format": format, **{k: str(v) for k, v in fields.items() if v is not None}}
-    return Call(Request("POST", "/api/datasets", form=form, upload=p), _dataset_id)
-
-
-def _build_dataset_formats() -> Call[Any]:
-    """``GET /api/datasets/formats`` (:meth:`Datasets.dataset_formats`)."""
-    return Call(Request("GET", "/api/datasets/formats"), read_json)
-
-
-def _build_formats() -> Call[Any]:
-    """``GET /api/formats`` (:meth:`Datasets.formats`)."""
-    return Call(Request("GET", "/api/formats"), read_json)
-
-
-def _build_list_datasets() -> Call[Any]:
-    """``GET /api/datasets`` (:meth:`Datasets.list_datasets`)."""
-    return Call(Request("GET", "/api/datasets"), read_json)
-
-
-def _build_delete_dataset(dataset_id: str) -> Call[Any]:
-    """``DELETE /api/datasets/{dataset_id}`` (:meth:`Datasets.delete_dataset`)."""
-    return Call(Request("DELETE", f"/api/datasets/{dataset_id}"), read_json)
-
-
-class Datasets(SyncCaller):
-    """The dataset endpoints of :class:`fpscan.clients.http.Client` (blocking).
+class Datasets:
+    """The dataset and format endpoints, declared once (:func:`~fpscan.clients.http.calls.endpoint`):
+    methods of :class:`fpscan.clients.http.Client` and, as coroutines, of
+    :class:`fpscan.clients.http.AsyncClient`.
 
     Attributes
     ----------
-    None
-        A mixin of methods.
+    upload_dataset, dataset_formats, formats, list_datasets, delete_dataset : Endpoint
+        The declarations.
 
     Examples
     --------
@@ -61,9 +35,16 @@ class Datasets(SyncCaller):
     >>> from fpscan.clients.http.endpoints.datasets import Datasets
     >>> issubclass(Client, Datasets)
     True
+    >>> Datasets.delete_dataset.build("d1").request.method, Datasets.delete_dataset.build("d1").request.path
+    ('DELETE', '/api/datasets/d1')
+    >>> Datasets.upload_dataset.build("no/such/file.npy")
+    Traceback (most recent call last):
+    ...
+    ValueError: no such file: no/such/file.npy
     """
 
-    def upload_dataset(self, path: str | os.PathLike, format: str = "fpscan", **fields: Any) -> str:
+    @endpoint
+    def upload_dataset(path: str | os.PathLike, format: str = "fpscan", **fields: Any) -> Call[str]:
         """``POST /api/datasets``: upload a data file for reconstruction.
 
         The file is streamed (multipart), not read into memory.
@@ -93,15 +74,20 @@ class Datasets(SyncCaller):
         ServerUnavailable
             The server cannot be reached.
         """
-        return self._call(_build_upload_dataset(path, format, fields))
+        p = Path(path)
+        if not p.is_file():
+            raise ValueError(f"no such file: {p}")
+        form = {"format": format, **{k: str(v) for k, v in fields.items() if v is not None}}
+        return Call(Request("POST", "/api/datasets", form=form, upload=p), _dataset_id)
 
-    def dataset_formats(self) -> Any:
+    @endpoint
+    def dataset_formats() -> Call[list[DatasetFormatInfo]]:
         """``GET /api/datasets/formats``: the formats :meth:`upload_dataset` takes.
 
         Returns
         -------
-        list of dict
-            ``{name, title, wavelengths}`` per format (the server's registry of formats).
+        list of DatasetFormatInfo
+            ``name``, ``title``, ``wavelengths`` per format (the server's registry of formats).
 
         Raises
         ------
@@ -110,16 +96,17 @@ class Datasets(SyncCaller):
         ServerUnavailable
             The server cannot be reached.
         """
-        return self._call(_build_dataset_formats())
+        return Call(Request("GET", "/api/datasets/formats"), read_models(DatasetFormatInfo))
 
-    def formats(self) -> Any:
+    @endpoint
+    def formats() -> Call[list[FormatInfo]]:
         """``GET /api/formats``: every file format the server reads or writes (its registry).
 
         Returns
         -------
-        list of dict
-            ``{name, title, noun, input, upload, wavelengths, export_from, suffix, media_type,
-            folder, options}`` per format: ``input`` / ``upload`` a reconstruction input / an
+        list of FormatInfo
+            ``name, title, noun, input, upload, wavelengths, export_from, suffix, media_type,
+            folder, options`` per format: ``input`` / ``upload`` a reconstruction input / an
             upload choice, ``export_from`` the format whose files it exports (None: no export),
             ``suffix`` an export's file-name ending, ``folder`` an export that is a folder (served
             zipped), ``options`` its load options (name, description, value schema).
@@ -131,14 +118,15 @@ class Datasets(SyncCaller):
         ServerUnavailable
             The server cannot be reached.
         """
-        return self._call(_build_formats())
+        return Call(Request("GET", "/api/formats"), read_models(FormatInfo))
 
-    def list_datasets(self) -> Any:
+    @endpoint
+    def list_datasets() -> Call[list[DatasetInfo]]:
         """``GET /api/datasets``: the stored datasets, oldest first.
 
         Returns
         -------
-        list of dict
+        list of DatasetInfo
             ``dataset_id``, ``name``, ``format``, ``layout``, ``shape``, ``size_bytes`` (on disk),
             ``created`` (UNIX s), ``content_sha256``, ``jobs`` (ids of the jobs that read it),
             ``in_use`` (an active job does: it cannot be deleted).
@@ -150,9 +138,10 @@ class Datasets(SyncCaller):
         ServerUnavailable
             The server cannot be reached.
         """
-        return self._call(_build_list_datasets())
+        return Call(Request("GET", "/api/datasets"), read_models(DatasetInfo))
 
-    def delete_dataset(self, dataset_id: str) -> Any:
+    @endpoint
+    def delete_dataset(dataset_id: str) -> Call[Deleted]:
         """``DELETE /api/datasets/{dataset_id}``: a stored dataset.
 
         Parameters
@@ -162,7 +151,7 @@ class Datasets(SyncCaller):
         Returns
         -------
         dict
-            ``{"id", "kind", "bytes_freed"}``.
+            ``{"id", "kind", "bytes_freed"}`` (:class:`~fpscan.clients.http.models.Deleted`).
 
         Raises
         ------
@@ -172,42 +161,4 @@ class Datasets(SyncCaller):
         ServerUnavailable
             The server cannot be reached.
         """
-        return self._call(_build_delete_dataset(dataset_id))
-
-
-class AsyncDatasets(AsyncCaller):
-    """The dataset endpoints of :class:`fpscan.clients.http.AsyncClient`: :class:`Datasets`' methods as
-    coroutines.
-
-    Attributes
-    ----------
-    None
-        A mixin of methods.
-
-    Examples
-    --------
-    >>> from fpscan.clients.http import AsyncClient
-    >>> from fpscan.clients.http.endpoints.datasets import AsyncDatasets
-    >>> issubclass(AsyncClient, AsyncDatasets)
-    True
-    """
-
-    async def upload_dataset(self, path: str | os.PathLike, format: str = "fpscan", **fields: Any) -> str:
-        """As :meth:`Datasets.upload_dataset`, awaited."""
-        return await self._call(_build_upload_dataset(path, format, fields))
-
-    async def dataset_formats(self) -> Any:
-        """As :meth:`Datasets.dataset_formats`, awaited."""
-        return await self._call(_build_dataset_formats())
-
-    async def formats(self) -> Any:
-        """As :meth:`Datasets.formats`, awaited."""
-        return await self._call(_build_formats())
-
-    async def list_datasets(self) -> Any:
-        """As :meth:`Datasets.list_datasets`, awaited."""
-        return await self._call(_build_list_datasets())
-
-    async def delete_dataset(self, dataset_id: str) -> Any:
-        """As :meth:`Datasets.delete_dataset`, awaited."""
-        return await self._call(_build_delete_dataset(dataset_id))
+        return Call(Request("DELETE", f"/api/datasets/{dataset_id}"), read_json)

@@ -5,76 +5,32 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Any
 
 from fpscan.clients.http.calls import (
-    AsyncCaller,
     Call,
     Download,
     Request,
-    SyncCaller,
+    endpoint,
     read_json,
     read_model,
     read_models,
+    read_optional_model,
 )
+from fpscan.clients.http.models import Deleted, Job
 from fpscan.clients.http.transport import unzip_folder
 
-__all__ = ["Jobs", "AsyncJobs"]
+__all__ = ["Jobs"]
 
 
-def _build_list_jobs(state: str | None, kind: str | None) -> Call[Any]:
-    """``GET /api/jobs?state=&kind=`` (:meth:`Jobs.list_jobs`)."""
-    params = {k: v for k, v in (("state", state), ("kind", kind)) if v}
-    return Call(Request("GET", "/api/jobs", params=params or None), read_models("Job"))
-
-
-def _build_get_job(job_id: str) -> Call[Any]:
-    """``GET /api/jobs/{job_id}`` (:meth:`Jobs.get_job`)."""
-    return Call(Request("GET", f"/api/jobs/{job_id}"), read_model("Job"))
-
-
-def _build_cancel_job(job_id: str) -> Call[Any]:
-    """``POST /api/jobs/{job_id}/cancel`` (:meth:`Jobs.cancel_job`)."""
-    return Call(Request("POST", f"/api/jobs/{job_id}/cancel"), read_model("Job", empty_ok=True))
-
-
-def _build_delete_job(job_id: str) -> Call[Any]:
-    """``DELETE /api/jobs/{job_id}`` (:meth:`Jobs.delete_job`)."""
-    return Call(Request("DELETE", f"/api/jobs/{job_id}"), read_json)
-
-
-def _build_export(job_id: str, format: str, dest: str | os.PathLike, wavelength: int | None) -> Download[Path]:
-    """``GET /api/jobs/{job_id}/export/{format}`` (:meth:`Jobs.export`), downloaded beside
-    ``dest`` (resumable) and then put in place: a zipped folder export (``Content-Type:
-    application/zip``) unpacked into the folder ``dest`` unless ``dest`` ends in ``.zip``."""
-    dest = Path(dest)
-    if not format or "/" in format:
-        raise ValueError(f"format must be an export format's name, got {format!r}")
-    keep_zip = dest.name.endswith(".zip")
-
-    def finish(got: Path, content_type: str) -> Path:
-        if keep_zip:
-            return got
-        if content_type.split(";")[0].strip() != "application/zip":
-            os.replace(got, dest)  # a file export: into place
-            return dest
-        try:
-            return unzip_folder(got, dest)
-        finally:
-            got.unlink(missing_ok=True)
-
-    params = None if wavelength is None else {"wavelength": int(wavelength)}
-    return Download(Request("GET", f"/api/jobs/{job_id}/export/{format}", params=params),
-                    dest if keep_zip else dest.with_name(f".{dest.name}.download"), finish)
-
-
-class Jobs(SyncCaller):
-    """The job endpoints of :class:`fpscan.clients.http.Client` (blocking).
+class Jobs:
+    """The job endpoints, declared once (:func:`~fpscan.clients.http.calls.endpoint`): methods of
+    :class:`fpscan.clients.http.Client` and, as coroutines, of :class:`fpscan.clients.http.AsyncClient`
+    (``Jobs.get_job.build`` is also what a wait polls with).
 
     Attributes
     ----------
-    None
-        A mixin of methods.
+    list_jobs, get_job, cancel_job, delete_job, export : Endpoint
+        The declarations.
 
     Examples
     --------
@@ -82,9 +38,16 @@ class Jobs(SyncCaller):
     >>> from fpscan.clients.http.endpoints.jobs import Jobs
     >>> issubclass(Client, Jobs)
     True
+    >>> Jobs.list_jobs.build(state="running").request.params
+    {'state': 'running'}
+    >>> Jobs.export.build("j1", "", "out.tif")
+    Traceback (most recent call last):
+    ...
+    ValueError: format must be an export format's name, got ''
     """
 
-    def list_jobs(self, *, state: str | None = None, kind: str | None = None) -> Any:
+    @endpoint
+    def list_jobs(*, state: str | None = None, kind: str | None = None) -> Call[list[Job]]:
         """``GET /api/jobs?state=&kind=``: the jobs, newest first.
 
         Parameters
@@ -97,7 +60,7 @@ class Jobs(SyncCaller):
 
         Returns
         -------
-        list of Job or dict
+        list of Job
 
         Raises
         ------
@@ -106,9 +69,11 @@ class Jobs(SyncCaller):
         ServerUnavailable
             The server cannot be reached.
         """
-        return self._call(_build_list_jobs(state, kind))
+        params = {k: v for k, v in (("state", state), ("kind", kind)) if v}
+        return Call(Request("GET", "/api/jobs", params=params or None), read_models(Job))
 
-    def get_job(self, job_id: str) -> Any:
+    @endpoint
+    def get_job(job_id: str) -> Call[Job]:
         """``GET /api/jobs/{job_id}``: one job.
 
         Parameters
@@ -117,7 +82,7 @@ class Jobs(SyncCaller):
 
         Returns
         -------
-        Job or dict
+        Job
             ``id, kind, state, progress, timings, params, links, error``.
 
         Raises
@@ -127,9 +92,10 @@ class Jobs(SyncCaller):
         ServerUnavailable
             The server cannot be reached.
         """
-        return self._call(_build_get_job(job_id))
+        return Call(Request("GET", f"/api/jobs/{job_id}"), read_model(Job))
 
-    def cancel_job(self, job_id: str) -> Any:
+    @endpoint
+    def cancel_job(job_id: str) -> Call[Job | None]:
         """``POST /api/jobs/{job_id}/cancel``: cancel a job (cooperative).
 
         Parameters
@@ -138,7 +104,7 @@ class Jobs(SyncCaller):
 
         Returns
         -------
-        Job or dict or None
+        Job or None
             The job (None for an empty answer).
 
         Raises
@@ -149,9 +115,10 @@ class Jobs(SyncCaller):
         ServerUnavailable
             The server cannot be reached.
         """
-        return self._call(_build_cancel_job(job_id))
+        return Call(Request("POST", f"/api/jobs/{job_id}/cancel"), read_optional_model(Job))
 
-    def delete_job(self, job_id: str) -> Any:
+    @endpoint
+    def delete_job(job_id: str) -> Call[Deleted]:
         """``DELETE /api/jobs/{job_id}``: a finished job and its files.
 
         Parameters
@@ -161,7 +128,7 @@ class Jobs(SyncCaller):
         Returns
         -------
         dict
-            ``{"id", "kind", "bytes_freed"}``.
+            ``{"id", "kind", "bytes_freed"}`` (:class:`~fpscan.clients.http.models.Deleted`).
 
         Raises
         ------
@@ -171,17 +138,19 @@ class Jobs(SyncCaller):
         ServerUnavailable
             The server cannot be reached.
         """
-        return self._call(_build_delete_job(job_id))
+        return Call(Request("DELETE", f"/api/jobs/{job_id}"), read_json)
 
-    def export(self, job_id: str, format: str, dest: str | os.PathLike, *,
-               wavelength: int | None = None) -> Path:
+    @endpoint
+    def export(job_id: str, format: str, dest: str | os.PathLike, *,
+               wavelength: int | None = None) -> Download[Path]:
         """``GET /api/jobs/{job_id}/export/{format}``: a job's file in an export format, saved to ``dest``.
 
         A scan job exports its scan file, a reconstruction its p0 volume: the formats of the
         server's registry (:meth:`formats`; a job's ``export_<format>`` links name those it
         offers), e.g. ``ipasc`` (a scan), ``ome-tiff`` and ``ome-zarr`` (a volume, voxel sizes in
         µm), ``fpscan`` / ``result`` (the file itself). A folder export (OME-Zarr) comes zipped and
-        is unpacked into the folder ``dest`` (kept zipped when ``dest`` ends in ``.zip``).
+        is unpacked into the folder ``dest`` (kept zipped when ``dest`` ends in ``.zip``). The
+        download goes beside ``dest`` (resumable) and is then put in place.
 
         Parameters
         ----------
@@ -208,42 +177,22 @@ class Jobs(SyncCaller):
         ServerUnavailable
             The server cannot be reached.
         """
-        return self._call(_build_export(job_id, format, dest, wavelength))
+        dest = Path(dest)
+        if not format or "/" in format:
+            raise ValueError(f"format must be an export format's name, got {format!r}")
+        keep_zip = dest.name.endswith(".zip")
 
+        def finish(got: Path, content_type: str) -> Path:
+            if keep_zip:
+                return got
+            if content_type.split(";")[0].strip() != "application/zip":
+                os.replace(got, dest)  # a file export: into place
+                return dest
+            try:
+                return unzip_folder(got, dest)
+            finally:
+                got.unlink(missing_ok=True)
 
-class AsyncJobs(AsyncCaller):
-    """The job endpoints of :class:`fpscan.clients.http.AsyncClient`: :class:`Jobs`' methods as coroutines.
-
-    Attributes
-    ----------
-    None
-        A mixin of methods.
-
-    Examples
-    --------
-    >>> from fpscan.clients.http import AsyncClient
-    >>> from fpscan.clients.http.endpoints.jobs import AsyncJobs
-    >>> issubclass(AsyncClient, AsyncJobs)
-    True
-    """
-
-    async def list_jobs(self, *, state: str | None = None, kind: str | None = None) -> Any:
-        """As :meth:`Jobs.list_jobs`, awaited."""
-        return await self._call(_build_list_jobs(state, kind))
-
-    async def get_job(self, job_id: str) -> Any:
-        """As :meth:`Jobs.get_job`, awaited."""
-        return await self._call(_build_get_job(job_id))
-
-    async def cancel_job(self, job_id: str) -> Any:
-        """As :meth:`Jobs.cancel_job`, awaited."""
-        return await self._call(_build_cancel_job(job_id))
-
-    async def delete_job(self, job_id: str) -> Any:
-        """As :meth:`Jobs.delete_job`, awaited."""
-        return await self._call(_build_delete_job(job_id))
-
-    async def export(self, job_id: str, format: str, dest: str | os.PathLike, *,
-                     wavelength: int | None = None) -> Path:
-        """As :meth:`Jobs.export`, awaited."""
-        return await self._call(_build_export(job_id, format, dest, wavelength))
+        params = None if wavelength is None else {"wavelength": int(wavelength)}
+        return Download(Request("GET", f"/api/jobs/{job_id}/export/{format}", params=params),
+                        dest if keep_zip else dest.with_name(f".{dest.name}.download"), finish)

@@ -8,67 +8,28 @@ from pathlib import Path
 from typing import Any
 
 from fpscan.clients.http.calls import (
-    AsyncCaller,
     Call,
     Download,
     Request,
-    SyncCaller,
+    endpoint,
     jsonable,
     read_json,
     read_model,
     read_models,
 )
+from fpscan.clients.http.models import Deleted, MaskKindInfo, Plan, PlanPreview
 
-__all__ = ["Plans", "AsyncPlans"]
-
-
-def _build_create_plan(body: Mapping | Any) -> Call[Any]:
-    """``POST /api/plans`` (:meth:`Plans.create_plan`)."""
-    return Call(Request("POST", "/api/plans", json=jsonable(body)), read_model("Plan"))
+__all__ = ["Plans"]
 
 
-def _build_preview_plan(body: Mapping | Any) -> Call[Any]:
-    """``POST /api/plans/preview`` (:meth:`Plans.preview_plan`)."""
-    return Call(Request("POST", "/api/plans/preview", json=jsonable(body)), read_model("PlanPreview"))
-
-
-def _build_mask_kinds() -> Call[Any]:
-    """``GET /api/plans/kinds`` (:meth:`Plans.mask_kinds`)."""
-    return Call(Request("GET", "/api/plans/kinds"), read_json)
-
-
-def _build_list_plans() -> Call[Any]:
-    """``GET /api/plans`` (:meth:`Plans.list_plans`)."""
-    return Call(Request("GET", "/api/plans"), read_models("Plan"))
-
-
-def _build_get_plan(plan_id: str) -> Call[Any]:
-    """``GET /api/plans/{plan_id}`` (:meth:`Plans.get_plan`)."""
-    return Call(Request("GET", f"/api/plans/{plan_id}"), read_model("Plan"))
-
-
-def _build_get_plan_json(plan_id: str) -> Call[Any]:
-    """``GET /api/plans/{plan_id}/plan.json`` (:meth:`Plans.get_plan_json`)."""
-    return Call(Request("GET", f"/api/plans/{plan_id}/plan.json"), read_json)
-
-
-def _build_download_plan_preview(plan_id: str, dest: str | os.PathLike) -> Download[Path]:
-    """``GET /api/plans/{plan_id}/preview.png`` (:meth:`Plans.download_plan_preview`)."""
-    return Download(Request("GET", f"/api/plans/{plan_id}/preview.png"), Path(dest))
-
-
-def _build_delete_plan(plan_id: str) -> Call[Any]:
-    """``DELETE /api/plans/{plan_id}`` (:meth:`Plans.delete_plan`)."""
-    return Call(Request("DELETE", f"/api/plans/{plan_id}"), read_json)
-
-
-class Plans(SyncCaller):
-    """The plan endpoints of :class:`fpscan.clients.http.Client` (blocking).
+class Plans:
+    """The plan endpoints, declared once (:func:`~fpscan.clients.http.calls.endpoint`): methods of
+    :class:`fpscan.clients.http.Client` and, as coroutines, of :class:`fpscan.clients.http.AsyncClient`.
 
     Attributes
     ----------
-    None
-        A mixin of methods.
+    create_plan, preview_plan, mask_kinds, list_plans, get_plan, get_plan_json, download_plan_preview, delete_plan : Endpoint
+        The declarations.
 
     Examples
     --------
@@ -76,9 +37,15 @@ class Plans(SyncCaller):
     >>> from fpscan.clients.http.endpoints.plans import Plans
     >>> issubclass(Client, Plans)
     True
+    >>> call = Plans.create_plan.build({"lattice": {"n_x": 5, "n_y": 5, "pitch": 1e-4}, "mask": {"kind": "full"}})
+    >>> call.request.method, call.request.path, call.request.json["mask"]
+    ('POST', '/api/plans', {'kind': 'full'})
+    >>> Plans.download_plan_preview.build("p1", "mask.png").dest.name
+    'mask.png'
     """
 
-    def create_plan(self, body: Mapping | Any) -> Any:
+    @endpoint
+    def create_plan(body: Mapping | Any) -> Call[Plan]:
         """``POST /api/plans``: create a plan from mask parameters or a point list.
 
         Parameters
@@ -90,7 +57,7 @@ class Plans(SyncCaller):
 
         Returns
         -------
-        Plan or dict
+        Plan
             The stored plan (201; the same request gives the same plan).
 
         Raises
@@ -100,9 +67,10 @@ class Plans(SyncCaller):
         ServerUnavailable
             The server cannot be reached.
         """
-        return self._call(_build_create_plan(body))
+        return Call(Request("POST", "/api/plans", json=jsonable(body)), read_model(Plan))
 
-    def preview_plan(self, body: Mapping | Any) -> Any:
+    @endpoint
+    def preview_plan(body: Mapping | Any) -> Call[PlanPreview]:
         """``POST /api/plans/preview``: the mask a plan body gives, nothing saved.
 
         Parameters
@@ -112,7 +80,7 @@ class Plans(SyncCaller):
 
         Returns
         -------
-        PlanPreview or dict
+        PlanPreview
             ``points``, ``weight_ratio``, ``expected_scan_time_s`` (s), ``preview_png_base64``.
 
         Raises
@@ -122,15 +90,17 @@ class Plans(SyncCaller):
         ServerUnavailable
             The server cannot be reached.
         """
-        return self._call(_build_preview_plan(body))
+        return Call(Request("POST", "/api/plans/preview", json=jsonable(body)), read_model(PlanPreview))
 
-    def mask_kinds(self) -> Any:
+    @endpoint
+    def mask_kinds() -> Call[list[MaskKindInfo]]:
         """``GET /api/plans/kinds``: the mask kinds and their parameters (SI units).
 
         Returns
         -------
         list of dict
-            ``{kind, label, description, aliases, fields, params_schema}`` per kind.
+            ``{kind, label, description, aliases, fields, params_schema}`` per kind
+            (:class:`~fpscan.clients.http.models.MaskKindInfo`).
 
         Raises
         ------
@@ -139,14 +109,15 @@ class Plans(SyncCaller):
         ServerUnavailable
             The server cannot be reached.
         """
-        return self._call(_build_mask_kinds())
+        return Call(Request("GET", "/api/plans/kinds"), read_json)
 
-    def list_plans(self) -> Any:
+    @endpoint
+    def list_plans() -> Call[list[Plan]]:
         """``GET /api/plans``: the stored plans.
 
         Returns
         -------
-        list of Plan or dict
+        list of Plan
 
         Raises
         ------
@@ -155,9 +126,10 @@ class Plans(SyncCaller):
         ServerUnavailable
             The server cannot be reached.
         """
-        return self._call(_build_list_plans())
+        return Call(Request("GET", "/api/plans"), read_models(Plan))
 
-    def get_plan(self, plan_id: str) -> Any:
+    @endpoint
+    def get_plan(plan_id: str) -> Call[Plan]:
         """``GET /api/plans/{plan_id}``: one plan's summary.
 
         Parameters
@@ -166,7 +138,7 @@ class Plans(SyncCaller):
 
         Returns
         -------
-        Plan or dict
+        Plan
 
         Raises
         ------
@@ -175,9 +147,10 @@ class Plans(SyncCaller):
         ServerUnavailable
             The server cannot be reached.
         """
-        return self._call(_build_get_plan(plan_id))
+        return Call(Request("GET", f"/api/plans/{plan_id}"), read_model(Plan))
 
-    def get_plan_json(self, plan_id: str) -> Any:
+    @endpoint
+    def get_plan_json(plan_id: str) -> Call[dict[str, Any]]:
         """``GET /api/plans/{plan_id}/plan.json``: the full plan, as ``fpscan scan`` reads it.
 
         Parameters
@@ -196,9 +169,10 @@ class Plans(SyncCaller):
         ServerUnavailable
             The server cannot be reached.
         """
-        return self._call(_build_get_plan_json(plan_id))
+        return Call(Request("GET", f"/api/plans/{plan_id}/plan.json"), read_json)
 
-    def download_plan_preview(self, plan_id: str, dest: str | os.PathLike) -> Path:
+    @endpoint
+    def download_plan_preview(plan_id: str, dest: str | os.PathLike) -> Download[Path]:
         """``GET /api/plans/{plan_id}/preview.png`` (the mask picture, PNG) saved to ``dest``.
 
         Parameters
@@ -219,9 +193,10 @@ class Plans(SyncCaller):
         ServerUnavailable
             The server cannot be reached.
         """
-        return self._call(_build_download_plan_preview(plan_id, dest))
+        return Download(Request("GET", f"/api/plans/{plan_id}/preview.png"), Path(dest))
 
-    def delete_plan(self, plan_id: str) -> Any:
+    @endpoint
+    def delete_plan(plan_id: str) -> Call[Deleted]:
         """``DELETE /api/plans/{plan_id}``: a stored plan.
 
         Parameters
@@ -231,7 +206,7 @@ class Plans(SyncCaller):
         Returns
         -------
         dict
-            ``{"id", "kind", "bytes_freed"}``.
+            ``{"id", "kind", "bytes_freed"}`` (:class:`~fpscan.clients.http.models.Deleted`).
 
         Raises
         ------
@@ -241,53 +216,4 @@ class Plans(SyncCaller):
         ServerUnavailable
             The server cannot be reached.
         """
-        return self._call(_build_delete_plan(plan_id))
-
-
-class AsyncPlans(AsyncCaller):
-    """The plan endpoints of :class:`fpscan.clients.http.AsyncClient`: :class:`Plans`' methods as coroutines.
-
-    Attributes
-    ----------
-    None
-        A mixin of methods.
-
-    Examples
-    --------
-    >>> from fpscan.clients.http import AsyncClient
-    >>> from fpscan.clients.http.endpoints.plans import AsyncPlans
-    >>> issubclass(AsyncClient, AsyncPlans)
-    True
-    """
-
-    async def create_plan(self, body: Mapping | Any) -> Any:
-        """As :meth:`Plans.create_plan`, awaited."""
-        return await self._call(_build_create_plan(body))
-
-    async def preview_plan(self, body: Mapping | Any) -> Any:
-        """As :meth:`Plans.preview_plan`, awaited."""
-        return await self._call(_build_preview_plan(body))
-
-    async def mask_kinds(self) -> Any:
-        """As :meth:`Plans.mask_kinds`, awaited."""
-        return await self._call(_build_mask_kinds())
-
-    async def list_plans(self) -> Any:
-        """As :meth:`Plans.list_plans`, awaited."""
-        return await self._call(_build_list_plans())
-
-    async def get_plan(self, plan_id: str) -> Any:
-        """As :meth:`Plans.get_plan`, awaited."""
-        return await self._call(_build_get_plan(plan_id))
-
-    async def get_plan_json(self, plan_id: str) -> Any:
-        """As :meth:`Plans.get_plan_json`, awaited."""
-        return await self._call(_build_get_plan_json(plan_id))
-
-    async def download_plan_preview(self, plan_id: str, dest: str | os.PathLike) -> Path:
-        """As :meth:`Plans.download_plan_preview`, awaited."""
-        return await self._call(_build_download_plan_preview(plan_id, dest))
-
-    async def delete_plan(self, plan_id: str) -> Any:
-        """As :meth:`Plans.delete_plan`, awaited."""
-        return await self._call(_build_delete_plan(plan_id))
+        return Call(Request("DELETE", f"/api/plans/{plan_id}"), read_json)

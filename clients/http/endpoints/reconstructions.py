@@ -9,23 +9,18 @@ from pathlib import Path
 from typing import Any
 
 from fpscan.clients.http.calls import (
-    AsyncCaller,
     Call,
     Download,
     Request,
-    SyncCaller,
     check_plane,
+    endpoint,
     idempotency,
     read_job_id,
-    read_json,
+    read_models,
 )
+from fpscan.clients.http.models import MethodInfo
 
-__all__ = ["Reconstructions", "AsyncReconstructions"]
-
-
-def _build_methods() -> Call[Any]:
-    """``GET /api/reconstructions/methods`` (:meth:`Reconstructions.methods`)."""
-    return Call(Request("GET", "/api/reconstructions/methods"), read_json)
+__all__ = ["Reconstructions"]
 
 
 def _input(body: dict[str, Any], scan_job_id: str | None, dataset_id: str | None) -> dict[str, Any]:
@@ -38,75 +33,25 @@ def _input(body: dict[str, Any], scan_job_id: str | None, dataset_id: str | None
     return body
 
 
-def _build_start_reconstruction(scan_job_id: str | None, dataset_id: str | None, method: str | None,
-                               params: Mapping | None, wavelength: int | str | None,
-                               idempotency_key: str | None, plan_id: str | None = None) -> Call[str | None]:
-    """``POST /api/reconstructions`` (:meth:`Reconstructions.start_reconstruction`); both or
-    neither input is a ValueError."""
-    body: dict[str, Any] = {"params": dict(params or {})}
-    if method is not None:
-        body["method"] = method
-    if wavelength is not None:
-        body["wavelength"] = wavelength
-    if plan_id is not None:
-        body["plan_id"] = plan_id
-    body = _input(body, scan_job_id, dataset_id)
-    return Call(Request("POST", "/api/reconstructions", json=body, headers=idempotency(idempotency_key)),
-                read_job_id)
-
-
-def _build_start_unmix(scan_job_id: str | None, dataset_ids: Sequence[str] | None,
-                      wavelengths: Sequence[float] | None, method: str | None, params: Mapping | None,
-                      threshold: float | None, fluence: Sequence[float] | None,
-                      idempotency_key: str | None) -> Call[str | None]:
-    """``POST /api/reconstructions`` with ``unmix`` (:meth:`Reconstructions.start_unmix`); both
-    or neither input is a ValueError."""
-    if (scan_job_id is None) == (not dataset_ids):
-        raise ValueError("give exactly one of scan_job_id or dataset_ids")
-    unmix: dict[str, Any] = {}
-    if threshold is not None:
-        unmix["threshold"] = float(threshold)
-    if fluence is not None:
-        unmix["fluence"] = [float(f) for f in fluence]
-    body: dict[str, Any] = {"params": dict(params or {}), "unmix": unmix}
-    if method is not None:
-        body["method"] = method
-    if scan_job_id is not None:
-        body["scan_job_id"] = scan_job_id
-    else:
-        body["dataset_ids"] = list(dataset_ids or [])
-        if wavelengths is not None:
-            body["wavelengths"] = [float(w) for w in wavelengths]
-    return Call(Request("POST", "/api/reconstructions", json=body, headers=idempotency(idempotency_key)),
-                read_job_id)
-
-
 def _wavelength(wavelength: int | None) -> dict[str, int] | None:
     return None if wavelength is None else {"wavelength": int(wavelength)}
 
 
-def _build_download_result(job_id: str, name: str, dest: str | os.PathLike,
-                          params: Mapping[str, Any] | None = None) -> Download[Path]:
+def _result(job_id: str, name: str, dest: str | os.PathLike, params: Mapping[str, Any] | None = None) -> Download[Path]:
     """``GET /api/reconstructions/{job_id}/{name}`` saved to ``dest`` (``volume.h5``,
     ``mip/xy.png``, ``slice.png``, ``unmix.h5``, ``so2.png``)."""
     return Download(Request("GET", f"/api/reconstructions/{job_id}/{name}", params=params), Path(dest))
 
 
-def _build_download_mip(job_id: str, plane: str, dest: str | os.PathLike,
-                       wavelength: int | None) -> Download[Path]:
-    """``GET /api/reconstructions/{job_id}/mip/{plane}.png`` (:meth:`Reconstructions.download_mip`);
-    an unknown plane is a ValueError."""
-    check_plane(plane)
-    return _build_download_result(job_id, f"mip/{plane}.png", dest, _wavelength(wavelength))
-
-
-class Reconstructions(SyncCaller):
-    """The reconstruction endpoints of :class:`fpscan.clients.http.Client` (blocking).
+class Reconstructions:
+    """The reconstruction endpoints, declared once (:func:`~fpscan.clients.http.calls.endpoint`):
+    methods of :class:`fpscan.clients.http.Client` and, as coroutines, of
+    :class:`fpscan.clients.http.AsyncClient`.
 
     Attributes
     ----------
-    None
-        A mixin of methods.
+    methods, start_reconstruction, start_unmix, download_unmix, download_so2, download_volume, download_mip, download_slice : Endpoint
+        The declarations.
 
     Examples
     --------
@@ -114,14 +59,24 @@ class Reconstructions(SyncCaller):
     >>> from fpscan.clients.http.endpoints.reconstructions import Reconstructions
     >>> issubclass(Client, Reconstructions)
     True
+    >>> call = Reconstructions.start_reconstruction.build(dataset_id="d1", method="ner", idempotency_key="k")
+    >>> call.request.json
+    {'params': {}, 'method': 'ner', 'dataset_id': 'd1'}
+    >>> Reconstructions.download_mip.build("j1", "xz", "mip.png", wavelength=1).request.params
+    {'wavelength': 1}
+    >>> Reconstructions.start_unmix.build()
+    Traceback (most recent call last):
+    ...
+    ValueError: give exactly one of scan_job_id or dataset_ids
     """
 
-    def methods(self) -> Any:
+    @endpoint
+    def methods() -> Call[list[MethodInfo]]:
         """``GET /api/reconstructions/methods``: the reconstruction methods.
 
         Returns
         -------
-        list of dict
+        list of MethodInfo
             ``{name, title, needs_grid, options: [{name, description, default, value_schema}],
             source}`` per method; ``value_schema`` is an option's JSON schema (``type``,
             ``minimum``/``maximum`` or ``enum``, ``unit``, ``quantity``): a value outside it is
@@ -134,12 +89,13 @@ class Reconstructions(SyncCaller):
         ServerUnavailable
             The server cannot be reached.
         """
-        return self._call(_build_methods())
+        return Call(Request("GET", "/api/reconstructions/methods"), read_models(MethodInfo))
 
-    def start_reconstruction(self, *, scan_job_id: str | None = None, dataset_id: str | None = None,
+    @endpoint
+    def start_reconstruction(*, scan_job_id: str | None = None, dataset_id: str | None = None,
                              method: str | None = None, params: Mapping | None = None,
                              wavelength: int | str | None = None,
-                             idempotency_key: str | None = None, plan_id: str | None = None) -> str | None:
+                             idempotency_key: str | None = None, plan_id: str | None = None) -> Call[str | None]:
         # The defaults below (ner, nedner) are typed by hand: fpscan.clients.http never imports service (an
         # import contract), so it cannot read the registry's Method.default_for; the server's own
         # word is GET /api/reconstructions/methods (each method's default_for, :meth:`methods`).
@@ -185,13 +141,22 @@ class Reconstructions(SyncCaller):
         ServerUnavailable
             The server cannot be reached.
         """
-        return self._call(_build_start_reconstruction(scan_job_id, dataset_id, method, params, wavelength,
-                                                     idempotency_key, plan_id))
+        body: dict[str, Any] = {"params": dict(params or {})}
+        if method is not None:
+            body["method"] = method
+        if wavelength is not None:
+            body["wavelength"] = wavelength
+        if plan_id is not None:
+            body["plan_id"] = plan_id
+        body = _input(body, scan_job_id, dataset_id)
+        return Call(Request("POST", "/api/reconstructions", json=body, headers=idempotency(idempotency_key)),
+                    read_job_id)
 
-    def start_unmix(self, *, scan_job_id: str | None = None, dataset_ids: Sequence[str] | None = None,
+    @endpoint
+    def start_unmix(*, scan_job_id: str | None = None, dataset_ids: Sequence[str] | None = None,
                     wavelengths: Sequence[float] | None = None, method: str | None = None,
                     params: Mapping | None = None, threshold: float | None = None,
-                    fluence: Sequence[float] | None = None, idempotency_key: str | None = None) -> str | None:
+                    fluence: Sequence[float] | None = None, idempotency_key: str | None = None) -> Call[str | None]:
         """``POST /api/reconstructions`` with ``unmix``: reconstruct every wavelength and unmix.
 
         Every wavelength is reconstructed (same ``method`` and ``params``;
@@ -231,10 +196,27 @@ class Reconstructions(SyncCaller):
         ServerUnavailable
             The server cannot be reached.
         """
-        return self._call(_build_start_unmix(scan_job_id, dataset_ids, wavelengths, method, params, threshold,
-                                            fluence, idempotency_key))
+        if (scan_job_id is None) == (not dataset_ids):
+            raise ValueError("give exactly one of scan_job_id or dataset_ids")
+        unmix: dict[str, Any] = {}
+        if threshold is not None:
+            unmix["threshold"] = float(threshold)
+        if fluence is not None:
+            unmix["fluence"] = [float(f) for f in fluence]
+        body: dict[str, Any] = {"params": dict(params or {}), "unmix": unmix}
+        if method is not None:
+            body["method"] = method
+        if scan_job_id is not None:
+            body["scan_job_id"] = scan_job_id
+        else:
+            body["dataset_ids"] = list(dataset_ids or [])
+            if wavelengths is not None:
+                body["wavelengths"] = [float(w) for w in wavelengths]
+        return Call(Request("POST", "/api/reconstructions", json=body, headers=idempotency(idempotency_key)),
+                    read_job_id)
 
-    def download_unmix(self, job_id: str, dest: str | os.PathLike) -> Path:
+    @endpoint
+    def download_unmix(job_id: str, dest: str | os.PathLike) -> Download[Path]:
         """``GET /api/reconstructions/{job_id}/unmix.h5`` (HbO2, Hb, THb, sO2, mask; HDF5) saved to ``dest``.
 
         Parameters
@@ -255,9 +237,10 @@ class Reconstructions(SyncCaller):
         ServerUnavailable
             The server cannot be reached.
         """
-        return self._call(_build_download_result(job_id, "unmix.h5", dest))
+        return _result(job_id, "unmix.h5", dest)
 
-    def download_so2(self, job_id: str, dest: str | os.PathLike) -> Path:
+    @endpoint
+    def download_so2(job_id: str, dest: str | os.PathLike) -> Download[Path]:
         """``GET /api/reconstructions/{job_id}/so2.png`` (masked sO2 map with colour bar, PNG) saved to ``dest``.
 
         Parameters
@@ -278,9 +261,10 @@ class Reconstructions(SyncCaller):
         ServerUnavailable
             The server cannot be reached.
         """
-        return self._call(_build_download_result(job_id, "so2.png", dest))
+        return _result(job_id, "so2.png", dest)
 
-    def download_volume(self, job_id: str, dest: str | os.PathLike, *, wavelength: int | None = None) -> Path:
+    @endpoint
+    def download_volume(job_id: str, dest: str | os.PathLike, *, wavelength: int | None = None) -> Download[Path]:
         """``GET /api/reconstructions/{job_id}/volume.h5`` (p0 with its axes in m, HDF5) saved to ``dest``.
 
         Parameters
@@ -303,10 +287,11 @@ class Reconstructions(SyncCaller):
         ServerUnavailable
             The server cannot be reached.
         """
-        return self._call(_build_download_result(job_id, "volume.h5", dest, _wavelength(wavelength)))
+        return _result(job_id, "volume.h5", dest, _wavelength(wavelength))
 
-    def download_mip(self, job_id: str, plane: str, dest: str | os.PathLike, *,
-                     wavelength: int | None = None) -> Path:
+    @endpoint
+    def download_mip(job_id: str, plane: str, dest: str | os.PathLike, *,
+                     wavelength: int | None = None) -> Download[Path]:
         """``GET /api/reconstructions/{job_id}/mip/{plane}.png`` (maximum-intensity projection, PNG) saved to ``dest``.
 
         Parameters
@@ -333,9 +318,11 @@ class Reconstructions(SyncCaller):
         ServerUnavailable
             The server cannot be reached.
         """
-        return self._call(_build_download_mip(job_id, plane, dest, wavelength))
+        check_plane(plane)
+        return _result(job_id, f"mip/{plane}.png", dest, _wavelength(wavelength))
 
-    def download_slice(self, job_id: str, index: int, dest: str | os.PathLike) -> Path:
+    @endpoint
+    def download_slice(job_id: str, index: int, dest: str | os.PathLike) -> Download[Path]:
         """``GET /api/reconstructions/{job_id}/slice.png?index=k`` (one depth slice, PNG) saved to ``dest``.
 
         Parameters
@@ -358,65 +345,4 @@ class Reconstructions(SyncCaller):
         ServerUnavailable
             The server cannot be reached.
         """
-        return self._call(_build_download_result(job_id, "slice.png", dest, {"index": int(index)}))
-
-
-class AsyncReconstructions(AsyncCaller):
-    """The reconstruction endpoints of :class:`fpscan.clients.http.AsyncClient`: :class:`Reconstructions`'
-    methods as coroutines.
-
-    Attributes
-    ----------
-    None
-        A mixin of methods.
-
-    Examples
-    --------
-    >>> from fpscan.clients.http import AsyncClient
-    >>> from fpscan.clients.http.endpoints.reconstructions import AsyncReconstructions
-    >>> issubclass(AsyncClient, AsyncReconstructions)
-    True
-    """
-
-    async def methods(self) -> Any:
-        """As :meth:`Reconstructions.methods`, awaited."""
-        return await self._call(_build_methods())
-
-    async def start_reconstruction(self, *, scan_job_id: str | None = None, dataset_id: str | None = None,
-                                   method: str | None = None, params: Mapping | None = None,
-                                   wavelength: int | str | None = None,
-                                   idempotency_key: str | None = None, plan_id: str | None = None) -> str | None:
-        """As :meth:`Reconstructions.start_reconstruction`, awaited."""
-        return await self._call(_build_start_reconstruction(scan_job_id, dataset_id, method, params, wavelength,
-                                                           idempotency_key, plan_id))
-
-    async def start_unmix(self, *, scan_job_id: str | None = None, dataset_ids: Sequence[str] | None = None,
-                          wavelengths: Sequence[float] | None = None, method: str | None = None,
-                          params: Mapping | None = None, threshold: float | None = None,
-                          fluence: Sequence[float] | None = None,
-                          idempotency_key: str | None = None) -> str | None:
-        """As :meth:`Reconstructions.start_unmix`, awaited."""
-        return await self._call(_build_start_unmix(scan_job_id, dataset_ids, wavelengths, method, params,
-                                                  threshold, fluence, idempotency_key))
-
-    async def download_unmix(self, job_id: str, dest: str | os.PathLike) -> Path:
-        """As :meth:`Reconstructions.download_unmix`, awaited."""
-        return await self._call(_build_download_result(job_id, "unmix.h5", dest))
-
-    async def download_so2(self, job_id: str, dest: str | os.PathLike) -> Path:
-        """As :meth:`Reconstructions.download_so2`, awaited."""
-        return await self._call(_build_download_result(job_id, "so2.png", dest))
-
-    async def download_volume(self, job_id: str, dest: str | os.PathLike, *,
-                              wavelength: int | None = None) -> Path:
-        """As :meth:`Reconstructions.download_volume`, awaited."""
-        return await self._call(_build_download_result(job_id, "volume.h5", dest, _wavelength(wavelength)))
-
-    async def download_mip(self, job_id: str, plane: str, dest: str | os.PathLike, *,
-                           wavelength: int | None = None) -> Path:
-        """As :meth:`Reconstructions.download_mip`, awaited."""
-        return await self._call(_build_download_mip(job_id, plane, dest, wavelength))
-
-    async def download_slice(self, job_id: str, index: int, dest: str | os.PathLike) -> Path:
-        """As :meth:`Reconstructions.download_slice`, awaited."""
-        return await self._call(_build_download_result(job_id, "slice.png", dest, {"index": int(index)}))
+        return _result(job_id, "slice.png", dest, {"index": int(index)})

@@ -7,61 +7,36 @@ from pathlib import Path
 from typing import Any
 
 from fpscan.clients.http.calls import (
-    AsyncCaller,
     Call,
     Download,
     Request,
-    SyncCaller,
     check_plane,
+    endpoint,
     idempotency,
     read_job_id,
     read_model,
     read_models,
+    read_optional_model,
 )
+from fpscan.clients.http.models import Job, PreviewInfo, Scanner
 
-__all__ = ["Scans", "AsyncScans"]
-
-
-def _build_scanners() -> Call[Any]:
-    """``GET /api/scanners`` (:meth:`Scans.scanners`)."""
-    return Call(Request("GET", "/api/scanners"), read_models("Scanner"))
+__all__ = ["Scans"]
 
 
-def _build_start_scan(plan_id: str, scanner_id: str, idempotency_key: str | None,
-                     extra: dict[str, Any]) -> Call[str | None]:
-    """``POST /api/scans`` (:meth:`Scans.start_scan`)."""
-    body = {"plan_id": plan_id, "scanner_id": scanner_id, **extra}
-    return Call(Request("POST", "/api/scans", json=body, headers=idempotency(idempotency_key)), read_job_id)
+def _scan_action(job_id: str, action: str) -> Call[Job | None]:
+    """``POST /api/scans/{job_id}/{pause|resume|abort}``."""
+    return Call(Request("POST", f"/api/scans/{job_id}/{action}"), read_optional_model(Job))
 
 
-def _build_scan_action(job_id: str, action: str) -> Call[Any]:
-    """``POST /api/scans/{job_id}/{pause|resume|abort}`` (:meth:`Scans.pause_scan`, ...)."""
-    return Call(Request("POST", f"/api/scans/{job_id}/{action}"), read_model("Job", empty_ok=True))
-
-
-def _build_download_scan(job_id: str, dest: str | os.PathLike) -> Download[Path]:
-    """``GET /api/scans/{job_id}/file`` (:meth:`Scans.download_scan`)."""
-    return Download(Request("GET", f"/api/scans/{job_id}/file"), Path(dest))
-
-
-def _build_scan_preview(job_id: str) -> Call[Any]:
-    """``GET /api/scans/{job_id}/preview`` (:meth:`Scans.scan_preview`)."""
-    return Call(Request("GET", f"/api/scans/{job_id}/preview"), read_model("PreviewInfo"))
-
-
-def _build_download_scan_preview(job_id: str, plane: str, dest: str | os.PathLike) -> Download[Path]:
-    """``GET /api/scans/{job_id}/preview/{plane}.png`` (:meth:`Scans.download_scan_preview`)."""
-    check_plane(plane)
-    return Download(Request("GET", f"/api/scans/{job_id}/preview/{plane}.png"), Path(dest))
-
-
-class Scans(SyncCaller):
-    """The scanner and scan endpoints of :class:`fpscan.clients.http.Client` (blocking).
+class Scans:
+    """The scanner and scan endpoints, declared once (:func:`~fpscan.clients.http.calls.endpoint`):
+    methods of :class:`fpscan.clients.http.Client` and, as coroutines, of
+    :class:`fpscan.clients.http.AsyncClient`.
 
     Attributes
     ----------
-    None
-        A mixin of methods.
+    scanners, start_scan, pause_scan, resume_scan, abort_scan, download_scan, scan_preview, download_scan_preview : Endpoint
+        The declarations.
 
     Examples
     --------
@@ -69,14 +44,20 @@ class Scans(SyncCaller):
     >>> from fpscan.clients.http.endpoints.scans import Scans
     >>> issubclass(Client, Scans)
     True
+    >>> call = Scans.start_scan.build("p1", "sim", idempotency_key="k1", preview_wavelength=1)
+    >>> call.request.json, call.request.headers
+    ({'plan_id': 'p1', 'scanner_id': 'sim', 'preview_wavelength': 1}, {'Idempotency-Key': 'k1'})
+    >>> Scans.pause_scan.build("j1").request.path
+    '/api/scans/j1/pause'
     """
 
-    def scanners(self) -> Any:
+    @endpoint
+    def scanners() -> Call[list[Scanner]]:
         """``GET /api/scanners``: the configured serial devices and their status.
 
         Returns
         -------
-        list of Scanner or dict
+        list of Scanner
 
         Raises
         ------
@@ -85,10 +66,11 @@ class Scans(SyncCaller):
         ServerUnavailable
             The server cannot be reached.
         """
-        return self._call(_build_scanners())
+        return Call(Request("GET", "/api/scanners"), read_models(Scanner))
 
-    def start_scan(self, plan_id: str, scanner_id: str, *, idempotency_key: str | None = None,
-                   **extra: Any) -> str | None:
+    @endpoint
+    def start_scan(plan_id: str, scanner_id: str, *, idempotency_key: str | None = None,
+                   **extra: Any) -> Call[str | None]:
         """``POST /api/scans`` ``{plan_id, scanner_id}``: start a scan job.
 
         Parameters
@@ -114,9 +96,11 @@ class Scans(SyncCaller):
         ServerUnavailable
             The server cannot be reached.
         """
-        return self._call(_build_start_scan(plan_id, scanner_id, idempotency_key, extra))
+        body = {"plan_id": plan_id, "scanner_id": scanner_id, **extra}
+        return Call(Request("POST", "/api/scans", json=body, headers=idempotency(idempotency_key)), read_job_id)
 
-    def pause_scan(self, job_id: str) -> Any:
+    @endpoint
+    def pause_scan(job_id: str) -> Call[Job | None]:
         """``POST /api/scans/{job_id}/pause``: pause a running scan.
 
         Parameters
@@ -125,7 +109,7 @@ class Scans(SyncCaller):
 
         Returns
         -------
-        Job or dict or None
+        Job or None
             The job (None for an empty answer).
 
         Raises
@@ -136,9 +120,10 @@ class Scans(SyncCaller):
         ServerUnavailable
             The server cannot be reached.
         """
-        return self._call(_build_scan_action(job_id, "pause"))
+        return _scan_action(job_id, "pause")
 
-    def resume_scan(self, job_id: str) -> Any:
+    @endpoint
+    def resume_scan(job_id: str) -> Call[Job | None]:
         """``POST /api/scans/{job_id}/resume``: resume a paused (or interrupted) scan.
 
         Parameters
@@ -147,7 +132,7 @@ class Scans(SyncCaller):
 
         Returns
         -------
-        Job or dict or None
+        Job or None
             The job (None for an empty answer).
 
         Raises
@@ -158,9 +143,10 @@ class Scans(SyncCaller):
         ServerUnavailable
             The server cannot be reached.
         """
-        return self._call(_build_scan_action(job_id, "resume"))
+        return _scan_action(job_id, "resume")
 
-    def abort_scan(self, job_id: str) -> Any:
+    @endpoint
+    def abort_scan(job_id: str) -> Call[Job | None]:
         """``POST /api/scans/{job_id}/abort``: stop a scan; it ends ``cancelled``.
 
         Parameters
@@ -169,7 +155,7 @@ class Scans(SyncCaller):
 
         Returns
         -------
-        Job or dict or None
+        Job or None
             The job (None for an empty answer).
 
         Raises
@@ -180,9 +166,10 @@ class Scans(SyncCaller):
         ServerUnavailable
             The server cannot be reached.
         """
-        return self._call(_build_scan_action(job_id, "abort"))
+        return _scan_action(job_id, "abort")
 
-    def download_scan(self, job_id: str, dest: str | os.PathLike) -> Path:
+    @endpoint
+    def download_scan(job_id: str, dest: str | os.PathLike) -> Download[Path]:
         """``GET /api/scans/{job_id}/file`` (the scan file, HDF5) saved to ``dest``.
 
         Parameters
@@ -203,9 +190,10 @@ class Scans(SyncCaller):
         ServerUnavailable
             The server cannot be reached.
         """
-        return self._call(_build_download_scan(job_id, dest))
+        return Download(Request("GET", f"/api/scans/{job_id}/file"), Path(dest))
 
-    def scan_preview(self, job_id: str) -> Any:
+    @endpoint
+    def scan_preview(job_id: str) -> Call[PreviewInfo]:
         """``GET /api/scans/{job_id}/preview``: the live preview's state.
 
         Parameters
@@ -214,7 +202,7 @@ class Scans(SyncCaller):
 
         Returns
         -------
-        PreviewInfo or dict
+        PreviewInfo
             ``version``, ``points_used``, ``updated`` (UNIX s), ...
 
         Raises
@@ -224,9 +212,10 @@ class Scans(SyncCaller):
         ServerUnavailable
             The server cannot be reached.
         """
-        return self._call(_build_scan_preview(job_id))
+        return Call(Request("GET", f"/api/scans/{job_id}/preview"), read_model(PreviewInfo))
 
-    def download_scan_preview(self, job_id: str, plane: str, dest: str | os.PathLike) -> Path:
+    @endpoint
+    def download_scan_preview(job_id: str, plane: str, dest: str | os.PathLike) -> Download[Path]:
         """``GET /api/scans/{job_id}/preview/{plane}.png`` (live MIP, PNG) saved to ``dest``.
 
         Parameters
@@ -251,55 +240,5 @@ class Scans(SyncCaller):
         ServerUnavailable
             The server cannot be reached.
         """
-        return self._call(_build_download_scan_preview(job_id, plane, dest))
-
-
-class AsyncScans(AsyncCaller):
-    """The scanner and scan endpoints of :class:`fpscan.clients.http.AsyncClient`: :class:`Scans`'
-    methods as coroutines.
-
-    Attributes
-    ----------
-    None
-        A mixin of methods.
-
-    Examples
-    --------
-    >>> from fpscan.clients.http import AsyncClient
-    >>> from fpscan.clients.http.endpoints.scans import AsyncScans
-    >>> issubclass(AsyncClient, AsyncScans)
-    True
-    """
-
-    async def scanners(self) -> Any:
-        """As :meth:`Scans.scanners`, awaited."""
-        return await self._call(_build_scanners())
-
-    async def start_scan(self, plan_id: str, scanner_id: str, *, idempotency_key: str | None = None,
-                         **extra: Any) -> str | None:
-        """As :meth:`Scans.start_scan`, awaited."""
-        return await self._call(_build_start_scan(plan_id, scanner_id, idempotency_key, extra))
-
-    async def pause_scan(self, job_id: str) -> Any:
-        """As :meth:`Scans.pause_scan`, awaited."""
-        return await self._call(_build_scan_action(job_id, "pause"))
-
-    async def resume_scan(self, job_id: str) -> Any:
-        """As :meth:`Scans.resume_scan`, awaited."""
-        return await self._call(_build_scan_action(job_id, "resume"))
-
-    async def abort_scan(self, job_id: str) -> Any:
-        """As :meth:`Scans.abort_scan`, awaited."""
-        return await self._call(_build_scan_action(job_id, "abort"))
-
-    async def download_scan(self, job_id: str, dest: str | os.PathLike) -> Path:
-        """As :meth:`Scans.download_scan`, awaited."""
-        return await self._call(_build_download_scan(job_id, dest))
-
-    async def scan_preview(self, job_id: str) -> Any:
-        """As :meth:`Scans.scan_preview`, awaited."""
-        return await self._call(_build_scan_preview(job_id))
-
-    async def download_scan_preview(self, job_id: str, plane: str, dest: str | os.PathLike) -> Path:
-        """As :meth:`Scans.download_scan_preview`, awaited."""
-        return await self._call(_build_download_scan_preview(job_id, plane, dest))
+        check_plane(plane)
+        return Download(Request("GET", f"/api/scans/{job_id}/preview/{plane}.png"), Path(dest))

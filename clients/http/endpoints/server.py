@@ -4,51 +4,43 @@ from __future__ import annotations
 
 from typing import Any
 
-from fpscan.clients.http.calls import AsyncCaller, Call, Request, SyncCaller, read_json
+from fpscan.clients.http.calls import Call, Request, endpoint, read_json, read_model
+from fpscan.clients.http.models import AuthInfo, Health, Retention
 
-__all__ = ["Server", "AsyncServer"]
-
-
-def _build_health() -> Call[Any]:
-    """``GET /api/health`` (:meth:`Server.health`)."""
-    return Call(Request("GET", "/api/health"), read_json)
+__all__ = ["Server"]
 
 
-def _build_auth() -> Call[Any]:
-    """``GET /api/auth`` (:meth:`Server.auth`)."""
-    return Call(Request("GET", "/api/auth"), read_json)
-
-
-def _build_retention(policy: dict[str, Any]) -> Call[Any]:
-    """``GET /api/retention``, or ``PUT`` with a policy (:meth:`Server.retention`)."""
-    if policy:
-        return Call(Request("PUT", "/api/retention", json=policy), read_json)
-    return Call(Request("GET", "/api/retention"), read_json)
-
-
-class Server(SyncCaller):
-    """The server's own endpoints on :class:`fpscan.clients.http.Client` (blocking).
+class Server:
+    """The server's own endpoints, declared once (:func:`~fpscan.clients.http.calls.endpoint`):
+    methods of :class:`fpscan.clients.http.Client` and, as coroutines, of
+    :class:`fpscan.clients.http.AsyncClient`.
 
     Attributes
     ----------
-    None
-        A mixin of methods.
+    health, auth, retention : Endpoint
+        The declarations (each a request builder with the method's docstring).
 
     Examples
     --------
-    >>> from fpscan.clients.http import Client
+    >>> from fpscan.clients.http import AsyncClient, Client
     >>> from fpscan.clients.http.endpoints.server import Server
-    >>> issubclass(Client, Server)
-    True
+    >>> issubclass(Client, Server), issubclass(AsyncClient, Server)
+    (True, True)
+    >>> Server.health.build().request.path, Server.health.result_type().__name__
+    ('/api/health', 'Health')
+    >>> Server.retention.build(keep_results=3).request.method, Server.retention.build().request.method
+    ('PUT', 'GET')
     """
 
-    def health(self) -> Any:
-        """``GET /api/health``: whether the server is up.
+    @endpoint
+    def health() -> Call[Health]:
+        """``GET /api/health``: whether the server is up, its version and what keeps jobs from running.
 
         Returns
         -------
-        dict
-            ``{"status": "ok", "version": ...}``.
+        Health
+            ``status`` (``"ok"``), ``version``, ``executor``, ``jobs_running``, ``disk``,
+            ``problems``, ``devices`` (its fields read like a dict's too: ``health["version"]``).
 
         Raises
         ------
@@ -57,25 +49,27 @@ class Server(SyncCaller):
         ServerUnavailable
             The server cannot be reached.
         """
-        return self._call(_build_health())
+        return Call(Request("GET", "/api/health"), read_model(Health))
 
-    def auth(self) -> Any:
+    @endpoint
+    def auth() -> Call[AuthInfo]:
         """``GET /api/auth`` (needs no token): whether the server needs a token, and whether
         this client's is right.
 
         Returns
         -------
         dict
-            ``{"token_required": bool, "authenticated": bool}``.
+            ``{"token_required": bool, "authenticated": bool}`` (:class:`~fpscan.clients.http.models.AuthInfo`).
 
         Raises
         ------
         ServerUnavailable
             The server cannot be reached.
         """
-        return self._call(_build_auth())
+        return Call(Request("GET", "/api/auth"), read_json)
 
-    def retention(self, **policy: Any) -> Any:
+    @endpoint
+    def retention(**policy: Any) -> Call[Retention]:
         """``GET /api/retention``, or ``PUT`` it with a new policy: what the server keeps.
 
         Parameters
@@ -87,7 +81,7 @@ class Server(SyncCaller):
         Returns
         -------
         dict
-            The policy.
+            The policy (:class:`~fpscan.clients.http.models.Retention`).
 
         Raises
         ------
@@ -96,34 +90,6 @@ class Server(SyncCaller):
         ServerUnavailable
             The server cannot be reached.
         """
-        return self._call(_build_retention(policy))
-
-
-class AsyncServer(AsyncCaller):
-    """The server's own endpoints on :class:`fpscan.clients.http.AsyncClient`: :class:`Server`'s methods
-    as coroutines.
-
-    Attributes
-    ----------
-    None
-        A mixin of methods.
-
-    Examples
-    --------
-    >>> from fpscan.clients.http import AsyncClient
-    >>> from fpscan.clients.http.endpoints.server import AsyncServer
-    >>> issubclass(AsyncClient, AsyncServer)
-    True
-    """
-
-    async def health(self) -> Any:
-        """As :meth:`Server.health`, awaited."""
-        return await self._call(_build_health())
-
-    async def auth(self) -> Any:
-        """As :meth:`Server.auth`, awaited."""
-        return await self._call(_build_auth())
-
-    async def retention(self, **policy: Any) -> Any:
-        """As :meth:`Server.retention`, awaited."""
-        return await self._call(_build_retention(policy))
+        if policy:
+            return Call(Request("PUT", "/api/retention", json=policy), read_json)
+        return Call(Request("GET", "/api/retention"), read_json)
