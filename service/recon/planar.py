@@ -53,7 +53,7 @@ _KIND = {"ner": "nufft", "linear": "linear", "nearest": "nearest"}
 _TEMPORAL_STEP = {"ner": "nufft", "linear": "regular", "nearest": "regular", "cubic": "pchip"}
 
 
-def _depth_axis(n_t: int, dt: float, c: float, dz: float | None, n_z: int | None,
+def depth_axis(n_t: int, dt: float, c: float, dz: float | None, n_z: int | None,
                 t0: float) -> tuple[float, int, int]:
     """(dz, n_z, n_work): the output depth grid and the working depth count, which also
     reaches the depth c t of the last sample, so that no recorded signal folds back into
@@ -126,7 +126,7 @@ def transform_lengths(data_shape: Sequence[int], dt: float = 1.0, c: float = 1.0
     dt, c, eps, _, upsample, t0 = _check_options(dt, c, method, eps, np.float64, upsample, t0)
     n_t = shape[0]
     n_y, n_x = (1, shape[1]) if len(shape) == 2 else shape[1:]
-    _, _, n_work = _depth_axis(n_t, dt, c, dz, n_z, t0)
+    _, _, n_work = depth_axis(n_t, dt, c, dz, n_z, t0)
     n_yp, n_xp = fast_lateral(n_y, n_x, square=square)
     lat = (n_xp,) if n_y == 1 else (n_yp, n_xp)
     return {"lateral": lat, "temporal": (_temporal_length(n_t, method, eps),), "depth": (2 * (n_work - 1),),
@@ -403,7 +403,7 @@ def reconstruct_grid(
     n_t = data.shape[0]
     if n_t < 2:
         raise ValueError(f"data needs at least 2 time samples, got {n_t}")
-    dz, n_z, n_work = _depth_axis(n_t, dt, c, dz, n_z, t0)
+    dz, n_z, n_work = depth_axis(n_t, dt, c, dz, n_z, t0)
     is2d = data.ndim == 2
     n_y, n_x = (1, data.shape[1]) if is2d else data.shape[1:]
     n_yp, n_xp = fast_lateral(n_y, n_x, square=abs(dy - dx) <= 1e-9 * dx)
@@ -472,7 +472,7 @@ def _check_positions(positions: np.ndarray, n_points: int) -> np.ndarray:
     return pos
 
 
-def _default_grid(pos: np.ndarray) -> tuple[tuple[np.ndarray, ...], float]:
+def default_grid(pos: np.ndarray) -> tuple[tuple[np.ndarray, ...], float]:
     from fpscan.physics.weights import infer_pitch  # on use: importing the plans package costs start-up time
 
     pitch = infer_pitch(pos) if len(pos) > 1 else None
@@ -491,7 +491,7 @@ def _default_grid(pos: np.ndarray) -> tuple[tuple[np.ndarray, ...], float]:
     return tuple(axes), pitch
 
 
-def _check_grid(grid: np.ndarray | Sequence[npt.ArrayLike], d: int) -> tuple[np.ndarray, ...]:
+def check_grid(grid: np.ndarray | Sequence[npt.ArrayLike], d: int) -> tuple[np.ndarray, ...]:
     if isinstance(grid, np.ndarray) and grid.ndim == 1:
         grid = (grid,)
     grid = tuple(grid)
@@ -561,13 +561,13 @@ def _output_grid(pos: np.ndarray, grid: np.ndarray | Sequence[npt.ArrayLike] | N
                  ) -> tuple[tuple[np.ndarray, ...], list[float]]:
     """The output lateral grid of `reconstruct_points` and its steps (m): ``grid`` checked,
     or by default the smallest regular grid at the positions' lattice pitch covering them
-    (`_default_grid`). Raises ValueError when a position ``pos`` ``(n_points, d)`` m lies
+    (`default_grid`). Raises ValueError when a position ``pos`` ``(n_points, d)`` m lies
     more than half a step outside the grid along an axis."""
     if grid is None:
-        axes, pitch = _default_grid(pos)
+        axes, pitch = default_grid(pos)
         steps = [float(g[1] - g[0]) if len(g) > 1 else pitch for g in axes]
     else:
-        axes = _check_grid(grid, pos.shape[1])
+        axes = check_grid(grid, pos.shape[1])
         steps = [float(g[1] - g[0]) for g in axes]
     for a, g in enumerate(axes):
         lo, hi = g[0] - steps[a] / 2, g[-1] + steps[a] / 2
@@ -724,7 +724,7 @@ def reconstruct_points(
     pos = _check_positions(positions, n_points)
     d = pos.shape[1]
     dt, c, eps, rdtype, upsample, t0 = _check_options(dt, c, method, eps, dtype, upsample, t0)
-    dz, n_z, n_work = _depth_axis(n_t, dt, c, dz, n_z, t0)
+    dz, n_z, n_work = depth_axis(n_t, dt, c, dz, n_z, t0)
     axes, steps = _output_grid(pos, grid)
     h = _area_weights(weights, pos)
     n_x_out = len(axes[0])

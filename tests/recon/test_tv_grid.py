@@ -12,7 +12,7 @@ from fpscan.physics.resample import resample, resample_adjoint, resampled_length
 from fpscan.service.metrics import correlation_coefficient
 from fpscan.service.recon.operator import PlanarOperator
 from fpscan.service.recon.tv import reconstruct_tv
-from fpscan.service.recon.tv_grid import RecordFacts, data_extent, noise_sigma, record_facts, tv_grid
+from fpscan.service.recon.tv.grid import RecordFacts, data_extent, noise_sigma, record_facts, tv_grid
 
 C, DX = 1500.0, 60e-6
 rng = np.random.default_rng(47)
@@ -114,7 +114,7 @@ def test_the_record_is_kept_until_the_farthest_sensor_hears_the_images_last_row(
     at every sensor: the forward model (`forward_points`) of a source at the image's deepest row,
     at the lateral corner farthest from a sensor, has passed that sensor before the kept record
     ends (and not long before). A line's sources ring on (2-D waves have a tail ∝ 1/t²):
-    tv keeps a line's whole record (`fpscan.service.recon.tv.problem._lateral_extent` gives no reach there)."""
+    tv keeps a line's whole record (`fpscan.service.recon.tv.problem.lateral_extent` gives no reach there)."""
     n_t, dt = 900, 10e-9
     x = (np.arange(24) - 11.5) * DX  # the image's lateral axes (x and y)
     pos = np.array([[x[0], x[0]], [x[3], x[2]]])  # two sensors at one corner of the image

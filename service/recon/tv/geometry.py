@@ -4,8 +4,8 @@ Both depend on the geometry alone (the operator, the preconditioner P and the se
 ‖BA‖ (B = P Aᵀ) from `_POWER_STEPS` power iterations from a seeded white image
 (`_gain_estimate`; the solver raises its L where the iterates show more), and the RMS of the
 noise image B n̂ of one seeded white-noise record n̂ of unit σ, whose product with σ̂ is the
-image's noise level of the automatic λ (`fpscan.service.recon.tv.lam`). `_geometry_numbers` keeps
-them for the last `_GEOMETRY_KEPT` geometries (`_GeometryMemo`), so a repeated scan plan
+image's noise level of the automatic λ (`fpscan.service.recon.tv.lam`). `geometry_numbers` keeps
+them for the last `GEOMETRY_KEPT` geometries (`GeometryMemo`), so a repeated scan plan
 spends no operator pairs on them and gets the numbers a fresh process computes. Why two
 power iterations: docs/tv-measurements.md, "Solver".
 """
@@ -21,19 +21,19 @@ import numpy.typing as npt
 if TYPE_CHECKING:
     from fpscan.service.progress import Span
     from fpscan.service.recon.operator import PlanarOperator
-    from fpscan.service.recon.tv.problem import _Model
+    from fpscan.service.recon.tv.problem import Model
 
 __all__: list[str] = []
 
 _POWER_STEPS = 2  # power iterations for the first step 1 / ‖BA‖ (the solver raises L where it sees more)
 
 
-def _geometry_numbers(model: _Model, progress: Span) -> tuple[float, float, bool]:
+def geometry_numbers(model: Model, progress: Span) -> tuple[float, float, bool]:
     """(‖BA‖ estimate, the noise image's RMS per unit σ, whether both were kept from an earlier
     run on this geometry) of ``model`` (module doc); ``progress(fraction)`` after each power
     iteration."""
     key = _geometry_key(model.op, model.shape, model.dx, model.dz, model.pos, model.dtype, model.g.shape)
-    kept = _GEOMETRY.get(key)
+    kept = GEOMETRY.get(key)
     geometry_kept = kept is not None
     if kept is None:
         start = np.random.default_rng(0).standard_normal(model.shape).astype(model.dtype)
@@ -49,7 +49,7 @@ def _geometry_numbers(model: _Model, progress: Span) -> tuple[float, float, bool
         noise_rms = math.sqrt(total / noise_image.size)
         del noise_image
         kept = (gain, noise_rms)
-        _GEOMETRY.put(key, kept)
+        GEOMETRY.put(key, kept)
     gain, noise_rms = kept
     return gain, noise_rms, geometry_kept
 
@@ -76,11 +76,11 @@ def _gain_estimate(apply: Callable[[np.ndarray], np.ndarray], start: np.ndarray,
     return gain
 
 
-class _GeometryMemo:
+class GeometryMemo:
     """The last few geometries' ‖BA‖ estimate and noise-image RMS (`reconstruct_tv`): numbers
     of the operator, the preconditioner and the seeded starts alone, so a repeated scan plan
     (the same mask, grid, sampling and band) skips the 2.5 operator pairs that make them, and
-    its result is the one a fresh process computes. At most `_GEOMETRY_KEPT` entries (a few
+    its result is the one a fresh process computes. At most `GEOMETRY_KEPT` entries (a few
     floats each), the oldest dropped first; safe across threads."""
 
     def __init__(self, size: int) -> None:
@@ -108,9 +108,9 @@ class _GeometryMemo:
             self._items.clear()
 
 
-#: geometries kept (`_GeometryMemo`): a lab alternates between a few scan plans
-_GEOMETRY_KEPT = 8
-_GEOMETRY = _GeometryMemo(_GEOMETRY_KEPT)
+#: geometries kept (`GeometryMemo`): a lab alternates between a few scan plans
+GEOMETRY_KEPT = 8
+GEOMETRY = GeometryMemo(GEOMETRY_KEPT)
 
 
 def _geometry_key(op: PlanarOperator, shape: tuple[int, ...], dx: float, dz: float, pos: np.ndarray | None,

@@ -1,13 +1,13 @@
 """tv's problem: the options, the record it works on, the warm start, and the model A, B = P Aᵀ.
 
-- `_check_tv_options`: the model-based options by their rules (``fpscan.service.recon.checks``).
-- `_record`: the record at the band the lateral pitch resolves (or a declared one), cut where
+- `check_options`: the model-based options by their rules (``fpscan.service.recon.checks``).
+- `working_record`: the record at the band the lateral pitch resolves (or a declared one), cut where
   the model of the image predicts silence and resampled to the fewest samples whose band
-  reaches it, with the depth grid (`fpscan.service.recon.tv_grid.tv_grid`); σ̂ from the record as
-  sampled (`_Record`, package doc "Grid").
-- `_warm_start`: NER (grid data) or NEDNER (A-lines) on that record, and the sensors centred
-  on its lateral grid; `_start_image` the solver's first iterate from it.
-- `_Model`: the exact planar forward model A (`fpscan.service.recon.operator.PlanarOperator`, its
+  reaches it, with the depth grid (`fpscan.service.recon.tv.grid.tv_grid`); σ̂ from the record as
+  sampled (`Record`, package doc "Grid").
+- `warm_start`: NER (grid data) or NEDNER (A-lines) on that record, and the sensors centred
+  on its lateral grid; `start_image` the solver's first iterate from it.
+- `Model`: the exact planar forward model A (`fpscan.service.recon.operator.PlanarOperator`, its
   memory checked first) and B = P Aᵀ with NER's k-space weight P
   (`fpscan.service.recon.tv.preconditioner`), counting their applications.
 """
@@ -22,8 +22,8 @@ import numpy.typing as npt
 
 from fpscan.physics.resample import resample
 from fpscan.service.recon import checks, memory
-from fpscan.service.recon.tv.preconditioner import _apply_weight, _ner_weight
-from fpscan.service.recon.tv_grid import TvGrid, noise_sigma, tv_grid
+from fpscan.service.recon.tv.preconditioner import apply_weight, ner_weight
+from fpscan.service.recon.tv.grid import TvGrid, noise_sigma, tv_grid
 
 if TYPE_CHECKING:
     from fpscan.service.recon.reconstruction import Reconstruction
@@ -31,7 +31,7 @@ if TYPE_CHECKING:
 __all__: list[str] = []
 
 
-def _check_tv_options(lam: float | None, max_iter: int, tol: float,
+def check_options(lam: float | None, max_iter: int, tol: float,
                       time_limit: float) -> tuple[float | None, int, float, float]:
     """The model-based options by their rules (``fpscan.service.recon.checks``: one owner each)."""
     lam = None if lam is None else checks.check_lam(lam)
@@ -40,10 +40,10 @@ def _check_tv_options(lam: float | None, max_iter: int, tol: float,
     return lam, max_iter, tol, checks.check_time_limit(time_limit)
 
 
-class _Record(NamedTuple):
-    """The record tv works on (`_record`): ``g`` float64, time along ``time_axis`` (0: grid
+class Record(NamedTuple):
+    """The record tv works on (`working_record`): ``g`` float64, time along ``time_axis`` (0: grid
     data ``(n_t, n_x)`` / ``(n_t, n_y, n_x)``; 1: A-lines ``(n_points, n_t)``), cut and
-    resampled to ``grid`` (`fpscan.service.recon.tv_grid.TvGrid`); ``sampled_sigma`` σ̂ of the record
+    resampled to ``grid`` (`fpscan.service.recon.tv.grid.TvGrid`); ``sampled_sigma`` σ̂ of the record
     as sampled (Pa)."""
 
     g: np.ndarray
@@ -68,29 +68,29 @@ class _Record(NamedTuple):
         return self.sigma * math.sqrt(self.g.size)
 
 
-def _record(data: npt.ArrayLike, dt: float, c: float, dx: float | None, positions: np.ndarray | None,
-            grid: np.ndarray | Sequence[npt.ArrayLike] | None, **chosen: Any) -> _Record:
-    """The record tv works on (`_Record`): ``data`` checked (finite, at least 2 time samples),
-    then `_working_record` on the grid `fpscan.service.recon.tv_grid.tv_grid` chooses (``chosen``: its
+def working_record(data: npt.ArrayLike, dt: float, c: float, dx: float | None, positions: np.ndarray | None,
+            grid: np.ndarray | Sequence[npt.ArrayLike] | None, **chosen: Any) -> Record:
+    """The record tv works on (`Record`): ``data`` checked (finite, at least 2 time samples),
+    then `_cut_and_resample` on the grid `fpscan.service.recon.tv.grid.tv_grid` chooses (``chosen``: its
     keywords ``bandwidth``, ``dz``, ``n_z``, ``t0``, ``whole_record``) for the image's lateral
-    extent (`_lateral_extent`)."""
-    # the grid the data can resolve (`fpscan.service.recon.tv_grid`): the operator's samples and band,
+    extent (`lateral_extent`)."""
+    # the grid the data can resolve (`fpscan.service.recon.tv.grid`): the operator's samples and band,
     # the image's depth grid; the data low-passed and resampled to those samples
     time_axis = 0 if positions is None else 1
     g = np.asarray(checks.finite_array("data" if positions is None else "alines", data, (2, 3)), dtype=np.float64)
     if g.shape[time_axis] < 2:
         raise ValueError(f"data need at least 2 time samples, got shape {g.shape}")
-    pitch, reach = _lateral_extent(g, dx, positions, grid)
+    pitch, reach = lateral_extent(g, dx, positions, grid)
     # σ̂ of the record as sampled (Haar differences need a signal smooth at the sample scale, which the record
-    # resampled to its band is not: there they read 7-48 % high on k-Wave's data); `_Record.sigma` scales it
+    # resampled to its band is not: there they read 7-48 % high on k-Wave's data); `Record.sigma` scales it
     record_sigma = noise_sigma(g, time_axis)
-    g, tv_grid_ = _working_record(g, dt, c, time_axis, sigma=record_sigma, pitch=pitch, reach=reach, **chosen)
-    return _Record(g, time_axis, tv_grid_, record_sigma)
+    g, tv_grid_ = _cut_and_resample(g, dt, c, time_axis, sigma=record_sigma, pitch=pitch, reach=reach, **chosen)
+    return Record(g, time_axis, tv_grid_, record_sigma)
 
 
-def _lateral_extent(g: np.ndarray, dx: float | None, positions: np.ndarray | None,
+def lateral_extent(g: np.ndarray, dx: float | None, positions: np.ndarray | None,
                     grid: np.ndarray | Sequence[npt.ArrayLike] | None) -> tuple[float | None, float | None]:
-    """(pitch, reach) of tv's image for `fpscan.service.recon.tv_grid.tv_grid`: its lateral pitch (m;
+    """(pitch, reach) of tv's image for `fpscan.service.recon.tv.grid.tv_grid`: its lateral pitch (m;
     None where the warm start will refuse the positions or grid) and the largest lateral distance
     between a sensor and a corner of its lateral extent (m; None in 2-D: a 2-D wave does not end
     when its front has passed, its tail ∝ 1/t² lasts to the record's end, so a line keeps its
@@ -98,8 +98,8 @@ def _lateral_extent(g: np.ndarray, dx: float | None, positions: np.ndarray | Non
     ``(n_t, n_y, n_x)`` with ``dx``; A-lines with ``positions`` on ``grid`` (default: the
     positions' lattice, as `fpscan.service.recon.planar.reconstruct_points` makes it)."""
     from fpscan.service.recon.planar import (  # the warm start's own lattice and grid rules
-        _check_grid,
-        _default_grid,
+        check_grid,
+        default_grid,
     )
 
     if positions is None:
@@ -110,9 +110,9 @@ def _lateral_extent(g: np.ndarray, dx: float | None, positions: np.ndarray | Non
     try:
         pos = np.asarray(positions, dtype=np.float64).reshape(len(g), -1)
         if grid is None:
-            axes, pitch = _default_grid(pos)
+            axes, pitch = default_grid(pos)
         else:
-            axes = _check_grid(grid, pos.shape[1])
+            axes = check_grid(grid, pos.shape[1])
             pitch = float(axes[0][1] - axes[0][0])
     except (ValueError, IndexError, TypeError):  # the warm start refuses them, naming the problem
         return None, None
@@ -126,8 +126,8 @@ def _lateral_extent(g: np.ndarray, dx: float | None, positions: np.ndarray | Non
     return pitch, float(np.sqrt(far.max())) if len(far) else None
 
 
-def _working_record(g: np.ndarray, dt: float, c: float, time_axis: int, **grid: Any) -> tuple[np.ndarray, TvGrid]:
-    """The record tv works on and its grid (`fpscan.service.recon.tv_grid.tv_grid` with ``grid``'s
+def _cut_and_resample(g: np.ndarray, dt: float, c: float, time_axis: int, **grid: Any) -> tuple[np.ndarray, TvGrid]:
+    """The record tv works on and its grid (`fpscan.service.recon.tv.grid.tv_grid` with ``grid``'s
     keywords): ``g`` cut where the model of the image predicts silence (unless ``whole_record``)
     and resampled to the band, time along ``time_axis``."""
     chosen = tv_grid(g.shape[time_axis], dt, c, data=g, time_axis=time_axis, **grid)
@@ -138,7 +138,7 @@ def _working_record(g: np.ndarray, dt: float, c: float, time_axis: int, **grid: 
     return g, chosen
 
 
-def _warm_start(record: _Record, c: float, dx: float | None, positions: np.ndarray | None,
+def warm_start(record: Record, c: float, dx: float | None, positions: np.ndarray | None,
                 weights: np.ndarray | None, grid: np.ndarray | Sequence[npt.ArrayLike] | None,
                 **common: Any) -> tuple[Reconstruction, np.ndarray | None]:
     """The warm start on ``record`` — NER (grid data, with ``dx``) or NEDNER (A-lines at
@@ -162,7 +162,7 @@ def _warm_start(record: _Record, c: float, dx: float | None, positions: np.ndarr
     return warm, pos
 
 
-def _start_image(warm: Reconstruction, dtype: np.dtype, positivity: bool) -> np.ndarray:
+def start_image(warm: Reconstruction, dtype: np.dtype, positivity: bool) -> np.ndarray:
     """The solver's first iterate: the warm start's image in the working dtype (that image
     itself where it already is), clipped to >= 0 with ``positivity``."""
     x = np.ascontiguousarray(warm.p0, dtype=dtype)
@@ -171,7 +171,7 @@ def _start_image(warm: Reconstruction, dtype: np.dtype, positivity: bool) -> np.
     return x
 
 
-class _Model:
+class Model:
     """A and B = P Aᵀ on the warm start's grid (module doc): ``forward(v)`` = A v in the
     record's shape, ``B(r)`` = P Aᵀ r as an image (the exact adjoint, NER's k-space weight P =
     k_z / |k|, symmetric positive definite), ``residual(Ax)`` = ‖A x − g‖, ``operator_pairs``
@@ -181,7 +181,7 @@ class _Model:
     the GPU, and ``forward``, ``B`` and ``residual`` take and give arrays there, ``g_dev`` the data
     there; ``xp`` is the solver's array module)."""
 
-    def __init__(self, record: _Record, warm: Reconstruction, c: float, pos: np.ndarray | None, *, t0: float,
+    def __init__(self, record: Record, warm: Reconstruction, c: float, pos: np.ndarray | None, *, t0: float,
                  eps: float, dtype: np.dtype, periodic: bool, checkpoint: Callable[[], None] | None,
                  memory_limit: int | None, device: str = "cpu") -> None:
         from fpscan.service.recon.operator import PlanarOperator
@@ -196,7 +196,7 @@ class _Model:
         kept_columns = None if band is None else memory.band_columns(self.op.padded_shape, self.dx, c, band)
         checks.check_memory(memory.tv_memory(self.shape, self.op.padded_shape, self.g.size, n_t, dtype,
                                              kept_columns=kept_columns), memory_limit)
-        self.P = _ner_weight(self.shape, self.dx, self.dz)
+        self.P = ner_weight(self.shape, self.dx, self.dz)
         self.applied = [0, 0]  # forward, adjoint applications: params' operator_pairs is their mean
         pair = self.op._pair
         #: the solver's array module and the data in it: on a GPU the solver's images and the
@@ -208,8 +208,8 @@ class _Model:
         self.applied[1] += 1
         pair = self.op._pair
         if pair is not None:  # on the GPU: Aᵀ and P there, the image stays there
-            return _apply_weight(self.P, pair.adjoint(pair.xp.asarray(r, dtype=self.dtype).reshape(self.op.oshape)))
-        return _apply_weight(self.P, self.op.rmatvec(r.astype(self.dtype, copy=False).ravel()).reshape(self.shape))
+            return apply_weight(self.P, pair.adjoint(pair.xp.asarray(r, dtype=self.dtype).reshape(self.op.oshape)))
+        return apply_weight(self.P, self.op.rmatvec(r.astype(self.dtype, copy=False).ravel()).reshape(self.shape))
 
     def forward(self, v: np.ndarray) -> np.ndarray:
         self.applied[0] += 1

@@ -2,11 +2,11 @@
 
 argmin_x ½‖x − v‖² + γ TV(x) over x >= 0 (and x = 0 off a support), TV(x) = Σ_voxels |∇x|₂
 with forward differences in voxel units: gradient projection on the dual (Chambolle 2005;
-Beck & Teboulle 2009's GP), `_PROX_ITER` inner steps warm-started from the previous call's
-dual, no operator (`_tv_prox`; `_tv_prox_stored` keeps the dual between calls in
+Beck & Teboulle 2009's GP), `PROX_ITER` inner steps warm-started from the previous call's
+dual, no operator (`tv_prox`; `tv_prox_stored` keeps the dual between calls in
 `fpscan.service.recon.tv.stores`'s fixed point). Each inner step is one compiled sweep over the
 volume (`_prox_step`): the primal w lives a few planes at a time and the dual is stepped in
-place, so the map needs no work image beyond the dual itself (d images). `_tv_norm` is TV(x)
+place, so the map needs no work image beyond the dual itself (d images). `tv_norm` is TV(x)
 without a work array.
 
 The sweeps are numba kernels (``cache=True``: ``fpscan warmup`` fills their cache;
@@ -20,13 +20,13 @@ from collections.abc import Callable
 import numba
 import numpy as np
 
-from fpscan.service.recon.tv.stores import _DUAL_SCALE, _restore_dual, _store_dual
+from fpscan.service.recon.tv.stores import DUAL_SCALE, restore_dual, store_dual
 
 __all__: list[str] = []
 
 #: inner (dual, no operator) iterations of the TV + positivity proximal map, warm-started from
 #: the last call's dual (chosen: docs/tv-measurements.md, "Proximal map")
-_PROX_ITER = 5
+PROX_ITER = 5
 
 
 def _as3d(x: np.ndarray) -> np.ndarray:
@@ -210,17 +210,17 @@ def _tv_norm_kernel(x: np.ndarray) -> float:
     return total
 
 
-def _tv_norm(x: np.ndarray) -> float:
+def tv_norm(x: np.ndarray) -> float:
     """TV(x) = Σ_voxels |∇x|₂ (forward differences, voxel units), in float64; no work array."""
     return float(_tv_norm_kernel(_as3d(np.ascontiguousarray(x))))
 
 
-def _tv_prox(v: np.ndarray, gamma: float, positivity: bool, support: np.ndarray | None, dual: np.ndarray | None,
+def tv_prox(v: np.ndarray, gamma: float, positivity: bool, support: np.ndarray | None, dual: np.ndarray | None,
              poll: Callable[[], None] | None = None,
              in_place: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
     """argmin_x ½‖x − v‖² + γ TV(x) over x >= 0 (positivity) and x = 0 off ``support``
     (None: everywhere allowed): gradient projection on the dual (Chambolle 2005; Beck &
-    Teboulle 2009's GP), `_PROX_ITER` steps from ``dual`` (the previous call's, a warm start,
+    Teboulle 2009's GP), `PROX_ITER` steps from ``dual`` (the previous call's, a warm start,
     updated in place; None: 0). No operator. ``poll()``, if given, is called every few inner
     steps (a cancel). Returns (x, dual); x is ``v`` (C-contiguous), overwritten, with
     ``in_place`` (the default), else a new array (v is kept). Each inner step is one compiled
@@ -237,29 +237,29 @@ def _tv_prox(v: np.ndarray, gamma: float, positivity: bool, support: np.ndarray 
     return x, q
 
 
-def _tv_prox_stored(v: np.ndarray, gamma: float, positivity: bool, support: np.ndarray | None,
+def tv_prox_stored(v: np.ndarray, gamma: float, positivity: bool, support: np.ndarray | None,
                     stored: list[np.ndarray | None],
                     poll: Callable[[], None] | None = None) -> tuple[np.ndarray, np.ndarray | None]:
-    """`_tv_prox` (not in place: v is kept) with its dual kept between calls in half the
-    working precision's bytes (`_store_dual`). ``stored`` is a list holding the last call's
+    """`tv_prox` (not in place: v is kept) with its dual kept between calls in half the
+    working precision's bytes (`store_dual`). ``stored`` is a list holding the last call's
     stored dual (None: 0), taken out of it: it is restored, freed, stepped, stored anew and
     freed again before the new iterate is made, whose final primal step reads the stored
     dual (the map is linear in it: γ ∇ᵀ(s / 32767) = (γ / 32767) ∇ᵀ s). So the full-precision
     dual (d images) and the new iterate are never held together, nor the old and the new
-    stored dual: d + d/2 images at most beside v, where `_tv_prox` and `_store_dual` held
+    stored dual: d + d/2 images at most beside v, where `tv_prox` and `store_dual` held
     d + d/2 + 1 (the paper's scan: tv's peak 9.3 -> 8.4 images, now inside the operator). Returns (x, the new
     stored dual); at γ <= 0 the projection of v and the stored dual unchanged."""
     old = stored.pop()
     if gamma <= 0:
         return _project(v.copy(), positivity, support), old
     v = np.ascontiguousarray(v)
-    q = np.zeros((v.ndim,) + v.shape, dtype=v.dtype) if old is None else _restore_dual(old, v.dtype)
+    q = np.zeros((v.ndim,) + v.shape, dtype=v.dtype) if old is None else restore_dual(old, v.dtype)
     del old
     _dual_steps(v, q, float(gamma), positivity, support, poll)
-    kept = _store_dual(q)
+    kept = store_dual(q)
     del q
     x = np.empty_like(v)
-    scale = 1.0 / _DUAL_SCALE if kept.dtype == np.int16 else 1.0
+    scale = 1.0 / DUAL_SCALE if kept.dtype == np.int16 else 1.0
     _prox_primal(_as3d(v), *_dual_axes(kept), v.ndim == 3, float(gamma) * scale, positivity, *_support3(support),
                  _as3d(x))
     return x, kept
@@ -283,7 +283,7 @@ def _support3(support: np.ndarray | None) -> tuple[np.ndarray, bool]:
 
 def _dual_steps(v: np.ndarray, q: np.ndarray, gamma: float, positivity: bool, support: np.ndarray | None,
                 poll: Callable[[], None] | None) -> None:
-    """`_PROX_ITER` inner steps of `_tv_prox`'s dual gradient projection on ``q`` (d, *v.shape),
+    """`PROX_ITER` inner steps of `tv_prox`'s dual gradient projection on ``q`` (d, *v.shape),
     in place: w = P(v − γ ∇ᵀq); q ← (q + step ∇w) / max(1, |·|), step = 1 / (γ ‖∇‖²)."""
     supp, has_support = _support3(support)
     has_y = v.ndim == 3
@@ -293,7 +293,7 @@ def _dual_steps(v: np.ndarray, q: np.ndarray, gamma: float, positivity: bool, su
     planes = np.empty((n_slabs, 3) + v3.shape[1:], dtype=v.dtype)  # w's first plane and a ring of two
     rows = np.empty((n_slabs, 4, v3.shape[2]), dtype=v.dtype)  # each slab's rows: w's differences, ∇ᵀq
     step = 1.0 / (4.0 * v.ndim * gamma)  # 1 / (γ ‖∇‖²), ‖∇‖² <= 4 d
-    for i in range(_PROX_ITER):
+    for i in range(PROX_ITER):
         if poll is not None and i % 5 == 4:
             poll()
         _prox_step(v3, *_dual_axes(q), has_y, gamma, positivity, supp, has_support, step, starts, planes, rows)

@@ -13,15 +13,15 @@ from typing import Any
 
 import numpy as np
 
-from fpscan.service.recon.tv.fista import _MARGIN, _Solved
-from fpscan.service.recon.tv.lam import _Continuation, _DiscrepancyRule
-from fpscan.service.recon.tv.problem import _Model, _Record
+from fpscan.service.recon.tv.fista import MARGIN, Solved
+from fpscan.service.recon.tv.lam import Continuation, DiscrepancyRule
+from fpscan.service.recon.tv.problem import Model, Record
 
 __all__: list[str] = []
 
 
-def _params(warm_params: dict[str, Any], record: _Record, model: _Model, solved: _Solved, rule: _DiscrepancyRule,
-            schedule: _Continuation | None, options: dict[str, Any], *, lam_auto: bool, geometry_kept: bool,
+def result_params(warm_params: dict[str, Any], record: Record, model: Model, solved: Solved, rule: DiscrepancyRule,
+            schedule: Continuation | None, options: dict[str, Any], *, lam_auto: bool, geometry_kept: bool,
             debiased: bool, started: float) -> dict[str, Any]:
     """The result's params: ``warm_params`` updated with the grid of ``record`` and the solve
     (``solved``, the automatic λ's ``rule``, the continuation's ``schedule``, the operator pairs of
@@ -44,7 +44,7 @@ def _params(warm_params: dict[str, Any], record: _Record, model: _Model, solved:
                   noise_share=record.noise_norm / max(gw_norm, 1e-300), iterations=it,
                   max_iter=o["max_iter"], tol=o["tol"], dtype=o["dtype"].name,
                   residual=float(np.linalg.norm(res) / max(gw_norm, 1e-300)),
-                  norm_A=L / _MARGIN, positivity=bool(o["positivity"]), weights_mean_one=False,
+                  norm_A=L / MARGIN, positivity=bool(o["positivity"]), weights_mean_one=False,
                   data_weights="equal", periodic=bool(o["periodic"]),
                   solver="FISTA preconditioned by " + ("NER" if model.pos is None else "NEDNER"),
                   iterate_change=change if math.isfinite(change) else None,

@@ -1,9 +1,9 @@
 """tv's stopping rule: the image's relative change per iteration, over a window of iterations.
 
 The rule's value at iteration k is ‖x_k − x_{k−1}‖ / ‖x_k‖ (free: summed with the momentum's
-test, `fpscan.service.recon.tv.fista._moves`); the run has converged when it was below ``tol`` in
+test, `fpscan.service.recon.tv.fista.moves`); the run has converged when it was below ``tol`` in
 each of the last `_WINDOW` = 3 iterations at λ itself (none of the λ continuation's,
-`fpscan.service.recon.tv.lam._Continuation`). Otherwise it stops at ``max_iter`` iterations
+`fpscan.service.recon.tv.lam.Continuation`). Otherwise it stops at ``max_iter`` iterations
 ("iterations") or at the time limit ("time limit"). Why the rule is on the image, not on
 the objective: docs/tv-measurements.md, "Stopping rule".
 """
@@ -19,8 +19,8 @@ __all__: list[str] = []
 _WINDOW = 3  # the stopping rule's window of iterations
 
 
-class _StoppingRule:
-    """The rule of one solver run (`fpscan.service.recon.tv.fista._fista`): ``observe(bb, nn)`` takes
+class StoppingRule:
+    """The rule of one solver run (`fpscan.service.recon.tv.fista.run_fista`): ``observe(bb, nn)`` takes
     an iteration's ‖x_k − x_{k−1}‖² and ‖x_k‖²; ``change`` is the rule's value (the largest
     relative change of the last `_WINDOW` iterations; NaN until there are that many);
     ``verdict(k, elapsed)`` the stop reason at iteration k after ``elapsed`` s ("converged",

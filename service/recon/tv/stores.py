@@ -4,13 +4,13 @@ The solver (`fpscan.service.recon.tv.fista`) keeps three vectors between iterati
 (package doc, "Memory"):
 
 - the proximal map's dual (|components| <= 1): int16 with the quantum 1 / 32767 for a
-  float32 solver, float32 for a float64 one (`_store_dual`, `_restore_dual`);
+  float32 solver, float32 for a float64 one (`store_dual`, `restore_dual`);
 - the last preconditioned gradient G(A y − g), which only the next gain test reads:
-  int16 with the quantum max|·| / 32767 (`_store_gradient`; `_gain_lower_bound` subtracts
+  int16 with the quantum max|·| / 32767 (`store_gradient`; `gain_lower_bound` subtracts
   what the rounding can add, so the test stays a lower bound of ‖BA‖);
 - the last move b = x − x_prev, from which y = x + β b was made: int16 with the quantum
-  max|b| / 32767 (`_store_move`); x is read back as y − β q round(b / q), exactly, so only y,
-  the extrapolation point, carries the rounding (`_extrapolate_fixed`).
+  max|b| / 32767 (`store_move`); x is read back as y − β q round(b / q), exactly, so only y,
+  the extrapolation point, carries the rounding (`extrapolate_fixed`).
 
 The compiled loops here are numba kernels (``cache=True``: ``fpscan warmup`` fills their
 cache; `fpscan.service.recon.methods.tv`'s ``kernel_modules``). Measurements:
@@ -26,39 +26,39 @@ import numpy.typing as npt
 
 __all__: list[str] = []
 
-#: the fixed-point scale of a float32 dual between calls (`_store_dual`)
-_DUAL_SCALE = 32767.0
+#: the fixed-point scale of a float32 dual between calls (`store_dual`)
+DUAL_SCALE = 32767.0
 
 
-def _store_dual(dual: np.ndarray) -> np.ndarray:
+def store_dual(dual: np.ndarray) -> np.ndarray:
     """The proximal map's dual (C-contiguous, |components| <= 1) at half the working
-    precision's bytes, for the wait between iterations (`_fista`): float32 -> int16 fixed
+    precision's bytes, for the wait between iterations (`run_fista`): float32 -> int16 fixed
     point, round(q · 32767) (error <= 1.5e-5, where float16 kept 2⁻¹¹ near 1); float64 ->
     float32. By compiled parallel loops: numpy's float16 casts took 0.06-0.08 s a call on
     the three images of a 512 × 128² volume, 3 s of tv's 30 s there."""
     if dual.dtype == np.float32:
         out = np.empty(dual.shape, dtype=np.int16)
-        _quantise(dual.reshape(-1), out.reshape(-1), _DUAL_SCALE)
+        _quantise(dual.reshape(-1), out.reshape(-1), DUAL_SCALE)
     else:
         out = np.empty(dual.shape, dtype=np.float32)
         _cast(dual.reshape(-1), out.reshape(-1))
     return out
 
 
-def _store_gradient(g: np.ndarray) -> tuple[np.ndarray, float]:
-    """A preconditioned gradient G(A y − g) kept for the next iteration's gain (`_fista`) as
+def store_gradient(g: np.ndarray) -> tuple[np.ndarray, float]:
+    """A preconditioned gradient G(A y − g) kept for the next iteration's gain (`run_fista`) as
     16-bit fixed point: (round(g / q), q) with the quantum q = max |g| / 32767, so that each
-    value is off by at most q / 2 (`_gain_lower_bound` subtracts that)."""
+    value is off by at most q / 2 (`gain_lower_bound` subtracts that)."""
     flat = g.reshape(-1)
     top = _max_abs(flat)
-    quantum = top / _DUAL_SCALE if top > 0 else 1.0
+    quantum = top / DUAL_SCALE if top > 0 else 1.0
     out = np.empty(flat.shape, dtype=np.int16)
     _quantise(flat, out, 1.0 / quantum)
     return out, quantum
 
 
-def _gain_lower_bound(g: np.ndarray, stored: tuple[np.ndarray, float]) -> float:
-    """‖g − g_prev‖ from below, with g_prev kept by `_store_gradient`: the distance to the
+def gain_lower_bound(g: np.ndarray, stored: tuple[np.ndarray, float]) -> float:
+    """‖g − g_prev‖ from below, with g_prev kept by `store_gradient`: the distance to the
     fixed-point values less the largest their rounding can move it, q √N / 2 (‖e‖ for
     |e_i| <= q / 2; with 1e-6 of it for the float64 sums), so that the solver's L rises only
     where ‖BA‖ really exceeds it."""
@@ -86,11 +86,11 @@ def _difference_norm_fixed(a: np.ndarray, s: np.ndarray, quantum: float) -> floa
     return math.sqrt(total)
 
 
-def _restore_dual(stored: np.ndarray, dtype: npt.DTypeLike) -> np.ndarray:
-    """`_store_dual` undone: a new array of ``dtype`` (float32 from int16, float64 from float32)."""
+def restore_dual(stored: np.ndarray, dtype: npt.DTypeLike) -> np.ndarray:
+    """`store_dual` undone: a new array of ``dtype`` (float32 from int16, float64 from float32)."""
     out = np.empty(stored.shape, dtype=dtype)
     if stored.dtype == np.int16:
-        _dequantise(stored.reshape(-1), out.reshape(-1), 1.0 / _DUAL_SCALE)
+        _dequantise(stored.reshape(-1), out.reshape(-1), 1.0 / DUAL_SCALE)
     else:
         _cast(stored.reshape(-1), out.reshape(-1))
     return out
@@ -118,14 +118,14 @@ def _cast(src: np.ndarray, out: np.ndarray) -> None:
 
 
 
-def _store_move(xn: np.ndarray, v: np.ndarray, gy: np.ndarray, inv_l: float, b_last: np.ndarray,
+def store_move(xn: np.ndarray, v: np.ndarray, gy: np.ndarray, inv_l: float, b_last: np.ndarray,
                 scale_last: float, b_max: float) -> tuple[np.ndarray, float]:
-    """The move b = x_new − x (flat arrays; x = v + inv_l gy − scale_last b_last as `_moves`) as
+    """The move b = x_new − x (flat arrays; x = v + inv_l gy − scale_last b_last as `moves`) as
     16-bit fixed point: (round(b / q), q) with q = ``b_max`` / 32767 (``b_max`` = max |b|, from
-    `_moves`). y = x_new + β q round(b / q) then differs from the exact extrapolation by at
+    `moves`). y = x_new + β q round(b / q) then differs from the exact extrapolation by at
     most β q / 2 a voxel, and x = y − β q round(b / q) is exact (to the working precision's
     rounding), which is all the solver needs of x."""
-    quantum = b_max / _DUAL_SCALE if b_max > 0 else 0.0
+    quantum = b_max / DUAL_SCALE if b_max > 0 else 0.0
     out = np.empty(xn.shape, dtype=np.int16)
     _quantise_move(xn, v, gy, inv_l, b_last, scale_last, 1.0 / quantum if quantum > 0 else 0.0, out)
     return out, quantum
@@ -142,7 +142,7 @@ def _quantise_move(xn: np.ndarray, v: np.ndarray, gy: np.ndarray, inv_l: float, 
 
 
 @numba.njit(parallel=True, cache=True)
-def _extrapolate_fixed(xn: np.ndarray, b: np.ndarray, scale: float) -> None:
+def extrapolate_fixed(xn: np.ndarray, b: np.ndarray, scale: float) -> None:
     """In place, xn ← xn + scale b (flat arrays, b int16): FISTA's next y = x_new + β q b in
     the new iterate's place."""
     for i in numba.prange(xn.size):
