@@ -89,9 +89,9 @@ def losses(rows: list[dict], a: float, knee: float, power: float) -> np.ndarray:
 
 def present_rule() -> tuple[float, float, float]:
     """(a, knee, p) of tv's automatic λ as it stands."""
-    import fpscan.service.recon.tv as tv
+    from fpscan.service.recon.tv import lam
 
-    return (tv.LAM_SCALE, tv.LAM_KNEE, tv.LAM_POWER)
+    return (lam.LAM_SCALE, lam.LAM_KNEE, lam.LAM_POWER)
 
 
 def report(rows: list[dict]) -> None:

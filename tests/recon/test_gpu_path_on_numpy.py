@@ -160,7 +160,7 @@ def test_tvs_model_on_the_gpu_branch_gives_the_cpu_branchs_products() -> None:
     """tv's `Model` with its operator pair on ``xp`` (the GPU branch: A, Aᵀ and P there) against
     the compiled CPU branch, on NumPy: the same forward, B = P Aᵀ and residual."""
     from fpscan.physics.forward import forward_points
-    from fpscan.service.recon.tv.problem import Model, working_record, warm_start
+    from fpscan.service.recon.tv.problem import Model, warm_start, working_record
 
     rng = np.random.default_rng(6)
     p0 = np.zeros((10, 14, 16))

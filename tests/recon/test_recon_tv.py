@@ -165,7 +165,7 @@ def test_the_automatic_lambda_reads_the_warm_starts_discrepancy(balls_3d):
     model (`forward_points`), is what tv records and raises λ by; on this 3 % mask the warm
     start misses the data by far more than the noise, so λ is several image noise levels."""
     from fpscan.physics.forward import forward_points
-    from fpscan.service.recon.tv import LAM_KNEE, LAM_POWER, LAM_SCALE
+    from fpscan.service.recon.tv.lam import LAM_KNEE, LAM_POWER, LAM_SCALE
 
     b = balls_3d
     # at the record's own band (declared): the oracle's model is the direct sum at the record's sampling (the 2 DZ

@@ -71,8 +71,7 @@ def test_the_transpose_is_the_adjoint_of_the_differences(shape, dtype):
     q = rng.standard_normal((len(shape),) + shape).astype(dtype)
     out = np.full(shape, np.nan, dtype=dtype)  # every element written
     zero = np.zeros(shape, dtype=dtype)
-    prox._prox_primal(prox._as3d(zero), *prox._dual_axes(q), len(shape) == 3, 1.0, False,
-                    np.zeros((1, 1, 1), bool), False, prox._as3d(out))
+    prox.primal_step(zero, q, 1.0, out=out)
     gt = -out.astype(np.float64)
     np.testing.assert_allclose(gt, _grad_t(q), rtol=0, atol=1e-5 if dtype == np.float32 else 1e-12)
     lhs = float(np.vdot(_grad(x).astype(np.float64), q.astype(np.float64)))

@@ -11,7 +11,7 @@ from fpscan.physics.forward import forward_points
 from fpscan.service.recon.tv import fista, prox, stores
 from fpscan.service.recon.tv.geometry import geometry_numbers
 from fpscan.service.recon.tv.kernels import array_kernels
-from fpscan.service.recon.tv.problem import Model, working_record, start_image, warm_start
+from fpscan.service.recon.tv.problem import Model, start_image, warm_start, working_record
 
 XK = array_kernels(np)
 

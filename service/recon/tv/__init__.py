@@ -11,13 +11,18 @@ sensors on the grid or at arbitrary positions), every A-line weighted equally (e
 white noise of the same σ: the maximum-likelihood data term) and TV(p) = Σ_voxels |∇p|₂ the
 isotropic total variation with forward differences in voxel units (J in Pa², so λ is in Pa).
 Positivity is on by default (``positivity=False`` drops it). `reconstruct_tv` is the
-algorithm; each of its parts is a module of this package:
+algorithm; each of its parts is a module of this package, with its own public interface
+(its ``__all__``):
 
-- ``problem``: the record the grid can resolve and the warm start on it. The operator works at
-  the band the lateral pitch resolves, c / (2 pitch) (or a declared ``bandwidth``), on the
-  record cut where the model predicts silence and resampled to the fewest samples whose band
-  reaches it; the default depth grid is isotropic (`fpscan.service.recon.tv.grid`). The warm start is
-  NER (grid data) / NEDNER (A-lines), clipped to >= 0. Then A and B = P Aᵀ.
+- ``reconstruct``: `reconstruct_tv`, the parts below assembled, and its defaults
+  (``DEFAULT_MAX_ITER``, ``DEFAULT_TOL``, ``DEFAULT_TIME_LIMIT``).
+- ``grid``: the grid tv works on (`TvGrid`, `tv_grid`): the operator's band (c / (2 pitch), or a
+  declared ``bandwidth``) and time sampling, the image's depth grid (isotropic by default),
+  the record kept (cut where the model predicts silence) and the noise level `noise_sigma`;
+  pure numpy, so that a server sizes a tv job from it (`RecordFacts`, `record_facts`).
+- ``problem``: the options' checks, the record on that grid (`working_record`), the warm start
+  on it (NER for grid data, NEDNER for A-lines, clipped to >= 0) and the model A and B = P Aᵀ
+  (`Model`).
 - ``preconditioner``: P = k_z / |k|, NER's k-space weight, which inverts AᵀA's symbol |k| /
   k_z for a full planar aperture.
 - ``geometry``: the step 1 / L, L ≈ 1.1 ‖P AᵀA‖ from two seeded power iterations, and the
@@ -38,7 +43,40 @@ algorithm; each of its parts is a module of this package:
   operator works (`fpscan.service.recon.memory.tv_memory`).
 - ``progress``: increasing fractions and stages, polled inside long steps so a cancel acts.
 - ``result``: the result's ``params``.
+- ``kernels``: the solver's whole-image operations as one set per array namespace (the
+  compiled loops on the CPU, CuPy's array expressions on a GPU).
 
 Why each rule and number is what it is (the measurements on the test cases, k-Wave's vessel
 tree and the paper's scan, and the rules measured and not built): docs/tv-measurements.md.
 """
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+__all__ = ["DEFAULT_MAX_ITER", "DEFAULT_TOL", "DEFAULT_TIME_LIMIT", "TvGrid", "noise_sigma", "reconstruct_tv", "tv_grid"]
+
+#: where each public name lives: imported on first use (PEP 562), so that importing the package
+#: (or its numba-free ``grid``, as the server's memory admission does) loads no solver
+_LAZY = {"DEFAULT_MAX_ITER": "reconstruct", "DEFAULT_TOL": "reconstruct", "DEFAULT_TIME_LIMIT": "reconstruct",
+         "reconstruct_tv": "reconstruct", "TvGrid": "grid", "noise_sigma": "grid", "tv_grid": "grid"}
+
+if TYPE_CHECKING:
+    from fpscan.service.recon.tv.grid import TvGrid, noise_sigma, tv_grid
+    from fpscan.service.recon.tv.reconstruct import (
+        DEFAULT_MAX_ITER,
+        DEFAULT_TIME_LIMIT,
+        DEFAULT_TOL,
+        reconstruct_tv,
+    )
+
+
+def __getattr__(name: str) -> Any:
+    """`reconstruct_tv` and its defaults (they load the solver: numba, pylops) and the grid's
+    names, on first use."""
+    if name in _LAZY:
+        import importlib
+
+        value = getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 
-__all__: list[str] = []
+__all__ = ["LAM_SCALE", "LAM_KNEE", "LAM_POWER", "CONTINUATION_RATE", "DiscrepancyRule", "Continuation"]
 
 #: the automatic λ = image noise level × LAM_SCALE × max(1, (D₀ / LAM_KNEE) ** LAM_POWER),
 #: D₀ the warm start's discrepancy over the noise's norm (module doc; calibrated on
@@ -34,11 +34,37 @@ CONTINUATION_RATE = 0.9  # λ_k / λ_{k−1} while λ continues down to λ (modu
 
 
 class DiscrepancyRule:
-    """The automatic λ as a rule of the warm start's residual r₀ = ‖A x₀ − g‖ (module doc):
+    """The automatic λ as a rule of the warm start's residual r₀ = ‖A x₀ − g‖ (module doc).
+
     ``rule(r₀)`` = s · `LAM_SCALE` · max(1, (D₀ / `LAM_KNEE`) ** `LAM_POWER`), D₀ = r₀ / (σ̂ √N),
-    for the image's noise level s and the noise's norm σ̂ √N. After the call ``factor`` is
-    λ / s and ``warm_discrepancy`` D₀ (None while unknown, or without a noise estimate: then
-    the factor is `LAM_SCALE`)."""
+    for the image's noise level s and the noise's norm σ̂ √N; the noise level after Donoho &
+    Johnstone, Biometrika 81 (1994) 425, the problem after Arridge et al., PMB 61 (2016) 8908.
+
+    Parameters
+    ----------
+    image_noise : float
+        s = σ̂ ‖P Aᵀ n̂‖_rms, the image's noise level (the data's unit, Pa).
+    noise_norm : float
+        σ̂ √N, the noise's norm over the record's N samples (Pa); 0: no noise estimate.
+
+    Attributes
+    ----------
+    image_noise, noise_norm : float
+        As given.
+    factor : float
+        λ / s after the call (`LAM_SCALE` before it, or without a noise estimate).
+    warm_discrepancy : float or None
+        D₀ after the call (None while unknown, or without a noise estimate).
+
+    Examples
+    --------
+    >>> from fpscan.service.recon.tv.lam import DiscrepancyRule
+    >>> rule = DiscrepancyRule(image_noise=2.0, noise_norm=10.0)
+    >>> rule(50.0), rule.warm_discrepancy, rule.factor  # D₀ = 5 < 9.5: 0.6 s
+    (1.2, 5.0, 0.6)
+    >>> round(rule(950.0), 6), round(rule.factor, 6)  # D₀ = 95: raised by (95 / 9.5) ** 0.25
+    (2.133935, 1.066968)
+    """
 
     def __init__(self, image_noise: float, noise_norm: float):
         self.image_noise, self.noise_norm = image_noise, noise_norm
@@ -53,12 +79,35 @@ class DiscrepancyRule:
 
 
 class Continuation:
-    """λ continuation (module doc): iteration k proximal-steps with λ_k = λ ·
-    max(1, f₀ · `CONTINUATION_RATE` ** (k − 1)), from f₀ = D₀ = ‖A x₀ − g‖ / (σ̂ √N) (the
-    warm start's discrepancy in noise norms, at least 1) down to λ, in at most half of
-    ``max_iter`` iterations (f₀ is capped there). ``start(r₀, λ, max_iter)`` sets ``start_factor``
-    (f₀) and ``iterations`` (how many iterations have λ_k > λ); without a noise estimate (σ̂ =
-    0) or at λ = 0 there is none (f₀ = 1)."""
+    """λ continuation (module doc): iteration k proximal-steps with λ_k = λ · max(1, f₀ ·
+    `CONTINUATION_RATE` ** (k − 1)), from f₀ = D₀ = ‖A x₀ − g‖ / (σ̂ √N) (the warm start's
+    discrepancy in noise norms, at least 1) down to λ, in at most half of ``max_iter``
+    iterations (f₀ is capped there).
+
+    Parameters
+    ----------
+    noise_norm : float
+        σ̂ √N, the noise's norm over the record (Pa); 0: no noise estimate, no continuation.
+
+    Attributes
+    ----------
+    noise_norm : float
+        As given.
+    start_factor : float
+        f₀ after ``start(r₀, λ, max_iter)`` (1: none; without a noise estimate, or at λ = 0).
+    iterations : int
+        How many iterations have λ_k > λ.
+
+    Examples
+    --------
+    >>> from fpscan.service.recon.tv.lam import Continuation
+    >>> c = Continuation(noise_norm=10.0)
+    >>> c.start(40.0, 0.1, max_iter=100)  # D₀ = 4
+    >>> c.start_factor, c.iterations, c.factor(1), c.factor(100)
+    (4.0, 14, 4.0, 1.0)
+    >>> c.start(40.0, 0.0, max_iter=100); c.start_factor  # λ = 0: nothing to continue
+    1.0
+    """
 
     def __init__(self, noise_norm: float):
         self.noise_norm = noise_norm

@@ -22,8 +22,8 @@ import numpy.typing as npt
 
 from fpscan.physics.resample import resample
 from fpscan.service.recon import checks, memory
-from fpscan.service.recon.tv.preconditioner import apply_weight, ner_weight
 from fpscan.service.recon.tv.grid import TvGrid, noise_sigma, tv_grid
+from fpscan.service.recon.tv.preconditioner import apply_weight, ner_weight
 
 if TYPE_CHECKING:
     from fpscan.service.recon.reconstruction import Reconstruction

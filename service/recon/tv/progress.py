@@ -13,16 +13,42 @@ import time
 
 from fpscan.service.progress import Progress
 
-__all__: list[str] = []
+__all__ = ["POLL_S", "Reporter", "final_stage"]
 
 POLL_S = 0.2  # a cancel is polled at least this often (s) inside long steps
 
 
 class Reporter:
-    """``report(fraction, stage)``: passes increasing fractions on to ``progress``;
-    ``poll()``: the same fraction and stage again, at most every `POLL_S` seconds, so that
-    a ``progress`` that raises to cancel (the pipeline's ``should_stop``) is heard inside
-    long steps too (the operator's checkpoints, the proximal map's inner iterations)."""
+    """tv's progress: ``report(fraction, stage)`` passes increasing fractions on to
+    ``progress``; ``poll()`` repeats the same fraction and stage, at most every `POLL_S`
+    seconds, so that a ``progress`` that raises to cancel (the pipeline's ``should_stop``) is
+    heard inside long steps too (the operator's checkpoints, the proximal map's inner steps).
+
+    Parameters
+    ----------
+    progress : callable or None
+        ``progress(fraction, stage)`` (`fpscan.service.progress.Progress`); None: silent.
+
+    Attributes
+    ----------
+    progress : callable or None
+        As given.
+    fraction : float
+        The last fraction passed on (0 before any).
+    stage : str
+        Its stage ("warm start" before any).
+    at : float
+        When it was passed on (`time.monotonic`, s).
+
+    Examples
+    --------
+    >>> from fpscan.service.recon.tv.progress import Reporter
+    >>> seen = []
+    >>> report = Reporter(lambda f, stage: seen.append((f, stage)))
+    >>> report(0.1, "warm start"); report(0.05, "warm start"); report(0.2, "norm estimate")
+    >>> seen  # only increasing fractions
+    [(0.1, 'warm start'), (0.2, 'norm estimate')]
+    """
 
     def __init__(self, progress: Progress | None) -> None:
         self.progress = progress
@@ -39,12 +65,29 @@ class Reporter:
             self.progress(self.fraction, self.stage)
 
 
-def _reporter(progress: Progress | None) -> Reporter:
-    return Reporter(progress)
-
-
 def final_stage(stop_reason: str, iterations: int) -> str:
-    """The last stage: "converged after k iterations" or "stopped after k iterations (time
-    limit)" / "(iteration limit)"."""
+    """The last progress stage of a run.
+
+    Parameters
+    ----------
+    stop_reason : str
+        "converged", "iterations" or "time limit".
+    iterations : int
+        The iterations run.
+
+    Returns
+    -------
+    str
+        "converged after k iterations", or "stopped after k iterations (time limit)" /
+        "(iteration limit)".
+
+    Examples
+    --------
+    >>> from fpscan.service.recon.tv.progress import final_stage
+    >>> final_stage("converged", 42)
+    'converged after 42 iterations'
+    >>> final_stage("time limit", 7)
+    'stopped after 7 iterations (time limit)'
+    """
     return (("converged" if stop_reason == "converged" else "stopped") + f" after {iterations} iterations"
             + {"time limit": " (time limit)", "iterations": " (iteration limit)"}.get(stop_reason, ""))

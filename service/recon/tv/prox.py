@@ -22,7 +22,7 @@ import numpy as np
 
 from fpscan.service.recon.tv.stores import DUAL_SCALE, restore_dual, store_dual
 
-__all__: list[str] = []
+__all__ = ["PROX_ITER", "tv_prox", "tv_prox_stored", "tv_norm", "primal_step"]
 
 #: inner (dual, no operator) iterations of the TV + positivity proximal map, warm-started from
 #: the last call's dual (chosen: docs/tv-measurements.md, "Proximal map")
@@ -211,22 +211,79 @@ def _tv_norm_kernel(x: np.ndarray) -> float:
 
 
 def tv_norm(x: np.ndarray) -> float:
-    """TV(x) = Σ_voxels |∇x|₂ (forward differences, voxel units), in float64; no work array."""
+    """TV(x) = Σ_voxels |∇x|₂, the isotropic total variation with forward differences in voxel
+    units, summed in float64; no work array.
+
+    Parameters
+    ----------
+    x : ndarray
+        An image ``(n_z, n_x)`` / ``(n_z, n_y, n_x)``, float32 or float64 (the differences in its
+        dtype, as the proximal map sees them), in its unit (Pa).
+
+    Returns
+    -------
+    float
+        TV(x), x's unit.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from fpscan.service.recon.tv.prox import tv_norm
+    >>> tv_norm(np.array([[0.0, 1.0], [0.0, 1.0]]))  # one unit step along x on each of 2 rows
+    2.0
+    >>> tv_norm(np.ones((3, 4, 5)))
+    0.0
+    """
     return float(_tv_norm_kernel(_as3d(np.ascontiguousarray(x))))
 
 
 def tv_prox(v: np.ndarray, gamma: float, positivity: bool, support: np.ndarray | None, dual: np.ndarray | None,
              poll: Callable[[], None] | None = None,
              in_place: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
-    """argmin_x ½‖x − v‖² + γ TV(x) over x >= 0 (positivity) and x = 0 off ``support``
-    (None: everywhere allowed): gradient projection on the dual (Chambolle 2005; Beck &
-    Teboulle 2009's GP), `PROX_ITER` steps from ``dual`` (the previous call's, a warm start,
-    updated in place; None: 0). No operator. ``poll()``, if given, is called every few inner
-    steps (a cancel). Returns (x, dual); x is ``v`` (C-contiguous), overwritten, with
-    ``in_place`` (the default), else a new array (v is kept). Each inner step is one compiled
-    sweep over the volume (`_prox_step`; the primal w lives a few planes at a time), the dual
-    stepped in place: no work image beyond the dual itself (d images, made when ``dual`` is
-    None)."""
+    """The proximal map of γ TV + positivity: argmin_x ½‖x − v‖² + γ TV(x) over x >= 0 (with
+    ``positivity``) and x = 0 off ``support``.
+
+    Gradient projection on the dual (Chambolle, J. Math. Imaging Vis. 20 (2004) 89 and EMMCVPR
+    2005; Beck & Teboulle, IEEE Trans. Image Process. 18 (2009) 2419, their GP), `PROX_ITER`
+    steps from ``dual`` (the previous call's, a warm start, updated in place). No operator.
+    Each inner step is one compiled sweep over the volume (the primal w lives a few planes at a
+    time), the dual stepped in place: no work image beyond the dual itself (d images, made when
+    ``dual`` is None).
+
+    Parameters
+    ----------
+    v : ndarray
+        The image ``(n_z, n_x)`` / ``(n_z, n_y, n_x)``, float32 or float64, in its unit (Pa).
+    gamma : float
+        γ (v's unit); <= 0: only the projection.
+    positivity : bool
+        Constrain x >= 0.
+    support : ndarray of bool or None
+        v's shape: x = 0 where False (None: everywhere allowed).
+    dual : ndarray or None
+        The dual ``(d, *v.shape)`` of v's dtype (z, (y,) x), updated in place; None: 0.
+    poll : callable, optional
+        Called every few inner steps (a cancel may raise there).
+    in_place : bool, optional
+        Write x into ``v`` (C-contiguous; default True), else into a new array.
+
+    Returns
+    -------
+    tuple
+        ``(x, dual)``: x of v's shape and dtype, and the dual after the steps (``dual`` itself
+        where given; unchanged, possibly None, at γ <= 0).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from fpscan.service.recon.tv.prox import tv_norm, tv_prox
+    >>> v = np.array([[0.0, 0.0, 1.0, 1.0]]) + np.array([[0.1, -0.1, 0.1, -0.1]])
+    >>> x, dual = tv_prox(v.copy(), 0.05, False, None, None)
+    >>> dual.shape, bool(tv_norm(x) < tv_norm(v))
+    ((2, 1, 4), True)
+    >>> tv_prox(np.array([[-1.0, 2.0]]), 0.0, True, None, None)[0].tolist()  # γ = 0: the projection
+    [[0.0, 2.0]]
+    """
     if gamma <= 0:
         return _project(v if in_place else v.copy(), positivity, support), dual
     v = np.ascontiguousarray(v)  # the kernels see it through 3-D views
@@ -240,15 +297,50 @@ def tv_prox(v: np.ndarray, gamma: float, positivity: bool, support: np.ndarray |
 def tv_prox_stored(v: np.ndarray, gamma: float, positivity: bool, support: np.ndarray | None,
                     stored: list[np.ndarray | None],
                     poll: Callable[[], None] | None = None) -> tuple[np.ndarray, np.ndarray | None]:
-    """`tv_prox` (not in place: v is kept) with its dual kept between calls in half the
-    working precision's bytes (`store_dual`). ``stored`` is a list holding the last call's
-    stored dual (None: 0), taken out of it: it is restored, freed, stepped, stored anew and
-    freed again before the new iterate is made, whose final primal step reads the stored
-    dual (the map is linear in it: γ ∇ᵀ(s / 32767) = (γ / 32767) ∇ᵀ s). So the full-precision
-    dual (d images) and the new iterate are never held together, nor the old and the new
-    stored dual: d + d/2 images at most beside v, where `tv_prox` and `store_dual` held
-    d + d/2 + 1 (the paper's scan: tv's peak 9.3 -> 8.4 images, now inside the operator). Returns (x, the new
-    stored dual); at γ <= 0 the projection of v and the stored dual unchanged."""
+    """`tv_prox` (not in place: v is kept) with its dual kept between calls in half the working
+    precision's bytes (`fpscan.service.recon.tv.stores.store_dual`).
+
+    ``stored`` is a list holding the last call's stored dual (None: 0), taken out of it: it is
+    restored, freed, stepped, stored anew and freed again before the new iterate is made, whose
+    final primal step reads the stored dual (the map is linear in it: γ ∇ᵀ(s / 32767) =
+    (γ / 32767) ∇ᵀ s). So the full-precision dual (d images) and the new iterate are never held
+    together, nor the old and the new stored dual: d + d/2 images at most beside v (the paper's
+    scan: tv's peak 9.3 -> 8.4 images, now inside the operator).
+
+    Parameters
+    ----------
+    v : ndarray
+        The image ``(n_z, n_x)`` / ``(n_z, n_y, n_x)``, float32 or float64 (Pa).
+    gamma : float
+        γ (v's unit); <= 0: only the projection.
+    positivity : bool
+        Constrain x >= 0.
+    support : ndarray of bool or None
+        v's shape: x = 0 where False (None: everywhere allowed).
+    stored : list
+        One element, the last call's stored dual (`store_dual`'s form, ``(d, *v.shape)``) or
+        None; popped.
+    poll : callable, optional
+        Called every few inner steps (a cancel may raise there).
+
+    Returns
+    -------
+    tuple
+        ``(x, stored dual)``: a new x of v's shape and dtype, and the new stored dual (int16 for
+        float32, float32 for float64); at γ <= 0 the projection of v and the stored dual unchanged.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from fpscan.service.recon.tv.prox import tv_prox_stored
+    >>> v = np.array([[0.0, 0.2, 1.0, 0.9]], dtype=np.float32)
+    >>> x, kept = tv_prox_stored(v, 0.05, True, None, [None])
+    >>> x.dtype, kept.dtype, kept.shape
+    (dtype('float32'), dtype('int16'), (2, 1, 4))
+    >>> x2, kept2 = tv_prox_stored(v, 0.05, True, None, [kept])  # warm-started from the stored dual
+    >>> x2.shape
+    (1, 4)
+    """
     old = stored.pop()
     if gamma <= 0:
         return _project(v.copy(), positivity, support), old
@@ -263,6 +355,51 @@ def tv_prox_stored(v: np.ndarray, gamma: float, positivity: bool, support: np.nd
     _prox_primal(_as3d(v), *_dual_axes(kept), v.ndim == 3, float(gamma) * scale, positivity, *_support3(support),
                  _as3d(x))
     return x, kept
+
+
+def primal_step(v: np.ndarray, dual: np.ndarray, gamma: float, positivity: bool = False,
+                support: np.ndarray | None = None, out: np.ndarray | None = None) -> np.ndarray:
+    """The proximal map's primal step P(v − γ ∇ᵀq) (the compiled sweep each inner step of
+    `tv_prox` makes), ∇ᵀ the transpose of the forward differences in voxel units (0 at the
+    last index): (∇ᵀq)_i = Σ_a [i_a < n_a − 1] (−q_a)_i + [i_a > 0] (q_a)_{i − e_a}; P clips
+    below 0 with ``positivity`` and zeroes off ``support``.
+
+    Parameters
+    ----------
+    v : ndarray
+        The image ``(n_z, n_x)`` / ``(n_z, n_y, n_x)``, float32 or float64 (C-contiguous: else
+        copied).
+    dual : ndarray
+        q, ``(d, *v.shape)`` of v's dtype, its components along z, (y,) x in that order, C-contiguous.
+    gamma : float
+        γ, in v's unit.
+    positivity : bool, optional
+        Clip below 0 (default False).
+    support : ndarray of bool, optional
+        v's shape: zero where False (default: none).
+    out : ndarray, optional
+        Where to write (v's shape and dtype; may be ``v``); default a new array.
+
+    Returns
+    -------
+    ndarray
+        ``out``: P(v − γ ∇ᵀq), v's shape and dtype.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from fpscan.service.recon.tv.prox import primal_step
+    >>> q = np.zeros((2, 2, 3))
+    >>> q[1, 0, 0] = 1.0  # the x component at (0, 0): ∇ᵀq = −1 there, +1 at (0, 1)
+    >>> primal_step(np.zeros((2, 3)), q, 1.0).tolist()
+    [[1.0, -1.0, 0.0], [0.0, 0.0, 0.0]]
+    >>> primal_step(np.zeros((2, 3)), q, 1.0, positivity=True).tolist()
+    [[1.0, 0.0, 0.0], [0.0, 0.0, 0.0]]
+    """
+    v = np.ascontiguousarray(v)
+    x = np.empty_like(v) if out is None else out
+    _prox_primal(_as3d(v), *_dual_axes(dual), v.ndim == 3, float(gamma), positivity, *_support3(support), _as3d(x))
+    return x
 
 
 def _project(x: np.ndarray, positivity: bool, support: np.ndarray | None) -> np.ndarray:

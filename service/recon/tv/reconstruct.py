@@ -1,4 +1,15 @@
-"""RECONSTRUCT_DOC"""
+"""tv end to end: `reconstruct_tv`, the model-based reconstruction, assembled from the package's parts.
+
+`reconstruct_tv` checks the options (`fpscan.service.recon.tv.problem.check_options`), makes the
+record at the band and on the grid the data can resolve (`fpscan.service.recon.tv.problem.working_record`,
+`fpscan.service.recon.tv.grid`), then, on the device that runs it (`fpscan.service.recon.device.run`):
+the warm start (`fpscan.service.recon.tv.problem.warm_start`), the model A and B = P Aᵀ
+(`fpscan.service.recon.tv.problem.Model`), the step's ‖BA‖ and the noise image
+(`fpscan.service.recon.tv.geometry`), λ and its continuation (`fpscan.service.recon.tv.lam`), the
+solver (`fpscan.service.recon.tv.fista`) and the result's params (`fpscan.service.recon.tv.result`).
+The problem and its source (Arridge et al., Phys. Med. Biol. 61 (2016) 8908): the package doc,
+`fpscan.service.recon.tv`.
+"""
 from __future__ import annotations
 
 import time
@@ -9,38 +20,32 @@ import numpy.typing as npt
 
 from fpscan.constants import C_DEFAULT
 from fpscan.service.progress import Progress, span
-from fpscan.service.recon import checks
+from fpscan.service.recon import checks, limits
 from fpscan.service.recon import device as devices
-from fpscan.service.recon import limits as _limits
 from fpscan.service.recon.reconstruction import Reconstruction
 from fpscan.service.recon.tv.fista import MARGIN, debias_refit, run_fista
 from fpscan.service.recon.tv.geometry import geometry_numbers
-from fpscan.service.recon.tv.lam import (
-    LAM_KNEE as LAM_KNEE,  # the automatic λ's constants, read by tests and
-)
-from fpscan.service.recon.tv.lam import LAM_POWER as LAM_POWER  # benchmarks from here
-from fpscan.service.recon.tv.lam import LAM_SCALE as LAM_SCALE
 from fpscan.service.recon.tv.lam import Continuation, DiscrepancyRule
 from fpscan.service.recon.tv.problem import (
-    check_options,
     Model,
     Record,
-    working_record,
+    check_options,
     start_image,
     warm_start,
+    working_record,
 )
-from fpscan.service.recon.tv.progress import final_stage, Reporter, _reporter
+from fpscan.service.recon.tv.progress import Reporter, final_stage
 from fpscan.service.recon.tv.result import result_params
-from fpscan.service.recon.tv.grid import TvGrid, noise_sigma, tv_grid
 
-__all__ = ["DEFAULT_MAX_ITER", "DEFAULT_TOL", "DEFAULT_TIME_LIMIT", "TvGrid", "noise_sigma", "reconstruct_tv", "tv_grid"]
+__all__ = ["DEFAULT_MAX_ITER", "DEFAULT_TOL", "DEFAULT_TIME_LIMIT", "reconstruct_tv"]
 
-DEFAULT_MAX_ITER = _limits.DEFAULT_MAX_ITER
+#: default iteration limit of one model-based reconstruction (``fpscan.service.recon.limits``)
+DEFAULT_MAX_ITER = limits.DEFAULT_MAX_ITER
 #: the stopping rule: the image's relative change per iteration below this in each of the last 3
-DEFAULT_TOL = _limits.DEFAULT_TOL
+DEFAULT_TOL = limits.DEFAULT_TOL
 #: default wall-time limit of one model-based reconstruction, s (``fpscan.service.recon.limits``; the
 #: server's setting ``time_limit_s`` caps it there)
-DEFAULT_TIME_LIMIT = _limits.DEFAULT_TIME_LIMIT
+DEFAULT_TIME_LIMIT = limits.DEFAULT_TIME_LIMIT
 
 
 def reconstruct_tv(
@@ -223,7 +228,7 @@ def reconstruct_tv(
     bandwidth = None if bandwidth is None else checks.check_bandwidth(bandwidth)
     rdtype = checks.check_dtype(dtype)
     started = time.monotonic()
-    report = _reporter(progress)
+    report = Reporter(progress)
     if positions is None and dx is None:
         raise ValueError("grid data need dx (or give positions for A-lines)")
     device = devices.check_device(device)
