@@ -44,7 +44,7 @@ from fpscan.service.recon import checks, memory
 from fpscan.service.recon import device as devices
 from fpscan.service.recon.reconstruction import Reconstruction
 
-__all__ = ["GRID_METHODS", "transform_lengths", "reconstruct_grid", "reconstruct_points"]
+__all__ = ["GRID_METHODS", "transform_lengths", "reconstruct_grid", "reconstruct_points", "depth_axis", "default_grid", "check_grid"]
 
 #: the methods `reconstruct_grid` runs (the method registry is `fpscan.service.recon.methods`)
 GRID_METHODS = ("ner", "linear", "nearest", "cubic")
@@ -55,11 +55,47 @@ _TEMPORAL_STEP = {"ner": "nufft", "linear": "regular", "nearest": "regular", "cu
 
 def depth_axis(n_t: int, dt: float, c: float, dz: float | None, n_z: int | None,
                 t0: float) -> tuple[float, int, int]:
-    """(dz, n_z, n_work): the output depth grid and the working depth count, which also
-    reaches the depth c t of the last sample, so that no recorded signal folds back into
-    the image through the periodicity of the depth transform (period 2 (n_work - 1) dz),
-    rounded up so that the depth transform runs at a fast FFT length (more rows than
-    needed only lengthen the period; the rows asked for are cropped)."""
+    """The output depth grid and the working depth count of a record.
+
+    The working count also reaches the depth c t of the last sample, so that no recorded signal
+    folds back into the image through the periodicity of the depth transform (period
+    2 (n_work - 1) dz), rounded up so that the depth transform runs at a fast FFT length (more
+    rows than needed only lengthen the period; the rows asked for are cropped).
+
+    Parameters
+    ----------
+    n_t : int
+        Samples per A-line.
+    dt : float
+        Sample interval, s.
+    c : float
+        Sound speed, m/s.
+    dz : float or None
+        Depth spacing, m (None: c dt).
+    n_z : int or None
+        Output depth samples (None: n_t).
+    t0 : float
+        Time of sample 0, s.
+
+    Returns
+    -------
+    tuple
+        ``(dz, n_z, n_work)``: m, rows, rows.
+
+    Raises
+    ------
+    ValueError
+        ``dz`` or ``n_z`` out of range (``fpscan.service.recon.checks.OptionError``), or a ``dz``
+        too fine to reach the last sample.
+
+    Examples
+    --------
+    >>> from fpscan.service.recon.planar import depth_axis
+    >>> depth_axis(256, 4e-8, 1500.0, None, None, 0.0)  # c dt, n_t, and rows that reach c t_last
+    (6e-05, 256, 257)
+    >>> depth_axis(256, 4e-8, 1500.0, 1.5e-4, 8, 0.0)[2]  # 8 rows asked, 109 worked on (a fast length)
+    109
+    """
     dz = c * dt if dz is None else checks.check_dz(dz)
     n_z = n_t if n_z is None else checks.check_n_z(n_z)
     rows = c * (t0 + (n_t - 1) * dt) / dz * (1 - 1e-12)
@@ -473,6 +509,38 @@ def _check_positions(positions: np.ndarray, n_points: int) -> np.ndarray:
 
 
 def default_grid(pos: np.ndarray) -> tuple[tuple[np.ndarray, ...], float]:
+    """The default output lattice of `reconstruct_points`: the smallest regular grid at the
+    positions' lattice pitch (`fpscan.physics.weights.infer_pitch`; else the nearest
+    neighbours' least distance) that covers them.
+
+    Parameters
+    ----------
+    pos : ndarray
+        Sensor positions ``(n_points, 1)`` x / ``(n_points, 2)`` (x, y), m.
+
+    Returns
+    -------
+    tuple
+        ``(axes, pitch)``: one coordinate vector per column of ``pos`` (x, then y; m) and the
+        pitch (m).
+
+    Raises
+    ------
+    ValueError
+        A single position (it needs an explicit grid).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from fpscan.service.recon.planar import default_grid
+    >>> axes, pitch = default_grid(np.array([[0.0], [2e-4], [6e-4]]))
+    >>> np.round(axes[0] * 1e4, 6).tolist(), round(pitch * 1e4, 6)
+    ([0.0, 2.0, 4.0, 6.0], 2.0)
+    >>> default_grid(np.array([[0.0, 0.0]]))
+    Traceback (most recent call last):
+    ...
+    ValueError: a single sensor position needs an explicit grid
+    """
     from fpscan.physics.weights import infer_pitch  # on use: importing the plans package costs start-up time
 
     pitch = infer_pitch(pos) if len(pos) > 1 else None
@@ -492,6 +560,37 @@ def default_grid(pos: np.ndarray) -> tuple[tuple[np.ndarray, ...], float]:
 
 
 def check_grid(grid: np.ndarray | Sequence[npt.ArrayLike], d: int) -> tuple[np.ndarray, ...]:
+    """An output lattice given to `reconstruct_points`, checked: one finite, regular, increasing
+    coordinate vector of at least 2 points per column of the positions.
+
+    Parameters
+    ----------
+    grid : ndarray or sequence of array_like
+        The x vector (1-D array) or ``(x, y)`` vectors, m.
+    d : int
+        The positions' columns (1: x; 2: x, y).
+
+    Returns
+    -------
+    tuple of ndarray
+        The vectors, float64.
+
+    Raises
+    ------
+    ValueError
+        Not ``d`` vectors, a non-finite vector, fewer than 2 points, or not regular and increasing.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from fpscan.service.recon.planar import check_grid
+    >>> [g.tolist() for g in check_grid(np.array([0.0, 1e-4, 2e-4]), 1)]
+    [[0.0, 0.0001, 0.0002]]
+    >>> check_grid([np.array([0.0, 1e-4, 3e-4])], 1)
+    Traceback (most recent call last):
+    ...
+    ValueError: grid x must be regular and increasing
+    """
     if isinstance(grid, np.ndarray) and grid.ndim == 1:
         grid = (grid,)
     grid = tuple(grid)

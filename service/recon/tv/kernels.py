@@ -24,7 +24,33 @@ __all__ = ["Kernels", "array_kernels", "array_module"]
 
 class Kernels(NamedTuple):
     """The whole-image operations of tv's solver (module doc), each as the compiled set's
-    function of the same name documents it (flat views where that one takes them)."""
+    function of the same name documents it (flat views where that one takes them).
+
+    Attributes
+    ----------
+    contiguous : callable
+        ``contiguous(x)``: x C-contiguous.
+    zeros_move : callable
+        ``zeros_move(n)``: n int16 zeros (the start's move).
+    subtract : callable
+        ``subtract(a, b)``: a − b in a's dtype.
+    axpy, moves : callable
+        `fpscan.service.recon.tv.fista.axpy`, `fpscan.service.recon.tv.fista.moves`.
+    store_move, extrapolate_fixed, store_gradient, gain_lower_bound : callable
+        `fpscan.service.recon.tv.stores`'s.
+    tv_norm, tv_prox_stored : callable
+        `fpscan.service.recon.tv.prox`'s.
+    masked : callable
+        ``masked(x, support)``: x with zeros off the support, x's dtype.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from fpscan.service.recon.tv.kernels import Kernels, array_kernels
+    >>> k = array_kernels(np)
+    >>> isinstance(k, Kernels), k.masked(np.ones(3), np.array([True, False, True])).tolist()
+    (True, [1.0, 0.0, 1.0])
+    """
 
     contiguous: Callable[[Any], Any]
     zeros_move: Callable[[int], Any]
@@ -41,7 +67,25 @@ class Kernels(NamedTuple):
 
 
 def array_module(x: Any) -> ModuleType:
-    """``numpy`` for a NumPy array, ``cupy`` for a CuPy one."""
+    """The array module of ``x``.
+
+    Parameters
+    ----------
+    x : array
+        A NumPy or CuPy array.
+
+    Returns
+    -------
+    module
+        ``numpy`` for a NumPy array, ``cupy`` for a CuPy one.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from fpscan.service.recon.tv.kernels import array_module
+    >>> array_module(np.zeros(2)) is np
+    True
+    """
     if isinstance(x, np.ndarray):
         return np
     import cupy
@@ -197,16 +241,28 @@ class _ArrayKernels:
 
 
 def array_kernels(xp: ModuleType) -> Kernels:
-    """The set on ``xp`` (``cupy`` on a GPU; ``numpy`` in the tests): the compiled set's
-    arithmetic as array expressions (module doc).
+    """The kernel set on ``xp`` (``cupy`` on a GPU; ``numpy`` in the tests): the compiled set's
+    arithmetic as array expressions (module doc), every sum in float64.
 
     Parameters
     ----------
     xp : module
+        ``cupy`` or ``numpy``.
 
     Returns
     -------
     Kernels
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from fpscan.service.recon.tv.kernels import array_kernels
+    >>> k = array_kernels(np)
+    >>> k.tv_norm(np.array([[0.0, 1.0], [0.0, 1.0]]))
+    2.0
+    >>> values, quantum = k.store_gradient(np.array([2.0, -1.0]))
+    >>> values.tolist(), quantum == 2.0 / 32767
+    ([32767, -16383], True)
     """
     k = _ArrayKernels(xp)
     return Kernels(xp.ascontiguousarray, lambda n: xp.zeros(n, dtype=np.int16),

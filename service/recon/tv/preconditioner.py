@@ -19,13 +19,28 @@ import scipy.fft
 
 from fpscan.physics.fast_lengths import fast_real_shape
 
-__all__: list[str] = []
+__all__ = ["NerWeight", "ner_weight", "apply_weight", "apply_weight_on"]
 
 
 class NerWeight(NamedTuple):
-    """NER's k-space weight P = k_z / |k| (`ner_weight`), kept as its axes, not as an image:
-    ``kz`` ``(N_z,)`` and ``lat2`` = |k_lat|² ``(N_y, N_x)`` (2-D: ``(1, N_x)``), rad/m and
-    rad²/m², float64; ``shape`` the padded grid ``(N_z, N_x)`` / ``(N_z, N_y, N_x)``."""
+    """NER's k-space weight P = k_z / |k| (`ner_weight`), kept as its axes, not as an image.
+
+    Attributes
+    ----------
+    kz : ndarray
+        ``(N_z,)`` depth wavenumbers, rad/m, float64 (shifted by half a bin: > 0).
+    lat2 : ndarray
+        |k_lat|² ``(N_y, N_x)`` (2-D: ``(1, N_x)``), rad²/m², float64.
+    shape : tuple of int
+        The padded grid ``(N_z, N_x)`` / ``(N_z, N_y, N_x)``.
+
+    Examples
+    --------
+    >>> from fpscan.service.recon.tv.preconditioner import ner_weight
+    >>> P = ner_weight((4, 6), dx=1e-4, dz=1e-4)
+    >>> P.shape, P.kz.shape, P.lat2.shape
+    ((4, 6), (4,), (1, 6))
+    """
 
     kz: np.ndarray
     lat2: np.ndarray
@@ -33,12 +48,14 @@ class NerWeight(NamedTuple):
 
 
 def ner_weight(shape: Sequence[int], dx: float, dz: float) -> NerWeight:
-    """NER's k-space weight k_z / |k| on the orthonormal DCT-II grid of the image zero-padded
-    to fast lengths (`fpscan.physics.fast_lengths.fast_real_shape`: on axes of 226 = 2·113 the
-    DCT-II and its inverse took 2.08 s at 1024 × 226², against 0.57 s at 1024 × 240², float32;
-    mirror boundaries at the padded grid's ends; k_i = π j / (N_i d_i), depth shifted by
-    half a bin so that the weight is > 0 everywhere), in (0, 1]: the inverse of AᵀA's symbol
-    |k| / k_z for a full planar aperture.
+    """NER's k-space weight k_z / |k| on the orthonormal DCT-II grid of the image zero-padded to
+    fast lengths: the inverse of AᵀA's symbol |k| / k_z for a full planar aperture (paper eq. (1);
+    Arridge et al., PMB 61 (2016) 8908, the preconditioner).
+
+    Fast lengths: `fpscan.physics.fast_lengths.fast_real_shape` (on axes of 226 = 2·113 the DCT-II
+    and its inverse took 2.08 s at 1024 × 226², against 0.57 s at 1024 × 240², float32); mirror
+    boundaries at the padded grid's ends; k_i = π j / (N_i d_i), depth shifted by half a bin so
+    that the weight is > 0 everywhere; values in (0, 1].
 
     Parameters
     ----------
@@ -50,11 +67,21 @@ def ner_weight(shape: Sequence[int], dx: float, dz: float) -> NerWeight:
     Returns
     -------
     NerWeight
-        The weight's axes on the padded grid ``fast_real_shape(shape)`` (same axis order):
-        P is computed voxel by voxel where it is applied (`apply_weight`), so that it costs
-        no image of memory. `apply_weight` applies it as x -> crop(DCTᵀ P DCT pad(x)), a
-        symmetric positive definite map of the image (the zero padding is an isometry and
-        its adjoint the crop); on a grid that is already fast it is the image's own DCT-II."""
+        The weight's axes on the padded grid ``fast_real_shape(shape)`` (same axis order): P is
+        computed voxel by voxel where it is applied (`apply_weight`), so that it costs no image of
+        memory; a symmetric positive definite map of the image (the zero padding is an isometry
+        and its adjoint the crop).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from fpscan.service.recon.tv.preconditioner import ner_weight
+    >>> P = ner_weight((4, 6), dx=1e-4, dz=1e-4)
+    >>> bool(np.all(P.kz > 0)), float(P.lat2[0, 0])  # k_z > 0: P positive definite
+    (True, 0.0)
+    >>> ner_weight((4, 113), 1e-4, 1e-4).shape  # 113 is prime: padded to a fast length
+    (4, 120)
+    """
     grid = fast_real_shape(tuple(int(n) for n in shape))
     ks = [np.pi * np.arange(n) / (n * d) for n, d in zip(grid, (dz,) + (dx,) * (len(grid) - 1))]
     kz = ks[0] + np.pi / (2 * grid[0] * dz)  # half a depth bin: k_z > 0, so P is positive definite
@@ -77,10 +104,35 @@ def _weight_kernel(c: np.ndarray, kz: np.ndarray, lat2: np.ndarray) -> None:
 
 
 def apply_weight(P: NerWeight, x: np.ndarray) -> np.ndarray:
-    """P x: the multiplier ``P`` (`ner_weight`, on the padded grid ``P.shape``) on the
-    orthonormal DCT-II of ``x`` zero-padded to that grid (all axes), cropped back; ``x`` is
-    overwritten and returned, in its dtype (the transform runs in place when no axis is
-    padded). A GPU run's image (CuPy) takes `apply_weight_on` (a new array there)."""
+    """P x: the multiplier ``P`` on the orthonormal DCT-II of ``x`` zero-padded to ``P.shape``
+    (all axes), cropped back, in a compiled kernel (no image of its own).
+
+    Parameters
+    ----------
+    P : NerWeight
+        `ner_weight` of x's shape.
+    x : ndarray
+        The image ``(n_z, n_x)`` / ``(n_z, n_y, n_x)``, float32 or float64; overwritten where
+        the grid is padded. A GPU run's (CuPy) takes `apply_weight_on` (a new array there).
+
+    Returns
+    -------
+    ndarray
+        P x, x's shape and dtype (``x`` itself where padded; the transform runs in place when no
+        axis is padded).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from fpscan.service.recon.tv.preconditioner import apply_weight, ner_weight
+    >>> P = ner_weight((4, 6), dx=1e-4, dz=1e-4)
+    >>> x = np.random.default_rng(0).standard_normal((4, 6))
+    >>> y = apply_weight(P, x.copy())
+    >>> y.shape, bool(np.linalg.norm(y) < np.linalg.norm(x))  # a weight in (0, 1]
+    ((4, 6), True)
+    >>> bool(np.vdot(x, y) > 0)  # positive definite
+    True
+    """
     if not isinstance(x, np.ndarray):
         from fpscan.service.recon.tv.kernels import array_module
 
@@ -98,9 +150,10 @@ def apply_weight(P: NerWeight, x: np.ndarray) -> np.ndarray:
 
 
 def apply_weight_on(xp: ModuleType, P: NerWeight, x: Any) -> Any:
-    """`apply_weight` on ``xp`` (a GPU run's arrays; the tests run it on NumPy): NER's k-space weight k_z / |k|
-    on the orthonormal DCT-II of ``x`` zero-padded to ``P.shape``, cropped back (a new array of
-    x's dtype; ``x`` is not modified).
+    """`apply_weight` on the array module ``xp`` (a GPU run's arrays; the tests run it on NumPy).
+
+    NER's k-space weight k_z / |k| on the orthonormal DCT-II of ``x`` zero-padded to
+    ``P.shape``, cropped back, as array expressions.
 
     Parameters
     ----------
@@ -108,11 +161,22 @@ def apply_weight_on(xp: ModuleType, P: NerWeight, x: Any) -> Any:
         ``cupy`` (its ``cupyx.scipy.fft``) or ``numpy`` (``scipy.fft``).
     P : NerWeight
         The weight's axes (``kz``, ``lat2``, ``shape``).
-    x : array ``(n_z, n_x)`` or ``(n_z, n_y, n_x)``
+    x : array
+        ``(n_z, n_x)`` or ``(n_z, n_y, n_x)``; not modified.
 
     Returns
     -------
-    array of x's shape and dtype.
+    array
+        A new array of x's shape and dtype.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from fpscan.service.recon.tv.preconditioner import apply_weight, apply_weight_on, ner_weight
+    >>> P = ner_weight((4, 6), dx=1e-4, dz=1e-4)
+    >>> x = np.random.default_rng(0).standard_normal((4, 6))
+    >>> bool(np.allclose(apply_weight_on(np, P, x), apply_weight(P, x.copy())))
+    True
     """
     sfft: Any = scipy.fft
     if xp is not np:
