@@ -14,7 +14,8 @@ from fpscan.physics.forward import forward_grid
 from fpscan.service.metrics import correlation_coefficient, disc_mask
 from fpscan.service.plans import Lattice, equiangular_mask, equisteradian_mask, subgrid_mask
 from fpscan.service.recon import reconstruct_grid, reconstruct_points
-from fpscan.service.recon.tv import noise_sigma, reconstruct_tv
+from fpscan.service.recon.tv import reconstruct_tv
+from fpscan.service.recon.tv.grid import noise_sigma
 
 pytestmark = pytest.mark.long(40)
 

@@ -190,7 +190,7 @@ class _ArrayKernels:
         return x
 
     def primal(self, v3: Any, q: list[Any], has_y: bool, gamma: float, positivity: bool, support: Any) -> Any:
-        """`prox._prox_primal`: P(v − γ ∇ᵀq)."""
+        """`fpscan.service.recon.tv.prox.primal_step`: P(v − γ ∇ᵀq)."""
         return self.project(v3 - gamma * _grad_t(self.xp, q, has_y), positivity, support)
 
     def _dual(self, stored: Any, v: Any, v3: Any) -> list[Any]:
