@@ -29,7 +29,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench_gpu import _best  # best of ``repeat`` calls, in s
+from bench_gpu import best_of  # best of ``repeat`` calls, in s
 
 
 @numba.njit(parallel=True, cache=True)
@@ -73,14 +73,14 @@ def main(argv=None) -> None:
     for k in threads:
         numba.set_num_threads(k)
         _triad(a, b, c, 0.5)
-        rows["triad"].append(_best(lambda: _triad(a, b, c, 0.5), args.repeat))
+        rows["triad"].append(best_of(lambda: _triad(a, b, c, 0.5), args.repeat))
         scipy.fft.fft(U[:64], axis=-1, workers=k)  # planned
-        rows["temporal FFT"].append(_best(lambda k=k: scipy.fft.fft(U, axis=-1, workers=k), args.repeat))
+        rows["temporal FFT"].append(best_of(lambda k=k: scipy.fft.fft(U, axis=-1, workers=k), args.repeat))
         nufft.evaluate(U[:64], grid, klat2[:64], kz, qw, 1500.0, 8e-9, 0.0, inversion=True)
-        rows["interp"].append(_best(lambda: nufft.evaluate(U, grid, klat2, kz, qw, 1500.0, 8e-9, 0.0, inversion=True,
+        rows["interp"].append(best_of(lambda: nufft.evaluate(U, grid, klat2, kz, qw, 1500.0, 8e-9, 0.0, inversion=True,
                                                            groups=groups), args.repeat))
         reconstruct_grid(data, 60e-6, 8e-9, 1500.0, dtype=np.float32, device="cpu")
-        rows["NER"].append(_best(lambda: reconstruct_grid(data, 60e-6, 8e-9, 1500.0, dtype=np.float32, device="cpu"),
+        rows["NER"].append(best_of(lambda: reconstruct_grid(data, 60e-6, 8e-9, 1500.0, dtype=np.float32, device="cpu"),
                                  args.repeat))
     print(f"CPU scaling at NER's size x{args.scale:g} ({n_t} samples, {n_yp}x{n_xp} grid, {n_cols} columns, L = "
           f"{grid.L}), float32; {os.cpu_count()} cores; triad over 3 x {size * 4 / 2**20:.0f} MiB")

@@ -42,7 +42,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench_tv_paper import DT, PITCH, C, paper_case
 
 
-def _best(fn, repeat: int, sync=None) -> float:
+def best_of(fn, repeat: int, sync=None) -> float:
     best = np.inf
     for _ in range(repeat):
         t = time.perf_counter()
@@ -74,20 +74,20 @@ def _timed(fn, key: str, sync=None):
 
 
 def _tv(case: dict, device: str, **kw) -> tuple[float, object]:
-    """tv on ``case``; also the time in its operator pairs (A and B = P Aᵀ, `_Model.forward` / `_Model.B`) and
+    """tv on ``case``; also the time in its operator pairs (A and B = P Aᵀ, `Model.forward` / `Model.B`) and
     its warm start, in ``rec.params["bench_spent"]`` (an instrumentation of this benchmark only)."""
-    import fpscan.service.recon.tv as tv_package
     from fpscan.service.recon.tv import problem, reconstruct_tv
+    from fpscan.service.recon.tv import reconstruct as tv_reconstruct  # where reconstruct_tv reads warm_start
 
     sync = None
     if device != "cpu":
         import cupy
 
         sync = cupy.cuda.get_current_stream().synchronize
-    saved = problem._Model.forward, problem._Model.B, tv_package._warm_start
-    problem._Model.forward = _timed(saved[0], "operator", sync)
-    problem._Model.B = _timed(saved[1], "operator", sync)
-    tv_package._warm_start = _timed(saved[2], "warm start")
+    saved = problem.Model.forward, problem.Model.B, tv_reconstruct.warm_start
+    problem.Model.forward = _timed(saved[0], "operator", sync)
+    problem.Model.B = _timed(saved[1], "operator", sync)
+    tv_reconstruct.warm_start = _timed(saved[2], "warm start")
     _SPENT.update(operator=0.0, **{"warm start": 0.0})
     try:
         t = time.perf_counter()
@@ -95,7 +95,7 @@ def _tv(case: dict, device: str, **kw) -> tuple[float, object]:
                              grid=case["grid"], dtype=np.float32, device=device, **kw)
         wall = time.perf_counter() - t
     finally:
-        problem._Model.forward, problem._Model.B, tv_package._warm_start = saved
+        problem.Model.forward, problem.Model.B, tv_reconstruct.warm_start = saved
     rec.params["bench_spent"] = dict(_SPENT)
     return wall, rec
 
@@ -108,7 +108,7 @@ def _cpu_rows(case: dict, repeat: int, with_tv: bool) -> dict:
     data = _ner_data(case)
     reconstruct_grid(data[:32, :16, :16], PITCH, DT, C, dtype=np.float32, device="cpu")
     reconstruct_grid(data, PITCH, DT, C, dtype=np.float32, device="cpu")
-    out = {"ner": _best(lambda: reconstruct_grid(data, PITCH, DT, C, dtype=np.float32, device="cpu"), repeat)}
+    out = {"ner": best_of(lambda: reconstruct_grid(data, PITCH, DT, C, dtype=np.float32, device="cpu"), repeat)}
     if with_tv:
         pos = case["positions"]
         reconstruct_tv(case["alines"][:40, :32], DT, C, positions=pos[:40], n_z=8, max_iter=2, dtype=np.float32,
@@ -185,7 +185,7 @@ def main(argv=None) -> None:
     data = _ner_data(case)
     ner_gpu = reconstruct_grid(data, PITCH, DT, C, dtype=np.float32, device="cuda")
     peak[0] = 0
-    r["ner_gpu"] = _best(lambda: reconstruct_grid(data, PITCH, DT, C, dtype=np.float32, device="cuda"), args.repeat)
+    r["ner_gpu"] = best_of(lambda: reconstruct_grid(data, PITCH, DT, C, dtype=np.float32, device="cuda"), args.repeat)
     r["ner_gpu_peak"] = peak[0]
     n = case["n"]
     n_yp, n_xp = fast_lateral(n, n, square=True)
@@ -198,11 +198,11 @@ def main(argv=None) -> None:
                           (p["n_z"], n, n))
 
     on_device()
-    r["ner_gpu_device"] = _best(on_device, args.repeat, sync)
+    r["ner_gpu_device"] = best_of(on_device, args.repeat, sync)
     # NEDNER of the scan's A-lines
     kw = dict(weights=case["weights"], grid=case["grid"], dtype=np.float32)
     nedner_gpu = reconstruct_points(case["alines"], case["positions"], DT, C, device="cuda", **kw)
-    r["nedner_gpu"] = _best(lambda: reconstruct_points(case["alines"], case["positions"], DT, C, device="cuda", **kw),
+    r["nedner_gpu"] = best_of(lambda: reconstruct_points(case["alines"], case["positions"], DT, C, device="cuda", **kw),
                             args.repeat)
     print(f"GPU NER and NEDNER done at {time.perf_counter() - started:.1f} s", flush=True)
 

@@ -1,11 +1,11 @@
 """What the coherent image shows above the band tv works at: the depth power
 spectrum of the full-band NEDNER image of a sparse scan against that of the same sensors' noise image.
 
-tv works at c / (2 pitch), the band the lateral sampling resolves (`fpscan.service.recon.tv_grid`), unless
+tv works at c / (2 pitch), the band the lateral sampling resolves (`fpscan.service.recon.tv.grid`), unless
 the scan declares its sensor band. Whether the data hold more than that is a question for the
 coherent image, not for one A-line (its SNR is far below the image's): here NEDNER float32 of the
 scan's A-lines on a depth grid of c dt (the record's own band) down to its last echo
-(`fpscan.service.recon.tv_grid.data_extent`), and of a seeded white-noise record of the estimated σ̂ at the
+(`fpscan.service.recon.tv.grid.data_extent`), and of a seeded white-noise record of the estimated σ̂ at the
 same sensors, weights and grid; the power of each image's depth spectrum (FFT along z, summed over
 the lateral positions) in 1 MHz bins of temporal frequency f = c k_z / 2π. The ratio image / noise
 image is 1 where a bin holds noise alone and 2 where the signal's power equals the noise's (Wiener's
@@ -70,7 +70,7 @@ def evidence(s: dict) -> dict:
     """The ratio of the image's to the noise image's depth power per 1 MHz bin (module doc):
     ``bins`` (MHz, lower edges), ``ratio``, ``edge`` (MHz) and the lateral band (MHz)."""
     from fpscan.service.recon import reconstruct_points
-    from fpscan.service.recon.tv_grid import data_extent, noise_sigma
+    from fpscan.service.recon.tv.grid import data_extent, noise_sigma
 
     alines, dt, c = s["alines"], s["dt"], s["c"]
     sigma = noise_sigma(alines, 1)

@@ -3,7 +3,7 @@ the calibration cases, and the rule λ = a · s · max(1, (D₀ / knee)^p) that 
 worst case (`fpscan.service.recon.tv`, module doc: s the image's noise level, D₀ the warm start's
 discrepancy).
 
-Cases (`bench_tv_solver._case`: 24 × 40 × 40 voxels of 50 µm, or 64 × 96 pixels in 2-D, exact
+Cases (`bench_tv_solver.make_case`: 24 × 40 × 40 voxels of 50 µm, or 64 × 96 pixels in 2-D, exact
 grid data with seeded white noise, float32, tv's default stopping rule):
 
 - ``fit`` — the 30 cases the rule was fitted on: 3-D balls and vessel trees on equi-steradian
@@ -31,7 +31,7 @@ import time
 from multiprocessing import Pool
 
 import numpy as np
-from bench_tv_solver import DT, C, _case
+from bench_tv_solver import DT, C, make_case
 
 K = tuple(range(-6, 7))  # the sweep: λ × 2^(k/2)
 AS = tuple(np.round(np.arange(0.2, 1.2001, 0.025), 3))
@@ -60,7 +60,7 @@ def sweep(case: tuple) -> dict:
     from fpscan.service.recon.tv import reconstruct_tv
 
     which, kind, dims, snr, points, seed, lateral = case
-    p0, alines, pos, kw = _case(kind, dims, snr, points, seed, lateral=lateral)
+    p0, alines, pos, kw = make_case(kind, dims, snr, points, seed, lateral=lateral)
     t = time.perf_counter()
     auto = reconstruct_tv(alines, DT, C, positions=pos, dtype=np.float32, **kw)
     p = auto.params
@@ -89,9 +89,9 @@ def losses(rows: list[dict], a: float, knee: float, power: float) -> np.ndarray:
 
 def present_rule() -> tuple[float, float, float]:
     """(a, knee, p) of tv's automatic λ as it stands."""
-    import fpscan.service.recon.tv as tv
+    from fpscan.service.recon.tv import lam
 
-    return (tv._LAM_SCALE, tv._LAM_KNEE, tv._LAM_POWER)
+    return (lam.LAM_SCALE, lam.LAM_KNEE, lam.LAM_POWER)
 
 
 def report(rows: list[dict]) -> None:

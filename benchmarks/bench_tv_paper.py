@@ -9,7 +9,7 @@ a point of interest 3.6 mm deep (1653 points) — of three uniform balls near th
 ``--snr`` dB below the signal's RMS (``--noise peak``: below its peak, k-Wave's ``addNoise(...,
 'peak')``); tv in float32 at its defaults but for the grid. Rows:
 
-- ``defaults``: the grid tv picks (`fpscan.service.recon.tv_grid`: the band the 60 µm pitch resolves,
+- ``defaults``: the grid tv picks (`fpscan.service.recon.tv.grid`: the band the 60 µm pitch resolves,
   12.5 MHz, on an isotropic grid down to the last echo, the record kept for it);
 - ``today's grid``: dz = c·dt at the record's own sampling over the whole record (``bandwidth`` =
   the Nyquist frequency, ``whole_record``);
@@ -23,7 +23,7 @@ float32). The CC is against the analytic balls sampled on tv's own grid (`ball_p
 supersampled 2x), tv's and (after tv, for scale) NEDNER's of the same A-lines on that grid,
 clipped at 0: the kind of image tv starts from. The admission estimate is the server's
 (`fpscan.service.jobs.admission.estimate_memory` of the job as for a stored dataset, whose record facts
-the import found: `fpscan.service.recon.tv_grid.record_facts`) over that peak. ``--scale 0.5`` runs the
+the import found: `fpscan.service.recon.tv.grid.record_facts`) over that peak. ``--scale 0.5`` runs the
 same case at half the size in every dimension (113², 512 samples, 437 points) for a quick look.
 ``--no-continuation`` runs tv without its λ continuation (the solver until 2026-11-26), to
 compare. ``--max-iter K`` caps tv's iterations at K (stop "iterations"; the continuation then
@@ -116,7 +116,7 @@ def _row(label: str, scale: float, snr: float, bandwidth, whole: bool, repeat: i
     from fpscan.service.metrics import correlation_coefficient
     from fpscan.service.recon import reconstruct_grid, reconstruct_points
     from fpscan.service.recon.tv import reconstruct_tv
-    from fpscan.service.recon.tv_grid import record_facts
+    from fpscan.service.recon.tv.grid import record_facts
 
     case = paper_case(scale, snr, sensor_band=sensor_band, noise=noise)
     n, n_t = case["n"], case["n_t"]

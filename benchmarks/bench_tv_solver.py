@@ -59,7 +59,7 @@ def _blobs(shape, seed: int) -> np.ndarray:
     return p0
 
 
-def _case(kind: str, dims: int, snr_db: float, points: int = 160, seed: int = 0, poi: float = 12.0,
+def make_case(kind: str, dims: int, snr_db: float, points: int = 160, seed: int = 0, poi: float = 12.0,
           lateral: float = 1.0):
     """Phantom, A-lines, sensor positions and tv's keywords of one case: ``points`` sensors of
     the 3-D mask (2-D: of the line; 0: 24), lateral pitch ``lateral`` × 50 µm (depth 50 µm)."""
@@ -111,7 +111,7 @@ def run(kind: str, dims: int, snr_db: float, debias: bool, points: int = 160, sw
     from fpscan.service.recon import reconstruct_points
     from fpscan.service.recon.tv import reconstruct_tv
 
-    p0, alines, pos, kw = _case(kind, dims, snr_db, points, seed, poi)
+    p0, alines, pos, kw = make_case(kind, dims, snr_db, points, seed, poi)
     amp = lambda img: float(np.vdot(img, p0) / np.vdot(p0, p0))
     reconstruct_tv(alines, DT, C, positions=pos, max_iter=2, **kw)  # compile
     t = time.perf_counter()

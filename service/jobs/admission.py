@@ -103,7 +103,7 @@ def input_shape(source: Any) -> dict:
 
 def _facts(record: dict) -> dict:
     """What a stored dataset's record says of its data beyond their shape: ``record_facts``
-    (what the record holds above its noise, ``fpscan.service.recon.tv_grid.RecordFacts``, stored at
+    (what the record holds above its noise, ``fpscan.service.recon.tv.grid.RecordFacts``, stored at
     import) and a declared ``bandwidth`` (Hz), where it has them."""
     from fpscan.service.recon.methods.tv import BANDWIDTH_KEY
 

@@ -16,7 +16,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from fpscan.service.metrics.correlation import correlation_coefficient
-from fpscan.service.metrics.roi import _axes_for, roi_mask
+from fpscan.service.metrics.roi import axes_for, roi_mask
 from fpscan.service.metrics.sharpness import tenenbaum_sharpness
 
 __all__ = ["cc_vs_pixels", "cc_vs_diameter", "sharpness_vs_diameter"]
@@ -98,7 +98,7 @@ def _per_diameter(fn: Callable[[np.ndarray, np.ndarray, np.ndarray], float], ima
                   reference: np.ndarray, axes: Sequence[np.ndarray] | None, diameters: Sequence[float] | np.ndarray,
                   threshold: float | None, center: Sequence[float] | None) -> np.ndarray:
     image, reference = _same_shape(image, reference)
-    axes = _axes_for(reference.shape, axes)
+    axes = axes_for(reference.shape, axes)
     diameters = np.asarray(diameters, dtype=float)
     if diameters.ndim != 1 or diameters.size == 0 or np.any(~np.isfinite(diameters)) or np.any(diameters <= 0):
         raise ValueError("diameters must be a non-empty 1-D sequence of positive numbers")

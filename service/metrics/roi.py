@@ -11,10 +11,42 @@ from collections.abc import Sequence
 
 import numpy as np
 
-__all__ = ["disc_mask", "roi_mask", "bounding_box"]
+__all__ = ["axes_for", "disc_mask", "roi_mask", "bounding_box"]
 
 
-def _axes_for(shape: tuple[int, ...], axes: Sequence[np.ndarray] | None) -> list[np.ndarray]:
+def axes_for(shape: tuple[int, ...], axes: Sequence[np.ndarray] | None) -> list[np.ndarray]:
+    """The coordinate vectors of an image: ``axes`` checked against ``shape``, or the voxel
+    indices when there are none.
+
+    Parameters
+    ----------
+    shape : tuple of int
+        The image's shape, e.g. ``(n_z, n_x)`` or ``(n_z, n_y, n_x)``.
+    axes : sequence of 1-D arrays or None
+        One coordinate vector per image axis, in image axis order, m (any unit, used
+        consistently); None: ``0, 1, ..., n - 1`` along each axis.
+
+    Returns
+    -------
+    list of ndarray
+        One float vector per axis, of that axis's length.
+
+    Raises
+    ------
+    ValueError
+        Not one vector per axis, a vector of the wrong length or not 1-D, or a non-finite one.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from fpscan.service.metrics.roi import axes_for
+    >>> [a.tolist() for a in axes_for((2, 3), None)]
+    [[0.0, 1.0], [0.0, 1.0, 2.0]]
+    >>> axes_for((2, 3), [np.zeros(2)])
+    Traceback (most recent call last):
+    ...
+    ValueError: need one coordinate vector per image axis: 1 given for shape (2, 3)
+    """
     if axes is None:
         return [np.arange(n, dtype=float) for n in shape]
     if len(axes) != len(shape):
@@ -139,7 +171,7 @@ def roi_mask(
         raise ValueError("reference image contains NaN or inf")
     mask = np.ones(reference.shape, dtype=bool)
     if diameter is not None:
-        mask &= disc_mask(_axes_for(reference.shape, axes), diameter, center)
+        mask &= disc_mask(axes_for(reference.shape, axes), diameter, center)
     if threshold is not None:
         if not (0.0 <= threshold <= 1.0):
             raise ValueError(f"threshold is a fraction of the reference maximum in [0, 1], got {threshold!r}")

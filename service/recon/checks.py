@@ -334,7 +334,7 @@ def check_lam(lam: Any) -> float:
 def check_bandwidth(bandwidth: Any) -> float:
     """A sensor bandwidth the caller declares, Hz: a finite number in ``BANDWIDTH_RANGE``
     ([1e3, 1e12]); tv works at that band instead of the one it reads off the data
-    (`fpscan.service.recon.tv_grid`).
+    (`fpscan.service.recon.tv.grid`).
 
     Parameters
     ----------

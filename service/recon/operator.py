@@ -164,7 +164,7 @@ class PlanarOperator(pylops.LinearOperator):
         step (and after it in the adjoint: the pair stays each other's transpose). Columns
         with |k_lat| beyond it are skipped whole. With f_c at most the Nyquist frequency
         1 / (2 dt) the samples carry no aliased energy, so data resampled to dt by an ideal
-        low-pass (`fpscan.physics.resample`) are this model's data (`fpscan.service.recon.tv_grid`).
+        low-pass (`fpscan.physics.resample`) are this model's data (`fpscan.service.recon.tv.grid`).
     device : {"auto", "cpu", "cuda"}, optional
         Where `forward` and `adjoint` run (`fpscan.service.recon.device.choose`; default ``"auto"``):
         on a GPU (`fpscan.service.recon.gpu.OperatorPair`, sensors on the grid or on its nodes) the

@@ -44,7 +44,7 @@ from fpscan.service.recon import checks, memory
 from fpscan.service.recon import device as devices
 from fpscan.service.recon.reconstruction import Reconstruction
 
-__all__ = ["GRID_METHODS", "transform_lengths", "reconstruct_grid", "reconstruct_points"]
+__all__ = ["GRID_METHODS", "transform_lengths", "reconstruct_grid", "reconstruct_points", "depth_axis", "default_grid", "check_grid"]
 
 #: the methods `reconstruct_grid` runs (the method registry is `fpscan.service.recon.methods`)
 GRID_METHODS = ("ner", "linear", "nearest", "cubic")
@@ -53,13 +53,49 @@ _KIND = {"ner": "nufft", "linear": "linear", "nearest": "nearest"}
 _TEMPORAL_STEP = {"ner": "nufft", "linear": "regular", "nearest": "regular", "cubic": "pchip"}
 
 
-def _depth_axis(n_t: int, dt: float, c: float, dz: float | None, n_z: int | None,
+def depth_axis(n_t: int, dt: float, c: float, dz: float | None, n_z: int | None,
                 t0: float) -> tuple[float, int, int]:
-    """(dz, n_z, n_work): the output depth grid and the working depth count, which also
-    reaches the depth c t of the last sample, so that no recorded signal folds back into
-    the image through the periodicity of the depth transform (period 2 (n_work - 1) dz),
-    rounded up so that the depth transform runs at a fast FFT length (more rows than
-    needed only lengthen the period; the rows asked for are cropped)."""
+    """The output depth grid and the working depth count of a record.
+
+    The working count also reaches the depth c t of the last sample, so that no recorded signal
+    folds back into the image through the periodicity of the depth transform (period
+    2 (n_work - 1) dz), rounded up so that the depth transform runs at a fast FFT length (more
+    rows than needed only lengthen the period; the rows asked for are cropped).
+
+    Parameters
+    ----------
+    n_t : int
+        Samples per A-line.
+    dt : float
+        Sample interval, s.
+    c : float
+        Sound speed, m/s.
+    dz : float or None
+        Depth spacing, m (None: c dt).
+    n_z : int or None
+        Output depth samples (None: n_t).
+    t0 : float
+        Time of sample 0, s.
+
+    Returns
+    -------
+    tuple
+        ``(dz, n_z, n_work)``: m, rows, rows.
+
+    Raises
+    ------
+    ValueError
+        ``dz`` or ``n_z`` out of range (``fpscan.service.recon.checks.OptionError``), or a ``dz``
+        too fine to reach the last sample.
+
+    Examples
+    --------
+    >>> from fpscan.service.recon.planar import depth_axis
+    >>> depth_axis(256, 4e-8, 1500.0, None, None, 0.0)  # c dt, n_t, and rows that reach c t_last
+    (6e-05, 256, 257)
+    >>> depth_axis(256, 4e-8, 1500.0, 1.5e-4, 8, 0.0)[2]  # 8 rows asked, 109 worked on (a fast length)
+    109
+    """
     dz = c * dt if dz is None else checks.check_dz(dz)
     n_z = n_t if n_z is None else checks.check_n_z(n_z)
     rows = c * (t0 + (n_t - 1) * dt) / dz * (1 - 1e-12)
@@ -126,7 +162,7 @@ def transform_lengths(data_shape: Sequence[int], dt: float = 1.0, c: float = 1.0
     dt, c, eps, _, upsample, t0 = _check_options(dt, c, method, eps, np.float64, upsample, t0)
     n_t = shape[0]
     n_y, n_x = (1, shape[1]) if len(shape) == 2 else shape[1:]
-    _, _, n_work = _depth_axis(n_t, dt, c, dz, n_z, t0)
+    _, _, n_work = depth_axis(n_t, dt, c, dz, n_z, t0)
     n_yp, n_xp = fast_lateral(n_y, n_x, square=square)
     lat = (n_xp,) if n_y == 1 else (n_yp, n_xp)
     return {"lateral": lat, "temporal": (_temporal_length(n_t, method, eps),), "depth": (2 * (n_work - 1),),
@@ -403,7 +439,7 @@ def reconstruct_grid(
     n_t = data.shape[0]
     if n_t < 2:
         raise ValueError(f"data needs at least 2 time samples, got {n_t}")
-    dz, n_z, n_work = _depth_axis(n_t, dt, c, dz, n_z, t0)
+    dz, n_z, n_work = depth_axis(n_t, dt, c, dz, n_z, t0)
     is2d = data.ndim == 2
     n_y, n_x = (1, data.shape[1]) if is2d else data.shape[1:]
     n_yp, n_xp = fast_lateral(n_y, n_x, square=abs(dy - dx) <= 1e-9 * dx)
@@ -472,7 +508,39 @@ def _check_positions(positions: np.ndarray, n_points: int) -> np.ndarray:
     return pos
 
 
-def _default_grid(pos: np.ndarray) -> tuple[tuple[np.ndarray, ...], float]:
+def default_grid(pos: np.ndarray) -> tuple[tuple[np.ndarray, ...], float]:
+    """The default output lattice of `reconstruct_points`: the smallest regular grid at the
+    positions' lattice pitch (`fpscan.physics.weights.infer_pitch`; else the nearest
+    neighbours' least distance) that covers them.
+
+    Parameters
+    ----------
+    pos : ndarray
+        Sensor positions ``(n_points, 1)`` x / ``(n_points, 2)`` (x, y), m.
+
+    Returns
+    -------
+    tuple
+        ``(axes, pitch)``: one coordinate vector per column of ``pos`` (x, then y; m) and the
+        pitch (m).
+
+    Raises
+    ------
+    ValueError
+        A single position (it needs an explicit grid).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from fpscan.service.recon.planar import default_grid
+    >>> axes, pitch = default_grid(np.array([[0.0], [2e-4], [6e-4]]))
+    >>> np.round(axes[0] * 1e4, 6).tolist(), round(pitch * 1e4, 6)
+    ([0.0, 2.0, 4.0, 6.0], 2.0)
+    >>> default_grid(np.array([[0.0, 0.0]]))
+    Traceback (most recent call last):
+    ...
+    ValueError: a single sensor position needs an explicit grid
+    """
     from fpscan.physics.weights import infer_pitch  # on use: importing the plans package costs start-up time
 
     pitch = infer_pitch(pos) if len(pos) > 1 else None
@@ -491,7 +559,38 @@ def _default_grid(pos: np.ndarray) -> tuple[tuple[np.ndarray, ...], float]:
     return tuple(axes), pitch
 
 
-def _check_grid(grid: np.ndarray | Sequence[npt.ArrayLike], d: int) -> tuple[np.ndarray, ...]:
+def check_grid(grid: np.ndarray | Sequence[npt.ArrayLike], d: int) -> tuple[np.ndarray, ...]:
+    """An output lattice given to `reconstruct_points`, checked: one finite, regular, increasing
+    coordinate vector of at least 2 points per column of the positions.
+
+    Parameters
+    ----------
+    grid : ndarray or sequence of array_like
+        The x vector (1-D array) or ``(x, y)`` vectors, m.
+    d : int
+        The positions' columns (1: x; 2: x, y).
+
+    Returns
+    -------
+    tuple of ndarray
+        The vectors, float64.
+
+    Raises
+    ------
+    ValueError
+        Not ``d`` vectors, a non-finite vector, fewer than 2 points, or not regular and increasing.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from fpscan.service.recon.planar import check_grid
+    >>> [g.tolist() for g in check_grid(np.array([0.0, 1e-4, 2e-4]), 1)]
+    [[0.0, 0.0001, 0.0002]]
+    >>> check_grid([np.array([0.0, 1e-4, 3e-4])], 1)
+    Traceback (most recent call last):
+    ...
+    ValueError: grid x must be regular and increasing
+    """
     if isinstance(grid, np.ndarray) and grid.ndim == 1:
         grid = (grid,)
     grid = tuple(grid)
@@ -561,13 +660,13 @@ def _output_grid(pos: np.ndarray, grid: np.ndarray | Sequence[npt.ArrayLike] | N
                  ) -> tuple[tuple[np.ndarray, ...], list[float]]:
     """The output lateral grid of `reconstruct_points` and its steps (m): ``grid`` checked,
     or by default the smallest regular grid at the positions' lattice pitch covering them
-    (`_default_grid`). Raises ValueError when a position ``pos`` ``(n_points, d)`` m lies
+    (`default_grid`). Raises ValueError when a position ``pos`` ``(n_points, d)`` m lies
     more than half a step outside the grid along an axis."""
     if grid is None:
-        axes, pitch = _default_grid(pos)
+        axes, pitch = default_grid(pos)
         steps = [float(g[1] - g[0]) if len(g) > 1 else pitch for g in axes]
     else:
-        axes = _check_grid(grid, pos.shape[1])
+        axes = check_grid(grid, pos.shape[1])
         steps = [float(g[1] - g[0]) for g in axes]
     for a, g in enumerate(axes):
         lo, hi = g[0] - steps[a] / 2, g[-1] + steps[a] / 2
@@ -724,7 +823,7 @@ def reconstruct_points(
     pos = _check_positions(positions, n_points)
     d = pos.shape[1]
     dt, c, eps, rdtype, upsample, t0 = _check_options(dt, c, method, eps, dtype, upsample, t0)
-    dz, n_z, n_work = _depth_axis(n_t, dt, c, dz, n_z, t0)
+    dz, n_z, n_work = depth_axis(n_t, dt, c, dz, n_z, t0)
     axes, steps = _output_grid(pos, grid)
     h = _area_weights(weights, pos)
     n_x_out = len(axes[0])

@@ -328,7 +328,7 @@ def import_dataset(src: str | os.PathLike, dest_dir: str | os.PathLike, fmt: str
         The dataset's metadata, which the API stores in the job store: ``layout``
         (``"grid"`` or ``"points"``), ``shape``, ``dx``, ``dt``, ``c``, ``t0``, ``path``
         (``"dataset.h5"``), the wavelength's params and ``record_facts`` (what the record holds
-        above its noise, ``fpscan.service.recon.tv_grid.record_facts``: the memory admission sizes a tv
+        above its noise, ``fpscan.service.recon.tv.grid.record_facts``: the memory admission sizes a tv
         job on the grid tv will choose from them), with ``sensor_bandwidth_hz`` where the file
         declares one; for points also ``n_x``, ``n_y`` and ``full_lattice``.
 
@@ -369,11 +369,11 @@ def import_dataset(src: str | os.PathLike, dest_dir: str | os.PathLike, fmt: str
 
 
 def _record_facts(ds: GridDataset | PointDataset) -> dict:
-    """``record_facts`` of a dataset's record (``fpscan.service.recon.tv_grid.record_facts``: its noise
+    """``record_facts`` of a dataset's record (``fpscan.service.recon.tv.grid.record_facts``: its noise
     σ and the samples up to its last echo; in blocks, without a float64
     copy of the data) and the sensor bandwidth its metadata declares, for the stored record."""
     from fpscan.service.recon.methods.tv import BANDWIDTH_KEY, declared_bandwidth
-    from fpscan.service.recon.tv_grid import record_facts
+    from fpscan.service.recon.tv.grid import record_facts
 
     data, time_axis = (ds.data, 0) if isinstance(ds, GridDataset) else (ds.alines, 1)
     out: dict[str, Any] = {}

@@ -146,7 +146,7 @@ def test_model_based_preconditioner_lengths_are_fast():
 
     for n in LATERAL:
         for shape in ((n, n), (3, 2, n), (2, n, 3)):
-            P = preconditioner._ner_weight(shape, DX, C * DT)
+            P = preconditioner.ner_weight(shape, DX, C * DT)
             assert all(is_fast(m) and m >= k for m, k in zip(P.shape, shape)), (shape, P.shape)
     for n_z in range(50, 1101, 9):
-        assert is_fast(preconditioner._ner_weight((n_z, 4), DX, C * DT).shape[0]), n_z
+        assert is_fast(preconditioner.ner_weight((n_z, 4), DX, C * DT).shape[0]), n_z

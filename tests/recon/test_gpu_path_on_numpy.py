@@ -17,7 +17,7 @@ from fpscan.physics.fast_lengths import fast_lateral
 from fpscan.service.recon import device, gpu
 from fpscan.service.recon.operator import PlanarOperator
 from fpscan.service.recon.planar import reconstruct_grid
-from fpscan.service.recon.tv.preconditioner import _apply_weight, _apply_weight_on, _ner_weight
+from fpscan.service.recon.tv.preconditioner import apply_weight, apply_weight_on, ner_weight
 
 C = 1500.0
 
@@ -112,11 +112,11 @@ def test_operator_pair_refuses_off_lattice_sensors() -> None:
 @pytest.mark.parametrize("shape", [(30, 40), (20, 26, 30)])
 def test_ner_weight_matches_the_preconditioner(shape: tuple) -> None:
     rng = np.random.default_rng(4)
-    P = _ner_weight(shape, 1e-4, 6e-5)
+    P = ner_weight(shape, 1e-4, 6e-5)
     x = rng.standard_normal(shape).astype(np.float32)
-    got = _apply_weight_on(np, P, x)
+    got = apply_weight_on(np, P, x)
     assert got.dtype == np.float32
-    assert _rel(got, _apply_weight(P, x.copy())) <= 2e-6
+    assert _rel(got, apply_weight(P, x.copy())) <= 2e-6
 
 
 def test_without_a_gpu_auto_runs_on_the_cpu_and_cuda_is_refused() -> None:
@@ -157,10 +157,10 @@ def test_the_gpu_lock_admits_one_process_and_nests_in_one() -> None:
 
 
 def test_tvs_model_on_the_gpu_branch_gives_the_cpu_branchs_products() -> None:
-    """tv's `_Model` with its operator pair on ``xp`` (the GPU branch: A, Aᵀ and P there) against
+    """tv's `Model` with its operator pair on ``xp`` (the GPU branch: A, Aᵀ and P there) against
     the compiled CPU branch, on NumPy: the same forward, B = P Aᵀ and residual."""
     from fpscan.physics.forward import forward_points
-    from fpscan.service.recon.tv.problem import _Model, _record, _warm_start
+    from fpscan.service.recon.tv.problem import Model, warm_start, working_record
 
     rng = np.random.default_rng(6)
     p0 = np.zeros((10, 14, 16))
@@ -168,11 +168,11 @@ def test_tvs_model_on_the_gpu_branch_gives_the_cpu_branchs_products() -> None:
     positions = _lattice(rng, 14, 16, 1e-4, 0.4)
     axes = ((np.arange(16) - 7.5) * 1e-4, (np.arange(14) - 6.5) * 1e-4)
     al = forward_points(p0, positions=positions, dx=1e-4, dz=1e-4, dt=6e-8, n_t=40, c=C)
-    record = _record(al, 6e-8, C, None, positions, axes, bandwidth=None, dz=1e-4, n_z=10, t0=0.0,
+    record = working_record(al, 6e-8, C, None, positions, axes, bandwidth=None, dz=1e-4, n_z=10, t0=0.0,
                      whole_record=True)
-    warm, centred = _warm_start(record, C, None, positions, None, axes, dtype=np.float32, t0=0.0, eps=1e-6,
+    warm, centred = warm_start(record, C, None, positions, None, axes, dtype=np.float32, t0=0.0, eps=1e-6,
                                 positivity=True, memory_limit=None, progress=None, device="cpu")
-    models = [_Model(record, warm, C, centred, t0=0.0, eps=1e-6, dtype=np.dtype(np.float32), periodic=False,
+    models = [Model(record, warm, C, centred, t0=0.0, eps=1e-6, dtype=np.dtype(np.float32), periodic=False,
                      checkpoint=None, memory_limit=None, device="cpu") for _ in range(2)]
     on_xp = models[1]
     on_xp.op._pair = gpu.OperatorPair(on_xp.op, np)  # the GPU branch, its arrays NumPy's

@@ -14,7 +14,8 @@ from fpscan.physics.forward import forward_grid
 from fpscan.service.metrics import correlation_coefficient, disc_mask
 from fpscan.service.plans import Lattice, equiangular_mask, equisteradian_mask, subgrid_mask
 from fpscan.service.recon import reconstruct_grid, reconstruct_points
-from fpscan.service.recon.tv import noise_sigma, reconstruct_tv
+from fpscan.service.recon.tv import reconstruct_tv
+from fpscan.service.recon.tv.grid import noise_sigma
 
 pytestmark = pytest.mark.long(40)
 
@@ -165,7 +166,7 @@ def test_the_automatic_lambda_reads_the_warm_starts_discrepancy(balls_3d):
     model (`forward_points`), is what tv records and raises λ by; on this 3 % mask the warm
     start misses the data by far more than the noise, so λ is several image noise levels."""
     from fpscan.physics.forward import forward_points
-    from fpscan.service.recon.tv import _LAM_KNEE, _LAM_POWER, _LAM_SCALE
+    from fpscan.service.recon.tv.lam import LAM_KNEE, LAM_POWER, LAM_SCALE
 
     b = balls_3d
     # at the record's own band (declared): the oracle's model is the direct sum at the record's sampling (the 2 DZ
@@ -178,8 +179,8 @@ def test_the_automatic_lambda_reads_the_warm_starts_discrepancy(balls_3d):
     d0 = float(np.linalg.norm(missed)) / (noise_sigma(g, 1) * np.sqrt(g.size))
     p = auto.params
     assert p["warm_discrepancy"] == pytest.approx(d0, rel=2e-3)
-    assert d0 > 2 * _LAM_KNEE
-    assert p["lam_factor"] == pytest.approx(_LAM_SCALE * (d0 / _LAM_KNEE) ** _LAM_POWER, rel=2e-3)
+    assert d0 > 2 * LAM_KNEE
+    assert p["lam_factor"] == pytest.approx(LAM_SCALE * (d0 / LAM_KNEE) ** LAM_POWER, rel=2e-3)
     assert p["lam"] == pytest.approx(p["lam_factor"] * p["image_noise"], rel=1e-6)
 
 

@@ -39,7 +39,7 @@ SWEEP = (1 / 8, 1 / 4, 1 / 2, 1.0, 2.0, 4.0, 8.0)
 _CASES: dict = {}
 
 
-def _case(kind: str, snr_db: float, dims: int = 2, points: int = 160) -> dict:
+def make_case(kind: str, snr_db: float, dims: int = 2, points: int = 160) -> dict:
     """Phantom, noisy data at the mask's sensors, the noise alone there, and the solver's
     keyword arguments (cached per module: several tests share a case). 3-D: 24 x 40 x 40
     voxels, an equi-steradian mask of ``points`` of the 1600 lattice points (160: 10 %; 53:
@@ -81,7 +81,7 @@ def _case(kind: str, snr_db: float, dims: int = 2, points: int = 160) -> dict:
     return case
 
 
-def _tv(case: dict, **kw):
+def run_tv(case: dict, **kw):
     """tv on the case; with no keyword the default run (automatic λ, default stopping rule),
     computed once per case: the solver is deterministic, and four tests start from it."""
     if not kw:
@@ -137,15 +137,15 @@ def test_the_default_rule_stops_where_the_image_has_converged(dims):
     The objective's rule (until 2026-11-24: its last decrease below 1e-3 of its decrease
     since the warm start) stopped the 3-D case at 20 iterations, 0.958 against 0.978 after
     100."""
-    case = _case("vessels", 30, dims)
-    rec = _tv(case)
+    case = make_case("vessels", 30, dims)
+    rec = run_tv(case)
     p = rec.params
     assert p["stop_reason"] == "converged" and p["converged"] is True, p
     assert p["iterations"] < p["max_iter"] and p["iterations"] <= p["operator_pairs"], p
     assert 0 <= p["iterate_change"] < p["tol"]
     assert p["lam_auto"] and p["lam"] > 0 and p["noise_sigma"] > 0 and p["image_noise"] > 0
     assert p["residual"] < 1.5 * p["noise_share"]  # near the discrepancy principle's level
-    longer = _tv(case, max_iter=150, tol=0.0)
+    longer = run_tv(case, max_iter=150, tol=0.0)
     assert longer.params["stop_reason"] == "iterations" and longer.params["iterations"] == 150
     assert _cc(rec.p0, case) >= _cc(longer.p0, case) - 0.005
     assert _cc(rec.p0, case) > _cc(_nedner(case, case["alines"]), case) + 0.05
@@ -155,20 +155,20 @@ def test_lambda_continues_from_the_warm_starts_discrepancy_down_to_lambda():
     """λ_k starts at λ D₀ (D₀ the warm start's discrepancy in noise norms) and falls by 0.9 an
     iteration to λ; the stopping rule's window holds iterations at λ only; a given λ continues
     from the same D₀ (the same warm start), and ``continuation=False`` steps at λ throughout."""
-    case = _case("vessels", 30)
-    p = _tv(case).params
+    case = make_case("vessels", 30)
+    p = run_tv(case).params
     f0, n = p["lam_start_factor"], p["continuation_iterations"]
     assert f0 == pytest.approx(max(1.0, p["warm_discrepancy"]), rel=1e-12) and f0 > 2, p
     assert f0 * 0.9 ** (n - 1) > 1 >= f0 * 0.9 ** n, (f0, n)
     assert p["converged"] and p["iterations"] >= n + 3, p
-    given = _tv(case, lam=p["lam"], max_iter=2 * n + 2, tol=0.0).params
+    given = run_tv(case, lam=p["lam"], max_iter=2 * n + 2, tol=0.0).params
     assert given["lam_start_factor"] == pytest.approx(f0, rel=1e-9) and given["continuation_iterations"] == n
-    off = _tv(case, continuation=False, max_iter=5, tol=0.0).params
+    off = run_tv(case, continuation=False, max_iter=5, tol=0.0).params
     assert off["lam_start_factor"] == 1.0 and off["continuation_iterations"] == 0
     # the progress says so: the tolerance throughout, the rule not armed while λ still falls (it
     # cannot stop the run there: the line shows the tolerance, "once λ has settled")
     stages: list = []
-    _tv(case, progress=lambda f, stage: stages.append(stage))  # the default run again, watched
+    run_tv(case, progress=lambda f, stage: stages.append(stage))  # the default run again, watched
     seen = {s.k: (s.tol, s.armed) for s in stages if isinstance(s, IterationStage)}
     assert sorted(seen) == list(range(1, p["iterations"] + 1)), sorted(seen)
     assert all(seen[k] == (p["tol"], False) for k in range(1, n + 3)), seen
@@ -179,11 +179,11 @@ def test_continuation_stops_nearer_the_minimiser_on_a_sparse_3d_mask():
     """On 3.3 % of the lattice (balls, 30 dB) the rule stops no later with continuation than
     without, nearer a 300-iteration solve at the same λ, and with a higher CC with the true p0
     (CHANGELOG.md, "2026-11-26, evening": 58 against 66 iterations, 7 % against 9 %)."""
-    case = _case("balls", 30, 3, 53)
-    on = _tv(case)
-    off = _tv(case, continuation=False)
+    case = make_case("balls", 30, 3, 53)
+    on = run_tv(case)
+    off = run_tv(case, continuation=False)
     assert on.params["converged"] and off.params["converged"]
-    longer = _tv(case, lam=on.params["lam"], continuation=False, max_iter=300, tol=0.0).p0
+    longer = run_tv(case, lam=on.params["lam"], continuation=False, max_iter=300, tol=0.0).p0
 
     def distance(rec) -> float:
         return float(np.linalg.norm(rec.p0 - longer) / np.linalg.norm(longer))
@@ -198,7 +198,7 @@ def test_continuation_stops_nearer_the_minimiser_on_a_sparse_3d_mask():
                    "at the paper's size 30 pairs buy CC 0.940 against 0.980 at the rule (bench_tv_paper.py "
                    "--max-iter 27)")
 def test_the_default_rule_converges_within_30_operator_pairs():
-    p = _tv(_case("vessels", 30)).params
+    p = run_tv(make_case("vessels", 30)).params
     assert p["stop_reason"] == "converged" and p["operator_pairs"] <= 30, p
 
 
@@ -206,9 +206,9 @@ def test_the_default_rule_converges_within_30_operator_pairs():
                    "vessels) to 8.7 % (2-D balls) from a long run at the same λ, and even tol = 2e-4 (74-247 "
                    "iterations, before λ continuation) stopped 0.8-1.9 % from it (bench_tv_solver.py --rule)")
 def test_the_rules_image_is_within_half_a_percent_of_a_300_iteration_run():
-    case = _case("vessels", 30)
-    rec = _tv(case)
-    longer = _tv(case, lam=rec.params["lam"], max_iter=300, tol=0.0)
+    case = make_case("vessels", 30)
+    rec = run_tv(case)
+    longer = run_tv(case, lam=rec.params["lam"], max_iter=300, tol=0.0)
     distance = np.linalg.norm(rec.p0 - longer.p0) / np.linalg.norm(longer.p0)
     assert distance <= 0.005, distance
 
@@ -225,10 +225,10 @@ def test_automatic_lambda_is_within_0_01_cc_of_the_best_of_a_sweep(kind, snr_db,
     """3-D at 10 % of the lattice's points and (vessels) at 3.3 % as well; on the six
     3.3 % cases of `benchmarks/bench_tv_solver.py` (balls and vessels, 20/30/40 dB) the
     automatic λ loses at most 0.0051 CC (docs/results.md)."""
-    case = _case(kind, snr_db, dims, points or 160)
-    auto = _tv(case)
+    case = make_case(kind, snr_db, dims, points or 160)
+    auto = run_tv(case)
     lam = auto.params["lam"]
-    ccs = [_cc((auto if f == 1.0 else _tv(case, lam=f * lam)).p0, case) for f in SWEEP]
+    ccs = [_cc((auto if f == 1.0 else run_tv(case, lam=f * lam)).p0, case) for f in SWEEP]
     assert ccs[SWEEP.index(1.0)] >= max(ccs) - 0.01, dict(zip(SWEEP, ccs))
 
 
@@ -237,8 +237,8 @@ def test_every_vessel_branch_2_voxels_or_wider_keeps_its_contrast(snr_db, dims):
     """Each branch 2 voxels or wider keeps its centre line >= 3 noise σ (the NEDNER image of
     the noise alone) and >= half the true p0's own contrast, measured the same way (the
     sampled centre voxels of a 2-voxel tube are partly outside it), above its local background."""
-    case = _case("vessels", snr_db, dims)
-    img = _tv(case).p0
+    case = make_case("vessels", snr_db, dims)
+    img = run_tv(case).p0
     sigma = float(np.std(_nedner(case, case["noise"])))  # the noise σ of the image, by NEDNER
     contrasts = branch_contrasts(img, case["p0"])  # the experiment's measure (fpscan.experiments.vessels)
     assert len(contrasts) == 7  # the trunk (4), its two children (3) and four grandchildren (2)
@@ -248,9 +248,9 @@ def test_every_vessel_branch_2_voxels_or_wider_keeps_its_contrast(snr_db, dims):
 
 
 def test_debias_raises_the_amplitude_to_at_least_nedners():
-    case = _case("vessels", 30)
-    plain = _tv(case)
-    refit = _tv(case, debias=True)
+    case = make_case("vessels", 30)
+    plain = run_tv(case)
+    refit = run_tv(case, debias=True)
     assert refit.params["debias"] is True and plain.params["debias"] is False
     assert refit.params["operator_pairs"] > plain.params["operator_pairs"]
     a_tv, a_refit = _amplitude(plain.p0, case), _amplitude(refit.p0, case)

@@ -1,7 +1,8 @@
 """tv's grid: the band-limited resampling and its transpose, the band-limited
 operator (dot test; its forward against `forward_points` at the new rate, and against the data
 resampled by `fpscan.physics.resample`), the band the lateral pitch resolves, the record kept
-for what the image draws on, and tv honouring a given dz / n_z and recording its grid."""
+for what the image draws on, tv honouring a given dz / n_z and recording its grid, and the grid
+module loading no solver (the package exports its names on first use)."""
 from __future__ import annotations
 
 import numpy as np
@@ -12,7 +13,7 @@ from fpscan.physics.resample import resample, resample_adjoint, resampled_length
 from fpscan.service.metrics import correlation_coefficient
 from fpscan.service.recon.operator import PlanarOperator
 from fpscan.service.recon.tv import reconstruct_tv
-from fpscan.service.recon.tv_grid import RecordFacts, data_extent, noise_sigma, record_facts, tv_grid
+from fpscan.service.recon.tv.grid import RecordFacts, data_extent, noise_sigma, record_facts, tv_grid
 
 C, DX = 1500.0, 60e-6
 rng = np.random.default_rng(47)
@@ -114,7 +115,7 @@ def test_the_record_is_kept_until_the_farthest_sensor_hears_the_images_last_row(
     at every sensor: the forward model (`forward_points`) of a source at the image's deepest row,
     at the lateral corner farthest from a sensor, has passed that sensor before the kept record
     ends (and not long before). A line's sources ring on (2-D waves have a tail ∝ 1/t²):
-    tv keeps a line's whole record (`fpscan.service.recon.tv.problem._lateral_extent` gives no reach there)."""
+    tv keeps a line's whole record (`fpscan.service.recon.tv.problem.lateral_extent` gives no reach there)."""
     n_t, dt = 900, 10e-9
     x = (np.arange(24) - 11.5) * DX  # the image's lateral axes (x and y)
     pos = np.array([[x[0], x[0]], [x[3], x[2]]])  # two sensors at one corner of the image
@@ -244,3 +245,24 @@ def test_record_facts_give_the_grid_the_data_give_and_read_sigma_from_a_sample_o
     whole = noise_sigma(big, 1)
     assert abs(facts.sigma / whole - 1) < 0.005
     assert facts.signal_n_t == data_extent(big, 1, whole)
+
+
+def test_the_grid_loads_no_solver_and_the_package_exports_on_first_use():
+    """`fpscan.service.recon.tv.grid` is pure numpy (the server sizes a tv job from it): importing
+    it loads neither numba nor the solver's modules; the package's public names come from the
+    modules that own them, on first use."""
+    import json
+    import subprocess
+    import sys
+
+    code = ("import json, sys\n"
+            "import fpscan.service.recon.tv.grid\n"
+            "before = sorted(m for m in sys.modules if m.split('.')[0] == 'numba' or m.startswith('fpscan.service.recon.tv.'))\n"
+            "import fpscan.service.recon.tv as tv\n"
+            "owners = {name: getattr(tv, name).__module__ for name in tv.__all__ if callable(getattr(tv, name))}\n"
+            "print(json.dumps({'before': before, 'owners': owners}))\n")
+    got = json.loads(subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True).stdout)
+    assert got["before"] == ["fpscan.service.recon.tv.grid"], got["before"]
+    assert got["owners"] == {"TvGrid": "fpscan.service.recon.tv.grid", "noise_sigma": "fpscan.service.recon.tv.grid",
+                             "reconstruct_tv": "fpscan.service.recon.tv.reconstruct",
+                             "tv_grid": "fpscan.service.recon.tv.grid"}, got["owners"]

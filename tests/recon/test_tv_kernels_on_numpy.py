@@ -9,9 +9,9 @@ import pytest
 
 from fpscan.physics.forward import forward_points
 from fpscan.service.recon.tv import fista, prox, stores
-from fpscan.service.recon.tv.geometry import _geometry_numbers
+from fpscan.service.recon.tv.geometry import geometry_numbers
 from fpscan.service.recon.tv.kernels import array_kernels
-from fpscan.service.recon.tv.problem import _Model, _record, _start_image, _warm_start
+from fpscan.service.recon.tv.problem import Model, start_image, warm_start, working_record
 
 XK = array_kernels(np)
 
@@ -27,21 +27,21 @@ def test_each_kernel_matches_the_compiled_one(shape: tuple, dtype: type) -> None
     v, gy, xn = (rng.standard_normal(shape).astype(dtype) for _ in range(3))
     b_last = rng.integers(-30000, 30000, v.size).astype(np.int16)
     args = (xn.ravel(), v.ravel(), gy.ravel(), 0.3, b_last, 1e-5)
-    assert np.allclose(XK.moves(*args, 0.94), fista._moves(*args, 0.94), rtol=1e-9)
-    m1, m2 = XK.store_move(*args, 2.0), stores._store_move(*args, 2.0)
+    assert np.allclose(XK.moves(*args, 0.94), fista.moves(*args, 0.94), rtol=1e-9)
+    m1, m2 = XK.store_move(*args, 2.0), stores.store_move(*args, 2.0)
     assert m1[1] == m2[1] and np.abs(m1[0].astype(int) - m2[0]).max() <= 1
     y1, y2 = xn.ravel().copy(), xn.ravel().copy()
     XK.extrapolate_fixed(y1, b_last, 1e-5)
-    stores._extrapolate_fixed(y2, b_last, 1e-5)
+    stores.extrapolate_fixed(y2, b_last, 1e-5)
     assert _rel(y1, y2) <= 1e-6
     a1, a2 = v.ravel().copy(), v.ravel().copy()
     XK.axpy(a1, gy.ravel(), -0.7)
-    fista._axpy(a2, gy.ravel(), -0.7)
+    fista.axpy(a2, gy.ravel(), -0.7)
     assert _rel(a1, a2) <= 1e-6
-    g1, g2 = XK.store_gradient(gy), stores._store_gradient(gy)
+    g1, g2 = XK.store_gradient(gy), stores.store_gradient(gy)
     assert g1[1] == g2[1] and np.abs(g1[0].astype(int) - g2[0]).max() <= 1
-    assert XK.gain_lower_bound(v.ravel(), g2) == pytest.approx(stores._gain_lower_bound(v.ravel(), g2), rel=1e-6)
-    assert XK.tv_norm(v) == pytest.approx(prox._tv_norm(v), rel=1e-5)
+    assert XK.gain_lower_bound(v.ravel(), g2) == pytest.approx(stores.gain_lower_bound(v.ravel(), g2), rel=1e-6)
+    assert XK.tv_norm(v) == pytest.approx(prox.tv_norm(v), rel=1e-5)
 
 
 @pytest.mark.parametrize("shape", [(12, 20), (8, 10, 12)])
@@ -56,7 +56,7 @@ def test_the_proximal_map_matches_the_compiled_sweeps(shape: tuple, dtype: type,
     stored2: list = [None]
     for _ in range(3):  # warm-started from the last call's stored dual, as the solver calls it
         x1, d1 = XK.tv_prox_stored(v, 0.2, positivity, support, stored1)
-        x2, d2 = prox._tv_prox_stored(v, 0.2, positivity, support, stored2)
+        x2, d2 = prox.tv_prox_stored(v, 0.2, positivity, support, stored2)
         stored1, stored2 = [d1], [d2]
         assert x1.dtype == x2.dtype and x1.shape == x2.shape and d1.dtype == d2.dtype
         assert _rel(x1, x2) <= 1e-4
@@ -71,17 +71,17 @@ def test_the_solver_loop_gives_one_image_with_either_kernel_set() -> None:
     pos = x[::2, None]
     al = forward_points(p0, positions=pos, dx=1e-4, dz=1e-4, dt=1e-4 / 1500, n_t=60, c=1500.0)
     al = al + 0.02 * np.abs(al).max() * np.random.default_rng(2).standard_normal(al.shape)
-    record = _record(al, 1e-4 / 1500, 1500.0, None, pos, (x,), bandwidth=None, dz=1e-4, n_z=24, t0=0.0,
+    record = working_record(al, 1e-4 / 1500, 1500.0, None, pos, (x,), bandwidth=None, dz=1e-4, n_z=24, t0=0.0,
                      whole_record=True)
-    warm, centred = _warm_start(record, 1500.0, None, pos, None, (x,), dtype=np.float32, t0=0.0, eps=1e-6,
+    warm, centred = warm_start(record, 1500.0, None, pos, None, (x,), dtype=np.float32, t0=0.0, eps=1e-6,
                                 positivity=True, memory_limit=None, progress=None, device="cpu")
-    model = _Model(record, warm, 1500.0, centred, t0=0.0, eps=1e-6, dtype=np.dtype(np.float32), periodic=False,
+    model = Model(record, warm, 1500.0, centred, t0=0.0, eps=1e-6, dtype=np.dtype(np.float32), periodic=False,
                    checkpoint=None, memory_limit=None)
-    gain, _, _ = _geometry_numbers(model, lambda fraction: None)
+    gain, _, _ = geometry_numbers(model, lambda fraction: None)
     images = []
     for kernels in (None, XK):
-        solved = fista._fista(model.forward, model.B, record.g, [_start_image(warm, np.dtype(np.float32), True)],
-                              0.05 * gain, fista._MARGIN * gain, True, 40, 0.0, time.monotonic(), 3600.0, None,
+        solved = fista.run_fista(model.forward, model.B, record.g, [start_image(warm, np.dtype(np.float32), True)],
+                              0.05 * gain, fista.MARGIN * gain, True, 40, 0.0, time.monotonic(), 3600.0, None,
                               model.residual, kernels=kernels)
         assert solved.iterations == 40
         images.append(solved.x)

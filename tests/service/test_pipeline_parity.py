@@ -174,7 +174,7 @@ def test_local_worker_and_http_give_one_volume(name, method, inputs, remote, tmp
         for name, value in options.items():
             assert used.get(name) == value, (name, used)
     n_t = N_T
-    if method == "tv":  # tv's depth grid: down to the last echo at the pitch's band (fpscan.service.recon.tv_grid)
+    if method == "tv":  # tv's depth grid: down to the last echo at the pitch's band (fpscan.service.recon.tv.grid)
         n_t = json.loads(local_attrs["params"])["n_z"]
         assert n_t <= N_T
     assert local_p0.shape[0] == n_t and local_p0.ndim == 3

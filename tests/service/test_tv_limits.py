@@ -58,13 +58,13 @@ def test_the_library_stops_at_the_time_limit_and_says_so():
 @needs_recon
 def test_a_cancel_is_heard_inside_an_iteration(monkeypatch):
     """Inside an iteration the solver polls ``should_stop`` again (the operator's
-    checkpoints, the proximal map's inner steps: at most every ``_POLL_S`` seconds of
+    checkpoints, the proximal map's inner steps: at most every ``POLL_S`` seconds of
     ``fpscan.service.recon.tv.progress``, here set to 0 so the count does not depend on the
     machine's speed): a cancel requested just
     after iteration 1 began is heard before iteration 1 ends, not at its end. Before the
     polls, one iteration of a 512 x 64² job took minutes and a cancel waited
     for it."""
-    monkeypatch.setattr(tv_progress, "_POLL_S", 0.0)
+    monkeypatch.setattr(tv_progress, "POLL_S", 0.0)
     ds = GridDataset(data=DATA.copy(), dx=DX, dt=DT, c=C, dy=DX)
     stages: list[str] = []
     polls_in_iteration = [0]

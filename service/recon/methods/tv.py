@@ -33,7 +33,7 @@ if TYPE_CHECKING:
     from fpscan.service.progress import Progress
     from fpscan.service.recon.dataset import PointDataset
     from fpscan.service.recon.reconstruction import Reconstruction
-    from fpscan.service.recon.tv_grid import TvGrid
+    from fpscan.service.recon.tv.grid import TvGrid
 
 __all__ = ["Options", "run", "declared_bandwidth", "BANDWIDTH_KEY", "PAIR_RATE", "SETUP_PAIRS", "grid",
            "check_depth", "work", "peak_memory", "MEMORY_CALIBRATION", "warm_up", "SUMMARY", "STOP_WAITS_FOR", "METHOD"]
@@ -192,7 +192,7 @@ BANDWIDTH_KEY = "sensor_bandwidth_hz"
 def declared_bandwidth(meta: dict | None) -> float | None:
     """The sensor bandwidth a dataset's metadata declares (``meta["sensor_bandwidth_hz"]``,
     Hz), which tv then works at instead of the band it reads off the data
-    (``fpscan.service.recon.tv_grid``); None when it declares none.
+    (``fpscan.service.recon.tv.grid``); None when it declares none.
 
     Parameters
     ----------
@@ -242,7 +242,7 @@ def grid(n_t: int, dt: float, c: float, *, dz: float | None = None, n_z: int | N
          t0: float = 0.0, bandwidth: float | None = None, record_facts: dict | None = None,
          whole_record: bool = False, dx: float | None = None, n_x: int = 1, n_y: int = 1) -> tuple[float, int]:
     """The image grid of tv for a record: ``(dz, n_z)`` (m, rows) as tv chooses it
-    (``fpscan.service.recon.tv_grid.tv_grid``: from a stored dataset's ``record_facts``, else the
+    (``fpscan.service.recon.tv.grid.tv_grid``: from a stored dataset's ``record_facts``, else the
     whole, full-band record's or a declared ``bandwidth``'s in Hz, the largest it can pick), the
     grid the work estimate and the depth rule read.
 
@@ -260,7 +260,7 @@ def grid(n_t: int, dt: float, c: float, *, dz: float | None = None, n_z: int | N
         A declared sensor bandwidth, Hz.
     record_facts : dict, optional
         What the record holds above its noise, as a stored dataset's record keeps it
-        (``fpscan.service.recon.tv_grid.RecordFacts.as_dict``); one that does not fit the record is
+        (``fpscan.service.recon.tv.grid.RecordFacts.as_dict``); one that does not fit the record is
         ignored (the whole record is sized).
     whole_record : bool, optional
         tv's option: the whole record and its depth.
@@ -293,22 +293,22 @@ def grid(n_t: int, dt: float, c: float, *, dz: float | None = None, n_z: int | N
     >>> round(dz * 1e6, 2), n_z
     (60.0, 205)
     """
-    from fpscan.service.recon.planar import _depth_axis  # the depth axis's own checks (range, reach)
+    from fpscan.service.recon.planar import depth_axis  # the depth axis's own checks (range, reach)
 
     chosen = _chosen_grid(n_t, dt, c, dz=dz, n_z=n_z, t0=t0, bandwidth=bandwidth, record_facts=record_facts,
                           whole_record=whole_record, dx=dx, n_x=n_x, n_y=n_y)
-    _depth_axis(int(n_t), float(dt), float(c), chosen.dz, chosen.n_z, float(t0 or 0.0))
+    depth_axis(int(n_t), float(dt), float(c), chosen.dz, chosen.n_z, float(t0 or 0.0))
     return float(chosen.dz), int(chosen.n_z)
 
 
 def _chosen_grid(n_t: int, dt: float, c: float, *, dz: float | None, n_z: int | None, t0: float | None,
                  bandwidth: float | None, record_facts: dict | None, whole_record: bool,
                  dx: float | None = None, n_x: int = 1, n_y: int = 1) -> TvGrid:
-    """The grid tv picks (`fpscan.service.recon.tv_grid.tv_grid`) for a record known by its stored facts
+    """The grid tv picks (`fpscan.service.recon.tv.grid.tv_grid`) for a record known by its stored facts
     (`grid`'s parameters; ``dx`` the lateral pitch in m of the ``n_x`` × ``n_y`` lattice: the
     band it resolves, and its diagonal as the sensors' reach, the most any mask on it needs; a
     line keeps its whole record, as `fpscan.service.recon.tv` keeps it)."""
-    from fpscan.service.recon.tv_grid import RecordFacts, tv_grid
+    from fpscan.service.recon.tv.grid import RecordFacts, tv_grid
 
     facts = None
     if record_facts is not None:
@@ -443,7 +443,7 @@ def peak_memory(n_t: int, n_x: int, n_y: int = 1, *, n_z: int | None = None, dty
     (``fpscan.service.recon.memory.model_based_peak`` of the operator's samples and tv's image; the
     memory admission, ``fpscan.service.jobs.admission.estimate_memory``): with a stored dataset's
     ``record_facts`` the image down to the last echo and the record kept for it, resampled to the band, as tv cuts
-    and resamples it (``fpscan.service.recon.tv_grid``), else the whole, full-band record (the
+    and resamples it (``fpscan.service.recon.tv.grid``), else the whole, full-band record (the
     largest grid tv may choose).
 
     Parameters
@@ -538,19 +538,19 @@ def warm_up(dtypes: Sequence[str]) -> None:
         op = PlanarOperator((4, 6, 6), dx, C_DEFAULT * dt, dt, 32, dtype=d, device="cpu")
         op.adjoint(op.forward(np.ones((4, 6, 6))))
         v = np.ones((4, 6, 6), dtype=d)  # the TV part's compiled sweeps (2-D images run as 3-D views)
-        prox._tv_prox(v, 0.1, True, None, None)
-        prox._tv_prox_stored(v, 0.1, True, None, [prox._tv_prox_stored(v, 0.1, True, None, [None])[1]])  # stored dual
-        prox._tv_norm(v)
-        preconditioner._apply_weight(preconditioner._ner_weight(v.shape, dx, C_DEFAULT * dt), v)  # P's kernel
+        prox.tv_prox(v, 0.1, True, None, None)
+        prox.tv_prox_stored(v, 0.1, True, None, [prox.tv_prox_stored(v, 0.1, True, None, [None])[1]])  # stored dual
+        prox.tv_norm(v)
+        preconditioner.apply_weight(preconditioner.ner_weight(v.shape, dx, C_DEFAULT * dt), v)  # P's kernel
         flat = v.ravel()  # the solver's in-place vector kernels
-        fista._axpy(flat, flat, 0.5)
-        move = stores._store_move(flat, flat, flat, 1.0, np.zeros(flat.size, dtype=np.int16), 0.0, 1.0)
-        stores._extrapolate_fixed(flat, move[0], 0.5)
-        fista._difference_norm(flat, flat)
-        stores._gain_lower_bound(flat, stores._store_gradient(v))  # the last gradient's 16-bit wait
-        fista._moves(flat, flat, flat, 1.0, move[0], 0.5, 0.5)
+        fista.axpy(flat, flat, 0.5)
+        move = stores.store_move(flat, flat, flat, 1.0, np.zeros(flat.size, dtype=np.int16), 0.0, 1.0)
+        stores.extrapolate_fixed(flat, move[0], 0.5)
+        fista.difference_norm(flat, flat)
+        stores.gain_lower_bound(flat, stores.store_gradient(v))  # the last gradient's 16-bit wait
+        fista.moves(flat, flat, flat, 1.0, move[0], 0.5, 0.5)
         dual = np.zeros((3, 4, 6, 6), dtype=d)  # the dual's wait between iterations
-        stores._restore_dual(stores._store_dual(dual), dual.dtype)
+        stores.restore_dual(stores.store_dual(dual), dual.dtype)
     forward_grid(np.ones((4, 6, 6)), dx, C_DEFAULT * dt, dt, 32)
 
 

@@ -4,15 +4,15 @@ Accelerated proximal gradient (FISTA, Beck & Teboulle 2009) on J(p) = ½‖A p �
 p >= 0, preconditioned by NER: each iteration takes one forward A (of the new iterate; A y
 follows by linearity) and one B = P Aᵀ of the residual (`fpscan.service.recon.tv.preconditioner`),
 steps along B(A y − g) with step 1 / L, and applies the proximal map of λ_k TV + positivity
-(`fpscan.service.recon.tv.prox`). L starts at `_MARGIN` ‖BA‖ (`fpscan.service.recon.tv.geometry`) and is
-raised to `_MARGIN` × the gain of BA along the last move of the iterates whenever that
+(`fpscan.service.recon.tv.prox`). L starts at `MARGIN` ‖BA‖ (`fpscan.service.recon.tv.geometry`) and is
+raised to `MARGIN` × the gain of BA along the last move of the iterates whenever that
 exceeds it (free: those products are computed anyway). Momentum: a constant β =
-`_MOMENTUM` (y_{k+1} = x_{k+1} + β (x_{k+1} − x_k)), set to 0 for one step (a restart) when J
+`MOMENTUM` (y_{k+1} = x_{k+1} + β (x_{k+1} − x_k)), set to 0 for one step (a restart) when J
 rises or the momentum points uphill (O'Donoghue & Candès 2015): Nesterov's constant scheme
 for a strongly convex objective, with the restarts standing in for the unknown condition
 number. J(x) is exact and free (A x is computed anyway). The stopping rule:
 `fpscan.service.recon.tv.stopping`; λ and its continuation: `fpscan.service.recon.tv.lam`; what waits
-between iterations in 16 bits: `fpscan.service.recon.tv.stores`. `_debias` refits the amplitudes
+between iterations in 16 bits: `fpscan.service.recon.tv.stores`. `debias_refit` refits the amplitudes
 at λ = 0 on tv's support. The measurements behind these choices: docs/tv-measurements.md,
 "Solver" and "Memory".
 
@@ -33,24 +33,53 @@ import numpy as np
 
 from fpscan.service.progress import span
 from fpscan.service.recon.tv.kernels import Kernels, array_kernels, array_module
-from fpscan.service.recon.tv.lam import _Continuation
-from fpscan.service.recon.tv.progress import _Reporter
-from fpscan.service.recon.tv.prox import _tv_norm, _tv_prox_stored
-from fpscan.service.recon.tv.stopping import _StoppingRule
-from fpscan.service.recon.tv.stores import _extrapolate_fixed, _gain_lower_bound, _store_gradient, _store_move
+from fpscan.service.recon.tv.lam import Continuation
+from fpscan.service.recon.tv.progress import Reporter
+from fpscan.service.recon.tv.prox import tv_norm, tv_prox_stored
+from fpscan.service.recon.tv.stopping import StoppingRule
+from fpscan.service.recon.tv.stores import extrapolate_fixed, gain_lower_bound, store_gradient, store_move
 
-__all__: list[str] = []
+__all__ = ["MARGIN", "MOMENTUM", "DEBIAS_ITER", "SUPPORT_FRACTION", "Solved", "run_fista", "debias_refit", "axpy", "moves", "difference_norm", "COMPILED", "kernels_for"]
 
-_MARGIN = 1.1  # step 1 / (_MARGIN ‖BA‖)
-_MOMENTUM = 0.94  # the momentum β between restarts (constant: module doc)
-_DEBIAS_ITER = 10  # iterations of the least-squares refit on the support (debias)
-_SUPPORT_FRACTION = 0.05  # the support for debias: p0 above this share of its maximum
+#: the step is 1 / (MARGIN ‖BA‖), and L rises to MARGIN × a larger gain the iterates show
+MARGIN = 1.1
+#: the momentum β between restarts (constant: module doc)
+MOMENTUM = 0.94
+#: iterations of the least-squares refit on the support (`debias_refit`)
+DEBIAS_ITER = 10
+#: the support of `debias_refit`: p0 above this share of its maximum
+SUPPORT_FRACTION = 0.05
 
 
-class _Solved(NamedTuple):
-    """What `_fista` returns: the image ``x``, the ``iterations`` run, the ``stop_reason``
-    ("converged", "iterations", "time limit"), the stopping rule's last value ``change``
-    (NaN before its window filled), ``Ax`` = A x, the step's ``L`` and the ``lam`` used."""
+class Solved(NamedTuple):
+    """What `run_fista` returns.
+
+    Attributes
+    ----------
+    x : ndarray
+        The image ``(n_z, n_x)`` / ``(n_z, n_y, n_x)`` (Pa), in the working dtype.
+    iterations : int
+        The iterations run.
+    stop_reason : str
+        "converged", "iterations" or "time limit".
+    change : float
+        The stopping rule's last value (NaN before its window filled;
+        `fpscan.service.recon.tv.stopping.StoppingRule`).
+    Ax : ndarray
+        A x, in the data's shape.
+    L : float
+        The step's L (1 / step) at the end.
+    lam : float
+        The λ used (the data's unit, Pa).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from fpscan.service.recon.tv.fista import Solved
+    >>> s = Solved(np.zeros((2, 2)), 3, "iterations", 0.01, np.zeros(4), 1.1, 0.5)
+    >>> s.iterations, s.stop_reason, s.lam
+    (3, 'iterations', 0.5)
+    """
 
     x: np.ndarray
     iterations: int
@@ -61,50 +90,98 @@ class _Solved(NamedTuple):
     lam: float
 
 
-def _fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray], np.ndarray], g: np.ndarray,
+def run_fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray], np.ndarray], g: np.ndarray,
            start: list[np.ndarray], lam: float | Callable[[float], float], L: float, positivity: bool,
-           max_iter: int, tol: float, started: float, time_limit: float, report: _Reporter | None,
+           max_iter: int, tol: float, started: float, time_limit: float, report: Reporter | None,
            residual: Callable[[np.ndarray], float], support: np.ndarray | None = None,
-           poll: Callable[[], None] | None = None, continuation: _Continuation | None = None,
-           kernels: Kernels | None = None) -> _Solved:
-    """Accelerated proximal gradient (FISTA, Beck & Teboulle 2009) on J(p) = ½‖A p − g‖² +
-    λ TV(p) (p >= 0 with ``positivity``; p = 0 off ``support`` when given), preconditioned:
-    the step is G(A y − g) / L with G = B = P Aᵀ of a residual (module doc); the proximal
-    map `fpscan.service.recon.tv.prox._tv_prox`.
+           poll: Callable[[], None] | None = None, continuation: Continuation | None = None,
+           kernels: Kernels | None = None) -> Solved:
+    """Accelerated proximal gradient (FISTA; Beck & Teboulle, SIAM J. Imaging Sci. 2 (2009) 183),
+    preconditioned, on J(p) = ½‖A p − g‖² + λ TV(p) (p >= 0 with ``positivity``; p = 0 off
+    ``support`` when given).
 
-    One forward A (of the new iterate; A y follows by linearity) and one G per iteration.
-    ``residual(Ax)`` = ‖A x − g‖, so J(x_k) is exact and free; ``poll`` as `_tv_prox`. Momentum:
-    the constant `_MOMENTUM` (module doc), 0 for one step (a restart, O'Donoghue & Candès 2015)
-    when J rises or the momentum points uphill. Stopping rule (`fpscan.service.recon.tv.stopping`): the
-    iterate's relative change ‖x_k − x_{k−1}‖ / ‖x_k‖ below ``tol`` in each of the last 3
-    iterations ("converged"); else ``max_iter`` iterations ("iterations") or the time limit
-    ("time limit"). L rises to `_MARGIN` × the gain of BA along the last move of y (free: a
-    lower bound of ‖BA‖) when that exceeds it. ``lam`` is λ, or a rule λ(‖A x₀ − g‖) of the
-    start's residual (the automatic λ: free, A x₀ is the first forward). With ``continuation``
+    The step is G(A y − g) / L with G = B = P Aᵀ of a residual (module doc); the proximal map
+    `fpscan.service.recon.tv.prox.tv_prox_stored`. One forward A (of the new iterate; A y follows
+    by linearity) and one G per iteration; ``residual(Ax)`` = ‖A x − g‖, so J(x_k) is exact and
+    free. Momentum: the constant `MOMENTUM`, 0 for one step (a restart; O'Donoghue & Candès,
+    Found. Comput. Math. 15 (2015) 715) when J rises or the momentum points uphill. Stopping rule
+    (`fpscan.service.recon.tv.stopping`): the iterate's relative change ‖x_k − x_{k−1}‖ / ‖x_k‖
+    below ``tol`` in each of the last 3 iterations ("converged"); else ``max_iter`` iterations
+    ("iterations") or the time limit ("time limit"). L rises to `MARGIN` × the gain of BA along
+    the last move of y (free: a lower bound of ‖BA‖) when that exceeds it. With ``continuation``
     the proximal step and the restart test take λ_k = λ · ``continuation.factor(k)``, started
-    from the same residual, and the stopping rule waits for λ itself
-    (`fpscan.service.recon.tv.lam._Continuation`). ``kernels``: the whole-image kernel set
-    (`fpscan.service.recon.tv.kernels`; default the one for the start's array type). Returns `_Solved`
-    (x, iterations, stop reason, the rule's last value, A x, L, λ). ``forward(v)`` = A v in the
-    data's shape; ``start`` is a list holding the first x, which is taken out of it (its
-    memory is reused: the caller keeps no reference).
+    from the start's residual, and the stopping rule waits for λ itself.
 
-    Memory (the proximal map's dual is d = 2 or 3 images, kept between calls at half the
-    working precision's bytes, `_store_dual`: |dual| <= 1, so a float32 warm start keeps
-    1.5e-5; the last G(A y − g), which only the next iteration's gain reads, and the last
-    move b = x − x_prev wait as 16-bit fixed point, `_store_gradient` and `_store_move`:
-    half a float32 image each; x itself is y − β q round(b / q), read back where it is
-    needed): while A works, 1 image (the new iterate, which becomes y in its own place), d/2
-    and the two halves; while G works, the same with y; while the proximal map works, 2 (the
-    gradient step made in y's place, G(A y − g)), the move's half and d + d/2 at most (its
-    dual at full precision beside the stored one), then one more for the new iterate, made
-    from the stored dual once the full one is freed (`_tv_prox_stored`). At the paper's size
-    (d = 3) that is 7 images in the proximal map and 3 beside the operator's k-space (about 3
-    images there). Everything that needs y or x after y's gradient step (the restart test,
-    ‖y_new − y‖ for the gain for both momenta y_new can take, the new move) is summed before
-    A works, with y = the step + G(A y − g) / L (`_moves`), so y's memory is free
-    then. The vectors are C-contiguous: the in-place kernels see them through flat views."""
-    k = kernels or _kernels_for(start[0])  # the compiled loops for NumPy arrays, CuPy's for a GPU run
+    Memory (the proximal map's dual is d = 2 or 3 images, kept between calls at half the working
+    precision's bytes; the last G(A y − g) and the last move b = x − x_prev wait as 16-bit fixed
+    point, `fpscan.service.recon.tv.stores`; x itself is y − β q round(b / q), read back where it
+    is needed): while A works, 1 image, d/2 and the two halves; while G works, the same with y;
+    while the proximal map works, 2, the move's half and d + d/2 at most, then one more for the
+    new iterate. At the paper's size (d = 3) that is 7 images in the proximal map and 3 beside
+    the operator's k-space. The vectors are C-contiguous: the in-place kernels see them through
+    flat views.
+
+    Parameters
+    ----------
+    forward : callable
+        ``forward(v)`` = A v in the data's shape (a new array), v an image.
+    G : callable
+        ``G(r)`` = P Aᵀ r as an image, r in the data's shape.
+    g : ndarray
+        The data (Pa), the working dtype's arrays' namespace (a GPU run's: CuPy).
+    start : list
+        One element, the first x (an image ``(n_z, n_x)`` / ``(n_z, n_y, n_x)``, float32 or
+        float64), taken out of it: its memory is reused (the caller keeps no reference).
+    lam : float or callable
+        λ >= 0 (Pa), or a rule λ(‖A x₀ − g‖) of the start's residual (the automatic λ:
+        `fpscan.service.recon.tv.lam.DiscrepancyRule`).
+    L : float
+        The first L (> 0): `MARGIN` ‖BA‖ (`fpscan.service.recon.tv.geometry`).
+    positivity : bool
+        Constrain p >= 0.
+    max_iter : int
+        Iterations at most (>= 1).
+    tol : float
+        The stopping rule's threshold (0: run ``max_iter``).
+    started : float
+        The run's start, `time.monotonic` (s).
+    time_limit : float
+        Wall-time limit from ``started``, s.
+    report : Reporter or None
+        The run's progress (`fpscan.service.recon.tv.progress.Reporter`): fractions 0.1 -> 1.
+    residual : callable
+        ``residual(Ax)`` = ‖A x − g‖ (float).
+    support : ndarray of bool, optional
+        The image's shape: p = 0 where False.
+    poll : callable, optional
+        Called inside long steps (a cancel may raise there).
+    continuation : Continuation, optional
+        λ's continuation (`fpscan.service.recon.tv.lam.Continuation`).
+    kernels : Kernels, optional
+        The whole-image kernel set (`fpscan.service.recon.tv.kernels`; default `kernels_for` the
+        start's array type).
+
+    Returns
+    -------
+    Solved
+        The image, iterations, stop reason, the rule's last value, A x, L and λ.
+
+    Examples
+    --------
+    Denoising (A = I, P = I) of a noisy step with positivity:
+
+    >>> import time
+    >>> import numpy as np
+    >>> from fpscan.service.recon.tv.fista import MARGIN, run_fista
+    >>> g = np.array([[0.0, 0.1, -0.1, 1.0, 1.1, 0.9]])
+    >>> s = run_fista(lambda v: v.copy(), lambda r: r, g, [g.copy()], 0.1, MARGIN, True, 20, 0.0,
+    ...               time.monotonic(), 60.0, None, lambda Ax: float(np.linalg.norm(Ax - g)))
+    >>> s.iterations, s.stop_reason, s.lam, bool(s.x.min() >= 0)
+    (20, 'iterations', 0.1, True)
+    >>> bool(np.abs(s.x - g).max() < 0.3)  # close to the data, its noise smoothed
+    True
+    """
+    k = kernels or kernels_for(start[0])  # the compiled loops for NumPy arrays, CuPy's for a GPU run
     x = k.contiguous(start.pop())
     if support is not None:
         x = k.masked(x, support)
@@ -113,14 +190,14 @@ def _fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray]
     r0 = residual(Ax)
     if callable(lam):  # λ from the start's residual ‖A x − g‖ (the automatic λ's rule)
         lam = float(lam(r0))
-    if continuation is not None:  # λ_k from λ D₀ down to λ (`_Continuation`)
+    if continuation is not None:  # λ_k from λ D₀ down to λ (`Continuation`)
         continuation.start(r0, lam, max_iter)
     # y's memory takes the gradient step; x itself is not kept: x = y − β q b, with b the last
-    # move x − x_prev as int16 and β q its scale (`_store_move`), which is how y was made
+    # move x − x_prev as int16 and β q its scale (`store_move`), which is how y was made
     y, Ay = x, Ax
     del x
     move: tuple[np.ndarray, float] = (k.zeros_move(y.size), 0.0)  # the start: x = y
-    # G(A y − g) of the last y, kept as 16-bit fixed point with its quantum (`_store_gradient`), and ‖y − last y‖
+    # G(A y − g) of the last y, kept as 16-bit fixed point with its quantum (`store_gradient`), and ‖y − last y‖
     G_prev: tuple[np.ndarray, float] | None = None
     dy = 0.0
 
@@ -129,8 +206,8 @@ def _fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray]
 
     J_prev = parts(Ax, y)  # the restart test's, at each iteration's λ_k
     # the stopping rule, whose window holds iterations at λ itself only (none of the continuation's)
-    stopping = _StoppingRule(tol, max_iter, time_limit, continuation.iterations if continuation is not None else 0)
-    stored = None  # the proximal map's dual between calls, in half the bytes (`_store_dual`)
+    stopping = StoppingRule(tol, max_iter, time_limit, continuation.iterations if continuation is not None else 0)
+    stored = None  # the proximal map's dual between calls, in half the bytes (`store_dual`)
     it, stop_reason = 0, "iterations"
     xn = y  # for max_iter = 0, which the callers never ask
     for it in range(1, max_iter + 1):
@@ -138,8 +215,8 @@ def _fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray]
         Gy = G(k.subtract(Ay, g))  # the residual in the working dtype (B's input)
         if G_prev is not None and dy > 0:  # the gain of BA along the last move of y: a lower bound of ‖BA‖
             gain = k.gain_lower_bound(Gy.ravel(), G_prev) / dy
-            if _MARGIN * gain > L:  # the step was too long for what the iterates excite
-                L = _MARGIN * gain
+            if MARGIN * gain > L:  # the step was too long for what the iterates excite
+                L = MARGIN * gain
         G_prev = None
         v = y  # the gradient step y − G(A y − g) / L, in y's place (y = v + Gy / L from here on)
         del y, xn
@@ -148,8 +225,8 @@ def _fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray]
         stored = None
         xn, stored = k.tv_prox_stored(v, lam_k / L, positivity, support, box, poll)  # None at λ = 0 (no dual)
         # a = x_new − y, b = x_new − x: the restart test ⟨a, b⟩ < 0 and ‖y_new − y‖ = ‖a + β b‖
-        # for β = 0 and `_MOMENTUM`, now, so that y (v) is free while A works; b kept as int16
-        ab, aa, cc, bb, nn, b_max = k.moves(xn.ravel(), v.ravel(), Gy.ravel(), 1.0 / L, move[0], move[1], _MOMENTUM)
+        # for β = 0 and `MOMENTUM`, now, so that y (v) is free while A works; b kept as int16
+        ab, aa, cc, bb, nn, b_max = k.moves(xn.ravel(), v.ravel(), Gy.ravel(), 1.0 / L, move[0], move[1], MOMENTUM)
         b_new = k.store_move(xn.ravel(), v.ravel(), Gy.ravel(), 1.0 / L, move[0], move[1], b_max)
         del v, move
         G_prev = k.store_gradient(Gy)  # for the next gain, in half (float64: a quarter) of the bytes
@@ -157,7 +234,7 @@ def _fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray]
         Axn = forward(xn)
         J = parts(Axn, xn)
         # constant momentum, restarted (β = 0) when J (at this iteration's λ_k) rises or the momentum points uphill
-        beta = 0.0 if J[0] + lam_k * J[1] > J_prev[0] + lam_k * J_prev[1] or ab < 0 else _MOMENTUM
+        beta = 0.0 if J[0] + lam_k * J[1] > J_prev[0] + lam_k * J_prev[1] or ab < 0 else MOMENTUM
         dy = math.sqrt(cc if beta else aa)
         Ay = Axn + beta * (Axn - Ax)
         Ax = Axn
@@ -175,29 +252,75 @@ def _fista(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray]
         del b_new
         k.extrapolate_fixed(xn.ravel(), move[0], move[1])
         y = xn  # noqa: F841 (read at the loop's top: ruff does not follow the loop past the del there)
-    return _Solved(xn, it, stop_reason, float(stopping.change), Ax, L, lam)
+    return Solved(xn, it, stop_reason, float(stopping.change), Ax, L, lam)
 
 
-def _debias(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray], np.ndarray], g: np.ndarray,
-            box: list[_Solved], started: float, time_limit: float, residual: Callable[[np.ndarray], float],
-            poll: Callable[[], None] | None = None) -> _Solved:
-    """TV shrinks amplitudes: `_DEBIAS_ITER` iterations of `_fista` at λ = 0 on tv's support
-    (voxels above `_SUPPORT_FRACTION` of tv's maximum; zero elsewhere, positivity kept) refit
-    them by least squares, from L on. ``box`` is a list holding tv's `_Solved`, taken out of it
-    (its image's memory is reused: the caller keeps no reference); the other arguments are
-    `_fista`'s. Returns tv's `_Solved` with the refit's image, A x and L."""
+def debias_refit(forward: Callable[[np.ndarray], np.ndarray], G: Callable[[np.ndarray], np.ndarray], g: np.ndarray,
+            box: list[Solved], started: float, time_limit: float, residual: Callable[[np.ndarray], float],
+            poll: Callable[[], None] | None = None) -> Solved:
+    """TV shrinks amplitudes: `DEBIAS_ITER` iterations of `run_fista` at λ = 0 on tv's support
+    (voxels above `SUPPORT_FRACTION` of tv's maximum; zero elsewhere, positivity kept) refit
+    them by least squares, from L on.
+
+    Parameters
+    ----------
+    forward, G, g
+        As `run_fista`'s.
+    box : list
+        One element, tv's `Solved`, taken out of it (its image's memory is reused: the caller
+        keeps no reference).
+    started, time_limit, residual, poll
+        As `run_fista`'s.
+
+    Returns
+    -------
+    Solved
+        tv's, with the refit's image, A x and L (its iterations, stop reason, rule value and λ).
+
+    Examples
+    --------
+    >>> import time
+    >>> import numpy as np
+    >>> from fpscan.service.recon.tv.fista import Solved, debias_refit
+    >>> g = np.array([[0.0, 0.0, 1.0, 1.0]])
+    >>> shrunk = Solved(np.array([[0.0, 0.0, 0.8, 0.8]]), 12, "converged", 1e-3, np.zeros((1, 4)), 1.1, 0.1)
+    >>> s = debias_refit(lambda v: v.copy(), lambda r: r, g, [shrunk], time.monotonic(), 60.0,
+    ...                  lambda Ax: float(np.linalg.norm(Ax - g)))
+    >>> s.iterations, s.stop_reason, np.round(s.x, 3).tolist()  # the amplitudes back at 1
+    (12, 'converged', [[0.0, 0.0, 1.0, 1.0]])
+    """
     x, it, stop_reason, change, Ax, L, lam = box.pop()
-    support = x > _SUPPORT_FRACTION * float(x.max())
+    support = x > SUPPORT_FRACTION * float(x.max())
     start = [x]
     del x
-    refit = _fista(forward, G, g, start, 0.0, L, True, _DEBIAS_ITER, 0.0, started, time_limit, None, residual,
+    refit = run_fista(forward, G, g, start, 0.0, L, True, DEBIAS_ITER, 0.0, started, time_limit, None, residual,
                    support=support, poll=poll)
-    return _Solved(refit.x, it, stop_reason, change, refit.Ax, refit.L, lam)
+    return Solved(refit.x, it, stop_reason, change, refit.Ax, refit.L, lam)
 
 
 @numba.njit(parallel=True, cache=True)
-def _difference_norm(a: np.ndarray, b: np.ndarray) -> float:
-    """‖a − b‖₂ of two flat arrays, summed in float64 (no work array)."""
+def difference_norm(a: np.ndarray, b: np.ndarray) -> float:
+    """‖a − b‖₂ of two flat arrays, summed in float64 (no work array).
+
+    Parameters
+    ----------
+    a, b : ndarray
+        Flat ``(N,)`` arrays (float32 or float64).
+
+    Returns
+    -------
+    float
+        The distance, their unit.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from fpscan.service.recon.tv.fista import difference_norm
+    >>> difference_norm(np.array([3.0, 0.0]), np.array([0.0, 4.0]))
+    5.0
+    >>> difference_norm(np.ones(3, dtype=np.float32), np.ones(3, dtype=np.float32))
+    0.0
+    """
     total = 0.0
     for i in numba.prange(a.size):
         d = np.float64(a[i]) - np.float64(b[i])
@@ -206,18 +329,66 @@ def _difference_norm(a: np.ndarray, b: np.ndarray) -> float:
 
 
 @numba.njit(parallel=True, cache=True)
-def _axpy(y: np.ndarray, x: np.ndarray, s: float) -> None:
-    """In place, y += s x (flat arrays of one dtype)."""
+def axpy(y: np.ndarray, x: np.ndarray, s: float) -> None:
+    """In place, y += s x (flat arrays of one dtype).
+
+    Parameters
+    ----------
+    y : ndarray
+        Flat ``(N,)``, float32 or float64; overwritten.
+    x : ndarray
+        Flat ``(N,)``, y's dtype.
+    s : float
+        The factor.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from fpscan.service.recon.tv.fista import axpy
+    >>> y = np.array([1.0, 2.0])
+    >>> axpy(y, np.array([1.0, -1.0]), 0.5)
+    >>> y.tolist()
+    [1.5, 1.5]
+    """
     for i in numba.prange(y.size):
         y[i] += s * x[i]
 
 
 @numba.njit(parallel=True, cache=True)
-def _moves(xn: np.ndarray, v: np.ndarray, gy: np.ndarray, inv_l: float, b_last: np.ndarray, scale_last: float,
+def moves(xn: np.ndarray, v: np.ndarray, gy: np.ndarray, inv_l: float, b_last: np.ndarray, scale_last: float,
            beta: float) -> tuple[float, float, float, float, float, float]:
-    """With y = v + inv_l gy (the gradient step v = y − gy / L undone) and x = y − scale_last
-    b_last (y's extrapolation undone: `_store_move`), a = xn − y and b = xn − x (flat
-    arrays): (⟨a, b⟩, ‖a‖², ‖a + β b‖², ‖b‖², ‖xn‖², max |b|), summed in float64."""
+    """The sums the solver's momentum, its gain and its stopping rule need, in one pass.
+
+    With y = v + inv_l gy (the gradient step v = y − gy / L undone) and x = y − scale_last b_last
+    (y's extrapolation undone: `fpscan.service.recon.tv.stores.store_move`), a = xn − y and b =
+    xn − x: (⟨a, b⟩, ‖a‖², ‖a + β b‖², ‖b‖², ‖xn‖², max |b|), summed in float64.
+
+    Parameters
+    ----------
+    xn, v, gy : ndarray
+        Flat ``(N,)`` arrays of one dtype: the new iterate, the gradient step and the gradient.
+    inv_l : float
+        1 / L.
+    b_last : ndarray of int16
+        The last move's fixed-point values ``(N,)``.
+    scale_last : float
+        Their scale.
+    beta : float
+        The momentum β of the candidate y_new = xn + β b.
+
+    Returns
+    -------
+    tuple of float
+        (⟨a, b⟩, ‖a‖², ‖a + β b‖², ‖b‖², ‖xn‖², max |b|).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from fpscan.service.recon.tv.fista import moves
+    >>> xn, zero = np.array([1.0, 2.0]), np.zeros(2)
+    >>> moves(xn, zero, zero, 1.0, np.zeros(2, dtype=np.int16), 0.0, 0.5)  # from y = x = 0
+    (5.0, 5.0, 11.25, 5.0, 5.0, 2.0)
+    """
     ab = 0.0
     aa = 0.0
     cc = 0.0
@@ -241,13 +412,33 @@ def _moves(xn: np.ndarray, v: np.ndarray, gy: np.ndarray, inv_l: float, b_last: 
 
 #: the CPU's kernel set (`fpscan.service.recon.tv.kernels`): the numba kernels here and in
 #: `fpscan.service.recon.tv.prox` / `fpscan.service.recon.tv.stores`
-_COMPILED = Kernels(np.ascontiguousarray, lambda n: np.zeros(n, dtype=np.int16),
-                    lambda a, b: np.subtract(a, b, dtype=a.dtype), _axpy, _moves, _store_move, _extrapolate_fixed,
-                    _store_gradient, _gain_lower_bound, _tv_norm, _tv_prox_stored,
+COMPILED = Kernels(np.ascontiguousarray, lambda n: np.zeros(n, dtype=np.int16),
+                    lambda a, b: np.subtract(a, b, dtype=a.dtype), axpy, moves, store_move, extrapolate_fixed,
+                    store_gradient, gain_lower_bound, tv_norm, tv_prox_stored,
                     lambda x, support: np.where(support, x, 0).astype(x.dtype))
 
 
-def _kernels_for(x: np.ndarray) -> Kernels:
-    """The kernel set for ``x``'s array type: the compiled one for a NumPy array, the array
-    expressions on CuPy for a GPU run's (`fpscan.service.recon.tv.kernels.array_kernels`)."""
-    return _COMPILED if isinstance(x, np.ndarray) else array_kernels(array_module(x))
+def kernels_for(x: np.ndarray) -> Kernels:
+    """The kernel set for ``x``'s array type: `COMPILED` for a NumPy array, the array
+    expressions on CuPy for a GPU run's (`fpscan.service.recon.tv.kernels.array_kernels`).
+
+    Parameters
+    ----------
+    x : ndarray
+        An array of the run (NumPy or CuPy).
+
+    Returns
+    -------
+    Kernels
+        The set `run_fista` works with.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from fpscan.service.recon.tv.fista import COMPILED, kernels_for
+    >>> kernels_for(np.zeros(3)) is COMPILED
+    True
+    >>> kernels_for(np.zeros(3)).tv_norm(np.array([[0.0, 1.0]]))
+    1.0
+    """
+    return COMPILED if isinstance(x, np.ndarray) else array_kernels(array_module(x))

@@ -1,11 +1,11 @@
 """tv's geometry numbers: the step's ‖BA‖ estimate and the noise image's RMS, kept per geometry.
 
 Both depend on the geometry alone (the operator, the preconditioner P and the seeded starts):
-‖BA‖ (B = P Aᵀ) from `_POWER_STEPS` power iterations from a seeded white image
+‖BA‖ (B = P Aᵀ) from `POWER_STEPS` power iterations from a seeded white image
 (`_gain_estimate`; the solver raises its L where the iterates show more), and the RMS of the
 noise image B n̂ of one seeded white-noise record n̂ of unit σ, whose product with σ̂ is the
-image's noise level of the automatic λ (`fpscan.service.recon.tv.lam`). `_geometry_numbers` keeps
-them for the last `_GEOMETRY_KEPT` geometries (`_GeometryMemo`), so a repeated scan plan
+image's noise level of the automatic λ (`fpscan.service.recon.tv.lam`). `geometry_numbers` keeps
+them for the last `GEOMETRY_KEPT` geometries (`GeometryMemo`), so a repeated scan plan
 spends no operator pairs on them and gets the numbers a fresh process computes. Why two
 power iterations: docs/tv-measurements.md, "Solver".
 """
@@ -21,23 +21,61 @@ import numpy.typing as npt
 if TYPE_CHECKING:
     from fpscan.service.progress import Span
     from fpscan.service.recon.operator import PlanarOperator
-    from fpscan.service.recon.tv.problem import _Model
+    from fpscan.service.recon.tv.problem import Model
 
-__all__: list[str] = []
+__all__ = ["POWER_STEPS", "GEOMETRY_KEPT", "GEOMETRY", "GeometryMemo", "geometry_numbers"]
 
-_POWER_STEPS = 2  # power iterations for the first step 1 / ‖BA‖ (the solver raises L where it sees more)
+#: power iterations for the first step 1 / ‖BA‖ (the solver raises L where it sees more)
+POWER_STEPS = 2
 
 
-def _geometry_numbers(model: _Model, progress: Span) -> tuple[float, float, bool]:
-    """(‖BA‖ estimate, the noise image's RMS per unit σ, whether both were kept from an earlier
-    run on this geometry) of ``model`` (module doc); ``progress(fraction)`` after each power
-    iteration."""
+def geometry_numbers(model: Model, progress: Span) -> tuple[float, float, bool]:
+    """The geometry's numbers of a run (module doc): the step's ‖BA‖ estimate and the noise
+    image's RMS, kept per geometry in `GEOMETRY`.
+
+    ‖BA‖ (B = P Aᵀ) from `POWER_STEPS` power iterations from a seeded white image, and the RMS
+    of B n̂ for one seeded white-noise record n̂ of unit σ (its product with σ̂ is the image's
+    noise level of the automatic λ, `fpscan.service.recon.tv.lam`).
+
+    Parameters
+    ----------
+    model : Model
+        The run's A and B (`fpscan.service.recon.tv.problem.Model`: its ``op``, ``shape``,
+        ``dx``, ``dz`` (m), ``pos``, ``dtype``, ``g``, ``forward`` and ``B``).
+    progress : callable
+        ``progress(fraction)`` after each power iteration (fractions k / `POWER_STEPS`).
+
+    Returns
+    -------
+    tuple
+        ``(gain, noise_rms, geometry_kept)``: the ‖BA‖ estimate (dimensionless for P's
+        normalisation), the noise image's RMS per unit σ, and whether both were kept from an
+        earlier run on this geometry.
+
+    Examples
+    --------
+    A model whose A and B are the identity on a 2 x 3 image (the numbers of the seeded starts):
+
+    >>> import numpy as np
+    >>> from types import SimpleNamespace
+    >>> from fpscan.service.recon.tv.geometry import GEOMETRY, geometry_numbers
+    >>> op = SimpleNamespace(dt=1e-8, n_t=3, c=1500.0, t0=0.0, eps=1e-6, band=None, periodic=False,
+    ...                      padded_shape=(2, 3))
+    >>> model = SimpleNamespace(op=op, shape=(2, 3), dx=1e-4, dz=1e-4, pos=None, dtype=np.float64,
+    ...                         g=np.zeros((2, 3)), forward=lambda v: v.copy(), B=lambda r: np.array(r))
+    >>> GEOMETRY.clear()
+    >>> gain, rms, kept = geometry_numbers(model, lambda f: None)
+    >>> round(gain, 12), kept
+    (1.0, False)
+    >>> geometry_numbers(model, lambda f: None)[2]  # the same geometry again: kept
+    True
+    """
     key = _geometry_key(model.op, model.shape, model.dx, model.dz, model.pos, model.dtype, model.g.shape)
-    kept = _GEOMETRY.get(key)
+    kept = GEOMETRY.get(key)
     geometry_kept = kept is not None
     if kept is None:
         start = np.random.default_rng(0).standard_normal(model.shape).astype(model.dtype)
-        gain = _gain_estimate(lambda v: model.B(model.forward(v)), start, _POWER_STEPS,
+        gain = _gain_estimate(lambda v: model.B(model.forward(v)), start, POWER_STEPS,
                               step=lambda k, n: progress(k / n))
         del start
         noise_image = model.B(np.random.default_rng(0).standard_normal(model.g.shape)).ravel()
@@ -49,7 +87,7 @@ def _geometry_numbers(model: _Model, progress: Span) -> tuple[float, float, bool
         noise_rms = math.sqrt(total / noise_image.size)
         del noise_image
         kept = (gain, noise_rms)
-        _GEOMETRY.put(key, kept)
+        GEOMETRY.put(key, kept)
     gain, noise_rms = kept
     return gain, noise_rms, geometry_kept
 
@@ -76,12 +114,38 @@ def _gain_estimate(apply: Callable[[np.ndarray], np.ndarray], start: np.ndarray,
     return gain
 
 
-class _GeometryMemo:
-    """The last few geometries' ‖BA‖ estimate and noise-image RMS (`reconstruct_tv`): numbers
-    of the operator, the preconditioner and the seeded starts alone, so a repeated scan plan
-    (the same mask, grid, sampling and band) skips the 2.5 operator pairs that make them, and
-    its result is the one a fresh process computes. At most `_GEOMETRY_KEPT` entries (a few
-    floats each), the oldest dropped first; safe across threads."""
+class GeometryMemo:
+    """The last few geometries' ‖BA‖ estimate and noise-image RMS (`geometry_numbers`).
+
+    Numbers of the operator, the preconditioner and the seeded starts alone, so a repeated scan
+    plan (the same mask, grid, sampling and band) skips the 2.5 operator pairs that make them,
+    and its result is the one a fresh process computes. At most ``size`` entries (a few floats
+    each), the least recently used dropped first; safe across threads. ``get(key)``,
+    ``put(key, value)``, ``clear()``.
+
+    Parameters
+    ----------
+    size : int
+        Entries kept.
+
+    Attributes
+    ----------
+    get : callable
+        ``get(key)``: the kept ``(gain, noise_rms)`` of a geometry, or None (it becomes the most
+        recent).
+    put : callable
+        ``put(key, value)``: keep a geometry's numbers.
+    clear : callable
+        ``clear()``: forget every geometry.
+
+    Examples
+    --------
+    >>> from fpscan.service.recon.tv.geometry import GeometryMemo
+    >>> memo = GeometryMemo(2)
+    >>> memo.put("a", (1.0, 0.5)); memo.put("b", (2.0, 0.5)); memo.put("c", (3.0, 0.5))
+    >>> memo.get("a"), memo.get("c")  # "a", the oldest, was dropped
+    (None, (3.0, 0.5))
+    """
 
     def __init__(self, size: int) -> None:
         import threading
@@ -108,9 +172,10 @@ class _GeometryMemo:
             self._items.clear()
 
 
-#: geometries kept (`_GeometryMemo`): a lab alternates between a few scan plans
-_GEOMETRY_KEPT = 8
-_GEOMETRY = _GeometryMemo(_GEOMETRY_KEPT)
+#: geometries kept (`GeometryMemo`): a lab alternates between a few scan plans
+GEOMETRY_KEPT = 8
+#: the process's memo of `geometry_numbers` (``GEOMETRY.clear()`` forgets every geometry)
+GEOMETRY = GeometryMemo(GEOMETRY_KEPT)
 
 
 def _geometry_key(op: PlanarOperator, shape: tuple[int, ...], dx: float, dz: float, pos: np.ndarray | None,

@@ -1,11 +1,11 @@
 """tv's vector kernels, one set per array namespace: the compiled loops on the CPU, CuPy on a GPU.
 
-The solver's loop (`fpscan.service.recon.tv.fista._fista`: the steps, the momentum and its restarts,
+The solver's loop (`fpscan.service.recon.tv.fista.run_fista`: the steps, the momentum and its restarts,
 the step's L, the λ continuation and the stopping rule) is written once; the work it does on
 whole images goes through a :class:`Kernels` set chosen by the start image's array type
-(`fpscan.service.recon.tv.fista._kernels_for`). On NumPy arrays that is the numba kernels of
+(`fpscan.service.recon.tv.fista.kernels_for`). On NumPy arrays that is the numba kernels of
 `fpscan.service.recon.tv.prox`, `fpscan.service.recon.tv.stores` and `fpscan.service.recon.tv.fista` (their
-memory-saving sweeps, `fpscan.service.recon.tv.fista._COMPILED`); on CuPy arrays the same arithmetic as array expressions (:func:`array_kernels`, also run on NumPy by
+memory-saving sweeps, `fpscan.service.recon.tv.fista.COMPILED`); on CuPy arrays the same arithmetic as array expressions (:func:`array_kernels`, also run on NumPy by
 the tests, which compare it with the compiled set): the proximal map's dual gradient projection
 as a primal step and a dual step over the whole volume (the compiled sweep does the same sums
 plane by plane), the 16-bit stores with the same rounding, every sum in float64.
@@ -24,7 +24,33 @@ __all__ = ["Kernels", "array_kernels", "array_module"]
 
 class Kernels(NamedTuple):
     """The whole-image operations of tv's solver (module doc), each as the compiled set's
-    function of the same name documents it (flat views where that one takes them)."""
+    function of the same name documents it (flat views where that one takes them).
+
+    Attributes
+    ----------
+    contiguous : callable
+        ``contiguous(x)``: x C-contiguous.
+    zeros_move : callable
+        ``zeros_move(n)``: n int16 zeros (the start's move).
+    subtract : callable
+        ``subtract(a, b)``: a − b in a's dtype.
+    axpy, moves : callable
+        `fpscan.service.recon.tv.fista.axpy`, `fpscan.service.recon.tv.fista.moves`.
+    store_move, extrapolate_fixed, store_gradient, gain_lower_bound : callable
+        `fpscan.service.recon.tv.stores`'s.
+    tv_norm, tv_prox_stored : callable
+        `fpscan.service.recon.tv.prox`'s.
+    masked : callable
+        ``masked(x, support)``: x with zeros off the support, x's dtype.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from fpscan.service.recon.tv.kernels import Kernels, array_kernels
+    >>> k = array_kernels(np)
+    >>> isinstance(k, Kernels), k.masked(np.ones(3), np.array([True, False, True])).tolist()
+    (True, [1.0, 0.0, 1.0])
+    """
 
     contiguous: Callable[[Any], Any]
     zeros_move: Callable[[int], Any]
@@ -41,7 +67,25 @@ class Kernels(NamedTuple):
 
 
 def array_module(x: Any) -> ModuleType:
-    """``numpy`` for a NumPy array, ``cupy`` for a CuPy one."""
+    """The array module of ``x``.
+
+    Parameters
+    ----------
+    x : array
+        A NumPy or CuPy array.
+
+    Returns
+    -------
+    module
+        ``numpy`` for a NumPy array, ``cupy`` for a CuPy one.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from fpscan.service.recon.tv.kernels import array_module
+    >>> array_module(np.zeros(2)) is np
+    True
+    """
     if isinstance(x, np.ndarray):
         return np
     import cupy
@@ -50,7 +94,7 @@ def array_module(x: Any) -> ModuleType:
 
 
 # -- the array-expression set --------------------------------------------------------------
-_SCALE = 32767.0  # `fpscan.service.recon.tv.stores._DUAL_SCALE`
+_SCALE = 32767.0  # `fpscan.service.recon.tv.stores.DUAL_SCALE`
 
 
 def _quantise(xp: ModuleType, q: Any, scale: float) -> Any:
@@ -146,11 +190,11 @@ class _ArrayKernels:
         return x
 
     def primal(self, v3: Any, q: list[Any], has_y: bool, gamma: float, positivity: bool, support: Any) -> Any:
-        """`prox._prox_primal`: P(v − γ ∇ᵀq)."""
+        """`fpscan.service.recon.tv.prox.primal_step`: P(v − γ ∇ᵀq)."""
         return self.project(v3 - gamma * _grad_t(self.xp, q, has_y), positivity, support)
 
     def _dual(self, stored: Any, v: Any, v3: Any) -> list[Any]:
-        """The dual (z, y, x components as 3-D arrays) from its stored form (`stores._restore_dual`)."""
+        """The dual (z, y, x components as 3-D arrays) from its stored form (`stores.restore_dual`)."""
         xp, has_y = self.xp, v.ndim == 3
         if stored is None:
             return [xp.zeros_like(v3) for _ in range(3)]
@@ -162,9 +206,9 @@ class _ArrayKernels:
 
     def tv_prox_stored(self, v: Any, gamma: float, positivity: bool, support: Any, stored: list[Any],
                        poll: Callable[[], None] | None = None) -> tuple[Any, Any]:
-        """`prox._tv_prox_stored`: `_PROX_ITER` dual gradient-projection steps, each a primal step
+        """`prox.tv_prox_stored`: `PROX_ITER` dual gradient-projection steps, each a primal step
         and a dual step over the whole volume, the dual kept in 16 bits between calls."""
-        from fpscan.service.recon.tv.prox import _PROX_ITER
+        from fpscan.service.recon.tv.prox import PROX_ITER
 
         xp = self.xp
         old = stored.pop()
@@ -176,7 +220,7 @@ class _ArrayKernels:
         q = self._dual(old, v, v3)
         del old
         step = 1.0 / (4.0 * v.ndim * gamma)  # 1 / (γ ‖∇‖²), ‖∇‖² <= 4 d
-        for i in range(_PROX_ITER):
+        for i in range(PROX_ITER):
             if poll is not None and i % 5 == 4:
                 poll()
             g = _grad(xp, self.primal(v3, q, has_y, gamma, positivity, s3))
@@ -197,16 +241,28 @@ class _ArrayKernels:
 
 
 def array_kernels(xp: ModuleType) -> Kernels:
-    """The set on ``xp`` (``cupy`` on a GPU; ``numpy`` in the tests): the compiled set's
-    arithmetic as array expressions (module doc).
+    """The kernel set on ``xp`` (``cupy`` on a GPU; ``numpy`` in the tests): the compiled set's
+    arithmetic as array expressions (module doc), every sum in float64.
 
     Parameters
     ----------
     xp : module
+        ``cupy`` or ``numpy``.
 
     Returns
     -------
     Kernels
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from fpscan.service.recon.tv.kernels import array_kernels
+    >>> k = array_kernels(np)
+    >>> k.tv_norm(np.array([[0.0, 1.0], [0.0, 1.0]]))
+    2.0
+    >>> values, quantum = k.store_gradient(np.array([2.0, -1.0]))
+    >>> values.tolist(), quantum == 2.0 / 32767
+    ([32767, -16383], True)
     """
     k = _ArrayKernels(xp)
     return Kernels(xp.ascontiguousarray, lambda n: xp.zeros(n, dtype=np.int16),

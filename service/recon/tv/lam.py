@@ -1,10 +1,10 @@
 """tv's λ: the automatic rule of the image's noise level and the warm start's discrepancy, and
 the continuation from a stronger weight down to λ.
 
-Automatic λ (``lam=None``): λ = `_LAM_SCALE` s · max(1, (D₀ / `_LAM_KNEE`) ** `_LAM_POWER`)
-(`_DiscrepancyRule`). s = ‖P Aᵀ n̂‖_rms is the image's noise level, the RMS of the
+Automatic λ (``lam=None``): λ = `LAM_SCALE` s · max(1, (D₀ / `LAM_KNEE`) ** `LAM_POWER`)
+(`DiscrepancyRule`). s = ‖P Aᵀ n̂‖_rms is the image's noise level, the RMS of the
 preconditioned adjoint of one seeded white-noise record n̂ of the estimated noise level σ̂
-(`fpscan.service.recon.tv_grid.noise_sigma`); with P AᵀA ≈ c I the problem is TV denoising of the
+(`fpscan.service.recon.tv.grid.noise_sigma`); with P AᵀA ≈ c I the problem is TV denoising of the
 least-squares image with weight λ / c, and a weight of the order of the image's noise level
 is the classical choice (c cancels). D₀ = ‖A x₀ − g‖ / (σ̂ √N) is the warm start's
 discrepancy in units of the noise's norm (free: the solver's first forward): on sparse masks
@@ -12,7 +12,7 @@ the image's error is mostly undersampling artefacts, which D₀ measures, and λ
 with it.
 
 Continuation (``continuation=True``): iteration k takes its proximal step with λ_k = λ ·
-max(1, D₀ · `_CONTINUATION_RATE` ** (k − 1)) (`_Continuation`), from λ D₀ down to λ, D₀ at
+max(1, D₀ · `CONTINUATION_RATE` ** (k − 1)) (`Continuation`), from λ D₀ down to λ, D₀ at
 least 1 and capped so that λ is reached within half of ``max_iter``; the restart test
 compares J at λ_k, and the stopping rule's window holds iterations at λ itself only
 (`fpscan.service.recon.tv.stopping`). The calibration of the scale, knee and power, and the
@@ -22,43 +22,92 @@ from __future__ import annotations
 
 import math
 
-__all__: list[str] = []
+__all__ = ["LAM_SCALE", "LAM_KNEE", "LAM_POWER", "CONTINUATION_RATE", "DiscrepancyRule", "Continuation"]
 
-#: the automatic λ = image noise level × _LAM_SCALE × max(1, (D₀ / _LAM_KNEE) ** _LAM_POWER),
+#: the automatic λ = image noise level × LAM_SCALE × max(1, (D₀ / LAM_KNEE) ** LAM_POWER),
 #: D₀ the warm start's discrepancy over the noise's norm (module doc; calibrated on
 #: docs/results.md's sweep at the stopping rule's default)
-_LAM_SCALE = 0.6
-_LAM_KNEE = 9.5
-_LAM_POWER = 0.25
-_CONTINUATION_RATE = 0.9  # λ_k / λ_{k−1} while λ continues down to λ (module doc)
+LAM_SCALE = 0.6
+LAM_KNEE = 9.5
+LAM_POWER = 0.25
+CONTINUATION_RATE = 0.9  # λ_k / λ_{k−1} while λ continues down to λ (module doc)
 
 
-class _DiscrepancyRule:
-    """The automatic λ as a rule of the warm start's residual r₀ = ‖A x₀ − g‖ (module doc):
-    ``rule(r₀)`` = s · `_LAM_SCALE` · max(1, (D₀ / `_LAM_KNEE`) ** `_LAM_POWER`), D₀ = r₀ / (σ̂ √N),
-    for the image's noise level s and the noise's norm σ̂ √N. After the call ``factor`` is
-    λ / s and ``warm_discrepancy`` D₀ (None while unknown, or without a noise estimate: then
-    the factor is `_LAM_SCALE`)."""
+class DiscrepancyRule:
+    """The automatic λ as a rule of the warm start's residual r₀ = ‖A x₀ − g‖ (module doc).
+
+    ``rule(r₀)`` = s · `LAM_SCALE` · max(1, (D₀ / `LAM_KNEE`) ** `LAM_POWER`), D₀ = r₀ / (σ̂ √N),
+    for the image's noise level s and the noise's norm σ̂ √N; the noise level after Donoho &
+    Johnstone, Biometrika 81 (1994) 425, the problem after Arridge et al., PMB 61 (2016) 8908.
+
+    Parameters
+    ----------
+    image_noise : float
+        s = σ̂ ‖P Aᵀ n̂‖_rms, the image's noise level (the data's unit, Pa).
+    noise_norm : float
+        σ̂ √N, the noise's norm over the record's N samples (Pa); 0: no noise estimate.
+
+    Attributes
+    ----------
+    image_noise, noise_norm : float
+        As given.
+    factor : float
+        λ / s after the call (`LAM_SCALE` before it, or without a noise estimate).
+    warm_discrepancy : float or None
+        D₀ after the call (None while unknown, or without a noise estimate).
+
+    Examples
+    --------
+    >>> from fpscan.service.recon.tv.lam import DiscrepancyRule
+    >>> rule = DiscrepancyRule(image_noise=2.0, noise_norm=10.0)
+    >>> rule(50.0), rule.warm_discrepancy, rule.factor  # D₀ = 5 < 9.5: 0.6 s
+    (1.2, 5.0, 0.6)
+    >>> round(rule(950.0), 6), round(rule.factor, 6)  # D₀ = 95: raised by (95 / 9.5) ** 0.25
+    (2.133935, 1.066968)
+    """
 
     def __init__(self, image_noise: float, noise_norm: float):
         self.image_noise, self.noise_norm = image_noise, noise_norm
-        self.factor: float = _LAM_SCALE
+        self.factor: float = LAM_SCALE
         self.warm_discrepancy: float | None = None
 
     def __call__(self, start_residual: float) -> float:
         d0 = start_residual / self.noise_norm if self.noise_norm > 0 else math.inf
         if math.isfinite(d0):
-            self.warm_discrepancy, self.factor = d0, _LAM_SCALE * max(1.0, (d0 / _LAM_KNEE) ** _LAM_POWER)
+            self.warm_discrepancy, self.factor = d0, LAM_SCALE * max(1.0, (d0 / LAM_KNEE) ** LAM_POWER)
         return self.image_noise * self.factor
 
 
-class _Continuation:
-    """λ continuation (module doc): iteration k proximal-steps with λ_k = λ ·
-    max(1, f₀ · `_CONTINUATION_RATE` ** (k − 1)), from f₀ = D₀ = ‖A x₀ − g‖ / (σ̂ √N) (the
-    warm start's discrepancy in noise norms, at least 1) down to λ, in at most half of
-    ``max_iter`` iterations (f₀ is capped there). ``start(r₀, λ, max_iter)`` sets ``start_factor``
-    (f₀) and ``iterations`` (how many iterations have λ_k > λ); without a noise estimate (σ̂ =
-    0) or at λ = 0 there is none (f₀ = 1)."""
+class Continuation:
+    """λ continuation (module doc): iteration k proximal-steps with λ_k = λ · max(1, f₀ ·
+    `CONTINUATION_RATE` ** (k − 1)), from f₀ = D₀ = ‖A x₀ − g‖ / (σ̂ √N) (the warm start's
+    discrepancy in noise norms, at least 1) down to λ, in at most half of ``max_iter``
+    iterations (f₀ is capped there).
+
+    Parameters
+    ----------
+    noise_norm : float
+        σ̂ √N, the noise's norm over the record (Pa); 0: no noise estimate, no continuation.
+
+    Attributes
+    ----------
+    noise_norm : float
+        As given.
+    start_factor : float
+        f₀ after ``start(r₀, λ, max_iter)`` (1: none; without a noise estimate, or at λ = 0).
+    iterations : int
+        How many iterations have λ_k > λ.
+
+    Examples
+    --------
+    >>> from fpscan.service.recon.tv.lam import Continuation
+    >>> c = Continuation(noise_norm=10.0)
+    >>> c.start(40.0, 0.1, max_iter=100)  # D₀ = 4
+    >>> c.start_factor, c.iterations, c.factor(1), c.factor(100)
+    (4.0, 14, 4.0, 1.0)
+    >>> c.start(40.0, 0.0, max_iter=100); c.start_factor  # λ = 0: nothing to continue
+    1.0
+    """
 
     def __init__(self, noise_norm: float):
         self.noise_norm = noise_norm
@@ -70,11 +119,11 @@ class _Continuation:
             self.start_factor, self.iterations = 1.0, 0
             return
         # in logs: the cap r^−(max_iter // 2) overflows a float for the largest max_iter
-        self.start_factor = math.exp(min(math.log(d0), (max_iter // 2) * -math.log(_CONTINUATION_RATE)))
+        self.start_factor = math.exp(min(math.log(d0), (max_iter // 2) * -math.log(CONTINUATION_RATE)))
         # iterations k with f₀ r^(k−1) > 1
-        self.iterations = (math.ceil(math.log(self.start_factor) / -math.log(_CONTINUATION_RATE))
+        self.iterations = (math.ceil(math.log(self.start_factor) / -math.log(CONTINUATION_RATE))
                            if self.start_factor > 1 else 0)
 
     def factor(self, k: int) -> float:
-        return max(1.0, self.start_factor * _CONTINUATION_RATE ** (k - 1))
+        return max(1.0, self.start_factor * CONTINUATION_RATE ** (k - 1))
 

@@ -1,13 +1,13 @@
 """tv's problem: the options, the record it works on, the warm start, and the model A, B = P Aᵀ.
 
-- `_check_tv_options`: the model-based options by their rules (``fpscan.service.recon.checks``).
-- `_record`: the record at the band the lateral pitch resolves (or a declared one), cut where
+- `check_options`: the model-based options by their rules (``fpscan.service.recon.checks``).
+- `working_record`: the record at the band the lateral pitch resolves (or a declared one), cut where
   the model of the image predicts silence and resampled to the fewest samples whose band
-  reaches it, with the depth grid (`fpscan.service.recon.tv_grid.tv_grid`); σ̂ from the record as
-  sampled (`_Record`, package doc "Grid").
-- `_warm_start`: NER (grid data) or NEDNER (A-lines) on that record, and the sensors centred
-  on its lateral grid; `_start_image` the solver's first iterate from it.
-- `_Model`: the exact planar forward model A (`fpscan.service.recon.operator.PlanarOperator`, its
+  reaches it, with the depth grid (`fpscan.service.recon.tv.grid.tv_grid`); σ̂ from the record as
+  sampled (`Record`, package doc "Grid").
+- `warm_start`: NER (grid data) or NEDNER (A-lines) on that record, and the sensors centred
+  on its lateral grid; `start_image` the solver's first iterate from it.
+- `Model`: the exact planar forward model A (`fpscan.service.recon.operator.PlanarOperator`, its
   memory checked first) and B = P Aᵀ with NER's k-space weight P
   (`fpscan.service.recon.tv.preconditioner`), counting their applications.
 """
@@ -22,29 +22,89 @@ import numpy.typing as npt
 
 from fpscan.physics.resample import resample
 from fpscan.service.recon import checks, memory
-from fpscan.service.recon.tv.preconditioner import _apply_weight, _ner_weight
-from fpscan.service.recon.tv_grid import TvGrid, noise_sigma, tv_grid
+from fpscan.service.recon.tv.grid import TvGrid, noise_sigma, tv_grid
+from fpscan.service.recon.tv.preconditioner import apply_weight, ner_weight
 
 if TYPE_CHECKING:
     from fpscan.service.recon.reconstruction import Reconstruction
 
-__all__: list[str] = []
+__all__ = ["check_options", "Record", "working_record", "lateral_extent", "warm_start", "start_image", "Model"]
 
 
-def _check_tv_options(lam: float | None, max_iter: int, tol: float,
+def check_options(lam: float | None, max_iter: int, tol: float,
                       time_limit: float) -> tuple[float | None, int, float, float]:
-    """The model-based options by their rules (``fpscan.service.recon.checks``: one owner each)."""
+    """The model-based options by their rules (``fpscan.service.recon.checks``: one owner each).
+
+    Parameters
+    ----------
+    lam : float or None
+        TV weight λ (data's unit, Pa), or None (automatic).
+    max_iter : int
+        Iterations at most.
+    tol : float
+        The stopping rule's threshold (dimensionless).
+    time_limit : float
+        Wall-time limit, s.
+
+    Returns
+    -------
+    tuple
+        ``(lam, max_iter, tol, time_limit)`` as the rules normalise them.
+
+    Raises
+    ------
+    fpscan.service.recon.checks.OptionError
+        A value out of its range (the message names it).
+
+    Examples
+    --------
+    >>> from fpscan.service.recon.tv.problem import check_options
+    >>> check_options(None, 100, 0.005, 60)
+    (None, 100, 0.005, 60.0)
+    >>> check_options(-1.0, 100, 0.005, 60)
+    Traceback (most recent call last):
+    ...
+    fpscan.service.recon.checks.OptionError: lam (the TV weight λ) must be in [0, 1e+30], got -1.0
+    """
     lam = None if lam is None else checks.check_lam(lam)
     max_iter = checks.check_iterations(max_iter)
     tol = checks.check_tol(tol)
     return lam, max_iter, tol, checks.check_time_limit(time_limit)
 
 
-class _Record(NamedTuple):
-    """The record tv works on (`_record`): ``g`` float64, time along ``time_axis`` (0: grid
-    data ``(n_t, n_x)`` / ``(n_t, n_y, n_x)``; 1: A-lines ``(n_points, n_t)``), cut and
-    resampled to ``grid`` (`fpscan.service.recon.tv_grid.TvGrid`); ``sampled_sigma`` σ̂ of the record
-    as sampled (Pa)."""
+class Record(NamedTuple):
+    """The record tv works on (`working_record`).
+
+    Attributes
+    ----------
+    g : ndarray
+        The data, float64, cut and resampled to ``grid``, time along ``time_axis``: grid data
+        ``(n_t, n_x)`` / ``(n_t, n_y, n_x)`` or A-lines ``(n_points, n_t)`` (Pa).
+    time_axis : int
+        0 (grid data) or 1 (A-lines).
+    grid : TvGrid
+        The grid tv chose (`fpscan.service.recon.tv.grid.TvGrid`).
+    sampled_sigma : float
+        σ̂ of the record as sampled (Pa; `fpscan.service.recon.tv.grid.noise_sigma`).
+    n_t : int
+        The operator's time samples (property).
+    sigma : float
+        σ̂ at the operator's rate: white noise of σ resampled from K to M samples keeps
+        σ √((M − 1) / (K − 1)) per sample (property, Pa).
+    noise_norm : float
+        The noise's norm σ̂ √N over the record's N samples (property, Pa).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from fpscan.service.recon.tv.problem import working_record
+    >>> rng = np.random.default_rng(0)
+    >>> rec = working_record(rng.standard_normal((64, 8)), 2e-8, 1500.0, 1e-4, None, None)
+    >>> rec.time_axis, rec.g.shape == (rec.n_t, 8), rec.grid.record_n_t
+    (0, True, 64)
+    >>> 0.8 < rec.sampled_sigma < 1.2  # white noise of σ = 1
+    True
+    """
 
     g: np.ndarray
     time_axis: int
@@ -68,38 +128,108 @@ class _Record(NamedTuple):
         return self.sigma * math.sqrt(self.g.size)
 
 
-def _record(data: npt.ArrayLike, dt: float, c: float, dx: float | None, positions: np.ndarray | None,
-            grid: np.ndarray | Sequence[npt.ArrayLike] | None, **chosen: Any) -> _Record:
-    """The record tv works on (`_Record`): ``data`` checked (finite, at least 2 time samples),
-    then `_working_record` on the grid `fpscan.service.recon.tv_grid.tv_grid` chooses (``chosen``: its
-    keywords ``bandwidth``, ``dz``, ``n_z``, ``t0``, ``whole_record``) for the image's lateral
-    extent (`_lateral_extent`)."""
-    # the grid the data can resolve (`fpscan.service.recon.tv_grid`): the operator's samples and band,
+def working_record(data: npt.ArrayLike, dt: float, c: float, dx: float | None, positions: np.ndarray | None,
+            grid: np.ndarray | Sequence[npt.ArrayLike] | None, **chosen: Any) -> Record:
+    """The record tv works on: ``data`` checked (finite, at least 2 time samples), cut where the
+    model of the image predicts silence (unless ``whole_record``) and resampled to the band, on
+    the grid `fpscan.service.recon.tv.grid.tv_grid` chooses for the image's lateral extent
+    (`lateral_extent`); σ̂ from the record as sampled.
+
+    Parameters
+    ----------
+    data : array_like
+        Grid data ``(n_t, n_x)`` / ``(n_t, n_y, n_x)`` (time first; with ``dx``) or A-lines
+        ``(n_points, n_t)`` (with ``positions``), Pa.
+    dt : float
+        Sample interval, s.
+    c : float
+        Sound speed, m/s.
+    dx : float or None
+        Lateral pitch of grid data, m.
+    positions : ndarray or None
+        Sensor positions ``(n_points, 1)`` / ``(n_points, 2)``, m (A-lines), or None (grid data).
+    grid : optional
+        The A-lines' output lattice (`fpscan.service.recon.planar.reconstruct_points`'s).
+    **chosen
+        `tv_grid`'s keywords: ``bandwidth`` (Hz), ``dz`` (m), ``n_z``, ``t0`` (s), ``whole_record``.
+
+    Returns
+    -------
+    Record
+        The record, its grid and σ̂.
+
+    Raises
+    ------
+    ValueError
+        Non-finite data, data of the wrong dimensions or fewer than 2 time samples; what
+        `tv_grid` refuses.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from fpscan.service.recon.tv.problem import working_record
+    >>> rec = working_record(np.zeros((64, 8)), 2e-8, 1500.0, 1e-4, None, None, dz=3e-5, n_z=16)
+    >>> rec.grid.dz, rec.grid.n_z
+    (3e-05, 16)
+    >>> working_record(np.zeros((1, 8)), 2e-8, 1500.0, 1e-4, None, None)
+    Traceback (most recent call last):
+    ...
+    ValueError: data need at least 2 time samples, got shape (1, 8)
+    """
+    # the grid the data can resolve (`fpscan.service.recon.tv.grid`): the operator's samples and band,
     # the image's depth grid; the data low-passed and resampled to those samples
     time_axis = 0 if positions is None else 1
     g = np.asarray(checks.finite_array("data" if positions is None else "alines", data, (2, 3)), dtype=np.float64)
     if g.shape[time_axis] < 2:
         raise ValueError(f"data need at least 2 time samples, got shape {g.shape}")
-    pitch, reach = _lateral_extent(g, dx, positions, grid)
+    pitch, reach = lateral_extent(g, dx, positions, grid)
     # σ̂ of the record as sampled (Haar differences need a signal smooth at the sample scale, which the record
-    # resampled to its band is not: there they read 7-48 % high on k-Wave's data); `_Record.sigma` scales it
+    # resampled to its band is not: there they read 7-48 % high on k-Wave's data); `Record.sigma` scales it
     record_sigma = noise_sigma(g, time_axis)
-    g, tv_grid_ = _working_record(g, dt, c, time_axis, sigma=record_sigma, pitch=pitch, reach=reach, **chosen)
-    return _Record(g, time_axis, tv_grid_, record_sigma)
+    g, tv_grid_ = _cut_and_resample(g, dt, c, time_axis, sigma=record_sigma, pitch=pitch, reach=reach, **chosen)
+    return Record(g, time_axis, tv_grid_, record_sigma)
 
 
-def _lateral_extent(g: np.ndarray, dx: float | None, positions: np.ndarray | None,
+def lateral_extent(g: np.ndarray, dx: float | None, positions: np.ndarray | None,
                     grid: np.ndarray | Sequence[npt.ArrayLike] | None) -> tuple[float | None, float | None]:
-    """(pitch, reach) of tv's image for `fpscan.service.recon.tv_grid.tv_grid`: its lateral pitch (m;
-    None where the warm start will refuse the positions or grid) and the largest lateral distance
-    between a sensor and a corner of its lateral extent (m; None in 2-D: a 2-D wave does not end
-    when its front has passed, its tail ∝ 1/t² lasts to the record's end, so a line keeps its
-    whole record; in 3-D, Huygens' principle: silence after the last front). Grid data ``(n_t, n_x)`` /
-    ``(n_t, n_y, n_x)`` with ``dx``; A-lines with ``positions`` on ``grid`` (default: the
-    positions' lattice, as `fpscan.service.recon.planar.reconstruct_points` makes it)."""
+    """(pitch, reach) of tv's image for `fpscan.service.recon.tv.grid.tv_grid`.
+
+    The lateral pitch (m; None where the warm start will refuse the positions or grid) and the
+    largest lateral distance between a sensor and a corner of its lateral extent (m; None in
+    2-D: a 2-D wave does not end when its front has passed, its tail ∝ 1/t² lasts to the
+    record's end, so a line keeps its whole record; in 3-D, Huygens' principle: silence after
+    the last front).
+
+    Parameters
+    ----------
+    g : ndarray
+        Grid data ``(n_t, n_x)`` / ``(n_t, n_y, n_x)`` or A-lines ``(n_points, n_t)``.
+    dx : float or None
+        Grid data's pitch, m.
+    positions : ndarray or None
+        The A-lines' positions ``(n_points, 1)`` / ``(n_points, 2)``, m.
+    grid : optional
+        Their lattice (default: the positions' lattice, as
+        `fpscan.service.recon.planar.reconstruct_points` makes it,
+        `fpscan.service.recon.planar.default_grid`).
+
+    Returns
+    -------
+    tuple
+        ``(pitch, reach)``, m or None.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from fpscan.service.recon.tv.problem import lateral_extent
+    >>> lateral_extent(np.zeros((10, 4, 5)), 1e-4, None, None)  # a 4 x 5 plane: its diagonal
+    (0.0001, 0.0005)
+    >>> lateral_extent(np.zeros((10, 5)), 1e-4, None, None)  # a line keeps its whole record
+    (0.0001, None)
+    """
     from fpscan.service.recon.planar import (  # the warm start's own lattice and grid rules
-        _check_grid,
-        _default_grid,
+        check_grid,
+        default_grid,
     )
 
     if positions is None:
@@ -110,9 +240,9 @@ def _lateral_extent(g: np.ndarray, dx: float | None, positions: np.ndarray | Non
     try:
         pos = np.asarray(positions, dtype=np.float64).reshape(len(g), -1)
         if grid is None:
-            axes, pitch = _default_grid(pos)
+            axes, pitch = default_grid(pos)
         else:
-            axes = _check_grid(grid, pos.shape[1])
+            axes = check_grid(grid, pos.shape[1])
             pitch = float(axes[0][1] - axes[0][0])
     except (ValueError, IndexError, TypeError):  # the warm start refuses them, naming the problem
         return None, None
@@ -126,8 +256,8 @@ def _lateral_extent(g: np.ndarray, dx: float | None, positions: np.ndarray | Non
     return pitch, float(np.sqrt(far.max())) if len(far) else None
 
 
-def _working_record(g: np.ndarray, dt: float, c: float, time_axis: int, **grid: Any) -> tuple[np.ndarray, TvGrid]:
-    """The record tv works on and its grid (`fpscan.service.recon.tv_grid.tv_grid` with ``grid``'s
+def _cut_and_resample(g: np.ndarray, dt: float, c: float, time_axis: int, **grid: Any) -> tuple[np.ndarray, TvGrid]:
+    """The record tv works on and its grid (`fpscan.service.recon.tv.grid.tv_grid` with ``grid``'s
     keywords): ``g`` cut where the model of the image predicts silence (unless ``whole_record``)
     and resampled to the band, time along ``time_axis``."""
     chosen = tv_grid(g.shape[time_axis], dt, c, data=g, time_axis=time_axis, **grid)
@@ -138,13 +268,52 @@ def _working_record(g: np.ndarray, dt: float, c: float, time_axis: int, **grid: 
     return g, chosen
 
 
-def _warm_start(record: _Record, c: float, dx: float | None, positions: np.ndarray | None,
+def warm_start(record: Record, c: float, dx: float | None, positions: np.ndarray | None,
                 weights: np.ndarray | None, grid: np.ndarray | Sequence[npt.ArrayLike] | None,
                 **common: Any) -> tuple[Reconstruction, np.ndarray | None]:
-    """The warm start on ``record`` — NER (grid data, with ``dx``) or NEDNER (A-lines at
-    ``positions``, with ``weights`` and ``grid``) on the record's depth grid, ``common`` the
-    planar methods' keywords — and the sensor positions centred on its lateral grid (None for
-    grid data). Raises ValueError for unequal x and y pitch (tv's image needs one)."""
+    """The warm start on ``record``: NER (grid data, with ``dx``) or NEDNER (A-lines at
+    ``positions``, with ``weights`` and ``grid``) on the record's depth grid, and the sensor
+    positions centred on its lateral grid.
+
+    Parameters
+    ----------
+    record : Record
+        `working_record`'s.
+    c : float
+        Sound speed, m/s.
+    dx : float or None
+        Grid data's pitch, m.
+    positions : ndarray or None
+        Sensor positions ``(n_points, 1)`` / ``(n_points, 2)``, m (A-lines).
+    weights : ndarray or None
+        The A-lines' area weights ``(n_points,)`` (default: clipped Voronoi areas).
+    grid : optional
+        The A-lines' output lattice.
+    **common
+        The planar methods' keywords (``dtype``, ``t0``, ``eps``, ``positivity``,
+        ``memory_limit``, ``progress``, ``device``).
+
+    Returns
+    -------
+    tuple
+        ``(warm, pos)``: the warm start's `Reconstruction` (p0 ``(n_z, n_x)`` /
+        ``(n_z, n_y, n_x)``, axes in m) and the positions centred on its lateral grid (m; None
+        for grid data).
+
+    Raises
+    ------
+    ValueError
+        Unequal x and y pitch (tv's image needs one); what the planar methods refuse.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from fpscan.service.recon.tv.problem import warm_start, working_record
+    >>> rec = working_record(np.zeros((64, 8)), 2e-8, 1500.0, 1e-4, None, None, n_z=16)
+    >>> warm, pos = warm_start(rec, 1500.0, 1e-4, None, None, None)
+    >>> warm.p0.shape, pos
+    ((16, 8), None)
+    """
     from fpscan.service.recon.planar import reconstruct_grid, reconstruct_points
 
     kw: dict[str, Any] = dict(dz=record.grid.dz, n_z=record.grid.n_z, **common)
@@ -162,26 +331,111 @@ def _warm_start(record: _Record, c: float, dx: float | None, positions: np.ndarr
     return warm, pos
 
 
-def _start_image(warm: Reconstruction, dtype: np.dtype, positivity: bool) -> np.ndarray:
+def start_image(warm: Reconstruction, dtype: np.dtype, positivity: bool) -> np.ndarray:
     """The solver's first iterate: the warm start's image in the working dtype (that image
-    itself where it already is), clipped to >= 0 with ``positivity``."""
+    itself where it already is), clipped to >= 0 with ``positivity``.
+
+    Parameters
+    ----------
+    warm : Reconstruction
+        The warm start (`warm_start`), p0 ``(n_z, n_x)`` / ``(n_z, n_y, n_x)``, Pa.
+    dtype : dtype
+        The working precision (float32 or float64).
+    positivity : bool
+        Clip below 0.
+
+    Returns
+    -------
+    ndarray
+        p0's shape, ``dtype``, C-contiguous.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from fpscan.service.recon.reconstruction import Reconstruction
+    >>> from fpscan.service.recon.tv.problem import start_image
+    >>> warm = Reconstruction(np.array([[-1.0, 2.0]]), np.zeros(1), np.zeros(2), None, {})
+    >>> start_image(warm, np.dtype(np.float32), True).tolist()
+    [[0.0, 2.0]]
+    >>> start_image(warm, np.dtype(np.float64), False) is warm.p0  # already the working dtype
+    True
+    """
     x = np.ascontiguousarray(warm.p0, dtype=dtype)
     if positivity:
         np.maximum(x, 0, out=x)
     return x
 
 
-class _Model:
-    """A and B = P Aᵀ on the warm start's grid (module doc): ``forward(v)`` = A v in the
-    record's shape, ``B(r)`` = P Aᵀ r as an image (the exact adjoint, NER's k-space weight P =
-    k_z / |k|, symmetric positive definite), ``residual(Ax)`` = ‖A x − g‖, ``operator_pairs``
-    the (forward + adjoint applications) / 2 so far. Made after the memory check
-    (`fpscan.service.recon.memory.tv_memory`; raises ValueError above ``memory_limit``); ``checkpoint``
-    is the operator's (a cancel's poll); ``device`` the operator's (``"cuda"``: A, Aᵀ and P run on
-    the GPU, and ``forward``, ``B`` and ``residual`` take and give arrays there, ``g_dev`` the data
-    there; ``xp`` is the solver's array module)."""
+class Model:
+    """A and B = P Aᵀ on the warm start's grid (module doc; Arridge et al., PMB 61 (2016) 8908).
 
-    def __init__(self, record: _Record, warm: Reconstruction, c: float, pos: np.ndarray | None, *, t0: float,
+    ``forward(v)`` = A v in the record's shape (`fpscan.service.recon.operator.PlanarOperator`, the
+    exact planar model), ``B(r)`` = P Aᵀ r as an image (the exact adjoint, NER's k-space weight
+    P = k_z / |k|, `fpscan.service.recon.tv.preconditioner`: symmetric positive definite),
+    ``residual(Ax)`` = ‖A x − g‖. Made after the memory check
+    (`fpscan.service.recon.memory.tv_memory`).
+
+    Parameters
+    ----------
+    record : Record
+        `working_record`'s.
+    warm : Reconstruction
+        The warm start (its grid: p0's shape, ``dx``, ``dz`` in m).
+    c : float
+        Sound speed, m/s.
+    pos : ndarray or None
+        Sensor positions centred on the image's lateral grid ``(n_points, d)``, m (None: grid data).
+    t0 : float
+        Time of sample 0, s.
+    eps : float
+        NUFFT tolerance.
+    dtype : dtype
+        The working precision.
+    periodic : bool
+        Laterally periodic model (no zero padding).
+    checkpoint : callable or None
+        The operator's (a cancel's poll).
+    memory_limit : int or None
+        Bytes (None: available now).
+    device : {"cpu", "cuda"}, optional
+        The operator's (``"cuda"``: A, Aᵀ and P run on the GPU, and ``forward``, ``B`` and
+        ``residual`` take and give arrays there).
+
+    Attributes
+    ----------
+    g, pos, dtype, shape, dx, dz
+        The record's data, the positions, the precision and the image's grid (m).
+    op : PlanarOperator
+        A.
+    P : NerWeight
+        The preconditioner.
+    applied : list of int
+        Forward and adjoint applications so far.
+    operator_pairs : float
+        Their mean (property).
+    xp : module
+        The solver's array module (numpy; cupy on a GPU).
+    g_dev : array
+        The data in it.
+
+    Raises
+    ------
+    ValueError
+        The estimated memory above ``memory_limit``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from fpscan.service.recon.tv.problem import Model, warm_start, working_record
+    >>> rec = working_record(np.zeros((32, 8)), 2e-8, 1500.0, 1e-4, None, None, n_z=16)
+    >>> warm, pos = warm_start(rec, 1500.0, 1e-4, None, None, None)
+    >>> model = Model(rec, warm, 1500.0, pos, t0=0.0, eps=1e-6, dtype=np.dtype(np.float64), periodic=False,
+    ...               checkpoint=None, memory_limit=None)
+    >>> model.B(model.forward(np.ones((16, 8)))).shape, model.operator_pairs
+    ((16, 8), 1.0)
+    """
+
+    def __init__(self, record: Record, warm: Reconstruction, c: float, pos: np.ndarray | None, *, t0: float,
                  eps: float, dtype: np.dtype, periodic: bool, checkpoint: Callable[[], None] | None,
                  memory_limit: int | None, device: str = "cpu") -> None:
         from fpscan.service.recon.operator import PlanarOperator
@@ -196,7 +450,7 @@ class _Model:
         kept_columns = None if band is None else memory.band_columns(self.op.padded_shape, self.dx, c, band)
         checks.check_memory(memory.tv_memory(self.shape, self.op.padded_shape, self.g.size, n_t, dtype,
                                              kept_columns=kept_columns), memory_limit)
-        self.P = _ner_weight(self.shape, self.dx, self.dz)
+        self.P = ner_weight(self.shape, self.dx, self.dz)
         self.applied = [0, 0]  # forward, adjoint applications: params' operator_pairs is their mean
         pair = self.op._pair
         #: the solver's array module and the data in it: on a GPU the solver's images and the
@@ -208,8 +462,8 @@ class _Model:
         self.applied[1] += 1
         pair = self.op._pair
         if pair is not None:  # on the GPU: Aᵀ and P there, the image stays there
-            return _apply_weight(self.P, pair.adjoint(pair.xp.asarray(r, dtype=self.dtype).reshape(self.op.oshape)))
-        return _apply_weight(self.P, self.op.rmatvec(r.astype(self.dtype, copy=False).ravel()).reshape(self.shape))
+            return apply_weight(self.P, pair.adjoint(pair.xp.asarray(r, dtype=self.dtype).reshape(self.op.oshape)))
+        return apply_weight(self.P, self.op.rmatvec(r.astype(self.dtype, copy=False).ravel()).reshape(self.shape))
 
     def forward(self, v: np.ndarray) -> np.ndarray:
         self.applied[0] += 1

@@ -2,11 +2,11 @@
 
 argmin_x ½‖x − v‖² + γ TV(x) over x >= 0 (and x = 0 off a support), TV(x) = Σ_voxels |∇x|₂
 with forward differences in voxel units: gradient projection on the dual (Chambolle 2005;
-Beck & Teboulle 2009's GP), `_PROX_ITER` inner steps warm-started from the previous call's
-dual, no operator (`_tv_prox`; `_tv_prox_stored` keeps the dual between calls in
+Beck & Teboulle 2009's GP), `PROX_ITER` inner steps warm-started from the previous call's
+dual, no operator (`tv_prox`; `tv_prox_stored` keeps the dual between calls in
 `fpscan.service.recon.tv.stores`'s fixed point). Each inner step is one compiled sweep over the
 volume (`_prox_step`): the primal w lives a few planes at a time and the dual is stepped in
-place, so the map needs no work image beyond the dual itself (d images). `_tv_norm` is TV(x)
+place, so the map needs no work image beyond the dual itself (d images). `tv_norm` is TV(x)
 without a work array.
 
 The sweeps are numba kernels (``cache=True``: ``fpscan warmup`` fills their cache;
@@ -20,13 +20,13 @@ from collections.abc import Callable
 import numba
 import numpy as np
 
-from fpscan.service.recon.tv.stores import _DUAL_SCALE, _restore_dual, _store_dual
+from fpscan.service.recon.tv.stores import DUAL_SCALE, restore_dual, store_dual
 
-__all__: list[str] = []
+__all__ = ["PROX_ITER", "tv_prox", "tv_prox_stored", "tv_norm", "primal_step"]
 
 #: inner (dual, no operator) iterations of the TV + positivity proximal map, warm-started from
 #: the last call's dual (chosen: docs/tv-measurements.md, "Proximal map")
-_PROX_ITER = 5
+PROX_ITER = 5
 
 
 def _as3d(x: np.ndarray) -> np.ndarray:
@@ -210,23 +210,80 @@ def _tv_norm_kernel(x: np.ndarray) -> float:
     return total
 
 
-def _tv_norm(x: np.ndarray) -> float:
-    """TV(x) = Σ_voxels |∇x|₂ (forward differences, voxel units), in float64; no work array."""
+def tv_norm(x: np.ndarray) -> float:
+    """TV(x) = Σ_voxels |∇x|₂, the isotropic total variation with forward differences in voxel
+    units, summed in float64; no work array.
+
+    Parameters
+    ----------
+    x : ndarray
+        An image ``(n_z, n_x)`` / ``(n_z, n_y, n_x)``, float32 or float64 (the differences in its
+        dtype, as the proximal map sees them), in its unit (Pa).
+
+    Returns
+    -------
+    float
+        TV(x), x's unit.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from fpscan.service.recon.tv.prox import tv_norm
+    >>> tv_norm(np.array([[0.0, 1.0], [0.0, 1.0]]))  # one unit step along x on each of 2 rows
+    2.0
+    >>> tv_norm(np.ones((3, 4, 5)))
+    0.0
+    """
     return float(_tv_norm_kernel(_as3d(np.ascontiguousarray(x))))
 
 
-def _tv_prox(v: np.ndarray, gamma: float, positivity: bool, support: np.ndarray | None, dual: np.ndarray | None,
+def tv_prox(v: np.ndarray, gamma: float, positivity: bool, support: np.ndarray | None, dual: np.ndarray | None,
              poll: Callable[[], None] | None = None,
              in_place: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
-    """argmin_x ½‖x − v‖² + γ TV(x) over x >= 0 (positivity) and x = 0 off ``support``
-    (None: everywhere allowed): gradient projection on the dual (Chambolle 2005; Beck &
-    Teboulle 2009's GP), `_PROX_ITER` steps from ``dual`` (the previous call's, a warm start,
-    updated in place; None: 0). No operator. ``poll()``, if given, is called every few inner
-    steps (a cancel). Returns (x, dual); x is ``v`` (C-contiguous), overwritten, with
-    ``in_place`` (the default), else a new array (v is kept). Each inner step is one compiled
-    sweep over the volume (`_prox_step`; the primal w lives a few planes at a time), the dual
-    stepped in place: no work image beyond the dual itself (d images, made when ``dual`` is
-    None)."""
+    """The proximal map of γ TV + positivity: argmin_x ½‖x − v‖² + γ TV(x) over x >= 0 (with
+    ``positivity``) and x = 0 off ``support``.
+
+    Gradient projection on the dual (Chambolle, J. Math. Imaging Vis. 20 (2004) 89 and EMMCVPR
+    2005; Beck & Teboulle, IEEE Trans. Image Process. 18 (2009) 2419, their GP), `PROX_ITER`
+    steps from ``dual`` (the previous call's, a warm start, updated in place). No operator.
+    Each inner step is one compiled sweep over the volume (the primal w lives a few planes at a
+    time), the dual stepped in place: no work image beyond the dual itself (d images, made when
+    ``dual`` is None).
+
+    Parameters
+    ----------
+    v : ndarray
+        The image ``(n_z, n_x)`` / ``(n_z, n_y, n_x)``, float32 or float64, in its unit (Pa).
+    gamma : float
+        γ (v's unit); <= 0: only the projection.
+    positivity : bool
+        Constrain x >= 0.
+    support : ndarray of bool or None
+        v's shape: x = 0 where False (None: everywhere allowed).
+    dual : ndarray or None
+        The dual ``(d, *v.shape)`` of v's dtype (z, (y,) x), updated in place; None: 0.
+    poll : callable, optional
+        Called every few inner steps (a cancel may raise there).
+    in_place : bool, optional
+        Write x into ``v`` (C-contiguous; default True), else into a new array.
+
+    Returns
+    -------
+    tuple
+        ``(x, dual)``: x of v's shape and dtype, and the dual after the steps (``dual`` itself
+        where given; unchanged, possibly None, at γ <= 0).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from fpscan.service.recon.tv.prox import tv_norm, tv_prox
+    >>> v = np.array([[0.0, 0.0, 1.0, 1.0]]) + np.array([[0.1, -0.1, 0.1, -0.1]])
+    >>> x, dual = tv_prox(v.copy(), 0.05, False, None, None)
+    >>> dual.shape, bool(tv_norm(x) < tv_norm(v))
+    ((2, 1, 4), True)
+    >>> tv_prox(np.array([[-1.0, 2.0]]), 0.0, True, None, None)[0].tolist()  # γ = 0: the projection
+    [[0.0, 2.0]]
+    """
     if gamma <= 0:
         return _project(v if in_place else v.copy(), positivity, support), dual
     v = np.ascontiguousarray(v)  # the kernels see it through 3-D views
@@ -237,32 +294,112 @@ def _tv_prox(v: np.ndarray, gamma: float, positivity: bool, support: np.ndarray 
     return x, q
 
 
-def _tv_prox_stored(v: np.ndarray, gamma: float, positivity: bool, support: np.ndarray | None,
+def tv_prox_stored(v: np.ndarray, gamma: float, positivity: bool, support: np.ndarray | None,
                     stored: list[np.ndarray | None],
                     poll: Callable[[], None] | None = None) -> tuple[np.ndarray, np.ndarray | None]:
-    """`_tv_prox` (not in place: v is kept) with its dual kept between calls in half the
-    working precision's bytes (`_store_dual`). ``stored`` is a list holding the last call's
-    stored dual (None: 0), taken out of it: it is restored, freed, stepped, stored anew and
-    freed again before the new iterate is made, whose final primal step reads the stored
-    dual (the map is linear in it: γ ∇ᵀ(s / 32767) = (γ / 32767) ∇ᵀ s). So the full-precision
-    dual (d images) and the new iterate are never held together, nor the old and the new
-    stored dual: d + d/2 images at most beside v, where `_tv_prox` and `_store_dual` held
-    d + d/2 + 1 (the paper's scan: tv's peak 9.3 -> 8.4 images, now inside the operator). Returns (x, the new
-    stored dual); at γ <= 0 the projection of v and the stored dual unchanged."""
+    """`tv_prox` (not in place: v is kept) with its dual kept between calls in half the working
+    precision's bytes (`fpscan.service.recon.tv.stores.store_dual`).
+
+    ``stored`` is a list holding the last call's stored dual (None: 0), taken out of it: it is
+    restored, freed, stepped, stored anew and freed again before the new iterate is made, whose
+    final primal step reads the stored dual (the map is linear in it: γ ∇ᵀ(s / 32767) =
+    (γ / 32767) ∇ᵀ s). So the full-precision dual (d images) and the new iterate are never held
+    together, nor the old and the new stored dual: d + d/2 images at most beside v (the paper's
+    scan: tv's peak 9.3 -> 8.4 images, now inside the operator).
+
+    Parameters
+    ----------
+    v : ndarray
+        The image ``(n_z, n_x)`` / ``(n_z, n_y, n_x)``, float32 or float64 (Pa).
+    gamma : float
+        γ (v's unit); <= 0: only the projection.
+    positivity : bool
+        Constrain x >= 0.
+    support : ndarray of bool or None
+        v's shape: x = 0 where False (None: everywhere allowed).
+    stored : list
+        One element, the last call's stored dual (`store_dual`'s form, ``(d, *v.shape)``) or
+        None; popped.
+    poll : callable, optional
+        Called every few inner steps (a cancel may raise there).
+
+    Returns
+    -------
+    tuple
+        ``(x, stored dual)``: a new x of v's shape and dtype, and the new stored dual (int16 for
+        float32, float32 for float64); at γ <= 0 the projection of v and the stored dual unchanged.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from fpscan.service.recon.tv.prox import tv_prox_stored
+    >>> v = np.array([[0.0, 0.2, 1.0, 0.9]], dtype=np.float32)
+    >>> x, kept = tv_prox_stored(v, 0.05, True, None, [None])
+    >>> x.dtype, kept.dtype, kept.shape
+    (dtype('float32'), dtype('int16'), (2, 1, 4))
+    >>> x2, kept2 = tv_prox_stored(v, 0.05, True, None, [kept])  # warm-started from the stored dual
+    >>> x2.shape
+    (1, 4)
+    """
     old = stored.pop()
     if gamma <= 0:
         return _project(v.copy(), positivity, support), old
     v = np.ascontiguousarray(v)
-    q = np.zeros((v.ndim,) + v.shape, dtype=v.dtype) if old is None else _restore_dual(old, v.dtype)
+    q = np.zeros((v.ndim,) + v.shape, dtype=v.dtype) if old is None else restore_dual(old, v.dtype)
     del old
     _dual_steps(v, q, float(gamma), positivity, support, poll)
-    kept = _store_dual(q)
+    kept = store_dual(q)
     del q
     x = np.empty_like(v)
-    scale = 1.0 / _DUAL_SCALE if kept.dtype == np.int16 else 1.0
+    scale = 1.0 / DUAL_SCALE if kept.dtype == np.int16 else 1.0
     _prox_primal(_as3d(v), *_dual_axes(kept), v.ndim == 3, float(gamma) * scale, positivity, *_support3(support),
                  _as3d(x))
     return x, kept
+
+
+def primal_step(v: np.ndarray, dual: np.ndarray, gamma: float, positivity: bool = False,
+                support: np.ndarray | None = None, out: np.ndarray | None = None) -> np.ndarray:
+    """The proximal map's primal step P(v − γ ∇ᵀq) (the compiled sweep each inner step of
+    `tv_prox` makes), ∇ᵀ the transpose of the forward differences in voxel units (0 at the
+    last index): (∇ᵀq)_i = Σ_a [i_a < n_a − 1] (−q_a)_i + [i_a > 0] (q_a)_{i − e_a}; P clips
+    below 0 with ``positivity`` and zeroes off ``support``.
+
+    Parameters
+    ----------
+    v : ndarray
+        The image ``(n_z, n_x)`` / ``(n_z, n_y, n_x)``, float32 or float64 (C-contiguous: else
+        copied).
+    dual : ndarray
+        q, ``(d, *v.shape)`` of v's dtype, its components along z, (y,) x in that order, C-contiguous.
+    gamma : float
+        γ, in v's unit.
+    positivity : bool, optional
+        Clip below 0 (default False).
+    support : ndarray of bool, optional
+        v's shape: zero where False (default: none).
+    out : ndarray, optional
+        Where to write (v's shape and dtype; may be ``v``); default a new array.
+
+    Returns
+    -------
+    ndarray
+        ``out``: P(v − γ ∇ᵀq), v's shape and dtype.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from fpscan.service.recon.tv.prox import primal_step
+    >>> q = np.zeros((2, 2, 3))
+    >>> q[1, 0, 0] = 1.0  # the x component at (0, 0): ∇ᵀq = −1 there, +1 at (0, 1)
+    >>> primal_step(np.zeros((2, 3)), q, 1.0).tolist()
+    [[1.0, -1.0, 0.0], [0.0, 0.0, 0.0]]
+    >>> primal_step(np.zeros((2, 3)), q, 1.0, positivity=True).tolist()
+    [[1.0, 0.0, 0.0], [0.0, 0.0, 0.0]]
+    """
+    v = np.ascontiguousarray(v)
+    x = np.empty_like(v) if out is None else out
+    _prox_primal(_as3d(v), *_dual_axes(dual), v.ndim == 3, float(gamma), positivity, *_support3(support), _as3d(x))
+    return x
 
 
 def _project(x: np.ndarray, positivity: bool, support: np.ndarray | None) -> np.ndarray:
@@ -283,7 +420,7 @@ def _support3(support: np.ndarray | None) -> tuple[np.ndarray, bool]:
 
 def _dual_steps(v: np.ndarray, q: np.ndarray, gamma: float, positivity: bool, support: np.ndarray | None,
                 poll: Callable[[], None] | None) -> None:
-    """`_PROX_ITER` inner steps of `_tv_prox`'s dual gradient projection on ``q`` (d, *v.shape),
+    """`PROX_ITER` inner steps of `tv_prox`'s dual gradient projection on ``q`` (d, *v.shape),
     in place: w = P(v − γ ∇ᵀq); q ← (q + step ∇w) / max(1, |·|), step = 1 / (γ ‖∇‖²)."""
     supp, has_support = _support3(support)
     has_y = v.ndim == 3
@@ -293,7 +430,7 @@ def _dual_steps(v: np.ndarray, q: np.ndarray, gamma: float, positivity: bool, su
     planes = np.empty((n_slabs, 3) + v3.shape[1:], dtype=v.dtype)  # w's first plane and a ring of two
     rows = np.empty((n_slabs, 4, v3.shape[2]), dtype=v.dtype)  # each slab's rows: w's differences, ∇ᵀq
     step = 1.0 / (4.0 * v.ndim * gamma)  # 1 / (γ ‖∇‖²), ‖∇‖² <= 4 d
-    for i in range(_PROX_ITER):
+    for i in range(PROX_ITER):
         if poll is not None and i % 5 == 4:
             poll()
         _prox_step(v3, *_dual_axes(q), has_y, gamma, positivity, supp, has_support, step, starts, planes, rows)

@@ -13,21 +13,75 @@ from typing import Any
 
 import numpy as np
 
-from fpscan.service.recon.tv.fista import _MARGIN, _Solved
-from fpscan.service.recon.tv.lam import _Continuation, _DiscrepancyRule
-from fpscan.service.recon.tv.problem import _Model, _Record
+from fpscan.service.recon.tv.fista import MARGIN, Solved
+from fpscan.service.recon.tv.lam import Continuation, DiscrepancyRule
+from fpscan.service.recon.tv.problem import Model, Record
 
-__all__: list[str] = []
+__all__ = ["result_params"]
 
 
-def _params(warm_params: dict[str, Any], record: _Record, model: _Model, solved: _Solved, rule: _DiscrepancyRule,
-            schedule: _Continuation | None, options: dict[str, Any], *, lam_auto: bool, geometry_kept: bool,
+def result_params(warm_params: dict[str, Any], record: Record, model: Model, solved: Solved, rule: DiscrepancyRule,
+            schedule: Continuation | None, options: dict[str, Any], *, lam_auto: bool, geometry_kept: bool,
             debiased: bool, started: float) -> dict[str, Any]:
-    """The result's params: ``warm_params`` updated with the grid of ``record`` and the solve
-    (``solved``, the automatic λ's ``rule``, the continuation's ``schedule``, the operator pairs of
-    ``model``); ``options`` the run's ``dt``, ``bandwidth``, ``whole_record``, ``max_iter``,
-    ``tol``, ``dtype``, ``positivity``, ``periodic`` and ``time_limit``; ``started`` its
-    `time.monotonic` start."""
+    """The result's params (`fpscan.service.recon.tv.reconstruct.reconstruct_tv`'s Returns list them).
+
+    ``warm_params`` updated with the grid of ``record`` (the record's ``dt``, the operator's
+    sampling and band, the record kept) and the solve: λ and how it was set, the noise levels,
+    the stopping rule's outcome, the operator pairs of ``model`` and the wall time.
+
+    Parameters
+    ----------
+    warm_params : dict
+        The warm start's params (``method`` among them).
+    record : Record
+        The record (`fpscan.service.recon.tv.problem.Record`: ``g``, ``grid``, ``n_t``, ``sigma``,
+        ``noise_norm``).
+    model : Model
+        Its ``pos`` (None: grid data) and ``operator_pairs``.
+    solved : Solved
+        The solver's outcome (`fpscan.service.recon.tv.fista.Solved`).
+    rule : DiscrepancyRule
+        The automatic λ's rule (its ``factor``, ``warm_discrepancy``, ``image_noise``).
+    schedule : Continuation or None
+        λ's continuation.
+    options : dict
+        The run's ``dt`` (s), ``bandwidth`` (Hz), ``whole_record``, ``max_iter``, ``tol``,
+        ``dtype``, ``positivity``, ``periodic`` and ``time_limit`` (s).
+    lam_auto : bool
+        λ was automatic.
+    geometry_kept : bool
+        ‖BA‖ and the noise image came from `fpscan.service.recon.tv.geometry.GEOMETRY`.
+    debiased : bool
+        The amplitudes were refit.
+    started : float
+        The run's `time.monotonic` start, s.
+
+    Returns
+    -------
+    dict
+        The params.
+
+    Examples
+    --------
+    >>> import time
+    >>> import numpy as np
+    >>> from types import SimpleNamespace
+    >>> from fpscan.service.recon.tv.fista import Solved
+    >>> from fpscan.service.recon.tv.lam import DiscrepancyRule
+    >>> from fpscan.service.recon.tv.result import result_params
+    >>> grid = SimpleNamespace(dt=1e-8, band=None, reason="nyquist", record_n_t=4, extent_reason="record")
+    >>> record = SimpleNamespace(g=np.ones((4, 2)), grid=grid, n_t=4, sigma=0.0, noise_norm=0.0)
+    >>> solved = Solved(np.ones((3, 2)), 5, "converged", 1e-3, np.ones((4, 2)), 2.2, 0.0)
+    >>> options = dict(dt=1e-8, bandwidth=None, whole_record=False, max_iter=50, tol=0.005,
+    ...                dtype=np.dtype("float32"), positivity=True, periodic=False, time_limit=60.0)
+    >>> p = result_params({"method": "ner"}, record, SimpleNamespace(pos=None, operator_pairs=8.0), solved,
+    ...                   DiscrepancyRule(0.0, 0.0), None, options, lam_auto=True, geometry_kept=False,
+    ...                   debiased=False, started=time.monotonic())
+    >>> p["method"], p["warm_start"], p["residual"], p["norm_A"], p["stop_reason"], p["solver"]
+    ('tv', 'ner', 0.0, 2.0, 'converged', 'FISTA preconditioned by NER')
+    >>> p["lam_note"].startswith("the data show no noise")
+    True
+    """
     chosen, o = record.grid, options
     x, it, stop_reason, change, Ax, L, lam = solved
     gw_norm = float(np.linalg.norm(record.g))
@@ -44,7 +98,7 @@ def _params(warm_params: dict[str, Any], record: _Record, model: _Model, solved:
                   noise_share=record.noise_norm / max(gw_norm, 1e-300), iterations=it,
                   max_iter=o["max_iter"], tol=o["tol"], dtype=o["dtype"].name,
                   residual=float(np.linalg.norm(res) / max(gw_norm, 1e-300)),
-                  norm_A=L / _MARGIN, positivity=bool(o["positivity"]), weights_mean_one=False,
+                  norm_A=L / MARGIN, positivity=bool(o["positivity"]), weights_mean_one=False,
                   data_weights="equal", periodic=bool(o["periodic"]),
                   solver="FISTA preconditioned by " + ("NER" if model.pos is None else "NEDNER"),
                   iterate_change=change if math.isfinite(change) else None,

@@ -1,9 +1,9 @@
 """tv's stopping rule: the image's relative change per iteration, over a window of iterations.
 
 The rule's value at iteration k is ‖x_k − x_{k−1}‖ / ‖x_k‖ (free: summed with the momentum's
-test, `fpscan.service.recon.tv.fista._moves`); the run has converged when it was below ``tol`` in
-each of the last `_WINDOW` = 3 iterations at λ itself (none of the λ continuation's,
-`fpscan.service.recon.tv.lam._Continuation`). Otherwise it stops at ``max_iter`` iterations
+test, `fpscan.service.recon.tv.fista.moves`); the run has converged when it was below ``tol`` in
+each of the last `WINDOW` = 3 iterations at λ itself (none of the λ continuation's,
+`fpscan.service.recon.tv.lam.Continuation`). Otherwise it stops at ``max_iter`` iterations
 ("iterations") or at the time limit ("time limit"). Why the rule is on the image, not on
 the objective: docs/tv-measurements.md, "Stopping rule".
 """
@@ -14,34 +14,68 @@ from collections import deque
 
 from fpscan.service.progress import IterationStage
 
-__all__: list[str] = []
+__all__ = ["WINDOW", "StoppingRule"]
 
-_WINDOW = 3  # the stopping rule's window of iterations
+#: the stopping rule's window of iterations
+WINDOW = 3
 
 
-class _StoppingRule:
-    """The rule of one solver run (`fpscan.service.recon.tv.fista._fista`): ``observe(bb, nn)`` takes
-    an iteration's ‖x_k − x_{k−1}‖² and ‖x_k‖²; ``change`` is the rule's value (the largest
-    relative change of the last `_WINDOW` iterations; NaN until there are that many);
-    ``verdict(k, elapsed)`` the stop reason at iteration k after ``elapsed`` s ("converged",
-    "time limit", "iterations") or None to go on; ``stage(k)`` the progress stage carrying the
-    rule's value so far. ``falling`` iterations at the start have λ_k > λ (the continuation's):
-    the window must hold none of them before the rule can stop the run."""
+class StoppingRule:
+    """The stopping rule of one solver run (`fpscan.service.recon.tv.fista.run_fista`, module doc).
+
+    ``observe(bb, nn)`` takes an iteration's ‖x_k − x_{k−1}‖² and ‖x_k‖²; ``verdict(k, elapsed)``
+    gives the stop reason at iteration k after ``elapsed`` s ("converged", "time limit",
+    "iterations") or None to go on; ``stage(k)`` the progress stage carrying the rule's value so
+    far (`fpscan.service.progress.IterationStage`); ``at_lambda(k)`` whether the window holds
+    iterations at λ only.
+
+    Parameters
+    ----------
+    tol : float
+        The threshold of the relative change (>= 0; 0: never "converged").
+    max_iter : int
+        Iterations at most.
+    time_limit : float
+        Wall-time limit, s.
+    falling : int, optional
+        The first iterations with λ_k > λ (the continuation's): the window must hold none of them
+        before the rule can stop the run.
+
+    Attributes
+    ----------
+    tol, max_iter, time_limit, falling
+        As given.
+    steps : deque of float
+        The relative changes of the last `WINDOW` iterations.
+    change : float
+        The rule's value: the largest of them (NaN until there are `WINDOW`).
+
+    Examples
+    --------
+    >>> from fpscan.service.recon.tv.stopping import StoppingRule
+    >>> rule = StoppingRule(tol=0.01, max_iter=10, time_limit=60.0)
+    >>> for k in (1, 2, 3):
+    ...     rule.observe(1e-6, 1.0)  # a relative change of 0.001
+    >>> round(rule.change, 6), rule.verdict(3, elapsed=1.0)
+    (0.001, 'converged')
+    >>> StoppingRule(0.01, 10, 60.0).verdict(10, elapsed=1.0), StoppingRule(0.01, 10, 60.0).verdict(4, 61.0)
+    ('iterations', 'time limit')
+    """
 
     def __init__(self, tol: float, max_iter: int, time_limit: float, falling: int = 0) -> None:
         self.tol, self.max_iter, self.time_limit, self.falling = tol, max_iter, time_limit, falling
-        self.steps: deque[float] = deque(maxlen=_WINDOW)  # ‖x_k − x_{k−1}‖ / ‖x_k‖ of the last iterations
+        self.steps: deque[float] = deque(maxlen=WINDOW)  # ‖x_k − x_{k−1}‖ / ‖x_k‖ of the last iterations
         self.change = float("nan")
 
     def observe(self, bb: float, nn: float) -> None:
         self.steps.append(math.sqrt(bb / nn) if nn > 0 else (0.0 if bb == 0 else math.inf))
-        if len(self.steps) == _WINDOW:
+        if len(self.steps) == WINDOW:
             self.change = max(self.steps)
 
     def at_lambda(self, k: int) -> bool:
         """Whether the window at iteration k holds iterations at λ only (always, where λ does
         not fall)."""
-        return self.falling == 0 or k - self.falling >= _WINDOW
+        return self.falling == 0 or k - self.falling >= WINDOW
 
     def stage(self, k: int) -> IterationStage:
         # the stage "iteration k/N" carries the rule's value (its window so far) and tol, not yet

@@ -91,7 +91,7 @@ def noise_sigma(data: npt.ArrayLike, time_axis: int) -> float:
     Seeded white noise of σ = 0.01 Pa on 8 A-lines of 512 samples, with and without a step:
 
     >>> import numpy as np
-    >>> from fpscan.service.recon.tv_grid import noise_sigma
+    >>> from fpscan.service.recon.tv.grid import noise_sigma
     >>> noise = np.random.default_rng(0).normal(0.0, 0.01, (8, 512))  # (n, n_t)
     >>> round(noise_sigma(noise, time_axis=1), 4), round(noise_sigma(noise.T, time_axis=0), 4)
     (0.0101, 0.0101)
@@ -144,7 +144,7 @@ class TvGrid(NamedTuple):
 
     Examples
     --------
-    >>> from fpscan.service.recon.tv_grid import tv_grid
+    >>> from fpscan.service.recon.tv.grid import tv_grid
     >>> grid = tv_grid(1024, 8e-9, 1500.0, bandwidth=20e6)  # (n_t, dt, c): a 20 MHz sensor
     >>> grid.n_t, grid.resampled, grid.reason, grid.record_n_t, grid.extent_reason
     (330, True, 'declared', 1024, 'record')
@@ -189,7 +189,7 @@ class RecordFacts(NamedTuple):
 
     Examples
     --------
-    >>> from fpscan.service.recon.tv_grid import RecordFacts
+    >>> from fpscan.service.recon.tv.grid import RecordFacts
     >>> RecordFacts.from_dict(RecordFacts(1024, 776, 0.01).as_dict())
     RecordFacts(n_t=1024, signal_n_t=776, sigma=0.01)
     """
@@ -253,7 +253,7 @@ def record_facts(data: npt.ArrayLike, dt: float, time_axis: int) -> RecordFacts:
     Pulses that end by sample 300 of 1000 on 64 A-lines of white noise:
 
     >>> import numpy as np
-    >>> from fpscan.service.recon.tv_grid import record_facts, tv_grid
+    >>> from fpscan.service.recon.tv.grid import record_facts, tv_grid
     >>> t = np.arange(1000)
     >>> data = np.where((t > 200) & (t < 300), 1.0, 0.0) + 0.01 * np.random.default_rng(0).standard_normal((64, 1000))
     >>> facts = record_facts(data, 1e-8, time_axis=1)
@@ -328,7 +328,7 @@ def data_extent(data: npt.ArrayLike, time_axis: int, sigma: float) -> int | None
     samples):
 
     >>> import numpy as np
-    >>> from fpscan.service.recon.tv_grid import data_extent
+    >>> from fpscan.service.recon.tv.grid import data_extent
     >>> rng = np.random.default_rng(0)
     >>> t = np.arange(1000)
     >>> g = np.where((t > 200) & (t < 300), 1.0, 0.0) + 0.01 * rng.standard_normal((64, 1000))
@@ -425,7 +425,7 @@ def tv_grid(n_t: int, dt: float, c: float = C_DEFAULT, *, data: npt.ArrayLike | 
 
     Examples
     --------
-    >>> from fpscan.service.recon.tv_grid import tv_grid
+    >>> from fpscan.service.recon.tv.grid import tv_grid
     >>> g = tv_grid(1024, 8e-9, 1500.0)  # nothing known of the sensors: the full band
     >>> g.n_t, g.band, round(g.dz * 1e6, 3), g.n_z, g.reason
     (1024, None, 12.0, 1024, 'nyquist')
