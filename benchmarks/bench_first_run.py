@@ -43,7 +43,7 @@ plan = fpscan.make_plan("equisteradian", lattice=fpscan.Lattice(96, 96, 100e-6),
 pos = plan.recon_positions()
 balls = [fpscan.Ball(x=0.2e-3, y=-0.3e-3, z=3e-3, radius=2e-4, amplitude=1.0)]
 ds = fpscan.PointDataset(alines=fpscan.ball_alines(pos, balls, 8e-9, 512, 1500.0), positions=pos,
-                         weights=plan.weights_array(), dt=8e-9, c=1500.0,
+                         weights=plan.weights_array(), dt=8e-9, sound_speed=1500.0,
                          grid=(np.arange(96) * 1e-4 - 4.75e-3, np.arange(96) * 1e-4 - 4.75e-3))
 t1 = time.perf_counter()
 rec = fpscan.reconstruct(ds, "nedner")

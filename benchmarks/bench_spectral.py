@@ -36,8 +36,8 @@ def bench_autofocus(name: str, ds, c_true: float) -> None:
     from fpscan.service import pipeline
 
     method = pipeline.default_method(ds)
-    pipeline.reconstruct(ds, method, c=1500.0)  # warm-up (compilation, FFT plans)
-    _, t_one = _timed(pipeline.reconstruct, ds, method, c=1500.0)
+    pipeline.reconstruct(ds, method, sound_speed=1500.0)  # warm-up (compilation, FFT plans)
+    _, t_one = _timed(pipeline.reconstruct, ds, method, sound_speed=1500.0)
     rec, t_auto = _timed(pipeline.reconstruct, ds, method, c="auto")
     af = rec.params["autofocus"]
     print(f"autofocus {name}: one reconstruction {t_one:.2f} s; c='auto' total {t_auto:.2f} s "

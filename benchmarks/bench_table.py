@@ -72,7 +72,7 @@ def _library_child(method_paths: list[str]) -> None:
     from fpscan.service.storage.results import write_result
 
     method, path = method_paths
-    ds = GridDataset(data=np.load(path), dx=DX, dt=DT, c=C, dy=DX)
+    ds = GridDataset(data=np.load(path), dx=DX, dt=DT, sound_speed=C, dy=DX)
     rec = reconstruct(ds, method, dtype="float32")
     print(json.dumps({"cold_s": time.perf_counter() - t0}), flush=True)
     canonical: dict[str, str] = {}
@@ -80,7 +80,7 @@ def _library_child(method_paths: list[str]) -> None:
         write_result(os.path.join(tmp, "warm"), rec, input_id="bench")  # the writer's imports and fonts
         for line in sys.stdin:
             method, path = line.split()
-            ds = GridDataset(data=np.load(path), dx=DX, dt=DT, c=C, dy=DX)
+            ds = GridDataset(data=np.load(path), dx=DX, dt=DT, sound_speed=C, dy=DX)
             if path not in canonical:
                 canonical[path] = os.path.join(tmp, f"ds{len(canonical)}.h5")
                 write_dataset(canonical[path], ds)
@@ -139,7 +139,7 @@ def cli(method: str, path: Path, out: Path) -> float:
 
 
 def _upload(c, path: Path) -> str:
-    r = c.post("/api/datasets", data={"format": "npy", "dt": str(DT), "dx": str(DX), "c": str(C)},
+    r = c.post("/api/datasets", data={"format": "npy", "dt": str(DT), "dx": str(DX), "sound_speed": str(C)},
                files={"file": (path.name, path.read_bytes(), "application/octet-stream")})
     r.raise_for_status()
     return r.json()["dataset_id"]

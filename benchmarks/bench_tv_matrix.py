@@ -206,7 +206,7 @@ def run_row(name: str, percent: int, noise: str, rule: bool = False, case: dict 
     axes = (centred_axis(shape[-1], dx),) if two_d else (centred_axis(shape[1], dx), centred_axis(shape[0], dx))
     pos = np.asarray(mask.positions, float)[:, : 1 if two_d else 2]  # a line's sensors: x alone
     declared = {} if probe["declared"] is None else {BANDWIDTH_KEY: probe["declared"]}
-    scan = PointDataset(alines=alines, positions=pos, dt=dt, c=c, weights=np.asarray(mask.weights, float),
+    scan = PointDataset(alines=alines, positions=pos, dt=dt, sound_speed=c, weights=np.asarray(mask.weights, float),
                         grid=axes, meta=declared)
     grid_opts = {} if case["p0"] is None else {"dz": case["dz"], "n_z": case["p0"].shape[0]}
     tol = {} if probe["tol"] is None else {"tol": probe["tol"]}
@@ -218,7 +218,7 @@ def run_row(name: str, percent: int, noise: str, rule: bool = False, case: dict 
         truth = ball_p0(case["balls"], tv.z, tv.x, tv.y, supersample=2)
     else:
         truth = case["p0"]
-    dense = GridDataset(data=data, dt=dt, c=c, dx=dx)
+    dense = GridDataset(data=data, dt=dt, sound_speed=c, dx=dx)
     ner_opts = grid_opts or {"dz": float(tv.z[1] - tv.z[0]), "n_z": len(tv.z)}
     ner = reconstruct_grid(dense.data, dx, dt, c, dtype=np.float32, **ner_opts).p0
     row = dict(case=name, mask=percent, points=len(pos), noise=noise, seed=seed,
@@ -232,7 +232,7 @@ def run_row(name: str, percent: int, noise: str, rule: bool = False, case: dict 
         row["seen"], row["thin"] = thin_segments_seen(tv.p0, lines, case["radius_voxels"])
         row["ner_seen"], _ = thin_segments_seen(np.maximum(ner, 0), lines, case["radius_voxels"])
     if reference:
-        full_band = PointDataset(alines=alines, positions=pos, dt=dt, c=c, weights=scan.weights, grid=axes,
+        full_band = PointDataset(alines=alines, positions=pos, dt=dt, sound_speed=c, weights=scan.weights, grid=axes,
                                  meta={BANDWIDTH_KEY: 0.5 / dt})  # the record's Nyquist frequency declared
         ref_lam = {"lam": p["lam"]} if probe["ref_lam"] == "tv" else {}
         ref = reconstruct(full_band, "tv", dtype="float32", whole_record=True, **grid_opts, **tol, **ref_lam)
@@ -243,7 +243,7 @@ def run_row(name: str, percent: int, noise: str, rule: bool = False, case: dict 
         if lines is not None:
             row["ref_seen"], _ = thin_segments_seen(ref.p0, lines, case["radius_voxels"])
     if rule:
-        long = reconstruct(scan, "tv", dtype="float32", lam=p["lam"], iterations=probe["rule_iterations"], tol=0.0,
+        long = reconstruct(scan, "tv", dtype="float32", lam=p["lam"], max_iter=probe["rule_iterations"], tol=0.0,
                            **grid_opts)
         row["cc300"] = correlation_coefficient(long.p0, truth)  # named for the default's 300 iterations
     if sweep:  # the automatic λ against λ x 2^k, k = -3..3, each to the stopping rule

@@ -130,7 +130,7 @@ def _row(label: str, scale: float, snr: float, bandwidth, whole: bool, repeat: i
     del data
     pos = case["positions"]
     # the admission's estimate of this job (fpscan.service.jobs.admission, as for a stored dataset: its record facts)
-    shape = {"n_t": n_t, "n_x": n, "n_y": n, "n_points": len(pos), "dt": DT, "c": C, "dx": PITCH, "t0": 0.0,
+    shape = {"n_t": n_t, "n_x": n, "n_y": n, "n_points": len(pos), "dt": DT, "sound_speed": C, "dx": PITCH, "t0": 0.0,
              "record_facts": record_facts(case["alines"], DT, 1).as_dict(), "bandwidth": bandwidth}
     estimate = estimate_memory(shape, {"method": "tv", "dtype": "float32", "whole_record": whole})
     reconstruct_tv(case["alines"][:40, :32], DT, C, positions=pos[:40], n_z=8, max_iter=2, dtype=np.float32)

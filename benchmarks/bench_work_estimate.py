@@ -27,7 +27,7 @@ CASES = [  # (method, (n_t, n_y, n_x), options)
     ("ner", (512, 128, 128), {"dtype": "float64"}), ("nedner", (256, 128, 128), {}),
     ("nedner", (512, 128, 128), {}), ("linear", (512, 128, 128), {}), ("nearest", (512, 128, 128), {}),
     ("cubic", (256, 64, 64), {}), ("kwave", (512, 128, 128), {}), ("kwave", (1024, 96, 96), {}),
-    ("ner", (256, 64, 64), {"c": "auto"}), ("tv", (256, 32, 32), {}), ("tv", (256, 64, 64), {}),
+    ("ner", (256, 64, 64), {"sound_speed": "auto"}), ("tv", (256, 32, 32), {}), ("tv", (256, 64, 64), {}),
     ("tv", (384, 64, 64), {}),
 ]
 
@@ -42,7 +42,7 @@ def main() -> None:
     print(f"{'method':8s} {'size':>14s} {'options':24s} {'measured s':>10s} {'estimate s':>10s} {'ratio':>6s}")
     for method, (n_t, n_y, n_x), options in CASES:
         data = rng.standard_normal((n_t, n_y, n_x)).astype(np.float32)
-        ds = GridDataset(data, dx=1e-4, dt=1e-4 / 1500 / 2, c=1500.0, dy=1e-4)
+        ds = GridDataset(data, dx=1e-4, dt=1e-4 / 1500 / 2, sound_speed=1500.0, dy=1e-4)
         opts = dict(options)
         if method == "tv":
             points = ds.to_points()
@@ -50,7 +50,7 @@ def main() -> None:
             from dataclasses import replace
 
             ds = replace(points, alines=points.alines[keep], positions=points.positions[keep], weights=None)
-            opts.update(iterations=args.tv_iterations, tol=0.0)
+            opts.update(max_iter=args.tv_iterations, tol=0.0)
         estimate = estimate_work(input_shape(ds), {"method": method, **opts})
         reconstruct(ds, method, **opts)  # warm: kernels compiled, pages faulted
         best = float("inf")

@@ -245,52 +245,63 @@ _TIME_UNITS = ((1e-9, "ns", "ns"), (1e-6, "µs", "us"), (1e-12, "ps", "ps"))
 _SI_OF_UNITS = {_LENGTH_UNITS: "m", _TIME_UNITS: "s"}
 
 
-def check_speeds(*, c: Any = None, c_range: Any = None, force: bool = False) -> None:
-    """The speed-of-sound rule for reconstruction options (``fpscan.service.pipeline.reconstruct``,
-    the API's ``ReconParams``): a numeric ``c`` (m/s) and each end of the autofocus search
-    interval ``c_range`` within ``fpscan.constants.C_PLAUSIBLE`` (1000–2000 m/s) unless
-    ``force``; forced, a numeric ``c`` stays within ``C_LIMITS`` (above 100, at most 10 000
-    m/s). ``"auto"``, None and non-numbers pass (their own checks name them). Raises
-    :class:`ImplausibleValue` naming ``c`` or ``c_range`` and the likely unit mistake, or
-    :class:`RefusedInput` for a forced ``c`` outside ``C_LIMITS``.
+def check_speeds(*, sound_speed: Any = None, sound_speed_range: Any = None, force: bool = False) -> None:
+    """The speed-of-sound rule for reconstruction options (every method's options model,
+    ``fpscan.service.recon.methods.options.SpeedOptions``, which every door validates with): a
+    numeric ``sound_speed`` (m/s) and each end of the autofocus search interval
+    ``sound_speed_range`` within ``fpscan.constants.C_PLAUSIBLE`` (1000–2000 m/s) unless ``force``;
+    forced, a numeric ``sound_speed`` stays within ``C_LIMITS`` (above 100, at most 10 000 m/s).
+    ``"auto"``, None and non-numbers pass (their own checks name them).
 
     Parameters
     ----------
-    c : Any, optional
-        The sound speed option, m/s (a number is checked; ``"auto"``, None and other values pass).
-    c_range : Any, optional
+    sound_speed : Any, optional
+        The speed of sound, m/s (a number is checked; ``"auto"``, None and other values pass).
+    sound_speed_range : Any, optional
         The autofocus search interval ``(lo, hi)``, m/s (each numeric end of a list or tuple
         is checked).
     force : bool, optional
-        Accept speeds outside ``C_PLAUSIBLE`` (other media); ``c`` must still lie within ``C_LIMITS``.
+        Accept speeds outside ``C_PLAUSIBLE`` (other media); ``sound_speed`` must still lie
+        within ``C_LIMITS``.
 
     Raises
     ------
     ImplausibleValue
-        ``c`` or an end of ``c_range`` outside ``C_PLAUSIBLE`` (not forced).
+        ``sound_speed`` or an end of ``sound_speed_range`` outside ``C_PLAUSIBLE`` (not forced);
+        the message names the option and the likely unit mistake.
     RefusedInput
-        A forced ``c`` outside ``C_LIMITS``.
+        A forced ``sound_speed`` outside ``C_LIMITS``.
+
+    Examples
+    --------
+    >>> from fpscan.driver.units import check_speeds
+    >>> check_speeds(sound_speed=1480.0, sound_speed_range=(1450.0, 1600.0))
+    >>> check_speeds(sound_speed=3000.0, force=True)  # another medium
+    >>> check_speeds(sound_speed=1.5)
+    Traceback (most recent call last):
+    ...
+    fpscan.driver.units.ImplausibleValue: sound_speed: sound speed 1.5 m/s is implausible for tissue or water ...
     """
     def number(v: Any) -> bool:
         return isinstance(v, (int, float)) and not isinstance(v, bool)
 
     if force:
-        if number(c) and not C_LIMITS[0] < float(c) <= C_LIMITS[1]:
-            raise RefusedInput(f"c must be within {C_LIMITS[0]:g}-{C_LIMITS[1]:g} m/s even with force, "
-                               f"got {float(c):g} m/s")
+        if number(sound_speed) and not C_LIMITS[0] < float(sound_speed) <= C_LIMITS[1]:
+            raise RefusedInput(f"sound_speed must be within {C_LIMITS[0]:g}-{C_LIMITS[1]:g} m/s even with force, "
+                               f"got {float(sound_speed):g} m/s")
         return
-    if number(c):
+    if number(sound_speed):
         try:
-            check_plausible(sound_speed=float(c))
+            check_plausible(sound_speed=float(sound_speed))
         except ImplausibleValue as exc:
-            raise ImplausibleValue(f"c: {exc}") from None
-    if isinstance(c_range, (list, tuple)):
-        for end in c_range:
+            raise ImplausibleValue(f"sound_speed: {exc}") from None
+    if isinstance(sound_speed_range, (list, tuple)):
+        for end in sound_speed_range:
             if number(end):
                 try:
                     check_plausible(sound_speed=float(end))
                 except ImplausibleValue as exc:
-                    raise ImplausibleValue(f"c_range: {exc}") from None
+                    raise ImplausibleValue(f"sound_speed_range: {exc}") from None
 
 
 def check_plausible(*, pitch: float | None = None, dx: float | None = None, dy: float | None = None,

@@ -41,7 +41,7 @@ else:
              fpscan.Ball(x=0.6e-3, y=-0.6e-3, z=1.8e-3, radius=0.15e-3, amplitude=0.8)]
     full = fpscan.make_mask("full", fpscan.Lattice(n, n, pitch))
     alines = fpscan.ball_alines(full.positions, balls, dt, n_t, 1500.0)  # (n_points, n_t)
-    dense = fpscan.GridDataset(alines.T.reshape(n_t, n, n), dx=pitch, dt=dt, c=1500.0)
+    dense = fpscan.GridDataset(alines.T.reshape(n_t, n, n), dx=pitch, dt=dt, sound_speed=1500.0)
     dz = pitch
     axis = (np.arange(n) - (n - 1) / 2) * pitch
     p0 = fpscan.ball_p0(balls, np.arange(40) * dz, axis, axis)

@@ -42,7 +42,7 @@ else:
     p0 = np.zeros((n_z, n_x))
     for xc, zc in [(-3e-3, 1.0e-3), (0.0, 2.0e-3), (2.5e-3, 3.5e-3), (0.3e-3, 2.0e-3)]:
         p0[(x - xc) ** 2 + (z - zc) ** 2 <= (75e-6) ** 2] = 1.0
-    dense = fpscan.GridDataset(forward_grid(p0, dx, dx, dt, n_t, 1500.0), dx=dx, dt=dt, c=1500.0)
+    dense = fpscan.GridDataset(forward_grid(p0, dx, dx, dt, n_t, 1500.0), dx=dx, dt=dt, sound_speed=1500.0)
     dz = dx
     source = "simulated discs"
 print(source, dense)

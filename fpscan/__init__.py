@@ -35,6 +35,8 @@ command line, the server and the web page use:
 - phantoms (:mod:`fpscan.physics`): ``Ball``, ``ball_alines``, ``ball_p0``;
 - the HTTP client (:mod:`fpscan.clients.http`): ``Client``, ``AsyncClient``, ``ApiError`` and its
   subclasses;
+- what a plugin (a reconstruction method or file format of another package) builds on:
+  :mod:`fpscan.plugins` (``import fpscan.plugins``; docs/plugins.md);
 - ``__version__``.
 
 Arrays follow one convention (docs/file-formats.md "Orientation"): p0 is ``(n_z, n_y,
@@ -56,7 +58,7 @@ result folder and exported for napari:
 >>> alines = fpscan.ball_alines(mask.positions, [fpscan.Ball(x=0.3e-3, y=0.4e-3, z=1.2e-3, radius=2e-4,
 ...                                                          amplitude=1.0)], 4e-8, 96, 1500.0)
 >>> data = alines.T.reshape(96, 16, 16)          # (n_t, n_y, n_x): time first
->>> ds = fpscan.GridDataset(data=data, dx=100e-6, dy=100e-6, dt=4e-8, c=1500.0)
+>>> ds = fpscan.GridDataset(data=data, dx=100e-6, dy=100e-6, dt=4e-8, sound_speed=1500.0)
 >>> rec = fpscan.reconstruct(ds, "ner")
 >>> rec.p0.shape                                  # (n_z, n_y, n_x)
 (96, 16, 16)

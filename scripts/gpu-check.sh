@@ -31,7 +31,7 @@ if [ -d .whl ] && ls .whl/*.whl >/dev/null 2>&1; then
     && export PYTHONPATH=/tmp/site || echo "wheel install failed"
 fi
 export PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}"
-# fpscan's metadata (its methods' and formats' entry points, fpscan.service.plugins) where it is not installed:
+# fpscan's metadata (its version and console script) where it is not installed:
 # a dist-info written from pyproject.toml, without a build
 if ! python3 -c "import importlib.metadata as m; m.distribution('fpscan')" 2>/dev/null; then
   python3 - <<'PY'

@@ -36,11 +36,12 @@ from typing import Any
 
 import numpy as np
 
-from fpscan.constants import C_AUTOFOCUS_LIMITS, C_AUTOFOCUS_RANGE
+from fpscan.constants import C_AUTOFOCUS_RANGE
 from fpscan.service.progress import Fraction, Progress, span
+from fpscan.service.recon.checks import check_sound_speed_range
 
 __all__ = [
-    "MAX_DECIMATION", "Autofocus", "check_c_range", "focus_sharpness", "choose_decimation", "search",
+    "MAX_DECIMATION", "Autofocus", "check_sound_speed_range", "focus_sharpness", "choose_decimation", "search",
     "autofocus", "focus_then_reconstruct",
 ]
 
@@ -53,13 +54,13 @@ class Autofocus:
 
     Attributes
     ----------
-    c : float
+    sound_speed : float
         The chosen speed of sound, m/s.
-    c_values : list of float
+    sound_speed_values : list of float
         Every evaluated c in ascending order, m/s (the sharpness curve's abscissae).
     sharpness : list of float
-        The focus value (:func:`focus_sharpness`, dimensionless) at each of ``c_values``.
-    c_range : tuple of float
+        The focus value (:func:`focus_sharpness`, dimensionless) at each of ``sound_speed_values``.
+    sound_speed_range : tuple of float
         The search interval ``(c_min, c_max)``, m/s.
     decimation : int
         The time decimation factor q the search ran with.
@@ -74,10 +75,10 @@ class Autofocus:
         grid there: ``dz`` in m and ``n_z``); default empty.
     """
 
-    c: float
-    c_values: list[float]
+    sound_speed: float
+    sound_speed_values: list[float]
     sharpness: list[float]
-    c_range: tuple[float, float]
+    sound_speed_range: tuple[float, float]
     decimation: int
     evaluations: int
     time_s: float
@@ -86,39 +87,10 @@ class Autofocus:
 
     def as_params(self) -> dict:
         """JSON-serialisable summary for a result's ``params["autofocus"]``."""
-        return {"c": self.c, "c_range": list(self.c_range), "c_values": self.c_values,
+        return {"sound_speed": self.sound_speed, "sound_speed_range": list(self.sound_speed_range), "sound_speed_values": self.sound_speed_values,
                 "sharpness": self.sharpness, "decimation": self.decimation,
                 "evaluations": self.evaluations, "time_s": self.time_s, "at_edge": self.at_edge,
                 "focus_function": "Tenenbaum sharpness of the depth MIP / its mean square", **self.extra}
-
-
-def check_c_range(c_range: Any) -> tuple[float, float]:
-    """Check an autofocus search interval.
-
-    Parameters
-    ----------
-    c_range : sequence of two numbers
-        ``(c_min, c_max)`` in m/s.
-
-    Returns
-    -------
-    tuple of float
-        ``(c_min, c_max)`` in m/s as floats.
-
-    Raises
-    ------
-    ValueError
-        Not two numbers; not finite; not c_min < c_max; not both within
-        ``fpscan.constants.C_AUTOFOCUS_LIMITS``.
-    """
-    try:
-        lo, hi = (float(v) for v in c_range)
-    except (TypeError, ValueError):
-        raise ValueError(f"c_range must be two speeds (c_min, c_max) in m/s, got {c_range!r}") from None
-    if not (math.isfinite(lo) and math.isfinite(hi) and C_AUTOFOCUS_LIMITS[0] <= lo < hi <= C_AUTOFOCUS_LIMITS[1]):
-        raise ValueError(f"c_range must satisfy {C_AUTOFOCUS_LIMITS[0]:g} <= c_min < c_max <= {C_AUTOFOCUS_LIMITS[1]:g} m/s, "
-                         f"got ({lo}, {hi})")
-    return lo, hi
 
 
 def focus_sharpness(p0: np.ndarray) -> float:
@@ -195,17 +167,17 @@ def choose_decimation(alines: np.ndarray, *, max_q: int = MAX_DECIMATION) -> int
     return q
 
 
-def search(sharpness_at: Callable[[float], float], c_range: tuple[float, float] = C_AUTOFOCUS_RANGE, *,
+def search(sharpness_at: Callable[[float], float], sound_speed_range: tuple[float, float] = C_AUTOFOCUS_RANGE, *,
            n_coarse: int = 7, xtol: float = 2.0) -> tuple[float, dict[float, float], bool]:
-    """Maximise ``sharpness_at(c)`` over ``c_range`` (m/s): ``n_coarse`` even samples,
+    """Maximise ``sharpness_at(c)`` over ``sound_speed_range`` (m/s): ``n_coarse`` even samples,
     then a bounded Brent search (scipy) between the best sample's neighbours to ``xtol``.
 
     Parameters
     ----------
     sharpness_at : callable
         ``sharpness_at(c) -> float``: the focus value at speed ``c`` (m/s); called once per c.
-    c_range : tuple of float, optional
-        ``(c_min, c_max)`` in m/s (:func:`check_c_range`); default
+    sound_speed_range : tuple of float, optional
+        ``(c_min, c_max)`` in m/s (:func:`check_sound_speed_range`); default
         ``fpscan.constants.C_AUTOFOCUS_RANGE``.
     n_coarse : int, optional
         Evenly spaced speeds sampled first, ends included; at least 3; default 7.
@@ -225,12 +197,12 @@ def search(sharpness_at: Callable[[float], float], c_range: tuple[float, float] 
     Raises
     ------
     ValueError
-        A bad ``c_range`` (:func:`check_c_range`); ``n_coarse`` < 3; ``xtol`` not a finite
+        A bad ``sound_speed_range`` (:func:`check_sound_speed_range`); ``n_coarse`` < 3; ``xtol`` not a finite
         number > 0.
     """
     from scipy.optimize import minimize_scalar
 
-    lo, hi = check_c_range(c_range)
+    lo, hi = check_sound_speed_range(sound_speed_range)
     if n_coarse < 3:
         raise ValueError(f"n_coarse must be >= 3, got {n_coarse}")
     if not (math.isfinite(xtol) and xtol > 0):
@@ -273,7 +245,7 @@ def _time_first(dataset: Any) -> np.ndarray:
     return np.asarray(dataset.alines).T
 
 
-def autofocus(dataset: Any, reconstruct: Callable[..., Any], *, c_range: Any = C_AUTOFOCUS_RANGE,
+def autofocus(dataset: Any, reconstruct: Callable[..., Any], *, sound_speed_range: Any = C_AUTOFOCUS_RANGE,
               n_coarse: int = 7, xtol: float = 2.0, decimation: int | None = None,
               options: dict | None = None, progress: Fraction | None = None) -> Autofocus:
     """Find the speed of sound (m/s) that focuses ``dataset`` best (module docstring).
@@ -287,10 +259,10 @@ def autofocus(dataset: Any, reconstruct: Callable[..., Any], *, c_range: Any = C
         A grid or point dataset (:mod:`fpscan.service.storage.loader`: ``data`` ``(n_t, ...)``
         / ``alines`` ``(n, n_t)``, ``dt`` s, ``t0`` s).
     reconstruct : callable
-        ``reconstruct(dataset, c=..., dz=..., n_z=..., dtype="float32", **options)`` → an
+        ``reconstruct(dataset, sound_speed=..., dz=..., n_z=..., dtype="float32", **options)`` → an
         object with ``p0`` (the pipeline's dispatch bound to a method, its ``should_stop``
         included: a cancelled reconstruction ends the search).
-    c_range : tuple of float, optional
+    sound_speed_range : tuple of float, optional
         ``(c_min, c_max)`` in m/s; default ``fpscan.constants.C_AUTOFOCUS_RANGE``.
     n_coarse : int, optional
         See :func:`search`; default 7.
@@ -314,11 +286,11 @@ def autofocus(dataset: Any, reconstruct: Callable[..., Any], *, c_range: Any = C
     Raises
     ------
     ValueError
-        A bad interval (:func:`check_c_range`), decimation, ``n_coarse`` or ``xtol``
+        A bad interval (:func:`check_sound_speed_range`), decimation, ``n_coarse`` or ``xtol``
         (:func:`search`); an image with NaN or inf (:func:`focus_sharpness`); what
         ``reconstruct`` raises for the dataset.
     """
-    lo, hi = check_c_range(c_range)
+    lo, hi = check_sound_speed_range(sound_speed_range)
     t_start = time.perf_counter()
     if decimation is None:
         q = choose_decimation(_time_first(dataset))
@@ -339,7 +311,7 @@ def autofocus(dataset: Any, reconstruct: Callable[..., Any], *, c_range: Any = C
     done = [0]
 
     def sharpness_at(c: float) -> float:
-        value = focus_sharpness(reconstruct(dec, c=c, **opts).p0)
+        value = focus_sharpness(reconstruct(dec, sound_speed=c, **opts).p0)
         done[0] += 1
         if progress is not None:
             progress(min(1.0, done[0] / expected))
@@ -347,17 +319,16 @@ def autofocus(dataset: Any, reconstruct: Callable[..., Any], *, c_range: Any = C
 
     c_best, curve, at_edge = search(sharpness_at, (lo, hi), n_coarse=n_coarse, xtol=xtol)
     cs = sorted(curve)
-    return Autofocus(c=c_best, c_values=cs, sharpness=[curve[c] for c in cs], c_range=(lo, hi),
+    return Autofocus(sound_speed=c_best, sound_speed_values=cs, sharpness=[curve[c] for c in cs], sound_speed_range=(lo, hi),
                      decimation=q, evaluations=len(curve), time_s=time.perf_counter() - t_start,
                      at_edge=at_edge, extra={"dz": dz, "n_z": n_z})
 
 
-def focus_then_reconstruct(dataset: Any, method: str, reconstruct: Callable[..., Any], *,
-                           c_range: Any = None, progress: Progress | None = None,
-                           should_stop: Callable[[], bool] | None = None,
-                           options_of: Callable[[str], Any] | None = None, **options: Any) -> Any:
-    """``c="auto"`` for the dispatch: :func:`autofocus`, then one reconstruction of the
-    full data at the chosen c.
+def focus_then_reconstruct(dataset: Any, method: str, reconstruct: Callable[..., Any], options: Any, *,
+                           progress: Progress | None = None,
+                           should_stop: Callable[[], bool] | None = None) -> Any:
+    """``sound_speed="auto"`` for the dispatch: :func:`autofocus`, then one reconstruction of the
+    full data at the chosen speed.
 
     The search reconstructs with ``method`` (a direct method of the dispatch; an iterative
     one, ``Method.iterative`` of ``fpscan.service.recon.methods``, searches with the input's default
@@ -373,49 +344,49 @@ def focus_then_reconstruct(dataset: Any, method: str, reconstruct: Callable[...,
         The reconstruction method's name.
     reconstruct : callable
         The dispatch (``fpscan.service.pipeline.reconstruct``):
-        ``reconstruct(dataset, method, progress=..., should_stop=..., c=..., **options)``.
-    c_range : tuple of float, optional
-        ``(c_min, c_max)`` in m/s; None (default): ``fpscan.constants.C_AUTOFOCUS_RANGE``.
+        ``reconstruct(dataset, method, options, progress=..., should_stop=...)``.
+    options : fpscan.service.recon.methods.MethodOptions
+        The method's validated options, ``sound_speed="auto"``; its ``sound_speed_range`` (m/s;
+        None: ``fpscan.constants.C_AUTOFOCUS_RANGE``) is the search interval. The search passes on
+        those its own method takes but the depth grid, precision and upsampling (``dz``, ``n_z``,
+        ``dtype``, ``upsample``); the final reconstruction takes them all, at the chosen speed.
     progress : Progress, optional
         Receives the stages and fractions above.
     should_stop : callable, optional
         ``should_stop() -> bool``, passed to every reconstruction (a cancelled job ends the
         search).
-    options_of : callable, optional
-        ``options_of(method)``: the option names a method takes (the dispatch's registry);
-        the search passes only those of its method on (``dz``, ``n_z``, ``dtype`` and
-        ``upsample`` never). None (default): every option in ``options``.
-    **options
-        The method's other options (``c`` excluded), all passed to the final reconstruction.
 
     Returns
     -------
     object
-        The final reconstruction (what ``reconstruct`` returns); its ``params["c"]`` is the
-        chosen c (m/s) and ``params["autofocus"]`` the search (:meth:`Autofocus.as_params`,
+        The final reconstruction (what ``reconstruct`` returns); its ``params["sound_speed"]`` is
+        the chosen speed (m/s) and ``params["autofocus"]`` the search (:meth:`Autofocus.as_params`,
         with ``search_method``).
 
     Raises
     ------
     ValueError
-        A bad ``c_range``; what the dispatch raises.
+        A bad ``sound_speed_range``; what the dispatch raises.
     """
-    rng = check_c_range(C_AUTOFOCUS_RANGE if c_range is None else c_range)
+    rng = check_sound_speed_range(C_AUTOFOCUS_RANGE if options.sound_speed_range is None
+                                  else options.sound_speed_range)
     from fpscan.service.recon.methods import METHODS, default_for
 
     search_method = method
-    if method in METHODS and METHODS[method].iterative:
+    if METHODS[method].iterative:
         search_method = default_for("grid" if getattr(dataset, "kind", None) == "grid" else "points")
-    takes = set(options_of(search_method)) if options_of is not None else set(options)
-    # the search method's own options only (an iterative method's lam, iterations... are not the search's)
-    search_opts = {k: v for k, v in options.items() if k not in ("dz", "n_z", "dtype", "upsample") and k in takes}
+    takes = set(METHODS[search_method].options)
+    # the search method's own options only (an iterative method's lam, max_iter... are not the search's);
+    # the speeds tried lie within the interval, checked above
+    skip = {"dz", "n_z", "dtype", "upsample", "sound_speed", "sound_speed_range", "force"}
+    search_opts = {k: v for k, v in options.model_dump(exclude_defaults=True).items() if k in takes and k not in skip}
 
-    def at(ds: Any, c: float, **o: Any) -> Any:
-        return reconstruct(ds, search_method, should_stop=should_stop, c=c, **{**search_opts, **o})
+    def at(ds: Any, **o: Any) -> Any:
+        return reconstruct(ds, search_method, {**search_opts, **o, "force": True}, should_stop=should_stop)
 
-    found = autofocus(dataset, at, c_range=rng, progress=span(progress, 0.0, 0.5, "autofocus"))
-    rec = reconstruct(dataset, method, progress=span(progress, 0.5, 1.0), should_stop=should_stop, c=found.c,
-                      **options)
-    rec.params["c"] = found.c
+    found = autofocus(dataset, at, sound_speed_range=rng, progress=span(progress, 0.0, 0.5, "autofocus"))
+    final = options.model_copy(update={"sound_speed": found.sound_speed, "sound_speed_range": None, "force": True})
+    rec = reconstruct(dataset, method, final, progress=span(progress, 0.5, 1.0), should_stop=should_stop)
+    rec.params["sound_speed"] = found.sound_speed
     rec.params["autofocus"] = {**found.as_params(), "search_method": search_method}
     return rec

@@ -1,19 +1,19 @@
-"""The names a person reads for the quantities code names otherwise (``fpscan.constants``:
-the speed of sound is ``c`` in code, ``sound_speed`` over HTTP, on the command line and in
-files).
+"""Reading what an earlier release wrote: job records and files whose keys name the speed of
+sound ``c`` (and ``c_range``, ``c_values``), which every part of fpscan now calls
+``sound_speed`` (k-Wave's ``medium.sound_speed``; ``sound_speed_range``,
+``sound_speed_values``).
 
-:func:`person_names` renames a job's stored and returned parameters (``params``, the
-input's ``shape``, the ``result`` summary with its ``params_used`` and ``autofocus``) from
-the code names to the person's; :func:`code_names` is its inverse, for the worker that
-calls the library. Both accept either spelling, so a job stored by an older server (with
-``c``) reads back as ``sound_speed``.
+:func:`current_names` renames those keys, nested, when a job record is read from the store
+(``fpscan.service.jobs.store``) and when a result or unmixing file is read
+(``fpscan.service.formats``); nothing new is written with them. Requests with the old names are
+accepted for one release with a ``DeprecationWarning`` by the options models themselves
+(``fpscan.service.recon.methods.options.DEPRECATED_NAMES``). :func:`renamed_words` shows the
+option names of a message in the words of the caller's door (the command line's flags).
 
 Examples
 --------
->>> person_names({"params": {"c": 1500.0, "dz": 3e-5}, "result": {"autofocus": {"c_range": [1450, 1600]}}})
+>>> current_names({"params": {"c": 1500.0, "dz": 3e-5}, "result": {"autofocus": {"c_range": [1450, 1600]}}})
 {'params': {'sound_speed': 1500.0, 'dz': 3e-05}, 'result': {'autofocus': {'sound_speed_range': [1450, 1600]}}}
->>> code_names({"sound_speed": "auto", "c_range": [1470, 1530]})
-{'c': 'auto', 'c_range': [1470, 1530]}
 """
 from __future__ import annotations
 
@@ -21,26 +21,16 @@ import re
 from collections.abc import Mapping
 from typing import Any
 
-__all__ = ["PERSON_NAMES", "person_names", "code_names", "renamed_words"]
+__all__ = ["OLD_NAMES", "current_names", "renamed_words"]
 
-#: code name → the name a person reads (HTTP fields, stored job parameters, CLI flags)
-PERSON_NAMES: dict[str, str] = {"c": "sound_speed", "c_range": "sound_speed_range",
-                                "c_values": "sound_speed_values"}
-_CODE_NAMES = {v: k for k, v in PERSON_NAMES.items()}
+#: an earlier release's key → today's, in stored job records and files (read only)
+OLD_NAMES: dict[str, str] = {"c": "sound_speed", "c_range": "sound_speed_range", "c_values": "sound_speed_values"}
 
 
-def _renamed(obj: Any, names: dict[str, str]) -> Any:
-    if isinstance(obj, dict):
-        return {names.get(k, k): _renamed(v, names) for k, v in obj.items()}
-    if isinstance(obj, list):
-        return [_renamed(v, names) for v in obj]
-    return obj
-
-
-def person_names(obj: Any) -> Any:
-    """``obj`` (dicts and lists, nested) with every key of :data:`PERSON_NAMES` renamed to
-    the person's name (``c`` → ``sound_speed``); other keys and all values unchanged. A
-    new object; ``obj`` is not modified.
+def current_names(obj: Any) -> Any:
+    """``obj`` (dicts and lists, nested) with every key of :data:`OLD_NAMES` renamed to today's
+    name (``c`` → ``sound_speed``); other keys and all values unchanged. A new object; ``obj`` is
+    not modified.
 
     Parameters
     ----------
@@ -52,38 +42,24 @@ def person_names(obj: Any) -> Any:
     object
         A copy of ``obj`` (new dicts and lists) with the keys renamed.
     """
-    return _renamed(obj, PERSON_NAMES)
-
-
-def code_names(obj: Any) -> Any:
-    """The inverse of :func:`person_names`: ``sound_speed`` → ``c`` (nested), for the
-    library's keyword arguments. A new object.
-
-    Parameters
-    ----------
-    obj : object
-        A JSON-like value: dicts and lists are walked, anything else is returned as is.
-
-    Returns
-    -------
-    object
-        A copy of ``obj`` (new dicts and lists) with the person's names renamed to the code's.
-    """
-    return _renamed(obj, _CODE_NAMES)
+    if isinstance(obj, dict):
+        return {OLD_NAMES.get(k, k): current_names(v) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [current_names(v) for v in obj]
+    return obj
 
 
 def renamed_words(text: str, names: Mapping[str, str]) -> str:
     """``text`` (an error message naming options) with each option name of ``names`` that
     stands as a word of its own (not part of a longer name, not followed by ``=`` or a quote)
-    replaced by the caller's word for it: the JSON field over HTTP (:data:`PERSON_NAMES`:
-    ``c`` → ``sound_speed``), the flag on the command line (``lam`` → ``--lambda``).
+    replaced by the caller's word for it: the flag on the command line (``lam`` → ``--lam``).
 
     Parameters
     ----------
     text : str
         The message.
     names : Mapping[str, str]
-        Option name → the word to show.
+        Option name -> the word to show.
 
     Returns
     -------
@@ -92,10 +68,11 @@ def renamed_words(text: str, names: Mapping[str, str]) -> str:
 
     Examples
     --------
-    >>> renamed_words("method 'ner' takes no option lam (its options: c, eps, n_z)", {"c": "sound_speed"})
-    "method 'ner' takes no option lam (its options: sound_speed, eps, n_z)"
-    >>> renamed_words("c_range needs c='auto', got c=None", {"c": "--sound-speed", "c_range": "--sound-speed-range"})
-    "--sound-speed-range needs c='auto', got c=None"
+    >>> renamed_words("method 'ner' takes no option lam (its options: sound_speed, eps, n_z)",
+    ...               {"sound_speed": "--sound-speed", "lam": "--lam"})
+    "method 'ner' takes no option --lam (its options: --sound-speed, eps, n_z)"
+    >>> renamed_words("sound_speed_range needs sound_speed='auto'", {"sound_speed_range": "--sound-speed-range"})
+    "--sound-speed-range needs sound_speed='auto'"
     """
     if not names:
         return text

@@ -15,23 +15,28 @@ into sensor points for ``nedner``. Adding a method is one new module in
 ``service/recon/methods/`` (it calls :func:`register`); the HTTP model, the CLI flags,
 the web page's fields and the docs table follow from the registry.
 
-Options (SI units; ``None`` means "the default"):
+Options: each method's own typed model (``fpscan.service.recon.methods.get(method).options_model``, a
+``MethodOptions``: type, range, unit and default of each, SI units, ``None`` meaning "the default"),
+validated once, at the door (:meth:`Method.check`), and carried typed to the method's ``run``:
 
-- ``c``: speed of sound in m/s (default: the dataset's), or ``"auto"``: the speed that
-  focuses best (:mod:`fpscan.service.autofocus`, Tenenbaum sharpness; ``c_range`` the search
-  interval in m/s, default 1450-1600); the chosen c, the sharpness curve and the search
-  time land in ``params["autofocus"]``;
+- ``sound_speed``: speed of sound in m/s (default: the dataset's), or ``"auto"``: the speed that
+  focuses best (:mod:`fpscan.service.autofocus`, Tenenbaum sharpness; ``sound_speed_range`` the
+  search interval in m/s, default 1450-1600); the chosen speed, the sharpness curve and the search
+  time land in ``params["autofocus"]``; ``force`` accepts a speed outside
+  ``fpscan.constants.C_PLAUSIBLE`` (another medium: without it such a value is refused as a likely
+  unit mistake, ``fpscan.driver.units.check_speeds``);
 - ``dtype``: ``"float32"`` or ``"float64"``, the working and output precision, default
   :data:`DEFAULT_DTYPE` = ``"float32"`` for every method and every caller;
 - ``eps``: NUFFT tolerance (``ner``, ``nedner``; default 1e-6);
 - ``upsample``: lateral upsampling factor 1..8; ``positivity``: clip p0 < 0 to 0;
 - ``n_z``, ``dz``: output depth count and spacing in m (default ``n_t`` and ``c·dt``);
 - ``interp``: k-Wave's interpolation (``kwave``): ``"*nearest"`` (k-Wave's default),
-  ``"nearest"``, ``"*linear"``, ``"linear"``, ``"*cubic"``, ``"cubic"``.
+  ``"nearest"``, ``"*linear"``, ``"linear"``, ``"*cubic"``, ``"cubic"``;
+- ``lam``, ``max_iter``, ``tol``, ``time_limit``, ``debias``, ``whole_record`` (``tv``).
 
-A ``c`` (and each end of ``c_range``) outside ``fpscan.constants.C_PLAUSIBLE`` (m/s) is refused as a likely unit
-mistake (``fpscan.driver.units.check_speeds``, the rule of the CLI, the API and the web form)
-unless :func:`reconstruct` is called with ``force=True`` (another medium).
+An earlier release's names (``c``, ``c_range``, ``iterations``) are accepted with a
+``DeprecationWarning`` naming the new one
+(``fpscan.service.recon.methods.options.DEPRECATED_NAMES``).
 
 Contracts shared with the callers (docs/architecture.md): ``progress(fraction, stage)``
 is called with non-decreasing fractions in [0, 1] (stage ``"reconstructing"``; a long
@@ -46,6 +51,10 @@ Examples
 (['nedner', 'ner'], True)
 >>> OPTIONS["eps"]
 'NUFFT tolerance (relative accuracy of the non-uniform FFTs) ([1e-14, 0.1]; default 1e-06)'
+>>> import fpscan, numpy as np
+>>> ds = fpscan.GridDataset(np.zeros((64, 8)), dx=1e-4, dt=1e-4 / 1500, sound_speed=1500.0)
+>>> fpscan.reconstruct(ds, "ner", sound_speed=1480).params["sound_speed"]
+1480.0
 """
 from __future__ import annotations
 
@@ -60,7 +69,7 @@ import numpy as np
 from fpscan.service.progress import Progress, span
 from fpscan.service.recon import methods as _methods
 from fpscan.service.recon.limits import DEFAULT_DTYPE, DTYPES, KWAVE_INTERPS
-from fpscan.service.recon.methods import Method
+from fpscan.service.recon.methods import Method, MethodOptions
 
 __all__ = ["METHODS", "OPTIONS", "DEFAULT_DTYPE", "DTYPES", "KWAVE_INTERPS", "Method", "register", "Cancelled", "run_file",
            "Progress", "ShouldStop", "default_method", "option_rules", "check_option_values", "method_options",
@@ -83,11 +92,10 @@ register = _methods.register
 
 def _options() -> dict[str, str]:
     """Every option a method may take, with its meaning, range, unit and default (from the
-    methods' option models; ``c`` and ``c_range`` are the pipeline's own)."""
+    methods' option models; the speed of sound's, every method's, first)."""
     from fpscan.service.recon.methods.options import SpeedOptions
 
-    speed = SpeedOptions.model_fields
-    out = {"c": speed["c"].description or "", "c_range": speed["c_range"].description or ""}
+    out = {name: f.description or "" for name, f in SpeedOptions.model_fields.items() if name != "force"}
     for m in METHODS.values():
         for o in _methods.option_schemas(m):
             if o["name"] in out:
@@ -120,7 +128,7 @@ class Cancelled(Exception):
     >>> import numpy as np
     >>> from fpscan.service.pipeline import Cancelled, reconstruct
     >>> from fpscan.service.recon.dataset import GridDataset
-    >>> ds = GridDataset(np.zeros((64, 8)), dx=1e-4, dt=1e-4 / 1500, c=1500.0)
+    >>> ds = GridDataset(np.zeros((64, 8)), dx=1e-4, dt=1e-4 / 1500, sound_speed=1500.0)
     >>> try:
     ...     reconstruct(ds, "ner", should_stop=lambda: True)
     ... except Cancelled as exc:
@@ -155,7 +163,7 @@ def default_method(dataset: Dataset | str) -> str:
     >>> import numpy as np
     >>> from fpscan.service.pipeline import default_method
     >>> from fpscan.service.recon.dataset import GridDataset
-    >>> ds = GridDataset(np.zeros((64, 8)), dx=1e-4, dt=1e-4 / 1500, c=1500.0)
+    >>> ds = GridDataset(np.zeros((64, 8)), dx=1e-4, dt=1e-4 / 1500, sound_speed=1500.0)
     >>> default_method(ds), default_method(ds.to_points())
     ('ner', 'nedner')
     >>> default_method("grid"), default_method("points")
@@ -165,12 +173,6 @@ def default_method(dataset: Dataset | str) -> str:
 
     kind = dataset if isinstance(dataset, str) else getattr(dataset, "kind", None)
     return default_for("grid" if kind == "grid" else "points")
-
-
-def _dtype(value: Any) -> np.dtype:
-    from fpscan.service.recon.methods.options import check_dtype_name
-
-    return np.dtype(check_dtype_name(DEFAULT_DTYPE if value is None else value))
 
 
 def _field_rule(name: str) -> Callable[[Any], Any]:
@@ -189,8 +191,8 @@ def option_rules() -> dict[str, Callable[[Any], Any]]:
     (:mod:`fpscan.service.recon.methods`), which applies the kernel's own function
     (``fpscan.service.recon.checks``), so every door -- :func:`reconstruct`, ``fpscan recon`` /
     ``unmix`` and ``POST /api/reconstructions`` -- refuses what the kernel would, before any
-    work. ``c`` and ``c_range`` have their own rules (:func:`reconstruct`,
-    ``fpscan.driver.units.check_speeds``, ``fpscan.service.autofocus.check_c_range``).
+    work. The speed of sound's fields are checked by every method's model
+    (``fpscan.service.recon.methods.options.SpeedOptions``).
 
     Returns
     -------
@@ -202,7 +204,7 @@ def option_rules() -> dict[str, Callable[[Any], Any]]:
     --------
     >>> from fpscan.service.pipeline import option_rules
     >>> rules = option_rules()
-    >>> {"debias", "dtype", "dz", "eps", "interp", "iterations", "lam", "n_z", "positivity", "time_limit",
+    >>> {"debias", "dtype", "dz", "eps", "interp", "max_iter", "lam", "n_z", "positivity", "time_limit",
     ...  "tol", "upsample"} <= set(rules)
     True
     >>> rules["upsample"](2.0), rules["eps"]("1e-8")
@@ -222,7 +224,7 @@ def check_option_values(options: dict) -> None:
     Parameters
     ----------
     options : dict
-        Option name -> value (SI units); names without a rule (``c``, ``c_range``) pass.
+        Option name -> value (SI units); names without a rule here (the speed of sound's) pass.
 
     Raises
     ------
@@ -232,7 +234,7 @@ def check_option_values(options: dict) -> None:
     Examples
     --------
     >>> from fpscan.service.pipeline import check_option_values
-    >>> check_option_values({"eps": 1e-8, "upsample": None, "c": 1500.0})  # all pass
+    >>> check_option_values({"eps": 1e-8, "upsample": None, "sound_speed": 1500.0})  # all pass
     >>> check_option_values({"n_z": 1})
     Traceback (most recent call last):
     ...
@@ -244,92 +246,64 @@ def check_option_values(options: dict) -> None:
             rules[name](value)
 
 
-def method_options(method: str, options: dict) -> dict:
-    """The options ``method`` takes, from ``options``, each checked by the method's options
-    model (:mod:`fpscan.service.recon.methods`); ``None`` values (the defaults) are left out.
-    Raises ValueError naming the problem: an unknown method; a name that is no option at
-    all (:data:`OPTIONS`); an option ``method`` does not take (``OptionError`` naming the
-    method's options: an option that would do nothing is never silently dropped); a value
-    outside its rule; ``c="auto"`` for a method whose own reconstruction cannot run the
-    search (it takes no ``dz``, ``n_z``: ``kwave``); a ``c_range`` without ``c="auto"`` or
-    outside :func:`fpscan.service.autofocus.check_c_range`; ``device="cuda"`` where no CUDA GPU is
-    visible (`fpscan.service.recon.device.Unsuited`). ``force`` (:func:`reconstruct`'s flag, not a
-    method's option) passes and is left out. Returns a new dict of the given values as
-    checked (e.g. ``upsample`` an int).
+def method_options(method: str, options: dict | MethodOptions | None = None, /, **given: Any) -> MethodOptions:
+    """``method``'s options validated by its own model: :meth:`Method.check`, the one validation
+    every door runs (this dispatch, ``fpscan recon`` / ``unmix``, ``POST /api/reconstructions``),
+    before any work; and where ``device="cuda"`` is asked, whether a CUDA GPU is visible
+    (``fpscan.service.recon.device.choose``, as the server's admission asks).
 
     Parameters
     ----------
     method : str
         A key of :data:`METHODS`.
-    options : dict
-        Option name -> value (SI units: ``c`` in m/s or ``"auto"``, ``c_range`` m/s, ``dz``
-        m, ``time_limit`` s); ``None`` means the default.
+    options : dict or MethodOptions, optional
+        Option name -> value (SI units: ``sound_speed`` in m/s or ``"auto"``,
+        ``sound_speed_range`` m/s, ``dz`` m, ``time_limit`` s; or text with a unit);
+        ``None`` means the default. An instance of the method's model passes as is.
+    **given
+        More options.
 
     Returns
     -------
-    dict
-        The given, non-``None`` options ``method`` takes, as checked, and ``c`` unchanged.
+    MethodOptions
+        An instance of the method's model (every field filled).
 
     Raises
     ------
     fpscan.service.recon.checks.OptionError
-        An unknown method or option name, an option ``method`` does not take, a value
-        outside its rule, a ``c_range`` without ``c="auto"``.
+        An unknown method or option name, an option ``method`` does not take (naming its
+        options: an option that would do nothing is never silently dropped), a value outside its
+        rule, a ``sound_speed_range`` without ``sound_speed="auto"``, ``"auto"`` for a method
+        that cannot search the speed.
     ValueError
-        A ``c_range`` that ``fpscan.service.autofocus.check_c_range`` refuses.
+        An implausible speed without ``force`` (``fpscan.driver.units.ImplausibleValue``);
+        ``device="cuda"`` where no CUDA GPU is visible (``fpscan.service.recon.device.Unsuited``).
 
     Examples
     --------
     >>> from fpscan.service.pipeline import method_options
-    >>> method_options("nedner", {"upsample": 2.0, "eps": None, "c": 1480.0})
-    {'upsample': 2, 'c': 1480.0}
+    >>> method_options("nedner", {"upsample": 2.0, "eps": None}, sound_speed=1480.0).model_dump(exclude_defaults=True)
+    {'sound_speed': 1480.0, 'upsample': 2}
     >>> method_options("ner", {"lam": 0.1})
     Traceback (most recent call last):
     ...
-    fpscan.service.recon.checks.OptionError: method 'ner' takes no option lam (its options: c, eps, dtype, upsample,
-    positivity, n_z, dz, device)
-    >>> method_options("ner", {"c_range": (1450.0, 1600.0)})
+    fpscan.service.recon.checks.OptionError: method 'ner' takes no option lam (its options: sound_speed, sound_speed_range, force, eps, ...)
+    >>> method_options("ner", sound_speed_range=(1450.0, 1600.0))
     Traceback (most recent call last):
     ...
-    fpscan.service.recon.checks.OptionError: c_range is the autofocus search interval: it needs c='auto', got c=None
+    fpscan.service.recon.checks.OptionError: sound_speed_range is the autofocus search interval: it needs sound_speed='auto', got None
     """
-    from fpscan.service.recon.checks import OptionError
-
-    spec = _methods.get(method)
-    unknown = sorted(set(options) - set(OPTIONS) - {"force"})  # force: reconstruct's own flag
-    if unknown:
-        raise OptionError(f"unknown option {', '.join(unknown)} (options: {', '.join(OPTIONS)})")
-    foreign = sorted(k for k, v in options.items() if v is not None and k in OPTIONS and k not in spec.options
-                     and k != "c_range")
-    if foreign:
-        raise OptionError(f"method {method!r} takes no option {', '.join(foreign)} "
-                          f"(its options: {', '.join(spec.options)})")
-    if options.get("c") == "auto":
-        if not spec.iterative and not {"dz", "n_z"} <= set(spec.options):
-            raise OptionError(f"method {method!r} cannot search the speed of sound (sound_speed 'auto'): the search "
-                              "reconstructs every speed tried on one depth grid (dz, n_z), which it does not take; "
-                              f"give the speed of sound in m/s, or search with {default_method('grid')} first")
-    given = {k: v for k, v in options.items() if v is not None and k in spec.options and k != "c"}
-    checked = spec.check(given)
-    if options.get("c_range") is not None:  # never silently unused
-        if options.get("c") != "auto":
-            raise OptionError(f"c_range is the autofocus search interval: it needs c='auto', got c={options.get('c')!r}")
-        from fpscan.service.autofocus import check_c_range
-
-        check_c_range(options["c_range"])
-    out = {k: getattr(checked, k) for k in given}
-    if out.get("device") == "cuda":  # refused at the door where no GPU is visible, as the server's admission does
+    checked = _methods.get(method).check(options, **given)
+    if getattr(checked, "device", None) == "cuda":  # refused at the door where no GPU is visible, as the admission does
         from fpscan.service.recon.device import choose
 
         choose("cuda", 0)
-    if options.get("c") is not None:
-        out["c"] = options["c"]
-    return out
+    return checked
 
 
-def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = None,
-                should_stop: ShouldStop | None = None, force: bool = False, quiet: bool = False,
-                **options: Any) -> Reconstruction:
+def reconstruct(dataset: Dataset, method: str, options: dict | MethodOptions | None = None, /, *,
+                progress: Progress | None = None, should_stop: ShouldStop | None = None, quiet: bool = False,
+                **given: Any) -> Reconstruction:
     """Reconstruct p0 from ``dataset`` with ``method`` (a key of :data:`METHODS`).
 
     Parameters
@@ -340,36 +314,36 @@ def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = No
         ``positions`` ``(n, 1)`` / ``(n, 2)`` in m).
     method : str
         ``nedner``, ``ner``, ``linear``, ``nearest``, ``cubic``, ``kwave``, ``tv``, ...
+    options : dict or MethodOptions, optional
+        The method's options (module docstring): its own model's instance (what a job's record
+        holds), or a dict of them; or give them as keywords.
     progress : callable, optional
         ``progress(fraction, stage)``, fractions non-decreasing in [0, 1].
     should_stop : callable, optional
         ``should_stop() -> bool``, polled between steps.
-    force : bool, optional
-        Accept a ``c`` (or ``c_range``) outside ``fpscan.constants.C_PLAUSIBLE`` (m/s; a medium other than tissue
-        or water); without it such a value is a ValueError naming the likely unit mistake
-        (``fpscan.driver.units.ImplausibleValue``).
     quiet : bool, optional
         No progress bar in a Jupyter notebook. Without ``progress`` a call in a notebook shows
         one in the cell's output (``fpscan.service.notebook``); elsewhere nothing is shown either way.
-    **options
-        The method's options (module docstring; ``c`` in m/s); ``None`` = default; each is
-        checked by its rule (:func:`method_options`) before any work, and an option the
-        method does not take is refused naming the method's options.
+    **given
+        The method's options as keywords (``sound_speed`` in m/s or ``"auto"``, ``force``,
+        ``eps``, ...); ``None`` = default. All are checked by the method's model
+        (:func:`method_options`) before any work; an option the method does not take is refused
+        naming the method's options.
 
     Returns
     -------
     Reconstruction
         ``p0`` ``(n_z, n_y, n_x)`` / ``(n_z, n_x)`` with ``z``, ``x``, ``y`` (m), ``params``
-        (everything used) and ``p0_unit`` (``"Pa"`` for a calibrated scan, else ``"a.u."``:
-        ``fpscan.service.storage.loader.p0_unit``).
+        (everything used, the speed of sound as ``sound_speed``) and ``p0_unit`` (``"Pa"`` for
+        a calibrated scan, else ``"a.u."``: ``fpscan.service.storage.loader.p0_unit``).
 
     Raises
     ------
     ValueError
         Naming the problem (unknown method or option name, an option the method does not
         take, a grid method on a sensor mask, no A-lines, bad values -- an option outside
-        its rule is ``fpscan.service.recon.checks.OptionError`` -- an implausible ``c`` without
-        ``force``).
+        its rule is ``fpscan.service.recon.checks.OptionError`` -- an implausible speed of sound
+        without ``force``).
     Cancelled
         When ``should_stop()`` returned True.
 
@@ -382,7 +356,7 @@ def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = No
     >>> from fpscan.service.recon.dataset import GridDataset
     >>> g = np.zeros((64, 8))  # (n_t, n_x)
     >>> g[10] = 0.5
-    >>> ds = GridDataset(g, dx=1e-4, dt=1e-4 / 1500, c=1500.0)
+    >>> ds = GridDataset(g, dx=1e-4, dt=1e-4 / 1500, sound_speed=1500.0)
     >>> seen = []
     >>> r = reconstruct(ds, "ner", progress=lambda fraction, stage: seen.append((fraction, stage)))
     >>> r.p0.shape, r.p0.dtype, int(r.p0[:, 4].argmax()), round(float(r.z[10]), 6), r.p0_unit
@@ -399,10 +373,10 @@ def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = No
     Traceback (most recent call last):
     ...
     fpscan.service.recon.checks.OptionError: eps must be in [1e-14, 1e-1], got 5e-15
-    >>> reconstruct(ds, "ner", c=1.5)
+    >>> reconstruct(ds, "ner", sound_speed=1.5)
     Traceback (most recent call last):
     ...
-    fpscan.driver.units.ImplausibleValue: c: sound speed 1.5 m/s is implausible for tissue or water ...
+    fpscan.driver.units.ImplausibleValue: sound_speed: sound speed 1.5 m/s is implausible for tissue or water ...
     >>> reconstruct(ds, "ner", should_stop=lambda: True)
     Traceback (most recent call last):
     ...
@@ -413,28 +387,16 @@ def reconstruct(dataset: Dataset, method: str, *, progress: Progress | None = No
 
         bar = notebook_bar(method)
         if bar is not None:  # a Jupyter notebook: one bar for this call, none for the calls inside it
-            return _with_bar(bar, partial(reconstruct, dataset, method, progress=bar, should_stop=should_stop,
-                                          force=force, quiet=True, **options), method)
+            return _with_bar(bar, partial(reconstruct, dataset, method, options, progress=bar,
+                                          should_stop=should_stop, quiet=True, **given), method)
     spec = _methods.get(method)
-    given = method_options(method, options)
-    # every option of the method, defaults filled (None: derived from the data), and c
-    opts = {**spec.check({k: v for k, v in given.items() if k != "c"}).model_dump(), "c": given.get("c")}
-    from fpscan.driver.units import check_speeds
-
-    check_speeds(c=opts.get("c"), c_range=options.get("c_range"), force=force)
-    if isinstance(opts.get("c"), str):
-        if opts["c"] != "auto":
-            raise ValueError(f"c must be a speed of sound in m/s or 'auto', got {opts['c']!r}")
+    opts = method_options(method, options, **given)
+    if opts.sound_speed == "auto":
         from fpscan.service.autofocus import focus_then_reconstruct
 
-        rest = {k: v for k, v in options.items() if k not in ("c", "c_range")}
-        # the speeds tried lie within c_range, checked above
-        return focus_then_reconstruct(dataset, method, partial(reconstruct, force=True),
-                                      c_range=options.get("c_range"), options_of=lambda m: METHODS[m].options,
-                                      progress=progress, should_stop=should_stop, **rest)
-    opts["dtype"] = _dtype(opts.get("dtype"))
-    c = opts.pop("c", None)
-    c = float(dataset.c if c is None else c)
+        return focus_then_reconstruct(dataset, spec.name, reconstruct, opts, progress=progress,
+                                      should_stop=should_stop)
+    c = float(dataset.sound_speed if opts.sound_speed is None else opts.sound_speed)
     from fpscan.service.recon.dataset import GridDataset, PointDataset, p0_unit, wavelength_params
 
     if spec.needs_grid and isinstance(dataset, PointDataset):
@@ -527,7 +489,7 @@ def run_file(inputs: str | os.PathLike | Sequence[str | os.PathLike],
              wavelengths: Sequence[float] | None = None, unmix: dict | None = None, load: dict | None = None,
              input_id: str = "", progress: Progress | None = None, should_stop: ShouldStop | None = None,
              on_loaded: Callable[[Dataset, str], Any] | None = None, plan: Plan | Mask | dict | None = None,
-             **options: Any) -> dict:
+             options: dict | MethodOptions | None = None, **given: Any) -> dict:
     """Read a file, reconstruct it and write its result folder: the one orchestration of the job
     worker (``fpscan.service.jobs.work``), ``fpscan recon`` and ``fpscan unmix`` (locally), so that a
     file gives the same folder whoever runs it.
@@ -563,7 +525,7 @@ def run_file(inputs: str | os.PathLike | Sequence[str | os.PathLike],
     unmix : dict, optional
         ``{"threshold": THb fraction in [0, 1), "fluence": J/m² per wavelength or None}``.
     load : dict, optional
-        The format's load options (``dt`` s, ``dx``, ``dy`` m, ``key``, ``c`` m/s, ``force``).
+        The format's load options (``dt`` s, ``dx``, ``dy`` m, ``key``, ``sound_speed`` m/s, ``force``).
     input_id : str, optional
         Recorded in the result (the dataset id, the file's name).
     progress : callable, optional
@@ -578,13 +540,16 @@ def run_file(inputs: str | os.PathLike | Sequence[str | os.PathLike],
     plan : fpscan.service.plans.Plan, fpscan.service.plans.Mask or dict, optional
         Dense input sampled by this plan's (or mask's, or plan document's: ``fpscan.load_plan``) sensor points before reconstructing
         (``fpscan.service.subsample.subsample``: a replay scan's A-lines); not with ``unmix``.
-    **options
-        The method's options, as :func:`reconstruct` (``c`` in m/s or ``"auto"``, ``force``, ...).
+    options : dict or MethodOptions, optional
+        The method's options, as :func:`reconstruct` (its own model's instance, e.g. a job record's;
+        or a dict); checked before the input is read where ``method`` is given.
+    **given
+        The method's options as keywords (``sound_speed`` in m/s or ``"auto"``, ``force``, ...).
 
     Returns
     -------
     dict
-        ``method``, ``shape``, ``max``, ``planes``, ``params_used``, ``c`` (m/s), ``timings``
+        ``method``, ``shape``, ``max``, ``planes``, ``params_used``, ``sound_speed`` (m/s), ``timings``
         (``load_s``, ``reconstruct_s``, ``write_s``; unmixing also ``unmix_s``), and where they
         apply ``autofocus``, ``points_used``, ``outcome`` (an iterative method's one line on
         how it ended, ``fpscan.service.progress.outcome``), ``wavelengths`` (a row per wavelength:
@@ -622,11 +587,14 @@ def run_file(inputs: str | os.PathLike | Sequence[str | os.PathLike],
 
     paths = [inputs] if isinstance(inputs, str | os.PathLike) else list(inputs)
     load = {k: v for k, v in (load or {}).items() if v is not None}
+    opts = None if method is None else method_options(method, options, **given)  # refused before any reading
     t0 = time.perf_counter()
     if progress is not None:
         progress(0.0, "loading")
     wl, datasets = _load_inputs(paths, format, unmix is not None, wavelength, wavelengths, load, plan)
     method = method or default_method(datasets[0])
+    if opts is None:
+        opts = method_options(method, options, **given)
     if on_loaded is not None:
         on_loaded(datasets[0], method)
     if callable(out_dir):
@@ -638,7 +606,7 @@ def run_file(inputs: str | os.PathLike | Sequence[str | os.PathLike],
 
         summary = reconstruct_and_unmix(out_dir, datasets, wl, method, input_id=input_id,
                                         threshold=float(unmix.get("threshold", 0.1)), fluence=unmix.get("fluence"),
-                                        progress=run, should_stop=should_stop, reconstruct=reconstruct, **options)
+                                        progress=run, should_stop=should_stop, reconstruct=reconstruct, options=opts)
         summary["timings"]["load_s"] = t1 - t0
         summary["unmix"]["threshold"] = float(unmix.get("threshold", 0.1))
         first = summary["params"]
@@ -647,9 +615,9 @@ def run_file(inputs: str | os.PathLike | Sequence[str | os.PathLike],
             from fpscan.service.spectral import reconstruct_wavelengths, write_wavelength_results
 
             recons = reconstruct_wavelengths(datasets, method, reconstruct=reconstruct, progress=run,
-                                             should_stop=should_stop, **options)
+                                             should_stop=should_stop, options=opts)
         else:
-            recons = [reconstruct(datasets[0], method, progress=run, should_stop=should_stop, **options)]
+            recons = [reconstruct(datasets[0], method, opts, progress=run, should_stop=should_stop)]
         t2 = time.perf_counter()
         if progress is not None:
             progress(0.9, "writing")
@@ -661,7 +629,7 @@ def run_file(inputs: str | os.PathLike | Sequence[str | os.PathLike],
             summary = write_result(out_dir, recons[0], input_id=input_id)
         summary["timings"] = {"load_s": t1 - t0, "reconstruct_s": t2 - t1, "write_s": time.perf_counter() - t2}
         first = recons[0].params
-        summary["c"] = first.get("c")
+        summary["sound_speed"] = first.get("sound_speed")
     summary["method"] = method
     if "autofocus" in first:
         summary["autofocus"] = first["autofocus"]

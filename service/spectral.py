@@ -64,12 +64,12 @@ def dataset_wavelengths(dataset: Any) -> np.ndarray:
 
 
 def reconstruct_wavelengths(datasets: Sequence[Any], method: str, *, reconstruct: Callable[..., Any],
-                            progress: Progress | None = None,
-                            should_stop: Callable[[], bool] | None = None, **options: Any) -> list[Any]:
+                            options: Any, progress: Progress | None = None,
+                            should_stop: Callable[[], bool] | None = None) -> list[Any]:
     """Reconstruct every wavelength's dataset with the same method and options.
 
-    With ``c="auto"`` the first wavelength's reconstruction chooses c and the others reuse it
-    (recorded in their ``params["autofocus_from"]``).
+    With ``sound_speed="auto"`` the first wavelength's reconstruction chooses the speed and the
+    others reuse it (recorded in their ``params["autofocus_from"]``).
 
     Parameters
     ----------
@@ -78,15 +78,16 @@ def reconstruct_wavelengths(datasets: Sequence[Any], method: str, *, reconstruct
     method : str
         The reconstruction method's name (``fpscan.service.recon.methods``).
     reconstruct : callable
-        The dispatch ``reconstruct(dataset, method, progress=..., should_stop=..., **options)``
+        The dispatch ``reconstruct(dataset, method, options, progress=..., should_stop=...)``
         -> ``Reconstruction``.
+    options : fpscan.service.recon.methods.MethodOptions
+        The method's validated options, the same for every wavelength (``sound_speed`` in m/s or
+        ``"auto"``).
     progress : callable, optional
         ``progress(fraction, stage)``, spanning all wavelengths (each wavelength's stage gets the
         suffix ``" (wavelength k/n)"``).
     should_stop : callable, optional
         ``should_stop()`` -> True to cancel; passed on to ``reconstruct``.
-    **options
-        The method's options, the same for every wavelength (``c`` in m/s or ``"auto"``).
 
     Returns
     -------
@@ -102,14 +103,14 @@ def reconstruct_wavelengths(datasets: Sequence[Any], method: str, *, reconstruct
         raise ValueError("no wavelengths to reconstruct")
     n = len(datasets)
     out = []
-    opts = dict(options)
+    opts = options
     for k, ds in enumerate(datasets):
         part = span(progress, k / n, (k + 1) / n, suffix=f" (wavelength {k + 1}/{n})")
-        rec = reconstruct(ds, method, progress=part, should_stop=should_stop, **opts)
-        if k == 0 and opts.get("c") == "auto":
-            opts["c"] = float(rec.params["c"])
-            opts.pop("c_range", None)
-        elif k > 0 and options.get("c") == "auto":
+        rec = reconstruct(ds, method, opts, progress=part, should_stop=should_stop)
+        if k == 0 and opts.sound_speed == "auto":
+            opts = opts.model_copy(update={"sound_speed": float(rec.params["sound_speed"]), "sound_speed_range": None,
+                                           "force": True})
+        elif k > 0 and options.sound_speed == "auto":
             rec.params["autofocus_from"] = "wavelength 1"
         out.append(rec)
     return out
@@ -379,7 +380,7 @@ def reconstruct_and_unmix(out_dir: str | os.PathLike, datasets: Sequence[Any], w
                           input_id: str = "", threshold: float = 0.1, fluence: Any = None,
                           gruneisen: float = 1.0, progress: Progress | None = None,
                           should_stop: Callable[[], bool] | None = None,
-                          reconstruct: Callable[..., Any], **options: Any) -> dict:
+                          reconstruct: Callable[..., Any], options: Any) -> dict:
     """Reconstruct every wavelength, unmix, and write the result folder ``out_dir``.
 
     The folder: ``volume.h5`` + MIPs of the first wavelength (as any reconstruction result),
@@ -411,14 +412,14 @@ def reconstruct_and_unmix(out_dir: str | os.PathLike, datasets: Sequence[Any], w
         ``should_stop()`` -> True to cancel.
     reconstruct : callable
         The dispatch ``fpscan.service.pipeline.reconstruct``, which calls this through ``run_file``.
-    **options
-        The method's options.
+    options : fpscan.service.recon.methods.MethodOptions
+        The method's validated options.
 
     Returns
     -------
     dict
         The first wavelength's volume summary plus ``wavelengths`` (per volume), ``unmix`` (the
-        :func:`write_unmix` summary), ``so2_median``, ``masked_fraction``, ``c``,
+        :func:`write_unmix` summary), ``so2_median``, ``masked_fraction``, ``sound_speed``,
         ``wavelengths_m``, ``params`` (wavelength 1's reconstruction parameters) and
         ``timings`` (``reconstruct_s``, ``unmix_s``, ``write_s``).
 
@@ -440,7 +441,7 @@ def reconstruct_and_unmix(out_dir: str | os.PathLike, datasets: Sequence[Any], w
     t0 = time.perf_counter()
 
     recons = reconstruct_wavelengths(datasets, method, reconstruct=reconstruct, progress=span(progress, 0.0, 0.9),
-                                     should_stop=should_stop, **options)
+                                     should_stop=should_stop, options=options)
     t1 = time.perf_counter()
     u = unmix_reconstructions(recons, w, threshold=threshold, fluence=fluence, gruneisen=gruneisen)
     t2 = time.perf_counter()
@@ -449,12 +450,12 @@ def reconstruct_and_unmix(out_dir: str | os.PathLike, datasets: Sequence[Any], w
     out = Path(out_dir)
     first = recons[0]
     written = write_wavelength_results(out, recons, w, input_id=input_id)
-    extra = {"method": method, "c": float(first.params.get("c", 0.0)) or None}
+    extra = {"method": method, "sound_speed": float(first.params.get("sound_speed", 0.0)) or None}
     if "autofocus" in first.params:
         extra["autofocus"] = first.params["autofocus"]
     summary = write_unmix(out, u, first.z, first.x, getattr(first, "y", None), input_id=input_id, extra=extra)
     t3 = time.perf_counter()
     return {**written, "unmix": summary, "so2_median": summary["so2_median"],
             "masked_fraction": summary["masked_fraction"],
-            "c": extra["c"], "wavelengths_m": [float(v) for v in w], "params": dict(first.params),
+            "sound_speed": extra["sound_speed"], "wavelengths_m": [float(v) for v in w], "params": dict(first.params),
             "timings": {"reconstruct_s": t1 - t0, "unmix_s": t2 - t1, "write_s": t3 - t2}}

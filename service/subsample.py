@@ -146,7 +146,7 @@ def subsample(dataset: GridDataset | PointDataset, mask: Mask | Plan | dict, *, 
     >>> import numpy as np
     >>> import fpscan
     >>> dense = fpscan.GridDataset(np.random.default_rng(0).standard_normal((64, 8, 8)), dx=1e-4, dt=1e-8,
-    ...                            c=1500.0)
+    ...                            sound_speed=1500.0)
     >>> mask = fpscan.make_mask("equispaced", fpscan.Lattice(8, 8, 1e-4), interval=3)
     >>> sparse = fpscan.subsample(dense, mask)
     >>> sparse.alines.shape, sparse.positions.shape, float(sparse.weights.sum()) == mask.covered_area
@@ -184,6 +184,6 @@ def subsample(dataset: GridDataset | PointDataset, mask: Mask | Plan | dict, *, 
     if plan_id is not None:
         meta["plan_id"] = plan_id
     return PointDataset(alines=alines, positions=positions[:, :1].copy() if lattice.is_line else positions,
-                        weights=weights, dt=grid.dt, c=grid.c, grid=(gx,) if lattice.is_line else (gx, gy),
+                        weights=weights, dt=grid.dt, sound_speed=grid.sound_speed, grid=(gx,) if lattice.is_line else (gx, gy),
                         t0=grid.t0, source="subsample", meta=meta, indices=indices.astype(np.int64).reshape(-1, 2),
                         lattice=lat, wavelengths=grid.wavelengths, lateral_shift=grid.lateral_shift)

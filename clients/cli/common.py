@@ -179,7 +179,7 @@ def default_dtype() -> str:
     -------
     str
         ``fpscan.service.recon.limits.DEFAULT_DTYPE``; on a client-only install (no ``service``
-        package) ``"float32"``, the value the server states in its ``ReconParams`` schema.
+        package) ``"float32"``, the value the server states in its methods' options schemas.
     """
     try:
         from fpscan.service.recon.limits import DEFAULT_DTYPE
@@ -242,7 +242,7 @@ def needs_extra(args: argparse.Namespace, extra: str, detail: str = "") -> int:
 
 
 def speed(value: str) -> float | str:
-    """An ``argparse`` ``type=`` for a speed-of-sound flag: ``"auto"`` (autofocus) or a speed.
+    """An ``argparse`` ``type=`` for ``--sound-speed``: ``"auto"`` (autofocus) or a speed.
 
     Parameters
     ----------
@@ -262,7 +262,7 @@ def speed(value: str) -> float | str:
     """
     if value.strip().lower() == "auto":
         return "auto"
-    return quantity("speed", "c")(value)
+    return quantity("speed", "sound-speed")(value)
 
 
 def add_progress_option(parser: argparse.ArgumentParser) -> None:

@@ -259,7 +259,7 @@ def _local(args: argparse.Namespace, fmt: str) -> int:
             f"(input {list(shape)})")
 
     load = {"dt": args.dt, "dx": args.dx, "dy": args.dy, "key": args.key, "force": args.force,
-            "c": None if args.c == "auto" else args.c}
+            "sound_speed": None if args.sound_speed == "auto" else args.sound_speed}
     plan = _read_plan(args.plan) if args.plan else None
     from fpscan.service.subsample import MaskMismatch
 
@@ -282,7 +282,7 @@ def _local(args: argparse.Namespace, fmt: str) -> int:
         print(f"{len(summary['wavelengths'])} wavelengths  {times}")
         return 0
     af = summary.get("autofocus")
-    focus = f"  sound speed {af['c']:.1f} m/s (autofocus, search {af['time_s']:.2f} s)" if af else ""
+    focus = f"  sound speed {af['sound_speed']:.1f} m/s (autofocus, search {af['time_s']:.2f} s)" if af else ""
     print(f"{out}/volume.h5  p0 {'x'.join(str(n) for n in summary['shape'])}  method {method}"
           f"{_nm(summary['params_used'])}  {times}{focus}")
     if ended:
@@ -327,24 +327,23 @@ def _nm(params: dict) -> str:
 
 def _remote(args: argparse.Namespace, fmt: str | None) -> int:
     from fpscan.clients.cli.common import ProgressBar, make_client
-    from fpscan.clients.cli.recon_options import http_params
 
     with make_client(args, timeout=300) as api:
         if args.scan_job:
             from fpscan.clients.cli.common import full_job_id
 
             job_id = api.start_reconstruction(scan_job_id=full_job_id(api, args.scan_job), method=args.method,
-                                              params=http_params(_params(args)), wavelength=args.wavelength)
+                                              params=_params(args), wavelength=args.wavelength)
         else:
             if args.wavelength == "all":
                 raise UsageError("--wavelength all with --server needs --scan-job: an uploaded file is stored at "
                                  "one wavelength (--wavelength K); reconstruct locally or upload once per wavelength")
             from fpscan.driver.units import check_plausible
 
-            check_plausible(dt=args.dt, dx=args.dx, dy=args.dy, sound_speed=None if args.c == "auto" else args.c,
+            check_plausible(dt=args.dt, dx=args.dx, dy=args.dy, sound_speed=None if args.sound_speed == "auto" else args.sound_speed,
                             force=args.force)
             fields = {k: getattr(args, k) for k in ("dt", "dx", "dy", "key", "wavelength")}
-            fields["sound_speed"] = args.c
+            fields["sound_speed"] = args.sound_speed
             if args.force:
                 fields["force"] = True
             if fields["sound_speed"] == "auto":  # a search, not the data's speed: it goes with the reconstruction
@@ -353,7 +352,7 @@ def _remote(args: argparse.Namespace, fmt: str | None) -> int:
             assert fmt is not None  # run gives one whenever there is no --scan-job
             dataset_id = api.upload_dataset(args.input, fmt, **fields)
             job_id = api.start_reconstruction(dataset_id=dataset_id, method=args.method,
-                                              params=http_params(_params(args)), plan_id=plan_id)
+                                              params=_params(args), plan_id=plan_id)
         assert job_id is not None  # a 202 names its job (fpscan.clients.http.calls.read_job_id)
         from fpscan.clients.cli.common import remember_job
 

@@ -1,13 +1,14 @@
 """The reconstruction options of ``fpscan recon`` and ``fpscan unmix``, as flags generated
 from the method registry (``fpscan.service.recon.methods``: each method's typed options model).
 
-One flag per option of any method: ``--name-with-dashes`` (or the field's ``flag``, e.g.
-``--lambda``), its type from the field's JSON schema (a number, an integer, a choice,
-true/false as ``--x`` / ``--no-x``, a length or time with a unit where the field names a
-``quantity``), its help from the field's description, range, unit and default. The speed of
-sound is ``--sound-speed`` (``--c`` accepted, deprecated) and its autofocus interval
-``--sound-speed-range`` (``--c-range``). The registry loads without numpy, so a client-only
-install has the same flags (the server checks the values, 422 → exit 2).
+One flag per option of any method: ``--name-with-dashes`` of the option's one name (``--lam``,
+``--max-iter``; or the field's ``flag``), its type from the field's JSON schema (a number, an
+integer, a choice, true/false as ``--x`` / ``--no-x``, a length or time with a unit where the
+field names a ``quantity``), its help from the field's description, range, unit and default. The
+speed of sound is ``--sound-speed`` and its autofocus interval ``--sound-speed-range``. An earlier
+release's flags (:data:`OLD_FLAGS`: ``--c``, ``--c-range``, ``--lambda``, ``--iterations``) still
+work for one release and print a warning naming the new one. The registry loads without numpy,
+so a client-only install has the same flags (the server checks the values, 422 → exit 2).
 """
 from __future__ import annotations
 
@@ -20,8 +21,25 @@ TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (`fpscan 
 if TYPE_CHECKING:
     from typing import Any
 
-__all__ = ["add_speed_flags", "add_load_flags", "add_option_flags", "option_names", "option_params", "http_params",
+__all__ = ["OLD_FLAGS", "add_speed_flags", "add_load_flags", "add_option_flags", "option_names", "option_params",
            "option_flags"]
+
+#: an earlier release's flags, still accepted for one release (a warning names the new one): option -> old flags
+OLD_FLAGS: dict[str, tuple[str, ...]] = {"sound_speed": ("--c",), "sound_speed_range": ("--c-range",),
+                                         "lam": ("--lambda",), "max_iter": ("--iterations",)}
+
+
+class _Renamed(argparse.Action):
+    """Store the value; given by an old flag (:data:`OLD_FLAGS`), warn on stderr naming the new one."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:
+        if option_string is not None and option_string != self.option_strings[0]:
+            import sys
+
+            print(f"fpscan: warning: {option_string} is deprecated: use {self.option_strings[0]} ({option_string} is "
+                  "refused from the next release)", file=sys.stderr)
+        setattr(namespace, self.dest, values)
 
 
 def _registry() -> Any:
@@ -39,18 +57,18 @@ def _speed_fields() -> dict[str, str]:
     try:
         from fpscan.service.recon.methods.options import SpeedOptions
     except ImportError:
-        return {"c": f"speed of sound, m/s; default: the input's, else {C_DEFAULT:g}",
-                "c_range": f"autofocus search interval (c_min, c_max), m/s (default {C_AUTOFOCUS_RANGE[0]:g}-"
-                           f"{C_AUTOFOCUS_RANGE[1]:g})",
+        return {"sound_speed": f"speed of sound, m/s; default: the input's, else {C_DEFAULT:g}",
+                "sound_speed_range": f"autofocus search interval (c_min, c_max), m/s (default "
+                                     f"{C_AUTOFOCUS_RANGE[0]:g}-{C_AUTOFOCUS_RANGE[1]:g})",
                 "force": f"accept a sound_speed outside {C_PLAUSIBLE[0]:g}-{C_PLAUSIBLE[1]:g} m/s (another medium)"}
-    return {name: (f.description or "").split(". Also accepted as")[0]
-            for name, f in SpeedOptions.model_fields.items()}
+    return {name: f.description or "" for name, f in SpeedOptions.model_fields.items()}
 
 
 def add_speed_flags(group: Any, *, what: str = "") -> None:
-    """``--sound-speed`` (alias ``--c``), ``--sound-speed-range`` (alias ``--c-range``) and
-    ``--force`` on ``group``; dests ``c``, ``c_range``, ``force`` (the code's names); their help
-    from the registry's one speed option (unit, bounds, default: :func:`_speed_fields`).
+    """``--sound-speed``, ``--sound-speed-range`` and ``--force`` on ``group`` (``--c`` and
+    ``--c-range``, an earlier release's, warn); dests ``sound_speed``, ``sound_speed_range``,
+    ``force`` (the options' names); their help from the registry's one speed option (unit,
+    bounds, default: :func:`_speed_fields`).
 
     Parameters
     ----------
@@ -60,12 +78,13 @@ def add_speed_flags(group: Any, *, what: str = "") -> None:
         Text appended to ``--sound-speed``'s help (what the speed is used for here).
     """
     said = _speed_fields()
-    group.add_argument("--sound-speed", "--c", dest="c", type=speed, default=None, metavar="C",
-                       help=f"{said['c']}{what}; e.g. 1500 or 1.5km/s. --c is the deprecated name".replace("%", "%%"))
-    group.add_argument("--sound-speed-range", "--c-range", dest="c_range", type=quantity("speed", "sound-speed-range"),
-                       nargs=2, default=None, metavar=("MIN", "MAX"),
-                       help=f"{said['c_range']}; e.g. 1450 1600 or 1.45km/s 1.6km/s. --c-range is the deprecated "
-                            "name".replace("%", "%%"))
+    group.add_argument("--sound-speed", *OLD_FLAGS["sound_speed"], dest="sound_speed", type=speed, default=None,
+                       metavar="C", action=_Renamed,
+                       help=f"{said['sound_speed']}{what}; e.g. 1500 or 1.5km/s".replace("%", "%%"))
+    group.add_argument("--sound-speed-range", *OLD_FLAGS["sound_speed_range"], dest="sound_speed_range",
+                       type=quantity("speed", "sound-speed-range"), nargs=2, default=None, metavar=("MIN", "MAX"),
+                       action=_Renamed,
+                       help=f"{said['sound_speed_range']}; e.g. 1450 1600 or 1.45km/s 1.6km/s".replace("%", "%%"))
     group.add_argument("--force", action="store_true", help=said["force"].replace("%", "%%"))
 
 
@@ -149,14 +168,18 @@ def add_option_flags(group: argparse._ArgumentGroup) -> None:
             said = f"{who}{o['description']}" + (f"; {rng}{unit}" if rng else (f";{unit}" if unit else "")) + \
                 f" (default {methods.default_text(name)}{', locally and on the server' if name == 'dtype' else ''})"
             metavar = name.upper() if schema.get("type") in ("number", "integer") else None
-            group.add_argument(flag, dest=name, default=None, help=said.replace("%", "%%"),
-                               **({"metavar": metavar} if metavar else {}), **_value_type(name, schema, flag))
+            kind = _value_type(name, schema, flag)
+            old = OLD_FLAGS.get(name, ()) if "action" not in kind else ()
+            if old:
+                kind["action"] = _Renamed
+            group.add_argument(flag, *old, dest=name, default=None, help=said.replace("%", "%%"),
+                               **({"metavar": metavar} if metavar else {}), **kind)
 
 
 def option_flags() -> dict[str, str]:
-    """Each reconstruction and load option's name (the library's, ``lam``) → the flag that
-    gives it (``--lambda``), the speed of sound's ``c``/``sound_speed`` → ``--sound-speed``: how
-    the command line words an error that names options (``fpscan.clients.cli.in_flags``).
+    """Each reconstruction and load option's name (``lam``) → the flag that gives it
+    (``--lam``; ``sound_speed`` → ``--sound-speed``): how the command line words an error that
+    names options (``fpscan.clients.cli.in_flags``).
 
     Returns
     -------
@@ -166,12 +189,7 @@ def option_flags() -> dict[str, str]:
     methods = _registry()
     if methods is None:
         return {}
-    from fpscan.service.names import PERSON_NAMES  # the one c <-> sound_speed table
-
-    out = {}
-    for code in ("c", "c_range"):  # add_speed_flags's dests; each flag is the person's name
-        person = PERSON_NAMES[code]
-        out[code] = out[person] = "--" + person.replace("_", "-")
+    out = {name: "--" + name.replace("_", "-") for name in ("sound_speed", "sound_speed_range", "force")}  # add_speed_flags'
     for m in methods.METHODS.values():
         for o in methods.option_schemas(m):
             out.setdefault(o["name"], o["schema"].get("flag") or "--" + o["name"].replace("_", "-"))
@@ -204,37 +222,17 @@ def option_params(args: argparse.Namespace) -> dict:
     Returns
     -------
     dict
-        Each option given (``None``: not given, left out), with the speed of sound ``c``
-        (m/s), ``c_range`` (a list ``[c_min, c_max]``, m/s) and ``force`` (True) when set.
+        Each option given (``None``: not given, left out), with the speed of sound
+        ``sound_speed`` (m/s), ``sound_speed_range`` (a list ``[c_min, c_max]``, m/s) and
+        ``force`` (True) when set: the same names in the library and over HTTP.
     """
     params: dict[str, Any] = {}
-    for name in ("c", *option_names()):
+    for name in ("sound_speed", *option_names()):
         value = getattr(args, name, None)
         if value is not None:
             params[name] = bool(value) if isinstance(value, bool) else value
-    if getattr(args, "c_range", None) is not None:
-        params["c_range"] = list(args.c_range)
+    if getattr(args, "sound_speed_range", None) is not None:
+        params["sound_speed_range"] = list(args.sound_speed_range)
     if getattr(args, "force", False):  # the speed-of-sound rule, as the library and the API apply it
         params["force"] = True
     return params
-
-
-def http_params(params: dict) -> dict:
-    """``params`` with the HTTP names of the speed of sound.
-
-    Parameters
-    ----------
-    params : dict
-        :func:`option_params`'s.
-
-    Returns
-    -------
-    dict
-        A copy with ``c`` renamed ``sound_speed`` and ``c_range`` ``sound_speed_range`` (the
-        server takes ``c`` / ``c_range`` too, deprecated); other keys as they are. The names
-        are :data:`fpscan.service.names.PERSON_NAMES` (standard library only: a client-only install
-        has it too).
-    """
-    from fpscan.service.names import PERSON_NAMES
-
-    return {PERSON_NAMES.get(k, k): v for k, v in params.items()}

@@ -151,7 +151,7 @@ def _local(args: argparse.Namespace) -> int:
                        unmix={"threshold": args.threshold, "fluence": args.fluence}, load=load,
                        input_id=",".join(args.inputs), on_loaded=loaded,
                        progress=None if args.quiet else (lambda f, s: say(f"{s} {100 * f:.0f} %")), **_params(args))
-    c, t = summary.get("c"), summary["timings"]
+    c, t = summary.get("sound_speed"), summary["timings"]
     nm = ", ".join(f"{w * 1e9:g} nm" for w in summary["wavelengths_m"])
     print(f"{out}/unmix.h5  so2.png  {nm}  sO2 median {summary['so2_median']}  "
           f"masked {summary['masked_fraction']:.1%}" + (f"  sound speed {c:.1f} m/s" if c is not None else "")
@@ -161,7 +161,6 @@ def _local(args: argparse.Namespace) -> int:
 
 def _remote(args: argparse.Namespace) -> int:
     from fpscan.clients.cli.common import ProgressBar, make_client, sniff_format
-    from fpscan.clients.cli.recon_options import http_params
     from fpscan.clients.http import field_of
 
     formats = [args.format or sniff_format(p) for p in args.inputs]
@@ -171,12 +170,12 @@ def _remote(args: argparse.Namespace) -> int:
         if args.scan_job:
             from fpscan.clients.cli.common import full_job_id
 
-            job_id = api.start_unmix(scan_job_id=full_job_id(api, args.scan_job), method=method, params=http_params(_params(args)), **unmix)
+            job_id = api.start_unmix(scan_job_id=full_job_id(api, args.scan_job), method=method, params=_params(args), **unmix)
         else:
             fields = {k: getattr(args, k) for k in ("dt", "dx", "dy", "key")}
             ids = [api.upload_dataset(p, fmt, **fields) for p, fmt in zip(args.inputs, formats, strict=True)]
             job_id = api.start_unmix(dataset_ids=ids, wavelengths=args.wavelengths, method=method,
-                                     params=http_params(_params(args)), **unmix)
+                                     params=_params(args), **unmix)
         assert job_id is not None  # a 202 names its job (fpscan.clients.http.calls.read_job_id)
         from fpscan.clients.cli.common import remember_job
 

@@ -1644,7 +1644,7 @@ function methodOption(method, option) {
   return m ? m.options.find((o) => o.name === option) : undefined;
 }
 
-/** The id of an option's field: recon-<its CLI flag or name with dashes> (lam: recon-lambda). */
+/** The id of an option's field: recon-<its CLI flag or name with dashes> (max_iter: recon-max-iter). */
 function optionFieldId(o) {
   const flag = o.value_schema && o.value_schema.flag;
   return "recon-" + (flag ? flag.replace(/^--/, "") : o.name.replace(/_/g, "-"));

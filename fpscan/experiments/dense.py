@@ -27,7 +27,7 @@ __all__ = ["DenseDataset", "load_dense", "add_noise"]
 class DenseDataset(GridDataset):
     """Sensor data on a full regular lattice with an optional ground truth.
 
-    A :class:`GridDataset` (its fields: ``data``, ``dx``, ``dt``, ``c``, ``dy``, ``t0``,
+    A :class:`GridDataset` (its fields: ``data``, ``dx``, ``dt``, ``sound_speed``, ``dy``, ``t0``,
     ``source``, ``meta``, ``wavelengths``) plus the ground truth the experiments score
     against.
 
@@ -40,7 +40,7 @@ class DenseDataset(GridDataset):
         Lateral pitch, m (the same in x and y).
     dt : float
         Sample interval, s (t_n = n·dt).
-    c : float
+    sound_speed : float
         Sound speed, m/s.
     dy : float or None
         The y pitch, m, where the dataset records one.
@@ -68,7 +68,7 @@ class DenseDataset(GridDataset):
         cover the ground truth's depth (``p0`` rows × ``dz``), or half the samples without
         a ground truth; at least ``minimum`` and at most ``n_t``."""
         if self.p0 is not None and self.dz:
-            n_z = round(self.p0.shape[0] * self.dz / (self.c * self.dt))
+            n_z = round(self.p0.shape[0] * self.dz / (self.sound_speed * self.dt))
         else:
             n_z = self.n_t // 2
         return max(int(minimum), min(n_z, self.n_t))
@@ -88,7 +88,7 @@ class DenseDataset(GridDataset):
             data = data[(slice(None), *sl)]
             if p0 is not None:
                 p0 = p0[(slice(None), *sl)]
-        return DenseDataset(data=np.ascontiguousarray(data), dx=self.dx, dt=self.dt, c=self.c, dy=self.dy,
+        return DenseDataset(data=np.ascontiguousarray(data), dx=self.dx, dt=self.dt, sound_speed=self.sound_speed, dy=self.dy,
                             source=self.source, meta=dict(self.meta), p0=p0, dz=self.dz)
 
 
@@ -143,7 +143,7 @@ def load_dense(path: str | Path, key: str | None = None) -> DenseDataset:
     meta: dict = {"kwave": bool(ds.meta.get("kwave_naming", False))}
     if ds.source == "fpscan":
         meta = {"scan_plan_id": ds.meta.get("plan_id")}
-    return DenseDataset(data=np.asarray(ds.data, dtype=np.float64), dx=ds.dx, dt=ds.dt, c=ds.c,
+    return DenseDataset(data=np.asarray(ds.data, dtype=np.float64), dx=ds.dx, dt=ds.dt, sound_speed=ds.sound_speed,
                         dy=ds.dy, source=path.name, meta=meta, p0=p0, dz=dz)
 
 

@@ -108,7 +108,7 @@ def simulate_tree(*, small: bool, snr_db: float | None, seed: int = 0) -> DenseD
     n_t = n_x + n_z
     clean = forward_grid(p0, dx, dx, dt, n_t, c)
     noisy = add_noise(clean, snr_db, seed)
-    return DenseDataset(data=noisy, dx=dx, dt=dt, c=c, p0=p0, dz=dx, source="tree phantom (built in)",
+    return DenseDataset(data=noisy, dx=dx, dt=dt, sound_speed=c, p0=p0, dz=dx, source="tree phantom (built in)",
                         meta={"clean": clean, "snr_db": snr_db, "seed": seed})
 
 
@@ -161,7 +161,7 @@ def run(
     n_t, n_x = g.shape
     if n_sensors > n_x:
         raise ValueError(f"{n_sensors} sensors do not fit on a line of {n_x} points")
-    dx, dt, c = data.dx, data.dt, data.c
+    dx, dt, c = data.dx, data.dt, data.sound_speed
     dz = c * dt
     n_z = data.depth_rows(4)
     x = centred_axis(n_x, dx)
@@ -276,7 +276,7 @@ class _Line:
 
     def points(self, idx: np.ndarray, positions: np.ndarray, weights: np.ndarray) -> PointDataset:
         """The A-lines of line points ``idx`` at ``positions`` ``(n, 1)`` m with ``weights`` (m)."""
-        return PointDataset(alines=self.g[:, idx].T, positions=positions, weights=weights, dt=self.dt, c=self.c,
+        return PointDataset(alines=self.g[:, idx].T, positions=positions, weights=weights, dt=self.dt, sound_speed=self.c,
                             grid=(self.x,))
 
     def reconstruct(self, data: GridDataset | PointDataset, method: str, **params: Any) -> np.ndarray:
@@ -335,12 +335,12 @@ def _run_equiangular(table: _Table, line: _Line, lattice: Lattice, poi: tuple[fl
     table.add("equiangular", img, pos[:, 0], t0, arrangement="equiangular", **row)
     if model_based:  # the same 32 A-lines, model-based (TV + positivity, automatic λ)
         t0 = time.perf_counter()
-        img = line.reconstruct(line.points(idx, pos, w), "tv", iterations=tv_iterations)
+        img = line.reconstruct(line.points(idx, pos, w), "tv", max_iter=tv_iterations)
         table.add("equiangular-tv", img, pos[:, 0], t0, arrangement="equiangular-tv", **row)
     # conventional: interpolate the 32 A-lines linearly to every line point, then NER
     t0 = time.perf_counter()
     filled = _interpolated_to_line(pos[:, 0], line.g[:, idx], line.x)
-    img = line.reconstruct(GridDataset(data=filled, dx=line.dx, dt=line.dt, c=line.c), "ner")
+    img = line.reconstruct(GridDataset(data=filled, dx=line.dx, dt=line.dt, sound_speed=line.c), "ner")
     table.add("equiangular-interpolated", img, pos[:, 0], t0, arrangement="equiangular-interpolated", **row)
     return mask_eq.weight_ratio  # outer/inner (fpscan.service.plans.weight_ratio), as every plan states it
 

@@ -84,7 +84,7 @@ def simulate_layer(*, small: bool, depth: float | None = None) -> DenseDataset:
     width = 0.5 * n_x * dx
     p0 = layer_phantom(n_z, n_x, dz, dx, depth=depth, width=width, thickness=2.5 * dz, edge=2.5 * dx)
     data = forward_grid(p0, dx, dz, dt, n_t, c)
-    return DenseDataset(data=data, dx=dx, dt=dt, c=c, p0=p0, dz=dz, source="thin layer (built in)",
+    return DenseDataset(data=data, dx=dx, dt=dt, sound_speed=c, p0=p0, dz=dz, source="thin layer (built in)",
                         meta={"layer_depth_m": depth, "layer_width_m": width})
 
 
@@ -197,7 +197,7 @@ def run(data: DenseDataset | None = None, *, small: bool = False, methods: Seque
     if data is None:
         data = simulate_layer(small=small)
     g = data.data
-    dx, dt, c = data.dx, data.dt, data.c
+    dx, dt, c = data.dx, data.dt, data.sound_speed
     dz = c * dt
     n_z = data.depth_rows(8)
     recons, times = {}, {}

@@ -85,7 +85,7 @@ def simulate_yarn(*, small: bool, snr_db: float | None = None, seed: int = 0) ->
     p0, _ = yarn_phantom(n_z, n, d)
     n_t = round(0.6 * n * d / (c * dt))
     data = add_noise(forward_grid(p0, d, d, dt, n_t, c), snr_db, seed)
-    return DenseDataset(data=data, dx=d, dt=dt, c=c, dy=d, p0=p0, dz=d, source="yarn phantom (built in)",
+    return DenseDataset(data=data, dx=d, dt=dt, sound_speed=c, dy=d, p0=p0, dz=d, source="yarn phantom (built in)",
                         meta={"snr_db": snr_db, "seed": seed})
 
 
@@ -169,7 +169,7 @@ def run(
                      "fraction": n_points / (n * n), **score.measures(m), "time_s": elapsed})
     summary = _summary(rows, curves, score, side, weight_ratio, model_based)
     params = {"source": data.source, "n_lattice": n, "pitch_m": d, "n_t": data.data.shape[0], "dt_s": data.dt,
-              "sound_speed": data.c, "n_z": n_z, "poi_depth_m": poi_depth, "fraction_requested": fraction,
+              "sound_speed": data.sound_speed, "n_z": n_z, "poi_depth_m": poi_depth, "fraction_requested": fraction,
               "n_side": n_side, "intervals": list(intervals), "threshold": 0.04, "disc_diameter_m": score.disc_d,
               "eval_diameter_m": score.eval_d, "small": small, "reference": "xy-MIP of NER from every lattice point",
               "snr_db": data.meta.get("snr_db") if data.source == "yarn phantom (built in)" else None,
@@ -245,9 +245,9 @@ def _reconstruct(data: DenseDataset, arrangement: _Arrangement, x: np.ndarray, n
     """p0 ``(n_z, n, n)`` (float64) reconstructed on the lattice (axis ``x`` m both ways)
     from the arrangement's A-lines of the dense data, with its positions, weights and
     method (``tv`` capped at ``tv_iterations``)."""
-    opts: dict[str, Any] = {"iterations": tv_iterations} if arrangement.method == "tv" else {}
+    opts: dict[str, Any] = {"max_iter": tv_iterations} if arrangement.method == "tv" else {}
     points = PointDataset(alines=data.data[:, arrangement.iy, arrangement.ix].T, positions=arrangement.positions,
-                          weights=arrangement.weights, dt=data.dt, c=data.c, grid=(x, x))
+                          weights=arrangement.weights, dt=data.dt, sound_speed=data.sound_speed, grid=(x, x))
     return reconstruct(points, arrangement.method, n_z=n_z, dtype="float64", **opts).p0
 
 

@@ -72,7 +72,7 @@ def simulate_vessels(*, small: bool, snr_db: float = 30.0, seed: int = 0) -> Den
     clean = forward_grid(p0, dx, dx, dt, n_t, c)
     rms = float(np.sqrt(np.mean(clean**2)))
     noise = np.random.default_rng(seed).standard_normal(clean.shape) * rms / 10 ** (snr_db / 20)
-    return DenseDataset(data=clean + noise, dx=dx, dt=dt, c=c, p0=p0, dz=dx,
+    return DenseDataset(data=clean + noise, dx=dx, dt=dt, sound_speed=c, p0=p0, dz=dx,
                         source=f"vessel tree (built in), {snr_db:g} dB", meta={"snr_db": snr_db})
 
 
@@ -168,7 +168,7 @@ def run(data: DenseDataset | None = None, *, small: bool = False, fraction: floa
     mask = equisteradian_mask(Lattice(n, n, ds.dx), poi_depth, round(fraction * n * n))
     ix, iy = np.asarray(mask.indices).T
     sparse = PointDataset(alines=ds.data[:, iy, ix].T, positions=np.asarray(mask.positions, float)[:, :2],
-                          weights=np.asarray(mask.weights, float), dt=ds.dt, c=ds.c, grid=(x, x))
+                          weights=np.asarray(mask.weights, float), dt=ds.dt, sound_speed=ds.sound_speed, grid=(x, x))
     inputs: dict[str, GridDataset | PointDataset] = {"ner": ds, "nedner": sparse, "tv": sparse}
     rows, mips = [], {"truth": (truth.max(axis=0), truth.max(axis=1))}
     for method in METHODS if model_based else METHODS[:2]:
@@ -188,7 +188,7 @@ def run(data: DenseDataset | None = None, *, small: bool = False, fraction: floa
         rows.append(row)
         mips[method] = (img.max(axis=0), img.max(axis=1))
     summary = {f"cc_{r['method']}": r["cc"] for r in rows}
-    params = {"shape": list(truth.shape), "pitch_m": ds.dx, "dt_s": ds.dt, "sound_speed": ds.c, "snr_db": snr_db,
+    params = {"shape": list(truth.shape), "pitch_m": ds.dx, "dt_s": ds.dt, "sound_speed": ds.sound_speed, "snr_db": snr_db,
               "fraction": fraction, "sensors": int(len(iy)), "lattice_points": n * n, "poi_depth_m": poi_depth,
               "dtype": "float32"}
     return ExperimentResult(NAME, params, rows, summary, images={"mips": mips, "x": x, "z": ds.dx * np.arange(n_z)})

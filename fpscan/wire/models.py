@@ -345,7 +345,7 @@ class MethodOption(BaseModel):
         ``unit`` (SI), ``quantity``.
     """
 
-    name: str = Field(description="the option's name in ReconParams (sound_speed: the speed of sound)")
+    name: str = Field(description="the option's name in the request's params (sound_speed: the speed of sound)")
     description: str
     default: Any = Field(None, description="this method's default (null: derived from the data, e.g. n_z = n_t)")
     value_schema: dict[str, Any] = Field(default_factory=dict, description="JSON schema of a value: type, "

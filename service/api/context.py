@@ -288,10 +288,19 @@ def validation_reason(exc: RequestValidationError) -> str:
         ``field: message; ...`` (at most five, each capped, naming a refused literal value),
         or ``"malformed JSON: ..."`` with the JSON parser's message for a malformed body.
     """
+    from fpscan.service.api.models import DEFAULT_METHOD_TAG, REQUEST_MODELS
+
+    tags = {*REQUEST_MODELS, DEFAULT_METHOD_TAG}  # a union's variant in a location is the body's own method
     parts = []
     for err in exc.errors()[:5]:
-        loc = ".".join(str(p) for p in err.get("loc", ()) if p != "body") or "body"
+        where = list(err.get("loc", ()))
+        if len(where) > 2 and where[0] == "body" and where[1] in tags:
+            del where[1]
+        loc = ".".join(str(p) for p in where if p != "body") or "body"
         msg = err.get("msg", "invalid").removeprefix("Value error, ")
+        if loc == "params" and err.get("type") == "value_error":  # a rule across a method's options names them
+            parts.append(capped(msg, DETAIL_MAX // 4))
+            continue
         if err.get("type") == "json_invalid":
             return f"malformed JSON: {err.get('ctx', {}).get('error', msg)}"
         if err.get("type") in ("literal_error", "enum") and isinstance(err.get("input"), (str, int, float)):

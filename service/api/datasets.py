@@ -111,17 +111,19 @@ def upload_dataset(file: UploadFile = File(..., description="the data file"),
     disk."""
     if sound_speed is not None and c is not None and sound_speed.strip() != c.strip():
         raise HTTPException(422, "give the speed of sound once: sound_speed (c is its deprecated name)")
-    c = c if sound_speed is None else sound_speed
+    speed = c if sound_speed is None else sound_speed
     quantities = _LOAD_QUANTITIES
     try:  # numbers typed with units, as everywhere (fpscan.driver.units.parse_quantity)
         q = {name: None if text is None or not str(text).strip() else parse_quantity(text, kind, name=name)
-             for name, text, kind in [*((n, options.get(n), k) for n, k in quantities.items()), ("c", c, "speed")]}
+             for name, text, kind in [*((n, options.get(n), k) for n, k in quantities.items()),
+                                      ("sound_speed", speed, "speed")]}
         given = {**options, **{n: q[n] for n in quantities}}
         check_load_options(format, {k: v for k, v in given.items() if k != "wavelength"})
     except ValueError as exc:
         raise HTTPException(422, str(exc)) from None
     with context.slots["uploads"].turn():
-        out = _store_upload(file, format, dt=given.get("dt"), dx=given.get("dx"), dy=given.get("dy"), c=q["c"],
+        out = _store_upload(file, format, dt=given.get("dt"), dx=given.get("dx"), dy=given.get("dy"),
+                            sound_speed=q["sound_speed"],
                             key=given.get("key"), force=force, wavelength=given.get("wavelength"), context=context)
     # held since it was found or stored: released once the 201 naming it has been sent
     sent.add_task(lifecycle.release_dataset, context.store, out.dataset_id)
@@ -201,7 +203,8 @@ def _admission(context: Context) -> DiskAdmission:
 
 
 def _store_upload(file: UploadFile, format: str, *, dt: float | None, dx: float | None, dy: float | None,
-                  c: float | None, key: str | None, force: bool, wavelength: int | None, context: Context) -> Dataset:
+                  sound_speed: float | None, key: str | None, force: bool, wavelength: int | None,
+                  context: Context) -> Dataset:
     dataset_id = uuid.uuid4().hex
     # staged outside datasets/ until stored (one rename): datasets/ changes only when a
     # dataset is added, and /api/health's disk usage is re-walked only then
@@ -225,7 +228,7 @@ def _store_upload(file: UploadFile, format: str, *, dt: float | None, dx: float 
                 digest.update(chunk)
                 out.write(chunk)
         sha256 = digest.hexdigest()
-        dedup_key = _dedup_key(sha256, format, dt=dt, dx=dx, dy=dy, c=c, key=key, wavelength=wavelength,
+        dedup_key = _dedup_key(sha256, format, dt=dt, dx=dx, dy=dy, sound_speed=sound_speed, key=key, wavelength=wavelength,
                                force=bool(force))
         with lifecycle.guard(context.store):  # found and held with no deletion between
             found = _stored(context, dedup_key, sha256)
@@ -242,7 +245,8 @@ def _store_upload(file: UploadFile, format: str, *, dt: float | None, dx: float 
             # in a child process with a time and memory bound: the HDF5 library can block
             # (holding the GIL) or expand a small file into gigabytes (import_dataset lives
             # in fpscan.service.storage, so the child does not import the web stack)
-            meta = run_bounded(import_dataset, src, dest, format, dt=dt, dx=dx, dy=dy, c=c, key=key, force=force,
+            meta = run_bounded(import_dataset, src, dest, format, dt=dt, dx=dx, dy=dy, sound_speed=sound_speed, key=key,
+                               force=force,
                                wavelength=wavelength,
                                max_bytes=hdf5_limit(limit, context.settings.memory_limit),
                                timeout=context.settings.import_timeout_s, what="the upload",

@@ -13,7 +13,6 @@ from fpscan.service.api.context import Context, ctx, read_access, require_token
 from fpscan.service.api.models import ID_PATTERN, Deleted, Job, JobKind, JobState
 from fpscan.service.jobs import lifecycle
 from fpscan.service.jobs.store import TERMINAL, JobStore
-from fpscan.service.names import person_names
 
 __all__ = [
     "router", "JobId", "job_links", "job_view", "get_job_or_404", "list_jobs", "get_job", "cancel_job",
@@ -123,8 +122,9 @@ def job_links(job: dict) -> dict[str, str]:
 def job_view(job: dict) -> Job:
     """The public view of a stored job.
 
-    No file system paths; parameters named as a person reads them (``sound_speed``, also for
-    a job an older server stored with ``c``: :func:`fpscan.service.names.person_names`).
+    No file system paths; parameters as stored (a reconstruction's ``params`` are its method's
+    own options; a job an earlier release stored with ``c`` reads as ``sound_speed``:
+    :func:`fpscan.service.names.current_names`).
 
     Parameters
     ----------
@@ -138,7 +138,7 @@ def job_view(job: dict) -> Job:
         (:func:`job_links`).
     """
     # no file system path, nor the submitting client's address (it caps the client's queue)
-    params = person_names({k: v for k, v in job["params"].items() if k not in ("input", "scan_path", "client")})
+    params = {k: v for k, v in job["params"].items() if k not in ("input", "scan_path", "client")}
     created, started, finished = job["created"], job["started"], job["finished"]
     earlier = [{**a, "run_s": (a["ended"] - a["started"]) if a.get("started") else None}
                for a in job.get("earlier_attempts") or []]

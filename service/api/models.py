@@ -23,7 +23,6 @@ from pydantic import (
     Field,
     Tag,
     create_model,
-    field_validator,
     model_validator,
 )
 
@@ -33,7 +32,7 @@ from fpscan.service.plans.kinds import KINDS, MaskKind, resolve_kind
 from fpscan.service.plans.plan import ORDER_NAMES, Acquisition
 from fpscan.service.plans.plan import Plan as PlanJson
 from fpscan.service.recon import methods as _methods
-from fpscan.service.recon.methods.options import SpeedOptions, plausible_speeds
+from fpscan.service.recon.methods.options import MethodOptions, plausible_speeds
 from fpscan.wire import models as wire
 
 __all__ = [
@@ -41,7 +40,8 @@ __all__ = [
     "Error", "DiskUse", "ComputeDevice", "Health", "AuthInfo", "Deleted", "Retention", "MAX_LATTICE_POINTS", "Pitch", "Lattice",
     "PlanDocument", "PlanCreate", "MethodOption", "DatasetFormatInfo", "FormatInfo", "MethodInfo", "MaskKindInfo", "Plan",
     "PlanPreview", "JobProgress", "Attempt", "Timings", "Job", "ScanRequest", "Scanner", "PreviewInfo", "Dataset",
-    "DatasetInfo", "ReconParams", "UnmixOptions", "ReconRequest",
+    "DatasetInfo", "PARAMS_MODELS", "UnmixOptions", "ReconRequestBase", "ReconRequestDefaultMethod", "REQUEST_MODELS",
+    "DEFAULT_METHOD_TAG", "ReconRequest",
 ]
 
 
@@ -377,7 +377,7 @@ class MethodOption(wire.MethodOption):
     Attributes
     ----------
     name : str
-        The option's name in ReconParams (sound_speed: the speed of sound).
+        The option's name, as the library, the request's ``params`` and the files name it.
     description : str
         What it is, for a person.
     default : Any
@@ -738,105 +738,42 @@ class DatasetInfo(wire.DatasetInfo):
     """
 
 
-class _ReconParamsBase(SpeedOptions, _Request):
-    """Reconstruction options: the speed of sound (every method's: ``c`` as ``sound_speed``,
-    ``c_range`` as ``sound_speed_range``, ``force``; the registry's one typed model,
-    ``fpscan.service.recon.methods.options.SpeedOptions``); the methods' own options are added from
-    the registry (:func:`_method_option_fields`)."""
+def _params_model(method: _methods.Method) -> type[MethodOptions]:
+    """``method``'s options as the request body carries them: its own model
+    (``Method.options_model``) under a name of its own in the OpenAPI document
+    (``NerOptions``, ``TvOptions``, ...), refusing another method's option with this method's
+    words (``method 'ner' takes no option lam (its options: ...)``)."""
+    title = "".join(part.capitalize() for part in method.name.replace("-", "_").split("_")) + "Options"
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)  # _Request's (SpeedOptions states none)
+    def _its_own(data: Any) -> Any:
+        if isinstance(data, dict):
+            METHODS[method.name].refuse_foreign(data)
+        return data
 
-    @field_validator("*", mode="before", check_fields=False)
-    @classmethod
-    def _units(cls, value: Any, info: Any) -> Any:
-        """Numbers typed with a unit (``"30um"``, ``"600s"``, ``"1.5 km/s"``) for the speed
-        of sound and every option whose field names a ``quantity``: to SI by the one parser
-        (``fpscan.driver.units.parse_quantity``); numbers are SI already."""
-        from fpscan.driver.units import parse_quantity
+    def _can_search(model: Any) -> Any:
+        METHODS[method.name].refuse_search(model)
+        return model
 
-        name = info.field_name
-        kind = _OPTION_QUANTITIES.get(name)
-        if kind is None:
-            return value
-        shown = _SHOWN.get(name, name)
-        if isinstance(value, str) and not (name == "c" and value == "auto"):
-            try:
-                return parse_quantity(value, kind, name=shown)
-            except ValueError as exc:
-                if name != "c":
-                    raise
-                raise ValueError(f"sound_speed (c) must be a speed (m/s, or with a unit: 1.5 km/s) or 'auto', "
-                                 f"got {value!r}") from exc
-        if name == "c_range" and isinstance(value, (list, tuple)):
-            return [parse_quantity(v, kind, name=shown) if isinstance(v, str) else v for v in value]
-        return value
-
-    @model_validator(mode="after")
-    def _plausible_speed(self) -> _ReconParamsBase:
-        """The speed-of-sound rule of the library and the CLI (``fpscan.driver.units.check_speeds``):
-        422 naming the likely unit mistake unless ``force``; forced, c stays within
-        ``fpscan.constants.C_LIMITS``."""
-        from fpscan.driver.units import check_speeds
-
-        check_speeds(c=getattr(self, "c", None), c_range=getattr(self, "c_range", None), force=self.force)
-        return self
+    validators: dict[str, Any] = {"_its_own": model_validator(mode="before")(_its_own),
+                                  "_can_search": model_validator(mode="after")(_can_search)}
+    return create_model(title, __base__=method.options_model, __module__=__name__,
+                        __doc__=f"The options of method {method.name!r} ({method.title}; "
+                                f"fpscan.service.recon.methods.get({method.name!r}).options_model).",
+                        __validators__=validators)
 
 
-def _not_null(name: str, default: Any) -> Any:
-    def check(value: Any) -> Any:
-        if value is None:
-            raise ValueError(f"{name} may not be null (leave it out for the default, {default})")
-        return value
-
-    return AfterValidator(check)
+#: each method's request options model, by name (:func:`_params_model`)
+PARAMS_MODELS: dict[str, type[MethodOptions]] = {name: _params_model(m) for name, m in METHODS.items()}
 
 
-def _method_option_fields() -> dict[str, Any]:
-    """``ReconParams``' fields from the method registry (``fpscan.service.recon.methods``): each
-    option with its own type and rule (the kernel's, so a bad value is a 422 naming its
-    range), default null (the chosen method's default); an option every method takes with
-    one default (``dtype``) has that default and may not be null."""
-    fields: dict[str, Any] = {}
-    for name, f in _methods.option_fields().items():
-        takers = [m for m in METHODS.values() if name in m.options_model.model_fields]
-        defaults = {m.name: m.options_model.model_fields[name].default for m in takers}
-        annotation: Any = Annotated[(f.annotation, *f.metadata)] if f.metadata else f.annotation
-        same = len({repr(v) for v in defaults.values()}) == 1
-        default = None
-        if same and len(takers) == len(METHODS) and f.default is not None:
-            default = f.default
-            annotation = Annotated[annotation, _not_null(name, f.default)]
-        else:  # null is the method's default at this door, whatever the method's own type says
-            annotation = annotation | None
-        said = "default " + _methods.default_text(name)
-        methods = "every method" if len(takers) == len(METHODS) else ", ".join(m.name for m in takers)
-        fields[name] = (annotation, Field(default, description=f"{f.description} ({methods}; {said})",
-                                          json_schema_extra=f.json_schema_extra))
-    return fields
-
-
-#: the speed option's fields' extras (``SpeedOptions``: ``unit``, ``quantity``, ``shown``)
-_SPEED_EXTRAS = {name: f.json_schema_extra for name, f in SpeedOptions.model_fields.items()
-                 if isinstance(f.json_schema_extra, dict)}
-#: options whose values may be text with a unit: name -> kind of ``fpscan.driver.units.parse_quantity``
-#: (the speed of sound's and the methods')
-_OPTION_QUANTITIES = {**{name: str(e["quantity"]) for name, e in _SPEED_EXTRAS.items() if "quantity" in e},
-                      **{o["name"]: o["schema"]["quantity"] for m in METHODS.values()
-                         for o in _methods.option_schemas(m) if "quantity" in o["schema"]}}
-#: the names a person reads for the speed fields (``c`` -> ``sound_speed``) in a refusal
-_SHOWN = {name: str(e["shown"]) for name, e in _SPEED_EXTRAS.items() if "shown" in e}
-
-#: Reconstruction options (``null`` = the method's default): the speed of sound
-#: (``sound_speed``, also accepted as ``c``), ``sound_speed_range``, ``force`` and the union
-#: of the methods' options (``fpscan.service.recon.methods``: one module per method; which method
-#: takes which option: ``GET /api/reconstructions/methods``, docs/methods.md). An option the
-#: method does not take is refused (422 naming the method's options). Lengths and times may
-#: be text with a unit (``"30um"``, ``"600s"``).
-if TYPE_CHECKING:  # for the type checker: the hand-written part (the generated fields are typed at run time)
-    ReconParams = _ReconParamsBase
-else:
-    ReconParams = create_model("ReconParams", __base__=_ReconParamsBase, __module__=__name__,
-                               __doc__=_ReconParamsBase.__doc__, **_method_option_fields())
+def __getattr__(name: str) -> Any:
+    """``ReconParams``, an earlier release's flat union of every method's options, is gone: a
+    request's ``params`` is its method's own model (:data:`PARAMS_MODELS`)."""
+    if name == "ReconParams":
+        raise AttributeError("ReconParams is gone: a request's params are its method's own options model "
+                             "(fpscan.service.api.models.PARAMS_MODELS[method], fpscan.service.recon.methods."
+                             "get(method).options_model)")
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 class UnmixOptions(_Request):
@@ -847,7 +784,7 @@ class UnmixOptions(_Request):
         None, max_length=16, description="fluence at each wavelength, J/m² (default: assumed equal everywhere)")
 
 
-class ReconRequest(_Request):
+class ReconRequestBase(_Request):
     """Reconstruct a scan job's file or an uploaded dataset (exactly one of them); with
     ``unmix``: every wavelength of a multi-wavelength scan job, or one uploaded dataset
     per wavelength (``dataset_ids`` with ``wavelengths``), then HbO2/Hb unmixing.
@@ -864,9 +801,12 @@ class ReconRequest(_Request):
         Excitation wavelength of each of dataset_ids, m.
     method : str or None
         Reconstruction method; absent or null: the default for the input
-        (``fpscan.service.pipeline.default_method``).
-    params : ReconParams
-        Reconstruction options (null: the method's default).
+        (``fpscan.service.pipeline.default_method``). The request is a union keyed on it
+        (:data:`ReconRequest`): each method's variant carries its own options.
+    params : MethodOptions or dict
+        The method's own options (its model, :data:`PARAMS_MODELS`; null: the method's
+        default); without a method, a dict validated by the default method's model once the
+        input is known.
     wavelength : int or "all" or None
         Excitation wavelength of a multi-wavelength input: an index (0 to 15), or ``"all"``
         (one volume per wavelength); absent: the first. Not with unmix.
@@ -899,11 +839,8 @@ class ReconRequest(_Request):
         None, min_length=1, max_length=16, description="one dataset per wavelength (with unmix)")
     wavelengths: list[Annotated[float, Field(gt=0, allow_inf_nan=False)]] | None = Field(
         None, max_length=16, description="excitation wavelength of each of dataset_ids, m")
-    method: ReconMethod | None = Field(  # type: ignore[valid-type]
-        None, description="reconstruction method; absent or null: the default for the input "
-                          f"(fpscan.service.pipeline.default_method: {_methods.default_for('grid')} for grid data, "
-                          f"{_methods.default_for('points')} for sensor points)")
-    params: ReconParams = Field(default_factory=ReconParams)
+    method: str | None = None
+    params: Any = None
     wavelength: Annotated[int, Field(ge=0, le=15)] | Literal["all"] | None = Field(
         None, description="excitation wavelength of a multi-wavelength input: an index into its wavelengths, or "
                           "'all' (one volume per wavelength, same method and options; download each with "
@@ -916,7 +853,7 @@ class ReconRequest(_Request):
         "(fpscan.subsample); the plan's lattice pitch and dt must be the data's, its lattice centred on the data's grid"))
 
     @model_validator(mode="after")
-    def _exactly_one_input(self) -> ReconRequest:
+    def _exactly_one_input(self) -> ReconRequestBase:
         given = [self.scan_job_id is not None, self.dataset_id is not None, self.dataset_ids is not None]
         if sum(given) != 1:
             raise ValueError("give exactly one of scan_job_id or dataset_id (or dataset_ids with unmix)")
@@ -925,3 +862,53 @@ class ReconRequest(_Request):
         if self.plan_id is not None and (self.dataset_id is None or self.unmix is not None):
             raise ValueError("plan_id samples an uploaded dataset: it needs dataset_id (and no unmix)")
         return self
+
+
+#: the discriminator's tag of a request that names no method (its params wait for the input's default method)
+DEFAULT_METHOD_TAG = "default-method"
+
+
+class ReconRequestDefaultMethod(ReconRequestBase):
+    """A reconstruction request that names no method: the input's default
+    (``fpscan.service.pipeline.default_method``) is chosen once the input is known, and ``params``
+    are then validated by that method's model (:data:`PARAMS_MODELS`), once."""
+
+    method: ReconMethod | None = Field(  # type: ignore[valid-type]
+        None, description="reconstruction method; absent or null: the default for the input "
+                          f"(fpscan.service.pipeline.default_method: {_methods.default_for('grid')} for grid data, "
+                          f"{_methods.default_for('points')} for sensor points)")
+    params: dict[str, Any] = Field(default_factory=dict, description="the options of the input's default method")
+
+
+def _request_model(name: str) -> type[ReconRequestBase]:
+    """The request variant of method ``name``: ``method`` the literal name, ``params`` its own options."""
+    params = PARAMS_MODELS[name]
+    title = params.__name__.removesuffix("Options")
+    return create_model(f"ReconRequest{title}", __base__=ReconRequestBase, __module__=__name__,
+                        __doc__=f"A reconstruction request with method {name!r} and its own options.",
+                        method=(Literal[name], Field(description=f"reconstruction method: {METHODS[name].title}")),
+                        params=(params, Field(default_factory=params,
+                                              description=f"the options of {name} (null: its default)")))
+
+
+#: each method's request variant, by name (:func:`_request_model`)
+REQUEST_MODELS: dict[str, type[ReconRequestBase]] = {name: _request_model(name) for name in METHODS}
+
+
+def _method_tag(value: Any) -> str:
+    """The variant of a request body: its method's, else :data:`DEFAULT_METHOD_TAG` (no method, or
+    an unknown one, which that variant refuses naming the methods)."""
+    method = value.get("method") if isinstance(value, dict) else getattr(value, "method", None)
+    return method if isinstance(method, str) and method in REQUEST_MODELS else DEFAULT_METHOD_TAG
+
+
+#: ``POST /api/reconstructions``' body: a union of :data:`REQUEST_MODELS` keyed on ``method``
+#: (pydantic's discriminated union by a callable discriminator, which FastAPI documents as ``oneOf``),
+#: and :class:`ReconRequestDefaultMethod` for a request without a method. A request's ``params``
+#: are thus its method's own options model from the method registry, validated once, at the door.
+if TYPE_CHECKING:
+    ReconRequest = ReconRequestBase
+else:
+    _VARIANTS = tuple(Annotated[model, Tag(name)] for name, model in REQUEST_MODELS.items()) + \
+        (Annotated[ReconRequestDefaultMethod, Tag(DEFAULT_METHOD_TAG)],)
+    ReconRequest = Annotated[Union.__getitem__(_VARIANTS), Discriminator(_method_tag)]

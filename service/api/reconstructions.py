@@ -7,11 +7,22 @@ from pathlib import Path
 from fastapi import APIRouter, Depends, Header, HTTPException, Query, Request, Response
 from fastapi import Path as PathParam
 from fastapi.responses import FileResponse
+from pydantic import ValidationError
 
 from fpscan.service.api.context import Context, ctx, read_access, reason, require_token
 from fpscan.service.api.files import HeldFileResponse
 from fpscan.service.api.jobs import get_job_or_404, job_view
-from fpscan.service.api.models import ID_PATTERN, Error, Job, MethodInfo, MethodOption, Plane, ReconRequest
+from fpscan.service.api.models import (
+    ID_PATTERN,
+    REQUEST_MODELS,
+    Error,
+    Job,
+    MethodInfo,
+    MethodOption,
+    Plane,
+    ReconRequest,
+    ReconRequestBase,
+)
 from fpscan.service.formats.result import VOLUME_FILE, mip_file
 from fpscan.service.jobs import lifecycle
 from fpscan.service.jobs.admission import (
@@ -24,8 +35,7 @@ from fpscan.service.jobs.admission import (
     input_shape,
 )
 from fpscan.service.jobs.store import IdempotencyConflict, QueueFull
-from fpscan.service.names import PERSON_NAMES, person_names, renamed_words
-from fpscan.service.pipeline import METHODS, default_method, method_options
+from fpscan.service.pipeline import METHODS, default_method
 from fpscan.service.recon.methods import get as method_named
 
 __all__ = [
@@ -40,7 +50,7 @@ IdemKey = Header(None, alias="Idempotency-Key", min_length=1, max_length=200,
                  description="same key → same job (1-200 characters; an empty key is refused)")
 
 
-def _full_scan_job_id(context: Context, body: ReconRequest) -> ReconRequest:
+def _full_scan_job_id(context: Context, body: ReconRequestBase) -> ReconRequestBase:
     """``body`` with a short ``scan_job_id`` (a unique prefix) replaced by the full id;
     409 when the prefix is ambiguous."""
     sid = body.scan_job_id
@@ -52,20 +62,25 @@ def _full_scan_job_id(context: Context, body: ReconRequest) -> ReconRequest:
     return body.model_copy(update={"scan_job_id": found[0]}) if found else body
 
 
-def _with_method(context: Context, body: ReconRequest) -> ReconRequest:
-    """``body`` with its ``method`` resolved: as given, or the default for the input
+def _with_method(context: Context, body: ReconRequestBase) -> ReconRequestBase:
+    """``body`` as its method's variant (``fpscan.service.api.models.REQUEST_MODELS``): as given, or,
+    for a request that names no method, the default for the input
     (``fpscan.service.pipeline.default_method`` of a stored dataset's layout; a scan file loads as
-    sensor points). An unknown dataset is left to the input checks (404)."""
-    if body.method is not None:
+    sensor points), whose model then validates ``params`` (422 naming the refusal). An unknown
+    dataset is left to the input checks (404)."""
+    if body.method is not None and type(body) is REQUEST_MODELS.get(body.method):
         return body
     kind = "points"
-    if body.plan_id is not None:  # a sensor mask's points
-        return body.model_copy(update={"method": default_method(kind)})
     ds_id = body.dataset_id if body.dataset_id is not None else next(iter(body.dataset_ids or ()), None)
-    if ds_id is not None:
+    if body.plan_id is None and ds_id is not None:  # a plan's sensor mask: points
         meta = context.store.get_dataset(ds_id)
         kind = meta["layout"] if meta is not None else "points"
-    return body.model_copy(update={"method": default_method(kind)})
+    method = body.method or default_method(kind)
+    fields = {name: getattr(body, name) for name in ReconRequestBase.model_fields if name not in ("method", "params")}
+    try:
+        return REQUEST_MODELS[method].model_validate({**fields, "method": method, "params": body.params or {}})
+    except ValidationError as exc:
+        raise HTTPException(422, reason(exc)) from None
 
 
 def _check_unmix_wavelengths(wavelengths: list) -> None:
@@ -80,7 +95,7 @@ def _check_unmix_wavelengths(wavelengths: list) -> None:
         raise HTTPException(422, str(exc)) from None
 
 
-def _unmix_inputs(context: Context, body: ReconRequest) -> tuple[dict, dict, str]:
+def _unmix_inputs(context: Context, body: ReconRequestBase) -> tuple[dict, dict, str]:
     """Job parameters (``inputs``/``wavelengths``), memory-estimate shape and input id of
     an unmixing request; raises HTTPException."""
     if body.dataset_ids is not None:
@@ -110,18 +125,21 @@ def _unmix_inputs(context: Context, body: ReconRequest) -> tuple[dict, dict, str
     return {"input": spec, "wavelengths": None}, shape, input_id  # shape: input_shape of the plan, its wavelengths
 
 
-def _input_for(context: Context, body: ReconRequest) -> tuple[dict, dict, str]:
+def _input_for(context: Context, body: ReconRequestBase) -> tuple[dict, dict, str]:
     """``(input spec, shape for the memory estimate, input id)``; raises HTTPException."""
     if body.dataset_ids is not None and body.unmix is None:
         raise HTTPException(422, "dataset_ids (one dataset per wavelength) need unmix")
     if (body.scan_job_id is None) == (body.dataset_id is None):
         raise HTTPException(422, "give exactly one of scan_job_id or dataset_id")
     method = body.method
-    assert method is not None  # resolved by _with_method
-    try:
-        method_options(method, body.params.model_dump())
-    except ValueError as exc:  # worded in the request's JSON fields (sound_speed, not the code's c)
-        raise HTTPException(422, renamed_words(str(exc), PERSON_NAMES)) from None
+    assert method is not None  # resolved by _with_method, its options validated by its model
+    if getattr(body.params, "device", None) == "cuda":  # refused at the door where no GPU is visible
+        from fpscan.service.recon.device import choose
+
+        try:
+            choose("cuda", 0)
+        except ValueError as exc:
+            raise HTTPException(422, str(exc)) from None
     needs_grid = METHODS[method].needs_grid
     if body.scan_job_id is not None:
         job = context.store.get(body.scan_job_id)
@@ -159,7 +177,8 @@ def _input_for(context: Context, body: ReconRequest) -> tuple[dict, dict, str]:
     return ds_spec, input_shape(meta), f"dataset:{body.dataset_id}"
 
 
-def _sampled(context: Context, body: ReconRequest, meta: dict, spec: dict, needs_grid: bool) -> tuple[dict, dict, str]:
+def _sampled(context: Context, body: ReconRequestBase, meta: dict, spec: dict,
+             needs_grid: bool) -> tuple[dict, dict, str]:
     """The input of a dataset sampled by a stored plan (``fpscan.service.subsample``): 404 for an
     unknown plan, 422 where the plan cannot sample the dataset (its record: dense, the pitch,
     dt and lattice that fit) or the method needs a full grid the mask does not give."""
@@ -217,7 +236,7 @@ def list_methods() -> list[MethodInfo]:
     from fpscan.service.recon.methods import option_schemas
     from fpscan.service.recon.methods.options import SpeedOptions, speed_schema
 
-    speed = MethodOption(name="sound_speed", description=SpeedOptions.model_fields["c"].description or "",
+    speed = MethodOption(name="sound_speed", description=SpeedOptions.model_fields["sound_speed"].description or "",
                          default=None, value_schema=speed_schema())
     return [MethodInfo(name=m.name, title=m.title, needs_grid=m.needs_grid, source=m.source, iterative=m.iterative,
                        time_limited=m.time_limited, cancellable=m.cancellable, default_for=list(m.default_for),
@@ -252,7 +271,8 @@ def start_reconstruction(body: ReconRequest, response: Response, request: Reques
         extra["unmix"] = body.unmix.model_dump()
     else:
         spec, shape, input_id = _input_for(context, body)
-    params = body.params.model_dump()
+    # the method's own options, as its model dumps them: what the job's record holds and its worker runs
+    params = body.params.model_dump(mode="json")
     try:
         mem = estimate_memory(shape, {**params, "method": body.method})
         work = _work(context, shape, params, body, extra)
@@ -275,9 +295,7 @@ def start_reconstruction(body: ReconRequest, response: Response, request: Reques
     if free is not None and free < needed:
         raise HTTPException(507, f"no room for the result on the data folder's disk: {free} bytes free (beyond "
                                  f"the reserve), {needed} needed; free space, then retry")
-    # stored as a person reads them (sound_speed, not the code's c: fpscan.service.names)
-    job_params = {"method": body.method, "params": person_names(params), "input": spec, "input_id": input_id,
-                  "shape": person_names(shape),
+    job_params = {"method": body.method, "params": params, "input": spec, "input_id": input_id, "shape": shape,
                   "scan_job_id": body.scan_job_id, "dataset_id": body.dataset_id, "memory_estimate": mem,
                   "work_estimate_s": float(f"{work:.4g}"), "result_bytes": needed,
                   "wavelength": body.wavelength, **extra,
@@ -344,7 +362,7 @@ def queue_wait(context: Context, client: str | None = None) -> tuple[dict, float
     return {"queued": len(queued), "running": len(running), "wait_s": wait}, (wait if first is None else first)
 
 
-def _work(context: Context, shape: dict, params: dict, body: ReconRequest, extra: dict) -> float:
+def _work(context: Context, shape: dict, params: dict, body: ReconRequestBase, extra: dict) -> float:
     """The job's work in seconds on 2 cores (``fpscan.service.jobs.admission.estimate_work``) with
     a time-limited method's time limit as the worker will cap it (the server's ``time_limit_s``), times the
     wavelengths it reconstructs (``wavelength: "all"``, unmixing)."""
@@ -374,7 +392,7 @@ def _free_bytes(context: Context) -> int | None:
     return max(0, free - int(context.settings.disk_reserve_bytes) - spent)
 
 
-def _result_bytes(shape: dict, params: dict, body: ReconRequest, extra: dict) -> int:
+def _result_bytes(shape: dict, params: dict, body: ReconRequestBase, extra: dict) -> int:
     """Bytes the job's result needs on disk (``fpscan.service.jobs.admission.estimate_result_bytes``):
     a volume per wavelength it reconstructs, and the unmixing's maps."""
     volumes = 1

@@ -35,11 +35,11 @@ Exports: a format with ``export_from`` and ``export`` writes files of another (`
 
 Adding a format: a module with ``sniff``, ``load`` (and ``write``; its load options as a
 typed model of ``fpscan.service.formats.load_options``, ``Format.options``), or an ``export``, that
-declares a ``FORMAT = Format(...)``, an entry point naming it in the group ``fpscan.formats`` of
-its distribution's ``pyproject.toml`` (fpscan's own, or another package's: a plugin), and its
-test — nothing else: the registry loads every entry point of the group when this package is
-imported (``fpscan.service.plugins.load_group``), and the CLI help, the API's choices, the web page
-and the HTTP client follow from the registry (docs/plugins.md).
+declares a ``FORMAT = Format(...)``, its line in this package's built-ins (``_register_builtins``;
+another package's: an entry point of the group ``fpscan.formats``, read on the registry's first
+lookup or listing, ``fpscan.service.plugins.PluginRegistry``: a plugin, :mod:`fpscan.plugins`) and
+its test — nothing else: the CLI help, the API's choices, the web page and the HTTP client follow
+from the registry (docs/plugins.md).
 """
 from __future__ import annotations
 
@@ -60,7 +60,6 @@ from fpscan.service.formats.registry import (
     sniff,
     unregister,
 )
-from fpscan.service.plugins import load_group
 
 __all__ = ["FORMATS", "HEAD_BYTES", "MAX_BYTES", "Format", "Source", "describe", "detect", "export_file",
            "export_formats", "load", "names", "open_source", "register", "sniff", "unregister", "upload_formats"]
@@ -79,5 +78,29 @@ def upload_formats() -> list[dict]:
             for f in FORMATS.values() if f.upload]
 
 
-# every format, fpscan's own and the plugins' (last: a plugin may import this package's names)
-load_group("fpscan.formats", Format, register)
+def _register_builtins() -> None:
+    """Fpscan's own formats, registered in code (the plugins' come from entry points, on the
+    registry's first read: ``fpscan.service.plugins.PluginRegistry``)."""
+    from fpscan.service.formats import (
+        dataset,
+        ipasc,
+        kwave_hdf5,
+        kwave_mat,
+        ngff,
+        npy,
+        npz,
+        ome_tiff,
+        plan,
+        png,
+        result,
+        scan,
+        unmix,
+    )
+
+    for module in (npy, kwave_hdf5, kwave_mat, scan, ipasc, dataset, result, unmix, plan, png, ome_tiff, ngff, npz):
+        register(module.FORMAT)
+
+
+# last: a format module imports this package's names
+_register_builtins()
+FORMATS.arm(Format, register)

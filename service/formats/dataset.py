@@ -12,7 +12,6 @@ import h5py
 import numpy as np
 
 from fpscan.service.formats.registry import Format, Source
-from fpscan.service.names import PERSON_NAMES
 from fpscan.service.recon.dataset import GridDataset, PointDataset, p0_unit
 
 __all__ = ["FORMAT", "DATASET_FORMAT", "sniff", "load", "write"]
@@ -20,7 +19,7 @@ __all__ = ["FORMAT", "DATASET_FORMAT", "sniff", "load", "write"]
 DATASET_FORMAT = "fpscan-dataset/1"
 #: the speed of sound's attribute (m/s), as a person reads it (:mod:`fpscan.service.names`); files
 #: written before it say ``c``, still read
-_SPEED = PERSON_NAMES["c"]
+_SPEED = "sound_speed"
 
 
 def sniff(source: Source) -> bool:
@@ -67,7 +66,7 @@ def write(path: str | os.PathLike, ds: GridDataset | PointDataset) -> None:
         The file cannot be written.
     """
     with h5py.File(path, "w") as f:
-        f.attrs.update({"format": DATASET_FORMAT, "layout": ds.kind, "dt": float(ds.dt), _SPEED: float(ds.c),
+        f.attrs.update({"format": DATASET_FORMAT, "layout": ds.kind, "dt": float(ds.dt), _SPEED: float(ds.sound_speed),
                         "t0": float(ds.t0), "source": ds.source})
         if ds.wavelengths is not None:
             f.attrs["wavelengths_m"] = np.asarray(ds.wavelengths, dtype=np.float64)
@@ -138,7 +137,7 @@ def load(source: Source, **_: Any) -> GridDataset | PointDataset:
         if layout == "grid":
             data = f["data"][()]
             dy = float(f.attrs["dy"]) if "dy" in f.attrs and data.ndim == 3 else None
-            return GridDataset(data=data, dx=float(f.attrs["dx"]), dt=dt, c=c, dy=dy, t0=t0,
+            return GridDataset(data=data, dx=float(f.attrs["dx"]), dt=dt, sound_speed=c, dy=dy, t0=t0,
                                source=origin, wavelengths=wavelengths, meta=meta, lateral_shift=shift)
         if layout != "points":
             raise ValueError(f"unknown dataset layout {layout!r}")
@@ -150,7 +149,7 @@ def load(source: Source, **_: Any) -> GridDataset | PointDataset:
             lattice = {"n_x": n_x, "n_y": n_y, "pitch": float(f.attrs["pitch"])}
             indices = f["lattice"][()].astype(np.int64).reshape(-1, 2)
         return PointDataset(alines=f["alines"][()], positions=f["positions"][()],
-                            weights=f["weights"][()] if "weights" in f else None, dt=dt, c=c,
+                            weights=f["weights"][()] if "weights" in f else None, dt=dt, sound_speed=c,
                             grid=grid, t0=t0, source=origin, indices=indices, lattice=lattice,
                             wavelengths=wavelengths, meta=meta, lateral_shift=shift)
     except (KeyError, TypeError) as exc:

@@ -592,7 +592,7 @@ def _dataset(source: Source, wavelength_index: int) -> PointDataset:
         indices = np.asarray(indices, dtype=np.int64).reshape(-1, 2)
     wl = r["wavelengths"]
     return PointDataset(alines=r["alines"], positions=r["positions"], weights=r["weights"],
-                        dt=r["dt"], c=r["c"], grid=r["grid"], source="ipasc",
+                        dt=r["dt"], sound_speed=r["c"], grid=r["grid"], source="ipasc",
                         meta={"uuid": r["uuid"], "plan": plan, "indices": r["indices"],
                               "wavelengths": wl, "wavelength_index": int(wavelength_index)},
                         indices=indices if lattice is not None else None, lattice=lattice,

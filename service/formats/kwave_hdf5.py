@@ -99,7 +99,8 @@ def _ground_truth(f: h5py.File, data: np.ndarray, dx: float) -> dict:
 
 
 def load(source: Source, *, key: str | None = None, dt: float | None = None, dx: float | None = None,
-         dy: float | None = None, c: float | None = None, ground_truth: bool = False, **_: Any) -> GridDataset:
+         dy: float | None = None, sound_speed: float | None = None, ground_truth: bool = False,
+         **_: Any) -> GridDataset:
     """The array at ``key`` as grid data (module docstring).
 
     Parameters
@@ -112,7 +113,7 @@ def load(source: Source, *, key: str | None = None, dt: float | None = None, dx:
         Sample interval, s (default the file's ``dt_s``).
     dx, dy : float, optional
         Lateral pitches, m (default the file's attributes; ``dy`` defaults to ``dx``; 3-D only).
-    c : float, optional
+    sound_speed : float, optional
         Sound speed, m/s (default the file's ``c_m_per_s``, else 1500).
     ground_truth : bool, optional
         Also the file's ``p0`` (the k-Wave reference files' initial pressure) in ``meta["p0"]``
@@ -159,13 +160,14 @@ def load(source: Source, *, key: str | None = None, dt: float | None = None, dx:
         dy = positive("dy", dy if dy is not None else (lat_y if lat_y is not None else dx))
     else:
         dy = None
-    c = c if c is not None else get("c_m_per_s")
+    sound_speed = sound_speed if sound_speed is not None else get("c_m_per_s")
     meta = {"key": name, "kwave_naming": kwave, **(_ground_truth(f, data, dx) if ground_truth else {})}
     spacings = (dx,) if dy is None else (dx, dy)
     coords = tuple(None if g else v for g, v in zip(given, _coordinates(f, kwave, data.ndim), strict=False))
     shift = lateral_shift_of(data.shape, spacings, coords, kwave_grid=kwave)
     return GridDataset(data=data, dx=dx, dy=dy, dt=positive("dt", dt),
-                       c=positive("c", c if c is not None else C_DEFAULT), source="kwave-hdf5", meta=meta,
+                       sound_speed=positive("sound_speed", sound_speed if sound_speed is not None else C_DEFAULT),
+                       source="kwave-hdf5", meta=meta,
                        lateral_shift=shift)
 
 

@@ -354,7 +354,7 @@ def _ground_truth(variables: dict, data: np.ndarray, dz: float | None) -> dict:
 
 
 def load(source: Source, *, key: str | None = None, dt: float | None = None, dx: float | None = None,
-         dy: float | None = None, c: float | None = None, ground_truth: bool = False,
+         dy: float | None = None, sound_speed: float | None = None, ground_truth: bool = False,
          max_bytes: int = MAX_ELEMENTS * 8, **_: Any) -> GridDataset:
     """The MAT-file's sensor data as grid data (module docstring).
 
@@ -369,7 +369,7 @@ def load(source: Source, *, key: str | None = None, dt: float | None = None, dx:
         Sample interval, s (default ``kgrid.dt`` or a variable ``dt``).
     dx, dy : float, optional
         Lateral pitches, m (default from the file, module docstring; ``dy`` 3-D only).
-    c : float, optional
+    sound_speed : float, optional
         Sound speed, m/s (default ``c0``, ``c``, ``sound_speed`` or ``medium.sound_speed``,
         else 1500).
     ground_truth : bool, optional
@@ -425,7 +425,7 @@ def load(source: Source, *, key: str | None = None, dt: float | None = None, dx:
     dx = positive("dx", dx)
     dy = positive("dy", dy if dy is not None else lat_y if lat_y is not None else dx) if data.ndim == 3 else None
     c_file = _first(variables, "c0", "c", "sound_speed", "medium.sound_speed")[0]
-    c = c if c is not None else c_file
+    sound_speed = sound_speed if sound_speed is not None else c_file
     meta: dict[str, Any] = {"key": name, "layout": layout, "kwave_naming": kwave,
                             "mat_version": "7.3" if source.h5 is not None else "5"}
     if ground_truth:
@@ -434,7 +434,8 @@ def load(source: Source, *, key: str | None = None, dt: float | None = None, dx:
     coords = tuple(_vector(_get(variables, v), n) for v, n in zip(vecs, (data.shape[-1], data.shape[1]), strict=False))
     shift = lateral_shift_of(data.shape, (dx,) if dy is None else (dx, dy), coords, kwave_grid=True)
     return GridDataset(data=data, dx=dx, dy=dy, dt=positive("dt", dt),
-                       c=positive("c", c if c is not None else C_DEFAULT), source="kwave-mat", meta=meta,
+                       sound_speed=positive("sound_speed", sound_speed if sound_speed is not None else C_DEFAULT),
+                       source="kwave-mat", meta=meta,
                        lateral_shift=shift)
 
 

@@ -1,6 +1,6 @@
 """NumPy ``.npy``: an array in k-Wave layout, time first — ``(n_t, n_y, n_x)`` or
 ``(n_t, n_x)`` — read without pickles (``allow_pickle=False``); ``dt`` and ``dx`` are
-required options (the file holds no spacings), ``dy`` defaults to ``dx``, ``c`` to
+required options (the file holds no spacings), ``dy`` defaults to ``dx``, ``sound_speed`` to
 1500 m/s. → :class:`fpscan.service.recon.dataset.GridDataset`.
 """
 from __future__ import annotations
@@ -59,7 +59,7 @@ def _header(fh: BinaryIO) -> tuple[tuple[int, ...], np.dtype]:
 
 
 def load(source: Source, *, dt: float | None = None, dx: float | None = None, dy: float | None = None,
-         c: float | None = None, **_: Any) -> GridDataset:
+         sound_speed: float | None = None, **_: Any) -> GridDataset:
     """The array as grid data, time first.
 
     Parameters
@@ -72,7 +72,7 @@ def load(source: Source, *, dt: float | None = None, dx: float | None = None, dy
         Lateral pitch, m (required).
     dy : float, optional
         The y pitch, m (3-D data; default ``dx``).
-    c : float, optional
+    sound_speed : float, optional
         Sound speed, m/s (default 1500).
     **_
         Other loading options, ignored.
@@ -101,7 +101,7 @@ def load(source: Source, *, dt: float | None = None, dx: float | None = None, dy
     if dt is None or dx is None:
         raise ValueError("a .npy array needs dt (s) and dx (m)")
     return GridDataset(data=data, dx=positive("dx", dx), dt=positive("dt", dt),
-                       c=positive("c", c if c is not None else C_DEFAULT),
+                       sound_speed=positive("sound_speed", sound_speed if sound_speed is not None else C_DEFAULT),
                        dy=positive("dy", dy) if (dy is not None and data.ndim == 3) else
                        (positive("dx", dx) if data.ndim == 3 else None),
                        source="npy")

@@ -51,7 +51,7 @@ def export_npz(result_path: str | os.PathLike, out_path: str | os.PathLike) -> P
     --------
     >>> import numpy as np, fpscan, tempfile, pathlib
     >>> d = pathlib.Path(tempfile.mkdtemp())
-    >>> ds = fpscan.GridDataset(data=np.zeros((8, 4, 4), np.float32), dx=1e-4, dy=1e-4, dt=4e-8, c=1500.0)
+    >>> ds = fpscan.GridDataset(data=np.zeros((8, 4, 4), np.float32), dx=1e-4, dy=1e-4, dt=4e-8, sound_speed=1500.0)
     >>> _ = fpscan.write_result(d / "r", fpscan.reconstruct(ds, "ner"), input_id="zeros")
     >>> out = export_npz(d / "r" / "volume.h5", d / "p0.npz")
     >>> sorted(np.load(out))

@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, BinaryIO
 
 from fpscan.driver.hdf5_checks import HDF5_SIGNATURE
-from fpscan.service.plugins import put_in_order
+from fpscan.service.plugins import PluginRegistry, put_in_order
 from fpscan.service.recon.dataset import MAX_ELEMENTS
 
 if TYPE_CHECKING:
@@ -188,7 +188,9 @@ class Format:
 
 
 #: name -> format, every registered format (:func:`register`), in list order (:attr:`Format.rank`)
-FORMATS: dict[str, Format] = {}
+#: (fpscan's own, registered in code, and the plugins': entry points of ``fpscan.formats``, read on
+#: the first lookup or listing)
+FORMATS: PluginRegistry[Format] = PluginRegistry("fpscan.formats")
 
 
 def register(fmt: Format) -> Format:
@@ -443,8 +445,9 @@ def load(path: str | os.PathLike, kind: str | None = None, *, max_bytes: int = M
 
     A file HDF5 would open as an SWMR reader (a writer has it open: HDF5 can block on its
     damaged metadata for ever) is read in a spawned child process with a time limit
-    (``fpscan.service.formats.untrusted.read_bounded``; there only the formats of the ``fpscan.formats``
-    entry points are registered, and the content must be picklable) unless ``bounded`` is False.
+    (``fpscan.service.formats.untrusted.read_bounded``; there fpscan's own formats and the plugins of
+    the ``fpscan.formats`` entry points are registered, and the content must be picklable) unless
+    ``bounded`` is False.
 
     Parameters
     ----------

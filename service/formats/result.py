@@ -31,7 +31,7 @@ import numpy.typing as npt
 from fpscan.driver.scanfile import PRESSURE_UNITS
 from fpscan.service.disk import copy_replaced
 from fpscan.service.formats.registry import Format, Source
-from fpscan.service.names import person_names
+from fpscan.service.names import current_names
 
 if TYPE_CHECKING:
     from fpscan.service.recon.reconstruction import Reconstruction
@@ -167,8 +167,9 @@ def write_volume(path: str | os.PathLike, p0: np.ndarray, z: np.ndarray, x: np.n
     method : str
         The reconstruction method's name (non-empty).
     params : dict
-        Every parameter of the reconstruction, JSON-serialisable; stored with the person's
-        names (``c`` -> ``sound_speed``, nested too: :func:`fpscan.service.names.person_names`).
+        Every parameter of the reconstruction, JSON-serialisable; the speed of sound is
+        stored as ``sound_speed`` (an earlier release's ``c`` too, nested:
+        :func:`fpscan.service.names.current_names`).
     input_id : str
         The input's id.
     software_version : str, optional
@@ -222,7 +223,7 @@ def write_volume(path: str | os.PathLike, p0: np.ndarray, z: np.ndarray, x: np.n
         raise ValueError("input_id must be a string")
     if not isinstance(params, dict):
         raise ValueError(f"params must be a dict, got {type(params).__name__}")
-    stored = person_names(params)  # the file says sound_speed, not the code's c
+    stored = current_names(params)  # the speed of sound as sound_speed, whatever a caller's params said
     all_json = params_json(stored)
     each = {str(k): params_json({"v": v})[5:-1] for k, v in stored.items()}
     if software_version is None:
@@ -467,7 +468,7 @@ def load(source: Source, **_: Any) -> ResultVolume:
     z, x = f["z"][()], f["x"][()]
     y = f["y"][()] if "y" in f else None
     return ResultVolume(p0=p0, z=z, x=x, y=y, method=str(attrs["method"]),
-                        params=person_names(json.loads(attrs["params"])), input_id=str(attrs["input_id"]),
+                        params=current_names(json.loads(attrs["params"])), input_id=str(attrs["input_id"]),
                         attrs=attrs)
 
 

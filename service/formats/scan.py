@@ -107,7 +107,7 @@ def _dataset(scan: ScanData, wavelength_index: int, allow_empty: bool) -> PointD
     wavelengths = (float(all_w[wavelength_index]),) if all_w.size else None
     return PointDataset(
         alines=scan.pressure, positions=positions[:, :1] if two_d else positions,
-        weights=np.asarray(scan.weights, dtype=np.float64), dt=scan.dt, c=scan.sound_speed,
+        weights=np.asarray(scan.weights, dtype=np.float64), dt=scan.dt, sound_speed=scan.sound_speed,
         grid=(gx,) if two_d else (gx, gy), source="fpscan",
         meta={"plan_id": scan.plan_id, "plan": scan.plan, "indices": scan.indices,
               "wavelengths": scan.wavelengths, "n_points_planned": int(scan.attrs["n_points"]),

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from fpscan.service.formats.registry import Format, Source
-from fpscan.service.names import person_names
+from fpscan.service.names import current_names
 
 if TYPE_CHECKING:
     import numpy.typing as npt
@@ -69,7 +69,7 @@ def load(source: Source, **_: Any) -> dict:
     out = {k: f[k][...] for k in ("hbo2", "hb", "thb", "so2", "mask", "z", "x", "wavelengths_m")}
     out["y"] = f["y"][...] if "y" in f else None
     out["mask"] = out["mask"].astype(bool)
-    out["params"] = person_names(json.loads(f.attrs["params"]))
+    out["params"] = current_names(json.loads(f.attrs["params"]))
     out["input_id"] = str(f.attrs["input_id"])
     return out
 
@@ -78,8 +78,8 @@ def write(path: str | os.PathLike, u: Unmixed, z: npt.ArrayLike, x: npt.ArrayLik
           *, input_id: str = "", extra: dict | None = None) -> Path:
     """Write an unmixing result as ``path`` (via a temporary sibling, renamed).
 
-    ``extra`` is recorded beside ``u.params``; both are stored with the person's names (``c``
-    -> ``sound_speed``: :func:`fpscan.service.names.person_names`).
+    ``extra`` is recorded beside ``u.params``; the speed of sound is stored as ``sound_speed``
+    (an earlier release's ``c`` too: :func:`fpscan.service.names.current_names`).
 
     Parameters
     ----------
@@ -114,7 +114,7 @@ def write(path: str | os.PathLike, u: Unmixed, z: npt.ArrayLike, x: npt.ArrayLik
 
     path = Path(path)
     # the result files' one canonical parameter JSON (ValueError before anything is written)
-    params = params_json(person_names({**u.params, **(extra or {})}))
+    params = params_json(current_names({**u.params, **(extra or {})}))
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
     with h5py.File(tmp, "w") as f:
         f.attrs["format"] = UNMIX_FORMAT

@@ -50,7 +50,7 @@ def input_shape(source: Any) -> dict:
 
         - a plan document (``{"lattice", "acquisition", "points", ...}``: a scan's input, one
           A-line per plan point);
-        - a stored dataset's record (``{"layout": "grid" | "points", "shape", "dt", "c", "dx",
+        - a stored dataset's record (``{"layout": "grid" | "points", "shape", "dt", "sound_speed", "dx",
           ...}``, ``fpscan.service.jobs.store``);
         - a loaded `fpscan.service.recon.dataset.GridDataset` / `PointDataset`.
 
@@ -58,7 +58,7 @@ def input_shape(source: Any) -> dict:
     -------
     dict
         ``n_t``, ``n_x``, ``n_y``, ``n_points`` (sensor points; absent for grid data), ``dt``
-        (s), ``c`` (m/s), ``dx`` (m, the lateral pitch; None when unknown), ``t0`` (s, the time
+        (s), ``sound_speed`` (m/s), ``dx`` (m, the lateral pitch; None when unknown), ``t0`` (s, the time
         of sample 0; None when unknown: a dataset stored by an older server), for a loaded
         dataset ``input_itemsize`` (bytes a sample) and for a plan ``n_wavelengths``; for a
         stored record, where it has them, ``record_facts`` (what the record holds above its
@@ -75,27 +75,27 @@ def input_shape(source: Any) -> dict:
     if isinstance(source, GridDataset):
         d = source.data
         return {"n_t": d.shape[0], "n_x": d.shape[-1], "n_y": d.shape[1] if d.ndim == 3 else 1, "dx": source.dx,
-                "dt": source.dt, "c": source.c, "t0": source.t0, "input_itemsize": d.itemsize}
+                "dt": source.dt, "sound_speed": source.sound_speed, "t0": source.t0, "input_itemsize": d.itemsize}
     if isinstance(source, PointDataset):
         grid = source.grid
         return {"n_t": source.alines.shape[1], "n_x": len(grid[0]), "n_y": len(grid[1]) if len(grid) > 1 else 1,
                 "n_points": source.alines.shape[0],
                 "dx": float(grid[0][1] - grid[0][0]) if len(grid[0]) > 1 else None,
-                "dt": source.dt, "c": source.c, "t0": source.t0, "input_itemsize": source.alines.itemsize}
+                "dt": source.dt, "sound_speed": source.sound_speed, "t0": source.t0, "input_itemsize": source.alines.itemsize}
     if isinstance(source, dict) and "lattice" in source and "acquisition" in source:
         lat, acq = source["lattice"], source["acquisition"]
         return {"n_t": acq["n_t"], "n_x": lat["n_x"], "n_y": lat.get("n_y", 1),
-                "n_points": len(source["points"]["indices"]), "dt": acq["dt"], "c": acq.get("sound_speed"),
+                "n_points": len(source["points"]["indices"]), "dt": acq["dt"], "sound_speed": acq.get("sound_speed"),
                 "dx": lat.get("pitch"), "t0": 0.0, "n_wavelengths": max(len(acq.get("wavelengths") or []), 1)}
     if isinstance(source, dict) and source.get("layout") == "grid":
         s = source["shape"]
         return {"n_t": s[0], "n_x": s[-1], "n_y": s[1] if len(s) == 3 else 1, "dt": source.get("dt"),
-                "c": source.get("c"), "dx": source.get("dx"), "t0": source.get("t0"), **_facts(source)}
+                "sound_speed": source.get("sound_speed"), "dx": source.get("dx"), "t0": source.get("t0"), **_facts(source)}
     if isinstance(source, dict) and source.get("layout") == "points":
         n, n_t = source["shape"]
         side = int(math.ceil(math.sqrt(n)))
         return {"n_t": n_t, "n_x": source.get("n_x", side), "n_y": source.get("n_y", side), "n_points": n,
-                "dt": source.get("dt"), "c": source.get("c"), "dx": source.get("dx"), "t0": source.get("t0"),
+                "dt": source.get("dt"), "sound_speed": source.get("sound_speed"), "dx": source.get("dx"), "t0": source.get("t0"),
                 **_facts(source)}
     raise ValueError(f"no input shape for {type(source).__name__}: give a plan, a stored dataset's record or a "
                      "loaded dataset")
@@ -124,10 +124,10 @@ def working_depth_rows(shape: dict, params: dict) -> int:
     ----------
     shape : dict
         :func:`input_shape`'s: needs ``n_t`` and, when ``dz`` is given, ``dt`` (s) and
-        ``c`` (m/s; ``params["c"]`` wins).
+        ``sound_speed`` (m/s; ``params["sound_speed"]`` wins).
     params : dict
-        The options: ``n_z``, ``dz`` (m), ``c`` (m/s, or ``"auto"``: the fastest of
-        ``c_range``, default ``C_AUTOFOCUS_RANGE``), ``t0`` (s).
+        The options: ``n_z``, ``dz`` (m), ``sound_speed`` (m/s, or ``"auto"``: the fastest of
+        ``sound_speed_range``, default ``C_AUTOFOCUS_RANGE``), ``t0`` (s).
 
     Returns
     -------
@@ -144,10 +144,10 @@ def working_depth_rows(shape: dict, params: dict) -> int:
     dz = params.get("dz")
     if dz is None or shape.get("dt") is None:
         return n_z
-    c_param = params.get("c")
+    c_param = params.get("sound_speed")
     if c_param == "auto":  # autofocus: the fastest speed it may choose reaches deepest
-        c_param = max(params.get("c_range") or C_AUTOFOCUS_RANGE)
-    c = float(c_param or shape.get("c") or C_DEFAULT)
+        c_param = max(params.get("sound_speed_range") or C_AUTOFOCUS_RANGE)
+    c = float(c_param or shape.get("sound_speed") or C_DEFAULT)
     reach = c * (float(params.get("t0") or 0.0) + (n_t - 1) * float(shape["dt"])) / float(dz)
     if not reach < MAX_DEPTH_ROWS:
         raise AdmissionError(f"dz = {dz:g} m is too fine for this input: the depth transform would need "
@@ -179,12 +179,12 @@ def estimate_memory(shape: dict, params: dict) -> int:
     shape : dict
         :func:`input_shape`'s: ``n_t`` and ``n_x`` (``n_y``) of the output grid, ``n_points``
         for point inputs, ``input_itemsize`` (bytes a sample of the input as loaded; default
-        8), ``dt`` (s), ``c`` (m/s) and the lateral pitch ``dx`` (m) of the input (optional;
+        8), ``dt`` (s), ``sound_speed`` (m/s) and the lateral pitch ``dx`` (m) of the input (optional;
         the model-based ``tv`` pads its grid by the record's reach in pitches), ``t0`` (s),
         ``record_facts`` and ``bandwidth`` (a stored record's: tv's grid for its data).
     params : dict
         ``method`` (default: the registry's default for the input's layout), ``dtype``
-        (default ``"float32"``), ``upsample``, ``n_z``, ``dz`` (m), ``c`` (m/s or ``"auto"``).
+        (default ``"float32"``), ``upsample``, ``n_z``, ``dz`` (m), ``sound_speed`` (m/s or ``"auto"``).
 
     Returns
     -------
@@ -204,9 +204,9 @@ def estimate_memory(shape: dict, params: dict) -> int:
 
     geometry: dict[str, float | None] = {}
     if shape.get("dx") and shape.get("dt"):  # the model-based operator's padding depends on them
-        c = params.get("c")
-        c = max(params.get("c_range") or C_AUTOFOCUS_RANGE) if c == "auto" else c
-        geometry = {"dx": float(shape["dx"]), "dt": float(shape["dt"]), "c": float(c or shape.get("c") or C_DEFAULT),
+        c = params.get("sound_speed")
+        c = max(params.get("sound_speed_range") or C_AUTOFOCUS_RANGE) if c == "auto" else c
+        geometry = {"dx": float(shape["dx"]), "dt": float(shape["dt"]), "c": float(c or shape.get("sound_speed") or C_DEFAULT),
                     "dz": float(params["dz"]) if params.get("dz") else None}
     # the method's own peak-memory model (fpscan.service.recon.methods: its module's peak_memory hook)
     method = method_named(params.get("method") or _default_method(shape))
@@ -349,7 +349,7 @@ def estimate_work(shape: dict, params: dict) -> float:
     methods' ``transform_units`` of their transform grid times their measured rate, tv's
     operator pairs on its padded grid, its iterations' share capped by ``time_limit``), on
     the working depth rows (:func:`working_depth_rows`), plus an autofocus search's
-    evaluations when ``c`` is ``"auto"``. A method's hook may refuse options the input
+    evaluations when ``sound_speed`` is ``"auto"``. A method's hook may refuse options the input
     cannot carry (tv: an image deeper than the record can hear; kwave: an input whose sample
     0 is not at t = 0), with the words the worker would use.
 
@@ -358,7 +358,7 @@ def estimate_work(shape: dict, params: dict) -> float:
     shape : dict
         :func:`input_shape`'s.
     params : dict
-        ``method`` and the options as asked (``c`` in m/s or ``"auto"``, ``dz`` m,
+        ``method`` and the options as asked (``sound_speed`` in m/s or ``"auto"``, ``dz`` m,
         ``time_limit`` s, ...).
 
     Returns
@@ -377,15 +377,15 @@ def estimate_work(shape: dict, params: dict) -> float:
     rows = working_depth_rows(shape, params)
     from fpscan.service.recon.methods import get as method_named
 
-    c = params.get("c")
-    c = max(params.get("c_range") or C_AUTOFOCUS_RANGE) if c == "auto" else c
+    c = params.get("sound_speed")
+    c = max(params.get("sound_speed_range") or C_AUTOFOCUS_RANGE) if c == "auto" else c
     name = params.get("method") or _default_method(shape)
     common = dict(upsample=method_named(name).upsample(params), dtype=params.get("dtype") or "float32",
                   n_points=shape.get("n_points"), dx=shape.get("dx"), dt=shape.get("dt"),
-                  c=float(c or shape.get("c") or C_DEFAULT), t0=shape.get("t0"),
+                  c=float(c or shape.get("sound_speed") or C_DEFAULT), t0=shape.get("t0"),
                   record_facts=shape.get("record_facts"), bandwidth=shape.get("bandwidth"))
     seconds = method_named(name).estimate_work(n_t, n_x, n_y, n_z=rows, options=params, **common)
-    if params.get("c") == "auto":  # the search: the method itself, or the direct method for an iterative one
+    if params.get("sound_speed") == "auto":  # the search: the method itself, or the direct method for an iterative one
         search = _default_method(shape) if method_named(name).iterative else name
         depth = 3 * n_t  # its grid: twice as fine as the decimated samples at c_min, as deep as c_max reaches
         seconds += AUTOFOCUS_EVALUATIONS * method_named(search).estimate_work(

@@ -261,7 +261,7 @@ def warm_up() -> float:
     warm_kernels(["float32"], [default_method("points")])
     data = np.zeros((32, 4, 4), dtype=np.float32)
     data[5] = 1.0
-    reconstruct(GridDataset(data=data, dx=1e-4, dt=2e-8, c=C_DEFAULT, dy=1e-4), default_method("points"), eps=1e-3,
+    reconstruct(GridDataset(data=data, dx=1e-4, dt=2e-8, sound_speed=C_DEFAULT, dy=1e-4), default_method("points"), eps=1e-3,
                 dtype="float32")
     return time.perf_counter() - t0
 

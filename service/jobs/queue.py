@@ -48,7 +48,6 @@ from fpscan.service.jobs.executors import DaskExecutor, LocalExecutor, WorkerDie
 from fpscan.service.jobs.lifecycle import apply_retention
 from fpscan.service.jobs.store import JobStore
 from fpscan.service.jobs.work import ProgressLog, run_reconstruction
-from fpscan.service.names import code_names, person_names
 from fpscan.service.pipeline import Cancelled
 from fpscan.service.recon.methods import get as method_named
 from fpscan.service.storage.usage import usage_for
@@ -296,8 +295,8 @@ class ReconQueue:
         out_dir = self.results_dir / f"{jid}.{job['attempts']}"
         progress_path = self.results_dir / f".{jid}.{job['attempts']}.progress"
         cancel_path = self.results_dir / f".{jid}.{job['attempts']}.cancel"
-        # stored as a person reads them (sound_speed; an older server's c too): the library's names here
-        params = {**code_names(job["params"]["params"]), "method": job["params"]["method"]}
+        # the method's own options, as its model dumped them at submission
+        params = {**job["params"]["params"], "method": job["params"]["method"]}
         if method_named(params["method"]).time_limited:  # the server's wall-time limit: the default and the most
             cap = float(self.settings.time_limit_s)
             params["time_limit"] = min(float(params.get("time_limit") or cap), cap)
@@ -360,7 +359,7 @@ class ReconQueue:
         usage_for(self.settings.data_dir).add_path(out_dir)  # /api/health's counters
 
         def succeed() -> None:
-            self.store.update_params(jid, {"result": person_names(summary)})
+            self.store.update_params(jid, {"result": summary})
             self.store.set_state(jid, "succeeded", result_path=str(out_dir), only_from=("running",),
                                  progress={"fraction": 1.0, "stage": "done",
                                            "points_done": summary.get("points_used"),

@@ -535,7 +535,7 @@ def warm_up(full: bool = False, rest_in_background: bool = False) -> dict:
         compile_kernels(dtypes=[DEFAULT_DTYPE], background=False)
         data = np.zeros((32, 4, 4), dtype=np.float32)
         data[5, 1:3, 1:3] = 1.0
-        rec = reconstruct(GridDataset(data=data, dx=1e-4, dt=2e-8, c=C_DEFAULT, dy=1e-4), default_method("grid"))
+        rec = reconstruct(GridDataset(data=data, dx=1e-4, dt=2e-8, sound_speed=C_DEFAULT, dy=1e-4), default_method("grid"))
         with tempfile.TemporaryDirectory(prefix="fpscan-warm-") as tmp:
             write_result(os.path.join(tmp, "result"), rec, input_id="warm-up")
         if rest_in_background:

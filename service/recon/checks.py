@@ -4,17 +4,19 @@ refusal in words (``check_eps``, ``check_dz``, ...), the inputs' checks (``posit
 models themselves are ``fpscan.service.recon.memory``'s)."""
 from __future__ import annotations
 
+import math
 import os
 from typing import Any
 
 import numpy as np
 
+from fpscan.constants import C_AUTOFOCUS_LIMITS
 from fpscan.driver.units import RefusedInput
 
 __all__ = [
     "positive", "finite_array", "EPS_RANGE", "UPSAMPLE_RANGE", "N_Z_RANGE", "DZ_RANGE", "LAM_RANGE",
     "ITERATIONS_RANGE", "TIME_LIMIT_MAX", "OptionError", "check_eps", "check_upsample", "check_n_z",
-    "check_dz", "check_lam", "check_bandwidth", "check_tol", "check_iterations", "check_time_limit", "check_dtype", "available_memory",
+    "check_sound_speed_range", "check_dz", "check_lam", "check_bandwidth", "check_tol", "check_max_iter", "check_time_limit", "check_dtype", "available_memory",
     "check_memory",
 ]
 
@@ -110,9 +112,9 @@ def finite_array(name: str, a: Any, ndims: tuple[int, ...]) -> np.ndarray:
 
 
 # -- the reconstruction options' rules: one owner each ----------------------------------
-# The kernels (``planar``, ``tv``) apply these; ``fpscan.service.pipeline.check_options`` applies
-# the same functions at every door (library, CLI, HTTP) before a job is queued, and the
-# HTTP schema states the same bounds (``fpscan.service.api.models.ReconParams``).
+# The kernels (``planar``, ``tv``) apply these; the methods' options models
+# (``fpscan.service.recon.methods.options``) apply the same functions at every door (library, CLI,
+# HTTP) before a job is queued, and their JSON schemas state the same bounds.
 
 # the ranges: fpscan.service.recon.limits (import-free, read by the methods' option models too)
 from fpscan.service.recon.limits import (
@@ -402,12 +404,12 @@ def check_tol(tol: Any) -> float:
     return v
 
 
-def check_iterations(iterations: Any) -> int:
-    """The most iterations of the model-based solver: an integer in ``ITERATIONS_RANGE`` (1..100000).
+def check_max_iter(max_iter: Any) -> int:
+    """The iteration cap of the model-based solver: an integer in ``ITERATIONS_RANGE`` (1..100000).
 
     Parameters
     ----------
-    iterations : int or integral float
+    max_iter : int or integral float
 
     Returns
     -------
@@ -420,15 +422,15 @@ def check_iterations(iterations: Any) -> int:
 
     Examples
     --------
-    >>> from fpscan.service.recon.checks import check_iterations
-    >>> check_iterations(200)
+    >>> from fpscan.service.recon.checks import check_max_iter
+    >>> check_max_iter(200)
     200
-    >>> check_iterations(0)
+    >>> check_max_iter(0)
     Traceback (most recent call last):
     ...
-    fpscan.service.recon.checks.OptionError: iterations must be an integer in 1..100000, got 0
+    fpscan.service.recon.checks.OptionError: max_iter must be an integer in 1..100000, got 0
     """
-    return _integer("iterations", iterations, *ITERATIONS_RANGE)
+    return _integer("max_iter", max_iter, *ITERATIONS_RANGE)
 
 
 def check_time_limit(seconds: Any) -> float:
@@ -559,3 +561,43 @@ def check_memory(needed: int, memory_limit: int | None) -> None:
             f"reconstruction needs about {needed / 2**30:.2f} GiB at its peak, more than the "
             f"limit of {limit / 2**30:.2f} GiB; reduce n_t, n_z, the grid or upsample, or use float32"
         )
+
+
+def check_sound_speed_range(sound_speed_range: Any) -> tuple[float, float]:
+    """Check an autofocus search interval (``fpscan.service.autofocus``'s, and the options models').
+
+    Parameters
+    ----------
+    sound_speed_range : sequence of two numbers
+        ``(c_min, c_max)`` in m/s.
+
+    Returns
+    -------
+    tuple of float
+        ``(c_min, c_max)`` in m/s as floats.
+
+    Raises
+    ------
+    ValueError
+        Not two numbers; not finite; not c_min < c_max; not both within
+        ``fpscan.constants.C_AUTOFOCUS_LIMITS``.
+
+    Examples
+    --------
+    >>> from fpscan.service.recon.checks import check_sound_speed_range
+    >>> check_sound_speed_range([1450, "1600"])
+    (1450.0, 1600.0)
+    >>> check_sound_speed_range((1600, 1450))
+    Traceback (most recent call last):
+    ...
+    ValueError: sound_speed_range must satisfy 300 <= c_min < c_max <= 6000 m/s, got (1600.0, 1450.0)
+    """
+    try:
+        lo, hi = (float(v) for v in sound_speed_range)
+    except (TypeError, ValueError):
+        raise ValueError(f"sound_speed_range must be two speeds (c_min, c_max) in m/s, got {sound_speed_range!r}") \
+            from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and C_AUTOFOCUS_LIMITS[0] <= lo < hi <= C_AUTOFOCUS_LIMITS[1]):
+        raise ValueError(f"sound_speed_range must satisfy {C_AUTOFOCUS_LIMITS[0]:g} <= c_min < c_max <= "
+                         f"{C_AUTOFOCUS_LIMITS[1]:g} m/s, got ({lo}, {hi})")
+    return lo, hi

@@ -103,7 +103,7 @@ def file_wavelengths(ds: GridDataset | PointDataset) -> np.ndarray:
     --------
     >>> import numpy as np
     >>> from fpscan.service.recon.dataset import GridDataset, file_wavelengths
-    >>> ds = GridDataset(np.zeros((64, 4)), dx=1e-4, dt=2e-8, c=1500.0, wavelengths=(7.5e-7,),
+    >>> ds = GridDataset(np.zeros((64, 4)), dx=1e-4, dt=2e-8, sound_speed=1500.0, wavelengths=(7.5e-7,),
     ...                  meta={"wavelength_index": 1, "wavelengths": [5.32e-7, 7.5e-7]})
     >>> file_wavelengths(ds)  # m
     array([5.32e-07, 7.50e-07])
@@ -134,7 +134,7 @@ def wavelength_params(ds: GridDataset | PointDataset) -> dict:
     --------
     >>> import numpy as np
     >>> from fpscan.service.recon.dataset import GridDataset, wavelength_params
-    >>> ds = GridDataset(np.zeros((64, 4)), dx=1e-4, dt=2e-8, c=1500.0, wavelengths=(7.5e-7,),
+    >>> ds = GridDataset(np.zeros((64, 4)), dx=1e-4, dt=2e-8, sound_speed=1500.0, wavelengths=(7.5e-7,),
     ...                  meta={"wavelength_index": 1, "wavelengths": [5.32e-7, 7.5e-7]})
     >>> wavelength_params(ds)
     {'wavelength_index': 1, 'wavelength_nm': 750.0}
@@ -156,8 +156,9 @@ class GridDataset:
 
     Parameters
     ----------
-    data, dx, dt, c, dy, t0, source, meta, wavelengths, lateral_shift
-        As the attributes below.
+    data, dx, dt, sound_speed, dy, t0, source, meta, wavelengths, lateral_shift
+        As the attributes below (``c``, an earlier release's name of ``sound_speed``, is
+        accepted with a ``DeprecationWarning``).
 
     Attributes
     ----------
@@ -167,8 +168,8 @@ class GridDataset:
         Lateral spacing along x, m.
     dt : float
         Sample interval, s.
-    c : float
-        Sound speed, m/s.
+    sound_speed : float
+        Speed of sound, m/s (k-Wave's ``medium.sound_speed``).
     dy : float or None
         Spacing along y, m (None in 2-D, or dy = dx).
     t0 : float
@@ -192,7 +193,7 @@ class GridDataset:
     --------
     >>> import numpy as np
     >>> from fpscan.service.recon.dataset import GridDataset
-    >>> ds = GridDataset(np.zeros((64, 3, 4), np.float32), dx=1e-4, dt=2e-8, c=1500.0)
+    >>> ds = GridDataset(np.zeros((64, 3, 4), np.float32), dx=1e-4, dt=2e-8, sound_speed=1500.0)
     >>> ds.ndim, [a.round(6).tolist() for a in ds.axes()]  # (x, y) in m, centred
     (3, [[-0.00015, -5e-05, 5e-05, 0.00015], [-0.0001, 0.0, 0.0001]])
     >>> pts = ds.to_points()  # every grid point a sensor
@@ -203,7 +204,7 @@ class GridDataset:
     data: np.ndarray
     dx: float
     dt: float
-    c: float
+    sound_speed: float
     dy: float | None = None
     t0: float = 0.0
     source: str = ""
@@ -214,20 +215,20 @@ class GridDataset:
     kind = "grid"
 
     def __repr__(self) -> str:
-        """One line: the source, shape and axes, spacings, dt and c (never the array).
+        """One line: the source, shape and axes, spacings, dt and the speed of sound (never the array).
 
         Examples
         --------
         >>> import numpy as np
         >>> from fpscan.service.recon.dataset import GridDataset
-        >>> GridDataset(np.zeros((64, 3, 4), np.float32), dx=1e-4, dt=2e-8, c=1500.0)
-        GridDataset((64, 3, 4) float32 (n_t, n_y, n_x), dx 100 µm, dy 100 µm, dt 20 ns, c 1500 m/s)
+        >>> GridDataset(np.zeros((64, 3, 4), np.float32), dx=1e-4, dt=2e-8, sound_speed=1500.0)
+        GridDataset((64, 3, 4) float32 (n_t, n_y, n_x), dx 100 µm, dy 100 µm, dt 20 ns, sound_speed 1500 m/s)
         """
         axes = "(n_t, n_x)" if self.data.ndim == 2 else "(n_t, n_y, n_x)"
         dy = f", dy {(self.dy or self.dx) * 1e6:.4g} µm" if self.data.ndim == 3 else ""
         src = f"{self.source}: " if self.source else ""
         return (f"GridDataset({src}{tuple(self.data.shape)} {self.data.dtype} {axes}, dx {self.dx * 1e6:.4g} µm{dy}, "
-                f"dt {self.dt * 1e9:.4g} ns, c {self.c:g} m/s)")
+                f"dt {self.dt * 1e9:.4g} ns, sound_speed {self.sound_speed:g} m/s)")
 
     @property
     def ndim(self) -> int:
@@ -279,7 +280,7 @@ class GridDataset:
             yy, xx = np.meshgrid(axes[1], axes[0], indexing="ij")
             alines = self.data.reshape(self.data.shape[0], -1).T
             positions = np.stack([xx.ravel(), yy.ravel()], axis=1)
-        return PointDataset(alines=alines, positions=positions, weights=None, dt=self.dt, c=self.c,
+        return PointDataset(alines=alines, positions=positions, weights=None, dt=self.dt, sound_speed=self.sound_speed,
                             grid=axes, t0=self.t0, source=self.source, meta=dict(self.meta),
                             wavelengths=self.wavelengths, lateral_shift=self.lateral_shift)
 
@@ -291,8 +292,9 @@ class PointDataset:
 
     Parameters
     ----------
-    alines, positions, weights, dt, c, grid, t0, source, meta, indices, lattice, wavelengths, lateral_shift
-        As the attributes below.
+    alines, positions, weights, dt, sound_speed, grid, t0, source, meta, indices, lattice, wavelengths, lateral_shift
+        As the attributes below (``c``, an earlier release's name of ``sound_speed``, is
+        accepted with a ``DeprecationWarning``).
 
     Attributes
     ----------
@@ -304,8 +306,8 @@ class PointDataset:
         Area weights, m² (m in 2-D); None: the reconstruction computes clipped Voronoi areas.
     dt : float
         Sample interval, s.
-    c : float
-        Sound speed, m/s.
+    sound_speed : float
+        Speed of sound, m/s (k-Wave's ``medium.sound_speed``).
     grid : tuple of ndarray
         The regular lateral vectors ``(x,)`` or ``(x, y)`` to reconstruct on, m.
     t0 : float
@@ -340,7 +342,7 @@ class PointDataset:
     >>> import numpy as np
     >>> from fpscan.service.recon.dataset import PointDataset
     >>> ds = PointDataset(alines=np.ones((3, 64)), positions=np.array([[-1e-4], [0.0], [1e-4]]),
-    ...                   weights=None, dt=2e-8, c=1500.0, grid=(np.array([-1e-4, 0.0, 1e-4]),),
+    ...                   weights=None, dt=2e-8, sound_speed=1500.0, grid=(np.array([-1e-4, 0.0, 1e-4]),),
     ...                   indices=np.array([[0, 0], [1, 0], [2, 0]]),
     ...                   lattice={"n_x": 3, "n_y": 1, "pitch": 1e-4})
     >>> ds.ndim, ds.full_lattice
@@ -354,7 +356,7 @@ class PointDataset:
     positions: np.ndarray
     weights: np.ndarray | None
     dt: float
-    c: float
+    sound_speed: float
     grid: tuple
     t0: float = 0.0
     source: str = ""
@@ -367,16 +369,16 @@ class PointDataset:
     kind = "points"
 
     def __repr__(self) -> str:
-        """One line: the source, points × samples, the lattice, weights, dt and c (never the arrays).
+        """One line: the source, points × samples, the lattice, weights, dt and the speed of sound (never the arrays).
 
         Examples
         --------
         >>> import numpy as np
         >>> from fpscan.service.recon.dataset import PointDataset
         >>> PointDataset(alines=np.ones((3, 64)), positions=np.array([[-1e-4], [0.0], [1e-4]]),
-        ...              weights=None, dt=2e-8, c=1500.0, grid=(np.array([-1e-4, 0.0, 1e-4]),),
+        ...              weights=None, dt=2e-8, sound_speed=1500.0, grid=(np.array([-1e-4, 0.0, 1e-4]),),
         ...              indices=np.array([[0, 0], [1, 0], [2, 0]]), lattice={"n_x": 3, "n_y": 1, "pitch": 1e-4})
-        PointDataset(3 points x 64 samples float64, lattice 3x1 at 100 µm, Voronoi weights, dt 20 ns, c 1500 m/s)
+        PointDataset(3 points x 64 samples float64, lattice 3x1 at 100 µm, Voronoi weights, dt 20 ns, sound_speed 1500 m/s)
         """
         n, n_t = self.alines.shape
         lat = self.lattice
@@ -385,7 +387,7 @@ class PointDataset:
         weights = "weighted" if self.weights is not None else "Voronoi weights"
         src = f"{self.source}: " if self.source else ""
         return (f"PointDataset({src}{n} points x {n_t} samples {self.alines.dtype}{where}, {weights}, "
-                f"dt {self.dt * 1e9:.4g} ns, c {self.c:g} m/s)")
+                f"dt {self.dt * 1e9:.4g} ns, sound_speed {self.sound_speed:g} m/s)")
 
     @property
     def ndim(self) -> int:
@@ -428,7 +430,7 @@ class PointDataset:
         >>> import numpy as np
         >>> from fpscan.service.recon.dataset import PointDataset
         >>> ds = PointDataset(alines=np.ones((2, 8)), positions=np.array([[-5e-5], [5e-5]]), weights=None,
-        ...                   dt=2e-8, c=1500.0, grid=(np.array([-5e-5, 5e-5]),),
+        ...                   dt=2e-8, sound_speed=1500.0, grid=(np.array([-5e-5, 5e-5]),),
         ...                   indices=np.array([[0, 0], [1, 0]]), lattice={"n_x": 3, "n_y": 1, "pitch": 1e-4})
         >>> ds.to_grid()
         Traceback (most recent call last):
@@ -449,10 +451,43 @@ class PointDataset:
         data = np.empty((n_t, n_y, n_x), dtype=self.alines.dtype)
         data[:, idx[:, 1], idx[:, 0]] = self.alines.T
         pitch = float(self.lattice["pitch"])
-        return GridDataset(data=data[:, 0, :] if n_y == 1 else data, dx=pitch, dt=self.dt, c=self.c,
+        return GridDataset(data=data[:, 0, :] if n_y == 1 else data, dx=pitch, dt=self.dt, sound_speed=self.sound_speed,
                            dy=None if n_y == 1 else pitch, t0=self.t0, source=self.source,
                            meta=dict(self.meta), wavelengths=self.wavelengths, lateral_shift=self.lateral_shift)
 
+
+def _accepting_old_speed_name(cls: type) -> None:
+    """Let ``cls`` (a dataset dataclass) take ``c=`` in its constructor and read and set ``.c``, an
+    earlier release's name of ``sound_speed``, each with a ``DeprecationWarning`` naming it."""
+    import functools
+    import warnings
+
+    init = vars(cls)["__init__"]  # the dataclass's own
+
+    @functools.wraps(init)
+    def __init__(self: Any, *args: Any, c: Any = None, **kw: Any) -> None:
+        if c is not None:
+            if "sound_speed" in kw or len(args) > 3 + (cls is PointDataset):
+                raise ValueError("give sound_speed or its deprecated name c, not both")
+            warnings.warn(f"{cls.__name__}(c=...) is deprecated: use sound_speed= (c is refused from the next "
+                          "release)", DeprecationWarning, stacklevel=2)
+            kw["sound_speed"] = c
+        init(self, *args, **kw)
+
+    def get(self: Any) -> float:
+        warnings.warn(f"{cls.__name__}.c is deprecated: use .sound_speed", DeprecationWarning, stacklevel=2)
+        return float(self.sound_speed)
+
+    def set_(self: Any, value: float) -> None:
+        warnings.warn(f"{cls.__name__}.c is deprecated: use .sound_speed", DeprecationWarning, stacklevel=2)
+        self.sound_speed = value
+
+    cls.__init__ = __init__  # type: ignore[misc]
+    cls.c = property(get, set_, doc="Deprecated name of ``sound_speed`` (m/s).")  # type: ignore[attr-defined]
+
+
+_accepting_old_speed_name(GridDataset)
+_accepting_old_speed_name(PointDataset)
 
 Dataset = GridDataset | PointDataset
 
@@ -712,7 +747,7 @@ def dataset_nbytes(ds: GridDataset | PointDataset) -> int:
     --------
     >>> import numpy as np
     >>> from fpscan.service.recon.dataset import GridDataset, dataset_nbytes
-    >>> ds = GridDataset(np.zeros((64, 3, 4), np.float32), dx=1e-4, dt=2e-8, c=1500.0)
+    >>> ds = GridDataset(np.zeros((64, 3, 4), np.float32), dx=1e-4, dt=2e-8, sound_speed=1500.0)
     >>> dataset_nbytes(ds)  # 64 x 3 x 4 float32
     3072
     >>> dataset_nbytes(ds.to_points())  # + positions (12, 2) and the grid vectors, float64

@@ -476,7 +476,7 @@ def reconstruct_grid(
         np.maximum(p0, 0, out=p0)
     x = centred_axis(n_x, dx)[0] + np.arange(n_x * upsample) * (dx / upsample)
     y = None if is2d else centred_axis(n_y, dy)[0] + np.arange(n_y * upsample) * (dy / upsample)
-    params = dict(method=method, dx=dx, dy=None if is2d else dy, dt=dt, c=c, eps=eps,
+    params = dict(method=method, dx=dx, dy=None if is2d else dy, dt=dt, sound_speed=c, eps=eps,
                   dtype=rdtype.name, dz=dz, n_z=n_z, upsample=upsample, positivity=bool(positivity),
                   t0=float(t0), n_t=n_t, data_shape=list(data.shape), depth_rows=n_work,
                   lateral_transform=[n_yp, n_xp], **ran)
@@ -861,7 +861,7 @@ def reconstruct_points(
         np.maximum(p0, 0, out=p0)
     x = axes[0][0] + np.arange(n_x_out * upsample) * (dx / upsample)
     y = None if d == 1 else axes[1][0] + np.arange(n_y_out * upsample) * (dy / upsample)
-    params = dict(method="nedner" if method == "ner" else method, temporal=method, dt=dt, c=c, eps=eps,
+    params = dict(method="nedner" if method == "ner" else method, temporal=method, dt=dt, sound_speed=c, eps=eps,
                   dtype=rdtype.name, dz=dz, n_z=n_z, upsample=upsample, positivity=bool(positivity),
                   t0=float(t0), n_t=n_t, n_points=n_points, depth_rows=n_work, lateral_transform=[n_y, n_x],
                   dx=dx, dy=dy if d == 2 else None,

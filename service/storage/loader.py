@@ -98,9 +98,9 @@ def detect_format(path: str | os.PathLike) -> str:
 
 
 def load_dataset(path: str | os.PathLike, format: str | None = None, *, dt: float | None = None,
-                 dx: float | None = None, dy: float | None = None, c: float | None = None,
+                 dx: float | None = None, dy: float | None = None, sound_speed: float | None = None,
                  key: str | None = None, max_bytes: int = MAX_ELEMENTS * 8,
-                 force: bool = False, wavelength: int | None = None) -> GridDataset | PointDataset:
+                 force: bool = False, wavelength: int | None = None, c: float | None = None) -> GridDataset | PointDataset:
     """Import a file for reconstruction (module docstring).
 
     An HDF5 file is checked first, by the registry for every format
@@ -121,19 +121,21 @@ def load_dataset(path: str | os.PathLike, format: str | None = None, *, dt: floa
         Sampling interval in s, overriding the file's (required for ``.npy``).
     dx, dy : float or None, optional
         Sensor spacing along x and y in m, overriding the file's (``dx`` required for ``.npy``).
-    c : float or None, optional
+    sound_speed : float or None, optional
         Speed of sound in m/s, overriding the file's.
     key : str or None, optional
         The HDF5 dataset path of the data, for formats that take one.
     max_bytes : int, optional
         Largest dataset an HDF5 file may declare, in bytes; default ``MAX_ELEMENTS * 8``.
     force : bool, optional
-        Accept an unusual ``c`` (outside the plausible range for soft tissue); default False.
+        Accept an unusual ``sound_speed`` (outside the plausible range for soft tissue); default False.
     wavelength : int or None, optional
         Which excitation wavelength of a multi-wavelength file (an index into its
         wavelengths); default None: the first, recorded in the dataset's
         ``meta["wavelength_index"]``. A file of one wavelength takes only None or 0 (for
         ``"all"`` use :func:`load_wavelengths`).
+    c : float or None, optional
+        An earlier release's name of ``sound_speed`` (a ``DeprecationWarning``).
 
     Returns
     -------
@@ -146,18 +148,31 @@ def load_dataset(path: str | os.PathLike, format: str | None = None, *, dt: floa
     ValueError
         Naming the fault: an unknown ``format``, ``"all"`` as ``wavelength``, an index out of
         range (naming the file's wavelengths), an implausible explicit ``dt``, ``dx``, ``dy``
-        or ``c`` (``fpscan.driver.units.check_plausible``: a unit mistake such as ``dt=20`` for 20 ns
+        or ``sound_speed`` (``fpscan.driver.units.check_plausible``: a unit mistake such as ``dt=20`` for 20 ns
         is named), an unsafe or unreadable file.
     FileNotFoundError
         If ``path`` does not exist.
     """
     choice = check_wavelength(wavelength, allow_all=False)  # 'all': load_wavelengths
-    return _load(path, format, dt=dt, dx=dx, dy=dy, c=c, key=key, max_bytes=max_bytes, force=force,
-                 wavelength_index=0 if choice is None else int(choice))
+    if c is not None:
+        sound_speed = _old_speed_name(c, sound_speed)
+    return _load(path, format, dt=dt, dx=dx, dy=dy, sound_speed=sound_speed, key=key, max_bytes=max_bytes,
+                 force=force, wavelength_index=0 if choice is None else int(choice))
+
+
+def _old_speed_name(c: float, sound_speed: float | None) -> float:
+    """``c``, an earlier release's name of ``sound_speed``: warned, and refused beside it."""
+    import warnings
+
+    if sound_speed is not None:
+        raise ValueError("give sound_speed or its deprecated name c, not both")
+    warnings.warn("c is deprecated: use sound_speed= (c is refused from the next release)", DeprecationWarning,
+                  stacklevel=3)
+    return c
 
 
 def _load(path: str | os.PathLike, format: str | None, *, dt: float | None, dx: float | None, dy: float | None,
-          c: float | None, key: str | None, max_bytes: int, force: bool, **which: Any) -> Any:
+          sound_speed: float | None, key: str | None, max_bytes: int, force: bool, **which: Any) -> Any:
     """:func:`load_dataset`'s checks and the registry's load; ``which``:
     ``wavelength_index`` (one dataset) or ``all_wavelengths=True`` (a list). The load options
     given (``dt``, ``dx``, ``dy``, ``key``) must be the format's own
@@ -167,7 +182,7 @@ def _load(path: str | os.PathLike, format: str | None, *, dt: float | None, dx: 
     num = (int, float)
     check_plausible(dt=dt if isinstance(dt, num) else None, dx=dx if isinstance(dx, num) else None,
                     dy=dy if isinstance(dy, num) else None,
-                    sound_speed=c if isinstance(c, num) else None, force=force)
+                    sound_speed=sound_speed if isinstance(sound_speed, num) else None, force=force)
     from fpscan.service.formats.load_options import check_load_options
 
     choices = input_formats()
@@ -176,13 +191,13 @@ def _load(path: str | os.PathLike, format: str | None, *, dt: float | None, dx: 
     asked = {"dt": dt, "dx": dx, "dy": dy, "key": key}  # the load options (the format's own model)
     if format is not None:
         check_load_options(format, asked)
-    name, loaded = formats.load(path, format, max_bytes=max_bytes, choices=choices, dt=dt, dx=dx, dy=dy, c=c,
-                                key=key, **which)
+    name, loaded = formats.load(path, format, max_bytes=max_bytes, choices=choices, dt=dt, dx=dx, dy=dy,
+                                sound_speed=sound_speed, key=key, **which)
     if format is None:  # detected from the content: its options, now that it is known
         check_load_options(name, asked)
     for ds in loaded if isinstance(loaded, list) else [loaded]:
-        if c is not None:
-            ds.c = positive("c", c)
+        if sound_speed is not None:
+            ds.sound_speed = positive("sound_speed", sound_speed)
         if dt is not None:
             ds.dt = positive("dt", dt)
     return loaded
@@ -258,7 +273,7 @@ def load_wavelengths(path: str | os.PathLike, format: str | None = None, *, wave
         ``"all"`` (one per wavelength of the file, in its order, read from one open of the
         file; a file of one wavelength gives one). Default None: the first.
     **load
-        The other arguments of :func:`load_dataset` (``dt``, ``dx``, ``dy``, ``c``, ``key``,
+        The other arguments of :func:`load_dataset` (``dt``, ``dx``, ``dy``, ``sound_speed``, ``key``,
         ``max_bytes``, ``force``).
 
     Returns
@@ -277,7 +292,10 @@ def load_wavelengths(path: str | os.PathLike, format: str | None = None, *, wave
     choice = check_wavelength(wavelength)
     if not isinstance(choice, str):  # an index or None
         return [load_dataset(path, format, wavelength=choice, **load)]
-    options = {"dt": None, "dx": None, "dy": None, "c": None, "key": None, "max_bytes": MAX_ELEMENTS * 8,
+    if load.get("c") is not None:
+        load = {**load, "sound_speed": _old_speed_name(load["c"], load.get("sound_speed"))}
+    load.pop("c", None)
+    options = {"dt": None, "dx": None, "dy": None, "sound_speed": None, "key": None, "max_bytes": MAX_ELEMENTS * 8,
                "force": False, **load}
     return list(_load(path, format, all_wavelengths=True, **options))
 
@@ -286,7 +304,7 @@ HDF5_KEY_CHARS = set("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ012345
 
 
 def import_dataset(src: str | os.PathLike, dest_dir: str | os.PathLike, fmt: str, *, dt: float | None,
-                   dx: float | None, dy: float | None, c: float | None, key: str | None,
+                   dx: float | None, dy: float | None, sound_speed: float | None, key: str | None,
                    max_bytes: int | None = None, force: bool = False, wavelength: int | None = None) -> dict:
     """Validate and convert an uploaded file into ``dest_dir/dataset.h5``.
 
@@ -308,7 +326,7 @@ def import_dataset(src: str | os.PathLike, dest_dir: str | os.PathLike, fmt: str
         Sampling interval in s, overriding the file's.
     dx, dy : float or None
         Sensor spacing along x and y in m, overriding the file's.
-    c : float or None
+    sound_speed : float or None
         Speed of sound in m/s, overriding the file's.
     key : str or None
         The HDF5 dataset path of the data (at most 200 characters of ``[A-Za-z0-9_-/.]``).
@@ -316,7 +334,7 @@ def import_dataset(src: str | os.PathLike, dest_dir: str | os.PathLike, fmt: str
         Largest declared dataset of an HDF5 file in bytes (``fpscan.driver.hdf5_checks.check_hdf5_file``,
         run before anything is read); default None: ``MAX_ELEMENTS * 8``.
     force : bool, optional
-        Accept a ``c`` outside ``fpscan.constants.C_PLAUSIBLE`` (m/s; as :func:`load_dataset`);
+        Accept a ``sound_speed`` outside ``fpscan.constants.C_PLAUSIBLE`` (m/s; as :func:`load_dataset`);
         default False.
     wavelength : int or None, optional
         Which excitation wavelength of a multi-wavelength file to store (an index; None: the
@@ -326,7 +344,7 @@ def import_dataset(src: str | os.PathLike, dest_dir: str | os.PathLike, fmt: str
     -------
     dict
         The dataset's metadata, which the API stores in the job store: ``layout``
-        (``"grid"`` or ``"points"``), ``shape``, ``dx``, ``dt``, ``c``, ``t0``, ``path``
+        (``"grid"`` or ``"points"``), ``shape``, ``dx``, ``dt``, ``sound_speed``, ``t0``, ``path``
         (``"dataset.h5"``), the wavelength's params and ``record_facts`` (what the record holds
         above its noise, ``fpscan.service.recon.tv.grid.record_facts``: the memory admission sizes a tv
         job on the grid tv will choose from them), with ``sensor_bandwidth_hz`` where the file
@@ -343,11 +361,12 @@ def import_dataset(src: str | os.PathLike, dest_dir: str | os.PathLike, fmt: str
     """
     if key is not None and (not key or len(key) > 200 or not set(key) <= HDF5_KEY_CHARS):
         raise ValueError("key must be an HDF5 dataset path of [A-Za-z0-9_-/.]")
-    for name, value in (("dt", dt), ("dx", dx), ("dy", dy), ("c", c)):
+    for name, value in (("dt", dt), ("dx", dx), ("dy", dy), ("sound_speed", sound_speed)):
         if value is not None and not (math.isfinite(value) and value > 0):
             raise ValueError(f"{name} must be a positive finite number")
     try:
-        ds = load_dataset(src, fmt, dt=dt, dx=dx, dy=dy, c=c, key=key, force=force, wavelength=wavelength,
+        ds = load_dataset(src, fmt, dt=dt, dx=dx, dy=dy, sound_speed=sound_speed, key=key, force=force,
+                          wavelength=wavelength,
                           max_bytes=MAX_ELEMENTS * 8 if max_bytes is None else max_bytes)
     except (KeyError, TypeError, IndexError, OSError) as exc:
         raise ValueError(f"file is not a readable {fmt} dataset ({type(exc).__name__})") from None
@@ -358,7 +377,7 @@ def import_dataset(src: str | os.PathLike, dest_dir: str | os.PathLike, fmt: str
 
     request_admission(dataset_nbytes(ds))  # the service's disk admission, before a byte is written
     write_dataset(dest_dir / "dataset.h5", ds)
-    common = {"dt": ds.dt, "c": ds.c, "t0": float(ds.t0 or 0.0), "path": "dataset.h5", **wavelength_params(ds),
+    common = {"dt": ds.dt, "sound_speed": ds.sound_speed, "t0": float(ds.t0 or 0.0), "path": "dataset.h5", **wavelength_params(ds),
               **_record_facts(ds)}
     if isinstance(ds, GridDataset):
         return {"layout": "grid", "shape": list(ds.data.shape), "dx": ds.dx, **common}

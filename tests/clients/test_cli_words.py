@@ -1,4 +1,4 @@
-"""Words the user typed: the command line's errors name its flags (``--lambda``,
+"""Words the user typed: the command line's errors name its flags (``--lam``,
 ``--key``, ``--sound-speed``), not the library's keywords; its help lists every input format and
 every action as it is spelled. Oracle: the flags argparse declares (``fpscan recon --help``)."""
 from __future__ import annotations
@@ -21,9 +21,10 @@ def test_refused_options_and_missing_inputs_name_the_flags(tmp_path):
     np.save(tmp_path / "line.npy", np.zeros((64, 8)))
     helps = fpscan("recon", "--help").stdout
     r = fpscan("recon", tmp_path / "line.npy", "--dt", "10ns", "--dx", "100um", "--method", "nedner",
-               "--lambda", "0.1")
+               "--lam", "0.1")
     assert r.returncode == 2, r.stderr
-    assert "takes no option --lambda (its options: --sound-speed, --eps," in r.stderr, r.stderr
+    assert "takes no option --lam (its options: --sound-speed, --sound-speed-range, --force, --eps," in r.stderr, \
+        r.stderr
     named = r.stderr.partition("(its options: ")[2].partition(")")[0].split(", ")
     assert named and all(flag in helps for flag in named), named  # each a flag the command has
     r = fpscan("recon", tmp_path / "line.npy", "--dt", "10ns", "--dx", "100um", "--method", "ner", "--eps", "1")

@@ -45,7 +45,7 @@ def test_npz_export_everywhere_from_one_file(server, tmp_path):
     rng = np.random.default_rng(3)
     data = rng.standard_normal((N_T, N, N)).astype(np.float32)
     np.save(tmp_path / "data.npy", data)
-    rec = fpscan.reconstruct(fpscan.GridDataset(data=data, dx=DX, dy=DX, dt=DT, c=C), "ner")
+    rec = fpscan.reconstruct(fpscan.GridDataset(data=data, dx=DX, dy=DX, dt=DT, sound_speed=C), "ner")
     fpscan.write_result(tmp_path / "local", rec, input_id="npz")
     volume = tmp_path / "local" / "volume.h5"
     want = _expect(volume)

@@ -112,7 +112,7 @@ def test_one_orientation_in_every_path(server, tmp_path):
     seen_xz: dict[str, str] = {}
 
     # -- locally, through the public package and the CLI's export
-    ds = fpscan.GridDataset(data=data, dx=DX, dy=DX, dt=DT, c=C)
+    ds = fpscan.GridDataset(data=data, dx=DX, dy=DX, dt=DT, sound_speed=C)
     rec = fpscan.reconstruct(ds, "ner")
     fpscan.write_result(tmp_path / "local", rec, input_id="orientation")
     seen["local PNG MIP xy"] = _png_quadrant((tmp_path / "local" / "mip_xy.png").read_bytes())

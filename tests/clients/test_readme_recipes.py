@@ -95,9 +95,9 @@ def test_the_readme_states_tvs_own_defaults():
     from fpscan.service.recon.methods import METHODS
 
     text = " ".join(README.read_text(encoding="utf-8").split())
-    said = re.search(r"`--iterations` \(default (\d+)", text)
+    said = re.search(r"`--max-iter` \(default (\d+)", text)
     options = METHODS["tv"].options_model.model_fields
-    assert said and int(said[1]) == options["iterations"].default, said
+    assert said and int(said[1]) == options["max_iter"].default, said
 
 
 @pytest.mark.skipif(not (shutil.which("curl") and shutil.which("jq")), reason="the curl section needs curl and jq")

@@ -241,7 +241,7 @@ def test_load_dense_reads_attributes_and_rejects_bad_files(tmp_path):
         f.attrs["dt_s"] = 8e-9
         f.attrs["dx_m"] = 60e-6
     d = load_dense(good)
-    assert d.ndim == 3 and d.dt == 8e-9 and d.dx == 60e-6 and d.c == 1500.0 and d.p0 is None
+    assert d.ndim == 3 and d.dt == 8e-9 and d.dx == 60e-6 and d.sound_speed == 1500.0 and d.p0 is None
     c = d.crop(n_t=10, lateral=4)
     assert c.data.shape == (10, 4, 4)
     no_dt = tmp_path / "nodt.h5"

@@ -140,9 +140,10 @@ def test_library_rules():
 
 
 def test_recon_sound_speed_rule_cli_and_library(tmp_path, capsys):
-    """One speed-of-sound rule (fpscan.driver.units.check_speeds): ``fpscan recon --c`` outside
-    1000-2000 m/s exits 2 naming the likely unit unless ``--force``; the library's
-    ``reconstruct(c=...)`` raises ValueError the same way unless ``force=True``."""
+    """One speed-of-sound rule (fpscan.driver.units.check_speeds): ``fpscan recon --sound-speed``
+    outside 1000-2000 m/s exits 2 naming the likely unit unless ``--force``; the library's
+    ``reconstruct(sound_speed=...)`` raises ValueError the same way unless ``force=True``; the old
+    flag ``--c`` still works and warns naming the new one."""
     from fpscan.service.pipeline import reconstruct
     from fpscan.service.recon.dataset import GridDataset
 
@@ -152,22 +153,25 @@ def test_recon_sound_speed_rule_cli_and_library(tmp_path, capsys):
     for c, names in (("2500", ["sound speed 2500 m/s", "1000 to 2000", "force"]),
                      ("1.5", ["1.5 m/s", "1.5 km/s"])):
         with pytest.raises(SystemExit) as stop:
-            raise SystemExit(main(base + ["--c", c, "--out", str(tmp_path / "r")]))
+            raise SystemExit(main(base + ["--sound-speed", c, "--out", str(tmp_path / "r")]))
         assert stop.value.code == 2
         err = capsys.readouterr().err
         assert all(n in err for n in names), err
     assert not (tmp_path / "r").exists()
     assert main(base + ["--c", "2.5 km/s", "--force", "--out", str(tmp_path / "r")]) == 0
     assert (tmp_path / "r" / "volume.h5").is_file()
+    assert "--c is deprecated: use --sound-speed" in capsys.readouterr().err
 
-    ds = GridDataset(data=np.zeros((16, 4, 4), np.float32), dx=1e-4, dt=2e-8, c=1500.0, dy=1e-4)
-    with pytest.raises(ValueError, match="c: sound speed 2500 m/s is implausible"):
-        reconstruct(ds, "ner", c=2500.0)
+    ds = GridDataset(data=np.zeros((16, 4, 4), np.float32), dx=1e-4, dt=2e-8, sound_speed=1500.0, dy=1e-4)
+    with pytest.raises(ValueError, match="sound_speed: sound speed 2500 m/s is implausible"):
+        reconstruct(ds, "ner", sound_speed=2500.0)
     with pytest.raises(ImplausibleValue, match="did you mean 1.5 km/s"):
-        reconstruct(ds, "ner", c=1.5)
-    with pytest.raises(ImplausibleValue, match="c_range: sound speed 900 m/s"):
-        reconstruct(ds, "ner", c="auto", c_range=[900.0, 1600.0])
-    assert reconstruct(ds, "ner", c=2500.0, force=True).params["c"] == 2500.0
+        reconstruct(ds, "ner", sound_speed=1.5)
+    with pytest.raises(ImplausibleValue, match="sound_speed_range: sound speed 900 m/s"):
+        reconstruct(ds, "ner", sound_speed="auto", sound_speed_range=[900.0, 1600.0])
+    assert reconstruct(ds, "ner", sound_speed=2500.0, force=True).params["sound_speed"] == 2500.0
+    with pytest.warns(DeprecationWarning, match="option c is deprecated: use sound_speed"):
+        assert reconstruct(ds, "ner", c=1480.0).params["sound_speed"] == 1480.0
 
 
 def test_sim_demo_unmix_take_units_and_name_unit_mistakes(tmp_path, capsys):
@@ -186,10 +190,10 @@ def test_sim_demo_unmix_take_units_and_name_unit_mistakes(tmp_path, capsys):
     demo = parse(["demo", "--pitch", "100um", "--dt", "12ns", "--poi-depth", "3mm"])
     assert (demo.pitch, demo.dt, demo.poi_depth) == (1e-4, 1.2e-8, 3e-3)
     unmix = parse(["unmix", "--wavelengths", "750nm", "850 nm", "--dt", "20ns", "--dx", "100um",
-                   "--c-range", "1.45km/s", "1600"])
+                   "--sound-speed-range", "1.45km/s", "1600"])
     assert unmix.wavelengths == [7.5e-7, 8.5e-7] and (unmix.dt, unmix.dx) == (2e-8, 1e-4)
-    assert unmix.c_range == [1450.0, 1600.0]
-    assert parse(["recon", "--c-range", "1.45 km/s", "1.6km/s"]).c_range == [1450.0, 1600.0]
+    assert unmix.sound_speed_range == [1450.0, 1600.0]
+    assert parse(["recon", "--c-range", "1.45 km/s", "1.6km/s"]).sound_speed_range == [1450.0, 1600.0]
 
     def exit_code(argv):
         with pytest.raises(SystemExit) as stop:
@@ -215,7 +219,7 @@ def test_sim_demo_unmix_take_units_and_name_unit_mistakes(tmp_path, capsys):
     base = ["unmix", str(a), str(b), "--wavelengths", "750nm", "850nm", "-q", "--out", str(tmp_path / "u")]
     for flags, names in ((["--dt", "20", "--dx", "100um"], ["dt 20 s", "20 ns"]),
                          (["--dt", "20ns", "--dx", "100"], ["dx 100 m", "100 µm"]),
-                         (["--dt", "20ns", "--dx", "100um", "--c", "2500"], ["sound speed 2500 m/s", "force"])):
+                         (["--dt", "20ns", "--dx", "100um", "--sound-speed", "2500"], ["sound speed 2500 m/s", "force"])):
         code, err = exit_code(base + flags)
         assert code == 2 and all(n in err for n in names), (flags, err)
     assert not (tmp_path / "u").exists()

@@ -34,19 +34,20 @@ def test_the_speed_of_sound_defaults_are_spelled_only_in_the_constants_module():
 def test_the_library_the_plan_contract_and_the_http_model_take_the_constants():
     import inspect
 
-    from fpscan.service.api.models import ReconParams
+    from fpscan.service.api.models import PARAMS_MODELS
     from fpscan.service.autofocus import autofocus
     from fpscan.service.plans.plan import Acquisition
     from fpscan.service.recon.planar import reconstruct_grid, reconstruct_points
 
     assert all(inspect.signature(f).parameters["c"].default == constants.C_DEFAULT
                for f in (reconstruct_grid, reconstruct_points))
-    assert inspect.signature(autofocus).parameters["c_range"].default == constants.C_AUTOFOCUS_RANGE
+    assert inspect.signature(autofocus).parameters["sound_speed_range"].default == constants.C_AUTOFOCUS_RANGE
     assert Acquisition.model_fields["sound_speed"].default == constants.C_DEFAULT
-    # the HTTP names of the speed of sound: sound_speed / sound_speed_range (c / c_range accepted)
-    schema = ReconParams.model_json_schema()["properties"]["sound_speed_range"]
-    ends = [item for item in schema["anyOf"] if item.get("type") == "array"][0]["prefixItems"]
-    assert all((e["minimum"], e["maximum"]) == constants.C_AUTOFOCUS_LIMITS for e in ends)
+    # the speed of sound's names in every method's request options: sound_speed / sound_speed_range
+    for model in PARAMS_MODELS.values():
+        schema = model.model_json_schema()["properties"]["sound_speed_range"]
+        ends = [item for item in schema["anyOf"] if item.get("type") == "array"][0]["prefixItems"]
+        assert all((e["minimum"], e["maximum"]) == constants.C_AUTOFOCUS_LIMITS for e in ends)
 
 
 @pytest.mark.parametrize("c, force, ok", [(constants.C_PLAUSIBLE[1], False, True),
@@ -59,13 +60,13 @@ def test_a_forced_speed_stays_within_the_limits_in_the_library_as_over_http(c, f
     from pydantic import ValidationError
 
     from fpscan.driver.units import RefusedInput, check_speeds
-    from fpscan.service.api.models import ReconParams
+    from fpscan.service.api.models import PARAMS_MODELS
 
     if ok:
-        check_speeds(c=c, force=force)
-        ReconParams(c=c, force=force)
+        check_speeds(sound_speed=c, force=force)
+        PARAMS_MODELS["ner"](sound_speed=c, force=force)
     else:
         with pytest.raises(RefusedInput):
-            check_speeds(c=c, force=force)
+            check_speeds(sound_speed=c, force=force)
         with pytest.raises(ValidationError):
-            ReconParams(c=c, force=force)
+            PARAMS_MODELS["ner"](sound_speed=c, force=force)

@@ -54,5 +54,5 @@ def test_no_bar_outside_a_notebook(capsys):
     from fpscan.service.notebook import in_notebook
 
     assert not in_notebook()
-    fpscan.reconstruct(fpscan.GridDataset(np.zeros((32, 8)), dx=1e-4, dt=1e-8, c=1500.0), "ner")
+    fpscan.reconstruct(fpscan.GridDataset(np.zeros((32, 8)), dx=1e-4, dt=1e-8, sound_speed=1500.0), "ner")
     assert capsys.readouterr() == ("", "")

@@ -222,7 +222,7 @@ def test_progress_every_iteration_and_cancel():
 
 
 @pytest.mark.parametrize(("kw", "match"), [
-    (dict(lam=-1.0), "lam"), (dict(lam=float("nan")), "lam"), (dict(max_iter=0), "iterations"),
+    (dict(lam=-1.0), "lam"), (dict(lam=float("nan")), "lam"), (dict(max_iter=0), "max_iter"),
     (dict(weights=np.ones(3)), "weights must have shape"), (dict(nan=True), "alines contains NaN"),
     (dict(memory_limit=8_000), "needs about"),
 ])

@@ -422,19 +422,19 @@ def mask_parameters_covered() -> set[tuple[str, str]]:
     return covered | {("points", p) for p in POINTS_BY_INDEX}
 
 
-#: A reconstruction request's options (``ReconParams``) and the valid value each replaces
+#: A reconstruction request's options (every method's options model) and the valid value each replaces
 #: (``recon_cases`` checks that this names every option the API has).
-RECON_PARAMS = {"c": 1500.0, "c_range": [1400.0, 1600.0], "eps": 1e-6, "dtype": "float32", "upsample": 1, "positivity": False, "lam": 1.0,
-                "iterations": 10, "time_limit": 60.0, "n_z": 64, "dz": 1e-5, "interp": "*nearest",
+RECON_PARAMS = {"sound_speed": 1500.0, "sound_speed_range": [1400.0, 1600.0], "eps": 1e-6, "dtype": "float32", "upsample": 1, "positivity": False, "lam": 1.0,
+                "max_iter": 10, "time_limit": 60.0, "n_z": 64, "dz": 1e-5, "interp": "*nearest",
                 "debias": False, "whole_record": False, "tol": 1e-3, "force": False}
 #: the method each option is tried with (one that takes it: an option the method does not take is a 422)
-RECON_METHOD = {"lam": "tv", "iterations": "tv", "time_limit": "tv", "debias": "tv", "whole_record": "tv", "tol": "tv",
+RECON_METHOD = {"lam": "tv", "max_iter": "tv", "time_limit": "tv", "debias": "tv", "whole_record": "tv", "tol": "tv",
                 "interp": "kwave"}
-#: Options whose value among ``BAD_VALUES`` is legal: unset (None: the method's default;
-#: dtype and force have no unset), positivity, debias and force 0 (false), λ = 0 (no
+#: Options whose value among ``BAD_VALUES`` is legal: unset (None: the method's default),
+#: positivity, debias and force 0 (false), λ = 0 (no
 #: regularisation) or tiny, the tolerance 1e-12, tv's stopping threshold 0 (run every
 #: iteration) or tiny.
-RECON_LEGAL = {(name, None) for name in RECON_PARAMS if name not in ("dtype", "force")} | {
+RECON_LEGAL = {(name, None) for name in RECON_PARAMS} | {
     ("positivity", 0), ("debias", 0), ("whole_record", 0), ("force", 0), ("lam", 0), ("lam", 1e-12), ("lam", 5e-324), ("eps", 1e-12),
     ("time_limit", 1e-12), ("time_limit", 5e-324), ("tol", 0), ("tol", 1e-12), ("tol", 5e-324)}
 #: A dataset id no server has: a request that passes validation is answered 404.
@@ -470,19 +470,21 @@ def recon_cases() -> list[tuple[str, dict, int, str]]:
     path trick for the ids): ``(case id, request body, expected status, reason fragment)``:
     422 with a reason naming the option, or 404 (valid, but no such dataset or scan job)
     for the legal values (an id "x")."""
-    from fpscan.service.api.models import ReconParams
+    from fpscan.service.api.models import PARAMS_MODELS
 
-    assert set(RECON_PARAMS) <= set(ReconParams.model_fields), "an option listed here is gone from the API"
+    fields = {name for model in PARAMS_MODELS.values() for name in model.model_fields}
+    assert set(RECON_PARAMS) <= fields, "an option listed here is gone from the API"
     out = []
     for name in RECON_PARAMS:
         for value in BAD_VALUES:
             body = {"dataset_id": NO_DATASET, "method": RECON_METHOD.get(name, "ner"), "params": {name: value}}
             legal = (name, value) in RECON_LEGAL
             out.append((f"params.{name}={value}", body, 404 if legal else 422, "" if legal else name))
-    out += _new_option_cases(set(ReconParams.model_fields) - set(RECON_PARAMS))
+    out += _new_option_cases(fields - set(RECON_PARAMS))
     for pair in ([0, 0], [1600.0, 1400.0], [1500.0, 1500.0], [1e300, 1e300], [math.nan, 1500.0], [1500.0]):
-        out.append((f"params.c_range={pair}", {"dataset_id": NO_DATASET, "params": {"c_range": pair}}, 422,
-                    "c_range"))
+        out.append((f"params.sound_speed_range={pair}", {"dataset_id": NO_DATASET,
+                                                          "params": {"sound_speed_range": pair}}, 422,
+                    "sound_speed_range"))
     for name in ("method", "dataset_id", "scan_job_id"):
         for value in [*BAD_VALUES, "../../etc/passwd"]:
             body = {"dataset_id": NO_DATASET, "method": "ner", name: value}

@@ -67,7 +67,7 @@ def test_contract_errors(small_server):
         assert {} not in schema["paths"]["/api/health"]["get"]["security"]  # a token is set: reads need it
         assert {} not in schema["paths"]["/api/plans/preview"]["post"]["security"]
         # exactly one input: a scan job, a dataset, or one dataset per wavelength (unmixing)
-        branches = schema["components"]["schemas"]["ReconRequest"]["oneOf"]
+        branches = schema["components"]["schemas"]["ReconRequestNer"]["oneOf"]  # each method's variant says it
         assert sorted(b["required"][0] for b in branches) == ["dataset_id", "dataset_ids", "scan_job_id"]
         assert all("not" in b for b in branches)
         # the point list's exclusive fields, as the server enforces them

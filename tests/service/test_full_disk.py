@@ -104,7 +104,7 @@ def test_a_full_disk_settles_every_job_and_the_server_works_again_once_freed(tmp
             plan = make_plan(c, prf=10.0)  # 400 points at 10 Hz: 40 s
             small = _upload(c, (64, 16, 16), 1)
             big = _upload(c, (1024, 64, 64), 2)  # its speed-of-sound search: about 6 s
-            tv = _start(c, small, "tv", {"iterations": 20000, "tol": 0, "time_limit": 600})
+            tv = _start(c, small, "tv", {"max_iter": 20000, "tol": 0, "time_limit": 600})
             ner = _start(c, big, "ner", {"sound_speed": "auto"})
             # these two wait for one of the 2 workers. The one that runs needs room for a result
             # (17 MB) that what the server frees on the full disk cannot give (6 MB seen free after

@@ -42,7 +42,7 @@ params = {"upsample": up, "dtype": "float32"}
 if dz > 0:
     params["dz"] = dz
 data = np.random.default_rng(0).standard_normal((n_t, n, n)).astype(np.float32)
-inp = GridDataset(data=data, dx=1e-4, dt=2e-8, c=1500.0, dy=1e-4)
+inp = GridDataset(data=data, dx=1e-4, dt=2e-8, sound_speed=1500.0, dy=1e-4)
 reconstruct(inp, "ner", **{**params, "n_z": 8})  # warm-up: imports, compiled kernels, FFT plans
 
 """ + MEASURE.replace("RUN", 'img = reconstruct(inp, "ner", **params)')
@@ -60,7 +60,7 @@ def test_admission_estimate_covers_the_measured_peak(n, n_t, up, dz):
     assert r.returncode == 0, r.stderr[-2000:]
     m = json.loads(r.stdout.strip().splitlines()[-1])
     params = {"method": "ner", "upsample": up, "dtype": "float32", **({"dz": dz} if dz else {})}
-    estimate = estimate_memory({"n_t": n_t, "n_x": n, "n_y": n, "dt": 2e-8, "c": 1500.0}, params)
+    estimate = estimate_memory({"n_t": n_t, "n_x": n, "n_y": n, "dt": 2e-8, "sound_speed": 1500.0}, params)
     used = m["peak"] - m["base"]
     print(f"ner n={n} n_t={n_t} upsample={up} dz={dz}: estimate / measured peak {estimate / used:.3f}")
     # above a warmed-up baseline that already holds the warm-up's freed-but-kept memory, this
@@ -70,7 +70,7 @@ def test_admission_estimate_covers_the_measured_peak(n, n_t, up, dz):
 
 
 def test_depth_rows_follow_dz_and_absurd_dz_is_refused():
-    shape = {"n_t": 256, "n_x": 32, "n_y": 32, "dt": 2e-8, "c": 1500.0}
+    shape = {"n_t": 256, "n_x": 32, "n_y": 32, "dt": 2e-8, "sound_speed": 1500.0}
     assert working_depth_rows(shape, {}) == 256
     # dz = c·dt / 4: four times the rows, and more memory than the default
     assert working_depth_rows(shape, {"dz": 1500.0 * 2e-8 / 4}) >= 4 * 255
@@ -106,8 +106,8 @@ TV_WARM_UP = r"""
 ax_s = centred_axis(12, dx)
 k = np.arange(20)
 small = PointDataset(alines=rng.standard_normal((20, 32)), positions=np.stack([ax_s[k % 12], ax_s[k // 12]], 1),
-                     dt=2e-8, c=1500.0, grid=(ax_s, ax_s), weights=None)
-reconstruct(small, "tv", iterations=1)
+                     dt=2e-8, sound_speed=1500.0, grid=(ax_s, ax_s), weights=None)
+reconstruct(small, "tv", max_iter=1)
 from fpscan.service.recon.warmup import warm_up
 warm_up(["float32"], ("ner", "nedner", "tv"))
 """
@@ -123,9 +123,9 @@ rng = np.random.default_rng(0)
 ax = centred_axis(n, dx)
 idx = rng.choice(n * n, n_pts, replace=False)
 pos = np.stack([ax[idx % n], ax[idx // n]], 1)
-ds = PointDataset(alines=rng.standard_normal((n_pts, n_t)), positions=pos, dt=2e-8, c=1500.0, grid=(ax, ax),
+ds = PointDataset(alines=rng.standard_normal((n_pts, n_t)), positions=pos, dt=2e-8, sound_speed=1500.0, grid=(ax, ax),
                   weights=None)
-""" + TV_WARM_UP + MEASURE.replace("RUN", 'reconstruct(ds, "tv", iterations=2)')
+""" + TV_WARM_UP + MEASURE.replace("RUN", 'reconstruct(ds, "tv", max_iter=2)')
 
 
 @needs_recon
@@ -136,7 +136,7 @@ def test_tv_admission_uses_the_pitch_and_covers_the_measured_peak():
     above the RSS before the run, with the kernel-compiling warm-up's peak reset:
     /proc/self/clear_refs)."""
     n, n_t, n_pts, dx = 48, 256, 100, 1e-4
-    shape = {"n_t": n_t, "n_x": n, "n_y": n, "n_points": n_pts, "dt": 2e-8, "c": 1500.0}
+    shape = {"n_t": n_t, "n_x": n, "n_y": n, "n_points": n_pts, "dt": 2e-8, "sound_speed": 1500.0}
     params = {"method": "tv", "dtype": "float32"}
     worst = estimate_memory(shape, params)
     estimate = estimate_memory({**shape, "dx": dx}, params)
@@ -169,14 +169,14 @@ def status(key):
 def make():
     rng = np.random.default_rng(0)
     if method == "ner":
-        return GridDataset(data=rng.standard_normal((n_t, n, n)).astype(np.float32), dx=1e-4, dt=2e-8, c=1500.0,
+        return GridDataset(data=rng.standard_normal((n_t, n, n)).astype(np.float32), dx=1e-4, dt=2e-8, sound_speed=1500.0,
                            dy=1e-4)
     ax = centred_axis(n, 1e-4)  # a random third of the lattice, off the nodes: the type-1 NUFFT path
     n_pts = n * n // 3
     idx = rng.choice(n * n, n_pts, replace=False)
     pos = np.stack([ax[idx % n], ax[idx // n]], 1) + rng.uniform(-3e-5, 3e-5, (n_pts, 2))
     return PointDataset(alines=rng.standard_normal((n_pts, n_t)).astype(np.float32), positions=pos, dt=2e-8,
-                        c=1500.0, grid=(ax, ax), weights=None)
+                        sound_speed=1500.0, grid=(ax, ax), weights=None)
 
 
 reconstruct(make(), method, n_z=8, dtype="float32")  # warm-up: imports, compiled kernels
@@ -209,7 +209,7 @@ def test_admission_is_within_25_percent_of_the_measured_peak_at_every_upsample(m
                        text=True, env={**os.environ, "MALLOC_MMAP_THRESHOLD_": "65536"})
     assert r.returncode == 0, r.stderr[-2000:]
     used = {int(k): v for k, v in json.loads(r.stdout.strip().splitlines()[-1]).items()}
-    shape = {"n_t": n_t, "n_x": n, "n_y": n, "dt": 2e-8, "c": 1500.0, "dx": 1e-4, "input_itemsize": 4,
+    shape = {"n_t": n_t, "n_x": n, "n_y": n, "dt": 2e-8, "sound_speed": 1500.0, "dx": 1e-4, "input_itemsize": 4,
              **({"n_points": n * n // 3} if method == "nedner" else {})}
     ratios = {up: estimate_memory(shape, {"method": method, "upsample": up, "dtype": "float32"}) / peak
               for up, peak in used.items()}
@@ -229,13 +229,13 @@ def test_one_input_shape_for_a_plan_a_stored_record_and_a_loaded_dataset(tmp_pat
 
     plan = make_plan("full", lattice={"n_x": 12, "n_y": 10, "pitch": 1e-4},
                      acquisition={"n_t": 64, "dt": 2e-8, "sound_speed": 1500.0}).to_dict()
-    grid = GridDataset(data=np.zeros((64, 10, 12), np.float32), dx=1e-4, dy=1e-4, dt=2e-8, c=1500.0)
+    grid = GridDataset(data=np.zeros((64, 10, 12), np.float32), dx=1e-4, dy=1e-4, dt=2e-8, sound_speed=1500.0)
     x, y = centred_axis(12, 1e-4), centred_axis(10, 1e-4)
     gx, gy = np.meshgrid(x, y)
     points = PointDataset(alines=np.zeros((120, 64)), positions=np.stack([gx.ravel(), gy.ravel()], 1), dt=2e-8,
-                          c=1500.0, grid=(x, y), weights=None)
-    record = {"layout": "grid", "shape": [64, 10, 12], "dt": 2e-8, "c": 1500.0, "dx": 1e-4}
-    keys = ("n_t", "n_x", "n_y", "dt", "c")
+                          sound_speed=1500.0, grid=(x, y), weights=None)
+    record = {"layout": "grid", "shape": [64, 10, 12], "dt": 2e-8, "sound_speed": 1500.0, "dx": 1e-4}
+    keys = ("n_t", "n_x", "n_y", "dt", "sound_speed")
     shapes = [input_shape(s) for s in (plan, grid, points, record)]
     for s in shapes[1:]:
         assert {k: s[k] for k in keys} == {k: shapes[0][k] for k in keys}, (s, shapes[0])
@@ -275,8 +275,8 @@ from fpscan.service.recon.dataset import GridDataset
 n_t, n_y, n_x, dtype, interp = int(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3]), sys.argv[4], sys.argv[5]
 params = {"dtype": dtype, "interp": interp}
 data = np.random.default_rng(0).standard_normal((n_t, n_y, n_x)).astype(dtype)
-inp = GridDataset(data=data, dx=1e-4, dt=2e-8, c=1500.0, dy=1e-4)
-warm = GridDataset(data=data[:, :24, :24].copy(), dx=1e-4, dt=2e-8, c=1500.0, dy=1e-4)
+inp = GridDataset(data=data, dx=1e-4, dt=2e-8, sound_speed=1500.0, dy=1e-4)
+warm = GridDataset(data=data[:, :24, :24].copy(), dx=1e-4, dt=2e-8, sound_speed=1500.0, dy=1e-4)
 reconstruct(warm, "kwave", **params)  # imports and compiled kernels, on a small input
 
 """ + MEASURE.replace("RUN", 'img = reconstruct(inp, "kwave", **params)')
@@ -301,7 +301,7 @@ def test_kwave_admission_estimate_covers_the_measured_peak_closely(n_t, n_y, n_x
     assert r.returncode == 0, r.stderr[-2000:]
     m = json.loads(r.stdout.strip().splitlines()[-1])
     itemsize = np.dtype(dtype).itemsize
-    estimate = estimate_memory({"n_t": n_t, "n_x": n_x, "n_y": n_y, "dt": 2e-8, "c": 1500.0,
+    estimate = estimate_memory({"n_t": n_t, "n_x": n_x, "n_y": n_y, "dt": 2e-8, "sound_speed": 1500.0,
                                 "input_itemsize": itemsize}, {"method": "kwave", "dtype": dtype})
     used = m["peak"] - m["base"] + n_t * n_y * n_x * itemsize  # the input is in the baseline; the estimate counts it
     print(f"kwave {n_t} x {n_y} x {n_x} {dtype} {interp}: estimate / measured peak {estimate / used:.3f}")
@@ -324,12 +324,12 @@ idx = rng.choice(n * n, n_pts, replace=False)
 pos = np.stack([ax[idx % n], ax[idx // n]], 1)
 clean = ball_alines(pos, [Ball(0.0, 0.0, depth, 3 * dx)], 2e-8, n_t, 1500.0)  # its echoes end early in the record
 alines = clean + rng.standard_normal(clean.shape) * float(np.sqrt(np.mean(clean**2))) / 10 ** 1.5  # 30 dB
-write_dataset(folder + "/upload.h5", PointDataset(alines=alines, positions=pos, dt=2e-8, c=1500.0, grid=(ax, ax),
+write_dataset(folder + "/upload.h5", PointDataset(alines=alines, positions=pos, dt=2e-8, sound_speed=1500.0, grid=(ax, ax),
                                                   weights=None))
-meta = import_dataset(folder + "/upload.h5", folder, "dataset", dt=None, dx=None, dy=None, c=None, key=None)
+meta = import_dataset(folder + "/upload.h5", folder, "dataset", dt=None, dx=None, dy=None, sound_speed=None, key=None)
 ds = read_dataset(folder + "/dataset.h5")
 print(json.dumps(meta))
-""" + TV_WARM_UP + MEASURE.replace("RUN", 'img = reconstruct(ds, "tv", iterations=2)\nprint(json.dumps(img.params["record_n_t"]))')
+""" + TV_WARM_UP + MEASURE.replace("RUN", 'img = reconstruct(ds, "tv", max_iter=2)\nprint(json.dumps(img.params["record_n_t"]))')
 
 
 @needs_recon

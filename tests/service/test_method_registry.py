@@ -6,7 +6,8 @@ range; each choice and one that is none), is judged alike by the library
 registry, so an option added in a method's file is covered here without an edit; the
 expected verdict comes from the stated range, not from the code that enforces it.
 
-Also: the surfaces generated from the registry (``ReconParams``, the methods endpoint's
+Also: the surfaces generated from the registry (each method's options model in the HTTP
+request's union, the methods endpoint's
 value schemas, the CLI flags, docs/methods.md) name the same options, and the speed of sound
 is ``sound_speed`` / ``--sound-speed`` with ``c`` / ``--c`` still accepted.
 """
@@ -30,7 +31,7 @@ DT, DX, C = 2e-8, 1e-4, 1500.0
 N_T, N = 8, 6
 DATA = np.random.default_rng(5).standard_normal((N_T, N, N)).astype(np.float32)
 #: keeps an accepted model-based run short (unless the option under test is one of them)
-SHORT = {"tv": {"iterations": 2, "time_limit": 30.0}}
+SHORT = {"tv": {"max_iter": 2, "time_limit": 30.0}}
 
 
 def _boundaries(schema: dict) -> tuple[list, list]:
@@ -78,7 +79,7 @@ def _options(method: str, name: str, value) -> dict:
 def _library(method: str, options: dict, *, run: bool) -> str | None:
     """None when the library accepts (``run``: the whole reconstruction; else stopped at its
     first progress check, after every option is checked), else the refusal's message."""
-    ds = GridDataset(data=DATA.copy(), dx=DX, dt=DT, c=C, dy=DX)
+    ds = GridDataset(data=DATA.copy(), dx=DX, dt=DT, sound_speed=C, dy=DX)
     try:
         rec = reconstruct(ds, method, should_stop=None if run else (lambda: True), **options)
     except Cancelled:
@@ -195,23 +196,26 @@ def test_eps_below_the_kernel_range_is_a_422_naming_the_range(shared_api):
 
 
 def test_the_generated_surfaces_name_every_option_of_the_registry(shared_api):
-    """``ReconParams`` (the HTTP model), the methods endpoint, the CLI flags of ``fpscan
-    recon`` and ``unmix`` and docs/methods.md are generated from the registry: the same
-    options, the same ranges."""
+    """Each method's options model in the HTTP request's union, the methods endpoint, the CLI
+    flags of ``fpscan recon`` and ``unmix`` and docs/methods.md are generated from the
+    registry: the same options, the same ranges."""
     import argparse
 
     from fpscan.clients.cli import recon as cli_recon
     from fpscan.clients.cli import unmix as cli_unmix
 
     openapi = shared_api.get("/openapi.json").json()
-    props = openapi["components"]["schemas"]["ReconParams"]["properties"]
+    schemas = openapi["components"]["schemas"]
     options = set(registry.option_fields())
-    assert set(props) == options | {"sound_speed", "sound_speed_range", "force"}
+    speed = {"sound_speed", "sound_speed_range", "force"}
     listed = shared_api.get("/api/reconstructions/methods").json()
     for m in listed:
         spec = registry.METHODS[m["name"]]
+        variant = next(v for v in schemas.values() if v.get("properties", {}).get("method", {}).get("const") == m["name"])
+        props = schemas[variant["properties"]["params"]["$ref"].rsplit("/", 1)[1]]["properties"]
+        assert set(props) == set(spec.options_model.model_fields) and speed <= set(props)
         got = {o["name"]: o for o in m["options"]}
-        assert set(got) == {"sound_speed", *spec.options_model.model_fields}
+        assert set(got) == {"sound_speed", *(set(spec.options_model.model_fields) - speed)}
         for o in registry.option_schemas(spec):
             assert got[o["name"]]["value_schema"] == o["schema"] and got[o["name"]]["default"] == o["default"]
             http = next(b for b in props[o["name"]].get("anyOf", [props[o["name"]]]) if b.get("type") != "null")

@@ -34,7 +34,7 @@ CASES = [(i, m) for i in INPUTS for m in METHODS]
 #: options other than the defaults, the same on all three paths (so that they are shown to
 #: travel through each); an iterative method gets few iterations to keep the test short
 OPTIONS = {"ner": {"upsample": 2}, "linear": {"positivity": True}, "cubic": {"dtype": "float64"},
-           "kwave": {"interp": "*linear"}, "tv": {"iterations": 4}}
+           "kwave": {"interp": "*linear"}, "tv": {"max_iter": 4}}
 
 
 def _cli_flags(options: dict) -> list[str]:
@@ -145,7 +145,7 @@ def test_local_worker_and_http_give_one_volume(name, method, inputs, remote, tmp
 
         folder = tmp_path / "ds"
         folder.mkdir()
-        meta = import_dataset(path, folder, "kwave-hdf5", dt=None, dx=None, dy=None, c=None, key=None)
+        meta = import_dataset(path, folder, "kwave-hdf5", dt=None, dx=None, dy=None, sound_speed=None, key=None)
         spec_input = {"kind": "dataset", "path": str(folder / meta["path"])}
     spec = {"input": spec_input, "params": {"method": method, **options}, "out_dir": str(tmp_path / "worker")}
     http = jobs[name, method]

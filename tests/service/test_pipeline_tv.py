@@ -17,13 +17,13 @@ DZ = C * DT
 def _points():
     rng = np.random.default_rng(2)
     pos = (np.arange(6)[:, None] - 2.5) * 2 * DZ
-    return PointDataset(alines=rng.standard_normal((6, 12)), positions=pos, weights=None, dt=DT, c=C,
+    return PointDataset(alines=rng.standard_normal((6, 12)), positions=pos, weights=None, dt=DT, sound_speed=C,
                         grid=(pos[:, 0],))
 
 
 def test_dispatch_runs_tv_with_iteration_progress_and_cancel():
     seen = []
-    rec = reconstruct(_points(), "tv", lam=0.01, iterations=3, n_z=6, dtype="float64",
+    rec = reconstruct(_points(), "tv", lam=0.01, max_iter=3, n_z=6, dtype="float64",
                       progress=lambda f, s: seen.append(s))
     assert rec.params["method"] == "tv" and rec.params["lam"] == 0.01 and rec.params["iterations"] <= 3
     assert rec.params["positivity"] is True and rec.p0.min() >= 0
@@ -35,11 +35,11 @@ def test_dispatch_runs_tv_with_iteration_progress_and_cancel():
         return len(calls) > 4
 
     with pytest.raises(Cancelled):
-        reconstruct(_points(), "tv", iterations=50, n_z=6, should_stop=stop)
+        reconstruct(_points(), "tv", max_iter=50, n_z=6, should_stop=stop)
 
 
 @pytest.mark.parametrize(("opts", "match"), [
-    (dict(lam=-1.0), "lam"), (dict(lam=float("inf")), "lam"), (dict(iterations=0), "iterations"),
+    (dict(lam=-1.0), "lam"), (dict(lam=float("inf")), "lam"), (dict(max_iter=0), "max_iter"),
     (dict(nan=True), "NaN"), (dict(weights=np.ones(5)), "weights must have shape"),
 ])
 def test_dispatch_rejects_bad_tv_input(opts, match):
@@ -52,19 +52,25 @@ def test_dispatch_rejects_bad_tv_input(opts, match):
         reconstruct(ds, "tv", n_z=6, **opts)
 
 
-def test_api_model_and_cli_take_lambda_and_iterations():
-    from pydantic import ValidationError
+def test_api_model_and_cli_take_lam_and_max_iter_and_their_old_names():
+    from pydantic import TypeAdapter, ValidationError
 
     from fpscan.clients.cli import recon as cli_recon
     from fpscan.service.api.models import ReconRequest
+    from fpscan.service.recon.methods.tv import Options
 
-    req = ReconRequest.model_validate({"dataset_id": "x", "method": "tv", "params": {"lam": 0.1, "iterations": 5}})
-    assert req.params.lam == 0.1 and req.params.iterations == 5
-    for bad in ({"lam": -1}, {"iterations": 0}):
+    request = TypeAdapter(ReconRequest)
+    req = request.validate_python({"dataset_id": "x", "method": "tv", "params": {"lam": 0.1, "max_iter": 5}})
+    assert isinstance(req.params, Options) and req.params.lam == 0.1 and req.params.max_iter == 5
+    with pytest.warns(DeprecationWarning, match="option iterations is deprecated: use max_iter"):
+        old = request.validate_python({"dataset_id": "x", "method": "tv", "params": {"iterations": 6}})
+    assert old.params.max_iter == 6
+    for bad in ({"lam": -1}, {"max_iter": 0}, {"max_iter": 5, "iterations": 5}):
         with pytest.raises(ValidationError):
-            ReconRequest.model_validate({"dataset_id": "x", "method": "tv", "params": bad})
+            request.validate_python({"dataset_id": "x", "method": "tv", "params": bad})
     parser = argparse.ArgumentParser()
     cli_recon.add_arguments(parser)
-    args = parser.parse_args(["in.npy", "--method", "tv", "--lambda", "0.5", "--iterations", "7", "--no-positivity"])
-    params = cli_recon._params(args)
-    assert params["lam"] == 0.5 and params["iterations"] == 7 and params["positivity"] is False
+    for flags in (["--lam", "0.5", "--max-iter", "7"], ["--lambda", "0.5", "--iterations", "7"]):  # the old ones warn
+        args = parser.parse_args(["in.npy", "--method", "tv", *flags, "--no-positivity"])
+        params = cli_recon._params(args)
+        assert params["lam"] == 0.5 and params["max_iter"] == 7 and params["positivity"] is False

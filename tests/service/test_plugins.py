@@ -3,17 +3,22 @@
 A tiny third-party distribution, written here into a temporary ``sys.path`` folder as an
 installer would (its package and its ``.dist-info`` with ``METADATA`` and ``entry_points.txt``;
 no network, nothing inside fpscan touched), declares a method ``toy`` (NEDNER's algorithm
-registered under another name) and an export format ``toy-text``. A second one declares a
-method whose module does not exist. With that folder on ``PYTHONPATH``:
+registered under another name), a method ``toy-bare`` (NEDNER's algorithm declaring no memory or
+work model) and an export format ``toy-text``, each built from the plugin API ``fpscan.plugins``.
+A second one declares a method whose module does not exist. With that folder on ``PYTHONPATH``:
 
-- the library (``fpscan.service.recon.methods.METHODS``, ``fpscan.export_formats``) and the CLI's help
-  offer both, and the broken plugin is reported once, by name, on stderr;
-- a real ``fpscan serve`` (uvicorn on 127.0.0.1) starts and lists both in ``GET
+- the library (``fpscan.METHODS``, ``fpscan.export_formats``) and the CLI's help offer them, each
+  list in its registry's order (``Method.order``, ``Format.rank``; other installed plugins may
+  sit anywhere in it), and the broken plugin is reported once, by name, on stderr;
+- the admission judges ``toy-bare`` by the conservative rules for a method that declares no
+  model (``fpscan.plugins.undeclared_peak`` / ``undeclared_work``), never by NEDNER's figures;
+- a real ``fpscan serve`` (uvicorn on 127.0.0.1) starts and lists them in ``GET
   /api/reconstructions/methods`` and ``GET /api/formats``; a job run with ``toy`` records
   ``toy`` in the job, in its ``params_used``, in ``volume.h5`` and in its exports (the plugin's
   ``toy-text`` and the built-in ``npz``).
 
-Oracles: the entry points written here, and the files read back with h5py / numpy.
+Oracles: the entry points written here, the rules' own formulas, and the files read back with
+h5py / numpy.
 """
 from __future__ import annotations
 
@@ -34,19 +39,23 @@ pytestmark = pytest.mark.timeout(300)
 N, DX, DT, N_T = 8, 1e-4, 4e-8, 32
 
 METHOD_PY = '''
-"""A third-party method: NEDNER's algorithm under the name ``toy``."""
+"""Third-party methods: NEDNER's algorithm under the name ``toy``, and again as ``toy-bare``,
+a method that declares no memory or work model."""
 from dataclasses import replace
 
+from fpscan.plugins import Method
 from fpscan.service.recon.methods.nedner import METHOD as NEDNER
 
 METHOD = replace(NEDNER, name="toy", title="toy (NEDNER under another name)", order=900, default_for=())
+BARE = Method(name="toy-bare", title="toy without models", needs_grid=False, options_model=NEDNER.options_model,
+              run=NEDNER.run, order=950)
 '''
 
 FORMAT_PY = '''
 """A third-party export format: a result's method and p0 shape as text."""
 from pathlib import Path
 
-from fpscan.service.formats import Format
+from fpscan.plugins import Format
 
 
 def export(src, out):
@@ -83,6 +92,7 @@ def site(tmp_path_factory):
     _dist(site, "fpscan_toy", """
         [fpscan.methods]
         toy = fpscan_toy.method:METHOD
+        toy-bare = fpscan_toy.method:BARE
 
         [fpscan.formats]
         toy-text = fpscan_toy.text:FORMAT
@@ -101,23 +111,56 @@ def _env(site) -> dict:
 LIBRARY = r'''
 import json
 import fpscan
+from fpscan.plugins import Method, register_method, undeclared_peak, undeclared_work
 from fpscan.service import plugins
-from fpscan.service.recon.methods import METHODS, Method, register
-plugins.load_group("fpscan.methods", Method, register)  # loading again reports nothing again
-print(json.dumps({"methods": list(METHODS), "exports": list(fpscan.export_formats()),
-                  "failures": plugins.failures()}))
+from fpscan.service.formats import FORMATS
+from fpscan.service.jobs.admission import estimate_memory, estimate_work
+plugins.load_group("fpscan.methods", Method, register_method)  # loading again reports nothing again
+methods = list(fpscan.METHODS)
+exports = list(fpscan.export_formats())
+# a 256 x 64 x 64 float32 grid: the admission's figures for each method
+shape = {"n_t": 256, "n_x": 64, "n_y": 64, "input_itemsize": 4}
+admitted = {name: [estimate_memory(shape, {"method": name}), estimate_work(shape, {"method": name})]
+            for name in ("toy-bare", "toy", "nedner", "ner")}
+print(json.dumps({"methods": methods, "orders": [fpscan.METHODS[m].order for m in methods],
+                  "exports": exports, "ranks": [FORMATS[f].rank for f in exports],
+                  "failures": plugins.failures(), "admitted": admitted,
+                  "rules": [undeclared_peak(256, 64, 64, n_z=256), undeclared_work(256, 64, 64, n_z=256)]}))
 '''
+
+
+def _in_order(names: list, positions: list, name: str, position: int) -> None:
+    """``names`` is sorted by ``positions`` and ``name`` sits where ``position`` puts it: after
+    every entry of a smaller position, before every entry of a larger one."""
+    assert positions == sorted(positions), list(zip(names, positions))
+    k = names.index(name)
+    assert positions[k] == position
+    assert all(p <= position for p in positions[:k]) and all(p >= position for p in positions[k + 1:]), \
+        list(zip(names, positions))
 
 
 def test_a_plugin_reaches_the_library_and_the_cli_and_a_broken_one_is_reported_once(site):
     out = subprocess.run([sys.executable, "-c", LIBRARY], capture_output=True, text=True, timeout=120, env=_env(site))
     assert out.returncode == 0, out.stderr
     got = json.loads(out.stdout.strip().splitlines()[-1])
-    assert got["methods"][-1] == "toy" and "nedner" in got["methods"] and "broken" not in got["methods"]
-    assert got["exports"][-1] == "toy-text"
-    assert list(got["failures"]) == ["fpscan.methods:broken (fpscan_broken)"]
+    assert {"toy", "toy-bare", "nedner", "ner"} <= set(got["methods"]) and "broken" not in got["methods"]
+    _in_order(got["methods"], got["orders"], "toy", 900)
+    _in_order(got["methods"], got["orders"], "toy-bare", 950)
+    assert "toy-text" in got["exports"] and "npz" in got["exports"]
+    _in_order(got["exports"], got["ranks"], "toy-text", 1000)
+    # this test's broken plugin is reported (another installed one may be too); its good one is not
     assert "ModuleNotFoundError" in got["failures"]["fpscan.methods:broken (fpscan_broken)"]
+    assert not [key for key in got["failures"] if "fpscan_toy" in key], got["failures"]
     assert out.stderr.count("'broken'") == 1, out.stderr
+
+    # the admission: toy-bare by the conservative rules (its input is in the working precision,
+    # so the rule's figure is the whole estimate), toy by NEDNER's own models, never the reverse
+    (bare_memory, bare_work), (toy_memory, toy_work) = got["admitted"]["toy-bare"], got["admitted"]["toy"]
+    assert [bare_memory, bare_work] == got["rules"]
+    assert [toy_memory, toy_work] == got["admitted"]["nedner"]
+    assert bare_memory > max(got["admitted"]["nedner"][0], got["admitted"]["ner"][0])
+    assert bare_memory == 32 * 8 * 256 * 64 * 64 + 256 * 2**20  # 32 float64 copies of the input, + 256 MiB
+    assert bare_work == pytest.approx(5e-8 * 64 * 64 * 256 * 64 * 64)  # 50 ns per sensor and voxel
 
     for command, word in (("recon", "toy"), ("export", "toy-text")):
         helped = subprocess.run([sys.executable, "-m", "fpscan", command, "--help"], capture_output=True, text=True,
@@ -140,7 +183,7 @@ def test_a_plugin_method_and_format_are_served_and_the_record_names_the_method(s
     try:
         with srv.client() as http:
             methods = {m["name"]: m for m in http.get("/api/reconstructions/methods").json()}
-            assert "toy" in methods and "broken" not in methods
+            assert {"toy", "toy-bare"} <= set(methods) and "broken" not in methods
             assert methods["toy"]["title"] == "toy (NEDNER under another name)"
             formats = {f["name"]: f for f in http.get("/api/formats").json()}
             assert formats["toy-text"]["export_from"] == "result" and formats["toy-text"]["suffix"] == ".txt"

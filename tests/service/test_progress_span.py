@@ -137,14 +137,14 @@ def _grid(seed=0):
     from fpscan.service.recon.dataset import GridDataset
 
     rng = np.random.default_rng(seed)
-    return GridDataset(data=rng.standard_normal((24, 7)), dx=1e-4, dt=2e-8, c=1500.0)
+    return GridDataset(data=rng.standard_normal((24, 7)), dx=1e-4, dt=2e-8, sound_speed=1500.0)
 
 
 def test_autofocus_reports_its_search_then_the_reconstruction():
     from fpscan.service.pipeline import reconstruct
 
     seen, outer = _recorder()
-    reconstruct(_grid(), "ner", c="auto", progress=span(outer, 0.2, 0.9))
+    reconstruct(_grid(), "ner", sound_speed="auto", progress=span(outer, 0.2, 0.9))
     fractions = [f for f, _ in seen]
     assert all(b >= a for a, b in zip(fractions, fractions[1:])), seen
     search = [f for f, s in seen if s == "autofocus"]
@@ -156,11 +156,12 @@ def test_autofocus_reports_its_search_then_the_reconstruction():
 
 
 def test_wavelengths_share_the_range_and_name_themselves():
-    from fpscan.service.pipeline import reconstruct
+    from fpscan.service.pipeline import method_options, reconstruct
     from fpscan.service.spectral import reconstruct_wavelengths
 
     seen, outer = _recorder()
-    reconstruct_wavelengths([_grid(1), _grid(2), _grid(3)], "ner", reconstruct=reconstruct, progress=outer)
+    reconstruct_wavelengths([_grid(1), _grid(2), _grid(3)], "ner", reconstruct=reconstruct, options=method_options("ner"),
+                            progress=outer)
     fractions = [f for f, _ in seen]
     assert fractions[0] == 0.0 and fractions[-1] == 1.0
     assert all(b >= a for a, b in zip(fractions, fractions[1:])), seen

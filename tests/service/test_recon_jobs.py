@@ -219,10 +219,10 @@ def test_tv_job_progress_names_the_iteration_and_bad_options_are_422(shared_api)
     data = alines.T.reshape(n_t, n, n).astype(np.float32)
     api = shared_api
     ds = upload(api, data)
-    for bad, name in (({"lam": -1.0}, "lam"), ({"iterations": 0}, "iterations"), ({"lam": "a lot"}, "lam")):
+    for bad, name in (({"lam": -1.0}, "lam"), ({"max_iter": 0}, "max_iter"), ({"lam": "a lot"}, "lam")):
         r = api.post("/api/reconstructions", json={"dataset_id": ds, "method": "tv", "params": bad})
         assert r.status_code == 422 and name in r.text, r.text
-    params = {"dtype": "float64", "lam": 0.0, "iterations": max_iter, "n_z": 16}
+    params = {"dtype": "float64", "lam": 0.0, "max_iter": max_iter, "n_z": 16}
     r = api.post("/api/reconstructions", json={"dataset_id": ds, "method": "tv", "params": params})
     assert r.status_code == 202, r.text
     job_id = r.json()["id"]

@@ -1,7 +1,7 @@
 """The speed of sound is ``sound_speed`` in what the server stores and returns (a job's
 options, its input's shape, its result and the values used), over a real server with a
-real SQLite file; ``c`` stays accepted as input, and a job an older server stored with
-``c`` reads back as ``sound_speed`` (and, still queued, runs with its value)."""
+real SQLite file; ``c`` stays accepted as input (deprecated), and a job an older server stored
+with ``c`` reads back as ``sound_speed`` (and, still queued, runs with its value)."""
 from __future__ import annotations
 
 import doctest
@@ -13,7 +13,7 @@ import numpy as np
 
 import fpscan.service.names
 from fpscan.service.jobs.store import JobStore
-from fpscan.service.names import code_names, person_names
+from fpscan.service.names import OLD_NAMES, current_names
 from tests.json_keys import all_keys
 from tests.service.service_servers import Server, needs_recon, wait_job
 
@@ -35,12 +35,23 @@ def _stored(srv: Server, job_id: str) -> dict:
         return json.loads(db.execute("SELECT params FROM jobs WHERE id = ?", (job_id,)).fetchone()[0])
 
 
+def older_names(obj: object) -> object:
+    """``obj`` as an older server wrote it: today's speed-of-sound keys under their old names."""
+    back = {new: old for old, new in OLD_NAMES.items()}
+    if isinstance(obj, dict):
+        return {back.get(k, k): older_names(v) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [older_names(v) for v in obj]
+    return obj
+
+
 def test_names_module_examples_and_round_trip():
     assert doctest.testmod(fpscan.service.names).failed == 0
     tree = {"params": {"c": "auto", "c_range": [1450.0, 1600.0], "dz": 3e-5},
             "result": {"c": 1490.0, "autofocus": {"c": 1490.0, "c_values": [1450.0, 1490.0]}}}
-    assert code_names(person_names(tree)) == tree
-    assert "c" not in all_keys(person_names(tree)) and "dz" in all_keys(person_names(tree))
+    assert older_names(current_names(tree)) == tree
+    assert "c" not in all_keys(current_names(tree)) and "dz" in all_keys(current_names(tree))
+    assert current_names(tree)["result"]["autofocus"]["sound_speed_values"] == [1450.0, 1490.0]
 
 
 def test_jobs_store_and_return_sound_speed_and_read_older_jobs(tmp_path):
@@ -76,7 +87,7 @@ def test_jobs_store_and_return_sound_speed_and_read_older_jobs(tmp_path):
     # an older server's rows: the finished job rewritten with c, and a queued job with c = 1480
     store = JobStore(srv.data_dir / "jobs.sqlite")
     try:
-        old = code_names(first)
+        old = older_names(first)
         assert old["params"]["c"] == 1490.0 and old["result"]["params_used"]["c"] == 1490.0
         store._db.execute("UPDATE jobs SET params = ? WHERE id = ?", (json.dumps(old), ids[0]))
         queued = {k: v for k, v in old.items() if k != "result"}

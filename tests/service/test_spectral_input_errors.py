@@ -2,7 +2,7 @@
 error everywhere a user gives them: the plan and unmixing libraries (ValueError), the
 CLI (`fpscan plan`, `fpscan unmix`: exit 1, one line naming the fault, nothing written)
 and the API (POST /api/plans, /api/plans/preview, /api/reconstructions with unmix: 422
-with the reason; real uvicorn). So do bad autofocus options (a ``c_range`` that is not
+with the reason; real uvicorn). So do bad autofocus options (a ``sound_speed_range`` that is not
 an interval or comes without ``c="auto"``)."""
 from __future__ import annotations
 
@@ -83,10 +83,11 @@ def test_api_unmix(shared_api, wavelengths, reason):
 
 
 @pytest.mark.parametrize("params, reason", [
-    ({"c": 1500, "c_range": [1450, 1600]}, "needs c='auto'"),
-    ({"c_range": [1450, 1600]}, "needs c='auto'"),
-    ({"c": "auto", "c_range": [1600, 1450]}, "c_min < c_max"),
-    ({"c": "fast"}, "auto"),
+    ({"sound_speed": 1500, "sound_speed_range": [1450, 1600]}, "needs sound_speed='auto'"),
+    ({"sound_speed_range": [1450, 1600]}, "needs sound_speed='auto'"),
+    ({"sound_speed": "auto", "sound_speed_range": [1600, 1450]}, "c_min < c_max"),
+    ({"sound_speed": "fast"}, "auto"),
+    ({"c": 1500, "c_range": [1450, 1600]}, "needs sound_speed='auto'"),  # the deprecated names: the same rules
 ])
 def test_api_autofocus_options(shared_api, params, reason):
     from fpscan.service.pipeline import method_options
@@ -94,6 +95,6 @@ def test_api_autofocus_options(shared_api, params, reason):
     r = shared_api.post("/api/reconstructions", json={"dataset_id": "d0", "method": "ner", "params": params})
     assert r.status_code == 422, r.text
     assert reason in r.text, r.text
-    if "c_range" in params:
-        with pytest.raises(ValueError, match="c_range"):
+    if "sound_speed_range" in params or "c_range" in params:
+        with pytest.raises(ValueError, match="sound_speed_range"):
             method_options("ner", params)

@@ -23,11 +23,11 @@ PLAUSIBLE = f"{C_PLAUSIBLE[0]:g}-{C_PLAUSIBLE[1]:g}"
 
 def test_the_option_states_its_unit_bounds_and_default():
     fields = SpeedOptions.model_fields
-    assert list(fields) == ["c", "c_range", "force"]
-    assert {fields[n].json_schema_extra["unit"] for n in ("c", "c_range")} == {"m/s"}
+    assert list(fields) == ["sound_speed", "sound_speed_range", "force"]
+    assert {fields[n].json_schema_extra["unit"] for n in ("sound_speed", "sound_speed_range")} == {"m/s"}
     assert plausible_speeds() == PLAUSIBLE and PLAUSIBLE in fields["force"].description
-    assert f"{C_LIMITS[0]:g}-{C_LIMITS[1]:g}" in fields["c"].description
-    assert f"{C_AUTOFOCUS_RANGE[0]:g}-{C_AUTOFOCUS_RANGE[1]:g}" in fields["c_range"].description
+    assert f"{C_LIMITS[0]:g}-{C_LIMITS[1]:g}" in fields["sound_speed"].description
+    assert f"{C_AUTOFOCUS_RANGE[0]:g}-{C_AUTOFOCUS_RANGE[1]:g}" in fields["sound_speed_range"].description
     number = speed_schema()["anyOf"][0]
     assert (number["minimum"], number["maximum"]) == C_PLAUSIBLE
 
@@ -37,12 +37,13 @@ def test_every_surface_reads_the_one_option(shared_api):
     for m in listed:
         speed = next(o for o in m["options"] if o["name"] == "sound_speed")
         assert speed["value_schema"] == speed_schema() and speed["description"] == SpeedOptions.model_fields[
-            "c"].description, m["name"]
+            "sound_speed"].description, m["name"]
     openapi = shared_api.get("/openapi.json").json()
     schemas = openapi["components"]["schemas"]
-    params = next(s for name, s in schemas.items() if name.startswith("ReconParams"))
-    assert params["properties"]["sound_speed"]["description"] == SpeedOptions.model_fields["c"].description
-    assert params["properties"]["force"]["description"] == SpeedOptions.model_fields["force"].description
+    for name in [n for n in schemas if n.startswith("ReconRequest") and n != "ReconRequestDefaultMethod"]:
+        params = schemas[schemas[name]["properties"]["params"]["$ref"].rsplit("/", 1)[1]]  # each method's options
+        assert params["properties"]["sound_speed"]["description"] == SpeedOptions.model_fields["sound_speed"].description
+        assert params["properties"]["force"]["description"] == SpeedOptions.model_fields["force"].description
     upload = next(s for name, s in schemas.items() if name.startswith("Body_upload_dataset"))
     assert PLAUSIBLE in upload["properties"]["sound_speed"]["description"]
     assert upload["properties"]["force"]["description"] == SpeedOptions.model_fields["force"].description

@@ -103,7 +103,7 @@ def test_over_http_a_dataset_and_a_plan_equal_the_replay_scan(replayed, server):
         api.wait(job)
         api.download_volume(job, tmp / "http.h5")
         # an option the method does not take, in the request's own field names
-        with pytest.raises(fpscan.ApiError, match=r"takes no option lam \(its options: sound_speed, eps,"):
+        with pytest.raises(fpscan.ApiError, match=r"takes no option lam \(its options: sound_speed, sound_speed_range, force, eps,"):
             api.start_reconstruction(dataset_id=ds_id, plan_id=plan_id, method="nedner", params={"lam": 0.1})
         with pytest.raises(fpscan.NotFound, match="no plan"):
             api.start_reconstruction(dataset_id=ds_id, plan_id="0" * 64, method="nedner")

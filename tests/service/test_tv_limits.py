@@ -43,15 +43,15 @@ def _upload(api, data: np.ndarray = DATA) -> str:
 
 @needs_recon
 def test_the_library_stops_at_the_time_limit_and_says_so():
-    ds = GridDataset(data=DATA.copy(), dx=DX, dt=DT, c=C, dy=DX)
+    ds = GridDataset(data=DATA.copy(), dx=DX, dt=DT, sound_speed=C, dy=DX)
     # a limit the first iteration always passes (the solver converges by its rule in a few
     # tenths of a second here, so a limit of that size would race it): stopped by the limit
     # at the first iteration's check, whatever the machine's speed
-    rec = reconstruct(ds, "tv", iterations=100000, time_limit=1e-3, lam=0.0)
+    rec = reconstruct(ds, "tv", max_iter=100000, time_limit=1e-3, lam=0.0)
     p = rec.params
     assert p["stop_reason"] == "time limit" and p["converged"] is False, p
     assert 1 <= p["iterations"] < 100000 and p["time_limit"] == 1e-3 and p["solve_s"] >= 1e-3
-    done = reconstruct(ds, "tv", iterations=3, lam=0.0)  # a run that ends by its iteration count
+    done = reconstruct(ds, "tv", max_iter=3, lam=0.0)  # a run that ends by its iteration count
     assert done.params["stop_reason"] in ("iterations", "converged") and done.params["iterations"] <= 3
 
 
@@ -65,7 +65,7 @@ def test_a_cancel_is_heard_inside_an_iteration(monkeypatch):
     polls, one iteration of a 512 x 64² job took minutes and a cancel waited
     for it."""
     monkeypatch.setattr(tv_progress, "POLL_S", 0.0)
-    ds = GridDataset(data=DATA.copy(), dx=DX, dt=DT, c=C, dy=DX)
+    ds = GridDataset(data=DATA.copy(), dx=DX, dt=DT, sound_speed=C, dy=DX)
     stages: list[str] = []
     polls_in_iteration = [0]
 
@@ -76,7 +76,7 @@ def test_a_cancel_is_heard_inside_an_iteration(monkeypatch):
         return False
 
     with pytest.raises(Cancelled):
-        reconstruct(ds, "tv", iterations=100000, lam=0.0, should_stop=should_stop,
+        reconstruct(ds, "tv", max_iter=100000, lam=0.0, should_stop=should_stop,
                     progress=lambda f, stage: stages.append(stage))
     assert "iteration 1/100000" in stages and "iteration 2/100000" not in stages, stages[-5:]
     assert polls_in_iteration[0] == 3
@@ -88,7 +88,7 @@ def test_a_tv_job_stops_at_its_time_limit_and_its_volume_says_so(tv_server):
     with tv_server.client() as api:
         ds = _upload(api)
         r = api.post("/api/reconstructions", json={"dataset_id": ds, "method": "tv",
-                                                   "params": {"iterations": 100000, "time_limit": 1e-3, "lam": 0.0}})
+                                                   "params": {"max_iter": 100000, "time_limit": 1e-3, "lam": 0.0}})
         assert r.status_code == 202, r.text
         job = wait_job(api, r.json()["id"], timeout=180)
         assert job["state"] == "succeeded", job
@@ -106,7 +106,7 @@ def test_cancel_acts_within_2_s_of_the_request_on_a_long_tv_job(tv_server):
     with tv_server.client() as api:
         ds = _upload(api, LONG)
         r = api.post("/api/reconstructions", json={"dataset_id": ds, "method": "tv",
-                                                   "params": {"iterations": 100000, "lam": 0.0, "tol": 0}})
+                                                   "params": {"max_iter": 100000, "lam": 0.0, "tol": 0}})
         assert r.status_code == 202, r.text
         jid = r.json()["id"]
         requested = None

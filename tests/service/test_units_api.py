@@ -67,8 +67,9 @@ def test_recon_sound_speed_rule_422_and_force(shared_server, shared_api, tmp_pat
     r = shared_api.post("/api/datasets", data={**upload, "c": "2500", "force": "true"}, files=files)
     assert r.status_code == 201, r.text
     dataset_id = r.json()["dataset_id"]
-    for params, name in (({"c": 2500}, "c: sound speed 2500 m/s"), ({"c": 1.5}, "1.5 km/s"),
-                         ({"c": "auto", "c_range": [900, 1600]}, "c_range: sound speed 900 m/s")):
+    for params, name in (({"sound_speed": 2500}, "sound_speed: sound speed 2500 m/s"), ({"c": 1.5}, "1.5 km/s"),
+                         ({"sound_speed": "auto", "sound_speed_range": [900, 1600]},
+                          "sound_speed_range: sound speed 900 m/s")):
         r = shared_api.post("/api/reconstructions", json={"dataset_id": dataset_id, "method": "ner",
                                                           "params": params})
         assert r.status_code == 422 and name in r.json()["detail"], r.text

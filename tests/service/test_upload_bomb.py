@@ -146,10 +146,10 @@ def test_the_import_asks_before_writing_the_decoded_dataset(tmp_path):
     dest = tmp_path / "dest"
     dest.mkdir()
     with pytest.raises(NotAdmitted, match="no room on this disk"):
-        run_bounded(import_dataset, src, dest, "npy", dt=1e-8, dx=1e-4, dy=None, c=None, key=None,
+        run_bounded(import_dataset, src, dest, "npy", dt=1e-8, dx=1e-4, dy=None, sound_speed=None, key=None,
                     timeout=60, admit=admit)
     assert asked == [64 * 16 * 16 * 4] and list(dest.iterdir()) == []
-    meta = run_bounded(import_dataset, src, dest, "npy", dt=1e-8, dx=1e-4, dy=None, c=None, key=None,
+    meta = run_bounded(import_dataset, src, dest, "npy", dt=1e-8, dx=1e-4, dy=None, sound_speed=None, key=None,
                        timeout=60, admit=lambda n: None)
     assert meta["shape"] == [64, 16, 16] and (dest / "dataset.h5").is_file()
 

@@ -31,7 +31,7 @@ def test_every_method_estimates_its_work_and_tv_follows_its_grid():
     from fpscan.service.recon.methods import METHODS
     from fpscan.service.recon.methods.tv import grid as tv_grid_of
 
-    shape = {"n_t": 512, "n_x": 128, "n_y": 128, "dt": 8e-9, "c": 1500.0, "dx": 6e-5, "t0": 0.0,
+    shape = {"n_t": 512, "n_x": 128, "n_y": 128, "dt": 8e-9, "sound_speed": 1500.0, "dx": 6e-5, "t0": 0.0,
              "n_points": 1653}
     seconds = {name: estimate_work(shape, {"method": name}) for name in METHODS}
     assert all(0 < s < 3600 for s in seconds.values()), seconds
@@ -49,7 +49,7 @@ def test_every_method_estimates_its_work_and_tv_follows_its_grid():
 
 @pytest.mark.parametrize("options", [{"dz": 0.1}, {"n_z": 65536}])
 def test_tv_refuses_an_image_deeper_than_the_record(options):
-    shape = {"n_t": 256, "n_x": 16, "n_y": 16, "dt": 4e-8, "c": 1500.0, "dx": 1e-4, "t0": 0.0, "n_points": 256}
+    shape = {"n_t": 256, "n_x": 16, "n_y": 16, "dt": 4e-8, "sound_speed": 1500.0, "dx": 1e-4, "t0": 0.0, "n_points": 256}
     with pytest.raises(OptionError, match="deeper than the record can hear"):
         estimate_work(shape, {"method": "tv", **options})
 
@@ -64,7 +64,7 @@ def test_the_work_refusal_says_the_estimate_and_the_limit():
 def test_kwave_refuses_a_record_not_starting_at_zero_in_the_worker_s_words():
     from fpscan.service.recon.methods.kwave import check_start
 
-    ds = GridDataset(np.zeros((32, 4, 4)), dx=DX, dt=DT, c=1500.0, dy=DX, t0=1e-6)
+    ds = GridDataset(np.zeros((32, 4, 4)), dx=DX, dt=DT, sound_speed=1500.0, dy=DX, t0=1e-6)
     with pytest.raises(ValueError) as worker:
         reconstruct(ds, "kwave")
     with pytest.raises(ValueError) as door:
@@ -100,7 +100,7 @@ def test_over_limit_work_and_unfit_options_are_refused_at_the_door(work_server):
         def ask(method: str, params: dict):
             return c.post("/api/reconstructions", json={"dataset_id": ds, "method": method, "params": params})
 
-        r = ask("tv", {"iterations": 100000, "time_limit": 7 * 86400, "tol": 0})
+        r = ask("tv", {"max_iter": 100000, "time_limit": 7 * 86400, "tol": 0})
         assert r.status_code == 422, r.text
         detail = r.json()["detail"]
         assert "of work by its estimate" in detail and "work limit of 60 s" in detail, detail
@@ -116,5 +116,5 @@ def test_over_limit_work_and_unfit_options_are_refused_at_the_door(work_server):
         r = ask("kwave", {"sound_speed": "auto"})
         assert r.status_code == 422, r.text
         with pytest.raises(ValueError) as worker:
-            reconstruct(GridDataset(np.zeros((N_T, N, N)), dx=DX, dt=DT, c=1500.0, dy=DX), "kwave", c="auto")
+            reconstruct(GridDataset(np.zeros((N_T, N, N)), dx=DX, dt=DT, sound_speed=1500.0, dy=DX), "kwave", sound_speed="auto")
         assert r.json()["detail"] == str(worker.value), (r.json(), str(worker.value))

@@ -13,13 +13,13 @@ from fpscan.service.recon import reconstruct_grid
 from fpscan.service.recon.dataset import GridDataset
 
 
-def _recon(ds, c, dtype="float32", **opts):
-    return reconstruct_grid(ds.data, ds.dx, ds.dt, c, dy=ds.dy, t0=ds.t0, dtype=np.dtype(dtype), **opts)
+def _recon(ds, sound_speed, dtype="float32", **opts):
+    return reconstruct_grid(ds.data, ds.dx, ds.dt, sound_speed, dy=ds.dy, t0=ds.t0, dtype=np.dtype(dtype), **opts)
 
 
 def _unimodal_around(result, tol):
-    cs, s = np.array(result.c_values), np.array(result.sharpness)
-    left, right = s[cs < result.c - tol], s[cs > result.c + tol]
+    cs, s = np.array(result.sound_speed_values), np.array(result.sharpness)
+    left, right = s[cs < result.sound_speed - tol], s[cs > result.sound_speed + tol]
     return bool(np.all(np.diff(left) > 0) and np.all(np.diff(right) < 0))
 
 
@@ -34,9 +34,9 @@ def test_autofocus_simulated_balls_1480():
     data += 0.01 * np.abs(data).max() * np.random.default_rng(0).standard_normal(data.shape)
     ds = GridDataset(data, dx, dt, 1500.0, dy=dx)
     r = af.autofocus(ds, _recon)
-    assert abs(r.c - c_true) / c_true < 0.003, r.as_params()
-    assert r.c_range == C_AUTOFOCUS_RANGE and not r.at_edge
-    assert r.evaluations == len(r.c_values) == len(r.sharpness)
+    assert abs(r.sound_speed - c_true) / c_true < 0.003, r.as_params()
+    assert r.sound_speed_range == C_AUTOFOCUS_RANGE and not r.at_edge
+    assert r.evaluations == len(r.sound_speed_values) == len(r.sharpness)
     assert _unimodal_around(r, 5.0), r.as_params()
 
 
@@ -46,7 +46,7 @@ def test_autofocus_kwave_3d(shared_data):
         dx, dt, c_ref = float(f.attrs["dy_m"]), float(f.attrs["dt_s"]), float(f.attrs["c_m_per_s"])
     ds = GridDataset(data, dx, dt, 1540.0, dy=dx)  # the dataset's own c is not used
     r = af.autofocus(ds, _recon)
-    assert abs(r.c - c_ref) / c_ref < 0.005, r.as_params()
+    assert abs(r.sound_speed - c_ref) / c_ref < 0.005, r.as_params()
     assert _unimodal_around(r, 5.0), r.as_params()
 
 
@@ -63,8 +63,8 @@ def test_focus_function_and_bad_input():
     with pytest.raises(ValueError):
         af.focus_sharpness(np.full((4, 4), np.nan))
     for bad in [(1600, 1450), (1450,), ("a", "b"), (0, 1500), (1450, float("inf")), None]:
-        with pytest.raises(ValueError, match="c_range"):
-            af.check_c_range(bad)
+        with pytest.raises(ValueError, match="sound_speed_range"):
+            af.check_sound_speed_range(bad)
     ds = GridDataset(np.zeros((64, 4, 4)), 1e-4, 1e-8, 1500.0, dy=1e-4)
     with pytest.raises(ValueError, match="decimation"):
         af.autofocus(ds, _recon, decimation=9)

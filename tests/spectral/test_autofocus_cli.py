@@ -48,9 +48,9 @@ def test_recon_c_auto_records_the_search(npy, tmp_path, capsys):
 
 
 @pytest.mark.parametrize("extra, reason", [
-    (["--c", "auto", "--c-range", "1600", "1450"], "c_range must satisfy"),
-    (["--c-range", "1450", "1600"], "needs c='auto'"),
-    (["--c", "1500", "--c-range", "1450", "1600"], "needs c='auto'"),
+    (["--sound-speed", "auto", "--sound-speed-range", "1600", "1450"], "sound_speed_range must satisfy"),
+    (["--sound-speed-range", "1450", "1600"], "needs sound_speed='auto'"),
+    (["--c", "1500", "--c-range", "1450", "1600"], "needs sound_speed='auto'"),  # the old flags: the same rule
     (["--c", "fast"], "argument --sound-speed/--c: "),  # --c: the deprecated name of --sound-speed
 ])
 def test_bad_c_options_are_refused(npy, tmp_path, capsys, extra, reason):

@@ -30,7 +30,7 @@ def toy_load(source: Source, *, c: float | None = None, **_) -> GridDataset:
     lines = source.fh.read().decode().splitlines()
     dt, dx = (float(v) for v in lines[1].split())
     data = np.array([[float(v) for v in row.split()] for row in lines[2:]])
-    return GridDataset(data=data, dx=dx, dt=dt, c=1500.0 if c is None else c, source="toy")
+    return GridDataset(data=data, dx=dx, dt=dt, sound_speed=1500.0 if c is None else c, source="toy")
 
 
 def toy_write(path, data: np.ndarray, dt: float, dx: float) -> None:
@@ -67,8 +67,8 @@ def test_a_registered_format_is_detected_loaded_and_listed(toy, tmp_path):
     ds = load_dataset(path)  # the library's one loader, by content
     assert isinstance(ds, GridDataset) and ds.source == "toy"
     np.testing.assert_array_equal(ds.data, data)
-    assert (ds.dt, ds.dx, ds.c) == (2e-8, 1e-4, 1500.0)
-    assert load_dataset(path, "toy", c=1540.0).c == 1540.0  # by name, options as for every format
+    assert (ds.dt, ds.dx, ds.sound_speed) == (2e-8, 1e-4, 1500.0)
+    assert load_dataset(path, "toy", sound_speed=1540.0).sound_speed == 1540.0  # by name, options as for every format
 
 
 def test_a_registered_format_reaches_the_cli(toy, tmp_path, capsys):
@@ -102,7 +102,7 @@ def test_hdf5_checks_hold_for_every_format(tmp_path):
     toy_h5 = Format(name="toy-h5", title="toy HDF5", container="hdf5", order=5, input=True,
                     sniff=lambda s: s.attr("format") == "toy-h5/1",
                     load=lambda s, **_: seen.append(s.path) or GridDataset(
-                        data=s.h5["data"][()], dx=1e-4, dt=1e-8, c=1500.0, source="toy-h5"))
+                        data=s.h5["data"][()], dx=1e-4, dt=1e-8, sound_speed=1500.0, source="toy-h5"))
     (tmp_path / "other.h5").touch()
     with h5py.File(tmp_path / "good.h5", "w") as f:
         f.attrs["format"] = "toy-h5/1"

@@ -42,7 +42,7 @@ def test_the_three_mat_versions_read_into_one_dataset_and_image(kwave_mat):
         assert detect_format(kwave_mat[version]) == "kwave-mat"
         assert ds.source == "kwave-mat" and ds.data.shape == (534, 128) == want.shape
         np.testing.assert_array_equal(ds.data, want)
-        assert (ds.dt, ds.dx, ds.c, ds.dy) == (1e-8, 5e-5, 1500.0, None)
+        assert (ds.dt, ds.dx, ds.sound_speed, ds.dy) == (1e-8, 5e-5, 1500.0, None)
     assert [loaded[v].meta["mat_version"] for v in ("v6", "v7", "v73")] == ["5", "5", "7.3"]
     images = [reconstruct(loaded[v], "ner", dtype="float64", n_z=96).p0 for v in ("v6", "v7", "v73")]
     np.testing.assert_array_equal(images[0], images[1])
@@ -56,8 +56,8 @@ def test_ner_of_the_v5_file_matches_kwaves_p0_as_kwaves_own_recon_does(kwave_mat
     ds = load_dataset(kwave_mat["v7"])
     p0 = kwave_mat["p0"]  # (96, 128): depth x lateral, k-Wave's x first
     ner = reconstruct(ds, "ner", dtype="float64", dz=ds.dx, n_z=p0.shape[0]).p0
-    kw = kspace_line_recon(ds.data, ds.dx, ds.dt, ds.c)  # rows every c dt
-    z_kw, z = np.arange(kw.shape[0]) * ds.c * ds.dt, np.arange(p0.shape[0]) * ds.dx
+    kw = kspace_line_recon(ds.data, ds.dx, ds.dt, ds.sound_speed)  # rows every c dt
+    z_kw, z = np.arange(kw.shape[0]) * ds.sound_speed * ds.dt, np.arange(p0.shape[0]) * ds.dx
     kw = np.stack([np.interp(z, z_kw, kw[:, j]) for j in range(kw.shape[1])], axis=1)
     cc = lambda a: np.corrcoef(a.ravel(), p0.ravel())[0, 1]
     assert cc(ner) > 0.8 and cc(ner) >= cc(kw) - 0.02, (cc(ner), cc(kw))
@@ -95,7 +95,7 @@ def test_kwave_layouts_and_kgrid_spacings(tmp_path):
         ds = load_dataset(path)
         np.testing.assert_array_equal(ds.data, p_tyz, err_msg=what)
         assert (ds.dt, ds.dx, ds.dy) == (2e-8, 7e-5, 6e-5), what
-    assert load_dataset(files["p_tyz (v7.3)"]).c == 1480.0
+    assert load_dataset(files["p_tyz (v7.3)"]).sound_speed == 1480.0
     line = rng.standard_normal((n_t, 6))  # kspaceLineRecon's p_ty, saved time first
     ds = load_dataset(write_mat73(tmp_path / "c.mat", {"p_ty": line, "Nt": float(n_t), "dy": 5e-5, "dt": 1e-8}))
     np.testing.assert_array_equal(ds.data, line)
@@ -115,8 +115,8 @@ def test_spacings_missing_from_the_file_are_options(tmp_path):
         load_dataset(path)
     with pytest.raises(ValueError, match="give dx"):
         load_dataset(path, dt=1e-8)
-    ds = load_dataset(path, dt=1e-8, dx=1e-4, c=1490.0)
-    assert ds.data.shape == (30, 8) and (ds.dt, ds.dx, ds.c) == (1e-8, 1e-4, 1490.0)
+    ds = load_dataset(path, dt=1e-8, dx=1e-4, sound_speed=1490.0)
+    assert ds.data.shape == (30, 8) and (ds.dt, ds.dx, ds.sound_speed) == (1e-8, 1e-4, 1490.0)
     with pytest.raises(ValueError, match=r"variables: sensor_data"):
         load_dataset(path, key="p", dt=1e-8, dx=1e-4)
 

@@ -29,7 +29,7 @@ OLD = ("c", "c_range", "c_values", "sound_speed_m_per_s")
 
 def _grid() -> GridDataset:
     data = np.random.default_rng(1).standard_normal((40, 5, 6)).astype(np.float32)
-    return GridDataset(data=data, dx=1e-4, dy=2e-4, dt=2e-8, c=1487.5, t0=1e-7, source="npy")
+    return GridDataset(data=data, dx=1e-4, dy=2e-4, dt=2e-8, sound_speed=1487.5, t0=1e-7, source="npy")
 
 
 def test_dataset_file_says_sound_speed_and_reads_an_older_c(tmp_path):
@@ -45,18 +45,18 @@ def test_dataset_file_says_sound_speed_and_reads_an_older_c(tmp_path):
                         "source": "npy", "p0_unit": "a.u.", "dx": 1e-4, "dy": 2e-4})
     old = load_dataset(tmp_path / "old.h5")  # detected, then loaded
     for d in (new, old):
-        assert isinstance(d, GridDataset) and d.c == 1487.5 and d.dt == 2e-8 and d.t0 == 1e-7
+        assert isinstance(d, GridDataset) and d.sound_speed == 1487.5 and d.dt == 2e-8 and d.t0 == 1e-7
         assert (d.dx, d.dy) == (1e-4, 2e-4) and d.data.dtype == np.float32
         np.testing.assert_array_equal(d.data, ds.data)
     # a point dataset the same way (the other layout)
     pts = PointDataset(alines=ds.data.reshape(40, -1).T[:7].copy(), positions=np.arange(14.0).reshape(7, 2) * 1e-4,
-                       weights=None, dt=2e-8, c=1533.0, grid=(np.arange(6) * 1e-4, np.arange(5) * 2e-4))
+                       weights=None, dt=2e-8, sound_speed=1533.0, grid=(np.arange(6) * 1e-4, np.arange(5) * 2e-4))
     write_dataset(tmp_path / "points.h5", pts)
     with h5py.File(tmp_path / "points.h5", "r+") as f:
         assert f.attrs["sound_speed"] == 1533.0 and "c" not in f.attrs
         f.attrs["c"] = f.attrs["sound_speed"]  # make it an older fpscan's file
         del f.attrs["sound_speed"]
-    assert load_dataset(tmp_path / "points.h5", "dataset").c == 1533.0
+    assert load_dataset(tmp_path / "points.h5", "dataset").sound_speed == 1533.0
 
 
 def _rec(params: dict) -> SimpleNamespace:
@@ -136,4 +136,4 @@ def test_scan_file_says_sound_speed_and_reads_the_older_name(tmp_path, make_scan
             f.attrs["sound_speed_m_per_s"] = f.attrs["sound_speed"]
             del f.attrs["sound_speed"]
     assert read_scan(path).sound_speed == 1490.0
-    assert load_dataset(path).c == 1490.0  # the scan file as reconstruction input
+    assert load_dataset(path).sound_speed == 1490.0  # the scan file as reconstruction input

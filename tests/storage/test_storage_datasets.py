@@ -17,17 +17,17 @@ def test_kwave_reference_files(shared_data):
     d3 = load_dataset(shared_data / "kwave3d_balls_yarn.h5")
     assert isinstance(d3, GridDataset) and d3.kind == "grid"
     assert d3.data.shape == (751, 96, 96) and d3.data.dtype == np.float32
-    assert (d3.dx, d3.dy, d3.dt, d3.c) == (6e-5, 6e-5, 8e-9, 1500.0)
+    assert (d3.dx, d3.dy, d3.dt, d3.sound_speed) == (6e-5, 6e-5, 8e-9, 1500.0)
     with h5py.File(shared_data / "kwave3d_balls_yarn.h5", "r") as f:
         np.testing.assert_array_equal(d3.data[100], f["sensor_data/clean"][100])
     x, y = d3.axes()
     assert x[0] == pytest.approx(-47.5 * 6e-5) and y[-1] == pytest.approx(47.5 * 6e-5)
     d2 = load_dataset(shared_data / "kwave2d_points.h5", dt=1e-8)
     assert d2.data.shape == (3519, 1024) and d2.dy is None
-    assert (d2.dx, d2.dt, d2.c) == (5e-5, 1e-8, 1500.0)
+    assert (d2.dx, d2.dt, d2.sound_speed) == (5e-5, 1e-8, 1500.0)
     # explicit spacings win over the file's
-    d2b = load_dataset(shared_data / "kwave2d_points.h5", "kwave-hdf5", dx=1e-4, c=1480.0)
-    assert (d2b.dx, d2b.c) == (1e-4, 1480.0)
+    d2b = load_dataset(shared_data / "kwave2d_points.h5", "kwave-hdf5", dx=1e-4, sound_speed=1480.0)
+    assert (d2b.dx, d2b.sound_speed) == (1e-4, 1480.0)
     p0 = load_dataset(shared_data / "kwave2d_points.h5", key="p0", dt=1e-8)
     assert p0.data.shape == (256, 1024)
 
@@ -66,12 +66,12 @@ def test_generic_hdf5_and_npy(tmp_path):
     d = load_dataset(h5)
     assert detect_format(h5) == "kwave-hdf5"
     np.testing.assert_array_equal(d.data, a)
-    assert (d.dx, d.dy, d.dt, d.c) == (1e-4, 2e-4, 1e-8, 1450.0)
+    assert (d.dx, d.dy, d.dt, d.sound_speed) == (1e-4, 2e-4, 1e-8, 1450.0)
     npy = tmp_path / "a.npy"
     np.save(npy, a[:, 0, :].astype(np.int16))
     d = load_dataset(npy, dt=2e-8, dx=5e-5)
     assert detect_format(npy) == "npy" and d.data.dtype == np.float32 and d.data.shape == (50, 6)
-    assert (d.dt, d.dx, d.dy, d.c) == (2e-8, 5e-5, None, 1500.0)
+    assert (d.dt, d.dx, d.dy, d.sound_speed) == (2e-8, 5e-5, None, 1500.0)
 
 
 def test_scan_and_ipasc_give_the_same_point_data(tmp_path, make_scan):
@@ -87,11 +87,11 @@ def test_scan_and_ipasc_give_the_same_point_data(tmp_path, make_scan):
     np.testing.assert_array_equal(a.positions, np.array(plan["points"]["positions"])[done])
     for name in ("alines", "positions", "weights"):
         np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
-    assert (a.dt, a.c) == (b.dt, b.c) == (2e-8, 1490.0)
+    assert (a.dt, a.sound_speed) == (b.dt, b.sound_speed) == (2e-8, 1490.0)
     for ga, gb in zip(a.grid, b.grid):
         np.testing.assert_array_equal(ga, gb)
     np.testing.assert_allclose(a.grid[0], (np.arange(5) - 2) * 1e-4, atol=1e-18)
-    assert load_dataset(scan, c=1500.0).c == 1500.0
+    assert load_dataset(scan, sound_speed=1500.0).sound_speed == 1500.0
 
 
 def test_bad_input(tmp_path, make_scan):

@@ -440,12 +440,12 @@ def test_result_view_offers_the_model_based_method_and_its_parameters(browser, s
     wait_for(lambda: el(browser, "result").is_displayed() and text(browser, "result-kind") == "scan",
              "the scan's result view")
     Select(el(browser, "recon-method")).select_by_value("nedner")
-    assert not el(browser, "recon-lambda").is_displayed() and not el(browser, "recon-iterations").is_displayed()
+    assert not el(browser, "recon-lam").is_displayed() and not el(browser, "recon-max-iter").is_displayed()
     Select(el(browser, "recon-method")).select_by_value("tv")
-    wait_for(lambda: el(browser, "recon-lambda").is_displayed(), "the λ field")
-    assert el(browser, "recon-iterations").is_displayed() and el(browser, "recon-positivity").is_selected()
-    set_value(browser, "recon-lambda", 0.002)
-    set_value(browser, "recon-iterations", 7)
+    wait_for(lambda: el(browser, "recon-lam").is_displayed(), "the λ field")
+    assert el(browser, "recon-max-iter").is_displayed() and el(browser, "recon-positivity").is_selected()
+    set_value(browser, "recon-lam", 0.002)
+    set_value(browser, "recon-max-iter", 7)
     shot(browser, screenshots, "jobs-recon-tv-form")
     before = el(browser, "result-id").get_attribute("title")
     # c = 2500 m/s: the server's reason (the rule of the CLI and the library), no job;
@@ -463,7 +463,7 @@ def test_result_view_offers_the_model_based_method_and_its_parameters(browser, s
     job = api.get(f"/api/jobs/{job_id}").json()
     assert job["params"]["method"] == "tv", job
     sent = job["params"]["params"]
-    assert sent["lam"] == 0.002 and sent["iterations"] == 7 and sent["positivity"] is True, sent
+    assert sent["lam"] == 0.002 and sent["max_iter"] == 7 and sent["positivity"] is True, sent
     assert sent["sound_speed"] == 2500 and sent["force"] is True, sent  # stored under the person's name
     browser.execute_script("document.getElementById('recon-c').value = '';"
                            "document.getElementById('recon-force').checked = false;")  # as later tests expect
@@ -499,9 +499,9 @@ def test_upload_a_data_file_and_reconstruct_it(browser, server, api, screenshots
             "const s = document.getElementById('recon-method'); s.value = arguments[0];"
             "s.dispatchEvent(new Event('change'));"
             "return [document.getElementById('recon-positivity').checked].concat("
-            "['recon-positivity-label', 'recon-lambda-label', 'recon-iterations-label']"
+            "['recon-positivity-label', 'recon-lam-label', 'recon-max-iter-label']"
             ".map(i => !document.getElementById(i).hidden))", m["name"])
-        assert form == [bool(opts.get("positivity")), "positivity" in opts, "lam" in opts, "iterations" in opts], m
+        assert form == [bool(opts.get("positivity")), "positivity" in opts, "lam" in opts, "max_iter" in opts], m
     # the format choices are the server's (GET /api/datasets/formats: the registry of formats), titles too
     formats = api.get("/api/datasets/formats").json()
     wait_for(lambda: browser.execute_script(
@@ -598,7 +598,7 @@ def test_unmix_result_shows_so2_map_and_autofocus_curve(browser, server, api, sc
         assert r.status_code in (200, 201), r.text
         ids.append(r.json()["dataset_id"])
     r = api.post("/api/reconstructions", json={"dataset_ids": ids, "wavelengths": wls, "method": "ner",
-                                               "params": {"c": "auto", "c_range": [1450, 1550]}, "unmix": {}})
+                                               "params": {"sound_speed": "auto", "sound_speed_range": [1450, 1550]}, "unmix": {}})
     assert r.status_code == 202, r.text
     job_id = r.json()["id"]
     browser.get(f"{server}/#/jobs/{job_id}")

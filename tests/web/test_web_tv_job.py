@@ -114,7 +114,7 @@ def test_tv_job_page_running_and_done(browser, served, server, api, mat_files, s
         r = api.post("/api/datasets", data={"format": "kwave-mat"}, files={"file": ("k.mat", fh, "application/x-matlab-data")})
     assert r.status_code == 201, r.text
     r = api.post("/api/reconstructions", json={"dataset_id": r.json()["dataset_id"], "method": "tv",
-                                               "params": {"tol": 0, "iterations": 5000}})
+                                               "params": {"tol": 0, "max_iter": 5000}})
     assert r.status_code == 202, r.text
     running = r.json()["id"]
     open_page(browser, f"{server}/#/jobs/{running}")

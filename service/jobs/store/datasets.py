@@ -11,6 +11,7 @@ import time
 
 from fpscan.service.jobs.store.base import StoreBase
 from fpscan.service.jobs.store.schema import Jobs
+from fpscan.service.names import current_names
 
 __all__ = ["DatasetRecords"]
 
@@ -31,13 +32,13 @@ class DatasetRecords(StoreBase):
     def get_dataset(self, dataset_id: str) -> dict | None:
         with self._lock:
             row = self._db.execute("SELECT meta FROM datasets WHERE id = ?", (dataset_id,)).fetchone()
-        return None if row is None else json.loads(row["meta"])
+        return None if row is None else current_names(json.loads(row["meta"]))  # an earlier release's c too
 
     def list_datasets(self) -> Jobs:
         """Every stored dataset as ``{"id", "meta", "created"}``, oldest first."""
         with self._lock:
             rows = self._db.execute("SELECT id, meta, created FROM datasets ORDER BY created, id").fetchall()
-        return [{"id": r["id"], "meta": json.loads(r["meta"]), "created": r["created"]} for r in rows]
+        return [{"id": r["id"], "meta": current_names(json.loads(r["meta"])), "created": r["created"]} for r in rows]
 
     def touch_dataset(self, dataset_id: str) -> None:
         """Record that ``dataset_id`` was asked for again (its meta's ``last_used``, UNIX s):

@@ -19,7 +19,7 @@ from typing import Any, overload
 
 from fpscan.service.jobs.store.events import EventLog
 from fpscan.service.jobs.store.schema import ACTIVE, KINDS, TERMINAL, Jobs
-from fpscan.service.names import person_names
+from fpscan.service.names import current_names
 
 __all__ = ["IdempotencyConflict", "QueueFull", "JobRecords"]
 
@@ -79,7 +79,7 @@ class JobRecords(EventLog):
         if row is None:
             return None
         job = dict(row)
-        job["params"] = json.loads(job["params"])
+        job["params"] = current_names(json.loads(job["params"]))  # an earlier release's c: sound_speed
         job["progress"] = json.loads(job["progress"])
         job["control"] = job["control"]
         job["cancel_requested"] = bool(job["cancel_requested"])
@@ -107,8 +107,8 @@ class JobRecords(EventLog):
                     old = self._row(row)
                     # the same request from another address of the client is the same request
                     asked = {k: v for k, v in json.loads(json.dumps(params)).items() if k != "client"}
-                    before = person_names(old["params"])  # a job an older server stored with c
-                    if old["kind"] != kind or {k: before.get(k) for k in asked} != person_names(asked):
+                    before = old["params"]
+                    if old["kind"] != kind or {k: before.get(k) for k in asked} != asked:
                         raise IdempotencyConflict(
                             "Idempotency-Key already used for a different request")
                     return old, False

@@ -4,13 +4,13 @@ Each module of this package (``ner``, ``nedner``, ``interp``, ``kwave``, ``tv``,
 whatever comes next) defines its typed options model (a :class:`~.options.MethodOptions`
 with each option's type, range, unit and default), its ``run`` (calling the kernels of
 :mod:`fpscan.service.recon`: ``planar``, ``kwave``, ``tv``) and its peak-memory model in a
-:class:`Method` (``METHOD``), which is named by an entry point of the group ``fpscan.methods`` (fpscan's own in its
-``pyproject.toml``; another package's in its own: a plugin, docs/plugins.md). The package
-registers every entry point's method on first import (``fpscan.service.plugins.load_group``), so a
-new method is one new file and its entry point: the dispatch
-(:func:`fpscan.service.pipeline.reconstruct`), the HTTP request model
-(``fpscan.service.api.models.ReconParams``, the union of the methods' options), ``GET
-/api/reconstructions/methods`` (each option's JSON schema: the web page's fields), the
+:class:`Method` (``METHOD``). fpscan's own are registered in code when this package is imported;
+another package's (a plugin: :mod:`fpscan.plugins`, docs/plugins.md) through an entry point of the
+group ``fpscan.methods``, read on the registry's first lookup or listing
+(``fpscan.service.plugins.PluginRegistry``). A new method is one new file (and, in a plugin, its
+entry point): the dispatch (:func:`fpscan.service.pipeline.reconstruct`), the HTTP request (a union
+keyed on ``method`` of each method's options model: ``fpscan.service.api.models.REQUEST_MODELS``),
+``GET /api/reconstructions/methods`` (each option's JSON schema: the web page's fields), the
 flags of ``fpscan recon`` / ``unmix``, the docs table (:func:`docs_table`) and what a
 result's summary and a running job's progress line show of it (:attr:`Method.summary`,
 :attr:`Method.stop_waits_for`) are generated from :data:`METHODS`.
@@ -20,10 +20,12 @@ The package is three modules: :mod:`.registry` (the :class:`Method` record, :dat
 estimators: :func:`planar_work`, :func:`peak_model`, ...) and :mod:`.render` (the options'
 schemas and words: :func:`option_schemas`, :func:`docs_table`, ...); it re-exports their names.
 
-``run(dataset, c, options, progress)``: ``dataset`` a ``fpscan.service.recon.dataset.GridDataset``
-when the method ``needs_grid``, else a ``PointDataset`` (the pipeline converts); ``c`` in
-m/s; ``options`` the validated options as a dict (every field, defaults filled; ``dtype``
-a NumPy dtype; ``None`` for "derived from the data", e.g. ``n_z``); ``progress`` a
+``run(dataset, sound_speed, options, progress)``: ``dataset`` a
+``fpscan.service.recon.dataset.GridDataset`` when the method ``needs_grid``, else a ``PointDataset``
+(the pipeline converts); ``sound_speed`` in m/s (resolved: the request's, the dataset's or the
+autofocus search's); ``options`` the method's validated options, an instance of its
+``options_model`` (every field filled; ``dtype`` its name; ``None`` for "derived from the data",
+e.g. ``n_z``); ``progress`` a
 ``fpscan.service.progress.Span``: ``progress(fraction, stage)`` or a kernel's ``progress(fraction)``
 (stage "reconstructing"), fractions in [0, 1]. Returns a ``fpscan.service.recon.reconstruction.Reconstruction``.
 
@@ -32,7 +34,6 @@ flags from it); the kernels load when a method runs.
 """
 from __future__ import annotations
 
-from fpscan.service.plugins import load_group
 from fpscan.service.recon.methods.options import MethodOptions
 from fpscan.service.recon.methods.registry import (
     INPUT_KINDS,
@@ -65,6 +66,15 @@ __all__ = ["Method", "METHODS", "register", "get", "option_schemas", "option_fie
            "transform_units", "planar_work", "MethodOptions", "default_text", "describe_error", "range_text",
            "outcome"]
 
-# every method, fpscan's own and the plugins' (fpscan.service.plugins; at the end: a method module
-# imports this package's names)
-load_group("fpscan.methods", Method, register)
+def _register_builtins() -> None:
+    """Fpscan's own methods, registered in code (the plugins' come from entry points, on the
+    registry's first read: ``fpscan.service.plugins.PluginRegistry``)."""
+    from fpscan.service.recon.methods import interp, kwave, nedner, ner, tv
+
+    for method in (nedner.METHOD, ner.METHOD, *interp.METHODS, kwave.METHOD, tv.METHOD):
+        register(method)
+
+
+# last: a method module imports this package's names
+_register_builtins()
+METHODS.arm(Method, register)

@@ -6,9 +6,10 @@ from __future__ import annotations
 from collections.abc import Callable
 from functools import partial
 
-from fpscan.service.recon.methods import Method, peak_model, planar_work
 from fpscan.service.recon.methods.ner import run_grid
 from fpscan.service.recon.methods.options import DepthOptions, MethodOptions, PositivityOption, UpsampleOption
+from fpscan.service.recon.methods.registry import Method
+from fpscan.service.recon.methods.work import peak_model, planar_work
 
 __all__ = ["Options", "KINDS", "WORK_RATES", "TEMPORAL_STEPS", "METHODS", "LINEAR", "NEAREST", "CUBIC"]
 
@@ -68,8 +69,8 @@ _run: Callable = run_grid
 #: each method's temporal step in the memory model (``fpscan.service.recon.memory.planar_peak``)
 TEMPORAL_STEPS = {"linear": "regular", "nearest": "regular", "cubic": "pchip"}
 #: the three methods, in :data:`KINDS`' order (each named by an entry point of ``fpscan.methods``)
-METHODS = [Method(name, title, True, Options, partial(_run, name), source,
-                  peak_model("planar_peak", temporal=TEMPORAL_STEPS[name]),
+METHODS = [Method(name=name, title=title, needs_grid=True, options_model=Options, run=partial(_run, name),
+                  source=source, peak_memory=peak_model("planar_peak", temporal=TEMPORAL_STEPS[name]),
                   order=30 + k, work=planar_work(WORK_RATES[name]))
            for k, (name, (title, source)) in enumerate(KINDS.items())]
 LINEAR, NEAREST, CUBIC = METHODS

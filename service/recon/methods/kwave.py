@@ -9,8 +9,9 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal
 from pydantic import BeforeValidator, Field
 
 from fpscan.service.recon.limits import KWAVE_INTERPS
-from fpscan.service.recon.methods import Method, peak_model, planar_work
 from fpscan.service.recon.methods.options import MethodOptions, PositivityOption
+from fpscan.service.recon.methods.registry import Method
+from fpscan.service.recon.methods.work import peak_model, planar_work
 
 if TYPE_CHECKING:
     from fpscan.service.recon.dataset import GridDataset
@@ -60,9 +61,9 @@ class Options(PositivityOption, MethodOptions):
     interp: Interp = Field("*nearest", description="k-Wave interpolation (k-Wave's default *nearest)")
 
 
-def run(ds: GridDataset, c: float, opts: dict, step: Callable[[float], None]) -> Reconstruction:
+def run(ds: GridDataset, sound_speed: float, options: Options, step: Callable[[float], None]) -> Reconstruction:
     """k-Wave's reconstruction of grid data ``(n_t, n_x)`` (kspaceLineRecon, k-Wave's 'ty')
-    or ``(n_t, n_y, n_x)`` (kspacePlaneRecon, 'tyz'), ``c`` in m/s. ValueError when the
+    or ``(n_t, n_y, n_x)`` (kspacePlaneRecon, 'tyz'), the speed of sound in m/s. ValueError when the
     input's first sample is not at t = 0 (k-Wave's convention).
 
     Parameters
@@ -70,10 +71,10 @@ def run(ds: GridDataset, c: float, opts: dict, step: Callable[[float], None]) ->
     ds : GridDataset
         ``data`` ``(n_t, n_x)`` or ``(n_t, n_y, n_x)`` (time first), pitch ``dx`` (and
         ``dy``) in m, ``dt`` in s, ``t0`` = 0 s.
-    c : float
+    sound_speed : float
         Speed of sound, m/s.
-    opts : dict
-        The validated options, every field of :class:`Options` (``dtype`` a NumPy dtype).
+    options : Options
+        The validated options.
     step : callable
         ``step(fraction)`` with increasing fractions in (0, 1]; it may raise to cancel.
 
@@ -101,8 +102,8 @@ def run(ds: GridDataset, c: float, opts: dict, step: Callable[[float], None]) ->
     >>> from fpscan.service.recon.methods.kwave import Options, run
     >>> g = np.zeros((64, 8))  # (n_t, n_x): a uniform layer at depth row 10
     >>> g[10] = 0.5
-    >>> opts = {**Options().model_dump(), "dtype": np.dtype("float32")}
-    >>> r = run(GridDataset(g, dx=1e-4, dt=1e-4 / 1500, c=1500.0), 1500.0, opts, lambda f: None)
+    >>> opts = Options()
+    >>> r = run(GridDataset(g, dx=1e-4, dt=1e-4 / 1500, sound_speed=1500.0), 1500.0, opts, lambda f: None)
     >>> r.p0.shape, r.p0.dtype, int(r.p0[:, 4].argmax()), r.params["source"]
     ((64, 8), dtype('float32'), 10, 'kspaceLineRecon')
     >>> run(GridDataset(g, 1e-4, 1e-4 / 1500, 1500.0, t0=1e-6), 1500.0, opts, lambda f: None)
@@ -113,12 +114,13 @@ def run(ds: GridDataset, c: float, opts: dict, step: Callable[[float], None]) ->
     import numpy as np
 
     from fpscan.physics.axes import centred_axis
-    from fpscan.service.recon import kspace_line_recon, kspace_plane_recon
+    from fpscan.service.recon.kwave import kspace_line_recon, kspace_plane_recon
     from fpscan.service.recon.reconstruction import Reconstruction
 
-    interp = opts.get("interp") or "*nearest"
+    c = sound_speed
+    interp = options.interp or "*nearest"
     check_start(ds.t0)
-    dtype, positivity = opts["dtype"], bool(opts.get("positivity", False))
+    dtype, positivity = np.dtype(options.dtype), bool(options.positivity)
     data = ds.data
     if data.ndim == 2:  # k-Wave 'ty': y is our x
         p0 = kspace_line_recon(data, ds.dx, ds.dt, c, interp=interp, pos_cond=positivity, progress=step,
@@ -130,7 +132,7 @@ def run(ds: GridDataset, c: float, opts: dict, step: Callable[[float], None]) ->
                                 dtype=dtype)
         y = centred_axis(data.shape[1], dy)
     n_t = data.shape[0]
-    params = dict(method="kwave", interp=interp, dt=ds.dt, c=c, dx=ds.dx, dy=None if y is None else ds.dy or ds.dx,
+    params = dict(method="kwave", interp=interp, dt=ds.dt, sound_speed=c, dx=ds.dx, dy=None if y is None else ds.dy or ds.dx,
                   dtype=dtype.name, dz=c * ds.dt, n_z=n_t, positivity=positivity, t0=0.0, n_t=n_t,
                   data_shape=list(data.shape),
                   source="kspaceLineRecon" if y is None else "kspacePlaneRecon")
@@ -234,7 +236,8 @@ def warm_up(dtypes: Sequence[str]) -> None:
             kspace_line_recon(data[:, 0, :], dx, dt, C_DEFAULT, interp=interp, dtype=d)
 
 
-METHOD = Method("kwave", "k-Wave compatible (kspaceLineRecon / kspacePlaneRecon)", True, Options, run,
-                "k-Wave kspaceLineRecon / kspacePlaneRecon (reference/KWAVE_RECON_NOTES.md)",
-                peak_model("kwave_peak"), order=40, work=work, warm_up=warm_up,
+METHOD = Method(name="kwave", title="k-Wave compatible (kspaceLineRecon / kspacePlaneRecon)", needs_grid=True,
+                options_model=Options, run=run,
+                source="k-Wave kspaceLineRecon / kspacePlaneRecon (reference/KWAVE_RECON_NOTES.md)",
+                peak_memory=peak_model("kwave_peak"), order=40, work=work, warm_up=warm_up,
                 kernel_modules=("fpscan.service.recon.kwave",))

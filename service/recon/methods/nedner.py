@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
-from fpscan.service.recon.methods import Method, peak_model, planar_work
+from fpscan.service.recon.limits import DEFAULT_DEVICE, DEFAULT_DTYPE, DEFAULT_EPS
 from fpscan.service.recon.methods.options import (
     DepthOptions,
     DeviceOption,
@@ -14,6 +14,8 @@ from fpscan.service.recon.methods.options import (
     PositivityOption,
     UpsampleOption,
 )
+from fpscan.service.recon.methods.registry import Method
+from fpscan.service.recon.methods.work import peak_model, planar_work
 
 if TYPE_CHECKING:
     from fpscan.service.recon.dataset import PointDataset
@@ -54,9 +56,9 @@ class Options(DeviceOption, DepthOptions, PositivityOption, UpsampleOption, Meth
     """
 
 
-def run(ds: PointDataset, c: float, opts: dict, step: Callable[[float], None]) -> Reconstruction:
+def run(ds: PointDataset, sound_speed: float, options: Options, step: Callable[[float], None]) -> Reconstruction:
     """NEDNER-NUFFT of A-lines ``ds.alines`` ``(n, n_t)`` at ``ds.positions`` ``(n, 2)`` (m),
-    ``c`` in m/s; ValueError when there are no A-lines.
+    the speed of sound in m/s; ValueError when there are no A-lines.
 
     Parameters
     ----------
@@ -64,10 +66,10 @@ def run(ds: PointDataset, c: float, opts: dict, step: Callable[[float], None]) -
         ``alines`` ``(n, n_t)`` at ``positions`` ``(n, 1)`` x / ``(n, 2)`` (x, y) in m, with
         quadrature ``weights`` ``(n,)`` (None: clipped Voronoi areas), the output ``grid``,
         ``dt`` in s and ``t0`` in s.
-    c : float
+    sound_speed : float
         Speed of sound, m/s.
-    opts : dict
-        The validated options, every field of :class:`Options` (``dtype`` a NumPy dtype).
+    options : Options
+        The validated options.
     step : callable
         ``step(fraction)`` with increasing fractions in (0, 1]; it may raise to cancel.
 
@@ -97,20 +99,23 @@ def run(ds: PointDataset, c: float, opts: dict, step: Callable[[float], None]) -
     >>> from fpscan.service.recon.methods.nedner import Options, run
     >>> g = np.zeros((64, 8))  # (n_t, n_x)
     >>> g[10] = 0.5
-    >>> ds = GridDataset(g, dx=1e-4, dt=1e-4 / 1500, c=1500.0).to_points()
+    >>> ds = GridDataset(g, dx=1e-4, dt=1e-4 / 1500, sound_speed=1500.0).to_points()
     >>> ds.alines.shape, ds.positions.shape  # (n, n_t), (n, 1) x in m
     ((8, 64), (8, 1))
-    >>> r = run(ds, 1500.0, {**Options().model_dump(), "dtype": np.dtype("float32")}, lambda f: None)
+    >>> r = run(ds, 1500.0, Options(), lambda f: None)
     >>> r.p0.shape, r.p0.dtype, int(r.p0[:, 4].argmax()), r.params["method"]
     ((64, 8), dtype('float32'), 10, 'nedner')
     """
-    from fpscan.service.recon import reconstruct_points
+    from fpscan.service.recon.planar import reconstruct_points
 
     if ds.alines.shape[0] == 0:
         raise ValueError("the input has no A-lines to reconstruct")
     # NEDNER = NUFFT in time (the "ner" temporal step) + type-1 NUFFT over the positions
-    return reconstruct_points(ds.alines, ds.positions, ds.dt, c, weights=ds.weights, grid=ds.grid,
-                              method="ner", t0=ds.t0, progress=step, **opts)
+    o = options  # validated: a field is None only where its default is (the model fills the others)
+    return reconstruct_points(ds.alines, ds.positions, ds.dt, sound_speed, weights=ds.weights, grid=ds.grid,
+                              method="ner", t0=ds.t0, progress=step, eps=o.eps or DEFAULT_EPS,
+                              dtype=o.dtype or DEFAULT_DTYPE, upsample=o.upsample or 1, positivity=bool(o.positivity),
+                              n_z=o.n_z, dz=o.dz, device=o.device or DEFAULT_DEVICE)
 
 
 #: seconds of work per ``transform_units`` unit (float32, the reference 2 cores; ``planar_work``):
@@ -147,8 +152,8 @@ def warm_up(dtypes: Sequence[str]) -> None:
                            grid=grid, dtype=d, device="cpu")
 
 
-METHOD = Method("nedner", "NEDNER-NUFFT (any sensor mask)", False, Options, run,
-                "paper §3.2: temporal NUFFT + type-1 NUFFT over the sensor positions",
-                peak_model("planar_peak", temporal="nufft", points=True), order=10,
+METHOD = Method(name="nedner", title="NEDNER-NUFFT (any sensor mask)", needs_grid=False, options_model=Options,
+                run=run, source="paper §3.2: temporal NUFFT + type-1 NUFFT over the sensor positions",
+                peak_memory=peak_model("planar_peak", temporal="nufft", points=True), order=10,
                 work=planar_work(WORK_RATE), default_for=("points",), warm_up=warm_up,
                 kernel_modules=("fpscan.physics.nufft_kernels",))

@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
-from fpscan.service.recon.methods import Method, peak_model, planar_work
+from fpscan.service.recon.limits import DEFAULT_DTYPE, DEFAULT_EPS
 from fpscan.service.recon.methods.options import (
     DepthOptions,
     DeviceOption,
@@ -14,6 +14,8 @@ from fpscan.service.recon.methods.options import (
     PositivityOption,
     UpsampleOption,
 )
+from fpscan.service.recon.methods.registry import Method
+from fpscan.service.recon.methods.work import peak_model, planar_work
 
 if TYPE_CHECKING:
     from fpscan.service.recon.dataset import GridDataset
@@ -45,7 +47,7 @@ class Options(DeviceOption, DepthOptions, PositivityOption, UpsampleOption, Meth
     >>> from pydantic import ValidationError
     >>> from fpscan.service.recon.methods.ner import Options
     >>> Options().model_dump()
-    {'eps': 1e-06, 'dtype': 'float32', 'upsample': 1, 'positivity': False, 'n_z': None, 'dz': None, 'device': 'auto'}
+    {'eps': 1e-06, 'sound_speed': None, 'sound_speed_range': None, 'force': False, 'dtype': 'float32', 'upsample': 1, 'positivity': False, 'n_z': None, 'dz': None, 'device': 'auto'}
     >>> try:
     ...     Options(eps=5e-15)
     ... except ValidationError as exc:
@@ -54,9 +56,10 @@ class Options(DeviceOption, DepthOptions, PositivityOption, UpsampleOption, Meth
     """
 
 
-def run_grid(name: str, ds: GridDataset, c: float, opts: dict, step: Callable[[float], None]) -> Reconstruction:
+def run_grid(name: str, ds: GridDataset, sound_speed: float, options: MethodOptions,
+             step: Callable[[float], None]) -> Reconstruction:
     """``fpscan.service.recon.planar.reconstruct_grid`` with ``method=name`` on grid data
-    ``ds.data`` ``(n_t, n_y, n_x)`` or ``(n_t, n_x)``, ``c`` in m/s, the validated options.
+    ``ds.data`` ``(n_t, n_y, n_x)`` or ``(n_t, n_x)``, the speed of sound in m/s, the validated options.
 
     Parameters
     ----------
@@ -65,11 +68,11 @@ def run_grid(name: str, ds: GridDataset, c: float, opts: dict, step: Callable[[f
     ds : GridDataset
         ``data`` ``(n_t, n_x)`` or ``(n_t, n_y, n_x)`` (time first) at pitch ``dx`` (and
         ``dy``) in m, sample interval ``dt`` in s, first sample at ``t0`` s.
-    c : float
+    sound_speed : float
         Speed of sound, m/s.
-    opts : dict
-        Every field of the method's options model, defaults filled (``dtype`` a NumPy
-        dtype; ``n_z``/``dz`` None: derived from the data).
+    options : Options
+        The method's validated options (``ner``'s, or ``fpscan.service.recon.methods.interp.Options``:
+        the same fields but ``eps``; ``n_z``/``dz`` None: derived from the data).
     step : callable
         ``step(fraction)``, called with increasing fractions in (0, 1]; it may raise to
         cancel.
@@ -104,31 +107,36 @@ def run_grid(name: str, ds: GridDataset, c: float, opts: dict, step: Callable[[f
     >>> from fpscan.service.recon.methods.ner import Options, run_grid
     >>> g = np.zeros((64, 8))  # (n_t, n_x)
     >>> g[10] = 0.5
-    >>> ds = GridDataset(g, dx=1e-4, dt=1e-4 / 1500, c=1500.0)  # dz = c dt = 0.1 mm
-    >>> opts = {**Options().model_dump(), "dtype": np.dtype("float32")}
-    >>> r = run_grid("linear", ds, 1500.0, opts, lambda fraction: None)
+    >>> ds = GridDataset(g, dx=1e-4, dt=1e-4 / 1500, sound_speed=1500.0)  # dz = c dt = 0.1 mm
+    >>> from fpscan.service.recon.methods.interp import Options
+    >>> r = run_grid("linear", ds, 1500.0, Options(), lambda fraction: None)
     >>> r.p0.shape, r.p0.dtype, int(r.p0[:, 4].argmax()), round(float(r.p0[10, 4]), 3)
     ((64, 8), dtype('float32'), 10, 1.0)
     >>> r.params["method"]
     'linear'
     """
-    from fpscan.service.recon import reconstruct_grid
+    from fpscan.service.recon.planar import reconstruct_grid
 
     dy = ds.dy if ds.data.ndim == 3 else None
-    return reconstruct_grid(ds.data, ds.dx, ds.dt, c, method=name, dy=dy, t0=ds.t0, progress=step, **opts)
+    # ner's options, or the interpolating methods' (no NUFFT tolerance, no device option)
+    o = options
+    return reconstruct_grid(ds.data, ds.dx, ds.dt, sound_speed, method=name, dy=dy, t0=ds.t0, progress=step,
+                            dtype=o.dtype or DEFAULT_DTYPE, upsample=getattr(o, "upsample", 1), positivity=getattr(o, "positivity", False),
+                            n_z=getattr(o, "n_z", None), dz=getattr(o, "dz", None), eps=getattr(o, "eps", DEFAULT_EPS),
+                            device=getattr(o, "device", "auto"))
 
 
-def run(ds: GridDataset, c: float, opts: dict, step: Callable[[float], None]) -> Reconstruction:
+def run(ds: GridDataset, sound_speed: float, options: Options, step: Callable[[float], None]) -> Reconstruction:
     """NER-NUFFT of grid data (:func:`run_grid`).
 
     Parameters
     ----------
     ds : GridDataset
         ``data`` ``(n_t, n_x)`` or ``(n_t, n_y, n_x)`` (time first), pitch in m, ``dt`` in s.
-    c : float
+    sound_speed : float
         Speed of sound, m/s.
-    opts : dict
-        The validated options, every field of :class:`Options` (``dtype`` a NumPy dtype).
+    options : Options
+        The validated options.
     step : callable
         ``step(fraction)`` with increasing fractions in (0, 1]; it may raise to cancel.
 
@@ -155,15 +163,15 @@ def run(ds: GridDataset, c: float, opts: dict, step: Callable[[float], None]) ->
     >>> from fpscan.service.recon.methods.ner import Options, run
     >>> g = np.zeros((64, 8))  # (n_t, n_x): a uniform layer at depth row 10
     >>> g[10] = 0.5
-    >>> ds = GridDataset(g, dx=1e-4, dt=1e-4 / 1500, c=1500.0)
+    >>> ds = GridDataset(g, dx=1e-4, dt=1e-4 / 1500, sound_speed=1500.0)
     >>> fractions = []
-    >>> r = run(ds, 1500.0, {**Options().model_dump(), "dtype": np.dtype("float32")}, fractions.append)
+    >>> r = run(ds, 1500.0, Options(), fractions.append)
     >>> r.p0.shape, r.p0.dtype, int(r.p0[:, 4].argmax()), round(float(r.p0[10, 4]), 3)
     ((64, 8), dtype('float32'), 10, 1.0)
     >>> fractions == sorted(fractions), fractions[-1]
     (True, 1.0)
     """
-    return run_grid("ner", ds, c, opts, step)
+    return run_grid("ner", ds, sound_speed, options, step)
 
 
 #: seconds of work per ``transform_units`` unit (float32, the reference 2 cores; ``planar_work``):
@@ -199,7 +207,7 @@ def warm_up(dtypes: Sequence[str]) -> None:
         reconstruct_grid(np.tile(data[:, 0, :], (1, n)), dx, dt, dtype=d, device="cpu")  # a line of n * n sensors
 
 
-METHOD = Method("ner", "NER-NUFFT (full regular grid)", True, Options, run,
-                "paper §3.1: temporal NUFFT, lateral FFT", peak_model("planar_peak", temporal="nufft"),
-                order=20, work=planar_work(WORK_RATE), default_for=("grid",), warm_up=warm_up,
+METHOD = Method(name="ner", title="NER-NUFFT (full regular grid)", needs_grid=True, options_model=Options, run=run,
+                source="paper §3.1: temporal NUFFT, lateral FFT",
+                peak_memory=peak_model("planar_peak", temporal="nufft"), order=20, work=planar_work(WORK_RATE), default_for=("grid",), warm_up=warm_up,
                 kernel_modules=("fpscan.physics.nufft_kernels",))

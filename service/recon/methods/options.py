@@ -3,8 +3,8 @@ unit and default, each refused by the kernel's own rule.
 
 A method's options model (:class:`MethodOptions` and the mix-ins below) is what every door
 checks a request with: :func:`fpscan.service.pipeline.reconstruct`, ``fpscan recon`` / ``unmix``
-(their flags are generated from these fields) and ``POST /api/reconstructions`` (its
-``ReconParams`` is the union of the methods' fields). Each bounded field runs the kernel's
+(their flags are generated from these fields) and ``POST /api/reconstructions`` (its body a
+union keyed on ``method`` of the methods' models). Each bounded field runs the kernel's
 rule (:mod:`fpscan.service.recon.checks`) before its type and range, so every door refuses a value
 with the kernel's words (``eps must be in [1e-14, 1e-1], got 5e-15``); the ranges are
 those of :mod:`fpscan.service.recon.limits`, stated in the JSON schema (``minimum``/``maximum``).
@@ -22,7 +22,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Annotated, Any, Literal
 
-from pydantic import AliasChoices, BaseModel, BeforeValidator, ConfigDict, Field, model_validator
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, model_validator
 
 from fpscan.constants import C_AUTOFOCUS_LIMITS, C_AUTOFOCUS_RANGE, C_DEFAULT, C_LIMITS, C_PLAUSIBLE
 from fpscan.service.recon.limits import (
@@ -37,7 +37,7 @@ from fpscan.service.recon.limits import (
     UPSAMPLE_RANGE,
 )
 
-__all__ = ["SpeedOptions", "plausible_speeds", "speed_schema", "MethodOptions", "NufftOptions", "UpsampleOption", "PositivityOption", "DepthOptions", "Eps",
+__all__ = ["DEPRECATED_NAMES", "renamed_options", "SpeedOptions", "plausible_speeds", "speed_schema", "MethodOptions", "NufftOptions", "UpsampleOption", "PositivityOption", "DepthOptions", "Eps",
            "Upsample", "NZ", "Dz", "Dtype", "Flag", "kernel_rule", "check_flag", "check_dtype_name", "Device",
            "DeviceOption", "check_device_name"]
 
@@ -51,7 +51,7 @@ def kernel_rule(name: str) -> Callable[[Any], Any]:
     ----------
     name : str
         A rule of :mod:`fpscan.service.recon.checks` (``"check_eps"``, ``"check_upsample"``,
-        ``"check_n_z"``, ``"check_dz"``, ``"check_lam"``, ``"check_iterations"``,
+        ``"check_n_z"``, ``"check_dz"``, ``"check_lam"``, ``"check_max_iter"``,
         ``"check_time_limit"``).
 
     Returns
@@ -80,7 +80,7 @@ def kernel_rule(name: str) -> Callable[[Any], Any]:
     def apply(value: Any) -> Any:
         if value is None:
             return None
-        from fpscan.service.recon import checks
+        import fpscan.service.recon.checks as checks
 
         return getattr(checks, name)(value)
 
@@ -253,54 +253,162 @@ def plausible_speeds(sep: str = "-") -> str:
 Speed = Annotated[float, Field(gt=0)]
 AutofocusSpeed = Annotated[float, Field(ge=C_AUTOFOCUS_LIMITS[0], le=C_AUTOFOCUS_LIMITS[1])]
 
+#: option names of an earlier release, still accepted for one release: old name -> the one name
+#: (a ``DeprecationWarning`` names the new one; the speed of sound is k-Wave's ``medium.sound_speed``,
+#: the iteration cap scikit-learn's and SciPy's ``max_iter``)
+DEPRECATED_NAMES: dict[str, str] = {"c": "sound_speed", "c_range": "sound_speed_range", "iterations": "max_iter"}
+
+
+def renamed_options(data: dict, fields: Any, *, stacklevel: int = 6) -> dict:
+    """``data`` with each old option name of :data:`DEPRECATED_NAMES` whose new name is one of
+    ``fields`` replaced by the new name, warning once per name (``DeprecationWarning`` naming
+    the new one). Both names at once is an ``OptionError``.
+
+    Parameters
+    ----------
+    data : dict
+        Option name -> value, as given.
+    fields : collection of str
+        The options model's field names.
+    stacklevel : int, optional
+        Of the warning (the caller's line where it is the library's).
+
+    Returns
+    -------
+    dict
+        A new dict (``data`` itself when nothing was renamed).
+
+    Raises
+    ------
+    fpscan.service.recon.checks.OptionError
+        An old name and its new one both given.
+
+    Examples
+    --------
+    >>> import warnings
+    >>> from fpscan.service.recon.methods.options import renamed_options
+    >>> with warnings.catch_warnings(record=True) as seen:
+    ...     warnings.simplefilter("always")
+    ...     renamed_options({"c": 1480.0, "eps": 1e-6}, {"sound_speed", "eps"})
+    {'sound_speed': 1480.0, 'eps': 1e-06}
+    >>> str(seen[0].message)
+    'option c is deprecated: use sound_speed (c is refused from the next release)'
+    """
+    old = [k for k in data if k in DEPRECATED_NAMES and DEPRECATED_NAMES[k] in fields]
+    if not old:
+        return data
+    import warnings
+
+    for name in old:
+        new = DEPRECATED_NAMES[name]
+        if new in data:
+            from fpscan.service.recon.checks import OptionError
+
+            raise OptionError(f"give {new} or its deprecated name {name}, not both")
+        warnings.warn(f"option {name} is deprecated: use {new} ({name} is refused from the next release)",
+                      DeprecationWarning, stacklevel=stacklevel)
+    return {DEPRECATED_NAMES[k] if k in old else k: v for k, v in data.items()}
+
 
 class SpeedOptions(BaseModel):
-    """The speed of sound, every method's option, as one typed model: its unit, bounds and default,
-    the autofocus interval and ``force``. The HTTP request model (``fpscan.service.api.models``:
-    ``ReconParams`` inherits these fields), ``GET /api/reconstructions/methods`` (its value schema,
-    :func:`speed_schema`, from which the web page's fields and labels are built), the upload form
-    (``POST /api/datasets``), the flags of ``fpscan recon`` / ``unmix``
-    (``fpscan.clients.cli.recon_options.add_speed_flags``) and every message about a speed read it; the
-    numbers are ``fpscan.constants``' (``C_PLAUSIBLE`` without ``force``, ``C_LIMITS`` with it,
-    ``C_AUTOFOCUS_RANGE`` the search's default). ``c`` in code, ``sound_speed`` where a person
-    reads it (``c`` accepted, deprecated); the check is ``fpscan.driver.units.check_speeds``.
+    """The speed of sound, every method's options (:class:`MethodOptions` inherits them): its unit,
+    bounds and default, the autofocus interval and ``force``. ``GET /api/reconstructions/methods``
+    lists its value schema (:func:`speed_schema`, from which the web page's fields and labels are
+    built); the flags of ``fpscan recon`` / ``unmix`` (``--sound-speed``, ``--sound-speed-range``,
+    ``--force``) and every message about a speed read it; the numbers are ``fpscan.constants``'
+    (``C_PLAUSIBLE`` without ``force``, ``C_LIMITS`` with it, ``C_AUTOFOCUS_RANGE`` the search's
+    default); the rule is ``fpscan.driver.units.check_speeds``. The name is k-Wave's
+    (``medium.sound_speed``); ``c`` and ``c_range``, an earlier release's, are accepted with a
+    ``DeprecationWarning`` (:data:`DEPRECATED_NAMES`).
 
     Attributes
     ----------
-    c : float, "auto" or None
+    sound_speed : float, "auto" or None
         Speed of sound in m/s; ``"auto"``: the speed of sharpest focus searched within
-        ``c_range``; None: the input's (else ``fpscan.constants.C_DEFAULT``).
-    c_range : tuple of float or None
+        ``sound_speed_range``; None: the input's (else ``fpscan.constants.C_DEFAULT``). Text with a
+        unit is accepted (``"1.5 km/s"``).
+    sound_speed_range : tuple of float or None
         The autofocus search interval (c_min, c_max) in m/s, each within ``C_AUTOFOCUS_LIMITS``;
-        None: ``C_AUTOFOCUS_RANGE``.
+        None: ``C_AUTOFOCUS_RANGE``. Only with ``sound_speed="auto"``.
     force : bool
         Accept a speed (or an end of the interval) outside ``C_PLAUSIBLE`` (another medium).
 
     Examples
     --------
+    >>> from pydantic import ValidationError
     >>> from fpscan.service.recon.methods.options import SpeedOptions
-    >>> SpeedOptions.model_validate({"sound_speed": 1480}).c
+    >>> SpeedOptions.model_validate({"sound_speed": "1.48 km/s"}).sound_speed
     1480.0
-    >>> SpeedOptions.model_fields["c"].json_schema_extra["unit"]
+    >>> SpeedOptions.model_fields["sound_speed"].json_schema_extra["unit"]
     'm/s'
+    >>> try:
+    ...     SpeedOptions(sound_speed_range=(1450, 1600))
+    ... except ValidationError as exc:
+    ...     print(exc.errors()[0]["msg"])
+    Value error, sound_speed_range is the autofocus search interval: it needs sound_speed='auto', got None
     """
 
-    c: Speed | Literal["auto"] | None = Field(
-        None, validation_alias=AliasChoices("sound_speed", "c"),
-        description=f"speed of sound, m/s ({plausible_speeds()} unless force, "
-                    f"{C_LIMITS[0]:g}-{C_LIMITS[1]:g} with it), or 'auto': the speed of sharpest focus (Tenenbaum "
-                    f"sharpness, searched within sound_speed_range); default: the input's, else {C_DEFAULT:g}. "
-                    "Also accepted as c (deprecated)",
-        json_schema_extra={"unit": "m/s", "quantity": "speed", "flag": "--sound-speed", "shown": "sound_speed"})
-    c_range: tuple[AutofocusSpeed, AutofocusSpeed] | None = Field(
-        None, validation_alias=AliasChoices("sound_speed_range", "c_range"),
-        description="autofocus search interval (c_min, c_max), m/s (default "
-                    f"{C_AUTOFOCUS_RANGE[0]:g}-{C_AUTOFOCUS_RANGE[1]:g}). Also accepted as c_range (deprecated)",
-        json_schema_extra={"unit": "m/s", "quantity": "speed", "flag": "--sound-speed-range",
-                           "shown": "sound_speed_range"})
+    sound_speed: Speed | Literal["auto"] | None = Field(
+        None, description=f"speed of sound, m/s ({plausible_speeds()} unless force, "
+                          f"{C_LIMITS[0]:g}-{C_LIMITS[1]:g} with it), or 'auto': the speed of sharpest focus (Tenenbaum "
+                          f"sharpness, searched within sound_speed_range); default: the input's, else {C_DEFAULT:g}",
+        json_schema_extra={"unit": "m/s", "quantity": "speed", "flag": "--sound-speed"})
+    sound_speed_range: tuple[AutofocusSpeed, AutofocusSpeed] | None = Field(
+        None, description="autofocus search interval (c_min, c_max), m/s (default "
+                          f"{C_AUTOFOCUS_RANGE[0]:g}-{C_AUTOFOCUS_RANGE[1]:g}); with sound_speed 'auto' only",
+        json_schema_extra={"unit": "m/s", "quantity": "speed", "flag": "--sound-speed-range"})
     force: bool = Field(False, description=f"accept a sound_speed (or sound_speed_range) outside {plausible_speeds()} "
                                            "m/s (a medium other than tissue or water); without it such a value is "
                                            "refused as a likely unit mistake (fpscan.driver.units.check_speeds)")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _names_and_units(cls, data: Any) -> Any:
+        """An earlier release's names (:data:`DEPRECATED_NAMES`, warned), ``None`` (JSON null:
+        "the default") dropped, and numbers typed with a unit (``"30um"``, ``"600s"``,
+        ``"1.5 km/s"``) for every field whose schema names a ``quantity``: to SI by the one
+        parser (``fpscan.driver.units.parse_quantity``); numbers are SI already."""
+        if not isinstance(data, dict):
+            return data
+        data = renamed_options({k: v for k, v in data.items() if v is not None}, cls.model_fields)
+        for name, value in list(data.items()):
+            field = cls.model_fields.get(name)
+            extra = field.json_schema_extra if field is not None and isinstance(field.json_schema_extra, dict) else {}
+            kind = extra.get("quantity")
+            if kind is None:
+                continue
+            from fpscan.driver.units import parse_quantity
+
+            if isinstance(value, str) and not (name == "sound_speed" and value == "auto"):
+                try:
+                    data[name] = parse_quantity(value, str(kind), name=name)
+                except ValueError as exc:
+                    if name != "sound_speed":
+                        raise
+                    raise ValueError(f"sound_speed must be a speed (m/s, or with a unit: 1.5 km/s) or 'auto', "
+                                     f"got {value!r}") from exc
+            elif isinstance(value, (list, tuple)):
+                data[name] = [parse_quantity(v, str(kind), name=name) if isinstance(v, str) else v for v in value]
+        return data
+
+    @model_validator(mode="after")
+    def _speed_rule(self) -> Any:
+        """The speed-of-sound rule (``fpscan.driver.units.check_speeds``: a likely unit mistake
+        unless ``force``; forced, within ``fpscan.constants.C_LIMITS``); an interval needs
+        ``"auto"`` and is checked by ``fpscan.service.recon.checks.check_sound_speed_range``."""
+        from fpscan.driver.units import check_speeds
+
+        check_speeds(sound_speed=self.sound_speed, sound_speed_range=self.sound_speed_range, force=self.force)
+        if self.sound_speed_range is not None:  # never silently unused
+            if self.sound_speed != "auto":
+                from fpscan.service.recon.checks import OptionError
+
+                raise OptionError("sound_speed_range is the autofocus search interval: it needs "
+                                  f"sound_speed='auto', got {self.sound_speed!r}")
+            from fpscan.service.recon.checks import check_sound_speed_range
+
+            check_sound_speed_range(self.sound_speed_range)
+        return self
 
 
 def speed_schema() -> dict:
@@ -325,9 +433,11 @@ def speed_schema() -> dict:
             "limits": [C_LIMITS[0], C_LIMITS[1]]}
 
 
-class MethodOptions(BaseModel):
-    """The options every method takes (but ``c``, the speed of sound, which
-    :func:`fpscan.service.pipeline.reconstruct` owns: a number, the dataset's, or ``"auto"``).
+class MethodOptions(SpeedOptions):
+    """The options every method takes: the speed of sound (:class:`SpeedOptions`: ``sound_speed``,
+    ``sound_speed_range``, ``force``) and the precision. A method's options model subclasses it
+    (with the mix-ins below); an instance is what the library's
+    :func:`fpscan.service.pipeline.reconstruct`, a job's record and the method's ``run`` carry.
     Unknown names, NaN and infinities are refused.
 
     A frozen pydantic model; a value ``None`` (JSON null) is dropped before validation, so
@@ -335,6 +445,8 @@ class MethodOptions(BaseModel):
 
     Attributes
     ----------
+    sound_speed, sound_speed_range, force
+        :class:`SpeedOptions`'.
     dtype : {"float32", "float64"}
         Working and output precision (default ``fpscan.service.recon.limits.DEFAULT_DTYPE``,
         ``"float32"``); a NumPy dtype or scalar type is accepted and stored as its name.
@@ -358,14 +470,6 @@ class MethodOptions(BaseModel):
     """
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False, frozen=True)
-
-    @model_validator(mode="before")
-    @classmethod
-    def _null_is_the_default(cls, data: Any) -> Any:
-        """``None`` (JSON null) means "the method's default": such entries are dropped."""
-        if isinstance(data, dict):
-            return {k: v for k, v in data.items() if v is not None}
-        return data
 
     dtype: Dtype = Field(DEFAULT_DTYPE, description="working and output precision")
 

@@ -12,20 +12,20 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from fpscan.service.plugins import put_in_order
+from fpscan.service.plugins import PluginRegistry, put_in_order
 from fpscan.service.progress import Shown
 from fpscan.service.progress import outcome as outcome_line
-from fpscan.service.recon.methods.options import MethodOptions
-from fpscan.service.recon.methods.work import PLANAR_WORK_RATE, peak_model, planar_work
+from fpscan.service.recon.methods.options import DEPRECATED_NAMES, MethodOptions, SpeedOptions
+from fpscan.service.recon.methods.work import undeclared_peak, undeclared_work
 
 __all__ = ["Method", "Runner", "METHODS", "register", "get", "default_for", "INPUT_KINDS", "describe_error", "outcome",
            "estimate_peak_memory"]
 
-#: ``run(dataset, c, options, progress)`` -> ``Reconstruction`` (the package's docstring)
+#: ``run(dataset, sound_speed, options, progress)`` -> ``Reconstruction`` (the package's docstring)
 Runner = Callable[..., Any]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Method:
     """One reconstruction method.
 
@@ -44,17 +44,20 @@ class Method:
         True when it needs data on a full regular grid (a full lattice).
     options_model : type
         Its options (a :class:`MethodOptions` subclass: type, range, unit and default of
-        each; ``c``, the speed of sound in m/s, is every method's and not in it).
+        each; the speed of sound, ``sound_speed``, is every method's).
     run : callable
-        ``run(dataset, c, options, progress)`` -> ``Reconstruction`` (module docstring).
+        ``run(dataset, sound_speed, options, progress)`` -> ``Reconstruction``: ``sound_speed``
+        the speed of sound resolved to m/s, ``options`` an instance of ``options_model``
+        (the package's docstring).
     source : str
         Where the algorithm comes from.
     peak_memory : callable or None
         ``peak_memory(n_t, n_x, n_y, *, n_z, upsample, dtype, n_points, dx, dt, c, dz, t0,
         options, record_facts, bandwidth, **_)`` ->
         bytes at its peak (the memory admission, ``fpscan.service.jobs.admission``; a model of
-        ``fpscan.service.recon.memory``, :func:`peak_model`); None (default): NER's,
-        ``fpscan.service.recon.memory.planar_peak``.
+        ``fpscan.service.recon.memory``, :func:`peak_model`); None (default, a method that
+        declares none): the conservative rule
+        ``fpscan.service.recon.methods.work.undeclared_peak`` (never another method's model).
     order : int
         Position in lists (smaller first).
     work : callable or None
@@ -63,9 +66,10 @@ class Method:
         seconds on the reference 2 cores (:data:`FLOAT64_WORK`; the work admission,
         ``fpscan.service.jobs.admission.estimate_work``); it may raise ``OptionError`` for options
         the input cannot carry (tv: an image deeper than the record can hear). None
-        (default): :func:`planar_work` at :data:`PLANAR_WORK_RATE`.
+        (default, a method that declares none): the conservative rule
+        ``fpscan.service.recon.methods.work.undeclared_work``.
     iterative : bool
-        An iterative solver (seconds to hours): ``c = "auto"`` searches the sound speed with the
+        An iterative solver (seconds to hours): ``sound_speed="auto"`` searches the speed with the
         default direct method of the input (:func:`default_for`) and then runs it once.
     time_limited : bool
         It takes a ``time_limit`` option (s) that the server's ``time_limit_s`` setting caps (its
@@ -100,7 +104,7 @@ class Method:
         ``armed=False``), in words the progress line ends on after "once" (tv: ``"λ has
         settled"``; ``fpscan.service.progress.describe_iteration``); "" for none.
     options : tuple of str
-        The option names it takes: ``c`` and its model's fields.
+        The option names it takes: its model's fields.
     defaults : dict
         Its options' defaults (those that are values; ``None``: derived from the data).
 
@@ -109,9 +113,9 @@ class Method:
     >>> from fpscan.service.recon.methods import get
     >>> m = get("nedner")
     >>> m.name, m.needs_grid, m.options
-    ('nedner', False, ('c', 'eps', 'dtype', 'upsample', 'positivity', 'n_z', 'dz', 'device'))
+    ('nedner', False, ('sound_speed', 'sound_speed_range', 'force', 'eps', 'dtype', 'upsample', 'positivity', 'n_z', 'dz', 'device'))
     >>> m.defaults
-    {'eps': 1e-06, 'dtype': 'float32', 'upsample': 1, 'positivity': False, 'device': 'auto'}
+    {'eps': 1e-06, 'force': False, 'dtype': 'float32', 'upsample': 1, 'positivity': False, 'device': 'auto'}
     >>> m.check({"upsample": 2, "dz": "2e-5"}).dz  # m
     2e-05
     >>> m.check({"eps": 5e-15})
@@ -145,37 +149,138 @@ class Method:
 
     @property
     def options(self) -> tuple[str, ...]:
-        """The option names it takes: ``c`` and its model's fields."""
-        return ("c", *self.options_model.model_fields)
+        """The option names it takes: its model's fields, the speed of sound's first."""
+        fields = tuple(self.options_model.model_fields)
+        speed = tuple(SpeedOptions.model_fields)
+        return (*speed, *(f for f in fields if f not in speed))
 
     @property
     def defaults(self) -> dict[str, Any]:
         """Its options' defaults (those that are values; ``None``: derived from the data)."""
         return {k: f.default for k, f in self.options_model.model_fields.items() if f.default is not None}
 
-    def check(self, options: dict) -> MethodOptions:
-        """``options`` (names of its model; ``None`` = the default) validated by its model;
-        raises ``fpscan.service.recon.checks.OptionError`` (a ValueError) with the first refusal,
-        in the kernel rule's words (``eps must be in [1e-14, 1e-1], got 5e-15``).
+    def check(self, options: dict | MethodOptions | None = None, /, **given: Any) -> MethodOptions:
+        """Its options validated by its model: the one validation of a request's options at every
+        door (the library's :func:`fpscan.service.pipeline.reconstruct`, ``fpscan recon`` and
+        ``POST /api/reconstructions``); the result is what a job's record holds and the method's
+        ``run`` receives.
+
+        Parameters
+        ----------
+        options : dict or MethodOptions, optional
+            Option name -> value (SI units, or text with a unit for a length, time or speed;
+            ``None`` = the default); an instance of :attr:`options_model` is returned as is.
+        **given
+            More options (the library's keywords).
+
+        Returns
+        -------
+        MethodOptions
+            An instance of :attr:`options_model`, every field filled.
+
+        Raises
+        ------
+        fpscan.service.recon.checks.OptionError
+            (a ValueError) The first refusal, in the kernel rule's words (``eps must be in
+            [1e-14, 1e-1], got 5e-15``); an option of another method (naming this one's); a
+            name no method takes; ``sound_speed="auto"`` for a method that cannot search it
+            (it takes no depth grid, ``dz`` and ``n_z``, and is not iterative); another
+            method's options instance.
 
         Examples
         --------
         >>> from fpscan.service.recon.methods import get
-        >>> get("ner").check({"upsample": 2.0, "positivity": None}).model_dump()
-        {'eps': 1e-06, 'dtype': 'float32', 'upsample': 2, 'positivity': False, 'n_z': None, 'dz': None, 'device': 'auto'}
+        >>> get("ner").check({"upsample": 2.0, "positivity": None}, sound_speed=1480).model_dump(exclude_defaults=True)
+        {'sound_speed': 1480.0, 'upsample': 2}
         >>> get("ner").check({"lam": 0.1})
         Traceback (most recent call last):
         ...
-        fpscan.service.recon.checks.OptionError: unknown option lam
+        fpscan.service.recon.checks.OptionError: method 'ner' takes no option lam (its options: sound_speed, sound_speed_range, force, eps, ...)
         """
+        from fpscan.service.recon.checks import OptionError
+
+        if isinstance(options, MethodOptions):
+            if given or not isinstance(options, self.options_model):
+                raise OptionError(f"method {self.name!r} takes its own options ({self.options_model.__name__}), "
+                                  f"got {type(options).__name__}{' and keywords' if given else ''}")
+            return options
+        data = {**(options or {}), **given}
+        self.refuse_foreign(data)
         try:
-            return self.options_model.model_validate(options)
+            checked = self.options_model.model_validate(data)
         except ValidationError as exc:
+            err = exc.errors()[0]
+            original = (err.get("ctx") or {}).get("error")
+            if not err["loc"] and isinstance(original, ValueError):  # a rule across fields, as it was raised
+                raise original from None
+            raise OptionError(describe_error(exc)) from None
+        self.refuse_search(checked)
+        return checked
+
+    def refuse_search(self, options: MethodOptions) -> None:
+        """Refuse ``sound_speed="auto"`` where this method cannot search the speed of sound: the
+        search reconstructs every speed tried on one depth grid (``dz``, ``n_z``), which a direct
+        method must take (an iterative one searches with the input's default direct method).
+
+        Parameters
+        ----------
+        options : MethodOptions
+            Its validated options.
+
+        Raises
+        ------
+        fpscan.service.recon.checks.OptionError
+            ``"auto"`` for a method that cannot search.
+
+        Examples
+        --------
+        >>> from fpscan.service.recon.methods import get
+        >>> get("kwave").refuse_search(get("kwave").options_model(sound_speed="auto"))
+        Traceback (most recent call last):
+        ...
+        fpscan.service.recon.checks.OptionError: method 'kwave' cannot search the speed of sound (sound_speed 'auto'): ...
+        """
+        if options.sound_speed == "auto" and not self.iterative and not {"dz", "n_z"} <= set(self.options):
             from fpscan.service.recon.checks import OptionError
 
-            raise OptionError(describe_error(exc)) from None
+            raise OptionError(f"method {self.name!r} cannot search the speed of sound (sound_speed 'auto'): the "
+                              "search reconstructs every speed tried on one depth grid (dz, n_z), which it does not "
+                              f"take; give the speed of sound in m/s, or search with {default_for('grid')} first")
 
-    def upsample(self, options: dict) -> int:
+    def refuse_foreign(self, options: dict) -> None:
+        """Refuse an option of another method (an option that would do nothing is never silently
+        dropped), naming this method's options.
+
+        Parameters
+        ----------
+        options : dict
+            Option name -> value; ``None`` values pass (the default).
+
+        Raises
+        ------
+        fpscan.service.recon.checks.OptionError
+            A name another registered method takes and this one does not.
+
+        Examples
+        --------
+        >>> from fpscan.service.recon.methods import get
+        >>> get("tv").refuse_foreign({"lam": 0.1, "upsample": None})
+        >>> get("ner").refuse_foreign({"lam": 0.1})
+        Traceback (most recent call last):
+        ...
+        fpscan.service.recon.checks.OptionError: method 'ner' takes no option lam (its options: sound_speed, sound_speed_range, force, eps, ...)
+        """
+        mine = set(self.options)
+        known = {name for m in METHODS.values() for name in m.options}  # once: a body may hold thousands of names
+        foreign = sorted(k for k, v in options.items() if v is not None and DEPRECATED_NAMES.get(k, k) not in mine
+                         and DEPRECATED_NAMES.get(k, k) in known)
+        if foreign:
+            from fpscan.service.recon.checks import OptionError
+
+            raise OptionError(f"method {self.name!r} takes no option {', '.join(foreign)} "
+                              f"(its options: {', '.join(self.options)})")
+
+    def upsample(self, options: dict | MethodOptions) -> int:
         """The lateral upsampling factor of its image for the request's ``options``: their
         ``upsample`` where it takes that option (the planar methods), else 1.
 
@@ -185,15 +290,16 @@ class Method:
         >>> get("ner").upsample({"upsample": 2}), get("kwave").upsample({"upsample": 2}), get("ner").upsample({})
         (2, 1, 1)
         """
-        return int(options.get("upsample", 1) or 1) if "upsample" in self.options else 1
+        value = getattr(options, "upsample", None) if isinstance(options, MethodOptions) else options.get("upsample")
+        return int(value or 1) if "upsample" in self.options else 1
 
     def memory(self, n_t: int, n_x: int, n_y: int = 1, **kw: Any) -> int:
         """Peak bytes (:attr:`peak_memory`)."""
-        return (self.peak_memory or peak_model("planar_peak"))(n_t, n_x, n_y, **kw)
+        return (self.peak_memory or undeclared_peak)(n_t, n_x, n_y, **kw)
 
     def estimate_work(self, n_t: int, n_x: int, n_y: int = 1, **kw: Any) -> float:
         """Seconds of work on the reference 2 cores (:attr:`work`)."""
-        return float((self.work or planar_work(PLANAR_WORK_RATE))(n_t, n_x, n_y, **kw))
+        return float((self.work or undeclared_work)(n_t, n_x, n_y, **kw))
 
 
 def describe_error(exc: ValidationError) -> str:
@@ -223,15 +329,18 @@ def describe_error(exc: ValidationError) -> str:
     unknown option frobnicate
     """
     err = exc.errors()[0]
-    name = ".".join(str(p) for p in err["loc"]) or "options"
+    name = ".".join(str(p) for p in err["loc"])
     msg = str(err["msg"]).removeprefix("Value error, ")
+    if not name:  # a rule across fields says what it checks
+        return msg
     if err["type"] == "extra_forbidden":
         return f"unknown option {name}"
     return msg if msg.startswith(name) else f"{name}: {msg}"
 
 
-#: the method vocabulary (name -> Method), in the order lists show it
-METHODS: dict[str, Method] = {}
+#: the method vocabulary (name -> Method), in the order lists show it: fpscan's own, registered in
+#: code, and the plugins' (entry points of ``fpscan.methods``, read on the first lookup or listing)
+METHODS: PluginRegistry[Method] = PluginRegistry("fpscan.methods")
 
 
 def register(method: Method) -> Method:
@@ -263,16 +372,17 @@ def register(method: Method) -> Method:
     >>> from fpscan.service.recon.methods import METHODS, Method, MethodOptions, register
     >>> class ToyOptions(MethodOptions):
     ...     pass
-    >>> toy = register(Method("toy", "a toy", False, ToyOptions, run=print, order=1000))
+    >>> toy = register(Method(name="toy", title="a toy", needs_grid=False, options_model=ToyOptions, run=print,
+    ...                       order=1000))
     >>> list(METHODS)[-1], toy.options
-    ('toy', ('c', 'dtype'))
+    ('toy', ('sound_speed', 'sound_speed_range', 'force', 'dtype'))
     >>> del METHODS["toy"]
 
     An option named like another method's must keep its rule:
 
     >>> class Clash(MethodOptions):
     ...     eps: float = Field(1e-3, ge=0.0)
-    >>> register(Method("clash", "a clash", False, Clash, run=print))
+    >>> register(Method(name="clash", title="a clash", needs_grid=False, options_model=Clash, run=print))
     Traceback (most recent call last):
     ...
     ValueError: method 'clash': option eps differs from method 'nedner''s (...): one rule per option name

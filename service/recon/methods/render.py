@@ -12,9 +12,13 @@ from typing import Any
 
 from pydantic import BaseModel
 
+from fpscan.service.recon.methods.options import SpeedOptions
 from fpscan.service.recon.methods.registry import METHODS, Method
 
-__all__ = ["option_fields", "option_schemas", "range_text", "docs_table", "default_text"]
+#: the speed of sound's fields, every method's (``SpeedOptions``): the lists of a method's own options leave them out
+SPEED_FIELDS: tuple[str, ...] = tuple(SpeedOptions.model_fields)
+
+__all__ = ["SPEED_FIELDS", "option_fields", "option_schemas", "range_text", "docs_table", "default_text"]
 
 
 def option_fields() -> dict[str, Any]:
@@ -26,7 +30,8 @@ def option_fields() -> dict[str, Any]:
     -------
     dict
         Option name -> pydantic ``FieldInfo`` (``default``, ``description``,
-        ``json_schema_extra`` with the SI ``unit``); ``c`` is not among them.
+        ``json_schema_extra`` with the SI ``unit``); the speed of sound's fields, every method's
+        (:data:`SPEED_FIELDS`), are not among them.
 
     Examples
     --------
@@ -34,7 +39,7 @@ def option_fields() -> dict[str, Any]:
     >>> fields = option_fields()
     >>> list(fields)[:6]  # the first method's (nedner) first, then each later method's new ones
     ['eps', 'dtype', 'upsample', 'positivity', 'n_z', 'dz']
-    >>> {"interp", "lam", "iterations", "tol", "time_limit", "debias"} <= set(fields)  # kwave's, tv's
+    >>> {"interp", "lam", "max_iter", "tol", "time_limit", "debias"} <= set(fields)  # kwave's, tv's
     True
     >>> fields["dz"].json_schema_extra["unit"], fields["positivity"].default  # nedner's default
     ('m', False)
@@ -42,7 +47,8 @@ def option_fields() -> dict[str, Any]:
     out: dict[str, Any] = {}
     for m in METHODS.values():
         for name, f in m.options_model.model_fields.items():
-            out.setdefault(name, f)
+            if name not in SPEED_FIELDS:
+                out.setdefault(name, f)
     return out
 
 
@@ -61,7 +67,8 @@ def option_schemas(method: Method | type[BaseModel]) -> list[dict[str, Any]]:
     Returns
     -------
     list of dict
-        One per field of its options model, in the model's order (``c`` is not among them).
+        One per field of its options model, in the model's order (the speed of sound's fields,
+        :data:`SPEED_FIELDS`, are not among them: they are every method's, listed once).
 
     Examples
     --------
@@ -79,6 +86,8 @@ def option_schemas(method: Method | type[BaseModel]) -> list[dict[str, Any]]:
     props = model.model_json_schema()["properties"]
     out = []
     for name, p in props.items():
+        if name in SPEED_FIELDS and isinstance(method, Method):
+            continue
         value = next((b for b in p.get("anyOf", []) if b.get("type") != "null"), None) or \
             {k: v for k, v in p.items() if k not in ("anyOf", "default", "description", "title")}
         extra = {k: p[k] for k in ("unit", "quantity", "flag", "derived") if k in p}
@@ -146,7 +155,8 @@ def docs_table() -> str:
     lines = ["| method | input | options | source |", "|---|---|---|---|"]
     for m in METHODS.values():
         lines.append(f"| `{m.name}` | {'full grid' if m.needs_grid else 'any sensor points'} | "
-                     f"{', '.join(f'`{o}`' for o in m.options)} | {m.title}: {m.source} |")
+                     f"{', '.join(f'`{o}`' for o in ('sound_speed', *(o for o in m.options if o not in SPEED_FIELDS)))} | "
+                     f"{m.title}: {m.source} |")
     lines += ["", "| option | range | unit | default | meaning |", "|---|---|---|---|---|"]
     per: dict[str, dict] = {}
     for m in METHODS.values():

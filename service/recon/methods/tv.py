@@ -11,6 +11,9 @@ from pydantic import BeforeValidator, Field
 
 from fpscan.service.progress import IterationStage, Shown
 from fpscan.service.recon.limits import (
+    DEFAULT_DEVICE,
+    DEFAULT_DTYPE,
+    DEFAULT_EPS,
     DEFAULT_MAX_ITER,
     DEFAULT_TIME_LIMIT,
     DEFAULT_TOL,
@@ -19,7 +22,6 @@ from fpscan.service.recon.limits import (
     TIME_LIMIT_MAX,
     TOL_RANGE,
 )
-from fpscan.service.recon.methods import Method
 from fpscan.service.recon.methods.options import (
     DepthOptions,
     DeviceOption,
@@ -28,6 +30,7 @@ from fpscan.service.recon.methods.options import (
     NufftOptions,
     kernel_rule,
 )
+from fpscan.service.recon.methods.registry import Method
 
 if TYPE_CHECKING:
     from fpscan.service.progress import Progress
@@ -41,7 +44,7 @@ __all__ = ["Options", "run", "declared_bandwidth", "BANDWIDTH_KEY", "PAIR_RATE",
 Lam = Annotated[Annotated[float, Field(ge=LAM_RANGE[0], le=LAM_RANGE[1])] | None,
                 BeforeValidator(kernel_rule("check_lam"))]
 Iterations = Annotated[Annotated[int, Field(ge=ITERATIONS_RANGE[0], le=ITERATIONS_RANGE[1])] | None,
-                       BeforeValidator(kernel_rule("check_iterations"))]
+                       BeforeValidator(kernel_rule("check_max_iter"))]
 Tol = Annotated[Annotated[float, Field(ge=TOL_RANGE[0], le=TOL_RANGE[1])] | None,
                 BeforeValidator(kernel_rule("check_tol"))]
 TimeLimit = Annotated[Annotated[float, Field(gt=0, le=TIME_LIMIT_MAX)] | None,
@@ -59,7 +62,7 @@ class Options(DeviceOption, DepthOptions, MethodOptions, NufftOptions):
         Working and output precision (default ``"float32"``).
     n_z : int or None
         Output depth samples, 2..65536 (None: with dz None too, down to the depth of the
-        record's last echo above the noise; ``fpscan.service.recon.tv_grid``; else n_t).
+        record's last echo above the noise; ``fpscan.service.recon.tv.grid``; else n_t).
     dz : float or None
         Output depth spacing in m, [1e-9, 0.1] (None: with n_z None too, the lateral pitch (an
         isotropic grid at the band c / (2 pitch) the pitch resolves, or c / (2 f) at a declared
@@ -69,8 +72,9 @@ class Options(DeviceOption, DepthOptions, MethodOptions, NufftOptions):
     lam : float or None
         TV weight λ >= 0 in the data's units (Pa for data in Pa); None (default): from the
         estimated noise level (``fpscan.service.recon.tv``).
-    iterations : int
-        Maximum iterations of the solver (default ``DEFAULT_MAX_ITER``).
+    max_iter : int
+        The iteration cap of the solver (default ``DEFAULT_MAX_ITER``; ``iterations``, an earlier
+        release's name, is accepted with a ``DeprecationWarning``).
     time_limit : float
         Wall-time limit of the solver in s, in (0, 1 week] (default ``DEFAULT_TIME_LIMIT``).
     debias : bool
@@ -78,7 +82,7 @@ class Options(DeviceOption, DepthOptions, MethodOptions, NufftOptions):
     whole_record : bool
         Keep the whole record, and by default image its whole depth (default False: the image
         ends at the last echo and the record is kept until the farthest sensor hears its last
-        row; ``fpscan.service.recon.tv_grid``).
+        row; ``fpscan.service.recon.tv.grid``).
 
     Examples
     --------
@@ -96,10 +100,10 @@ class Options(DeviceOption, DepthOptions, MethodOptions, NufftOptions):
 
     positivity: Flag("positivity") = Field(True, description="constrain p0 >= 0")  # type: ignore[valid-type]
     lam: Lam = Field(None, description="TV weight λ in the data's units",
-                     json_schema_extra={"unit": "data units", "flag": "--lambda",
+                     json_schema_extra={"unit": "data units",
                                         "derived": "from the noise level and the warm start's misfit"})
-    iterations: Iterations = Field(DEFAULT_MAX_ITER, description="maximum iterations of the solver",
-                                   json_schema_extra={"unit": "1"})
+    max_iter: Iterations = Field(DEFAULT_MAX_ITER, description="the iteration cap of the solver",
+                                 json_schema_extra={"unit": "1"})
     tol: Tol = Field(DEFAULT_TOL, description="stopping threshold: stop when the image's relative change "
                      "per iteration, ‖x_k − x_k−1‖ / ‖x_k‖, stays below tol for 3 iterations "
                      "(0: run every iteration); smaller runs longer and stops nearer the minimiser (0.002: "
@@ -115,9 +119,9 @@ class Options(DeviceOption, DepthOptions, MethodOptions, NufftOptions):
         "line keeps its whole record), after which the model predicts silence")
 
 
-def run(ds: PointDataset, c: float, opts: dict, step: Progress) -> Reconstruction:
+def run(ds: PointDataset, sound_speed: float, options: Options, step: Progress) -> Reconstruction:
     """Model-based reconstruction of A-lines ``ds.alines`` ``(n, n_t)`` at ``ds.positions``
-    (m), ``c`` in m/s; the progress stage names the iteration (``"iteration k/N"``).
+    (m), ``sound_speed`` in m/s; the progress stage names the iteration (``"iteration k/N"``).
     ValueError when there are no A-lines.
 
     Parameters
@@ -125,10 +129,10 @@ def run(ds: PointDataset, c: float, opts: dict, step: Progress) -> Reconstructio
     ds : PointDataset
         ``alines`` ``(n, n_t)`` at ``positions`` ``(n, 1)`` x / ``(n, 2)`` (x, y) in m,
         ``weights`` (the NEDNER warm start's), ``grid``, ``dt`` and ``t0`` in s.
-    c : float
+    sound_speed : float
         Speed of sound, m/s.
-    opts : dict
-        The validated options, every field of :class:`Options` (``dtype`` a NumPy dtype).
+    options : Options
+        The validated options.
     step : callable
         ``step(fraction, stage)`` with increasing fractions in (0, 1] (a long step may
         repeat its fraction so that a cancel is heard); it may raise to cancel.
@@ -164,25 +168,26 @@ def run(ds: PointDataset, c: float, opts: dict, step: Progress) -> Reconstructio
     >>> p0 = np.zeros((12, 16))  # (n_z, n_x), pitch 0.1 mm
     >>> p0[5:8, 7:10] = 1.0
     >>> g = forward_grid(p0, dx=1e-4, dz=1e-4, dt=1e-4 / 1500, n_t=24, c=1500.0)
-    >>> ds = GridDataset(g, dx=1e-4, dt=1e-4 / 1500, c=1500.0).to_points()
-    >>> opts = {**Options(iterations=5, n_z=12).model_dump(), "dtype": np.dtype("float32")}
+    >>> ds = GridDataset(g, dx=1e-4, dt=1e-4 / 1500, sound_speed=1500.0).to_points()
     >>> stages = []
-    >>> r = run(ds, 1500.0, opts, lambda fraction, stage: stages.append(stage))
+    >>> r = run(ds, 1500.0, Options(max_iter=5, n_z=12), lambda fraction, stage: stages.append(stage))
     >>> r.p0.shape, r.p0.dtype, bool(r.p0.min() >= 0), r.params["iterations"]
     ((12, 16), dtype('float32'), True, 5)
     >>> stages[0], stages[-1]
     ('warm start', 'iteration 5/5')
     """
-    from fpscan.service.recon import reconstruct_tv
+    from fpscan.service.recon.tv.reconstruct import reconstruct_tv
 
     if ds.alines.shape[0] == 0:
         raise ValueError("the input has no A-lines to reconstruct")
-    opts = dict(opts)
-    iterations = opts.pop("iterations", None) or DEFAULT_MAX_ITER
-    positivity = bool(opts.pop("positivity", True))
-    return reconstruct_tv(ds.alines, ds.dt, c, positions=ds.positions, weights=ds.weights, grid=ds.grid,
-                          t0=ds.t0, max_iter=iterations, positivity=positivity, progress=_saying_why(step),
-                          bandwidth=declared_bandwidth(ds.meta), **opts)
+    o = options  # validated: a field is None only where its default is (the model fills the others)
+    return reconstruct_tv(ds.alines, ds.dt, sound_speed, positions=ds.positions, weights=ds.weights, grid=ds.grid,
+                          t0=ds.t0, max_iter=o.max_iter or DEFAULT_MAX_ITER, positivity=bool(o.positivity),
+                          lam=o.lam, tol=DEFAULT_TOL if o.tol is None else o.tol,
+                          time_limit=o.time_limit or DEFAULT_TIME_LIMIT, debias=bool(o.debias),
+                          whole_record=bool(o.whole_record), eps=o.eps or DEFAULT_EPS,
+                          dtype=o.dtype or DEFAULT_DTYPE, n_z=o.n_z, dz=o.dz, device=o.device or DEFAULT_DEVICE,
+                          progress=_saying_why(step), bandwidth=declared_bandwidth(ds.meta))
 
 
 #: the dataset's ``meta`` key of a sensor bandwidth the scan declares, Hz
@@ -372,7 +377,7 @@ def work(n_t: int, n_x: int, n_y: int = 1, *, dtype: Any = "float32", n_points: 
          options: dict | None = None, record_facts: dict | None = None, bandwidth: float | None = None,
          **_: Any) -> float:
     """The work of tv: seconds on the reference 2 cores for its operator pairs on its padded grid
-    (:data:`PAIR_RATE`: one per iteration up to ``iterations``, the debias refit's, and
+    (:data:`PAIR_RATE`: one per iteration up to ``max_iter``, the debias refit's, and
     :data:`SETUP_PAIRS`), the iterations' share capped by ``time_limit`` (s; the solver stops
     there), plus the NEDNER warm start. The grid is :func:`grid`'s, padded as the operator
     pads it (``fpscan.physics.grid_sizes.pad_sizes``); an image deeper than the record is
@@ -390,7 +395,7 @@ def work(n_t: int, n_x: int, n_y: int = 1, *, dtype: Any = "float32", n_points: 
         Pitch (m), sample interval (s), speed of sound (m/s), time of sample 0 (s); without
         ``dx``/``dt`` the warm start's estimate alone is counted.
     options : dict, optional
-        tv's options as asked (``dz``, ``n_z``, ``iterations``, ``time_limit``, ``debias``,
+        tv's options as asked (``dz``, ``n_z``, ``max_iter``, ``time_limit``, ``debias``,
         ``whole_record``).
     record_facts, bandwidth : optional
         The stored dataset's facts and declared sensor bandwidth (Hz), as :func:`grid`'s.
@@ -408,13 +413,13 @@ def work(n_t: int, n_x: int, n_y: int = 1, *, dtype: Any = "float32", n_points: 
     Examples
     --------
     >>> from fpscan.service.recon.methods.tv import work
-    >>> s = work(256, 64, 64, n_points=600, dx=1e-4, dt=3.3e-8, c=1500.0, options={"iterations": 100})
+    >>> s = work(256, 64, 64, n_points=600, dx=1e-4, dt=3.3e-8, c=1500.0, options={"max_iter": 100})
     >>> 30 < s < 600  # measured: 0.57 s a pair there
     True
     """
     from fpscan.service.recon.limits import DEFAULT_MAX_ITER, DEFAULT_TIME_LIMIT
-    from fpscan.service.recon.methods import FLOAT64_WORK, planar_work
     from fpscan.service.recon.methods.nedner import WORK_RATE as WARM_RATE
+    from fpscan.service.recon.methods.work import FLOAT64_WORK, planar_work
 
     o = dict(options or {})
     warm = planar_work(WARM_RATE)(n_t, n_x, n_y, n_points=n_points, dtype="float64")
@@ -429,7 +434,7 @@ def work(n_t: int, n_x: int, n_y: int = 1, *, dtype: Any = "float32", n_points: 
 
     points = math.prod(pad_sizes((chosen.n_z, n_y, n_x), dx, chosen.dz, chosen.dt, chosen.n_t, c, t0 or 0.0))
     pair = PAIR_RATE * points * math.log2(max(points, 2)) * (FLOAT64_WORK if str(dtype) == "float64" else 1.0)
-    iterations = int(o.get("iterations") or DEFAULT_MAX_ITER) + (DEBIAS_ITERATIONS if o.get("debias") else 0)
+    iterations = int(o.get("max_iter") or DEFAULT_MAX_ITER) + (DEBIAS_ITERATIONS if o.get("debias") else 0)
     limit = float(o.get("time_limit") or DEFAULT_TIME_LIMIT)
     return warm + SETUP_PAIRS * pair + min(iterations * pair, limit)
 
@@ -579,9 +584,10 @@ def _saying_why(step: Progress) -> Progress:
 
 
 METHOD = Method(
-    "tv", "model-based: TV + positivity on the exact model (iterative; sparse, noisy scans)", False, Options, run,
-    "½‖A p0 − g‖² + λ TV(p0), p0 ≥ 0, NER-preconditioned FISTA (Arridge et al., PMB 61 (2016) 8908)",
-    peak_memory, order=50, work=work, iterative=True, time_limited=True, warm_up=warm_up,
+    name="tv", title="model-based: TV + positivity on the exact model (iterative; sparse, noisy scans)",
+    needs_grid=False, options_model=Options, run=run,
+    source="½‖A p0 − g‖² + λ TV(p0), p0 ≥ 0, NER-preconditioned FISTA (Arridge et al., PMB 61 (2016) 8908)",
+    peak_memory=peak_memory, order=50, work=work, iterative=True, time_limited=True, warm_up=warm_up,
     kernel_modules=("fpscan.physics.nufft_kernels", "fpscan.service.recon.tv.prox", "fpscan.service.recon.tv.stores",
                     "fpscan.service.recon.tv.fista", "fpscan.service.recon.tv.preconditioner"), warm_in_background=True,
     memory_calibration=MEMORY_CALIBRATION, holds_input=True, summary=SUMMARY, stop_waits_for=STOP_WAITS_FOR)

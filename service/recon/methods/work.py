@@ -12,7 +12,8 @@ from collections.abc import Callable
 from typing import Any
 
 __all__ = ["peak_model", "FLOAT64_WORK", "PLANAR_WORK_RATE", "transform_units",
-           "planar_work"]
+           "planar_work", "UNDECLARED_COPIES", "UNDECLARED_BASE", "UNDECLARED_PAIR_RATE", "undeclared_peak",
+           "undeclared_work"]
 
 
 def peak_model(model: str, **fixed: Any) -> Callable[..., int]:
@@ -51,7 +52,7 @@ def peak_model(model: str, **fixed: Any) -> Callable[..., int]:
     True
     """
     def peak(n_t: int, n_x: int, n_y: int = 1, **kw: Any) -> int:
-        from fpscan.service.recon import memory
+        import fpscan.service.recon.memory as memory
 
         return int(getattr(memory, model)(n_t, n_x, n_y, **{**kw, **fixed}))
 
@@ -144,3 +145,93 @@ def planar_work(rate: float, per_point_sample: float = 0.0) -> Callable[..., flo
     return work
 
 
+#: the conservative rule for a method that declares no peak-memory model: this many float64 copies
+#: of the larger of its input (``n_t`` samples on every sensor) and its output volume (``n_z`` rows
+#: on the upsampled lateral grid). fpscan's own models peak at 1.5-22 such copies (measured with
+#: their models from 256 x 64^2 to 1024 x 226^2: NER 2.1-2.3, NEDNER 3.1-3.5, cubic 11.6-12.9, tv
+#: 1.7-4.9, k-Wave 1.5-22, the most at the smallest size); 32 is above all of them
+UNDECLARED_COPIES = 32
+#: bytes the conservative rule adds for the process's own needs (imports, buffers)
+UNDECLARED_BASE = 256 * 2**20
+#: the conservative rule for a method that declares no work model: seconds per (sensor, voxel)
+#: pair, float32 on the reference 2 cores -- a direct back-projection touches every A-line once per
+#: voxel; a plain numpy delay-and-sum (the gallery's plugin: a few passes of array arithmetic per
+#: pair, chunked over depth) measured 21-41 ns per pair there, so 50 ns is above it
+UNDECLARED_PAIR_RATE = 5e-8
+
+
+def _voxels(n_t: int, n_x: int, n_y: int, n_z: int | None, upsample: int) -> int:
+    u = int(upsample or 1)
+    return int(n_z or n_t) * int(n_x) * u * int(n_y) * u
+
+
+def undeclared_peak(n_t: int, n_x: int, n_y: int = 1, *, n_z: int | None = None, upsample: int = 1,
+                    n_points: int | None = None, **_: Any) -> int:
+    """The peak memory the admission counts for a method that declares no model (a plugin's):
+    :data:`UNDECLARED_COPIES` float64 copies of the larger of its input and its output, plus
+    :data:`UNDECLARED_BASE`. Never NER's figure: a method the admission knows nothing of is
+    judged by a rule above every model fpscan's own methods have.
+
+    Parameters
+    ----------
+    n_t : int
+        Samples per A-line.
+    n_x, n_y : int
+        The lateral grid (``n_y = 1`` in 2-D).
+    n_z : int, optional
+        Output depth rows (default ``n_t``).
+    upsample : int, optional
+        Lateral upsampling of the output.
+    n_points : int, optional
+        Sensors of point data (default every grid point, ``n_x n_y``).
+
+    Returns
+    -------
+    int
+        Bytes.
+
+    Examples
+    --------
+    >>> from fpscan.service.recon.methods.work import undeclared_peak
+    >>> undeclared_peak(256, 64, 64) // 2**20  # MiB: 32 float64 copies of 256 x 64 x 64 (256 MiB), + 256
+    512
+    """
+    inputs = int(n_t) * int(n_points or int(n_x) * int(n_y))
+    return int(UNDECLARED_COPIES * 8 * max(inputs, _voxels(n_t, n_x, n_y, n_z, upsample)) + UNDECLARED_BASE)
+
+
+def undeclared_work(n_t: int, n_x: int, n_y: int = 1, *, n_z: int | None = None, upsample: int = 1,
+                    n_points: int | None = None, dtype: Any = "float32", **_: Any) -> float:
+    """The seconds of work the admission counts for a method that declares no model (a
+    plugin's): :data:`UNDECLARED_PAIR_RATE` per (sensor, voxel) pair (a direct back-projection's
+    count), :data:`FLOAT64_WORK` times that in float64. Never NER's figure (``N log N``).
+
+    Parameters
+    ----------
+    n_t : int
+        Samples per A-line.
+    n_x, n_y : int
+        The lateral grid.
+    n_z : int, optional
+        Output depth rows (default ``n_t``).
+    upsample : int, optional
+        Lateral upsampling of the output.
+    n_points : int, optional
+        Sensors of point data (default every grid point).
+    dtype : str or numpy dtype, optional
+        The working precision.
+
+    Returns
+    -------
+    float
+        Seconds on the reference 2 cores.
+
+    Examples
+    --------
+    >>> from fpscan.service.recon.methods.work import undeclared_work
+    >>> round(undeclared_work(256, 64, 64), 1)  # 4096 sensors x 1 Mi voxels x 50 ns
+    214.7
+    """
+    pairs = float(n_points or int(n_x) * int(n_y)) * _voxels(n_t, n_x, n_y, n_z, upsample)
+    factor = FLOAT64_WORK if "64" in str(dtype) else 1.0
+    return UNDECLARED_PAIR_RATE * pairs * factor

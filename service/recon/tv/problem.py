@@ -67,7 +67,7 @@ def check_options(lam: float | None, max_iter: int, tol: float,
     fpscan.service.recon.checks.OptionError: lam (the TV weight λ) must be in [0, 1e+30], got -1.0
     """
     lam = None if lam is None else checks.check_lam(lam)
-    max_iter = checks.check_iterations(max_iter)
+    max_iter = checks.check_max_iter(max_iter)
     tol = checks.check_tol(tol)
     return lam, max_iter, tol, checks.check_time_limit(time_limit)
 
