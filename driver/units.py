@@ -198,6 +198,9 @@ def _guess(value: float, lo: float, hi: float, units: tuple) -> str:
     for factor in (1e3, 1e6):  # too small: typed in a unit 10³ or 10⁶ too small (60 nm for 60 µm)
         if lo <= value * factor <= hi:
             return _did_you_mean(value * factor, si)
+    for factor in (1e-3, 1e-6):  # too large: typed in a unit 10³ or 10⁶ too large (8 µs for 8 ns)
+        if lo <= value * factor <= hi:
+            return _did_you_mean(value * factor, si)
     return ""
 
 

@@ -30,7 +30,8 @@ if TYPE_CHECKING:
     from types import ModuleType
     from typing import Any
 
-__all__ = ["build_parser", "subcommand_modules", "NEGATIVE_QUANTITY", "allow_negative_quantities", "main", "reason", "in_flags",
+__all__ = ["build_parser", "subcommand_modules", "NEGATIVE_QUANTITY", "allow_negative_quantities", "join_units",
+           "refuse_unknown_options", "main", "reason", "in_flags",
            "CLOSED_PIPE", "closed_pipe"]
 
 
@@ -187,6 +188,128 @@ def _command_named(argv: list[str]) -> str | None:
     return None
 
 
+def _sub_parser(parser: argparse.ArgumentParser, argv: Sequence[str]) -> argparse.ArgumentParser | None:
+    """The innermost built parser ``argv`` names (``fpscan plan full``: the parser of ``full``);
+    None when it names no sub-command."""
+    found = None
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            word = next((w for w in argv if w in action.choices), None)
+            sub = action.choices.get(word) if word is not None else None
+            if isinstance(sub, argparse.ArgumentParser):
+                found = _sub_parser(sub, argv[argv.index(word) + 1:]) or sub
+            break
+    return found
+
+
+#: a number as one word (``100``, ``-2``, ``1.5e-3``) and a unit as the next one (``um``, ``µs``, ``km/s``)
+_NUMBER = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
+_UNIT_WORD = re.compile(r"^[A-Za-zµμ][A-Za-zµμ/]*$")
+
+
+def _quantity_with(action: argparse.Action, number: str, unit: str) -> bool:
+    """Whether ``number`` followed by the word ``unit`` is one value of ``action``: a flag whose
+    type reads a number with a unit as a float (or a list of them: ``--poi``)."""
+    if action.type is None or not _NUMBER.match(number) or not _UNIT_WORD.match(unit):
+        return False
+    try:
+        value = action.type(number + unit)  # type: ignore[operator]  # argparse's type: a callable
+    except Exception:  # argparse's own rule: any error of the type is a refused value
+        return False
+    values = value if isinstance(value, list) else [value]
+    return bool(values) and all(isinstance(v, float) for v in values)
+
+
+def join_units(parser: argparse.ArgumentParser, argv: Sequence[str]) -> list[str]:
+    """``argv`` with each value of a quantity flag typed as two words, a number and its unit
+    (``--pitch 100 um``, ``--poi -2 mm 2 mm``, ``--dt=8 ns``), joined into one (``100um``): the
+    shell splits ``100 um`` in two, and argparse would refuse the unit as an argument of its
+    own. A flag's type is a quantity when it reads the joined word as a number (m, s, Hz, m/s:
+    :func:`fpscan.clients.cli.common.quantity`); other words are left as they are.
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The sub-command's parser (its flags and their types).
+    argv : sequence of str
+        The command line's words.
+
+    Returns
+    -------
+    list of str
+        The words, a quantity flag's number and unit joined.
+    """
+    out: list[str] = []
+    words = list(argv)
+    i = 0
+    while i < len(words):
+        word = words[i]
+        out.append(word)
+        i += 1
+        if word == "--":
+            out.extend(words[i:])
+            break
+        name, eq, value = word.partition("=")
+        action = parser._option_string_actions.get(name) if word.startswith("--") else None
+        if action is None or action.nargs == 0:
+            continue
+        if eq:
+            if i < len(words) and _quantity_with(action, value, words[i]):
+                out[-1] = word + words[i]
+                i += 1
+            continue
+        nargs = action.nargs
+        count = nargs if isinstance(nargs, int) else (1 if nargs in (None, "?") else len(words))
+        while count > 0 and i < len(words) and (not words[i].startswith("-") or NEGATIVE_QUANTITY.match(words[i])):
+            value = words[i]
+            i += 1
+            count -= 1
+            if i < len(words) and _quantity_with(action, value, words[i]):
+                value += words[i]
+                i += 1
+            out.append(value)
+    return out
+
+
+def refuse_unknown_options(parser: argparse.ArgumentParser, argv: Sequence[str]) -> None:
+    """Refuse, naming the closest, a ``--flag`` that ``parser`` does not have but nearly does
+    (``--lamda`` for ``--lam``): argparse would only list it among "unrecognized arguments"
+    under the top-level usage. A flag with no close match, or a prefix argparse completes,
+    is left to argparse.
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The sub-command's parser.
+    argv : sequence of str
+        The command line's words.
+
+    Raises
+    ------
+    SystemExit
+        Status 2, after the sub-command's usage and ``fpscan COMMAND: error: unrecognized option
+        --lamda: did you mean --lam?`` on stderr.
+    """
+    import difflib
+
+    canonical: dict[str, str] = {}  # every long flag -> the flag its action is named by (--lambda -> --lam)
+    for action in parser._actions:
+        longs = [s for s in action.option_strings if s.startswith("--")]
+        if longs and action.help != argparse.SUPPRESS:
+            canonical.update(dict.fromkeys(longs, longs[0]))
+    for word in argv:
+        if word == "--":
+            return
+        name = word.partition("=")[0]
+        if not name.startswith("--") or len(name) < 3 or name in canonical:
+            continue
+        if any(flag.startswith(name) for flag in canonical):  # an abbreviation: argparse's to judge
+            continue
+        close = difflib.get_close_matches(name, list(canonical), n=1)
+        if close:
+            parser.error(f"unrecognized option {name}: did you mean {canonical[close[0]]}?")
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run ``fpscan`` with ``argv`` (default: ``sys.argv[1:]``); return the exit status.
 
@@ -210,6 +333,10 @@ def main(argv: list[str] | None = None) -> int:
     if command is None and "--version" in argv and not {"-h", "--help"} & set(argv):
         _top_parser().parse_args(argv)  # prints the version and exits; no subcommand is imported
     parser = build_parser(() if command is None else (command,))
+    sub = _sub_parser(parser, argv) if command is not None else None
+    if sub is not None:
+        argv = join_units(sub, argv)
+        refuse_unknown_options(sub, argv)
     args = parser.parse_args(argv)
     from fpscan.clients.cli.common import missing_extra, needs_extra
     from fpscan.driver.units import RefusedInput

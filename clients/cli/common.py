@@ -27,7 +27,7 @@ except ImportError:  # pragma: no cover -- fpscan.driver.units is part of every 
 
 __all__ = ["UsageError", "wrong_file", "check_input_files", "sniff_format", "add_server_options", "default_dtype",
            "EXTRA_OF_MODULE", "missing_extra", "needs_extra", "speed", "add_progress_option", "make_client",
-           "client_errors", "remember_job", "unreachable_hint", "describe_progress", "PROGRESS_PERIOD_S",
+           "TOKEN_HINT", "client_errors", "remember_job", "unreachable_hint", "describe_progress", "PROGRESS_PERIOD_S",
            "progress_period", "ProgressBar", "quantity", "format_bytes", "check_out_writable", "full_job_id",
            "delete_each"]
 
@@ -304,6 +304,11 @@ def make_client(args: argparse.Namespace, *, timeout: float = 60.0) -> Client:
                   timeout=timeout)
 
 
+#: how to give the server's token, in a 401's one line (the server's reason first)
+TOKEN_HINT = ("give the server's token with --token TOKEN or the FPSCAN_TOKEN environment variable "
+              "(the web page asks for it at its sign-in)")
+
+
 def client_errors(run: Callable[..., int]) -> Callable[..., int]:
     """Decorator for a sub-command's ``run(args)``: the HTTP client's errors become one line
     on stderr and an exit status.
@@ -320,7 +325,8 @@ def client_errors(run: Callable[..., int]) -> Callable[..., int]:
         :func:`unreachable_hint`) and gives 2 when the server refused the request as given
         (HTTP 400, 404 an unknown id, or 422: the usage error of the local checks,
         ``fpscan.clients.cli.main``), 1 for the server's state (409), access (401/403), load
-        (429) and failures; any other exception passes through.
+        (429) and failures; any other exception passes through. A 401 names how to give the
+        token (:data:`TOKEN_HINT`).
     """
 
     @functools.wraps(run)
@@ -329,11 +335,15 @@ def client_errors(run: Callable[..., int]) -> Callable[..., int]:
             return run(args)
         except Exception as exc:
             # imported here: a command that ran locally never loads the HTTP client (httpx: 0.2 s)
-            from fpscan.clients.http import ApiError, FpscanClientError
+            from fpscan.clients.http import ApiError, AuthError, FpscanClientError
+            from fpscan.clients.http.errors import format_detail
 
             if not isinstance(exc, FpscanClientError):
                 raise
-            print(f"fpscan {args.command}: error: {exc}{unreachable_hint(args, exc)}", file=sys.stderr)
+            message = str(exc)
+            if isinstance(exc, AuthError) and exc.hint:  # how to give the token, in the command line's words
+                message = f"HTTP {exc.status_code}: {format_detail(exc.detail)}; {TOKEN_HINT}"
+            print(f"fpscan {args.command}: error: {message}{unreachable_hint(args, exc)}", file=sys.stderr)
             return 2 if isinstance(exc, ApiError) and exc.status_code in (400, 404, 422) else 1
 
     return wrapper

@@ -12,7 +12,7 @@ from typing import Any
 
 __all__ = [
     "FpscanClientError", "ServerUnavailable", "format_detail", "ApiError", "AuthError", "NotFound",
-    "Conflict", "JobError", "JobFailed", "JobCancelled", "WaitTimeout", "error_for_status",
+    "TOKEN_HINT", "Conflict", "JobError", "JobFailed", "JobCancelled", "WaitTimeout", "error_for_status",
 ]
 
 
@@ -145,12 +145,26 @@ class ApiError(FpscanClientError):
 
 
 class AuthError(ApiError):
-    """401/403: the bearer token is missing or wrong.
+    """401/403: the bearer token is missing or wrong (401), or the server refuses the request's
+    host or origin (403).
+
+    A 401's message adds how to give the token (:data:`TOKEN_HINT`) after the server's reason;
+    ``detail`` stays the server's reason verbatim.
+
+    Parameters
+    ----------
+    status_code, detail, method, url
+        As :class:`ApiError`.
+    hint : str, optional
+        How to give the token, appended to a 401's message (default :data:`TOKEN_HINT`, in the
+        Python client's words; the command line names ``--token``).
 
     Attributes
     ----------
     status_code, detail, method, url
         As :class:`ApiError`.
+    hint : str
+        The hint of the message ("" for a 403).
 
     Examples
     --------
@@ -159,7 +173,20 @@ class AuthError(ApiError):
     >>> exc = error_for_status(401, "missing bearer token")
     >>> type(exc).__name__, isinstance(exc, ApiError)
     ('AuthError', True)
+    >>> print(exc)
+    HTTP 401: missing bearer token; give the server's token: Client(url, token=...) or the FPSCAN_TOKEN environment variable
     """
+
+    def __init__(self, status_code: int, detail: Any, *, method: str = "", url: str = "",
+                 hint: str | None = None):
+        super().__init__(status_code, detail, method=method, url=url)
+        self.hint = (TOKEN_HINT if hint is None else hint) if status_code == 401 else ""
+        if self.hint:
+            self.args = (f"{self.args[0]}; {self.hint}",)
+
+
+#: how to give the server's token, in a 401's message from the Python client
+TOKEN_HINT = "give the server's token: Client(url, token=...) or the FPSCAN_TOKEN environment variable"
 
 
 class NotFound(ApiError):

@@ -284,6 +284,11 @@ def _data_array(variables: dict, key: str | None, listed: list[str]) -> tuple[np
     else:
         found = [k for k, v in variables.items() if isinstance(v, np.ndarray) and v.ndim in (2, 3)
                  and k not in _NAMES]
+        p0 = [p for p in ("p0", "p0_true", "source.p0") if _get(variables, p) is not None]
+        if not found and p0:  # k-Wave's input, not its output
+            raise ValueError(f"the MAT-file holds an initial pressure {p0[0]} (a phantom: k-Wave's source.p0) but no "
+                             f"sensor data (variables: {', '.join(listed) or 'none'}): it is a phantom, not a scan to "
+                             "reconstruct")
         if len(found) != 1:
             raise ValueError(f"no variable sensor_data in the MAT-file and cannot tell which holds the data "
                              f"(variables: {', '.join(listed) or 'none'}); give key")

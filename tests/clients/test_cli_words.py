@@ -56,3 +56,36 @@ def test_help_lists_every_input_format_and_action_as_spelled():
     for fmt in upload_formats():
         assert fmt["name"] in choices, (fmt["name"], choices)
         assert f"`{fmt['name']}`" in api_doc, fmt["name"]
+
+
+def test_an_unknown_option_names_the_closest():
+    r = fpscan("recon", "x.npy", "--lamda", "0.1")
+    assert r.returncode == 2, r.stderr
+    assert r.stderr.rstrip().splitlines()[-1] == "fpscan recon: error: unrecognized option --lamda: did you mean --lam?"
+    assert "usage: fpscan recon" in r.stderr
+    r = fpscan("plan", "full", "--n-x", "8", "--pich=100um")  # a sub-command's sub-command, --flag=value
+    assert r.returncode == 2 and "unrecognized option --pich: did you mean --pitch?" in r.stderr, r.stderr
+
+
+def test_a_quantity_takes_its_unit_as_the_next_word(tmp_path):
+    r = fpscan("plan", "full", "--n-x", "8", "--pitch", "100", "um", "--dt", "8", "ns", "--out", tmp_path / "p.json")
+    assert r.returncode == 0, r.stderr
+    import json
+
+    plan = json.loads((tmp_path / "p.json").read_text())
+    assert plan["lattice"]["pitch"] == 1e-4 and plan["acquisition"]["dt"] == 8e-9
+
+
+def test_a_time_in_a_unit_too_large_suggests_the_plausible_one(tmp_path):
+    np.save(tmp_path / "line.npy", np.zeros((64, 8)))
+    r = fpscan("recon", tmp_path / "line.npy", "--dt", "8us", "--dx", "100um", "--out", tmp_path / "out")
+    assert r.returncode == 2, r.stderr
+    assert "dt 8e-06 s is implausible" in r.stderr and "did you mean 8 ns (8ns)?" in r.stderr, r.stderr
+
+
+def test_a_mat_file_of_only_p0_is_named_a_phantom(tmp_path):
+    scipy.io.savemat(tmp_path / "phantom.mat", {"p0": np.ones((16, 16)), "dx": 1e-4})
+    r = fpscan("recon", tmp_path / "phantom.mat")
+    assert r.returncode == 2, r.stderr
+    assert "initial pressure p0" in r.stderr and "no sensor data" in r.stderr and "phantom, not a scan" in r.stderr
+    assert "variables: " in r.stderr and "give --key" not in r.stderr, r.stderr

@@ -110,6 +110,13 @@ def test_jobs_against_a_server(server):
     assert res.returncode == 1 and ("401" in res.stderr or "403" in res.stderr)
 
 
+def test_a_refused_token_says_how_to_give_it(server):
+    """A 401 keeps the server's reason and names the ways to give the token."""
+    for token, why in ((None, "missing bearer token"), ("wrong", "invalid bearer token")):
+        res = fpscan("jobs", "list", "--server", server, *(("--token", token) if token else ()), env=clean_env())
+        _one_line_error(res, "HTTP 401", why, "--token TOKEN", "FPSCAN_TOKEN", "sign-in", code=1)
+
+
 @pytest.fixture(scope="module")
 def kwave3d(shared_data):
     return shared_data / "kwave3d_balls_yarn.h5"

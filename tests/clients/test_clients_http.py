@@ -72,6 +72,8 @@ def test_bad_or_missing_token_raises_auth_error_with_server_detail(server, token
     assert err.value.status_code == raw.status_code
     assert err.value.detail == raw.json()["detail"]
     assert raw.json()["detail"] in str(err.value)
+    if raw.status_code == 401:  # how to give the token, after the server's reason
+        assert "token=" in str(err.value) and "FPSCAN_TOKEN" in str(err.value), str(err.value)
 
 
 def test_unknown_job_raises_not_found_with_detail(api, server):
