@@ -873,6 +873,16 @@ class ScanData:
     completed_all: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), bool))
     meta_all: dict = field(default_factory=dict)
 
+    def __repr__(self) -> str:
+        """One line: the file, its plan, points measured of planned, samples, dt and wavelengths
+        (never the arrays)."""
+        from fpscan.wire.brief import one_line
+
+        wl = ", ".join(f"{w * 1e9:g}" for w in np.atleast_1d(self.wavelengths)[:4])
+        more = ", ..." if np.size(self.wavelengths) > 4 else ""
+        return one_line(f"ScanData({self.path.name!r}: plan {self.plan_id[:12]}, {int(np.count_nonzero(self.completed))} of "
+                        f"{self.n_points} points, n_t {self.n_t} x dt {self.dt * 1e9:.4g} ns, wavelengths {wl}{more} nm)")
+
     def at_wavelength(self, index: int) -> ScanData:
         """The same data with the per-A-line views at wavelength ``index`` (views, no copy).
         Raises ``ValueError`` if ``index`` is not in ``[0, n_wavelengths)``."""

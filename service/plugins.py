@@ -262,8 +262,21 @@ class PluginRegistry(dict[str, T], Generic[T]):
         return super().__len__()
 
     def __repr__(self) -> str:
+        """One line: the group and the names registered (after loading the plugins).
+
+        Examples
+        --------
+        >>> from fpscan.service.plugins import PluginRegistry
+        >>> reg = PluginRegistry("fpscan.methods")
+        >>> reg["builtin"] = 1
+        >>> reg
+        PluginRegistry(fpscan.methods: 1 entry: builtin)
+        """
+        from fpscan.wire.brief import one_line
+
         self._load()
-        return super().__repr__()
+        n = len(self)
+        return one_line(f"PluginRegistry({self.group}: {n} entr{'y' if n == 1 else 'ies'}: {', '.join(self)})")
 
     def get(self, key: Any, default: Any = None) -> Any:
         """``dict.get``, after loading the plugins."""

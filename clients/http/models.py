@@ -158,7 +158,7 @@ class PlanPreview(Answer, wire.PlanPreview):
     --------
     >>> from fpscan.clients.http.models import PlanPreview
     >>> PlanPreview.model_validate({"points": 53, "weight_ratio": 2.83})
-    PlanPreview(points=53, weight_ratio=2.83, expected_scan_time_s=None, preview_png_base64=None)
+    PlanPreview(points=53, weight_ratio=2.83)
     """
 
 
@@ -298,7 +298,7 @@ class Scanner(Answer, wire.Scanner):
     --------
     >>> from fpscan.clients.http.models import Scanner
     >>> Scanner.model_validate({"id": "sim", "status": "idle"})
-    Scanner(id='sim', port=None, status='idle', job_id=None, identity=None)
+    Scanner(id='sim', status='idle')
     """
 
 

@@ -14,14 +14,31 @@ from typing import Any
 
 from pydantic import BaseModel, Field
 
+from fpscan.wire.brief import fields_repr, html_table, one_line
+
 __all__ = ["Plan", "PlanPreview", "JobProgress", "Attempt", "Timings", "Job", "Scanner", "PreviewInfo", "DiskUse",
            "ComputeDevice", "Health", "MethodOption", "MethodInfo", "DatasetFormatInfo", "FormatInfo", "Dataset",
            "DatasetInfo"]
 
+class _Wire(BaseModel):
+    """The base of the wire models: a one-line repr of the fields that hold a value, each
+    in a few characters (``fpscan.wire.brief.fields_repr``: lists and dicts by their sizes)."""
+
+    def __repr__(self) -> str:
+        try:
+            return self._brief()
+        except Exception:  # an answer kept unvalidated (a field missing or of another type): its fields
+            return fields_repr(type(self).__name__, self)
+
+    def _brief(self) -> str:
+        """The one line of this model (subclasses name their key fields)."""
+        return fields_repr(type(self).__name__, self)
+
+
 _SCAN_TIME = "points × averages × wavelengths / PRF, s; null when the plan sets no PRF (unthrottled)"
 
 
-class Plan(BaseModel):
+class Plan(_Wire):
     """A stored plan's summary.
 
     Attributes
@@ -60,8 +77,38 @@ class Plan(BaseModel):
     acquisition: dict[str, Any] = Field(default_factory=dict)
     links: dict[str, str] = Field(default_factory=dict)
 
+    def _where(self) -> str:
+        lat = self.lattice
+        try:
+            return f" on {lat['n_x']}x{lat.get('n_y', 1)} at {float(lat['pitch']) * 1e6:.4g} µm"
+        except (KeyError, TypeError, ValueError):
+            return ""
 
-class PlanPreview(BaseModel):
+    def _brief(self) -> str:
+        """One line: the id's start, the mask kind, points (of those asked) and the lattice.
+
+        Examples
+        --------
+        >>> from fpscan.wire.models import Plan
+        >>> Plan(id="d1f13f63ebef4fa6", kind="full", n_points=9, requested_points=9,
+        ...      lattice={"n_x": 3, "n_y": 3, "pitch": 1e-4})
+        Plan(d1f13f63ebef: full, 9 of 9 points on 3x3 at 100 µm)
+        """
+        asked = f" of {self.requested_points}" if self.requested_points is not None else ""
+        time = f", scan {self.expected_scan_time_s:.3g} s" if self.expected_scan_time_s is not None else ""
+        return one_line(f"{type(self).__name__}({self.id[:12]}: {self.kind}, {self.n_points}{asked} points"
+                        f"{self._where()}{time})")
+
+    def _repr_html_(self) -> str:
+        acq = self.acquisition
+        return html_table(f"{type(self).__name__} {self.id}", [
+            ("kind", self.kind), ("points", self.n_points), ("requested", self.requested_points),
+            ("lattice", self._where().removeprefix(" on ") or None), ("weight ratio", self.weight_ratio),
+            ("n_t", acq.get("n_t")), ("dt (s)", acq.get("dt")), ("expected scan time (s)", self.expected_scan_time_s),
+            ("shortfall", self.shortfall)])
+
+
+class PlanPreview(_Wire):
     """A plan built and drawn, not stored.
 
     Attributes
@@ -82,7 +129,7 @@ class PlanPreview(BaseModel):
     preview_png_base64: str | None = None
 
 
-class JobProgress(BaseModel):
+class JobProgress(_Wire):
     """A job's progress (the ``progress`` of a :class:`Job`).
 
     Attributes
@@ -121,7 +168,7 @@ class JobProgress(BaseModel):
                                "full disk), one line; cleared when it resumes")
 
 
-class Attempt(BaseModel):
+class Attempt(_Wire):
     """An attempt of a job that was cut off and re-queued.
 
     Attributes
@@ -143,7 +190,7 @@ class Attempt(BaseModel):
     reason: str | None = None
 
 
-class Timings(BaseModel):
+class Timings(_Wire):
     """When a job was created, started and finished (UNIX times, s) and how long it waited and ran.
 
     Attributes
@@ -165,7 +212,7 @@ class Timings(BaseModel):
     earlier_attempts: Sequence[Attempt] = Field(default_factory=list)
 
 
-class Job(BaseModel):
+class Job(_Wire):
     """A scan or reconstruction job.
 
     Attributes
@@ -200,8 +247,31 @@ class Job(BaseModel):
     attempts: int = 0
     error: str | None = None
 
+    def _brief(self) -> str:
+        """One line: the id, kind, state, progress (share and stage) and the error's start.
 
-class Scanner(BaseModel):
+        Examples
+        --------
+        >>> from fpscan.wire.models import Job
+        >>> Job(id="j1", kind="recon", state="running", progress={"fraction": 0.5, "stage": "reconstructing"})
+        Job(j1: recon running, 50% reconstructing)
+        """
+        pr = self.progress
+        error = f", error {self.error[:80]!r}" if self.error else ""
+        tries = f", attempt {self.attempts}" if self.attempts > 1 else ""
+        return one_line(f"{type(self).__name__}({self.id}: {self.kind} {self.state}, {pr.fraction:.0%} {pr.stage}"
+                        f"{tries}{error})")
+
+    def _repr_html_(self) -> str:
+        pr, t = self.progress, self.timings
+        method = self.params.get("method") if isinstance(self.params, dict) else None
+        return html_table(f"{type(self).__name__} {self.id}", [
+            ("kind", self.kind), ("state", self.state), ("progress", f"{pr.fraction:.0%} {pr.stage}"),
+            ("method", method), ("eta (s)", pr.eta_s), ("queued (s)", t.queued_s), ("run (s)", t.run_s),
+            ("attempts", self.attempts or None), ("error", self.error)])
+
+
+class Scanner(_Wire):
     """A scanner the server is configured with, and what it is doing.
 
     Attributes
@@ -225,7 +295,7 @@ class Scanner(BaseModel):
     identity: str | None = None
 
 
-class PreviewInfo(BaseModel):
+class PreviewInfo(_Wire):
     """A scan's live preview state.
 
     Attributes
@@ -250,7 +320,7 @@ class PreviewInfo(BaseModel):
 
 
 # -- the server itself ---------------------------------------------------------------
-class DiskUse(BaseModel):
+class DiskUse(_Wire):
     """Bytes the data folder uses, by part, and the free space of its file system.
 
     Attributes
@@ -274,7 +344,7 @@ class DiskUse(BaseModel):
     free_bytes: int | None = None
 
 
-class ComputeDevice(BaseModel):
+class ComputeDevice(_Wire):
     """A device reconstructions can run on (the ``devices`` of :class:`Health`).
 
     Attributes
@@ -295,7 +365,7 @@ class ComputeDevice(BaseModel):
     memory_total: int | None = None
 
 
-class Health(BaseModel):
+class Health(_Wire):
     """The server is alive, what it runs and what keeps jobs from running.
 
     Attributes
@@ -329,7 +399,7 @@ class Health(BaseModel):
 
 
 # -- reconstruction methods and file formats -----------------------------------------
-class MethodOption(BaseModel):
+class MethodOption(_Wire):
     """One option of a reconstruction method, or a file format's load option.
 
     Attributes
@@ -353,7 +423,7 @@ class MethodOption(BaseModel):
                                          "(length/time: text with a unit accepted); forms are built from it")
 
 
-class MethodInfo(BaseModel):
+class MethodInfo(_Wire):
     """One reconstruction method.
 
     Attributes
@@ -398,7 +468,7 @@ class MethodInfo(BaseModel):
         "summary rows")
 
 
-class DatasetFormatInfo(BaseModel):
+class DatasetFormatInfo(_Wire):
     """One format a dataset upload accepts.
 
     Attributes
@@ -417,7 +487,7 @@ class DatasetFormatInfo(BaseModel):
                                           "chooses one)")
 
 
-class FormatInfo(BaseModel):
+class FormatInfo(_Wire):
     """One file format of the server's registry: what it reads and what it exports.
 
     Attributes
@@ -458,7 +528,7 @@ class FormatInfo(BaseModel):
 
 
 # -- datasets ------------------------------------------------------------------------
-class Dataset(BaseModel):
+class Dataset(_Wire):
     """An uploaded dataset as the upload stored it.
 
     Attributes
@@ -493,7 +563,7 @@ class Dataset(BaseModel):
     content_sha256: str | None = Field(None, description="SHA-256 of the uploaded file's bytes")
 
 
-class DatasetInfo(BaseModel):
+class DatasetInfo(_Wire):
     """A stored dataset as the list of datasets shows it.
 
     Attributes

@@ -181,6 +181,21 @@ class Format:
     noun: str = ""
     rank: int = 1000
 
+    def __repr__(self) -> str:
+        """One line: the name, title, container and what it does (never its callables).
+
+        Examples
+        --------
+        >>> from fpscan.service.formats import FORMATS
+        >>> FORMATS["npy"]  # doctest: +ELLIPSIS
+        Format(npy: 'NumPy array, ...', file, reads input, ...)
+        """
+        from fpscan.wire.brief import one_line
+
+        does = [w for w, on in (("reads input", self.input and self.load is not None), ("uploads", self.upload),
+                                ("writes", self.write is not None), ("exports", self.export is not None)) if on]
+        return one_line(f"Format({self.name}: {self.title!r}, {self.container}{''.join(', ' + d for d in does)})")
+
     @property
     def what(self) -> str:
         """The format as a noun in a message: ``noun``, else ``"a <name> file"``."""

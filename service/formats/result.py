@@ -32,6 +32,7 @@ from fpscan.driver.scanfile import PRESSURE_UNITS
 from fpscan.service.disk import copy_replaced
 from fpscan.service.formats.registry import Format, Source
 from fpscan.service.names import current_names
+from fpscan.wire.brief import one_line
 
 if TYPE_CHECKING:
     from fpscan.service.recon.reconstruction import Reconstruction
@@ -410,6 +411,23 @@ class ResultVolume:
     params: dict
     input_id: str
     attrs: dict = field(default_factory=dict)
+
+    def __repr__(self) -> str:
+        """One line: the method, p0's shape and dtype, the input's id and each axis's extent (never
+        the arrays).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from fpscan.service.formats.result import ResultVolume
+        >>> ResultVolume(p0=np.zeros((4, 3), np.float32), z=np.arange(4) * 1e-4, x=np.array([-1e-4, 0.0, 1e-4]),
+        ...              y=None, method="ner", params={}, input_id="abc")
+        ResultVolume(ner: p0 (4, 3) float32, input abc, z 0 to 0.3 mm, x -0.1 to 0.1 mm)
+        """
+        extents = [(n, v) for n, v in (("z", self.z), ("y", self.y), ("x", self.x)) if v is not None and len(v)]
+        span = "".join(f", {n} {float(v[0]) * 1e3:.4g} to {float(v[-1]) * 1e3:.4g} mm" for n, v in extents)
+        return one_line(f"ResultVolume({self.method}: p0 {tuple(self.p0.shape)} {self.p0.dtype}, input "
+                        f"{self.input_id[:16]}{span})")
 
     @property
     def ndim(self) -> int:

@@ -35,6 +35,7 @@ from fpscan.service.plans.kinds import make_mask, resolve_kind
 from fpscan.service.plans.lattice import Lattice
 from fpscan.service.plans.mask import Mask, weight_ratio
 from fpscan.service.plans.ordering import ORDERS, auto_order, scan_order
+from fpscan.wire.brief import fields_repr, html_table, one_line
 
 if TYPE_CHECKING:
     import h5py
@@ -85,6 +86,9 @@ def _finite(name: str, v: float) -> float:
 
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
+
+    def __repr__(self) -> str:  # one line, lists and dicts by their sizes (fpscan.wire.brief)
+        return fields_repr(type(self).__name__, self, skip_none=False)
 
 
 class LatticeSpec(_Strict):
@@ -340,6 +344,32 @@ class Plan(_Strict):
         return self
 
     # -- arrays ---------------------------------------------------------------------
+    def __repr__(self) -> str:
+        """One line: the id's start, the mask kind, points (of those asked) on the lattice, the
+        order and the acquisition (never the points or weights).
+
+        Examples
+        --------
+        >>> from fpscan.service.plans import Lattice, full_mask, make_plan
+        >>> make_plan(full_mask(Lattice(3, 3, 1e-4)))  # doctest: +ELLIPSIS
+        Plan(...: full, 9 of 9 points on 3x3 at 100 µm, serpentine, n_t 1024 x dt 8 ns, 1 wavelength)
+        """
+        lat, acq, n_wl = self.lattice, self.acquisition, len(self.acquisition.wavelengths)
+        return one_line(f"Plan({self.id[:12]}: {self.mask.kind}, {self.n_points} of {self.mask.requested_points} points "
+                        f"on {lat.n_x}x{lat.n_y} at {lat.pitch * 1e6:.4g} µm, {self.order}, n_t {acq.n_t} x dt "
+                        f"{acq.dt * 1e9:.4g} ns, {n_wl} wavelength{'s' if n_wl != 1 else ''})")
+
+    def _repr_html_(self) -> str:
+        """A table for notebooks: id, mask, lattice, order, acquisition and the expected scan time."""
+        lat, acq = self.lattice, self.acquisition
+        return html_table(f"Plan {self.id}", [
+            ("mask", f"{self.mask.kind}: {self.n_points} of {self.mask.requested_points} points"),
+            ("lattice", f"{lat.n_x}x{lat.n_y} at {lat.pitch * 1e6:.4g} µm"), ("order", self.order),
+            ("weight ratio", self.mask.weight_ratio), ("n_t", acq.n_t), ("dt", f"{acq.dt * 1e9:.4g} ns"),
+            ("averages", acq.averages), ("wavelengths (nm)", ", ".join(f"{w * 1e9:g}" for w in acq.wavelengths)),
+            ("PRF", f"{acq.prf:g} Hz"), ("sound speed", f"{acq.sound_speed:g} m/s"),
+            ("expected scan time", f"{t:.3g} s" if (t := self.expected_scan_time_s) is not None else None)])
+
     @property
     def n_points(self) -> int:
         return len(self.points.indices)

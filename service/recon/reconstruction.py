@@ -73,6 +73,18 @@ class Reconstruction:
         return (f"Reconstruction({method + ': ' if method else ''}p0 {tuple(self.p0.shape)} {self.p0.dtype} {axes} "
                 f"{self.p0_unit}{peak}{span})")
 
+    def _repr_html_(self) -> str:
+        """A table for notebooks: the method, p0's shape, unit and peak, each axis's extent (mm)
+        and every parameter used (never the arrays)."""
+        from fpscan.wire.brief import brief, html_table
+
+        extents = [(f"{name} (mm)", f"{float(v[0]) * 1e3:.4g} to {float(v[-1]) * 1e3:.4g}")
+                   for name, v in (("z", self.z), ("y", self.y), ("x", self.x)) if v is not None and len(v)]
+        return html_table("Reconstruction", [
+            ("method", self.params.get("method")), ("p0", f"{tuple(self.p0.shape)} {self.p0.dtype}"),
+            ("unit", self.p0_unit), ("max", f"{float(np.max(self.p0)):.4g}" if self.p0.size else None), *extents,
+            *((k, brief(v)) for k, v in self.params.items() if k != "method")])
+
     @property
     def ndim(self) -> int:
         """2 for a line-sensor (x, z) image, 3 for a plane-sensor volume."""

@@ -147,6 +147,22 @@ class Method:
     summary: tuple[Shown, ...] = ()
     stop_waits_for: str = ""
 
+    def __repr__(self) -> str:
+        """One line: the name, title, what input it needs and what it is (never its callables).
+
+        Examples
+        --------
+        >>> from fpscan.service.recon.methods import METHODS
+        >>> METHODS["ner"]
+        Method(ner: 'NER-NUFFT (full regular grid)', needs a full grid, options: sound_speed, ...)
+        """
+        from fpscan.wire.brief import one_line
+
+        kind = "iterative" if self.iterative else ("needs a full grid" if self.needs_grid else "any sensor mask")
+        source = f", from {self.source}" if self.source and self.source != "builtin" else ""
+        shown = ", ".join(self.options[:1]) + (", ..." if len(self.options) > 1 else "")
+        return one_line(f"Method({self.name}: {self.title!r}, {kind}, options: {shown or 'none'}{source})")
+
     @property
     def options(self) -> tuple[str, ...]:
         """The option names it takes: its model's fields, the speed of sound's first."""
