@@ -8,8 +8,8 @@ nothing but copy bytes from the tty to its stdout, a pipe the host enlarges to 1
 reads in large blocks. Its first byte out is a frame delimiter (0x00, which the deframer
 skips) that says it is reading: the host waits for it before it sends a command, so the
 relay's start-up is never taken for a lost command. The relay exits when its stdout is closed, on a tty error (the
-message goes to stderr), or within 0.1 s of its parent's death; it ignores SIGINT (a
-Ctrl-C is the host's to handle). Should it end anyway, the host reads the tty itself.
+message goes to stderr), or within 0.1 s of its parent's death; it ignores SIGINT and
+SIGTERM (a Ctrl-C or a ``kill`` of the process group is the host's to handle). Should it end anyway, the host reads the tty itself.
 """
 from __future__ import annotations
 
@@ -79,7 +79,9 @@ def relay(fd: int, out: int = 1, parent: int | None = None) -> int:
 if __name__ == "__main__":
     import signal
 
-    # Ctrl-C in a terminal reaches the whole process group: the host handles it (and
-    # needs the relay to leave the scanner idle); the relay ends with its parent
+    # Ctrl-C in a terminal (and a SIGTERM to the process group, as a service manager sends
+    # it) reaches the relay too: the host handles it (and needs the relay to leave the
+    # scanner idle); the relay ends with its parent
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     sys.exit(relay(int(sys.argv[1]), parent=int(sys.argv[2]) if len(sys.argv) > 2 else None))

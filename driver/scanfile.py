@@ -90,7 +90,7 @@ from fpscan.driver.plan import canonical_json, check_plan, wavelength_order
 __all__ = [
     "FORMAT", "FORMAT_1", "META_KEYS", "META_DTYPE", "META_CHUNK", "COMPLETED_CHUNK", "DURABLE_POLICIES",
     "open_readonly", "open_checked", "ScanFile", "ScanData", "PRESSURE_UNITS", "pressure_unit", "completed_count",
-    "read_scan", "read_open_scan", "FORMAT_FAMILY", "superblock_open_for_write"]
+    "read_scan", "read_open_scan", "FORMAT_FAMILY", "superblock_open_for_write", "Repaired", "repair"]
 
 FORMAT = "fpscan-scan/2"
 #: the single-wavelength layout of fpscan ≤ 0.x, still read by read_scan
@@ -226,6 +226,43 @@ def _clear_status_flags(path: Path) -> bool:
         fh.flush()
         os.fsync(fh.fileno())
     return True
+
+
+_DEFERRED_SIGNALS = ("SIGINT", "SIGTERM")
+
+
+@contextmanager
+def _signals_deferred() -> Iterator[None]:
+    """Hold SIGINT and SIGTERM back while the block runs, then deliver them.
+
+    In the main thread (the only one whose signal handlers Python runs) each of the two
+    signals gets a handler that only records it; on leaving, the previous handlers are put
+    back and every recorded signal is raised again (``signal.raise_signal``), so its own
+    handler (``KeyboardInterrupt``, a program's handler, or the default action) acts after
+    the block. Elsewhere a plain block.
+    """
+    import signal
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    pending: list[int] = []
+    before: dict[int, Any] = {}
+
+    def record(signum: int, frame: object) -> None:
+        if signum not in pending:
+            pending.append(signum)
+
+    try:
+        for name in _DEFERRED_SIGNALS:
+            signum = getattr(signal, name)
+            before[signum] = signal.signal(signum, record)
+        yield
+    finally:
+        for signum, handler in before.items():
+            signal.signal(signum, handler if handler is not None else signal.SIG_DFL)
+        for signum in pending:
+            signal.raise_signal(signum)
 
 
 # --- writer lock ------------------------------------------------------------------------
@@ -473,6 +510,7 @@ class ScanFile:
             # rows never written hold whatever the disk held: zero them in memory
             self._meta[:, :n][self._done[:, :n] == 0] = np.zeros((), META_DTYPE)
         self._sync_fd = os.open(path, os.O_RDONLY) if durable == "fsync" else None
+        self._writing: tuple[int, int] | None = None  # the A-line an append is writing
         self._closed = False
 
     # -- construction ---------------------------------------------------------------------
@@ -569,7 +607,8 @@ class ScanFile:
         """Reopen an existing scan file (interrupted or not) to continue appending.
 
         If ``plan`` is given, its id must equal the file's plan id (ValueError otherwise).
-        Clears the superblock flags a killed writer left behind. Waits up to ``timeout`` s
+        Clears the superblock flags a killed writer left behind, and zeroes the samples and
+        metadata of the A-lines it had not marked complete (:func:`repair`). Waits up to ``timeout`` s
         while readers hold HDF5's file lock. Raises FileNotFoundError, ValueError (not a
         scan file, plan mismatch, another writer holds the lock, file still locked).
         """
@@ -580,7 +619,7 @@ class ScanFile:
             raise FileNotFoundError(f"no scan file at {path}")
         lock_fd = _acquire_lock(path)
         try:
-            _clear_status_flags(path)
+            was_open = _clear_status_flags(path)
             try:
                 f = _open_h5(path, timeout, mode="r+", libver="latest")
             except OSError as exc:
@@ -596,14 +635,16 @@ class ScanFile:
                     if pid != f.attrs["plan_id"]:
                         raise ValueError(f"plan {pid!r} does not match the scan file's plan "
                                          f"{f.attrs['plan_id']!r}")
+                if was_open:  # its writer died: drop the A-line it had not marked complete
+                    _zero_incomplete(f, np.asarray(f["completed"][()], dtype=bool))
                 f.swmr_mode = True
+                return cls(path, f, lock_fd, durable)
             except BaseException:
                 f.close()
                 raise
         except BaseException:
             _release_lock(path, lock_fd)
             raise
-        return cls(path, f, lock_fd, durable)
 
     # -- properties -----------------------------------------------------------------------
     @property
@@ -658,6 +699,7 @@ class ScanFile:
         with self._mutex:
             if self._done[w, k]:
                 return False
+            self._writing = (w, k)  # until the flag is on disk (close() undoes a broken append)
             data = np.ascontiguousarray(samples, dtype="<i2")
             self._alines_id.write_direct_chunk((w, k, 0), data)
             m0 = k - k % META_CHUNK
@@ -671,9 +713,24 @@ class ScanFile:
             except BaseException:
                 self._done[w, k] = 0
                 raise
+            self._writing = None
             if self._sync_fd is not None:
                 os.fsync(self._sync_fd)
         return True
+
+    def _unwrite(self, w: int, k: int) -> None:
+        """Undo an append that an exception (a ``KeyboardInterrupt`` between its writes)
+        broke off: A-line ``[w, k]`` is written back as never written (zero samples, a zero
+        metadata record, its flag as the in-memory record says, which the failed append
+        left 0), so the file holds exactly the A-lines whose ``append`` returned."""
+        self._done[w, k] = 0
+        self._alines_id.write_direct_chunk((w, k, 0), np.zeros(self.n_t, "<i2"))
+        m0 = k - k % META_CHUNK
+        self._meta[w, k] = np.zeros((), META_DTYPE)
+        self._meta_id.write_direct_chunk((w, m0), self._meta[w, m0:m0 + self._meta_chunk])
+        c0 = k - k % COMPLETED_CHUNK
+        self._done_id.write_direct_chunk((w, c0), self._done[w, c0:c0 + self._done_chunk])
+        self._writing = None
 
     @staticmethod
     def _uint(key: str, v: Any) -> int:
@@ -747,19 +804,28 @@ class ScanFile:
             os.fsync(fd)
 
     def close(self) -> None:
-        """Flush, close the HDF5 file (clearing its open-for-write flags) and the lock."""
+        """Flush, close the HDF5 file (clearing its open-for-write flags) and the lock.
+
+        Not interrupted by SIGINT or SIGTERM when called from the main thread: a signal that
+        arrives meanwhile is delivered once the file is closed (:func:`_signals_deferred`),
+        so a Ctrl-C or a ``kill`` never leaves the file open for writing.
+        """
         if self._closed:
             return
-        try:
-            self.flush()
-        finally:
-            self._closed = True
+        with _signals_deferred():
             try:
-                self._f.close()
+                with self._mutex:
+                    if self._writing is not None:
+                        self._unwrite(*self._writing)
+                self.flush()
             finally:
-                if self._sync_fd is not None:
-                    os.close(self._sync_fd)
-                _release_lock(self._path, self._lock_fd)
+                self._closed = True
+                try:
+                    self._f.close()
+                finally:
+                    if self._sync_fd is not None:
+                        os.close(self._sync_fd)
+                    _release_lock(self._path, self._lock_fd)
 
     def __enter__(self) -> ScanFile:
         return self
@@ -992,6 +1058,123 @@ def completed_count(path: str | os.PathLike, *, timeout: float = 5.0) -> int:
             raise ValueError(f"{path} is not an {FORMAT} (or {FORMAT_1}) file")
         done = np.asarray(f["completed"][()], dtype=bool)
     return int(np.count_nonzero(done if done.ndim == 1 else done.all(axis=0)))
+
+
+@dataclass(frozen=True)
+class Repaired:
+    """What :func:`repair` found and did.
+
+    Attributes
+    ----------
+    was_open : bool
+        The superblock said a writer had the file open (a writer killed, or a power cut):
+        its flags were cleared.
+    n_points : int
+        Points of the plan.
+    points_done : int
+        Points complete at every wavelength (the record's count, unchanged by the repair).
+    alines_done : int
+        A-lines (point, wavelength) complete.
+    alines_cleared : int
+        A-lines not marked complete whose samples or metadata were on disk (written by a
+        writer that died before it marked them complete): zeroed, as a never-written A-line.
+    """
+
+    was_open: bool
+    n_points: int
+    points_done: int
+    alines_done: int
+    alines_cleared: int
+
+
+def repair(path: str | os.PathLike, *, timeout: float = 10.0) -> Repaired:
+    """Close a scan file that its writer left open (``SIGKILL``, a crash, a power cut), so
+    that any HDF5 reader opens it: ``h5py.File(path, "r")`` included.
+
+    Takes the writer lock (a file being written is refused), checks the superblock
+    (checksum, stored end of file against the file's size) and that it is a scan file, clears
+    the superblock's open-for-write flags (what ``h5clear -s`` does), then opens it for
+    writing without SWMR and makes its content the record's: the samples and metadata of
+    every A-line not marked complete in ``/completed`` are zeroed (at most the A-line being
+    written when the writer died has any), the record itself is left as it is. Closing the
+    file then leaves its flags clear. A file closed cleanly is checked the same way and left
+    with the same content; resuming the scan (:meth:`ScanFile.open_append`) does all of this
+    too.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The scan file.
+    timeout : float, optional
+        Seconds to retry while a reader holds HDF5's file lock (default 10).
+
+    Returns
+    -------
+    Repaired
+        What was found and done.
+
+    Raises
+    ------
+    FileNotFoundError
+        No file at ``path``.
+    ValueError
+        Not a scan file, a corrupt or truncated HDF5 file, or a file another process is writing.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no scan file at {path}")
+    lock_fd = _acquire_lock(path)
+    try:
+        with open_readonly(path, timeout) as f:  # a scan file? (as an SWMR reader if left open)
+            fmt = f.attrs.get("format")
+        if fmt not in (FORMAT, FORMAT_1):
+            raise ValueError(f"{path} is not an {FORMAT} (or {FORMAT_1}) file")
+        was_open = _clear_status_flags(path)
+        try:
+            f = _open_h5(path, timeout, mode="r+", libver="latest")
+        except OSError as exc:
+            raise ValueError(f"{path} cannot be opened as HDF5: {exc}") from None
+        with f:
+            done = np.asarray(f["completed"][()], dtype=bool)
+            if done.ndim == 1:  # fpscan-scan/1: one wavelength, no first axis
+                done = done[None]
+            cleared = _zero_incomplete(f, done)
+            n = int(f.attrs["n_points"])
+        return Repaired(was_open, n, int(done.all(axis=0).sum()), int(done.sum()), cleared)
+    finally:
+        _release_lock(path, lock_fd)
+
+
+def _zero_incomplete(f: h5py.File, done: np.ndarray) -> int:
+    """Zero the samples and metadata of the A-lines not marked complete that hold any (read
+    a block of points at a time); their count. ``done``: ``(n_wavelengths, n_points)``."""
+    one = f["alines"].ndim == 2  # fpscan-scan/1: one wavelength, no first axis
+    alines, meta = f["alines"], f["aline_meta"]
+    zero_rec = np.zeros((), meta.dtype)
+    cleared = 0
+    block = 256
+    for w in range(done.shape[0]):
+        for lo in range(0, done.shape[1], block):
+            hi = min(lo + block, done.shape[1])
+            todo = np.flatnonzero(~done[w, lo:hi])
+            if not todo.size:
+                continue
+            at: Any = (slice(lo, hi),) if one else (w, slice(lo, hi))
+            rows = np.asarray(meta[at])
+            samples = np.asarray(alines[at])
+            for r in todo:
+                stray_meta = rows[r].tobytes() != zero_rec.tobytes()
+                stray_samples = bool(samples[r].any())
+                if not (stray_meta or stray_samples):
+                    continue
+                k = lo + int(r)
+                row: Any = (k,) if one else (w, k)
+                if stray_meta:
+                    meta[row] = zero_rec
+                if stray_samples:
+                    alines[row] = np.zeros(samples.shape[-1], alines.dtype)
+                cleared += 1
+    return cleared
 
 
 def read_scan(path: str | os.PathLike, *, dtype: Any = np.float64,

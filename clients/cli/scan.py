@@ -7,9 +7,13 @@ plan (only the missing points are acquired). With ``--server URL --scanner ID``:
 scanned as a server job (``POST /api/scans``) with a progress bar; ``--out`` then gets the
 scan file when it is done; ``--preview-wavelength M`` picks which of a multi-wavelength
 plan's excitation wavelengths the server's live preview shows. Exit codes: 0 complete,
-1 error or incomplete, 130 interrupted (Ctrl-C: the scanner is left idle, the file keeps
-every point acquired so far, and the message says to run the same command again to
-resume). Rates count only the points this run acquired.
+1 error or incomplete, 130 interrupted by Ctrl-C (SIGINT), 143 stopped by SIGTERM (``kill``):
+either way the scanner is left idle, the file is closed cleanly (any HDF5 reader opens it,
+``h5py.File(path, "r")`` included) and keeps every point acquired so far, and the message
+says how many points it holds and to run the same command again to resume; a second
+signal while it stops is ignored. After ``kill -9`` or a power cut the file is left open
+for writing: the same command resumes it, ``fpscan repair`` closes it. Rates count only
+the points this run acquired.
 """
 from __future__ import annotations
 
@@ -124,10 +128,12 @@ def run(args: argparse.Namespace) -> int:
     -------
     int
         The exit status of a local scan: 0 when the scan is complete; 1 incomplete (aborted or
-        stopped); 2 a ``--plan`` that is no plan; 130 interrupted (the same command resumes).
+        stopped); 2 a ``--plan`` that is no plan; 130 interrupted (SIGINT), 143 stopped by SIGTERM
+        (the file closed; the same command resumes).
         Errors of the client become exit 1, or 2 when the server refused the request as given
         (``fpscan.clients.cli.common.client_errors``).
     """
+    import signal
     import sys
     import time
 
@@ -151,8 +157,9 @@ def run(args: argparse.Namespace) -> int:
     before = _points_on_disk(args.out)
     last: dict = {}
     t0 = time.monotonic()
+    stop = _StopOnSignal()
     try:
-        with ProgressBar("scan", quiet=args.quiet) as bar:
+        with stop, ProgressBar("scan", quiet=args.quiet) as bar:
             def progress(p: ScanProgress) -> None:
                 last.update(done=p.points_done, total=p.n_points)
                 bar({"stage": p.state, "points_done": p.points_done, "points_total": p.n_points,
@@ -163,14 +170,18 @@ def run(args: argparse.Namespace) -> int:
             result = acquire(args.device, plan, args.out, progress=progress,
                              durable="fsync" if args.fsync else "process", window=args.window,
                              response_timeout=args.timeout)
-    except KeyboardInterrupt:
-        done = max(_points_on_disk(args.out), last.get("done", 0))
+    except KeyboardInterrupt as exc:
+        # the scan file is closed (acquire's sink.close(), which no signal interrupts): count
+        # what it holds now, not what a progress report said before
+        signum = exc.signum if isinstance(exc, _Stopped) else signal.SIGINT
+        done = _points_on_disk(args.out)
         this_run, seconds = max(done - before, 0), time.monotonic() - t0
         total = f"/{last['total']}" if "total" in last else ""
-        print(f"fpscan scan: interrupted: {done}{total} points are in {args.out} ({this_run} this run in "
+        how = "" if signum == signal.SIGINT else f" ({signal.Signals(signum).name})"
+        print(f"fpscan scan: interrupted{how}: {done}{total} points are in {args.out} ({this_run} this run in "
               f"{seconds:.1f} s). The scanner is idle; to resume, run the same command again:\n"
               f"  {_same_command()}", file=sys.stderr)
-        return 130
+        return 128 + signum
     this_run = max(result.points_done - before, 0)
     rate = this_run / result.acquisition_s if result.acquisition_s > 0 else 0.0
     n_faults = result.faults_recovered
@@ -186,6 +197,43 @@ def run(args: argparse.Namespace) -> int:
               "; run the same command again to resume", file=sys.stderr)
         return 1
     return 0
+
+
+class _Stopped(KeyboardInterrupt):
+    """SIGINT or SIGTERM stopped a local scan (``signum``): raised in the main thread like
+    Ctrl-C's ``KeyboardInterrupt``, so the scan leaves the device idle and closes its file."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = signum
+
+
+class _StopOnSignal:
+    """While a local scan runs: SIGINT and SIGTERM raise :class:`_Stopped` once; a second
+    signal, while the scan stops (the device left idle, the file closed), is ignored, so
+    that nothing breaks off the file's close (``kill -9`` still ends the process)."""
+
+    def __init__(self) -> None:
+        self.signum: int | None = None
+        self._before: dict[int, Any] = {}
+
+    def _on_signal(self, signum: int, frame: object) -> None:
+        if self.signum is None:
+            self.signum = signum
+            raise _Stopped(signum)
+
+    def __enter__(self) -> _StopOnSignal:
+        import signal
+
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            self._before[signum] = signal.signal(signum, self._on_signal)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        import signal
+
+        for signum, handler in self._before.items():
+            signal.signal(signum, handler if handler is not None else signal.SIG_DFL)
 
 
 def _bad_plan(exc: ValueError) -> int:
