@@ -389,6 +389,8 @@ def in_flags(message: str, *, options: bool = False) -> str:
     import re
 
     message = message.replace("force a value outside the range", "give --force for a value outside the range")
+    message = re.sub(r'give the load option axes, e\.g\. axes="([a-z,]+)" or axes="([a-z,]+)" \([^)]*\)',
+                     r"give --axes \1 or --axes \2", message)  # fpscan.service.formats.npy.time_axes'
     message = re.sub(r"\bgive (key|dt|dx|dy)\b", r"give --\1", message)
     message = re.sub(r"given \((key|dt|dx|dy)\)", r"given (--\1)", message)
     message = re.sub(r"^(key|dt|dx|dy) is neither given", r"--\1 is neither given", message)

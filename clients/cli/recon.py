@@ -258,7 +258,7 @@ def _local(args: argparse.Namespace, fmt: str) -> int:
         say(f"reconstructing {'every wavelength ' if args.wavelength == 'all' else ''}with {method} "
             f"(input {list(shape)})")
 
-    load = {"dt": args.dt, "dx": args.dx, "dy": args.dy, "key": args.key, "force": args.force,
+    load = {"dt": args.dt, "dx": args.dx, "dy": args.dy, "key": args.key, "axes": args.axes, "force": args.force,
             "sound_speed": None if args.sound_speed == "auto" else args.sound_speed}
     plan = _read_plan(args.plan) if args.plan else None
     from fpscan.service.subsample import MaskMismatch
@@ -342,7 +342,7 @@ def _remote(args: argparse.Namespace, fmt: str | None) -> int:
 
             check_plausible(dt=args.dt, dx=args.dx, dy=args.dy, sound_speed=None if args.sound_speed == "auto" else args.sound_speed,
                             force=args.force)
-            fields = {k: getattr(args, k) for k in ("dt", "dx", "dy", "key", "wavelength")}
+            fields = {k: getattr(args, k) for k in ("dt", "dx", "dy", "key", "axes", "wavelength")}
             fields["sound_speed"] = args.sound_speed
             if args.force:
                 fields["force"] = True

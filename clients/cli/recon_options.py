@@ -98,12 +98,15 @@ _LOAD_FALLBACK: list[dict[str, Any]] = [
      "schema": {"type": "number", "unit": "m", "quantity": "length"}},
     {"name": "key", "description": "HDF5 dataset path (or MAT-file variable) of the data in a k-Wave file",
      "formats": [], "schema": {"type": "string"}},
+    {"name": "axes", "description": "the array's axis order, e.g. y,x,t (k-Wave's sensor order) or t,y,x; 2-D x,t "
+                                    "(k-Wave's sensor,time) or t,x; default: time first where the shape shows it",
+     "formats": [], "schema": {"type": "string"}},
 ]
 
 
 def add_load_flags(group: Any, *, skip: tuple[str, ...] = ("wavelength",)) -> None:
     """One flag per load option of the registered file formats (``fpscan.service.formats.load_options``:
-    ``--dt``, ``--dx``, ``--dy``, ``--key``), with the formats that take each in its help; a value
+    ``--dt``, ``--dx``, ``--dy``, ``--key``, ``--axes``), with the formats that take each in its help; a value
     the chosen format does not take is refused when the file is loaded.
 
     Parameters
@@ -193,7 +196,7 @@ def option_flags() -> dict[str, str]:
     for m in methods.METHODS.values():
         for o in methods.option_schemas(m):
             out.setdefault(o["name"], o["schema"].get("flag") or "--" + o["name"].replace("_", "-"))
-    for name in ("key", "dt", "dx", "dy"):
+    for name in ("key", "axes", "dt", "dx", "dy"):
         out[name] = "--" + name
     return out
 

@@ -146,7 +146,7 @@ def _local(args: argparse.Namespace) -> int:
         say(f"{len(args.inputs) if len(args.inputs) > 1 else 'every'} wavelength(s) of {', '.join(args.inputs)}, "
             f"method {method}")
 
-    load = {k: getattr(args, k) for k in ("dt", "dx", "dy", "key")}
+    load = {k: getattr(args, k) for k in ("dt", "dx", "dy", "key", "axes")}
     summary = run_file(args.inputs, out, args.method, format=args.format, wavelengths=args.wavelengths,
                        unmix={"threshold": args.threshold, "fluence": args.fluence}, load=load,
                        input_id=",".join(args.inputs), on_loaded=loaded,
@@ -172,7 +172,7 @@ def _remote(args: argparse.Namespace) -> int:
 
             job_id = api.start_unmix(scan_job_id=full_job_id(api, args.scan_job), method=method, params=_params(args), **unmix)
         else:
-            fields = {k: getattr(args, k) for k in ("dt", "dx", "dy", "key")}
+            fields = {k: getattr(args, k) for k in ("dt", "dx", "dy", "key", "axes")}
             ids = [api.upload_dataset(p, fmt, **fields) for p, fmt in zip(args.inputs, formats, strict=True)]
             job_id = api.start_unmix(dataset_ids=ids, wavelengths=args.wavelengths, method=method,
                                      params=_params(args), **unmix)

@@ -1596,6 +1596,8 @@ async function uploadAndReconstruct(ev) {
   } catch (err) { showError(err); return; }
   const key = $("upload-key").value.trim();
   if (key && takesLoadOption("key")) form.append("key", key);
+  const axes = $("upload-axes").value.trim();
+  if (axes && takesLoadOption("axes")) form.append("axes", axes);
   $("upload-start").disabled = true;
   $("upload-state").textContent = `Uploading ${file.name}…`;
   try {

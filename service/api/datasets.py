@@ -1,8 +1,10 @@
 """Dataset upload: ``POST /api/datasets`` (multipart ``file`` + ``format`` + spacings).
 
 Formats: those of the registry marked ``upload`` (``fpscan.service.formats``; listed by
-``GET /api/datasets/formats``, each module documenting its layout): ``npy`` (a NumPy array
-in k-Wave layout, time first, with form fields ``dt`` (s), ``dx`` (m), optional ``dy``
+``GET /api/datasets/formats``, each module documenting its layout): ``npy`` (a NumPy array,
+time first unless the field ``axes`` gives its order — ``y,x,t``, ``x,t``, ...; an undeclared
+array whose shape does not show its time axis is refused with 422 naming the readings it could
+have, ``fpscan.service.formats.npy.time_axes`` — with form fields ``dt`` (s), ``dx`` (m), optional ``dy``
 (m, default dx) and ``sound_speed`` (m/s, default 1500; outside ``fpscan.constants.C_PLAUSIBLE``
 only with ``force``, the registry's ``SpeedOptions``:
 ``fpscan.driver.units.check_plausible``, as everywhere)), ``kwave-hdf5`` (such an array in HDF5
@@ -17,7 +19,7 @@ dataset file (``fpscan.service.storage.loader.write_dataset``), which the job wo
 Datasets never pile up:
 
 - Deduplicated: the upload's SHA-256 together with the options that change the stored
-  dataset (format, ``dt``, ``dx``, ``dy``, ``c``, ``key``, the wavelength index) is its
+  dataset (format, ``dt``, ``dx``, ``dy``, ``c``, ``key``, ``axes``, the wavelength index) is its
   key; the same file with the same options uploaded again answers (201, as any upload)
   with the stored dataset's id and ``deduplicated: true``, storing nothing.
 - Acknowledged means stored: the dataset a 201 names (found or new) is found
@@ -105,7 +107,7 @@ def upload_dataset(file: UploadFile = File(..., description="the data file"),
     stored: 201 as for any upload, so clients need not tell the cases apart). At most
     ``FPSCAN_IMPORT_WORKERS`` uploads are imported at once (4x as many wait; beyond, 429).
     The form's other fields are the formats' load options (``dt``, ``dx``, ``dy``, ``key``,
-    ``wavelength``: each format's own, ``GET /api/formats``; one the chosen format does not
+    ``axes``, ``wavelength``: each format's own, ``GET /api/formats``; one the chosen format does not
     take is refused with 422). A dataset holds one wavelength's data (``wavelength``; the
     response's ``wavelength_nm`` says which). 507 when the decoded dataset does not fit the
     disk."""
@@ -118,13 +120,13 @@ def upload_dataset(file: UploadFile = File(..., description="the data file"),
              for name, text, kind in [*((n, options.get(n), k) for n, k in quantities.items()),
                                       ("sound_speed", speed, "speed")]}
         given = {**options, **{n: q[n] for n in quantities}}
-        check_load_options(format, {k: v for k, v in given.items() if k != "wavelength"})
+        given.update(check_load_options(format, {k: v for k, v in given.items() if k != "wavelength"}))
     except ValueError as exc:
         raise HTTPException(422, str(exc)) from None
     with context.slots["uploads"].turn():
         out = _store_upload(file, format, dt=given.get("dt"), dx=given.get("dx"), dy=given.get("dy"),
                             sound_speed=q["sound_speed"],
-                            key=given.get("key"), force=force, wavelength=given.get("wavelength"), context=context)
+                            key=given.get("key"), axes=given.get("axes"), force=force, wavelength=given.get("wavelength"), context=context)
     # held since it was found or stored: released once the 201 naming it has been sent
     sent.add_task(lifecycle.release_dataset, context.store, out.dataset_id)
     return out
@@ -203,7 +205,7 @@ def _admission(context: Context) -> DiskAdmission:
 
 
 def _store_upload(file: UploadFile, format: str, *, dt: float | None, dx: float | None, dy: float | None,
-                  sound_speed: float | None, key: str | None, force: bool, wavelength: int | None,
+                  sound_speed: float | None, key: str | None, axes: str | None, force: bool, wavelength: int | None,
                   context: Context) -> Dataset:
     dataset_id = uuid.uuid4().hex
     # staged outside datasets/ until stored (one rename): datasets/ changes only when a
@@ -229,7 +231,7 @@ def _store_upload(file: UploadFile, format: str, *, dt: float | None, dx: float 
                 out.write(chunk)
         sha256 = digest.hexdigest()
         dedup_key = _dedup_key(sha256, format, dt=dt, dx=dx, dy=dy, sound_speed=sound_speed, key=key, wavelength=wavelength,
-                               force=bool(force))
+                               force=bool(force), **({"axes": axes} if axes is not None else {}))
         with lifecycle.guard(context.store):  # found and held with no deletion between
             found = _stored(context, dedup_key, sha256)
         if found is not None:
@@ -246,7 +248,7 @@ def _store_upload(file: UploadFile, format: str, *, dt: float | None, dx: float 
             # (holding the GIL) or expand a small file into gigabytes (import_dataset lives
             # in fpscan.service.storage, so the child does not import the web stack)
             meta = run_bounded(import_dataset, src, dest, format, dt=dt, dx=dx, dy=dy, sound_speed=sound_speed, key=key,
-                               force=force,
+                               axes=axes, force=force,
                                wavelength=wavelength,
                                max_bytes=hdf5_limit(limit, context.settings.memory_limit),
                                timeout=context.settings.import_timeout_s, what="the upload",

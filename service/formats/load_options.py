@@ -6,7 +6,8 @@ flags of ``fpscan recon`` / ``unmix`` (``fpscan.clients.cli.recon_options.add_lo
 door refuses an option the chosen format does not take (:func:`check_load_options`).
 
 The mix-ins: :class:`GridSpacing` (``dt``, ``dx``, ``dy``: a k-Wave style array's sampling),
-:class:`ArrayKey` (``key``: the array's path in an HDF5 or MAT-file) and
+:class:`ArrayKey` (``key``: the array's path in an HDF5 or MAT-file), :class:`ArrayAxes`
+(``axes``: the order of a bare array's axes) and
 :class:`WavelengthChoice` (``wavelength``: one excitation wavelength of a multi-wavelength
 file). A format module declares ``options=`` with one of them or a model combining several.
 Field metadata as the methods' (``unit``, ``quantity``: text with a unit accepted). The speed of
@@ -18,12 +19,16 @@ from typing import Annotated, Any
 
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, model_validator
 
-__all__ = ["KEY_MAX", "WAVELENGTH_MAX", "Positive", "LoadOptions", "GridSpacing", "ArrayKey", "WavelengthChoice", "KwaveOptions", "load_option_fields", "load_option_schemas", "check_load_options"]
+__all__ = ["KEY_MAX", "WAVELENGTH_MAX", "AXIS_NAMES", "Positive", "LoadOptions", "GridSpacing", "ArrayKey", "ArrayAxes",
+           "WavelengthChoice", "KwaveOptions", "NpyOptions", "axes_order", "load_option_fields", "load_option_schemas",
+           "check_load_options"]
 
 #: the longest ``key`` accepted (an HDF5 path or a MAT-file variable name)
 KEY_MAX = 200
 #: the highest wavelength index accepted (a multi-wavelength file's)
 WAVELENGTH_MAX = 1023
+#: the names an ``axes`` option may use -> the axis (``sensor`` is k-Wave's name of a line of sensors: x, 2-D only)
+AXIS_NAMES = {"t": "t", "time": "t", "y": "y", "x": "x", "sensor": "x"}
 
 
 
@@ -133,6 +138,73 @@ class ArrayKey(LoadOptions):
         None, description="HDF5 dataset path (or MAT-file variable) of the data in a k-Wave file")
 
 
+def axes_order(value: Any) -> str | None:
+    """An ``axes`` option as given -> its canonical form (``"y,x,t"``), or None for None.
+
+    Parameters
+    ----------
+    value : str or None
+        The array's axes in order, comma-separated, case and spaces ignored: 2-D ``t,x`` or
+        ``x,t`` (k-Wave's ``sensor,time`` is ``x,t``), 3-D any order of ``t``, ``y``, ``x``
+        (``time`` is ``t``; ``y,x,t`` is k-Wave's sensor order reshaped).
+
+    Returns
+    -------
+    str or None
+        The axes as ``t``, ``y``, ``x`` joined by commas, in the array's order.
+
+    Raises
+    ------
+    ValueError
+        Not text, an unknown name, a repeated axis, no ``t``, a count other than 2 or 3, 2-D
+        axes other than ``t`` and ``x``, ``sensor`` in 3-D.
+
+    Examples
+    --------
+    >>> from fpscan.service.formats.load_options import axes_order
+    >>> axes_order("Y, X, T"), axes_order("sensor,time"), axes_order(None)
+    ('y,x,t', 'x,t', None)
+    """
+    if value is None:
+        return None
+    usage = ('axes must name the array\'s axes in order, e.g. "y,x,t" or "t,y,x" (3-D), "x,t" or "t,x" '
+             '(2-D; k-Wave\'s "sensor,time" is "x,t")')
+    if not isinstance(value, str):
+        raise ValueError(f"{usage}, got {value!r}")
+    names = [part.strip().lower() for part in value.split(",")]
+    if any(n not in AXIS_NAMES for n in names) or len(names) not in (2, 3):
+        raise ValueError(f"{usage}, got {value!r}")
+    axes = [AXIS_NAMES[n] for n in names]
+    if len(set(axes)) != len(axes) or "t" not in axes or (len(axes) == 2 and set(axes) != {"t", "x"}) \
+            or (len(axes) == 3 and "sensor" in names):
+        raise ValueError(f"{usage}, got {value!r}")
+    return ",".join(axes)
+
+
+class ArrayAxes(LoadOptions):
+    """The order of an array's axes, for a file that does not say (a ``.npy`` array).
+
+    Attributes
+    ----------
+    axes : str or None
+        The axes in the array's order (:func:`axes_order`: ``"y,x,t"``, ``"t,y,x"``,
+        ``"x,t"``, ``"t,x"``, ``"sensor,time"``, ...), kept in canonical form (``"x,t"``);
+        None: time first when the array's shape shows it, else refused (the format's rule,
+        ``fpscan.service.formats.npy``).
+
+    Examples
+    --------
+    >>> from fpscan.service.formats.load_options import ArrayAxes
+    >>> ArrayAxes(axes="sensor, time").axes
+    'x,t'
+    """
+
+    axes: Annotated[Annotated[str, Field(max_length=40, pattern=r"^[txy](,[txy]){1,2}$")] | None,
+                    BeforeValidator(axes_order)] = Field(
+        None, description='the array\'s axis order, e.g. y,x,t (k-Wave\'s sensor order) or t,y,x; 2-D x,t '
+                          '(k-Wave\'s sensor,time) or t,x; default: time first where the shape shows it')
+
+
 class WavelengthChoice(LoadOptions):
     """One excitation wavelength of a multi-wavelength file.
 
@@ -170,6 +242,22 @@ class KwaveOptions(GridSpacing, ArrayKey):
     """
 
 
+class NpyOptions(ArrayAxes, GridSpacing):
+    """The load options of a ``.npy`` array: its sampling and the order of its axes.
+
+    Attributes
+    ----------
+    dt, dx, dy, axes
+        As :class:`GridSpacing`'s and :class:`ArrayAxes`'.
+
+    Examples
+    --------
+    >>> from fpscan.service.formats.load_options import NpyOptions
+    >>> list(NpyOptions.model_fields)
+    ['dt', 'dx', 'dy', 'axes']
+    """
+
+
 def load_option_fields() -> dict[str, Any]:
     """Every load option of the registered formats: name -> its pydantic ``FieldInfo`` (the first
     format that declares it), in registration order.
@@ -182,7 +270,7 @@ def load_option_fields() -> dict[str, Any]:
     Examples
     --------
     >>> from fpscan.service.formats.load_options import load_option_fields
-    >>> {"dt", "dx", "dy", "key", "wavelength"} <= set(load_option_fields())
+    >>> {"dt", "dx", "dy", "axes", "key", "wavelength"} <= set(load_option_fields())
     True
     """
     from fpscan.service.formats.registry import FORMATS
@@ -256,7 +344,7 @@ def check_load_options(format: str, options: dict[str, Any]) -> dict[str, Any]:
     >>> check_load_options("npy", {"key": "sensor_data"})
     Traceback (most recent call last):
     ...
-    ValueError: format npy takes no option key (its options: dt, dx, dy)
+    ValueError: format npy takes no option key (its options: dt, dx, dy, axes)
     """
     from fpscan.service.formats.registry import FORMATS
 

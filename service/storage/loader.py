@@ -99,7 +99,7 @@ def detect_format(path: str | os.PathLike) -> str:
 
 def load_dataset(path: str | os.PathLike, format: str | None = None, *, dt: float | None = None,
                  dx: float | None = None, dy: float | None = None, sound_speed: float | None = None,
-                 key: str | None = None, max_bytes: int = MAX_ELEMENTS * 8,
+                 key: str | None = None, axes: str | None = None, max_bytes: int = MAX_ELEMENTS * 8,
                  force: bool = False, wavelength: int | None = None, c: float | None = None) -> GridDataset | PointDataset:
     """Import a file for reconstruction (module docstring).
 
@@ -125,6 +125,10 @@ def load_dataset(path: str | os.PathLike, format: str | None = None, *, dt: floa
         Speed of sound in m/s, overriding the file's.
     key : str or None, optional
         The HDF5 dataset path of the data, for formats that take one.
+    axes : str or None, optional
+        The order of a ``.npy`` array's axes (``"y,x,t"``, ``"t,y,x"``, ``"x,t"``, ``"t,x"``,
+        ``"sensor,time"``); default None: time first where the shape shows it, else refused
+        (``fpscan.service.formats.npy.time_axes``).
     max_bytes : int, optional
         Largest dataset an HDF5 file may declare, in bytes; default ``MAX_ELEMENTS * 8``.
     force : bool, optional
@@ -149,14 +153,21 @@ def load_dataset(path: str | os.PathLike, format: str | None = None, *, dt: floa
         Naming the fault: an unknown ``format``, ``"all"`` as ``wavelength``, an index out of
         range (naming the file's wavelengths), an implausible explicit ``dt``, ``dx``, ``dy``
         or ``sound_speed`` (``fpscan.driver.units.check_plausible``: a unit mistake such as ``dt=20`` for 20 ns
-        is named), an unsafe or unreadable file.
+        is named), an unsafe or unreadable file, a ``.npy`` array whose time axis its shape
+        does not show and ``axes`` does not say (naming the readings it could have).
     FileNotFoundError
         If ``path`` does not exist.
+
+    Warns
+    -----
+    UserWarning
+        A ``.npy`` array read time first without ``axes`` whose first axis is not clearly
+        its longest.
     """
     choice = check_wavelength(wavelength, allow_all=False)  # 'all': load_wavelengths
     if c is not None:
         sound_speed = _old_speed_name(c, sound_speed)
-    return _load(path, format, dt=dt, dx=dx, dy=dy, sound_speed=sound_speed, key=key, max_bytes=max_bytes,
+    return _load(path, format, dt=dt, dx=dx, dy=dy, sound_speed=sound_speed, key=key, axes=axes, max_bytes=max_bytes,
                  force=force, wavelength_index=0 if choice is None else int(choice))
 
 
@@ -172,10 +183,11 @@ def _old_speed_name(c: float, sound_speed: float | None) -> float:
 
 
 def _load(path: str | os.PathLike, format: str | None, *, dt: float | None, dx: float | None, dy: float | None,
-          sound_speed: float | None, key: str | None, max_bytes: int, force: bool, **which: Any) -> Any:
+          sound_speed: float | None, key: str | None, max_bytes: int, force: bool, axes: str | None = None,
+          **which: Any) -> Any:
     """:func:`load_dataset`'s checks and the registry's load; ``which``:
     ``wavelength_index`` (one dataset) or ``all_wavelengths=True`` (a list). The load options
-    given (``dt``, ``dx``, ``dy``, ``key``) must be the format's own
+    given (``dt``, ``dx``, ``dy``, ``key``, ``axes``) must be the format's own
     (``fpscan.service.formats.load_options.check_load_options``: a ValueError naming the ones it takes)."""
     from fpscan.driver.units import check_plausible
 
@@ -188,9 +200,11 @@ def _load(path: str | os.PathLike, format: str | None, *, dt: float | None, dx: 
     choices = input_formats()
     if format is not None and format not in choices:
         raise ValueError(f"format must be one of {', '.join(choices)}, got {format!r}")
-    asked = {"dt": dt, "dx": dx, "dy": dy, "key": key}  # the load options (the format's own model)
+    asked = {"dt": dt, "dx": dx, "dy": dy, "key": key, "axes": axes}  # the load options (the format's own model)
     if format is not None:
-        check_load_options(format, asked)
+        asked = {**asked, **check_load_options(format, asked)}  # axes in its canonical form
+    if axes is not None:  # only to a format that may take it (a plugin's load need not know the name)
+        which = {**which, "axes": asked["axes"]}
     name, loaded = formats.load(path, format, max_bytes=max_bytes, choices=choices, dt=dt, dx=dx, dy=dy,
                                 sound_speed=sound_speed, key=key, **which)
     if format is None:  # detected from the content: its options, now that it is known
@@ -274,7 +288,7 @@ def load_wavelengths(path: str | os.PathLike, format: str | None = None, *, wave
         file; a file of one wavelength gives one). Default None: the first.
     **load
         The other arguments of :func:`load_dataset` (``dt``, ``dx``, ``dy``, ``sound_speed``, ``key``,
-        ``max_bytes``, ``force``).
+        ``axes``, ``max_bytes``, ``force``).
 
     Returns
     -------
@@ -295,7 +309,8 @@ def load_wavelengths(path: str | os.PathLike, format: str | None = None, *, wave
     if load.get("c") is not None:
         load = {**load, "sound_speed": _old_speed_name(load["c"], load.get("sound_speed"))}
     load.pop("c", None)
-    options = {"dt": None, "dx": None, "dy": None, "sound_speed": None, "key": None, "max_bytes": MAX_ELEMENTS * 8,
+    options = {"dt": None, "dx": None, "dy": None, "sound_speed": None, "key": None, "axes": None,
+               "max_bytes": MAX_ELEMENTS * 8,
                "force": False, **load}
     return list(_load(path, format, all_wavelengths=True, **options))
 
@@ -305,7 +320,8 @@ HDF5_KEY_CHARS = set("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ012345
 
 def import_dataset(src: str | os.PathLike, dest_dir: str | os.PathLike, fmt: str, *, dt: float | None,
                    dx: float | None, dy: float | None, sound_speed: float | None, key: str | None,
-                   max_bytes: int | None = None, force: bool = False, wavelength: int | None = None) -> dict:
+                   axes: str | None = None, max_bytes: int | None = None, force: bool = False,
+                   wavelength: int | None = None) -> dict:
     """Validate and convert an uploaded file into ``dest_dir/dataset.h5``.
 
     The file is read with :func:`load_dataset` (every input format) and written with
@@ -330,6 +346,8 @@ def import_dataset(src: str | os.PathLike, dest_dir: str | os.PathLike, fmt: str
         Speed of sound in m/s, overriding the file's.
     key : str or None
         The HDF5 dataset path of the data (at most 200 characters of ``[A-Za-z0-9_-/.]``).
+    axes : str or None, optional
+        The order of a ``.npy`` array's axes (as :func:`load_dataset`); default None.
     max_bytes : int or None, optional
         Largest declared dataset of an HDF5 file in bytes (``fpscan.driver.hdf5_checks.check_hdf5_file``,
         run before anything is read); default None: ``MAX_ELEMENTS * 8``.
@@ -365,7 +383,7 @@ def import_dataset(src: str | os.PathLike, dest_dir: str | os.PathLike, fmt: str
         if value is not None and not (math.isfinite(value) and value > 0):
             raise ValueError(f"{name} must be a positive finite number")
     try:
-        ds = load_dataset(src, fmt, dt=dt, dx=dx, dy=dy, sound_speed=sound_speed, key=key, force=force,
+        ds = load_dataset(src, fmt, dt=dt, dx=dx, dy=dy, sound_speed=sound_speed, key=key, axes=axes, force=force,
                           wavelength=wavelength,
                           max_bytes=MAX_ELEMENTS * 8 if max_bytes is None else max_bytes)
     except (KeyError, TypeError, IndexError, OSError) as exc:

@@ -516,8 +516,8 @@ def test_upload_a_data_file_and_reconstruct_it(browser, server, api, screenshots
              ".filter(l => !l.hidden).map(l => l.dataset.loadOption)")
     for name in ("kwave-hdf5", "fpscan", "npy"):
         Select(el(browser, "upload-format")).select_by_value(name)
-        assert set(browser.execute_script(shown)) == taken[name] & {"dt", "dx", "dy", "key"}, name
-    assert taken["npy"] == {"dt", "dx", "dy"} and "key" in taken["kwave-hdf5"]
+        assert set(browser.execute_script(shown)) == taken[name] & {"dt", "dx", "dy", "key", "axes"}, name
+    assert taken["npy"] == {"dt", "dx", "dy", "axes"} and "key" in taken["kwave-hdf5"]
     set_value(browser, "upload-dt", 20)      # ns
     set_value(browser, "upload-dx", 100)     # µm; dy left empty = dx
     # the "another medium" labels name the plausible speeds of the registry's speed option
