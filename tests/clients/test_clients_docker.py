@@ -6,6 +6,7 @@ their defaults: the CPU image); the CUDA variant's build arguments have tests of
 from __future__ import annotations
 
 import os
+import re
 import shlex
 import shutil
 import signal
@@ -97,28 +98,144 @@ def test_dockerfile_structure():
     # the dependencies are installed in a layer before the source is copied
     build = [i for i in ins if i.stage == froms[0].stage]
     first_src = min(k for k, i in enumerate(build) if i.keyword == "COPY" and "service" in i.args)
-    deps = [k for k, i in enumerate(build) if i.keyword == "RUN" and "requirements.txt" in i.args]
+    deps = [k for k, i in enumerate(build) if i.keyword == "RUN" and "--require-hashes" in i.args]
     assert deps and deps[0] < first_src
     assert "FPSCAN_TOKEN_FILE" in " ".join(cmd)
 
 
 
+def _useradd(run: str) -> tuple[str, str, list[str]]:
+    """The user a RUN's ``useradd`` creates: (name, uid, supplementary groups)."""
+    cmd = next(c for c in re.split(r"&&|;", run) if c.strip().startswith("useradd"))
+    argv = shlex.split(cmd)
+    uid = argv[argv.index("--uid") + 1]
+    groups = argv[argv.index("--groups") + 1].split(",") if "--groups" in argv else []
+    return argv[-1], uid, groups
+
+
+def test_image_user_opens_the_serial_port():
+    """The serial port (group dialout): the runtime stage creates its user in group dialout, and
+    USER names that user alone (its name or uid, no group): Docker then gives the process the
+    user's supplementary groups from the image's /etc/group, which a ``uid:gid`` would drop. The
+    warm kernel cache is the user's (numba writes, hence uses, only a directory it can write)."""
+    ins = _default_build()
+    final = [i for i in ins if i.keyword == "FROM"][-1].stage
+    user = [i.args for i in ins if i.keyword == "USER" and i.stage == final][-1]
+    assert ":" not in user, f"USER {user}: a group drops the supplementary ones (dialout)"
+    run = next(i.args for i in ins if i.keyword == "RUN" and i.stage == final and "useradd" in i.args)
+    name, uid, groups = _useradd(run)
+    assert user in (name, uid) and int(uid) != 0
+    assert "dialout" in groups
+    cache = env_of(ins, final)["NUMBA_CACHE_DIR"]
+    assert env_of(ins, 0)["NUMBA_CACHE_DIR"] == cache, "the build stage warms the directory the image uses"
+    copies = [shlex.split(i.args) for i in ins if i.keyword == "COPY" and i.stage == final]
+    assert any(f"--chown={name}:{name}" in c and "--from=build" in c
+               and (cache + "/").startswith(c[-1].rstrip("/") + "/") for c in copies), \
+        "the cache directory is copied to the user's ownership"
+
+
+def _kernels(cache: Path) -> list[str]:
+    """The kernels in a numba cache: its index files' names."""
+    return sorted(p.name for p in cache.rglob("*.nbi"))
+
+
+def test_image_warmup_caches_what_fpscan_warmup_quick_does(tmp_path):
+    """The build stage's warm-up (its RUNs after the install, with this repository's python and
+    package in place of the image's) into one empty NUMBA_CACHE_DIR, ``fpscan warmup --quick``
+    into another: the same kernels cached."""
+    ins = _default_build()
+    build = [i for i in ins if i.stage == 0]
+    last_install = max(k for k, i in enumerate(build) if i.keyword == "RUN" and "pip install" in i.args)
+    runs = [i.args for i in build[last_install + 1:] if i.keyword == "RUN"]
+    assert runs, "the build stage warms the kernels after installing fpscan"
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("FPSCAN_", "NUMBA_"))}
+    env["PYTHONPATH"] = str(ROOT)
+    exe = shlex.quote(sys.executable)
+    image_cache, cli_cache = tmp_path / "image", tmp_path / "cli"
+    for run in runs:
+        assert "/opt/fpscan/bin/" in run
+        cmd = run.replace("/opt/fpscan/bin/fpscan", f"{exe} -m fpscan").replace("/opt/fpscan/bin/python", exe)
+        res = subprocess.run(["sh", "-c", cmd], env={**env, "NUMBA_CACHE_DIR": str(image_cache)}, cwd=tmp_path,
+                             capture_output=True, text=True, timeout=600)
+        assert res.returncode == 0, res.stdout + res.stderr
+    res = subprocess.run([sys.executable, "-m", "fpscan", "warmup", "--quick"], cwd=tmp_path,
+                         env={**env, "NUMBA_CACHE_DIR": str(cli_cache)}, capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stdout + res.stderr
+    print("image:", _kernels(image_cache), "\nwarmup --quick:", _kernels(cli_cache))
+    assert _kernels(cli_cache), "fpscan warmup --quick caches kernels"
+    assert _kernels(image_cache) == _kernels(cli_cache)
+
+
 CUDA_ARGS = {"BASE": "nvidia/cuda:12.6.3-runtime-ubuntu24.04", "EXTRAS": "server,cuda"}
 
 
-def _requirements(extras: str, tmp_path: Path) -> list[str]:
-    """What the build stage's requirements step writes for these EXTRAS (its own command, run
-    here on the project's pyproject.toml)."""
-    run = next(i.args for i in parse(DOCKERFILE) if i.keyword == "RUN" and "> requirements.txt" in i.args)
-    argv = shlex.split(run.split("> requirements.txt")[0])
-    assert argv[0] == "/opt/fpscan/bin/python" and argv[1] == "-c"
-    work = tmp_path / extras.replace(",", "_")
-    work.mkdir()
-    shutil.copy2(ROOT / "pyproject.toml", work / "pyproject.toml")
-    res = subprocess.run([sys.executable, "-c", argv[2]], cwd=work, env={**os.environ, "EXTRAS": extras},
+def _lock_path(extras: str) -> Path:
+    """The lock the build stage's dependency step installs for these EXTRAS (its own shell
+    command choosing the file, run here with sh)."""
+    run = next(i.args for i in parse(DOCKERFILE) if i.keyword == "RUN" and "--require-hashes" in i.args)
+    choose = run.split(" && ")[0]
+    assert choose.startswith("lock=")
+    res = subprocess.run(["sh", "-c", choose + '; echo "$lock"'], cwd=ROOT, env={**os.environ, "EXTRAS": extras},
                          capture_output=True, text=True, timeout=60)
     assert res.returncode == 0, res.stderr
-    return res.stdout.splitlines()
+    return ROOT / res.stdout.strip()
+
+
+def _canonical(name: str) -> str:
+    return re.sub(r"[-_.]+", "-", name).lower()
+
+
+def _lock(path: Path) -> dict[str, list[tuple[str, str, list[str]]]]:
+    """A hash-pinned requirements file: canonical name -> [(version, marker, sha256 hashes)]
+    (a name twice where the pin differs by Python version)."""
+    out: dict[str, list[tuple[str, str, list[str]]]] = {}
+    text = re.sub(r"\\\n", " ", path.read_text())  # continuation lines joined
+    for line in text.splitlines():
+        line = line.split(" #")[0].strip()
+        if not line or line.startswith("#"):
+            continue
+        m = re.fullmatch(r"([A-Za-z0-9][A-Za-z0-9._-]*)==(\S+?)(?:\s*;\s*(.*?))?((?:\s+--hash=\S+)*)\s*", line)
+        assert m, f"{path.name}: not a hash-pinned requirement: {line!r}"
+        hashes = re.findall(r"--hash=sha256:([0-9a-f]{64})\b", m.group(4))
+        out.setdefault(_canonical(m.group(1)), []).append((m.group(2), (m.group(3) or "").strip(), hashes))
+    return out
+
+
+def _requirements(extras: str) -> list[str]:
+    """pyproject.toml's requirements the image installs with these EXTRAS: the base ones, those
+    of the extras and of the extras they name (server names driver), without fpscan itself."""
+    p = _project()
+    o = p["optional-dependencies"]
+    names = [x.strip() for x in extras.split(",")]
+    names += [x for n in names for r in o[n] if r.startswith("fpscan[") for x in r[7:-1].split(",")]
+    return list(dict.fromkeys(r for r in p["dependencies"] + [r for n in o if n in names for r in o[n]]
+                              if not r.startswith("fpscan")))
+
+
+def _check_lock_covers(extras: str) -> dict:
+    """The lock for ``extras`` pins every runtime requirement of pyproject.toml (and the build
+    backend that installs fpscan) to a version its specifier allows on Python 3.11, each pin
+    with at least one sha256."""
+    from packaging.markers import Marker
+    from packaging.requirements import Requirement
+    from packaging.version import Version
+
+    path = _lock_path(extras)
+    assert path.is_file(), f"no lock {path} for EXTRAS={extras}"
+    lock = _lock(path)
+    assert lock and all(h for pins in lock.values() for _v, _m, h in pins), "every pin carries its hashes"
+    with open(ROOT / "pyproject.toml", "rb") as f:
+        build = tomllib.load(f)["build-system"]["requires"]
+    env311 = {"python_version": "3.11", "python_full_version": "3.11.9", "sys_platform": "linux",
+              "platform_system": "Linux", "platform_machine": "x86_64", "implementation_name": "cpython",
+              "platform_python_implementation": "CPython", "os_name": "posix"}
+    for text in _requirements(extras) + build:
+        req = Requirement(text)
+        pins = lock.get(_canonical(req.name))
+        assert pins, f"{path.name} lacks {req.name} (pyproject.toml: {text})"
+        here = [v for v, marker, _h in pins if not marker or Marker(marker).evaluate(env311)]
+        assert len(here) == 1 and Version(here[0]) in req.specifier, (text, pins)
+    return lock
 
 
 def _project() -> dict:
@@ -140,13 +257,14 @@ def test_build_args_default_to_the_cpu_image(tmp_path):
     assert args["EXTRAS"] == "server"
     pip_runs = [i.args for i in ins if i.keyword == "RUN" and i.stage == 0 and "pip install" in i.args]
     assert pip_runs[-1].rstrip().endswith(' ".[${EXTRAS}]"')
-    # the default build's requirements: the base, driver and server ones, exactly, and no CuPy
+    # the default build's requirements: the base, driver and server ones, all in its lock, no CuPy
     p = _project()
     o = p["optional-dependencies"]
     expected = [r for r in p["dependencies"] + o["driver"] + o["server"] if not r.startswith("fpscan")]
-    reqs = _requirements(args["EXTRAS"], tmp_path)
-    assert reqs == list(dict.fromkeys(expected))
-    assert not any("cupy" in r for r in reqs)
+    assert _requirements(args["EXTRAS"]) == list(dict.fromkeys(expected))
+    assert _lock_path(args["EXTRAS"]) == ROOT / "docker" / "requirements-server.lock"
+    lock = _check_lock_covers(args["EXTRAS"])
+    assert not any("cupy" in name for name in lock)
     # the CPU install never needs CuPy: only the cuda extra names it
     assert [r for r in o["cuda"] if r.startswith("cupy")] == ["cupy-cuda12x>=13.0"]
     needs = p["dependencies"] + [r for name, reqs in o.items() if name != "cuda" for r in reqs]
@@ -160,10 +278,23 @@ def test_cuda_variant_by_build_args(tmp_path):
     build, final = froms[0].stage, froms[-1].stage
     pip_runs = [i.args for i in ins if i.keyword == "RUN" and i.stage == build and "pip install" in i.args]
     assert pip_runs[-1].rstrip().endswith(' ".[server,cuda]"')
-    # the requirements step takes CuPy with the server's requirements
-    reqs = _requirements(CUDA_ARGS["EXTRAS"], tmp_path)
+    # the requirements step takes CuPy with the server's requirements, from a lock of its own
+    reqs = _requirements(CUDA_ARGS["EXTRAS"])
     assert "cupy-cuda12x>=13.0" in reqs
-    assert set(_requirements("server", tmp_path)) < set(reqs)
+    assert set(_requirements("server")) < set(reqs)
+    assert _lock_path(CUDA_ARGS["EXTRAS"]) == ROOT / "docker" / "requirements-server-cuda.lock"
+    lock = _check_lock_covers(CUDA_ARGS["EXTRAS"])
+    assert "cupy-cuda12x" in lock
+    # Ubuntu 24.04's python3 is 3.12: the lock pins every package for it as well
+    env312 = {"python_version": "3.12", "python_full_version": "3.12.3", "sys_platform": "linux",
+              "platform_system": "Linux", "platform_machine": "x86_64", "implementation_name": "cpython",
+              "platform_python_implementation": "CPython", "os_name": "posix"}
+    from packaging.markers import Marker
+    from packaging.requirements import Requirement
+
+    for text in reqs:
+        name = _canonical(Requirement(text).name)
+        assert [v for v, m, _h in lock[name] if not m or Marker(m).evaluate(env312)], (text, lock[name])
     # NVIDIA's runtime image has no Python: both stages take Ubuntu's python3 where the base has
     # none (the build stage with its headers and venv), the runtime stage still without a compiler
     runs = {stage: " ".join(i.args for i in ins if i.keyword == "RUN" and i.stage == stage) for stage in (build, final)}
@@ -193,11 +324,14 @@ def image_install(tmp_path_factory):
         if i.keyword == "COPY" and i.stage == build_stage and "--from" not in i.args:
             *sources, _dest = i.args.split()
             for s in sources:
-                p = ROOT / s.rstrip("/")
-                if p.is_dir():
-                    shutil.copytree(p, src / p.name, ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
-                else:
-                    shutil.copy2(p, src / p.name)
+                matched = sorted(ROOT.glob(s.rstrip("/")))
+                assert matched, f"COPY {s}: nothing there"
+                for p in matched:
+                    if p.is_dir():
+                        shutil.copytree(p, src / p.name, ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
+                    else:
+                        (src / p.relative_to(ROOT)).parent.mkdir(parents=True, exist_ok=True)
+                        shutil.copy2(p, src / p.relative_to(ROOT))
     pip_runs = [i.args for i in ins if i.keyword == "RUN" and i.stage == build_stage and "pip install" in i.args]
     assert pip_runs and pip_runs[-1].rstrip().endswith(' ".[server]"'), \
         "the build stage installs the copied project with the server extra"
