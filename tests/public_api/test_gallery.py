@@ -18,7 +18,7 @@ from tests.conftest import REPO_ROOT
 
 EXAMPLES = sorted((REPO_ROOT / "examples").glob("*.py"))
 
-pytestmark = pytest.mark.long(120)
+pytestmark = pytest.mark.long(50)
 
 
 def _plugin_das(text: str) -> None:
