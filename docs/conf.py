@@ -53,6 +53,9 @@ html_theme_options = {
 }
 html_sidebars: dict[str, list[str]] = {"readme": [], "index": []}
 html_show_sourcelink = False
+# code blocks wrap their long lines (docs/_static/wrap.css)
+html_static_path = ["_static"]
+html_css_files = ["wrap.css"]
 
 # --- myst: the existing markdown pages as they are --------------------------------------
 myst_enable_extensions = ["colon_fence", "deflist", "dollarmath"]

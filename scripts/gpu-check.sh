@@ -11,7 +11,7 @@
 # the CLI and HTTP checks (at most 9 minutes: the steps' timeouts); service: the CLI and HTTP
 # checks alone; profile: a profile of tv on the CPU (benchmarks/profile_tv_cpu.py); scaling: how
 # NER's CPU parts scale with cores (benchmarks/bench_cpu_scaling.py).
-# Python packages the machine lacks travel as wheels in .whl/ (README "GPU"), installed first. The
+# Python packages the machine lacks travel as wheels in .whl/ (docs/configuration.md "GPU"), installed first. The
 # device tool's H100/H200 image (Python 3.12, numpy, scipy, numba, h5py, CuPy) lacked these; fill
 # .whl/ (git ignores it) before the first call:
 #   python3 -m pip download --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \

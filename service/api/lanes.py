@@ -1,4 +1,4 @@
-"""Health's own lane through a busy event loop (README.md: ``/api/health`` p99 ≤ 250 ms
+"""Health's own lane through a busy event loop (CONTRIBUTING.md, "Longer checks": ``/api/health`` p99 ≤ 250 ms
 under 50 clients of mixed requests).
 
 Every request is handled on the one event loop, a step at a time: a loop iteration runs

@@ -1,10 +1,10 @@
-"""The README's five-minute tour runs as written: its shell blocks (the command line and the
+"""The tour (docs/tour.md, linked from the README) runs as written: its shell blocks (the command line and the
 curl section) and its Python blocks, in their order, in one bash session in a fresh folder,
 against the simulator and a real server, exactly as a lab would paste them. The one change:
 the server listens on a free port instead of 8000 (the suite runs beside other servers).
 
 Oracles: each command's exit status (``set -e``: the first failing line fails the test), the
-files the tour says it makes, and what the README states about them: the local and the
+files the tour says it makes, and what the tour states about them: the local and the
 server's reconstruction of the same scan are the same volume; tv's defaults are the method's
 own (``fpscan.service.recon.methods``)."""
 from __future__ import annotations
@@ -23,18 +23,19 @@ from tests.clients.clients_servers import clean_env, free_port, has_command
 from tests.conftest import REPO_ROOT
 from tests.waits import HANG_S
 
-README = REPO_ROOT / "README.md"
+#: the page of the tour's recipes (the README's "A first reconstruction" points there)
+TOUR_PAGE = REPO_ROOT / "docs" / "tour.md"
 
 pytestmark = [pytest.mark.skipif(not (has_command("serve") and has_command("sim")),
                                  reason="`fpscan serve`/`fpscan sim` not available"),
               pytest.mark.long(70)]
 
 
-TOUR, SPARSE, AFTER = "## A five-minute tour", "## A sparse scan out of dense data", "## Configuration"
+TOUR, SPARSE, AFTER = "## A five-minute tour", "## A sparse scan out of dense data", "## The end-to-end demo"
 
 
 def tour_blocks(text: str, start: str = TOUR, end: str = SPARSE) -> list[tuple[str, str]]:
-    """The code blocks of a README section (default "A five-minute tour"), in order: ``("sh", text)``
+    """The code blocks of a section of the tour (default "A five-minute tour"), in order: ``("sh", text)``
     for an indented block, ``("python", text)`` for a fenced python block."""
     section = text[text.index(start):text.index(end)]
     lines = section.splitlines()
@@ -58,7 +59,7 @@ def tour_blocks(text: str, start: str = TOUR, end: str = SPARSE) -> list[tuple[s
 
 
 def checkout(tmp_path):
-    """A checkout's stand-in for the README's ``CHECKOUT``: a folder whose ``.venv`` is this
+    """A checkout's stand-in for the tour's ``CHECKOUT``: a folder whose ``.venv`` is this
     interpreter's environment; the tour itself runs in another, empty folder."""
     root = tmp_path / "checkout"
     root.mkdir()
@@ -69,7 +70,7 @@ def checkout(tmp_path):
 
 
 def with_checkout(script: str, root) -> str:
-    """The README's ``CHECKOUT=~/fpscan`` line pointed at ``root``."""
+    """The tour's ``CHECKOUT=~/fpscan`` line pointed at ``root``."""
     assert script.count("CHECKOUT=~/fpscan ") == 1
     return script.replace("CHECKOUT=~/fpscan ", f"CHECKOUT={root} ")
 
@@ -86,15 +87,15 @@ def tour_script(blocks: list[tuple[str, str]], port: int) -> str:
 
 
 def test_the_tour_parses_into_its_blocks():
-    kinds = [k for k, _ in tour_blocks(README.read_text(encoding="utf-8"))]
+    kinds = [k for k, _ in tour_blocks(TOUR_PAGE.read_text(encoding="utf-8"))]
     assert kinds == ["sh", "python", "python", "sh", "sh"], kinds
 
 
 def test_the_readme_states_tvs_own_defaults():
-    """What the README says of tv's options is what the method's options model holds."""
+    """What the tour says of tv's options is what the method's options model holds."""
     from fpscan.service.recon.methods import METHODS
 
-    text = " ".join(README.read_text(encoding="utf-8").split())
+    text = " ".join(TOUR_PAGE.read_text(encoding="utf-8").split())
     said = re.search(r"`--max-iter` \(default (\d+)", text)
     options = METHODS["tv"].options_model.model_fields
     assert said and int(said[1]) == options["max_iter"].default, said
@@ -102,7 +103,7 @@ def test_the_readme_states_tvs_own_defaults():
 
 @pytest.mark.skipif(not (shutil.which("curl") and shutil.which("jq")), reason="the curl section needs curl and jq")
 def test_the_five_minute_tour_runs_as_written(tmp_path):
-    blocks = tour_blocks(README.read_text(encoding="utf-8"))
+    blocks = tour_blocks(TOUR_PAGE.read_text(encoding="utf-8"))
     root, fresh = checkout(tmp_path)
     script = with_checkout(tour_script(blocks, free_port()), root)
     proc = subprocess.Popen(["bash", "-c", script], cwd=fresh, env=clean_env(), stdout=subprocess.PIPE,
@@ -136,7 +137,7 @@ def test_the_sparse_from_dense_section_runs_as_written(tmp_path, shared_data):
     lines (``CHECKOUT``, the activated venv), in a fresh folder; its volumes are the library's."""
     import fpscan
 
-    text = README.read_text(encoding="utf-8")
+    text = TOUR_PAGE.read_text(encoding="utf-8")
     blocks = tour_blocks(text, SPARSE, AFTER)
     assert [k for k, _ in blocks] == ["sh", "python"], blocks
     first = tour_blocks(text)[0][1].splitlines()
@@ -157,3 +158,37 @@ def test_the_sparse_from_dense_section_runs_as_written(tmp_path, shared_data):
     np.testing.assert_allclose(got.x, want.x, atol=1e-15)
     assert (fresh / "kwave-dense" / "volume.h5").exists()
     assert "PointDataset" in r.stdout and "976" in r.stdout, r.stdout
+
+
+README = REPO_ROOT / "README.md"
+FIRST, WEB = "## A first reconstruction", "## The web page"
+
+
+def test_the_readmes_first_reconstruction_runs_as_written(tmp_path, shared_data):
+    """README "A first reconstruction": its commands and Python, in order, in the checkout's stand-in
+    (its ``.venv``), the server on a free port; the command line's, the library's, the server's and
+    the client's volumes of the k-Wave file are one volume, as the README says."""
+    import fpscan
+
+    blocks = tour_blocks(README.read_text(encoding="utf-8"), FIRST, WEB)
+    assert [k for k, _ in blocks] == ["sh", "sh", "python", "sh", "python"], blocks
+    root, _ = checkout(tmp_path)
+    script = tour_script(blocks, free_port()) + "kill %1\n"
+    proc = subprocess.Popen(["bash", "-c", script], cwd=root, env={**clean_env(), "FPSCAN_SHARED": str(shared_data.parent)},
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    try:
+        out, _ = proc.communicate(timeout=HANG_S)
+    finally:
+        try:  # the README's background server, should a line have failed before the end
+            os.killpg(proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        proc.wait()
+    assert proc.returncode == 0, out[-6000:]
+    assert "Traceback" not in out, out[-6000:]
+    volumes = [fpscan.read_result(root / p).p0 for p in
+               ("kwave-ner/volume.h5", "kwave-ner-py/volume.h5", "kwave-remote/volume.h5", "kwave-http.h5")]
+    assert volumes[0].shape[0] == 64
+    for other in volumes[1:]:
+        np.testing.assert_array_equal(other, volumes[0])
+    assert (root / "kwave.ome.zarr").is_dir() and (root / "kwave-http-mip-xy.png").is_file()

@@ -53,3 +53,19 @@ def test_nothing_cites_what_a_reader_cannot_open(folder):
     # this file names the patterns it looks for
     bad = [b for b in bad if not b.startswith("tests/public_api/test_citations.py")]
     assert not bad, "cite the paper, a published method or the repository's docs instead of:\n" + "\n".join(bad)
+
+
+#: a path out of the repository (the project's shared folder beside a checkout), which a user's copy lacks
+OUTSIDE = re.compile(r"\.\./shared\b")
+
+
+def test_the_user_docs_name_no_path_outside_the_repository():
+    """README.md and the pages of docs/ name the k-Wave reference files by their names and the
+    variable that says where they are (``FPSCAN_SHARED``), never a path beside the checkout
+    (CHANGELOG.md, a dated record, excepted)."""
+    pages = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md")), *sorted((REPO / "docs").glob("*.rst")),
+             REPO / "examples" / "README.rst"]
+    assert OUTSIDE.search("at " + "../" + "shared/data") and not OUTSIDE.search("shared/data")
+    bad = [f"{p.relative_to(REPO)}:{k}: {line.strip()[:120]}" for p in pages if p.exists()
+           for k, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1) if OUTSIDE.search(line)]
+    assert not bad, "name the k-Wave reference files and FPSCAN_SHARED instead of:\n" + "\n".join(bad)

@@ -234,22 +234,3 @@ def test_a_method_without_models_is_admitted_by_the_conservative_rules(toy):
     for builtin in ("nedner", "ner"):
         assert estimate_memory(shape, {"method": builtin}) < estimate_memory(shape, {"method": "toy-api-gain"})
         assert estimate_work(shape, {"method": builtin}) < estimate_work(shape, {"method": "toy-api-gain"})
-
-
-@pytest.mark.timeout(300)
-def test_the_gallery_plugin_example_runs(tmp_path):
-    """examples/plot_plugin_das.py writes, installs and uses its plugin from the library, the command
-    line and a real server, and cleans up after itself (a fresh interpreter, pictures to Agg)."""
-    env = {**os.environ, "MPLBACKEND": "Agg", "TMPDIR": str(tmp_path)}
-    out = subprocess.run([sys.executable, str(REPO / "examples" / "plot_plugin_das.py")], capture_output=True,
-                         text=True, timeout=280, env=env, cwd=tmp_path)
-    assert out.returncode == 0, out.stdout[-2000:] + out.stderr[-4000:]
-    text = out.stdout
-    assert "refused: f_number: Input should be greater than 0" in text
-    cc = {name: float(v) for name, v in re.findall(r"^(das, f_number [\d.]+|nedner): CC with the true p0 ([\d.]+)",
-                                                  text, re.MULTILINE)}
-    assert set(cc) == {"das, f_number 1.0", "das, f_number 0.25", "nedner"}, text
-    assert cc["das, f_number 0.25"] > cc["das, f_number 1.0"] > 0.2 and cc["nedner"] > 0.5, cc
-    assert "--f-number F_NUMBER" in text and "method das" in text  # the CLI's help and its result line
-    assert re.search(r"served methods: .*\bdas\b", text) and ": succeeded" in text and "'f_number': 2.0" in text
-    assert not list(tmp_path.glob("fpscan-das-*")), "the example left its temporary folder behind"
