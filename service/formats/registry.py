@@ -188,7 +188,7 @@ class Format:
         --------
         >>> from fpscan.service.formats import FORMATS
         >>> FORMATS["npy"]  # doctest: +ELLIPSIS
-        Format(npy: 'NumPy array, ...', file, reads input, ...)
+        Format(npy: 'NumPy array...', file, reads input, ...)
         """
         from fpscan.wire.brief import one_line
 
