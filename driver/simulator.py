@@ -28,7 +28,8 @@ A-line s uses the first ``averages`` ticks after the previous A-line and after i
 preparation: galvo move and bias tuning (``tuning_delay`` s) when the point changes,
 excitation laser tuning (``laser_tuning_delay`` s) when the wavelength changes, the
 longer of the two when both do (they run in parallel). So N points at one wavelength
-take N·averages/prf s; ``prf`` = 0 is unthrottled.
+take N·averages/prf s; ``prf`` = 0 is unthrottled. With ``prf_from_plan`` the clock runs at
+the PRF the plan asks for (its image's ``prf``, when > 0), ``prf`` otherwise.
 ``byte_rate`` limits the device's output bytes/s (a UART-like link).
 
 Faults (:mod:`fpscan.driver.faults`) are seeded by ``seed``. The ground truth (every A-line as
@@ -83,6 +84,9 @@ class SimConfig:
         A :mod:`fpscan.driver.sources` source; None = ``BallSource(default_phantom())``.
     prf : float
         Laser pulse repetition frequency, Hz (0 = unthrottled).
+    prf_from_plan : bool
+        Fire at the PRF the plan asks for (the plan image's ``prf``, when > 0) instead of
+        ``prf``, which then holds for plans that ask for none (``fpscan sim`` without ``--prf``).
     tuning_delay : float
         Bias-wavelength tuning time per point, s.
     laser_tuning_delay : float
@@ -125,6 +129,7 @@ class SimConfig:
 
     source: Source | None = None  #: a fpscan.driver.sources source; None = BallSource(default_phantom())
     prf: float = 50.0  #: laser pulse repetition frequency, Hz (0 = unthrottled)
+    prf_from_plan: bool = False  #: fire at the PRF the plan asks for (its image's prf > 0) instead of ``prf``
     tuning_delay: float = 0.0  #: bias-wavelength tuning time per point, s
     laser_tuning_delay: float = 0.0  #: excitation-wavelength tuning time, s
     dc_level: float = 1.0  #: mean photodiode DC level, V
@@ -549,7 +554,8 @@ class SimulatedScanner:
             if self._clock_pending:  # the PRF clock starts when the first A-line is ready
                 self._clock_pending = False
                 self._clock0 = self._last_fire = now
-            if cfg.prf > 0:
+            prf = plan.prf if cfg.prf_from_plan and plan.prf > 0 else cfg.prf
+            if prf > 0:
                 if self._ready_k != k:
                     # galvo move, bias and laser tuning start right after the previous
                     # pulse, or when the A-line could not start earlier (no credit, data
@@ -561,9 +567,9 @@ class SimulatedScanner:
                     self._ready_k, self._ready_t = k, ready
                 ready = self._ready_t
                 first = max(self._last_tick + 1,
-                            math.ceil((ready - self._clock0) * cfg.prf - 1e-9))
+                            math.ceil((ready - self._clock0) * prf - 1e-9))
                 last = first + plan.averages - 1
-                fire_at = self._clock0 + last / cfg.prf
+                fire_at = self._clock0 + last / prf
                 if now < fire_at:
                     self._wake = fire_at
                     return

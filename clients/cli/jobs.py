@@ -60,9 +60,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_server_options(p, required=True)
 
 
+def mask_words(mask: object) -> str:
+    """What a reconstruction's input samples (its record's ``params["mask"]``): ``full 96×96``
+    or ``equisteradian, 400 of 9216 points``; ``""`` for a record without it. The web page's jobs
+    table says the same (clients/web/app.js: maskWords)."""
+    if not isinstance(mask, dict) or not isinstance(mask.get("lattice"), list | tuple) or not mask["lattice"]:
+        return ""
+    n_x = int(mask["lattice"][0])
+    n_y = int(mask["lattice"][1]) if len(mask["lattice"]) > 1 and mask["lattice"][1] else 1
+    total = n_x * n_y
+    if mask.get("n_points") == total:
+        return f"full {n_x}×{n_y}" if n_y > 1 else f"full {n_x}"
+    return f"{mask.get('kind') or 'points'}, {mask.get('n_points')} of {total} points"
+
+
 def _what(job: object) -> str:  # a Job model or its dict
-    """What a job works on: ``plan 1a2b3c4d on fp1`` for a scan, ``nedner of scan 5e6f7a8b``
-    (or ``of dataset ...``) for a reconstruction."""
+    """What a job works on: ``plan 1a2b3c4d on fp1`` for a scan; for a reconstruction its method,
+    input and what the input samples: ``nedner of scan 5e6f7a8b (equisteradian, 400 of 9216
+    points)``, ``nedner of dataset 8bf03875 sampled by plan 3c4d5e6f (...)``, ``ner of dataset
+    8bf03875 (full 96×96)``."""
     from fpscan.clients.http import field_of, to_dict
 
     p = to_dict(field_of(job, "params")) or {}
@@ -70,7 +86,11 @@ def _what(job: object) -> str:  # a Job model or its dict
         return f"plan {str(p.get('plan_id') or '?')[:8]} on {p.get('scanner_id') or '?'}"
     source = (f"scan {str(p['scan_job_id'])[:8]}" if p.get("scan_job_id")
               else f"dataset {str(p.get('dataset_id') or '?')[:8]}")
-    return f"{p.get('method') or '?'} of {source}"
+    mask = p.get("mask")
+    if not p.get("scan_job_id") and isinstance(mask, dict) and mask.get("plan_id"):
+        source += f" sampled by plan {str(mask['plan_id'])[:8]}"
+    words = mask_words(mask)
+    return f"{p.get('method') or '?'} of {source}" + (f" ({words})" if words else "")
 
 
 @client_errors
@@ -104,13 +124,13 @@ def run(args: argparse.Namespace) -> int:
                 print("\n".join(str(field_of(j, "id")) for j in jobs))
                 return 0
             # short ids (a unique prefix is accepted wherever a job id is)
-            print(f"{'id':<12}  {'kind':<5}  {'state':<10}  {'what':<34}  progress")
+            print(f"{'id':<12}  {'kind':<5}  {'state':<10}  {'what':<58}  progress")
             for j in jobs:
                 prog = to_dict(field_of(j, "progress")) or {}
                 frac = prog.get("fraction")
                 pct = f"{100 * frac:5.1f}%" if frac is not None else ""
                 print(f"{field_of(j, 'id')!s:<12.12}  {field_of(j, 'kind')!s:<5}  "
-                      f"{field_of(j, 'state')!s:<10}  {_what(j):<34}  {pct} {prog.get('stage') or ''}".rstrip())
+                      f"{field_of(j, 'state')!s:<10}  {_what(j):<58}  {pct} {prog.get('stage') or ''}".rstrip())
             return 0
         if args.action == "get":
             print(json.dumps(to_dict(api.get_job(args.job_id)), indent=2))

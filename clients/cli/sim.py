@@ -42,8 +42,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "kwave3d_balls_yarn.h5)")
     parser.add_argument("--dataset", default="sensor_data/clean",
                         help="dataset replayed from the replay FILE (default: sensor_data/clean)")
-    parser.add_argument("--prf", type=quantity("frequency", "prf"), default=50.0,
-                        help="laser pulse repetition frequency, e.g. 500Hz; 0 = unthrottled (default 50 Hz)")
+    parser.add_argument("--prf", type=quantity("frequency", "prf"), default=None,
+                        help="laser pulse repetition frequency, e.g. 500Hz, for every plan; 0 = unthrottled "
+                             "(default: the PRF each plan asks for, its acquisition.prf; 50 Hz for a plan "
+                             "that asks for none)")
     parser.add_argument("--faults", default="",
                         help="fault spec, e.g. 'corrupt=1e-4,drop=1e-4,stall=800:2,reset=1200,"
                              "interlock=1500'")
@@ -156,7 +158,8 @@ def run(args: argparse.Namespace) -> int:
     source = make_source(args.source, dataset=args.dataset, sound_speed=args.sound_speed, so2=args.so2)
     config = SimConfig(
         source=source,
-        prf=args.prf, tuning_delay=args.tuning_delay, laser_tuning_delay=args.laser_tuning_delay,
+        prf=50.0 if args.prf is None else args.prf, prf_from_plan=args.prf is None,
+        tuning_delay=args.tuning_delay, laser_tuning_delay=args.laser_tuning_delay,
         dc_variation=args.dc_variation,
         sensitivity_variation=args.sensitivity_variation, bandwidth=args.bandwidth,
         snr=args.snr, byte_rate=args.byte_rate, faults=FaultSpec.parse(args.faults),
@@ -171,7 +174,8 @@ def run(args: argparse.Namespace) -> int:
     sim = SimulatedScanner(config).start()
     try:
         print(sim.path, flush=True)
-        print(f"fpscan sim: {source.describe()}, PRF {args.prf:g} Hz, boot id "
+        rate = "the plan's PRF (50 Hz if it asks for none)" if args.prf is None else f"PRF {args.prf:g} Hz"
+        print(f"fpscan sim: {source.describe()}, {rate}, boot id "
               f"{sim.boot_id}; stop with Ctrl-C", file=sys.stderr, flush=True)
         while not stop.wait(0.5):
             pass

@@ -1171,12 +1171,27 @@ function jobCreated(j) {
 }
 
 /** What a job works on: "plan 1a2b3c4d on fp1" (scan), "nedner of scan 5e6f7a8b" (recon). */
+/** What a reconstruction's input samples (its record's params.mask): "full 96×96" or
+ * "equisteradian, 400 of 9216 points"; "" for a record without it. The CLI's `fpscan jobs list`
+ * says the same words (clients/cli/jobs.py: mask_words). */
+function maskWords(m) {
+  if (!m || !Array.isArray(m.lattice)) return "";
+  const [nx, ny] = m.lattice;
+  const all = nx * (ny || 1);
+  const grid = ny > 1 ? `${nx}×${ny}` : `${nx}`;
+  if (m.n_points === all) return `full ${grid}`;
+  return `${m.kind ?? "points"}, ${m.n_points} of ${all} points`;
+}
+
 function jobWhat(j) {
   const p = j.params || {};
   const short = (s) => String(s ?? "?").slice(0, 8);
   if (j.kind === "scan") return `plan ${short(p.plan_id)} on ${p.scanner_id ?? "?"}`;
-  const source = p.scan_job_id ? `scan ${short(p.scan_job_id)}` : `dataset ${short(p.dataset_id)}`;
-  return `${p.method ?? "?"} of ${source}`;
+  let source = p.scan_job_id ? `scan ${short(p.scan_job_id)}` : `dataset ${short(p.dataset_id)}`;
+  const m = p.mask;
+  if (!p.scan_job_id && m && m.plan_id) source += ` sampled by plan ${short(m.plan_id)}`;
+  const words = maskWords(m);
+  return `${p.method ?? "?"} of ${source}` + (words ? ` (${words})` : "");
 }
 
 async function refreshJobs() {

@@ -246,6 +246,41 @@ def list_methods() -> list[MethodInfo]:
             for m in METHODS.values()]
 
 
+def mask_facts(source: dict, plan_id: str | None = None) -> dict:
+    """What a reconstruction's input samples of its lattice, for the job's record (its label):
+    ``kind`` (a plan's mask kind, ``"equisteradian"``, ...; ``"full"`` for a dataset holding every
+    point of its grid; ``"points"`` for a dataset of other sensor points), ``n_points`` (A-lines),
+    ``lattice`` (``[n_x, n_y]``) and, for a plan, ``plan_id``. ``source``: a plan document or a
+    stored dataset's record."""
+    if "lattice" in source and "acquisition" in source:  # a plan document
+        lat = source["lattice"]
+        return {"kind": str((source.get("mask") or {}).get("kind") or "points"),
+                "n_points": len(source["points"]["indices"]), "lattice": [int(lat["n_x"]), int(lat.get("n_y", 1))],
+                "plan_id": plan_id or source.get("id")}
+    shape = input_shape(source)
+    n_x, n_y = int(shape["n_x"]), int(shape.get("n_y") or 1)
+    if source.get("layout") == "grid":
+        return {"kind": "full", "n_points": n_x * n_y, "lattice": [n_x, n_y]}
+    return {"kind": "full" if source.get("full_lattice") else "points", "n_points": int(shape["n_points"]),
+            "lattice": [n_x, n_y]}
+
+
+def _mask_of(context: Context, body: ReconRequestBase) -> dict | None:
+    """:func:`mask_facts` of the request's input (its scan's plan, the sampling plan or the
+    dataset: the first of ``dataset_ids``); None where the store no longer has it."""
+    if body.scan_job_id is not None:
+        job = context.store.get(body.scan_job_id)
+        plan_id = job["params"].get("plan_id") if job is not None else None
+        found = context.store.get_plan(plan_id) if plan_id else None
+        return mask_facts(found[0], plan_id) if found is not None else None
+    if body.plan_id is not None:
+        found = context.store.get_plan(str(body.plan_id))
+        return mask_facts(found[0], str(body.plan_id)) if found is not None else None
+    ds_id = body.dataset_id if body.dataset_id is not None else next(iter(body.dataset_ids or ()), None)
+    meta = context.store.get_dataset(ds_id) if ds_id is not None else None
+    return mask_facts(meta) if meta is not None else None
+
+
 @router.post("", status_code=202, response_model=Job, dependencies=[Depends(require_token)],
              responses={409: {"description": "Idempotency-Key reused with other parameters, or no scan file"},
                         404: {"description": "unknown scan job or dataset"},
@@ -298,7 +333,7 @@ def start_reconstruction(body: ReconRequest, response: Response, request: Reques
     job_params = {"method": body.method, "params": params, "input": spec, "input_id": input_id, "shape": shape,
                   "scan_job_id": body.scan_job_id, "dataset_id": body.dataset_id, "memory_estimate": mem,
                   "work_estimate_s": float(f"{work:.4g}"), "result_bytes": needed,
-                  "wavelength": body.wavelength, **extra,
+                  "wavelength": body.wavelength, "mask": _mask_of(context, body), **extra,
                   "client": (request.scope.get("client") or ("?", 0))[0]}  # whose queue it counts in
     try:  # its inputs looked up again with the job's creation, no deletion between (lifecycle.guard)
         job, _created = lifecycle.create_job(context.store, "recon", job_params, idempotency_key=idempotency_key,

@@ -425,6 +425,16 @@ def test_result_view_reconstruct_slices_and_download_volume(browser, server, api
     with h5py.File(got[0], "r") as f:
         assert len(f.keys()) > 0
 
+    # the jobs table names what was reconstructed: the scan and its plan's mask
+    plan = api.get(f"/api/plans/{api.get(f'/api/jobs/{scan_id}').json()['params']['plan_id']}/plan.json").json()
+    n, total = len(plan["points"]["indices"]), plan["lattice"]["n_x"] * plan["lattice"].get("n_y", 1)
+    words = (f"full {plan['lattice']['n_x']}×{plan['lattice']['n_y']}" if n == total
+             else f"{plan['mask']['kind']}, {n} of {total} points")
+    el(browser, "nav-jobs").click()
+    row = wait_for(lambda: browser.find_element("css selector", f'tr[data-job-id="{recon_id}"]'), "the reconstruction in the job list")
+    wait_for(lambda: row.find_element("css selector", ".c-what").text == f"nedner of scan {scan_id[:8]} ({words})",
+             "the reconstruction's label")
+
 
 def test_result_view_offers_the_model_based_method_and_its_parameters(browser, server, api, screenshots, state):
     """Choosing ``tv`` shows its λ and iteration fields (hidden for the other methods)
