@@ -26,10 +26,11 @@ name            module      content                                             
 ``ome-tiff``    ome_tiff    p0 volume as OME-TIFF (from a result)               export
 ``ome-zarr``    ngff        p0 volume as OME-Zarr, NGFF 0.5 (from a result)     export (a folder)
 ``npz``         npz         p0 volume and axes as NumPy .npz (from a result)    export
+``mat``         mat         p0 volume as MATLAB .mat, k-Wave layout (result)    export
 ==============  ==========  ==================================================  =====================
 
 Exports: a format with ``export_from`` and ``export`` writes files of another (``result`` and
-``fpscan`` export themselves, ``ipasc`` a scan file, ``ome-tiff`` / ``ome-zarr`` / ``npz`` a result):
+``fpscan`` export themselves, ``ipasc`` a scan file, ``ome-tiff`` / ``ome-zarr`` / ``npz`` / ``mat`` a result):
 :func:`export_formats`, :func:`export_file` (the one dispatch of ``fpscan export``, ``GET
 /api/jobs/{id}/export/{format}``, the HTTP client's ``export`` and the web page's downloads).
 
@@ -86,6 +87,7 @@ def _register_builtins() -> None:
         ipasc,
         kwave_hdf5,
         kwave_mat,
+        mat,
         ngff,
         npy,
         npz,
@@ -97,7 +99,8 @@ def _register_builtins() -> None:
         unmix,
     )
 
-    for module in (npy, kwave_hdf5, kwave_mat, scan, ipasc, dataset, result, unmix, plan, png, ome_tiff, ngff, npz):
+    for module in (npy, kwave_hdf5, kwave_mat, scan, ipasc, dataset, result, unmix, plan, png, ome_tiff, ngff, npz,
+                   mat):
         register(module.FORMAT)
 
 

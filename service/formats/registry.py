@@ -155,7 +155,7 @@ class Format:
         Sniffing order, lowest first; the catch-all (any HDF5 array: ``kwave-hdf5``) last.
     rank : int
         Position in the lists of choices (:func:`names`, :func:`export_formats`), smallest
-        first, formats of one rank in registration order; fpscan's own are 10..130, the
+        first, formats of one rank in registration order; fpscan's own are 10..140, the
         default (1000) puts a plugin's after them.
     noun : str
         The format in a message (``"a NumPy .npy array"``; default ``"a <name> file"``).
