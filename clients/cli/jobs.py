@@ -7,7 +7,7 @@ import argparse
 
 from fpscan.clients.cli.common import add_progress_option, add_server_options, client_errors, delete_each
 
-__all__ = ["COMMAND", "HELP", "STATES", "KINDS", "add_arguments", "run"]
+__all__ = ["COMMAND", "HELP", "STATES", "KINDS", "add_arguments", "run", "mask_words"]
 
 COMMAND = "jobs"
 HELP = "list, get, wait on, resume (a paused scan), cancel or delete the server's jobs (scans, reconstructions)"

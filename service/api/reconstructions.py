@@ -39,7 +39,7 @@ from fpscan.service.pipeline import METHODS, default_method
 from fpscan.service.recon.methods import get as method_named
 
 __all__ = [
-    "router", "JobId", "IdemKey", "list_methods", "start_reconstruction", "queue_wait", "WavelengthQuery", "result_dir",
+    "router", "JobId", "IdemKey", "mask_facts", "list_methods", "start_reconstruction", "queue_wait", "WavelengthQuery", "result_dir",
     "volume_dir", "volume", "unmix_h5", "so2_png", "mip_png", "slice_png",
 ]
 
