@@ -1,6 +1,6 @@
 """
 Reading k-Wave files: NER beside k-Wave's own reconstruction
-===========================================================
+============================================================
 
 fpscan reads sensor data as k-Wave writes it: HDF5 in k-Wave's layout (``--format
 kwave-hdf5``), k-Wave's MAT-files (``kwave-mat``) and plain ``.npy`` arrays

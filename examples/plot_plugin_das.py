@@ -33,7 +33,7 @@ command line and over HTTP.
 #
 # The algorithm: each output pixel r = (x, y, z) is the mean, over the sensors i within the
 # aperture (lateral distance at most z / (2 f_number)), of the back-projection term
-# b_i(t) = 2 p_i(t) − 2 t ∂p_i/∂t at the time of flight t = |r − r_i| / c, linearly interpolated
+# ``b_i(t) = 2 p_i(t) − 2 t ∂p_i/∂t`` at the time of flight ``t = |r − r_i| / c``, linearly interpolated
 # in time, each sensor weighted by its quadrature area and the solid angle it subtends from r.
 # It is vectorised over pixels and sensors and runs in chunks of depth rows, which bounds its
 # memory. numpy is imported inside the functions: the command line's ``--help`` imports the
@@ -48,7 +48,7 @@ import tempfile
 import textwrap
 import time
 import tomllib
-from importlib.metadata import entry_points
+from importlib.metadata import distributions
 from pathlib import Path
 
 import matplotlib.pyplot as plt
@@ -236,7 +236,10 @@ env["PYTHONPATH"] = os.pathsep.join([str(site), *filter(None, [os.environ.get("P
 # input and output) and ``undeclared_work`` (50 ns per sensor and voxel, above what a plain numpy
 # back-projection such as this one costs). A method that declares its own models is judged by its
 # own figures: here 40 ns per pair, measured.
-(point,) = entry_points(group="fpscan.methods", name="das")
+if str(site) not in sys.path:  # a documentation build runs each section with the path it started with
+    sys.path.insert(0, str(site))
+(dist,) = distributions(path=[str(site)])  # the package installed above, read from its own folder
+(point,) = dist.entry_points.select(group="fpscan.methods", name="das")
 if "das" not in fpscan.METHODS:
     register_method(point.load())
 das = fpscan.METHODS["das"]
