@@ -19,18 +19,14 @@ On a lab's machine the server runs already (``fpscan serve``, or the Docker imag
 # A ``.npy`` array in the time-first layout ``(n_t, n_x)`` of a sensor line (50 µm, 10 ns),
 # simulated exactly: three small discs.
 import io
-import os
-import socket
-import subprocess
-import sys
 import tempfile
-import time
 from pathlib import Path
 
 import matplotlib.pyplot as plt
 import numpy as np
 
 import fpscan
+from fpscan.clients.processes import service
 from fpscan.service.recon import forward_grid
 
 n_x, n_z, dx, dt, n_t, c = 128, 64, 50e-6, 10e-9, 600, 1500.0
@@ -44,53 +40,24 @@ npy = folder / "line.npy"
 np.save(npy, forward_grid(p0, dx, dx, dt, n_t, c).astype(np.float32))
 
 # %%
-# Start a server
-# --------------
-# ``python -m fpscan serve`` on a free port, its log in a file; no token (it then listens on
-# loopback only) and no kernel warm-up (a short-lived server). The client polls
-# ``GET /api/health`` until it answers, for at most two minutes.
-with socket.socket() as probe:
-    probe.bind(("127.0.0.1", 0))
-    port = probe.getsockname()[1]
-url = f"http://127.0.0.1:{port}"
-env = {k: v for k, v in os.environ.items() if not k.startswith("FPSCAN_")}  # no local server settings
-with open(folder / "server.log", "w") as log:
-    server = subprocess.Popen([sys.executable, "-m", "fpscan", "serve", "--host", "127.0.0.1", "--port", str(port),
-                               "--data-dir", str(folder / "data"), "--no-web"],
-                              env={**env, "FPSCAN_WARM_UP": "false"}, stdout=log, stderr=subprocess.STDOUT)
-
-# %%
-# Upload, reconstruct, download
-# -----------------------------
-# ``upload_dataset`` stores the file on the server (its format's options: ``dt``, ``dx``);
-# ``start_reconstruction`` queues a job and returns its id; ``wait`` follows it to its end
-# (a progress callback, or ``quiet=True``); the downloads write the result's files.
-try:
-    with fpscan.Client(url, timeout=30) as api:
-        deadline = time.monotonic() + 120
-        while True:  # until GET /api/health answers
-            try:
-                api.health()
-                break
-            except fpscan.FpscanClientError:  # not listening yet
-                if server.poll() is not None or time.monotonic() > deadline:
-                    raise RuntimeError("the server did not start:\n"
-                                       + (folder / "server.log").read_text()[-2000:]) from None
-                time.sleep(0.2)
-        print("methods:", ", ".join(m.name for m in api.methods()))
-        dataset_id = api.upload_dataset(npy, "npy", dt=dt, dx=dx)
-        job_id = api.start_reconstruction(dataset_id=dataset_id, method="ner", params={"n_z": n_z, "dz": dx})
-        job = api.wait(job_id, timeout=300, quiet=True)
-        print(f"job {job.id[:8]}: {job.state}")
-        api.download_volume(job_id, folder / "volume.h5")
-        api.download_mip(job_id, "xz", folder / "mip_xz.png")
-finally:
-    server.terminate()
-    try:
-        server.wait(timeout=30)
-    except subprocess.TimeoutExpired:
-        server.kill()
-        server.wait()
+# Start a server, upload, reconstruct, download
+# ---------------------------------------------
+# ``fpscan.clients.processes.service`` starts ``python -m fpscan serve`` on a free port of
+# 127.0.0.1 with its log in a file, waits until ``GET /api/health`` answers (at most two minutes)
+# and stops it when the block ends, whatever happens; no token (it then listens on loopback only)
+# and no kernel warm-up (a short-lived server). ``upload_dataset`` stores the file on the server
+# (its format's options: ``dt``, ``dx``); ``start_reconstruction`` queues a job and returns its id;
+# ``wait`` follows it to its end (a progress callback, or ``quiet=True``); the downloads write the
+# result's files.
+with service(folder / "data", web=False, timeout=120, log_path=folder / "server.log",
+             env={"FPSCAN_WARM_UP": "false"}) as server, fpscan.Client(server.url, timeout=30) as api:
+    print("methods:", ", ".join(m.name for m in api.methods()))
+    dataset_id = api.upload_dataset(npy, "npy", dt=dt, dx=dx)
+    job_id = api.start_reconstruction(dataset_id=dataset_id, method="ner", params={"n_z": n_z, "dz": dx})
+    job = api.wait(job_id, timeout=300, quiet=True)
+    print(f"job {job.id[:8]}: {job.state}")
+    api.download_volume(job_id, folder / "volume.h5")
+    api.download_mip(job_id, "xz", folder / "mip_xz.png")
 
 # %%
 # The downloaded volume is the library's reconstruction

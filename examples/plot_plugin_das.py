@@ -41,7 +41,6 @@ command line and over HTTP.
 import importlib
 import os
 import shutil
-import socket
 import subprocess
 import sys
 import tempfile
@@ -55,6 +54,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import fpscan
+from fpscan.clients.processes import clean_env, service
 from fpscan.plugins import register_method, undeclared_peak, undeclared_work
 
 DAS_MODULE = '''
@@ -220,8 +220,7 @@ print((info / "entry_points.txt").read_text())
 
 sys.path.insert(0, str(site))
 importlib.invalidate_caches()
-env = {k: v for k, v in os.environ.items() if not k.startswith("FPSCAN_")}  # no local server settings
-env["PYTHONPATH"] = os.pathsep.join([str(site), *filter(None, [os.environ.get("PYTHONPATH")])])
+env = clean_env(PYTHONPATH=os.pathsep.join([str(site), *filter(None, [os.environ.get("PYTHONPATH")])]))  # no FPSCAN_*
 
 # %%
 # The method in the library
@@ -346,27 +345,13 @@ print(fpscan_cli("recon", str(npy), "--dt", "8ns", "--dx", "60um", "--method", "
 # built-in method: ``GET /api/reconstructions/methods`` lists it with its options (the web
 # page's fields), and ``POST /api/reconstructions`` takes ``f_number`` in its ``params``.
 # The server runs on a free port of 127.0.0.1 with its own data folder (no token: it listens on
-# loopback only), without its kernel warm-up; it is stopped at the end whatever happens.
-with socket.socket() as probe:
-    probe.bind(("127.0.0.1", 0))
-    port = probe.getsockname()[1]
-url = f"http://127.0.0.1:{port}"
-with open(folder / "server.log", "w") as log:  # the server writes its log there
-    server = subprocess.Popen([sys.executable, "-m", "fpscan", "serve", "--host", "127.0.0.1", "--port", str(port),
-                               "--data-dir", str(folder / "data"), "--no-web"],
-                              env={**env, "FPSCAN_WARM_UP": "false"}, stdout=log, stderr=subprocess.STDOUT)
+# loopback only), without its kernel warm-up.
+# ``fpscan.clients.processes.service`` starts it, waits until ``GET /api/health`` answers (at most
+# two minutes) and stops it when the block ends.
 try:
-    with fpscan.Client(url, timeout=30) as api:
-        deadline = time.monotonic() + 120
-        while True:  # until GET /api/health answers
-            try:
-                api.health()
-                break
-            except fpscan.FpscanClientError:  # not listening yet
-                if server.poll() is not None or time.monotonic() > deadline:
-                    raise RuntimeError("the server did not start:\n"
-                                       + (folder / "server.log").read_text()[-2000:]) from None
-                time.sleep(0.2)
+    with service(folder / "data", web=False, timeout=120, log_path=folder / "server.log",
+                 env={"PYTHONPATH": env["PYTHONPATH"], "FPSCAN_WARM_UP": "false"}) as server, \
+            fpscan.Client(server.url, timeout=30) as api:
         served = {m.name: m for m in api.methods()}
         print(f"served methods: {', '.join(served)}")
         print("das's f_number:", next(o for o in served["das"].options if o.name == "f_number"))
@@ -377,10 +362,4 @@ try:
         print(f"job {job.id}: {job.state}\n  its options: {job.params['params']}\n"
               f"  used: {job.params['result']['params_used']}")
 finally:
-    server.terminate()
-    try:
-        server.wait(timeout=30)
-    except subprocess.TimeoutExpired:
-        server.kill()
-        server.wait()
     tmp.cleanup()

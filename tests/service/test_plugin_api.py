@@ -112,21 +112,28 @@ print(json.dumps(seen))
 '''
 
 
-def test_plugin_entry_points_are_read_on_the_registrys_first_read(tmp_path):
+def _run_with_plugin(tmp_path, package: str, module: str, entry_points: str, script: str) -> dict:
+    """``script`` run in a fresh interpreter beside a distribution ``package`` (its one module
+    and a ``.dist-info`` with ``entry_points``, as an installer writes them): its last line as JSON."""
     site = tmp_path / "site"
-    (site / "fpscan_lazy_probe").mkdir(parents=True)
-    (site / "fpscan_lazy_probe" / "__init__.py").write_text(textwrap.dedent(PROBE_PY))
-    info = site / "fpscan_lazy_probe-0.1.dist-info"
+    (site / package).mkdir(parents=True)
+    (site / package / "__init__.py").write_text(textwrap.dedent(module))
+    info = site / f"{package}-0.1.dist-info"
     info.mkdir()
-    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: fpscan_lazy_probe\nVersion: 0.1\n")
-    (info / "entry_points.txt").write_text("[fpscan.methods]\nlazy-probe = fpscan_lazy_probe:METHOD\n")
+    (info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {package}\nVersion: 0.1\n")
+    (info / "entry_points.txt").write_text(entry_points)
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(site), *filter(None, [os.environ.get("PYTHONPATH")])])}
-    out = subprocess.run([sys.executable, "-c", LAZY], capture_output=True, text=True, timeout=120, env=env,
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120, env=env,
                          cwd=tmp_path)
     assert out.returncode == 0, out.stderr
-    seen = json.loads(out.stdout.strip().splitlines()[-1])
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def test_plugin_entry_points_are_read_on_the_registrys_first_read(tmp_path):
+    seen = _run_with_plugin(tmp_path, "fpscan_lazy_probe", PROBE_PY,
+                            "[fpscan.methods]\nlazy-probe = fpscan_lazy_probe:METHOD\n", LAZY)
     assert seen == {"after_import": False, "loaded_flag": False, "after_read": True, "listed": True,
-                    "loaded": True}, (seen, out.stderr)
+                    "loaded": True}, seen
 
 
 BOTH_PY = '''
@@ -158,20 +165,9 @@ print(json.dumps({"format": "both-text" in listed_formats, "method": "both-metho
 def test_a_plugin_module_that_reads_the_other_registry_while_imported_loads_whole(tmp_path):
     """Its format's group loads first; its import reads the methods' registry, whose load names the
     same (half-imported) module: that entry point is registered once the module is imported."""
-    site = tmp_path / "site"
-    (site / "fpscan_both").mkdir(parents=True)
-    (site / "fpscan_both" / "__init__.py").write_text(textwrap.dedent(BOTH_PY))
-    info = site / "fpscan_both-0.1.dist-info"
-    info.mkdir()
-    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: fpscan_both\nVersion: 0.1\n")
-    (info / "entry_points.txt").write_text("[fpscan.methods]\nboth-method = fpscan_both:METHOD\n\n"
-                                           "[fpscan.formats]\nboth-text = fpscan_both:FORMAT\n")
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(site), *filter(None, [os.environ.get("PYTHONPATH")])])}
-    out = subprocess.run([sys.executable, "-c", BOTH], capture_output=True, text=True, timeout=120, env=env,
-                         cwd=tmp_path)
-    assert out.returncode == 0, out.stderr
-    seen = json.loads(out.stdout.strip().splitlines()[-1])
-    assert seen == {"format": True, "method": True, "failures": {}}, (seen, out.stderr)
+    seen = _run_with_plugin(tmp_path, "fpscan_both", BOTH_PY, "[fpscan.methods]\nboth-method = fpscan_both:METHOD\n\n"
+                            "[fpscan.formats]\nboth-text = fpscan_both:FORMAT\n", BOTH)
+    assert seen == {"format": True, "method": True, "failures": {}}, seen
 
 
 class GainOptions(api.MethodOptions):
