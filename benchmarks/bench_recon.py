@@ -11,7 +11,7 @@ Every method runs in a fresh process after a small warm-up run (numba compilatio
 
     .venv/bin/python benchmarks/bench_recon.py [--sizes 512x128x128 1024x226x226] [--repeat 2]
     .venv/bin/python benchmarks/bench_recon.py --sweep          # n = 64..320, n_t = 2 n
-    .venv/bin/python benchmarks/bench_recon.py --kwave-2d ../shared/data/kwave2d_points.h5
+    .venv/bin/python benchmarks/bench_recon.py --kwave-2d $FPSCAN_SHARED/data/kwave2d_points.h5
     .venv/bin/python benchmarks/bench_recon.py --cold-start --writer
     .venv/bin/python benchmarks/bench_recon.py --vs-kwave-python   # if k-wave-python is installed
 

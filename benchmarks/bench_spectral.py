@@ -1,7 +1,7 @@
 """Spectral benchmarks: autofocus cost and unmixing throughput.
 
 1. Sound-speed autofocus (``c="auto"``) on the k-Wave 3-D reference data
-   (``../shared/data/kwave3d_balls_yarn.h5``, 96 × 96 sensors, 751 samples) and on a
+   (``$FPSCAN_SHARED/data/kwave3d_balls_yarn.h5``, 96 × 96 sensors, 751 samples) and on a
    simulated ball phantom (128 × 128 sensors, 1024 samples, c = 1480 m/s): the search
    time as a ratio to ONE reconstruction of the same data with the same method (target
    ≤ 4×), and the c found.
@@ -16,6 +16,7 @@ Prints ratios and per-voxel times only; no assertions.
 from __future__ import annotations
 
 import argparse
+import os
 import time
 from pathlib import Path
 
@@ -23,7 +24,8 @@ import numpy as np
 
 from fpscan.physics.axes import centred_axis
 
-SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+#: the k-Wave reference files: $FPSCAN_SHARED/data, by default the shared folder beside the checkout
+SHARED = Path(os.environ.get("FPSCAN_SHARED", Path(__file__).resolve().parents[1].parent / "shared")) / "data"
 
 
 def _timed(f, *args, **kwargs):

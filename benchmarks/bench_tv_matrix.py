@@ -1,12 +1,13 @@
 """tv's quality gate on data nobody here wrote or tuned for: one table, one row per
 case × sensor mask × noise, tv's default image against the references, and the gate.
 
-Cases (``--cases``):
+Cases (``--cases``; ``$FPSCAN_SHARED``, by default the ``shared`` folder beside the checkout, holds
+the k-Wave files):
 
-- ``vessels``: ``../shared/data/kwave3d_vessel_tree.h5`` (k-Wave ``kspaceFirstOrder3D``, 64 × 96 × 96
+- ``vessels``: ``$FPSCAN_SHARED/data/kwave3d_vessel_tree.h5`` (k-Wave ``kspaceFirstOrder3D``, 64 × 96 × 96
   voxels of 60 µm, 751 samples of 8 ns; a vessel tree of 93 segments in 5 generations);
-- ``balls``: ``../shared/data/kwave3d_balls_yarn.h5`` (the same grid; six balls and a yarn);
-- ``points``: ``../shared/data/kwave2d_points.h5`` (2-D, a line of 1024 sensors at 50 µm, 3519
+- ``balls``: ``$FPSCAN_SHARED/data/kwave3d_balls_yarn.h5`` (the same grid; six balls and a yarn);
+- ``points``: ``$FPSCAN_SHARED/data/kwave2d_points.h5`` (2-D, a line of 1024 sensors at 50 µm, 3519
   samples of 10 ns; point targets on a 256 × 1024 grid);
 - ``paper``: the paper's analytic balls at half size (`bench_tv_paper.paper_case`'s scan at scale
   0.5: a 113² lattice of 60 µm, 512 samples of 8 ns, three balls 1.4-2.2 mm deep), exact A-lines.

@@ -41,7 +41,8 @@ reads 3.22 -> 3.81); the pair at 1653 lattice sensors 3.55 -> 1.58 s, pair/NEDNE
 gathers and scatters its columns in place).
 
 Then (2026-11-24, `--sizes 512x128x128 --points 533 --repeat 3`, two runs each, alternating): the
-adjoint's k-space in private instead of shared anonymous pages (CHANGELOG.md, 2026-11-24) took the
+adjoint's k-space in private instead of shared anonymous pages (docs/history/measurements.md, "the operator's adjoint
+releases its memory for real") took the
 float32 pair from 0.95-1.02 to 0.84-0.90 s and the float64 one from 1.56-1.64 to 1.26-1.35 s.
 
 At 128 x 128² the padded lateral area alone is 1.56x NER's (160² half spectrum against

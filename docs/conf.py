@@ -39,8 +39,9 @@ extensions = [
 
 source_suffix = {".rst": "restructuredtext", ".md": "markdown"}
 templates_path = ["_templates"]
-# notebook.ipynb runs in tests/public_api/test_notebook.py; results/ holds the experiments' files
-exclude_patterns = ["_build", "_generated", "notebook.ipynb", "results/**", "README.md",
+# notebook.ipynb runs in tests/public_api/test_notebook.py; results/ holds the experiments' files;
+# history/ is the developers' record of dated measurements, not a page of the site
+exclude_patterns = ["_build", "_generated", "notebook.ipynb", "results/**", "history/**", "README.md",
                     "auto_examples/*.ipynb", "auto_examples/*.py", "auto_examples/*.zip",
                     "auto_examples/*.md5", "auto_examples/*.json"]
 
@@ -60,7 +61,7 @@ html_css_files = ["wrap.css"]
 # --- myst: the existing markdown pages as they are --------------------------------------
 myst_enable_extensions = ["colon_fence", "deflist", "dollarmath"]
 myst_heading_anchors = 3
-# The pages link to files beside them that are not pages (CHANGELOG.md, ../shared/..., *.py, *.json):
+# The pages link to files beside them that are not pages (CHANGELOG.md, *.py, *.json):
 # they stay plain links.
 suppress_warnings = ["myst.xref_missing", "myst.header",
                     # a page's example JSON with placeholders (architecture.md: [[ix, iy], ...])

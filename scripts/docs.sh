@@ -1,9 +1,9 @@
 #!/usr/bin/env bash
 # Build the documentation site into docs/_build/html with warnings as errors: the user guide
 # (README.md and docs/*.md), the API reference from the docstrings, the HTTP reference from the
-# OpenAPI schema and the gallery (examples/, run on ../shared/data's k-Wave files when present,
-# or FPSCAN_SHARED's; on simulated data otherwise). Sets up .venv with fpscan[docs] first, as
-# scripts/test.sh does. FPSCAN_DOCS_GALLERY=False builds without running the examples.
+# OpenAPI schema and the gallery (examples/, run on the k-Wave files in $FPSCAN_SHARED/data, by
+# default the shared folder beside the checkout, when present; on simulated data otherwise). Sets up
+# .venv with fpscan[docs] first, as scripts/test.sh does. FPSCAN_DOCS_GALLERY=False builds without running the examples.
 # Arguments go to sphinx-build (e.g. -j 2).
 set -euo pipefail
 cd "$(dirname "$0")/.."

@@ -10,7 +10,7 @@ fpscan scan file covering its whole lattice) instead of the built-in simulation;
 ``--small`` runs the fast, reduced version.
 
     fpscan evaluate all --out docs/results        # what docs/results.md shows
-    fpscan evaluate limited-view-2d --data ../shared/data/kwave2d_points.h5 --small
+    fpscan evaluate limited-view-2d --data $FPSCAN_SHARED/data/kwave2d_points.h5 --small
 """
 from __future__ import annotations
 

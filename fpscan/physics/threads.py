@@ -7,7 +7,7 @@ threads as cores, that worker takes a core from whatever runs next, which is nea
 an FFT on pocketfft's own threads: on 2 cores, a temporal FFT of a 256 × 128² NER right
 after a kernel took 19 ms instead of 13; NER float64 at 256 × 128² went from 1.26-1.29 to
 1.03-1.07 of the fast-length FFT, and 2-D NER on the k-Wave tree from 1.72-1.75 to
-1.43-1.46, with the passive policy (CHANGELOG.md, 2026-11-24).
+1.43-1.46, with the passive policy (docs/history/measurements.md, "threads that stop spinning").
 
 Importing this module (`fpscan.physics` does, before any kernel can load libgomp, which
 reads its environment once, when loaded) asks for OpenMP's passive wait policy, unless the

@@ -568,7 +568,8 @@ def warm_heap() -> bool:
     serves smaller arrays from the heap, whose written pages it keeps for reuse. A
     reconstruction's first call paid those faults on every work array (NER float32 of
     256 × 128² after the worker's warm-up, fresh interpreters, median of 8: 0.157 s, against
-    0.124 s after this and 0.06-0.09 s for later calls; CHANGELOG.md, 2026-11-24). Here the
+    0.124 s after this and 0.06-0.09 s for later calls; docs/history/measurements.md,
+    "a warmed heap for the first job"). Here the
     thresholds are set to what glibc's own rule reaches after such a free (``mallopt``: mmap
     threshold `HEAP_MMAP_THRESHOLD`, trim threshold twice `HEAP_WARM_BYTES`) and
     `HEAP_WARM_BYTES` of heap are allocated in blocks below the threshold, written, and freed:

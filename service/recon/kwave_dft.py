@@ -19,7 +19,8 @@ grids, the scaling, the k-space mapping, its interpolation and numba kernel stay
 
 The products run in threads of our own with BLAS at one thread in each (threadpoolctl,
 `_products_in_threads`): OpenBLAS's own threads spin after a product and slowed the
-compiled kernels that follow. Timings: CHANGELOG.md (2026-11-24).
+compiled kernels that follow. Timings: docs/history/measurements.md, "threads that stop spinning, and
+k-Wave's even transforms as products".
 """
 from __future__ import annotations
 
@@ -52,7 +53,7 @@ __all__ = ["MATRIX_MAX_N", "PFA_MAX_SUM", "PRODUCT_MAX_N", "ColumnMapping", "pro
 # y_k = a_0 + 2 Σ_{n=1}^{N-1} a_n cos(2π k n / M), k = 0..N-1 (`_even_matrix`). Up to this N
 # it runs as a real matrix product (BLAS) per chunk of columns, above it as the FFT of the
 # mirrored series. Per output point, 2 cores, float64
-# (CHANGELOG.md, 2026-11-24): the product 7 ns at N = 128, 13 ns at 256, 19 ns at 384, 24 ns at
+# (docs/history/measurements.md, "k-Wave's even transforms as products"): the product 7 ns at N = 128, 13 ns at 256, 19 ns at 384, 24 ns at
 # 512; the FFT 20-35 ns at any N.
 MATRIX_MAX_N = 400
 
@@ -96,7 +97,8 @@ class _EvenPFA:
     stage sums 2 Re(...) over those rows and yields every y_k with k2 <= (m2 - 1) / 2 (the
     others at (-k1, -k2)). About M (m1 + m2) flops per real column against the plain
     product's 2 N²: at k-Wave's 1024 samples (2047 = 23·89), 2 cores, float64, 15 ns a
-    complex point against the mirrored FFT's 32 ns (CHANGELOG.md, 2026-11-24).
+    complex point against the mirrored FFT's 32 ns (docs/history/measurements.md, "k-Wave's modes at the
+    paper's size reach 2.0").
 
     ``pfa(X, out)`` writes the transform of ``X`` (N, cols) real, along axis 0, into ``out``
     (N, cols)."""
@@ -268,7 +270,7 @@ def product_length(n: int) -> bool:
     factor p >= 31 and n <= 4 p. pocketfft takes such a length by a generic pass of p or by
     Bluestein's chirp-z, at about twice the cost per point of a 5-smooth one; a real product
     (BLAS) costs 2 (n + 2) flops a point whatever n's factors. Per point, 2 cores
-    (CHANGELOG.md, 2026-11-24), float64, FFT / product: n = 97 11.0 / 4.5 ns, 226 = 2·113 8.7 / 6.0,
+    (docs/history/measurements.md, "k-Wave's modes at the paper's size reach 2.0"), float64, FFT / product: n = 97 11.0 / 4.5 ns, 226 = 2·113 8.7 / 6.0,
     302 = 2·151 10.8 / 7.7, 454 = 2·227 15.3 / 10.9; but 518 = 14·37 3.8 / 12.3; float32
     about half of each.
 

@@ -233,7 +233,8 @@ def _reuse(space: np.ndarray | None, shape: tuple[int, ...], dtype: npt.DTypeLik
     undefined), or None where ``space`` is None or too small (the step then makes its own).
     Every step of a reconstruction writes its result into memory an earlier step has
     already written, so that a call faults in fresh pages for two large arrays (this buffer
-    and the fine temporal grid), not up to seven (CHANGELOG.md, 2026-11-25)."""
+    and the fine temporal grid), not up to seven (docs/history/measurements.md, "NER's work arrays share
+    memory")."""
     need = int(np.prod(shape)) * np.dtype(dtype).itemsize
     if space is None or space.nbytes < need or not space.flags.c_contiguous:
         return None

@@ -1,8 +1,8 @@
 """The code and the docs cite what a reader can open: the paper, a published method, or the
 repository's own pages. No comment, docstring or page points at the project's issue tracker by
 number or at a design file that lives outside the repository. The oracle is the text itself, read
-from every source, page, test, benchmark and example in the repository (CHANGELOG.md, the release
-notes, excepted: a dated record of what was asked)."""
+from every source, page, test, benchmark and example in the repository, the release notes
+(CHANGELOG.md) and the measurement history (docs/history/) included."""
 from __future__ import annotations
 
 import re
@@ -22,7 +22,8 @@ SKIP_PARTS = {"__pycache__", "_build", "generated", "_generated", "auto_examples
 
 def _files() -> dict[str, list]:
     """The files read, by folder (``"root"``: the repository's top-level files)."""
-    found = {"root": [p for p in (REPO / "README.md", REPO / "pyproject.toml", REPO / "Dockerfile") if p.exists()]}
+    found = {"root": [p for p in (REPO / "README.md", REPO / "CHANGELOG.md", REPO / "CONTRIBUTING.md",
+                                  REPO / "pyproject.toml", REPO / "Dockerfile") if p.exists()]}
     for folder in FOLDERS:
         found[folder] = [p for p in sorted((REPO / folder).rglob("*")) if p.is_file() and p.suffix in SUFFIXES
                          and not SKIP_PARTS & set(p.relative_to(REPO).parts)]
@@ -60,11 +61,13 @@ OUTSIDE = re.compile(r"\.\./shared\b")
 
 
 def test_the_user_docs_name_no_path_outside_the_repository():
-    """README.md and the pages of docs/ name the k-Wave reference files by their names and the
-    variable that says where they are (``FPSCAN_SHARED``), never a path beside the checkout
-    (CHANGELOG.md, a dated record, excepted)."""
-    pages = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md")), *sorted((REPO / "docs").glob("*.rst")),
-             REPO / "examples" / "README.rst"]
+    """README.md, CHANGELOG.md, every page of docs/ (the measurement history too), the examples, the
+    package's docstrings and comments (what the API reference is made of) and the benchmarks name the
+    k-Wave reference files by their names and the variable that says where they are
+    (``FPSCAN_SHARED``), never a path beside the checkout. The tests and CONTRIBUTING.md, written for
+    developers of this checkout, may."""
+    pages = [REPO / "README.md", REPO / "CHANGELOG.md", *FILES["docs"], *FILES["examples"], *FILES["fpscan"],
+             *FILES["service"], *FILES["driver"], *FILES["clients"], *FILES["benchmarks"], *FILES["scripts"]]
     assert OUTSIDE.search("at " + "../" + "shared/data") and not OUTSIDE.search("shared/data")
     bad = [f"{p.relative_to(REPO)}:{k}: {line.strip()[:120]}" for p in pages if p.exists()
            for k, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1) if OUTSIDE.search(line)]

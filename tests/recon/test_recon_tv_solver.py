@@ -178,7 +178,8 @@ def test_lambda_continues_from_the_warm_starts_discrepancy_down_to_lambda():
 def test_continuation_stops_nearer_the_minimiser_on_a_sparse_3d_mask():
     """On 3.3 % of the lattice (balls, 30 dB) the rule stops no later with continuation than
     without, nearer a 300-iteration solve at the same λ, and with a higher CC with the true p0
-    (CHANGELOG.md, "2026-11-26, evening": 58 against 66 iterations, 7 % against 9 %)."""
+    (docs/history/measurements.md, "λ continuation — the paper's scan at the rule": 58 against 66 iterations,
+    7 % against 9 %)."""
     case = make_case("balls", 30, 3, 53)
     on = run_tv(case)
     off = run_tv(case, continuation=False)

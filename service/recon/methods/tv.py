@@ -107,7 +107,7 @@ class Options(DeviceOption, DepthOptions, MethodOptions, NufftOptions):
     tol: Tol = Field(DEFAULT_TOL, description="stopping threshold: stop when the image's relative change "
                      "per iteration, ‖x_k − x_k−1‖ / ‖x_k‖, stays below tol for 3 iterations "
                      "(0: run every iteration); smaller runs longer and stops nearer the minimiser (0.002: "
-                     "1.2-3.8x the iterations; docs/performance.md)", json_schema_extra={"unit": "1"})
+                     "1.1-2.5x the iterations; docs/performance.md)", json_schema_extra={"unit": "1"})
     time_limit: TimeLimit = Field(DEFAULT_TIME_LIMIT, description="wall-time limit of the solver (the server's "
                                   "setting time_limit_s caps it): when reached the result says converged false, "
                                   "stop reason 'time limit'", json_schema_extra={"unit": "s", "quantity": "time"})
