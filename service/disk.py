@@ -1,7 +1,17 @@
 """The one test for a full disk, for every writer of the data folder (uploads, scan
-files, results, the job database), and the one way a file or a folder is put in place
+files, results, the job database), the one way a file or a folder is put in place
 whole (:func:`file_replaced`: exports; :func:`folder_replaced`: result folders, OME-Zarr
-exports)."""
+exports), and the one way stored data is made durable before it is acknowledged
+(:func:`fsync_tree`).
+
+Acknowledged means on disk: a file a 2xx (or a job's recorded success) names is flushed
+with its folder before the job store's commit that records it, in the order a power cut
+needs: the file's data (``fsync`` of the file), then the folder entry naming it (``fsync``
+of the folder, and of the folder above for a folder that was renamed into place), then the
+commit (SQLite, ``synchronous=FULL``), then the answer. Renaming a file into place orders
+nothing by itself: ext4 and XFS may persist the rename before the data (Pillai et al.,
+"All File Systems Are Not Created Equal", OSDI 2014, the ALICE study; POSIX ``fsync``).
+"""
 from __future__ import annotations
 
 import os
@@ -10,7 +20,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["is_disk_full", "file_replaced", "folder_replaced", "copy_replaced"]
+__all__ = ["is_disk_full", "file_replaced", "folder_replaced", "copy_replaced", "fsync_tree", "fsync_folder",
+           "durable_mkdir"]
 
 
 @contextmanager
@@ -109,6 +120,98 @@ def folder_replaced(out: str | os.PathLike, tmp: str | os.PathLike) -> Iterator[
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+
+
+def fsync_folder(folder: str | os.PathLike) -> None:
+    """Flush a folder's entries to disk (``fsync`` of the folder itself): the names created,
+    renamed into it or removed from it survive a power cut.
+
+    Parameters
+    ----------
+    folder : str or os.PathLike
+        The folder.
+
+    Raises
+    ------
+    OSError
+        It cannot be opened or flushed (EIO: the disk lost the write).
+    """
+    fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def durable_mkdir(folder: str | os.PathLike) -> Path:
+    """Make ``folder`` (and its missing parents) and flush the folder above each one made, so
+    that the folders the data's files are put in survive a power cut too (a folder that was
+    there is left as it is).
+
+    Parameters
+    ----------
+    folder : str or os.PathLike
+        The folder (``datasets/``, ``results/``, ``scans/`` of the data folder).
+
+    Returns
+    -------
+    pathlib.Path
+        ``folder``.
+
+    Raises
+    ------
+    OSError
+        It cannot be made or flushed.
+    """
+    folder = Path(folder)
+    missing = []
+    here = folder
+    while not here.is_dir():
+        missing.append(here)
+        if here.parent == here:
+            break
+        here = here.parent
+    folder.mkdir(parents=True, exist_ok=True)
+    for made in reversed(missing):  # the outermost first: each entry after the folder above it exists
+        fsync_folder(made.parent)
+    return folder
+
+
+def fsync_tree(path: str | os.PathLike, *, parent: bool = True) -> None:
+    """Flush ``path`` to disk before it is acknowledged (module docstring): a file, or every
+    file of a folder and then the folder (its subfolders first, each after its files), then,
+    with ``parent``, the folder that names ``path``.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file or folder just written (and renamed into place).
+    parent : bool, optional
+        Also flush the folder holding ``path`` (its entry naming ``path``); default True.
+
+    Raises
+    ------
+    OSError
+        A file or folder cannot be opened or flushed (EIO: the disk lost the write).
+    """
+    path = Path(path)
+    if path.is_dir():
+        for here, _dirs, files in os.walk(path, topdown=False):  # files, then their folder; the root last
+            for name in sorted(files):
+                _fsync_file(Path(here) / name)
+            fsync_folder(here)
+    else:
+        _fsync_file(path)
+    if parent:
+        fsync_folder(path.parent)
+
+
+def _fsync_file(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
 
 
 def is_disk_full(exc: BaseException | None) -> bool:

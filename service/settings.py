@@ -59,7 +59,8 @@ class Settings(BaseSettings):
     model_config = SettingsConfigDict(env_prefix="FPSCAN_", extra="forbid")
 
     data_dir: Path = Field(Path("fpscan-data"), description="folder for the database, plans, scans, results")
-    db_path: Path | None = Field(None, description="SQLite job database (default: <data_dir>/jobs.sqlite)")
+    db_path: Path | None = Field(None, description="SQLite job database (default: <data_dir>/jobs.sqlite); one "
+                                 "server per database: the server locks <db_path>.lock beside it")
     devices: dict[str, str] = Field(default_factory=dict, description="scanner id -> serial path or pyserial URL")
     token: SecretStr | None = Field(None, description="bearer token; None = no token")
     executor: Literal["local", "dask"] = Field("local", description="where reconstructions run: 'local' "

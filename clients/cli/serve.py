@@ -167,13 +167,25 @@ def run(args: argparse.Namespace) -> int:
     if "*" in settings.allowed_hosts and settings.token_value() is None:
         raise UsageError("--allowed-host '*' (any host name) needs a --token (or $FPSCAN_TOKEN_FILE)")
 
-    # one server per data folder, on a free port: both refused in one line before anything
-    # reads the job store (its start-up recovery would pause a live server's running scan)
-    from fpscan.service.data_lock import DataFolderInUse, PortInUse, check_port, lock_data_folder
+    # one server per data folder and per job database (wherever FPSCAN_DB_PATH puts it), on a
+    # free port: each refused in one line before anything reads the job store (its start-up
+    # recovery would pause a live server's running scan and re-queue its reconstructions)
+    from fpscan.service.data_lock import (
+        DataFolderInUse,
+        PortInUse,
+        check_port,
+        lock_data_folder,
+        lock_job_store,
+    )
 
     try:
         check_port(settings.host, settings.port)
         folder_lock = lock_data_folder(settings.data_dir)  # held until this process ends
+        try:
+            store_lock = lock_job_store(settings.database)  # likewise
+        except BaseException:
+            folder_lock.release()
+            raise
     except (DataFolderInUse, PortInUse) as exc:
         print(f"fpscan serve: error: {exc}", file=sys.stderr, flush=True)
         return 1
@@ -207,6 +219,7 @@ def run(args: argparse.Namespace) -> int:
     finally:
         if executor is not None and not getattr(executor, "closed", False):  # the app's shutdown closes it
             executor.close()  # too; here when the app never started (closing twice raised)
+        store_lock.release()
         folder_lock.release()
     return 0
 

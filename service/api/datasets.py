@@ -22,6 +22,10 @@ Datasets never pile up:
   dataset (format, ``dt``, ``dx``, ``dy``, ``c``, ``key``, ``axes``, the wavelength index) is its
   key; the same file with the same options uploaded again answers (201, as any upload)
   with the stored dataset's id and ``deduplicated: true``, storing nothing.
+- Acknowledged means on disk: a new dataset's file, then its folder, then the folder
+  ``datasets/`` that names it are flushed (``fpscan.service.disk.fsync_tree``) before the job
+  store's commit that records it (``synchronous=FULL``), and the 201 comes after that commit:
+  a power cut after the 201 loses nothing it named.
 - Acknowledged means stored: the dataset a 201 names (found or new) is found
   or stored under ``fpscan.service.jobs.lifecycle.guard``, the lock deletions take, and held
   (``lifecycle.hold_dataset``) until the 201 has been sent (a background task of the
@@ -59,6 +63,7 @@ from fpscan.service.api.models import (
     DatasetInfo,
     Deleted,
 )
+from fpscan.service.disk import durable_mkdir, fsync_folder, fsync_tree
 from fpscan.service.formats import upload_formats
 from fpscan.service.formats.load_options import check_load_options, load_option_schemas
 from fpscan.service.formats.untrusted import DiskAdmission, NotAdmitted, hdf5_limit, run_bounded
@@ -262,13 +267,14 @@ def _store_upload(file: UploadFile, format: str, *, dt: float | None, dx: float 
         src.unlink(missing_ok=True)
         meta.update({"format": format, "name": _display_name(file.filename), "content_sha256": sha256,
                      "dedup_key": dedup_key})
+        fsync_tree(dest, parent=False)  # the dataset's file, then its folder: on disk before it is recorded
         with lifecycle.guard(context.store):  # an identical upload may have been stored meanwhile: keep that one
             found = _stored(context, dedup_key, sha256)
             if found is None:
-                stored = Path(context.settings.data_dir) / "datasets" / dataset_id
-                stored.parent.mkdir(exist_ok=True)
+                stored = durable_mkdir(Path(context.settings.data_dir) / "datasets") / dataset_id
                 dest.rename(stored)
                 dest = stored
+                fsync_folder(stored.parent)  # the entry naming it, then the commit (synchronous=FULL)
                 context.store.put_dataset(dataset_id, meta)
                 lifecycle.hold_dataset(context.store, dataset_id)  # until its 201 is sent (retention passes it by)
                 usage_for(context.settings.data_dir).add_path(stored)  # /api/health's counters

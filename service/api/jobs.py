@@ -134,17 +134,23 @@ def job_view(job: dict) -> Job:
     Returns
     -------
     Job
-        The API's model, with its timings (``queued_s``, ``run_s``) and links
+        The API's model, with its timings (``queued_s``, ``run_s``: differences of the store's
+        monotonic time, ``fpscan.service.jobs.store.clock``, never of wall times) and links
         (:func:`job_links`).
     """
     # no file system path, nor the submitting client's address (it caps the client's queue)
     params = {k: v for k, v in job["params"].items() if k not in ("input", "scan_path", "client")}
     created, started, finished = job["created"], job["started"], job["finished"]
-    earlier = [{**a, "run_s": (a["ended"] - a["started"]) if a.get("started") else None}
+    # durations from the store's monotonic time (immune to the wall clock's steps); an attempt
+    # cut off by an earlier release has its wall times alone, clamped at 0
+    earlier = [{**a, "run_s": a["run_s"] if a.get("run_s") is not None else
+                (max(0.0, a["ended"] - a["started"]) if a.get("started") else None)}
                for a in job.get("earlier_attempts") or []]
+    c_mono, s_mono, f_mono = job.get("created_mono"), job.get("started_mono"), job.get("finished_mono")
     timings = {"created": created, "started": started, "finished": finished,
-               "queued_s": (started - created) if started else None,
-               "run_s": (finished - started) if (finished and started) else None, "earlier_attempts": earlier}
+               "queued_s": max(0.0, s_mono - c_mono) if (s_mono is not None and c_mono is not None) else None,
+               "run_s": max(0.0, f_mono - s_mono) if (f_mono is not None and s_mono is not None) else None,
+               "earlier_attempts": earlier}
     return Job(id=job["id"], kind=job["kind"], state=job["state"], progress=job["progress"], timings=timings,
                params=params, links=job_links(job), attempts=job["attempts"], error=job["error"])
 
@@ -180,7 +186,8 @@ def get_job_or_404(context: Context, job_id: str, kind: str | None = None) -> di
 @router.get("", response_model=list[Job], dependencies=[Depends(read_access)])
 def list_jobs(context: Context = Depends(ctx), state: JobState | None = Query(None), kind: JobKind | None = Query(None),
               limit: int = Query(200, ge=1, le=1000)) -> list[Job]:
-    """Jobs, newest first, optionally filtered by state and kind."""
+    """Jobs, newest first (in the order they were submitted, whatever the wall clock did),
+    optionally filtered by state and kind."""
     return [job_view(j) for j in context.store.list(state=state, kind=kind, limit=limit)]
 
 

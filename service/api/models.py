@@ -543,7 +543,7 @@ class Attempt(wire.Attempt):
     ended : float
         UNIX time it was cut off, s.
     run_s : float or None
-        Seconds it ran.
+        Seconds it ran (on a monotonic clock).
     reason : str or None
         Why it was cut off, one line.
     """
@@ -568,9 +568,11 @@ class Timings(wire.Timings):
     finished : float or None
         UNIX time it ended, s; null until then.
     queued_s : float or None
-        Seconds from created to started; null until it started.
+        Seconds from created to started; null until it started. Measured on a monotonic clock
+        (not the difference of the wall times above: a wall clock set meanwhile does not change it).
     run_s : float or None
         Seconds from started to finished (the attempt that ended it); null until it ended.
+        Monotonic, as ``queued_s``.
     earlier_attempts : list of Attempt
         The attempts cut off before the current one, oldest first (empty for most jobs).
     """

@@ -377,9 +377,7 @@ def queue_wait(context: Context, client: str | None = None) -> tuple[dict, float
         ``{"queued", "running", "wait_s"}`` (counts; s until a job queued now would start)
         and the s until ``client``'s oldest queued job starts (``wait_s`` when it has none).
     """
-    import time
-
-    now = time.time()
+    now = context.store.monotonic()  # the running jobs' started_mono are on the store's time
     queued = context.store.queued("recon")
     running = context.store.list(state="running", kind="recon", limit=1_000_000)
     workers = max(1, int(context.settings.workers))
@@ -387,7 +385,7 @@ def queue_wait(context: Context, client: str | None = None) -> tuple[dict, float
     def work(job: dict) -> float:
         return max(0.0, float(job["params"].get("work_estimate_s") or 0.0))
 
-    ahead = sum(max(0.0, work(j) - (now - float(j["started"] or now))) for j in running)
+    ahead = sum(max(0.0, work(j) - (now - float(j["started_mono"] or now))) for j in running)
     first = None
     for job in queued:  # oldest first
         if first is None and client is not None and job["params"].get("client") == client:

@@ -673,7 +673,7 @@ def apply_retention(store: JobStore, settings: Any) -> list[str]:
             busy = {j["params"].get("scan_job_id") for j in store.active_jobs()}
             pool += [j for j in store.finished_jobs("scan")
                      if j["id"] not in busy and job_files(j, data_dir)]
-            pool.sort(key=lambda j: (j["finished"] or 0.0, j["created"]))
+            pool.sort(key=lambda j: (j["finished_mono"] or 0.0, j["seq"] or 0))  # oldest finished first
         sizes = {j["id"]: sum(_tree_bytes(p) for p in job_files(j, data_dir)) for j in pool}
         total = sum(sizes.values())
         for j in pool:

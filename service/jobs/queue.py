@@ -29,6 +29,9 @@ result needs (``params["result_bytes"]``, ``fpscan.service.jobs.admission.estima
   written (the job database's disk full beyond its reserve, ``JobStore``) is retried every
   second until it is, and ``/api/health`` says so meanwhile; a job thread that fails in any
   other way still ends its job (``failed``, the dispatcher's ``orphaned`` hook).
+
+A success is recorded once the result is on disk: its files, its folder and ``results/``
+are flushed (``fpscan.service.disk.fsync_tree``) before the commit that says ``succeeded``.
 """
 from __future__ import annotations
 
@@ -42,7 +45,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
-from fpscan.service.disk import is_disk_full
+from fpscan.service.disk import durable_mkdir, fsync_tree, is_disk_full
 from fpscan.service.jobs.dispatcher import SKIP, START, WAIT, Dispatcher, Loop, Verdict
 from fpscan.service.jobs.executors import DaskExecutor, LocalExecutor, WorkerDied
 from fpscan.service.jobs.lifecycle import apply_retention
@@ -201,7 +204,7 @@ class ReconQueue:
         self.settings = settings
         self.owner = f"srv-{uuid.uuid4().hex[:12]}"
         self.results_dir = Path(settings.data_dir) / "results"
-        self.results_dir.mkdir(parents=True, exist_ok=True)
+        durable_mkdir(self.results_dir)  # the folder a result's success names is on disk too
         self._problems: dict[str, str] = {}  # job id -> what keeps it from running or ending
         self._problems_lock = threading.Lock()
         self._dispatcher = Dispatcher(store, "recon", owner=self.owner, lease_s=settings.heartbeat_s * 5,
@@ -355,6 +358,13 @@ class ReconQueue:
         if now is None or now["cancel_requested"]:  # cancelled (or deleted) meanwhile
             shutil.rmtree(out_dir, ignore_errors=True)
             self._finish(jid, "cancelled")
+            return
+        try:  # acknowledged means on disk: its files, its folder, results/, then the commit
+            fsync_tree(out_dir)
+        except OSError as exc:  # the disk lost the write (EIO): no success recorded for it
+            shutil.rmtree(out_dir, ignore_errors=True)
+            log.warning("recon failed job=%s: result not flushed to disk: %s", jid, exc)
+            self._finish(jid, "failed", error=f"the result could not be flushed to disk ({exc.strerror or exc})")
             return
         usage_for(self.settings.data_dir).add_path(out_dir)  # /api/health's counters
 

@@ -29,7 +29,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from fpscan.service.disk import is_disk_full
+from fpscan.service.disk import durable_mkdir, fsync_tree, is_disk_full
 from fpscan.service.jobs.dispatcher import SKIP, START, Dispatcher, Loop, Verdict
 from fpscan.service.jobs.preview import PreviewManager, PreviewState
 from fpscan.service.jobs.store import TERMINAL, JobStore
@@ -117,7 +117,7 @@ class ScanManager:
         self.settings = settings
         self.owner = f"scan-{uuid.uuid4().hex[:12]}"
         self.scans_dir = Path(settings.data_dir) / "scans"
-        self.scans_dir.mkdir(parents=True, exist_ok=True)
+        durable_mkdir(self.scans_dir)  # the folder a scan's success names is on disk too
         self.previews = PreviewManager(settings.preview_interval_s, warm=settings.warm_up)
         self._runs: dict[str, _Run] = {}     # scanner_id -> active run
         self._problems: dict[str, str] = {}  # job id -> why it is interrupted (full disk, ...)
@@ -469,7 +469,7 @@ class ScanManager:
                 scanner.close()
             except Exception:
                 pass
-        self._finish(jid, result)
+        self._finish(jid, result, scan_path)
 
     def _note_identity(self, scanner_id: str, scanner: Scanner) -> None:
         """Keep what the scanner says it is (``identify``; :meth:`scanners` shows it); a
@@ -515,10 +515,18 @@ class ScanManager:
 
         return progress
 
-    def _finish(self, jid: str, result: ScanResult) -> None:
+    def _finish(self, jid: str, result: ScanResult, scan_path: Path) -> None:
         """The job's final state from the acquisition's ``result``: ``cancelled`` when it was
         aborted or a cancel was asked, ``succeeded`` when every point is on disk, else
-        ``failed``; the final progress with it."""
+        ``failed``; the final progress with it. The scan file and the folder naming it are
+        flushed to disk first (``fpscan.service.disk.fsync_tree``): the points the final
+        state counts survive a power cut."""
+        try:
+            fsync_tree(scan_path)
+        except OSError as exc:  # the disk lost the write: the points are not all on disk
+            self._interrupt(jid, f"scan file not flushed to disk: {self.settings.redact(str(exc))}; resume to "
+                                 "measure the points it lost")
+            return
         final = {"fraction": result.points_done / max(result.n_points, 1), "points_done": result.points_done,
                  "points_total": result.n_points, "faults_recovered": sum(result.faults.values())
                  if isinstance(result.faults, dict) else None,

@@ -1,6 +1,6 @@
-"""One server per data folder, a taken port refused in one line (``fpscan.service.data_lock``
-behind ``fpscan serve``). Real processes: a simulator on a pty, ``fpscan serve`` on
-127.0.0.1, a second ``fpscan serve`` as a user would start it by mistake."""
+"""One server per data folder and per job database, a taken port refused in one line
+(``fpscan.service.data_lock`` behind ``fpscan serve``). Real processes: a simulator on a pty,
+``fpscan serve`` on 127.0.0.1, a second ``fpscan serve`` as a user would start it by mistake."""
 from __future__ import annotations
 
 import socket
@@ -21,11 +21,25 @@ pytestmark = pytest.mark.skipif(not (has_command("serve") and has_command("sim")
                                 reason="`fpscan serve`/`fpscan sim` not available")
 
 
-def _serve(data_dir, port: int) -> subprocess.CompletedProcess:
-    """``fpscan serve`` in the foreground (it must exit by itself)."""
-    return subprocess.run([sys.executable, "-m", "fpscan", "serve", "--host", "127.0.0.1", "--port", str(port),
-                           "--data-dir", str(data_dir), "--no-web"], capture_output=True, text=True,
-                          timeout=HANG_S, env=clean_env(FPSCAN_TOKEN=TOKEN, **QUIET))
+def _serve(data_dir, port: int, **env: str) -> subprocess.CompletedProcess:
+    """``fpscan serve`` in the foreground (it must exit by itself): its exit status and
+    output; one that starts serving instead is stopped and fails the test."""
+    proc = subprocess.Popen([sys.executable, "-m", "fpscan", "serve", "--host", "127.0.0.1", "--port", str(port),
+                             "--data-dir", str(data_dir), "--no-web"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=clean_env(FPSCAN_TOKEN=TOKEN, **QUIET, **env))
+    err: list[str] = []
+    try:
+        assert proc.stderr is not None
+        for line in proc.stderr:  # until it exits, or says it serves
+            err.append(line)
+            if '"event": "serving"' in line:
+                pytest.fail(f"a second server started: {''.join(err)}")
+        out = proc.stdout.read() if proc.stdout is not None else ""
+        return subprocess.CompletedProcess(proc.args, proc.wait(timeout=HANG_S), out, "".join(err))
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(timeout=HANG_S)
 
 
 def _one_line(res: subprocess.CompletedProcess) -> str:
@@ -71,6 +85,40 @@ def test_a_second_server_on_a_live_folder_is_refused_and_the_lock_dies_with_its_
             assert (data / "fpscan.lock").read_text().strip() == str(second.pid)
         finally:
             second.stop()
+
+
+def test_a_second_server_on_the_job_database_of_a_live_one_is_refused(tmp_path):
+    """Two data folders, one job database (``FPSCAN_DB_PATH``): the second server exits at
+    once with one line naming the first's PID and the lock beside the database, and touches
+    nothing (the first's scan stays ``running`` and ends with every point, with no "server
+    restarted" event). After a SIGKILL of the first, a server on that database starts."""
+    db = tmp_path / "shared" / "jobs.sqlite"
+    with fpscan_sim("--source", "balls") as (device, _sim):
+        first = start_service(tmp_path / "first", token=TOKEN, devices={"sim": device}, web=False,
+                              env={**QUIET, "FPSCAN_DB_PATH": str(db)}, log_path=tmp_path / "first.log")
+        try:
+            with Client(first.url, token=TOKEN) as api:
+                plan = api.create_plan({"lattice": {"n_x": N, "n_y": N, "pitch": PITCH},
+                                        "points": [[i, j] for j in range(N) for i in range(N)],
+                                        "acquisition": {"n_t": 128, "dt": 2e-8, "prf": 40}})
+                job = api.start_scan(plan.id, "sim")
+                for event, body, _ in api.events(job):  # until the scan has measured a point
+                    if event == "progress" and (body.get("points_done") or 0) > 0:
+                        break
+                line = _one_line(_serve(tmp_path / "second", free_port(), FPSCAN_DB_PATH=str(db)))
+                assert f"pid {first.pid}" in line and f"{db}.lock" in line and "job database" in line, line
+                assert api.get_job(job).state == "running"
+                assert api.wait(job, timeout=HANG_S).state == "succeeded"
+                events = list(api.events(job))
+                assert not any("server restarted" in str(body) for _, body, _ in events), events
+        finally:
+            first.kill()  # SIGKILL: no shutdown, no unlock
+        again = start_service(tmp_path / "second", token=TOKEN, web=False, env={**QUIET, "FPSCAN_DB_PATH": str(db)},
+                              log_path=tmp_path / "again.log")
+        try:
+            assert (tmp_path / "shared" / "jobs.sqlite.lock").read_text().strip() == str(again.pid)
+        finally:
+            again.stop()
 
 
 def test_a_port_in_use_is_one_line_before_the_data_folder_is_touched(tmp_path):

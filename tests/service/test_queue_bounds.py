@@ -39,15 +39,16 @@ def test_a_requeued_job_starts_its_timing_anew_and_keeps_the_earlier_attempt(tmp
     third = store.claim(job["id"], "srv-b", 10.0)
     assert store.set_state(job["id"], "succeeded", only_from=("running",))
     view = job_view(store.get(job["id"])).timings
-    assert view.started == third["started"] and view.run_s == pytest.approx(view.finished - third["started"])
+    # run_s is on the store's monotonic time: the wall times' difference while the wall clock did not step
+    assert view.started == third["started"] and view.run_s == pytest.approx(view.finished - third["started"], abs=1e-3)
     assert [(a.attempt, a.reason) for a in view.earlier_attempts] == [(1, "the worker process died"),
                                                                      (2, "server restarted")]
     assert view.earlier_attempts[1].started == second["started"]
-    assert view.earlier_attempts[1].run_s == pytest.approx(view.earlier_attempts[1].ended - second["started"])
+    assert view.earlier_attempts[1].run_s == pytest.approx(view.earlier_attempts[1].ended - second["started"], abs=1e-3)
     store.close()
 
 
-def test_an_older_job_database_gains_the_attempts_column(tmp_path):
+def test_an_older_job_database_gains_the_attempts_sequence_and_store_time_columns(tmp_path):
     import sqlite3
 
     db = tmp_path / "jobs.sqlite"
@@ -59,8 +60,16 @@ def test_an_older_job_database_gains_the_attempts_column(tmp_path):
                     "cancel_requested INTEGER NOT NULL DEFAULT 0, control TEXT)")
         con.execute("INSERT INTO jobs (id, kind, state, params, progress, created, started, attempts) VALUES "
                     "('old', 'recon', 'running', '{}', '{}', 1.0, 2.0, 1)")
+        con.execute("INSERT INTO jobs (id, kind, state, params, progress, created, started, finished, attempts) "
+                    "VALUES ('older', 'recon', 'succeeded', '{}', '{}', 0.5, 0.75, 1.5, 1)")
     store = JobStore(db)
     assert store.get("old")["earlier_attempts"] == []
+    # its jobs keep their order (the sequence from SQLite's rowid) and their durations (the wall times)
+    assert [j["id"] for j in store.list()] == ["older", "old"]
+    older = store.get("older")
+    assert (older["created_mono"], older["started_mono"], older["finished_mono"]) == (0.5, 0.75, 1.5)
+    new, _ = store.create_job("recon", {})  # after them: in sequence, and on the store's time
+    assert [j["id"] for j in store.list()] == [new["id"], "older", "old"] and new["created_mono"] > 1.5
     assert store.requeue("old", "the worker process died")
     assert store.get("old")["earlier_attempts"][0]["started"] == 2.0
     store.close()

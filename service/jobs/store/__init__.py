@@ -9,7 +9,7 @@ Server-Sent Events stream can honour ``Last-Event-ID``.
 A job re-queued after its run was cut off (a dead worker, a shutdown, a restart) starts its
 timing anew: its ``started`` is cleared and set again when the next attempt starts, and the
 cut-off attempt is kept in ``earlier_attempts`` (JSON list of ``{"attempt", "started",
-"ended", "reason"}``), so ``run_s`` counts the attempt that ended the job.
+"ended", "run_s", "reason"}``), so ``run_s`` counts the attempt that ended the job.
 
 A job may carry the address of the client that submitted it (``params["client"]``);
 :meth:`JobStore.create_job` refuses a new one (:class:`QueueFull`) while that client
@@ -17,7 +17,12 @@ already has ``max_queued`` jobs of the kind queued, counted in the transaction t
 insert it.
 
 Thread-safe: one connection guarded by a lock (statements are short).
-All times are UNIX seconds (float).
+Times are UNIX seconds (float) on the wall clock, for display; a job's moments also carry the
+store's monotonic time (``created_mono``, ``started_mono``, ``finished_mono``;
+:mod:`fpscan.service.jobs.store.clock`), which its durations are taken from, and jobs are
+listed in the store's sequence (``seq``), never by a wall time. Commits are durable
+(``synchronous=FULL``): a commit that returned survives a power cut; a job's progress reports
+and heartbeats alone are not flushed one by one (the next durable commit flushes them).
 
 A full disk (SQLite's SQLITE_FULL, "database or disk is full") never strands a job's state:
 the store keeps a reserve file beside the database (``<database>.reserve``,
@@ -35,7 +40,8 @@ The store is one class composed of one part per record kind, over one connection
 - :mod:`fpscan.service.jobs.store.plans`, :mod:`fpscan.service.jobs.store.datasets`: plans and datasets;
 - :mod:`fpscan.service.jobs.store.config`: the service config (key -> JSON value);
 - :mod:`fpscan.service.jobs.store.reserve`: the full disk's reserve;
-- :mod:`fpscan.service.jobs.store.schema`: the tables, the job states and kinds.
+- :mod:`fpscan.service.jobs.store.schema`: the tables, the job states and kinds;
+- :mod:`fpscan.service.jobs.store.clock`: the wall clock and the store's monotonic time.
 """
 from __future__ import annotations
 

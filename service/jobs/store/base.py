@@ -2,20 +2,29 @@
 
 Every record kind of :class:`fpscan.service.jobs.store.JobStore` (jobs, their events, plans,
 datasets, the service config) reads and writes through :class:`StoreBase`: one connection
-guarded by one lock (statements are short); a write goes through the full-disk reserve
+guarded by one lock (statements are short), its clock (:mod:`fpscan.service.jobs.store.clock`:
+wall time for display, the store's monotonic time for durations); a write goes through the full-disk reserve
 (:class:`fpscan.service.jobs.store.reserve.DiskReserve`), and a transaction (:meth:`StoreBase._tx`,
 ``BEGIN IMMEDIATE``) is all or nothing: its listeners hear of the jobs it recorded events of
 only once it is committed.
+
+A commit is durable (``synchronous=FULL``: the WAL flushed before the commit returns), so
+whatever an answer acknowledges survives a power cut; a report (a job's progress, a
+heartbeat: :meth:`StoreBase._report`) is not flushed by itself, the next durable commit
+flushes it.
 """
 from __future__ import annotations
 
+import contextlib
 import logging
 import sqlite3
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import TypeVar
 
+from fpscan.service.jobs.store.clock import StoreClock
 from fpscan.service.jobs.store.reserve import DB_RESERVE_BYTES, DiskReserve
 from fpscan.service.jobs.store.schema import apply_schema
 
@@ -56,17 +65,44 @@ class StoreBase(DiskReserve):
         self._touched: list[str] = []  # the jobs the current transaction recorded events of
         with self._lock:
             apply_schema(self._db)
+            self._clock = StoreClock.open(self._db)
         self._reserve_seen = self._write_reserve()
+
+    def monotonic(self) -> float:
+        """The store's time now, s: monotonic, shared by every store of the database on this
+        machine (:mod:`fpscan.service.jobs.store.clock`); a job's ``*_mono`` times are on it,
+        so ``store.monotonic() - job["started_mono"]`` is how long it has run."""
+        return self._clock.monotonic()
+
+    def _now(self) -> tuple[float, float]:
+        """``(wall, store)``: the wall time (UNIX s, for display) and the store's time (s, for
+        durations) of this moment."""
+        return self._clock.now()
 
     def close(self) -> None:
         with self._lock:
             self._db.close()
 
-    def _tx(self, fn: Callable[[sqlite3.Connection], _T]) -> _T:
-        return self._write(lambda: self._tx_once(fn))
+    def _tx(self, fn: Callable[[sqlite3.Connection], _T], *, durable: bool = True) -> _T:
+        """``fn(db)`` in one transaction (``BEGIN IMMEDIATE``), committed durably unless
+        ``durable`` is False (:meth:`_report`)."""
+        return self._write(lambda: self._tx_once(fn, durable))
 
-    def _tx_once(self, fn: Callable[[sqlite3.Connection], _T]) -> _T:
-        with self._lock:
+    @contextmanager
+    def _report(self) -> Iterator[None]:
+        """Under the store's lock: the commits inside it are a report (a job's progress, a
+        heartbeat), acknowledged to no one, so not flushed one by one (``synchronous=NORMAL``:
+        a power cut may lose the last reports, never a commit before them, nor break the
+        database); the next durable commit flushes them with it (the WAL is written in order).
+        Source: https://sqlite.org/pragma.html#pragma_synchronous, https://sqlite.org/wal.html."""
+        self._db.execute("PRAGMA synchronous=NORMAL")
+        try:
+            yield
+        finally:
+            self._db.execute("PRAGMA synchronous=FULL")
+
+    def _tx_once(self, fn: Callable[[sqlite3.Connection], _T], durable: bool = True) -> _T:
+        with self._lock, (contextlib.nullcontext() if durable else self._report()):
             self._cache.clear()
             self._touched = []
             self._db.execute("BEGIN IMMEDIATE")

@@ -7,9 +7,9 @@ from.
 from __future__ import annotations
 
 import json
-import time
 
 from fpscan.service.jobs.store.base import StoreBase
+from fpscan.service.jobs.store.clock import wall_time
 from fpscan.service.jobs.store.schema import Jobs
 from fpscan.service.names import current_names
 
@@ -26,7 +26,7 @@ class DatasetRecords(StoreBase):
         def write() -> None:
             with self._lock:
                 self._db.execute("INSERT INTO datasets (id, meta, created) VALUES (?, ?, ?)",
-                                 (dataset_id, json.dumps(meta), time.time()))
+                                 (dataset_id, json.dumps(meta), wall_time()))
         self._write(write)
 
     def get_dataset(self, dataset_id: str) -> dict | None:
@@ -35,9 +35,10 @@ class DatasetRecords(StoreBase):
         return None if row is None else current_names(json.loads(row["meta"]))  # an earlier release's c too
 
     def list_datasets(self) -> Jobs:
-        """Every stored dataset as ``{"id", "meta", "created"}``, oldest first."""
+        """Every stored dataset as ``{"id", "meta", "created"}``, oldest first (the order they
+        were stored in, SQLite's ``rowid``: whatever the wall clock did)."""
         with self._lock:
-            rows = self._db.execute("SELECT id, meta, created FROM datasets ORDER BY created, id").fetchall()
+            rows = self._db.execute("SELECT id, meta, created FROM datasets ORDER BY rowid").fetchall()
         return [{"id": r["id"], "meta": current_names(json.loads(r["meta"])), "created": r["created"]} for r in rows]
 
     def touch_dataset(self, dataset_id: str) -> None:
@@ -46,14 +47,14 @@ class DatasetRecords(StoreBase):
         def write() -> None:
             with self._lock:
                 self._db.execute("UPDATE datasets SET meta = json_set(meta, '$.last_used', ?) WHERE id = ?",
-                                 (time.time(), dataset_id))
+                                 (wall_time(), dataset_id))
         self._write(write)
 
     def find_datasets(self, dedup_key: str) -> list[str]:
-        """The ids of the datasets stored under ``dedup_key`` (their meta's), oldest first."""
+        """The ids of the datasets stored under ``dedup_key`` (their meta's), oldest first (as stored)."""
         with self._lock:
             rows = self._db.execute("SELECT id FROM datasets WHERE json_extract(meta, '$.dedup_key') = ? "
-                                    "ORDER BY created, id", (dedup_key,)).fetchall()
+                                    "ORDER BY rowid", (dedup_key,)).fetchall()
         return [str(r["id"]) for r in rows]
     def delete_dataset(self, dataset_id: str) -> bool:
         def write() -> bool:

@@ -9,10 +9,10 @@ from __future__ import annotations
 
 import json
 import sqlite3
-import time
 from collections.abc import Callable
 
 from fpscan.service.jobs.store.base import StoreBase
+from fpscan.service.jobs.store.clock import wall_time
 from fpscan.service.jobs.store.schema import Jobs
 
 __all__ = ["EventLog"]
@@ -40,7 +40,7 @@ class EventLog(StoreBase):
         self._touched.append(job_id)  # inside `_tx`: its listeners hear of it after the commit
         seq = db.execute("SELECT COALESCE(MAX(seq), 0) + 1 FROM events WHERE job_id = ?", (job_id,)).fetchone()[0]
         db.execute("INSERT INTO events (job_id, seq, event, data, created) VALUES (?, ?, ?, ?, ?)",
-                   (job_id, seq, event, json.dumps(data), time.time()))
+                   (job_id, seq, event, json.dumps(data), wall_time()))
         return seq
 
     def events_after(self, job_id: str, after: int, limit: int = 500) -> Jobs:

@@ -7,13 +7,17 @@ address of the client that submitted it (``params["client"]``): :meth:`JobRecord
 refuses a new one (:class:`QueueFull`) while that client already has ``max_queued`` jobs of
 the kind queued, counted in the transaction that would insert it. Read jobs are cached in
 memory until the next write (:meth:`JobRecords.peek` reads the cache alone).
+
+Jobs are listed in the store's sequence (``seq``, the order they were submitted in), never by
+a wall time: a wall clock set back would put the newest job last and let a new job jump the
+queue. A job's moments carry the wall time (display) and the store's monotonic time
+(``*_mono``, :mod:`fpscan.service.jobs.store.clock`: durations).
 """
 from __future__ import annotations
 
 import copy
 import json
 import sqlite3
-import time
 import uuid
 from typing import Any, overload
 
@@ -97,7 +101,7 @@ class JobRecords(EventLog):
         if kind not in KINDS:
             raise ValueError(f"unknown job kind {kind!r}")
         job_id = uuid.uuid4().hex
-        now = time.time()
+        now, mono = self._now()
         progress = progress or {"fraction": 0.0, "stage": "queued"}
 
         def work(db: sqlite3.Connection) -> tuple[dict[str, Any], bool]:
@@ -119,9 +123,11 @@ class JobRecords(EventLog):
                 if queued >= max_queued:
                     raise QueueFull(str(client), int(queued), int(max_queued))
             db.execute(
-                "INSERT INTO jobs (id, kind, state, params, progress, idempotency_key, created, memory_bytes)"
-                " VALUES (?, ?, 'queued', ?, ?, ?, ?, ?)",
-                (job_id, kind, json.dumps(params), json.dumps(progress), idempotency_key, now, int(memory_bytes)))
+                "INSERT INTO jobs (id, kind, state, params, progress, idempotency_key, created, created_mono,"
+                " memory_bytes, seq) VALUES (?, ?, 'queued', ?, ?, ?, ?, ?, ?,"
+                " (SELECT COALESCE(MAX(seq), 0) + 1 FROM jobs))",
+                (job_id, kind, json.dumps(params), json.dumps(progress), idempotency_key, now, mono,
+                 int(memory_bytes)))
             self._event(db, job_id, "state", {"state": "queued"})
             return self._row(db.execute("SELECT * FROM jobs WHERE id = ?", (job_id,)).fetchone()), True
 
@@ -155,6 +161,8 @@ class JobRecords(EventLog):
         return self._cache.get(job_id)
 
     def list(self, *, state: str | None = None, kind: str | None = None, limit: int = 1000) -> Jobs:
+        """The jobs (of ``state`` and ``kind`` when given), newest first: in the store's
+        sequence, the last submitted first (module docstring), at most ``limit``."""
         sql = "SELECT * FROM jobs WHERE 1=1"
         args: list[Any] = []
         if state is not None:
@@ -163,7 +171,7 @@ class JobRecords(EventLog):
         if kind is not None:
             sql += " AND kind = ?"
             args.append(kind)
-        sql += " ORDER BY created DESC LIMIT ?"
+        sql += " ORDER BY seq DESC LIMIT ?"
         args.append(int(limit))
         with self._lock:
             return [self._row(r) for r in self._db.execute(sql, args).fetchall()]
@@ -182,9 +190,10 @@ class JobRecords(EventLog):
             ).fetchone()[0])
 
     def queued(self, kind: str) -> Jobs:
+        """The queued jobs of ``kind``, first submitted first (the store's sequence)."""
         with self._lock:
             return [self._row(r) for r in self._db.execute(
-                "SELECT * FROM jobs WHERE state = 'queued' AND kind = ? ORDER BY created", (kind,)).fetchall()]
+                "SELECT * FROM jobs WHERE state = 'queued' AND kind = ? ORDER BY seq", (kind,)).fetchall()]
     def active_jobs(self) -> Jobs:
         """Jobs that are queued, running or paused (they may still read their inputs)."""
         marks = ",".join("?" * len(ACTIVE))
@@ -193,11 +202,11 @@ class JobRecords(EventLog):
                 f"SELECT * FROM jobs WHERE state IN ({marks})", tuple(sorted(ACTIVE))).fetchall()]
 
     def finished_jobs(self, kind: str) -> Jobs:
-        """Terminal jobs of ``kind``, oldest finished first."""
+        """Terminal jobs of ``kind``, oldest finished first (by the store's time)."""
         marks = ",".join("?" * len(TERMINAL))
         with self._lock:
             return [self._row(r) for r in self._db.execute(
-                f"SELECT * FROM jobs WHERE kind = ? AND state IN ({marks}) ORDER BY finished, created",
+                f"SELECT * FROM jobs WHERE kind = ? AND state IN ({marks}) ORDER BY finished_mono, seq",
                 (kind, *sorted(TERMINAL))).fetchall()]
 
     def delete_job(self, job_id: str, *, only_terminal: bool = True) -> bool:

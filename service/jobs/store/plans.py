@@ -6,9 +6,9 @@ stored (:meth:`PlanRecords.get_plan_text`: not parsed again).
 from __future__ import annotations
 
 import json
-import time
 
 from fpscan.service.jobs.store.base import StoreBase
+from fpscan.service.jobs.store.clock import wall_time
 from fpscan.service.jobs.store.schema import Jobs
 
 __all__ = ["PlanRecords"]
@@ -28,7 +28,7 @@ class PlanRecords(StoreBase):
         def write() -> None:
             with self._lock:
                 self._db.execute("INSERT OR IGNORE INTO plans (id, body, summary, created) VALUES (?, ?, ?, ?)",
-                                 (plan_id, text, json.dumps(summary), time.time()))
+                                 (plan_id, text, json.dumps(summary), wall_time()))
         self._write(write)
 
     def get_plan_text(self, plan_id: str) -> str | None:
@@ -49,8 +49,10 @@ class PlanRecords(StoreBase):
         return None if row is None else (json.loads(row["body"]), json.loads(row["summary"]))
 
     def list_plans(self, limit: int = 1000) -> Jobs:
+        """The stored plans' summaries, newest first (the order they were stored in, SQLite's
+        ``rowid``: whatever the wall clock did), at most ``limit``."""
         with self._lock:
-            rows = self._db.execute("SELECT summary FROM plans ORDER BY created DESC LIMIT ?", (limit,)).fetchall()
+            rows = self._db.execute("SELECT summary FROM plans ORDER BY rowid DESC LIMIT ?", (limit,)).fetchall()
         return [json.loads(r["summary"]) for r in rows]
 
     def delete_plan(self, plan_id: str) -> bool:

@@ -5,6 +5,17 @@ unique ``Idempotency-Key``, the lease, attempts, result and error), ``events`` (
 state and progress events, numbered per job), ``plans``, ``datasets`` and ``config``
 (key -> JSON value). A database of an earlier version gains the columns added since
 (:data:`_ADDED_COLUMNS`) when it is opened (:func:`apply_schema`).
+
+A job's ``seq`` is the store's sequence: one more than the largest when it is inserted (in the
+transaction that inserts it), so it orders the jobs as they were submitted, whatever the wall
+clock did (the queue's order, "newest first"). Its ``*_mono`` columns are the store's
+monotonic time of its moments (:mod:`fpscan.service.jobs.store.clock`), its durations' source.
+
+Durability: WAL with ``synchronous=FULL``: the WAL is flushed (``fsync``) at every commit, so
+a commit that returned survives a power cut (https://sqlite.org/pragma.html#pragma_synchronous:
+with ``NORMAL`` the last transactions "might roll back following a power loss"); only a job's
+progress reports and heartbeats are committed with ``NORMAL``
+(:meth:`fpscan.service.jobs.store.base.StoreBase._report`).
 """
 from __future__ import annotations
 
@@ -40,7 +51,11 @@ CREATE TABLE IF NOT EXISTS jobs (
     memory_bytes INTEGER NOT NULL DEFAULT 0,
     cancel_requested INTEGER NOT NULL DEFAULT 0,
     control TEXT,
-    earlier_attempts TEXT NOT NULL DEFAULT '[]'
+    earlier_attempts TEXT NOT NULL DEFAULT '[]',
+    seq INTEGER,
+    created_mono REAL,
+    started_mono REAL,
+    finished_mono REAL
 );
 CREATE INDEX IF NOT EXISTS jobs_state ON jobs(state, kind, created);
 CREATE TABLE IF NOT EXISTS events (
@@ -70,9 +85,16 @@ CREATE TABLE IF NOT EXISTS config (
 
 _JOB_COLUMNS = ("id", "kind", "state", "params", "progress", "idempotency_key", "created", "started",
                 "finished", "lease_owner", "lease_until", "heartbeat", "attempts", "result_path",
-                "error", "memory_bytes", "cancel_requested", "control", "earlier_attempts")
+                "error", "memory_bytes", "cancel_requested", "control", "earlier_attempts", "seq", "created_mono",
+                "started_mono", "finished_mono")
 #: columns added after the first release, with their definitions (added to an older database at open)
-_ADDED_COLUMNS = {"earlier_attempts": "TEXT NOT NULL DEFAULT '[]'"}
+_ADDED_COLUMNS = {"earlier_attempts": "TEXT NOT NULL DEFAULT '[]'", "seq": "INTEGER", "created_mono": "REAL",
+                  "started_mono": "REAL", "finished_mono": "REAL"}
+#: the indexes on added columns (made once they are there)
+_INDEXES = """
+CREATE INDEX IF NOT EXISTS jobs_seq ON jobs(seq);
+CREATE INDEX IF NOT EXISTS jobs_queue ON jobs(state, kind, seq);
+"""
 
 
 def apply_schema(db: sqlite3.Connection) -> None:
@@ -85,9 +107,24 @@ def apply_schema(db: sqlite3.Connection) -> None:
         The store's connection (autocommit, ``sqlite3.Row`` rows), held under the store's lock.
     """
     db.execute("PRAGMA journal_mode=WAL")
-    db.execute("PRAGMA synchronous=NORMAL")
+    db.execute("PRAGMA synchronous=FULL")  # a returned commit survives a power cut (module docstring)
     db.executescript(_SCHEMA)
     have = {r["name"] for r in db.execute("PRAGMA table_info(jobs)").fetchall()}
-    for column, definition in _ADDED_COLUMNS.items():  # a database of an earlier version
-        if column not in have:
-            db.execute(f"ALTER TABLE jobs ADD COLUMN {column} {definition}")
+    added = [column for column in _ADDED_COLUMNS if column not in have]
+    if added:  # a database of an earlier version, in one transaction
+        db.execute("BEGIN IMMEDIATE")
+        try:
+            for column in added:
+                db.execute(f"ALTER TABLE jobs ADD COLUMN {column} {_ADDED_COLUMNS[column]}")
+            # its jobs' sequence as they were inserted, their store times their wall times (the
+            # best there is: the store's time starts from them, fpscan.service.jobs.store.clock)
+            db.execute("UPDATE jobs SET seq = rowid WHERE seq IS NULL")
+            for mono, wall in (("created_mono", "created"), ("started_mono", "started"),
+                               ("finished_mono", "finished")):
+                db.execute(f"UPDATE jobs SET {mono} = {wall} WHERE {mono} IS NULL AND {wall} IS NOT NULL")
+            db.execute("COMMIT")
+        except BaseException:
+            if db.in_transaction:
+                db.execute("ROLLBACK")
+            raise
+    db.executescript(_INDEXES)

@@ -4,32 +4,40 @@ Each change is one transaction that records the job's event (:mod:`fpscan.servic
 A job re-queued after its run was cut off (a dead worker, a shutdown, a restart) starts its
 timing anew: its ``started`` is cleared and set again when the next attempt starts, and the
 cut-off attempt is kept in ``earlier_attempts`` (JSON list of ``{"attempt", "started",
-"ended", "reason"}``), so ``run_s`` counts the attempt that ended the job.
+"ended", "run_s", "reason"}``: wall times for display, ``run_s`` from the store's monotonic
+time), so ``run_s`` counts the attempt that ended the job. Each moment is recorded on both
+clocks (:mod:`fpscan.service.jobs.store.clock`): ``started``/``started_mono``,
+``finished``/``finished_mono``.
 """
 from __future__ import annotations
 
 import json
 import sqlite3
-import time
 from collections.abc import Iterable
 from typing import Any
 
+from fpscan.service.jobs.store.clock import wall_time
 from fpscan.service.jobs.store.jobs import JobRecords
 from fpscan.service.jobs.store.schema import STATES, TERMINAL
 
 __all__ = ["JobTransitions"]
 
 
-def _cut_attempt(db: sqlite3.Connection, job_id: str, reason: str) -> None:
+def _cut_attempt(db: sqlite3.Connection, job_id: str, reason: str, now: tuple[float, float]) -> None:
     """Record a running job's current attempt as cut off (``earlier_attempts``: its number,
-    start, end now and ``reason``) and clear ``started`` for the next one; inside a
-    transaction."""
-    row = db.execute("SELECT attempts, started, earlier_attempts FROM jobs WHERE id = ?", (job_id,)).fetchone()
+    start, end ``now`` (wall, store time), its ``run_s`` on the store's time and ``reason``) and
+    clear ``started`` for the next one; inside a transaction."""
+    row = db.execute("SELECT attempts, started, started_mono, earlier_attempts FROM jobs WHERE id = ?",
+                     (job_id,)).fetchone()
     if row is None:
         return
     earlier = json.loads(row["earlier_attempts"] or "[]")
-    earlier.append({"attempt": row["attempts"], "started": row["started"], "ended": time.time(), "reason": reason})
-    db.execute("UPDATE jobs SET earlier_attempts = ?, started = NULL WHERE id = ?", (json.dumps(earlier), job_id))
+    wall, mono = now
+    run_s = None if row["started_mono"] is None else max(0.0, mono - float(row["started_mono"]))
+    earlier.append({"attempt": row["attempts"], "started": row["started"], "ended": wall, "run_s": run_s,
+                    "reason": reason})
+    db.execute("UPDATE jobs SET earlier_attempts = ?, started = NULL, started_mono = NULL WHERE id = ?",
+               (json.dumps(earlier), job_id))
 
 
 class JobTransitions(JobRecords):
@@ -45,7 +53,7 @@ class JobTransitions(JobRecords):
         record the event; returns False if the job was not in an allowed state."""
         if state not in STATES:
             raise ValueError(f"unknown state {state!r}")
-        now = time.time()
+        now, mono = self._now()
 
         def work(db: sqlite3.Connection) -> bool:
             row = db.execute("SELECT state, progress FROM jobs WHERE id = ?", (job_id,)).fetchone()
@@ -54,11 +62,11 @@ class JobTransitions(JobRecords):
             sets: list[str] = ["state = ?"]
             args: list[object] = [state]
             if state == "running":
-                sets.append("started = COALESCE(started, ?)")
-                args.append(now)
+                sets += ["started = COALESCE(started, ?)", "started_mono = COALESCE(started_mono, ?)"]
+                args += [now, mono]
             if state in TERMINAL:
-                sets += ["finished = ?", "lease_owner = NULL", "lease_until = NULL"]
-                args.append(now)
+                sets += ["finished = ?", "finished_mono = ?", "lease_owner = NULL", "lease_until = NULL"]
+                args += [now, mono]
             if error is not None:
                 sets.append("error = ?")
                 args.append(error)
@@ -79,18 +87,19 @@ class JobTransitions(JobRecords):
         return self._tx(work)
 
     def update_progress(self, job_id: str, progress: dict, *, event: bool = True) -> None:
-        """Merge ``progress`` into the job's progress and (optionally) emit an event."""
+        """Merge ``progress`` into the job's progress and (optionally) emit an event; a report,
+        not flushed to disk by itself (the next durable commit is)."""
         def work(db: sqlite3.Connection) -> None:
             row = db.execute("SELECT progress FROM jobs WHERE id = ?", (job_id,)).fetchone()
             if row is None:
                 return
             merged = {**json.loads(row["progress"]), **progress}
             db.execute("UPDATE jobs SET progress = ?, heartbeat = ? WHERE id = ?",
-                       (json.dumps(merged), time.time(), job_id))
+                       (json.dumps(merged), wall_time(), job_id))
             if event:
                 self._event(db, job_id, "progress", merged)
 
-        self._tx(work)
+        self._tx(work, durable=False)  # a report: flushed with the next durable commit
     def request_cancel(self, job_id: str) -> dict | None:
         """Flag a job for cooperative cancel; a queued or paused job is cancelled at once."""
         def work(db: sqlite3.Connection) -> str | None:
@@ -101,8 +110,8 @@ class JobTransitions(JobRecords):
                 return "terminal"
             db.execute("UPDATE jobs SET cancel_requested = 1 WHERE id = ?", (job_id,))
             if row["state"] in ("queued", "paused"):
-                db.execute("UPDATE jobs SET state = 'cancelled', finished = ?, lease_owner = NULL,"
-                           " lease_until = NULL WHERE id = ?", (time.time(), job_id))
+                db.execute("UPDATE jobs SET state = 'cancelled', finished = ?, finished_mono = ?, lease_owner = NULL,"
+                           " lease_until = NULL WHERE id = ?", (*self._now(), job_id))
                 self._event(db, job_id, "state", {"state": "cancelled"})
             return "ok"
 
@@ -113,13 +122,14 @@ class JobTransitions(JobRecords):
     def claim(self, job_id: str, owner: str, lease_s: float) -> dict | None:
         """Lease a queued job for ``owner``: state running, attempts + 1; None if it was
         not queued (someone else took it or it was cancelled)."""
-        now = time.time()
+        now, mono = self._now()
 
         def work(db: sqlite3.Connection) -> dict[str, Any] | None:
             cur = db.execute(
                 "UPDATE jobs SET state = 'running', lease_owner = ?, lease_until = ?, heartbeat = ?,"
-                " attempts = attempts + 1, started = COALESCE(started, ?) WHERE id = ? AND state = 'queued'",
-                (owner, now + lease_s, now, now, job_id))
+                " attempts = attempts + 1, started = COALESCE(started, ?), started_mono = COALESCE(started_mono, ?)"
+                " WHERE id = ? AND state = 'queued'",
+                (owner, now + lease_s, now, now, mono, job_id))
             if cur.rowcount != 1:
                 return None
             self._event(db, job_id, "state", {"state": "running"})
@@ -141,7 +151,7 @@ class JobTransitions(JobRecords):
         def work(db: sqlite3.Connection) -> bool:
             if db.execute("SELECT 1 FROM jobs WHERE id = ? AND state = 'running'", (job_id,)).fetchone() is None:
                 return False
-            _cut_attempt(db, job_id, reason)
+            _cut_attempt(db, job_id, reason, self._now())
             db.execute("UPDATE jobs SET state = 'queued', lease_owner = NULL, lease_until = NULL,"
                        " attempts = MAX(attempts - ?, 0) WHERE id = ?", (0 if count_attempt else 1, job_id))
             self._event(db, job_id, "state", {"state": "queued", "reason": reason})
@@ -150,9 +160,9 @@ class JobTransitions(JobRecords):
         return bool(self._tx(work))
 
     def heartbeat(self, job_id: str, owner: str, lease_s: float) -> None:
-        now = time.time()
+        now = wall_time()
         def write() -> None:
-            with self._lock:
+            with self._lock, self._report():  # a report: flushed with the next durable commit
                 self._cache.pop(job_id, None)
                 self._db.execute("UPDATE jobs SET heartbeat = ?, lease_until = ? WHERE id = ? AND lease_owner = ?",
                                  (now, now + lease_s, job_id, owner))
@@ -170,13 +180,13 @@ class JobTransitions(JobRecords):
             for row in rows:
                 if row["kind"] == "recon":
                     if row["attempts"] >= max_attempts:
-                        db.execute("UPDATE jobs SET state = 'failed', error = ?, finished = ?,"
+                        db.execute("UPDATE jobs SET state = 'failed', error = ?, finished = ?, finished_mono = ?,"
                                    " lease_owner = NULL WHERE id = ?",
-                                   (f"interrupted {row['attempts']} times", time.time(), row["id"]))
+                                   (f"interrupted {row['attempts']} times", *self._now(), row["id"]))
                         self._event(db, row["id"], "state", {"state": "failed"})
                         out["failed"].append(row["id"])
                     else:
-                        _cut_attempt(db, row["id"], "server restarted")
+                        _cut_attempt(db, row["id"], "server restarted", self._now())
                         db.execute("UPDATE jobs SET state = 'queued', lease_owner = NULL, lease_until = NULL"
                                    " WHERE id = ?", (row["id"],))
                         self._event(db, row["id"], "state", {"state": "queued", "reason": "server restarted"})
