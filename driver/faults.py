@@ -9,6 +9,10 @@ A fault spec is a comma-separated list of ``key=value`` items (keys may repeat):
 ``reset=K``        before acquiring point K (once), the device resets (new boot id)
 ``interlock=K``    before acquiring point K (once), the laser interlock opens
 ``interlock=K:SEC``  … and closes again after SEC s
+``seq=K:SEQ``      before acquiring point K (once), the data sequence skips to SEQ (a
+                   firmware fault): that A-line is sent with seq SEQ (0 … 2³² − 1), the
+                   next ones continue from SEQ + 1 (mod 2³²)
+``point=K:P``      A-line K is sent (once) as point P (0 … 2³² − 1), a firmware fault
 =================  =====================================================================
 
 Example: ``corrupt=1e-4,drop=1e-4,stall=800:2,reset=1200``.
@@ -39,6 +43,12 @@ class FaultSpec:
     interlocks : dict[int, float]
         Point k -> seconds the laser interlock stays open from before acquiring it (once;
         ``inf``: until it is closed by hand).
+    seq_skips : dict[int, int]
+        Point k -> the data sequence number (u32) the device skips to before acquiring it
+        (once): a device fault the host must stop at (docs/protocol.md §7).
+    bad_points : dict[int, int]
+        Point k -> the point index (u32) its A-line frame carries instead (once): a device
+        fault too.
     """
 
     corrupt: float = 0.0
@@ -46,6 +56,8 @@ class FaultSpec:
     stalls: dict[int, float] = field(default_factory=dict)
     resets: set[int] = field(default_factory=set)
     interlocks: dict[int, float] = field(default_factory=dict)
+    seq_skips: dict[int, int] = field(default_factory=dict)
+    bad_points: dict[int, int] = field(default_factory=dict)
 
     @classmethod
     def parse(cls, spec: str | None) -> FaultSpec:
@@ -62,32 +74,46 @@ class FaultSpec:
             try:
                 if not sep:
                     raise ValueError("expected key=value")
-                if key in ("corrupt", "drop"):
-                    rate = float(value)
-                    if not 0.0 <= rate < 1.0:
-                        raise ValueError("rate must be in [0, 1)")
-                    setattr(out, key, rate)
-                elif key == "stall":
-                    k, _, sec = value.partition(":")
-                    seconds = float(sec or 1.0)
-                    if int(k) < 0 or not 0 <= seconds <= 3600:
-                        raise ValueError("stall needs K >= 0 and 0 <= SEC <= 3600")
-                    out.stalls[int(k)] = seconds
-                elif key == "reset":
-                    if int(value) < 0:
-                        raise ValueError("K must be >= 0")
-                    out.resets.add(int(value))
-                elif key == "interlock":
-                    k, _, sec = value.partition(":")
-                    seconds = float(sec) if sec else float("inf")
-                    if int(k) < 0 or not seconds > 0:
-                        raise ValueError("interlock needs K >= 0 and SEC > 0")
-                    out.interlocks[int(k)] = seconds
-                else:
-                    raise ValueError("unknown fault")
+                out._add(key, value)
             except ValueError as exc:
                 raise ValueError(f"bad fault spec item {item!r}: {exc}") from None
         return out
+
+    def _add(self, key: str, value: str) -> None:
+        """Add one ``key=value`` item; raises ``ValueError`` with what is wrong."""
+        if key in ("corrupt", "drop"):
+            rate = float(value)
+            if not 0.0 <= rate < 1.0:
+                raise ValueError("rate must be in [0, 1)")
+            setattr(self, key, rate)
+        elif key == "stall":
+            k, _, sec = value.partition(":")
+            seconds = float(sec or 1.0)
+            if int(k) < 0 or not 0 <= seconds <= 3600:
+                raise ValueError("stall needs K >= 0 and 0 <= SEC <= 3600")
+            self.stalls[int(k)] = seconds
+        elif key == "reset":
+            if int(value) < 0:
+                raise ValueError("K must be >= 0")
+            self.resets.add(int(value))
+        elif key == "interlock":
+            k, _, sec = value.partition(":")
+            seconds = float(sec) if sec else float("inf")
+            if int(k) < 0 or not seconds > 0:
+                raise ValueError("interlock needs K >= 0 and SEC > 0")
+            self.interlocks[int(k)] = seconds
+        elif key == "seq":
+            k, _, seq = value.partition(":")
+            if int(k) < 0 or not 0 <= int(seq) <= 0xFFFFFFFF:
+                raise ValueError("seq needs K >= 0 and 0 <= SEQ <= 4294967295")
+            self.seq_skips[int(k)] = int(seq)
+        elif key == "point":
+            k, _, point = value.partition(":")
+            if int(k) < 0 or not 0 <= int(point) <= 0xFFFFFFFF:
+                raise ValueError("point needs K >= 0 and 0 <= P <= 4294967295")
+            self.bad_points[int(k)] = int(point)
+        else:
+            raise ValueError("unknown fault")
 
     @property
     def damages_bytes(self) -> bool:

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import collections
 import hashlib
+import math
 import queue
 import secrets
 import threading
@@ -34,7 +35,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from fpscan.driver import commands as cmd
-from fpscan.driver.aline import ALine, unpack_aline
+from fpscan.driver.aline import ALINE_HEADER, ALine, unpack_aline
 from fpscan.driver.commands import MAX_CHUNK
 from fpscan.driver.framing import PROTOCOL_VERSION, Deframer, Frame, FrameType, encode_frame
 from fpscan.driver.plan import aline_index, aline_order, load_plan, wavelength_order
@@ -47,9 +48,15 @@ if TYPE_CHECKING:
     import serial
 
 __all__ = [
-    "DriverError", "DeviceTimeout", "DeviceError", "InterlockOpen", "DeviceStatus", "ScanProgress", "ScanResult",
-    "Scanner", "ScanSession",
+    "DriverError", "DeviceTimeout", "DeviceError", "InterlockOpen", "DeviceFault", "DeviceStatus",
+    "ScanProgress", "ScanResult", "Scanner", "ScanSession",
 ]
+
+_SEQ_MASK = 0xFFFFFFFF  #: data sequence numbers are u32 (docs/protocol.md §2.2)
+_NAK_MAX = 256  #: sequence numbers per NAK frame (docs/protocol.md §7)
+_NAK_EVERY = 0.1  #: shortest interval between two NAKs of one sequence number, s
+_NAK_LOOK = 8192  #: most sequence numbers above the cumulative ACK looked at for one NAK
+_EARLY_MAX = 64  #: most A-line frames kept that overtook their run's SCAN:STAR reply
 
 
 class DriverError(RuntimeError):
@@ -107,6 +114,32 @@ class InterlockOpen(DeviceError):
     code, message, command
         As :class:`DeviceError`.
     """
+
+
+class DeviceFault(DriverError):
+    """The device sent a number that no plan allows: a data sequence number outside its run,
+    an A-line of a point, wavelength or length the plan does not have, a malformed
+    ``SCAN:STAR`` reply. Its frame's CRC-32 was good, so this is the device's (firmware's)
+    fault, not the link's: :meth:`Scanner.scan` stops at the first one (the device left
+    idle), its scan file keeps every A-line received so far, and a new call resumes from
+    there (docs/protocol.md §7).
+
+    Parameters
+    ----------
+    reason : str
+        What the device sent, and what the plan allows.
+    detail : str, optional
+        Appended to the message (e.g. how many A-lines are on disk).
+
+    Attributes
+    ----------
+    reason : str
+        As given.
+    """
+
+    def __init__(self, reason: str, detail: str = ""):
+        super().__init__(f"device fault: {reason}" + (f"; {detail}" if detail else ""))
+        self.reason = reason
 
 
 @dataclass
@@ -379,7 +412,7 @@ class Scanner:
                 self._on_event(fr.payload.decode("ascii", "replace"))
 
     def _on_event(self, text: str) -> None:
-        self._events.append(text)
+        self._events.append(text[:256])  # a note for debugging: the device decides its length
         run = self._session.current if self._session is not None else None
         word, _, arg = text.partition(" ")
         if word == "BOOT" and run is not None:
@@ -588,6 +621,7 @@ class Scanner:
 
         Raises ``ValueError`` (plan and sink disagree), :class:`InterlockOpen`,
         :class:`DeviceTimeout` (device silent for ``response_timeout``),
+        :class:`DeviceFault` (the device sent a number no plan allows),
         :class:`DeviceError`. On any exit the device is left idle (best effort).
         The work is done by a :class:`ScanSession`.
         """
@@ -705,6 +739,7 @@ class ScanSession:
         self.current: _Run | None = None
         self.counters: collections.Counter = collections.Counter()
         self.early: list = []  # A-lines that overtook the SCAN:STAR reply
+        self.aline_bytes = ALINE_HEADER.size + 2 * self.n_t  # an A-line frame's payload
         self.t_start = time.monotonic()
         self.done0 = self.done = int(self.done_s.sum())
         self.t_first: float | None = None
@@ -767,8 +802,9 @@ class ScanSession:
         sc = self.sc
         lost_plan = 0
         while not self.done_s.all():
+            start = int(np.argmin(self.done_s))
             try:
-                reply = sc.query(cmd.scan_start(int(np.argmin(self.done_s))))
+                reply = sc.query(cmd.scan_start(start))
             except DeviceError as exc:
                 if exc.code != 103 or lost_plan >= 3:
                     raise
@@ -779,10 +815,14 @@ class ScanSession:
             try:
                 run_id, first_seq = (int(x) for x in reply.split(","))
             except ValueError:
-                raise DriverError(f"malformed SCAN:STAR reply {reply!r}") from None
+                raise DeviceFault(f"malformed SCAN:STAR reply {reply[:80]!r}") from None
+            if not (0 <= run_id <= _SEQ_MASK and 0 <= first_seq <= _SEQ_MASK):
+                raise DeviceFault(f"SCAN:STAR reply {reply[:80]!r}: the run id and the first "
+                                  "sequence number are u32")
             if self.t_first is None:
                 self.t_first = time.monotonic()
-            self.current = _Run(run_id, sc._boot_id, first_seq)
+            # the run's A-lines: from `start` through the plan's last (docs/protocol.md §3.3)
+            self.current = _Run(run_id, sc._boot_id, first_seq, self.done_s.size - start)
             early, self.early = self.early, []
             for fr in early:
                 self.on_aline(fr)
@@ -823,33 +863,56 @@ class ScanSession:
 
     # ------------------------------------------------------------------ receiving
     def on_aline(self, fr: Frame) -> None:
-        """One ALINE frame from the dispatch: sequence bookkeeping, then the sink."""
+        """One ALINE frame from the dispatch: checks, sequence bookkeeping, then the sink.
+
+        What the frame claims is checked against the plan before anything is kept: a
+        sequence number outside the run, a point, wavelength or sample count the plan does
+        not have, or a payload that does not parse is a device fault (:class:`DeviceFault`,
+        raised by the receive loop; no A-line after it is taken), never bookkeeping of the
+        size the device claims."""
         run = self.current
-        if run is None:  # overtook the SCAN:STAR reply: keep it for the run
-            if len(self.early) < 4096:
+        if run is None:  # overtook the SCAN:STAR reply: keep a few for the run
+            if len(self.early) < _EARLY_MAX and len(fr.payload) == self.aline_bytes:
                 self.early.append(fr)
+            return
+        if run.fault is not None:  # the run ends at its first fault: nothing after it is taken
             return
         try:
             a = unpack_aline(fr.payload)
-        except ValueError:
-            self.sc.faults["bad_alines"] += 1
+        except ValueError as exc:
+            self._device_fault(run, f"malformed A-line frame (seq {fr.seq}): {exc}")
             return
         if a.run_id != run.run_id or a.boot_id != run.boot_id:
             self.counters["stale"] += 1
             if a.boot_id != run.boot_id and a.boot_id not in self.sc._old_boots:
                 run.reset_seen = True
             return
-        if not run.accept(fr.seq):
+        off = run.offset(fr.seq)
+        if off is None:
+            self._device_fault(run, f"A-line sequence number {fr.seq} is outside run {run.run_id}, whose "
+                                    f"{run.n_alines} A-lines are numbered {run.first_seq} to "
+                                    f"{run.seq(run.n_alines - 1)}")
+            return
+        k, w = a.point_index, a.wavelength_index
+        if not (0 <= k < self.n and 0 <= w < self.n_w) or a.samples.size != self.n_t:
+            self._device_fault(run, f"A-line (seq {fr.seq}) of point {k}, wavelength {w} with "
+                                    f"{a.samples.size} samples; the plan has {self.n} points, {self.n_w} "
+                                    f"wavelengths, {self.n_t} samples")
+            return
+        if not run.accept(off):
             self.counters["duplicates"] += 1
             return
         self.counters["alines"] += 1
         self._store(a, run.last_rx)
 
+    def _device_fault(self, run: _Run, reason: str) -> None:
+        """Note a device fault of ``run`` (the first reason is kept; the receive loop raises it)."""
+        self.sc.faults["bad_alines"] += 1
+        if run.fault is None:
+            run.fault = reason
+
     def _store(self, a: ALine, t_rx: float) -> None:
         k, w = a.point_index, a.wavelength_index
-        if not (0 <= k < self.n and 0 <= w < self.n_w) or a.samples.size != self.n_t:
-            self.sc.faults["bad_alines"] += 1
-            return
         s = aline_index(k, w, self.n, self.n_w, self.order)
         if self.done_s[s]:
             self.counters["duplicate_points"] += 1
@@ -888,6 +951,8 @@ class ScanSession:
             if outcome:
                 return outcome
             sc._pump()
+            if run.fault is not None:
+                self._raise_fault(run.fault)
             if run.reset_seen:
                 return "reset"
             if run.interlock:
@@ -922,7 +987,8 @@ class ScanSession:
         return paused, None
 
     def _acknowledge(self) -> None:
-        """ACK every window/2 new A-lines or after 20 ms; NAK gaps (each seq ≤ every 0.1 s)."""
+        """ACK every window/2 new A-lines or after 20 ms; NAK gaps (each seq ≤ every 0.1 s,
+        the first 256 missing, :meth:`_Run.missing`)."""
         run, sc = self._run(), self.sc
         now = time.monotonic()
         if run.since_ack >= max(1, sc.window // 2) or (run.since_ack or run.need_ack) and \
@@ -930,15 +996,15 @@ class ScanSession:
             self.send_ack()
         if not run.ooo:
             return
-        missing = [s for s in range(run.expected, run.max_seen)
-                   if s not in run.ooo and now - run.nak_time.get(s, 0.0) > 0.1]
-        if len(run.nak_time) > 4096:
-            run.nak_time = {s: t for s, t in run.nak_time.items() if s >= run.expected}
+        missing = run.missing(now)
+        if len(run.nak_time) > 4096:  # keep what still holds a NAK back
+            run.nak_time = {o: t for o, t in run.nak_time.items()
+                            if o >= run.next and now - t <= _NAK_EVERY}
         if missing:
-            for s in missing:
-                run.nak_time[s] = now
+            for o in missing:
+                run.nak_time[o] = now
             sc.faults["naks"] += len(missing)
-            self.send_ack(missing[:256])
+            self.send_ack([run.seq(o) for o in missing])
 
     def _on_silence(self, paused: bool) -> str | None:
         """Poll a silent device (this waits out a stall up to response_timeout)."""
@@ -957,50 +1023,87 @@ class ScanSession:
                 3 * sc.response_timeout, 10 * self.silence):
             raise DeviceTimeout(f"{sc.port} reports {st.state} but delivered no new "
                                 f"A-line for {time.monotonic() - run.last_new:.0f} s")
-        self.send_ack(run.missing_tail())
+        self.send_ack([run.seq(o) for o in run.missing()] or None)
         return None
 
     def _raise_interlock(self) -> None:
         raise InterlockOpen(101, f"Laser interlock open; {int(self.done_s.sum())} of "
                                  f"{self.done_s.size} A-lines are on disk, re-run to resume")
 
+    def _raise_fault(self, reason: str) -> None:
+        raise DeviceFault(reason, f"{int(self.done_s.sum())} of {self.done_s.size} A-lines are on "
+                                  "disk, re-run to resume")
+
 
 class _Run:
-    """Receive state of one run (SCAN:STAR … completion)."""
+    """Receive state of one run (SCAN:STAR … completion).
 
-    def __init__(self, run_id: int, boot_id: int | None, first_seq: int):
+    The run's ``n_alines`` A-lines carry the data sequence numbers ``first_seq`` …
+    ``first_seq + n_alines − 1`` (mod 2³²; docs/protocol.md §5): its bookkeeping is in
+    offsets from ``first_seq``, so it holds at most ``n_alines`` of them (the plan's A-lines,
+    never a number the device claims); a sequence number outside the run has no offset
+    (:meth:`offset` is None), a device fault.
+    """
+
+    def __init__(self, run_id: int, boot_id: int | None, first_seq: int, n_alines: int):
         self.run_id = run_id
         self.boot_id = boot_id
-        self.expected = first_seq
-        self.max_seen = first_seq
-        self.ooo: set[int] = set()
-        self.nak_time: dict[int, float] = {}
+        self.first_seq = first_seq
+        self.n_alines = n_alines
+        self.next = 0  #: offset of the next A-line expected: every one below it was received
+        self.max_seen = 0  #: the highest offset received out of order
+        self.ooo: set[int] = set()  #: offsets received above ``next``
+        self.nak_time: dict[int, float] = {}  #: offset -> when it was last NAKed
         self.since_ack = 0
         self.need_ack = False
         self.last_ack = 0.0
         self.last_rx = self.last_new = time.monotonic()
         self.reset_seen = False
         self.interlock = False
+        self.fault: str | None = None  #: the first device fault seen in this run
 
-    def accept(self, seq: int) -> bool:
-        """Book data seq ``seq`` as received; False for a duplicate (which asks for an ACK)."""
+    @property
+    def expected(self) -> int:
+        """The next data sequence number expected (an ACK's ``ack``)."""
+        return self.seq(self.next)
+
+    def seq(self, off: int) -> int:
+        """The data sequence number of offset ``off``."""
+        return (self.first_seq + off) & _SEQ_MASK
+
+    def offset(self, seq: int) -> int | None:
+        """The offset of data sequence number ``seq`` in this run; None outside it."""
+        off = (seq - self.first_seq) & _SEQ_MASK
+        return off if off < self.n_alines else None
+
+    def accept(self, off: int) -> bool:
+        """Book offset ``off`` as received; False for a duplicate (which asks for an ACK)."""
         self.last_rx = time.monotonic()
-        if seq < self.expected or seq in self.ooo:
+        if off < self.next or off in self.ooo:
             self.need_ack = True
             return False
-        if seq == self.expected:
-            self.expected += 1
-            while self.expected in self.ooo:
-                self.ooo.discard(self.expected)
-                self.expected += 1
+        if off == self.next:
+            self.next += 1
+            while self.next in self.ooo:
+                self.ooo.discard(self.next)
+                self.next += 1
         else:
-            self.ooo.add(seq)
-            self.max_seen = max(self.max_seen, seq)
+            self.ooo.add(off)
+            self.max_seen = max(self.max_seen, off)
         self.since_ack += 1
         self.last_new = self.last_rx  # the device makes progress
         return True
 
-    def missing_tail(self) -> list[int] | None:
-        if self.ooo:
-            return [s for s in range(self.expected, self.max_seen) if s not in self.ooo][:256]
-        return None
+    def missing(self, now: float | None = None) -> list[int]:
+        """Offsets not received between ``next`` and the highest received, in order: of the
+        first 256 such gaps (within :data:`_NAK_LOOK` offsets of ``next``), those not
+        NAKed in the last 0.1 s before ``now`` (all of them when ``now`` is None)."""
+        out: list[int] = []
+        off, end, gaps = self.next, min(self.max_seen, self.next + _NAK_LOOK), 0
+        while off < end and gaps < _NAK_MAX:
+            if off not in self.ooo:
+                gaps += 1
+                if now is None or now - self.nak_time.get(off, -math.inf) > _NAK_EVERY:
+                    out.append(off)
+            off += 1
+        return out

@@ -218,7 +218,8 @@ class SimulatedScanner:
         The pty's device path for the host (``/dev/pts/N``).
     stats : collections.Counter
         Counts of what the device did: ``alines`` sent, ``tx_bytes``, ``resent``, ``timeouts``,
-        ``rx_bad_frames``, ``duplicate_commands``, ``stalls``, ``resets``, ``internal_errors``.
+        ``rx_bad_frames``, ``duplicate_commands``, ``stalls``, ``resets``, ``seq_skips``,
+        ``internal_errors``.
 
     Raises
     ------
@@ -248,6 +249,8 @@ class SimulatedScanner:
         self._stalls = dict(self.config.faults.stalls)
         self._resets = set(self.config.faults.resets)
         self._interlocks = dict(self.config.faults.interlocks)
+        self._seq_skips = dict(self.config.faults.seq_skips)
+        self._bad_points = dict(self.config.faults.bad_points)
         self._records: dict[str, dict] = {}
         self._record_order: list[str] = []
         self._pool = ThreadPoolExecutor(1, thread_name_prefix="fpsim-gen")
@@ -540,6 +543,9 @@ class SimulatedScanner:
                 self._push_error(101, "Laser interlock open")
                 self._send(FrameType.EVENT, b"INTERLOCK 1")
                 return
+            if k in self._seq_skips:  # a firmware fault: the data sequence skips ahead
+                self._next_seq = self._seq_skips.pop(k)
+                self.stats["seq_skips"] += 1
             fut = self._block(k // BLOCK)
             if not fut.done():  # the source is still computing: look again in 5 ms
                 self._wake = now + 0.005
@@ -605,11 +611,11 @@ class SimulatedScanner:
         b = self._block(s // BLOCK).result()
         j = s % BLOCK
         k, w = int(self._order[0][s]), int(self._order[1][s])
-        payload = pack_aline(self._run_id, self._boot_id, k, self._pulses, timestamp,
+        payload = pack_aline(self._run_id, self._boot_id, self._bad_points.pop(s, k), self._pulses, timestamp,
                              b["bias"][j], plan.dt, b["scale"][j], 0.0, b["dc"][j],
                              b["energy"][j], b["samples"][j], w, plan.wavelengths[w])
         seq = self._next_seq
-        self._next_seq += 1
+        self._next_seq = (seq + 1) & 0xFFFFFFFF
         wire = encode_frame(FrameType.ALINE, payload, seq=seq, ack=self._last_cmd[0]
                             if self._last_cmd else 0)
         self._unacked[seq] = wire

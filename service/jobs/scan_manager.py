@@ -391,8 +391,9 @@ class ScanManager:
 
     def _acquire_or_interrupt(self, jid: str, run_acquire: Callable[[], ScanResult]) -> ScanResult | None:
         """``run_acquire()``'s result; None when the scan stopped: a bad plan or file fails
-        the job, a lost device or a disk error pauses it (``_interrupt``: resumable)."""
-        from fpscan.driver.host import DriverError
+        the job, a lost device, a device fault or a disk error pauses it (``_interrupt``:
+        resumable)."""
+        from fpscan.driver.host import DeviceFault, DriverError
 
         try:
             return run_acquire()
@@ -405,6 +406,9 @@ class ScanManager:
         except OSError as exc:  # the disk (ENOSPC, EIO): the points on disk stay resumable
             why = "disk full" if is_disk_full(exc) else "scan file write failed"
             self._interrupt(jid, f"{why}: {self.settings.redact(str(exc))}; free space, then resume")
+        except DeviceFault as exc:  # the device sent what no plan allows: it was stopped
+            self._interrupt(jid, f"device fault: {self.settings.redact(exc.reason)}; the scanner was "
+                                 "stopped, resume to acquire the rest")
         except DriverError as exc:  # the device went away or stopped answering
             self._interrupt(jid, f"device lost: {self.settings.redact(str(exc))}; resume when it is back")
         return None
