@@ -14,7 +14,9 @@
  *               GET /api/formats (the upload's format choices, the export downloads)
  *               Disk use: GET /api/health (bytes by part), GET /api/datasets,
  *               DELETE /api/datasets/{id} (the storage section, its own functions below)
- * Units: the form shows convenient units (µm, mm, ns, nm); the API receives SI units.
+ * Units: every length, time, frequency and speed a form takes is a quantity field (text, its
+ * unit shown after it): "60 µm", "0.06 mm", "60um" or a bare 60 in the shown unit. The server
+ * reads the text with the one parser of every door (quantityText, below).
  * Sign-in: the page first asks GET /api/auth (no token needed) whether the server needs a
  * bearer token; if it does, a login view is shown before any other request, and the token
  * is kept in sessionStorage (this tab only) until "Sign out". A later 401 (the token was
@@ -38,30 +40,103 @@ class ApiError extends Error {
 
 function getToken() { return sessionStorage.getItem(TOKEN_KEY) || ""; }
 
-/* The quantities this page's fields take, in the units its labels state (SI on the wire). */
+/* The quantities the server's plausibility rules name, in the units the page's fields show them
+ * (their data-unit / display_unit): a reason about one is worded in its field's unit. */
 const FIELD_UNITS = {
   pitch: ["µm", 1e-6], dx: ["µm", 1e-6], dy: ["µm", 1e-6], depth: ["mm", 1e-3], dt: ["ns", 1e-9],
   prf: ["Hz", 1], "sound speed": ["m/s", 1],
 };
 
-/** A server reason worded for this page's fields. The server speaks to every client (the
- *  command line's "write the unit, e.g. 8ns", the path "equisteradian.lattice.pitch:"): here a
- *  number goes into a field labelled with its unit, so the reason names that field and its
- *  unit ("dt in ns: 8e+9 ns is implausible for a planar FP scanner (expected 100 ps to 1 µs)")
- *  and says to tick "another medium" where the command line says --force. Other reasons are
- *  returned as they are. */
+/** A server reason worded for this page's fields. The server speaks to every client (the path
+ *  "equisteradian.lattice.pitch:", "Numbers without a unit are SI", "--force"): here a value
+ *  goes into a field that shows its unit and reads a bare number in it, so the reason names
+ *  that field and its unit ("dt in ns: 8e+9 ns is implausible for a planar FP scanner
+ *  (expected 100 ps to 1 µs) -- did you mean 8 ns (8ns)?", the suggestion as the command line
+ *  gives it: the field takes "8ns" too), leaves out what bare numbers mean elsewhere and says to
+ *  tick "another medium" where the command line says --force. Other reasons are returned as
+ *  they are, but for that. */
 function inFieldTerms(reason) {
   const text = String(reason);
+  const forced = /force a value outside the range/.test(text);
   const bare = text.replace(/^(?:(?:[A-Za-z_][\w\-\[\]]*\.)*[A-Za-z_][\w\-\[\]]*: (?=[a-z]))+/, "");  // location paths
   const m = bare.match(/^(pitch|dx|dy|depth|dt|prf|sound speed) (-?[\d.]+(?:e[-+]?\d+)?) (m|s|Hz|m\/s) (.*)$/s);
   if (m && FIELD_UNITS[m[1]]) {
     const [unit, scale] = FIELD_UNITS[m[1]];
     const shownValue = Number((Number(m[2]) / scale).toPrecision(6));
-    let rest = m[4].replace(/ -- did you mean [^?]*\?/, "").replace(/ ?Numbers without a unit[^.;]*[.;]?.*$/s, "");
-    if (/force a value outside the range/.test(text)) rest += "; tick “another medium” to accept it";
+    let rest = m[4].replace(/ ?Numbers without a unit.*$/s, "");
+    if (forced) rest += "; tick “another medium” to accept it";
     return `${m[1]} in ${unit}: ${shownValue} ${unit} ${rest.trim()}`;
   }
-  return text.replace("force a value outside the range", "tick “another medium” for a value outside the range");
+  let out = text.replace(/; bare numbers are [^)]*\)/, ")");  // the parser's rule for the command line and JSON
+  if (/ ?Numbers without a unit.*$/s.test(out)) {
+    out = out.replace(/ ?Numbers without a unit.*$/s, "") + (forced ? "; tick “another medium” to accept it" : "");
+  }
+  return out.replace("force a value outside the range", "tick “another medium” for a value outside the range");
+}
+
+/* ------------------------------------------------------------------ quantity fields */
+
+/* Every length, time, frequency and speed a form takes is a quantity field: text, its unit shown
+ * after it, that reads "60 µm", "0.06 mm", "60um", "8ns", "1.5 km/s" or a bare number in the
+ * shown unit. The page converts nothing: it sends the text (a bare number with the shown unit
+ * written after it) and the server reads it with the parser of every door, the command line's
+ * too (fpscan.driver.units.parse_quantity), refusing what it cannot read with the command
+ * line's reason. One parser, so a value typed here gives the numbers (and the plan id) the same
+ * text gives `fpscan plan`. */
+
+/** A number without a unit, as the parser reads one (its own rule for what follows is the server's). */
+const BARE_NUMBER = /^[-+]?(?:\d+\.?\d*|\.\d+)(?:e[-+]?\d+)?$/i;
+const QUANTITY_EXAMPLES = {
+  m: "0.06 mm, 60um", mm: "60 µm, 0.06 mm", "µm": "0.06 mm, 60um", nm: "0.75 µm, 750nm",
+  s: "10 min, 600s", ns: "0.02 µs, 20ns", Hz: "2 kHz, 50Hz", "m/s": "1.5 km/s, 1500m/s",
+};
+
+/** The text of a quantity typed in a field showing ``unit``: a bare number gets the unit
+ *  written after it ("60" in a µm field: "60 µm"), anything else is sent as typed. */
+function quantityText(text, unit) {
+  const s = String(text).trim();
+  return unit && BARE_NUMBER.test(s) ? `${s} ${unit}` : s;
+}
+
+/** Make ``input`` (in its label) a quantity field shown in ``unit``: text, the unit after it. */
+function makeQuantityField(input, unit) {
+  if (input.tagName === "INPUT") input.type = "text";
+  input.removeAttribute("inputmode");  // letters too: the unit
+  input.removeAttribute("pattern");
+  input.spellcheck = false;
+  input.autocomplete = "off";
+  input.dataset.unit = unit;
+  input.dataset.kind = "quantity";
+  input.title = `in ${unit}, or with the unit written after the number (e.g. ${QUANTITY_EXAMPLES[unit] || "60um"})`;
+  if (input.parentElement && input.parentElement.classList.contains("quantity")) return;
+  const box = document.createElement("span");
+  box.className = "quantity";
+  input.replaceWith(box);
+  const suffix = document.createElement("span");
+  suffix.className = "unit";
+  suffix.textContent = unit;
+  box.append(input, suffix);
+}
+
+/** The value of quantity field ``id`` as text for the server (undefined when empty and ``optional``). */
+function quantityValue(id, what, { optional = false } = {}) {
+  const el = $(id);
+  const raw = el.value.trim();
+  if (raw === "") {
+    if (optional) return undefined;
+    throw new Error(`${what}: a value is needed`);
+  }
+  return quantityText(raw, el.dataset.unit);
+}
+
+/** A list typed in one field: comma- or semicolon-separated where the text has a comma or
+ *  semicolon ("0.3 mm, -1 mm"), else space-separated where every part starts as a number does
+ *  ("0.3 0", "0.3mm -1mm"); else one value ("0.75 µm"). */
+function splitList(text) {
+  const s = String(text).trim();
+  if (/[,;]/.test(s)) return s.split(/[,;]/).map((p) => p.trim()).filter(Boolean);
+  const parts = s.split(/\s+/).filter(Boolean);
+  return parts.every((p) => /^[-+]?\.?\d/.test(p)) ? parts : (s ? [s] : []);
 }
 
 /** The server's reason from an error body: FastAPI's `detail` (a string, or a list of
@@ -459,14 +534,18 @@ function route() {
  * from the parameter models in fpscan.service.plans.kinds): one entry per kind with a label, a
  * description and one descriptor per parameter {name, title, description, widget
  * (number | integer | numbers | pairs), integer, required, scalar, default, example, unit,
- * display_unit}. The form shows each length in its display unit; the API gets SI units. */
+ * display_unit}. A parameter with a unit is a quantity field shown in its display unit
+ * (makeQuantityField); its text goes to the server, which reads it (quantityText). */
 let KINDS = null; // kind name -> {kind, label, description, aliases, fields}
 const UNIT_SCALE = { m: 1, mm: 1e-3, "µm": 1e-6, nm: 1e-9, s: 1, ns: 1e-9, Hz: 1, "m/s": 1 };
+const QUANTITY_UNITS = new Set(["m", "s", "Hz", "m/s"]);  // the SI units of the parser's kinds
 
 function fieldId(name) { return "mask-" + name.replace(/_/g, "-"); }
 function shownUnit(f) { return f.display_unit || f.unit || ""; }
 function unitScale(f) { return UNIT_SCALE[shownUnit(f)] ?? 1; }
-/** A number in SI units shown in the field's display unit, without binary noise. */
+/** Whether parameter ``f`` is a quantity (a length, time, frequency or speed). */
+function isQuantity(f) { return QUANTITY_UNITS.has(f.unit); }
+/** A default or example (SI) shown in the field's display unit, without binary noise. */
 function shown(v, f) { return typeof v === "number" ? Number((v / unitScale(f)).toPrecision(12)) : v; }
 
 async function buildMaskSelect() {
@@ -495,12 +574,13 @@ function renderMaskParams() {
   for (const f of k.fields) {
     const label = document.createElement("label");
     const unit = shownUnit(f);
-    const hint = f.required ? "" : (f.default !== null && f.default !== undefined ? `, default ${shown(f.default, f)}` : ", optional");
-    label.textContent = `${f.title}${unit ? " (" + unit + ")" : ""}${f.widget === "pairs" ? " — one pair per line" : ""}${hint} `;
+    const quantity = isQuantity(f);
+    const hint = f.required ? "" : (f.default !== null && f.default !== undefined ? `, default ${shown(f.default, f)}${quantity ? " " + unit : ""}` : ", optional");
+    label.textContent = `${f.title}${unit && !quantity ? " (" + unit + ")" : ""}${f.widget === "pairs" ? " — one pair per line" : ""}${hint} `;
     label.title = f.description;
     const input = document.createElement(f.widget === "pairs" ? "textarea" : "input");
     if (f.widget === "pairs") { input.rows = 6; input.cols = 24; }
-    else if (f.widget === "numbers") { input.type = "text"; }
+    else if (f.widget === "numbers" || quantity) { input.type = "text"; }
     else { input.type = "number"; input.step = f.integer ? "1" : "any"; }
     input.id = fieldId(f.name);
     input.name = f.name;
@@ -513,11 +593,13 @@ function renderMaskParams() {
     }
     if (f.required) input.required = true;
     label.appendChild(input);
+    if (quantity) makeQuantityField(input, unit);
     box.appendChild(label);
   }
 }
 
-/** One parameter's value in SI units from its input (undefined when empty). */
+/** One parameter's value from its input (undefined when empty): a quantity as text for the
+ *  server (quantityText), any other number as a number. */
 function maskValue(f) {
   const el = $(fieldId(f.name));
   const raw = el.value.trim();
@@ -527,31 +609,35 @@ function maskValue(f) {
     return undefined;
   }
   const num = (s, where) => {
+    if (isQuantity(f)) return quantityText(s, el.dataset.unit);
     const v = Number(s);
     if (s === "" || !isFinite(v)) throw new Error(`${what}${where}: "${s}" is not a number`);
     if (f.integer && !Number.isInteger(v)) throw new Error(`${what}${where}: must be a whole number`);
-    return f.integer ? v : v * unitScale(f);
+    return v;
   };
   if (f.widget === "pairs") {
     const pairs = [];
     raw.split(/\n/).forEach((line, i) => {
       line = line.trim();
       if (!line || line.startsWith("#")) return;
-      const parts = line.split(/[\s,;]+/).filter(Boolean);
-      if (parts.length !== 2) throw new Error(`${what}, line ${i + 1}: "${line}" is not two numbers`);
+      const parts = splitList(line);
+      if (parts.length !== 2) {
+        throw new Error(`${what}, line ${i + 1}: "${line}" is not two values (x, y)${isQuantity(f) ? ": separate them with a comma" : ""}`);
+      }
       pairs.push(parts.map((p) => num(p, `, line ${i + 1}`)));
     });
     if (!pairs.length) throw new Error(`${what}: give at least one pair`);
     return pairs;
   }
   if (f.widget === "numbers") {
-    const vals = raw.split(/[\s,;]+/).filter(Boolean).map((p) => num(p, ""));
+    const vals = splitList(raw).map((p) => num(p, ""));
     return vals.length === 1 && f.scalar ? vals[0] : vals;
   }
   return num(raw, "");
 }
 
-function numberField(id, what, { int = false, scale = 1, optional = false } = {}) {
+/** A count typed in field ``id`` (a number; ``int``: a whole one). */
+function numberField(id, what, { int = false, optional = false } = {}) {
   const el = $(id);
   const raw = el.value.trim();
   if (raw === "") {
@@ -561,12 +647,13 @@ function numberField(id, what, { int = false, scale = 1, optional = false } = {}
   const v = Number(raw);
   if (!isFinite(v)) throw new Error(`${what}: "${raw}" is not a number`);
   if (int && !Number.isInteger(v)) throw new Error(`${what}: must be a whole number`);
-  return v * scale;
+  return v;
 }
 
-/** The plan request body (PlanCreate in /openapi.json) from the form, in SI units:
- *  {kind, lattice: {n_x, n_y, pitch}, params: {...}, acquisition: {...}}. Validation of
- *  values is the server's (its reason is shown); only non-numbers are caught here. */
+/** The plan request body (PlanCreate in /openapi.json) from the form:
+ *  {kind, lattice: {n_x, n_y, pitch}, params: {...}, acquisition: {...}}, counts as numbers,
+ *  quantities as text the server reads ("60 µm"). Validation of values is the server's (its
+ *  reason is shown); only counts that are not whole numbers are caught here. */
 function planBody() {
   const kind = $("mask-kind").value;
   const k = KINDS && KINDS[kind];
@@ -580,24 +667,20 @@ function planBody() {
 }
 
 function planBodyCommon() {
-  const wl = $("acq-wl").value.split(",").map((s) => s.trim()).filter(Boolean).map((s) => {
-    const v = Number(s);
-    if (!isFinite(v)) throw new Error(`Excitation wavelength: "${s}" is not a number`);
-    return v * 1e-9;
-  });
+  const wl = splitList($("acq-wl").value).map((s) => quantityText(s, $("acq-wl").dataset.unit));
   return {
     lattice: {
       n_x: numberField("lat-nx", "n_x", { int: true }),
       n_y: numberField("lat-ny", "n_y", { int: true }),
-      pitch: numberField("lat-pitch", "Pitch", { scale: 1e-6 }),
+      pitch: quantityValue("lat-pitch", "Pitch"),
     },
     acquisition: {
       n_t: numberField("acq-nt", "n_t", { int: true }),
-      dt: numberField("acq-dt", "dt", { scale: 1e-9 }),
-      prf: numberField("acq-prf", "PRF"),
+      dt: quantityValue("acq-dt", "dt"),
+      prf: quantityValue("acq-prf", "PRF"),
       averages: numberField("acq-avg", "Averages", { int: true }),
       wavelengths: wl,
-      sound_speed: numberField("acq-c", "Sound speed"),
+      sound_speed: quantityValue("acq-c", "Sound speed"),
     },
     force: $("acq-force").checked, // a sound speed outside the plausible range (fpscan.driver.units' rule)
   };
@@ -1577,18 +1660,18 @@ async function openResult(jobId) {
   }
 }
 
-/** Upload a data file (``POST /api/datasets``, multipart) and queue its reconstruction
- *  (``POST /api/reconstructions`` with the ``dataset_id``); spacings go out in SI units. */
-/** A sound-speed field: empty → undefined, "auto" → "auto", else a positive number in m/s. */
+/** A sound-speed field (a quantity field in m/s that also takes "auto"): empty → undefined,
+ *  "auto" → "auto", else its text for the server ("1500 m/s", "1.5 km/s"; quantityText). */
 function speedField(id) {
-  const raw = $(id).value.trim().toLowerCase();
+  const raw = $(id).value.trim();
   if (!raw) return undefined;
-  if (raw === "auto") return "auto";
-  const v = Number(raw);
-  if (!isFinite(v) || v <= 0) throw new Error(`Sound speed must be a positive number in m/s or "auto", got "${raw}".`);
-  return v;
+  if (raw.toLowerCase() === "auto") return "auto";
+  return quantityText(raw, $(id).dataset.unit);
 }
 
+/** Upload a data file (``POST /api/datasets``, multipart) and queue its reconstruction
+ *  (``POST /api/reconstructions`` with the ``dataset_id``); spacings and the speed of sound go
+ *  out as typed (quantityText), read by the server. */
 async function uploadAndReconstruct(ev) {
   ev.preventDefault();
   let uploadC;
@@ -1598,15 +1681,13 @@ async function uploadAndReconstruct(ev) {
   form.append("file", file, file.name);
   form.append("format", $("upload-format").value);
   try {
-    const fields = [["dt", "upload-dt", 1e-9, "dt"], ["dx", "upload-dx", 1e-6, "dx"],
-                    ["dy", "upload-dy", 1e-6, "dy"]];
-    for (const [name, id, scale, what] of fields) {
+    for (const name of ["dt", "dx", "dy"]) {
       if (!takesLoadOption(name)) continue; // not the chosen format's load option
-      const v = numberField(id, what, { scale, optional: true });
-      if (v !== undefined) form.append(name, String(v));
+      const v = quantityValue("upload-" + name, name, { optional: true });
+      if (v !== undefined) form.append(name, v);
     }
     uploadC = speedField("upload-c");
-    if (typeof uploadC === "number") form.append("sound_speed", String(uploadC)); // c: its deprecated name
+    if (uploadC !== undefined && uploadC !== "auto") form.append("sound_speed", uploadC); // c: its deprecated name
     if ($("upload-force").checked) form.append("force", "true"); // c outside the plausible range
   } catch (err) { showError(err); return; }
   const key = $("upload-key").value.trim();
@@ -1687,7 +1768,7 @@ function buildOptionFields(list) {
       label.id = id + "-label";
       label.title = o.description;
       let input;
-      const unit = s.unit && s.unit !== "1" ? ` (${s.unit})` : "";
+      const unit = s.unit && s.unit !== "1" && !s.quantity ? ` (${s.unit})` : "";  // a quantity shows it after the field
       if (s.type === "boolean") {
         input = document.createElement("input");
         input.type = "checkbox";
@@ -1704,7 +1785,7 @@ function buildOptionFields(list) {
           }
         } else {
           input = document.createElement("input");
-          if (s.quantity) { // a length or time: a number in SI or text with a unit ("30um"), the server parses it
+          if (s.quantity) { // a length or time: a quantity field in its display unit (makeQuantityField)
             input.type = "text";
             input.size = 8;
           } else {
@@ -1714,10 +1795,11 @@ function buildOptionFields(list) {
             else if (s.exclusiveMinimum !== undefined) input.min = s.exclusiveMinimum;
             if (s.maximum !== undefined) input.max = s.maximum;
           }
-          input.dataset.kind = s.quantity ? "quantity" : s.type;
+          input.dataset.kind = s.type;
         }
         label.appendChild(document.createTextNode(`${o.name}${unit} `));
         label.appendChild(input);
+        if (s.quantity && !s.enum) makeQuantityField(input, s.display_unit || s.unit);
       }
       input.id = id;
       input.dataset.option = o.name;
@@ -1773,6 +1855,12 @@ async function buildFormatSelect() {
     sel.appendChild(o);
   }
   if (list.length) sel.value = list[0].name;
+  // the upload's quantity fields (dt, dx, dy) in the unit their load option's schema shows
+  for (const label of document.querySelectorAll("#upload-form [data-load-option]")) {
+    const o = all.flatMap((f) => f.options || []).find((x) => x.name === label.dataset.loadOption);
+    const s = (o && o.value_schema) || {};
+    if (s.quantity) makeQuantityField(label.querySelector("input"), s.display_unit || s.unit);
+  }
   sel.addEventListener("change", renderUploadOptions);
   renderUploadOptions();
 }
@@ -1823,8 +1911,8 @@ function reconParams() {
     else if (input.tagName === "SELECT") params[name] = input.value;
     else if (input.value.trim() !== "") {
       const v = input.value.trim();
-      // a number (SI), or for a length/time text with a unit that the server parses ("30um", "10min")
-      params[name] = input.dataset.kind === "quantity" && !/^[-+]?[0-9.]+(e[-+]?[0-9]+)?$/i.test(v) ? v : Number(v);
+      // a quantity as text the server reads ("60 µm", "0.06 mm", a bare 60 in the field's unit), else a number
+      params[name] = input.dataset.kind === "quantity" ? quantityText(v, input.dataset.unit) : Number(v);
     }
   }
   return params;
@@ -1879,6 +1967,8 @@ async function health() {
 
 async function init() {
   updateTokenButton();
+  // the page's own quantity fields (the generated ones are made so as they are built)
+  for (const input of document.querySelectorAll("input[data-unit]")) makeQuantityField(input, input.dataset.unit);
   $("login-form").addEventListener("submit", submitLogin);
   $("mask-kind").addEventListener("change", () => { renderMaskParams(); schedulePreview(0); });
   $("plan-form").addEventListener("input", () => schedulePreview());

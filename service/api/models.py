@@ -297,14 +297,17 @@ class _PlanCreate(_Request):
     @model_validator(mode="before")
     @classmethod
     def _units_first(cls, data: Any) -> Any:
-        """Acquisition text with a unit ("8 ns", "500Hz", "1.5 km/s") → SI numbers, then the
-        plausibility rules of ``fpscan.driver.units`` on the raw values (dt, PRF, sound speed, the
-        depth of the point of interest), so that a unit mistake (dt 8 s, depth 3.6 m) is
-        named before the range checks of ``Acquisition`` and the kind's parameter model."""
+        """Text with a unit ("8 ns", "500Hz", "1.5 km/s", "750 nm"; the kind's parameters:
+        "3.6 mm") → SI numbers, then the plausibility rules of ``fpscan.driver.units`` on the
+        raw values (dt, PRF, sound speed, the depth of the point of interest), so that a unit
+        mistake (dt 8 s, depth 3.6 m) is named before the range checks of ``Acquisition`` and
+        the kind's parameter model."""
         if not isinstance(data, dict):
             return data
+        from fpscan.driver.plan import MAX_WAVELENGTHS
         from fpscan.driver.units import parse_quantity
         from fpscan.service.plans import check_plausible_request
+        from fpscan.service.plans.kinds import si_params
 
         acq = data.get("acquisition")
         if isinstance(acq, dict):
@@ -312,11 +315,17 @@ class _PlanCreate(_Request):
             for name, unit_kind in (("dt", "time"), ("prf", "frequency"), ("sound_speed", "speed")):
                 if isinstance(acq.get(name), str):
                     acq[name] = parse_quantity(acq[name], unit_kind, name=name)
+            wl = acq.get("wavelengths")
+            if isinstance(wl, list) and len(wl) <= MAX_WAVELENGTHS:  # a longer list is refused by its range
+                acq["wavelengths"] = [parse_quantity(w, "length", name="wavelength") if isinstance(w, str) else w
+                                      for w in wl]
             data = {**data, "acquisition": acq}
         try:
             kind = resolve_kind(data.get("kind")).name if isinstance(data.get("kind"), str) else None
         except ValueError:
             kind = None  # the discriminator names an unknown kind
+        if kind is not None and isinstance(data.get("params"), dict):
+            data = {**data, "params": si_params(KINDS[kind].params, data["params"])}
         check_plausible_request(None, kind, None, data.get("params"), acq if isinstance(acq, dict) else None,
                                 force=data.get("force") is True)
         return data

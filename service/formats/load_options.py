@@ -10,8 +10,9 @@ The mix-ins: :class:`GridSpacing` (``dt``, ``dx``, ``dy``: a k-Wave style array'
 (``axes``: the order of a bare array's axes) and
 :class:`WavelengthChoice` (``wavelength``: one excitation wavelength of a multi-wavelength
 file). A format module declares ``options=`` with one of them or a model combining several.
-Field metadata as the methods' (``unit``, ``quantity``: text with a unit accepted). The speed of
-sound is every input's (``fpscan.service.recon.methods.options.SpeedOptions``), not a load option.
+Field metadata as the methods' (``unit``; ``display_unit``: the web page's unit; ``quantity``: text
+with a unit accepted). The speed of sound is every input's
+(``fpscan.service.recon.methods.options.SpeedOptions``), not a load option.
 """
 from __future__ import annotations
 
@@ -108,13 +109,13 @@ class GridSpacing(LoadOptions):
 
     dt: Positive("dt") = Field(  # type: ignore[valid-type]
         None, description="sample interval, e.g. 20ns (bare numbers are SI)",
-        json_schema_extra={"unit": "s", "quantity": "time"})
+        json_schema_extra={"unit": "s", "display_unit": "ns", "quantity": "time"})
     dx: Positive("dx") = Field(  # type: ignore[valid-type]
         None, description="lateral spacing along x, e.g. 100um",
-        json_schema_extra={"unit": "m", "quantity": "length"})
+        json_schema_extra={"unit": "m", "display_unit": "µm", "quantity": "length"})
     dy: Positive("dy") = Field(  # type: ignore[valid-type]
         None, description="lateral spacing along y, e.g. 100um (default dx)",
-        json_schema_extra={"unit": "m", "quantity": "length"})
+        json_schema_extra={"unit": "m", "display_unit": "µm", "quantity": "length"})
 
 
 class ArrayKey(LoadOptions):

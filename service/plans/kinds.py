@@ -55,7 +55,7 @@ if TYPE_CHECKING:
     from fpscan.service.plans.mask import Mask
 
 __all__ = ["KINDS", "MaskKind", "MaskParams", "make_mask", "resolve_kind", "kind_fields",
-           "field_units", "length", "FullParams", "EquispacedParams", "HexagonalParams", "RandomParams",
+           "field_units", "si_params", "length", "FullParams", "EquispacedParams", "HexagonalParams", "RandomParams",
            "PoissonParams", "PointsParams", "EquiangularParams", "EquisteradianParams"]
 
 
@@ -120,28 +120,8 @@ class MaskParams(BaseModel):
     @model_validator(mode="before")
     @classmethod
     def _units(cls, data: Any) -> Any:
-        """Lengths typed with a unit (``"3.6mm"``, ``"-2 mm"``) -> m, by the one unit parser
-        (``fpscan.driver.units.parse_quantity``), for every field that declares a unit
-        (``field_units``): a number, or each of a point of interest's 1-2 numbers. Bare
-        numbers are SI and pass unchanged; a bad text is a ValueError naming the field."""
-        if not isinstance(data, dict):
-            return data
-        units = field_units(cls)
-        kinds = {"m": "length", "s": "time", "Hz": "frequency", "m/s": "speed"}
-        out = None
-        for name, unit in units.items():
-            v = data.get(name)
-            if unit not in kinds or v is None:
-                continue
-            if isinstance(v, str):
-                new: Any = _parse_unit(v, kinds[unit], name)
-            elif isinstance(v, (list, tuple)) and len(v) <= 2 and any(isinstance(x, str) for x in v):
-                new = [_parse_unit(x, kinds[unit], name) if isinstance(x, str) else x for x in v]
-            else:
-                continue
-            out = dict(data) if out is None else out
-            out[name] = new
-        return data if out is None else out
+        """Values typed with a unit to SI (:func:`si_params`)."""
+        return si_params(cls, data)
 
     def mask_kwargs(self) -> dict:
         """The keyword arguments of the kind's mask function (unset optional ones left out).
@@ -371,6 +351,69 @@ def _parse_unit(text: str, kind: str, name: str) -> float:
     from fpscan.driver.units import parse_quantity
 
     return parse_quantity(text, kind, name=name)
+
+
+#: the kind of quantity (``fpscan.driver.units.KINDS``) of each SI unit a field may declare
+_UNIT_KINDS = {"m": "length", "s": "time", "Hz": "frequency", "m/s": "speed"}
+
+
+def si_params(model: type[BaseModel], data: Any) -> Any:
+    """A kind's parameters with every value typed with a unit (``"3.6mm"``, ``"-2 mm"``,
+    ``"240 µm"``) in SI, read by the one unit parser (``fpscan.driver.units.parse_quantity``),
+    for every field of ``model`` that declares a unit (:func:`field_units`): a number, each of
+    a point of interest's 1-2 numbers, or each coordinate of a list of (x, y) pairs. Bare
+    numbers are SI and pass unchanged; anything else is left to the model's validation.
+    The parameter models run it before validating (and the HTTP API before its plausibility
+    rules, so a depth typed as ``"3600 mm"`` is named a unit mistake).
+
+    Parameters
+    ----------
+    model : type of pydantic.BaseModel
+        A kind's parameter model (:class:`MaskParams` subclass).
+    data : Any
+        The parameters as given (a dict; anything else is returned unchanged).
+
+    Returns
+    -------
+    Any
+        ``data``, or a copy with the typed values in SI units.
+
+    Raises
+    ------
+    ValueError
+        A text that is not a number with a unit of the field's kind, naming the field.
+
+    Examples
+    --------
+    >>> from fpscan.service.plans.kinds import EquisteradianParams, PointsParams, si_params
+    >>> si_params(EquisteradianParams, {"depth": "3.6 mm", "poi": ["1mm", 0], "n_points": 9})
+    {'depth': 0.0036, 'poi': [0.001, 0], 'n_points': 9}
+    >>> si_params(PointsParams, {"points": [["0.3 mm", "-0.15mm"], [0, 1e-4]]})
+    {'points': [[0.0003, -0.00015], [0, 0.0001]]}
+    """
+    if not isinstance(data, dict):
+        return data
+    out = None
+    for name, unit in field_units(model).items():
+        v, kind = data.get(name), _UNIT_KINDS.get(unit)
+        if kind is None or v is None:
+            continue
+
+        def one(x: Any, name: str = name, kind: str = kind) -> Any:
+            return _parse_unit(x, kind, name) if isinstance(x, str) else x
+
+        if isinstance(v, str):
+            new: Any = one(v)
+        elif isinstance(v, (list, tuple)) and len(v) <= 2 and any(isinstance(x, str) for x in v):
+            new = [one(x) for x in v]  # a point of interest (x) or (x, y)
+        elif isinstance(v, (list, tuple)) and any(isinstance(p, (list, tuple)) and any(isinstance(x, str) for x in p)
+                                                  for p in v):
+            new = [[one(x) for x in p] if isinstance(p, (list, tuple)) and len(p) <= 2 else p for p in v]  # pairs
+        else:
+            continue
+        out = dict(data) if out is None else out
+        out[name] = new
+    return data if out is None else out
 
 
 def field_units(model: type[BaseModel]) -> dict[str, str]:

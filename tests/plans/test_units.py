@@ -223,3 +223,33 @@ def test_sim_demo_unmix_take_units_and_name_unit_mistakes(tmp_path, capsys):
         code, err = exit_code(base + flags)
         assert code == 2 and all(n in err for n in names), (flags, err)
     assert not (tmp_path / "u").exists()
+
+
+def test_parsed_values_are_pints_conversion_to_the_last_bit():
+    """parse_quantity looks each unit's factor up once (cached): the value is still exactly pint's
+    own conversion of the typed number (its registry with decimal arithmetic), for units of every
+    kind, many magnitudes and both spellings of micro; a unit of another kind or none pint knows
+    is refused with the same words whether or not its factor was looked up before."""
+    import random
+    from decimal import Decimal
+
+    import pint
+
+    ureg = pint.UnitRegistry(non_int_type=Decimal)  # an independent registry: the oracle
+    units = {"length": ["m", "mm", "um", "µm", "μm", "nm", "km", "inch", "micron", "angstrom", "Ym"],
+             "time": ["s", "ns", "us", "ms", "min", "h", "ps"], "frequency": ["Hz", "kHz", "MHz", "rpm"],
+             "speed": ["m/s", "km/s", "mm/us", "ft/s", "knot"]}
+    si = {"length": "m", "time": "s", "frequency": "Hz", "speed": "m/s"}
+    rng = random.Random(7)
+    for kind, names in units.items():
+        for unit in names:
+            for _ in range(50):
+                number = rng.choice([f"{rng.uniform(-1e4, 1e4):.{rng.randint(1, 12)}g}", str(rng.randint(0, 10**6)),
+                                     f"{rng.uniform(0, 10):.6f}e{rng.randint(-30, 29)}"])
+                want = float((Decimal(number) * ureg.Unit(unit.replace("μ", "µ"))).to(si[kind]).magnitude)
+                assert parse_quantity(f"{number} {unit}", kind) == want, (number, unit)
+    for _ in range(2):  # the second time from the cache
+        with pytest.raises(ValueError, match="'60 Hz' is not a length"):
+            parse_quantity("60 Hz", "length", name="pitch")
+        with pytest.raises(ValueError, match="unknown unit 'zorkmid'"):
+            parse_quantity("60 zorkmid", "length")

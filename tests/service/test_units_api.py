@@ -107,3 +107,35 @@ def test_api_plan_lengths_take_units_and_a_depth_below_a_pitch_is_refused(shared
     r = shared_api.post("/api/plans", json={"lattice": LATTICE, "kind": "equisteradian",
                                             "params": {"depth": "3 furlongs", "n_points": 60}})
     assert r.status_code == 422 and "depth" in r.json()["detail"], r.text
+
+
+def test_every_plan_quantity_takes_text_with_a_unit_as_the_web_form_sends_it(shared_api):
+    """The web page's plan form sends each quantity as typed ("0.15 mm", a bare number with
+    its field's unit written after it): every one of them -- pitch, depth, point of interest,
+    dt, PRF, sound speed, each wavelength, a point list's coordinates, a spacing -- gives the
+    plan the SI numbers give (the same id: the same floats to the last bit), and a depth
+    typed "3600 mm" is named the unit mistake a bare 3.6 (m) is."""
+    acq_si = {"n_t": 256, "dt": 2e-8, "prf": 25.0, "sound_speed": 1500.0, "wavelengths": [7.5e-7, 8.5e-7]}
+    acq_text = {"n_t": 256, "dt": "20 ns", "prf": "25 Hz", "sound_speed": "1.5 km/s",
+                "wavelengths": ["750 nm", "0.85 µm"]}
+    lattice_text = {**LATTICE, "pitch": "60 µm"}
+    for kind, si, text in (
+        ("equisteradian", {"depth": 3.6e-3, "n_points": 60, "poi": [-2e-4, 1e-4]},
+         {"depth": "3600 µm", "n_points": 60, "poi": ["-0.2 mm", "100 µm"]}),
+        ("points", {"points": [[3e-4, -1.2e-4], [0.0, 6e-5]]},
+         {"points": [["0.3 mm", "-120 µm"], ["0 mm", "0.06mm"]]}),
+        ("hexagonal", {"spacing": 2.4e-4}, {"spacing": "240 µm"}),
+    ):
+        a = shared_api.post("/api/plans", json={"kind": kind, "lattice": LATTICE, "params": si, "acquisition": acq_si})
+        b = shared_api.post("/api/plans", json={"kind": kind, "lattice": lattice_text, "params": text,
+                                                "acquisition": acq_text})
+        assert a.status_code == b.status_code == 201, (kind, b.text)
+        assert a.json()["id"] == b.json()["id"], kind
+    for depth in (3.6, "3600 mm"):
+        r = shared_api.post("/api/plans/preview", json={"lattice": LATTICE, **EQ, "params": {"depth": depth, "n_points": 60}})
+        assert r.status_code == 422 and all(n in r.json()["detail"] for n in ("depth 3.6 m", "3.6 mm")), r.text
+    for bad, words in ((["750 kg"], "'750 kg' is not a length"), ({"points": [["1 mm", "2 s"]]}, "'2 s' is not a length")):
+        body = ({"lattice": LATTICE, "kind": "full", "acquisition": {"wavelengths": bad}} if isinstance(bad, list)
+                else {"lattice": LATTICE, "kind": "points", "params": bad})
+        r = shared_api.post("/api/plans/preview", json=body)
+        assert r.status_code == 422 and words in r.json()["detail"], r.text

@@ -10,9 +10,11 @@ with the kernel's words (``eps must be in [1e-14, 1e-1], got 5e-15``); the range
 those of :mod:`fpscan.service.recon.limits`, stated in the JSON schema (``minimum``/``maximum``).
 
 Field metadata (``json_schema_extra``) read by the generated surfaces: ``unit`` (SI unit
-of the value, shown by the CLI, the web page and the docs table), ``quantity`` (``length``
-or ``time``: the CLI and the API accept text with a unit, ``"20um"``), ``flag`` (a CLI flag
-other than ``--name-with-dashes``), ``derived`` (what a default of ``None`` is, e.g. ``n_t``).
+of the value, shown by the CLI and the docs table), ``quantity`` (``length`` or ``time``:
+every door accepts text with a unit, ``"20um"``), ``display_unit`` (the unit the web page's
+field is shown in and reads a bare number in, e.g. ``µm`` for ``dz``; default ``unit``),
+``flag`` (a CLI flag other than ``--name-with-dashes``), ``derived`` (what a default of
+``None`` is, e.g. ``n_t``).
 
 Every option type admits ``None``: "the method's default" (JSON null), which a method's model
 replaces by its field's default. This module imports no numpy: the rules load their kernel checks on first use.
@@ -637,4 +639,4 @@ class DepthOptions(BaseModel):
     n_z: NZ = Field(None, description="output depth samples", json_schema_extra={"unit": "1", "derived": "n_t"})
     dz: Dz = Field(None, description="output depth spacing; with the input's c·t_last it sets the working depth "
                    "rows, counted in the memory admission",
-                   json_schema_extra={"unit": "m", "quantity": "length", "derived": "c·dt"})
+                   json_schema_extra={"unit": "m", "display_unit": "µm", "quantity": "length", "derived": "c·dt"})

@@ -57,7 +57,8 @@ def option_schemas(method: Method | type[BaseModel]) -> list[dict[str, Any]]:
     methods and formats endpoints and the web page read them: per
     option ``name``, ``description``, ``default`` (this method's), and ``schema``: the JSON
     schema of a value (``type``, ``minimum``/``maximum``/``exclusiveMinimum``, ``enum``)
-    with ``unit`` (SI) and ``quantity`` (``length``/``time``: text with a unit accepted).
+    with ``unit`` (SI), ``quantity`` (``length``/``time``: text with a unit accepted) and
+    ``display_unit`` (the unit a form shows the value in, where it is not ``unit``).
 
     Parameters
     ----------
@@ -90,7 +91,7 @@ def option_schemas(method: Method | type[BaseModel]) -> list[dict[str, Any]]:
             continue
         value = next((b for b in p.get("anyOf", []) if b.get("type") != "null"), None) or \
             {k: v for k, v in p.items() if k not in ("anyOf", "default", "description", "title")}
-        extra = {k: p[k] for k in ("unit", "quantity", "flag", "derived") if k in p}
+        extra = {k: p[k] for k in ("unit", "display_unit", "quantity", "flag", "derived") if k in p}
         out.append({"name": name, "description": p.get("description", ""), "default": p.get("default"),
                     "schema": {**{k: v for k, v in value.items() if k != "title"}, **extra}})
     return out
