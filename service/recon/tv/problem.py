@@ -21,6 +21,7 @@ import numpy as np
 import numpy.typing as npt
 
 from fpscan.physics.resample import resample
+from fpscan.physics.step_times import step
 from fpscan.service.recon import checks, memory
 from fpscan.service.recon.tv.grid import TvGrid, noise_sigma, tv_grid
 from fpscan.service.recon.tv.preconditioner import apply_weight, ner_weight
@@ -463,7 +464,9 @@ class Model:
         pair = self.op._pair
         if pair is not None:  # on the GPU: Aᵀ and P there, the image stays there
             return apply_weight(self.P, pair.adjoint(pair.xp.asarray(r, dtype=self.dtype).reshape(self.op.oshape)))
-        return apply_weight(self.P, self.op.rmatvec(r.astype(self.dtype, copy=False).ravel()).reshape(self.shape))
+        image = self.op.rmatvec(r.astype(self.dtype, copy=False).ravel()).reshape(self.shape)
+        with step("preconditioner"):
+            return apply_weight(self.P, image)
 
     def forward(self, v: np.ndarray) -> np.ndarray:
         self.applied[0] += 1

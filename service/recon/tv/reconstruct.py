@@ -19,6 +19,7 @@ import numpy as np
 import numpy.typing as npt
 
 from fpscan.constants import C_DEFAULT
+from fpscan.physics import workspace
 from fpscan.service.progress import Progress, span
 from fpscan.service.recon import checks, limits
 from fpscan.service.recon import device as devices
@@ -265,6 +266,7 @@ def _solve(record: Record, dev: str, *, c: float, dx: float | None, positions: n
                             positivity=positivity, memory_limit=memory_limit,
                             progress=span(report, 0.0, 0.05, "warm start"), device=dev)
     report(0.05, "warm start")
+    workspace.release()  # the warm start's work arrays (free now) make way for the operator's
     # A, and B = P Aᵀ: the exact adjoint with NER's k-space weight P = k_z / |k|
     model = Model(record, warm, c, pos, t0=t0, eps=eps, dtype=rdtype, periodic=periodic, checkpoint=report.poll,
                    memory_limit=memory_limit, device=dev)
