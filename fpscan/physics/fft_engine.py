@@ -285,36 +285,36 @@ def rfft2(x: np.ndarray, s: tuple[int, int] | None = None, axes: tuple[int, int]
 def _rfft2_planes(x: np.ndarray, n_b: int, out: np.ndarray, slabs: range) -> np.ndarray:
     """`rfft2` of the planes of a C-contiguous real ``x`` ``(m, r, n)`` over axes (1, 2),
     zero-padded to ``out``'s planes, through `rfft2_planes`: each slab's rows padded to n_b
-    on every core (none to pad: the slab itself)."""
-    from fpscan.physics import array_kernels
+    on every core into a work array (`fpscan.physics.workspace`; none to pad: the slab itself)."""
+    from fpscan.physics import array_kernels, workspace
 
+    step = slabs.step
     if n_b == x.shape[2]:
-        return rfft2_planes(lambda a, buf: x[a : a + buf.shape[0]], x.shape[0], x.shape[1], n_b, out, slabs.step)
+        return rfft2_planes(lambda a, b: x[a:b], x.shape[0], x.shape[1], n_b, out, step)
+    buf = workspace.take((min(step, x.shape[0]), x.shape[1], n_b), x.dtype)
 
-    def padded(a: int, buf: np.ndarray) -> np.ndarray:
-        array_kernels.pad_rows(x[a : a + buf.shape[0]], buf, 0)
-        return buf
+    def padded(a: int, b: int) -> np.ndarray:
+        array_kernels.pad_rows(x[a:b], buf[: b - a], 0)
+        return buf[: b - a]
 
-    return rfft2_planes(padded, x.shape[0], x.shape[1], n_b, out, slabs.step)
+    return rfft2_planes(padded, x.shape[0], x.shape[1], n_b, out, step)
 
 
-def rfft2_planes(planes: Callable[[int, np.ndarray], np.ndarray], m: int, rows: int, n: int, out: np.ndarray,
+def rfft2_planes(planes: Callable[[int, int], np.ndarray], m: int, rows: int, n: int, out: np.ndarray,
                  step: int | None = None, row_offset: int = 0) -> np.ndarray:
-    """The real 2-D FFT of ``m`` planes ``(rows, n)`` that a caller writes slab by slab, each
+    """The real 2-D FFT of ``m`` planes ``(rows, n)`` that a caller gives slab by slab, each
     zero-padded to ``out``'s planes, into ``out``, with every copy on every core
-    (`fpscan.physics.array_kernels`): ``planes(a, buf)`` writes planes a .. a + len(buf) into
-    ``buf`` (a work array of `fpscan.physics.workspace`, its contents undefined) and returns
-    them (``buf`` or an array of that shape of its own); their real FFT along x; its rows
-    placed in ``out``'s planes from row ``row_offset`` on (the other rows zero, as their
-    transforms are); then the FFT along y in ``out``'s own memory (`fft_in_place`). The transforms of
-    ``scipy.fft.rfft2`` of the padded planes, row by row, with every core (:func:`workers`),
-    and no whole-volume temporary.
+    (`fpscan.physics.array_kernels`): ``planes(a, b)`` returns planes a .. b (``(b - a, rows, n)``,
+    real, C-contiguous rows); their real FFT along x; its rows placed in ``out``'s planes from row
+    ``row_offset`` on (the other rows zero, as their transforms are); then the FFT along y in
+    ``out``'s own memory (`fft_in_place`). The transforms of ``scipy.fft.rfft2`` of the padded
+    planes, row by row, with every core (:func:`workers`), and no whole-volume temporary.
 
     Parameters
     ----------
     planes : callable
-        ``planes(a, buf) -> ndarray``: the real planes a .. a + len(buf), ``(len(buf), rows, n)``,
-        float32 or float64 (the dtype of ``out``'s precision).
+        ``planes(a, b) -> ndarray``: the real planes a .. b, float32 or float64 (the dtype of
+        ``out``'s precision); called once per slab, in order.
     m : int
         Planes in all.
     rows, n : int
@@ -342,13 +342,13 @@ def rfft2_planes(planes: Callable[[int, np.ndarray], np.ndarray], m: int, rows: 
     >>> from fpscan.physics.fft_engine import rfft2_planes
     >>> x = np.arange(2 * 3 * 8, dtype=np.float64).reshape(2, 3, 8)
     >>> out = np.empty((2, 4, 5), np.complex128)  # y padded 3 -> 4
-    >>> _ = rfft2_planes(lambda a, buf: x[a : a + len(buf)], 2, 3, 8, out)
+    >>> _ = rfft2_planes(lambda a, b: x[a:b], 2, 3, 8, out)
     >>> bool(np.allclose(out, scipy.fft.rfft2(x, s=(4, 8))))
     True
     """
     import scipy.fft
 
-    from fpscan.physics import array_kernels, workspace
+    from fpscan.physics import array_kernels
 
     if (out.ndim != 3 or out.shape[0] != m or out.shape[1] < rows + row_offset or out.shape[2] != n // 2 + 1
             or out.dtype.kind != "c" or not out.flags.c_contiguous):
@@ -356,14 +356,14 @@ def rfft2_planes(planes: Callable[[int, np.ndarray], np.ndarray], m: int, rows: 
                          f"got {out.shape} {out.dtype}")
     rtype = np.float32 if out.dtype == np.complex64 else np.float64
     step = max(1, SLAB_BYTES // max(1, rows * n * np.dtype(rtype).itemsize)) if step is None else int(step)
-    buf = workspace.take((min(step, m), rows, n), rtype)
     for a in range(0, m, step):
-        part = planes(a, buf[: min(step, m - a)])
-        spectrum = scipy.fft.rfft(part, axis=2, workers=workers())
-        dst = out[a : a + step]
+        b = min(a + step, m)
+        spectrum = scipy.fft.rfft(planes(a, b), axis=2, workers=workers())
+        dst = out[a:b]
         array_kernels.embed_rows(spectrum, dst, row_offset)
-        del spectrum, part
-        fft_in_place(dst, axis=1)
+        del spectrum
+        if dst.shape[1] > 1:
+            fft_in_place(dst, axis=1)
     return out
 
 

@@ -488,14 +488,16 @@ class PlanarOperator(pylops.LinearOperator):
         _, n_y, n_x = self._vol
         oy, ox = self._off
         src = np.ascontiguousarray(vol, dtype=self.dtype)
+        step = max(1, fft_engine.SLAB_BYTES // (n_y * n_x2 * self.dtype.itemsize))
+        buf = workspace.take((min(step, m), n_y, n_x2), self.dtype)
 
-        def planes(a: int, buf: np.ndarray) -> np.ndarray:
+        def planes(a: int, b: int) -> np.ndarray:
             if a:
                 self._tick()
-            array_kernels.pad_rows(src[a : a + buf.shape[0]], buf, ox)
-            return buf
+            array_kernels.pad_rows(src[a:b], buf[: b - a], ox)
+            return buf[: b - a]
 
-        fft_engine.rfft2_planes(planes, m, n_y, n_x2, out, row_offset=oy)
+        fft_engine.rfft2_planes(planes, m, n_y, n_x2, out, step=step, row_offset=oy)
         self._tick()
         return out
 
@@ -507,7 +509,7 @@ class PlanarOperator(pylops.LinearOperator):
         be the start of S's own memory: a block of rows is read whole before its rows of
         ``out`` are written, and a row of ``out``, n_y n_x reals, is shorter than a row of S,
         N_y (N_x//2+1) complex values, so no row of S is written before it is read), else an
-        array of the work-array pool."""
+        array of the work-array pool (the forward's data, the adjoint's image)."""
         m = S.shape[0]
         _, n_y2, n_x2 = self.padded_shape
         _, n_y, n_x = self._vol
@@ -613,11 +615,11 @@ class PlanarOperator(pylops.LinearOperator):
                 array_kernels.zero_columns(K, self._skipped)
             # DCT-Iᵀ = diag(τ) DCT-I diag(1/τ), τ = ½ at both ends (the last row only where the image reaches it)
             array_kernels.scale_rows(K, 0.5, 0.5 if n_z == n_z2 else 1.0)
-            # the image over K's first rows (`_lateral_inverse`): the adjoint's output takes no memory
-            # beside the k-space, whose buffer the pool lends again once the caller drops the image
-            image = K.reshape(-1).view(np.uint8)[: n_z * n_y * n_x * self.dtype.itemsize].view(self.dtype)
-            p = self._lateral_inverse(K.reshape(n_z, n_y2, self._n_xr), image.reshape(n_z, n_y, n_x))
-            del A, K, image
+            # the image in an array of its own (the pool's): the k-space is free again as soon as the
+            # adjoint returns, however long the caller keeps the image (a power iteration feeds it to the
+            # next forward, which then takes the same k-space)
+            p = self._lateral_inverse(K.reshape(n_z, n_y2, self._n_xr))
+            del A, K
             return p[:, 0, :] if self.is2d else p
 
     def _values_at_nodes(self, T: np.ndarray) -> np.ndarray:

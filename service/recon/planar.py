@@ -732,12 +732,14 @@ def _lateral_spectrum(al: np.ndarray, h: np.ndarray, pos: np.ndarray, axes: tupl
             values = np.ascontiguousarray(al if al.dtype in (np.float32, np.float64) else al.astype(np.float64))
             scale = h / cell
             rows, cols = on_grid[1].astype(np.int64), on_grid[0].astype(np.int64)
+            step = max(1, fft_engine.SLAB_BYTES // (n_y * n_x * rdtype.itemsize))
+            buf = workspace.take((min(step, n_t), n_y, n_x), rdtype)
 
-            def planes(a: int, buf: np.ndarray) -> np.ndarray:
-                place_points(values, scale, rows, cols, a, buf)
-                return buf
+            def planes(a: int, b: int) -> np.ndarray:
+                place_points(values, scale, rows, cols, a, buf[: b - a])
+                return buf[: b - a]
 
-            fft_engine.rfft2_planes(planes, n_t, n_y, n_x, out=A)
+            fft_engine.rfft2_planes(planes, n_t, n_y, n_x, out=A, step=step)
         if kernel is not None:
             kernel(0.3)
         return A

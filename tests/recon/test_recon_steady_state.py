@@ -35,6 +35,15 @@ if case == "ner":
     call = lambda: reconstruct_grid(data, 1e-4, 1e-4 / 1500, 1500.0, dtype=np.float32, device="cpu")
     cols = n * (n // 2 + 1)
     work = (cols * nufft.make_grid(n_t, "nufft", 1e-6).L + (n_t + 1) * cols) * 8  # the fine grid, the spectrum
+elif case == "load":  # a job worker's input: the canonical dataset file read again
+    import os, tempfile
+    from fpscan.service.recon.dataset import GridDataset
+    from fpscan.service.storage.loader import load_dataset, write_dataset
+    path = os.path.join(tempfile.mkdtemp(), "ds.h5")
+    data = rng.standard_normal((512, 128, 128)).astype(np.float32)
+    write_dataset(path, GridDataset(data=data, dx=1e-4, dt=1e-4 / 1500, sound_speed=1500.0, dy=1e-4))
+    call = lambda: load_dataset(path, "dataset")
+    work = data.nbytes
 else:
     kw = dict(positions=None, band=None)
     if case == "pair at nodes":  # a scan plan's points on the lattice, tv's band limit
@@ -57,12 +66,13 @@ print(json.dumps({"faults": faults, "work_pages": work // 4096}))
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="needs Linux's prctl and page-fault counts")
-@pytest.mark.parametrize("case", ["ner", "pair", "pair at nodes"])
+@pytest.mark.parametrize("case", ["ner", "pair", "pair at nodes", "load"])
 def test_a_repeated_call_faults_in_no_fresh_pages(case):
-    """NER float32 at 512 x 128² (its fine grid and spectrum: 25 000 pages), and a forward +
+    """NER float32 at 512 x 128² (its fine grid and spectrum: 25 000 pages), a forward +
     adjoint pair of the free-space operator (grid sensors; sensors on lattice nodes with a band
-    limit): the third call faults in under 5 % of its work arrays' pages. Each work array
-    freshly allocated, as before the pool, faults them all in on every call."""
+    limit), and a job's input read from its canonical dataset file (512 x 128², 8 000 pages):
+    the third call faults in under 5 % of its work arrays' pages. Each work array freshly
+    allocated, as before the pool, faults them all in on every call."""
     r = subprocess.run([sys.executable, "-c", FAULTS_SCRIPT, case], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr[-2000:]
     m = json.loads(r.stdout.strip().splitlines()[-1])
@@ -153,3 +163,23 @@ def test_the_transforms_run_on_the_cores_the_process_may_use():
     assert r.returncode == 0, r.stderr[-2000:]
     assert int(r.stdout) == 1
     assert fft_engine.workers() == len(os.sched_getaffinity(0))
+
+
+def test_an_idle_worker_gives_its_work_arrays_back():
+    """A job worker's thread (`fpscan.service.jobs.work.release_when_quiet`) releases the pool's
+    free buffers once no job has run for its quiet time after one ended, and keeps them while
+    jobs come."""
+    import time
+
+    from fpscan.service.jobs.work import JobGate, release_when_quiet
+    from tests.waits import HANG_S
+
+    workspace.release()
+    gate = JobGate()
+    threading.Thread(target=release_when_quiet, args=(gate, 0.0), daemon=True).start()
+    with gate.busy():  # a job: its array, dropped at its end, stays in the pool (free)
+        workspace.take((1 << 20,), np.float64)
+    deadline = time.monotonic() + HANG_S
+    while workspace.held() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert workspace.held() == 0
