@@ -633,7 +633,7 @@ class PlanarOperator(pylops.LinearOperator):
         rows, row_of, cols = self._nodes
         vals = np.empty((len(row_of), self.n_t), dtype=self.dtype)
         batches = self._time_batches()
-        kept = np.empty((batches[0][1] - batches[0][0], len(rows), self._n_xr), dtype=self._ctype)
+        kept = workspace.take((batches[0][1] - batches[0][0], len(rows), self._n_xr), self._ctype)
         for a, b in batches:
             block = T[a:b]
             if n_y2 > 1:
@@ -658,7 +658,7 @@ class PlanarOperator(pylops.LinearOperator):
         values = np.ascontiguousarray(data)
         ones = np.ones(len(row_of))
         batches = self._time_batches()
-        grid = np.empty((batches[0][1] - batches[0][0], len(rows), n_x2), dtype=self.dtype)
+        grid = workspace.take((batches[0][1] - batches[0][0], len(rows), n_x2), self.dtype)
         for a, b in batches:
             placed = grid[: b - a]
             array_kernels.place_points(values, ones, row_of, cols, a, placed)  # distinct nodes (`_lattice_nodes`)
