@@ -217,6 +217,7 @@ def _child(args: argparse.Namespace) -> None:
     root = HERE.parents[1]
     sys.path[:] = [args.tree, str(HERE.parent)] + [p for p in sys.path if p and Path(p).resolve() != root]
     import fpscan
+    import fpscan.physics  # noqa: F401  (first: its OpenMP wait policy, before numba's threads start)
 
     assert Path(fpscan.__file__).resolve().is_relative_to(Path(args.tree).resolve()), fpscan.__file__
     from bench_tv_paper import paper_case
