@@ -165,7 +165,7 @@ def test_a_full_disk_answers_every_export_507_and_leaves_no_temporary(tmp_path, 
             assert _temporaries(small_disk / "data") == []
             assert sorted(p.name for p in folder.iterdir() if p.name.startswith("volume")) == ["volume.h5"]
             log = srv.log.read_text()
-            full = [line for line in log.splitlines() if "the disk is full" in line]
+            full = [line for line in log.splitlines() if f"of job {jid}: the disk is full" in line]
             print("\n".join(full))
             assert len(full) == 4 and all("OSError" in line for line in full), full
             assert "internal error" not in log
