@@ -134,6 +134,9 @@ class Settings(BaseSettings):
                                     "take before it is refused (damaged files can block the HDF5 library)")
     import_workers: int = Field(2, ge=1, le=64, description="uploads imported at once (each in a child process "
                                 "of up to memory_limit + 2 GiB); up to 4x as many more wait, further ones get 429")
+    export_workers: int = Field(2, ge=1, le=64, description="exports built at once (each streams its volume "
+                                "in slabs of a few MiB, in the server's process); up to 4x as many more wait, further "
+                                "ones get 429")
     host: str = Field("127.0.0.1", description="address the server listens on (loopback by default)")
     allowed_hosts: list[str] = Field(default_factory=list, description="names (or addresses) besides the "
                                      "loopback ones that clients may reach this server by: a request whose Host "

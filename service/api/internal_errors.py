@@ -17,7 +17,8 @@ log = logging.getLogger("fpscan.api")
 
 
 def internal_error(scope: Scope, exc: BaseException) -> JSONResponse:
-    """The 500 of an unexpected error: logged with a reference, the client told only the reference.
+    """The 500 of an unexpected error: logged with a reference, the exception's name and message
+    (capped, first in the line) and its traceback; the client told only the reference.
 
     Parameters
     ----------
@@ -32,7 +33,8 @@ def internal_error(scope: Scope, exc: BaseException) -> JSONResponse:
         Status 500, ``{"detail": "internal error (reference <8 hex>)"}``.
     """
     ref = uuid.uuid4().hex[:8]
-    log.error("internal error ref=%s %s %s", ref, scope.get("method"), shown(scope.get("path", "")), exc_info=exc)
+    log.error("internal error ref=%s %s %s: %s", ref, scope.get("method"), shown(scope.get("path", "")),
+              shown(f"{type(exc).__name__}: {exc}"), exc_info=exc)
     return JSONResponse({"detail": f"internal error (reference {ref})"}, status_code=500)
 
 
