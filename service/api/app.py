@@ -136,17 +136,19 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True, 
                        body_timeout_s=settings.body_timeout_s, request_json_limit=settings.request_json_limit,
                        min_rate=settings.body_min_rate, rate_window_s=settings.body_rate_window_s)
     app.add_middleware(ShortIds)
-    from fpscan.service.api.access import AccessGate
+    from fpscan.service.api.access import AccessGate, TokenFailures
     from fpscan.service.api.lanes import HealthLane, RequestTurns
 
+    failures = TokenFailures()  # wrong tokens per client address: the gate's, health's lane's and the connections'
+    app.state.token_failures = failures
     app.add_middleware(RequestTurns)  # requests start a few per loop iteration (health's lane)
-    app.add_middleware(AccessGate, settings=settings)  # before any slot, thread, turn or body byte
+    app.add_middleware(AccessGate, settings=settings, failures=failures)  # before any slot, thread, turn or body byte
 
     from fpscan.service.api import datasets, exports, jobs, plans, reconstructions, retention, scans
 
     health_document = add_health_routes(app, settings)
     # outermost: health answered ahead of the queue, after the gate's own rules
-    app.add_middleware(HealthLane, settings=settings, document=health_document)
+    app.add_middleware(HealthLane, settings=settings, document=health_document, failures=failures)
     app.add_middleware(InternalErrors)  # no error drops a kept-alive connection
     from fpscan.service.api.browser_headers import BrowserHeaders
 
