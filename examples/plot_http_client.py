@@ -20,6 +20,7 @@ On a lab's machine the server runs already (``fpscan serve``, or the Docker imag
 # simulated exactly: three small discs.
 import io
 import os
+import secrets
 import socket
 import subprocess
 import sys
@@ -46,18 +47,21 @@ np.save(npy, forward_grid(p0, dx, dx, dt, n_t, c).astype(np.float32))
 # %%
 # Start a server
 # --------------
-# ``python -m fpscan serve`` on a free port, its log in a file; no token (it then listens on
-# loopback only) and no kernel warm-up (a short-lived server). The client polls
-# ``GET /api/health`` until it answers, for at most two minutes.
+# ``python -m fpscan serve`` on a free port, its log in a file; a token made at random (32 bytes:
+# ``fpscan serve`` refuses a guessable one) in its environment, and no kernel warm-up (a
+# short-lived server). The client polls ``GET /api/health`` until it answers, for at most two
+# minutes.
 with socket.socket() as probe:
     probe.bind(("127.0.0.1", 0))
     port = probe.getsockname()[1]
 url = f"http://127.0.0.1:{port}"
+token = secrets.token_urlsafe(32)
 env = {k: v for k, v in os.environ.items() if not k.startswith("FPSCAN_")}  # no local server settings
 with open(folder / "server.log", "w") as log:
     server = subprocess.Popen([sys.executable, "-m", "fpscan", "serve", "--host", "127.0.0.1", "--port", str(port),
                                "--data-dir", str(folder / "data"), "--no-web"],
-                              env={**env, "FPSCAN_WARM_UP": "false"}, stdout=log, stderr=subprocess.STDOUT)
+                              env={**env, "FPSCAN_WARM_UP": "false", "FPSCAN_TOKEN": token}, stdout=log,
+                              stderr=subprocess.STDOUT)
 
 # %%
 # Upload, reconstruct, download
@@ -66,7 +70,7 @@ with open(folder / "server.log", "w") as log:
 # ``start_reconstruction`` queues a job and returns its id; ``wait`` follows it to its end
 # (a progress callback, or ``quiet=True``); the downloads write the result's files.
 try:
-    with fpscan.Client(url, timeout=30) as api:
+    with fpscan.Client(url, token=token, timeout=30) as api:
         deadline = time.monotonic() + 120
         while True:  # until GET /api/health answers
             try:

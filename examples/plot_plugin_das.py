@@ -40,6 +40,7 @@ command line and over HTTP.
 # module to build its flags, and should stay quick.
 import importlib
 import os
+import secrets
 import shutil
 import socket
 import subprocess
@@ -345,18 +346,21 @@ print(fpscan_cli("recon", str(npy), "--dt", "8ns", "--dx", "60um", "--method", "
 # A server started in an environment where the package is installed serves ``das`` like a
 # built-in method: ``GET /api/reconstructions/methods`` lists it with its options (the web
 # page's fields), and ``POST /api/reconstructions`` takes ``f_number`` in its ``params``.
-# The server runs on a free port of 127.0.0.1 with its own data folder (no token: it listens on
-# loopback only), without its kernel warm-up; it is stopped at the end whatever happens.
+# The server runs on a free port of 127.0.0.1 with its own data folder and a token made at random
+# (``fpscan serve`` refuses a guessable one), without its kernel warm-up; it is stopped at the end
+# whatever happens.
 with socket.socket() as probe:
     probe.bind(("127.0.0.1", 0))
     port = probe.getsockname()[1]
 url = f"http://127.0.0.1:{port}"
+token = secrets.token_urlsafe(32)
 with open(folder / "server.log", "w") as log:  # the server writes its log there
     server = subprocess.Popen([sys.executable, "-m", "fpscan", "serve", "--host", "127.0.0.1", "--port", str(port),
                                "--data-dir", str(folder / "data"), "--no-web"],
-                              env={**env, "FPSCAN_WARM_UP": "false"}, stdout=log, stderr=subprocess.STDOUT)
+                              env={**env, "FPSCAN_WARM_UP": "false", "FPSCAN_TOKEN": token}, stdout=log,
+                              stderr=subprocess.STDOUT)
 try:
-    with fpscan.Client(url, timeout=30) as api:
+    with fpscan.Client(url, token=token, timeout=30) as api:
         deadline = time.monotonic() + 120
         while True:  # until GET /api/health answers
             try:
