@@ -11,18 +11,79 @@ from __future__ import annotations
 
 import ipaddress
 import json
+import math
 import os
 import re
 import tomllib
+import zlib
 from pathlib import Path
 from typing import Any, Literal
 
 from pydantic import AliasChoices, Field, SecretStr, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
-__all__ = ["LOOPBACK_HOSTS", "is_loopback", "Settings"]
+__all__ = ["LOOPBACK_HOSTS", "MIN_TOKEN_BITS", "TOKEN_RECIPE", "is_loopback", "token_entropy_bits", "Settings"]
 
 LOOPBACK_HOSTS = {"127.0.0.1", "localhost", "::1"}
+#: the least estimated entropy of a bearer token ``fpscan serve`` starts with (bits), unless told
+#: otherwise (``allow_weak_token``): 128 bits, the security strength NIST SP 800-57 Part 1 (Rev. 5),
+#: Table 2, asks of keys used beyond 2030
+MIN_TOKEN_BITS = 128
+#: the command that makes a token of 256 random bits (43 characters of base64url; ``secrets.token_urlsafe``)
+TOKEN_RECIPE = "python3 -c 'import secrets; print(secrets.token_urlsafe(32))'"
+
+#: character classes of a token and their sizes (:func:`token_entropy_bits`): a class counts
+#: whole once one of its characters is in the token
+_CHARACTER_CLASSES = (("abcdefghijklmnopqrstuvwxyz", 26), ("ABCDEFGHIJKLMNOPQRSTUVWXYZ", 26),
+                      ("0123456789", 10), ("-_", 2))
+_HEX = frozenset("0123456789abcdef")
+
+
+def token_entropy_bits(token: str) -> float:
+    """An upper estimate of a token's entropy, in bits: what a token drawn at random from the
+    character classes it uses would have, capped by its compressed length.
+
+    The alphabet is the sum of the classes the token uses (lower case 26, upper case 26,
+    digits 10, ``-`` and ``_`` 2, the rest of printable ASCII 30, any other character 2**16),
+    at most 16 for a token of hexadecimal digits alone; the estimate is
+    ``len(token) * log2(alphabet)`` (a random choice of that many characters), capped by the
+    bits of the token compressed with DEFLATE (RFC 1951; ``zlib``, raw, level 9): a token that
+    repeats itself (``"change-me-change-me-..."``, ``"aaaa..."``) compresses and is estimated
+    low. It is an upper bound for a token a person chose (it cannot see words, dates or
+    keyboard rows): the tokens to use are made at random (:data:`TOKEN_RECIPE`: 32 random
+    bytes, some 256 bits).
+
+    Parameters
+    ----------
+    token : str
+        The bearer token.
+
+    Returns
+    -------
+    float
+        The estimate, bits (0 for ``""``).
+
+    Examples
+    --------
+    >>> round(token_entropy_bits("change-me"))
+    43
+    >>> token_entropy_bits("3f9c2a7e51b8d04c6e1f0a93b7d25c48")  # 32 hexadecimal digits
+    128.0
+    """
+    if not token:
+        return 0.0
+    alphabet = sum(size for chars, size in _CHARACTER_CLASSES if any(ch in chars for ch in token))
+    known = "".join(chars for chars, _ in _CHARACTER_CLASSES)
+    if any(ch not in known and " " <= ch <= "~" for ch in token):
+        alphabet += 30  # the rest of printable ASCII (95 - 26 - 26 - 10 - 2 - the space)
+    if any(not " " <= ch <= "~" for ch in token):
+        alphabet += 2**16
+    if set(token.lower()) <= _HEX:
+        alphabet = min(alphabet, 16)
+    estimate = len(token) * math.log2(alphabet)
+    packer = zlib.compressobj(9, zlib.DEFLATED, -15)  # raw DEFLATE: no header, no checksum
+    compressed = len(packer.compress(token.encode("utf-8")) + packer.flush())
+    return min(estimate, 8.0 * compressed)
 
 
 def is_loopback(host: str) -> bool:
@@ -62,7 +123,13 @@ class Settings(BaseSettings):
     db_path: Path | None = Field(None, description="SQLite job database (default: <data_dir>/jobs.sqlite); one "
                                  "server per database: the server locks <db_path>.lock beside it")
     devices: dict[str, str] = Field(default_factory=dict, description="scanner id -> serial path or pyserial URL")
-    token: SecretStr | None = Field(None, description="bearer token; None = no token")
+    token: SecretStr | None = Field(None, description="bearer token; None = none given (fpscan serve then makes "
+                                    "one, unless no_token)")
+    allow_weak_token: bool = Field(False, description="let fpscan serve start with a token of under 128 bits of "
+                                   "estimated entropy (fpscan.service.settings.token_entropy_bits); default: refused")
+    no_token: bool = Field(False, description="serve without a token (loopback only): every user and program of "
+                           "this machine may then use the server; default: fpscan serve makes a token when none "
+                           "is given")
     executor: Literal["local", "dask"] = Field("local", description="where reconstructions run: 'local' "
                                                "(a process pool of this server) or 'dask' (a dask.distributed "
                                                "cluster at dask_scheduler)")
@@ -201,6 +268,12 @@ class Settings(BaseSettings):
                                  "or '*' for any")
             out.append(name)
         return out
+
+    @model_validator(mode="after")
+    def _one_token_rule(self) -> Settings:
+        if self.no_token and (self.token is not None or self.token_file is not None):
+            raise ValueError("no_token and a token (token or token_file) both given: choose one")
+        return self
 
     @model_validator(mode="after")
     def _dask_address(self) -> Settings:

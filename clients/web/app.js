@@ -20,7 +20,9 @@
  * Sign-in: the page first asks GET /api/auth (no token needed) whether the server needs a
  * bearer token; if it does, a login view is shown before any other request, and the token
  * is kept in sessionStorage (this tab only) until "Sign out". A later 401 (the token was
- * changed on the server) shows the login view again and retries the request once.
+ * changed on the server) shows the login view again and retries the request once. An address
+ * ending in #token=TOKEN (the one `fpscan serve` prints with the token it made) signs in with
+ * that token, and the fragment is taken out of the address bar and the history.
  */
 "use strict";
 
@@ -39,6 +41,18 @@ class ApiError extends Error {
 }
 
 function getToken() { return sessionStorage.getItem(TOKEN_KEY) || ""; }
+
+/** The token of an address ending in #token=TOKEN (`fpscan serve` prints one with the token it
+ *  made): kept for this tab, and the fragment replaced by the default view's, so that the token
+ *  stays out of the history, bookmarks and screenshots. A fragment never reaches the server. */
+function takeTokenFromAddress() {
+  const m = /^#token=([^&]*)$/.exec(location.hash);
+  if (!m) return;
+  let token = "";
+  try { token = decodeURIComponent(m[1]).trim(); } catch (_) { /* not percent-encoded UTF-8 */ }
+  if (token) sessionStorage.setItem(TOKEN_KEY, token);
+  history.replaceState(null, "", location.pathname + location.search + "#/plan");
+}
 
 /* The quantities the server's plausibility rules name, in the units the page's fields show them
  * (their data-unit / display_unit): a reason about one is worded in its field's unit. */
@@ -1966,6 +1980,7 @@ async function health() {
 }
 
 async function init() {
+  takeTokenFromAddress();
   updateTokenButton();
   // the page's own quantity fields (the generated ones are made so as they are built)
   for (const input of document.querySelectorAll("input[data-unit]")) makeQuantityField(input, input.dataset.unit);

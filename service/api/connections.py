@@ -16,7 +16,8 @@ this module's subclass of that protocol (:class:`GuardedHttp`) and the settings'
   good: only the open-file limit (less :data:`FD_HEADROOM`) bounds such connections, so
   strangers holding their whole budget, from the token holder's own address or any other,
   never refuse the token holder. Without a token configured every connection is a
-  stranger's. A connection beyond every pool is refused at accept time (``503`` with the
+  stranger's; so is one from an address that sent too many wrong tokens while it waits (its
+  token is not compared: ``fpscan.service.api.access.TokenFailures``). A connection beyond every pool is refused at accept time (``503`` with the
   reason, ``Connection: close``, before anything of it is read).
 - **A deadline in every phase** (:class:`GuardedHttp`, one timer per connection, token or
   not): a request head within ``header_timeout_s`` of the connection's start or of the first
@@ -45,13 +46,16 @@ import socket
 import struct
 import threading
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import httptools
 from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol
 
 from fpscan.service.api.logcaps import RefusalLog, install_log_caps, shown
 from fpscan.service.settings import Settings
+
+if TYPE_CHECKING:
+    from fpscan.service.api.access import TokenFailures
 
 __all__ = ["CONNECTION_ALLOWANCE", "PROBATION_HEAD_S", "FD_HEADROOM", "BURST_CONNECTIONS", "return_memory", "open_file_limit", "ConnectionGuard", "GuardedHttp",
            "guarded_protocol", "server_config"]
@@ -339,6 +343,10 @@ class GuardedHttp(HttpToolsProtocol):
         The kernel's send buffer of each connection (``SO_SNDBUF``; None: autotuned).
     token_value : callable or None
         Returns the configured token (None: no token; every connection stays a stranger).
+    failures : TokenFailures or None
+        The count of wrong tokens per address (:class:`fpscan.service.api.access.TokenFailures`,
+        the access gate's): an address that must wait shows no token (its token is not compared),
+        and a wrong token on probation, which the gate never sees, is counted here.
     refusals : RefusalLog
         The rate-limited log of refusals.
     """
@@ -353,6 +361,7 @@ class GuardedHttp(HttpToolsProtocol):
     send_min_rate: float = 1024.0
     send_buffer_bytes: int | None = 64 * 1024
     token_value: Callable[[], str | None] | None = None
+    failures: TokenFailures | None = None
     refusals: RefusalLog
 
     def connection_made(self, transport: Any) -> None:
@@ -447,6 +456,8 @@ class GuardedHttp(HttpToolsProtocol):
             self.guard.trust(self._address, self._pool)
             self._pool = "trusted"
         elif self._pool == "probation":
+            if self._token_state() == "wrong" and self.failures is not None:  # the gate never sees this one
+                self.failures.failed(self._address)
             raise _NoToken()
         self._in_body, self._body_left = True, self._declared_length()
         cycle = self.cycle
@@ -527,18 +538,26 @@ class GuardedHttp(HttpToolsProtocol):
             return False
 
     def _shows_token(self) -> bool:
+        return self._token_state() == "right"
+
+    def _token_state(self) -> str:
+        """The request head's token: ``"right"``, ``"wrong"``, ``"none"`` (no token sent or
+        configured)."""
         if self.token_value is None:
-            return False
+            return "none"
         try:
             expected = self.token_value()
         except ValueError:
-            return False
+            return "none"
         if expected is None:
-            return False
+            return "none"
         from fpscan.service.api.access import token_matches
 
         given = next((v.decode("latin-1") for k, v in self.headers if k == b"authorization"), None)
-        return token_matches(given, expected) is None
+        if given is None:
+            return "none"
+        why = token_matches(given, expected)
+        return "right" if why is None else "wrong" if why == "invalid bearer token" else "none"
 
     def _declared_length(self) -> int:
         for name, value in self.headers:
@@ -645,7 +664,8 @@ class GuardedHttp(HttpToolsProtocol):
             self.transport.close()  # a reader that does not take even this: dropped at its deadline
 
 
-def guarded_protocol(settings: Settings, guard: ConnectionGuard | None = None) -> type[GuardedHttp]:
+def guarded_protocol(settings: Settings, guard: ConnectionGuard | None = None,
+                     failures: TokenFailures | None = None) -> type[GuardedHttp]:
     """A :class:`GuardedHttp` subclass with the rules of ``settings`` and its own guard.
 
     Parameters
@@ -656,6 +676,9 @@ def guarded_protocol(settings: Settings, guard: ConnectionGuard | None = None) -
     guard : ConnectionGuard or None, optional
         The guard to use; default None: ``ConnectionGuard.from_settings(settings)`` (one per
         server).
+    failures : TokenFailures or None, optional
+        The access gate's count of wrong tokens per address (``app.state.token_failures``);
+        default None: none (tokens are compared whatever an address sent before).
 
     Returns
     -------
@@ -674,6 +697,7 @@ def guarded_protocol(settings: Settings, guard: ConnectionGuard | None = None) -
         "send_min_rate": float(settings.send_min_rate),
         "send_buffer_bytes": settings.send_buffer_bytes,
         "token_value": staticmethod(token_value) if token_value is not None else None,
+        "failures": failures,
         "refusals": RefusalLog(log),
     })
 
@@ -701,8 +725,9 @@ def server_config(app: Any, settings: Settings) -> Any:
     """
     import uvicorn
 
+    failures = getattr(getattr(app, "state", None), "token_failures", None)  # the access gate's (create_app)
     config = uvicorn.Config(app, host=settings.host, port=settings.port, log_level=settings.log_level.lower(),
-                            access_log=False, lifespan="on", http=guarded_protocol(settings),
+                            access_log=False, lifespan="on", http=guarded_protocol(settings, failures=failures),
                             ws="none",  # no WebSocket routes: an upgrade would leave the guard's count behind
                             timeout_keep_alive=max(1, int(round(settings.keep_alive_s))),
                             timeout_graceful_shutdown=max(1, int(round(settings.shutdown_grace_s))))
