@@ -132,7 +132,8 @@ class Settings(BaseSettings):
     import_timeout_s: float = Field(60.0, gt=0, le=3600, description="longest time an upload's import may "
                                     "take before it is refused (damaged files can block the HDF5 library)")
     import_workers: int = Field(2, ge=1, le=64, description="uploads imported at once (each in a child process "
-                                "of up to memory_limit + 2 GiB); up to 4x as many more wait, further ones get 429")
+                                "whose address space is capped at memory_limit, at least 1 GiB); up to 4x as many "
+                                "more wait, further ones get 429")
     host: str = Field("127.0.0.1", description="address the server listens on (loopback by default)")
     allowed_hosts: list[str] = Field(default_factory=list, description="names (or addresses) besides the "
                                      "loopback ones that clients may reach this server by: a request whose Host "

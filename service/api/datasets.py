@@ -33,6 +33,10 @@ Datasets never pile up:
 - Admitted against the disk: the decoded dataset's bytes must fit the free space less
   ``disk_reserve_bytes`` less what imports in flight reserved
   (``fpscan.service.formats.untrusted.DiskAdmission``), else 507 before it is written.
+- Imported within its budget: in a child process capped at the memory limit
+  (``fpscan.service.formats.untrusted.import_memory_limit``), decoding at most the decode
+  budget (``fpscan.service.formats.untrusted.hdf5_limit``), each array sized before it is
+  decoded.
 """
 from __future__ import annotations
 
@@ -61,7 +65,13 @@ from fpscan.service.api.models import (
 )
 from fpscan.service.formats import upload_formats
 from fpscan.service.formats.load_options import check_load_options, load_option_schemas
-from fpscan.service.formats.untrusted import DiskAdmission, NotAdmitted, hdf5_limit, run_bounded
+from fpscan.service.formats.untrusted import (
+    DiskAdmission,
+    NotAdmitted,
+    hdf5_limit,
+    import_memory_limit,
+    run_bounded,
+)
 from fpscan.service.jobs import lifecycle
 from fpscan.service.jobs.queue import INCOMING
 from fpscan.service.recon.methods.options import SpeedOptions, plausible_speeds
@@ -252,7 +262,7 @@ def _store_upload(file: UploadFile, format: str, *, dt: float | None, dx: float 
                                wavelength=wavelength,
                                max_bytes=hdf5_limit(limit, context.settings.memory_limit),
                                timeout=context.settings.import_timeout_s, what="the upload",
-                               memory_bytes=context.settings.memory_limit + 2 * 2**30,
+                               memory_bytes=import_memory_limit(context.settings.memory_limit),
                                admit=lambda nbytes: admission.reserve(dataset_id, nbytes))
         except ValueError as exc:
             msg = reason(exc).replace(str(src.resolve()), "the upload").replace(str(src), "the upload")

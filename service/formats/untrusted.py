@@ -12,7 +12,9 @@ reserved, before the dataset file is written).
 
 The HDF5 library can block while holding the GIL (a damaged file opened as an SWMR reader
 retries forever), so the service runs the whole import in a child process with a time
-limit: :func:`run_bounded`. The library and the CLI read a user's file in their own
+limit and an address-space limit: :func:`run_bounded`. An upload's import decodes at most
+:func:`hdf5_limit` bytes (every array it reads, through every compressed layer, sized
+before it is decoded) in a child capped at :func:`import_memory_limit`. The library and the CLI read a user's file in their own
 process, except a file HDF5 would open as an SWMR reader (its superblock says a writer has,
 or had, it open: :func:`writer_flagged`): :func:`read_bounded` reads that one in the same
 bounded child.
@@ -30,7 +32,9 @@ from typing import Any
 
 from fpscan.driver.hdf5_checks import HDF5_SIGNATURE, MAX_RATIO, SMALL_BYTES, check_hdf5_file, is_hdf5
 
-__all__ = ["HDF5_SIGNATURE", "SMALL_BYTES", "MAX_RATIO", "STARTUP_S", "CHILD_NICE", "CHILD_PRELOAD", "READ_TIMEOUT_S", "is_hdf5", "check_hdf5_file", "NotAdmitted", "request_admission", "DiskAdmission", "run_bounded", "writer_flagged", "read_bounded", "hdf5_limit"]
+__all__ = ["HDF5_SIGNATURE", "SMALL_BYTES", "MAX_RATIO", "STARTUP_S", "CHILD_NICE", "CHILD_PRELOAD", "READ_TIMEOUT_S",
+           "IMPORT_MEMORY_FLOOR", "is_hdf5", "check_hdf5_file", "NotAdmitted", "request_admission", "DiskAdmission",
+           "run_bounded", "writer_flagged", "read_bounded", "hdf5_limit", "import_memory_limit"]
 
 #: Longest wait for a child process of :func:`run_bounded` to start (s).
 STARTUP_S = 120.0
@@ -138,7 +142,7 @@ class DiskAdmission:
             self._reserved.pop(key, None)
 
 
-def _child(conn: Any, fn: Callable, args: tuple, kwargs: dict) -> None:
+def _child(conn: Any, fn: Callable, args: tuple, kwargs: dict, memory_bytes: int | None = None) -> None:
     try:
         conn.put(("ok", fn(*args, **kwargs)))
     except NotAdmitted as exc:
@@ -148,7 +152,8 @@ def _child(conn: Any, fn: Callable, args: tuple, kwargs: dict) -> None:
     except FileNotFoundError as exc:
         conn.put(("value", f"file not found: {exc.filename or exc}"))
     except MemoryError:
-        conn.put(("value", "the file needs more memory than the limit allows"))
+        limit = f" of {memory_bytes} bytes" if memory_bytes else ""
+        conn.put(("value", f"the file needs more memory than the import's limit{limit} allows"))
     except OSError as exc:
         from fpscan.service.disk import is_disk_full
 
@@ -215,7 +220,7 @@ def run_bounded(fn: Callable, *args: Any, timeout: float, memory_bytes: int | No
         Time limit in s, from the child's start.
     memory_bytes : int, optional
         Address-space limit of the child (``RLIMIT_AS``), so a file that expands past it fails
-        there with MemoryError, not in the caller.
+        there with MemoryError (a ValueError saying so here), not in the caller.
     what : str, optional
         What is read, for the messages (default ``"the file"``).
     admit : callable, optional
@@ -308,7 +313,7 @@ def _bounded_entry(q: Any, ready: Any, fn: Callable, args: tuple, kwargs: dict, 
             resource.setrlimit(resource.RLIMIT_AS, (memory_bytes, memory_bytes))
         except (ImportError, ValueError, OSError):  # not on this platform
             pass
-    _child(q, fn, args, kwargs)
+    _child(q, fn, args, kwargs, memory_bytes)
 
 
 #: Time limit (s) of :func:`read_bounded` (the service's upload limit is its own setting).
@@ -383,11 +388,20 @@ def read_bounded(fn: Callable, path: str | os.PathLike, *args: Any, timeout: flo
     return run_bounded(fn, path, *args, timeout=timeout, what=f"{Path(path).name} (open by a writer)", **kwargs)
 
 
-def hdf5_limit(upload_limit: int, memory_limit: int) -> int:
-    """Largest declared dataset (bytes) an upload may hold.
+#: The least address space an import child is given (bytes): forked from the fork server, its
+#: interpreter and libraries (numpy, scipy, h5py) map 0.18 GB before it reads a byte (measured;
+#: OpenBLAS's threads are shut down before a fork, so this does not grow with the cores)
+IMPORT_MEMORY_FLOOR = 1 << 30
 
-    It must fit the upload limit uncompressed ×4 (compressed files) and half the
-    reconstruction memory limit (the import converts samples to float).
+
+def hdf5_limit(upload_limit: int, memory_limit: int) -> int:
+    """The decode budget of an upload's import (bytes).
+
+    An HDF5 file's datasets may declare at most this, any one and all together (each link
+    counted: ``check_hdf5_file``), and a MAT-file's variables may take at most this decoded,
+    every field of a struct or cell, nested or not, sized before it is decoded
+    (``fpscan.service.formats.kwave_mat``). It must fit the upload limit uncompressed ×4
+    (compressed files) and half the memory limit (the import converts samples to float).
 
     Parameters
     ----------
@@ -403,3 +417,23 @@ def hdf5_limit(upload_limit: int, memory_limit: int) -> int:
     """
     return int(min(4 * upload_limit, memory_limit // 2))
 
+
+def import_memory_limit(memory_limit: int) -> int:
+    """The address-space limit (``RLIMIT_AS``, bytes) of an upload's import child: the
+    memory limit itself, at least :data:`IMPORT_MEMORY_FLOOR`.
+
+    The child decodes at most :func:`hdf5_limit` (at most half of this) and converts it to
+    float; a file that needs more fails there with MemoryError and is refused with the
+    reason. ``import_workers`` children at once take at most that many times this.
+
+    Parameters
+    ----------
+    memory_limit : int
+        Bytes available to reconstructions at once (``Settings.memory_limit``).
+
+    Returns
+    -------
+    int
+        ``max(memory_limit, IMPORT_MEMORY_FLOOR)``.
+    """
+    return int(max(memory_limit, IMPORT_MEMORY_FLOOR))

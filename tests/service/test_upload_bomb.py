@@ -176,3 +176,22 @@ def test_the_reading_child_runs_below_the_servers_priority():
 
     mine = os.nice(0)
     assert run_bounded(os.nice, 0, timeout=60) == min(mine + CHILD_NICE, 19)
+
+
+def test_a_dataset_linked_many_times_counts_once_per_link(tmp_path):
+    """The file's datasets may declare ``max_bytes`` together, each link counted: 20 hard
+    links to one 8 MiB array in a group whose every member a reader reads (IPASC's
+    ``meta_data``) is 160 MiB decoded from 8 MiB stored. Today's main checked each dataset
+    alone (8 MiB, under the limit) and the ratio (1:1); now the sum is refused."""
+    from fpscan.service.storage.loader import load_dataset
+
+    path = tmp_path / "links.h5"
+    with h5py.File(path, "w") as f:
+        f.create_dataset("sensor_data", data=np.random.default_rng(4).standard_normal((64, 16)).astype(np.float32))
+        f["meta"] = np.random.default_rng(5).standard_normal(2**20)
+        for i in range(20):
+            f[f"meta_data/m{i}"] = f["meta"]
+        f.attrs.update({"dt_s": 1e-8, "dx_m": 1e-4})
+    with pytest.raises(ValueError, match="declare .* bytes together .every link counted., more than the limit of"):
+        load_dataset(path, "kwave-hdf5", max_bytes=64 * 2**20)
+    assert load_dataset(path, "kwave-hdf5", max_bytes=256 * 2**20).data.shape == (64, 16)
