@@ -14,7 +14,9 @@ The HDF5 library can block while holding the GIL (a damaged file opened as an SW
 retries forever), so the service runs the whole import in a child process with a time
 limit and an address-space limit: :func:`run_bounded`. An upload's import decodes at most
 :func:`hdf5_limit` bytes (every array it reads, through every compressed layer, sized
-before it is decoded) in a child capped at :func:`import_memory_limit`. The library and the CLI read a user's file in their own
+before it is decoded) in a child capped at :func:`import_memory_limit`. The child dies with
+the process that asked for it (:func:`run_bounded`: no orphans after a crash or a
+``kill -9`` of the server). The library and the CLI read a user's file in their own
 process, except a file HDF5 would open as an SWMR reader (its superblock says a writer has,
 or had, it open: :func:`writer_flagged`): :func:`read_bounded` reads that one in the same
 bounded child.
@@ -182,6 +184,57 @@ def _child_context() -> Any:
     return ctx
 
 
+def _fork_server_pid(ctx: Any) -> int | None:
+    """The pid of ``ctx``'s fork server, started if it is not running (None: not a fork
+    server's context, or not known on this Python)."""
+    if ctx.get_start_method() != "forkserver":
+        return None
+    from multiprocessing import forkserver
+
+    forkserver.ensure_running()
+    return getattr(getattr(forkserver, "_forkserver", None), "_forkserver_pid", None)
+
+
+#: Linux ``prctl`` option: the signal a process gets when its parent ends (``<sys/prctl.h>``)
+_PR_SET_PDEATHSIG = 1
+
+
+def _die_with_parent(parent: int | None) -> None:
+    """In a child of :func:`run_bounded` (forked by the fork server, pid ``parent``): end with
+    the caller. A fork server's children hold the write end of its "alive" pipe; the server
+    leaves when every holder has closed it (Python's ``multiprocessing.forkserver``): this
+    child closes its copy (it starts no processes), so the caller's is the last one and the
+    fork server leaves when the caller does, however the caller ends (``kill -9``
+    included); and it asks Linux for SIGKILL when its parent, the fork server's one thread,
+    ends (``prctl(PR_SET_PDEATHSIG)``, prctl(2)) -- no Python code has to run for it, so a
+    child stuck in the HDF5 library holding the GIL ends too. Once both are gone nothing
+    holds the resource tracker's pipe and it leaves as well. Checked after the request:
+    a parent already gone (it left before the request took) ends this child at once."""
+    if parent is None:
+        return
+    from multiprocessing import forkserver
+
+    server = getattr(forkserver, "_forkserver", None)
+    alive = getattr(server, "_forkserver_alive_fd", None)
+    if alive is not None:
+        try:
+            os.close(alive)
+        except OSError:
+            pass
+        server._forkserver_alive_fd = None  # type: ignore[union-attr]
+    try:
+        import ctypes
+        import signal
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        if libc.prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0) != 0:
+            return
+    except (OSError, AttributeError):  # not Linux
+        return
+    if os.getppid() != parent:
+        os._exit(1)
+
+
 def _child_nice() -> int | None:
     """The niceness of a reading child: the caller's + ``CHILD_NICE`` (at most 19); None where
     the platform has no priorities."""
@@ -208,7 +261,10 @@ def run_bounded(fn: Callable, *args: Any, timeout: float, memory_bytes: int | No
 
     The child (:func:`_child_context`) runs at CPU priority + ``CHILD_NICE`` and is killed
     when it has not returned ``timeout`` s after it started (imports done; the start itself is
-    bounded by :data:`STARTUP_S`). ``fn`` and its arguments and result must be picklable.
+    bounded by :data:`STARTUP_S`). ``fn`` and its arguments and result must be picklable. It
+    ends with the caller (a fork server's child on Linux: :func:`_die_with_parent`), so a
+    caller killed meanwhile leaves no process behind: not the child, not the fork server,
+    not multiprocessing's resource tracker.
 
     Parameters
     ----------
@@ -250,7 +306,8 @@ def run_bounded(fn: Callable, *args: Any, timeout: float, memory_bytes: int | No
     # never runs while the child's main thread blocks in HDF5 holding the GIL
     ready = ctx.Event()
     nice = _child_nice()
-    proc = ctx.Process(target=_bounded_entry, args=(q, ready, fn, args, kwargs, memory_bytes, answers, nice),
+    proc = ctx.Process(target=_bounded_entry, args=(q, ready, fn, args, kwargs, memory_bytes, answers, nice,
+                                                    _fork_server_pid(ctx)),
                        daemon=True)
     proc.start()
     if proc.pid is not None:  # from here too, not only in the child: a spawned child's start is costly
@@ -297,11 +354,13 @@ def run_bounded(fn: Callable, *args: Any, timeout: float, memory_bytes: int | No
 
 
 def _bounded_entry(q: Any, ready: Any, fn: Callable, args: tuple, kwargs: dict, memory_bytes: int | None,
-                   answers: Any = None, nice: int | None = None) -> None:
-    """The child's start: its niceness ``nice`` (absolute, the same value the parent sets
-    from outside: a forked child can run ``fn`` before the parent's setpriority reaches it),
-    its address-space limit, then ``fn`` (:func:`_child`)."""
+                   answers: Any = None, nice: int | None = None, fork_server: int | None = None) -> None:
+    """The child's start: bound to its parent's life (:func:`_die_with_parent`; its parent
+    the fork server ``fork_server``), its niceness ``nice`` (absolute, the same value the
+    parent sets from outside: a forked child can run ``fn`` before the parent's setpriority
+    reaches it), its address-space limit, then ``fn`` (:func:`_child`)."""
     global _ADMISSION
+    _die_with_parent(fork_server)
     _set_nice(0, nice)
     if answers is not None:
         _ADMISSION = (q, answers)
