@@ -88,12 +88,13 @@ def request_admission(nbytes: int) -> None:
 
 
 class DiskAdmission:
-    """Free-space admission of imports that run at once.
+    """Free-space admission of uploads and imports that run at once.
 
-    An import asks before it writes (:func:`request_admission`) and is admitted when its bytes
-    fit the free space of ``folder``'s file system less ``reserve_bytes`` (left for the job
-    database, scans and results) less what the imports in flight were admitted for; its
-    reservation lasts until :meth:`release`. So two uploads at once cannot together fill the
+    An import asks before it writes (:func:`request_admission`), and an upload's body before
+    it is spooled (``fpscan.service.api.spool``); each is admitted when its bytes fit the free
+    space of ``folder``'s file system less ``reserve_bytes`` (left for the job database,
+    scans and results) less what the uploads and imports in flight were admitted for; its
+    reservation lasts until :meth:`release`. So uploads at once cannot together fill the
     disk. Thread-safe.
 
     Parameters
@@ -134,7 +135,7 @@ class DiskAdmission:
             room = free - others - self.reserve_bytes
             if nbytes > room:
                 return (f"the dataset decodes to {nbytes} bytes but the data folder's disk can take "
-                        f"{max(room, 0)} more ({free} free, {others} reserved by imports in progress, "
+                        f"{max(room, 0)} more ({free} free, {others} reserved by uploads and imports in progress, "
                         f"{self.reserve_bytes} kept free); free space or retry later")
             self._reserved[key] = int(nbytes)
             return None
