@@ -62,6 +62,7 @@ from __future__ import annotations
 import io
 import struct
 import zlib
+from collections.abc import Iterator
 from typing import Any, BinaryIO
 
 import numpy as np
@@ -226,6 +227,8 @@ def _elements(layer: _Layer, endian: str, budget: _Budget, out: list[bytes], siz
             raise ValueError("the MAT-file is truncated (an element's tag is cut)")
         mtype, nbytes = struct.unpack(endian + "II", tag)
         if mtype >> 16:  # a small data element (its data inside the tag): no variable
+            if inflating:
+                budget.inflated(8)
             continue
         if inflating:
             budget.inflated(8 + nbytes)
@@ -238,81 +241,92 @@ def _elements(layer: _Layer, endian: str, budget: _Budget, out: list[bytes], siz
         elif mtype == _MI_MATRIX:
             budget.held(8 + nbytes, "variables")
             body = layer.exactly(nbytes, "a variable")
-            name, cls, decoded = _matrix_size(memoryview(body), endian, 0)
+            name, cls, decoded = _matrix_size(memoryview(body), endian, 0, budget.max_bytes)
             out.append(tag + body)
             sizes.append((name, cls, decoded))
         else:  # any other top-level element is not a variable: skipped
             layer.skip(nbytes)
 
 
-def _sub_elements(buf: memoryview, endian: str) -> list[tuple[int, memoryview]]:
-    """The data elements packed in ``buf`` (a variable's body): (type, data) each, small
-    (data in the tag) or not (8-byte aligned). Raises ValueError for one cut short."""
-    out = []
+def _sub_elements(buf: memoryview, endian: str) -> Iterator[tuple[int, memoryview]]:
+    """The data elements packed in ``buf`` (a variable's body), one by one: (type, data),
+    small (data in the tag) or not (8-byte aligned). Raises ValueError for one cut short."""
     pos, end = 0, len(buf)
     while pos + 8 <= end:
         mtype, nbytes = struct.unpack_from(endian + "II", buf, pos)
         if mtype >> 16:  # small: the byte count in the upper half, the data in the tag's last 4 bytes
             small = mtype >> 16
-            mtype &= 0xFFFF
             if small > 4:
                 raise ValueError("the MAT-file is corrupt (a small element holds more than 4 bytes)")
-            out.append((mtype, buf[pos + 4:pos + 4 + small]))
+            yield mtype & 0xFFFF, buf[pos + 4:pos + 4 + small]
             pos += 8
             continue
         if pos + 8 + nbytes > end:
             raise ValueError("the MAT-file is corrupt (an element runs past its variable)")
-        out.append((mtype, buf[pos + 8:pos + 8 + nbytes]))
+        yield mtype, buf[pos + 8:pos + 8 + nbytes]
         pos += 8 + nbytes + (-nbytes % 8)
-    return out
 
 
-def _matrix_size(body: memoryview, endian: str, depth: int) -> tuple[str, str, int]:
+def _declared(cls: int, flags: int, subs: Iterator[tuple[int, memoryview]], stored: int,
+              endian: str) -> tuple[str, int, int]:
+    """A variable's name, its number of elements and what it decodes to besides its nested
+    arrays (:func:`_matrix_size`), from its dimensions and name (the next two of ``subs``;
+    none in an opaque object's, whose ``stored`` bytes count twice)."""
+    if cls == _MX_OPAQUE:  # no dimensions or name: three strings and the object's data
+        return "", 1, _OBJECT_BYTES + 2 * stored
+    dims, named = next(subs, None), next(subs, None)
+    if dims is None or named is None or dims[0] != _MI_INT32 or len(dims[1]) % 4:
+        raise ValueError("the MAT-file is corrupt (a variable without its dimensions and name)")
+    n = 1
+    for d in struct.unpack_from(f"{endian}{len(dims[1]) // 4}i", dims[1]):
+        if d < 0:
+            raise ValueError("the MAT-file is corrupt (a negative dimension)")
+        n *= d
+    name = bytes(named[1]).split(b"\0", 1)[0].decode("latin-1")
+    if cls in _MX_ITEMSIZE:
+        per = 1 if flags & 0x200 else _MX_ITEMSIZE[cls]  # logical: bool
+        return name, n, _OBJECT_BYTES + n * per * (2 if flags & 0x800 else 1)
+    if cls == _MX_CHAR:
+        return name, n, _OBJECT_BYTES + n * _CHAR_BYTES
+    if cls in (_MX_CELL, _MX_STRUCT, _MX_OBJECT):  # a slot per element; per field once the names are read
+        return name, n, _OBJECT_BYTES + n * (8 + _OBJECT_BYTES)
+    return name, n, _OBJECT_BYTES + 2 * stored  # sparse, function handles: their parts as stored, twice over
+
+
+def _matrix_size(body: memoryview, endian: str, depth: int, cap: int) -> tuple[str, str, int]:
     """A variable's (``miMATRIX`` body's) name, class and the bytes it decodes to in
     ``loadmat(mat_dtype=True, simplify_cells=True)``, from what it declares, before any of
     it is decoded: numeric arrays their elements × their class's size (× 2 complex), char
     arrays :data:`_CHAR_BYTES` a character, cell and struct arrays a slot per element (and
     field) and their elements' own sizes, nested however deep; every array
-    :data:`_OBJECT_BYTES` more. A compressed element inside a variable (not something
-    MATLAB writes) is refused. Raises ValueError."""
+    :data:`_OBJECT_BYTES` more. The walk stops once the size passes ``cap`` (then
+    ``cap + 1``): it holds nothing per element. A compressed element inside a variable (not
+    something MATLAB writes) is refused. Raises ValueError."""
     if depth > _MAX_DEPTH:
         raise ValueError(f"the MAT-file nests arrays in arrays more than {_MAX_DEPTH} deep (refused)")
     subs = _sub_elements(body, endian)
-    if any(t == _MI_COMPRESSED for t, _ in subs):
-        raise ValueError("the MAT-file holds a compressed element inside a variable (MATLAB never writes one; refused)")
-    if not subs or len(subs[0][1]) < 8:
+    first = next(subs, None)
+    if first is None or len(first[1]) < 8:
         raise ValueError("the MAT-file is corrupt (a variable without its array flags)")
-    flags = struct.unpack_from(endian + "I", subs[0][1])[0]
+    flags = struct.unpack_from(endian + "I", first[1])[0]
     cls = flags & 0xFF
-    children = [bytes_ for t, bytes_ in subs[1:] if t == _MI_MATRIX]
-    decoded = _OBJECT_BYTES + sum(_matrix_size(c, endian, depth + 1)[2] for c in children)
-    if cls == _MX_OPAQUE:  # no dimensions or name: three strings and the object's data
-        return "", _MX_NAMES[cls], decoded + 2 * len(body)
-    if len(subs) < 3 or subs[1][0] != _MI_INT32 or len(subs[1][1]) % 4:
-        raise ValueError("the MAT-file is corrupt (a variable without its dimensions and name)")
-    dims = struct.unpack_from(f"{endian}{len(subs[1][1]) // 4}i", subs[1][1])
-    if any(d < 0 for d in dims):
-        raise ValueError("the MAT-file is corrupt (a negative dimension)")
-    n = 1
-    for d in dims:
-        n *= d
-    name = bytes(subs[2][1]).split(b"\0", 1)[0].decode("latin-1")
-    if cls in _MX_ITEMSIZE:
-        per = 1 if flags & 0x200 else _MX_ITEMSIZE[cls]  # logical: bool
-        decoded += n * per * (2 if flags & 0x800 else 1)
-    elif cls == _MX_CHAR:
-        decoded += n * _CHAR_BYTES
-    elif cls in (_MX_CELL, _MX_STRUCT, _MX_OBJECT):
-        fields = 1
-        if cls != _MX_CELL:  # the field-name length, then the names
-            lengths = [d for t, d in subs[3:] if t == _MI_INT32]
-            names = [d for t, d in subs[3:] if t == _MI_INT8]
-            length = struct.unpack_from(endian + "i", lengths[0])[0] if lengths and len(lengths[0]) >= 4 else 0
-            fields = max(len(names[-1]) // length, 1) if names and length > 0 else 1
-        decoded += n * fields * (8 + _OBJECT_BYTES)
-    else:  # sparse, function handles: their parts as stored, twice over
-        decoded += 2 * len(body)
-    return name, _MX_NAMES.get(cls, str(cls)), decoded
+    label = _MX_NAMES.get(cls, str(cls))
+    name, n, decoded = _declared(cls, flags, subs, len(body), endian)
+    fields, length = 1, 0
+    for mtype, data in subs:
+        if decoded > cap:
+            break
+        if mtype == _MI_COMPRESSED:
+            raise ValueError("the MAT-file holds a compressed element inside a variable (MATLAB never writes one; "
+                             "refused)")
+        if mtype == _MI_MATRIX:
+            decoded += _matrix_size(data, endian, depth + 1, cap - decoded)[2]
+        elif cls in (_MX_STRUCT, _MX_OBJECT) and mtype == _MI_INT32 and not length and len(data) >= 4:
+            length = struct.unpack_from(endian + "i", data)[0]  # the field names' length, then the names
+        elif cls in (_MX_STRUCT, _MX_OBJECT) and mtype == _MI_INT8 and length > 0 and fields == 1:
+            fields = max(len(data) // length, 1)
+            decoded += n * (fields - 1) * (8 + _OBJECT_BYTES)
+    return name, label, min(decoded, cap + 1)
 
 
 def _inflated_v5(fh: BinaryIO, max_bytes: int) -> tuple[bytes, list[tuple[str, str, int]], _Budget]:
