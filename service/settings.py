@@ -200,7 +200,8 @@ class Settings(BaseSettings):
     import_timeout_s: float = Field(60.0, gt=0, le=3600, description="longest time an upload's import may "
                                     "take before it is refused (damaged files can block the HDF5 library)")
     import_workers: int = Field(2, ge=1, le=64, description="uploads imported at once (each in a child process "
-                                "of up to memory_limit + 2 GiB); up to 4x as many more wait, further ones get 429")
+                                "whose address space is capped at memory_limit, at least 1 GiB); up to 4x as many "
+                                "more wait, further ones get 429")
     export_workers: int = Field(2, ge=1, le=64, description="exports built at once (each streams its volume "
                                 "in slabs of a few MiB, in the server's process); up to 4x as many more wait, further "
                                 "ones get 429")

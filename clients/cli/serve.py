@@ -9,6 +9,8 @@ TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (`fpscan 
 if TYPE_CHECKING:
     from typing import Any
 
+    from fpscan.service.settings import Settings
+
 __all__ = ["COMMAND", "HELP", "add_arguments", "parse_devices", "page_url", "run", "use_malloc"]
 
 #: set in the environment of the server process that :func:`use_malloc` started
@@ -120,28 +122,11 @@ def use_malloc() -> None:
     os.execv(sys.executable, [sys.executable, *sys.orig_argv[1:]])
 
 
-def run(args: argparse.Namespace) -> int:
-    """Run this sub-command with the parsed ``args``; return the exit status.
-
-    The server process runs on the C library's allocator (:func:`use_malloc`: it restarts
-    itself in place once, before anything else).
-
-    Parameters
-    ----------
-    args : argparse.Namespace
-        The parsed command line (:func:`add_arguments`).
-
-    Returns
-    -------
-    int
-        The exit status: 0 after the server stopped; 1 when the port or the data folder is already in
-        use.
-    """
-    use_malloc()
+def _settings(args: argparse.Namespace) -> Settings:
+    """The server's settings: the settings file and environment (``Settings.load``), the
+    command line's options over them; a bind beyond loopback, or any host name, without a token
+    is refused (:class:`UsageError`)."""
     import importlib.resources
-    import json
-    import logging
-    import sys
 
     from pydantic import ValidationError
 
@@ -173,7 +158,32 @@ def run(args: argparse.Namespace) -> int:
                          "(or $FPSCAN_TOKEN_FILE)")
     if "*" in settings.allowed_hosts and settings.token_value() is None:
         raise UsageError("--allowed-host '*' (any host name) needs a --token (or $FPSCAN_TOKEN_FILE)")
-    settings, made_token = _token_rules(settings)
+    return settings
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run this sub-command with the parsed ``args``; return the exit status.
+
+    The server process runs on the C library's allocator (:func:`use_malloc`: it restarts
+    itself in place once, before anything else).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed command line (:func:`add_arguments`).
+
+    Returns
+    -------
+    int
+        The exit status: 0 after the server stopped; 1 when the port or the data folder is already in
+        use.
+    """
+    use_malloc()
+    import json
+    import logging
+    import sys
+
+    settings, made_token = _token_rules(_settings(args))
 
     # one server per data folder and per job database (wherever FPSCAN_DB_PATH puts it), on a
     # free port: each refused in one line before anything reads the job store (its start-up

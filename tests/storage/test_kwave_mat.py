@@ -19,7 +19,17 @@ from fpscan.service import formats
 from fpscan.service.pipeline import reconstruct
 from fpscan.service.recon import kspace_line_recon
 from fpscan.service.storage.loader import detect_format, load_dataset
-from tests.storage.mat_files import MAT73_HEADER, write_mat5, write_mat73
+from tests.storage.mat_files import (
+    MAT73_HEADER,
+    mat5_compressed,
+    mat5_double,
+    mat5_element,
+    mat5_file,
+    mat5_matrix,
+    mat5_struct,
+    write_mat5,
+    write_mat73,
+)
 
 
 @pytest.fixture(scope="module")
@@ -165,3 +175,24 @@ def test_hostile_mat_files_are_refused_with_a_reason(kwave_mat, tmp_path):
     with pytest.raises(ValueError):
         load_dataset(tmp_path / "noise.mat")
     assert formats.describe(kwave_mat["v73"]) == "a k-Wave MAT-file"
+
+
+def test_every_field_is_sized_before_it_is_decoded(tmp_path):
+    """Each field of a MAT v5 variable, nested or not, is sized from what it declares before
+    scipy decodes any of it, against the budget ``max_bytes``: a struct field that is a cell
+    array declaring 2**26 elements (512 MiB of slots scipy allocates before it reads one: today's
+    main skipped structs and allocated them); a compressed element inside a variable (MATLAB
+    never writes one); a variable compressed three times (scipy reads one layer) is read, its
+    layers inflated here; an honest struct still reads."""
+    sensor = mat5_double("sensor_data", np.random.default_rng(3).standard_normal((8, 64)))
+    cell = mat5_matrix("", 1, (2**26, 1), b"")  # mxCELL_CLASS, no element stored
+    path = mat5_file(tmp_path / "cell.mat", sensor, mat5_compressed(mat5_struct("kgrid", {"dt": mat5_double("", 1e-8),
+                                                                                          "c": cell})))
+    with pytest.raises(ValueError, match="need more than the import's limit of 67108864 bytes"):
+        load_dataset(path, "kwave-mat", dx=1e-4, max_bytes=64 * 2**20)
+    inside = mat5_matrix("dt", 6, (1, 1), mat5_compressed(mat5_element(9, np.float64(1e-8).tobytes())))
+    with pytest.raises(ValueError, match="compressed element inside a variable"):
+        load_dataset(mat5_file(tmp_path / "inside.mat", sensor, inside), "kwave-mat", dx=1e-4)
+    thrice = mat5_compressed(mat5_compressed(mat5_compressed(mat5_struct("kgrid", {"dt": mat5_double("", 1e-8)}))))
+    ds = load_dataset(mat5_file(tmp_path / "thrice.mat", sensor, thrice), "kwave-mat", dx=1e-4)
+    assert ds.dt == 1e-8 and ds.data.shape == (64, 8)
