@@ -15,6 +15,9 @@ A fault spec is a comma-separated list of ``key=value`` items (keys may repeat):
                        firmware fault): that A-line is sent with seq SEQ (0 … 2³² − 1), the
                        next ones continue from SEQ + 1 (mod 2³²)
 ``point=K:P``          A-line K is sent (once) as point P (0 … 2³² − 1), a firmware fault
+``ignore_acks=K``      from A-line K on (once), the device ignores ACK and NAK frames until the
+                       run ends, a firmware fault: it resends its oldest unacknowledged A-line
+                       every RTO and acquires nothing new once its window is full
 ``field=K:NAME:V``     A-line K is sent (once) with its field NAME set to V, a firmware fault:
                        NAME one of the A-line's float fields as on the wire (``timestamp``,
                        ``bias_wavelength``, ``dt``, ``scale``, ``offset``, ``dc_level``,
@@ -61,6 +64,8 @@ class FaultSpec:
     bad_points : dict[int, int]
         Point k -> the point index (u32) its A-line frame carries instead (once): a device
         fault too.
+    ignore_acks : set[int]
+        A-lines from which on the device ignores ACKs and NAKs until the run ends (once).
     bad_fields : dict[int, tuple[str, float]]
         Point k -> (field name of :data:`FIELD_NAMES`, value) its A-line frame carries
         instead (once): a field out of its range is a device fault too.
@@ -74,6 +79,7 @@ class FaultSpec:
     seq_skips: dict[int, int] = field(default_factory=dict)
     bad_points: dict[int, int] = field(default_factory=dict)
     bad_fields: dict[int, tuple[str, float]] = field(default_factory=dict)
+    ignore_acks: set[int] = field(default_factory=set)
 
     @classmethod
     def parse(cls, spec: str | None) -> FaultSpec:
@@ -126,6 +132,10 @@ class FaultSpec:
             (self.seq_skips if key == "seq" else self.bad_points)[int(k)] = int(number)
         elif key == "field":
             self._add_field(value)
+        elif key == "ignore_acks":
+            if int(value) < 0:
+                raise ValueError("K must be >= 0")
+            self.ignore_acks.add(int(value))
         else:
             raise ValueError("unknown fault")
 

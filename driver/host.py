@@ -782,6 +782,9 @@ class ScanSession:
         self.silence = scanner.stall_timeout
         if prf > 0:
             self.silence = max(self.silence, 3.0 * int(acq.get("averages", 1)) / prf)
+        #: the longest a running (not paused) device may go without a new A-line, silent or
+        #: repeating old ones, before the scan ends with DeviceTimeout, s
+        self.no_progress = max(3 * scanner.response_timeout, 10 * self.silence)
 
     # ------------------------------------------------------------------ the call
     def run(self, upload: bool = True) -> ScanResult:
@@ -1007,7 +1010,11 @@ class ScanSession:
                 self.send_ack()
                 return "done"
             self.report("paused" if paused else "running")
-            if time.monotonic() - run.last_rx > (2 * self.silence if paused else self.silence):
+            now = time.monotonic()
+            # a silent device, or one whose frames all repeat what is already here (a device that
+            # ignores ACKs resends its oldest A-line for ever): poll it
+            if now - run.last_rx > (2 * self.silence if paused else self.silence) or \
+                    not paused and now - run.last_new > self.no_progress:
                 outcome = self._on_silence(paused)
                 if outcome:
                     return outcome
@@ -1064,8 +1071,7 @@ class ScanSession:
             self._raise_interlock()
         if st.state == "IDLE" and not self.done_s.all():
             return "restart"  # the run ended with A-lines missing: start again
-        if not paused and time.monotonic() - run.last_new > max(
-                3 * sc.response_timeout, 10 * self.silence):
+        if not paused and time.monotonic() - run.last_new > self.no_progress:
             raise DeviceTimeout(f"{sc.port} reports {st.state} but delivered no new "
                                 f"A-line for {time.monotonic() - run.last_new:.0f} s")
         self.send_ack([run.seq(o) for o in run.missing()] or None)

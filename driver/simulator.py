@@ -257,6 +257,7 @@ class SimulatedScanner:
         self._seq_skips = dict(self.config.faults.seq_skips)
         self._bad_points = dict(self.config.faults.bad_points)
         self._bad_fields = dict(self.config.faults.bad_fields)
+        self._ignore_acks_at = set(self.config.faults.ignore_acks)
         self._records: dict[str, dict] = {}
         self._record_order: list[str] = []
         self._pool = ThreadPoolExecutor(1, thread_name_prefix="fpsim-gen")
@@ -337,6 +338,7 @@ class SimulatedScanner:
         self._ready_k = -1
         self._ready_t = 0.0
         self._interlock_until = 0.0
+        self._ignoring_acks = False  #: the ignore_acks fault holds until the run ends
         self._out = bytearray()
         self._deframer = Deframer()
         self._tokens = 0.0
@@ -469,6 +471,8 @@ class SimulatedScanner:
             self._last_cmd, self._last_reply = key, wire
             self._emit(wire)
         elif t in (FrameType.ACK, FrameType.NAK):
+            if self._ignoring_acks:
+                return
             self._on_ack(frame.ack, frame.window)
             if t == FrameType.NAK:
                 n = len(frame.payload) // 4
@@ -607,6 +611,9 @@ class SimulatedScanner:
         if k in self._seq_skips:  # a firmware fault: the data sequence skips ahead
             self._next_seq = self._seq_skips.pop(k)
             self.stats["seq_skips"] += 1
+        if k in self._ignore_acks_at:  # a firmware fault: ACKs and NAKs ignored until the run ends
+            self._ignore_acks_at.discard(k)
+            self._ignoring_acks = True
         return False
 
     def _preparation(self, s: int) -> float:
@@ -890,6 +897,7 @@ class SimulatedScanner:
         self._unacked.clear()
         self._resend.clear()
         self._resend_set.clear()
+        self._ignoring_acks = False
 
     def _cmd_scan_abort(self, cmd: scpi.Command) -> None:
         self._abort()

@@ -10,6 +10,8 @@ the scan file intact and a rerun resuming it. Real simulators and raw pseudo-ter
 - ``max_chunk``: a device reporting fewer than 64 bytes (``fpscan.driver.commands.MIN_CHUNK``)
   is refused before anything is uploaded; one reporting exactly 64 takes every chunk the host
   sends, retries on a noisy link included.
+- A device that ignores ACKs, resending old A-lines for ever (never silent), ends the scan with
+  ``DeviceTimeout`` once no new A-line came for the host's no-progress bound.
 - Flood: the thread reader holds at most ``THREAD_QUEUE_BYTES`` unread; 256 MiB sent to a host
   that is not reading leave its resident size within 50 MB of what it was (the host runs in a
   child process whose resident size this process watches, as in test_device_faults.py), and its
@@ -34,7 +36,7 @@ import pytest
 from fpscan.driver.acquire import acquire
 from fpscan.driver.commands import MIN_CHUNK
 from fpscan.driver.faults import FaultSpec
-from fpscan.driver.host import MAX_RESETS, DeviceFault, Scanner
+from fpscan.driver.host import MAX_RESETS, DeviceFault, DeviceTimeout, Scanner
 from fpscan.driver.scanfile import ScanFile, read_scan
 from fpscan.driver.transport import THREAD_QUEUE_BYTES
 from tests.driver.driver_helpers import grid_plan
@@ -123,6 +125,30 @@ def test_a_max_chunk_of_64_takes_every_chunk_on_a_noisy_link(tmp_path):
             assert sc.upload_plan(plan) == plan["id"]
             assert sc.faults["upload_retries"] > 0, sc.faults
             assert sc.query("PLAN:ID?") == plan["id"]
+
+
+@pytest.mark.waits  # the no-progress bound is a real 3 s
+def test_a_scanner_that_ignores_acks_ends_in_bounded_time(tmp_path):
+    """From A-line 40 on the device ignores ACKs: it fills its window with new A-lines, then
+    resends its oldest unacknowledged one every RTO (20 ms here), for ever. The host, never
+    silent for its stall poll (0.3 s), still ends the scan once no new A-line came for its
+    no-progress bound (``max(3·response_timeout, 10·stall silence)``, 3 s) with ``DeviceTimeout``; the
+    device is left idle, the file holds every A-line received, a rerun completes it."""
+    plan = grid_plan(20, 20, n_t=64)
+    n = 400
+    out = tmp_path / "scan.h5"
+    with make_sim(tmp_path, faults=FaultSpec.parse("ignore_acks=40"), seed=6, rto=0.02) as sim:
+        with Scanner(sim.path, response_timeout=1.0, stall_timeout=0.3) as sc:
+            sink = ScanFile.create(out, plan, instrument=sc.identify(), software_version="test")
+            with sink:
+                with pytest.raises(DeviceTimeout, match="reports RUNNING but delivered no new A-line"):
+                    sc.scan(plan, sink)
+                done = int(sink.completed().sum())
+            assert sim.state == "IDLE" and sim.stats["timeouts"] > 0  # it did resend, for a while
+            assert 40 <= done < n and np.array_equal(read_scan(out).completed, np.arange(n) < done)
+            res = acquire(sim.path, plan, out, scanner=sc)
+            assert res.complete
+    assert_matches_record(out, tmp_path / "truth.h5", plan)
 
 
 FLOOD = 256 * MB  #: bytes the flooding device sends while the host is not reading
