@@ -1,6 +1,7 @@
 """A scanner whose word no plan allows: one A-line frame with a good CRC, run id and boot id
-but a data sequence number far outside its run (2³¹ ahead, or 0xFFFFFFFF), or a point the plan
-does not have, is a device fault.
+but a data sequence number far outside its run (2³¹ ahead, or 0xFFFFFFFF), a point the plan
+does not have, or a field out of its documented range (docs/protocol.md §5: a ``dc_level`` of 0
+or −1, a NaN or infinite ``scale``, a ``dt`` of 0, a sample of −32 768), is a device fault.
 The scan stops with the reason (``DeviceFault``), the device is left idle, the scan file holds
 every A-line the device sent before, and a rerun completes the scan bit for bit; the host's
 memory stays within 50 MB of what it was before the scan (its bookkeeping is the plan's size,
@@ -128,6 +129,14 @@ CASES = {
     "seq 0xFFFFFFFF": (f"seq={K}:{0xFFFFFFFF}", "sequence number 4294967295 is outside run 1"),
     "point 2^32-1": (f"point={K}:{2**32 - 1}", "of point 4294967295, wavelength 0 with 128 samples; the plan has 400 "
                                                 "points"),
+    # a field out of its documented range (docs/protocol.md §5): the scan file would refuse the A-line
+    "dc_level 0": (f"field={K}:dc_level:0", f"A-line (seq {K}) of point {K}, wavelength 0: dc_level = 0.0 V is out "
+                                            "of its range (finite and > 0)"),
+    "dc_level -1": (f"field={K}:dc_level:-1", "dc_level = -1.0 V is out of its range"),
+    "scale nan": (f"field={K}:scale:nan", "scale = nan signal per count is out of its range (finite and > 0)"),
+    "scale inf": (f"field={K}:scale:inf", "scale = inf signal per count is out of its range"),
+    "dt 0": (f"field={K}:dt:0", "dt = 0.0 s is out of its range (finite and > 0)"),
+    "sample -32768": (f"field={K}:sample:-32768", "a sample of -32768 is out of the range -32767 … 32767"),
 }
 
 

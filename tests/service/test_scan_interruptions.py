@@ -22,7 +22,7 @@ from tests.waits import HANG_S
 
 driver_sim = pytest.importorskip("fpscan.driver.simulator")
 
-pytestmark = [needs_recon, pytest.mark.long(50)]
+pytestmark = [needs_recon, pytest.mark.long(95)]
 
 
 def new_sim(seed: int = 3):
@@ -192,6 +192,65 @@ def test_a_scanner_that_skips_ahead_pauses_the_scan_in_bounded_memory(tmp_path):
     finally:
         if watch is not None:
             watch.done.set()
+        srv.stop()
+        sim.stop()
+
+
+def _wait_paused(c, jid: str) -> dict:
+    """The job once it is ``paused``; it must stay ``queued`` or ``running`` until then (a
+    ``failed`` job is not resumable) and ``/api/health`` must answer meanwhile."""
+    deadline = time.monotonic() + HANG_S
+    while True:
+        assert c.get("/api/health", timeout=10).status_code == 200
+        job = c.get(f"/api/jobs/{jid}").json()
+        if job["state"] == "paused":
+            return job
+        assert job["state"] in ("queued", "running") and time.monotonic() < deadline, job
+        time.sleep(0.05)
+
+
+@pytest.mark.timeout(300)
+def test_a_field_out_of_range_and_a_scanner_that_keeps_resetting_pause_the_scan(tmp_path):
+    """Two device faults in one scan, each pausing it (stage ``interrupted``, reason
+    ``device fault: …``), never failing it: an A-line whose ``dc_level`` is 0 (out of its range,
+    docs/protocol.md §5: the scan file would refuse it), then, after ``/resume``, a scanner that
+    resets every time it comes to A-line 60, nine times (the host recovers from 8). Each time the
+    scan file holds what the device sent before, ``/api/health`` names the fault, and the last
+    ``/resume`` (the device now sound) completes the scan bit for bit."""
+    from fpscan.driver.faults import FaultSpec
+    from fpscan.driver.scanfile import read_scan
+    from fpscan.driver.sources import BallSource
+
+    bad_at, reset_at = 40, 60
+    sim = driver_sim.SimulatedScanner(source=BallSource(phantom()), prf=100.0, seed=3,
+                                      faults=FaultSpec.parse(f"field={bad_at}:dc_level:0,reset={reset_at}:9")).start()
+    srv = Server(tmp_path / "srv", devices={"sim": sim.path}).start()
+    try:
+        with srv.client() as c:
+            plan = make_plan(c)
+            jid = start_scan(c, plan["id"])
+            reasons = ["dc_level = 0.0 V is out of its range (finite and > 0)",
+                       "the scanner reset 9 times during this scan; the host recovers from 8"]
+            for i, says in enumerate(reasons):
+                job = _wait_paused(c, jid)
+                progress = job["progress"]
+                assert progress["stage"] == "interrupted", job
+                assert progress["reason"].startswith("device fault: ") and says in progress["reason"], job
+                health = c.get("/api/health").json()
+                assert any("device fault" in p for p in health["problems"]), health
+                held = tmp_path / f"paused{i}.h5"
+                held.write_bytes(c.get(f"/api/scans/{jid}/file").content)
+                done = read_scan(held).completed
+                n_done = int(done.sum())  # the A-lines sent before the fault: a prefix of the plan
+                assert np.array_equal(done, np.arange(N * N) < n_done)
+                assert n_done == bad_at if i == 0 else bad_at < n_done <= reset_at, (i, n_done)
+                assert c.post(f"/api/scans/{jid}/resume").status_code == 200
+            final = wait_job(c, jid)
+            assert final["state"] == "succeeded", final
+            assert c.get("/api/health").json()["problems"] == []
+            assert sim.stats["resets"] == 9
+            check_file(c, jid, truth([sim], tmp_path, plan["id"]), tmp_path)
+    finally:
         srv.stop()
         sim.stop()
 
