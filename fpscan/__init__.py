@@ -60,8 +60,8 @@ result folder and exported for napari:
 >>> data = alines.T.reshape(96, 16, 16)          # (n_t, n_y, n_x): time first
 >>> ds = fpscan.GridDataset(data=data, dx=100e-6, dy=100e-6, dt=4e-8, sound_speed=1500.0)
 >>> rec = fpscan.reconstruct(ds, "ner")
->>> rec.p0.shape                                  # (n_z, n_y, n_x)
-(96, 16, 16)
+>>> rec.p0.shape                 # (n_z, n_y, n_x): rows of the pitch down to c·t_last = 5.7 mm
+(58, 16, 16)
 >>> iz, iy, ix = np.unravel_index(np.argmax(rec.p0), rec.p0.shape)
 >>> bool(rec.y[iy] > 0 and rec.x[ix] > 0)        # the ball's +x, +y quadrant
 True
@@ -75,7 +75,7 @@ True
 ['xy', 'xz', 'yz']
 >>> vol = fpscan.read_result(out / "result" / "volume.h5")
 >>> vol.p0.shape, vol.p0_unit
-((96, 16, 16), 'a.u.')
+((58, 16, 16), 'a.u.')
 >>> fpscan.export_file(out / "result" / "volume.h5", out / "p0.ome.zarr", "ome-zarr").name
 'p0.ome.zarr'
 

@@ -29,7 +29,11 @@ validated once, at the door (:meth:`Method.check`), and carried typed to the met
   :data:`DEFAULT_DTYPE` = ``"float32"`` for every method and every caller;
 - ``eps``: NUFFT tolerance (``ner``, ``nedner``; default 1e-6);
 - ``upsample``: lateral upsampling factor 1..8; ``positivity``: clip p0 < 0 to 0;
-- ``n_z``, ``dz``: output depth count and spacing in m (default ``n_t`` and ``c·dt``);
+- ``n_z``, ``dz``: output depth count and spacing in m; by default every method's one depth grid
+  (:func:`fpscan.service.recon.depth.depth_grid`): ``dz`` the lateral pitch (``c·dt`` where that is
+  finer), ``n_z`` as deep as the record reaches (``c·t_last``), one given alone keeping the other's
+  default (``tv``: its band's spacing, down to the last echo above the noise; ``kwave`` has no
+  depth options: k-Wave's own grid, ``n_t`` rows of ``c·dt``);
 - ``interp``: k-Wave's interpolation (``kwave``): ``"*nearest"`` (k-Wave's default),
   ``"nearest"``, ``"*linear"``, ``"linear"``, ``"*cubic"``, ``"cubic"``;
 - ``lam``, ``max_iter``, ``tol``, ``time_limit``, ``debias``, ``whole_record`` (``tv``).
@@ -349,7 +353,7 @@ def reconstruct(dataset: Dataset, method: str, options: dict | MethodOptions | N
 
     Examples
     --------
-    A laterally uniform layer at depth row 10 on an 8-sensor line (dz = c dt = 0.1 mm):
+    A laterally uniform layer at depth row 10 on an 8-sensor line (dz = the pitch = c dt = 0.1 mm):
 
     >>> import numpy as np
     >>> from fpscan.service.pipeline import reconstruct

@@ -273,7 +273,7 @@ class Demo:
             # reconstruct in the executor while the next scan runs
             recon_jobs[recon_name] = (method, api.start_reconstruction(
                 scan_job_id=job_id, method=method,
-                params={"n_z": min(DEFAULTS["n_z"], a.n_t)}))  # the default precision (float32)
+                params={"n_z": min(DEFAULTS["n_z"], a.n_t), "dz": C_DEFAULT * a.dt}))  # c·dt rows; float32
         self.report["scans"] = scans
         self.report["reconstructions"] = self._collect_reconstructions(api, recon_jobs)
         self._figures()

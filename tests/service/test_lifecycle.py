@@ -23,6 +23,8 @@ from tests.waits import HANG_S
 pytestmark = needs_recon
 
 N, N_T, DT, PITCH = 8, 32, 2e-8, 1e-4
+#: the default depth grid (fpscan.service.recon.depth): rows of the pitch down to c·t_last = 0.93 mm
+N_Z = int(1500.0 * (N_T - 1) * DT / PITCH) + 1
 
 
 def _upload(api) -> str:
@@ -108,12 +110,12 @@ def test_delete_retention_and_restart(tmp_path):
             r = api.get(f"/api/jobs/{short}/export/ome-tiff")
             assert r.status_code == 200, r.text
             with tifffile.TiffFile(io.BytesIO(r.content)) as tif:
-                assert tif.is_ome and tif.series[0].axes == "ZYX" and tif.series[0].shape == (N_T, N, N)
+                assert tif.is_ome and tif.series[0].axes == "ZYX" and tif.series[0].shape == (N_Z, N, N)
                 pixels = tif.ome_metadata.split("<Pixels ", 1)[1].split(">", 1)[0]
             sizes = {k: float(v.strip('"')) for k, v in (a.split("=", 1) for a in pixels.split())
                      if k in ("PhysicalSizeX", "PhysicalSizeY", "PhysicalSizeZ")}
             assert sizes == pytest.approx({"PhysicalSizeX": PITCH * 1e6, "PhysicalSizeY": PITCH * 1e6,
-                                           "PhysicalSizeZ": 1500.0 * DT * 1e6})
+                                           "PhysicalSizeZ": PITCH * 1e6})
 
             # an ambiguous prefix: a second job whose id starts with the same 8 characters
             # (a finished scan with no file, written to the database as another process would)

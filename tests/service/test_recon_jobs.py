@@ -114,7 +114,8 @@ def test_ner_and_nedner_jobs_match_direct_call_and_phantom(shared_server, shared
     for plane in ("xy", "xz", "yz"):
         png = api.get(f"/api/reconstructions/{job_id}/mip/{plane}.png")
         assert png.status_code == 200 and png.content[:4] == b"\x89PNG"
-    assert api.get(f"/api/reconstructions/{job_id}/slice.png", params={"index": 80}).status_code == 200
+    ball_row = round(1.2e-3 / float(vol["z"][1] - vol["z"][0]))  # the ball's depth row (12 of the 0.1 mm pitch)
+    assert api.get(f"/api/reconstructions/{job_id}/slice.png", params={"index": ball_row}).status_code == 200
     r = api.get(f"/api/reconstructions/{job_id}/slice.png", params={"index": 10**6})
     assert r.status_code == 422 and "index" in r.json()["detail"]
     r = api.get(f"/api/reconstructions/{job_id}/volume.h5", headers={"Range": "bytes=0-99"})
@@ -186,7 +187,7 @@ def test_kwave_hdf5_upload_2d_ner_matches_kwave_and_direct_call(shared_api, shar
     ds = r.json()
     assert ds["layout"] == "grid" and ds["shape"] == [3519, 1024] and ds["dt"] == pytest.approx(1e-8)
     r = shared_api.post("/api/reconstructions", json={"dataset_id": ds["dataset_id"], "method": "ner",
-                                                      "params": {"dtype": "float64", "n_z": 854}})
+                                                      "params": {"dtype": "float64", "n_z": 854, "dz": 1.5e-5}})
     jid = r.json()["id"]
     assert wait_job(shared_api, jid)["state"] == "succeeded"
     vol, attrs = download_volume(shared_api, jid)
@@ -194,7 +195,8 @@ def test_kwave_hdf5_upload_2d_ner_matches_kwave_and_direct_call(shared_api, shar
     with h5py.File(path, "r") as f:
         data = f["sensor_data/clean"][...]
         kwave = f["recon/clean/recon_starlinear_poscond0"][...]
-    direct = reconstruct_grid(data, 5e-5, 1e-8, 1500.0, method="ner", dtype=np.float64, n_z=854)
+    # k-Wave's rows: 854 of c·dt = 15 µm (the default would be the pitch, 50 µm)
+    direct = reconstruct_grid(data, 5e-5, 1e-8, 1500.0, method="ner", dtype=np.float64, n_z=854, dz=1.5e-5)
     np.testing.assert_allclose(vol["p0"], direct.p0, rtol=0, atol=1e-9 * np.abs(direct.p0).max())
     cc = np.corrcoef(vol["p0"].ravel(), kwave.ravel())[0, 1]
     assert cc > 0.9, cc
@@ -222,7 +224,7 @@ def test_tv_job_progress_names_the_iteration_and_bad_options_are_422(shared_api)
     for bad, name in (({"lam": -1.0}, "lam"), ({"max_iter": 0}, "max_iter"), ({"lam": "a lot"}, "lam")):
         r = api.post("/api/reconstructions", json={"dataset_id": ds, "method": "tv", "params": bad})
         assert r.status_code == 422 and name in r.text, r.text
-    params = {"dtype": "float64", "lam": 0.0, "max_iter": max_iter, "n_z": 16}
+    params = {"dtype": "float64", "lam": 0.0, "max_iter": max_iter, "n_z": 12}  # 1.1 mm of the pitch (0.1 mm)
     r = api.post("/api/reconstructions", json={"dataset_id": ds, "method": "tv", "params": params})
     assert r.status_code == 202, r.text
     job_id = r.json()["id"]
@@ -241,7 +243,7 @@ def test_tv_job_progress_names_the_iteration_and_bad_options_are_422(shared_api)
         {k: f.get(k) for k in ("iteration", "eta_s", "eta_max_s", "eta_basis", "stop_value")} for f in timed]
     vol, attrs = download_volume(api, job_id)
     assert attrs["method"] == "tv"
-    assert vol["p0"].shape == (16, n, n) and vol["p0"].min() >= 0  # positivity: on by default for tv
+    assert vol["p0"].shape == (12, n, n) and vol["p0"].min() >= 0  # positivity: on by default for tv
     # the solver's answer, not the warm start: closer to the data than NEDNER's image
     used = json.loads(attrs["params"])
     assert used["warm_start"] == "nedner" and used["iterations"] <= max_iter and 0 < used["residual"] < 1

@@ -23,8 +23,10 @@ from fpscan.service.recon.limits import (
     TOL_RANGE,
 )
 from fpscan.service.recon.methods.options import (
+    NZ,
     DepthOptions,
     DeviceOption,
+    Dz,
     Flag,
     MethodOptions,
     NufftOptions,
@@ -61,12 +63,14 @@ class Options(DeviceOption, DepthOptions, MethodOptions, NufftOptions):
     dtype : {"float32", "float64"}
         Working and output precision (default ``"float32"``).
     n_z : int or None
-        Output depth samples, 2..65536 (None: with dz None too, down to the depth of the
-        record's last echo above the noise; ``fpscan.service.recon.tv.grid``; else n_t).
+        Output depth samples, 2..65536 (None: down to the depth of the record's last echo above
+        the noise; ``fpscan.service.recon.tv.grid``).
     dz : float or None
-        Output depth spacing in m, [1e-9, 0.1] (None: with n_z None too, the lateral pitch (an
-        isotropic grid at the band c / (2 pitch) the pitch resolves, or c / (2 f) at a declared
-        sensor band f), c dt where that band reaches the record's Nyquist frequency; else c dt).
+        Output depth spacing in m, [1e-9, 0.1] (None: the lateral pitch (an isotropic grid at
+        the band c / (2 pitch) the pitch resolves, or c / (2 f) at a declared sensor band f), c dt
+        where that band reaches the record's Nyquist frequency). One given alone keeps the
+        other's default (every method's rule, ``fpscan.service.recon.depth``, with tv's band and
+        depth).
     positivity : bool
         Constrain p0 >= 0 (default True).
     lam : float or None
@@ -99,6 +103,13 @@ class Options(DeviceOption, DepthOptions, MethodOptions, NufftOptions):
     """
 
     positivity: Flag("positivity") = Field(True, description="constrain p0 >= 0")  # type: ignore[valid-type]
+    # the depth grid's rule with tv's own depth and band (fpscan.service.recon.tv.grid)
+    n_z: NZ = Field(None, description=DepthOptions.model_fields["n_z"].description,
+                    json_schema_extra={"unit": "1", "derived": "down to the record's last echo above the noise"})
+    dz: Dz = Field(None, description=DepthOptions.model_fields["dz"].description,
+                   json_schema_extra={"unit": "m", "display_unit": "µm", "quantity": "length",
+                                      "derived": "the lateral pitch, c·dt where that is finer, c/(2 f) at a "
+                                                 "declared sensor band f"})
     lam: Lam = Field(None, description="TV weight λ in the data's units",
                      json_schema_extra={"unit": "data units",
                                         "derived": "from the noise level and the warm start's misfit"})
@@ -425,11 +436,13 @@ def work(n_t: int, n_x: int, n_y: int = 1, *, dtype: Any = "float32", n_points: 
     warm = planar_work(WARM_RATE)(n_t, n_x, n_y, n_points=n_points, dtype="float64")
     if not (dx and dt and c):
         return warm
-    dz, n_z = grid(n_t, dt, c, dz=o.get("dz"), n_z=o.get("n_z"), t0=t0 or 0.0)  # the depth axis's checks
-    check_depth(n_t, dt, c, dz, n_z, t0 or 0.0)
     chosen = _chosen_grid(n_t, dt, c, dz=o.get("dz"), n_z=o.get("n_z"), t0=t0, bandwidth=bandwidth,
                           record_facts=record_facts, whole_record=bool(o.get("whole_record")), dx=dx, n_x=n_x,
                           n_y=n_y)
+    from fpscan.service.recon.planar import depth_axis
+
+    depth_axis(int(n_t), float(dt), float(c), chosen.dz, chosen.n_z, float(t0 or 0.0))  # the depth axis's checks
+    check_depth(n_t, dt, c, chosen.dz, chosen.n_z, t0 or 0.0)
     from fpscan.physics.grid_sizes import pad_sizes
 
     points = math.prod(pad_sizes((chosen.n_z, n_y, n_x), dx, chosen.dz, chosen.dt, chosen.n_t, c, t0 or 0.0))

@@ -115,7 +115,8 @@ def reconstruct_tv(
         Depth spacing (m), depth samples and time of sample 0 (s). With neither dz nor n_z
         given, `fpscan.service.recon.tv.grid.tv_grid`'s: dz = c / (2 f_c) at the operator's band f_c
         (the pitch, or a declared band; c dt at full band), down to the last echo's depth; a
-        given one is kept and the other follows the record's own rule (c dt, n_t).
+        given one is kept and the other keeps its default (`fpscan.service.recon.depth`'s rule,
+        every method's).
     periodic : bool, optional
         Model the grid as laterally periodic (no zero padding; `PlanarOperator`), as NER
         itself does: several times cheaper for large volumes, but sources near an edge wrap
@@ -133,7 +134,7 @@ def reconstruct_tv(
         A sensor bandwidth the caller declares, Hz, in [1e3, 1e12]: the operator works at that
         band instead of the one the lateral pitch resolves (`fpscan.service.recon.tv.problem`).
     whole_record : bool, optional
-        Keep the whole record and, with neither dz nor n_z given, image its whole depth
+        Keep the whole record and, without n_z, image its whole depth
         (`fpscan.service.recon.tv.problem`; `fpscan.service.recon.tv.grid.tv_grid`). Default False.
     continuation : bool, optional
         Start the TV weight at λ · D₀ and lower it to λ (`fpscan.service.recon.tv.lam`; default
