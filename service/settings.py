@@ -183,11 +183,13 @@ class Settings(BaseSettings):
                                     "(event streams included) are closed after this long, s")
     connections_per_address: int = Field(64, ge=1, le=100_000, description="most open connections of one client "
                                          "address that have not shown the token; more must show it in their first "
-                                         "request head (else 503)")
+                                         "request head (without a token: 503; a wrong one is refused as on any "
+                                         "connection)")
     max_connections: int | None = Field(None, ge=1, le=1_000_000, description="open connections without the "
                                         "token in all beyond which a client address gets only its allowance of 4 "
-                                        "(more must show the token in their first request head, else 503); None = "
-                                        "half the process's open-file limit")
+                                        "(more must show the token in their first request head; without a token: 503; "
+                                        "a wrong one is refused as on any connection); None = half the process's "
+                                        "open-file limit")
     uploads_per_client: int | None = Field(None, ge=1, le=1024, description="uploads (and plan requests) one client "
                                            "address may have in progress or waiting; more get 429 while the "
                                            "server's slots are not all taken by others; None = import_workers")

@@ -247,8 +247,10 @@ def run(args: argparse.Namespace) -> int:
 
 def page_url(settings: Any, token: str | None = None) -> str:
     """The web page's address for ``settings`` (its host and port), with ``token`` in the
-    fragment (``#token=...``: the page keeps it for its tab, and a fragment is never sent to
-    a server nor written in a log).
+    fragment (``#token=...``: the page keeps it for its tab and takes it out of the address; a
+    fragment is never sent to a server, so no request log holds it). :func:`run` prints this
+    address once at start, with a token it made, on standard error: the server's own log,
+    which therefore holds the token (keep it private, or give a token).
 
     Parameters
     ----------

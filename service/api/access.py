@@ -21,10 +21,13 @@ body read:
   token is answered at once from any address, the waiting one included; a wrong one from a
   waiting address is answered 429 with ``Retry-After``, but only after the wait it owes (at
   most :data:`HOLD_S`; the answer is held on the event loop, which goes on serving everyone
-  else) and it doubles the wait. A guesser therefore learns nothing faster than the waits
-  allow, one guess per connection per wait, and the server's per-client connection caps bound
-  its connections (OWASP Authentication Cheat Sheet, "Protect against automated attacks":
-  throttle the failures, not the account's owner).
+  else) and it doubles the wait. This gate is the one place that holds and answers a wrong
+  token, on every kind of connection: a connection the server took on probation (beyond its
+  strangers' budget, ``fpscan.service.api.connections``) passes its wrong token on here too
+  (:data:`PROBATION_EXTENSION`), and it is refused whatever its path. A guesser therefore
+  learns nothing faster than the waits allow, one guess per connection per wait, and the
+  server's per-client connection caps bound its connections (OWASP Authentication Cheat Sheet,
+  "Protect against automated attacks": throttle the failures, not the account's owner).
 - ``Origin``/``Referer``, when no token is configured (the server then binds loopback
   only): a state-changing request (POST, PUT, PATCH, DELETE) from a page of another origin
   (its ``Origin``, or its ``Referer`` when it sends no ``Origin``) is refused with 403, so a
@@ -51,7 +54,7 @@ from fpscan.service.settings import Settings, is_loopback
 
 __all__ = [
     "STATE_CHANGING", "PUBLIC_API_PATHS", "WILDCARD_BINDS", "FREE_FAILURES", "FIRST_WAIT_S", "MOST_WAIT_S",
-    "host_name", "host_allowed", "same_origin", "token_matches", "failure_key", "TokenFailures", "AccessGate",
+    "HOLD_S", "PROBATION_EXTENSION", "host_name", "host_allowed", "same_origin", "token_matches", "failure_key", "TokenFailures", "AccessGate",
 ]
 
 log = logging.getLogger("fpscan.api")
@@ -72,6 +75,11 @@ MOST_WAIT_S = 300.0
 #: The longest a wrong token from a waiting address is held before its 429, s (a connection
 #: left open longer would cost the server more than the guess is worth).
 HOLD_S = 30.0
+#: The ASGI scope extension (``scope["extensions"]``, ASGI "Extensions") the server's connection
+#: layer (``fpscan.service.api.connections.GuardedHttp``) sets on a request with a wrong token from
+#: a connection on probation: :class:`AccessGate` refuses it whatever its path (a probation
+#: connection is served for the right token only).
+PROBATION_EXTENSION = "fpscan.probation"
 
 
 def host_name(host_header: str) -> str:
@@ -226,10 +234,11 @@ class TokenFailures:
     each address owes.
 
     An address's first ``free`` wrong tokens cost nothing; the next one starts a wait of
-    ``first_wait_s``, each further one twice the last, at most ``most_wait_s``. A wrong
-    token sent during the wait is answered only when the wait is over (:meth:`wait_s` says how
-    long is left; :class:`AccessGate` holds the answer) and counts as a further one. ``2 * most_wait_s`` without a wrong token clear the
-    address's count (a right token does not: a guesser sharing an address with a busy client
+    ``first_wait_s``, each further one twice the last, at most ``most_wait_s``. Every token is
+    still compared: a wrong one sent during the wait is answered (429) only when the wait is over
+    (:meth:`wait_s` says how long is left; :class:`AccessGate` holds the answer, at most
+    :data:`HOLD_S`) and counts as a further one; the right one is answered at once.
+    ``2 * most_wait_s`` without a wrong token clear the address's count (a right token does not: a guesser sharing an address with a busy client
     would get its free guesses again and again). At most ``max_addresses`` addresses are
     remembered (the one whose last wrong token is the oldest goes first), some 100 bytes
     each. Used from the event loop only (not thread-safe).
@@ -340,8 +349,10 @@ class AccessGate:
 
     They apply to every HTTP request (and websocket) from its headers alone: nothing of the
     body is read for a refusal, and the refusal closes the connection (401 with
-    ``WWW-Authenticate: Bearer``, 403, 429 with ``Retry-After`` for an address that sent too
-    many wrong tokens, or 503 when the token file cannot be read). Refusals are logged at most
+    ``WWW-Authenticate: Bearer``, 403, 429 with ``Retry-After`` for a wrong token from an
+    address that sent too many, held until its wait is over (at most :data:`HOLD_S`), or 503
+    when the token file cannot be read). A wrong token on a connection on probation
+    (:data:`PROBATION_EXTENSION`) is refused whatever its path. Refusals are logged at most
     one line per client address per interval, each field capped
     (``fpscan.service.api.logcaps``).
 
@@ -353,8 +364,9 @@ class AccessGate:
         The service's settings (the token is read on each request, so a rotated
         ``token_file`` takes effect at once).
     failures : TokenFailures or None, optional
-        The count of wrong tokens per address, shared with the server's other checks of the
-        token; default None: a count of its own.
+        The count of wrong tokens per address, shared with health's lane
+        (``fpscan.service.api.lanes.HealthLane``), which applies these rules first; default None:
+        a count of its own.
 
     Attributes
     ----------
@@ -442,10 +454,12 @@ class AccessGate:
             log.error("token unreadable: %s", exc)
             return 503, "the server cannot read its token file; the operator must fix it"
         if expected is not None:
-            if not path.startswith("/api/"):
+            # a request on probation is served for the right token only, whatever its path
+            probation = PROBATION_EXTENSION in (scope.get("extensions") or {})
+            if not path.startswith("/api/") and not probation:
                 return None
             authorization = _header(scope, b"authorization")
-            public = path.rstrip("/") in PUBLIC_API_PATHS
+            public = path.rstrip("/") in PUBLIC_API_PATHS and not probation
             if authorization is not None and token_matches(authorization, expected) == "invalid bearer token":
                 client = scope.get("client") or ("?", 0)
                 wait = self.failures.wait_s(client[0])

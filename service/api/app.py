@@ -139,8 +139,7 @@ def create_app(settings: Settings | None = None, *, start_workers: bool = True, 
     from fpscan.service.api.access import AccessGate, TokenFailures
     from fpscan.service.api.lanes import HealthLane, RequestTurns
 
-    failures = TokenFailures()  # wrong tokens per client address: the gate's, health's lane's and the connections'
-    app.state.token_failures = failures
+    failures = TokenFailures()  # wrong tokens per client address: the gate's and health's lane's
     app.add_middleware(RequestTurns)  # requests start a few per loop iteration (health's lane)
     app.add_middleware(AccessGate, settings=settings, failures=failures)  # before any slot, thread, turn or body byte
 

@@ -11,13 +11,18 @@ this module's subclass of that protocol (:class:`GuardedHttp`) and the settings'
   only an address's :data:`CONNECTION_ALLOWANCE`) is taken as a stranger's. Beyond it, the
   connection is taken **on probation** (a pool of its own, bounded: half of what the
   open-file limit leaves beyond ``max_connections``): its first request head must come within
-  :data:`PROBATION_HEAD_S` and carry the token, else it is answered ``503`` and closed. A
+  :data:`PROBATION_HEAD_S` and carry the token: without one it is answered ``503`` and
+  closed; with a wrong one it is refused by the access gate (below), which closes it. A
   connection whose request head carries the valid token leaves the strangers' numbers for
   good: only the open-file limit (less :data:`FD_HEADROOM`) bounds such connections, so
   strangers holding their whole budget, from the token holder's own address or any other,
-  never refuse the token holder. Without a token configured every connection is a
-  stranger's; so is one from an address that sent too many wrong tokens while it waits (its
-  token is not compared: ``fpscan.service.api.access.TokenFailures``). A connection beyond every pool is refused at accept time (``503`` with the
+  never refuse the token holder. A wrong token on probation goes on to the access gate
+  (``fpscan.service.api.access.AccessGate``, the one owner of wrong tokens: their count, the
+  wait of an address that sent too many, its held ``429``), marked
+  (``fpscan.service.api.access.PROBATION_EXTENSION``) so that the gate refuses it whatever its
+  path: every token is compared, on every connection, and a wrong one is answered no sooner
+  than it would be on a stranger's. Without a token configured every connection is a
+  stranger's. A connection beyond every pool is refused at accept time (``503`` with the
   reason, ``Connection: close``, before anything of it is read).
 - **A deadline in every phase** (:class:`GuardedHttp`, one timer per connection, token or
   not): a request head within ``header_timeout_s`` of the connection's start or of the first
@@ -46,16 +51,14 @@ import socket
 import struct
 import threading
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import httptools
 from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol
 
+from fpscan.service.api.browser_headers import SECURITY_HEADERS
 from fpscan.service.api.logcaps import RefusalLog, install_log_caps, shown
 from fpscan.service.settings import Settings
-
-if TYPE_CHECKING:
-    from fpscan.service.api.access import TokenFailures
 
 __all__ = ["CONNECTION_ALLOWANCE", "PROBATION_HEAD_S", "FD_HEADROOM", "BURST_CONNECTIONS", "return_memory", "open_file_limit", "ConnectionGuard", "GuardedHttp",
            "guarded_protocol", "server_config"]
@@ -342,11 +345,11 @@ class GuardedHttp(HttpToolsProtocol):
     send_buffer_bytes : int or None
         The kernel's send buffer of each connection (``SO_SNDBUF``; None: autotuned).
     token_value : callable or None
-        Returns the configured token (None: no token; every connection stays a stranger).
-    failures : TokenFailures or None
-        The count of wrong tokens per address (:class:`fpscan.service.api.access.TokenFailures`,
-        the access gate's): an address that must wait shows no token (its token is not compared),
-        and a wrong token on probation, which the gate never sees, is counted here.
+        Returns the configured token (None: no token; every connection stays a stranger). Every
+        token is compared: the right one makes the connection trusted, whatever its address sent
+        before; a wrong one on probation goes on to the access gate, marked
+        (``fpscan.service.api.access.PROBATION_EXTENSION``), which counts it and refuses it
+        (``401``; ``429`` after the wait of an address that must wait).
     refusals : RefusalLog
         The rate-limited log of refusals.
     """
@@ -361,7 +364,6 @@ class GuardedHttp(HttpToolsProtocol):
     send_min_rate: float = 1024.0
     send_buffer_bytes: int | None = 64 * 1024
     token_value: Callable[[], str | None] | None = None
-    failures: TokenFailures | None = None
     refusals: RefusalLog
 
     def connection_made(self, transport: Any) -> None:
@@ -456,9 +458,12 @@ class GuardedHttp(HttpToolsProtocol):
             self.guard.trust(self._address, self._pool)
             self._pool = "trusted"
         elif self._pool == "probation":
-            if self._token_state() == "wrong" and self.failures is not None:  # the gate never sees this one
-                self.failures.failed(self._address)
-            raise _NoToken()
+            if self._token_state() != "wrong":
+                raise _NoToken()
+            # a wrong token: the gate's to count, hold and refuse (whatever the path), as on any connection
+            from fpscan.service.api.access import PROBATION_EXTENSION
+
+            self.scope.setdefault("extensions", {})[PROBATION_EXTENSION] = {}
         self._in_body, self._body_left = True, self._declared_length()
         cycle = self.cycle
         super().on_headers_complete()
@@ -649,7 +654,9 @@ class GuardedHttp(HttpToolsProtocol):
         cycle.send = send_while_open
 
     def _answer_and_close(self, status: int, detail: str) -> None:
-        """Write a JSON error answer with ``Connection: close`` and close the connection."""
+        """Write a JSON error answer with ``Connection: close`` and the headers browsers obey on
+        every answer (``fpscan.service.api.browser_headers.SECURITY_HEADERS``), and close the
+        connection."""
         import json
 
         self._closed_by_us = True
@@ -658,14 +665,14 @@ class GuardedHttp(HttpToolsProtocol):
         phrase = {400: "Bad Request", 431: "Request Header Fields Too Large", 503: "Service Unavailable"}[status]
         head = (f"HTTP/1.1 {status} {phrase}\r\ncontent-type: application/json\r\n"
                 f"content-length: {len(body)}\r\nconnection: close\r\n"
-                + ("retry-after: 5\r\n" if status == 503 else "") + "\r\n").encode()
+                + ("retry-after: 5\r\n" if status == 503 else "")).encode()
+        head += b"".join(name + b": " + value + b"\r\n" for name, value in SECURITY_HEADERS) + b"\r\n"
         if not self.transport.is_closing():
             self.transport.write(head + body)
             self.transport.close()  # a reader that does not take even this: dropped at its deadline
 
 
-def guarded_protocol(settings: Settings, guard: ConnectionGuard | None = None,
-                     failures: TokenFailures | None = None) -> type[GuardedHttp]:
+def guarded_protocol(settings: Settings, guard: ConnectionGuard | None = None) -> type[GuardedHttp]:
     """A :class:`GuardedHttp` subclass with the rules of ``settings`` and its own guard.
 
     Parameters
@@ -676,9 +683,6 @@ def guarded_protocol(settings: Settings, guard: ConnectionGuard | None = None,
     guard : ConnectionGuard or None, optional
         The guard to use; default None: ``ConnectionGuard.from_settings(settings)`` (one per
         server).
-    failures : TokenFailures or None, optional
-        The access gate's count of wrong tokens per address (``app.state.token_failures``);
-        default None: none (tokens are compared whatever an address sent before).
 
     Returns
     -------
@@ -697,7 +701,6 @@ def guarded_protocol(settings: Settings, guard: ConnectionGuard | None = None,
         "send_min_rate": float(settings.send_min_rate),
         "send_buffer_bytes": settings.send_buffer_bytes,
         "token_value": staticmethod(token_value) if token_value is not None else None,
-        "failures": failures,
         "refusals": RefusalLog(log),
     })
 
@@ -725,9 +728,8 @@ def server_config(app: Any, settings: Settings) -> Any:
     """
     import uvicorn
 
-    failures = getattr(getattr(app, "state", None), "token_failures", None)  # the access gate's (create_app)
     config = uvicorn.Config(app, host=settings.host, port=settings.port, log_level=settings.log_level.lower(),
-                            access_log=False, lifespan="on", http=guarded_protocol(settings, failures=failures),
+                            access_log=False, lifespan="on", http=guarded_protocol(settings),
                             ws="none",  # no WebSocket routes: an upgrade would leave the guard's count behind
                             timeout_keep_alive=max(1, int(round(settings.keep_alive_s))),
                             timeout_graceful_shutdown=max(1, int(round(settings.shutdown_grace_s))))

@@ -137,8 +137,10 @@ class HealthLane:
         ``document(context)``: an awaitable of the ``Health`` model, given the app's ``Context``.
     failures : TokenFailures or None, optional
         The access gate's count of wrong tokens per address
-        (:class:`fpscan.service.api.access.TokenFailures`; an address that must wait is refused
-        here too); default None: a count of its own.
+        (:class:`fpscan.service.api.access.TokenFailures`): a wrong token from an address that
+        must wait is a refusal here too, passed on to the gate, which holds it until the wait is
+        over and answers 429; the right token is answered here at once, from every address;
+        default None: a count of its own.
 
     Attributes
     ----------

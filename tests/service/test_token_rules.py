@@ -1,17 +1,21 @@
 """What a browser and a stranger get from a real ``fpscan serve`` on 127.0.0.1: the headers a
-browser obeys on every answer (no framing by another site, scripts from the server only), an API
-reference page that fetches nothing from elsewhere, wrong tokens throttled per client address,
-weak tokens refused at start, and a token made and printed when none is given.
+browser obeys on every answer (no framing by another site, scripts from the server only), refusals
+at the connection included, an API reference page that fetches nothing from elsewhere, wrong tokens
+throttled per client address on every connection (one on probation beyond the address's connection
+budget included), weak tokens refused at start, and a token made and printed when none is given.
 
-Oracles: the raw HTTP answers (status, headers, bodies) of real servers, from two loopback
-addresses (127.0.0.1 and 127.0.0.2: two clients of different addresses); the server's exit
+Oracles: the raw HTTP answers (status, headers, bodies) of real servers, from several loopback
+addresses (127.0.0.1 to 127.0.0.4: clients of different addresses), timed by the client's monotonic
+clock against the ``Retry-After`` the server gave (the wait a wrong token owes); the server's exit
 status and its one line of stderr; the HTML of the reference pages parsed with the standard
 library's ``html.parser``. The pages in a real browser: tests/web/test_web_policy.py.
 """
 from __future__ import annotations
 
+import contextlib
 import re
 import secrets
+import socket
 import subprocess
 import time
 from html.parser import HTMLParser
@@ -236,3 +240,86 @@ def test_no_token_is_an_explicit_choice_on_loopback_only(tmp_path):
     assert p.returncode == 2 and "no_token" in p.stderr, p.stderr
     p = _serve(tmp_path, "--no-token", "--host", "0.0.0.0")
     assert p.returncode == 2 and "beyond loopback" in p.stderr, p.stderr
+
+
+def _ask(port: int, source: str, token: str | None, path: str = "/api/jobs") -> tuple[int, dict, bytes, float]:
+    """One request on a new connection from the loopback address ``source`` (a raw socket:
+    the server's own answer, refusals at the connection included); its status, headers (lower-case
+    names), body and the client's monotonic time once the answer was read to its close."""
+    auth = f"Authorization: Bearer {token}\r\n" if token is not None else ""
+    with socket.create_connection(("127.0.0.1", port), timeout=HANG_S, source_address=(source, 0)) as s:
+        s.sendall(f"GET {path} HTTP/1.1\r\nHost: 127.0.0.1\r\n{auth}Connection: close\r\n\r\n".encode())
+        chunks = []
+        while chunk := s.recv(65536):
+            chunks.append(chunk)
+        answered = time.monotonic()
+    head, _, body = b"".join(chunks).partition(b"\r\n\r\n")
+    lines = head.decode("latin-1").split("\r\n")
+    headers = {k.strip().lower(): v.strip() for k, _, v in (line.partition(":") for line in lines[1:])}
+    return int(lines[0].split()[1]), headers, body, answered
+
+
+@contextlib.contextmanager
+def _holding_a_stranger_slot(port: int, source: str):
+    """A connection of ``source`` that sends half a request head and holds it (a stranger's)."""
+    with socket.create_connection(("127.0.0.1", port), timeout=HANG_S, source_address=(source, 0)) as s:
+        s.sendall(b"GET /api/jobs HTTP/1.1\r\nHost: 127.0.0.1\r\n")
+        yield s
+
+
+def _assert_browser_headers(headers: dict, what: object) -> None:
+    assert headers.get("x-frame-options") == "DENY", (what, headers)
+    assert "frame-ancestors 'none'" in headers.get("content-security-policy", ""), (what, headers)
+    assert headers.get("x-content-type-options") == "nosniff", (what, headers)
+
+
+def test_a_refusal_at_the_connection_carries_the_browser_headers(server):
+    """A head over ``max_head_bytes`` is refused by the connection layer (431, before the app):
+    that answer too forbids framing and foreign scripts."""
+    port = int(server.url.rsplit(":", 1)[1])
+    status, headers, body, _ = _ask(port, "127.0.0.1", "x" * 20000)
+    assert status == 431, (status, body)
+    _assert_browser_headers(headers, status)
+
+
+@pytest.mark.waits
+def test_a_wrong_token_on_probation_waits_like_any_other(tmp_path):
+    """An address whose one stranger's connection is held (``connections_per_address`` 1) gets
+    its next connections on probation. There a wrong token from a waiting address is answered
+    429, held until the wait owed (the previous answer's ``Retry-After``) is over, as on any
+    connection; never a quick 503 beside a 200 for the right token, which would tell a guesser
+    right from wrong at once. The right token on probation is answered 200; a wrong token of an
+    address that does not wait is refused (401), never served."""
+    srv = start_service(tmp_path / "data", token=TOKEN, web=False, timeout=HANG_S,
+                        env={"FPSCAN_WARM_UP": "false", "FPSCAN_CONNECTIONS_PER_ADDRESS": "1",
+                             "FPSCAN_HEADER_TIMEOUT_S": "120"})
+    port, source, wrong = srv.port, "127.0.0.3", secrets.token_urlsafe(32)
+    try:
+        for i in range(FREE_FAILURES + 1):  # the last one starts the address's first wait
+            status, _, body, _ = _ask(port, source, wrong)
+            assert status == 401, (i, status, body)
+        with _holding_a_stranger_slot(port, source):
+            status, headers, body, _ = _ask(port, source, None)  # the next connection is on probation
+            assert status == 503 and b"without the token" in body, (status, body)
+            _assert_browser_headers(headers, status)
+            # wrong tokens on probation: 429 once the wait is over (401 if it was over before one
+            # came: a loaded machine), each answer no sooner than the wait the previous one owed
+            owed: tuple[float, int] | None = None  # (client time the previous was sent, its Retry-After)
+            for _ in range(6):
+                sent = time.monotonic()
+                status, headers, body, answered = _ask(port, source, wrong)
+                assert status in (401, 429), (status, body)
+                if owed is not None:
+                    assert answered - owed[0] >= owed[1] - 0.01, (answered - owed[0], owed[1])
+                if status == 429:
+                    if owed is not None:
+                        break
+                    owed = sent, int(headers["retry-after"])
+            assert status == 429 and owed is not None, (status, body)
+            status, _, body, _ = _ask(port, source, TOKEN)
+            assert status == 200, (status, body)
+        with _holding_a_stranger_slot(port, "127.0.0.4"):
+            status, _, body, _ = _ask(port, "127.0.0.4", wrong, path="/api/auth")
+            assert status == 401 and b"invalid bearer token" in body, (status, body)
+    finally:
+        srv.stop()
